@@ -1,0 +1,79 @@
+"""One error family for the whole tool.
+
+Every error a user can cause by what they pass in (a bad option, a broken log, a log without a relay
+test) derives from :class:`MrftError`. The CLI turns these into a one-line message and the exit code
+carried by the class, so scripts can tell the failure kinds apart:
+
+====  ==========================  ==========================================================
+code  class                       meaning
+====  ==========================  ==========================================================
+2     InputError                  an option or argument is out of range or malformed
+3     LogReadError                the log cannot be read (format, truncation, missing topic)
+4     SegmentationError           no usable MRFT limit cycle in the log
+5     IdentificationError         the measured figures admit no model (or no unique one)
+6     InsufficientDataError       some tests found, but not enough to identify everything
+7     DiagnoseError               the diagnosis could not be carried out
+====  ==========================  ==========================================================
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "MrftError",
+    "InputError",
+    "LogReadError",
+    "SegmentationError",
+    "IdentificationError",
+    "InsufficientDataError",
+    "DiagnoseError",
+]
+
+
+class MrftError(Exception):
+    """Base class of every error mrft-ident reports to the user."""
+
+    exit_code: int = 1
+
+
+class InputError(MrftError, ValueError):
+    """An argument is malformed or out of its valid range (e.g. beta outside (-1, 1))."""
+
+    exit_code = 2
+
+
+class LogReadError(MrftError):
+    """A flight log cannot be read: unknown format, corrupt or truncated file, missing topic/field."""
+
+    exit_code = 3
+
+
+class SegmentationError(MrftError):
+    """No usable MRFT limit cycle was found in the recording."""
+
+    exit_code = 4
+
+
+class IdentificationError(MrftError, ValueError):
+    """The measured limit cycles admit no model in the manifold range, or the problem is ill-posed."""
+
+    exit_code = 5
+
+
+class InsufficientDataError(MrftError):
+    """Tests were found but they do not determine all parameters (e.g. a single beta).
+
+    ``partial`` carries whatever can honestly be said (a JSON-serialisable dict), for example tau
+    over an assumed Td range.
+    """
+
+    exit_code = 6
+
+    def __init__(self, message: str, partial: dict | None = None) -> None:
+        super().__init__(message)
+        self.partial = partial or {}
+
+
+class DiagnoseError(MrftError):
+    """The model-mismatch diagnosis could not be carried out."""
+
+    exit_code = 7

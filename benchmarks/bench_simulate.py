@@ -1,0 +1,101 @@
+#!/usr/bin/env python
+"""Simulator speed: a 60 s and a 10-minute flight, each effect, against a naive baseline.
+
+    python benchmarks/bench_simulate.py
+
+Baseline (measured in the same run): the obvious implementation of the same closed loop, a
+fixed-step Euler integration at T/20 with the delay rounded to that step, in plain Python. Prints
+CPU times (process time, best of 3 where marked) and the ratio; figures are recorded in
+docs/benchmarks/simulate.md.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from mrftcli.model import LoopModel
+from mrftcli.simulate import Effects, FlightSpec, TestSpec, simulate_flight
+
+MODEL = LoopModel(0.0422, 2.669, 0.0464, 19.62)
+
+
+def flight_60s() -> FlightSpec:
+    tests = (TestSpec(-0.4, 0.06, 24.0), TestSpec(-0.7, 0.18, 20.0))
+    return FlightSpec(MODEL, tests, noise_std=0.0002, hover_s=5.0, hold_s=3.0, seed=1)
+
+
+def flight_10min() -> FlightSpec:
+    tests = tuple(TestSpec(b, 0.06 if b == -0.4 else 0.18, 55.0) for b in (-0.4, -0.7) * 5)
+    return FlightSpec(MODEL, tests, noise_std=0.0002, hover_s=5.0, hold_s=4.5, seed=1)
+
+
+def naive(spec: FlightSpec) -> np.ndarray:
+    """Same loop (checks rule, no hold PID details beyond P-D), Euler at T/20, delay rounded."""
+    m = spec.model
+    T = 1.0 / spec.rate_hz
+    sub = 20
+    dt = T / sub
+    lag = int(round(m.tau / dt))
+    n = int(round((spec.hover_s + sum(t.duration + spec.hold_s for t in spec.tests)) * spec.rate_hz))
+    rng = np.random.default_rng(0)
+    noise = rng.normal(0, spec.noise_std, n)
+    y, v, p = 1.0, 0.0, 0.0
+    buf = [0.0] * (lag + 1)
+    out = np.empty(n)
+    relay, ext = 1.0, 0.0
+    for k in range(n):
+        e = 1.0 - (y + noise[k])
+        beta = -0.5
+        if relay > 0:
+            ext = max(ext, e)
+            if ext > 0 and e <= -beta * ext:
+                relay, ext = -1.0, e
+        else:
+            ext = min(ext, e)
+            if ext < 0 and e >= -beta * ext:
+                relay, ext = 1.0, e
+        u = 0.05 * relay
+        for _ in range(sub):
+            buf.append(u)
+            w = buf.pop(0)
+            y, v, p = y + dt * v, v + dt * (-v / m.Td + m.K * p), p + dt * (w - p) / m.Tp
+        out[k] = y
+    return out
+
+
+def timed(fn, *args, repeat: int = 3) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.process_time()  # CPU time: less sensitive than wall time to a shared machine
+        fn(*args)
+        best = min(best, time.process_time() - t0)
+    return best
+
+
+def main() -> None:
+    spec = flight_60s()
+    duration = spec.hover_s + sum(t.duration + spec.hold_s for t in spec.tests)
+    t_fast = timed(simulate_flight, spec)
+    t_naive = timed(naive, spec, repeat=1)
+    print(f"{duration:.0f} s flight at 200 Hz, linear, exact:   {t_fast:7.3f} s")
+    print(f"same loop, naive Euler at T/20 (baseline):      {t_naive:7.3f} s  -> ratio {t_naive / t_fast:.1f}x")
+    long = flight_10min()
+    long_s = long.hover_s + sum(t.duration + long.hold_s for t in long.tests)
+    print(f"{long_s / 60:.0f}-minute flight, linear:                  {timed(simulate_flight, long, repeat=1):7.3f} s")
+    for eff in (
+        Effects(input_bias=0.01),
+        Effects(gain_drift=-0.002),
+        Effects(sensor_lag=0.01),
+        Effects(actuator_rate_limit=1.0),
+        Effects(delay_jitter=0.003),
+        Effects(quadratic_drag=1.0),
+    ):
+        name = ",".join(eff.active())
+        print(f"{duration:.0f} s flight with {name:22s}          {timed(simulate_flight, replace(spec, effects=eff), repeat=2):7.3f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,234 @@
+"""Identification of Td, tau and K from MRFT tests via the UFM/UGM."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from mrftcli.errors import IdentificationError, InputError
+from mrftcli.identify import IdentificationResult, TestMeasurement, identify, ufm_slice
+from mrftcli.lprs import mrft_limit_cycle
+from mrftcli.model import LoopModel
+
+PAPER = LoopModel(Tp=0.1, Td=1 / 1.42, tau=0.06, K=1.42)
+
+
+def _tests(model, betas, h=1.0, amplitude=True):
+    out = []
+    for b in betas:
+        lc = mrft_limit_cycle(model, b, h=h)
+        out.append(TestMeasurement(b, lc.frequency_hz, lc.amplitude if amplitude else None, h if amplitude else None))
+    return out
+
+
+def test_paper_example_round_trip_with_gain():
+    res = identify(_tests(PAPER, (-0.4, -0.7)), PAPER.Tp)
+    assert isinstance(res, IdentificationResult)
+    assert res.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
+    assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
+    assert res.K.mean == pytest.approx(PAPER.K, rel=1e-6)
+    assert res.method == "intersection"
+    assert res.model.Td == pytest.approx(PAPER.Td, rel=1e-6)
+
+
+def test_paper_figures_from_checks_md():
+    # the rounded exact figures of checks.md section 1 identify the plant to the rounding's accuracy
+    res = identify([TestMeasurement(-0.4, 0.70564), TestMeasurement(-0.7, 1.01884)], 0.1)
+    assert res.Td.mean == pytest.approx(1 / 1.42, rel=2e-3)
+    assert res.tau.mean == pytest.approx(0.06, rel=2e-3)
+    assert res.K is None
+
+
+@pytest.mark.slow
+def test_round_trip_random_plants_dnn_mrft_range():
+    rng = np.random.default_rng(11)
+    worst = 0.0
+    for _ in range(50):
+        m = LoopModel(rng.uniform(0.015, 0.3), rng.uniform(0.2, 2.0), rng.uniform(0.0005, 0.1), rng.uniform(0.2, 5))
+        b1 = rng.uniform(-0.9, -0.5)
+        b2 = rng.uniform(-0.4, -0.1)
+        res = identify(_tests(m, (b1, b2), h=rng.uniform(0.1, 2)), m.Tp)
+        for est, true in ((res.Td.mean, m.Td), (res.tau.mean, m.tau), (res.K.mean, m.K)):
+            worst = max(worst, abs(est / true - 1))
+    assert worst < 5e-3
+    assert worst < 1e-6  # in fact limited only by the root finder
+
+
+def test_flight_like_large_td_over_tau():
+    # Design II altitude + 20 ms of Table III scaled: Td/tau near 100
+    m = LoopModel(0.0499, 4.1755, 0.042, 1.0)
+    res = identify(_tests(m, (-0.4, -0.7)), m.Tp)
+    assert res.Td.mean == pytest.approx(m.Td, rel=1e-5)
+    assert res.tau.mean == pytest.approx(m.tau, rel=1e-5)
+
+
+def test_effective_beta_between_shipped_slices_and_beyond():
+    m = LoopModel(0.05, 1.3, 0.03)
+    for betas in ((-0.63, -0.27), (-0.95, -0.05)):
+        res = identify(_tests(m, betas), m.Tp)
+        assert res.Td.mean == pytest.approx(m.Td, rel=1e-6)
+        assert res.tau.mean == pytest.approx(m.tau, rel=1e-6)
+
+
+def test_three_tests_least_squares_consistent_data_has_zero_residual():
+    m = LoopModel(0.04, 0.9, 0.025)
+    res = identify(_tests(m, (-0.8, -0.5, -0.2), amplitude=False), m.Tp)
+    assert res.method == "least-squares"
+    assert res.Td.mean == pytest.approx(m.Td, rel=1e-5)
+    assert res.tau.mean == pytest.approx(m.tau, rel=1e-5)
+    assert res.residual < 1e-7
+
+
+def test_three_tests_residual_measures_inconsistency():
+    m = LoopModel(0.04, 0.9, 0.025)
+    tests = _tests(m, (-0.8, -0.5, -0.2), amplitude=False)
+    tests[1] = TestMeasurement(-0.5, tests[1].frequency_mean * 1.01)
+    res = identify(tests, m.Tp)
+    assert 1e-3 < res.residual < 1e-2
+
+
+def test_rate_correction_removes_half_sample_lag():
+    # frequencies of the sampled relay's band centre: the plant with tau + Ts/2, continuous
+    rate = 200.0
+    lagged = LoopModel(PAPER.Tp, PAPER.Td, PAPER.tau + 0.5 / rate)
+    tests = _tests(lagged, (-0.4, -0.7), amplitude=False)
+    naive = identify(tests, PAPER.Tp)
+    corrected = identify(tests, PAPER.Tp, rate_hz=rate)
+    assert naive.tau.mean == pytest.approx(PAPER.tau + 0.0025, rel=1e-6)
+    assert corrected.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
+    assert corrected.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
+
+
+def test_uncertainty_from_per_cycle_scatter():
+    rng = np.random.default_rng(5)
+    base = _tests(PAPER, (-0.4, -0.7))
+    tests = [
+        TestMeasurement(t.beta, t.frequency_mean * (1 + 0.01 * rng.standard_normal(30)),
+                        t.amplitude_mean * (1 + 0.01 * rng.standard_normal(30)), 1.0)
+        for t in base
+    ]
+    res = identify(tests, PAPER.Tp, n_draws=1500, seed=1)
+    assert res.uncertainty == "monte-carlo"
+    for est, true in ((res.Td, PAPER.Td), (res.tau, PAPER.tau), (res.K, PAPER.K)):
+        assert est.std > 0
+        assert est.ci95_low < est.mean < est.ci95_high
+        # the truth lies within 4 standard deviations of the estimate
+        assert abs(est.mean - true) < 4 * est.std
+    # delta-method cross-check of the Monte Carlo spread of Td: finite differences of the solver
+    f = np.array([t.frequency_mean for t in tests])
+    se = np.array([t.frequency_sem for t in tests])
+    J = []
+    for i in range(2):
+        fp = f.copy()
+        fp[i] *= 1 + 1e-6
+        r = identify([TestMeasurement(-0.4, fp[0]), TestMeasurement(-0.7, fp[1])], PAPER.Tp)
+        J.append((r.Td.mean - res.Td.mean) / (fp[i] - f[i]))
+    std_delta = math.sqrt(sum((j * s) ** 2 for j, s in zip(J, se)))
+    assert res.Td.std == pytest.approx(std_delta, rel=0.15)
+    # "cycle" spread is larger than the standard error by about sqrt(n)
+    res_c = identify(tests, PAPER.Tp, n_draws=1500, seed=1, spread="cycle")
+    assert res_c.Td.std > 3 * res.Td.std
+
+
+def test_to_dict_is_json_ready():
+    rng = np.random.default_rng(2)
+    tests = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.002 * rng.standard_normal(10)), t.amplitude_mean, 1.0)
+             for t in _tests(PAPER, (-0.4, -0.7))]
+    d = identify(tests, PAPER.Tp, n_draws=300).to_dict()
+    text = json.dumps(__import__("mrftcli.commands._common", fromlist=["to_jsonable"]).to_jsonable(d))
+    back = json.loads(text)
+    for name in ("Td", "tau", "K"):
+        assert {"mean", "std", "ci95_low", "ci95_high", "unit"} <= set(back["parameters"][name])
+    assert back["parameters"]["tau"]["unit"] == "s"
+    assert len(back["tests"]) == 2
+
+
+def test_td_poorly_identifiable_warning():
+    # a very slow drag pole (Td * Omega in the hundreds): the frequencies barely depend on Td
+    m = LoopModel(0.03, 60.0, 0.02)
+    res = identify(_tests(m, (-0.4, -0.7), amplitude=False), m.Tp)
+    assert any("poorly identifiable" in w for w in res.warnings)
+    ok = identify(_tests(PAPER, (-0.4, -0.7), amplitude=False), PAPER.Tp)
+    assert not any("poorly identifiable" in w for w in ok.warnings)
+
+
+def test_amplitude_route_single_test():
+    lc = mrft_limit_cycle(PAPER, -0.7)
+    res = identify([TestMeasurement(-0.7, lc.frequency_hz, lc.amplitude, 1.0)], PAPER.Tp, K=PAPER.K)
+    assert res.method == "amplitude"
+    assert res.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
+    assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
+
+
+def test_ufm_slice_passes_through_the_plant_and_masks_negative_delays():
+    lc = mrft_limit_cycle(PAPER, -0.4)
+    Td = np.array([0.2, PAPER.Td, 3.0, 1e3])
+    tau = ufm_slice(PAPER.Tp, -0.4, lc.frequency_hz, Td)
+    assert tau[1] == pytest.approx(PAPER.tau, rel=1e-9)
+    assert tau[0] > tau[1] > tau[2]  # more drag lag leaves less room for delay
+    assert np.isnan(tau[3]) or tau[3] >= 0
+    # interpolated manifolds agree with the exact slice to grid accuracy
+    approx = ufm_slice(PAPER.Tp, -0.4, lc.frequency_hz, Td[:3], exact=False)
+    np.testing.assert_allclose(approx, tau[:3], rtol=2e-3)
+
+
+@pytest.mark.parametrize(
+    "call, exc, match",
+    [
+        (lambda: identify([TestMeasurement(-0.4, 0.7)], 0.1), InputError, "two tests"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.4, 0.8)], 0.1), InputError, "same beta"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)], -0.1), InputError, "Tp"),
+        (lambda: TestMeasurement(-1.5, 0.7), InputError, "beta"),
+        (lambda: TestMeasurement(-0.4, -0.7), InputError, "frequency"),
+        (lambda: TestMeasurement(-0.4, 0.7, amplitude=0.1), InputError, "relay height"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 0.5)], 0.1), IdentificationError,
+         "do not intersect"),
+        # a frequency far too high for Tp = 0.3 s: no plant of eq. (2) can produce it
+        (lambda: identify([TestMeasurement(-0.4, 40.0), TestMeasurement(-0.7, 50.0)], 0.3), IdentificationError, "do not intersect|too fast"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)], 0.1, rate_hz=0), InputError, "rate"),
+    ],
+)
+def test_errors(call, exc, match):
+    with pytest.raises(exc, match=match):
+        call()
+
+
+def test_inputs_are_not_modified():
+    f = np.array([0.70, 0.71, 0.705])
+    before = f.copy()
+    identify([TestMeasurement(-0.4, f), TestMeasurement(-0.7, [1.01, 1.02, 1.03])], 0.1, n_draws=200)
+    np.testing.assert_array_equal(f, before)
+
+
+def test_three_tests_delta_method_uncertainty():
+    m = LoopModel(0.04, 0.9, 0.025)
+    rng = np.random.default_rng(8)
+    tests = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.01 * rng.standard_normal(25)))
+             for t in _tests(m, (-0.8, -0.5, -0.2), amplitude=False)]
+    res = identify(tests, m.Tp)
+    assert res.uncertainty == "delta"
+    for est, true in ((res.Td, m.Td), (res.tau, m.tau)):
+        assert est.std > 0
+        assert est.ci95_low < est.mean < est.ci95_high
+        assert abs(est.mean - true) < 4 * est.std
+
+
+def test_rate_quantisation_uncertainty_reported():
+    # nominal betas at 200 Hz: which sampled orbit each test ran on is unknown -> tau has a spread
+    tests = [TestMeasurement(b, mrft_limit_cycle(PAPER, b, rate_hz=200.0).frequency_hz) for b in (-0.4, -0.7)]
+    res = identify(tests, PAPER.Tp, rate_hz=200.0, n_draws=500)
+    assert res.uncertainty == "monte-carlo"
+    assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
+    assert 0.5e-3 < res.tau.std < 0.01
+    assert res.tau.ci95_low < PAPER.tau < res.tau.ci95_high
+
+
+def test_bad_spread_and_test_objects():
+    t = [TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)]
+    with pytest.raises(InputError, match="spread"):
+        identify(t, 0.1, spread="bogus")
+    with pytest.raises(InputError, match="TestMeasurement"):
+        identify([(-0.4, 0.7), (-0.7, 1.0)], 0.1)

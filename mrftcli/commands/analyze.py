@@ -1,0 +1,152 @@
+"""``mrft-ident analyze``: segment the MRFT tests of one log, identify Td, tau and K, report."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from ..errors import InputError, InsufficientDataError
+from ._common import dump_json
+
+
+def _check_tp(ctx, param, value):
+    if value is None or not math.isfinite(value) or value <= 0:
+        raise click.BadParameter(f"Tp must be a positive time in seconds, got {value}")
+    return value
+
+
+def _fmt_est(est, scale: float, digits: int = 4) -> str:
+    if est is None or not math.isfinite(est.mean):
+        return "-"
+    s = f"{est.mean * scale:.{digits}g}"
+    if math.isfinite(est.std):
+        s += f"  ± {est.std * scale:.2g}  [{est.ci95_low * scale:.{digits}g}, {est.ci95_high * scale:.{digits}g}]"
+    return s
+
+
+def format_table(result) -> str:
+    """The compact terminal summary of an :class:`~mrftcli.analyze.AnalysisResult`."""
+    lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s (known)"]
+    lines.append(f"{'test':>4} {'t [s]':>13} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'f [Hz]':>8} "
+                 f"{'amplitude':>10} {'cycles':>7}")
+    for t in result.tests:
+        nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
+        lines.append(
+            f"{t.index + 1:>4} {t.t_start:>6.1f}-{t.t_end:<6.1f} {nom:>8} {t.beta_effective:>+8.3f} {t.h:>8.4g} "
+            f"{t.frequency_hz_mean:>8.4f} {t.amplitude_mean:>10.4g} {t.n_stable:>3d}/{len(t.cycles):<3d}"
+        )
+    for t in result.rejected:
+        nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
+        lines.append(f"{t.index + 1:>4} {t.t_start:>6.1f}-{t.t_end:<6.1f} {nom:>8}  (left out: {t.n_stable} stable cycles)")
+    lines.append("parameters   estimate  ± std  [95 % interval]")
+    lines.append(f"  Td   [s]   {_fmt_est(result.Td, 1.0)}")
+    lines.append(f"  tau  [ms]  {_fmt_est(result.tau, 1e3)}")
+    lines.append(f"  K          {_fmt_est(result.K, 1.0)}")
+    c = result.combination_stats()
+    if c["n"] and c["Td"]["mean"] is not None:
+        lines.append(
+            f"per combination of cycles ({c['n']}, paper Table III): Td {c['Td']['mean']:.4g} ± {c['Td']['std'] or 0:.2g} s, "
+            f"tau {c['tau']['mean'] * 1e3:.4g} ± {(c['tau']['std'] or 0) * 1e3:.2g} ms"
+        )
+    return "\n".join(lines)
+
+
+def _run_diagnose(result, Tp):
+    try:
+        from .. import diagnose as diag_mod
+    except ImportError:
+        diag_mod = None
+    fn = getattr(diag_mod, "diagnose", None) if diag_mod is not None else None
+    if fn is None:
+        raise InputError("--diagnose is not available in this installation (mrftcli.diagnose.diagnose is missing)")
+    import inspect
+
+    from tqdm import tqdm
+
+    kwargs = {}
+    # a live status line on a terminal (the diagnosis re-simulates and takes tens of seconds);
+    # tqdm disables itself when stderr is not a terminal
+    bar = tqdm(total=None, desc="diagnose", bar_format="{desc}: {postfix} [{elapsed}]", disable=None, leave=False)
+    if "progress" in inspect.signature(fn).parameters:
+        kwargs["progress"] = lambda text: bar.set_postfix_str(str(text))
+    try:
+        return fn(result.flight, Tp, analysis=result, **kwargs)
+    finally:
+        bar.close()
+
+
+@click.command("analyze")
+@click.argument("log", type=click.Path(dir_okay=False))
+@click.option("--tp", "Tp", type=float, required=True, callback=_check_tp,
+              help="Known propulsion time constant Tp [s] (bench test).")
+@click.option("--loop", type=click.Choice(["altitude", "roll", "pitch"]), default="altitude", show_default=True,
+              help="Which loop the log's MRFT tests excite.")
+@click.option("--command-topic", metavar="TOPIC[:FIELD]", help="Command the MRFT block sent (default /mrft/command).")
+@click.option("--output-topic", metavar="TOPIC[:FIELD]", help="Loop output (default by loop: /mocap/pose or /imu/data).")
+@click.option("--beta-topic", metavar="TOPIC[:FIELD]", help="Beta published at each test start (default /mrft/beta).")
+@click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", help="Loop setpoint (default /mrft/setpoint).")
+@click.option("--output-scale", type=float, default=1.0, show_default=True,
+              help="Factor applied to output and setpoint (e.g. -1 for NED z, 0.0174533 for degrees).")
+@click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
+              help="Fewest stable cycles for a test to be used.")
+@click.option("--json", "json_target", metavar="FILE|-", help="Write the result as JSON to FILE, or '-' for stdout.")
+@click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
+              help="Write an HTML report with plots to DIR.")
+@click.option("--diagnose", "run_diagnose", is_flag=True,
+              help="Also locate model mismatch and name the missing physics (mrftcli.diagnose).")
+def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
+            json_target, report_dir, run_diagnose):
+    """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
+
+    Each test's stable limit cycles are measured (frequency, amplitude, and the beta the relay
+    actually achieved); two or more betas give Td and tau from the intersection of the unit frequency
+    manifolds at the known Tp (paper Fig. 5), K from the amplitudes.
+
+    Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4 no usable relay test, 5 no plant fits,
+    6 a single beta or not enough data (a partial result is given).
+
+    Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
+    """
+    from ..analyze import analyze_path
+
+    to_stdout = json_target == "-"
+    try:
+        result = analyze_path(log, Tp, loop, command_topic=command_topic, output_topic=output_topic,
+                              beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
+                              min_stable_cycles=min_cycles)
+    except InsufficientDataError as err:
+        if json_target:
+            dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
+        raise
+    diagnosis = None
+    if run_diagnose:
+        diagnosis = _run_diagnose(result, Tp)
+    if json_target:
+        data = result.to_dict()
+        if diagnosis is not None:
+            data["diagnosis"] = diagnosis.to_dict()
+        dump_json(data, json_target)
+    if not to_stdout:
+        click.echo(format_table(result))
+        if diagnosis is not None:
+            click.echo(f"diagnosis: {getattr(diagnosis, 'summary', '')}")
+    for w in result.warnings:
+        click.echo(f"warning: {w}", err=True)
+    if report_dir:
+        from ..report.analysis import write_analysis_report
+
+        index = write_analysis_report(result, report_dir)
+        if diagnosis is not None:
+            try:
+                from ..report import diagnosis as rep_diag
+            except ImportError:
+                rep_diag = None
+            writer = None
+            for name in ("write_diagnosis_report", "write_report"):
+                writer = getattr(rep_diag, name, None) if rep_diag is not None else None
+                if writer is not None:
+                    break
+            if writer is not None:
+                writer(diagnosis, report_dir)
+        click.echo(f"report: {index}", err=to_stdout)

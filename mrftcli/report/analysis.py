@@ -1,0 +1,351 @@
+"""The ``analyze --report DIR`` page: index.html and PNG figures of an AnalysisResult.
+
+Figures (each function takes a finished :class:`~mrftcli.analyze.AnalysisResult` and returns a
+matplotlib Figure; :func:`write_analysis_report` saves them):
+
+1. :func:`plot_timeseries` - command and output over the log, tests shaded, stable cycles marked,
+   plus a zoom on a few stable cycles of each test (switch instants, fitted extrema, the switching
+   levels actually achieved).
+2. :func:`plot_manifolds` - the paper's Fig. 5: for each test the UFM slice at the known Tp scaled to
+   real units (tau against Td), their intersection with its 95 % interval, and the per-combination
+   estimates.
+3. :func:`plot_spread` - Td, tau and K: the spread over cycle combinations (paper Table III) and
+   the bootstrap distribution of the estimate, with the point estimate and 95 % interval.
+4. :func:`plot_cycles` - per test, each cycle's period and amplitude against the stable-cycle
+   tolerances (why a cycle was kept or left out).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
+
+__all__ = ["plot_timeseries", "plot_manifolds", "plot_spread", "plot_cycles", "write_analysis_report"]
+
+_UNITS = {"altitude": ("m", 1.0, "altitude"), "roll": ("deg", 180.0 / math.pi, "roll"),
+          "pitch": ("deg", 180.0 / math.pi, "pitch")}
+
+
+def _units(result):
+    return _UNITS.get(result.loop, ("output units", 1.0, "output"))
+
+
+def _colour(i: int) -> str:
+    return TEST_COLOURS[i % len(TEST_COLOURS)]
+
+
+def _group_colours(result) -> dict:
+    """test index -> colour: one colour per beta (tests repeated at the same beta share it)."""
+    keys: list[float] = []
+    out = {}
+    for t in list(result.tests) + list(result.rejected):
+        key = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
+        if not np.isfinite(key):
+            out[t.index] = "0.6"
+            continue
+        for g, k in enumerate(keys):
+            if abs(k - key) < 0.05:
+                out[t.index] = _colour(g)
+                break
+        else:
+            keys.append(key)
+            out[t.index] = _colour(len(keys) - 1)
+    return out
+
+
+def _label(t) -> str:
+    nom = f"beta {t.beta_nominal:+.2f}, " if t.beta_nominal is not None else ""
+    return f"test {t.index + 1}: {nom}eff {t.beta_effective:+.3f}"
+
+
+def _output_relative(result):
+    """Output relative to the setpoint when logged (else raw) as arrays (t, y), display units."""
+    unit, scale, _ = _units(result)
+    fl = result.flight
+    t = np.asarray(fl.output.index, float)
+    y = np.asarray(fl.output.to_numpy(), float)
+    rel = False
+    if fl.setpoint is not None and len(fl.setpoint):
+        sp_t = np.asarray(fl.setpoint.index, float)
+        y = y - np.interp(t, sp_t, np.asarray(fl.setpoint.to_numpy(), float))
+        rel = True
+    return t, y * scale, rel
+
+
+def plot_timeseries(result):
+    """Command and output over the whole log with the tests and their stable cycles marked."""
+    unit, scale, name = _units(result)
+    fl = result.flight
+    tests = list(result.tests) + list(result.rejected)
+    n_zoom = min(len(result.tests), 4)
+    fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)))
+    gs = fig.add_gridspec(3 if n_zoom else 2, max(n_zoom, 1), height_ratios=[1, 1.3, 1.2][: 3 if n_zoom else 2])
+    ax_c = fig.add_subplot(gs[0, :])
+    ax_y = fig.add_subplot(gs[1, :], sharex=ax_c)
+    tc = np.asarray(fl.command.index, float)
+    c = np.asarray(fl.command.to_numpy(), float)
+    ty, y, rel = _output_relative(result)
+    ax_c.plot(tc, c, lw=0.6, color="0.25")
+    ax_y.plot(ty, y, lw=0.6, color="0.25")
+    colours = _group_colours(result)
+    many = len(tests) > 4  # long labels would overlap: numbers on the plot, betas in a legend
+    seen: set = set()
+    for t in tests:
+        used = t in result.tests
+        col = colours[t.index] if used else "0.6"
+        for ax in (ax_c, ax_y):
+            ax.axvspan(t.t_start, t.t_end, color=col, alpha=0.10, lw=0)
+            for cyc in t.stable:
+                ax.axvspan(cyc.t_start, cyc.t_end, ymin=0.0, ymax=0.04, color=col, alpha=0.9, lw=0)
+        text = str(t.index + 1) if many else (_label(t) if used else f"test {t.index + 1}: left out")
+        ax_c.text(0.5 * (t.t_start + t.t_end), 1.0, text,
+                  transform=ax_c.get_xaxis_transform(), ha="center", va="bottom", fontsize=8, color=col)
+        if many and used and col not in seen:
+            seen.add(col)
+            nom = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
+            ax_y.plot([], [], lw=6, alpha=0.5, color=col, label=f"beta {nom:+.2f}")
+    if many:
+        ax_y.legend(loc="lower right", fontsize=8, ncol=len(seen) or 1, framealpha=0.9)
+    ax_c.set_ylabel("command [cmd units]")
+    ax_y.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
+    ax_y.set_xlabel("time [s]")
+    ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - MRFT tests (shaded) and stable cycles (bars)",
+                   pad=16)
+    # Output limits from the tests (take-off and landing would squash the oscillations otherwise).
+    if result.tests:
+        amp = max(t.amplitude_mean for t in result.tests) * scale
+        lo = min(np.min(y[(ty >= t.t_start) & (ty <= t.t_end)]) for t in result.tests if np.any((ty >= t.t_start) & (ty <= t.t_end)))
+        hi = max(np.max(y[(ty >= t.t_start) & (ty <= t.t_end)]) for t in result.tests if np.any((ty >= t.t_start) & (ty <= t.t_end)))
+        pad = 0.6 * amp
+        ax_y.set_ylim(lo - pad, hi + pad)
+    plt.setp(ax_c.get_xticklabels(), visible=False)
+    for k, t in enumerate(result.tests[:n_zoom]):
+        ax = fig.add_subplot(gs[2, k])
+        st = t.stable
+        mid = len(st) // 2
+        sel = st[max(mid - 1, 0): mid + 1]
+        t0, t1 = sel[0].t_start - 0.1 * sel[0].period, sel[-1].t_end + 0.1 * sel[-1].period
+        m = (ty >= t0) & (ty <= t1)
+        ax.plot(ty[m] - t0, y[m], ".", ms=2, color="0.45", label="measured")
+        for cyc in sel:
+            centre = cyc.centre * t.loop_sign * scale
+            ax.plot(cyc.t_max - t0, cyc.y_max * t.loop_sign * scale, "v", color=colours[t.index], ms=6)
+            ax.plot(cyc.t_min - t0, cyc.y_min * t.loop_sign * scale, "^", color=colours[t.index], ms=6)
+            for ts, ys in ((cyc.t_switch, cyc.y_switch_down), (cyc.t_end, cyc.y_switch_up)):
+                ax.axvline(ts - t0, color=colours[t.index], lw=0.8, ls="--")
+                ax.plot(ts - t0, ys * t.loop_sign * scale, "o", color=colours[t.index], ms=5, mfc="white")
+            ax.axhline(centre, color="0.6", lw=0.6)
+        ax.set_title(f"test {t.index + 1}: {t.frequency_hz_mean:.3f} Hz, a = {t.amplitude_mean * scale:.3g} {unit}",
+                     fontsize=9)
+        ax.set_xlabel(f"time from {t0:.1f} s [s]")
+        if k == 0:
+            ax.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
+            ax.plot([], [], "v", color="0.3", label="fitted extrema")
+            ax.plot([], [], "o", color="0.3", mfc="white", label="output at switch")
+            ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
+    return fig
+
+
+def plot_manifolds(result):
+    """The paper's Fig. 5: UFM slices tau(Td) at the known Tp, their intersection and the spread."""
+    from ..identify import ufm_slice
+
+    fig, ax = new_figure(width=8.5, height=5.6)
+    Td_hat, tau_hat = result.model.Td, result.model.tau
+    cTd = np.asarray(result.combinations.get("Td", []), float)
+    ctau = np.asarray(result.combinations.get("tau", []), float)
+    ok = np.isfinite(cTd) & np.isfinite(ctau)
+    # x range: the estimate's interval and most of the combinations, at least a factor 3 each side
+    lo_x = Td_hat / 3.0
+    hi_x = Td_hat * 3.0
+    if ok.sum() > 4:
+        p = np.percentile(cTd[ok], [5, 95])
+        lo_x, hi_x = min(lo_x, p[0] / 1.3), max(hi_x, p[1] * 1.3)
+    if math.isfinite(result.Td.ci95_low):
+        lo_x, hi_x = min(lo_x, result.Td.ci95_low / 1.3), max(hi_x, result.Td.ci95_high * 1.3)
+    Td = np.geomspace(lo_x, hi_x, 300)
+    colours = _group_colours(result)
+    many = len(result.tests) > 4
+    seen: set = set()
+    for t in result.tests:
+        try:
+            tau = ufm_slice(result.Tp, t.beta_effective, t.frequency_hz_mean, Td) * 1e3
+        except Exception:  # noqa: BLE001 - a curve that cannot be drawn is left out of the figure
+            continue
+        col = colours[t.index]
+        if many:
+            n_g = sum(colours[u.index] == col for u in result.tests)
+            nom = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
+            label = None if col in seen else f"beta {nom:+.2f}: {n_g} tests"
+            seen.add(col)
+            ax.plot(Td, tau, color=col, lw=1.0, alpha=0.7, label=label)
+        else:
+            ax.plot(Td, tau, color=col, lw=2,
+                    label=f"test {t.index + 1}: beta {t.beta_effective:+.3f}, {t.frequency_hz_mean:.4f} Hz")
+    if ok.any():
+        ax.plot(cTd[ok], ctau[ok] * 1e3, ".", color="0.35", ms=3, alpha=0.5,
+                label=f"per combination of cycles ({int(ok.sum())})")
+    xerr = None
+    yerr = None
+    if math.isfinite(result.Td.ci95_low):
+        xerr = [[Td_hat - result.Td.ci95_low], [result.Td.ci95_high - Td_hat]]
+        yerr = [[(tau_hat - result.tau.ci95_low) * 1e3], [(result.tau.ci95_high - tau_hat) * 1e3]]
+    ax.errorbar([Td_hat], [tau_hat * 1e3], xerr=xerr, yerr=yerr, fmt="*", color="k", ms=14, mfc="gold",
+                capsize=4, zorder=5, label=f"estimate: Td {Td_hat:.3g} s, tau {tau_hat * 1e3:.3g} ms (95 % interval)")
+    ax.set_xscale("log")
+    ax.set_xlim(lo_x, hi_x)
+    from matplotlib.ticker import LogLocator, ScalarFormatter
+
+    fmt = ScalarFormatter()
+    fmt.set_scientific(False)
+    ax.xaxis.set_major_formatter(fmt)
+    ax.xaxis.set_minor_locator(LogLocator(subs=(2, 3, 5)))
+    ax.xaxis.set_minor_formatter(fmt)
+    # y range: around the estimate, wide enough for the combinations and the curves' crossing
+    span = 4 * max((result.tau.ci95_high - result.tau.ci95_low) * 1e3 if math.isfinite(result.tau.ci95_low) else 0,
+                   0.15 * tau_hat * 1e3, 1.0)
+    if ok.sum() > 4:
+        p = np.percentile(ctau[ok] * 1e3, [2, 98])
+        ylo, yhi = min(tau_hat * 1e3 - span, p[0] - 0.2 * span), max(tau_hat * 1e3 + span, p[1] + 0.2 * span)
+    else:
+        ylo, yhi = tau_hat * 1e3 - span, tau_hat * 1e3 + span
+    ax.set_ylim(max(ylo, 0.0), yhi)
+    ax.set_xlabel("drag time constant Td [s] (log scale)")
+    ax.set_ylabel("delay tau [ms]")
+    ax.set_title(f"UFM slices at Tp = {result.Tp:g} s, scaled to each test's frequency (paper Fig. 5)")
+    ax.legend(loc="best", fontsize=8, framealpha=0.9)
+    return fig
+
+
+def plot_spread(result):
+    """Spread of Td, tau and K: per combination (Table III) and bootstrap of the estimate."""
+    fig, axes = new_figure(1, 3, width=11, height=3.6)
+    specs = (("Td", "Td [s]", 1.0, result.Td), ("tau", "tau [ms]", 1e3, result.tau), ("K", "K", 1.0, result.K))
+    for ax, (key, label, scale, est) in zip(axes, specs):
+        comb = np.asarray(result.combinations.get(key, []), float) * scale
+        boot = np.asarray(result.bootstrap.get(key, []), float) * scale
+        data, names = [], []
+        for arr, nm in ((comb, "per\ncombination"), (boot, "bootstrap\n(estimate)")):
+            arr = arr[np.isfinite(arr)]
+            if arr.size:
+                data.append(arr)
+                names.append(nm)
+        if data:
+            ax.boxplot(data, widths=0.5, showfliers=True,
+                       flierprops={"marker": ".", "markersize": 2, "alpha": 0.4})
+            ax.set_xticks(range(1, len(names) + 1))
+            ax.set_xticklabels(names, fontsize=8)
+        if math.isfinite(est.mean):
+            ax.axhline(est.mean * scale, color="k", lw=1.2, label=f"estimate {est.mean * scale:.4g}")
+        if math.isfinite(est.ci95_low):
+            ax.axhspan(est.ci95_low * scale, est.ci95_high * scale, color="gold", alpha=0.3,
+                       label=f"95 %: {est.ci95_low * scale:.4g}-{est.ci95_high * scale:.4g}")
+        ax.set_ylabel(label)
+        ax.set_title(label.split(" ")[0])
+        ax.legend(loc="upper right", fontsize=7, framealpha=0.9)
+    fig.suptitle("Parameter spread: one cycle per test per combination (paper Table III) vs. bootstrap of the "
+                 "whole-log estimate", fontsize=10)
+    return fig
+
+
+def plot_cycles(result):
+    """Per test: each cycle's period and amplitude with the stable-cycle tolerance bands."""
+    tests = (list(result.tests) + list(result.rejected))[:6]  # the first six; the HTML table lists all
+    unit, scale, _ = _units(result)
+    colours = _group_colours(result)
+    fig, axes = new_figure(2, max(len(tests), 1), width=min(3.6 * max(len(tests), 1), 14), height=5.0,
+                           squeeze=False)
+    for k, t in enumerate(tests):
+        P = np.array([c.period for c in t.cycles])
+        A = np.array([c.amplitude for c in t.cycles]) * scale
+        st = np.array([c.stable for c in t.cycles], bool)
+        i = np.arange(1, P.size + 1)
+        for row, (vals, med, tol, lab) in enumerate(
+                ((P, t.period_median, t.period_tolerance, "period [s]"),
+                 (A, t.amplitude_median * scale, t.amplitude_tolerance * scale, f"amplitude [{unit}]"))):
+            ax = axes[row, k]
+            if math.isfinite(med):
+                ax.axhspan(med - tol, med + tol, color=colours[t.index], alpha=0.15, label="tolerance")
+                ax.axhline(med, color=colours[t.index], lw=0.8)
+            if math.isfinite(med):
+                # cycles far off (start-up chatter) are drawn at the edge so they stay visible
+                lo, hi = med - 3 * tol, med + 3 * tol
+                ax.set_ylim(lo, hi)
+                vals = np.clip(np.nan_to_num(vals, nan=lo), lo + 0.03 * (hi - lo), hi - 0.03 * (hi - lo))
+            ax.plot(i[st], vals[st], "o", color=colours[t.index], ms=4, label="stable")
+            ax.plot(i[~st], vals[~st], "x", color="0.4", ms=4, label="left out")
+            ax.set_ylabel(lab)
+            if row == 0:
+                ax.set_title(_label(t), fontsize=9)
+                if k == 0:
+                    ax.legend(fontsize=7, loc="lower right")
+            else:
+                ax.set_xlabel("cycle")
+            from matplotlib.ticker import MaxNLocator
+
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    fig.suptitle("Stable-cycle criterion: median +/- tolerance (MAD-based) per test", fontsize=10)
+    return fig
+
+
+def write_analysis_report(result, out_dir: str | Path) -> Path:
+    """Write index.html and the PNG figures for one analysis; returns the index path."""
+    out = ensure_dir(out_dir)
+    figures = (("timeseries.png", plot_timeseries, "Flight and detected MRFT tests"),
+               ("manifolds.png", plot_manifolds, "Manifold intersection (paper Fig. 5)"),
+               ("spread.png", plot_spread, "Parameter spread"),
+               ("cycles.png", plot_cycles, "Cycles and the stable-cycle criterion"))
+    written = []
+    for name, fn, title in figures:
+        save_figure(fn(result), out / name)
+        written.append((name, title))
+    d = result.to_dict(cycles=False)
+    unit, scale, _ = _units(result)
+    p = d["parameters"]
+
+    def row(key, label, s, u):
+        e = p[key]
+        f = (lambda v: "-" if v is None or not math.isfinite(v) else f"{v * s:.4g}")
+        return [label, f(e["mean"]), f(e["std"]), f"{f(e['ci95_low'])} - {f(e['ci95_high'])}", u]
+
+    comb = d["combinations"]
+    body = [
+        f"<p class='muted'>{esc(result.path)} - loop <b>{esc(result.loop)}</b> - Tp = {result.Tp:g} s (known) - "
+        f"model G(s) = K Td e<sup>-tau s</sup> / (s (Tp s+1)(Td s+1))</p>",
+        "<h2>Parameters</h2>",
+        html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
+                   [row("Td", "Td", 1.0, "s"), row("tau", "tau", 1e3, "ms"), row("K", "K", 1.0, "")]),
+    ]
+    if comb["n"] and comb["Td"]["mean"] is not None:
+        body.append(
+            f"<p>Per combination of cycles ({comb['n']} combinations, as the paper's Table III): "
+            f"Td {comb['Td']['mean']:.4g} &plusmn; {comb['Td']['std'] or 0:.3g} s, "
+            f"tau {comb['tau']['mean'] * 1e3:.4g} &plusmn; {(comb['tau']['std'] or 0) * 1e3:.3g} ms, "
+            f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g}.</p>")
+    rows = []
+    for t in list(result.tests) + list(result.rejected):
+        rows.append([t.index + 1, f"{t.t_start:.1f} - {t.t_end:.1f}",
+                     "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}",
+                     f"{t.beta_effective:+.4f}" if math.isfinite(t.beta_effective) else "-",
+                     f"{t.h:.4g}", f"{t.bias:.4g}",
+                     f"{t.frequency_hz_mean:.4f}" if t.n_stable else "-",
+                     f"{t.amplitude_mean * scale:.4g}" if t.n_stable else "-",
+                     f"{t.n_stable} / {len(t.cycles)}", f"{t.rate_hz:.1f}",
+                     "used" if t in result.tests else "left out"])
+    body += ["<h2>Tests</h2>",
+             html_table(["test", "t [s]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
+                         f"amplitude [{unit}]", "stable / cycles", "rate [Hz]", ""], rows)]
+    if result.warnings:
+        body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in result.warnings)
+                    + "</ul>")
+    for name, title in written:
+        body.append(f"<h2>{esc(title)}</h2><img src='{esc(name)}' alt='{esc(title)}'>")
+    body.append("<p class='muted'>The effective beta is the switching level the relay actually achieved, "
+                "measured from the output at the switch instants; identification uses it (see docs/usage-analyze.md).</p>")
+    index = out / "index.html"
+    index.write_text(html_page(f"MRFT analysis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    return index

@@ -1,0 +1,135 @@
+"""analyze_flight: accuracy on simulated flights, the paper's delay-increment experiment, partial
+results and errors.
+
+The truth is the plant each flight was simulated with (the analysis never sees it). Flights come
+from the project's simulator (:mod:`mrftcli.simulate`) and, for take-off/landing around the tests,
+from the independent simulation in ``test_segment_support.py``.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mrftcli.analyze import AnalysisResult, analyze_flight
+from mrftcli.commands._common import to_jsonable
+from mrftcli.errors import InsufficientDataError, SegmentationError
+from test_segment_support import flight_from_simulated, simulate_paper_flight, simulate_relay_flight, to_flight
+
+# checks.md section 4: Design I altitude (Tp from the bench, Td and tau as identified in the paper)
+D1 = dict(Tp=0.0422, Td=2.669, tau=0.0464, K=19.6)
+
+
+def _check(result: AnalysisResult, Tp, Td, tau, K, td_tol=0.05):
+    assert abs(result.tau.mean - tau) <= 1e-3
+    assert result.K.mean == pytest.approx(K, rel=0.03)
+    td_omega = max(result.model.Td * 2 * np.pi * t.frequency_hz_mean for t in result.tests)
+    if td_omega <= 5:
+        assert result.Td.mean == pytest.approx(Td, rel=td_tol)
+    else:
+        assert result.Td.ci95_low <= Td <= result.Td.ci95_high
+        assert any("Td*Omega" in w for w in result.warnings)
+    assert result.tau.ci95_low <= tau <= result.tau.ci95_high
+
+
+@pytest.fixture(scope="module")
+def design1():
+    sf = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4, -0.7), seed=11)
+    return sf, analyze_flight(flight_from_simulated(sf), D1["Tp"])
+
+
+def test_design1_altitude(design1):
+    sf, result = design1
+    _check(result, **D1)
+    assert [t.beta_nominal for t in result.tests] == [-0.4, -0.7]
+    for t, spec in zip(result.tests, sf.spec.tests):
+        assert t.h == pytest.approx(spec.h, rel=1e-9)
+        assert t.n_stable >= 8
+        assert abs(t.beta_effective - t.beta_nominal) < 0.03
+    c = result.combination_stats()
+    assert c["n"] >= 64
+    assert c["tau"]["std"] > result.tau.std  # one cycle per test scatters more than the mean
+
+
+def test_attitude_loop_small_td():
+    # roll of Design II (checks.md section 4) with IMU noise 0.2 deg; Td*Omega < 5 here
+    p = dict(Tp=0.0499, Td=0.887, tau=0.0228, K=30.0)
+    sf = simulate_paper_flight(p["Tp"], p["Td"], p["tau"], p["K"], (-0.5, -0.8), loop="roll", seed=5)
+    result = analyze_flight(flight_from_simulated(sf), p["Tp"])
+    _check(result, **p)
+
+
+def test_delay_increment_of_20ms_is_found():
+    """The paper's validation: 20 ms added to the altitude loop of Design I (found 19.6 ms)."""
+    base = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4, -0.7), seed=21)
+    added = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"] + 0.020, D1["K"], (-0.4, -0.7), seed=22)
+    r0 = analyze_flight(flight_from_simulated(base), D1["Tp"])
+    r1 = analyze_flight(flight_from_simulated(added), D1["Tp"])
+    assert (r1.tau.mean - r0.tau.mean) * 1e3 == pytest.approx(20.0, abs=1.5)
+
+
+def test_takeoff_landing_dropouts_and_glitches_around_tests():
+    """Independent simulator: take-off and landing ramps, PD holds, then a damaged log."""
+    Tp, Td, tau, K = 0.0499, 0.6, 0.035, 2.0
+    sim = simulate_relay_flight(Tp, Td, tau, K, [(-0.4, 1.0, 16.0), (-0.7, 2.5, 10.0)], seed=7, takeoff_s=3.0)
+    clean = analyze_flight(to_flight(sim), Tp)
+    _check(clean, Tp, Td, tau, K)
+    rng = np.random.default_rng(8)
+    keep = rng.random(sim.t.size) > 0.03
+    t_jit = np.sort(sim.t + rng.normal(0, 0.0005, sim.t.size))
+    flight = to_flight(sim, t_cmd=t_jit, keep=keep)
+    c = flight.command.copy()
+    for tg in (12.2, 30.4):
+        i = int(np.searchsorted(c.index, tg))
+        c.iloc[i] = 1.0 - c.iloc[i]
+    flight.command = c
+    damaged = analyze_flight(flight, Tp)
+    _check(damaged, Tp, Td, tau, K)
+
+
+def test_single_beta_gives_partial_tau_curve():
+    sf = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4,), seed=3)
+    with pytest.raises(InsufficientDataError, match="only one beta") as err:
+        analyze_flight(flight_from_simulated(sf), D1["Tp"])
+    part = err.value.partial
+    assert part["assumed_Td_range_s"] == [0.1, 10.0]
+    curve = part["tau_for_assumed_Td"][0]
+    tau_at_true_Td = np.interp(np.log(D1["Td"]), np.log(curve["Td_s"]), curve["tau_s"])
+    assert tau_at_true_Td == pytest.approx(D1["tau"], abs=0.003)
+    json.dumps(to_jsonable(part), allow_nan=False)
+
+
+def test_too_few_stable_cycles_is_a_segmentation_error():
+    sf = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4, -0.7), cycles=2.0, seed=4)
+    # two-cycle tests: the start-up transient leaves no stable limit cycle
+    from mrftcli.simulate import FlightSpec, TestSpec, simulate_flight
+
+    spec = sf.spec
+    short = FlightSpec(model=spec.model, tests=tuple(TestSpec(t.beta, t.h, 2.5) for t in spec.tests),
+                       loop=spec.loop, switching=spec.switching, seed=4, hover_s=2.0, hold_s=2.0)
+    with pytest.raises(SegmentationError, match="stable"):
+        analyze_flight(flight_from_simulated(simulate_flight(short)), D1["Tp"])
+
+
+def test_to_dict_is_plain_json_with_the_documented_keys(design1):
+    _, result = design1
+    d = json.loads(json.dumps(to_jsonable(result.to_dict()), allow_nan=False))
+    for name in ("Td", "tau", "K"):
+        assert {"mean", "std", "ci95_low", "ci95_high"} <= set(d["parameters"][name])
+    assert d["parameters"]["tau"]["mean"] == pytest.approx(result.tau.mean)
+    for t in d["tests"]:
+        assert {"beta", "h", "frequency_hz", "amplitude", "cycles", "t_start", "t_end", "beta_nominal",
+                "beta_effective"} <= set(t)
+        assert t["beta"] == t["beta_effective"]
+    assert d["combinations"]["Td"]["mean"] > 0
+    assert isinstance(d["warnings"], list) and d["input"]["loop"] == "altitude"
+
+
+def test_without_beta_topic_the_effective_beta_is_the_estimate(design1):
+    sf, with_topic = design1
+    result = analyze_flight(flight_from_simulated(sf, with_beta=False), D1["Tp"])
+    assert all(t.beta_nominal is None for t in result.tests)
+    assert [t.beta_effective for t in result.tests] == pytest.approx([t.beta_effective for t in with_topic.tests])
+    assert result.tau.mean == pytest.approx(with_topic.tau.mean, abs=1e-9)

@@ -1,0 +1,50 @@
+"""``analyze`` over every log in sample_logs/, checked against the ground-truth sidecars.
+
+The sidecars are read here only; mrft-ident never sees them. The "+20 ms" pairs also repeat the
+paper's delay-increment experiment on the committed logs.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrftcli.analyze import analyze_path
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+SIDECARS = sorted(SAMPLES.glob("*.truth.json")) if SAMPLES.is_dir() else []
+
+
+def _log_of(sidecar: Path) -> Path:
+    return sidecar.with_name(sidecar.name[: -len(".truth.json")])
+
+
+@pytest.mark.skipif(not SIDECARS, reason="no sample_logs/ with sidecars")
+@pytest.mark.parametrize("sidecar", SIDECARS, ids=lambda p: p.name[: -len(".truth.json")])
+def test_sample_log_against_sidecar(sidecar):
+    truth = json.loads(sidecar.read_text())
+    r = analyze_path(_log_of(sidecar), truth["Tp"], truth["loop"], n_bootstrap=200)
+    assert [t.beta_nominal for t in r.tests] == [t["beta"] for t in truth["tests"]]
+    for t, tt in zip(r.tests, truth["tests"]):
+        assert t.h == pytest.approx(tt["h"], rel=1e-6)
+        assert tt["t_start"] - 0.01 <= t.t_start and t.t_end <= tt["t_end"] + 0.01
+    assert abs(r.tau.mean - truth["tau"]) <= 1e-3
+    assert r.tau.ci95_low <= truth["tau"] <= r.tau.ci95_high
+    assert r.K.mean == pytest.approx(truth["K"], rel=0.03)
+    td_omega = max(r.model.Td * 2 * np.pi * t.frequency_hz_mean for t in r.tests)
+    if td_omega <= 5:
+        assert r.Td.mean == pytest.approx(truth["Td"], rel=0.05)
+    assert r.Td.ci95_low <= truth["Td"] <= r.Td.ci95_high
+
+
+@pytest.mark.parametrize("design", ["design1", "design2"])
+def test_delay_increment_on_sample_logs(design):
+    base, added = SAMPLES / f"{design}_altitude.mcap", SAMPLES / f"{design}_altitude_20ms.mcap"
+    if not (base.exists() and added.exists()):
+        pytest.skip("sample logs missing")
+    tp = json.loads(Path(str(base) + ".truth.json").read_text())["Tp"]
+    d_tau = analyze_path(added, tp, "altitude", n_bootstrap=50).tau.mean - analyze_path(base, tp, "altitude", n_bootstrap=50).tau.mean
+    assert d_tau * 1e3 == pytest.approx(20.0, abs=1.5)

@@ -1,0 +1,216 @@
+"""Segmenter: relay runs, timestamps, stable-cycle criterion, per-cycle measurements, robustness.
+
+Oracles: synthetic signals built here with known switch instants/levels, and the independent exact
+closed-loop simulation in ``test_segment_support.py`` (its relay decisions are the truth for the
+switch instants; its exact noise-free output is the truth for the switching levels).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from mrftcli.errors import SegmentationError
+from mrftcli.logtypes import FlightLog
+from mrftcli.segment import (
+    StabilityCriterion,
+    find_relay_runs,
+    regularise_times,
+    segment,
+    segment_arrays,
+    stable_cycles,
+)
+from test_segment_support import simulate_relay_flight, to_flight
+
+# Altitude loop of the paper's Design II (checks.md section 4); K and h give ~4 cm oscillations.
+TP, TD, TAU, K = 0.0499, 1.8345, 0.0498, 2.0
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return simulate_relay_flight(TP, TD, TAU, K, [(-0.4, 0.8, 20.0), (-0.7, 2.0, 12.0)], seed=3, takeoff_s=3.0)
+
+
+def _switches(t, c, bias):
+    """Independent switch list: first samples of each new relay level."""
+    s = np.sign(c - bias)
+    idx = np.flatnonzero(s[1:] != s[:-1]) + 1
+    return t[idx], s[idx]
+
+
+# ----------------------------------------------------------------------------------------------- runs
+
+
+def test_relay_runs_in_noisy_command_between_pid_flight():
+    rng = np.random.default_rng(0)
+    n_pid = 400
+    pid = 0.5 + 0.05 * np.cumsum(rng.normal(0, 0.02, n_pid))  # smooth wandering PID command
+    half = 37
+    relay = np.concatenate([np.full(half, 0.5 + s * 0.2) for s in ([1, -1] * 10)])
+    relay2 = np.concatenate([np.full(23, 0.45 + s * 0.1) for s in ([-1, 1] * 8)])
+    c = np.concatenate([pid, relay, pid[::-1], relay2, pid])
+    c = c + rng.normal(0, 0.002, c.size)  # noise on the logged command
+    chains = find_relay_runs(c)
+    assert len(chains) == 2
+    lv1 = np.array([r.level for r in chains[0]])
+    assert len(chains[0]) == 20 and chains[0][0].start == n_pid
+    assert np.allclose(np.sort(np.unique(np.round(lv1, 2))), [0.3, 0.7], atol=0.005)
+    lv2 = np.array([r.level for r in chains[1]])
+    assert len(chains[1]) == 16
+    assert np.allclose(np.sort(np.unique(np.round(lv2, 2))), [0.35, 0.55], atol=0.005)
+
+
+def test_single_sample_false_switch_is_absorbed_and_flagged():
+    c = np.concatenate([np.full(30, 1.0 if k % 2 == 0 else -1.0) for k in range(10)])
+    c[75] = -1.0  # a one-sample false switch inside the third half-period (+1 level)
+    chains = find_relay_runs(c)
+    assert len(chains) == 1
+    runs = chains[0]
+    assert len(runs) == 10
+    assert runs[2].glitch and not runs[1].glitch
+    assert [r.start for r in runs] == list(range(0, 300, 30))
+
+
+def test_no_relay_in_a_pid_only_log_raises():
+    rng = np.random.default_rng(1)
+    t = np.arange(4000) / 200.0
+    c = 0.5 + 0.01 * np.sin(2 * np.pi * 0.3 * t) + rng.normal(0, 0.003, t.size)
+    y = 1.0 + rng.normal(0, 5e-4, t.size)
+    flight = FlightLog(path="pid.csv", loop="altitude", command=pd.Series(c, index=t), output=pd.Series(y, index=t))
+    with pytest.raises(SegmentationError, match="no MRFT relay test"):
+        segment(flight)
+
+
+# ----------------------------------------------------------------------------------------------- times
+
+
+def test_regularise_times_removes_jitter_and_keeps_gaps():
+    rng = np.random.default_rng(2)
+    n = np.arange(2000)
+    n = np.delete(n, [100, 101, 700])  # dropped messages
+    true = 3.0 + n * 0.005
+    t = true + rng.normal(0, 0.0004, n.size)
+    t_reg, ok = regularise_times(t)
+    assert ok
+    assert np.max(np.abs(t_reg - true)) < 5e-5
+    # a clock that is not a grid is left alone
+    t_irr = np.cumsum(rng.uniform(0.001, 0.009, 500))
+    t2, ok2 = regularise_times(t_irr)
+    assert not ok2 and np.array_equal(t2, t_irr)
+
+
+# ----------------------------------------------------------------------------------------------- criterion
+
+
+def test_stable_cycles_drops_transient_and_outliers():
+    rng = np.random.default_rng(3)
+    P = 1.0 + rng.normal(0, 0.003, 20)
+    a = 0.05 + rng.normal(0, 0.0003, 20)
+    P[:3] = [0.6, 0.85, 0.92]  # start-up
+    a[:3] = [0.01, 0.03, 0.04]
+    P[12] = 1.3  # a disturbed cycle
+    reg = np.ones(20, bool)
+    reg[15] = False  # a gap
+    stable, consistent, info = stable_cycles(P, a, reg, 0.005, StabilityCriterion())
+    assert not stable[:4].any()  # transient, and the first consistent cycle (may still converge)
+    assert stable[4:12].all() and not stable[12] and not stable[15] and stable[16:].all()
+    assert info["period_median"] == pytest.approx(1.0, abs=0.01)
+
+
+# ----------------------------------------------------------------------------------------------- on a flight
+
+
+def test_segment_finds_tests_levels_and_switches(sim):
+    flight = to_flight(sim)
+    tests = segment(flight)
+    assert len(tests) == 2
+    for test, (t0, t1, beta, h) in zip(tests, sim.test_windows):
+        assert test.beta_nominal == beta
+        assert test.h == pytest.approx(h, rel=1e-9)
+        assert test.bias == pytest.approx(0.5, abs=1e-9)
+        assert t0 - 1e-6 <= test.t_start < t0 + 0.01 and t1 - 0.01 < test.t_end <= t1 + 1e-6
+        assert test.rate_hz == pytest.approx(200.0, rel=1e-6)
+        assert test.n_stable >= 8
+        # every stable cycle's boundaries are switch instants of the simulated relay
+        m = (sim.t >= t0) & (sim.t <= t1)
+        ts, sgn = _switches(sim.t[m], sim.command[m], 0.5)
+        ups = ts[sgn > 0]
+        for c in test.stable:
+            assert np.min(np.abs(ups - c.t_start)) < 1e-9 and np.min(np.abs(ups - c.t_end)) < 1e-9
+            assert c.half_period_high + c.half_period_low == pytest.approx(c.period)
+
+
+def test_amplitude_and_effective_beta_against_the_noise_free_output(sim):
+    """Fitted extrema and switch-instant outputs vs the simulation's exact output at its samples."""
+    tests = segment(to_flight(sim))
+    y_true = sim.y_true - sim.setpoint
+    for test in tests:
+        errs_a, errs_b = [], []
+        for c in test.stable:
+            seg = (sim.t >= c.t_start) & (sim.t <= c.t_end)
+            a_true = (y_true[seg].max() - y_true[seg].min()) / 2  # 5 ms samples: within 0.1 % of the peak
+            centre = (y_true[seg].max() + y_true[seg].min()) / 2
+            i_dn = np.searchsorted(sim.t, c.t_switch - 1e-9)
+            i_up = np.searchsorted(sim.t, c.t_end - 1e-9)
+            b_true = 0.5 * ((y_true[i_dn] - centre) - (y_true[i_up] - centre)) / a_true
+            errs_a.append(c.amplitude / a_true - 1)
+            errs_b.append(c.beta_effective - b_true)
+        # noise 0.5 mm on ~4 cm: per cycle the fits are within ~1 %; the test means much closer
+        assert abs(np.mean(errs_a)) < 0.004
+        assert abs(np.mean(errs_b)) < 0.004
+        assert np.std(errs_b) < 0.02
+
+
+def test_measured_effective_beta_differs_from_nominal_like_the_relay_did(sim):
+    """The noisy sampled relay switches away from the nominal level; the estimate follows the relay."""
+    tests = segment(to_flight(sim))
+    y_true = sim.y_true - sim.setpoint
+    for test in tests:
+        lv = []
+        for c in test.stable:
+            i_up = np.searchsorted(sim.t, c.t_end - 1e-9)
+            lv.append(-(y_true[i_up] - c.centre) / c.amplitude)
+        assert test.beta_effective == pytest.approx(np.mean(lv), abs=0.006)
+
+
+def test_dropped_messages_jitter_and_glitches(sim):
+    rng = np.random.default_rng(4)
+    base = segment(to_flight(sim))
+    keep = rng.random(sim.t.size) > 0.05
+    t_jit = np.sort(sim.t + rng.normal(0, 0.0005, sim.t.size))
+    flight = to_flight(sim, t_cmd=t_jit, keep=keep)
+    c = flight.command.copy()
+    for tg in (11.3, 17.1, 33.2):  # one-sample false switches
+        i = int(np.searchsorted(c.index, tg))
+        c.iloc[i] = 1.0 - c.iloc[i]
+    flight.command = c
+    tests = segment(flight)
+    assert len(tests) == 2
+    for t, b in zip(tests, base):
+        assert t.timestamps_regularised
+        assert t.n_stable >= 6
+        assert t.frequency_hz_mean == pytest.approx(b.frequency_hz_mean, rel=0.004)
+        assert t.amplitude_mean == pytest.approx(b.amplitude_mean, rel=0.01)
+        assert t.beta_effective == pytest.approx(b.beta_effective, abs=0.01)
+    assert any("glitch" in c.flags for t in tests for c in t.cycles)
+
+
+def test_negative_loop_gain_is_handled(sim):
+    flight = to_flight(sim)
+    flight.output = -flight.output
+    flight.setpoint = -flight.setpoint
+    neg = segment(flight)
+    pos = segment(to_flight(sim))
+    for a, b in zip(neg, pos):
+        assert a.loop_sign == -1
+        assert a.frequency_hz_mean == pytest.approx(b.frequency_hz_mean, rel=1e-9)
+        assert a.beta_effective == pytest.approx(b.beta_effective, abs=1e-9)
+
+
+def test_segment_arrays_without_beta_or_setpoint(sim):
+    tests = segment_arrays(sim.t, sim.command, sim.t, sim.y_meas)
+    assert len(tests) == 2
+    assert all(t.beta_nominal is None and t.setpoint is None for t in tests)
+    assert tests[0].beta_effective == pytest.approx(-0.4, abs=0.04)
+    assert tests[1].beta_effective == pytest.approx(-0.7, abs=0.05)

@@ -13,6 +13,7 @@ code  class                       meaning
 5     IdentificationError         the measured figures admit no model (or no unique one)
 6     InsufficientDataError       some tests found, but not enough to identify everything
 7     DiagnoseError               the diagnosis could not be carried out
+8     batch.BatchFailedError      some logs of a batch failed (the others were analysed)
 ====  ==========================  ==========================================================
 """
 

@@ -1,0 +1,131 @@
+"""``mrft-ident batch`` on the command line: exit codes, one-line errors, option plumbing, --json."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import types
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from mrftcli.cli import cli
+
+
+def mrft(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(["mrft-ident", *args], cwd=cwd, capture_output=True, text=True, timeout=120)
+
+
+def test_bad_log_exits_8_with_one_line_and_rows_written(tmp_path: Path) -> None:
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "broken.mcap").write_bytes(b"\x00not an mcap file at all")
+    p = mrft("batch", "logs", "--tp", "0.04", "--out", "out", "--jobs", "1", "--json", cwd=tmp_path)
+    assert p.returncode == 8, p.stderr
+    assert "Traceback" not in p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: 1 of 1 logs failed (first: broken.mcap [altitude]: ")
+    doc = json.loads(p.stdout)
+    assert doc["counts"]["failed"] == 1 and doc["rows"][0]["status"] == "failed" and doc["rows"][0]["error"]
+    assert pd.read_csv(tmp_path / "out" / "summary.csv")["status"].tolist() == ["failed"]
+
+
+@pytest.mark.parametrize("args, code, message", [
+    (["--config", "cfg.toml"], 2, "cfg.toml: [defaults]: unknown key 'tpp'"),
+    (["--tp", "0.04", "nothing*.mcap"], 2, "matches no files"),
+    ([], 2, "no Tp given"),
+    (["--tp", "0.04", "--jobs", "0"], 2, "--jobs"),
+])
+def test_input_errors_are_one_line(tmp_path: Path, args: list[str], code: int, message: str) -> None:
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "a.mcap").write_bytes(b"x")
+    (tmp_path / "cfg.toml").write_text("[defaults]\ntpp = 0.1\n")
+    p = mrft("batch", "logs", "--out", "out", *args, cwd=tmp_path)
+    assert p.returncode == code and "Traceback" not in p.stderr
+    assert message in p.stderr
+
+
+def test_unreachable_scheduler_exit_2(tmp_path: Path) -> None:
+    (tmp_path / "a.mcap").write_bytes(b"x")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    p = mrft("batch", "a.mcap", "--tp", "0.04", "--scheduler", f"tcp://127.0.0.1:{port}",
+             "--scheduler-timeout", "1", cwd=tmp_path)
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert f"error: cannot reach the Dask scheduler at tcp://127.0.0.1:{port} within 1 s" in p.stderr
+
+
+# --------------------------------------------------------------------------------------------------
+# Option plumbing through the real analyze_one, with a stand-in analysis module
+# --------------------------------------------------------------------------------------------------
+
+
+class _R:
+    def __init__(self, d):
+        self._d = d
+
+    def to_dict(self):
+        return self._d
+
+
+def _stand_in(path, Tp, loop, *, command_topic=None, output_topic=None, beta_topic=None, output_scale=None):
+    # Echo the settings back as "parameters" so the test sees what reached the analysis.
+    return _R({"parameters": {"Td": {"mean": Tp, "std": 0.0}, "tau": {"mean": 0.05, "std": 0.001},
+                              "K": {"mean": output_scale or 1.0, "std": 0.0}},
+               "tests": [{"beta": -0.4, "cycles": 8}], "command_topic": command_topic})
+
+
+@pytest.fixture
+def stand_in(monkeypatch):
+    mod = types.ModuleType("mrftcli.analyze")
+    mod.analyze_path = _stand_in
+    monkeypatch.setitem(sys.modules, "mrftcli.analyze", mod)
+
+
+def test_cli_options_override_config(tmp_path: Path, stand_in, monkeypatch) -> None:
+    for v in ("q1", "q2"):
+        (tmp_path / "logs" / v).mkdir(parents=True)
+        (tmp_path / "logs" / v / "f.mcap").write_bytes(b"x")
+    (tmp_path / "logs" / "batch.toml").write_text(
+        "[defaults]\ntp = 0.04\n\n[[logs]]\nmatch = 'q2/*'\ntp = 0.05\nloop = ['roll', 'pitch']\noutput_scale = 2.0\n"
+    )
+    monkeypatch.chdir(tmp_path)
+    runner = CliRunner()
+    args = ["batch", "logs", "--config", "logs/batch.toml", "--out", "out", "--jobs", "1", "--no-report", "--quiet"]
+    r = runner.invoke(cli, args + ["--json"])
+    assert r.exit_code == 0, r.output
+    rows = json.loads(r.stdout)["rows"]
+    got = [(Path(x["path"]).parent.name, x["loop"], x["Td_mean"], x["K_mean"]) for x in rows]
+    assert got == [("q1", "altitude", 0.04, 1.0), ("q2", "roll", 0.05, 2.0), ("q2", "pitch", 0.05, 2.0)]
+    # Explicit --tp/--loop beat the config; the settings change makes every log recompute.
+    r = runner.invoke(cli, args + ["--json", "--tp", "0.07", "--loop", "altitude"])
+    rows = json.loads(r.stdout)["rows"]
+    assert [(x["loop"], x["Td_mean"], x["K_mean"], x["status"]) for x in rows] == [
+        ("altitude", 0.07, 1.0, "ok"), ("altitude", 0.07, 2.0, "ok")]
+    # Same again: nothing to do, exit 0, the table and one summary line.
+    r = runner.invoke(cli, args + ["--tp", "0.07", "--loop", "altitude"])
+    assert r.exit_code == 0
+    assert r.stdout.count("skipped-uptodate") == 2
+    assert "2 log(s), 2 row(s): 2 skipped-uptodate" in r.stderr
+
+
+def test_cli_scheduler_runs_on_a_local_dask_cluster(tmp_path: Path, stand_in, monkeypatch) -> None:
+    distributed = pytest.importorskip("distributed")
+    for v in ("q1", "q2"):
+        (tmp_path / "logs" / v).mkdir(parents=True)
+        (tmp_path / "logs" / v / "f.mcap").write_bytes(b"x")
+    (tmp_path / "logs" / "q2" / "f.mcap").with_name("e.mcap").write_bytes(b"x")
+    monkeypatch.chdir(tmp_path)
+    # In-process workers (processes=False) see the stand-in analysis module; the client still talks TCP.
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, host="127.0.0.1",
+                                  protocol="tcp://", dashboard_address=None, silence_logs=40) as cluster:
+        r = CliRunner().invoke(cli, ["batch", "logs", "--tp", "0.05", "--out", "out", "--no-report", "--json",
+                                     "--scheduler", cluster.scheduler_address, "--scheduler-timeout", "10"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert doc["counts"]["ok"] == 3 and [Path(x["path"]).name for x in doc["rows"]] == ["f.mcap", "e.mcap", "f.mcap"]
+    assert all(x["Td_mean"] == 0.05 for x in doc["rows"])  # Tp reached the analysis on the cluster

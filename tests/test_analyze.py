@@ -15,7 +15,7 @@ import pytest
 
 from mrftcli.analyze import AnalysisResult, analyze_flight
 from mrftcli.commands._common import to_jsonable
-from mrftcli.errors import InsufficientDataError, SegmentationError
+from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from test_segment_support import flight_from_simulated, simulate_paper_flight, simulate_relay_flight, to_flight
 
 # checks.md section 4: Design I altitude (Tp from the bench, Td and tau as identified in the paper)
@@ -133,3 +133,66 @@ def test_without_beta_topic_the_effective_beta_is_the_estimate(design1):
     assert all(t.beta_nominal is None for t in result.tests)
     assert [t.beta_effective for t in result.tests] == pytest.approx([t.beta_effective for t in with_topic.tests])
     assert result.tau.mean == pytest.approx(with_topic.tau.mean, abs=1e-9)
+
+
+# ------------------------------------------------------------------------- constraints beyond the paper
+
+
+def test_weighted_constraints_are_reported_with_residuals(design1):
+    """Default estimate: UFM slices + phase + amplitude, each with its residual at the estimate."""
+    _, result = design1
+    c = result.constraints
+    assert c["used"] == ["ufm", "phase", "amplitude"]
+    assert len(c["tests"]) == len(result.tests) and c["dof"] == 3 * len(result.tests) - 3
+    for row in c["tests"]:
+        for key in ("ufm", "phase", "amplitude"):
+            assert np.isfinite(row[key]["normalised"]) and abs(row[key]["normalised"]) < 4
+        # the residual is the curve's tau at the estimate minus the estimate
+        assert row["phase"]["residual_s"] == pytest.approx(row["phase"]["tau_s"] - result.tau.mean, abs=1e-12)
+    # phase curve of a test at the estimate, recomputed from arg G (eq. 2) independently
+    t = result.tests[0]
+    W = 2 * np.pi / t.period.mean()
+    ph = np.nanmean([cy.phase_h1 for cy in t.stable])
+    tau_curve = (-ph - np.pi / 2 - np.arctan(D1["Tp"] * W) - np.arctan(result.model.Td * W)) / W
+    assert c["tests"][0]["phase"]["tau_s"] == pytest.approx(tau_curve, abs=2e-6)
+    d = result.to_dict(cycles=False)
+    assert d["identification"]["constraints"]["used"] == c["used"]
+    assert d["identification"]["constraints"]["paper_estimate"]["tau"] == pytest.approx(result.identification.model.tau)
+
+
+def test_paper_only_estimate_is_the_ufm_intersection(design1):
+    sf, weighted = design1
+    paper = analyze_flight(flight_from_simulated(sf), D1["Tp"], constraints=(), n_bootstrap=100)
+    assert paper.constraints == {}
+    assert paper.model.tau == pytest.approx(paper.identification.model.tau, abs=1e-12)
+    assert paper.model.Td == pytest.approx(paper.identification.model.Td, rel=1e-12)
+    assert paper.identification.model.tau == pytest.approx(weighted.identification.model.tau, abs=1e-12)
+    assert paper.to_dict(cycles=False)["identification"]["constraints"] == {"used": ["ufm"]}
+    with pytest.raises(InputError, match="constraint"):
+        analyze_flight(flight_from_simulated(sf), D1["Tp"], constraints=("harmonics",))
+
+
+def test_times_for_people_are_relative_to_the_log_start(design1):
+    """Epoch-stamped logs: table and warnings in seconds from the start, JSON keeps both."""
+    from mrftcli.commands.analyze import format_table
+
+    sf, ref = design1
+    fl = flight_from_simulated(sf)
+    T0 = 1_700_000_000.0
+    for name in ("command", "output", "setpoint", "beta"):
+        s = getattr(fl, name)
+        setattr(fl, name, s.set_axis(s.index + T0))
+    result = analyze_flight(fl, D1["Tp"], n_bootstrap=100)
+    first = min(float(getattr(fl, n).index[0]) for n in ("command", "output", "setpoint", "beta"))
+    assert result.t0 == first
+    d = result.to_dict(cycles=False)
+    assert d["input"]["t0"] == first
+    for t, tr in zip(d["tests"], ref.tests):
+        assert t["t_start"] > T0  # absolute, as the issue asks
+        assert t["t_start_rel"] == pytest.approx(t["t_start"] - first, abs=1e-6)
+        assert t["t_start_rel"] == pytest.approx(tr.t_start - float(ref.flight.command.index[0]), abs=1e-6)
+    table = format_table(result)
+    assert "17000000" not in table and "2023-11-14 22:13:20" in table
+    t1 = result.tests[0]
+    assert f"{t1.t_start - first:.1f}-{t1.t_end - first:.1f}" in table
+    assert not any("17000000" in w for w in result.warnings)

@@ -60,6 +60,8 @@ def test_json_to_stdout_and_report(logs, tmp_path):
     assert [round(t["beta_nominal"], 3) for t in data["tests"]] == [-0.4, -0.7]
     for t in data["tests"]:
         assert {"beta", "h", "frequency_hz", "amplitude", "cycles", "t_start", "t_end"} <= set(t)
+        assert t["t_start_rel"] == pytest.approx(t["t_start"] - data["input"]["t0"], abs=1e-9)
+    assert data["identification"]["constraints"]["used"] == ["ufm", "phase", "amplitude"]
     rep = tmp_path / "rep"
     assert (rep / "index.html").is_file()
     for png in ("timeseries.png", "manifolds.png", "spread.png", "cycles.png"):

@@ -60,3 +60,27 @@ def test_write_report(result, tmp_path):
     assert f"{result.tau.mean * 1e3:.4g}" in html and f"{result.Td.mean:.4g}" in html
     assert plt.get_fignums() == []  # every figure closed
     assert matplotlib.get_backend().lower() == "agg"
+
+
+def test_time_axes_are_seconds_from_the_log_start(tmp_path):
+    """Epoch-stamped log: no '+1.7e9' offset, no absolute times on the axes or in the page."""
+    from mrftcli.report.analysis import plot_timeseries, write_analysis_report
+
+    sf = simulate_paper_flight(0.0499, 1.8345, 0.0498, 2.0, (-0.4, -0.7), seed=9)
+    fl = flight_from_simulated(sf)
+    for name in ("command", "output", "setpoint", "beta"):
+        s = getattr(fl, name)
+        setattr(fl, name, s.set_axis(s.index + 1_700_000_000.0))
+    res = analyze_flight(fl, 0.0499, n_bootstrap=100)
+    duration = float(fl.command.index[-1] - fl.command.index[0])
+    fig = plot_timeseries(res)
+    fig.canvas.draw()
+    for ax in fig.axes:
+        lo, hi = ax.get_xlim()
+        assert -0.1 * duration < lo < hi < 1.1 * duration
+        assert ax.xaxis.get_offset_text().get_text() == ""
+        assert "1700000" not in ax.get_xlabel()
+    t1 = res.tests[0]
+    html = write_analysis_report(res, tmp_path / "out").read_text()
+    assert "1700000" not in html
+    assert f"{t1.t_start - res.t0:.1f} - {t1.t_end - res.t0:.1f}" in html

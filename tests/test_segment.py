@@ -214,3 +214,31 @@ def test_segment_arrays_without_beta_or_setpoint(sim):
     assert all(t.beta_nominal is None and t.setpoint is None for t in tests)
     assert tests[0].beta_effective == pytest.approx(-0.4, abs=0.04)
     assert tests[1].beta_effective == pytest.approx(-0.7, abs=0.05)
+
+
+# ----------------------------------------------------------------------------------------------- fundamental harmonic
+
+
+def _plant_response(W):
+    """G(j W) of the simulated plant, closed form (eq. 2)."""
+    return K * TD * np.exp(-1j * W * TAU) / (1j * W * (1j * TP * W + 1) * (1j * TD * W + 1))
+
+
+@pytest.mark.parametrize("noise, tol_phase, tol_gain", [(0.0, 1.5e-3, 1.5e-3), (5e-4, 4e-3, 4e-3)])
+def test_fundamental_harmonic_is_the_plant_frequency_response(noise, tol_phase, tol_gain):
+    """arg/|Y1/U1| per cycle against the closed-form G(j Omega) of the simulated plant.
+
+    The relay switched wherever its noisy samples made it; the harmonic ratio does not depend on
+    that level, so it must equal G(j Omega) at each cycle's own frequency.
+    """
+    sim = simulate_relay_flight(TP, TD, TAU, K, [(-0.4, 0.8, 14.0), (-0.7, 2.0, 9.0)], seed=4, takeoff_s=2.0,
+                                noise_std=noise)
+    for test in segment(to_flight(sim)):
+        W = 2 * np.pi / test.period
+        g = _plant_response(W)
+        ph_true = np.angle(g) - 2 * np.pi * (np.angle(g) > 0)
+        ph = np.array([c.phase_h1 for c in test.stable])
+        gain = np.array([c.gain_h1 for c in test.stable])
+        assert np.all((ph <= 0) & (ph > -2 * np.pi))
+        assert abs(np.mean(ph - ph_true)) < tol_phase
+        assert abs(np.mean(gain / np.abs(g) - 1)) < tol_gain

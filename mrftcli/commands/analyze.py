@@ -27,18 +27,23 @@ def _fmt_est(est, scale: float, digits: int = 4) -> str:
 
 def format_table(result) -> str:
     """The compact terminal summary of an :class:`~mrftcli.analyze.AnalysisResult`."""
-    lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s (known)"]
+    from ..analyze import describe_t0
+
+    t0 = getattr(result, "t0", 0.0)
+    lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s (known)  t: seconds from the log start"
+             + (f" ({describe_t0(t0)})" if t0 else "")]
     lines.append(f"{'test':>4} {'t [s]':>13} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'f [Hz]':>8} "
                  f"{'amplitude':>10} {'cycles':>7}")
     for t in result.tests:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
         lines.append(
-            f"{t.index + 1:>4} {t.t_start:>6.1f}-{t.t_end:<6.1f} {nom:>8} {t.beta_effective:>+8.3f} {t.h:>8.4g} "
+            f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8} {t.beta_effective:>+8.3f} {t.h:>8.4g} "
             f"{t.frequency_hz_mean:>8.4f} {t.amplitude_mean:>10.4g} {t.n_stable:>3d}/{len(t.cycles):<3d}"
         )
     for t in result.rejected:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
-        lines.append(f"{t.index + 1:>4} {t.t_start:>6.1f}-{t.t_end:<6.1f} {nom:>8}  (left out: {t.n_stable} stable cycles)")
+        lines.append(f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8}  "
+                     f"(left out: {t.n_stable} stable cycles)")
     lines.append("parameters   estimate  ± std  [95 % interval]")
     lines.append(f"  Td   [s]   {_fmt_est(result.Td, 1.0)}")
     lines.append(f"  tau  [ms]  {_fmt_est(result.tau, 1e3)}")
@@ -93,15 +98,20 @@ def _run_diagnose(result, Tp):
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the result as JSON to FILE, or '-' for stdout.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR.")
+@click.option("--paper-only", is_flag=True,
+              help="Identify from the UFM slices alone (the paper's method), without the weighted phase and "
+                   "amplitude constraints.")
 @click.option("--diagnose", "run_diagnose", is_flag=True,
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose).")
 def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
-            json_target, report_dir, run_diagnose):
+            json_target, report_dir, paper_only, run_diagnose):
     """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
 
     Each test's stable limit cycles are measured (frequency, amplitude, and the beta the relay
     actually achieved); two or more betas give Td and tau from the intersection of the unit frequency
-    manifolds at the known Tp (paper Fig. 5), K from the amplitudes.
+    manifolds at the known Tp (paper Fig. 5), K from the amplitudes. Each test's fundamental-harmonic
+    phase and the amplitude ratios join the UFM slices as weighted constraints (--paper-only: not).
+    Times shown are seconds from the log start; the JSON also keeps the absolute ones.
 
     Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4 no usable relay test, 5 no plant fits,
     6 a single beta or not enough data (a partial result is given).
@@ -114,7 +124,7 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     try:
         result = analyze_path(log, Tp, loop, command_topic=command_topic, output_topic=output_topic,
                               beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
-                              min_stable_cycles=min_cycles)
+                              min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}))
     except InsufficientDataError as err:
         if json_target:
             dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)

@@ -24,6 +24,8 @@ import numpy as np
 
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
 
+_TWO_PI = 2.0 * math.pi
+
 __all__ = ["plot_timeseries", "plot_manifolds", "plot_spread", "plot_cycles", "write_analysis_report"]
 
 _UNITS = {"altitude": ("m", 1.0, "altitude"), "roll": ("deg", 180.0 / math.pi, "roll"),
@@ -76,19 +78,31 @@ def _output_relative(result):
     return t, y * scale, rel
 
 
+def _t0(result) -> float:
+    """The log start [s] (AnalysisResult.t0; 0 for results made without it)."""
+    t0 = getattr(result, "t0", 0.0)
+    return float(t0) if t0 is not None and math.isfinite(t0) else 0.0
+
+
+def _time_label(result) -> str:
+    return "time from log start [s]"
+
+
 def plot_timeseries(result):
     """Command and output over the whole log with the tests and their stable cycles marked."""
     unit, scale, name = _units(result)
     fl = result.flight
+    T0 = _t0(result)  # every time axis is seconds from the log start (logs carry epoch times)
     tests = list(result.tests) + list(result.rejected)
     n_zoom = min(len(result.tests), 4)
     fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)))
     gs = fig.add_gridspec(3 if n_zoom else 2, max(n_zoom, 1), height_ratios=[1, 1.3, 1.2][: 3 if n_zoom else 2])
     ax_c = fig.add_subplot(gs[0, :])
     ax_y = fig.add_subplot(gs[1, :], sharex=ax_c)
-    tc = np.asarray(fl.command.index, float)
+    tc = np.asarray(fl.command.index, float) - T0
     c = np.asarray(fl.command.to_numpy(), float)
     ty, y, rel = _output_relative(result)
+    ty = ty - T0
     ax_c.plot(tc, c, lw=0.6, color="0.25")
     ax_y.plot(ty, y, lw=0.6, color="0.25")
     colours = _group_colours(result)
@@ -98,11 +112,11 @@ def plot_timeseries(result):
         used = t in result.tests
         col = colours[t.index] if used else "0.6"
         for ax in (ax_c, ax_y):
-            ax.axvspan(t.t_start, t.t_end, color=col, alpha=0.10, lw=0)
+            ax.axvspan(t.t_start - T0, t.t_end - T0, color=col, alpha=0.10, lw=0)
             for cyc in t.stable:
-                ax.axvspan(cyc.t_start, cyc.t_end, ymin=0.0, ymax=0.04, color=col, alpha=0.9, lw=0)
+                ax.axvspan(cyc.t_start - T0, cyc.t_end - T0, ymin=0.0, ymax=0.04, color=col, alpha=0.9, lw=0)
         text = str(t.index + 1) if many else (_label(t) if used else f"test {t.index + 1}: left out")
-        ax_c.text(0.5 * (t.t_start + t.t_end), 1.0, text,
+        ax_c.text(0.5 * (t.t_start + t.t_end) - T0, 1.0, text,
                   transform=ax_c.get_xaxis_transform(), ha="center", va="bottom", fontsize=8, color=col)
         if many and used and col not in seen:
             seen.add(col)
@@ -112,14 +126,15 @@ def plot_timeseries(result):
         ax_y.legend(loc="lower right", fontsize=8, ncol=len(seen) or 1, framealpha=0.9)
     ax_c.set_ylabel("command [cmd units]")
     ax_y.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
-    ax_y.set_xlabel("time [s]")
+    ax_y.set_xlabel(_time_label(result))
     ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - MRFT tests (shaded) and stable cycles (bars)",
                    pad=16)
     # Output limits from the tests (take-off and landing would squash the oscillations otherwise).
     if result.tests:
         amp = max(t.amplitude_mean for t in result.tests) * scale
-        lo = min(np.min(y[(ty >= t.t_start) & (ty <= t.t_end)]) for t in result.tests if np.any((ty >= t.t_start) & (ty <= t.t_end)))
-        hi = max(np.max(y[(ty >= t.t_start) & (ty <= t.t_end)]) for t in result.tests if np.any((ty >= t.t_start) & (ty <= t.t_end)))
+        inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0) for t in result.tests]
+        lo = min(np.min(y[m]) for m in inside if m.any())
+        hi = max(np.max(y[m]) for m in inside if m.any())
         pad = 0.6 * amp
         ax_y.set_ylim(lo - pad, hi + pad)
     plt.setp(ax_c.get_xticklabels(), visible=False)
@@ -128,30 +143,34 @@ def plot_timeseries(result):
         st = t.stable
         mid = len(st) // 2
         sel = st[max(mid - 1, 0): mid + 1]
-        t0, t1 = sel[0].t_start - 0.1 * sel[0].period, sel[-1].t_end + 0.1 * sel[-1].period
+        # zoom axis: seconds from the log start, like the overview (offsets the reader can match)
+        t0, t1 = sel[0].t_start - 0.1 * sel[0].period - T0, sel[-1].t_end + 0.1 * sel[-1].period - T0
         m = (ty >= t0) & (ty <= t1)
-        ax.plot(ty[m] - t0, y[m], ".", ms=2, color="0.45", label="measured")
+        ax.plot(ty[m], y[m], ".", ms=2, color="0.45", label="measured")
         for cyc in sel:
             centre = cyc.centre * t.loop_sign * scale
-            ax.plot(cyc.t_max - t0, cyc.y_max * t.loop_sign * scale, "v", color=colours[t.index], ms=6)
-            ax.plot(cyc.t_min - t0, cyc.y_min * t.loop_sign * scale, "^", color=colours[t.index], ms=6)
+            ax.plot(cyc.t_max - T0, cyc.y_max * t.loop_sign * scale, "v", color=colours[t.index], ms=6)
+            ax.plot(cyc.t_min - T0, cyc.y_min * t.loop_sign * scale, "^", color=colours[t.index], ms=6)
             for ts, ys in ((cyc.t_switch, cyc.y_switch_down), (cyc.t_end, cyc.y_switch_up)):
-                ax.axvline(ts - t0, color=colours[t.index], lw=0.8, ls="--")
-                ax.plot(ts - t0, ys * t.loop_sign * scale, "o", color=colours[t.index], ms=5, mfc="white")
+                ax.axvline(ts - T0, color=colours[t.index], lw=0.8, ls="--")
+                ax.plot(ts - T0, ys * t.loop_sign * scale, "o", color=colours[t.index], ms=5, mfc="white")
             ax.axhline(centre, color="0.6", lw=0.6)
         ax.set_title(f"test {t.index + 1}: {t.frequency_hz_mean:.3f} Hz, a = {t.amplitude_mean * scale:.3g} {unit}",
                      fontsize=9)
-        ax.set_xlabel(f"time from {t0:.1f} s [s]")
+        ax.set_xlim(t0, t1)
+        ax.xaxis.get_major_formatter().set_useOffset(False)
+        ax.set_xlabel("time from log start [s]")
         if k == 0:
             ax.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
             ax.plot([], [], "v", color="0.3", label="fitted extrema")
             ax.plot([], [], "o", color="0.3", mfc="white", label="output at switch")
-            ax.legend(loc="lower left", fontsize=7, framealpha=0.8)
+            ax.legend(loc="best", fontsize=7, framealpha=0.8)
     return fig
 
 
 def plot_manifolds(result):
     """The paper's Fig. 5: UFM slices tau(Td) at the known Tp, their intersection and the spread."""
+    from ..analyze import phase_tau
     from ..identify import ufm_slice
 
     fig, ax = new_figure(width=8.5, height=5.6)
@@ -171,6 +190,9 @@ def plot_manifolds(result):
     colours = _group_colours(result)
     many = len(result.tests) > 4
     seen: set = set()
+    constraints = getattr(result, "constraints", None) or {}
+    show_phase = "phase" in constraints.get("used", []) and not many
+    phase_labelled = False
     for t in result.tests:
         try:
             tau = ufm_slice(result.Tp, t.beta_effective, t.frequency_hz_mean, Td) * 1e3
@@ -186,6 +208,16 @@ def plot_manifolds(result):
         else:
             ax.plot(Td, tau, color=col, lw=2,
                     label=f"test {t.index + 1}: beta {t.beta_effective:+.3f}, {t.frequency_hz_mean:.4f} Hz")
+        if show_phase:
+            # Beyond the paper: the test's phase curve (arg of its fundamental harmonic), dashed
+            ph = np.array([c.phase_h1 for c in t.stable], float)
+            if np.isfinite(ph).sum() >= 2:
+                tph = phase_tau(result.Tp, _TWO_PI * t.frequency_hz_mean, float(np.nanmean(ph)), Td) * 1e3
+                label = None
+                if not phase_labelled:
+                    label = "phase of each test's fundamental (dashed, same colour)"
+                    phase_labelled = True
+                ax.plot(Td, tph, color=col, lw=1.2, ls="--", alpha=0.9, label=label)
     if ok.any():
         ax.plot(cTd[ok], ctau[ok] * 1e3, ".", color="0.35", ms=3, alpha=0.5,
                 label=f"per combination of cycles ({int(ok.sum())})")
@@ -195,7 +227,11 @@ def plot_manifolds(result):
         xerr = [[Td_hat - result.Td.ci95_low], [result.Td.ci95_high - Td_hat]]
         yerr = [[(tau_hat - result.tau.ci95_low) * 1e3], [(result.tau.ci95_high - tau_hat) * 1e3]]
     ax.errorbar([Td_hat], [tau_hat * 1e3], xerr=xerr, yerr=yerr, fmt="*", color="k", ms=14, mfc="gold",
-                capsize=4, zorder=5, label=f"estimate: Td {Td_hat:.3g} s, tau {tau_hat * 1e3:.3g} ms (95 % interval)")
+                capsize=4, zorder=5, label=f"estimate: Td {Td_hat:.3g} s, tau {tau_hat * 1e3:.4g} ms (95 % interval)")
+    paper = constraints.get("paper_estimate")
+    if paper and paper.get("Td") is not None:
+        ax.plot([paper["Td"]], [paper["tau"] * 1e3], "o", color="k", mfc="white", ms=8, zorder=4,
+                label=f"UFM slices alone (paper): Td {paper['Td']:.3g} s, tau {paper['tau'] * 1e3:.4g} ms")
     ax.set_xscale("log")
     ax.set_xlim(lo_x, hi_x)
     from matplotlib.ticker import LogLocator, ScalarFormatter
@@ -216,7 +252,8 @@ def plot_manifolds(result):
     ax.set_ylim(max(ylo, 0.0), yhi)
     ax.set_xlabel("drag time constant Td [s] (log scale)")
     ax.set_ylabel("delay tau [ms]")
-    ax.set_title(f"UFM slices at Tp = {result.Tp:g} s, scaled to each test's frequency (paper Fig. 5)")
+    ax.set_title(f"UFM slices at Tp = {result.Tp:g} s, scaled to each test's frequency (paper Fig. 5)"
+                 + ("\nwith the weighted phase constraints (dashed)" if show_phase else ""), fontsize=10)
     ax.legend(loc="best", fontsize=8, framealpha=0.9)
     return fig
 
@@ -313,9 +350,13 @@ def write_analysis_report(result, out_dir: str | Path) -> Path:
         return [label, f(e["mean"]), f(e["std"]), f"{f(e['ci95_low'])} - {f(e['ci95_high'])}", u]
 
     comb = d["combinations"]
+    T0 = _t0(result)
+    from ..analyze import describe_t0
+
     body = [
         f"<p class='muted'>{esc(result.path)} - loop <b>{esc(result.loop)}</b> - Tp = {result.Tp:g} s (known) - "
-        f"model G(s) = K Td e<sup>-tau s</sup> / (s (Tp s+1)(Td s+1))</p>",
+        f"model G(s) = K Td e<sup>-tau s</sup> / (s (Tp s+1)(Td s+1)) - times are seconds from the log start "
+        f"({esc(describe_t0(T0))})</p>",
         "<h2>Parameters</h2>",
         html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
                    [row("Td", "Td", 1.0, "s"), row("tau", "tau", 1e3, "ms"), row("K", "K", 1.0, "")]),
@@ -326,9 +367,17 @@ def write_analysis_report(result, out_dir: str | Path) -> Path:
             f"Td {comb['Td']['mean']:.4g} &plusmn; {comb['Td']['std'] or 0:.3g} s, "
             f"tau {comb['tau']['mean'] * 1e3:.4g} &plusmn; {(comb['tau']['std'] or 0) * 1e3:.3g} ms, "
             f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g}.</p>")
+    cons = getattr(result, "constraints", None) or {}
+    paper = cons.get("paper_estimate")
+    if paper and paper.get("tau") is not None:
+        pv = cons.get("p_value")
+        body.append(
+            f"<p>Estimate: {esc(d['identification']['method'])} (chi-square {cons['chi2']:.2f} for {cons['dof']} "
+            f"degrees of freedom{'' if pv is None else f', p = {pv:.2g}'}). The UFM slices alone (the paper's "
+            f"method) give Td {paper['Td']:.4g} s, tau {paper['tau'] * 1e3:.4g} ms.</p>")
     rows = []
     for t in list(result.tests) + list(result.rejected):
-        rows.append([t.index + 1, f"{t.t_start:.1f} - {t.t_end:.1f}",
+        rows.append([t.index + 1, f"{t.t_start - T0:.1f} - {t.t_end - T0:.1f}",
                      "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}",
                      f"{t.beta_effective:+.4f}" if math.isfinite(t.beta_effective) else "-",
                      f"{t.h:.4g}", f"{t.bias:.4g}",
@@ -337,7 +386,7 @@ def write_analysis_report(result, out_dir: str | Path) -> Path:
                      f"{t.n_stable} / {len(t.cycles)}", f"{t.rate_hz:.1f}",
                      "used" if t in result.tests else "left out"])
     body += ["<h2>Tests</h2>",
-             html_table(["test", "t [s]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
+             html_table(["test", "t [s from log start]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
                          f"amplitude [{unit}]", "stable / cycles", "rate [Hz]", ""], rows)]
     if result.warnings:
         body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in result.warnings)

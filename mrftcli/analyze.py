@@ -65,7 +65,7 @@ from .identify import IdentificationResult, ParameterEstimate, TestMeasurement, 
 from .logtypes import FlightLog
 from .lprs import unit_cycle
 from .model import LoopModel
-from .segment import MrftTest, StabilityCriterion, segment
+from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
 
 __all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "log_start", "describe_t0", "phase_tau", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]
@@ -101,7 +101,8 @@ class AnalysisResult:
     tests : tuple of MrftTest
         The tests used for identification (with their per-cycle data).
     rejected : tuple of MrftTest
-        Tests found in the command but left out (too few stable cycles), with the reason in
+        Tests found in the command but left out (too few stable cycles, or the output is not a limit
+        cycle of this relay: ``MrftTest.validity``), with the reason in ``rejection_reasons`` and
         ``warnings``.
     Td, tau, K : ParameterEstimate
         Point estimate (``mean``) with bootstrap ``std`` and 95 % interval; Td, tau in seconds, K in
@@ -124,6 +125,8 @@ class AnalysisResult:
     constraints : dict
         The extra weighted constraints of the point estimate beyond the UFM slices and their
         residuals (see :func:`analyze_flight`); empty when none were used.
+    rejection_reasons : dict
+        ``MrftTest.index`` of each rejected test -> why it was left out (one sentence).
     """
 
     path: str
@@ -142,6 +145,7 @@ class AnalysisResult:
     flight: FlightLog | None = field(default=None, repr=False)
     t0: float = 0.0
     constraints: dict = field(default_factory=dict)
+    rejection_reasons: dict = field(default_factory=dict)
 
     def rel(self, t: float) -> float:
         """A log time [s] as seconds since the log's first sample."""
@@ -213,7 +217,8 @@ class AnalysisResult:
             "model": {"Tp": self.model.Tp, "Td": self.model.Td, "tau": self.model.tau, "K": self.model.K},
             "combinations": self.combination_stats(),
             "tests": [self._with_rel(t.to_dict(cycles=cycles)) for t in self.tests],
-            "rejected_tests": [self._with_rel(t.to_dict(cycles=False)) for t in self.rejected],
+            "rejected_tests": [{**self._with_rel(t.to_dict(cycles=False)),
+                                "reason": self.rejection_reasons.get(t.index, "")} for t in self.rejected],
             "identification": {"method": ident["method"] if not self.constraints else
                                "weighted least squares: UFM slices + " + " + ".join(self.constraints["used"][1:]),
                                "residual": ident["residual"],
@@ -519,6 +524,83 @@ def _describe(tests: Sequence[MrftTest], t0: float = 0.0) -> str:
     return "; ".join(parts)
 
 
+def _screen_tests(found: Sequence[MrftTest], min_stable_cycles: int) -> dict:
+    """Which tests cannot be used, and why: {MrftTest.index: reason}.
+
+    In order: an output with no oscillation at the relay frequency (SNR or variance share of
+    ``MrftTest.validity``, robust even on start-up cycles); too few stable cycles; any other failed
+    validity criterion (phase, beta); then the loop-gain sign, which must be the same in every test
+    of one log (one plant, one sign): the tests of the minority sign are rejected, and all of them
+    when the signs split evenly (nothing tells which is right).
+    """
+    reasons: dict = {}
+    for t in found:
+        v = t.validity
+        if v is not None and not v.follows_relay:
+            reasons[t.index] = "the output does not follow this relay: " + "; ".join(v.reasons)
+        elif t.n_stable < min_stable_cycles or not np.isfinite(t.beta_effective):
+            reasons[t.index] = f"{t.n_stable} stable cycles (need {min_stable_cycles})"
+        elif v is not None and not v.ok:
+            reasons[t.index] = "not an MRFT limit cycle of this output: " + "; ".join(v.reasons)
+    kept = [t for t in found if t.index not in reasons]
+    signs = np.array([t.loop_sign for t in kept])
+    if signs.size and np.unique(signs).size > 1:
+        n_pos, n_neg = int((signs > 0).sum()), int((signs < 0).sum())
+        keep = 1 if n_pos > n_neg else -1 if n_neg > n_pos else 0
+        for t in kept:
+            if t.loop_sign != keep:
+                reasons[t.index] = (
+                    f"the loop gain is {'positive' if t.loop_sign > 0 else 'negative'} here but "
+                    f"{'negative' if t.loop_sign > 0 else 'positive'} in {n_neg if t.loop_sign > 0 else n_pos} "
+                    "other test(s) of the log: one plant has one sign, so the output is not the relayed signal "
+                    "in all of them")
+    return reasons
+
+
+def _topic(flight: FlightLog, key: str, default: str) -> str:
+    src = flight.source.get(key) if isinstance(flight.source, dict) else None
+    return str(src).split(":")[0] if src else default
+
+
+def _amp_text(x: float, loop: str) -> str:
+    """An output amplitude for people: mm for altitude [m], mrad for the attitude loops [rad]."""
+    if not np.isfinite(x):
+        return "-"
+    return f"{x * 1e3:.2g} {'mm' if loop == 'altitude' else 'mrad'}"
+
+
+def _no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: dict, min_stable_cycles: int,
+                       t0: float) -> str:
+    """The one-line SegmentationError when no test survives :func:`_screen_tests`."""
+    n = len(found)
+    cmd = _topic(flight, "command", "the command")
+    out = f"{_topic(flight, 'output', 'the output')} {flight.loop}"
+    head = f"{flight.path}: {n} relay test(s) found on {cmd}, but "
+    lost = [t for t in found if t.validity is not None and not t.validity.follows_relay]
+    if lost and len(lost) * 2 >= n:
+        v = [t.validity for t in lost]
+        amp = float(np.nanmedian([x.amplitude for x in v]))
+        snr = float(np.nanmedian([x.snr for x in v]))
+        frac = float(np.nanmedian([x.h1_fraction for x in v]))
+        return (head + f"{out} does not follow them (output amplitude {_amp_text(amp, flight.loop)}, "
+                f"{snr:.2g}x the noise at the relay frequency; fraction of variance at the relay frequency "
+                f"{frac:.2f}): is --loop/--output-topic right?")
+    bad = [t for t in found if t.validity is not None and not t.validity.ok and t.index in reasons
+           and "stable cycles" not in reasons[t.index]]
+    if bad:
+        why = "; ".join(f"test at {_span(t, t0)}: {reasons[t.index]}" for t in bad)
+        return (head + f"{out} is not a limit cycle of them ({why}): is --loop/--output-topic/--command-topic "
+                "right?")
+    signs = [t for t in found if "loop gain" in reasons.get(t.index, "")]
+    if signs:
+        return (head + f"the loop gain of {out} has opposite signs in them "
+                f"({', '.join(f'{_span(t, t0)}: {t.loop_sign:+d}' for t in found)}): the output is not the "
+                "signal the relay controls in all of them; is --output-topic right?")
+    return (f"{flight.path}: found {n} relay test(s) but none with {min_stable_cycles} or more stable "
+            f"cycles ({_describe(found, t0)}; times from the log start); record longer tests or check for "
+            "noise/dropouts")
+
+
 def _partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -> dict:
     """What one beta can say: tau(Td) over the assumed Td range, per test."""
     Td = np.geomspace(ASSUMED_TD_RANGE[0], ASSUMED_TD_RANGE[1], 9)
@@ -552,6 +634,7 @@ def analyze_flight(
     max_combinations: int = 400,
     seed: int = 0,
     constraints: Sequence[str] = CONSTRAINTS,
+    validity: ValidityCriterion | None = None,
 ) -> AnalysisResult:
     """Segment the MRFT tests of a flight and identify Td, tau and K (see the module docstring).
 
@@ -574,6 +657,10 @@ def analyze_flight(
     constraints : sequence of {"phase", "amplitude"}
         Weighted constraints added to the UFM slices for the point estimate and the bootstrap
         (Beyond the paper, see the module docstring); ``()`` gives the paper's method alone.
+    validity : ValidityCriterion, optional
+        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`):
+        a test whose output does not follow its relay as an MRFT limit cycle is rejected, and so are
+        the tests whose loop-gain sign disagrees with the others' (:func:`_screen_tests`).
 
     Returns
     -------
@@ -582,7 +669,8 @@ def analyze_flight(
     Raises
     ------
     SegmentationError
-        No relay test in the log, or no test with ``min_stable_cycles`` stable cycles.
+        No relay test in the log, or no test with ``min_stable_cycles`` stable cycles whose output
+        is a limit cycle of its relay (the message says what was found and why it is not usable).
     InsufficientDataError
         Usable tests at a single beta only (``.partial`` gives tau over an assumed Td range).
     IdentificationError
@@ -598,28 +686,33 @@ def analyze_flight(
 
         raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
     crit = criterion or StabilityCriterion()
-    found = segment(flight, criterion=crit)
+    found = segment(flight, criterion=crit, validity=validity or ValidityCriterion())
     t0 = log_start(flight)
-    usable = [t for t in found if t.n_stable >= min_stable_cycles and np.isfinite(t.beta_effective)]
-    rejected = [t for t in found if t not in usable]
+    reasons = _screen_tests(found, min_stable_cycles)
+    usable = [t for t in found if t.index not in reasons]
+    rejected = [t for t in found if t.index in reasons]
     warnings: list[str] = []
     for t in rejected:
-        warnings.append(f"test at {_span(t, t0)} left out: {t.n_stable} stable cycles "
-                        f"(need {min_stable_cycles})")
+        warnings.append(f"test at {_span(t, t0)} left out: {reasons[t.index]}")
     if not usable:
-        raise SegmentationError(
-            f"{flight.path}: found {len(found)} relay test(s) but none with {min_stable_cycles} or more stable "
-            f"cycles ({_describe(found, t0)}; times from the log start); record longer tests or check for "
-            "noise/dropouts"
-        )
+        err = SegmentationError(_no_usable_message(flight, found, reasons, min_stable_cycles, t0))
+        # for ``--json``: what was found and why each test was rejected (read by commands/analyze.py)
+        err.rejected_tests = [{**t.to_dict(cycles=False), "t_start_rel": t.t_start - t0, "t_end_rel": t.t_end - t0,
+                               "reason": reasons[t.index]} for t in found]
+        raise err
     groups = _group_betas(usable)
     if len(groups) < 2:
         raise InsufficientDataError(
             f"{flight.path}: only one beta was tested ({_describe(usable, t0)}; times from the log start); "
             f"Td and tau need two tests with "
             f"different betas (e.g. -0.4 and -0.7). Partial result: tau for an assumed Td range "
-            f"{ASSUMED_TD_RANGE[0]:g}-{ASSUMED_TD_RANGE[1]:g} s",
-            partial=_partial_single_beta(Tp, usable, t0),
+            f"{ASSUMED_TD_RANGE[0]:g}-{ASSUMED_TD_RANGE[1]:g} s"
+            + (f" ({len(rejected)} other test(s) rejected: {'; '.join(reasons[t.index] for t in rejected)})"
+               if rejected else ""),
+            partial={**_partial_single_beta(Tp, usable, t0),
+                     "rejected_tests": [{**t.to_dict(cycles=False), "t_start_rel": t.t_start - t0,
+                                         "t_end_rel": t.t_end - t0, "reason": reasons[t.index]}
+                                        for t in rejected]},
         )
     for t in usable:
         warnings.extend(f"test at {t.t_start - t0:.1f} s: {n}" for n in t.notes)
@@ -744,7 +837,7 @@ def analyze_flight(
         path=str(flight.path), loop=flight.loop, Tp=Tp, tests=tuple(usable), rejected=tuple(rejected),
         Td=Td_est, tau=tau_est, K=K_est, model=model, identification=ident, combinations=combinations,
         bootstrap={"Td": Td_d[1:], "tau": tau_d[1:], "K": K_d[1:]}, warnings=tuple(warnings), flight=flight,
-        t0=t0, constraints=constraint_info,
+        t0=t0, constraints=constraint_info, rejection_reasons={t.index: reasons[t.index] for t in rejected},
     )
 
 

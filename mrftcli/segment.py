@@ -33,6 +33,16 @@ The segmenter works on the command the MRFT block sent (``FlightLog.command``) a
    where sigma is 1.4826 MAD and k = ``mad_k``. The stable cycles are the consistent, regular ones
    after the first cycle of the first run of ``min_consecutive`` consecutive consistent cycles; the
    cycles before (and that first one, which may still be converging) are the start-up transient.
+5. **Is it a limit cycle of this output?** (:func:`check_limit_cycle`, stored in
+   ``MrftTest.validity``). A relay in the command says nothing about the output: the wrong loop,
+   topic or an output buried in noise still yields "cycles". The output must oscillate at the
+   relay's frequency above the noise (fundamental amplitude >= 3x the residual noise of the cycle
+   fit, >= 50 % of its variance in the fundamental), with a steady phase relative to the relay
+   (mean resultant length >= 0.9) that matches what an MRFT at the measured switching level gives a
+   plant of eq. (2) (within 0.6 rad of -pi + arcsin beta_eff), and the effective beta must lie in
+   (-1, 1) and agree with the nominal one (within 0.25, same sign). Thresholds and their reasons:
+   :class:`ValidityCriterion` and docs/usage-analyze.md; :func:`mrftcli.analyze.analyze_flight`
+   rejects the failing tests and those whose loop-gain sign disagrees with the others'.
 
 Everything the identification needs comes out as frozen dataclasses: :class:`RelayCycle` and
 :class:`MrftTest`.
@@ -57,6 +67,10 @@ __all__ = [
     "regularise_times",
     "stable_cycles",
     "estimate_rate_hz",
+    "ValidityCriterion",
+    "LimitCycleCheck",
+    "check_limit_cycle",
+    "df_phase",
 ]
 
 _MAD_TO_SIGMA = 1.4826
@@ -128,6 +142,11 @@ class RelayCycle:
         (:func:`_cycle_fundamental`): arg [rad, in (-2 pi, 0]] and modulus [output units per command
         unit]. For a periodic cycle they are arg G(j Omega) and |G(j Omega)| of the loop's plant,
         whatever level the relay switched at; NaN when an instant was interpolated or the fit failed.
+    noise_std, h1_fraction, amplitude_h1 : float
+        From the same whole-cycle fit (:func:`_cycle_harmonics`): the residual standard deviation
+        (the sensor noise) [output units], the share of the de-trended output's mean square at the
+        relay's fundamental frequency [-], and the amplitude of that fundamental [output units].
+        They feed the limit-cycle validity check (:func:`check_limit_cycle`).
     flags : tuple of str
         ``gap`` (a switch follows more than two dropped command samples), ``interp`` (a switch follows one
         or two dropped samples: its instant is interpolated and its level not used for beta),
@@ -158,6 +177,9 @@ class RelayCycle:
     stable: bool = False
     phase_h1: float = float("nan")
     gain_h1: float = float("nan")
+    noise_std: float = float("nan")
+    h1_fraction: float = float("nan")
+    amplitude_h1: float = float("nan")
 
     @property
     def frequency_hz(self) -> float:
@@ -213,6 +235,9 @@ class MrftTest:
         Relay switches seen in the test.
     notes : tuple of str
         Anything worth telling the user about this test.
+    validity : LimitCycleCheck or None
+        Whether the output follows this relay as an MRFT limit cycle, with the measured figures
+        (:func:`check_limit_cycle`).
     """
 
     index: int
@@ -235,6 +260,12 @@ class MrftTest:
     timestamps_regularised: bool = False
     n_switches: int = 0
     notes: tuple[str, ...] = ()
+    validity: "LimitCycleCheck | None" = None
+
+    @property
+    def valid(self) -> bool:
+        """The output follows this test's relay as an MRFT limit cycle (:func:`check_limit_cycle`)."""
+        return self.validity is None or self.validity.ok
 
     @property
     def stable(self) -> tuple[RelayCycle, ...]:
@@ -313,6 +344,8 @@ class MrftTest:
             },
             "notes": list(self.notes),
         }
+        if self.validity is not None:
+            d["validity"] = self.validity.to_dict()
         if cycles:
             d["per_cycle"] = [c.to_dict() for c in self.cycles]
         return d
@@ -638,8 +671,9 @@ def _fourier_cycle(t: np.ndarray, y: np.ndarray, t_switch: np.ndarray, t0: float
     return float(t_min), y_min, float(t_max), y_max, vals[0], vals[1]
 
 
-def _cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: float, h: float) -> complex:
-    """Y1 / U1: fundamental of the output over one cycle relative to the relay's (Beyond the paper).
+def _cycle_harmonics(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: float,
+                     h: float) -> tuple[complex, float, float, float]:
+    """Fundamental of one cycle and how much of the output it explains (Beyond the paper).
 
     The relay output is u = +h on [t0, t1) and -h on [t1, t2) (the plant's input between the logged
     switch instants, which lie on the controller's sample grid, so this square wave *is* the
@@ -652,25 +686,47 @@ def _cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: f
     switching level. Every sample of the cycle takes part: leaving out the few that decided a switch
     (first-passage-biased noise) made the estimates noisier on the 30-plant sweep, not better.
 
+    The same fit tells whether the output follows the relay at all (:func:`check_limit_cycle`): its
+    residual is the sensor noise (the harmonics 1..8 hold the limit cycle to ~5e-4 of its
+    amplitude, so the residual is noise whenever the output is a limit cycle of this relay), and
+    the fundamental's share of the de-trended variance is close to 1 for an MRFT limit cycle (the
+    plant's low-pass filtering of the square wave: 0.985 for a pure integrator, more with the lags)
+    and about 2/n for an output that does not oscillate at the relay's frequency.
+
     Returns
     -------
-    complex
-        Y1 / U1 [output units per command unit]; NaN when there are too few samples.
+    (g1, noise_std, h1_fraction, amplitude_h1)
+        g1 = Y1 / U1 [output units per command unit]; the residual standard deviation of the fit
+        [output units]; |Y1|^2 / 2 over the mean square of the de-trended output [-]; |Y1|
+        [output units]. NaNs when there are too few samples.
     """
+    nan = float("nan")
     P = t2 - t0
     i0, i1 = np.searchsorted(t, [t0, t2])
     tt, yy = t[i0:i1] - t0, y[i0:i1]
     H = _HARMONICS
-    if tt.size < 2 * (2 * H + 2):
-        return complex(float("nan"), float("nan"))
+    npar = 2 * H + 2
+    if tt.size < 2 * npar:
+        return complex(nan, nan), nan, nan, nan
     w = 2.0 * np.pi / P
     k = np.arange(1, H + 1)
     arg = np.outer(tt, k) * w
     A = np.hstack([np.ones((tt.size, 1)), (tt / P)[:, None], np.cos(arg), np.sin(arg)])
     coef, *_ = np.linalg.lstsq(A, yy, rcond=None)
+    resid = yy - A @ coef
+    noise = float(np.sqrt(resid @ resid / (tt.size - npar)))
+    detrended = yy - coef[0] - coef[1] * tt / P
+    ms = float(detrended @ detrended / tt.size)
     Y1 = complex(coef[2], -coef[2 + H])  # y ~ Re(Y1 exp(j w (t - t0)))
     U1 = 2.0 * h * (2.0 - 2.0 * np.exp(-1j * w * (t1 - t0))) / (1j * w * P)  # (2/P) int u e^{-jwt} dt
-    return complex(Y1 / U1)
+    frac = 0.5 * abs(Y1) ** 2 / ms if ms > 0 else nan
+    return complex(Y1 / U1), noise, float(frac), float(abs(Y1))
+
+
+def _cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: float, h: float) -> complex:
+    """Y1 / U1: fundamental of the output over one cycle relative to the relay's (see
+    :func:`_cycle_harmonics`) [output units per command unit]; NaN when there are too few samples."""
+    return _cycle_harmonics(t, y, t0, t1, t2, h)[0]
 
 
 def _measure_cycles(
@@ -715,9 +771,9 @@ def _measure_cycles(
             b_up = -(y_up - centre) / amp if not interp_up else float("nan")
             if interp_dn and interp_up:
                 flags.add("irregular")
-        g1 = complex(float("nan"), float("nan"))
-        if not (interp_dn or interp_up or "gap" in flags):
-            g1 = _cycle_fundamental(t_y, y, t0, t1, t2, h)
+        g1, noise, frac, a1 = _cycle_harmonics(t_y, y, t0, t1, t2, h)
+        if interp_dn or interp_up or "gap" in flags:
+            g1 = complex(float("nan"), float("nan"))  # the square wave's timing is not known
         ph1 = float(np.angle(g1)) if np.isfinite(g1) else float("nan")
         if ph1 > 0:
             ph1 -= 2.0 * np.pi  # the plant's phase lies in (-2 pi, 0]
@@ -729,6 +785,7 @@ def _measure_cycles(
                 t_max=float(t_max), t_min=float(t_min), y_switch_down=float(y_dn), y_switch_up=float(y_up),
                 beta_down=float(b_dn), beta_up=float(b_up), beta_effective=float(np.nanmean([b_dn, b_up])) if np.isfinite([b_dn, b_up]).any() else float('nan'),
                 flags=tuple(sorted(flags)), phase_h1=ph1, gain_h1=float(abs(g1)) if np.isfinite(g1) else float("nan"),
+                noise_std=noise, h1_fraction=frac, amplitude_h1=a1,
             )
         )
     return cycles
@@ -799,6 +856,223 @@ def stable_cycles(
 
 
 # --------------------------------------------------------------------------------------------------
+# Step 5: is it a limit cycle of this output at all?
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ValidityCriterion:
+    """Thresholds of the limit-cycle validity check (:func:`check_limit_cycle`; docs/usage-analyze.md).
+
+    Attributes
+    ----------
+    min_snr : float
+        Lowest ratio of the output's amplitude at the relay frequency to the noise standard deviation
+        (medians over the cycles). An output that does not follow the relay gives about sqrt(2/n),
+        0.1-0.3 for n = 40-200 samples per cycle; an MRFT whose amplitude is below ~3 noise standard
+        deviations switches on the noise and has no limit cycle of its own. 3 keeps a valid test at
+        10x the noise with a wide margin.
+    min_h1_fraction : float
+        Lowest share of the de-trended output's mean square at the relay's fundamental. A limit cycle
+        of eq. (2) holds 0.985 or more without noise (the triangle wave of a pure integrator) and
+        still 0.8 at 3x the noise; an output that does not oscillate at the relay's frequency holds
+        about 2/n (0.01-0.05).
+    min_phase_coherence : float
+        Lowest mean resultant length R = |mean exp(j phi_k)| of the per-cycle fundamental phases
+        relative to the relay (1: the same phase in every cycle; random phases give ~1/sqrt(N)).
+        0.9 is a circular standard deviation of 26 deg; a valid test at 10x the noise scatters by
+        about 1 deg.
+    phase_tolerance : float
+        Largest |arg G(j Omega) - (-pi + arcsin beta_eff)| [rad]. For every plant of eq. (2) the
+        exact (LPRS) limit cycle's fundamental phase lies within 0.33 rad of this describing-function
+        value (checked over Tp Omega in [1e-4, 20], Td Omega in [1e-3, 1e3], |beta| <= 0.999), i.e.
+        in (-3 pi/2, -pi/2) for |beta| <= 0.95; 0.6 rad adds a margin for the measurement of beta_eff.
+    max_beta_mismatch : float
+        Largest |beta_eff - beta_nominal| when a nominal beta is logged. Sampling and noise move the
+        switching level by a few hundredths (0.01-0.03 on the sample logs); 0.25 is a gross mismatch.
+    beta_sign_floor : float
+        Opposite signs of beta_eff and beta_nominal are a mismatch when both exceed this in magnitude.
+    """
+
+    min_snr: float = 3.0
+    min_h1_fraction: float = 0.5
+    min_phase_coherence: float = 0.9
+    phase_tolerance: float = 0.6
+    max_beta_mismatch: float = 0.25
+    beta_sign_floor: float = 0.1
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class LimitCycleCheck:
+    """The figures of the validity check of one test and what failed (:func:`check_limit_cycle`).
+
+    Attributes
+    ----------
+    n_cycles : int
+        Cycles the figures come from (the stable ones, else the regular ones).
+    amplitude, amplitude_h1, noise_std : float
+        Median cycle amplitude, median amplitude of the fundamental, median residual noise standard
+        deviation of the cycle fits [output units].
+    snr : float
+        amplitude_h1 / noise_std [-].
+    h1_fraction : float
+        Median share of the de-trended output's mean square at the relay's fundamental [-].
+    phase_coherence : float
+        Mean resultant length of the per-cycle fundamental phases [-].
+    phase : float
+        Circular mean of the per-cycle phases arg(Y1/U1) [rad, in (-2 pi, 0]].
+    phase_expected : float
+        -pi + arcsin(beta_effective) [rad] (:func:`df_phase`).
+    beta_effective, beta_nominal : float or None
+        The switching level measured, and the one logged.
+    failed : tuple of str
+        Short codes of the failed criteria: ``snr``, ``h1_fraction``, ``phase_coherence``, ``phase``,
+        ``beta_range``, ``beta_mismatch``, ``no_cycles``.
+    reasons : tuple of str
+        One sentence per failed criterion, with the figure and the threshold.
+    criterion : ValidityCriterion
+    """
+
+    n_cycles: int
+    amplitude: float
+    amplitude_h1: float
+    noise_std: float
+    snr: float
+    h1_fraction: float
+    phase_coherence: float
+    phase: float
+    phase_expected: float
+    beta_effective: float
+    beta_nominal: float | None
+    failed: tuple[str, ...]
+    reasons: tuple[str, ...]
+    criterion: ValidityCriterion = ValidityCriterion()
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+    @property
+    def follows_relay(self) -> bool:
+        """False when the output shows no oscillation at the relay frequency at all (SNR or share)."""
+        return not ({"snr", "h1_fraction", "no_cycles"} & set(self.failed))
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k != "criterion"}
+        d["failed"] = list(self.failed)
+        d["reasons"] = list(self.reasons)
+        d["ok"] = self.ok
+        d["thresholds"] = self.criterion.to_dict()
+        return d
+
+
+def df_phase(beta) -> np.ndarray:
+    """-pi + arcsin(beta) [rad]: the describing-function phase of G(j Omega) in an MRFT limit cycle.
+
+    Harmonic balance G(j Omega) N(a) = -1 with the MRFT's N(a) = 4h/(pi a) (sqrt(1 - beta^2) + j beta)
+    (paper Section III). The exact limit cycle of any plant of eq. (2) lies within 0.33 rad of it.
+    """
+    return -np.pi + np.arcsin(np.clip(np.asarray(beta, float), -1.0, 1.0))
+
+
+def _wrap(x: float) -> float:
+    return float((x + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+def check_limit_cycle(
+    cycles: tuple[RelayCycle, ...] | list[RelayCycle],
+    beta_effective: float,
+    beta_nominal: float | None = None,
+    criterion: ValidityCriterion = ValidityCriterion(),
+) -> LimitCycleCheck:
+    """Is the output an MRFT limit cycle of this relay? (Beyond the paper; docs/usage-analyze.md.)
+
+    Before a test's cycles are used, the output must (1) oscillate at the relay's frequency:
+    the amplitude of its fundamental over the residual noise of the per-cycle harmonic fit
+    (``min_snr``) and the share of its variance at the fundamental (``min_h1_fraction``); (2) be
+    switched by the relay: the fundamental's phase relative to the relay's square wave is the same
+    in every cycle (``min_phase_coherence``) and is the one an MRFT at the measured switching level
+    gives a plant of eq. (2), arg G(j Omega) ~ -pi + arcsin(beta_eff) (``phase_tolerance``); the
+    effective beta lies in (-1, 1) and agrees with the logged nominal beta (``max_beta_mismatch``,
+    ``beta_sign_floor``). Each test's figures are medians over its stable cycles (the regular ones
+    when none is stable).
+
+    Parameters
+    ----------
+    cycles : sequence of RelayCycle
+        All cycles of the test.
+    beta_effective : float
+        The test's mean effective beta (NaN if not measured).
+    beta_nominal : float or None
+        The logged beta, if any.
+    criterion : ValidityCriterion
+
+    Returns
+    -------
+    LimitCycleCheck
+    """
+    c = criterion
+    use = [cy for cy in cycles if cy.stable]
+    if len(use) < 2:
+        use = [cy for cy in cycles if cy.regular]
+    nan = float("nan")
+
+    def med(name: str) -> float:
+        v = np.array([getattr(cy, name) for cy in use], float)
+        v = v[np.isfinite(v)]
+        return float(np.median(v)) if v.size else nan
+
+    amp, a1, noise, frac = med("amplitude"), med("amplitude_h1"), med("noise_std"), med("h1_fraction")
+    snr = a1 / noise if noise > 0 else (float("inf") if a1 > 0 else nan)
+    ph = np.array([cy.phase_h1 for cy in use], float)
+    ph = ph[np.isfinite(ph)]
+    if ph.size:
+        z = np.exp(1j * ph).mean()
+        R, phase = float(abs(z)), float(np.angle(z))
+        phase = phase - 2.0 * np.pi if phase > 0 else phase
+    else:
+        R = phase = nan
+    be = float(beta_effective)
+    expected = float(df_phase(be)) if np.isfinite(be) and abs(be) < 1 else nan
+    failed, reasons = [], []
+
+    def fail(code: str, text: str) -> None:
+        failed.append(code)
+        reasons.append(text)
+
+    if not use:
+        fail("no_cycles", "no regular relay cycle to measure")
+    else:
+        if not snr >= c.min_snr:
+            fail("snr", f"output amplitude at the relay frequency is {snr:.2g}x the noise (need {c.min_snr:g}x)")
+        if not frac >= c.min_h1_fraction:
+            fail("h1_fraction", f"fraction of the output's variance at the relay frequency {frac:.2f} "
+                                f"(need {c.min_h1_fraction:g})")
+        if ph.size >= 2 and not R >= c.min_phase_coherence:
+            fail("phase_coherence", f"the output's phase relative to the relay wanders from cycle to cycle "
+                                    f"(coherence {R:.2f}, need {c.min_phase_coherence:g})")
+        if np.isfinite(be) and abs(be) >= 1:  # NaN (no stable cycle) is the stability criterion's business
+            fail("beta_range", f"effective beta {be:.3g} outside (-1, 1)")
+        elif np.isfinite(phase) and abs(_wrap(phase - expected)) > c.phase_tolerance:
+            fail("phase", f"the output lags the relay by {-np.degrees(phase):.0f} deg, where an MRFT at beta "
+                          f"{be:.2f} gives {-np.degrees(expected):.0f} +/- {np.degrees(c.phase_tolerance):.0f} deg")
+        if beta_nominal is not None and np.isfinite(be):
+            bn = float(beta_nominal)
+            opposite = bn * be < 0 and min(abs(bn), abs(be)) >= c.beta_sign_floor
+            if abs(be - bn) > c.max_beta_mismatch or opposite:
+                fail("beta_mismatch", f"the relay switched at beta {be:+.2f} on this output, not the nominal "
+                                      f"{bn:+g}")
+    return LimitCycleCheck(
+        n_cycles=len(use), amplitude=amp, amplitude_h1=a1, noise_std=noise, snr=float(snr), h1_fraction=frac,
+        phase_coherence=R, phase=phase, phase_expected=expected, beta_effective=be, beta_nominal=beta_nominal,
+        failed=tuple(failed), reasons=tuple(reasons), criterion=c,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
 # The whole chain
 # --------------------------------------------------------------------------------------------------
 
@@ -815,6 +1089,7 @@ def segment_arrays(
     setpoint: np.ndarray | None = None,
     criterion: StabilityCriterion = StabilityCriterion(),
     min_runs: int = 6,
+    validity: ValidityCriterion = ValidityCriterion(),
 ) -> list[MrftTest]:
     """Find the MRFT tests in command/output arrays (see the module docstring).
 
@@ -831,6 +1106,8 @@ def segment_arrays(
     criterion : StabilityCriterion
     min_runs : int
         Fewest relay half-periods for a stretch to count as a test.
+    validity : ValidityCriterion
+        Thresholds of the limit-cycle validity check stored in ``MrftTest.validity``.
 
     Returns
     -------
@@ -955,6 +1232,8 @@ def segment_arrays(
                 amplitude_median=info["amplitude_median"], amplitude_tolerance=info["amplitude_tolerance"],
                 loop_sign=sign, setpoint=sp_val, timestamps_regularised=regularised,
                 n_switches=len(t_sw), notes=tuple(notes),
+                validity=check_limit_cycle(final, float(be.mean()) if be.size else float("nan"), beta_nom,
+                                           validity),
             )
         )
         prev_end = t_b
@@ -976,6 +1255,7 @@ def segment(
     *,
     criterion: StabilityCriterion = StabilityCriterion(),
     min_runs: int = 6,
+    validity: ValidityCriterion = ValidityCriterion(),
 ) -> list[MrftTest]:
     """Find the MRFT tests in a flight log and measure their cycles.
 
@@ -987,6 +1267,8 @@ def segment(
         Stable-limit-cycle settings.
     min_runs : int
         Fewest relay half-periods for a stretch of switching to count as a test.
+    validity : ValidityCriterion
+        Thresholds of the limit-cycle validity check (``MrftTest.validity``).
 
     Returns
     -------
@@ -1009,7 +1291,7 @@ def segment(
         kw["beta_t"], kw["beta_v"] = _series_arrays(flight.beta)
     if flight.setpoint is not None and len(flight.setpoint):
         kw["t_sp"], kw["setpoint"] = _series_arrays(flight.setpoint)
-    tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, **kw)
+    tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity, **kw)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"
         raise SegmentationError(

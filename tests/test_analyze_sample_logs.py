@@ -28,6 +28,7 @@ def test_sample_log_against_sidecar(sidecar):
     truth = json.loads(sidecar.read_text())
     r = analyze_path(_log_of(sidecar), truth["Tp"], truth["loop"], n_bootstrap=200)
     assert [t.beta_nominal for t in r.tests] == [t["beta"] for t in truth["tests"]]
+    assert not r.rejected and all(t.validity.ok for t in r.tests)  # no false rejection
     for t, tt in zip(r.tests, truth["tests"]):
         assert t.h == pytest.approx(tt["h"], rel=1e-6)
         assert tt["t_start"] - 0.01 <= t.t_start and t.t_end <= tt["t_end"] + 0.01

@@ -34,6 +34,9 @@ def test_thirty_random_plants():
         betas = (-0.4, -0.7) if loop == "altitude" else (-0.5, -0.8)
         sf = simulate_paper_flight(Tp, Td, tau, K, betas, loop=loop, cycles=12.0, seed=k)
         r = analyze_flight(flight_from_simulated(sf), Tp)
+        # no false rejection by the limit-cycle validity check
+        assert not r.rejected and len(r.tests) == len(betas), (k, r.rejection_reasons)
+        assert all(t.validity.ok for t in r.tests), (k, [t.validity.reasons for t in r.tests])
         assert all(t.n_stable >= 8 for t in r.tests), (k, [t.n_stable for t in r.tests])
         td_omega = max(r.model.Td * 2 * np.pi * t.frequency_hz_mean for t in r.tests)
         tau_errors.append(r.tau.mean - tau)

@@ -6,7 +6,7 @@ import math
 
 import click
 
-from ..errors import InputError, InsufficientDataError
+from ..errors import InputError, InsufficientDataError, SegmentationError
 from ._common import dump_json
 
 
@@ -42,8 +42,10 @@ def format_table(result) -> str:
         )
     for t in result.rejected:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
-        lines.append(f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8}  "
-                     f"(left out: {t.n_stable} stable cycles)")
+        why = getattr(result, "rejection_reasons", {}).get(t.index) or f"{t.n_stable} stable cycles"
+        if len(why) > 80 and ":" in why:  # the figures are in the warning below the table
+            why = why[: why.index(":")] + "; see the warning"
+        lines.append(f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8}  (left out: {why})")
     lines.append("parameters   estimate  ± std  [95 % interval]")
     lines.append(f"  Td   [s]   {_fmt_est(result.Td, 1.0)}")
     lines.append(f"  tau  [ms]  {_fmt_est(result.tau, 1e3)}")
@@ -113,8 +115,13 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     phase and the amplitude ratios join the UFM slices as weighted constraints (--paper-only: not).
     Times shown are seconds from the log start; the JSON also keeps the absolute ones.
 
-    Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4 no usable relay test, 5 no plant fits,
-    6 a single beta or not enough data (a partial result is given).
+    Each test's output must be a limit cycle of its relay (oscillating at the relay's frequency
+    above the noise, in a steady phase that matches the measured beta, with the nominal beta and the
+    same loop-gain sign as the other tests); tests that are not are rejected with the reason.
+
+    Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4 no usable relay test (none, too short, or
+    the output does not follow the relay), 5 no plant fits, 6 a single usable beta or not enough
+    data (a partial result is given).
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
@@ -128,6 +135,13 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     except InsufficientDataError as err:
         if json_target:
             dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
+        raise
+    except SegmentationError as err:
+        # tests found but none usable: the JSON still says what was found and why each was rejected
+        rejected = getattr(err, "rejected_tests", None)
+        if json_target and rejected is not None:
+            dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [], "rejected_tests": rejected},
+                      json_target)
         raise
     diagnosis = None
     if run_diagnose:

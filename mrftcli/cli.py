@@ -87,6 +87,13 @@ def main(argv: list[str] | None = None) -> None:
     except KeyboardInterrupt:
         click.echo("Interrupted.", err=True)
         sys.exit(130)
+    except OSError as err:
+        # A path the user gave cannot be written or read (permissions, missing folder, full disk).
+        if debug:
+            raise
+        where = f"{err.filename}: " if err.filename else ""
+        click.echo(f"error: {where}{err.strerror or err}", err=True)
+        sys.exit(2)
     except Exception as err:  # noqa: BLE001 - last line of defence: never a traceback for users
         if debug:
             raise

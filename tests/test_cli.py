@@ -1,0 +1,60 @@
+"""The CLI layer itself: command registry, one-line errors, exit codes (subprocess, as a user runs it)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from mrftcli.cli import COMMANDS, cli
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", "from mrftcli.cli import main; main()", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_registered_command_imports_and_has_help(name):
+    command = cli.get_command(None, name)
+    assert command is not None, name
+    assert command.help and len(command.help.strip()) > 20, f"{name} has no real --help text"
+
+
+def test_top_level_help_lists_every_command():
+    proc = _run("--help")
+    assert proc.returncode == 0
+    for name in COMMANDS:
+        assert name in proc.stdout
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (("predict", "--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "1.2"), "beta must lie in the open interval"),
+        (("predict", "--tp", "0.1"), "Missing option"),
+        (("no-such-command",), "No such command"),
+    ],
+)
+def test_usage_errors_are_one_line_with_exit_2(args, needle):
+    proc = _run(*args)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("error: ") and needle in lines[0]
+    assert "Traceback" not in proc.stderr
+
+
+def test_unwritable_output_path_is_a_one_line_error(repo_root, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    log = repo_root / "sample_logs" / "design1_altitude.mcap"
+    proc = _run("analyze", str(log), "--tp", "0.0422", "--report", str(blocker / "report"))
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("error: ")
+    assert "Traceback" not in proc.stderr

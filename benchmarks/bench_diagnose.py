@@ -1,0 +1,130 @@
+#!/usr/bin/env python
+"""Benchmark of ``mrft-ident diagnose`` on a fresh concealed set (new seeds every run).
+
+For each candidate effect, ``--per-effect`` simulated altitude flights (the paper's two platforms,
+random platform, effect magnitude scaled by a random factor in [0.7, 1.3] around the realistic value
+of ``scripts/make_concealed_logs.py``) plus ``--clean`` clean controls are written as MCAP, read back
+and diagnosed. Printed: right effect named, clean reported clean, parameter within 25 % (of the
+logs where the effect was named), held-out NRMSE at least halved, and CPU time per log.
+
+Usage::
+
+    python benchmarks/bench_diagnose.py [--per-effect 5] [--clean 10] [--jobs 2] [--seed N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+PARAM = {"input_bias": "d", "gain_drift": "g", "sensor_lag": "T_lag", "quadratic_drag": "c",
+         "actuator_rate_limit": "R", "delay_jitter": "sigma"}
+
+
+def _gen_module():
+    spec = importlib.util.spec_from_file_location("make_concealed_logs", ROOT / "scripts" / "make_concealed_logs.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def run_case(case: tuple) -> dict:
+    effect, plant, seed, scale = case
+    from mrftcli.diagnose import diagnose
+    from mrftcli.readers import read_flight, write_log
+
+    gen = _gen_module()
+    flight = gen.make_case(effect, plant, seed, scale)
+    truth = flight.truth
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "flight.mcap"
+        write_log(flight.topics, path, "mcap")
+        t0 = time.process_time()
+        try:
+            res = diagnose(read_flight(path, "altitude"), truth["Tp"])
+            err = None
+        except Exception as exc:  # noqa: BLE001 - a benchmark records failures
+            res, err = None, f"{type(exc).__name__}: {exc}"
+        cpu = time.process_time() - t0
+    out = {"effect": effect, "plant": plant, "seed": seed, "scale": scale, "cpu": cpu, "error": err,
+           "true_value": truth["effects"].get(effect) if effect else None}
+    if res is not None:
+        out["found"] = [e.name for e in res.effects]
+        if res.effects:
+            e = res.effects[0]
+            out["value"] = e.parameters.get(PARAM[e.name])
+            out["nrmse_before"] = e.fit_before.get("nrmse")
+            out["nrmse_after"] = e.fit_after.get("nrmse")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--per-effect", type=int, default=5)
+    ap.add_argument("--clean", type=int, default=10)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=None, help="master seed (default: fresh every run)")
+    ap.add_argument("--effects", default=None, help="comma-separated subset of effects (default: all)")
+    args = ap.parse_args()
+    master = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little")
+    rng = np.random.default_rng(master)
+    gen = _gen_module()
+    cases = []
+    chosen = list(gen.EFFECTS) if args.effects is None else args.effects.split(",")
+    for effect in chosen + [None]:
+        n = args.clean if effect is None else args.per_effect
+        for _ in range(n):
+            cases.append((effect, str(rng.choice(list(gen.PLANTS))), int(rng.integers(1 << 30)),
+                          float(rng.uniform(0.7, 1.3))))
+    print(f"master seed {master}: {len(cases)} logs, {args.jobs} processes")
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        results = list(pool.map(run_case, cases))
+    wall = time.perf_counter() - t0
+    print(f"{'effect':<20} {'n':>3} {'named':>7} {'param 25%':>10} {'NRMSE/2':>8}   worst parameter error")
+    tot_named = tot_n = 0
+    for effect in chosen + [None]:
+        rs = [r for r in results if r["effect"] == effect]
+        if not rs:
+            continue
+        if effect is None:
+            clean = sum(1 for r in rs if r.get("found") == [])
+            print(f"{'clean':<20} {len(rs):>3} {clean:>4}/{len(rs):<3} (reported clean)   "
+                  f"false: {[r.get('found') for r in rs if r.get('found') != []]}")
+            continue
+        named = [r for r in rs if r.get("found") == [effect]]
+        within = [r for r in named if abs(r["value"] / r["true_value"] - 1) <= 0.25]
+        halved = [r for r in named if r["nrmse_after"] is not None and r["nrmse_after"] <= 0.5 * r["nrmse_before"]]
+        worst = max((abs(r["value"] / r["true_value"] - 1) for r in named), default=float("nan"))
+        tot_within = globals().setdefault("_within", [0, 0])
+        tot_within[0] += len(within)
+        tot_within[1] += len(named)
+        tot_named += len(named)
+        tot_n += len(rs)
+        print(f"{effect:<20} {len(rs):>3} {len(named):>4}/{len(rs):<3} {len(within):>6}/{len(named):<3} "
+              f"{len(halved):>4}/{len(named):<3}   {100 * worst:.0f} %   found instead: "
+              f"{[r.get('found') or r.get('error') for r in rs if r.get('found') != [effect]]}")
+    print("held-out NRMSE before -> after, per log where the effect was named:")
+    for effect in chosen:
+        pairs = [f"{r['nrmse_before']:.3f}->{r['nrmse_after']:.3f}" for r in results
+                 if r["effect"] == effect and r.get("found") == [effect]]
+        print(f"  {effect:<20} {' '.join(pairs)}")
+        vals = [f"{r['value']:.4g}/{r['true_value']:.4g}" for r in results if r["effect"] == effect and r.get("found") == [effect]]
+        print(f"  {'':<20} found/true: {' '.join(vals)}")
+    cpu = np.array([r["cpu"] for r in results])
+    print(f"right effect named: {tot_named}/{tot_n} = {100 * tot_named / max(tot_n, 1):.0f} %")
+    w = globals().get("_within", [0, 0])
+    print(f"parameter within 25 % (of named): {w[0]}/{w[1]}")
+    print(f"CPU per log: median {np.median(cpu):.1f} s, max {cpu.max():.1f} s; wall {wall:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

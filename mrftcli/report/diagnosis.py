@@ -1,0 +1,248 @@
+"""The ``diagnose --report DIR`` page (also written by ``analyze --diagnose --report DIR``).
+
+Figures (each returns a matplotlib Figure; :func:`write_diagnosis_report` saves them):
+
+1. :func:`plot_located` - the output over the log, tests shaded, each cycle's waveform error of the
+   linear model, and the located segments highlighted.
+2. :func:`plot_overlay` - per test, held-out cycles: recording, linear model, augmented model.
+3. :func:`plot_harmonics` - per test, the relative error of G(j k Omega) measured from the odd
+   harmonics of output/command, linear model vs augmented model.
+4. :func:`plot_evidence` - delta BIC of every candidate against the threshold, and the held-out
+   NRMSE before/after.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure
+
+__all__ = ["plot_located", "plot_overlay", "plot_harmonics", "plot_evidence", "write_diagnosis_report"]
+
+_BASE_C = "#D55E00"
+_AUG_C = "#009E73"
+_REC_C = "#444444"
+
+
+def _scale(result):
+    if result.loop in ("roll", "pitch"):
+        return 180.0 / math.pi, "deg"
+    return 1.0, "m"
+
+
+def _aug(result):
+    """(name, model, fit) of the reported effect with a waveform model, or None."""
+    p = result._plot
+    for name in p.get("effects", []):
+        if name in p.get("fits", {}):
+            model, fit = p["fits"][name]
+            return name, model, fit
+    return None
+
+
+def plot_located(result):
+    """Output over the log with tests shaded, per-cycle error of the linear model, located segments."""
+    p = result._plot
+    fl = p["flight"]
+    s, unit = _scale(result)
+    fig, (ax, ax2) = new_figure(2, 1, width=11, height=6, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+    t = fl.output.index.to_numpy(float)
+    ax.plot(t, fl.output.to_numpy(float) * s, color=_REC_C, lw=0.6, label="recorded output")
+    for i, test in enumerate(p["tests"]):
+        c = TEST_COLOURS[i % len(TEST_COLOURS)]
+        ax.axvspan(test.t_start, test.t_end, color=c, alpha=0.10)
+        ax.text(test.t_start, 1.0, f" test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}",
+                transform=ax.get_xaxis_transform(), va="top", fontsize=8, color=c)
+    segs = [loc for loc in result.located if loc["kind"] == "segment"]
+    for k, loc in enumerate(segs):
+        for a in (ax, ax2):
+            a.axvspan(loc["t_start"], loc["t_end"], color="red", alpha=0.18, lw=0,
+                      label="located segment" if (k == 0 and a is ax) else None)
+    ax.set_ylabel(f"output [{unit}]")
+    ax.set_title("Where the linear model disagrees with the recording")
+    ax.legend(loc="lower right", fontsize=8)
+    for i, ce in enumerate(p.get("cycle_errors", [])):
+        c = TEST_COLOURS[i % len(TEST_COLOURS)]
+        ax2.plot(ce["t"], 100 * ce["nrmse"], "o-", color=c, ms=3, lw=1)
+    ax2.set_ylabel("cycle NRMSE [%]\n(linear model)")
+    ax2.set_xlabel("time [s]")
+    feats = [loc for loc in result.located if loc["kind"] == "feature"][:2]
+    if feats:
+        txt = "largest: " + "; ".join(f"test {f['test'] + 1} {f['what']} (z = {f['z']:+.1f})" for f in feats)
+        ax2.set_title(txt, fontsize=9)
+    return fig
+
+
+def _model_cycle_wave(model, fit, i, test, t_ref, tt):
+    ev = model.evaluate(fit.theta, i, t_ref, key=5000 + i)
+    if ev is None:
+        return None
+    c = ev.cycle
+    return fit.K * c.waveform(0, c.start[0] + tt, trend=False)
+
+
+def plot_overlay(result, n_cycles: int = 3):
+    """Per test: consecutive held-out cycles, recording vs linear model vs augmented model."""
+    p = result._plot
+    tests = p["tests"]
+    aug = _aug(result)
+    s, unit = _scale(result)
+    fl = p["flight"]
+    ty = fl.output.index.to_numpy(float)
+    fig, axes = new_figure(1, len(tests), width=4.2 * len(tests), height=3.8, squeeze=False)
+    for i, (test, ax) in enumerate(zip(tests, axes[0])):
+        tab = test.tab
+        hold = np.flatnonzero(test.hold)
+        if hold.size == 0:
+            continue
+        mid = hold[len(hold) // 2]
+        sel = [j for j in range(mid, min(mid + 2 * n_cycles, len(tab))) if test.hold[j]][:n_cycles]
+        t0 = tab.start[sel[0]]
+        # raw samples over the window (relative to the setpoint used by the diagnosis)
+        lo, hi = tab.start[sel[0]], tab.end[sel[-1]]
+        m = (ty >= lo) & (ty < hi)
+        for j in sel:
+            tt = np.linspace(0.0, tab.period[j], 200, endpoint=False)
+            rec = tab.waveform(j, tab.start[j] + tt)
+            ax.plot(tab.start[j] + tt - t0, rec * s, color=_REC_C, lw=2.2, alpha=0.45,
+                    label="recording (noise removed)" if j == sel[0] else None)
+            yb = _model_cycle_wave(p["base_model"], p["base"], i, test, tab.t_mid[j], tt)
+            if yb is not None:
+                ax.plot(tab.start[j] + tt - t0, yb * s, "--", color=_BASE_C, lw=1.4,
+                        label="linear model" if j == sel[0] else None)
+            if aug is not None:
+                ya = _model_cycle_wave(aug[1], aug[2], i, test, tab.t_mid[j], tt)
+                if ya is not None:
+                    ax.plot(tab.start[j] + tt - t0, ya * s, color=_AUG_C, lw=1.2,
+                            label=f"with {aug[0]}" if j == sel[0] else None)
+            ax.axvline(tab.start[j] - t0, color="#999", lw=0.6)
+            ax.axvline(tab.switch[j] - t0, color="#999", lw=0.6, ls=":")
+        del m
+        ax.set_title(f"test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}\n"
+                     f"held-out cycles from t = {t0:.1f} s", fontsize=10)
+        ax.set_xlabel("time from the first shown -h -> +h switch [s]")
+        if i == 0:
+            ax.set_ylabel(f"output - setpoint [{unit}]")
+        ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def plot_harmonics(result):
+    """Relative error of G(j k Omega) per odd harmonic, linear vs augmented, per test."""
+    effects = result.effects
+    harm = effects[0].harmonics if effects else {}
+    p = result._plot
+    tests = p["tests"]
+    fig, axes = new_figure(1, len(tests), width=3.6 * len(tests), height=3.4, squeeze=False, sharey=True)
+    ks = ["1", "3", "5", "7"]
+    for i, (test, ax) in enumerate(zip(tests, axes[0])):
+        h = harm.get(str(test.index))
+        if h is None:
+            before = p["harmonics"][i] if i < len(p.get("harmonics", [])) else {}
+            after = {}
+        else:
+            before, after = h["before"], h["after"]
+        x = np.arange(len(ks))
+        ax.bar(x - 0.2, [100 * before.get(k, np.nan) for k in ks], 0.4, color=_BASE_C, label="linear model")
+        if after:
+            ax.bar(x + 0.2, [100 * after.get(k, np.nan) for k in ks], 0.4, color=_AUG_C,
+                   label=f"with {effects[0].name}")
+        ax.set_xticks(x, [f"k={k}" for k in ks])
+        ax.set_yscale("log")
+        ax.set_title(f"test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}", fontsize=10)
+        if i == 0:
+            ax.set_ylabel("|G_rec - G_model| / |G_model| [%]\n(held-out cycles)")
+        ax.legend(fontsize=7)
+    fig.suptitle("Each odd harmonic of the relay measures G(j k Omega)", fontsize=11)
+    return fig
+
+
+def plot_evidence(result):
+    """delta BIC per candidate (threshold line) and held-out NRMSE before/after."""
+    rows = [c for c in result.candidates if c.get("delta_bic") is not None]
+    names = [c["name"] for c in rows]
+    fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
+    db = np.array([c["delta_bic"] for c in rows], float)
+    shown = np.sign(db) * np.log10(1 + np.abs(db))
+    found = {e.name for e in result.effects}
+    cols = [_AUG_C if n in found else "#999999" for n in names]
+    y = np.arange(len(names))
+    ax.barh(y, shown, color=cols)
+    ax.axvline(math.log10(1 + 10.0), color="red", lw=1, ls="--", label="threshold (delta BIC = 10)")
+    ax.set_yticks(y, names)
+    ax.set_xlabel("sign * log10(1 + |delta BIC|)")
+    ax.set_title("Evidence: BIC(linear) - BIC(candidate)")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.18))
+    b = [(c.get("held_out_before") or {}).get("nrmse") for c in rows]
+    a = [(c.get("held_out_after") or {}).get("nrmse") for c in rows]
+    b = np.array([np.nan if v is None else v for v in b], float)
+    a = np.array([np.nan if v is None else v for v in a], float)
+    ax2.barh(y + 0.2, b, 0.4, color=_BASE_C, label="linear model")
+    ax2.barh(y - 0.2, a, 0.4, color=_AUG_C, label="with the candidate")
+    ax2.set_yticks(y, names)
+    ax2.set_xlabel("held-out NRMSE (delay_jitter: scatter error)")
+    ax2.set_title("Confirmation on held-out (odd) cycles")
+    ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
+    return fig
+
+
+def write_diagnosis_report(result, out_dir: str | Path) -> Path:
+    """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none)."""
+    out = ensure_dir(out_dir)
+    figs = {
+        "diagnosis_located.png": plot_located(result),
+        "diagnosis_overlay.png": plot_overlay(result),
+        "diagnosis_harmonics.png": plot_harmonics(result),
+        "diagnosis_evidence.png": plot_evidence(result),
+    }
+    for name, fig in figs.items():
+        save_figure(fig, out / name)
+    body = [f"<h1>Diagnosis: {esc(Path(result.path).name)} ({esc(result.loop)})</h1>",
+            f"<p><b>{esc(result.summary)}</b></p>"]
+    for e in result.effects:
+        body.append(f"<h2>Found: {esc(e.name)}</h2><p>{esc(e.explanation)}</p><p class='muted'>Model: {esc(e.augmentation)}</p>")
+        rows = [(k, f"{v:.5g}" if isinstance(v, float) else v) for k, v in e.parameters.items()]
+        body.append(html_table(["parameter", "value"], rows))
+        body.append(html_table(["held-out", "linear model", f"with {e.name}"],
+                               [("NRMSE", _f(e.fit_before.get("nrmse")), _f(e.fit_after.get("nrmse"))),
+                                ("feature RMS z", _f(e.fit_before.get("feature_rms_z")), _f(e.fit_after.get("feature_rms_z")))]))
+    if not result.effects:
+        body.append("<p>The linear model explains the log: no candidate has strong evidence confirmed on held-out cycles.</p>")
+    ident = result.identification
+    body.append("<h2>Identification</h2>")
+    body.append(html_table(["model", "Td [s]", "tau [ms]", "K"],
+                           [(k, _f(v.get("Td")), _f(1e3 * v["tau"]) if v.get("tau") is not None else "-", _f(v.get("K")))
+                            for k, v in ident.items()]))
+    body.append("<h2>Located</h2><img src='diagnosis_located.png'>")
+    loc_rows = []
+    for loc in result.located[:12]:
+        if loc["kind"] == "feature":
+            loc_rows.append((loc["test"] + 1, f"{loc['t_start']:.1f}-{loc['t_end']:.1f}", loc["what"], f"z = {loc['z']:+.1f}"))
+        elif loc["kind"] == "harmonic":
+            loc_rows.append((loc["test"] + 1, f"{loc['t_start']:.1f}-{loc['t_end']:.1f}", loc["what"],
+                             f"{100 * loc['relative_error']:.1f} %"))
+        else:
+            loc_rows.append((loc["test"] + 1, f"{loc['t_start']:.1f}-{loc['t_end']:.1f}",
+                             f"cycles {loc['cycles']}, worse half: {loc['worse_half']}", f"NRMSE {100 * loc['nrmse']:.1f} %"))
+    body.append(html_table(["test", "t [s]", "what", "by how much"], loc_rows))
+    body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
+    body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
+    body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
+    body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
+    page = out / "diagnosis.html"
+    page.write_text(html_page(f"Diagnosis {Path(result.path).name}", "\n".join(body)))
+    if not (out / "index.html").exists():
+        (out / "index.html").write_text(page.read_text())
+    return page
+
+
+def _f(x) -> str:
+    if x is None:
+        return "-"
+    try:
+        return f"{float(x):.4g}"
+    except (TypeError, ValueError):
+        return str(x)

@@ -1,0 +1,117 @@
+#!/usr/bin/env python
+"""Generate ``sample_logs/concealed/``: simulated MRFT flights with one concealed effect each.
+
+Every log is an altitude flight in the reference layout (MCAP, ROS 2 CDR) with three MRFT tests:
+beta -0.4 and -0.7 at the same amplitude, and beta -0.4 again with 1.6 times the relay height (the
+h-invariance check). One log per candidate effect at a realistic magnitude plus clean controls. The
+file names say nothing about the effect; the ground truth is in ``<log>.truth.json`` (the tool never
+reads it; the tests and the benchmark compare with it). The ``/battery`` topic is left out, so the
+battery voltage does not give the gain drift away.
+
+Usage::
+
+    python scripts/make_concealed_logs.py [--out sample_logs/concealed]
+
+The same case generator (:func:`make_case`) is used by ``benchmarks/bench_diagnose.py`` with random
+magnitudes and fresh seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from mrftcli.model import LoopModel
+from mrftcli.simulate import Effects, FlightSpec, TestSpec, df_prediction, plan_test, simulate_flight, write_flight
+
+#: The paper's two platforms' altitude loops (checks.md section 4); K gives about 5-8 cm at h ~ 0.1.
+PLANTS = {
+    "design1": LoopModel(Tp=0.0422, Td=2.669, tau=0.0464, K=15.0),
+    "design2": LoopModel(Tp=0.0499, Td=1.8345, tau=0.0498, K=12.0),
+}
+EFFECTS = ("input_bias", "gain_drift", "sensor_lag", "quadratic_drag", "actuator_rate_limit", "delay_jitter")
+AMPLITUDE = 0.06  # planned output amplitude of the first test [m]
+
+
+def flight_tests(model: LoopModel, cycles: float = 16.0) -> tuple[TestSpec, ...]:
+    """beta -0.4 and -0.7 at one amplitude, then beta -0.4 at 1.6 times the relay height."""
+    t1 = plan_test(model, -0.4, AMPLITUDE, cycles=cycles)
+    t2 = plan_test(model, -0.7, AMPLITUDE, cycles=cycles)
+    t3 = TestSpec(-0.4, 1.6 * t1.h, t1.duration)
+    return (t1, t2, t3)
+
+
+def effect_value(effect: str, model: LoopModel, tests: tuple[TestSpec, ...], scale: float = 1.0) -> float:
+    """A realistic magnitude of ``effect`` for this flight (``scale`` ~ 1 varies it)."""
+    h = tests[0].h
+    if effect == "input_bias":
+        return 0.18 * h * scale  # a trim error of ~1-2 % throttle
+    if effect == "gain_drift":
+        return -0.001 * scale  # -6 %/min: a hard-working battery
+    if effect == "sensor_lag":
+        return 0.07 * scale  # a ~2.3 Hz estimator/filter
+    if effect == "quadratic_drag":
+        # the same damping as the linear model at the first test's speed (describing function)
+        omega, a = df_prediction(model, tests[0].beta, h)
+        return 3.0 * math.pi / (8.0 * model.Td * a * omega) * scale
+    if effect == "actuator_rate_limit":
+        return 2.0 * h / (0.045 * scale)  # the relay step takes ~45 ms
+    if effect == "delay_jitter":
+        return 0.012 * scale  # a non-real-time link (e.g. mocap over Wi-Fi)
+    raise ValueError(effect)
+
+
+def make_case(effect: str | None, plant: str, seed: int, scale: float = 1.0):
+    """Simulate one flight; ``effect`` None is a clean control. Returns the SimulatedFlight."""
+    model = PLANTS[plant]
+    tests = flight_tests(model)
+    effects = Effects()
+    if effect is not None:
+        effects = replace(effects, **{effect: effect_value(effect, model, tests, scale)})
+    spec = FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=200.0, effects=effects, seed=seed,
+                      hover_s=2.0, hold_s=2.0)
+    flight = simulate_flight(spec)
+    flight.topics = [t for t in flight.topics if t.name != "/battery"]  # conceal the battery voltage
+    return flight
+
+
+#: the committed set: (effect or None, plant, seed); file names are neutral
+CASES = (
+    ("input_bias", "design1", 101),
+    ("gain_drift", "design2", 102),
+    ("sensor_lag", "design1", 103),
+    ("quadratic_drag", "design2", 104),
+    ("actuator_rate_limit", "design1", 105),
+    ("delay_jitter", "design2", 106),
+    (None, "design1", 107),
+    (None, "design2", 108),
+)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "sample_logs" / "concealed"))
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    # neutral, shuffled names so the order does not give the effect away either
+    order = np.random.default_rng(2024).permutation(len(CASES))
+    for k, i in enumerate(order):
+        effect, plant, seed = CASES[i]
+        flight = make_case(effect, plant, seed)
+        path = out / f"flight_{k + 1:02d}.mcap"
+        side = write_flight(flight, path, "mcap")
+        truth = json.loads(side.read_text())
+        truth["concealed_effect"] = effect
+        truth["plant"] = plant
+        side.write_text(json.dumps(truth, indent=2) + "\n")
+        print(f"{path.name}: {path.stat().st_size / 1e3:.0f} kB")
+
+
+if __name__ == "__main__":
+    main()

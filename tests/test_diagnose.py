@@ -1,0 +1,195 @@
+"""Tests of ``mrftcli.diagnose``: the limit-cycle simulator it fits with, the cycle features, the
+concealed-effect logs (compared with their sidecars, which the tool never reads) and the CLI."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrftcli.diagnose_features import N_HARM, cycle_table, relay_harmonics
+from mrftcli.diagnose_sim import Plant, periodic_cycle, run_relay
+
+ROOT = Path(__file__).resolve().parents[1]
+CONCEALED = sorted((ROOT / "sample_logs" / "concealed").glob("*.mcap"))
+PARAM = {"input_bias": "d", "gain_drift": "g", "sensor_lag": "T_lag", "quadratic_drag": "c",
+         "actuator_rate_limit": "R", "delay_jitter": "sigma"}
+
+
+# --------------------------------------------------------------------------------------------------
+# the fitting simulator against the reference figures (checks.md section 1)
+
+
+@pytest.mark.parametrize("beta, f_hz, amp", [(-0.4, 0.70564, 0.078530), (-0.7, 1.01884, 0.035602)])
+def test_continuous_relay_reproduces_exact_limit_cycle(beta, f_hz, amp):
+    # unit-gain form 1/(s(Tp s+1)(Td s+1)): K Td = 1
+    Td = 1 / 1.42
+    run = periodic_cycle(Plant(Tp=0.1, Td=Td, tau=0.06, K=1 / Td), beta, 1.0, 1000.0, tol=1e-10)
+    period = run.up[-1] - run.up[-2]
+    i0, i1 = np.searchsorted(run.t, [run.up[-2], run.up[-1]])
+    y = run.y[i0:i1]
+    assert 1 / period == pytest.approx(f_hz, rel=2e-4)
+    assert 0.5 * (y.max() - y.min()) == pytest.approx(amp, rel=2e-3)
+
+
+def test_sampled_relay_without_noise_switches_on_ticks():
+    run = run_relay(Plant(0.05, 1.0, 0.03, 5.0), -0.5, 0.2, 100.0, 12, sampled=True, max_time=60)
+    ticks = np.concatenate([run.up, run.down]) * 100.0
+    assert np.allclose(ticks, np.round(ticks))
+    assert run.up.size == 12
+
+
+def test_input_bias_gives_the_duty_cycle_of_zero_mean_input():
+    # an integrating plant only oscillates periodically when the mean plant input is zero:
+    # (h + d) T_high = (h - d) T_low  ->  T_high / P = (h - d) / (2 h)
+    h, d = 0.1, 0.02
+    run = periodic_cycle(Plant(0.04, 2.0, 0.04, 10.0, input_bias=d), -0.4, h, 400.0, tol=1e-9)
+    u0, u1 = run.up[-2], run.up[-1]
+    dn = run.down[(run.down > u0) & (run.down < u1)][0]
+    assert (dn - u0) / (u1 - u0) == pytest.approx((h - d) / (2 * h), rel=1e-4)
+
+
+# --------------------------------------------------------------------------------------------------
+# cycle features
+
+
+def test_relay_harmonics_match_numerical_fourier_integral():
+    h, P, Th = 0.3, 1.7, 0.6
+    t = np.linspace(0, P, 200001)[:-1]
+    u = np.where(t < Th, h, -h)
+    U = relay_harmonics(h, np.array([Th]), np.array([P]))[0]
+    for k in range(1, N_HARM + 1):
+        ref = 2.0 / t.size * np.sum(u * np.exp(-1j * k * 2 * np.pi * t / P))
+        assert abs(U[k] - ref) < 1e-4
+
+
+def test_cycle_table_recovers_harmonics_amplitude_and_balance():
+    rng = np.random.default_rng(3)
+    P, Th, h = 1.25, 0.55, 0.1
+    Y = {1: 0.05 * np.exp(-1.2j), 3: 0.004 * np.exp(0.3j), 5: 0.001j}
+    fs = 200.0
+    t = np.arange(0, 4 * P, 1 / fs)
+    y = sum(np.real(c * np.exp(1j * k * 2 * np.pi * t / P)) for k, c in Y.items()) + 0.002
+    tab = cycle_table(t, y + rng.normal(0, 1e-4, t.size), h, [0, P, 2 * P], [Th, P + Th, 2 * P + Th],
+                      [P, 2 * P, 3 * P])
+    for k, c in Y.items():
+        assert np.allclose(tab.Y[:, k], c, atol=1e-4)
+    fine = np.linspace(0, P, 100000)
+    yf = sum(np.real(c * np.exp(1j * k * 2 * np.pi * fine / P)) for k, c in Y.items())
+    assert np.allclose(tab.amplitude, 0.5 * (yf.max() - yf.min()), rtol=2e-3)
+    assert np.allclose(tab.centre, 0.002 + 0.5 * (yf.max() + yf.min()), atol=5e-5)
+    assert np.allclose(tab.balance, Th / P - 0.5)
+    assert np.allclose(tab.G[:, 1], Y[1] / relay_harmonics(h, np.array([Th]), np.array([P]))[0, 1], rtol=2e-3)
+
+
+# --------------------------------------------------------------------------------------------------
+# the concealed set
+
+
+def _truth(path: Path) -> dict:
+    return json.loads(Path(str(path) + ".truth.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def diagnoses():
+    cache = {}
+
+    def get(path):
+        if path not in cache:
+            from mrftcli.diagnose import diagnose
+            from mrftcli.readers import read_flight
+
+            cache[path] = diagnose(read_flight(path, "altitude"), _truth(path)["Tp"])
+        return cache[path]
+
+    return get
+
+
+def test_concealed_set_covers_every_effect_and_clean_controls():
+    effects = [_truth(p)["concealed_effect"] for p in CONCEALED]
+    assert set(PARAM) <= set(effects)
+    assert effects.count(None) >= 2
+    assert sum(p.stat().st_size for p in CONCEALED) < 8e6
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("path", CONCEALED, ids=[p.name for p in CONCEALED])
+def test_concealed_log(path, diagnoses):
+    truth = _truth(path)
+    effect = truth["concealed_effect"]
+    res = diagnoses(path)
+    data = json.loads(json.dumps(res.to_dict(), default=float))  # JSON-serialisable
+    assert isinstance(data["effects"], list) and isinstance(data["located"], list)
+    names = [e.name for e in res.effects]
+    if effect is None:
+        assert names == [], f"clean log reported {names}"
+        return
+    assert names == [effect]
+    e = res.effects[0]
+    value = e.parameters[PARAM[effect]]
+    assert value == pytest.approx(truth["effects"][effect], rel=0.25)
+    before, after = e.fit_before["nrmse"], e.fit_after["nrmse"]
+    if effect in ("sensor_lag", "delay_jitter"):
+        # documented shortfall (docs/benchmarks/diagnose.md): a lag is mostly absorbed by the delay and
+        # a jitter's scatter estimate is noisy on a handful of held-out cycles; still a clear improvement
+        assert after < 0.9 * before
+    else:
+        assert after <= 0.5 * before
+    assert res.located, "a found effect must come with located disagreements"
+
+
+# --------------------------------------------------------------------------------------------------
+# CLI
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True, cwd=ROOT)
+
+
+@pytest.mark.slow
+def test_cli_json_on_an_input_bias_log(tmp_path):
+    path = next(p for p in CONCEALED if _truth(p)["concealed_effect"] == "input_bias")
+    r = _cli("diagnose", str(path), "--tp", str(_truth(path)["Tp"]), "--json", "-", "--report", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    assert [e["name"] for e in data["effects"]] == ["input_bias"]
+    e = data["effects"][0]
+    for key in ("name", "explanation", "parameters", "evidence", "fit_before", "fit_after"):
+        assert key in e
+    assert e["fit_after"]["nrmse"] < e["fit_before"]["nrmse"]
+    assert any(loc.get("feature") == "balance" for loc in data["located"])
+    assert "with_input_bias" in data["identification"]
+    for png in ("diagnosis_located.png", "diagnosis_overlay.png", "diagnosis_harmonics.png"):
+        assert (tmp_path / png).stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("args, code", [
+    (["diagnose", "nonexistent.mcap", "--tp", "0.04"], 3),
+    (["diagnose", "LOG", "--tp", "-1"], 2),
+])
+def test_cli_bad_input_one_line_error(args, code):
+    args = [str(CONCEALED[0]) if a == "LOG" else a for a in args]
+    r = _cli(*args)
+    assert r.returncode == code or (code == 3 and r.returncode in (2, 3))
+    assert "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) <= 3
+
+
+def test_log_without_relay_test_is_a_clear_error(tmp_path):
+    import pandas as pd
+
+    from mrftcli.diagnose import diagnose
+    from mrftcli.errors import MrftError
+    from mrftcli.logtypes import FlightLog
+
+    t = np.arange(0, 30, 0.005)
+    flight = FlightLog(path="hover", loop="altitude", command=pd.Series(0.5 + 0.01 * np.sin(t), index=t),
+                       output=pd.Series(1.0 + 0.001 * np.sin(3 * t), index=t))
+    with pytest.raises(MrftError):
+        diagnose(flight, 0.04)
+    with pytest.raises(MrftError, match="Tp"):
+        diagnose(flight, -1.0)

@@ -10,7 +10,7 @@ from typing import Any
 import click
 import numpy as np
 
-__all__ = ["to_jsonable", "dump_json", "BETA"]
+__all__ = ["to_jsonable", "dump_json", "BETA", "tp_option", "log_layout_options"]
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -56,3 +56,59 @@ class _BetaType(click.ParamType):
 
 
 BETA = _BetaType()
+
+
+def _positive_time(ctx: click.Context | None, param: click.Parameter | None, value: float | None) -> float | None:
+    if value is None:
+        return None
+    if not math.isfinite(value) or value <= 0:
+        raise click.BadParameter(f"Tp must be a positive time in seconds, got {value}")
+    return value
+
+
+def tp_option(name: str = "Tp", *, required: bool = True, help: str | None = None):
+    """``--tp``: the known propulsion time constant [s], validated positive."""
+    return click.option(
+        "--tp", name, type=float, required=required, default=None, callback=_positive_time,
+        help=help or "Known propulsion time constant Tp [s] (bench test).",
+    )
+
+
+def log_layout_options(*, config_defaults: bool = False):
+    """The options that say where a loop's signals are in a log, shared by analyze, diagnose and batch.
+
+    ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``, ``--setpoint-topic`` and
+    ``--output-scale``. With ``config_defaults`` (batch) every option defaults to None so that a
+    per-log config file can fill it, and ``--loop`` may be repeated.
+    """
+    from ..logtypes import LOOPS
+
+    if config_defaults:
+        loop = click.option("--loop", multiple=True, type=click.Choice(LOOPS),
+                            help="Loop to identify; repeat for several (default: altitude; overrides the config).")
+        scale = click.option("--output-scale", type=float, default=None,
+                             help="Factor applied to output and setpoint (default 1; e.g. -1 for NED z).")
+    else:
+        loop = click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True,
+                            help="Which loop the log's MRFT tests excite.")
+        scale = click.option("--output-scale", type=float, default=1.0, show_default=True,
+                             help="Factor applied to output and setpoint (e.g. -1 for NED z, 0.0174533 for degrees).")
+    options = [
+        loop,
+        click.option("--command-topic", metavar="TOPIC[:FIELD]", default=None,
+                     help="Command the MRFT block sent (default /mrft/command)."),
+        click.option("--output-topic", metavar="TOPIC[:FIELD]", default=None,
+                     help="Loop output (default by loop: /mocap/pose or /imu/data)."),
+        click.option("--beta-topic", metavar="TOPIC[:FIELD]", default=None,
+                     help="Beta published at each test start (default /mrft/beta)."),
+        click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", default=None,
+                     help="Loop setpoint (default /mrft/setpoint)."),
+        scale,
+    ]
+
+    def decorate(func):
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return decorate

@@ -7,13 +7,7 @@ import math
 import click
 
 from ..errors import InputError, InsufficientDataError, SegmentationError
-from ._common import dump_json
-
-
-def _check_tp(ctx, param, value):
-    if value is None or not math.isfinite(value) or value <= 0:
-        raise click.BadParameter(f"Tp must be a positive time in seconds, got {value}")
-    return value
+from ._common import dump_json, log_layout_options, tp_option
 
 
 def _fmt_est(est, scale: float, digits: int = 4) -> str:
@@ -85,16 +79,8 @@ def _run_diagnose(result, Tp):
 
 @click.command("analyze")
 @click.argument("log", type=click.Path(dir_okay=False))
-@click.option("--tp", "Tp", type=float, required=True, callback=_check_tp,
-              help="Known propulsion time constant Tp [s] (bench test).")
-@click.option("--loop", type=click.Choice(["altitude", "roll", "pitch"]), default="altitude", show_default=True,
-              help="Which loop the log's MRFT tests excite.")
-@click.option("--command-topic", metavar="TOPIC[:FIELD]", help="Command the MRFT block sent (default /mrft/command).")
-@click.option("--output-topic", metavar="TOPIC[:FIELD]", help="Loop output (default by loop: /mocap/pose or /imu/data).")
-@click.option("--beta-topic", metavar="TOPIC[:FIELD]", help="Beta published at each test start (default /mrft/beta).")
-@click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", help="Loop setpoint (default /mrft/setpoint).")
-@click.option("--output-scale", type=float, default=1.0, show_default=True,
-              help="Factor applied to output and setpoint (e.g. -1 for NED z, 0.0174533 for degrees).")
+@tp_option()
+@log_layout_options()
 @click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
               help="Fewest stable cycles for a test to be used.")
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the result as JSON to FILE, or '-' for stdout.")

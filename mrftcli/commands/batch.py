@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 from click.core import ParameterSource
 
-from ..logtypes import LOOPS
+from ._common import log_layout_options, tp_option
 
 __all__ = ["batch"]
 
@@ -66,19 +66,8 @@ def _print_table(df, limit: int = 50) -> None:
               help="Output folder: per-log JSON, summary.csv/.parquet, report/.")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
               help="Per-log settings (TOML, or YAML for .yaml/.yml) matched by glob; see docs/batch.md.")
-@click.option("--tp", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Propulsion time constant Tp [s] (overrides the config).")
-@click.option("--loop", multiple=True, type=click.Choice(LOOPS),
-              help="Loop to identify; repeat for several (default: altitude; overrides the config).")
-@click.option("--command-topic", metavar="TOPIC[:FIELD]", default=None,
-              help="Command the MRFT block sent (default /mrft/command).")
-@click.option("--output-topic", metavar="TOPIC[:FIELD]", default=None,
-              help="Loop output (default by loop: /mocap/pose or /imu/data).")
-@click.option("--beta-topic", metavar="TOPIC[:FIELD]", default=None,
-              help="Beta published at each test start (default /mrft/beta).")
-@click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", default=None, help="Loop setpoint (default /mrft/setpoint).")
-@click.option("--output-scale", type=float, default=None,
-              help="Factor applied to output and setpoint (default 1; e.g. -1 for NED z).")
+@tp_option("tp", required=False, help="Propulsion time constant Tp [s] (overrides the config).")
+@log_layout_options(config_defaults=True)
 @click.option("--min-cycles", type=click.IntRange(2, None), default=None,
               help="Fewest stable cycles for a test to be used (default: analyze's, 3).")
 @click.option("--diagnose", is_flag=True, help="Also run the model-mismatch diagnosis on each loop.")

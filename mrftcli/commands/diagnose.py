@@ -6,13 +6,7 @@ import math
 
 import click
 
-from ._common import dump_json
-
-
-def _check_tp(ctx, param, value):
-    if value is None or not math.isfinite(value) or value <= 0:
-        raise click.BadParameter(f"Tp must be a positive time in seconds, got {value}")
-    return value
+from ._common import dump_json, log_layout_options, tp_option
 
 
 def _g(x, fmt=".4g") -> str:
@@ -60,16 +54,8 @@ def format_summary(result) -> str:
 
 @click.command("diagnose")
 @click.argument("log", type=click.Path(dir_okay=True))
-@click.option("--tp", "Tp", type=float, required=True, callback=_check_tp,
-              help="Known propulsion time constant Tp [s] (bench test).")
-@click.option("--loop", type=click.Choice(["altitude", "roll", "pitch"]), default="altitude", show_default=True,
-              help="Which loop the log's MRFT tests excite.")
-@click.option("--command-topic", metavar="TOPIC[:FIELD]", help="Command the MRFT block sent (default /mrft/command).")
-@click.option("--output-topic", metavar="TOPIC[:FIELD]", help="Loop output (default by loop: /mocap/pose or /imu/data).")
-@click.option("--beta-topic", metavar="TOPIC[:FIELD]", help="Beta published at each test start (default /mrft/beta).")
-@click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", help="Loop setpoint (default /mrft/setpoint).")
-@click.option("--output-scale", type=float, default=1.0, show_default=True,
-              help="Factor applied to output and setpoint (e.g. -1 for NED z, 0.0174533 for degrees).")
+@tp_option()
+@log_layout_options()
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the diagnosis as JSON to FILE, or '-' for stdout.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR.")

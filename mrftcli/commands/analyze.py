@@ -146,17 +146,11 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     if report_dir:
         from ..report.analysis import write_analysis_report
 
-        index = write_analysis_report(result, report_dir)
+        links = []
         if diagnosis is not None:
-            try:
-                from ..report import diagnosis as rep_diag
-            except ImportError:
-                rep_diag = None
-            writer = None
-            for name in ("write_diagnosis_report", "write_report"):
-                writer = getattr(rep_diag, name, None) if rep_diag is not None else None
-                if writer is not None:
-                    break
-            if writer is not None:
-                writer(diagnosis, report_dir)
+            from ..report.diagnosis import write_diagnosis_report
+
+            page = write_diagnosis_report(diagnosis, report_dir)
+            links.append((page.name, "Model-mismatch diagnosis"))
+        index = write_analysis_report(result, report_dir, links=links)
         click.echo(f"report: {index}", err=to_stdout)

@@ -17,6 +17,8 @@ matplotlib Figure; :func:`write_analysis_report` saves them):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import math
 from pathlib import Path
 
@@ -329,8 +331,11 @@ def plot_cycles(result):
     return fig
 
 
-def write_analysis_report(result, out_dir: str | Path) -> Path:
-    """Write index.html and the PNG figures for one analysis; returns the index path."""
+def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = ()) -> Path:
+    """Write index.html and the PNG figures for one analysis; returns the index path.
+
+    ``links`` are (relative href, title) pairs of pages written beside it (e.g. the diagnosis).
+    """
     out = ensure_dir(out_dir)
     figures = (("timeseries.png", plot_timeseries, "Flight and detected MRFT tests"),
                ("manifolds.png", plot_manifolds, "Manifold intersection (paper Fig. 5)"),
@@ -361,6 +366,8 @@ def write_analysis_report(result, out_dir: str | Path) -> Path:
         html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
                    [row("Td", "Td", 1.0, "s"), row("tau", "tau", 1e3, "ms"), row("K", "K", 1.0, "")]),
     ]
+    if links:
+        body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
     if comb["n"] and comb["Td"]["mean"] is not None:
         body.append(
             f"<p>Per combination of cycles ({comb['n']} combinations, as the paper's Table III): "

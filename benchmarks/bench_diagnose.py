@@ -63,6 +63,9 @@ def run_case(case: tuple) -> dict:
             out["value"] = e.parameters.get(PARAM[e.name])
             out["nrmse_before"] = e.fit_before.get("nrmse")
             out["nrmse_after"] = e.fit_after.get("nrmse")
+            # without the recording's cycle-to-cycle scatter taken out (the metric before it was)
+            out["raw_before"] = e.fit_before.get("nrmse_raw")
+            out["raw_after"] = e.fit_after.get("nrmse_raw")
     return out
 
 
@@ -117,6 +120,10 @@ def main() -> None:
         pairs = [f"{r['nrmse_before']:.3f}->{r['nrmse_after']:.3f}" for r in results
                  if r["effect"] == effect and r.get("found") == [effect]]
         print(f"  {effect:<20} {' '.join(pairs)}")
+        raw = [f"{r['raw_before']:.3f}->{r['raw_after']:.3f}" for r in results
+               if r["effect"] == effect and r.get("found") == [effect] and r.get("raw_before") is not None]
+        if raw:
+            print(f"  {'':<20} raw (scatter kept): {' '.join(raw)}")
         vals = [f"{r['value']:.4g}/{r['true_value']:.4g}" for r in results if r["effect"] == effect and r.get("found") == [effect]]
         print(f"  {'':<20} found/true: {' '.join(vals)}")
     cpu = np.array([r["cpu"] for r in results])

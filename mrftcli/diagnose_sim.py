@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from ._sim_plant import _fixed_matrices, _LinearPropagator, _rk4_quadratic
+
 __all__ = ["Plant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
 
 
@@ -86,44 +88,26 @@ class RelayRun:
 
 
 class _Propagator:
-    """Exact x' = A x + B w with w(s) = c0 + c1 s on an interval of length h."""
+    """Exact x' = A x + B w with w(s) = c0 + c1 s on an interval of length h.
 
-    def __init__(self, A: np.ndarray, B: np.ndarray) -> None:
-        n = A.shape[0]
-        self.n = n
-        M = np.zeros((n + 2, n + 2))
-        M[:n, :n] = A
-        M[:n, n] = B
-        M[n, n + 1] = 1.0
-        self.M = M
-        self.norm = float(np.abs(M).sum(axis=1).max())
-        self._k = np.arange(19, dtype=float)
-        powers = [np.eye(n + 2)]
-        for k in range(1, 19):
-            powers.append(powers[-1] @ M / k)
-        self._powers = np.array(powers)
-        self.cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    Wraps the project simulator's :class:`mrftcli._sim_plant._LinearPropagator` (exponential of the
+    augmented matrix): the full tick, used over and over, gets its matrices once and is stepped with
+    unrolled scalar arithmetic (far faster than numpy for 3 or 4 states); any other length (a
+    switch or a command arrival inside a tick) goes through the simulator's vector Taylor series.
+    """
 
-    def mats(self, h: float) -> tuple[tuple, tuple, tuple]:
-        got = self.cache.get(h)
-        if got is None:
-            # truncated Taylor series of expm(M h) with scaling and squaring: |M h / 2^s| <= 1.5 makes
-            # the 18th-order remainder < 1e-14
-            s = max(0, math.ceil(math.log2(h * self.norm / 1.5))) if h * self.norm > 1.5 else 0
-            E = np.tensordot((h / 2**s) ** self._k, self._powers, axes=1)
-            for _ in range(s):
-                E = E @ E
-            n = self.n
-            got = (tuple(E[:n, :n].ravel().tolist()), tuple(E[:n, n].tolist()), tuple(E[:n, n + 1].tolist()))
-        return got
-
-    def keep(self, h: float) -> None:
-        """Cache the matrices of a step length used over and over (the full tick)."""
-        self.cache[h] = self.mats(h)
+    def __init__(self, A: np.ndarray, B: np.ndarray, T: float) -> None:
+        self.n = A.shape[0]
+        self.T = T
+        self.lin = _LinearPropagator(A, B, grid=T)
+        self.lin.fix(T)
+        Phi, E0, E1, _ = _fixed_matrices(self.lin, T)
+        self.tick = (tuple(Phi.ravel().tolist()), tuple(E0.tolist()), tuple(E1.tolist()))
 
     def step(self, x: tuple, h: float, c0: float, c1: float) -> tuple:
-        """Scalar (unrolled) propagation: far faster than numpy for 3 or 4 states."""
-        P, G0, G1 = self.mats(h)
+        if h != self.T:
+            return tuple(self.lin.step(np.asarray(x, float), h, c0, c1, 0.0).tolist())
+        P, G0, G1 = self.tick
         if self.n == 3:
             x0, x1, x2 = x
             return (
@@ -138,32 +122,6 @@ class _Propagator:
             P[8] * x0 + P[9] * x1 + P[10] * x2 + P[11] * x3 + G0[2] * c0 + G1[2] * c1,
             P[12] * x0 + P[13] * x1 + P[14] * x2 + P[15] * x3 + G0[3] * c0 + G1[3] * c1,
         )
-
-
-def _rk4_quadratic(x, h, c0, c1, K, c, inv_tp, inv_lag, lag):
-    """RK4 for the quadratic-drag plant on [0, h], input w = c0 + c1 s; at most 2.5 ms per substep."""
-    n_sub = max(1, math.ceil(h / 0.0025 - 1e-9))
-    dt = h / n_sub
-    y, v, p = x[0], x[1], x[2]
-    f = x[3] if lag else 0.0
-    s = 0.0
-    for _ in range(n_sub):
-        w1 = c0 + c1 * s
-        w2 = c0 + c1 * (s + 0.5 * dt)
-        w3 = c0 + c1 * (s + dt)
-        kv1, kp1, kf1 = -c * v * abs(v) + K * p, (w1 - p) * inv_tp, (y - f) * inv_lag
-        v2, p2, y2, f2 = v + 0.5 * dt * kv1, p + 0.5 * dt * kp1, y + 0.5 * dt * v, f + 0.5 * dt * kf1
-        kv2, kp2, kf2 = -c * v2 * abs(v2) + K * p2, (w2 - p2) * inv_tp, (y2 - f2) * inv_lag
-        v3, p3, y3, f3 = v + 0.5 * dt * kv2, p + 0.5 * dt * kp2, y + 0.5 * dt * v2, f + 0.5 * dt * kf2
-        kv3, kp3, kf3 = -c * v3 * abs(v3) + K * p3, (w2 - p3) * inv_tp, (y3 - f3) * inv_lag
-        v4, p4, y4, f4 = v + dt * kv3, p + dt * kp3, y + dt * v3, f + dt * kf3
-        kv4, kp4, kf4 = -c * v4 * abs(v4) + K * p4, (w3 - p4) * inv_tp, (y4 - f4) * inv_lag
-        y += dt / 6.0 * (v + 2 * v2 + 2 * v3 + v4)
-        v += dt / 6.0 * (kv1 + 2 * kv2 + 2 * kv3 + kv4)
-        p += dt / 6.0 * (kp1 + 2 * kp2 + 2 * kp3 + kp4)
-        f += dt / 6.0 * (kf1 + 2 * kf2 + 2 * kf3 + kf4)
-        s += dt
-    return (y, v, p, f) if lag else (y, v, p)
 
 
 def _hermite_root(e0: float, d0: float, e1: float, d1: float, h: float, level: float) -> float:
@@ -265,8 +223,7 @@ def run_relay(
         A[3, 3] = -1.0 / plant.sensor_lag
         B = np.append(B, 0.0)
     n = A.shape[0]
-    prop = _Propagator(A, B)
-    prop.keep(T)
+    prop = _Propagator(A, B, T)
     inv_tp = 1.0 / plant.Tp
     inv_lag = 1.0 / plant.sensor_lag if lag else 0.0
     rng = np.random.default_rng(seed) if sampled else None
@@ -279,7 +236,9 @@ def run_relay(
         c0 = g0 * (bias_cmd + a0) - bias_cmd + d_in
         c1 = g0 * slope + gs * (bias_cmd + a0)
         if quad:
-            return _rk4_quadratic(x, hstep, c0, c1, plant.K, plant.quadratic_drag, inv_tp, inv_lag, lag)
+            # the project simulator's RK4 (input polynomial of degree <= 1 here), at most 2.5 ms substeps
+            return tuple(_rk4_quadratic(x, hstep, c0, c1, 0.0, plant.K, plant.quadratic_drag, inv_tp, inv_lag,
+                                        0.0025).tolist())
         return prop.step(x, hstep, c0, c1)
 
     def meas(x):

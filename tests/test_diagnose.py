@@ -109,6 +109,33 @@ def diagnoses():
     return get
 
 
+def _offset_cycles(offsets, P=1.0, rate=200.0):
+    """Cycles of one fixed waveform, each shifted by its own constant offset [m]."""
+    n = len(offsets)
+    t = np.arange(0.0, n * P, 1.0 / rate)
+    ph = 2 * np.pi * t / P
+    y = 0.05 * np.sin(ph) + 0.01 * np.sin(3 * ph + 0.3) + np.repeat(offsets, t.size // n)[: t.size]
+    starts = np.arange(n) * P
+    return cycle_table(t, y, 0.1, starts, starts + 0.5 * P, starts + P)
+
+
+def test_cycle_scatter_estimates_the_unpredictable_part():
+    # the floor subtracted from the held-out waveform error is E sum_i |y_i - mu_i|^2 = n s^2 for
+    # cycle-to-cycle scatter of variance s^2 (here an offset per cycle, mean square s^2 on every
+    # phase point), and a slow drift (mu_i linear in time) is not scatter
+    from types import SimpleNamespace
+
+    from mrftcli.diagnose import _cycle_scatter
+
+    rng = np.random.default_rng(7)
+    s, n = 0.002, 8
+    est = [_cycle_scatter(SimpleNamespace(tab=_offset_cycles(rng.normal(0, s, n))), np.ones(n, bool))
+           for _ in range(200)]
+    assert np.mean(est) == pytest.approx(n * s**2, rel=0.1)
+    drift = _offset_cycles(0.003 * np.arange(n))
+    assert _cycle_scatter(SimpleNamespace(tab=drift), np.ones(n, bool)) < 1e-3 * n * s**2
+
+
 def test_concealed_set_covers_every_effect_and_clean_controls():
     effects = [_truth(p)["concealed_effect"] for p in CONCEALED]
     assert set(PARAM) <= set(effects)
@@ -133,9 +160,9 @@ def test_concealed_log(path, diagnoses):
     value = e.parameters[PARAM[effect]]
     assert value == pytest.approx(truth["effects"][effect], rel=0.25)
     before, after = e.fit_before["nrmse"], e.fit_after["nrmse"]
-    if effect in ("sensor_lag", "delay_jitter"):
-        # documented shortfall (docs/benchmarks/diagnose.md): a lag is mostly absorbed by the delay and
-        # a jitter's scatter estimate is noisy on a handful of held-out cycles; still a clear improvement
+    if effect == "delay_jitter":
+        # documented shortfall (docs/diagnose.md, Limits): the jitter's nrmse is the relative error of a
+        # period scatter estimated from a handful of held-out cycles, itself uncertain by ~25 %
         assert after < 0.9 * before
     else:
         assert after <= 0.5 * before

@@ -194,3 +194,46 @@ def _rk4_quadratic(
         f += dt / 6.0 * (kf1 + 2 * kf2 + 2 * kf3 + kf4)
         s = se
     return np.array([y, v, p, f]) if lag else np.array([y, v, p])
+
+
+# --------------------------------------------------------------------------------------------------
+# actuator between ticks: commands arriving after their delay, optional slew-rate limit
+
+
+def _actuator_pieces(s, t_end, pending, act, target, rate_limit, tol=0.0):
+    """Split [s, t_end) into pieces over which the actuator input is affine in time.
+
+    ``pending`` holds (arrival time [s], command) in time order (a deque or a list); the commands that
+    arrive before ``t_end`` are taken from it. Without a rate limit the actuator steps to each
+    command on arrival; with ``rate_limit`` > 0 [command units/s] it slews towards the latest one.
+    ``tol`` [s] absorbs rounding in arrival times. Returns ``(pieces, act, target)``: pieces are
+    (start, length, actuator value at start, slope), and the actuator's value and target at t_end.
+    """
+    pop_first = pending.popleft if hasattr(pending, "popleft") else (lambda: pending.pop(0))
+    pieces = []
+    while True:
+        while pending and pending[0][0] <= s + tol:  # commands reaching the actuator now
+            target = pop_first()[1]
+            if rate_limit == 0:
+                act = target
+        if s >= t_end - tol:
+            break
+        nxt = t_end
+        if pending and pending[0][0] < nxt:
+            nxt = pending[0][0]
+        slope = 0.0
+        arrived = False
+        if rate_limit > 0 and act != target:
+            slope = math.copysign(rate_limit, target - act)
+            reach = s + abs(target - act) / rate_limit
+            if reach <= nxt:
+                nxt, arrived = reach, True
+        h = nxt - s
+        if h > 0:
+            pieces.append((s, h, act, slope))
+        if arrived:
+            act = target
+        elif slope != 0.0:
+            act += slope * h
+        s = nxt
+    return pieces, act, target

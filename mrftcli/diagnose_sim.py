@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from ._sim_plant import _fixed_matrices, _LinearPropagator, _rk4_quadratic
+from ._sim_plant import _actuator_pieces, _fixed_matrices, _LinearPropagator, _rk4_quadratic
 
 __all__ = ["Plant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
 
@@ -293,34 +293,11 @@ def run_relay(
 
     while k < max_steps:
         t_end = (k + 1) * T
-        s = t
-        while True:
-            while pending and pending[0][0] <= s + 1e-15:
-                target = pending.pop(0)[1]
-                if rlim == 0:
-                    act = target
-            if s >= t_end - 1e-15:
-                break
-            nxt = t_end
-            if pending and pending[0][0] < nxt:
-                nxt = pending[0][0]
-            slope = 0.0
-            arrived = False
-            if rlim > 0 and act != target:
-                slope = math.copysign(rlim, target - act)
-                reach = s + abs(target - act) / rlim
-                if reach <= nxt:
-                    nxt, arrived = reach, True
-            hs = nxt - s
+        pieces, act, target = _actuator_pieces(t, t_end, pending, act, target, rlim, tol=1e-15)
+        for s, hs, a, slope in pieces:
             if abs(hs - T) < 1e-12:
                 hs = T  # the whole tick: its propagator is cached
-            if hs > 0:
-                x = advance(x, s, hs, act, slope)
-            if arrived:
-                act = target
-            elif slope != 0.0:
-                act += slope * hs
-            s = nxt
+            x = advance(x, s, hs, a, slope)
         t = t_end
         k += 1
         y_m = meas(x)

@@ -56,7 +56,7 @@ from ._sim_control import (
     noise_margin,
     relay_sequence,
 )
-from ._sim_plant import _fixed_matrices, _LinearPropagator, _PeriodPropagator, _rk4_quadratic
+from ._sim_plant import _actuator_pieces, _fixed_matrices, _LinearPropagator, _PeriodPropagator, _rk4_quadratic
 from .errors import InputError
 from .logtypes import LOOPS, TopicData
 from .model import LoopModel
@@ -547,39 +547,15 @@ def simulate_flight(
             else:
                 pending.append((tk + delays[k], u))
             t_end = (k + 1) * T
-            s = tk
-            segments = []
-            while True:
-                while pending and pending[0][0] <= s:  # commands reaching the actuator now
-                    target = pending.popleft()[1]
-                    if rlim == 0:
-                        act = target
-                if s >= t_end:
-                    break
-                nxt = t_end
-                if pending and pending[0][0] < nxt:
-                    nxt = pending[0][0]
-                slope = 0.0
-                arrived = False
-                if rlim > 0 and act != target:
-                    slope = math.copysign(rlim, target - act)
-                    reach = s + abs(target - act) / rlim
-                    if reach <= nxt:
-                        nxt, arrived = reach, True
-                h = nxt - s
-                if h > 0:
-                    if period is None:
-                        x = propagate(x, h, s, act, slope)
-                    else:
-                        g0 = 1.0 + gd * s
-                        segments.append(
-                            (s - tk, h, g0 * act - bias + ib, g0 * slope + gd * act, 2.0 * gd * slope)
-                        )
-                if arrived:
-                    act = target
-                elif slope != 0.0:
-                    act += slope * h
-                s = nxt
+            pieces, act, target = _actuator_pieces(tk, t_end, pending, act, target, rlim)
+            if period is None:
+                for s, h, a, slope in pieces:
+                    x = propagate(x, h, s, a, slope)
+            else:
+                segments = [
+                    (s - tk, h, (1.0 + gd * s) * a - bias + ib, (1.0 + gd * s) * slope + gd * a, 2.0 * gd * slope)
+                    for s, h, a, slope in pieces
+                ]
             if period is not None:
                 x = period.advance(x, segments)
         if progress is not None and (k % report_every == 0):

@@ -132,6 +132,16 @@ class LogSource(ABC):
                 print(f"warning: {text}", file=sys.stderr)
             self._shown = len(self.warnings)
 
+    def _require_file(self) -> int:
+        """The file's size in bytes; a one-line LogReadError if it cannot be read or is empty."""
+        try:
+            size = self.path.stat().st_size
+        except OSError as err:
+            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
+        if size == 0:
+            raise LogReadError(f"{self.path}: the file is empty")
+        return size
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release file handles (most readers hold none after opening)."""
 

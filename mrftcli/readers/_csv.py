@@ -48,8 +48,7 @@ class CsvSource(LogSource):
     def __init__(self, path: str | Path) -> None:
         super().__init__(path)
         try:
-            if self.path.stat().st_size == 0:
-                raise LogReadError(f"{self.path}: the file is empty")
+            self._require_file()
             raw = self.path.read_bytes()
             if not raw.endswith(b"\n") and b"\n" in raw.rstrip(b"\n"):
                 # a file cut off mid-row: the last row may hold a cut number, drop it rather than

@@ -56,8 +56,7 @@ class DataflashSource(LogSource):
         from pymavlink.DFReader import DFReader_binary
 
         try:
-            if self.path.stat().st_size == 0:
-                raise LogReadError(f"{self.path}: the file is empty")
+            self._require_file()
             noise = io.StringIO()
             with contextlib.redirect_stderr(noise), contextlib.redirect_stdout(noise):
                 self._reader = DFReader_binary(str(self.path), zero_time_base=False)

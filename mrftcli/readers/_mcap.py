@@ -68,8 +68,7 @@ class McapSource(LogSource):
         self._file = None
         self._data = b""
         try:
-            if self.path.stat().st_size == 0:
-                raise LogReadError(f"{self.path}: the file is empty")
+            self._require_file()
             # memory-mapped: a multi-GB log with camera topics costs only the pages actually read
             self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close()
             self._data = mmap.mmap(self._file.fileno(), 0, access=mmap.ACCESS_READ)

@@ -50,12 +50,7 @@ class UlogSource(LogSource):
 
     def __init__(self, path: str | Path) -> None:
         super().__init__(path)
-        try:
-            size = self.path.stat().st_size
-        except OSError as err:
-            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
-        if size == 0:
-            raise LogReadError(f"{self.path}: the file is empty")
+        self._require_file()
         self._end_checked = False
         self._header = self._parse(None, header_only=True)
         self._full = None

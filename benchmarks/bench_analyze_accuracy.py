@@ -30,18 +30,6 @@ VARIANTS = {"paper (UFM only)": (), "+ amplitude": ("amplitude",), "+ phase": ("
             "+ phase + amplitude": ("phase", "amplitude")}
 
 
-def _plants(n: int, seed: int):
-    # the generator of tests/test_analyze_sweep.py
-    rng = np.random.default_rng(seed)
-    for k in range(n):
-        loop = ("altitude", "roll", "pitch")[k % 3]
-        Tp = float(np.exp(rng.uniform(np.log(0.02), np.log(0.1))))
-        Td = float(np.exp(rng.uniform(np.log(0.2), np.log(3.0))))
-        tau = float(rng.uniform(0.01, 0.1))
-        K = float(np.exp(rng.uniform(np.log(0.5), np.log(20.0))))
-        yield k, loop, Tp, Td, tau, K
-
-
 def _summary(name: str, rows: list) -> str:
     e = np.array([r[0] for r in rows]) * 1e3
     z = np.array([r[0] / r[3] for r in rows])
@@ -54,6 +42,7 @@ def _summary(name: str, rows: list) -> str:
 
 def main() -> None:
     sys.path.insert(0, str(ROOT / "tests"))
+    from test_analyze_sweep import _plants  # the acceptance sweep's own plants
     from test_segment_support import flight_from_simulated, simulate_paper_flight
 
     from mrftcli.analyze import analyze_flight

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,8 @@ from mrftcli.logtypes import TopicData
 from mrftcli.readers import (FORMATS, log_filename, open_log, read_flight, roll_pitch, write_log)
 from mrftcli.readers import _cdr
 from mrftcli.readers._types import typestore_for
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
 
 
 def quaternion(roll, pitch, yaw):
@@ -344,3 +347,31 @@ def test_custom_message_type_from_the_mcap_schema(tmp_path):
                   make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
     np.testing.assert_array_equal(z1.to_numpy(), expect)
     assert np.isnan(expect).any() and not np.isnan(expect).all()
+
+
+@pytest.mark.parametrize("index", ["CHUNK", "NONE"])
+def test_mcap_without_message_index_records(tmp_path, index):
+    # Message Index records (and, with NONE, the whole summary's indexes) are optional in MCAP; a
+    # file written without them must read the same as the shipped one
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, IndexType, Writer
+
+    src = SAMPLE / "design1_altitude.mcap"
+    out = tmp_path / "no_index.mcap"
+    with open(src, "rb") as f_in, open(out, "wb") as f_out:
+        reader = make_reader(f_in)
+        summary = reader.get_summary()
+        w = Writer(f_out, index_types=getattr(IndexType, index), compression=CompressionType.ZSTD)
+        w.start(profile=reader.get_header().profile, library="test")
+        sids = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
+        cids = {cid: w.register_channel(c.topic, c.message_encoding, sids.get(c.schema_id, 0), c.metadata)
+                for cid, c in summary.channels.items()}
+        for _, ch, m in reader.iter_messages():
+            w.add_message(cids[ch.id], m.log_time, m.data, m.publish_time, m.sequence)
+        w.finish()
+    a, b = read_flight(src, "altitude"), read_flight(out, "altitude")
+    for x, y in ((a.command, b.command), (a.output, b.output)):
+        assert np.array_equal(x.index.to_numpy(), y.index.to_numpy())
+        assert np.array_equal(x.to_numpy(), y.to_numpy())
+    counts = {t.name: t.count for t in open_log(out).topics()}
+    assert counts == {t.name: t.count for t in open_log(src).topics()}

@@ -369,8 +369,9 @@ class McapSource(LogSource):
         return self._indexed([ch.id])[ch.id]
 
     def _chunks(self, cids: list[int]):
+        # a writer may leave the Message Index records out (valid MCAP): such a chunk may hold anything
         return sorted((c for c in self._summary.chunk_indexes
-                       if any(cid in c.message_index_offsets for cid in cids)),
+                       if not c.message_index_offsets or any(cid in c.message_index_offsets for cid in cids)),
                       key=lambda c: c.chunk_start_offset)
 
     def _message_index(self, offset: int) -> np.ndarray:
@@ -383,6 +384,9 @@ class McapSource(LogSource):
 
     def _index_times(self, cids: list[int]) -> dict[int, np.ndarray]:
         out: dict[int, list] = {cid: [] for cid in cids}
+        if any(not c.message_index_offsets for c in self._summary.chunk_indexes):
+            # no Message Index records: the times come from reading the chunks
+            return {cid: v[0] for cid, v in self._indexed(cids).items()}
         try:
             for chunk in sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
                 for cid, off in chunk.message_index_offsets.items():
@@ -418,6 +422,15 @@ class McapSource(LogSource):
             buffers.append(whole)
             chunk_base = base
             base += len(whole)
+            if not chunk_index.message_index_offsets:
+                off, channel, log_time, rec_len = _walk_messages(data)
+                for cid in cids:
+                    sel = channel == cid
+                    times, starts, lengths = parts[cid]
+                    times.append(log_time[sel])
+                    starts.append(off[sel] + 9 + _MSG_HEADER + chunk_base)
+                    lengths.append(rec_len[sel] - _MSG_HEADER)
+                continue
             for cid in cids:
                 if cid not in chunk_index.message_index_offsets:
                     continue
@@ -476,6 +489,31 @@ class McapSource(LogSource):
                 or (channel != cid).any() or (log_time != index[:, 0]).any()):
             raise ValueError("message index disagrees with the chunk")
         return log_time, off + 9 + _MSG_HEADER, rec_len - _MSG_HEADER
+
+
+def _walk_messages(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets, channel ids, log times [ns] and record lengths of the Message records in a chunk's
+    records (for chunks written without Message Index records). Stops at a truncated record."""
+    offs = []
+    pos, n = 0, len(data)
+    mv = memoryview(data)
+    while pos + 9 <= n:
+        length = int.from_bytes(mv[pos + 1:pos + 9], "little")
+        if pos + 9 + length > n:
+            break
+        if data[pos] == _OP_MESSAGE and length >= _MSG_HEADER:
+            offs.append(pos)
+        pos += 9 + length
+    off = np.array(offs, dtype=np.int64)
+    arr = np.frombuffer(data, dtype=np.uint8)
+
+    def field(offset: int, size: int, dtype: str) -> np.ndarray:
+        return arr[(off + offset)[:, None] + np.arange(size)].view(dtype).ravel()
+
+    if off.size == 0:
+        z = np.zeros(0, np.int64)
+        return z, z, z, z
+    return off, field(9, 2, "<u2").astype(np.int64), field(15, 8, "<u8").astype(np.int64), field(1, 8, "<u8").astype(np.int64)
 
 
 # -- JSON messages -------------------------------------------------------------------------------

@@ -7,9 +7,12 @@ of ``scripts/make_concealed_logs.py``) plus ``--clean`` clean controls are writt
 and diagnosed. Printed: right effect named, clean reported clean, parameter within 25 % (of the
 logs where the effect was named), held-out NRMSE at least halved, and CPU time per log.
 
+``--pairs N`` adds N logs with two effects at once (a random distinct pair, each at its own random
+magnitude): both must be named, nothing else, and both parameters are compared with the truth.
+
 Usage::
 
-    python benchmarks/bench_diagnose.py [--per-effect 5] [--clean 10] [--jobs 2] [--seed N]
+    python benchmarks/bench_diagnose.py [--per-effect 5] [--clean 10] [--jobs 2] [--seed N] [--pairs N]
 """
 
 from __future__ import annotations
@@ -56,8 +59,12 @@ def run_case(case: tuple) -> dict:
         cpu = time.process_time() - t0
     out = {"effect": effect, "plant": plant, "seed": seed, "scale": scale, "cpu": cpu, "error": err,
            "true_value": truth["effects"].get(effect) if effect else None}
+    if effect is not None and "+" in effect:
+        out["true_values"] = {n: truth["effects"][n] for n in effect.split("+")}
     if res is not None:
         out["found"] = [e.name for e in res.effects]
+        out["values"] = {e.name: e.parameters.get(PARAM[e.name]) for e in res.effects}
+        out["nrmse_steps"] = {e.name: (e.fit_before.get("nrmse"), e.fit_after.get("nrmse")) for e in res.effects}
         if res.effects:
             e = res.effects[0]
             out["value"] = e.parameters.get(PARAM[e.name])
@@ -76,6 +83,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=None, help="master seed (default: fresh every run)")
     ap.add_argument("--effects", default=None, help="comma-separated subset of effects (default: all)")
+    ap.add_argument("--pairs", type=int, default=0,
+                    help="also this many logs with two effects at once (random distinct pairs)")
     args = ap.parse_args()
     master = args.seed if args.seed is not None else int.from_bytes(os.urandom(4), "little")
     rng = np.random.default_rng(master)
@@ -87,6 +96,11 @@ def main() -> None:
         for _ in range(n):
             cases.append((effect, str(rng.choice(list(gen.PLANTS))), int(rng.integers(1 << 30)),
                           float(rng.uniform(0.7, 1.3))))
+    eff_list = list(gen.EFFECTS)
+    for _ in range(args.pairs):
+        a, b = sorted(rng.choice(len(eff_list), 2, replace=False))
+        cases.append((f"{eff_list[a]}+{eff_list[b]}", str(rng.choice(list(gen.PLANTS))), int(rng.integers(1 << 30)),
+                      (float(rng.uniform(0.7, 1.3)), float(rng.uniform(0.7, 1.3)))))
     print(f"master seed {master}: {len(cases)} logs, {args.jobs} processes")
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
@@ -96,6 +110,8 @@ def main() -> None:
     tot_named = tot_n = 0
     for effect in chosen + [None]:
         rs = [r for r in results if r["effect"] == effect]
+        if effect is not None and "+" in effect:
+            continue
         if not rs:
             continue
         if effect is None:
@@ -117,6 +133,8 @@ def main() -> None:
               f"{[r.get('found') or r.get('error') for r in rs if r.get('found') != [effect]]}")
     print("held-out NRMSE before -> after, per log where the effect was named:")
     for effect in chosen:
+        if not any(r["effect"] == effect for r in results):
+            continue
         pairs = [f"{r['nrmse_before']:.3f}->{r['nrmse_after']:.3f}" for r in results
                  if r["effect"] == effect and r.get("found") == [effect]]
         print(f"  {effect:<20} {' '.join(pairs)}")
@@ -126,10 +144,25 @@ def main() -> None:
             print(f"  {'':<20} raw (scatter kept): {' '.join(raw)}")
         vals = [f"{r['value']:.4g}/{r['true_value']:.4g}" for r in results if r["effect"] == effect and r.get("found") == [effect]]
         print(f"  {'':<20} found/true: {' '.join(vals)}")
+    pair_rs = [r for r in results if r["effect"] is not None and "+" in r["effect"]]
+    if pair_rs:
+        both = within2 = 0
+        print("two effects at once (both named, nothing else; parameters within 25 %):")
+        for r in pair_rs:
+            truth = r["true_values"]
+            ok = set(r.get("found") or []) == set(truth)
+            errs = {n: abs(r["values"][n] / v - 1) for n, v in truth.items() if n in (r.get("values") or {})}
+            w = ok and all(e <= 0.25 for e in errs.values())
+            both += ok
+            within2 += w
+            print(f"  {r['effect']:<36} {r['plant']}  found {r.get('found') or r.get('error')}  "
+                  + " ".join(f"{n} {100 * e:.0f} %" for n, e in errs.items()))
+        print(f"pairs: both named {both}/{len(pair_rs)}, both parameters within 25 % {within2}/{len(pair_rs)}")
     cpu = np.array([r["cpu"] for r in results])
-    print(f"right effect named: {tot_named}/{tot_n} = {100 * tot_named / max(tot_n, 1):.0f} %")
-    w = globals().get("_within", [0, 0])
-    print(f"parameter within 25 % (of named): {w[0]}/{w[1]}")
+    if tot_n:
+        print(f"right effect named: {tot_named}/{tot_n} = {100 * tot_named / max(tot_n, 1):.0f} %")
+        w = globals().get("_within", [0, 0])
+        print(f"parameter within 25 % (of named): {w[0]}/{w[1]}")
     print(f"CPU per log: median {np.median(cpu):.1f} s, max {cpu.max():.1f} s; wall {wall:.0f} s")
 
 

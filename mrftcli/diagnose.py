@@ -36,14 +36,16 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 
 from .diagnose_features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, summarize_features
 from .diagnose_physics import BY_NAME, CANDIDATES, Candidate, df_quadratic_drag
-from .diagnose_sim import Plant, periodic_cycle, quasi_static_plant, run_relay
+from .diagnose_scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
+                               refit_sigma, scatter_sample)
+from .diagnose_sim import Plant, periodic_cycle, quasi_static_plant
 from .errors import DiagnoseError, InputError
 from .logtypes import FlightLog
-from .segment import stable_cycles
 
 __all__ = ["diagnose", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
 
@@ -127,6 +129,10 @@ class DiagnosisResult:
         Effects the evidence supports (empty when the linear model explains the log).
     candidates : list of dict
         Every candidate's evidence and held-out scores (including the rejected ones).
+    second_effect_candidates : list of dict
+        When an effect was found: every other candidate fitted together with it, with its evidence
+        and held-out scores against the first effect's model (a second effect is reported when it
+        passes the same rules).
     located : list of dict
         Where the base model disagrees with the recording, largest first.
     identification : dict
@@ -151,6 +157,7 @@ class DiagnosisResult:
     noise_std: float
     summary: str
     warnings: list = field(default_factory=list)
+    second_effect_candidates: list = field(default_factory=list)
     _plot: dict = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict:
@@ -163,6 +170,7 @@ class DiagnosisResult:
             "located": self.located,
             "identification": self.identification,
             "candidates": self.candidates,
+            "second_effect_candidates": self.second_effect_candidates,
             "tests": self.tests,
             "noise_std": self.noise_std,
             "nrmse_definition": (
@@ -200,6 +208,17 @@ class _Test:
     hold: np.ndarray
     has_setpoint: bool
     t0_log: float
+    #: periods [s] of the cycles behind the scatter statistic (``diagnose_scatter.scatter_sample``)
+    scatter_periods: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: regular cycles the segmenter found in the test (the window the scatter model reproduces)
+    n_window: int = 0
+
+    def scatter_var(self, sel: str) -> tuple[float, int]:
+        """Sample variance [s^2] of the scatter periods ('fit': even, 'hold': odd, else all) and their count."""
+        p = self.scatter_periods
+        if sel in ("fit", "hold"):
+            p = p[(np.arange(p.size) % 2 == 0) == (sel == "fit")]
+        return (float(np.var(p, ddof=1)) if p.size >= 3 else float("nan")), int(p.size)
 
 
 def _get_tests(flight: FlightLog, analysis: Any) -> list:
@@ -253,6 +272,10 @@ def _prepare(flight: FlightLog, segs: list) -> tuple[list[_Test], float, list[st
             b_up = b_dn = float(s.beta)
         rss += float(tab.resid_ss.sum())
         nsamp += int(tab.n_samples.sum()) - len(tab) * (2 * N_HARM + 2)
+        P_all = np.array([c.period for c in s.cycles], float)
+        A_all = np.array([c.amplitude for c in s.cycles], float)
+        reg_all = np.array([c.regular for c in s.cycles], bool)
+        keep = scatter_sample(P_all, A_all, reg_all, 1.0 / float(s.rate_hz))
         tests.append(
             _Test(
                 index=s.index,
@@ -268,6 +291,8 @@ def _prepare(flight: FlightLog, segs: list) -> tuple[list[_Test], float, list[st
                 hold=idx % 2 == 1,
                 has_setpoint=has_sp,
                 t0_log=t0_log,
+                scatter_periods=P_all[keep],
+                n_window=int(reg_all.sum()),
             )
         )
     noise = math.sqrt(rss / nsamp) if nsamp > 0 else 0.0
@@ -288,54 +313,74 @@ class _Eval:
 
 
 class _Model:
-    """Evaluates one candidate's limit cycles for every test, with warm starts."""
+    """Evaluates the limit cycles of the linear model with zero, one or several candidate effects
+    for every test, with warm starts.
 
-    def __init__(self, cand: Candidate | None, tests: list[_Test], Tp: float) -> None:
-        self.cand = cand
+    theta layout: [ln Td (ln q with quadratic drag, whose q replaces 1/Td), 10 tau, then one scaled
+    parameter per other deterministic effect, in the order given].
+    """
+
+    def __init__(self, cand: Candidate | tuple | None, tests: list[_Test], Tp: float) -> None:
+        cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
+        self.cands = tuple(c for c in cands if not c.stochastic)
+        self.cand = cands[0] if cands else None
+        self.names = tuple(c.name for c in self.cands)
         self.tests = tests
         self.Tp = Tp
         self.warm: dict[int, dict] = {}
-        self.name = cand.name if cand else "base"
+        self.name = "+".join(c.name for c in cands) if cands else "base"
+        self.hs = float(np.mean([t.h for t in tests]))
 
-    # theta layout: [ln Td (or ln q), 10 tau, (effect parameter scaled)]
+    def extra_index(self, name: str) -> int | None:
+        """Index in theta of the effect's own parameter (None for quadratic drag, which uses theta[0])."""
+        j = 2
+        for c in self.cands:
+            if c.replaces_drag:
+                if c.name == name:
+                    return None
+                continue
+            if c.name == name:
+                return j
+            j += 1
+        raise KeyError(name)
+
     def unpack(self, theta: np.ndarray) -> dict:
-        c = self.cand
-        p = {"Td": math.exp(theta[0]), "tau": theta[1] / 10.0, "extra": None}
-        if c is None or c.stochastic:
-            return p
-        hs = np.mean([t.h for t in self.tests])
-        x = theta[2] if len(theta) > 2 else None
-        if c.name == "input_bias":
-            p["extra"] = x * hs
-        elif c.name == "gain_drift":
-            p["extra"] = x / 100.0
-        elif c.name == "sensor_lag":
-            p["extra"] = x / 10.0
-        elif c.name == "actuator_rate_limit":
-            p["extra"] = x / (10.0 * hs)  # rho = 1/R [s per command unit]
-        elif c.name == "quadratic_drag":
-            p["q"] = math.exp(theta[0])
-            p["Td"] = None
+        """Physical parameters: Td [s], tau [s], ``extras`` {effect: value}, ``extra`` the first one's."""
+        p = {"Td": math.exp(theta[0]), "tau": theta[1] / 10.0, "extra": None, "extras": {}}
+        hs = self.hs
+        for c in self.cands:
+            j = self.extra_index(c.name)
+            x = theta[j] if j is not None and j < len(theta) else None
+            if c.name == "quadratic_drag":
+                p["q"] = math.exp(theta[0])
+                p["Td"] = None
+                continue
+            if x is None:
+                continue
+            value = {"input_bias": x * hs, "gain_drift": x / 100.0, "sensor_lag": x / 10.0,
+                     "actuator_rate_limit": x / (10.0 * hs)}[c.name]  # rate limit: rho = 1/R [s per unit]
+            p["extras"][c.name] = value
+        if self.cand is not None and self.cand.name in p["extras"]:
+            p["extra"] = p["extras"][self.cand.name]
         return p
 
     def plant(self, p: dict, test: _Test, t_ref: float) -> tuple[Plant, float]:
         """Plant (K = 1) for a test at reference time t_ref [s, log time]; returns (plant, gain)."""
-        name = self.cand.name if self.cand else "base"
-        if name == "quadratic_drag":
-            return Plant(self.Tp, 1.0, p["tau"], 1.0, quadratic_drag=p["q"]), 1.0
-        base = Plant(self.Tp, p["Td"], p["tau"], 1.0)
-        if name == "input_bias":
-            return Plant(self.Tp, p["Td"], p["tau"], 1.0, input_bias=p["extra"]), 1.0
-        if name == "sensor_lag":
-            return Plant(self.Tp, p["Td"], p["tau"], 1.0, sensor_lag=max(p["extra"], 1e-4)), 1.0
-        if name == "actuator_rate_limit":
-            rho = p["extra"]
-            return Plant(self.Tp, p["Td"], p["tau"], 1.0, rate_limit=(1.0 / rho) if rho > 1e-9 else 0.0), 1.0
-        if name == "gain_drift":
-            g = 1.0 + p["extra"] * (t_ref - test.t0_log)
-            g = max(g, 0.05)
-            return quasi_static_plant(base, g, test.bias), g
-        return base, 1.0
+        ex = p["extras"]
+        rho = ex.get("actuator_rate_limit", 0.0)
+        kw = {
+            "input_bias": ex.get("input_bias", 0.0),
+            "sensor_lag": max(ex["sensor_lag"], 1e-4) if "sensor_lag" in ex else 0.0,
+            "rate_limit": (1.0 / rho) if rho > 1e-9 else 0.0,
+        }
+        if "quadratic_drag" in self.names:
+            plant = Plant(self.Tp, 1.0, p["tau"], 1.0, quadratic_drag=p["q"], **kw)
+        else:
+            plant = Plant(self.Tp, p["Td"], p["tau"], 1.0, **kw)
+        if "gain_drift" in ex:
+            g = max(1.0 + ex["gain_drift"] * (t_ref - test.t0_log), 0.05)
+            return quasi_static_plant(plant, g, test.bias), g
+        return plant, 1.0
 
     def evaluate(self, theta: np.ndarray, test_i: int, t_ref: float, *, key: int | None = None) -> _Eval | None:
         test = self.tests[test_i]
@@ -356,14 +401,22 @@ class _Model:
         dn = run.down[(run.down > u0) & (run.down < u1)]
         if dn.size != 1:
             return None
-        cyc = cycle_table(run.t, run.y, test.h, [u0], dn[:1], [u1])
+        # the harmonic projection of a sampled cycle depends (at the 1e-5 level) on where the ticks fall
+        # within it, which moves with the warm start's history: that noise in the features spoils the
+        # finite-difference Jacobian of the fit, so the cycle is resampled on a grid aligned to its start
+        i0, i1 = np.searchsorted(run.t, [u0, u1])
+        sl = slice(max(i0 - 4, 0), min(i1 + 4, run.t.size))
+        n_s = max(64, i1 - i0)
+        tt = u0 + (u1 - u0) * np.arange(n_s + 1) / n_s
+        yy = CubicSpline(run.t[sl], run.y[sl])(tt)
+        cyc = cycle_table(tt, yy, test.h, [u0], dn[:1], [u1])
         if not np.isfinite(cyc.amplitude[0]) or cyc.amplitude[0] <= 0:
             return None
         f = summarize_features(cyc).values.copy()
         f[np.isnan(f)] = 0.0
         # analytic trends of the quasi-static gain drift
-        if self.cand is not None and self.cand.name == "gain_drift":
-            gd = p["extra"]
+        if "gain_drift" in p["extras"]:
+            gd = p["extras"]["gain_drift"]
             f[FEATURE_NAMES.index("amplitude_trend")] = gd / g
             # balance D = -d_eff / (2 h), d_eff = ((g - 1) b) / g  ->  dD/dt = -b gd / (2 h g^2)
             f[FEATURE_NAMES.index("balance_trend")] = -test.bias * gd / (2.0 * test.h * g * g)
@@ -471,28 +524,45 @@ def _fit(model: _Model, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray, recs
 
 
 # --------------------------------------------------------------------------------------------------
-# scatter (sampled relay with noise and jitter)
+# cycle-to-cycle period scatter (sampled relay with noise, and delay jitter: mrftcli.diagnose_scatter)
 
 
-def _sim_scatter(plant: Plant, beta: float, test: _Test, noise: float, jitter: float, warm: dict | None,
-                 n_cycles: int = 50, seed: int = 0) -> float:
-    """Cycle-to-cycle period std of the sampled, noisy relay on ``plant`` [s]."""
-    run = run_relay(plant, beta, test.h, test.rate_hz, n_cycles + 3, warm=warm, sampled=True,
-                    noise_std=noise, jitter_std=jitter, seed=seed, max_time=(n_cycles + 4) * 20.0)
-    up = run.up[2:]
-    if up.size < 6:
-        return float("nan")
-    per = np.diff(up)
-    # the recorded scatter is measured on the segmenter's stable cycles, which drops cycles whose
-    # period *or amplitude* is inconsistent (a jitter-hit cycle often is): the simulated cycles go
-    # through the very same criterion, so model and measurement see the same cycles
-    k = np.searchsorted(run.t, up)
-    amp = np.array([0.5 * (run.y[a:b].max() - run.y[a:b].min()) if b > a else np.nan for a, b in zip(k[:-1], k[1:])])
-    stable, _, _ = stable_cycles(per, amp, np.isfinite(amp), 1.0 / test.rate_hz)
-    per = per[stable]
-    if per.size < 5:
-        return float("nan")
-    return float(np.std(per, ddof=1))
+def _scatter_reference(tests: list[_Test], base_model: _Model, base: _Fit, Tp: float, noise: float) -> list[dict]:
+    """Per test: the sampled-relay setting of the base model and the period variance noise alone explains."""
+    pb = base_model.unpack(base.theta)
+    out = []
+    for i, t in enumerate(tests):
+        plant = Plant(Tp, pb["Td"], pb["tau"], base.K)
+        warm = base_model.warm.get(i)
+        if warm is not None:
+            # the warm state was computed at K = 1: output and rate scale with K, the propulsion state not
+            x = np.asarray(warm["x"], float).copy()
+            x[:2] *= base.K
+            x[3:] *= base.K
+            warm = dict(warm, x=x, e_prev=warm["e_prev"] * base.K, de_prev=warm["de_prev"] * base.K,
+                        e_ext=warm["e_ext"] * base.K)
+        setting = ScatterSetting(plant=plant, beta=t.beta_nominal if t.beta_nominal is not None else float(np.mean(t.beta)),
+                                 h=t.h, rate_hz=t.rate_hz, noise_std=noise, n_window=max(t.n_window, len(t.tab)),
+                                 period=float(np.mean(t.tab.period)), warm=warm)
+        v0, dof = expected_period_variance(setting, 0.0)
+        if not (np.isfinite(v0) and math.sqrt(v0) < 0.2 * float(np.mean(t.tab.period))):
+            v0, dof = float("nan"), 0  # the sampled relay broke down (false switches): no scatter reference
+        out.append({"setting": setting, "v0": v0, "s0": math.sqrt(v0) if np.isfinite(v0) else float("nan"), "dof": dof})
+    return out
+
+
+def _scatter_z(tests: list[_Test], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
+    """z of log(recorded / predicted period scatter) per test, for the 'fit', 'hold' or all cycles."""
+    out = []
+    for t, sc, vp in zip(tests, scatter, v_pred):
+        v_rec, n = t.scatter_var(sel)
+        if not (np.isfinite(vp) and np.isfinite(sc["v0"]) and np.isfinite(v_rec)) or sc["dof"] == 0:
+            out.append(0.0)
+            continue
+        v_floor = (0.5 / t.rate_hz) ** 2 / 3.0  # never compare below the tick quantisation
+        se = math.sqrt(1.0 / (2 * (n - 1)) + 1.0 / (2 * sc["dof"]))
+        out.append(0.5 * math.log(max(v_rec, v_floor) / max(vp, v_floor)) / se)
+    return np.array(out)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -621,13 +691,47 @@ def _initial_base(tests: list[_Test], Tp: float, extra_phase: Callable | None = 
     return np.array([x[0], 10 * x[1]])
 
 
-def _bounds(cand: Candidate | None, tests: list[_Test]) -> tuple[np.ndarray, np.ndarray]:
+def _tau_on_valley(tests: list[_Test], Tp: float, Td: float) -> float:
+    """tau [s] that satisfies the describing-function phase condition best for a given Td (closed form)."""
+    W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
+    B = np.array([np.mean(t.beta) for t in tests])
+    fs = np.array([t.rate_hz for t in tests])
+    # -pi/2 - atan(W Tp) - atan(W Td) - W (tau + 1/(2 fs)) = -pi + asin(B), linear in tau
+    rhs = np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * 0.5 / fs - np.arcsin(B)
+    return max(float(W @ rhs / (W @ W)), 0.0)
+
+
+def _fit_base(model: _Model, tests: list[_Test], Tp: float, lo: np.ndarray, hi: np.ndarray, recs: list) -> _Fit:
+    """The linear model's fit, started along the Td-tau valley.
+
+    The features pin the phase at each test's frequency well but Td and tau trade off along a curved
+    valley, and a noisy log (large cycle-to-cycle scatter) can leave the describing-function start on
+    the wrong side of a shallow local minimum. Td is therefore profiled over a decade-wide grid (tau
+    fitted alone at each point, from the phase condition), and the two best points are refined freely.
+    """
+    th0 = _initial_base(tests, Tp)
+    starts = [th0] + [np.array([math.log(td), 10 * _tau_on_valley(tests, Tp, td)])
+                      for td in math.exp(th0[0]) * np.array([0.25, 0.5, 2.0, 4.0])]
+    free = np.array([False, True])
+    prof = []
+    for th in starts:
+        pf = _fit(model, th, lo, hi, recs, max_nfev=6, free=free)
+        if np.isfinite(pf.chi2):
+            prof.append(pf)
+    prof.sort(key=lambda f: f.chi2)
+    best = None
+    for pf in prof[:2] or [None]:
+        f = _fit(model, pf.theta if pf is not None else th0, lo, hi, recs)
+        if best is None or (f.ok and (not best.ok or f.chi2 < best.chi2)):
+            best = f
+    return best
+
+
+def _bounds(cand: Candidate | tuple | None, tests: list[_Test]) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of theta (layout of :class:`_Model`) for the base model, one candidate or a combination."""
+    cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
     lo = [math.log(0.02), 0.0]
     hi = [math.log(100.0), 5.0]
-    if cand is not None and cand.replaces_drag:
-        lo[0], hi[0] = math.log(1e-4), math.log(1e6)
-    if cand is None or cand.stochastic or cand.replaces_drag:
-        return np.array(lo), np.array(hi)
     hmin = min(t.h for t in tests)
     hs = np.mean([t.h for t in tests])
     extra = {
@@ -635,8 +739,16 @@ def _bounds(cand: Candidate | None, tests: list[_Test]) -> tuple[np.ndarray, np.
         "gain_drift": (-5.0, 5.0),
         "sensor_lag": (0.002, 3.0),
         "actuator_rate_limit": (0.0, 10.0),
-    }[cand.name]
-    return np.array(lo + [extra[0]]), np.array(hi + [extra[1]])
+    }
+    for c in cands:
+        if c.stochastic:
+            continue
+        if c.replaces_drag:
+            lo[0], hi[0] = math.log(1e-4), math.log(1e6)
+            continue
+        lo.append(extra[c.name][0])
+        hi.append(extra[c.name][1])
+    return np.array(lo), np.array(hi)
 
 
 def _start(cand: Candidate, base: _Fit, tests: list[_Test], recs: list, Tp: float) -> list[np.ndarray]:
@@ -681,13 +793,14 @@ def _start(cand: Candidate, base: _Fit, tests: list[_Test], recs: list, Tp: floa
     raise ValueError(cand.name)
 
 
-def _held_out(model: _Model, fit: _Fit, tests: list[_Test], recs_hold: list, gain_times: bool) -> dict:
+def _held_out(model: _Model, fit: _Fit, tests: list[_Test], recs_hold: list) -> dict:
     """Score a fitted model on the held-out cycles: feature z RMS and waveform NRMSE."""
     zs = []
     sse = sst = floor = sse_timed = 0.0
     per_test = []
     per_test_raw = []
     ia = FEATURE_NAMES.index("log_amplitude")
+    gain_times = "gain_drift" in model.names
     for i, (test, (f_rec, s)) in enumerate(zip(tests, recs_hold)):
         ev = model.evaluate(fit.theta, i, f_rec.t_mean, key=1000 + i)
         if ev is None:
@@ -837,56 +950,24 @@ def diagnose(
     say("fitting the linear model")
     base_model = _Model(None, tests, Tp)
     lo, hi = _bounds(None, tests)
-    th0 = _initial_base(tests, Tp)
-    base = _fit(base_model, th0, lo, hi, recs_fit)
+    base = _fit_base(base_model, tests, Tp, lo, hi, recs_fit)
     if not base.ok:
         raise DiagnoseError(f"{flight.path}: the linear model reproduces no limit cycle close to the recorded ones")
     n_data = base.n
 
     # ---- scatter predicted by noise on a sampled relay (base model)
     say("simulating the noise-driven scatter")
-    pb = base_model.unpack(base.theta)
-    scatter = []
-    for i, t in enumerate(tests):
-        plant = Plant(Tp, pb["Td"], pb["tau"], base.K)
-        beta_s = t.beta_nominal if t.beta_nominal is not None else float(np.mean(t.beta))
-        warm = base_model.warm.get(i)
-        if warm is not None:
-            # the warm state was computed at K = 1: output and rate scale with K, the propulsion state not
-            x = np.asarray(warm["x"], float).copy()
-            x[:2] *= base.K
-            x[3:] *= base.K
-            warm = dict(warm, x=x)
-            warm["e_prev"] *= base.K
-            warm["de_prev"] *= base.K
-            warm["e_ext"] *= base.K
-        s0 = _sim_scatter(plant, beta_s, t, noise, 0.0, warm, seed=1)
-        if not (np.isfinite(s0) and s0 < 0.2 * float(np.mean(t.tab.period))):
-            s0 = float("nan")  # the sampled relay broke down (false switches): no scatter reference
-        scatter.append({"plant": plant, "beta": beta_s, "warm": warm, "s0": s0})
+    scatter = _scatter_reference(tests, base_model, base, Tp, noise)
 
-    def scatter_z(sel: str, s_pred: list[float]) -> np.ndarray:
-        out = []
-        for t, sc, sp in zip(tests, scatter, s_pred):
-            if not (np.isfinite(sp) and np.isfinite(sc["s0"])):
-                out.append(0.0)
-                continue
-            mask = t.fit if sel == "fit" else (t.hold if sel == "hold" else np.ones(len(t.tab), bool))
-            per = t.tab.period[mask]
-            n = per.size
-            s_rec = float(np.std(per, ddof=1))
-            s_floor = 0.5 / t.rate_hz / math.sqrt(3.0)  # never compare below the tick quantisation
-            a, b = max(s_rec, s_floor), max(sp, s_floor)
-            se = math.sqrt(1.0 / (2 * (n - 1)) + 1.0 / (2 * 49))
-            out.append(math.log(a / b) / se)
-        return np.array(out)
+    def scatter_z(sel: str, v_pred: list[float]) -> np.ndarray:
+        return _scatter_z(tests, scatter, sel, v_pred)
 
-    z_sc_base = scatter_z("fit", [sc["s0"] for sc in scatter])
+    z_sc_base = scatter_z("fit", [sc["v0"] for sc in scatter])
     chi2_base = base.chi2 + float(z_sc_base @ z_sc_base)
     n_all = n_data + len(tests)
     bic_base = chi2_base + base.k * math.log(n_all)
 
-    before = _held_out(base_model, base, tests, recs_hold, gain_times=False)
+    before = _held_out(base_model, base, tests, recs_hold)
 
     # ---- candidates
     cand_rows = []
@@ -896,7 +977,7 @@ def diagnose(
             continue
         say(f"fitting {cand.name}")
         if cand.stochastic:
-            row = _jitter_candidate(cand, tests, scatter, noise, scatter_z, base, bic_base, n_all)
+            row = _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all)
             cand_rows.append(row)
             continue
         model = _Model(cand, tests, Tp)
@@ -924,7 +1005,7 @@ def diagnose(
             continue
         chi2 = best.chi2 + float(z_sc_base @ z_sc_base)
         bic = chi2 + best.k * math.log(n_all)
-        after = _held_out(model, best, tests, recs_hold, gain_times=cand.name == "gain_drift")
+        after = _held_out(model, best, tests, recs_hold)
         p = model.unpack(best.theta)
         value, std = _effect_value(cand, model, best, p)
         fits[cand.name] = (model, best)
@@ -947,48 +1028,75 @@ def diagnose(
     # ---- selection: strong evidence and confirmed on the held-out cycles
     for row in cand_rows:
         row["significant"] = _significant(row)
-    chosen = [r for r in cand_rows if r["significant"]]
-    chosen.sort(key=lambda r: -r["delta_bic"])
-    effects = []
     base_params = _params_out(base_model, base)
-    for row in chosen[:1]:
-        cand = BY_NAME[row["name"]]
-        ident = {"linear": base_params, "with_effect": row.get("fit_params") or base_params}
-        harm = {}
-        if row["name"] in fits:
-            model, fit = fits[row["name"]]
-            harm = _harmonics_before_after(tests, base_model, base, model, fit)
-        effects.append(
-            EffectFinding(
-                name=cand.name,
-                explanation=cand.explanation,
-                augmentation=cand.augmentation,
-                parameters={cand.parameter: row["value"], f"{cand.parameter}_std": row["std"], "unit": cand.unit,
-                            **{f"{k}": v for k, v in (row.get("fit_params") or {}).items()}},
-                evidence={"delta_bic": row["delta_bic"], "bic_base": bic_base, "bic": row["bic"],
-                          "n_features": n_all, "threshold": BIC_THRESHOLD},
-                fit_before=_fit_summary(row["held_out_before"]),
-                fit_after=_fit_summary(row["held_out_after"]),
-                identification=ident,
-                harmonics=harm,
-            )
-        )
+    deterministic = sorted((r for r in cand_rows if r["significant"] and r["name"] in fits),
+                           key=lambda r: -r["delta_bic"])
+    stochastic = [r for r in cand_rows if r["significant"] and r["name"] not in fits]
+    effects = []
+    pair_rows: list[dict] = []
+    final = None  # (label, model, fit) of the deterministic model finally chosen (for the plots)
+    if deterministic:
+        first = deterministic[0]
+        m1, f1 = fits[first["name"]]
+        final = (first["name"], m1, f1)
+        effects.append(_finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
+                                _harmonics_before_after(tests, base_model, base, m1, f1),
+                                {"compared_with": "linear", "bic_base": bic_base}, n_all))
+        # forward step: a second effect on top of the first (nested: the pair model with the second
+        # effect's parameter at zero is the first's model), kept on the same evidence and held-out rules
+        say(f"testing a second effect on top of {first['name']}")
+        for row in cand_rows:
+            if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
+                continue
+            pr = _pair_candidate(first, row, fits, tests, Tp, recs_fit, recs_hold, float(z_sc_base @ z_sc_base), n_all)
+            if pr is not None:
+                pair_rows.append(pr)
+        for pr in pair_rows:
+            pr["significant"] = _significant(pr)
+        good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
+        if good:
+            second = good[0]
+            mp, fp = second["_fit"]
+            final = (f"{first['name']} + {second['name']}", mp, fp)
+            # with both effects modelled, both parameters come from the joint fit
+            for e, name in ((effects[0], first["name"]), (None, second["name"])):
+                value, std = _effect_value(BY_NAME[name], mp, fp, mp.unpack(fp.theta))
+                if e is not None:
+                    par = BY_NAME[name].parameter
+                    e.parameters[f"{par}_alone"] = e.parameters[par]
+                    e.parameters[f"{par}_alone_std"] = e.parameters[f"{par}_std"]
+                    e.parameters[par], e.parameters[f"{par}_std"] = value, std
+            row2 = dict(second, name=second["name"], value=second["values"][second["name"]],
+                        std=second["stds"][second["name"]])
+            effects.append(_finding(row2, {"linear": base_params, "with_effect": second["fit_params"],
+                                           "model": f"{first['name']}+{second['name']}"},
+                                    _harmonics_before_after(tests, m1, f1, mp, fp),
+                                    {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, n_all))
+    for row in stochastic:
+        # the jitter acts on the cycle-to-cycle scatter only, which the deterministic effects leave alone
+        effects.append(_finding(row, {"linear": base_params, "with_effect": base_params}, {},
+                                {"compared_with": "linear", "bic_base": row["bic"] + row["delta_bic"]}, n_all))
+    for pr in pair_rows:
+        pr.pop("_fit", None)
 
     # ---- locate (base model against all cycles)
     say("locating")
     located, plot = _locate(tests, base_model, base, recs_all, scatter)
     identification = {"linear": {**base_params, "Tp": Tp}}
     for e in effects:
-        identification[f"with_{e.name}"] = {**e.identification["with_effect"], "Tp": Tp}
+        key = f"with_{e.identification.get('model', e.name)}"
+        identification[key] = {**e.identification["with_effect"], "Tp": Tp}
     if analysis is not None:
         identification["analyze"] = _analysis_params(analysis)
     if effects:
-        e = effects[0]
-        summary = (
-            f"{e.name} explains the mismatch ({e.parameters.get(BY_NAME[e.name].parameter):.4g} {BY_NAME[e.name].unit}; "
-            f"delta BIC {e.evidence['delta_bic']:.0f}); held-out NRMSE {_fmt(e.fit_before.get('nrmse'))} -> "
-            f"{_fmt(e.fit_after.get('nrmse'))}"
-        )
+        parts = [
+            f"{e.name} ({e.parameters.get(BY_NAME[e.name].parameter):.4g} {BY_NAME[e.name].unit}; delta BIC "
+            f"{e.evidence['delta_bic']:.0f} against the {e.evidence['compared_with']} model; held-out NRMSE "
+            f"{_fmt(e.fit_before.get('nrmse'))} -> {_fmt(e.fit_after.get('nrmse'))})"
+            for e in effects
+        ]
+        summary = ("found " if len(parts) > 1 else "") + " and ".join(parts) + (
+            " explains the mismatch" if len(parts) == 1 else "")
     else:
         summary = "the linear model explains the log: no candidate effect has strong evidence confirmed on held-out cycles"
     test_rows = [
@@ -1005,13 +1113,13 @@ def diagnose(
             "cycles": len(t.tab),
             "cycles_fit": int(t.fit.sum()),
             "cycles_held_out": int(t.hold.sum()),
-            "period_scatter": float(np.std(t.tab.period, ddof=1)),
+            "period_scatter": math.sqrt(t.scatter_var("all")[0]) if t.scatter_var("all")[1] >= 3 else None,
             "period_scatter_noise_model": sc["s0"],
         }
         for t, sc in zip(tests, scatter)
     ]
     plot.update({"tests": tests, "base_model": base_model, "base": base, "fits": fits, "flight": flight,
-                 "effects": [e.name for e in effects]})
+                 "effects": [e.name for e in effects], "final": final})
     return DiagnosisResult(
         path=str(flight.path),
         loop=flight.loop,
@@ -1024,6 +1132,7 @@ def diagnose(
         noise_std=noise,
         summary=summary,
         warnings=warnings,
+        second_effect_candidates=pair_rows,
         _plot=plot,
     )
 
@@ -1055,100 +1164,159 @@ def _significant(row: dict) -> bool:
 
 
 def _effect_value(cand: Candidate, model: _Model, fit: _Fit, p: dict) -> tuple[float, float]:
-    hs = np.mean([t.h for t in model.tests])
-    if cand.name == "input_bias":
-        return p["extra"], _std_of(fit, 2) * hs
-    if cand.name == "gain_drift":
-        return p["extra"], _std_of(fit, 2) / 100.0
-    if cand.name == "sensor_lag":
-        return p["extra"], _std_of(fit, 2) / 10.0
-    if cand.name == "actuator_rate_limit":
-        rho = p["extra"]
-        R = 1.0 / rho if rho > 1e-9 else float("inf")
-        s_rho = _std_of(fit, 2) / (10.0 * hs)
-        return R, (s_rho / rho**2 if rho > 1e-9 else float("nan"))
+    """The effect's parameter in its own units and its standard error, from a fit of ``model``."""
+    hs = model.hs
+    j = model.extra_index(cand.name)
     if cand.name == "quadratic_drag":
         c = p["q"] / fit.K
         return c, c * _std_of(fit, 0)
+    x = p["extras"][cand.name]
+    if cand.name == "input_bias":
+        return x, _std_of(fit, j) * hs
+    if cand.name == "gain_drift":
+        return x, _std_of(fit, j) / 100.0
+    if cand.name == "sensor_lag":
+        return x, _std_of(fit, j) / 10.0
+    if cand.name == "actuator_rate_limit":
+        rho = x
+        R = 1.0 / rho if rho > 1e-9 else float("inf")
+        s_rho = _std_of(fit, j) / (10.0 * hs)
+        return R, (s_rho / rho**2 if rho > 1e-9 else float("nan"))
     raise ValueError(cand.name)
 
 
-def _jitter_candidate(cand, tests, scatter, noise, scatter_z, base, bic_base, n_all) -> dict:
-    """Fit the delay-jitter std to the period scatter: s^2 = s0^2 + c^2 sigma^2 per test."""
-    trial = 0.005
-    cs = []
-    s_rec_fit = []
-    for t, sc in zip(tests, scatter):
-        s1 = _sim_scatter(sc["plant"], sc["beta"], t, noise, trial, sc["warm"], seed=1)
-        c2 = max(s1**2 - sc["s0"] ** 2, 1e-12) / trial**2
-        cs.append(c2)
-        s_rec_fit.append(float(np.std(t.tab.period[t.fit], ddof=1)))
-    cs = np.array(cs)
-    s0 = np.array([sc["s0"] for sc in scatter])
-    okj = np.isfinite(cs) & np.isfinite(s0)
-    if not okj.any():
+def _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all) -> dict:
+    """Fit the delay-jitter std to the recorded period scatter (:func:`mrftcli.diagnose_scatter.fit_jitter`)."""
+    v0 = np.array([sc["v0"] for sc in scatter])
+    if not np.isfinite(v0).any():
         return {"name": cand.name, "delta_bic": None, "status": "no scatter reference (the sampled relay broke down)"}
-    cs = np.where(okj, cs, 0.0)
-    s0 = np.where(okj, s0, np.nan)
-    s_rec = np.array(s_rec_fit)
-    ex = s_rec**2 - s0**2
-    sig2 = max(float(np.nansum(cs * ex) / np.sum(cs * cs)), 0.0)
-    if sig2 > 0:
-        # the scatter is not exactly quadratic in sigma (first-in-first-out delays): recalibrate the
-        # slope once at the estimate
-        trial2 = math.sqrt(sig2)
-        for j, (t, sc) in enumerate(zip(tests, scatter)):
-            if okj[j]:
-                s1 = _sim_scatter(sc["plant"], sc["beta"], t, noise, trial2, sc["warm"], seed=2, n_cycles=80)
-                if np.isfinite(s1):
-                    cs[j] = max(s1**2 - sc["s0"] ** 2, 1e-12) / trial2**2
-        sig2 = max(float(np.nansum(cs * ex) / np.sum(cs * cs)), 0.0)
-    sigma = math.sqrt(sig2)
-    s_pred = np.sqrt(s0**2 + cs * sig2)
-    # the reported value uses every stable cycle (the held-out scores below use the even-cycle fit):
-    # a sample std over a handful of cycles of a skewed (first-in-first-out) delay is low more often
-    # than not, so the more cycles the better
-    s_all = np.array([float(np.std(t.tab.period, ddof=1)) for t in tests])
-    sigma_all = math.sqrt(max(float(np.nansum(cs * (s_all**2 - s0**2)) / np.sum(cs * cs)), 0.0))
-    z = scatter_z("fit", list(s_pred))
+
+    def calibrate(sigma: float) -> np.ndarray:
+        return np.array([expected_period_variance(sc["setting"], sigma)[0] if np.isfinite(sc["v0"]) else np.nan
+                         for sc in scatter])
+
+    v_all, n_all_c = (np.array(x) for x in zip(*(t.scatter_var("all") for t in tests)))
+    v_fit, n_fit = (np.array(x) for x in zip(*(t.scatter_var("fit") for t in tests)))
+    v_hold, n_hold = (np.array(x) for x in zip(*(t.scatter_var("hold") for t in tests)))
+    # the reported value uses every cycle of the scatter sample (calibrated at that value); the
+    # evidence and the held-out scores use the fit from the even cycles only
+    jf = fit_jitter(v_all, n_all_c, v0, calibrate)
+    sigma_fit = refit_sigma(jf, v_fit, n_fit)
+    v_pred = jf.predicted_var(sigma_fit)
+    z = scatter_z("fit", list(v_pred))
     chi2 = base.chi2 + float(z @ z)
     bic = chi2 + (base.k + 1) * math.log(n_all)
-    z_base = scatter_z("fit", list(s0))
+    z_base = scatter_z("fit", list(v0))
     bic_b = base.chi2 + float(z_base @ z_base) + base.k * math.log(n_all)
-
-    def hold_err(pred):
-        errs = []
-        for t, sp in zip(tests, pred):
-            if not np.isfinite(sp):
-                continue
-            sr = float(np.std(t.tab.period[t.hold], ddof=1))
-            errs.append((sr - sp) / sr if sr > 0 else 0.0)
-        return float(np.sqrt(np.mean(np.square(errs)))) if errs else None
-
-    zh_b = scatter_z("hold", list(s0))
-    zh_a = scatter_z("hold", list(s_pred))
-    # standard error of sigma from the per-test spread of the implied sigma^2
-    with np.errstate(all="ignore"):
-        implied = np.sqrt(np.clip(ex / cs, 0, None))[okj]
-    s_std = float(np.std(implied, ddof=1) / math.sqrt(implied.size)) if implied.size > 1 else float("nan")
-    metric = "relative error of the held-out cycle-to-cycle period scatter"
+    zh_b = scatter_z("hold", list(v0))
+    zh_a = scatter_z("hold", list(v_pred))
+    # standard error of sigma: var(log s^2) = 2/(n - 1) per test, pooled; d log v / d log sigma = 2 c^2 s^2 / v
+    ok = np.isfinite(v0) & np.isfinite(v_all) & (n_all_c > 1)
+    if jf.sigma > 0 and ok.any():
+        vp = jf.predicted_var()[ok]
+        g = 2.0 * jf.slope[ok] * jf.sigma**2 / vp
+        info = float(np.sum((n_all_c[ok] - 1) / 2.0 * g * g))
+        s_std = jf.sigma / math.sqrt(info) if info > 0 else float("nan")
+    else:
+        s_std = float("nan")
+    metric = "pooled relative error of the held-out cycle-to-cycle period scatter, |s_rec - s_model| / s_rec"
+    cycles = int(n_hold.sum())
     return {
         "min_value": 0.5 / min(t.rate_hz for t in tests),
         "name": cand.name,
         "parameter": cand.parameter,
-        "value": sigma_all,
-        "value_fit_cycles": sigma,
+        "value": jf.sigma,
+        "value_fit_cycles": sigma_fit,
         "std": s_std,
         "unit": cand.unit,
         "chi2": chi2,
         "bic": bic,
         "delta_bic": bic_b - bic,
-        "held_out_before": {"nrmse": hold_err(s0), "feature_rms_z": float(np.sqrt(np.mean(zh_b**2))), "metric": metric,
-                            "cycles": int(sum(int(t.hold.sum()) for t in tests))},
-        "held_out_after": {"nrmse": hold_err(s_pred), "feature_rms_z": float(np.sqrt(np.mean(zh_a**2))), "metric": metric,
-                           "cycles": int(sum(int(t.hold.sum()) for t in tests))},
+        "held_out_before": {"nrmse": pooled_scatter_error(v_hold, n_hold, v0),
+                            "feature_rms_z": float(np.sqrt(np.mean(zh_b**2))), "metric": metric, "cycles": cycles},
+        "held_out_after": {"nrmse": pooled_scatter_error(v_hold, n_hold, v_pred),
+                           "feature_rms_z": float(np.sqrt(np.mean(zh_a**2))), "metric": metric, "cycles": cycles},
         "fit_params": None,
-        "period_scatter": {"recorded": list(s_rec), "noise_only": list(s0), "with_jitter": list(s_pred)},
+        "calibration_runs": jf.iterations,
+        "period_scatter": {"recorded": [math.sqrt(v) if np.isfinite(v) else None for v in v_all],
+                           "noise_only": [math.sqrt(v) if np.isfinite(v) else None for v in v0],
+                           "with_jitter": [math.sqrt(v) if np.isfinite(v) else None for v in jf.predicted_var()]},
+    }
+
+
+def _finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> EffectFinding:
+    cand = BY_NAME[row["name"]]
+    return EffectFinding(
+        name=cand.name,
+        explanation=cand.explanation,
+        augmentation=cand.augmentation,
+        parameters={cand.parameter: row["value"], f"{cand.parameter}_std": row["std"], "unit": cand.unit,
+                    **(row.get("fit_params") or {})},
+        evidence={"delta_bic": row["delta_bic"], "bic": row["bic"], "n_features": n_all, "threshold": BIC_THRESHOLD,
+                  **evidence},
+        fit_before=_fit_summary(row["held_out_before"]),
+        fit_after=_fit_summary(row["held_out_after"]),
+        identification={k: v for k, v in ident.items() if v is not None},
+        harmonics=harm,
+    )
+
+
+def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[_Test], Tp: float, recs_fit: list,
+                    recs_hold: list, chi2_scatter: float, n_all: int) -> dict | None:
+    """Fit the first effect and another one together; evidence and held-out scores against the first alone.
+
+    Started from both single fits (each with the other's parameter taken from its own single fit),
+    the better one kept. ``delta_bic`` = BIC(first) - BIC(pair): the pair has one parameter more.
+    """
+    c1, c2 = BY_NAME[first["name"]], BY_NAME[other["name"]]
+    if c1.replaces_drag and c2.replaces_drag:
+        return None
+    model = _Model((c1, c2), tests, Tp)
+    lo, hi = _bounds((c1, c2), tests)
+    singles = {c.name: fits[c.name] for c in (c1, c2)}
+
+    def theta_from(lead: Candidate) -> np.ndarray:
+        m_lead, f_lead = singles[lead.name]
+        th = [f_lead.theta[0], f_lead.theta[1]]
+        if any(c.replaces_drag for c in (c1, c2)):
+            q = next(c for c in (c1, c2) if c.replaces_drag)
+            th[0] = singles[q.name][1].theta[0]
+        for c in (c1, c2):
+            j = model.extra_index(c.name)
+            if j is None:
+                continue
+            m_c, f_c = singles[c.name]
+            th.append(f_c.theta[m_c.extra_index(c.name)])
+        return np.array(th)
+
+    best = None
+    for lead in (c1, c2):
+        f = _fit(model, theta_from(lead), lo, hi, recs_fit)
+        if f.ok and (best is None or f.chi2 < best.chi2):
+            best = f
+    if best is None:
+        return None
+    chi2 = best.chi2 + chi2_scatter
+    bic = chi2 + best.k * math.log(n_all)
+    m1, f1 = fits[c1.name]
+    p = model.unpack(best.theta)
+    values, stds = {}, {}
+    for c in (c1, c2):
+        values[c.name], stds[c.name] = _effect_value(c, model, best, p)
+    return {
+        "name": c2.name,
+        "with": c1.name,
+        "parameter": c2.parameter,
+        "values": values,
+        "stds": stds,
+        "unit": c2.unit,
+        "chi2": chi2,
+        "bic": bic,
+        "delta_bic": first["bic"] - bic,
+        "held_out_before": first["held_out_after"],
+        "held_out_after": _held_out(model, best, tests, recs_hold),
+        "fit_params": _params_out(model, best),
+        "_fit": (model, best),
     }
 
 
@@ -1236,11 +1404,9 @@ def _locate(tests, base_model, base, recs_all, scatter) -> tuple[list, dict]:
             located.append(item)
         # period scatter
         sc = scatter[i]
-        s_rec = float(np.std(t.tab.period, ddof=1))
-        n = len(t.tab)
-        se = math.sqrt(1.0 / (2 * (n - 1)) + 1.0 / (2 * 49))
-        zs = math.log(max(s_rec, 1e-9) / max(sc["s0"], 1e-9)) / se
+        zs = float(_scatter_z([t], [sc], "all", [sc["v0"]])[0])
         if abs(zs) >= 3.0:
+            s_rec = math.sqrt(t.scatter_var("all")[0])
             located.append({"kind": "feature", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
                             "t_start": t.t_start, "t_end": t.t_end, "feature": "period_scatter",
                             "what": _FEATURE_TEXT["period_scatter"], "recorded": s_rec, "model": sc["s0"],

@@ -175,6 +175,7 @@ def run_relay(
     jitter_corr: float = 0.05,
     seed: int = 0,
     max_time: float | None = None,
+    max_gap: float | None = None,
 ) -> RelayRun:
     """Simulate the MRFT loop on ``plant`` for ``n_cycles`` switches to +h (or until ``max_time``).
 
@@ -205,6 +206,9 @@ def run_relay(
         :func:`mrftcli.simulate.simulate_flight`).
     max_time : float, optional
         Hard stop [s].
+    max_gap : float, optional
+        Sampled mode: stop when the relay has not switched for this long [s] (a relay that false
+        switches on noise can lock up).
     """
     T = 1.0 / rate_hz
     if isinstance(beta, tuple):
@@ -264,7 +268,7 @@ def run_relay(
         if len(x) != n:  # snapshot of a different structure: cold start
             return run_relay(plant, beta, h, rate_hz, n_cycles, gain_slope=gain_slope, gain_t0=gain_t0,
                              bias_cmd=bias_cmd, sampled=sampled, noise_std=noise_std,
-                             jitter_std=jitter_std, seed=seed, max_time=max_time)
+                             jitter_std=jitter_std, seed=seed, max_time=max_time, max_gap=max_gap)
         relay, act, target = 1.0, warm["act"], warm["target"]
         pending = list(warm["pending"])
         e_prev, de_prev, e_ext = warm["e_prev"], warm["de_prev"], warm["e_ext"]
@@ -291,6 +295,7 @@ def run_relay(
                 "pending": [(pt - t, pv) for pt, pv in pending],
                 "e_prev": e_prev, "de_prev": de_prev, "e_ext": e_ext, "t_up": t_up - t}
 
+    t_last_switch = 0.0
     while k < max_steps:
         t_end = (k + 1) * T
         pieces, act, target = _actuator_pieces(t, t_end, pending, act, target, rlim, tol=1e-15)
@@ -315,7 +320,10 @@ def run_relay(
                 e_ext = min(e_ext, e)
                 if e_ext < 0 and e >= -beta_up * e_ext:
                     relay, switched = 1.0, True
+            if not switched and max_gap is not None and t - t_last_switch > max_gap:
+                break
             if switched:
+                t_last_switch = t
                 e_ext = e
                 delay = plant.tau + (float(jit_eff[min(k, jit_eff.size - 1)]) if jitter_std > 0 else 0.0)
                 pending.append((t + max(delay, 0.0), relay * h))

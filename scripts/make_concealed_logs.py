@@ -66,13 +66,16 @@ def effect_value(effect: str, model: LoopModel, tests: tuple[TestSpec, ...], sca
     raise ValueError(effect)
 
 
-def make_case(effect: str | None, plant: str, seed: int, scale: float = 1.0):
-    """Simulate one flight; ``effect`` None is a clean control. Returns the SimulatedFlight."""
+def make_case(effect: str | None, plant: str, seed: int, scale: float | tuple = 1.0):
+    """Simulate one flight; ``effect`` None is a clean control, ``"a+b"`` combines two effects (``scale``
+    then one factor per effect, or one for both). Returns the SimulatedFlight."""
     model = PLANTS[plant]
     tests = flight_tests(model)
     effects = Effects()
-    if effect is not None:
-        effects = replace(effects, **{effect: effect_value(effect, model, tests, scale)})
+    names = [] if effect is None else effect.split("+")
+    scales = scale if isinstance(scale, tuple) else (scale,) * len(names)
+    for name, sc in zip(names, scales):
+        effects = replace(effects, **{name: effect_value(name, model, tests, sc)})
     spec = FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=200.0, effects=effects, seed=seed,
                       hover_s=2.0, hold_s=2.0)
     flight = simulate_flight(spec)

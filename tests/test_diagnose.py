@@ -86,6 +86,24 @@ def test_cycle_table_recovers_harmonics_amplitude_and_balance():
     assert np.allclose(tab.G[:, 1], Y[1] / relay_harmonics(h, np.array([Th]), np.array([P]))[0, 1], rtol=2e-3)
 
 
+def test_model_features_do_not_depend_on_evaluation_history():
+    # the fit's finite-difference Jacobian needs features that are a function of the parameters only:
+    # the warm-started limit cycle's tick grid used to shift with history and move the harmonics by 1e-4
+    import math
+
+    from mrftcli.diagnose import _get_tests, _Model, _prepare
+    from mrftcli.readers import read_flight
+
+    flight = read_flight(CONCEALED[0], "altitude")
+    tests, _, _ = _prepare(flight, _get_tests(flight, None))
+    model = _Model(None, tests, 0.0422)
+    theta, far = np.array([math.log(2.0), 0.47]), np.array([math.log(4.0), 0.40])
+    first = model.evaluate(theta, 0, tests[0].t_start).features
+    model.evaluate(far, 0, tests[0].t_start)
+    again = model.evaluate(theta, 0, tests[0].t_start).features
+    assert np.abs(first - again).max() < 5e-6
+
+
 # --------------------------------------------------------------------------------------------------
 # the concealed set
 
@@ -160,13 +178,38 @@ def test_concealed_log(path, diagnoses):
     value = e.parameters[PARAM[effect]]
     assert value == pytest.approx(truth["effects"][effect], rel=0.25)
     before, after = e.fit_before["nrmse"], e.fit_after["nrmse"]
-    if effect == "delay_jitter":
-        # documented shortfall (docs/diagnose.md, Limits): the jitter's nrmse is the relative error of a
-        # period scatter estimated from a handful of held-out cycles, itself uncertain by ~25 %
-        assert after < 0.9 * before
-    else:
-        assert after <= 0.5 * before
+    assert after <= 0.5 * before
     assert res.located, "a found effect must come with located disagreements"
+
+
+@pytest.mark.slow
+def test_two_concealed_effects_are_both_found(tmp_path):
+    # a trim error and a 70 ms estimator lag at once (the project simulator; nothing in the log says
+    # so): forward selection finds the bias first, then the lag on top of it, and the joint refit
+    # recovers both and the plant (truth: Td 2.669 s, tau 46.4 ms, K 15)
+    import importlib.util
+
+    from mrftcli.diagnose import diagnose
+    from mrftcli.readers import read_flight, write_log
+
+    spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "make_concealed_logs.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    flight = gen.make_case("input_bias+sensor_lag", "design1", 5)
+    truth = flight.truth["effects"]
+    write_log(flight.topics, tmp_path / "two.mcap", "mcap")
+    res = diagnose(read_flight(tmp_path / "two.mcap", "altitude"), flight.truth["Tp"])
+    assert [e.name for e in res.effects] == ["input_bias", "sensor_lag"]
+    for e in res.effects:
+        par = PARAM[e.name]
+        assert e.parameters[par] == pytest.approx(truth[e.name], rel=0.25)
+        assert e.fit_after["nrmse"] <= 0.5 * e.fit_before["nrmse"]
+    assert res.effects[1].evidence["compared_with"] == "linear + input_bias"
+    joint = res.identification["with_input_bias+sensor_lag"]
+    assert joint["tau"] == pytest.approx(0.0464, abs=0.004)
+    assert joint["K"] == pytest.approx(15.0, rel=0.05)
+    data = json.loads(json.dumps(res.to_dict(), default=float))
+    assert {c["name"] for c in data["second_effect_candidates"]} >= {"sensor_lag"}
 
 
 # --------------------------------------------------------------------------------------------------

@@ -34,13 +34,23 @@ def format_summary(result) -> str:
         par = f"{c['parameter']} = {_g(c.get('value'))}"
         b = (c.get("held_out_before") or {}).get("nrmse")
         a = (c.get("held_out_after") or {}).get("nrmse")
-        mark = "  <- found" if any(e.name == c["name"] for e in result.effects) else ""
+        mark = "  <- found" if any(e.name == c["name"] and e.evidence.get("compared_with") == "linear"
+                                   for e in result.effects) else ""
         lines.append(f"  {c['name']:<20} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+    pairs = getattr(result, "second_effect_candidates", None) or []
+    if pairs:
+        lines.append(f"a second effect on top of {pairs[0]['with']} (delta BIC against that model):")
+        for c in pairs:
+            par = f"{c['parameter']} = {_g(c['values'].get(c['name']))}"
+            b = (c.get("held_out_before") or {}).get("nrmse")
+            a = (c.get("held_out_after") or {}).get("nrmse")
+            mark = "  <- found" if any(e.name == c["name"] for e in result.effects) else ""
+            lines.append(f"  + {c['name']:<18} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
     if result.effects:
         for e in result.effects:
             lines.append(f"found: {e.name}: {e.explanation}")
             w = e.identification.get("with_effect", {})
-            lines.append(f"  refit with {e.name}: Td {_g(w.get('Td'))} s  tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms"
+            lines.append(f"  refit with {e.identification.get('model', e.name)}: Td {_g(w.get('Td'))} s  tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms"
                          f"  K {_g(w.get('K'))}")
     else:
         lines.append("found: nothing: the linear model explains the log")

@@ -36,6 +36,8 @@ def _scale(result):
 def _aug(result):
     """(name, model, fit) of the reported effect with a waveform model, or None."""
     p = result._plot
+    if p.get("final") is not None:
+        return p["final"]
     for name in p.get("effects", []):
         if name in p.get("fits", {}):
             model, fit = p["fits"][name]
@@ -167,7 +169,7 @@ def plot_evidence(result):
     fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
     db = np.array([c["delta_bic"] for c in rows], float)
     shown = np.sign(db) * np.log10(1 + np.abs(db))
-    found = {e.name for e in result.effects}
+    found = {e.name for e in result.effects if e.evidence.get("compared_with", "linear") == "linear"}
     cols = [_AUG_C if n in found else "#999999" for n in names]
     y = np.arange(len(names))
     ax.barh(y, shown, color=cols)
@@ -206,7 +208,8 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         body.append(f"<h2>Found: {esc(e.name)}</h2><p>{esc(e.explanation)}</p><p class='muted'>Model: {esc(e.augmentation)}</p>")
         rows = [(k, f"{v:.5g}" if isinstance(v, float) else v) for k, v in e.parameters.items()]
         body.append(html_table(["parameter", "value"], rows))
-        body.append(html_table(["held-out", "linear model", f"with {e.name}"],
+        before = e.evidence.get("compared_with", "linear")
+        body.append(html_table(["held-out", f"{before} model", f"with {e.identification.get('model', e.name)}"],
                                [("NRMSE", _f(e.fit_before.get("nrmse")), _f(e.fit_after.get("nrmse"))),
                                 ("feature RMS z", _f(e.fit_before.get("feature_rms_z")), _f(e.fit_after.get("feature_rms_z")))]))
     if not result.effects:
@@ -231,6 +234,15 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
     body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
     body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
+    pairs = getattr(result, "second_effect_candidates", None) or []
+    if pairs:
+        body.append(f"<h3>A second effect on top of {esc(pairs[0]['with'])}</h3>")
+        body.append(html_table(
+            ["candidate", "parameter", "delta BIC (vs the first effect's model)", "held-out NRMSE before", "after",
+             "found"],
+            [(c["name"], f"{c['parameter']} = {_f(c['values'].get(c['name']))}", _f(c["delta_bic"]),
+              _f((c.get("held_out_before") or {}).get("nrmse")), _f((c.get("held_out_after") or {}).get("nrmse")),
+              "yes" if c.get("significant") else "no") for c in pairs]))
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
     page = out / "diagnosis.html"
     page.write_text(html_page(f"Diagnosis {Path(result.path).name}", "\n".join(body)))

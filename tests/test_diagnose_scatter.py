@@ -1,0 +1,93 @@
+"""The period-scatter model of diagnose (mrftcli.diagnose_scatter) against closed forms and the flight simulator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mrftcli.diagnose_scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
+                                      refit_sigma, scatter_sample)
+from mrftcli.diagnose_sim import Plant, periodic_cycle
+from mrftcli.model import LoopModel
+from mrftcli.segment import segment
+from mrftcli import simulate as sim
+
+from test_segment_support import flight_from_simulated
+
+
+def _saturating(v0, c2, a):
+    """A calibration whose slope falls as sigma grows (as a cycle filter makes it): v0 + c2 s^2 / (1 + s/a)."""
+    return lambda s: v0 + c2 * s * s / (1.0 + s / a)
+
+
+def test_fit_jitter_converges_on_a_saturating_calibration():
+    v0 = np.array([1e-4, 6e-5, 8e-5])
+    c2 = np.array([30.0, 20.0, 35.0])
+    cal = _saturating(v0, c2, 0.02)
+    for sigma in (0.004, 0.012, 0.03):
+        jf = fit_jitter(cal(sigma), np.array([14, 13, 15]), v0, cal)
+        assert jf.sigma == pytest.approx(sigma, rel=0.02)
+        # the fitted calibration predicts the variances it was fitted to
+        assert np.allclose(jf.predicted_var(), cal(sigma), rtol=0.05)
+
+
+def test_fit_jitter_is_zero_when_noise_explains_the_scatter():
+    v0 = np.array([1e-4, 6e-5])
+    cal = _saturating(v0, np.array([30.0, 20.0]), 0.02)
+    jf = fit_jitter(0.9 * v0, np.array([14, 13]), v0, cal)
+    assert jf.sigma == 0.0
+    assert refit_sigma(jf, 0.8 * v0, np.array([7, 7])) == 0.0
+
+
+def test_pooled_scatter_error_closed_form():
+    pred = np.array([1e-4, 2e-4])
+    assert pooled_scatter_error(pred, np.array([8, 8]), pred) == pytest.approx(0.0)
+    assert pooled_scatter_error(4 * pred, np.array([8, 8]), pred) == pytest.approx(0.5)
+    # tests weighted by their degrees of freedom: r = (10 * 4 + 2 * 1) / 12
+    r = (10 * 4 + 2 * 1) / 12
+    got = pooled_scatter_error(np.array([4e-4, 2e-4]), np.array([11, 3]), pred)
+    assert got == pytest.approx(1 - 1 / math.sqrt(r))
+    assert pooled_scatter_error(np.array([np.nan]), np.array([5]), np.array([1e-4])) is None
+
+
+def test_scatter_sample_keeps_a_wide_but_clean_scatter():
+    rng = np.random.default_rng(3)
+    P = 1.0 + 0.08 * rng.standard_normal(40)  # 8 % period scatter: the segmenter's 15 % cap clips it
+    A = 0.05 * (1 + 0.1 * rng.standard_normal(40))
+    keep = scatter_sample(P, A, np.ones(40, bool), 0.005)
+    assert keep[5:].sum() >= 33
+    P[20] = 2.0  # a glitch cycle is still dropped
+    assert not scatter_sample(P, A, np.ones(40, bool), 0.005)[20]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("jitter", [0.0, 0.012])
+def test_predicted_period_scatter_matches_the_flight_simulator(jitter):
+    # independent oracle: the project's flight simulator (its own relay, jitter process and hold
+    # controller), segmented by the segmenter; the prediction runs diagnose's sampled relay at the
+    # true plant and the nominal beta, over windows as long as the recorded test
+    model = LoopModel(Tp=0.0422, Td=2.669, tau=0.0464, K=15.0)
+    h, beta, noise = 0.0916, -0.4, 0.0005
+    v_rec, n_reg, periods, betas = [], [], [], []
+    for seed in (11, 12, 13):  # three flights: the scatter of ~110 correlated periods is uncertain by ~10 %
+        spec = sim.FlightSpec(model=model, tests=(sim.TestSpec(beta, h, 150.0),), loop="altitude", rate_hz=200.0,
+                              effects=sim.Effects(delay_jitter=jitter), seed=seed, hover_s=2.0, hold_s=2.0,
+                              noise_std=noise)
+        seg = segment(flight_from_simulated(sim.simulate_flight(spec)))[0]
+        P = np.array([c.period for c in seg.cycles])
+        A = np.array([c.amplitude for c in seg.cycles])
+        reg = np.array([c.regular for c in seg.cycles])
+        keep = scatter_sample(P, A, reg, 0.005)
+        assert keep.sum() > 80
+        v_rec.append(float(np.var(P[keep], ddof=1)))
+        n_reg.append(int(reg.sum()))
+        periods.append(float(np.mean(P[keep])))
+        betas.append(float(seg.beta))
+    plant = Plant(model.Tp, model.Td, model.tau, model.K)
+    warm = periodic_cycle(plant, float(np.mean(betas)), h, 200.0).state_at_up[-1]
+    setting = ScatterSetting(plant, beta, h, 200.0, noise, int(np.mean(n_reg)), float(np.mean(periods)), warm)
+    v_pred, dof = expected_period_variance(setting, jitter)
+    assert dof > 600
+    assert math.sqrt(np.mean(v_rec) / v_pred) == pytest.approx(1.0, abs=0.2)

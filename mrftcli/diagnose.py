@@ -36,14 +36,14 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.optimize import least_squares
 
-from .diagnose_features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, summarize_features
-from .diagnose_physics import BY_NAME, CANDIDATES, Candidate, df_quadratic_drag
-from .diagnose_scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
-                               refit_sigma, scatter_sample)
-from .diagnose_sim import Plant, periodic_cycle, quasi_static_plant
+from .diagnose_features import FEATURE_NAMES, summarize_features
+from .diagnose_fit import (MIN_CYCLES, CycleModel, Fit, ModelCycle, MrftTestCycles, candidate_starts, effect_value,
+                           feature_mask, feature_sigma, fit_base, fit_model, plant_params, prepare_tests, segments_of,
+                           theta_bounds)
+from .diagnose_physics import BY_NAME, CANDIDATES, Candidate
+from .diagnose_scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
+from .diagnose_sim import Plant
 from .errors import DiagnoseError, InputError
 from .logtypes import FlightLog
 
@@ -54,23 +54,7 @@ BIC_THRESHOLD = 10.0
 #: held-out confirmation: the candidate must lower the held-out features' chi^2 by at least this much
 #: (2 ln of the likelihood ratio on cycles it was not fitted on; the same "very strong" level)
 HOLDOUT_THRESHOLD = 10.0
-#: fewest stable cycles per test for a diagnosis
-MIN_CYCLES = 6
 
-# Floors added (in quadrature) to each feature's standard error: the continuous-relay model of a
-# sampled, noisy relay (``diagnose_sim``) is not exact to better than about this.
-_FLOOR = {
-    "period": 1.5e-3,  # relative
-    "balance": 1.5e-3,
-    "log_amplitude": 4e-3,
-    "centre": 8e-3,
-    "h3_re": 1.5e-3,
-    "h3_im": 1.5e-3,
-    "h5_re": 1e-3,
-    "h5_im": 1e-3,
-    "amplitude_trend": 2e-4,  # 1/s
-    "balance_trend": 1e-4,  # 1/s
-}
 _FEATURE_TEXT = {
     "period": "oscillation period",
     "balance": "half-period balance (time at +h vs -h)",
@@ -193,344 +177,10 @@ class DiagnosisResult:
 
 
 # --------------------------------------------------------------------------------------------------
-# per-test data
-
-
-@dataclass
-class _Test:
-    index: int
-    h: float
-    bias: float
-    rate_hz: float
-    beta_nominal: float | None
-    beta: tuple[float, float]  # effective (up, down)
-    t_start: float
-    t_end: float
-    tab: CycleTable
-    fit: np.ndarray
-    hold: np.ndarray
-    has_setpoint: bool
-    t0_log: float
-    #: periods [s] of the cycles behind the scatter statistic (``diagnose_scatter.scatter_sample``)
-    scatter_periods: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    #: regular cycles the segmenter found in the test (the window the scatter model reproduces)
-    n_window: int = 0
-
-    def scatter_var(self, sel: str) -> tuple[float, int]:
-        """Sample variance [s^2] of the scatter periods ('fit': even, 'hold': odd, else all) and their count."""
-        p = self.scatter_periods
-        if sel in ("fit", "hold"):
-            p = p[(np.arange(p.size) % 2 == 0) == (sel == "fit")]
-        return (float(np.var(p, ddof=1)) if p.size >= 3 else float("nan")), int(p.size)
-
-
-def _get_tests(flight: FlightLog, analysis: Any) -> list:
-    segs = None
-    if analysis is not None:
-        segs = getattr(analysis, "segments", None) or getattr(analysis, "mrft_tests", None)
-        if segs is None:
-            cand = getattr(analysis, "tests", None)
-            if cand and all(hasattr(t, "cycles") and hasattr(t, "loop_sign") for t in cand):
-                segs = cand
-    if segs is None:
-        from .segment import segment
-
-        segs = segment(flight)
-    return list(segs)
-
-
-def _prepare(flight: FlightLog, segs: list) -> tuple[list[_Test], float, list[str]]:
-    warnings: list[str] = []
-    t_y = flight.output.index.to_numpy(dtype=float)
-    y = flight.output.to_numpy(dtype=float)
-    ok = np.isfinite(t_y) & np.isfinite(y)
-    t_y, y = t_y[ok], y[ok]
-    t0_log = float(min(flight.command.index.min(), flight.output.index.min()))
-    tests: list[_Test] = []
-    rss = 0.0
-    nsamp = 0
-    for s in segs:
-        st = [c for c in s.cycles if c.stable]
-        if len(st) < MIN_CYCLES:
-            warnings.append(
-                f"test {s.index + 1} (beta {s.beta:.2f}) has {len(st)} stable cycles; the diagnosis needs "
-                f"{MIN_CYCLES}, so it is left out"
-            )
-            continue
-        r = s.setpoint if s.setpoint is not None else None
-        has_sp = r is not None
-        if r is None:
-            # without a setpoint the relay's reference is unknown: take the oscillation centre
-            r = float(np.median([c.centre for c in st]))
-        yy = s.loop_sign * (y - r) if s.setpoint is not None else s.loop_sign * (y - r)
-        tab = cycle_table(t_y, yy, s.h, [c.t_start for c in st], [c.t_switch for c in st], [c.t_end for c in st])
-        good = np.isfinite(tab.amplitude) & (tab.amplitude > 0)
-        tab = tab.subset(good)
-        if len(tab) < MIN_CYCLES:
-            continue
-        idx = np.arange(len(tab))
-        b_up = float(np.nanmedian(tab.beta_up))
-        b_dn = float(np.nanmedian(tab.beta_dn))
-        if not (-1 < b_up < 1 and -1 < b_dn < 1):
-            b_up = b_dn = float(s.beta)
-        rss += float(tab.resid_ss.sum())
-        nsamp += int(tab.n_samples.sum()) - len(tab) * (2 * N_HARM + 2)
-        P_all = np.array([c.period for c in s.cycles], float)
-        A_all = np.array([c.amplitude for c in s.cycles], float)
-        reg_all = np.array([c.regular for c in s.cycles], bool)
-        keep = scatter_sample(P_all, A_all, reg_all, 1.0 / float(s.rate_hz))
-        tests.append(
-            _Test(
-                index=s.index,
-                h=float(s.h),
-                bias=float(s.bias),
-                rate_hz=float(s.rate_hz),
-                beta_nominal=None if s.beta_nominal is None else float(s.beta_nominal),
-                beta=(b_up, b_dn),
-                t_start=float(tab.start[0]),
-                t_end=float(tab.end[-1]),
-                tab=tab,
-                fit=idx % 2 == 0,
-                hold=idx % 2 == 1,
-                has_setpoint=has_sp,
-                t0_log=t0_log,
-                scatter_periods=P_all[keep],
-                n_window=int(reg_all.sum()),
-            )
-        )
-    noise = math.sqrt(rss / nsamp) if nsamp > 0 else 0.0
-    return tests, noise, warnings
-
-
-# --------------------------------------------------------------------------------------------------
-# model evaluation
-
-
-@dataclass
-class _Eval:
-    """A candidate's prediction for one test (at K = 1 unless noted)."""
-
-    features: np.ndarray  # FEATURE_NAMES order, log amplitude at K = 1
-    cycle: CycleTable  # the model's periodic cycle (one row), K = 1
-    gain: float  # battery gain g at the test's reference time (1 unless gain drift)
-
-
-class _Model:
-    """Evaluates the limit cycles of the linear model with zero, one or several candidate effects
-    for every test, with warm starts.
-
-    theta layout: [ln Td (ln q with quadratic drag, whose q replaces 1/Td), 10 tau, then one scaled
-    parameter per other deterministic effect, in the order given].
-    """
-
-    def __init__(self, cand: Candidate | tuple | None, tests: list[_Test], Tp: float) -> None:
-        cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
-        self.cands = tuple(c for c in cands if not c.stochastic)
-        self.cand = cands[0] if cands else None
-        self.names = tuple(c.name for c in self.cands)
-        self.tests = tests
-        self.Tp = Tp
-        self.warm: dict[int, dict] = {}
-        self.name = "+".join(c.name for c in cands) if cands else "base"
-        self.hs = float(np.mean([t.h for t in tests]))
-
-    def extra_index(self, name: str) -> int | None:
-        """Index in theta of the effect's own parameter (None for quadratic drag, which uses theta[0])."""
-        j = 2
-        for c in self.cands:
-            if c.replaces_drag:
-                if c.name == name:
-                    return None
-                continue
-            if c.name == name:
-                return j
-            j += 1
-        raise KeyError(name)
-
-    def unpack(self, theta: np.ndarray) -> dict:
-        """Physical parameters: Td [s], tau [s], ``extras`` {effect: value}, ``extra`` the first one's."""
-        p = {"Td": math.exp(theta[0]), "tau": theta[1] / 10.0, "extra": None, "extras": {}}
-        hs = self.hs
-        for c in self.cands:
-            j = self.extra_index(c.name)
-            x = theta[j] if j is not None and j < len(theta) else None
-            if c.name == "quadratic_drag":
-                p["q"] = math.exp(theta[0])
-                p["Td"] = None
-                continue
-            if x is None:
-                continue
-            value = {"input_bias": x * hs, "gain_drift": x / 100.0, "sensor_lag": x / 10.0,
-                     "actuator_rate_limit": x / (10.0 * hs)}[c.name]  # rate limit: rho = 1/R [s per unit]
-            p["extras"][c.name] = value
-        if self.cand is not None and self.cand.name in p["extras"]:
-            p["extra"] = p["extras"][self.cand.name]
-        return p
-
-    def plant(self, p: dict, test: _Test, t_ref: float) -> tuple[Plant, float]:
-        """Plant (K = 1) for a test at reference time t_ref [s, log time]; returns (plant, gain)."""
-        ex = p["extras"]
-        rho = ex.get("actuator_rate_limit", 0.0)
-        kw = {
-            "input_bias": ex.get("input_bias", 0.0),
-            "sensor_lag": max(ex["sensor_lag"], 1e-4) if "sensor_lag" in ex else 0.0,
-            "rate_limit": (1.0 / rho) if rho > 1e-9 else 0.0,
-        }
-        if "quadratic_drag" in self.names:
-            plant = Plant(self.Tp, 1.0, p["tau"], 1.0, quadratic_drag=p["q"], **kw)
-        else:
-            plant = Plant(self.Tp, p["Td"], p["tau"], 1.0, **kw)
-        if "gain_drift" in ex:
-            g = max(1.0 + ex["gain_drift"] * (t_ref - test.t0_log), 0.05)
-            return quasi_static_plant(plant, g, test.bias), g
-        return plant, 1.0
-
-    def evaluate(self, theta: np.ndarray, test_i: int, t_ref: float, *, key: int | None = None) -> _Eval | None:
-        test = self.tests[test_i]
-        p = self.unpack(theta)
-        plant, g = self.plant(p, test, t_ref)
-        k = test_i if key is None else key
-        try:
-            # the continuous relay does not need the log's tick: ~100 samples per period suffice for
-            # the harmonic projection and keep the cubic interpolation of the switches exact to 1e-8
-            rate = min(test.rate_hz, 100.0 / float(np.mean(test.tab.period)))
-            run = periodic_cycle(plant, test.beta, test.h, rate, warm=self.warm.get(k), tol=3e-7)
-        except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
-            return None
-        if run is None or run.up.size < 2:
-            return None
-        self.warm[k] = run.state_at_up[-1]
-        u0, u1 = run.up[-2], run.up[-1]
-        dn = run.down[(run.down > u0) & (run.down < u1)]
-        if dn.size != 1:
-            return None
-        # the harmonic projection of a sampled cycle depends (at the 1e-5 level) on where the ticks fall
-        # within it, which moves with the warm start's history: that noise in the features spoils the
-        # finite-difference Jacobian of the fit, so the cycle is resampled on a grid aligned to its start
-        i0, i1 = np.searchsorted(run.t, [u0, u1])
-        sl = slice(max(i0 - 4, 0), min(i1 + 4, run.t.size))
-        n_s = max(64, i1 - i0)
-        tt = u0 + (u1 - u0) * np.arange(n_s + 1) / n_s
-        yy = CubicSpline(run.t[sl], run.y[sl])(tt)
-        cyc = cycle_table(tt, yy, test.h, [u0], dn[:1], [u1])
-        if not np.isfinite(cyc.amplitude[0]) or cyc.amplitude[0] <= 0:
-            return None
-        f = summarize_features(cyc).values.copy()
-        f[np.isnan(f)] = 0.0
-        # analytic trends of the quasi-static gain drift
-        if "gain_drift" in p["extras"]:
-            gd = p["extras"]["gain_drift"]
-            f[FEATURE_NAMES.index("amplitude_trend")] = gd / g
-            # balance D = -d_eff / (2 h), d_eff = ((g - 1) b) / g  ->  dD/dt = -b gd / (2 h g^2)
-            f[FEATURE_NAMES.index("balance_trend")] = -test.bias * gd / (2.0 * test.h * g * g)
-        else:
-            f[FEATURE_NAMES.index("amplitude_trend")] = 0.0
-            f[FEATURE_NAMES.index("balance_trend")] = 0.0
-        return _Eval(features=f, cycle=cyc, gain=g)
-
-
-def _feature_mask(test: _Test) -> np.ndarray:
-    m = np.ones(len(FEATURE_NAMES), bool)
-    if not test.has_setpoint:
-        m[FEATURE_NAMES.index("centre")] = False
-    return m
-
-
-def _sigma(rec_sigma: np.ndarray, rec_values: np.ndarray) -> np.ndarray:
-    floor = np.array([_FLOOR[n] for n in FEATURE_NAMES])
-    floor = floor.copy()
-    floor[0] *= rec_values[0]  # period floor is relative
-    rs = np.nan_to_num(np.asarray(rec_sigma, float), nan=0.0, posinf=np.inf)
-    with np.errstate(over="ignore"):
-        s = np.sqrt(np.where(np.isfinite(rs), rs, np.inf) ** 2 + floor**2)
-    return s
-
-
-@dataclass
-class _Fit:
-    theta: np.ndarray
-    K: float
-    chi2: float
-    n: int
-    k: int
-    resid: np.ndarray
-    evals: list
-    cov: np.ndarray | None
-    ok: bool
-
-
-def _residuals(model: _Model, theta: np.ndarray, recs: list, with_K: bool = False):
-    """Stacked z residuals over tests; K eliminated in closed form (weighted mean of ln A)."""
-    evals = []
-    ia = FEATURE_NAMES.index("log_amplitude")
-    num = den = 0.0
-    for i, (f_rec, s) in enumerate(recs):
-        ev = model.evaluate(theta, i, f_rec.t_mean)
-        if ev is None:
-            return None
-        evals.append(ev)
-        w = 1.0 / s[ia] ** 2
-        num += w * (f_rec.values[ia] - ev.features[ia])
-        den += w
-    lnK = num / den
-    out = []
-    for (f_rec, s), ev, test in zip(recs, evals, model.tests):
-        fm = ev.features.copy()
-        fm[ia] += lnK
-        z = (f_rec.values - fm) / s
-        out.append(z[_feature_mask(test)])
-    r = np.concatenate(out)
-    if with_K:
-        return r, math.exp(lnK), evals
-    return r
-
-
-def _fit(model: _Model, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray, recs: list, max_nfev: int = 60,
-         free: np.ndarray | None = None) -> _Fit:
-    """Least-squares fit of the candidate's parameters (``free`` selects the ones that move)."""
-    big = 1e3
-    theta0 = np.clip(np.asarray(theta0, float), lo + 1e-9, hi - 1e-9)
-    free = np.ones(theta0.size, bool) if free is None else np.asarray(free, bool)
-    full0 = theta0.copy()
-
-    def expand(x):
-        th = full0.copy()
-        th[free] = x
-        return th
-
-    def fun(x):
-        th = expand(x)
-        r = _residuals(model, th, recs)
-        if r is None or not np.all(np.isfinite(r)):
-            n = sum(int(_feature_mask(t).sum()) for t in model.tests)
-            return np.full(n, big)
-        return r
-
-    try:
-        sol = least_squares(fun, theta0[free], bounds=(lo[free], hi[free]), diff_step=1e-3, max_nfev=max_nfev,
-                            x_scale=1.0)
-        theta = expand(sol.x)
-        J = sol.jac if free.all() else None
-    except (ValueError, np.linalg.LinAlgError):
-        theta, J = theta0, None
-    got = _residuals(model, theta, recs, with_K=True)
-    if got is None:
-        return _Fit(theta, float("nan"), float("inf"), 0, len(theta) + 1, np.array([]), [], None, False)
-    r, K, evals = got
-    cov = None
-    if J is not None:
-        try:
-            cov = np.linalg.pinv(J.T @ J)
-        except np.linalg.LinAlgError:
-            cov = None
-    return _Fit(theta, K, float(r @ r), int(r.size), len(theta) + 1, r, evals, cov, bool(np.all(np.abs(r) < big)))
-
-
-# --------------------------------------------------------------------------------------------------
 # cycle-to-cycle period scatter (sampled relay with noise, and delay jitter: mrftcli.diagnose_scatter)
 
 
-def _scatter_reference(tests: list[_Test], base_model: _Model, base: _Fit, Tp: float, noise: float) -> list[dict]:
+def _scatter_reference(tests: list[MrftTestCycles], base_model: CycleModel, base: Fit, Tp: float, noise: float) -> list[dict]:
     """Per test: the sampled-relay setting of the base model and the period variance noise alone explains."""
     pb = base_model.unpack(base.theta)
     out = []
@@ -554,7 +204,7 @@ def _scatter_reference(tests: list[_Test], base_model: _Model, base: _Fit, Tp: f
     return out
 
 
-def _scatter_z(tests: list[_Test], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
+def _scatter_z(tests: list[MrftTestCycles], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
     """z of log(recorded / predicted period scatter) per test, for the 'fit', 'hold' or all cycles."""
     out = []
     for t, sc, vp in zip(tests, scatter, v_pred):
@@ -572,7 +222,7 @@ def _scatter_z(tests: list[_Test], scatter: list[dict], sel: str, v_pred) -> np.
 # waveform NRMSE and harmonics
 
 
-def _model_wave(ev: _Eval, K: float, t_rel: np.ndarray, period: float | None = None) -> np.ndarray:
+def _model_wave(ev: ModelCycle, K: float, t_rel: np.ndarray, period: float | None = None) -> np.ndarray:
     """The model cycle at times ``t_rel`` after its -h -> +h switch; with ``period`` [s] it is put on
     that period (phase-normalised) instead of its own."""
     c = ev.cycle
@@ -581,7 +231,7 @@ def _model_wave(ev: _Eval, K: float, t_rel: np.ndarray, period: float | None = N
     return K * c.waveform(0, c.start[0] + t_rel, trend=False)
 
 
-def _waveform_errors(test: _Test, mask: np.ndarray, evs: list, K: float, t_refs: np.ndarray | None = None,
+def _waveform_errors(test: MrftTestCycles, mask: np.ndarray, evs: list, K: float, t_refs: np.ndarray | None = None,
                      flight_t: np.ndarray | None = None, phase: bool = False
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per selected cycle: sum of squared error, sum of squares about the mean, and per half (high, low).
@@ -622,7 +272,7 @@ def _waveform_errors(test: _Test, mask: np.ndarray, evs: list, K: float, t_refs:
     return sse, sst, sse_hi, sse_lo
 
 
-def _cycle_scatter(test: _Test, mask: np.ndarray) -> float:
+def _cycle_scatter(test: MrftTestCycles, mask: np.ndarray) -> float:
     """Sum over the selected recorded cycles of their cycle-to-cycle scatter [output units^2 x cycles].
 
     The sampled relay decides on noisy samples, so every cycle's switch instants and centre move
@@ -649,7 +299,7 @@ def _cycle_scatter(test: _Test, mask: np.ndarray) -> float:
     return rss * n / (n - X.shape[1])
 
 
-def _harmonic_errors(test: _Test, mask: np.ndarray, ev: _Eval, K: float) -> dict:
+def _harmonic_errors(test: MrftTestCycles, mask: np.ndarray, ev: ModelCycle, K: float) -> dict:
     """Relative error of the measured G(j k Omega) = Y_k/U_k against the model's, odd k."""
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -666,137 +316,7 @@ def _harmonic_errors(test: _Test, mask: np.ndarray, ev: _Eval, K: float) -> dict
 # the diagnosis
 
 
-def _initial_base(tests: list[_Test], Tp: float, extra_phase: Callable | None = None) -> np.ndarray:
-    """Td, tau from the describing-function phase condition at each test's frequency.
-
-    arg G(jW) - W/(2 f_s) + extra = -pi + asin(beta), with arg G = -pi/2 - atan(W Tp) - atan(W Td) - W tau;
-    ``extra_phase(W, test)`` adds a candidate's own phase [rad] (e.g. -atan(W T_lag)).
-    """
-    W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
-    B = np.array([np.mean(t.beta) for t in tests])
-    fs = np.array([t.rate_hz for t in tests])
-    extra = np.zeros(len(tests)) if extra_phase is None else np.array([extra_phase(w, t) for w, t in zip(W, tests)])
-
-    def res(x):
-        Td, tau = math.exp(x[0]), x[1]
-        ph = -np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * (tau + 0.5 / fs) + extra
-        return ph - (-np.pi + np.arcsin(B))
-
-    best = None
-    for td0 in (0.3, 1.0, 3.0):
-        try:
-            s = least_squares(res, [math.log(td0), 0.03], bounds=([math.log(0.02), 0.0], [math.log(100.0), 0.5]))
-        except ValueError:
-            continue
-        if best is None or s.cost < best.cost:
-            best = s
-    x = best.x if best is not None else np.array([0.0, 0.03])
-    return np.array([x[0], 10 * x[1]])
-
-
-def _tau_on_valley(tests: list[_Test], Tp: float, Td: float) -> float:
-    """tau [s] that satisfies the describing-function phase condition best for a given Td (closed form)."""
-    W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
-    B = np.array([np.mean(t.beta) for t in tests])
-    fs = np.array([t.rate_hz for t in tests])
-    # -pi/2 - atan(W Tp) - atan(W Td) - W (tau + 1/(2 fs)) = -pi + asin(B), linear in tau
-    rhs = np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * 0.5 / fs - np.arcsin(B)
-    return max(float(W @ rhs / (W @ W)), 0.0)
-
-
-def _fit_base(model: _Model, tests: list[_Test], Tp: float, lo: np.ndarray, hi: np.ndarray, recs: list) -> _Fit:
-    """The linear model's fit, started along the Td-tau valley.
-
-    The features pin the phase at each test's frequency well but Td and tau trade off along a curved
-    valley, and a noisy log (large cycle-to-cycle scatter) can leave the describing-function start on
-    the wrong side of a shallow local minimum. Td is therefore profiled over a decade-wide grid (tau
-    fitted alone at each point, from the phase condition), and the two best points are refined freely.
-    """
-    th0 = _initial_base(tests, Tp)
-    starts = [th0] + [np.array([math.log(td), 10 * _tau_on_valley(tests, Tp, td)])
-                      for td in math.exp(th0[0]) * np.array([0.25, 0.5, 2.0, 4.0])]
-    free = np.array([False, True])
-    prof = []
-    for th in starts:
-        pf = _fit(model, th, lo, hi, recs, max_nfev=6, free=free)
-        if np.isfinite(pf.chi2):
-            prof.append(pf)
-    prof.sort(key=lambda f: f.chi2)
-    best = None
-    for pf in prof[:2] or [None]:
-        f = _fit(model, pf.theta if pf is not None else th0, lo, hi, recs)
-        if best is None or (f.ok and (not best.ok or f.chi2 < best.chi2)):
-            best = f
-    return best
-
-
-def _bounds(cand: Candidate | tuple | None, tests: list[_Test]) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of theta (layout of :class:`_Model`) for the base model, one candidate or a combination."""
-    cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
-    lo = [math.log(0.02), 0.0]
-    hi = [math.log(100.0), 5.0]
-    hmin = min(t.h for t in tests)
-    hs = np.mean([t.h for t in tests])
-    extra = {
-        "input_bias": (-0.9 * hmin / hs, 0.9 * hmin / hs),
-        "gain_drift": (-5.0, 5.0),
-        "sensor_lag": (0.002, 3.0),
-        "actuator_rate_limit": (0.0, 10.0),
-    }
-    for c in cands:
-        if c.stochastic:
-            continue
-        if c.replaces_drag:
-            lo[0], hi[0] = math.log(1e-4), math.log(1e6)
-            continue
-        lo.append(extra[c.name][0])
-        hi.append(extra[c.name][1])
-    return np.array(lo), np.array(hi)
-
-
-def _start(cand: Candidate, base: _Fit, tests: list[_Test], recs: list, Tp: float) -> list[np.ndarray]:
-    th = base.theta
-    hs = np.mean([t.h for t in tests])
-    if cand.name == "input_bias":
-        d = np.mean([-2.0 * t.h * f.values[FEATURE_NAMES.index("balance")] for t, (f, _) in zip(tests, recs)])
-        return [np.array([th[0], th[1], d / hs])]
-    if cand.name == "gain_drift":
-        # amplitude trend ~ g; where the hover command b is non-zero the battery also shifts the trim:
-        # balance trend dD/dt ~ -b g / (2 h)
-        ga = float(np.mean([f.values[FEATURE_NAMES.index("amplitude_trend")] for f, _ in recs]))
-        starts = [np.array([th[0], th[1], 100 * ga])]
-        gb = [-2.0 * t.h * f.values[FEATURE_NAMES.index("balance_trend")] / t.bias for t, (f, _) in zip(tests, recs)
-              if abs(t.bias) > 0.2 * t.h]
-        if gb:
-            starts.insert(0, np.array([th[0], th[1], 100 * float(np.median(gb))]))
-        return starts
-    if cand.name == "sensor_lag":
-        # profile over a grid of lags: Td and tau from the describing function with the lag's phase
-        out = []
-        for tl in (0.01, 0.03, 0.06, 0.1, 0.16):
-            b = _initial_base(tests, Tp, lambda w, t, tl=tl: -math.atan(w * tl))
-            out.append(np.array([b[0], b[1], 10 * tl]))
-        return out
-    if cand.name == "actuator_rate_limit":
-        # a ramp of 2h/R delays the relay's first harmonic by h/R: profile over that extra delay
-        out = []
-        for ex in (0.005, 0.012, 0.025, 0.045, 0.07):
-            rho = ex / hs
-            b = _initial_base(tests, Tp, lambda w, t, rho=rho: -w * t.h * rho)
-            out.append(np.array([b[0], b[1], 10 * hs * rho]))
-        return out
-    if cand.name == "quadratic_drag":
-        # describing-function equivalent at the middle test's velocity amplitude (K = 1 units)
-        Td = math.exp(th[0])
-        f, _ = recs[len(recs) // 2]
-        a1 = math.exp(f.values[FEATURE_NAMES.index("log_amplitude")]) / base.K
-        V = a1 * 2 * np.pi / f.values[0]
-        q = df_quadratic_drag(Td, V)
-        return [np.array([math.log(q), th[1]])]
-    raise ValueError(cand.name)
-
-
-def _held_out(model: _Model, fit: _Fit, tests: list[_Test], recs_hold: list) -> dict:
+def _held_out(model: CycleModel, fit: Fit, tests: list[MrftTestCycles], recs_hold: list) -> dict:
     """Score a fitted model on the held-out cycles: feature z RMS and waveform NRMSE."""
     zs = []
     sse = sst = floor = sse_timed = 0.0
@@ -810,7 +330,7 @@ def _held_out(model: _Model, fit: _Fit, tests: list[_Test], recs_hold: list) -> 
             return {"nrmse": None, "feature_rms_z": None}
         fm = ev.features.copy()
         fm[ia] += math.log(fit.K)
-        z = ((f_rec.values - fm) / s)[_feature_mask(test)]
+        z = ((f_rec.values - fm) / s)[feature_mask(test)]
         zs.append(z)
         if gain_times:
             t_refs = np.array([test.t_start, 0.5 * (test.t_start + test.t_end), test.t_end])
@@ -841,21 +361,6 @@ def _held_out(model: _Model, fit: _Fit, tests: list[_Test], recs_hold: list) -> 
         "feature_chi2": float(z @ z),
         "cycles": int(sum(int(t.hold.sum()) for t in tests)),
     }
-
-
-def _params_out(model: _Model, fit: _Fit) -> dict:
-    p = model.unpack(fit.theta)
-    out = {"tau": p["tau"], "K": fit.K}
-    if p.get("Td") is not None:
-        out["Td"] = p["Td"]
-    return out
-
-
-def _std_of(fit: _Fit, j: int) -> float:
-    if fit.cov is None or j >= fit.cov.shape[0]:
-        return float("nan")
-    v = fit.cov[j, j]
-    return float(math.sqrt(v)) if v >= 0 else float("nan")
 
 
 def diagnose(
@@ -932,8 +437,8 @@ def diagnose(
     say = progress or (lambda _msg: None)
 
     say("segmenting")
-    segs = _get_tests(flight, analysis)
-    tests, noise, warnings = _prepare(flight, segs)
+    segs = segments_of(flight, analysis)
+    tests, noise, warnings = prepare_tests(flight, segs)
     if not tests:
         raise DiagnoseError(
             f"{flight.path}: no MRFT test with at least {MIN_CYCLES} stable cycles; the diagnosis compares "
@@ -948,13 +453,13 @@ def diagnose(
     for t in tests:
         for mask, store in ((t.fit, recs_fit), (t.hold, recs_hold), (np.ones(len(t.tab), bool), recs_all)):
             f = summarize_features(t.tab.subset(mask))
-            store.append((f, _sigma(f.sigma, f.values)))
+            store.append((f, feature_sigma(f.sigma, f.values)))
 
     # ---- base model
     say("fitting the linear model")
-    base_model = _Model(None, tests, Tp)
-    lo, hi = _bounds(None, tests)
-    base = _fit_base(base_model, tests, Tp, lo, hi, recs_fit)
+    base_model = CycleModel(None, tests, Tp)
+    lo, hi = theta_bounds(None, tests)
+    base = fit_base(base_model, tests, Tp, lo, hi, recs_fit)
     if not base.ok:
         raise DiagnoseError(f"{flight.path}: the linear model reproduces no limit cycle close to the recorded ones")
     n_data = base.n
@@ -975,7 +480,7 @@ def diagnose(
 
     # ---- candidates
     cand_rows = []
-    fits: dict[str, tuple[_Model, _Fit]] = {}
+    fits: dict[str, tuple[CycleModel, Fit]] = {}
     for cand in CANDIDATES:
         if cand.name not in names:
             continue
@@ -984,10 +489,10 @@ def diagnose(
             row = _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all)
             cand_rows.append(row)
             continue
-        model = _Model(cand, tests, Tp)
-        lo, hi = _bounds(cand, tests)
+        model = CycleModel(cand, tests, Tp)
+        lo, hi = theta_bounds(cand, tests)
         best = None
-        starts = _start(cand, base, tests, recs_fit, Tp)
+        starts = candidate_starts(cand, base, tests, recs_fit, Tp)
         if len(starts) > 2:
             # profile over the grid: at each grid value fit Td and tau with the effect held (the effect
             # and the delay trade off along a curved valley), then refine the two best freely
@@ -995,13 +500,13 @@ def diagnose(
             free = np.ones(len(starts[0]), bool)
             free[2:] = False
             for th in starts:
-                pf = _fit(model, th, lo, hi, recs_fit, max_nfev=16, free=free)
+                pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=16, free=free)
                 if pf.ok and np.isfinite(pf.chi2):
                     prof.append(pf)
             prof.sort(key=lambda f: f.chi2)
             starts = [pf.theta for pf in prof[:2]]
         for th in starts:
-            f = _fit(model, th, lo, hi, recs_fit)
+            f = fit_model(model, th, lo, hi, recs_fit)
             if f.ok and (best is None or f.chi2 < best.chi2):
                 best = f
         if best is None:
@@ -1011,7 +516,7 @@ def diagnose(
         bic = chi2 + best.k * math.log(n_all)
         after = _held_out(model, best, tests, recs_hold)
         p = model.unpack(best.theta)
-        value, std = _effect_value(cand, model, best, p)
+        value, std = effect_value(cand, model, best, p)
         fits[cand.name] = (model, best)
         cand_rows.append(
             {
@@ -1025,14 +530,14 @@ def diagnose(
                 "delta_bic": bic_base - bic,
                 "held_out_before": before,
                 "held_out_after": after,
-                "fit_params": _params_out(model, best),
+                "fit_params": plant_params(model, best),
             }
         )
 
     # ---- selection: strong evidence and confirmed on the held-out cycles
     for row in cand_rows:
         row["significant"] = _significant(row)
-    base_params = _params_out(base_model, base)
+    base_params = plant_params(base_model, base)
     deterministic = sorted((r for r in cand_rows if r["significant"] and r["name"] in fits),
                            key=lambda r: -r["delta_bic"])
     stochastic = [r for r in cand_rows if r["significant"] and r["name"] not in fits]
@@ -1060,11 +565,11 @@ def diagnose(
         good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
         if good:
             second = good[0]
-            mp, fp = second["_fit"]
+            mp, fp = second["fit_model"]
             final = (f"{first['name']} + {second['name']}", mp, fp)
             # with both effects modelled, both parameters come from the joint fit
             for e, name in ((effects[0], first["name"]), (None, second["name"])):
-                value, std = _effect_value(BY_NAME[name], mp, fp, mp.unpack(fp.theta))
+                value, std = effect_value(BY_NAME[name], mp, fp, mp.unpack(fp.theta))
                 if e is not None:
                     par = BY_NAME[name].parameter
                     e.parameters[f"{par}_alone"] = e.parameters[par]
@@ -1081,7 +586,7 @@ def diagnose(
         effects.append(_finding(row, {"linear": base_params, "with_effect": base_params}, {},
                                 {"compared_with": "linear", "bic_base": row["bic"] + row["delta_bic"]}, n_all))
     for pr in pair_rows:
-        pr.pop("_fit", None)
+        pr.pop("fit_model", None)
 
     # ---- locate (base model against all cycles)
     say("locating")
@@ -1174,28 +679,6 @@ def _significant(row: dict) -> bool:
     return a[key] < b[key] and features_ok
 
 
-def _effect_value(cand: Candidate, model: _Model, fit: _Fit, p: dict) -> tuple[float, float]:
-    """The effect's parameter in its own units and its standard error, from a fit of ``model``."""
-    hs = model.hs
-    j = model.extra_index(cand.name)
-    if cand.name == "quadratic_drag":
-        c = p["q"] / fit.K
-        return c, c * _std_of(fit, 0)
-    x = p["extras"][cand.name]
-    if cand.name == "input_bias":
-        return x, _std_of(fit, j) * hs
-    if cand.name == "gain_drift":
-        return x, _std_of(fit, j) / 100.0
-    if cand.name == "sensor_lag":
-        return x, _std_of(fit, j) / 10.0
-    if cand.name == "actuator_rate_limit":
-        rho = x
-        R = 1.0 / rho if rho > 1e-9 else float("inf")
-        s_rho = _std_of(fit, j) / (10.0 * hs)
-        return R, (s_rho / rho**2 if rho > 1e-9 else float("nan"))
-    raise ValueError(cand.name)
-
-
 def _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all) -> dict:
     """Fit the delay-jitter std to the recorded period scatter (:func:`mrftcli.diagnose_scatter.fit_jitter`)."""
     v0 = np.array([sc["v0"] for sc in scatter])
@@ -1272,7 +755,7 @@ def _finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> 
     )
 
 
-def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[_Test], Tp: float, recs_fit: list,
+def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[MrftTestCycles], Tp: float, recs_fit: list,
                     recs_hold: list, chi2_scatter: float, n_all: int) -> dict | None:
     """Fit the first effect and another one together; evidence and held-out scores against the first alone.
 
@@ -1282,8 +765,8 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[_Test], Tp
     c1, c2 = BY_NAME[first["name"]], BY_NAME[other["name"]]
     if c1.replaces_drag and c2.replaces_drag:
         return None
-    model = _Model((c1, c2), tests, Tp)
-    lo, hi = _bounds((c1, c2), tests)
+    model = CycleModel((c1, c2), tests, Tp)
+    lo, hi = theta_bounds((c1, c2), tests)
     singles = {c.name: fits[c.name] for c in (c1, c2)}
 
     def theta_from(lead: Candidate) -> np.ndarray:
@@ -1302,7 +785,7 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[_Test], Tp
 
     best = None
     for lead in (c1, c2):
-        f = _fit(model, theta_from(lead), lo, hi, recs_fit)
+        f = fit_model(model, theta_from(lead), lo, hi, recs_fit)
         if f.ok and (best is None or f.chi2 < best.chi2):
             best = f
     if best is None:
@@ -1313,7 +796,7 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[_Test], Tp
     p = model.unpack(best.theta)
     values, stds = {}, {}
     for c in (c1, c2):
-        values[c.name], stds[c.name] = _effect_value(c, model, best, p)
+        values[c.name], stds[c.name] = effect_value(c, model, best, p)
     return {
         "name": c2.name,
         "with": c1.name,
@@ -1326,8 +809,8 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[_Test], Tp
         "delta_bic": first["bic"] - bic,
         "held_out_before": first["held_out_after"],
         "held_out_after": _held_out(model, best, tests, recs_hold),
-        "fit_params": _params_out(model, best),
-        "_fit": (model, best),
+        "fit_params": plant_params(model, best),
+        "fit_model": (model, best),
     }
 
 
@@ -1379,7 +862,7 @@ def _locate(tests, base_model, base, recs_all, scatter) -> tuple[list, dict]:
         fm[ia] += math.log(base.K)
         z = (f.values - fm) / s
         for j, name in enumerate(FEATURE_NAMES):
-            if not _feature_mask(t)[j] or abs(z[j]) < 3.0:
+            if not feature_mask(t)[j] or abs(z[j]) < 3.0:
                 continue
             rec, mod = float(f.values[j]), float(fm[j])
             item = {

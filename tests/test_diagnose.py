@@ -91,12 +91,12 @@ def test_model_features_do_not_depend_on_evaluation_history():
     # the warm-started limit cycle's tick grid used to shift with history and move the harmonics by 1e-4
     import math
 
-    from mrftcli.diagnose import _get_tests, _Model, _prepare
+    from mrftcli.diagnose_fit import CycleModel, prepare_tests, segments_of
     from mrftcli.readers import read_flight
 
     flight = read_flight(CONCEALED[0], "altitude")
-    tests, _, _ = _prepare(flight, _get_tests(flight, None))
-    model = _Model(None, tests, 0.0422)
+    tests, _, _ = prepare_tests(flight, segments_of(flight, None))
+    model = CycleModel(None, tests, 0.0422)
     theta, far = np.array([math.log(2.0), 0.47]), np.array([math.log(4.0), 0.40])
     first = model.evaluate(theta, 0, tests[0].t_start).features
     model.evaluate(far, 0, tests[0].t_start)

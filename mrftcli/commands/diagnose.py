@@ -77,7 +77,8 @@ def diagnose(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_to
     limit cycles and re-simulated with the same MRFT settings; period, half-period balance, amplitude,
     waveform harmonics, trends and cycle-to-cycle scatter are compared per test. Candidate physics
     (input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, delay_jitter) are fitted
-    on even cycles, chosen by BIC and confirmed on the odd (held-out) cycles.
+    on even cycles, chosen by BIC and confirmed on the odd (held-out) cycles; a second effect is then
+    looked for on top of the first one by the same rules.
 
     Exit codes: 0 ok (with or without a finding), 2 bad option, 3 unreadable log, 4 no relay test,
     7 the diagnosis could not be carried out.

@@ -169,8 +169,9 @@ class DiagnosisResult:
                 "cycle-to-cycle scatter of the recording that no deterministic model can predict (residual of a "
                 "per-phase linear trend over the held-out cycles of each test, dof-corrected; reported as "
                 "scatter_nrmse) is subtracted from the mean square error (nrmse_raw keeps it; nrmse_timed also "
-                "keeps the model's own period, and is what confirms a candidate); for "
-                "delay_jitter the nrmse is the relative error of the predicted cycle-to-cycle period scatter"
+                "keeps the model's own period, and is what confirms a candidate, with a held-out feature chi^2 "
+                "gain of at least 10); for delay_jitter the nrmse is the relative error of the predicted "
+                "cycle-to-cycle period scatter on the held-out cycles, pooled over the tests"
             ),
             "warnings": self.warnings,
         }

@@ -479,12 +479,7 @@ class McapSource(LogSource):
         if off.min() < 0 or off.max() + 9 + _MSG_HEADER > len(arr) or (arr[off] != _OP_MESSAGE).any():
             raise ValueError("message index points outside the chunk")
 
-        def field(offset: int, size: int, dtype: str) -> np.ndarray:
-            return arr[(off + offset)[:, None] + np.arange(size)].view(dtype).ravel()
-
-        rec_len = field(1, 8, "<u8").astype(np.int64)
-        channel = field(9, 2, "<u2")
-        log_time = field(15, 8, "<u8").astype(np.int64)
+        rec_len, channel, log_time = _message_fields(arr, off)
         if ((off + 9 + rec_len > len(arr)).any() or (rec_len < _MSG_HEADER).any()
                 or (channel != cid).any() or (log_time != index[:, 0]).any()):
             raise ValueError("message index disagrees with the chunk")
@@ -505,15 +500,17 @@ def _walk_messages(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.
             offs.append(pos)
         pos += 9 + length
     off = np.array(offs, dtype=np.int64)
-    arr = np.frombuffer(data, dtype=np.uint8)
+    rec_len, channel, log_time = _message_fields(np.frombuffer(data, dtype=np.uint8), off)
+    return off, channel, log_time, rec_len
+
+
+def _message_fields(arr: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Record length, channel id and log time [ns] of the Message records at byte offsets ``off``."""
 
     def field(offset: int, size: int, dtype: str) -> np.ndarray:
-        return arr[(off + offset)[:, None] + np.arange(size)].view(dtype).ravel()
+        return arr[(off + offset)[:, None] + np.arange(size)].view(dtype).ravel().astype(np.int64)
 
-    if off.size == 0:
-        z = np.zeros(0, np.int64)
-        return z, z, z, z
-    return off, field(9, 2, "<u2").astype(np.int64), field(15, 8, "<u8").astype(np.int64), field(1, 8, "<u8").astype(np.int64)
+    return field(1, 8, "<u8"), field(9, 2, "<u2"), field(15, 8, "<u8")
 
 
 # -- JSON messages -------------------------------------------------------------------------------

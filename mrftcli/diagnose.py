@@ -566,7 +566,7 @@ def diagnose(
         good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
         if good:
             second = good[0]
-            mp, fp = second["fit_model"]
+            mp, fp = second["_joint_fit"]
             final = (f"{first['name']} + {second['name']}", mp, fp)
             # with both effects modelled, both parameters come from the joint fit
             for e, name in ((effects[0], first["name"]), (None, second["name"])):
@@ -587,7 +587,7 @@ def diagnose(
         effects.append(_finding(row, {"linear": base_params, "with_effect": base_params}, {},
                                 {"compared_with": "linear", "bic_base": row["bic"] + row["delta_bic"]}, n_all))
     for pr in pair_rows:
-        pr.pop("fit_model", None)
+        pr.pop("_joint_fit", None)  # the fitted model is not JSON
 
     # ---- locate (base model against all cycles)
     say("locating")
@@ -811,7 +811,7 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[MrftTestCy
         "held_out_before": first["held_out_after"],
         "held_out_after": _held_out(model, best, tests, recs_hold),
         "fit_params": plant_params(model, best),
-        "fit_model": (model, best),
+        "_joint_fit": (model, best),
     }
 
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -43,7 +43,6 @@ from .diagnose_fit import (MIN_CYCLES, CycleModel, Fit, ModelCycle, MrftTestCycl
                            theta_bounds)
 from .diagnose_physics import BY_NAME, CANDIDATES, Candidate
 from .diagnose_scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
-from .diagnose_sim import Plant
 from .errors import DiagnoseError, InputError
 from .logtypes import FlightLog
 
@@ -181,20 +180,23 @@ class DiagnosisResult:
 # cycle-to-cycle period scatter (sampled relay with noise, and delay jitter: mrftcli.diagnose_scatter)
 
 
-def _scatter_reference(tests: list[MrftTestCycles], base_model: CycleModel, base: Fit, Tp: float, noise: float) -> list[dict]:
-    """Per test: the sampled-relay setting of the base model and the period variance noise alone explains."""
-    pb = base_model.unpack(base.theta)
+def _scatter_reference(tests: list[MrftTestCycles], model: CycleModel, fit: Fit, noise: float) -> list[dict]:
+    """Per test: the sampled-relay setting of a fitted model (the linear one, or with a found effect)
+    and the period variance that noise alone explains."""
+    p = model.unpack(fit.theta)
     out = []
     for i, t in enumerate(tests):
-        plant = Plant(Tp, pb["Td"], pb["tau"], base.K)
-        warm = base_model.warm.get(i)
+        plant, gain = model.plant(p, t, float(np.mean(t.tab.t_mid)))
+        K = fit.K * gain
+        # the model plant is at K = 1: the output scales with K, so a drag per output unit divides by it
+        plant = replace(plant, K=K, quadratic_drag=plant.quadratic_drag / K)
+        warm = model.warm.get(i)
         if warm is not None:
             # the warm state was computed at K = 1: output and rate scale with K, the propulsion state not
             x = np.asarray(warm["x"], float).copy()
-            x[:2] *= base.K
-            x[3:] *= base.K
-            warm = dict(warm, x=x, e_prev=warm["e_prev"] * base.K, de_prev=warm["de_prev"] * base.K,
-                        e_ext=warm["e_ext"] * base.K)
+            x[:2] *= K
+            x[3:] *= K
+            warm = dict(warm, x=x, e_prev=warm["e_prev"] * K, de_prev=warm["de_prev"] * K, e_ext=warm["e_ext"] * K)
         setting = ScatterSetting(plant=plant, beta=t.beta_nominal if t.beta_nominal is not None else float(np.mean(t.beta)),
                                  h=t.h, rate_hz=t.rate_hz, noise_std=noise, n_window=max(t.n_window, len(t.tab)),
                                  period=float(np.mean(t.tab.period)), warm=warm)
@@ -467,7 +469,7 @@ def diagnose(
 
     # ---- scatter predicted by noise on a sampled relay (base model)
     say("simulating the noise-driven scatter")
-    scatter = _scatter_reference(tests, base_model, base, Tp, noise)
+    scatter = _scatter_reference(tests, base_model, base, noise)
 
     def scatter_z(sel: str, v_pred: list[float]) -> np.ndarray:
         return _scatter_z(tests, scatter, sel, v_pred)
@@ -582,10 +584,24 @@ def diagnose(
                                            "model": f"{first['name']}+{second['name']}"},
                                     _harmonics_before_after(tests, m1, f1, mp, fp),
                                     {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, n_all))
+    if stochastic and final is not None:
+        # the scatter noise alone explains depends on the loop: judge the jitter again against the
+        # deterministic model found (an actuator slew once made the linear model's noise scatter too small)
+        say(f"testing delay jitter on top of {final[0]}")
+        scatter_f = _scatter_reference(tests, final[1], final[2], noise)
+        again = _jitter_candidate(BY_NAME["delay_jitter"], tests, scatter_f,
+                                  lambda sel, v: _scatter_z(tests, scatter_f, sel, v), final[2], n_all)
+        again["significant"] = _significant(again)
+        again["compared_with"] = f"linear + {final[0]}"
+        for j, row in enumerate(cand_rows):
+            if row["name"] == again["name"]:
+                cand_rows[j] = dict(row, given_effects=again)
+        stochastic = [again] if again["significant"] else []
     for row in stochastic:
         # the jitter acts on the cycle-to-cycle scatter only, which the deterministic effects leave alone
         effects.append(_finding(row, {"linear": base_params, "with_effect": base_params}, {},
-                                {"compared_with": "linear", "bic_base": row["bic"] + row["delta_bic"]}, n_all))
+                                {"compared_with": row.get("compared_with", "linear"),
+                                 "bic_base": row["bic"] + row["delta_bic"]}, n_all))
     for pr in pair_rows:
         pr.pop("_joint_fit", None)  # the fitted model is not JSON
 

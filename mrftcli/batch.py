@@ -362,7 +362,8 @@ def _run_dask(
 SUMMARY_COLUMNS = [
     "path", "loop", "vehicle", "status", "result_status", "error", "error_type",
     "Td_mean", "Td_std", "tau_mean", "tau_std", "K_mean", "K_std",
-    "n_tests", "n_cycles", "betas", "findings", "diagnose_error",
+    "n_tests", "n_cycles", "betas", "findings", "Td_with_findings", "tau_with_findings", "K_with_findings",
+    "diagnose_error",
     "tp", "log_time", "log_time_source", "log_mtime", "analysed_at", "elapsed_s", "result_json", "settings_hash",
     "tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", "Td_change", "tau_changed", "Td_changed",
     "outlier", "outlier_reason",
@@ -444,6 +445,7 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             # None: not diagnosed (or the diagnosis failed); "": diagnosed, the linear model explains the log
             "findings": (";".join(str(e.get("name")) for e in effects if isinstance(e, Mapping))
                          if diag.get("status") == STATUS_OK else None),
+            **_with_findings(effects),
             "diagnose_error": diag.get("error"),
             "tp": settings.get("tp"),
             "log_mtime": _utc(mtime),
@@ -455,6 +457,18 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             "settings_hash": record.get("settings_hash"),
         })
     return rows
+
+
+def _with_findings(effects: list) -> dict[str, float | None]:
+    """Td, tau, K refitted with the diagnosed effects modelled (the last deterministic finding's
+    identification, which for two effects is the joint fit); None when nothing was found that changes them."""
+    out: dict[str, float | None] = {"Td_with_findings": None, "tau_with_findings": None, "K_with_findings": None}
+    for e in effects:
+        ident = e.get("identification") if isinstance(e, Mapping) else None
+        w = ident.get("with_effect") if isinstance(ident, Mapping) else None
+        if isinstance(w, Mapping) and w != ident.get("linear"):
+            out = {f"{k}_with_findings": w.get(k) for k in ("Td", "tau", "K")}
+    return out
 
 
 def flag_outliers(df: pd.DataFrame, threshold: float = 3.5) -> pd.DataFrame:

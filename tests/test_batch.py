@@ -345,7 +345,10 @@ class _FakeDiagnosis:
         self.effects = effects
 
     def to_dict(self):
-        return {"effects": [{"name": n} for n in self.effects], "located": []}
+        linear = {"Td": 1.0, "tau": 0.05, "K": 10.0}
+        joint = {"Td": 1.1, "tau": 0.04, "K": 11.0}
+        return {"effects": [{"name": n, "identification": {"linear": linear, "with_effect": joint}}
+                            for n in self.effects], "located": []}
 
 
 def _fake_diagnose(flight=None, Tp=None, analysis=None, *, path=None, tp=None, loop=None, command_topic=None,
@@ -369,7 +372,9 @@ def test_diagnose_findings_and_failures(tmp_path: Path, fake_analyze, monkeypatc
     df = B.run_batch([tmp_path / "logs"], tmp_path / "out", diagnose=True, **kw).summary.set_index("path")
     row = {Path(p).name: r for p, r in df.iterrows()}
     assert row["good.mcap"]["findings"] == "input_bias;sensor_lag"
+    assert (row["good.mcap"]["tau_with_findings"], row["good.mcap"]["K_with_findings"]) == (0.04, 11.0)
     assert row["clean.mcap"]["findings"] == ""  # diagnosed, nothing found
+    assert pd.isna(row["clean.mcap"]["tau_with_findings"])
     # a failed diagnosis leaves the analysis ok and says why
     nd = row["nodiag.mcap"]
     assert (nd["status"], pd.isna(nd["findings"]), nd["diagnose_error"]) == ("ok", True, "no test with 6 stable cycles")

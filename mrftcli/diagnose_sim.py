@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from ._sim_control import MrftRelay
 from ._sim_plant import _actuator_pieces, _fixed_matrices, _LinearPropagator, _rk4_quadratic
 
 __all__ = ["Plant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
@@ -185,7 +186,8 @@ def run_relay(
         The (augmented) model.
     beta : float or (float, float)
         Switching level of the relay (effective beta in continuous mode, nominal beta in sampled
-        mode); a pair gives (beta for the -h -> +h switch, beta for the +h -> -h switch).
+        mode); a pair gives (beta for the -h -> +h switch, beta for the +h -> -h switch),
+        continuous mode only.
     h : float
         Relay half-height [command units].
     rate_hz : float
@@ -274,6 +276,13 @@ def run_relay(
         e_prev, de_prev, e_ext = warm["e_prev"], warm["de_prev"], warm["e_ext"]
         up.append(warm["t_up"])
     max_steps = int((max_time if max_time is not None else 1e6) * rate_hz) + 1
+    rule = None
+    if sampled:
+        # the log's relay decides with one (nominal) level: the project simulator's own rule, in its state
+        if beta_up != beta_dn:
+            raise ValueError("the sampled relay takes one beta")
+        rule = MrftRelay(beta_up)
+        rule.relay, rule.e_ext, rule.first_half = relay, e_ext, False
     jit_eff = np.zeros(1)
     if sampled and jitter_std > 0:
         # the delay of the command sent at tick k is tau + d_k, d a Gauss-Markov process at the tick
@@ -311,20 +320,13 @@ def run_relay(
             break
         if sampled:
             e = -(y_m + rng.normal(0.0, noise_std)) if noise_std > 0 else -y_m
-            switched = False
-            if relay > 0:
-                e_ext = max(e_ext, e)
-                if e_ext > 0 and e <= -beta_dn * e_ext:
-                    relay, switched = -1.0, True
-            else:
-                e_ext = min(e_ext, e)
-                if e_ext < 0 and e >= -beta_up * e_ext:
-                    relay, switched = 1.0, True
+            new = rule.step(e)
+            switched = new != relay
+            relay = new
             if not switched and max_gap is not None and t - t_last_switch > max_gap:
                 break
             if switched:
                 t_last_switch = t
-                e_ext = e
                 delay = plant.tau + (float(jit_eff[min(k, jit_eff.size - 1)]) if jitter_std > 0 else 0.0)
                 pending.append((t + max(delay, 0.0), relay * h))
                 pending.sort()

@@ -50,7 +50,7 @@ Everything the identification needs comes out as frozen dataclasses: :class:`Rel
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -110,7 +110,7 @@ class StabilityCriterion:
     min_consecutive: int = 3
 
     def to_dict(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -902,7 +902,7 @@ class ValidityCriterion:
     beta_sign_floor: float = 0.1
 
     def to_dict(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return asdict(self)
 
 
 @dataclass(frozen=True)

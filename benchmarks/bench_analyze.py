@@ -4,7 +4,7 @@ The log (reference layout, altitude loop of the paper's Design I) holds 20 MRFT 
 and -0.7 alternating, ~22 s each, with holds between them). Timed: reading the three topics,
 segmentation, identification with the bootstrap and the per-combination estimates, i.e.
 :func:`mrftcli.analyze.analyze_path`. Baseline measured in the same run: the per-combination
-estimates done the straightforward way, one :func:`mrftcli.identify.identify` call per combination
+estimates done the straightforward way, one :func:`mrftcli.mrft.identify.identify` call per combination
 of cycles (timed on a sample and scaled), against the vectorised solver used by ``analyze``.
 
 Run: ``python benchmarks/bench_analyze.py`` (about 30 s including the simulation).
@@ -21,9 +21,9 @@ import numpy as np
 
 def main() -> None:
     from mrftcli.analyze import _consensus_solve, analyze_path
-    from mrftcli.identify import TestMeasurement, identify
-    from mrftcli.model import LoopModel
-    from mrftcli.simulate import FlightSpec, plan_test, simulate_flight, write_flight
+    from mrftcli.mrft.identify import TestMeasurement, identify
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
 
     model = LoopModel(0.0422, 2.669, 0.0464, 19.6)
     tests = []
@@ -46,8 +46,8 @@ def main() -> None:
             result = analyze_path(path, 0.0422, "altitude")
             runs.append(time.perf_counter() - t0)
         total = float(np.median(runs))
-        from mrftcli.readers import read_flight
-        from mrftcli.segment import segment
+        from mrftcli.io import read_flight
+        from mrftcli.segment.core import segment
 
         t0 = time.perf_counter()
         fl = read_flight(path, loop="altitude")

@@ -46,7 +46,7 @@ def main() -> None:
     from test_segment_support import flight_from_simulated, simulate_paper_flight
 
     from mrftcli.analyze import analyze_flight
-    from mrftcli.readers import read_flight
+    from mrftcli.io import read_flight
 
     sets = {"30-plant sweep": [], "sample logs": []}
     for k, loop, Tp, Td, tau, K in _plants(30, seed=0):

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.batch import run_batch
-from mrftcli.model import LoopModel
-from mrftcli.simulate import FlightSpec, plan_test, simulate_flight, write_flight
+from mrftcli.batch.run import run_batch
+from mrftcli.mrft.model import LoopModel
+from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
 
 
 def make_logs(folder: Path, n: int, cycles: float, seed: int) -> list[float]:

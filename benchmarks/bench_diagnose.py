@@ -41,8 +41,8 @@ def _gen_module():
 
 def run_case(case: tuple) -> dict:
     effect, plant, seed, scale = case
-    from mrftcli.diagnose import diagnose
-    from mrftcli.readers import read_flight, write_log
+    from mrftcli.diagnose.selection import diagnose
+    from mrftcli.io import read_flight, write_log
 
     gen = _gen_module()
     flight = gen.make_case(effect, plant, seed, scale)

@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 
-from mrftcli.identify import TestMeasurement, _intersection_draws, identify
-from mrftcli.lprs import describing_function_limit_cycle, mrft_limit_cycle
-from mrftcli.model import LoopModel
-from mrftcli.ufm import SHIPPED_BETAS, build_manifold, build_manifolds, load_manifolds, save_manifold
+from mrftcli.mrft.identify import TestMeasurement, _intersection_draws, identify
+from mrftcli.mrft.lprs import describing_function_limit_cycle, mrft_limit_cycle
+from mrftcli.mrft.model import LoopModel
+from mrftcli.mrft.ufm import SHIPPED_BETAS, build_manifold, build_manifolds, load_manifolds, save_manifold
 
 PAPER = LoopModel(Tp=0.1, Td=1 / 1.42, tau=0.06, K=1.42)
 
@@ -77,7 +77,7 @@ def bench_sensitivity(n: int) -> None:
     Td = _intersection_draws(PAPER.Tp, list(betas), wd, ms, PAPER.Td)
     el = time.perf_counter() - t0
     ok = np.isfinite(Td)
-    from mrftcli.lprs import unit_cycle
+    from mrftcli.mrft.lprs import unit_cycle
 
     th, _ = unit_cycle(PAPER.Tp * wd[ok, 0], Td[ok] * wd[ok, 0], betas[0])
     tau = th / wd[ok, 0]

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.logtypes import TopicData
-from mrftcli.readers import open_log, read_flight, write_log
+from mrftcli.io.logtypes import TopicData
+from mrftcli.io import open_log, read_flight, write_log
 
 
 def make_log(path: Path, minutes: float, rate: float = 200.0) -> int:

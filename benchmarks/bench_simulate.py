@@ -16,8 +16,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from mrftcli.model import LoopModel
-from mrftcli.simulate import Effects, FlightSpec, TestSpec, simulate_flight
+from mrftcli.mrft.model import LoopModel
+from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, simulate_flight
 
 MODEL = LoopModel(0.0422, 2.669, 0.0464, 19.62)
 

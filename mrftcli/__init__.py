@@ -1,8 +1,8 @@
 """mrft-ident: identify multirotor loop models from MRFT flight logs.
 
-The pipeline mirrors the modules: :mod:`mrftcli.readers` -> :mod:`mrftcli.segment` ->
-:mod:`mrftcli.identify` (with :mod:`mrftcli.lprs` and :mod:`mrftcli.ufm`) -> :mod:`mrftcli.diagnose`
--> :mod:`mrftcli.report`; :mod:`mrftcli.cli` is a thin click layer on top.
+The pipeline mirrors the modules: :mod:`mrftcli.io` -> :mod:`mrftcli.segment.core` ->
+:mod:`mrftcli.mrft.identify` (with :mod:`mrftcli.mrft.lprs` and :mod:`mrftcli.mrft.ufm`) -> :mod:`mrftcli.diagnose.selection`
+-> :mod:`mrftcli.report`; :mod:`mrftcli.cli.main` is a thin click layer on top.
 """
 
 from importlib.metadata import PackageNotFoundError, version

@@ -1,11 +1,11 @@
 """One flight log in, the loop's model out: read -> segment -> identify, with uncertainty.
 
-:func:`analyze_flight` takes a :class:`~mrftcli.logtypes.FlightLog`; :func:`analyze_path` reads the
+:func:`analyze_flight` takes a :class:`~mrftcli.io.logtypes.FlightLog`; :func:`analyze_path` reads the
 log first. Both are pure (no printing, no files written) and return an :class:`AnalysisResult`.
 
 How the figures are obtained
 ----------------------------
-* Every MRFT test comes from :func:`mrftcli.segment.segment` with its stable cycles, the measured
+* Every MRFT test comes from :func:`mrftcli.segment.core.segment` with its stable cycles, the measured
   frequency and amplitude per cycle and the *effective* beta (the switching level the relay actually
   achieved, measured from the output at the switch instants). Identification uses the effective
   beta with ``rate_hz=None``: at the actual switch instants the sampled, noisy relay *is* a
@@ -27,7 +27,7 @@ How the figures are obtained
   Weights are inverse variances from each test's per-cycle scatter plus a systematic floor
   (:func:`_constraint_weights`); the solution minimises the chi-square of all constraints
   (:func:`_consensus_objective`), K follows through the UGM. ``identification`` keeps the
-  UFM-only result of :func:`mrftcli.identify.identify` (the paper's estimate) and ``constraints``
+  UFM-only result of :func:`mrftcli.mrft.identify.identify` (the paper's estimate) and ``constraints``
   the constraints used with their residuals at the estimate and the chi-square; a chi-square with
   p < 1e-3 raises a warning (the constraints disagree: the plant may not follow eq. (2)).
 * **Uncertainty** (``std``, ``ci95_low/high``): a bootstrap over cycles. Each draw resamples the
@@ -61,11 +61,11 @@ from typing import Sequence
 import numpy as np
 
 from .errors import InsufficientDataError, SegmentationError
-from .identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify, ufm_slice
-from .logtypes import FlightLog
-from .lprs import unit_cycle
-from .model import LoopModel
-from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
+from .mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify, ufm_slice
+from .io.logtypes import FlightLog
+from .mrft.lprs import unit_cycle
+from .mrft.model import LoopModel
+from .segment.core import MrftTest, StabilityCriterion, ValidityCriterion, segment
 
 __all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "log_start", "describe_t0", "phase_tau", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]
@@ -110,7 +110,7 @@ class AnalysisResult:
     model : LoopModel
         The identified model (the point estimate).
     identification : IdentificationResult
-        The point identification from :func:`mrftcli.identify.identify`.
+        The point identification from :func:`mrftcli.mrft.identify.identify`.
     combinations : dict
         Per-combination estimates (paper Table III): ``n`` and ``Td``/``tau``/``K`` arrays [s].
     bootstrap : dict
@@ -658,7 +658,7 @@ def analyze_flight(
         Weighted constraints added to the UFM slices for the point estimate and the bootstrap
         (Beyond the paper, see the module docstring); ``()`` gives the paper's method alone.
     validity : ValidityCriterion, optional
-        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`):
+        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.core.check_limit_cycle`):
         a test whose output does not follow its relay as an MRFT limit cycle is rejected, and so are
         the tests whose loop-gain sign disagrees with the others' (:func:`_screen_tests`).
 
@@ -676,7 +676,7 @@ def analyze_flight(
     IdentificationError
         The measured cycles admit no plant of eq. (2) with this Tp.
     """
-    from .identify import _check_time  # the identify module's validation of a time argument
+    from .mrft.identify import _check_time  # the identify module's validation of a time argument
 
     Tp = _check_time("Tp", Tp)
     constraints = tuple(constraints)
@@ -855,7 +855,7 @@ def analyze_path(
     fmt: str | None = None,
     **kwargs,
 ) -> AnalysisResult:
-    """Read one log with :func:`mrftcli.readers.read_flight` and run :func:`analyze_flight`.
+    """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters
     ----------
@@ -878,7 +878,7 @@ def analyze_path(
     -------
     AnalysisResult
     """
-    from .readers import read_flight
+    from .io import read_flight
 
     flight = read_flight(path, loop=loop, command_topic=command_topic, output_topic=output_topic,
                          beta_topic=beta_topic, setpoint_topic=setpoint_topic, battery_topic=battery_topic,

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.model import LoopModel
-from mrftcli.simulate import Effects, FlightSpec, TestSpec, df_prediction, plan_test, simulate_flight, write_flight
+from mrftcli.mrft.model import LoopModel
+from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, df_prediction, plan_test, simulate_flight, write_flight
 
 #: The paper's two platforms' altitude loops (checks.md section 4); K gives about 5-8 cm at h ~ 0.1.
 PLANTS = {

@@ -7,7 +7,7 @@
 The truth of each scenario is the mean of Table III of the paper (checks.md section 4); the
 "+20 ms" scenarios keep the nominal Td and add 0.020 s to tau. Every scenario is written as MCAP
 (``<name>.mcap``); the first scenario, ``design1_altitude``, also in every other format that
-:mod:`mrftcli.readers` writes. Each log has its ground truth beside it as ``<log>.truth.json``.
+:mod:`mrftcli.io` writes. Each log has its ground truth beside it as ``<log>.truth.json``.
 Seeds are fixed, so the files are reproducible bit for bit with the same library versions.
 
 Noise: 0.2 mm (altitude) and 0.05 deg (attitude) white noise at 200 Hz. The simulator's defaults
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.model import LoopModel
-from mrftcli.readers import FORMATS, log_filename, read_flight
-from mrftcli.simulate import FlightSpec, plan_test, simulate_flight, write_flight
+from mrftcli.mrft.model import LoopModel
+from mrftcli.io import FORMATS, log_filename, read_flight
+from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "sample_logs"

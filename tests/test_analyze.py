@@ -2,7 +2,7 @@
 results and errors.
 
 The truth is the plant each flight was simulated with (the analysis never sees it). Flights come
-from the project's simulator (:mod:`mrftcli.simulate`) and, for take-off/landing around the tests,
+from the project's simulator (:mod:`mrftcli.sim.flight`) and, for take-off/landing around the tests,
 from the independent simulation in ``test_segment_support.py``.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from mrftcli.analyze import AnalysisResult, analyze_flight
-from mrftcli.commands._common import to_jsonable
+from mrftcli.cli.options import to_jsonable
 from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from test_segment_support import flight_from_simulated, simulate_paper_flight, simulate_relay_flight, to_flight
 
@@ -104,7 +104,7 @@ def test_single_beta_gives_partial_tau_curve():
 def test_too_few_stable_cycles_is_a_segmentation_error():
     sf = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4, -0.7), cycles=2.0, seed=4)
     # two-cycle tests: the start-up transient leaves no stable limit cycle
-    from mrftcli.simulate import FlightSpec, TestSpec, simulate_flight
+    from mrftcli.sim.flight import FlightSpec, TestSpec, simulate_flight
 
     spec = sf.spec
     short = FlightSpec(model=spec.model, tests=tuple(TestSpec(t.beta, t.h, 2.5) for t in spec.tests),
@@ -174,7 +174,7 @@ def test_paper_only_estimate_is_the_ufm_intersection(design1):
 
 def test_times_for_people_are_relative_to_the_log_start(design1):
     """Epoch-stamped logs: table and warnings in seconds from the start, JSON keeps both."""
-    from mrftcli.commands.analyze import format_table
+    from mrftcli.cli.analyze import format_table
 
     sf, ref = design1
     fl = flight_from_simulated(sf)

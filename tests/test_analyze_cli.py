@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from mrftcli.logtypes import TopicData
-from mrftcli.readers import write_log
-from mrftcli.simulate import write_flight
+from mrftcli.io.logtypes import TopicData
+from mrftcli.io import write_log
+from mrftcli.sim.flight import write_flight
 from test_segment_support import simulate_paper_flight
 
 TP = 0.0422
@@ -41,7 +41,7 @@ def logs(tmp_path_factory):
                TopicData("/mocap/pose", "geometry_msgs/msg/PoseStamped", t, {"pose.position.z": z})],
               d / "hover.mcap", "mcap")
     # two relay tests far too short to settle into a limit cycle
-    from mrftcli.simulate import FlightSpec, TestSpec, simulate_flight
+    from mrftcli.sim.flight import FlightSpec, TestSpec, simulate_flight
 
     spec = two.spec
     short = FlightSpec(model=spec.model, tests=tuple(TestSpec(x.beta, x.h, 2.0) for x in spec.tests),
@@ -119,11 +119,11 @@ def test_missing_log_exits_3(tmp_path):
 
 
 def test_diagnose_flag_is_wired(logs, tmp_path, monkeypatch):
-    """--diagnose calls mrftcli.diagnose.diagnose with the analysis and adds its dict to the JSON."""
+    """--diagnose calls mrftcli.diagnose.selection.diagnose with the analysis and adds its dict to the JSON."""
     from click.testing import CliRunner
 
-    import mrftcli.diagnose as diag
-    from mrftcli.cli import cli
+    import mrftcli.diagnose.selection as diag
+    from mrftcli.cli.main import cli
 
     seen = {}
 

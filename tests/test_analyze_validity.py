@@ -22,8 +22,8 @@ import pytest
 
 from mrftcli.analyze import analyze_flight
 from mrftcli.errors import InsufficientDataError, SegmentationError
-from mrftcli.lprs import unit_cycle
-from mrftcli.segment import ValidityCriterion, _cycle_harmonics, check_limit_cycle, df_phase, segment
+from mrftcli.mrft.lprs import unit_cycle
+from mrftcli.segment.core import ValidityCriterion, _cycle_harmonics, check_limit_cycle, df_phase, segment
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -229,8 +229,8 @@ def test_wrong_loop_on_a_roll_log_exits_4_with_one_line():
 
 def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
     """Three tests, the output of the middle one replaced by noise: two remain and identify the plant."""
-    from mrftcli.commands._common import to_jsonable
-    from mrftcli.commands.analyze import format_table
+    from mrftcli.cli.options import to_jsonable
+    from mrftcli.cli.analyze import format_table
 
     sf = simulate_paper_flight(ROLL["Tp"], ROLL["Td"], ROLL["tau"], ROLL["K"], (-0.3, -0.5, -0.8), loop="roll",
                                seed=5)

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from mrftcli import batch as B
+from mrftcli.batch import run as B
 from mrftcli.errors import InputError, InsufficientDataError, LogReadError
 
 # --------------------------------------------------------------------------------------------------
@@ -363,9 +363,9 @@ def _fake_diagnose(flight=None, Tp=None, analysis=None, *, path=None, tp=None, l
 
 
 def test_diagnose_findings_and_failures(tmp_path: Path, fake_analyze, monkeypatch) -> None:
-    mod = types.ModuleType("mrftcli.diagnose")
+    mod = types.ModuleType("mrftcli.diagnose.selection")
     mod.diagnose = _fake_diagnose
-    monkeypatch.setitem(sys.modules, "mrftcli.diagnose", mod)
+    monkeypatch.setitem(sys.modules, "mrftcli.diagnose.selection", mod)
     for name in ("good.mcap", "clean.mcap", "nodiag.mcap"):
         write_toy(tmp_path / "logs" / name)
     kw = {"defaults": {"tp": 0.1}, "jobs": 1, "quiet": True, "report": False}

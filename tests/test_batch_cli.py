@@ -13,7 +13,7 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from mrftcli.cli import cli
+from mrftcli.cli.main import cli
 
 
 def mrft(*args: str, cwd: Path) -> subprocess.CompletedProcess:

@@ -7,12 +7,12 @@ import sys
 
 import pytest
 
-from mrftcli.cli import COMMANDS, cli
+from mrftcli.cli.main import COMMANDS, cli
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-c", "from mrftcli.cli import main; main()", *args],
+        [sys.executable, "-c", "from mrftcli.cli.main import main; main()", *args],
         capture_output=True,
         text=True,
         timeout=120,

@@ -1,4 +1,4 @@
-"""Tests of ``mrftcli.diagnose``: the limit-cycle simulator it fits with, the cycle features, the
+"""Tests of ``mrftcli.diagnose.selection``: the limit-cycle simulator it fits with, the cycle features, the
 concealed-effect logs (compared with their sidecars, which the tool never reads) and the CLI."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mrftcli.diagnose_features import N_HARM, cycle_table, relay_harmonics
-from mrftcli.diagnose_sim import Plant, periodic_cycle, run_relay
+from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
+from mrftcli.diagnose.limit_cycles import Plant, periodic_cycle, run_relay
 
 ROOT = Path(__file__).resolve().parents[1]
 CONCEALED = sorted((ROOT / "sample_logs" / "concealed").glob("*.mcap"))
@@ -91,8 +91,8 @@ def test_model_features_do_not_depend_on_evaluation_history():
     # the warm-started limit cycle's tick grid used to shift with history and move the harmonics by 1e-4
     import math
 
-    from mrftcli.diagnose_fit import CycleModel, prepare_tests, segments_of
-    from mrftcli.readers import read_flight
+    from mrftcli.diagnose.fit import CycleModel, prepare_tests, segments_of
+    from mrftcli.io import read_flight
 
     flight = read_flight(CONCEALED[0], "altitude")
     tests, _, _ = prepare_tests(flight, segments_of(flight, None))
@@ -118,8 +118,8 @@ def diagnoses():
 
     def get(path):
         if path not in cache:
-            from mrftcli.diagnose import diagnose
-            from mrftcli.readers import read_flight
+            from mrftcli.diagnose.selection import diagnose
+            from mrftcli.io import read_flight
 
             cache[path] = diagnose(read_flight(path, "altitude"), _truth(path)["Tp"])
         return cache[path]
@@ -143,7 +143,7 @@ def test_cycle_scatter_estimates_the_unpredictable_part():
     # phase point), and a slow drift (mu_i linear in time) is not scatter
     from types import SimpleNamespace
 
-    from mrftcli.diagnose import _cycle_scatter
+    from mrftcli.diagnose.selection import _cycle_scatter
 
     rng = np.random.default_rng(7)
     s, n = 0.002, 8
@@ -189,8 +189,8 @@ def test_two_concealed_effects_are_both_found(tmp_path):
     # recovers both and the plant (truth: Td 2.669 s, tau 46.4 ms, K 15)
     import importlib.util
 
-    from mrftcli.diagnose import diagnose
-    from mrftcli.readers import read_flight, write_log
+    from mrftcli.diagnose.selection import diagnose
+    from mrftcli.io import read_flight, write_log
 
     spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "make_concealed_logs.py")
     gen = importlib.util.module_from_spec(spec)
@@ -252,9 +252,9 @@ def test_cli_bad_input_one_line_error(args, code):
 def test_log_without_relay_test_is_a_clear_error(tmp_path):
     import pandas as pd
 
-    from mrftcli.diagnose import diagnose
+    from mrftcli.diagnose.selection import diagnose
     from mrftcli.errors import MrftError
-    from mrftcli.logtypes import FlightLog
+    from mrftcli.io.logtypes import FlightLog
 
     t = np.arange(0, 30, 0.005)
     flight = FlightLog(path="hover", loop="altitude", command=pd.Series(0.5 + 0.01 * np.sin(t), index=t),

@@ -1,4 +1,4 @@
-"""The period-scatter model of diagnose (mrftcli.diagnose_scatter) against closed forms and the flight simulator."""
+"""The period-scatter model of diagnose (mrftcli.diagnose.scatter) against closed forms and the flight simulator."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from mrftcli.diagnose_scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
+from mrftcli.diagnose.scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
                                       refit_sigma, scatter_sample)
-from mrftcli.diagnose_sim import Plant, periodic_cycle
-from mrftcli.model import LoopModel
-from mrftcli.segment import segment
-from mrftcli import simulate as sim
+from mrftcli.diagnose.limit_cycles import Plant, periodic_cycle
+from mrftcli.mrft.model import LoopModel
+from mrftcli.segment.core import segment
+from mrftcli.sim import flight as sim
 
 from test_segment_support import flight_from_simulated
 

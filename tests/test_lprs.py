@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mrftcli.errors import InputError
-from mrftcli.lprs import (
+from mrftcli.mrft.lprs import (
     describing_function_limit_cycle,
     lprs_first_order,
     lprs_integrator,
@@ -19,7 +19,7 @@ from mrftcli.lprs import (
     mrft_limit_cycle,
     unit_cycle,
 )
-from mrftcli.model import LoopModel
+from mrftcli.mrft.model import LoopModel
 
 # checks.md section 1: theta/u = 0.14 e^{-0.06 s}/(s (0.1 s+1)(0.7042 s+1)); unit-gain form K Td = 1
 PAPER = LoopModel(Tp=0.1, Td=1 / 1.42, tau=0.06, K=1.42)

@@ -1,6 +1,6 @@
 """The exact limit cycle against an independent closed-loop time-domain simulation of the MRFT.
 
-The simulator below is written from scratch for this test (it does not import mrftcli.lprs): a batch
+The simulator below is written from scratch for this test (it does not import mrftcli.mrft.lprs): a batch
 of plants of eq. (2) is discretised exactly (zero-order hold, scipy's expm) with a fine step that
 divides the delay, and the MRFT rule of checks.md section 2 runs on every plant at once.
 
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from scipy import linalg, optimize
 
-from mrftcli.lprs import mrft_limit_cycle
-from mrftcli.model import LoopModel
+from mrftcli.mrft.lprs import mrft_limit_cycle
+from mrftcli.mrft.model import LoopModel
 
 
 def _df_frequency(Tp, Td, tau, beta):

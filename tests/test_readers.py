@@ -16,10 +16,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mrftcli.errors import InputError, LogReadError
-from mrftcli.logtypes import TopicData
-from mrftcli.readers import (FORMATS, log_filename, open_log, read_flight, roll_pitch, write_log)
-from mrftcli.readers import _cdr
-from mrftcli.readers._types import typestore_for
+from mrftcli.io.logtypes import TopicData
+from mrftcli.io import (FORMATS, log_filename, open_log, read_flight, roll_pitch, write_log)
+from mrftcli.io import cdr as _cdr
+from mrftcli.io.msgtypes import typestore_for
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
 

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from mrftcli.errors import LogReadError
-from mrftcli.logtypes import TopicData
-from mrftcli.readers import log_filename, open_log, read_flight, write_log
-from mrftcli.readers._cdr import serialize_many
-from mrftcli.readers._types import typestore_for
+from mrftcli.io.logtypes import TopicData
+from mrftcli.io import log_filename, open_log, read_flight, write_log
+from mrftcli.io.cdr import serialize_many
+from mrftcli.io.msgtypes import typestore_for
 from test_readers import synthetic_flight
 
 
@@ -196,7 +196,7 @@ def test_ulog_damage_keeps_what_pyulog_reads(good, tmp_path, capsys):
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, "-c", "from mrftcli.cli import main; main()", *args],
+    return subprocess.run([sys.executable, "-c", "from mrftcli.cli.main import main; main()", *args],
                           capture_output=True, text=True, timeout=120)
 
 
@@ -222,7 +222,7 @@ def test_cli_broken_files_one_line_exit_3(good, tmp_path):
     # one interpreter for all cases keeps the test cheap; each case still goes through cli.main
     script = (
         "import sys, io, contextlib\n"
-        "from mrftcli.cli import main\n"
+        "from mrftcli.cli.main import main\n"
         "for path in sys.argv[1:]:\n"
         "    err = io.StringIO()\n"
         "    with contextlib.redirect_stderr(err):\n"

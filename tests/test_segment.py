@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 
 from mrftcli.errors import SegmentationError
-from mrftcli.logtypes import FlightLog
-from mrftcli.segment import (
+from mrftcli.io.logtypes import FlightLog
+from mrftcli.segment.core import (
     StabilityCriterion,
     find_relay_runs,
     regularise_times,

@@ -1,6 +1,6 @@
 """An independent, exact closed-loop MRFT flight simulation used by the segmenter tests.
 
-Written separately from :mod:`mrftcli.simulate` so that the segmenter and the analysis are checked
+Written separately from :mod:`mrftcli.sim.flight` so that the segmenter and the analysis are checked
 against a second implementation. The plant G(s) = K Td e^{-tau s} / (s (Tp s+1)(Td s+1)) is
 integrated exactly between controller ticks (matrix exponentials; the delayed zero-order-hold input
 changes once inside each tick, at t_n + (tau mod dt)), the MRFT switches on noisy samples with the
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from scipy.linalg import expm
 
-from mrftcli.logtypes import FlightLog
+from mrftcli.io.logtypes import FlightLog
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +167,7 @@ def to_flight(sim: SimLog, *, with_beta: bool = True, with_setpoint: bool = True
 
 
 def flight_from_simulated(sf, *, with_beta: bool = True) -> FlightLog:
-    """A FlightLog from :func:`mrftcli.simulate.simulate_flight` output, without writing a file."""
+    """A FlightLog from :func:`mrftcli.sim.flight.simulate_flight` output, without writing a file."""
     topics = {tp.name: tp for tp in sf.topics}
     beta = None
     if with_beta and "/mrft/beta" in topics:
@@ -181,8 +181,8 @@ def flight_from_simulated(sf, *, with_beta: bool = True) -> FlightLog:
 def simulate_paper_flight(Tp, Td, tau, K, betas, *, loop="altitude", amplitude=None, cycles=12.0, seed=0,
                           noise_std=None, switching="hear", hover_s=2.0, hold_s=2.0):
     """The project's simulator with tests planned for a given amplitude (output units)."""
-    from mrftcli.model import LoopModel
-    from mrftcli.simulate import FlightSpec, plan_test, simulate_flight
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
     model = LoopModel(Tp, Td, tau, K)
     if amplitude is None:

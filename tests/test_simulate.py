@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from mrftcli.errors import InputError
-from mrftcli.model import LoopModel
-from mrftcli.simulate import TestSpec as MrftTest
-from mrftcli.simulate import (
+from mrftcli.mrft.model import LoopModel
+from mrftcli.sim.flight import TestSpec as MrftTest
+from mrftcli.sim.flight import (
     EFFECT_NAMES,
     Effects,
     FlightSpec,
@@ -299,7 +299,7 @@ def test_relay_start_threshold_keeps_the_first_sign():
 
 
 def _checks_rule(e, beta, start_threshold):
-    """checks.md section 2, written independently of mrftcli.simulate."""
+    """checks.md section 2, written independently of mrftcli.sim.flight."""
     out = [1.0 if e[0] >= 0 else -1.0]
     ext, started = e[0], False
     for x in e[1:]:
@@ -503,7 +503,7 @@ def test_attitude_topic_is_a_zyx_quaternion():
 
 def test_sidecar_contents(tmp_path):
     from mrftcli import __version__
-    from mrftcli.simulate import write_flight
+    from mrftcli.sim.flight import write_flight
 
     eff = Effects(input_bias=0.01, delay_jitter=0.001)
     flight = simulate_flight(short_spec(effects=eff))
@@ -593,7 +593,7 @@ def test_locked_relay_is_aborted_and_the_hold_takes_over():
 
 
 def test_defaults_and_planning():
-    from mrftcli.simulate import default_noise_std, df_prediction, plan_test
+    from mrftcli.sim.flight import default_noise_std, df_prediction, plan_test
 
     assert default_noise_std("altitude") == 0.0005
     assert default_noise_std("roll") == pytest.approx(math.radians(0.05))

@@ -8,8 +8,8 @@ import json
 import pytest
 from click.testing import CliRunner
 
-from mrftcli.cli import cli
-from mrftcli.readers import log_filename, write_log
+from mrftcli.cli.main import cli
+from mrftcli.io import log_filename, write_log
 from test_readers import synthetic_flight
 
 

@@ -9,9 +9,9 @@ import pytest
 
 import mrftcli
 from mrftcli.errors import InputError
-from mrftcli.lprs import mrft_limit_cycle
-from mrftcli.model import LoopModel
-from mrftcli.ufm import (
+from mrftcli.mrft.lprs import mrft_limit_cycle
+from mrftcli.mrft.model import LoopModel
+from mrftcli.mrft.ufm import (
     FORMAT_VERSION,
     SHIPPED_BETAS,
     ManifoldSet,

@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 
 from mrftcli.errors import InputError
-from mrftcli.logtypes import TopicData
-from mrftcli.readers import FORMAT_SUFFIX, FORMATS, log_filename, write_log
+from mrftcli.io.logtypes import TopicData
+from mrftcli.io import FORMAT_SUFFIX, FORMATS, log_filename, write_log
 from test_readers import synthetic_flight
 
 
@@ -117,7 +117,7 @@ def test_csv_layout_with_pandas(tmp_path, flight):
 
 def test_quaternion_completion_and_defaults(tmp_path):
     """Fields not given are zero, quaternion w one (ROS writers) / completed (ULog, CSV)."""
-    from mrftcli.readers import open_log
+    from mrftcli.io import open_log
 
     t = np.arange(5) * 0.1
     topics = [TopicData("/imu/data", "sensor_msgs/msg/Imu", t, {"orientation.x": np.zeros(5)})]

@@ -1,13 +1,13 @@
 """Fleet report of a batch: parameters per log over time, with outliers flagged (HTML + PNG).
 
-Input is the summary table of :func:`mrftcli.batch.run_batch` (one row per log and loop). The time axis
+Input is the summary table of :func:`mrftcli.batch.run.run_batch` (one row per log and loop). The time axis
 is ``log_time`` (UTC): the log's first time stamp when it is an absolute UNIX time (ROS bags and MCAP
 files record wall-clock time), otherwise the file's modification time (a simulator's or a flight
 controller's time since boot says nothing about the date); ``log_time_source`` says which. Each vehicle (config ``vehicle``, else the log's
 parent folder name) is one colour, its logs joined in time order, so a vehicle whose tau grew shows as a
 rising line. Error bars are +/- one standard deviation of the per-combination estimates. Outliers
 (``tau_outlier``/``Td_outlier``: robust z-score beyond 3.5 within the loop and more than two of the
-log's own standard deviations from the median, see :func:`mrftcli.batch.flag_outliers`) are ringed in
+log's own standard deviations from the median, see :func:`mrftcli.batch.run.flag_outliers`) are ringed in
 red on the panel of the parameter that is off, and labelled with the log's folder and name.
 """
 

@@ -1,0 +1,130 @@
+"""``mrft-ident batch``: analyse many logs on local processes or a Dask cluster."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+from click.core import ParameterSource
+
+from .options import log_layout_options, tp_option
+
+__all__ = ["batch"]
+
+#: CLI option name -> LogSettings field (the options a config file can also set).
+_SETTING_OPTIONS = {
+    "tp": "tp",
+    "loop": "loops",
+    "command_topic": "command_topic",
+    "output_topic": "output_topic",
+    "beta_topic": "beta_topic",
+    "setpoint_topic": "setpoint_topic",
+    "output_scale": "output_scale",
+    "min_cycles": "min_cycles",
+}
+
+
+def _fmt_ms(x: float) -> str:
+    return "" if not math.isfinite(x) else f"{x * 1e3:.2f}"
+
+
+def _fmt(x: float) -> str:
+    return "" if not math.isfinite(x) else f"{x:.4g}"
+
+
+def _print_table(df, limit: int = 50) -> None:
+    shown = df if len(df) <= limit else df[(df["result_status"] != "ok") | df["outlier"]]
+    if len(shown) < len(df):
+        click.echo(f"({len(df) - len(shown)} ok rows not shown; see summary.csv)")
+    header = f"{'log':<36} {'loop':<9} {'status':<16} {'tau ms':>8} {'+/-':>6} {'Td s':>8} {'+/-':>7} {'K':>8}  note"
+    click.echo(header)
+    click.echo("-" * len(header))
+    for _, r in shown.iterrows():
+        name = Path(str(r["path"])).name
+        name = name if len(name) <= 36 else "..." + name[-33:]
+        note = r["error"] if r["result_status"] != "ok" and isinstance(r["error"], str) else ""
+        if r["outlier"]:
+            note = f"OUTLIER {r['outlier_reason']} {note}".strip()
+        if isinstance(r["findings"], str) and r["findings"]:
+            note = f"{note} findings: {r['findings']}".strip()
+        click.echo(
+            f"{name:<36} {r['loop']:<9} {r['status']:<16} {_fmt_ms(r['tau_mean']):>8} {_fmt_ms(r['tau_std']):>6} "
+            f"{_fmt(r['Td_mean']):>8} {_fmt(r['Td_std']):>7} {_fmt(r['K_mean']):>8}  {note}"
+        )
+
+
+@click.command("batch")
+@click.argument("paths", nargs=-1, required=True, metavar="PATH...")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
+              help="Local worker processes (default: the number of cores); 1 runs in this process.")
+@click.option("--scheduler", metavar="tcp://HOST:PORT", default=None,
+              help="Run on an existing Dask distributed scheduler instead of local processes.")
+@click.option("--scheduler-timeout", type=click.FloatRange(min=0, min_open=True), default=10.0, show_default=True,
+              help="Seconds to wait for the Dask scheduler.")
+@click.option("--out", "-o", "out_dir", type=click.Path(file_okay=False), default="mrft-batch", show_default=True,
+              help="Output folder: per-log JSON, summary.csv/.parquet, report/.")
+@click.option("--config", "config_file", type=click.Path(dir_okay=False), default=None,
+              help="Per-log settings (TOML, or YAML for .yaml/.yml) matched by glob; see docs/batch.md.")
+@tp_option("tp", required=False, help="Propulsion time constant Tp [s] (overrides the config).")
+@log_layout_options(config_defaults=True)
+@click.option("--min-cycles", type=click.IntRange(2, None), default=None,
+              help="Fewest stable cycles for a test to be used (default: analyze's, 3).")
+@click.option("--diagnose", is_flag=True, help="Also run the model-mismatch diagnosis on each loop.")
+@click.option("--force", is_flag=True, help="Recompute logs whose results are up to date.")
+@click.option("--no-report", is_flag=True, help="Skip the fleet report (HTML + PNG).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout instead of a table.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.pass_context
+def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, scheduler: str | None,
+          scheduler_timeout: float, out_dir: str, config_file: str | None, diagnose: bool, force: bool,
+          no_report: bool, as_json: bool, quiet: bool, **setting_opts) -> None:
+    """Analyse every flight log under PATH... (files, folders, globs) and summarise the fleet.
+
+    Folders are searched recursively for .mcap, .bag, .ulg, .csv and .bin logs and ROS 2 bag folders.
+    Writes per-log JSON, summary.csv, summary.parquet and a fleet report to --out. A second run skips
+    logs whose results are newer than the log and were made with the same settings (--force recomputes).
+    Exit code 8 when some logs failed (the others are still analysed and written).
+    """
+    from ..batch.run import BatchFailedError, load_config, run_batch
+    from .options import dump_json
+
+    if setting_opts.get("output_scale") is not None and (
+        setting_opts["output_scale"] == 0 or not math.isfinite(setting_opts["output_scale"])
+    ):
+        raise click.BadParameter("must be finite and non-zero", param_hint="--output-scale")
+    defaults, explicit = {}, {}
+    for opt, key in _SETTING_OPTIONS.items():
+        value = setting_opts[opt]
+        if opt == "loop":
+            value = tuple(value) if value else None
+        if value is None:
+            continue
+        source = ctx.get_parameter_source(opt)
+        (explicit if source in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT) else defaults)[key] = value
+    config = load_config(config_file) if config_file else None
+
+    result = run_batch(paths, out_dir, defaults=defaults, config=config, explicit=explicit, diagnose=diagnose,
+                       jobs=jobs, scheduler=scheduler, scheduler_timeout_s=scheduler_timeout, force=force,
+                       quiet=quiet, report=not no_report)
+    df = result.summary
+    if as_json:
+        rows = df.astype(object).where(df.notna(), None)
+        for col in ("log_time", "log_mtime", "analysed_at"):
+            rows[col] = [t.isoformat() if t is not None else None for t in rows[col]]
+        dump_json({"logs": result.n_logs, "counts": result.counts, "out_dir": str(result.out_dir), "notes": result.notes,
+                   "outputs": {k: str(v) for k, v in result.outputs.items()},
+                   "rows": rows.to_dict(orient="records")}, "-")
+    else:
+        _print_table(df)
+    for note in result.notes:
+        click.echo(f"warning: {note}", err=True)
+    failed = result.failed
+    if len(failed):
+        first = failed.iloc[0]
+        raise BatchFailedError(
+            f"{failed['path'].nunique()} of {result.n_logs} logs failed "
+            f"(first: {Path(str(first['path'])).name} [{first['loop']}]: {first['error']}); "
+            f"{result.summary_line()}"
+        )
+    click.echo(result.summary_line(), err=True)

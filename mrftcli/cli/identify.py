@@ -1,0 +1,68 @@
+"""``mrft-ident identify``: Td, tau (and K) from measured limit-cycle figures, without a log."""
+
+from __future__ import annotations
+
+import click
+
+from ..errors import InputError
+from .options import dump_json
+
+
+def _parse_test(text: str):
+    """BETA:FREQ_HZ[:AMPLITUDE:H] -> TestMeasurement."""
+    from ..mrft.identify import TestMeasurement
+
+    parts = text.split(":")
+    if len(parts) not in (2, 4):
+        raise InputError(f"--test {text!r}: expected BETA:FREQ_HZ or BETA:FREQ_HZ:AMPLITUDE:H")
+    try:
+        nums = [float(p) for p in parts]
+    except ValueError as err:
+        raise InputError(f"--test {text!r}: every field must be a number") from err
+    if len(nums) == 2:
+        return TestMeasurement(nums[0], nums[1])
+    return TestMeasurement(nums[0], nums[1], amplitude=nums[2], h=nums[3])
+
+
+def _fmt(est, scale: float = 1.0, unit: str = "") -> str:
+    if est is None:
+        return "-"
+    s = f"{est.mean * scale:.5g}{unit}"
+    if est.std > 0:
+        s += f" ± {est.std * scale:.2g}  [{est.ci95_low * scale:.4g}, {est.ci95_high * scale:.4g}]"
+    return s
+
+
+@click.command("identify")
+@click.option("--tp", "Tp", type=float, required=True, help="Known propulsion time constant Tp [s].")
+@click.option("--test", "tests", multiple=True, required=True, metavar="BETA:FREQ_HZ[:AMPLITUDE:H]",
+              help="One MRFT test: beta and frequency [Hz], optionally amplitude and relay height. Repeat (>= 2).")
+@click.option("--rate", "rate_hz", type=float, default=None,
+              help="Relay rate [Hz]: removes the half-sample switching lag from tau (nominal betas).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+def identify(Tp: float, tests: tuple[str, ...], rate_hz: float | None, as_json: bool) -> None:
+    """Identify Td, tau (and K when amplitudes are given) from two or more MRFT tests.
+
+    Example: mrft-ident identify --tp 0.1 --test -0.4:0.70564 --test -0.7:1.01884
+    """
+    from ..mrft.identify import identify as run
+
+    measured = [_parse_test(t) for t in tests]
+    result = run(measured, Tp, rate_hz=rate_hz)
+    if as_json:
+        dump_json(result.to_dict(), None)
+        return
+    click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {Tp:g} s (known)  [{result.method}]")
+    click.echo(f"{'Td':<4} {_fmt(result.Td, 1.0, ' s')}")
+    click.echo(f"{'tau':<4} {_fmt(result.tau, 1e3, ' ms')}")
+    click.echo(f"{'K':<4} {_fmt(result.K)}")
+    if result.residual is not None:
+        click.echo(f"residual (weighted RMS of relative frequency errors): {result.residual:.3g}")
+    click.echo("tests:")
+    for t in result.tests:
+        line = f"  beta {t['beta']:+.3f}  f {t['frequency_hz']:.5g} Hz  Td*Omega {t['td_norm']:.3g}  tau*Omega {t['theta']:.3g}"
+        if t.get("K") is not None:
+            line += f"  K {t['K']:.4g}"
+        click.echo(line)
+    for w in result.warnings:
+        click.echo(f"warning: {w}", err=True)

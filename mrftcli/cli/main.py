@@ -1,0 +1,102 @@
+"""The ``mrft-ident`` command: a thin click layer over the library.
+
+Each subcommand lives in ``mrftcli/cli/<name>.py`` and is imported only when it runs, so
+``mrft-ident --help`` stays fast and one command's heavy imports (matplotlib, dask) never slow another.
+Errors from :mod:`mrftcli.errors` become one line on stderr and the exit code of their class; any other
+exception is reported as an internal error in one line (``--debug`` shows the traceback).
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from .. import __version__
+from ..errors import MrftError
+
+__all__ = ["main", "cli"]
+
+#: name -> (module under mrftcli.cli, attribute, one-line help shown by ``mrft-ident --help``)
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "analyze": ("analyze", "analyze", "Segment MRFT tests in a flight log, identify Td, tau and K, report."),
+    "diagnose": ("diagnose", "diagnose", "Find where the identified model and the log disagree, and why."),
+    "batch": ("batch", "batch", "Analyse many logs, on local processes or a Dask cluster."),
+    "identify": ("identify", "identify", "Identify Td, tau (and K) from measured limit-cycle figures."),
+    "predict": ("predict", "predict", "Predict the exact MRFT limit cycle (frequency, amplitude) of a model."),
+    "build-ufm": ("build_ufm", "build_ufm", "Build unit frequency / unit gain manifolds for given betas."),
+    "simulate": ("simulate", "simulate", "Simulate an MRFT flight and write it as a log with a ground-truth sidecar."),
+    "topics": ("topics", "topics", "List the topics (or messages/columns) of a log with counts and rates."),
+}
+
+
+class _LazyGroup(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in COMMANDS:
+            return None
+        module_name, attr, _ = COMMANDS[cmd_name]
+        module = importlib.import_module(f"mrftcli.cli.{module_name}")
+        return getattr(module, attr)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        # Short help without importing every command module.
+        rows = [(name, help_) for name, (_, _, help_) in COMMANDS.items()]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=_LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="mrft-ident")
+@click.option("--debug", is_flag=True, help="Show full tracebacks instead of one-line errors.")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """Identify multirotor loop models (Td, tau, K) from MRFT flight logs.
+
+    Typical use: ``mrft-ident analyze LOG --tp 0.0422 --loop altitude``.
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: run the CLI and map errors to one line and an exit code."""
+    args = sys.argv[1:] if argv is None else argv
+    debug = "--debug" in args
+    try:
+        cli.main(args=args, prog_name="mrft-ident", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("Aborted.", err=True)
+        sys.exit(130)
+    except click.UsageError as err:
+        # One line, naming the problem and where help is, instead of click's three-line usage block.
+        where = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
+        click.echo(f"error: {err.format_message()}{where}", err=True)
+        sys.exit(err.exit_code)
+    except click.ClickException as err:
+        click.echo(f"error: {err.format_message()}", err=True)
+        sys.exit(err.exit_code)
+    except MrftError as err:
+        if debug:
+            raise
+        click.echo(f"error: {err}", err=True)
+        sys.exit(err.exit_code)
+    except KeyboardInterrupt:
+        click.echo("Interrupted.", err=True)
+        sys.exit(130)
+    except OSError as err:
+        # A path the user gave cannot be written or read (permissions, missing folder, full disk).
+        if debug:
+            raise
+        where = f"{err.filename}: " if err.filename else ""
+        click.echo(f"error: {where}{err.strerror or err}", err=True)
+        sys.exit(2)
+    except Exception as err:  # noqa: BLE001 - last line of defence: never a traceback for users
+        if debug:
+            raise
+        click.echo(f"internal error: {type(err).__name__}: {err} (run with --debug for details)", err=True)
+        sys.exit(1)
+    sys.exit(0)

@@ -1,0 +1,60 @@
+"""``mrft-ident topics LOG``: what a log holds (topics/messages/columns, types, counts, rates)."""
+
+from __future__ import annotations
+
+import click
+
+from .options import dump_json
+
+__all__ = ["topics"]
+
+
+def _rate(value: float | None) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.1f}" if value >= 1 else f"{value:.2g}"  # sparse topics (beta) keep a digit
+
+
+@click.command("topics")
+@click.argument("log", type=click.Path(exists=False, dir_okay=True))
+@click.option("--format", "fmt", default=None, metavar="FMT",
+              help="Log format (mcap, mcap-json, bag, ros2-sqlite3, ros2-mcap, ulog, csv, dataflash); "
+                   "detected from the file when omitted.")
+@click.option("--fields", is_flag=True, help="Also list each topic's numeric fields.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
+    """List the topics of LOG with message types, counts and mean rates.
+
+    For ULog the topics are the logged messages (``name.N`` for instance N), for CSV the columns, for
+    ArduPilot DataFlash the message types. Use the names (and the fields shown by ``--fields``) in
+    ``--command-topic TOPIC[:FIELD]`` / ``--output-topic TOPIC[:FIELD]``.
+    """
+    from ..io import open_log
+
+    with open_log(log, fmt) as source:
+        infos = source.topics()
+        warnings = list(source.warnings)
+        fmt_name = source.format
+        if not any(i.count for i in infos):
+            from ..errors import LogReadError
+
+            raise LogReadError(f"{log}: the log holds no messages (empty or cut off early)")
+    if as_json:
+        dump_json({
+            "path": log,
+            "format": fmt_name,
+            "topics": [{"name": i.name, "type": i.msgtype, "count": i.count, "rate_hz": i.rate_hz,
+                        "fields": list(i.fields)} for i in infos],
+            "warnings": warnings,
+        }, None)
+        return
+    rows = [(i.name, i.msgtype, str(i.count), _rate(i.rate_hz)) for i in infos]
+    head = ("topic", "type", "count", "rate_hz")
+    widths = [max(len(r[k]) for r in [head, *rows]) for k in range(4)]
+    click.echo(f"{log} ({fmt_name}, {len(infos)} topics)")
+    line = "  ".join(f"{{:<{widths[0]}}} {{:<{widths[1]}}} {{:>{widths[2]}}} {{:>{widths[3]}}}".split(" "))
+    click.echo(line.format(*head))
+    for info, row in zip(infos, rows):
+        click.echo(line.format(*row))
+        if fields and info.fields:
+            click.echo("    fields: " + ", ".join(info.fields))

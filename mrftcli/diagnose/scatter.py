@@ -1,0 +1,264 @@
+"""Cycle-to-cycle period scatter of a sampled MRFT: what noise explains, and the delay jitter beyond it.
+
+A relay that decides at controller ticks on noisy samples does not repeat its cycle exactly: every
+switch lands a tick early or late and the period scatters. A transport delay that varies from one
+command to the next (``delay_jitter``) adds to that scatter. No deterministic model predicts the
+scatter cycle by cycle, so the diagnosis compares its *size*: the sample variance of the recorded
+periods against the variance the model produces under the same conditions.
+
+"The same conditions" matters. Delay jitter perturbs a lightly damped closed loop, so the
+period deviations are large (5-7 times the jitter std) and correlated from cycle to cycle, and the
+cycles that survive a stability filter are a truncated sample. Both make the variance of a short
+recorded test smaller than the loop's long-run variance (about 25 % smaller for a 12 ms jitter on the
+paper's platforms, measured with the project simulator). The model's variance is therefore
+computed exactly as the recorded one is:
+
+* the sampled relay (:func:`mrftcli.diagnose.limit_cycles.run_relay`, sampled mode) runs several windows of
+  as many cycles as the recorded test had,
+* every window goes through the same cycle filter as the recorded test
+  (:func:`mrftcli.segment.core.stable_cycles` with :data:`SCATTER_CRITERION`),
+* the variance is the dof-weighted mean of the windows' sample variances.
+
+The jitter std sigma [s] is then the value whose predicted variances match the recorded ones, in
+the least-squares sense on log variance (each test weighted by its degrees of freedom, since
+var(log s^2) = 2 / (n - 1)). The prediction is calibrated by simulation at the estimate and the
+estimate refined, a few times: the variance is close to s0^2 + c^2 sigma^2 (s0 the noise-only
+scatter) but the filter makes c fall slowly as sigma grows. All simulations of one test use the same
+random numbers (common random numbers), so the calibration is smooth in sigma.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from .limit_cycles import Plant, run_relay
+from ..segment.core import StabilityCriterion, stable_cycles
+
+__all__ = ["SCATTER_CRITERION", "ScatterSetting", "scatter_sample", "expected_period_variance",
+           "fit_jitter", "JitterFit", "pooled_scatter_error"]
+
+#: The cycle filter of the scatter statistic. Same robust rule as the segmenter's (4 robust sigma
+#: about the median of the test's second half, a floor of 3 ticks / 6 % of the period and 12 % of the
+#: amplitude), but with wide caps: the segmenter caps the tolerances at 15 % / 25 % to keep only
+#: clean limit cycles for identification, which under a large jitter throws away most cycles and
+#: truncates the very scatter that measures it. In a clean log the floors bind and both agree.
+SCATTER_CRITERION = StabilityCriterion(period_cap_rel=0.35, amplitude_cap_rel=0.6)
+
+#: windows simulated per scatter prediction (each as long as the recorded test)
+N_WINDOWS = 8
+
+
+@dataclass(frozen=True)
+class ScatterSetting:
+    """What the sampled relay of one test needs to reproduce its scatter.
+
+    Attributes
+    ----------
+    plant : Plant
+        The loop model (deviation coordinates).
+    beta : float
+        Nominal beta of the log's relay (it decides on noisy samples with this level).
+    h : float
+        Relay half-height [command units].
+    rate_hz : float
+        Controller rate [Hz].
+    noise_std : float
+        Sensor noise std [output units].
+    n_window : int
+        Regular cycles in the recorded test: each simulated window has as many.
+    period : float
+        Recorded mean period [s] (a simulated relay silent for 5 periods has locked up: stop).
+    warm : dict or None
+        Loop state on the limit cycle (from :func:`mrftcli.diagnose.limit_cycles.run_relay`), so windows start
+        in steady oscillation.
+    """
+
+    plant: Plant
+    beta: float
+    h: float
+    rate_hz: float
+    noise_std: float
+    n_window: int
+    period: float
+    warm: dict | None = None
+
+
+def scatter_sample(period: np.ndarray, amplitude: np.ndarray, regular: np.ndarray, dt: float) -> np.ndarray:
+    """Mask of the cycles whose periods make the scatter statistic (:data:`SCATTER_CRITERION`).
+
+    Parameters
+    ----------
+    period, amplitude : numpy.ndarray
+        Per-cycle period [s] and amplitude [output units] of one test, in order.
+    regular : numpy.ndarray of bool
+        Cycles without gaps or glitches.
+    dt : float
+        Controller tick [s].
+    """
+    keep, _, _ = stable_cycles(period, amplitude, regular, dt, SCATTER_CRITERION)
+    return keep
+
+
+def expected_period_variance(setting: ScatterSetting, jitter_std: float, *, n_windows: int = N_WINDOWS,
+                             seed: int = 1) -> tuple[float, int]:
+    """Expected sample variance of a recorded test's filtered periods [s^2], and its degrees of freedom.
+
+    The sampled relay runs ``n_windows`` consecutive windows of ``setting.n_window`` cycles with
+    sensor noise and a Gauss-Markov delay jitter of std ``jitter_std`` [s]; each window's cycles are
+    filtered by :func:`scatter_sample` and their sample variance taken; the result is the
+    dof-weighted mean. Returns ``(nan, 0)`` when the relay breaks down (no usable window).
+    """
+    s = setting
+    n_w = max(int(s.n_window), 4)
+    skip = 1 if s.warm is not None else 6  # past the start-up (a warm run starts on the limit cycle)
+    dt = 1.0 / s.rate_hz
+    num = 0.0
+    dof = 0
+    done = 0
+    # the plain MRFT rule can lock up on a noise-triggered false switch (docs/simulator.md); the log's
+    # relay evidently did not, so a run that locks up keeps its complete windows and restarts from
+    # the limit cycle with fresh random numbers (a fixed sequence of seeds: still common random numbers)
+    for attempt in range(4):
+        todo = n_windows - done
+        if todo <= 0:
+            break
+        n_cycles = n_w * todo + skip + 1
+        run = run_relay(s.plant, s.beta, s.h, s.rate_hz, n_cycles, warm=s.warm, sampled=True,
+                        noise_std=s.noise_std, jitter_std=jitter_std, seed=seed + 7919 * attempt,
+                        max_time=(n_cycles + 4) * 3.0 * s.period, max_gap=5.0 * s.period)
+        up = run.up[skip:]
+        if up.size < n_w + 1:
+            continue
+        per = np.diff(up)
+        k = np.searchsorted(run.t, up)
+        amp = np.array([0.5 * (run.y[a:b].max() - run.y[a:b].min()) if b > a else np.nan
+                        for a, b in zip(k[:-1], k[1:])])
+        for w in range(min(per.size // n_w, todo)):
+            sl = slice(w * n_w, (w + 1) * n_w)
+            P, A = per[sl], amp[sl]
+            keep = scatter_sample(P, A, np.isfinite(A), dt)
+            n = int(keep.sum())
+            done += 1
+            if n >= 3:
+                num += (n - 1) * float(np.var(P[keep], ddof=1))
+                dof += n - 1
+    if dof == 0:
+        return float("nan"), 0
+    return num / dof, dof
+
+
+@dataclass(frozen=True)
+class JitterFit:
+    """Delay-jitter std fitted to recorded period variances.
+
+    Attributes
+    ----------
+    sigma : float
+        Jitter std [s] (0 when the recorded scatter is what noise explains).
+    noise_var : numpy.ndarray
+        Per test, the predicted period variance without jitter [s^2].
+    slope : numpy.ndarray
+        Per test, c^2 in var = noise_var + c^2 sigma^2, calibrated at ``sigma`` [1].
+    iterations : int
+        Calibration simulations run.
+    """
+
+    sigma: float
+    noise_var: np.ndarray
+    slope: np.ndarray
+    iterations: int
+
+    def predicted_var(self, sigma: float | None = None) -> np.ndarray:
+        """Per-test period variance [s^2] at jitter ``sigma`` (default: the fitted one)."""
+        s = self.sigma if sigma is None else sigma
+        return self.noise_var + self.slope * s * s
+
+
+def _ls_sigma(v_rec: np.ndarray, w: np.ndarray, v0: np.ndarray, c2: np.ndarray, upper: float) -> float:
+    """sigma minimising sum w (log v_rec - log(v0 + c2 sigma^2))^2 on [0, upper]."""
+    ok = np.isfinite(v_rec) & (v_rec > 0) & np.isfinite(v0) & (v0 > 0) & np.isfinite(c2) & (w > 0)
+    if not ok.any():
+        return 0.0
+    v_rec, w, v0, c2 = v_rec[ok], w[ok], v0[ok], c2[ok]
+
+    def cost(sig: float) -> float:
+        r = np.log(v_rec) - np.log(v0 + c2 * sig * sig)
+        return float(np.sum(w * r * r))
+
+    # the cost is smooth and unimodal in sigma^2 >= 0; a bounded scalar search on sigma suffices
+    res = minimize_scalar(cost, bounds=(0.0, upper), method="bounded", options={"xatol": upper * 1e-5})
+    return float(res.x) if cost(res.x) < cost(0.0) else 0.0
+
+
+def fit_jitter(v_rec: np.ndarray, n_rec: np.ndarray, noise_var: np.ndarray,
+               calibrate: Callable[[float], np.ndarray], *, trial: float = 0.005, upper: float = 0.2,
+               max_iter: int = 4, rtol: float = 0.03) -> JitterFit:
+    """Fit the delay-jitter std to the recorded per-test period variances.
+
+    Parameters
+    ----------
+    v_rec : numpy.ndarray
+        Recorded sample variance of each test's periods [s^2].
+    n_rec : numpy.ndarray
+        Cycles behind each variance (weights n - 1).
+    noise_var : numpy.ndarray
+        Predicted variance without jitter [s^2] (nan where the prediction failed: that test is
+        left out).
+    calibrate : callable
+        ``calibrate(sigma)`` -> predicted per-test variance at jitter ``sigma`` [s^2] (same random
+        numbers at every call).
+    trial : float
+        First calibration point [s].
+    upper : float
+        Largest sigma considered [s].
+    """
+    v_rec = np.asarray(v_rec, float)
+    w = np.maximum(np.asarray(n_rec, float) - 1.0, 0.0)
+    v0 = np.asarray(noise_var, float)
+    f = np.asarray(calibrate(trial), float)
+    c2 = np.maximum(f - v0, 1e-14) / trial**2
+    it = 1
+    sigma = _ls_sigma(v_rec, w, v0, c2, upper)
+    for _ in range(max_iter):
+        if sigma <= 0.1 * trial:
+            break  # nothing beyond the noise: no need to calibrate closer
+        f = np.asarray(calibrate(sigma), float)
+        it += 1
+        good = np.isfinite(f)
+        c2 = np.where(good, np.maximum(f - v0, 1e-14) / sigma**2, c2)
+        new = _ls_sigma(v_rec, w, v0, c2, upper)
+        done = abs(new - sigma) <= rtol * sigma
+        sigma = new
+        if done:
+            break
+    return JitterFit(sigma=sigma, noise_var=v0, slope=c2, iterations=it)
+
+
+def refit_sigma(fit: JitterFit, v_rec: np.ndarray, n_rec: np.ndarray, upper: float = 0.2) -> float:
+    """sigma [s] for other recorded variances (e.g. the fitting half of the cycles) with ``fit``'s calibration."""
+    w = np.maximum(np.asarray(n_rec, float) - 1.0, 0.0)
+    return _ls_sigma(np.asarray(v_rec, float), w, fit.noise_var, fit.slope, upper)
+
+
+def pooled_scatter_error(v_rec: np.ndarray, n_rec: np.ndarray, v_pred: np.ndarray) -> float | None:
+    """Relative error of a predicted period scatter, pooled over tests: |s_rec - s_pred| / s_rec.
+
+    With r = sum (n - 1) v_rec / v_pred / sum (n - 1) the pooled ratio of recorded to predicted
+    variance, the error is |1 - 1 / sqrt(r)|: 0 when the prediction is right, near 1 when the
+    prediction is far too small. Pooling the tests' degrees of freedom (rather than averaging
+    per-test errors) keeps the sampling error of a handful of held-out cycles per test small:
+    about 1/sqrt(2 sum (n - 1)).
+    """
+    v_rec = np.asarray(v_rec, float)
+    v_pred = np.asarray(v_pred, float)
+    w = np.maximum(np.asarray(n_rec, float) - 1.0, 0.0)
+    ok = np.isfinite(v_rec) & np.isfinite(v_pred) & (v_pred > 0) & (w > 0)
+    if not ok.any():
+        return None
+    r = float(np.sum(w[ok] * v_rec[ok] / v_pred[ok]) / np.sum(w[ok]))
+    return abs(1.0 - 1.0 / math.sqrt(r)) if r > 0 else 1.0

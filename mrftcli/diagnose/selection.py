@@ -1,0 +1,970 @@
+"""Diagnose where the identified linear model and a flight log disagree, and which physics explains it.
+
+Pipeline (``docs/diagnose.md`` walks through a case):
+
+1. **Measure.** The MRFT tests and their stable cycles come from :func:`mrftcli.segment.core.segment`
+   (or from an :class:`~mrftcli.analyze.AnalysisResult` already computed). Every cycle is measured by
+   :func:`mrftcli.diagnose.features.cycle_table`: period, half-period balance, the noise-free
+   waveform (harmonics 1..7 of the cycle), amplitude, centre, per-harmonic response Y_k/U_k and the
+   switching levels the relay actually achieved (effective beta, per switch direction).
+2. **Split.** Even-numbered stable cycles of each test are the fitting set, odd ones are held out.
+3. **Base model.** Td and tau (K in closed form, Lemma 2) are fitted to the fitting set's features:
+   per test the mean period, balance, log amplitude, centre, shape (Y3/Y1, Y5/Y1), amplitude and
+   balance trends. The model's features come from its exact limit cycle under the same MRFT
+   settings (effective betas, h, rate) computed by :mod:`mrftcli.diagnose.limit_cycles`. Each residual is
+   weighted by its standard error (cycle-to-cycle spread / sqrt(n), with a small floor for the
+   modelling approximations), so chi^2 is in units of what the noise explains. The cycle-to-cycle
+   period scatter is compared with what the base model plus sensor noise produces on a sampled relay.
+4. **Candidates** (:mod:`mrftcli.diagnose.physics`): each augments the model with one parameter and is
+   refitted together with Td and tau. Evidence: BIC = chi^2 + k ln n over the same features;
+   ``delta_bic`` = BIC(base) - BIC(candidate). An effect is reported when delta_bic >= 10 ("very
+   strong" on Kass-Raftery's scale) *and* it improves the held-out cycles (feature chi^2 and
+   waveform NRMSE); otherwise nothing is reported.
+5. **Locate.** The base model's residuals say which test, which feature (period, a half-period,
+   amplitude, a harmonic, a trend, the scatter), which time segment and by how much.
+
+Everything here is pure computation on a :class:`~mrftcli.io.logtypes.FlightLog`; I/O is limited to
+reading the log when a path is given.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from .features import FEATURE_NAMES, summarize_features
+from .fit import (MIN_CYCLES, CycleModel, Fit, ModelCycle, MrftTestCycles, candidate_starts, effect_value,
+                           feature_mask, feature_sigma, fit_base, fit_model, plant_params, prepare_tests, segments_of,
+                           theta_bounds)
+from .physics import BY_NAME, CANDIDATES, Candidate
+from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
+from ..errors import DiagnoseError, InputError
+from ..io.logtypes import FlightLog
+
+__all__ = ["diagnose", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
+
+#: delta BIC above which an effect counts as found (Kass & Raftery: > 10 is very strong evidence)
+BIC_THRESHOLD = 10.0
+#: held-out confirmation: the candidate must lower the held-out features' chi^2 by at least this much
+#: (2 ln of the likelihood ratio on cycles it was not fitted on; the same "very strong" level)
+HOLDOUT_THRESHOLD = 10.0
+
+_FEATURE_TEXT = {
+    "period": "oscillation period",
+    "balance": "half-period balance (time at +h vs -h)",
+    "log_amplitude": "amplitude",
+    "centre": "oscillation centre relative to the setpoint",
+    "h3_re": "3rd-harmonic content of the waveform",
+    "h3_im": "3rd-harmonic content of the waveform",
+    "h5_re": "5th-harmonic content of the waveform",
+    "h5_im": "5th-harmonic content of the waveform",
+    "amplitude_trend": "amplitude trend over time",
+    "balance_trend": "half-period balance trend over time",
+    "period_scatter": "cycle-to-cycle period scatter",
+}
+
+
+# --------------------------------------------------------------------------------------------------
+# result types
+
+
+@dataclass
+class EffectFinding:
+    """A candidate effect with its fit and evidence (``to_dict`` gives the JSON item)."""
+
+    name: str
+    explanation: str
+    augmentation: str
+    parameters: dict
+    evidence: dict
+    fit_before: dict
+    fit_after: dict
+    identification: dict
+    harmonics: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "explanation": self.explanation,
+            "augmentation": self.augmentation,
+            "parameters": self.parameters,
+            "evidence": self.evidence,
+            "fit_before": self.fit_before,
+            "fit_after": self.fit_after,
+            "identification": self.identification,
+            "harmonics": self.harmonics,
+        }
+
+
+@dataclass
+class DiagnosisResult:
+    """What :func:`diagnose` found.
+
+    Attributes
+    ----------
+    path, loop : str
+        The log and loop.
+    Tp : float
+        The propulsion time constant used [s].
+    effects : list of EffectFinding
+        Effects the evidence supports (empty when the linear model explains the log).
+    candidates : list of dict
+        Every candidate's evidence and held-out scores (including the rejected ones).
+    second_effect_candidates : list of dict
+        When an effect was found: every other candidate fitted together with it, with its evidence
+        and held-out scores against the first effect's model (a second effect is reported when it
+        passes the same rules).
+    located : list of dict
+        Where the base model disagrees with the recording, largest first.
+    identification : dict
+        The base (linear) fit and, per found effect, the refit that accounts for it; the analysis'
+        own identification when one was given.
+    tests : list of dict
+        Per test: beta (nominal, effective up/down), h, bias, cycles used, times.
+    noise_std : float
+        Sensor noise estimated from the residual of the cycle projections [output units].
+    summary : str
+        One sentence.
+    """
+
+    path: str
+    loop: str
+    Tp: float
+    effects: list
+    candidates: list
+    located: list
+    identification: dict
+    tests: list
+    noise_std: float
+    summary: str
+    warnings: list = field(default_factory=list)
+    second_effect_candidates: list = field(default_factory=list)
+    _plot: dict = field(default_factory=dict, repr=False)
+
+    def to_dict(self) -> dict:
+        return {
+            "path": self.path,
+            "loop": self.loop,
+            "Tp": self.Tp,
+            "summary": self.summary,
+            "effects": [e.to_dict() for e in self.effects],
+            "located": self.located,
+            "identification": self.identification,
+            "candidates": self.candidates,
+            "second_effect_candidates": self.second_effect_candidates,
+            "tests": self.tests,
+            "noise_std": self.noise_std,
+            "nrmse_definition": (
+                "held-out (odd) stable cycles; waveform NRMSE = RMS(recorded - model) / RMS(recorded - its "
+                "cycle mean), recorded waveform projected on harmonics 1-7 of each cycle (sensor noise "
+                "removed), recorded and model cycles both aligned at the -h -> +h switch and put on the mean "
+                "held-out period of the test (phase-normalised: the period is judged by the feature z-scores, "
+                "whose standard errors account for the few-cycle sampling error of the mean period); the "
+                "cycle-to-cycle scatter of the recording that no deterministic model can predict (residual of a "
+                "per-phase linear trend over the held-out cycles of each test, dof-corrected; reported as "
+                "scatter_nrmse) is subtracted from the mean square error (nrmse_raw keeps it; nrmse_timed also "
+                "keeps the model's own period, and is what confirms a candidate, with a held-out feature chi^2 "
+                "gain of at least 10); for delay_jitter the nrmse is the relative error of the predicted "
+                "cycle-to-cycle period scatter on the held-out cycles, pooled over the tests"
+            ),
+            "warnings": self.warnings,
+        }
+
+
+# --------------------------------------------------------------------------------------------------
+# cycle-to-cycle period scatter (sampled relay with noise, and delay jitter: mrftcli.diagnose.scatter)
+
+
+def _scatter_reference(tests: list[MrftTestCycles], model: CycleModel, fit: Fit, noise: float) -> list[dict]:
+    """Per test: the sampled-relay setting of a fitted model (the linear one, or with a found effect)
+    and the period variance that noise alone explains."""
+    p = model.unpack(fit.theta)
+    out = []
+    for i, t in enumerate(tests):
+        plant, gain = model.plant(p, t, float(np.mean(t.tab.t_mid)))
+        K = fit.K * gain
+        # the model plant is at K = 1: the output scales with K, so a drag per output unit divides by it
+        plant = replace(plant, K=K, quadratic_drag=plant.quadratic_drag / K)
+        warm = model.warm.get(i)
+        if warm is not None:
+            # the warm state was computed at K = 1: output and rate scale with K, the propulsion state not
+            x = np.asarray(warm["x"], float).copy()
+            x[:2] *= K
+            x[3:] *= K
+            warm = dict(warm, x=x, e_prev=warm["e_prev"] * K, de_prev=warm["de_prev"] * K, e_ext=warm["e_ext"] * K)
+        setting = ScatterSetting(plant=plant, beta=t.beta_nominal if t.beta_nominal is not None else float(np.mean(t.beta)),
+                                 h=t.h, rate_hz=t.rate_hz, noise_std=noise, n_window=max(t.n_window, len(t.tab)),
+                                 period=float(np.mean(t.tab.period)), warm=warm)
+        v0, dof = expected_period_variance(setting, 0.0)
+        if not (np.isfinite(v0) and math.sqrt(v0) < 0.2 * float(np.mean(t.tab.period))):
+            v0, dof = float("nan"), 0  # the sampled relay broke down (false switches): no scatter reference
+        out.append({"setting": setting, "v0": v0, "s0": math.sqrt(v0) if np.isfinite(v0) else float("nan"), "dof": dof})
+    return out
+
+
+def _scatter_z(tests: list[MrftTestCycles], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
+    """z of log(recorded / predicted period scatter) per test, for the 'fit', 'hold' or all cycles."""
+    out = []
+    for t, sc, vp in zip(tests, scatter, v_pred):
+        v_rec, n = t.scatter_var(sel)
+        if not (np.isfinite(vp) and np.isfinite(sc["v0"]) and np.isfinite(v_rec)) or sc["dof"] == 0:
+            out.append(0.0)
+            continue
+        v_floor = (0.5 / t.rate_hz) ** 2 / 3.0  # never compare below the tick quantisation
+        se = math.sqrt(1.0 / (2 * (n - 1)) + 1.0 / (2 * sc["dof"]))
+        out.append(0.5 * math.log(max(v_rec, v_floor) / max(vp, v_floor)) / se)
+    return np.array(out)
+
+
+# --------------------------------------------------------------------------------------------------
+# waveform NRMSE and harmonics
+
+
+def _model_wave(ev: ModelCycle, K: float, t_rel: np.ndarray, period: float | None = None) -> np.ndarray:
+    """The model cycle at times ``t_rel`` after its -h -> +h switch; with ``period`` [s] it is put on
+    that period (phase-normalised) instead of its own."""
+    c = ev.cycle
+    if period is not None:
+        t_rel = t_rel * (c.period[0] / period)
+    return K * c.waveform(0, c.start[0] + t_rel, trend=False)
+
+
+def _waveform_errors(test: MrftTestCycles, mask: np.ndarray, evs: list, K: float, t_refs: np.ndarray | None = None,
+                     flight_t: np.ndarray | None = None, phase: bool = False
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per selected cycle: sum of squared error, sum of squares about the mean, and per half (high, low).
+
+    ``phase=True`` puts the model cycle on the same reference period as the recorded ones (the
+    held-out NRMSE: a 0.3 % period error, the sampling error of the mean of a few periods, would
+    otherwise make 2-3 % of waveform error; the period is judged by the feature z-scores).
+    """
+    tab = test.tab
+    idx = np.flatnonzero(mask)
+    sse = np.zeros(idx.size)
+    sst = np.zeros(idx.size)
+    sse_hi = np.zeros(idx.size)
+    sse_lo = np.zeros(idx.size)
+    # Each recorded cycle is put on the mean period of the selected cycles (phase-normalised): the
+    # cycle-to-cycle timing scatter of a sampled, noisy relay (a tick or two) is not a model error,
+    # a systematic period error still is unless ``phase`` (the model cycle keeps its own period).
+    P_ref = float(np.mean(tab.period[idx])) if idx.size else 1.0
+    for j, i in enumerate(idx):
+        P = P_ref
+        tt = np.linspace(0.0, P, 200, endpoint=False)
+        y_rec = tab.waveform(i, tab.start[i] + tt * tab.period[i] / P_ref)
+        Pm = P_ref if phase else None
+        if len(evs) == 1:
+            y_mod = _model_wave(evs[0], K, tt, Pm)
+        else:  # quasi-static models at several times: interpolate linearly in time
+            tm = tab.start[i] + 0.5 * P
+            w = np.interp(tm, t_refs, np.arange(len(evs)))
+            a = int(min(math.floor(w), len(evs) - 2))
+            lam = w - a
+            y_mod = (1 - lam) * _model_wave(evs[a], K, tt, Pm) + lam * _model_wave(evs[a + 1], K, tt, Pm)
+        err = y_rec - y_mod
+        sse[j] = float(err @ err) / tt.size
+        sst[j] = float(np.var(y_rec))
+        hi = tt < tab.high[i] * P_ref / tab.period[i]
+        sse_hi[j] = float(np.mean(err[hi] ** 2)) if hi.any() else 0.0
+        sse_lo[j] = float(np.mean(err[~hi] ** 2)) if (~hi).any() else 0.0
+    return sse, sst, sse_hi, sse_lo
+
+
+def _cycle_scatter(test: MrftTestCycles, mask: np.ndarray) -> float:
+    """Sum over the selected recorded cycles of their cycle-to-cycle scatter [output units^2 x cycles].
+
+    The sampled relay decides on noisy samples, so every cycle's switch instants and centre move
+    by a tick or a fraction of a millimetre: the recorded cycles scatter about the waveform the
+    plant would repeat, and no deterministic model can predict that part. For the n selected
+    cycles y_i (on the same phase grid as in :func:`_waveform_errors`) and any model m_i,
+    E sum_i |y_i - m_i|^2 = sum_i |mu_i - m_i|^2 + n s^2, mu_i the scatter-free waveform. With
+    mu_i = a + b t_i (a slow drift such as a battery sag is not scatter) the residual sum of squares
+    of the per-phase least-squares line is (n - 2) s^2, so n s^2 = RSS n / (n - 2) (for n = 3 a
+    constant a: RSS n / (n - 1)). Subtracting it leaves an unbiased estimate of the systematic error.
+    """
+    tab = test.tab
+    idx = np.flatnonzero(mask)
+    n = idx.size
+    if n < 3:
+        return 0.0
+    P_ref = float(np.mean(tab.period[idx]))
+    tt = np.linspace(0.0, P_ref, 200, endpoint=False)
+    Y = np.array([tab.waveform(i, tab.start[i] + tt * tab.period[i] / P_ref) for i in idx])
+    tm = tab.start[idx] - tab.start[idx].mean()
+    X = np.column_stack([np.ones(n), tm]) if n >= 4 else np.ones((n, 1))
+    coef, *_ = np.linalg.lstsq(X, Y, rcond=None)
+    rss = float(np.sum((Y - X @ coef) ** 2)) / tt.size
+    return rss * n / (n - X.shape[1])
+
+
+def _harmonic_errors(test: MrftTestCycles, mask: np.ndarray, ev: ModelCycle, K: float) -> dict:
+    """Relative error of the measured G(j k Omega) = Y_k/U_k against the model's, odd k."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        G_rec = np.nanmean(test.tab.G[mask], axis=0)
+    G_mod = K * ev.cycle.G[0]
+    out = {}
+    for k in (1, 3, 5, 7):
+        if np.isfinite(G_rec[k]) and np.isfinite(G_mod[k]) and abs(G_mod[k]) > 0:
+            out[str(k)] = float(abs(G_rec[k] - G_mod[k]) / abs(G_mod[k]))
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# the diagnosis
+
+
+def _held_out(model: CycleModel, fit: Fit, tests: list[MrftTestCycles], recs_hold: list) -> dict:
+    """Score a fitted model on the held-out cycles: feature z RMS and waveform NRMSE."""
+    zs = []
+    sse = sst = floor = sse_timed = 0.0
+    per_test = []
+    per_test_raw = []
+    ia = FEATURE_NAMES.index("log_amplitude")
+    gain_times = "gain_drift" in model.names
+    for i, (test, (f_rec, s)) in enumerate(zip(tests, recs_hold)):
+        ev = model.evaluate(fit.theta, i, f_rec.t_mean, key=1000 + i)
+        if ev is None:
+            return {"nrmse": None, "feature_rms_z": None}
+        fm = ev.features.copy()
+        fm[ia] += math.log(fit.K)
+        z = ((f_rec.values - fm) / s)[feature_mask(test)]
+        zs.append(z)
+        if gain_times:
+            t_refs = np.array([test.t_start, 0.5 * (test.t_start + test.t_end), test.t_end])
+            evs = [model.evaluate(fit.theta, i, tr, key=2000 + 10 * i + j) for j, tr in enumerate(t_refs)]
+            if any(e is None for e in evs):
+                return {"nrmse": None, "feature_rms_z": None}
+        else:
+            t_refs, evs = None, [ev]
+        e, v, _, _ = _waveform_errors(test, test.hold, evs, fit.K, t_refs, phase=True)
+        sse_timed += float(_waveform_errors(test, test.hold, evs, fit.K, t_refs)[0].sum())
+        # the cycle-to-cycle scatter of the recording (relay ticks on noisy samples) is the same for
+        # every model: it is taken out, so the NRMSE measures the systematic (model) error
+        fl = _cycle_scatter(test, test.hold)
+        sse += float(e.sum())
+        sst += float(v.sum())
+        floor += fl
+        per_test.append(math.sqrt(max(e.sum() - fl, 0.0) / v.sum()) if v.sum() > 0 else None)
+        per_test_raw.append(math.sqrt(e.sum() / v.sum()) if v.sum() > 0 else None)
+    z = np.concatenate(zs)
+    return {
+        "nrmse": math.sqrt(max(sse - floor, 0.0) / sst) if sst > 0 else None,
+        "nrmse_raw": math.sqrt(sse / sst) if sst > 0 else None,
+        "nrmse_timed": math.sqrt(sse_timed / sst) if sst > 0 else None,
+        "scatter_nrmse": math.sqrt(floor / sst) if sst > 0 else None,
+        "nrmse_per_test": per_test,
+        "nrmse_raw_per_test": per_test_raw,
+        "feature_rms_z": float(np.sqrt(np.mean(z**2))),
+        "feature_chi2": float(z @ z),
+        "cycles": int(sum(int(t.hold.sum()) for t in tests)),
+    }
+
+
+def diagnose(
+    flight: FlightLog | str | Path | None = None,
+    Tp: float | None = None,
+    analysis: Any = None,
+    *,
+    path: str | Path | None = None,
+    tp: float | None = None,
+    loop: str | None = None,
+    command_topic: str | None = None,
+    output_topic: str | None = None,
+    beta_topic: str | None = None,
+    setpoint_topic: str | None = None,
+    output_scale: float | None = None,
+    candidates: tuple[str, ...] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> DiagnosisResult:
+    """Locate model mismatch in an MRFT flight log, name the missing physics, fit it, compare.
+
+    Parameters
+    ----------
+    flight : FlightLog or path
+        The log (already read), or a path that is read with :func:`mrftcli.io.read_flight`
+        using ``loop`` and the topic options. ``path=`` is accepted as an alias.
+    Tp : float
+        Propulsion time constant [s] (known from a bench test, as for ``analyze``). ``tp=`` alias.
+    analysis : AnalysisResult, optional
+        An analysis of the same log already computed (its segmentation is reused and its
+        identification is reported beside the diagnosis' own fits).
+    loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale
+        Passed to the reader when ``flight`` is a path.
+    candidates : tuple of str, optional
+        Restrict the candidate library (JSON names); default all.
+    progress : callable, optional
+        Called with a short text before each stage (for a progress bar).
+
+    Returns
+    -------
+    DiagnosisResult
+
+    Raises
+    ------
+    InputError
+        Tp missing or not positive, unknown candidate name.
+    SegmentationError, LogReadError
+        From reading/segmenting the log.
+    DiagnoseError
+        No test with enough stable cycles, or the base model cannot reproduce any limit cycle.
+    """
+    Tp = Tp if Tp is not None else tp
+    if Tp is None or not (isinstance(Tp, (int, float)) and math.isfinite(Tp) and Tp > 0):
+        raise InputError(f"Tp must be a positive time in seconds (the bench-measured propulsion time constant), got {Tp!r}")
+    if flight is None:
+        flight = path
+    if flight is None and analysis is not None:
+        flight = getattr(analysis, "flight", None)
+    if flight is None:
+        raise InputError("give the flight log (a FlightLog or a path)")
+    if not isinstance(flight, FlightLog):
+        from ..io import read_flight
+
+        kw = {}
+        for name, value in (("command_topic", command_topic), ("output_topic", output_topic),
+                            ("beta_topic", beta_topic), ("setpoint_topic", setpoint_topic),
+                            ("output_scale", output_scale)):
+            if value is not None:
+                kw[name] = value
+        flight = read_flight(str(flight), loop or "altitude", **kw)
+    names = [c.name for c in CANDIDATES] if candidates is None else list(candidates)
+    for n in names:
+        if n not in BY_NAME:
+            raise InputError(f"unknown candidate effect {n!r}; choose from {', '.join(BY_NAME)}")
+    say = progress or (lambda _msg: None)
+
+    say("segmenting")
+    segs = segments_of(flight, analysis)
+    tests, noise, warnings = prepare_tests(flight, segs)
+    if not tests:
+        raise DiagnoseError(
+            f"{flight.path}: no MRFT test with at least {MIN_CYCLES} stable cycles; the diagnosis compares "
+            "cycles, so record longer tests"
+        )
+    if len({round(np.mean(t.beta), 2) for t in tests}) < 2:
+        warnings.append("all tests share one beta: Td and tau are fitted from the waveform shape alone (weakly identified)")
+
+    recs_fit = []
+    recs_hold = []
+    recs_all = []
+    for t in tests:
+        for mask, store in ((t.fit, recs_fit), (t.hold, recs_hold), (np.ones(len(t.tab), bool), recs_all)):
+            f = summarize_features(t.tab.subset(mask))
+            store.append((f, feature_sigma(f.sigma, f.values)))
+
+    # ---- base model
+    say("fitting the linear model")
+    base_model = CycleModel(None, tests, Tp)
+    lo, hi = theta_bounds(None, tests)
+    base = fit_base(base_model, tests, Tp, lo, hi, recs_fit)
+    if not base.ok:
+        raise DiagnoseError(f"{flight.path}: the linear model reproduces no limit cycle close to the recorded ones")
+    n_data = base.n
+
+    # ---- scatter predicted by noise on a sampled relay (base model)
+    say("simulating the noise-driven scatter")
+    scatter = _scatter_reference(tests, base_model, base, noise)
+
+    def scatter_z(sel: str, v_pred: list[float]) -> np.ndarray:
+        return _scatter_z(tests, scatter, sel, v_pred)
+
+    z_sc_base = scatter_z("fit", [sc["v0"] for sc in scatter])
+    chi2_base = base.chi2 + float(z_sc_base @ z_sc_base)
+    n_all = n_data + len(tests)
+    bic_base = chi2_base + base.k * math.log(n_all)
+
+    before = _held_out(base_model, base, tests, recs_hold)
+
+    # ---- candidates
+    cand_rows = []
+    fits: dict[str, tuple[CycleModel, Fit]] = {}
+    for cand in CANDIDATES:
+        if cand.name not in names:
+            continue
+        say(f"fitting {cand.name}")
+        if cand.stochastic:
+            row = _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all)
+            cand_rows.append(row)
+            continue
+        model = CycleModel(cand, tests, Tp)
+        lo, hi = theta_bounds(cand, tests)
+        best = None
+        starts = candidate_starts(cand, base, tests, recs_fit, Tp)
+        if len(starts) > 2:
+            # profile over the grid: at each grid value fit Td and tau with the effect held (the effect
+            # and the delay trade off along a curved valley), then refine the two best freely
+            prof = []
+            free = np.ones(len(starts[0]), bool)
+            free[2:] = False
+            for th in starts:
+                pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=16, free=free)
+                if pf.ok and np.isfinite(pf.chi2):
+                    prof.append(pf)
+            prof.sort(key=lambda f: f.chi2)
+            starts = [pf.theta for pf in prof[:2]]
+        for th in starts:
+            f = fit_model(model, th, lo, hi, recs_fit)
+            if f.ok and (best is None or f.chi2 < best.chi2):
+                best = f
+        if best is None:
+            cand_rows.append({"name": cand.name, "delta_bic": None, "status": "fit failed"})
+            continue
+        chi2 = best.chi2 + float(z_sc_base @ z_sc_base)
+        bic = chi2 + best.k * math.log(n_all)
+        after = _held_out(model, best, tests, recs_hold)
+        p = model.unpack(best.theta)
+        value, std = effect_value(cand, model, best, p)
+        fits[cand.name] = (model, best)
+        cand_rows.append(
+            {
+                "name": cand.name,
+                "parameter": cand.parameter,
+                "value": value,
+                "std": std,
+                "unit": cand.unit,
+                "chi2": chi2,
+                "bic": bic,
+                "delta_bic": bic_base - bic,
+                "held_out_before": before,
+                "held_out_after": after,
+                "fit_params": plant_params(model, best),
+            }
+        )
+
+    # ---- selection: strong evidence and confirmed on the held-out cycles
+    for row in cand_rows:
+        row["significant"] = _significant(row)
+    base_params = plant_params(base_model, base)
+    deterministic = sorted((r for r in cand_rows if r["significant"] and r["name"] in fits),
+                           key=lambda r: -r["delta_bic"])
+    stochastic = [r for r in cand_rows if r["significant"] and r["name"] not in fits]
+    effects = []
+    pair_rows: list[dict] = []
+    final = None  # (label, model, fit) of the deterministic model finally chosen (for the plots)
+    if deterministic:
+        first = deterministic[0]
+        m1, f1 = fits[first["name"]]
+        final = (first["name"], m1, f1)
+        effects.append(_finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
+                                _harmonics_before_after(tests, base_model, base, m1, f1),
+                                {"compared_with": "linear", "bic_base": bic_base}, n_all))
+        # forward step: a second effect on top of the first (nested: the pair model with the second
+        # effect's parameter at zero is the first's model), kept on the same evidence and held-out rules
+        say(f"testing a second effect on top of {first['name']}")
+        for row in cand_rows:
+            if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
+                continue
+            pr = _pair_candidate(first, row, fits, tests, Tp, recs_fit, recs_hold, float(z_sc_base @ z_sc_base), n_all)
+            if pr is not None:
+                pair_rows.append(pr)
+        for pr in pair_rows:
+            pr["significant"] = _significant(pr)
+        good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
+        if good:
+            second = good[0]
+            mp, fp = second["_joint_fit"]
+            final = (f"{first['name']} + {second['name']}", mp, fp)
+            # with both effects modelled, both parameters come from the joint fit
+            for e, name in ((effects[0], first["name"]), (None, second["name"])):
+                value, std = effect_value(BY_NAME[name], mp, fp, mp.unpack(fp.theta))
+                if e is not None:
+                    par = BY_NAME[name].parameter
+                    e.parameters[f"{par}_alone"] = e.parameters[par]
+                    e.parameters[f"{par}_alone_std"] = e.parameters[f"{par}_std"]
+                    e.parameters[par], e.parameters[f"{par}_std"] = value, std
+            row2 = dict(second, name=second["name"], value=second["values"][second["name"]],
+                        std=second["stds"][second["name"]])
+            effects.append(_finding(row2, {"linear": base_params, "with_effect": second["fit_params"],
+                                           "model": f"{first['name']}+{second['name']}"},
+                                    _harmonics_before_after(tests, m1, f1, mp, fp),
+                                    {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, n_all))
+    if stochastic and final is not None:
+        # the scatter noise alone explains depends on the loop: judge the jitter again against the
+        # deterministic model found (an actuator slew once made the linear model's noise scatter too small)
+        say(f"testing delay jitter on top of {final[0]}")
+        scatter_f = _scatter_reference(tests, final[1], final[2], noise)
+        again = _jitter_candidate(BY_NAME["delay_jitter"], tests, scatter_f,
+                                  lambda sel, v: _scatter_z(tests, scatter_f, sel, v), final[2], n_all)
+        again["significant"] = _significant(again)
+        again["compared_with"] = f"linear + {final[0]}"
+        for j, row in enumerate(cand_rows):
+            if row["name"] == again["name"]:
+                cand_rows[j] = dict(row, given_effects=again)
+        stochastic = [again] if again["significant"] else []
+    for row in stochastic:
+        # the jitter acts on the cycle-to-cycle scatter only, which the deterministic effects leave alone
+        effects.append(_finding(row, {"linear": base_params, "with_effect": base_params}, {},
+                                {"compared_with": row.get("compared_with", "linear"),
+                                 "bic_base": row["bic"] + row["delta_bic"]}, n_all))
+    for pr in pair_rows:
+        pr.pop("_joint_fit", None)  # the fitted model is not JSON
+
+    # ---- locate (base model against all cycles)
+    say("locating")
+    located, plot = _locate(tests, base_model, base, recs_all, scatter)
+    identification = {"linear": {**base_params, "Tp": Tp}}
+    for e in effects:
+        key = f"with_{e.identification.get('model', e.name)}"
+        identification[key] = {**e.identification["with_effect"], "Tp": Tp}
+    if analysis is not None:
+        identification["analyze"] = _analysis_params(analysis)
+    if effects:
+        parts = [
+            f"{e.name} ({e.parameters.get(BY_NAME[e.name].parameter):.4g} {BY_NAME[e.name].unit}; delta BIC "
+            f"{e.evidence['delta_bic']:.0f} against the {e.evidence['compared_with']} model; held-out NRMSE "
+            f"{_fmt(e.fit_before.get('nrmse'))} -> {_fmt(e.fit_after.get('nrmse'))})"
+            for e in effects
+        ]
+        summary = ("found " if len(parts) > 1 else "") + " and ".join(parts) + (
+            " explains the mismatch" if len(parts) == 1 else "")
+    else:
+        summary = "the linear model explains the log: no candidate effect has strong evidence confirmed on held-out cycles"
+    test_rows = [
+        {
+            "index": t.index,
+            "beta_nominal": t.beta_nominal,
+            "beta_effective_up": t.beta[0],
+            "beta_effective_down": t.beta[1],
+            "h": t.h,
+            "bias": t.bias,
+            "rate_hz": t.rate_hz,
+            "t_start": t.t_start,
+            "t_end": t.t_end,
+            "cycles": len(t.tab),
+            "cycles_fit": int(t.fit.sum()),
+            "cycles_held_out": int(t.hold.sum()),
+            "period_scatter": math.sqrt(t.scatter_var("all")[0]) if t.scatter_var("all")[1] >= 3 else None,
+            "period_scatter_noise_model": sc["s0"],
+        }
+        for t, sc in zip(tests, scatter)
+    ]
+    plot.update({"tests": tests, "base_model": base_model, "base": base, "fits": fits, "flight": flight,
+                 "effects": [e.name for e in effects], "final": final})
+    return DiagnosisResult(
+        path=str(flight.path),
+        loop=flight.loop,
+        Tp=float(Tp),
+        effects=effects,
+        candidates=cand_rows,
+        located=located,
+        identification=identification,
+        tests=test_rows,
+        noise_std=noise,
+        summary=summary,
+        warnings=warnings,
+        second_effect_candidates=pair_rows,
+        _plot=plot,
+    )
+
+
+def _fmt(x) -> str:
+    return "n/a" if x is None else f"{x:.3g}"
+
+
+def _fit_summary(h: dict) -> dict:
+    return {k: h.get(k) for k in ("nrmse", "nrmse_raw", "nrmse_timed", "scatter_nrmse", "feature_rms_z", "feature_chi2",
+                                  "cycles",
+                                  "nrmse_per_test",
+                                  "metric") if k in h}
+
+
+def _significant(row: dict) -> bool:
+    db = row.get("delta_bic")
+    if db is None or not np.isfinite(db) or db < BIC_THRESHOLD:
+        return False
+    b, a = row.get("held_out_before") or {}, row.get("held_out_after") or {}
+    if b.get("nrmse") is None or a.get("nrmse") is None:
+        return False
+    if row["name"] == "delay_jitter":
+        # a jitter below half a controller tick cannot be told from the tick quantisation itself
+        return a["nrmse"] < b["nrmse"] and row.get("value", 0.0) >= row.get("min_value", 0.0)
+    # confirmation on the held-out cycles: the whole waveform error as timed (the model cycle on its own
+    # period, so the period counts; the recording's scatter is common to both sides) must fall, and the
+    # features must be explained better by a clear margin (a small gain on noisy cycles is not a
+    # confirmation: a 13 ms delay jitter once made a trim error pass with a held-out chi^2 gain of 7)
+    key = "nrmse_timed" if a.get("nrmse_timed") is not None and b.get("nrmse_timed") is not None else "nrmse"
+    if b.get("feature_chi2") is not None and a.get("feature_chi2") is not None:
+        features_ok = b["feature_chi2"] - a["feature_chi2"] >= HOLDOUT_THRESHOLD
+    else:
+        features_ok = (a.get("feature_rms_z") or 0) < (b.get("feature_rms_z") or 0)
+    return a[key] < b[key] and features_ok
+
+
+def _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all) -> dict:
+    """Fit the delay-jitter std to the recorded period scatter (:func:`mrftcli.diagnose.scatter.fit_jitter`)."""
+    v0 = np.array([sc["v0"] for sc in scatter])
+    if not np.isfinite(v0).any():
+        return {"name": cand.name, "delta_bic": None, "status": "no scatter reference (the sampled relay broke down)"}
+
+    def calibrate(sigma: float) -> np.ndarray:
+        return np.array([expected_period_variance(sc["setting"], sigma)[0] if np.isfinite(sc["v0"]) else np.nan
+                         for sc in scatter])
+
+    v_all, n_all_c = (np.array(x) for x in zip(*(t.scatter_var("all") for t in tests)))
+    v_fit, n_fit = (np.array(x) for x in zip(*(t.scatter_var("fit") for t in tests)))
+    v_hold, n_hold = (np.array(x) for x in zip(*(t.scatter_var("hold") for t in tests)))
+    # the reported value uses every cycle of the scatter sample (calibrated at that value); the
+    # evidence and the held-out scores use the fit from the even cycles only
+    jf = fit_jitter(v_all, n_all_c, v0, calibrate)
+    sigma_fit = refit_sigma(jf, v_fit, n_fit)
+    v_pred = jf.predicted_var(sigma_fit)
+    z = scatter_z("fit", list(v_pred))
+    chi2 = base.chi2 + float(z @ z)
+    bic = chi2 + (base.k + 1) * math.log(n_all)
+    z_base = scatter_z("fit", list(v0))
+    bic_b = base.chi2 + float(z_base @ z_base) + base.k * math.log(n_all)
+    zh_b = scatter_z("hold", list(v0))
+    zh_a = scatter_z("hold", list(v_pred))
+    # standard error of sigma: var(log s^2) = 2/(n - 1) per test, pooled; d log v / d log sigma = 2 c^2 s^2 / v
+    ok = np.isfinite(v0) & np.isfinite(v_all) & (n_all_c > 1)
+    if jf.sigma > 0 and ok.any():
+        vp = jf.predicted_var()[ok]
+        g = 2.0 * jf.slope[ok] * jf.sigma**2 / vp
+        info = float(np.sum((n_all_c[ok] - 1) / 2.0 * g * g))
+        s_std = jf.sigma / math.sqrt(info) if info > 0 else float("nan")
+    else:
+        s_std = float("nan")
+    metric = "pooled relative error of the held-out cycle-to-cycle period scatter, |s_rec - s_model| / s_rec"
+    cycles = int(n_hold.sum())
+    return {
+        "min_value": 0.5 / min(t.rate_hz for t in tests),
+        "name": cand.name,
+        "parameter": cand.parameter,
+        "value": jf.sigma,
+        "value_fit_cycles": sigma_fit,
+        "std": s_std,
+        "unit": cand.unit,
+        "chi2": chi2,
+        "bic": bic,
+        "delta_bic": bic_b - bic,
+        "held_out_before": {"nrmse": pooled_scatter_error(v_hold, n_hold, v0),
+                            "feature_rms_z": float(np.sqrt(np.mean(zh_b**2))), "metric": metric, "cycles": cycles},
+        "held_out_after": {"nrmse": pooled_scatter_error(v_hold, n_hold, v_pred),
+                           "feature_rms_z": float(np.sqrt(np.mean(zh_a**2))), "metric": metric, "cycles": cycles},
+        "fit_params": None,
+        "calibration_runs": jf.iterations,
+        "period_scatter": {"recorded": [math.sqrt(v) if np.isfinite(v) else None for v in v_all],
+                           "noise_only": [math.sqrt(v) if np.isfinite(v) else None for v in v0],
+                           "with_jitter": [math.sqrt(v) if np.isfinite(v) else None for v in jf.predicted_var()]},
+    }
+
+
+def _finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> EffectFinding:
+    cand = BY_NAME[row["name"]]
+    return EffectFinding(
+        name=cand.name,
+        explanation=cand.explanation,
+        augmentation=cand.augmentation,
+        parameters={cand.parameter: row["value"], f"{cand.parameter}_std": row["std"], "unit": cand.unit,
+                    **(row.get("fit_params") or {})},
+        evidence={"delta_bic": row["delta_bic"], "bic": row["bic"], "n_features": n_all, "threshold": BIC_THRESHOLD,
+                  **evidence},
+        fit_before=_fit_summary(row["held_out_before"]),
+        fit_after=_fit_summary(row["held_out_after"]),
+        identification={k: v for k, v in ident.items() if v is not None},
+        harmonics=harm,
+    )
+
+
+def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[MrftTestCycles], Tp: float, recs_fit: list,
+                    recs_hold: list, chi2_scatter: float, n_all: int) -> dict | None:
+    """Fit the first effect and another one together; evidence and held-out scores against the first alone.
+
+    Started from both single fits (each with the other's parameter taken from its own single fit),
+    the better one kept. ``delta_bic`` = BIC(first) - BIC(pair): the pair has one parameter more.
+    """
+    c1, c2 = BY_NAME[first["name"]], BY_NAME[other["name"]]
+    if c1.replaces_drag and c2.replaces_drag:
+        return None
+    model = CycleModel((c1, c2), tests, Tp)
+    lo, hi = theta_bounds((c1, c2), tests)
+    singles = {c.name: fits[c.name] for c in (c1, c2)}
+
+    def theta_from(lead: Candidate) -> np.ndarray:
+        m_lead, f_lead = singles[lead.name]
+        th = [f_lead.theta[0], f_lead.theta[1]]
+        if any(c.replaces_drag for c in (c1, c2)):
+            q = next(c for c in (c1, c2) if c.replaces_drag)
+            th[0] = singles[q.name][1].theta[0]
+        for c in (c1, c2):
+            j = model.extra_index(c.name)
+            if j is None:
+                continue
+            m_c, f_c = singles[c.name]
+            th.append(f_c.theta[m_c.extra_index(c.name)])
+        return np.array(th)
+
+    best = None
+    for lead in (c1, c2):
+        f = fit_model(model, theta_from(lead), lo, hi, recs_fit)
+        if f.ok and (best is None or f.chi2 < best.chi2):
+            best = f
+    if best is None:
+        return None
+    chi2 = best.chi2 + chi2_scatter
+    bic = chi2 + best.k * math.log(n_all)
+    m1, f1 = fits[c1.name]
+    p = model.unpack(best.theta)
+    values, stds = {}, {}
+    for c in (c1, c2):
+        values[c.name], stds[c.name] = effect_value(c, model, best, p)
+    return {
+        "name": c2.name,
+        "with": c1.name,
+        "parameter": c2.parameter,
+        "values": values,
+        "stds": stds,
+        "unit": c2.unit,
+        "chi2": chi2,
+        "bic": bic,
+        "delta_bic": first["bic"] - bic,
+        "held_out_before": first["held_out_after"],
+        "held_out_after": _held_out(model, best, tests, recs_hold),
+        "fit_params": plant_params(model, best),
+        "_joint_fit": (model, best),
+    }
+
+
+def _harmonics_before_after(tests, base_model, base, model, fit) -> dict:
+    out = {}
+    for i, t in enumerate(tests):
+        ev_b = base_model.evaluate(base.theta, i, t.tab.t_mid[t.hold].mean(), key=3000 + i)
+        ev_a = model.evaluate(fit.theta, i, t.tab.t_mid[t.hold].mean(), key=3000 + i)
+        if ev_b is None or ev_a is None:
+            continue
+        out[str(t.index)] = {
+            "before": _harmonic_errors(t, t.hold, ev_b, base.K),
+            "after": _harmonic_errors(t, t.hold, ev_a, fit.K),
+        }
+    return out
+
+
+def _analysis_params(analysis: Any) -> dict:
+    """Td, tau, K (means) of an AnalysisResult-like object, whatever its exact shape."""
+    out = {}
+    params = getattr(analysis, "parameters", None)
+    for k in ("Td", "tau", "K"):
+        v = None
+        if isinstance(params, dict):
+            v = params.get(k)
+        elif params is not None:
+            v = getattr(params, k, None)
+        if v is None:
+            v = getattr(analysis, k, None)
+        if isinstance(v, dict):
+            v = v.get("mean")
+        v = getattr(v, "mean", v)
+        if isinstance(v, (int, float, np.floating)) and math.isfinite(float(v)):
+            out[k] = float(v)
+    return out
+
+
+def _locate(tests, base_model, base, recs_all, scatter) -> tuple[list, dict]:
+    """Where the base model and the recording disagree: features, cycles/halves, harmonics."""
+    located = []
+    ia = FEATURE_NAMES.index("log_amplitude")
+    plot = {"cycle_errors": [], "harmonics": []}
+    errs_all = []
+    for i, (t, (f, s)) in enumerate(zip(tests, recs_all)):
+        ev = base_model.evaluate(base.theta, i, f.t_mean, key=4000 + i)
+        if ev is None:
+            continue
+        fm = ev.features.copy()
+        fm[ia] += math.log(base.K)
+        z = (f.values - fm) / s
+        for j, name in enumerate(FEATURE_NAMES):
+            if not feature_mask(t)[j] or abs(z[j]) < 3.0:
+                continue
+            rec, mod = float(f.values[j]), float(fm[j])
+            item = {
+                "kind": "feature",
+                "test": t.index,
+                "beta": float(np.mean(t.beta)),
+                "h": t.h,
+                "t_start": t.t_start,
+                "t_end": t.t_end,
+                "feature": name,
+                "what": _FEATURE_TEXT[name],
+                "recorded": rec,
+                "model": mod,
+                "difference": rec - mod,
+                "z": float(z[j]),
+            }
+            if name == "log_amplitude":
+                item.update(recorded=math.exp(rec), model=math.exp(mod), difference=math.exp(rec) - math.exp(mod),
+                            relative=math.exp(rec - mod) - 1.0)
+            if name == "period":
+                item["relative"] = rec / mod - 1.0
+                item["unit"] = "s"
+            if name == "centre":
+                a_rec = math.exp(float(f.values[ia]))
+                item.update(recorded=rec * a_rec, model=mod * math.exp(float(fm[ia])),
+                            difference=rec * a_rec - mod * math.exp(float(fm[ia])), unit="output units")
+            if name in ("amplitude_trend", "balance_trend"):
+                item["unit"] = "relative change per second" if name == "amplitude_trend" else "per second"
+            if name == "balance":
+                P = float(f.values[0])
+                item["half_periods_recorded"] = {"high": P * (0.5 + rec), "low": P * (0.5 - rec)}
+                item["half_periods_model"] = {"high": P * (0.5 + mod), "low": P * (0.5 - mod)}
+            located.append(item)
+        # period scatter
+        sc = scatter[i]
+        zs = float(_scatter_z([t], [sc], "all", [sc["v0"]])[0])
+        if abs(zs) >= 3.0:
+            s_rec = math.sqrt(t.scatter_var("all")[0])
+            located.append({"kind": "feature", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
+                            "t_start": t.t_start, "t_end": t.t_end, "feature": "period_scatter",
+                            "what": _FEATURE_TEXT["period_scatter"], "recorded": s_rec, "model": sc["s0"],
+                            "difference": s_rec - sc["s0"], "z": zs})
+        # per cycle and half-cycle waveform errors
+        allm = np.ones(len(t.tab), bool)
+        e, v, e_hi, e_lo = _waveform_errors(t, allm, [ev], base.K)
+        cyc_nrmse = np.sqrt(e / np.where(v > 0, v, np.nan))
+        errs_all.append(cyc_nrmse)
+        plot["cycle_errors"].append({"t": t.tab.t_mid, "nrmse": cyc_nrmse, "hi": np.sqrt(e_hi / v), "lo": np.sqrt(e_lo / v),
+                                     "start": t.tab.start, "end": t.tab.end})
+        harm = _harmonic_errors(t, allm, ev, base.K)
+        plot["harmonics"].append(harm)
+        # only the fundamental and the 3rd harmonic are well above the noise at realistic amplitudes
+        strong = {k: v for k, v in harm.items() if k in ("1", "3")}
+        if strong:
+            kmax = max(strong, key=lambda k: strong[k])
+            if strong[kmax] > 0.05:
+                located.append({"kind": "harmonic", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
+                                "t_start": t.t_start, "t_end": t.t_end, "harmonic": int(kmax),
+                                "what": f"G(j{kmax}Omega) measured from harmonic {kmax} of output/command",
+                                "relative_error": harm[kmax], "all": harm})
+    # time segments: runs of cycles whose waveform error stands out from the log's typical cycle
+    # (only when some feature disagrees beyond the noise at all: otherwise they would flag noise)
+    mismatch = any(d["kind"] == "feature" for d in located)
+    if not mismatch:
+        located = []
+    if errs_all and mismatch:
+        pooled = np.concatenate(errs_all)
+        med = float(np.nanmedian(pooled))
+        for t, ce in zip(tests, plot["cycle_errors"]):
+            bad = ce["nrmse"] > max(1.5 * med, 0.02)
+            if not bad.any():
+                continue
+            idx = np.flatnonzero(bad)
+            runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+            for rr in runs:
+                hi_err = float(np.nanmean(ce["hi"][rr]))
+                lo_err = float(np.nanmean(ce["lo"][rr]))
+                located.append({
+                    "kind": "segment", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
+                    "t_start": float(ce["start"][rr[0]]), "t_end": float(ce["end"][rr[-1]]),
+                    "cycles": [int(x) for x in rr],
+                    "nrmse": float(np.nanmean(ce["nrmse"][rr])),
+                    "typical_nrmse": med,
+                    "worse_half": "high (+h)" if hi_err > lo_err else "low (-h)",
+                    "half_nrmse": {"high": hi_err, "low": lo_err},
+                })
+    located.sort(key=lambda d: -abs(d.get("z", 0.0)) if d["kind"] == "feature" else (0 if d["kind"] == "harmonic" else 1))
+    return located, plot

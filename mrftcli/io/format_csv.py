@@ -1,0 +1,186 @@
+"""CSV logs: one time column plus one column per numeric field (PlotJuggler's export layout).
+
+Layout written (and the default one read)::
+
+    __time,/imu/data/orientation/w,/imu/data/orientation/x,...,/mocap/pose/pose/position/z,/mrft/command/data
+    12.000000000,,,,,0.4
+    12.005000000,1.0,0.0,...,1.02,
+
+* time column: ``__time`` or ``time``/``t``/``time_s``/``seconds`` in seconds;
+  ``timestamp``/``time_us``/``timestamp_us`` in microseconds (PX4 ``ulog2csv``);
+  ``time_ns``/``timestamp_ns`` in nanoseconds. Any other first column is refused rather than guessed.
+* every other column is a numeric series; an empty cell means "no sample of this column at this time",
+  so topics at different rates share one file (rows are the union of all message times).
+* a topic option ``TOPIC:FIELD`` names the column ``TOPIC/FIELD`` with dots as slashes
+  (``/mocap/pose:pose.position.z`` -> ``/mocap/pose/pose/position/z``); ``TOPIC.FIELD`` and a column
+  named exactly ``TOPIC:FIELD`` or ``TOPIC`` are accepted too. A field whose ``/x /y /z /w`` (or
+  ``.x ...``) columns all exist is a quaternion.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import LogReadError
+from .logtypes import TopicData, TopicInfo
+from .source import Field, LogSource, rate_of, one_line
+
+__all__ = ["CsvSource", "write_csv", "TIME_COLUMNS"]
+
+#: accepted time column names -> factor to seconds
+TIME_COLUMNS = {
+    "__time": 1.0, "time": 1.0, "t": 1.0, "time_s": 1.0, "seconds": 1.0,
+    "timestamp": 1e-6, "time_us": 1e-6, "timestamp_us": 1e-6,
+    "time_ns": 1e-9, "timestamp_ns": 1e-9,
+}
+
+
+class CsvSource(LogSource):
+    """A CSV file read whole with pandas (pyarrow engine when available)."""
+
+    format = "csv"
+    default_field = None
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__(path)
+        try:
+            self._require_file()
+            raw = self.path.read_bytes()
+            if not raw.endswith(b"\n") and b"\n" in raw.rstrip(b"\n"):
+                # a file cut off mid-row: the last row may hold a cut number, drop it rather than
+                # read a wrong value
+                raw = raw[:raw.rindex(b"\n") + 1]
+                self.warn("CSV does not end with a line break (truncated?): its last, partial row "
+                          "was dropped")
+            frame = _read_frame(raw)
+        except LogReadError:
+            raise
+        except OSError as err:
+            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
+        except Exception as err:  # noqa: BLE001 - pandas/pyarrow parse errors of many kinds
+            msg = one_line(err)
+            raise LogReadError(f"{self.path}: not a readable CSV ({msg})") from None
+        if frame.shape[1] < 2:
+            raise LogReadError(f"{self.path}: a CSV log needs a time column and at least one data column")
+        cols = [str(c).strip() for c in frame.columns]
+        frame.columns = cols
+        time_col = next((c for c in cols if c.lower() in TIME_COLUMNS), None)
+        if time_col is None:
+            raise LogReadError(
+                f"{self.path}: no time column; name one of {', '.join(TIME_COLUMNS)} "
+                f"(columns found: {', '.join(cols[:8])})")
+        t = pd.to_numeric(frame[time_col], errors="coerce").to_numpy(dtype=np.float64)
+        if np.isnan(t).any():
+            bad = int(np.flatnonzero(np.isnan(t))[0])
+            raise LogReadError(f"{self.path}: time column {time_col!r} is not numeric (row {bad + 2})")
+        if len(t) == 0:
+            raise LogReadError(f"{self.path}: the CSV has a header but no rows")
+        self._t = t * TIME_COLUMNS[time_col.lower()]
+        self._cols: dict[str, pd.Series] = {c: frame[c] for c in cols if c != time_col}
+
+    def _numeric(self, col: str) -> tuple[np.ndarray, np.ndarray]:
+        raw = self._cols[col]
+        values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+        present = raw.notna().to_numpy()
+        if (present & np.isnan(values)).any():
+            bad = int(np.flatnonzero(present & np.isnan(values))[0])
+            raise LogReadError(f"{self.path}: column {col!r} holds a non-number at row {bad + 2}")
+        return self._t[present], values[present]
+
+    def topics(self) -> list[TopicInfo]:
+        out = []
+        for col, raw in self._cols.items():
+            present = raw.notna().to_numpy()
+            t = np.sort(self._t[present])
+            out.append(TopicInfo(col, str(raw.dtype), int(present.sum()), rate_of(t), ()))
+        return out
+
+    def resolve_topic(self, topic: str) -> str | None:
+        """A CSV "topic" is a column, or the prefix ``TOPIC/`` (``TOPIC.``) of some columns."""
+        if topic in self._cols or any(c.startswith((topic + "/", topic + ".", topic + ":"))
+                                      for c in self._cols):
+            return topic
+        return None
+
+    def missing_topic(self, topic: str) -> LogReadError:
+        names = list(self._cols)
+        from .source import closest
+
+        shown = ", ".join(names[:25]) + (f", ... ({len(names)} in all)" if len(names) > 25 else "")
+        return LogReadError(f"{self.path}: no column {topic!r}{closest(topic, names)}; columns: {shown}")
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        names = set(self._cols)
+        if field is None:
+            candidates = [topic, f"{topic}/data", f"{topic}.data"]
+        else:
+            candidates = [f"{topic}/{field.replace('.', '/')}", f"{topic}.{field}", f"{topic}:{field}",
+                          f"{topic}/{field}"]
+        for cand in candidates:
+            if cand in names:
+                return [cand]
+        for cand in candidates:
+            quat = Field.quaternion(cand, names)
+            if quat:
+                return quat
+        if field is None or not any(c.startswith(topic) for c in names):
+            raise self.missing_topic(topic if field is None else f"{topic}/{field.replace('.', '/')}")
+        inside = sorted(c for c in names if c.startswith(topic))
+        raise LogReadError(f"{self.path}: no column for {topic}:{field}; columns of {topic}: "
+                           f"{', '.join(inside[:12])}")
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        t0, first = self._numeric(fields[0])
+        out = {fields[0]: first}
+        for col in fields[1:]:
+            t, v = self._numeric(col)
+            if len(t) != len(t0) or not np.array_equal(t, t0):
+                raise LogReadError(f"{self.path}: columns {fields[0]!r} and {col!r} are not sampled at "
+                                   "the same times; a quaternion needs all four in every row")
+            out[col] = v
+        return t0, out
+
+
+def _read_frame(raw: bytes) -> pd.DataFrame:
+    try:
+        return pd.read_csv(io.BytesIO(raw), engine="pyarrow")
+    except ImportError:  # pragma: no cover - pyarrow is a dependency
+        return pd.read_csv(io.BytesIO(raw))
+
+
+def csv_column(topic: str, field: str) -> str:
+    """Column name of ``topic`` / dotted ``field`` in the written layout."""
+    return f"{topic}/{field.replace('.', '/')}"
+
+
+def write_csv(topics: list[TopicData], path: str | Path) -> None:
+    """Write topics as one CSV: ``__time`` [s] and one column per given field (rows = union of times).
+
+    Quaternion fields are completed (a missing component is written as 0, ``w`` as 1) so readers always
+    find all four.
+    """
+    all_t = np.unique(np.concatenate([np.asarray(td.t, dtype=np.float64) for td in topics]
+                                     or [np.zeros(0)]))
+    columns: dict[str, np.ndarray] = {"__time": all_t}
+    for td in topics:
+        t = np.asarray(td.t, dtype=np.float64)
+        if len(np.unique(t)) != len(t):
+            raise ValueError(f"{td.name}: CSV rows need distinct times per topic")
+        rows = np.searchsorted(all_t, t)
+        fields = dict(td.fields)
+        for name in list(fields):
+            prefix, _, comp = name.rpartition(".")
+            if comp in ("x", "y", "z", "w") and prefix.endswith("orientation"):
+                for c in "xyzw":
+                    fields.setdefault(f"{prefix}.{c}", np.full(len(t), 1.0 if c == "w" else 0.0))
+        for name, values in fields.items():
+            col = np.full(len(all_t), np.nan)
+            col[rows] = np.asarray(values, dtype=np.float64)
+            columns[csv_column(td.name, name)] = col
+    # time gets more digits than the values (absolute times at ns resolution)
+    columns["__time"] = np.array([f"{v:.9f}" for v in all_t], dtype=object)
+    pd.DataFrame(columns).to_csv(path, index=False, float_format="%.10g", na_rep="")

@@ -1,0 +1,597 @@
+"""MCAP: ROS 2 (CDR) and JSON messages (also ROS 1-encoded channels), reader and writers.
+
+Reading goes through the ``mcap`` library's records, in two ways:
+
+* indexed files (the normal case: chunked, with a summary): only chunks holding a wanted channel are
+  read; each is decompressed once, and its Message Index records (``(log_time, offset)`` pairs for one
+  channel) are read as a numpy array. Message payloads are then located with numpy, without a Python
+  object per message, and CDR fields are gathered by :mod:`mrftcli.io.cdr`.
+* anything else (no summary, unchunked, or a truncated file whose footer is gone): a linear
+  :class:`mcap.stream_reader.StreamReader` pass that keeps every complete message before the damage,
+  with a warning saying how much was salvaged.
+
+Message time is the MCAP ``log_time`` (when the recorder received the message), so every topic,
+including header-less ``std_msgs/msg/Float64``, shares one clock.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import mmap
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LogReadError
+from .logtypes import TopicData, TopicInfo
+from . import cdr as _cdr
+from .source import LogSource, rate_of
+from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
+
+__all__ = ["McapSource", "write_mcap", "MCAP_MAGIC"]
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_MESSAGE = 0x05
+_MSG_HEADER = 2 + 4 + 8 + 8  # channel_id, sequence, log_time, publish_time
+
+
+@dataclass
+class _Channel:
+    id: int
+    topic: str
+    encoding: str  # cdr | json | ros1
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+    # salvage mode: messages collected by the linear scan
+    times: list[int] = field(default_factory=list)
+    datas: list[bytes] = field(default_factory=list)
+
+
+class McapSource(LogSource):
+    """An MCAP file with ``cdr`` (ROS 2), ``ros1`` or ``json`` message encodings."""
+
+    default_field = "data"
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__(path)
+        self.format = "mcap"
+        self._summary = None
+        self._channels: dict[int, _Channel] = {}
+        self._salvaged = False
+        self._typestores: dict[int, object] = {}
+        self._topic_cache: list[TopicInfo] | None = None
+        self._raw_cache: dict[int, tuple] = {}
+        self._file = None
+        self._data = b""
+        try:
+            self._require_file()
+            # memory-mapped: a multi-GB log with camera topics costs only the pages actually read
+            self._file = open(self.path, "rb")  # noqa: SIM115 - closed in close()
+            self._data = mmap.mmap(self._file.fileno(), 0, access=mmap.ACCESS_READ)
+        except OSError as err:
+            self.close()
+            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
+        if self._data[:len(MCAP_MAGIC)] != MCAP_MAGIC:
+            self.close()
+            raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
+        try:
+            self._open()
+        except BaseException:
+            self.close()
+            raise
+        encodings = {c.encoding for c in self._channels.values()}
+        if encodings == {"json"}:
+            self.format = "mcap-json"
+
+    # -- opening ----------------------------------------------------------------------------------
+    def _open(self) -> None:
+        from mcap.reader import SeekingReader
+
+        summary = None
+        self._summary_failed = False
+        try:
+            self._file.seek(0)
+            summary = SeekingReader(self._file).get_summary()
+        except Exception:  # noqa: BLE001 - any damage in the footer/summary -> linear salvage below
+            summary = None
+            self._summary_failed = True
+        if summary is not None and summary.chunk_indexes:
+            self._summary = summary
+            for ch in summary.channels.values():
+                schema = summary.schemas.get(ch.schema_id)
+                self._add_channel(ch, schema)
+            return
+        self._scan()
+
+    def _add_channel(self, ch, schema) -> None:
+        enc = ch.message_encoding.lower()
+        self._channels[ch.id] = _Channel(
+            id=ch.id, topic=ch.topic, encoding=enc,
+            schema_name=schema.name if schema else "",
+            schema_encoding=schema.encoding if schema else "",
+            schema_data=bytes(schema.data) if schema else b"")
+
+    def _scan(self) -> None:
+        """Linear salvage pass: every readable record, in file order.
+
+        The top-level framing (``opcode``, ``uint64 length``) is walked here so that one damaged record
+        (say a chunk whose CRC fails) is skipped rather than ending the pass; the records themselves
+        are parsed by the ``mcap`` library. A record cut off by the end of the file ends the pass; if
+        it is a chunk, the complete messages at the start of its (partially decompressed) data are
+        kept as well.
+        """
+        from mcap.opcode import Opcode
+
+        data = self._data
+        size = len(data)
+        pos = len(MCAP_MAGIC)
+        complete = False
+        bad = 0
+        count = 0
+        from_partial = 0
+        schemas: dict[int, object] = {}
+        while pos + 9 <= size:
+            op = data[pos]
+            length = int.from_bytes(data[pos + 1:pos + 9], "little")
+            start, end = pos + 9, pos + 9 + length
+            if end > size:
+                if op == Opcode.CHUNK:
+                    from_partial = self._partial_chunk(data[start:size], schemas)
+                    count += from_partial
+                break
+            try:
+                if op == Opcode.FOOTER:
+                    complete = True
+                    break
+                count += self._record(op, data[start:end], schemas)
+            except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
+                bad += 1
+            pos = end
+        if count == 0 and (bad or not complete):
+            raise LogReadError(f"{self.path}: corrupt or truncated MCAP, no message could be read")
+        notes = []
+        if not complete:
+            notes.append("the file ends before its footer")
+        if bad:
+            notes.append(f"{bad} damaged record(s) skipped")
+        if from_partial:
+            notes.append(f"{from_partial} from the cut-off chunk")
+        if notes or self._summary_failed:
+            self.warn(f"truncated or corrupt MCAP: salvaged {count} messages "
+                      f"({'; '.join(notes) or 'summary section unreadable'})")
+        self._salvaged = True
+
+    def _record(self, op: int, body: bytes, schemas: dict) -> int:
+        """Parse one top-level (or in-chunk) record; returns the number of messages kept."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.stream_reader import breakup_chunk
+
+        stream = ReadDataStream(io.BytesIO(body))
+        if op == Opcode.SCHEMA:
+            rec = Schema.read(stream)
+            schemas[rec.id] = rec
+        elif op == Opcode.CHANNEL:
+            rec = Channel.read(stream)
+            if rec.id not in self._channels:
+                self._add_channel(rec, schemas.get(rec.schema_id))
+        elif op == Opcode.MESSAGE:
+            return self._keep(Message.read(stream, len(body)))
+        elif op == Opcode.CHUNK:
+            kept = 0
+            for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    if rec.id not in self._channels:
+                        self._add_channel(rec, schemas.get(rec.schema_id))
+                elif isinstance(rec, Message):
+                    kept += self._keep(rec)
+            return kept
+        return 0
+
+    def _keep(self, msg) -> int:
+        ch = self._channels.get(msg.channel_id)
+        if ch is None:
+            return 0
+        ch.times.append(msg.log_time)
+        ch.datas.append(bytes(msg.data))
+        return 1
+
+    def _partial_chunk(self, body: bytes, schemas: dict) -> int:
+        """Complete records at the start of a chunk the file ends inside (0 if none can be read)."""
+        try:
+            # start/end time, uncompressed size (3 x uint64), crc (uint32), compression (string),
+            # records length (uint64), records
+            n = int.from_bytes(body[28:32], "little")
+            compression = body[32:32 + n].decode()
+            packed = body[32 + n + 8:]
+            if compression == "zstd":
+                import zstandard
+
+                raw = zstandard.ZstdDecompressor().decompressobj().decompress(packed)
+            elif compression == "lz4":
+                import lz4.frame
+
+                raw = lz4.frame.LZ4FrameDecompressor().decompress(packed)
+            elif compression == "":
+                raw = packed
+            else:
+                return 0
+        except Exception:  # noqa: BLE001 - too little of the chunk is left
+            return 0
+        kept, pos = 0, 0
+        while pos + 9 <= len(raw):
+            op = raw[pos]
+            length = int.from_bytes(raw[pos + 1:pos + 9], "little")
+            if pos + 9 + length > len(raw):
+                break
+            try:
+                kept += self._record(op, raw[pos + 9:pos + 9 + length], schemas)
+            except Exception:  # noqa: BLE001 - stop at the first unreadable record
+                break
+            pos += 9 + length
+        return kept
+
+    # -- types --------------------------------------------------------------------------------------
+    def _typestore(self, ch: _Channel):
+        if ch.id not in self._typestores:
+            ros1 = ch.encoding == "ros1"
+            ts = None
+            if ch.schema_data and ch.schema_encoding in ("ros2msg", "ros1msg"):
+                try:
+                    ts = typestore_from_text(ch.schema_data.decode(), ch.schema_name, ros1=ros1)
+                except Exception:  # noqa: BLE001 - fall back to the standard definitions
+                    ts = None
+            if ts is None:
+                ts = typestore_for(ros1=ros1)
+                if ch.schema_name not in ts.fielddefs:
+                    raise LogReadError(
+                        f"{self.path}: {ch.topic}: cannot decode type {ch.schema_name!r} "
+                        f"(schema encoding {ch.schema_encoding!r})")
+            self._typestores[ch.id] = ts
+        return self._typestores[ch.id]
+
+    def _channel(self, topic: str) -> _Channel:
+        chans = [c for c in self._channels.values() if c.topic == topic]
+        if not chans:
+            raise self.missing_topic(topic)
+        return chans[0]
+
+    # -- interface ----------------------------------------------------------------------------------
+    def topics(self) -> list[TopicInfo]:
+        if self._topic_cache is not None:
+            return self._topic_cache
+        out = []
+        times = self._index_times(list(self._channels)) if not self._salvaged else {}
+        for ch in self._channels.values():
+            t_ns = np.asarray(ch.times if self._salvaged else times.get(ch.id, []), dtype=np.int64)
+            t = np.sort(t_ns) / 1e9
+            try:
+                fields = tuple(self._fields(ch))
+            except LogReadError:
+                fields = ()
+            out.append(TopicInfo(ch.topic, ch.schema_name or ch.encoding, len(t), rate_of(t), fields))
+        self._topic_cache = sorted(out, key=lambda i: i.name)
+        return self._topic_cache
+
+    def _fields(self, ch: _Channel) -> list[str]:
+        if ch.encoding == "json":
+            if ch.schema_data and ch.schema_encoding == "jsonschema":
+                return _json_schema_leaves(json.loads(ch.schema_data), "")
+            return []
+        return numeric_leaves(self._typestore(ch), ch.schema_name)
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        ch = self._channel(topic)
+        path = field if field is not None else self.default_field
+        if ch.encoding == "json":
+            return self._json_leaves(ch, path)
+        try:
+            return _cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
+        except LogReadError as err:
+            raise LogReadError(f"{self.path}: {topic}: {err}") from None
+
+    def _json_leaves(self, ch: _Channel, path: str) -> list[str]:
+        _, buf, starts, lengths = self._raw(ch)
+        if len(starts) == 0:
+            return [path]
+        s = int(starts[0])
+        try:
+            node = json.loads(buf[s:s + int(lengths[0])].tobytes())
+        except ValueError:
+            raise LogReadError(f"{self.path}: {ch.topic}: message 0 is not valid JSON") from None
+        for key in path.split("."):
+            if not isinstance(node, dict) or key not in node:
+                have = ", ".join(node) if isinstance(node, dict) else "none"
+                raise LogReadError(f"{self.path}: {ch.topic}: no field {path!r} (fields there: {have})")
+            node = node[key]
+        if isinstance(node, dict) and sorted(node) == ["w", "x", "y", "z"]:
+            return [f"{path}.{c}" for c in "xyzw"]
+        if not isinstance(node, (int, float)):
+            raise LogReadError(f"{self.path}: {ch.topic}: {path!r} is not a number")
+        return [path]
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        ch = self._channel(topic)
+        t_ns, buf, starts, lengths = self._raw(ch)
+        t = t_ns / 1e9
+        if ch.encoding == "json":
+            return t, _json_values(self.path, topic, buf, starts, lengths, fields)
+        if ch.encoding not in ("cdr", "ros1"):
+            raise LogReadError(f"{self.path}: {topic}: unsupported message encoding {ch.encoding!r}")
+        try:
+            vals = _cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, fields,
+                                ros1=ch.encoding == "ros1")
+        except LogReadError as err:
+            raise LogReadError(f"{self.path}: {topic}: {err}") from None
+        return t, vals
+
+    # -- raw access ---------------------------------------------------------------------------------
+    def _raw(self, ch: _Channel):
+        """Log times [ns], one byte buffer, and each message's start and length, in file order."""
+        if ch.id not in self._raw_cache:
+            self._raw_cache[ch.id] = self._raw_uncached(ch)
+        return self._raw_cache[ch.id]
+
+    def prefetch(self, topics: list[str]) -> None:
+        """Read the wanted channels in one pass over the chunks (each chunk decompressed once)."""
+        if self._salvaged:
+            return
+        cids = [c.id for c in self._channels.values()
+                if c.topic in topics and c.id not in self._raw_cache]
+        if cids:
+            self._raw_cache.update(self._indexed(cids))
+
+    def close(self) -> None:
+        self._raw_cache.clear()
+        if isinstance(self._data, mmap.mmap):
+            try:
+                self._data.close()
+            except BufferError:  # a caller still holds an array view; the map goes with it
+                pass
+        self._data = b""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def _raw_uncached(self, ch: _Channel):
+        if self._salvaged:
+            lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
+            starts = (np.cumsum(lengths) - lengths).astype(np.int64)
+            buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
+            return np.asarray(ch.times, dtype=np.int64), buf, starts, lengths
+        return self._indexed([ch.id])[ch.id]
+
+    def _chunks(self, cids: list[int]):
+        # a writer may leave the Message Index records out (valid MCAP): such a chunk may hold anything
+        return sorted((c for c in self._summary.chunk_indexes
+                       if not c.message_index_offsets or any(cid in c.message_index_offsets for cid in cids)),
+                      key=lambda c: c.chunk_start_offset)
+
+    def _message_index(self, offset: int) -> np.ndarray:
+        """(log_time, offset) pairs of one Message Index record at file ``offset``, shape (n, 2)."""
+        data = self._data
+        # opcode(1) length(8) channel_id(2) records_length(4) records(16 each)
+        n_bytes = int.from_bytes(data[offset + 11:offset + 15], "little")
+        raw = np.frombuffer(data, dtype="<u8", count=n_bytes // 8, offset=offset + 15)
+        return raw.reshape(-1, 2).astype(np.int64)
+
+    def _index_times(self, cids: list[int]) -> dict[int, np.ndarray]:
+        out: dict[int, list] = {cid: [] for cid in cids}
+        if any(not c.message_index_offsets for c in self._summary.chunk_indexes):
+            # no Message Index records: the times come from reading the chunks
+            return {cid: v[0] for cid, v in self._indexed(cids).items()}
+        try:
+            for chunk in sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+                for cid, off in chunk.message_index_offsets.items():
+                    if cid in out:
+                        out[cid].append(self._message_index(off)[:, 0])
+        except Exception:  # noqa: BLE001
+            raise LogReadError(f"{self.path}: corrupt MCAP message index") from None
+        return {cid: np.concatenate(v) if v else np.zeros(0, np.int64) for cid, v in out.items()}
+
+    def _indexed(self, cids: list[int]) -> dict[int, tuple]:
+        """For each channel: log times [ns], bytes, message starts and sizes (file order)."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Chunk
+        from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
+
+        # every read chunk goes into one shared buffer; channels keep offsets into it
+        buffers: list[np.ndarray] = []
+        base = 0
+        parts: dict[int, tuple[list, list, list]] = {cid: ([], [], []) for cid in cids}
+        for chunk_index in self._chunks(cids):
+            try:
+                self._file.seek(chunk_index.chunk_start_offset + 1 + 8)
+                chunk = Chunk.read(ReadDataStream(self._file))
+                data_stream, size = get_chunk_data_stream(chunk)
+                data = data_stream.read(size)
+                if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+                    raise ValueError("CRC mismatch")
+            except Exception as err:  # noqa: BLE001 - one damaged chunk: keep the others, say so
+                self.warn(f"chunk at byte {chunk_index.chunk_start_offset} is corrupt "
+                          f"({type(err).__name__}: {err}); its messages are skipped")
+                continue
+            whole = np.frombuffer(data, dtype=np.uint8)
+            buffers.append(whole)
+            chunk_base = base
+            base += len(whole)
+            if not chunk_index.message_index_offsets:
+                off, channel, log_time, rec_len = _walk_messages(data)
+                for cid in cids:
+                    sel = channel == cid
+                    times, starts, lengths = parts[cid]
+                    times.append(log_time[sel])
+                    starts.append(off[sel] + 9 + _MSG_HEADER + chunk_base)
+                    lengths.append(rec_len[sel] - _MSG_HEADER)
+                continue
+            for cid in cids:
+                if cid not in chunk_index.message_index_offsets:
+                    continue
+                try:
+                    t_ns, start, length = self._locate(whole, cid, chunk_index.message_index_offsets[cid])
+                    start = start + chunk_base
+                except (ValueError, IndexError):
+                    # the index (outside the CRC-checked chunk) is damaged but the chunk is fine:
+                    # walk the chunk's records with the library instead
+                    self.warn(f"message index of chunk at byte {chunk_index.chunk_start_offset} is "
+                              "corrupt; read the chunk record by record")
+                    msgs = [r for r in breakup_chunk(chunk) if getattr(r, "channel_id", None) == cid
+                            and hasattr(r, "log_time")]
+                    datas = [bytes(m.data) for m in msgs]
+                    length = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+                    start = base + (np.cumsum(length) - length)
+                    t_ns = np.array([m.log_time for m in msgs], dtype=np.int64)
+                    extra = np.frombuffer(b"".join(datas), dtype=np.uint8)
+                    buffers.append(extra)
+                    base += len(extra)
+                times, starts, lengths = parts[cid]
+                times.append(t_ns)
+                starts.append(start)
+                lengths.append(length)
+        buf = np.concatenate(buffers) if buffers else np.zeros(0, np.uint8)
+        out = {}
+        for cid, (times, starts, lengths) in parts.items():
+            if not times:
+                out[cid] = (np.zeros(0, np.int64), buf, np.zeros(0, np.int64), np.zeros(0, np.int64))
+            else:
+                out[cid] = (np.concatenate(times), buf, np.concatenate(starts).astype(np.int64),
+                            np.concatenate(lengths).astype(np.int64))
+        return out
+
+    def _locate(self, arr: np.ndarray, cid: int, index_offset: int):
+        """Log times, payload starts and sizes of channel ``cid``'s messages in a decompressed chunk.
+
+        The Message Index gives each record's offset; every record is checked (opcode, channel id,
+        size, and log time equal to the index's) so a damaged index cannot yield wrong data.
+        """
+        index = self._message_index(index_offset)
+        index = index[np.argsort(index[:, 1], kind="stable")]  # file order
+        off = index[:, 1]
+        if len(off) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        if off.min() < 0 or off.max() + 9 + _MSG_HEADER > len(arr) or (arr[off] != _OP_MESSAGE).any():
+            raise ValueError("message index points outside the chunk")
+
+        rec_len, channel, log_time = _message_fields(arr, off)
+        if ((off + 9 + rec_len > len(arr)).any() or (rec_len < _MSG_HEADER).any()
+                or (channel != cid).any() or (log_time != index[:, 0]).any()):
+            raise ValueError("message index disagrees with the chunk")
+        return log_time, off + 9 + _MSG_HEADER, rec_len - _MSG_HEADER
+
+
+def _walk_messages(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets, channel ids, log times [ns] and record lengths of the Message records in a chunk's
+    records (for chunks written without Message Index records). Stops at a truncated record."""
+    offs = []
+    pos, n = 0, len(data)
+    mv = memoryview(data)
+    while pos + 9 <= n:
+        length = int.from_bytes(mv[pos + 1:pos + 9], "little")
+        if pos + 9 + length > n:
+            break
+        if data[pos] == _OP_MESSAGE and length >= _MSG_HEADER:
+            offs.append(pos)
+        pos += 9 + length
+    off = np.array(offs, dtype=np.int64)
+    rec_len, channel, log_time = _message_fields(np.frombuffer(data, dtype=np.uint8), off)
+    return off, channel, log_time, rec_len
+
+
+def _message_fields(arr: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Record length, channel id and log time [ns] of the Message records at byte offsets ``off``."""
+
+    def field(offset: int, size: int, dtype: str) -> np.ndarray:
+        return arr[(off + offset)[:, None] + np.arange(size)].view(dtype).ravel().astype(np.int64)
+
+    return field(1, 8, "<u8"), field(9, 2, "<u2"), field(15, 8, "<u8")
+
+
+# -- JSON messages -------------------------------------------------------------------------------
+def _json_schema_leaves(schema: dict, prefix: str) -> list[str]:
+    out = []
+    for name, sub in (schema.get("properties") or {}).items():
+        path = f"{prefix}{name}"
+        if sub.get("type") == "object":
+            out.extend(_json_schema_leaves(sub, path + "."))
+        elif sub.get("type") in ("number", "integer", "boolean"):
+            out.append(path)
+    return out
+
+
+def _json_values(path: Path, topic: str, buf, starts, lengths, fields: list[str]) -> dict:
+    """Leaf values of JSON messages (one ``json.loads`` per message: JSON has no fixed layout)."""
+    raw = buf.tobytes()
+    n = len(starts)
+    parts = {f: f.split(".") for f in fields}
+    out = {f: np.empty(n, dtype=np.float64) for f in fields}
+    for i in range(n):
+        s = int(starts[i])
+        try:
+            msg = json.loads(raw[s:s + int(lengths[i])])
+        except ValueError:
+            raise LogReadError(f"{path}: {topic}: message {i} is not valid JSON") from None
+        for f, keys in parts.items():
+            node = msg
+            for k in keys:
+                if not isinstance(node, dict) or k not in node:
+                    have = ", ".join(node) if isinstance(node, dict) else "none"
+                    raise LogReadError(f"{path}: {topic}: no field {f!r} (fields there: {have})")
+                node = node[k]
+            if not isinstance(node, (int, float)):
+                raise LogReadError(f"{path}: {topic}: {f!r} of message {i} is not a number")
+            out[f][i] = float(node)
+    return out
+
+
+# -- writing -----------------------------------------------------------------------------------------
+def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr") -> None:
+    """Write topics as an MCAP file with ``cdr`` (ROS 2 profile) or ``json`` messages.
+
+    Messages of all topics are interleaved in time order; chunks are zstd-compressed and indexed.
+    """
+    from mcap.writer import CompressionType, Writer
+
+    ts = typestore_for(ros1=False)
+    per_topic = []
+    for td in topics:
+        t = np.asarray(td.t, dtype=np.float64)
+        if encoding == "cdr":
+            datas = _cdr.serialize_many(ts, td.msgtype, t, td.fields)
+        else:
+            datas = json_messages(ts, td.msgtype, t, td.fields)
+        per_topic.append((td, np.round(t * 1e9).astype(np.int64), datas))
+    with open(path, "wb") as stream:
+        # 256 KiB chunks: a truncated file loses at most the chunk being written (salvage, see _scan)
+        writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 18)
+        writer.start(profile="ros2" if encoding == "cdr" else "", library="mrft-ident")
+        schema_ids: dict[str, int] = {}
+        channel_ids = []
+        for td, _, _ in per_topic:
+            if td.msgtype not in schema_ids:
+                if encoding == "cdr":
+                    text = ts.generate_msgdef(td.msgtype, ros_version=2)[0]
+                    schema_ids[td.msgtype] = writer.register_schema(td.msgtype, "ros2msg", text.encode())
+                else:
+                    schema = json.dumps(json_schema(ts, td.msgtype)).encode()
+                    schema_ids[td.msgtype] = writer.register_schema(td.msgtype, "jsonschema", schema)
+            channel_ids.append(writer.register_channel(td.name, "cdr" if encoding == "cdr" else "json",
+                                                       schema_ids[td.msgtype]))
+        # merge all topics in time order (stable: ties keep topic order)
+        which = np.concatenate([np.full(len(ns), k) for k, (_, ns, _) in enumerate(per_topic)]
+                               or [np.zeros(0, int)])
+        idx = np.concatenate([np.arange(len(ns)) for _, ns, _ in per_topic] or [np.zeros(0, int)])
+        stamps = np.concatenate([ns for _, ns, _ in per_topic] or [np.zeros(0, np.int64)])
+        seq = [0] * len(per_topic)
+        for k in np.lexsort((which, stamps)):
+            w, i = int(which[k]), int(idx[k])
+            writer.add_message(channel_id=channel_ids[w], log_time=int(stamps[k]),
+                               publish_time=int(stamps[k]), data=per_topic[w][2][i], sequence=seq[w])
+            seq[w] += 1
+        writer.finish()

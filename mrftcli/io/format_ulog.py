@@ -1,0 +1,289 @@
+"""PX4 ULog: reading with pyulog, writing with a small numpy writer.
+
+Naming (both directions):
+
+* a ROS-style topic ``/mrft/command`` is the ULog message ``mrft_command`` (leading ``/`` dropped,
+  other ``/`` and any character outside ``[A-Za-z0-9_]`` become ``_``); a ULog message name is also
+  accepted as is (``vehicle_attitude``); ``name.N`` selects multi-instance ``N`` (default 0);
+* a dotted FIELD is the flattened ULog field pyulog reports: nested types give ``pose.position.z``,
+  arrays give ``q[0]``;
+* time is the message's ``timestamp`` field [us] -> s.
+
+Quaternions: a field with ``.x .y .z .w`` sub-fields, or a 4-array ``q[0..3]`` in PX4's order
+``(w, x, y, z)`` (``vehicle_attitude:q``).
+
+Why a hand-written writer: pyulog's ``ULog.write_ulog`` only re-serialises a ``ULog`` object that was
+parsed from a file (there is no public way to build one from data) and packs each sample with
+``struct.pack`` in Python. The format is simple (PX4 "ULog file format" spec: 16-byte header, then
+``(uint16 size, uint8 type)``-framed messages); here every topic's data messages are one packed numpy
+record array, interleaved in time order with one vectorised scatter.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LogReadError
+from .logtypes import TopicData, TopicInfo
+from .source import Field, LogSource, rate_of, one_line
+
+__all__ = ["UlogSource", "write_ulog", "ulog_name", "ULOG_MAGIC"]
+
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+
+def ulog_name(topic: str) -> str:
+    """ULog message name for a ROS-style topic (``/mrft/command`` -> ``mrft_command``)."""
+    return re.sub(r"[^A-Za-z0-9_]", "_", topic.lstrip("/"))
+
+
+class UlogSource(LogSource):
+    """A ``.ulg`` file parsed by pyulog (only the messages asked for, when reading series)."""
+
+    format = "ulog"
+    default_field = None
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__(path)
+        self._require_file()
+        self._end_checked = False
+        self._header = self._parse(None, header_only=True)
+        self._full = None
+        self._cache: dict[tuple, object] = {}
+
+    def _parse(self, names, header_only=False):
+        from pyulog import ULog
+
+        noise = io.StringIO()  # pyulog prints its corruption notices; turn them into one warning
+        try:
+            with contextlib.redirect_stdout(noise), contextlib.redirect_stderr(noise):
+                ulog = ULog(str(self.path), message_name_filter_list=names,
+                            parse_header_only=header_only)
+        except Exception as err:  # noqa: BLE001 - pyulog raises several kinds on bad bytes
+            detail = one_line(err)
+            raise LogReadError(f"{self.path}: not a readable ULog file ({detail})") from None
+        if not header_only and (ulog.file_corruption or "corrupt" in noise.getvalue().lower()):
+            self.warn("ULog file is corrupt or truncated; pyulog skipped the damaged part")
+        if not header_only and not self._end_checked:
+            self._end_checked = True
+            if self._ends_inside_a_message():
+                self.warn("ULog file ends inside a message (cut off?); read up to the last whole one")
+        return ulog
+
+    def _ends_inside_a_message(self) -> bool:
+        """Walk the message frames (uint16 size, uint8 type): does the last one run past the end?
+
+        pyulog stops silently at a cut message; this pass (about 1.5 us per message) says so.
+        Files with appended data (an incompat flag) are not checked.
+        """
+        import struct
+
+        data = self.path.read_bytes()
+        if len(data) > 16 + 3 + 40 and data[16 + 2:16 + 3] == b"B" and data[16 + 3 + 8] & 1:
+            return False  # appended-data offsets: frames do not simply chain to the end
+        unpack = struct.Struct("<H").unpack_from
+        pos, end = 16, len(data)
+        while pos + 3 <= end:
+            pos += 3 + unpack(data, pos)[0]
+        return pos != end
+
+    def _all(self):
+        if self._full is None:
+            self._full = self._parse(None)
+        return self._full
+
+    @staticmethod
+    def _key(name: str, multi_id: int) -> str:
+        return name if multi_id == 0 else f"{name}.{multi_id}"
+
+    @staticmethod
+    def _split(topic: str) -> tuple[str, int]:
+        name, dot, inst = topic.rpartition(".")
+        if dot and inst.isdigit():
+            return name, int(inst)
+        return topic, 0
+
+    def topics(self) -> list[TopicInfo]:
+        out = []
+        for d in self._all().data_list:
+            t = d.data["timestamp"].astype(np.float64) / 1e6
+            fields = tuple(k for k in d.data if k != "timestamp")
+            out.append(TopicInfo(self._key(d.name, d.multi_id), d.name, len(t), rate_of(np.sort(t)),
+                                 fields))
+        return sorted(out, key=lambda i: i.name)
+
+    def topic_names(self) -> list[str]:
+        if self._full is not None:
+            return [i.name for i in self.topics()]
+        formats = self._header.message_formats
+        nested = {typ for fmt in formats.values() for typ, _, _ in fmt.fields}
+        return sorted(set(formats) - nested)  # formats of logged messages, not their nested types
+
+    def resolve_topic(self, topic: str) -> str | None:
+        name, inst = self._split(topic)
+        formats = self._header.message_formats
+        for cand in (name, ulog_name(name)):
+            if cand in formats:
+                return self._key(cand, inst)
+        return None
+
+    def _dataset(self, topic: str):
+        name, inst = self._split(topic)
+        key = (name, inst)
+        if key not in self._cache:
+            ulog = self._full if self._full is not None else self._parse([name])
+            found = [d for d in ulog.data_list if d.name == name and d.multi_id == inst]
+            if not found:
+                others = sorted({self._key(d.name, d.multi_id) for d in ulog.data_list if d.name == name})
+                extra = f"; instances logged: {', '.join(others)}" if others else ""
+                raise LogReadError(f"{self.path}: ULog message {topic!r} has no data{extra}")
+            self._cache[key] = found[0]
+        return self._cache[key]
+
+    def prefetch(self, topics: list[str]) -> None:
+        """Parse the file once for all these messages (pyulog reads the whole file per call)."""
+        if self._full is not None:
+            return
+        wanted = {self._split(self.resolve_topic(t) or t)[0] for t in topics}
+        wanted = {w for w in wanted if (w, 0) not in self._cache}
+        if not wanted:
+            return
+        ulog = self._parse(sorted(wanted))
+        for d in ulog.data_list:
+            self._cache.setdefault((d.name, d.multi_id), d)
+
+    def logged_messages(self) -> list[tuple[float, str, str]]:
+        """Text messages the autopilot logged: (time [s], level, text)."""
+        return [(m.timestamp / 1e6, m.log_level_str(), m.message) for m in self._all().logged_messages]
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        resolved = self.resolve_topic(topic)
+        if resolved is None:
+            raise self.missing_topic(topic)
+        data = self._dataset(resolved).data
+        names = [k for k in data if k != "timestamp"]
+        available = set(names)
+        if field is None:
+            if "data" in available:
+                return ["data"]
+            if len(names) == 1:
+                return names
+            raise LogReadError(f"{self.path}: {topic} has several fields; name one with "
+                               f"{topic}:FIELD ({', '.join(names[:12])})")
+        if field in available:
+            return [field]
+        quat = Field.quaternion(field, available, seps=("."))
+        if quat:
+            return quat
+        if all(f"{field}[{i}]" in available for i in range(4)) and f"{field}[4]" not in available:
+            return [f"{field}[1]", f"{field}[2]", f"{field}[3]", f"{field}[0]"]  # PX4: (w, x, y, z)
+        from .source import closest
+
+        raise LogReadError(f"{self.path}: {topic} has no field {field!r}{closest(field, names)}; "
+                           f"fields: {', '.join(names[:20])}")
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        resolved = self.resolve_topic(topic) or topic
+        data = self._dataset(resolved).data
+        t = data["timestamp"].astype(np.float64) / 1e6
+        return t, {f: data[f].astype(np.float64) for f in fields}
+
+
+# -- writing ------------------------------------------------------------------------------------------
+def _message(kind: bytes, payload: bytes) -> bytes:
+    return len(payload).to_bytes(2, "little") + kind + payload
+
+
+def _tree(paths: list[str]) -> dict:
+    root: dict = {}
+    for path in paths:
+        node = root
+        parts = path.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = None
+    return root
+
+
+def _formats(name: str, tree: dict, prefix: str, out: list[str]) -> list[str]:
+    """Format strings for ``name`` and its nested types; returns the flattened leaf order."""
+    fields, leaves = [], []
+    if not prefix:
+        fields.append("uint64_t timestamp")
+    for key, sub in tree.items():
+        if sub is None:
+            fields.append(f"double {key}")
+            leaves.append(prefix + key)
+        else:
+            type_name = f"{name}__{key}"
+            leaves.extend(_formats(type_name, sub, prefix + key + ".", out))
+            fields.append(f"{type_name} {key}")
+    out.append(f"{name}:" + "".join(f + ";" for f in fields))
+    return leaves
+
+
+def write_ulog(topics: list[TopicData], path: str | Path) -> None:
+    """Write topics as ULog (version 1): one message per topic, ``double`` fields, nested types for
+    dotted field paths, ``timestamp`` [us] from the topic times."""
+    t_all = np.concatenate([np.asarray(td.t, dtype=np.float64) for td in topics] or [np.zeros(1)])
+    start_us = int(np.floor(t_all.min() * 1e6)) if len(t_all) else 0
+    head = ULOG_MAGIC + b"\x01" + start_us.to_bytes(8, "little")
+    definitions = [_message(b"B", bytes(16) + bytes(24))]  # flag bits: no (in)compat flags, no appended data
+    info_key = b"char[10] sys_name"
+    definitions.append(_message(b"I", bytes([len(info_key)]) + info_key + b"mrft-ident"))
+    chunks_per_topic, names = [], []
+    for msg_id, td in enumerate(topics):
+        name = ulog_name(td.name)
+        if name in names:
+            raise ValueError(f"two topics map to the ULog message {name!r}")
+        names.append(name)
+        fields = dict(td.fields)
+        for key in list(fields):
+            prefix, _, comp = key.rpartition(".")
+            if comp in "xyzw" and prefix.endswith("orientation"):
+                n = len(td.t)
+                for c in "xyzw":
+                    fields.setdefault(f"{prefix}.{c}", np.full(n, 1.0 if c == "w" else 0.0))
+        formats: list[str] = []
+        leaves = _formats(name, _tree(list(fields)), "", formats)
+        definitions.extend(_message(b"F", f.encode()) for f in formats)
+        stamps = np.round(np.asarray(td.t, dtype=np.float64) * 1e6).astype(np.int64)
+        if len(stamps) and stamps.min() < 0:
+            raise ValueError("ULog timestamps must be >= 0 s")
+        dtype = np.dtype([("size", "<u2"), ("type", "u1"), ("msg_id", "<u2"), ("timestamp", "<u8")]
+                         + [(f"f{i}", "<f8") for i in range(len(leaves))])
+        rec = np.zeros(len(stamps), dtype=dtype)
+        rec["size"] = dtype.itemsize - 3
+        rec["type"] = ord("D")
+        rec["msg_id"] = msg_id
+        rec["timestamp"] = stamps
+        for i, leaf in enumerate(leaves):
+            rec[f"f{i}"] = np.asarray(fields[leaf], dtype=np.float64)
+        chunks_per_topic.append((stamps, rec.view(np.uint8).reshape(len(stamps), dtype.itemsize)))
+    subscriptions = [_message(b"A", bytes([0]) + k.to_bytes(2, "little") + n.encode())
+                     for k, n in enumerate(names)]
+    # interleave the data messages of all topics in time order with one scatter per topic
+    stamps = np.concatenate([s for s, _ in chunks_per_topic] or [np.zeros(0, np.int64)])
+    which = np.concatenate([np.full(len(s), k) for k, (s, _) in enumerate(chunks_per_topic)]
+                           or [np.zeros(0, int)])
+    sizes = np.concatenate([np.full(len(s), rows.shape[1]) for s, rows in chunks_per_topic]
+                           or [np.zeros(0, int)])
+    order = np.lexsort((which, stamps))
+    position = np.empty(len(order), dtype=np.int64)
+    position[order] = np.concatenate([[0], np.cumsum(sizes[order])[:-1]]) if len(order) else []
+    data = np.zeros(int(sizes.sum()), dtype=np.uint8)
+    first = 0
+    for _, rows in chunks_per_topic:
+        pos = position[first:first + len(rows)]
+        data[pos[:, None] + np.arange(rows.shape[1])] = rows
+        first += len(rows)
+    with open(path, "wb") as handle:
+        handle.write(head)
+        handle.write(b"".join(definitions))
+        handle.write(b"".join(subscriptions))
+        handle.write(data.tobytes())

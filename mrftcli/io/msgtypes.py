@@ -1,0 +1,151 @@
+"""ROS message types: rosbags typestores, field listings, and JSON renderings for the writers."""
+
+from __future__ import annotations
+
+import json
+from functools import lru_cache
+
+import numpy as np
+
+from . import cdr as _cdr
+
+__all__ = ["typestore_for", "typestore_from_text", "numeric_leaves", "json_schema", "json_messages",
+           "ros1_name"]
+
+_NAME, _BASE, _ARRAY, _SEQUENCE = 2, 1, 3, 4
+_INTS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "byte", "char"}
+
+
+@lru_cache(maxsize=2)
+def typestore_for(ros1: bool = False):
+    """The standard message definitions (ROS 1 Noetic or ROS 2 Humble). Shared: do not register into."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+
+
+def typestore_from_text(text: str, name: str, ros1: bool = False):
+    """A typestore holding the definitions a log carries (``.msg`` text with its dependencies).
+
+    The log's own definition wins over the standard one, so older or custom message versions decode
+    as recorded.
+    """
+    from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+
+    types = get_types_from_msg(text, name)
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    try:
+        store.register(types)
+        return store
+    except Exception:  # noqa: BLE001 - conflicts with a standard definition: start from builtins only
+        pass
+    base = store
+    store = get_typestore(Stores.EMPTY)
+    store.register({k: v for k, v in base.fielddefs.items() if k.startswith("builtin_interfaces/")})
+    store.register(types)
+    return store
+
+
+def ros1_name(msgtype: str) -> str:
+    """``std_msgs/msg/Float64`` -> ``std_msgs/Float64``."""
+    return msgtype.replace("/msg/", "/")
+
+
+def numeric_leaves(ts, msgtype: str, prefix: str = "") -> list[str]:
+    """Dotted paths of the numeric fields of a type (arrays shown as ``name[N]``, sequences ``name[]``)."""
+    out = []
+    for name, (kind, detail) in ts.fielddefs[msgtype][1]:
+        path = prefix + name
+        if kind == _NAME:
+            out.extend(numeric_leaves(ts, detail, path + "."))
+        elif kind == _BASE and detail[0] not in ("string", "wstring"):
+            out.append(path)
+        elif kind == _ARRAY and detail[0][0] == _BASE and detail[0][1][0] not in ("string", "wstring"):
+            out.append(f"{path}[{detail[1]}]")
+        elif kind == _SEQUENCE and detail[0][0] == _BASE and detail[0][1][0] not in ("string", "wstring"):
+            out.append(f"{path}[]")
+    return out
+
+
+def _schema_of(ts, desc) -> dict:
+    kind, detail = desc
+    if kind == _NAME:
+        return {"type": "object",
+                "properties": {n: _schema_of(ts, d) for n, d in ts.fielddefs[detail][1]}}
+    if kind == _BASE:
+        typ = detail[0]
+        if typ in ("string", "wstring"):
+            return {"type": "string"}
+        if typ == "bool":
+            return {"type": "boolean"}
+        return {"type": "integer" if typ in _INTS else "number"}
+    return {"type": "array", "items": _schema_of(ts, detail[0])}
+
+
+def json_schema(ts, msgtype: str) -> dict:
+    """A JSON Schema (draft 2020-12 subset) of a ROS message type, as MCAP ``jsonschema`` expects."""
+    schema = _schema_of(ts, (_NAME, msgtype))
+    schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    schema["title"] = msgtype
+    return schema
+
+
+def _to_plain(obj):
+    if hasattr(obj, "__msgtype__"):
+        return {k: _to_plain(getattr(obj, k)) for k in obj.__dataclass_fields__ if k != "__msgtype__"}
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, list):
+        return [_to_plain(v) for v in obj]
+    return obj
+
+
+def json_messages(ts, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray],
+                  frame_id: str = "map") -> list[bytes]:
+    """JSON text of ``len(t)`` messages (all fields present; unspecified ones zero, quaternion w one).
+
+    The message is rendered once with placeholders and the numbers are spliced in per message, which
+    is far quicker than building and dumping one dict per message.
+    """
+    template = _to_plain(_cdr._default(ts, msgtype, frame_id))
+    values = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
+    ints = {}
+    if _cdr.struct_fields(ts, msgtype, "header.stamp.sec") is not None:
+        ns = np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
+        ints["header.stamp.sec"] = ns // 1_000_000_000
+        ints["header.stamp.nanosec"] = ns % 1_000_000_000
+    order = list(values) + list(ints)
+    for k, path in enumerate(order):
+        if _cdr.leaf_paths(ts, msgtype, path) != [path]:
+            raise ValueError(f"cannot write {path!r} of {msgtype}: not a numeric leaf")
+        node = template
+        keys = path.split(".")
+        for key in keys[:-1]:
+            node = node[key]
+        node[keys[-1]] = f"@@{k}@@"
+    text = json.dumps(template, separators=(",", ":"))
+    segments = text.split('"@@')
+    parts = [segments[0]]
+    slots = []
+    for seg in segments[1:]:
+        num, rest = seg.split('@@"', 1)
+        slots.append(int(num))
+        parts.append(rest)
+    columns = []
+    for k in slots:
+        path = order[k]
+        if path in ints:
+            columns.append([str(int(v)) for v in ints[path]])
+        else:
+            col = values[path]
+            if not np.isfinite(col).all():
+                raise ValueError(f"{path}: JSON cannot hold NaN/inf")
+            columns.append([repr(float(v)) for v in col])
+    out = []
+    for i in range(len(t)):
+        pieces = [parts[0]]
+        for j, col in enumerate(columns):
+            pieces.append(col[i])
+            pieces.append(parts[j + 1])
+        out.append("".join(pieces).encode())
+    return out

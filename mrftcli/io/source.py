@@ -1,0 +1,225 @@
+"""What every format reader shares: the :class:`LogSource` interface, topic-option parsing, checks.
+
+A reader answers two questions: which topics are there (:meth:`LogSource.topics`), and what are the
+values of some numeric fields of one topic over time (:meth:`LogSource.read`). Everything else
+(default layout, quaternions, error wording) is built once on top, in :mod:`mrftcli.io`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import sys
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import LogReadError
+from .logtypes import TopicInfo
+
+__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "rate_of", "check_times", "Field"]
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """A ``TOPIC[:FIELD]`` option split into its parts (``field`` None = the format's default)."""
+
+    topic: str
+    field: str | None = None
+
+    def __str__(self) -> str:
+        return self.topic if self.field is None else f"{self.topic}:{self.field}"
+
+
+def parse_spec(text: str | TopicSpec) -> TopicSpec:
+    """Split ``TOPIC[:FIELD]`` at the *last* colon whose right side is a field path.
+
+    ROS topic names never contain ``:``, ULog names neither; a CSV column might, so a column name that
+    contains ``:`` is matched whole first by the CSV reader (see :meth:`LogSource.split_spec`).
+    """
+    if isinstance(text, TopicSpec):
+        return text
+    text = text.strip()
+    if not text:
+        raise LogReadError("empty topic option; expected TOPIC[:FIELD]")
+    topic, sep, field = text.rpartition(":")
+    if not sep:
+        return TopicSpec(text, None)
+    if not topic:
+        raise LogReadError(f"topic option {text!r} has no topic before ':'")
+    return TopicSpec(topic, field or None)
+
+
+def one_line(err: BaseException, limit: int = 160) -> str:
+    """A library exception as a short printable single line (for wrapping in LogReadError)."""
+    text = " ".join(str(err).split()) or type(err).__name__
+    text = "".join(c if c.isprintable() and c != "\ufffd" else "?" for c in text)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def closest(name: str, candidates: list[str]) -> str:
+    """`` (did you mean X?)`` for the best fuzzy match among ``candidates``, or an empty string."""
+    match = difflib.get_close_matches(name, candidates, n=1, cutoff=0.5)
+    return f" (did you mean {match[0]}?)" if match else ""
+
+
+def rate_of(t: np.ndarray) -> float | None:
+    """Mean message rate [Hz] from message times [s] (None for fewer than two messages)."""
+    if len(t) < 2 or t[-1] <= t[0]:
+        return None
+    return float((len(t) - 1) / (t[-1] - t[0]))
+
+
+def check_times(t: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
+    """Validate message times of one topic in recording order.
+
+    Returns ``(t, keep, notes)``: ``keep`` is an index array when duplicate stamps had to be dropped
+    (the last message of a run of equal times wins), else None.
+
+    Raises
+    ------
+    LogReadError
+        Times are not finite or go backwards (a clock reset would interleave two recordings).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    notes: list[str] = []
+    if not np.isfinite(t).all():
+        raise LogReadError(f"{what}: {int((~np.isfinite(t)).sum())} timestamps are not finite")
+    if len(t) < 2:
+        return t, None, notes
+    dt = np.diff(t)
+    back = np.flatnonzero(dt < 0)
+    if len(back):
+        i = int(back[0])
+        raise LogReadError(
+            f"{what}: timestamps go backwards ({len(back)} times, first at message {i + 1}: "
+            f"{t[i]:.6f} s -> {t[i + 1]:.6f} s)")
+    dup = dt == 0
+    if dup.any():
+        keep = np.flatnonzero(np.r_[~dup, True])
+        notes.append(f"{what}: dropped {int(dup.sum())} messages with a repeated timestamp")
+        return t[keep], keep, notes
+    return t, None, notes
+
+
+class LogSource(ABC):
+    """An open flight log: list its topics and read numeric fields of one topic.
+
+    Use it as a context manager (``with open_log(path) as log: ...``). ``format`` names the format
+    (one of :data:`mrftcli.io.FORMATS` or ``"dataflash"``).
+    """
+
+    format: str = ""
+    #: what a missing FIELD means for this format (ROS: ``data``)
+    default_field: str | None = None
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.warnings: list[str] = []
+        self._shown = 0
+
+    # context manager --------------------------------------------------------------------------
+    def __enter__(self) -> LogSource:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+        if exc_type is None:
+            # warnings go to stderr only when reading succeeded: a fatal error stays one line
+            for text in self.warnings[self._shown:]:
+                print(f"warning: {text}", file=sys.stderr)
+            self._shown = len(self.warnings)
+
+    def _require_file(self) -> int:
+        """The file's size in bytes; a one-line LogReadError if it cannot be read or is empty."""
+        try:
+            size = self.path.stat().st_size
+        except OSError as err:
+            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
+        if size == 0:
+            raise LogReadError(f"{self.path}: the file is empty")
+        return size
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Release file handles (most readers hold none after opening)."""
+
+    def warn(self, message: str) -> None:
+        """Record a non-fatal problem; shown as a ``warning: ...`` line on stderr when the
+        ``with`` block ends without an error (also kept in ``warnings`` / ``FlightLog.warnings``)."""
+        text = f"{self.path}: {message}"
+        if text not in self.warnings:
+            self.warnings.append(text)
+
+    # interface --------------------------------------------------------------------------------
+    @abstractmethod
+    def topics(self) -> list[TopicInfo]:
+        """Every topic (ULog message, CSV column, DataFlash message type) with count, rate, fields."""
+
+    @abstractmethod
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        """The numeric leaf field(s) ``field`` of ``topic`` stands for: ``[field]``, or four leaves
+        ``x, y, z, w`` for a quaternion. Raises LogReadError for unknown topics/fields."""
+
+    @abstractmethod
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Times [s] (recording order) and float64 values of numeric leaf ``fields`` of ``topic``."""
+
+    # shared -----------------------------------------------------------------------------------
+    def prefetch(self, topics: list[str]) -> None:  # noqa: B027 - optional hook
+        """Hint which topics will be read (formats that parse per topic read them in one pass)."""
+
+    def topic_names(self) -> list[str]:
+        return [info.name for info in self.topics()]
+
+    def resolve_topic(self, topic: str) -> str | None:
+        """The log's name for ``topic`` (formats with other naming rules override), None if absent."""
+        return topic if topic in self.topic_names() else None
+
+    def missing_topic(self, topic: str) -> LogReadError:
+        names = self.topic_names()
+        shown = ", ".join(names[:25]) + (f", ... ({len(names)} in all)" if len(names) > 25 else "")
+        return LogReadError(
+            f"{self.path}: no topic {topic!r}{closest(topic, names)}; topics in the log: {shown or 'none'}")
+
+    def values(self, topic: str, field: str | None = None) -> tuple[np.ndarray, list[str], dict]:
+        """Checked times [s] and the leaf values for ``topic:field`` (see :meth:`leaves`)."""
+        leaves = self.leaves(topic, field)
+        t, vals = self.read(topic, leaves)
+        where = f"{self.path}: {topic}"
+        if len(t) == 0:
+            raise LogReadError(f"{where} has no messages")
+        t, keep, notes = check_times(t, where)
+        for note in notes:
+            self.warn(note.split(": ", 1)[1] if note.startswith(str(self.path)) else note)
+        if keep is not None:
+            vals = {k: v[keep] for k, v in vals.items()}
+        return t, leaves, vals
+
+    def series(self, topic: str, field: str | None = None) -> pd.Series:
+        """One numeric field of ``topic`` as a float Series indexed by time [s] (increasing).
+
+        A quaternion field is refused here (it is four numbers): name one component or use
+        :func:`mrftcli.io.read_flight`, which turns it into roll/pitch.
+        """
+        t, leaves, vals = self.values(topic, field)
+        if len(leaves) != 1:
+            raise LogReadError(
+                f"{self.path}: {topic}:{field} is a quaternion; name one component "
+                f"({', '.join(leaves)}) or read it with --loop roll/pitch")
+        name = f"{topic}:{leaves[0]}" if leaves[0] else topic
+        return pd.Series(vals[leaves[0]], index=pd.Index(t, name="time"), name=name, dtype=np.float64)
+
+
+class Field:
+    """Helpers for dotted field paths in formats that flatten them (CSV, ULog)."""
+
+    @staticmethod
+    def quaternion(prefix: str, available: set[str], seps=(".", "/")) -> list[str] | None:
+        """Leaves ``prefix.x, .y, .z, .w`` (or with ``/``) if all exist in ``available``."""
+        for sep in seps:
+            names = [f"{prefix}{sep}{c}" for c in "xyzw"]
+            if all(n in available for n in names):
+                return names
+        return None

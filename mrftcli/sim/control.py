@@ -1,0 +1,295 @@
+"""The simulator's controllers and planning helpers: MRFT relays, the hold PID, describing function.
+
+Used by :mod:`mrftcli.sim.flight`, which re-exports the public names.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+
+__all__ = [
+    "SWITCHING_RULES",
+    "MrftRelay",
+    "HearMrftRelay",
+    "make_relay",
+    "relay_sequence",
+    "HoldPID",
+    "design_hold_pid",
+    "df_prediction",
+    "noise_margin",
+]
+
+#: MRFT switching rules the simulator implements (see FlightSpec.switching).
+SWITCHING_RULES = ("checks", "hear")
+
+_DEG = math.pi / 180.0
+
+
+def _check_beta(beta: float) -> None:
+    if not (isinstance(beta, (int, float, np.floating)) and -1.0 < float(beta) < 1.0):
+        raise InputError(f"beta must lie in the open interval (-1, 1), got {beta!r}")
+
+
+
+# --------------------------------------------------------------------------------------------------
+# describing-function planning (approximate; only used to choose h and durations)
+
+
+def _phase_with_hold(model: LoopModel, omega: float, rate_hz: float) -> float:
+    """arg G(j omega) [rad] plus the half-sample lag of the zero-order hold, unwrapped."""
+    return (
+        -0.5 * math.pi
+        - math.atan(model.Tp * omega)
+        - math.atan(model.Td * omega)
+        - (model.tau + 0.5 / rate_hz) * omega
+    )
+
+
+def _solve_phase(model: LoopModel, target: float, rate_hz: float) -> float:
+    """Frequency [rad/s] where the (monotone) phase with hold equals ``target`` [rad]."""
+    lo, hi = 1e-6, 1.0
+    while _phase_with_hold(model, hi, rate_hz) > target:
+        hi *= 2.0
+        if hi > 1e7:
+            raise InputError("no phase crossover found; check the model parameters")
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _phase_with_hold(model, mid, rate_hz) > target:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def df_prediction(model: LoopModel, beta: float, h: float, rate_hz: float = 200.0) -> tuple[float, float]:
+    """Describing-function estimate of the MRFT limit cycle, eq. (4)-(6) of the paper.
+
+    Solves arg G(j Omega) - Omega / (2 rate_hz) = -pi + asin(beta) (the half-sample lag models the
+    zero-order hold) and a = 4 h |G(j Omega)| / pi. Approximate (first harmonic only); use
+    :mod:`mrftcli.mrft.lprs` for exact figures. Used here only to plan h and test durations.
+
+    Returns
+    -------
+    omega : float
+        Oscillation frequency [rad/s].
+    amplitude : float
+        Output amplitude [output units].
+    """
+    _check_beta(beta)
+    omega = _solve_phase(model, -math.pi + math.asin(beta), rate_hz)
+    amplitude = 4.0 * abs(h) * abs(complex(model.frequency_response(omega))) / math.pi
+    return omega, amplitude
+
+
+def noise_margin(model: LoopModel, beta: float, h: float, rate_hz: float, noise_std: float) -> float:
+    """How far the output moves per tick near the error's zero crossing, in noise std.
+
+    a Omega / (rate_hz noise_std) with the describing-function amplitude a and frequency Omega. The
+    plain MRFT rule on white noise locks up when a noise dip right after the zero crossing switches
+    the relay the wrong way, so this margin should be at least 4. Measured over 486 simulated tests
+    (54 models of the DNN-MRFT range, betas -0.2/-0.5/-0.8): margin < 1: 95 % locked, 1.5-2: 48 %,
+    2.5-3: 24 %, 3-4: 6 %, >= 4: none of 176. Returns inf without noise.
+    """
+    if noise_std <= 0:
+        return math.inf
+    omega, amplitude = df_prediction(model, beta, h, rate_hz)
+    return amplitude * omega / (rate_hz * noise_std)
+
+
+# --------------------------------------------------------------------------------------------------
+# hold controller
+
+
+@dataclass(frozen=True)
+class HoldPID:
+    """The PID that holds the setpoint between tests (parallel form, filtered derivative).
+
+    C(s) = Kp + Ki / s + Kd s / (Tf s + 1), derivative on the measurement.
+
+    Attributes
+    ----------
+    Kp, Ki, Kd : float
+        Gains [command units per output unit, per output unit-second, per output unit/s].
+    Tf : float
+        Derivative filter time constant [s].
+    omega_c : float
+        Design crossover frequency [rad/s].
+    phase_margin_deg : float
+        Design phase margin [deg] (continuous design, hold modelled as half a sample of delay).
+    """
+
+    Kp: float
+    Ki: float
+    Kd: float
+    Tf: float
+    omega_c: float
+    phase_margin_deg: float
+
+
+def design_hold_pid(model: LoopModel, rate_hz: float = 200.0, phase_margin_deg: float = 45.0) -> HoldPID:
+    """Loop-shaping PID for G(s) with a given phase margin at a computed crossover.
+
+    The controller shape is fixed relative to the crossover omega_c: derivative time 1.5 / omega_c
+    with a filter at N = 10, integral time 6 / omega_c. Its phase at omega_c is then a constant lead;
+    omega_c is where arg G(j omega) (with half a sample of hold delay) plus that lead equals
+    -180 deg + phase margin, and Kp puts |C G| = 1 there. The phase of G is monotone, so omega_c is
+    unique; the design holds over the whole DNN-MRFT range (T1 0.015-0.3 s, T2 0.2-2 s, tau up to
+    0.1 s) and the paper's platforms (checked in the tests with the exact discrete closed loop).
+    """
+    a, n_filter, ti = 1.5, 10.0, 6.0
+
+    def c_norm(omega: float) -> complex:
+        s = 1j * omega
+        td, tf, ti_ = a / omega, a / omega / n_filter, ti / omega
+        return 1.0 + 1.0 / (ti_ * s) + td * s / (tf * s + 1.0)
+
+    lead = math.atan2(c_norm(1.0).imag, c_norm(1.0).real)  # scale-free: same at every omega_c
+    omega_c = _solve_phase(model, -math.pi + phase_margin_deg * _DEG - lead, rate_hz)
+    g = abs(complex(model.frequency_response(omega_c)))
+    kp = 1.0 / (g * abs(c_norm(omega_c)))
+    td = a / omega_c
+    return HoldPID(
+        Kp=kp,
+        Ki=kp / (ti / omega_c),
+        Kd=kp * td,
+        Tf=td / n_filter,
+        omega_c=omega_c,
+        phase_margin_deg=phase_margin_deg,
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+# MRFT relays
+
+
+class MrftRelay:
+    """The MRFT switching rule of checks.md section 2 on sampled errors (returns the relay sign).
+
+    e = r - y. While +h, track e_max since the last switch and switch to -h when e_max > 0 and
+    e <= -beta e_max; while -h, track e_min and switch to +h when e_min < 0 and e >= -beta e_min.
+    The tracked extremum restarts at the error of the switching sample.
+
+    Start (:meth:`start`): the relay takes the sign of the first error (+ for e >= 0) and keeps it
+    until the error is beyond ``start_threshold`` on the other side; that sample is the first switch
+    and the rule above applies from there. With the vehicle at rest at the start, this keeps
+    switching from beginning at noise level (the plain rule can then lock up); 0 means the first
+    switch is at the first sample with the opposite sign.
+    """
+
+    def __init__(self, beta: float, start_threshold: float = 0.0) -> None:
+        _check_beta(beta)
+        self.beta = float(beta)
+        self.start_threshold = float(start_threshold)
+        self.relay = 1.0
+        self.e_ext = 0.0
+        self.first_half = True
+
+    def start(self, e: float) -> float:
+        self.relay = 1.0 if e >= 0 else -1.0
+        self.e_ext = e
+        self.first_half = True
+        return self.relay
+
+    def step(self, e: float) -> float:
+        if self.first_half:
+            if self.relay * e < -self.start_threshold:
+                self.relay = -self.relay
+                self.e_ext = e
+                self.first_half = False
+        elif self.relay > 0:
+            if e > self.e_ext:
+                self.e_ext = e
+            if self.e_ext > 0 and e <= -self.beta * self.e_ext:
+                self.relay = -1.0
+                self.e_ext = e
+        else:
+            if e < self.e_ext:
+                self.e_ext = e
+            if self.e_ext < 0 and e >= -self.beta * self.e_ext:
+                self.relay = 1.0
+                self.e_ext = e
+        return self.relay
+
+
+class HearMrftRelay:
+    """The HEAR flight stack's MRFT block (``mrft_anti_false_switching``, mode 1), relay sign.
+
+    The switching levels are those of :class:`MrftRelay` (-beta e_max, -beta e_min), but a switch
+    needs the extremum to be confirmed (``confirm_samples`` ticks without a new one) and at least
+    ``no_switch_ticks`` ticks since the previous switch, and the extremum's sign is not checked, so a
+    noise-triggered switch is undone instead of locking the relay. Start: the sign of the first
+    error (- for e <= 0), first switch when the error changes sign.
+    """
+
+    def __init__(self, beta: float, confirm_samples: int = 5, no_switch_ticks: float = 4.0) -> None:
+        _check_beta(beta)
+        self.beta = float(beta)
+        self.confirm = int(confirm_samples)
+        self.no_switch = float(no_switch_ticks) - 1e-9
+        self.start(0.0)
+
+    def start(self, e: float) -> float:
+        self.relay = 1.0 if e > 0 else -1.0
+        self.e_max = self.e_min = 0.0
+        self.reached = True
+        self.count = 0
+        self.since = 0
+        return self.relay
+
+    def step(self, e: float) -> float:
+        self.since += 1
+        if self.since <= self.no_switch:
+            return self.relay
+        beta = self.beta
+        if self.relay < 0:
+            if e < self.e_min:
+                self.e_min, self.count = e, 0
+            else:
+                self.count += 1
+                if self.count >= self.confirm:
+                    self.reached, self.count = True, 0
+                self.e_max = e
+            if self.reached and e > -beta * self.e_min:
+                self.relay, self.reached, self.since = 1.0, False, 0
+        else:
+            if e > self.e_max:
+                self.e_max, self.count = e, 0
+            else:
+                self.count += 1
+                if self.count >= self.confirm:
+                    self.reached, self.count = True, 0
+                self.e_min = e
+            if self.reached and e < -beta * self.e_max:
+                self.relay, self.reached, self.since = -1.0, False, 0
+        return self.relay
+
+
+def make_relay(
+    beta: float,
+    switching: str = "checks",
+    start_threshold: float = 0.0,
+    confirm_samples: int = 5,
+    no_switch_ticks: float = 4.0,
+) -> MrftRelay | HearMrftRelay:
+    """The relay object of a switching rule (``checks`` or ``hear``)."""
+    if switching == "checks":
+        return MrftRelay(beta, start_threshold)
+    if switching == "hear":
+        return HearMrftRelay(beta, confirm_samples, no_switch_ticks)
+    raise InputError(f"unknown switching rule {switching!r}; use one of {', '.join(SWITCHING_RULES)}")
+
+
+def relay_sequence(e: np.ndarray, beta: float, switching: str = "checks", **options) -> np.ndarray:
+    """Relay signs (+1/-1) the rule produces for the error samples ``e`` (first sample = start)."""
+    relay = make_relay(beta, switching, **options)
+    e = np.asarray(e, dtype=float)
+    out = np.empty(e.size)
+    for i, value in enumerate(e.tolist()):
+        out[i] = relay.start(value) if i == 0 else relay.step(value)
+    return out

@@ -1,0 +1,113 @@
+"""Record the CLI's output on every shipped sample log, to check a refactor changes none of it.
+
+Runs ``analyze`` (text and ``--json -``), ``diagnose`` (``--json -``), ``topics``, ``batch`` (one job,
+summary as JSON), ``predict`` and ``identify`` and writes each command's stdout, stderr and exit code
+into one file per command under ``--out``. Run it before and after a change and compare the two
+folders with ``--compare``::
+
+    python scripts/cli_snapshot.py --out /tmp/before
+    # ... change the code ...
+    python scripts/cli_snapshot.py --out /tmp/after --compare /tmp/before
+
+Output that depends on the wall clock or on temporary paths (batch's output folder) is normalised.
+``--no-diagnose`` skips the slow diagnosis runs (about 15 s of CPU per log).
+"""
+
+from __future__ import annotations
+
+import argparse
+import difflib
+import json
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "sample_logs"
+
+
+def _logs() -> list[tuple[Path, dict]]:
+    out = []
+    for truth in sorted(SAMPLES.rglob("*.truth.json")):
+        name = truth.name[: -len(".truth.json")]
+        log = truth.parent / name
+        if not log.exists():
+            continue
+        out.append((log, json.loads(truth.read_text())))
+    return out
+
+
+def _run(args: list[str]) -> str:
+    proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True,
+                          cwd=ROOT)
+    return f"$ mrft-ident {' '.join(args)}\n--- exit {proc.returncode}\n--- stdout\n{proc.stdout}--- stderr\n{proc.stderr}"
+
+
+def _normalise(text: str, tmp: str) -> str:
+    text = text.replace(tmp, "<TMP>")
+    return re.sub(r"\d+(\.\d+)?\s*(s|it)/(it|s)\b", "<RATE>", text)
+
+
+def snapshot(out: Path, *, diagnose: bool) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    jobs: dict[str, list[str]] = {}
+    for log, truth in _logs():
+        rel = str(log.relative_to(ROOT))
+        key = rel.replace("/", "__")
+        common = [rel, "--tp", repr(truth["Tp"]), "--loop", truth["loop"]]
+        jobs[f"analyze_text__{key}"] = ["analyze", *common]
+        jobs[f"analyze_json__{key}"] = ["analyze", *common, "--json", "-"]
+        jobs[f"topics__{key}"] = ["topics", rel]
+        if diagnose:
+            jobs[f"diagnose_json__{key}"] = ["diagnose", *common, "--json", "-"]
+    jobs["predict"] = ["predict", "--tp", "0.1", "--td", "0.7042", "--tau", "0.06", "--beta", "-0.4"]
+    jobs["predict_json_rate"] = ["predict", "--tp", "0.1", "--td", "0.7042", "--tau", "0.06", "--beta", "-0.4",
+                                 "--rate", "200", "--json"]
+    jobs["identify"] = ["identify", "--tp", "0.1", "--test", "-0.4:0.70564", "--test", "-0.7:1.01884"]
+    jobs["identify_json_k"] = ["identify", "--tp", "0.1", "--test", "-0.4:0.7056:0.0785:1",
+                               "--test", "-0.7:1.0188:0.0356:1", "--json"]
+    for name, args in jobs.items():
+        (out / f"{name}.txt").write_text(_run(args))
+        print(name, flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        args = ["batch", "sample_logs", "--tp", "0.0422", "--jobs", "1", "--out", tmp, "--no-report", "--json",
+                "--quiet"]
+        text = _normalise(_run(args), tmp)
+        (out / "batch.txt").write_text(text)
+        for csv in sorted(Path(tmp).glob("*.csv")):
+            (out / f"batch_{csv.name}.txt").write_text(_normalise(csv.read_text(), tmp))
+    print("batch", flush=True)
+
+
+def compare(after: Path, before: Path) -> int:
+    differing = 0
+    names = sorted({p.name for p in before.glob("*.txt")} | {p.name for p in after.glob("*.txt")})
+    for name in names:
+        a, b = after / name, before / name
+        if not a.exists() or not b.exists():
+            print(f"only in one snapshot: {name}")
+            differing += 1
+            continue
+        if a.read_text() != b.read_text():
+            differing += 1
+            diff = difflib.unified_diff(b.read_text().splitlines(), a.read_text().splitlines(),
+                                        f"before/{name}", f"after/{name}", lineterm="", n=1)
+            print("\n".join(list(diff)[:40]))
+    print(f"{len(names) - differing}/{len(names)} outputs identical")
+    return 1 if differing else 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, required=True, help="folder for this snapshot")
+    parser.add_argument("--compare", type=Path, help="an earlier snapshot to compare against")
+    parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis runs")
+    args = parser.parse_args()
+    snapshot(args.out, diagnose=not args.no_diagnose)
+    return compare(args.out, args.compare) if args.compare else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -10,7 +10,9 @@ folders with ``--compare``::
     python scripts/cli_snapshot.py --out /tmp/after --compare /tmp/before
 
 Output that depends on the wall clock or on temporary paths (batch's output folder) is normalised.
-``--no-diagnose`` skips the slow diagnosis runs (about 15 s of CPU per log).
+``--no-diagnose`` skips the slow diagnosis runs (about 15 s of CPU per log); ``--only REGEX`` runs
+and compares only the outputs whose name matches (``analyze_text``, ``diagnose_json``, ``topics``,
+``batch``, ``predict``, ``identify``, or a log's name).
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ def _normalise(text: str, tmp: str) -> str:
     return re.sub(r"\d+(\.\d+)?\s*(s|it)/(it|s)\b", "<RATE>", text)
 
 
-def snapshot(out: Path, *, diagnose: bool) -> None:
+def snapshot(out: Path, *, diagnose: bool, only: str | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     jobs: dict[str, list[str]] = {}
     for log, truth in _logs():
@@ -69,8 +71,12 @@ def snapshot(out: Path, *, diagnose: bool) -> None:
     jobs["identify_json_k"] = ["identify", "--tp", "0.1", "--test", "-0.4:0.7056:0.0785:1",
                                "--test", "-0.7:1.0188:0.0356:1", "--json"]
     for name, args in jobs.items():
+        if only and not re.search(only, name):
+            continue
         (out / f"{name}.txt").write_text(_run(args))
         print(name, flush=True)
+    if only and not re.search(only, "batch"):
+        return
     with tempfile.TemporaryDirectory() as tmp:
         args = ["batch", "sample_logs", "--tp", "0.0422", "--jobs", "1", "--out", tmp, "--no-report", "--json",
                 "--quiet"]
@@ -81,9 +87,11 @@ def snapshot(out: Path, *, diagnose: bool) -> None:
     print("batch", flush=True)
 
 
-def compare(after: Path, before: Path) -> int:
+def compare(after: Path, before: Path, only: str | None = None) -> int:
     differing = 0
     names = sorted({p.name for p in before.glob("*.txt")} | {p.name for p in after.glob("*.txt")})
+    if only:
+        names = [n for n in names if re.search(only, n)]
     for name in names:
         a, b = after / name, before / name
         if not a.exists() or not b.exists():
@@ -104,9 +112,10 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="folder for this snapshot")
     parser.add_argument("--compare", type=Path, help="an earlier snapshot to compare against")
     parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis runs")
+    parser.add_argument("--only", metavar="REGEX", help="run (and compare) only the outputs whose name matches")
     args = parser.parse_args()
-    snapshot(args.out, diagnose=not args.no_diagnose)
-    return compare(args.out, args.compare) if args.compare else 0
+    snapshot(args.out, diagnose=not args.no_diagnose, only=args.only)
+    return compare(args.out, args.compare, args.only) if args.compare else 0
 
 
 if __name__ == "__main__":

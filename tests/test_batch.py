@@ -78,7 +78,6 @@ def fleet(tmp_path: Path) -> Path:
 def run(paths, out, **kw):
     kw.setdefault("defaults", {"tp": 0.05})
     kw.setdefault("jobs", 1)
-    kw.setdefault("quiet", True)
     kw.setdefault("report", False)
     kw.setdefault("worker", fake_worker)
     return B.run_batch(paths if isinstance(paths, list) else [paths], out, **kw)
@@ -270,6 +269,17 @@ def test_resume_skips_uptodate_and_recomputes_on_change(tmp_path: Path, fleet: P
     assert "skipped-uptodate" not in set(fifth.summary["status"])
 
 
+def test_progress_counts_the_logs_analysed_not_the_skipped(tmp_path: Path, fleet: Path) -> None:
+    out = tmp_path / "out"
+    calls: list[tuple[float, float, str]] = []
+    run(fleet, out, progress=lambda done, total, stage="": calls.append((done, total, stage)))
+    assert [c[:2] for c in calls] == [(0, 4), (1, 4), (2, 4), (3, 4), (4, 4)]
+    assert sorted(c[2] for c in calls[1:]) == ["bad.csv", "f1.csv", "f1.csv", "f2.csv"]
+    calls.clear()
+    run(fleet, out, progress=lambda done, total, stage="": calls.append((done, total, stage)))
+    assert calls == [(0, 1, ""), (1, 1, "bad.csv")]  # the three up-to-date logs are not work
+
+
 def test_missing_tp_everywhere_is_an_input_error(tmp_path: Path, fleet: Path) -> None:
     with pytest.raises(InputError, match="no Tp given"):
         run(fleet, tmp_path / "out", defaults={})
@@ -281,8 +291,9 @@ def test_missing_tp_everywhere_is_an_input_error(tmp_path: Path, fleet: Path) ->
 
 
 class _FakeResult:
-    def __init__(self, d):
+    def __init__(self, d, path=""):
         self._d = d
+        self.flight = types.SimpleNamespace(path=path)  # what diagnose is given
 
     def to_dict(self):
         return self._d
@@ -301,7 +312,7 @@ def _fake_analyze_path(path, Tp, loop, *, command_topic=None, output_topic=None,
             warnings.warn("Mean of empty slice", RuntimeWarning, stacklevel=1)
     return _FakeResult({"parameters": {"tau": {"mean": 0.04, "std": 0.001}, "Td": {"mean": Tp * 10, "std": 0.0},
                                        "K": {"mean": 1.0, "std": 0.0}},
-                        "tests": [], "loop": loop, "command_topic": command_topic})
+                        "tests": [], "loop": loop, "command_topic": command_topic}, path)
 
 
 @pytest.fixture
@@ -328,7 +339,7 @@ def test_analyze_one_statuses(tmp_path: Path, fake_analyze) -> None:
                                                                 "LogReadError")
     bug = B.analyze_one(task("bug.mcap"))["loops"][0]
     assert (bug["error_type"], bug["error"]) == ("internal", "ZeroDivisionError: division by zero")
-    # A setting the analysis does not support is reported, not silently dropped.
+    # A setting the analysis does not take fails the loop with its name, not silently dropped.
     uns = B.analyze_one(task("good.mcap", output_scale=2.0))["loops"][0]
     assert uns["status"] == "failed" and "output_scale" in uns["error"]
     # numeric warnings are kept in the record (once each), not printed from the workers
@@ -351,12 +362,12 @@ class _FakeDiagnosis:
                             for n in self.effects], "located": []}
 
 
-def _fake_diagnose(flight=None, Tp=None, analysis=None, *, path=None, tp=None, loop=None, command_topic=None,
-                   output_topic=None, beta_topic=None, output_scale=None, candidates=None, progress=None):
+def _fake_diagnose(flight, Tp, analysis=None, progress=None):
     from mrftcli.errors import DiagnoseError
 
-    assert analysis is not None and Tp == 0.1 and tp is None and loop == "altitude"
-    name = Path(path).name
+    # the analysis' signals and the log's Tp are passed on, so the log is not read twice
+    assert analysis is not None and flight is analysis.flight and Tp == 0.1
+    name = Path(flight.path).name
     if name.startswith("nodiag"):
         raise DiagnoseError("no test with 6 stable cycles")
     return _FakeDiagnosis(["input_bias", "sensor_lag"] if name.startswith("good") else [])
@@ -368,7 +379,7 @@ def test_diagnose_findings_and_failures(tmp_path: Path, fake_analyze, monkeypatc
     monkeypatch.setitem(sys.modules, "mrftcli.diagnose.selection", mod)
     for name in ("good.mcap", "clean.mcap", "nodiag.mcap"):
         write_toy(tmp_path / "logs" / name)
-    kw = {"defaults": {"tp": 0.1}, "jobs": 1, "quiet": True, "report": False}
+    kw = {"defaults": {"tp": 0.1}, "jobs": 1, "report": False}
     df = B.run_batch([tmp_path / "logs"], tmp_path / "out", diagnose=True, **kw).summary.set_index("path")
     row = {Path(p).name: r for p, r in df.iterrows()}
     assert row["good.mcap"]["findings"] == "input_bias;sensor_lag"
@@ -386,7 +397,7 @@ def test_diagnose_findings_and_failures(tmp_path: Path, fake_analyze, monkeypatc
 def test_insufficient_rows_and_cli_like_summary(tmp_path: Path, fake_analyze) -> None:
     for name in ("good.mcap", "single.mcap", "unreadable.mcap"):
         write_toy(tmp_path / "logs" / name)
-    res = B.run_batch([tmp_path / "logs"], tmp_path / "out", defaults={"tp": 0.1}, jobs=1, quiet=True, report=False)
+    res = B.run_batch([tmp_path / "logs"], tmp_path / "out", defaults={"tp": 0.1}, jobs=1, report=False)
     assert res.summary["status"].tolist() == ["ok", "insufficient", "failed"]
     assert "1 ok, 1 insufficient, 1 failed" in res.summary_line()
     assert res.summary.loc[1, "error"] == "only one beta found (-0.4); need two"
@@ -516,6 +527,9 @@ def test_fleet_report_writes_html_and_png(tmp_path: Path, mplcleanup) -> None:
     index = write_fleet_report(df, tmp_path / "report")
     text = index.read_text()
     assert "fleet_altitude.png" in text and "log5.mcap" in text and "tau high" in text
+    # table cells: tau in ms, other numbers to 4 digits, times to the minute, a missing error blank
+    assert "<td>/f/v1/log5.mcap</td><td>altitude</td><td>v1</td><td>ok</td><td>70.00 ms</td><td>1.00 ms</td><td>1</td>" in text
+    assert "<td>2026-01-06 00:00</td><td></td></tr>" in text
     png = tmp_path / "report" / "fleet_altitude.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
 

@@ -24,13 +24,11 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import inspect
 import json
 import math
 import os
 import re
 import socket
-import sys
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -38,7 +36,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -57,6 +55,12 @@ from .inputs import (
 )
 from ..errors import InputError, InsufficientDataError, MrftError
 from ..io.logtypes import LOOPS
+from ..jsonable import to_jsonable
+from ..progress import Progress
+from ..progress import report as report_progress
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
 
 __all__ = [
     "SUPPORTED_SUFFIXES",
@@ -142,20 +146,6 @@ def _failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
     }
 
 
-def _call_with_supported(func: Callable[..., Any], args: tuple, kwargs: dict[str, Any]) -> Any:
-    """Call ``func`` passing only the keyword options it accepts; a set option it lacks is an error."""
-    try:
-        params = inspect.signature(func).parameters
-    except (TypeError, ValueError):  # pragma: no cover - builtins
-        return func(*args, **kwargs)
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return func(*args, **kwargs)
-    unsupported = [k for k in kwargs if k not in params]
-    if unsupported:
-        raise InputError(f"{func.__module__}.{func.__name__} does not support the setting(s) {', '.join(unsupported)}")
-    return func(*args, **kwargs)
-
-
 def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     s = task.settings
     entry: dict[str, Any] = {"loop": loop, "status": STATUS_OK, "error": None, "error_type": None,
@@ -165,11 +155,12 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
             raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
         from ..analyze import analyze_path
 
+        # settings left unset keep analyze_path's defaults
         options = {k: v for k, v in (("command_topic", s.command_topic), ("output_topic", s.output_topic),
                                      ("beta_topic", s.beta_topic), ("setpoint_topic", s.setpoint_topic),
                                      ("output_scale", s.output_scale), ("min_stable_cycles", s.min_cycles))
                    if v is not None}
-        result = _call_with_supported(analyze_path, (task.path, s.tp, loop), options)
+        result = analyze_path(task.path, s.tp, loop, **options)
         entry["result"] = result.to_dict()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,
@@ -178,34 +169,18 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
         return _failed_entry(loop, err)
     if task.diagnose:
-        entry["diagnosis"] = _diagnose_loop(task, loop, result)
+        entry["diagnosis"] = _diagnose_loop(task, result)
     return entry
 
 
-def _diagnose_loop(task: LogTask, loop: str, analysis: Any) -> dict[str, Any]:
-    """Run the diagnosis on an analysed loop; its failure is recorded but leaves the analysis ok."""
+def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
+    """Run the diagnosis on an analysed loop (reusing its signals and segmentation); its failure is
+    recorded but leaves the analysis ok."""
     try:
         from ..diagnose.selection import diagnose
 
-        params = inspect.signature(diagnose).parameters
-        s = task.settings
-        kwargs: dict[str, Any] = {}
-        # Pass the analysis when diagnose accepts it (saves a second analysis), else the log and settings.
-        for name in ("analysis", "result", "analysis_result"):
-            if name in params:
-                kwargs[name] = analysis
-                break
-        tp_name = "Tp" if "Tp" in params else "tp"
-        options: tuple[tuple[str, Any], ...] = ((tp_name, s.tp), ("loop", loop))
-        if not kwargs or getattr(analysis, "flight", None) is None:
-            # no analysis with its signals to reuse: diagnose reads the log itself
-            options += (("path", task.path), ("command_topic", s.command_topic), ("output_topic", s.output_topic),
-                        ("beta_topic", s.beta_topic), ("setpoint_topic", s.setpoint_topic),
-                        ("output_scale", s.output_scale))
-        for name, value in options:
-            if name in params and value is not None and name not in kwargs:
-                kwargs[name] = value
-        return {"status": STATUS_OK, "error": None, **diagnose(**kwargs).to_dict()}
+        return {"status": STATUS_OK, "error": None,
+                **diagnose(analysis.flight, task.settings.tp, analysis=analysis).to_dict()}
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)
         return {"status": STATUS_FAILED, "error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}",
@@ -235,8 +210,6 @@ def analyze_one(task: LogTask) -> dict[str, Any]:
             entry = _analyze_loop(task, loop)
         entry["python_warnings"] = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
         loops.append(entry)
-    from ..cli.options import to_jsonable
-
     # Plain JSON values (NaN -> None) made here, in the worker, so the parent only writes them.
     return to_jsonable(_record(task, loops, time.perf_counter() - t0))
 
@@ -642,8 +615,6 @@ def _to_json_text(obj: Any) -> str:
     try:
         return json.dumps(obj, allow_nan=False, separators=(",", ":"))
     except (TypeError, ValueError):  # numpy values or NaN from a worker that did not clean its record
-        from ..cli.options import to_jsonable
-
         return json.dumps(to_jsonable(obj), allow_nan=False, separators=(",", ":"))
 
 
@@ -652,13 +623,6 @@ def _write_json_atomic(path: Path, obj: Any) -> None:
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
     tmp.write_text(_to_json_text(obj) + "\n")
     os.replace(tmp, path)
-
-
-def _progress(total: int, quiet: bool) -> Any:
-    from tqdm import tqdm
-
-    disable = quiet or not sys.stderr.isatty()
-    return tqdm(total=total, unit="log", file=sys.stderr, disable=disable, dynamic_ncols=True, leave=False)
 
 
 def run_batch(
@@ -673,8 +637,8 @@ def run_batch(
     scheduler: str | None = None,
     scheduler_timeout_s: float = 10.0,
     force: bool = False,
-    quiet: bool = False,
     report: bool = True,
+    progress: Progress | None = None,
     worker: Worker = analyze_one,
 ) -> BatchResult:
     """Analyse every log under ``paths`` and write the outputs to ``out_dir``.
@@ -699,10 +663,11 @@ def run_batch(
         How long to wait for the scheduler [s].
     force : bool
         Recompute logs whose stored result is up to date.
-    quiet : bool
-        No progress bar.
     report : bool
         Write the fleet report (HTML + PNG).
+    progress : Progress, optional
+        Called as ``progress(done, total, name)`` with the logs analysed so far out of those to
+        analyse (up-to-date logs are not counted) and the name of the last one.
     worker : callable
         ``LogTask -> record``; :func:`analyze_one` unless testing or reusing the machinery. Must be
         picklable (a module-level function) for processes and Dask.
@@ -757,13 +722,12 @@ def run_batch(
             stream = _run_inprocess(worker, todo)
         else:
             stream = _run_processes(worker, todo, jobs or os.cpu_count() or 1)
-        with _progress(len(todo), quiet) as bar:
-            for task, record in stream:
-                jp = result_path(out, Path(task.path))
-                _write_json_atomic(jp, record)
-                rows.extend(summary_rows(record, jp))
-                bar.set_postfix_str(Path(task.path).name, refresh=False)
-                bar.update(1)
+        report_progress(progress, 0, len(todo), "")
+        for done, (task, record) in enumerate(stream, 1):
+            jp = result_path(out, Path(task.path))
+            _write_json_atomic(jp, record)
+            rows.extend(summary_rows(record, jp))
+            report_progress(progress, done, len(todo), Path(task.path).name)
 
     loop_order = {name: i for i, name in enumerate(LOOPS)}
     rows.sort(key=lambda r: (r["path"], loop_order.get(r["loop"], 99), str(r["loop"])))

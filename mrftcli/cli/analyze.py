@@ -6,8 +6,8 @@ import math
 
 import click
 
-from ..errors import InputError, InsufficientDataError, SegmentationError
-from .options import dump_json, log_layout_options, tp_option
+from ..errors import InsufficientDataError, SegmentationError
+from .options import dump_json, log_layout_options, tp_option, tqdm_progress
 
 
 def _fmt_est(est, scale: float, digits: int = 4) -> str:
@@ -51,30 +51,6 @@ def format_table(result) -> str:
             f"tau {c['tau']['mean'] * 1e3:.4g} ± {(c['tau']['std'] or 0) * 1e3:.2g} ms"
         )
     return "\n".join(lines)
-
-
-def _run_diagnose(result, Tp):
-    try:
-        from ..diagnose import selection as diag_mod
-    except ImportError:
-        diag_mod = None
-    fn = getattr(diag_mod, "diagnose", None) if diag_mod is not None else None
-    if fn is None:
-        raise InputError("--diagnose is not available in this installation (mrftcli.diagnose.selection.diagnose is missing)")
-    import inspect
-
-    from tqdm import tqdm
-
-    kwargs = {}
-    # a live status line on a terminal (the diagnosis re-simulates and takes tens of seconds);
-    # tqdm disables itself when stderr is not a terminal
-    bar = tqdm(total=None, desc="diagnose", bar_format="{desc}: {postfix} [{elapsed}]", disable=None, leave=False)
-    if "progress" in inspect.signature(fn).parameters:
-        kwargs["progress"] = lambda text: bar.set_postfix_str(str(text))
-    try:
-        return fn(result.flight, Tp, analysis=result, **kwargs)
-    finally:
-        bar.close()
 
 
 @click.command("analyze")
@@ -131,7 +107,11 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
         raise
     diagnosis = None
     if run_diagnose:
-        diagnosis = _run_diagnose(result, Tp)
+        from ..diagnose.selection import diagnose as run_diagnosis
+
+        # a live bar on a terminal: the diagnosis re-simulates and takes tens of seconds
+        with tqdm_progress("diagnose", unit="stage") as progress:
+            diagnosis = run_diagnosis(result.flight, Tp, analysis=result, progress=progress)
     if json_target:
         data = result.to_dict()
         if diagnosis is not None:

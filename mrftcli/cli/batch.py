@@ -87,7 +87,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     Exit code 8 when some logs failed (the others are still analysed and written).
     """
     from ..batch.run import BatchFailedError, load_config, run_batch
-    from .options import dump_json
+    from .options import dump_json, tqdm_progress
 
     if setting_opts.get("output_scale") is not None and (
         setting_opts["output_scale"] == 0 or not math.isfinite(setting_opts["output_scale"])
@@ -104,9 +104,10 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
         (explicit if source in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT) else defaults)[key] = value
     config = load_config(config_file) if config_file else None
 
-    result = run_batch(paths, out_dir, defaults=defaults, config=config, explicit=explicit, diagnose=diagnose,
-                       jobs=jobs, scheduler=scheduler, scheduler_timeout_s=scheduler_timeout, force=force,
-                       quiet=quiet, report=not no_report)
+    with tqdm_progress("batch", unit="log", enabled=not quiet) as progress:
+        result = run_batch(paths, out_dir, defaults=defaults, config=config, explicit=explicit, diagnose=diagnose,
+                           jobs=jobs, scheduler=scheduler, scheduler_timeout_s=scheduler_timeout, force=force,
+                           report=not no_report, progress=progress)
     df = result.summary
     if as_json:
         rows = df.astype(object).where(df.notna(), None)

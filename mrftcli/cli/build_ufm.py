@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError
-from .options import BETA
+from .options import BETA, tqdm_progress
 
 
 @click.command("build-ufm")
@@ -34,6 +34,7 @@ def build_ufm(betas: tuple[float, ...], shipped: bool, out: str, n_tp: int | Non
     chosen = sorted(set(round(b, 6) for b in chosen))
     tp = DEFAULT_TP if n_tp is None else np.geomspace(DEFAULT_TP[0], DEFAULT_TP[-1], n_tp)
     td = DEFAULT_TD if n_td is None else np.geomspace(DEFAULT_TD[0], DEFAULT_TD[-1], n_td)
-    manifolds = build_manifolds(chosen, tp, td, progress=not quiet)
+    with tqdm_progress("UFM", unit="beta", enabled=not quiet) as progress:
+        manifolds = build_manifolds(chosen, tp, td, progress=progress)
     paths = [save_manifold(m, Path(out)) for m in manifolds]
     click.echo(f"wrote {len(paths)} manifold(s) to {out}: " + ", ".join(p.name for p in paths))

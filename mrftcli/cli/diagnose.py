@@ -6,7 +6,7 @@ import math
 
 import click
 
-from .options import dump_json, log_layout_options, tp_option
+from .options import dump_json, log_layout_options, tp_option, tqdm_progress
 
 
 def _g(x, fmt=".4g") -> str:
@@ -85,18 +85,13 @@ def diagnose(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_to
 
     Example: mrft-ident diagnose flight.mcap --tp 0.0422 --json - --report out/
     """
-    from tqdm import tqdm
-
     from ..diagnose.selection import diagnose as run
     from ..io import read_flight
 
     flight = read_flight(log, loop=loop, command_topic=command_topic, output_topic=output_topic,
                          beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale)
-    bar = tqdm(total=None, desc="diagnose", bar_format="{desc}: {postfix} [{elapsed}]", disable=None, leave=False)
-    try:
-        result = run(flight, Tp, progress=lambda text: bar.set_postfix_str(str(text)))
-    finally:
-        bar.close()
+    with tqdm_progress("diagnose", unit="stage") as progress:
+        result = run(flight, Tp, progress=progress)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_dict(), json_target)

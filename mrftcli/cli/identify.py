@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ..errors import InputError
-from .options import dump_json
+from .options import dump_json, tp_option
 
 
 def _parse_test(text: str):
@@ -34,7 +34,7 @@ def _fmt(est, scale: float = 1.0, unit: str = "") -> str:
 
 
 @click.command("identify")
-@click.option("--tp", "Tp", type=float, required=True, help="Known propulsion time constant Tp [s].")
+@tp_option(help="Known propulsion time constant Tp [s].")
 @click.option("--test", "tests", multiple=True, required=True, metavar="BETA:FREQ_HZ[:AMPLITUDE:H]",
               help="One MRFT test: beta and frequency [Hz], optionally amplitude and relay height. Repeat (>= 2).")
 @click.option("--rate", "rate_hz", type=float, default=None,

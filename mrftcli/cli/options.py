@@ -1,34 +1,22 @@
-"""Small helpers shared by the click commands (output formatting, option types)."""
+"""Small helpers shared by the click commands: JSON output, option types, the progress bar."""
 
 from __future__ import annotations
 
+import contextlib
 import json
-import math
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import click
-import numpy as np
 
-__all__ = ["to_jsonable", "dump_json", "BETA", "tp_option", "log_layout_options"]
+from ..errors import InputError
+from ..jsonable import to_jsonable
+from ..progress import Progress
+from ..validate import check_beta, check_time
 
-
-def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays, dataclasses' dicts and NaN into plain JSON values (NaN -> None)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [to_jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, (np.floating, float)):
-        value = float(obj)
-        return value if math.isfinite(value) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
+__all__ = ["to_jsonable", "dump_json", "BETA", "tp_option", "log_layout_options", "tqdm_progress"]
 
 
 def dump_json(obj: Any, target: str | None) -> None:
@@ -41,29 +29,28 @@ def dump_json(obj: Any, target: str | None) -> None:
 
 
 class _BetaType(click.ParamType):
-    """A beta in the open interval (-1, 1)."""
+    """A beta in the open interval (-1, 1), checked by :func:`mrftcli.validate.check_beta`."""
 
     name = "beta"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> float:
         try:
-            beta = float(value)
-        except (TypeError, ValueError):
-            self.fail(f"{value!r} is not a number", param, ctx)
-        if not -1.0 < beta < 1.0:
-            self.fail(f"beta must lie in the open interval (-1, 1), got {beta}", param, ctx)
-        return beta
+            return check_beta(value)
+        except InputError as err:
+            self.fail(str(err), param, ctx)
 
 
 BETA = _BetaType()
 
 
 def _positive_time(ctx: click.Context | None, param: click.Parameter | None, value: float | None) -> float | None:
+    """``--tp``'s callback: :func:`mrftcli.validate.check_time`, its message as click's BadParameter."""
     if value is None:
         return None
-    if not math.isfinite(value) or value <= 0:
-        raise click.BadParameter(f"Tp must be a positive time in seconds, got {value}")
-    return value
+    try:
+        return check_time("Tp", value)
+    except InputError as err:
+        raise click.BadParameter(str(err)) from None
 
 
 def tp_option(name: str = "Tp", *, required: bool = True, help: str | None = None):
@@ -112,3 +99,36 @@ def log_layout_options(*, config_defaults: bool = False):
         return func
 
     return decorate
+
+
+@contextlib.contextmanager
+def tqdm_progress(desc: str, *, unit: str = "it", enabled: bool = True) -> Iterator[Progress]:
+    """A :class:`~mrftcli.progress.Progress` callback that draws a tqdm bar on stderr.
+
+    The bar is drawn only on a terminal (and when ``enabled``), so piped and captured output is the
+    same with or without it; it is removed when the block ends. ``total`` may change between calls
+    (a library function that learns its amount of work as it goes); ``stage`` is shown after the bar.
+
+    Examples
+    --------
+    >>> with tqdm_progress("demo", unit="log") as progress:   # not a terminal here: draws nothing
+    ...     progress(1, 2, "first.mcap")
+    """
+    from tqdm import tqdm
+
+    bar = tqdm(total=None, desc=desc, unit=unit, file=sys.stderr, disable=None if enabled else True,
+               leave=False, dynamic_ncols=True)
+
+    def progress(done: float, total: float, stage: str = "") -> None:
+        if bar.disable:
+            return
+        bar.total = total
+        bar.n = done
+        if stage:
+            bar.set_postfix_str(stage, refresh=False)
+        bar.refresh()
+
+    try:
+        yield progress
+    finally:
+        bar.close()

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
-from .options import BETA, dump_json
+from .options import BETA, dump_json, tp_option
 
 
 @click.command("predict")
-@click.option("--tp", "Tp", type=float, required=True, help="Propulsion time constant Tp [s].")
+@tp_option(help="Propulsion time constant Tp [s].")
 @click.option("--td", "Td", type=float, required=True, help="Drag time constant Td [s].")
 @click.option("--tau", type=float, required=True, help="Loop delay tau [s].")
 @click.option("--k", "K", type=float, default=1.0, show_default=True, help="Gain K (K*Td = rate gain).")
@@ -24,7 +24,8 @@ def predict(Tp: float, Td: float, tau: float, K: float, beta: float, h: float, r
     sampled relay and every admissible sampled orbit. The describing-function estimate is shown for
     comparison.
     """
-    from ..mrft.lprs import describing_function_limit_cycle, mrft_limit_cycle
+    from ..mrft.describing import describing_function_limit_cycle
+    from ..mrft.lprs import mrft_limit_cycle
     from ..mrft.model import LoopModel
 
     model = LoopModel(Tp, Td, tau, K)

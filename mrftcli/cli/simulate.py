@@ -9,7 +9,8 @@ import click
 
 from ..errors import InputError
 from ..io.logtypes import LOOPS
-from .options import dump_json
+from ..validate import check_beta, check_positive, check_time
+from .options import dump_json, tp_option, tqdm_progress
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
 
@@ -33,12 +34,12 @@ def parse_test(text: str) -> tuple[float, float | None, float | None]:
             raise InputError(f"--test {text!r}: {name} {part!r} is not a number") from None
     values += [None] * (3 - len(values))
     beta, h, duration = values
-    if beta is None or not -1.0 < beta < 1.0:
-        raise InputError(f"--test {text!r}: beta must lie in the open interval (-1, 1), got {beta}")
-    if h is not None and not (math.isfinite(h) and h > 0):
-        raise InputError(f"--test {text!r}: the relay height H must be positive, got {h}")
-    if duration is not None and not (math.isfinite(duration) and duration > 0):
-        raise InputError(f"--test {text!r}: DURATION must be a positive time in seconds, got {duration}")
+    try:
+        beta = check_beta(beta)
+        h = None if h is None else check_positive("the relay height H", h)
+        duration = None if duration is None else check_time("DURATION", duration)
+    except InputError as err:
+        raise InputError(f"--test {text!r}: {err}") from None
     return beta, h, duration
 
 
@@ -79,7 +80,7 @@ def _format_of(path: Path, fmt: str | None) -> str:
 
 
 @click.command("simulate")
-@click.option("--tp", type=float, required=True, help="Propulsion time constant Tp [s].")
+@tp_option("tp", help="Propulsion time constant Tp [s].")
 @click.option("--td", type=float, required=True, help="Drag time constant Td [s].")
 @click.option("--tau", type=float, required=True, help="Transport delay tau [s].")
 @click.option("--k", "k", type=float, default=1.0, show_default=True, help="Gain K (K*Td: command -> output rate).")
@@ -140,8 +141,7 @@ def simulate(
     if fmt is not None and fmt not in FORMATS:
         raise InputError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
     fmt = _format_of(out, fmt)
-    if not (math.isfinite(rate) and rate > 0):
-        raise InputError(f"--rate must be a positive frequency in Hz, got {rate}")
+    check_positive("--rate (a frequency in Hz)", rate)
     if amplitude is None:
         amplitude = _DEFAULT_AMPLITUDE[loop]
     specs = []
@@ -183,20 +183,10 @@ def simulate(
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
 
-    from tqdm import tqdm
-
     total_s = hover_s + sum(t.duration + hold_s for t in specs)
-    bar = tqdm(total=None, unit="tick", desc="simulating", leave=False, disable=None if total_s > 120 else True)
-
-    def progress(done: int, total: int) -> None:
-        bar.total = total
-        bar.n = done
-        bar.refresh()
-
-    try:
+    # a bar only for flights long enough to wait for (and only on a terminal)
+    with tqdm_progress("simulating", unit="tick", enabled=total_s > 120) as progress:
         flight = simulate_flight(spec, progress=progress)
-    finally:
-        bar.close()
     sidecar = write_flight(flight, out, fmt)
     for i, test in enumerate(flight.truth["tests"], 1):
         if test["aborted"]:

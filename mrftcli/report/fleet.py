@@ -13,14 +13,13 @@ red on the panel of the parameter that is off, and labelled with the log's folde
 
 from __future__ import annotations
 
-import html
 from pathlib import Path
 
 import matplotlib.dates as mdates
 import numpy as np
 import pandas as pd
 
-from ._common import html_page, plt
+from ._common import esc, html_page, html_table, plt
 
 __all__ = ["write_fleet_report", "plot_loop"]
 
@@ -104,24 +103,19 @@ def _time_label(d: pd.DataFrame) -> str:
     return "log start time, or file modification time for logs without an absolute time (UTC)"
 
 
+def _cell(column: str, v: object) -> str:
+    """A summary value as table text: tau in ms, numbers to 4 digits, times to the minute, NA blank."""
+    if isinstance(v, float):
+        return "" if not np.isfinite(v) else (f"{v * 1e3:.2f} ms" if column.startswith("tau") else f"{v:.4g}")
+    if v is None or v is pd.NA or (isinstance(v, pd.Timestamp) and pd.isna(v)):
+        return ""
+    if isinstance(v, pd.Timestamp):
+        return v.strftime("%Y-%m-%d %H:%M")
+    return str(v)
+
+
 def _table(df: pd.DataFrame, columns: list[str]) -> str:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
-    body = []
-    for _, row in df.iterrows():
-        cells = []
-        for c in columns:
-            v = row[c]
-            if isinstance(v, float):
-                text = "" if not np.isfinite(v) else (f"{v * 1e3:.2f} ms" if c.startswith("tau") else f"{v:.4g}")
-            elif v is None or v is pd.NA or (isinstance(v, pd.Timestamp) and pd.isna(v)):
-                text = ""
-            elif isinstance(v, pd.Timestamp):
-                text = v.strftime("%Y-%m-%d %H:%M")
-            else:
-                text = str(v)
-            cells.append(f"<td>{html.escape(text)}</td>")
-        body.append("<tr>" + "".join(cells) + "</tr>")
-    return f"<table><tr>{head}</tr>{''.join(body)}</table>"
+    return html_table(columns, ([_cell(c, row[c]) for c in columns] for _, row in df.iterrows()))
 
 
 def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:
@@ -130,7 +124,7 @@ def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     parts: list[str] = []
     counts = df["status"].value_counts()
-    parts.append("<p>" + html.escape(f"{df['path'].nunique()} logs, {len(df)} rows: "
+    parts.append("<p>" + esc(f"{df['path'].nunique()} logs, {len(df)} rows: "
                                       + ", ".join(f"{n} {s}" for s, n in counts.items())) + "</p>")
     parts.append("<p>Time axis: the log's first time stamp when it is an absolute (UNIX) time, else the file's "
                  "modification time (column log_time_source); UTC. Error bars: +/- one standard deviation. "
@@ -148,7 +142,7 @@ def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:
     for loop in [str(x) for x in df["loop"].dropna().unique()]:
         if not df[(df["loop"] == loop) & df["tau_mean"].notna()].empty:
             png = plot_loop(df, loop, out_dir / f"fleet_{loop}.png")
-            parts.append(f"<h2>{html.escape(loop)}</h2><img src='{png.name}' alt='{html.escape(loop)} parameters'>")
+            parts.append(f"<h2>{esc(loop)}</h2><img src='{png.name}' alt='{esc(loop)} parameters'>")
     parts.append("<h2>All rows</h2>")
     parts.append(_table(df, ["path", "loop", "vehicle", "status", "tau_mean", "tau_std", "Td_mean", "Td_std",
                              "K_mean", "K_std", "n_tests", "n_cycles", "findings", "log_time", "error"]))

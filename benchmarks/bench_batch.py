@@ -51,7 +51,7 @@ def timed(label: str, n: int, repeat: int, **kw) -> float:
     for _ in range(repeat):
         c0 = _cpu()
         t0 = time.perf_counter()
-        res = run_batch(force=True, quiet=True, report=False, **kw)
+        res = run_batch(force=True, report=False, **kw)
         dt = min(dt, time.perf_counter() - t0)
         cpu = min(cpu, _cpu() - c0)
     counts = ", ".join(f"{v} {k}" for k, v in res.counts.items() if v)

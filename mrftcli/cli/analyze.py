@@ -23,7 +23,7 @@ def format_table(result) -> str:
     """The compact terminal summary of an :class:`~mrftcli.analyze.AnalysisResult`."""
     from ..analyze import describe_t0
 
-    t0 = getattr(result, "t0", 0.0)
+    t0 = result.t0
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s (known)  t: seconds from the log start"
              + (f" ({describe_t0(t0)})" if t0 else "")]
     lines.append(f"{'test':>4} {'t [s]':>13} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'f [Hz]':>8} "
@@ -36,7 +36,7 @@ def format_table(result) -> str:
         )
     for t in result.rejected:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
-        why = getattr(result, "rejection_reasons", {}).get(t.index) or f"{t.n_stable} stable cycles"
+        why = result.rejection_reasons.get(t.index) or f"{t.n_stable} stable cycles"
         if len(why) > 80 and ":" in why:  # the figures are in the warning below the table
             why = why[: why.index(":")] + "; see the warning"
         lines.append(f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8}  (left out: {why})")
@@ -120,7 +120,7 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     if not to_stdout:
         click.echo(format_table(result))
         if diagnosis is not None:
-            click.echo(f"diagnosis: {getattr(diagnosis, 'summary', '')}")
+            click.echo(f"diagnosis: {diagnosis.summary}")
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     if report_dir:

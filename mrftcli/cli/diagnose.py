@@ -37,7 +37,7 @@ def format_summary(result) -> str:
         mark = "  <- found" if any(e.name == c["name"] and e.evidence.get("compared_with") == "linear"
                                    for e in result.effects) else ""
         lines.append(f"  {c['name']:<20} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
-    pairs = getattr(result, "second_effect_candidates", None) or []
+    pairs = result.second_effect_candidates
     if pairs:
         lines.append(f"a second effect on top of {pairs[0]['with']} (delta BIC against that model):")
         for c in pairs:

@@ -58,3 +58,48 @@ def test_unwritable_output_path_is_a_one_line_error(repo_root, tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("error: ")
     assert "Traceback" not in proc.stderr
+
+
+def _imports(path):
+    """(module imported, names imported) for every import statement of a source file, resolved to
+    absolute ``mrftcli`` names for relative imports."""
+    import ast
+
+    from mrftcli import __file__ as pkg_init
+    from pathlib import Path
+
+    root = Path(pkg_init).parent
+    package = ".".join(("mrftcli", *path.relative_to(root).with_suffix("").parts[:-1]))
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(a.name, ()) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                parts = parts[: len(parts) - node.level + 1]
+                base = ".".join(parts + ([node.module] if node.module else []))
+            out.append((base, tuple(a.name for a in node.names)))
+    return out
+
+
+def _library_files():
+    from pathlib import Path
+
+    from mrftcli import __file__ as pkg_init
+
+    root = Path(pkg_init).parent
+    return [p for p in sorted(root.rglob("*.py")) if "cli" not in p.relative_to(root).parts[:1]]
+
+
+def test_only_the_cli_imports_click_or_tqdm_and_the_library_never_imports_the_cli():
+    offending = []
+    for path in _library_files():
+        for module, names in _imports(path):
+            top = module.split(".")[0]
+            if top in ("click", "tqdm") or module == "mrftcli.cli" or module.startswith("mrftcli.cli."):
+                offending.append(f"{path.name}: {module}")
+            if module == "inspect" or (module == "mrftcli" and "cli" in names):
+                offending.append(f"{path.name}: {module} {names}")
+    assert not offending, offending

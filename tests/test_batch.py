@@ -19,7 +19,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from mrftcli.batch import inputs as I
 from mrftcli.batch import run as B
+from mrftcli.batch import summary as S
 from mrftcli.errors import InputError, InsufficientDataError, LogReadError
 
 # --------------------------------------------------------------------------------------------------
@@ -96,11 +98,11 @@ def test_discovery_folders_suffixes_hidden_and_ros2_bags(tmp_path: Path) -> None
     bag = root / "ros2" / "flight_0"
     write_toy(bag / "metadata.yaml")
     write_toy(bag / "flight_0_0.mcap")  # inside the bag: must not be listed on its own
-    found = B.discover_logs([root])
+    found = I.discover_logs([root])
     rel = sorted(p.relative_to(root.resolve()).as_posix() for p in found)
     assert rel == ["a.mcap", "d.csv", "e.BIN", "f.bin", "ros2/flight_0", "sub/b.bag", "sub/deep/c.ulg"]
     # A bag folder given directly is one log too.
-    assert B.discover_logs([bag]) == [bag.resolve()]
+    assert I.discover_logs([bag]) == [bag.resolve()]
 
 
 def test_discovery_globs_explicit_files_dedupe_and_exclude(tmp_path: Path) -> None:
@@ -111,7 +113,7 @@ def test_discovery_globs_explicit_files_dedupe_and_exclude(tmp_path: Path) -> No
     write_toy(root / "odd.log")
     out = root / "results"
     write_toy(out / "summary.csv")  # the output folder's own CSV must never be taken for a log
-    found = B.discover_logs([str(root / "**" / "*"), str(root / "v1"), str(root / "odd.log")], exclude=[out])
+    found = I.discover_logs([str(root / "**" / "*"), str(root / "v1"), str(root / "odd.log")], exclude=[out])
     rel = sorted(p.relative_to(root.resolve()).as_posix() for p in found)
     # the glob keeps supported suffixes only; an explicit file is taken whatever its suffix
     assert rel == ["odd.log", "v1/a.mcap", "v2/b.mcap"]
@@ -123,7 +125,7 @@ def test_discovery_globs_explicit_files_dedupe_and_exclude(tmp_path: Path) -> No
 def test_discovery_errors(tmp_path: Path, arg: str, message: str) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match=message):
-        B.discover_logs([str(tmp_path / arg)])
+        I.discover_logs([str(tmp_path / arg)])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -154,16 +156,16 @@ vehicle = "spare"
 def test_config_matching_and_precedence(tmp_path: Path, fleet: Path) -> None:
     cfg_path = fleet / "batch.toml"
     cfg_path.write_text(TOML)
-    cfg = B.load_config(cfg_path)
+    cfg = I.load_config(cfg_path)
     base = {"tp": None, "loops": ("altitude",)}
-    s1, m1 = B.resolve_settings(fleet / "quad1" / "f1.csv", base, cfg, {})
+    s1, m1 = I.resolve_settings(fleet / "quad1" / "f1.csv", base, cfg, {})
     assert (s1.tp, s1.loops, m1) == (0.04, ("altitude",), [])
-    s2, m2 = B.resolve_settings(fleet / "quad2" / "f1.csv", base, cfg, {})
+    s2, m2 = I.resolve_settings(fleet / "quad2" / "f1.csv", base, cfg, {})
     assert (s2.tp, s2.loops, m2) == (0.05, ("roll", "pitch"), [0])
-    s3, m3 = B.resolve_settings(fleet / "quad2" / "bad.csv", base, cfg, {})
+    s3, m3 = I.resolve_settings(fleet / "quad2" / "bad.csv", base, cfg, {})
     assert (s3.tp, s3.loops, s3.output_scale, s3.vehicle, m3) == (0.06, ("roll", "pitch"), 0.001, "spare", [0, 1, 2])
     # Options given on the command line override the config.
-    s4, _ = B.resolve_settings(fleet / "quad2" / "bad.csv", base, cfg, {"tp": 0.07, "loops": ("altitude",)})
+    s4, _ = I.resolve_settings(fleet / "quad2" / "bad.csv", base, cfg, {"tp": 0.07, "loops": ("altitude",)})
     assert (s4.tp, s4.loops, s4.output_scale) == (0.07, ("altitude",), 0.001)
 
 
@@ -171,8 +173,8 @@ def test_yaml_config_is_equivalent(tmp_path: Path, fleet: Path) -> None:
     (fleet / "batch.yaml").write_text(
         "defaults: {tp: 0.04}\nlogs:\n  - match: 'quad2/*'\n    tp: 0.05\n    loop: [roll]\n"
     )
-    cfg = B.load_config(fleet / "batch.yaml")
-    s, m = B.resolve_settings(fleet / "quad2" / "f1.csv", {"loops": ("altitude",)}, cfg, {})
+    cfg = I.load_config(fleet / "batch.yaml")
+    s, m = I.resolve_settings(fleet / "quad2" / "f1.csv", {"loops": ("altitude",)}, cfg, {})
     assert (s.tp, s.loops, m) == (0.05, ("roll",), [0])
 
 
@@ -190,12 +192,12 @@ def test_config_errors_name_file_and_key(tmp_path: Path, text: str, message: str
     p = tmp_path / "batch.toml"
     p.write_text(text)
     with pytest.raises(InputError, match=message):
-        B.load_config(p)
+        I.load_config(p)
 
 
 def test_config_missing_file(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="cannot read config file"):
-        B.load_config(tmp_path / "nope.toml")
+        I.load_config(tmp_path / "nope.toml")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -224,7 +226,7 @@ def test_outputs_csv_parquet_json_and_bad_log(tmp_path: Path, fleet: Path) -> No
     # CSV and Parquet hold the same table.
     csv = pd.read_csv(out / "summary.csv")
     pq = pd.read_parquet(out / "summary.parquet")
-    assert list(csv.columns) == list(pq.columns) == B.SUMMARY_COLUMNS
+    assert list(csv.columns) == list(pq.columns) == S.SUMMARY_COLUMNS
     assert list(csv["status"]) == list(pq["status"]) == list(df["status"])
     np.testing.assert_allclose(csv["tau_mean"], pq["tau_mean"].astype(float))
     assert str(pq["log_mtime"].dtype).startswith("datetime64") and str(pq["log_mtime"].dt.tz) == "UTC"
@@ -325,7 +327,7 @@ def fake_analyze(monkeypatch):
 
 def test_analyze_one_statuses(tmp_path: Path, fake_analyze) -> None:
     def task(name, **kw):
-        s = B.LogSettings(**({"tp": 0.1, "loops": ("altitude", "roll")} | kw))
+        s = I.LogSettings(**({"tp": 0.1, "loops": ("altitude", "roll")} | kw))
         return B.LogTask(str(tmp_path / name), s)
 
     ok = B.analyze_one(task("good.mcap", command_topic="/cmd"))
@@ -347,7 +349,7 @@ def test_analyze_one_statuses(tmp_path: Path, fake_analyze) -> None:
         warnings.simplefilter("error")  # would raise if one escaped analyze_one
         warned = B.analyze_one(task("warn.mcap"))["loops"][0]
     assert warned["status"] == "ok" and warned["python_warnings"] == ["RuntimeWarning: Mean of empty slice"]
-    notp = B.analyze_one(B.LogTask(str(tmp_path / "good.mcap"), B.LogSettings()))["loops"][0]
+    notp = B.analyze_one(B.LogTask(str(tmp_path / "good.mcap"), I.LogSettings()))["loops"][0]
     assert notp["status"] == "failed" and "no Tp" in notp["error"]
 
 
@@ -488,18 +490,18 @@ def _toy_summary(taus_ms, Td=1.0):
 
 def test_robust_outlier_flag() -> None:
     # tau = 46..50 ms and one 70 ms: median 48.5, |dev| = 2.5 1.5 .5 .5 1.5 21.5 -> MAD = 1.5
-    df = B.flag_outliers(_toy_summary([46, 47, 48, 49, 50, 70]))
+    df = S.flag_outliers(_toy_summary([46, 47, 48, 49, 50, 70]))
     assert df["outlier"].tolist() == [False] * 5 + [True]
     assert df["tau_z"].iloc[-1] == pytest.approx(0.6745 * 21.5 / 1.5)
     assert "tau high" in df["outlier_reason"].iloc[-1]
     assert df["Td_z"].isna().all()  # all Td equal: MAD 0, no z, nothing flagged
     # over half the logs equal (MAD 0): the mean absolute deviation scales z instead
     # tau = 50 x5, 51, 80: median 50, MeanAD = (1 + 30) / 7
-    df0 = B.flag_outliers(_toy_summary([50, 50, 50, 50, 50, 51, 80]))
+    df0 = S.flag_outliers(_toy_summary([50, 50, 50, 50, 50, 51, 80]))
     assert df0["outlier"].tolist() == [False] * 6 + [True]
     assert df0["tau_z"].iloc[-1] == pytest.approx(30 / (1.253314 * 31 / 7))
     # fewer than three results: no flags at all
-    assert not B.flag_outliers(_toy_summary([40, 90]))["outlier"].any()
+    assert not S.flag_outliers(_toy_summary([40, 90]))["outlier"].any()
 
 
 def test_vehicle_whose_tau_grew_is_flagged_against_its_own_history() -> None:
@@ -511,7 +513,7 @@ def test_vehicle_whose_tau_grew_is_flagged_against_its_own_history() -> None:
     df["path"] = [f"/f/{v}/log{i}.mcap" for i, v in enumerate(df["vehicle"])]
     df["tau_std"] = [0.0005] * n
     df["log_time"] = pd.to_datetime([f"2026-01-{d:02d}" for d in (1, 2, 3, 4, 5, 1, 2, 3, 4, 5)], utc=True)
-    out = B.flag_outliers(df)
+    out = S.flag_outliers(df)
     assert not out["tau_outlier"].any()
     # change = 46 - median(40, 40.2, 39.9, 40.1) = 5.95 ms > 3 hypot(0.5, 0.5) ms
     assert out.loc[4, "tau_change"] == pytest.approx(0.00595)
@@ -523,7 +525,7 @@ def test_vehicle_whose_tau_grew_is_flagged_against_its_own_history() -> None:
 def test_fleet_report_writes_html_and_png(tmp_path: Path, mplcleanup) -> None:
     from mrftcli.report.fleet import write_fleet_report
 
-    df = B.flag_outliers(_toy_summary([46, 47, 48, 49, 50, 70]))
+    df = S.flag_outliers(_toy_summary([46, 47, 48, 49, 50, 70]))
     index = write_fleet_report(df, tmp_path / "report")
     text = index.read_text()
     assert "fleet_altitude.png" in text and "log5.mcap" in text and "tau high" in text
@@ -536,11 +538,11 @@ def test_fleet_report_writes_html_and_png(tmp_path: Path, mplcleanup) -> None:
 
 def test_log_time_prefers_an_absolute_log_time_stamp() -> None:
     mtime = 1_790_000_000.0
-    from_log = B._log_time({"input": {"t_first": 1_700_000_000.5}}, mtime)
+    from_log = S._log_time({"input": {"t_first": 1_700_000_000.5}}, mtime)
     assert from_log == {"log_time": pd.Timestamp("2023-11-14 22:13:20.5", tz="UTC"), "log_time_source": "log"}
     # time since boot / a simulator's 0 s say nothing about the date: the file's mtime is used
     for result in ({"input": {"t_first": 12.5}}, {"input": {}}, None):
-        assert B._log_time(result, mtime) == {"log_time": pd.Timestamp(mtime, unit="s", tz="UTC"),
+        assert S._log_time(result, mtime) == {"log_time": pd.Timestamp(mtime, unit="s", tz="UTC"),
                                               "log_time_source": "mtime"}
 
 
@@ -549,16 +551,16 @@ def test_the_config_example_in_the_docs_works(tmp_path: Path, repo_root: Path) -
 
     doc = (repo_root / "docs" / "batch.md").read_text()
     (tmp_path / "fleet.toml").write_text(re.search(r"```toml\n(.*?)```", doc, re.S).group(1))
-    cfg = B.load_config(tmp_path / "fleet.toml")
+    cfg = I.load_config(tmp_path / "fleet.toml")
     base = {"loops": ("altitude",)}
-    spare, matched = B.resolve_settings(tmp_path / "design2" / "old" / "a.mcap", base, cfg, {})
+    spare, matched = I.resolve_settings(tmp_path / "design2" / "old" / "a.mcap", base, cfg, {})
     assert (spare.tp, spare.output_scale, spare.vehicle, matched) == (0.0499, 0.001, "E600-spare", [0, 2])
-    att, _ = B.resolve_settings(tmp_path / "x" / "quad_attitude.mcap", base, cfg, {})
+    att, _ = I.resolve_settings(tmp_path / "x" / "quad_attitude.mcap", base, cfg, {})
     assert (att.tp, att.loops) == (0.0422, ("roll", "pitch"))
 
 
 def test_a_log_whose_mtime_cannot_be_read_does_not_stop_the_batch(tmp_path: Path, fleet: Path, monkeypatch) -> None:
-    real = B.log_mtime
+    real = I.log_mtime
 
     def flaky(path: Path) -> float:
         if path.name == "f2.csv":

@@ -37,7 +37,7 @@ def _sidecar(log: Path) -> dict | None:
 
 @pytest.fixture(scope="module")
 def batch_run(tmp_path_factory):
-    from mrftcli.batch.run import discover_logs
+    from mrftcli.batch.inputs import discover_logs
 
     try:
         logs = discover_logs([SAMPLE])

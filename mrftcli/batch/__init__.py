@@ -1,7 +1,12 @@
-"""Many logs at once: discovery, per-log settings, local processes or Dask, resume, the fleet summary."""
+"""Many logs at once: discovery, per-log settings, local processes or Dask, resume, the fleet summary.
+
+:mod:`~mrftcli.batch.inputs` finds the logs and each one's settings, :mod:`~mrftcli.batch.run` analyses
+them (one record per log) and :mod:`~mrftcli.batch.summary` makes the fleet table and its outlier flags.
+"""
 
 from .inputs import BatchConfig, LogSettings, discover_logs, load_config
 from .run import BatchFailedError, BatchResult, run_batch
+from .summary import SUMMARY_COLUMNS, flag_outliers
 
 __all__ = ["run_batch", "BatchResult", "BatchFailedError", "discover_logs", "load_config", "BatchConfig",
-           "LogSettings"]
+           "LogSettings", "SUMMARY_COLUMNS", "flag_outliers"]

@@ -86,7 +86,8 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     logs whose results are newer than the log and were made with the same settings (--force recomputes).
     Exit code 8 when some logs failed (the others are still analysed and written).
     """
-    from ..batch.run import BatchFailedError, load_config, run_batch
+    from ..batch.inputs import load_config
+    from ..batch.run import BatchFailedError, run_batch
     from .options import dump_json, tqdm_progress
 
     if setting_opts.get("output_scale") is not None and (

@@ -7,7 +7,7 @@ controller's time since boot says nothing about the date); ``log_time_source`` s
 parent folder name) is one colour, its logs joined in time order, so a vehicle whose tau grew shows as a
 rising line. Error bars are +/- one standard deviation of the per-combination estimates. Outliers
 (``tau_outlier``/``Td_outlier``: robust z-score beyond 3.5 within the loop and more than two of the
-log's own standard deviations from the median, see :func:`mrftcli.batch.run.flag_outliers`) are ringed in
+log's own standard deviations from the median, see :func:`mrftcli.batch.summary.flag_outliers`) are ringed in
 red on the panel of the parameter that is off, and labelled with the log's folder and name.
 """
 

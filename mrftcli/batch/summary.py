@@ -1,0 +1,242 @@
+"""The fleet summary of a batch: one row per log and loop, and the outlier flags.
+
+:func:`summary_rows` turns a per-log record (see :func:`mrftcli.batch.run.analyze_one`) into rows,
+:func:`summary_frame` types them into a table (columns :data:`SUMMARY_COLUMNS`, documented in
+``docs/batch.md``) and :func:`flag_outliers` marks logs that stand out in the fleet or against their own
+vehicle's history.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "SUMMARY_COLUMNS",
+           "summary_rows", "summary_frame", "flag_outliers"]
+
+#: Statuses of a row in the summary.
+STATUS_OK, STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_SKIPPED = ("ok", "failed", "insufficient", "skipped-uptodate")
+
+
+SUMMARY_COLUMNS = [
+    "path", "loop", "vehicle", "status", "result_status", "error", "error_type",
+    "Td_mean", "Td_std", "tau_mean", "tau_std", "K_mean", "K_std",
+    "n_tests", "n_cycles", "betas", "findings", "Td_with_findings", "tau_with_findings", "K_with_findings",
+    "diagnose_error",
+    "tp", "log_time", "log_time_source", "log_mtime", "analysed_at", "elapsed_s", "result_json", "settings_hash",
+    "tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", "Td_change", "tau_changed", "Td_changed",
+    "outlier", "outlier_reason",
+]
+
+
+_OUTLIER_COLUMNS = ("tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", "Td_change", "tau_changed",
+                    "Td_changed", "outlier", "outlier_reason")
+
+
+def _param(result: Mapping[str, Any] | None, name: str, stat: str) -> float:
+    try:
+        value = result["parameters"][name][stat]  # type: ignore[index]
+        return float(value) if value is not None else math.nan
+    except (KeyError, TypeError, ValueError):
+        return math.nan
+
+
+def _tests_figures(result: Mapping[str, Any] | None) -> tuple[int | None, int | None, str]:
+    tests = (result or {}).get("tests")
+    if not isinstance(tests, list):
+        return None, None, ""
+    cycles = 0
+    betas: list[str] = []
+    for t in tests:
+        c = t.get("cycles") if isinstance(t, Mapping) else None
+        cycles += len(c) if isinstance(c, list) else int(c or 0)
+        # the nominal (published) beta groups logs; the effective one differs by noise from log to log
+        b = (t.get("beta_nominal") if t.get("beta_nominal") is not None else t.get("beta")) if isinstance(t, Mapping) else None
+        if b is not None:
+            betas.append(f"{float(b):g}")
+    return len(tests), cycles, ";".join(betas)
+
+
+#: Log time stamps accepted as absolute (UNIX) times: from 2001 on. Earlier ones (a simulator's 0 s, a
+#: flight controller's time since boot) are relative and the file's modification time is used instead.
+_EPOCH_MIN = 1.0e9
+
+
+def _utc(t: Any) -> pd.Timestamp:
+    """Seconds since the epoch -> UTC timestamp; NaT when missing or not finite."""
+    if isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t):
+        return pd.Timestamp(t, unit="s", tz="UTC")
+    return pd.NaT
+
+
+def _log_time(result: Mapping[str, Any] | None, mtime: Any) -> dict[str, Any]:
+    """When the flight happened: the log's first time stamp if it is a UNIX time, else the file mtime."""
+    t_first = ((result or {}).get("input") or {}).get("t_first")
+    if isinstance(t_first, (int, float)) and math.isfinite(t_first) and _EPOCH_MIN <= t_first <= time.time() + 86400:
+        return {"log_time": _utc(t_first), "log_time_source": "log"}
+    return {"log_time": _utc(mtime), "log_time_source": "mtime"}
+
+
+def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: bool = False) -> list[dict[str, Any]]:
+    """One summary row per loop of a record (see ``docs/batch.md`` for the columns)."""
+    rows = []
+    settings = record.get("settings", {})
+    path = Path(record["path"])
+    vehicle = settings.get("vehicle") or path.parent.name
+    mtime = record.get("log_mtime")
+    for entry in record.get("loops", []):
+        result = entry.get("result") if entry.get("status") == STATUS_OK else None
+        n_tests, n_cycles, betas = _tests_figures(result)
+        diag = entry.get("diagnosis") or {}
+        effects = diag.get("effects") or []
+        rows.append({
+            "path": str(path),
+            "loop": entry.get("loop"),
+            "vehicle": vehicle,
+            "status": STATUS_SKIPPED if skipped else entry.get("status"),
+            "result_status": entry.get("status"),
+            "error": entry.get("error"),
+            "error_type": entry.get("error_type"),
+            "Td_mean": _param(result, "Td", "mean"), "Td_std": _param(result, "Td", "std"),
+            "tau_mean": _param(result, "tau", "mean"), "tau_std": _param(result, "tau", "std"),
+            "K_mean": _param(result, "K", "mean"), "K_std": _param(result, "K", "std"),
+            "n_tests": n_tests, "n_cycles": n_cycles, "betas": betas,
+            # None: not diagnosed (or the diagnosis failed); "": diagnosed, the linear model explains the log
+            "findings": (";".join(str(e.get("name")) for e in effects if isinstance(e, Mapping))
+                         if diag.get("status") == STATUS_OK else None),
+            **_with_findings(effects),
+            "diagnose_error": diag.get("error"),
+            "tp": settings.get("tp"),
+            "log_mtime": _utc(mtime),
+            **_log_time(result, mtime),
+            "analysed_at": pd.Timestamp(record["analysed_at"]) if record.get("analysed_at") else pd.NaT,
+            "elapsed_s": record.get("elapsed_s"),
+            # Relative to the output folder, so the folder can be moved or shared as a whole.
+            "result_json": json_path.relative_to(json_path.parent.parent).as_posix() if json_path is not None else None,
+            "settings_hash": record.get("settings_hash"),
+        })
+    return rows
+
+
+def _with_findings(effects: list) -> dict[str, float | None]:
+    """Td, tau, K refitted with the diagnosed effects modelled (the last deterministic finding's
+    identification, which for two effects is the joint fit); None when nothing was found that changes them."""
+    out: dict[str, float | None] = {"Td_with_findings": None, "tau_with_findings": None, "K_with_findings": None}
+    for e in effects:
+        ident = e.get("identification") if isinstance(e, Mapping) else None
+        w = ident.get("with_effect") if isinstance(ident, Mapping) else None
+        if isinstance(w, Mapping) and w != ident.get("linear"):
+            out = {f"{k}_with_findings": w.get(k) for k in ("Td", "tau", "K")}
+    return out
+
+
+def flag_outliers(df: pd.DataFrame, threshold: float = 3.5) -> pd.DataFrame:
+    """Add robust z-scores of tau and Td per loop and flag outliers.
+
+    z = 0.6745 (x - median) / MAD over the logs of the same loop with a result (Iglewicz & Hoaglin's
+    modified z-score; 0.6745 makes it comparable to a normal z). A log is a tau (Td) outlier when
+    |z| > ``threshold`` (3.5, their recommendation) *and* its distance from the median exceeds twice its
+    own standard deviation, so that a log whose estimate is merely uncertain is not flagged. When the
+    MAD is 0 (over half the values equal), z = (x - median) / (1.253314 MeanAD) instead. Needs at
+    least 3 results per loop and some spread; otherwise z is NaN and nothing is flagged.
+
+    Also flags changes against each vehicle's own earlier logs (:func:`_flag_vehicle_changes`).
+    Adds the columns ``tau_z``, ``Td_z``, ``tau_outlier``, ``Td_outlier``, ``tau_change``,
+    ``Td_change``, ``tau_changed``, ``Td_changed``, ``outlier`` (any of the flags) and
+    ``outlier_reason`` (text, empty when not flagged).
+    """
+    df = df.copy()
+    for name in ("tau", "Td"):
+        df[f"{name}_z"] = np.nan
+        df[f"{name}_outlier"] = False
+    has = df["tau_mean"].notna() | df["Td_mean"].notna()
+    for _, idx in df[has].groupby("loop").groups.items():
+        for name in ("tau", "Td"):
+            x = df.loc[idx, f"{name}_mean"].astype(float)
+            x = x[np.isfinite(x)]
+            if len(x) < 3:
+                continue
+            med = float(np.median(x))
+            mad = float(np.median(np.abs(x - med)))
+            if mad > 0:
+                z = 0.6745 * (x - med) / mad
+            else:
+                # More than half the logs share one value (copies of a flight, a very consistent
+                # fleet): the MAD is 0, so use the mean absolute deviation, scaled to match a normal
+                # z-score (1.253314 = sqrt(pi/2)), as IBM SPSS and others do.
+                mean_ad = float(np.mean(np.abs(x - med)))
+                if mean_ad <= 0:
+                    continue
+                z = (x - med) / (1.253314 * mean_ad)
+            std = df.loc[x.index, f"{name}_std"].astype(float).fillna(0.0)
+            df.loc[x.index, f"{name}_z"] = z
+            df.loc[x.index, f"{name}_outlier"] = (np.abs(z) > threshold) & (np.abs(x - med) > 2.0 * std)
+    _flag_vehicle_changes(df)
+    reasons = []
+    for _, row in df.iterrows():
+        r = []
+        for name, unit, scale in (("tau", "ms", 1e3), ("Td", "s", 1.0)):
+            if row[f"{name}_outlier"]:
+                z = row[f"{name}_z"]
+                r.append(f"{name} {'high' if z > 0 else 'low'} in the fleet (z={z:+.1f})")
+            if row[f"{name}_changed"]:
+                c = row[f"{name}_change"] * scale
+                r.append(f"{name} {'grew' if c > 0 else 'fell'} by {abs(c):.3g} {unit} vs this vehicle's earlier logs")
+        reasons.append("; ".join(r))
+    df["outlier"] = df["tau_outlier"] | df["Td_outlier"] | df["tau_changed"] | df["Td_changed"]
+    df["outlier_reason"] = reasons
+    return df
+
+
+def _flag_vehicle_changes(df: pd.DataFrame, k: float = 3.0, min_history: int = 2) -> None:
+    """Flag logs that moved away from their own vehicle's history (in place).
+
+    For each vehicle and loop, in ``log_time`` order, a log with at least ``min_history`` earlier
+    results is compared with their median: ``{name}_change`` = x - median(earlier) and
+    ``{name}_changed`` when |change| > k * sqrt(std_x^2 + s^2), s = max(1.4826 MAD(earlier),
+    median(std of earlier)) -- the spread the history shows or its own reported uncertainty, whichever
+    is larger. This catches "a vehicle whose tau grew" even when the new value is still inside the
+    fleet's range.
+    """
+    for name in ("tau", "Td"):
+        df[f"{name}_change"] = np.nan
+        df[f"{name}_changed"] = False
+    if "log_time" not in df or "vehicle" not in df:
+        return
+    for _, grp in df[df["tau_mean"].notna()].groupby(["vehicle", "loop"]):
+        grp = grp.sort_values(["log_time", "path"])
+        for name in ("tau", "Td"):
+            x = grp[f"{name}_mean"].to_numpy(float)
+            sd = np.nan_to_num(grp[f"{name}_std"].to_numpy(float))
+            for i in range(min_history, len(grp)):
+                prev, prev_sd = x[:i][np.isfinite(x[:i])], sd[:i][np.isfinite(x[:i])]
+                if len(prev) < min_history or not np.isfinite(x[i]):
+                    continue
+                med = float(np.median(prev))
+                spread = max(1.4826 * float(np.median(np.abs(prev - med))), float(np.median(prev_sd)))
+                change = x[i] - med
+                idx = grp.index[i]
+                df.loc[idx, f"{name}_change"] = change
+                df.loc[idx, f"{name}_changed"] = bool(abs(change) > k * math.hypot(sd[i], spread))
+
+
+def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    """The summary table of :func:`summary_rows` rows: typed columns, outliers flagged, columns :data:`SUMMARY_COLUMNS`."""
+    df = pd.DataFrame(rows, columns=[c for c in SUMMARY_COLUMNS if c not in _OUTLIER_COLUMNS])
+    for col in ("n_tests", "n_cycles"):
+        df[col] = df[col].astype("Int64")
+    for col in ("Td_mean", "Td_std", "tau_mean", "tau_std", "K_mean", "K_std", "tp", "elapsed_s"):
+        df[col] = df[col].astype(float)
+    for col in ("path", "loop", "vehicle", "status", "result_status", "error", "error_type", "betas", "findings",
+                "diagnose_error", "log_time_source", "result_json", "settings_hash"):
+        df[col] = df[col].astype("string")
+    for col in ("log_time", "log_mtime", "analysed_at"):
+        df[col] = pd.to_datetime(df[col], utc=True)
+    df = flag_outliers(df)
+    return df[SUMMARY_COLUMNS]

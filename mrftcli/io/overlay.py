@@ -1,0 +1,185 @@
+"""The results MCAP: an analysis written back on the log's own clock, to view beside the log.
+
+``mrft-ident analyze LOG --mcap-out FIT.mcap`` writes this file; a user opens LOG and FIT.mcap together
+in Foxglove Studio or PlotJuggler (docs/usage.md) and sees the model's prediction on the recording.
+Messages are JSON (``jsonschema`` schemas, the MCAP encoding both tools read without ROS type
+definitions); every ``log_time`` is the original log's time [ns], so both files share one time axis.
+
+Topics
+------
+``/mrft_ident/fit``
+    One message per output sample inside a test: ``output`` (the output as analysed: after a quaternion
+    conversion and ``--output-scale``), ``predicted`` (the identified model driven by the recorded
+    relay command, :func:`mrftcli.mrft.waveform.predict_output`), ``residual`` (output - predicted),
+    ``test`` (test number, 1-based).
+``/mrft_ident/tests``
+    Two messages per test, at its start (``active`` 1) and end (``active`` 0): test number, beta
+    (effective, used), nominal beta, relay h and bias, frequency, amplitude, stable cycles, start and
+    end times [s] and the RMS residual of the fit. Plotted, ``active`` marks the tests.
+``/mrft_ident/parameters``
+    The identified Tp, Td, tau [s] and K with standard deviations and 95 % intervals, at the first and
+    the last output sample (so a plot draws them as lines across the log).
+
+Metadata records (``mrft_ident``, ``mrft_ident.test.N``) repeat the parameters and the tests as
+strings for tools that list metadata (``mcap info``, Foxglove's metadata panel).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+
+__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS"]
+
+#: the topics :func:`write_overlay` writes
+OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters")
+
+
+@dataclass(frozen=True)
+class OverlayTest:
+    """One segmented test as annotated in the results MCAP (times in the log's time base [s])."""
+
+    number: int
+    t_start: float
+    t_end: float
+    beta: float
+    beta_nominal: float | None
+    h: float
+    bias: float
+    frequency_hz: float
+    amplitude: float
+    cycles: int
+    rms_residual: float
+
+
+@dataclass(frozen=True)
+class OverlayFit:
+    """The model's prediction over one test, sample by sample at the output times [s]."""
+
+    number: int
+    t: np.ndarray
+    output: np.ndarray
+    predicted: np.ndarray
+
+
+def check_overlay_path(path: str | Path) -> Path:
+    """The output path if it can be written (checked before any work), else a one-line InputError."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"--mcap-out {path}: is a directory; give a file name such as fit.mcap")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"--mcap-out {path}: the folder {parent} does not exist; create it first")
+    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise InputError(f"--mcap-out {path}: not writable; choose another path")
+    return path
+
+
+def _schema(properties: dict[str, str]) -> bytes:
+    types = {"number": {"type": "number"}, "integer": {"type": "integer"},
+             "number|null": {"type": ["number", "null"]}}
+    return json.dumps({"type": "object", "properties": {k: types[v] for k, v in properties.items()}}).encode()
+
+
+def _finite(x: float | None) -> float | None:
+    return float(x) if x is not None and math.isfinite(float(x)) else None
+
+
+def _ns(t: float) -> int:
+    return max(int(round(float(t) * 1e9)), 0)
+
+
+def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Sequence[OverlayFit],
+                  parameters: Mapping[str, Mapping[str, float | None]], metadata: Mapping[str, str] | None = None) -> Path:
+    """Write the results MCAP (see the module docstring for its topics).
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file (replaced if it exists).
+    tests : sequence of OverlayTest
+        The tests used for identification.
+    fits : sequence of OverlayFit
+        The prediction over each test.
+    parameters : mapping
+        ``name -> {"mean", "std", "ci95_low", "ci95_high"}`` for Tp, Td, tau, K (seconds; K in output
+        units / (command unit s^2)).
+    metadata : mapping, optional
+        Extra strings for the ``mrft_ident`` metadata record (log path, loop, version).
+
+    Returns
+    -------
+    Path
+    """
+    from mcap.writer import CompressionType, Writer
+
+    path = Path(path)
+    names = [n for n in ("Tp", "Td", "tau", "K") if n in parameters]
+    param_props = {}
+    for n in names:
+        for k in ("mean", "std", "ci95_low", "ci95_high"):
+            param_props[f"{n}_{k}" if k != "mean" else n] = "number|null"
+    test_props = {"test": "integer", "active": "integer", "beta": "number|null", "beta_nominal": "number|null",
+                  "h": "number", "bias": "number", "frequency_hz": "number|null", "amplitude": "number|null",
+                  "cycles": "integer", "t_start": "number", "t_end": "number", "rms_residual": "number|null"}
+    fit_props = {"output": "number|null", "predicted": "number|null", "residual": "number|null", "test": "integer"}
+
+    # (log_time, channel, payload), merged in time order
+    rows: list[tuple[int, int, bytes]] = []
+    for fit in fits:
+        t = np.asarray(fit.t, float)
+        out = np.asarray(fit.output, float)
+        pred = np.asarray(fit.predicted, float)
+        for ti, yo, yp in zip(t.tolist(), out.tolist(), pred.tolist()):
+            msg = {"output": _finite(yo), "predicted": _finite(yp),
+                   "residual": _finite(yo - yp), "test": int(fit.number)}
+            rows.append((_ns(ti), 0, json.dumps(msg, separators=(",", ":")).encode()))
+    for test in tests:
+        base = {"test": test.number, "beta": _finite(test.beta), "beta_nominal": _finite(test.beta_nominal),
+                "h": float(test.h), "bias": float(test.bias), "frequency_hz": _finite(test.frequency_hz),
+                "amplitude": _finite(test.amplitude), "cycles": int(test.cycles), "t_start": float(test.t_start),
+                "t_end": float(test.t_end), "rms_residual": _finite(test.rms_residual)}
+        for when, active in ((test.t_start, 1), (test.t_end, 0)):
+            rows.append((_ns(when), 1, json.dumps({**base, "active": active}).encode()))
+    params = {}
+    for n in names:
+        p = parameters[n]
+        params[n] = _finite(p.get("mean"))
+        for k in ("std", "ci95_low", "ci95_high"):
+            params[f"{n}_{k}"] = _finite(p.get(k))
+    times = [r[0] for r in rows]
+    if times:
+        for when in sorted({min(times), max(times)}):
+            rows.append((when, 2, json.dumps(params).encode()))
+    rows.sort(key=lambda r: (r[0], r[1]))
+
+    with open(path, "wb") as stream:
+        writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 20)
+        writer.start(profile="", library="mrft-ident")
+        channels = []
+        for topic, schema_name, props in zip(
+                OVERLAY_TOPICS, ("mrft_ident/Fit", "mrft_ident/Test", "mrft_ident/Parameters"),
+                (fit_props, test_props, param_props)):
+            sid = writer.register_schema(schema_name, "jsonschema", _schema(props))
+            channels.append(writer.register_channel(topic, "json", sid))
+        seq = [0, 0, 0]
+        for log_time, ch, data in rows:
+            writer.add_message(channel_id=channels[ch], log_time=log_time, publish_time=log_time, data=data,
+                               sequence=seq[ch])
+            seq[ch] += 1
+        meta = {k: json.dumps(v) if not isinstance(v, str) else v for k, v in params.items()}
+        meta.update({str(k): str(v) for k, v in (metadata or {}).items()})
+        writer.add_metadata("mrft_ident", meta)
+        for test in tests:
+            writer.add_metadata(f"mrft_ident.test.{test.number}",
+                                {k: str(v) for k, v in test.__dict__.items()})
+        writer.finish()
+    return path

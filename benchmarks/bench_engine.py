@@ -16,8 +16,9 @@ import time
 
 import numpy as np
 
-from mrftcli.mrft.identify import TestMeasurement, _intersection_draws, identify
-from mrftcli.mrft.lprs import describing_function_limit_cycle, mrft_limit_cycle
+from mrftcli.mrft.describing import describing_function_limit_cycle
+from mrftcli.mrft.identify import TestMeasurement, identify, intersection_draws
+from mrftcli.mrft.lprs import mrft_limit_cycle, unit_cycle, unit_cycle_scalar
 from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.ufm import SHIPPED_BETAS, build_manifold, build_manifolds, load_manifolds, save_manifold
 
@@ -65,6 +66,50 @@ def bench_speed(reps: int) -> None:
     print(f"machine load average at the end: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
 
 
+def bench_scalar(n: int) -> None:
+    """Why unit_cycle_scalar exists: root finders evaluate one point per call."""
+    print("== unit cycle, one point per call (as in the identifier's root finders) ==")
+    rng = np.random.default_rng()  # fresh points each run
+    tp_n = np.exp(rng.uniform(np.log(0.05), np.log(2.0), n))
+    td_n = np.exp(rng.uniform(np.log(0.5), np.log(50.0), n))
+    beta = rng.uniform(-0.9, -0.1, n)
+    pts = list(zip(tp_n.tolist(), td_n.tolist(), beta.tolist()))
+
+    def scalar() -> None:
+        for p in pts:
+            unit_cycle_scalar(*p)
+
+    # a root finder's sequence: slowly changing arguments (Td along a bracket), cold and warm-started
+    seq = [(0.4, float(t), -0.4) for t in np.geomspace(2.0, 2.2, n) * rng.uniform(0.9, 1.1)]
+
+    def cold() -> None:
+        for p in seq:
+            unit_cycle_scalar(*p)
+
+    def warm() -> None:
+        w: list = []
+        for p in seq:
+            unit_cycle_scalar(*p, w)
+
+    def vector_per_call() -> None:
+        for p in pts:
+            unit_cycle(*p)
+
+    def vector_batch() -> None:
+        unit_cycle(tp_n, td_n, beta)
+
+    t_s = _median_time(scalar, 5) / n
+    t_c = _median_time(cold, 5) / n
+    t_w = _median_time(warm, 5) / n
+    t_v = _median_time(vector_per_call, 5) / n
+    t_b = _median_time(vector_batch, 5) / n
+    print(f"unit_cycle_scalar, per call: {t_s * 1e6:.1f} us; along a slowly changing sequence "
+          f"{t_c * 1e6:.1f} us cold, {t_w * 1e6:.1f} us warm-started ({t_c / t_w:.1f}x)")
+    print(f"unit_cycle (numpy) on one point per call: {t_v * 1e6:.1f} us -> scalar is {t_v / t_s:.1f}x faster")
+    print(f"unit_cycle (numpy) on all {n} points at once: {t_b * 1e6:.2f} us per point "
+          f"(the vectorised form wins when the points are known in advance)")
+
+
 def bench_sensitivity(n: int) -> None:
     print("== paper's sensitivity study (checks.md section 1): 3 % white noise on the frequencies ==")
     rng = np.random.default_rng(2024)
@@ -74,11 +119,9 @@ def bench_sensitivity(n: int) -> None:
     wd = w[None, :] * (1 + 0.03 * rng.standard_normal((n, 2)))
     ms = load_manifolds()
     t0 = time.perf_counter()
-    Td = _intersection_draws(PAPER.Tp, list(betas), wd, ms, PAPER.Td)
+    Td = intersection_draws(PAPER.Tp, list(betas), wd, ms, PAPER.Td)
     el = time.perf_counter() - t0
     ok = np.isfinite(Td)
-    from mrftcli.mrft.lprs import unit_cycle
-
     th, _ = unit_cycle(PAPER.Tp * wd[ok, 0], Td[ok] * wd[ok, 0], betas[0])
     tau = th / wd[ok, 0]
     Td = Td[ok]
@@ -192,6 +235,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="fewer repetitions and draws")
     args = ap.parse_args()
     bench_speed(200 if args.quick else 1000)
+    bench_scalar(500 if args.quick else 2000)
     bench_sensitivity(2000 if args.quick else 20000)
     bench_sampling()
     bench_sampled_noise()

@@ -66,6 +66,7 @@ from .io.logtypes import FlightLog
 from .mrft.lprs import unit_cycle
 from .mrft.model import LoopModel
 from .segment.core import MrftTest, StabilityCriterion, ValidityCriterion, segment
+from .validate import check_time
 
 __all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "log_start", "describe_t0", "phase_tau", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]
@@ -676,9 +677,7 @@ def analyze_flight(
     IdentificationError
         The measured cycles admit no plant of eq. (2) with this Tp.
     """
-    from .mrft.identify import _check_time  # the identify module's validation of a time argument
-
-    Tp = _check_time("Tp", Tp)
+    Tp = check_time("Tp", Tp)
     constraints = tuple(constraints)
     bad = [c for c in constraints if c not in CONSTRAINTS]
     if bad:

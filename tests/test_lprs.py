@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mrftcli.errors import InputError
+from mrftcli.mrft.describing import describing_function_limit_cycle, df_frequency, df_phase
 from mrftcli.mrft.lprs import (
-    describing_function_limit_cycle,
     lprs_first_order,
     lprs_integrator,
     lprs_series,
@@ -18,6 +18,7 @@ from mrftcli.mrft.lprs import (
     lti_limit_cycle,
     mrft_limit_cycle,
     unit_cycle,
+    unit_cycle_scalar,
 )
 from mrftcli.mrft.model import LoopModel
 
@@ -149,6 +150,52 @@ def test_unit_cycle_vectorised_matches_limit_cycle():
     th, a = unit_cycle(np.array([PAPER.Tp * lc.omega]), np.array([PAPER.Td * lc.omega]), -0.55)
     assert th[0] == pytest.approx(PAPER.tau * lc.omega, rel=1e-9)
     assert a[0] * PAPER.K * PAPER.Td / lc.omega == pytest.approx(lc.amplitude, rel=1e-9)
+
+
+def test_scalar_unit_cycle_equals_the_vectorised_one():
+    """unit_cycle_scalar (plain Python, for root finders) is the same closed form as unit_cycle.
+
+    To 1e-12 where the closed form is well conditioned (physical plants, poles apart); near a double
+    pole the partial fractions cancel (coefficients ~ T^2 / (Tp - Td)) and both lose digits alike.
+    """
+    rng = np.random.default_rng(20240610)
+    n = 400
+    tp_n = np.exp(rng.uniform(np.log(1e-3), np.log(50.0), n))
+    td_n = np.exp(rng.uniform(np.log(1e-2), np.log(500.0), n))
+    td_n[:20] = tp_n[:20] * (1 + rng.uniform(-1e-3, 1e-3, 20))  # (nearly) double poles
+    beta = rng.uniform(-0.95, 0.6, n)
+    th_v, a_v = unit_cycle(tp_n, td_n, beta)
+    th_s = np.empty(n)
+    a_s = np.empty(n)
+    th_w = np.empty(n)
+    warm: list = []
+    for i in range(n):
+        th_s[i], a_s[i] = unit_cycle_scalar(float(tp_n[i]), float(td_n[i]), float(beta[i]))
+        # a warm start from the previous point (as the root finders use it) lands on the same root
+        th_w[i], _ = unit_cycle_scalar(float(tp_n[i]), float(td_n[i]), float(beta[i]), warm)
+    apart = np.abs(np.log(tp_n / td_n)) > 0.05
+    good = apart & (th_v >= 0)
+    assert good.sum() > 100
+    np.testing.assert_allclose(th_s[good], th_v[good], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a_s[good], a_v[good], rtol=1e-12, atol=0)
+    np.testing.assert_allclose(th_s[apart], th_v[apart], rtol=0, atol=1e-11)  # no plant: theta < 0
+    np.testing.assert_allclose(th_s, th_v, rtol=0, atol=1e-9)  # near double poles
+    np.testing.assert_allclose(a_s, a_v, rtol=1e-10, atol=1e-11)
+    np.testing.assert_allclose(th_w, th_s, rtol=0, atol=1e-9)
+
+
+def test_simulator_planning_uses_the_describing_function_with_half_a_sample():
+    """The simulator's df_prediction is the describing function with the zero-order hold's lag."""
+    from mrftcli.sim.control import df_prediction
+
+    rate = 200.0
+    omega, amp = df_prediction(PAPER, -0.4, 2.0, rate)
+    # harmonic balance, paper eq. (6), with the half-sample lag: arg G - Omega/(2 rate) = -pi + asin(beta)
+    phase = (-0.5 * math.pi - math.atan(PAPER.Tp * omega) - math.atan(PAPER.Td * omega)
+             - (PAPER.tau + 0.5 / rate) * omega)
+    assert phase == pytest.approx(float(df_phase(-0.4)), abs=1e-12)
+    assert amp == pytest.approx(4 * 2.0 / math.pi * abs(PAPER.frequency_response(omega)), rel=1e-12)
+    assert omega < df_frequency(PAPER, -0.4)  # the extra lag lowers the frequency
 
 
 def test_sampled_relay_band_brackets_continuous_plus_half_sample():

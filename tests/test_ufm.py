@@ -38,7 +38,8 @@ def test_build_save_load_round_trip(tmp_path):
     assert back.beta == -0.45
     np.testing.assert_array_equal(back.theta, m.theta)
     np.testing.assert_array_equal(back.amplitude, m.amplitude)
-    np.testing.assert_array_equal(back.tp, tp)
+    np.testing.assert_array_equal(back.tp_n, tp)
+    np.testing.assert_array_equal(back.td_n, td)
 
 
 def test_manifold_points_are_plants_oscillating_at_unit_frequency():
@@ -73,8 +74,8 @@ def test_shipped_set_covers_the_required_betas_and_size(repo_root):
     for model in (LoopModel(0.015, 2.0, 0.0005), LoopModel(0.3, 0.2, 0.1), LoopModel(0.0499, 4.18, 0.042)):
         for beta in (-0.9, -0.1):
             lc = mrft_limit_cycle(model, beta)
-            assert ms.tp[0] < model.Tp * lc.omega < ms.tp[-1]
-            assert ms.td[0] < model.Td * lc.omega < ms.td[-1]
+            assert ms.tp_n[0] < model.Tp * lc.omega < ms.tp_n[-1]
+            assert ms.td_n[0] < model.Td * lc.omega < ms.td_n[-1]
 
 
 def test_interpolated_slice_between_betas_is_close_to_exact():

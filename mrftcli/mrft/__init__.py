@@ -1,7 +1,15 @@
-"""The MRFT maths: the paper's model, the exact limit cycle (LPRS), the UFM/UGM and identification."""
+"""The MRFT maths: the paper's model, the exact limit cycle (LPRS), the describing function, the
+UFM/UGM, identification from measured tests and the consensus of a log's tests.
 
+Modules: :mod:`~mrftcli.mrft.model` (eq. (2)), :mod:`~mrftcli.mrft.lprs` (exact limit cycles),
+:mod:`~mrftcli.mrft.describing` (harmonic balance, eqs. (4)-(7)), :mod:`~mrftcli.mrft.ufm`
+(manifolds), :mod:`~mrftcli.mrft.identify` (Td, tau, K from test means) and
+:mod:`~mrftcli.mrft.consensus` (weighted constraints and bootstrap over a log's cycles).
+"""
+
+from .describing import describing_function_limit_cycle
 from .identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify
-from .lprs import LimitCycle, describing_function_limit_cycle, mrft_limit_cycle, sampled_limit_cycle
+from .lprs import LimitCycle, mrft_limit_cycle, sampled_limit_cycle
 from .model import LoopModel
 from .ufm import ManifoldSet, load_manifolds
 

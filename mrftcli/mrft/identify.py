@@ -26,7 +26,8 @@ import numpy as np
 from scipy import optimize
 
 from ..errors import IdentificationError, InputError
-from .lprs import _check_beta, _unit_cycle_scalar, unit_cycle
+from ..validate import check_beta, check_time
+from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel
 from .ufm import ManifoldSet, load_manifolds
 
@@ -37,6 +38,7 @@ __all__ = [
     "identify",
     "ufm_slice",
     "tau_curve",
+    "intersection_draws",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -81,7 +83,7 @@ class TestMeasurement:
     h: float | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "beta", _check_beta(self.beta))
+        object.__setattr__(self, "beta", check_beta(self.beta))
         f = _as_positive_array("frequency_hz", self.frequency_hz)
         object.__setattr__(self, "_f", f)
         if self.amplitude is not None:
@@ -254,24 +256,14 @@ def ufm_slice(Tp: float, beta: float, frequency_hz: float, Td_values, exact: boo
     ndarray
         tau [s]; NaN where no non-negative delay produces that frequency.
     """
-    Tp = _check_time("Tp", Tp)
-    beta = _check_beta(beta)
+    Tp = check_time("Tp", Tp)
+    beta = check_beta(beta)
     f = _as_positive_array("frequency_hz", frequency_hz)
     if f.size != 1:
         raise InputError("ufm_slice takes one frequency")
     Td = _as_positive_array("Td_values", Td_values)
     tau = tau_curve(Tp, beta, _TWO_PI * f[0], Td, exact=exact)
     return np.where(tau >= 0, tau, np.nan)
-
-
-def _check_time(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"{name} must be a positive time in seconds, got {value!r}") from err
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
-    return v
 
 
 # ----------------------------------------------------------------------------------------------
@@ -286,18 +278,18 @@ class _Curve:
 
     def tau(self, Td: float) -> float:
         w = self.omega
-        theta, _ = _unit_cycle_scalar(self.Tp * w, Td * w, self.beta, self.warm)
+        theta, _ = unit_cycle_scalar(self.Tp * w, Td * w, self.beta, self.warm)
         return theta / w
 
     def amp_unit(self, Td: float) -> float:
         w = self.omega
-        return _unit_cycle_scalar(self.Tp * w, Td * w, self.beta)[1]
+        return unit_cycle_scalar(self.Tp * w, Td * w, self.beta)[1]
 
 
 def _td_range(ms: ManifoldSet, omegas: Sequence[float]) -> tuple[float, float]:
     """Range of Td [s] covered by the manifold grid for every test."""
-    lo = max(ms.td[0] / w for w in omegas)
-    hi = min(ms.td[-1] / w for w in omegas)
+    lo = max(ms.td_n[0] / w for w in omegas)
+    hi = min(ms.td_n[-1] / w for w in omegas)
     return lo, hi
 
 
@@ -309,7 +301,7 @@ def _bracket_grid(ms: ManifoldSet, Tp: float, betas, omegas, n: int = 96):
     taus = []
     for b, w in zip(betas, omegas):
         tp = Tp * w
-        exact = not (ms.tp[0] <= tp <= ms.tp[-1])
+        exact = not (ms.tp_n[0] <= tp <= ms.tp_n[-1])
         taus.append(tau_curve(Tp, b, w, Td, exact=exact or not ms.covers(b), manifolds=ms))
     return Td, np.array(taus)
 
@@ -380,7 +372,7 @@ def _log_freq_residuals(Tp: float, Td: float, tau: float, betas, omegas, eps: fl
     for i, (b, w) in enumerate(zip(betas, omegas)):
         def F(lw: float) -> float:
             ww = math.exp(lw)
-            return _unit_cycle_scalar(Tp * ww, Td * ww, b)[0] - tau * ww
+            return unit_cycle_scalar(Tp * ww, Td * ww, b)[0] - tau * ww
 
         lw = math.log(w)
         f0 = F(lw)
@@ -401,7 +393,7 @@ def _model_frequency_sensitivity(Tp: float, Td: float, tau: float, beta: float, 
 
     def F(lw: float, lTd: float) -> float:
         ww = math.exp(lw)
-        return _unit_cycle_scalar(Tp * ww, math.exp(lTd) * ww, beta, warm)[0] - tau * ww
+        return unit_cycle_scalar(Tp * ww, math.exp(lTd) * ww, beta, warm)[0] - tau * ww
 
     lw, lTd = math.log(omega), math.log(Td)
     dF_dlw = (F(lw + eps, lTd) - F(lw - eps, lTd)) / (2 * eps)
@@ -434,7 +426,7 @@ def _least_squares(Tp: float, betas, omegas, weights, ms: ManifoldSet) -> tuple[
 # ----------------------------------------------------------------------------------------------
 # vectorised solver for Monte Carlo draws (two tests)
 # ----------------------------------------------------------------------------------------------
-def _intersection_draws(Tp: float, betas, omega_draws: np.ndarray, ms: ManifoldSet, Td_ref: float,
+def intersection_draws(Tp: float, betas, omega_draws: np.ndarray, ms: ManifoldSet, Td_ref: float,
                         iters: int = 40, lags: np.ndarray | None = None) -> np.ndarray:
     """Td for each row of omega_draws (M, 2); NaN where the draws' slices do not intersect.
 
@@ -455,7 +447,7 @@ def _intersection_draws(Tp: float, betas, omega_draws: np.ndarray, ms: ManifoldS
         w = omega_draws[:, i : i + 1]
         tp = Tp * w
         td = grid[None, :] * w
-        covered = ms.covers(betas[i]) and np.all((tp >= ms.tp[0]) & (tp <= ms.tp[-1]))
+        covered = ms.covers(betas[i]) and np.all((tp >= ms.tp_n[0]) & (tp <= ms.tp_n[-1]))
         if covered:
             th, _ = ms.evaluate(betas[i], np.broadcast_to(tp, td.shape), td)
             bad = ~np.isfinite(th)
@@ -572,7 +564,7 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
     for t in tests:
         if not isinstance(t, TestMeasurement):
             raise InputError("tests must be TestMeasurement objects")
-    Tp = _check_time("Tp", Tp)
+    Tp = check_time("Tp", Tp)
     if rate_hz is not None:
         rate_hz = float(rate_hz)
         if not math.isfinite(rate_hz) or rate_hz <= 0:
@@ -633,7 +625,7 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
         if t.amplitude is None:
             K_i.append(None)
             continue
-        a_unit = _unit_cycle_scalar(Tp * w, Td_hat * w, t.beta)[1]
+        a_unit = unit_cycle_scalar(Tp * w, Td_hat * w, t.beta)[1]
         K_i.append(t.amplitude_mean * w / (float(t.h) * Td_hat * a_unit))
     have_K = [k for k in K_i if k is not None]
     K_hat = float(np.mean(have_K)) if have_K else None
@@ -686,7 +678,7 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
         wd = np.where(wd > 0, wd, np.nan)
         # sampled relay: each test's switching lag is uniform in [0, Ts) (its orbit is unknown)
         lag_d = None if rate_hz is None else rng.uniform(0.0, 1.0 / rate_hz, (n_draws, 2))
-        Td_d = _intersection_draws(Tp, betas, np.nan_to_num(wd, nan=omegas.mean()), ms, Td_hat, lags=lag_d)
+        Td_d = intersection_draws(Tp, betas, np.nan_to_num(wd, nan=omegas.mean()), ms, Td_hat, lags=lag_d)
         Td_d[~np.all(np.isfinite(wd), axis=1)] = np.nan
         ok = np.isfinite(Td_d)
         th1, a1 = unit_cycle(Tp * wd[ok, 0], Td_d[ok] * wd[ok, 0], betas[0])
@@ -747,14 +739,14 @@ def _identify_amplitude(test: TestMeasurement, Tp: float, K: float, sampling_lag
 
         def g(lTd: float) -> float:
             Td = math.exp(lTd)
-            return Td * _unit_cycle_scalar(Tp * w, Td * w, test.beta)[1] - target
+            return Td * unit_cycle_scalar(Tp * w, Td * w, test.beta)[1] - target
 
         lo, hi = math.log(1e-2 / w), math.log(1e3 / w)
         if not g(lo) < 0 < g(hi):
             raise IdentificationError("the amplitude cannot be produced by any plant with this Tp, K and h "
                                       "in the manifold range")
         Td = math.exp(optimize.brentq(g, lo, hi, xtol=1e-12))
-        return Td, _unit_cycle_scalar(Tp * w, Td * w, test.beta)[0] / w
+        return Td, unit_cycle_scalar(Tp * w, Td * w, test.beta)[0] / w
 
     w0 = _TWO_PI * test.frequency_mean
     Td_hat, tau_eff = solve(w0, test.amplitude_mean)

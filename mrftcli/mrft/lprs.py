@@ -33,9 +33,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import linalg, optimize
 
 from ..errors import InputError
+from ..validate import check_beta, check_positive
+from .describing import df_frequency
 from .model import LoopModel
 
 __all__ = [
@@ -43,8 +46,11 @@ __all__ = [
     "mrft_limit_cycle",
     "lti_limit_cycle",
     "sampled_limit_cycle",
-    "describing_function_limit_cycle",
+    "SquareWaveResponse",
     "unit_cycle",
+    "unit_cycle_scalar",
+    "unit_extremum",
+    "unit_crossing",
     "unit_waveform",
     "lprs_integrator",
     "lprs_first_order",
@@ -57,31 +63,6 @@ _TWO_PI = 2.0 * math.pi
 #: relative separation used when Tp and Td (nearly) coincide: the partial-fraction form is a divided
 #: difference, evaluated at Tm (1 +- _SPLIT/2); the error is O(_SPLIT**2) = 1e-8 relative.
 _SPLIT = 2e-4
-
-
-# ----------------------------------------------------------------------------------------------
-# validation helpers
-# ----------------------------------------------------------------------------------------------
-def _check_beta(beta: float) -> float:
-    try:
-        beta = float(beta)
-    except (TypeError, ValueError) as err:
-        raise InputError(f"beta must be a number in (-1, 1), got {beta!r}") from err
-    if not -1.0 < beta < 1.0:
-        raise InputError(f"beta must lie in the open interval (-1, 1), got {beta}")
-    return beta
-
-
-def _check_positive(name: str, value: float | None, allow_none: bool = False) -> float | None:
-    if value is None and allow_none:
-        return None
-    try:
-        value = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as err:
-        raise InputError(f"{name} must be a positive number, got {value!r}") from err
-    if not math.isfinite(value) or value <= 0:
-        raise InputError(f"{name} must be a positive number, got {value}")
-    return value
 
 
 # ----------------------------------------------------------------------------------------------
@@ -150,10 +131,13 @@ class LimitCycle:
 
 
 # ----------------------------------------------------------------------------------------------
-# closed-form periodic response of G_n(s) = 1/(s (tp s + 1)(td s + 1)) at Omega = 1 rad/s, h = 1
+# closed-form periodic response of G_n(s) = 1/(s (tp_n s + 1)(td_n s + 1)) at Omega = 1 rad/s, h = 1
 # ----------------------------------------------------------------------------------------------
-class _Soiptd:
-    """Periodic response of ``1/(s (tp s+1)(td s+1))`` to the unit square wave of period 2 pi.
+class SquareWaveResponse:
+    """Periodic response y0 of the normalised plant ``1/(s (tp_n s+1)(td_n s+1))`` to the unit square wave.
+
+    The square wave is +1 on ``[0, P)`` and -1 on ``[P, 2P)``, ``P = pi`` (period 2 pi, Omega = 1
+    rad/s); ``tp_n = Tp Omega`` and ``td_n = Td Omega`` are the dimensionless time constants.
 
     Partial fractions (checks.md section 3):
     ``1/(s(T1 s+1)(T2 s+1)) = 1/s - T1^2/((T1-T2)(T1 s+1)) + T2^2/((T1-T2)(T2 s+1))``.
@@ -164,36 +148,36 @@ class _Soiptd:
 
     P = math.pi
 
-    def __init__(self, tp: np.ndarray, td: np.ndarray) -> None:
-        tp = np.asarray(tp, dtype=float)
-        td = np.asarray(td, dtype=float)
-        tp, td = np.broadcast_arrays(tp, td)
-        mid = 0.5 * (tp + td)
-        close = np.abs(tp - td) < _SPLIT * mid
+    def __init__(self, tp_n: np.ndarray, td_n: np.ndarray) -> None:
+        tp_n = np.asarray(tp_n, dtype=float)
+        td_n = np.asarray(td_n, dtype=float)
+        tp_n, td_n = np.broadcast_arrays(tp_n, td_n)
+        mid = 0.5 * (tp_n + td_n)
+        close = np.abs(tp_n - td_n) < _SPLIT * mid
         if np.any(close):  # double pole: divided difference at a symmetric split (see _SPLIT)
-            tp = np.where(close, mid * (1 + 0.5 * _SPLIT), tp)
-            td = np.where(close, mid * (1 - 0.5 * _SPLIT), td)
-        self.tp, self.td = tp, td
-        diff = tp - td
-        self.cp = -(tp * tp) / diff
-        self.cd = (td * td) / diff
-        self.em1p = np.expm1(-self.P / tp)  # E - 1, E = exp(-P/T)
-        self.em1d = np.expm1(-self.P / td)
+            tp_n = np.where(close, mid * (1 + 0.5 * _SPLIT), tp_n)
+            td_n = np.where(close, mid * (1 - 0.5 * _SPLIT), td_n)
+        self.tp_n, self.td_n = tp_n, td_n
+        diff = tp_n - td_n
+        self.cp = -(tp_n * tp_n) / diff
+        self.cd = (td_n * td_n) / diff
+        self.em1p = np.expm1(-self.P / tp_n)  # E - 1, E = exp(-P/T)
+        self.em1d = np.expm1(-self.P / td_n)
         self.onep = 2.0 + self.em1p  # 1 + E
         self.oned = 2.0 + self.em1d
 
     def _half(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """y0, y0' and y0'' for s in [0, P] (the +h half period)."""
         P = self.P
-        ep = np.exp(-s / self.tp)
-        ed = np.exp(-s / self.td)
-        fp = (-2.0 * np.expm1(-s / self.tp) + self.em1p) / self.onep
-        fd = (-2.0 * np.expm1(-s / self.td) + self.em1d) / self.oned
+        ep = np.exp(-s / self.tp_n)
+        ed = np.exp(-s / self.td_n)
+        fp = (-2.0 * np.expm1(-s / self.tp_n) + self.em1p) / self.onep
+        fd = (-2.0 * np.expm1(-s / self.td_n) + self.em1d) / self.oned
         y = (s - 0.5 * P) + self.cp * fp + self.cd * fd
-        dfp = 2.0 * ep / (self.tp * self.onep)
-        dfd = 2.0 * ed / (self.td * self.oned)
+        dfp = 2.0 * ep / (self.tp_n * self.onep)
+        dfd = 2.0 * ed / (self.td_n * self.oned)
         dy = 1.0 + self.cp * dfp + self.cd * dfd
-        ddy = -self.cp * dfp / self.tp - self.cd * dfd / self.td
+        ddy = -self.cp * dfp / self.tp_n - self.cd * dfd / self.td_n
         return y, dy, ddy
 
     def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -227,17 +211,18 @@ def _bracketed_newton(fun, lo, hi, x, xtol, maxiter=100):
     return x
 
 
-def unit_cycle(tp, td, beta) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised MRFT solution of G_n(s) = e^{-theta s} / (s (tp s+1)(td s+1)) at Omega = 1 rad/s.
+def unit_cycle(tp_n: ArrayLike, td_n: ArrayLike, beta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised MRFT solution of G_n(s) = e^{-theta s} / (s (tp_n s+1)(td_n s+1)) at Omega = 1 rad/s.
 
     Lemmas 1-4 of the paper reduce every plant of eq. (2) to this one: a plant (Tp, Td, tau, K)
-    oscillating at Omega has ``tp = Tp Omega``, ``td = Td Omega``, ``theta = tau Omega`` and amplitude
+    oscillating at Omega has ``tp_n = Tp Omega``, ``td_n = Td Omega``, ``theta = tau Omega`` and amplitude
     ``a = h K Td a_unit / Omega``.
 
     Parameters
     ----------
-    tp, td : array_like
-        Normalised time constants (dimensionless, T * Omega), > 0; broadcast together with beta.
+    tp_n, td_n : array_like
+        Normalised time constants Tp * Omega and Td * Omega (dimensionless), > 0; broadcast together
+        with beta.
     beta : array_like
         MRFT parameter(s) in (-1, 1).
 
@@ -248,16 +233,30 @@ def unit_cycle(tp, td, beta) -> tuple[np.ndarray, np.ndarray]:
         (the UFM value).  Negative where even tau = 0 lags too much (no physical plant).
     a_unit : ndarray
         Amplitude of y for h = 1, K Td = 1 at Omega = 1 (the UGM value); independent of beta.
+
+    Examples
+    --------
+    The paper's example (Tp = 0.1 s, Td = 0.7042 s, tau = 0.06 s) oscillates at 4.4337 rad/s under
+    beta = -0.4, so its normalised delay there is tau * Omega:
+
+    >>> theta, a_unit = unit_cycle(0.1 * 4.433739, 0.7042 * 4.433739, -0.4)
+    >>> round(float(theta), 4), round(0.06 * 4.433739, 4)
+    (0.266, 0.266)
     """
-    sys_, s0, a = _unit_extremum(tp, td)
-    return _unit_crossing(sys_, s0, a, beta), a
+    sys_, s0, a = unit_extremum(tp_n, td_n)
+    return unit_crossing(sys_, s0, a, beta), a
 
 
-def _unit_extremum(tp, td):
-    """Closed-form system, instant s0 of the minimum of y0 in [0, P] and the amplitude a_unit."""
-    sys_ = _Soiptd(tp, td)
+def unit_extremum(tp_n: ArrayLike, td_n: ArrayLike) -> tuple[SquareWaveResponse, np.ndarray, np.ndarray]:
+    """The beta-independent half of :func:`unit_cycle`: y0, the instant of its minimum and a_unit.
+
+    Returns the :class:`SquareWaveResponse` of ``(tp_n, td_n)`` (broadcast), the instant ``s0`` in
+    [0, pi] of the minimum of y0 and the amplitude ``a_unit = -y0(s0)``; :func:`unit_crossing` adds
+    beta. Building the manifolds of many betas calls this once and the crossing once per beta.
+    """
+    sys_ = SquareWaveResponse(tp_n, td_n)
     P = sys_.P
-    zeros = np.zeros(sys_.tp.shape)
+    zeros = np.zeros(sys_.tp_n.shape)
     # y0' = r crosses 0 upwards exactly once in the +h half period (r(P) = -r(0) and a sum of three
     # exponentials has at most two zeros), so the bracket [0, P] is always valid.
     s0 = _bracketed_newton(lambda s: sys_._half(s)[1:], zeros, zeros + P, zeros + 0.25 * P, 1e-13 * P)
@@ -265,13 +264,17 @@ def _unit_extremum(tp, td):
     return sys_, s0, a
 
 
-def _unit_crossing(sys_, s0, a, beta):
-    """theta = P - u, u the ascending crossing of beta * a in (s0, s0 + P)."""
+def unit_crossing(sys_: SquareWaveResponse, s0: np.ndarray, a: np.ndarray, beta: ArrayLike) -> np.ndarray:
+    """The UFM value theta [rad] for beta from the output of :func:`unit_extremum`.
+
+    theta = P - u, u the ascending crossing of the level beta * a in (s0, s0 + P) (the LPRS
+    frequency condition of the module docstring at Omega = 1 rad/s).
+    """
     beta = np.asarray(beta, dtype=float)
     P = sys_.P
-    shape = np.broadcast_shapes(sys_.tp.shape, beta.shape)
-    if sys_.tp.shape != shape:
-        sys_ = _Soiptd(np.broadcast_to(sys_.tp, shape), np.broadcast_to(sys_.td, shape))
+    shape = np.broadcast_shapes(sys_.tp_n.shape, beta.shape)
+    if sys_.tp_n.shape != shape:
+        sys_ = SquareWaveResponse(np.broadcast_to(sys_.tp_n, shape), np.broadcast_to(sys_.td_n, shape))
     s0b = np.broadcast_to(s0, shape)
     ab = np.broadcast_to(a, shape)
     betab = np.broadcast_to(beta, shape)
@@ -284,27 +287,36 @@ def _unit_crossing(sys_, s0, a, beta):
     return P - u
 
 
-def _unit_cycle_scalar(tp: float, td: float, beta: float, warm: list | None = None) -> tuple[float, float]:
-    """Scalar :func:`unit_cycle` in plain Python (about 10x faster than numpy on 0-d arrays).
+def unit_cycle_scalar(tp_n: float, td_n: float, beta: float, warm: list | None = None) -> tuple[float, float]:
+    """Scalar :func:`unit_cycle` in plain Python, for root finders that call it one point at a time.
 
-    Same closed form and the same safeguarded Newton iterations; used by the identifier's inner loop.
-    ``warm`` (a list ``[s0, u]`` or ``[]``) carries the previous solution as starting values for the
-    next call and is updated in place (root finders call this with slowly changing arguments).
+    Same closed form and the same safeguarded Newton iterations as :func:`unit_cycle` (equal to
+    ~1e-12); numpy's per-call overhead on 0-d arrays makes the vectorised form several times slower
+    per point (``benchmarks/bench_engine.py``, docs/benchmarks/engine.md). ``warm`` (a list
+    ``[s0, u]`` or ``[]``) carries the previous solution as starting values for the next call and is
+    updated in place (root finders call this with slowly changing arguments).
+
+    Examples
+    --------
+    >>> theta, a = unit_cycle_scalar(0.5, 3.0, -0.4)
+    >>> t_vec, a_vec = unit_cycle(0.5, 3.0, -0.4)
+    >>> abs(theta - float(t_vec)) < 1e-12 and abs(a - float(a_vec)) < 1e-12
+    True
     """
     P = math.pi
-    mid = 0.5 * (tp + td)
-    if abs(tp - td) < _SPLIT * mid:
-        tp, td = mid * (1 + 0.5 * _SPLIT), mid * (1 - 0.5 * _SPLIT)
-    diff = tp - td
-    cp, cd = -(tp * tp) / diff, (td * td) / diff
-    em1p, em1d = math.expm1(-P / tp), math.expm1(-P / td)
+    mid = 0.5 * (tp_n + td_n)
+    if abs(tp_n - td_n) < _SPLIT * mid:
+        tp_n, td_n = mid * (1 + 0.5 * _SPLIT), mid * (1 - 0.5 * _SPLIT)
+    diff = tp_n - td_n
+    cp, cd = -(tp_n * tp_n) / diff, (td_n * td_n) / diff
+    em1p, em1d = math.expm1(-P / tp_n), math.expm1(-P / td_n)
     onep, oned = 2.0 + em1p, 2.0 + em1d
-    kp, kd = 2.0 / (tp * onep), 2.0 / (td * oned)
+    kp, kd = 2.0 / (tp_n * onep), 2.0 / (td_n * oned)
 
     def half(s: float) -> tuple[float, float, float]:
-        ep, ed = math.exp(-s / tp), math.exp(-s / td)
-        y = (s - 0.5 * P) + cp * (-2.0 * math.expm1(-s / tp) + em1p) / onep + cd * (-2.0 * math.expm1(-s / td) + em1d) / oned
-        return y, 1.0 + cp * kp * ep + cd * kd * ed, -cp * kp * ep / tp - cd * kd * ed / td
+        ep, ed = math.exp(-s / tp_n), math.exp(-s / td_n)
+        y = (s - 0.5 * P) + cp * (-2.0 * math.expm1(-s / tp_n) + em1p) / onep + cd * (-2.0 * math.expm1(-s / td_n) + em1d) / oned
+        return y, 1.0 + cp * kp * ep + cd * kd * ed, -cp * kp * ep / tp_n - cd * kd * ed / td_n
 
     def newton(fun, lo: float, hi: float, x: float) -> float:
         for _ in range(100):
@@ -343,9 +355,9 @@ def _unit_cycle_scalar(tp: float, td: float, beta: float, warm: list | None = No
     return P - u, a
 
 
-def unit_waveform(tp: float, td: float, n: int = 512) -> tuple[np.ndarray, np.ndarray]:
+def unit_waveform(tp_n: float, td_n: float, n: int = 512) -> tuple[np.ndarray, np.ndarray]:
     """One period (t in [0, 2 pi)) of the delay-free normalised output y0 (h = 1, K Td = 1)."""
-    sys_ = _Soiptd(np.array(tp), np.array(td))
+    sys_ = SquareWaveResponse(np.array(tp_n), np.array(td_n))
     t = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
     return t, sys_.eval(t)[0]
 
@@ -353,35 +365,18 @@ def unit_waveform(tp: float, td: float, n: int = 512) -> tuple[np.ndarray, np.nd
 # ----------------------------------------------------------------------------------------------
 # the paper's model: exact continuous limit cycle
 # ----------------------------------------------------------------------------------------------
-def _df_omega(Tp: float, Td: float, tau: float, beta: float) -> float:
-    """Describing-function frequency [rad/s]: arg W(j w) = -pi + asin(beta)  (paper eq. 6)."""
-    target = math.pi / 2 - math.asin(beta)  # phase lag beyond the integrator's -pi/2
-
-    def lag(w: float) -> float:
-        return math.atan(Tp * w) + math.atan(Td * w) + tau * w - target
-
-    hi = 1.0 / max(Tp, Td, tau, 1e-9)
-    while lag(hi) < 0:
-        hi *= 2.0
-    lo = hi
-    while lag(lo) > 0:
-        lo /= 2.0
-        if lo < 1e-12:
-            return float("nan")
-    return optimize.brentq(lag, lo, hi, xtol=1e-14, rtol=1e-14)
-
-
-def _soiptd_omega(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, float]:
+def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
     """Exact MRFT frequency [rad/s] of eq. (2) and the normalised unit amplitude at that frequency."""
+    Tp, Td, tau = model.Tp, model.Td, model.tau
 
     warm: list = []
 
     def g(logw: float) -> float:
         w = math.exp(logw)
-        theta, _ = _unit_cycle_scalar(Tp * w, Td * w, beta, warm)
+        theta, _ = unit_cycle_scalar(Tp * w, Td * w, beta, warm)
         return theta - tau * w
 
-    w0 = _df_omega(Tp, Td, tau, beta)
+    w0 = df_frequency(model, beta)  # the describing function's root starts the bracket
     if not np.isfinite(w0):
         w0 = 1.0 / max(Tp, Td, tau)
     lo, hi = math.log(w0) - 0.3, math.log(w0) + 0.3
@@ -395,7 +390,7 @@ def _soiptd_omega(Tp: float, Td: float, tau: float, beta: float) -> tuple[float,
         hi += 1.0
     logw = optimize.brentq(g, lo, hi, xtol=1e-15, rtol=4 * np.finfo(float).eps)
     w = math.exp(logw)
-    _, a = _unit_cycle_scalar(Tp * w, Td * w, beta)
+    _, a = unit_cycle_scalar(Tp * w, Td * w, beta)
     return w, float(a)
 
 
@@ -426,9 +421,9 @@ def mrft_limit_cycle(model: LoopModel, beta: float, h: float = 1.0, rate_hz: flo
     InputError
         beta outside (-1, 1), non-positive h or rate, invalid model parameters.
     """
-    beta = _check_beta(beta)
-    h = _check_positive("h", h)
-    rate_hz = _check_positive("rate_hz", rate_hz, allow_none=True)
+    beta = check_beta(beta)
+    h = check_positive("h", h)
+    rate_hz = None if rate_hz is None else check_positive("rate_hz", rate_hz)
     if not isinstance(model, LoopModel):
         raise InputError("model must be a LoopModel")
     if model.K < 0:
@@ -439,12 +434,12 @@ def mrft_limit_cycle(model: LoopModel, beta: float, h: float = 1.0, rate_hz: flo
             LoopModel(model.Tp, model.Td, model.tau + 0.5 / rate_hz, model.K), beta, h, None, n_points
         )
         return sampled_limit_cycle(A, B, C, model.tau, beta, h, rate_hz, _centre=centre)
-    w, a_unit = _soiptd_omega(model.Tp, model.Td, model.tau, beta)
+    w, a_unit = _exact_omega(model, beta)
     scale = h * model.K * model.Td / w  # Lemmas 2 and 4: y = h K Td y_n(Omega t) / Omega
     theta = model.tau * w
     tn = np.linspace(0.0, _TWO_PI, n_points, endpoint=False)
     # delayed output y(t) = y0(t - tau) in normalised time, t = 0 at the -h -> +h switch
-    y = _Soiptd(np.array(model.Tp * w), np.array(model.Td * w)).eval(tn - theta)[0]
+    y = SquareWaveResponse(np.array(model.Tp * w), np.array(model.Td * w)).eval(tn - theta)[0]
     T = _TWO_PI / w
     return LimitCycle(
         omega=w,
@@ -577,9 +572,9 @@ def lti_limit_cycle(A, B, C, tau: float, beta: float, h: float = 1.0, rate_hz: f
     InputError
         Bad beta, h, tau or shapes.
     """
-    beta = _check_beta(beta)
-    h = _check_positive("h", h)
-    rate_hz = _check_positive("rate_hz", rate_hz, allow_none=True)
+    beta = check_beta(beta)
+    h = check_positive("h", h)
+    rate_hz = None if rate_hz is None else check_positive("rate_hz", rate_hz)
     A, B, C = _as_state_space(A, B, C)
     tau = float(tau)
     if not math.isfinite(tau) or tau < 0:
@@ -696,9 +691,9 @@ def sampled_limit_cycle(A, B, C, tau: float, beta: float, h: float, rate_hz: flo
     Note that the orbits are not equally likely and noise does not average them to the centre, so no
     single sampled-relay frequency can be predicted to better than the band width.
     """
-    beta = _check_beta(beta)
-    h = _check_positive("h", h)
-    rate_hz = _check_positive("rate_hz", rate_hz)
+    beta = check_beta(beta)
+    h = check_positive("h", h)
+    rate_hz = check_positive("rate_hz", rate_hz)
     A, B, C = _as_state_space(A, B, C)
     Ts = 1.0 / rate_hz
     cont = _centre if _centre is not None else lti_limit_cycle(A, B, C, tau + 0.5 * Ts, beta, h, None)
@@ -734,26 +729,6 @@ def sampled_limit_cycle(A, B, C, tau: float, beta: float, h: float, rate_hz: flo
                       amplitude=cont.amplitude, beta=beta, h=h, rate_hz=rate_hz, t=cont.t, y=cont.y,
                       delay_phase=tau * cont.omega, method="sampled-mean", orbits_hz=tuple(freqs),
                       orbits_amplitude=tuple(amps))
-
-
-# ----------------------------------------------------------------------------------------------
-# describing function (for comparison only)
-# ----------------------------------------------------------------------------------------------
-def describing_function_limit_cycle(model: LoopModel, beta: float, h: float = 1.0) -> tuple[float, float]:
-    """Describing-function (harmonic balance) prediction, paper eqs. (4)-(7): NOT exact.
-
-    Returns
-    -------
-    frequency_hz : float
-        From arg W(j Omega) = -pi + asin(beta).
-    amplitude : float
-        a = (4 h / pi) |W(j Omega)|.
-    """
-    beta = _check_beta(beta)
-    h = _check_positive("h", h)
-    w = _df_omega(model.Tp, model.Td, model.tau, beta)
-    amp = 4.0 * h / math.pi * float(abs(model.frequency_response(w)))
-    return w / _TWO_PI, amp
 
 
 # ----------------------------------------------------------------------------------------------

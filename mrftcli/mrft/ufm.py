@@ -3,16 +3,17 @@
 By Lemmas 1-4 of the paper every plant ``G(s) = K Td e^{-tau s} / (s (Tp s+1)(Td s+1))`` that the
 MRFT (parameter beta) makes oscillate at ``Omega`` [rad/s] maps to the normalised plant
 
-    G_n(s) = e^{-theta s} / (s (tp s + 1)(td s + 1)),  tp = Tp Omega, td = Td Omega, theta = tau Omega
+    G_n(s) = e^{-theta s} / (s (tp_n s + 1)(td_n s + 1)),  tp_n = Tp Omega, td_n = Td Omega, theta = tau Omega
 
-which oscillates at exactly 1 rad/s.  For each beta the **UFM** is the surface ``theta(tp, td)``
+which oscillates at exactly 1 rad/s.  For each beta the **UFM** is the surface ``theta(tp_n, td_n)``
 (our convention: unit frequency = 1 rad/s, not the paper's 1 Hz) and the **UGM** the amplitude
-``a_unit(tp, td)`` of G_n for relay height h = 1 (so that ``a = h K Td a_unit / Omega``).  Both come
+``a_unit(tp_n, td_n)`` of G_n for relay height h = 1 (so that ``a = h K Td a_unit / Omega``).  Both come
 from the exact closed form in :mod:`mrftcli.mrft.lprs`.
 
 File format (``FORMAT_VERSION`` 1), one pair of files per beta in a directory:
 
-* ``ufm_beta{beta:+.3f}.npz`` with float64 ``tp`` (n_tp,), ``td`` (n_td,) log-spaced grids, float32
+* ``ufm_beta{beta:+.3f}.npz`` with float64 ``tp`` (n_tp,), ``td`` (n_td,) log-spaced grids of
+  ``tp_n = Tp Omega`` and ``td_n = Td Omega`` (:attr:`Manifold.tp_n`, :attr:`Manifold.td_n`), float32
   ``theta`` and ``amplitude`` (n_tp, n_td), and ``metadata`` (0-d string: the JSON below);
 * ``ufm_beta{beta:+.3f}.json`` with ``format``: "mrft-ident-ufm", ``format_version``, ``beta``,
   ``model``, ``unit_frequency_rad_s``: 1.0, ``gain_normalisation``: "K*Td = 1, h = 1", ``grid``
@@ -36,10 +37,13 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .. import __version__
 from ..errors import InputError
-from .lprs import _check_beta, _unit_crossing, _unit_extremum, unit_cycle
+from ..progress import Progress, report
+from ..validate import check_beta
+from .lprs import unit_crossing, unit_cycle, unit_extremum
 
 __all__ = [
     "FORMAT_VERSION",
@@ -71,25 +75,25 @@ def _file_stem(beta: float) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Manifold:
-    """UFM and UGM of eq. (2) for one beta, on a log grid of (tp, td) = (Tp, Td) * Omega.
+    """UFM and UGM of eq. (2) for one beta, on a log grid of (tp_n, td_n) = (Tp, Td) * Omega.
 
     Attributes
     ----------
     beta : float
         MRFT parameter.
-    tp, td : ndarray
-        Normalised grids (dimensionless), increasing, log-spaced.
-    theta : ndarray, shape (tp.size, td.size)
+    tp_n, td_n : ndarray
+        Normalised grids Tp * Omega and Td * Omega (dimensionless), increasing, log-spaced.
+    theta : ndarray, shape (tp_n.size, td_n.size)
         Signed normalised delay tau * Omega [rad] giving unit frequency (UFM).
-    amplitude : ndarray, shape (tp.size, td.size)
+    amplitude : ndarray, shape (tp_n.size, td_n.size)
         Output amplitude for h = 1, K Td = 1 at Omega = 1 rad/s (UGM).
     metadata : dict
         Build information (see the module docstring).
     """
 
     beta: float
-    tp: np.ndarray
-    td: np.ndarray
+    tp_n: np.ndarray
+    td_n: np.ndarray
     theta: np.ndarray = field(repr=False)
     amplitude: np.ndarray = field(repr=False)
     metadata: dict = field(default_factory=dict, repr=False)
@@ -99,11 +103,11 @@ class Manifold:
         th = np.asarray(self.theta, dtype=float)
         return np.where(th >= 0, th, np.nan)
 
-    def interpolate(self, tp, td) -> tuple[np.ndarray, np.ndarray]:
-        """Bilinear interpolation in (log tp, log td) of (theta, amplitude); NaN outside the grid."""
-        ltp, ltd = np.log(self.tp), np.log(self.td)
-        x = np.log(np.asarray(tp, dtype=float))
-        y = np.log(np.asarray(td, dtype=float))
+    def interpolate(self, tp_n: ArrayLike, td_n: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Bilinear interpolation in (log tp_n, log td_n) of (theta, amplitude); NaN outside the grid."""
+        ltp, ltd = np.log(self.tp_n), np.log(self.td_n)
+        x = np.log(np.asarray(tp_n, dtype=float))
+        y = np.log(np.asarray(td_n, dtype=float))
         x, y = np.broadcast_arrays(x, y)
         dx = ltp[1] - ltp[0]
         dy = ltd[1] - ltd[0]
@@ -126,8 +130,8 @@ class Manifold:
         return out[0], out[1]
 
 
-def build_manifolds(betas: Iterable[float], tp: np.ndarray | None = None, td: np.ndarray | None = None,
-                    progress: bool = False) -> list[Manifold]:
+def build_manifolds(betas: Iterable[float], tp_n: np.ndarray | None = None, td_n: np.ndarray | None = None,
+                    progress: Progress | None = None) -> list[Manifold]:
     """Build the UFM/UGM for several betas, sharing the beta-independent part.
 
     The delay-free periodic response y0 and its amplitude do not depend on beta; only the switching
@@ -138,41 +142,36 @@ def build_manifolds(betas: Iterable[float], tp: np.ndarray | None = None, td: np
     ----------
     betas : iterable of float
         MRFT parameters in (-1, 1).
-    tp, td : ndarray, optional
-        Increasing log-spaced normalised grids; default :data:`DEFAULT_TP`, :data:`DEFAULT_TD`.
-    progress : bool
-        Show a tqdm progress bar over the betas (on stderr).
+    tp_n, td_n : ndarray, optional
+        Increasing log-spaced normalised grids Tp * Omega and Td * Omega; default :data:`DEFAULT_TP`,
+        :data:`DEFAULT_TD`.
+    progress : Progress, optional
+        Called as ``progress(done, total, "UFM")`` after each beta (``done`` betas of ``total``).
 
     Raises
     ------
     InputError
         beta outside (-1, 1) or grids that are not positive, increasing and log-spaced.
     """
-    betas = [_check_beta(b) for b in betas]
+    betas = [check_beta(b) for b in betas]
     if not betas:
         raise InputError("give at least one beta")
-    tp = DEFAULT_TP if tp is None else np.asarray(tp, dtype=float)
-    td = DEFAULT_TD if td is None else np.asarray(td, dtype=float)
-    for name, g in (("tp", tp), ("td", td)):
+    tp_n = DEFAULT_TP if tp_n is None else np.asarray(tp_n, dtype=float)
+    td_n = DEFAULT_TD if td_n is None else np.asarray(td_n, dtype=float)
+    for name, g in (("tp", tp_n), ("td", td_n)):
         if g.ndim != 1 or g.size < 2 or np.any(g <= 0) or np.any(np.diff(g) <= 0):
             raise InputError(f"{name} grid must be positive and strictly increasing")
         steps = np.diff(np.log(g))
         if np.ptp(steps) > 1e-9 * max(1.0, abs(steps.mean())):
             raise InputError(f"{name} grid must be log-spaced (interpolation is done in log coordinates)")
     t0 = time.perf_counter()
-    sys_, s0, a = _unit_extremum(tp[:, None], td[None, :])
+    sys_, s0, a = unit_extremum(tp_n[:, None], td_n[None, :])
     t_shared = time.perf_counter() - t0
-    iterator = betas
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(betas, desc="UFM", unit="beta", leave=True)
-        iterator = bar
     out = []
-    for beta in iterator:
+    report(progress, 0, len(betas), "UFM")
+    for beta in betas:
         t1 = time.perf_counter()
-        theta = _unit_crossing(sys_, s0, a, beta)
+        theta = unit_crossing(sys_, s0, a, beta)
         meta = {
             "format": "mrft-ident-ufm",
             "format_version": FORMAT_VERSION,
@@ -182,8 +181,8 @@ def build_manifolds(betas: Iterable[float], tp: np.ndarray | None = None, td: np
             "gain_normalisation": "K*Td = 1, h = 1",
             "theta": "signed tau*Omega [rad]; < 0 where no physical plant (see docs/method.md)",
             "grid": {
-                "tp": {"min": float(tp[0]), "max": float(tp[-1]), "n": int(tp.size), "spacing": "log"},
-                "td": {"min": float(td[0]), "max": float(td[-1]), "n": int(td.size), "spacing": "log"},
+                "tp": {"min": float(tp_n[0]), "max": float(tp_n[-1]), "n": int(tp_n.size), "spacing": "log"},
+                "td": {"min": float(td_n[0]), "max": float(td_n[-1]), "n": int(td_n.size), "spacing": "log"},
                 "axes": ["tp", "td"],
             },
             "build": {
@@ -194,15 +193,14 @@ def build_manifolds(betas: Iterable[float], tp: np.ndarray | None = None, td: np
             "package_version": __version__,
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         }
-        out.append(Manifold(beta, tp.copy(), td.copy(), theta.astype(np.float32), a.astype(np.float32), meta))
-    if bar is not None:
-        bar.close()
+        out.append(Manifold(beta, tp_n.copy(), td_n.copy(), theta.astype(np.float32), a.astype(np.float32), meta))
+        report(progress, len(out), len(betas), "UFM")
     return out
 
 
-def build_manifold(beta: float, tp: np.ndarray | None = None, td: np.ndarray | None = None) -> Manifold:
+def build_manifold(beta: float, tp_n: np.ndarray | None = None, td_n: np.ndarray | None = None) -> Manifold:
     """Build the UFM/UGM for one beta (see :func:`build_manifolds`)."""
-    return build_manifolds([beta], tp, td)[0]
+    return build_manifolds([beta], tp_n, td_n)[0]
 
 
 def save_manifold(manifold: Manifold, directory: str | Path) -> Path:
@@ -214,8 +212,8 @@ def save_manifold(manifold: Manifold, directory: str | Path) -> Path:
     path = directory / f"{stem}.npz"
     np.savez_compressed(
         path,
-        tp=manifold.tp,
-        td=manifold.td,
+        tp=manifold.tp_n,
+        td=manifold.td_n,
         theta=np.asarray(manifold.theta, dtype=np.float32),
         amplitude=np.asarray(manifold.amplitude, dtype=np.float32),
         metadata=np.array(meta_text),
@@ -266,28 +264,31 @@ class ManifoldSet:
         return len(self.manifolds)
 
     @property
-    def td(self) -> np.ndarray:
-        return self.manifolds[0].td
+    def td_n(self) -> np.ndarray:
+        """The normalised Td * Omega grid shared by the manifolds."""
+        return self.manifolds[0].td_n
 
     @property
-    def tp(self) -> np.ndarray:
-        return self.manifolds[0].tp
+    def tp_n(self) -> np.ndarray:
+        """The normalised Tp * Omega grid shared by the manifolds."""
+        return self.manifolds[0].tp_n
 
     def covers(self, beta: float) -> bool:
         return bool(self.betas[0] - 1e-9 <= beta <= self.betas[-1] + 1e-9)
 
-    def evaluate(self, beta: float, tp, td, exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """(theta, a_unit) at normalised (tp, td) for this beta (interpolated or exact)."""
-        beta = _check_beta(beta)
+    def evaluate(self, beta: float, tp_n: ArrayLike, td_n: ArrayLike,
+                 exact: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(theta, a_unit) at normalised (tp_n, td_n) = (Tp, Td) * Omega for this beta (interpolated or exact)."""
+        beta = check_beta(beta)
         if exact or not self.covers(beta):
-            return unit_cycle(tp, td, beta)
+            return unit_cycle(tp_n, td_n, beta)
         k = int(np.searchsorted(self.betas, beta))
         if k < len(self.betas) and abs(self.betas[k] - beta) < 1e-9:
-            return self.manifolds[k].interpolate(tp, td)
+            return self.manifolds[k].interpolate(tp_n, td_n)
         lo, hi = self.manifolds[k - 1], self.manifolds[k]
         w = (beta - lo.beta) / (hi.beta - lo.beta)
-        th0, a0 = lo.interpolate(tp, td)
-        th1, a1 = hi.interpolate(tp, td)
+        th0, a0 = lo.interpolate(tp_n, td_n)
+        th1, a1 = hi.interpolate(tp_n, td_n)
         return (1 - w) * th0 + w * th1, (1 - w) * a0 + w * a1
 
 

@@ -56,6 +56,7 @@ import numpy as np
 
 from ..errors import SegmentationError
 from ..io.logtypes import FlightLog
+from ..mrft.describing import df_phase
 
 __all__ = [
     "RelayCycle",
@@ -967,15 +968,6 @@ class LimitCycleCheck:
         d["ok"] = self.ok
         d["thresholds"] = self.criterion.to_dict()
         return d
-
-
-def df_phase(beta) -> np.ndarray:
-    """-pi + arcsin(beta) [rad]: the describing-function phase of G(j Omega) in an MRFT limit cycle.
-
-    Harmonic balance G(j Omega) N(a) = -1 with the MRFT's N(a) = 4h/(pi a) (sqrt(1 - beta^2) + j beta)
-    (paper Section III). The exact limit cycle of any plant of eq. (2) lies within 0.33 rad of it.
-    """
-    return -np.pi + np.arcsin(np.clip(np.asarray(beta, float), -1.0, 1.0))
 
 
 def _wrap(x: float) -> float:

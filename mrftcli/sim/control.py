@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..mrft.describing import df_amplitude, df_frequency
 from ..mrft.model import LoopModel
 
 __all__ = [
@@ -71,8 +72,9 @@ def df_prediction(model: LoopModel, beta: float, h: float, rate_hz: float = 200.
     """Describing-function estimate of the MRFT limit cycle, eq. (4)-(6) of the paper.
 
     Solves arg G(j Omega) - Omega / (2 rate_hz) = -pi + asin(beta) (the half-sample lag models the
-    zero-order hold) and a = 4 h |G(j Omega)| / pi. Approximate (first harmonic only); use
-    :mod:`mrftcli.mrft.lprs` for exact figures. Used here only to plan h and test durations.
+    zero-order hold) and a = 4 h |G(j Omega)| / pi with :mod:`mrftcli.mrft.describing`. Approximate
+    (first harmonic only); use :mod:`mrftcli.mrft.lprs` for exact figures. Used here only to plan h
+    and test durations.
 
     Returns
     -------
@@ -81,10 +83,8 @@ def df_prediction(model: LoopModel, beta: float, h: float, rate_hz: float = 200.
     amplitude : float
         Output amplitude [output units].
     """
-    _check_beta(beta)
-    omega = _solve_phase(model, -math.pi + math.asin(beta), rate_hz)
-    amplitude = 4.0 * abs(h) * abs(complex(model.frequency_response(omega))) / math.pi
-    return omega, amplitude
+    omega = df_frequency(model, beta, extra_delay=0.5 / rate_hz)
+    return omega, df_amplitude(model, omega, h)
 
 
 def noise_margin(model: LoopModel, beta: float, h: float, rate_hz: float, noise_std: float) -> float:

@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "build-ufm": ("build_ufm", "build_ufm", "Build unit frequency / unit gain manifolds for given betas."),
     "simulate": ("simulate", "simulate", "Simulate an MRFT flight and write it as a log with a ground-truth sidecar."),
     "topics": ("topics", "topics", "List the topics (or messages/columns) of a log with counts and rates."),
+    "watch": ("watch", "watch", "Follow a log while it is recorded: tests and estimates as cycles arrive."),
 }
 
 

@@ -1,0 +1,84 @@
+"""``mrft-ident watch``: follow a log while it is recorded and print tests and estimates as they come."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import click
+
+from .options import log_layout_options, to_jsonable, tp_option
+
+
+def _line(update, t0: float) -> str:
+    """One terminal line per update (times in seconds from the first test's start)."""
+    if update.kind == "test":
+        nom = f"{update.beta_nominal:+.3f}" if update.beta_nominal is not None else "-"
+        return (f"test {update.number}  t {update.t_start - t0:7.1f} s  beta nom {nom}  eff {update.beta_effective:+.3f}  "
+                f"f {update.frequency_hz:.4f} Hz  amplitude {update.amplitude:.4g}  "
+                f"cycles {update.stable_cycles}/{update.cycles}")
+    if update.kind == "estimate":
+        head = "final    " if update.final else "estimate "
+        text = (f"{head} Td {update.Td:.4g} s  tau {update.tau * 1e3:.4g} ms  K {update.K:.4g}  "
+                f"(tests {', '.join(map(str, update.tests))})")
+        if update.final and update.std:
+            sd = update.std
+            text += (f"  std: Td {sd['Td']:.2g} s, tau {sd['tau'] * 1e3:.2g} ms, K {sd['K']:.2g}"
+                     if all(math.isfinite(sd[k]) for k in ("Td", "tau", "K")) else "")
+        return text
+    return f"stopped: the writer {'closed the file' if update.reason == 'closed' else 'stopped writing'}; " \
+           f"{update.tests} test(s)"
+
+
+@click.command("watch")
+@click.argument("log", type=click.Path())
+@tp_option()
+@log_layout_options()
+@click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
+              help="Stable cycles a test needs before it is shown and used.")
+@click.option("--idle", type=click.FloatRange(0, None, min_open=True), default=10.0, show_default=True,
+              help="Stop when the log has not grown for this many seconds (CSV, ULog; MCAP stops at its footer).")
+@click.option("--poll", type=click.FloatRange(0.001, 5.0), default=0.02, show_default=True,
+              help="Seconds between looks at the file.")
+@click.option("--jsonl", is_flag=True, help="Print one JSON object per update (for a ground-station script).")
+def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
+          idle, poll, jsonl):
+    """Follow LOG while it is being written and print each MRFT test and the identification as cycles arrive.
+
+    LOG is an MCAP file, a ROS 2 bag directory with mcap storage, a CSV or a ULog that a recorder is
+    still writing (it may not exist yet). Each test is printed once it has --min-cycles stable cycles
+    (frequency, amplitude, effective beta) and again at every new cycle; as soon as two betas are in,
+    the estimate of Td, tau and K follows each update. When the writer closes the file (MCAP footer,
+    or no growth for --idle seconds) the whole log is analysed as by 'mrft-ident analyze' and the final
+    estimate with its uncertainty is printed. Ctrl-C stops watching (exit 130).
+
+    Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4-6 as for analyze (final analysis), 130 Ctrl-C.
+
+    Example: mrft-ident watch flight.mcap --tp 0.0422 --jsonl
+    """
+    from ..errors import MrftError
+    from ..watch import watch as follow
+
+    seen = 0
+    t0 = None
+    updates = follow(log, Tp, loop=loop, command_topic=command_topic, output_topic=output_topic,
+                     beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
+                     min_cycles=min_cycles, idle=idle, poll=poll)
+    try:
+        for update in updates:
+            if update.kind == "test":
+                seen = max(seen, update.number)
+                if t0 is None:
+                    t0 = update.t_start
+            if jsonl:
+                click.echo(json.dumps(to_jsonable(update.to_dict()), allow_nan=False))
+            else:
+                click.echo(_line(update, t0 or 0.0))
+            if update.kind == "end" and update.error:
+                err = MrftError(update.error)
+                err.exit_code = update.exit_code
+                raise err
+    except KeyboardInterrupt:
+        updates.close()
+        click.echo(f"interrupted: stopped watching {log} after {seen} test(s)", err=True)
+        raise SystemExit(130) from None

@@ -65,6 +65,7 @@ __all__ = [
     "Prior",
     "FlightLimits",
     "FlownTest",
+    "flown_from_segments",
     "TestPlan",
     "PlanResult",
     "NOISE_MODEL",
@@ -96,6 +97,9 @@ _LOST_CYCLES = 3
 _MIN_CYCLES = 3
 #: Largest sensor noise relative to the amplitude for a usable test (the MRFT rule locks up on noise).
 _MAX_EPS = 0.1
+#: Least a * Omega / (rate * noise) for the MRFT rule not to lock up on noise (measured over 486
+#: simulated tests: none locked at >= 4; mrftcli.sim.noise_margin).
+_MIN_NOISE_MARGIN = 4.0
 _PARAMS = ("Td", "tau", "K")
 
 
@@ -202,6 +206,9 @@ class FlownTest:
         Mean output amplitude [output units].
     n_cycles : int
         Stable cycles used.
+    phase : float, optional
+        Mean phase of the output's fundamental relative to the relay's [rad] (``RelayCycle.phase_h1``);
+        with it the draws are weighted by how well each plant explains it.
     """
 
     __test__ = False  # not a pytest class
@@ -211,6 +218,7 @@ class FlownTest:
     frequency_hz: float
     amplitude: float
     n_cycles: int
+    phase: float | None = None
 
     def __post_init__(self) -> None:
         check_beta(self.beta)
@@ -219,6 +227,25 @@ class FlownTest:
         check_positive("amplitude", self.amplitude)
         if int(self.n_cycles) < 1:
             raise InputError(f"a flown test needs at least one cycle, got {self.n_cycles!r}")
+
+
+def flown_from_segments(tests: Sequence) -> tuple[tuple[FlownTest, ...], float | None]:
+    """The flown tests of :func:`mrftcli.segment.segment` (``MrftTest`` records) and their sensor noise.
+
+    Tests with fewer than 3 stable cycles are left out. Returns the tests and the median per-cycle
+    residual noise of the segmenter's cycle fits [output units] (None when none was measured).
+    """
+    out, noise = [], []
+    for t in tests:
+        if t.n_stable < _MIN_CYCLES or not np.isfinite(t.beta_effective):
+            continue
+        ph = np.array([c.phase_h1 for c in t.stable], float)
+        ph = ph[np.isfinite(ph)]
+        out.append(FlownTest(beta=float(t.beta_effective), h=float(t.h), frequency_hz=float(t.frequency_hz_mean),
+                             amplitude=float(t.amplitude_mean), n_cycles=int(t.n_stable),
+                             phase=float(ph.mean()) if ph.size >= 2 else None))
+        noise.extend(c.noise_std for c in t.stable if np.isfinite(c.noise_std))
+    return tuple(out), (float(np.median(noise)) if noise else None)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -451,12 +478,17 @@ def _flown_information(Tp: float, plant: np.ndarray, f: FlownTest, rate_hz: floa
 
 
 def _conditioned_draws(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int,
-                       rng: np.random.Generator) -> np.ndarray:
+                       rng: np.random.Generator, rate_hz: float, noise_std: float) -> np.ndarray:
     """Plant draws consistent with the flown tests: Td from the prior, tau from the first test's
-    UFM slice (Lemma 3), K from its amplitude (UGM); with two betas flown, least squares of them all."""
-    draws = prior.draws(n, rng)
+    UFM slice (Lemma 3), K from its amplitude (UGM); with two betas flown, least squares of them all.
+    When the flown tests carry their phase, many candidates on the slice are weighted by the
+    likelihood of the measured phases (Gaussian, the noise model's standard error) and ``n`` drawn
+    from them by systematic resampling: the posterior of the flown tests, not the whole slice."""
     if not flown:
-        return draws
+        return prior.draws(n, rng)
+    phased = [t for t in flown if t.phase is not None]
+    m = 64 * n if phased else n
+    draws = prior.draws(m, rng)
     f = flown[0]
     omega = _TWO_PI * f.frequency_hz
     Td = draws[:, 0]
@@ -476,7 +508,21 @@ def _conditioned_draws(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: i
         raise InputError("the flown test admits no plant with Td in the prior range and a non-negative delay; "
                          "check --tp and the Td range")
     out = np.stack([Td, tau, K], axis=1)[keep]
-    return out
+    if not phased or out.shape[0] <= n:
+        return out
+    loglik = np.zeros(out.shape[0])
+    for t in phased:
+        w = _TWO_PI * t.frequency_hz
+        pred = -0.5 * math.pi - np.arctan(Tp * w) - np.arctan(out[:, 0] * w) - out[:, 1] * w
+        # the noise model's per-cycle phase scatter at this test (slope of a triangle-like cycle)
+        sd = cycle_noise(t.amplitude, w, 1.5 * t.amplitude * w, rate_hz, noise_std)["phase"]
+        sd = math.sqrt(sd**2 / t.n_cycles + _FLOOR_PHASE**2)
+        r = np.angle(np.exp(1j * (t.phase - pred)))
+        loglik += -0.5 * (r / sd) ** 2
+    wts = np.exp(loglik - loglik.max())
+    cdf = np.cumsum(wts) / wts.sum()
+    idx = np.searchsorted(cdf, (np.arange(n) + rng.uniform()) / n)
+    return out[np.minimum(idx, out.shape[0] - 1)]
 
 
 def _stds(cov: np.ndarray, plant: np.ndarray) -> np.ndarray:
@@ -552,8 +598,8 @@ def plan_tests(
         raise InputError(f"the number of tests must be at least 1, got {n_tests!r}")
     n_tests = int(n_tests)
     rng = np.random.default_rng(seed)
-    plants = _conditioned_draws(Tp, prior, flown, max(int(n_draws), 1), rng)
     rate, noise_std = limits.rate_hz, limits.noise_std
+    plants = _conditioned_draws(Tp, prior, flown, max(int(n_draws), 1), rng, rate, noise_std)
     duration = limits.time_s / n_tests
     prior_info = prior.information()
     base = [prior_info.copy() for _ in plants]
@@ -579,6 +625,7 @@ def plan_tests(
         periods = np.array([_TWO_PI / c.omega for c in cs])
         n_cyc = np.floor(duration / periods) - _LOST_CYCLES
         amps = np.array([h * c.amp1 for c in cs])
+        omegas = np.array([c.omega for c in cs])
         row = {"beta": b, "h": h, "frequency_hz": [float(1 / periods.max()), float(1 / periods.min())],
                "amplitude": [float(amps.min()), float(amps.max())], "n_cycles": int(n_cyc.min()),
                "samples_per_period": float(rate * periods.min()), "admissible": True, "reason": ""}
@@ -586,6 +633,9 @@ def plan_tests(
             row.update(admissible=False, reason=f"fewer than 8 controller samples per period at {rate:g} Hz")
         elif n_cyc.min() < _MIN_CYCLES:
             row.update(admissible=False, reason=f"fewer than {_MIN_CYCLES} stable cycles in {duration:.3g} s")
+        elif float(np.exp(np.mean(np.log(amps * omegas)))) / (rate * noise_std) < _MIN_NOISE_MARGIN:
+            row.update(admissible=False, reason=f"the output moves less than {_MIN_NOISE_MARGIN:g} noise stds per "
+                                                "controller tick at the switch (the relay would lock up on noise)")
         elif noise_std / float(np.exp(np.mean(np.log(amps)))) > _MAX_EPS:
             # the typical plant of the prior, not the smallest: a wide K range would refuse every test
             row.update(admissible=False, reason=f"the typical amplitude ({np.exp(np.mean(np.log(amps))):.3g}) is "
@@ -605,8 +655,8 @@ def plan_tests(
     admissible = [b for b in betas if rows[b]["admissible"]]
     if not admissible:
         reasons = "; ".join(sorted({rows[b]["reason"] for b in betas}))
-        raise InputError(f"the limits admit no MRFT test ({reasons}): allow a larger amplitude, more time or a "
-                         "faster controller rate")
+        raise InputError(f"the limits admit no MRFT test ({reasons}): allow a larger amplitude "
+                         "(--max-amplitude, --max-h) or more time (--time)")
     infos = {b: info_of(b, rows[b]) for b in admissible}
 
     conv_betas = [b for b in (-0.4, -0.7) if not any(abs(f.beta - b) < 0.05 for f in flown)][:n_tests] or [-0.7]

@@ -41,7 +41,7 @@ Examples
 --------
 >>> from mrftcli.plan import FlightLimits, Prior, plan_tests
 >>> prior = Prior(Td=(0.3, 3.0), tau=(0.01, 0.08), K=(1.0, 10.0))
->>> limits = FlightLimits(max_amplitude=0.05, max_h=0.3, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
+>>> limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
 >>> p = plan_tests(0.04, prior, limits, n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8))
 >>> len(p.tests), all(-0.9 <= t.beta <= -0.1 for t in p.tests)
 (2, True)
@@ -85,9 +85,9 @@ TD_OMEGA_LIMIT = 5.0
 #: for the UFM slice, the fundamental's phase and ln(amplitude). Fitted on simulated flights by
 #: ``benchmarks/bench_plan.py --calibrate`` (docs/benchmarks/plan.md).
 NOISE_MODEL = {
-    "ufm": (0.0, 0.488, 0.553),
-    "phase": (3.18, 0.493, 0.609),
-    "ln_amplitude": (0.0, 1.16, 1.435),
+    "ufm": (0.0, 0.072, 0.596),
+    "phase": (0.003, 0.0, 0.719),
+    "ln_amplitude": (0.0, 0.0, 1.536),
 }
 # Systematic floors analyze adds to every test (mrftcli.analyze: effective beta, phase, ln a).
 _FLOOR_BETA, _FLOOR_PHASE, _FLOOR_LN_A = 1e-3, 3e-4, 1e-3
@@ -279,8 +279,8 @@ def cycle_noise(amplitude: float, omega: float, switch_slope: float, rate_hz: fl
     Examples
     --------
     >>> s = cycle_noise(0.05, 6.0, 0.3, 200.0, 0.0)   # no sensor noise: sampling alone
-    >>> round(s["ufm"] * 1e3, 3)   # 0.488 Ts [ms]
-    2.44
+    >>> round(s["ufm"] * 1e3, 3)   # 0.072 Ts [ms]
+    0.36
     """
     eps = noise_std / amplitude
     Ts = 1.0 / rate_hz
@@ -633,13 +633,16 @@ def plan_tests(
             row.update(admissible=False, reason=f"fewer than 8 controller samples per period at {rate:g} Hz")
         elif n_cyc.min() < _MIN_CYCLES:
             row.update(admissible=False, reason=f"fewer than {_MIN_CYCLES} stable cycles in {duration:.3g} s")
-        elif float(np.exp(np.mean(np.log(amps * omegas)))) / (rate * noise_std) < _MIN_NOISE_MARGIN:
+        elif float(np.max(amps * omegas)) / (rate * noise_std) < _MIN_NOISE_MARGIN:
             row.update(admissible=False, reason=f"the output moves less than {_MIN_NOISE_MARGIN:g} noise stds per "
                                                 "controller tick at the switch (the relay would lock up on noise)")
         elif noise_std / float(np.exp(np.mean(np.log(amps)))) > _MAX_EPS:
             # the typical plant of the prior, not the smallest: a wide K range would refuse every test
             row.update(admissible=False, reason=f"the typical amplitude ({np.exp(np.mean(np.log(amps))):.3g}) is "
                                                 f"under {1 / _MAX_EPS:g} x the sensor noise ({noise_std:.3g})")
+        if row["admissible"] and float(np.min(amps * omegas)) / (rate * noise_std) < _MIN_NOISE_MARGIN:
+            # the prior's spread of K makes the amplitude of some plants too small for the noise
+            row["reason"] = "some plants of the prior may lock up on noise (amplitude too small): narrow the K range"
         return row
 
     def info_of(b: float, row: dict) -> list[np.ndarray]:

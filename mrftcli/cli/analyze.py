@@ -62,13 +62,16 @@ def format_table(result) -> str:
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the result as JSON to FILE, or '-' for stdout.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR.")
+@click.option("--mcap-out", "mcap_out", metavar="FILE", type=click.Path(dir_okay=False),
+              help="Write an MCAP with the tests, the model's predicted output and residual and the parameters, "
+                   "on the log's clock, to open beside the log in Foxglove Studio or PlotJuggler.")
 @click.option("--paper-only", is_flag=True,
               help="Identify from the UFM slices alone (the paper's method), without the weighted phase and "
                    "amplitude constraints.")
 @click.option("--diagnose", "run_diagnose", is_flag=True,
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose.selection).")
 def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
-            json_target, report_dir, paper_only, run_diagnose):
+            json_target, report_dir, mcap_out, paper_only, run_diagnose):
     """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
 
     Each test's stable limit cycles are measured (frequency, amplitude, and the beta the relay
@@ -90,6 +93,10 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     from ..analyze import analyze_path
 
     to_stdout = json_target == "-"
+    if mcap_out:
+        from ..io.overlay import check_overlay_path
+
+        check_overlay_path(mcap_out)  # before the work starts
     try:
         result = analyze_path(log, Tp, loop, command_topic=command_topic, output_topic=output_topic,
                               beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
@@ -121,6 +128,10 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
         click.echo(format_table(result))
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
+    if mcap_out:
+        from ..io.overlay import write_analysis_overlay
+
+        click.echo(f"mcap: {write_analysis_overlay(mcap_out, result)}", err=to_stdout)
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     if report_dir:

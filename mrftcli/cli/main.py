@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "simulate": ("simulate", "simulate", "Simulate an MRFT flight and write it as a log with a ground-truth sidecar."),
     "topics": ("topics", "topics", "List the topics (or messages/columns) of a log with counts and rates."),
     "watch": ("watch", "watch", "Follow a log while it is recorded: tests and estimates as cycles arrive."),
+    "plan": ("plan", "plan", "Recommend the next MRFT test(s) (beta, h, duration) from a prior or a first test."),
 }
 
 

@@ -1,0 +1,150 @@
+"""``mrft-ident plan``: recommend the next MRFT test(s) from a prior, a first test and the flight's limits."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import click
+
+from ..errors import InputError
+from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+
+__all__ = ["plan", "format_plan"]
+
+
+def _flown_from_json(path: Path) -> tuple[list, dict]:
+    """Flown tests (and identified parameters, if any) from an ``analyze --json`` result."""
+    from ..plan import FlownTest
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: not an analyze --json result (expected a JSON object)")
+    tests = data.get("tests") or (data.get("partial") or {}).get("tests") or []
+    flown = []
+    for t in tests:
+        try:
+            flown.append(FlownTest(beta=float(t["beta"]), h=float(t["h"]), frequency_hz=float(t["frequency_hz"]),
+                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"])))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"{path}: a test lacks beta, h, frequency_hz, amplitude or cycles ({err})") from err
+    if not flown:
+        raise InputError(f"{path}: no MRFT test in this JSON (give the output of 'mrft-ident analyze --json')")
+    return flown, data.get("parameters") or {}
+
+
+def _narrowed(rng: tuple[float, float] | None, est: dict | None, default: tuple[float, float]) -> tuple[float, float]:
+    """The user's range, else mean +/- 2 std of an identified parameter, else the default."""
+    if rng is not None:
+        return rng
+    if est and est.get("mean") is not None and est.get("std") is not None and math.isfinite(est["std"]) \
+            and est["std"] > 0 and est["mean"] > 0:
+        m, s = float(est["mean"]), float(est["std"])
+        return (max(m - 2 * s, m / 10), m + 2 * s)
+    return default
+
+
+def format_plan(result) -> str:
+    """The readable table of a :class:`~mrftcli.plan.PlanResult`."""
+    lines = []
+    for f in result.flown:
+        lines.append(f"flown     beta {f.beta:+.3f}  h {f.h:.4g}  {f.frequency_hz:.4g} Hz  amplitude {f.amplitude:.4g}  "
+                     f"{f.n_cycles} cycles")
+    head = f"{'test':<5} {'beta':>6} {'h':>8} {'duration':>9} {'frequency':>18} {'amplitude':>11} {'cycles':>6}  Td*Omega"
+    lines += ["", "recommended next test(s):", head]
+    for i, t in enumerate(result.tests, 1):
+        lines.append(f"{i:<5} {t.beta:>+6.2f} {t.h:>8.4g} {t.duration_s:>8.1f}s {t.frequency_hz:>8.4g} Hz "
+                     f"({t.frequency_range_hz[0]:.3g}-{t.frequency_range_hz[1]:.3g}) {t.amplitude:>11.4g} {t.n_cycles:>6}  "
+                     f"{t.td_omega[0]:.1f}-{t.td_omega[1]:.1f}")
+    lines += ["", f"{'predicted std':<28} {'Td [s]':>10} {'tau [ms]':>10} {'K':>10}"]
+
+    def row(name: str, s: dict) -> str:
+        return f"{name:<28} {s['Td']:>10.4g} {s['tau'] * 1e3:>10.4g} {s['K']:>10.4g}"
+
+    lines.append(row("prior", result.prior_std))
+    lines.append(row("after the recommended tests", result.predicted_std))
+    if result.conventional:
+        betas = "/".join(f"{b:g}" for b in result.conventional["betas"])
+        lines.append(row(f"after beta {betas} instead", result.conventional["predicted_std"]))
+    for n in result.notes:
+        lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+@click.command("plan")
+@tp_option()
+@click.option("--from", "source", metavar="LOG|JSON", type=click.Path(exists=True),
+              help="A first test: a log with MRFT test(s), or the JSON of 'mrft-ident analyze --json'.")
+@click.option("--td-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
+              help="Prior range of Td [s] (default 0.2 3, or the analysed value +/- 2 std).")
+@click.option("--tau-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
+              help="Prior range of tau [s] (default 0.01 0.1).")
+@click.option("--k-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
+              help="Prior range of K (default 0.5 20).")
+@click.option("--max-amplitude", type=float, required=True,
+              help="Largest output amplitude allowed [output units, e.g. 0.05 m or 0.087 rad].")
+@click.option("--max-h", type=float, required=True, help="Largest relay height the motors give [command units].")
+@click.option("--time", "time_s", type=float, required=True, help="Relay time available for the next test(s) [s].")
+@click.option("--rate", "rate_hz", type=float, default=None,
+              help="Controller rate [Hz] (default: the first test's, else 200).")
+@click.option("--noise", "noise_std", type=float, default=None,
+              help="Sensor noise std [output units] (default: measured in the log, else the loop's default).")
+@click.option("--tests", "n_tests", type=click.IntRange(1, 4), default=None,
+              help="How many next tests (sharing --time); default 2 without a first test, else 1.")
+@log_layout_options()
+@click.option("--json", "json_target", metavar="FILE|-", help="Write the plan as JSON to FILE, or '-' for stdout.")
+def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s, rate_hz, noise_std, n_tests, loop,
+         command_topic, output_topic, beta_topic, setpoint_topic, output_scale, json_target):
+    """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
+
+    The prior (ranges, and a first test from --from) and the flight's limits give each candidate
+    test (beta in -0.9..-0.1, the largest h within --max-amplitude and --max-h, the time available)
+    its predicted limit cycle (exact LPRS at the controller rate) and the expected standard
+    deviations of Td, tau and K after it (Fisher information of the frequency, phase and amplitude
+    analyze measures; docs/plan.md). Says when a parameter cannot be pinned down and what would help.
+
+    Exit codes: 0 ok, 2 bad option or limits that admit no test, 3 unreadable log, 4 no usable test
+    in the --from log.
+
+    Example: mrft-ident plan --tp 0.0422 --from first.mcap --max-amplitude 0.05 --max-h 0.2 --time 20
+    """
+    from ..plan import FlightLimits, Prior, flown_from_segments, plan_tests
+    from ..sim import default_noise_std
+
+    if json_target not in (None, "-"):
+        out = Path(json_target)
+        if out.is_dir() or not out.parent.exists():
+            raise InputError(f"cannot write the JSON to {json_target}: not a file in an existing folder")
+    flown, params, measured_noise, log_rate = [], {}, None, None
+    if source is not None:
+        path = Path(source)
+        if path.suffix.lower() == ".json":
+            flown, params = _flown_from_json(path)
+        else:
+            from ..errors import SegmentationError
+            from ..io import read_flight
+            from ..segment import segment
+
+            flight = read_flight(path, loop, command_topic=command_topic, output_topic=output_topic,
+                                 beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale)
+            found = segment(flight)
+            flown, measured_noise = flown_from_segments(found)
+            if not flown:
+                raise SegmentationError(f"{path}: no MRFT test with 3 or more stable cycles to plan from")
+            log_rate = float(found[0].rate_hz)
+    prior = Prior(Td=_narrowed(td_range, params.get("Td"), (0.2, 3.0)),
+                  tau=_narrowed(tau_range, params.get("tau"), (0.01, 0.1)),
+                  K=_narrowed(k_range, params.get("K"), (0.5, 20.0)))
+    rate = rate_hz if rate_hz is not None else (log_rate or 200.0)
+    noise = noise_std if noise_std is not None else (measured_noise or default_noise_std(loop))
+    limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)
+    with tqdm_progress("plan", unit="step") as progress:
+        result = plan_tests(Tp, prior, limits, flown=flown, n_tests=n_tests, progress=progress)
+    if json_target:
+        dump_json(result.to_dict(), json_target)
+    if json_target != "-":
+        click.echo(format_plan(result))

@@ -1,0 +1,109 @@
+"""The predicted output (mrftcli.mrft.waveform) and the results MCAP (analyze --mcap-out).
+
+Oracles: the closed-form step response of eq. (2) (partial fractions), and the sample logs' truth
+sidecars (the predicted output of the true model must leave the sensor noise as its residual).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mrftcli.errors import InputError
+from mrftcli.io import read_flight
+from mrftcli.mrft.model import LoopModel
+from mrftcli.mrft.waveform import predict_output, predict_tests
+from mrftcli.segment import segment
+
+
+def _step_response(m: LoopModel, t, t_step, height):
+    """y(t) for a command step of ``height`` at ``t_step`` from rest: 1/(s^2 (Tp s + 1)(Td s + 1))."""
+    tp = np.maximum(np.asarray(t) - t_step - m.tau, 0.0)
+    a, b = m.Td, m.Tp
+    return height * m.K * m.Td * (tp - (a + b) + (a * a * np.exp(-tp / a) - b * b * np.exp(-tp / b)) / (a - b))
+
+
+@pytest.mark.parametrize("tau, offset", [(0.0123, 0.0), (0.0464, 0.0017), (0.005, 0.0049), (0.02, 0.0)])
+def test_prediction_is_the_exact_delayed_step_response(tau, offset):
+    m = LoopModel(Tp=0.05, Td=2.0, tau=tau, K=1.5)
+    t = np.arange(0.0, 3.0, 0.005)
+    u = np.full(t.size, 0.1)
+    u[0] = 0.0  # the step is at the second sample (0.005 s), at rest before
+    to = t[:-1] + offset  # output times between the command samples
+    p = predict_output(m, t, u, to, fit_initial=False, x0=[0, 0, 0])
+    np.testing.assert_allclose(p.y, _step_response(m, to, 0.005, 0.1), atol=1e-9)
+
+
+def test_bias_is_the_equilibrium_and_the_initial_state_is_fitted():
+    m = LoopModel(Tp=0.04, Td=1.5, tau=0.03, K=20.0)
+    t = np.arange(0.0, 4.0, 0.01)
+    u = 0.5 + 0.05 * np.sign(np.sin(2 * np.pi * 1.1 * t))
+    x0 = np.array([1.0, 0.2, -0.05])
+    truth = predict_output(m, t, u, t, bias=0.5 + 0.003, fit_initial=False, x0=x0)  # a trim error of 0.003
+    rng = np.random.default_rng(3)
+    noisy = truth.y + 1e-4 * rng.standard_normal(t.size)
+    fit = predict_output(m, t, u, t, bias=0.5, output=noisy)
+    assert fit.input_offset == pytest.approx(-0.003, abs=2e-4)
+    assert fit.rms == pytest.approx(1e-4, rel=0.15)
+
+
+def test_bad_arguments_are_input_errors():
+    m = LoopModel(Tp=0.04, Td=1.5, tau=0.03, K=20.0)
+    with pytest.raises(InputError):
+        predict_output(m, [0.0], [1.0], [0.0], fit_initial=False)
+    with pytest.raises(InputError):
+        predict_output(m, [0.0, 0.01, 0.02], [1.0, 1.0, 1.0], [0.0, 0.01])  # fit without an output
+
+
+@pytest.mark.parametrize("name", ["design1_altitude.mcap", "design2_roll.mcap"])
+def test_true_model_leaves_the_sensor_noise_as_residual(repo_root, name):
+    path = repo_root / "sample_logs" / name
+    truth = json.loads(path.with_name(name + ".truth.json").read_text())
+    flight = read_flight(path, truth["loop"])
+    model = LoopModel(truth["Tp"], truth["Td"], truth["tau"], truth["K"])
+    fits = predict_tests(model, segment(flight), flight.command.t, flight.command.values, flight.output.t,
+                         flight.output.values)
+    assert len(fits) == 2
+    for fit in fits.values():
+        assert fit.rms == pytest.approx(truth["noise_std"], rel=0.1)
+
+
+def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_path):
+    from mcap.reader import make_reader
+
+    log = repo_root / "sample_logs" / "design1_altitude.mcap"
+    truth = json.loads((repo_root / "sample_logs" / "design1_altitude.mcap.truth.json").read_text())
+    out = tmp_path / "fit.mcap"
+    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "analyze", str(log), "--tp", "0.0422",
+                          "--mcap-out", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    with open(out, "rb") as fh:
+        reader = make_reader(fh)
+        msgs = {}
+        for _, channel, message in reader.iter_messages():
+            msgs.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    fit = msgs["/mrft_ident/fit"]
+    t = np.array([m[0] for m in fit]) / 1e9
+    resid = np.array([m[1]["residual"] for m in fit])
+    # the log's own clock: inside the tests of the truth sidecar
+    spans = [(x["t_start"], x["t_end"]) for x in truth["tests"]]
+    assert all(any(a - 0.01 <= ti <= b + 0.01 for a, b in spans) for ti in t[:: 50])
+    assert np.sqrt(np.mean(resid ** 2)) == pytest.approx(truth["noise_std"], rel=0.15)
+    tests = [m[1] for m in msgs["/mrft_ident/tests"]]
+    assert [x["active"] for x in tests] == [1, 0, 1, 0]
+    assert [round(x["beta_nominal"], 3) for x in tests[::2]] == [-0.4, -0.7]
+    params = msgs["/mrft_ident/parameters"][0][1]
+    assert params["tau"] == pytest.approx(truth["tau"], abs=1e-3)
+    assert "mrft_ident.test.2" in meta and meta["mrft_ident"]["loop"] == "altitude"
+
+
+def test_mcap_out_path_is_checked_before_the_work(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "analyze", "no-such-log.mcap", "--tp", "0.04",
+                          "--mcap-out", str(tmp_path / "missing" / "fit.mcap")], capture_output=True, text=True)
+    assert run.returncode == 2
+    assert run.stderr.count("\n") == 1 and "does not exist" in run.stderr

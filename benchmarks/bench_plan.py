@@ -56,7 +56,7 @@ def _plant(rng):
 def run(n: int, seed: int) -> None:
     rng = np.random.default_rng(seed)
     prior = Prior(Td=(0.2, 3.0), tau=(0.01, 0.1), K=(0.5, 20.0))
-    rows, skipped, failed = [], 0, []
+    rows, skipped, failed, refused = [], 0, [], 0
     t_plan = []
     for k in range(n):
         loop, m, rate, noise, amax = _plant(rng)
@@ -70,15 +70,20 @@ def run(n: int, seed: int) -> None:
         try:
             f1 = simulate_flight(FlightSpec(tests=(first,), **common))
             flown, _ = flown_from_segments(segment(flight_from_simulated(f1)))
+        except MrftError as err:  # the first test itself failed (the exact MRFT rule locked up on noise)
+            skipped += 1
+            print(f"plant {k}: skipped, first test unusable ({type(err).__name__}: {err})"[:160])
+            continue
+        try:
             t0 = time.perf_counter()
             p = plan_tests(m.Tp, prior, limits, flown=flown, n_tests=1, seed=k)
             t_plan.append(time.perf_counter() - t0)
             rec = p.tests[0]
             conv_h = [c["h"] for c in p.candidates if abs(c["beta"] + 0.7) < 1e-9]
             conv_h = conv_h[0] if conv_h else rec.h
-        except MrftError as err:  # the first test itself failed: nothing to plan from
-            skipped += 1
-            print(f"plant {k}: skipped, first test unusable ({type(err).__name__}: {err})"[:160])
+        except MrftError as err:  # the planner refused: the limits admit no test by its criteria
+            refused += 1
+            print(f"plant {k}: planner refused ({err})"[:200])
             continue
 
         def fly(test):
@@ -113,7 +118,7 @@ def run(n: int, seed: int) -> None:
     n_a_fail = sum(1 for _, a, _b in failed if a)
     n_b_only = sum(1 for _, a, b in failed if b and not a)
     n_all = better.size + len(failed)
-    print(f"\nseed {seed}: {len(rows)} plants analysed, {skipped} skipped (first test unusable), "
+    print(f"\nseed {seed}: {len(rows)} plants analysed, {skipped} skipped (first test unusable), {refused} refused by the planner, "
           f"{len(failed)} with an unusable second test (recommended {n_a_fail}, conventional only {n_b_only})")
     print(f"recommended test no worse than -0.7 in tau and Td: {better.sum() + n_b_only}/{n_all} = "
           f"{(better.sum() + n_b_only) / n_all:.0%} "

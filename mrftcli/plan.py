@@ -709,7 +709,7 @@ def plan_tests(
     tests = tuple(_test_plan(Tp, centre, b, rows[b], cycles[b], plants, duration, rate) for b in chosen)
 
     conventional = None
-    if conv:
+    if conv and len(conv) == len(conv_betas):
         cacc = list(base)
         cdata = list(base_data)
         for _, inf in conv:
@@ -750,13 +750,15 @@ def _notes(tests: Sequence[TestPlan], rows: dict, admissible: Sequence[float], p
     notes = []
     best_tdw = min(min(t.td_omega) for t in tests)
     lowest_f = min(rows[b]["frequency_hz"][0] for b in admissible)
-    if post["Td"] > 0.5 * prior_std["Td"] or best_tdw > TD_OMEGA_LIMIT:
-        notes.append(
-            f"Td cannot be pinned down by any admissible test: Td*Omega stays above {best_tdw:.1f} (the frequencies "
-            f"hardly depend on Td above {TD_OMEGA_LIMIT:g}) and its predicted std stays "
-            f"{post['Td'] / prior_std['Td']:.0%} of the prior's. What would help: a lower test frequency (a beta "
-            f"nearer 0 or positive; the lowest here is {lowest_f:.3g} Hz), a larger amplitude or more time "
-            "(more cycles), or a Td from elsewhere (a step response, a drag model)")
+    helps = (f"What would help: a lower test frequency (a beta nearer 0 or positive; the lowest here is "
+             f"{lowest_f:.3g} Hz), a larger amplitude or more time (more cycles), or a Td from elsewhere (a step "
+             "response, a drag model)")
+    if best_tdw > TD_OMEGA_LIMIT:
+        notes.append(f"Td cannot be pinned down by any admissible test: Td*Omega stays above {best_tdw:.1f} (the "
+                     f"frequencies hardly depend on Td above {TD_OMEGA_LIMIT:g}). " + helps)
+    elif post["Td"] > 0.5 * prior_std["Td"]:
+        notes.append(f"Td stays poorly determined: its predicted std is {post['Td'] / prior_std['Td']:.0%} of the "
+                     f"prior's (Td*Omega up to {max(max(t.td_omega) for t in tests):.1f} over the prior). " + helps)
     if post["tau"] > 0.5 * prior_std["tau"]:
         notes.append("tau stays poorly determined: allow a larger amplitude (--max-amplitude) or more time (--time)")
     if post["K"] > 0.5 * prior_std["K"]:

@@ -1,0 +1,108 @@
+"""mrft-ident watch: following a log while it grows (the writer is simulated by the injected sleep).
+
+Oracles: the sample logs' truth sidecars and ``analyze`` on the finished file (the final update must
+be the same analysis).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from mrftcli.analyze import analyze_path
+from mrftcli.errors import LogReadError
+from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, watch
+
+
+class _Writer:
+    """Appends the next slice of a log at every poll (the watch's sleep), and a fake clock."""
+
+    def __init__(self, src, dst, step):
+        self.data = src.read_bytes()
+        self.dst = dst
+        self.step = step
+        self.pos = 0
+        self.now = 0.0
+        self.sizes = []
+        dst.write_bytes(b"")
+
+    def sleep(self, dt):
+        self.now += dt
+        if self.pos < len(self.data):
+            with open(self.dst, "ab") as fh:
+                fh.write(self.data[self.pos:self.pos + self.step])
+            self.pos += self.step
+
+    def clock(self):
+        return self.now
+
+
+def _follow(writer, **kw):
+    out = []
+    for u in watch(writer.dst, 0.0422, sleep=writer.sleep, clock=writer.clock, **kw):
+        out.append((u, min(writer.pos, len(writer.data))))
+    return out
+
+
+def test_mcap_tests_and_estimate_arrive_before_the_file_is_complete(repo_root, tmp_path):
+    src = repo_root / "sample_logs" / "design1_altitude.mcap"
+    truth = json.loads(src.with_name(src.name + ".truth.json").read_text())
+    # odd slices cut records and chunks anywhere: a half-written chunk must be waited for, not fatal
+    w = _Writer(src, tmp_path / "live.mcap", 7919)
+    got = _follow(w, idle=5.0)
+    tests = [(u, pos) for u, pos in got if isinstance(u, TestUpdate)]
+    assert tests and tests[0][0].number == 1 and tests[0][1] < len(w.data)
+    assert tests[0][0].beta_nominal == pytest.approx(-0.4)
+    assert {u.number for u, _ in tests} == {1, 2}
+    live = [u for u, _ in got if isinstance(u, EstimateUpdate) and not u.final]
+    assert live and abs(live[-1].tau - truth["tau"]) < 2e-3
+    final = [u for u, _ in got if isinstance(u, EstimateUpdate) and u.final]
+    assert len(final) == 1
+    ref = analyze_path(src, 0.0422)
+    assert final[0].tau == pytest.approx(ref.tau.mean, rel=1e-9)
+    assert final[0].Td == pytest.approx(ref.Td.mean, rel=1e-9)
+    end = got[-1][0]
+    assert isinstance(end, WatchEnd) and end.reason == "closed" and end.exit_code == 0
+
+
+def test_csv_stops_after_idle_and_survives_half_written_rows(repo_root, tmp_path):
+    src = repo_root / "sample_logs" / "design1_altitude.csv"
+    w = _Writer(src, tmp_path / "live.csv", 40011)  # slices end in the middle of rows
+    got = _follow(w, idle=0.5, poll=0.05)
+    end = got[-1][0]
+    assert isinstance(end, WatchEnd) and end.reason == "idle" and end.exit_code == 0
+    assert any(isinstance(u, EstimateUpdate) and u.final for u, _ in got)
+
+
+def test_a_file_that_never_appears_is_a_one_line_error(tmp_path):
+    clock = iter(range(1000))
+    with pytest.raises(LogReadError, match="no such file"):
+        list(watch(tmp_path / "none.mcap", 0.04, idle=3.0, sleep=lambda dt: None, clock=lambda: float(next(clock))))
+
+
+def test_cli_jsonl_prints_one_object_per_update(repo_root):
+    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "watch", str(repo_root / "sample_logs" / "design1_altitude.mcap"),
+                          "--tp", "0.0422", "--jsonl"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    rows = [json.loads(line) for line in run.stdout.splitlines()]
+    assert rows[-1] == {**rows[-1], "kind": "end", "reason": "closed"}
+    assert [r["kind"] for r in rows[-2:]] == ["estimate", "end"] and rows[-2]["final"] is True
+    assert run.stderr == ""
+
+
+def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):
+    import signal
+    import time
+
+    log = tmp_path / "still.csv"
+    log.write_bytes((repo_root / "sample_logs" / "design1_altitude.csv").read_bytes()[:200000])
+    proc = subprocess.Popen([sys.executable, "-m", "mrftcli.cli", "watch", str(log), "--tp", "0.0422", "--idle", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(4.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130
+    assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err

@@ -52,6 +52,23 @@ def _normalise(text: str, tmp: str) -> str:
     return re.sub(r"\d+(\.\d+)?\s*(s|it)/(it|s)\b", "<RATE>", text)
 
 
+#: what differs between two runs of the same code: the checkout's path, file times, wall-clock figures
+_VOLATILE = [
+    (re.compile(r"(/[\w.-]+)+/sample_logs/"), "<ROOT>/sample_logs/"),
+    (re.compile(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?\+00:00"), "<TIME>"),
+    (re.compile(r'("elapsed_s": )[0-9.e-]+'), r"\1<ELAPSED>"),
+    (re.compile(r"(,<TIME>,)[0-9.e-]+(,logs/)"), r"\1<ELAPSED>\2"),
+    (re.compile(r"\.[0-9a-f]{8}\.json"), ".<PATH-HASH>.json"),
+]
+
+
+def _stable(text: str) -> str:
+    """``text`` without what changes from run to run of the same code (compared, not stored)."""
+    for pattern, repl in _VOLATILE:
+        text = pattern.sub(repl, text)
+    return text
+
+
 def snapshot(out: Path, *, diagnose: bool, only: str | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     jobs: dict[str, list[str]] = {}
@@ -98,9 +115,10 @@ def compare(after: Path, before: Path, only: str | None = None) -> int:
             print(f"only in one snapshot: {name}")
             differing += 1
             continue
-        if a.read_text() != b.read_text():
+        ta, tb = _stable(a.read_text()), _stable(b.read_text())
+        if ta != tb:
             differing += 1
-            diff = difflib.unified_diff(b.read_text().splitlines(), a.read_text().splitlines(),
+            diff = difflib.unified_diff(tb.splitlines(), ta.splitlines(),
                                         f"before/{name}", f"after/{name}", lineterm="", n=1)
             print("\n".join(list(diff)[:40]))
     print(f"{len(names) - differing}/{len(names)} outputs identical")
@@ -110,11 +128,13 @@ def compare(after: Path, before: Path, only: str | None = None) -> int:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="folder for this snapshot")
+    parser.add_argument("--compare-only", action="store_true", help="compare --out with --compare, run nothing")
     parser.add_argument("--compare", type=Path, help="an earlier snapshot to compare against")
     parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis runs")
     parser.add_argument("--only", metavar="REGEX", help="run (and compare) only the outputs whose name matches")
     args = parser.parse_args()
-    snapshot(args.out, diagnose=not args.no_diagnose, only=args.only)
+    if not args.compare_only:
+        snapshot(args.out, diagnose=not args.no_diagnose, only=args.only)
     return compare(args.out, args.compare, args.only) if args.compare else 0
 
 

@@ -1,0 +1,137 @@
+"""mrft-ident plan: the planner's predictions against independent oracles, and its refusals."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from mrftcli.cli.main import cli
+from mrftcli.errors import InputError
+from mrftcli.mrft.lprs import mrft_limit_cycle
+from mrftcli.mrft.model import LoopModel
+from mrftcli.plan import FlightLimits, FlownTest, Prior, cycle_noise, fisher_information, plan_tests
+
+
+def _narrow_prior(Td=0.8, tau=0.03, K=2.0) -> Prior:
+    return Prior(Td=(Td * 0.999, Td * 1.001), tau=(tau * 0.999, tau * 1.001), K=(K * 0.999, K * 1.001))
+
+
+def test_fisher_information_of_the_phase_constraint_is_its_closed_form():
+    # phase alone: tau_phi(Td) = (-phi - pi/2 - atan(Tp W) - atan(Td W)) / W, so the residual
+    # tau - tau_phi has gradient (W / (1 + (Td W)^2) / W, 1, 0); information = g g^T / var
+    Tp, Td, W, sphi, n = 0.04, 0.7, 5.0, 0.01, 9
+    I = fisher_information(Tp, Td, 1.0, -0.5, W, 0.05, n,
+                           {"ufm": math.inf, "phase": sphi, "ln_amplitude": math.inf})
+    g = np.array([1.0 / (1.0 + (Td * W) ** 2), 1.0, 0.0])
+    var = (sphi**2 / n + 3e-4**2) / W**2
+    np.testing.assert_allclose(I, np.outer(g, g) / var, rtol=1e-12)
+
+
+def test_fisher_information_of_the_ufm_slice_matches_a_finite_difference_of_the_lprs():
+    # the slice's d tau / d Td, checked against the exact limit cycle: moving Td by dTd and tau by
+    # (d tau_i / d Td) dTd keeps the frequency (the plant stays on the slice)
+    Tp, Td, tau, beta = 0.04, 0.8, 0.03, -0.6
+    w = mrft_limit_cycle(LoopModel(Tp, Td, tau), beta).omega
+    I = fisher_information(Tp, Td, 1.0, beta, w, 0.05, 1, {"ufm": 1e-3, "phase": math.inf, "ln_amplitude": math.inf})
+    slope = -I[0, 1] / I[1, 1]  # row (-d tau_i/d Td, 1, 0): I01 / I11 = -d tau_i / d Td
+    dTd = 1e-3 * Td
+    w2 = mrft_limit_cycle(LoopModel(Tp, Td + dTd, tau + slope * dTd), beta).omega
+    w_off = mrft_limit_cycle(LoopModel(Tp, Td + dTd, tau), beta).omega
+    assert abs(w2 / w - 1) < 1e-2 * abs(w_off / w - 1)  # first order gone; second order stays
+
+
+def test_predicted_cycle_is_the_exact_sampled_lprs():
+    model = LoopModel(0.04, 0.8, 0.03, 2.0)
+    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    p = plan_tests(model.Tp, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=(-0.3, -0.6))
+    t = p.tests[0]
+    lc = mrft_limit_cycle(model, t.beta, t.h, 200.0)
+    assert t.frequency_hz == pytest.approx(lc.frequency_hz, rel=2e-3)
+    assert t.amplitude == pytest.approx(lc.amplitude, rel=2e-3)
+    assert t.amplitude <= 0.05 * 1.002  # the limit holds
+    assert t.orbits_hz and min(t.orbits_hz) <= t.frequency_hz <= max(t.orbits_hz)
+    assert t.n_cycles == math.floor(20.0 * t.frequency_hz) - 3
+
+
+def test_predicted_cycle_matches_a_simulated_flight():
+    from mrftcli.segment import segment
+    from mrftcli.sim import FlightSpec, TestSpec, simulate_flight
+    from test_segment_support import flight_from_simulated
+
+    model = LoopModel(0.04, 0.8, 0.03, 2.0)
+    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    t = plan_tests(model.Tp, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=(-0.5,)).tests[0]
+    sf = simulate_flight(FlightSpec(model=model, tests=(TestSpec(t.beta, t.h, t.duration_s),), rate_hz=200.0,
+                                    noise_std=0.0005, seed=5, hover_s=2.0, hold_s=1.0))
+    (found,) = segment(flight_from_simulated(sf))
+    assert found.frequency_hz_mean == pytest.approx(t.frequency_hz, rel=0.03)
+    assert found.amplitude_mean == pytest.approx(t.amplitude, rel=0.05)
+    assert abs(found.n_stable - t.n_cycles) <= 2
+
+
+def test_noise_model_grows_with_the_sensor_noise():
+    quiet = cycle_noise(0.05, 6.0, 0.3, 200.0, 1e-4)
+    loud = cycle_noise(0.05, 6.0, 0.3, 200.0, 1e-3)
+    assert all(loud[k] > quiet[k] for k in quiet)
+
+
+def test_refuses_when_the_limits_admit_no_test():
+    limits = FlightLimits(max_amplitude=1e-5, max_h=1.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    with pytest.raises(InputError, match="admit no MRFT test.*--max-amplitude"):
+        plan_tests(0.04, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=(-0.5,))
+
+
+def test_flags_td_when_no_test_can_pin_it_down():
+    # a slow drag (Td 3 s) on a fast loop: Td * Omega >> 5 for every beta
+    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    prior = Prior(Td=(2.5, 3.0), tau=(0.01, 0.012), K=(2.0, 2.1))
+    p = plan_tests(0.02, prior, limits, n_tests=1, n_draws=2, betas=(-0.3, -0.6))
+    assert any("Td cannot be pinned down" in n for n in p.notes)
+
+
+def test_a_flown_test_is_counted_and_not_repeated():
+    model = LoopModel(0.04, 0.8, 0.03, 2.0)
+    lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
+    flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=lc.frequency_hz, amplitude=lc.amplitude, n_cycles=10)
+    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=15.0, rate_hz=200.0, noise_std=0.0005)
+    p = plan_tests(model.Tp, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, flown=[flown],
+                   n_draws=3, betas=(-0.4, -0.6, -0.8))
+    assert len(p.tests) == 1 and abs(p.tests[0].beta + 0.4) > 0.1  # one new slice, not the same again
+    # the flown test plus the new one say more than the prior alone
+    assert all(p.predicted_std[k] < p.prior_std[k] for k in ("Td", "tau", "K"))
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["--tp", "0.04", "--max-amplitude", "0.05", "--max-h", "1", "--time", "-3"], "time available"),
+    (["--tp", "0.04", "--max-amplitude", "0", "--max-h", "1", "--time", "20"], "largest amplitude"),
+    (["--tp", "0.04", "--max-amplitude", "0.05", "--max-h", "1", "--time", "20", "--td-range", "2", "1"],
+     "Td range"),
+    (["--tp", "0", "--max-amplitude", "0.05", "--max-h", "1", "--time", "20"], "Tp"),
+])
+def test_cli_bad_input_is_one_line_and_non_zero(args, needle, capsys):
+    from mrftcli.cli.main import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["plan", *args])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and needle in err and "\n" not in err and "Traceback" not in err
+
+
+def test_cli_json_from_an_analyze_result(tmp_path):
+    model = LoopModel(0.04, 0.8, 0.03, 2.0)
+    lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
+    src = tmp_path / "first.json"
+    src.write_text(json.dumps({"partial": {"tests": [{"beta": -0.4, "h": 1.0, "frequency_hz": lc.frequency_hz,
+                                                      "amplitude": lc.amplitude, "cycles": 10}]}}))
+    res = CliRunner().invoke(cli, ["plan", "--tp", "0.04", "--from", str(src), "--td-range", "0.3", "2",
+                                   "--max-amplitude", "0.05", "--max-h", "5", "--time", "15", "--json", "-"])
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert len(data["tests"]) == 1 and data["flown_tests"][0]["beta"] == -0.4
+    t = data["tests"][0]
+    assert -0.9 <= t["beta"] <= -0.1 and t["amplitude"] <= 0.05 * 1.01 and t["h"] <= 5
+    assert set(data["predicted_std"]) == {"Td", "tau", "K"}

@@ -202,7 +202,7 @@ class AnalysisResult:
         flight = self.flight
         inp: dict = {"path": self.path, "loop": self.loop, "Tp": self.Tp, "t0": self.t0}
         if flight is not None:
-            tc = np.asarray(flight.command.index, float)
+            tc = flight.command.t
             inp.update(
                 source=flight.source,
                 command_samples=int(tc.size),
@@ -496,7 +496,7 @@ def log_start(flight: FlightLog) -> float:
     firsts = []
     for s in (flight.command, flight.output, flight.beta, flight.setpoint, flight.battery_voltage):
         if s is not None and len(s):
-            idx = np.asarray(s.index, float)
+            idx = s.t
             idx = idx[np.isfinite(idx)]
             if idx.size:
                 firsts.append(float(idx.min()))

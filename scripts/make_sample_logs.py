@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.check:
                 log = read_flight(path, loop=flight.spec.loop)
                 n = len(log.command)
-                got = log.output.to_numpy()
+                got = log.output.values
                 if n != flight.t.size or np.max(np.abs(got - flight.output_measured)) > 1e-6:
                     raise SystemExit(f"{path}: read back {n} samples, max output error "
                                      f"{np.max(np.abs(got - flight.output_measured[: got.size]))}")

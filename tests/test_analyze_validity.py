@@ -17,11 +17,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from mrftcli.analyze import analyze_flight
 from mrftcli.errors import InsufficientDataError, SegmentationError
+from mrftcli.io.logtypes import Signal
 from mrftcli.mrft.lprs import unit_cycle
 from mrftcli.segment.core import ValidityCriterion, _cycle_harmonics, check_limit_cycle, df_phase, segment
 from test_segment_support import flight_from_simulated, simulate_paper_flight
@@ -37,8 +37,8 @@ def roll():
 
 
 def _with_output(flight, y, t=None):
-    t = np.asarray(flight.output.index, float) if t is None else t
-    return replace(flight, output=pd.Series(np.asarray(y, float), index=t))
+    t = flight.output.t if t is None else t
+    return replace(flight, output=Signal(t, y))
 
 
 def _noise_std(flight) -> float:
@@ -126,7 +126,7 @@ def test_pure_noise_output_is_rejected(roll):
 def test_unrelated_sinusoid_at_another_frequency_is_rejected(roll):
     tests = segment(roll)
     f_relay = [t.frequency_hz_mean for t in tests]
-    t = np.asarray(roll.output.index, float)
+    t = roll.output.t
     rng = np.random.default_rng(3)
     f_other = 1.3 * f_relay[0]  # between the two tests' frequencies (f1 / f0 = 1.67), near neither
     y = np.deg2rad(5.0) * np.sin(2 * np.pi * f_other * t + 0.3) + rng.normal(0, _noise_std(roll), t.size)
@@ -140,7 +140,7 @@ def test_unrelated_sinusoid_at_another_frequency_is_rejected(roll):
 def test_output_of_a_different_flight_is_rejected(roll):
     """Mixed-up topics: the command of one flight, the output of another plant's flight."""
     other = simulate_paper_flight(0.0422, 1.6026, 0.0289, 25.0, (-0.3, -0.6), loop="roll", seed=9)
-    y_other = np.interp(np.asarray(roll.output.index, float), other.t, other.output_measured)
+    y_other = np.interp(roll.output.t, other.t, other.output_measured)
     with pytest.raises(SegmentationError) as err:
         analyze_flight(_with_output(roll, y_other), ROLL["Tp"], n_bootstrap=50)
     assert all(not r["validity"]["ok"] for r in err.value.rejected_tests)
@@ -150,8 +150,8 @@ def test_output_shifted_in_time_is_rejected(roll):
     """An output logged with a wrong time offset (a quarter of the first test's period): the phase
     relative to the relay no longer matches the level the relay switched at."""
     P0 = 1.0 / segment(roll)[0].frequency_hz_mean
-    t = np.asarray(roll.output.index, float)
-    shifted = _with_output(roll, roll.output.to_numpy(), t + 0.25 * P0)
+    t = roll.output.t
+    shifted = _with_output(roll, roll.output.values, t + 0.25 * P0)
     with pytest.raises((SegmentationError, InsufficientDataError)):
         analyze_flight(shifted, ROLL["Tp"], n_bootstrap=50)
     v = segment(shifted)[0].validity
@@ -161,9 +161,9 @@ def test_output_shifted_in_time_is_rejected(roll):
 def test_opposite_loop_signs_between_tests_are_rejected(roll):
     """The output flipped during the second test only: one plant cannot have both signs."""
     tests = segment(roll)
-    t = np.asarray(roll.output.index, float)
-    y = roll.output.to_numpy().copy()
-    sp = np.interp(t, roll.setpoint.index, roll.setpoint.to_numpy())
+    t = roll.output.t
+    y = roll.output.values.copy()
+    sp = np.interp(t, roll.setpoint.t, roll.setpoint.values)
     w = (t >= tests[1].t_start - 0.5) & (t <= tests[1].t_end + 0.5)
     y[w] = 2 * sp[w] - y[w]  # mirrored about the setpoint
     flight = _with_output(roll, y)
@@ -176,8 +176,8 @@ def test_opposite_loop_signs_between_tests_are_rejected(roll):
 def test_one_wrong_test_leaves_a_partial_result(roll):
     """Noise instead of the output during the second test: the first stays, exit 6 with the reason."""
     tests = segment(roll)
-    t = np.asarray(roll.output.index, float)
-    y = roll.output.to_numpy().copy()
+    t = roll.output.t
+    y = roll.output.values.copy()
     w = (t >= tests[1].t_start - 0.5) & (t <= tests[1].t_end + 0.5)
     y[w] = np.random.default_rng(4).normal(0, _noise_std(roll), w.sum()) + np.median(y[w])
     with pytest.raises(InsufficientDataError, match="rejected") as err:
@@ -193,8 +193,8 @@ def test_one_wrong_test_leaves_a_partial_result(roll):
 def test_low_snr_valid_flight_is_accepted_and_identified(roll):
     """Logged output 10x noisier than the flight's (amplitude 10 deg, noise 1 deg: a noisy logging
     path the controller did not switch on): accepted, and the truth inside the reported interval."""
-    t = np.asarray(roll.output.index, float)
-    y = roll.output.to_numpy() + np.random.default_rng(6).normal(0, np.deg2rad(1.0), t.size)
+    t = roll.output.t
+    y = roll.output.values + np.random.default_rng(6).normal(0, np.deg2rad(1.0), t.size)
     r = analyze_flight(_with_output(roll, y), ROLL["Tp"], n_bootstrap=200)
     assert len(r.tests) == 2 and not r.rejected
     for t in r.tests:
@@ -236,8 +236,8 @@ def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
                                seed=5)
     fl = flight_from_simulated(sf)
     tests = segment(fl)
-    t = np.asarray(fl.output.index, float)
-    y = fl.output.to_numpy().copy()
+    t = fl.output.t
+    y = fl.output.values.copy()
     w = (t >= tests[1].t_start - 0.5) & (t <= tests[1].t_end + 0.5)
     y[w] = np.random.default_rng(4).normal(0, np.deg2rad(0.2), w.sum()) + np.median(y[w])
     r = analyze_flight(_with_output(fl, y), ROLL["Tp"], n_bootstrap=100)

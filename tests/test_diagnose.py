@@ -250,15 +250,13 @@ def test_cli_bad_input_one_line_error(args, code):
 
 
 def test_log_without_relay_test_is_a_clear_error(tmp_path):
-    import pandas as pd
-
     from mrftcli.diagnose.selection import diagnose
     from mrftcli.errors import MrftError
-    from mrftcli.io.logtypes import FlightLog
+    from mrftcli.io.logtypes import FlightLog, Signal
 
     t = np.arange(0, 30, 0.005)
-    flight = FlightLog(path="hover", loop="altitude", command=pd.Series(0.5 + 0.01 * np.sin(t), index=t),
-                       output=pd.Series(1.0 + 0.001 * np.sin(3 * t), index=t))
+    flight = FlightLog(path="hover", loop="altitude", command=Signal(t, 0.5 + 0.01 * np.sin(t)),
+                       output=Signal(t, 1.0 + 0.001 * np.sin(3 * t)))
     with pytest.raises(MrftError):
         diagnose(flight, 0.04)
     with pytest.raises(MrftError, match="Tp"):

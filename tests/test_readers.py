@@ -80,21 +80,21 @@ def test_reference_layout_every_format(logs, fmt):
     paths, truth = logs
     tol = TOL.get(fmt, 1e-12)
     alt = read_flight(paths[fmt], loop="altitude")
-    np.testing.assert_allclose(alt.command.index, truth["t"], atol=1e-6)
-    np.testing.assert_allclose(alt.command.to_numpy(), truth["cmd"], atol=tol)
-    np.testing.assert_allclose(alt.output.index, truth["t_pose"], atol=1e-6)
-    np.testing.assert_allclose(alt.output.to_numpy(), truth["z"], atol=tol)
-    np.testing.assert_allclose(alt.beta.to_numpy(), [-0.3, 0.2], atol=tol)
-    np.testing.assert_allclose(alt.setpoint.to_numpy(), 1.2, atol=tol)
+    np.testing.assert_allclose(alt.command.t, truth["t"], atol=1e-6)
+    np.testing.assert_allclose(alt.command.values, truth["cmd"], atol=tol)
+    np.testing.assert_allclose(alt.output.t, truth["t_pose"], atol=1e-6)
+    np.testing.assert_allclose(alt.output.values, truth["z"], atol=tol)
+    np.testing.assert_allclose(alt.beta.values, [-0.3, 0.2], atol=tol)
+    np.testing.assert_allclose(alt.setpoint.values, 1.2, atol=tol)
     # BatteryState.voltage is float32 in ROS; ULog/CSV keep what was given
-    np.testing.assert_allclose(alt.battery_voltage.to_numpy(), truth["volt"], rtol=1e-6)
+    np.testing.assert_allclose(alt.battery_voltage.values, truth["volt"], rtol=1e-6)
     assert alt.warnings == []
     for loop in ("roll", "pitch"):
         fl = read_flight(paths[fmt], loop=loop)
-        np.testing.assert_allclose(fl.output.index, truth["t_imu"], atol=1e-6)
-        np.testing.assert_allclose(fl.output.to_numpy(), truth[loop], atol=max(tol, 1e-12) * 10)
-        assert fl.output.index.is_monotonic_increasing
-        assert fl.output.dtype == np.float64
+        np.testing.assert_allclose(fl.output.t, truth["t_imu"], atol=1e-6)
+        np.testing.assert_allclose(fl.output.values, truth[loop], atol=max(tol, 1e-12) * 10)
+        assert np.all(np.diff(fl.output.t) >= 0)
+        assert fl.output.t.dtype == fl.output.values.dtype == np.float64
 
 
 def test_roll_pitch_matches_scipy():
@@ -130,14 +130,14 @@ def test_topic_options_other_layout(tmp_path):
         fl = read_flight(path, loop="altitude", command_topic="/uav1/thrust",
                          output_topic="/uav1/odom:pose.position.z", beta_topic="/uav1/test_beta:data",
                          output_scale=-1.0)
-        np.testing.assert_allclose(fl.command.to_numpy(), cmd, atol=1e-8)
-        np.testing.assert_allclose(fl.output.to_numpy(), -alt, atol=1e-8)
-        np.testing.assert_allclose(fl.output.index, t_od, atol=1e-6)
-        assert fl.beta.iloc[0] == pytest.approx(0.4)
+        np.testing.assert_allclose(fl.command.values, cmd, atol=1e-8)
+        np.testing.assert_allclose(fl.output.values, -alt, atol=1e-8)
+        np.testing.assert_allclose(fl.output.t, t_od, atol=1e-6)
+        assert fl.beta.values[0] == pytest.approx(0.4)
         assert fl.setpoint is None and fl.battery_voltage is None  # defaults absent: no error
         rl = read_flight(path, loop="roll", command_topic="/uav1/thrust:data",
                          output_topic="/uav1/odom:pose.orientation")
-        np.testing.assert_allclose(rl.output.to_numpy(), roll, atol=1e-8)
+        np.testing.assert_allclose(rl.output.values, roll, atol=1e-8)
         with pytest.raises(LogReadError, match="orientation quaternion"):
             read_flight(path, loop="altitude", command_topic="/uav1/thrust",
                         output_topic="/uav1/odom:pose.orientation")
@@ -153,7 +153,7 @@ def test_default_optional_topic_of_another_type_is_skipped(tmp_path):
     assert fl.battery_voltage is None
     assert len(fl.warnings) == 1 and "ignored /battery:voltage" in fl.warnings[0]
     fl = read_flight(path, battery_topic="/battery")  # named: read as asked
-    assert fl.battery_voltage.iloc[0] == 15.0 and fl.warnings == []
+    assert fl.battery_voltage.values[0] == 15.0 and fl.warnings == []
     with pytest.raises(InputError, match="output scale"):
         read_flight(path, output_scale=0.0)
 
@@ -188,7 +188,7 @@ def test_series_and_topics_api(logs, tmp_path):
         assert info["/imu/data"].rate_hz == pytest.approx(200.0, rel=1e-6)
         assert "pose.position.z" in info["/mocap/pose"].fields
         s = log.series("/mocap/pose", "pose.position.x")
-        np.testing.assert_allclose(s.to_numpy(), -truth["z"])
+        np.testing.assert_allclose(s.values, -truth["z"])
         with pytest.raises(LogReadError, match="quaternion"):
             log.series("/imu/data", "orientation")
     for fmt in FORMATS:
@@ -204,7 +204,7 @@ def test_series_and_topics_api(logs, tmp_path):
     for storage, expect in ((plain, "ros2-sqlite3"), (next(paths["ros2-mcap"].glob("*.mcap")), "mcap")):
         fl = read_flight(storage, loop="pitch")
         assert fl.source["format"] == expect
-        np.testing.assert_allclose(fl.output.to_numpy(), truth["pitch"], atol=1e-12)
+        np.testing.assert_allclose(fl.output.values, truth["pitch"], atol=1e-12)
 
 
 def test_cdr_walk_matches_library_decoders():
@@ -270,8 +270,8 @@ def test_px4_ulog(shared_dir):
     q = np.c_[raw["q[1]"], raw["q[2]"], raw["q[3]"], raw["q[0]"]]
     fl = read_flight(path, loop="pitch", command_topic="actuator_controls_0:control[1]",
                      output_topic="vehicle_attitude:q")
-    np.testing.assert_allclose(fl.output.to_numpy(), Rotation.from_quat(q).as_euler("ZYX")[:, 1], atol=1e-6)
-    np.testing.assert_allclose(fl.output.index, raw["timestamp"] / 1e6)
+    np.testing.assert_allclose(fl.output.values, Rotation.from_quat(q).as_euler("ZYX")[:, 1], atol=1e-6)
+    np.testing.assert_allclose(fl.output.t, raw["timestamp"] / 1e6)
     assert fl.beta is None and fl.battery_voltage is None
     assert fl.warnings == []  # a whole PX4 log is not flagged as damaged
 
@@ -288,11 +288,11 @@ def test_ardupilot_dataflash(shared_dir):
             rows = re.findall(rf": {topic} {{TimeUS : (\d+),.*? {column} : ([-\d.e]+)", dump)
             ref = np.array(rows, dtype=float)
             s = log.series(topic, column)
-            np.testing.assert_allclose(s.index, ref[:, 0] / 1e6, rtol=0, atol=1e-9)
-            np.testing.assert_allclose(s.to_numpy(), ref[:, 1], rtol=1e-6)
+            np.testing.assert_allclose(s.t, ref[:, 0] / 1e6, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(s.values, ref[:, 1], rtol=1e-6)
     fl = read_flight(path, loop="roll", command_topic="RCOU:C1", output_topic="ATT:Roll",
                      output_scale=math.pi / 180)
-    assert fl.output.abs().max() < math.pi
+    assert np.abs(fl.output.values).max() < math.pi
 
 
 def test_every_third_party_file_is_read(shared_dir):
@@ -335,9 +335,9 @@ def test_custom_message_type_from_the_mcap_schema(tmp_path):
                make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
     ref = np.array(ref, dtype=float)
     fl = read_flight(path, command_topic="/drone:thrust", output_topic="/drone:alt")
-    np.testing.assert_array_equal(fl.command.to_numpy(), ref[:, 1])
-    np.testing.assert_array_equal(fl.output.to_numpy(), ref[:, 2])
-    np.testing.assert_allclose(fl.output.index, ref[:, 0] / 1e9)
+    np.testing.assert_array_equal(fl.command.values, ref[:, 1])
+    np.testing.assert_array_equal(fl.output.values, ref[:, 2])
+    np.testing.assert_allclose(fl.output.t, ref[:, 0] / 1e9)
     with open_log(path) as log:
         (info,) = log.topics()
         assert info.msgtype == "my_pkg/msg/Drone" and "thrust" in info.fields
@@ -345,7 +345,7 @@ def test_custom_message_type_from_the_mcap_schema(tmp_path):
     with open(path, "rb") as f:
         expect = [d.waypoints[1].z if len(d.waypoints) > 1 else np.nan for _, _, _, d in
                   make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
-    np.testing.assert_array_equal(z1.to_numpy(), expect)
+    np.testing.assert_array_equal(z1.values, expect)
     assert np.isnan(expect).any() and not np.isnan(expect).all()
 
 
@@ -371,7 +371,7 @@ def test_mcap_without_message_index_records(tmp_path, index):
         w.finish()
     a, b = read_flight(src, "altitude"), read_flight(out, "altitude")
     for x, y in ((a.command, b.command), (a.output, b.output)):
-        assert np.array_equal(x.index.to_numpy(), y.index.to_numpy())
-        assert np.array_equal(x.to_numpy(), y.to_numpy())
+        assert np.array_equal(x.t, y.t)
+        assert np.array_equal(x.values, y.values)
     counts = {t.name: t.count for t in open_log(out).topics()}
     assert counts == {t.name: t.count for t in open_log(src).topics()}

@@ -55,8 +55,8 @@ def test_truncated_mcap_is_salvaged_with_a_warning(good, tmp_path, fmt, capsys):
     n = len(fl.command)
     assert 0.3 * 3000 < n < 3000
     # what is salvaged is exact: a prefix of the true series
-    np.testing.assert_allclose(fl.command.to_numpy(), truth["cmd"][:n], atol=1e-12)
-    np.testing.assert_allclose(fl.output.to_numpy(), truth["roll"][:len(fl.output)], atol=1e-12)
+    np.testing.assert_allclose(fl.command.values, truth["cmd"][:n], atol=1e-12)
+    np.testing.assert_allclose(fl.output.values, truth["roll"][:len(fl.output)], atol=1e-12)
 
 
 def test_mcap_cut_inside_a_chunk_keeps_its_complete_messages(good, tmp_path):
@@ -73,8 +73,8 @@ def test_mcap_cut_inside_a_chunk_keeps_its_complete_messages(good, tmp_path):
     assert "from the cut-off chunk" in fl.warnings[0]
     n = len(fl.command)
     assert 0 < n < 3000
-    np.testing.assert_allclose(fl.command.to_numpy(), truth["cmd"][:n], atol=1e-12)
-    np.testing.assert_allclose(fl.output.to_numpy(), truth["z"][:len(fl.output)], atol=1e-12)
+    np.testing.assert_allclose(fl.command.values, truth["cmd"][:n], atol=1e-12)
+    np.testing.assert_allclose(fl.output.values, truth["z"][:len(fl.output)], atol=1e-12)
 
 
 def test_corrupt_mcap_chunk_is_skipped_not_misread(good, tmp_path):
@@ -91,10 +91,10 @@ def test_corrupt_mcap_chunk_is_skipped_not_misread(good, tmp_path):
     bad.write_bytes(bytes(data))
     fl = read_flight(bad, loop="altitude")
     assert any("corrupt" in w for w in fl.warnings)
-    t = fl.output.index.to_numpy()
+    t = fl.output.t
     keep = np.isin(np.round(truth["t_pose"], 6), np.round(t, 6))
     assert 0 < keep.sum() < 3000
-    np.testing.assert_allclose(fl.output.to_numpy(), truth["z"][keep], atol=1e-12)
+    np.testing.assert_allclose(fl.output.values, truth["z"][keep], atol=1e-12)
 
 
 def test_corrupt_message_index_falls_back_to_the_chunk(good, tmp_path):
@@ -112,7 +112,7 @@ def test_corrupt_message_index_falls_back_to_the_chunk(good, tmp_path):
     bad.write_bytes(bytes(data))
     fl = read_flight(bad)
     assert any("message index" in w for w in fl.warnings)
-    np.testing.assert_allclose(fl.command.to_numpy(), truth["cmd"], atol=1e-12)
+    np.testing.assert_allclose(fl.command.values, truth["cmd"], atol=1e-12)
 
 
 def test_backwards_time_is_an_error(tmp_path):
@@ -141,7 +141,7 @@ def test_backwards_time_is_an_error(tmp_path):
     dup.write_text("time,cmd\n0.0,1\n0.1,2\n0.1,3\n0.2,4\n")
     with open_log(dup) as log:
         s = log.series("cmd")
-        assert list(s) == [1.0, 3.0, 4.0] and "repeated timestamp" in log.warnings[0]
+        assert list(s.values) == [1.0, 3.0, 4.0] and "repeated timestamp" in log.warnings[0]
 
 
 def test_truncated_csv_drops_the_partial_row(good, tmp_path):
@@ -153,7 +153,7 @@ def test_truncated_csv_drops_the_partial_row(good, tmp_path):
     assert any("partial row" in w for w in fl.warnings)
     n = len(fl.command)
     assert 0 < n < 3000
-    np.testing.assert_allclose(fl.command.to_numpy(), truth["cmd"][:n], rtol=1e-9)
+    np.testing.assert_allclose(fl.command.values, truth["cmd"][:n], rtol=1e-9)
 
 
 def test_empty_logs(tmp_path):
@@ -179,7 +179,7 @@ def test_cut_ulog_is_read_with_a_warning(good, tmp_path):
     assert any("ends inside a message" in w for w in fl.warnings)
     n = len(fl.output)
     assert 0 < n < 3000
-    np.testing.assert_allclose(fl.output.to_numpy(), truth["roll"][:n], atol=1e-12)
+    np.testing.assert_allclose(fl.output.values, truth["roll"][:n], atol=1e-12)
     whole = read_flight(paths["ulog"])
     assert whole.warnings == []
 
@@ -191,8 +191,8 @@ def test_ulog_damage_keeps_what_pyulog_reads(good, tmp_path, capsys):
     captured = capsys.readouterr()
     assert captured.out == ""  # pyulog's own prints are captured and summarised
     assert any("corrupt" in w for w in fl.warnings)
-    good_rows = np.isin(np.round(truth["t_pose"], 6), np.round(fl.output.index.to_numpy(), 6))
-    np.testing.assert_allclose(fl.output.to_numpy(), truth["z"][good_rows], atol=1e-12)
+    good_rows = np.isin(np.round(truth["t_pose"], 6), np.round(fl.output.t, 6))
+    np.testing.assert_allclose(fl.output.values, truth["z"][good_rows], atol=1e-12)
 
 
 def _cli(*args):

@@ -9,6 +9,7 @@ import matplotlib
 import pytest
 
 from mrftcli.analyze import analyze_flight
+from mrftcli.io.logtypes import Signal
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
 pytestmark = pytest.mark.usefixtures("mplcleanup")
@@ -70,9 +71,9 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
     fl = flight_from_simulated(sf)
     for name in ("command", "output", "setpoint", "beta"):
         s = getattr(fl, name)
-        setattr(fl, name, s.set_axis(s.index + 1_700_000_000.0))
+        setattr(fl, name, Signal(s.t + 1_700_000_000.0, s.values))
     res = analyze_flight(fl, 0.0499, n_bootstrap=100)
-    duration = float(fl.command.index[-1] - fl.command.index[0])
+    duration = float(fl.command.t[-1] - fl.command.t[0])
     fig = plot_timeseries(res)
     fig.canvas.draw()
     for ax in fig.axes:

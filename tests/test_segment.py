@@ -8,11 +8,10 @@ switch instants; its exact noise-free output is the truth for the switching leve
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from mrftcli.errors import SegmentationError
-from mrftcli.io.logtypes import FlightLog
+from mrftcli.io.logtypes import FlightLog, Signal
 from mrftcli.segment.core import (
     StabilityCriterion,
     find_relay_runs,
@@ -77,7 +76,7 @@ def test_no_relay_in_a_pid_only_log_raises():
     t = np.arange(4000) / 200.0
     c = 0.5 + 0.01 * np.sin(2 * np.pi * 0.3 * t) + rng.normal(0, 0.003, t.size)
     y = 1.0 + rng.normal(0, 5e-4, t.size)
-    flight = FlightLog(path="pid.csv", loop="altitude", command=pd.Series(c, index=t), output=pd.Series(y, index=t))
+    flight = FlightLog(path="pid.csv", loop="altitude", command=Signal(t, c), output=Signal(t, y))
     with pytest.raises(SegmentationError, match="no MRFT relay test"):
         segment(flight)
 
@@ -180,11 +179,11 @@ def test_dropped_messages_jitter_and_glitches(sim):
     keep = rng.random(sim.t.size) > 0.05
     t_jit = np.sort(sim.t + rng.normal(0, 0.0005, sim.t.size))
     flight = to_flight(sim, t_cmd=t_jit, keep=keep)
-    c = flight.command.copy()
+    c = flight.command.values.copy()
     for tg in (11.3, 17.1, 33.2):  # one-sample false switches
-        i = int(np.searchsorted(c.index, tg))
-        c.iloc[i] = 1.0 - c.iloc[i]
-    flight.command = c
+        i = int(np.searchsorted(flight.command.t, tg))
+        c[i] = 1.0 - c[i]
+    flight.command = Signal(flight.command.t, c)
     tests = segment(flight)
     assert len(tests) == 2
     for t, b in zip(tests, base):
@@ -198,8 +197,8 @@ def test_dropped_messages_jitter_and_glitches(sim):
 
 def test_negative_loop_gain_is_handled(sim):
     flight = to_flight(sim)
-    flight.output = -flight.output
-    flight.setpoint = -flight.setpoint
+    flight.output = Signal(flight.output.t, -flight.output.values)
+    flight.setpoint = Signal(flight.setpoint.t, -flight.setpoint.values)
     neg = segment(flight)
     pos = segment(to_flight(sim))
     for a, b in zip(neg, pos):

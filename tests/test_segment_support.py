@@ -15,10 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 from scipy.linalg import expm
 
-from mrftcli.io.logtypes import FlightLog
+from mrftcli.io.logtypes import FlightLog, Signal
 
 
 def _zoh(A: np.ndarray, B: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -156,12 +155,12 @@ def to_flight(sim: SimLog, *, with_beta: bool = True, with_setpoint: bool = True
     """Wrap a SimLog as a FlightLog (optionally with altered command timestamps / dropped samples)."""
     t = sim.t if t_cmd is None else t_cmd
     idx = np.arange(t.size) if keep is None else np.flatnonzero(keep)
-    command = pd.Series(sim.command[idx], index=t[idx])
-    output = pd.Series(sim.y_meas[idx], index=t[idx])
+    command = Signal(t[idx], sim.command[idx])
+    output = Signal(t[idx], sim.y_meas[idx])
     beta = None
     if with_beta:
-        beta = pd.Series([w[2] for w in sim.test_windows], index=[w[0] for w in sim.test_windows])
-    setpoint = pd.Series(sim.setpoint, index=sim.t) if with_setpoint else None
+        beta = Signal([w[0] for w in sim.test_windows], [w[2] for w in sim.test_windows])
+    setpoint = Signal(sim.t, sim.setpoint) if with_setpoint else None
     return FlightLog(path="<sim>", loop="altitude", command=command, output=output, beta=beta,
                      setpoint=setpoint)
 
@@ -172,10 +171,10 @@ def flight_from_simulated(sf, *, with_beta: bool = True) -> FlightLog:
     beta = None
     if with_beta and "/mrft/beta" in topics:
         b = topics["/mrft/beta"]
-        beta = pd.Series(b.fields["data"], index=b.t)
-    return FlightLog(path="<simulated>", loop=sf.spec.loop, command=pd.Series(sf.command, index=sf.t),
-                     output=pd.Series(sf.output_measured, index=sf.t), beta=beta,
-                     setpoint=pd.Series(sf.setpoint, index=sf.t))
+        beta = Signal(b.t, b.fields["data"])
+    return FlightLog(path="<simulated>", loop=sf.spec.loop, command=Signal(sf.t, sf.command),
+                     output=Signal(sf.t, sf.output_measured), beta=beta,
+                     setpoint=Signal(sf.t, sf.setpoint))
 
 
 def simulate_paper_flight(Tp, Td, tau, K, betas, *, loop="altitude", amplitude=None, cycles=12.0, seed=0,

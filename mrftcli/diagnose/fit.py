@@ -106,11 +106,10 @@ def segments_of(flight: FlightLog, analysis: Any) -> list:
 
 def prepare_tests(flight: FlightLog, segs: list) -> tuple[list[MrftTestCycles], float, list[str]]:
     warnings: list[str] = []
-    t_y = flight.output.index.to_numpy(dtype=float)
-    y = flight.output.to_numpy(dtype=float)
+    t_y, y = flight.output.t, flight.output.values
     ok = np.isfinite(t_y) & np.isfinite(y)
     t_y, y = t_y[ok], y[ok]
-    t0_log = float(min(flight.command.index.min(), flight.output.index.min()))
+    t0_log = float(min(np.nanmin(flight.command.t), np.nanmin(flight.output.t)))
     tests: list[MrftTestCycles] = []
     rss = 0.0
     nsamp = 0

@@ -14,17 +14,16 @@ import shutil
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from ..errors import InputError, LogReadError
-from .logtypes import LOOPS, FlightLog, TopicData, TopicInfo
+from .logtypes import LOOPS, FlightLog, Signal, TopicData, TopicInfo
 from .source import LogSource, TopicSpec, parse_spec
 from .attitude import roll_pitch
 
 __all__ = [
     "open_log", "read_flight", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format",
-    "DEFAULT_TOPICS", "roll_pitch", "list_topics",
+    "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal",
 ]
 
 #: formats :func:`write_log` writes (and :func:`open_log` reads)
@@ -235,10 +234,6 @@ def _where(topic: str, leaf: str) -> str:
     return leaf if leaf.startswith(topic) else f"{topic}:{leaf}"
 
 
-def _series(t: np.ndarray, v: np.ndarray, name: str) -> pd.Series:
-    return pd.Series(np.asarray(v, dtype=np.float64), index=pd.Index(t, name="time"), name=name)
-
-
 def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | None = None,
                 output_topic: str | None = None, beta_topic: str | None = None,
                 setpoint_topic: str | None = None, battery_topic: str | None = None,
@@ -299,12 +294,12 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
             source["output_conversion"] = f"quaternion -> {loop} (ZYX), rad"
         else:
             y = vals[leaves[0]]
-        output = _series(t, y * output_scale, "output")
+        output = Signal(t, y * output_scale)
         source["command"] = _where(cmd[3].topic, cmd[1][0])
         source["output"] = str(spec) if len(leaves) == 4 else _where(spec.topic, leaves[0])
         if len(cmd[1]) != 1:
             raise LogReadError(f"{log.path}: command {cmd[3]} is a quaternion; name one number")
-        command = _series(cmd[0], cmd[2][cmd[1][0]], "command")
+        command = Signal(cmd[0], cmd[2][cmd[1][0]])
         optional = {}
         for role, option, default, scale in (
                 ("beta", beta_topic, DEFAULT_TOPICS["beta"], 1.0),
@@ -325,7 +320,7 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
             tt, lv, vv, sp = got
             if len(lv) != 1:
                 raise LogReadError(f"{log.path}: {role} {sp} is a quaternion; name one number")
-            optional[role] = _series(tt, vv[lv[0]] * scale, role)
+            optional[role] = Signal(tt, vv[lv[0]] * scale)
             source[role] = _where(sp.topic, lv[0])
         if output_scale != 1.0:
             source["output_scale"] = output_scale

@@ -8,9 +8,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
-__all__ = ["TopicData", "TopicInfo", "FlightLog", "LOOPS"]
+from ..errors import InputError
+
+__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS"]
 
 #: The loops mrft-ident identifies.
 LOOPS = ("altitude", "roll", "pitch")
@@ -52,11 +53,44 @@ class TopicInfo:
     fields: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True, eq=False)
+class Signal:
+    """One logged signal: sample times and values, as float64 numpy arrays of equal length.
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        Sample times [s] (float64; increasing as the readers return them).
+    values : numpy.ndarray
+        The values, one per time, in the signal's units (float64).
+
+    Examples
+    --------
+    >>> s = Signal([0.0, 0.01, 0.02], [1, 2, 3])
+    >>> len(s), s.values.dtype.name, float(s.t[-1])
+    (3, 'float64', 0.02)
+    """
+
+    t: np.ndarray
+    values: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=np.float64)
+        v = np.asarray(self.values, dtype=np.float64)
+        if t.shape != v.shape or t.ndim != 1:
+            raise InputError(f"a signal needs 1-D times and values of one length, got {t.shape} and {v.shape}")
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "values", v)
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
 @dataclass
 class FlightLog:
     """The signals mrft-ident needs from one log, for one loop.
 
-    Every series is a float ``pandas.Series`` indexed by time [s] (float64, increasing).
+    Every signal is a :class:`Signal` (numpy times [s] and float64 values).
 
     Attributes
     ----------
@@ -64,15 +98,15 @@ class FlightLog:
         The file it came from.
     loop : str
         ``altitude``, ``roll`` or ``pitch``.
-    command : pandas.Series
+    command : Signal
         The command the MRFT block sends to the loop (bias + relay output), command units.
-    output : pandas.Series
+    output : Signal
         The loop output: altitude [m] or roll/pitch [rad].
-    beta : pandas.Series or None
+    beta : Signal or None
         Beta as published when each test starts, if logged.
-    setpoint : pandas.Series or None
+    setpoint : Signal or None
         The loop reference, if logged (output units).
-    battery_voltage : pandas.Series or None
+    battery_voltage : Signal or None
         Battery voltage [V], if logged.
     source : dict
         Where each series came from (topic/field), format name and reader notes.
@@ -82,10 +116,10 @@ class FlightLog:
 
     path: str
     loop: str
-    command: pd.Series
-    output: pd.Series
-    beta: pd.Series | None = None
-    setpoint: pd.Series | None = None
-    battery_voltage: pd.Series | None = None
+    command: Signal
+    output: Signal
+    beta: Signal | None = None
+    setpoint: Signal | None = None
+    battery_voltage: Signal | None = None
     source: dict = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)

@@ -14,10 +14,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from ..errors import LogReadError
-from .logtypes import TopicInfo
+from .logtypes import Signal, TopicInfo
 
 __all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "rate_of", "check_times", "Field"]
 
@@ -197,8 +196,8 @@ class LogSource(ABC):
             vals = {k: v[keep] for k, v in vals.items()}
         return t, leaves, vals
 
-    def series(self, topic: str, field: str | None = None) -> pd.Series:
-        """One numeric field of ``topic`` as a float Series indexed by time [s] (increasing).
+    def series(self, topic: str, field: str | None = None) -> Signal:
+        """One numeric field of ``topic`` as a :class:`~mrftcli.io.logtypes.Signal` (times [s], increasing).
 
         A quaternion field is refused here (it is four numbers): name one component or use
         :func:`mrftcli.io.read_flight`, which turns it into roll/pitch.
@@ -208,8 +207,7 @@ class LogSource(ABC):
             raise LogReadError(
                 f"{self.path}: {topic}:{field} is a quaternion; name one component "
                 f"({', '.join(leaves)}) or read it with --loop roll/pitch")
-        name = f"{topic}:{leaves[0]}" if leaves[0] else topic
-        return pd.Series(vals[leaves[0]], index=pd.Index(t, name="time"), name=name, dtype=np.float64)
+        return Signal(t, vals[leaves[0]])
 
 
 class Field:

@@ -70,12 +70,11 @@ def _output_relative(result):
     """Output relative to the setpoint when logged (else raw) as arrays (t, y), display units."""
     unit, scale, _ = _units(result)
     fl = result.flight
-    t = np.asarray(fl.output.index, float)
-    y = np.asarray(fl.output.to_numpy(), float)
+    t = fl.output.t
+    y = fl.output.values
     rel = False
     if fl.setpoint is not None and len(fl.setpoint):
-        sp_t = np.asarray(fl.setpoint.index, float)
-        y = y - np.interp(t, sp_t, np.asarray(fl.setpoint.to_numpy(), float))
+        y = y - np.interp(t, fl.setpoint.t, fl.setpoint.values)
         rel = True
     return t, y * scale, rel
 
@@ -101,8 +100,8 @@ def plot_timeseries(result):
     gs = fig.add_gridspec(3 if n_zoom else 2, max(n_zoom, 1), height_ratios=[1, 1.3, 1.2][: 3 if n_zoom else 2])
     ax_c = fig.add_subplot(gs[0, :])
     ax_y = fig.add_subplot(gs[1, :], sharex=ax_c)
-    tc = np.asarray(fl.command.index, float) - T0
-    c = np.asarray(fl.command.to_numpy(), float)
+    tc = fl.command.t - T0
+    c = fl.command.values
     ty, y, rel = _output_relative(result)
     ty = ty - T0
     ax_c.plot(tc, c, lw=0.6, color="0.25")

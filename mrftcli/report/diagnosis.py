@@ -51,8 +51,8 @@ def plot_located(result):
     fl = p["flight"]
     s, unit = _scale(result)
     fig, (ax, ax2) = new_figure(2, 1, width=11, height=6, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
-    t = fl.output.index.to_numpy(float)
-    ax.plot(t, fl.output.to_numpy(float) * s, color=_REC_C, lw=0.6, label="recorded output")
+    t = fl.output.t
+    ax.plot(t, fl.output.values * s, color=_REC_C, lw=0.6, label="recorded output")
     for i, test in enumerate(p["tests"]):
         c = TEST_COLOURS[i % len(TEST_COLOURS)]
         ax.axvspan(test.t_start, test.t_end, color=c, alpha=0.10)
@@ -93,7 +93,7 @@ def plot_overlay(result, n_cycles: int = 3):
     aug = _aug(result)
     s, unit = _scale(result)
     fl = p["flight"]
-    ty = fl.output.index.to_numpy(float)
+    ty = fl.output.t
     fig, axes = new_figure(1, len(tests), width=4.2 * len(tests), height=3.8, squeeze=False)
     for i, (test, ax) in enumerate(zip(tests, axes[0])):
         tab = test.tab

@@ -1238,10 +1238,6 @@ def _replace(c: RelayCycle, **kw) -> RelayCycle:
     return replace(c, **kw)
 
 
-def _series_arrays(s) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(s.index, dtype=float), np.asarray(s.to_numpy(), dtype=float)
-
-
 def segment(
     flight: FlightLog,
     *,
@@ -1272,17 +1268,17 @@ def segment(
     SegmentationError
         When the command never switches between two levels (no relay test at all).
     """
-    t_c, c = _series_arrays(flight.command)
-    t_y, y = _series_arrays(flight.output)
+    t_c, c = flight.command.t, flight.command.values
+    t_y, y = flight.output.t, flight.output.values
     if t_c.size < 10 or t_y.size < 10:
         raise SegmentationError(
             f"{flight.path}: too few samples (command {t_c.size}, output {t_y.size}) to look for MRFT tests"
         )
     kw = {}
     if flight.beta is not None and len(flight.beta):
-        kw["beta_t"], kw["beta_v"] = _series_arrays(flight.beta)
+        kw["beta_t"], kw["beta_v"] = flight.beta.t, flight.beta.values
     if flight.setpoint is not None and len(flight.setpoint):
-        kw["t_sp"], kw["setpoint"] = _series_arrays(flight.setpoint)
+        kw["t_sp"], kw["setpoint"] = flight.setpoint.t, flight.setpoint.values
     tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity, **kw)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"

@@ -136,7 +136,7 @@ def test_diagnose_flag_is_wired(logs, tmp_path, monkeypatch):
     def fake(flight, Tp, analysis=None, progress=None):
         seen.update(Tp=Tp, n_tests=len(analysis.tests))
         if progress:
-            progress("fitting")
+            progress(1, 2, "fitting")  # the library's one protocol: (done, total, stage)
         return _Fake()
 
     monkeypatch.setattr(diag, "diagnose", fake)

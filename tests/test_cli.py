@@ -103,3 +103,15 @@ def test_only_the_cli_imports_click_or_tqdm_and_the_library_never_imports_the_cl
             if module == "inspect" or (module == "mrftcli" and "cli" in names):
                 offending.append(f"{path.name}: {module} {names}")
     assert not offending, offending
+
+
+def test_no_module_imports_another_modules_private_name():
+    from pathlib import Path
+
+    from mrftcli import __file__ as pkg_init
+
+    root = Path(pkg_init).parent
+    private = [f"{path.relative_to(root)}: {module}.{name}"
+               for path in sorted(root.rglob("*.py")) for module, names in _imports(path)
+               if module.startswith("mrftcli") for name in names if name.startswith("_") and not name.startswith("__")]
+    assert not private, private

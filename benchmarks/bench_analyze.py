@@ -20,7 +20,8 @@ import numpy as np
 
 
 def main() -> None:
-    from mrftcli.analyze import _consensus_solve, analyze_path
+    from mrftcli.analyze import analyze_path
+    from mrftcli.mrft.consensus import consensus_solve
     from mrftcli.mrft.identify import TestMeasurement, identify
     from mrftcli.mrft.model import LoopModel
     from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
@@ -76,7 +77,7 @@ def main() -> None:
     t0 = time.perf_counter()
     betas = np.stack([ba[ii], bb[jj]], axis=1)
     omegas = 2 * np.pi / np.stack([pa[ii], pb[jj]], axis=1)
-    _consensus_solve(0.0422, betas, omegas, np.ones_like(betas), result.model.Td)
+    consensus_solve(0.0422, betas, omegas, np.ones_like(betas), result.model.Td)
     t_vec = time.perf_counter() - t0
     print(f"per-combination estimates for one pair of tests ({ii.size} combinations): identify() loop "
           f"{t_loop:.2f} s, vectorised {t_vec:.3f} s -> {t_loop / t_vec:.0f}x faster")

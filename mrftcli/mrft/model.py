@@ -32,6 +32,16 @@ class LoopModel:
         Transport delay [s], >= 0.
     K : float
         Gain; K * Td is the static gain from command to output rate. Default 1.
+
+    Examples
+    --------
+    >>> G = LoopModel(Tp=0.1, Td=0.7042, tau=0.06, K=1.42)
+    >>> round(abs(complex(G.frequency_response(4.4337))), 4)
+    0.0629
+    >>> LoopModel(Tp=0.1, Td=-1.0, tau=0.06)
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: Td must be a positive time in seconds, got -1.0
     """
 
     Tp: float

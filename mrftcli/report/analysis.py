@@ -171,7 +171,7 @@ def plot_timeseries(result):
 
 def plot_manifolds(result):
     """The paper's Fig. 5: UFM slices tau(Td) at the known Tp, their intersection and the spread."""
-    from ..analyze import phase_tau
+    from ..mrft.consensus import phase_tau
     from ..mrft.identify import ufm_slice
 
     fig, ax = new_figure(width=8.5, height=5.6)

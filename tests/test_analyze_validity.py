@@ -22,8 +22,9 @@ import pytest
 from mrftcli.analyze import analyze_flight
 from mrftcli.errors import InsufficientDataError, SegmentationError
 from mrftcli.io.logtypes import Signal
+from mrftcli.mrft.describing import df_phase
 from mrftcli.mrft.lprs import unit_cycle
-from mrftcli.segment.core import ValidityCriterion, _cycle_harmonics, check_limit_cycle, df_phase, segment
+from mrftcli.segment.core import ValidityCriterion, _cycle_harmonics, check_limit_cycle, segment
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import optimize
 
 from ..errors import IdentificationError, InputError
@@ -225,7 +226,8 @@ class IdentificationResult:
 # ----------------------------------------------------------------------------------------------
 # the curves tau_i(Td)
 # ----------------------------------------------------------------------------------------------
-def tau_curve(Tp: float, beta: float, omega, Td, exact: bool = True, manifolds: ManifoldSet | None = None):
+def tau_curve(Tp: float, beta: float, omega: ArrayLike, Td: ArrayLike, exact: bool = True,
+              manifolds: ManifoldSet | None = None) -> np.ndarray:
     """Signed delay tau [s] that makes (Tp, Td, tau) oscillate at omega [rad/s] under beta.
 
     Vectorised over ``omega`` and ``Td`` (broadcast).  ``exact=False`` interpolates the manifolds
@@ -241,7 +243,7 @@ def tau_curve(Tp: float, beta: float, omega, Td, exact: bool = True, manifolds: 
     return theta / omega
 
 
-def ufm_slice(Tp: float, beta: float, frequency_hz: float, Td_values, exact: bool = True) -> np.ndarray:
+def ufm_slice(Tp: float, beta: float, frequency_hz: float, Td_values: ArrayLike, exact: bool = True) -> np.ndarray:
     """The UFM slice of one test scaled to real units (paper Fig. 5): tau [s] for each Td [s].
 
     Parameters
@@ -432,7 +434,7 @@ def _least_squares(Tp: float, betas, omegas, weights, ms: ManifoldSet) -> tuple[
 # ----------------------------------------------------------------------------------------------
 # vectorised solver for Monte Carlo draws (two tests)
 # ----------------------------------------------------------------------------------------------
-def intersection_draws(Tp: float, betas, omega_draws: np.ndarray, ms: ManifoldSet, Td_ref: float,
+def intersection_draws(Tp: float, betas: Sequence[float], omega_draws: np.ndarray, ms: ManifoldSet, Td_ref: float,
                         iters: int = 40, lags: np.ndarray | None = None) -> np.ndarray:
     """Td for each row of omega_draws (M, 2); NaN where the draws' slices do not intersect.
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -561,8 +562,8 @@ def _as_state_space(A, B, C):
     return A, B, C
 
 
-def lti_limit_cycle(A, B, C, tau: float, beta: float, h: float = 1.0, rate_hz: float | None = None,
-                    n_points: int = 512) -> LimitCycle:
+def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: float, h: float = 1.0,
+                    rate_hz: float | None = None, n_points: int = 512) -> LimitCycle:
     """Exact MRFT limit cycle of x' = A x + B u(t - tau), y = C x (integrators allowed).
 
     The symmetric periodic state at the ``-h -> +h`` switch solves ``(I + Phi) x0 = -Gamma h`` with
@@ -681,8 +682,8 @@ def _orbit_is_valid(ys: np.ndarray, beta: float) -> bool:
     return False
 
 
-def sampled_limit_cycle(A, B, C, tau: float, beta: float, h: float, rate_hz: float,
-                        _centre: LimitCycle | None = None) -> LimitCycle:
+def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: float, h: float,
+                        rate_hz: float, _centre: LimitCycle | None = None) -> LimitCycle:
     """Limit cycle of the MRFT run at ``rate_hz``: the switch is decided on sampled y, then held (ZOH).
 
     Switching can only happen at samples, so the sampled loop locks onto periodic orbits whose half
@@ -746,14 +747,14 @@ def sampled_limit_cycle(A, B, C, tau: float, beta: float, h: float, rate_hz: flo
 # ----------------------------------------------------------------------------------------------
 # Boiko's LPRS J(omega)
 # ----------------------------------------------------------------------------------------------
-def lprs_integrator(omega, K: complex = 1.0, tau: float = 0.0):
+def lprs_integrator(omega: ArrayLike, K: complex = 1.0, tau: float = 0.0) -> np.ndarray:
     """LPRS of W = K e^{-tau s}/s (Boiko), valid for 0 <= omega tau < pi:
     J = -K tau/2 - j (pi K / (8 omega)) (pi - 2 omega tau)."""
     omega = np.asarray(omega, dtype=float)
     return -K * tau / 2 - 1j * (np.pi * K / (8 * omega)) * (np.pi - 2 * omega * tau)
 
 
-def lprs_first_order(omega, K: complex, T: complex, tau: float = 0.0):
+def lprs_first_order(omega: ArrayLike, K: complex, T: complex, tau: float = 0.0) -> np.ndarray:
     """LPRS of W = K e^{-tau s}/(T s + 1) (Boiko), valid for tau < pi/omega.
 
     J = 0.5 K (1 - alpha e^gamma csch alpha) - j (pi/4) K (1 - 2 e^gamma / (1 + e^alpha)),
@@ -769,7 +770,7 @@ def lprs_first_order(omega, K: complex, T: complex, tau: float = 0.0):
     return re + 1j * im
 
 
-def lprs_soiptd(omega, model: LoopModel):
+def lprs_soiptd(omega: ArrayLike, model: LoopModel) -> np.ndarray:
     """LPRS of eq. (2) by additivity over partial fractions (checks.md section 3)."""
     Tp, Td = model.Tp, model.Td
     if abs(Tp - Td) < _SPLIT * 0.5 * (Tp + Td):
@@ -783,7 +784,7 @@ def lprs_soiptd(omega, model: LoopModel):
     )
 
 
-def lprs_state_space(omega, A, B, C, tau: float = 0.0):
+def lprs_state_space(omega: ArrayLike, A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float = 0.0) -> np.ndarray:
     """LPRS of C (sI - A)^{-1} B e^{-tau s} in closed form via the modal (partial-fraction) expansion.
 
     Each simple pole lambda != 0 with residue r is a first-order term K = -r/lambda, T = -1/lambda
@@ -804,7 +805,7 @@ def lprs_state_space(omega, A, B, C, tau: float = 0.0):
     return out
 
 
-def lprs_series(omega: float, W, n_terms: int = 200_000) -> complex:
+def lprs_series(omega: float, W: Callable[[np.ndarray], np.ndarray], n_terms: int = 200_000) -> complex:
     """LPRS from its series definition (Boiko):
     J(w) = sum_k (-1)^(k+1) Re W(j k w) + j sum_k Im W(j (2k-1) w) / (2k-1).
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
-from mrftcli.diagnose.limit_cycles import Plant, periodic_cycle, run_relay
+from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle, run_relay
 
 ROOT = Path(__file__).resolve().parents[1]
 CONCEALED = sorted((ROOT / "sample_logs" / "concealed").glob("*.mcap"))
@@ -28,7 +28,7 @@ PARAM = {"input_bias": "d", "gain_drift": "g", "sensor_lag": "T_lag", "quadratic
 def test_continuous_relay_reproduces_exact_limit_cycle(beta, f_hz, amp):
     # unit-gain form 1/(s(Tp s+1)(Td s+1)): K Td = 1
     Td = 1 / 1.42
-    run = periodic_cycle(Plant(Tp=0.1, Td=Td, tau=0.06, K=1 / Td), beta, 1.0, 1000.0, tol=1e-10)
+    run = periodic_cycle(AugmentedPlant(Tp=0.1, Td=Td, tau=0.06, K=1 / Td), beta, 1.0, 1000.0, tol=1e-10)
     period = run.up[-1] - run.up[-2]
     i0, i1 = np.searchsorted(run.t, [run.up[-2], run.up[-1]])
     y = run.y[i0:i1]
@@ -37,7 +37,7 @@ def test_continuous_relay_reproduces_exact_limit_cycle(beta, f_hz, amp):
 
 
 def test_sampled_relay_without_noise_switches_on_ticks():
-    run = run_relay(Plant(0.05, 1.0, 0.03, 5.0), -0.5, 0.2, 100.0, 12, sampled=True, max_time=60)
+    run = run_relay(AugmentedPlant(0.05, 1.0, 0.03, 5.0), -0.5, 0.2, 100.0, 12, sampled=True, max_time=60)
     ticks = np.concatenate([run.up, run.down]) * 100.0
     assert np.allclose(ticks, np.round(ticks))
     assert run.up.size == 12
@@ -47,7 +47,7 @@ def test_input_bias_gives_the_duty_cycle_of_zero_mean_input():
     # an integrating plant only oscillates periodically when the mean plant input is zero:
     # (h + d) T_high = (h - d) T_low  ->  T_high / P = (h - d) / (2 h)
     h, d = 0.1, 0.02
-    run = periodic_cycle(Plant(0.04, 2.0, 0.04, 10.0, input_bias=d), -0.4, h, 400.0, tol=1e-9)
+    run = periodic_cycle(AugmentedPlant(0.04, 2.0, 0.04, 10.0, input_bias=d), -0.4, h, 400.0, tol=1e-9)
     u0, u1 = run.up[-2], run.up[-1]
     dn = run.down[(run.down > u0) & (run.down < u1)][0]
     assert (dn - u0) / (u1 - u0) == pytest.approx((h - d) / (2 * h), rel=1e-4)
@@ -91,12 +91,12 @@ def test_model_features_do_not_depend_on_evaluation_history():
     # the warm-started limit cycle's tick grid used to shift with history and move the harmonics by 1e-4
     import math
 
-    from mrftcli.diagnose.fit import CycleModel, prepare_tests, segments_of
+    from mrftcli.diagnose.fit import CandidateModel, prepare_tests, segments_of
     from mrftcli.io import read_flight
 
     flight = read_flight(CONCEALED[0], "altitude")
     tests, _, _ = prepare_tests(flight, segments_of(flight, None))
-    model = CycleModel(None, tests, 0.0422)
+    model = CandidateModel(None, tests, 0.0422)
     theta, far = np.array([math.log(2.0), 0.47]), np.array([math.log(4.0), 0.40])
     first = model.evaluate(theta, 0, tests[0].t_start).features
     model.evaluate(far, 0, tests[0].t_start)
@@ -141,17 +141,15 @@ def test_cycle_scatter_estimates_the_unpredictable_part():
     # the floor subtracted from the held-out waveform error is E sum_i |y_i - mu_i|^2 = n s^2 for
     # cycle-to-cycle scatter of variance s^2 (here an offset per cycle, mean square s^2 on every
     # phase point), and a slow drift (mu_i linear in time) is not scatter
-    from types import SimpleNamespace
-
-    from mrftcli.diagnose.selection import _cycle_scatter
+    from mrftcli.diagnose.features import cycle_scatter
 
     rng = np.random.default_rng(7)
     s, n = 0.002, 8
-    est = [_cycle_scatter(SimpleNamespace(tab=_offset_cycles(rng.normal(0, s, n))), np.ones(n, bool))
+    est = [cycle_scatter(_offset_cycles(rng.normal(0, s, n)), np.ones(n, bool))
            for _ in range(200)]
     assert np.mean(est) == pytest.approx(n * s**2, rel=0.1)
     drift = _offset_cycles(0.003 * np.arange(n))
-    assert _cycle_scatter(SimpleNamespace(tab=drift), np.ones(n, bool)) < 1e-3 * n * s**2
+    assert cycle_scatter(drift, np.ones(n, bool)) < 1e-3 * n * s**2
 
 
 def test_concealed_set_covers_every_effect_and_clean_controls():

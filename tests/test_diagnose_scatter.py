@@ -9,7 +9,7 @@ import pytest
 
 from mrftcli.diagnose.scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
                                       refit_sigma, scatter_sample)
-from mrftcli.diagnose.limit_cycles import Plant, periodic_cycle
+from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.mrft.model import LoopModel
 from mrftcli.segment.core import segment
 from mrftcli.sim import flight as sim
@@ -85,7 +85,7 @@ def test_predicted_period_scatter_matches_the_flight_simulator(jitter):
         n_reg.append(int(reg.sum()))
         periods.append(float(np.mean(P[keep])))
         betas.append(float(seg.beta))
-    plant = Plant(model.Tp, model.Td, model.tau, model.K)
+    plant = AugmentedPlant(model.Tp, model.Td, model.tau, model.K)
     warm = periodic_cycle(plant, float(np.mean(betas)), h, 200.0).state_at_up[-1]
     setting = ScatterSetting(plant, beta, h, 200.0, noise, int(np.mean(n_reg)), float(np.mean(periods)), warm)
     v_pred, dof = expected_period_variance(setting, jitter)

@@ -610,8 +610,9 @@ def test_defaults_and_planning():
 
 def test_progress_is_reported_to_the_end():
     calls = []
-    simulate_flight(short_spec(), progress=lambda done, total: calls.append((done, total)))
+    simulate_flight(short_spec(), progress=lambda done, total, stage="": calls.append((done, total, stage)))
     assert calls[-1][0] == calls[-1][1] == 1600 and len(calls) > 10
+    assert all(stage == "simulating" for *_, stage in calls)
 
 
 def test_sidecar_path_of_a_bag_directory(tmp_path):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["N_HARM", "CycleTable", "cycle_table", "FeatureSummary", "summarize_features", "FEATURE_NAMES"]
+__all__ = ["N_HARM", "CycleTable", "cycle_table", "FeatureSummary", "summarize_features", "FEATURE_NAMES", "cycle_scatter"]
 
 #: highest harmonic in the per-cycle projection
 N_HARM = 7
@@ -268,3 +268,31 @@ def summarize_features(tab: CycleTable) -> FeatureSummary:
         period_scatter=float(np.std(tab.period, ddof=1)) if n > 2 else 0.0,
         n=n,
     )
+
+
+def cycle_scatter(tab: CycleTable, mask: np.ndarray) -> float:
+    """Sum over the selected recorded cycles of their cycle-to-cycle scatter [output units^2 x cycles].
+
+    The sampled relay decides on noisy samples, so every cycle's switch instants and centre move
+    by a tick or a fraction of a millimetre: the recorded cycles scatter about the waveform the
+    plant would repeat, and no deterministic model can predict that part. For the n selected
+    cycles y_i (on a grid of 200 phases of the mean period, as the held-out waveform errors of
+    :mod:`mrftcli.diagnose.selection`) and any model m_i,
+    E sum_i |y_i - m_i|^2 = sum_i |mu_i - m_i|^2 + n s^2, mu_i the scatter-free waveform. With
+    mu_i = a + b t_i (a slow drift such as a battery sag is not scatter) the residual sum of squares
+    of the per-phase least-squares line is (n - 2) s^2, so n s^2 = RSS n / (n - 2) (for n = 3 a
+    constant a: RSS n / (n - 1)). Subtracting it leaves an unbiased estimate of the systematic error.
+    ``mask`` selects the cycles of ``tab``; fewer than 3 give 0.
+    """
+    idx = np.flatnonzero(mask)
+    n = idx.size
+    if n < 3:
+        return 0.0
+    P_ref = float(np.mean(tab.period[idx]))
+    tt = np.linspace(0.0, P_ref, 200, endpoint=False)
+    Y = np.array([tab.waveform(i, tab.start[i] + tt * tab.period[i] / P_ref) for i in idx])
+    tm = tab.start[idx] - tab.start[idx].mean()
+    X = np.column_stack([np.ones(n), tm]) if n >= 4 else np.ones((n, 1))
+    coef, *_ = np.linalg.lstsq(X, Y, rcond=None)
+    rss = float(np.sum((Y - X @ coef) ** 2)) / tt.size
+    return rss * n / (n - X.shape[1])

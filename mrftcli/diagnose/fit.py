@@ -1,12 +1,12 @@
 """The models diagnose fits to the recorded cycles: per-test data, the candidate models' limit cycles,
 and the least-squares fits (used by :mod:`mrftcli.diagnose.selection`).
 
-* :func:`prepare_tests` turns the segmenter's MRFT tests into :class:`MrftTestCycles`: the stable cycles
+* :func:`prepare_tests` turns the segmenter's MRFT tests into :class:`DiagnosedTest`: the stable cycles
   measured by :func:`mrftcli.diagnose.features.cycle_table`, split into a fitting (even) and a
   held-out (odd) half, plus the sample behind the period-scatter statistic.
-* :class:`CycleModel` evaluates the linear model with zero, one or two candidate effects at the
+* :class:`CandidateModel` evaluates the linear model with zero, one or two candidate effects at the
   tests' MRFT settings (the exact limit cycle of :mod:`mrftcli.diagnose.limit_cycles`) and returns the same
-  features as the recording's (:class:`ModelCycle`).
+  features as the recording's (:class:`PredictedCycle`).
 * :func:`fit_model` fits a model's parameters to the features (residuals in units of the
   recording's standard errors, K in closed form); :func:`fit_base` starts the linear model along the
   Td-tau valley; :func:`candidate_starts` gives each candidate its starting points.
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -27,11 +27,15 @@ from scipy.optimize import least_squares
 from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, summarize_features
 from .physics import Candidate, df_quadratic_drag
 from .scatter import scatter_sample
-from .limit_cycles import Plant, periodic_cycle, quasi_static_plant
+from .limit_cycles import AugmentedPlant, periodic_cycle, quasi_static_plant
 from ..io.logtypes import FlightLog
+from ..segment import MrftTest, segment
 
-__all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "MrftTestCycles", "segments_of", "prepare_tests", "ModelCycle", "CycleModel",
-           "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
+
+__all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "DiagnosedTest", "segments_of", "prepare_tests", "PredictedCycle",
+           "CandidateModel", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
            "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
 
 #: fewest stable cycles per test for a diagnosis
@@ -55,8 +59,12 @@ FEATURE_FLOOR = {
 
 
 @dataclass
-class MrftTestCycles:
+class DiagnosedTest:
     """One MRFT test as the diagnosis sees it: its settings, its stable cycles and their split.
+
+    Built by :func:`prepare_tests` from the segmenter's :class:`~mrftcli.segment.MrftTest` (the
+    test as found in the log); not to be confused with the simulator's
+    :class:`~mrftcli.sim.flight.TestSpec` (a test to fly) or identify's ``TestMeasurement``.
 
     ``beta`` is the effective switching level per direction (up, down); ``tab`` the measured stable
     cycles; ``fit`` / ``hold`` boolean masks over them (even / odd cycles); ``bias`` the hover
@@ -89,28 +97,23 @@ class MrftTestCycles:
         return (float(np.var(p, ddof=1)) if p.size >= 3 else float("nan")), int(p.size)
 
 
-def segments_of(flight: FlightLog, analysis: Any) -> list:
-    segs = None
-    if analysis is not None:
-        segs = getattr(analysis, "segments", None) or getattr(analysis, "mrft_tests", None)
-        if segs is None:
-            cand = getattr(analysis, "tests", None)
-            if cand and all(hasattr(t, "cycles") and hasattr(t, "loop_sign") for t in cand):
-                segs = cand
-    if segs is None:
-        from ..segment.core import segment
-
-        segs = segment(flight)
-    return list(segs)
+def segments_of(flight: FlightLog, analysis: AnalysisResult | None) -> list[MrftTest]:
+    """The MRFT tests to diagnose: the analysis' tests when it used any (its segmentation is
+    reused), else :func:`mrftcli.segment.segment` of ``flight``."""
+    if analysis is not None and analysis.tests:
+        return list(analysis.tests)
+    return list(segment(flight))
 
 
-def prepare_tests(flight: FlightLog, segs: list) -> tuple[list[MrftTestCycles], float, list[str]]:
+def prepare_tests(flight: FlightLog, segs: list[MrftTest]) -> tuple[list[DiagnosedTest], float, list[str]]:
+    """The tests with at least :data:`MIN_CYCLES` stable cycles as :class:`DiagnosedTest`, the sensor
+    noise std estimated from the cycle projections' residual [output units], and warnings."""
     warnings: list[str] = []
     t_y, y = flight.output.t, flight.output.values
     ok = np.isfinite(t_y) & np.isfinite(y)
     t_y, y = t_y[ok], y[ok]
     t0_log = float(min(np.nanmin(flight.command.t), np.nanmin(flight.output.t)))
-    tests: list[MrftTestCycles] = []
+    tests: list[DiagnosedTest] = []
     rss = 0.0
     nsamp = 0
     for s in segs:
@@ -144,7 +147,7 @@ def prepare_tests(flight: FlightLog, segs: list) -> tuple[list[MrftTestCycles], 
         reg_all = np.array([c.regular for c in s.cycles], bool)
         keep = scatter_sample(P_all, A_all, reg_all, 1.0 / float(s.rate_hz))
         tests.append(
-            MrftTestCycles(
+            DiagnosedTest(
                 index=s.index,
                 h=float(s.h),
                 bias=float(s.bias),
@@ -167,23 +170,25 @@ def prepare_tests(flight: FlightLog, segs: list) -> tuple[list[MrftTestCycles], 
 
 
 @dataclass
-class ModelCycle:
-    """A candidate's prediction for one test (at K = 1 unless noted)."""
+class PredictedCycle:
+    """A :class:`CandidateModel`'s limit cycle for one test (at K = 1 unless noted)."""
 
     features: np.ndarray  # FEATURE_NAMES order, log amplitude at K = 1
     cycle: CycleTable  # the model's periodic cycle (one row), K = 1
     gain: float  # battery gain g at the test's reference time (1 unless gain drift)
 
 
-class CycleModel:
+class CandidateModel:
     """Evaluates the limit cycles of the linear model with zero, one or several candidate effects
-    for every test, with warm starts.
+    for every test, with warm starts (each evaluation simulates an
+    :class:`~mrftcli.diagnose.limit_cycles.AugmentedPlant`; the identified linear model alone is
+    :class:`~mrftcli.mrft.model.LoopModel`).
 
     theta layout: [ln Td (ln q with quadratic drag, whose q replaces 1/Td), 10 tau, then one scaled
     parameter per other deterministic effect, in the order given].
     """
 
-    def __init__(self, cand: Candidate | tuple | None, tests: list[MrftTestCycles], Tp: float) -> None:
+    def __init__(self, cand: Candidate | tuple | None, tests: list[DiagnosedTest], Tp: float) -> None:
         cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
         self.cands = tuple(c for c in cands if not c.stochastic)
         self.cand = cands[0] if cands else None
@@ -227,8 +232,8 @@ class CycleModel:
             p["extra"] = p["extras"][self.cand.name]
         return p
 
-    def plant(self, p: dict, test: MrftTestCycles, t_ref: float) -> tuple[Plant, float]:
-        """Plant (K = 1) for a test at reference time t_ref [s, log time]; returns (plant, gain)."""
+    def plant(self, p: dict, test: DiagnosedTest, t_ref: float) -> tuple[AugmentedPlant, float]:
+        """The augmented plant (K = 1) for a test at reference time t_ref [s, log time]; returns (plant, gain)."""
         ex = p["extras"]
         rho = ex.get("actuator_rate_limit", 0.0)
         kw = {
@@ -237,15 +242,15 @@ class CycleModel:
             "rate_limit": (1.0 / rho) if rho > 1e-9 else 0.0,
         }
         if "quadratic_drag" in self.names:
-            plant = Plant(self.Tp, 1.0, p["tau"], 1.0, quadratic_drag=p["q"], **kw)
+            plant = AugmentedPlant(self.Tp, 1.0, p["tau"], 1.0, quadratic_drag=p["q"], **kw)
         else:
-            plant = Plant(self.Tp, p["Td"], p["tau"], 1.0, **kw)
+            plant = AugmentedPlant(self.Tp, p["Td"], p["tau"], 1.0, **kw)
         if "gain_drift" in ex:
             g = max(1.0 + ex["gain_drift"] * (t_ref - test.t0_log), 0.05)
             return quasi_static_plant(plant, g, test.bias), g
         return plant, 1.0
 
-    def evaluate(self, theta: np.ndarray, test_i: int, t_ref: float, *, key: int | None = None) -> ModelCycle | None:
+    def evaluate(self, theta: np.ndarray, test_i: int, t_ref: float, *, key: int | None = None) -> PredictedCycle | None:
         test = self.tests[test_i]
         p = self.unpack(theta)
         plant, g = self.plant(p, test, t_ref)
@@ -286,10 +291,10 @@ class CycleModel:
         else:
             f[FEATURE_NAMES.index("amplitude_trend")] = 0.0
             f[FEATURE_NAMES.index("balance_trend")] = 0.0
-        return ModelCycle(features=f, cycle=cyc, gain=g)
+        return PredictedCycle(features=f, cycle=cyc, gain=g)
 
 
-def feature_mask(test: MrftTestCycles) -> np.ndarray:
+def feature_mask(test: DiagnosedTest) -> np.ndarray:
     m = np.ones(len(FEATURE_NAMES), bool)
     if not test.has_setpoint:
         m[FEATURE_NAMES.index("centre")] = False
@@ -319,7 +324,7 @@ class Fit:
     ok: bool
 
 
-def residuals(model: CycleModel, theta: np.ndarray, recs: list, with_K: bool = False):
+def residuals(model: CandidateModel, theta: np.ndarray, recs: list, with_K: bool = False):
     """Stacked z residuals over tests; K eliminated in closed form (weighted mean of ln A)."""
     evals = []
     ia = FEATURE_NAMES.index("log_amplitude")
@@ -345,7 +350,7 @@ def residuals(model: CycleModel, theta: np.ndarray, recs: list, with_K: bool = F
     return r
 
 
-def fit_model(model: CycleModel, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray, recs: list, max_nfev: int = 60,
+def fit_model(model: CandidateModel, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray, recs: list, max_nfev: int = 60,
          free: np.ndarray | None = None) -> Fit:
     """Least-squares fit of the candidate's parameters (``free`` selects the ones that move)."""
     big = 1e3
@@ -386,7 +391,7 @@ def fit_model(model: CycleModel, theta0: np.ndarray, lo: np.ndarray, hi: np.ndar
     return Fit(theta, K, float(r @ r), int(r.size), len(theta) + 1, r, evals, cov, bool(np.all(np.abs(r) < big)))
 
 
-def initial_base(tests: list[MrftTestCycles], Tp: float, extra_phase: Callable | None = None) -> np.ndarray:
+def initial_base(tests: list[DiagnosedTest], Tp: float, extra_phase: Callable | None = None) -> np.ndarray:
     """Td, tau from the describing-function phase condition at each test's frequency.
 
     arg G(jW) - W/(2 f_s) + extra = -pi + asin(beta), with arg G = -pi/2 - atan(W Tp) - atan(W Td) - W tau;
@@ -414,7 +419,7 @@ def initial_base(tests: list[MrftTestCycles], Tp: float, extra_phase: Callable |
     return np.array([x[0], 10 * x[1]])
 
 
-def tau_on_valley(tests: list[MrftTestCycles], Tp: float, Td: float) -> float:
+def tau_on_valley(tests: list[DiagnosedTest], Tp: float, Td: float) -> float:
     """tau [s] that satisfies the describing-function phase condition best for a given Td (closed form)."""
     W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
     B = np.array([np.mean(t.beta) for t in tests])
@@ -424,7 +429,7 @@ def tau_on_valley(tests: list[MrftTestCycles], Tp: float, Td: float) -> float:
     return max(float(W @ rhs / (W @ W)), 0.0)
 
 
-def fit_base(model: CycleModel, tests: list[MrftTestCycles], Tp: float, lo: np.ndarray, hi: np.ndarray, recs: list) -> Fit:
+def fit_base(model: CandidateModel, tests: list[DiagnosedTest], Tp: float, lo: np.ndarray, hi: np.ndarray, recs: list) -> Fit:
     """The linear model's fit, started along the Td-tau valley.
 
     The features pin the phase at each test's frequency well but Td and tau trade off along a curved
@@ -450,8 +455,8 @@ def fit_base(model: CycleModel, tests: list[MrftTestCycles], Tp: float, lo: np.n
     return best
 
 
-def theta_bounds(cand: Candidate | tuple | None, tests: list[MrftTestCycles]) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of theta (layout of :class:`CycleModel`) for the base model, one candidate or a combination."""
+def theta_bounds(cand: Candidate | tuple | None, tests: list[DiagnosedTest]) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of theta (layout of :class:`CandidateModel`) for the base model, one candidate or a combination."""
     cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
     lo = [math.log(0.02), 0.0]
     hi = [math.log(100.0), 5.0]
@@ -474,7 +479,7 @@ def theta_bounds(cand: Candidate | tuple | None, tests: list[MrftTestCycles]) ->
     return np.array(lo), np.array(hi)
 
 
-def candidate_starts(cand: Candidate, base: Fit, tests: list[MrftTestCycles], recs: list, Tp: float) -> list[np.ndarray]:
+def candidate_starts(cand: Candidate, base: Fit, tests: list[DiagnosedTest], recs: list, Tp: float) -> list[np.ndarray]:
     th = base.theta
     hs = np.mean([t.h for t in tests])
     if cand.name == "input_bias":
@@ -516,7 +521,7 @@ def candidate_starts(cand: Candidate, base: Fit, tests: list[MrftTestCycles], re
     raise ValueError(cand.name)
 
 
-def plant_params(model: CycleModel, fit: Fit) -> dict:
+def plant_params(model: CandidateModel, fit: Fit) -> dict:
     p = model.unpack(fit.theta)
     out = {"tau": p["tau"], "K": fit.K}
     if p.get("Td") is not None:
@@ -531,7 +536,7 @@ def param_std(fit: Fit, j: int) -> float:
     return float(math.sqrt(v)) if v >= 0 else float("nan")
 
 
-def effect_value(cand: Candidate, model: CycleModel, fit: Fit, p: dict) -> tuple[float, float]:
+def effect_value(cand: Candidate, model: CandidateModel, fit: Fit, p: dict) -> tuple[float, float]:
     """The effect's parameter in its own units and its standard error, from a fit of ``model``."""
     hs = model.hs
     j = model.extra_index(cand.name)

@@ -30,17 +30,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..sim.control import MrftRelay
-from ..sim.plant import _actuator_pieces, _fixed_matrices, _LinearPropagator, _rk4_quadratic
+from ..sim.plant import LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic
 
-__all__ = ["Plant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
+__all__ = ["AugmentedPlant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
 
 
 @dataclass(frozen=True)
-class Plant:
-    """The loop model with the candidate physics, in deviation coordinates.
+class AugmentedPlant:
+    """The loop model (:class:`mrftcli.mrft.model.LoopModel`'s parameters) augmented with the candidate
+    physics, in deviation coordinates.
 
     Attributes
     ----------
@@ -91,7 +91,7 @@ class RelayRun:
 class _Propagator:
     """Exact x' = A x + B w with w(s) = c0 + c1 s on an interval of length h.
 
-    Wraps the project simulator's :class:`mrftcli.sim.plant._LinearPropagator` (exponential of the
+    Wraps the project simulator's :class:`mrftcli.sim.plant.LinearPropagator` (exponential of the
     augmented matrix): the full tick, used over and over, gets its matrices once and is stepped with
     unrolled scalar arithmetic (far faster than numpy for 3 or 4 states); any other length (a
     switch or a command arrival inside a tick) goes through the simulator's vector Taylor series.
@@ -100,9 +100,9 @@ class _Propagator:
     def __init__(self, A: np.ndarray, B: np.ndarray, T: float) -> None:
         self.n = A.shape[0]
         self.T = T
-        self.lin = _LinearPropagator(A, B, grid=T)
+        self.lin = LinearPropagator(A, B, grid=T)
         self.lin.fix(T)
-        Phi, E0, E1, _ = _fixed_matrices(self.lin, T)
+        Phi, E0, E1, _ = self.lin.fixed(T)
         self.tick = (tuple(Phi.ravel().tolist()), tuple(E0.tolist()), tuple(E1.tolist()))
 
     def step(self, x: tuple, h: float, c0: float, c1: float) -> tuple:
@@ -160,7 +160,7 @@ def _hermite_extremum(e0: float, d0: float, e1: float, d1: float, h: float) -> f
 
 
 def run_relay(
-    plant: Plant,
+    plant: AugmentedPlant,
     beta: float,
     h: float,
     rate_hz: float,
@@ -182,7 +182,7 @@ def run_relay(
 
     Parameters
     ----------
-    plant : Plant
+    plant : AugmentedPlant
         The (augmented) model.
     beta : float or (float, float)
         Switching level of the relay (effective beta in continuous mode, nominal beta in sampled
@@ -243,7 +243,7 @@ def run_relay(
         c1 = g0 * slope + gs * (bias_cmd + a0)
         if quad:
             # the project simulator's RK4 (input polynomial of degree <= 1 here), at most 2.5 ms substeps
-            return tuple(_rk4_quadratic(x, hstep, c0, c1, 0.0, plant.K, plant.quadratic_drag, inv_tp, inv_lag,
+            return tuple(rk4_quadratic(x, hstep, c0, c1, 0.0, plant.K, plant.quadratic_drag, inv_tp, inv_lag,
                                         0.0025).tolist())
         return prop.step(x, hstep, c0, c1)
 
@@ -288,13 +288,12 @@ def run_relay(
         # the delay of the command sent at tick k is tau + d_k, d a Gauss-Markov process at the tick
         # rate (correlation ``jitter_corr``); commands never overtake each other, so the command of
         # tick k takes effect at max_{j<=k} (j T + d_j): its effective extra delay is that minus k T
+        # (the simulator's process: mrftcli.sim.plant.gauss_markov and fifo_delays)
         n_j = min(max_steps + 1, 2_000_000)
         phi = math.exp(-T / jitter_corr)
         innov = rng.standard_normal(n_j) * jitter_std * math.sqrt(1.0 - phi * phi)
         innov[0] = rng.standard_normal() * jitter_std
-        d = lfilter([1.0], [1.0, -phi], innov)
-        kT = np.arange(n_j) * T
-        jit_eff = np.maximum(np.maximum.accumulate(np.maximum(plant.tau + d, 0.0) + kT) - kT - plant.tau, -plant.tau)
+        jit_eff = np.maximum(fifo_delays(gauss_markov(innov, phi), plant.tau, T) - plant.tau, -plant.tau)
     ys: list[float] = [meas(x)]
     t = 0.0
     k = 0
@@ -307,7 +306,7 @@ def run_relay(
     t_last_switch = 0.0
     while k < max_steps:
         t_end = (k + 1) * T
-        pieces, act, target = _actuator_pieces(t, t_end, pending, act, target, rlim, tol=1e-15)
+        pieces, act, target = actuator_pieces(t, t_end, pending, act, target, rlim, tol=1e-15)
         for s, hs, a, slope in pieces:
             if abs(hs - T) < 1e-12:
                 hs = T  # the whole tick: its propagator is cached
@@ -379,7 +378,7 @@ def run_relay(
 
 
 def periodic_cycle(
-    plant: Plant,
+    plant: AugmentedPlant,
     beta: float,
     h: float,
     rate_hz: float,
@@ -407,9 +406,9 @@ def periodic_cycle(
     return run
 
 
-def quasi_static_plant(plant: Plant, gain: float, bias_cmd: float) -> Plant:
+def quasi_static_plant(plant: AugmentedPlant, gain: float, bias_cmd: float) -> AugmentedPlant:
     """The plant seen at a constant battery gain g: g (b + u) - b + d = g (u + ((g - 1) b + d) / g)."""
     if gain == 1.0:
         return plant
-    return Plant(plant.Tp, plant.Td, plant.tau, plant.K * gain, (plant.input_bias + (gain - 1.0) * bias_cmd) / gain,
+    return AugmentedPlant(plant.Tp, plant.Td, plant.tau, plant.K * gain, (plant.input_bias + (gain - 1.0) * bias_cmd) / gain,
                  plant.sensor_lag, plant.quadratic_drag, plant.rate_limit)

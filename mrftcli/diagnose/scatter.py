@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .limit_cycles import Plant, run_relay
+from .limit_cycles import AugmentedPlant, run_relay
 from ..segment.core import StabilityCriterion, stable_cycles
 
 __all__ = ["SCATTER_CRITERION", "ScatterSetting", "scatter_sample", "expected_period_variance",
@@ -59,7 +59,7 @@ class ScatterSetting:
 
     Attributes
     ----------
-    plant : Plant
+    plant : AugmentedPlant
         The loop model (deviation coordinates).
     beta : float
         Nominal beta of the log's relay (it decides on noisy samples with this level).
@@ -78,7 +78,7 @@ class ScatterSetting:
         in steady oscillation.
     """
 
-    plant: Plant
+    plant: AugmentedPlant
     beta: float
     h: float
     rate_hz: float

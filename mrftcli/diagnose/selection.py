@@ -32,19 +32,23 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .features import FEATURE_NAMES, summarize_features
-from .fit import (MIN_CYCLES, CycleModel, Fit, ModelCycle, MrftTestCycles, candidate_starts, effect_value,
+from .features import FEATURE_NAMES, cycle_scatter, summarize_features
+from .fit import (MIN_CYCLES, CandidateModel, Fit, PredictedCycle, DiagnosedTest, candidate_starts, effect_value,
                            feature_mask, feature_sigma, fit_base, fit_model, plant_params, prepare_tests, segments_of,
                            theta_bounds)
 from .physics import BY_NAME, CANDIDATES, Candidate
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
 from ..errors import DiagnoseError, InputError
 from ..io.logtypes import FlightLog
+from ..progress import Progress, report
+from ..validate import check_time
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
 
 __all__ = ["diagnose", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
 
@@ -180,7 +184,7 @@ class DiagnosisResult:
 # cycle-to-cycle period scatter (sampled relay with noise, and delay jitter: mrftcli.diagnose.scatter)
 
 
-def _scatter_reference(tests: list[MrftTestCycles], model: CycleModel, fit: Fit, noise: float) -> list[dict]:
+def _scatter_reference(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, noise: float) -> list[dict]:
     """Per test: the sampled-relay setting of a fitted model (the linear one, or with a found effect)
     and the period variance that noise alone explains."""
     p = model.unpack(fit.theta)
@@ -207,7 +211,7 @@ def _scatter_reference(tests: list[MrftTestCycles], model: CycleModel, fit: Fit,
     return out
 
 
-def _scatter_z(tests: list[MrftTestCycles], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
+def _scatter_z(tests: list[DiagnosedTest], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
     """z of log(recorded / predicted period scatter) per test, for the 'fit', 'hold' or all cycles."""
     out = []
     for t, sc, vp in zip(tests, scatter, v_pred):
@@ -225,7 +229,7 @@ def _scatter_z(tests: list[MrftTestCycles], scatter: list[dict], sel: str, v_pre
 # waveform NRMSE and harmonics
 
 
-def _model_wave(ev: ModelCycle, K: float, t_rel: np.ndarray, period: float | None = None) -> np.ndarray:
+def _model_wave(ev: PredictedCycle, K: float, t_rel: np.ndarray, period: float | None = None) -> np.ndarray:
     """The model cycle at times ``t_rel`` after its -h -> +h switch; with ``period`` [s] it is put on
     that period (phase-normalised) instead of its own."""
     c = ev.cycle
@@ -234,7 +238,7 @@ def _model_wave(ev: ModelCycle, K: float, t_rel: np.ndarray, period: float | Non
     return K * c.waveform(0, c.start[0] + t_rel, trend=False)
 
 
-def _waveform_errors(test: MrftTestCycles, mask: np.ndarray, evs: list, K: float, t_refs: np.ndarray | None = None,
+def _waveform_errors(test: DiagnosedTest, mask: np.ndarray, evs: list, K: float, t_refs: np.ndarray | None = None,
                      flight_t: np.ndarray | None = None, phase: bool = False
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per selected cycle: sum of squared error, sum of squares about the mean, and per half (high, low).
@@ -275,34 +279,7 @@ def _waveform_errors(test: MrftTestCycles, mask: np.ndarray, evs: list, K: float
     return sse, sst, sse_hi, sse_lo
 
 
-def _cycle_scatter(test: MrftTestCycles, mask: np.ndarray) -> float:
-    """Sum over the selected recorded cycles of their cycle-to-cycle scatter [output units^2 x cycles].
-
-    The sampled relay decides on noisy samples, so every cycle's switch instants and centre move
-    by a tick or a fraction of a millimetre: the recorded cycles scatter about the waveform the
-    plant would repeat, and no deterministic model can predict that part. For the n selected
-    cycles y_i (on the same phase grid as in :func:`_waveform_errors`) and any model m_i,
-    E sum_i |y_i - m_i|^2 = sum_i |mu_i - m_i|^2 + n s^2, mu_i the scatter-free waveform. With
-    mu_i = a + b t_i (a slow drift such as a battery sag is not scatter) the residual sum of squares
-    of the per-phase least-squares line is (n - 2) s^2, so n s^2 = RSS n / (n - 2) (for n = 3 a
-    constant a: RSS n / (n - 1)). Subtracting it leaves an unbiased estimate of the systematic error.
-    """
-    tab = test.tab
-    idx = np.flatnonzero(mask)
-    n = idx.size
-    if n < 3:
-        return 0.0
-    P_ref = float(np.mean(tab.period[idx]))
-    tt = np.linspace(0.0, P_ref, 200, endpoint=False)
-    Y = np.array([tab.waveform(i, tab.start[i] + tt * tab.period[i] / P_ref) for i in idx])
-    tm = tab.start[idx] - tab.start[idx].mean()
-    X = np.column_stack([np.ones(n), tm]) if n >= 4 else np.ones((n, 1))
-    coef, *_ = np.linalg.lstsq(X, Y, rcond=None)
-    rss = float(np.sum((Y - X @ coef) ** 2)) / tt.size
-    return rss * n / (n - X.shape[1])
-
-
-def _harmonic_errors(test: MrftTestCycles, mask: np.ndarray, ev: ModelCycle, K: float) -> dict:
+def _harmonic_errors(test: DiagnosedTest, mask: np.ndarray, ev: PredictedCycle, K: float) -> dict:
     """Relative error of the measured G(j k Omega) = Y_k/U_k against the model's, odd k."""
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -319,7 +296,7 @@ def _harmonic_errors(test: MrftTestCycles, mask: np.ndarray, ev: ModelCycle, K: 
 # the diagnosis
 
 
-def _held_out(model: CycleModel, fit: Fit, tests: list[MrftTestCycles], recs_hold: list) -> dict:
+def _held_out(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], recs_hold: list) -> dict:
     """Score a fitted model on the held-out cycles: feature z RMS and waveform NRMSE."""
     zs = []
     sse = sst = floor = sse_timed = 0.0
@@ -346,7 +323,7 @@ def _held_out(model: CycleModel, fit: Fit, tests: list[MrftTestCycles], recs_hol
         sse_timed += float(_waveform_errors(test, test.hold, evs, fit.K, t_refs)[0].sum())
         # the cycle-to-cycle scatter of the recording (relay ticks on noisy samples) is the same for
         # every model: it is taken out, so the NRMSE measures the systematic (model) error
-        fl = _cycle_scatter(test, test.hold)
+        fl = cycle_scatter(test.tab, test.hold)
         sse += float(e.sum())
         sst += float(v.sum())
         floor += fl
@@ -367,39 +344,29 @@ def _held_out(model: CycleModel, fit: Fit, tests: list[MrftTestCycles], recs_hol
 
 
 def diagnose(
-    flight: FlightLog | str | Path | None = None,
-    Tp: float | None = None,
-    analysis: Any = None,
+    flight: FlightLog,
+    Tp: float,
+    analysis: AnalysisResult | None = None,
+    progress: Progress | None = None,
     *,
-    path: str | Path | None = None,
-    tp: float | None = None,
-    loop: str | None = None,
-    command_topic: str | None = None,
-    output_topic: str | None = None,
-    beta_topic: str | None = None,
-    setpoint_topic: str | None = None,
-    output_scale: float | None = None,
     candidates: tuple[str, ...] | None = None,
-    progress: Callable[[str], None] | None = None,
 ) -> DiagnosisResult:
     """Locate model mismatch in an MRFT flight log, name the missing physics, fit it, compare.
 
     Parameters
     ----------
-    flight : FlightLog or path
-        The log (already read), or a path that is read with :func:`mrftcli.io.read_flight`
-        using ``loop`` and the topic options. ``path=`` is accepted as an alias.
+    flight : FlightLog
+        The log's signals (:func:`mrftcli.io.read_flight` reads them).
     Tp : float
-        Propulsion time constant [s] (known from a bench test, as for ``analyze``). ``tp=`` alias.
+        Propulsion time constant [s] (known from a bench test, as for ``analyze``).
     analysis : AnalysisResult, optional
-        An analysis of the same log already computed (its segmentation is reused and its
+        An analysis of the same flight already computed (its segmentation is reused and its
         identification is reported beside the diagnosis' own fits).
-    loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale
-        Passed to the reader when ``flight`` is a path.
+    progress : Progress, optional
+        Called as ``progress(done, total, stage)`` before each stage (segmenting, the linear fit,
+        each candidate, locating; ``total`` grows when a second effect is tried).
     candidates : tuple of str, optional
         Restrict the candidate library (JSON names); default all.
-    progress : callable, optional
-        Called with a short text before each stage (for a progress bar).
 
     Returns
     -------
@@ -414,30 +381,17 @@ def diagnose(
     DiagnoseError
         No test with enough stable cycles, or the base model cannot reproduce any limit cycle.
     """
-    Tp = Tp if Tp is not None else tp
-    if Tp is None or not (isinstance(Tp, (int, float)) and math.isfinite(Tp) and Tp > 0):
-        raise InputError(f"Tp must be a positive time in seconds (the bench-measured propulsion time constant), got {Tp!r}")
-    if flight is None:
-        flight = path
-    if flight is None and analysis is not None:
-        flight = getattr(analysis, "flight", None)
-    if flight is None:
-        raise InputError("give the flight log (a FlightLog or a path)")
-    if not isinstance(flight, FlightLog):
-        from ..io import read_flight
-
-        kw = {}
-        for name, value in (("command_topic", command_topic), ("output_topic", output_topic),
-                            ("beta_topic", beta_topic), ("setpoint_topic", setpoint_topic),
-                            ("output_scale", output_scale)):
-            if value is not None:
-                kw[name] = value
-        flight = read_flight(str(flight), loop or "altitude", **kw)
+    Tp = check_time("Tp (the bench-measured propulsion time constant)", Tp)
     names = [c.name for c in CANDIDATES] if candidates is None else list(candidates)
     for n in names:
         if n not in BY_NAME:
             raise InputError(f"unknown candidate effect {n!r}; choose from {', '.join(BY_NAME)}")
-    say = progress or (lambda _msg: None)
+    stages = [0, 4 + len(names)]  # done, total: segmenting, linear fit, noise scatter, candidates, locating
+
+    def say(stage: str, more: int = 0) -> None:
+        stages[1] += more
+        report(progress, stages[0], stages[1], stage)
+        stages[0] += 1
 
     say("segmenting")
     segs = segments_of(flight, analysis)
@@ -460,7 +414,7 @@ def diagnose(
 
     # ---- base model
     say("fitting the linear model")
-    base_model = CycleModel(None, tests, Tp)
+    base_model = CandidateModel(None, tests, Tp)
     lo, hi = theta_bounds(None, tests)
     base = fit_base(base_model, tests, Tp, lo, hi, recs_fit)
     if not base.ok:
@@ -483,7 +437,7 @@ def diagnose(
 
     # ---- candidates
     cand_rows = []
-    fits: dict[str, tuple[CycleModel, Fit]] = {}
+    fits: dict[str, tuple[CandidateModel, Fit]] = {}
     for cand in CANDIDATES:
         if cand.name not in names:
             continue
@@ -492,7 +446,7 @@ def diagnose(
             row = _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all)
             cand_rows.append(row)
             continue
-        model = CycleModel(cand, tests, Tp)
+        model = CandidateModel(cand, tests, Tp)
         lo, hi = theta_bounds(cand, tests)
         best = None
         starts = candidate_starts(cand, base, tests, recs_fit, Tp)
@@ -556,7 +510,7 @@ def diagnose(
                                 {"compared_with": "linear", "bic_base": bic_base}, n_all))
         # forward step: a second effect on top of the first (nested: the pair model with the second
         # effect's parameter at zero is the first's model), kept on the same evidence and held-out rules
-        say(f"testing a second effect on top of {first['name']}")
+        say(f"testing a second effect on top of {first['name']}", more=1)
         for row in cand_rows:
             if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
                 continue
@@ -587,7 +541,7 @@ def diagnose(
     if stochastic and final is not None:
         # the scatter noise alone explains depends on the loop: judge the jitter again against the
         # deterministic model found (an actuator slew once made the linear model's noise scatter too small)
-        say(f"testing delay jitter on top of {final[0]}")
+        say(f"testing delay jitter on top of {final[0]}", more=1)
         scatter_f = _scatter_reference(tests, final[1], final[2], noise)
         again = _jitter_candidate(BY_NAME["delay_jitter"], tests, scatter_f,
                                   lambda sel, v: _scatter_z(tests, scatter_f, sel, v), final[2], n_all)
@@ -646,6 +600,7 @@ def diagnose(
     ]
     plot.update({"tests": tests, "base_model": base_model, "base": base, "fits": fits, "flight": flight,
                  "effects": [e.name for e in effects], "final": final})
+    report(progress, stages[1], stages[1], "done")
     return DiagnosisResult(
         path=str(flight.path),
         loop=flight.loop,
@@ -772,7 +727,7 @@ def _finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> 
     )
 
 
-def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[MrftTestCycles], Tp: float, recs_fit: list,
+def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[DiagnosedTest], Tp: float, recs_fit: list,
                     recs_hold: list, chi2_scatter: float, n_all: int) -> dict | None:
     """Fit the first effect and another one together; evidence and held-out scores against the first alone.
 
@@ -782,7 +737,7 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[MrftTestCy
     c1, c2 = BY_NAME[first["name"]], BY_NAME[other["name"]]
     if c1.replaces_drag and c2.replaces_drag:
         return None
-    model = CycleModel((c1, c2), tests, Tp)
+    model = CandidateModel((c1, c2), tests, Tp)
     lo, hi = theta_bounds((c1, c2), tests)
     singles = {c.name: fits[c.name] for c in (c1, c2)}
 
@@ -845,24 +800,10 @@ def _harmonics_before_after(tests, base_model, base, model, fit) -> dict:
     return out
 
 
-def _analysis_params(analysis: Any) -> dict:
-    """Td, tau, K (means) of an AnalysisResult-like object, whatever its exact shape."""
-    out = {}
-    params = getattr(analysis, "parameters", None)
-    for k in ("Td", "tau", "K"):
-        v = None
-        if isinstance(params, dict):
-            v = params.get(k)
-        elif params is not None:
-            v = getattr(params, k, None)
-        if v is None:
-            v = getattr(analysis, k, None)
-        if isinstance(v, dict):
-            v = v.get("mean")
-        v = getattr(v, "mean", v)
-        if isinstance(v, (int, float, np.floating)) and math.isfinite(float(v)):
-            out[k] = float(v)
-    return out
+def _analysis_params(analysis: AnalysisResult) -> dict:
+    """Td, tau [s] and K (the point estimates) of an analysis, the finite ones."""
+    means = {"Td": analysis.Td.mean, "tau": analysis.tau.mean, "K": analysis.K.mean}
+    return {k: float(v) for k, v in means.items() if v is not None and math.isfinite(float(v))}
 
 
 def _locate(tests, base_model, base, recs_all, scatter) -> tuple[list, dict]:

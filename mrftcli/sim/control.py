@@ -13,6 +13,7 @@ import numpy as np
 from ..errors import InputError
 from ..mrft.describing import df_amplitude, df_frequency
 from ..mrft.model import LoopModel
+from ..validate import check_beta
 
 __all__ = [
     "SWITCHING_RULES",
@@ -30,12 +31,6 @@ __all__ = [
 SWITCHING_RULES = ("checks", "hear")
 
 _DEG = math.pi / 180.0
-
-
-def _check_beta(beta: float) -> None:
-    if not (isinstance(beta, (int, float, np.floating)) and -1.0 < float(beta) < 1.0):
-        raise InputError(f"beta must lie in the open interval (-1, 1), got {beta!r}")
-
 
 
 # --------------------------------------------------------------------------------------------------
@@ -183,7 +178,7 @@ class MrftRelay:
     """
 
     def __init__(self, beta: float, start_threshold: float = 0.0) -> None:
-        _check_beta(beta)
+        check_beta(beta)
         self.beta = float(beta)
         self.start_threshold = float(start_threshold)
         self.relay = 1.0
@@ -228,7 +223,7 @@ class HearMrftRelay:
     """
 
     def __init__(self, beta: float, confirm_samples: int = 5, no_switch_ticks: float = 4.0) -> None:
-        _check_beta(beta)
+        check_beta(beta)
         self.beta = float(beta)
         self.confirm = int(confirm_samples)
         self.no_switch = float(no_switch_ticks) - 1e-9

@@ -40,8 +40,6 @@ import math
 from collections import deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
-
 import numpy as np
 
 from .control import (
@@ -49,17 +47,18 @@ from .control import (
     HearMrftRelay,
     HoldPID,
     MrftRelay,
-    _check_beta,
     design_hold_pid,
     df_prediction,
     make_relay,
     noise_margin,
     relay_sequence,
 )
-from .plant import _actuator_pieces, _fixed_matrices, _LinearPropagator, _PeriodPropagator, _rk4_quadratic
+from .plant import LinearPropagator, PeriodPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic
 from ..errors import InputError
 from ..io.logtypes import LOOPS, TopicData
 from ..mrft.model import LoopModel
+from ..progress import Progress, report
+from ..validate import check_beta
 
 __all__ = [
     "Effects",
@@ -272,7 +271,7 @@ def _validate(spec: FlightSpec) -> None:
     if not spec.tests:
         raise InputError("give at least one MRFT test (beta and h)")
     for i, test in enumerate(spec.tests, 1):
-        _check_beta(test.beta)
+        check_beta(test.beta)
         if not (math.isfinite(test.h) and test.h > 0):
             raise InputError(f"test {i}: the relay height h must be positive, got {test.h!r}")
         if not (math.isfinite(test.duration) and test.duration * spec.rate_hz >= 2):
@@ -322,7 +321,7 @@ def _schedule(spec: FlightSpec) -> tuple[int, list[tuple[int, int]]]:
 
 def simulate_flight(
     spec: FlightSpec,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Progress | None = None,
 ) -> SimulatedFlight:
     """Simulate one closed-loop MRFT flight (see the module docstring for the model).
 
@@ -330,8 +329,9 @@ def simulate_flight(
     ----------
     spec : FlightSpec
         The model, the tests and the flight settings. Not modified.
-    progress : callable, optional
-        Called as ``progress(done, total)`` (controller ticks) every few thousand ticks.
+    progress : Progress, optional
+        Called as ``progress(done, total, "simulating")`` (controller ticks) about 100 times
+        (:mod:`mrftcli.progress`).
 
     Returns
     -------
@@ -365,17 +365,9 @@ def simulate_flight(
     # ---- delays: application time of the command of tick k is k T + d_k (relative to the start)
     if eff.delay_jitter > 0:
         phi = math.exp(-T / eff.delay_jitter_correlation)
-        d = np.empty(n_ticks)
-        state = eff.delay_jitter * jitter_innov[0]  # stationary start
-        scale = eff.delay_jitter * math.sqrt(1.0 - phi * phi)
-        for k in range(n_ticks):
-            if k:
-                state = phi * state + scale * jitter_innov[k]
-            d[k] = state
-        delays = np.maximum(model.tau + d, 0.0)
-        apply_at = np.arange(n_ticks) * T + delays
-        apply_at = np.maximum.accumulate(apply_at)  # FIFO: a command never overtakes an older one
-        delays = apply_at - np.arange(n_ticks) * T
+        innov = eff.delay_jitter * math.sqrt(1.0 - phi * phi) * jitter_innov
+        innov[0] = eff.delay_jitter * jitter_innov[0]  # stationary start
+        delays = fifo_delays(gauss_markov(innov, phi), model.tau, T)  # a command never overtakes an older one
     else:
         delays = None
 
@@ -390,7 +382,7 @@ def simulate_flight(
         n = 4
     meas_index = 3 if eff.sensor_lag > 0 else 0
     quadratic = eff.quadratic_drag > 0
-    prop = _LinearPropagator(A, B, grid=T / 64.0)
+    prop = LinearPropagator(A, B, grid=T / 64.0)
 
     x = np.zeros(n)
     x[0] = r
@@ -459,11 +451,11 @@ def simulate_flight(
         # for 3-4 states): x+ = P x + qa0 c0a + qa1 c1a + qb0 c0b + qb1 c1b, where (c0, c1) are the
         # input's value and slope on [0, frac) and [frac, T).
         if frac > 0:
-            Pa, Ea0, Ea1, _ = _fixed_matrices(prop, frac)
-            Pb, Eb0, Eb1, _ = _fixed_matrices(prop, T - frac)
+            Pa, Ea0, Ea1, _ = prop.fixed(frac)
+            Pb, Eb0, Eb1, _ = prop.fixed(T - frac)
             P, qa0, qa1 = Pb @ Pa, Pb @ Ea0, Pb @ Ea1
         else:
-            Pb, Eb0, Eb1, _ = _fixed_matrices(prop, T)
+            Pb, Eb0, Eb1, _ = prop.fixed(T)
             P, qa0, qa1 = Pb, np.zeros(n), np.zeros(n)
         pad = 4 - n
         P4 = np.pad(P, ((0, pad), (0, pad)))
@@ -477,10 +469,10 @@ def simulate_flight(
         hist = deque([u_init] * (m_delay + 2), maxlen=m_delay + 2)
     rk4_step = T / 20.0
     # Event path of a linear plant: whole periods by superposition (one matrix product per period)
-    # when the series of _PeriodPropagator converges quickly; otherwise sub-interval by sub-interval.
+    # when the series of PeriodPropagator converges quickly; otherwise sub-interval by sub-interval.
     period = None
     if not fast and not quadratic and float(np.abs(A).sum(axis=0).max()) * T <= 2.0:
-        period = _PeriodPropagator(A, B, T)
+        period = PeriodPropagator(A, B, T)
 
     def propagate(x: np.ndarray, h: float, ts: float, a0: float, slope: float) -> np.ndarray:
         """Advance x over [ts, ts + h) with actuator a(ts + s) = a0 + slope * s."""
@@ -490,7 +482,7 @@ def simulate_flight(
         c2 = 2.0 * gd * slope
         if not quadratic:
             return prop.step(x, h, c0, c1, c2)
-        return _rk4_quadratic(x, h, c0, c1, c2, K, c_drag, inv_tp, inv_ts, rk4_step)
+        return rk4_quadratic(x, h, c0, c1, c2, K, c_drag, inv_tp, inv_ts, rk4_step)
 
     report_every = max(1, n_ticks // 100)
     for k in range(n_ticks):
@@ -547,7 +539,7 @@ def simulate_flight(
             else:
                 pending.append((tk + delays[k], u))
             t_end = (k + 1) * T
-            pieces, act, target = _actuator_pieces(tk, t_end, pending, act, target, rlim)
+            pieces, act, target = actuator_pieces(tk, t_end, pending, act, target, rlim)
             if period is None:
                 for s, h, a, slope in pieces:
                     x = propagate(x, h, s, a, slope)
@@ -559,9 +551,8 @@ def simulate_flight(
             if period is not None:
                 x = period.advance(x, segments)
         if progress is not None and (k % report_every == 0):
-            progress(k, n_ticks)
-    if progress is not None:
-        progress(n_ticks, n_ticks)
+            progress(k, n_ticks, "simulating")
+    report(progress, n_ticks, n_ticks, "simulating")
 
     t = spec.start_time + np.arange(n_ticks) * T
     setpoint = np.full(n_ticks, r)

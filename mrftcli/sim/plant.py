@@ -1,6 +1,8 @@
-"""Exact propagation of the simulator's plant between events (and RK4 for quadratic drag).
+"""Exact propagation of the simulator's plant between events (and RK4 for quadratic drag), the
+actuator between controller ticks and the jittered transport delay.
 
-Used by :mod:`mrftcli.sim.flight`; see docs/simulator.md, "Integration".
+Used by :mod:`mrftcli.sim.flight` (whole flights) and :mod:`mrftcli.diagnose.limit_cycles` (one test's
+limit cycle); see docs/simulator.md, "Integration".
 """
 
 from __future__ import annotations
@@ -8,19 +10,30 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.signal import lfilter
 
-__all__: list[str] = []
+__all__ = ["taylor_expm", "LinearPropagator", "PeriodPropagator", "rk4_quadratic", "actuator_pieces",
+           "gauss_markov", "fifo_delays"]
 
 
 # --------------------------------------------------------------------------------------------------
 # exact propagation of the linear part
 
 
-def _expm(M: np.ndarray) -> np.ndarray:
+def taylor_expm(M: np.ndarray) -> np.ndarray:
     """e^M by a Taylor series with scaling and squaring (||M||_1 scaled to <= 1/2; error ~1e-16).
 
-    Used instead of :func:`scipy.linalg.expm` for the small, nearly nilpotent matrices of one
-    control period, where scipy's Pade path is orders of magnitude slower.
+    Kept instead of :func:`scipy.linalg.expm` (Pade with scaling and squaring) although it is not
+    faster: ``benchmarks/bench_simulate.py`` measures the two on the matrices of a flight (see
+    docs/benchmarks/simulate.md; both about 10-30 us per call, a few calls per flight, so speed does
+    not decide), and they agree to ~1e-15 but not bit for bit. Every simulated sample log and every
+    diagnosis would change in its last digits with scipy's, so the hand-written one stays.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> bool(np.allclose(taylor_expm(np.array([[0.0, 1.0], [0.0, 0.0]])), [[1.0, 1.0], [0.0, 1.0]]))
+    True
     """
     norm = float(np.abs(M).sum(axis=0).max())
     squarings = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
@@ -34,7 +47,7 @@ def _expm(M: np.ndarray) -> np.ndarray:
     return E
 
 
-class _LinearPropagator:
+class LinearPropagator:
     """Exact propagation of x' = A x + B w(t) for w(s0 + s) = c0 + c1 s + c2 s^2 / 2.
 
     Uses the exponential of the augmented matrix M = [[A, B, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], 0]:
@@ -67,9 +80,13 @@ class _LinearPropagator:
 
     def fix(self, h: float) -> None:
         """Precompute the matrices of a recurring length ``h``."""
-        E = _expm(self._M * h)
+        E = taylor_expm(self._M * h)
         n = self.n
         self._fixed[h] = (E[:n, :n].copy(), E[:n, n].copy(), E[:n, n + 1].copy(), E[:n, n + 2].copy())
+
+    def fixed(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(Phi, E0, E1, E2) of a length registered with :meth:`fix`: x(h) = Phi x + E0 c0 + E1 c1 + E2 c2."""
+        return self._fixed[h]
 
     def step(self, x: np.ndarray, h: float, c0: float, c1: float, c2: float) -> np.ndarray:
         got = self._fixed.get(h)
@@ -96,7 +113,7 @@ class _LinearPropagator:
         if k:
             E = self._grid_exp.get(k)
             if E is None:
-                E = self._grid_exp[k] = _expm(self._M * (k * self._grid))
+                E = self._grid_exp[k] = taylor_expm(self._M * (k * self._grid))
             z = E @ z
         return z[: self.n]
 
@@ -105,7 +122,7 @@ class _LinearPropagator:
 # whole periods by superposition, and RK4 for quadratic drag
 
 
-class _PeriodPropagator:
+class PeriodPropagator:
     """One control period of the linear plant with an input made of polynomial segments.
 
     x(T) = Phi(T) x(0) + sum over segments of the responses to the segment's input. A segment on
@@ -137,7 +154,7 @@ class _PeriodPropagator:
             v = A @ v
         self._G = G
         self._exponents = np.arange(1, m + 1)
-        self.Phi = _expm(A * T)
+        self.Phi = taylor_expm(A * T)
 
     def advance(self, x: np.ndarray, segments: list[tuple[float, float, float, float, float]]) -> np.ndarray:
         """x at the end of the period; ``segments`` = (start offset, length, c0, c1, c2)."""
@@ -155,16 +172,15 @@ class _PeriodPropagator:
         return self.Phi @ x + resp
 
 
-def _fixed_matrices(prop: _LinearPropagator, h: float) -> tuple[np.ndarray, ...]:
-    """(Phi, E0, E1, E2) of a length registered with ``prop.fix``."""
-    return prop._fixed[h]
-
-
-def _rk4_quadratic(
+def rk4_quadratic(
     x: np.ndarray, h: float, c0: float, c1: float, c2: float,
     K: float, c: float, inv_tp: float, inv_ts: float, max_step: float,
 ) -> np.ndarray:
-    """RK4 for y' = v, v' = -c v|v| + K p, p' = (w - p)/Tp [, f' = (y - f)/Ts], w polynomial."""
+    """RK4 for y' = v, v' = -c v|v| + K p, p' = (w - p)/Tp [, f' = (y - f)/Ts] over a length ``h`` [s].
+
+    The input is w(s) = c0 + c1 s + c2 s^2 / 2; ``x`` holds (y, v, p[, f]); ``inv_tp`` = 1/Tp and
+    ``inv_ts`` = 1/Ts [1/s]; the step is at most ``max_step`` [s].
+    """
     n_sub = max(1, math.ceil(h / max_step - 1e-9))
     dt = h / n_sub
     lag = len(x) == 4
@@ -200,14 +216,16 @@ def _rk4_quadratic(
 # actuator between ticks: commands arriving after their delay, optional slew-rate limit
 
 
-def _actuator_pieces(s, t_end, pending, act, target, rate_limit, tol=0.0):
+def actuator_pieces(s: float, t_end: float, pending, act: float, target: float, rate_limit: float,
+                    tol: float = 0.0) -> tuple[list[tuple[float, float, float, float]], float, float]:
     """Split [s, t_end) into pieces over which the actuator input is affine in time.
 
     ``pending`` holds (arrival time [s], command) in time order (a deque or a list); the commands that
     arrive before ``t_end`` are taken from it. Without a rate limit the actuator steps to each
     command on arrival; with ``rate_limit`` > 0 [command units/s] it slews towards the latest one.
     ``tol`` [s] absorbs rounding in arrival times. Returns ``(pieces, act, target)``: pieces are
-    (start, length, actuator value at start, slope), and the actuator's value and target at t_end.
+    (start [s], length [s], actuator value at start, slope [units/s]), and the actuator's value and
+    target at t_end.
     """
     pop_first = pending.popleft if hasattr(pending, "popleft") else (lambda: pending.pop(0))
     pieces = []
@@ -237,3 +255,37 @@ def _actuator_pieces(s, t_end, pending, act, target, rate_limit, tol=0.0):
             act += slope * h
         s = nxt
     return pieces, act, target
+
+
+# --------------------------------------------------------------------------------------------------
+# delay jitter: a first-order Gauss-Markov (AR(1)) process at the tick rate, first in first out
+
+
+def gauss_markov(innovations: np.ndarray, phi: float) -> np.ndarray:
+    """The AR(1) process d_0 = i_0, d_k = phi d_(k-1) + i_k of the transport-delay jitter [s].
+
+    ``innovations`` [s] are already scaled by the caller: for a stationary process of std sigma and
+    correlation time tau_c sampled every T, phi = exp(-T / tau_c), i_0 = sigma z_0 and
+    i_k = sigma sqrt(1 - phi^2) z_k with standard normal z. One :func:`scipy.signal.lfilter`, used by
+    the simulator and by the diagnosis' sampled relay alike.
+
+    Examples
+    --------
+    >>> gauss_markov(np.array([1.0, 0.0, 2.0]), 0.5).tolist()
+    [1.0, 0.5, 2.25]
+    """
+    return lfilter([1.0], [1.0, -phi], np.asarray(innovations, dtype=float))
+
+
+def fifo_delays(d: np.ndarray, tau: float, T: float) -> np.ndarray:
+    """Transport delay [s] of the command sent at each tick k T: tau + d_k, never negative, and
+    commands never overtake each other (a command takes effect at max over j <= k of j T + delay_j).
+
+    Examples
+    --------
+    >>> fifo_delays(np.array([0.0, -0.02, 0.0]), 0.01, 0.01).tolist()
+    [0.01, 0.0, 0.01]
+    """
+    kT = np.arange(len(d)) * T
+    apply_at = np.maximum.accumulate(kT + np.maximum(tau + d, 0.0))
+    return apply_at - kT

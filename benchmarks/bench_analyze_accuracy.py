@@ -42,14 +42,14 @@ def _summary(name: str, rows: list) -> str:
 
 def main() -> None:
     sys.path.insert(0, str(ROOT / "tests"))
-    from test_analyze_sweep import _plants  # the acceptance sweep's own plants
+    from test_analyze_sweep import sweep_plants  # the acceptance sweep's own plants
     from test_segment_support import flight_from_simulated, simulate_paper_flight
 
     from mrftcli.analyze import analyze_flight
     from mrftcli.io import read_flight
 
     sets = {"30-plant sweep": [], "sample logs": []}
-    for k, loop, Tp, Td, tau, K in _plants(30, seed=0):
+    for k, loop, Tp, Td, tau, K in sweep_plants(30, seed=0):
         betas = (-0.4, -0.7) if loop == "altitude" else (-0.5, -0.8)
         sf = simulate_paper_flight(Tp, Td, tau, K, betas, loop=loop, cycles=12.0, seed=k)
         sets["30-plant sweep"].append((f"plant {k}", flight_from_simulated(sf), Tp, Td, tau, K))

@@ -16,7 +16,7 @@ from mrftcli.analyze import analyze_flight
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
 
-def _plants(n: int, seed: int):
+def sweep_plants(n: int, seed: int):
     rng = np.random.default_rng(seed)
     for k in range(n):
         loop = ("altitude", "roll", "pitch")[k % 3]
@@ -30,7 +30,7 @@ def _plants(n: int, seed: int):
 @pytest.mark.slow
 def test_thirty_random_plants():
     failures, tau_errors = [], []
-    for k, loop, Tp, Td, tau, K in _plants(30, seed=0):
+    for k, loop, Tp, Td, tau, K in sweep_plants(30, seed=0):
         betas = (-0.4, -0.7) if loop == "altitude" else (-0.5, -0.8)
         sf = simulate_paper_flight(Tp, Td, tau, K, betas, loop=loop, cycles=12.0, seed=k)
         r = analyze_flight(flight_from_simulated(sf), Tp)

@@ -110,3 +110,13 @@ def test_bad_inputs(tmp_path):
 def test_manifold_set_needs_manifolds():
     with pytest.raises(InputError):
         ManifoldSet([])
+
+
+def test_build_reports_progress_through_the_protocol_and_draws_nothing(capsys):
+    seen = []
+    grid = np.geomspace(0.1, 10, 9)
+    ms = build_manifolds([-0.3, -0.6], grid, grid, progress=lambda done, total, stage="": seen.append((done, total, stage)))
+    assert [m.beta for m in ms] == [-0.3, -0.6]
+    assert seen == [(0, 2, "UFM"), (1, 2, "UFM"), (2, 2, "UFM")]
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""

@@ -10,7 +10,7 @@ import pytest
 
 import mrftcli
 
-MODULES = sorted(
+MODULES = ["mrftcli"] + sorted(
     m.name for m in pkgutil.walk_packages(mrftcli.__path__, prefix="mrftcli.")
     if not m.name.endswith("__main__") and not m.name.startswith("mrftcli._manifolds")
 )

@@ -1,5 +1,6 @@
 #!/usr/bin/env python
-"""Simulator speed: a 60 s and a 10-minute flight, each effect, against a naive baseline.
+"""Simulator speed: a 60 s and a 10-minute flight, each effect, against a naive baseline; and the
+hand-written matrix exponential against scipy.linalg.expm.
 
     python benchmarks/bench_simulate.py
 
@@ -7,6 +8,10 @@ Baseline (measured in the same run): the obvious implementation of the same clos
 fixed-step Euler integration at T/20 with the delay rounded to that step, in plain Python. Prints
 CPU times (process time, best of 3 where marked) and the ratio; figures are recorded in
 docs/benchmarks/simulate.md.
+
+The last rows time :func:`mrftcli.sim.plant.taylor_expm` and :func:`scipy.linalg.expm` on the
+augmented matrices a flight exponentiates (one control period, its delay sub-intervals, multiples
+of the T/64 grid), count how many a flight needs, and print how far apart the two results are.
 """
 
 from __future__ import annotations
@@ -15,8 +20,10 @@ import time
 from dataclasses import replace
 
 import numpy as np
+import scipy.linalg
 
 from mrftcli.mrft.model import LoopModel
+from mrftcli.sim import plant
 from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, simulate_flight
 
 MODEL = LoopModel(0.0422, 2.669, 0.0464, 19.62)
@@ -95,6 +102,43 @@ def main() -> None:
     ):
         name = ",".join(eff.active())
         print(f"{duration:.0f} s flight with {name:22s}          {timed(simulate_flight, replace(spec, effects=eff), repeat=2):7.3f} s")
+    expm_rows(spec)
+
+
+def expm_rows(spec: FlightSpec) -> None:
+    """taylor_expm against scipy.linalg.expm on the very matrices ``spec``'s flights exponentiate."""
+    original = plant.taylor_expm
+    seen: list[np.ndarray] = []
+
+    def recording(M: np.ndarray) -> np.ndarray:
+        seen.append(M.copy())
+        return original(M)
+
+    counts = []
+    for eff in (Effects(), Effects(delay_jitter=0.003), Effects(actuator_rate_limit=1.0)):
+        before = len(seen)
+        plant.taylor_expm = recording
+        try:
+            simulate_flight(replace(spec, effects=eff))
+        finally:
+            plant.taylor_expm = original
+        counts.append(len(seen) - before)
+    diff = max(float(np.abs(original(M) - scipy.linalg.expm(M)).max()) for M in seen)
+    same = all(np.array_equal(original(M), scipy.linalg.expm(M)) for M in seen)
+    reps = max(1, 3000 // len(seen))
+
+    def run(fn) -> None:
+        for _ in range(reps):
+            for M in seen:
+                fn(M)
+
+    t_taylor = timed(run, original) / (reps * len(seen))
+    t_scipy = timed(run, scipy.linalg.expm) / (reps * len(seen))
+    print(f"matrix exponential, hand-written Taylor:        {t_taylor * 1e6:7.1f} us per call")
+    print(f"matrix exponential, scipy.linalg.expm:          {t_scipy * 1e6:7.1f} us per call  -> ratio "
+          f"{t_scipy / t_taylor:.1f}x")
+    print(f"calls per flight (linear / jitter / rate limit): {' / '.join(map(str, counts))}")
+    print(f"max |taylor - scipy| on those matrices:          {diff:.1e} (bit-identical: {same})")
 
 
 if __name__ == "__main__":

@@ -284,8 +284,8 @@ def fifo_delays(d: np.ndarray, tau: float, T: float) -> np.ndarray:
 
     Examples
     --------
-    >>> fifo_delays(np.array([0.0, -0.02, 0.0]), 0.01, 0.01).tolist()
-    [0.01, 0.0, 0.01]
+    >>> fifo_delays(np.array([0.5, -0.5, 0.0, -1.0]), 0.5, 0.25).tolist()  # 2nd-4th wait for the 1st
+    [1.0, 0.75, 0.5, 0.25]
     """
     kT = np.arange(len(d)) * T
     apply_at = np.maximum.accumulate(kT + np.maximum(tau + d, 0.0))

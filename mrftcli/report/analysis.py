@@ -81,7 +81,7 @@ def _output_relative(result):
 
 def _t0(result) -> float:
     """The log start [s] (AnalysisResult.t0; 0 for results made without it)."""
-    t0 = getattr(result, "t0", 0.0)
+    t0 = result.t0
     return float(t0) if t0 is not None and math.isfinite(t0) else 0.0
 
 
@@ -191,7 +191,7 @@ def plot_manifolds(result):
     colours = _group_colours(result)
     many = len(result.tests) > 4
     seen: set = set()
-    constraints = getattr(result, "constraints", None) or {}
+    constraints = result.constraints
     show_phase = "phase" in constraints.get("used", []) and not many
     phase_labelled = False
     for t in result.tests:
@@ -373,7 +373,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
             f"Td {comb['Td']['mean']:.4g} &plusmn; {comb['Td']['std'] or 0:.3g} s, "
             f"tau {comb['tau']['mean'] * 1e3:.4g} &plusmn; {(comb['tau']['std'] or 0) * 1e3:.3g} ms, "
             f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g}.</p>")
-    cons = getattr(result, "constraints", None) or {}
+    cons = result.constraints
     paper = cons.get("paper_estimate")
     if paper and paper.get("tau") is not None:
         pv = cons.get("p_value")

@@ -234,7 +234,7 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
     body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
     body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
-    pairs = getattr(result, "second_effect_candidates", None) or []
+    pairs = result.second_effect_candidates
     if pairs:
         body.append(f"<h3>A second effect on top of {esc(pairs[0]['with'])}</h3>")
         body.append(html_table(

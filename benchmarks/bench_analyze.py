@@ -48,7 +48,7 @@ def main() -> None:
             runs.append(time.perf_counter() - t0)
         total = float(np.median(runs))
         from mrftcli.io import read_flight
-        from mrftcli.segment.core import segment
+        from mrftcli.segment import segment
 
         t0 = time.perf_counter()
         fl = read_flight(path, loop="altitude")

@@ -5,7 +5,7 @@ log first. Both are pure (no printing, no files written) and return an :class:`A
 
 How the figures are obtained
 ----------------------------
-* Every MRFT test comes from :func:`mrftcli.segment.core.segment` with its stable cycles, the measured
+* Every MRFT test comes from :func:`mrftcli.segment.segment` with its stable cycles, the measured
   frequency and amplitude per cycle and the *effective* beta (the switching level the relay actually
   achieved, measured from the output at the switch instants). Identification uses the effective
   beta with ``rate_hz=None``: at the actual switch instants the sampled, noisy relay *is* a
@@ -47,7 +47,7 @@ from .mrft.consensus import (CONSTRAINTS, StableCycles, bootstrap, bootstrap_est
                              constraint_report)
 from .mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify, ufm_slice
 from .mrft.model import LoopModel
-from .segment.core import MrftTest, StabilityCriterion, ValidityCriterion, segment
+from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
 from .validate import check_time
 
 __all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "log_start", "describe_t0", "CONSTRAINTS",
@@ -398,7 +398,7 @@ def analyze_flight(
         Weighted constraints added to the UFM slices for the point estimate and the bootstrap
         (Beyond the paper, see the module docstring); ``()`` gives the paper's method alone.
     validity : ValidityCriterion, optional
-        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.core.check_limit_cycle`):
+        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`):
         a test whose output does not follow its relay as an MRFT limit cycle is rejected, and so are
         the tests whose loop-gain sign disagrees with the others' (:func:`_screen_tests`).
 

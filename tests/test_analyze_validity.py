@@ -24,7 +24,7 @@ from mrftcli.errors import InsufficientDataError, SegmentationError
 from mrftcli.io.logtypes import Signal
 from mrftcli.mrft.describing import df_phase
 from mrftcli.mrft.lprs import unit_cycle
-from mrftcli.segment.core import ValidityCriterion, _cycle_harmonics, check_limit_cycle, segment
+from mrftcli.segment import ValidityCriterion, check_limit_cycle, cycle_fundamental, segment
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -58,7 +58,7 @@ def test_triangle_wave_fundamental_share_and_noise_estimate():
     # zero mean, amplitude a, even about the window's centre (so the fit's drift line, odd about it,
     # takes none of it)
     tri = a * (4 * np.abs(t / P - 0.5) - 1)
-    g1, noise, frac, a1 = _cycle_harmonics(t, tri, 0.0, P / 2, P, 1.0)
+    g1, noise, frac, a1 = cycle_fundamental(t, tri, 0.0, P / 2, P, 1.0)
     assert frac == pytest.approx(96 / np.pi**4, rel=2e-3)
     assert a1 == pytest.approx(8 * a / np.pi**2, rel=1e-3)
     # the residual is the noise plus the triangle's harmonics above the 8th (they decay like k^-2)
@@ -67,7 +67,7 @@ def test_triangle_wave_fundamental_share_and_noise_estimate():
     assert trunc == pytest.approx(8 * a / np.pi**2 * np.sqrt(np.sum(k**-4.0) / 2), rel=0.1)
     rng = np.random.default_rng(0)
     sig = 0.05
-    est = np.array([_cycle_harmonics(t, tri + rng.normal(0, sig, n), 0.0, P / 2, P, 1.0)[1] for _ in range(40)])
+    est = np.array([cycle_fundamental(t, tri + rng.normal(0, sig, n), 0.0, P / 2, P, 1.0)[1] for _ in range(40)])
     assert np.sqrt(np.mean(est**2)) == pytest.approx(np.hypot(sig, trunc), rel=0.04)
 
 

@@ -11,7 +11,7 @@ from mrftcli.diagnose.scatter import (ScatterSetting, expected_period_variance, 
                                       refit_sigma, scatter_sample)
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.mrft.model import LoopModel
-from mrftcli.segment.core import segment
+from mrftcli.segment import segment
 from mrftcli.sim import flight as sim
 
 from test_segment_support import flight_from_simulated

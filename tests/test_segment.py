@@ -12,7 +12,7 @@ import pytest
 
 from mrftcli.errors import SegmentationError
 from mrftcli.io.logtypes import FlightLog, Signal
-from mrftcli.segment.core import (
+from mrftcli.segment import (
     StabilityCriterion,
     find_relay_runs,
     regularise_times,

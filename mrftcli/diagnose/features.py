@@ -5,9 +5,9 @@ Per cycle (from a -h -> +h switch at s_i to the next one):
 
 * period P, time at +h (``high``), half-period balance D = T_high / P - 1/2;
 * the output projected by least squares onto a constant, a linear trend and the harmonics
-  k = 1..7 of the cycle's own period, which removes the sensor noise: Y_k (complex, so that
-  y ~ sum_k Re(Y_k e^{j k w t'}), t' = t - s_i), amplitude a = (max - min)/2 and centre
-  (max + min)/2 of the noise-free reconstruction;
+  k = 1..7 of the cycle's own period (:func:`mrftcli.mrft.harmonics.fit_harmonics`), which removes
+  the sensor noise: Y_k (complex, so that y ~ sum_k Re(Y_k e^{j k w t'}), t' = t - s_i),
+  amplitude a = (max - min)/2 and centre (max + min)/2 of the noise-free reconstruction;
 * the relay's harmonics U_k = (2h / (j pi k)) (1 - e^{-j k w T_high}) (exact for the square wave) and
   the per-harmonic frequency response G_k = Y_k / U_k: the relay excites the odd harmonics, so each
   G_k measures G(j k Omega);
@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..mrft.harmonics import fit_harmonics
 
 __all__ = ["N_HARM", "CycleTable", "cycle_table", "FeatureSummary", "summarize_features", "FEATURE_NAMES", "cycle_scatter"]
 
@@ -162,14 +164,12 @@ def cycle_table(
         if m < 2 * N_HARM + 4:
             continue
         w = 2.0 * np.pi / period[i]
-        ph = np.outer(tt, k * w)
-        X = np.column_stack([np.ones(m), tt - 0.5 * period[i], np.cos(ph), np.sin(ph)])
-        coef, *_ = np.linalg.lstsq(X, yy, rcond=None)
-        r = yy - X @ coef
+        fit = fit_harmonics(tt, yy, period[i], N_HARM, trend="centred", angle="frequency_first")
+        coef, r = fit.coef, fit.residual
         rss[i] = float(r @ r)
         trend[i] = coef[1]
         Y[i, 0] = coef[0]
-        Y[i, 1:] = coef[2 : 2 + N_HARM] - 1j * coef[2 + N_HARM :]
+        Y[i, 1:] = fit.harmonics
         # noise-free periodic part on a fine grid
         tg = grid * period[i]
         yg = coef[0] + np.real(np.exp(1j * np.outer(tg, k * w)) @ Y[i, 1:])

@@ -16,7 +16,7 @@ computed exactly as the recorded one is:
 * the sampled relay (:func:`mrftcli.diagnose.limit_cycles.run_relay`, sampled mode) runs several windows of
   as many cycles as the recorded test had,
 * every window goes through the same cycle filter as the recorded test
-  (:func:`mrftcli.segment.core.stable_cycles` with :data:`SCATTER_CRITERION`),
+  (:func:`mrftcli.segment.stable_cycles` with :data:`SCATTER_CRITERION`),
 * the variance is the dof-weighted mean of the windows' sample variances.
 
 The jitter std sigma [s] is then the value whose predicted variances match the recorded ones, in
@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from .limit_cycles import AugmentedPlant, run_relay
-from ..segment.core import StabilityCriterion, stable_cycles
+from ..segment import StabilityCriterion, stable_cycles
 
 __all__ = ["SCATTER_CRITERION", "ScatterSetting", "scatter_sample", "expected_period_variance",
            "fit_jitter", "JitterFit", "pooled_scatter_error"]

@@ -1,0 +1,145 @@
+"""The per-cycle harmonic fit: one relay cycle's output as a line plus harmonics of the cycle frequency.
+
+An MRFT limit cycle is periodic, so over one period P the output is a constant, a slow drift (a cycle
+that is not exactly periodic: start-up, a sampled relay's jitter) and harmonics k = 1..H of
+Omega = 2 pi / P. A least-squares projection onto those 2 H + 2 functions removes the sensor noise
+(the residual *is* the noise whenever the output is a limit cycle of the relay) and gives the
+complex harmonics Y_k with y ~ c + d * trend(x) + sum_k Re(Y_k exp(j k Omega x)). The output of an
+MRFT loop has a discontinuous third derivative, so its harmonics decay like k^-4: H = 7 or 8 leaves
+a truncation error near 5e-4 of the amplitude.
+
+Used by the segmenter (:mod:`mrftcli.segment.cycles`: extrema, switching levels, the fundamental
+relative to the relay's) and by the diagnosis (:func:`mrftcli.diagnose.features.cycle_table`: the
+per-cycle feature table).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+__all__ = ["Trend", "AngleProduct", "harmonic_basis", "HarmonicFit", "fit_harmonics"]
+
+#: The trend column: ``"per_period"`` is x / P (its coefficient is the drift per period and the
+#: constant is the level at x = 0); ``"centred"`` is x - P / 2 in seconds (its coefficient is the
+#: drift per second and the constant is the level at mid-cycle).
+Trend = Literal["per_period", "centred"]
+
+#: How k Omega x is rounded: ``"harmonic_first"`` computes (x k) Omega, ``"frequency_first"``
+#: x (k Omega). Mathematically the same; the two differ by about one ulp. Both are kept so that the
+#: segmenter's and the diagnosis's results stay bit-identical to the releases before they shared this
+#: fit (issue 10); new callers use the default.
+AngleProduct = Literal["harmonic_first", "frequency_first"]
+
+
+def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period",
+                   angle: AngleProduct = "harmonic_first") -> np.ndarray:
+    """Design matrix ``[1, trend(x), cos(k Omega x) (k = 1..H), sin(k Omega x) (k = 1..H)]``.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Time from the fit's origin [s] (1-D).
+    period : float
+        The cycle period P [s]; Omega = 2 pi / P.
+    n_harmonics : int
+        H, the highest harmonic.
+    trend, angle
+        See :data:`Trend` and :data:`AngleProduct`.
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (x.size, 2 H + 2).
+
+    Examples
+    --------
+    >>> harmonic_basis(np.array([0.0, 0.25]), 1.0, 1).round(12).tolist()
+    [[1.0, 0.0, 1.0, 0.0], [1.0, 0.25, 0.0, 1.0]]
+    """
+    x = np.asarray(x, dtype=float)
+    w = 2.0 * np.pi / period
+    k = np.arange(1, n_harmonics + 1)
+    a = np.outer(x, k) * w if angle == "harmonic_first" else np.outer(x, k * w)
+    col = x / period if trend == "per_period" else x - 0.5 * period
+    return np.column_stack([np.ones(x.size), col, np.cos(a), np.sin(a)])
+
+
+@dataclass(frozen=True, eq=False)
+class HarmonicFit:
+    """A least-squares fit of :func:`harmonic_basis` to one cycle's samples.
+
+    Attributes
+    ----------
+    period : float
+        P [s].
+    n_harmonics : int
+        H.
+    trend, angle : str
+        The basis conventions (:data:`Trend`, :data:`AngleProduct`).
+    coef : numpy.ndarray
+        ``[c, d, a_1..a_H, b_1..b_H]``: constant and trend coefficient [output units, output units
+        per trend unit], cosine and sine coefficients [output units].
+    residual : numpy.ndarray
+        Samples minus the fit [output units], one per sample fitted.
+    """
+
+    period: float
+    n_harmonics: int
+    trend: Trend
+    angle: AngleProduct
+    coef: np.ndarray
+    residual: np.ndarray
+
+    @property
+    def harmonics(self) -> np.ndarray:
+        """Y_k = a_k - j b_k, k = 1..H (so y ~ sum_k Re(Y_k exp(j k Omega x))) [output units]."""
+        H = self.n_harmonics
+        return self.coef[2: 2 + H] - 1j * self.coef[2 + H:]
+
+    def __call__(self, x: np.ndarray | float) -> np.ndarray:
+        """The fitted output at times ``x`` from the origin [s] (periodic part plus trend)."""
+        xq = np.atleast_1d(np.asarray(x, float))
+        return harmonic_basis(xq, self.period, self.n_harmonics, trend=self.trend, angle=self.angle) @ self.coef
+
+
+def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period",
+                  angle: AngleProduct = "harmonic_first") -> HarmonicFit:
+    """Project samples of one cycle onto a line plus harmonics 1..H of 1 / ``period``.
+
+    The caller picks the samples (the cycle, or a period-long window centred where the fit is used)
+    and the origin of ``x``; it should pass at least 2 (2 H + 2) samples.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Sample times from the origin [s].
+    y : numpy.ndarray
+        Output samples [output units].
+    period : float
+        P [s].
+    n_harmonics : int
+        H.
+    trend, angle
+        See :data:`Trend` and :data:`AngleProduct`.
+
+    Returns
+    -------
+    HarmonicFit
+
+    Examples
+    --------
+    >>> P = 0.5
+    >>> x = np.arange(100) * P / 100
+    >>> fit = fit_harmonics(x, 1.0 + 2.0 * np.cos(2 * np.pi * x / P), P, 3)
+    >>> bool(np.allclose(fit.harmonics, [2, 0, 0])), round(float(fit.coef[0]), 9)
+    (True, 1.0)
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    A = harmonic_basis(x, period, n_harmonics, trend=trend, angle=angle)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    return HarmonicFit(period=float(period), n_harmonics=int(n_harmonics), trend=trend, angle=angle, coef=coef,
+                       residual=y - A @ coef)

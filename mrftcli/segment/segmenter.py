@@ -1,0 +1,240 @@
+"""The segmenter's entry points: :func:`segment` (a :class:`~mrftcli.io.logtypes.FlightLog`) and
+:func:`segment_arrays` (numpy arrays), which chain the steps of :mod:`mrftcli.segment`: relay runs and
+switch instants (:mod:`.runs`), cycles (:mod:`.cycles`), the stable limit cycle (:mod:`.stability`)
+and the validity check (:mod:`.validity`), into :class:`~mrftcli.segment.records.MrftTest` records.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import SegmentationError
+from ..io.logtypes import FlightLog
+from .cycles import measure_cycles
+from .records import MrftTest
+from .runs import estimate_rate_hz, find_relay_runs, regularise_times
+from .stability import StabilityCriterion, stable_cycles
+from .validity import ValidityCriterion, check_limit_cycle
+
+__all__ = ["segment", "segment_arrays"]
+
+#: a switch after at most this many missing command samples is interpolated, after more it is a gap
+_MAX_INTERP_SAMPLES = 2
+
+
+def segment_arrays(
+    t_cmd: np.ndarray,
+    command: np.ndarray,
+    t_y: np.ndarray,
+    y: np.ndarray,
+    *,
+    beta_t: np.ndarray | None = None,
+    beta_v: np.ndarray | None = None,
+    t_sp: np.ndarray | None = None,
+    setpoint: np.ndarray | None = None,
+    criterion: StabilityCriterion = StabilityCriterion(),
+    min_runs: int = 6,
+    validity: ValidityCriterion = ValidityCriterion(),
+) -> list[MrftTest]:
+    """Find the MRFT tests in command/output arrays (steps 1-5 of :mod:`mrftcli.segment`).
+
+    Parameters
+    ----------
+    t_cmd, command : numpy.ndarray
+        Command timestamps [s] (increasing) and values [command units].
+    t_y, y : numpy.ndarray
+        Output timestamps [s] (increasing) and values [output units].
+    beta_t, beta_v : numpy.ndarray, optional
+        Beta topic messages (time [s], value).
+    t_sp, setpoint : numpy.ndarray, optional
+        Setpoint series; when given, outputs are measured relative to it.
+    criterion : StabilityCriterion
+    min_runs : int
+        Fewest relay half-periods for a stretch to count as a test.
+    validity : ValidityCriterion
+        Thresholds of the limit-cycle validity check stored in ``MrftTest.validity``.
+
+    Returns
+    -------
+    list of MrftTest
+        Possibly with tests that have no stable cycle; empty when no relay stretch exists.
+    """
+    t_cmd = np.asarray(t_cmd, float)
+    command = np.asarray(command, float)
+    t_y = np.asarray(t_y, float)
+    y = np.asarray(y, float)
+    ok = np.isfinite(t_cmd) & np.isfinite(command)
+    t_cmd, command = t_cmd[ok], command[ok]
+    ok = np.isfinite(t_y) & np.isfinite(y)
+    t_y, y = t_y[ok], y[ok]
+    breaks = None
+    if beta_t is not None and len(beta_t):
+        breaks = np.searchsorted(t_cmd, np.asarray(beta_t, float))
+    chains = find_relay_runs(command, breaks=breaks, min_runs=min_runs)
+    rate_all = estimate_rate_hz(t_cmd)
+
+    tests: list[MrftTest] = []
+    prev_end = -np.inf
+    for chain in chains:
+        i0, i1 = chain[0].start, chain[-1].stop
+        # Regularise the command times locally (a margin of a few samples around the test).
+        j0, j1 = max(i0 - 4, 0), min(i1 + 4, t_cmd.size)
+        t_loc, regularised = regularise_times(t_cmd[j0:j1])
+        tc = np.array(t_cmd, copy=True)
+        tc[j0:j1] = t_loc
+        dt_nom = float(np.median(np.diff(t_cmd[j0:j1])))
+        rate = 1.0 / dt_nom if dt_nom > 0 else rate_all
+
+        levels = np.array([r.level for r in chain])
+        lv_a, lv_b = float(np.median(levels[0::2])), float(np.median(levels[1::2]))
+        hi_is_even = lv_a > lv_b
+        hi, lo = max(lv_a, lv_b), min(lv_a, lv_b)
+        h, bias = (hi - lo) / 2.0, (hi + lo) / 2.0
+
+        # Switches: the first sample of every run after the first one.
+        t_sw = np.array([tc[r.start] for r in chain[1:]])
+        up = np.array([((k + 1) % 2 == 0) == hi_is_even for k in range(len(chain) - 1)])
+        flags_sw: list[set] = []
+        for k, r in enumerate(chain[1:]):
+            f = set()
+            prev = chain[k]
+            if r.start - prev.stop > 1:
+                f.add("glitch")  # several samples between the levels: the switch instant is not clean
+            missing = int(round((tc[r.start] - tc[r.start - 1]) / dt_nom)) - 1 if r.start > 0 else 0
+            if 1 <= missing <= _MAX_INTERP_SAMPLES:
+                # The switch happened at one of the missing sample instants or at the first sample
+                # seen at the new level: take the middle of those (error within +/- (missing+1)/2
+                # samples, unbiased). The output at this switch is not used for beta.
+                t_sw[k] = 0.5 * (tc[r.start - 1] + dt_nom + tc[r.start])
+                f.add("interp")
+            elif missing > _MAX_INTERP_SAMPLES:
+                f.add("gap")
+            if prev.glitch:
+                f.add("glitch")
+            flags_sw.append(f)
+
+        # Output in the test window (the first to the last switch, with a margin)
+        t_a, t_b = t_sw[0], t_sw[-1]
+        t_first, t_last = float(tc[chain[0].start]), float(tc[chain[-1].stop - 1])
+        m0, m1 = np.searchsorted(t_y, [t_a - 1.0, t_b + 1.0])
+        ty, yy = t_y[m0:m1], y[m0:m1]
+        if ty.size > 8:
+            ty, _ = regularise_times(ty)
+        sp_val = None
+        if t_sp is not None and setpoint is not None and len(t_sp):
+            sp_in = np.asarray(setpoint, float)[(np.asarray(t_sp) >= t_a) & (np.asarray(t_sp) <= t_b)]
+            if sp_in.size:
+                sp_val = float(np.median(sp_in))
+                yy = yy - np.interp(ty, np.asarray(t_sp, float), np.asarray(setpoint, float))
+        # Loop sign: with a positive loop gain the output is lower on average while the relay is +h
+        # (the output lags the relay by more than 90 degrees for every beta in (-1, 1)).
+        cmd_at_y = np.interp(ty, tc, command)
+        hi_mask = cmd_at_y > bias
+        sign = 1
+        if hi_mask.any() and (~hi_mask).any() and yy[hi_mask].mean() > yy[~hi_mask].mean():
+            sign = -1
+        cycles = measure_cycles(t_sw, up, flags_sw, ty, sign * yy, 1.0 / rate, h)
+        notes: list[str] = []
+        if sign < 0:
+            notes.append("the output falls under +h (negative loop gain); amplitudes are magnitudes")
+        P = np.array([c.period for c in cycles])
+        A = np.array([c.amplitude for c in cycles])
+        reg = np.array([c.regular for c in cycles], bool)
+        stable, consistent, info = stable_cycles(P, A, reg, 1.0 / rate, criterion)
+        final = []
+        for k, c in enumerate(cycles):
+            fl = set(c.flags)
+            if not consistent[k] and c.regular:
+                fl.add("outlier")
+            if consistent[k] and not stable[k]:
+                fl.add("transient")
+            final.append(replace(c, flags=tuple(sorted(fl)), stable=bool(stable[k])))
+        be = np.array([c.beta_effective for c in final if c.stable])
+        be = be[np.isfinite(be)]
+        beta_nom = None
+        if beta_t is not None and len(beta_t):
+            bt = np.asarray(beta_t, float)
+            sel = np.flatnonzero((bt > prev_end) & (bt <= t_b))
+            if sel.size:
+                beta_nom = float(np.asarray(beta_v, float)[sel[-1]])
+        n_interp = sum("interp" in c.flags for c in final)
+        if n_interp:
+            notes.append(f"{n_interp} cycle(s) with a switch after 1-2 missing command samples (instant interpolated)")
+        n_gap = sum("gap" in c.flags for c in final)
+        n_glitch = sum("glitch" in c.flags for c in final)
+        if n_gap:
+            notes.append(f"{n_gap} cycle(s) dropped: command messages missing at a switch")
+        if n_glitch:
+            notes.append(f"{n_glitch} cycle(s) dropped: false switch / glitch in the command")
+        tests.append(
+            MrftTest(
+                index=len(tests), t_start=t_first, t_end=t_last, h=float(h), bias=float(bias),
+                beta_nominal=beta_nom,
+                beta_effective=float(be.mean()) if be.size else float("nan"),
+                beta_effective_std=float(be.std(ddof=1)) if be.size > 1 else float("nan"),
+                rate_hz=float(rate), cycles=tuple(final), criterion=criterion,
+                period_median=info["period_median"], period_tolerance=info["period_tolerance"],
+                amplitude_median=info["amplitude_median"], amplitude_tolerance=info["amplitude_tolerance"],
+                loop_sign=sign, setpoint=sp_val, timestamps_regularised=regularised,
+                n_switches=len(t_sw), notes=tuple(notes),
+                validity=check_limit_cycle(final, float(be.mean()) if be.size else float("nan"), beta_nom,
+                                           validity),
+            )
+        )
+        prev_end = t_b
+    return tests
+
+
+def segment(
+    flight: FlightLog,
+    *,
+    criterion: StabilityCriterion = StabilityCriterion(),
+    min_runs: int = 6,
+    validity: ValidityCriterion = ValidityCriterion(),
+) -> list[MrftTest]:
+    """Find the MRFT tests in a flight log and measure their cycles.
+
+    Parameters
+    ----------
+    flight : FlightLog
+        Command, output and optional beta/setpoint signals (times in seconds).
+    criterion : StabilityCriterion
+        Stable-limit-cycle settings.
+    min_runs : int
+        Fewest relay half-periods for a stretch of switching to count as a test.
+    validity : ValidityCriterion
+        Thresholds of the limit-cycle validity check (``MrftTest.validity``).
+
+    Returns
+    -------
+    list of MrftTest
+        All tests found, in time order (some may have no stable cycle).
+
+    Raises
+    ------
+    SegmentationError
+        When the command never switches between two levels (no relay test at all).
+    """
+    t_c, c = flight.command.t, flight.command.values
+    t_y, y = flight.output.t, flight.output.values
+    if t_c.size < 10 or t_y.size < 10:
+        raise SegmentationError(
+            f"{flight.path}: too few samples (command {t_c.size}, output {t_y.size}) to look for MRFT tests"
+        )
+    kw = {}
+    if flight.beta is not None and len(flight.beta):
+        kw["beta_t"], kw["beta_v"] = flight.beta.t, flight.beta.values
+    if flight.setpoint is not None and len(flight.setpoint):
+        kw["t_sp"], kw["setpoint"] = flight.setpoint.t, flight.setpoint.values
+    tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity, **kw)
+    if not tests:
+        span = f"{t_c[-1] - t_c[0]:.1f} s long"
+        raise SegmentationError(
+            f"{flight.path}: no MRFT relay test in the command ({t_c.size} samples, {span}): it never "
+            f"switches back and forth between two levels for {min_runs} or more half-periods; check "
+            "--command-topic"
+        )
+    return tests
+

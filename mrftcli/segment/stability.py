@@ -1,0 +1,109 @@
+"""The stable limit cycle of one test (step 4 of :mod:`mrftcli.segment`).
+
+Reference values are the medians of period and amplitude over the second half of the test's regular
+cycles (the limit cycle is established by then). A cycle is *consistent* when its period is within
+``max(k * sigma_P, 3 dt, 6 % P)`` (capped at 15 % of P) of the median and its amplitude within
+``max(k * sigma_a, 12 % a)`` (capped at 25 %), where sigma is 1.4826 MAD and k =
+:attr:`StabilityCriterion.mad_k`. The stable cycles are the consistent, regular ones after the first
+cycle of the first run of ``min_consecutive`` consecutive consistent cycles; the cycles before (and
+that first one, which may still be converging) are the start-up transient.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .runs import robust_sigma
+
+__all__ = ["StabilityCriterion", "stable_cycles"]
+
+
+@dataclass(frozen=True)
+class StabilityCriterion:
+    """Settings of the stable-limit-cycle criterion (:func:`stable_cycles`).
+
+    Attributes
+    ----------
+    mad_k : float
+        Tolerance in robust standard deviations (1.4826 MAD) about the median period/amplitude.
+    period_floor_samples : float
+        Lowest period tolerance in controller samples (a sampled relay's half-periods are quantised).
+    period_floor_rel, period_cap_rel : float
+        Lowest / highest period tolerance relative to the median period.
+    amplitude_floor_rel, amplitude_cap_rel : float
+        Lowest / highest amplitude tolerance relative to the median amplitude.
+    min_consecutive : int
+        Consecutive consistent cycles that mark the end of the start-up transient.
+    """
+
+    mad_k: float = 4.0
+    period_floor_samples: float = 3.0
+    period_floor_rel: float = 0.06
+    period_cap_rel: float = 0.15
+    amplitude_floor_rel: float = 0.12
+    amplitude_cap_rel: float = 0.25
+    min_consecutive: int = 3
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def stable_cycles(
+    period: np.ndarray,
+    amplitude: np.ndarray,
+    regular: np.ndarray,
+    dt: float,
+    criterion: StabilityCriterion = StabilityCriterion(),
+) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Apply the stable-limit-cycle criterion (module docstring).
+
+    Parameters
+    ----------
+    period, amplitude : numpy.ndarray
+        Per-cycle period [s] and amplitude [output units].
+    regular : numpy.ndarray of bool
+        Cycles without gaps/glitches/failed fits; only these can be stable.
+    dt : float
+        Controller sample period [s].
+    criterion : StabilityCriterion
+
+    Returns
+    -------
+    (stable, consistent, info)
+        Boolean masks and the medians/tolerances used.
+    """
+    P = np.asarray(period, float)
+    a = np.asarray(amplitude, float)
+    reg = np.asarray(regular, bool) & np.isfinite(P) & np.isfinite(a)
+    n = P.size
+    info = {"period_median": float("nan"), "period_tolerance": float("nan"),
+            "amplitude_median": float("nan"), "amplitude_tolerance": float("nan")}
+    if reg.sum() == 0:
+        return np.zeros(n, bool), np.zeros(n, bool), info
+    idx = np.flatnonzero(reg)
+    ref = idx[idx.size // 2:] if idx.size >= 4 else idx  # second half: past the transient
+    Pm, am = float(np.median(P[ref])), float(np.median(a[ref]))
+    sP, sa = robust_sigma(P[ref]), robust_sigma(a[ref])
+    c = criterion
+    tolP = min(max(c.mad_k * sP, c.period_floor_samples * dt, c.period_floor_rel * Pm), c.period_cap_rel * Pm)
+    tola = min(max(c.mad_k * sa, c.amplitude_floor_rel * am), c.amplitude_cap_rel * am)
+    consistent = reg & (np.abs(P - Pm) <= tolP) & (np.abs(a - am) <= tola)
+    # The first run of min_consecutive consecutive consistent cycles ends the transient. Its first
+    # cycle still carries some of the start-up (a converging cycle can sit inside the tolerances
+    # while its switching level and period do not yet match), so it counts as transient too.
+    stable = np.zeros(n, bool)
+    m = c.min_consecutive
+    run = 0
+    start = None
+    reg_idx = np.flatnonzero(reg)  # irregular cycles (gaps, glitches) neither count nor break a run
+    for j, i in enumerate(reg_idx):
+        run = run + 1 if consistent[i] else 0
+        if run >= m:
+            start = int(reg_idx[j - m + 2])
+            break
+    if start is not None:
+        stable[start:] = consistent[start:]
+    info.update(period_median=Pm, period_tolerance=tolP, amplitude_median=am, amplitude_tolerance=tola)
+    return stable, consistent, info

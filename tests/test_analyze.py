@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from mrftcli.analyze import AnalysisResult, analyze_flight
-from mrftcli.cli.options import to_jsonable
+from mrftcli.jsonable import to_jsonable
 from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from mrftcli.io.logtypes import Signal
 from test_segment_support import flight_from_simulated, simulate_paper_flight, simulate_relay_flight, to_flight

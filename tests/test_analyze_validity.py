@@ -230,7 +230,7 @@ def test_wrong_loop_on_a_roll_log_exits_4_with_one_line():
 
 def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
     """Three tests, the output of the middle one replaced by noise: two remain and identify the plant."""
-    from mrftcli.cli.options import to_jsonable
+    from mrftcli.jsonable import to_jsonable
     from mrftcli.cli.analyze import format_table
 
     sf = simulate_paper_flight(ROLL["Tp"], ROLL["Td"], ROLL["tau"], ROLL["K"], (-0.3, -0.5, -0.8), loop="roll",

@@ -138,7 +138,7 @@ def test_to_dict_is_json_ready():
     tests = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.002 * rng.standard_normal(10)), t.amplitude_mean, 1.0)
              for t in _tests(PAPER, (-0.4, -0.7))]
     d = identify(tests, PAPER.Tp, n_draws=300).to_dict()
-    text = json.dumps(__import__("mrftcli.cli.options", fromlist=["to_jsonable"]).to_jsonable(d))
+    text = json.dumps(__import__("mrftcli.jsonable", fromlist=["to_jsonable"]).to_jsonable(d))
     back = json.loads(text)
     for name in ("Td", "tau", "K"):
         assert {"mean", "std", "ci95_low", "ci95_high", "unit"} <= set(back["parameters"][name])

@@ -16,7 +16,7 @@ from ..jsonable import to_jsonable
 from ..progress import Progress
 from ..validate import check_beta, check_time
 
-__all__ = ["to_jsonable", "dump_json", "BETA", "tp_option", "log_layout_options", "tqdm_progress"]
+__all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "tqdm_progress"]
 
 
 def dump_json(obj: Any, target: str | None) -> None:

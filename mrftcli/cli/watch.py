@@ -7,7 +7,8 @@ import math
 
 import click
 
-from .options import log_layout_options, to_jsonable, tp_option
+from ..jsonable import to_jsonable
+from .options import log_layout_options, tp_option
 
 
 def _line(update, t0: float) -> str:

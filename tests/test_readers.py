@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from mrftcli.errors import InputError, LogReadError
 from mrftcli.io.logtypes import TopicData
 from mrftcli.io import (FORMATS, log_filename, open_log, read_flight, roll_pitch, write_log)
-from mrftcli.io import cdr as _cdr
+from mrftcli.io import cdr
 from mrftcli.io.msgtypes import typestore_for
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -216,7 +216,7 @@ def test_cdr_walk_matches_library_decoders():
         ts = typestore_for(ros1=ros1)
         raw, expect = [], []
         for i in range(40):
-            msg = _cdr._default(ts, "sensor_msgs/msg/BatteryState", "f" * int(rng.integers(0, 11)))
+            msg = cdr.default_message(ts, "sensor_msgs/msg/BatteryState", "f" * int(rng.integers(0, 11)))
             msg.voltage = float(rng.normal())
             msg.cell_voltage = rng.normal(size=int(rng.integers(0, 5))).astype(np.float32)
             msg.location = "x" * int(rng.integers(0, 7))
@@ -229,7 +229,7 @@ def test_cdr_walk_matches_library_decoders():
             expect.append([np.float32(msg.voltage), i, cells[1]])
         lengths = np.array([len(r) for r in raw])
         starts = np.r_[0, np.cumsum(lengths)[:-1]]
-        got = _cdr.extract(ts, "sensor_msgs/msg/BatteryState", np.frombuffer(b"".join(raw), np.uint8),
+        got = cdr.extract(ts, "sensor_msgs/msg/BatteryState", np.frombuffer(b"".join(raw), np.uint8),
                            starts, lengths, ["voltage", "header.stamp.sec", "cell_voltage[1]"], ros1=ros1)
         np.testing.assert_array_equal(np.c_[got["voltage"], got["header.stamp.sec"], got["cell_voltage[1]"]],
                                       np.array(expect, dtype=np.float64))
@@ -240,7 +240,7 @@ def test_cdr_walk_matches_library_decoders():
     text = ts.generate_msgdef("geometry_msgs/msg/PoseStamped", ros_version=2)[0]
     decode = generate_dynamic("geometry_msgs/msg/PoseStamped", text)["geometry_msgs/msg/PoseStamped"]
     for frame in ("", "a", "abc", "abcdefg"):
-        for k, data in enumerate(_cdr.serialize_many(ts, "geometry_msgs/msg/PoseStamped", t,
+        for k, data in enumerate(cdr.serialize_many(ts, "geometry_msgs/msg/PoseStamped", t,
                                                      {"pose.position.z": z}, frame_id=frame)):
             msg = decode(data)
             assert msg.pose.position.z == z[k] and msg.pose.orientation.w == 1.0

@@ -23,13 +23,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 
 from ..errors import LogReadError
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
-__all__ = ["extract", "leaf_paths", "serialize_many", "CdrLayoutError", "struct_fields"]
+__all__ = ["extract", "leaf_paths", "serialize_many", "default_message", "CdrLayoutError", "struct_fields"]
 
 _SIZE = {
     "bool": 1, "byte": 1, "char": 1, "int8": 1, "uint8": 1,
@@ -41,8 +42,6 @@ _DTYPE = {
     "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4", "float32": "f4",
     "int64": "i8", "uint64": "u8", "float64": "f8",
 }
-# rosbags Nodetype values (rosbags.interfaces.Nodetype): BASE=1, NAME=2, ARRAY=3, SEQUENCE=4.
-_BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4
 
 
 class CdrLayoutError(LogReadError):
@@ -100,14 +99,14 @@ class _Walk:
 
     def field(self, path: str, desc: tuple, rel: np.ndarray) -> np.ndarray:
         kind, detail = desc
-        if kind == _NAME:
+        if kind == Nodetype.NAME:
             if self.ros1 and not any(t.startswith(path + ".") for t in self.targets):
                 # ROS 1 has no alignment: a struct without strings/sequences is a constant skip
                 size = self._fixed_size(desc)
                 if size is not None:
                     return rel + size
             return self.struct(detail, path + ".", rel)
-        if kind == _BASE:
+        if kind == Nodetype.BASE:
             typ = detail[0]
             if typ == "string":
                 return self._string(rel)
@@ -117,10 +116,10 @@ class _Walk:
             if path in self.targets:
                 self._record(path, rel, typ)
             return rel + _SIZE[typ]
-        if kind == _ARRAY:
+        if kind == Nodetype.ARRAY:
             sub, length = detail
             return self._elements(path, sub, rel, np.full(len(rel), length, dtype=np.int64))
-        if kind == _SEQUENCE:
+        if kind == Nodetype.SEQUENCE:
             sub = detail[0]
             rel = self._align(rel, 4)
             count = self._gather(rel, "uint32").astype(np.int64)
@@ -134,9 +133,9 @@ class _Walk:
 
     def _elements(self, path: str, sub: tuple, rel: np.ndarray, count: np.ndarray) -> np.ndarray:
         kind, detail = sub
-        if kind == _BASE and detail[0] == "wstring":
+        if kind == Nodetype.BASE and detail[0] == "wstring":
             raise _Unsupported("wstring")
-        if kind == _BASE and detail[0] != "string":
+        if kind == Nodetype.BASE and detail[0] != "string":
             typ = detail[0]
             size = _SIZE[typ]
             if not self.ros1 and size > 1:
@@ -154,7 +153,7 @@ class _Walk:
             active = count > k
             self.active = active if outer is None else (outer & active)
             elem_path = f"{path}[{k}]"
-            if kind == _NAME:
+            if kind == Nodetype.NAME:
                 new = self.struct(detail, elem_path + ".", rel)
             else:
                 new = self._string(rel)
@@ -165,12 +164,12 @@ class _Walk:
     def _fixed_size(self, desc: tuple) -> int | None:
         """Byte size of a type in ROS 1 (no alignment) if it holds no strings/sequences, else None."""
         kind, detail = desc
-        if kind == _BASE:
+        if kind == Nodetype.BASE:
             return _SIZE.get(detail[0])
-        if kind == _ARRAY:
+        if kind == Nodetype.ARRAY:
             inner = self._fixed_size(detail[0])
             return None if inner is None else inner * detail[1]
-        if kind == _NAME:
+        if kind == Nodetype.NAME:
             total = 0
             for _, sub in self.ts.fielddefs[detail][1]:
                 size = self._fixed_size(sub)
@@ -273,19 +272,19 @@ def _extract_generic(typestore, msgtype, buf, starts, lengths, paths, ros1) -> d
 
 def struct_fields(typestore: Typestore, msgtype: str, path: str) -> tuple[str, tuple] | None:
     """The field description at ``path`` inside ``msgtype`` (``(kind, detail)``), None if absent."""
-    desc: tuple = (_NAME, msgtype)
+    desc: tuple = (Nodetype.NAME, msgtype)
     for part in path.split(".") if path else []:
         index = None
         if part.endswith("]") and "[" in part:
             part, index = part[:-1].split("[", 1)
-        if desc[0] != _NAME:
+        if desc[0] != Nodetype.NAME:
             return None
         fields = dict(typestore.fielddefs[desc[1]][1])
         if part not in fields:
             return None
         desc = fields[part]
         if index is not None:
-            if desc[0] not in (_ARRAY, _SEQUENCE) or not index.isdigit():
+            if desc[0] not in (Nodetype.ARRAY, Nodetype.SEQUENCE) or not index.isdigit():
                 return None
             desc = desc[1][0]
     return desc
@@ -303,14 +302,14 @@ def leaf_paths(typestore: Typestore, msgtype: str, path: str) -> list[str]:
         parent, _, _ = path.rpartition(".")
         pdesc = struct_fields(typestore, msgtype, parent)
         names = []
-        if pdesc is not None and pdesc[0] == _NAME:
+        if pdesc is not None and pdesc[0] == Nodetype.NAME:
             names = [n for n, _ in typestore.fielddefs[pdesc[1]][1]]
         hint = f"; fields there: {', '.join(names)}" if names else ""
         raise CdrLayoutError(f"{msgtype} has no field {path!r}{hint}")
     kind, detail = desc
-    if kind == _BASE and detail[0] in _SIZE:
+    if kind == Nodetype.BASE and detail[0] in _SIZE:
         return [path]
-    if kind == _NAME:
+    if kind == Nodetype.NAME:
         names = [n for n, _ in typestore.fielddefs[detail][1]]
         if sorted(names) == ["w", "x", "y", "z"]:
             return [f"{path}.{c}" for c in "xyzw"]
@@ -321,15 +320,17 @@ def leaf_paths(typestore: Typestore, msgtype: str, path: str) -> list[str]:
 
 
 # -- writing ----------------------------------------------------------------------------------------
-def _default(typestore: Typestore, msgtype: str, frame_id: str) -> object:
+def default_message(typestore: Typestore, msgtype: str, frame_id: str) -> object:
+    """A ``msgtype`` message (rosbags class) with every field zero or empty, quaternion ``w`` one and
+    every ``frame_id`` set to ``frame_id``: the template the writers fill in."""
     cls = typestore.types[msgtype]
     kwargs = {}
     names = [n for n, _ in typestore.fielddefs[msgtype][1]]
     quaternion = sorted(names) == ["w", "x", "y", "z"]
     for name, (kind, detail) in typestore.fielddefs[msgtype][1]:
-        if kind == _NAME:
-            kwargs[name] = _default(typestore, detail, frame_id)
-        elif kind == _BASE:
+        if kind == Nodetype.NAME:
+            kwargs[name] = default_message(typestore, detail, frame_id)
+        elif kind == Nodetype.BASE:
             typ = detail[0]
             if typ in ("string", "wstring"):
                 kwargs[name] = frame_id if name == "frame_id" else ""
@@ -339,17 +340,17 @@ def _default(typestore: Typestore, msgtype: str, frame_id: str) -> object:
                 kwargs[name] = 1.0 if (quaternion and name == "w") else 0.0
             else:
                 kwargs[name] = 0
-        elif kind == _ARRAY:
+        elif kind == Nodetype.ARRAY:
             sub, length = detail
-            if sub[0] == _BASE and sub[1][0] in _DTYPE:
+            if sub[0] == Nodetype.BASE and sub[1][0] in _DTYPE:
                 kwargs[name] = np.zeros(length, dtype=_DTYPE[sub[1][0]])
-            elif sub[0] == _BASE:
+            elif sub[0] == Nodetype.BASE:
                 kwargs[name] = [""] * length
             else:
-                kwargs[name] = [_default(typestore, sub[1], frame_id) for _ in range(length)]
+                kwargs[name] = [default_message(typestore, sub[1], frame_id) for _ in range(length)]
         else:
             sub = detail[0]
-            if sub[0] == _BASE and sub[1][0] in _DTYPE:
+            if sub[0] == Nodetype.BASE and sub[1][0] in _DTYPE:
                 kwargs[name] = np.zeros(0, dtype=_DTYPE[sub[1][0]])
             else:
                 kwargs[name] = []
@@ -363,7 +364,7 @@ def serialize_many(typestore: Typestore, msgtype: str, t: np.ndarray, fields: di
     ``header.stamp`` (if the type has a header) is set from ``t`` [s]; unspecified fields are zero
     (quaternion ``w`` one). Returns one ``bytes`` per message, ready for a bag/MCAP writer.
     """
-    template_msg = _default(typestore, msgtype, frame_id)
+    template_msg = default_message(typestore, msgtype, frame_id)
     template = np.frombuffer(
         bytes(typestore.serialize_ros1(template_msg, msgtype) if ros1
               else typestore.serialize_cdr(template_msg, msgtype)), dtype=np.uint8)

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
-from . import cdr as _cdr
+from . import cdr
 from .source import LogSource, rate_of
 from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
 
@@ -293,7 +293,7 @@ class McapSource(LogSource):
         if ch.encoding == "json":
             return self._json_leaves(ch, path)
         try:
-            return _cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
+            return cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
 
@@ -326,7 +326,7 @@ class McapSource(LogSource):
         if ch.encoding not in ("cdr", "ros1"):
             raise LogReadError(f"{self.path}: {topic}: unsupported message encoding {ch.encoding!r}")
         try:
-            vals = _cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, fields,
+            vals = cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, fields,
                                 ros1=ch.encoding == "ros1")
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
@@ -563,7 +563,7 @@ def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr")
     for td in topics:
         t = np.asarray(td.t, dtype=np.float64)
         if encoding == "cdr":
-            datas = _cdr.serialize_many(ts, td.msgtype, t, td.fields)
+            datas = cdr.serialize_many(ts, td.msgtype, t, td.fields)
         else:
             datas = json_messages(ts, td.msgtype, t, td.fields)
         per_topic.append((td, np.round(t * 1e9).astype(np.int64), datas))

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
-from . import cdr as _cdr
+from . import cdr
 from .source import LogSource, rate_of, one_line
 from .msgtypes import numeric_leaves, typestore_for, typestore_from_text
 
@@ -108,7 +108,7 @@ class RosbagSource(LogSource):
     def leaves(self, topic: str, field: str | None) -> list[str]:
         conn = self._conn(topic)
         try:
-            return _cdr.leaf_paths(self._typestore(conn), conn.msgtype,
+            return cdr.leaf_paths(self._typestore(conn), conn.msgtype,
                                    field if field is not None else self.default_field)
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
@@ -140,7 +140,7 @@ class RosbagSource(LogSource):
         starts = (np.cumsum(lengths) - lengths).astype(np.int64)
         buf = np.frombuffer(b"".join(bytes(d) for d in datas), dtype=np.uint8)
         try:
-            vals = _cdr.extract(self._typestore(conn), conn.msgtype, buf, starts, lengths, fields,
+            vals = cdr.extract(self._typestore(conn), conn.msgtype, buf, starts, lengths, fields,
                                 ros1=self._ros1)
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
@@ -155,7 +155,7 @@ def write_rosbag(topics: list[TopicData], path: str | Path, fmt: str) -> None:
     for td in topics:
         t = np.asarray(td.t, dtype=np.float64)
         per_topic.append((td, np.round(t * 1e9).astype(np.int64),
-                          _cdr.serialize_many(ts, td.msgtype, t, td.fields, ros1=ros1)))
+                          cdr.serialize_many(ts, td.msgtype, t, td.fields, ros1=ros1)))
     # compressed as recorders commonly do (4-5x smaller for these small messages, reads as fast):
     # ROS 1 LZ4 chunks (`rosbag record --lz4`); ROS 2 mcap storage zstd chunks; ROS 2 sqlite3 a
     # zstd-compressed database file (per-message compression gains little on 100-byte messages)

@@ -6,13 +6,13 @@ import json
 from functools import lru_cache
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 
-from . import cdr as _cdr
+from . import cdr
 
 __all__ = ["typestore_for", "typestore_from_text", "numeric_leaves", "json_schema", "json_messages",
            "ros1_name"]
 
-_NAME, _BASE, _ARRAY, _SEQUENCE = 2, 1, 3, 4
 _INTS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "byte", "char"}
 
 
@@ -56,23 +56,23 @@ def numeric_leaves(ts, msgtype: str, prefix: str = "") -> list[str]:
     out = []
     for name, (kind, detail) in ts.fielddefs[msgtype][1]:
         path = prefix + name
-        if kind == _NAME:
+        if kind == Nodetype.NAME:
             out.extend(numeric_leaves(ts, detail, path + "."))
-        elif kind == _BASE and detail[0] not in ("string", "wstring"):
+        elif kind == Nodetype.BASE and detail[0] not in ("string", "wstring"):
             out.append(path)
-        elif kind == _ARRAY and detail[0][0] == _BASE and detail[0][1][0] not in ("string", "wstring"):
+        elif kind == Nodetype.ARRAY and detail[0][0] == Nodetype.BASE and detail[0][1][0] not in ("string", "wstring"):
             out.append(f"{path}[{detail[1]}]")
-        elif kind == _SEQUENCE and detail[0][0] == _BASE and detail[0][1][0] not in ("string", "wstring"):
+        elif kind == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE and detail[0][1][0] not in ("string", "wstring"):
             out.append(f"{path}[]")
     return out
 
 
 def _schema_of(ts, desc) -> dict:
     kind, detail = desc
-    if kind == _NAME:
+    if kind == Nodetype.NAME:
         return {"type": "object",
                 "properties": {n: _schema_of(ts, d) for n, d in ts.fielddefs[detail][1]}}
-    if kind == _BASE:
+    if kind == Nodetype.BASE:
         typ = detail[0]
         if typ in ("string", "wstring"):
             return {"type": "string"}
@@ -84,7 +84,7 @@ def _schema_of(ts, desc) -> dict:
 
 def json_schema(ts, msgtype: str) -> dict:
     """A JSON Schema (draft 2020-12 subset) of a ROS message type, as MCAP ``jsonschema`` expects."""
-    schema = _schema_of(ts, (_NAME, msgtype))
+    schema = _schema_of(ts, (Nodetype.NAME, msgtype))
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = msgtype
     return schema
@@ -107,16 +107,16 @@ def json_messages(ts, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray]
     The message is rendered once with placeholders and the numbers are spliced in per message, which
     is far quicker than building and dumping one dict per message.
     """
-    template = _to_plain(_cdr._default(ts, msgtype, frame_id))
+    template = _to_plain(cdr.default_message(ts, msgtype, frame_id))
     values = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
     ints = {}
-    if _cdr.struct_fields(ts, msgtype, "header.stamp.sec") is not None:
+    if cdr.struct_fields(ts, msgtype, "header.stamp.sec") is not None:
         ns = np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
         ints["header.stamp.sec"] = ns // 1_000_000_000
         ints["header.stamp.nanosec"] = ns % 1_000_000_000
     order = list(values) + list(ints)
     for k, path in enumerate(order):
-        if _cdr.leaf_paths(ts, msgtype, path) != [path]:
+        if cdr.leaf_paths(ts, msgtype, path) != [path]:
             raise ValueError(f"cannot write {path!r} of {msgtype}: not a numeric leaf")
         node = template
         keys = path.split(".")

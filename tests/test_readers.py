@@ -375,3 +375,12 @@ def test_mcap_without_message_index_records(tmp_path, index):
         assert np.array_equal(x.values, y.values)
     counts = {t.name: t.count for t in open_log(out).topics()}
     assert counts == {t.name: t.count for t in open_log(src).topics()}
+
+
+def test_signal_holds_float_arrays_of_one_length():
+    from mrftcli.io import Signal
+
+    s = Signal([0, 1, 2], np.array([1, 2, 3], dtype=np.int32))
+    assert s.t.dtype == s.values.dtype == np.float64 and len(s) == 3
+    with pytest.raises(InputError, match="one length"):
+        Signal([0.0, 1.0], [1.0])

@@ -241,3 +241,53 @@ def test_fundamental_harmonic_is_the_plant_frequency_response(noise, tol_phase, 
         assert np.all((ph <= 0) & (ph > -2 * np.pi))
         assert abs(np.mean(ph - ph_true)) < tol_phase
         assert abs(np.mean(gain / np.abs(g) - 1)) < tol_gain
+
+
+# ----------------------------------------------------------------------------------------------- the shared harmonic fit
+
+
+def test_harmonic_fit_recovers_a_known_cycle_in_both_trend_conventions():
+    """A line plus harmonics 1, 3 and 5 is recovered exactly; the two trend columns describe one model."""
+    from mrftcli.mrft.harmonics import fit_harmonics
+
+    rng = np.random.default_rng(11)
+    P = rng.uniform(0.2, 2.0)
+    x = np.sort(rng.uniform(0.0, P, 300))
+    Y = {1: 0.8 - 0.3j, 3: 0.05 + 0.02j, 5: -0.01j}
+    c0, slope = 1.7, 0.4  # level at x = 0 [units], drift [units/s]
+    y = c0 + slope * x + sum(np.real(v * np.exp(1j * k * 2 * np.pi * x / P)) for k, v in Y.items())
+    expect = np.array([Y.get(k, 0.0) for k in range(1, 8)])
+    per = fit_harmonics(x, y, P, 7)
+    cen = fit_harmonics(x, y, P, 7, trend="centred", angle="frequency_first")
+    for fit in (per, cen):
+        np.testing.assert_allclose(fit.harmonics, expect, atol=1e-10)
+        assert np.max(np.abs(fit.residual)) < 1e-10
+        np.testing.assert_allclose(fit(np.array([0.1, 0.2]) * P), np.interp([0.1 * P, 0.2 * P], x, y), atol=1e-3)
+    assert per.coef[0] == pytest.approx(c0) and per.coef[1] == pytest.approx(slope * P)
+    assert cen.coef[0] == pytest.approx(c0 + slope * P / 2) and cen.coef[1] == pytest.approx(slope)
+
+
+def test_harmonic_fit_is_bit_identical_to_the_projections_it_replaced():
+    """The segmenter's and the diagnosis's former inline fits (copied here) give the very same bits."""
+    from mrftcli.mrft.harmonics import fit_harmonics
+
+    rng = np.random.default_rng(12)
+    P = 0.73
+    tt = np.sort(rng.uniform(0.0, P, 150))
+    yy = np.sin(2 * np.pi * tt / P) + 0.1 * tt + rng.normal(0, 0.01, tt.size)
+    # segment (8 harmonics, trend x / P, angle (x k) w)
+    H, w, k = 8, 2.0 * np.pi / P, np.arange(1, 9)
+    arg = np.outer(tt, k) * w
+    A = np.hstack([np.ones((tt.size, 1)), (tt / P)[:, None], np.cos(arg), np.sin(arg)])
+    coef, *_ = np.linalg.lstsq(A, yy, rcond=None)
+    fit = fit_harmonics(tt, yy, P, H)
+    assert np.array_equal(fit.coef, coef) and np.array_equal(fit.residual, yy - A @ coef)
+    assert complex(fit.harmonics[0]) == complex(coef[2], -coef[2 + H])
+    # diagnose features (7 harmonics, trend x - P/2, angle x (k w))
+    H, k = 7, np.arange(1, 8)
+    ph = np.outer(tt, k * w)
+    X = np.column_stack([np.ones(tt.size), tt - 0.5 * P, np.cos(ph), np.sin(ph)])
+    coef, *_ = np.linalg.lstsq(X, yy, rcond=None)
+    fit = fit_harmonics(tt, yy, P, H, trend="centred", angle="frequency_first")
+    assert np.array_equal(fit.coef, coef) and np.array_equal(fit.residual, yy - X @ coef)
+    assert np.array_equal(fit.harmonics, coef[2: 2 + H] - 1j * coef[2 + H:])

@@ -19,17 +19,19 @@ from ..errors import InputError, LogReadError
 from .logtypes import LOOPS, FlightLog, Signal, TopicData, TopicInfo
 from .source import LogSource, TopicSpec, parse_spec
 from .attitude import roll_pitch
+from .layouts import LAYOUT_NAMES, LAYOUTS, Layout, LayoutMatch, detect_layout, get_layout
 
 __all__ = [
     "open_log", "read_flight", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal",
+    "LAYOUTS", "LAYOUT_NAMES", "Layout", "LayoutMatch", "detect_layout", "get_layout", "log_layout",
 ]
 
 #: formats :func:`write_log` writes (and :func:`open_log` reads)
 FORMATS = ("mcap", "mcap-json", "bag", "ros2-sqlite3", "ros2-mcap", "ulog", "csv")
 #: formats :func:`open_log` reads
-READ_FORMATS = FORMATS + ("dataflash",)
+READ_FORMATS = FORMATS + ("dataflash", "mat")
 #: fmt -> what :func:`log_filename` appends to a stem (a trailing ``/`` marks a directory)
 FORMAT_SUFFIX = {
     "mcap": ".mcap",
@@ -47,6 +49,8 @@ DEFAULT_TOPICS = {
     "beta": "/mrft/beta:data",
     "setpoint": "/mrft/setpoint:data",
     "output.altitude": "/mocap/pose:pose.position.z",
+    "output.x": "/mocap/pose:pose.position.x",
+    "output.y": "/mocap/pose:pose.position.y",
     "output.roll": "/imu/data:orientation",
     "output.pitch": "/imu/data:orientation",
     "battery": "/battery:voltage",
@@ -58,6 +62,8 @@ _MAGIC = {
     b"ULog\x01\x12\x35": "ulog",
     b"SQLite format 3\x00": "ros2-sqlite3",
     b"\xa3\x95": "dataflash",
+    b"MATLAB 5.0 MAT-file": "mat",
+    b"MATLAB 7.3 MAT-file": "mat",
 }
 
 
@@ -81,7 +87,7 @@ def detect_format(path: str | Path) -> str:
         return "ros2-mcap" if "storage_identifier: mcap" in text else "ros2-sqlite3"
     try:
         with open(path, "rb") as handle:
-            head = handle.read(16)
+            head = handle.read(24)
     except OSError as err:
         raise LogReadError(f"{path}: cannot read ({err.strerror})") from None
     if not head:
@@ -90,13 +96,16 @@ def detect_format(path: str | Path) -> str:
         if head.startswith(magic):
             return fmt
     suffix = path.suffix.lower()
+    if suffix == ".mat":
+        return "mat"
     if suffix in (".csv", ".txt") or (b"," in head and head.isascii()):
         return "csv"
     raise LogReadError(f"{path}: unknown log format (not MCAP, ROS 1 bag, ROS 2 bag, ULog, "
-                       "DataFlash or CSV); pass the format explicitly if it is one of these")
+                       "DataFlash, MATLAB or CSV); if it is one of these, pass --format "
+                       f"({', '.join(READ_FORMATS)})")
 
 
-def open_log(path: str | Path, fmt: str | None = None) -> LogSource:
+def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = True) -> LogSource:
     """Open a flight log; use as ``with open_log(path) as log: log.topics(); log.series(t, f)``.
 
     Parameters
@@ -106,6 +115,9 @@ def open_log(path: str | Path, fmt: str | None = None) -> LogSource:
         directory (with ``metadata.yaml``).
     fmt : str, optional
         One of :data:`READ_FORMATS` to skip detection (``mcap-json`` reads like ``mcap``).
+    echo_warnings : bool
+        Print the reader's warnings (``warning: ...`` on stderr) when the ``with`` block ends; with
+        False they are only kept in ``LogSource.warnings`` for the caller to show (``watch``).
 
     Raises
     ------
@@ -119,6 +131,12 @@ def open_log(path: str | Path, fmt: str | None = None) -> LogSource:
         raise InputError(f"unknown log format {fmt!r}; choose one of {', '.join(READ_FORMATS)}")
     elif not path.exists():
         raise LogReadError(f"{path}: no such file or directory")
+    source = _open(path, fmt)
+    source.echo_warnings = echo_warnings
+    return source
+
+
+def _open(path: Path, fmt: str) -> LogSource:
     if fmt in ("mcap", "mcap-json"):
         from .format_mcap import McapSource
 
@@ -146,6 +164,10 @@ def open_log(path: str | Path, fmt: str | None = None) -> LogSource:
         from .format_dataflash import DataflashSource
 
         return DataflashSource(path)
+    if fmt == "mat":
+        from .format_mat import MatSource
+
+        return MatSource(path)
     from .format_csv import CsvSource
 
     return CsvSource(path)
@@ -234,58 +256,153 @@ def _where(topic: str, leaf: str) -> str:
     return leaf if leaf.startswith(topic) else f"{topic}:{leaf}"
 
 
+def log_layout(log: LogSource, layout: str | None = None) -> LayoutMatch:
+    """The layout to read ``log`` with: ``layout`` when named, else the one its topics show.
+
+    A log that matches no known layout is read with the reference layout (its topic options then
+    name what is missing); the match says so in its evidence.
+    """
+    if layout is not None:
+        return LayoutMatch(get_layout(layout), False, "--layout")
+    found = detect_layout(lambda name: log.resolve_topic(name) is not None, log.format)
+    if found is not None:
+        return found
+    return LayoutMatch(LAYOUTS["reference"], False, "default: no known layout's topics in the log")
+
+
+#: PX4 MRFT axis of each loop (parameters MRFT_<AXIS>_BETA, _H, _ENABLE)
+_PX4_AXIS = {"x": "X", "y": "Y", "altitude": "Z"}
+#: below this command rate [Hz] an MRFT cycle of 1-2 Hz has fewer than ~10 samples
+_LOW_RATE_HZ = 25.0
+
+
+def _parameter_tests(log: LogSource, prefix: str, loop: str) -> tuple[Signal | None, list[tuple[float, float]], str]:
+    """beta at each test start and the test windows from the parameter changes (PX4 MRFT patch).
+
+    A test starts when ``<prefix>ENABLE`` is set to 1 and stops when it is set to 0; its beta is the
+    ``<prefix>BETA`` in force at the start (changes stamped at the same instant count as before).
+    """
+    axis = _PX4_AXIS.get(loop)
+    if axis is None:
+        return None, [], ""
+    pre = prefix.format(axis=axis)
+    initial, changes = log.parameters()
+    enable, beta = f"{pre}ENABLE", f"{pre}BETA"
+    beta_now = initial.get(beta, -0.73)  # the patch's default
+    state = initial.get(enable, 0.0)
+    starts: list[tuple[float, float]] = []
+    windows: list[tuple[float, float]] = []
+    for t, name, value in sorted(changes, key=lambda c: c[0]):
+        if name == beta:
+            beta_now = value
+            if starts and starts[-1][0] == t:  # set together with ENABLE: this is the test's beta
+                starts[-1] = (t, value)
+        elif name == enable:
+            if value >= 0.5 and state < 0.5:
+                starts.append((t, beta_now))
+            elif value < 0.5 and state >= 0.5 and starts:
+                windows.append((starts[-1][0], t))
+            state = value
+    if not starts:
+        return None, [], ""
+    if state >= 0.5:
+        windows.append((starts[-1][0], float("inf")))
+    sig = Signal(np.array([s[0] for s in starts]), np.array([s[1] for s in starts]))
+    return sig, windows, f"parameter {beta} when {enable} is set to 1"
+
+
+def _jitter(t: np.ndarray) -> float:
+    """Timing jitter [s] of receive-time stamps: the robust spread of the sample spacing / sqrt 2.
+
+    A stamp e_k late gives spacings dt + e_{k+1} - e_k, whose variance is 2 var(e) for independent
+    delays; the median absolute deviation (x 1.4826) ignores dropped samples and bursts.
+    """
+    if t.size < 20:
+        return float("nan")
+    d = np.diff(t)
+    mad = float(np.median(np.abs(d - np.median(d)))) * 1.4826
+    return mad / np.sqrt(2.0)
+
+
 def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | None = None,
                 output_topic: str | None = None, beta_topic: str | None = None,
                 setpoint_topic: str | None = None, battery_topic: str | None = None,
-                output_scale: float = 1.0, fmt: str | None = None) -> FlightLog:
+                output_scale: float | None = None, fmt: str | None = None, *,
+                layout: str | None = None, command_scale: float | None = None,
+                echo_warnings: bool = True) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
     ----------
     path : str or Path
         The log (any format :func:`open_log` reads).
-    loop : {"altitude", "roll", "pitch"}
-        Which loop; picks the default output topic and turns a quaternion output into roll or pitch
+    loop : {"altitude", "roll", "pitch", "x", "y"}
+        Which loop; picks the layout's topics and turns a quaternion output into roll or pitch
         (ZYX convention, :mod:`mrftcli.io.attitude`).
     command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str, optional
-        ``TOPIC[:FIELD]`` overriding the reference layout (:data:`DEFAULT_TOPICS`); FIELD is a dotted
-        path into the message (ULog: message field, ``name.N`` for instance N; CSV: column; DataFlash:
-        ``TYPE:Column``). An omitted FIELD means ``data`` for ROS topics.
-    output_scale : float
+        ``TOPIC[:FIELD]`` overriding the layout (:data:`~mrftcli.io.layouts.LAYOUTS`); FIELD is a
+        dotted path into the message (ULog: message field, ``name.N`` for instance N; CSV: column;
+        DataFlash: ``TYPE:Column``; ``.mat``: the vector's name). An omitted FIELD means ``data`` for
+        ROS topics.
+    output_scale : float, optional
         Factor applied to the output and the setpoint (e.g. ``-1`` for a NED ``z`` as altitude,
-        ``pi/180`` for degrees).
+        ``pi/180`` for degrees). Default: the layout's (1, or -1 for PX4's NED z).
     fmt : str, optional
         Log format; detected when omitted.
+    layout : str, optional
+        One of :data:`~mrftcli.io.layouts.LAYOUT_NAMES`; recognised from the topics when omitted
+        (``FlightLog.source["layout"]`` says which and why).
+    command_scale : float, optional
+        Factor applied to the command (default: the layout's; -1 for PX4's upward-negative thrust).
+    echo_warnings : bool
+        Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
+        caller that shows them itself (``analyze``, ``watch``).
 
     Returns
     -------
     FlightLog
         ``command`` and ``output`` always; ``beta``, ``setpoint``, ``battery_voltage`` when logged.
+        ``source`` records the layout, where each signal came from, the scales, the timing
+        (``timestamps``: header or receive, ``timing_jitter_s``) and, for PX4, the test windows.
 
     Raises
     ------
     InputError
-        Unknown loop.
+        Unknown loop or layout, or a loop the layout does not record.
     LogReadError
         Unreadable log, or a required topic/field missing (the message lists what exists).
     """
     if loop not in LOOPS:
         raise InputError(f"unknown loop {loop!r}; choose one of {', '.join(LOOPS)}")
-    if not (np.isfinite(output_scale) and output_scale != 0.0):
-        raise InputError(f"output scale must be a finite non-zero number, got {output_scale}")
-    with open_log(path, fmt) as log:
-        source: dict = {"format": log.format}
-        log.prefetch([parse_spec(s).topic for s in (
-            command_topic or DEFAULT_TOPICS["command"], output_topic or DEFAULT_TOPICS[f"output.{loop}"],
-            beta_topic or DEFAULT_TOPICS["beta"], setpoint_topic or DEFAULT_TOPICS["setpoint"],
-            battery_topic or DEFAULT_TOPICS["battery"])])
-        cmd = _get(log, command_topic or DEFAULT_TOPICS["command"], True)
-        out = _get(log, output_topic or DEFAULT_TOPICS[f"output.{loop}"], True)
+    for name, value in (("output", output_scale), ("command", command_scale)):
+        if value is not None and not (np.isfinite(value) and value != 0.0):
+            raise InputError(f"{name} scale must be a finite non-zero number, got {value}")
+    with open_log(path, fmt, echo_warnings=echo_warnings) as log:
+        match = log_layout(log, layout)
+        lay = match.layout
+        lt = lay.loops.get(loop)
+        if lt is None and (command_topic is None or output_topic is None):
+            raise InputError(f"layout {lay.name} has no {loop} loop (its loops: {', '.join(lay.loops)}); "
+                             "name the topics with --command-topic and --output-topic")
+        ref = lay.name == "reference"
+        spec_cmd = command_topic or lt.command
+        spec_out = output_topic or lt.output
+        spec_beta = beta_topic or (lt.beta if lt is not None else None)
+        spec_sp = setpoint_topic or (lt.setpoint if lt is not None else None)
+        spec_bat = battery_topic or (DEFAULT_TOPICS["battery"] if ref else None)
+        if output_scale is None:
+            output_scale = lt.output_scale if lt is not None and output_topic is None else 1.0
+        if command_scale is None:
+            command_scale = lt.command_scale if lt is not None and command_topic is None else 1.0
+        source: dict = {"format": log.format, "layout": match.describe()}
+        log.prefetch([parse_spec(s).topic for s in (spec_cmd, spec_out, spec_beta, spec_sp, spec_bat) if s])
+        cmd = _get(log, spec_cmd, True)
+        out = _get(log, spec_out, True)
         t, leaves, vals, spec = out
         if len(leaves) == 4:
-            if loop == "altitude":
+            if loop not in ("roll", "pitch"):
                 raise LogReadError(f"{log.path}: output {spec} is an orientation quaternion; "
-                                   "for --loop altitude name a position field")
+                                   f"for --loop {loop} name a position field")
             try:
                 roll, pitch = roll_pitch(*(vals[k] for k in leaves))
             except LogReadError as err:
@@ -299,16 +416,19 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
         source["output"] = str(spec) if len(leaves) == 4 else _where(spec.topic, leaves[0])
         if len(cmd[1]) != 1:
             raise LogReadError(f"{log.path}: command {cmd[3]} is a quaternion; name one number")
-        command = Signal(cmd[0], cmd[2][cmd[1][0]])
-        optional = {}
+        command = Signal(cmd[0], cmd[2][cmd[1][0]] * command_scale)
+        optional: dict = {}
         for role, option, default, scale in (
-                ("beta", beta_topic, DEFAULT_TOPICS["beta"], 1.0),
-                ("setpoint", setpoint_topic, DEFAULT_TOPICS["setpoint"], output_scale),
-                ("battery_voltage", battery_topic, DEFAULT_TOPICS["battery"], 1.0)):
-            # an optional topic the user named must exist and fit; a default one may be absent
+                ("beta", beta_topic, spec_beta, 1.0),
+                ("setpoint", setpoint_topic, spec_sp, output_scale),
+                ("battery_voltage", battery_topic, spec_bat, 1.0)):
+            # an optional topic the user named must exist and fit; a layout's may be absent
             # or be something else under the same name (then it is skipped with a warning)
+            if default is None:
+                optional[role] = None
+                continue
             try:
-                got = _get(log, option or default, option is not None)
+                got = _get(log, default, option is not None)
             except LogReadError as err:
                 if option is not None:
                     raise
@@ -322,12 +442,37 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
                 raise LogReadError(f"{log.path}: {role} {sp} is a quaternion; name one number")
             optional[role] = Signal(tt, vv[lv[0]] * scale)
             source[role] = _where(sp.topic, lv[0])
+        if optional["beta"] is None and beta_topic is None and lay.parameters:
+            beta_sig, windows, where = _parameter_tests(log, lay.parameters, loop)
+            if beta_sig is not None:
+                optional["beta"] = beta_sig
+                source["beta"] = where
+                source["test_windows"] = [[a, b if np.isfinite(b) else None] for a, b in windows]
         if output_scale != 1.0:
             source["output_scale"] = output_scale
+        if command_scale != 1.0:
+            source["command_scale"] = command_scale
+        if lay.timestamps == "receive" or log.format == "bag":
+            # no header stamps: the bag's receive time carries the transport's jitter
+            source["timestamps"] = "receive"
+            source["timing_jitter_s"] = max(_jitter(command.t), _jitter(output.t))
+        rate = _median_rate(command.t)
+        if not ref and rate is not None and rate < _LOW_RATE_HZ:
+            log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
+                     f"{rate / 2:.0f}-{rate:.0f} samples, so switch instants (and tau) are known only to "
+                     f"+-{500 / rate:.0f} ms; {lay.low_rate_fix}")
         return FlightLog(path=str(path), loop=loop, command=command, output=output,
                          beta=optional["beta"], setpoint=optional["setpoint"],
                          battery_voltage=optional["battery_voltage"], source=source,
                          warnings=list(log.warnings))
+
+
+def _median_rate(t: np.ndarray) -> float | None:
+    """Median sample rate [Hz] of increasing times (None for fewer than three)."""
+    if t.size < 3:
+        return None
+    d = float(np.median(np.diff(t)))
+    return 1.0 / d if d > 0 else None
 
 
 def list_topics(path: str | Path, fmt: str | None = None) -> tuple[str, list[TopicInfo]]:

@@ -161,6 +161,17 @@ class UlogSource(LogSource):
         """Text messages the autopilot logged: (time [s], level, text)."""
         return [(m.timestamp / 1e6, m.log_level_str(), m.message) for m in self._all().logged_messages]
 
+    def parameters(self) -> tuple[dict[str, float], list[tuple[float, str, float]]]:
+        """The parameters at the start and every logged change: ``(initial, [(t [s], name, value)])``.
+
+        A change is stamped with the time of the last data message before it (how PX4 and pyulog
+        place ``P`` messages in the data section).
+        """
+        ulog = self._all()
+        initial = {k: float(v) for k, v in ulog.initial_parameters.items() if isinstance(v, (int, float))}
+        changes = [(t / 1e6, k, float(v)) for t, k, v in ulog.changed_parameters if isinstance(v, (int, float))]
+        return initial, changes
+
     def leaves(self, topic: str, field: str | None) -> list[str]:
         resolved = self.resolve_topic(topic)
         if resolved is None:
@@ -215,7 +226,20 @@ def _formats(name: str, tree: dict, prefix: str, out: list[str]) -> list[str]:
     fields, leaves = [], []
     if not prefix:
         fields.append("uint64_t timestamp")
+    arrays: dict[str, int] = {}  # name[i] leaves become one ``double name[N]`` field (PX4's arrays)
+    for key in tree:
+        m = re.fullmatch(r"(\w+)\[(\d+)\]", key)
+        if m and tree[key] is None:
+            arrays[m.group(1)] = max(arrays.get(m.group(1), 0), int(m.group(2)) + 1)
     for key, sub in tree.items():
+        m = re.fullmatch(r"(\w+)\[(\d+)\]", key)
+        if m and sub is None:
+            base = m.group(1)
+            if base in arrays:
+                n = arrays.pop(base)
+                fields.append(f"double {base}[{n}]")
+                leaves.extend(f"{prefix}{base}[{i}]" for i in range(n))
+            continue
         if sub is None:
             fields.append(f"double {key}")
             leaves.append(prefix + key)
@@ -227,9 +251,26 @@ def _formats(name: str, tree: dict, prefix: str, out: list[str]) -> list[str]:
     return leaves
 
 
-def write_ulog(topics: list[TopicData], path: str | Path) -> None:
-    """Write topics as ULog (version 1): one message per topic, ``double`` fields, nested types for
-    dotted field paths, ``timestamp`` [us] from the topic times."""
+def _parameter(name: str, value: float) -> bytes:
+    """A ``P`` message: ``int32_t`` for whole numbers (PX4's enable switches), else ``float``."""
+    import struct
+
+    if float(value).is_integer() and not name.endswith(("_BETA", "_H")):
+        key, packed = f"int32_t {name}".encode(), struct.pack("<i", int(value))
+    else:
+        key, packed = f"float {name}".encode(), struct.pack("<f", float(value))
+    return _message(b"P", bytes([len(key)]) + key + packed)
+
+
+def write_ulog(topics: list[TopicData], path: str | Path, *, parameters: dict[str, float] | None = None,
+               parameter_changes: list[tuple[float, str, float]] | None = None,
+               messages: list[tuple[float, str]] | None = None) -> None:
+    """Write topics as ULog (version 1): one message per topic, ``double`` fields (``name[i]`` leaves
+    as one array field), nested types for dotted field paths, ``timestamp`` [us] from the topic times.
+
+    ``parameters`` are written as the initial parameters; ``parameter_changes`` ``(t [s], name,
+    value)`` and text ``messages`` ``(t [s], text)`` go into the data section after the last data
+    message at or before ``t`` (pyulog stamps a change with that message's time)."""
     t_all = np.concatenate([np.asarray(td.t, dtype=np.float64) for td in topics] or [np.zeros(1)])
     start_us = int(np.floor(t_all.min() * 1e6)) if len(t_all) else 0
     head = ULOG_MAGIC + b"\x01" + start_us.to_bytes(8, "little")
@@ -282,6 +323,24 @@ def write_ulog(topics: list[TopicData], path: str | Path) -> None:
         pos = position[first:first + len(rows)]
         data[pos[:, None] + np.arange(rows.shape[1])] = rows
         first += len(rows)
+    definitions.extend(_parameter(k, v) for k, v in (parameters or {}).items())
+    extra = [(t, _parameter(k, v)) for t, k, v in (parameter_changes or [])]
+    for t, text in messages or []:
+        body = bytes([ord("6")]) + int(round(t * 1e6)).to_bytes(8, "little") + text.encode()
+        extra.append((t, _message(b"L", body)))
+    if extra:
+        # insert each extra message after the last data message stamped at or before its time
+        sorted_stamps = stamps[order]
+        ends = np.cumsum(sizes[order])
+        raw = data.tobytes()
+        pieces, last = [], 0
+        for t, blob in sorted(extra, key=lambda e: e[0]):
+            k = int(np.searchsorted(sorted_stamps, int(round(t * 1e6)), side="right"))
+            cut = int(ends[k - 1]) if k else 0
+            pieces.extend([raw[last:cut], blob])
+            last = cut
+        pieces.append(raw[last:])
+        data = np.frombuffer(b"".join(pieces), dtype=np.uint8)
     with open(path, "wb") as handle:
         handle.write(head)
         handle.write(b"".join(definitions))

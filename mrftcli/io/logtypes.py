@@ -14,7 +14,7 @@ from ..errors import InputError
 __all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS"]
 
 #: The loops mrft-ident identifies.
-LOOPS = ("altitude", "roll", "pitch")
+LOOPS = ("altitude", "roll", "pitch", "x", "y")
 
 
 @dataclass(frozen=True)
@@ -97,11 +97,11 @@ class FlightLog:
     path : str
         The file it came from.
     loop : str
-        ``altitude``, ``roll`` or ``pitch``.
+        ``altitude``, ``roll``, ``pitch``, ``x`` or ``y`` (:data:`LOOPS`).
     command : Signal
         The command the MRFT block sends to the loop (bias + relay output), command units.
     output : Signal
-        The loop output: altitude [m] or roll/pitch [rad].
+        The loop output: altitude, x, y [m] or roll/pitch [rad].
     beta : Signal or None
         Beta as published when each test starts, if logged.
     setpoint : Signal or None

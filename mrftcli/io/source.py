@@ -111,6 +111,8 @@ class LogSource(ABC):
     """
 
     format: str = ""
+    #: print the warnings on stderr when the ``with`` block ends (False: the caller shows them)
+    echo_warnings: bool = True
     #: what a missing FIELD means for this format (ROS: ``data``)
     default_field: str | None = None
 
@@ -125,7 +127,7 @@ class LogSource(ABC):
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close()
-        if exc_type is None:
+        if exc_type is None and self.echo_warnings:
             # warnings go to stderr only when reading succeeded: a fatal error stays one line
             for text in self.warnings[self._shown:]:
                 print(f"warning: {text}", file=sys.stderr)
@@ -171,6 +173,10 @@ class LogSource(ABC):
 
     def topic_names(self) -> list[str]:
         return [info.name for info in self.topics()]
+
+    def parameters(self) -> tuple[dict[str, float], list[tuple[float, str, float]]]:
+        """Logged parameters ``(initial, [(t [s], name, value)])``; formats without any: empty."""
+        return {}, []
 
     def resolve_topic(self, topic: str) -> str | None:
         """The log's name for ``topic`` (formats with other naming rules override), None if absent."""

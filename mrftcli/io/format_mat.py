@@ -1,0 +1,126 @@
+"""MATLAB ``.mat`` files (v4/v5 through ``scipy.io.loadmat``, v7.3 = HDF5 through h5py), reader and writer.
+
+DNN-MRFT-style pipelines save each signal as a vector with its sample times in a companion vector:
+``controller_output_2`` and ``controller_output_2_t``, ``z`` and ``z_t``. A "topic" here is a numeric
+vector variable; its times are ``<name>_t`` (or ``<name>_time``), else a shared ``t`` / ``time``
+vector of the same length. Times are in seconds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import LogReadError
+from .logtypes import TopicData, TopicInfo
+from .source import LogSource, closest, one_line, rate_of
+
+__all__ = ["MatSource", "write_mat", "MAT_MAGIC", "MAT73_MAGIC"]
+
+MAT_MAGIC = b"MATLAB 5.0 MAT-file"
+MAT73_MAGIC = b"MATLAB 7.3 MAT-file"
+_SHARED_TIMES = ("t", "time", "timestamp")
+
+
+def _load(path: Path) -> dict[str, np.ndarray]:
+    """Every numeric vector in the file, raveled to 1-D float64 (v7.3 through h5py)."""
+    with open(path, "rb") as handle:
+        head = handle.read(128)
+    out: dict[str, np.ndarray] = {}
+    if head.startswith(MAT73_MAGIC) or head[:8] == b"\x89HDF\r\n\x1a\n":
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            for name, obj in f.items():
+                if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "fiub" and not name.startswith("#"):
+                    arr = np.asarray(obj[()], dtype=np.float64)
+                    if arr.ndim <= 2 and min(arr.shape or (1,)) == 1:
+                        out[name] = arr.ravel()
+        return out
+    from scipy.io import loadmat
+
+    raw = loadmat(str(path), squeeze_me=False, mat_dtype=False)
+    for name, arr in raw.items():
+        if name.startswith("__") or not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiub":
+            continue
+        if arr.ndim <= 2 and arr.size and min(arr.shape) == 1:
+            out[name] = arr.astype(np.float64).ravel()
+    return out
+
+
+class MatSource(LogSource):
+    """A ``.mat`` file read whole (vectors only; structs and matrices are not listed)."""
+
+    format = "mat"
+    default_field = None
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__(path)
+        self._require_file()
+        try:
+            self._vars = _load(self.path)
+        except Exception as err:  # noqa: BLE001 - scipy/h5py raise many kinds on bad bytes
+            raise LogReadError(f"{self.path}: not a readable MATLAB file ({one_line(err)})") from None
+        self._signals: dict[str, str] = {}  # signal -> its time vector
+        shared = next((n for n in _SHARED_TIMES if n in self._vars), None)
+        for name, arr in self._vars.items():
+            if name in _SHARED_TIMES or name.endswith(("_t", "_time")):
+                continue
+            for cand in (f"{name}_t", f"{name}_time", shared):
+                if cand is not None and cand in self._vars and self._vars[cand].size == arr.size:
+                    self._signals[name] = cand
+                    break
+        if not self._signals:
+            raise LogReadError(f"{self.path}: no signal with a time vector (<name>_t or a shared t) among "
+                               f"{', '.join(sorted(self._vars)[:12]) or 'no numeric vectors'}")
+
+    def topics(self) -> list[TopicInfo]:
+        return [TopicInfo(name, "vector", int(self._vars[name].size), rate_of(np.sort(self._vars[tn])), ())
+                for name, tn in sorted(self._signals.items())]
+
+    def topic_names(self) -> list[str]:
+        return sorted(self._signals)
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        if topic not in self._signals:
+            raise self.missing_topic(topic)
+        if field not in (None, "data", "value"):
+            raise LogReadError(f"{self.path}: {topic} is a vector; it has no field {field!r}"
+                               f"{closest(field, ['data'])}")
+        return [topic]
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        return self._vars[self._signals[topic]].copy(), {f: self._vars[f].copy() for f in fields}
+
+
+def write_mat(topics: list[TopicData], path: str | Path, *, v73: bool = False) -> None:
+    """Write each topic's fields as vectors ``<name>`` with times ``<name>_t`` [s].
+
+    A topic with one field is written under the topic's name (leading ``/`` dropped, other characters
+    outside ``[A-Za-z0-9_]`` as ``_``); with several, as ``<topic>_<field>``. ``v73`` writes an HDF5
+    based v7.3 file (h5py) with MATLAB's 512-byte header, else a v5 file (scipy).
+    """
+    import re
+
+    data: dict[str, np.ndarray] = {}
+    for td in topics:
+        base = re.sub(r"[^A-Za-z0-9_]", "_", td.name.lstrip("/"))
+        for fname, values in td.fields.items():
+            name = base if len(td.fields) == 1 else f"{base}_{re.sub(r'[^A-Za-z0-9_]', '_', fname)}"
+            data[name] = np.asarray(values, dtype=np.float64)
+            data[f"{name}_t"] = np.asarray(td.t, dtype=np.float64)
+    if not v73:
+        from scipy.io import savemat
+
+        savemat(str(path), {k: v.reshape(-1, 1) for k, v in data.items()}, do_compression=True)
+        return
+    import h5py
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        for name, values in data.items():
+            f.create_dataset(name, data=values.reshape(1, -1), compression="gzip")
+    header = (MAT73_MAGIC + b" Platform: posix, Created by: mrft-ident").ljust(116, b" ")
+    header += bytes(8) + b"\x00\x02" + b"IM"  # subsystem offset, version 0x0200, endian "IM"
+    with open(path, "r+b") as handle:
+        handle.write(header.ljust(512, b"\x00"))

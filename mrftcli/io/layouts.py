@@ -1,0 +1,257 @@
+"""Log layouts: where the flight stacks that run MRFT put a loop's command, output, setpoint and beta.
+
+A :class:`Layout` maps each loop (``altitude``, ``x``, ``y``, ``roll``, ``pitch``) to ``TOPIC[:FIELD]``
+specs in one stack's naming, with the signs and scales the stack uses. :func:`detect_layout` recognises
+a layout from a log's topic names (the evidence is returned with it); :func:`mrftcli.io.read_flight`
+uses the detected (or named) layout unless ``--command-topic`` / ``--output-topic`` name the topics.
+The stacks and what each records are described in ``docs/log-layout.md``.
+
+Signs: a layout states the conventional scales (``output_scale``, ``command_scale``) that turn the
+stack's frame into the loop's (PX4's NED z into altitude up, its ``thrust[2]`` into upward thrust).
+The sign that matters for identification (does +h raise the output?) is measured from the data by
+the segmenter whatever the layout says (``MrftTest.loop_sign``), so a wrong scale changes the
+reported signs, never the identified Td and tau.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass
+
+__all__ = ["LoopTopics", "Layout", "LAYOUTS", "LAYOUT_NAMES", "detect_layout", "get_layout", "LayoutMatch"]
+
+
+@dataclass(frozen=True)
+class LoopTopics:
+    """Where one loop's signals are in a layout (``TOPIC[:FIELD]`` specs; None: not recorded).
+
+    Attributes
+    ----------
+    command : str
+        The MRFT block's output as sent to the loop (bias + relay output) [command units].
+    output : str
+        The loop output (a quaternion field is turned into roll/pitch).
+    setpoint, beta : str or None
+        The loop reference and the beta topic, when the stack records them.
+    output_scale : float
+        Factor from the logged output (and setpoint) to the loop's output (``-1``: NED z -> altitude).
+    command_scale : float
+        Factor from the logged command to the loop's command (``-1``: PX4's upward-negative thrust).
+    """
+
+    command: str
+    output: str
+    setpoint: str | None = None
+    beta: str | None = None
+    output_scale: float = 1.0
+    command_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """One flight stack's log layout.
+
+    Attributes
+    ----------
+    name : str
+        What ``--layout`` takes.
+    title : str
+        One line naming the stack.
+    loops : Mapping[str, LoopTopics]
+        The loops the stack runs MRFT on.
+    signature : tuple of str
+        Topic names (any one suffices, in the log's naming) that identify the layout.
+    formats : tuple of str
+        Log formats the stack writes (empty: any).
+    parameters : str or None
+        ``MRFT_{AXIS}_``-style prefix of the parameters holding beta, h and the enable switch
+        (PX4: tests and their beta come from the logged parameter changes), None when not logged.
+    timestamps : str
+        ``header`` (stamped at the source) or ``receive`` (bag receive time: jitter between topics).
+    low_rate_fix : str
+        What to change in the stack's logger for high-rate logging (named in the low-rate warning).
+    """
+
+    name: str
+    title: str
+    loops: Mapping[str, LoopTopics]
+    signature: tuple[str, ...]
+    formats: tuple[str, ...] = ()
+    parameters: str | None = None
+    timestamps: str = "header"
+    low_rate_fix: str = "record the command and the output at the controller's rate"
+
+
+_REFERENCE = Layout(
+    name="reference",
+    title="mrft-ident's reference layout (/mrft/command, /mrft/beta, /mocap/pose, /imu/data)",
+    loops={
+        "altitude": LoopTopics("/mrft/command:data", "/mocap/pose:pose.position.z", "/mrft/setpoint:data",
+                               "/mrft/beta:data"),
+        "x": LoopTopics("/mrft/command:data", "/mocap/pose:pose.position.x", "/mrft/setpoint:data",
+                        "/mrft/beta:data"),
+        "y": LoopTopics("/mrft/command:data", "/mocap/pose:pose.position.y", "/mrft/setpoint:data",
+                        "/mrft/beta:data"),
+        "roll": LoopTopics("/mrft/command:data", "/imu/data:orientation", "/mrft/setpoint:data",
+                           "/mrft/beta:data"),
+        "pitch": LoopTopics("/mrft/command:data", "/imu/data:orientation", "/mrft/setpoint:data",
+                            "/mrft/beta:data"),
+    },
+    signature=("/mrft/command",),
+)
+
+# PX4 with the MRFT position-controller patch (PositionMRFT in mc_pos_control): NED, normalised thrust.
+_PX4 = Layout(
+    name="px4-mrft",
+    title="PX4 with the MRFT position-controller patch (ULog: vehicle_local_position[_setpoint])",
+    loops={
+        "altitude": LoopTopics("vehicle_local_position_setpoint:thrust[2]", "vehicle_local_position:z",
+                               "vehicle_local_position_setpoint:z", None, output_scale=-1.0,
+                               command_scale=-1.0),
+        "x": LoopTopics("vehicle_local_position_setpoint:thrust[0]", "vehicle_local_position:x",
+                        "vehicle_local_position_setpoint:x"),
+        "y": LoopTopics("vehicle_local_position_setpoint:thrust[1]", "vehicle_local_position:y",
+                        "vehicle_local_position_setpoint:y"),
+    },
+    signature=("vehicle_local_position_setpoint",),
+    formats=("ulog",),
+    parameters="MRFT_{axis}_",
+    low_rate_fix="set SDLOG_PROFILE to high rate (or list vehicle_local_position and "
+                 "vehicle_local_position_setpoint at 0 ms in etc/logging/logger_topics.txt)",
+)
+
+# HEAR flight controller, ROS 1 (geometry_msgs/Point has no header: receive time).
+_HEAR = Layout(
+    name="hear-ros",
+    title="HEAR flight controller, ROS 1 (/fh_des, /angle_u, /opti/pos, /opti/ori)",
+    loops={
+        "altitude": LoopTopics("/fh_des:z", "/opti/pos:z", "/waypoint_reference/pos:z"),
+        "x": LoopTopics("/fh_des:x", "/opti/pos:x", "/waypoint_reference/pos:x"),
+        "y": LoopTopics("/fh_des:y", "/opti/pos:y", "/waypoint_reference/pos:y"),
+        "roll": LoopTopics("/angle_u:x", "/opti/ori:x", "/angle_ref:x"),
+        "pitch": LoopTopics("/angle_u:y", "/opti/ori:y", "/angle_ref:y"),
+    },
+    signature=("/fh_des", "/angle_u"),
+    formats=("bag", "ros2-sqlite3", "ros2-mcap", "mcap"),
+    timestamps="receive",
+    low_rate_fix="record /fh_des, /angle_u and /opti/* unthrottled (rosbag record -a)",
+)
+
+# The older (2020) HEAR controller: every axis in one Float64MultiArray, outputs in /providers/*.
+_HEAR_2020 = Layout(
+    name="hear-2020",
+    title="HEAR controller of 2020, ROS 1 (/control_system_output multi-array, /providers/*)",
+    loops={
+        "x": LoopTopics("/control_system_output:data[0]", "/providers/x:x"),
+        "y": LoopTopics("/control_system_output:data[1]", "/providers/y:x"),
+        "altitude": LoopTopics("/control_system_output:data[2]", "/providers/z:x"),
+        "roll": LoopTopics("/control_system_output:data[3]", "/providers/roll:x"),
+        "pitch": LoopTopics("/control_system_output:data[4]", "/providers/pitch:x"),
+    },
+    signature=("/control_system_output",),
+    formats=("bag", "ros2-sqlite3", "ros2-mcap", "mcap"),
+    timestamps="receive",
+    low_rate_fix="record /control_system_output and /providers/* unthrottled",
+)
+
+# What a MAVROS user records: ENU local pose, the attitude target's thrust as the altitude command.
+_MAVROS = Layout(
+    name="mavros",
+    title="MAVROS (ROS): /mavros/local_position/pose, /mavros/setpoint_raw/attitude",
+    loops={
+        "altitude": LoopTopics("/mavros/setpoint_raw/attitude:thrust", "/mavros/local_position/pose:pose.position.z"),
+        "roll": LoopTopics("/mavros/setpoint_raw/attitude:body_rate.x", "/mavros/imu/data:orientation"),
+        "pitch": LoopTopics("/mavros/setpoint_raw/attitude:body_rate.y", "/mavros/imu/data:orientation"),
+    },
+    signature=("/mavros/setpoint_raw/attitude", "/mavros/setpoint_raw/target_attitude",
+               "/mavros/local_position/pose"),
+    formats=("bag", "ros2-sqlite3", "ros2-mcap", "mcap"),
+    timestamps="header",
+    low_rate_fix="raise the MAVLink stream rates (mavros set_stream_rate, or SR*/MAV_*_RATE) for "
+                 "LOCAL_POSITION_NED and ATTITUDE_TARGET",
+)
+
+# DNN-MRFT-style MATLAB exports: one vector per signal, its times in <name>_t.
+_MAT = Layout(
+    name="mat",
+    title="MATLAB .mat export (controller_output_<i> and <name>_t time vectors)",
+    loops={
+        "x": LoopTopics("controller_output_0", "x"),
+        "y": LoopTopics("controller_output_1", "y"),
+        "altitude": LoopTopics("controller_output_2", "z"),
+        "roll": LoopTopics("controller_output_3", "roll"),
+        "pitch": LoopTopics("controller_output_4", "pitch"),
+    },
+    signature=("controller_output_0", "controller_output_1", "controller_output_2",
+               "controller_output_3", "controller_output_4"),
+    formats=("mat",),
+    low_rate_fix="log the controller output and the output at the controller's rate",
+)
+
+#: every layout by name (``--layout NAME``)
+LAYOUTS: dict[str, Layout] = {lay.name: lay for lay in (_REFERENCE, _PX4, _HEAR, _HEAR_2020, _MAVROS, _MAT)}
+#: what ``--layout`` accepts
+LAYOUT_NAMES = tuple(LAYOUTS)
+
+
+@dataclass(frozen=True)
+class LayoutMatch:
+    """The layout a log was read with and why.
+
+    Attributes
+    ----------
+    layout : Layout
+    detected : bool
+        True when recognised from the topics, False when named by the user.
+    evidence : str
+        What decided it (the topics found, or ``--layout``).
+    """
+
+    layout: Layout
+    detected: bool
+    evidence: str
+
+    def describe(self) -> str:
+        """``px4-mrft (auto-detected: vehicle_local_position_setpoint)`` or ``hear-ros (--layout)``."""
+        how = f"auto-detected: {self.evidence}" if self.detected else self.evidence
+        return f"{self.layout.name} ({how})"
+
+
+def get_layout(name: str) -> Layout:
+    """The layout called ``name``; InputError naming the choices otherwise."""
+    from ..errors import InputError
+
+    if name not in LAYOUTS:
+        raise InputError(f"unknown layout {name!r}; choose one of {', '.join(LAYOUT_NAMES)}")
+    return LAYOUTS[name]
+
+
+def detect_layout(topics: Collection[str] | Callable[[str], bool], fmt: str | None = None) -> LayoutMatch | None:
+    """Recognise a layout from a log's topic names (and format).
+
+    ``topics`` is the log's topic names, or a predicate saying whether the log has a topic (a reader's
+    ``resolve_topic``, which knows its format's naming: ULog ``mrft_command``, CSV column prefixes).
+
+    The most specific layouts are tried first (a PX4 ULog also holds ``vehicle_attitude``; a HEAR bag
+    may carry reference-named topics from a bridge): the first layout with a signature topic in the
+    log and a compatible format wins. None when no layout's signature is present.
+
+    Examples
+    --------
+    >>> detect_layout(["/fh_des", "/opti/pos", "/angle_u"], "bag").describe()
+    'hear-ros (auto-detected: /fh_des, /angle_u)'
+    >>> detect_layout(["/mrft/command", "/mocap/pose"], "mcap").layout.name
+    'reference'
+    >>> detect_layout(["/tf"], "bag") is None
+    True
+    """
+    has = topics if callable(topics) else set(topics).__contains__
+    for name in ("px4-mrft", "hear-2020", "hear-ros", "mavros", "mat", "reference"):
+        lay = LAYOUTS[name]
+        if lay.formats and fmt is not None and fmt not in lay.formats and not (
+                fmt == "mcap-json" and "mcap" in lay.formats):
+            continue
+        found = [s for s in lay.signature if has(s)]
+        if found:
+            return LayoutMatch(lay, True, ", ".join(found[:3]))
+    return None

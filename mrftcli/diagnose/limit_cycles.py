@@ -270,7 +270,8 @@ def run_relay(
         if len(x) != n:  # snapshot of a different structure: cold start
             return run_relay(plant, beta, h, rate_hz, n_cycles, gain_slope=gain_slope, gain_t0=gain_t0,
                              bias_cmd=bias_cmd, sampled=sampled, noise_std=noise_std,
-                             jitter_std=jitter_std, seed=seed, max_time=max_time, max_gap=max_gap)
+                             jitter_std=jitter_std, jitter_corr=jitter_corr, seed=seed, max_time=max_time,
+                             max_gap=max_gap)
         relay, act, target = 1.0, warm["act"], warm["target"]
         pending = list(warm["pending"])
         e_prev, de_prev, e_ext = warm["e_prev"], warm["de_prev"], warm["e_ext"]

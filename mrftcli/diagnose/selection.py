@@ -139,15 +139,15 @@ class DiagnosisResult:
     path: str
     loop: str
     Tp: float
-    effects: list
-    candidates: list
-    located: list
+    effects: list[EffectFinding]
+    candidates: list[dict]
+    located: list[dict]
     identification: dict
-    tests: list
+    tests: list[dict]
     noise_std: float
     summary: str
-    warnings: list = field(default_factory=list)
-    second_effect_candidates: list = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    second_effect_candidates: list[dict] = field(default_factory=list)
     _plot: dict = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict:

@@ -8,6 +8,7 @@ limit cycle); see docs/simulator.md, "Integration".
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 from scipy.signal import lfilter
@@ -217,7 +218,7 @@ def rk4_quadratic(
 # actuator between ticks: commands arriving after their delay, optional slew-rate limit
 
 
-def actuator_pieces(s: float, t_end: float, pending, act: float, target: float, rate_limit: float,
+def actuator_pieces(s: float, t_end: float, pending: deque | list, act: float, target: float, rate_limit: float,
                     tol: float = 0.0) -> tuple[list[tuple[float, float, float, float]], float, float]:
     """Split [s, t_end) into pieces over which the actuator input is affine in time.
 
@@ -228,7 +229,7 @@ def actuator_pieces(s: float, t_end: float, pending, act: float, target: float, 
     (start [s], length [s], actuator value at start, slope [units/s]), and the actuator's value and
     target at t_end.
     """
-    pop_first = pending.popleft if hasattr(pending, "popleft") else (lambda: pending.pop(0))
+    pop_first = pending.popleft if isinstance(pending, deque) else (lambda: pending.pop(0))
     pieces = []
     while True:
         while pending and pending[0][0] <= s + tol:  # commands reaching the actuator now

@@ -150,6 +150,24 @@ class CommandWindow:
         return cls(dt=dt, u=ug, k=k, s=to - grid[k], t_output=to, output=yrec, bias=float(bias))
 
 
+    @classmethod
+    def between(cls, t_start: float, t_end: float, t_command, command, t_output, output,
+                bias: float = 0.0) -> "CommandWindow | None":
+        """The window of a whole recording from ``t_start`` to ``t_end`` [s] (a test's relay span):
+        command samples from the first at or after ``t_start`` to the first after ``t_end``, outputs
+        within. None when it holds fewer than 2 command or 8 output samples."""
+        tc = np.asarray(t_command, float)
+        ty = np.asarray(t_output, float)
+        a, b = np.searchsorted(tc, [t_start, t_end], side="left")
+        b = min(b + 1, tc.size)
+        ya, yb = np.searchsorted(ty, [t_start, t_end], side="left")
+        if b - a < 2 or yb - ya < 8:
+            return None
+        ya = max(ya, int(np.searchsorted(ty, tc[a] - 1e-9, side="left")))
+        return cls.from_arrays(tc[a:b], np.asarray(command, float)[a:b], ty[ya:yb],
+                               None if output is None else np.asarray(output, float)[ya:yb], bias)
+
+
 @dataclass(frozen=True, eq=False)
 class ResponseBasis:
     """The output over a :class:`CommandWindow` as a linear combination of known columns.

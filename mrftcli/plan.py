@@ -56,6 +56,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import InputError
+from .mrft.consensus import BETA_SYSTEMATIC, GAIN_SYSTEMATIC, PHASE_SYSTEMATIC
 from .mrft.lprs import mrft_limit_cycle, unit_cycle
 from .mrft.model import LoopModel
 from .progress import Progress, report
@@ -90,7 +91,7 @@ NOISE_MODEL = {
     "ln_amplitude": (0.0, 0.0, 1.536),
 }
 # Systematic floors analyze adds to every test (mrftcli.analyze: effective beta, phase, ln a).
-_FLOOR_BETA, _FLOOR_PHASE, _FLOOR_LN_A = 1e-3, 3e-4, 1e-3
+_FLOOR_BETA, _FLOOR_PHASE, _FLOOR_LN_A = BETA_SYSTEMATIC, PHASE_SYSTEMATIC, GAIN_SYSTEMATIC
 #: Cycles the segmenter typically drops at the start of a test (the transient) and at its end.
 _LOST_CYCLES = 3
 #: Fewest stable cycles analyze accepts in a test (its min_stable_cycles).

@@ -52,14 +52,12 @@ import numpy as np
 from .errors import InsufficientDataError, LogReadError, MrftError
 from .io import DEFAULT_TOPICS, FlightLog, Signal, parse_spec, read_flight, roll_pitch
 from .io.logtypes import LOOPS
+from .mrft.consensus import SAME_BETA
 from .segment import MrftTest, segment_arrays
 from .validate import check_positive
 
 __all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Update", "watch", "McapFollower"]
 
-#: Two tests whose effective betas differ by less than this measure the same UFM slice
-#: (the value mrftcli.analyze groups tests with).
-SAME_BETA = 0.05
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 

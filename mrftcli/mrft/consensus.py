@@ -42,6 +42,8 @@ from .identify import ParameterEstimate
 from .lprs import unit_cycle
 
 __all__ = [
+    "upper_bound_open",
+    "SAME_BETA",
     "CONSTRAINTS",
     "BETA_SYSTEMATIC",
     "PHASE_SYSTEMATIC",
@@ -74,6 +76,8 @@ BETA_SYSTEMATIC = 1e-3
 PHASE_SYSTEMATIC = 3e-4
 #: Systematic floor [-] of a test's ln(amplitude) (harmonic truncation of the cycle fit ~5e-4).
 GAIN_SYSTEMATIC = 1e-3
+#: Two tests whose betas differ by less than this measure the same UFM slice.
+SAME_BETA = 0.05
 
 
 @dataclass(frozen=True, eq=False)
@@ -493,3 +497,25 @@ def combinations(Tp: float, tests: Sequence[StableCycles], Td_ref: float, max_co
     if okc.any():
         cK[okc] = ugm_gain(Tp, cTd[okc], cw[okc], ca[okc], np.broadcast_to(hs, ca[okc].shape))
     return {"n": int(cTd.size), "Td": cTd, "tau": ctau, "K": cK, "index": combo}
+
+
+def upper_bound_open(Tp: float, boot: Bootstrap, Td: float, delta_chi2: float = 3.84) -> bool:
+    """Whether the tests cannot bound Td from above (the likelihood does not close as Td -> infinity).
+
+    Evaluates the consensus chi-square (:func:`consensus_objective` on the data themselves, bootstrap
+    row 0, with the phase and amplitude constraints) at ``Td`` and at 1e4 ``Td`` (Td Omega >> 1: the
+    double-integrator limit, where every curve has flattened): when the rise is below ``delta_chi2``
+    (3.84: 95 % for one parameter) a plant without linear damping explains the tests as well, and
+    only a lower bound on Td is supported. Needs the constraint weights (``boot.weights``); without
+    them (the paper's UFM-only weighting is not a chi-square) returns False.
+    """
+    cw = boot.weights
+    if cw is None or not math.isfinite(Td) or Td <= 0:
+        return False
+    ph = boot.phases[:1]
+    extra = ExtraConstraints(phases=np.nan_to_num(ph), w_phase=np.where(np.isfinite(ph), cw["w_phase"][None, :], 0.0),
+                             ln_amp=boot.ln_amp[:1], w_gain=np.asarray(cw["w_gain"], float)[None, :])
+    x = np.log(np.array([Td, Td * 1e4]))
+    J = np.array([consensus_objective(Tp, boot.betas[:1], boot.omegas[:1], np.asarray(cw["w_ufm"], float)[None, :],
+                                      x[i:i + 1], extra)[0][0] for i in range(2)])
+    return bool(np.all(np.isfinite(J)) and J[1] - J[0] < delta_chi2)

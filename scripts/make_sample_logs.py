@@ -3,12 +3,19 @@
 
     python scripts/make_sample_logs.py            # writes sample_logs/ (about a minute)
     python scripts/make_sample_logs.py --check    # also read every log back and compare
+    python scripts/make_sample_logs.py --stacks   # only the logs in the flight stacks' layouts
 
 The truth of each scenario is the mean of Table III of the paper (checks.md section 4); the
 "+20 ms" scenarios keep the nominal Td and add 0.020 s to tau. Every scenario is written as MCAP
 (``<name>.mcap``); the first scenario, ``design1_altitude``, also in every other format that
 :mod:`mrftcli.io` writes. Each log has its ground truth beside it as ``<log>.truth.json``.
 Seeds are fixed, so the files are reproducible bit for bit with the same library versions.
+
+Flight-stack layouts (:mod:`mrftcli.io.stacks`, docs/log-layout.md): the same simulator, written the
+way the stacks log: ``px4_altitude_10hz.ulg`` (PX4 MRFT patch, 50 Hz position controller, the default
+10 Hz logger: 6-13 samples per cycle), ``px4_altitude_50hz.ulg`` (high-rate logging), ``hear_x.bag``
+(HEAR ROS 1, x loop, HEAR switching rule, receive-time stamps, OptiTrack at 90 Hz) and
+``dnn_altitude.mat`` (a MATLAB export at 100 Hz).
 
 Noise: 0.2 mm (altitude) and 0.05 deg (attitude) white noise at 200 Hz. The simulator's defaults
 (0.5 mm / 0.2 deg) are too much for the plain MRFT rule at amplitudes of a few cm / degrees: a
@@ -19,6 +26,7 @@ script refuses to write a log with an aborted test or fewer than 10 regular cycl
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import shutil
 import sys
@@ -28,7 +36,8 @@ import numpy as np
 
 from mrftcli.mrft.model import LoopModel
 from mrftcli.io import FORMATS, log_filename, read_flight
-from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
+from mrftcli.io.stacks import StackTest, write_stack_log
+from mrftcli.sim.flight import FlightSpec, plan_test, sidecar_path, simulate_flight, write_flight
 
 REPO = Path(__file__).resolve().parents[1]
 OUT = REPO / "sample_logs"
@@ -69,7 +78,44 @@ def build(name: str, seed: int):
     return simulate_flight(spec)
 
 
-def check_cycles(flight) -> list[int]:
+#: name -> (layout, model, loop, betas, controller rate [Hz], logger rate [Hz] or None, switching, seed)
+STACKS = {
+    "px4_altitude_10hz.ulg": ("px4-mrft", (0.0422, 2.669, 0.0464, 19.62), "altitude", (-0.6, -0.2), 50.0,
+                              10.0, "checks", 101),
+    "px4_altitude_50hz.ulg": ("px4-mrft", (0.0422, 2.669, 0.0464, 19.62), "altitude", (-0.6, -0.2), 50.0,
+                              None, "checks", 101),
+    "hear_x.bag": ("hear-ros", (0.08, 2.0, 0.08, 1.0), "x", (-0.6, -0.3), 200.0, None, "hear", 102),
+    "dnn_altitude.mat": ("mat", (0.0499, 1.8345, 0.0498, 19.62), "altitude", (-0.7, -0.4), 100.0, None,
+                         "checks", 103),
+}
+
+
+def build_stack(name: str):
+    """Simulate one flight-stack scenario; the PX4 pair shares its flight (same seed)."""
+    layout, (tp, td, tau, k), loop, betas, rate, _, switching, seed = STACKS[name]
+    model = LoopModel(tp, td, tau, k)
+    amplitude = 0.05 if loop != "roll" else math.radians(5.0)
+    tests = tuple(plan_test(model, beta, amplitude, rate_hz=rate, cycles=18.0) for beta in betas)
+    spec = FlightSpec(model=model, tests=tests, loop=loop, rate_hz=rate, noise_std=0.0005,
+                      bias=0.5 if loop == "altitude" else 0.0, setpoint=1.0 if loop == "altitude" else 0.0,
+                      hover_s=3.0, hold_s=3.0, seed=seed, switching=switching, start_time=START_TIME)
+    return simulate_flight(spec)
+
+
+def write_stack(flight, name: str, out: Path) -> Path:
+    layout, _, loop, _, _, log_rate, _, seed = STACKS[name]
+    tests = [StackTest(e["t_start"], e["t_end"], e["beta"], e["h"]) for e in flight.truth["tests"]]
+    path = write_stack_log(out / name, layout, loop, flight.t, flight.command, flight.output_measured,
+                           flight.setpoint, flight.truth["bias"], tests, log_rate_hz=log_rate, seed=seed)
+    truth = dict(flight.truth)
+    truth.update(log_format={"px4-mrft": "ulog", "hear-ros": "bag", "mat": "mat"}[layout], log_file=name,
+                 layout=layout, log_rate_hz=log_rate or flight.spec.rate_hz)
+    truth["units"] = dict(truth["units"], output="m")
+    sidecar_path(path).write_text(json.dumps(truth, indent=2, allow_nan=False) + "\n")
+    return path
+
+
+def check_cycles(flight, skip: int = 4) -> list[int]:
     """Regular cycles per test (half-periods within 25 % of the median, after 2 start cycles)."""
     counts = []
     for entry in flight.truth["tests"]:
@@ -78,7 +124,7 @@ def check_cycles(flight) -> list[int]:
         sel = (flight.t >= entry["t_start"]) & (flight.t < entry["t_end"])
         t, u = flight.t[sel], flight.command[sel]
         switches = t[1:][np.diff(u) != 0]
-        half = np.diff(switches)[4:]
+        half = np.diff(switches)[skip:]
         med = np.median(half)
         if np.any(np.abs(half - med) > 0.25 * med):
             raise SystemExit(f"irregular half-periods in test beta={entry['beta']}: {np.round(half, 3)}")
@@ -96,11 +142,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=OUT, help="target directory (default sample_logs/)")
     parser.add_argument("--check", action="store_true", help="read every log back and compare")
+    parser.add_argument("--stacks", action="store_true", help="only the flight-stack layouts' logs")
     args = parser.parse_args(argv)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
-    for seed, name in enumerate(SCENARIOS, start=1):
+    flights: dict = {}
+    for name in STACKS:
+        key = STACKS[name][:5] + STACKS[name][6:]  # the PX4 pair flies once, logged at two rates
+        if key not in flights:
+            flights[key] = build_stack(name)
+            check_cycles(flights[key], skip=8)
+        path = write_stack(flights[key], name, out)
+        written.append(path)
+        print(f"{path.relative_to(out.parent)}  {size_of(path) / 1e3:7.1f} kB  ({STACKS[name][0]})")
+    for seed, name in enumerate(() if args.stacks else SCENARIOS, start=1):
         flight = build(name, seed)
         cycles = check_cycles(flight)
         formats = FORMATS if name == ALL_FORMATS_SCENARIO else ("mcap",)

@@ -226,7 +226,7 @@ def _formats(name: str, tree: dict, prefix: str, out: list[str]) -> list[str]:
     fields, leaves = [], []
     if not prefix:
         fields.append("uint64_t timestamp")
-    arrays: dict[str, int] = {}  # name[i] leaves become one ``double name[N]`` field (PX4's arrays)
+    arrays: dict[str, int] = {}  # name[i] leaves become one ``double[N] name`` field (PX4's arrays)
     for key in tree:
         m = re.fullmatch(r"(\w+)\[(\d+)\]", key)
         if m and tree[key] is None:
@@ -237,7 +237,7 @@ def _formats(name: str, tree: dict, prefix: str, out: list[str]) -> list[str]:
             base = m.group(1)
             if base in arrays:
                 n = arrays.pop(base)
-                fields.append(f"double {base}[{n}]")
+                fields.append(f"double[{n}] {base}")
                 leaves.extend(f"{prefix}{base}[{i}]" for i in range(n))
             continue
         if sub is None:

@@ -20,10 +20,30 @@ import numpy as np
 from ..mrft.harmonics import HarmonicFit, fit_harmonics
 from .records import RelayCycle
 
-__all__ = ["CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles"]
+__all__ = ["CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles", "harmonics_for",
+           "MIN_SAMPLES_PER_CYCLE"]
 
 #: harmonics of the per-cycle fits (truncation error near 5e-4 of the amplitude)
 _HARMONICS = 8
+#: fewest samples per period a cycle is measured from (a line and one harmonic, twice over)
+MIN_SAMPLES_PER_CYCLE = 8
+
+
+def harmonics_for(n_samples: int) -> int:
+    """Harmonics a period-long fit of ``n_samples`` samples can carry (0: too few to measure).
+
+    Eight when there are at least 2 (2 * 8 + 2) = 36 samples (the fit's parameters twice over), else
+    as many as keep that ratio: a 10 Hz log of a 1 Hz cycle (10 samples) gets a line and harmonics
+    1..1, enough for the fundamental (what identification uses) and for the extrema of the smooth,
+    low-pass filtered output, at a truncation error that grows to a few % of the amplitude (the
+    interval widens through the cycle-to-cycle scatter it adds).
+
+    Examples
+    --------
+    >>> [harmonics_for(n) for n in (7, 8, 12, 20, 35, 36, 200)]
+    [0, 1, 2, 4, 7, 8, 8]
+    """
+    return int(min(_HARMONICS, max(0, (n_samples // 2 - 2) // 2)))
 
 
 class CycleFundamental(NamedTuple):
@@ -68,9 +88,13 @@ def _periodic_fit(t: np.ndarray, y: np.ndarray, tc: float, P: float, dt: float,
     keep = np.ones(tt.size, bool)
     for ts in t_switch[j0:j1]:
         keep &= ~((tt > ts - 1.5 * dt) & (tt < ts + 0.5 * dt))
-    tt, yy = tt[keep], yy[keep]
     H = _HARMONICS
-    if tt.size < 2 * (2 * H + 2):
+    if keep.sum() >= 2 * (2 * H + 2):
+        return fit_harmonics(tt[keep] - tc, yy[keep], P, H)
+    # few samples per cycle: every sample counts (at a low logging rate the logged samples are not
+    # the ones that decided a switch anyway), with fewer harmonics
+    H = harmonics_for(tt.size)
+    if H < 1:
         return None
     return fit_harmonics(tt - tc, yy, P, H)
 
@@ -143,7 +167,8 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
     Returns
     -------
     CycleFundamental
-        NaNs when there are fewer than 2 (2 H + 2) samples in the cycle.
+        NaNs when there are fewer than :data:`MIN_SAMPLES_PER_CYCLE` samples in the cycle (fewer
+        harmonics below 36: :func:`harmonics_for`).
 
     Examples
     --------
@@ -160,9 +185,9 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
     P = t2 - t0
     i0, i1 = np.searchsorted(t, [t0, t2])
     tt, yy = t[i0:i1] - t0, y[i0:i1]
-    H = _HARMONICS
+    H = harmonics_for(tt.size)
     npar = 2 * H + 2
-    if tt.size < 2 * npar:
+    if H < 1:
         return CycleFundamental(complex(nan, nan), nan, nan, nan)
     fit = fit_harmonics(tt, yy, P, H)
     coef, resid = fit.coef, fit.residual

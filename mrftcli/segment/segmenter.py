@@ -22,6 +22,9 @@ __all__ = ["segment", "segment_arrays"]
 
 #: a switch after at most this many missing command samples is interpolated, after more it is a gap
 _MAX_INTERP_SAMPLES = 2
+#: a command logged below this rate [Hz] is a logger's sub-sampling of a faster controller (PX4's
+#: default 10 Hz logger over its 50 Hz position controller): its switch instants are only bracketed
+LOW_RATE_HZ = 25.0
 
 
 def segment_arrays(
@@ -113,6 +116,11 @@ def segment_arrays(
                 f.add("gap")
             if prev.glitch:
                 f.add("glitch")
+            if rate < LOW_RATE_HZ and not f and r.start > 0:
+                # the relay switched somewhere between the last sample at the old level and the
+                # first at the new one: the middle is unbiased (the first new sample is late by
+                # half a logging period on average, which would read as a shorter tau)
+                t_sw[k] = 0.5 * (tc[r.start - 1] + tc[r.start])
             flags_sw.append(f)
 
         # Output in the test window (the first to the last switch, with a margin)
@@ -159,6 +167,9 @@ def segment_arrays(
             sel = np.flatnonzero((bt > prev_end) & (bt <= t_b))
             if sel.size:
                 beta_nom = float(np.asarray(beta_v, float)[sel[-1]])
+        if rate < LOW_RATE_HZ:
+            notes.append(f"command logged at {rate:.0f} Hz: each switch instant is known only to "
+                         f"+-{500.0 / rate:.0f} ms (taken mid-way between two samples)")
         n_interp = sum("interp" in c.flags for c in final)
         if n_interp:
             notes.append(f"{n_interp} cycle(s) with a switch after 1-2 missing command samples (instant interpolated)")

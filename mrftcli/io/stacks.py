@@ -1,0 +1,184 @@
+"""Write a flight's signals the way a real flight stack records them (:mod:`mrftcli.io.layouts`).
+
+The simulator (:mod:`mrftcli.sim`) flies at the controller's rate and writes the reference layout; this
+module turns the same arrays into what PX4 with the MRFT patch, the HEAR ROS 1 stack or a MATLAB
+export would have logged: their topic names, frames and signs, their logging rates (PX4's default
+10 Hz logger), their receive-time stamps (HEAR's header-less ``geometry_msgs/Point``) and, for PX4,
+beta, h and the test windows as parameter changes. The sample logs and the layout tests use it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .logtypes import TopicData
+
+__all__ = ["StackTest", "write_stack_log", "STACK_FORMATS"]
+
+#: layout -> the format its logs are written in
+STACK_FORMATS = {"px4-mrft": "ulog", "hear-ros": "bag", "mat": "mat", "mat-v73": "mat"}
+_AXIS = {"x": 0, "y": 1, "altitude": 2}
+
+
+@dataclass(frozen=True)
+class StackTest:
+    """One MRFT test as the stack switched it on: window [s], beta and h [command units]."""
+
+    t_start: float
+    t_end: float
+    beta: float
+    h: float
+
+
+def _decimate(t: np.ndarray, rate_hz: float | None) -> np.ndarray:
+    """Indices of the samples a logger at ``rate_hz`` keeps (every k-th controller tick)."""
+    if rate_hz is None:
+        return np.arange(t.size)
+    dt = float(np.median(np.diff(t)))
+    step = max(1, int(round(1.0 / (rate_hz * dt))))
+    return np.arange(0, t.size, step)
+
+
+def _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz):
+    if loop not in _AXIS:
+        raise InputError(f"the PX4 MRFT patch runs on x, y and altitude, not {loop}")
+    k = _decimate(t, log_rate_hz)
+    axis = _AXIS[loop]
+    n = k.size
+    pos = {c: np.zeros(n) for c in "xyz"}
+    sp = {c: np.zeros(n) for c in "xyz"}
+    thrust = {f"thrust[{i}]": np.zeros(n) for i in range(3)}
+    hover = bias if loop == "altitude" else 0.5
+    thrust["thrust[2]"][:] = -hover
+    c = "xyz"[axis]
+    if loop == "altitude":  # NED: z down, thrust[2] = -(u) - hover (upwards is negative)
+        pos[c] = -output[k]
+        sp[c] = -setpoint[k]
+        thrust["thrust[2]"] = -command[k]
+    else:
+        pos[c] = output[k]
+        sp[c] = setpoint[k]
+        thrust[f"thrust[{axis}]"] = command[k] - bias
+    tk = t[k]
+    topics = [
+        TopicData("vehicle_local_position", "px4", tk, {**pos, "vx": np.gradient(pos["x"], tk),
+                                                        "vy": np.gradient(pos["y"], tk),
+                                                        "vz": np.gradient(pos["z"], tk)}),
+        TopicData("vehicle_local_position_setpoint", "px4", tk, {**sp, **thrust}),
+        TopicData("hover_thrust_estimate", "px4", tk[::10], {"hover_thrust": np.full(tk[::10].size, hover)}),
+    ]
+    A = "XYZ"[axis]
+    params = {f"MRFT_{a}_{p}": v for a in "XYZ" for p, v in
+              (("BETA", -0.73), ("H", 0.05), ("ENABLE", 0.0), ("NO_SWITCH", 0.02), ("N_CONF", 5.0))}
+    params["MPC_THR_HOVER"] = hover
+    changes, messages = [], []
+    for test in tests:
+        changes += [(test.t_start, f"MRFT_{A}_BETA", test.beta), (test.t_start, f"MRFT_{A}_H", test.h),
+                    (test.t_start, f"MRFT_{A}_ENABLE", 1.0), (test.t_end, f"MRFT_{A}_ENABLE", 0.0)]
+        on = [int(a == A) for a in "XYZ"]
+        messages.append((test.t_start, "MRFT parameters updated, x: %i, y: %i, z: %i" % tuple(on)))
+    return topics, {"parameters": params, "parameter_changes": changes, "messages": messages}
+
+
+def _hear(loop, t, command, output, setpoint, bias, tests, log_rate_hz, rng):
+    """HEAR ROS 1: Points without header, stamped at receive time (a few ms of jitter)."""
+    names = {"x": ("fh", "x"), "y": ("fh", "y"), "altitude": ("fh", "z"), "roll": ("angle", "x"),
+             "pitch": ("angle", "y")}
+    if loop not in names:
+        raise InputError(f"the HEAR layout has no loop {loop}")
+    kind, comp = names[loop]
+    k = _decimate(t, log_rate_hz)
+    # OptiTrack at ~90 Hz: the latest controller-tick sample at each camera frame
+    t_cam = np.arange(t[0], t[-1], 1.0 / 90.0)
+    kc = np.clip(np.searchsorted(t, t_cam, side="right") - 1, 0, t.size - 1)
+
+    def received(stamps):
+        late = np.abs(rng.normal(0.0, 0.002, stamps.size)) + 0.001  # transport + scheduling delay
+        # a bag's receive times of one topic increase (1 us apart at least)
+        ramp = np.arange(stamps.size) * 1e-6
+        return np.maximum.accumulate(stamps + late - ramp) + ramp
+
+    def point(values, n):
+        out = {c: np.zeros(n) for c in "xyz"}
+        out[comp] = values
+        return out
+
+    if kind == "fh":
+        cmd_topic, out_topic, ref_topic = "/fh_des", "/opti/pos", "/waypoint_reference/pos"
+    else:
+        cmd_topic, out_topic, ref_topic = "/angle_u", "/opti/ori", "/angle_ref"
+    return [
+        TopicData(cmd_topic, "geometry_msgs/msg/Point", received(t[k]), point(command[k], k.size)),
+        TopicData(out_topic, "geometry_msgs/msg/Point", received(t[kc]), point(output[kc], kc.size)),
+        TopicData(ref_topic, "geometry_msgs/msg/Point", received(t[k][::10]), point(setpoint[k][::10], k[::10].size)),
+    ]
+
+
+def _mat(loop, t, command, output, setpoint, log_rate_hz):
+    index = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4}[loop]
+    out_name = {"x": "x", "y": "y", "altitude": "z", "roll": "roll", "pitch": "pitch"}[loop]
+    k = _decimate(t, log_rate_hz)
+    return [TopicData(f"controller_output_{index}", "vector", t[k], {"data": command[k]}),
+            TopicData(out_name, "vector", t[k], {"data": output[k]})]
+
+
+def write_stack_log(path: str | Path, layout: str, loop: str, t: np.ndarray, command: np.ndarray,
+                    output: np.ndarray, setpoint: np.ndarray | float, bias: float,
+                    tests: list[StackTest], *, log_rate_hz: float | None = None, seed: int = 0) -> Path:
+    """Write one loop's flight as ``layout`` logs it.
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file (``.ulg`` for ``px4-mrft``, ``.bag`` for ``hear-ros``, ``.mat`` for ``mat`` and
+        ``mat-v73``).
+    layout : {"px4-mrft", "hear-ros", "mat", "mat-v73"}
+    loop : str
+        The loop the tests excite (in the loop's frame: altitude up, command = bias + relay).
+    t, command, output : numpy.ndarray
+        Controller ticks [s], the command sent (bias + relay output) and the measured output.
+    setpoint : numpy.ndarray or float
+        The loop reference [output units].
+    bias : float
+        The command's trim (hover thrust for altitude).
+    tests : list of StackTest
+        The tests' windows, beta and h (PX4 logs them as parameter changes).
+    log_rate_hz : float, optional
+        The logger's rate (PX4's default profile: 10 Hz); None logs every controller tick.
+    seed : int
+        Seed of the receive-time jitter (hear-ros).
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    t = np.asarray(t, float)
+    command = np.asarray(command, float)
+    output = np.asarray(output, float)
+    setpoint = np.broadcast_to(np.asarray(setpoint, float), t.shape).copy()
+    path = Path(path)
+    if path.exists():
+        path.unlink()
+    if layout == "px4-mrft":
+        from .format_ulog import write_ulog
+
+        topics, extra = _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz)
+        write_ulog(topics, path, **extra)
+    elif layout == "hear-ros":
+        from .format_rosbag import write_rosbag
+
+        topics = _hear(loop, t, command, output, setpoint, bias, tests, log_rate_hz,
+                       np.random.default_rng(seed))
+        write_rosbag(topics, path, "bag")
+    elif layout in ("mat", "mat-v73"):
+        from .format_mat import write_mat
+
+        write_mat(_mat(loop, t, command, output, setpoint, log_rate_hz), path, v73=layout == "mat-v73")
+    else:
+        raise InputError(f"cannot write layout {layout!r}; choose one of {', '.join(STACK_FORMATS)}")
+    return path

@@ -1,0 +1,133 @@
+"""Flight-stack layouts: auto-detection, the sample logs each stack writes, few samples per cycle.
+
+Oracles: the simulator's truth sidecars (sample_logs/*.truth.json, written by
+scripts/make_sample_logs.py through mrftcli.io.stacks), closed forms for the per-cycle fit.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrftcli.analyze import analyze_flight
+from mrftcli.io import LAYOUTS, detect_layout, log_layout, open_log, read_flight
+from mrftcli.io.logtypes import TopicData
+from mrftcli.segment.cycles import cycle_fundamental, harmonics_for
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+STACK_LOGS = {"px4_altitude_10hz.ulg": "px4-mrft", "px4_altitude_50hz.ulg": "px4-mrft",
+              "hear_x.bag": "hear-ros", "dnn_altitude.mat": "mat"}
+
+
+def truth(name: str) -> dict:
+    return json.loads((SAMPLES / f"{name}.truth.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def analyses() -> dict:
+    """Each stack log analysed once (the layout auto-detected, nothing named)."""
+    out = {}
+    for name in STACK_LOGS:
+        tr = truth(name)
+        flight = read_flight(SAMPLES / name, loop=tr["loop"], echo_warnings=False)
+        out[name] = (flight, analyze_flight(flight, Tp=tr["Tp"], n_bootstrap=200, seed=1), tr)
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(STACK_LOGS))
+def test_stack_log_identifies_within_interval(analyses, name):
+    flight, result, tr = analyses[name]
+    assert flight.source["layout"].startswith(STACK_LOGS[name] + " (auto-detected")
+    params = result.to_dict()["parameters"]
+    for key in ("Td", "tau", "K"):
+        p = params[key]
+        assert p["ci95_low"] <= tr[key] <= p["ci95_high"], (name, key, p, tr[key])
+
+
+def test_low_rate_log_interval_contains_truth_and_is_wider(analyses):
+    low = analyses["px4_altitude_10hz.ulg"][1].to_dict()["parameters"]["tau"]
+    high = analyses["px4_altitude_50hz.ulg"][1].to_dict()["parameters"]["tau"]
+    assert low["ci95_high"] - low["ci95_low"] > 1.5 * (high["ci95_high"] - high["ci95_low"])
+    flight = analyses["px4_altitude_10hz.ulg"][0]
+    assert sum("SDLOG_PROFILE" in w for w in flight.warnings) == 1  # warned once, naming the fix
+
+
+def test_px4_beta_and_windows_from_parameter_changes(analyses):
+    flight, result, tr = analyses["px4_altitude_50hz.ulg"]
+    assert flight.beta is not None
+    np.testing.assert_allclose(flight.beta.values, [e["beta"] for e in tr["tests"]])
+    np.testing.assert_allclose(flight.beta.t, [e["t_start"] for e in tr["tests"]], atol=0.03)
+    windows = flight.source["test_windows"]
+    np.testing.assert_allclose(np.array(windows, float), [[e["t_start"], e["t_end"]] for e in tr["tests"]],
+                               atol=0.03)
+    # NED z and upward-negative thrust turned into altitude up and thrust up: +h raises the output
+    assert all(t.loop_sign == 1 for t in result.tests)
+    assert abs(np.median(flight.output.values) - tr["setpoint"]) < 0.1
+
+
+def test_receive_time_jitter_is_estimated(analyses):
+    flight = analyses["hear_x.bag"][0]
+    assert flight.source["timestamps"] == "receive"
+    assert 0.0003 < flight.source["timing_jitter_s"] < 0.005  # written with |N(0, 2 ms)| + 1 ms delays
+
+
+@pytest.mark.parametrize("path", sorted(p.name for p in SAMPLES.iterdir()
+                                        if not p.name.endswith((".json", ".md")) and p.name != "concealed"))
+def test_autodetection_picks_the_layout_of_every_sample_log(path):
+    with open_log(SAMPLES / path, echo_warnings=False) as log:
+        match = log_layout(log)
+    assert match.detected
+    assert match.layout.name == STACK_LOGS.get(path, "reference")
+
+
+def test_detection_of_the_stacks_without_sample_logs():
+    assert detect_layout(["/control_system_output", "/providers/z"], "bag").layout.name == "hear-2020"
+    assert detect_layout(["/mavros/local_position/pose", "/mavros/imu/data"], "bag").layout.name == "mavros"
+    assert detect_layout(["vehicle_local_position_setpoint"], "bag") is None  # PX4 writes ULog only
+    assert set(LAYOUTS["px4-mrft"].loops) == {"altitude", "x", "y"}
+
+
+def test_named_layout_and_explicit_topics_override(tmp_path):
+    name = "hear_x.bag"
+    flight = read_flight(SAMPLES / name, loop="x", layout="hear-ros", echo_warnings=False)
+    assert flight.source["layout"] == "hear-ros (--layout)"
+    own = read_flight(SAMPLES / name, loop="x", command_topic="/fh_des:x", output_topic="/opti/pos:x",
+                      layout="reference", echo_warnings=False)
+    np.testing.assert_array_equal(own.output.values, flight.output.values)
+    from mrftcli.errors import InputError
+
+    with pytest.raises(InputError, match="no roll loop"):
+        read_flight(SAMPLES / "px4_altitude_50hz.ulg", loop="roll", echo_warnings=False)
+
+
+def test_mat_v73_reads_like_v5(tmp_path):
+    from mrftcli.io.format_mat import write_mat
+
+    t = np.arange(50) * 0.01
+    topics = [TopicData("controller_output_2", "vector", t, {"data": np.sin(t)}),
+              TopicData("z", "vector", t, {"data": np.cos(t)})]
+    for v73 in (False, True):
+        path = tmp_path / f"f{int(v73)}.mat"
+        write_mat(topics, path, v73=v73)
+        flight = read_flight(path, echo_warnings=False)
+        assert flight.source["layout"].startswith("mat (auto-detected")
+        np.testing.assert_allclose(flight.command.values, np.sin(t))
+        np.testing.assert_allclose(flight.output.t, t)
+
+
+@pytest.mark.parametrize("n", [8, 10, 16, 34])
+def test_few_samples_per_cycle_still_measure_the_fundamental(n):
+    # a pure integrator's triangle wave: G(j Omega) = 1 / (j Omega), phase -pi/2, |G| Omega = 1
+    assert harmonics_for(n) >= 1
+    P = 1.0
+    t = (np.arange(n) + 0.3) * P / n
+    y = np.where(t < P / 2, t, P - t)
+    g = cycle_fundamental(t, y, 0.0, P / 2, P, 1.0)
+    # fewer harmonics: the error grows from 0.017 rad / 0.1 % (34 samples) to 0.04-0.065 rad / 2 %
+    # (8-20 samples) on this cycle (docs/log-layout.md, "few samples per cycle")
+    assert abs(np.angle(g.response) + np.pi / 2) < (0.07 if n < 30 else 0.02)
+    assert abs(abs(g.response) * 2 * np.pi / P - 1.0) < (0.025 if n < 30 else 0.002)
+    assert harmonics_for(n - 1) < harmonics_for(40) and np.isnan(cycle_fundamental(t[:7], y[:7], 0, .5, 1, 1).response)

@@ -36,7 +36,6 @@ from a cycle's end reaching the file to the updated estimate (benchmarks/bench_w
 
 from __future__ import annotations
 
-import contextlib
 import io
 import json
 import math
@@ -464,13 +463,14 @@ class _RereadSnapshot:
             return None, False, False
         self.size = size
         L = self.layout
-        # the readers report a salvaged (half-written) file on stderr: here that is the normal state
-        with contextlib.redirect_stderr(io.StringIO()), warnings.catch_warnings():
+        # a salvaged (half-written) file is the normal state here: the reader keeps its warnings
+        # in FlightLog.warnings instead of printing them (echo_warnings=False)
+        with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
                 flight = read_flight(self.path, loop=L.loop, command_topic=L.command, output_topic=L.output,
                                      beta_topic=L.beta, setpoint_topic=L.setpoint, output_scale=L.output_scale,
-                                     fmt=self.fmt)
+                                     fmt=self.fmt, echo_warnings=False)
             except LogReadError:
                 return None, True, False  # a half-written row/record or topics not there yet: next poll
         return flight, True, False

@@ -69,7 +69,7 @@ class CycleFundamental(NamedTuple):
 
 
 def _periodic_fit(t: np.ndarray, y: np.ndarray, tc: float, P: float, dt: float,
-                  t_switch: np.ndarray) -> HarmonicFit | None:
+                  t_switch: np.ndarray, few_samples: bool = False) -> HarmonicFit | None:
     """Least-squares model of the output over one period centred at ``tc`` (x = t - tc).
 
     Model: a line plus harmonics 1..H of 1/P (:func:`mrftcli.mrft.harmonics.fit_harmonics`). The output of an MRFT loop has a discontinuous third
@@ -91,6 +91,8 @@ def _periodic_fit(t: np.ndarray, y: np.ndarray, tc: float, P: float, dt: float,
     H = _HARMONICS
     if keep.sum() >= 2 * (2 * H + 2):
         return fit_harmonics(tt[keep] - tc, yy[keep], P, H)
+    if not few_samples:
+        return None
     # few samples per cycle: every sample counts (at a low logging rate the logged samples are not
     # the ones that decided a switch anyway), with fewer harmonics
     H = harmonics_for(tt.size)
@@ -100,8 +102,12 @@ def _periodic_fit(t: np.ndarray, y: np.ndarray, tc: float, P: float, dt: float,
 
 
 def cycle_extrema(t: np.ndarray, y: np.ndarray, t_switch: np.ndarray, t0: float, t1: float, t2: float,
-                  dt: float) -> tuple[float, float, float, float, float, float]:
+                  dt: float, few_samples: bool = False) -> tuple[float, float, float, float, float, float]:
     """Extrema and switch-instant outputs of one cycle from period-long harmonic fits.
+
+    ``few_samples``: the test is logged with fewer than 36 samples per cycle, so a fit with fewer
+    harmonics (:func:`harmonics_for`) is used where the full one has too few samples; otherwise such
+    a cycle (a start-up transient of a well-sampled test) is not measured.
 
     Returns
     -------
@@ -118,7 +124,7 @@ def cycle_extrema(t: np.ndarray, y: np.ndarray, t_switch: np.ndarray, t0: float,
     vals = []
     for lo, hi, sgn in ((t0, t1, -1.0), (t1, t2, 1.0)):
         tc = 0.5 * (lo + hi)
-        f = _periodic_fit(t, y, tc, P, dt, t_switch)
+        f = _periodic_fit(t, y, tc, P, dt, t_switch, few_samples)
         if f is None:
             return nan
         xs = np.linspace(lo - tc, hi - tc, 201)
@@ -134,7 +140,7 @@ def cycle_extrema(t: np.ndarray, y: np.ndarray, t_switch: np.ndarray, t0: float,
 
 
 def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: float,
-                      h: float) -> CycleFundamental:
+                      h: float, few_samples: bool = True) -> CycleFundamental:
     """Fundamental of one cycle and how much of the output it explains (Beyond the paper).
 
     The relay output is u = +h on [t0, t1) and -h on [t1, t2) (the plant's input between the logged
@@ -163,6 +169,8 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
         The cycle's -h -> +h switch, its +h -> -h switch and the closing -h -> +h switch [s].
     h : float
         Relay half-height [command units].
+    few_samples : bool
+        Fewer harmonics below 36 samples (:func:`harmonics_for`); False keeps eight and returns NaNs.
 
     Returns
     -------
@@ -185,9 +193,9 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
     P = t2 - t0
     i0, i1 = np.searchsorted(t, [t0, t2])
     tt, yy = t[i0:i1] - t0, y[i0:i1]
-    H = harmonics_for(tt.size)
+    H = harmonics_for(tt.size) if few_samples else _HARMONICS
     npar = 2 * H + 2
-    if H < 1:
+    if H < 1 or tt.size < 2 * npar:
         return CycleFundamental(complex(nan, nan), nan, nan, nan)
     fit = fit_harmonics(tt, yy, P, H)
     coef, resid = fit.coef, fit.residual
@@ -209,6 +217,7 @@ def measure_cycles(
     y: np.ndarray,
     dt: float,
     h: float = 1.0,
+    few_samples: bool = False,
 ) -> list[RelayCycle]:
     """Measure the cycles between consecutive -h -> +h switches (step 3 of :mod:`mrftcli.segment`).
 
@@ -226,6 +235,9 @@ def measure_cycles(
         Controller sample period [s].
     h : float
         Relay half-height [command units].
+    few_samples : bool
+        The test has fewer than 36 output samples per cycle: measure cycles from 8 samples up with
+        fewer harmonics (:func:`harmonics_for`).
 
     Returns
     -------
@@ -244,7 +256,7 @@ def measure_cycles(
             flags |= flags_sw[k]
         interp_dn = "interp" in flags_sw[a + 1]
         interp_up = "interp" in flags_sw[b]
-        t_min, y_min, t_max, y_max, y_dn, y_up = cycle_extrema(t_y, y, t_sw, t0, t1, t2, dt)
+        t_min, y_min, t_max, y_max, y_dn, y_up = cycle_extrema(t_y, y, t_sw, t0, t1, t2, dt, few_samples)
         amp = (y_max - y_min) / 2
         centre = (y_max + y_min) / 2
         if not (np.isfinite(amp) and amp > 0 and np.isfinite(y_dn) and np.isfinite(y_up)):
@@ -256,7 +268,7 @@ def measure_cycles(
             b_up = -(y_up - centre) / amp if not interp_up else float("nan")
             if interp_dn and interp_up:
                 flags.add("irregular")
-        g1, noise, frac, a1 = cycle_fundamental(t_y, y, t0, t1, t2, h)
+        g1, noise, frac, a1 = cycle_fundamental(t_y, y, t0, t1, t2, h, few_samples)
         if interp_dn or interp_up or "gap" in flags:
             g1 = complex(float("nan"), float("nan"))  # the square wave's timing is not known
         ph1 = float(np.angle(g1)) if np.isfinite(g1) else float("nan")

@@ -1,0 +1,425 @@
+"""The sampled closed loop of a tuned controller on G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)).
+
+A digital controller runs at ``rate_hz``: at tick t_k = k T it samples the output y_k, computes the
+command u_k and holds it for one period (zero-order hold); the command reaches the plant ``tau``
+later. The controller is a PID in parallel form with the derivative on the measurement through a
+first-order filter, discretised by backward differences (stable for any Tf >= 0)::
+
+    I_k = I_{k-1} + Ki T e_k,            e_k = r - y_k
+    D_k = (Tf D_{k-1} - Kd (y_k - y_{k-1})) / (Tf + T)
+    u_k = Kp e_k + I_k + D_k
+
+Two independent routes give the same sampled loop:
+
+* :func:`discrete_plant` and :func:`closed_loop_matrices`: the exact zero-order-hold equivalent of
+  the plant with a fractional delay (tau = d T + eps: the command of tick k - d - 1 acts for the first
+  eps of each period, that of tick k - d for the rest), closed with the controller into one state
+  matrix z_{k+1} = A z_k + B r; :func:`step_response` iterates it, vectorised over models.
+* :func:`simulate_step`: an event-driven time-domain simulation of the continuous plant (matrix
+  exponentials between the instants at which a held command reaches the plant), with the controller
+  of :class:`Controller` stepping at every tick. It is the check of the first route
+  (``tests/test_tune.py``, ``benchmarks/bench_tune.py``).
+
+Both are exact for the linear plant (no delay quantisation, no Pade approximant).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+from ..validate import check_positive
+
+__all__ = ["Controller", "DiscretePlant", "StepMetrics", "discrete_plant", "closed_loop_matrices", "step_response",
+           "step_metrics", "criterion", "simulate_step", "spectral_radius", "SETTLING_BAND"]
+
+#: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
+SETTLING_BAND = 0.02
+#: |y| beyond this many step heights: the loop diverged (unstable).
+_DIVERGED = 1e3
+
+
+@dataclass(frozen=True)
+class Controller:
+    """A sampled PID (parallel form, derivative on the measurement, first-order derivative filter).
+
+    C(s) = Kp + Ki / s + Kd s / (Tf s + 1) on the error for P and I, on -y for D, at ``rate_hz``.
+
+    Attributes
+    ----------
+    Kp : float
+        Proportional gain [command units / output unit].
+    Ki : float
+        Integral gain [command units / (output unit s)]; 0 for a PD.
+    Kd : float
+        Derivative gain [command units / (output unit / s)].
+    Tf : float
+        Derivative filter time constant [s] (>= 0).
+    rate_hz : float
+        Controller rate [Hz].
+
+    Examples
+    --------
+    >>> c = Controller(Kp=2.0, Ki=0.0, Kd=0.5, Tf=0.01, rate_hz=200.0)
+    >>> c.kind, c.Ts
+    ('PD', 0.005)
+    """
+
+    Kp: float
+    Ki: float
+    Kd: float
+    Tf: float
+    rate_hz: float
+
+    def __post_init__(self) -> None:
+        for name in ("Kp", "Ki", "Kd", "Tf"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"controller {name} must be a finite number >= 0, got {v!r}")
+        check_positive("the controller rate [Hz]", self.rate_hz)
+
+    @property
+    def Ts(self) -> float:
+        """Sample period [s]."""
+        return 1.0 / self.rate_hz
+
+    @property
+    def kind(self) -> str:
+        """``"PD"`` or ``"PID"``."""
+        return "PID" if self.Ki > 0 else "PD"
+
+    def scaled(self, g: float) -> "Controller":
+        """The same controller with Kp, Ki, Kd multiplied by ``g`` (Tf kept)."""
+        return Controller(self.Kp * g, self.Ki * g, self.Kd * g, self.Tf, self.rate_hz)
+
+    def feedback_response(self, omega: np.ndarray) -> np.ndarray:
+        """C_fb(e^{j omega T}): the controller from -y to u (the loop is L = C_fb Gd), omega in rad/s."""
+        T = self.Ts
+        z = np.exp(1j * np.asarray(omega, float) * T)
+        return (self.Kp + self.Ki * T * z / (z - 1.0) + self.Kd * (z - 1.0) / ((self.Tf + T) * z - self.Tf))
+
+    def noise_gain(self) -> float:
+        """|C_fb| at the Nyquist frequency [command units / output unit]: how much sensor noise reaches u.
+
+        With backward differences the derivative's gain is largest at z = -1.
+        """
+        T = self.Ts
+        return abs(self.Kp - self.Ki * T / 2.0 + self.Kd * 2.0 / (2.0 * self.Tf + T))
+
+    def to_dict(self) -> dict:
+        """Kp, Ki, Kd, Tf [s], rate_hz and the form."""
+        return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz,
+                "form": "parallel; derivative on measurement, first-order filter Tf; backward differences"}
+
+
+@dataclass(frozen=True)
+class StepMetrics:
+    """Figures of a unit setpoint step (output y relative to the step).
+
+    Attributes
+    ----------
+    overshoot_pct : float
+        max(y) - 1 in percent of the step (0 when y never exceeds 1).
+    rise_s : float
+        Time from 10 % to 90 % of the step [s].
+    settling_s : float
+        Last time |y - 1| > SETTLING_BAND, i.e. settled from then on [s]; NaN if not settled in the horizon.
+    iae, itae : float
+        Integral of |e| [output unit s] and of t |e| [output unit s^2] over the horizon.
+    peak_u : float
+        Largest |u| [command units per output unit of step].
+    """
+
+    overshoot_pct: float
+    rise_s: float
+    settling_s: float
+    iae: float
+    itae: float
+    peak_u: float
+
+    def to_dict(self) -> dict:
+        return {"overshoot_pct": self.overshoot_pct, "rise_s": self.rise_s, "settling_s": self.settling_s,
+                "iae": self.iae, "itae": self.itae, "peak_u": self.peak_u}
+
+
+def _zoh_integrals(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(e^{A t}, int_0^t e^{A s} ds B) from one matrix exponential of the augmented system."""
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n] = A
+    M[:n, n] = B
+    E = expm(M * t)
+    return E[:n, :n], E[:n, n]
+
+
+@dataclass(frozen=True, eq=False)
+class DiscretePlant:
+    """x_{k+1} = Phi x_k + Gamma[0] u_{k-d-1} + Gamma[1] u_{k-d},  y_k = C x_k (see :func:`discrete_plant`)."""
+
+    Phi: np.ndarray
+    Gamma: np.ndarray
+    C: np.ndarray
+    d: int
+    rate_hz: float
+
+    def __iter__(self):
+        return iter((self.Phi, self.Gamma, self.C, self.d))
+
+
+def discrete_plant(model: LoopModel, rate_hz: float) -> DiscretePlant:
+    """Exact zero-order-hold equivalent of the plant with its delay.
+
+    x_{k+1} = Phi x_k + Gamma_a u_{k-d-1} + Gamma_b u_{k-d},  y_k = C x_k, with tau = d T + eps,
+    0 <= eps < T.
+
+    Returns
+    -------
+    DiscretePlant
+        Phi (3, 3), Gamma (2, 3) (rows Gamma_a, Gamma_b), C (3,), d; unpacks as (Phi, Gamma, C, d).
+    """
+    T = 1.0 / check_positive("the controller rate [Hz]", rate_hz)
+    A, B, C = model.state_space()
+    d = int(math.floor(model.tau / T + 1e-12))
+    eps = max(model.tau - d * T, 0.0)
+    Phi, _ = _zoh_integrals(A, B, T)
+    E1, G_eps = _zoh_integrals(A, B, eps)
+    E2, G_rest = _zoh_integrals(A, B, T - eps)
+    Gamma_a = E2 @ G_eps  # the old command acts over [0, eps), then propagates over the rest
+    Gamma_b = G_rest
+    return DiscretePlant(Phi, np.stack([Gamma_a, Gamma_b]), C, d, float(rate_hz))
+
+
+def _discrete(models, rate_hz: float) -> list[DiscretePlant]:
+    out = []
+    for m in models:
+        if isinstance(m, DiscretePlant):
+            if abs(m.rate_hz - rate_hz) > 1e-9 * rate_hz:
+                raise InputError("a discretised plant was made for another controller rate")
+            out.append(m)
+        else:
+            out.append(discrete_plant(m, rate_hz))
+    return out
+
+
+def closed_loop_matrices(models, controller: Controller, d_max: int | None = None):
+    """Closed-loop state matrices for one controller on each of ``models``.
+
+    ``models``: LoopModel or DiscretePlant items (the latter saves the discretisation when one set
+    of plants is closed with many controllers).
+
+    State z_k = [x_k (3), u_{k-1}, ..., u_{k-1-D} (D + 1), I_{k-1}, D_{k-1}, y_{k-1}] with D = d_max
+    (the largest delay in samples; shorter delays leave the extra buffer slots unused).
+
+    Returns
+    -------
+    A : (M, n, n); B : (M, n); Cy : (M, n); Cu : (M, n); Du : (M,)
+        z_{k+1} = A z_k + B r,  y_k = Cy z_k,  u_k = Cu z_k + Du r.
+    """
+    models = list(models)
+    plants = _discrete(models, controller.rate_hz)
+    D = max(p.d for p in plants) if d_max is None else int(d_max)
+    if any(p.d > D for p in plants):
+        raise InputError("d_max is smaller than a model's delay in samples")
+    nb = D + 1
+    n = 3 + nb + 3
+    iI, iD, iy = 3 + nb, 4 + nb, 5 + nb
+    Kp, Ki, Kd, Tf, T = controller.Kp, controller.Ki, controller.Kd, controller.Tf, controller.Ts
+    M = len(models)
+    A = np.zeros((M, n, n))
+    B = np.zeros((M, n))
+    Cy = np.zeros((M, n))
+    Cu = np.zeros((M, n))
+    Du = np.zeros(M)
+    for m, (Phi, Gam, C, d) in enumerate(plants):
+        cy = np.zeros(n)
+        cy[:3] = C
+        # I_k = I_{k-1} + Ki T (r - y_k); D_k = (Tf D_{k-1} - Kd (y_k - y_{k-1})) / (Tf + T)
+        cI = -Ki * T * cy
+        cI[iI] += 1.0 if Ki > 0 else 0.0  # a PD has no integrator state (no spurious eigenvalue at 1)
+        dI = Ki * T
+        cD = -Kd / (Tf + T) * cy
+        cD[iD] += Tf / (Tf + T)
+        cD[iy] += Kd / (Tf + T)
+        cu = -Kp * cy + cI + cD
+        du = Kp + dI
+        # plant: x_{k+1} = Phi x_k + Gamma_a u_{k-d-1} + Gamma_b u_{k-d}
+        A[m, :3, :3] = Phi
+        A[m, :3, 3 + d] += Gam[0]
+        if d == 0:
+            A[m, :3, :] += np.outer(Gam[1], cu)
+            B[m, :3] += Gam[1] * du
+        else:
+            A[m, :3, 3 + d - 1] += Gam[1]
+        # the command buffer shifts by one; u_k enters at the front
+        A[m, 3, :] = cu
+        B[m, 3] = du
+        for j in range(1, nb):
+            A[m, 3 + j, 3 + j - 1] = 1.0
+        A[m, iI, :] = cI
+        B[m, iI] = dI
+        A[m, iD, :] = cD
+        A[m, iy, :] = cy
+        Cy[m] = cy
+        Cu[m] = cu
+        Du[m] = du
+    return A, B, Cy, Cu, Du
+
+
+def spectral_radius(A: np.ndarray) -> np.ndarray:
+    """Largest |eigenvalue| of each (n, n) matrix of A (stable sampled loop: < 1)."""
+    return np.max(np.abs(np.linalg.eigvals(A)), axis=-1)
+
+
+def step_response(models, controller: Controller, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit setpoint step of the sampled loop for each model, from rest.
+
+    Returns
+    -------
+    t : (N,) tick times [s]; y : (M, N) output at the ticks; u : (M, N) command at the ticks.
+    """
+    A, B, Cy, Cu, Du = closed_loop_matrices(models, controller)
+    N = int(math.ceil(t_end * controller.rate_hz)) + 1
+    M, n = B.shape
+    Z = np.zeros((N, M, n))
+    z = np.zeros((M, 1, n))
+    At = np.ascontiguousarray(np.transpose(A, (0, 2, 1)))
+    Bz = B[:, None, :]
+    with np.errstate(over="ignore", invalid="ignore"):
+        for k in range(1, N):
+            z = np.matmul(z, At) + Bz
+            Z[k] = z[:, 0, :]
+    y = np.einsum("kmn,mn->mk", Z, Cy)
+    u = np.einsum("kmn,mn->mk", Z, Cu) + Du[:, None]
+    return np.arange(N) / controller.rate_hz, y, u
+
+
+def criterion(t: np.ndarray, y: np.ndarray, objective: str = "iae") -> np.ndarray:
+    """IAE or ITAE of unit step responses ``y`` (shape (..., N)) sampled at ``t`` (trapezoidal rule).
+
+    Responses that are not finite or diverge (an unstable loop) get inf.
+    """
+    e = np.abs(1.0 - np.asarray(y, float))
+    if objective == "itae":
+        e = e * t
+    with np.errstate(invalid="ignore", over="ignore"):
+        val = np.sum(0.5 * (e[..., 1:] + e[..., :-1]) * np.diff(t), axis=-1)
+        bad = ~np.all(np.isfinite(y), axis=-1) | (np.max(np.abs(y), axis=-1, initial=0.0) > _DIVERGED)
+    return np.where(bad, np.inf, val)
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None) -> StepMetrics:
+    """Overshoot, 10-90 % rise, 2 % settling, IAE and ITAE of a unit step response sampled at ``t``.
+
+    Examples
+    --------
+    >>> t = np.linspace(0.0, 10.0, 10001)
+    >>> m = step_metrics(t, 1.0 - np.exp(-t))
+    >>> round(m.rise_s, 3), round(m.settling_s, 3), round(m.iae, 3)
+    (2.197, 3.912, 1.0)
+    """
+    t = np.asarray(t, float)
+    y = np.asarray(y, float)
+    if not np.all(np.isfinite(y)) or np.max(np.abs(y)) > _DIVERGED:
+        return StepMetrics(math.inf, math.nan, math.nan, math.inf, math.inf, math.inf)
+    ae = np.abs(1.0 - y)
+    iae, itae = float(criterion(t, y, "iae")), float(criterion(t, y, "itae"))
+    over = max(0.0, float(np.max(y) - 1.0)) * 100.0
+
+    def crossing(level: float) -> float:
+        k = int(np.argmax(y >= level))
+        if y[k] < level:
+            return math.nan
+        if k == 0:
+            return float(t[0])
+        return float(t[k - 1] + (level - y[k - 1]) / (y[k] - y[k - 1]) * (t[k] - t[k - 1]))
+
+    rise = crossing(0.9) - crossing(0.1)
+    out = np.nonzero(ae > SETTLING_BAND)[0]
+    if out.size == 0:
+        settle = float(t[0])
+    elif out[-1] == t.size - 1:
+        settle = math.nan
+    else:
+        k = out[-1]
+        # interpolate where |e| re-enters the band
+        a0, a1 = ae[k], ae[k + 1]
+        settle = float(t[k] + (a0 - SETTLING_BAND) / (a0 - a1) * (t[k + 1] - t[k]))
+    peak_u = float(np.max(np.abs(u))) if u is not None else math.nan
+    return StepMetrics(over, rise, settle, iae, itae, peak_u)
+
+
+def simulate_step(model: LoopModel, controller: Controller, t_end: float, substeps: int = 4,
+                  extra_delay: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Time-domain simulation of a unit setpoint step, event by event (the independent route).
+
+    The continuous plant (:meth:`LoopModel.state_space`) is propagated with matrix exponentials
+    between events: the controller ticks t_k and the instants t_k + tau (+ ``extra_delay``) at which
+    each held command reaches the plant. ``substeps`` extra points per period give the continuous
+    output between ticks.
+
+    Returns
+    -------
+    t_ticks, y_ticks, u_ticks : arrays (N,) at the controller ticks; y_fine : (N - 1) * substeps + 1
+    values of the continuous output on the grid t = linspace(0, t_ticks[-1], ...).
+    """
+    A, Bv, C = model.state_space()
+    T = controller.Ts
+    delay = model.tau + extra_delay
+    N = int(math.ceil(t_end * controller.rate_hz)) + 1
+    Kp, Ki, Kd, Tf = controller.Kp, controller.Ki, controller.Kd, controller.Tf
+    x = np.zeros(3)
+    cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    def propagate(x: np.ndarray, w: float, h: float) -> np.ndarray:
+        if h <= 0:
+            return x
+        key = round(h, 15)
+        if key not in cache:
+            cache[key] = _zoh_integrals(A, Bv, h)
+        E, G = cache[key]
+        return E @ x + G * w
+
+    # arrivals: command j reaches the plant at j T + delay; before the first arrival the input is 0
+    y_t = np.empty(N)
+    u_t = np.empty(N)
+    fine = [0.0]
+    I = D = 0.0
+    y_prev = 0.0
+    t_now = 0.0
+    w = 0.0  # plant input now
+    cmds: list[float] = []
+    next_arrival = 0  # index of the next command to arrive
+    for k in range(N):
+        yk = float(C @ x)
+        e = 1.0 - yk
+        I += Ki * T * e
+        D = (Tf * D - Kd * (yk - y_prev)) / (Tf + T)
+        y_prev = yk
+        uk = Kp * e + I + D
+        y_t[k], u_t[k] = yk, uk
+        cmds.append(uk)
+        if k == N - 1:
+            break
+        t_next = (k + 1) * T
+        grid = [t_now + (i + 1) * T / substeps for i in range(substeps)]
+        while True:
+            t_arr = next_arrival * T + delay
+            t_stop = min(t_arr, t_next) if next_arrival < len(cmds) else t_next
+            while grid and grid[0] <= t_stop + 1e-15:
+                g = grid.pop(0)
+                fine.append(float(C @ propagate(x, w, g - t_now)))
+            x = propagate(x, w, t_stop - t_now)
+            t_now = t_stop
+            if next_arrival < len(cmds) and t_arr <= t_next + 1e-15 and t_now >= t_arr - 1e-15:
+                w = cmds[next_arrival]
+                next_arrival += 1
+                continue
+            if t_now >= t_next - 1e-15:
+                break
+        t_now = t_next
+    return np.arange(N) * T, y_t, u_t, np.asarray(fine[: (N - 1) * substeps + 1])

@@ -1,0 +1,458 @@
+"""Controller designs for the identified loop: the MRFT tuning rule, model-based and robust optimisation.
+
+Three designs, each as a PD and a PID (parallel form, derivative on the measurement through a
+first-order filter Tf = Td_c / N with Td_c = Kd / Kp and N = ``FILTER_N``; the PID's integral time is
+Ti = Kp / Ki = ``TI_RATIO`` x Td_c, the classical ratio that gives the ideal PID a double zero):
+
+* ``mrft-rule``: the DNN-MRFT describing-function rule from the MRFT test itself
+  (checks.md section 5): Kp = c1 4 h / (pi a0), Td_c = c3 T0 with the stored optimised c1 = 0.4249,
+  c3 = 0.3391 at beta = -0.7 (phase margin 20 deg), where (T0, a0) is the limit cycle of the MRFT at
+  beta = -0.7 on the identified model, at the controller rate (:func:`mrftcli.mrft.lprs.mrft_limit_cycle`).
+  It is the published baseline.
+* ``model-based``: Kp and Td_c minimising the IAE (or ITAE) of a unit setpoint step of the sampled
+  loop on the identified model (exact delay, zero-order hold, :mod:`mrftcli.tune.closed_loop`), with
+  Ms <= ``ms_max`` and the controller's noise gain (|C| at Nyquist, :meth:`Controller.noise_gain`) <=
+  ``effort_max`` (default: the MRFT rule's).
+* ``robust``: the same criterion in expectation over the posterior draws, with Ms <= ``ms_max`` on
+  every draw of the 95 % set (:meth:`Posterior.in_set`), which bounds the worst-case phase margin
+  below by 2 asin(1 / (2 Ms)) (36.4 deg at Ms = 1.6).
+
+Every design is reported with the exact nominal margins (:func:`mrftcli.tune.margins.margins`), the
+nominal step figures and the same figures over the posterior (median over all draws, worst over the
+95 % set).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+from ..progress import Progress, report
+from ..validate import check_positive
+from .closed_loop import Controller, discrete_plant, StepMetrics, criterion, step_metrics, step_response
+from .margins import Margins, frequency_grid, grid_margins, margins, plant_response
+
+__all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
+           "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3"]
+
+OBJECTIVES = ("iae", "itae")
+DESIGNS = ("mrft-rule", "model-based", "robust")
+KINDS = ("PD", "PID")
+#: Derivative filter: Tf = Td_c / FILTER_N.
+FILTER_N = 10.0
+#: PID integral time Ti = TI_RATIO * Td_c.
+TI_RATIO = 4.0
+#: The DNN-MRFT rule's beta and its stored optimised coefficients (checks.md section 5).
+RULE_BETA, RULE_C1, RULE_C3 = -0.7, 0.4249, 0.3391
+#: chi-square(3) 95 % quantile: the 95 % set of the posterior in (ln Td, ln tau, ln K).
+_CHI2_3_95 = 7.814727903251178
+#: Horizon of the step criterion, in MRFT periods T0 at RULE_BETA.
+_HORIZON_PERIODS = 6.0
+#: Largest number of draws the robust optimisation iterates on (all draws are used for the report).
+_OPT_DRAWS = 30
+
+
+@dataclass(frozen=True)
+class Posterior:
+    """Draws of the identified parameters (Tp known).
+
+    Attributes
+    ----------
+    Tp : float
+        Propulsion time constant [s].
+    Td, tau, K : numpy.ndarray
+        Joint draws [s, s, -] (the identification's bootstrap, or drawn from a stated spread).
+    source : str
+        Where the draws come from (for the report).
+    """
+
+    Tp: float
+    Td: np.ndarray
+    tau: np.ndarray
+    K: np.ndarray
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        Td, tau, K = (np.asarray(v, float).ravel() for v in (self.Td, self.tau, self.K))
+        ok = np.isfinite(Td) & np.isfinite(tau) & np.isfinite(K) & (Td > 0) & (tau >= 0) & (K != 0)
+        object.__setattr__(self, "Td", Td[ok])
+        object.__setattr__(self, "tau", tau[ok])
+        object.__setattr__(self, "K", K[ok])
+
+    @property
+    def n(self) -> int:
+        return int(self.Td.size)
+
+    def models(self, index=None) -> list[LoopModel]:
+        idx = range(self.n) if index is None else index
+        return [LoopModel(self.Tp, float(self.Td[i]), float(self.tau[i]), float(self.K[i])) for i in idx]
+
+    def in_set(self) -> np.ndarray:
+        """Mask of the draws in the 95 % set: Mahalanobis distance in (ln Td, ln tau, ln |K|) within chi2(3, 0.95).
+
+        Parameters with no spread are left out of the distance.
+        """
+        X = np.column_stack([np.log(self.Td), np.log(np.maximum(self.tau, 1e-9)), np.log(np.abs(self.K))])
+        keep = X.std(axis=0) > 1e-12
+        if self.n < 5 or not keep.any():
+            return np.ones(self.n, bool)
+        X = X[:, keep]
+        d = X - X.mean(axis=0)
+        cov = np.atleast_2d(np.cov(d, rowvar=False))
+        m2 = np.einsum("ij,jk,ik->i", d, np.linalg.pinv(cov), d)
+        from scipy.stats import chi2
+
+        return m2 <= chi2.ppf(0.95, X.shape[1])
+
+    @classmethod
+    def from_spread(cls, model: LoopModel, Td_std: float = 0.0, tau_std: float = 0.0, K_std: float = 0.0,
+                    n: int = 200, seed: int = 0, source: str = "") -> "Posterior":
+        """Independent log-normal draws with the given means (the model) and standard deviations.
+
+        Used when only means and standard deviations are known (an analyze RESULT.json, or the
+        paper's Table III): the correlation between Td and tau is then not known and is taken as zero.
+        """
+        rng = np.random.default_rng(seed)
+
+        def draw(mean: float, std: float) -> np.ndarray:
+            if not std or not math.isfinite(std) or std <= 0:
+                return np.full(n, mean)
+            s2 = math.log(1.0 + (std / abs(mean)) ** 2)
+            return np.sign(mean) * abs(mean) * np.exp(rng.normal(-0.5 * s2, math.sqrt(s2), n))
+
+        return cls(model.Tp, draw(model.Td, Td_std), draw(model.tau, tau_std), draw(model.K, K_std),
+                   source or "log-normal draws from means and standard deviations (no correlation)")
+
+
+@dataclass(frozen=True)
+class Design:
+    """One tuned controller with its figures.
+
+    Attributes
+    ----------
+    name : str
+        ``mrft-rule``, ``model-based`` or ``robust``.
+    controller : Controller
+    objective : str
+        ``iae`` or ``itae``; ``criterion`` is its value on the nominal model, ``criterion_expected``
+        its mean over the posterior draws.
+    margins : Margins
+        Exact nominal margins.
+    step : StepMetrics
+        Nominal step figures (sampled loop).
+    posterior : dict
+        Over the posterior: ``median`` (all draws) and ``worst`` (the 95 % set) of the margins and
+        step figures, ``n_draws``, ``n_in_set``, ``unstable_in_set``.
+    constraints : dict
+        ``ms_max``, ``effort_max`` and whether they hold (``feasible``).
+    """
+
+    name: str
+    controller: Controller
+    objective: str
+    criterion: float
+    criterion_expected: float
+    margins: Margins
+    step: StepMetrics
+    posterior: dict = field(default_factory=dict)
+    constraints: dict = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        return self.controller.kind
+
+    def to_dict(self) -> dict:
+        return {"design": self.name, "kind": self.kind, **self.controller.to_dict(),
+                "objective": self.objective, "criterion": self.criterion,
+                "criterion_expected": self.criterion_expected, "noise_gain": self.controller.noise_gain(),
+                "margins": self.margins.to_dict(), "step": self.step.to_dict(), "posterior": self.posterior,
+                "constraints": self.constraints}
+
+
+@dataclass(frozen=True)
+class TuneResult:
+    """Everything ``mrft-ident tune`` found: the model, its posterior and every design."""
+
+    model: LoopModel
+    posterior: Posterior | None
+    rate_hz: float
+    loop: str
+    objective: str
+    ms_max: float
+    effort_max: float
+    horizon_s: float
+    rule_cycle: dict
+    designs: tuple[Design, ...]
+    notes: tuple[str, ...] = ()
+
+    def get(self, name: str, kind: str) -> Design:
+        for d in self.designs:
+            if d.name == name and d.kind == kind:
+                return d
+        raise KeyError((name, kind))
+
+    def to_dict(self) -> dict:
+        m = self.model
+        return {
+            "model": {"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K,
+                      "form": "G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"},
+            "loop": self.loop, "rate_hz": self.rate_hz, "objective": self.objective, "ms_max": self.ms_max,
+            "effort_max": self.effort_max, "horizon_s": self.horizon_s, "mrft_rule_cycle": self.rule_cycle,
+            "posterior": ({"source": self.posterior.source, "n_draws": self.posterior.n,
+                           "n_in_95_set": int(self.posterior.in_set().sum())} if self.posterior else None),
+            "designs": [d.to_dict() for d in self.designs],
+            "notes": list(self.notes),
+        }
+
+
+def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float) -> Controller:
+    Ki = Kp / (TI_RATIO * Td_c) if kind == "PID" else 0.0
+    return Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, rate_hz)
+
+
+def mrft_rule(model: LoopModel, rate_hz: float, kind: str = "PD") -> tuple[Controller, dict]:
+    """The DNN-MRFT rule (checks.md section 5) on the MRFT limit cycle at beta = -0.7 of ``model``.
+
+    Returns the controller and the cycle used (``T0`` [s], ``a0`` for h = 1).
+
+    Examples
+    --------
+    >>> c, cyc = mrft_rule(LoopModel(0.0422, 1.301, 0.0297, 30.0), 200.0)
+    >>> round(c.Kd / c.Kp / cyc["T0"], 4), c.kind
+    (0.3391, 'PD')
+    """
+    from ..mrft.lprs import mrft_limit_cycle
+
+    lc = mrft_limit_cycle(model, RULE_BETA, 1.0, rate_hz=rate_hz)
+    T0, a0 = float(lc.period), float(lc.amplitude)
+    Kp = RULE_C1 * 4.0 / (math.pi * a0)
+    return _controller(kind, Kp, RULE_C3 * T0, rate_hz), {"beta": RULE_BETA, "T0": T0, "a0": a0, "h": 1.0,
+                                                           "c1": RULE_C1, "c3": RULE_C3}
+
+
+class _Evaluator:
+    """Criterion and constraints of a candidate controller over a fixed set of models."""
+
+    def __init__(self, models, ms_models, rate_hz, kind, objective, horizon, ms_max, effort_max):
+        self.models = [discrete_plant(m, rate_hz) for m in models]
+        self.rate_hz, self.kind, self.objective = rate_hz, kind, objective
+        self.horizon, self.ms_max, self.effort_max = horizon, ms_max, effort_max
+        self.omega = frequency_grid(rate_hz, 400)
+        self.Gd = plant_response(list(ms_models), rate_hz, self.omega)
+
+    def with_ms_models(self, Gd: np.ndarray, omega: np.ndarray) -> "_Evaluator":
+        """A copy whose Ms constraint covers the loops of ``Gd`` (responses on ``omega``)."""
+        new = object.__new__(_Evaluator)
+        new.__dict__.update(self.__dict__)
+        new.omega, new.Gd = omega, Gd
+        return new
+
+    def with_kind(self, kind: str) -> "_Evaluator":
+        new = object.__new__(_Evaluator)
+        new.__dict__.update(self.__dict__)
+        new.kind = kind
+        return new
+
+    def ms(self, c: Controller) -> float:
+        L = c.feedback_response(self.omega)[None, :] * self.Gd
+        return float(np.max(1.0 / np.abs(1.0 + L)))
+
+    def criterion(self, c: Controller) -> float:
+        t, y, _ = step_response(self.models, c, self.horizon)
+        return float(np.mean(criterion(t, y, self.objective)))
+
+    def violation(self, c: Controller) -> float:
+        return max(0.0, self.ms(c) / self.ms_max - 1.0) + max(0.0, c.noise_gain() / self.effort_max - 1.0)
+
+    def controller(self, p: np.ndarray) -> Controller:
+        return _controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz)
+
+    def cost(self, p: np.ndarray) -> float:
+        c = self.controller(p)
+        v = self.violation(c)
+        if v > 0.5:
+            return 1e6 * (1.0 + v)
+        J = self.criterion(c)
+        if not math.isfinite(J):
+            return 1e6 * (1.0 + v)
+        return J * (1.0 + 50.0 * v)
+
+
+def _params(c: Controller) -> np.ndarray:
+    return np.array([math.log(c.Kp), math.log(c.Kd / c.Kp)])
+
+
+def _feasible_start(ev: _Evaluator, start: Controller) -> Controller:
+    """The best (by the criterion) of the most aggressive feasible gains per derivative time on a grid.
+
+    Ms is not monotone in the gain on this plant (a PD's phase lead vanishes below its zero), so a
+    simple scaling of the start need not reach the feasible set.
+    """
+    Td0 = start.Kd / start.Kp
+    Ti_ratio = (start.Kp / start.Ki) / Td0 if start.Ki > 0 else None
+    best, best_J = start, math.inf
+    for f in np.geomspace(0.3, 4.0, 12):
+        for g in np.geomspace(1.0, 0.01, 60):
+            Td_c = Td0 * f
+            Kp = start.Kp * g
+            Ki = Kp / (Ti_ratio * Td_c) if Ti_ratio else 0.0
+            c = Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, ev.rate_hz)
+            if ev.violation(c) == 0.0:
+                J = ev.criterion(c)
+                if J < best_J:
+                    best, best_J = c, J
+                break
+    return best
+
+
+def _optimise(ev: _Evaluator, start: Controller) -> Controller:
+    """Nelder-Mead on (ln Kp, ln Td_c) with the constraints as a penalty, from ``start``.
+
+    An infeasible start (and a result the penalty left slightly infeasible) is replaced by the best
+    feasible point of a grid around it (:func:`_feasible_start`); a PID starts from the PD solution.
+    """
+    c0 = _feasible_start(ev, start) if ev.violation(start) > 0 else start
+    p0 = _params(c0)
+    k = p0.size
+    simplex = np.vstack([p0] + [p0 + 0.3 * np.eye(k)[i] for i in range(k)])
+    res = minimize(ev.cost, p0, method="Nelder-Mead",
+                   options={"xatol": 2e-3, "fatol": 1e-6, "maxfev": 70, "initial_simplex": simplex})
+    c = ev.controller(res.x)
+    if ev.violation(c) > 0:  # the penalty leaves a slight violation: the best feasible point near it
+        c = _feasible_start(ev, c)
+    return c
+
+
+def _summaries(c: Controller, post: Posterior, objective: str, horizon: float, omega, Gd_all) -> tuple[dict, float]:
+    t, y, u = step_response(post.models(), c, horizon)
+    rows = [step_metrics(t, y[i], u[i]) for i in range(post.n)]
+    gm = grid_margins(c, Gd_all, omega)
+    table = {
+        "phase_margin_deg": gm["phase_margin_deg"], "gain_margin": gm["gain_margin"], "Ms": gm["Ms"],
+        "delay_margin_ms": gm["delay_margin_s"] * 1e3,
+        "overshoot_pct": np.array([r.overshoot_pct for r in rows]),
+        "rise_s": np.array([r.rise_s for r in rows]), "settling_s": np.array([r.settling_s for r in rows]),
+        objective: np.array([getattr(r, objective) for r in rows]),
+    }
+    in_set = post.in_set()
+    worse_low = {"phase_margin_deg", "gain_margin", "delay_margin_ms"}
+    med, worst = {}, {}
+    for k, v in table.items():
+        v = np.asarray(v, float)
+        med[k] = float(np.nanmedian(np.where(np.isfinite(v), v, np.nan))) if np.isfinite(v).any() else math.inf
+        s = v[in_set]
+        if k in worse_low:
+            worst[k] = float(np.min(s))
+        else:
+            worst[k] = float(np.max(np.where(np.isnan(s), np.inf, s)))
+    crit = table[objective]
+    expected = float(np.mean(crit)) if np.all(np.isfinite(crit)) else math.inf
+    return {"median": med, "worst": worst, "n_draws": post.n, "n_in_set": int(in_set.sum()),
+            "delay_margin": "first-order (phase margin / gain crossover) per draw",
+            "unstable_in_set": int(np.sum(~np.isfinite(crit[in_set])))}, expected
+
+
+def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None, objective: str = "iae",
+         ms_max: float = 1.6, effort_max: float | None = None, designs=DESIGNS, kinds=KINDS, loop: str = "",
+         progress: Progress | None = None) -> TuneResult:
+    """Design PD and PID controllers for ``model`` at ``rate_hz`` (see the module docstring).
+
+    Parameters
+    ----------
+    model : LoopModel
+        The identified model (point estimate).
+    rate_hz : float
+        Controller rate [Hz].
+    posterior : Posterior, optional
+        Parameter draws; without it the robust design is left out (it would equal the model-based one).
+    objective : {"iae", "itae"}
+        Criterion of the unit setpoint step over ``8 T0`` (T0: the MRFT period at beta = -0.7).
+    ms_max : float
+        Limit on the sensitivity peak Ms [-] (> 1).
+    effort_max : float, optional
+        Limit on the controller's noise gain [command units / output unit]; default: the MRFT rule's.
+    progress : Progress, optional
+        Called as ``progress(done, total, stage)`` per design.
+
+    Returns
+    -------
+    TuneResult
+    """
+    if objective not in OBJECTIVES:
+        raise InputError(f"unknown objective {objective!r}; choose from {', '.join(OBJECTIVES)}")
+    rate_hz = check_positive("the controller rate [Hz]", rate_hz)
+    if not (math.isfinite(ms_max) and ms_max > 1.0):
+        raise InputError(f"--ms-max must be a number above 1, got {ms_max!r}")
+    bad = [d for d in designs if d not in DESIGNS]
+    if bad:
+        raise InputError(f"unknown design(s) {bad}; choose from {', '.join(DESIGNS)}")
+    notes = []
+    if posterior is None or posterior.n < 2:
+        designs = tuple(d for d in designs if d != "robust")
+        notes.append("no posterior (no draws or spreads given): the robust design is left out")
+        posterior = None
+    rule_pd, cycle = mrft_rule(model, rate_hz, "PD")
+    horizon = _HORIZON_PERIODS * cycle["T0"]
+    if effort_max is None:
+        effort_max = rule_pd.noise_gain()
+    else:
+        effort_max = check_positive("--effort-max", effort_max)
+    omega = frequency_grid(rate_hz, 400)
+    Gd_all = plant_response(posterior.models(), rate_hz, omega) if posterior is not None else None
+    nominal_ev = {k: _Evaluator([model], [model], rate_hz, k, objective, horizon, ms_max, effort_max) for k in kinds}
+    robust_ev = {}
+    if posterior is not None and "robust" in designs:
+        rng = np.random.default_rng(0)
+        idx_all = np.arange(posterior.n)
+        idx = np.sort(rng.choice(idx_all, _OPT_DRAWS, replace=False)) if posterior.n > _OPT_DRAWS else idx_all
+        in_set = np.nonzero(posterior.in_set())[0]
+        ms_idx = np.sort(rng.choice(in_set, _OPT_DRAWS, replace=False)) if in_set.size > _OPT_DRAWS else in_set
+        for k in kinds:
+            robust_ev[k] = _Evaluator(posterior.models(idx), posterior.models(ms_idx), rate_hz, k, objective,
+                                      horizon, ms_max, effort_max)
+    jobs = [(d, k) for d in designs for k in kinds]
+    # PD before PID: a PID design starts from the PD design of the same name
+    jobs.sort(key=lambda j: (DESIGNS.index(j[0]), KINDS.index(j[1])))
+    out = []
+    found: dict[tuple[str, str], Controller] = {}
+    for i, (name, kind) in enumerate(jobs):
+        report(progress, i, len(jobs), f"{name} {kind}")
+        rule = rule_pd if kind == "PD" else _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz)
+        if name == "mrft-rule":
+            c = rule
+        else:
+            ev = nominal_ev[kind] if name == "model-based" else robust_ev[kind]
+            if kind == "PD":
+                start = found.get(("model-based", "PD"), rule) if name == "robust" else rule
+            else:
+                pd = found.get((name, "PD"))
+                if pd is None:
+                    pd_ev = ev.with_kind("PD")
+                    pd = _optimise(pd_ev, rule_pd)
+                start = _controller("PID", pd.Kp, pd.Kd / pd.Kp, rate_hz)
+            c = _optimise(ev, start)
+            if name == "robust":
+                # the optimisation's draws stood for the 95 % set: hold Ms on all of its draws
+                ev_all = ev.with_ms_models(Gd_all[posterior.in_set()], omega)
+                if ev_all.violation(c) > 0:
+                    c = _optimise(ev_all, c)
+        found[(name, kind)] = c
+        mg = margins(model, c)
+        t, y, u = step_response([model], c, horizon)
+        st = step_metrics(t, y[0], u[0])
+        post, expected = ({}, math.nan)
+        if posterior is not None:
+            post, expected = _summaries(c, posterior, objective, horizon, omega, Gd_all)
+        cons = {"ms_max": ms_max, "effort_max": effort_max, "noise_gain": c.noise_gain(),
+                "feasible": bool(mg.Ms <= ms_max * (1 + 1e-3) and c.noise_gain() <= effort_max * (1 + 1e-9))}
+        if name == "robust" and post:
+            cons["feasible"] = bool(post["worst"]["Ms"] <= ms_max * (1 + 1e-3) and cons["noise_gain"] <= effort_max * (1 + 1e-9))
+        out.append(Design(name, c, objective, getattr(st, objective), expected, mg, st, post, cons))
+    report(progress, len(jobs), len(jobs), "done")
+    return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, float(effort_max), horizon, cycle,
+                      tuple(out), tuple(notes))

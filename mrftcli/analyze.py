@@ -43,10 +43,12 @@ import numpy as np
 
 from .errors import InputError, InsufficientDataError, SegmentationError
 from .io.logtypes import FlightLog
-from .mrft.consensus import (CONSTRAINTS, StableCycles, bootstrap, bootstrap_estimate, combinations,
-                             constraint_report)
+from .mrft.consensus import (CONSTRAINTS, SAME_BETA, StableCycles, bootstrap, bootstrap_estimate, combinations,
+                             constraint_report, upper_bound_open)
 from .mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify, ufm_slice
 from .mrft.model import LoopModel
+from .mrft.refine import Refinement, refine
+from .mrft.waveform import CommandWindow
 from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
 from .validate import check_time
 
@@ -56,8 +58,6 @@ __all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "log_start", "des
 _TWO_PI = 2.0 * math.pi
 #: Td range [s] assumed for the partial result of a single-beta log (multirotor drag time constants).
 ASSUMED_TD_RANGE = (0.1, 10.0)
-#: Two tests whose betas differ by less than this measure the same UFM slice.
-_SAME_BETA = 0.05
 #: Td * Omega above which Td is called poorly identifiable (the issue's accuracy boundary).
 _TD_OMEGA_LIMIT = 5.0
 
@@ -101,6 +101,13 @@ class AnalysisResult:
         residuals (see :func:`analyze_flight`); empty when none were used.
     rejection_reasons : dict
         ``MrftTest.index`` of each rejected test -> why it was left out (one sentence).
+    method : {"waveform", "mrft"}
+        Which estimate ``Td``, ``tau``, ``K`` and ``model`` hold: the output-error refinement on the
+        waveform (:func:`mrftcli.mrft.refine.refine`, when the data accept it) or the MRFT consensus.
+    parameters_mrft : dict
+        ``"Td"``, ``"tau"``, ``"K"`` -> the MRFT estimate (bootstrap std and interval), whichever is used.
+    refinement : Refinement or None
+        The waveform refinement (estimate, std, acceptance and reasons); None when not run.
     """
 
     path: str
@@ -120,6 +127,9 @@ class AnalysisResult:
     t0: float = 0.0
     constraints: dict = field(default_factory=dict)
     rejection_reasons: dict = field(default_factory=dict)
+    method: str = "mrft"
+    parameters_mrft: dict = field(default_factory=dict)
+    refinement: Refinement | None = None
 
     def rel(self, t: float) -> float:
         """A log time [s] as seconds since the log's first sample."""
@@ -171,7 +181,25 @@ class AnalysisResult:
                   "Tp": {"mean": self.Tp, "std": 0.0, "ci95_low": self.Tp, "ci95_high": self.Tp, "unit": "s",
                          "known": True}}
         params["K"]["unit"] = "output units / (command unit s^2)"
+        for name in ("Td", "tau", "K"):
+            params[name]["method"] = self.method
         ident = self.identification.to_dict()
+        k_unit = params["K"]["unit"]
+
+        def group(est: dict) -> dict:
+            out = {k: v.to_dict() for k, v in est.items()}
+            if "K" in out:
+                out["K"]["unit"] = k_unit
+            return out
+
+        extra: dict = {}
+        if self.parameters_mrft:
+            extra["parameters_mrft"] = group(self.parameters_mrft)
+        if self.refinement is not None:
+            ref = self.refinement
+            extra["parameters_waveform"] = group({"Td": ref.Td, "tau": ref.tau, "K": ref.K})
+            extra["refinement"] = {"method": "output error on the tests' windows (exact ZOH, fractional delay)",
+                                   **ref.to_dict()}
         flight = self.flight
         inp: dict = {"path": self.path, "loop": self.loop, "Tp": self.Tp, "t0": self.t0}
         if flight is not None:
@@ -188,6 +216,7 @@ class AnalysisResult:
             )
         return {
             "parameters": params,
+            **extra,
             "model": {"Tp": self.model.Tp, "Td": self.model.Td, "tau": self.model.tau, "K": self.model.K},
             "combinations": self.combination_stats(),
             "tests": [self._with_rel(t.to_dict(cycles=cycles)) for t in self.tests],
@@ -218,7 +247,7 @@ def _group_betas(tests: Sequence[MrftTest]) -> list[list[int]]:
     for i, t in enumerate(tests):
         key = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
         for g, k in zip(groups, keys):
-            if abs(k - key) < _SAME_BETA:
+            if abs(k - key) < SAME_BETA:
                 g.append(i)
                 break
         else:
@@ -375,6 +404,7 @@ def analyze_flight(
     seed: int = 0,
     constraints: Sequence[str] = CONSTRAINTS,
     validity: ValidityCriterion | None = None,
+    refine_waveform: bool = True,
 ) -> AnalysisResult:
     """Segment the MRFT tests of a flight and identify Td, tau and K (see the module docstring).
 
@@ -401,6 +431,9 @@ def analyze_flight(
         Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`):
         a test whose output does not follow its relay as an MRFT limit cycle is rejected, and so are
         the tests whose loop-gain sign disagrees with the others' (:func:`_screen_tests`).
+    refine_waveform : bool
+        Refine the MRFT estimate by output error on the tests' windows and report it when the data
+        accept it (:func:`mrftcli.mrft.refine.refine`); False: the MRFT estimate alone.
 
     Returns
     -------
@@ -521,17 +554,46 @@ def analyze_flight(
 
     # ---- identifiability ----------------------------------------------------------------------
     td_omega = max(Td_hat * _TWO_PI * t.frequency_hz_mean for t in usable)
-    if td_omega > _TD_OMEGA_LIMIT:
+    td_open = bool(constraints) and upper_bound_open(Tp, boot, Td_hat)
+    if td_open:
+        # the likelihood does not close as Td -> infinity: a lower bound only (the upper end of the
+        # bootstrap interval would come from the search range, not from the data)
+        Td_est = ParameterEstimate(Td_est.mean, Td_est.std, Td_est.ci95_low, float("nan"), "s")
+        warnings.append(f"Td > {Td_est.ci95_low:.3g} s: these tests cannot bound it from above (a plant without "
+                        "linear damping fits them as well); tau and K are determined")
+    elif td_omega > _TD_OMEGA_LIMIT:
         warnings.append(
             f"Td*Omega = {td_omega:.1f} > {_TD_OMEGA_LIMIT:g}: the frequencies depend weakly on Td, so Td is known "
             f"only to its interval ({Td_est.ci95_low:.3g}-{Td_est.ci95_high:.3g} s); tau and K are not affected as much"
         )
+
+    # ---- refinement on the waveform (output error from the MRFT estimate) -------------------------
+    mrft_params = {"Td": Td_est, "tau": tau_est, "K": K_est}
+    refinement = None
+    method = "mrft"
+    if refine_waveform and np.isfinite(K_hat):
+        windows = [CommandWindow.between(t.t_start, t.t_end, flight.command.t, flight.command.values,
+                                         flight.output.t, flight.output.values, t.bias) for t in usable]
+        windows = [w for w in windows if w is not None]
+        if windows:
+            refinement = refine(windows, model, mrft_params, loop_sign=usable[0].loop_sign)
+            if refinement.accepted:
+                method = "waveform"
+                model = refinement.model
+                Td_est, tau_est, K_est = refinement.Td, refinement.tau, refinement.K
+                if td_open:  # the waveform does not close it either: keep the one-sided statement
+                    Td_est = ParameterEstimate(Td_est.mean, Td_est.std, min(Td_est.ci95_low, mrft_params["Td"].ci95_low),
+                                               float("nan"), "s")
+            else:
+                warnings.append("the waveform refinement was not used (" + "; ".join(refinement.reasons)
+                                + "): the MRFT estimate is reported (try --diagnose)")
     warnings = list(dict.fromkeys(warnings))  # unique, in order
     return AnalysisResult(
         path=str(flight.path), loop=flight.loop, Tp=Tp, tests=tuple(usable), rejected=tuple(rejected),
         Td=Td_est, tau=tau_est, K=K_est, model=model, identification=ident, combinations=combos,
         bootstrap={"Td": Td_d[1:], "tau": tau_d[1:], "K": K_d[1:]}, warnings=tuple(warnings), flight=flight,
         t0=t0, constraints=constraint_info, rejection_reasons={t.index: reasons[t.index] for t in rejected},
+        method=method, parameters_mrft=mrft_params, refinement=refinement,
     )
 
 

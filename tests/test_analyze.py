@@ -149,12 +149,13 @@ def test_weighted_constraints_are_reported_with_residuals(design1):
         for key in ("ufm", "phase", "amplitude"):
             assert np.isfinite(row[key]["normalised"]) and abs(row[key]["normalised"]) < 4
         # the residual is the curve's tau at the estimate minus the estimate
-        assert row["phase"]["residual_s"] == pytest.approx(row["phase"]["tau_s"] - result.tau.mean, abs=1e-12)
+        assert row["phase"]["residual_s"] == pytest.approx(row["phase"]["tau_s"] - result.parameters_mrft["tau"].mean,
+                                                           abs=1e-12)
     # phase curve of a test at the estimate, recomputed from arg G (eq. 2) independently
     t = result.tests[0]
     W = 2 * np.pi / t.period.mean()
     ph = np.nanmean([cy.phase_h1 for cy in t.stable])
-    tau_curve = (-ph - np.pi / 2 - np.arctan(D1["Tp"] * W) - np.arctan(result.model.Td * W)) / W
+    tau_curve = (-ph - np.pi / 2 - np.arctan(D1["Tp"] * W) - np.arctan(result.parameters_mrft["Td"].mean * W)) / W
     assert c["tests"][0]["phase"]["tau_s"] == pytest.approx(tau_curve, abs=2e-6)
     d = result.to_dict(cycles=False)
     assert d["identification"]["constraints"]["used"] == c["used"]
@@ -163,7 +164,7 @@ def test_weighted_constraints_are_reported_with_residuals(design1):
 
 def test_paper_only_estimate_is_the_ufm_intersection(design1):
     sf, weighted = design1
-    paper = analyze_flight(flight_from_simulated(sf), D1["Tp"], constraints=(), n_bootstrap=100)
+    paper = analyze_flight(flight_from_simulated(sf), D1["Tp"], constraints=(), n_bootstrap=100, refine_waveform=False)
     assert paper.constraints == {}
     assert paper.model.tau == pytest.approx(paper.identification.model.tau, abs=1e-12)
     assert paper.model.Td == pytest.approx(paper.identification.model.Td, rel=1e-12)
@@ -197,3 +198,23 @@ def test_times_for_people_are_relative_to_the_log_start(design1):
     t1 = result.tests[0]
     assert f"{t1.t_start - first:.1f}-{t1.t_end - first:.1f}" in table
     assert not any("17000000" in w for w in result.warnings)
+
+
+# ------------------------------------------------------------------------- the waveform refinement
+
+
+def test_refinement_is_reported_beside_the_mrft_estimate(design1):
+    """Clean log: the refinement is accepted, reported with ``method``, and both estimates keep their std."""
+    _, result = design1
+    assert result.method == "waveform" and result.refinement is not None and result.refinement.accepted
+    d = result.to_dict(cycles=False)
+    assert d["parameters"]["tau"]["method"] == "waveform"
+    assert d["parameters"]["tau"]["mean"] == result.refinement.tau.mean
+    for key in ("parameters_mrft", "parameters_waveform"):
+        assert all(d[key][n]["std"] > 0 for n in ("Td", "tau", "K"))
+    assert d["refinement"]["accepted"] is True and d["refinement"]["reasons"] == []
+    # the refined model has the smaller std; the truth (independent: the simulator's plant) within 3 std
+    for name in ("Td", "tau", "K"):
+        wf, mr = d["parameters_waveform"][name], d["parameters_mrft"][name]
+        assert wf["std"] < mr["std"]
+        assert abs(wf["mean"] - D1[name]) < 3 * wf["std"] + 1e-12, name

@@ -259,7 +259,7 @@ def _outside(name: str, value: float, est: ParameterEstimate, factor: float, sca
 
 
 def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str, ParameterEstimate], *,
-           noise_std: float | None = None, residual_factor: float = RESIDUAL_FACTOR,
+           noise_std: float | None = None, loop_sign: int = 1, residual_factor: float = RESIDUAL_FACTOR,
            interval_factor: float = INTERVAL_FACTOR) -> Refinement:
     """Refine Td, tau, K by output error from the MRFT estimate, and decide whether to use it.
 
@@ -274,6 +274,9 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
         open side given as NaN or None, bounds the acceptance).
     noise_std : float, optional
         Sensor noise [output units]; estimated by :func:`sensor_noise` when omitted.
+    loop_sign : {1, -1}
+        Sign of the loop gain (:attr:`mrftcli.segment.MrftTest.loop_sign`): the output moves with
+        ``loop_sign * K`` times the command; K itself is reported positive, as the MRFT's is.
     residual_factor, interval_factor : float
         The acceptance thresholds (module docstring).
 
@@ -284,9 +287,10 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     if noise_std is None:
         noise_std = sensor_noise([w.output for w in windows])
     plant = loop_model_plant(start.Tp)
-    fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, start.K],
+    sign = -1.0 if loop_sign < 0 else 1.0
+    fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, sign * start.K],
                            lower=[math.log(start.Tp * 1e-2), 0.0, -np.inf], upper=[math.log(1e6), 1.0, np.inf])
-    lnTd, tau, K = (float(v) for v in fit.p)
+    lnTd, tau, K = float(fit.p[0]), float(fit.p[1]), sign * float(fit.p[2])
     s = fit.std
     Td = math.exp(lnTd)
     # Td's interval is symmetric in ln Td (the fitted coordinate); std by the delta method

@@ -1,0 +1,176 @@
+"""``mrft-ident tune``: controller gains from the identified model, robust to its uncertainty."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ..errors import InputError
+from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+
+
+def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
+    """Output paths are checked before the work starts (one-line error, exit 2)."""
+    if json_target and json_target != "-":
+        parent = Path(json_target).resolve().parent
+        if not parent.is_dir() or not os.access(parent, os.W_OK):
+            raise InputError(f"--json {json_target}: folder {parent} does not exist or is not writable")
+    if report_dir:
+        p = Path(report_dir)
+        if p.exists() and (not p.is_dir() or not os.access(p, os.W_OK)):
+            raise InputError(f"--report {report_dir}: not a writable folder")
+        if not p.exists():
+            parent = p.resolve().parent
+            if not parent.is_dir() or not os.access(parent, os.W_OK):
+                raise InputError(f"--report {report_dir}: cannot create it in {parent}")
+
+
+def _rate_from_times(t) -> float | None:
+    t = np.asarray(t, float)
+    if t.size < 3:
+        return None
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    return float(1.0 / np.median(dt)) if dt.size else None
+
+
+def _from_result_json(path: Path, Tp: float):
+    """(model, posterior, loop, rate, heights, amplitudes) from an ``analyze --json`` file."""
+    from ..mrft.model import LoopModel
+    from ..tune.design import Posterior
+
+    try:
+        data = json.loads(path.read_text())
+        p = data["parameters"]
+        est = {k: (float(p[k]["mean"]), float(p[k].get("std") or 0.0)) for k in ("Td", "tau", "K")}
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"{path}: not an analyze RESULT.json (needs parameters.Td/tau/K mean and std): {err}") from err
+    tp_file = p.get("Tp", {}).get("mean")
+    if tp_file is not None and abs(float(tp_file) - Tp) > 1e-9 * Tp:
+        raise InputError(f"--tp {Tp} differs from the Tp {tp_file} the RESULT.json was identified with")
+    model = LoopModel(Tp, est["Td"][0], est["tau"][0], est["K"][0])
+    post = Posterior.from_spread(model, est["Td"][1], est["tau"][1], est["K"][1], n=200, seed=0,
+                                 source=f"{path.name}: log-normal draws from the reported std (correlation unknown)")
+    inp = data.get("input", {})
+    rate = None
+    if inp.get("command_samples") and inp.get("t_first") is not None and inp.get("t_last") is not None:
+        span = float(inp["t_last"]) - float(inp["t_first"])
+        rate = (int(inp["command_samples"]) - 1) / span if span > 0 else None
+    tests = data.get("tests", [])
+    return (model, post, inp.get("loop"), rate, [float(t["h"]) for t in tests if "h" in t],
+            [float(t["amplitude"]) for t in tests if "amplitude" in t])
+
+
+@click.command("tune")
+@click.argument("source", required=False, type=click.Path(dir_okay=True))
+@tp_option()
+@log_layout_options()
+@click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
+              help="Fewest stable cycles for a test to be used (as analyze).")
+@click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
+@click.option("--tau", type=float, help="tau [s], with --td.")
+@click.option("--k", "K", type=float, help="K, with --td (default 1: gains then scale as 1/K).")
+@click.option("--td-std", type=float, default=0.0, help="Std of Td [s] for the robust design (with --td).")
+@click.option("--tau-std", type=float, default=0.0, help="Std of tau [s] for the robust design (with --td).")
+@click.option("--k-std", type=float, default=0.0, help="Std of K for the robust design (with --td).")
+@click.option("--rate", "rate_hz", type=float, help="Controller rate [Hz] (default: from the log; 200 otherwise).")
+@click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
+              help="Criterion of a unit setpoint step.")
+@click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
+@click.option("--effort-max", type=float, default=None,
+              help="Limit on the controller's noise gain |C| at Nyquist [command/output unit] (default: the MRFT rule's).")
+@click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default="table",
+              show_default=True, help="What to print: the design table, or one export format.")
+@click.option("--design", type=click.Choice(["robust", "model-based", "mrft-rule"]), default=None,
+              help="Design exported by --format hear/px4 (default: robust, else model-based).")
+@click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
+              help="Controller exported by --format hear/px4.")
+@click.option("--json", "json_target", metavar="FILE|-", help="Write every design (Kp, Ki, Kd, Tf, rate, figures) as JSON.")
+@click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
+              help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
+def tune(source, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
+         td, tau, K, td_std, tau_std, k_std, rate_hz, objective, ms_max, effort_max, fmt, design, kind,
+         json_target, report_dir):
+    """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
+
+    SOURCE is a flight log (analysed exactly as `analyze` would, same options), an analyze
+    RESULT.json, or absent with --td/--tau/--k. Each design is reported with its gain, phase and
+    delay margins, Ms and the step response of the sampled loop (overshoot, rise, settling), nominal
+    and over the identification's posterior (median, worst of the 95 % set).
+
+    Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --format px4
+    """
+    from ..mrft.model import LoopModel
+    from ..tune.design import Posterior, tune as run_tune
+    from ..tune.export import format_table, hear_json, px4_params
+
+    _check_outputs(json_target, report_dir)
+    heights, amps = [], []
+    posterior = None
+    log_rate = None
+    if source is not None and any(v is not None for v in (td, tau, K)):
+        raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
+    if source is None:
+        if td is None or tau is None:
+            raise InputError("give a LOG or RESULT.json, or the model with --td and --tau (and --k)")
+        model = LoopModel(Tp, td, tau, 1.0 if K is None else K)
+        if any(s and s > 0 for s in (td_std, tau_std, k_std)):
+            posterior = Posterior.from_spread(model, td_std, tau_std, k_std, n=200, seed=0,
+                                              source="log-normal draws from --td-std/--tau-std/--k-std")
+    elif str(source).lower().endswith(".json") and Path(source).is_file():
+        model, posterior, json_loop, log_rate, heights, amps = _from_result_json(Path(source), Tp)
+        if json_loop and json_loop != loop:
+            raise InputError(f"--loop {loop} but {source} was analysed for the {json_loop} loop")
+    else:
+        from ..analyze import analyze_path
+
+        result = analyze_path(source, Tp, loop, command_topic=command_topic, output_topic=output_topic,
+                              beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
+                              min_stable_cycles=min_cycles)
+        model = result.model
+        b = result.bootstrap
+        posterior = Posterior(Tp, b.get("Td", []), b.get("tau", []), b.get("K", []),
+                              source=f"analyze bootstrap over stable cycles ({source})")
+        if result.flight is not None:
+            log_rate = _rate_from_times(result.flight.command.t)
+        heights = [float(t.h) for t in result.tests]
+        amps = [float(t.amplitude_mean) for t in result.tests]
+        for w in result.warnings:
+            click.echo(f"warning: {w}", err=True)
+    rate = rate_hz or log_rate or 200.0
+    with tqdm_progress("tune", unit="design") as progress:
+        res = run_tune(model, rate, posterior=posterior, objective=objective, ms_max=ms_max, effort_max=effort_max,
+                       loop=loop, progress=progress)
+    if rate_hz is None and log_rate is None:
+        click.echo("note: controller rate 200 Hz assumed (give --rate)", err=True)
+    name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
+    chosen = res.get(name, kind)
+    data = res.to_dict()
+    data["export"] = {"design": name, "kind": kind, "generic": chosen.controller.to_dict(),
+                      "hear": hear_json(chosen.controller, loop)}
+    try:
+        data["export"]["px4"] = px4_params(chosen.controller, loop, heights, amps)
+    except InputError as err:
+        data["export"]["px4"] = {"refused": str(err)}
+    if json_target:
+        dump_json(data, json_target)
+    if fmt == "table":
+        if json_target != "-":
+            click.echo(format_table(res))
+            click.echo(f"export ({name} {kind}): Kp {chosen.controller.Kp:.5g}  Ki {chosen.controller.Ki:.5g}  "
+                       f"Kd {chosen.controller.Kd:.5g}  Tf {chosen.controller.Tf:.5g} s  rate {rate:g} Hz")
+    elif fmt == "json":
+        dump_json({"design": name, "kind": kind, **chosen.controller.to_dict()}, None)
+    elif fmt == "hear":
+        dump_json(hear_json(chosen.controller, loop), None)
+    else:
+        dump_json(px4_params(chosen.controller, loop, heights, amps), None)
+    if report_dir:
+        from ..report.tune import write_tune_report
+
+        click.echo(f"report: {write_tune_report(res, report_dir)}", err=fmt != "table" or json_target == "-")

@@ -1,0 +1,111 @@
+"""Gains in the form a user pastes into a flight stack: generic JSON/table, HEAR PID JSON, PX4 parameters.
+
+* **generic**: Kp, Ki, Kd (parallel form), Tf [s] (first-order derivative filter), rate [Hz], with the
+  derivative on the measurement (:class:`mrftcli.tune.closed_loop.Controller`).
+* **HEAR** (the HEAR flight stack's ``PID_parameters`` JSON: ``id``, ``kp``, ``ki``, ``kd``, ``kdd``,
+  ``anti_windup``, ``en_pv_derivation``, ``dt``): ``en_pv_derivation = 1`` makes the D term act on the
+  process variable's derivative (derivative on the measurement); HEAR has no derivative-filter field,
+  so the rate signal fed to ``PV_DOT`` must be filtered with Tf (stated in ``note``).
+* **PX4** attitude (roll, pitch): the angle P / rate PID cascade, with the rate loop's I and D at zero,
+  u = P_rate (P_att (r - y) - y') = P_rate P_att e - P_rate y', is exactly a PD on the angle with the
+  derivative on the measurement: ``MC_ROLL_P = Kp / Kd``, ``MC_ROLLRATE_P = Kd`` (likewise PITCH).
+  It holds when (:func:`px4_conditions`): the design is a PD (a rate-loop I acts on y' and so on the
+  measurement, which a parallel PID on the error is not); the loop is roll or pitch; the MRFT command
+  was PX4's normalised torque setpoint (|u| <= 1, so each test's relay height h <= 1) and the output
+  in radians (rate in rad/s); MC_*RATE_K = 1, MC_*RATE_FF = 0; both loops run at the design rate;
+  the gyro rate is filtered like the design's derivative (IMU_GYRO_CUTOFF ~ 1 / (2 pi Tf)).
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..errors import InputError
+from .closed_loop import Controller
+
+__all__ = ["generic", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
+
+FORMATS = ("json", "table", "hear", "px4")
+#: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
+HEAR_PID_ID = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4, "yaw": 5}
+
+
+def generic(c: Controller) -> dict:
+    """Kp, Ki, Kd, Tf [s] and rate_hz of a controller (parallel form, derivative on the measurement)."""
+    return c.to_dict()
+
+
+def hear_json(c: Controller, loop: str) -> dict:
+    """The HEAR ``PID_parameters`` JSON object of ``c`` for ``loop``.
+
+    Examples
+    --------
+    >>> hear_json(Controller(2.0, 0.5, 0.3, 0.01, 200.0), "roll")["id"]
+    3
+    """
+    return {"id": HEAR_PID_ID.get(loop, -1), "kp": c.Kp, "ki": c.Ki, "kd": c.Kd, "kdd": 0.0, "anti_windup": 0.0,
+            "en_pv_derivation": 1, "dt": c.Ts,
+            "note": f"feed PV_DOT with the output rate filtered by a first-order lag of {c.Tf * 1e3:.1f} ms "
+                    "(HEAR's PID has no derivative filter of its own); anti_windup 0 = off"}
+
+
+def px4_conditions(c: Controller, loop: str, relay_heights=(), amplitudes=()) -> list[str]:
+    """Reasons the PX4 cascade mapping does not hold (empty list: it holds).
+
+    ``relay_heights`` and ``amplitudes`` are the MRFT tests' h [command units] and output amplitudes
+    (when known): PX4's torque setpoint is normalised to [-1, 1], and an attitude in radians of an
+    MRFT test stays well below 1 rad.
+    """
+    why = []
+    if loop not in ("roll", "pitch"):
+        why.append(f"PX4's {loop} loop is not an angle-P / rate-PID cascade on the command tested (only roll and pitch map)")
+    if c.Ki > 0:
+        why.append("the design has integral action: PX4's rate-loop I acts on the measured rate, so a PID on the "
+                   "angle error does not map exactly (use the PD design)")
+    if any(h > 1.0 for h in relay_heights):
+        why.append(f"the MRFT relay height ({max(relay_heights):.3g}) exceeds 1: the command was not PX4's "
+                   "normalised torque setpoint")
+    if any(a > 1.0 for a in amplitudes):
+        why.append(f"the oscillation amplitude ({max(amplitudes):.3g}) is not an angle in radians (degrees? "
+                   "use --output-scale 0.0174533)")
+    return why
+
+
+def px4_params(c: Controller, loop: str, relay_heights=(), amplitudes=()) -> dict:
+    """PX4 parameters ``MC_<AXIS>_P`` = Kp / Kd and ``MC_<AXIS>RATE_P`` = Kd, or InputError with the reasons."""
+    why = px4_conditions(c, loop, relay_heights, amplitudes)
+    if why:
+        raise InputError("cannot export to PX4: " + "; ".join(why))
+    if c.Kd <= 0:
+        raise InputError("cannot export to PX4: the design has no derivative gain (MC_*RATE_P would be 0)")
+    axis = loop.upper()
+    return {f"MC_{axis}_P": c.Kp / c.Kd, f"MC_{axis}RATE_P": c.Kd, f"MC_{axis}RATE_I": 0.0,
+            f"MC_{axis}RATE_D": 0.0, f"MC_{axis}RATE_K": 1.0, f"MC_{axis}RATE_FF": 0.0,
+            "IMU_GYRO_CUTOFF": 1.0 / (2.0 * math.pi * c.Tf) if c.Tf > 0 else None,
+            "rate_hz": c.rate_hz,
+            "conditions": "command = PX4 normalised torque setpoint, output in rad; attitude and rate loops at rate_hz"}
+
+
+def format_table(result) -> str:
+    """The terminal table of a :class:`~mrftcli.tune.design.TuneResult`."""
+    m = result.model
+    lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
+             f"objective {result.objective.upper()}  Ms <= {result.ms_max:g}  noise gain <= {result.effort_max:.4g}"]
+    lines.append(f"{'design':<12}{'kind':<5}{'Kp':>10}{'Ki':>10}{'Kd':>10}{'Tf [ms]':>8}{'GM':>7}{'PM[deg]':>8}"
+                 f"{'DM[ms]':>8}{'Ms':>6}{'OS[%]':>7}{'rise[s]':>8}{'set[s]':>7}{result.objective.upper():>8}"
+                 f"  {'worst of 95 %: PM':>17}{'Ms':>6}{'OS[%]':>7}")
+    for d in result.designs:
+        c, g, s = d.controller, d.margins, d.step
+        w = d.posterior.get("worst", {}) if d.posterior else {}
+
+        def f(x, fmt):
+            return format(x, fmt) if x is not None and math.isfinite(x) else "-"
+
+        lines.append(f"{d.name:<12}{d.kind:<5}{c.Kp:>10.4g}{c.Ki:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}"
+                     f"{f(g.gain_margin, '.2f'):>7}{f(g.phase_margin_deg, '.1f'):>8}{f(g.delay_margin_s * 1e3, '.1f'):>8}"
+                     f"{f(g.Ms, '.2f'):>6}{f(s.overshoot_pct, '.1f'):>7}{f(s.rise_s, '.3f'):>8}{f(s.settling_s, '.2f'):>7}"
+                     f"{f(d.criterion, '.4g'):>8}  {f(w.get('phase_margin_deg'), '.1f'):>17}{f(w.get('Ms'), '.2f'):>6}"
+                     f"{f(w.get('overshoot_pct'), '.1f'):>7}")
+    for n in result.notes:
+        lines.append(f"note: {n}")
+    return "\n".join(lines)

@@ -14,7 +14,9 @@ def _fmt_est(est, scale: float, digits: int = 4) -> str:
     if est is None or not math.isfinite(est.mean):
         return "-"
     s = f"{est.mean * scale:.{digits}g}"
-    if math.isfinite(est.std):
+    if math.isfinite(est.std) and not math.isfinite(est.ci95_high):  # one-sided: the data bound it from below only
+        s += f"  (> {est.ci95_low * scale:.{digits}g}: not bounded from above)"
+    elif math.isfinite(est.std):
         s += f"  ± {est.std * scale:.2g}  [{est.ci95_low * scale:.{digits}g}, {est.ci95_high * scale:.{digits}g}]"
     return s
 
@@ -40,7 +42,12 @@ def format_table(result) -> str:
         if len(why) > 80 and ":" in why:  # the figures are in the warning below the table
             why = why[: why.index(":")] + "; see the warning"
         lines.append(f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8}  (left out: {why})")
-    lines.append("parameters   estimate  ± std  [95 % interval]")
+    ref = result.refinement
+    if ref is None or not ref.accepted:
+        used = "MRFT estimate" + (" (waveform refinement refused: see the warning)" if ref is not None else "")
+    else:
+        used = f"waveform refinement (residual {ref.residual_ratio:.2f}x the sensor noise)"
+    lines.append(f"parameters   estimate  ± std  [95 % interval]   from the {used}")
     lines.append(f"  Td   [s]   {_fmt_est(result.Td, 1.0)}")
     lines.append(f"  tau  [ms]  {_fmt_est(result.tau, 1e3)}")
     lines.append(f"  K          {_fmt_est(result.K, 1.0)}")

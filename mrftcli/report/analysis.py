@@ -225,7 +225,8 @@ def plot_manifolds(result):
     xerr = None
     yerr = None
     if math.isfinite(result.Td.ci95_low):
-        xerr = [[Td_hat - result.Td.ci95_low], [result.Td.ci95_high - Td_hat]]
+        # a one-sided Td bound (NaN upper end) draws the lower error bar only
+        xerr = [[Td_hat - result.Td.ci95_low], [result.Td.ci95_high - Td_hat if math.isfinite(result.Td.ci95_high) else 0.0]]
         yerr = [[(tau_hat - result.tau.ci95_low) * 1e3], [(result.tau.ci95_high - tau_hat) * 1e3]]
     ax.errorbar([Td_hat], [tau_hat * 1e3], xerr=xerr, yerr=yerr, fmt="*", color="k", ms=14, mfc="gold",
                 capsize=4, zorder=5, label=f"estimate: Td {Td_hat:.3g} s, tau {tau_hat * 1e3:.4g} ms (95 % interval)")
@@ -279,7 +280,10 @@ def plot_spread(result):
             ax.set_xticklabels(names, fontsize=8)
         if math.isfinite(est.mean):
             ax.axhline(est.mean * scale, color="k", lw=1.2, label=f"estimate {est.mean * scale:.4g}")
-        if math.isfinite(est.ci95_low):
+        if math.isfinite(est.ci95_low) and not math.isfinite(est.ci95_high):  # one-sided bound
+            ax.axhspan(est.ci95_low * scale, ax.get_ylim()[1], color="gold", alpha=0.3,
+                       label=f"95 %: > {est.ci95_low * scale:.4g} (not bounded above)")
+        elif math.isfinite(est.ci95_low):
             ax.axhspan(est.ci95_low * scale, est.ci95_high * scale, color="gold", alpha=0.3,
                        label=f"95 %: {est.ci95_low * scale:.4g}-{est.ci95_high * scale:.4g}")
         ax.set_ylabel(label)
@@ -351,7 +355,10 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
     def row(key, label, s, u):
         e = p[key]
         f = (lambda v: "-" if v is None or not math.isfinite(v) else f"{v * s:.4g}")
-        return [label, f(e["mean"]), f(e["std"]), f"{f(e['ci95_low'])} - {f(e['ci95_high'])}", u]
+        hi = e["ci95_high"]
+        ci = (f"> {f(e['ci95_low'])} (not bounded above)" if hi is None or not math.isfinite(hi)
+              else f"{f(e['ci95_low'])} - {f(hi)}")
+        return [label, f(e["mean"]), f(e["std"]), ci, u]
 
     comb = d["combinations"]
     T0 = _t0(result)

@@ -1,0 +1,201 @@
+"""``mrft-ident tune``: the sampled closed loop, margins, the MRFT rule, exports, against independent oracles."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+control = pytest.importorskip("control")
+
+from mrftcli.mrft.model import LoopModel  # noqa: E402
+from mrftcli.tune.closed_loop import Controller, simulate_step, step_metrics, step_response  # noqa: E402
+from mrftcli.tune.design import RULE_C1, RULE_C3, Posterior, mrft_rule  # noqa: E402
+from mrftcli.tune.export import hear_json, px4_params  # noqa: E402
+from mrftcli.tune.margins import margins, plant_response, plant_system  # noqa: E402
+from mrftcli.errors import InputError  # noqa: E402
+
+ROLL = LoopModel(0.0422, 1.301, 0.0297, 30.0)  # checks.md Table III, Design I roll (K arbitrary)
+PD = Controller(0.29, 0.0, 0.11, 0.037, 200.0)
+PID = Controller(0.28, 0.18, 0.106, 0.038, 200.0)
+
+
+@pytest.mark.parametrize("ctrl", [PD, PID])
+def test_state_matrices_match_event_simulation(ctrl):
+    # fractional delay (29.7 ms = 5.94 samples): the z-domain matrices against the event-driven
+    # continuous-time simulation, two independent constructions of the same sampled loop
+    t, y, u = step_response([ROLL], ctrl, 2.0)
+    t2, y2, u2, _ = simulate_step(ROLL, ctrl, 2.0)
+    assert np.max(np.abs(y[0] - y2)) < 1e-9
+    assert np.max(np.abs(u[0] - u2)) < 1e-9
+
+
+def test_closed_loop_matches_python_control():
+    # delay a whole number of samples: python-control's zoh c2d, a z^-d delay and the controller's
+    # transfer functions give the step response independently of the tool's state matrices
+    model = LoopModel(0.05, 0.9, 0.03, 12.0)
+    c = PID
+    T = c.Ts
+    A, B, C = model.state_space()
+    Gc = control.ss(A, B.reshape(3, 1), C.reshape(1, 3), 0)
+    Gd = control.c2d(Gc, T, "zoh") * control.tf([1], [1] + [0] * 6, T)  # 6 samples = 30 ms
+    z = control.tf([1, 0], [1], T)
+    Cr = c.Kp + c.Ki * T * z / (z - 1)
+    Cfb = Cr + c.Kd * (z - 1) / ((c.Tf + T) * z - c.Tf)
+    Tyr = control.feedback(Gd, Cfb) * Cr
+    n = 400
+    resp = control.forced_response(Tyr, T=np.arange(n) * T, U=np.ones(n))
+    _, y, _ = step_response([model], c, (n - 1) * T)
+    assert np.max(np.abs(y[0] - np.asarray(resp.outputs).ravel())) < 1e-6
+
+
+def _aliased_loop(model: LoopModel, c: Controller, w: np.ndarray, n_alias: int = 3000) -> np.ndarray:
+    """L(e^{jwT}) by the Poisson sum of the continuous plant and the zero-order hold (exact e^{-jw tau})."""
+    T = c.Ts
+    k = np.arange(-n_alias, n_alias + 1)
+    wk = w[:, None] + 2 * np.pi * k[None, :] / T
+    s = 1j * wk
+    G = model.K * model.Td * np.exp(-model.tau * s) / (s * (model.Tp * s + 1) * (model.Td * s + 1))
+    zoh = (1 - np.exp(-s * T)) / s
+    Gd = np.sum(G * zoh, axis=1) / T
+    return c.feedback_response(w) * Gd
+
+
+@pytest.mark.parametrize("ctrl", [PD, PID])
+def test_margins_against_brute_force_sweep(ctrl):
+    mg = margins(ROLL, ctrl)
+    w = np.geomspace(0.05, np.pi * 200 * 0.999, 5000)
+    L = _aliased_loop(ROLL, ctrl, w, n_alias=400)
+    Ms = np.max(1 / np.abs(1 + L))
+    lm = np.log(np.abs(L))
+    ph = np.unwrap(np.angle(L))
+    i = np.nonzero((lm[:-1] > 0) & (lm[1:] <= 0))[0][0]
+    f = lm[i] / (lm[i] - lm[i + 1])  # linear interpolation between the two grid points
+    pm = 180 + np.degrees(ph[i] + f * (ph[i + 1] - ph[i]))
+    j = np.nonzero((ph[:-1] > -np.pi) & (ph[1:] <= -np.pi))[0][0]
+    f = (ph[j] + np.pi) / (ph[j] - ph[j + 1])
+    gm = 1 / np.exp(lm[j] + f * (lm[j + 1] - lm[j]))
+    assert mg.Ms == pytest.approx(Ms, rel=2e-3)
+    assert mg.phase_margin_deg == pytest.approx(pm, abs=0.05)
+    assert mg.gain_margin == pytest.approx(gm, rel=2e-3)
+    # the plant response used by the optimiser equals python-control's of the same state space
+    fr = np.asarray(plant_system(ROLL, 200.0).frequency_response(w[:50]).complex).ravel()
+    assert np.allclose(plant_response([ROLL], 200.0, w[:50])[0], fr, rtol=1e-8)
+
+
+def test_delay_margin_is_where_the_sampled_loop_loses_stability():
+    mg = margins(ROLL, PD)
+    assert 0 < mg.delay_margin_s < 1
+    horizon = 12.0
+    _, y_in, _, _ = simulate_step(ROLL, PD, horizon, substeps=1, extra_delay=0.95 * mg.delay_margin_s)
+    _, y_out, _, _ = simulate_step(ROLL, PD, horizon, substeps=1, extra_delay=1.05 * mg.delay_margin_s)
+    tail = int(2.0 * PD.rate_hz)
+    swing = lambda y, a, b: np.ptp(y[a:b])  # noqa: E731
+    # inside the margin the oscillation decays, beyond it it grows
+    assert swing(y_in, -tail, None) < swing(y_in, -3 * tail, -2 * tail)
+    assert swing(y_out, -tail, None) > swing(y_out, -3 * tail, -2 * tail)
+
+
+def test_mrft_rule_on_the_papers_example():
+    # checks.md section 1: exact MRFT cycle at beta = -0.7 of 1/(s(0.1 s + 1)(0.7042 s + 1)) with 60 ms
+    # delay: 1.01884 Hz, amplitude 0.035602 for h = 1; section 5: Kp = c1 4 h / (pi a0), Td_c = c3 T0
+    model = LoopModel(0.1, 0.7042, 0.06, 1 / 0.7042)
+    c, cyc = mrft_rule(model, 20000.0)  # a fast controller: the continuous relay's figures
+    T0, a0 = 1 / 1.01884, 0.035602
+    assert cyc["T0"] == pytest.approx(T0, rel=2e-3)
+    assert c.Kp == pytest.approx(RULE_C1 * 4 / (np.pi * a0), rel=3e-3)
+    assert c.Kd / c.Kp == pytest.approx(RULE_C3 * T0, rel=2e-3)
+
+
+def test_step_metrics_of_a_second_order_system():
+    # closed forms: overshoot exp(-pi zeta / sqrt(1 - zeta^2)) of a standard second-order step
+    zeta, wn = 0.3, 4.0
+    t = np.linspace(0, 20, 200001)
+    wd = wn * math.sqrt(1 - zeta**2)
+    y = 1 - np.exp(-zeta * wn * t) * (np.cos(wd * t) + zeta / math.sqrt(1 - zeta**2) * np.sin(wd * t))
+    m = step_metrics(t, y)
+    assert m.overshoot_pct == pytest.approx(100 * math.exp(-math.pi * zeta / math.sqrt(1 - zeta**2)), rel=1e-4)
+    assert m.iae > 0 and m.settling_s > m.rise_s > 0
+
+
+def test_px4_cascade_reproduces_the_pd_loop():
+    # PX4: rate_sp = MC_ROLL_P (r - y); u = MC_ROLLRATE_P (rate_sp - rate), rate = the filtered
+    # derivative of the angle. Simulated as a cascade (own loop), it is the PD's step response.
+    p = px4_params(PD, "roll", relay_heights=[0.17], amplitudes=[0.17])
+    P_att, P_rate = p["MC_ROLL_P"], p["MC_ROLLRATE_P"]
+    A, B, C = ROLL.state_space()
+    T = PD.Ts
+    from scipy.linalg import expm
+
+    n = 600
+    d = 6
+    model = LoopModel(ROLL.Tp, ROLL.Td, d * T, ROLL.K)  # whole samples, so a plain command queue
+    M = np.zeros((4, 4))
+    M[:3, :3], M[:3, 3] = A, B
+    E = expm(M * T)
+    Phi, Gam = E[:3, :3], E[:3, 3]
+    x = np.zeros(3)
+    queue = [0.0] * d
+    rate = y_prev = 0.0
+    ys = []
+    for _ in range(n):
+        y = C @ x
+        rate = (PD.Tf * rate + (y - y_prev)) / (PD.Tf + T)
+        y_prev = y
+        u = P_rate * (P_att * (1.0 - y) - rate)
+        queue.append(u)
+        x = Phi @ x + Gam * queue.pop(0)
+        ys.append(y)
+    _, y_pd, _ = step_response([model], PD, (n - 1) * T)
+    assert np.max(np.abs(np.array(ys) - y_pd[0])) < 1e-10
+
+
+def test_px4_refuses_with_reasons():
+    with pytest.raises(InputError, match="integral"):
+        px4_params(PID, "roll")
+    with pytest.raises(InputError, match="altitude"):
+        px4_params(PD, "altitude")
+    with pytest.raises(InputError, match="relay height"):
+        px4_params(PD, "roll", relay_heights=[3.0])
+    with pytest.raises(InputError, match="radians"):
+        px4_params(PD, "pitch", amplitudes=[5.0])
+
+
+def test_hear_export_fields():
+    h = hear_json(PID, "pitch")
+    assert {k: h[k] for k in ("id", "kp", "ki", "kd", "kdd", "en_pv_derivation")} == \
+        {"id": 4, "kp": PID.Kp, "ki": PID.Ki, "kd": PID.Kd, "kdd": 0.0, "en_pv_derivation": 1}
+    assert h["dt"] == pytest.approx(0.005)
+
+
+def test_posterior_95_set_holds_95_percent_of_gaussian_draws():
+    rng = np.random.default_rng(5)
+    n = 4000
+    p = Posterior(0.04, np.exp(rng.normal(0, 0.3, n)), np.exp(rng.normal(-3.5, 0.1, n)), np.full(n, 2.0))
+    assert p.in_set().mean() == pytest.approx(0.95, abs=0.015)
+
+
+def test_cli_manual_model_px4_and_errors(tmp_path):
+    from click.testing import CliRunner
+
+    from mrftcli.cli.main import cli
+
+    r = CliRunner().invoke(cli, ["tune", "--tp", "0.0422", "--td", "1.3", "--tau", "0.03", "--k", "30",
+                                 "--loop", "roll", "--rate", "200", "--format", "px4",
+                                 "--json", str(tmp_path / "t.json")])
+    assert r.exit_code == 0, r.output
+    px4 = json.loads(r.output)
+    data = json.loads((tmp_path / "t.json").read_text())
+    mb = [d for d in data["designs"] if d["design"] == "model-based" and d["kind"] == "PD"][0]
+    assert px4["MC_ROLL_P"] == pytest.approx(mb["Kp"] / mb["Kd"])
+    assert mb["margins"]["Ms"] <= 1.6 * 1.001
+    from mrftcli.cli.main import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["tune", "--tp", "0.0422", "--loop", "roll"])
+    assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        main(["tune", "--tp", "0.0422", "--td", "1", "--tau", "0.03", "--json", str(tmp_path / "no" / "x.json")])
+    assert e.value.code == 2

@@ -50,7 +50,7 @@ from .mrft.model import LoopModel
 from .mrft.refine import Refinement, refine
 from .mrft.waveform import CommandWindow
 from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
-from .validate import check_time
+from .validate import check_tp
 
 __all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "log_start", "describe_t0", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]
@@ -461,7 +461,7 @@ def analyze_flight(
     ...       f"tau {result.tau.mean * 1e3:.1f} ms")
     Td 2.70 s (2.57-2.84), tau 46.3 ms
     """
-    Tp = check_time("Tp", Tp)
+    Tp = check_tp(Tp)
     constraints = tuple(constraints)
     bad = [c for c in constraints if c not in CONSTRAINTS]
     if bad:
@@ -615,8 +615,10 @@ def analyze_path(
     beta_topic: str | None = None,
     setpoint_topic: str | None = None,
     battery_topic: str | None = None,
-    output_scale: float | None = 1.0,
+    output_scale: float | None = None,
     fmt: str | None = None,
+    layout: str | None = None,
+    command_scale: float | None = None,
     min_stable_cycles: int = 3,
     criterion: StabilityCriterion | None = None,
     n_bootstrap: int = 400,
@@ -637,10 +639,12 @@ def analyze_path(
         The loop to analyse.
     command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str, optional
         ``TOPIC[:FIELD]`` overrides of the reference layout.
-    output_scale : float
-        Factor applied to the output and setpoint (e.g. -1 for NED z).
+    output_scale, command_scale : float, optional
+        Factors applied to the output and setpoint, and to the command (default: the layout's).
     fmt : str, optional
         Log format (detected when omitted).
+    layout : str, optional
+        One of :data:`mrftcli.io.LAYOUT_NAMES` (recognised from the topics when omitted).
     min_stable_cycles, criterion, n_bootstrap, max_combinations, seed, constraints, validity
         As in :func:`analyze_flight`.
 
@@ -660,7 +664,8 @@ def analyze_path(
 
     flight = read_flight(path, loop=loop, command_topic=command_topic, output_topic=output_topic,
                          beta_topic=beta_topic, setpoint_topic=setpoint_topic, battery_topic=battery_topic,
-                         output_scale=1.0 if output_scale is None else output_scale, fmt=fmt)
+                         output_scale=output_scale, fmt=fmt, layout=layout, command_scale=command_scale,
+                         echo_warnings=False)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, Tp, min_stable_cycles=min_stable_cycles, criterion=criterion,
                           n_bootstrap=n_bootstrap, max_combinations=max_combinations, seed=seed,
                           constraints=constraints, validity=validity)

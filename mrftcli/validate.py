@@ -9,6 +9,8 @@ Examples
 -0.4
 >>> check_time("Tp", 0.0422)
 0.0422
+>>> check_tp(0.0422)
+0.0422
 >>> check_beta(1.2)
 Traceback (most recent call last):
 ...
@@ -21,7 +23,11 @@ import math
 
 from .errors import InputError
 
-__all__ = ["check_beta", "check_positive", "check_time"]
+__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "TP_RANGE"]
+
+#: Physical range of the propulsion time constant Tp [s]: a multirotor's motor and propeller respond in
+#: tens of milliseconds (the paper's 42.2 ms); 1 ms is below any rotor's inertia, 2 s is an airship.
+TP_RANGE = (1e-3, 2.0)
 
 
 def check_beta(beta: float) -> float:
@@ -54,4 +60,25 @@ def check_time(name: str, value: float) -> float:
         raise InputError(f"{name} must be a positive time in seconds, got {value!r}") from err
     if not math.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
+    return v
+
+
+def check_tp(value: float) -> float:
+    """The propulsion time constant Tp [s] (bench test), within :data:`TP_RANGE`.
+
+    A Tp outside the physical range is refused rather than identified with: a Tp of 1e-9 s, or one
+    given in milliseconds (42.2 for 42.2 ms), would produce a plausible-looking but wrong model.
+
+    Examples
+    --------
+    >>> check_tp(1e-9)
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: Tp = 1e-09 s is outside the physical range 0.001-2 s of a propulsion time constant (tens of ms for a multirotor); give it in seconds, e.g. 0.0422
+    """
+    v = check_time("Tp", value)
+    low, high = TP_RANGE
+    if not low <= v <= high:
+        raise InputError(f"Tp = {v:g} s is outside the physical range {low:g}-{high:g} s of a propulsion time "
+                         "constant (tens of ms for a multirotor); give it in seconds, e.g. 0.0422")
     return v

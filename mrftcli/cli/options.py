@@ -14,7 +14,7 @@ import click
 from ..errors import InputError
 from ..jsonable import to_jsonable
 from ..progress import Progress
-from ..validate import check_beta, check_time
+from ..validate import check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "tqdm_progress"]
 
@@ -44,17 +44,17 @@ BETA = _BetaType()
 
 
 def _positive_time(ctx: click.Context | None, param: click.Parameter | None, value: float | None) -> float | None:
-    """``--tp``'s callback: :func:`mrftcli.validate.check_time`, its message as click's BadParameter."""
+    """``--tp``'s callback: :func:`mrftcli.validate.check_tp`, its message as click's BadParameter."""
     if value is None:
         return None
     try:
-        return check_time("Tp", value)
+        return check_tp(value)
     except InputError as err:
         raise click.BadParameter(str(err)) from None
 
 
 def tp_option(name: str = "Tp", *, required: bool = True, help: str | None = None):
-    """``--tp``: the known propulsion time constant [s], validated positive."""
+    """``--tp``: the known propulsion time constant [s], validated within its physical range."""
     return click.option(
         "--tp", name, type=float, required=required, default=None, callback=_positive_time,
         help=help or "Known propulsion time constant Tp [s] (bench test).",

@@ -125,6 +125,14 @@ def find_relay_runs(
         step = abs(run.level - last.level)
         ref_jump = abs(last.level - chain[-2].level) if len(chain) >= 2 else step
         tol = 0.1 * max(ref_jump, thr)
+        if gap > max_glitch_samples and len(chain) >= 2 and gap <= max(r.stop - r.start for r in chain):
+            # A relay switching on quantised noise chatters: a stretch of 1-2 sample runs at the
+            # chain's own two levels, up to a half-period long, is still the same relay (the cycles
+            # around it are dropped as glitches); anything at a third level ends the test.
+            gs = c[last.stop:run.start]
+            at_levels = np.minimum(np.abs(gs - last.level), np.abs(gs - chain[-2].level)) <= tol
+            if at_levels.all():
+                gap = max_glitch_samples
         if gap <= max_glitch_samples and not crosses_break and step <= tol and len(chain) >= 2:
             # Same level again after a short excursion: a false switch / glitch inside a half-period.
             chain[-1] = RelayRun(last.start, run.stop, (last.level + run.level) / 2, glitch=(gap > 0) or last.glitch)

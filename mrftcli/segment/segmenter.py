@@ -27,6 +27,38 @@ _MAX_INTERP_SAMPLES = 2
 LOW_RATE_HZ = 25.0
 
 
+def _loop_sign(ty: np.ndarray, yy: np.ndarray, tc: np.ndarray, command: np.ndarray, bias: float,
+               t_sw: np.ndarray, up: np.ndarray) -> int:
+    """+1 when the output is the relay's feedback as logged, -1 when it is its negative.
+
+    Two pieces of evidence, each scaled by the output's spread: (1) the relay rule itself: an MRFT
+    (any beta in (-1, 1), hysteresis included) switches to +h while the error rises, i.e. while the
+    output falls, and to -h while it rises, so the mean slope over the eighth of a period before the
+    up-switches minus that before the down-switches is negative; (2) a plant of eq. (2) lags the
+    relay by more than 90 degrees, so the output is lower on average while the relay is +h. (2) alone
+    is weak where the switch is near an extremum (beta near +-1: a hysteresis relay) and (1) where
+    the output is flat at the switch (beta near -1); their sum decides. (1) follows the relay, so a
+    plant that lags by less than 90 degrees keeps its sign and fails the phase check downstream
+    rather than being flipped into a look-alike.
+    """
+    cmd_at_y = np.interp(ty, tc, command)
+    hi_mask = cmd_at_y > bias
+    spread = float(np.std(yy)) if yy.size > 1 else 0.0
+    if not spread > 0 or not (hi_mask.any() and (~hi_mask).any()):
+        return 1
+    mean_evidence = (yy[~hi_mask].mean() - yy[hi_mask].mean()) / spread
+    slope_evidence = 0.0
+    if t_sw.size >= 3:
+        win = 0.125 * float(np.median(np.diff(t_sw))) * 2.0
+        i_sw = np.searchsorted(ty, t_sw)
+        i_pre = np.searchsorted(ty, t_sw - win)
+        rise = np.array([yy[b - 1] - yy[a] if b - 1 > a else np.nan for a, b in zip(i_pre, i_sw)])
+        ok = np.isfinite(rise)
+        if ok[up].any() and ok[~up].any():
+            slope_evidence = (np.mean(rise[~up & ok]) - np.mean(rise[up & ok])) / spread
+    return -1 if mean_evidence + slope_evidence < 0 else 1
+
+
 def segment_arrays(
     t_cmd: np.ndarray,
     command: np.ndarray,
@@ -136,13 +168,7 @@ def segment_arrays(
             if sp_in.size:
                 sp_val = float(np.median(sp_in))
                 yy = yy - np.interp(ty, np.asarray(t_sp, float), np.asarray(setpoint, float))
-        # Loop sign: with a positive loop gain the output is lower on average while the relay is +h
-        # (the output lags the relay by more than 90 degrees for every beta in (-1, 1)).
-        cmd_at_y = np.interp(ty, tc, command)
-        hi_mask = cmd_at_y > bias
-        sign = 1
-        if hi_mask.any() and (~hi_mask).any() and yy[hi_mask].mean() > yy[~hi_mask].mean():
-            sign = -1
+        sign = _loop_sign(ty, yy, tc, command, bias, t_sw, up)
         # a sparsely logged test (even its longest cycle has fewer than 72 output samples) is measured
         # with fewer harmonics where a cycle has fewer than 36; a well-sampled test keeps the full fit,
         # and its short start-up cycles (a noise-triggered switch) stay unmeasured

@@ -459,7 +459,7 @@ def analyze_flight(
     >>> result = analyze_flight(read_flight(log, loop="altitude"), Tp=0.0422, n_bootstrap=100)
     >>> print(f"Td {result.Td.mean:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
     ...       f"tau {result.tau.mean * 1e3:.1f} ms")
-    Td 2.70 s (2.57-2.84), tau 46.3 ms
+    Td 2.67 s (2.66-2.68), tau 46.4 ms
     """
     Tp = check_tp(Tp)
     constraints = tuple(constraints)

@@ -36,7 +36,8 @@ from mrftcli.analyze import analyze_flight  # noqa: E402
 from mrftcli.errors import MrftError  # noqa: E402
 from mrftcli.mrft.lprs import mrft_limit_cycle  # noqa: E402
 from mrftcli.mrft.model import LoopModel  # noqa: E402
-from mrftcli.plan import FlightLimits, Prior, flown_from_segments, plan_tests  # noqa: E402
+from mrftcli.plan import (FlightLimits, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
+                          planned_information)
 from mrftcli.segment import segment  # noqa: E402
 from mrftcli.sim import FlightSpec, TestSpec, default_noise_std, simulate_flight  # noqa: E402
 
@@ -53,6 +54,13 @@ def _plant(rng):
     return loop, LoopModel(Tp, Td, tau, K), rate, noise, amax
 
 
+def _max_noise(m: LoopModel, beta: float, h: float, rate: float, margin: float = 5.0) -> float:
+    """The largest sensor noise at which a test keeps the simulator's noise margin (no lock-up)."""
+    from mrftcli.sim import noise_margin
+
+    return noise_margin(m, beta, h, rate, 1.0) / margin
+
+
 def run(n: int, seed: int) -> None:
     rng = np.random.default_rng(seed)
     prior = Prior(Td=(0.2, 3.0), tau=(0.01, 0.1), K=(0.5, 20.0))
@@ -62,6 +70,7 @@ def run(n: int, seed: int) -> None:
         loop, m, rate, noise, amax = _plant(rng)
         lc1 = mrft_limit_cycle(m, -0.4, 1.0, None)
         h1 = amax * rng.uniform(0.4, 0.9) / lc1.amplitude
+        noise = min(noise, _max_noise(m, -0.4, h1, rate))  # a first test that does not lock up
         first = TestSpec(-0.4, float(h1), 12.0)
         t2 = float(rng.uniform(8.0, 20.0))
         limits = FlightLimits(max_amplitude=amax, max_h=10.0 * h1, time_s=t2, rate_hz=rate, noise_std=noise)
@@ -70,7 +79,7 @@ def run(n: int, seed: int) -> None:
         try:
             f1 = simulate_flight(FlightSpec(tests=(first,), **common))
             flown, _ = flown_from_segments(segment(flight_from_simulated(f1)))
-        except MrftError as err:  # the first test itself failed (the exact MRFT rule locked up on noise)
+        except MrftError as err:  # the first test itself failed
             skipped += 1
             print(f"plant {k}: skipped, first test unusable ({type(err).__name__}: {err})"[:160])
             continue
@@ -87,9 +96,10 @@ def run(n: int, seed: int) -> None:
             continue
 
         def fly(test):
+            # the MRFT estimate (what the plan models), not the waveform refinement after it
             try:
                 return analyze_flight(flight_from_simulated(simulate_flight(FlightSpec(tests=(first, test), **common))),
-                                      m.Tp, n_bootstrap=200)
+                                      m.Tp, n_bootstrap=200, refine_waveform=False)
             except MrftError as err:
                 print(f"plant {k}: beta {test.beta:+.2f} test unusable ({type(err).__name__})")
                 return None
@@ -99,35 +109,43 @@ def run(n: int, seed: int) -> None:
             failed.append((k, ra is None, rb is None))
             continue
         pred = p.predicted_std_data
-        row = dict(k=k, loop=loop, rate=rate, beta=rec.beta, tauA=ra.tau.std, tdA=ra.Td.std, tauB=rb.tau.std,
-                   tdB=rb.Td.std, ptau=pred["tau"], ptd=pred["Td"], TdW=rec.td_omega,
-                   ptauB=p.conventional["predicted_std_tests_only"]["tau"] if p.conventional else float("nan"))
+        # the plan's model at the true plant: what the forecast would be if the draws knew it
+        truth = (m.Td, m.tau, m.K)
+        info = sum(flown_information(m.Tp, truth, f, rate, noise) for f in flown)
+        info = info + planned_information(m.Tp, truth, rec.beta, rec.h, t2, rate, noise)
+        o_td, o_tau = np.sqrt(np.diag(np.linalg.pinv(info)))[:2]
+        row = dict(k=k, tauA=ra.tau.std, tdA=ra.Td.std, tauB=rb.tau.std, tdB=rb.Td.std, ptau=pred["tau"],
+                   ptd=pred["Td"], otau=o_tau, otd=o_td)
         rows.append(row)
-        print(f"plant {k:2d} {loop:8s} {rate:3.0f} Hz  Td {m.Td:.2f} tau {m.tau * 1e3:5.1f} ms | rec beta {rec.beta:+.2f} "
-              f"h {rec.h:.3g}: tau std {ra.tau.std * 1e3:.3f} ms (pred {pred['tau'] * 1e3:.3f}) Td std {ra.Td.std:.4f} "
-              f"(pred {pred['Td']:.4f}) | -0.7: tau std {rb.tau.std * 1e3:.3f} ms Td std {rb.Td.std:.4f}", flush=True)
+        print(f"plant {k:2d} {loop:8s} {rate:3.0f} Hz Td {m.Td:.2f} tau {m.tau * 1e3:5.1f} ms | rec {rec.beta:+.2f} "
+              f"TdW {rec.td_omega[0]:.1f}-{rec.td_omega[1]:.1f}: tau std {ra.tau.std * 1e3:.3f} ms "
+              f"(pred {pred['tau'] * 1e3:.3f}, at truth {o_tau * 1e3:.3f}) Td std {ra.Td.std:.4f} "
+              f"(pred {pred['Td']:.4f}, at truth {o_td:.4f}) | -0.7: tau {rb.tau.std * 1e3:.3f} ms Td {rb.Td.std:.4f}",
+              flush=True)
     if not rows:
         print("no plant analysed")
         return
-    r = {key: np.array([row[key] for row in rows], float) for key in ("tauA", "tdA", "tauB", "tdB", "ptau", "ptd")}
+    r = {key: np.array([row[key] for row in rows], float) for key in rows[0] if key != "k"}
     tol = 1.02  # bootstrap stds of 200 draws carry ~5 % sampling noise; "no worse" allows 2 %
     better = (r["tauA"] <= tol * r["tauB"]) & (r["tdA"] <= tol * r["tdB"])
-    q_tau, q_td = r["ptau"] / r["tauA"], r["ptd"] / r["tdA"]
     within = lambda q: (q <= 1.5) & (q >= 1 / 1.5)  # noqa: E731
     # a recommended test that cannot be analysed counts as worse, a failed conventional one as better
     n_a_fail = sum(1 for _, a, _b in failed if a)
     n_b_only = sum(1 for _, a, b in failed if b and not a)
     n_all = better.size + len(failed)
-    print(f"\nseed {seed}: {len(rows)} plants analysed, {skipped} skipped (first test unusable), {refused} refused by the planner, "
-          f"{len(failed)} with an unusable second test (recommended {n_a_fail}, conventional only {n_b_only})")
+    print(f"\nseed {seed}: {n} plants, {len(rows)} analysed, {skipped} skipped (first test unusable), {refused} refused "
+          f"by the planner, {len(failed)} with an unusable second test (recommended {n_a_fail}, conventional only "
+          f"{n_b_only})")
     print(f"recommended test no worse than -0.7 in tau and Td: {better.sum() + n_b_only}/{n_all} = "
           f"{(better.sum() + n_b_only) / n_all:.0%} "
           f"(tau alone {np.mean(r['tauA'] <= tol * r['tauB']):.0%}, Td alone {np.mean(r['tdA'] <= tol * r['tdB']):.0%})")
     print(f"median ratio achieved std recommended / conventional: tau {np.median(r['tauA'] / r['tauB']):.2f}, "
           f"Td {np.median(r['tdA'] / r['tdB']):.2f}")
-    print(f"predicted / achieved std within 1.5x: tau {within(q_tau).sum()}/{q_tau.size}, Td {within(q_td).sum()}/{q_td.size}; "
-          f"ratio median tau {np.median(q_tau):.2f} [{q_tau.min():.2f}, {q_tau.max():.2f}], "
-          f"Td {np.median(q_td):.2f} [{q_td.min():.2f}, {q_td.max():.2f}]")
+    for label, kt, kd in (("plan's forecast", "ptau", "ptd"), ("plan's model at the true plant", "otau", "otd")):
+        q_tau, q_td = r[kt] / r["tauA"], r[kd] / r["tdA"]
+        print(f"{label} / achieved (MRFT bootstrap std) within 1.5x: tau {within(q_tau).sum()}/{q_tau.size}, "
+              f"Td {within(q_td).sum()}/{q_td.size}; ratio median tau {np.median(q_tau):.2f} "
+              f"[{q_tau.min():.2f}, {q_tau.max():.2f}], Td {np.median(q_td):.2f} [{q_td.min():.2f}, {q_td.max():.2f}]")
     print(f"planning time: median {np.median(t_plan):.2f} s")
 
 
@@ -182,15 +200,63 @@ def calibrate(n: int, seed: int) -> None:
               f"median {np.median(q):.2f}, within 1.5x {np.mean((q < 1.5) & (q > 1 / 1.5)):.0%})")
 
 
+def admissibility(n: int, seed: int) -> None:
+    """Which second tests ``analyze`` can use: success by the switch's distance above the noise.
+
+    Random plants as in :func:`run` (first test -0.4 kept clear of lock-up), a second test at a beta
+    in [-0.95, -0.5] with an amplitude 20-100 % of the limit; success = analyze finds both betas.
+    Prints the success rate binned by the switch gap ``(1 + beta) a / noise``
+    (:func:`mrftcli.plan.switch_gap`) and by ``(1 + beta) a Omega / (rate noise)``.
+    """
+    from mrftcli.plan import switch_gap
+    from mrftcli.sim import noise_margin
+
+    rng = np.random.default_rng(seed)
+    recs = []
+    for k in range(n):
+        loop, m, rate, noise, amax = _plant(rng)
+        lc1 = mrft_limit_cycle(m, -0.4, 1.0, None)
+        h1 = amax * rng.uniform(0.4, 0.9) / lc1.amplitude
+        noise = min(noise, _max_noise(m, -0.4, h1, rate))
+        beta = float(rng.uniform(-0.95, -0.5))
+        lc = mrft_limit_cycle(m, beta, 1.0, None)
+        if rate * lc.period < 8:
+            continue
+        h = amax * float(np.exp(rng.uniform(np.log(0.2), 0.0))) / lc.amplitude
+        a = h * lc.amplitude
+        spec = FlightSpec(model=m, tests=(TestSpec(-0.4, float(h1), 12.0), TestSpec(beta, float(h), 12.0)),
+                          loop=loop, rate_hz=rate, noise_std=noise, seed=int(rng.integers(1 << 30)),
+                          hover_s=2.0, hold_s=2.0)
+        try:
+            res = analyze_flight(flight_from_simulated(simulate_flight(spec)), m.Tp, n_bootstrap=50,
+                                 refine_waveform=False)
+            ok = any(abs(t.beta_effective - beta) < 0.1 for t in res.tests)
+        except MrftError:
+            ok = False
+        recs.append(((1 + beta) * a * lc.omega / (rate * noise), switch_gap(a, beta, noise),
+                     noise_margin(m, beta, h, rate, noise), ok))
+        print(f"{k:3d} beta {beta:+.2f} switch margin {recs[-1][0]:7.2f} gap/noise {recs[-1][1]:7.1f} "
+              f"noise margin {recs[-1][2]:7.1f} {'ok' if ok else 'FAILED'}", flush=True)
+    r = np.array(recs, float)
+    for j, name, edges in ((0, "switch margin (1+beta) a W / (rate noise)", (0, 1, 2, 3, 4, 6, 10, np.inf)),
+                           (1, "the switch gap (1+beta) a / noise", (0, 2, 4, 8, 16, 32, np.inf))):
+        print(f"\nsuccess by {name}:")
+        for lo, hi in zip(edges[:-1], edges[1:]):
+            sel = (r[:, j] >= lo) & (r[:, j] < hi)
+            if sel.any():
+                print(f"  [{lo:g}, {hi:g}): {int(r[sel, 3].sum())}/{int(sel.sum())} usable")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--n", type=int, default=20)
+    ap.add_argument("--n", type=int, default=30)
     ap.add_argument("--seed", type=int, default=None, help="default: a fresh one (printed)")
-    ap.add_argument("--calibrate", action="store_true")
+    ap.add_argument("--calibrate", action="store_true", help="re-fit the per-cycle noise model")
+    ap.add_argument("--admissibility", action="store_true", help="which second tests analyze can use")
     args = ap.parse_args()
     seed = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % (1 << 31))
     print(f"seed {seed}")
-    (calibrate if args.calibrate else run)(args.n, seed)
+    (calibrate if args.calibrate else admissibility if args.admissibility else run)(args.n, seed)
 
 
 if __name__ == "__main__":

@@ -71,7 +71,10 @@ __all__ = [
     "PlanResult",
     "NOISE_MODEL",
     "cycle_noise",
+    "switch_gap",
     "fisher_information",
+    "planned_information",
+    "flown_information",
     "plan_tests",
     "DEFAULT_BETAS",
     "TD_OMEGA_LIMIT",
@@ -101,6 +104,8 @@ _MAX_EPS = 0.1
 #: Least a * Omega / (rate * noise) for the MRFT rule not to lock up on noise (measured over 486
 #: simulated tests: none locked at >= 4; mrftcli.sim.noise_margin).
 _MIN_NOISE_MARGIN = 4.0
+#: Least switch gap (1 + beta) a / noise for analyze to use the test (see :func:`switch_gap`).
+_MIN_SWITCH_GAP = 16.0
 _PARAMS = ("Td", "tau", "K")
 
 
@@ -298,6 +303,26 @@ def cycle_noise(amplitude: float, omega: float, switch_slope: float, rate_hz: fl
     }
 
 
+def switch_gap(amplitude: float, beta: float, noise_std: float) -> float:
+    """How far below the extremum the MRFT rule switches, in sensor noise std: ``(1 + beta) a / noise``.
+
+    The rule switches once the error has fallen back by the share ``1 + beta`` of its extremum. Near
+    beta = -1 that is a small drop, which a noise dip right after the extremum triggers early (the
+    switch level then wanders and the relay hops between orbits or locks up), although the output
+    moves fast enough at the zero crossing (:func:`mrftcli.sim.noise_margin`). ``analyze`` could
+    use every simulated test with a gap of 16 or more (``benchmarks/bench_plan.py --admissibility``,
+    docs/benchmarks/plan.md). Returns inf without noise.
+
+    Examples
+    --------
+    >>> round(switch_gap(0.05, -0.9, 0.0005), 3)   # a 5 cm cycle at beta -0.9 under 0.5 mm of noise
+    10.0
+    """
+    if noise_std <= 0:
+        return math.inf
+    return (1.0 + beta) * amplitude / noise_std
+
+
 def _slice_derivatives(Tp: float, Td: float, omega: float, beta: float) -> tuple[float, float]:
     """d tau_i / d Td [-] of the UFM slice at Omega, and d tau / d beta [s] (central differences)."""
     d = 1e-4
@@ -471,7 +496,37 @@ def _predict(Tp: float, Td: float, tau: float, K: float, beta: float, rate_hz: f
     return _Cycle(lc.omega, lc.amplitude, float(abs(dy[i])))
 
 
-def _flown_information(Tp: float, plant: np.ndarray, f: FlownTest, rate_hz: float, noise_std: float) -> np.ndarray:
+def planned_information(Tp: float, plant: Sequence[float], beta: float, h: float, duration_s: float,
+                        rate_hz: float, noise_std: float, *, cycle: _Cycle | None = None) -> np.ndarray:
+    """Fisher information on ``(Td, tau, ln K)`` of a test not yet flown, for one plant (3 x 3).
+
+    Parameters
+    ----------
+    Tp : float
+        Propulsion time constant [s].
+    plant : (float, float, float)
+        Td [s], tau [s], K of the plant.
+    beta, h, duration_s : float
+        The test: MRFT beta, relay height [command units], relay duration [s].
+    rate_hz, noise_std : float
+        Controller rate [Hz] and sensor noise std [output units].
+
+    Its cycle is the exact LPRS with half a controller period added to the delay; the stable cycles
+    are those of ``duration_s`` less the transient; the noise is :func:`cycle_noise`. Returns zeros
+    when the plant has no limit cycle at this beta.
+    """
+    Td, tau, K = (float(v) for v in plant)
+    c = cycle if cycle is not None else _predict(Tp, Td, tau, K, beta, rate_hz)
+    if c is None:
+        return np.zeros((3, 3))
+    a = h * c.amp1
+    n_c = max(math.floor(duration_s * c.omega / _TWO_PI) - _LOST_CYCLES, 1)
+    noise = cycle_noise(a, c.omega, h * c.slope1, rate_hz, noise_std)
+    return fisher_information(Tp, Td, K, beta, c.omega, a, n_c, noise)
+
+
+def flown_information(Tp: float, plant: Sequence[float], f: FlownTest, rate_hz: float, noise_std: float) -> np.ndarray:
+    """Fisher information on ``(Td, tau, ln K)`` of a flown test (as measured) for one plant (3 x 3)."""
     omega = _TWO_PI * f.frequency_hz
     slope = f.amplitude * omega * 1.5  # a triangle-like cycle; used only for the jitter term
     noise = cycle_noise(f.amplitude, omega, slope, rate_hz, noise_std)
@@ -607,7 +662,7 @@ def plan_tests(
     base_data = [np.zeros((3, 3)) for _ in plants]
     for f in flown:
         for k, p in enumerate(plants):
-            J = _flown_information(Tp, p, f, rate, noise_std)
+            J = flown_information(Tp, p, f, rate, noise_std)
             base[k] = base[k] + J
             base_data[k] = base_data[k] + J
 
@@ -637,6 +692,9 @@ def plan_tests(
         elif float(np.max(amps * omegas)) / (rate * noise_std) < _MIN_NOISE_MARGIN:
             row.update(admissible=False, reason=f"the output moves less than {_MIN_NOISE_MARGIN:g} noise stds per "
                                                 "controller tick at the switch (the relay would lock up on noise)")
+        elif switch_gap(float(np.exp(np.mean(np.log(amps)))), b, noise_std) < _MIN_SWITCH_GAP:
+            row.update(admissible=False, reason=f"the relay would switch less than {_MIN_SWITCH_GAP:g} noise stds below "
+                                                "the extremum (noise triggers the switch early): a beta nearer 0")
         elif noise_std / float(np.exp(np.mean(np.log(amps)))) > _MAX_EPS:
             # the typical plant of the prior, not the smallest: a wide K range would refuse every test
             row.update(admissible=False, reason=f"the typical amplitude ({np.exp(np.mean(np.log(amps))):.3g}) is "
@@ -647,13 +705,8 @@ def plan_tests(
         return row
 
     def info_of(b: float, row: dict) -> list[np.ndarray]:
-        out = []
-        for p, c in zip(plants, cycles[b]):
-            a = row["h"] * c.amp1
-            n_c = max(math.floor(duration * c.omega / _TWO_PI) - _LOST_CYCLES, 1)
-            noise = cycle_noise(a, c.omega, row["h"] * c.slope1, rate, noise_std)
-            out.append(fisher_information(Tp, p[0], p[2], b, c.omega, a, n_c, noise))
-        return out
+        return [planned_information(Tp, p, b, row["h"], duration, rate, noise_std, cycle=c)
+                for p, c in zip(plants, cycles[b])]
 
     rows = {b: candidate(b) for b in betas}
     admissible = [b for b in betas if rows[b]["admissible"]]

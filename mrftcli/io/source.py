@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import LogReadError
 from .logtypes import Signal, TopicInfo
 
-__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "rate_of", "check_times", "Field"]
+__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "rate_of", "check_times", "spread_batches", "batch_interval", "Field"]
 
 
 @dataclass(frozen=True)
@@ -74,8 +74,9 @@ def rate_of(t: np.ndarray) -> float | None:
 def check_times(t: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray | None, list[str]]:
     """Validate message times of one topic in recording order.
 
-    Returns ``(t, keep, notes)``: ``keep`` is an index array when duplicate stamps had to be dropped
-    (the last message of a run of equal times wins), else None.
+    Returns ``(t, keep, notes)``. Messages sharing a stamp (a logger stamping batches on arrival)
+    keep their values; their times are rebuilt from the rate (:func:`spread_batches`) with a note.
+    ``keep`` (an index array of the messages kept) is None: no message is dropped.
 
     Raises
     ------
@@ -97,10 +98,52 @@ def check_times(t: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray | None
             f"{t[i]:.6f} s -> {t[i + 1]:.6f} s)")
     dup = dt == 0
     if dup.any():
-        keep = np.flatnonzero(np.r_[~dup, True])
-        notes.append(f"{what}: dropped {int(dup.sum())} messages with a repeated timestamp")
-        return t[keep], keep, notes
+        t_new, period = spread_batches(t)
+        notes.append(
+            f"{what}: {int(dup.sum())} messages repeat the timestamp before them (a logger that stamps "
+            f"batches on arrival): their times are rebuilt at the logged rate ({1.0 / period:.4g} Hz), "
+            f"spaced back from each stamp (exact for a steady latency; a latency that varies from batch "
+            f"to batch moves switch instants by up to a batch interval, {1e3 * batch_interval(t):.3g} ms: "
+            f"stamp samples where they are made to be sure of tau)")
+        return t_new, None, notes
     return t, None, notes
+
+
+def batch_interval(t: np.ndarray) -> float:
+    """Median interval between distinct stamps [s] (the batch interval of a logger stamping on arrival)."""
+    u = np.unique(np.asarray(t, float))
+    return float(np.median(np.diff(u))) if u.size > 1 else 0.0
+
+
+def spread_batches(t: np.ndarray) -> tuple[np.ndarray, float]:
+    """Times of messages that share stamps, rebuilt from the rate: ``(times [s], period [s])``.
+
+    A logger that stamps on batch arrival gives a batch of k samples one stamp, the arrival of the
+    last. Dropping all but one sample per stamp (or keeping them at the stamp) puts the samples,
+    and the relay's switch instants with them, up to a batch late by an amount that depends on
+    where the switch fell in the batch: tau came out 4 ms short for a 46 ms truth. The samples are
+    produced at a steady rate, so the period is the median over batches of (stamp gap / batch
+    size), and sample i of a batch of k lies (k - 1 - i) periods before its stamp. Where a batch
+    would reach back before the previous stamp (a burst after a stall), its samples are spread
+    evenly over the gap instead, so the times always increase. A latency common to every sample
+    cancels between command and output.
+
+    Examples
+    --------
+    >>> t, period = spread_batches(np.array([0.0, 0.3, 0.3, 0.3, 0.6, 0.6, 0.6]))
+    >>> round(period, 3), np.round(t, 3).tolist()
+    (0.1, [0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    """
+    t = np.asarray(t, dtype=float)
+    stamps, first, counts = np.unique(t, return_index=True, return_counts=True)
+    if stamps.size < 2:
+        return t, 0.0
+    period = float(np.median(np.diff(stamps) / counts[1:]))
+    room = np.r_[np.inf, np.diff(stamps)]  # time back to the previous stamp
+    step = np.where((counts - 1) * period < room, period, room / counts)
+    pos = np.arange(t.size) - np.repeat(first, counts)  # index inside the batch
+    back = np.repeat(counts, counts) - 1 - pos
+    return t - back * np.repeat(step, counts), period
 
 
 class LogSource(ABC):

@@ -108,6 +108,9 @@ class AnalysisResult:
         ``"Td"``, ``"tau"``, ``"K"`` -> the MRFT estimate (bootstrap std and interval), whichever is used.
     refinement : Refinement or None
         The waveform refinement (estimate, std, acceptance and reasons); None when not run.
+    notes : tuple of str
+        Information that needs no action (e.g. Td*Omega > 5 on an altitude loop, where it is usual);
+        ``warnings`` hold what the user should act on.
     """
 
     path: str
@@ -130,6 +133,7 @@ class AnalysisResult:
     method: str = "mrft"
     parameters_mrft: dict = field(default_factory=dict)
     refinement: Refinement | None = None
+    notes: tuple[str, ...] = ()
 
     def rel(self, t: float) -> float:
         """A log time [s] as seconds since the log's first sample."""
@@ -231,6 +235,7 @@ class AnalysisResult:
             "uncertainty": {"method": "bootstrap over stable cycles",
                             "draws": int(np.isfinite(np.asarray(self.bootstrap.get("Td", []), float)).sum())},
             "warnings": list(self.warnings),
+            "notes": list(self.notes),
             "input": inp,
         }
 
@@ -553,6 +558,7 @@ def analyze_flight(
     combos = combinations(Tp, cycles, Td_hat, int(min(max_combinations, max(50, 4000 // n))), rng)
 
     # ---- identifiability ----------------------------------------------------------------------
+    notes: list[str] = []  # what is expected and needs no action (shown as information)
     td_omega = max(Td_hat * _TWO_PI * t.frequency_hz_mean for t in usable)
     td_open = bool(constraints) and upper_bound_open(Tp, boot, Td_hat)
     if td_open:
@@ -562,10 +568,14 @@ def analyze_flight(
         warnings.append(f"Td > {Td_est.ci95_low:.3g} s: these tests cannot bound it from above (a plant without "
                         "linear damping fits them as well); tau and K are determined")
     elif td_omega > _TD_OMEGA_LIMIT:
-        warnings.append(
-            f"Td*Omega = {td_omega:.1f} > {_TD_OMEGA_LIMIT:g}: the frequencies depend weakly on Td, so Td is known "
-            f"only to its interval ({Td_est.ci95_low:.3g}-{Td_est.ci95_high:.3g} s); tau and K are not affected as much"
-        )
+        # usual for an altitude loop (slow drag, fast loop): information, not a warning, unless the
+        # interval is too wide to use (then the user should act: another test, 'mrft-ident plan')
+        text = (f"Td*Omega = {td_omega:.1f} > {_TD_OMEGA_LIMIT:g}: the test frequencies depend weakly on Td, so Td "
+                f"is less closely determined than tau and K (MRFT interval {Td_est.ci95_low:.3g}-{Td_est.ci95_high:.3g} s)")
+        if Td_est.ci95_high > 2.0 * Td_est.ci95_low:
+            warnings.append(text + "; a test at another beta narrows it (see 'mrft-ident plan')")
+        else:
+            notes.append(text)
 
     # ---- refinement on the waveform (output error from the MRFT estimate) -------------------------
     mrft_params = {"Td": Td_est, "tau": tau_est, "K": K_est}
@@ -588,7 +598,7 @@ def analyze_flight(
                 warnings.append("the waveform refinement was not used (" + "; ".join(refinement.reasons)
                                 + "): the MRFT estimate is reported (try --diagnose)")
     warnings = list(dict.fromkeys(warnings))  # unique, in order
-    return AnalysisResult(
+    return AnalysisResult(notes=tuple(notes), 
         path=str(flight.path), loop=flight.loop, Tp=Tp, tests=tuple(usable), rejected=tuple(rejected),
         Td=Td_est, tau=tau_est, K=K_est, model=model, identification=ident, combinations=combos,
         bootstrap={"Td": Td_d[1:], "tau": tau_d[1:], "K": K_d[1:]}, warnings=tuple(warnings), flight=flight,

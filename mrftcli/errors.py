@@ -49,9 +49,14 @@ class LogReadError(MrftError):
 
 
 class SegmentationError(MrftError):
-    """No usable MRFT limit cycle was found in the recording."""
+    """No usable MRFT limit cycle was found in the recording.
+
+    ``rejected_tests`` lists the tests that were found but left out, each a dict with its ``reason``
+    (``analyze --json`` writes them); None when no test was found at all.
+    """
 
     exit_code = 4
+    rejected_tests: list[dict] | None = None
 
 
 class IdentificationError(MrftError, ValueError):

@@ -278,3 +278,23 @@ def test_batch_stamped_csv_rebuilds_the_times_and_tau_keeps_the_truth(repo_root,
     assert res.tau.ci95_low <= tau <= res.tau.ci95_high, (res.tau.mean, res.tau.ci95_low, res.tau.ci95_high)
     assert abs(res.tau.mean - tau) < 1.5e-3
     assert any("stamps batches on arrival" in w and "rebuilt" in w for w in res.flight.warnings)
+
+
+def test_nan_and_inf_in_the_relay_column_are_said_and_left_out(repo_root, tmp_path):
+    lines = (repo_root / "sample_logs" / "design1_altitude.csv").read_text().splitlines()
+    out = [lines[0]]
+    for i, line in enumerate(lines[1:]):
+        parts = line.split(",")
+        if i in (3000, 3004, 3008, 3012):
+            parts[1] = ("nan", "inf", "-inf", "NaN")[(i - 3000) // 4]
+        out.append(",".join(parts))
+    path = tmp_path / "nan.csv"
+    path.write_text("\n".join(out) + "\n")
+    fl = read_flight(path, echo_warnings=False)
+    assert len(fl.command) == len(lines) - 1 - 4 and np.isfinite(fl.command.values).all()
+    text = " ".join(fl.warnings)
+    assert "2 blank or NaN cell(s)" in text and "2 value(s) are NaN or infinite" in text
+    all_bad = tmp_path / "allnan.csv"
+    all_bad.write_text("time,cmd,y\n" + "".join(f"{k * 0.01},inf,{k}\n" for k in range(50)))
+    with pytest.raises(LogReadError, match="every value is NaN or infinite"):
+        read_flight(all_bad, command_topic="cmd", output_topic="y", echo_warnings=False)

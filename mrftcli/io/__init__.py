@@ -456,6 +456,8 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
             # no header stamps: the bag's receive time carries the transport's jitter
             source["timestamps"] = "receive"
             source["timing_jitter_s"] = max(_jitter(command.t), _jitter(output.t))
+        command = _finite(log, command, "command", source["command"])
+        output = _finite(log, output, "output", source["output"])
         rate = _median_rate(command.t)
         if not ref and rate is not None and rate < _LOW_RATE_HZ:
             log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
@@ -465,6 +467,26 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
                          beta=optional["beta"], setpoint=optional["setpoint"],
                          battery_voltage=optional["battery_voltage"], source=source,
                          warnings=list(log.warnings))
+
+
+def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
+    """``sig`` without its NaN / infinite values, said in a warning (all of them: an error).
+
+    A NaN in a relay command is not a level: the samples are left out, so a switch next to them is
+    bracketed by the samples around (1-2 missing: the instant is interpolated; more: the cycle is
+    dropped as a gap) rather than read at a made-up level.
+    """
+    bad = ~np.isfinite(sig.values)
+    if not bad.any():
+        return sig
+    if bad.all():
+        raise LogReadError(f"{log.path}: {role} {where}: every value is NaN or infinite; check the "
+                           f"--{role}-topic field")
+    k = np.flatnonzero(bad)
+    log.warn(f"{role} {where}: {k.size} value(s) are NaN or infinite (the first {sig.t[k[0]] - sig.t[0]:.3f} s "
+             f"after its first sample, message {int(k[0]) + 1}); left out as missing samples: a relay switch next to them is "
+             f"interpolated between the samples around it (1-2 missing) or its cycle is dropped (more)")
+    return Signal(sig.t[~bad], sig.values[~bad])
 
 
 def _median_rate(t: np.ndarray) -> float | None:

@@ -89,6 +89,14 @@ class CsvSource(LogSource):
         if (present & np.isnan(values)).any():
             bad = int(np.flatnonzero(present & np.isnan(values))[0])
             raise LogReadError(f"{self.path}: column {col!r} holds a non-number at row {bad + 2}")
+        idx = np.flatnonzero(present)
+        if idx.size and idx.size >= 0.9 * (idx[-1] - idx[0] + 1) and idx.size < idx[-1] - idx[0] + 1:
+            # a column filled on (nearly) every row: its blank or NaN cells are samples that are
+            # missing, not a topic's silence between messages (pandas reads "nan" as a blank)
+            holes = int(idx[-1] - idx[0] + 1 - idx.size)
+            first = int(idx[np.flatnonzero(np.diff(idx) > 1)[0]] + 1)
+            self.warn(f"column {col!r}: {holes} blank or NaN cell(s) among its rows (the first at row "
+                      f"{first + 2}): read as missing samples")
         return self._t[present], values[present]
 
     def topics(self) -> list[TopicInfo]:

@@ -21,13 +21,13 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 
-from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, summarize_features
+from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, relay_harmonics, summarize_features
 from .physics import Candidate, df_quadratic_drag
 from .scatter import scatter_sample
-from .limit_cycles import AugmentedPlant, periodic_cycle, quasi_static_plant
+from .limit_cycles import AugmentedPlant, quasi_static_plant
+from .periodic import CyclePlant, PeriodicSolution, periodic_solution
 from ..io.logtypes import FlightLog
 from ..segment import MrftTest, segment
 
@@ -35,7 +35,7 @@ if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
 __all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "DiagnosedTest", "segments_of", "prepare_tests", "PredictedCycle",
-           "CandidateModel", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
+           "CandidateModel", "cycle_plant", "model_cycle", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
            "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
 
 #: fewest stable cycles per test for a diagnosis
@@ -195,7 +195,7 @@ class CandidateModel:
         self.names = tuple(c.name for c in self.cands)
         self.tests = tests
         self.Tp = Tp
-        self.warm: dict[int, dict] = {}
+        self.warm: dict[int, tuple] = {}  # last (period [s], residual slope) found, per evaluation key
         self.name = "+".join(c.name for c in cands) if cands else "base"
         self.hs = float(np.mean([t.h for t in tests]))
 
@@ -251,33 +251,26 @@ class CandidateModel:
         return plant, 1.0
 
     def evaluate(self, theta: np.ndarray, test_i: int, t_ref: float, *, key: int | None = None) -> PredictedCycle | None:
+        """The model's periodic cycle for test ``test_i`` at log time ``t_ref`` [s] (K = 1), or None.
+
+        The cycle is the exact periodic solution of :func:`mrftcli.diagnose.periodic.periodic_solution`
+        (its Fourier series), started from the last period found for ``key`` (default: the test).
+        """
         test = self.tests[test_i]
         p = self.unpack(theta)
         plant, g = self.plant(p, test, t_ref)
         k = test_i if key is None else key
-        try:
-            # the continuous relay does not need the log's tick: ~100 samples per period suffice for
-            # the harmonic projection and keep the cubic interpolation of the switches exact to 1e-8
-            rate = min(test.rate_hz, 100.0 / float(np.mean(test.tab.period)))
-            run = periodic_cycle(plant, test.beta, test.h, rate, warm=self.warm.get(k), tol=3e-7)
-        except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
+        guess, slope = self.warm.get(k, (float(np.mean(test.tab.period)), None))
+        cp = cycle_plant(plant, test.h)
+        with np.errstate(all="ignore"):
+            try:
+                sol = periodic_solution(cp, test.beta[0], test.beta[1], guess, slope_guess=slope)
+            except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
+                return None
+        if sol is None or not np.all(np.isfinite(sol.Y)):
             return None
-        if run is None or run.up.size < 2:
-            return None
-        self.warm[k] = run.state_at_up[-1]
-        u0, u1 = run.up[-2], run.up[-1]
-        dn = run.down[(run.down > u0) & (run.down < u1)]
-        if dn.size != 1:
-            return None
-        # the harmonic projection of a sampled cycle depends (at the 1e-5 level) on where the ticks fall
-        # within it, which moves with the warm start's history: that noise in the features spoils the
-        # finite-difference Jacobian of the fit, so the cycle is resampled on a grid aligned to its start
-        i0, i1 = np.searchsorted(run.t, [u0, u1])
-        sl = slice(max(i0 - 4, 0), min(i1 + 4, run.t.size))
-        n_s = max(64, i1 - i0)
-        tt = u0 + (u1 - u0) * np.arange(n_s + 1) / n_s
-        yy = CubicSpline(run.t[sl], run.y[sl])(tt)
-        cyc = cycle_table(tt, yy, test.h, [u0], dn[:1], [u1])
+        self.warm[k] = (sol.period, sol.slope or None)
+        cyc = model_cycle(sol, test.h)
         if not np.isfinite(cyc.amplitude[0]) or cyc.amplitude[0] <= 0:
             return None
         f = summarize_features(cyc).values.copy()
@@ -292,6 +285,27 @@ class CandidateModel:
             f[FEATURE_NAMES.index("amplitude_trend")] = 0.0
             f[FEATURE_NAMES.index("balance_trend")] = 0.0
         return PredictedCycle(features=f, cycle=cyc, gain=g)
+
+
+def cycle_plant(plant: AugmentedPlant, h: float) -> CyclePlant:
+    """The periodic solver's view of an :class:`AugmentedPlant` under a relay of height ``h``."""
+    return CyclePlant(Tp=plant.Tp, Td=plant.Td, tau=plant.tau, K=plant.K, level_high=h + plant.input_bias,
+                      level_low=-h + plant.input_bias, rate_limit=plant.rate_limit, sensor_lag=plant.sensor_lag,
+                      quadratic_drag=plant.quadratic_drag)
+
+
+def model_cycle(sol: PeriodicSolution, h: float) -> CycleTable:
+    """A periodic solution as a one-row :class:`CycleTable` (measured like a recorded cycle: the
+    amplitude and centre of its harmonics 1..N_HARM)."""
+    P, H = sol.period, sol.high
+    Y = sol.Y[: N_HARM + 1].copy()
+    tg = np.linspace(0.0, P, 400, endpoint=False)
+    yg = sol.waveform(tg, N_HARM)
+    one = lambda v: np.array([v], float)  # noqa: E731 - one-row columns
+    return CycleTable(start=one(0.0), end=one(P), switch=one(H), period=one(P), high=one(H), balance=one(H / P - 0.5),
+                      amplitude=one(0.5 * (yg.max() - yg.min())), centre=one(0.5 * (yg.max() + yg.min())),
+                      Y=Y[None, :], U=relay_harmonics(h, one(H), one(P)), trend=one(0.0), beta_up=one(np.nan),
+                      beta_dn=one(np.nan), resid_ss=one(0.0), n_samples=np.array([400]))
 
 
 def feature_mask(test: DiagnosedTest) -> np.ndarray:

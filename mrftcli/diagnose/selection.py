@@ -35,12 +35,14 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from .features import FEATURE_NAMES, cycle_scatter, summarize_features
 from .fit import (MIN_CYCLES, CandidateModel, Fit, PredictedCycle, DiagnosedTest, candidate_starts, effect_value,
                            feature_mask, feature_sigma, fit_base, fit_model, plant_params, prepare_tests, segments_of,
                            theta_bounds)
 from .physics import BY_NAME, CANDIDATES, Candidate
+from .limit_cycles import periodic_cycle
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
 from ..errors import DiagnoseError, InputError
 from ..io.logtypes import FlightLog
@@ -54,6 +56,10 @@ __all__ = ["diagnose", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
 
 #: delta BIC above which an effect counts as found (Kass & Raftery: > 10 is very strong evidence)
 BIC_THRESHOLD = 10.0
+#: the linear model counts as rejected (and the candidates are fitted) when some feature is this many
+#: standard errors off, or the chi^2 of its fit has a p-value below REJECT_P
+REJECT_Z = 3.0
+REJECT_P = 0.01
 #: held-out confirmation: the candidate must lower the held-out features' chi^2 by at least this much
 #: (2 ln of the likelihood ratio on cycles it was not fitted on; the same "very strong" level)
 HOLDOUT_THRESHOLD = 10.0
@@ -194,21 +200,23 @@ def _scatter_reference(tests: list[DiagnosedTest], model: CandidateModel, fit: F
         K = fit.K * gain
         # the model plant is at K = 1: the output scales with K, so a drag per output unit divides by it
         plant = replace(plant, K=K, quadratic_drag=plant.quadratic_drag / K)
-        warm = model.warm.get(i)
-        if warm is not None:
-            # the warm state was computed at K = 1: output and rate scale with K, the propulsion state not
-            x = np.asarray(warm["x"], float).copy()
-            x[:2] *= K
-            x[3:] *= K
-            warm = dict(warm, x=x, e_prev=warm["e_prev"] * K, de_prev=warm["de_prev"] * K, e_ext=warm["e_ext"] * K)
         setting = ScatterSetting(plant=plant, beta=t.beta_nominal if t.beta_nominal is not None else float(np.mean(t.beta)),
                                  h=t.h, rate_hz=t.rate_hz, noise_std=noise, n_window=max(t.n_window, len(t.tab)),
-                                 period=float(np.mean(t.tab.period)), warm=warm)
+                                 period=float(np.mean(t.tab.period)), warm=_limit_cycle_state(plant, t))
         v0, dof = expected_period_variance(setting, 0.0)
         if not (np.isfinite(v0) and math.sqrt(v0) < 0.2 * float(np.mean(t.tab.period))):
             v0, dof = float("nan"), 0  # the sampled relay broke down (false switches): no scatter reference
         out.append({"setting": setting, "v0": v0, "s0": math.sqrt(v0) if np.isfinite(v0) else float("nan"), "dof": dof})
     return out
+
+
+def _limit_cycle_state(plant, test: DiagnosedTest) -> dict | None:
+    """The loop state on its continuous-relay limit cycle (a warm start for the sampled relay)."""
+    try:
+        run = periodic_cycle(plant, test.beta, test.h, test.rate_hz, tol=1e-5)
+    except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
+        return None
+    return run.state_at_up[-1] if run is not None and run.state_at_up else None
 
 
 def _scatter_z(tests: list[DiagnosedTest], scatter: list[dict], sel: str, v_pred) -> np.ndarray:
@@ -339,6 +347,7 @@ def _held_out(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], recs_
         "nrmse_raw_per_test": per_test_raw,
         "feature_rms_z": float(np.sqrt(np.mean(z**2))),
         "feature_chi2": float(z @ z),
+        "feature_max_abs_z": float(np.max(np.abs(z))) if z.size else 0.0,
         "cycles": int(sum(int(t.hold.sum()) for t in tests)),
     }
 
@@ -451,6 +460,12 @@ def diagnose(
     bic_base = chi2_base + base.k * math.log(n_all)
 
     before = _held_out(base_model, base, tests, recs_hold)
+    # is the linear model rejected at all? A candidate needs a chi^2 gain of BIC_THRESHOLD + ln n on
+    # the fitting cycles and HOLDOUT_THRESHOLD on the held-out ones; when every feature of both halves
+    # is within REJECT_Z standard errors and the chi^2 is what the noise gives, none is fitted
+    p_base = float(chi2_dist.sf(base.chi2, max(base.n - base.k, 1)))
+    rejected = (p_base < REJECT_P or float(np.max(np.abs(base.resid))) >= REJECT_Z
+                or (before.get("feature_max_abs_z") or 0.0) >= REJECT_Z)
 
     # ---- candidates
     cand_rows = []
@@ -460,8 +475,11 @@ def diagnose(
             continue
         say(f"fitting {cand.name}")
         if cand.stochastic:
-            row = _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all)
-            cand_rows.append(row)
+            continue  # judged after the deterministic selection, against the model chosen there
+        if not rejected:
+            cand_rows.append({"name": cand.name, "parameter": cand.parameter, "unit": cand.unit, "delta_bic": None,
+                              "status": "not fitted: the linear model is not rejected (every feature within "
+                                        f"{REJECT_Z:g} standard errors, chi^2 p = {p_base:.2g})"})
             continue
         model = CandidateModel(cand, tests, Tp)
         lo, hi = theta_bounds(cand, tests)
@@ -514,7 +532,6 @@ def diagnose(
     base_params = plant_params(base_model, base)
     deterministic = sorted((r for r in cand_rows if r["significant"] and r["name"] in fits),
                            key=lambda r: -r["delta_bic"])
-    stochastic = [r for r in cand_rows if r["significant"] and r["name"] not in fits]
     effects = []
     pair_rows: list[dict] = []
     final = None  # (label, model, fit) of the deterministic model finally chosen (for the plots)
@@ -528,7 +545,10 @@ def diagnose(
         # forward step: a second effect on top of the first (nested: the pair model with the second
         # effect's parameter at zero is the first's model), kept on the same evidence and held-out rules
         say(f"testing a second effect on top of {first['name']}", more=1)
+        explained = _explains_held_out(first["held_out_after"], tests)
         for row in cand_rows:
+            if explained:
+                break  # the first effect leaves nothing beyond the noise on the held-out cycles
             if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
                 continue
             pr = _pair_candidate(first, row, fits, tests, Tp, recs_fit, recs_hold, float(z_sc_base @ z_sc_base), n_all)
@@ -555,19 +575,24 @@ def diagnose(
                                            "model": f"{first['name']}+{second['name']}"},
                                     _harmonics_before_after(tests, m1, f1, mp, fp),
                                     {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, n_all))
-    if stochastic and final is not None:
-        # the scatter noise alone explains depends on the loop: judge the jitter again against the
-        # deterministic model found (an actuator slew once made the linear model's noise scatter too small)
-        say(f"testing delay jitter on top of {final[0]}", more=1)
-        scatter_f = _scatter_reference(tests, final[1], final[2], noise)
-        again = _jitter_candidate(BY_NAME["delay_jitter"], tests, scatter_f,
-                                  lambda sel, v: _scatter_z(tests, scatter_f, sel, v), final[2], n_all)
-        again["significant"] = _significant(again)
-        again["compared_with"] = f"linear + {final[0]}"
-        for j, row in enumerate(cand_rows):
-            if row["name"] == again["name"]:
-                cand_rows[j] = dict(row, given_effects=again)
-        stochastic = [again] if again["significant"] else []
+    stochastic = []
+    if "delay_jitter" in names:
+        # the scatter noise alone explains depends on the loop: the jitter is judged against the
+        # deterministic model found (an actuator slew once made the linear model's noise scatter too
+        # small), or the linear one when none was
+        z0 = np.clip(scatter_z("all", [sc["v0"] for sc in scatter]), 0.0, None)
+        if final is not None and float(z0 @ z0) >= BIC_THRESHOLD + math.log(n_all):
+            # (the linear model's noise scatter already explains the recorded one, no need to recompute)
+            say(f"testing delay jitter on top of {final[0]}", more=1)
+            scatter_j = _scatter_reference(tests, final[1], final[2], noise)
+            jrow = _jitter_candidate(BY_NAME["delay_jitter"], tests, scatter_j,
+                                     lambda sel, v: _scatter_z(tests, scatter_j, sel, v), final[2], n_all)
+            jrow["compared_with"] = f"linear + {final[0]}"
+        else:
+            jrow = _jitter_candidate(BY_NAME["delay_jitter"], tests, scatter, scatter_z, base, n_all)
+        jrow["significant"] = _significant(jrow)
+        cand_rows.append(jrow)
+        stochastic = [jrow] if jrow["significant"] else []
     for row in stochastic:
         # the jitter acts on the cycle-to-cycle scatter only, which the deterministic effects leave alone
         effects.append(_finding(row, {"linear": base_params, "with_effect": base_params}, {},
@@ -646,6 +671,17 @@ def _fit_summary(h: dict) -> dict:
                                   "metric") if k in h}
 
 
+def _explains_held_out(held: dict, tests: list[DiagnosedTest]) -> bool:
+    """True when a model's held-out feature chi^2 is what the noise explains (p > 0.01 against
+    chi^2 with one degree of freedom per held-out feature): a second effect would then be fitting
+    noise, so the pair stage stops there."""
+    chi2 = held.get("feature_chi2")
+    if chi2 is None:
+        return False
+    dof = sum(int(feature_mask(t).sum()) for t in tests)
+    return float(chi2_dist.sf(chi2, dof)) > 0.01
+
+
 def _significant(row: dict) -> bool:
     db = row.get("delta_bic")
     if db is None or not np.isfinite(db) or db < BIC_THRESHOLD:
@@ -673,6 +709,13 @@ def _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all) -> dict:
     v0 = np.array([sc["v0"] for sc in scatter])
     if not np.isfinite(v0).any():
         return {"name": cand.name, "delta_bic": None, "status": "no scatter reference (the sampled relay broke down)"}
+
+    z_all = np.clip(scatter_z("all", list(v0)), 0.0, None)
+    if float(z_all @ z_all) < BIC_THRESHOLD + math.log(n_all):
+        # a jitter only raises the predicted scatter, so its chi^2 gain is at most the sum of the
+        # positive z^2: below the threshold its calibration runs (most of a diagnosis' cost) are skipped
+        return {"name": cand.name, "delta_bic": None, "parameter": cand.parameter, "unit": cand.unit,
+                "status": "period scatter within what sensor noise explains (no jitter could reach the evidence threshold)"}
 
     def calibrate(sigma: float) -> np.ndarray:
         return np.array([expected_period_variance(sc["setting"], sigma)[0] if np.isfinite(sc["v0"]) else np.nan

@@ -1,0 +1,351 @@
+"""Exact periodic MRFT solutions of the augmented loop, from its Fourier series (no time stepping).
+
+Diagnosis needs hundreds of limit cycles per log, each a smooth function of the parameters. The
+continuous relay of :func:`mrftcli.diagnose.limit_cycles.periodic_cycle` finds them by simulating
+tens of cycles tick by tick (about 13 ms each); here the periodic solution is written down instead,
+the way the LPRS does for the symmetric relay (:mod:`mrftcli.mrft.lprs`), and generalised to the
+asymmetric relay levels, actuator ramps and the two nonlinearities of the candidate library
+(about 0.3 ms each).
+
+Plant (deviation coordinates, the relay's -h -> +h switch at t = 0, its +h -> -h switch at t = H)::
+
+    w(t) = relay level + input_bias, optionally slewed at +-R     (plant input [command units])
+    p'   = (w(t - tau) - p) / Tp                                  (propulsion)
+    v'   = -v / Td + K p     (or -c v|v| + K p: quadratic drag)
+    y'   = v,  measured through 1 / (T_lag s + 1)
+
+For a linear plant each harmonic k of the periodic output is Y_k = 2 G(j k Omega) c_k, c_k the
+Fourier coefficient of w (jumps, or kinks of the ramps, in closed form). The integrator makes the
+mean of w vanish, which fixes the high-time fraction H / P; the output's constant is free and the
+two MRFT switching conditions (checks.md section 2: y(H) = -beta_dn min_[0,H] y and
+y(0) = -beta_up max_[H,P] y) fix it and the period P (a scalar root in P).
+
+Quadratic drag is solved by a fixed point on the drag's remainder after its describing-function
+linearisation (the remainder is a small fraction of the inertia at test frequencies, so it
+converges in a few steps). Thrust rectification (the propulsion lag acts on the rotor speed, thrust
+goes with its square) squares the rotor speed's periodic response on a grid.
+
+Units: times in seconds, the output in its own units, the command in command units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+__all__ = ["CyclePlant", "PeriodicSolution", "periodic_solution", "N_SERIES"]
+
+#: harmonics kept in the series (the output's harmonics fall like 1/k^4: 160 leave ~1e-9 of it)
+N_SERIES = 160
+_M = 1024  # grid points per period for the extrema (refined by a parabola)
+_K = np.arange(1, N_SERIES + 1)
+_JK = 1j * _K
+
+
+@dataclass(frozen=True)
+class CyclePlant:
+    """The augmented loop model as the periodic solver sees it.
+
+    Attributes
+    ----------
+    Tp, Td, tau, K : float
+        Linear model of eq. (2) [s, s, s, output units/(command unit s^2)]; Td = inf: no drag.
+    level_high, level_low : float
+        Plant input w during the relay's high and low halves [command units], relative to the
+        trim (a symmetric relay without bias: +h, -h).
+    rate_limit : float
+        Actuator slew rate [command units/s]; 0 = steps.
+    sensor_lag : float
+        Extra first-order measurement lag [s]; 0 = none.
+    quadratic_drag : float
+        c of v' = -c v|v| + K p [1/output unit], replacing 1/Td when > 0.
+    hover_thrust : float
+        Thrust rectification: hover thrust above the zero-thrust command [command units]; 0 = none
+        (the lag Tp acts on rotor speed, thrust ~ speed^2).
+    """
+
+    Tp: float
+    Td: float
+    tau: float
+    K: float = 1.0
+    level_high: float = 1.0
+    level_low: float = -1.0
+    rate_limit: float = 0.0
+    sensor_lag: float = 0.0
+    quadratic_drag: float = 0.0
+    hover_thrust: float = 0.0
+
+
+@dataclass(frozen=True)
+class PeriodicSolution:
+    """One periodic MRFT cycle.
+
+    ``period`` P [s], ``high`` H [s] (time at the high level); ``Y`` the one-sided harmonics of the
+    measured output (index 0 its mean, y ~ Y_0 + Re sum_k Y_k e^{j k 2 pi t / P}, t from the
+    -h -> +h switch), ``N_SERIES + 1`` of them; ``U`` the same for the plant input before the delay.
+    """
+
+    period: float
+    high: float
+    Y: np.ndarray
+    U: np.ndarray
+    slope: float = 0.0  # d(switching residual)/dP at the root (a warm start for a nearby plant)
+
+    def waveform(self, t: np.ndarray, n_harm: int | None = None) -> np.ndarray:
+        """The output at times ``t`` [s] after the -h -> +h switch (the first ``n_harm`` harmonics)."""
+        n = self.Y.size - 1 if n_harm is None else n_harm
+        k = np.arange(1, n + 1)
+        w = 2.0 * np.pi / self.period
+        return self.Y[0].real + np.real(np.exp(1j * np.outer(np.asarray(t, float), k * w)) @ self.Y[1:n + 1])
+
+
+def _input_series(pl: CyclePlant, P: float, H: float, k: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Fourier coefficients c_k (k >= 1, two-sided convention) of the plant input before the delay."""
+    w = 2.0 * np.pi / P
+    jkw = 1j * k * w
+    jump = a - b
+    if pl.rate_limit > 0:
+        d = jump / pl.rate_limit
+        if d < min(H, P - H):
+            # kinks of the trapezoid: w'' = R (delta(t) - delta(t - d) - delta(t - H) + delta(t - H - d))
+            e = np.exp(-jkw * d)
+            s = pl.rate_limit * (1.0 - e) * (1.0 - np.exp(-jkw * H))
+            return s / (P * jkw * jkw)
+        return None  # the ramp never reaches the level (a triangle wave): not a regular cycle
+    return jump * (1.0 - np.exp(-jkw * H)) / (P * jkw)
+
+
+class _Series:
+    """The periodic output of one plant at a given period (its constant still free)."""
+
+    def __init__(self, pl: CyclePlant, P: float) -> None:
+        self.ok = True
+        k = _K
+        w = 2.0 * np.pi / P
+        s = _JK * w
+        a, b = pl.level_high, pl.level_low
+        lag = np.exp(-s * pl.tau)
+        meas = 1.0 / (pl.sensor_lag * s + 1.0) if pl.sensor_lag > 0 else 1.0
+        if pl.hover_thrust > 0:
+            Yk, frac, U = self._rectified(pl, P, s, lag, a, b)
+        elif pl.quadratic_drag > 0:
+            Yk, frac, U = self._quadratic(pl, P, s, lag, a, b)
+        else:
+            if not (a > 0 > b):
+                self.ok = False
+                return
+            frac = -b / (a - b)  # the integrator: the input's mean vanishes
+            c = _input_series(pl, P, frac * P, k, a, b)
+            if c is None:
+                self.ok = False
+                return
+            drag = 1.0 / pl.Td if np.isfinite(pl.Td) else 0.0
+            G = pl.K / (s * (pl.Tp * s + 1.0) * (s + drag))
+            Yk = 2.0 * G * c * lag
+            U = 2.0 * c
+        if Yk is None:
+            self.ok = False
+            return
+        self.Yk = Yk * meas
+        self.U = U
+        self.P = P
+        self.H = frac * P
+        self.w = w
+        self.k = k
+
+    @staticmethod
+    def _quadratic(pl, P, s, lag, a, b):
+        """v' = -c v|v| + K p by a fixed point on the remainder of the drag's linearisation."""
+        k = np.arange(1, N_SERIES + 1)
+        c_q = pl.quadratic_drag
+        frac = -b / (a - b)
+        mean_in = 0.0
+        r_hat = np.zeros(N_SERIES, complex)
+        lin = None
+        for _ in range(30):
+            if not (0.0 < frac < 1.0):
+                return None, frac, None
+            c = _input_series(pl, P, frac * P, k, a, b)
+            if c is None:
+                return None, frac, None
+            Pk = c * lag / (pl.Tp * s + 1.0)
+            if lin is None:
+                # the velocity's amplitude without drag sets the describing-function damping
+                V0 = np.abs(2.0 * pl.K * Pk[0] / s[0])
+                lin = 8.0 * c_q * V0 / (3.0 * math.pi)
+            Vk = (pl.K * Pk - r_hat) / (s + lin)
+            v = np.fft.irfft(np.concatenate([[0.0], Vk, np.zeros(_M // 2 + 1 - N_SERIES - 1)]) * _M, _M)
+            r = c_q * v * np.abs(v) - lin * v
+            R = np.fft.rfft(r) / _M
+            r_new = R[1:N_SERIES + 1]
+            # the mean drag must be balanced by a mean thrust: it moves the high-time fraction
+            mean_in = R[0].real / pl.K
+            frac_new = (mean_in - b) / (a - b)
+            done = np.max(np.abs(r_new - r_hat)) <= 1e-12 * (np.max(np.abs(Vk)) * (lin + 1e-300) + 1e-300) \
+                and abs(frac_new - frac) < 1e-12
+            r_hat, frac = r_new, frac_new
+            if done:
+                break
+        c = _input_series(pl, P, frac * P, k, a, b)
+        if c is None or not (0.0 < frac < 1.0):
+            return None, frac, None
+        Pk = c * lag / (pl.Tp * s + 1.0)
+        Vk = (pl.K * Pk - r_hat) / (s + lin)
+        return 2.0 * Vk / s, frac, 2.0 * c
+
+    @staticmethod
+    def _rectified(pl, P, s, lag, a, b):
+        """Rotor speed lags the command's square root; thrust goes with the speed squared."""
+        F = pl.hover_thrust
+        if not (1.0 + b / F > 0):
+            return None, 0.5, None
+        ra, rb = math.sqrt(1.0 + a / F), math.sqrt(1.0 + b / F)
+        k = np.arange(1, N_SERIES + 1)
+        frac = -b / (a - b)
+        pad = np.zeros(_M // 2 + 1 - N_SERIES - 1)
+        for _ in range(40):
+            if not (0.0 < frac < 1.0):
+                return None, frac, None
+            c = _input_series(replace_levels(pl, ra, rb), P, frac * P, k, ra, rb)
+            if c is None:
+                return None, frac, None
+            mean_sp = frac * ra + (1.0 - frac) * rb
+            Wk = c / (pl.Tp * s + 1.0)  # rotor speed (relative to hover), delay-free
+            om = mean_sp + np.fft.irfft(np.concatenate([[0.0], Wk, pad]) * _M, _M)
+            T = np.fft.rfft(F * (om * om - 1.0)) / _M
+            # the mean thrust must vanish: Newton step on the high-time fraction
+            d_mean = 2.0 * F * mean_sp * (ra - rb)
+            step = T[0].real / d_mean
+            frac -= step
+            if abs(step) < 1e-13:
+                break
+        Tk = T[1:N_SERIES + 1]
+        G = pl.K / (s * (s + (1.0 / pl.Td if np.isfinite(pl.Td) else 0.0)))
+        return 2.0 * G * Tk * lag, frac, 2.0 * c
+
+    def grid(self) -> np.ndarray:
+        X = np.zeros(_M // 2 + 1, complex)
+        X[1:N_SERIES + 1] = self.Yk
+        return np.fft.irfft(X, _M) * (_M / 2.0)
+
+    def at(self, t: float) -> float:
+        return float(np.real(np.exp(1j * self.k * self.w * t) @ self.Yk))
+
+
+def _refined(yg: np.ndarray, i: int, sign: float) -> float:
+    """Extremum near grid index i (parabola through three points)."""
+    n = yg.size
+    y0, y1, y2 = yg[(i - 1) % n], yg[i], yg[(i + 1) % n]
+    den = y0 - 2.0 * y1 + y2
+    if den * sign >= 0:
+        return float(y1)
+    return float(y1 - 0.125 * (y2 - y0) ** 2 / den)
+
+
+def _conditions(pl: CyclePlant, P: float, beta_up: float, beta_dn: float):
+    """(residual of the -h -> +h condition, the constant, the series) at period P."""
+    ser = _Series(pl, P)
+    if not ser.ok:
+        return None
+    yg = ser.grid()
+    iH = int(round(ser.H / P * _M))
+    iH = min(max(iH, 1), _M - 1)
+    hi, lo = yg[: iH + 1], yg[iH:]
+    m1 = _refined(yg, int(np.argmin(hi)), -1.0)
+    M2 = _refined(yg, iH + int(np.argmax(lo)), 1.0)
+    yH = ser.at(ser.H)
+    y0 = float(np.sum(ser.Yk.real))
+    c = (-beta_dn * m1 - yH) / (1.0 + beta_dn)
+    f = c * (1.0 + beta_up) + beta_up * M2 + y0
+    return f, c, ser
+
+
+def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_guess: float,
+                      *, rtol: float = 1e-10, slope_guess: float | None = None) -> PeriodicSolution | None:
+    """The periodic MRFT cycle of ``pl`` near ``period_guess`` [s]; None when there is none.
+
+    ``beta_up`` / ``beta_dn``: the relay's switching levels at the -h -> +h and +h -> -h switches
+    (the effective ones a recording achieved), as in
+    :func:`mrftcli.diagnose.limit_cycles.run_relay`. ``slope_guess``: dF/dP of the switching
+    residual at a nearby solution (``PeriodicSolution.slope``), which makes the first step Newton's.
+
+    Examples
+    --------
+    The symmetric linear loop against the exact LPRS period of :mod:`mrftcli.mrft.lprs`:
+
+    >>> from mrftcli.mrft.lprs import mrft_limit_cycle
+    >>> from mrftcli.mrft.model import LoopModel
+    >>> m = LoopModel(Tp=0.0422, Td=2.669, tau=0.0464, K=15.0)
+    >>> sol = periodic_solution(CyclePlant(m.Tp, m.Td, m.tau, m.K, 0.1, -0.1), -0.4, -0.4, 1.0)
+    >>> lc = mrft_limit_cycle(m, -0.4, h=0.1)
+    >>> abs(sol.period * lc.frequency_hz - 1.0) < 1e-6
+    True
+    """
+
+    def f(P):
+        got = _conditions(pl, P, beta_up, beta_dn)
+        return np.nan if got is None else got[0]
+
+    P0 = float(period_guess)
+    f0 = f(P0)
+    if not np.isfinite(f0):
+        return None
+    # secant steps from the guess (a warm start is within a fraction of a percent: 3-4 steps), keeping
+    # the last sign change as a bracket for brentq if the secant wanders
+    P1 = P0 * 1.001 if not slope_guess else P0 - f0 / slope_guess
+    if not (0.5 * P0 < P1 < 2.0 * P0) or P1 == P0:
+        P1 = P0 * 1.001
+    f1 = f(P1)
+    lo = hi = None
+    P = None
+    last_slope = 0.0
+    for _ in range(40):
+        if not np.isfinite(f1):
+            P1 = 0.5 * (P0 + P1)
+            f1 = f(P1)
+            continue
+        if f1 == 0.0:
+            P = P1
+            break
+        if np.sign(f1) != np.sign(f0):
+            lo, hi = sorted((P0, P1))
+        slope = (f1 - f0) / (P1 - P0)
+        if slope == 0:
+            return None
+        last_slope = slope
+        step = -f1 / slope
+        if abs(step) <= rtol * P1 or f1 == f0:
+            P = P1 + step
+            break
+        step = math.copysign(min(abs(step), 0.3 * P1), step)
+        P2 = P1 + step
+        if lo is not None and not (lo < P2 < hi):
+            break
+        if P2 <= 0:
+            return None
+        P0, f0, P1 = P1, f1, P2
+        f1 = f(P1)
+    if P is None:
+        if lo is None:
+            return None
+        try:
+            P = brentq(f, lo, hi, rtol=rtol, xtol=rtol * lo)
+        except ValueError:
+            return None
+    got = _conditions(pl, P, beta_up, beta_dn)
+    if got is None:
+        return None
+    _, c, ser = got
+    Y = np.concatenate([[c + 0j], ser.Yk])
+    U = np.concatenate([[0j], ser.U])
+    return PeriodicSolution(period=P, high=ser.H, Y=Y, U=U, slope=last_slope)
+
+
+def replace_levels(pl: CyclePlant, a: float, b: float) -> CyclePlant:
+    """``pl`` with other input levels (the rotor-speed targets of thrust rectification)."""
+    from dataclasses import replace
+
+    return replace(pl, level_high=a, level_low=b, rate_limit=0.0)

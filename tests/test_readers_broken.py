@@ -298,3 +298,13 @@ def test_nan_and_inf_in_the_relay_column_are_said_and_left_out(repo_root, tmp_pa
     all_bad.write_text("time,cmd,y\n" + "".join(f"{k * 0.01},inf,{k}\n" for k in range(50)))
     with pytest.raises(LogReadError, match="every value is NaN or infinite"):
         read_flight(all_bad, command_topic="cmd", output_topic="y", echo_warnings=False)
+
+
+@pytest.mark.parametrize("name", ["design1_altitude.mcap", "design1_altitude.ulg"])
+def test_topics_format_csv_on_a_binary_log_never_echoes_its_bytes(repo_root, name):
+    proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", "topics", str(repo_root / "sample_logs" / name),
+                           "--format", "csv"], capture_output=True, text=True, errors="replace", timeout=120)
+    assert proc.returncode == 3
+    line = proc.stderr.strip()
+    assert line.count("\n") == 0 and "a binary file, not a CSV" in line
+    assert all(ch.isprintable() for ch in line) and "\ufffd" not in line

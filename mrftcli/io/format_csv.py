@@ -39,6 +39,15 @@ TIME_COLUMNS = {
 }
 
 
+def _undecodable(head: bytes) -> bool:
+    """True when the first bytes are not UTF-8 text (a cut multi-byte character at the end is fine)."""
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        return err.start < len(head) - 3
+    return False
+
+
 class CsvSource(LogSource):
     """A CSV file read whole with pandas (pyarrow engine when available)."""
 
@@ -56,13 +65,18 @@ class CsvSource(LogSource):
                 raw = raw[:raw.rindex(b"\n") + 1]
                 self.warn("CSV does not end with a line break (truncated?): its last, partial row "
                           "was dropped")
+            head = raw[:4096]
+            if b"\x00" in head or _undecodable(head):
+                # never echo a binary file's bytes in the message
+                raise LogReadError(f"{self.path}: a binary file, not a CSV (text with a time column); "
+                                   "pass its own --format, or leave --format out to detect it")
             frame = _read_frame(raw)
         except LogReadError:
             raise
         except OSError as err:
             raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
         except Exception as err:  # noqa: BLE001 - pandas/pyarrow parse errors of many kinds
-            msg = one_line(err)
+            msg = "".join(ch if ch.isprintable() else "?" for ch in one_line(err))[:200]
             raise LogReadError(f"{self.path}: not a readable CSV ({msg})") from None
         if frame.shape[1] < 2:
             raise LogReadError(f"{self.path}: a CSV log needs a time column and at least one data column")

@@ -576,7 +576,7 @@ def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_
 
 def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic: str | None = None,
           output_topic: str | None = None, beta_topic: str | None = None, setpoint_topic: str | None = None,
-          output_scale: float = 1.0, min_cycles: int = 3, idle: float = 10.0, poll: float = 0.02,
+          output_scale: float | None = 1.0, min_cycles: int = 3, idle: float = 10.0, poll: float = 0.02,
           fmt: str | None = None, sleep: Callable[[float], None] = time.sleep,
           clock: Callable[[], float] = time.monotonic) -> Iterator[Update]:
     """Follow ``path`` while it is written and yield updates (see the module docstring).
@@ -622,7 +622,7 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
     layout = _Layout(loop=loop, command=command_topic or DEFAULT_TOPICS["command"],
                      output=output_topic or DEFAULT_TOPICS[f"output.{loop}"],
                      beta=beta_topic or DEFAULT_TOPICS["beta"], setpoint=setpoint_topic or DEFAULT_TOPICS["setpoint"],
-                     output_scale=float(output_scale))
+                     output_scale=1.0 if output_scale is None else float(output_scale))  # None: the reference layout's
     start = clock()
     while not path.exists() or (path.is_file() and path.stat().st_size == 0):
         if clock() - start > idle:

@@ -6,19 +6,46 @@ import math
 
 import click
 
-from ..errors import InsufficientDataError, SegmentationError
-from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+from ..errors import InsufficientDataError, MrftError, SegmentationError
+from .options import (check_output_dir, check_output_file, dump_json, log_layout_options, tp_option,
+                      tqdm_progress)
 
 
-def _fmt_est(est, scale: float, digits: int = 4) -> str:
-    if est is None or not math.isfinite(est.mean):
+#: the output's unit by loop (after --output-scale): roll and pitch come from a quaternion in rad
+_OUTPUT_UNIT = {"altitude": "m", "x": "m", "y": "m", "roll": "rad", "pitch": "rad"}
+
+
+def _num(x: float | None, digits: int = 4) -> str:
+    """``digits`` significant digits, trailing zeros kept, so a column reads alike (0.1800 beside 0.05839)."""
+    if x is None or not math.isfinite(x):
         return "-"
-    s = f"{est.mean * scale:.{digits}g}"
-    if math.isfinite(est.std) and not math.isfinite(est.ci95_high):  # one-sided: the data bound it from below only
-        s += f"  (> {est.ci95_low * scale:.{digits}g}: not bounded from above)"
-    elif math.isfinite(est.std):
-        s += f"  ± {est.std * scale:.2g}  [{est.ci95_low * scale:.{digits}g}, {est.ci95_high * scale:.{digits}g}]"
-    return s
+    return f"{x:#.{digits}g}".rstrip(".")
+
+
+def _est_row(name: str, unit: str, est, scale: float) -> list[str]:
+    """One parameter: estimate, std and 95 % interval (one-sided when the data bound it from below only)."""
+    if est is None or not math.isfinite(est.mean):
+        return [name, unit, "-", "", ""]
+    if not math.isfinite(est.std):
+        return [name, unit, _num(est.mean * scale), "", ""]
+    if not math.isfinite(est.ci95_high):
+        interval = f"> {_num(est.ci95_low * scale)} (not bounded from above)"
+    else:
+        interval = f"{_num(est.ci95_low * scale)} - {_num(est.ci95_high * scale)}"
+    return [name, unit, _num(est.mean * scale), _num(est.std * scale, 2), interval]
+
+
+def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> list[str]:
+    """Columns as wide as their widest cell; two header lines (name, unit); no trailing spaces."""
+    widths = [max(len(h[0]), len(h[1]), *(len(r[k]) for r in rows if k < len(r))) for k, h in enumerate(header)]
+
+    def line(cells):
+        out = []
+        for k, cell in enumerate(cells):
+            out.append(cell.ljust(widths[k]) if align[k] == "<" else cell.rjust(widths[k]))
+        return "  ".join(out).rstrip()
+
+    return [line([h[0] for h in header]), line([h[1] for h in header])] + [line(r) for r in rows]
 
 
 def format_table(result) -> str:
@@ -26,49 +53,89 @@ def format_table(result) -> str:
     from ..analyze import describe_t0
 
     t0 = result.t0
-    lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s (known)  t: seconds from the log start"
+    unit = _OUTPUT_UNIT.get(result.loop, "output unit")
+    lines = [f"{result.path}",
+             f"loop {result.loop}, Tp {result.Tp:g} s (known); times in seconds from the log start"
              + (f" ({describe_t0(t0)})" if t0 else "")]
-    lines.append(f"{'test':>4} {'t [s]':>13} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'f [Hz]':>8} "
-                 f"{'amplitude':>10} {'cycles':>7}")
+    header = [("test", ""), ("from", "[s]"), ("to", "[s]"), ("beta", "nominal"), ("beta", "effective"),
+              ("relay h", "[command]"), ("frequency", "[Hz]"), ("amplitude", f"[{unit}]"), ("stable/total", "cycles")]
+    rows = []
     for t in result.tests:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
-        lines.append(
-            f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8} {t.beta_effective:>+8.3f} {t.h:>8.4g} "
-            f"{t.frequency_hz_mean:>8.4f} {t.amplitude_mean:>10.4g} {t.n_stable:>3d}/{len(t.cycles):<3d}"
-        )
+        rows.append([str(t.index + 1), f"{t.t_start - t0:.1f}", f"{t.t_end - t0:.1f}", nom, f"{t.beta_effective:+.3f}",
+                     _num(t.h), _num(t.frequency_hz_mean), _num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}"])
+    lines += _table(header, rows, ">>>>>>>>>")
     for t in result.rejected:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
         why = result.rejection_reasons.get(t.index) or f"{t.n_stable} stable cycles"
         if len(why) > 80 and ":" in why:  # the figures are in the warning below the table
             why = why[: why.index(":")] + "; see the warning"
-        lines.append(f"{t.index + 1:>4} {t.t_start - t0:>6.1f}-{t.t_end - t0:<6.1f} {nom:>8}  (left out: {why})")
+        lines.append(f"test {t.index + 1} ({t.t_start - t0:.1f}-{t.t_end - t0:.1f} s, beta {nom}) left out: {why}")
     ref = result.refinement
     if ref is None or not ref.accepted:
-        used = "MRFT estimate" + (" (waveform refinement refused: see the warning)" if ref is not None else "")
+        used = "the MRFT estimate" + (" (waveform refinement refused: see the warning)" if ref is not None else "")
     else:
-        used = f"waveform refinement (residual {ref.residual_ratio:.2f}x the sensor noise)"
-    lines.append(f"parameters   estimate  ± std  [95 % interval]   from the {used}")
-    lines.append(f"  Td   [s]   {_fmt_est(result.Td, 1.0)}")
-    lines.append(f"  tau  [ms]  {_fmt_est(result.tau, 1e3)}")
-    lines.append(f"  K          {_fmt_est(result.K, 1.0)}")
+        used = f"the waveform refinement, residual {ref.residual_ratio:.2f}x the sensor noise"
+    lines.append(f"parameters, from {used}:")
+    params = [_est_row("Td", "s", result.Td, 1.0), _est_row("tau", "ms", result.tau, 1e3),
+              _est_row("K", f"{unit}/s² per command unit", result.K, 1.0)]
+    lines += ["  " + line for line in _table([("parameter", ""), ("unit", ""), ("estimate", ""), ("± std", ""),
+                                              ("95 % interval", "")], params, "<<>><")[::1] if line.strip()]
     c = result.combination_stats()
     if c["n"] and c["Td"]["mean"] is not None:
         lines.append(
-            f"per combination of cycles ({c['n']}, paper Table III): Td {c['Td']['mean']:.4g} ± {c['Td']['std'] or 0:.2g} s, "
-            f"tau {c['tau']['mean'] * 1e3:.4g} ± {(c['tau']['std'] or 0) * 1e3:.2g} ms"
+            f"spread over {c['n']} combinations of stable cycles: Td {_num(c['Td']['mean'])} ± {_num(c['Td']['std'] or 0, 2)} s, "
+            f"tau {_num(c['tau']['mean'] * 1e3)} ± {_num((c['tau']['std'] or 0) * 1e3, 2)} ms"
         )
+    for note in result.notes:
+        lines.append(f"note: {note}")
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def format_partial(err) -> str:
+    """The text of exit 6: what one beta can say (tau for an assumed Td range), from ``err.partial``."""
+    part = err.partial or {}
+    lo, hi = part.get("assumed_Td_range_s", (None, None))
+    lines = [f"partial result: tau for an assumed Td range {lo:g}-{hi:g} s (one beta cannot separate Td and tau)"]
+    header = [("test", ""), ("from", "[s]"), ("to", "[s]"), ("beta", "effective"), ("frequency", "[Hz]"),
+              ("tau if Td in range", "[ms]")]
+    rows = []
+    for t, tau in zip(part.get("tests", []), part.get("tau_for_assumed_Td", [])):
+        span = tau.get("tau_range_s")
+        rows.append([str(t["index"] + 1), f"{t['t_start_rel']:.1f}", f"{t['t_end_rel']:.1f}",
+                     f"{t['beta_effective']:+.3f}", _num(tau["frequency_hz"]),
+                     "-" if not span else f"{_num(span[0] * 1e3)} - {_num(span[1] * 1e3)}"])
+    lines += _table(header, rows, ">>>>>>")
     return "\n".join(lines)
 
 
+def _stages(progress, weights: dict[str, float]):
+    """Split one bar among the stages of a run, in proportion to their usual duration (weights [s])."""
+    total = sum(weights.values())
+    start = {}
+    acc = 0.0
+    for name, w in weights.items():
+        start[name] = acc
+        acc += w
+
+    def stage(name: str):
+        def sub(done: float, sub_total: float, text: str = "") -> None:
+            frac = min(max(done / sub_total, 0.0), 1.0) if sub_total else 0.0
+            progress(round(start[name] + frac * weights[name], 1), total, f"{name}: {text}" if text else name)
+        return sub
+
+    return stage
+
+
 @click.command("analyze")
-@click.argument("log", type=click.Path(dir_okay=False))
+@click.argument("log", type=click.Path(dir_okay=True))
 @tp_option()
 @log_layout_options()
 @click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
               help="Fewest stable cycles for a test to be used.")
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the result as JSON to FILE, or '-' for stdout.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
-              help="Write an HTML report with plots to DIR.")
+              help="Write an HTML report with plots to DIR (created if missing).")
 @click.option("--mcap-out", "mcap_out", metavar="FILE", type=click.Path(dir_okay=False),
               help="Write an MCAP with the tests, the model's predicted output and residual and the parameters, "
                    "on the log's clock, to open beside the log in Foxglove Studio or PlotJuggler.")
@@ -77,15 +144,15 @@ def format_table(result) -> str:
                    "amplitude constraints.")
 @click.option("--diagnose", "run_diagnose", is_flag=True,
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose.selection).")
-def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
-            json_target, report_dir, mcap_out, paper_only, run_diagnose):
+def analyze(log, Tp, min_cycles, json_target, report_dir, mcap_out, paper_only, run_diagnose, **read_options):
     """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
 
-    Each test's stable limit cycles are measured (frequency, amplitude, and the beta the relay
-    actually achieved); two or more betas give Td and tau from the intersection of the unit frequency
-    manifolds at the known Tp (paper Fig. 5), K from the amplitudes. Each test's fundamental-harmonic
-    phase and the amplitude ratios join the UFM slices as weighted constraints (--paper-only: not).
-    Times shown are seconds from the log start; the JSON also keeps the absolute ones.
+    LOG is a log file or a ROS 2 bag folder. Each test's stable limit cycles are measured (frequency,
+    amplitude, and the beta the relay actually achieved); two or more betas give Td and tau from the
+    intersection of the unit frequency manifolds at the known Tp (paper Fig. 5), K from the
+    amplitudes. Each test's fundamental-harmonic phase and the amplitude ratios join the UFM slices as
+    weighted constraints (--paper-only: not). Times shown are seconds from the log start; the JSON
+    also keeps the absolute ones.
 
     Each test's output must be a limit cycle of its relay (oscillating at the relay's frequency
     above the noise, in a steady phase that matches the measured beta, with the nominal beta and the
@@ -93,39 +160,64 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
 
     Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4 no usable relay test (none, too short, or
     the output does not follow the relay), 5 no plant fits, 6 a single usable beta or not enough
-    data (a partial result is given).
+    data (the partial result is printed, and written by --json).
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
-    from ..analyze import analyze_path
+    from ..analyze import analyze_flight
+    from ..io import read_flight
 
     to_stdout = json_target == "-"
+    # every output is checked before the work starts, all in the same way (parents created)
+    check_output_file(json_target, "--json")
+    check_output_dir(report_dir, "--report")
     if mcap_out:
         from ..io.overlay import check_overlay_path
 
-        check_overlay_path(mcap_out)  # before the work starts
-    try:
-        result = analyze_path(log, Tp, loop, command_topic=command_topic, output_topic=output_topic,
-                              beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
-                              min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}))
-    except InsufficientDataError as err:
-        if json_target:
-            dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
-        raise
-    except SegmentationError as err:
-        # tests found but none usable: the JSON still says what was found and why each was rejected
-        rejected = getattr(err, "rejected_tests", None)
-        if json_target and rejected is not None:
-            dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [], "rejected_tests": rejected},
-                      json_target)
-        raise
-    diagnosis = None
-    if run_diagnose:
-        from ..diagnose.selection import diagnose as run_diagnosis
+        check_overlay_path(mcap_out)
+    flight = read_flight(log, echo_warnings=False, **read_options)  # the reader's warnings: once, below
+    weights = {"identify": 6.0, **({"diagnose": 25.0} if run_diagnose else {}), **({"report": 4.0} if report_dir else {})}
+    # a bar (stderr, terminal only) when the run is long enough to wait for: a diagnosis or a report
+    with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1) as progress:
+        stage = _stages(progress, weights)
+        stage("identify")(0, 1, "segmenting and identifying")
+        try:
+            result = analyze_flight(flight, Tp, min_stable_cycles=min_cycles,
+                                    **({"constraints": ()} if paper_only else {}))
+        except InsufficientDataError as err:
+            if json_target:
+                dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
+            if not to_stdout and err.partial:
+                click.echo(format_partial(err))
+            _echo_warnings(flight.warnings)
+            raise
+        except SegmentationError as err:
+            # tests found but none usable: the JSON still says what was found and why each was rejected
+            if json_target and err.rejected_tests is not None:
+                dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [],
+                           "rejected_tests": err.rejected_tests}, json_target)
+            _echo_warnings(flight.warnings)
+            raise
+        except MrftError:
+            _echo_warnings(flight.warnings)
+            raise
+        diagnosis = None
+        if run_diagnose:
+            from ..diagnose.selection import diagnose as run_diagnosis
 
-        # a live bar on a terminal: the diagnosis re-simulates and takes tens of seconds
-        with tqdm_progress("diagnose", unit="stage") as progress:
-            diagnosis = run_diagnosis(result.flight, Tp, analysis=result, progress=progress)
+            diagnosis = run_diagnosis(result.flight, Tp, analysis=result, progress=stage("diagnose"))
+        index = None
+        if report_dir:
+            from ..report.analysis import write_analysis_report
+
+            links = []
+            if diagnosis is not None:
+                from ..report.diagnosis import write_diagnosis_report
+
+                stage("report")(0, 1, "diagnosis page")
+                page = write_diagnosis_report(diagnosis, report_dir)
+                links.append((page.name, "Model-mismatch diagnosis"))
+            index = write_analysis_report(result, report_dir, links=links, progress=stage("report"))
     if json_target:
         data = result.to_dict()
         if diagnosis is not None:
@@ -139,16 +231,11 @@ def analyze(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
         from ..io.overlay import write_analysis_overlay
 
         click.echo(f"mcap: {write_analysis_overlay(mcap_out, result)}", err=to_stdout)
-    for w in result.warnings:
-        click.echo(f"warning: {w}", err=True)
-    if report_dir:
-        from ..report.analysis import write_analysis_report
-
-        links = []
-        if diagnosis is not None:
-            from ..report.diagnosis import write_diagnosis_report
-
-            page = write_diagnosis_report(diagnosis, report_dir)
-            links.append((page.name, "Model-mismatch diagnosis"))
-        index = write_analysis_report(result, report_dir, links=links)
+    _echo_warnings(result.warnings)
+    if index is not None:
         click.echo(f"report: {index}", err=to_stdout)
+
+
+def _echo_warnings(warnings) -> None:
+    for w in warnings:
+        click.echo(f"warning: {w}", err=True)

@@ -6,7 +6,7 @@ import math
 
 import click
 
-from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+from .options import check_output_dir, check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
 
 def _g(x, fmt=".4g") -> str:
@@ -68,9 +68,8 @@ def format_summary(result) -> str:
 @log_layout_options()
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the diagnosis as JSON to FILE, or '-' for stdout.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
-              help="Write an HTML report with plots to DIR.")
-def diagnose(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, json_target,
-             report_dir):
+              help="Write an HTML report with plots to DIR (created if missing).")
+def diagnose(log, Tp, json_target, report_dir, **read_options):
     """Find where the linear model and LOG disagree, name the missing physics, fit it and compare.
 
     The linear model G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) is fitted to the recorded
@@ -88,8 +87,9 @@ def diagnose(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_to
     from ..diagnose.selection import diagnose as run
     from ..io import read_flight
 
-    flight = read_flight(log, loop=loop, command_topic=command_topic, output_topic=output_topic,
-                         beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale)
+    check_output_file(json_target, "--json")  # before the work, as analyze
+    check_output_dir(report_dir, "--report")
+    flight = read_flight(log, **read_options)
     with tqdm_progress("diagnose", unit="stage") as progress:
         result = run(flight, Tp, progress=progress)
     to_stdout = json_target == "-"

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
+import os
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +18,8 @@ from ..jsonable import to_jsonable
 from ..progress import Progress
 from ..validate import check_beta, check_tp
 
-__all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "tqdm_progress"]
+__all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress",
+           "check_output_file", "check_output_dir"]
 
 
 def dump_json(obj: Any, target: str | None) -> None:
@@ -26,6 +29,43 @@ def dump_json(obj: Any, target: str | None) -> None:
         click.echo(text)
     else:
         Path(target).write_text(text + "\n")
+
+
+def _writable_dir(folder: Path, option: str, what: Path) -> None:
+    """Create ``folder`` (and its parents) if missing; InputError if that fails or it is not writable."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError(f"{option} {what}: {folder} exists and is not a folder; choose another path") from None
+    except OSError as err:
+        raise InputError(f"{option} {what}: cannot create the folder {folder} ({err.strerror or err}); "
+                         "choose a writable path") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"{option} {what}: the folder {folder} is not writable; choose a writable path")
+
+
+def check_output_file(target: str | None, option: str = "--json") -> None:
+    """Check an output file before the work starts: its folder is created if missing and must be writable.
+
+    ``None`` and ``-`` (stdout) pass. The same rule as :func:`check_output_dir`, so ``--json`` and
+    ``--report`` behave alike: missing parents are created, an unwritable place is refused (exit 2)
+    before minutes of analysis, not after.
+    """
+    if target in (None, "-"):
+        return
+    path = Path(target)
+    if path.is_dir():
+        raise InputError(f"{option} {target}: is a folder; give a file name, e.g. {path / 'result.json'}")
+    if path.exists() and not os.access(path, os.W_OK):
+        raise InputError(f"{option} {target}: the file is not writable; choose another path")
+    _writable_dir(path.parent if str(path.parent) else Path("."), option, path)
+
+
+def check_output_dir(target: str | None, option: str = "--report") -> None:
+    """Check an output folder before the work starts: created (with its parents) if missing, writable."""
+    if target is None:
+        return
+    _writable_dir(Path(target), option, Path(target))
 
 
 class _BetaType(click.ParamType):
@@ -61,37 +101,62 @@ def tp_option(name: str = "Tp", *, required: bool = True, help: str | None = Non
     )
 
 
-def log_layout_options(*, config_defaults: bool = False):
-    """The options that say where a loop's signals are in a log, shared by analyze, diagnose and batch.
+def _scale(ctx: click.Context | None, param: click.Parameter | None, value: float | None) -> float | None:
+    """A sign/scale option: finite and non-zero, or None (the layout's)."""
+    if value is not None and (value == 0 or not math.isfinite(value)):
+        raise click.BadParameter(f"must be a finite, non-zero factor, got {value}")
+    return value
 
-    ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``, ``--setpoint-topic`` and
-    ``--output-scale``. With ``config_defaults`` (batch) every option defaults to None so that a
-    per-log config file can fill it, and ``--loop`` may be repeated.
+
+#: The names :func:`log_layout_options` gives the command: exactly :func:`mrftcli.io.read_flight`'s
+#: keyword arguments, so a command passes them on as ``read_flight(log, **read_options)``.
+READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
+                "command_scale", "layout", "fmt")
+
+
+def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--format"):
+    """The options that say how to read a loop from a log, shared by every command that reads one.
+
+    ``--format``, ``--layout``, ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``,
+    ``--setpoint-topic``, ``--output-scale`` and ``--command-scale``; the command receives them under
+    the names of :data:`READ_OPTIONS` (those of :func:`mrftcli.io.read_flight`). With
+    ``config_defaults`` (batch) ``--loop`` defaults to None so that a per-log config file can fill it,
+    and may be repeated; batch finds its logs by name and has no ``--format``. ``format_flag`` renames
+    ``--format`` for a command whose ``--format`` already means something else (tune: ``--log-format``,
+    received as ``log_fmt``).
     """
+    from ..io import LAYOUT_NAMES, READ_FORMATS
     from ..io.logtypes import LOOPS
 
     if config_defaults:
         loop = click.option("--loop", multiple=True, type=click.Choice(LOOPS),
                             help="Loop to identify; repeat for several (default: altitude; overrides the config).")
-        scale = click.option("--output-scale", type=float, default=None,
-                             help="Factor applied to output and setpoint (default 1; e.g. -1 for NED z).")
     else:
         loop = click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True,
                             help="Which loop the log's MRFT tests excite.")
-        scale = click.option("--output-scale", type=float, default=1.0, show_default=True,
-                             help="Factor applied to output and setpoint (e.g. -1 for NED z, 0.0174533 for degrees).")
     options = [
         loop,
+        click.option("--layout", type=click.Choice(LAYOUT_NAMES), default=None,
+                     help="Where the flight stack records the loop (default: recognised from the topics; "
+                          "see docs/log-layouts.md)."),
         click.option("--command-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Command the MRFT block sent (default /mrft/command)."),
+                     help="Command the MRFT block sent (default: the layout's, /mrft/command)."),
         click.option("--output-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Loop output (default by loop: /mocap/pose or /imu/data)."),
+                     help="Loop output (default: the layout's, e.g. /mocap/pose or /imu/data)."),
         click.option("--beta-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Beta published at each test start (default /mrft/beta)."),
+                     help="Beta published at each test start (default: the layout's, /mrft/beta)."),
         click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Loop setpoint (default /mrft/setpoint)."),
-        scale,
+                     help="Loop setpoint (default: the layout's, /mrft/setpoint)."),
+        click.option("--output-scale", type=float, default=None, callback=_scale,
+                     help="Factor applied to output and setpoint (default: the layout's, 1 or -1 for NED z; "
+                          "e.g. 0.0174533 for degrees)."),
+        click.option("--command-scale", type=float, default=None, callback=_scale,
+                     help="Factor applied to the command (default: the layout's, 1 or -1 for PX4's thrust)."),
     ]
+    if not config_defaults:
+        options.insert(0, click.option(
+            format_flag, "fmt" if format_flag == "--format" else "log_fmt", type=click.Choice(READ_FORMATS), default=None,
+            help="Log format (default: detected from the file)."))
 
     def decorate(func):
         for option in reversed(options):

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError
-from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+from .options import check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
 __all__ = ["plan", "format_plan"]
 
@@ -67,6 +67,12 @@ def format_plan(result) -> str:
 
     lines.append(row("prior", result.prior_std))
     lines.append(row("after the recommended tests", result.predicted_std))
+    lines.append(row("  the tests alone (analyze)", result.predicted_std_data))
+    rng = result.predicted_std_data_range
+    if rng:
+        lines.append(f"{'  10-90 % over the plants':<28} {rng['Td'][0]:.3g}-{rng['Td'][1]:.3g} s, "
+                     f"{rng['tau'][0] * 1e3:.3g}-{rng['tau'][1] * 1e3:.3g} ms (where the plant lies in what is "
+                     "still unknown)")
     if result.conventional:
         betas = "/".join(f"{b:g}" for b in result.conventional["betas"])
         lines.append(row(f"after beta {betas} instead", result.conventional["predicted_std"]))
@@ -97,8 +103,8 @@ def format_plan(result) -> str:
               help="How many next tests (sharing --time); default 2 without a first test, else 1.")
 @log_layout_options()
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the plan as JSON to FILE, or '-' for stdout.")
-def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s, rate_hz, noise_std, n_tests, loop,
-         command_topic, output_topic, beta_topic, setpoint_topic, output_scale, json_target):
+def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s, rate_hz, noise_std, n_tests,
+         json_target, **read_options):
     """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
 
     The prior (ranges, and a first test from --from) and the flight's limits give each candidate
@@ -115,10 +121,8 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
     from ..plan import FlightLimits, Prior, flown_from_segments, plan_tests
     from ..sim import default_noise_std
 
-    if json_target not in (None, "-"):
-        out = Path(json_target)
-        if out.is_dir() or not out.parent.exists():
-            raise InputError(f"cannot write the JSON to {json_target}: not a file in an existing folder")
+    check_output_file(json_target, "--json")  # before the work, as analyze
+    loop = read_options["loop"]
     flown, params, measured_noise, log_rate = [], {}, None, None
     if source is not None:
         path = Path(source)
@@ -129,8 +133,7 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
             from ..io import read_flight
             from ..segment import segment
 
-            flight = read_flight(path, loop, command_topic=command_topic, output_topic=output_topic,
-                                 beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale)
+            flight = read_flight(path, **read_options)
             found = segment(flight)
             flown, measured_noise = flown_from_segments(found)
             if not flown:

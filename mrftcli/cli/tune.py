@@ -69,7 +69,7 @@ def _from_result_json(path: Path, Tp: float):
 @click.command("tune")
 @click.argument("source", required=False, type=click.Path(dir_okay=True))
 @tp_option()
-@log_layout_options()
+@log_layout_options(format_flag="--log-format")
 @click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
               help="Fewest stable cycles for a test to be used (as analyze).")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
@@ -93,9 +93,8 @@ def _from_result_json(path: Path, Tp: float):
 @click.option("--json", "json_target", metavar="FILE|-", help="Write every design (Kp, Ki, Kd, Tf, rate, figures) as JSON.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
-def tune(source, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
-         td, tau, K, td_std, tau_std, k_std, rate_hz, objective, ms_max, effort_max, fmt, design, kind,
-         json_target, report_dir):
+def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, objective, ms_max, effort_max,
+         fmt, design, kind, json_target, report_dir, **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
     SOURCE is a flight log (analysed exactly as `analyze` would, same options), an analyze
@@ -110,6 +109,7 @@ def tune(source, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     from ..tune.export import format_table, hear_json, px4_params
 
     _check_outputs(json_target, report_dir)
+    loop = read_options["loop"]
     heights, amps = [], []
     posterior = None
     log_rate = None
@@ -129,9 +129,8 @@ def tune(source, Tp, loop, command_topic, output_topic, beta_topic, setpoint_top
     else:
         from ..analyze import analyze_path
 
-        result = analyze_path(source, Tp, loop, command_topic=command_topic, output_topic=output_topic,
-                              beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
-                              min_stable_cycles=min_cycles)
+        result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
+                              **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
         model = result.model
         b = result.bootstrap
         posterior = Posterior(Tp, b.get("Td", []), b.get("tau", []), b.get("K", []),

@@ -42,8 +42,8 @@ def _line(update, t0: float) -> str:
 @click.option("--poll", type=click.FloatRange(0.001, 5.0), default=0.02, show_default=True,
               help="Seconds between looks at the file.")
 @click.option("--jsonl", is_flag=True, help="Print one JSON object per update (for a ground-station script).")
-def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, min_cycles,
-          idle, poll, jsonl):
+def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, command_scale,
+          layout, fmt, min_cycles, idle, poll, jsonl):
     """Follow LOG while it is being written and print each MRFT test and the identification as cycles arrive.
 
     LOG is an MCAP file, a ROS 2 bag directory with mcap storage, a CSV or a ULog that a recorder is
@@ -57,14 +57,18 @@ def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic
 
     Example: mrft-ident watch flight.mcap --tp 0.0422 --jsonl
     """
-    from ..errors import MrftError
+    from ..errors import InputError, MrftError
     from ..watch import watch as follow
 
+    if layout not in (None, "reference") or command_scale is not None:
+        # the incremental readers follow the reference topics; the other layouts are read whole
+        raise InputError(f"watch follows logs in the reference layout only (--layout {layout or 'reference'}, "
+                         "--command-scale given); run 'mrft-ident analyze' with the same options on the finished log")
     seen = 0
     t0 = None
     updates = follow(log, Tp, loop=loop, command_topic=command_topic, output_topic=output_topic,
                      beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
-                     min_cycles=min_cycles, idle=idle, poll=poll)
+                     min_cycles=min_cycles, idle=idle, poll=poll, fmt=fmt)
     try:
         for update in updates:
             if update.kind == "test":

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..progress import Progress, report
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
 
 _TWO_PI = 2.0 * math.pi
@@ -334,10 +335,12 @@ def plot_cycles(result):
     return fig
 
 
-def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = ()) -> Path:
+def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = (),
+                          progress: Progress | None = None) -> Path:
     """Write index.html and the PNG figures for one analysis; returns the index path.
 
     ``links`` are (relative href, title) pairs of pages written beside it (e.g. the diagnosis).
+    ``progress(done, total, stage)`` is called before each figure (units: figures).
     """
     out = ensure_dir(out_dir)
     figures = (("timeseries.png", plot_timeseries, "Flight and detected MRFT tests"),
@@ -345,7 +348,8 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
                ("spread.png", plot_spread, "Parameter spread"),
                ("cycles.png", plot_cycles, "Cycles and the stable-cycle criterion"))
     written = []
-    for name, fn, title in figures:
+    for i, (name, fn, title) in enumerate(figures):
+        report(progress, i, len(figures), name)
         save_figure(fn(result), out / name)
         written.append((name, title))
     d = result.to_dict(cycles=False)
@@ -410,4 +414,5 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
                 "measured from the output at the switch instants; identification uses it (see docs/usage-analyze.md).</p>")
     index = out / "index.html"
     index.write_text(html_page(f"MRFT analysis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    report(progress, len(figures), len(figures), "index.html")
     return index

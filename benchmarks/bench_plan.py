@@ -114,8 +114,10 @@ def run(n: int, seed: int) -> None:
         info = sum(flown_information(m.Tp, truth, f, rate, noise) for f in flown)
         info = info + planned_information(m.Tp, truth, rec.beta, rec.h, t2, rate, noise)
         o_td, o_tau = np.sqrt(np.diag(np.linalg.pinv(info)))[:2]
+        rng_ = p.predicted_std_data_range
         row = dict(k=k, tauA=ra.tau.std, tdA=ra.Td.std, tauB=rb.tau.std, tdB=rb.Td.std, ptau=pred["tau"],
-                   ptd=pred["Td"], otau=o_tau, otd=o_td)
+                   ptd=pred["Td"], otau=o_tau, otd=o_td, lotau=rng_["tau"][0], hitau=rng_["tau"][1],
+                   lotd=rng_["Td"][0], hitd=rng_["Td"][1])
         rows.append(row)
         print(f"plant {k:2d} {loop:8s} {rate:3.0f} Hz Td {m.Td:.2f} tau {m.tau * 1e3:5.1f} ms | rec {rec.beta:+.2f} "
               f"TdW {rec.td_omega[0]:.1f}-{rec.td_omega[1]:.1f}: tau std {ra.tau.std * 1e3:.3f} ms "
@@ -146,6 +148,10 @@ def run(n: int, seed: int) -> None:
         print(f"{label} / achieved (MRFT bootstrap std) within 1.5x: tau {within(q_tau).sum()}/{q_tau.size}, "
               f"Td {within(q_td).sum()}/{q_td.size}; ratio median tau {np.median(q_tau):.2f} "
               f"[{q_tau.min():.2f}, {q_tau.max():.2f}], Td {np.median(q_td):.2f} [{q_td.min():.2f}, {q_td.max():.2f}]")
+    inside = lambda lo, hi, x: (x >= lo / 1.5) & (x <= hi * 1.5)  # noqa: E731
+    print(f"achieved within the forecast's 10-90 % range over the draws (+/- 1.5x): tau "
+          f"{inside(r['lotau'], r['hitau'], r['tauA']).sum()}/{r['tauA'].size}, Td "
+          f"{inside(r['lotd'], r['hitd'], r['tdA']).sum()}/{r['tdA'].size}")
     print(f"planning time: median {np.median(t_plan):.2f} s")
 
 

@@ -135,3 +135,33 @@ def test_cli_json_from_an_analyze_result(tmp_path):
     t = data["tests"][0]
     assert -0.9 <= t["beta"] <= -0.1 and t["amplitude"] <= 0.05 * 1.01 and t["h"] <= 5
     assert set(data["predicted_std"]) == {"Td", "tau", "K"}
+
+
+def test_a_beta_whose_switch_noise_would_trigger_is_not_recommended():
+    # beta -0.9 switches once the error is 10 % below its extremum: with the exact amplitude a of the
+    # capped test, (1 + beta) a / noise is computed here from the LPRS, independently of the planner
+    model = LoopModel(0.04, 0.8, 0.03, 2.0)
+    limits = FlightLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0002)
+    betas = (-0.5, -0.9)
+    gap = {b: (1 + b) * 0.02 / 0.0002 for b in betas}  # h is set so the amplitude is the limit
+    assert gap[-0.9] < 16 < gap[-0.5]
+    quiet = FlightLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.00002)
+    # without the noise the planner prefers -0.9 here (its slice crosses -0.4's more steeply) ...
+    assert plan_tests(model.Tp, _narrow_prior(), quiet, n_tests=1, n_draws=2, betas=betas).tests[0].beta == -0.9
+    # ... with it, -0.9 is set aside, and the plan says why
+    p = plan_tests(model.Tp, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=betas)
+    assert p.tests[0].beta == -0.5
+    row = {c["beta"]: c for c in p.candidates}[-0.9]
+    assert row.get("early_switch") and "noise stds below the extremum" in row["reason"]
+    lc = mrft_limit_cycle(model, -0.9, row["h"], 200.0)
+    assert row["switch_gap"] == pytest.approx(0.1 * lc.amplitude / 0.0002, rel=0.05)
+
+
+def test_forecast_is_the_typical_draw_inside_its_range():
+    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    p = plan_tests(0.04, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, n_tests=2, n_draws=6,
+                   betas=(-0.3, -0.6))
+    for k in ("Td", "tau", "K"):
+        lo, hi = p.predicted_std_data_range[k]
+        assert 0 < lo <= p.predicted_std_data[k] <= hi
+    assert p.to_dict()["predicted_std_tests_only_range"]["Td"] == list(p.predicted_std_data_range["Td"])

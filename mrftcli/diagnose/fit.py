@@ -386,8 +386,9 @@ def fit_model(model: CandidateModel, theta0: np.ndarray, lo: np.ndarray, hi: np.
         return r
 
     try:
+        # chi^2 to 1e-5 relative is far finer than the evidence needs (thresholds of 10 in chi^2)
         sol = least_squares(fun, theta0[free], bounds=(lo[free], hi[free]), diff_step=1e-3, max_nfev=max_nfev,
-                            x_scale=1.0)
+                            x_scale=1.0, ftol=1e-5, xtol=1e-6)
         theta = expand(sol.x)
         J = sol.jac if free.all() else None
     except (ValueError, np.linalg.LinAlgError):

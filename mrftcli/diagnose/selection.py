@@ -56,6 +56,10 @@ __all__ = ["diagnose", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
 
 #: delta BIC above which an effect counts as found (Kass & Raftery: > 10 is very strong evidence)
 BIC_THRESHOLD = 10.0
+#: sampled-relay windows behind the noise-only period scatter of each test
+REFERENCE_WINDOWS = 4
+#: function evaluations per profile point of a candidate's grid (Td and tau only)
+PROFILE_NFEV = 6
 #: the linear model counts as rejected (and the candidates are fitted) when some feature is this many
 #: standard errors off, or the chi^2 of its fit has a p-value below REJECT_P
 REJECT_Z = 3.0
@@ -203,7 +207,9 @@ def _scatter_reference(tests: list[DiagnosedTest], model: CandidateModel, fit: F
         setting = ScatterSetting(plant=plant, beta=t.beta_nominal if t.beta_nominal is not None else float(np.mean(t.beta)),
                                  h=t.h, rate_hz=t.rate_hz, noise_std=noise, n_window=max(t.n_window, len(t.tab)),
                                  period=float(np.mean(t.tab.period)), warm=_limit_cycle_state(plant, t))
-        v0, dof = expected_period_variance(setting, 0.0)
+        # the noise-only reference: 4 windows (its standard error then adds ~5 % to the comparison's;
+        # the jitter's calibration reruns it with the full N_WINDOWS on the same random numbers)
+        v0, dof = expected_period_variance(setting, 0.0, n_windows=REFERENCE_WINDOWS)
         if not (np.isfinite(v0) and math.sqrt(v0) < 0.2 * float(np.mean(t.tab.period))):
             v0, dof = float("nan"), 0  # the sampled relay broke down (false switches): no scatter reference
         out.append({"setting": setting, "v0": v0, "s0": math.sqrt(v0) if np.isfinite(v0) else float("nan"), "dof": dof})
@@ -487,16 +493,18 @@ def diagnose(
         starts = candidate_starts(cand, base, tests, recs_fit, Tp)
         if len(starts) > 2:
             # profile over the grid: at each grid value fit Td and tau with the effect held (the effect
-            # and the delay trade off along a curved valley), then refine the two best freely
+            # and the delay trade off along a curved valley; the starts are on it already, from the
+            # describing function, so a few steps suffice), then refine the best freely, and the
+            # second best too when it is close
             prof = []
             free = np.ones(len(starts[0]), bool)
             free[2:] = False
             for th in starts:
-                pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=16, free=free)
+                pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=PROFILE_NFEV, free=free)
                 if pf.ok and np.isfinite(pf.chi2):
                     prof.append(pf)
             prof.sort(key=lambda f: f.chi2)
-            starts = [pf.theta for pf in prof[:2]]
+            starts = [pf.theta for pf in prof[:2] if pf.chi2 <= 1.5 * prof[0].chi2 + BIC_THRESHOLD]
         for th in starts:
             f = fit_model(model, th, lo, hi, recs_fit)
             if f.ok and (best is None or f.chi2 < best.chi2):
@@ -716,6 +724,12 @@ def _jitter_candidate(cand, tests, scatter, scatter_z, base, n_all) -> dict:
         # positive z^2: below the threshold its calibration runs (most of a diagnosis' cost) are skipped
         return {"name": cand.name, "delta_bic": None, "parameter": cand.parameter, "unit": cand.unit,
                 "status": "period scatter within what sensor noise explains (no jitter could reach the evidence threshold)"}
+
+    # the calibration runs below use N_WINDOWS windows: the noise-only variance is recomputed on the
+    # same random numbers, so that the calibrated slope is not biased by the reference's sampling
+    scatter = [dict(sc, v0=expected_period_variance(sc["setting"], 0.0)[0]) if np.isfinite(sc["v0"]) else sc
+               for sc in scatter]
+    v0 = np.array([sc["v0"] for sc in scatter])
 
     def calibrate(sigma: float) -> np.ndarray:
         return np.array([expected_period_variance(sc["setting"], sigma)[0] if np.isfinite(sc["v0"]) else np.nan

@@ -60,7 +60,8 @@ def one_line(err: BaseException, limit: int = 160) -> str:
 
 def closest(name: str, candidates: list[str]) -> str:
     """`` (did you mean X?)`` for the best fuzzy match among ``candidates``, or an empty string."""
-    match = difflib.get_close_matches(name, candidates, n=1, cutoff=0.5)
+    # 0.7: a typo (/mrft/comand) matches, an unrelated topic of another loop (/imu/data ~ /mrft/beta) does not
+    match = difflib.get_close_matches(name, candidates, n=1, cutoff=0.7)
     return f" (did you mean {match[0]}?)" if match else ""
 
 

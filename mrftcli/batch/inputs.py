@@ -18,7 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..io.layouts import LAYOUT_NAMES
 from ..io.logtypes import LOOPS
+from ..validate import check_tp
 
 __all__ = [
     "SUPPORTED_SUFFIXES",
@@ -53,8 +55,11 @@ class LogSettings:
         Loops to identify in this log (``altitude``, ``roll``, ``pitch``); one summary row each.
     command_topic, output_topic, beta_topic, setpoint_topic : str or None
         ``TOPIC[:FIELD]`` overrides passed to the reader; None lets it auto-detect.
-    output_scale : float or None
-        Factor applied to the loop output (e.g. 0.001 for a log in millimetres); None = 1.
+    output_scale, command_scale : float or None
+        Factors applied to the loop output (e.g. 0.001 for a log in millimetres) and to the command;
+        None = the layout's.
+    layout : str or None
+        One of :data:`mrftcli.io.LAYOUT_NAMES`; None = recognised from each log's topics.
     min_cycles : int or None
         Fewest stable cycles for a test to be used (analyze's ``--min-cycles``); None = its default.
     vehicle : str or None
@@ -70,6 +75,8 @@ class LogSettings:
     output_scale: float | None = None
     min_cycles: int | None = None
     vehicle: str | None = None
+    command_scale: float | None = None
+    layout: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -79,13 +86,16 @@ class LogSettings:
 
 #: Keys a config entry may set, with the validator for each (value, where) -> value.
 _SETTING_KEYS = ("tp", "loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
-                 "min_cycles", "vehicle")
+                 "min_cycles", "vehicle", "command_scale", "layout")
 
 
 def _check_tp(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
         raise InputError(f"{where}: tp must be a positive number of seconds, got {value!r}")
-    return float(value)
+    try:
+        return check_tp(value)
+    except InputError as err:
+        raise InputError(f"{where}: {err}") from None
 
 
 def _check_loops(value: Any, where: str) -> tuple[str, ...]:
@@ -109,9 +119,9 @@ def _check_str(value: Any, where: str, key: str) -> str:
     return value
 
 
-def _check_scale(value: Any, where: str) -> float:
+def _check_scale(value: Any, where: str, key: str = "output_scale") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value == 0:
-        raise InputError(f"{where}: output_scale must be a finite non-zero number, got {value!r}")
+        raise InputError(f"{where}: {key} must be a finite non-zero number, got {value!r}")
     return float(value)
 
 
@@ -136,8 +146,12 @@ def _validate_entry(raw: Any, where: str, *, needs_match: bool) -> tuple[str | N
             out["tp"] = _check_tp(value, where)
         elif key == "loop":
             out["loops"] = _check_loops(value, where)
-        elif key == "output_scale":
-            out["output_scale"] = _check_scale(value, where)
+        elif key in ("output_scale", "command_scale"):
+            out[key] = _check_scale(value, where, key)
+        elif key == "layout":
+            if value not in LAYOUT_NAMES:
+                raise InputError(f"{where}: layout must be one of {', '.join(LAYOUT_NAMES)}, got {value!r}")
+            out["layout"] = value
         elif key == "min_cycles":
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:
                 raise InputError(f"{where}: min_cycles must be an integer of at least 2, got {value!r}")

@@ -21,6 +21,8 @@ _SETTING_OPTIONS = {
     "beta_topic": "beta_topic",
     "setpoint_topic": "setpoint_topic",
     "output_scale": "output_scale",
+    "command_scale": "command_scale",
+    "layout": "layout",
     "min_cycles": "min_cycles",
 }
 
@@ -90,10 +92,6 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     from ..batch.run import BatchFailedError, run_batch
     from .options import dump_json, tqdm_progress
 
-    if setting_opts.get("output_scale") is not None and (
-        setting_opts["output_scale"] == 0 or not math.isfinite(setting_opts["output_scale"])
-    ):
-        raise click.BadParameter("must be finite and non-zero", param_hint="--output-scale")
     defaults, explicit = {}, {}
     for opt, key in _SETTING_OPTIONS.items():
         value = setting_opts[opt]

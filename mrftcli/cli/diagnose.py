@@ -15,7 +15,8 @@ def _g(x, fmt=".4g") -> str:
 
 def format_summary(result) -> str:
     """The terminal summary of a :class:`~mrftcli.diagnose.selection.DiagnosisResult`."""
-    lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  noise {result.noise_std:.3g}"]
+    unit = "rad" if result.loop in ("roll", "pitch") else "m"
+    lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
     lines.append(f"{'test':>4} {'t [s]':>15} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'cycles':>7}")
     for t in result.tests:
         nom = f"{t['beta_nominal']:+.3f}" if t["beta_nominal"] is not None else "-"

@@ -142,6 +142,9 @@ def simulate(
         raise InputError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
     fmt = _format_of(out, fmt)
     check_positive("--rate (a frequency in Hz)", rate)
+    if out.parent and not out.parent.exists():
+        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
+    effect_values = dict(parse_effect(text) for text in effects)  # every option checked before planning
     if amplitude is None:
         amplitude = _DEFAULT_AMPLITUDE[loop]
     specs = []
@@ -164,7 +167,6 @@ def simulate(
                 "less --noise, or --switching hear",
                 err=True,
             )
-    effect_values = dict(parse_effect(text) for text in effects)
     spec = FlightSpec(
         model=model,
         tests=tuple(specs),
@@ -180,8 +182,6 @@ def simulate(
         start_time=start_time,
         switching=switching,
     )
-    if out.parent and not out.parent.exists():
-        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
 
     total_s = hover_s + sum(t.duration + hold_s for t in specs)
     # a bar only for flights long enough to wait for (and only on a terminal)

@@ -36,7 +36,7 @@ def _rate_from_times(t) -> float | None:
         return None
     dt = np.diff(t)
     dt = dt[dt > 0]
-    return float(1.0 / np.median(dt)) if dt.size else None
+    return round(float(1.0 / np.median(dt)), 1) if dt.size else None  # a log rate to 0.1 Hz
 
 
 def _from_result_json(path: Path, Tp: float):

@@ -35,6 +35,16 @@ frequencies on the grid are the exact continuous LPRS with half a controller per
 delay, which is the centre of the sampled relay's band (:func:`mrftcli.mrft.lprs.mrft_limit_cycle`);
 the recommended tests are then predicted with the sampled relay itself.
 
+*Admissible.* At least 8 controller samples per period and 3 stable cycles; the output moving 4
+noise std per tick at the zero crossing (:func:`mrftcli.sim.noise_margin`); and, when any beta
+allows it, the switch at least 16 noise std below the extremum (:func:`switch_gap`): nearer
+beta = -1 a noise dip triggers it early and ``analyze`` loses the test.
+
+*Forecast.* The predicted stds are the median over the draws (the typical plant's), with the
+10-90 % range over them: after one test, Td is often still uncertain by a factor of several, and
+the Td std grows about as Td^2, so the forecast for the actual plant lies in that range. They
+forecast the bootstrap std of ``analyze``'s MRFT estimate (``parameters_mrft``).
+
 Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units.
 
 Examples

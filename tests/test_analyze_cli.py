@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -72,7 +73,8 @@ def test_table_on_stdout_and_json_file(logs, tmp_path):
     out = tmp_path / "r.json"
     proc = _run("analyze", str(logs / "two.mcap"), "--tp", str(TP), "--json", str(out))
     assert proc.returncode == 0, proc.stderr
-    assert "tau  [ms]" in proc.stdout and "beta eff" in proc.stdout
+    lines = proc.stdout.splitlines()
+    assert any(line.split()[:2] == ["tau", "ms"] for line in lines) and "effective" in proc.stdout
     assert json.loads(out.read_text())["input"]["loop"] == "altitude"
 
 
@@ -146,3 +148,171 @@ def test_diagnose_flag_is_wired(logs, tmp_path, monkeypatch):
     assert seen == {"Tp": TP, "n_tests": 2}
     assert json.loads(out.read_text())["diagnosis"] == {"summary": "fake diagnosis"}
     assert "diagnosis: fake diagnosis" in res.output
+
+
+
+# ---- issue 12: what a new user trips over -------------------------------------------------------
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+
+
+def _invoke(*args: str):
+    """In-process CLI run through the console entry point (no interpreter start-up): exit code, stdout, stderr."""
+    import contextlib
+    import io
+
+    from mrftcli.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(list(args))
+            code = 0
+        except SystemExit as stop:
+            code = stop.code
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def table(logs, tmp_path_factory):
+    """One analyze run on the two-beta flight: its table, stderr and JSON (several tests read it)."""
+    out = tmp_path_factory.mktemp("table") / "missing" / "folder" / "r.json"
+    code, stdout, stderr = _invoke("analyze", str(logs / "two.mcap"), "--tp", str(TP), "--json", str(out))
+    return code, stdout, stderr, out
+
+
+def test_ros2_bag_folder_is_accepted_by_analyze():
+    # item 1: a ROS 2 bag is a folder; the README promises it works
+    code, stdout, stderr = _invoke("analyze", str(SAMPLES / "design1_altitude_ros2_mcap"), "--tp", "0.0422")
+    assert code == 0, stderr
+    tau = next(line for line in stdout.splitlines() if line.split()[:2] == ["tau", "ms"])
+    truth = json.loads((SAMPLES / "design1_altitude_ros2_mcap.truth.json").read_text())["tau"]
+    lo, hi = (float(x) for x in tau.split()[-3:None:2])  # "... 46.36 - 46.43"
+    assert lo <= truth * 1e3 <= hi
+
+
+@pytest.mark.parametrize("tp", ["1e-9", "42.2"])
+def test_tp_outside_the_physical_range_is_refused_with_the_reason(logs, tp):
+    # item 6: in the CLI and in the library
+    code, stdout, stderr = _invoke("analyze", str(logs / "two.mcap"), "--tp", tp)
+    assert code == 2 and stdout == ""
+    assert "physical range" in stderr and "in seconds" in stderr and len(stderr.strip().splitlines()) == 1
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.errors import InputError
+
+    with pytest.raises(InputError, match="physical range"):
+        analyze_flight(None, float(tp))  # refused before the flight is looked at
+
+
+def test_format_option_is_honoured_by_every_log_reading_command(logs):
+    # item 10: the "pass --format" advice works in analyze and diagnose
+    for command in ("analyze", "diagnose", "plan", "watch", "tune"):
+        code, stdout, _ = _invoke(command, "--help")
+        flag = "--log-format" if command == "tune" else "--format"
+        assert code == 0 and flag in stdout and "--layout" in stdout, command
+    code, _, stderr = _invoke("analyze", str(logs / "two.mcap"), "--tp", str(TP), "--format", "csv")
+    assert code == 3 and stderr.startswith("error:")  # the MCAP was read as CSV: it was used
+
+
+def test_exit_6_prints_the_partial_result_in_text_mode(logs):
+    # item 11: what one beta can say is on the terminal, not only in the JSON
+    code, stdout, stderr = _invoke("analyze", str(logs / "one.mcap"), "--tp", str(TP))
+    assert code == 6 and "only one beta" in stderr
+    assert "partial result" in stdout
+    row = stdout.strip().splitlines()[-1].split()
+    lo, hi = float(row[-3]), float(row[-1])
+    assert 0 < lo < 46.4 < hi  # tau over the assumed Td range brackets the truth
+
+
+def test_outputs_are_checked_before_the_work_the_same_way(logs, table, tmp_path):
+    # item 13: a missing folder is created for --json as for --report; an impossible one is refused
+    # before any work (nothing on stdout), with exit 2
+    code, _, stderr, out = table
+    assert code == 0, stderr
+    assert json.loads(out.read_text())["input"]["loop"] == "altitude"
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    for option in ("--json", "--report"):
+        target = blocker / "sub" / ("r.json" if option == "--json" else "rep")
+        code, stdout, stderr = _invoke("analyze", str(logs / "two.mcap"), "--tp", str(TP), option, str(target))
+        assert code == 2 and stdout == "", option
+        assert stderr.startswith(f"error: {option}") and "cannot create the folder" in stderr
+    code, stdout, stderr = _invoke("diagnose", str(logs / "two.mcap"), "--tp", str(TP), "--json", str(blocker / "d.json"))
+    assert code == 2 and stdout == "" and "is not a folder" in stderr
+
+
+def test_progress_covers_identify_diagnose_and_report(logs, tmp_path, monkeypatch):
+    # item 14: one bar through the Progress protocol over the whole run, ending full
+    import contextlib
+
+    import mrftcli.cli.analyze as cli_analyze
+    import mrftcli.diagnose.selection as diag
+
+    calls = []
+
+    @contextlib.contextmanager
+    def recorder(desc, *, unit="it", enabled=True):
+        calls.append(("open", enabled))
+        yield lambda done, total, stage="": calls.append((done, total, stage))
+
+    class _Fake:
+        summary = "fake"
+
+        def to_dict(self):
+            return {}
+
+    def fake(flight, Tp, analysis=None, progress=None):
+        for i in range(3):
+            progress(i + 1, 3, f"candidate {i}")
+        return _Fake()
+
+    monkeypatch.setattr(cli_analyze, "tqdm_progress", recorder)
+    monkeypatch.setattr(diag, "diagnose", fake)
+    monkeypatch.setattr("mrftcli.report.diagnosis.write_diagnosis_report",
+                        lambda result, out: Path(out) / "diagnosis.html")
+    code, _, stderr = _invoke("analyze", str(logs / "two.mcap"), "--tp", str(TP), "--diagnose",
+                              "--report", str(tmp_path / "rep"))
+    assert code == 0, stderr
+    assert calls[0] == ("open", True)
+    done = [c[0] for c in calls[1:]]
+    assert done == sorted(done) and calls[-1][0] == calls[-1][1]  # monotonic, ends full
+    stages = {c[2].split(":")[0] for c in calls[1:]}
+    assert stages == {"identify", "diagnose", "report"}
+
+
+def test_terminal_table_labels_units_and_format(table):
+    # item 15: units, stable/total, separate headers, no trailing spaces, no paper jargon
+    code, stdout, _, _ = table
+    assert code == 0
+    lines = stdout.splitlines()
+    assert all(line == line.rstrip() for line in lines)
+    assert "Table III" not in stdout
+    head = next(i for i, line in enumerate(lines) if line.split()[:1] == ["test"])
+    assert lines[head].split() == ["test", "from", "to", "beta", "beta", "relay", "h", "frequency", "amplitude",
+                                   "stable/total"]
+    assert lines[head + 1].split() == ["[s]", "[s]", "nominal", "effective", "[command]", "[Hz]", "[m]", "cycles"]
+    rows = [line.split() for line in lines[head + 2: head + 4]]
+    for col in (5, 6, 7):  # h, frequency, amplitude: 4 significant digits each
+        for r in rows:
+            digits = r[col].replace(".", "").lstrip("0")
+            assert len(digits) == 4, r[col]
+    k = next(line for line in lines if line.split()[:1] == ["K"])
+    assert "m/s² per command unit" in k
+
+
+def test_td_omega_is_information_not_a_warning(table):
+    # item 16: expected on an altitude loop, it is said once as a note, not as a warning
+    code, stdout, stderr, out = table
+    assert "Td*Omega" not in stderr
+    assert sum("note: Td*Omega" in line for line in stdout.splitlines()) == 1
+    data = json.loads(out.read_text())
+    assert any("Td*Omega" in n for n in data["notes"]) and not any("Td*Omega" in w for w in data["warnings"])
+
+
+def test_wrong_loop_and_bad_effect_messages():
+    # item 17: no misleading suggestion; every simulate option checked before planning
+    code, _, stderr = _invoke("analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", "0.0422", "--loop", "roll")
+    assert code == 3 and "did you mean /mrft/beta" not in stderr and "/mocap/pose" in stderr
+    code, _, stderr = _invoke("simulate", "--tp", "0.0422", "--td", "2.669", "--tau", "0.0464", "--test", "-0.4",
+                              "--noise", "0.01", "--effect", "bogus=1", "--out", "x.mcap")
+    assert code == 2 and stderr.startswith("error: --effect") and "warning" not in stderr

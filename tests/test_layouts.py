@@ -131,3 +131,24 @@ def test_few_samples_per_cycle_still_measure_the_fundamental(n):
     assert abs(np.angle(g.response) + np.pi / 2) < (0.07 if n < 30 else 0.02)
     assert abs(abs(g.response) * 2 * np.pi / P - 1.0) < (0.025 if n < 30 else 0.002)
     assert harmonics_for(n - 1) < harmonics_for(40) and np.isnan(cycle_fundamental(t[:7], y[:7], 0, .5, 1, 1).response)
+
+
+@pytest.mark.parametrize("loop", ["x", "y"])
+def test_simulator_writes_x_and_y_as_positions(tmp_path, loop):
+    # sim/flight writes a position loop as the motion-capture pose, the place the reference layout
+    # reads x and y from (an attitude quaternion would be refused for a position loop)
+    from mrftcli.io import write_log
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.sim.flight import FlightSpec, TestSpec, simulate_flight
+
+    spec = FlightSpec(LoopModel(0.04, 1.5, 0.05, 5.0), (TestSpec(beta=-0.5, h=0.1, duration=3.0),),
+                      loop=loop, hover_s=0.5, hold_s=0.5)
+    flight = simulate_flight(spec)
+    names = {tp.name for tp in flight.topics}
+    assert "/mocap/pose" in names and "/imu/data" not in names
+    assert flight.truth["units"]["output"] == "m" and flight.truth["noise_std"] == 0.0005
+    path = tmp_path / "f.mcap"
+    write_log(flight.topics, path, "mcap")
+    log = read_flight(path, loop=loop, echo_warnings=False)
+    np.testing.assert_allclose(log.output.values, flight.output_measured)
+    np.testing.assert_allclose(log.command.values, flight.command)

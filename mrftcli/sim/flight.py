@@ -209,22 +209,22 @@ class SimulatedFlight:
 
 
 def default_noise_std(loop: str) -> float:
-    """Default measurement noise std: 0.5 mm for altitude [m], 0.05 deg for roll/pitch [rad].
+    """Default measurement noise std: 0.5 mm for altitude, x, y [m], 0.05 deg for roll/pitch [rad].
 
     White noise at the controller rate. 0.05 deg, not the 0.2 deg often quoted for attitude
     estimates: that figure is an accuracy, not sample-to-sample noise, and with 0.2 deg of white
     noise the plain MRFT rule locks up at amplitudes of a few degrees (docs/simulator.md).
     """
-    return 0.0005 if loop == "altitude" else 0.05 * _DEG
+    return 0.0005 if loop in ("altitude", "x", "y") else 0.05 * _DEG
 
 
 def default_bias(loop: str) -> float:
-    """Default hover command: 0.5 (normalised throttle) for altitude, 0 for roll/pitch."""
+    """Default hover command: 0.5 (normalised throttle) for altitude, 0 for x, y, roll, pitch."""
     return 0.5 if loop == "altitude" else 0.0
 
 
 def default_setpoint(loop: str) -> float:
-    """Default setpoint: 1 m for altitude, 0 rad for roll/pitch."""
+    """Default setpoint: 1 m for altitude, 0 for x, y [m] and roll/pitch [rad]."""
     return 1.0 if loop == "altitude" else 0.0
 
 
@@ -634,7 +634,7 @@ def _truth(spec, pid, ranges, noise_std, bias, r, rate_true, delays, n_ticks, ab
         ),
         "hold_controller": asdict(pid),
         "units": {
-            "output": "m" if spec.loop == "altitude" else "rad",
+            "output": "m" if spec.loop in ("altitude", "x", "y") else "rad",
             "time": "s",
             "command": "command units (bias + relay output)",
         },
@@ -670,13 +670,15 @@ def _topics(spec, t, command, y_meas, other_noise, battery_noise, ranges, r, n_t
     step = max(1, int(round(spec.rate_hz / spec.setpoint_rate_hz)))
     idx = np.arange(0, n_ticks, step)
     topics.append(TopicData("/mrft/setpoint", "std_msgs/msg/Float64", t[idx].copy(), {"data": np.full(idx.size, r)}))
-    if spec.loop == "altitude":
+    if spec.loop in ("altitude", "x", "y"):
+        # position loops: the motion-capture pose (x, y, z in m), as the reference layout reads it
+        axis = {"altitude": "z", "x": "x", "y": "y"}[spec.loop]
         topics.append(
             TopicData(
                 "/mocap/pose",
                 "geometry_msgs/msg/PoseStamped",
                 t.copy(),
-                {"pose.position.z": y_meas.copy(), "pose.orientation.w": np.ones(n_ticks)},
+                {f"pose.position.{axis}": y_meas.copy(), "pose.orientation.w": np.ones(n_ticks)},
             )
         )
     else:

@@ -109,11 +109,11 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     from ..tune.export import format_table, hear_json, px4_params
 
     _check_outputs(json_target, report_dir)
+    loop = read_options["loop"]
     if fmt == "px4" and (loop not in ("roll", "pitch") or kind != "PD"):
         # refused before the work starts; the mapping itself is checked again on the gains
         raise InputError("cannot export to PX4: only a PD on the roll or pitch loop maps exactly onto PX4's "
                          f"angle-P / rate-P cascade (got {kind} on {loop}); see docs/tune.md")
-    loop = read_options["loop"]
     heights, amps = [], []
     posterior = None
     log_rate = None

@@ -49,10 +49,11 @@ def new_figure(nrows: int = 1, ncols: int = 1, *, width: float = 10.0, height: f
 
 
 def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
-    """Save as PNG with a tight layout and close the figure (reports never keep figures open)."""
+    """Save as PNG with a tight layout (unless the figure has its own) and close the figure (reports never keep figures open)."""
     path = Path(path)
     with plt.rc_context(_STYLE):
-        fig.tight_layout()
+        if fig.get_layout_engine() is None:  # a figure laid out as constrained keeps its own layout
+            fig.tight_layout()
         fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path

@@ -97,10 +97,13 @@ def plot_timeseries(result):
     T0 = _t0(result)  # every time axis is seconds from the log start (logs carry epoch times)
     tests = list(result.tests) + list(result.rejected)
     n_zoom = min(len(result.tests), 4)
-    fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)))
-    gs = fig.add_gridspec(3 if n_zoom else 2, max(n_zoom, 1), height_ratios=[1, 1.3, 1.2][: 3 if n_zoom else 2])
-    ax_c = fig.add_subplot(gs[0, :])
-    ax_y = fig.add_subplot(gs[1, :], sharex=ax_c)
+    fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)), layout="constrained")
+    # command and output share the time axis and sit close; the zooms get their own row below
+    outer = fig.add_gridspec(2 if n_zoom else 1, 1, height_ratios=[2.3, 1.2][: 2 if n_zoom else 1])
+    top = outer[0].subgridspec(2, 1, height_ratios=[1, 1.3], hspace=0.0)
+    ax_c = fig.add_subplot(top[0])
+    ax_y = fig.add_subplot(top[1], sharex=ax_c)
+    zooms = outer[1].subgridspec(1, n_zoom) if n_zoom else None
     tc = fl.command.t - T0
     c = fl.command.values
     ty, y, rel = _output_relative(result)
@@ -131,17 +134,19 @@ def plot_timeseries(result):
     ax_y.set_xlabel(_time_label(result))
     ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - MRFT tests (shaded) and stable cycles (bars)",
                    pad=16)
-    # Output limits from the tests (take-off and landing would squash the oscillations otherwise).
+    # Output limits from the tests and the transient after each (the hold controller's return to the
+    # setpoint); take-off and landing would squash the oscillations otherwise.
     if result.tests:
         amp = max(t.amplitude_mean for t in result.tests) * scale
-        inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0) for t in result.tests]
+        after = {t.index: max(3.0, 3.0 / t.frequency_hz_mean) if t.n_stable else 3.0 for t in result.tests}
+        inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0 + after[t.index]) for t in result.tests]
         lo = min(np.min(y[m]) for m in inside if m.any())
         hi = max(np.max(y[m]) for m in inside if m.any())
         pad = 0.6 * amp
         ax_y.set_ylim(lo - pad, hi + pad)
     plt.setp(ax_c.get_xticklabels(), visible=False)
     for k, t in enumerate(result.tests[:n_zoom]):
-        ax = fig.add_subplot(gs[2, k])
+        ax = fig.add_subplot(zooms[0, k])
         st = t.stable
         mid = len(st) // 2
         sel = st[max(mid - 1, 0): mid + 1]

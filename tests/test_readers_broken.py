@@ -59,6 +59,25 @@ def test_truncated_mcap_is_salvaged_with_a_warning(good, tmp_path, fmt, capsys):
     np.testing.assert_allclose(fl.output.values, truth["roll"][:len(fl.output)], atol=1e-12)
 
 
+@pytest.mark.parametrize("fraction", [0.99, 0.6])
+def test_truncated_ros1_bag_is_reindexed_from_its_complete_chunks(good, tmp_path, fraction, capsys):
+    # a ROS 1 bag is indexed at its end: cut at 99 % it has lost its index (rosbags refuses it);
+    # its complete chunks are read back as `rosbag reindex` would, with the MCAP salvage warning
+    paths, truth = good
+    cut = _cut(paths["bag"], tmp_path / "cut.bag", fraction)
+    fl = read_flight(cut, loop="roll")
+    assert len(fl.warnings) == 1 and "salvaged" in fl.warnings[0] and str(cut) in fl.warnings[0]
+    assert "rosbag reindex" in fl.warnings[0] and "warning:" in capsys.readouterr().err
+    n = len(fl.command)
+    assert (n == 3000) if fraction == 0.99 else (0.2 * 3000 < n < 3000)
+    # what is salvaged is exact: a prefix of the true series, at the true times
+    np.testing.assert_allclose(fl.command.values, truth["cmd"][:n], atol=1e-12)
+    np.testing.assert_allclose(fl.output.values, truth["roll"][:len(fl.output)], atol=1e-12)
+    with open_log(paths["bag"]) as whole:
+        t_all, _ = whole.read("/mrft/command", ["data"])
+    np.testing.assert_array_equal(fl.command.t, t_all[:n])
+
+
 def test_mcap_cut_inside_a_chunk_keeps_its_complete_messages(good, tmp_path):
     """Cut inside the first chunk: the zstd blocks that arrived whole still give messages."""
     paths, truth = good
@@ -211,7 +230,7 @@ def test_cli_broken_files_one_line_exit_3(good, tmp_path):
     for name, data in cases.items():
         (tmp_path / name).write_bytes(data)
     broken = [tmp_path / n for n in cases]
-    broken.append(_cut(paths["bag"], tmp_path / "cut.bag", 0.5))
+    broken.append(_cut(paths["bag"], tmp_path / "cut.bag", 0.05))  # inside its first chunk: nothing to salvage
     broken.append(_cut(paths["mcap"], tmp_path / "cut.mcap", 0.01))
     broken.append(_flip(paths["csv"], tmp_path / "flip.csv", 0.5))
     broken.append(_cut(paths["ulog"], tmp_path / "cut.ulg", 0.0005))

@@ -3,10 +3,16 @@
 rosbags hands out each message's raw bytes; they are joined into one buffer per topic and decoded
 field-wise with :mod:`mrftcli.io.cdr` (ROS 1 serialisation for ``.bag``, CDR for ROS 2), with the
 message definitions the bag itself carries. Time is the bag's record time (receive time) [ns -> s].
+A ROS 1 bag whose index is missing or cut off (a recording stopped short) is read from its complete
+chunks, as ``rosbag reindex`` would (:func:`reindex_ros1`), with a warning.
 """
 
 from __future__ import annotations
 
+import io
+import os
+import struct
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +23,7 @@ from . import cdr
 from .source import LogSource, rate_of, one_line
 from .msgtypes import numeric_leaves, typestore_for, typestore_from_text
 
-__all__ = ["RosbagSource", "write_rosbag"]
+__all__ = ["RosbagSource", "write_rosbag", "reindex_ros1"]
 
 
 class RosbagSource(LogSource):
@@ -41,11 +47,38 @@ class RosbagSource(LogSource):
             raise
         except Exception as err:  # noqa: BLE001 - rosbags raises ReaderError, KeyError, sqlite errors...
             detail = one_line(err)
-            hint = " (truncated? `rosbag reindex` can repair a ROS 1 bag)" if self._ros1 else ""
-            raise LogReadError(f"{self.path}: cannot open the {'ROS 1' if self._ros1 else 'ROS 2'} "
-                               f"bag: {detail}{hint}") from None
+            salvaged = self._ros1 and self._salvage()
+            if not salvaged:
+                hint = " (and no complete chunk to salvage: cut off inside the first?)" if self._ros1 else ""
+                raise LogReadError(f"{self.path}: cannot open the {'ROS 1' if self._ros1 else 'ROS 2'} "
+                                   f"bag: {detail}{hint}") from None
         self._conns = {c.topic: c for c in self._reader.connections}
         self._raw: dict[str, tuple[list, list]] = {}
+
+    def _salvage(self) -> bool:
+        """Read a ROS 1 bag whose index is missing or cut off, as ``rosbag reindex`` would.
+
+        A bag is written chunk by chunk and indexed at the end, so a recording cut short (a crash,
+        a full disk, a copy stopped at 99 %) loses its index and rosbags refuses it. The chunks
+        before the cut are complete: :func:`reindex_ros1` walks them and rebuilds the index in
+        the reader, with one warning saying what was salvaged (the same wording as a truncated
+        MCAP). Returns False when not a single message could be recovered.
+        """
+        from rosbags.rosbag1 import Reader
+
+        reader = Reader(self.path)
+        try:
+            n_msgs, n_chunks, notes = reindex_ros1(reader)
+        except Exception:  # noqa: BLE001 - not even the bag header is readable
+            n_msgs, n_chunks, notes = 0, 0, []
+        if n_msgs == 0:
+            if reader.bio is not None:
+                reader.close()
+            return False
+        self._reader = reader
+        self.warn(f"truncated or corrupt ROS 1 bag: salvaged {n_msgs} messages from {n_chunks} complete "
+                  f"chunk(s), as `rosbag reindex` would ({'; '.join(notes)})")
+        return True
 
     def close(self) -> None:
         self._raw = {}
@@ -147,6 +180,108 @@ class RosbagSource(LogSource):
         return np.asarray(stamps, dtype=np.int64) / 1e9, vals
 
 
+def _fields(data: bytes):
+    """A ROS 1 record's data section parsed as header fields (connection details)."""
+    from rosbags.rosbag1.reader import Header
+
+    return Header.read(io.BytesIO(struct.pack("<I", len(data)) + data))
+
+
+def _connection(header, data: bytes, owner):
+    """A rosbags ``Connection`` from a connection record (its header and its data section)."""
+    from rosbags.interfaces import Connection, ConnectionExtRosbag1, MessageDefinition, MessageDefinitionFormat
+    from rosbags.rosbag1.reader import normalize
+    from rosbags.typesys.msg import normalize_msgtype
+
+    details = _fields(data)
+    callerid = details.get_string("callerid") if "callerid" in details else None
+    latching = details.get_string("latching") if "latching" in details else None
+    return Connection(header.get_uint32("conn"), normalize(header.get_string("topic")),
+                      normalize_msgtype(details.get_string("type")),
+                      MessageDefinition(MessageDefinitionFormat.MSG, details.get_string("message_definition")),
+                      details.get_string("md5sum"), 0,
+                      ConnectionExtRosbag1(callerid, int(latching) if latching not in (None, "") else None), owner)
+
+
+def reindex_ros1(reader) -> tuple[int, int, list[str]]:
+    """Rebuild the index of a ROS 1 (v2.0) bag in an unopened rosbags ``Reader`` by walking its records.
+
+    What ``rosbag reindex`` does, in memory and without writing: after the bag header, every record
+    is read in file order; each *complete* chunk is decompressed and its connection and message
+    records indexed (time, chunk position, offset in the chunk); connection records of the index
+    section are kept; the walk stops at the first record that is cut off or unreadable. The reader
+    is left open (``bio``) with ``connections``, ``chunks``, ``chunk_infos`` and ``indexes`` set, so
+    its ``messages()`` reads the salvaged messages.
+
+    Returns
+    -------
+    (messages, chunks, notes)
+        Messages and chunks recovered, and what was lost (for the warning).
+    """
+    from rosbags.rosbag1 import reader as r1
+
+    T = r1.RecordType
+    bio = reader.path.open("rb")
+    reader.bio = bio
+    size = os.fstat(bio.fileno()).st_size
+    if bio.readline() != b"#ROSBAG V2.0\n":
+        raise r1.ReaderError("not a ROS 1 v2.0 bag")
+    r1.Header.read(bio, T.BAGHEADER)
+    bio.seek(r1.read_uint32(bio), os.SEEK_CUR)  # the header record's padding
+    conns: dict[int, object] = {}
+    indexes: dict[int, list] = defaultdict(list)
+    chunks, infos = {}, []
+    stop = None
+    while bio.tell() < size:
+        pos = bio.tell()
+        try:
+            header = r1.Header.read(bio)
+            op = header.get_uint8("op")
+            datasize = r1.read_uint32(bio)
+            if bio.tell() + datasize > size:
+                stop = ("the file ends inside a chunk (its messages are lost)" if op == T.CHUNK
+                        else "the file ends inside an index record (no message lost)")
+                break
+            datapos = bio.tell()
+            data = r1.read_bytes(bio, datasize)
+            if op == T.CHUNK:
+                decompress = r1.decompressors[header.get_string("compression")]
+                raw = decompress(data)
+                counts: dict[int, int] = defaultdict(int)
+                times = []
+                chunk = io.BytesIO(raw)
+                while chunk.tell() < len(raw):
+                    offset = chunk.tell()
+                    rec = r1.Header.read(chunk)
+                    body = r1.read_bytes(chunk, r1.read_uint32(chunk))
+                    rop = rec.get_uint8("op")
+                    if rop == T.CONNECTION:
+                        c = _connection(rec, body, reader)
+                        conns.setdefault(c.id, c)
+                    elif rop == T.MSGDATA:
+                        conn, t = rec.get_uint32("conn"), rec.get_time("time")
+                        indexes[conn].append(r1.IndexData(t, pos, offset))
+                        counts[conn] += 1
+                        times.append(t)
+                chunks[pos] = r1.Chunk(datasize, datapos, decompress)
+                infos.append(r1.ChunkInfo(pos, min(times, default=2**63 - 1), max(times, default=-1) + 1, dict(counts)))
+            elif op == T.CONNECTION:
+                c = _connection(header, data, reader)
+                conns.setdefault(c.id, c)
+        except Exception:  # noqa: BLE001 - a damaged record ends the walk (rosbag reindex stops there too)
+            stop = f"an unreadable record at byte {pos} (what follows is lost)"
+            break
+    known = {k: v for k, v in indexes.items() if k in conns}
+    reader.connections = [c._replace(msgcount=len(known.get(c.id, ()))) for c in conns.values()]
+    reader.indexes = {c.id: sorted(known.get(c.id, [])) for c in reader.connections}
+    reader.chunks, reader.chunk_infos = chunks, infos
+    notes = ["its index is missing or cut off"] + ([stop] if stop else [])
+    lost = sum(len(v) for k, v in indexes.items() if k not in conns)
+    if lost:
+        notes.append(f"{lost} message(s) of connections never described dropped")
+    return sum(len(v) for v in known.values()), len(chunks), notes
+
+
 def write_rosbag(topics: list[TopicData], path: str | Path, fmt: str) -> None:
     """Write a ROS 1 bag (``fmt="bag"``) or a ROS 2 bag directory (``ros2-sqlite3``/``ros2-mcap``)."""
     ros1 = fmt == "bag"
@@ -164,6 +299,9 @@ def write_rosbag(topics: list[TopicData], path: str | Path, fmt: str) -> None:
 
         writer = Writer(Path(path))
         writer.set_compression(Writer.CompressionFormat.LZ4)
+        # 256 KiB chunks (rosbags' default is 1 MiB): a recording cut short loses at most the chunk
+        # being written (the others are salvaged, see reindex_ros1), as with our MCAP chunks
+        writer.chunk_threshold = 256 * 1024
     else:
         from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 

@@ -52,7 +52,7 @@ def _print_table(df, limit: int = 50) -> None:
             note = f"{note} findings: {r['findings']}".strip()
         click.echo(
             f"{name:<36} {r['loop']:<9} {r['status']:<16} {_fmt_ms(r['tau_mean']):>8} {_fmt_ms(r['tau_std']):>6} "
-            f"{_fmt(r['Td_mean']):>8} {_fmt(r['Td_std']):>7} {_fmt(r['K_mean']):>8}  {note}"
+            f"{_fmt(r['Td_mean']):>8} {_fmt(r['Td_std']):>7} {_fmt(r['K_mean']):>8}  {note}".rstrip()
         )
 
 

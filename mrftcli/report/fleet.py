@@ -76,11 +76,18 @@ def plot_loop(df: pd.DataFrame, loop: str, path: Path) -> Path:
         axes[-1].xaxis.set_major_locator(locator)
         axes[-1].xaxis.set_major_formatter(mdates.ConciseDateFormatter(locator))
     else:
-        axes[-1].set_xticks(xs, names, rotation=35, ha="right", fontsize=8)
+        # folder and file on two lines; few logs stand upright, many are turned about their tick (so
+        # the layout measures them and the first one is not cut at the figure's left edge)
+        two_line = [n.replace("/", "/\n", 1) for n in names]
+        widest = max((len(line) for n in two_line for line in n.splitlines()), default=0)
+        if len(names) * widest <= 110:  # about the characters the axis holds side by side at this font size
+            axes[-1].set_xticks(xs, two_line, fontsize=8)
+        else:
+            axes[-1].set_xticks(xs, two_line, rotation=35, ha="right", rotation_mode="anchor", fontsize=8)
         for tick, is_out in zip(axes[-1].get_xticklabels(), d["outlier"].astype(bool)):
             if is_out:
                 tick.set_color("red")
-        axes[-1].set_xlabel(f"logs in time order ({_time_label(d)}; too few distinct times for a time axis)",
+        axes[-1].set_xlabel(f"logs in time order\n({_time_label(d)}; too few distinct times for a time axis)",
                             fontsize=10)
     legend: dict[str, object] = {}
     for ax in axes:  # vehicles, and "outlier" from whichever panel has one

@@ -11,10 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d
 
 __all__ = ["RelayRun", "robust_sigma", "find_relay_runs", "estimate_rate_hz", "regularise_times"]
 
 _MAD_TO_SIGMA = 1.4826
+#: a command change smaller than this share of the largest one nearby is a moving bias, not a switch
+_SMALL_STEP = 0.05
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,12 @@ def find_relay_runs(
     d = np.diff(c)
     scale = float(np.max(np.abs(c))) if n else 1.0
     thr = max(jump_sigmas * robust_sigma(d), 1e-9 * (scale + 1e-12))
-    cut = np.flatnonzero(np.abs(d) > thr) + 1
+    # A bias inside the command that moves (HEAR's 50-sample median of the PID output) steps by a
+    # little at most samples: such steps, under 5 % of the largest change within +-1000 samples (a
+    # relay switch nearby), are not switches, or they would split every half-period into short runs.
+    local = maximum_filter1d(np.abs(d), size=2001, mode="nearest")
+    small = (np.abs(d) > thr) & (np.abs(d) <= _SMALL_STEP * local)
+    cut = np.flatnonzero((np.abs(d) > thr) & ~small) + 1
     starts = np.concatenate(([0], cut))
     stops = np.concatenate((cut, [n]))
     lengths = stops - starts
@@ -103,7 +111,11 @@ def find_relay_runs(
     jumps = np.abs(np.diff(levels))
     left = np.concatenate(([np.inf], jumps))
     right = np.concatenate((jumps, [np.inf]))
-    flat = (lengths >= min_run_samples) & (rng <= 0.2 * np.minimum(left, right))
+    # a run that absorbed small steps must be flat on the moving bias's scale (a continuous command
+    # is not a relay level, however large the jumps beside it)
+    n_small = np.add.reduceat(np.concatenate((small, [False])).astype(int), starts)
+    flat_share = np.where(n_small > 0, _SMALL_STEP, 0.2)
+    flat = (lengths >= min_run_samples) & (rng <= flat_share * np.minimum(left, right))
     cand = np.flatnonzero(flat)
     break_set = np.asarray(breaks if breaks is not None else [], dtype=int)
 

@@ -54,3 +54,29 @@ def test_beta_and_h_hold_when_the_bias_inside_the_command_moves(flight, drift):
         assert b.frequency_hz_mean == pytest.approx(a.frequency_hz_mean, rel=1e-3)
         inside = (t >= b.t_start) & (t <= b.t_end)  # the bias the test ran on, as HEAR computed it
         assert bias[inside].min() - 0.01 < b.bias < bias[inside].max() + 0.01
+
+
+def test_receive_jitter_is_not_read_as_missing_samples_but_a_lost_one_still_is(flight):
+    # stamps as a bag records header-less messages: transport and scheduling delays of 1 ms plus
+    # |N(0, 2 ms)| (the HEAR sample log's), at a 200 Hz controller
+    rng = np.random.default_rng(11)
+    t, c, y = flight.t, flight.command, flight.output_measured
+
+    def received(stamps):
+        return np.maximum.accumulate(stamps + 0.001 + np.abs(rng.normal(0.0, 0.002, stamps.size)))
+
+    tests = _stable(segment_arrays(received(t), c, received(t), y, t_sp=t, setpoint=flight.setpoint))
+    assert len(tests) == 2
+    assert not any("missing" in n for tt in tests for n in tt.notes)
+    assert not any("interp" in cy.flags for tt in tests for cy in tt.cycles)
+    # the command sample before three switches lost: those switches (and only those) are interpolated
+    sw = np.flatnonzero(np.abs(np.diff(c)) > 0.5 * flight.truth["tests"][0]["h"]) + 1
+    sw = sw[(t[sw] > 8.0) & (t[sw] < 16.0)][[2, 6, 10]]
+    keep = np.ones(t.size, bool)
+    keep[sw - 1] = False
+    tests = _stable(segment_arrays(received(t)[keep], c[keep], received(t), y, t_sp=t, setpoint=flight.setpoint))
+    cycles = [cy for tt in tests for cy in tt.cycles if "interp" in cy.flags]
+    flagged = {x for cy in cycles for x in (cy.t_start, cy.t_switch, cy.t_end)}
+    assert len({k for k in sw if any(abs(t[k] - f) < 0.02 for f in flagged)}) == 3
+    assert len(cycles) <= 6  # each lost sample touches the one or two cycles around its switch
+    assert any("missing" in n for tt in tests for n in tt.notes)

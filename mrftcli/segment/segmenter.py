@@ -27,6 +27,22 @@ _MAX_INTERP_SAMPLES = 2
 LOW_RATE_HZ = 25.0
 
 
+def _missing_before(t: np.ndarray, k: int, dt: float, on_grid: bool, m: int = 8) -> int:
+    """Command samples missing just before sample ``k`` (a switch), from times ``t`` [s], period ``dt``.
+
+    On a regular grid (``on_grid``) the gap says it. Receive-time stamps (a bag of header-less
+    messages) jitter by a few ms, so one gap of 1.5-2 periods is as often jitter as a lost sample:
+    there the offset between the ``m`` stamps after and the ``m`` before, each set averaged about
+    its own sample grid, decides (its jitter is that of one stamp divided by sqrt(m / 2)).
+    """
+    if on_grid:
+        return int(round((t[k] - t[k - 1]) / dt)) - 1
+    m = int(min(m, k, t.size - k))
+    j = np.arange(m)
+    offset = np.mean(t[k:k + m] - j * dt) - np.mean(t[k - m:k] - (j - m) * dt)
+    return int(round(offset / dt))
+
+
 def _loop_sign(ty: np.ndarray, yy: np.ndarray, tc: np.ndarray, command: np.ndarray, bias: float,
                t_sw: np.ndarray, up: np.ndarray) -> int:
     """+1 when the output is the relay's feedback as logged, -1 when it is its negative.
@@ -137,7 +153,7 @@ def segment_arrays(
             prev = chain[k]
             if r.start - prev.stop > 1:
                 f.add("glitch")  # several samples between the levels: the switch instant is not clean
-            missing = int(round((tc[r.start] - tc[r.start - 1]) / dt_nom)) - 1 if r.start > 0 else 0
+            missing = _missing_before(tc, r.start, dt_nom, regularised) if r.start > 0 else 0
             if 1 <= missing <= _MAX_INTERP_SAMPLES:
                 # The switch happened at one of the missing sample instants or at the first sample
                 # seen at the new level: take the middle of those (error within +/- (missing+1)/2

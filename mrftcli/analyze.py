@@ -41,14 +41,13 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import InputError, InsufficientDataError, SegmentationError
+from .errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
 from .io.logtypes import FlightLog
-from .mrft.consensus import (CONSTRAINTS, SAME_BETA, StableCycles, bootstrap, bootstrap_estimate, combinations,
-                             constraint_report, upper_bound_open)
+from .mrft.consensus import (CONSTRAINTS, SAME_BETA, Bootstrap, StableCycles, UnboundedTd, bootstrap,
+                             bootstrap_estimate, combinations, constraint_report, unbounded_td, upper_bound_open)
 from .mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify, ufm_slice
 from .mrft.model import LoopModel
-from .mrft.refine import Refinement, refine
-from .mrft.waveform import CommandWindow
+from .mrft.refine import Refinement, refine, refinement_windows
 from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
 from .validate import check_tp
 
@@ -452,7 +451,9 @@ def analyze_flight(
     InsufficientDataError
         Usable tests at a single beta only (``.partial`` gives tau over an assumed Td range).
     IdentificationError
-        The measured cycles admit no plant of eq. (2) with this Tp.
+        The measured cycles admit no plant of eq. (2) with this Tp. (Slices that do not cross but
+        fit a plant without linear damping are not an error: Td is then bounded from below only,
+        ``identification.method == "unbounded-Td"``.)
 
     Examples
     --------
@@ -464,7 +465,7 @@ def analyze_flight(
     >>> result = analyze_flight(read_flight(log, loop="altitude"), Tp=0.0422, n_bootstrap=100)
     >>> print(f"Td {result.Td.mean:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
     ...       f"tau {result.tau.mean * 1e3:.1f} ms")
-    Td 2.67 s (2.66-2.68), tau 46.4 ms
+    Td 2.66 s (2.65-2.67), tau 46.4 ms
     """
     Tp = check_tp(Tp)
     constraints = tuple(constraints)
@@ -512,21 +513,31 @@ def analyze_flight(
     # ---- point estimate through the identification core ---------------------------------------
     meas = [TestMeasurement(beta=t.beta_effective, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
                             h=t.h) for t in usable]
-    ident = identify(meas, Tp, rate_hz=None)
-    warnings.extend(ident.warnings)
-    model = ident.model
-    Td_hat, tau_hat = model.Td, model.tau
-    K_hat = ident.K.mean if ident.K is not None else float("nan")
-
-    # ---- the consensus of the tests and its bootstrap over cycles ---------------------------------
     rng = np.random.default_rng(seed)
     n = len(usable)
     cycles = [_stable_cycles(t) for t in usable]
     # Many tests: fewer draws keep the cost (draws x tests) bounded; a few hundred draws suffice
     # for a std and percentile interval.
     B = int(min(n_bootstrap, max(100, 4000 // n)))
-    boot = bootstrap(Tp, cycles, Td_hat, constraints, B, rng)
-    Td_d, tau_d, K_d = boot.Td, boot.tau, boot.K
+    limit = None
+    try:
+        ident = identify(meas, Tp, rate_hz=None)
+    except IdentificationError as exc:
+        # The slices may not cross because the plant has no linear damping (Td -> infinity: they run
+        # side by side and noise decides); the consensus says whether the tests agree in that limit.
+        ident, limit = _unbounded_td_or_raise(exc, Tp, meas, cycles, constraints, B, rng)
+    warnings.extend(ident.warnings)
+    model = ident.model
+    Td_hat, tau_hat = model.Td, model.tau
+    K_hat = ident.K.mean if ident.K is not None else float("nan")
+
+    # ---- the consensus of the tests and its bootstrap over cycles ---------------------------------
+    if limit is None:
+        boot = bootstrap(Tp, cycles, Td_hat, constraints, B, rng)
+        Td_d, tau_d, K_d = boot.Td, boot.tau, boot.K
+    else:
+        boot, limit = limit
+        Td_d, tau_d, K_d = np.full(B + 1, Td_hat), limit.tau, limit.K
     constraint_info: dict = {}
     if constraints and np.isfinite(Td_d[0]):
         # the weighted estimate on the data themselves (bootstrap row 0) is the point estimate; the
@@ -549,6 +560,8 @@ def analyze_flight(
     Td_est = bootstrap_estimate(Td_hat, Td_d[1:], Td_d[0], "s")
     tau_est = bootstrap_estimate(tau_hat, tau_d[1:], tau_d[0], "s")
     K_est = bootstrap_estimate(K_hat, K_d[1:], K_d[0], "")
+    if limit is not None:
+        Td_est = ParameterEstimate(Td_hat, float("nan"), limit.Td_low, float("nan"), "s")
     n_fail = int((~np.isfinite(Td_d[1:])).sum())
     if n_fail > 0.05 * B:
         warnings.append(f"{n_fail} of {B} bootstrap draws found no intersection of the UFM slices within "
@@ -560,7 +573,7 @@ def analyze_flight(
     # ---- identifiability ----------------------------------------------------------------------
     notes: list[str] = []  # what is expected and needs no action (shown as information)
     td_omega = max(Td_hat * _TWO_PI * t.frequency_hz_mean for t in usable)
-    td_open = bool(constraints) and upper_bound_open(Tp, boot, Td_hat)
+    td_open = limit is not None or (bool(constraints) and upper_bound_open(Tp, boot, Td_hat))
     if td_open:
         # the likelihood does not close as Td -> infinity: a lower bound only (the upper end of the
         # bootstrap interval would come from the search range, not from the data)
@@ -582,18 +595,19 @@ def analyze_flight(
     refinement = None
     method = "mrft"
     if refine_waveform and np.isfinite(K_hat):
-        windows = [CommandWindow.between(t.t_start, t.t_end, flight.command.t, flight.command.values,
-                                         flight.output.t, flight.output.values, t.bias) for t in usable]
-        windows = [w for w in windows if w is not None]
+        windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
+                               flight.output.values)
         if windows:
             refinement = refine(windows, model, mrft_params, loop_sign=usable[0].loop_sign)
             if refinement.accepted:
                 method = "waveform"
                 model = refinement.model
                 Td_est, tau_est, K_est = refinement.Td, refinement.tau, refinement.K
-                if td_open:  # the waveform does not close it either: keep the one-sided statement
-                    Td_est = ParameterEstimate(Td_est.mean, Td_est.std, min(Td_est.ci95_low, mrft_params["Td"].ci95_low),
-                                               float("nan"), "s")
+                if td_open:
+                    # the waveform does not close it either: keep the one-sided statement, with the
+                    # consensus's profile lower bound (the Gauss-Newton interval of ln Td is a local
+                    # linearisation, meaningless where the cost is flat in Td: it gave 1e-5 s)
+                    Td_est = ParameterEstimate(Td_est.mean, Td_est.std, mrft_params["Td"].ci95_low, float("nan"), "s")
             else:
                 warnings.append("the waveform refinement was not used (" + "; ".join(refinement.reasons)
                                 + "): the MRFT estimate is reported (try --diagnose)")
@@ -605,6 +619,32 @@ def analyze_flight(
         t0=t0, constraints=constraint_info, rejection_reasons={t.index: reasons[t.index] for t in rejected},
         method=method, parameters_mrft=mrft_params, refinement=refinement,
     )
+
+
+def _unbounded_td_or_raise(exc: IdentificationError, Tp: float, meas: list[TestMeasurement],
+                           cycles: list[StableCycles], constraints: Sequence[str], B: int,
+                           rng: np.random.Generator) -> tuple[IdentificationResult, tuple[Bootstrap, UnboundedTd]]:
+    """The Td -> infinity result when the tests fit a plant without linear damping, else ``exc``.
+
+    Returns the identification record of the limit (method ``"unbounded-Td"``) and the bootstrap
+    with :func:`mrftcli.mrft.consensus.unbounded_td`'s result.
+    """
+    if not constraints:
+        raise exc
+    Td_ref = 1e4 / (_TWO_PI * min(m.frequency_hz for m in meas))
+    boot = bootstrap(Tp, cycles, Td_ref, constraints, B, rng)
+    limit = unbounded_td(Tp, boot)
+    if limit is None or not limit.tau[0] >= 0:  # a finite Td fits better, or no plant of eq. (2) does
+        raise exc
+    tau = bootstrap_estimate(float(limit.tau[0]), limit.tau[1:], float(limit.tau[0]), "s")
+    K = bootstrap_estimate(float(limit.K[0]), limit.K[1:], float(limit.K[0]), "")
+    Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s")
+    ident = IdentificationResult(
+        Td=Td, tau=tau, K=K, model=LoopModel(Tp, limit.Td_limit, max(tau.mean, 0.0), K.mean), Tp=Tp,
+        residual=None, tests=(), method="unbounded-Td", uncertainty="bootstrap", n_draws=B,
+        warnings=(f"the UFM slices do not intersect: identified in the limit Td -> infinity, which the tests "
+                  f"fit (chi2 {limit.chi2:.1f} for {limit.dof} degrees of freedom)",))
+    return ident, (boot, limit)
 
 
 def _stable_cycles(test: MrftTest) -> StableCycles:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from mrftcli.analyze import analyze_flight
+from mrftcli.errors import IdentificationError, InputError
 from mrftcli.jsonable import to_jsonable
 from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.refine import RESIDUAL_FACTOR, sensor_noise
@@ -107,3 +108,96 @@ def test_no_linear_damping_gives_a_one_sided_td_bound(tmp_path):
 def test_a_damped_plant_keeps_its_two_sided_interval():
     r = analyze_flight(_flight(Td=0.8, seed=9), D1["Tp"], n_bootstrap=100)
     assert math.isfinite(r.Td.ci95_high) and r.Td.ci95_low <= 0.8 <= r.Td.ci95_high
+
+
+def test_windows_carry_the_commands_sent_before_the_test():
+    """At the true plant, the independent exact simulation (test_segment_support) is reproduced to
+    round-off only when each window carries the hold controller's last commands: the outputs at the
+    start of a test are driven by commands sent up to tau before it (tau 90 ms here)."""
+    from mrftcli.mrft.refine import COMMAND_HISTORY, loop_model_plant, refinement_windows
+    from mrftcli.mrft.waveform import CommandWindow, response_basis
+    from test_segment_support import simulate_relay_flight
+
+    Tp, Td, tau, K = 0.05, 0.8, 0.09, 4.0
+    log = simulate_relay_flight(Tp, Td, tau, K, [(-0.4, 0.1, 6.0), (-0.7, 0.1, 6.0)], rate_hz=100.0, noise_std=0.0)
+    A, B, C, delay = loop_model_plant(Tp)(np.array([math.log(Td), tau, K]))
+
+    def worst_residual(windows):
+        out = []
+        for w in windows:
+            cols = response_basis(A, B, C, delay, w).columns
+            coef, *_ = np.linalg.lstsq(cols[:, 1:], w.output - cols[:, 0], rcond=None)
+            out.append(np.max(np.abs(w.output - cols[:, 0] - cols[:, 1:] @ coef)))
+        return max(out)
+
+    spans = [(t0, t1) for t0, t1, _, _ in log.test_windows]
+    bias = 0.5  # the simulator's hover command, the relay's centre
+    with_history = [CommandWindow.between(t0, t1, log.t, log.command, log.t, log.y_meas, bias, COMMAND_HISTORY)
+                    for t0, t1 in spans]
+    without = [CommandWindow.between(t0, t1, log.t, log.command, log.t, log.y_meas, bias) for t0, t1 in spans]
+    amplitude = np.ptp(log.y_meas)
+    assert worst_residual(with_history) < 1e-8 * amplitude
+    assert worst_residual(without) > 1e-4 * amplitude
+
+    class _Span:  # refinement_windows reads a test's span and bias
+        def __init__(self, t0, t1):
+            self.t_start, self.t_end, self.bias = t0, t1, bias
+
+    built = refinement_windows([_Span(*s) for s in spans], log.t, log.command, log.t, log.y_meas)
+    assert [w.u.size for w in built] == [w.u.size for w in with_history]
+
+
+def test_refit_with_a_sensor_lag_recovers_it():
+    """Issue 16: the refinement's plant API reused with one more parameter (what diagnose calls)."""
+    from mrftcli.mrft.refine import refinement_windows, refit_with_effect
+
+    lag = 0.03
+    r = analyze_flight(_flight(Effects(sensor_lag=lag)), D1["Tp"], n_bootstrap=50)
+    assert not r.refinement.accepted  # eq. (2) alone does not hold (checked above)
+    fl = r.flight
+    ws = refinement_windows(r.tests, fl.command.t, fl.command.values, fl.output.t, fl.output.values)
+    fit = refit_with_effect(ws, r.model, "sensor_lag", 0.01, loop_sign=r.tests[0].loop_sign)
+    assert fit.value == pytest.approx(lag, rel=0.25)
+    assert abs(fit.value - lag) < 4 * fit.value_std
+    # with the lag modelled the residual is the sensor noise again, and tau is the plant's own delay
+    assert fit.fit.residual_rms / r.refinement.noise_std <= RESIDUAL_FACTOR
+    assert abs(fit.model.tau - D1["tau"]) < 3e-3 < abs(r.tau.mean - D1["tau"])
+
+
+def test_refit_with_an_input_bias_reads_it_from_the_offsets():
+    from mrftcli.mrft.refine import refinement_windows, refit_with_effect
+
+    d = 0.02  # command units, at the plant input
+    r = analyze_flight(_flight(Effects(input_bias=d)), D1["Tp"], n_bootstrap=50)
+    fl = r.flight
+    ws = refinement_windows(r.tests, fl.command.t, fl.command.values, fl.output.t, fl.output.values)
+    fit = refit_with_effect(ws, r.model, "input_bias", loop_sign=r.tests[0].loop_sign)
+    assert fit.value == pytest.approx(d, rel=0.1)
+    assert fit.value_std < 0.05 * d
+    with pytest.raises(InputError, match="unknown effect"):
+        refit_with_effect(ws, r.model, "gain_drift")
+
+
+def test_slices_that_do_not_intersect_give_the_one_sided_result():
+    """Issue 12 item 8 / issue 16: with no linear damping the two slices run side by side and at this
+    seed do not cross; identify() has no intersection, analyze reports Td > bound, tau and K."""
+    from mrftcli.mrft.identify import TestMeasurement, identify
+    from test_segment_support import simulate_paper_flight
+
+    sf = simulate_paper_flight(D1["Tp"], 1e4, D1["tau"], D1["K"], (-0.4, -0.7), seed=0)
+    r = analyze_flight(flight_from_simulated(sf), D1["Tp"], n_bootstrap=100)
+    meas = [TestMeasurement(beta=t.beta_effective, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
+                            h=t.h) for t in r.tests]
+    with pytest.raises(IdentificationError, match="do not intersect"):
+        identify(meas, D1["Tp"], rate_hz=None)
+    assert r.identification.method == "unbounded-Td"
+    m = r.parameters_mrft
+    assert 5.0 < m["Td"].ci95_low and not math.isfinite(m["Td"].ci95_high)
+    assert 5.0 < r.Td.ci95_low and not math.isfinite(r.Td.ci95_high)
+    assert m["tau"].ci95_low <= D1["tau"] <= m["tau"].ci95_high and abs(m["tau"].mean - D1["tau"]) < 1e-3
+    assert m["K"].ci95_low <= D1["K"] <= m["K"].ci95_high
+    assert abs(r.tau.mean - D1["tau"]) < 1e-3 and r.K.mean == pytest.approx(D1["K"], rel=0.01)
+    assert any(w.startswith("Td > ") for w in r.warnings)
+    # a wrong Tp is still refused (exit 5): the limit does not fit those tests either
+    with pytest.raises(IdentificationError):
+        analyze_flight(flight_from_simulated(sf), 0.01, n_bootstrap=50)

@@ -43,6 +43,8 @@ from .lprs import unit_cycle
 
 __all__ = [
     "upper_bound_open",
+    "UnboundedTd",
+    "unbounded_td",
     "SAME_BETA",
     "CONSTRAINTS",
     "BETA_SYSTEMATIC",
@@ -519,3 +521,102 @@ def upper_bound_open(Tp: float, boot: Bootstrap, Td: float, delta_chi2: float = 
     J = np.array([consensus_objective(Tp, boot.betas[:1], boot.omegas[:1], np.asarray(cw["w_ufm"], float)[None, :],
                                       x[i:i + 1], extra)[0][0] for i in range(2)])
     return bool(np.all(np.isfinite(J)) and J[1] - J[0] < delta_chi2)
+
+
+@dataclass(frozen=True, eq=False)
+class UnboundedTd:
+    """The consensus in the limit Td -> infinity (no linear damping): outcome of :func:`unbounded_td`.
+
+    Attributes
+    ----------
+    Td_low : float
+        95 % lower bound on Td [s] (profile chi-square).
+    Td_limit : float
+        The Td standing for infinity [s] (Td Omega = 1e4 at the slowest test): the model's Td.
+    tau, K : ndarray, shape (B + 1,)
+        Delay [s] and gain in the limit for the data (row 0) and each bootstrap draw.
+    chi2 : float
+        The consensus chi-square of the data in the limit.
+    dof : int
+        Its degrees of freedom (constraints minus tau, and minus ln K with the amplitude constraint).
+    p_value : float
+        Chi-square tail probability of ``chi2``.
+    """
+
+    Td_low: float
+    Td_limit: float
+    tau: np.ndarray
+    K: np.ndarray
+    chi2: float
+    dof: int
+    p_value: float
+
+
+def unbounded_td(Tp: float, boot: Bootstrap, delta_chi2: float = 3.84, p_min: float = 1e-3) -> UnboundedTd | None:
+    """The one-sided result when the tests fit a plant without linear damping (issue 12 item 8).
+
+    For a double integrator with motor lag and delay (Td -> infinity) the UFM slices of two tests run
+    side by side towards large Td, and measurement noise decides whether they cross at all: when
+    they do not, :func:`mrftcli.mrft.identify.identify` has no intersection to report, yet the tests
+    do determine tau and K, and bound Td from below. Here the consensus chi-square of the data
+    (:func:`consensus_objective`, bootstrap row 0, all constraints) is profiled over Td: the limit is
+    accepted when no finite Td beats it by ``delta_chi2`` (3.84: 95 % for one parameter) and the
+    tests agree in it (chi-square tail probability >= ``p_min``). Td's lower bound is where the
+    profile first comes within ``delta_chi2`` of its minimum; tau and K are the consensus in the
+    limit, for every bootstrap draw (their spread is the interval).
+
+    Parameters
+    ----------
+    Tp : float
+        Propulsion time constant [s].
+    boot : Bootstrap
+        :func:`bootstrap` with constraints (its weights evaluated at a large reference Td).
+    delta_chi2, p_min : float
+        The thresholds above.
+
+    Returns
+    -------
+    UnboundedTd or None
+        None when a finite Td fits better, the tests disagree in the limit, or ``boot`` has no
+        constraint weights (the paper's UFM-only weighting is not a chi-square).
+    """
+    from scipy import stats
+
+    cw = boot.weights
+    if cw is None:
+        return None
+    M, n = boot.betas.shape
+    w_ufm = np.broadcast_to(np.asarray(cw["w_ufm"], float), (M, n))
+    wp = np.where(np.isfinite(boot.phases), np.asarray(cw["w_phase"], float)[None, :], 0.0)
+    w_gain = np.broadcast_to(np.asarray(cw["w_gain"], float), (M, n))
+    extra = ExtraConstraints(phases=np.nan_to_num(boot.phases), w_phase=wp, ln_amp=boot.ln_amp, w_gain=w_gain)
+    w0 = boot.omegas[0]
+    Td_limit = 1e4 / float(np.min(w0))
+    # profile of the data (row 0) from Td Omega = 0.1 at the fastest test up to the limit
+    x = np.linspace(math.log(0.1 / float(np.max(w0))), math.log(Td_limit), 161)
+    e0 = ExtraConstraints(phases=extra.phases[:1].repeat(x.size, 0), w_phase=wp[:1].repeat(x.size, 0),
+                          ln_amp=boot.ln_amp[:1].repeat(x.size, 0), w_gain=w_gain[:1].repeat(x.size, 0))
+    J = consensus_objective(Tp, boot.betas[:1].repeat(x.size, 0), boot.omegas[:1].repeat(x.size, 0),
+                            w_ufm[:1].repeat(x.size, 0), x, e0)[0]
+    J = np.where(np.isfinite(J), J, np.inf)
+    J_inf = float(J[-1])
+    if not math.isfinite(J_inf) or J_inf - float(J.min()) > delta_chi2:
+        return None
+    m = n + int(np.sum(wp[0] > 0)) + int(np.sum(w_gain[0] > 0))
+    dof = m - 1 - (1 if np.sum(w_gain[0]) > 0 else 0)
+    p = float(stats.chi2.sf(J_inf, dof)) if dof > 0 else 1.0
+    if p < p_min:
+        return None
+    # the lower bound: below the last grid point whose chi-square rises by delta_chi2 or more
+    above = np.nonzero(J - J.min() >= delta_chi2)[0]
+    if above.size:
+        i = int(above[-1])
+        d0, d1 = J[i] - J.min() - delta_chi2, J[i + 1] - J.min() - delta_chi2
+        f = d0 / (d0 - d1) if np.isfinite(d0) and d0 != d1 else 0.0
+        Td_low = float(np.exp(x[i] + f * (x[i + 1] - x[i])))
+    else:
+        Td_low = float(np.exp(x[0]))
+    J_all, tau, _ = consensus_objective(Tp, boot.betas, boot.omegas, w_ufm, np.full(M, math.log(Td_limit)), extra)
+    K = ugm_gain(Tp, np.full(M, Td_limit), boot.omegas, np.exp(boot.ln_amp), np.ones((M, n)))
+    return UnboundedTd(Td_low=Td_low, Td_limit=Td_limit, tau=np.asarray(tau, float), K=np.asarray(K, float),
+                       chi2=J_inf, dof=int(dof), p_value=p)

@@ -35,9 +35,37 @@ The refined estimate is used only when the data say the model holds:
 
 Otherwise the MRFT estimate stands and :attr:`Refinement.reasons` says why.
 
-A refit with one more physical effect (a sensor lag, an input bias) is the same problem with one
-more parameter: :func:`fit_output_error` takes any ``plant(p) -> (A, B, C, tau)`` with real, distinct
-eigenvalues.
+Windows (:func:`refinement_windows`)
+------------------------------
+Each test's window holds the outputs of the test and the commands from ``COMMAND_HISTORY`` (1 s,
+the fit's largest tau) before it: the first outputs of a test are driven by the hold controller's
+last commands, which no initial state can stand in for.
+
+Reuse: a refit with an effect modelled
+--------------------------------------
+A refit with one more physical effect is the same problem with one more parameter:
+:func:`fit_output_error` takes any ``plant(p) -> (A, B, C, tau)`` with real, distinct eigenvalues,
+and :func:`with_sensor_lag` appends a first-order measurement lag to any plant (one more parameter,
+ln T_lag). An input bias needs no new parameter: the fitted command offset of each window
+(:attr:`OutputErrorFit.offsets`, with :attr:`OutputErrorFit.offset_std`) is the bias at the plant
+input relative to the relay's centre. :func:`refit_with_effect` does either from a model:
+
+>>> import numpy as np
+>>> from mrftcli.mrft.model import LoopModel
+>>> truth = LoopModel(Tp=0.05, Td=1.0, tau=0.03, K=5.0)
+>>> A, B, C = truth.state_space()
+>>> lag = 0.02  # s: the sensor the recording went through
+>>> A4 = np.block([[A, np.zeros((3, 1))], [C[None, :] / lag, -np.ones((1, 1)) / lag]])
+>>> t = np.arange(0.0, 6.0, 0.005)
+>>> u = 0.1 * np.sign(np.sin(2 * np.pi * 1.3 * t))
+>>> w = CommandWindow.from_arrays(t, u, t)
+>>> y = response_basis(A4, np.append(B, 0.0), np.eye(4)[3], truth.tau, w).columns[:, 0]
+>>> w = CommandWindow.from_arrays(t, u, t, y + 1e-5 * np.random.default_rng(0).standard_normal(t.size))
+>>> r = refit_with_effect([w], LoopModel(0.05, 1.1, 0.04, 5.2), "sensor_lag", 0.01)
+>>> round(r.value * 1e3), round(r.model.tau * 1e3)  # T_lag [ms] and tau [ms] recovered
+(20, 30)
+>>> bool(abs(r.value - lag) < 3 * r.value_std)
+True
 """
 
 from __future__ import annotations
@@ -54,14 +82,19 @@ from .identify import ParameterEstimate
 from .model import LoopModel
 from .waveform import CommandWindow, response_basis
 
-__all__ = ["RESIDUAL_FACTOR", "INTERVAL_FACTOR", "sensor_noise", "OutputErrorFit", "fit_output_error",
-           "Refinement", "refine", "loop_model_plant"]
+__all__ = ["RESIDUAL_FACTOR", "INTERVAL_FACTOR", "TAU_MAX", "COMMAND_HISTORY", "sensor_noise", "OutputErrorFit",
+           "fit_output_error", "Refinement", "refine", "loop_model_plant", "refinement_windows", "with_sensor_lag",
+           "EFFECTS", "EffectRefit", "refit_with_effect"]
 
 #: Largest accepted ratio of the residual RMS to the estimated sensor noise.
 RESIDUAL_FACTOR = 1.15
 #: The MRFT 95 % interval is widened by this factor (about its point) for the acceptance check.
 INTERVAL_FACTOR = 2.0
 _Z95 = 1.959963984540054
+#: Largest transport delay the refinement considers [s] (its upper bound on tau).
+TAU_MAX = 1.0
+#: Command recorded before each test that the windows carry [s]: covers any tau up to TAU_MAX.
+COMMAND_HISTORY = TAU_MAX
 
 Plant = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, float]]
 
@@ -112,7 +145,10 @@ class OutputErrorFit:
     converged : bool
         The optimiser met a tolerance.
     offsets : tuple of float
-        Fitted command offset per window [command units].
+        Fitted command offset per window [command units]: the plant input's bias relative to the
+        window's ``bias`` (an input bias, or a trim the relay centre misses).
+    offset_std : tuple of float
+        Their std at the fitted ``p`` (linear least squares, residual variance) [command units].
     """
 
     p: np.ndarray
@@ -124,6 +160,7 @@ class OutputErrorFit:
     n_evaluations: int
     converged: bool
     offsets: tuple[float, ...]
+    offset_std: tuple[float, ...] = ()
 
 
 def _projected(plant: Plant, windows: Sequence[CommandWindow], p: np.ndarray, keep: list | None = None) -> np.ndarray:
@@ -136,8 +173,8 @@ def _projected(plant: Plant, windows: Sequence[CommandWindow], p: np.ndarray, ke
         X = cols[ok, 1:]
         coef, *_ = np.linalg.lstsq(X, y, rcond=None)
         out.append(y - X @ coef)
-        if keep is not None:
-            keep.append(float(coef[0]))
+        if keep is not None:  # the offset and its unscaled variance (X^T X)^-1 [0, 0]
+            keep.append((float(coef[0]), float(np.linalg.pinv(X.T @ X)[0, 0])))
     return np.concatenate(out)
 
 
@@ -187,7 +224,9 @@ def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0, *, lowe
     per = tuple(float(np.sqrt(np.mean(x ** 2))) for x in np.split(r, sizes))
     return OutputErrorFit(p=res.x, covariance=cov, std=np.sqrt(np.abs(np.diag(cov))),
                           residual_rms=float(np.sqrt(np.mean(r ** 2))), window_rms=per, n_samples=int(n),
-                          n_evaluations=int(res.nfev), converged=bool(res.status > 0), offsets=tuple(offsets))
+                          n_evaluations=int(res.nfev), converged=bool(res.status > 0),
+                          offsets=tuple(o for o, _ in offsets),
+                          offset_std=tuple(math.sqrt(max(s2 * v, 0.0)) for _, v in offsets))
 
 
 def loop_model_plant(Tp: float) -> Plant:
@@ -198,6 +237,142 @@ def loop_model_plant(Tp: float) -> Plant:
         return A, B, C, max(float(p[1]), 0.0)
 
     return plant
+
+
+def refinement_windows(tests, t_command, command, t_output, output, *,
+                 history: float = COMMAND_HISTORY) -> list[CommandWindow]:
+    """Each test's :class:`CommandWindow` for the refinement: its outputs, and its commands from
+    ``history`` [s] before it (see the module docstring).
+
+    Parameters
+    ----------
+    tests : sequence of mrftcli.segment.MrftTest
+        The tests (their ``t_start``, ``t_end`` [s] and ``bias`` [command units] are used).
+    t_command, command, t_output, output : array_like
+        The whole recording (times [s]).
+    history : float
+        Command before each test carried by its window [s].
+
+    Returns
+    -------
+    list of CommandWindow
+        In the tests' order; a test with fewer than 2 commands or 8 outputs is left out.
+    """
+    windows = [CommandWindow.between(t.t_start, t.t_end, t_command, command, t_output, output, t.bias, history)
+               for t in tests]
+    return [w for w in windows if w is not None]
+
+
+def with_sensor_lag(plant: Plant) -> Plant:
+    """``plant`` measured through a first-order lag 1 / (T_lag s + 1): one more parameter, ln T_lag.
+
+    The augmented plant takes ``p = (*p_plant, ln T_lag [s])``; its state is the plant's plus the
+    lagged output, which is what it outputs (the initial lagged output is fitted as well).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A, B, C, tau = with_sensor_lag(loop_model_plant(0.05))(np.array([0.0, 0.03, 2.0, np.log(0.02)]))
+    >>> A.shape, C.tolist(), tau
+    ((4, 4), [0.0, 0.0, 0.0, 1.0], 0.03)
+    """
+
+    def lagged(p: np.ndarray):
+        p = np.asarray(p, float)
+        A, B, C, tau = plant(p[:-1])
+        n = A.shape[0]
+        inv = math.exp(-float(p[-1]))
+        A4 = np.zeros((n + 1, n + 1))
+        A4[:n, :n] = A
+        A4[n, :n] = inv * np.asarray(C, float)
+        A4[n, n] = -inv
+        return A4, np.append(B, 0.0), np.eye(n + 1)[n], tau
+
+    return lagged
+
+
+#: The effects :func:`refit_with_effect` models (names as in :mod:`mrftcli.diagnose.physics`).
+EFFECTS = ("sensor_lag", "input_bias")
+
+
+@dataclass(frozen=True, eq=False)
+class EffectRefit:
+    """Outcome of :func:`refit_with_effect`.
+
+    Attributes
+    ----------
+    effect : str
+        ``"sensor_lag"`` or ``"input_bias"``.
+    model : LoopModel
+        Td, tau, K refitted with the effect modelled (Tp the start's).
+    value, value_std : float
+        The effect's parameter and its std: T_lag [s] (std by the delta method from ln T_lag), or
+        the input bias d [command units] (the windows' offsets pooled by inverse variance).
+    fit : OutputErrorFit
+        The fit (p = (ln Td, tau, K) and, for a sensor lag, ln T_lag).
+    """
+
+    effect: str
+    model: LoopModel
+    value: float
+    value_std: float
+    fit: OutputErrorFit = field(repr=False)
+
+
+def refit_with_effect(windows: Sequence[CommandWindow], start: LoopModel, effect: str, value0: float | None = None,
+                      *, loop_sign: int = 1, max_evaluations: int = 60) -> EffectRefit:
+    """Refit eq. (2) by output error with one physical effect modelled.
+
+    Parameters
+    ----------
+    windows : sequence of CommandWindow
+        Each test's window (:func:`refinement_windows`).
+    start : LoopModel
+        Start of the fit (the MRFT or the refined estimate; its Tp is kept).
+    effect : {"sensor_lag", "input_bias"}
+        ``"sensor_lag"``: y_measured = y / (T_lag s + 1), T_lag fitted (one more parameter).
+        ``"input_bias"``: a constant at the plant input; the per-window command offset already models
+        it, so the fit is the plain one and the value is the pooled offset.
+    value0 : float, optional
+        Start of T_lag [s] (default 0.01 s); unused for an input bias.
+    loop_sign : {1, -1}
+        Sign of the loop gain (as for :func:`refine`).
+    max_evaluations : int
+        Cap on residual evaluations.
+
+    Returns
+    -------
+    EffectRefit
+
+    Raises
+    ------
+    InputError
+        An unknown effect or a non-positive T_lag start.
+    """
+    if effect not in EFFECTS:
+        raise InputError(f"unknown effect {effect!r}: choose one of {', '.join(EFFECTS)}")
+    sign = -1.0 if loop_sign < 0 else 1.0
+    p0 = [math.log(start.Td), start.tau, sign * start.K]
+    lower = [math.log(start.Tp * 1e-2), 0.0, -np.inf]
+    upper = [math.log(1e6), TAU_MAX, np.inf]
+    plant = loop_model_plant(start.Tp)
+    if effect == "sensor_lag":
+        lag0 = 0.01 if value0 is None else float(value0)
+        if not (math.isfinite(lag0) and lag0 > 0):
+            raise InputError(f"the sensor-lag start must be a positive time in seconds, got {value0!r}")
+        plant = with_sensor_lag(plant)
+        p0, lower, upper = p0 + [math.log(lag0)], lower + [math.log(1e-4)], upper + [math.log(10.0)]
+    fit = fit_output_error(windows, plant, p0, lower=lower, upper=upper, max_evaluations=max_evaluations)
+    model = LoopModel(start.Tp, math.exp(float(fit.p[0])), max(float(fit.p[1]), 0.0), sign * float(fit.p[2]))
+    if effect == "sensor_lag":
+        value = math.exp(float(fit.p[3]))
+        std = value * float(fit.std[3])
+    else:
+        w = np.array([1.0 / s ** 2 if s > 0 else 0.0 for s in fit.offset_std])
+        o = np.asarray(fit.offsets)
+        value = float(np.sum(w * o) / np.sum(w)) if w.sum() > 0 else float(np.mean(o))
+        std = float(1.0 / math.sqrt(w.sum())) if w.sum() > 0 else float("nan")
+    return EffectRefit(effect=effect, model=model, value=value, value_std=std, fit=fit)
 
 
 @dataclass(frozen=True, eq=False)
@@ -266,7 +441,8 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     Parameters
     ----------
     windows : sequence of CommandWindow
-        Each test's recorded command and output (times [s]; command relative to the test's bias).
+        Each test's recorded command and output (times [s]; command relative to the test's bias),
+        as :func:`refinement_windows` builds them.
     start : LoopModel
         The MRFT estimate (start of the fit; its Tp is the known one).
     mrft : mapping
@@ -289,7 +465,7 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     plant = loop_model_plant(start.Tp)
     sign = -1.0 if loop_sign < 0 else 1.0
     fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, sign * start.K],
-                           lower=[math.log(start.Tp * 1e-2), 0.0, -np.inf], upper=[math.log(1e6), 1.0, np.inf])
+                           lower=[math.log(start.Tp * 1e-2), 0.0, -np.inf], upper=[math.log(1e6), TAU_MAX, np.inf])
     lnTd, tau, K = float(fit.p[0]), float(fit.p[1]), sign * float(fit.p[2])
     s = fit.std
     Td = math.exp(lnTd)

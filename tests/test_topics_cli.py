@@ -25,7 +25,8 @@ def test_table_and_fields(bag_and_csv):
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
     assert "(ros2-mcap, 6 topics)" in lines[0]
-    assert lines[1].split() == ["topic", "type", "count", "rate_hz"]
+    assert lines[1] == "layout: reference (auto-detected: /mrft/command)"
+    assert lines[2].split() == ["topic", "type", "count", "rate_hz"]
     row = next(line for line in lines if line.startswith("/imu/data"))
     assert row.split() == ["/imu/data", "sensor_msgs/msg/Imu", "201", "200.0"]
     beta = next(line for line in lines if line.startswith("/mrft/beta"))

@@ -31,10 +31,13 @@ def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
     """
     from ..io import open_log
 
+    from ..io import log_layout
+
     with open_log(log, fmt) as source:
         infos = source.topics()
         warnings = list(source.warnings)
         fmt_name = source.format
+        layout = log_layout(source).describe()
         if not any(i.count for i in infos):
             from ..errors import LogReadError
 
@@ -43,6 +46,7 @@ def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
         dump_json({
             "path": log,
             "format": fmt_name,
+            "layout": layout,
             "topics": [{"name": i.name, "type": i.msgtype, "count": i.count, "rate_hz": i.rate_hz,
                         "fields": list(i.fields)} for i in infos],
             "warnings": warnings,
@@ -52,6 +56,7 @@ def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
     head = ("topic", "type", "count", "rate_hz")
     widths = [max(len(r[k]) for r in [head, *rows]) for k in range(4)]
     click.echo(f"{log} ({fmt_name}, {len(infos)} topics)")
+    click.echo(f"layout: {layout}")
     line = "  ".join(f"{{:<{widths[0]}}} {{:<{widths[1]}}} {{:>{widths[2]}}} {{:>{widths[3]}}}".split(" "))
     click.echo(line.format(*head))
     for info, row in zip(infos, rows):

@@ -611,6 +611,16 @@ def analyze_flight(
             else:
                 warnings.append("the waveform refinement was not used (" + "; ".join(refinement.reasons)
                                 + "): the MRFT estimate is reported (try --diagnose)")
+    jitter = float(flight.source.get("timing_jitter_s") or 0.0)
+    if jitter >= 1e-4 and np.isfinite(tau_est.std):  # below 0.1 ms: stamp rounding, not transport
+        # receive-time stamps: the command's and the output's transport delays differ by an unknown
+        # offset of the order of their jitter, which moves every switch against the output alike
+        # (no averaging over cycles): added to tau's spread in quadrature
+        std = float(np.hypot(tau_est.std, jitter))
+        widen = 1.96 * std - 1.96 * tau_est.std
+        tau_est = ParameterEstimate(tau_est.mean, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s")
+        notes.append(f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded "
+                     "into tau's interval")
     warnings = list(dict.fromkeys(warnings))  # unique, in order
     return AnalysisResult(notes=tuple(notes), 
         path=str(flight.path), loop=flight.loop, Tp=Tp, tests=tuple(usable), rejected=tuple(rejected),

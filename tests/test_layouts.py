@@ -72,6 +72,12 @@ def test_receive_time_jitter_is_estimated(analyses):
     flight = analyses["hear_x.bag"][0]
     assert flight.source["timestamps"] == "receive"
     assert 0.0003 < flight.source["timing_jitter_s"] < 0.005  # written with |N(0, 2 ms)| + 1 ms delays
+    # folded into tau's interval (an offset between the topics' delays does not average out)
+    result = analyses["hear_x.bag"][1]
+    assert result.tau.std >= flight.source["timing_jitter_s"]
+    assert result.tau.ci95_high - result.tau.ci95_low >= 2 * 1.96 * flight.source["timing_jitter_s"]
+    assert any("timing jitter" in n for n in result.notes)
+    assert not any("missing" in w for w in result.warnings)  # receive jitter is not a lost sample
 
 
 @pytest.mark.parametrize("path", sorted(p.name for p in SAMPLES.iterdir()

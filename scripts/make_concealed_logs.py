@@ -34,7 +34,10 @@ PLANTS = {
     "design1": LoopModel(Tp=0.0422, Td=2.669, tau=0.0464, K=15.0),
     "design2": LoopModel(Tp=0.0499, Td=1.8345, tau=0.0498, K=12.0),
 }
-EFFECTS = ("input_bias", "gain_drift", "sensor_lag", "quadratic_drag", "actuator_rate_limit", "delay_jitter")
+EFFECTS = ("input_bias", "gain_drift", "sensor_lag", "quadratic_drag", "actuator_rate_limit", "delay_jitter",
+           "asymmetric_gain", "actuator_saturation", "dead_zone", "thrust_rectification")
+#: physics outside the diagnosis' library (it should report them as ``unexplained``)
+OUT_OF_LIBRARY = ("flex_mode_hz",)
 AMPLITUDE = 0.06  # planned output amplitude of the first test [m]
 
 
@@ -63,21 +66,34 @@ def effect_value(effect: str, model: LoopModel, tests: tuple[TestSpec, ...], sca
         return 2.0 * h / (0.045 * scale)  # the relay step takes ~45 ms
     if effect == "delay_jitter":
         return 0.012 * scale  # a non-real-time link (e.g. mocap over Wi-Fi)
+    h_max = max(t.h for t in tests)
+    if effect == "asymmetric_gain":
+        return 0.15 * scale  # +-15 % gain above/below the trim
+    if effect == "actuator_saturation":
+        return 0.5 + 0.7 * scale * h_max  # trim 0.5 (the simulator's altitude default) + a limit inside the largest step
+    if effect == "dead_zone":
+        return 0.2 * h * scale  # a dead band of a fifth of the smallest relay height
+    if effect == "thrust_rectification":
+        return h_max / (0.4 * scale)  # the largest swing is ~0.4 of the hover thrust
+    if effect == "flex_mode_hz":
+        omega, _ = df_prediction(model, tests[0].beta, h)
+        return 4.5 * scale * omega / (2.0 * math.pi)  # a frame mode at ~4.5 times the test frequency
     raise ValueError(effect)
 
 
-def make_case(effect: str | None, plant: str, seed: int, scale: float | tuple = 1.0):
+def make_case(effect: str | None, plant: str, seed: int, scale: float | tuple = 1.0, *, cycles: float = 16.0,
+              rate_hz: float = 200.0, noise_std: float | None = None):
     """Simulate one flight; ``effect`` None is a clean control, ``"a+b"`` combines two effects (``scale``
     then one factor per effect, or one for both). Returns the SimulatedFlight."""
     model = PLANTS[plant]
-    tests = flight_tests(model)
+    tests = flight_tests(model, cycles)
     effects = Effects()
     names = [] if effect is None else effect.split("+")
     scales = scale if isinstance(scale, tuple) else (scale,) * len(names)
     for name, sc in zip(names, scales):
         effects = replace(effects, **{name: effect_value(name, model, tests, sc)})
-    spec = FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=200.0, effects=effects, seed=seed,
-                      hover_s=2.0, hold_s=2.0)
+    spec = FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=rate_hz, effects=effects, seed=seed,
+                      hover_s=2.0, hold_s=2.0, noise_std=noise_std)
     flight = simulate_flight(spec)
     flight.topics = [t for t in flight.topics if t.name != "/battery"]  # conceal the battery voltage
     return flight

@@ -17,12 +17,13 @@ def format_summary(result) -> str:
     """The terminal summary of a :class:`~mrftcli.diagnose.selection.DiagnosisResult`."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
-    lines.append(f"{'test':>4} {'t [s]':>15} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'cycles':>7}")
+    lines.append(f"{'test':>4} {'t [s] from log start':>21} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'cycles used':>11}")
     for t in result.tests:
         nom = f"{t['beta_nominal']:+.3f}" if t["beta_nominal"] is not None else "-"
         beff = 0.5 * (t["beta_effective_up"] + t["beta_effective_down"])
-        lines.append(f"{t['index'] + 1:>4} {t['t_start']:>7.1f}-{t['t_end']:<7.1f} {nom:>8} {beff:>+8.3f} "
-                     f"{t['h']:>8.4g} {t['cycles']:>7d}")
+        span = f"{t['t_start_rel']:.1f}-{t['t_end_rel']:.1f}"
+        lines.append(f"{t['index'] + 1:>4} {span:>21} {nom:>8} {beff:>+8.3f} "
+                     f"{t['h']:>8.4g} {t['cycles']:>11d}")
     lin = result.identification.get("linear", {})
     lines.append(f"linear model fitted to the cycles: Td {_g(lin.get('Td'))} s  tau {_g(1e3 * lin['tau'] if 'tau' in lin else None)} ms"
                  f"  K {_g(lin.get('K'))}")
@@ -53,13 +54,17 @@ def format_summary(result) -> str:
             w = e.identification.get("with_effect", {})
             lines.append(f"  refit with {e.identification.get('model', e.name)}: Td {_g(w.get('Td'))} s  tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms"
                          f"  K {_g(w.get('K'))}")
-    else:
+    elif result.unexplained is None:
         lines.append("found: nothing: the linear model explains the log")
+    if result.unexplained is not None:
+        u = result.unexplained
+        lines.append(f"unexplained: {u['what']} (held-out chi^2 {u['held_out_feature_chi2']:.0f} over "
+                     f"{u['held_out_features']} features, p = {u['p_value']:.2g})")
     feats = [loc for loc in result.located if loc["kind"] == "feature"][:4]
     if feats:
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")
         for loc in feats:
-            lines.append(f"  test {loc['test'] + 1} ({loc['t_start']:.1f}-{loc['t_end']:.1f} s): {loc['what']}, z = {loc['z']:+.1f}")
+            lines.append(f"  test {loc['test'] + 1} ({loc['t_start_rel']:.1f}-{loc['t_end_rel']:.1f} s): {loc['what']}, z = {loc['z']:+.1f}")
     return "\n".join(lines)
 
 
@@ -76,12 +81,14 @@ def diagnose(log, Tp, json_target, report_dir, **read_options):
     The linear model G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) is fitted to the recorded
     limit cycles and re-simulated with the same MRFT settings; period, half-period balance, amplitude,
     waveform harmonics, trends and cycle-to-cycle scatter are compared per test. Candidate physics
-    (input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, delay_jitter) are fitted
+    (input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, delay_jitter,
+    asymmetric_gain, actuator_saturation, dead_zone, thrust_rectification) are fitted
     on even cycles, chosen by BIC and confirmed on the odd (held-out) cycles; a second effect is then
-    looked for on top of the first one by the same rules.
+    looked for on top of the first one by the same rules. A mismatch that none explains is reported
+    as "unexplained" with where it is and how large. Times are from the log start.
 
     Exit codes: 0 ok (with or without a finding), 2 bad option, 3 unreadable log, 4 no relay test,
-    7 the diagnosis could not be carried out.
+    6 only one beta tested (as analyze), 7 the diagnosis could not be carried out.
 
     Example: mrft-ident diagnose flight.mcap --tp 0.0422 --json - --report out/
     """

@@ -39,7 +39,7 @@ __all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "DiagnosedTest", "segments_of", "prepa
            "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
 
 #: fewest stable cycles per test for a diagnosis
-MIN_CYCLES = 6
+MIN_CYCLES = 4
 
 
 # Floors added (in quadrature) to each feature's standard error: the continuous-relay model of a
@@ -198,6 +198,7 @@ class CandidateModel:
         self.warm: dict[int, tuple] = {}  # last (period [s], residual slope) found, per evaluation key
         self.name = "+".join(c.name for c in cands) if cands else "base"
         self.hs = float(np.mean([t.h for t in tests]))
+        self.bias_mean = float(np.mean([t.bias for t in tests]))
 
     def extra_index(self, name: str) -> int | None:
         """Index in theta of the effect's own parameter (None for quadratic drag, which uses theta[0])."""
@@ -226,7 +227,12 @@ class CandidateModel:
             if x is None:
                 continue
             value = {"input_bias": x * hs, "gain_drift": x / 100.0, "sensor_lag": x / 10.0,
-                     "actuator_rate_limit": x / (10.0 * hs)}[c.name]  # rate limit: rho = 1/R [s per unit]
+                     "actuator_rate_limit": x / (10.0 * hs),  # rate limit: rho = 1/R [s per unit]
+                     "asymmetric_gain": x / 10.0,
+                     "actuator_saturation": x * hs,  # headroom above the mean trim [command units]
+                     "dead_zone": x * hs / 10.0,
+                     "thrust_rectification": x / (10.0 * hs),  # 1/F [1/command unit]
+                     }[c.name]
             p["extras"][c.name] = value
         if self.cand is not None and self.cand.name in p["extras"]:
             p["extra"] = p["extras"][self.cand.name]
@@ -236,10 +242,17 @@ class CandidateModel:
         """The augmented plant (K = 1) for a test at reference time t_ref [s, log time]; returns (plant, gain)."""
         ex = p["extras"]
         rho = ex.get("actuator_rate_limit", 0.0)
+        inv_f = ex.get("thrust_rectification", 0.0)
         kw = {
             "input_bias": ex.get("input_bias", 0.0),
             "sensor_lag": max(ex["sensor_lag"], 1e-4) if "sensor_lag" in ex else 0.0,
             "rate_limit": (1.0 / rho) if rho > 1e-9 else 0.0,
+            "asymmetric_gain": ex.get("asymmetric_gain", 0.0),
+            # the saturation's parameter is the absolute limit: the headroom is the limit above this test's trim
+            "headroom": (max(self.bias_mean + ex["actuator_saturation"] - test.bias, 1e-6)
+                         if "actuator_saturation" in ex else 0.0),
+            "dead_zone": ex.get("dead_zone", 0.0),
+            "hover_thrust": (1.0 / inv_f) if inv_f > 1e-9 else 0.0,
         }
         if "quadratic_drag" in self.names:
             plant = AugmentedPlant(self.Tp, 1.0, p["tau"], 1.0, quadratic_drag=p["q"], **kw)
@@ -289,9 +302,14 @@ class CandidateModel:
 
 def cycle_plant(plant: AugmentedPlant, h: float) -> CyclePlant:
     """The periodic solver's view of an :class:`AugmentedPlant` under a relay of height ``h``."""
-    return CyclePlant(Tp=plant.Tp, Td=plant.Td, tau=plant.tau, K=plant.K, level_high=h + plant.input_bias,
-                      level_low=-h + plant.input_bias, rate_limit=plant.rate_limit, sensor_lag=plant.sensor_lag,
-                      quadratic_drag=plant.quadratic_drag)
+    # the static command nonlinearities act on the relay's two levels (command_shaper's order)
+    up, dn = max(h - plant.dead_zone, 0.0), -max(h - plant.dead_zone, 0.0)
+    up, dn = up * (1.0 + plant.asymmetric_gain), dn * (1.0 - plant.asymmetric_gain)
+    if plant.headroom > 0:
+        up = min(up, plant.headroom)
+    return CyclePlant(Tp=plant.Tp, Td=plant.Td, tau=plant.tau, K=plant.K, level_high=up + plant.input_bias,
+                      level_low=dn + plant.input_bias, rate_limit=plant.rate_limit, sensor_lag=plant.sensor_lag,
+                      quadratic_drag=plant.quadratic_drag, hover_thrust=plant.hover_thrust)
 
 
 def model_cycle(sol: PeriodicSolution, h: float) -> CycleTable:
@@ -476,12 +494,17 @@ def theta_bounds(cand: Candidate | tuple | None, tests: list[DiagnosedTest]) -> 
     lo = [math.log(0.02), 0.0]
     hi = [math.log(100.0), 5.0]
     hmin = min(t.h for t in tests)
+    hmax = max(t.h for t in tests)
     hs = np.mean([t.h for t in tests])
     extra = {
         "input_bias": (-0.9 * hmin / hs, 0.9 * hmin / hs),
         "gain_drift": (-5.0, 5.0),
         "sensor_lag": (0.002, 3.0),
         "actuator_rate_limit": (0.0, 10.0),
+        "asymmetric_gain": (-5.0, 5.0),
+        "actuator_saturation": (0.2 * hmin / hs, 3.0 * hmax / hs),
+        "dead_zone": (0.0, 9.0 * hmin / hs),
+        "thrust_rectification": (0.0, 9.5 * hs / hmax),
     }
     for c in cands:
         if c.stochastic:
@@ -525,6 +548,19 @@ def candidate_starts(cand: Candidate, base: Fit, tests: list[DiagnosedTest], rec
             b = initial_base(tests, Tp, lambda w, t, rho=rho: -w * t.h * rho)
             out.append(np.array([b[0], b[1], 10 * hs * rho]))
         return out
+    if cand.name == "asymmetric_gain":
+        # the balance of a test ~ -(a h) / (2 h) beyond the trim error's: start from both signs
+        return [np.array([th[0], th[1], x]) for x in (-1.0, -0.3, 0.3, 1.0)]
+    if cand.name == "actuator_saturation":
+        # the limit just inside the largest test's trim + h, or a little further in
+        hmax = max(t.h for t in tests)
+        return [np.array([th[0], th[1], f * hmax / hs]) for f in (0.5, 0.7, 0.9, 1.2)]
+    if cand.name == "dead_zone":
+        hmin = min(t.h for t in tests)
+        return [np.array([th[0], th[1], 10.0 * f * hmin / hs]) for f in (0.05, 0.2, 0.4)]
+    if cand.name == "thrust_rectification":
+        hmax = max(t.h for t in tests)
+        return [np.array([th[0], th[1], 10.0 * f * hs / hmax]) for f in (0.15, 0.4, 0.7)]
     if cand.name == "quadratic_drag":
         # describing-function equivalent at the middle test's velocity amplitude (K = 1 units)
         Td = math.exp(th[0])
@@ -565,6 +601,16 @@ def effect_value(cand: Candidate, model: CandidateModel, fit: Fit, p: dict) -> t
         return x, param_std(fit, j) / 100.0
     if cand.name == "sensor_lag":
         return x, param_std(fit, j) / 10.0
+    if cand.name == "asymmetric_gain":
+        return x, param_std(fit, j) / 10.0
+    if cand.name == "actuator_saturation":
+        return model.bias_mean + x, param_std(fit, j) * hs
+    if cand.name == "dead_zone":
+        return x, param_std(fit, j) * hs / 10.0
+    if cand.name == "thrust_rectification":
+        F = 1.0 / x if x > 1e-9 else float("inf")
+        s_inv = param_std(fit, j) / (10.0 * hs)
+        return F, (s_inv / x**2 if x > 1e-9 else float("nan"))
     if cand.name == "actuator_rate_limit":
         rho = x
         R = 1.0 / rho if rho > 1e-9 else float("inf")

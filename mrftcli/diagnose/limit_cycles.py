@@ -55,6 +55,11 @@ class AugmentedPlant:
         c in v' = -c v|v| + K p [1/output unit]; replaces the linear drag when > 0.
     rate_limit : float
         Actuator slew rate [command units/s]; 0 = none.
+    asymmetric_gain, headroom, dead_zone, hover_thrust : float
+        The command nonlinearities of :mod:`mrftcli.diagnose.physics` (gain (1 +- a) above/below the
+        trim; clipping at ``headroom`` above the trim [command units], 0 = none; a dead band
+        [command units]; thrust rectification's hover thrust F [command units], 0 = none). Only the
+        periodic solver (:func:`mrftcli.diagnose.fit.cycle_plant`) models them.
     """
 
     Tp: float
@@ -65,6 +70,10 @@ class AugmentedPlant:
     sensor_lag: float = 0.0
     quadratic_drag: float = 0.0
     rate_limit: float = 0.0
+    asymmetric_gain: float = 0.0
+    headroom: float = 0.0
+    dead_zone: float = 0.0
+    hover_thrust: float = 0.0
 
 
 @dataclass
@@ -411,5 +420,6 @@ def quasi_static_plant(plant: AugmentedPlant, gain: float, bias_cmd: float) -> A
     """The plant seen at a constant battery gain g: g (b + u) - b + d = g (u + ((g - 1) b + d) / g)."""
     if gain == 1.0:
         return plant
-    return AugmentedPlant(plant.Tp, plant.Td, plant.tau, plant.K * gain, (plant.input_bias + (gain - 1.0) * bias_cmd) / gain,
-                 plant.sensor_lag, plant.quadratic_drag, plant.rate_limit)
+    from dataclasses import replace
+
+    return replace(plant, K=plant.K * gain, input_bias=(plant.input_bias + (gain - 1.0) * bias_cmd) / gain)

@@ -99,6 +99,45 @@ CANDIDATES: tuple[Candidate, ...] = (
         "command units/s",
     ),
     Candidate(
+        "asymmetric_gain",
+        "The plant responds more strongly to the relay's +h than to its -h (or the reverse): thrust goes "
+        "with rotor speed squared, ESC curves are not straight. The relay's two half-periods then differ "
+        "by an amount that grows with h (a trim error shifts them by the same amount at every h), and "
+        "the oscillation centre moves.",
+        "plant input = (1 + a) u for u > 0, (1 - a) u for u < 0 (u = command - trim)",
+        "a",
+        "1",
+    ),
+    Candidate(
+        "actuator_saturation",
+        "Trim + u is clipped at an upper limit (throttle or ESC limit), so a large relay step upwards "
+        "is cut short. Only the tests whose trim + h reaches the limit change: their upper half-period "
+        "lengthens and the centre drops, while the small-h tests follow the linear model.",
+        "plant input = min(trim + u, U_max) - trim",
+        "U_max",
+        "command units",
+    ),
+    Candidate(
+        "dead_zone",
+        "A band of command around the trim gives no response (ESC dead band, stiction): the plant sees "
+        "a relay of height h - delta instead of h. The amplitude then grows faster than h (it is "
+        "proportional to h - delta), while the period and waveform keep the linear model's.",
+        "plant input = sign(u) max(|u| - delta, 0)",
+        "delta",
+        "command units",
+    ),
+    Candidate(
+        "thrust_rectification",
+        "The propulsion lag acts on rotor speed while thrust goes with speed squared. Over a relay "
+        "swing of +-h the mean thrust falls short of the mean command by an amount growing with h^2, "
+        "and the thrust rises and falls along different curves. The relay makes up the deficit by "
+        "staying longer at +h: the half-period balance grows in proportion to h (a trim error's "
+        "falls like 1/h, an asymmetric gain's is the same at every h) and the waveform loses its symmetry.",
+        "rotor speed q' = (sqrt(1 + w/F) - 1 - q)/Tp, thrust = F ((1 + q)^2 - 1) in place of p' = (w - p)/Tp",
+        "F",
+        "command units",
+    ),
+    Candidate(
         "delay_jitter",
         "The transport delay varies randomly from one command to the next (scheduling, a "
         "non-real-time link). Each switch then lands early or late: the cycle-to-cycle period "

@@ -45,6 +45,7 @@ from .physics import BY_NAME, CANDIDATES, Candidate
 from .limit_cycles import periodic_cycle
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
 from ..errors import DiagnoseError, InputError
+from ..analyze import log_start
 from ..io.logtypes import FlightLog
 from ..progress import Progress, report
 from ..validate import check_time
@@ -58,6 +59,9 @@ __all__ = ["diagnose", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
 BIC_THRESHOLD = 10.0
 #: sampled-relay windows behind the noise-only period scatter of each test
 REFERENCE_WINDOWS = 4
+#: a mismatch counts as unexplained below this chi^2 p-value (fitting and held-out cycles of the linear
+#: model, and the held-out cycles of the model finally chosen)
+UNEXPLAINED_P = 1e-3
 #: function evaluations per profile point of a candidate's grid (Td and tau only)
 PROFILE_NFEV = 6
 #: the linear model counts as rejected (and the candidates are fitted) when some feature is this many
@@ -144,6 +148,19 @@ class DiagnosisResult:
         Sensor noise estimated from the residual of the cycle projections [output units].
     summary : str
         One sentence.
+    unexplained : dict or None
+        The mismatch that no candidate (or pair) explains, when the linear model is rejected on the
+        fitting and the held-out cycles and the model finally chosen still is on the held-out ones
+        (chi^2 p-value below ``UNEXPLAINED_P``): ``what``, ``after`` (the model it remains after),
+        ``held_out_feature_chi2`` / ``held_out_features`` / ``p_value``, ``held_out_nrmse_raw``,
+        ``tests`` (numbered from 1), ``largest`` (test, feature, z), ``segments`` (times from the log
+        start, cycles from 1, worse half-cycle), ``harmonics`` (relative G(jk Omega) errors),
+        ``worse_half``, ``best_candidate``. None otherwise; ``effects`` keeps the named findings only.
+    t0 : float
+        Log start [s] (the first sample of any series); ``*_rel`` times in ``tests`` and ``located``
+        are from it, as ``analyze`` shows them (absolute ``t_start``/``t_end`` are log times).
+    plot : dict
+        What :mod:`mrftcli.report.diagnosis` draws (the tests, models and fits; not JSON).
     """
 
     path: str
@@ -158,7 +175,9 @@ class DiagnosisResult:
     summary: str
     warnings: list[str] = field(default_factory=list)
     second_effect_candidates: list[dict] = field(default_factory=list)
-    _plot: dict = field(default_factory=dict, repr=False)
+    unexplained: dict | None = None
+    t0: float = 0.0
+    plot: dict = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict:
         return {
@@ -171,6 +190,8 @@ class DiagnosisResult:
             "identification": self.identification,
             "candidates": self.candidates,
             "second_effect_candidates": self.second_effect_candidates,
+            "unexplained": self.unexplained,
+            "t0": self.t0,
             "tests": self.tests,
             "noise_std": self.noise_std,
             "nrmse_definition": (
@@ -426,7 +447,16 @@ def diagnose(
         stages[0] += 1
 
     say("segmenting")
-    segs = segments_of(flight, analysis)
+    screen = analysis
+    if screen is None:
+        # the tests analyze would use, refused for the same reasons (one beta: exit 6; an output that
+        # does not follow the relay: the --loop / --output-topic hint), so the two commands agree on
+        # what a log supports; the identification's bootstrap and refinement are not needed here
+        from ..analyze import analyze_flight
+
+        screen = analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False)
+    segs = segments_of(flight, screen)
+    t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
     if not tests:
         raise DiagnoseError(
@@ -612,6 +642,11 @@ def diagnose(
     # ---- locate (base model against all cycles)
     say("locating")
     located, plot = _locate(tests, base_model, base, recs_all, scatter)
+    for d in located:
+        d["t_start_rel"], d["t_end_rel"] = d["t_start"] - t0_log, d["t_end"] - t0_log
+    unexplained = None
+    if rejected:
+        unexplained = _unexplained(tests, base, before, effects, final, cand_rows, recs_all, scatter, t0_log, located)
     identification = {"linear": {**base_params, "Tp": Tp}}
     for e in effects:
         key = f"with_{e.identification.get('model', e.name)}"
@@ -629,6 +664,10 @@ def diagnose(
             " explains the mismatch" if len(parts) == 1 else "")
     else:
         summary = "the linear model explains the log: no candidate effect has strong evidence confirmed on held-out cycles"
+    if unexplained is not None:
+        lg = unexplained.get("largest")
+        summary += ("; unexplained: " + unexplained["what"] + (
+            f" (largest: test {lg['test']}, {lg['what']}, z = {lg['z']:+.1f})" if lg else ""))
     test_rows = [
         {
             "index": t.index,
@@ -640,7 +679,10 @@ def diagnose(
             "rate_hz": t.rate_hz,
             "t_start": t.t_start,
             "t_end": t.t_end,
+            "t_start_rel": t.t_start - t0_log,
+            "t_end_rel": t.t_end - t0_log,
             "cycles": len(t.tab),
+            "stable_cycles_found": next((int(sum(c.stable for c in g.cycles)) for g in segs if g.index == t.index), None),
             "cycles_fit": int(t.fit.sum()),
             "cycles_held_out": int(t.hold.sum()),
             "period_scatter": math.sqrt(t.scatter_var("all")[0]) if t.scatter_var("all")[1] >= 3 else None,
@@ -664,7 +706,9 @@ def diagnose(
         summary=summary,
         warnings=warnings,
         second_effect_candidates=pair_rows,
-        _plot=plot,
+        unexplained=unexplained,
+        t0=t0_log,
+        plot=plot,
     )
 
 
@@ -677,6 +721,70 @@ def _fit_summary(h: dict) -> dict:
                                   "cycles",
                                   "nrmse_per_test",
                                   "metric") if k in h}
+
+
+def _held_out_p(held: dict, tests: list[DiagnosedTest]) -> float:
+    """p-value of a model's held-out feature chi^2 (one degree of freedom per held-out feature)."""
+    chi2 = held.get("feature_chi2")
+    if chi2 is None:
+        return float("nan")
+    return float(chi2_dist.sf(chi2, sum(int(feature_mask(t).sum()) for t in tests)))
+
+
+def _unexplained(tests, base, before, effects, final, cand_rows, recs_all, scatter, t0_log,
+                 base_located: list) -> dict | None:
+    """The mismatch no candidate (or pair) explains: where and how large, or None.
+
+    Reported when the linear model is rejected on the fitting cycles *and* on the held-out ones
+    (chi^2 p-value below :data:`UNEXPLAINED_P` on both), and the model finally chosen (the linear one
+    when nothing was found) is still rejected on the held-out cycles at that level.
+    """
+    dof_fit = max(base.n - base.k, 1)
+    p_fit = float(chi2_dist.sf(base.chi2, dof_fit))
+    p_hold = _held_out_p(before, tests)
+    if not (p_fit < UNEXPLAINED_P and p_hold < UNEXPLAINED_P):
+        return None
+    det = [e for e in effects if e.name != "delay_jitter"]
+    held = det[-1].fit_after if det else before
+    p_final = _held_out_p(held, tests)
+    if not p_final < UNEXPLAINED_P:
+        return None
+    model_name = "linear" if final is None else f"linear + {final[0]}"
+    # where: the base model's disagreements, or the chosen model's when an effect was modelled
+    located = base_located if final is None else _locate(tests, final[1], final[2], recs_all, scatter)[0]
+    feats = [d for d in located if d["kind"] == "feature"]
+    segs = [d for d in located if d["kind"] == "segment"]
+    harms = [d for d in located if d["kind"] == "harmonic"]
+    worst = feats[0] if feats else None
+    tested = sorted((r for r in cand_rows if r.get("delta_bic") is not None), key=lambda r: -r["delta_bic"])
+    where_tests = sorted({d["test"] + 1 for d in feats})
+    out = {
+        "after": model_name,
+        "what": ("the linear model is rejected, and no candidate effect (or pair) of the library explains the "
+                 "mismatch" if final is None else
+                 f"the model with {final[0]} still leaves a mismatch beyond the noise on the held-out cycles"),
+        "held_out_feature_chi2": held.get("feature_chi2"),
+        "held_out_features": sum(int(feature_mask(t).sum()) for t in tests),
+        "p_value": p_final,
+        "held_out_nrmse_raw": held.get("nrmse_raw"),
+        "tests": where_tests,
+        "largest": None if worst is None else {
+            "test": worst["test"] + 1, "feature": worst["feature"], "what": worst["what"], "z": worst["z"],
+            "recorded": worst["recorded"], "model": worst["model"]},
+        "segments": [{"test": d["test"] + 1, "t_start_rel": d["t_start"] - t0_log, "t_end_rel": d["t_end"] - t0_log,
+                      "cycles": [c + 1 for c in d["cycles"]], "nrmse": d["nrmse"], "worse_half": d["worse_half"]}
+                     for d in segs[:5]],
+        "harmonics": [{"test": d["test"] + 1, "harmonic": d["harmonic"], "relative_error": d["relative_error"]}
+                      for d in harms[:5]],
+        "best_candidate": None if not tested else {"name": tested[0]["name"], "delta_bic": tested[0]["delta_bic"],
+                                                   "significant": bool(tested[0].get("significant"))},
+    }
+    half = None
+    if segs:
+        halves = [d["worse_half"] for d in segs]
+        half = max(set(halves), key=halves.count)
+    out["worse_half"] = half
+    return out
 
 
 def _explains_held_out(held: dict, tests: list[DiagnosedTest]) -> bool:

@@ -35,7 +35,7 @@ def _scale(result):
 
 def _aug(result):
     """(name, model, fit) of the reported effect with a waveform model, or None."""
-    p = result._plot
+    p = result.plot
     if p.get("final") is not None:
         return p["final"]
     for name in p.get("effects", []):
@@ -47,30 +47,31 @@ def _aug(result):
 
 def plot_located(result):
     """Output over the log with tests shaded, per-cycle error of the linear model, located segments."""
-    p = result._plot
+    p = result.plot
     fl = p["flight"]
     s, unit = _scale(result)
     fig, (ax, ax2) = new_figure(2, 1, width=11, height=6, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
-    t = fl.output.t
+    t0 = result.t0  # times from the log start, as analyze shows them
+    t = fl.output.t - t0
     ax.plot(t, fl.output.values * s, color=_REC_C, lw=0.6, label="recorded output")
     for i, test in enumerate(p["tests"]):
         c = TEST_COLOURS[i % len(TEST_COLOURS)]
-        ax.axvspan(test.t_start, test.t_end, color=c, alpha=0.10)
-        ax.text(test.t_start, 1.0, f" test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}",
+        ax.axvspan(test.t_start - t0, test.t_end - t0, color=c, alpha=0.10)
+        ax.text(test.t_start - t0, 1.0, f" test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}",
                 transform=ax.get_xaxis_transform(), va="top", fontsize=8, color=c)
     segs = [loc for loc in result.located if loc["kind"] == "segment"]
     for k, loc in enumerate(segs):
         for a in (ax, ax2):
-            a.axvspan(loc["t_start"], loc["t_end"], color="red", alpha=0.18, lw=0,
+            a.axvspan(loc["t_start"] - t0, loc["t_end"] - t0, color="red", alpha=0.18, lw=0,
                       label="located segment" if (k == 0 and a is ax) else None)
     ax.set_ylabel(f"output [{unit}]")
     ax.set_title("Where the linear model disagrees with the recording")
     ax.legend(loc="lower right", fontsize=8)
     for i, ce in enumerate(p.get("cycle_errors", [])):
         c = TEST_COLOURS[i % len(TEST_COLOURS)]
-        ax2.plot(ce["t"], 100 * ce["nrmse"], "o-", color=c, ms=3, lw=1)
+        ax2.plot(ce["t"] - t0, 100 * ce["nrmse"], "o-", color=c, ms=3, lw=1)
     ax2.set_ylabel("cycle NRMSE [%]\n(linear model)")
-    ax2.set_xlabel("time [s]")
+    ax2.set_xlabel("time from the log start [s]")
     feats = [loc for loc in result.located if loc["kind"] == "feature"][:2]
     if feats:
         txt = "largest: " + "; ".join(f"test {f['test'] + 1} {f['what']} (z = {f['z']:+.1f})" for f in feats)
@@ -88,7 +89,7 @@ def _model_cycle_wave(model, fit, i, test, t_ref, tt):
 
 def plot_overlay(result, n_cycles: int = 3):
     """Per test: consecutive held-out cycles, recording vs linear model vs augmented model."""
-    p = result._plot
+    p = result.plot
     tests = p["tests"]
     aug = _aug(result)
     s, unit = _scale(result)
@@ -124,11 +125,12 @@ def plot_overlay(result, n_cycles: int = 3):
             ax.axvline(tab.switch[j] - t0, color="#999", lw=0.6, ls=":")
         del m
         ax.set_title(f"test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}\n"
-                     f"held-out cycles from t = {t0:.1f} s", fontsize=10)
+                     f"held-out cycles from t = {t0 - result.t0:.1f} s", fontsize=10)
         ax.set_xlabel("time from the first shown -h -> +h switch [s]")
         if i == 0:
             ax.set_ylabel(f"output - setpoint [{unit}]")
-        ax.legend(fontsize=7, loc="best")
+        # below the axes: inside, the legend covered the waveform's extremes
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2, frameon=False)
     return fig
 
 
@@ -136,7 +138,7 @@ def plot_harmonics(result):
     """Relative error of G(j k Omega) per odd harmonic, linear vs augmented, per test."""
     effects = result.effects
     harm = effects[0].harmonics if effects else {}
-    p = result._plot
+    p = result.plot
     tests = p["tests"]
     fig, axes = new_figure(1, len(tests), width=3.6 * len(tests), height=3.4, squeeze=False, sharey=True)
     ks = ["1", "3", "5", "7"]
@@ -168,27 +170,61 @@ def plot_evidence(result):
     names = [c["name"] for c in rows]
     fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
     db = np.array([c["delta_bic"] for c in rows], float)
-    shown = np.sign(db) * np.log10(1 + np.abs(db))
     found = {e.name for e in result.effects if e.evidence.get("compared_with", "linear") == "linear"}
     cols = [_AUG_C if n in found else "#999999" for n in names]
     y = np.arange(len(names))
-    ax.barh(y, shown, color=cols)
-    ax.axvline(math.log10(1 + 10.0), color="red", lw=1, ls="--", label="threshold (delta BIC = 10)")
-    ax.set_yticks(y, names)
-    ax.set_xlabel("sign * log10(1 + |delta BIC|)")
-    ax.set_title("Evidence: BIC(linear) - BIC(candidate)")
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.18))
+    ax.barh(y, db, color=cols)
+    # linear up to +-10 (the threshold), logarithmic beyond: one large bar no longer flattens the rest
+    ax.set_xscale("symlog", linthresh=10.0)
+    ax.axvline(10.0, color="red", lw=1, ls="--", label="strong evidence starts here (10)")
+    ax.set_yticks(y, [n.replace("_", " ") for n in names])
+    ax.set_xlabel("how much better the effect explains the fitted cycles\n(drop in BIC; negative: worse)")
+    ax.set_title("Evidence for each candidate effect")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3))
     b = [(c.get("held_out_before") or {}).get("nrmse") for c in rows]
     a = [(c.get("held_out_after") or {}).get("nrmse") for c in rows]
     b = np.array([np.nan if v is None else v for v in b], float)
     a = np.array([np.nan if v is None else v for v in a], float)
+    # the raw NRMSE (recording's own cycle-to-cycle scatter kept): the scatter-subtracted figure is 0
+    # whenever a model is within the scatter, which shows nothing on a bar chart
+    b = [(c.get("held_out_before") or {}).get("nrmse_raw", (c.get("held_out_before") or {}).get("nrmse")) for c in rows]
+    a = [(c.get("held_out_after") or {}).get("nrmse_raw", (c.get("held_out_after") or {}).get("nrmse")) for c in rows]
+    b = 100 * np.array([np.nan if v is None else v for v in b], float)
+    a = 100 * np.array([np.nan if v is None else v for v in a], float)
     ax2.barh(y + 0.2, b, 0.4, color=_BASE_C, label="linear model")
     ax2.barh(y - 0.2, a, 0.4, color=_AUG_C, label="with the candidate")
-    ax2.set_yticks(y, names)
-    ax2.set_xlabel("held-out NRMSE (delay_jitter: scatter error)")
+    ax2.set_yticks(y, [n.replace("_", " ") for n in names])
+    ax2.set_xlabel("waveform error on held-out cycles [%]\n(delay jitter: error of the period scatter)")
     ax2.set_title("Confirmation on held-out (odd) cycles")
-    ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
+    ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2)
     return fig
+
+
+_NAMES = {"T_lag": ("sensor lag T_lag", 1e3, "ms"), "sigma": ("delay jitter std", 1e3, "ms"),
+          "d": ("input bias d", 1.0, "command units"), "g": ("gain drift g", 1.0, "1/s"),
+          "c": ("quadratic drag c", 1.0, "1/output unit"), "R": ("actuator slew rate R", 1.0, "command units/s"),
+          "a": ("gain asymmetry a", 1.0, "-"), "U_max": ("saturation limit U_max", 1.0, "command units"),
+          "delta": ("dead band delta", 1.0, "command units"), "F": ("hover thrust F", 1.0, "command units")}
+_MODEL_NAMES = {"linear": "linear model", "analyze": "analyze (MRFT consensus)"}
+_LEFT = "<style>.left3 td:nth-child(n+3), .left2 td:nth-child(n+2) { text-align: left; }</style>"
+
+
+def _param_rows(e) -> list[tuple]:
+    """(parameter, value, +- std, unit) for people: names in words, times in ms."""
+    out = []
+    for key, v in e.parameters.items():
+        if key == "unit" or key.endswith("_std") or not isinstance(v, (int, float)):
+            continue
+        base = key[:-len("_alone")] if key.endswith("_alone") else key
+        label, scale, unit = _NAMES.get(base, (base, 1.0, e.parameters.get("unit", "")))
+        if key.endswith("_alone"):
+            label += " (fitted alone)"
+        if base in ("tau", "Td", "K"):
+            label, scale, unit = {"tau": ("delay tau", 1e3, "ms"), "Td": ("drag time constant Td", 1.0, "s"),
+                                  "K": ("gain K", 1.0, "output units/(command unit s^2)")}[base]
+        std = e.parameters.get(f"{key}_std")
+        out.append((label, _f(scale * v), "-" if std is None else _f(scale * std), unit))
+    return out
 
 
 def write_diagnosis_report(result, out_dir: str | Path) -> Path:
@@ -202,53 +238,77 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     }
     for name, fig in figs.items():
         save_figure(fig, out / name)
-    body = [f"<h1>Diagnosis: {esc(Path(result.path).name)} ({esc(result.loop)})</h1>",
-            f"<p><b>{esc(result.summary)}</b></p>"]
+    t0 = result.t0
+    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>"]
     for e in result.effects:
-        body.append(f"<h2>Found: {esc(e.name)}</h2><p>{esc(e.explanation)}</p><p class='muted'>Model: {esc(e.augmentation)}</p>")
-        rows = [(k, f"{v:.5g}" if isinstance(v, float) else v) for k, v in e.parameters.items()]
-        body.append(html_table(["parameter", "value"], rows))
+        body.append(f"<h2>Found: {esc(e.name.replace('_', ' '))}</h2><p>{esc(e.explanation)}</p>"
+                    f"<p class='muted'>Model: {esc(e.augmentation)}</p>")
+        body.append(html_table(["parameter", "value", "+- std", "unit"], _param_rows(e)))
         before = e.evidence.get("compared_with", "linear")
-        body.append(html_table(["held-out", f"{before} model", f"with {e.identification.get('model', e.name)}"],
-                               [("NRMSE", _f(e.fit_before.get("nrmse")), _f(e.fit_after.get("nrmse"))),
-                                ("feature RMS z", _f(e.fit_before.get("feature_rms_z")), _f(e.fit_after.get("feature_rms_z")))]))
-    if not result.effects:
-        body.append("<p>The linear model explains the log: no candidate has strong evidence confirmed on held-out cycles.</p>")
+        fb, fa = e.fit_before, e.fit_after
+        body.append("<div class='left2'>" + html_table(
+            ["held-out cycles", f"{before} model", f"with {e.identification.get('model', e.name)}".replace("_", " ")],
+            [("waveform error (NRMSE), as recorded", _pct(fb.get("nrmse_raw")), _pct(fa.get("nrmse_raw"))),
+             ("the same beyond the recording's own cycle-to-cycle scatter", _pct(fb.get("nrmse")), _pct(fa.get("nrmse"))),
+             ("features off by (RMS, in standard errors)", _f(fb.get("feature_rms_z")), _f(fa.get("feature_rms_z")))])
+            + "</div>")
+    if not result.effects and result.unexplained is None:
+        body.append("<p>The linear model explains the log: no candidate has strong evidence confirmed on held-out "
+                    "cycles.</p>")
+    u = result.unexplained
+    if u is not None:
+        body.append("<h2>Unexplained mismatch</h2>")
+        body.append(f"<p>{esc(u['what'])}: on the held-out cycles the features are off by chi^2 "
+                    f"{_f(u['held_out_feature_chi2'])} over {u['held_out_features']} features (p = {u['p_value']:.2g}), "
+                    f"waveform error {_pct(u['held_out_nrmse_raw'])}.</p>")
+        if u.get("largest"):
+            lg = u["largest"]
+            body.append(f"<p>Largest: test {lg['test']}, {esc(lg['what'])} (z = {lg['z']:+.1f}).</p>")
     ident = result.identification
     body.append("<h2>Identification</h2>")
     body.append(html_table(["model", "Td [s]", "tau [ms]", "K"],
-                           [(k, _f(v.get("Td")), _f(1e3 * v["tau"]) if v.get("tau") is not None else "-", _f(v.get("K")))
+                           [(_MODEL_NAMES.get(k, k.replace("with_", "with ").replace("_", " ")), _f(v.get("Td")),
+                             _f(1e3 * v["tau"]) if v.get("tau") is not None else "-", _f(v.get("K")))
                             for k, v in ident.items()]))
-    body.append("<h2>Located</h2><img src='diagnosis_located.png'>")
+    body.append("<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>")
     loc_rows = []
     for loc in result.located[:12]:
+        span = f"{loc['t_start'] - t0:.1f}-{loc['t_end'] - t0:.1f}"
         if loc["kind"] == "feature":
-            loc_rows.append((loc["test"] + 1, f"{loc['t_start']:.1f}-{loc['t_end']:.1f}", loc["what"], f"z = {loc['z']:+.1f}"))
+            loc_rows.append((loc["test"] + 1, span, loc["what"], f"z = {loc['z']:+.1f} standard errors"))
         elif loc["kind"] == "harmonic":
-            loc_rows.append((loc["test"] + 1, f"{loc['t_start']:.1f}-{loc['t_end']:.1f}", loc["what"],
-                             f"{100 * loc['relative_error']:.1f} %"))
+            loc_rows.append((loc["test"] + 1, span, loc["what"], f"{100 * loc['relative_error']:.1f} %"))
         else:
-            loc_rows.append((loc["test"] + 1, f"{loc['t_start']:.1f}-{loc['t_end']:.1f}",
-                             f"cycles {loc['cycles']}, worse half: {loc['worse_half']}", f"NRMSE {100 * loc['nrmse']:.1f} %"))
-    body.append(html_table(["test", "t [s]", "what", "by how much"], loc_rows))
+            cyc = ", ".join(str(c + 1) for c in loc["cycles"])
+            loc_rows.append((loc["test"] + 1, span, f"cycles {cyc}, worse half: {loc['worse_half']}",
+                             f"NRMSE {100 * loc['nrmse']:.1f} %"))
+    if loc_rows:
+        body.append("<div class='left3'>" + html_table(["test", "time from the log start [s]", "what", "by how much"],
+                                                      loc_rows) + "</div>")
+    else:
+        body.append("<p>Every feature is within 3 standard errors of the linear model's.</p>")
     body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
     body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
     body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
     pairs = result.second_effect_candidates
     if pairs:
-        body.append(f"<h3>A second effect on top of {esc(pairs[0]['with'])}</h3>")
-        body.append(html_table(
-            ["candidate", "parameter", "delta BIC (vs the first effect's model)", "held-out NRMSE before", "after",
-             "found"],
-            [(c["name"], f"{c['parameter']} = {_f(c['values'].get(c['name']))}", _f(c["delta_bic"]),
-              _f((c.get("held_out_before") or {}).get("nrmse")), _f((c.get("held_out_after") or {}).get("nrmse")),
-              "yes" if c.get("significant") else "no") for c in pairs]))
+        body.append(f"<h3>A second effect on top of {esc(pairs[0]['with'].replace('_', ' '))}</h3>")
+        body.append("<div class='left2'>" + html_table(
+            ["candidate", "parameter", "evidence against the first effect's model (drop in BIC)",
+             "held-out error before", "after", "found"],
+            [(c["name"].replace("_", " "), f"{c['parameter']} = {_f(c['values'].get(c['name']))}", _f(c["delta_bic"]),
+              _pct((c.get("held_out_before") or {}).get("nrmse_raw")), _pct((c.get("held_out_after") or {}).get("nrmse_raw")),
+              "yes" if c.get("significant") else "no") for c in pairs]) + "</div>")
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
     page = out / "diagnosis.html"
-    page.write_text(html_page(f"Diagnosis {Path(result.path).name}", "\n".join(body)))
+    page.write_text(html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
     if not (out / "index.html").exists():
         (out / "index.html").write_text(page.read_text())
     return page
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{100 * float(x):.2f} %"
 
 
 def _f(x) -> str:

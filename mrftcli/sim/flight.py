@@ -53,7 +53,8 @@ from .control import (
     noise_margin,
     relay_sequence,
 )
-from .plant import LinearPropagator, PeriodPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic
+from .plant import (LinearPropagator, PeriodPropagator, actuator_pieces, command_shaper, fifo_delays, gauss_markov,
+                    rk4_quadratic, rk4_rotor)
 from ..errors import InputError
 from ..io.logtypes import LOOPS, TopicData
 from ..mrft.model import LoopModel
@@ -92,6 +93,11 @@ EFFECT_NAMES = (
     "quadratic_drag",
     "actuator_rate_limit",
     "delay_jitter",
+    "asymmetric_gain",
+    "actuator_saturation",
+    "dead_zone",
+    "thrust_rectification",
+    "flex_mode_hz",
 )
 
 _DEG = math.pi / 180.0
@@ -128,6 +134,25 @@ class Effects:
         Correlation time of the delay jitter [s] (default 0.05 s).
     battery_voltage : float
         Battery voltage at the start of the log [V], written to ``/battery`` (default 16.0 V).
+    asymmetric_gain : float
+        The plant responds with gain K (1 + a) to commands above the trim and K (1 - a) below it
+        (thrust ~ rotor speed squared, ESC curves); |a| < 1.
+    actuator_saturation : float
+        Absolute command at which the actuator saturates [command units] (trim + u is clipped
+        there); 0 means no limit.
+    dead_zone : float
+        Half-width of a band of command deviations around the trim that gives no response
+        [command units] (ESC dead band, stiction); beyond it the response starts from zero.
+    thrust_rectification : float
+        Hover thrust above the zero-thrust command [command units]: the propulsion lag Tp then acts
+        on the rotor speed and the thrust goes with its square (``mrftcli.sim.plant.rk4_rotor``);
+        0 means the linear propulsion of eq. (2).
+    flex_mode_hz : float
+        Frequency [Hz] of a lightly damped structural mode between the vehicle and its sensor
+        (frame flexibility: y_measured = w_n^2 / (s^2 + 2 zeta w_n s + w_n^2) y); 0 means none.
+        Physics outside the diagnosis' library (its ``unexplained`` case).
+    flex_mode_damping : float
+        Damping ratio zeta of that mode (default 0.05).
     """
 
     input_bias: float = 0.0
@@ -138,6 +163,12 @@ class Effects:
     delay_jitter: float = 0.0
     delay_jitter_correlation: float = 0.05
     battery_voltage: float = 16.0
+    asymmetric_gain: float = 0.0
+    actuator_saturation: float = 0.0
+    dead_zone: float = 0.0
+    thrust_rectification: float = 0.0
+    flex_mode_hz: float = 0.0
+    flex_mode_damping: float = 0.05
 
     def active(self) -> tuple[str, ...]:
         """Names of the effects that are switched on (non-zero)."""
@@ -285,7 +316,12 @@ def _validate(spec: FlightSpec) -> None:
     if not (isinstance(spec.confirm_samples, (int, np.integer)) and spec.confirm_samples >= 0):
         raise InputError(f"confirm_samples must be a non-negative integer, got {spec.confirm_samples!r}")
     e = spec.effects
-    for name in ("sensor_lag", "quadratic_drag", "actuator_rate_limit", "delay_jitter"):
+    if not (math.isfinite(e.asymmetric_gain) and abs(e.asymmetric_gain) < 1):
+        raise InputError(f"effect asymmetric_gain must be within (-1, 1), got {e.asymmetric_gain!r}")
+    if not (math.isfinite(e.flex_mode_damping) and e.flex_mode_damping > 0):
+        raise InputError(f"flex_mode_damping must be positive, got {e.flex_mode_damping!r}")
+    for name in ("sensor_lag", "quadratic_drag", "actuator_rate_limit", "delay_jitter", "actuator_saturation",
+                 "dead_zone", "thrust_rectification", "flex_mode_hz"):
         value = getattr(e, name)
         if not (math.isfinite(value) and value >= 0):
             raise InputError(f"effect {name} must be >= 0, got {value!r}")
@@ -381,13 +417,30 @@ def simulate_flight(
         B = np.append(B, 0.0)
         n = 4
     meas_index = 3 if eff.sensor_lag > 0 else 0
+    if eff.flex_mode_hz > 0:
+        # a structural mode between the (possibly lagged) output and the sensor: two more states
+        wn = 2.0 * math.pi * eff.flex_mode_hz
+        A = np.pad(A, ((0, 2), (0, 2)))
+        A[n, n + 1] = 1.0
+        A[n + 1, meas_index] = wn * wn
+        A[n + 1, n] = -wn * wn
+        A[n + 1, n + 1] = -2.0 * eff.flex_mode_damping * wn
+        B = np.append(B, [0.0, 0.0])
+        meas_index = n
+        n += 2
     quadratic = eff.quadratic_drag > 0
+    rotor = eff.thrust_rectification > 0
+    if (quadratic or rotor) and eff.flex_mode_hz > 0:
+        raise InputError("flex_mode_hz cannot be combined with quadratic_drag or thrust_rectification")
     prop = LinearPropagator(A, B, grid=T / 64.0)
+    shaper = command_shaper(bias, eff.asymmetric_gain, eff.actuator_saturation, eff.dead_zone)
 
     x = np.zeros(n)
     x[0] = r
-    if n == 4:
+    if eff.sensor_lag > 0:
         x[3] = r
+    if eff.flex_mode_hz > 0:
+        x[meas_index] = r
 
     # ---- records
     command = np.empty(n_ticks)
@@ -423,8 +476,9 @@ def simulate_flight(
     u_init = bias - eff.input_bias  # the command that keeps the trimmed hover at t = 0
 
     # ---- actuator and delay line
-    act = u_init  # actuator value a(t) at the current time
-    target = u_init  # the delayed command currently reaching the actuator
+    u_plant = u_init if shaper is None else shaper(u_init)
+    act = u_plant  # actuator value a(t) at the current time
+    target = u_plant  # the delayed command currently reaching the actuator
     pending: deque[tuple[float, float]] = deque()  # (application time from start, command)
     m_delay = int(math.floor(model.tau / T + 1e-12))
     frac = model.tau - m_delay * T
@@ -445,7 +499,7 @@ def simulate_flight(
 
     # Fast path: linear plant, fixed delay, no rate limit -> each period has the same two
     # sub-intervals [0, frac) and [frac, T), so the propagators are precomputed.
-    fast = not quadratic and rlim == 0 and delays is None
+    fast = not quadratic and not rotor and rlim == 0 and delays is None and n <= 4
     if fast:
         # Whole period in one affine map on plain floats (numpy's per-call overhead would dominate
         # for 3-4 states): x+ = P x + qa0 c0a + qa1 c1a + qb0 c0b + qb1 c1b, where (c0, c1) are the
@@ -466,12 +520,12 @@ def simulate_flight(
         b10, b11, b12, b13 = np.pad(Eb1, (0, pad)).tolist()
         x0, x1, x2, x3 = np.pad(x, (0, pad)).tolist()
         lagged = n == 4
-        hist = deque([u_init] * (m_delay + 2), maxlen=m_delay + 2)
+        hist = deque([u_plant] * (m_delay + 2), maxlen=m_delay + 2)
     rk4_step = T / 20.0
     # Event path of a linear plant: whole periods by superposition (one matrix product per period)
     # when the series of PeriodPropagator converges quickly; otherwise sub-interval by sub-interval.
     period = None
-    if not fast and not quadratic and float(np.abs(A).sum(axis=0).max()) * T <= 2.0:
+    if not fast and not quadratic and not rotor and float(np.abs(A).sum(axis=0).max()) * T <= 2.0:
         period = PeriodPropagator(A, B, T)
 
     def propagate(x: np.ndarray, h: float, ts: float, a0: float, slope: float) -> np.ndarray:
@@ -480,6 +534,9 @@ def simulate_flight(
         c0 = g0 * a0 - bias + ib
         c1 = g0 * slope + gd * a0
         c2 = 2.0 * gd * slope
+        if rotor:
+            return rk4_rotor(x, h, c0, c1, c2, K, 0.0 if quadratic else 1.0 / model.Td, c_drag,
+                             eff.thrust_rectification, inv_tp, inv_ts, rk4_step)
         if not quadratic:
             return prop.step(x, h, c0, c1, c2)
         return rk4_quadratic(x, h, c0, c1, c2, K, c_drag, inv_tp, inv_ts, rk4_step)
@@ -519,6 +576,8 @@ def simulate_flight(
             dterm = a_d * dterm - b_d * (ym - y_prev)  # keep the filter current: no kick on return
         y_prev = ym
         command[k] = u
+        if shaper is not None:
+            u = shaper(u)  # what the actuator makes of the command (the log records the command)
 
         if fast:
             # hist = [u_{k-m-1}, ..., u_k]: u_{k-m-1} acts on [t_k, t_k + frac), u_{k-m} on [t_k + frac, t_{k+1})

@@ -13,7 +13,7 @@ from collections import deque
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["taylor_expm", "LinearPropagator", "PeriodPropagator", "rk4_quadratic", "actuator_pieces",
+__all__ = ["taylor_expm", "LinearPropagator", "PeriodPropagator", "rk4_quadratic", "rk4_rotor", "command_shaper", "actuator_pieces",
            "gauss_markov", "fifo_delays"]
 
 
@@ -212,6 +212,68 @@ def rk4_quadratic(
         f += dt / 6.0 * (kf1 + 2 * kf2 + 2 * kf3 + kf4)
         s = se
     return np.array([y, v, p, f]) if lag else np.array([y, v, p])
+
+
+def rk4_rotor(
+    x: np.ndarray, h: float, c0: float, c1: float, c2: float,
+    K: float, inv_td: float, c: float, hover_thrust: float, inv_tp: float, inv_ts: float, max_step: float,
+) -> np.ndarray:
+    """RK4 with the propulsion lag on rotor speed (thrust rectification) over a length ``h`` [s].
+
+    ``x`` holds (y, v, q[, f]): q = omega / omega_hover - 1 the relative rotor speed. The rotor
+    speed follows the speed the command asks for, q' = (sqrt(1 + w/F) - 1 - q)/Tp, and the thrust
+    [command units] is p = F ((1 + q)^2 - 1), F = ``hover_thrust`` (the hover thrust above the
+    zero-thrust command); v' = -v/Td - c v|v| + K p (``inv_td`` = 1/Td, ``c`` quadratic drag, either
+    may be 0). For small swings p ~ w lagged by Tp, the linear model. w(s) = c0 + c1 s + c2 s^2 / 2.
+    """
+    n_sub = max(1, math.ceil(h / max_step - 1e-9))
+    dt = h / n_sub
+    lag = len(x) == 4
+    F = hover_thrust
+    st = np.array([float(v) for v in x[:3]] + [float(x[3]) if lag else 0.0])
+
+    def deriv(z: np.ndarray, s: float) -> np.ndarray:
+        y, v, q, f = z
+        w = c0 + c1 * s + 0.5 * c2 * s * s
+        q_c = math.sqrt(max(1.0 + w / F, 0.0)) - 1.0
+        p = F * ((1.0 + q) ** 2 - 1.0)
+        return np.array([v, -v * inv_td - c * v * abs(v) + K * p, (q_c - q) * inv_tp, (y - f) * inv_ts])
+
+    s = 0.0
+    for _ in range(n_sub):
+        k1 = deriv(st, s)
+        k2 = deriv(st + 0.5 * dt * k1, s + 0.5 * dt)
+        k3 = deriv(st + 0.5 * dt * k2, s + 0.5 * dt)
+        k4 = deriv(st + dt * k3, s + dt)
+        st = st + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        s += dt
+    return st if lag else st[:3]
+
+
+def command_shaper(bias: float, asymmetric_gain: float = 0.0, saturation: float = 0.0, dead_zone: float = 0.0):
+    """The static command nonlinearity between the controller and the actuator, or None (identity).
+
+    Deviations d = u - bias from the trim: a dead band |d| <= ``dead_zone`` gives nothing (ESC dead
+    band, stiction), beyond it the command moves by |d| - dead_zone; the plant then responds with
+    gain 1 + ``asymmetric_gain`` to positive and 1 - ``asymmetric_gain`` to negative deviations; the
+    result is clipped at the absolute command ``saturation`` (0: no limit).
+
+    >>> f = command_shaper(0.5, asymmetric_gain=0.1, dead_zone=0.01, saturation=0.58)
+    >>> [round(f(u), 4) for u in (0.4, 0.5, 0.505, 0.56, 0.7)]
+    [0.419, 0.5, 0.5, 0.555, 0.58]
+    """
+    if asymmetric_gain == 0.0 and saturation == 0.0 and dead_zone == 0.0:
+        return None
+
+    def shape(u: float) -> float:
+        d = u - bias
+        if dead_zone > 0.0:
+            d = math.copysign(max(abs(d) - dead_zone, 0.0), d)
+        d *= (1.0 + asymmetric_gain) if d > 0 else (1.0 - asymmetric_gain)
+        v = bias + d
+        return min(v, saturation) if saturation > 0.0 else v
+
+    return shape
 
 
 # --------------------------------------------------------------------------------------------------

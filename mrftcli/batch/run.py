@@ -72,14 +72,16 @@ class BatchFailedError(MrftError):
     exit_code = 8
 
 
-def settings_hash(settings: LogSettings, diagnose: bool) -> str:
-    """A short hash of everything that changes a log's result (settings, --diagnose, tool version).
+def settings_hash(settings: LogSettings, diagnose: bool, tune: str | None = None) -> str:
+    """A short hash of everything that changes a log's result (settings, --diagnose, --tune, tool version).
 
     The vehicle name is left out: it only labels the summary row, so renaming does not recompute.
     """
     relevant = {k: v for k, v in settings.to_dict().items() if k != "vehicle"}
+    extra = {"tune": tune} if tune else {}  # untuned batches keep their earlier hashes
     blob = json.dumps(
-        {"settings": relevant, "diagnose": bool(diagnose), "version": __version__, "record": _RECORD_VERSION},
+        {"settings": relevant, "diagnose": bool(diagnose), "version": __version__, "record": _RECORD_VERSION,
+         **extra},
         sort_keys=True,
     )
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -99,6 +101,8 @@ class LogTask:
     diagnose: bool = False
     settings_hash: str = ""
     log_mtime: float = 0.0
+    #: Controller kind to tune ("PD" or "PID") on each identified loop, or None.
+    tune: str | None = None
 
 
 def _now_iso() -> str:
@@ -148,7 +152,22 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
         return _failed_entry(loop, err)
     if task.diagnose:
         entry["diagnosis"] = _diagnose_loop(task, result)
+    if task.tune:
+        entry["tune"] = _tune_loop(task, result)
     return entry
+
+
+def _tune_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
+    """The gains of an analysed loop (mrftcli.tune.analysis.summary_figures); a failure is recorded
+    but leaves the analysis ok."""
+    try:
+        from ..tune.analysis import summary_figures, tune_analysis
+
+        res = tune_analysis(analysis, kinds=(task.tune,), designs=("model-based", "robust"))
+        return summary_figures(res, task.tune)
+    except Exception as err:  # noqa: BLE001
+        known = isinstance(err, MrftError)
+        return {"tune_error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}"}
 
 
 def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
@@ -397,6 +416,7 @@ def run_batch(
     report: bool = True,
     progress: Progress | None = None,
     worker: Worker = analyze_one,
+    tune: str | None = None,
 ) -> BatchResult:
     """Analyse every log under ``paths`` and write the outputs to ``out_dir``.
 
@@ -425,6 +445,9 @@ def run_batch(
     progress : Progress, optional
         Called as ``progress(done, total, name)`` with the logs analysed so far out of those to
         analyse (up-to-date logs are not counted) and the name of the last one.
+    tune : {"PD", "PID"}, optional
+        Also design that controller on each identified loop (:mod:`mrftcli.tune`); its gains and
+        figures become the summary's ``tune_*`` columns.
     worker : callable
         ``LogTask -> record``; :func:`analyze_one` unless testing or reusing the machinery. Must be
         picklable (a module-level function) for processes and Dask.
@@ -446,7 +469,7 @@ def run_batch(
             mtime = log_mtime(log)
         except OSError:  # vanished or unreadable since discovery: the worker reports it as that log's failure
             mtime = math.inf
-        tasks.append(LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose), mtime))
+        tasks.append(LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune), mtime, tune))
     if all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")
 

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "SUMMARY_COLUMNS",
-           "summary_rows", "summary_frame", "flag_outliers"]
+           "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers"]
 
 #: Statuses of a row in the summary.
 STATUS_OK, STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_SKIPPED = ("ok", "failed", "insufficient", "skipped-uptodate")
@@ -34,6 +34,11 @@ SUMMARY_COLUMNS = [
     "outlier", "outlier_reason",
 ]
 
+
+#: Added after SUMMARY_COLUMNS when the batch ran with --tune (mrftcli.tune.analysis.summary_figures).
+TUNE_COLUMNS = ["tune_design", "tune_kind", "tune_Kp", "tune_Ki", "tune_Kd", "tune_Tf", "tune_rate_hz", "tune_pm_deg",
+                "tune_pm_worst_deg", "tune_dm_ms", "tune_ms", "tune_ms_worst", "tune_overshoot_pct", "tune_settling_s",
+                "tune_error"]
 
 _OUTLIER_COLUMNS = ("tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", "Td_change", "tau_changed",
                     "Td_changed", "outlier", "outlier_reason")
@@ -120,6 +125,7 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             # Relative to the output folder, so the folder can be moved or shared as a whole.
             "result_json": json_path.relative_to(json_path.parent.parent).as_posix() if json_path is not None else None,
             "settings_hash": record.get("settings_hash"),
+            **({k: (entry.get("tune") or {}).get(k) for k in TUNE_COLUMNS} if "tune" in entry else {}),
         })
     return rows
 
@@ -239,4 +245,9 @@ def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     for col in ("log_time", "log_mtime", "analysed_at"):
         df[col] = pd.to_datetime(df[col], utc=True)
     df = flag_outliers(df)
+    if any("tune_Kp" in r for r in rows):
+        tuned = pd.DataFrame([{k: r.get(k) for k in TUNE_COLUMNS} for r in rows], index=df.index, columns=TUNE_COLUMNS)
+        for col in TUNE_COLUMNS:
+            tuned[col] = tuned[col].astype("string" if col in ("tune_design", "tune_kind", "tune_error") else float)
+        return pd.concat([df[SUMMARY_COLUMNS], tuned], axis=1)
     return df[SUMMARY_COLUMNS]

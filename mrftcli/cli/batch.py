@@ -73,6 +73,9 @@ def _print_table(df, limit: int = 50) -> None:
 @click.option("--min-cycles", type=click.IntRange(2, None), default=None,
               help="Fewest stable cycles for a test to be used (default: analyze's, 3).")
 @click.option("--diagnose", is_flag=True, help="Also run the model-mismatch diagnosis on each loop.")
+@click.option("--tune", "tune_kind", flag_value="PD", default=None,
+              help="Also tune a PD on each loop (robust design, as `tune`): tune_* columns in the summary.")
+@click.option("--tune-pid", "tune_kind", flag_value="PID", help="As --tune, with a PID.")
 @click.option("--force", is_flag=True, help="Recompute logs whose results are up to date.")
 @click.option("--no-report", is_flag=True, help="Skip the fleet report (HTML + PNG).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout instead of a table.")
@@ -80,7 +83,7 @@ def _print_table(df, limit: int = 50) -> None:
 @click.pass_context
 def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, scheduler: str | None,
           scheduler_timeout: float, out_dir: str, config_file: str | None, diagnose: bool, force: bool,
-          no_report: bool, as_json: bool, quiet: bool, **setting_opts) -> None:
+          no_report: bool, as_json: bool, quiet: bool, tune_kind: str | None, **setting_opts) -> None:
     """Analyse every flight log under PATH... (files, folders, globs) and summarise the fleet.
 
     Folders are searched recursively for .mcap, .bag, .ulg, .csv and .bin logs and ROS 2 bag folders.
@@ -106,7 +109,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     with tqdm_progress("batch", unit="log", enabled=not quiet) as progress:
         result = run_batch(paths, out_dir, defaults=defaults, config=config, explicit=explicit, diagnose=diagnose,
                            jobs=jobs, scheduler=scheduler, scheduler_timeout_s=scheduler_timeout, force=force,
-                           report=not no_report, progress=progress)
+                           report=not no_report, progress=progress, tune=tune_kind)
     df = result.summary
     if as_json:
         rows = df.astype(object).where(df.notna(), None)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..mrft.model import LoopModel
-from .closed_loop import Controller, closed_loop_matrices, discrete_plant, spectral_radius
+from .closed_loop import Controller, as_discrete, closed_loop_matrices, discrete_plant, spectral_radius
 
 __all__ = ["Margins", "plant_system", "controller_system", "loop_system", "margins", "frequency_grid",
            "plant_response", "sensitivity_peak", "grid_margins"]
@@ -115,7 +115,7 @@ def frequency_grid(rate_hz: float, n: int = 600) -> np.ndarray:
 
 
 def plant_response(models, rate_hz: float, omega: np.ndarray) -> np.ndarray:
-    """Gd(e^{j omega T}) of each model, shape (M, len(omega)).
+    """Gd(e^{j omega T}) of each model (LoopModel or DiscretePlant), shape (M, len(omega)).
 
     Gd(z) = C (z I - Phi)^{-1} (Gamma_b + Gamma_a / z) z^{-d} from :func:`discrete_plant`, evaluated
     directly (vectorised; the same system as :func:`plant_system`, whose python-control frequency
@@ -125,8 +125,8 @@ def plant_response(models, rate_hz: float, omega: np.ndarray) -> np.ndarray:
     z = np.exp(1j * omega / rate_hz)
     out = np.empty((len(models), omega.size), complex)
     eye = np.eye(3)
-    for i, m in enumerate(models):
-        Phi, Gam, C, d = discrete_plant(m, rate_hz)
+    for i, p in enumerate(as_discrete(models, rate_hz)):
+        Phi, Gam, C, d = p
         rhs = Gam[1][None, :] + Gam[0][None, :] / z[:, None]
         x = np.linalg.solve(z[:, None, None] * eye[None] - Phi[None], rhs[..., None])[..., 0]
         out[i] = (x @ C) * z ** (-d)

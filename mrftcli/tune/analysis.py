@@ -1,0 +1,137 @@
+"""Tune an analysed log: its posterior, its controller rate, and the flat figures ``batch --tune`` stores.
+
+Where the posterior comes from:
+
+* an :class:`~mrftcli.analyze.AnalysisResult` (a LOG): with the MRFT estimate, its bootstrap over
+  stable cycles (joint draws, so the Td-tau-K correlation is kept); with the waveform refinement
+  accepted (``method == "waveform"``), multivariate normal draws from the refinement's Gauss-Newton
+  covariance of (ln Td, tau, K), which is the estimate's own uncertainty (the MRFT bootstrap is
+  centred elsewhere and wider), again with the correlation;
+* an analyze RESULT.json (its ``parameters``): the JSON holds means, standard deviations and
+  intervals but no draws and no covariance (neither ``parameters``, ``parameters_mrft`` nor
+  ``refinement`` carries one), so the draws are independent log-normal ones and the result says so;
+* spreads given by hand (:meth:`Posterior.from_spread`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+from .design import Posterior, TuneResult, tune
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
+
+__all__ = ["posterior_from_analysis", "model_from_result_json", "controller_rate", "tune_analysis",
+           "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES"]
+
+#: The figures :func:`summary_figures` gives (the ``tune_*`` columns of the batch summary).
+SUMMARY_FIGURES = ("tune_design", "tune_kind", "tune_Kp", "tune_Ki", "tune_Kd", "tune_Tf", "tune_rate_hz",
+                   "tune_pm_deg", "tune_pm_worst_deg", "tune_dm_ms", "tune_ms", "tune_ms_worst",
+                   "tune_overshoot_pct", "tune_settling_s", "tune_error")
+
+#: Said whenever the posterior had to be built without the parameters' correlation.
+NO_CORRELATION_NOTE = ("the RESULT.json holds no draws or covariance, so Td, tau and K are drawn independently "
+                       "from their reported std: the Td-tau correlation is lost and the robust design is more "
+                       "cautious than from the log itself (tune the LOG to keep it)")
+
+
+def posterior_from_analysis(result: "AnalysisResult", n: int = 400, seed: int = 0) -> Posterior:
+    """The posterior of an analysed log (module docstring): bootstrap draws, or the refinement's covariance.
+
+    Parameters
+    ----------
+    result : AnalysisResult
+    n : int
+        Draws from the refinement's covariance (the bootstrap's own draws are used as they are).
+    seed : int
+        Seed of those draws.
+    """
+    ref = result.refinement
+    if result.method == "waveform" and ref is not None and np.all(np.isfinite(ref.fit.covariance)):
+        rng = np.random.default_rng(seed)
+        cov = np.asarray(ref.fit.covariance, float)
+        p = rng.multivariate_normal(np.asarray(ref.fit.p, float), cov, size=n, method="eigh")
+        sign = -1.0 if result.K.mean * ref.fit.p[2] < 0 else 1.0  # the fit's K carries the loop sign
+        return Posterior(result.Tp, np.exp(p[:, 0]), np.maximum(p[:, 1], 0.0), sign * p[:, 2],
+                         source="waveform refinement: normal draws from its Gauss-Newton covariance of "
+                                "(ln Td, tau, K), correlation kept")
+    b = result.bootstrap
+    # row 0 of the bootstrap is the estimate on the data themselves, the draws follow
+    Td, tau, K = (np.asarray(b.get(k, []), float)[1:] for k in ("Td", "tau", "K"))
+    return Posterior(result.Tp, Td, tau, K, source="analyze bootstrap over stable cycles (joint draws)")
+
+
+def model_from_result_json(data: Mapping[str, Any], Tp: float, n: int = 200,
+                           seed: int = 0) -> tuple[LoopModel, Posterior, str]:
+    """(model, posterior, note) from an ``analyze --json`` object (``parameters`` Td, tau, K).
+
+    The posterior is independent log-normal draws from the reported std (:data:`NO_CORRELATION_NOTE`,
+    returned as the note to show).
+
+    Raises
+    ------
+    InputError
+        Not an analyze result, or analysed with another Tp.
+    """
+    try:
+        p = data["parameters"]
+        est = {k: (float(p[k]["mean"]), float(p[k].get("std") or 0.0)) for k in ("Td", "tau", "K")}
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f"not an analyze RESULT.json (needs parameters.Td/tau/K mean and std): {err}") from err
+    tp_file = (p.get("Tp") or {}).get("mean")
+    if tp_file is not None and abs(float(tp_file) - Tp) > 1e-9 * Tp:
+        raise InputError(f"--tp {Tp} differs from the Tp {tp_file} the RESULT.json was identified with")
+    est = {k: (m, s if np.isfinite(s) else 0.0) for k, (m, s) in est.items()}
+    model = LoopModel(Tp, est["Td"][0], est["tau"][0], est["K"][0])
+    post = Posterior.from_spread(model, est["Td"][1], est["tau"][1], est["K"][1], n=n, seed=seed,
+                                 source="RESULT.json: independent log-normal draws from the reported std")
+    return model, post, NO_CORRELATION_NOTE
+
+
+def controller_rate(t_command) -> float | None:
+    """The controller rate [Hz] of a log: 1 / the median command interval, to 0.1 Hz (None if unknown)."""
+    t = np.asarray(t_command, float)
+    if t.size < 3:
+        return None
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    return round(float(1.0 / np.median(dt)), 1) if dt.size else None
+
+
+def tune_analysis(result: "AnalysisResult", *, kinds=("PD",), rate_hz: float | None = None,
+                  designs=("mrft-rule", "model-based", "robust"), **options) -> TuneResult:
+    """:func:`~mrftcli.tune.design.tune` on an analysed log: its model, its posterior, its controller rate.
+
+    ``rate_hz`` defaults to the log's command rate (200 Hz when the log has none); ``options`` go to
+    :func:`~mrftcli.tune.design.tune` (``objective``, ``ms_max``, ``effort_max``, ``progress``).
+    """
+    rate = rate_hz
+    if rate is None and result.flight is not None:
+        rate = controller_rate(result.flight.command.t)
+    return tune(result.model, rate or 200.0, posterior=posterior_from_analysis(result), kinds=kinds,
+                designs=designs, loop=result.loop, **options)
+
+
+def summary_figures(res: TuneResult, kind: str = "PD") -> dict[str, Any]:
+    """One design's gains and figures as flat ``tune_*`` values (:data:`SUMMARY_FIGURES`).
+
+    The design is the robust one when there is a posterior, else the model-based one (as the
+    CLI's export). Margins: nominal phase margin [deg], worst over the posterior's 95 % set, exact
+    delay margin [ms], Ms (nominal and worst); step: overshoot [%] and 2 % settling time [s].
+    """
+    names = [d.name for d in res.designs if d.kind == kind]
+    name = "robust" if "robust" in names else "model-based"
+    d = res.get(name, kind)
+    c, w = d.controller, (d.posterior.get("worst", {}) if d.posterior else {})
+    return {"tune_design": name, "tune_kind": kind, "tune_Kp": c.Kp, "tune_Ki": c.Ki, "tune_Kd": c.Kd,
+            "tune_Tf": c.Tf, "tune_rate_hz": c.rate_hz, "tune_pm_deg": d.margins.phase_margin_deg,
+            "tune_pm_worst_deg": w.get("phase_margin_deg", float("nan")),
+            "tune_dm_ms": d.margins.delay_margin_s * 1e3, "tune_ms": d.margins.Ms,
+            "tune_ms_worst": w.get("Ms", float("nan")), "tune_overshoot_pct": d.step.overshoot_pct,
+            "tune_settling_s": d.step.settling_s, "tune_error": None}

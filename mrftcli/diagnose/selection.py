@@ -38,7 +38,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from .features import FEATURE_NAMES, cycle_scatter, summarize_features
-from .fit import (MIN_CYCLES, CandidateModel, Fit, PredictedCycle, DiagnosedTest, candidate_starts, effect_value,
+from .fit import (MIN_CYCLES, CandidateModel, Fit, PredictedCycle, DiagnosedTest, candidate_starts, effect_value, residuals,
                            feature_mask, feature_sigma, fit_base, fit_model, plant_params, prepare_tests, segments_of,
                            theta_bounds)
 from .physics import BY_NAME, CANDIDATES, Candidate
@@ -506,16 +506,29 @@ def diagnose(
     # ---- candidates
     cand_rows = []
     fits: dict[str, tuple[CandidateModel, Fit]] = {}
-    for cand in CANDIDATES:
-        if cand.name not in names:
-            continue
+    deterministic_cands = [c for c in CANDIDATES if c.name in names and not c.stochastic]
+    probes: dict[str, float] = {}
+    if rejected and deterministic_cands:
+        # cheap ordering: each candidate at its starting values with Td and tau corrected by one
+        # Gauss-Newton step on the linear model's Jacobian (3 limit cycles per start instead of a fit)
+        J_b = _jacobian(base_model, base.theta, recs_fit)
+        for cand in deterministic_cands:
+            probes[cand.name] = _probe_gain(cand, base, J_b, tests, recs_fit, Tp)
+        deterministic_cands.sort(key=lambda c: -probes[c.name])
+    explained_by = None
+    for cand in deterministic_cands:
         say(f"fitting {cand.name}")
-        if cand.stochastic:
-            continue  # judged after the deterministic selection, against the model chosen there
         if not rejected:
             cand_rows.append({"name": cand.name, "parameter": cand.parameter, "unit": cand.unit, "delta_bic": None,
                               "status": "not fitted: the linear model is not rejected (every feature within "
                                         f"{REJECT_Z:g} standard errors, chi^2 p = {p_base:.2g})"})
+            continue
+        if explained_by is not None:
+            # a candidate already explains the fitting and the held-out cycles to the noise level: the
+            # others (tried in the order of their probes) could only tie with it within the noise
+            cand_rows.append({"name": cand.name, "parameter": cand.parameter, "unit": cand.unit, "delta_bic": None,
+                              "probe_delta_chi2": probes.get(cand.name),
+                              "status": f"not fitted: {explained_by} explains the cycles to the noise level"})
             continue
         model = CandidateModel(cand, tests, Tp)
         lo, hi = theta_bounds(cand, tests)
@@ -548,21 +561,29 @@ def diagnose(
         p = model.unpack(best.theta)
         value, std = effect_value(cand, model, best, p)
         fits[cand.name] = (model, best)
-        cand_rows.append(
-            {
-                "name": cand.name,
-                "parameter": cand.parameter,
-                "value": value,
-                "std": std,
-                "unit": cand.unit,
-                "chi2": chi2,
-                "bic": bic,
-                "delta_bic": bic_base - bic,
-                "held_out_before": before,
-                "held_out_after": after,
-                "fit_params": plant_params(model, best),
-            }
-        )
+        row = {
+            "name": cand.name,
+            "parameter": cand.parameter,
+            "value": value,
+            "std": std,
+            "unit": cand.unit,
+            "chi2": chi2,
+            "bic": bic,
+            "delta_bic": bic_base - bic,
+            "held_out_before": before,
+            "held_out_after": after,
+            "fit_params": plant_params(model, best),
+            "probe_delta_chi2": probes.get(cand.name),
+        }
+        cand_rows.append(row)
+        if (_significant(row) and float(chi2_dist.sf(best.chi2, max(best.n - best.k, 1))) > REJECT_P
+                and _explains_held_out(after, tests)):
+            explained_by = cand.name
+    for cand in CANDIDATES:
+        if cand.name in names and cand.stochastic:
+            say(f"fitting {cand.name}")  # judged after the deterministic selection, against the model chosen there
+    order = {c.name: i for i, c in enumerate(CANDIDATES)}
+    cand_rows.sort(key=lambda r: order[r["name"]])  # the library's order in the output, whatever the fitting order
 
     # ---- selection: strong evidence and confirmed on the held-out cycles
     for row in cand_rows:
@@ -785,6 +806,37 @@ def _unexplained(tests, base, before, effects, final, cand_rows, recs_all, scatt
         half = max(set(halves), key=halves.count)
     out["worse_half"] = half
     return out
+
+
+def _jacobian(model: CandidateModel, theta: np.ndarray, recs: list, step: float = 1e-3) -> np.ndarray:
+    """Forward-difference Jacobian of the stacked z residuals at ``theta`` (the fit's diff_step)."""
+    r0 = residuals(model, theta, recs)
+    cols = []
+    for j in range(theta.size):
+        th = theta.copy()
+        th[j] += step * max(abs(th[j]), 1.0)
+        r = residuals(model, th, recs)
+        if r is None or r0 is None:
+            return np.zeros((0 if r0 is None else r0.size, theta.size))
+        cols.append((r - r0) / (th[j] - theta[j]))
+    return np.column_stack(cols)
+
+
+def _probe_gain(cand: Candidate, base: Fit, J_b: np.ndarray, tests: list[DiagnosedTest], recs_fit: list,
+                Tp: float) -> float:
+    """How much a candidate lowers chi^2 at its best starting value, Td and tau corrected by one
+    Gauss-Newton step on the linear model's Jacobian ``J_b`` (an ordering, not a decision)."""
+    model = CandidateModel(cand, tests, Tp)
+    best = -np.inf
+    for th in candidate_starts(cand, base, tests, recs_fit, Tp):
+        r = residuals(model, th, recs_fit)
+        if r is None or not np.all(np.isfinite(r)):
+            continue
+        if J_b.shape[0] == r.size:
+            d, *_ = np.linalg.lstsq(J_b, r, rcond=None)
+            r = r - J_b @ d
+        best = max(best, base.chi2 - float(r @ r))
+    return float(best)
 
 
 def _explains_held_out(held: dict, tests: list[DiagnosedTest]) -> bool:

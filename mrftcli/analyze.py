@@ -598,7 +598,9 @@ def analyze_flight(
         windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
                                flight.output.values)
         if windows:
-            refinement = refine(windows, model, mrft_params, loop_sign=usable[0].loop_sign)
+            # Td bounded from below only: the cost is flat along ln Td, and the fit takes longer
+            refinement = refine(windows, model, mrft_params, loop_sign=usable[0].loop_sign,
+                                max_evaluations=80 if td_open else 30)
             if refinement.accepted:
                 method = "waveform"
                 model = refinement.model

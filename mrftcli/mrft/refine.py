@@ -435,7 +435,7 @@ def _outside(name: str, value: float, est: ParameterEstimate, factor: float, sca
 
 def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str, ParameterEstimate], *,
            noise_std: float | None = None, loop_sign: int = 1, residual_factor: float = RESIDUAL_FACTOR,
-           interval_factor: float = INTERVAL_FACTOR) -> Refinement:
+           interval_factor: float = INTERVAL_FACTOR, max_evaluations: int = 30) -> Refinement:
     """Refine Td, tau, K by output error from the MRFT estimate, and decide whether to use it.
 
     Parameters
@@ -455,6 +455,9 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
         ``loop_sign * K`` times the command; K itself is reported positive, as the MRFT's is.
     residual_factor, interval_factor : float
         The acceptance thresholds (module docstring).
+    max_evaluations : int
+        Cap on residual evaluations (clean logs need 4-8; a Td the data bound from below only leaves
+        a flat direction that takes 30-40).
 
     Returns
     -------
@@ -465,7 +468,8 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     plant = loop_model_plant(start.Tp)
     sign = -1.0 if loop_sign < 0 else 1.0
     fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, sign * start.K],
-                           lower=[math.log(start.Tp * 1e-2), 0.0, -np.inf], upper=[math.log(1e6), TAU_MAX, np.inf])
+                           lower=[math.log(start.Tp * 1e-2), 0.0, -np.inf], upper=[math.log(1e6), TAU_MAX, np.inf],
+                           max_evaluations=max_evaluations)
     lnTd, tau, K = float(fit.p[0]), float(fit.p[1]), sign * float(fit.p[2])
     s = fit.std
     Td = math.exp(lnTd)

@@ -343,8 +343,11 @@ def predict_output(model: LoopModel, t_command, command, t_output, *, bias: floa
     return PredictedOutput(t=to, y=y, residual=resid, x0=np.asarray(x_init, float), input_offset=offset, rms=rms)
 
 
-def predict_tests(model: LoopModel, tests, t_command, command, t_output, output) -> dict[int, PredictedOutput]:
-    """:func:`predict_output` over each MRFT test, from its relay's first to its last command sample.
+def predict_tests(model: LoopModel, tests, t_command, command, t_output, output, *,
+                  history: float = 1.0) -> dict[int, PredictedOutput]:
+    """:func:`predict_output` over each MRFT test's outputs, driven by its commands from ``history``
+    [s] before its first relay sample (the commands sent within tau before a test drive its first
+    outputs; :meth:`CommandWindow.between`) to its last.
 
     Parameters
     ----------
@@ -354,6 +357,8 @@ def predict_tests(model: LoopModel, tests, t_command, command, t_output, output)
         The tests (their ``t_start``, ``t_end`` [s] and ``bias`` [command units] are used).
     t_command, command, t_output, output : array_like
         The whole recording (times [s] in the log's time base).
+    history : float
+        Command before each test used [s] (1 s covers any delay up to 1 s).
 
     Returns
     -------
@@ -366,8 +371,8 @@ def predict_tests(model: LoopModel, tests, t_command, command, t_output, output)
     y = np.asarray(output, float)
     out = {}
     for test in tests:
-        a, b = np.searchsorted(tc, [test.t_start, test.t_end], side="left")
-        b = min(b + 1, tc.size)
+        a = int(np.searchsorted(tc, test.t_start - history - 1e-9, side="left"))
+        b = min(int(np.searchsorted(tc, test.t_end, side="left")) + 1, tc.size)
         ya, yb = np.searchsorted(ty, [test.t_start, test.t_end], side="left")
         if b - a < 2 or yb - ya < 8:
             continue

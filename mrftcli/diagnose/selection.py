@@ -687,8 +687,11 @@ def diagnose(
         summary = "the linear model explains the log: no candidate effect has strong evidence confirmed on held-out cycles"
     if unexplained is not None:
         lg = unexplained.get("largest")
-        summary += ("; unexplained: " + unexplained["what"] + (
-            f" (largest: test {lg['test']}, {lg['what']}, z = {lg['z']:+.1f})" if lg else ""))
+        where = f" (largest: test {lg['test']}, {lg['what']}, z = {lg['z']:+.1f})" if lg else ""
+        if effects:
+            summary += "; unexplained: " + unexplained["what"] + where
+        else:
+            summary = "unexplained: " + unexplained["what"] + where
     test_rows = [
         {
             "index": t.index,

@@ -199,3 +199,74 @@ def test_cli_manual_model_px4_and_errors(tmp_path):
     with pytest.raises(SystemExit) as e:
         main(["tune", "--tp", "0.0422", "--td", "1", "--tau", "0.03", "--json", str(tmp_path / "no" / "x.json")])
     assert e.value.code == 2
+
+
+def test_modal_discretisation_matches_matrix_exponentials():
+    # the closed-form modal discretisation against scipy's expm of the augmented system (any Tp, Td),
+    # including a plant near Tp = Td, where the modal form hands over to expm
+    from scipy.linalg import expm
+
+    from mrftcli.tune.closed_loop import discrete_plants
+
+    rng = np.random.default_rng(3)
+    models = [LoopModel(0.0422, float(np.exp(rng.normal(0, 1))), float(rng.uniform(0, 0.1)), float(rng.uniform(-30, 30)))
+              for _ in range(20)] + [LoopModel(0.05, 0.0501, 0.012, 4.0), LoopModel(0.05, 0.9, 0.0, 1.0)]
+    T = 1 / 250.0
+    for m, p in zip(models, discrete_plants(models, 250.0)):
+        A, B, _ = m.state_space()
+        Mx = np.zeros((4, 4))
+        Mx[:3, :3], Mx[:3, 3] = A, B
+        d = int(np.floor(m.tau / T + 1e-12))
+        eps = m.tau - d * T
+        Eeps, Erest = expm(Mx * eps), expm(Mx * (T - eps))
+        assert p.d == d
+        assert np.allclose(p.Phi, expm(Mx * T)[:3, :3], rtol=1e-12, atol=1e-14)
+        assert np.allclose(p.Gamma[1], Erest[:3, 3], rtol=1e-10, atol=1e-16)
+        assert np.allclose(p.Gamma[0], Erest[:3, :3] @ Eeps[:3, 3], rtol=1e-10, atol=1e-16)
+
+
+def test_load_step_matches_event_simulation_and_pd_offset():
+    # load step (input disturbance) of the z-domain loop against the event-driven simulation; and the
+    # closed form: a PD on an integrating plant settles at y = d / Kp (u + d = 0), a PID returns to 0
+    from mrftcli.tune.closed_loop import responses
+
+    d = 0.2
+    for ctrl in (PD, PID):
+        t, _, _, yl, _ = responses([ROLL], ctrl, 40.0, load=d)
+        _, y2, _, _ = simulate_step(ROLL, ctrl, 40.0, substeps=1, setpoint=0.0, load=d)
+        assert np.max(np.abs(yl[0] - y2)) < 1e-9
+    t, _, _, yl, _ = responses([ROLL], PD, 40.0, load=d)
+    assert yl[0, -1] == pytest.approx(d / PD.Kp, rel=1e-4)  # u = -Kp y = -d
+    _, _, _, yl, _ = responses([ROLL], PID, 40.0, load=d)
+    assert abs(yl[0, -1]) < 1e-3 * d / PID.Kp
+
+
+def test_pid_design_optimises_integral_action_within_the_limits():
+    # the model-based PID chooses its own Ti: it must satisfy Ms <= 1.6, reject the load step (recover
+    # within the horizon) and beat the fixed-ratio PID (Ti = 4 Td_c at the same Kp, Td_c) on its criterion
+    from mrftcli.tune.design import TI_RATIO, tune
+    from mrftcli.tune.closed_loop import criterion, responses
+
+    res = tune(ROLL, 200.0, designs=("model-based",), kinds=("PD", "PID"))
+    pd, pid = res.get("model-based", "PD"), res.get("model-based", "PID")
+    c = pid.controller
+    assert c.Ki > 0 and pid.margins.Ms <= 1.6 * 1.002
+    assert pid.load["size"] == pytest.approx(pd.controller.Kp)
+    assert np.isfinite(pid.load["recovery_s"]) and np.isfinite(pid.step.settling_s)
+    fixed = Controller(c.Kp, c.Kp / (TI_RATIO * c.Kd / c.Kp), c.Kd, c.Tf, 200.0)
+    t, y, _, yl, _ = responses([ROLL], fixed, pid.horizon_s, load=pid.load["size"])
+    J_fixed = float(criterion(t, y[0]) + criterion(t, 1.0 - yl[0]))
+    assert pid.criterion < J_fixed
+
+
+def test_result_json_posterior_says_the_correlation_is_lost():
+    from mrftcli.tune.analysis import NO_CORRELATION_NOTE, model_from_result_json
+
+    data = {"parameters": {"Td": {"mean": 1.3, "std": 0.1}, "tau": {"mean": 0.03, "std": 0.002},
+                           "K": {"mean": 30.0, "std": 1.0}, "Tp": {"mean": 0.0422}}}
+    model, post, note = model_from_result_json(data, 0.0422)
+    assert note == NO_CORRELATION_NOTE and "correlation" in note
+    assert model.Td == 1.3 and post.n == 200
+    assert abs(np.corrcoef(post.Td, post.tau)[0, 1]) < 0.2
+    with pytest.raises(InputError, match="Tp"):
+        model_from_result_json(data, 0.05)

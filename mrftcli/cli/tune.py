@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
-import math
 import os
 from pathlib import Path
 
 import click
-import numpy as np
 
 from ..errors import InputError
 from .options import dump_json, log_layout_options, tp_option, tqdm_progress
@@ -30,39 +29,24 @@ def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
                 raise InputError(f"--report {report_dir}: cannot create it in {parent}")
 
 
-def _rate_from_times(t) -> float | None:
-    t = np.asarray(t, float)
-    if t.size < 3:
-        return None
-    dt = np.diff(t)
-    dt = dt[dt > 0]
-    return round(float(1.0 / np.median(dt)), 1) if dt.size else None  # a log rate to 0.1 Hz
-
-
 def _from_result_json(path: Path, Tp: float):
-    """(model, posterior, loop, rate, heights, amplitudes) from an ``analyze --json`` file."""
-    from ..mrft.model import LoopModel
-    from ..tune.design import Posterior
+    """(model, posterior, note, loop, rate, heights, amplitudes) from an ``analyze --json`` file."""
+    from ..tune.analysis import model_from_result_json
 
     try:
         data = json.loads(path.read_text())
-        p = data["parameters"]
-        est = {k: (float(p[k]["mean"]), float(p[k].get("std") or 0.0)) for k in ("Td", "tau", "K")}
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError(f"{path}: not an analyze RESULT.json (needs parameters.Td/tau/K mean and std): {err}") from err
-    tp_file = p.get("Tp", {}).get("mean")
-    if tp_file is not None and abs(float(tp_file) - Tp) > 1e-9 * Tp:
-        raise InputError(f"--tp {Tp} differs from the Tp {tp_file} the RESULT.json was identified with")
-    model = LoopModel(Tp, est["Td"][0], est["tau"][0], est["K"][0])
-    post = Posterior.from_spread(model, est["Td"][1], est["tau"][1], est["K"][1], n=200, seed=0,
-                                 source=f"{path.name}: log-normal draws from the reported std (correlation unknown)")
+        model, post, note = model_from_result_json(data, Tp)
+    except (ValueError, OSError) as err:
+        raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
+    except InputError as err:
+        raise InputError(f"{path}: {err}") from err
     inp = data.get("input", {})
     rate = None
     if inp.get("command_samples") and inp.get("t_first") is not None and inp.get("t_last") is not None:
         span = float(inp["t_last"]) - float(inp["t_first"])
         rate = (int(inp["command_samples"]) - 1) / span if span > 0 else None
     tests = data.get("tests", [])
-    return (model, post, inp.get("loop"), rate, [float(t["h"]) for t in tests if "h" in t],
+    return (model, post, note, inp.get("loop"), rate, [float(t["h"]) for t in tests if "h" in t],
             [float(t["amplitude"]) for t in tests if "amplitude" in t])
 
 
@@ -105,6 +89,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --format px4
     """
     from ..mrft.model import LoopModel
+    from ..tune.analysis import controller_rate, posterior_from_analysis
     from ..tune.design import Posterior, tune as run_tune
     from ..tune.export import format_table, hear_json, px4_params
 
@@ -117,6 +102,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     heights, amps = [], []
     posterior = None
     log_rate = None
+    notes = []
     if source is not None and any(v is not None for v in (td, tau, K)):
         raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
     if source is None:
@@ -127,20 +113,21 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
             posterior = Posterior.from_spread(model, td_std, tau_std, k_std, n=200, seed=0,
                                               source="log-normal draws from --td-std/--tau-std/--k-std")
     elif str(source).lower().endswith(".json") and Path(source).is_file():
-        model, posterior, json_loop, log_rate, heights, amps = _from_result_json(Path(source), Tp)
+        model, posterior, note, json_loop, log_rate, heights, amps = _from_result_json(Path(source), Tp)
+        notes.append(note)
         if json_loop and json_loop != loop:
             raise InputError(f"--loop {loop} but {source} was analysed for the {json_loop} loop")
     else:
         from ..analyze import analyze_path
 
-        result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
-                              **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
+        with tqdm_progress("tune", unit="step") as progress:
+            progress(0, 1, "analysing the log")
+            result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
+                                  **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
         model = result.model
-        b = result.bootstrap
-        posterior = Posterior(Tp, b.get("Td", []), b.get("tau", []), b.get("K", []),
-                              source=f"analyze bootstrap over stable cycles ({source})")
+        posterior = posterior_from_analysis(result)
         if result.flight is not None:
-            log_rate = _rate_from_times(result.flight.command.t)
+            log_rate = controller_rate(result.flight.command.t)
         heights = [float(t.h) for t in result.tests]
         amps = [float(t.amplitude_mean) for t in result.tests]
         for w in result.warnings:
@@ -151,6 +138,11 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
                        loop=loop, progress=progress)
     if rate_hz is None and log_rate is None:
         click.echo("note: controller rate 200 Hz assumed (give --rate)", err=True)
+    if notes:
+        res = dataclasses.replace(res, notes=tuple(notes) + res.notes)
+        if fmt != "table" or json_target == "-":  # the table shows its notes itself
+            for n in notes:
+                click.echo(f"note: {n}", err=True)
     name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
     chosen = res.get(name, kind)
     data = res.to_dict()

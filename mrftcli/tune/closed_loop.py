@@ -482,13 +482,15 @@ def step_metrics(t: np.ndarray, y: np.ndarray, u: np.ndarray | None = None) -> S
 
 
 def simulate_step(model: LoopModel, controller: Controller, t_end: float, substeps: int = 4,
-                  extra_delay: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  extra_delay: float = 0.0, setpoint: float = 1.0,
+                  load: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Time-domain simulation of a unit setpoint step, event by event (the independent route).
 
     The continuous plant (:meth:`LoopModel.state_space`) is propagated with matrix exponentials
     between events: the controller ticks t_k and the instants t_k + tau (+ ``extra_delay``) at which
     each held command reaches the plant. ``substeps`` extra points per period give the continuous
-    output between ticks.
+    output between ticks. ``setpoint`` is the step's height; ``load`` [command units] is added to
+    the plant input from t = 0 (a load disturbance: :func:`responses` with ``setpoint=0``).
 
     Returns
     -------
@@ -510,7 +512,7 @@ def simulate_step(model: LoopModel, controller: Controller, t_end: float, subste
         if key not in cache:
             cache[key] = _zoh_integrals(A, Bv, h)
         E, G = cache[key]
-        return E @ x + G * w
+        return E @ x + G * (w + load)
 
     # arrivals: command j reaches the plant at j T + delay; before the first arrival the input is 0
     y_t = np.empty(N)
@@ -524,7 +526,7 @@ def simulate_step(model: LoopModel, controller: Controller, t_end: float, subste
     next_arrival = 0  # index of the next command to arrive
     for k in range(N):
         yk = float(C @ x)
-        e = 1.0 - yk
+        e = setpoint - yk
         I += Ki * T * e
         D = (Tf * D - Kd * (yk - y_prev)) / (Tf + T)
         y_prev = yk

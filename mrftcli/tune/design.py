@@ -1,18 +1,22 @@
 """Controller designs for the identified loop: the MRFT tuning rule, model-based and robust optimisation.
 
 Three designs, each as a PD and a PID (parallel form, derivative on the measurement through a
-first-order filter Tf = Td_c / N with Td_c = Kd / Kp and N = ``FILTER_N``; the PID's integral time is
-Ti = Kp / Ki = ``TI_RATIO`` x Td_c, the classical ratio that gives the ideal PID a double zero):
+first-order filter Tf = Td_c / N with Td_c = Kd / Kp and N = ``FILTER_N``; integral time Ti = Kp / Ki):
 
 * ``mrft-rule``: the DNN-MRFT describing-function rule from the MRFT test itself
   (checks.md section 5): Kp = c1 4 h / (pi a0), Td_c = c3 T0 with the stored optimised c1 = 0.4249,
   c3 = 0.3391 at beta = -0.7 (phase margin 20 deg), where (T0, a0) is the limit cycle of the MRFT at
   beta = -0.7 on the identified model, at the controller rate (:func:`mrftcli.mrft.lprs.mrft_limit_cycle`).
-  It is the published baseline.
-* ``model-based``: Kp and Td_c minimising the IAE (or ITAE) of a unit setpoint step of the sampled
-  loop on the identified model (exact delay, zero-order hold, :mod:`mrftcli.tune.closed_loop`), with
-  Ms <= ``ms_max`` and the controller's noise gain (|C| at Nyquist, :meth:`Controller.noise_gain`) <=
-  ``effort_max`` (default: the MRFT rule's).
+  It is the published baseline; its PID takes Ti = ``TI_RATIO`` x Td_c (the ratio that gives the
+  ideal PID a double zero).
+* ``model-based``: the gains minimising the criterion on the sampled loop of the identified model
+  (exact delay, zero-order hold, :mod:`mrftcli.tune.closed_loop`), with Ms <= ``ms_max`` and the
+  controller's noise gain (|C| at Nyquist, :meth:`Controller.noise_gain`) <= ``effort_max``
+  (default: the MRFT rule's). A PD's criterion is the IAE (or ITAE) of a unit setpoint step over
+  6 T0 (Kp and Td_c free). A setpoint step does not reward integral action (on an integrating
+  plant the PD already has no steady error), so a PID's criterion (Kp, Td_c and Ti free) adds the
+  IAE (ITAE) of a load step: a step of size Kp_PD (the same design's PD gain, so that it would leave
+  that PD a unit steady offset) added at the plant input, over 12 T0 (integral action is slow).
 * ``robust``: the same criterion in expectation over the posterior draws, with Ms <= ``ms_max`` on
   every draw of the 95 % set (:meth:`Posterior.in_set`), which bounds the worst-case phase margin
   below by 2 asin(1 / (2 Ms)) (36.4 deg at Ms = 1.6).
@@ -34,7 +38,8 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from ..validate import check_positive
-from .closed_loop import Controller, discrete_plant, StepMetrics, criterion, step_metrics, step_response
+from .closed_loop import (SETTLING_BAND, Controller, StepMetrics, as_discrete, criterion, discrete_plants, responses,
+                          step_metrics)
 from .margins import Margins, frequency_grid, grid_margins, margins, plant_response
 
 __all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
@@ -45,7 +50,7 @@ DESIGNS = ("mrft-rule", "model-based", "robust")
 KINDS = ("PD", "PID")
 #: Derivative filter: Tf = Td_c / FILTER_N.
 FILTER_N = 10.0
-#: PID integral time Ti = TI_RATIO * Td_c.
+#: The MRFT rule's PID integral time Ti = TI_RATIO * Td_c (the optimised PIDs choose their own).
 TI_RATIO = 4.0
 #: The DNN-MRFT rule's beta and its stored optimised coefficients (checks.md section 5).
 RULE_BETA, RULE_C1, RULE_C3 = -0.7, 0.4249, 0.3391
@@ -53,6 +58,8 @@ RULE_BETA, RULE_C1, RULE_C3 = -0.7, 0.4249, 0.3391
 _CHI2_3_95 = 7.814727903251178
 #: Horizon of the step criterion, in MRFT periods T0 at RULE_BETA.
 _HORIZON_PERIODS = 6.0
+#: A PID's horizon (setpoint and load steps), in T0: the integral action settles more slowly.
+_HORIZON_PERIODS_PID = 12.0
 #: Largest number of draws the robust optimisation iterates on (all draws are used for the report).
 _OPT_DRAWS = 30
 
@@ -150,6 +157,12 @@ class Design:
         step figures, ``n_draws``, ``n_in_set``, ``unstable_in_set``.
     constraints : dict
         ``ms_max``, ``effort_max`` and whether they hold (``feasible``).
+    load : dict
+        The load step of a PID's criterion (empty for a PD): ``size`` [command units], ``iae`` (or
+        ``itae``) [output unit s], ``peak`` (largest |y| [output units]), ``recovery_s`` (|y| within
+        ``SETTLING_BAND`` from then on, NaN if not within the horizon).
+    horizon_s : float
+        Horizon of the criterion and of the step figures [s].
     """
 
     name: str
@@ -161,6 +174,8 @@ class Design:
     step: StepMetrics
     posterior: dict = field(default_factory=dict)
     constraints: dict = field(default_factory=dict)
+    load: dict = field(default_factory=dict)
+    horizon_s: float = math.nan
 
     @property
     def kind(self) -> str:
@@ -170,8 +185,9 @@ class Design:
         return {"design": self.name, "kind": self.kind, **self.controller.to_dict(),
                 "objective": self.objective, "criterion": self.criterion,
                 "criterion_expected": self.criterion_expected, "noise_gain": self.controller.noise_gain(),
-                "margins": self.margins.to_dict(), "step": self.step.to_dict(), "posterior": self.posterior,
-                "constraints": self.constraints}
+                "criterion_definition": ("setpoint step + load step" if self.load else "setpoint step"),
+                "horizon_s": self.horizon_s, "margins": self.margins.to_dict(), "step": self.step.to_dict(),
+                "load_step": self.load or None, "posterior": self.posterior, "constraints": self.constraints}
 
 
 @dataclass(frozen=True)
@@ -210,8 +226,9 @@ class TuneResult:
         }
 
 
-def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float) -> Controller:
-    Ki = Kp / (TI_RATIO * Td_c) if kind == "PID" else 0.0
+def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None) -> Controller:
+    """Parallel gains from (Kp, Td_c, Ti); a PID without Ti takes TI_RATIO x Td_c."""
+    Ki = Kp / (Ti if Ti is not None else TI_RATIO * Td_c) if kind == "PID" else 0.0
     return Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, rate_hz)
 
 
@@ -236,41 +253,48 @@ def mrft_rule(model: LoopModel, rate_hz: float, kind: str = "PD") -> tuple[Contr
 
 
 class _Evaluator:
-    """Criterion and constraints of a candidate controller over a fixed set of models."""
+    """Criterion and constraints of a candidate controller over a fixed set of models.
 
-    def __init__(self, models, ms_models, rate_hz, kind, objective, horizon, ms_max, effort_max):
-        self.models = [discrete_plant(m, rate_hz) for m in models]
+    ``load`` > 0 (a PID): the criterion adds the load step of that size (module docstring).
+    """
+
+    def __init__(self, plants, ms_plants, rate_hz, kind, objective, horizon, ms_max, effort_max, load=0.0):
+        self.models = as_discrete(plants, rate_hz)
         self.rate_hz, self.kind, self.objective = rate_hz, kind, objective
-        self.horizon, self.ms_max, self.effort_max = horizon, ms_max, effort_max
+        self.horizon, self.ms_max, self.effort_max, self.load = horizon, ms_max, effort_max, load
         self.omega = frequency_grid(rate_hz, 400)
-        self.Gd = plant_response(list(ms_models), rate_hz, self.omega)
+        self.Gd = plant_response(list(ms_plants), rate_hz, self.omega)
+
+    def _copy(self, **changes) -> "_Evaluator":
+        new = object.__new__(_Evaluator)
+        new.__dict__.update(self.__dict__)
+        new.__dict__.update(changes)
+        return new
 
     def with_ms_models(self, Gd: np.ndarray, omega: np.ndarray) -> "_Evaluator":
         """A copy whose Ms constraint covers the loops of ``Gd`` (responses on ``omega``)."""
-        new = object.__new__(_Evaluator)
-        new.__dict__.update(self.__dict__)
-        new.omega, new.Gd = omega, Gd
-        return new
+        return self._copy(omega=omega, Gd=Gd)
 
-    def with_kind(self, kind: str) -> "_Evaluator":
-        new = object.__new__(_Evaluator)
-        new.__dict__.update(self.__dict__)
-        new.kind = kind
-        return new
+    def with_kind(self, kind: str, load: float = 0.0, horizon: float | None = None) -> "_Evaluator":
+        return self._copy(kind=kind, load=load, horizon=self.horizon if horizon is None else horizon)
 
     def ms(self, c: Controller) -> float:
         L = c.feedback_response(self.omega)[None, :] * self.Gd
         return float(np.max(1.0 / np.abs(1.0 + L)))
 
     def criterion(self, c: Controller) -> float:
-        t, y, _ = step_response(self.models, c, self.horizon)
-        return float(np.mean(criterion(t, y, self.objective)))
+        t, y, _, yl, _ = responses(self.models, c, self.horizon, self.load)
+        J = criterion(t, y, self.objective)
+        if self.load:
+            J = J + criterion(t, 1.0 - yl, self.objective)  # |1 - (1 - y)| = |y|: the load's deviation
+        return float(np.mean(J))
 
     def violation(self, c: Controller) -> float:
         return max(0.0, self.ms(c) / self.ms_max - 1.0) + max(0.0, c.noise_gain() / self.effort_max - 1.0)
 
     def controller(self, p: np.ndarray) -> Controller:
-        return _controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz)
+        Ti = math.exp(p[2]) if p.size > 2 else None
+        return _controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz, Ti)
 
     def cost(self, p: np.ndarray) -> float:
         c = self.controller(p)
@@ -284,14 +308,18 @@ class _Evaluator:
 
 
 def _params(c: Controller) -> np.ndarray:
-    return np.array([math.log(c.Kp), math.log(c.Kd / c.Kp)])
+    """(ln Kp, ln Td_c) of a PD, (ln Kp, ln Td_c, ln Ti) of a PID."""
+    p = [math.log(c.Kp), math.log(c.Kd / c.Kp)]
+    if c.Ki > 0:
+        p.append(math.log(c.Kp / c.Ki))
+    return np.array(p)
 
 
 def _feasible_start(ev: _Evaluator, start: Controller) -> Controller:
     """The best (by the criterion) of the most aggressive feasible gains per derivative time on a grid.
 
     Ms is not monotone in the gain on this plant (a PD's phase lead vanishes below its zero), so a
-    simple scaling of the start need not reach the feasible set.
+    simple scaling of the start need not reach the feasible set. A PID keeps the start's Ti / Td_c.
     """
     Td0 = start.Kd / start.Kp
     Ti_ratio = (start.Kp / start.Ki) / Td0 if start.Ki > 0 else None
@@ -310,26 +338,52 @@ def _feasible_start(ev: _Evaluator, start: Controller) -> Controller:
     return best
 
 
+def _pid_start(ev: _Evaluator, pd: Controller) -> Controller:
+    """A PID start from a PD: the best (penalised cost) of a few integral times Ti = r Td_c at the PD's Kp, Td_c.
+
+    Integral action costs phase at the crossover, so on a PD at its Ms limit every Ti breaks it a
+    little; the penalty in the cost lets the optimiser move back (a feasible-only start would pick the
+    slowest integral and start far from the optimum).
+    """
+    Td_c = pd.Kd / pd.Kp
+    cands = [_controller("PID", pd.Kp, Td_c, ev.rate_hz, r * Td_c) for r in (2.0, 3.0, 4.0, 6.0, 8.0, 16.0)]
+    return min(cands, key=lambda c: ev.cost(_params(c)))
+
+
 def _optimise(ev: _Evaluator, start: Controller) -> Controller:
-    """Nelder-Mead on (ln Kp, ln Td_c) with the constraints as a penalty, from ``start``.
+    """Nelder-Mead on (ln Kp, ln Td_c[, ln Ti]) with the constraints as a penalty, from ``start``.
 
     An infeasible start (and a result the penalty left slightly infeasible) is replaced by the best
     feasible point of a grid around it (:func:`_feasible_start`); a PID starts from the PD solution.
     """
-    c0 = _feasible_start(ev, start) if ev.violation(start) > 0 else start
+    # a slight violation is left to the penalty; a large one needs a feasible start from the grid
+    c0 = _feasible_start(ev, start) if ev.violation(start) > 0.1 else start
     p0 = _params(c0)
     k = p0.size
     simplex = np.vstack([p0] + [p0 + 0.3 * np.eye(k)[i] for i in range(k)])
     res = minimize(ev.cost, p0, method="Nelder-Mead",
-                   options={"xatol": 2e-3, "fatol": 1e-6, "maxfev": 70, "initial_simplex": simplex})
+                   options={"xatol": 2e-3, "fatol": 1e-6, "maxfev": 70 if k == 2 else 200,
+                            "initial_simplex": simplex})
     c = ev.controller(res.x)
     if ev.violation(c) > 0:  # the penalty leaves a slight violation: the best feasible point near it
         c = _feasible_start(ev, c)
     return c
 
 
-def _summaries(c: Controller, post: Posterior, objective: str, horizon: float, omega, Gd_all) -> tuple[dict, float]:
-    t, y, u = step_response(post.models(), c, horizon)
+def _load_figures(t: np.ndarray, y: np.ndarray, size: float, objective: str) -> dict:
+    """Figures of one load-step response ``y`` (output deviation, setpoint 0)."""
+    if not np.all(np.isfinite(y)) or np.max(np.abs(y)) > 1e3:
+        return {"size": size, objective: math.inf, "peak": math.inf, "recovery_s": math.nan}
+    out = np.nonzero(np.abs(y) > SETTLING_BAND)[0]
+    rec = float(t[0]) if out.size == 0 else (math.nan if out[-1] == t.size - 1 else float(t[out[-1] + 1]))
+    return {"size": size, objective: float(criterion(t, 1.0 - y, objective)), "peak": float(np.max(np.abs(y))),
+            "recovery_s": rec}
+
+
+def _summaries(c: Controller, post: Posterior, plants, objective: str, horizon: float, omega, Gd_all,
+               load: float = 0.0) -> tuple[dict, float]:
+    """Figures over the posterior (``plants``: its draws discretised); the expected criterion."""
+    t, y, u, yl, _ = responses(plants, c, horizon, load)
     rows = [step_metrics(t, y[i], u[i]) for i in range(post.n)]
     gm = grid_margins(c, Gd_all, omega)
     table = {
@@ -351,6 +405,8 @@ def _summaries(c: Controller, post: Posterior, objective: str, horizon: float, o
         else:
             worst[k] = float(np.max(np.where(np.isnan(s), np.inf, s)))
     crit = table[objective]
+    if load:
+        crit = crit + criterion(t, 1.0 - yl, objective)
     expected = float(np.mean(crit)) if np.all(np.isfinite(crit)) else math.inf
     return {"median": med, "worst": worst, "n_draws": post.n, "n_in_set": int(in_set.sum()),
             "delay_margin": "first-order (phase margin / gain crossover) per draw",
@@ -397,24 +453,29 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         notes.append("no posterior (no draws or spreads given): the robust design is left out")
         posterior = None
     rule_pd, cycle = mrft_rule(model, rate_hz, "PD")
-    horizon = _HORIZON_PERIODS * cycle["T0"]
+    horizons = {"PD": _HORIZON_PERIODS * cycle["T0"], "PID": _HORIZON_PERIODS_PID * cycle["T0"]}
     if effort_max is None:
         effort_max = rule_pd.noise_gain()
     else:
         effort_max = check_positive("--effort-max", effort_max)
     omega = frequency_grid(rate_hz, 400)
-    Gd_all = plant_response(posterior.models(), rate_hz, omega) if posterior is not None else None
-    nominal_ev = {k: _Evaluator([model], [model], rate_hz, k, objective, horizon, ms_max, effort_max) for k in kinds}
+    # the posterior's draws discretised once: every design's figures and the robust criterion reuse them
+    post_plants = discrete_plants(posterior.models(), rate_hz) if posterior is not None else []
+    Gd_all = plant_response(post_plants, rate_hz, omega) if posterior is not None else None
+    in_set_mask = posterior.in_set() if posterior is not None else None
+    nominal = as_discrete([model], rate_hz)
+    nominal_ev = {k: _Evaluator(nominal, nominal, rate_hz, k, objective, horizons["PD"], ms_max, effort_max)
+                  for k in kinds}
     robust_ev = {}
     if posterior is not None and "robust" in designs:
         rng = np.random.default_rng(0)
         idx_all = np.arange(posterior.n)
         idx = np.sort(rng.choice(idx_all, _OPT_DRAWS, replace=False)) if posterior.n > _OPT_DRAWS else idx_all
-        in_set = np.nonzero(posterior.in_set())[0]
+        in_set = np.nonzero(in_set_mask)[0]
         ms_idx = np.sort(rng.choice(in_set, _OPT_DRAWS, replace=False)) if in_set.size > _OPT_DRAWS else in_set
         for k in kinds:
-            robust_ev[k] = _Evaluator(posterior.models(idx), posterior.models(ms_idx), rate_hz, k, objective,
-                                      horizon, ms_max, effort_max)
+            robust_ev[k] = _Evaluator([post_plants[i] for i in idx], [post_plants[i] for i in ms_idx], rate_hz, k,
+                                      objective, horizons["PD"], ms_max, effort_max)
     jobs = [(d, k) for d in designs for k in kinds]
     # PD before PID: a PID design starts from the PD design of the same name
     jobs.sort(key=lambda j: (DESIGNS.index(j[0]), KINDS.index(j[1])))
@@ -422,37 +483,45 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
     found: dict[tuple[str, str], Controller] = {}
     for i, (name, kind) in enumerate(jobs):
         report(progress, i, len(jobs), f"{name} {kind}")
-        rule = rule_pd if kind == "PD" else _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz)
+        horizon = horizons[kind]
+        load = 0.0
         if name == "mrft-rule":
-            c = rule
+            c = rule_pd if kind == "PD" else _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz)
+            load = rule_pd.Kp if kind == "PID" else 0.0
         else:
             ev = nominal_ev[kind] if name == "model-based" else robust_ev[kind]
             if kind == "PD":
-                start = found.get(("model-based", "PD"), rule) if name == "robust" else rule
+                # the robust design starts from the model-based one (warm start) when there is one
+                c = _optimise(ev, found.get(("model-based", "PD"), rule_pd) if name == "robust" else rule_pd)
             else:
                 pd = found.get((name, "PD"))
                 if pd is None:
-                    pd_ev = ev.with_kind("PD")
-                    pd = _optimise(pd_ev, rule_pd)
-                start = _controller("PID", pd.Kp, pd.Kd / pd.Kp, rate_hz)
-            c = _optimise(ev, start)
+                    pd = _optimise(ev.with_kind("PD"), found.get(("model-based", "PD"), rule_pd))
+                load = pd.Kp
+                ev = ev.with_kind("PID", load=load, horizon=horizon)
+                c = _optimise(ev, _pid_start(ev, pd))
             if name == "robust":
                 # the optimisation's draws stood for the 95 % set: hold Ms on all of its draws
-                ev_all = ev.with_ms_models(Gd_all[posterior.in_set()], omega)
+                ev_all = ev.with_ms_models(Gd_all[in_set_mask], omega)
                 if ev_all.violation(c) > 0:
                     c = _optimise(ev_all, c)
         found[(name, kind)] = c
         mg = margins(model, c)
-        t, y, u = step_response([model], c, horizon)
+        t, y, u, yl, _ = responses(nominal, c, horizon, load)
         st = step_metrics(t, y[0], u[0])
+        J = getattr(st, objective)
+        load_fig = {}
+        if load:
+            load_fig = _load_figures(t, yl[0], load, objective)
+            J = J + load_fig[objective]
         post, expected = ({}, math.nan)
         if posterior is not None:
-            post, expected = _summaries(c, posterior, objective, horizon, omega, Gd_all)
+            post, expected = _summaries(c, posterior, post_plants, objective, horizon, omega, Gd_all, load)
         cons = {"ms_max": ms_max, "effort_max": effort_max, "noise_gain": c.noise_gain(),
                 "feasible": bool(mg.Ms <= ms_max * (1 + 1e-3) and c.noise_gain() <= effort_max * (1 + 1e-9))}
         if name == "robust" and post:
             cons["feasible"] = bool(post["worst"]["Ms"] <= ms_max * (1 + 1e-3) and cons["noise_gain"] <= effort_max * (1 + 1e-9))
-        out.append(Design(name, c, objective, getattr(st, objective), expected, mg, st, post, cons))
+        out.append(Design(name, c, objective, J, expected, mg, st, post, cons, load_fig, horizon))
     report(progress, len(jobs), len(jobs), "done")
-    return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, float(effort_max), horizon, cycle,
+    return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, float(effort_max), horizons["PD"], cycle,
                       tuple(out), tuple(notes))

@@ -92,20 +92,24 @@ def format_table(result) -> str:
     lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
              f"objective {result.objective.upper()}  Ms <= {result.ms_max:g}  noise gain <= {result.effort_max:.4g}"]
     lines.append(f"{'design':<12}{'kind':<5}{'Kp':>10}{'Ki':>10}{'Kd':>10}{'Tf [ms]':>8}{'GM':>7}{'PM[deg]':>8}"
-                 f"{'DM[ms]':>8}{'Ms':>6}{'OS[%]':>7}{'rise[s]':>8}{'set[s]':>7}{result.objective.upper():>8}"
+                 f"{'DM[ms]':>8}{'Ms':>6}{'OS[%]':>7}{'rise[s]':>8}{'set[s]':>7}{'J':>8}"
                  f"  {'worst of 95 %: PM':>17}{'Ms':>6}{'OS[%]':>7}")
+    def f(x, fmt):
+        return format(x, fmt) if x is not None and math.isfinite(x) else "-"
+
     for d in result.designs:
         c, g, s = d.controller, d.margins, d.step
         w = d.posterior.get("worst", {}) if d.posterior else {}
-
-        def f(x, fmt):
-            return format(x, fmt) if x is not None and math.isfinite(x) else "-"
 
         lines.append(f"{d.name:<12}{d.kind:<5}{c.Kp:>10.4g}{c.Ki:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}"
                      f"{f(g.gain_margin, '.2f'):>7}{f(g.phase_margin_deg, '.1f'):>8}{f(g.delay_margin_s * 1e3, '.1f'):>8}"
                      f"{f(g.Ms, '.2f'):>6}{f(s.overshoot_pct, '.1f'):>7}{f(s.rise_s, '.3f'):>8}{f(s.settling_s, '.2f'):>7}"
                      f"{f(d.criterion, '.4g'):>8}  {f(w.get('phase_margin_deg'), '.1f'):>17}{f(w.get('Ms'), '.2f'):>6}"
                      f"{f(w.get('overshoot_pct'), '.1f'):>7}")
+    if any(d.load for d in result.designs):
+        rec = ", ".join(f"{d.name} {f(d.load.get('recovery_s'), '.2f')} s" for d in result.designs if d.load)
+        lines.append(f"J: {result.objective.upper()} of a unit setpoint step; a PID's adds the {result.objective.upper()} "
+                     f"of a load step at the plant input (size: its PD's Kp). PID load recovery (2 %): {rec}")
     for n in result.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)

@@ -124,7 +124,12 @@ class MrftTest:
     beta_effective_std : float
         Standard deviation of the per-cycle effective beta.
     rate_hz : float
-        Controller rate estimated from the command timestamps in the test [Hz].
+        Rate of the command samples in the test, from their timestamps [Hz] (the logger's rate, which
+        is the controller's unless the logger sub-samples it).
+    controller_rate_hz : float or None
+        Rate the relay decides at [Hz] when the command is logged below it (PX4's 10 Hz logger over
+        its 50 Hz position controller), from the layout or the caller; None when the command is
+        logged at the controller's rate or the controller's rate is unknown.
     cycles : tuple of RelayCycle
         Every complete cycle, stable or not.
     criterion : StabilityCriterion
@@ -168,6 +173,7 @@ class MrftTest:
     n_switches: int = 0
     notes: tuple[str, ...] = ()
     validity: LimitCycleCheck | None = None
+    controller_rate_hz: float | None = None
 
     @property
     def valid(self) -> bool:
@@ -229,6 +235,7 @@ class MrftTest:
             "h": self.h,
             "bias": self.bias,
             "rate_hz": self.rate_hz,
+            "controller_rate_hz": self.controller_rate_hz,
             "t_start": self.t_start,
             "t_end": self.t_end,
             "cycles": self.n_stable,

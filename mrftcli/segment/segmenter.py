@@ -88,6 +88,7 @@ def segment_arrays(
     criterion: StabilityCriterion = StabilityCriterion(),
     min_runs: int = 6,
     validity: ValidityCriterion = ValidityCriterion(),
+    controller_rate_hz: float | None = None,
 ) -> list[MrftTest]:
     """Find the MRFT tests in command/output arrays (steps 1-5 of :mod:`mrftcli.segment`).
 
@@ -106,6 +107,10 @@ def segment_arrays(
         Fewest relay half-periods for a stretch to count as a test.
     validity : ValidityCriterion
         Thresholds of the limit-cycle validity check stored in ``MrftTest.validity``.
+    controller_rate_hz : float, optional
+        Rate the relay decides at [Hz], when the command may be logged below it (a logger that
+        sub-samples the controller); None: unknown (a switch is then placed mid-way between the two
+        command samples around it, as for a continuous relay).
 
     Returns
     -------
@@ -137,6 +142,9 @@ def segment_arrays(
         tc[j0:j1] = t_loc
         dt_nom = float(np.median(np.diff(t_cmd[j0:j1])))
         rate = 1.0 / dt_nom if dt_nom > 0 else rate_all
+        # the controller's period when the logger sub-samples it (0: not known, or not sub-sampled)
+        ctrl = controller_rate_hz if controller_rate_hz and controller_rate_hz > 1.5 * rate else None
+        ts_ctrl = 1.0 / ctrl if ctrl else 0.0
 
         levels = np.array([r.level for r in chain])
         lv_a, lv_b = float(np.median(levels[0::2])), float(np.median(levels[1::2]))
@@ -165,10 +173,13 @@ def segment_arrays(
             if prev.glitch:
                 f.add("glitch")
             if rate < LOW_RATE_HZ and not f and r.start > 0:
-                # the relay switched somewhere between the last sample at the old level and the
-                # first at the new one: the middle is unbiased (the first new sample is late by
-                # half a logging period on average, which would read as a shorter tau)
-                t_sw[k] = 0.5 * (tc[r.start - 1] + tc[r.start])
+                # the relay switched at one of the controller's ticks after the last sample at the
+                # old level, up to the first at the new one (its timestamp is the controller tick
+                # that published it): the mean of those ticks is unbiased. Mid-way between the two
+                # samples is early by half a controller period (10 ms for PX4's 50 Hz controller
+                # under its 10 Hz logger), which read as a longer tau.
+                gap = tc[r.start] - tc[r.start - 1]
+                t_sw[k] = 0.5 * (tc[r.start - 1] + tc[r.start]) + (0.5 * ts_ctrl if ts_ctrl < gap else 0.0)
             flags_sw.append(f)
 
         # Output in the test window (the first to the last switch, with a margin)
@@ -217,8 +228,10 @@ def segment_arrays(
             if sel.size:
                 beta_nom = float(np.asarray(beta_v, float)[sel[-1]])
         if rate < LOW_RATE_HZ:
+            where = (f"taken at the mean of the {ctrl:.0f} Hz controller's ticks between two samples" if ctrl
+                     else "taken mid-way between two samples; the controller's rate is unknown")
             notes.append(f"command logged at {rate:.0f} Hz: each switch instant is known only to "
-                         f"+-{500.0 / rate:.0f} ms (taken mid-way between two samples)")
+                         f"+-{500.0 / rate:.0f} ms ({where})")
         n_interp = sum("interp" in c.flags for c in final)
         if n_interp:
             notes.append(f"{n_interp} cycle(s) with a switch after 1-2 missing command samples (instant interpolated)")
@@ -238,7 +251,7 @@ def segment_arrays(
                 period_median=info["period_median"], period_tolerance=info["period_tolerance"],
                 amplitude_median=info["amplitude_median"], amplitude_tolerance=info["amplitude_tolerance"],
                 loop_sign=sign, setpoint=sp_val, timestamps_regularised=regularised,
-                n_switches=len(t_sw), notes=tuple(notes),
+                n_switches=len(t_sw), notes=tuple(notes), controller_rate_hz=ctrl,
                 validity=check_limit_cycle(final, float(be.mean()) if be.size else float("nan"), beta_nom,
                                            validity),
             )
@@ -253,6 +266,7 @@ def segment(
     criterion: StabilityCriterion = StabilityCriterion(),
     min_runs: int = 6,
     validity: ValidityCriterion = ValidityCriterion(),
+    controller_rate_hz: float | None = None,
 ) -> list[MrftTest]:
     """Find the MRFT tests in a flight log and measure their cycles.
 
@@ -266,6 +280,9 @@ def segment(
         Fewest relay half-periods for a stretch of switching to count as a test.
     validity : ValidityCriterion
         Thresholds of the limit-cycle validity check (``MrftTest.validity``).
+    controller_rate_hz : float, optional
+        Rate the relay decides at [Hz] (see :func:`segment_arrays`); None: the flight's
+        ``source["controller_rate_hz"]`` (set by the log layout) when it has one.
 
     Returns
     -------
@@ -288,7 +305,10 @@ def segment(
         kw["beta_t"], kw["beta_v"] = flight.beta.t, flight.beta.values
     if flight.setpoint is not None and len(flight.setpoint):
         kw["t_sp"], kw["setpoint"] = flight.setpoint.t, flight.setpoint.values
-    tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity, **kw)
+    if controller_rate_hz is None:
+        controller_rate_hz = flight.source.get("controller_rate_hz")
+    tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity,
+                           controller_rate_hz=controller_rate_hz, **kw)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"
         raise SegmentationError(

@@ -409,6 +409,7 @@ def analyze_flight(
     constraints: Sequence[str] = CONSTRAINTS,
     validity: ValidityCriterion | None = None,
     refine_waveform: bool = True,
+    controller_rate_hz: float | None = None,
 ) -> AnalysisResult:
     """Segment the MRFT tests of a flight and identify Td, tau and K (see the module docstring).
 
@@ -438,6 +439,11 @@ def analyze_flight(
     refine_waveform : bool
         Refine the MRFT estimate by output error on the tests' windows and report it when the data
         accept it (:func:`mrftcli.mrft.refine.refine`); False: the MRFT estimate alone.
+    controller_rate_hz : float, optional
+        Rate the relay decides at [Hz] when the log sub-samples it (PX4 logs its 50 Hz position
+        controller at 10 Hz by default); None: the flight's ``source["controller_rate_hz"]``.
+        A log below the controller's rate is identified as a sampled relay at the nominal beta
+        (:func:`_low_rate_period`).
 
     Returns
     -------
@@ -473,7 +479,8 @@ def analyze_flight(
     if bad:
         raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
     crit = criterion or StabilityCriterion()
-    found = segment(flight, criterion=crit, validity=validity or ValidityCriterion())
+    found = segment(flight, criterion=crit, validity=validity or ValidityCriterion(),
+                    controller_rate_hz=controller_rate_hz)
     t0 = log_start(flight)
     reasons = _screen_tests(found, min_stable_cycles)
     usable = [t for t in found if t.index not in reasons]
@@ -511,11 +518,12 @@ def analyze_flight(
     warnings.extend(flight.warnings)
 
     # ---- point estimate through the identification core ---------------------------------------
-    meas = [TestMeasurement(beta=t.beta_effective, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
+    ts_ctrl = _low_rate_period(usable)
+    meas = [TestMeasurement(beta=_beta_used(t, ts_ctrl), frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
                             h=t.h) for t in usable]
     rng = np.random.default_rng(seed)
     n = len(usable)
-    cycles = [_stable_cycles(t) for t in usable]
+    cycles = [_stable_cycles(t, ts_ctrl) for t in usable]
     # Many tests: fewer draws keep the cost (draws x tests) bounded; a few hundred draws suffice
     # for a std and percentile interval.
     B = int(min(n_bootstrap, max(100, 4000 // n)))
@@ -557,6 +565,12 @@ def analyze_flight(
                 f"{ident.model.Td:.4g} s, tau {ident.model.tau * 1e3:.4g} ms (try --diagnose)")
     elif constraints:
         warnings.append("the weighted estimate found no minimum in the search range; the UFM-only estimate is used")
+    if ts_ctrl:
+        # the sampled relay's continuous equivalent has the delay tau + Ts / 2 (it switches 0..Ts
+        # after the crossing of its level); remove that lag from every tau
+        lag = 0.5 * ts_ctrl
+        tau_hat, tau_d = tau_hat - lag, tau_d - lag
+        model = LoopModel(Tp, model.Td, max(model.tau - lag, 0.0), model.K)
     Td_est = bootstrap_estimate(Td_hat, Td_d[1:], Td_d[0], "s")
     tau_est = bootstrap_estimate(tau_hat, tau_d[1:], tau_d[0], "s")
     K_est = bootstrap_estimate(K_hat, K_d[1:], K_d[0], "")
@@ -590,11 +604,23 @@ def analyze_flight(
         else:
             notes.append(text)
 
+    if ts_ctrl and limit is None:
+        Td_est, tau_est, K_est = _widen_for_orbits(Tp, cycles, Td_hat, constraints, ts_ctrl,
+                                                   (Td_est, tau_est, K_est), rng)
+        rate = min(t.rate_hz for t in usable)
+        notes.append(f"command logged at {rate:.0f} Hz below the {1 / ts_ctrl:.0f} Hz controller: identified as "
+                     "a sampled relay at the nominal beta (the logged switch instants and output levels are too "
+                     f"coarse), with +-{0.5e3 * ts_ctrl:.0f} ms of switching lag per test in the intervals")
+
     # ---- refinement on the waveform (output error from the MRFT estimate) -------------------------
     mrft_params = {"Td": Td_est, "tau": tau_est, "K": K_est}
     refinement = None
     method = "mrft"
-    if refine_waveform and np.isfinite(K_hat):
+    if refine_waveform and ts_ctrl:
+        # the waveform needs the command as the plant received it; logged below the controller's
+        # rate, its switch instants are off by up to a logging period
+        notes.append("the waveform refinement was not run: the command is logged below the controller's rate")
+    elif refine_waveform and np.isfinite(K_hat):
         windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
                                flight.output.values)
         if windows:
@@ -659,12 +685,73 @@ def _unbounded_td_or_raise(exc: IdentificationError, Tp: float, meas: list[TestM
     return ident, (boot, limit)
 
 
-def _stable_cycles(test: MrftTest) -> StableCycles:
-    """The per-cycle arrays of a test's stable cycles that the consensus reads."""
+def _low_rate_period(tests: Sequence[MrftTest]) -> float:
+    """The controller's period [s] when every test's command is logged below it with a nominal beta, else 0.
+
+    Then the logged switch instants are known to a logging period only, and with them the output
+    at the switch (the effective beta) and the phase of the fundamental: the tests are identified
+    from the nominal beta as a relay sampled at the controller's rate (exact LPRS band centre: the
+    continuous cycle with the delay tau + Ts / 2, :func:`mrftcli.mrft.lprs.sampled_limit_cycle`)
+    and their frequencies (a mean over many switches, unbiased) and amplitudes.
+    """
+    if not tests or any(t.controller_rate_hz is None or t.beta_nominal is None for t in tests):
+        return 0.0
+    return 1.0 / max(t.controller_rate_hz for t in tests)
+
+
+def _beta_used(test: MrftTest, ts_ctrl: float) -> float:
+    """The beta a test is identified with: nominal for a low-rate log (:func:`_low_rate_period`), else effective."""
+    return float(test.beta_nominal) if ts_ctrl and test.beta_nominal is not None else test.beta_effective
+
+
+def _stable_cycles(test: MrftTest, ts_ctrl: float = 0.0) -> StableCycles:
+    """The per-cycle arrays of a test's stable cycles that the consensus reads.
+
+    For a low-rate log (``ts_ctrl`` > 0): the nominal beta and no phase (the switch instants are
+    too coarse for it, and the error they share over a test's cycles does not average out).
+    """
     st = test.stable
+    if ts_ctrl:
+        return StableCycles(beta=np.full(len(st), _beta_used(test, ts_ctrl)), period=test.period,
+                            amplitude=test.amplitude, phase=np.full(len(st), np.nan), h=test.h, index=test.index)
     return StableCycles(beta=np.array([c.beta_effective for c in st]), period=test.period,
                         amplitude=test.amplitude, phase=np.array([c.phase_h1 for c in st]), h=test.h,
                         index=test.index)
+
+
+def _widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constraints: Sequence[str],
+                      ts_ctrl: float, estimates: tuple[ParameterEstimate, ...],
+                      rng: np.random.Generator) -> tuple[ParameterEstimate, ...]:
+    """Td, tau, K with the sampled relay's switching lag per test added to their spread.
+
+    A relay sampled at period Ts switches 0..Ts after the crossing of its level; the band centre
+    takes Ts / 2, and where in that band a test's cycles settled (its orbits) is common to all its
+    cycles and cannot be seen at a lower logging rate: a lag uniform over Ts, std Ts / sqrt(12),
+    independent between tests. A lag d moves the continuous equivalent's switching level by
+    Omega sqrt(1 - beta^2) d (the output's slope at the switch over the amplitude); each test's
+    effect on the estimate is found by re-solving with its beta moved by one std, and the effects
+    are added in quadrature to the bootstrap std (the 95 % interval widened by 1.96 times the increase).
+    """
+    sd = ts_ctrl / math.sqrt(12.0)
+    base = bootstrap(Tp, cycles, Td, constraints, 0, rng)
+    p0 = np.array([base.Td[0], base.tau[0], base.K[0]])
+    var = np.zeros(3)
+    for i, c in enumerate(cycles):
+        w = _TWO_PI / c.period
+        moved = StableCycles(beta=c.beta + w * np.sqrt(1.0 - c.beta ** 2) * sd, period=c.period,
+                             amplitude=c.amplitude, phase=c.phase, h=c.h, index=c.index)
+        b = bootstrap(Tp, [moved if j == i else cc for j, cc in enumerate(cycles)], Td, constraints, 0, rng)
+        d = np.array([b.Td[0], b.tau[0], b.K[0]]) - p0
+        var += np.where(np.isfinite(d), d, 0.0) ** 2
+    out = []
+    for est, v in zip(estimates, var):
+        if not np.isfinite(est.std):
+            out.append(est)
+            continue
+        std = float(math.sqrt(est.std ** 2 + v))
+        widen = 1.96 * (std - est.std)
+        out.append(ParameterEstimate(est.mean, std, est.ci95_low - widen, est.ci95_high + widen, est.unit))
+    return tuple(out)
 
 
 def analyze_path(

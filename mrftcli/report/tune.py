@@ -51,11 +51,12 @@ def plot_steps(result, path: str | Path, kind: str = "PD") -> Path:
         if d.kind != kind:
             continue
         col = _COLOURS.get(d.name)
-        t, y, _ = step_response([result.model], d.controller, result.horizon_s)
+        horizon = d.horizon_s if math.isfinite(d.horizon_s) else result.horizon_s
+        t, y, _ = step_response([result.model], d.controller, horizon)
         ax.plot(t, y[0], color=col, label=f"{d.name} (OS {d.step.overshoot_pct:.1f} %, settle {d.step.settling_s:.2f} s)")
         if result.posterior is not None:
             idx = np.arange(result.posterior.n)[:100]
-            _, yp, _ = step_response(result.posterior.models(idx), d.controller, result.horizon_s)
+            _, yp, _ = step_response(result.posterior.models(idx), d.controller, horizon)
             ok = np.all(np.isfinite(yp), axis=1) & (np.max(np.abs(yp), axis=1) < 10)
             if ok.sum() >= 5:
                 lo, hi = np.percentile(yp[ok], [2.5, 97.5], axis=0)

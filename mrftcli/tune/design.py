@@ -350,19 +350,20 @@ def _pid_start(ev: _Evaluator, pd: Controller) -> Controller:
     return min(cands, key=lambda c: ev.cost(_params(c)))
 
 
-def _optimise(ev: _Evaluator, start: Controller) -> Controller:
+def _optimise(ev: _Evaluator, start: Controller, step: float = 0.3, maxfev: int | None = None) -> Controller:
     """Nelder-Mead on (ln Kp, ln Td_c[, ln Ti]) with the constraints as a penalty, from ``start``.
 
     An infeasible start (and a result the penalty left slightly infeasible) is replaced by the best
     feasible point of a grid around it (:func:`_feasible_start`); a PID starts from the PD solution.
+    ``step``: the initial simplex's size in log units (small for a warm start).
     """
     # a slight violation is left to the penalty; a large one needs a feasible start from the grid
     c0 = _feasible_start(ev, start) if ev.violation(start) > 0.1 else start
     p0 = _params(c0)
     k = p0.size
-    simplex = np.vstack([p0] + [p0 + 0.3 * np.eye(k)[i] for i in range(k)])
+    simplex = np.vstack([p0] + [p0 + step * np.eye(k)[i] for i in range(k)])
     res = minimize(ev.cost, p0, method="Nelder-Mead",
-                   options={"xatol": 2e-3, "fatol": 1e-6, "maxfev": 70 if k == 2 else 200,
+                   options={"xatol": 2e-3, "fatol": 1e-6, "maxfev": maxfev or (70 if k == 2 else 200),
                             "initial_simplex": simplex})
     c = ev.controller(res.x)
     if ev.violation(c) > 0:  # the penalty leaves a slight violation: the best feasible point near it
@@ -499,7 +500,11 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
                     pd = _optimise(ev.with_kind("PD"), found.get(("model-based", "PD"), rule_pd))
                 load = pd.Kp
                 ev = ev.with_kind("PID", load=load, horizon=horizon)
-                c = _optimise(ev, _pid_start(ev, pd))
+                warm = found.get(("model-based", "PID")) if name == "robust" else None
+                if warm is not None:  # the robust PID is near the model-based one: a short, local search
+                    c = _optimise(ev, warm, step=0.1, maxfev=60)
+                else:
+                    c = _optimise(ev, _pid_start(ev, pd))
             if name == "robust":
                 # the optimisation's draws stood for the 95 % set: hold Ms on all of its draws
                 ev_all = ev.with_ms_models(Gd_all[in_set_mask], omega)

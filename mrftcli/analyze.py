@@ -508,9 +508,11 @@ def analyze_flight(
                                          "t_end_rel": t.t_end - t0, "reason": reasons[t.index]}
                                         for t in rejected]},
         )
+    ts_ctrl = _low_rate_period(usable)
     for t in usable:
         warnings.extend(f"test at {t.t_start - t0:.1f} s: {n}" for n in t.notes)
-        if t.beta_nominal is not None and abs(t.beta_effective - t.beta_nominal) > 0.02:
+        # a low-rate log is identified at the nominal beta: its coarse effective beta is expected to differ
+        if t.beta_nominal is not None and abs(t.beta_effective - t.beta_nominal) > 0.02 and not ts_ctrl:
             warnings.append(
                 f"test at {t.t_start - t0:.1f} s: the relay switched at beta {t.beta_effective:.3f}, not the nominal "
                 f"{t.beta_nominal:g} (sampling and noise); identified with the effective value"
@@ -518,7 +520,6 @@ def analyze_flight(
     warnings.extend(flight.warnings)
 
     # ---- point estimate through the identification core ---------------------------------------
-    ts_ctrl = _low_rate_period(usable)
     meas = [TestMeasurement(beta=_beta_used(t, ts_ctrl), frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
                             h=t.h) for t in usable]
     rng = np.random.default_rng(seed)
@@ -768,6 +769,7 @@ def analyze_path(
     fmt: str | None = None,
     layout: str | None = None,
     command_scale: float | None = None,
+    controller_rate_hz: float | None = None,
     min_stable_cycles: int = 3,
     criterion: StabilityCriterion | None = None,
     n_bootstrap: int = 400,
@@ -794,6 +796,8 @@ def analyze_path(
         Log format (detected when omitted).
     layout : str, optional
         One of :data:`mrftcli.io.LAYOUT_NAMES` (recognised from the topics when omitted).
+    controller_rate_hz : float, optional
+        Rate [Hz] at which the relay decided (default: the layout's; see :func:`mrftcli.io.read_flight`).
     min_stable_cycles, criterion, n_bootstrap, max_combinations, seed, constraints, validity
         As in :func:`analyze_flight`.
 
@@ -814,7 +818,7 @@ def analyze_path(
     flight = read_flight(path, loop=loop, command_topic=command_topic, output_topic=output_topic,
                          beta_topic=beta_topic, setpoint_topic=setpoint_topic, battery_topic=battery_topic,
                          output_scale=output_scale, fmt=fmt, layout=layout, command_scale=command_scale,
-                         echo_warnings=False)  # the reader's warnings come once, in the result's
+                         controller_rate_hz=controller_rate_hz, echo_warnings=False)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, Tp, min_stable_cycles=min_stable_cycles, criterion=criterion,
                           n_bootstrap=n_bootstrap, max_combinations=max_combinations, seed=seed,
                           constraints=constraints, validity=validity)

@@ -158,3 +158,26 @@ def test_simulator_writes_x_and_y_as_positions(tmp_path, loop):
     log = read_flight(path, loop=loop, echo_warnings=False)
     np.testing.assert_allclose(log.output.values, flight.output_measured)
     np.testing.assert_allclose(log.command.values, flight.command)
+
+
+def test_controller_rate_from_the_layout_and_the_option():
+    # PX4's position controller decides at 50 Hz while its logger keeps the command at 10 Hz: the
+    # layout says so, an explicit rate overrides it, and a wrong rate moves tau by half its period
+    log = SAMPLES / "px4_altitude_10hz.ulg"
+    assert read_flight(log, echo_warnings=False).source["controller_rate_hz"] == 50.0
+    fast = read_flight(log, controller_rate_hz=100.0, echo_warnings=False)
+    assert fast.source["controller_rate_hz"] == 100.0
+    assert "controller_rate_hz" not in read_flight(SAMPLES / "design1_altitude.mcap", echo_warnings=False).source
+    tau50 = analyze_flight(read_flight(log, echo_warnings=False), 0.0422, n_bootstrap=50).tau.mean
+    tau100 = analyze_flight(fast, 0.0422, n_bootstrap=50).tau.mean
+    assert tau100 - tau50 == pytest.approx(0.5 / 50.0 - 0.5 / 100.0, abs=2e-3)
+
+
+def test_controller_rate_option_is_validated():
+    from click.testing import CliRunner
+
+    from mrftcli.cli.main import cli
+
+    res = CliRunner().invoke(cli, ["analyze", str(SAMPLES / "px4_altitude_10hz.ulg"), "--tp", "0.0422",
+                                   "--controller-rate", "0"])
+    assert res.exit_code == 2 and "controller-rate" in res.output

@@ -60,6 +60,9 @@ class LogSettings:
         None = the layout's.
     layout : str or None
         One of :data:`mrftcli.io.LAYOUT_NAMES`; None = recognised from each log's topics.
+    controller_rate_hz : float or None
+        Rate [Hz] at which the relay decided, when logs record the command more slowly; None = the
+        layout's.
     min_cycles : int or None
         Fewest stable cycles for a test to be used (analyze's ``--min-cycles``); None = its default.
     vehicle : str or None
@@ -77,6 +80,7 @@ class LogSettings:
     vehicle: str | None = None
     command_scale: float | None = None
     layout: str | None = None
+    controller_rate_hz: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -86,7 +90,7 @@ class LogSettings:
 
 #: Keys a config entry may set, with the validator for each (value, where) -> value.
 _SETTING_KEYS = ("tp", "loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
-                 "min_cycles", "vehicle", "command_scale", "layout")
+                 "min_cycles", "vehicle", "command_scale", "layout", "controller_rate_hz")
 
 
 def _check_tp(value: Any, where: str) -> float:
@@ -152,6 +156,11 @@ def _validate_entry(raw: Any, where: str, *, needs_match: bool) -> tuple[str | N
             if value not in LAYOUT_NAMES:
                 raise InputError(f"{where}: layout must be one of {', '.join(LAYOUT_NAMES)}, got {value!r}")
             out["layout"] = value
+        elif key == "controller_rate_hz":
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or value <= 0:
+                raise InputError(f"{where}: controller_rate_hz must be a positive rate in Hz, got {value!r}")
+            out[key] = float(value)
         elif key == "min_cycles":
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:
                 raise InputError(f"{where}: min_cycles must be an integer of at least 2, got {value!r}")

@@ -140,7 +140,8 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
         options = {k: v for k, v in (("command_topic", s.command_topic), ("output_topic", s.output_topic),
                                      ("beta_topic", s.beta_topic), ("setpoint_topic", s.setpoint_topic),
                                      ("output_scale", s.output_scale), ("min_stable_cycles", s.min_cycles),
-                                     ("command_scale", s.command_scale), ("layout", s.layout))
+                                     ("command_scale", s.command_scale), ("layout", s.layout),
+                                     ("controller_rate_hz", s.controller_rate_hz))
                    if v is not None}
         result = analyze_path(task.path, s.tp, loop, **options)
         entry["result"] = result.to_dict()

@@ -23,6 +23,7 @@ _SETTING_OPTIONS = {
     "output_scale": "output_scale",
     "command_scale": "command_scale",
     "layout": "layout",
+    "controller_rate_hz": "controller_rate_hz",
     "min_cycles": "min_cycles",
 }
 

@@ -111,14 +111,14 @@ def _scale(ctx: click.Context | None, param: click.Parameter | None, value: floa
 #: The names :func:`log_layout_options` gives the command: exactly :func:`mrftcli.io.read_flight`'s
 #: keyword arguments, so a command passes them on as ``read_flight(log, **read_options)``.
 READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
-                "command_scale", "layout", "fmt")
+                "command_scale", "layout", "controller_rate_hz", "fmt")
 
 
 def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--format"):
     """The options that say how to read a loop from a log, shared by every command that reads one.
 
     ``--format``, ``--layout``, ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``,
-    ``--setpoint-topic``, ``--output-scale`` and ``--command-scale``; the command receives them under
+    ``--setpoint-topic``, ``--output-scale``, ``--command-scale`` and ``--controller-rate``; the command receives them under
     the names of :data:`READ_OPTIONS` (those of :func:`mrftcli.io.read_flight`). With
     ``config_defaults`` (batch) ``--loop`` defaults to None so that a per-log config file can fill it,
     and may be repeated; batch finds its logs by name and has no ``--format``. ``format_flag`` renames
@@ -152,6 +152,10 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
                           "e.g. 0.0174533 for degrees)."),
         click.option("--command-scale", type=float, default=None, callback=_scale,
                      help="Factor applied to the command (default: the layout's, 1 or -1 for PX4's thrust)."),
+        click.option("--controller-rate", "controller_rate_hz", type=click.FloatRange(0, None, min_open=True),
+                     default=None, metavar="HZ",
+                     help="Rate at which the relay decided, when the log records the command more slowly "
+                          "(default: the layout's, 50 Hz for px4-mrft)."),
     ]
     if not config_defaults:
         options.insert(0, click.option(

@@ -43,7 +43,7 @@ def _line(update, t0: float) -> str:
               help="Seconds between looks at the file.")
 @click.option("--jsonl", is_flag=True, help="Print one JSON object per update (for a ground-station script).")
 def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, command_scale,
-          layout, fmt, min_cycles, idle, poll, jsonl):
+          layout, controller_rate_hz, fmt, min_cycles, idle, poll, jsonl):
     """Follow LOG while it is being written and print each MRFT test and the identification as cycles arrive.
 
     LOG is an MCAP file, a ROS 2 bag directory with mcap storage, a CSV or a ULog that a recorder is
@@ -60,10 +60,11 @@ def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic
     from ..errors import InputError, MrftError
     from ..watch import watch as follow
 
-    if layout not in (None, "reference") or command_scale is not None:
+    if layout not in (None, "reference") or command_scale is not None or controller_rate_hz is not None:
         # the incremental readers follow the reference topics; the other layouts are read whole
         raise InputError(f"watch follows logs in the reference layout only (--layout {layout or 'reference'}, "
-                         "--command-scale given); run 'mrft-ident analyze' with the same options on the finished log")
+                         "--command-scale or --controller-rate given); run 'mrft-ident analyze' with the same "
+                         "options on the finished log")
     seen = 0
     t0 = None
     updates = follow(log, Tp, loop=loop, command_topic=command_topic, output_topic=output_topic,

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..validate import check_positive
 from ..errors import InputError, LogReadError
 from .logtypes import LOOPS, FlightLog, Signal, TopicData, TopicInfo
 from .source import LogSource, TopicSpec, parse_spec
@@ -329,7 +330,7 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
                 setpoint_topic: str | None = None, battery_topic: str | None = None,
                 output_scale: float | None = None, fmt: str | None = None, *,
                 layout: str | None = None, command_scale: float | None = None,
-                echo_warnings: bool = True) -> FlightLog:
+                controller_rate_hz: float | None = None, echo_warnings: bool = True) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
@@ -354,6 +355,10 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
         (``FlightLog.source["layout"]`` says which and why).
     command_scale : float, optional
         Factor applied to the command (default: the layout's; -1 for PX4's upward-negative thrust).
+    controller_rate_hz : float, optional
+        Rate [Hz] at which the relay decided, when the command may be logged more slowly (default:
+        the layout's, e.g. 50 Hz for PX4's position controller; recorded in
+        ``source["controller_rate_hz"]`` for the segmenter).
     echo_warnings : bool
         Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
         caller that shows them itself (``analyze``, ``watch``).
@@ -374,6 +379,8 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     """
     if loop not in LOOPS:
         raise InputError(f"unknown loop {loop!r}; choose one of {', '.join(LOOPS)}")
+    if controller_rate_hz is not None:
+        controller_rate_hz = check_positive("controller rate [Hz]", controller_rate_hz)
     for name, value in (("output", output_scale), ("command", command_scale)):
         if value is not None and not (np.isfinite(value) and value != 0.0):
             raise InputError(f"{name} scale must be a finite non-zero number, got {value}")
@@ -395,6 +402,8 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
         if command_scale is None:
             command_scale = lt.command_scale if lt is not None and command_topic is None else 1.0
         source: dict = {"format": log.format, "layout": match.describe()}
+        if (controller_rate_hz or lay.controller_rate_hz) is not None:
+            source["controller_rate_hz"] = controller_rate_hz or lay.controller_rate_hz
         log.prefetch([parse_spec(s).topic for s in (spec_cmd, spec_out, spec_beta, spec_sp, spec_bat) if s])
         cmd = _get(log, spec_cmd, True)
         out = _get(log, spec_out, True)

@@ -70,6 +70,10 @@ class Layout:
         ``header`` (stamped at the source) or ``receive`` (bag receive time: jitter between topics).
     low_rate_fix : str
         What to change in the stack's logger for high-rate logging (named in the low-rate warning).
+    controller_rate_hz : float or None
+        The rate [Hz] at which the stack's MRFT relay decides, when the logger may record the command
+        more slowly (the segmenter then places each switch among the controller ticks between two logged
+        samples); None: the command is logged at the controller's rate.
     """
 
     name: str
@@ -80,6 +84,7 @@ class Layout:
     parameters: str | None = None
     timestamps: str = "header"
     low_rate_fix: str = "record the command and the output at the controller's rate"
+    controller_rate_hz: float | None = None
 
 
 _REFERENCE = Layout(
@@ -118,6 +123,9 @@ _PX4 = Layout(
     parameters="MRFT_{axis}_",
     low_rate_fix="set SDLOG_PROFILE to high rate (or list vehicle_local_position and "
                  "vehicle_local_position_setpoint at 0 ms in etc/logging/logger_topics.txt)",
+    # mc_pos_control runs on vehicle_local_position, at most 50 Hz in the MRFT patch; the default
+    # logger keeps these topics at 10 Hz (--controller-rate overrides)
+    controller_rate_hz=50.0,
 )
 
 # HEAR flight controller, ROS 1 (geometry_msgs/Point has no header: receive time).

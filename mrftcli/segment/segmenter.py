@@ -227,11 +227,6 @@ def segment_arrays(
             sel = np.flatnonzero((bt > prev_end) & (bt <= t_b))
             if sel.size:
                 beta_nom = float(np.asarray(beta_v, float)[sel[-1]])
-        if rate < LOW_RATE_HZ:
-            where = (f"taken at the mean of the {ctrl:.0f} Hz controller's ticks between two samples" if ctrl
-                     else "taken mid-way between two samples; the controller's rate is unknown")
-            notes.append(f"command logged at {rate:.0f} Hz: each switch instant is known only to "
-                         f"+-{500.0 / rate:.0f} ms ({where})")
         n_interp = sum("interp" in c.flags for c in final)
         if n_interp:
             notes.append(f"{n_interp} cycle(s) with a switch after 1-2 missing command samples (instant interpolated)")

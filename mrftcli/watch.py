@@ -49,8 +49,8 @@ from typing import Callable, ClassVar, Iterator
 import numpy as np
 
 from .errors import InsufficientDataError, LogReadError, MrftError
-from .io import DEFAULT_TOPICS, FlightLog, Signal, parse_spec, read_flight, roll_pitch
-from .io.logtypes import LOOPS
+from .io import DEFAULT_TOPICS, FlightLog, LogSource, Signal, flight_from_source, read_flight
+from .io.logtypes import LOOPS, TopicInfo
 from .mrft.consensus import SAME_BETA
 from .segment import MrftTest, segment_arrays
 from .validate import check_positive
@@ -379,12 +379,57 @@ def _json_leaf(node, path: str) -> float:
 
 @dataclass(frozen=True)
 class _Layout:
+    """The topic options as given (None: the reference layout's)."""
+
     loop: str
-    command: str
-    output: str
-    beta: str
-    setpoint: str
-    output_scale: float
+    command: str | None
+    output: str | None
+    beta: str | None
+    setpoint: str | None
+    output_scale: float | None
+
+    def filled(self) -> _Layout:
+        """The same with the reference layout's topics and scale in place of None."""
+        loop = self.loop
+        return _Layout(loop=loop, command=self.command or DEFAULT_TOPICS["command"],
+                       output=self.output or DEFAULT_TOPICS[f"output.{loop}"],
+                       beta=self.beta or DEFAULT_TOPICS["beta"], setpoint=self.setpoint or DEFAULT_TOPICS["setpoint"],
+                       output_scale=1.0 if self.output_scale is None else float(self.output_scale))
+
+
+class _NotYet(LogReadError):
+    """A topic of a file still being written has not appeared, or has no message yet: wait."""
+
+
+class _FollowedSource(LogSource):
+    """The messages a :class:`McapFollower` has read so far, as a :class:`~mrftcli.io.LogSource`, so that
+    :func:`mrftcli.io.flight_from_source` applies the same topic logic as to a finished log."""
+
+    format = "mcap"
+    default_field = "data"
+
+    def __init__(self, follower: McapFollower, path: Path) -> None:
+        super().__init__(path)
+        self.follower = follower
+
+    def topics(self) -> list[TopicInfo]:
+        return [TopicInfo(name, "", 0, None, ()) for name in self.follower.topics()]
+
+    def missing_topic(self, topic: str) -> LogReadError:
+        err = super().missing_topic(topic)
+        return err if self.follower.closed else _NotYet(str(err))
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        leaves = self.follower.leaves(topic, field)
+        if leaves is None:
+            raise self.missing_topic(topic)
+        return leaves
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        t, vals = self.follower.values(topic, fields)
+        if t.size == 0 and not self.follower.closed:
+            raise _NotYet(f"{self.path}: {topic} has no messages yet")
+        return t, vals
 
 
 class _McapSnapshot:
@@ -407,42 +452,17 @@ class _McapSnapshot:
         grew = f.poll()
         return (self._flight() if grew or f.closed else None), grew, f.closed
 
-    def _signal(self, spec: str, required: bool):
-        ts = parse_spec(spec)
-        leaves = self.follower.leaves(ts.topic, ts.field)
-        if leaves is None:
-            if required and self.follower.closed:
-                shown = ", ".join(self.follower.topics()) or "none"
-                raise LogReadError(f"{self.path}: no topic {ts.topic!r}; topics in the log: {shown}")
-            return None
-        t, vals = self.follower.values(ts.topic, leaves)
-        return t, leaves, vals
-
     def _flight(self) -> FlightLog | None:
         L = self.layout
-        cmd = self._signal(L.command, True)
-        out = self._signal(L.output, True)
-        if cmd is None or out is None or cmd[0].size < 10 or out[0].size < 10:
+        try:
+            flight = flight_from_source(_FollowedSource(self.follower, self.path), L.loop, L.command, L.output,
+                                        L.beta, L.setpoint, output_scale=L.output_scale, layout="reference")
+        except _NotYet:
+            return None  # a topic the flight needs has not arrived yet: the next poll
+        if flight.command.t.size < 10 or flight.output.t.size < 10:
             return None
-        t, leaves, vals = out
-        if len(leaves) == 4:
-            if L.loop == "altitude":
-                raise LogReadError(f"{self.path}: output {L.output} is an orientation quaternion; "
-                                   "for --loop altitude name a position field")
-            roll, pitch = roll_pitch(*(vals[k] for k in leaves))
-            y = roll if L.loop == "roll" else pitch
-        else:
-            y = vals[leaves[0]]
-        if len(cmd[1]) != 1:
-            raise LogReadError(f"{self.path}: command {L.command} is a quaternion; name one number")
-        opt = {}
-        for role, spec, scale in (("beta", L.beta, 1.0), ("setpoint", L.setpoint, L.output_scale)):
-            got = self._signal(spec, False)
-            opt[role] = None if got is None or len(got[1]) != 1 or got[0].size == 0 else \
-                Signal(got[0], got[2][got[1][0]] * scale)
-        return FlightLog(path=str(self.path), loop=L.loop, command=Signal(cmd[0], cmd[2][cmd[1][0]]),
-                         output=Signal(t, y * L.output_scale), beta=opt["beta"], setpoint=opt["setpoint"],
-                         source={"format": "mcap (followed)"})
+        flight.source["format"] = "mcap (followed)"
+        return flight
 
 
 class _RereadSnapshot:
@@ -619,16 +639,14 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
 
         raise InputError(f"unknown loop {loop!r}; choose one of {', '.join(LOOPS)}")
     path = Path(path)
-    layout = _Layout(loop=loop, command=command_topic or DEFAULT_TOPICS["command"],
-                     output=output_topic or DEFAULT_TOPICS[f"output.{loop}"],
-                     beta=beta_topic or DEFAULT_TOPICS["beta"], setpoint=setpoint_topic or DEFAULT_TOPICS["setpoint"],
-                     output_scale=1.0 if output_scale is None else float(output_scale))  # None: the reference layout's
+    layout = _Layout(loop=loop, command=command_topic, output=output_topic, beta=beta_topic,
+                     setpoint=setpoint_topic, output_scale=output_scale)
     start = clock()
     while not path.exists() or (path.is_file() and path.stat().st_size == 0):
         if clock() - start > idle:
             raise LogReadError(f"{path}: no such file after waiting {idle:g} s; start the recording first")
         sleep(poll)
-    snap = _McapSnapshot(path, layout) if _is_mcap(path, fmt) else _RereadSnapshot(path, layout, fmt)
+    snap = _McapSnapshot(path, layout) if _is_mcap(path, fmt) else _RereadSnapshot(path, layout.filled(), fmt)
     tracker = _Tracker()
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None

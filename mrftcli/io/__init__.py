@@ -1,7 +1,8 @@
 """Flight-log readers and writers behind one API.
 
 * :func:`open_log` -> a :class:`LogSource` (topics, one field as a time series), any supported format;
-* :func:`read_flight` -> the :class:`~mrftcli.io.logtypes.FlightLog` one loop's analysis needs;
+* :func:`read_flight` -> the :class:`~mrftcli.io.logtypes.FlightLog` one loop's analysis needs
+  (:func:`flight_from_source` does the same on an already open :class:`LogSource`);
 * :func:`write_log` -> write :class:`~mrftcli.io.logtypes.TopicData` in any of :data:`FORMATS`.
 
 The layouts (reference topics, how topics map to ULog messages and CSV columns) are documented in
@@ -11,6 +12,7 @@ The layouts (reference topics, how topics map to ULog messages and CSV columns) 
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +25,7 @@ from .attitude import roll_pitch
 from .layouts import LAYOUT_NAMES, LAYOUTS, Layout, LayoutMatch, detect_layout, get_layout
 
 __all__ = [
-    "open_log", "read_flight", "write_log", "LogSource", "TopicSpec", "parse_spec",
+    "open_log", "read_flight", "flight_from_source", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal",
     "LAYOUTS", "LAYOUT_NAMES", "Layout", "LayoutMatch", "detect_layout", "get_layout", "log_layout",
@@ -377,6 +379,18 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     LogReadError
         Unreadable log, or a required topic/field missing (the message lists what exists).
     """
+    _check_read_options(loop, output_scale, command_scale, controller_rate_hz)  # before opening the log
+    with open_log(path, fmt, echo_warnings=echo_warnings) as log:
+        flight = flight_from_source(log, loop, command_topic, output_topic, beta_topic, setpoint_topic,
+                                    battery_topic, output_scale, layout=layout, command_scale=command_scale,
+                                    controller_rate_hz=controller_rate_hz)
+    # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
+    return replace(flight, path=str(path))
+
+
+def _check_read_options(loop: str, output_scale: float | None, command_scale: float | None,
+                        controller_rate_hz: float | None) -> float | None:
+    """InputError for an unknown loop or a zero/non-finite scale; the checked controller rate [Hz]."""
     if loop not in LOOPS:
         raise InputError(f"unknown loop {loop!r}; choose one of {', '.join(LOOPS)}")
     if controller_rate_hz is not None:
@@ -384,98 +398,114 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     for name, value in (("output", output_scale), ("command", command_scale)):
         if value is not None and not (np.isfinite(value) and value != 0.0):
             raise InputError(f"{name} scale must be a finite non-zero number, got {value}")
-    with open_log(path, fmt, echo_warnings=echo_warnings) as log:
-        match = log_layout(log, layout)
-        lay = match.layout
-        lt = lay.loops.get(loop)
-        if lt is None and (command_topic is None or output_topic is None):
-            raise InputError(f"layout {lay.name} has no {loop} loop (its loops: {', '.join(lay.loops)}); "
-                             "name the topics with --command-topic and --output-topic")
-        ref = lay.name == "reference"
-        spec_cmd = command_topic or lt.command
-        spec_out = output_topic or lt.output
-        spec_beta = beta_topic or (lt.beta if lt is not None else None)
-        spec_sp = setpoint_topic or (lt.setpoint if lt is not None else None)
-        spec_bat = battery_topic or (DEFAULT_TOPICS["battery"] if ref else None)
-        if output_scale is None:
-            output_scale = lt.output_scale if lt is not None and output_topic is None else 1.0
-        if command_scale is None:
-            command_scale = lt.command_scale if lt is not None and command_topic is None else 1.0
-        source: dict = {"format": log.format, "layout": match.describe()}
-        if (controller_rate_hz or lay.controller_rate_hz) is not None:
-            source["controller_rate_hz"] = controller_rate_hz or lay.controller_rate_hz
-        log.prefetch([parse_spec(s).topic for s in (spec_cmd, spec_out, spec_beta, spec_sp, spec_bat) if s])
-        cmd = _get(log, spec_cmd, True)
-        out = _get(log, spec_out, True)
-        t, leaves, vals, spec = out
-        if len(leaves) == 4:
-            if loop not in ("roll", "pitch"):
-                raise LogReadError(f"{log.path}: output {spec} is an orientation quaternion; "
-                                   f"for --loop {loop} name a position field")
-            try:
-                roll, pitch = roll_pitch(*(vals[k] for k in leaves))
-            except LogReadError as err:
-                raise LogReadError(f"{log.path}: {spec}: {err}") from None
-            y = roll if loop == "roll" else pitch
-            source["output_conversion"] = f"quaternion -> {loop} (ZYX), rad"
-        else:
-            y = vals[leaves[0]]
-        output = Signal(t, y * output_scale)
-        source["command"] = _where(cmd[3].topic, cmd[1][0])
-        source["output"] = str(spec) if len(leaves) == 4 else _where(spec.topic, leaves[0])
-        if len(cmd[1]) != 1:
-            raise LogReadError(f"{log.path}: command {cmd[3]} is a quaternion; name one number")
-        command = Signal(cmd[0], cmd[2][cmd[1][0]] * command_scale)
-        optional: dict = {}
-        for role, option, default, scale in (
-                ("beta", beta_topic, spec_beta, 1.0),
-                ("setpoint", setpoint_topic, spec_sp, output_scale),
-                ("battery_voltage", battery_topic, spec_bat, 1.0)):
-            # an optional topic the user named must exist and fit; a layout's may be absent
-            # or be something else under the same name (then it is skipped with a warning)
-            if default is None:
-                optional[role] = None
-                continue
-            try:
-                got = _get(log, default, option is not None)
-            except LogReadError as err:
-                if option is not None:
-                    raise
-                log.warn(f"ignored {default} as {role}: {err}")
-                got = None
-            if got is None:
-                optional[role] = None
-                continue
-            tt, lv, vv, sp = got
-            if len(lv) != 1:
-                raise LogReadError(f"{log.path}: {role} {sp} is a quaternion; name one number")
-            optional[role] = Signal(tt, vv[lv[0]] * scale)
-            source[role] = _where(sp.topic, lv[0])
-        if optional["beta"] is None and beta_topic is None and lay.parameters:
-            beta_sig, windows, where = _parameter_tests(log, lay.parameters, loop)
-            if beta_sig is not None:
-                optional["beta"] = beta_sig
-                source["beta"] = where
-                source["test_windows"] = [[a, b if np.isfinite(b) else None] for a, b in windows]
-        if output_scale != 1.0:
-            source["output_scale"] = output_scale
-        if command_scale != 1.0:
-            source["command_scale"] = command_scale
-        if lay.timestamps == "receive" or log.format == "bag":
-            # no header stamps: the bag's receive time carries the transport's jitter
-            source["timestamps"] = "receive"
-            source["timing_jitter_s"] = max(_jitter(command.t), _jitter(output.t))
-        command = _finite(log, command, "command", source["command"])
-        output = _finite(log, output, "output", source["output"])
-        rate = _median_rate(command.t)
-        if not ref and rate is not None and rate < _LOW_RATE_HZ:
-            log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
-                     f"{rate / 2:.0f}-{rate:.0f} samples, so switch instants (and tau) are known only to "
-                     f"+-{500 / rate:.0f} ms; {lay.low_rate_fix}")
-        return FlightLog(path=str(path), loop=loop, command=command, output=output,
-                         beta=optional["beta"], setpoint=optional["setpoint"],
-                         battery_voltage=optional["battery_voltage"], source=source,
-                         warnings=list(log.warnings))
+    return controller_rate_hz
+
+
+def flight_from_source(log: LogSource, loop: str = "altitude", command_topic: str | None = None,
+                       output_topic: str | None = None, beta_topic: str | None = None,
+                       setpoint_topic: str | None = None, battery_topic: str | None = None,
+                       output_scale: float | None = None, *, layout: str | None = None,
+                       command_scale: float | None = None, controller_rate_hz: float | None = None) -> FlightLog:
+    """The signals of one loop from an open :class:`LogSource` (what :func:`read_flight` does after opening).
+
+    The topic logic (layout, ``TOPIC[:FIELD]`` specs, quaternion -> roll/pitch, scales, optional
+    topics, PX4 test windows) lives here once, for readers of a whole file (:func:`read_flight`) and of
+    a file that is still being written (:mod:`mrftcli.watch`). Parameters, return value and errors
+    are :func:`read_flight`'s; the reader's warnings are added to ``log.warnings`` (and copied into
+    ``FlightLog.warnings``); ``FlightLog.path`` is ``log.path``.
+    """
+    controller_rate_hz = _check_read_options(loop, output_scale, command_scale, controller_rate_hz)
+    match = log_layout(log, layout)
+    lay = match.layout
+    lt = lay.loops.get(loop)
+    if lt is None and (command_topic is None or output_topic is None):
+        raise InputError(f"layout {lay.name} has no {loop} loop (its loops: {', '.join(lay.loops)}); "
+                         "name the topics with --command-topic and --output-topic")
+    ref = lay.name == "reference"
+    spec_cmd = command_topic or lt.command
+    spec_out = output_topic or lt.output
+    spec_beta = beta_topic or (lt.beta if lt is not None else None)
+    spec_sp = setpoint_topic or (lt.setpoint if lt is not None else None)
+    spec_bat = battery_topic or (DEFAULT_TOPICS["battery"] if ref else None)
+    if output_scale is None:
+        output_scale = lt.output_scale if lt is not None and output_topic is None else 1.0
+    if command_scale is None:
+        command_scale = lt.command_scale if lt is not None and command_topic is None else 1.0
+    source: dict = {"format": log.format, "layout": match.describe()}
+    if (controller_rate_hz or lay.controller_rate_hz) is not None:
+        source["controller_rate_hz"] = controller_rate_hz or lay.controller_rate_hz
+    log.prefetch([parse_spec(s).topic for s in (spec_cmd, spec_out, spec_beta, spec_sp, spec_bat) if s])
+    cmd = _get(log, spec_cmd, True)
+    out = _get(log, spec_out, True)
+    t, leaves, vals, spec = out
+    if len(leaves) == 4:
+        if loop not in ("roll", "pitch"):
+            raise LogReadError(f"{log.path}: output {spec} is an orientation quaternion; "
+                               f"for --loop {loop} name a position field")
+        try:
+            roll, pitch = roll_pitch(*(vals[k] for k in leaves))
+        except LogReadError as err:
+            raise LogReadError(f"{log.path}: {spec}: {err}") from None
+        y = roll if loop == "roll" else pitch
+        source["output_conversion"] = f"quaternion -> {loop} (ZYX), rad"
+    else:
+        y = vals[leaves[0]]
+    output = Signal(t, y * output_scale)
+    source["command"] = _where(cmd[3].topic, cmd[1][0])
+    source["output"] = str(spec) if len(leaves) == 4 else _where(spec.topic, leaves[0])
+    if len(cmd[1]) != 1:
+        raise LogReadError(f"{log.path}: command {cmd[3]} is a quaternion; name one number")
+    command = Signal(cmd[0], cmd[2][cmd[1][0]] * command_scale)
+    optional: dict = {}
+    for role, option, default, scale in (
+            ("beta", beta_topic, spec_beta, 1.0),
+            ("setpoint", setpoint_topic, spec_sp, output_scale),
+            ("battery_voltage", battery_topic, spec_bat, 1.0)):
+        # an optional topic the user named must exist and fit; a layout's may be absent
+        # or be something else under the same name (then it is skipped with a warning)
+        if default is None:
+            optional[role] = None
+            continue
+        try:
+            got = _get(log, default, option is not None)
+        except LogReadError as err:
+            if option is not None:
+                raise
+            log.warn(f"ignored {default} as {role}: {err}")
+            got = None
+        if got is None:
+            optional[role] = None
+            continue
+        tt, lv, vv, sp = got
+        if len(lv) != 1:
+            raise LogReadError(f"{log.path}: {role} {sp} is a quaternion; name one number")
+        optional[role] = Signal(tt, vv[lv[0]] * scale)
+        source[role] = _where(sp.topic, lv[0])
+    if optional["beta"] is None and beta_topic is None and lay.parameters:
+        beta_sig, windows, where = _parameter_tests(log, lay.parameters, loop)
+        if beta_sig is not None:
+            optional["beta"] = beta_sig
+            source["beta"] = where
+            source["test_windows"] = [[a, b if np.isfinite(b) else None] for a, b in windows]
+    if output_scale != 1.0:
+        source["output_scale"] = output_scale
+    if command_scale != 1.0:
+        source["command_scale"] = command_scale
+    if lay.timestamps == "receive" or log.format == "bag":
+        # no header stamps: the bag's receive time carries the transport's jitter
+        source["timestamps"] = "receive"
+        source["timing_jitter_s"] = max(_jitter(command.t), _jitter(output.t))
+    command = _finite(log, command, "command", source["command"])
+    output = _finite(log, output, "output", source["output"])
+    rate = _median_rate(command.t)
+    if not ref and rate is not None and rate < _LOW_RATE_HZ:
+        log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
+                 f"{rate / 2:.0f}-{rate:.0f} samples, so switch instants (and tau) are known only to "
+                 f"+-{500 / rate:.0f} ms; {lay.low_rate_fix}")
+    return FlightLog(path=str(log.path), loop=loop, command=command, output=output,
+                     beta=optional["beta"], setpoint=optional["setpoint"],
+                     battery_voltage=optional["battery_voltage"], source=source,
+                     warnings=list(log.warnings))
 
 
 def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:

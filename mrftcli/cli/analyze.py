@@ -228,9 +228,10 @@ def analyze(log, Tp, min_cycles, json_target, report_dir, mcap_out, paper_only, 
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
     if mcap_out:
-        from ..io.overlay import write_analysis_overlay
+        from ..analyze import analysis_overlay
+        from ..io.overlay import write_overlay
 
-        click.echo(f"mcap: {write_analysis_overlay(mcap_out, result)}", err=to_stdout)
+        click.echo(f"mcap: {write_overlay(mcap_out, **analysis_overlay(result))}", err=to_stdout)
     _echo_warnings(result.warnings)
     if index is not None:
         click.echo(f"report: {index}", err=to_stdout)

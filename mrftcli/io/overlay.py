@@ -1,6 +1,7 @@
 """The results MCAP: an analysis written back on the log's own clock, to view beside the log.
 
-``mrft-ident analyze LOG --mcap-out FIT.mcap`` writes this file; a user opens LOG and FIT.mcap together
+``mrft-ident analyze LOG --mcap-out FIT.mcap`` writes this file (what to write comes from
+:func:`mrftcli.analyze.analysis_overlay`; this module only writes it); a user opens LOG and FIT.mcap together
 in Foxglove Studio or PlotJuggler (docs/usage.md) and sees the model's prediction on the recording.
 Messages are JSON (``jsonschema`` schemas, the MCAP encoding both tools read without ROS type
 definitions); every ``log_time`` is the original log's time [ns], so both files share one time axis.
@@ -31,16 +32,13 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..errors import InputError
 
-if TYPE_CHECKING:
-    from ..analyze import AnalysisResult
-
-__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "write_analysis_overlay", "OVERLAY_TOPICS"]
+__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS"]
 
 #: the topics :func:`write_overlay` writes
 OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters")
@@ -186,28 +184,3 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
                                 {k: str(v) for k, v in test.__dict__.items()})
         writer.finish()
     return path
-
-
-def write_analysis_overlay(path: str | Path, result: AnalysisResult) -> Path:
-    """Write the results MCAP of an analysis: its tests, the identified model's prediction over each
-    test (:func:`mrftcli.mrft.waveform.predict_tests`, driven by the recorded command) and parameters."""
-    from .. import __version__
-    from ..mrft.waveform import predict_tests
-
-    flight = result.flight
-    if flight is None:
-        raise InputError("the analysis carries no flight signals to overlay")
-    preds = predict_tests(result.model, result.tests, flight.command.t, flight.command.values,
-                          flight.output.t, flight.output.values)
-    tests = [OverlayTest(number=t.index + 1, t_start=t.t_start, t_end=t.t_end, beta=t.beta_effective,
-                         beta_nominal=t.beta_nominal, h=t.h, bias=t.bias, frequency_hz=t.frequency_hz_mean,
-                         amplitude=t.amplitude_mean, cycles=t.n_stable,
-                         rms_residual=preds[t.index].rms if t.index in preds else float("nan"))
-             for t in result.tests]
-    fits = [OverlayFit(number=i + 1, t=p.t, output=p.y + p.residual, predicted=p.y) for i, p in preds.items()]
-    params = {name: {"mean": est.mean, "std": est.std, "ci95_low": est.ci95_low, "ci95_high": est.ci95_high}
-              for name, est in (("Td", result.Td), ("tau", result.tau), ("K", result.K))}
-    params = {"Tp": {"mean": result.Tp, "std": 0.0, "ci95_low": result.Tp, "ci95_high": result.Tp}, **params}
-    meta = {"log": str(result.path), "loop": result.loop, "mrft_ident_version": __version__,
-            "time_base": "the original log's time [s] (MCAP log_time = seconds * 1e9)"}
-    return write_overlay(path, tests=tests, fits=fits, parameters=params, metadata=meta)

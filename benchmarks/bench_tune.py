@@ -7,11 +7,12 @@
    generator with a fresh ``--seed``): each flown with the project's simulator (two MRFT tests,
    200 Hz, sensor noise) and identified by ``analyze_flight``; the posterior is its bootstrap.
 
-For every plant: the robust PD's worst-case phase margin over the 95 % set (target >= 35 deg) and
+For every plant (PD and PID designed, as the CLI does; CPU time of that call): the robust PD's worst-case phase margin over the 95 % set (target >= 35 deg) and
 its delay margin; the predicted step response (the design's z-domain loop) against the
 event-driven time-domain simulation of the sampled loop (overshoot within 2 points, settling within
 10 %); and the model-based PD against the MRFT-rule baseline at equal or better Ms (the model-based
 design re-run with Ms <= the rule's Ms and the rule's noise gain; target: better criterion on >= 18/20).
+The robust PID (setpoint + load-step criterion, Ti free): worst PM, overshoot, settling and load recovery.
 
 Run: ``python benchmarks/bench_tune.py [--plants 20] [--seed 14]`` (about 15 minutes on 2 busy cores;
 ``--quick``: 4 plants).
@@ -41,8 +42,11 @@ def _check(name, model, post, rate, out):
     from mrftcli.tune import simulate_step, step_metrics, tune
 
     t0 = time.perf_counter()
-    res = tune(model, rate, posterior=post, kinds=("PD",))
+    c0 = time.process_time()
+    res = tune(model, rate, posterior=post, kinds=("PD", "PID"))
+    cpu = time.process_time() - c0
     rule, mb, rob = (res.get(n, "PD") for n in ("mrft-rule", "model-based", "robust"))
+    pid = res.get("robust", "PID")
     # predicted (z-domain matrices) vs simulated (event-driven continuous plant) step
     tt, y, u, _ = simulate_step(model, rob.controller, res.horizon_s, substeps=1)
     sim = step_metrics(tt, y, u)
@@ -57,12 +61,14 @@ def _check(name, model, post, rate, out):
                st_pred=rob.step.settling_s, d_st=d_st, rule_J=rule.criterion, rule_Ms=rule.margins.Ms,
                eq_J=eq.criterion, eq_Ms=eq.margins.Ms, mb_J=mb.criterion, mb_Ms=mb.margins.Ms,
                beats=bool(eq.criterion < rule.criterion and eq.margins.Ms <= rule.margins.Ms * 1.001),
-               secs=time.perf_counter() - t0)
+               secs=time.perf_counter() - t0, cpu=cpu, pid_pm=pid.posterior["worst"]["phase_margin_deg"],
+               pid_os=pid.step.overshoot_pct, pid_ts=pid.step.settling_s, pid_rec=pid.load["recovery_s"])
     out.append(row)
     print(f"{name:<26} {row['pm_worst']:>6.1f} {row['ms_worst']:>5.2f} {row['dm']:>7.1f} {row['dm_worst']:>7.1f} "
           f"{row['os_pred']:>6.2f} {row['os_sim']:>6.2f} {row['st_pred']:>6.3f} {row['d_st']:>+7.3f} "
           f"{row['rule_J']:>8.4g} {row['rule_Ms']:>6.2f} {row['eq_J']:>8.4g} {row['eq_Ms']:>6.2f} "
-          f"{'yes' if row['beats'] else 'NO':>5} {row['secs']:>5.0f}", flush=True)
+          f"{'yes' if row['beats'] else 'NO':>5} {row['secs']:>5.0f} {row['cpu']:>5.1f} | {row['pid_pm']:>5.1f} "
+          f"{row['pid_os']:>5.1f} {row['pid_ts']:>6.2f} {row['pid_rec']:>6.2f}", flush=True)
 
 
 def main() -> None:
@@ -81,7 +87,8 @@ def main() -> None:
     from mrftcli.tune import Posterior
 
     print(f"{'plant':<26} {'PMwst':>6} {'Mswst':>5} {'DM[ms]':>7} {'DMwst':>7} {'OSpred':>6} {'OSsim':>6} "
-          f"{'ts[s]':>6} {'dts[%]':>7} {'rule J':>8} {'ruleMs':>6} {'mb J':>8} {'mb Ms':>6} {'beat':>5} {'[s]':>5}")
+          f"{'ts[s]':>6} {'dts[%]':>7} {'rule J':>8} {'ruleMs':>6} {'mb J':>8} {'mb Ms':>6} {'beat':>5} {'[s]':>5} "
+          f"{'cpu':>5} | {'PIDPM':>5} {'PIDOS':>5} {'PIDts':>6} {'PIDrec':>6}")
     rows_t3, rows_rand = [], []
     for plat, loop, Tp, Td, Td_s, tau, tau_s in TABLE_III:
         model = LoopModel(Tp, Td, tau, 1.0)
@@ -109,7 +116,12 @@ def main() -> None:
               f"delay margin {min(r['dm'] for r in rows):.0f}-{max(r['dm'] for r in rows):.0f} ms; "
               f"|overshoot sim - pred| max {np.nanmax(np.abs(d_os)):.2e} pp; |settling| max {np.nanmax(np.abs(d_st)):.2e} %; "
               f"model-based beats the MRFT rule at equal or better Ms on {beats}/{len(rows)} "
-              f"(median criterion ratio {np.median([r['eq_J'] / r['rule_J'] for r in rows]):.3f})")
+              f"(median criterion ratio {np.median([r['eq_J'] / r['rule_J'] for r in rows]):.3f}); "
+              f"tune (PD + PID, all designs) CPU median {np.median([r['cpu'] for r in rows]):.1f} s; robust PID: worst "
+              f"PM >= 35 deg on {sum(r['pid_pm'] >= 35 for r in rows)}/{len(rows)}, settled within 12 T0 on "
+              f"{sum(np.isfinite(r['pid_ts']) for r in rows)}/{len(rows)}, load recovered on "
+              f"{sum(np.isfinite(r['pid_rec']) for r in rows)}/{len(rows)}, overshoot median "
+              f"{np.median([r['pid_os'] for r in rows]):.0f} %")
 
 
 if __name__ == "__main__":

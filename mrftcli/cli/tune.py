@@ -89,7 +89,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --format px4
     """
     from ..mrft.model import LoopModel
-    from ..tune.analysis import controller_rate, posterior_from_analysis
+    from ..tune.analysis import log_controller_rate, posterior_from_analysis
     from ..tune.design import Posterior, tune as run_tune
     from ..tune.export import format_table, hear_json, px4_params
 
@@ -127,7 +127,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
         model = result.model
         posterior = posterior_from_analysis(result)
         if result.flight is not None:
-            log_rate = controller_rate(result.flight.command.t)
+            log_rate = log_controller_rate(result.flight)
         heights = [float(t.h) for t in result.tests]
         amps = [float(t.amplitude_mean) for t in result.tests]
         for w in result.warnings:

@@ -27,7 +27,7 @@ from .design import Posterior, TuneResult, tune
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["posterior_from_analysis", "model_from_result_json", "controller_rate", "tune_analysis",
+__all__ = ["posterior_from_analysis", "model_from_result_json", "controller_rate", "log_controller_rate", "tune_analysis",
            "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES"]
 
 #: The figures :func:`summary_figures` gives (the ``tune_*`` columns of the batch summary).
@@ -94,8 +94,16 @@ def model_from_result_json(data: Mapping[str, Any], Tp: float, n: int = 200,
     return model, post, NO_CORRELATION_NOTE
 
 
+def log_controller_rate(flight) -> float | None:
+    """The controller rate [Hz] of a :class:`~mrftcli.io.FlightLog`: the layout's or ``--controller-rate``
+    (``source["controller_rate_hz"]``, e.g. 50 Hz for PX4 logging the command more slowly), else the
+    command's own rate (:func:`controller_rate`)."""
+    rate = (flight.source or {}).get("controller_rate_hz")
+    return float(rate) if rate else controller_rate(flight.command.t)
+
+
 def controller_rate(t_command) -> float | None:
-    """The controller rate [Hz] of a log: 1 / the median command interval, to 0.1 Hz (None if unknown)."""
+    """The rate [Hz] of a command's samples: 1 / the median interval, to 0.1 Hz (None if unknown)."""
     t = np.asarray(t_command, float)
     if t.size < 3:
         return None
@@ -113,7 +121,7 @@ def tune_analysis(result: "AnalysisResult", *, kinds=("PD",), rate_hz: float | N
     """
     rate = rate_hz
     if rate is None and result.flight is not None:
-        rate = controller_rate(result.flight.command.t)
+        rate = log_controller_rate(result.flight)
     return tune(result.model, rate or 200.0, posterior=posterior_from_analysis(result), kinds=kinds,
                 designs=designs, loop=result.loop, **options)
 

@@ -36,10 +36,8 @@ from a cycle's end reaching the file to the updated estimate (benchmarks/bench_w
 
 from __future__ import annotations
 
-import io
 import json
 import math
-import os
 import time
 import warnings
 from dataclasses import asdict, dataclass, field, replace
@@ -50,14 +48,13 @@ import numpy as np
 
 from .errors import InsufficientDataError, LogReadError, MrftError
 from .io import DEFAULT_TOPICS, FlightLog, LogSource, Signal, flight_from_source, read_flight
+from .io.format_mcap import MCAP_MAGIC, McapChannel, McapRecords, channel_typestore
 from .io.logtypes import LOOPS, TopicInfo
 from .mrft.consensus import SAME_BETA
 from .segment import MrftTest, segment_arrays
 from .validate import check_positive
 
 __all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Update", "watch", "McapFollower"]
-
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 # --------------------------------------------------------------------------------------------------
@@ -175,33 +172,22 @@ Update = TestUpdate | EstimateUpdate | WatchEnd
 # --------------------------------------------------------------------------------------------------
 
 
-@dataclass
-class _Chan:
-    topic: str
-    encoding: str
-    schema_name: str
-    schema_encoding: str
-    schema_data: bytes
-    times: list = field(default_factory=list)  # log_time [ns] of messages not decoded yet
-    datas: list = field(default_factory=list)
-    decoded: dict = field(default_factory=dict)  # leaves tuple -> (t [s] list of arrays, values)
-    typestore: object = None
-
-
 class McapFollower:
     """The messages of a growing MCAP file, read record by record as they are completed.
 
     :meth:`poll` parses what arrived since the last call; :meth:`values` gives one topic field's times
     [s] and float64 values so far (the same field paths as :mod:`mrftcli.io`); ``closed`` turns True at
-    the Footer (or Data End) record.
+    the Footer (or Data End) record. The records are parsed by :class:`mrftcli.io.format_mcap.McapRecords`,
+    as in the MCAP reader's salvage pass.
     """
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.offset = 0
         self.closed = False
-        self._channels: dict[int, _Chan] = {}
-        self._schemas: dict[int, object] = {}
+        self._records = McapRecords()
+        self._decoded: dict[int, dict] = {}  # channel id -> leaves tuple -> (t [s] arrays, values)
+        self._typestores: dict[int, object] = {}
 
     def poll(self) -> bool:
         """Read the complete records added since the last poll; True if any message arrived."""
@@ -215,11 +201,11 @@ class McapFollower:
             raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
         pos = 0
         if self.offset == 0:
-            if len(data) < len(_MCAP_MAGIC):
+            if len(data) < len(MCAP_MAGIC):
                 return False
-            if data[:len(_MCAP_MAGIC)] != _MCAP_MAGIC:
+            if data[:len(MCAP_MAGIC)] != MCAP_MAGIC:
                 raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
-            pos = len(_MCAP_MAGIC)
+            pos = len(MCAP_MAGIC)
         got = False
         while pos + 9 <= len(data):
             op = data[pos]
@@ -232,79 +218,27 @@ class McapFollower:
                 pos = end
                 break
             try:
-                got |= self._record(op, data[pos + 9:end]) > 0
+                got |= self._records.record(op, data[pos + 9:end]) > 0
             except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
                 pass
             pos = end
         self.offset += pos
         return got
 
-    def _record(self, op: int, body: bytes) -> int:
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import breakup_chunk
-
-        stream = ReadDataStream(io.BytesIO(body))
-        if op == Opcode.SCHEMA:
-            rec = Schema.read(stream)
-            self._schemas[rec.id] = rec
-        elif op == Opcode.CHANNEL:
-            self._channel(Channel.read(stream))
-        elif op == Opcode.MESSAGE:
-            return self._message(Message.read(stream, len(body)))
-        elif op == Opcode.CHUNK:
-            kept = 0
-            for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
-                if isinstance(rec, Schema):
-                    self._schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    self._channel(rec)
-                elif isinstance(rec, Message):
-                    kept += self._message(rec)
-            return kept
-        return 0
-
-    def _channel(self, rec) -> None:
-        if rec.id in self._channels:
-            return
-        schema = self._schemas.get(rec.schema_id)
-        self._channels[rec.id] = _Chan(
-            topic=rec.topic, encoding=rec.message_encoding.lower(),
-            schema_name=schema.name if schema else "", schema_encoding=schema.encoding if schema else "",
-            schema_data=bytes(schema.data) if schema else b"")
-
-    def _message(self, msg) -> int:
-        ch = self._channels.get(msg.channel_id)
-        if ch is None:
-            return 0
-        ch.times.append(msg.log_time)
-        ch.datas.append(bytes(msg.data))
-        return 1
-
     def topics(self) -> list[str]:
         """Topic names seen so far."""
-        return sorted({c.topic for c in self._channels.values()})
+        return sorted({c.topic for c in self._records.channels.values()})
 
-    def _find(self, topic: str) -> _Chan | None:
-        for ch in self._channels.values():
+    def _find(self, topic: str) -> McapChannel | None:
+        for ch in self._records.channels.values():
             if ch.topic == topic:
                 return ch
         return None
 
-    def _typestore(self, ch: _Chan):
-        from .io.msgtypes import typestore_for, typestore_from_text
-
-        if ch.typestore is None:
-            ros1 = ch.encoding == "ros1"
-            ts = None
-            if ch.schema_data and ch.schema_encoding in ("ros2msg", "ros1msg"):
-                try:
-                    ts = typestore_from_text(ch.schema_data.decode(), ch.schema_name, ros1=ros1)
-                except Exception:  # noqa: BLE001 - fall back to the standard definitions
-                    ts = None
-            ch.typestore = ts or typestore_for(ros1=ros1)
-        return ch.typestore
+    def _typestore(self, ch: McapChannel):
+        if ch.id not in self._typestores:
+            self._typestores[ch.id] = channel_typestore(ch, self.path)
+        return self._typestores[ch.id]
 
     def leaves(self, topic: str, field_path: str | None) -> list[str] | None:
         """The numeric leaves ``topic:field`` stands for (four for a quaternion); None if the topic has
@@ -317,8 +251,9 @@ class McapFollower:
         path = field_path or "data"
         if ch.encoding == "json":
             sample = ch.datas[0] if ch.datas else None
+            decoded = self._decoded.get(ch.id)
             if sample is None:
-                return list(next(iter(ch.decoded))) if ch.decoded else None
+                return list(next(iter(decoded))) if decoded else None
             node = json.loads(sample)
             for key in path.split("."):
                 if not isinstance(node, dict) or key not in node:
@@ -340,9 +275,10 @@ class McapFollower:
         key = tuple(leaves)
         if ch is None:
             return np.zeros(0), {k: np.zeros(0) for k in leaves}
-        t_parts, v_parts = ch.decoded.setdefault(key, ([], {k: [] for k in leaves}))
+        decoded = self._decoded.setdefault(ch.id, {})
+        t_parts, v_parts = decoded.setdefault(key, ([], {k: [] for k in leaves}))
         if ch.datas:
-            if len(ch.decoded) > 1:
+            if len(decoded) > 1:
                 raise LogReadError(f"{self.path}: {topic}: read with two field sets")
             t_new = np.asarray(ch.times, dtype=np.int64) / 1e9
             if ch.encoding == "json":
@@ -688,6 +624,6 @@ def _is_mcap(path: Path, fmt: str | None) -> bool:
         return any(path.glob("*.mcap"))  # ros2 bag record writes metadata.yaml only at the end
     try:
         with open(path, "rb") as fh:
-            return fh.read(len(_MCAP_MAGIC)) == _MCAP_MAGIC or path.suffix.lower() == ".mcap"
+            return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC or path.suffix.lower() == ".mcap"
     except OSError:
         return path.suffix.lower() == ".mcap"

@@ -31,7 +31,7 @@ from . import cdr
 from .source import LogSource, rate_of
 from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
 
-__all__ = ["McapSource", "write_mcap", "MCAP_MAGIC"]
+__all__ = ["McapSource", "McapRecords", "McapChannel", "channel_typestore", "write_mcap", "MCAP_MAGIC"]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_MESSAGE = 0x05
@@ -39,7 +39,10 @@ _MSG_HEADER = 2 + 4 + 8 + 8  # channel_id, sequence, log_time, publish_time
 
 
 @dataclass
-class _Channel:
+class McapChannel:
+    """One MCAP channel: its topic, message encoding and schema, and (when gathered record by record)
+    the log times [ns] and raw data of its messages."""
+
     id: int
     topic: str
     encoding: str  # cdr | json | ros1
@@ -51,6 +54,83 @@ class _Channel:
     datas: list[bytes] = field(default_factory=list)
 
 
+class McapRecords:
+    """Schemas, channels and undecoded messages gathered from MCAP records parsed one at a time.
+
+    Whoever walks the records (the salvage pass of :class:`McapSource`, :class:`mrftcli.watch.McapFollower`
+    on a file still being written) hands each top-level record to :meth:`record`; ``channels`` maps
+    channel id -> :class:`McapChannel`, whose ``times`` and ``datas`` collect the messages.
+    """
+
+    def __init__(self) -> None:
+        self.schemas: dict[int, object] = {}
+        self.channels: dict[int, McapChannel] = {}
+
+    def add_channel(self, rec, schema) -> None:
+        """Register an ``mcap`` Channel record (with its Schema record, or None) once."""
+        if rec.id in self.channels:
+            return
+        self.channels[rec.id] = McapChannel(
+            id=rec.id, topic=rec.topic, encoding=rec.message_encoding.lower(),
+            schema_name=schema.name if schema else "",
+            schema_encoding=schema.encoding if schema else "",
+            schema_data=bytes(schema.data) if schema else b"")
+
+    def record(self, op: int, body: bytes) -> int:
+        """Parse one top-level (or in-chunk) record's body; returns the number of messages kept."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.opcode import Opcode
+        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.stream_reader import breakup_chunk
+
+        stream = ReadDataStream(io.BytesIO(body))
+        if op == Opcode.SCHEMA:
+            rec = Schema.read(stream)
+            self.schemas[rec.id] = rec
+        elif op == Opcode.CHANNEL:
+            rec = Channel.read(stream)
+            self.add_channel(rec, self.schemas.get(rec.schema_id))
+        elif op == Opcode.MESSAGE:
+            return self._keep(Message.read(stream, len(body)))
+        elif op == Opcode.CHUNK:
+            kept = 0
+            for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
+                if isinstance(rec, Schema):
+                    self.schemas[rec.id] = rec
+                elif isinstance(rec, Channel):
+                    self.add_channel(rec, self.schemas.get(rec.schema_id))
+                elif isinstance(rec, Message):
+                    kept += self._keep(rec)
+            return kept
+        return 0
+
+    def _keep(self, msg) -> int:
+        ch = self.channels.get(msg.channel_id)
+        if ch is None:
+            return 0
+        ch.times.append(msg.log_time)
+        ch.datas.append(bytes(msg.data))
+        return 1
+
+
+def channel_typestore(ch: McapChannel, path: str | Path):
+    """The rosbags typestore that decodes ``ch``'s CDR/ROS 1 messages: from the schema text the file
+    carries, else the standard definitions (LogReadError if they do not know the type)."""
+    ros1 = ch.encoding == "ros1"
+    ts = None
+    if ch.schema_data and ch.schema_encoding in ("ros2msg", "ros1msg"):
+        try:
+            ts = typestore_from_text(ch.schema_data.decode(), ch.schema_name, ros1=ros1)
+        except Exception:  # noqa: BLE001 - fall back to the standard definitions
+            ts = None
+    if ts is None:
+        ts = typestore_for(ros1=ros1)
+        if ch.schema_name not in ts.fielddefs:
+            raise LogReadError(f"{path}: {ch.topic}: cannot decode type {ch.schema_name!r} "
+                               f"(schema encoding {ch.schema_encoding!r})")
+    return ts
+
+
 class McapSource(LogSource):
     """An MCAP file with ``cdr`` (ROS 2), ``ros1`` or ``json`` message encodings."""
 
@@ -60,7 +140,8 @@ class McapSource(LogSource):
         super().__init__(path)
         self.format = "mcap"
         self._summary = None
-        self._channels: dict[int, _Channel] = {}
+        self._records = McapRecords()
+        self._channels: dict[int, McapChannel] = self._records.channels
         self._salvaged = False
         self._typestores: dict[int, object] = {}
         self._topic_cache: list[TopicInfo] | None = None
@@ -102,18 +183,9 @@ class McapSource(LogSource):
         if summary is not None and summary.chunk_indexes:
             self._summary = summary
             for ch in summary.channels.values():
-                schema = summary.schemas.get(ch.schema_id)
-                self._add_channel(ch, schema)
+                self._records.add_channel(ch, summary.schemas.get(ch.schema_id))
             return
         self._scan()
-
-    def _add_channel(self, ch, schema) -> None:
-        enc = ch.message_encoding.lower()
-        self._channels[ch.id] = _Channel(
-            id=ch.id, topic=ch.topic, encoding=enc,
-            schema_name=schema.name if schema else "",
-            schema_encoding=schema.encoding if schema else "",
-            schema_data=bytes(schema.data) if schema else b"")
 
     def _scan(self) -> None:
         """Linear salvage pass: every readable record, in file order.
@@ -133,21 +205,20 @@ class McapSource(LogSource):
         bad = 0
         count = 0
         from_partial = 0
-        schemas: dict[int, object] = {}
         while pos + 9 <= size:
             op = data[pos]
             length = int.from_bytes(data[pos + 1:pos + 9], "little")
             start, end = pos + 9, pos + 9 + length
             if end > size:
                 if op == Opcode.CHUNK:
-                    from_partial = self._partial_chunk(data[start:size], schemas)
+                    from_partial = self._partial_chunk(data[start:size])
                     count += from_partial
                 break
             try:
                 if op == Opcode.FOOTER:
                     complete = True
                     break
-                count += self._record(op, data[start:end], schemas)
+                count += self._records.record(op, data[start:end])
             except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
                 bad += 1
             pos = end
@@ -165,45 +236,7 @@ class McapSource(LogSource):
                       f"({'; '.join(notes) or 'summary section unreadable'})")
         self._salvaged = True
 
-    def _record(self, op: int, body: bytes, schemas: dict) -> int:
-        """Parse one top-level (or in-chunk) record; returns the number of messages kept."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import breakup_chunk
-
-        stream = ReadDataStream(io.BytesIO(body))
-        if op == Opcode.SCHEMA:
-            rec = Schema.read(stream)
-            schemas[rec.id] = rec
-        elif op == Opcode.CHANNEL:
-            rec = Channel.read(stream)
-            if rec.id not in self._channels:
-                self._add_channel(rec, schemas.get(rec.schema_id))
-        elif op == Opcode.MESSAGE:
-            return self._keep(Message.read(stream, len(body)))
-        elif op == Opcode.CHUNK:
-            kept = 0
-            for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    if rec.id not in self._channels:
-                        self._add_channel(rec, schemas.get(rec.schema_id))
-                elif isinstance(rec, Message):
-                    kept += self._keep(rec)
-            return kept
-        return 0
-
-    def _keep(self, msg) -> int:
-        ch = self._channels.get(msg.channel_id)
-        if ch is None:
-            return 0
-        ch.times.append(msg.log_time)
-        ch.datas.append(bytes(msg.data))
-        return 1
-
-    def _partial_chunk(self, body: bytes, schemas: dict) -> int:
+    def _partial_chunk(self, body: bytes) -> int:
         """Complete records at the start of a chunk the file ends inside (0 if none can be read)."""
         try:
             # start/end time, uncompressed size (3 x uint64), crc (uint32), compression (string),
@@ -232,32 +265,19 @@ class McapSource(LogSource):
             if pos + 9 + length > len(raw):
                 break
             try:
-                kept += self._record(op, raw[pos + 9:pos + 9 + length], schemas)
+                kept += self._records.record(op, raw[pos + 9:pos + 9 + length])
             except Exception:  # noqa: BLE001 - stop at the first unreadable record
                 break
             pos += 9 + length
         return kept
 
     # -- types --------------------------------------------------------------------------------------
-    def _typestore(self, ch: _Channel):
+    def _typestore(self, ch: McapChannel):
         if ch.id not in self._typestores:
-            ros1 = ch.encoding == "ros1"
-            ts = None
-            if ch.schema_data and ch.schema_encoding in ("ros2msg", "ros1msg"):
-                try:
-                    ts = typestore_from_text(ch.schema_data.decode(), ch.schema_name, ros1=ros1)
-                except Exception:  # noqa: BLE001 - fall back to the standard definitions
-                    ts = None
-            if ts is None:
-                ts = typestore_for(ros1=ros1)
-                if ch.schema_name not in ts.fielddefs:
-                    raise LogReadError(
-                        f"{self.path}: {ch.topic}: cannot decode type {ch.schema_name!r} "
-                        f"(schema encoding {ch.schema_encoding!r})")
-            self._typestores[ch.id] = ts
+            self._typestores[ch.id] = channel_typestore(ch, self.path)
         return self._typestores[ch.id]
 
-    def _channel(self, topic: str) -> _Channel:
+    def _channel(self, topic: str) -> McapChannel:
         chans = [c for c in self._channels.values() if c.topic == topic]
         if not chans:
             raise self.missing_topic(topic)
@@ -280,7 +300,7 @@ class McapSource(LogSource):
         self._topic_cache = sorted(out, key=lambda i: i.name)
         return self._topic_cache
 
-    def _fields(self, ch: _Channel) -> list[str]:
+    def _fields(self, ch: McapChannel) -> list[str]:
         if ch.encoding == "json":
             if ch.schema_data and ch.schema_encoding == "jsonschema":
                 return _json_schema_leaves(json.loads(ch.schema_data), "")
@@ -297,7 +317,7 @@ class McapSource(LogSource):
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
 
-    def _json_leaves(self, ch: _Channel, path: str) -> list[str]:
+    def _json_leaves(self, ch: McapChannel, path: str) -> list[str]:
         _, buf, starts, lengths = self._raw(ch)
         if len(starts) == 0:
             return [path]
@@ -333,7 +353,7 @@ class McapSource(LogSource):
         return t, vals
 
     # -- raw access ---------------------------------------------------------------------------------
-    def _raw(self, ch: _Channel):
+    def _raw(self, ch: McapChannel):
         """Log times [ns], one byte buffer, and each message's start and length, in file order."""
         if ch.id not in self._raw_cache:
             self._raw_cache[ch.id] = self._raw_uncached(ch)
@@ -360,7 +380,7 @@ class McapSource(LogSource):
             self._file.close()
             self._file = None
 
-    def _raw_uncached(self, ch: _Channel):
+    def _raw_uncached(self, ch: McapChannel):
         if self._salvaged:
             lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
             starts = (np.cumsum(lengths) - lengths).astype(np.int64)

@@ -46,16 +46,12 @@ FORMAT_SUFFIX = {
     "csv": ".csv",
 }
 
-#: the reference layout (ROS 2 names), see docs/log-layout.md
+#: the reference layout (ROS 2 names, :data:`LAYOUTS` ``["reference"]``) by role, see docs/log-layout.md
 DEFAULT_TOPICS = {
-    "command": "/mrft/command:data",
-    "beta": "/mrft/beta:data",
-    "setpoint": "/mrft/setpoint:data",
-    "output.altitude": "/mocap/pose:pose.position.z",
-    "output.x": "/mocap/pose:pose.position.x",
-    "output.y": "/mocap/pose:pose.position.y",
-    "output.roll": "/imu/data:orientation",
-    "output.pitch": "/imu/data:orientation",
+    "command": LAYOUTS["reference"].loops["altitude"].command,
+    "beta": LAYOUTS["reference"].loops["altitude"].beta,
+    "setpoint": LAYOUTS["reference"].loops["altitude"].setpoint,
+    **{f"output.{loop}": topics.output for loop, topics in LAYOUTS["reference"].loops.items()},
     "battery": "/battery:voltage",
 }
 

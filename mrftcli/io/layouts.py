@@ -87,20 +87,20 @@ class Layout:
     controller_rate_hz: float | None = None
 
 
+def _reference(output: str) -> LoopTopics:
+    """A loop of the reference layout: the MRFT block's own topics, and the loop's output."""
+    return LoopTopics("/mrft/command:data", output, "/mrft/setpoint:data", "/mrft/beta:data")
+
+
 _REFERENCE = Layout(
     name="reference",
     title="mrft-ident's reference layout (/mrft/command, /mrft/beta, /mocap/pose, /imu/data)",
     loops={
-        "altitude": LoopTopics("/mrft/command:data", "/mocap/pose:pose.position.z", "/mrft/setpoint:data",
-                               "/mrft/beta:data"),
-        "x": LoopTopics("/mrft/command:data", "/mocap/pose:pose.position.x", "/mrft/setpoint:data",
-                        "/mrft/beta:data"),
-        "y": LoopTopics("/mrft/command:data", "/mocap/pose:pose.position.y", "/mrft/setpoint:data",
-                        "/mrft/beta:data"),
-        "roll": LoopTopics("/mrft/command:data", "/imu/data:orientation", "/mrft/setpoint:data",
-                           "/mrft/beta:data"),
-        "pitch": LoopTopics("/mrft/command:data", "/imu/data:orientation", "/mrft/setpoint:data",
-                            "/mrft/beta:data"),
+        "altitude": _reference("/mocap/pose:pose.position.z"),
+        "x": _reference("/mocap/pose:pose.position.x"),
+        "y": _reference("/mocap/pose:pose.position.y"),
+        "roll": _reference("/imu/data:orientation"),
+        "pitch": _reference("/imu/data:orientation"),
     },
     signature=("/mrft/command",),
 )

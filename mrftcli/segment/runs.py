@@ -215,12 +215,7 @@ def regularise_times(t: np.ndarray, *, max_residual: float = 0.45) -> tuple[np.n
     if np.all(np.abs(steps - np.rint(steps)) < 0.05):
         # clean clock (no jitter to speak of): counting intervals cannot slip
         n = np.concatenate(([0.0], np.cumsum(np.maximum(np.rint(steps), 1.0))))
-        A = np.vstack([np.ones_like(n), n]).T
-        (t0, dt), *_ = np.linalg.lstsq(A, t, rcond=None)
-        fit = t0 + dt * n
-        if dt > 0 and np.max(np.abs(t - fit)) <= max_residual * dt:
-            return fit, True
-        return t, False
+        return _grid_fit(t, n, max_residual)
     # Sample numbers from the clock's phase, not by counting intervals (a count slips by one where
     # jitter makes an interval look like 0.5 or 1.5 periods): the period is where the timestamps'
     # phases t / dt line up best (peak of |mean exp(2 pi i t / dt)|), first on a short stretch
@@ -243,6 +238,12 @@ def regularise_times(t: np.ndarray, *, max_residual: float = 0.45) -> tuple[np.n
     n = np.rint((tr - phase) / dt)
     if np.any(np.diff(n) <= 0):
         return t, False
+    return _grid_fit(t, n, max_residual)
+
+
+def _grid_fit(t: np.ndarray, n: np.ndarray, max_residual: float) -> tuple[np.ndarray, bool]:
+    """``t0 + dt n`` fitted to the times ``t`` [s] of sample numbers ``n`` by least squares, when every
+    time lies within ``max_residual`` periods of it; else ``t`` unchanged (and False)."""
     A = np.vstack([np.ones_like(n), n]).T
     (t0, dt), *_ = np.linalg.lstsq(A, t, rcond=None)
     fit = t0 + dt * n

@@ -11,8 +11,10 @@ import itertools
 import math
 import os
 import statistics
+import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -21,6 +23,9 @@ from mrftcli.mrft.identify import TestMeasurement, identify, intersection_draws
 from mrftcli.mrft.lprs import mrft_limit_cycle, unit_cycle, unit_cycle_scalar
 from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.ufm import SHIPPED_BETAS, build_manifold, build_manifolds, load_manifolds, save_manifold
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from relay_rule import relay_step  # noqa: E402 - the checks.md rule, independent of mrftcli.sim
 
 PAPER = LoopModel(Tp=0.1, Td=1 / 1.42, tau=0.06, K=1.42)
 
@@ -194,14 +199,9 @@ def _noisy_sampled_frequency(model: LoopModel, beta: float, rate: float, noise: 
             e = -(x[0] + noise * rng.standard_normal())
             if k == 0:
                 e_ext = e
-            elif u > 0:
-                e_ext = max(e_ext, e)
-                if e_ext > 0 and e <= -beta * e_ext:
-                    u, e_ext = -1.0, e
             else:
-                e_ext = min(e_ext, e)
-                if e_ext < 0 and e >= -beta * e_ext:
-                    u, e_ext = 1.0, e
+                was, (u, e_ext) = u, relay_step(u, e_ext, e, beta)
+                if u > was:
                     ups.append(k * dt)
         buf.append(u)
         x = Phi @ x + Gam * buf.pop(0)

@@ -16,8 +16,10 @@ of the T/64 grid), count how many a flight needs, and print how far apart the tw
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import scipy.linalg
@@ -25,6 +27,9 @@ import scipy.linalg
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim import plant
 from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, simulate_flight
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from relay_rule import relay_step  # noqa: E402 - the checks.md rule, independent of mrftcli.sim
 
 MODEL = LoopModel(0.0422, 2.669, 0.0464, 19.62)
 
@@ -55,15 +60,7 @@ def naive(spec: FlightSpec) -> np.ndarray:
     relay, ext = 1.0, 0.0
     for k in range(n):
         e = 1.0 - (y + noise[k])
-        beta = -0.5
-        if relay > 0:
-            ext = max(ext, e)
-            if ext > 0 and e <= -beta * ext:
-                relay, ext = -1.0, e
-        else:
-            ext = min(ext, e)
-            if ext < 0 and e >= -beta * ext:
-                relay, ext = 1.0, e
+        relay, ext = relay_step(relay, ext, e, -0.5)
         u = 0.05 * relay
         for _ in range(sub):
             buf.append(u)

@@ -31,6 +31,7 @@ from mrftcli.sim.flight import (
     sidecar_path,
     simulate_flight,
 )
+from relay_rule import relay_step
 
 DESIGN1_ALT = LoopModel(0.0422, 2.669, 0.0464, 19.6)
 DESIGN1_ROLL = LoopModel(0.0422, 1.301, 0.0297, 30.0)
@@ -307,14 +308,8 @@ def _checks_rule(e, beta, start_threshold):
         if not started:
             if s * x < -start_threshold:
                 s, ext, started = -s, x, True
-        elif s > 0:
-            ext = max(ext, x)
-            if ext > 0 and x <= -beta * ext:
-                s, ext = -1.0, x
         else:
-            ext = min(ext, x)
-            if ext < 0 and x >= -beta * ext:
-                s, ext = 1.0, x
+            s, ext = relay_step(s, ext, x, beta)
         out.append(s)
     return np.array(out)
 
@@ -351,14 +346,8 @@ def test_limit_cycle_matches_an_independent_closed_loop():
         elif not started:
             if s * e < 0:
                 s, ext, started = -s, e, True
-        elif s > 0:
-            ext = max(ext, e)
-            if ext > 0 and e <= -beta * ext:
-                s, ext = -1.0, e
         else:
-            ext = min(ext, e)
-            if ext < 0 and e >= -beta * ext:
-                s, ext = 1.0, e
+            s, ext = relay_step(s, ext, e, beta)
         u[k] = bias + s * h
         prev = u[k - 1] if k else bias
         if u[k] != prev:

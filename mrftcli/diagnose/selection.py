@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import warnings
+import warnings as pywarnings  # (diagnose() has a local list named warnings)
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
@@ -454,7 +455,10 @@ def diagnose(
         # what a log supports; the identification's bootstrap and refinement are not needed here
         from ..analyze import analyze_flight
 
-        screen = analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False)
+        with pywarnings.catch_warnings():
+            # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
+            pywarnings.simplefilter("ignore", RuntimeWarning)
+            screen = analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False)
     segs = segments_of(flight, screen)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)

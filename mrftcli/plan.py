@@ -77,6 +77,8 @@ __all__ = [
     "FlightLimits",
     "FlownTest",
     "flown_from_segments",
+    "flown_from_result",
+    "prior_range",
     "TestPlan",
     "PlanResult",
     "NOISE_MODEL",
@@ -262,6 +264,49 @@ def flown_from_segments(tests: Sequence) -> tuple[tuple[FlownTest, ...], float |
                              phase=float(ph.mean()) if ph.size >= 2 else None))
         noise.extend(c.noise_std for c in t.stable if np.isfinite(c.noise_std))
     return tuple(out), (float(np.median(noise)) if noise else None)
+
+
+def flown_from_result(data: object) -> tuple[list[FlownTest], dict]:
+    """The flown tests and the identified parameters (``{}`` if none) of an ``analyze --json`` result.
+
+    ``data`` is the parsed JSON; the tests of a partial (single-beta) result count too.
+
+    Raises
+    ------
+    InputError
+        Not a JSON object, a test without beta, h, frequency_hz, amplitude or cycles, or no test.
+    """
+    if not isinstance(data, dict):
+        raise InputError("not an analyze --json result (expected a JSON object)")
+    tests = data.get("tests") or (data.get("partial") or {}).get("tests") or []
+    flown = []
+    for t in tests:
+        try:
+            flown.append(FlownTest(beta=float(t["beta"]), h=float(t["h"]), frequency_hz=float(t["frequency_hz"]),
+                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"])))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"a test lacks beta, h, frequency_hz, amplitude or cycles ({err})") from err
+    if not flown:
+        raise InputError("no MRFT test in this JSON (give the output of 'mrft-ident analyze --json')")
+    return flown, data.get("parameters") or {}
+
+
+def prior_range(estimate: dict | None, default: tuple[float, float]) -> tuple[float, float]:
+    """A prior range from an identified parameter (``{"mean", "std"}``): mean +/- 2 std, its low end
+    kept above mean / 10 (a range must stay positive); ``default`` without a usable estimate.
+
+    Examples
+    --------
+    >>> prior_range({"mean": 1.0, "std": 0.1}, (0.2, 3.0))
+    (0.8, 1.2)
+    >>> prior_range(None, (0.2, 3.0))
+    (0.2, 3.0)
+    """
+    if estimate and estimate.get("mean") is not None and estimate.get("std") is not None \
+            and math.isfinite(estimate["std"]) and estimate["std"] > 0 and estimate["mean"] > 0:
+        m, s = float(estimate["mean"]), float(estimate["std"])
+        return (max(m - 2 * s, m / 10), m + 2 * s)
+    return default
 
 
 # ----------------------------------------------------------------------------------------------

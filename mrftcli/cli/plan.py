@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import click
@@ -15,37 +14,17 @@ __all__ = ["plan", "format_plan"]
 
 
 def _flown_from_json(path: Path) -> tuple[list, dict]:
-    """Flown tests (and identified parameters, if any) from an ``analyze --json`` result."""
-    from ..plan import FlownTest
+    """Flown tests (and identified parameters, if any) from an ``analyze --json`` result file."""
+    from ..plan import flown_from_result
 
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
-    if not isinstance(data, dict):
-        raise InputError(f"{path}: not an analyze --json result (expected a JSON object)")
-    tests = data.get("tests") or (data.get("partial") or {}).get("tests") or []
-    flown = []
-    for t in tests:
-        try:
-            flown.append(FlownTest(beta=float(t["beta"]), h=float(t["h"]), frequency_hz=float(t["frequency_hz"]),
-                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"])))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"{path}: a test lacks beta, h, frequency_hz, amplitude or cycles ({err})") from err
-    if not flown:
-        raise InputError(f"{path}: no MRFT test in this JSON (give the output of 'mrft-ident analyze --json')")
-    return flown, data.get("parameters") or {}
-
-
-def _narrowed(rng: tuple[float, float] | None, est: dict | None, default: tuple[float, float]) -> tuple[float, float]:
-    """The user's range, else mean +/- 2 std of an identified parameter, else the default."""
-    if rng is not None:
-        return rng
-    if est and est.get("mean") is not None and est.get("std") is not None and math.isfinite(est["std"]) \
-            and est["std"] > 0 and est["mean"] > 0:
-        m, s = float(est["mean"]), float(est["std"])
-        return (max(m - 2 * s, m / 10), m + 2 * s)
-    return default
+    try:
+        return flown_from_result(data)
+    except InputError as err:
+        raise InputError(f"{path}: {err}") from err
 
 
 def format_plan(result) -> str:
@@ -118,7 +97,7 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
 
     Example: mrft-ident plan --tp 0.0422 --from first.mcap --max-amplitude 0.05 --max-h 0.2 --time 20
     """
-    from ..plan import FlightLimits, Prior, flown_from_segments, plan_tests
+    from ..plan import FlightLimits, Prior, flown_from_segments, plan_tests, prior_range
     from ..sim import default_noise_std
 
     check_output_file(json_target, "--json")  # before the work, as analyze
@@ -139,9 +118,9 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
             if not flown:
                 raise SegmentationError(f"{path}: no MRFT test with 3 or more stable cycles to plan from")
             log_rate = float(found[0].rate_hz)
-    prior = Prior(Td=_narrowed(td_range, params.get("Td"), (0.2, 3.0)),
-                  tau=_narrowed(tau_range, params.get("tau"), (0.01, 0.1)),
-                  K=_narrowed(k_range, params.get("K"), (0.5, 20.0)))
+    prior = Prior(Td=td_range if td_range is not None else prior_range(params.get("Td"), (0.2, 3.0)),
+                  tau=tau_range if tau_range is not None else prior_range(params.get("tau"), (0.01, 0.1)),
+                  K=k_range if k_range is not None else prior_range(params.get("K"), (0.5, 20.0)))
     rate = rate_hz if rate_hz is not None else (log_rate or 200.0)
     noise = noise_std if noise_std is not None else (measured_noise or default_noise_std(loop))
     limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)

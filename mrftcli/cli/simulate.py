@@ -64,14 +64,11 @@ def parse_effect(text: str) -> tuple[str, float]:
 
 
 def _format_of(path: Path, fmt: str | None) -> str:
-    from ..io import FORMATS
+    from ..io import FORMATS, format_from_name
 
     if fmt is not None:
         return fmt
-    name = path.name.lower()
-    if name.endswith(".json.mcap"):
-        return "mcap-json"
-    guessed = {".mcap": "mcap", ".bag": "bag", ".ulg": "ulog", ".csv": "csv"}.get(path.suffix.lower())
+    guessed = format_from_name(path)
     if guessed is None:
         raise InputError(
             f"cannot tell the log format from {path.name!r}; pass --format (one of {', '.join(FORMATS)})"

@@ -26,7 +26,7 @@ from .layouts import LAYOUT_NAMES, LAYOUTS, Layout, LayoutMatch, detect_layout, 
 
 __all__ = [
     "open_log", "read_flight", "flight_from_source", "write_log", "LogSource", "TopicSpec", "parse_spec",
-    "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format",
+    "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format", "format_from_name",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal",
     "LAYOUTS", "LAYOUT_NAMES", "Layout", "LayoutMatch", "detect_layout", "get_layout", "log_layout",
 ]
@@ -71,6 +71,21 @@ def log_filename(stem: str | Path, fmt: str) -> Path:
     if fmt not in FORMAT_SUFFIX:
         raise InputError(f"unknown log format {fmt!r}; choose one of {', '.join(FORMATS)}")
     return Path(f"{stem}{FORMAT_SUFFIX[fmt].rstrip('/')}")
+
+
+def format_from_name(path: str | Path) -> str | None:
+    """The format :func:`write_log` writes for a file name (``.json.mcap`` -> ``mcap-json``), None
+    when the name does not tell.
+
+    Examples
+    --------
+    >>> format_from_name("fit.json.mcap"), format_from_name("flight.ULG"), format_from_name("flight.txt")
+    ('mcap-json', 'ulog', None)
+    """
+    path = Path(path)
+    if path.name.lower().endswith(".json.mcap"):
+        return "mcap-json"
+    return {".mcap": "mcap", ".bag": "bag", ".ulg": "ulog", ".csv": "csv"}.get(path.suffix.lower())
 
 
 def detect_format(path: str | Path) -> str:
@@ -195,11 +210,7 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
     """
     path = Path(path)
     if fmt is None:
-        name = path.name.lower()
-        if name.endswith(".json.mcap"):
-            fmt = "mcap-json"
-        else:
-            fmt = {".mcap": "mcap", ".bag": "bag", ".ulg": "ulog", ".csv": "csv"}.get(path.suffix.lower())
+        fmt = format_from_name(path)
         if fmt is None:
             raise InputError(f"cannot tell the log format from {path.name!r}; pass fmt= one of "
                              f"{', '.join(FORMATS)}")

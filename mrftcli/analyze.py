@@ -51,7 +51,7 @@ from .mrft.refine import Refinement, refine, refinement_windows
 from .segment import MrftTest, StabilityCriterion, ValidityCriterion, segment
 from .validate import check_tp
 
-__all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "analysis_overlay", "log_start", "describe_t0",
+__all__ = ["AnalysisResult", "analyze_flight", "analyze_path", "analysis_overlay", "command_rate_of_result", "log_start", "describe_t0",
            "CONSTRAINTS", "ASSUMED_TD_RANGE"]
 
 _TWO_PI = 2.0 * math.pi
@@ -856,3 +856,19 @@ def analysis_overlay(result: AnalysisResult) -> dict:
     meta = {"log": str(result.path), "loop": result.loop, "mrft_ident_version": __version__,
             "time_base": "the original log's time [s] (MCAP log_time = seconds * 1e9)"}
     return {"tests": tests, "fits": fits, "parameters": params, "metadata": meta}
+
+
+def command_rate_of_result(data: dict) -> float | None:
+    """The mean command rate [Hz] an ``analyze --json`` result records (its ``input`` section:
+    ``command_samples`` over ``t_first`` .. ``t_last``); None when it does not say.
+
+    Examples
+    --------
+    >>> command_rate_of_result({"input": {"command_samples": 201, "t_first": 0.0, "t_last": 1.0}})
+    200.0
+    """
+    inp = data.get("input", {})
+    if inp.get("command_samples") and inp.get("t_first") is not None and inp.get("t_last") is not None:
+        span = float(inp["t_last"]) - float(inp["t_first"])
+        return (int(inp["command_samples"]) - 1) / span if span > 0 else None
+    return None

@@ -31,6 +31,7 @@ def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
 
 def _from_result_json(path: Path, Tp: float):
     """(model, posterior, note, loop, rate, heights, amplitudes) from an ``analyze --json`` file."""
+    from ..analyze import command_rate_of_result
     from ..tune.analysis import model_from_result_json
 
     try:
@@ -41,10 +42,7 @@ def _from_result_json(path: Path, Tp: float):
     except InputError as err:
         raise InputError(f"{path}: {err}") from err
     inp = data.get("input", {})
-    rate = None
-    if inp.get("command_samples") and inp.get("t_first") is not None and inp.get("t_last") is not None:
-        span = float(inp["t_last"]) - float(inp["t_first"])
-        rate = (int(inp["command_samples"]) - 1) / span if span > 0 else None
+    rate = command_rate_of_result(data)
     tests = data.get("tests", [])
     return (model, post, note, inp.get("loop"), rate, [float(t["h"]) for t in tests if "h" in t],
             [float(t["amplitude"]) for t in tests if "amplitude" in t])

@@ -17,25 +17,27 @@ def format_summary(result) -> str:
     """The terminal summary of a :class:`~mrftcli.diagnose.selection.DiagnosisResult`."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
-    lines.append(f"{'test':>4} {'t [s] from log start':>21} {'beta nom':>8} {'beta eff':>8} {'h':>8} {'cycles used':>11}")
+    lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
+    lines.append(f"{'':>4} {'[s]':>11} {'nominal':>8} {'effective':>9} {'[command]':>9} {'used':>6}")
     for t in result.tests:
         nom = f"{t['beta_nominal']:+.3f}" if t["beta_nominal"] is not None else "-"
         beff = 0.5 * (t["beta_effective_up"] + t["beta_effective_down"])
         span = f"{t['t_start_rel']:.1f}-{t['t_end_rel']:.1f}"
-        lines.append(f"{t['index'] + 1:>4} {span:>21} {nom:>8} {beff:>+8.3f} "
-                     f"{t['h']:>8.4g} {t['cycles']:>11d}")
+        lines.append(f"{t['index'] + 1:>4} {span:>11} {nom:>8} {beff:>+9.3f} "
+                     f"{t['h']:>9.4g} {t['cycles']:>6d}")
     lin = result.identification.get("linear", {})
     lines.append(f"linear model fitted to the cycles: Td {_g(lin.get('Td'))} s  tau {_g(1e3 * lin['tau'] if 'tau' in lin else None)} ms"
                  f"  K {_g(lin.get('K'))}")
-    lines.append("candidates (delta BIC > 10 and better on held-out cycles = found):")
-    lines.append(f"  {'effect':<20} {'parameter':>22} {'delta BIC':>10} {'held-out NRMSE':>22}")
+    lines.append("candidates (found = delta BIC > 10 and better on the held-out cycles; held-out error = RMS of\n"
+                 "the held-out cycles' misfit over their amplitude, without and with the effect):")
+    lines.append(f"  {'effect':<20} {'parameter':>22} {'delta BIC':>10} {'held-out error':>22}")
     for c in result.candidates:
         if c.get("delta_bic") is None:
             lines.append(f"  {c['name']:<20} {'(' + str(c.get('status', 'n/a')) + ')':>22}")
             continue
         par = f"{c['parameter']} = {_g(c.get('value'))}"
-        b = (c.get("held_out_before") or {}).get("nrmse")
-        a = (c.get("held_out_after") or {}).get("nrmse")
+        b = (c.get("held_out_before") or {}).get("nrmse_raw")
+        a = (c.get("held_out_after") or {}).get("nrmse_raw")
         mark = "  <- found" if any(e.name == c["name"] and e.evidence.get("compared_with") == "linear"
                                    for e in result.effects) else ""
         lines.append(f"  {c['name']:<20} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
@@ -44,8 +46,8 @@ def format_summary(result) -> str:
         lines.append(f"a second effect on top of {pairs[0]['with']} (delta BIC against that model):")
         for c in pairs:
             par = f"{c['parameter']} = {_g(c['values'].get(c['name']))}"
-            b = (c.get("held_out_before") or {}).get("nrmse")
-            a = (c.get("held_out_after") or {}).get("nrmse")
+            b = (c.get("held_out_before") or {}).get("nrmse_raw")
+            a = (c.get("held_out_after") or {}).get("nrmse_raw")
             mark = "  <- found" if any(e.name == c["name"] for e in result.effects) else ""
             lines.append(f"  + {c['name']:<18} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
     if result.effects:
@@ -65,7 +67,7 @@ def format_summary(result) -> str:
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")
         for loc in feats:
             lines.append(f"  test {loc['test'] + 1} ({loc['t_start_rel']:.1f}-{loc['t_end_rel']:.1f} s): {loc['what']}, z = {loc['z']:+.1f}")
-    return "\n".join(lines)
+    return "\n".join(line.rstrip() for line in lines)
 
 
 @click.command("diagnose")

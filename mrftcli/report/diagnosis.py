@@ -181,10 +181,6 @@ def plot_evidence(result):
     ax.set_xlabel("how much better the effect explains the fitted cycles\n(drop in BIC; negative: worse)")
     ax.set_title("Evidence for each candidate effect")
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3))
-    b = [(c.get("held_out_before") or {}).get("nrmse") for c in rows]
-    a = [(c.get("held_out_after") or {}).get("nrmse") for c in rows]
-    b = np.array([np.nan if v is None else v for v in b], float)
-    a = np.array([np.nan if v is None else v for v in a], float)
     # the raw NRMSE (recording's own cycle-to-cycle scatter kept): the scatter-subtracted figure is 0
     # whenever a model is within the scatter, which shows nothing on a bar chart
     b = [(c.get("held_out_before") or {}).get("nrmse_raw", (c.get("held_out_before") or {}).get("nrmse")) for c in rows]
@@ -230,12 +226,14 @@ def _param_rows(e) -> list[tuple]:
 def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none)."""
     out = ensure_dir(out_dir)
+    fitted = any(c.get("delta_bic") is not None for c in result.candidates)
     figs = {
         "diagnosis_located.png": plot_located(result),
         "diagnosis_overlay.png": plot_overlay(result),
         "diagnosis_harmonics.png": plot_harmonics(result),
-        "diagnosis_evidence.png": plot_evidence(result),
     }
+    if fitted:  # candidates are fitted only when the linear model is rejected: no empty chart otherwise
+        figs["diagnosis_evidence.png"] = plot_evidence(result)
     for name, fig in figs.items():
         save_figure(fig, out / name)
     t0 = result.t0
@@ -289,7 +287,10 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         body.append("<p>Every feature is within 3 standard errors of the linear model's.</p>")
     body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
     body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
-    body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
+    body.append("<h2>Evidence for each candidate</h2>" + (
+        "<img src='diagnosis_evidence.png'>" if fitted else
+        "<p>No candidate was fitted: the cycles do not reject the linear model, so there is nothing for a "
+        "candidate effect to explain.</p>"))
     pairs = result.second_effect_candidates
     if pairs:
         body.append(f"<h3>A second effect on top of {esc(pairs[0]['with'].replace('_', ' '))}</h3>")

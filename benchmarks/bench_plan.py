@@ -37,7 +37,7 @@ from mrftcli.errors import MrftError  # noqa: E402
 from mrftcli.mrft.lprs import mrft_limit_cycle  # noqa: E402
 from mrftcli.mrft.model import LoopModel  # noqa: E402
 from mrftcli.plan import (FlightLimits, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
-                          planned_information)
+                          planned_information, simulated_std)
 from mrftcli.segment import segment  # noqa: E402
 from mrftcli.sim import FlightSpec, TestSpec, default_noise_std, simulate_flight  # noqa: E402
 
@@ -61,7 +61,7 @@ def _max_noise(m: LoopModel, beta: float, h: float, rate: float, margin: float =
     return noise_margin(m, beta, h, rate, 1.0) / margin
 
 
-def run(n: int, seed: int) -> None:
+def run(n: int, seed: int, args_sim: int = 8) -> None:
     rng = np.random.default_rng(seed)
     prior = Prior(Td=(0.2, 3.0), tau=(0.01, 0.1), K=(0.5, 20.0))
     rows, skipped, failed, refused = [], 0, [], 0
@@ -85,7 +85,7 @@ def run(n: int, seed: int) -> None:
             continue
         try:
             t0 = time.perf_counter()
-            p = plan_tests(m.Tp, prior, limits, flown=flown, n_tests=1, seed=k)
+            p = plan_tests(m.Tp, prior, limits, flown=flown, n_tests=1, seed=k, n_simulated=args_sim)
             t_plan.append(time.perf_counter() - t0)
             rec = p.tests[0]
             conv_h = [c["h"] for c in p.candidates if abs(c["beta"] + 0.7) < 1e-9]
@@ -115,14 +115,20 @@ def run(n: int, seed: int) -> None:
         info = info + planned_information(m.Tp, truth, rec.beta, rec.h, t2, rate, noise)
         o_td, o_tau = np.sqrt(np.diag(np.linalg.pinv(info)))[:2]
         rng_ = p.predicted_std_data_range
+        # the simulation forecast at the true plant (another noise seed): its ceiling
+        s_true = simulated_std(m.Tp, np.array([truth]), flown, p.tests, limits, seed=k + 7919)[0]
+        sim = p.simulated_std or {"Td": np.nan, "tau": np.nan}
+        srng = p.simulated_std_range or {"Td": (np.nan, np.nan), "tau": (np.nan, np.nan)}
         row = dict(k=k, tauA=ra.tau.std, tdA=ra.Td.std, tauB=rb.tau.std, tdB=rb.Td.std, ptau=pred["tau"],
                    ptd=pred["Td"], otau=o_tau, otd=o_td, lotau=rng_["tau"][0], hitau=rng_["tau"][1],
-                   lotd=rng_["Td"][0], hitd=rng_["Td"][1])
+                   lotd=rng_["Td"][0], hitd=rng_["Td"][1], stau=sim["tau"], std_=sim["Td"],
+                   sttau=s_true[1], sttd=s_true[0], slotau=srng["tau"][0], shitau=srng["tau"][1],
+                   slotd=srng["Td"][0], shitd=srng["Td"][1])
         rows.append(row)
         print(f"plant {k:2d} {loop:8s} {rate:3.0f} Hz Td {m.Td:.2f} tau {m.tau * 1e3:5.1f} ms | rec {rec.beta:+.2f} "
               f"TdW {rec.td_omega[0]:.1f}-{rec.td_omega[1]:.1f}: tau std {ra.tau.std * 1e3:.3f} ms "
-              f"(pred {pred['tau'] * 1e3:.3f}, at truth {o_tau * 1e3:.3f}) Td std {ra.Td.std:.4f} "
-              f"(pred {pred['Td']:.4f}, at truth {o_td:.4f}) | -0.7: tau {rb.tau.std * 1e3:.3f} ms Td {rb.Td.std:.4f}",
+              f"(pred {pred['tau'] * 1e3:.3f}, at truth {o_tau * 1e3:.3f}, sim {sim['tau'] * 1e3:.3f}) Td std {ra.Td.std:.4f} "
+              f"(pred {pred['Td']:.4f}, at truth {o_td:.4f}, sim {sim['Td']:.4f}, sim at truth {s_true[0]:.4f}) | -0.7: tau {rb.tau.std * 1e3:.3f} ms Td {rb.Td.std:.4f}",
               flush=True)
     if not rows:
         print("no plant analysed")
@@ -143,15 +149,21 @@ def run(n: int, seed: int) -> None:
           f"(tau alone {np.mean(r['tauA'] <= tol * r['tauB']):.0%}, Td alone {np.mean(r['tdA'] <= tol * r['tdB']):.0%})")
     print(f"median ratio achieved std recommended / conventional: tau {np.median(r['tauA'] / r['tauB']):.2f}, "
           f"Td {np.median(r['tdA'] / r['tdB']):.2f}")
-    for label, kt, kd in (("plan's forecast", "ptau", "ptd"), ("plan's model at the true plant", "otau", "otd")):
+    for label, kt, kd in (("plan's analytic forecast", "ptau", "ptd"), ("analytic model at the true plant", "otau", "otd"),
+                          ("plan's simulated forecast", "stau", "std_"), ("simulation at the true plant", "sttau", "sttd")):
         q_tau, q_td = r[kt] / r["tauA"], r[kd] / r["tdA"]
-        print(f"{label} / achieved (MRFT bootstrap std) within 1.5x: tau {within(q_tau).sum()}/{q_tau.size}, "
+        miss = int(np.sum(~np.isfinite(q_tau)))
+        q_tau, q_td = np.where(np.isfinite(q_tau), q_tau, np.inf), np.where(np.isfinite(q_td), q_td, np.inf)
+        print(f"{label} / achieved (MRFT bootstrap std) within 1.5x ({miss} without forecast count as misses): "
+              f"tau {within(q_tau).sum()}/{q_tau.size}, "
               f"Td {within(q_td).sum()}/{q_td.size}; ratio median tau {np.median(q_tau):.2f} "
               f"[{q_tau.min():.2f}, {q_tau.max():.2f}], Td {np.median(q_td):.2f} [{q_td.min():.2f}, {q_td.max():.2f}]")
     inside = lambda lo, hi, x: (x >= lo / 1.5) & (x <= hi * 1.5)  # noqa: E731
     print(f"achieved within the forecast's 10-90 % range over the draws (+/- 1.5x): tau "
           f"{inside(r['lotau'], r['hitau'], r['tauA']).sum()}/{r['tauA'].size}, Td "
-          f"{inside(r['lotd'], r['hitd'], r['tdA']).sum()}/{r['tdA'].size}")
+          f"{inside(r['lotd'], r['hitd'], r['tdA']).sum()}/{r['tdA'].size}; simulated range: tau "
+          f"{inside(r['slotau'], r['shitau'], r['tauA']).sum()}/{r['tauA'].size}, Td "
+          f"{inside(r['slotd'], r['shitd'], r['tdA']).sum()}/{r['tdA'].size}")
     print(f"planning time: median {np.median(t_plan):.2f} s")
 
 

@@ -88,6 +88,7 @@ __all__ = [
     "planned_information",
     "flown_information",
     "plan_tests",
+    "simulated_std",
     "DEFAULT_BETAS",
     "TD_OMEGA_LIMIT",
 ]
@@ -496,6 +497,12 @@ class PlanResult:
         cycles and stds, and whether the limits admit it.
     notes : tuple of str
         Parameters no admissible test pins down, and what would help.
+    simulated_std, simulated_std_range : dict
+        With ``n_simulated``: the median and the 10-90 % range over the simulated plants of the
+        bootstrap std ``analyze`` measured on their simulated flights (:func:`simulated_std`); empty
+        otherwise.
+    n_simulated : int
+        Simulated flights that ``analyze`` could use.
     """
 
     Tp: float
@@ -509,6 +516,9 @@ class PlanResult:
     predicted_std_data_range: dict = field(default_factory=dict)
     flown: tuple[FlownTest, ...] = ()
     limits: FlightLimits | None = field(default=None, repr=False)
+    simulated_std: dict = field(default_factory=dict)
+    simulated_std_range: dict = field(default_factory=dict)
+    n_simulated: int = 0
 
     def to_dict(self) -> dict:
         """JSON object of ``mrft-ident plan --json``."""
@@ -519,6 +529,9 @@ class PlanResult:
             "predicted_std": self.predicted_std,
             "predicted_std_tests_only": self.predicted_std_data,
             "predicted_std_tests_only_range": {k: list(v) for k, v in self.predicted_std_data_range.items()},
+            "simulated_std": self.simulated_std,
+            "simulated_std_range": {k: list(v) for k, v in self.simulated_std_range.items()},
+            "n_simulated": self.n_simulated,
             "prior_std": self.prior_std,
             "conventional": self.conventional,
             "candidates": list(self.candidates),
@@ -642,6 +655,70 @@ def _conditioned_draws(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: i
     return out[np.minimum(idx, out.shape[0] - 1)]
 
 
+def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
+                  limits: FlightLimits, *, n_bootstrap: int = 100, seed: int = 0,
+                  progress: Progress | None = None) -> np.ndarray:
+    """Forecast by simulation: fly the flown and planned tests on each plant and measure analyze's std.
+
+    For each plant (rows Td [s], tau [s], K) the project's simulator (:func:`mrftcli.sim.simulate_flight`,
+    exact sampled MRFT rule at ``limits.rate_hz``, white sensor noise ``limits.noise_std``) flies the
+    flown tests (their beta and h, their stable cycles plus the transient) and then ``tests``; the
+    flight is analysed as ``analyze`` does without the waveform refinement, and the bootstrap std
+    of its MRFT estimate is kept. Everything the analytic noise model approximates (the sampled
+    relay hopping between orbits, switch jitter, the segmenter's choices) is then in the forecast.
+
+    Parameters
+    ----------
+    Tp : float
+        Propulsion time constant [s].
+    plants : ndarray, shape (n, 3)
+        The plants to fly (Td, tau, K), e.g. draws from what the flown tests leave.
+    flown, tests : sequences of FlownTest and TestPlan
+        The tests flown so far and the planned ones, in flying order.
+    limits : FlightLimits
+        Controller rate and sensor noise of the flight.
+    n_bootstrap : int
+        Bootstrap draws per analysis.
+    seed : int
+        Seed of the noise and of the bootstrap.
+    progress : Progress, optional
+        Called as ``progress(done, n, "simulating")`` per plant.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        std of Td [s], tau [s], K per plant; NaN where ``analyze`` could not use the simulated flight
+        (it locked up on noise, or a test was lost).
+    """
+    from .analyze import analyze_flight
+    from .errors import MrftError
+    from .io.logtypes import FlightLog, Signal
+    from .sim import FlightSpec, TestSpec, simulate_flight
+
+    specs = [TestSpec(f.beta, f.h, (f.n_cycles + _LOST_CYCLES) / f.frequency_hz) for f in flown]
+    specs += [TestSpec(t.beta, t.h, t.duration_s) for t in tests]
+    rng = np.random.default_rng(seed)
+    out = np.full((len(plants), 3), np.nan)
+    for k, p in enumerate(plants):
+        model = LoopModel(Tp, float(p[0]), float(p[1]), float(p[2]))
+        try:
+            sf = simulate_flight(FlightSpec(model=model, tests=tuple(specs), rate_hz=limits.rate_hz,
+                                            noise_std=limits.noise_std, seed=int(rng.integers(1 << 30)),
+                                            hover_s=2.0, hold_s=2.0))
+            flight = FlightLog(path="<simulated>", loop=sf.spec.loop, command=Signal(sf.t, sf.command),
+                               output=Signal(sf.t, sf.output_measured), setpoint=Signal(sf.t, sf.setpoint))
+            with np.errstate(all="ignore"):
+                res = analyze_flight(flight, Tp, n_bootstrap=n_bootstrap, refine_waveform=False,
+                                     seed=int(rng.integers(1 << 30)))
+            # a planned test analyze lost counts as no forecast (its std would be the flown tests')
+            if all(any(abs(m.beta_effective - t.beta) < 0.1 for m in res.tests) for t in tests):
+                out[k] = (res.Td.std, res.tau.std, res.K.std)
+        except MrftError:
+            pass
+        report(progress, k + 1, len(plants), "simulating")
+    return out
+
+
 def _stds(cov: np.ndarray, plant: np.ndarray) -> np.ndarray:
     """(std Td [s], std tau [s], std K) from the covariance on (Td, tau, ln K)."""
     d = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -669,6 +746,7 @@ def plan_tests(
     n_tests: int | None = None,
     betas: Sequence[float] = DEFAULT_BETAS,
     n_draws: int = 8,
+    n_simulated: int = 0,
     seed: int = 0,
     progress: Progress | None = None,
 ) -> PlanResult:
@@ -691,6 +769,9 @@ def plan_tests(
         The beta grid searched.
     n_draws : int
         Plant draws from the prior the design is averaged over.
+    n_simulated : int
+        When > 0, the recommended tests are also flown in simulation on this many of the draws
+        (:func:`simulated_std`, about 0.1 s each): ``PlanResult.simulated_std`` and its range.
     seed : int
         Seed of the draws.
     progress : Progress, optional
@@ -852,7 +933,23 @@ def plan_tests(
         notes.append(f"at every admissible beta the relay switches fewer than {_MIN_SWITCH_GAP:g} noise stds below "
                      "the extremum for the typical plant: noise may trigger switches early; allow a larger amplitude "
                      "(--max-amplitude) or narrow the K range")
+    sim_std, sim_range, n_sim = {}, {}, 0
+    if n_simulated > 0:
+        extra = int(n_simulated) - len(plants)
+        sims = plants if extra <= 0 else np.vstack(
+            [plants, _conditioned_draws(Tp, prior, flown, extra, rng, rate, noise_std)])
+        s = simulated_std(Tp, sims[:int(n_simulated)], flown, tests, limits, seed=seed, progress=progress)
+        s = s[np.all(np.isfinite(s), axis=1)]
+        n_sim = int(s.shape[0])
+        if n_sim:
+            sim_std = dict(zip(_PARAMS, map(float, np.median(s, axis=0))))
+            lo, hi = np.percentile(s, [10.0, 90.0], axis=0)
+            sim_range = {k: (float(a), float(b)) for k, a, b in zip(_PARAMS, lo, hi)}
+        if n_sim < int(n_simulated):
+            notes.append(f"analyze could not use the simulated flight of {int(n_simulated) - n_sim} of "
+                         f"{int(n_simulated)} plants (lost or locked-up tests): the test may fail on noise")
     return PlanResult(Tp=Tp, tests=tests, predicted_std=post, predicted_std_data=summary(acc_data),
+                      simulated_std=sim_std, simulated_std_range=sim_range, n_simulated=n_sim,
                       predicted_std_data_range=summary(acc_data, (10.0, 90.0)),
                       prior_std=prior_std, conventional=conventional, candidates=tuple(candidate_rows),
                       notes=tuple(notes), flown=tuple(flown), limits=limits)

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from mrftcli.cli.main import cli
-from mrftcli.errors import InputError
+from mrftcli.errors import InputError, InsufficientDataError
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 from mrftcli.plan import FlightLimits, FlownTest, Prior, cycle_noise, fisher_information, plan_tests
@@ -165,3 +165,45 @@ def test_forecast_is_the_typical_draw_inside_its_range():
         lo, hi = p.predicted_std_data_range[k]
         assert 0 < lo <= p.predicted_std_data[k] <= hi
     assert p.to_dict()["predicted_std_tests_only_range"]["Td"] == list(p.predicted_std_data_range["Td"])
+
+
+def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
+    # oracle: the spread of the MRFT estimate over independent flights of the known plant (fresh
+    # noise seeds, built here) - the sampling std the bootstrap forecast stands for
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.sim import FlightSpec, TestSpec, simulate_flight
+    from test_segment_support import flight_from_simulated
+
+    model = LoopModel(0.04, 0.8, 0.03, 2.0)
+    lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
+    h1 = 0.03 / lc.amplitude
+    flown = FlownTest(beta=-0.4, h=h1, frequency_hz=lc.frequency_hz, amplitude=0.03, n_cycles=11)
+    limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    p = plan_tests(model.Tp, _narrow_prior(), limits, flown=[flown], n_draws=2, n_simulated=3, betas=(-0.6, -0.8))
+    assert p.n_simulated >= 2 and p.to_dict()["simulated_std"] == p.simulated_std
+    t = p.tests[0]
+    est = []
+    for seed in range(12):
+        sf = simulate_flight(FlightSpec(model=model, tests=(TestSpec(-0.4, h1, 14 / lc.frequency_hz),
+                                                            TestSpec(t.beta, t.h, t.duration_s)),
+                                        rate_hz=200.0, noise_std=0.0005, seed=1000 + seed, hover_s=2.0, hold_s=2.0))
+        try:
+            r = analyze_flight(flight_from_simulated(sf), model.Tp, n_bootstrap=10, refine_waveform=False)
+        except InsufficientDataError:  # a test lost to noise now and then
+            continue
+        est.append((r.Td.mean, r.tau.mean))
+    assert len(est) >= 9
+    spread = np.std(est, axis=0, ddof=1)
+    assert 1 / 2.5 < p.simulated_std["Td"] / spread[0] < 2.5
+    assert 1 / 2.5 < p.simulated_std["tau"] / spread[1] < 2.5
+
+
+def test_simulated_forecast_says_when_the_flights_fail():
+    # a noise far above the amplitude: analyze cannot use the simulated flights, and the plan says so
+    flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
+    limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    p = plan_tests(0.04, _narrow_prior(), limits, flown=[flown], n_draws=2, betas=(-0.6,))
+    s = __import__("mrftcli.plan", fromlist=["simulated_std"]).simulated_std(
+        0.04, np.array([[0.8, 0.03, 2.0]]), [flown], p.tests,
+        FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.5))
+    assert np.isnan(s).all()

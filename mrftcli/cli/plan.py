@@ -52,6 +52,12 @@ def format_plan(result) -> str:
         lines.append(f"{'  10-90 % over the plants':<28} {rng['Td'][0]:.3g}-{rng['Td'][1]:.3g} s, "
                      f"{rng['tau'][0] * 1e3:.3g}-{rng['tau'][1] * 1e3:.3g} ms (where the plant lies in what is "
                      "still unknown)")
+    if result.simulated_std:
+        lines.append(row(f"  simulated ({result.n_simulated} plants)", result.simulated_std))
+        sr = result.simulated_std_range
+        lines.append(f"{'  10-90 % simulated':<28} {sr['Td'][0]:.3g}-{sr['Td'][1]:.3g} s, "
+                     f"{sr['tau'][0] * 1e3:.3g}-{sr['tau'][1] * 1e3:.3g} ms (flights of the same plant scatter "
+                     "too: read the range)")
     if result.conventional:
         betas = "/".join(f"{b:g}" for b in result.conventional["betas"])
         lines.append(row(f"after beta {betas} instead", result.conventional["predicted_std"]))
@@ -80,10 +86,13 @@ def format_plan(result) -> str:
               help="Sensor noise std [output units] (default: measured in the log, else the loop's default).")
 @click.option("--tests", "n_tests", type=click.IntRange(1, 4), default=None,
               help="How many next tests (sharing --time); default 2 without a first test, else 1.")
+@click.option("--simulate", "n_simulated", type=click.IntRange(0, 64), default=8, show_default=True,
+              help="Also fly the recommended test(s) in simulation on this many plausible plants and analyse "
+                   "them (about 0.1-0.2 s each; 0: the analytic forecast only).")
 @log_layout_options()
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the plan as JSON to FILE, or '-' for stdout.")
 def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s, rate_hz, noise_std, n_tests,
-         json_target, **read_options):
+         n_simulated, json_target, **read_options):
     """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
 
     The prior (ranges, and a first test from --from) and the flight's limits give each candidate
@@ -125,7 +134,8 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
     noise = noise_std if noise_std is not None else (measured_noise or default_noise_std(loop))
     limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)
     with tqdm_progress("plan", unit="step") as progress:
-        result = plan_tests(Tp, prior, limits, flown=flown, n_tests=n_tests, progress=progress)
+        result = plan_tests(Tp, prior, limits, flown=flown, n_tests=n_tests, n_simulated=n_simulated,
+                            progress=progress)
     if json_target:
         dump_json(result.to_dict(), json_target)
     if json_target != "-":

@@ -606,22 +606,47 @@ def diagnose(
                                 _harmonics_before_after(tests, base_model, base, m1, f1),
                                 {"compared_with": "linear", "bic_base": bic_base}, n_all))
         # forward step: a second effect on top of the first (nested: the pair model with the second
-        # effect's parameter at zero is the first's model), kept on the same evidence and held-out rules
+        # effect's parameter at its null value is the first's model), kept on the same evidence and
+        # held-out rules. Every other deterministic candidate is paired with the first (a second effect
+        # can be invisible alone: a rectification beside a bias of the other sign worsens the linear
+        # fit on its own). When the first already explains the held-out cycles to the noise level, a
+        # pair is fitted only where one of its starts beats the first alone (a small sensor lag beside
+        # a large asymmetric gain), so single-effect logs stay cheap.
         say(f"testing a second effect on top of {first['name']}", more=1)
         explained = _explains_held_out(first["held_out_after"], tests)
-        for row in cand_rows:
-            if explained:
-                break  # the first effect leaves nothing beyond the noise on the held-out cycles
-            if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
+        chi2_sc = float(z_sc_base @ z_sc_base)
+        for cand in CANDIDATES:
+            if cand.name == first["name"] or cand.name not in names or cand.stochastic:
                 continue
-            pr = _pair_candidate(first, row, fits, tests, Tp, recs_fit, recs_hold, float(z_sc_base @ z_sc_base), n_all)
+            pr = _pair_candidate(first, first["name"], cand.name, fits, base, tests, Tp, recs_fit, recs_hold,
+                                 chi2_sc, n_all, probe_only=explained)
             if pr is not None:
                 pair_rows.append(pr)
+        # the balance-shifting effects (bias, asymmetric gain, saturation, rectification) stand in for
+        # one another alone: a close rival of the first, paired with the first's best partner, may
+        # explain the log better (the pair with the lowest BIC is kept)
+        partners = sorted((pr for pr in pair_rows if np.isfinite(pr["bic"])), key=lambda r: r["bic"])
+        if partners and not explained:
+            rivals = [r for r in deterministic[1:3] if r["delta_bic"] >= 0.5 * first["delta_bic"]]
+            for r in rivals:
+                if r["name"] == partners[0]["name"]:
+                    continue
+                pr = _pair_candidate(first, r["name"], partners[0]["name"], fits, base, tests, Tp, recs_fit,
+                                     recs_hold, chi2_sc, n_all)
+                if pr is not None:
+                    pair_rows.append(pr)
         for pr in pair_rows:
             pr["significant"] = _significant(pr)
         good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
         if good:
             second = good[0]
+            if second["with"] != first["name"]:
+                # a rival of the first, with the partner, beat the first with any partner
+                first = next(r for r in deterministic if r["name"] == second["with"])
+                m1, f1 = fits[first["name"]]
+                effects[0] = _finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
+                                      _harmonics_before_after(tests, base_model, base, m1, f1),
+                                      {"compared_with": "linear", "bic_base": bic_base}, n_all)
             mp, fp = second["_joint_fit"]
             final = (f"{first['name']} + {second['name']}", mp, fp)
             # with both effects modelled, both parameters come from the joint fit
@@ -968,44 +993,87 @@ def _finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> 
     )
 
 
-def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[DiagnosedTest], Tp: float, recs_fit: list,
-                    recs_hold: list, chi2_scatter: float, n_all: int) -> dict | None:
-    """Fit the first effect and another one together; evidence and held-out scores against the first alone.
+#: the value of each candidate's scaled parameter at which its model is the linear one (the nested
+#: start of a pair fit); saturation's is its upper bound, the others' their lower bound when not listed
+_NULL = {"input_bias": 0.0, "gain_drift": 0.0, "asymmetric_gain": 0.0}
+#: the profiled candidates, whose starts carry their own Td and tau (they trade off against the delay)
+_PROFILED = ("sensor_lag", "actuator_rate_limit")
 
-    Started from both single fits (each with the other's parameter taken from its own single fit),
-    the better one kept. ``delta_bic`` = BIC(first) - BIC(pair): the pair has one parameter more.
+
+def _pair_starts(model: CandidateModel, lo: np.ndarray, c1: Candidate, c2: Candidate, fits: dict, base: Fit,
+                 tests: list[DiagnosedTest], recs_fit: list, Tp: float, hi: np.ndarray) -> list[np.ndarray]:
+    """Starts of the pair (c1 fitted already, c2 added): c1's fit with c2 at its null value (the
+    nested model: the pair can only do better than c1 alone), at each of c2's own starts (their Td and
+    tau moved from c1's fit by what c2's start moved them from the linear fit), and, when c2 was
+    fitted alone, its single fit's value."""
+    m1, f1 = fits[c1.name]
+    j1, j2 = model.extra_index(c1.name), model.extra_index(c2.name)
+    k1 = m1.extra_index(c1.name)
+
+    def assemble(head: np.ndarray, x2: float | None) -> np.ndarray:
+        th = np.empty(lo.size)
+        th[:2] = head
+        if j1 is not None:
+            th[j1] = f1.theta[k1]
+        if j2 is not None and x2 is not None:
+            th[j2] = x2
+        return th
+
+    starts = []
+    if j2 is not None:
+        null = _NULL.get(c2.name, hi[j2] if c2.name == "actuator_saturation" else lo[j2])
+        starts.append(assemble(f1.theta[:2], null))
+    for s2 in candidate_starts(c2, base, tests, recs_fit, Tp):
+        head = f1.theta[:2].copy()
+        if c2.replaces_drag:
+            head = np.array([s2[0], f1.theta[1] + s2[1] - base.theta[1]])
+        elif c2.name in _PROFILED:
+            head = head + (s2[:2] - base.theta[:2]) if not c1.replaces_drag else np.array(
+                [head[0], head[1] + s2[1] - base.theta[1]])
+        starts.append(assemble(head, None if c2.replaces_drag else s2[2]))
+    if c2.name in fits and j2 is not None:
+        m2, f2 = fits[c2.name]
+        starts.append(assemble(f1.theta[:2], f2.theta[m2.extra_index(c2.name)]))
+    return starts
+
+
+def _pair_candidate(ref: dict, lead: str, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
+                    recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int, probe_only: bool = False
+                    ) -> dict | None:
+    """Fit the effect ``lead`` (fitted alone already) and ``other`` together; evidence and held-out
+    scores against ``ref``, the best single effect (``lead`` itself, or a close rival of it).
+
+    The starts (:func:`_pair_starts`) are scored first (one limit cycle each) and the fit runs from
+    the best one, so the pair never ends worse than ``lead`` alone. With ``probe_only`` the fit runs
+    only when some start already beats ``lead`` alone. ``delta_bic`` = BIC(ref) - BIC(pair).
     """
-    c1, c2 = BY_NAME[first["name"]], BY_NAME[other["name"]]
+    c1, c2 = BY_NAME[lead], BY_NAME[other]
     if c1.replaces_drag and c2.replaces_drag:
         return None
     model = CandidateModel((c1, c2), tests, Tp)
     lo, hi = theta_bounds((c1, c2), tests)
-    singles = {c.name: fits[c.name] for c in (c1, c2)}
-
-    def theta_from(lead: Candidate) -> np.ndarray:
-        m_lead, f_lead = singles[lead.name]
-        th = [f_lead.theta[0], f_lead.theta[1]]
-        if any(c.replaces_drag for c in (c1, c2)):
-            q = next(c for c in (c1, c2) if c.replaces_drag)
-            th[0] = singles[q.name][1].theta[0]
-        for c in (c1, c2):
-            j = model.extra_index(c.name)
-            if j is None:
-                continue
-            m_c, f_c = singles[c.name]
-            th.append(f_c.theta[m_c.extra_index(c.name)])
-        return np.array(th)
-
+    scored = []
+    for th in _pair_starts(model, lo, c1, c2, fits, base, tests, recs_fit, Tp, hi):
+        th = np.clip(th, lo + 1e-9, hi - 1e-9)
+        r = residuals(model, th, recs_fit)
+        if r is not None and np.all(np.isfinite(r)):
+            scored.append((float(r @ r), th))
+    if not scored:
+        return None
+    scored.sort(key=lambda x: x[0])
+    if probe_only and scored[0][0] >= fits[lead][1].chi2:
+        return None
     best = None
-    for lead in (c1, c2):
-        f = fit_model(model, theta_from(lead), lo, hi, recs_fit)
+    for chi2_start, th in scored[:2]:
+        if best is not None and chi2_start > 1.5 * scored[0][0] + BIC_THRESHOLD:
+            break
+        f = fit_model(model, th, lo, hi, recs_fit)
         if f.ok and (best is None or f.chi2 < best.chi2):
             best = f
     if best is None:
         return None
     chi2 = best.chi2 + chi2_scatter
     bic = chi2 + best.k * math.log(n_all)
-    m1, f1 = fits[c1.name]
     p = model.unpack(best.theta)
     values, stds = {}, {}
     for c in (c1, c2):
@@ -1019,8 +1087,8 @@ def _pair_candidate(first: dict, other: dict, fits: dict, tests: list[DiagnosedT
         "unit": c2.unit,
         "chi2": chi2,
         "bic": bic,
-        "delta_bic": first["bic"] - bic,
-        "held_out_before": first["held_out_after"],
+        "delta_bic": ref["bic"] - bic,
+        "held_out_before": ref["held_out_after"],
         "held_out_after": _held_out(model, best, tests, recs_hold),
         "fit_params": plant_params(model, best),
         "_joint_fit": (model, best),

@@ -94,6 +94,7 @@ def test_cli_jsonl_prints_one_object_per_update(repo_root):
 
 
 def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):
+    import select
     import signal
     import time
 
@@ -101,8 +102,13 @@ def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):
     log.write_bytes((repo_root / "sample_logs" / "design1_altitude.csv").read_bytes()[:200000])
     proc = subprocess.Popen([sys.executable, "-m", "mrftcli.cli", "watch", str(log), "--tp", "0.0422", "--idle", "60"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)
+    # interrupt once it is watching (its first test printed), not while a loaded machine still imports
+    ready, _, _ = select.select([proc.stdout], [], [], 120.0)
+    assert ready, "watch printed nothing in 120 s"
+    first = proc.stdout.readline()
+    time.sleep(0.5)
     proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=30)
+    out, err = proc.communicate(timeout=60)
+    out = first + out
     assert proc.returncode == 130
     assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err

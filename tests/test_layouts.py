@@ -181,3 +181,19 @@ def test_controller_rate_option_is_validated():
     res = CliRunner().invoke(cli, ["analyze", str(SAMPLES / "px4_altitude_10hz.ulg"), "--tp", "0.0422",
                                    "--controller-rate", "0"])
     assert res.exit_code == 2 and "controller-rate" in res.output
+
+
+def test_analyze_prints_the_layout_and_the_feedback_sign_with_its_evidence():
+    from click.testing import CliRunner
+
+    from mrftcli.cli.main import cli
+
+    log = str(SAMPLES / "px4_altitude_50hz.ulg")
+    res = CliRunner().invoke(cli, ["analyze", log, "--tp", "0.0422"])
+    assert res.exit_code == 0, res.output
+    assert "read as: layout px4-mrft (auto-detected" in res.output
+    assert "feedback sign + (the output rises while the relay is high in 2/2 tests" in res.output
+    # NED z kept as it is (down positive): the data show the sign flipped, and the model is the same
+    flipped = CliRunner().invoke(cli, ["analyze", log, "--tp", "0.0422", "--output-scale", "1"])
+    assert flipped.exit_code == 0, flipped.output
+    assert "feedback sign - (the output falls while the relay is high in 2/2 tests" in flipped.output

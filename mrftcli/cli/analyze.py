@@ -57,6 +57,9 @@ def format_table(result) -> str:
     lines = [f"{result.path}",
              f"loop {result.loop}, Tp {result.Tp:g} s (known); times in seconds from the log start"
              + (f" ({describe_t0(t0)})" if t0 else "")]
+    read_as = _read_as(result)
+    if read_as:
+        lines.append(read_as)
     header = [("test", ""), ("from", "[s]"), ("to", "[s]"), ("beta", "nominal"), ("beta", "effective"),
               ("relay h", "[command]"), ("frequency", "[Hz]"), ("amplitude", f"[{unit}]"), ("stable/total", "cycles")]
     rows = []
@@ -90,6 +93,25 @@ def format_table(result) -> str:
     for note in result.notes:
         lines.append(f"note: {note}")
     return "\n".join(line.rstrip() for line in lines)
+
+
+def _read_as(result) -> str:
+    """Where the signals came from, their scales and the feedback sign found in the data, with its evidence."""
+    src = result.flight.source if result.flight is not None else {}
+    if not src:
+        return ""
+    parts = [f"read as: layout {src.get('layout', '?')}; command {src.get('command', '?')}"
+             + (f" x{src['command_scale']:g}" if src.get("command_scale", 1.0) != 1.0 else "")
+             + f", output {src.get('output', '?')}"
+             + (f" x{src['output_scale']:g}" if src.get("output_scale", 1.0) != 1.0 else "")]
+    signs = [t.loop_sign for t in result.tests]
+    if signs:
+        up = sum(s > 0 for s in signs)
+        sign, n = ("+", up) if up >= len(signs) - up else ("-", len(signs) - up)
+        moves = "rises" if sign == "+" else "falls"
+        parts.append(f"feedback sign {sign} (the output {moves} while the relay is high in {n}/{len(signs)} tests; "
+                     "--command-scale/--output-scale -1 flip it)")
+    return "\n".join(parts)
 
 
 def format_partial(err) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -115,3 +116,14 @@ def test_no_module_imports_another_modules_private_name():
                for path in sorted(root.rglob("*.py")) for module, names in _imports(path)
                if module.startswith("mrftcli") for name in names if name.startswith("_") and not name.startswith("__")]
     assert not private, private
+
+
+def test_every_subpackage_is_in_the_wheel():
+    # pyproject lists the packages by hand (manifolds/ is installed as mrftcli._manifolds): a new
+    # subpackage missing there would install without it (a non-editable install fails at import)
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(root).parts) for p in (root / "mrftcli").rglob("__init__.py")}
+    assert found <= listed, sorted(found - listed)

@@ -607,46 +607,26 @@ def diagnose(
                                 {"compared_with": "linear", "bic_base": bic_base}, n_all))
         # forward step: a second effect on top of the first (nested: the pair model with the second
         # effect's parameter at its null value is the first's model), kept on the same evidence and
-        # held-out rules. Every other deterministic candidate is paired with the first (a second effect
-        # can be invisible alone: a rectification beside a bias of the other sign worsens the linear
-        # fit on its own). When the first already explains the held-out cycles to the noise level, a
-        # pair is fitted only where one of its starts beats the first alone (a small sensor lag beside
-        # a large asymmetric gain), so single-effect logs stay cheap.
+        # held-out rules. Only candidates with evidence of their own are paired, and none once the first
+        # explains the held-out cycles to the noise level: pairing every candidate and a close rival of
+        # the first doubled the median CPU and named nothing more on the same fresh flights
+        # (docs/benchmarks/diagnose.md, "pair stage decided by measurement").
         say(f"testing a second effect on top of {first['name']}", more=1)
         explained = _explains_held_out(first["held_out_after"], tests)
         chi2_sc = float(z_sc_base @ z_sc_base)
-        for cand in CANDIDATES:
-            if cand.name == first["name"] or cand.name not in names or cand.stochastic:
+        for row in cand_rows:
+            if explained:
+                break  # the first effect leaves nothing beyond the noise on the held-out cycles
+            if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
                 continue
-            pr = _pair_candidate(first, first["name"], cand.name, fits, base, tests, Tp, recs_fit, recs_hold,
-                                 chi2_sc, n_all, probe_only=explained)
+            pr = _pair_candidate(first, row["name"], fits, base, tests, Tp, recs_fit, recs_hold, chi2_sc, n_all)
             if pr is not None:
                 pair_rows.append(pr)
-        # the balance-shifting effects (bias, asymmetric gain, saturation, rectification) stand in for
-        # one another alone: a close rival of the first, paired with the first's best partner, may
-        # explain the log better (the pair with the lowest BIC is kept)
-        partners = sorted((pr for pr in pair_rows if np.isfinite(pr["bic"])), key=lambda r: r["bic"])
-        if partners and not explained:
-            rivals = [r for r in deterministic[1:3] if r["delta_bic"] >= 0.5 * first["delta_bic"]]
-            for r in rivals:
-                if r["name"] == partners[0]["name"]:
-                    continue
-                pr = _pair_candidate(first, r["name"], partners[0]["name"], fits, base, tests, Tp, recs_fit,
-                                     recs_hold, chi2_sc, n_all)
-                if pr is not None:
-                    pair_rows.append(pr)
         for pr in pair_rows:
             pr["significant"] = _significant(pr)
         good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
         if good:
             second = good[0]
-            if second["with"] != first["name"]:
-                # a rival of the first, with the partner, beat the first with any partner
-                first = next(r for r in deterministic if r["name"] == second["with"])
-                m1, f1 = fits[first["name"]]
-                effects[0] = _finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
-                                      _harmonics_before_after(tests, base_model, base, m1, f1),
-                                      {"compared_with": "linear", "bic_base": bic_base}, n_all)
             mp, fp = second["_joint_fit"]
             final = (f"{first['name']} + {second['name']}", mp, fp)
             # with both effects modelled, both parameters come from the joint fit
@@ -1037,17 +1017,17 @@ def _pair_starts(model: CandidateModel, lo: np.ndarray, c1: Candidate, c2: Candi
     return starts
 
 
-def _pair_candidate(ref: dict, lead: str, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
-                    recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int, probe_only: bool = False
-                    ) -> dict | None:
-    """Fit the effect ``lead`` (fitted alone already) and ``other`` together; evidence and held-out
-    scores against ``ref``, the best single effect (``lead`` itself, or a close rival of it).
+def _pair_candidate(first: dict, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
+                    recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int) -> dict | None:
+    """Fit the first effect (its row ``first``, fitted alone already) and ``other`` together; evidence
+    and held-out scores against the first alone.
 
     The starts (:func:`_pair_starts`) are scored first (one limit cycle each) and the fit runs from
-    the best one, so the pair never ends worse than ``lead`` alone. With ``probe_only`` the fit runs
-    only when some start already beats ``lead`` alone. ``delta_bic`` = BIC(ref) - BIC(pair).
+    the best ones, so the pair never ends worse than the first alone (before, pair fits started only
+    from the two single fits and some ended at delta BIC -1e4 to -1e6). ``delta_bic`` =
+    BIC(first) - BIC(pair): the pair has one parameter more.
     """
-    c1, c2 = BY_NAME[lead], BY_NAME[other]
+    c1, c2 = BY_NAME[first["name"]], BY_NAME[other]
     if c1.replaces_drag and c2.replaces_drag:
         return None
     model = CandidateModel((c1, c2), tests, Tp)
@@ -1061,8 +1041,6 @@ def _pair_candidate(ref: dict, lead: str, other: str, fits: dict, base: Fit, tes
     if not scored:
         return None
     scored.sort(key=lambda x: x[0])
-    if probe_only and scored[0][0] >= fits[lead][1].chi2:
-        return None
     best = None
     for chi2_start, th in scored[:2]:
         if best is not None and chi2_start > 1.5 * scored[0][0] + BIC_THRESHOLD:
@@ -1087,8 +1065,8 @@ def _pair_candidate(ref: dict, lead: str, other: str, fits: dict, base: Fit, tes
         "unit": c2.unit,
         "chi2": chi2,
         "bic": bic,
-        "delta_bic": ref["bic"] - bic,
-        "held_out_before": ref["held_out_after"],
+        "delta_bic": first["bic"] - bic,
+        "held_out_before": first["held_out_after"],
         "held_out_after": _held_out(model, best, tests, recs_hold),
         "fit_params": plant_params(model, best),
         "_joint_fit": (model, best),

@@ -27,7 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from mrftcli.mrft.model import LoopModel
-from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, df_prediction, plan_test, simulate_flight, write_flight
+from mrftcli.plan import switch_gap
+from mrftcli.sim.flight import (Effects, FlightSpec, TestSpec, df_prediction, noise_margin, plan_test, simulate_flight,
+                                write_flight)
 
 #: The paper's two platforms' altitude loops (checks.md section 4); K gives about 5-8 cm at h ~ 0.1.
 PLANTS = {
@@ -39,14 +41,43 @@ EFFECTS = ("input_bias", "gain_drift", "sensor_lag", "quadratic_drag", "actuator
 #: physics outside the diagnosis' library (it should report them as ``unexplained``)
 OUT_OF_LIBRARY = ("flex_mode_hz",)
 AMPLITUDE = 0.06  # planned output amplitude of the first test [m]
+#: Admissibility lines a pilot's test must clear (measured in mrftcli.plan, docs/benchmarks/plan.md):
+#: noise margin a Omega / (rate noise) >= 4 (no simulated test locked up) and switch gap
+#: (1 + beta) a / noise >= 16 (analyze used every such test).
+MIN_NOISE_MARGIN = 4.0
+MIN_SWITCH_GAP = 16.0
+#: Largest relay height [throttle] a pilot would fly around the 0.5 hover trim, and largest amplitude [m].
+MAX_H = 0.45
+MAX_AMPLITUDE = 0.12
 
 
-def flight_tests(model: LoopModel, cycles: float = 16.0) -> tuple[TestSpec, ...]:
-    """beta -0.4 and -0.7 at one amplitude, then beta -0.4 at 1.6 times the relay height."""
-    t1 = plan_test(model, -0.4, AMPLITUDE, cycles=cycles)
-    t2 = plan_test(model, -0.7, AMPLITUDE, cycles=cycles)
+def flight_tests(model: LoopModel, cycles: float = 16.0, amplitude: float = AMPLITUDE) -> tuple[TestSpec, ...]:
+    """beta -0.4 and -0.7 at one amplitude [m], then beta -0.4 at 1.6 times the relay height."""
+    t1 = plan_test(model, -0.4, amplitude, cycles=cycles)
+    t2 = plan_test(model, -0.7, amplitude, cycles=cycles)
     t3 = TestSpec(-0.4, 1.6 * t1.h, t1.duration)
     return (t1, t2, t3)
+
+
+def admissible_setting(model: LoopModel, rate_hz: float, noise_std: float, cycles: float = 16.0) -> tuple[float, float]:
+    """The amplitude [m] and noise std [m] a pilot would fly at ``rate_hz`` with ``noise_std`` of sensor noise.
+
+    Every test of :func:`flight_tests` must clear the noise margin and the switch gap. The margins
+    grow in proportion to the amplitude, so the amplitude is first raised from :data:`AMPLITUDE`
+    (up to :data:`MAX_AMPLITUDE` and a largest relay height of :data:`MAX_H`); where that is not
+    enough the noise is lowered (a pilot would filter the estimate or fly at a lower rate) until
+    every test is admissible.
+    """
+    tests = flight_tests(model, cycles)  # as make_case plans them; h scales with the amplitude
+    need = 0.0
+    for t in tests:
+        _, a = df_prediction(model, t.beta, t.h, rate_hz)
+        need = max(need, MIN_NOISE_MARGIN / noise_margin(model, t.beta, t.h, rate_hz, noise_std),
+                   MIN_SWITCH_GAP / switch_gap(a, t.beta, noise_std))
+    need = max(1.0, 1.05 * need)  # the lines are measured edges: keep a little room
+    room = min(MAX_AMPLITUDE / AMPLITUDE, MAX_H / max(t.h for t in tests))
+    scale = min(need, room)
+    return AMPLITUDE * scale, noise_std * min(1.0, scale / need)
 
 
 def effect_value(effect: str, model: LoopModel, tests: tuple[TestSpec, ...], scale: float = 1.0) -> float:
@@ -82,11 +113,12 @@ def effect_value(effect: str, model: LoopModel, tests: tuple[TestSpec, ...], sca
 
 
 def make_case(effect: str | None, plant: str, seed: int, scale: float | tuple = 1.0, *, cycles: float = 16.0,
-              rate_hz: float = 200.0, noise_std: float | None = None):
+              rate_hz: float = 200.0, noise_std: float | None = None, amplitude: float = AMPLITUDE):
     """Simulate one flight; ``effect`` None is a clean control, ``"a+b"`` combines two effects (``scale``
-    then one factor per effect, or one for both). Returns the SimulatedFlight."""
+    then one factor per effect, or one for both). ``amplitude`` is the first test's planned amplitude
+    [m] (see :func:`admissible_setting`). Returns the SimulatedFlight."""
     model = PLANTS[plant]
-    tests = flight_tests(model, cycles)
+    tests = flight_tests(model, cycles, amplitude)
     effects = Effects()
     names = [] if effect is None else effect.split("+")
     scales = scale if isinstance(scale, tuple) else (scale,) * len(names)

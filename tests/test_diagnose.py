@@ -259,3 +259,21 @@ def test_log_without_relay_test_is_a_clear_error(tmp_path):
         diagnose(flight, 0.04)
     with pytest.raises(MrftError, match="Tp"):
         diagnose(flight, -1.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["flight_02.mcap", "flight_08.mcap"])
+def test_waveform_refit_with_the_found_effect(name, diagnoses):
+    # issue 16's output-error refinement with the found effect modelled (a sensor lag, an input bias):
+    # on the recorded waveform the effect and the plant come out at the simulator's truth
+    path = ROOT / "sample_logs" / "concealed" / name
+    truth = _truth(path)
+    (effect,) = truth["effects_active"]
+    res = diagnoses(path)
+    assert [e.name for e in res.effects] == [effect]
+    w = res.identification[f"waveform_with_{effect}"]
+    assert w["value"] == pytest.approx(truth["effects"][effect], rel=0.05)
+    assert w["tau"] == pytest.approx(truth["tau"], abs=1e-3)
+    assert w["Td"] == pytest.approx(truth["Td"], rel=0.05)
+    assert w["K"] == pytest.approx(truth["K"], rel=0.02)
+    assert w["residual_rms"] <= 1.2 * truth["noise_std"]

@@ -6,6 +6,7 @@ import math
 
 import click
 
+from ..diagnose.physics import BY_NAME
 from .options import check_output_dir, check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
 
@@ -56,6 +57,10 @@ def format_summary(result) -> str:
             w = e.identification.get("with_effect", {})
             lines.append(f"  refit with {e.identification.get('model', e.name)}: Td {_g(w.get('Td'))} s  tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms"
                          f"  K {_g(w.get('K'))}")
+            wf = result.identification.get(f"waveform_with_{e.name}")
+            if wf:
+                lines.append(f"  on the recorded waveform: {BY_NAME[e.name].parameter} = {_g(wf['value'])} "
+                             f"{BY_NAME[e.name].unit}  Td {_g(wf['Td'])} s  tau {_g(1e3 * wf['tau'])} ms  K {_g(wf['K'])}")
     elif result.unexplained is None:
         lines.append("found: nothing: the linear model explains the log")
     if result.unexplained is not None:

@@ -45,7 +45,7 @@ from .fit import (MIN_CYCLES, CandidateModel, Fit, PredictedCycle, DiagnosedTest
 from .physics import BY_NAME, CANDIDATES, Candidate
 from .limit_cycles import periodic_cycle
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
-from ..errors import DiagnoseError, InputError
+from ..errors import DiagnoseError, InputError, MrftError
 from ..analyze import log_start
 from ..io.logtypes import FlightLog
 from ..progress import Progress, report
@@ -681,6 +681,7 @@ def diagnose(
     for e in effects:
         key = f"with_{e.identification.get('model', e.name)}"
         identification[key] = {**e.identification["with_effect"], "Tp": Tp}
+    identification.update(_waveform_refits(flight, screen, effects, warnings))
     if analysis is not None:
         identification["analyze"] = _analysis_params(analysis)
     if effects:
@@ -1084,6 +1085,35 @@ def _harmonics_before_after(tests, base_model, base, model, fit) -> dict:
             "before": _harmonic_errors(t, t.hold, ev_b, base.K),
             "after": _harmonic_errors(t, t.hold, ev_a, fit.K),
         }
+    return out
+
+
+def _waveform_refits(flight: FlightLog, analysis: AnalysisResult, effects: list, warnings: list) -> dict:
+    """The output-error refit of issue 16 with each found effect it can model (a sensor lag, an input bias).
+
+    The same problem as :func:`mrftcli.mrft.refine.refine` with one more parameter, fitted on the
+    recorded waveform of the analysis' test windows: the effect's parameter and Td, tau, K with it
+    accounted for, beside the cycle-feature fit's (``identification["waveform_with_<effect>"]``).
+    Skipped for a command logged below the controller's rate (the waveform is not known there).
+    """
+    from ..mrft.refine import EFFECTS, refinement_windows, refit_with_effect
+
+    names = [e.name for e in effects if e.name in EFFECTS]
+    tests = analysis.tests if analysis is not None else ()
+    if not names or not tests or any(t.controller_rate_hz is not None for t in tests):
+        return {}
+    windows = refinement_windows(tests, flight.command.t, flight.command.values, flight.output.t,
+                                 flight.output.values)
+    out = {}
+    for name in names:
+        try:
+            r = refit_with_effect(windows, analysis.model, name, loop_sign=tests[0].loop_sign)
+        except MrftError as err:
+            warnings.append(f"the waveform refit with {name} failed ({err}); the cycle-feature fit stands")
+            continue
+        out[f"waveform_with_{name}"] = {"Td": r.model.Td, "tau": r.model.tau, "K": r.model.K, "Tp": r.model.Tp,
+                                        "value": r.value, "value_std": r.value_std,
+                                        "residual_rms": r.fit.residual_rms}
     return out
 
 

@@ -41,8 +41,11 @@ TP = gen.PLANTS["design1"].Tp
 
 
 @pytest.mark.parametrize("extra", [{}, {"input_bias": 0.02}, {"sensor_lag": 0.07}, {"rate_limit": 4.0},
-                                   {"quadratic_drag": 0.5}])
+                                   {"quadratic_drag": 0.5}, {"hover_thrust": 0.4},
+                                   {"hover_thrust": 0.4, "quadratic_drag": 0.5},
+                                   {"hover_thrust": 0.4, "sensor_lag": 0.07, "input_bias": 0.02}])
 def test_periodic_solution_matches_the_simulated_continuous_relay(extra):
+    # (two effects at once: a pair fit is only as good as the pair's model)
     Td = 1.0 if "quadratic_drag" in extra else 2.669
     ap = AugmentedPlant(0.0422, Td, 0.0464, 1.0, **extra)
     beta, h = (-0.45, -0.35), 0.1
@@ -55,6 +58,18 @@ def test_periodic_solution_matches_the_simulated_continuous_relay(extra):
     m = (run.t >= u0) & (run.t < u1)
     y = run.y[m]
     assert np.max(np.abs(sol.waveform(run.t[m] - u0) - y)) < 1e-5 * np.ptp(y)
+
+
+def test_rectified_slew_matches_the_simulated_continuous_relay():
+    # a slewed command under thrust rectification: the speed target is the square root of the ramp
+    ap = AugmentedPlant(0.0422, 2.669, 0.0464, 1.0, rate_limit=4.0, hover_thrust=0.4)
+    beta, h = (-0.45, -0.35), 0.1
+    run = periodic_cycle(ap, beta, h, 200.0, tol=1e-9, max_cycles=200)
+    u0, u1 = run.up[-2], run.up[-1]
+    sol = periodic_solution(cycle_plant(ap, h), beta[0], beta[1], 1.03 * (u1 - u0))
+    assert sol.period == pytest.approx(u1 - u0, rel=1e-6)
+    m = (run.t >= u0) & (run.t < u1)
+    assert np.max(np.abs(sol.waveform(run.t[m] - u0) - run.y[m])) < 1e-5 * np.ptp(run.y[m])
 
 
 def test_command_nonlinearities_act_on_the_relay_levels():

@@ -21,7 +21,8 @@ with the relay in one of two modes:
 
 Coordinates are deviations: setpoint 0, relay output u = +/- h (the hover command is removed). The
 plant's linear part is propagated exactly (matrix exponential of an augmented system, input a
-polynomial of degree <= 1 between events); quadratic drag uses RK4 with at most T/4 substeps.
+polynomial of degree <= 1 between events); quadratic drag and thrust rectification use RK4 with
+at most T/4 substeps.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..sim.control import MrftRelay
-from ..sim.plant import LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic
+from ..sim.plant import LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor
 
 __all__ = ["AugmentedPlant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
 
@@ -228,6 +229,7 @@ def run_relay(
         beta_up = beta_dn = beta
     lag = plant.sensor_lag > 0
     quad = plant.quadratic_drag > 0
+    rotor = plant.hover_thrust > 0
     A = np.array([[0.0, 1.0, 0.0], [0.0, -1.0 / plant.Td, plant.K], [0.0, 0.0, -1.0 / plant.Tp]])
     B = np.array([0.0, 0.0, 1.0 / plant.Tp])
     if quad:
@@ -250,6 +252,10 @@ def run_relay(
         g0 = 1.0 + gs * (gain_t0 + s)
         c0 = g0 * (bias_cmd + a0) - bias_cmd + d_in
         c1 = g0 * slope + gs * (bias_cmd + a0)
+        if rotor:
+            # the simulator's rotor-speed RK4 (state q: relative rotor speed in place of the force)
+            return tuple(rk4_rotor(x, hstep, c0, c1, 0.0, plant.K, 0.0 if quad else 1.0 / plant.Td,
+                                   plant.quadratic_drag, plant.hover_thrust, inv_tp, inv_lag, 0.0025).tolist())
         if quad:
             # the project simulator's RK4 (input polynomial of degree <= 1 here), at most 2.5 ms substeps
             return tuple(rk4_quadratic(x, hstep, c0, c1, 0.0, plant.K, plant.quadratic_drag, inv_tp, inv_lag,

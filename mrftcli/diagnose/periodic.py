@@ -23,7 +23,9 @@ y(0) = -beta_up max_[H,P] y) fix it and the period P (a scalar root in P).
 Quadratic drag is solved by a fixed point on the drag's remainder after its describing-function
 linearisation (the remainder is a small fraction of the inertia at test frequencies, so it
 converges in a few steps). Thrust rectification (the propulsion lag acts on the rotor speed, thrust
-goes with its square) squares the rotor speed's periodic response on a grid.
+goes with its square) squares the rotor speed's periodic response on a grid. The two can act at
+once: the rectified thrust is the force in the drag's fixed point, and the high-time fraction is
+found in the same iteration (the mean force balances the mean drag).
 
 Units: times in seconds, the output in its own units, the command in command units.
 """
@@ -43,6 +45,8 @@ N_SERIES = 160
 _M = 1024  # grid points per period for the extrema (refined by a parabola)
 _K = np.arange(1, N_SERIES + 1)
 _JK = 1j * _K
+#: Gauss-Legendre nodes on [-1, 1] for the square root of an actuator ramp (thrust rectification)
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(24)
 
 
 @dataclass(frozen=True)
@@ -129,10 +133,8 @@ class _Series:
         a, b = pl.level_high, pl.level_low
         lag = np.exp(-s * pl.tau)
         meas = 1.0 / (pl.sensor_lag * s + 1.0) if pl.sensor_lag > 0 else 1.0
-        if pl.hover_thrust > 0:
-            Yk, frac, U = self._rectified(pl, P, s, lag, a, b)
-        elif pl.quadratic_drag > 0:
-            Yk, frac, U = self._quadratic(pl, P, s, lag, a, b)
+        if pl.hover_thrust > 0 or pl.quadratic_drag > 0:
+            Yk, frac, U = self._nonlinear(pl, P, s, lag, a, b)
         else:
             if not (a > 0 > b):
                 self.ok = False
@@ -157,74 +159,86 @@ class _Series:
         self.k = k
 
     @staticmethod
-    def _quadratic(pl, P, s, lag, a, b):
-        """v' = -c v|v| + K p by a fixed point on the remainder of the drag's linearisation."""
-        k = np.arange(1, N_SERIES + 1)
-        c_q = pl.quadratic_drag
-        frac = -b / (a - b)
-        mean_in = 0.0
-        r_hat = np.zeros(N_SERIES, complex)
-        lin = None
-        for _ in range(30):
-            if not (0.0 < frac < 1.0):
-                return None, frac, None
-            c = _input_series(pl, P, frac * P, k, a, b)
+    def _force(pl, P, s, frac, a, b):
+        """The propulsion's periodic output (force [command units]) at high-time fraction ``frac``.
+
+        Returns its harmonics (k >= 1, two-sided, before the delay), its mean, the mean's derivative
+        in ``frac`` and the plant input's harmonics, or None. Linear propulsion: p = w / (Tp s + 1).
+        Thrust rectification: the rotor speed (relative to hover) lags the speed the command asks
+        for, sqrt(1 + w / F), and the thrust is F (speed^2 - 1).
+        """
+        k = _K
+        F = pl.hover_thrust
+        if F > 0:
+            if not (1.0 + b / F > 0):
+                return None
+            ra, rb = math.sqrt(1.0 + a / F), math.sqrt(1.0 + b / F)
+            H = frac * P
+            c = _input_series(replace_levels(pl, ra, rb), P, H, k, ra, rb)
             if c is None:
-                return None, frac, None
-            Pk = c * lag / (pl.Tp * s + 1.0)
-            if lin is None:
-                # the velocity's amplitude without drag sets the describing-function damping
-                V0 = np.abs(2.0 * pl.K * Pk[0] / s[0])
-                lin = 8.0 * c_q * V0 / (3.0 * math.pi)
-            Vk = (pl.K * Pk - r_hat) / (s + lin)
-            v = np.fft.irfft(np.concatenate([[0.0], Vk, np.zeros(_M // 2 + 1 - N_SERIES - 1)]) * _M, _M)
-            r = c_q * v * np.abs(v) - lin * v
-            R = np.fft.rfft(r) / _M
-            r_new = R[1:N_SERIES + 1]
-            # the mean drag must be balanced by a mean thrust: it moves the high-time fraction
-            mean_in = R[0].real / pl.K
-            frac_new = (mean_in - b) / (a - b)
-            done = np.max(np.abs(r_new - r_hat)) <= 1e-12 * (np.max(np.abs(Vk)) * (lin + 1e-300) + 1e-300) \
-                and abs(frac_new - frac) < 1e-12
-            r_hat, frac = r_new, frac_new
-            if done:
-                break
+                return None
+            mean_sp = frac * ra + (1.0 - frac) * rb
+            if pl.rate_limit > 0:
+                # the speed target under a slewed command is the square root of the ramp: the ramp
+                # between the speed levels plus a bump over each ramp, added by Gauss-Legendre quadrature
+                d = (a - b) / pl.rate_limit
+                x = 0.5 * d * (_GL_X + 1.0)
+                wq = 0.5 * d * _GL_W / P
+                frac_r = x / d
+                up = np.sqrt(1.0 + (b + (a - b) * frac_r) / F) - (rb + (ra - rb) * frac_r)
+                dn = np.sqrt(1.0 + (a - (a - b) * frac_r) / F) - (ra - (ra - rb) * frac_r)
+                w = 2.0 * np.pi / P
+                ph = np.exp(-1j * np.outer(k * w, x))
+                c = c + ph @ (wq * up) + np.exp(-1j * k * w * H) * (ph @ (wq * dn))
+                mean_sp += float(wq @ (up + dn))
+            Wk = c / (pl.Tp * s + 1.0)
+            om = mean_sp + np.fft.irfft(np.concatenate([[0.0], Wk, np.zeros(_M // 2 - N_SERIES)]) * _M, _M)
+            T = np.fft.rfft(F * (om * om - 1.0)) / _M
+            return T[1:N_SERIES + 1], T[0].real, 2.0 * F * mean_sp * (ra - rb), 2.0 * c
         c = _input_series(pl, P, frac * P, k, a, b)
-        if c is None or not (0.0 < frac < 1.0):
-            return None, frac, None
-        Pk = c * lag / (pl.Tp * s + 1.0)
-        Vk = (pl.K * Pk - r_hat) / (s + lin)
-        return 2.0 * Vk / s, frac, 2.0 * c
+        if c is None:
+            return None
+        return c / (pl.Tp * s + 1.0), frac * a + (1.0 - frac) * b, a - b, 2.0 * c
 
     @staticmethod
-    def _rectified(pl, P, s, lag, a, b):
-        """Rotor speed lags the command's square root; thrust goes with the speed squared."""
-        F = pl.hover_thrust
-        if not (1.0 + b / F > 0):
-            return None, 0.5, None
-        ra, rb = math.sqrt(1.0 + a / F), math.sqrt(1.0 + b / F)
-        k = np.arange(1, N_SERIES + 1)
+    def _nonlinear(pl, P, s, lag, a, b):
+        """Thrust rectification and/or quadratic drag: a fixed point on the high-time fraction (the
+        mean force must balance the mean drag, zero without quadratic drag) and, with quadratic drag
+        v' = -c v|v| + K p, on the drag's remainder after its describing-function linearisation."""
+        c_q = pl.quadratic_drag
+        drag = 0.0 if c_q > 0 or not np.isfinite(pl.Td) else 1.0 / pl.Td
         frac = -b / (a - b)
-        pad = np.zeros(_M // 2 + 1 - N_SERIES - 1)
+        r_hat = np.zeros(N_SERIES, complex)
+        lin = None
+        pad = np.zeros(_M // 2 - N_SERIES)
         for _ in range(40):
             if not (0.0 < frac < 1.0):
                 return None, frac, None
-            c = _input_series(replace_levels(pl, ra, rb), P, frac * P, k, ra, rb)
-            if c is None:
+            got = _Series._force(pl, P, s, frac, a, b)
+            if got is None:
                 return None, frac, None
-            mean_sp = frac * ra + (1.0 - frac) * rb
-            Wk = c / (pl.Tp * s + 1.0)  # rotor speed (relative to hover), delay-free
-            om = mean_sp + np.fft.irfft(np.concatenate([[0.0], Wk, pad]) * _M, _M)
-            T = np.fft.rfft(F * (om * om - 1.0)) / _M
-            # the mean thrust must vanish: Newton step on the high-time fraction
-            d_mean = 2.0 * F * mean_sp * (ra - rb)
-            step = T[0].real / d_mean
+            Fk, F0, dF0, U = got
+            Pk = Fk * lag
+            target, settled = 0.0, True
+            if c_q > 0:
+                if lin is None:
+                    # the velocity's amplitude without drag sets the describing-function damping
+                    V0 = np.abs(2.0 * pl.K * Pk[0] / s[0])
+                    lin = 8.0 * c_q * V0 / (3.0 * math.pi)
+                Vk = (pl.K * Pk - r_hat) / (s + lin)
+                v = np.fft.irfft(np.concatenate([[0.0], Vk, pad]) * _M, _M)
+                R = np.fft.rfft(c_q * v * np.abs(v) - lin * v) / _M
+                r_new = R[1:N_SERIES + 1]
+                settled = np.max(np.abs(r_new - r_hat)) <= 1e-12 * (np.max(np.abs(Vk)) * (lin + 1e-300) + 1e-300)
+                r_hat = r_new
+                target = R[0].real / pl.K  # the mean drag is balanced by a mean force
+            step = (F0 - target) / dF0
+            if settled and abs(step) < 1e-12:
+                break  # (the series above belong to this frac)
             frac -= step
-            if abs(step) < 1e-13:
-                break
-        Tk = T[1:N_SERIES + 1]
-        G = pl.K / (s * (s + (1.0 / pl.Td if np.isfinite(pl.Td) else 0.0)))
-        return 2.0 * G * Tk * lag, frac, 2.0 * c
+        if c_q > 0:
+            return 2.0 * (pl.K * Pk - r_hat) / ((s + lin) * s), frac, U
+        return 2.0 * pl.K * Pk / (s * (s + drag)), frac, U
 
     def grid(self) -> np.ndarray:
         X = np.zeros(_M // 2 + 1, complex)
@@ -345,7 +359,9 @@ def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_gue
 
 
 def replace_levels(pl: CyclePlant, a: float, b: float) -> CyclePlant:
-    """``pl`` with other input levels (the rotor-speed targets of thrust rectification)."""
+    """``pl`` with other input levels (the rotor-speed targets of thrust rectification); a slew keeps
+    its ramp time."""
     from dataclasses import replace
 
-    return replace(pl, level_high=a, level_low=b, rate_limit=0.0)
+    rate = pl.rate_limit * (a - b) / (pl.level_high - pl.level_low) if pl.rate_limit > 0 else 0.0
+    return replace(pl, level_high=a, level_low=b, rate_limit=rate)

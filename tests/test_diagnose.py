@@ -210,6 +210,71 @@ def test_two_concealed_effects_are_both_found(tmp_path):
     assert {c["name"] for c in data["second_effect_candidates"]} >= {"sensor_lag"}
 
 
+#: flights of bench_diagnose's generator that exercise the pair stage's three paths (the settings a
+#: pilot would fly: admissible amplitude and noise): the pair's joint model (quadratic drag with thrust
+#: rectification: the rectified thrust drives the drag), the swap (a trim error, the first found, stands in
+#: for the asymmetric gain beside a saturation) and the runner-up (a sensor lag imitates a slew with
+#: quadratic drag; the slew, second alone, pairs with the drag)
+PAIR_FLIGHTS = {
+    "quadratic_drag+thrust_rectification": ("design1", 1009683405, (1.124, 1.236), 10.3, 100.0, 0.000543, 0.06),
+    "asymmetric_gain+actuator_saturation": ("design1", 328522801, (1.072, 0.980), 10.1, 100.0, 0.000823, 0.0632),
+    "quadratic_drag+actuator_rate_limit": ("design1", 780730297, (0.974, 0.812), 14.0, 500.0, 0.000239, 0.0956),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("pair", list(PAIR_FLIGHTS))
+def test_look_alike_pairs_are_told_apart(tmp_path, pair):
+    import importlib.util
+
+    from mrftcli.diagnose.selection import diagnose
+    from mrftcli.io import read_flight, write_log
+
+    spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "make_concealed_logs.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    plant, seed, scale, cycles, rate, noise, amplitude = PAIR_FLIGHTS[pair]
+    flight = gen.make_case(pair, plant, seed, scale, cycles=cycles, rate_hz=rate, noise_std=noise, amplitude=amplitude)
+    truth = flight.truth["effects"]
+    write_log(flight.topics, tmp_path / "two.mcap", "mcap")
+    res = diagnose(read_flight(tmp_path / "two.mcap", "altitude"), flight.truth["Tp"])
+    assert sorted(e.name for e in res.effects) == sorted(pair.split("+")), res.summary
+    for e in res.effects:
+        par = {**PARAM, "asymmetric_gain": "a", "actuator_saturation": "U_max", "thrust_rectification": "F"}[e.name]
+        assert e.parameters[par] == pytest.approx(truth[e.name], rel=0.25)
+    first, second = res.effects
+    assert second.evidence["compared_with"] == f"linear + {first.name}"
+    assert f"with_{first.name}+{second.name}" in res.identification
+
+
+@pytest.mark.slow
+def test_a_log_no_linear_plant_fits_is_diagnosed_not_refused(tmp_path):
+    # a 3.9 /s actuator slew with 10 ms delay jitter at 100 Hz: the two betas' frequencies admit no
+    # plant of eq. (2), so analyze refuses (exit 5); diagnose fits the cycles itself and names the slew
+    import importlib.util
+
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.diagnose.selection import diagnose
+    from mrftcli.errors import IdentificationError
+    from mrftcli.io import read_flight, write_log
+
+    spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "make_concealed_logs.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    flight = gen.make_case("actuator_rate_limit+delay_jitter", "design1", 404444922, (1.2570, 0.8681),
+                           cycles=12.4796, rate_hz=100.0, noise_std=0.00093235, amplitude=0.071672)
+    write_log(flight.topics, tmp_path / "slew.mcap", "mcap")
+    log = read_flight(tmp_path / "slew.mcap", "altitude")
+    with pytest.raises(IdentificationError):
+        analyze_flight(log, flight.truth["Tp"], n_bootstrap=1, refine_waveform=False)
+    res = diagnose(log, flight.truth["Tp"])
+    assert any("analyze refuses this log" in w for w in res.warnings)
+    found = {e.name: e for e in res.effects}
+    assert "actuator_rate_limit" in found, res.summary
+    assert found["actuator_rate_limit"].parameters["R"] == pytest.approx(flight.truth["effects"]["actuator_rate_limit"],
+                                                                         rel=0.25)
+
+
 # --------------------------------------------------------------------------------------------------
 # CLI
 

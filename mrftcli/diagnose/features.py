@@ -42,6 +42,8 @@ FEATURE_NAMES = (
     "h3_im",
     "h5_re",
     "h5_im",
+    "h2_re",
+    "h2_im",
     "amplitude_trend",
     "balance_trend",
 )
@@ -239,6 +241,7 @@ def summarize_features(tab: CycleTable) -> FeatureSummary:
     Y1 = tab.Y[:, 1]
     r3 = tab.Y[:, 3] / Y1
     r5 = tab.Y[:, 5] / Y1
+    r2 = tab.Y[:, 2] / Y1
     cols = np.column_stack(
         [
             tab.period,
@@ -249,6 +252,8 @@ def summarize_features(tab: CycleTable) -> FeatureSummary:
             r3.imag,
             r5.real,
             r5.imag,
+            r2.real,
+            r2.imag,
         ]
     )
     values = np.nanmean(cols, axis=0)

@@ -53,6 +53,8 @@ FEATURE_FLOOR = {
     "h3_im": 1.5e-3,
     "h5_re": 1e-3,
     "h5_im": 1e-3,
+    "h2_re": 1.5e-3,
+    "h2_im": 1.5e-3,
     "amplitude_trend": 2e-4,  # 1/s
     "balance_trend": 1e-4,  # 1/s
 }

@@ -9,8 +9,8 @@ Pipeline (``docs/diagnose.md`` walks through a case):
    switching levels the relay actually achieved (effective beta, per switch direction).
 2. **Split.** Even-numbered stable cycles of each test are the fitting set, odd ones are held out.
 3. **Base model.** Td and tau (K in closed form, Lemma 2) are fitted to the fitting set's features:
-   per test the mean period, balance, log amplitude, centre, shape (Y3/Y1, Y5/Y1), amplitude and
-   balance trends. The model's features come from its exact limit cycle under the same MRFT
+   per test the mean period, balance, log amplitude, centre, shape (Y3/Y1, Y5/Y1; Y2/Y1: the two
+   half-cycles differ), amplitude and balance trends. The model's features come from its exact limit cycle under the same MRFT
    settings (effective betas, h, rate) computed by :mod:`mrftcli.diagnose.limit_cycles`. Each residual is
    weighted by its standard error (cycle-to-cycle spread / sqrt(n), with a small floor for the
    modelling approximations), so chi^2 is in units of what the noise explains. The cycle-to-cycle
@@ -45,7 +45,7 @@ from .fit import (MIN_CYCLES, CandidateModel, Fit, PredictedCycle, DiagnosedTest
 from .physics import BY_NAME, CANDIDATES, Candidate
 from .limit_cycles import periodic_cycle
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
-from ..errors import DiagnoseError, InputError, MrftError
+from ..errors import DiagnoseError, IdentificationError, InputError, MrftError
 from ..analyze import log_start
 from ..io.logtypes import FlightLog
 from ..progress import Progress, report
@@ -82,6 +82,8 @@ _FEATURE_TEXT = {
     "h3_im": "3rd-harmonic content of the waveform",
     "h5_re": "5th-harmonic content of the waveform",
     "h5_im": "5th-harmonic content of the waveform",
+    "h2_re": "2nd-harmonic content of the waveform (the two half-cycles differ)",
+    "h2_im": "2nd-harmonic content of the waveform (the two half-cycles differ)",
     "amplitude_trend": "amplitude trend over time",
     "balance_trend": "half-period balance trend over time",
     "period_scatter": "cycle-to-cycle period scatter",
@@ -455,13 +457,22 @@ def diagnose(
         # what a log supports; the identification's bootstrap and refinement are not needed here
         from ..analyze import analyze_flight
 
+        refused_by_linear = None
         with pywarnings.catch_warnings():
             # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
             pywarnings.simplefilter("ignore", RuntimeWarning)
-            screen = analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False)
+            try:
+                screen = analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False)
+            except IdentificationError as exc:
+                # no plant of eq. (2) produces these tests' frequencies: analyze must refuse, but that is
+                # the strongest sign of missing physics there is, so the diagnosis fits the cycles itself
+                screen, refused_by_linear = None, str(exc)
     segs = segments_of(flight, screen)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
+    if analysis is None and refused_by_linear is not None:
+        warnings.append(f"analyze refuses this log ({refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
+                        "recorded cycles with the linear model and each candidate directly")
     if not tests:
         raise DiagnoseError(
             f"{flight.path}: no MRFT test with at least {MIN_CYCLES} stable cycles; the diagnosis compares "
@@ -599,34 +610,68 @@ def diagnose(
     pair_rows: list[dict] = []
     final = None  # (label, model, fit) of the deterministic model finally chosen (for the plots)
     if deterministic:
+        # forward step: a second effect on top of the first (nested: the pair model with the second
+        # effect's parameter at its null value is the first's model), kept on the same evidence and
+        # held-out rules. Every other candidate fitted is paired, also one that fitted worse than the
+        # linear model alone (quadratic drag beside a rate limit: alone it cannot take the linear drag
+        # the slew imitates, with the slew modelled it is found); none once the first explains the
+        # held-out cycles to the noise level (docs/benchmarks/diagnose.md, "pair stage").
         first = deterministic[0]
+        say(f"testing a second effect on top of {first['name']}", more=1)
+        chi2_sc = float(z_sc_base @ z_sc_base)
+
+        def pair(anchor: dict, other: str) -> dict | None:
+            pr = _pair_candidate(anchor, other, fits, base, tests, Tp, recs_fit, recs_hold, chi2_sc, n_all)
+            if pr is not None:
+                pr["significant"] = _significant(pr)
+                pair_rows.append(pr)
+            return pr
+
+        searched = not _explains_held_out(first["held_out_after"], tests)
+        if searched:
+            for row in cand_rows:
+                if row["name"] != first["name"] and row["name"] in fits:
+                    pair(first, row["name"])
+        good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
+        second = good[0] if good else None
+        rivals = sorted((r for r in cand_rows if r["name"] in fits and r["name"] != first["name"]
+                         and (r.get("delta_bic") or -1.0) >= BIC_THRESHOLD), key=lambda r: -r["delta_bic"])
+        if second is None and searched and rivals:
+            # no partner for the first: it may be a stand-in for a pair (a sensor lag imitates a slew
+            # with quadratic drag), so the runner-up (by evidence alone) is paired too; its pair
+            # replaces the first only when it passes the rules against the first alone as well
+            alt = rivals[0]
+            for row in cand_rows:
+                if row["name"] != alt["name"] and row["name"] in fits:
+                    pr = pair(alt, row["name"])
+                    if pr is None or not pr["significant"]:
+                        continue
+                    against_first = dict(pr, delta_bic=first["bic"] - pr["bic"],
+                                         held_out_before=first["held_out_after"])
+                    if _significant(against_first) and (second is None or pr["bic"] < second["bic"]):
+                        second = pr
+            if second is not None:
+                first = alt
+        if second is not None:
+            # swap step: the balance-shifting effects (a trim error, an asymmetric gain, a saturation)
+            # stand in for one another, so the first effect found may be the stand-in for the true
+            # partner of the second: with the second kept, each other effect significant alone takes
+            # the first's place, and the pair with the lowest BIC is kept (it must pass the rules against
+            # the second effect alone, as the first pair did against the first)
+            anchor = next(r for r in cand_rows if r["name"] == second["name"])
+            if anchor.get("significant"):
+                for row in deterministic[1:]:
+                    if row["name"] == second["name"]:
+                        continue
+                    pr = pair(anchor, row["name"])
+                    if pr is not None and pr["significant"] and pr["bic"] < second["bic"]:
+                        first, second = anchor, pr
         m1, f1 = fits[first["name"]]
         final = (first["name"], m1, f1)
         effects.append(_finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
                                 _harmonics_before_after(tests, base_model, base, m1, f1),
                                 {"compared_with": "linear", "bic_base": bic_base}, n_all))
-        # forward step: a second effect on top of the first (nested: the pair model with the second
-        # effect's parameter at its null value is the first's model), kept on the same evidence and
-        # held-out rules. Only candidates with evidence of their own are paired, and none once the first
-        # explains the held-out cycles to the noise level: pairing every candidate and a close rival of
-        # the first doubled the median CPU and named nothing more on the same fresh flights
-        # (docs/benchmarks/diagnose.md, "pair stage decided by measurement").
-        say(f"testing a second effect on top of {first['name']}", more=1)
-        explained = _explains_held_out(first["held_out_after"], tests)
-        chi2_sc = float(z_sc_base @ z_sc_base)
-        for row in cand_rows:
-            if explained:
-                break  # the first effect leaves nothing beyond the noise on the held-out cycles
-            if row["name"] == first["name"] or row["name"] not in fits or not (row.get("delta_bic") or -1.0) > 0:
-                continue
-            pr = _pair_candidate(first, row["name"], fits, base, tests, Tp, recs_fit, recs_hold, chi2_sc, n_all)
-            if pr is not None:
-                pair_rows.append(pr)
-        for pr in pair_rows:
-            pr["significant"] = _significant(pr)
-        good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
-        if good:
-            second = good[0]
+        if second is not None:
             mp, fp = second["_joint_fit"]
             final = (f"{first['name']} + {second['name']}", mp, fp)
             # with both effects modelled, both parameters come from the joint fit
@@ -1034,8 +1079,18 @@ def _pair_candidate(first: dict, other: str, fits: dict, base: Fit, tests: list[
     model = CandidateModel((c1, c2), tests, Tp)
     lo, hi = theta_bounds((c1, c2), tests)
     scored = []
-    for th in _pair_starts(model, lo, c1, c2, fits, base, tests, recs_fit, Tp, hi):
+    j2 = model.extra_index(c2.name)
+    for i, th in enumerate(_pair_starts(model, lo, c1, c2, fits, base, tests, recs_fit, Tp, hi)):
         th = np.clip(th, lo + 1e-9, hi - 1e-9)
+        if i > 0 and c2.name in _PROFILED and j2 is not None:
+            # a lag or a slew trades off against the delay along a curved valley (as alone): each of
+            # its starts is scored after a few steps with it held
+            free = np.ones(th.size, bool)
+            free[j2] = False
+            pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=PROFILE_NFEV, free=free)
+            if pf.ok and np.isfinite(pf.chi2):
+                scored.append((pf.chi2, pf.theta))
+            continue
         r = residuals(model, th, recs_fit)
         if r is not None and np.all(np.isfinite(r)):
             scored.append((float(r @ r), th))

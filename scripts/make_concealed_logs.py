@@ -80,6 +80,18 @@ def admissible_setting(model: LoopModel, rate_hz: float, noise_std: float, cycle
     return AMPLITUDE * scale, noise_std * min(1.0, scale / need)
 
 
+def reflown_setting(model: LoopModel, amplitude: float, noise_std: float, cycles: float = 16.0) -> tuple[float, float]:
+    """The amplitude [m] and noise std [m] a pilot flies again with after a test's relay locked up.
+
+    The effect the flight carries (which :func:`admissible_setting` does not know) ate the margin:
+    the margins are raised by 1.3, through the amplitude while the relay height and amplitude limits
+    allow, else through the noise (as :func:`admissible_setting` does).
+    """
+    room = AMPLITUDE * min(MAX_AMPLITUDE / AMPLITUDE, MAX_H / max(t.h for t in flight_tests(model, cycles)))
+    new_amp = min(1.3 * amplitude, room)
+    return new_amp, noise_std * new_amp / (1.3 * amplitude)
+
+
 def effect_value(effect: str, model: LoopModel, tests: tuple[TestSpec, ...], scale: float = 1.0) -> float:
     """A realistic magnitude of ``effect`` for this flight (``scale`` ~ 1 varies it)."""
     h = tests[0].h

@@ -10,8 +10,9 @@ Pipeline (``docs/diagnose.md`` walks through a case):
 2. **Split.** Even-numbered stable cycles of each test are the fitting set, odd ones are held out.
 3. **Base model.** Td and tau (K in closed form, Lemma 2) are fitted to the fitting set's features:
    per test the mean period, balance, log amplitude, centre, shape (Y3/Y1, Y5/Y1; Y2/Y1: the two
-   half-cycles differ), amplitude and balance trends. The model's features come from its exact limit cycle under the same MRFT
-   settings (effective betas, h, rate) computed by :mod:`mrftcli.diagnose.limit_cycles`. Each residual is
+   half-cycles differ), amplitude and balance trends. The model's features come from its exact limit
+   cycle under the same MRFT settings (effective betas, h, rate) computed by
+   :mod:`mrftcli.diagnose.limit_cycles`. Each residual is
    weighted by its standard error (cycle-to-cycle spread / sqrt(n), with a small floor for the
    modelling approximations), so chi^2 is in units of what the noise explains. The cycle-to-cycle
    period scatter is compared with what the base model plus sensor noise produces on a sampled relay.
@@ -451,13 +452,13 @@ def diagnose(
 
     say("segmenting")
     screen = analysis
+    refused_by_linear = None  # analyze's IdentificationError, when the diagnosis goes on without it
     if screen is None:
         # the tests analyze would use, refused for the same reasons (one beta: exit 6; an output that
         # does not follow the relay: the --loop / --output-topic hint), so the two commands agree on
         # what a log supports; the identification's bootstrap and refinement are not needed here
         from ..analyze import analyze_flight
 
-        refused_by_linear = None
         with pywarnings.catch_warnings():
             # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
             pywarnings.simplefilter("ignore", RuntimeWarning)
@@ -470,7 +471,7 @@ def diagnose(
     segs = segments_of(flight, screen)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
-    if analysis is None and refused_by_linear is not None:
+    if refused_by_linear is not None:
         warnings.append(f"analyze refuses this log ({refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
                         "recorded cycles with the linear model and each candidate directly")
     if not tests:

@@ -219,6 +219,11 @@ PAIR_FLIGHTS = {
     "quadratic_drag+thrust_rectification": ("design1", 1009683405, (1.124, 1.236), 10.3, 100.0, 0.000543, 0.06),
     "asymmetric_gain+actuator_saturation": ("design1", 328522801, (1.072, 0.980), 10.1, 100.0, 0.000823, 0.0632),
     "quadratic_drag+actuator_rate_limit": ("design1", 780730297, (0.974, 0.812), 14.0, 500.0, 0.000239, 0.0956),
+    # the asymmetric gain alone explains the held-out cycles: the rectification is found by its probe
+    "asymmetric_gain+thrust_rectification": ("design2", 771996162, (1.1004, 0.8806), 14.697, 200.0, 0.00031061, 0.06),
+    # the saturation's fit ends where a warm-started limit cycle is lost: the cold start finds it
+    "actuator_saturation+thrust_rectification": ("design2", 278146007, (1.1337, 0.8596), 9.6206, 500.0, 0.00021352,
+                                                 0.088797),
 }
 
 

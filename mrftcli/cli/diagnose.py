@@ -44,13 +44,18 @@ def format_summary(result) -> str:
         lines.append(f"  {c['name']:<20} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
     pairs = result.second_effect_candidates
     if pairs:
-        lines.append(f"a second effect on top of {pairs[0]['with']} (delta BIC against that model):")
+        anchors = list(dict.fromkeys(c["with"] for c in pairs))
+        lines.append(f"a second effect on top of {' or '.join(anchors)} (delta BIC against that model alone):")
         for c in pairs:
+            label = c["name"] if len(anchors) == 1 else f"{c['name']} (with {c['with']})"
+            if c.get("delta_bic") is None:
+                lines.append(f"  + {label:<18} {'(' + str(c.get('status', 'n/a')) + ')':>22}")
+                continue
             par = f"{c['parameter']} = {_g(c['values'].get(c['name']))}"
             b = (c.get("held_out_before") or {}).get("nrmse_raw")
             a = (c.get("held_out_after") or {}).get("nrmse_raw")
             mark = "  <- found" if any(e.name == c["name"] for e in result.effects) else ""
-            lines.append(f"  + {c['name']:<18} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+            lines.append(f"  + {label:<18} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
     if result.effects:
         for e in result.effects:
             lines.append(f"found: {e.name}: {e.explanation}")

@@ -275,14 +275,21 @@ class CandidateModel:
         p = self.unpack(theta)
         plant, g = self.plant(p, test, t_ref)
         k = test_i if key is None else key
-        guess, slope = self.warm.get(k, (float(np.mean(test.tab.period)), None))
+        cold = (float(np.mean(test.tab.period)), None)
         cp = cycle_plant(plant, test.h)
-        with np.errstate(all="ignore"):
-            try:
-                sol = periodic_solution(cp, test.beta[0], test.beta[1], guess, slope_guess=slope)
-            except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
-                return None
-        if sol is None or not np.all(np.isfinite(sol.Y)):
+        sol = None
+        # the warm start (the last period found) first; when it leads the solver astray (it came from
+        # a distant theta, e.g. a finite-difference step at the end of a fit), the recorded period
+        for guess, slope in ((self.warm[k], cold) if k in self.warm else (cold,)):
+            with np.errstate(all="ignore"):
+                try:
+                    sol = periodic_solution(cp, test.beta[0], test.beta[1], guess, slope_guess=slope)
+                except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
+                    sol = None
+            if sol is not None and np.all(np.isfinite(sol.Y)):
+                break
+            sol = None
+        if sol is None:
             return None
         self.warm[k] = (sol.period, sol.slope or None)
         cyc = model_cycle(sol, test.h)

@@ -73,6 +73,9 @@ REJECT_P = 0.01
 #: held-out confirmation: the candidate must lower the held-out features' chi^2 by at least this much
 #: (2 ln of the likelihood ratio on cycles it was not fitted on; the same "very strong" level)
 HOLDOUT_THRESHOLD = 10.0
+#: a second effect is fitted beside a first that already explains the held-out cycles only when its
+#: probe (one Gauss-Newton step from its starts) lowers the fitting cycles' chi^2 by this much
+PAIR_PROBE_MIN = 8.0
 
 _FEATURE_TEXT = {
     "period": "oscillation period",
@@ -138,9 +141,11 @@ class DiagnosisResult:
     candidates : list of dict
         Every candidate's evidence and held-out scores (including the rejected ones).
     second_effect_candidates : list of dict
-        When an effect was found: every other candidate fitted together with it, with its evidence
-        and held-out scores against the first effect's model (a second effect is reported when it
-        passes the same rules).
+        When an effect was found: every other candidate fitted together with it (``with``), with its
+        evidence and held-out scores against that effect's model (a second effect is reported when it
+        passes the same rules). When the first effect already explains the held-out cycles, a
+        candidate whose probe (``probe_delta_chi2``) is too small is listed with ``delta_bic`` None
+        and a ``status``.
     located : list of dict
         Where the base model disagrees with the recording, largest first.
     identification : dict
@@ -529,7 +534,9 @@ def diagnose(
         # Gauss-Newton step on the linear model's Jacobian (3 limit cycles per start instead of a fit)
         J_b = _jacobian(base_model, base.theta, recs_fit)
         for cand in deterministic_cands:
-            probes[cand.name] = _probe_gain(cand, base, J_b, tests, recs_fit, Tp)
+            probes[cand.name] = _probe_gain(CandidateModel(cand, tests, Tp),
+                                            candidate_starts(cand, base, tests, recs_fit, Tp), base.chi2, J_b,
+                                            recs_fit)
         deterministic_cands.sort(key=lambda c: -probes[c.name])
     explained_by = None
     for cand in deterministic_cands:
@@ -633,6 +640,24 @@ def diagnose(
             for row in cand_rows:
                 if row["name"] != first["name"] and row["name"] in fits:
                     pair(first, row["name"])
+        else:
+            # the first explains the held-out cycles to the noise level, yet a second effect can still
+            # be plain on the fitting cycles (thrust rectification beside an asymmetric gain or a
+            # saturation: delta BIC 40-65): every other candidate is probed, and only those whose
+            # probe clears PAIR_PROBE_MIN are fitted
+            m1, f1 = fits[first["name"]]
+            J1 = _jacobian(m1, f1.theta, recs_fit)
+            for cand in deterministic_cands:
+                if cand.name == first["name"]:
+                    continue
+                gain = _pair_probe(first, cand, fits, J1, base, tests, recs_fit, Tp)
+                if gain is not None and gain >= PAIR_PROBE_MIN:
+                    pair(first, cand.name)
+                else:
+                    pair_rows.append({"name": cand.name, "with": first["name"], "parameter": cand.parameter,
+                                      "unit": cand.unit, "values": {}, "delta_bic": None,
+                                      "probe_delta_chi2": gain, "significant": False,
+                                      "status": f"not fitted: its probe lowers chi^2 by less than {PAIR_PROBE_MIN:g}"})
         good = sorted((pr for pr in pair_rows if pr["significant"]), key=lambda r: -r["delta_bic"])
         second = good[0] if good else None
         rivals = sorted((r for r in cand_rows if r["name"] in fits and r["name"] != first["name"]
@@ -881,21 +906,38 @@ def _jacobian(model: CandidateModel, theta: np.ndarray, recs: list, step: float 
     return np.column_stack(cols)
 
 
-def _probe_gain(cand: Candidate, base: Fit, J_b: np.ndarray, tests: list[DiagnosedTest], recs_fit: list,
-                Tp: float) -> float:
-    """How much a candidate lowers chi^2 at its best starting value, Td and tau corrected by one
-    Gauss-Newton step on the linear model's Jacobian ``J_b`` (an ordering, not a decision)."""
-    model = CandidateModel(cand, tests, Tp)
+def _probe_gain(model: CandidateModel, starts: list[np.ndarray], chi2_ref: float, J: np.ndarray,
+                recs_fit: list) -> float:
+    """How much ``model`` lowers chi^2 below the reference fit's ``chi2_ref`` at its best start, the
+    residual's part along the reference's parameter directions (its Jacobian ``J``) taken out by one
+    Gauss-Newton step: one limit cycle per start instead of a fit."""
     best = -np.inf
-    for th in candidate_starts(cand, base, tests, recs_fit, Tp):
+    for th in starts:
         r = residuals(model, th, recs_fit)
         if r is None or not np.all(np.isfinite(r)):
             continue
-        if J_b.shape[0] == r.size:
-            d, *_ = np.linalg.lstsq(J_b, r, rcond=None)
-            r = r - J_b @ d
-        best = max(best, base.chi2 - float(r @ r))
+        if J.shape[0] == r.size:
+            d, *_ = np.linalg.lstsq(J, r, rcond=None)
+            r = r - J @ d
+        best = max(best, chi2_ref - float(r @ r))
     return float(best)
+
+
+def _pair_probe(first: dict, cand: Candidate, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
+                recs_fit: list, Tp: float) -> float | None:
+    """:func:`_probe_gain` of the pair (the first effect fitted, ``cand`` added) against the first
+    alone (its Jacobian ``J1``), from the pair's starts other than the nested null one; None when the
+    two cannot be paired."""
+    c1 = BY_NAME[first["name"]]
+    if c1.replaces_drag and cand.replaces_drag:
+        return None
+    model = CandidateModel((c1, cand), tests, Tp)
+    lo, hi = theta_bounds((c1, cand), tests)
+    starts = _pair_starts(model, lo, c1, cand, fits, base, tests, recs_fit, Tp, hi)
+    if model.extra_index(cand.name) is not None:
+        starts = starts[1:]  # the null start is the first alone: no gain
+    return _probe_gain(model, [np.clip(th, lo + 1e-9, hi - 1e-9) for th in starts], fits[c1.name][1].chi2, J1,
+                       recs_fit)
 
 
 def _explains_held_out(held: dict, tests: list[DiagnosedTest]) -> bool:

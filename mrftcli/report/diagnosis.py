@@ -293,11 +293,14 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         "candidate effect to explain.</p>"))
     pairs = result.second_effect_candidates
     if pairs:
-        body.append(f"<h3>A second effect on top of {esc(pairs[0]['with'].replace('_', ' '))}</h3>")
+        anchors = list(dict.fromkeys(c["with"] for c in pairs))
+        body.append(f"<h3>A second effect on top of {esc(' or '.join(a.replace('_', ' ') for a in anchors))}</h3>")
         body.append("<div class='left2'>" + html_table(
-            ["candidate", "parameter", "evidence against the first effect's model (drop in BIC)",
+            ["with", "candidate", "parameter", "evidence against the first effect's model (drop in BIC)",
              "held-out error before", "after", "found"],
-            [(c["name"].replace("_", " "), f"{c['parameter']} = {_f(c['values'].get(c['name']))}", _f(c["delta_bic"]),
+            [(c["with"].replace("_", " "), c["name"].replace("_", " "),
+              f"{c['parameter']} = {_f(c['values'].get(c['name']))}" if c.get("delta_bic") is not None
+              else c.get("status", "-"), _f(c["delta_bic"]),
               _pct((c.get("held_out_before") or {}).get("nrmse_raw")), _pct((c.get("held_out_after") or {}).get("nrmse_raw")),
               "yes" if c.get("significant") else "no") for c in pairs]) + "</div>")
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")

@@ -76,6 +76,12 @@ HOLDOUT_THRESHOLD = 10.0
 #: a second effect is fitted beside a first that already explains the held-out cycles only when its
 #: probe (one Gauss-Newton step from its starts) lowers the fitting cycles' chi^2 by this much
 PAIR_PROBE_MIN = 8.0
+#: effects after the first (by evidence alone) that are paired too when the first does not explain
+#: the held-out cycles
+RIVAL_ANCHORS = 2
+#: models whose BIC differ by less than this are reported as indistinguishable (Kass & Raftery: "not
+#: worth more than a bare mention")
+TIE_BIC = 2.0
 
 _FEATURE_TEXT = {
     "period": "oscillation period",
@@ -662,22 +668,36 @@ def diagnose(
         second = good[0] if good else None
         rivals = sorted((r for r in cand_rows if r["name"] in fits and r["name"] != first["name"]
                          and (r.get("delta_bic") or -1.0) >= BIC_THRESHOLD), key=lambda r: -r["delta_bic"])
-        if second is None and searched and rivals:
-            # no partner for the first: it may be a stand-in for a pair (a sensor lag imitates a slew
-            # with quadratic drag), so the runner-up (by evidence alone) is paired too; its pair
-            # replaces the first only when it passes the rules against the first alone as well
-            alt = rivals[0]
-            for row in cand_rows:
-                if row["name"] != alt["name"] and row["name"] in fits:
+        if searched:
+            # the first may be a stand-in for a pair whose members are not it (a sensor lag imitates a
+            # slew with quadratic drag; an asymmetric gain stood in for a gain drift beside a
+            # saturation), so the next RIVAL_ANCHORS effects by evidence alone are paired too; such a
+            # pair replaces the first's only when it also passes the rules against the first alone
+            # and has the lower BIC
+            tried = {frozenset((pr["with"], pr["name"])) for pr in pair_rows}
+            anchor_of_second = first
+            for alt in rivals[:RIVAL_ANCHORS]:
+                m_alt, f_alt = fits[alt["name"]]
+                J_alt = None
+                for row in cand_rows:
+                    if (row["name"] == alt["name"] or row["name"] not in fits
+                            or frozenset((alt["name"], row["name"])) in tried):
+                        continue
+                    tried.add(frozenset((alt["name"], row["name"])))
+                    # only the partners whose probe beside this rival clears PAIR_PROBE_MIN are fitted
+                    if J_alt is None:
+                        J_alt = _jacobian(m_alt, f_alt.theta, recs_fit)
+                    gain = _pair_probe(alt, BY_NAME[row["name"]], fits, J_alt, base, tests, recs_fit, Tp)
+                    if gain is None or gain < PAIR_PROBE_MIN:
+                        continue
                     pr = pair(alt, row["name"])
                     if pr is None or not pr["significant"]:
                         continue
                     against_first = dict(pr, delta_bic=first["bic"] - pr["bic"],
                                          held_out_before=first["held_out_after"])
                     if _significant(against_first) and (second is None or pr["bic"] < second["bic"]):
-                        second = pr
-            if second is not None:
-                first = alt
+                        second, anchor_of_second = pr, alt
+            first = anchor_of_second
         if second is not None:
             # swap step: the balance-shifting effects (a trim error, an asymmetric gain, a saturation)
             # stand in for one another, so the first effect found may be the stand-in for the true
@@ -714,6 +734,24 @@ def diagnose(
                                            "model": f"{first['name']}+{second['name']}"},
                                     _harmonics_before_after(tests, m1, f1, mp, fp),
                                     {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, n_all))
+        # models the recording cannot rank (BIC within TIE_BIC of the one chosen, and passing the same
+        # rules) are named: the choice among them is not the data's
+        chosen = {first["name"]} | ({second["name"]} if second is not None else set())
+        if second is None:
+            rows, ref = [r for r in cand_rows if r.get("significant") and r["name"] in fits], first
+            label = lambda r: r["name"]  # noqa: E731
+        else:
+            rows, ref = [pr for pr in pair_rows if pr.get("significant")], second
+            label = lambda r: f"{r['with']}+{r['name']}"  # noqa: E731
+        ties = sorted({label(r) for r in rows if abs(r["bic"] - ref["bic"]) < TIE_BIC
+                       and {r["name"], r.get("with", r["name"])} != chosen and set(label(r).split("+")) != chosen})
+        if ties:
+            for e in effects:
+                e.evidence["indistinguishable_from"] = ties
+            models = [first["name"] if second is None else f"{first['name']}+{second['name']}", *ties]
+            warnings.append(f"{', '.join(models[:-1])} and {models[-1]} fit these tests equally well "
+                            f"(BIC within {TIE_BIC:g}): the tests cannot tell them apart; a test at another relay "
+                            "height or beta, or longer tests, would")
     stochastic = []
     if "delay_jitter" in names:
         # the scatter noise alone explains depends on the loop: the jitter is judged against the

@@ -593,7 +593,8 @@ def analyze_flight(
         # the likelihood does not close as Td -> infinity: a lower bound only (the upper end of the
         # bootstrap interval would come from the search range, not from the data)
         Td_est = ParameterEstimate(Td_est.mean, Td_est.std, Td_est.ci95_low, float("nan"), "s")
-        warnings.append(f"Td > {Td_est.ci95_low:.3g} s: these tests cannot bound it from above (a plant without "
+        low = f"Td > {Td_est.ci95_low:.3g} s" if np.isfinite(Td_est.ci95_low) else "Td"
+        warnings.append(f"{low}: these tests cannot bound it from above (a plant without "
                         "linear damping fits them as well); tau and K are determined")
     elif td_omega > _TD_OMEGA_LIMIT:
         # usual for an altitude loop (slow drag, fast loop): information, not a warning, unless the

@@ -4,13 +4,19 @@ Reference values are the medians of period and amplitude over the second half of
 cycles (the limit cycle is established by then). A cycle is *consistent* when its period is within
 ``max(k * sigma_P, 3 dt, 6 % P)`` (capped at 15 % of P) of the median and its amplitude within
 ``max(k * sigma_a, 12 % a)`` (capped at 25 %), where sigma is 1.4826 MAD and k =
-:attr:`StabilityCriterion.mad_k`. The stable cycles are the consistent, regular ones after the first
+:attr:`StabilityCriterion.mad_k`. The caps keep a slow drift or a transient out; a test whose cycles
+scatter beyond half the floors about a level that does not move (the slopes of period and
+amplitude against the cycle index are within :attr:`StabilityCriterion.stationary_z` standard
+errors of zero: a delay jitter at beta -0.7 scatters
+the period by +-15 % and the amplitude by +-30 % from cycle to cycle) takes every regular cycle
+within the wider stationary tolerances. The stable cycles are the consistent, regular ones after the first
 cycle of the first run of ``min_consecutive`` consecutive consistent cycles; the cycles before (and
 that first one, which may still be converging) are the start-up transient.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -36,6 +42,12 @@ class StabilityCriterion:
         Lowest / highest amplitude tolerance relative to the median amplitude.
     min_consecutive : int
         Consecutive consistent cycles that mark the end of the start-up transient.
+    stationary_z : float
+        The regular cycles are stationary when the least-squares slopes of period and amplitude
+        against the cycle index are within this many standard errors of zero.
+    stationary_period_cap_rel, stationary_amplitude_cap_rel : float
+        The tolerances of a noisy stationary test (at least 6 regular cycles, robust spread above
+        half the floors), relative to the medians.
     """
 
     mad_k: float = 4.0
@@ -45,6 +57,9 @@ class StabilityCriterion:
     amplitude_floor_rel: float = 0.12
     amplitude_cap_rel: float = 0.25
     min_consecutive: int = 3
+    stationary_z: float = 3.0
+    stationary_period_cap_rel: float = 0.35
+    stationary_amplitude_cap_rel: float = 0.6
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -89,6 +104,16 @@ def stable_cycles(
     c = criterion
     tolP = min(max(c.mad_k * sP, c.period_floor_samples * dt, c.period_floor_rel * Pm), c.period_cap_rel * Pm)
     tola = min(max(c.mad_k * sa, c.amplitude_floor_rel * am), c.amplitude_cap_rel * am)
+    # a noisy test (its cycles scatter beyond the floors) about a level that does not move: every
+    # regular cycle inside the stationary caps is consistent (the robust sigma of a jittery MRFT at
+    # beta -0.7 is that of the cycles near the median, while the cycle map alternates the others far
+    # out, so k sigma alone rejects half of a stationary test)
+    noisy = (robust_sigma(P[idx] - Pm) > c.period_floor_rel * Pm / 2
+             or robust_sigma(a[idx] - am) > c.amplitude_floor_rel * am / 2)
+    stationary = bool(noisy and _stationary(P[idx], a[idx], c.stationary_z))
+    if stationary:
+        tolP = max(tolP, c.stationary_period_cap_rel * Pm)
+        tola = max(tola, c.stationary_amplitude_cap_rel * am)
     consistent = reg & (np.abs(P - Pm) <= tolP) & (np.abs(a - am) <= tola)
     # The first run of min_consecutive consecutive consistent cycles ends the transient. Its first
     # cycle still carries some of the start-up (a converging cycle can sit inside the tolerances
@@ -105,5 +130,23 @@ def stable_cycles(
             break
     if start is not None:
         stable[start:] = consistent[start:]
-    info.update(period_median=Pm, period_tolerance=tolP, amplitude_median=am, amplitude_tolerance=tola)
+    info.update(period_median=Pm, period_tolerance=tolP, amplitude_median=am, amplitude_tolerance=tola,
+                stationary=stationary)
     return stable, consistent, info
+
+
+def _stationary(P: np.ndarray, a: np.ndarray, z: float) -> bool:
+    """True when at least 6 cycles' period and amplitude keep one level: the least-squares slope of
+    each against the cycle index is within ``z`` of its standard error (the scatter about the line)."""
+    n = P.size
+    if n < 6:
+        return False
+    k = np.arange(n, dtype=float) - (n - 1) / 2.0
+    skk = float(k @ k)
+    for x in (P, a):
+        slope = float(k @ (x - x.mean())) / skk
+        resid = x - x.mean() - slope * k
+        se = math.sqrt(float(resid @ resid) / (n - 2) / skk)
+        if se <= 0 or abs(slope) > z * se:
+            return False
+    return True

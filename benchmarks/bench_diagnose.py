@@ -177,7 +177,9 @@ def main() -> None:
             continue
         named = [r for r in rs if r.get("found") == [effect]]
         within = [r for r in named if abs(r["value"] / r["true_value"] - 1) <= 0.25]
-        halved = [r for r in named if r["nrmse_after"] is not None and r["nrmse_after"] <= 0.5 * r["nrmse_before"]]
+        # a before of 0 (the scatter estimate took the whole error) cannot be halved: a miss
+        halved = [r for r in named if r["nrmse_after"] is not None and r["nrmse_before"]
+                  and r["nrmse_after"] <= 0.5 * r["nrmse_before"]]
         if effect != "delay_jitter":  # its held-out figure is a scatter error, no raw waveform figure
             raw_third[0] += sum(1 for r in named if r.get("raw_after") is not None
                                 and r["raw_after"] <= (2 / 3) * r["raw_before"])

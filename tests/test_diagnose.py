@@ -150,6 +150,12 @@ def test_cycle_scatter_estimates_the_unpredictable_part():
     assert np.mean(est) == pytest.approx(n * s**2, rel=0.1)
     drift = _offset_cycles(0.003 * np.arange(n))
     assert cycle_scatter(drift, np.ones(n, bool)) < 1e-3 * n * s**2
+    # two held-out cycles, their share estimated from all eight (alone, two cycles give nothing)
+    last2 = np.arange(n) >= n - 2
+    est = [cycle_scatter(_offset_cycles(rng.normal(0, s, n)), last2, reference=np.ones(n, bool))
+           for _ in range(200)]
+    assert np.mean(est) == pytest.approx(2 * s**2, rel=0.1)
+    assert cycle_scatter(_offset_cycles(rng.normal(0, s, n)), last2) == 0.0
 
 
 def test_concealed_set_covers_every_effect_and_clean_controls():

@@ -275,7 +275,7 @@ def summarize_features(tab: CycleTable) -> FeatureSummary:
     )
 
 
-def cycle_scatter(tab: CycleTable, mask: np.ndarray) -> float:
+def cycle_scatter(tab: CycleTable, mask: np.ndarray, reference: np.ndarray | None = None) -> float:
     """Sum over the selected recorded cycles of their cycle-to-cycle scatter [output units^2 x cycles].
 
     The sampled relay decides on noisy samples, so every cycle's switch instants and centre move
@@ -287,11 +287,30 @@ def cycle_scatter(tab: CycleTable, mask: np.ndarray) -> float:
     mu_i = a + b t_i (a slow drift such as a battery sag is not scatter) the residual sum of squares
     of the per-phase least-squares line is (n - 2) s^2, so n s^2 = RSS n / (n - 2) (for n = 3 a
     constant a: RSS n / (n - 1)). Subtracting it leaves an unbiased estimate of the systematic error.
-    ``mask`` selects the cycles of ``tab``; fewer than 3 give 0.
+    ``mask`` selects the cycles of ``tab``. s^2 is estimated over the cycles ``reference`` selects
+    (default ``mask``; a test's two held-out cycles say nothing about it, all of its cycles do) and
+    counted for the ``mask`` cycles; fewer than 3 reference cycles give 0.
+
+    Examples
+    --------
+    Eight cycles of one waveform, each shifted by its own offset: the two last ones' share of the
+    scatter, estimated from all eight (2 RSS / 6 of the offsets about their least-squares line).
+
+    >>> t = np.arange(0.0, 8.0, 0.005)
+    >>> y = 0.05 * np.sin(2 * np.pi * t) + np.repeat([1, -1, 2, 0, -2, 1, -1, 0], 200) * 1e-3
+    >>> starts = np.arange(8.0)
+    >>> tab = cycle_table(t, y, 0.1, starts, starts + 0.5, starts + 1.0)
+    >>> last2 = np.arange(8) >= 6
+    >>> round(cycle_scatter(tab, last2, reference=np.ones(8, bool)) * 1e6, 2)  # 2 s^2 [mm^2]
+    3.71
+    >>> cycle_scatter(tab, last2)  # two cycles alone cannot tell scatter from the waveform
+    0.0
     """
-    idx = np.flatnonzero(mask)
+    ref = mask if reference is None else reference
+    n_mask = int(np.count_nonzero(mask))
+    idx = np.flatnonzero(ref)
     n = idx.size
-    if n < 3:
+    if n < 3 or n_mask == 0:
         return 0.0
     P_ref = float(np.mean(tab.period[idx]))
     tt = np.linspace(0.0, P_ref, 200, endpoint=False)
@@ -300,4 +319,4 @@ def cycle_scatter(tab: CycleTable, mask: np.ndarray) -> float:
     X = np.column_stack([np.ones(n), tm]) if n >= 4 else np.ones((n, 1))
     coef, *_ = np.linalg.lstsq(X, Y, rcond=None)
     rss = float(np.sum((Y - X @ coef) ** 2)) / tt.size
-    return rss * n / (n - X.shape[1])
+    return rss / (n - X.shape[1]) * n_mask

@@ -216,7 +216,7 @@ class DiagnosisResult:
                 "held-out period of the test (phase-normalised: the period is judged by the feature z-scores, "
                 "whose standard errors account for the few-cycle sampling error of the mean period); the "
                 "cycle-to-cycle scatter of the recording that no deterministic model can predict (residual of a "
-                "per-phase linear trend over the held-out cycles of each test, dof-corrected; reported as "
+                "per-phase linear trend over the held-out cycles of each test, or all its stable cycles when fewer than 3 are held out, dof-corrected; reported as "
                 "scatter_nrmse) is subtracted from the mean square error (nrmse_raw keeps it; nrmse_timed also "
                 "keeps the model's own period, and is what confirms a candidate, with a held-out feature chi^2 "
                 "gain of at least 10); for delay_jitter the nrmse is the relative error of the predicted "
@@ -373,7 +373,9 @@ def _held_out(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], recs_
         sse_timed += float(_waveform_errors(test, test.hold, evs, fit.K, t_refs)[0].sum())
         # the cycle-to-cycle scatter of the recording (relay ticks on noisy samples) is the same for
         # every model: it is taken out, so the NRMSE measures the systematic (model) error
-        fl = cycle_scatter(test.tab, test.hold)
+        # (estimated over the held-out cycles; a short test's two held-out cycles say nothing about it,
+        # so there all of the test's cycles estimate it)
+        fl = cycle_scatter(test.tab, test.hold, reference=None if test.hold.sum() >= 3 else np.ones(len(test.tab), bool))
         sse += float(e.sum())
         sst += float(v.sum())
         floor += fl

@@ -745,8 +745,8 @@ def diagnose(
         else:
             rows, ref = [pr for pr in pair_rows if pr.get("significant")], second
             label = lambda r: f"{r['with']}+{r['name']}"  # noqa: E731
-        ties = sorted({label(r) for r in rows if abs(r["bic"] - ref["bic"]) < TIE_BIC
-                       and {r["name"], r.get("with", r["name"])} != chosen and set(label(r).split("+")) != chosen})
+        ties = sorted({label(r) for r in rows
+                       if abs(r["bic"] - ref["bic"]) < TIE_BIC and set(label(r).split("+")) != chosen})
         if ties:
             for e in effects:
                 e.evidence["indistinguishable_from"] = ties

@@ -4,14 +4,14 @@ Reference values are the medians of period and amplitude over the second half of
 cycles (the limit cycle is established by then). A cycle is *consistent* when its period is within
 ``max(k * sigma_P, 3 dt, 6 % P)`` (capped at 15 % of P) of the median and its amplitude within
 ``max(k * sigma_a, 12 % a)`` (capped at 25 %), where sigma is 1.4826 MAD and k =
-:attr:`StabilityCriterion.mad_k`. The caps keep a slow drift or a transient out; a test whose cycles
-scatter beyond half the floors about a level that does not move (the slopes of period and
-amplitude against the cycle index are within :attr:`StabilityCriterion.stationary_z` standard
-errors of zero: a delay jitter at beta -0.7 scatters
-the period by +-15 % and the amplitude by +-30 % from cycle to cycle) takes every regular cycle
-within the wider stationary tolerances. The stable cycles are the consistent, regular ones after the first
-cycle of the first run of ``min_consecutive`` consecutive consistent cycles; the cycles before (and
-that first one, which may still be converging) are the start-up transient.
+:attr:`StabilityCriterion.mad_k`. The caps keep a slow drift or a transient out. A test whose
+cycles scatter beyond half the floors about a level that does not move (the slopes of period and
+amplitude against the cycle index within :attr:`StabilityCriterion.stationary_z` standard errors of
+zero; a delay jitter at beta -0.7 scatters the period by +-15 % and the amplitude by +-30 % from
+cycle to cycle) takes every regular cycle within the wider stationary tolerances. The stable cycles
+are the consistent, regular ones after the first cycle of the first run of ``min_consecutive``
+consecutive consistent cycles; the cycles before (and that first one, which may still be
+converging) are the start-up transient.
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def stable_cycles(
     c = criterion
     tolP = min(max(c.mad_k * sP, c.period_floor_samples * dt, c.period_floor_rel * Pm), c.period_cap_rel * Pm)
     tola = min(max(c.mad_k * sa, c.amplitude_floor_rel * am), c.amplitude_cap_rel * am)
-    # a noisy test (its cycles scatter beyond the floors) about a level that does not move: every
+    # a noisy test (its cycles scatter beyond half the floors) about a level that does not move: every
     # regular cycle inside the stationary caps is consistent (the robust sigma of a jittery MRFT at
     # beta -0.7 is that of the cycles near the median, while the cycle map alternates the others far
     # out, so k sigma alone rejects half of a stationary test)

@@ -46,16 +46,20 @@ def format_summary(result) -> str:
     if pairs:
         anchors = list(dict.fromkeys(c["with"] for c in pairs))
         lines.append(f"a second effect on top of {' or '.join(anchors)} (delta BIC against that model alone):")
+        probed = [c for c in pairs if c.get("delta_bic") is None]
         for c in pairs:
-            label = c["name"] if len(anchors) == 1 else f"{c['name']} (with {c['with']})"
             if c.get("delta_bic") is None:
-                lines.append(f"  + {label:<18} {'(' + str(c.get('status', 'n/a')) + ')':>22}")
                 continue
+            label = c["name"] if len(anchors) == 1 else f"{c['name']} (with {c['with']})"
             par = f"{c['parameter']} = {_g(c['values'].get(c['name']))}"
             b = (c.get("held_out_before") or {}).get("nrmse_raw")
             a = (c.get("held_out_after") or {}).get("nrmse_raw")
             mark = "  <- found" if any(e.name == c["name"] for e in result.effects) else ""
             lines.append(f"  + {label:<18} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+        if probed:
+            # the rows' status carries the threshold ("not fitted: its probe lowers chi^2 by less than N")
+            why = str(probed[0].get("status", "not fitted")).replace("its probe", "each one's probe")
+            lines.append(f"  {why} beside {probed[0]['with']}: " + ", ".join(c["name"] for c in probed))
     if result.effects:
         for e in result.effects:
             lines.append(f"found: {e.name}: {e.explanation}")

@@ -144,7 +144,7 @@ def main() -> None:
         b = baseline(ws, model.Tp, sign)
         c = crb(ws, model, sign, noise)
         m = r.parameters_mrft
-        err = lambda td, tau, k: (100 * (td / model.Td - 1), 1e3 * (tau - model.tau), 100 * (k / model.K - 1))  # noqa: E731
+        err = lambda td, tau, k: (100 * (td / model.Td - 1), 1e3 * (tau - model.tau), 100 * (k / model.K - 1))  # noqa: E731, B023 (used in this iteration)
         cover = [r.Td.ci95_low <= model.Td <= (r.Td.ci95_high if math.isfinite(r.Td.ci95_high) else np.inf),
                  r.tau.ci95_low <= model.tau <= r.tau.ci95_high, r.K.ci95_low <= model.K <= r.K.ci95_high]
         td_omega = model.Td * 2 * math.pi * max(t.frequency_hz_mean for t in r.tests)

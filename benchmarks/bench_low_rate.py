@@ -8,7 +8,9 @@ estimates and intervals, then per log rate: the coverage of each parameter's 95 
 mean interval widths and the failures. Usage: python benchmarks/bench_low_rate.py [SEED] [N]
 Figures: docs/benchmarks/low_rate.md.
 """
-import sys, tempfile, numpy as np
+import sys
+import tempfile
+import numpy as np
 from pathlib import Path
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight

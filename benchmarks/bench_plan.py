@@ -95,7 +95,7 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
             print(f"plant {k}: planner refused ({err})"[:200])
             continue
 
-        def fly(test):
+        def fly(test, first=first, common=common, m=m, k=k):
             # the MRFT estimate (what the plan models), not the waveform refinement after it
             try:
                 return analyze_flight(flight_from_simulated(simulate_flight(FlightSpec(tests=(first, test), **common))),

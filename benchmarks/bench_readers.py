@@ -150,8 +150,8 @@ def main() -> None:
               f"{time.perf_counter() - start:.2f} s; best of {args.repeat}")
 
         t_raw, raw = best(lambda: raw_messages(path), args.repeat)
-        t_mr2, ref = best(lambda: decode_mcap_ros2(raw), args.repeat)
-        t_rb, got_rb = best(lambda: decode_rosbags(raw), args.repeat)
+        t_mr2, ref = best(lambda: decode_mcap_ros2(raw), args.repeat)  # noqa: F821 (deleted below)
+        t_rb, got_rb = best(lambda: decode_rosbags(raw), args.repeat)  # noqa: F821 (deleted below)
         del raw
 
         timed = _TimedExtract()

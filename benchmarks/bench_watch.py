@@ -44,7 +44,6 @@ def _writer(out: str, flushes: str, seed: int, rate_hz: float) -> None:
 
     from mrftcli.io.cdr import serialize_many
     from mrftcli.io.msgtypes import typestore_for
-    from mrftcli.mrft.model import LoopModel
     from mrftcli.sim import FlightSpec, plan_test, simulate_flight
 
     rng = np.random.default_rng(seed)

@@ -48,14 +48,9 @@ Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, 
 from __future__ import annotations
 
 from importlib import import_module as _import_module
-from importlib.metadata import PackageNotFoundError as _PackageNotFoundError
-from importlib.metadata import version as _version
 from typing import TYPE_CHECKING
 
-try:
-    __version__ = _version("mrft-ident")
-except _PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.0.0+unknown"
+from ._version import __version__
 
 #: public name -> (module, attribute), imported on first use (PEP 562)
 _LAZY = {

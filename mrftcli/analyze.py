@@ -652,7 +652,7 @@ def analyze_flight(
         notes.append(f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded "
                      "into tau's interval")
     warnings = list(dict.fromkeys(warnings))  # unique, in order
-    return AnalysisResult(notes=tuple(notes), 
+    return AnalysisResult(notes=tuple(notes),
         path=str(flight.path), loop=flight.loop, Tp=Tp, tests=tuple(usable), rejected=tuple(rejected),
         Td=Td_est, tau=tau_est, K=K_est, model=model, identification=ident, combinations=combos,
         bootstrap={"Td": Td_d[1:], "tau": tau_d[1:], "K": K_d[1:]}, warnings=tuple(warnings), flight=flight,
@@ -836,7 +836,7 @@ def analysis_overlay(result: AnalysisResult) -> dict:
     InputError
         The result carries no flight signals (``result.flight`` is None).
     """
-    from . import __version__
+    from ._version import __version__
     from .io.overlay import OverlayFit, OverlayTest
     from .mrft.waveform import predict_tests
 

@@ -339,7 +339,10 @@ def constraint_weights(Tp: float, tests: Sequence[StableCycles], Td_ref: float,
             lnk = np.log(t.amplitude * W / (t.h * Td_ref * a_unit))
             var = np.var(lnk, ddof=1) / m if m > 1 else 0.0
             sig_k[i] = math.sqrt(var + GAIN_SYSTEMATIC**2)
-    inv = (lambda sg: np.where(np.isfinite(sg) & (sg > 0), 1.0 / np.where(sg > 0, sg, 1.0) ** 2, 0.0))
+
+    def inv(sg: np.ndarray) -> np.ndarray:
+        return np.where(np.isfinite(sg) & (sg > 0), 1.0 / np.where(sg > 0, sg, 1.0) ** 2, 0.0)
+
     return {"w_ufm": inv(sig_u), "w_phase": inv(sig_p), "w_gain": inv(sig_k),
             "sigma_ufm_s": sig_u, "sigma_phase_s": sig_p, "sigma_ln_gain": sig_k}
 

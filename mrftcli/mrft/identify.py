@@ -378,7 +378,7 @@ def _log_freq_residuals(Tp: float, Td: float, tau: float, betas, omegas, eps: fl
     """
     r = np.empty(len(betas))
     for i, (b, w) in enumerate(zip(betas, omegas)):
-        def F(lw: float) -> float:
+        def F(lw: float, b: float = b) -> float:
             ww = math.exp(lw)
             return unit_cycle_scalar(Tp * ww, Td * ww, b)[0] - tau * ww
 

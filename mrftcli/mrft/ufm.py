@@ -39,7 +39,7 @@ from typing import Iterable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .. import __version__
+from .._version import __version__
 from ..errors import InputError
 from ..progress import Progress, report
 from ..validate import check_beta

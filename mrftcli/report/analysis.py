@@ -363,7 +363,8 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
 
     def row(key, label, s, u):
         e = p[key]
-        f = (lambda v: "-" if v is None or not math.isfinite(v) else f"{v * s:.4g}")
+        def f(v):
+            return "-" if v is None or not math.isfinite(v) else f"{v * s:.4g}"
         hi = e["ci95_high"]
         ci = (f"> {f(e['ci95_low'])} (not bounded above)" if hi is None or not math.isfinite(hi)
               else f"{f(e['ci95_low'])} - {f(hi)}")

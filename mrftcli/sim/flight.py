@@ -635,7 +635,7 @@ def simulate_flight(
 
 
 def _truth(spec, pid, ranges, noise_std, bias, r, rate_true, delays, n_ticks, aborted, abort_limits) -> dict:
-    from .. import __version__
+    from .._version import __version__
 
     model = spec.model
     T = 1.0 / spec.rate_hz

@@ -31,6 +31,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "watch": ("watch", "watch", "Follow a log while it is recorded: tests and estimates as cycles arrive."),
     "plan": ("plan", "plan", "Recommend the next MRFT test(s) (beta, h, duration) from a prior or a first test."),
     "tune": ("tune", "tune", "PD/PID gains from the identified model (MRFT rule, model-based, robust) and exports."),
+    "compare": ("compare", "compare", "Compare identified loops against a baseline: changes, significance, CI exit code."),
 }
 
 

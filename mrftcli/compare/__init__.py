@@ -1,0 +1,1 @@
+"""Compare identified loops against a baseline (``mrft-ident compare``)."""

@@ -1,0 +1,214 @@
+"""A log's clock: sample rates from timestamps and the timing a reader records for one flight.
+
+* :func:`median_rate_hz` -> the rate [Hz] of a sampled signal, 1 / its median positive interval
+  (the one rate-from-timestamps rule of the package: readers, segmenter, tuner);
+* :func:`mean_rate_hz` -> the mean message rate [Hz] a topic listing shows;
+* :func:`receive_jitter_s` -> the timing jitter [s] of receive-time stamps;
+* :class:`Timing` -> what a :class:`~mrftcli.io.logtypes.FlightLog` knows about the controller's
+  clock and its stamps; :func:`controller_rate_hz` -> the rate [Hz] at which the relay decided.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from ..errors import InputError
+
+__all__ = ["Timing", "TIMING_SCHEMA_VERSION", "median_rate_hz", "mean_rate_hz", "receive_jitter_s",
+           "controller_rate_hz"]
+
+#: version of :meth:`Timing.to_json`
+TIMING_SCHEMA_VERSION = 1
+
+#: where a log's stamps come from: ``header`` (set where the sample was made) or ``receive``
+#: (set by the recorder on arrival, so they carry the transport's jitter)
+Stamps = Literal["header", "receive"]
+
+
+def median_rate_hz(t: npt.ArrayLike) -> float | None:
+    """Sample rate [Hz] of increasing times: 1 / the median positive interval.
+
+    The median ignores dropped samples and bursts; intervals of zero (stamps repeated by a logger
+    that stamps batches on arrival) are not intervals of the clock and are left out.
+
+    Parameters
+    ----------
+    t : array_like
+        Sample times [s], non-decreasing.
+
+    Returns
+    -------
+    float or None
+        The rate [Hz]; None for fewer than three samples or no positive interval.
+
+    Examples
+    --------
+    >>> median_rate_hz([0.0, 0.01, 0.02, 0.02, 0.03, 0.05])
+    100.0
+    >>> median_rate_hz([0.0, 0.01]) is None
+    True
+    """
+    times = np.asarray(t, dtype=np.float64)
+    if times.size < 3:
+        return None
+    dt = np.diff(times)
+    dt = dt[dt > 0]
+    if dt.size == 0:
+        return None
+    return float(1.0 / np.median(dt))
+
+
+def mean_rate_hz(t: npt.ArrayLike) -> float | None:
+    """Mean message rate [Hz] over a topic's span (what a topic listing shows).
+
+    Parameters
+    ----------
+    t : array_like
+        Message times [s].
+
+    Returns
+    -------
+    float or None
+        (messages - 1) / (last - first time) [Hz]; None for fewer than two messages or no span.
+
+    Examples
+    --------
+    >>> mean_rate_hz([0.0, 0.5, 2.0])
+    1.0
+    """
+    times = np.asarray(t, dtype=np.float64)
+    if times.size < 2 or times[-1] <= times[0]:
+        return None
+    return float((times.size - 1) / (times[-1] - times[0]))
+
+
+def receive_jitter_s(t: npt.ArrayLike) -> float:
+    """Timing jitter [s] of receive-time stamps: the robust spread of the sample spacing / sqrt 2.
+
+    A stamp e_k late gives spacings dt + e_{k+1} - e_k, whose variance is 2 var(e) for independent
+    delays; the median absolute deviation (x 1.4826) ignores dropped samples and bursts.
+
+    Parameters
+    ----------
+    t : array_like
+        Receive times [s] of one topic.
+
+    Returns
+    -------
+    float
+        The jitter [s]; NaN for fewer than 20 samples.
+    """
+    times = np.asarray(t, dtype=np.float64)
+    if times.size < 20:
+        return float("nan")
+    d = np.diff(times)
+    mad = float(np.median(np.abs(d - np.median(d)))) * 1.4826
+    return mad / math.sqrt(2.0)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """What a flight log says about the controller's clock and its own stamps.
+
+    Attributes
+    ----------
+    controller_rate_hz : float or None
+        Rate [Hz] at which the relay decided, when the log layout or the user gives it (the command
+        may be logged more slowly, e.g. PX4's position controller at 50 Hz); None: the command's own.
+    stamps : {"header", "receive"}
+        ``receive`` when the samples carry the recorder's arrival times (no header stamps).
+    timing_jitter_s : float or None
+        Jitter [s] of receive-time stamps (:func:`receive_jitter_s`; the larger of command and
+        output); None with header stamps. Widens tau's uncertainty.
+
+    Examples
+    --------
+    >>> Timing(50.0).source_items()
+    {'controller_rate_hz': 50.0}
+    >>> Timing.from_json(Timing(None, "receive", 0.002).to_json()) == Timing(None, "receive", 0.002)
+    True
+    """
+
+    controller_rate_hz: float | None = None
+    stamps: Stamps = "header"
+    timing_jitter_s: float | None = None
+
+    def source_items(self) -> dict[str, Any]:
+        """The keys ``FlightLog.source`` carried before :class:`Timing` existed (the ``--json``
+        ``input.source`` keeps them): ``controller_rate_hz`` when known, and ``timestamps``,
+        ``timing_jitter_s`` for receive stamps."""
+        items: dict[str, Any] = {}
+        if self.controller_rate_hz is not None:
+            items["controller_rate_hz"] = self.controller_rate_hz
+        if self.stamps == "receive":
+            items["timestamps"] = "receive"
+            items["timing_jitter_s"] = self.timing_jitter_s
+        return items
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-able dict with ``schema_version`` (NaN jitter becomes None)."""
+        jitter = self.timing_jitter_s
+        return {"schema_version": TIMING_SCHEMA_VERSION, "controller_rate_hz": self.controller_rate_hz,
+                "stamps": self.stamps,
+                "timing_jitter_s": None if jitter is None or not math.isfinite(jitter) else jitter}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Timing:
+        """The record :meth:`to_json` wrote.
+
+        Raises
+        ------
+        InputError
+            Not a dict, another schema version, or a field of the wrong kind.
+        """
+        if not isinstance(data, dict):
+            raise InputError(f"timing: expected a JSON object, got {type(data).__name__}")
+        if data.get("schema_version") != TIMING_SCHEMA_VERSION:
+            raise InputError(f"timing: schema_version {data.get('schema_version')!r} is not "
+                             f"{TIMING_SCHEMA_VERSION}; write it again with this version of mrft-ident")
+        stamps = data.get("stamps")
+        if stamps not in ("header", "receive"):
+            raise InputError(f"timing: stamps must be 'header' or 'receive', got {stamps!r}")
+        return cls(controller_rate_hz=_optional_float(data, "controller_rate_hz"), stamps=stamps,
+                   timing_jitter_s=_optional_float(data, "timing_jitter_s"))
+
+
+def _optional_float(data: dict[str, Any], key: str) -> float | None:
+    value = data.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"timing: {key} must be a number or null, got {value!r}")
+    return float(value)
+
+
+def controller_rate_hz(timing: Timing, t_command: npt.ArrayLike) -> float | None:
+    """The rate [Hz] at which the relay decided: the layout's or the user's, else the command's.
+
+    Parameters
+    ----------
+    timing : Timing
+        The flight's timing (``FlightLog.timing``).
+    t_command : array_like
+        The command's sample times [s].
+
+    Returns
+    -------
+    float or None
+        ``timing.controller_rate_hz`` when known, else :func:`median_rate_hz` of the command.
+
+    Examples
+    --------
+    >>> controller_rate_hz(Timing(50.0), [0.0, 0.01, 0.02])
+    50.0
+    >>> controller_rate_hz(Timing(), [0.0, 0.01, 0.02])
+    100.0
+    """
+    if timing.controller_rate_hz:
+        return float(timing.controller_rate_hz)
+    return median_rate_hz(t_command)

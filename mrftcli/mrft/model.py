@@ -1,26 +1,182 @@
-"""The loop model of the paper, eq. (2):
+"""The loop model as an object: named parameters, frequency response, state space, normalisation.
 
-    G(s) = K Td e^{-tau s} / (s (Tp s + 1) (Td s + 1))
+The paper (Section II) writes the plant as W(s, p) with a parameter vector p (time constants, gain,
+delay) and two sets of constraints on its estimate: E, the parameters known beforehand (Tp from a
+bench test), and I, the ranges the unknown ones may take. A :class:`PlantModel` carries exactly
+that: its :attr:`~PlantModel.parameters` are :class:`Parameter` records (name, unit, value, known,
+bounds), and it exposes what the maths needs from a structure:
 
-Tp is the propulsion time constant [s] (known from a bench test), Td the drag time constant [s],
-tau the loop's transport delay [s] and K the gain [output units / (command unit * s^2)], so that
-K Td is the static gain from command to output rate.
+* :meth:`~PlantModel.frequency_response` G(j omega), delay included;
+* :meth:`~PlantModel.realisation` (A, B, C, D) of the delay-free part and :attr:`~PlantModel.delay`
+  [s], for the exact propagation of the LPRS and of the simulators;
+* :meth:`~PlantModel.unit_normalisation`, the scaling of Lemmas 1-4 to the unit frequency / unit
+  gain manifolds (UFM/UGM), where the structure has one (None otherwise);
+* :meth:`~PlantModel.with_parameters`, a copy with some values changed.
+
+:class:`LoopModel` is the paper's eq. (2),
+
+    G(s) = K Td e^{-tau s} / (s (Tp s + 1) (Td s + 1)),
+
+Tp the propulsion time constant [s] (known from a bench test), Td the drag time constant [s], tau
+the loop's transport delay [s] and K the gain [output units / (command unit * s^2)], so that K Td
+is the static gain from command to output rate. :data:`MODEL_FAMILIES` names the structures by
+family; new structures (first order plus delay, integrator plus delay, ...) register there and
+callers that take a :class:`PlantModel` need no change.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
+from typing import ClassVar, Mapping, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
 
-__all__ = ["LoopModel"]
+__all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
+           "model_family"]
+
+_INF = math.inf
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One named parameter of a plant model.
+
+    Attributes
+    ----------
+    name : str
+        The paper's symbol (``"Tp"``, ``"Td"``, ``"tau"``, ``"K"``).
+    unit : str
+        Its unit (``"s"`` for times; gains are in output units per command unit and time power).
+    value : float
+        Its value in ``unit``.
+    known : bool
+        True for the paper's set E (given, e.g. from a bench test), False for a parameter to identify.
+    bounds : tuple of float
+        The admissible range (low, high) in ``unit``: the paper's set I for an unknown parameter,
+        the physical range otherwise. Inclusive; infinite ends are open.
+    description : str
+        What it is, in words.
+    """
+
+    name: str
+    unit: str
+    value: float
+    known: bool
+    bounds: tuple[float, float] = (-_INF, _INF)
+    description: str = ""
+
+    def contains(self, value: float) -> bool:
+        """Is ``value`` within :attr:`bounds`?"""
+        return self.bounds[0] <= value <= self.bounds[1]
+
+
+@dataclass(frozen=True, eq=False)
+class StateSpace:
+    """A delay-free single-input single-output realisation x' = A x + B u, y = C x + D u.
+
+    Attributes
+    ----------
+    A : numpy.ndarray
+        (n, n) state matrix [1/s].
+    B, C : numpy.ndarray
+        (n,) input and output vectors.
+    D : float
+        Direct feedthrough (0 for the strictly proper plants of relay tests).
+    """
+
+    A: NDArray[np.float64]
+    B: NDArray[np.float64]
+    C: NDArray[np.float64]
+    D: float = 0.0
+
+    @property
+    def order(self) -> int:
+        """Number of states."""
+        return int(self.A.shape[0])
+
+
+@dataclass(frozen=True)
+class UnitNormalisation:
+    """A plant oscillating at ``omega`` mapped onto the UFM/UGM (Lemmas 1-4).
+
+    Scaling time by ``omega`` makes every plant of a structure oscillate at 1 rad/s: its
+    normalised time constants are the UFM's coordinates and ``theta = tau * omega`` the UFM's value.
+    The amplitude scales as ``a_y = h * amplitude_scale * a_unit`` with ``a_unit`` the UGM's value.
+
+    Attributes
+    ----------
+    omega : float
+        The oscillation frequency [rad/s].
+    coordinates : mapping of str to float
+        The normalised time constants (dimensionless), e.g. ``{"tp_n": Tp*omega, "td_n": Td*omega}``.
+    theta : float
+        The normalised delay ``tau * omega`` [rad].
+    amplitude_scale : float
+        Static gain over frequency, ``K Td / omega`` for eq. (2) [output units per command unit].
+    """
+
+    omega: float
+    coordinates: Mapping[str, float] = field(hash=False)
+    theta: float
+    amplitude_scale: float
+
+
+@runtime_checkable
+class PlantModel(Protocol):
+    """What the MRFT maths needs from a plant structure (see the module docstring).
+
+    Every structure has a transport delay ``tau`` [s] and a gain ``K``; its other parameters are
+    its own. Implementations are immutable (frozen dataclasses).
+    """
+
+    #: the structure's name in :data:`MODEL_FAMILIES`
+    family: ClassVar[str]
+    #: the transfer function in words, e.g. ``"K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"``
+    structure: ClassVar[str]
+
+    @property
+    def parameters(self) -> Mapping[str, Parameter]:
+        """The named parameters, in the structure's order."""
+        ...
+
+    @property
+    def delay(self) -> float:
+        """The transport delay tau [s]."""
+        ...
+
+    def frequency_response(self, omega: ArrayLike) -> NDArray[np.complex128]:
+        """G(j omega), delay included; ``omega`` in rad/s."""
+        ...
+
+    def realisation(self) -> StateSpace:
+        """The delay-free part as a :class:`StateSpace`."""
+        ...
+
+    def unit_normalisation(self, omega: float) -> UnitNormalisation | None:
+        """The UFM/UGM coordinates of this plant oscillating at ``omega`` [rad/s]; None without them."""
+        ...
+
+    def with_parameters(self, **values: float) -> PlantModel:
+        """A copy with the named parameters set to new values."""
+        ...
+
+
+#: eq. (2)'s parameters: unit, description, physical bounds
+_LOOP_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
+    "Tp": ("s", "propulsion time constant", (0.0, _INF)),
+    "Td": ("s", "drag (aerodynamic) time constant", (0.0, _INF)),
+    "tau": ("s", "transport delay", (0.0, _INF)),
+    "K": ("output / (command s^2)", "gain; K Td is the static gain from command to output rate", (-_INF, _INF)),
+}
 
 
 @dataclass(frozen=True)
 class LoopModel:
-    """Parameters of G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)).
+    """Parameters of G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) (paper eq. (2)).
 
     Attributes
     ----------
@@ -32,22 +188,41 @@ class LoopModel:
         Transport delay [s], >= 0.
     K : float
         Gain; K * Td is the static gain from command to output rate. Default 1.
+    known : frozenset of str
+        The paper's set E: parameters given rather than identified (default: Tp, from a bench test).
+    ranges : tuple of (str, float, float)
+        The paper's set I: ``(name, low, high)`` ranges narrowing the physical bounds of unknown
+        parameters (default: none).
 
     Examples
     --------
     >>> G = LoopModel(Tp=0.1, Td=0.7042, tau=0.06, K=1.42)
     >>> round(abs(complex(G.frequency_response(4.4337))), 4)
     0.0629
+    >>> [(p.name, p.unit, p.known) for p in G.parameters.values()][:3]
+    [('Tp', 's', True), ('Td', 's', False), ('tau', 's', False)]
+    >>> G.with_parameters(tau=0.07).tau
+    0.07
+    >>> n = G.unit_normalisation(4.4337)
+    >>> round(n.coordinates["td_n"], 4), round(n.theta, 4)
+    (3.1222, 0.266)
+    >>> G.realisation().order
+    3
     >>> LoopModel(Tp=0.1, Td=-1.0, tau=0.06)
     Traceback (most recent call last):
     ...
     mrftcli.errors.InputError: Td must be a positive time in seconds, got -1.0
     """
 
+    family: ClassVar[str] = "soiptd"
+    structure: ClassVar[str] = "K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"
+
     Tp: float
     Td: float
     tau: float
     K: float = 1.0
+    known: frozenset[str] = field(default=frozenset({"Tp"}), repr=False, compare=False)
+    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("Tp", "Td"):
@@ -58,8 +233,39 @@ class LoopModel:
             raise InputError(f"tau must be a non-negative time in seconds, got {self.tau!r}")
         if not np.isfinite(self.K) or self.K == 0:
             raise InputError(f"K must be finite and non-zero, got {self.K!r}")
+        unknown = set(self.known).union(r[0] for r in self.ranges) - set(_LOOP_PARAMETERS)
+        if unknown:
+            raise InputError(f"unknown parameter(s) {sorted(unknown)} of {self.family}; "
+                             f"it has {list(_LOOP_PARAMETERS)}")
 
-    def state_space(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    # -- the PlantModel protocol ------------------------------------------------------------------
+    @property
+    def parameters(self) -> dict[str, Parameter]:
+        """Tp, Td, tau and K as :class:`Parameter` records (bounds: the set I where given)."""
+        ranges = {name: (lo, hi) for name, lo, hi in self.ranges}
+        return {name: Parameter(name, unit, float(getattr(self, name)), name in self.known,
+                                ranges.get(name, bounds), description)
+                for name, (unit, description, bounds) in _LOOP_PARAMETERS.items()}
+
+    @property
+    def delay(self) -> float:
+        """The transport delay tau [s]."""
+        return self.tau
+
+    def with_parameters(self, **values: float) -> LoopModel:
+        """A copy with some of Tp, Td, tau, K replaced (validated as in the constructor)."""
+        bad = set(values) - set(_LOOP_PARAMETERS)
+        if bad:
+            raise InputError(f"unknown parameter(s) {sorted(bad)} of {self.family}; it has {list(_LOOP_PARAMETERS)}")
+        new = {name: float(values.get(name, getattr(self, name))) for name in _LOOP_PARAMETERS}
+        return LoopModel(new["Tp"], new["Td"], new["tau"], new["K"], known=self.known, ranges=self.ranges)
+
+    def realisation(self) -> StateSpace:
+        """Delay-free realisation with states [y, y', propulsion output] (see :meth:`state_space`)."""
+        A, B, C = self.state_space()
+        return StateSpace(A, B, C, 0.0)
+
+    def state_space(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Delay-free realisation (A, B, C) with states [y, y', thrust/moment state].
 
         x1 = y, x2 = y' (rate), x3 = propulsion output; u enters x3 (delayed by tau, handled by the
@@ -76,7 +282,38 @@ class LoopModel:
         C = np.array([1.0, 0.0, 0.0])
         return A, B, C
 
-    def frequency_response(self, omega: np.ndarray | float) -> np.ndarray:
+    def frequency_response(self, omega: ArrayLike) -> NDArray[np.complex128]:
         """G(j omega) including the delay; omega in rad/s."""
         s = 1j * np.asarray(omega, dtype=float)
-        return self.K * self.Td * np.exp(-self.tau * s) / (s * (self.Tp * s + 1) * (self.Td * s + 1))
+        response: NDArray[np.complex128] = (
+            self.K * self.Td * np.exp(-self.tau * s) / (s * (self.Tp * s + 1) * (self.Td * s + 1))
+        )
+        return response
+
+    def unit_normalisation(self, omega: float) -> UnitNormalisation:
+        """Lemmas 1-4: ``tp_n = Tp omega``, ``td_n = Td omega``, ``theta = tau omega``, scale ``K Td / omega``."""
+        return UnitNormalisation(omega=omega, coordinates={"tp_n": self.Tp * omega, "td_n": self.Td * omega},
+                                 theta=self.tau * omega, amplitude_scale=self.K * self.Td / omega)
+
+
+#: the plant structures by family name; the next structures register here
+MODEL_FAMILIES: dict[str, type[PlantModel]] = {"soiptd": LoopModel}
+
+
+def model_family(name: str) -> type[PlantModel]:
+    """The model class of a family name.
+
+    Raises
+    ------
+    InputError
+        An unknown family (the message lists the known ones).
+
+    Examples
+    --------
+    >>> model_family("soiptd").__name__
+    'LoopModel'
+    """
+    try:
+        return MODEL_FAMILIES[name]
+    except KeyError:
+        raise InputError(f"unknown model family {name!r}; known: {', '.join(sorted(MODEL_FAMILIES))}") from None

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
-from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle, run_relay
+from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
 
 ROOT = Path(__file__).resolve().parents[1]
 CONCEALED = sorted((ROOT / "sample_logs" / "concealed").glob("*.mcap"))
@@ -37,7 +37,7 @@ def test_continuous_relay_reproduces_exact_limit_cycle(beta, f_hz, amp):
 
 
 def test_sampled_relay_without_noise_switches_on_ticks():
-    run = run_relay(AugmentedPlant(0.05, 1.0, 0.03, 5.0), -0.5, 0.2, 100.0, 12, sampled=True, max_time=60)
+    run = run_relay(AugmentedPlant(0.05, 1.0, 0.03, 5.0), -0.5, 0.2, 100.0, 12, sampled=SampledRelay(), max_time=60)
     ticks = np.concatenate([run.up, run.down]) * 100.0
     assert np.allclose(ticks, np.round(ticks))
     assert run.up.size == 12

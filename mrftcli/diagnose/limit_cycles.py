@@ -28,14 +28,14 @@ at most T/4 substeps.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..sim.control import MrftRelay
-from ..sim.plant import LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor
+from ..mrft.propagate import LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor
+from ..mrft.relay import MrftRelay
 
-__all__ = ["AugmentedPlant", "RelayRun", "run_relay", "periodic_cycle", "quasi_static_plant"]
+__all__ = ["AugmentedPlant", "RelayRun", "SampledRelay", "run_relay", "periodic_cycle", "quasi_static_plant"]
 
 
 @dataclass(frozen=True)
@@ -169,24 +169,223 @@ def _hermite_extremum(e0: float, d0: float, e1: float, d1: float, h: float) -> f
     return (2 * m3 - 3 * m2 + 1) * e0 + (m3 - 2 * m2 + m) * h * d0 + (-2 * m3 + 3 * m2) * e1 + (m3 - m2) * h * d1
 
 
+@dataclass(frozen=True)
+class SampledRelay:
+    """The log's relay, as :func:`run_relay` runs it in sampled mode (see the module docstring).
+
+    The switch is decided at ticks on ``y + noise`` with one (nominal) beta by :class:`~mrftcli.mrft.relay.MrftRelay`,
+    and the command sent reaches the plant after a Gauss-Markov, first-in-first-out delay (the same
+    process as :func:`mrftcli.sim.flight.simulate_flight`'s, from :mod:`mrftcli.mrft.propagate`).
+
+    Attributes
+    ----------
+    noise_std : float
+        Sensor noise std [output units].
+    jitter_std, jitter_corr : float
+        Delay jitter std [s] and its correlation time [s].
+    seed : int
+        Seed of the noise and jitter draws.
+    max_gap : float, optional
+        Stop when the relay has not switched for this long [s] (a relay that false switches on
+        noise can lock up).
+    """
+
+    noise_std: float = 0.0
+    jitter_std: float = 0.0
+    jitter_corr: float = 0.05
+    seed: int = 0
+    max_gap: float | None = None
+
+
+def _loop_matrices(plant: AugmentedPlant) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of y' = v, v' = -v/Td + K p, p' = (w - p)/Tp [, z' = (y - z)/T_lag] (no linear drag
+    when the quadratic one replaces it)."""
+    A = np.array([[0.0, 1.0, 0.0], [0.0, -1.0 / plant.Td, plant.K], [0.0, 0.0, -1.0 / plant.Tp]])
+    B = np.array([0.0, 0.0, 1.0 / plant.Tp])
+    if plant.quadratic_drag > 0:
+        A[1, 1] = 0.0
+    if plant.sensor_lag > 0:
+        A = np.pad(A, ((0, 1), (0, 1)))
+        A[3, 0] = 1.0 / plant.sensor_lag
+        A[3, 3] = -1.0 / plant.sensor_lag
+        B = np.append(B, 0.0)
+    return A, B
+
+
+class _PlantStepper:
+    """The plant between events: exact for the linear model, the propagators' RK4 for quadratic drag
+    and thrust rectification (at most 2.5 ms substeps); the measured output and its rate."""
+
+    def __init__(self, plant: AugmentedPlant, T: float) -> None:
+        self.plant = plant
+        self.lag = plant.sensor_lag > 0
+        self.quad = plant.quadratic_drag > 0
+        self.rotor = plant.hover_thrust > 0
+        A, B = _loop_matrices(plant)
+        self.n = A.shape[0]
+        self.prop = _Propagator(A, B, T)
+        self.inv_tp = 1.0 / plant.Tp
+        self.inv_lag = 1.0 / plant.sensor_lag if self.lag else 0.0
+
+    def advance(self, x: tuple, hstep: float, a0: float, slope: float) -> tuple:
+        """The state after ``hstep`` [s] with the actuator at ``a0`` moving at ``slope`` [units/s]."""
+        p = self.plant
+        c0, c1 = a0 + p.input_bias, slope
+        if self.rotor:
+            # the rotor-speed RK4 (state q: relative rotor speed in place of the force)
+            return tuple(rk4_rotor(x, hstep, c0, c1, 0.0, p.K, 0.0 if self.quad else 1.0 / p.Td,
+                                   p.quadratic_drag, p.hover_thrust, self.inv_tp, self.inv_lag, 0.0025).tolist())
+        if self.quad:
+            # RK4 (input polynomial of degree <= 1 here), at most 2.5 ms substeps
+            return tuple(rk4_quadratic(x, hstep, c0, c1, 0.0, p.K, p.quadratic_drag, self.inv_tp, self.inv_lag,
+                                       0.0025).tolist())
+        return self.prop.step(x, hstep, c0, c1)
+
+    def meas(self, x: tuple) -> float:
+        """The measured output (through the sensor lag when there is one)."""
+        return x[3] if self.lag else x[0]
+
+    def meas_rate(self, x: tuple) -> float:
+        """d/dt of the measured output."""
+        return (x[0] - x[3]) * self.inv_lag if self.lag else x[1]
+
+
+@dataclass
+class _Loop:
+    """The relay loop's working state between ticks (what a warm start restores)."""
+
+    x: tuple
+    relay: float
+    act: float
+    target: float
+    pending: list
+    e_prev: float
+    de_prev: float
+    e_ext: float
+    t: float = 0.0
+    up: list = field(default_factory=list)
+    down: list = field(default_factory=list)
+    states: list = field(default_factory=list)
+    t_last_switch: float = 0.0
+
+    @classmethod
+    def cold(cls, stepper: _PlantStepper, h: float) -> _Loop:
+        x = (0.0,) * stepper.n
+        # start as if the error had just been positive: the first switch comes at once
+        return cls(x=x, relay=1.0, act=h, target=h, pending=[], e_prev=-stepper.meas(x),
+                   de_prev=-stepper.meas_rate(x), e_ext=1e-300)
+
+    @classmethod
+    def warm(cls, snap: dict) -> _Loop:
+        loop = cls(x=tuple(float(v) for v in snap["x"]), relay=1.0, act=snap["act"], target=snap["target"],
+                   pending=list(snap["pending"]), e_prev=snap["e_prev"], de_prev=snap["de_prev"], e_ext=snap["e_ext"])
+        loop.up.append(snap["t_up"])
+        return loop
+
+    def snapshot(self, t_up: float) -> dict:
+        """The whole loop state at this tick; times relative to it (``RelayRun.state_at_up``)."""
+        return {"x": self.x, "act": self.act, "target": self.target,
+                "pending": [(pt - self.t, pv) for pt, pv in self.pending],
+                "e_prev": self.e_prev, "de_prev": self.de_prev, "e_ext": self.e_ext, "t_up": t_up - self.t}
+
+    def send(self, t_arrive: float, u: float) -> None:
+        """A relay output that reaches the actuator at ``t_arrive`` [s]."""
+        self.pending.append((t_arrive, u))
+        self.pending.sort()
+
+
+def _jitter_delays(rng: np.random.Generator, relay: SampledRelay, tau: float, T: float, n_ticks: int) -> np.ndarray:
+    """Effective extra delay [s] of the command sent at each tick.
+
+    The delay of the command sent at tick k is tau + d_k, d a Gauss-Markov process at the tick rate
+    (correlation ``jitter_corr``); commands never overtake each other, so the command of tick k takes
+    effect at max_{j<=k} (j T + d_j): its effective extra delay is that minus k T.
+    """
+    n_j = min(n_ticks + 1, 2_000_000)
+    phi = math.exp(-T / relay.jitter_corr)
+    innov = rng.standard_normal(n_j) * relay.jitter_std * math.sqrt(1.0 - phi * phi)
+    innov[0] = rng.standard_normal() * relay.jitter_std
+    return np.maximum(fifo_delays(gauss_markov(innov, phi), tau, T) - tau, -tau)
+
+
+def _tick(loop: _Loop, stepper: _PlantStepper, k: int, T: float) -> float:
+    """Propagate the loop over tick ``k`` (the actuator's pieces within it); the measured output at its end."""
+    t_end = (k + 1) * T
+    pieces, loop.act, loop.target = actuator_pieces(loop.t, t_end, loop.pending, loop.act, loop.target,
+                                                    stepper.plant.rate_limit, tol=1e-15)
+    x = loop.x
+    for _, hs, a, slope in pieces:
+        if abs(hs - T) < 1e-12:
+            hs = T  # the whole tick: its propagator is cached
+        x = stepper.advance(x, hs, a, slope)
+    loop.x, loop.t = x, t_end
+    return stepper.meas(x)
+
+
+def _sampled_switch(loop: _Loop, rule: MrftRelay, e: float, delay: float, h: float) -> bool:
+    """The log's relay decides on the noisy error ``e`` at this tick; True when it switched."""
+    new = rule.step(e)
+    switched = new != loop.relay
+    loop.relay = new
+    if switched:
+        loop.t_last_switch = loop.t
+        loop.send(loop.t + max(delay, 0.0), loop.relay * h)
+        (loop.up if loop.relay > 0 else loop.down).append(loop.t)
+    return switched
+
+
+def _continuous_switch(loop: _Loop, e: float, de: float, T: float, beta_up: float, beta_dn: float,
+                       tau: float, h: float) -> bool:
+    """The continuous relay: the switch at the exact instant the interpolated error crosses -beta e_ext
+    (extremum refined by cubic Hermite interpolation between ticks). True at a switch to +h."""
+    t = loop.t
+    if loop.relay > 0:
+        cand = e
+        if loop.de_prev > 0 >= de:
+            cand = max(cand, _hermite_extremum(loop.e_prev, loop.de_prev, e, de, T))
+        e_ext_new = max(loop.e_ext, cand)
+        thr = -beta_dn * e_ext_new
+        if e_ext_new > 0 and e <= thr:
+            frac = _hermite_root(loop.e_prev, loop.de_prev, e, de, T, thr) if loop.e_prev > thr else 0.0
+            tc = t - T + frac * T
+            loop.relay = -1.0
+            loop.e_ext = min(thr, e)
+            loop.down.append(tc)
+            loop.send(tc + tau, -h)
+        else:
+            loop.e_ext = e_ext_new
+        loop.e_prev, loop.de_prev = e, de
+        return False
+    cand = e
+    if loop.de_prev < 0 <= de:
+        cand = min(cand, _hermite_extremum(loop.e_prev, loop.de_prev, e, de, T))
+    e_ext_new = min(loop.e_ext, cand)
+    thr = -beta_up * e_ext_new
+    if e_ext_new < 0 and e >= thr:
+        frac = _hermite_root(loop.e_prev, loop.de_prev, e, de, T, thr) if loop.e_prev < thr else 0.0
+        tc = t - T + frac * T
+        loop.relay = 1.0
+        loop.e_ext = max(thr, e)
+        loop.up.append(tc)
+        loop.send(tc + tau, h)
+        loop.e_prev, loop.de_prev = e, de
+        loop.states.append(loop.snapshot(tc))
+        return True
+    loop.e_ext = e_ext_new
+    loop.e_prev, loop.de_prev = e, de
+    return False
+
+
 def run_relay(
     plant: AugmentedPlant,
-    beta: float,
+    beta: float | tuple[float, float],
     h: float,
     rate_hz: float,
     n_cycles: int,
     *,
     warm: dict | None = None,
-    gain_slope: float = 0.0,
-    gain_t0: float = 0.0,
-    bias_cmd: float = 0.0,
-    sampled: bool = False,
-    noise_std: float = 0.0,
-    jitter_std: float = 0.0,
-    jitter_corr: float = 0.05,
-    seed: int = 0,
+    sampled: SampledRelay | None = None,
     max_time: float | None = None,
-    max_gap: float | None = None,
 ) -> RelayRun:
     """Simulate the MRFT loop on ``plant`` for ``n_cycles`` switches to +h (or until ``max_time``).
 
@@ -207,190 +406,64 @@ def run_relay(
     warm : dict, optional
         A snapshot from ``RelayRun.state_at_up`` (the whole loop state at the tick after a switch to
         +h); time restarts from 0 at that tick.
-    gain_slope, gain_t0, bias_cmd : float
-        Time-varying gain g(t) = 1 + gain_slope (gain_t0 + t) multiplying the whole command
-        (bias_cmd + u), as a battery does; the plant input is g (bias_cmd + u) - bias_cmd + d.
-    sampled : bool
-        Decide switches at ticks on noisy samples (see the module docstring).
-    noise_std, jitter_std, jitter_corr, seed : float, float, float, int
-        Sensor noise std [output units], delay jitter std [s] and its correlation time [s]
-        (sampled mode only; the same Gauss-Markov, first-in-first-out delay as
-        :func:`mrftcli.sim.flight.simulate_flight`).
+    sampled : SampledRelay, optional
+        Decide switches at ticks on noisy samples, with its noise and delay jitter (see the module
+        docstring); None: the continuous relay.
     max_time : float, optional
         Hard stop [s].
-    max_gap : float, optional
-        Sampled mode: stop when the relay has not switched for this long [s] (a relay that false
-        switches on noise can lock up).
+
+    Raises
+    ------
+    ValueError
+        A pair of betas with the sampled relay.
     """
     T = 1.0 / rate_hz
-    if isinstance(beta, tuple):
-        beta_up, beta_dn = beta
-    else:
-        beta_up = beta_dn = beta
-    lag = plant.sensor_lag > 0
-    quad = plant.quadratic_drag > 0
-    rotor = plant.hover_thrust > 0
-    A = np.array([[0.0, 1.0, 0.0], [0.0, -1.0 / plant.Td, plant.K], [0.0, 0.0, -1.0 / plant.Tp]])
-    B = np.array([0.0, 0.0, 1.0 / plant.Tp])
-    if quad:
-        A[1, 1] = 0.0
-    if lag:
-        A = np.pad(A, ((0, 1), (0, 1)))
-        A[3, 0] = 1.0 / plant.sensor_lag
-        A[3, 3] = -1.0 / plant.sensor_lag
-        B = np.append(B, 0.0)
-    n = A.shape[0]
-    prop = _Propagator(A, B, T)
-    inv_tp = 1.0 / plant.Tp
-    inv_lag = 1.0 / plant.sensor_lag if lag else 0.0
-    rng = np.random.default_rng(seed) if sampled else None
-    rlim = plant.rate_limit
-    d_in = plant.input_bias
-    gs = gain_slope
-
-    def advance(x, s, hstep, a0, slope):
-        g0 = 1.0 + gs * (gain_t0 + s)
-        c0 = g0 * (bias_cmd + a0) - bias_cmd + d_in
-        c1 = g0 * slope + gs * (bias_cmd + a0)
-        if rotor:
-            # the simulator's rotor-speed RK4 (state q: relative rotor speed in place of the force)
-            return tuple(rk4_rotor(x, hstep, c0, c1, 0.0, plant.K, 0.0 if quad else 1.0 / plant.Td,
-                                   plant.quadratic_drag, plant.hover_thrust, inv_tp, inv_lag, 0.0025).tolist())
-        if quad:
-            # the project simulator's RK4 (input polynomial of degree <= 1 here), at most 2.5 ms substeps
-            return tuple(rk4_quadratic(x, hstep, c0, c1, 0.0, plant.K, plant.quadratic_drag, inv_tp, inv_lag,
-                                        0.0025).tolist())
-        return prop.step(x, hstep, c0, c1)
-
-    def meas(x):
-        return x[3] if lag else x[0]
-
-    def meas_rate(x):
-        if lag:
-            return (x[0] - x[3]) * inv_lag
-        return x[1] if not quad else x[1]
-
-    up: list[float] = []
-    down: list[float] = []
-    states: list[dict] = []
-    if warm is None:
-        x = (0.0,) * n
-        relay, act, target = 1.0, h, h
-        pending: list[tuple[float, float]] = []
-        e_prev = -meas(x)
-        de_prev = -meas_rate(x)
-        e_ext = 1e-300  # start as if the error had just been positive: the first switch comes at once
-    else:
-        x = tuple(float(v) for v in warm["x"])
-        if len(x) != n:  # snapshot of a different structure: cold start
-            return run_relay(plant, beta, h, rate_hz, n_cycles, gain_slope=gain_slope, gain_t0=gain_t0,
-                             bias_cmd=bias_cmd, sampled=sampled, noise_std=noise_std,
-                             jitter_std=jitter_std, jitter_corr=jitter_corr, seed=seed, max_time=max_time,
-                             max_gap=max_gap)
-        relay, act, target = 1.0, warm["act"], warm["target"]
-        pending = list(warm["pending"])
-        e_prev, de_prev, e_ext = warm["e_prev"], warm["de_prev"], warm["e_ext"]
-        up.append(warm["t_up"])
+    beta_up, beta_dn = beta if isinstance(beta, tuple) else (beta, beta)
+    stepper = _PlantStepper(plant, T)
+    if warm is not None and len(warm["x"]) != stepper.n:  # snapshot of a different structure: cold start
+        warm = None
+    loop = _Loop.cold(stepper, h) if warm is None else _Loop.warm(warm)
     max_steps = int((max_time if max_time is not None else 1e6) * rate_hz) + 1
-    rule = None
-    if sampled:
-        # the log's relay decides with one (nominal) level: the project simulator's own rule, in its state
-        if beta_up != beta_dn:
-            raise ValueError("the sampled relay takes one beta")
-        rule = MrftRelay(beta_up)
-        rule.relay, rule.e_ext, rule.first_half = relay, e_ext, False
-    jit_eff = np.zeros(1)
-    if sampled and jitter_std > 0:
-        # the delay of the command sent at tick k is tau + d_k, d a Gauss-Markov process at the tick
-        # rate (correlation ``jitter_corr``); commands never overtake each other, so the command of
-        # tick k takes effect at max_{j<=k} (j T + d_j): its effective extra delay is that minus k T
-        # (the simulator's process: mrftcli.sim.plant.gauss_markov and fifo_delays)
-        n_j = min(max_steps + 1, 2_000_000)
-        phi = math.exp(-T / jitter_corr)
-        innov = rng.standard_normal(n_j) * jitter_std * math.sqrt(1.0 - phi * phi)
-        innov[0] = rng.standard_normal() * jitter_std
-        jit_eff = np.maximum(fifo_delays(gauss_markov(innov, phi), plant.tau, T) - plant.tau, -plant.tau)
-    ys: list[float] = [meas(x)]
-    t = 0.0
-    k = 0
+    ys: list[float] = [stepper.meas(loop.x)]
+    if sampled is None:
+        for k in range(max_steps):
+            y_m = _tick(loop, stepper, k, T)
+            ys.append(y_m)
+            if not math.isfinite(y_m) or abs(y_m) > 1e9:
+                break
+            if (_continuous_switch(loop, -y_m, -stepper.meas_rate(loop.x), T, beta_up, beta_dn, plant.tau, h)
+                    and len(loop.up) >= n_cycles):
+                break
+    else:
+        _run_sampled(loop, stepper, sampled, beta_up, beta_dn, h, n_cycles, max_steps, ys)
+    tt = np.arange(len(ys)) * T
+    return RelayRun(t=tt, y=np.asarray(ys), up=np.asarray(loop.up), down=np.asarray(loop.down),
+                    state_at_up=loop.states)
 
-    def snapshot(t_up):
-        return {"x": x, "act": act, "target": target,
-                "pending": [(pt - t, pv) for pt, pv in pending],
-                "e_prev": e_prev, "de_prev": de_prev, "e_ext": e_ext, "t_up": t_up - t}
 
-    t_last_switch = 0.0
-    while k < max_steps:
-        t_end = (k + 1) * T
-        pieces, act, target = actuator_pieces(t, t_end, pending, act, target, rlim, tol=1e-15)
-        for s, hs, a, slope in pieces:
-            if abs(hs - T) < 1e-12:
-                hs = T  # the whole tick: its propagator is cached
-            x = advance(x, s, hs, a, slope)
-        t = t_end
-        k += 1
-        y_m = meas(x)
+def _run_sampled(loop: _Loop, stepper: _PlantStepper, relay: SampledRelay, beta_up: float, beta_dn: float, h: float,
+                 n_cycles: int, max_steps: int, ys: list[float]) -> None:
+    """The tick loop of the sampled relay (the log's relay: one nominal beta, noisy samples, jitter)."""
+    if beta_up != beta_dn:
+        raise ValueError("the sampled relay takes one beta")
+    T, tau = stepper.prop.T, stepper.plant.tau
+    rng = np.random.default_rng(relay.seed)
+    # the log's relay decides with one (nominal) level: the MRFT rule, in the loop's state
+    rule = MrftRelay(beta_up)
+    rule.relay, rule.e_ext, rule.first_half = loop.relay, loop.e_ext, False
+    jit_eff = _jitter_delays(rng, relay, tau, T, max_steps) if relay.jitter_std > 0 else np.zeros(1)
+    for k in range(max_steps):
+        y_m = _tick(loop, stepper, k, T)
         ys.append(y_m)
         if not math.isfinite(y_m) or abs(y_m) > 1e9:
             break
-        if sampled:
-            e = -(y_m + rng.normal(0.0, noise_std)) if noise_std > 0 else -y_m
-            new = rule.step(e)
-            switched = new != relay
-            relay = new
-            if not switched and max_gap is not None and t - t_last_switch > max_gap:
+        e = -(y_m + rng.normal(0.0, relay.noise_std)) if relay.noise_std > 0 else -y_m
+        delay = tau + (float(jit_eff[min(k + 1, jit_eff.size - 1)]) if relay.jitter_std > 0 else 0.0)
+        if _sampled_switch(loop, rule, e, delay, h):
+            if loop.relay > 0 and len(loop.up) >= n_cycles:
                 break
-            if switched:
-                t_last_switch = t
-                delay = plant.tau + (float(jit_eff[min(k, jit_eff.size - 1)]) if jitter_std > 0 else 0.0)
-                pending.append((t + max(delay, 0.0), relay * h))
-                pending.sort()
-                (up if relay > 0 else down).append(t)
-                if relay > 0 and len(up) >= n_cycles:
-                    break
-            continue
-        e = -y_m
-        de = -meas_rate(x)
-        if relay > 0:
-            cand = e
-            if de_prev > 0 >= de:
-                cand = max(cand, _hermite_extremum(e_prev, de_prev, e, de, T))
-            e_ext_new = max(e_ext, cand)
-            thr = -beta_dn * e_ext_new
-            if e_ext_new > 0 and e <= thr:
-                frac = _hermite_root(e_prev, de_prev, e, de, T, thr) if e_prev > thr else 0.0
-                tc = t - T + frac * T
-                relay = -1.0
-                e_ext = min(thr, e)
-                down.append(tc)
-                pending.append((tc + plant.tau, -h))
-                pending.sort()
-            else:
-                e_ext = e_ext_new
-        else:
-            cand = e
-            if de_prev < 0 <= de:
-                cand = min(cand, _hermite_extremum(e_prev, de_prev, e, de, T))
-            e_ext_new = min(e_ext, cand)
-            thr = -beta_up * e_ext_new
-            if e_ext_new < 0 and e >= thr:
-                frac = _hermite_root(e_prev, de_prev, e, de, T, thr) if e_prev < thr else 0.0
-                tc = t - T + frac * T
-                relay = 1.0
-                e_ext = max(thr, e)
-                up.append(tc)
-                pending.append((tc + plant.tau, h))
-                pending.sort()
-                e_prev, de_prev = e, de
-                states.append(snapshot(tc))
-                if len(up) >= n_cycles:
-                    break
-                continue
-            else:
-                e_ext = e_ext_new
-        e_prev, de_prev = e, de
-    tt = np.arange(len(ys)) * T
-    return RelayRun(t=tt, y=np.asarray(ys), up=np.asarray(up), down=np.asarray(down), state_at_up=states)
+        elif relay.max_gap is not None and loop.t - loop.t_last_switch > relay.max_gap:
+            break
 
 
 def periodic_cycle(

@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .limit_cycles import AugmentedPlant, run_relay
+from .limit_cycles import AugmentedPlant, SampledRelay, run_relay
 from ..segment import StabilityCriterion, stable_cycles
 
 __all__ = ["SCATTER_CRITERION", "ScatterSetting", "scatter_sample", "expected_period_variance",
@@ -128,9 +128,10 @@ def expected_period_variance(setting: ScatterSetting, jitter_std: float, *, n_wi
         if todo <= 0:
             break
         n_cycles = n_w * todo + skip + 1
-        run = run_relay(s.plant, s.beta, s.h, s.rate_hz, n_cycles, warm=s.warm, sampled=True,
-                        noise_std=s.noise_std, jitter_std=jitter_std, seed=seed + 7919 * attempt,
-                        max_time=(n_cycles + 4) * 3.0 * s.period, max_gap=5.0 * s.period)
+        relay = SampledRelay(noise_std=s.noise_std, jitter_std=jitter_std, seed=seed + 7919 * attempt,
+                             max_gap=5.0 * s.period)
+        run = run_relay(s.plant, s.beta, s.h, s.rate_hz, n_cycles, warm=s.warm, sampled=relay,
+                        max_time=(n_cycles + 4) * 3.0 * s.period)
         up = run.up[skip:]
         if up.size < n_w + 1:
             continue

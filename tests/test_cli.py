@@ -85,25 +85,8 @@ def _imports(path):
     return out
 
 
-def _library_files():
-    from pathlib import Path
-
-    from mrftcli import __file__ as pkg_init
-
-    root = Path(pkg_init).parent
-    return [p for p in sorted(root.rglob("*.py")) if "cli" not in p.relative_to(root).parts[:1]]
-
-
-def test_only_the_cli_imports_click_or_tqdm_and_the_library_never_imports_the_cli():
-    offending = []
-    for path in _library_files():
-        for module, names in _imports(path):
-            top = module.split(".")[0]
-            if top in ("click", "tqdm") or module == "mrftcli.cli" or module.startswith("mrftcli.cli."):
-                offending.append(f"{path.name}: {module}")
-            if module == "inspect" or (module == "mrftcli" and "cli" in names):
-                offending.append(f"{path.name}: {module} {names}")
-    assert not offending, offending
+# Which layers may import what (click/tqdm only in cli/, matplotlib only in report/ and above, the pipeline's
+# order) is import-linter's contract in pyproject.toml, checked by .ci/run.
 
 
 def test_no_module_imports_another_modules_private_name():

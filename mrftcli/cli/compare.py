@@ -1,0 +1,71 @@
+"""``mrft-ident compare``: did a loop change against a baseline? Tables for people and CI, an exit code."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from .options import check_output_file, dump_json
+
+
+def _write(target: str, text: str) -> None:
+    if target == "-":
+        click.echo(text, nl=False)
+    else:
+        Path(target).write_text(text)
+
+
+@click.command("compare")
+@click.argument("baseline", type=click.Path(exists=True))
+@click.argument("new", type=click.Path(exists=True))
+@click.option("--fail-on", "fail_on", metavar="SPEC",
+              help="Tolerances, e.g. 'tau:+5ms,K:10%,Td:25%' ([LOOP.]PARAM:[+|-]AMOUNT[s|ms|us|%]; + / - one-sided). "
+                   "Fail on a change that is significant and beyond its tolerance; without any tolerance, on any "
+                   "significant change.")
+@click.option("--confidence", type=click.FloatRange(0.5, 1.0, max_open=True), default=0.95, show_default=True,
+              help="Confidence of the change intervals, per parameter.")
+@click.option("--bonferroni", is_flag=True,
+              help="Test each of a loop's m parameters at 1-(1-confidence)/m: at most 1-confidence false alarms per loop.")
+@click.option("--match", "by", type=click.Choice(["log", "vehicle"]), default="log", show_default=True,
+              help="How batch folders are matched: by log file name, or by the vehicle of the batch config.")
+@click.option("--loop", "loops", multiple=True, metavar="LOOP", help="Compare only this loop (repeatable).")
+@click.option("--junit", "junit_target", metavar="FILE|-", help="Write a JUnit XML report (one case per loop and parameter).")
+@click.option("--markdown", "markdown_target", metavar="FILE|-", help="Write a Markdown table (merge-request comment).")
+@click.option("--json", "json_target", metavar="FILE|-", help="Write the comparison record as JSON ('-': stdout, no table).")
+def compare(baseline: str, new: str, fail_on: str | None, confidence: float, bonferroni: bool, by: str,
+            loops: tuple[str, ...], junit_target: str | None, markdown_target: str | None,
+            json_target: str | None) -> None:
+    """Compare the loops identified in NEW against BASELINE: per parameter the change, its interval,
+    whether it is significant and beyond tolerance.
+
+    BASELINE and NEW are each an 'analyze --json' result, a 'batch --out' folder (or one of its
+    logs/*.json records), or a reference .toml of expected values with tolerances (docs/compare.md).
+    Exit code 0: nothing changed beyond tolerance; 9: some loop changed; 10: a result is missing or
+    unusable.
+    """
+    from ..compare import CompareOptions, compare as run_compare, format_table, parse_fail_on, to_junit_xml, to_markdown
+    from ..compare.records import ComparisonIncompleteError, LoopChangedError
+
+    for target, option in ((json_target, "--json"), (junit_target, "--junit"), (markdown_target, "--markdown")):
+        check_output_file(target, option)
+    options = CompareOptions(confidence=confidence, correction="bonferroni" if bonferroni else "none",
+                             fail_on=parse_fail_on(fail_on) if fail_on else (), loops=loops)
+    result = run_compare(baseline, new, options, by=by)
+    if junit_target:
+        _write(junit_target, to_junit_xml(result))
+    if markdown_target:
+        _write(markdown_target, to_markdown(result))
+    if json_target:
+        dump_json(result.to_json(), json_target)
+    if json_target != "-" and "-" not in (junit_target, markdown_target):
+        click.echo(format_table(result))
+    failed = [c for c in result.changes if c.failed]
+    if failed:
+        raise LoopChangedError(
+            f"{len(failed)} parameter(s) changed beyond tolerance: "
+            + ", ".join(f"{c.name + ' ' if c.name else ''}{c.loop} {c.parameter}" for c in failed))
+    if result.missing:
+        raise ComparisonIncompleteError(
+            f"{len(result.missing)} loop(s) missing or unusable: "
+            + ", ".join(f"{m.name + ' ' if m.name else ''}{m.loop} ({m.side})" for m in result.missing))

@@ -1,0 +1,244 @@
+"""The comparison itself: match the two sides' loops, then test each parameter's change.
+
+The change of a parameter is the difference of two **independent** estimates (two flights, two
+analyses), d = new - baseline. Its uncertainty combines the two sides' standard deviations in
+quadrature. Where a side's interval is asymmetric, each side of it gives its own standard deviation
+(half-width / z of the interval's confidence), and the side facing the other estimate is used:
+
+    sigma_down = sqrt(s_new,below^2 + s_base,above^2)     (how far d may really be lower)
+    sigma_up   = sqrt(s_new,above^2 + s_base,below^2)
+    interval   = [d - z_c sigma_down, d + z_c sigma_up],  z_c = Phi^-1(1 - (1 - c) / 2)
+
+The change is **significant** when that interval excludes zero (a two-sided test at confidence c per
+parameter; with ``correction="bonferroni"`` each of a loop's m tested parameters is tested at
+1 - (1 - c) / m, so the chance of any false alarm in a loop stays below 1 - c). A side that cannot
+determine a parameter (no estimate, or an open interval such as Td without an upper bound) makes it
+**undetermined**: reported as such, never as a change.
+
+The change **fails** the comparison (verdict ``changed``) when it is significant **and** its point
+estimate is beyond the tolerance that applies (:class:`Tolerance`); when no tolerance is given
+anywhere (no ``--fail-on``, no ``tol`` in a reference file), every significant change fails.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from statistics import NormalDist
+
+from ..errors import InputError
+from .inputs import Side
+from .records import PARAMETERS, Comparison, Estimate, LoopEstimates, MissingResult, ParameterChange, Tolerance
+
+__all__ = ["CompareOptions", "compare_sides", "compare_estimates", "critical_z", "side_sigmas", "CORRECTIONS"]
+
+#: Multiple-comparison corrections: none (per parameter) or Bonferroni over a loop's parameters.
+CORRECTIONS: tuple[str, ...] = ("none", "bonferroni")
+
+
+@dataclass(frozen=True)
+class CompareOptions:
+    """How to compare.
+
+    Parameters
+    ----------
+    confidence : float
+        Confidence of the change intervals, in (0, 1) (0.95).
+    correction : {"none", "bonferroni"}
+        Per-parameter test, or Bonferroni over each loop's tested parameters.
+    fail_on : tuple of Tolerance
+        ``--fail-on`` tolerances; they override a reference file's for the same loop and parameter.
+    loops : tuple of str
+        Compare only these loops (empty: all).
+    """
+
+    confidence: float = 0.95
+    correction: str = "none"
+    fail_on: tuple[Tolerance, ...] = ()
+    loops: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not 0.5 <= self.confidence < 1.0:
+            raise InputError(f"confidence {self.confidence}: give a value in [0.5, 1), e.g. 0.95")
+        if self.correction not in CORRECTIONS:
+            raise InputError(f"correction {self.correction!r}: use one of {', '.join(CORRECTIONS)}")
+
+
+def critical_z(confidence: float) -> float:
+    """z_c of a two-sided interval at ``confidence`` (1.96 at 0.95).
+
+    >>> round(critical_z(0.95), 3)
+    1.96
+    """
+    return NormalDist().inv_cdf(0.5 + confidence / 2.0)
+
+
+def side_sigmas(e: Estimate) -> tuple[float, float]:
+    """(below, above) standard deviations of a determined estimate [SI units].
+
+    From the interval's half-widths when it has one (asymmetric intervals keep their shape), else the
+    std on both sides.
+    """
+    assert e.mean is not None  # determined estimates only
+    if e.low is not None and e.high is not None:
+        z = critical_z(e.interval_confidence)
+        return max(e.mean - e.low, 0.0) / z, max(e.high - e.mean, 0.0) / z
+    std = e.std or 0.0
+    return std, std
+
+
+def _undetermined_note(base: Estimate, new: Estimate) -> str:
+    def why(e: Estimate, side: str) -> str | None:
+        if e.determined:
+            return None
+        if e.mean is None or not math.isfinite(e.mean):
+            return f"no {side} estimate"
+        if e.low is not None and math.isfinite(e.low):
+            return f"{side} bounded below only (> {e.low:.4g})"
+        return f"{side} interval open"
+
+    return "; ".join(w for w in (why(base, "baseline"), why(new, "new")) if w)
+
+
+def compare_estimates(base: Estimate, new: Estimate, *, z_crit: float, tolerance: Tolerance | None,
+                      fail_without_tolerance: bool) -> tuple[float | None, float | None, float | None, float | None,
+                                                             bool, bool, str]:
+    """Test one parameter's change (module docstring).
+
+    Returns
+    -------
+    change, low, high, z : float or None
+        d = new - base, its interval [SI units] and the z score (None when undetermined).
+    significant, beyond : bool
+        The interval excludes zero; the point change is beyond ``tolerance``.
+    verdict : str
+        ``changed``, ``significant``, ``unchanged`` or ``undetermined``.
+    """
+    if not (base.determined and new.determined):
+        return None, None, None, None, False, False, "undetermined"
+    assert base.mean is not None and new.mean is not None
+    b_below, b_above = side_sigmas(base)
+    n_below, n_above = side_sigmas(new)
+    d = new.mean - base.mean
+    sigma_down, sigma_up = math.hypot(n_below, b_above), math.hypot(n_above, b_below)
+    low, high = d - z_crit * sigma_down, d + z_crit * sigma_up
+    towards_zero = sigma_down if d > 0 else sigma_up
+    z = d / towards_zero if towards_zero > 0 else (0.0 if d == 0 else math.copysign(math.inf, d))
+    significant = low > 0.0 or high < 0.0
+    beyond = tolerance is not None and tolerance.exceeded_by(d, base.mean)
+    if not significant:
+        verdict = "unchanged"
+    elif beyond or (tolerance is None and fail_without_tolerance):
+        verdict = "changed"
+    else:
+        verdict = "significant"
+    return d, low, high, z, significant, beyond, verdict
+
+
+def _tolerance_for(loop: str, param: str, fail_on: tuple[Tolerance, ...],
+                   pair: tuple[LoopEstimates, LoopEstimates]) -> Tolerance | None:
+    """--fail-on for this loop, then --fail-on for every loop, then the sides' own (reference) tolerances."""
+    for wanted in (loop, None):
+        for tol in fail_on:
+            if tol.parameter == param and tol.loop == wanted:
+                return tol
+    for side in pair:
+        for tol in side.tolerances:
+            if tol.parameter == param and tol.loop in (loop, None):
+                return tol
+    return None
+
+
+def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options: CompareOptions,
+                  fail_without_tolerance: bool, skip_absent: bool) -> list[ParameterChange]:
+    params = [p for p in PARAMETERS if p in b.parameters or p in n.parameters]
+    if skip_absent:  # a reference states only the parameters it checks
+        params = [p for p in params if p in b.parameters and p in n.parameters]
+    missing = Estimate(mean=None)
+    pairs = {p: (b.parameters.get(p, missing), n.parameters.get(p, missing)) for p in params}
+    tested = sum(1 for be, ne in pairs.values() if be.determined and ne.determined)
+    alpha = 1.0 - options.confidence
+    if options.correction == "bonferroni" and tested > 1:
+        alpha /= tested
+    z_crit = critical_z(1.0 - alpha)
+    out = []
+    for p, (be, ne) in pairs.items():
+        tol = _tolerance_for(n.loop, p, options.fail_on, (b, n))
+        d, low, high, z, sig, beyond, verdict = compare_estimates(be, ne, z_crit=z_crit, tolerance=tol,
+                                                                  fail_without_tolerance=fail_without_tolerance)
+        note = _undetermined_note(be, ne) if verdict == "undetermined" else ""
+        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=be.mean, new=ne.mean, change=d,
+                                   low=low, high=high, z=z, significant=sig,
+                                   tolerance=tol.text if tol is not None else None, beyond_tolerance=beyond,
+                                   verdict=verdict, note=note))
+    return out
+
+
+def _match(base: Side, new: Side) -> list[tuple[str | None, str, LoopEstimates | None, LoopEstimates | None]]:
+    """(name, loop, baseline loop, new loop) for every key on either side.
+
+    Named entries (batch logs or vehicles, named reference tables) match by (name, loop); an unnamed
+    entry (a single analysis, a reference's [loop] table) stands for its loop on every name.
+    """
+    named_b = {e.key: e for e in base.loops if e.name is not None}
+    named_n = {e.key: e for e in new.loops if e.name is not None}
+    any_b = {e.loop: e for e in base.loops if e.name is None}
+    any_n = {e.loop: e for e in new.loops if e.name is None}
+    keys = list(dict.fromkeys([*named_b, *named_n]))
+    rows: list[tuple[str | None, str, LoopEstimates | None, LoopEstimates | None]] = [
+        (name, loop, named_b.get((name, loop)) or any_b.get(loop), named_n.get((name, loop)) or any_n.get(loop))
+        for name, loop in keys]
+    named_loops = {loop for _, loop in keys}
+    for loop in dict.fromkeys([*any_b, *any_n]):
+        if loop not in named_loops:
+            rows.append((None, loop, any_b.get(loop), any_n.get(loop)))
+    return rows
+
+
+def _missing(name: str | None, loop: str, b: LoopEstimates | None, n: LoopEstimates | None) -> MissingResult | None:
+    if b is None or n is None:
+        side = "both" if b is None and n is None else ("baseline" if b is None else "new")
+        return MissingResult(name=name, loop=loop, side=side, reason=f"no {side} result for this loop")
+    if b.error is not None or n.error is not None:
+        side = "both" if b.error and n.error else ("baseline" if b.error else "new")
+        return MissingResult(name=name, loop=loop, side=side, reason=(b.error or n.error or "").strip())
+    return None
+
+
+def compare_sides(base: Side, new: Side, options: CompareOptions | None = None) -> Comparison:
+    """Compare every matched loop and parameter of two sides.
+
+    Parameters
+    ----------
+    base, new : Side
+        From :func:`mrftcli.compare.inputs.read_side`.
+    options : CompareOptions, optional
+        Confidence, correction, tolerances, loops.
+
+    Returns
+    -------
+    Comparison
+        One :class:`ParameterChange` per matched loop and parameter; loops absent or unusable on a side
+        as :class:`MissingResult`; its ``exit_code`` is 0, 9 (changed) or 10 (incomplete).
+    """
+    options = options or CompareOptions()
+    fail_without_tolerance = not options.fail_on and not any(e.tolerances for e in (*base.loops, *new.loops))
+    skip_absent = "reference" in (base.kind, new.kind)
+    changes: list[ParameterChange] = []
+    missing: list[MissingResult] = []
+    notes = [*base.notes, *new.notes]
+    for name, loop, b, n in _match(base, new):
+        if options.loops and loop not in options.loops:
+            continue
+        gap = _missing(name, loop, b, n)
+        if gap is not None:
+            missing.append(gap)
+            continue
+        assert b is not None and n is not None
+        if b.tp is not None and n.tp is not None and not math.isclose(b.tp, n.tp, rel_tol=1e-9):
+            notes.append(f"{name + ' ' if name else ''}{loop}: the analyses assumed different Tp "
+                         f"({b.tp:.4g} s, {n.tp:.4g} s); Td, tau and K depend on it")
+        changes.extend(_compare_loop(b, n, name, options, fail_without_tolerance, skip_absent))
+    return Comparison(baseline=base.path, new=new.path, confidence=options.confidence, correction=options.correction,
+                      fail_on=tuple(t.text for t in options.fail_on), changes=tuple(changes),
+                      missing=tuple(missing), notes=tuple(dict.fromkeys(notes)))

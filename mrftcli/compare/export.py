@@ -1,0 +1,153 @@
+"""A comparison as people and CI systems read it: a terminal table, Markdown, JUnit XML.
+
+JUnit: one ``<testsuite>`` (``mrft-ident compare``) with one ``<testcase>`` per loop and parameter
+(``classname`` = ``[NAME.]LOOP``, ``name`` = the parameter): a ``changed`` parameter is a
+``<failure>``, an ``undetermined`` one is ``<skipped>``, a missing or unusable loop is one test case
+(``name`` = ``result``) with an ``<error>``. Every case carries the figures in its ``<system-out>``.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+
+from .records import Comparison, MissingResult, ParameterChange
+
+__all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "format_change", "DISPLAY_UNITS"]
+
+#: Parameter -> (display unit, factor from SI) for reports; the records stay in SI.
+DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3), "K": ("", 1.0)}
+
+
+def _scale(param: str) -> tuple[str, float]:
+    return DISPLAY_UNITS.get(param, ("", 1.0))
+
+
+def format_value(param: str, value: float | None) -> str:
+    """A parameter value in its display unit, or ``-``.
+
+    >>> format_value("tau", 0.0464)
+    '46.4 ms'
+    """
+    if value is None or not math.isfinite(value):
+        return "-"
+    unit, f = _scale(param)
+    return f"{value * f:.4g} {unit}".rstrip()
+
+
+def format_change(c: ParameterChange, confidence: float) -> str:
+    """``+20.01 ms [+19.96, +20.06] (95 %)``, or the reason it is undetermined.
+
+    >>> from mrftcli.compare.records import ParameterChange
+    >>> c = ParameterChange(None, "altitude", "tau", 0.0464, 0.0664, 0.02, 0.0199, 0.0201, 400.0, True, None,
+    ...                     False, "changed")
+    >>> format_change(c, 0.95)
+    '+20 ms [+19.9, +20.1] (95 %)'
+    """
+    if c.change is None or c.low is None or c.high is None:
+        return f"undetermined ({c.note})" if c.note else "undetermined"
+    unit, f = _scale(c.parameter)
+    pct = f"{100 * confidence:.3g}"
+    return f"{c.change * f:+.4g} {unit} [{c.low * f:+.4g}, {c.high * f:+.4g}] ({pct} %)".replace("  ", " ")
+
+
+def _relative(c: ParameterChange) -> str:
+    r = c.relative
+    return "-" if r is None else f"{100 * r:+.2g} %"
+
+
+def _who(name: str | None, loop: str) -> str:
+    return f"{name} {loop}" if name else loop
+
+
+def _rows(cmp: Comparison) -> list[list[str]]:
+    rows = []
+    for c in cmp.changes:
+        z = "-" if c.z is None else (f"{c.z:+.1f}" if math.isfinite(c.z) else ("+inf" if c.z > 0 else "-inf"))
+        rows.append([_who(c.name, c.loop), c.parameter, format_value(c.parameter, c.baseline),
+                     format_value(c.parameter, c.new), format_change(c, cmp.confidence), _relative(c), z,
+                     c.tolerance or "-", c.verdict])
+    for m in cmp.missing:
+        rows.append([_who(m.name, m.loop), "-", "-", "-", f"missing on {m.side}: {m.reason}", "-", "-", "-",
+                     "missing"])
+    return rows
+
+
+_HEADER = ["loop", "param", "baseline", "new", "change [interval]", "relative", "z", "tolerance", "verdict"]
+
+
+def _summary(cmp: Comparison) -> str:
+    failed = [c for c in cmp.changes if c.failed]
+    code = cmp.exit_code
+    if failed:
+        what = ", ".join(f"{_who(c.name, c.loop)} {c.parameter} {format_change(c, cmp.confidence).split(' [')[0]}"
+                         for c in failed)
+        return f"CHANGED ({len(failed)} of {len(cmp.changes)} parameters): {what}; exit code {code}"
+    if cmp.missing:
+        return f"INCOMPLETE: {len(cmp.missing)} loop(s) missing or unusable; exit code {code}"
+    return f"no change beyond tolerance in {len(cmp.changes)} parameters; exit code 0"
+
+
+def format_table(cmp: Comparison) -> str:
+    """The terminal report: header lines, one row per loop and parameter, notes, a verdict line."""
+    rows = [_HEADER, *_rows(cmp)]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(_HEADER))]
+    lines = [f"baseline {cmp.baseline}", f"new      {cmp.new}",
+             f"confidence {100 * cmp.confidence:.3g} % per parameter"
+             + (" (Bonferroni over each loop's parameters)" if cmp.correction == "bonferroni" else "")
+             + (f"; fail on {', '.join(cmp.fail_on)}" if cmp.fail_on else "; fail on any significant change"
+                if not any(c.tolerance for c in cmp.changes) else "")]
+    lines += ["  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]
+    lines += [f"note: {n}" for n in cmp.notes]
+    lines.append(_summary(cmp))
+    return "\n".join(lines)
+
+
+def to_markdown(cmp: Comparison) -> str:
+    """A Markdown table for a merge-request comment (GitHub/GitLab flavoured)."""
+    icon = {"changed": ":x: changed", "significant": ":warning: significant", "unchanged": ":white_check_mark: unchanged",
+            "undetermined": ":grey_question: undetermined", "missing": ":no_entry: missing"}
+    lines = ["### mrft-ident compare", "",
+             f"Baseline `{cmp.baseline}`, new `{cmp.new}`; intervals at {100 * cmp.confidence:.3g} % per parameter"
+             + (" (Bonferroni per loop)" if cmp.correction == "bonferroni" else "") + ".", "",
+             "| " + " | ".join(_HEADER) + " |", "|" + "---|" * len(_HEADER)]
+    for r in _rows(cmp):
+        r[-1] = icon.get(r[-1], r[-1])
+        lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in r) + " |")
+    lines += ["", *(f"> note: {n}" for n in cmp.notes), f"**{_summary(cmp)}**", ""]
+    return "\n".join(lines)
+
+
+def _case_text(c: ParameterChange, confidence: float) -> str:
+    return (f"baseline {format_value(c.parameter, c.baseline)}, new {format_value(c.parameter, c.new)}, "
+            f"change {format_change(c, confidence)}, z {c.z if c.z is not None else '-'}, "
+            f"tolerance {c.tolerance or '-'}, verdict {c.verdict}")
+
+
+def _missing_case(suite: ET.Element, m: MissingResult) -> None:
+    case = ET.SubElement(suite, "testcase", classname=f"{m.name}.{m.loop}" if m.name else m.loop, name="result")
+    ET.SubElement(case, "error", message=f"missing on {m.side}: {m.reason}", type="missing")
+
+
+def to_junit_xml(cmp: Comparison) -> str:
+    """JUnit XML (module docstring), as a string with an XML declaration."""
+    failures = sum(c.failed for c in cmp.changes)
+    skipped = sum(c.verdict == "undetermined" for c in cmp.changes)
+    suites = ET.Element("testsuites", name="mrft-ident compare")
+    suite = ET.SubElement(suites, "testsuite", name="mrft-ident compare", tests=str(len(cmp.changes) + len(cmp.missing)),
+                          failures=str(failures), errors=str(len(cmp.missing)), skipped=str(skipped))
+    for c in cmp.changes:
+        case = ET.SubElement(suite, "testcase", classname=f"{c.name}.{c.loop}" if c.name else c.loop, name=c.parameter)
+        text = _case_text(c, cmp.confidence)
+        if c.failed:
+            ET.SubElement(case, "failure", message=f"{c.parameter} changed: {format_change(c, cmp.confidence)}",
+                          type="changed").text = text
+        elif c.verdict == "undetermined":
+            ET.SubElement(case, "skipped", message=f"undetermined: {c.note}")
+        ET.SubElement(case, "system-out").text = text
+    for m in cmp.missing:
+        _missing_case(suite, m)
+    for attr in ("tests", "failures", "errors", "skipped"):
+        suites.set(attr, suite.get(attr, "0"))
+    ET.indent(suites)
+    return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(suites, encoding="unicode") + "\n"

@@ -1,0 +1,265 @@
+"""The two sides of a comparison, read from what users have at hand.
+
+A side is one of:
+
+* an **analysis result**: the JSON of ``mrft-ident analyze LOG --json FILE`` (one loop; matched to the
+  other side by loop);
+* a **batch output folder** (``mrft-ident batch --out DIR``) or one of its per-log records
+  (``DIR/logs/<name>.<hash>.json``): every log and loop, matched by log name (``by="log"``) or by the
+  vehicle the batch config named (``by="vehicle"``; the latest log of a vehicle when it has several);
+* a **reference file** (TOML, ``.toml``) of expected parameters with optional tolerances, per loop and
+  optionally per vehicle or log name (docs/compare.md):
+
+  .. code-block:: toml
+
+      [altitude]
+      Td = { value = 2.669, tol = "25%" }       # seconds
+      tau = { value = 0.0464, tol = "+5ms" }    # seconds
+      K = 19.62                                  # a bare value: no tolerance of its own
+
+      [vehicle7.altitude]                        # only for the log or vehicle named vehicle7
+      tau = { value = 0.050, std = 0.0005 }      # a reference with its own uncertainty
+
+The analysis JSON is read by one function, :func:`estimates_from_analysis`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .records import PARAMETERS, Estimate, LoopEstimates, Tolerance
+from .tolerance import parse_amount
+
+__all__ = ["Side", "read_side", "estimates_from_analysis", "estimates_from_batch_record", "read_reference",
+           "MATCH_BY"]
+
+#: How batch logs are matched across the two sides.
+MATCH_BY: tuple[str, ...] = ("log", "vehicle")
+
+_REFERENCE_KEYS = frozenset({"value", "tol", "std"})
+
+
+@dataclass(frozen=True)
+class Side:
+    """One side of a comparison: its loops, how it was read, and what the reader noticed.
+
+    ``kind`` is ``analysis``, ``batch`` or ``reference``; ``loops`` the loops found (usable or not).
+    """
+
+    path: str
+    kind: str
+    loops: tuple[LoopEstimates, ...]
+    notes: tuple[str, ...] = ()
+
+
+def _number(x: object) -> float | None:
+    """A JSON number as float (None, booleans and non-numbers -> None)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return None
+    return float(x)
+
+
+def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str | None = None) -> LoopEstimates:
+    """The loop estimates of one ``analyze --json`` object.
+
+    Parameters
+    ----------
+    result : Mapping
+        The analysis JSON (``parameters`` with Td, tau, K: ``mean``, ``std``, ``ci95_low``,
+        ``ci95_high`` [SI units]; ``input`` with ``loop`` and ``Tp``).
+    source : str
+        Where it was read (for messages).
+    name : str or None
+        The log name or vehicle it is matched by.
+
+    Raises
+    ------
+    InputError
+        Not an analysis result (no ``parameters``/``input``).
+    """
+    params = result.get("parameters")
+    inp = result.get("input")
+    if not isinstance(params, Mapping) or not isinstance(inp, Mapping) or "loop" not in inp:
+        raise InputError(f"{source}: not an analysis result (no 'parameters' and 'input.loop'); pass the JSON "
+                         "of 'mrft-ident analyze LOG --json FILE', a batch output folder or a reference .toml")
+    estimates = {}
+    for p in PARAMETERS:
+        d = params.get(p)
+        if not isinstance(d, Mapping):
+            continue
+        # JSON has no NaN or infinity: an open bound (Td without an upper limit) is null.
+        estimates[p] = Estimate(mean=_number(d.get("mean")), low=_number(d.get("ci95_low")),
+                                high=_number(d.get("ci95_high")), std=_number(d.get("std")))
+        if estimates[p].high is None and estimates[p].low is not None:
+            estimates[p] = Estimate(mean=estimates[p].mean, low=estimates[p].low, high=math.inf, std=estimates[p].std)
+    return LoopEstimates(loop=str(inp["loop"]), name=name, source=source, parameters=estimates,
+                         tp=_number(inp.get("Tp")))
+
+
+def _batch_name(record: Mapping[str, Any], by: str) -> str:
+    path = Path(str(record.get("path", "")))
+    if by == "vehicle":
+        settings = record.get("settings") or {}
+        return str(settings.get("vehicle") or path.parent.name)
+    return path.name
+
+
+def estimates_from_batch_record(record: Mapping[str, Any], *, source: str, by: str = "log") -> list[LoopEstimates]:
+    """Every loop of one batch record (``DIR/logs/<name>.<hash>.json``), usable or not.
+
+    A loop whose analysis failed or was insufficient is returned with its ``error``.
+
+    Raises
+    ------
+    InputError
+        Not a batch record (no ``loops``).
+    """
+    loops = record.get("loops")
+    if not isinstance(loops, list):
+        raise InputError(f"{source}: not a batch record (no 'loops'); pass a batch output folder")
+    name = _batch_name(record, by)
+    out = []
+    for entry in loops:
+        loop = str(entry.get("loop"))
+        result = entry.get("result")
+        if entry.get("status") != "ok" or not isinstance(result, Mapping) or "parameters" not in result:
+            reason = entry.get("error") or f"status {entry.get('status')}"
+            out.append(LoopEstimates(loop=loop, name=name, source=source,
+                                     error=f"{entry.get('status')}: {reason}"))
+            continue
+        est = estimates_from_analysis(result, source=source, name=name)
+        out.append(est)
+    return out
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{path}: cannot read it as JSON ({err}); pass an analysis JSON, a batch folder "
+                         "or a reference .toml") from None
+
+
+def _read_batch_folder(folder: Path, by: str) -> Side:
+    files = sorted((folder / "logs").glob("*.json"))
+    if not files:
+        raise InputError(f"{folder}: not a batch output folder (no logs/*.json); pass the --out folder of "
+                         "'mrft-ident batch' or an analysis JSON")
+    latest: dict[tuple[str | None, str], tuple[float, LoopEstimates]] = {}
+    notes = []
+    for f in files:
+        record = _read_json(f)
+        mtime = _number(record.get("log_mtime")) if isinstance(record, Mapping) else None
+        for est in estimates_from_batch_record(record, source=str(f), by=by):
+            previous = latest.get(est.key)
+            if previous is not None:
+                notes.append(f"{folder}: several logs for {est.name} {est.loop}; the latest (by log time) is used")
+                if previous[0] > (mtime or 0.0):
+                    continue
+            latest[est.key] = (mtime or 0.0, est)
+    return Side(path=str(folder), kind="batch", loops=tuple(v[1] for v in latest.values()),
+                notes=tuple(dict.fromkeys(notes)))
+
+
+def _reference_estimate(value: object, where: str) -> tuple[Estimate, str | None]:
+    """A reference entry -> (estimate, tolerance text or None)."""
+    if isinstance(value, Mapping):
+        unknown = set(value) - _REFERENCE_KEYS
+        if unknown:
+            raise InputError(f"{where}: unknown key {sorted(unknown)[0]!r} (known: {', '.join(sorted(_REFERENCE_KEYS))})")
+        mean = _number(value.get("value"))
+        std = _number(value.get("std")) if "std" in value else 0.0
+        tol = value.get("tol")
+        if tol is not None and not isinstance(tol, str):
+            raise InputError(f"{where}: tol must be a string such as \"+5ms\" or \"25%\"")
+    else:
+        mean, std, tol = _number(value), 0.0, None
+    if mean is None or not math.isfinite(mean) or std is None or not std >= 0.0 or not math.isfinite(std):
+        raise InputError(f"{where}: give a finite value (and std >= 0), e.g. {{ value = 0.0464, tol = \"+5ms\" }}")
+    return Estimate(mean=mean, low=None, high=None, std=std), tol
+
+
+def _reference_loop(table: Mapping[str, Any], loop: str, name: str | None, source: str) -> LoopEstimates:
+    where = f"{source}: [{name + '.' if name else ''}{loop}]"
+    estimates, tolerances = {}, []
+    for key, value in table.items():
+        if key not in PARAMETERS:
+            raise InputError(f"{where}: unknown parameter {key!r} (known: {', '.join(PARAMETERS)})")
+        est, tol = _reference_estimate(value, f"{where} {key}")
+        estimates[key] = est
+        if tol is not None:
+            amount, relative, direction = parse_amount(key, tol)
+            tolerances.append(Tolerance(parameter=key, amount=amount, relative=relative, direction=direction,
+                                        loop=loop, text=f"{key}:{tol}"))
+    return LoopEstimates(loop=loop, name=name, source=source, parameters=estimates, tolerances=tuple(tolerances))
+
+
+def read_reference(path: Path) -> Side:
+    """Read a reference TOML file (module docstring; docs/compare.md).
+
+    Values are in SI units (seconds for Td and tau). A top-level table whose keys are parameters is a
+    loop; otherwise it names a log or vehicle and holds loop tables.
+
+    Raises
+    ------
+    InputError
+        Unreadable TOML, an unknown key or parameter, a non-finite value, a malformed tolerance.
+    """
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        raise InputError(f"{path}: cannot read it as TOML ({err})") from None
+    loops = []
+    for key, table in data.items():
+        if not isinstance(table, Mapping):
+            raise InputError(f"{path}: {key!r} must be a table such as [altitude] or [vehicle7.altitude]")
+        if any(k in PARAMETERS for k in table):
+            loops.append(_reference_loop(table, key, None, str(path)))
+            continue
+        for loop, sub in table.items():
+            if not isinstance(sub, Mapping):
+                raise InputError(f"{path}: [{key}] {loop!r} must be a loop table such as [{key}.altitude]")
+            loops.append(_reference_loop(sub, loop, key, str(path)))
+    if not loops:
+        raise InputError(f"{path}: no loop in the reference file; add e.g. [altitude] tau = {{ value = 0.0464 }}")
+    return Side(path=str(path), kind="reference", loops=tuple(loops))
+
+
+def read_side(path: str | Path, by: str = "log") -> Side:
+    """Read one side: an analysis JSON, a batch folder or record, or a reference ``.toml``.
+
+    Parameters
+    ----------
+    path : str or Path
+        What to read.
+    by : {"log", "vehicle"}
+        How a batch folder's logs are named for matching.
+
+    Raises
+    ------
+    InputError
+        A path that does not exist or is none of the above.
+    """
+    p = Path(path)
+    if by not in MATCH_BY:
+        raise InputError(f"match by {by!r}: use one of {', '.join(MATCH_BY)}")
+    if p.is_dir():
+        return _read_batch_folder(p, by)
+    if not p.exists():
+        raise InputError(f"{p}: no such file or folder; pass an analysis JSON, a batch output folder or a "
+                         "reference .toml")
+    if p.suffix.lower() == ".toml":
+        return read_reference(p)
+    data = _read_json(p)
+    if isinstance(data, Mapping) and "loops" in data:
+        return Side(path=str(p), kind="batch", loops=tuple(estimates_from_batch_record(data, source=str(p), by=by)))
+    if not isinstance(data, Mapping):
+        raise InputError(f"{p}: not an analysis result (a JSON object); pass the JSON of 'mrft-ident analyze'")
+    return Side(path=str(p), kind="analysis", loops=(estimates_from_analysis(data, source=str(p)),))

@@ -1,0 +1,376 @@
+"""The records of a comparison: one side's estimates, the tolerances, the per-parameter changes.
+
+:class:`Comparison` crosses the process line (``compare --json``, a CI artefact read back later), so it
+carries ``schema_version`` and round-trips through :meth:`Comparison.to_json` /
+:meth:`Comparison.from_json`; a malformed or newer record raises :class:`mrftcli.errors.InputError`
+with a one-line message.
+
+All values are in SI units (seconds for Td and tau, the analysis' output-per-command units for K);
+renderers convert (tau in ms) for display only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import InputError, MrftError
+
+__all__ = ["SCHEMA_VERSION", "PARAMETERS", "Estimate", "LoopEstimates", "Tolerance", "ParameterChange",
+           "MissingResult", "Comparison", "EXIT_CHANGED", "EXIT_INCOMPLETE", "VERDICTS", "LoopChangedError",
+           "ComparisonIncompleteError"]
+
+#: Version of the ``compare --json`` record; bump when its layout changes.
+SCHEMA_VERSION = 1
+
+#: The loop parameters compared, in display order (Tp is an input of the analysis, not an estimate).
+PARAMETERS: tuple[str, ...] = ("Td", "tau", "K")
+
+#: Exit code when some parameter changed significantly and beyond its tolerance.
+EXIT_CHANGED = 9
+#: Exit code when a result is missing on one side or unusable (and nothing changed).
+EXIT_INCOMPLETE = 10
+
+
+
+class LoopChangedError(MrftError):
+    """Some loop changed: a parameter's change is significant and beyond its tolerance; exit code 9."""
+
+    exit_code = EXIT_CHANGED
+
+
+class ComparisonIncompleteError(MrftError):
+    """A result is missing on one side or unusable (and nothing changed); exit code 10."""
+
+    exit_code = EXIT_INCOMPLETE
+
+
+#: Per-parameter verdicts: ``changed`` fails the comparison; the others do not.
+VERDICTS: tuple[str, ...] = ("changed", "significant", "unchanged", "undetermined")
+
+
+def _finite(x: float | None) -> bool:
+    return x is not None and math.isfinite(x)
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One parameter as one side states it.
+
+    Parameters
+    ----------
+    mean : float or None
+        Point estimate [SI units]; None when the side gives none.
+    low, high : float or None
+        The side's interval at ``interval_confidence`` [SI units]; None (or infinite) when open, as an
+        upper bound of Td that the tests cannot close.
+    std : float or None
+        Standard deviation [SI units], used only where the interval is missing.
+    interval_confidence : float
+        Confidence of ``low``-``high`` (0.95 for ``analyze`` results).
+    """
+
+    mean: float | None
+    low: float | None = None
+    high: float | None = None
+    std: float | None = None
+    interval_confidence: float = 0.95
+
+    @property
+    def determined(self) -> bool:
+        """True when the estimate and both sides of its uncertainty are finite."""
+        if not _finite(self.mean):
+            return False
+        if _finite(self.low) and _finite(self.high):
+            return True
+        return self.low is None and self.high is None and _finite(self.std)
+
+    @classmethod
+    def exact(cls, value: float) -> Estimate:
+        """A value without uncertainty (a reference figure)."""
+        return cls(mean=value, low=value, high=value, std=0.0)
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """How far a parameter may move before the comparison fails (``--fail-on tau:+5ms``).
+
+    Parameters
+    ----------
+    parameter : str
+        ``Td``, ``tau`` or ``K``.
+    amount : float
+        The allowed change: SI units, or a fraction of the baseline value when ``relative``.
+    relative : bool
+        True for a percentage of the baseline.
+    direction : int
+        +1: only increases beyond ``amount`` fail; -1: only decreases; 0: either.
+    loop : str or None
+        Restricts the tolerance to one loop; None for every loop.
+    text : str
+        The tolerance as written (for reports).
+    """
+
+    parameter: str
+    amount: float
+    relative: bool = False
+    direction: int = 0
+    loop: str | None = None
+    text: str = ""
+
+    def limit(self, baseline: float) -> float:
+        """The allowed change in SI units for a baseline value [SI units]."""
+        return self.amount * abs(baseline) if self.relative else self.amount
+
+    def exceeded_by(self, change: float, baseline: float) -> bool:
+        """True when ``change`` (new - baseline) [SI units] is beyond this tolerance in its direction."""
+        limit = self.limit(baseline)
+        if self.direction > 0:
+            return change > limit
+        if self.direction < 0:
+            return change < -limit
+        return abs(change) > limit
+
+
+@dataclass(frozen=True)
+class LoopEstimates:
+    """One loop of one side: its parameter estimates, or why it cannot be used.
+
+    Parameters
+    ----------
+    loop : str
+        The loop (``altitude``, ``roll``...).
+    name : str or None
+        The log name or vehicle it is matched by; None for a single analysis or a reference file,
+        which match the other side by loop alone.
+    source : str
+        Where it was read (a file).
+    parameters : Mapping[str, Estimate]
+        ``Td``, ``tau``, ``K`` (those the side states).
+    tp : float or None
+        The propulsion time constant the analysis assumed [s].
+    error : str or None
+        Why this loop is unusable (a failed or insufficient analysis); None when usable.
+    tolerances : tuple of Tolerance
+        Tolerances that come with it (a reference file's ``tol``).
+    """
+
+    loop: str
+    name: str | None
+    source: str
+    parameters: Mapping[str, Estimate] = field(default_factory=dict)
+    tp: float | None = None
+    error: str | None = None
+    tolerances: tuple[Tolerance, ...] = ()
+
+    @property
+    def key(self) -> tuple[str | None, str]:
+        """(name, loop), the matching key."""
+        return (self.name, self.loop)
+
+
+@dataclass(frozen=True)
+class ParameterChange:
+    """One parameter of one matched loop: the change, its interval, the verdict.
+
+    Parameters
+    ----------
+    name : str or None
+        Log name or vehicle (None when matched by loop alone).
+    loop, parameter : str
+        Which loop and parameter.
+    baseline, new : float or None
+        The two point estimates [SI units].
+    change : float or None
+        new - baseline [SI units]; None when undetermined.
+    low, high : float or None
+        Interval of the change at the comparison's confidence [SI units].
+    z : float or None
+        change / its standard deviation on the side towards zero.
+    significant : bool
+        The interval excludes zero.
+    tolerance : str or None
+        The tolerance applied, as written; None when none applies.
+    beyond_tolerance : bool
+        The change is beyond that tolerance (always False without one).
+    verdict : str
+        ``changed`` (significant, and beyond the tolerance when one applies: fails), ``significant``
+        (significant but within its tolerance, or without a tolerance while others have one),
+        ``unchanged`` (not significant), or ``undetermined`` (a side cannot determine the parameter;
+        never a change).
+    note : str
+        Why undetermined, or other context.
+    """
+
+    name: str | None
+    loop: str
+    parameter: str
+    baseline: float | None
+    new: float | None
+    change: float | None
+    low: float | None
+    high: float | None
+    z: float | None
+    significant: bool
+    tolerance: str | None
+    beyond_tolerance: bool
+    verdict: str
+    note: str = ""
+
+    @property
+    def failed(self) -> bool:
+        """True when this change fails the comparison."""
+        return self.verdict == "changed"
+
+    @property
+    def relative(self) -> float | None:
+        """The change as a fraction of the baseline, or None."""
+        if self.change is None or not self.baseline:
+            return None
+        return self.change / abs(self.baseline)
+
+
+@dataclass(frozen=True)
+class MissingResult:
+    """A loop that cannot be compared: absent on one side, or unusable there.
+
+    ``side`` is ``baseline``, ``new`` or ``both``; ``reason`` one line.
+    """
+
+    name: str | None
+    loop: str
+    side: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The comparison of two sides: every parameter change and every loop that could not be compared.
+
+    Parameters
+    ----------
+    baseline, new : str
+        What was compared (paths).
+    confidence : float
+        Confidence of the change intervals, per parameter (0.95).
+    correction : str
+        ``none`` (each parameter at ``confidence``) or ``bonferroni`` (per loop: each of its m
+        parameters at 1 - (1 - confidence) / m).
+    fail_on : tuple of str
+        The ``--fail-on`` tolerances as written (empty: any significant change fails).
+    changes : tuple of ParameterChange
+        One per matched loop and parameter.
+    missing : tuple of MissingResult
+        Loops not compared.
+    notes : tuple of str
+        Context (a Tp that differs between the sides, a vehicle with several logs...).
+    """
+
+    baseline: str
+    new: str
+    confidence: float
+    correction: str
+    fail_on: tuple[str, ...]
+    changes: tuple[ParameterChange, ...]
+    missing: tuple[MissingResult, ...] = ()
+    notes: tuple[str, ...] = ()
+    schema_version: int = SCHEMA_VERSION
+
+    @property
+    def exit_code(self) -> int:
+        """0, :data:`EXIT_CHANGED` (some change fails; takes precedence) or :data:`EXIT_INCOMPLETE`."""
+        if any(c.failed for c in self.changes):
+            return EXIT_CHANGED
+        if self.missing:
+            return EXIT_INCOMPLETE
+        return 0
+
+    def to_json(self) -> dict[str, Any]:
+        """The record as plain JSON values (non-finite numbers become None)."""
+        return {
+            "schema_version": self.schema_version,
+            "baseline": self.baseline,
+            "new": self.new,
+            "confidence": self.confidence,
+            "correction": self.correction,
+            "fail_on": list(self.fail_on),
+            "exit_code": self.exit_code,
+            "changes": [_change_to_json(c) for c in self.changes],
+            "missing": [{"name": m.name, "loop": m.loop, "side": m.side, "reason": m.reason} for m in self.missing],
+            "notes": list(self.notes),
+        }
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Comparison:
+        """Read a record written by :meth:`to_json`.
+
+        Raises
+        ------
+        InputError
+            Not a comparison record, a schema version other than :data:`SCHEMA_VERSION`, or a
+            missing or mistyped field.
+        """
+        if not isinstance(data, Mapping) or "schema_version" not in data:
+            raise InputError("not a compare record (no schema_version); pass the output of 'mrft-ident compare --json'")
+        version = data["schema_version"]
+        if version != SCHEMA_VERSION:
+            raise InputError(f"compare record schema_version {version!r} is not supported (this version reads "
+                             f"{SCHEMA_VERSION}); re-run 'mrft-ident compare' with this version")
+        try:
+            return cls(
+                baseline=str(data["baseline"]),
+                new=str(data["new"]),
+                confidence=float(data["confidence"]),
+                correction=str(data["correction"]),
+                fail_on=tuple(str(s) for s in data["fail_on"]),
+                changes=tuple(_change_from_json(c) for c in data["changes"]),
+                missing=tuple(MissingResult(name=_opt_str(m["name"]), loop=str(m["loop"]), side=str(m["side"]),
+                                            reason=str(m["reason"])) for m in data["missing"]),
+                notes=tuple(str(n) for n in data["notes"]),
+            )
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"malformed compare record: {type(err).__name__} {err}; "
+                             "pass the output of 'mrft-ident compare --json'") from None
+
+
+_CHANGE_FLOATS = ("baseline", "new", "change", "low", "high", "z")
+
+
+def _json_float(x: float | None) -> float | None:
+    return x if _finite(x) else None
+
+
+def _opt_str(x: object) -> str | None:
+    return None if x is None else str(x)
+
+
+def _opt_float(x: object) -> float | None:
+    if x is None:
+        return None
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"expected a number or null, got {x!r}")
+    return float(x)
+
+
+def _change_to_json(c: ParameterChange) -> dict[str, Any]:
+    return {
+        "name": c.name, "loop": c.loop, "parameter": c.parameter,
+        **{k: _json_float(getattr(c, k)) for k in _CHANGE_FLOATS},
+        "relative": _json_float(c.relative),
+        "significant": c.significant, "tolerance": c.tolerance, "beyond_tolerance": c.beyond_tolerance,
+        "verdict": c.verdict, "note": c.note,
+    }
+
+
+def _change_from_json(d: Mapping[str, Any]) -> ParameterChange:
+    verdict = str(d["verdict"])
+    if verdict not in VERDICTS:
+        raise ValueError(f"unknown verdict {verdict!r}")
+    floats = {k: _opt_float(d[k]) for k in _CHANGE_FLOATS}
+    return ParameterChange(name=_opt_str(d["name"]), loop=str(d["loop"]), parameter=str(d["parameter"]),
+                           baseline=floats["baseline"], new=floats["new"], change=floats["change"],
+                           low=floats["low"], high=floats["high"], z=floats["z"],
+                           significant=bool(d["significant"]), tolerance=_opt_str(d["tolerance"]),
+                           beyond_tolerance=bool(d["beyond_tolerance"]), verdict=verdict, note=str(d["note"]))

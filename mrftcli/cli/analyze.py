@@ -241,7 +241,7 @@ def analyze(log, Tp, min_cycles, json_target, report_dir, mcap_out, paper_only, 
                 links.append((page.name, "Model-mismatch diagnosis"))
             index = write_analysis_report(result, report_dir, links=links, progress=stage("report"))
     if json_target:
-        data = result.to_dict()
+        data = result.to_json()
         if diagnosis is not None:
             data["diagnosis"] = diagnosis.to_dict()
         dump_json(data, json_target)

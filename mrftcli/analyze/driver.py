@@ -1,0 +1,207 @@
+"""The one-log use case: :func:`analyze_flight` chains the analysis's stages; :func:`analyze_path` reads the log first.
+
+Stages, each returning a frozen record: segment (:func:`mrftcli.segment.segment`) -> screen
+(:func:`~mrftcli.analyze.screen.screen`) -> point estimate -> consensus and bootstrap -> Table III
+combinations -> identifiability -> waveform refinement -> timing jitter
+(:mod:`mrftcli.analyze.estimate`); the method is described in :mod:`mrftcli.analyze`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.logtypes import FlightLog
+from ..mrft.consensus import CONSTRAINTS, combinations
+from ..segment import StabilityCriterion, ValidityCriterion, segment
+from ..validate import check_tp
+from .estimate import consensus, identifiability, point_estimate, waveform_refinement, widen_for_jitter
+from .record import AnalysisResult, LogInfo, analysis_controller_rate
+from .screen import screen
+
+__all__ = ["analyze_flight", "analyze_path"]
+
+
+def _check_constraints(constraints: Sequence[str]) -> tuple[str, ...]:
+    out = tuple(constraints)
+    bad = [c for c in out if c not in CONSTRAINTS]
+    if bad:
+        raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
+    return out
+
+
+def analyze_flight(
+    flight: FlightLog,
+    Tp: float,
+    *,
+    min_stable_cycles: int = 3,
+    criterion: StabilityCriterion | None = None,
+    n_bootstrap: int = 400,
+    max_combinations: int = 400,
+    seed: int = 0,
+    constraints: Sequence[str] = CONSTRAINTS,
+    validity: ValidityCriterion | None = None,
+    refine_waveform: bool = True,
+    controller_rate_hz: float | None = None,
+) -> AnalysisResult:
+    """Segment the MRFT tests of a flight and identify Td, tau and K (see the module docstring).
+
+    Parameters
+    ----------
+    flight : FlightLog
+        Command and output (and optional beta/setpoint) of one loop.
+    Tp : float
+        Known propulsion time constant [s] (bench test).
+    min_stable_cycles : int
+        Fewest stable cycles for a test to be used.
+    criterion : StabilityCriterion, optional
+        Stable-limit-cycle criterion for the segmenter.
+    n_bootstrap : int
+        Bootstrap draws for the uncertainty.
+    max_combinations : int
+        Cap on the per-combination identifications (a seeded random subset above it).
+    seed : int
+        Seed of the bootstrap and of the combination subset.
+    constraints : sequence of {"phase", "amplitude"}
+        Weighted constraints added to the UFM slices for the point estimate and the bootstrap
+        (Beyond the paper, see the module docstring); ``()`` gives the paper's method alone.
+    validity : ValidityCriterion, optional
+        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`):
+        a test whose output does not follow its relay as an MRFT limit cycle is rejected, and so are
+        the tests whose loop-gain sign disagrees with the others' (:func:`mrftcli.analyze.screen.screen_tests`).
+    refine_waveform : bool
+        Refine the MRFT estimate by output error on the tests' windows and report it when the data
+        accept it (:func:`mrftcli.mrft.refine.refine`); False: the MRFT estimate alone.
+    controller_rate_hz : float, optional
+        Rate the relay decides at [Hz] when the log sub-samples it (PX4 logs its 50 Hz position
+        controller at 10 Hz by default); None: the flight's ``timing.controller_rate_hz``.
+        A log below the controller's rate is identified as a sampled relay at the nominal beta
+        (:func:`mrftcli.analyze.screen.low_rate_period`).
+
+    Returns
+    -------
+    AnalysisResult
+
+    Raises
+    ------
+    SegmentationError
+        No relay test in the log, or no test with ``min_stable_cycles`` stable cycles whose output
+        is a limit cycle of its relay (the message says what was found and why it is not usable).
+    InsufficientDataError
+        Usable tests at a single beta only (``.partial`` gives tau over an assumed Td range).
+    IdentificationError
+        The measured cycles admit no plant of eq. (2) with this Tp. (Slices that do not cross but
+        fit a plant without linear damping are not an error: Td is then bounded from below only,
+        ``identification.method == "unbounded-Td"``.)
+
+    Examples
+    --------
+    A shipped sample log (simulated Design I altitude loop: Td 2.669 s, tau 46.4 ms, K 19.62):
+
+    >>> from pathlib import Path
+    >>> from mrftcli.io import read_flight
+    >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.mcap"
+    >>> result = analyze_flight(read_flight(log, loop="altitude"), Tp=0.0422, n_bootstrap=100)
+    >>> print(f"Td {result.Td.mean:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
+    ...       f"tau {result.tau.mean * 1e3:.1f} ms")
+    Td 2.66 s (2.65-2.67), tau 46.4 ms
+    """
+    Tp = check_tp(Tp)
+    constraints = _check_constraints(constraints)
+    found = segment(flight, criterion=criterion or StabilityCriterion(), validity=validity or ValidityCriterion(),
+                    controller_rate_hz=controller_rate_hz)
+    screening = screen(flight, found, Tp, min_stable_cycles)
+    rng = np.random.default_rng(seed)
+    point = point_estimate(Tp, screening, constraints, n_bootstrap, rng)
+    cons = consensus(Tp, point, constraints, screening.ts_ctrl, rng)
+    n = len(screening.usable)
+    combos = combinations(Tp, list(point.cycles), cons.Td_point, int(min(max_combinations, max(50, 4000 // n))), rng)
+    bounds = identifiability(Tp, screening, point, cons, constraints, rng)
+    mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
+    wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, refine_waveform)
+    tau_est, jitter_note = widen_for_jitter(wave.tau, flight)
+    warnings = [*screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
+    notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
+    usable, rejected = screening.usable, screening.rejected
+    return AnalysisResult(
+        path=str(flight.path), loop=flight.loop, Tp=Tp, tests=usable, rejected=rejected,
+        Td=wave.Td, tau=tau_est, K=wave.K, model=wave.model, identification=point.identification,
+        combinations=combos, bootstrap=dict(cons.draws), warnings=tuple(dict.fromkeys(warnings)), flight=flight,
+        t0=screening.t0, constraints=cons.constraints,
+        rejection_reasons={t.index: screening.reasons[t.index] for t in rejected}, method=wave.method,
+        parameters_mrft=mrft_params, refinement=wave.refinement, notes=tuple(notes),
+        controller_rate_hz=analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]),
+        log_info=LogInfo.from_flight(flight),
+    )
+
+
+def analyze_path(
+    path: str | Path,
+    Tp: float,
+    loop: str = "altitude",
+    *,
+    command_topic: str | None = None,
+    output_topic: str | None = None,
+    beta_topic: str | None = None,
+    setpoint_topic: str | None = None,
+    battery_topic: str | None = None,
+    output_scale: float | None = None,
+    fmt: str | None = None,
+    layout: str | None = None,
+    command_scale: float | None = None,
+    controller_rate_hz: float | None = None,
+    min_stable_cycles: int = 3,
+    criterion: StabilityCriterion | None = None,
+    n_bootstrap: int = 400,
+    max_combinations: int = 400,
+    seed: int = 0,
+    constraints: Sequence[str] = CONSTRAINTS,
+    validity: ValidityCriterion | None = None,
+) -> AnalysisResult:
+    """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The flight log (any supported format).
+    Tp : float
+        Known propulsion time constant [s].
+    loop : {"altitude", "roll", "pitch"}
+        The loop to analyse.
+    command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str, optional
+        ``TOPIC[:FIELD]`` overrides of the reference layout.
+    output_scale, command_scale : float, optional
+        Factors applied to the output and setpoint, and to the command (default: the layout's).
+    fmt : str, optional
+        Log format (detected when omitted).
+    layout : str, optional
+        One of :data:`mrftcli.io.LAYOUT_NAMES` (recognised from the topics when omitted).
+    controller_rate_hz : float, optional
+        Rate [Hz] at which the relay decided (default: the layout's; see :func:`mrftcli.io.read_flight`).
+    min_stable_cycles, criterion, n_bootstrap, max_combinations, seed, constraints, validity
+        As in :func:`analyze_flight`.
+
+    Returns
+    -------
+    AnalysisResult
+
+    Examples
+    --------
+    >>> from pathlib import Path
+    >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.csv"
+    >>> result = analyze_path(log, Tp=0.0422, loop="altitude", n_bootstrap=100)
+    >>> [round(t.beta_nominal, 1) for t in result.tests], f"{result.K.mean:.1f}"
+    ([-0.4, -0.7], '19.6')
+    """
+    from ..io import read_flight
+
+    flight = read_flight(path, loop=loop, command_topic=command_topic, output_topic=output_topic,
+                         beta_topic=beta_topic, setpoint_topic=setpoint_topic, battery_topic=battery_topic,
+                         output_scale=output_scale, fmt=fmt, layout=layout, command_scale=command_scale,
+                         controller_rate_hz=controller_rate_hz, echo_warnings=False)  # the reader's warnings come once, in the result's
+    return analyze_flight(flight, Tp, min_stable_cycles=min_stable_cycles, criterion=criterion,
+                          n_bootstrap=n_bootstrap, max_combinations=max_combinations, seed=seed,
+                          constraints=constraints, validity=validity)

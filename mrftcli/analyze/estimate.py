@@ -1,0 +1,405 @@
+"""The estimation stages of an analysis, each returning a frozen record.
+
+:func:`point_estimate` (the paper's UFM slices, or the Td -> infinity limit) -> :func:`consensus`
+(the weighted estimate and its bootstrap over cycles) -> :func:`mrftcli.mrft.consensus.combinations`
+(Table III) -> :func:`identifiability` (what the data bound, the sampled relay's switching lag)
+-> :func:`waveform_refinement` (output error on the tests' windows) -> :func:`widen_for_jitter`.
+:func:`mrftcli.analyze.analyze_flight` chains them (see :mod:`mrftcli.analyze` for the method).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import IdentificationError
+from ..io.logtypes import FlightLog
+from ..mrft.consensus import (Bootstrap, StableCycles, UnboundedTd, bootstrap, bootstrap_estimate, constraint_report,
+                              unbounded_td, upper_bound_open)
+from ..mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify
+from ..mrft.model import LoopModel
+from ..mrft.refine import Refinement, refine, refinement_windows
+from ..segment import MrftTest
+from .screen import Screening
+
+__all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "point_estimate", "consensus",
+           "identifiability", "waveform_refinement", "widen_for_jitter", "TD_OMEGA_LIMIT"]
+
+_TWO_PI = 2.0 * math.pi
+#: Td * Omega above which Td is called poorly identifiable (the issue's accuracy boundary).
+TD_OMEGA_LIMIT = 5.0
+#: The three estimates, in the order Td [s], tau [s], K [output units / (command unit s^2)].
+Estimates = tuple[ParameterEstimate, ParameterEstimate, ParameterEstimate]
+
+
+@dataclass(frozen=True, eq=False)
+class PointEstimate:
+    """The paper's point identification of a log's usable tests (:func:`point_estimate`).
+
+    Attributes
+    ----------
+    cycles : tuple of StableCycles
+        Each test's stable cycles as the consensus reads them.
+    n_draws : int
+        Bootstrap draws for this log (fewer for many tests: draws x tests <= 4000, >= 100).
+    identification : IdentificationResult
+        :func:`mrftcli.mrft.identify.identify` on the tests' means, or the Td -> infinity limit.
+    limit : tuple of (Bootstrap, UnboundedTd) or None
+        The bootstrap and the limit when the UFM slices do not intersect but a plant without linear
+        damping fits the tests; None otherwise.
+    """
+
+    cycles: tuple[StableCycles, ...]
+    n_draws: int
+    identification: IdentificationResult
+    limit: tuple[Bootstrap, UnboundedTd] | None
+
+
+@dataclass(frozen=True, eq=False)
+class Consensus:
+    """The weighted estimate of the tests together and its bootstrap (:func:`consensus`).
+
+    Attributes
+    ----------
+    Td, tau, K : ParameterEstimate
+        The estimate with the bootstrap's std and 95 % interval [s], [s], [-].
+    model : LoopModel
+        The point estimate as a model.
+    Td_point : float
+        The point Td [s] the later stages start from.
+    boot : Bootstrap
+        The bootstrap (row 0: the data themselves).
+    draws : Mapping
+        ``"Td"``, ``"tau"``, ``"K"`` -> the draws (rows 1..; tau without the sampled relay's lag).
+    constraints : Mapping
+        The constraints used, their residuals and chi-square (empty without constraints).
+    warnings : tuple of str
+        The identification's warnings, disagreeing constraints, failed draws.
+    """
+
+    Td: ParameterEstimate
+    tau: ParameterEstimate
+    K: ParameterEstimate
+    model: LoopModel
+    Td_point: float
+    boot: Bootstrap
+    draws: Mapping[str, np.ndarray]
+    constraints: Mapping[str, Any]
+    warnings: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    """What the data bound (:func:`identifiability`).
+
+    Attributes
+    ----------
+    Td, tau, K : ParameterEstimate
+        The estimates with Td's open upper end and the sampled relay's switching lag in the intervals.
+    td_open : bool
+        The tests bound Td from below only.
+    warnings, notes : tuple of str
+        What to act on, and information.
+    """
+
+    Td: ParameterEstimate
+    tau: ParameterEstimate
+    K: ParameterEstimate
+    td_open: bool
+    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class WaveformStage:
+    """The output-error refinement's outcome (:func:`waveform_refinement`).
+
+    Attributes
+    ----------
+    refinement : Refinement or None
+        The fit (None when not run).
+    method : {"waveform", "mrft"}
+        Which estimate the analysis reports.
+    model : LoopModel
+        The model reported.
+    Td, tau, K : ParameterEstimate
+        The estimates reported.
+    warnings, notes : tuple of str
+        Why the refinement was not used, or not run.
+    """
+
+    refinement: Refinement | None
+    method: str
+    model: LoopModel
+    Td: ParameterEstimate
+    tau: ParameterEstimate
+    K: ParameterEstimate
+    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
+
+
+def point_estimate(Tp: float, screening: Screening, constraints: Sequence[str], n_bootstrap: int,
+                   rng: np.random.Generator) -> PointEstimate:
+    """The paper's identification of the usable tests (UFM slices at the tests' means, ``rate_hz=None``).
+
+    The slices may not cross because the plant has no linear damping (Td -> infinity: they run
+    side by side and noise decides); the consensus then says whether the tests agree in that limit.
+
+    Raises
+    ------
+    IdentificationError
+        The tests admit no plant of eq. (2), not even in the limit.
+    """
+    usable, ts_ctrl = screening.usable, screening.ts_ctrl
+    meas = [TestMeasurement(beta=beta_used(t, ts_ctrl), frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
+                            h=t.h) for t in usable]
+    cycles = [stable_cycles(t, ts_ctrl) for t in usable]
+    # Many tests: fewer draws keep the cost (draws x tests) bounded; a few hundred draws suffice
+    # for a std and percentile interval.
+    B = int(min(n_bootstrap, max(100, 4000 // len(usable))))
+    limit = None
+    try:
+        ident = identify(meas, Tp, rate_hz=None)
+    except IdentificationError as exc:
+        # a Td far beyond every test's time scale stands for the limit
+        Td_ref = 1e4 / (_TWO_PI * min(t.frequency_hz_mean for t in usable))
+        ident, limit = unbounded_td_or_raise(exc, Tp, Td_ref, cycles, constraints, B, rng)
+    return PointEstimate(tuple(cycles), B, ident, limit)
+
+
+def consensus(Tp: float, point: PointEstimate, constraints: Sequence[str], ts_ctrl: float,
+              rng: np.random.Generator) -> Consensus:
+    """The weighted estimate of the tests together (UFM slices + ``constraints``) and its bootstrap over cycles.
+
+    The weighted estimate on the data themselves (bootstrap row 0) is the point estimate; the
+    paper's UFM-only estimate stays in ``identification`` for comparison. A low-rate log
+    (``ts_ctrl`` > 0) has the sampled relay's lag Ts / 2 removed from every tau.
+    """
+    ident, limit, B = point.identification, point.limit, point.n_draws
+    cycles = list(point.cycles)
+    warnings = list(ident.warnings)
+    model = ident.model
+    Td_hat, tau_hat = model.Td, model.tau
+    K_hat = ident.K.mean if ident.K is not None else float("nan")
+    if limit is None:
+        boot = bootstrap(Tp, cycles, Td_hat, constraints, B, rng)
+        Td_d, tau_d, K_d = boot.Td, boot.tau, boot.K
+    else:
+        boot, lim = limit
+        Td_d, tau_d, K_d = np.full(B + 1, Td_hat), lim.tau, lim.K
+    constraint_info: dict[str, Any] = {}
+    if constraints and np.isfinite(Td_d[0]):
+        Td_hat, tau_hat, K_hat = float(Td_d[0]), float(tau_d[0]), float(K_d[0])
+        model = LoopModel(Tp, Td_hat, max(tau_hat, 0.0), K_hat if np.isfinite(K_hat) else model.K)
+        constraint_info = _constraint_info(Tp, cycles, boot, ident, Td_hat, tau_hat, constraints)
+        pv = constraint_info["p_value"]
+        if pv is not None and pv < 1e-3:
+            warnings.append(
+                f"the tests' constraints disagree (chi2 {constraint_info['chi2']:.1f} for {constraint_info['dof']} "
+                f"degrees of freedom): the plant may not follow eq. (2); the UFM-only estimate is Td "
+                f"{ident.model.Td:.4g} s, tau {ident.model.tau * 1e3:.4g} ms (try --diagnose)")
+    elif constraints:
+        warnings.append("the weighted estimate found no minimum in the search range; the UFM-only estimate is used")
+    if ts_ctrl:
+        # the sampled relay's continuous equivalent has the delay tau + Ts / 2 (it switches 0..Ts
+        # after the crossing of its level); remove that lag from every tau
+        lag = 0.5 * ts_ctrl
+        tau_hat, tau_d = tau_hat - lag, tau_d - lag
+        model = LoopModel(Tp, model.Td, max(model.tau - lag, 0.0), model.K)
+    Td_est = bootstrap_estimate(Td_hat, Td_d[1:], Td_d[0], "s")
+    tau_est = bootstrap_estimate(tau_hat, tau_d[1:], tau_d[0], "s")
+    K_est = bootstrap_estimate(K_hat, K_d[1:], K_d[0], "")
+    if limit is not None:
+        Td_est = ParameterEstimate(Td_hat, float("nan"), limit[1].Td_low, float("nan"), "s")
+    n_fail = int((~np.isfinite(Td_d[1:])).sum())
+    if n_fail > 0.05 * B:
+        warnings.append(f"{n_fail} of {B} bootstrap draws found no intersection of the UFM slices within "
+                        f"{Td_hat / 10:.3g}-{Td_hat * 10:.3g} s: Td is poorly determined")
+    return Consensus(Td_est, tau_est, K_est, model, Td_hat, boot, {"Td": Td_d[1:], "tau": tau_d[1:], "K": K_d[1:]},
+                     constraint_info, tuple(warnings))
+
+
+def _constraint_info(Tp: float, cycles: Sequence[StableCycles], boot: Bootstrap, ident: IdentificationResult,
+                     Td: float, tau: float, constraints: Sequence[str]) -> dict[str, Any]:
+    """The constraints' residuals at the estimate, with the paper's UFM-only estimate beside them."""
+    info = constraint_report(Tp, cycles, Td, tau, boot.betas[0], boot.omegas[0], boot.phases[0], boot.ln_amp[0],
+                             boot.weights or {}, constraints)
+    info["paper_estimate"] = {"Td": ident.model.Td, "tau": ident.model.tau,
+                              "K": ident.K.mean if ident.K is not None else None,
+                              "method": "UFM slices only (identify)"}
+    return info
+
+
+def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons: Consensus,
+                    constraints: Sequence[str], rng: np.random.Generator) -> Identifiability:
+    """Td's upper end when the data do not close it, Td * Omega, and a low-rate log's switching lag.
+
+    The likelihood may not close as Td -> infinity: then Td has a lower bound only (the upper end
+    of the bootstrap interval would come from the search range, not from the data). Td * Omega >
+    :data:`TD_OMEGA_LIMIT` is usual for an altitude loop (slow drag, fast loop): information, not a
+    warning, unless the interval is too wide to use (then the user should act: another test,
+    'mrft-ident plan').
+    """
+    usable, ts_ctrl = screening.usable, screening.ts_ctrl
+    Td_est, tau_est, K_est = cons.Td, cons.tau, cons.K
+    Td_hat = cons.Td_point
+    warnings: list[str] = []
+    notes: list[str] = []  # what is expected and needs no action (shown as information)
+    td_omega = max(Td_hat * _TWO_PI * t.frequency_hz_mean for t in usable)
+    td_open = point.limit is not None or (bool(constraints) and upper_bound_open(Tp, cons.boot, Td_hat))
+    if td_open:
+        Td_est = ParameterEstimate(Td_est.mean, Td_est.std, Td_est.ci95_low, float("nan"), "s")
+        low = f"Td > {Td_est.ci95_low:.3g} s" if np.isfinite(Td_est.ci95_low) else "Td"
+        warnings.append(f"{low}: these tests cannot bound it from above (a plant without "
+                        "linear damping fits them as well); tau and K are determined")
+    elif td_omega > TD_OMEGA_LIMIT:
+        text = (f"Td*Omega = {td_omega:.1f} > {TD_OMEGA_LIMIT:g}: the test frequencies depend weakly on Td, so Td "
+                f"is less closely determined than tau and K (MRFT interval {Td_est.ci95_low:.3g}-{Td_est.ci95_high:.3g} s)")
+        if Td_est.ci95_high > 2.0 * Td_est.ci95_low:
+            warnings.append(text + "; a test at another beta narrows it (see 'mrft-ident plan')")
+        else:
+            notes.append(text)
+    if ts_ctrl and point.limit is None:
+        Td_est, tau_est, K_est = widen_for_orbits(Tp, list(point.cycles), Td_hat, constraints, ts_ctrl,
+                                                  (Td_est, tau_est, K_est), rng)
+        rate = min(t.rate_hz for t in usable)
+        notes.append(f"command logged at {rate:.0f} Hz below the {1 / ts_ctrl:.0f} Hz controller: identified as "
+                     "a sampled relay at the nominal beta (the logged switch instants and output levels are too "
+                     f"coarse), with +-{0.5e3 * ts_ctrl:.0f} ms of switching lag per test in the intervals")
+    return Identifiability(Td_est, tau_est, K_est, td_open, tuple(warnings), tuple(notes))
+
+
+def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus, bounds: Identifiability,
+                        mrft_params: Mapping[str, ParameterEstimate], refine_waveform: bool) -> WaveformStage:
+    """Refine the MRFT estimate by output error on the tests' windows; report it when the data accept it.
+
+    The waveform needs the command as the plant received it: logged below the controller's rate,
+    its switch instants are off by up to a logging period, and the refinement is not run.
+    """
+    model, (Td_est, tau_est, K_est) = cons.model, (bounds.Td, bounds.tau, bounds.K)
+    usable = screening.usable
+    if refine_waveform and screening.ts_ctrl:
+        return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (),
+                             ("the waveform refinement was not run: the command is logged below the controller's rate",))
+    if not (refine_waveform and np.isfinite(cons.K.mean)):
+        return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
+    windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
+                                 flight.output.values)
+    if not windows:
+        return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
+    # Td bounded from below only: the cost is flat along ln Td, and the fit takes longer
+    refinement = refine(windows, model, mrft_params, loop_sign=usable[0].loop_sign,
+                        max_evaluations=80 if bounds.td_open else 30)
+    if not refinement.accepted:
+        return WaveformStage(refinement, "mrft", model, Td_est, tau_est, K_est,
+                             ("the waveform refinement was not used (" + "; ".join(refinement.reasons)
+                              + "): the MRFT estimate is reported (try --diagnose)",), ())
+    Td_est, tau_est, K_est = refinement.Td, refinement.tau, refinement.K
+    if bounds.td_open:
+        # the waveform does not close it either: keep the one-sided statement, with the
+        # consensus's profile lower bound (the Gauss-Newton interval of ln Td is a local
+        # linearisation, meaningless where the cost is flat in Td: it gave 1e-5 s)
+        Td_est = ParameterEstimate(Td_est.mean, Td_est.std, mrft_params["Td"].ci95_low, float("nan"), "s")
+    return WaveformStage(refinement, "waveform", refinement.model, Td_est, tau_est, K_est, (), ())
+
+
+def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog) -> tuple[ParameterEstimate, str | None]:
+    """tau with receive-time stamps' jitter in its spread, and the note saying so (None: no jitter).
+
+    Receive-time stamps: the command's and the output's transport delays differ by an unknown
+    offset of the order of their jitter, which moves every switch against the output alike (no
+    averaging over cycles): added to tau's spread in quadrature. Below 0.1 ms it is stamp rounding,
+    not transport.
+    """
+    jitter = float(flight.timing.timing_jitter_s or 0.0)
+    if not (jitter >= 1e-4 and np.isfinite(tau_est.std)):
+        return tau_est, None
+    std = float(np.hypot(tau_est.std, jitter))
+    widen = 1.96 * std - 1.96 * tau_est.std
+    tau_est = ParameterEstimate(tau_est.mean, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s")
+    return tau_est, (f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded "
+                     "into tau's interval")
+
+
+def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,
+                          cycles: list[StableCycles], constraints: Sequence[str], B: int,
+                           rng: np.random.Generator) -> tuple[IdentificationResult, tuple[Bootstrap, UnboundedTd]]:
+    """The Td -> infinity result when the tests fit a plant without linear damping, else ``exc``.
+
+    Returns the identification record of the limit (method ``"unbounded-Td"``) and the bootstrap
+    with :func:`mrftcli.mrft.consensus.unbounded_td`'s result.
+    """
+    if not constraints:
+        raise exc
+    boot = bootstrap(Tp, cycles, Td_ref, constraints, B, rng)
+    limit = unbounded_td(Tp, boot)
+    if limit is None or not limit.tau[0] >= 0:  # a finite Td fits better, or no plant of eq. (2) does
+        raise exc
+    tau = bootstrap_estimate(float(limit.tau[0]), limit.tau[1:], float(limit.tau[0]), "s")
+    K = bootstrap_estimate(float(limit.K[0]), limit.K[1:], float(limit.K[0]), "")
+    Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s")
+    ident = IdentificationResult(
+        Td=Td, tau=tau, K=K, model=LoopModel(Tp, limit.Td_limit, max(tau.mean, 0.0), K.mean), Tp=Tp,
+        residual=None, tests=(), method="unbounded-Td", uncertainty="bootstrap", n_draws=B,
+        warnings=(f"the UFM slices do not intersect: identified in the limit Td -> infinity, which the tests "
+                  f"fit (chi2 {limit.chi2:.1f} for {limit.dof} degrees of freedom)",))
+    return ident, (boot, limit)
+
+
+def beta_used(test: MrftTest, ts_ctrl: float) -> float:
+    """The beta a test is identified with: nominal for a low-rate log (:func:`mrftcli.analyze.screen.low_rate_period`), else effective."""
+    return float(test.beta_nominal) if ts_ctrl and test.beta_nominal is not None else test.beta_effective
+
+
+def stable_cycles(test: MrftTest, ts_ctrl: float = 0.0) -> StableCycles:
+    """The per-cycle arrays of a test's stable cycles that the consensus reads.
+
+    For a low-rate log (``ts_ctrl`` > 0): the nominal beta and no phase (the switch instants are
+    too coarse for it, and the error they share over a test's cycles does not average out).
+    """
+    st = test.stable
+    if ts_ctrl:
+        return StableCycles(beta=np.full(len(st), beta_used(test, ts_ctrl)), period=test.period,
+                            amplitude=test.amplitude, phase=np.full(len(st), np.nan), h=test.h, index=test.index)
+    return StableCycles(beta=np.array([c.beta_effective for c in st]), period=test.period,
+                        amplitude=test.amplitude, phase=np.array([c.phase_h1 for c in st]), h=test.h,
+                        index=test.index)
+
+
+def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constraints: Sequence[str],
+                      ts_ctrl: float, estimates: tuple[ParameterEstimate, ...],
+                      rng: np.random.Generator) -> tuple[ParameterEstimate, ...]:
+    """Td, tau, K with the sampled relay's switching lag per test added to their spread.
+
+    A relay sampled at period Ts switches 0..Ts after the crossing of its level; the band centre
+    takes Ts / 2, and where in that band a test's cycles settled (its orbits) is common to all its
+    cycles and cannot be seen at a lower logging rate: a lag uniform over Ts, std Ts / sqrt(12),
+    independent between tests. A lag d moves the continuous equivalent's switching level by
+    Omega sqrt(1 - beta^2) d (the output's slope at the switch over the amplitude); each test's
+    effect on the estimate is found by re-solving with its beta moved by one std, and the effects
+    are added in quadrature to the bootstrap std (the 95 % interval widened by 1.96 times the increase).
+    """
+    sd = ts_ctrl / math.sqrt(12.0)
+    base = bootstrap(Tp, cycles, Td, constraints, 0, rng)
+    p0 = np.array([base.Td[0], base.tau[0], base.K[0]])
+    var = np.zeros(3)
+    for i, c in enumerate(cycles):
+        w = _TWO_PI / c.period
+        moved = StableCycles(beta=c.beta + w * np.sqrt(1.0 - c.beta ** 2) * sd, period=c.period,
+                             amplitude=c.amplitude, phase=c.phase, h=c.h, index=c.index)
+        b = bootstrap(Tp, [moved if j == i else cc for j, cc in enumerate(cycles)], Td, constraints, 0, rng)
+        d = np.array([b.Td[0], b.tau[0], b.K[0]]) - p0
+        var += np.where(np.isfinite(d), d, 0.0) ** 2
+    out = []
+    for est, v in zip(estimates, var):
+        if not np.isfinite(est.std):
+            out.append(est)
+            continue
+        std = float(math.sqrt(est.std ** 2 + v))
+        widen = 1.96 * (std - est.std)
+        out.append(ParameterEstimate(est.mean, std, est.ci95_low - widen, est.ci95_high + widen, est.unit))
+    return tuple(out)

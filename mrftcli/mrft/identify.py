@@ -20,16 +20,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
 from ..errors import IdentificationError, InputError
 from ..validate import check_beta, check_time
 from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel
+from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
 from .ufm import ManifoldSet, load_manifolds
 
 __all__ = [
@@ -43,11 +44,12 @@ __all__ = [
 ]
 
 _TWO_PI = 2.0 * math.pi
+FloatArray = NDArray[np.float64]
 #: |d ln Omega / d ln Td| below which Td is reported as poorly identifiable
 _SENSITIVITY_WARN = 0.05
 
 
-def _as_positive_array(name: str, value) -> np.ndarray:
+def _as_positive_array(name: str, value: object) -> FloatArray:
     try:
         arr = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
     except (TypeError, ValueError) as err:
@@ -88,6 +90,9 @@ class TestMeasurement:
     frequency_hz: float | Sequence[float] | np.ndarray
     amplitude: float | Sequence[float] | np.ndarray | None = None
     h: float | None = None
+    #: the per-cycle frequencies [Hz] and amplitudes, checked (set in __post_init__)
+    _f: FloatArray = field(init=False, repr=False)
+    _a: FloatArray | None = field(init=False, repr=False, default=None)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "beta", check_beta(self.beta))
@@ -106,7 +111,7 @@ class TestMeasurement:
                 raise InputError(f"relay height h must be positive, got {self.h!r}")
 
     @staticmethod
-    def _stats(x: np.ndarray) -> tuple[float, float]:
+    def _stats(x: FloatArray) -> tuple[float, float]:
         """Mean and standard error of the mean (0 for a single value)."""
         if x.size < 2:
             return float(x[0]), 0.0
@@ -157,7 +162,7 @@ class ParameterEstimate:
     ci95_high: float
     unit: str
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"mean": self.mean, "std": self.std, "ci95_low": self.ci95_low, "ci95_high": self.ci95_high,
                 "unit": self.unit}
 
@@ -195,15 +200,15 @@ class IdentificationResult:
     model: LoopModel
     Tp: float
     residual: float | None
-    tests: tuple
-    warnings: tuple
+    tests: tuple[dict[str, Any], ...]
+    warnings: tuple[str, ...]
     method: str
     uncertainty: str
     rate_hz: float | None = None
     n_draws: int = 0
-    draws: dict = field(default_factory=dict, repr=False)
+    draws: dict[str, FloatArray] = field(default_factory=dict, repr=False)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``parameters.{Td,tau,K}.{mean,std,ci95_low,ci95_high,unit}`` etc."""
         params = {"Td": self.Td.to_dict(), "tau": self.tau.to_dict(),
                   "K": None if self.K is None else self.K.to_dict(),
@@ -226,23 +231,6 @@ class IdentificationResult:
 # ----------------------------------------------------------------------------------------------
 # the curves tau_i(Td)
 # ----------------------------------------------------------------------------------------------
-def tau_curve(Tp: float, beta: float, omega: ArrayLike, Td: ArrayLike, exact: bool = True,
-              manifolds: ManifoldSet | None = None) -> np.ndarray:
-    """Signed delay tau [s] that makes (Tp, Td, tau) oscillate at omega [rad/s] under beta.
-
-    Vectorised over ``omega`` and ``Td`` (broadcast).  ``exact=False`` interpolates the manifolds
-    (NaN outside their grid).  Negative values: no physical plant (kept for root bracketing).
-    """
-    omega = np.asarray(omega, dtype=float)
-    Td = np.asarray(Td, dtype=float)
-    if exact:
-        theta, _ = unit_cycle(Tp * omega, Td * omega, beta)
-    else:
-        ms = manifolds if manifolds is not None else load_manifolds()
-        theta, _ = ms.evaluate(beta, Tp * omega, Td * omega)
-    return theta / omega
-
-
 def ufm_slice(Tp: float, beta: float, frequency_hz: float, Td_values: ArrayLike, exact: bool = True) -> np.ndarray:
     """The UFM slice of one test scaled to real units (paper Fig. 5): tau [s] for each Td [s].
 
@@ -275,243 +263,68 @@ def ufm_slice(Tp: float, beta: float, frequency_hz: float, Td_values: ArrayLike,
 
 
 # ----------------------------------------------------------------------------------------------
-# point solvers (scalar, exact)
+# the stages of identify(): checked inputs -> measured tests -> point estimate -> gains and
+# identifiability -> uncertainty
 # ----------------------------------------------------------------------------------------------
-class _Curve:
-    """Exact scalar tau_i(Td) for one test, with warm-started Newton iterations."""
+@dataclass(frozen=True, eq=False)
+class _Inputs:
+    """The arguments of :func:`identify`, checked."""
 
-    def __init__(self, Tp: float, beta: float, omega: float) -> None:
-        self.Tp, self.beta, self.omega = Tp, beta, omega
-        self.warm: list = []
+    tests: tuple[TestMeasurement, ...]
+    Tp: float
+    rate_hz: float | None
+    K: float | None
+    n_draws: int
+    seed: int
+    spread: str
 
-    def tau(self, Td: float) -> float:
-        w = self.omega
-        theta, _ = unit_cycle_scalar(self.Tp * w, Td * w, self.beta, self.warm)
-        return theta / w
-
-    def amp_unit(self, Td: float) -> float:
-        w = self.omega
-        return unit_cycle_scalar(self.Tp * w, Td * w, self.beta)[1]
-
-
-def _td_range(ms: ManifoldSet, omegas: Sequence[float]) -> tuple[float, float]:
-    """Range of Td [s] covered by the manifold grid for every test."""
-    lo = max(ms.td_n[0] / w for w in omegas)
-    hi = min(ms.td_n[-1] / w for w in omegas)
-    return lo, hi
+    @property
+    def sampling_lag(self) -> float:
+        """The sampled relay's mean switching lag [s]: half a sample (0 for a continuous relay)."""
+        return 0.0 if self.rate_hz is None else 0.5 / self.rate_hz
 
 
-def _bracket_grid(ms: ManifoldSet, Tp: float, betas, omegas, n: int = 96):
-    lo, hi = _td_range(ms, omegas)
-    if not lo < hi:
-        raise IdentificationError("the tests' frequencies are too far apart for the manifold range")
-    Td = np.geomspace(lo, hi, n)
-    taus = []
-    for b, w in zip(betas, omegas):
-        tp = Tp * w
-        exact = not (ms.tp_n[0] <= tp <= ms.tp_n[-1])
-        taus.append(tau_curve(Tp, b, w, Td, exact=exact or not ms.covers(b), manifolds=ms))
-    return Td, np.array(taus)
+@dataclass(frozen=True, eq=False)
+class _Measured:
+    """The tests' betas, mean frequencies [Hz] and the spread to propagate [Hz]; omegas [rad/s]."""
+
+    betas: list[float]
+    f_mean: FloatArray
+    f_unc: FloatArray
+    omegas: FloatArray
 
 
-def _intersection(Tp: float, betas, omegas, ms: ManifoldSet) -> tuple[float, float, list[str]]:
-    """Exact intersection of two curves tau_1(Td) = tau_2(Td); returns Td, tau, warnings."""
-    warns: list[str] = []
-    Td, taus = _bracket_grid(ms, Tp, betas, omegas)
-    D = taus[0] - taus[1]
-    ok = np.isfinite(D)
-    s = np.sign(D)
-    idx = np.nonzero(ok[:-1] & ok[1:] & (s[:-1] * s[1:] <= 0) & (s[:-1] != s[1:]))[0]
-    if idx.size == 0:
-        for b, w, row in zip(betas, omegas, taus):
-            if np.all(~(row >= 0)):
-                raise IdentificationError(
-                    f"{w / _TWO_PI:.4g} Hz at beta {b:g} is too fast for Tp = {Tp:g} s: no plant of eq. (2) with "
-                    "a non-negative delay oscillates there (check Tp and the frequency units, Hz)"
-                )
-        raise IdentificationError(
-            f"the UFM slices of the tests (beta {betas[0]:g} at {omegas[0] / _TWO_PI:.4g} Hz, beta {betas[1]:g} at "
-            f"{omegas[1] / _TWO_PI:.4g} Hz) do not intersect for Tp = {Tp:g} s: no plant of eq. (2) produces both "
-            "frequencies (check Tp, the betas and the frequencies; a more negative beta must give a higher frequency)"
-        )
-    # prefer an intersection with a physical (non-negative) delay
-    mids = 0.5 * (taus[0, idx] + taus[0, idx + 1])
-    phys = idx[mids >= -1e-12]
-    k = int(phys[0]) if phys.size else int(idx[0])
-    if phys.size > 1:
-        warns.append(f"the slices intersect {phys.size} times; the smallest Td was taken")
-    c1, c2 = _Curve(Tp, betas[0], omegas[0]), _Curve(Tp, betas[1], omegas[1])
-    x_lo, x_hi = math.log(Td[k]), math.log(Td[k + 1])
+@dataclass(frozen=True, eq=False)
+class _Point:
+    """The point estimate from the mean frequencies.
 
-    def d(x: float) -> float:
-        t = math.exp(x)
-        return c1.tau(t) - c2.tau(t)
-
-    f_lo, f_hi = d(x_lo), d(x_hi)
-    if f_lo == 0:
-        x = x_lo
-    elif f_hi == 0:
-        x = x_hi
-    elif f_lo * f_hi > 0:
-        # interpolation error moved the crossing (nearly parallel curves): scan the exact curves
-        xs = np.linspace(math.log(Td[0]), math.log(Td[-1]), 4 * Td.size)
-        ds = (tau_curve(Tp, betas[0], omegas[0], np.exp(xs)) - tau_curve(Tp, betas[1], omegas[1], np.exp(xs)))
-        ch = np.nonzero((np.sign(ds[:-1]) * np.sign(ds[1:]) <= 0)
-                        & (tau_curve(Tp, betas[0], omegas[0], np.exp(xs[:-1])) >= -1e-12))[0]
-        if ch.size == 0:
-            raise IdentificationError(
-                "the UFM slices of the tests only touch (nearly parallel curves): Td and tau cannot be "
-                "separated with these betas; use betas further apart"
-            )
-        x = optimize.brentq(d, xs[ch[0]], xs[ch[0] + 1], xtol=1e-11, rtol=1e-12)
-    else:
-        x = optimize.brentq(d, x_lo, x_hi, xtol=1e-11, rtol=1e-12)
-    Td_hat = math.exp(x)
-    return Td_hat, c1.tau(Td_hat), warns
-
-
-def _log_freq_residuals(Tp: float, Td: float, tau: float, betas, omegas, eps: float = 1e-5) -> np.ndarray:
-    """First-order log-frequency residuals ln(Omega_model / Omega_measured) of each test.
-
-    F_i(Omega) = theta(Tp Omega, Td Omega) - tau Omega vanishes at the model's frequency, so
-    ln Omega_model - ln Omega_i ~= -F_i(Omega_i) / (dF_i / d ln Omega).
+    ``tau_eff`` [s] is the delay the curves meet at (>= 0, sampling lag included), ``tau`` [s] the
+    plant's delay; ``weights`` are the least-squares weights of the tests (ones for two tests).
     """
-    r = np.empty(len(betas))
-    for i, (b, w) in enumerate(zip(betas, omegas)):
-        def F(lw: float, b: float = b) -> float:
-            ww = math.exp(lw)
-            return unit_cycle_scalar(Tp * ww, Td * ww, b)[0] - tau * ww
 
-        lw = math.log(w)
-        f0 = F(lw)
-        dF = (F(lw + eps) - F(lw - eps)) / (2 * eps)
-        r[i] = -f0 / dF if dF != 0 else np.inf
-    return r
+    Td: float
+    tau_eff: float
+    tau: float
+    residual: float | None
+    method: str
+    weights: FloatArray
+    warnings: tuple[str, ...]
 
 
-def _model_frequency_sensitivity(Tp: float, Td: float, tau: float, beta: float, omega: float,
-                                 eps: float = 1e-6) -> tuple[float, float]:
-    """d ln Omega / d ln Td and d ln Omega / d tau [1/s] at the model point (implicit function).
+@dataclass(frozen=True, eq=False)
+class _Spread:
+    """The estimates with their spread, how it was obtained, and the draws behind it."""
 
-    F(ln Omega, ln Td) = theta(Tp Omega, Td Omega) - tau Omega; dlnOmega/dlnTd = -F_lnTd / F_lnOmega,
-    dlnOmega/dtau = Omega / F_lnOmega.  Central differences; the shared warm start keeps each
-    evaluation to two or three Newton steps.
-    """
-    warm: list = []
-
-    def F(lw: float, lTd: float) -> float:
-        ww = math.exp(lw)
-        return unit_cycle_scalar(Tp * ww, math.exp(lTd) * ww, beta, warm)[0] - tau * ww
-
-    lw, lTd = math.log(omega), math.log(Td)
-    dF_dlw = (F(lw + eps, lTd) - F(lw - eps, lTd)) / (2 * eps)
-    dF_dlTd = (F(lw, lTd + eps) - F(lw, lTd - eps)) / (2 * eps)
-    return -dF_dlTd / dF_dlw, omega / dF_dlw
+    Td: ParameterEstimate
+    tau: ParameterEstimate
+    K: ParameterEstimate | None
+    method: str
+    n_draws: int
+    draws: dict[str, FloatArray]
+    warnings: tuple[str, ...]
 
 
-def _least_squares(Tp: float, betas, omegas, weights, ms: ManifoldSet) -> tuple[float, float, float, list[str]]:
-    """Weighted least squares over (ln Td, tau) for three or more tests."""
-    warns: list[str] = []
-    # start: intersection of the two tests with the most different betas
-    i0, i1 = int(np.argmin(betas)), int(np.argmax(betas))
-    try:
-        Td0, tau0, _ = _intersection(Tp, [betas[i0], betas[i1]], [omegas[i0], omegas[i1]], ms)
-    except IdentificationError:
-        Td0, tau0 = 1.0 / float(np.median(omegas)), 0.1 / float(np.median(omegas))
-    sw = np.sqrt(weights)
-
-    def res(p: np.ndarray) -> np.ndarray:
-        return sw * _log_freq_residuals(Tp, math.exp(p[0]), p[1], betas, omegas)
-
-    sol = optimize.least_squares(res, x0=[math.log(Td0), tau0], x_scale=[1.0, max(tau0, 1e-3)], method="lm",
-                                 xtol=1e-12, ftol=1e-12)
-    Td_hat, tau_hat = math.exp(sol.x[0]), float(sol.x[1])
-    r = _log_freq_residuals(Tp, Td_hat, tau_hat, betas, omegas)
-    rms = float(math.sqrt(np.sum(weights * r * r) / np.sum(weights)))
-    return Td_hat, tau_hat, rms, warns
-
-
-# ----------------------------------------------------------------------------------------------
-# vectorised solver for Monte Carlo draws (two tests)
-# ----------------------------------------------------------------------------------------------
-def intersection_draws(Tp: float, betas: Sequence[float], omega_draws: np.ndarray, ms: ManifoldSet, Td_ref: float,
-                        iters: int = 40, lags: np.ndarray | None = None) -> np.ndarray:
-    """Td for each row of omega_draws (M, 2); NaN where the draws' slices do not intersect.
-
-    ``lags`` (M, 2) [s], optional: per-test extra delay of each draw (the sampled relay's switching
-    lag); curve i becomes tau_i(Td) - lag_i.
-
-    Bracket on a log grid around the point estimate (interpolated manifolds, exact outside their
-    range), then the Illinois variant of regula falsi on the exact closed form, vectorised over the
-    draws.
-    """
-    M = omega_draws.shape[0]
-    if lags is None:
-        lags = np.zeros((M, 2))
-    grid = Td_ref * np.geomspace(1e-2, 1e2, 49)
-    D = np.empty((M, grid.size))
-    taus = []
-    for i in range(2):
-        w = omega_draws[:, i : i + 1]
-        tp = Tp * w
-        td = grid[None, :] * w
-        covered = ms.covers(betas[i]) and np.all((tp >= ms.tp_n[0]) & (tp <= ms.tp_n[-1]))
-        if covered:
-            th, _ = ms.evaluate(betas[i], np.broadcast_to(tp, td.shape), td)
-            bad = ~np.isfinite(th)
-            if np.any(bad):
-                th_ex, _ = unit_cycle(np.broadcast_to(tp, td.shape)[bad], td[bad], betas[i])
-                th[bad] = th_ex
-        else:
-            th, _ = unit_cycle(np.broadcast_to(tp, td.shape), td, betas[i])
-        taus.append(th / w - lags[:, i : i + 1])
-    D = taus[0] - taus[1]
-    s = np.sign(D)
-    change = (s[:, :-1] * s[:, 1:] < 0) & (taus[0][:, :-1] >= -1e-12)
-    has = change.any(axis=1)
-    k = np.argmax(change, axis=1)
-    x_lo = np.log(grid[k])
-    x_hi = np.log(grid[np.minimum(k + 1, grid.size - 1)])
-    rows = np.nonzero(has)[0]
-    out = np.full(M, np.nan)
-    if rows.size == 0:
-        return out
-    w1, w2 = omega_draws[rows, 0], omega_draws[rows, 1]
-    l1, l2 = lags[rows, 0], lags[rows, 1]
-
-    def d(x: np.ndarray) -> np.ndarray:
-        t = np.exp(x)
-        th1, _ = unit_cycle(Tp * w1, t * w1, betas[0])
-        th2, _ = unit_cycle(Tp * w2, t * w2, betas[1])
-        return (th1 / w1 - l1) - (th2 / w2 - l2)
-
-    a, b = x_lo[rows], x_hi[rows]
-    fa, fb = d(a), d(b)
-    side = np.zeros(rows.size)
-    c_prev = np.full(rows.size, np.inf)
-    for _ in range(iters):
-        c = (a * fb - b * fa) / (fb - fa)
-        c = np.where(np.isfinite(c), c, 0.5 * (a + b))
-        if np.all(np.abs(c - c_prev) < 1e-11):
-            break
-        c_prev = c
-        fc = d(c)
-        left = fc * fa > 0  # root in [c, b]
-        # Illinois: halve the retained end's value when the same side is kept twice
-        a_new = np.where(left, c, a)
-        fa_new = np.where(left, fc, np.where(side == -1, 0.5 * fa, fa))
-        b_new = np.where(left, b, c)
-        fb_new = np.where(left, np.where(side == 1, 0.5 * fb, fb), fc)
-        side = np.where(left, 1, -1)
-        a, b, fa, fb = a_new, b_new, fa_new, fb_new
-    out[rows] = np.exp(c)
-    return out
-
-
-# ----------------------------------------------------------------------------------------------
-# the public entry point
-# ----------------------------------------------------------------------------------------------
-def _estimate(values: np.ndarray, point: float, unit: str) -> ParameterEstimate:
+def _estimate(values: FloatArray, point: float, unit: str) -> ParameterEstimate:
     v = values[np.isfinite(values)]
     if v.size < 2:
         return ParameterEstimate(point, 0.0, point, point, unit)
@@ -523,6 +336,201 @@ def _delta_estimate(point: float, std: float, unit: str) -> ParameterEstimate:
     return ParameterEstimate(point, std, point - 1.959964 * std, point + 1.959964 * std, unit)
 
 
+def _check_inputs(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None, K: float | None,
+                  n_draws: int, seed: int, spread: str) -> _Inputs:
+    checked = tuple(tests)
+    for t in checked:
+        if not isinstance(t, TestMeasurement):
+            raise InputError("tests must be TestMeasurement objects")
+    Tp = check_time("Tp", Tp)
+    if rate_hz is not None:
+        rate_hz = float(rate_hz)
+        if not math.isfinite(rate_hz) or rate_hz <= 0:
+            raise InputError(f"rate must be a positive frequency in Hz, got {rate_hz}")
+    if spread not in ("sem", "cycle"):
+        raise InputError("spread must be 'sem' or 'cycle'")
+    if int(n_draws) < 10:
+        raise InputError(f"n_draws must be at least 10, got {n_draws}")
+    if K is not None and (not math.isfinite(float(K)) or float(K) == 0):
+        raise InputError(f"K must be finite and non-zero, got {K}")
+    return _Inputs(checked, Tp, rate_hz, None if K is None else float(K), int(n_draws), seed, spread)
+
+
+def _measure(inputs: _Inputs) -> _Measured:
+    """The betas (checked: two or more, different) and mean frequencies of the tests."""
+    tests = inputs.tests
+    if len(tests) < 2:
+        raise InputError("identification needs at least two tests with different betas")
+    betas = [t.beta for t in tests]
+    if len(set(np.round(betas, 6))) < len(betas) and len(tests) == 2:
+        raise InputError("the two tests have the same beta: they determine the same curve, use different betas")
+    if len(set(np.round(betas, 6))) < 2:
+        raise InputError("all tests have the same beta; at least two different betas are needed")
+    f_mean = np.array([t.frequency_mean for t in tests])
+    if inputs.spread == "sem":
+        f_unc = np.array([t.frequency_sem for t in tests])
+    else:
+        f_unc = np.array([t.frequency_cycle_std for t in tests])
+    return _Measured(betas, f_mean, f_unc, _TWO_PI * f_mean)
+
+
+def _point_estimate(inputs: _Inputs, m: _Measured, ms: ManifoldSet) -> _Point:
+    """Where the tests' curves meet: the intersection (two tests) or a weighted least-squares fit."""
+    Tp, omegas = inputs.Tp, m.omegas
+    residual: float | None
+    if len(m.betas) == 2:
+        Td_hat, tau_eff, warns = intersection(Tp, m.betas, list(omegas), ms)
+        residual, method, weights = None, "intersection", np.ones(2)
+    else:
+        rel = m.f_unc / m.f_mean
+        # each test weighs by its relative frequency precision, or all alike when one has none
+        weights = np.where(rel > 0, 1.0 / np.maximum(rel, 1e-12) ** 2, 1.0) if np.all(rel > 0) else np.ones(len(rel))
+        Td_hat, tau_eff, residual, warns = least_squares(Tp, m.betas, list(omegas), weights, ms)
+        method = "least-squares"
+    lag = inputs.sampling_lag
+    tau_hat = tau_eff - lag
+    if tau_eff < -1e-9 * max(1.0, 1.0 / omegas.min()):
+        raise IdentificationError(
+            f"the measured frequencies imply a negative delay (tau = {tau_eff * 1e3:.3g} ms): no plant of eq. (2) "
+            f"with Tp = {Tp:g} s fits; check Tp and the betas"
+        )
+    if tau_hat < 0:
+        warns.append(f"removing the sampling lag ({lag * 1e3:.3g} ms) leaves a negative delay; tau set to 0")
+        tau_hat = 0.0
+    return _Point(Td_hat, max(tau_eff, 0.0), tau_hat, residual, method, weights, tuple(warns))
+
+
+def _test_gains(inputs: _Inputs, m: _Measured, Td: float) -> list[float | None]:
+    """K of each test with an amplitude, from the UGM (Lemmas 2 and 4); None without one."""
+    gains: list[float | None] = []
+    for t, w in zip(inputs.tests, m.omegas):
+        if t.amplitude_mean is None or t.h is None:
+            gains.append(None)
+            continue
+        a_unit = unit_cycle_scalar(inputs.Tp * w, Td * w, t.beta)[1]
+        gains.append(t.amplitude_mean * w / (float(t.h) * Td * a_unit))
+    return gains
+
+
+def _per_test(inputs: _Inputs, m: _Measured, point: _Point,
+              gains: list[float | None]) -> tuple[tuple[dict[str, Any], ...], list[str]]:
+    """Each test's figures and sensitivities, and the identifiability warnings they raise."""
+    Tp, Td = inputs.Tp, point.Td
+    rows: list[dict[str, Any]] = []
+    for i, (t, w) in enumerate(zip(inputs.tests, m.omegas)):
+        s_td, s_tau = frequency_sensitivity(Tp, Td, point.tau_eff, t.beta, w)
+        rows.append({
+            "beta": t.beta,
+            "frequency_hz": float(m.f_mean[i]),
+            "frequency_sem_hz": float(t.frequency_sem),
+            "n_cycles": t.n_cycles,
+            "amplitude": t.amplitude_mean,
+            "h": t.h,
+            "tp_norm": Tp * w,
+            "td_norm": Td * w,
+            "theta": point.tau_eff * w,
+            "dlnOmega_dlnTd": s_td,
+            "dlnOmega_dtau": s_tau,
+            "K": gains[i],
+            # the curve of this test in real units is ufm_slice(Tp, beta, frequency_hz, Td) - sampling_lag
+            "sampling_lag": inputs.sampling_lag,
+        })
+    warns: list[str] = []
+    sens = [abs(r["dlnOmega_dlnTd"]) for r in rows]
+    if max(sens) < _SENSITIVITY_WARN:
+        warns.append(
+            f"Td is poorly identifiable: Td*Omega = {max(r['td_norm'] for r in rows):.3g}, a 10 % change of Td "
+            f"moves the test frequencies by at most {10 * max(sens):.2g} %"
+        )
+    spread_b = max(m.betas) - min(m.betas)
+    if spread_b < 0.2:
+        warns.append(f"the betas differ by only {spread_b:.2g}; Td and tau are better determined with betas "
+                     "further apart (e.g. -0.4 and -0.7)")
+    return tuple(rows), warns
+
+
+def _uncertainty(inputs: _Inputs, m: _Measured, point: _Point, gains: list[float | None],
+                 ms: ManifoldSet) -> _Spread:
+    """The spread of the estimates: none, Monte Carlo (two tests) or the delta method (three or more)."""
+    have_K = [k for k in gains if k is not None]
+    K_hat = float(np.mean(have_K)) if have_K else None
+    a_unc_any = any(t.amplitude is not None and (t.amplitude_sem or 0) > 0 for t in inputs.tests)
+    if np.all(m.f_unc == 0) and not a_unc_any and (inputs.rate_hz is None or len(inputs.tests) != 2):
+        empty = np.array([])
+        K_est = None if K_hat is None else _estimate(empty, K_hat, "")
+        return _Spread(_estimate(empty, point.Td, "s"), _estimate(empty, point.tau, "s"), K_est, "none", 0, {}, ())
+    if len(inputs.tests) == 2:
+        return _monte_carlo(inputs, m, point, K_hat, ms)
+    K_std = float(np.std(have_K, ddof=1)) if len(have_K) > 1 else 0.0
+    return _delta_method(inputs, m, point, None if K_hat is None else _delta_estimate(K_hat, K_std, ""), ms)
+
+
+def _monte_carlo(inputs: _Inputs, m: _Measured, point: _Point, K_hat: float | None, ms: ManifoldSet) -> _Spread:
+    """Two tests: draw their mean frequencies (and a sampled relay's switching lags), solve each draw."""
+    n_draws, Tp, betas = inputs.n_draws, inputs.Tp, m.betas
+    rng = np.random.default_rng(inputs.seed)
+    wd = _TWO_PI * (m.f_mean[None, :] + m.f_unc[None, :] * rng.standard_normal((n_draws, 2)))
+    wd = np.where(wd > 0, wd, np.nan)
+    # sampled relay: each test's switching lag is uniform in [0, Ts) (its orbit is unknown)
+    lag_d = None if inputs.rate_hz is None else rng.uniform(0.0, 1.0 / inputs.rate_hz, (n_draws, 2))
+    Td_d = intersection_draws(Tp, betas, np.nan_to_num(wd, nan=m.omegas.mean()), ms, point.Td, lags=lag_d)
+    Td_d[~np.all(np.isfinite(wd), axis=1)] = np.nan
+    ok = np.isfinite(Td_d)
+    th1, _ = unit_cycle(Tp * wd[ok, 0], Td_d[ok] * wd[ok, 0], betas[0])
+    tau_d = np.full(n_draws, np.nan)
+    tau_d[ok] = th1 / wd[ok, 0] - (inputs.sampling_lag if lag_d is None else lag_d[ok, 0])
+    n_used = int(ok.sum())
+    warns = []
+    if n_used < n_draws:
+        warns.append(f"{n_draws - n_used} of {n_draws} Monte Carlo draws admitted no plant (large scatter)")
+    draws = {"Td": Td_d, "tau": tau_d}
+    K_est = None
+    if K_hat is not None:
+        draws["K"] = _gain_draws(inputs, m, wd, Td_d, ok, rng)
+        K_est = _estimate(draws["K"], K_hat, "")
+    return _Spread(_estimate(Td_d, point.Td, "s"), _estimate(tau_d, point.tau, "s"), K_est, "monte-carlo", n_used,
+                   draws, tuple(warns))
+
+
+def _gain_draws(inputs: _Inputs, m: _Measured, wd: FloatArray, Td_d: FloatArray, ok: NDArray[np.bool_],
+                rng: np.random.Generator) -> FloatArray:
+    """K of each Monte Carlo draw: the mean over the tests with an amplitude (itself drawn)."""
+    n_draws = inputs.n_draws
+    K_d_all = []
+    for i, t in enumerate(inputs.tests):
+        if t.amplitude_mean is None or t.h is None:
+            continue
+        a_unc = t.amplitude_sem if inputs.spread == "sem" else t.amplitude_cycle_std
+        a_d = t.amplitude_mean + (a_unc or 0.0) * rng.standard_normal(n_draws)
+        _, au = unit_cycle(inputs.Tp * wd[ok, i], Td_d[ok] * wd[ok, i], m.betas[i])
+        kd = np.full(n_draws, np.nan)
+        kd[ok] = a_d[ok] * wd[ok, i] / (float(t.h) * Td_d[ok] * au)
+        K_d_all.append(kd)
+    K_d: FloatArray = np.nanmean(np.array(K_d_all), axis=0) if K_d_all else np.full(n_draws, np.nan)
+    return K_d
+
+
+def _delta_method(inputs: _Inputs, m: _Measured, point: _Point, K_est: ParameterEstimate | None,
+                  ms: ManifoldSet) -> _Spread:
+    """Three or more tests: the least-squares fit's Jacobian carries the frequencies' spread."""
+    J = np.zeros((2, len(m.betas)))
+    for i in range(len(m.betas)):
+        if m.f_unc[i] == 0:
+            continue
+        om = m.omegas.copy()
+        dw = 1e-4 * om[i]
+        om[i] += dw
+        Tdp, taup, _, _ = least_squares(inputs.Tp, m.betas, list(om), point.weights, ms)
+        J[:, i] = [(Tdp - point.Td) / dw, (taup - point.tau_eff) / dw]
+    cov = (J * (_TWO_PI * m.f_unc) ** 2) @ J.T
+    Td_est = _delta_estimate(point.Td, math.sqrt(max(cov[0, 0], 0.0)), "s")
+    tau_est = _delta_estimate(point.tau, math.sqrt(max(cov[1, 1], 0.0)), "s")
+    return _Spread(Td_est, tau_est, K_est, "delta", 0, {}, ())
+
+
+# ----------------------------------------------------------------------------------------------
+# the public entry point
+# ----------------------------------------------------------------------------------------------
 def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None = None, K: float | None = None,
              n_draws: int = 2000, seed: int = 0, spread: str = "sem",
              manifolds: ManifoldSet | None = None) -> IdentificationResult:
@@ -586,182 +594,35 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
     >>> r.uncertainty, bool(r.Td.ci95_low < r.Td.mean < r.Td.ci95_high)
     ('monte-carlo', True)
     """
-    tests = list(tests)
-    for t in tests:
-        if not isinstance(t, TestMeasurement):
-            raise InputError("tests must be TestMeasurement objects")
-    Tp = check_time("Tp", Tp)
-    if rate_hz is not None:
-        rate_hz = float(rate_hz)
-        if not math.isfinite(rate_hz) or rate_hz <= 0:
-            raise InputError(f"rate must be a positive frequency in Hz, got {rate_hz}")
-    if spread not in ("sem", "cycle"):
-        raise InputError("spread must be 'sem' or 'cycle'")
-    if int(n_draws) < 10:
-        raise InputError(f"n_draws must be at least 10, got {n_draws}")
-    n_draws = int(n_draws)
-    if K is not None and (not math.isfinite(float(K)) or float(K) == 0):
-        raise InputError(f"K must be finite and non-zero, got {K}")
-    sampling_lag = 0.0 if rate_hz is None else 0.5 / rate_hz
+    inputs = _check_inputs(tests, Tp, rate_hz, K, n_draws, seed, spread)
     ms = manifolds if manifolds is not None else load_manifolds()
-    if len(tests) == 1:
-        if K is None or tests[0].amplitude is None:
-            raise InputError("identification needs two tests with different betas (one test only "
-                             "determines a curve tau(Td)); or give K and the amplitude for the amplitude route")
-        return _identify_amplitude(tests[0], Tp, float(K), sampling_lag, rate_hz, n_draws, seed, spread)
-    if len(tests) < 2:
-        raise InputError("identification needs at least two tests with different betas")
-    betas = [t.beta for t in tests]
-    if len(set(np.round(betas, 6))) < len(betas) and len(tests) == 2:
-        raise InputError("the two tests have the same beta: they determine the same curve, use different betas")
-    if len(set(np.round(betas, 6))) < 2:
-        raise InputError("all tests have the same beta; at least two different betas are needed")
-    f_mean = np.array([t.frequency_mean for t in tests])
-    if spread == "sem":
-        f_unc = np.array([t.frequency_sem for t in tests])
-    else:
-        f_unc = np.array([t.frequency_cycle_std for t in tests])
-    omegas = _TWO_PI * f_mean
-    warns: list[str] = []
-    if len(tests) == 2:
-        Td_hat, tau_eff, w2 = _intersection(Tp, betas, list(omegas), ms)
-        warns += w2
-        residual = None
-        method = "intersection"
-    else:
-        rel = f_unc / f_mean
-        weights = np.where(rel > 0, 1.0 / np.maximum(rel, 1e-12) ** 2, 1.0) if np.all(rel > 0) else np.ones(len(tests))
-        Td_hat, tau_eff, residual, w2 = _least_squares(Tp, betas, list(omegas), weights, ms)
-        warns += w2
-        method = "least-squares"
-    tau_hat = tau_eff - sampling_lag
-    if tau_eff < -1e-9 * max(1.0, 1.0 / omegas.min()):
-        raise IdentificationError(
-            f"the measured frequencies imply a negative delay (tau = {tau_eff * 1e3:.3g} ms): no plant of eq. (2) "
-            f"with Tp = {Tp:g} s fits; check Tp and the betas"
-        )
-    if tau_hat < 0:
-        warns.append(f"removing the sampling lag ({sampling_lag * 1e3:.3g} ms) leaves a negative delay; tau set to 0")
-        tau_hat = 0.0
-    tau_eff = max(tau_eff, 0.0)
-
-    # --- K from the amplitudes (UGM) -----------------------------------------------------------
-    K_i = []
-    for t, w in zip(tests, omegas):
-        if t.amplitude is None:
-            K_i.append(None)
-            continue
-        a_unit = unit_cycle_scalar(Tp * w, Td_hat * w, t.beta)[1]
-        K_i.append(t.amplitude_mean * w / (float(t.h) * Td_hat * a_unit))
-    have_K = [k for k in K_i if k is not None]
-    K_hat = float(np.mean(have_K)) if have_K else None
-
-    # --- per-test information and identifiability ------------------------------------------------
-    per_test = []
-    sens = []
-    for i, (t, w) in enumerate(zip(tests, omegas)):
-        s_td, s_tau = _model_frequency_sensitivity(Tp, Td_hat, tau_eff, t.beta, w)
-        sens.append(s_td)
-        per_test.append({
-            "beta": t.beta,
-            "frequency_hz": float(f_mean[i]),
-            "frequency_sem_hz": float(t.frequency_sem),
-            "n_cycles": t.n_cycles,
-            "amplitude": t.amplitude_mean,
-            "h": t.h,
-            "tp_norm": Tp * w,
-            "td_norm": Td_hat * w,
-            "theta": tau_eff * w,
-            "dlnOmega_dlnTd": s_td,
-            "dlnOmega_dtau": s_tau,
-            "K": K_i[i],
-            # the curve of this test in real units is ufm_slice(Tp, beta, frequency_hz, Td) - sampling_lag
-            "sampling_lag": sampling_lag,
-        })
-    if max(abs(s) for s in sens) < _SENSITIVITY_WARN:
-        warns.append(
-            f"Td is poorly identifiable: Td*Omega = {max(p['td_norm'] for p in per_test):.3g}, a 10 % change of Td "
-            f"moves the test frequencies by at most {10 * max(abs(s) for s in sens):.2g} %"
-        )
-    spread_b = max(betas) - min(betas)
-    if spread_b < 0.2:
-        warns.append(f"the betas differ by only {spread_b:.2g}; Td and tau are better determined with betas "
-                     "further apart (e.g. -0.4 and -0.7)")
-
-    # --- uncertainty -------------------------------------------------------------------------
-    draws: dict = {}
-    a_unc_any = any(t.amplitude is not None and (t.amplitude_sem or 0) > 0 for t in tests)
-    if np.all(f_unc == 0) and not a_unc_any and (rate_hz is None or len(tests) != 2):
-        uncertainty = "none"
-        Td_est = _estimate(np.array([]), Td_hat, "s")
-        tau_est = _estimate(np.array([]), tau_hat, "s")
-        K_est = None if K_hat is None else _estimate(np.array([]), K_hat, "")
-        n_used = 0
-    elif len(tests) == 2:
-        uncertainty = "monte-carlo"
-        rng = np.random.default_rng(seed)
-        wd = _TWO_PI * (f_mean[None, :] + f_unc[None, :] * rng.standard_normal((n_draws, 2)))
-        wd = np.where(wd > 0, wd, np.nan)
-        # sampled relay: each test's switching lag is uniform in [0, Ts) (its orbit is unknown)
-        lag_d = None if rate_hz is None else rng.uniform(0.0, 1.0 / rate_hz, (n_draws, 2))
-        Td_d = intersection_draws(Tp, betas, np.nan_to_num(wd, nan=omegas.mean()), ms, Td_hat, lags=lag_d)
-        Td_d[~np.all(np.isfinite(wd), axis=1)] = np.nan
-        ok = np.isfinite(Td_d)
-        th1, a1 = unit_cycle(Tp * wd[ok, 0], Td_d[ok] * wd[ok, 0], betas[0])
-        tau_d = np.full(n_draws, np.nan)
-        tau_d[ok] = th1 / wd[ok, 0] - (sampling_lag if lag_d is None else lag_d[ok, 0])
-        n_used = int(ok.sum())
-        if n_used < n_draws:
-            warns.append(f"{n_draws - n_used} of {n_draws} Monte Carlo draws admitted no plant (large scatter)")
-        Td_est = _estimate(Td_d, Td_hat, "s")
-        tau_est = _estimate(tau_d, tau_hat, "s")
-        draws = {"Td": Td_d, "tau": tau_d}
-        K_est = None
-        if K_hat is not None:
-            K_d_all = []
-            for i, t in enumerate(tests):
-                if t.amplitude is None:
-                    continue
-                a_unc = t.amplitude_sem if spread == "sem" else t.amplitude_cycle_std
-                a_d = t.amplitude_mean + a_unc * rng.standard_normal(n_draws)
-                _, au = unit_cycle(Tp * wd[ok, i], Td_d[ok] * wd[ok, i], betas[i])
-                kd = np.full(n_draws, np.nan)
-                kd[ok] = a_d[ok] * wd[ok, i] / (float(t.h) * Td_d[ok] * au)
-                K_d_all.append(kd)
-            K_d = np.nanmean(np.array(K_d_all), axis=0) if K_d_all else np.full(n_draws, np.nan)
-            draws["K"] = K_d
-            K_est = _estimate(K_d, K_hat, "")
-    else:
-        uncertainty = "delta"
-        n_used = 0
-        J = np.zeros((2, len(tests)))
-        for i in range(len(tests)):
-            if f_unc[i] == 0:
-                continue
-            om = omegas.copy()
-            dw = 1e-4 * om[i]
-            om[i] += dw
-            Tdp, taup, _, _ = _least_squares(Tp, betas, list(om), weights, ms)
-            J[:, i] = [(Tdp - Td_hat) / dw, (taup - tau_eff) / dw]
-        cov = (J * (_TWO_PI * f_unc) ** 2) @ J.T
-        Td_est = _delta_estimate(Td_hat, math.sqrt(max(cov[0, 0], 0.0)), "s")
-        tau_est = _delta_estimate(tau_hat, math.sqrt(max(cov[1, 1], 0.0)), "s")
-        K_est = None if K_hat is None else _delta_estimate(K_hat, float(np.std(have_K, ddof=1)) if len(have_K) > 1 else 0.0, "")
-    if Td_est.std > 0.3 * Td_hat:
-        warns.append(f"Td is poorly determined by these tests: std {Td_est.std:.3g} s is "
-                     f"{100 * Td_est.std / Td_hat:.0f} % of the estimate")
-    model = LoopModel(Tp, Td_hat, tau_hat, K_hat if K_hat is not None else 1.0)
-    return IdentificationResult(Td=Td_est, tau=tau_est, K=K_est, model=model, Tp=Tp, residual=residual,
-                                tests=tuple(per_test), warnings=tuple(warns), method=method,
-                                uncertainty=uncertainty, rate_hz=rate_hz, n_draws=n_used, draws=draws)
+    if len(inputs.tests) == 1:
+        return _identify_amplitude(inputs)
+    measured = _measure(inputs)
+    point = _point_estimate(inputs, measured, ms)
+    gains = _test_gains(inputs, measured, point.Td)
+    per_test, identifiability = _per_test(inputs, measured, point, gains)
+    est = _uncertainty(inputs, measured, point, gains, ms)
+    warns = [*point.warnings, *identifiability, *est.warnings]
+    if est.Td.std > 0.3 * point.Td:
+        warns.append(f"Td is poorly determined by these tests: std {est.Td.std:.3g} s is "
+                     f"{100 * est.Td.std / point.Td:.0f} % of the estimate")
+    model = LoopModel(inputs.Tp, point.Td, point.tau, est.K.mean if est.K is not None else 1.0)
+    return IdentificationResult(Td=est.Td, tau=est.tau, K=est.K, model=model, Tp=inputs.Tp,
+                                residual=point.residual, tests=per_test, warnings=tuple(warns), method=point.method,
+                                uncertainty=est.method, rate_hz=inputs.rate_hz, n_draws=est.n_draws, draws=est.draws)
 
 
-def _identify_amplitude(test: TestMeasurement, Tp: float, K: float, sampling_lag: float, rate_hz, n_draws: int,
-                        seed: int, spread: str) -> IdentificationResult:
+def _identify_amplitude(inputs: _Inputs) -> IdentificationResult:
     """Single-test amplitude (UGM) route with known K: the paper's comparison case (Section V-A)."""
+    test, Tp, lag = inputs.tests[0], inputs.Tp, inputs.sampling_lag
+    if inputs.K is None or test.amplitude_mean is None or test.h is None:
+        raise InputError("identification needs two tests with different betas (one test only "
+                         "determines a curve tau(Td)); or give K and the amplitude for the amplitude route")
+    K, h, a_mean = inputs.K, float(test.h), test.amplitude_mean
 
     def solve(w: float, a: float) -> tuple[float, float]:
-        target = a * w / (float(test.h) * K)  # = Td * a_unit(Tp w, Td w)
+        target = a * w / (h * K)  # = Td * a_unit(Tp w, Td w)
 
         def g(lTd: float) -> float:
             Td = math.exp(lTd)
@@ -775,32 +636,33 @@ def _identify_amplitude(test: TestMeasurement, Tp: float, K: float, sampling_lag
         return Td, unit_cycle_scalar(Tp * w, Td * w, test.beta)[0] / w
 
     w0 = _TWO_PI * test.frequency_mean
-    Td_hat, tau_eff = solve(w0, test.amplitude_mean)
-    f_unc = test.frequency_sem if spread == "sem" else test.frequency_cycle_std
-    a_unc = test.amplitude_sem if spread == "sem" else test.amplitude_cycle_std
-    draws: dict = {}
-    if f_unc > 0 or (a_unc or 0) > 0:
-        rng = np.random.default_rng(seed)
+    Td_hat, tau_eff = solve(w0, a_mean)
+    f_unc = test.frequency_sem if inputs.spread == "sem" else test.frequency_cycle_std
+    a_unc = (test.amplitude_sem if inputs.spread == "sem" else test.amplitude_cycle_std) or 0.0
+    draws: dict[str, FloatArray] = {}
+    if f_unc > 0 or a_unc > 0:
+        n_draws = inputs.n_draws
+        rng = np.random.default_rng(inputs.seed)
         fd = test.frequency_mean + f_unc * rng.standard_normal(n_draws)
-        ad = test.amplitude_mean + (a_unc or 0) * rng.standard_normal(n_draws)
+        ad = a_mean + a_unc * rng.standard_normal(n_draws)
         Tds, taus = np.full(n_draws, np.nan), np.full(n_draws, np.nan)
         for j in range(n_draws):
             try:
                 Tds[j], taus[j] = solve(_TWO_PI * fd[j], ad[j])
             except (IdentificationError, ValueError):
                 pass
-        taus = taus - sampling_lag
+        taus = taus - lag
         draws = {"Td": Tds, "tau": taus}
-        Td_est, tau_est, unc = _estimate(Tds, Td_hat, "s"), _estimate(taus, tau_eff - sampling_lag, "s"), "monte-carlo"
+        Td_est, tau_est, unc = _estimate(Tds, Td_hat, "s"), _estimate(taus, tau_eff - lag, "s"), "monte-carlo"
     else:
         Td_est = _estimate(np.array([]), Td_hat, "s")
-        tau_est = _estimate(np.array([]), tau_eff - sampling_lag, "s")
+        tau_est = _estimate(np.array([]), tau_eff - lag, "s")
         unc = "none"
     warns = ["amplitude route: sensitive to amplitude noise and to K (the paper prefers two frequencies)"]
-    tau_hat = max(tau_eff - sampling_lag, 0.0)
-    model = LoopModel(Tp, Td_hat, tau_hat, K)
-    per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": test.amplitude_mean, "h": test.h,
+    model = LoopModel(Tp, Td_hat, max(tau_eff - lag, 0.0), K)
+    per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": a_mean, "h": test.h,
             "tp_norm": Tp * w0, "td_norm": Td_hat * w0, "theta": tau_eff * w0},)
     return IdentificationResult(Td=Td_est, tau=tau_est, K=ParameterEstimate(K, 0.0, K, K, ""), model=model, Tp=Tp,
                                 residual=None, tests=per, warnings=tuple(warns), method="amplitude",
-                                uncertainty=unc, rate_hz=rate_hz, n_draws=n_draws if draws else 0, draws=draws)
+                                uncertainty=unc, rate_hz=inputs.rate_hz, n_draws=inputs.n_draws if draws else 0,
+                                draws=draws)

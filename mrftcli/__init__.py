@@ -17,6 +17,7 @@ The Python API a notebook needs is here (imported lazily, so ``mrft-ident --help
 :func:`identify`       Td, tau (and K) from measured tests (:func:`mrftcli.mrft.identify.identify`)
 :class:`TestMeasurement`  one measured test for :func:`identify`
 :class:`LoopModel`     the paper's model, eq. (2)
+:func:`sample_log`     a sample log installed with the package (for the examples)
 =====================  ==========================================================================
 
 Examples
@@ -35,8 +36,7 @@ Td 0.7042 s, tau 0.0600 s
 
 Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, tau 46.4 ms, K 19.62):
 
->>> from pathlib import Path
->>> log = Path(mrftcli.__file__).parents[1] / "sample_logs" / "design1_altitude.mcap"
+>>> log = mrftcli.sample_log("design1_altitude.mcap")  # installed with the package
 >>> flight = mrftcli.read_flight(log, loop="altitude")
 >>> analysis = mrftcli.analyze_flight(flight, Tp=0.0422, n_bootstrap=100)
 >>> print(f"{len(analysis.tests)} tests: Td {analysis.Td.mean:.1f} s, tau {analysis.tau.mean * 1e3:.0f} ms, "
@@ -62,6 +62,7 @@ _LAZY = {
     "identify": ("mrftcli.mrft.identify", "identify"),
     "TestMeasurement": ("mrftcli.mrft.identify", "TestMeasurement"),
     "LoopModel": ("mrftcli.mrft.model", "LoopModel"),
+    "sample_log": ("mrftcli.samples", "sample_log"),
 }
 
 __all__ = ["__version__", *_LAZY]
@@ -73,6 +74,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load on f
     from .mrft.identify import TestMeasurement, identify
     from .mrft.lprs import mrft_limit_cycle as predict
     from .mrft.model import LoopModel
+    from .samples import sample_log
 
 
 def __getattr__(name: str) -> object:

@@ -100,7 +100,7 @@ def _writer(out: str, flushes: str, seed: int, rate_hz: float) -> None:
 
 def _on_disk(path: str, flushes: list) -> list[tuple[float, float]]:
     """(newest log time whose message was in a complete chunk, wall time) after each flush."""
-    from mrftcli.watch import McapFollower
+    from mrftcli.io.follow import McapFollower
 
     # replay: read the finished file up to each flushed size and see the newest complete message
     data = Path(path).read_bytes()

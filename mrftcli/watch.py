@@ -5,16 +5,10 @@
 
 How the log is followed
 -----------------------
-* **MCAP** (a file, or the ``.mcap`` inside a ROS 2 bag directory being recorded): read
-  incrementally. The byte offset after the last complete top-level record is kept; each poll parses
-  only the records that arrived since (a chunk only once it is complete, so a half-written chunk is
-  simply waited for) with the ``mcap`` library's record classes, and decodes only the new messages
-  (:func:`mrftcli.io.cdr.extract` for CDR, ``json`` for JSON channels). The Footer record (or Data
-  End) means the writer closed the file.
-* **Anything else** (CSV, ULog, ROS 1 bag, ...): the whole file is read again with
-  :func:`mrftcli.io.read_flight` whenever its size changes (a read that fails on a half-written row
-  or record is retried at the next poll). The writer has closed the file when it has not grown for
-  ``idle`` seconds (this also ends an MCAP whose writer died without a footer).
+:func:`mrftcli.io.follow.follow_log` gives the flight so far at each poll: an MCAP file (or a ROS 2
+bag directory with mcap storage) is parsed incrementally and says when its writer closed it; any
+other log is read again whenever its size changes. The writer has closed the file when it has not
+grown for ``idle`` seconds (this also ends an MCAP whose writer died without a footer).
 
 Incremental segmentation and identification
 -------------------------------------------
@@ -36,25 +30,23 @@ from a cycle's end reaching the file to the updated estimate (benchmarks/bench_w
 
 from __future__ import annotations
 
-import json
 import math
 import time
-import warnings
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable, ClassVar, Iterator
+from typing import ClassVar
 
 import numpy as np
 
 from .errors import InsufficientDataError, LogReadError, MrftError
-from .io import DEFAULT_TOPICS, FlightLog, LogSource, Signal, flight_from_source, read_flight
-from .io.format_mcap import MCAP_MAGIC, McapChannel, McapRecords, channel_typestore
-from .io.logtypes import LOOPS, TopicInfo
+from .io import FlightLog, ReadOptions, Signal
+from .io.follow import follow_log
 from .mrft.consensus import SAME_BETA
 from .segment import MrftTest, segment_arrays
 from .validate import check_positive
 
-__all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Update", "watch", "McapFollower"]
+__all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Update", "watch"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -165,271 +157,6 @@ class WatchEnd:
 
 
 Update = TestUpdate | EstimateUpdate | WatchEnd
-
-
-# --------------------------------------------------------------------------------------------------
-# following an MCAP file incrementally
-# --------------------------------------------------------------------------------------------------
-
-
-class McapFollower:
-    """The messages of a growing MCAP file, read record by record as they are completed.
-
-    :meth:`poll` parses what arrived since the last call; :meth:`values` gives one topic field's times
-    [s] and float64 values so far (the same field paths as :mod:`mrftcli.io`); ``closed`` turns True at
-    the Footer (or Data End) record. The records are parsed by :class:`mrftcli.io.format_mcap.McapRecords`,
-    as in the MCAP reader's salvage pass.
-    """
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.offset = 0
-        self.closed = False
-        self._records = McapRecords()
-        self._decoded: dict[int, dict] = {}  # channel id -> leaves tuple -> (t [s] arrays, values)
-        self._typestores: dict[int, object] = {}
-
-    def poll(self) -> bool:
-        """Read the complete records added since the last poll; True if any message arrived."""
-        from mcap.opcode import Opcode
-
-        try:
-            with open(self.path, "rb") as fh:
-                fh.seek(self.offset)
-                data = fh.read()
-        except OSError as err:
-            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
-        pos = 0
-        if self.offset == 0:
-            if len(data) < len(MCAP_MAGIC):
-                return False
-            if data[:len(MCAP_MAGIC)] != MCAP_MAGIC:
-                raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
-            pos = len(MCAP_MAGIC)
-        got = False
-        while pos + 9 <= len(data):
-            op = data[pos]
-            length = int.from_bytes(data[pos + 1:pos + 9], "little")
-            end = pos + 9 + length
-            if end > len(data):
-                break  # a record still being written: wait for the rest
-            if op in (Opcode.FOOTER, Opcode.DATA_END):
-                self.closed = True
-                pos = end
-                break
-            try:
-                got |= self._records.record(op, data[pos + 9:end]) > 0
-            except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
-                pass
-            pos = end
-        self.offset += pos
-        return got
-
-    def topics(self) -> list[str]:
-        """Topic names seen so far."""
-        return sorted({c.topic for c in self._records.channels.values()})
-
-    def _find(self, topic: str) -> McapChannel | None:
-        for ch in self._records.channels.values():
-            if ch.topic == topic:
-                return ch
-        return None
-
-    def _typestore(self, ch: McapChannel):
-        if ch.id not in self._typestores:
-            self._typestores[ch.id] = channel_typestore(ch, self.path)
-        return self._typestores[ch.id]
-
-    def leaves(self, topic: str, field_path: str | None) -> list[str] | None:
-        """The numeric leaves ``topic:field`` stands for (four for a quaternion); None if the topic has
-        not appeared yet or (JSON) has no message yet."""
-        from .io import cdr
-
-        ch = self._find(topic)
-        if ch is None:
-            return None
-        path = field_path or "data"
-        if ch.encoding == "json":
-            sample = ch.datas[0] if ch.datas else None
-            decoded = self._decoded.get(ch.id)
-            if sample is None:
-                return list(next(iter(decoded))) if decoded else None
-            node = json.loads(sample)
-            for key in path.split("."):
-                if not isinstance(node, dict) or key not in node:
-                    raise LogReadError(f"{self.path}: {topic}: no field {path!r}")
-                node = node[key]
-            if isinstance(node, dict) and sorted(node) == ["w", "x", "y", "z"]:
-                return [f"{path}.{c}" for c in "xyzw"]
-            return [path]
-        try:
-            return cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
-        except LogReadError as err:
-            raise LogReadError(f"{self.path}: {topic}: {err}") from None
-
-    def values(self, topic: str, leaves: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Times [s] and values of ``leaves`` of ``topic`` so far (new messages decoded once)."""
-        from .io import cdr
-
-        ch = self._find(topic)
-        key = tuple(leaves)
-        if ch is None:
-            return np.zeros(0), {k: np.zeros(0) for k in leaves}
-        decoded = self._decoded.setdefault(ch.id, {})
-        t_parts, v_parts = decoded.setdefault(key, ([], {k: [] for k in leaves}))
-        if ch.datas:
-            if len(decoded) > 1:
-                raise LogReadError(f"{self.path}: {topic}: read with two field sets")
-            t_new = np.asarray(ch.times, dtype=np.int64) / 1e9
-            if ch.encoding == "json":
-                vals = {k: np.array([_json_leaf(json.loads(d), k) for d in ch.datas], float) for k in leaves}
-            else:
-                lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
-                starts = (np.cumsum(lengths) - lengths).astype(np.int64)
-                buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
-                vals = cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, list(leaves),
-                                   ros1=ch.encoding == "ros1")
-            t_parts.append(t_new)
-            for k in leaves:
-                v_parts[k].append(np.asarray(vals[k], float))
-            ch.times, ch.datas = [], []
-            if len(t_parts) > 1:  # keep one array per leaf
-                t_parts[:] = [np.concatenate(t_parts)]
-                for k in leaves:
-                    v_parts[k][:] = [np.concatenate(v_parts[k])]
-        if not t_parts:
-            return np.zeros(0), {k: np.zeros(0) for k in leaves}
-        return t_parts[0], {k: v_parts[k][0] for k in leaves}
-
-
-def _json_leaf(node, path: str) -> float:
-    for key in path.split("."):
-        node = node.get(key) if isinstance(node, dict) else None
-    return float(node) if isinstance(node, (int, float)) else float("nan")
-
-
-# --------------------------------------------------------------------------------------------------
-# snapshots of the flight so far
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Layout:
-    """The topic options as given (None: the reference layout's)."""
-
-    loop: str
-    command: str | None
-    output: str | None
-    beta: str | None
-    setpoint: str | None
-    output_scale: float | None
-
-    def filled(self) -> _Layout:
-        """The same with the reference layout's topics and scale in place of None."""
-        loop = self.loop
-        return _Layout(loop=loop, command=self.command or DEFAULT_TOPICS["command"],
-                       output=self.output or DEFAULT_TOPICS[f"output.{loop}"],
-                       beta=self.beta or DEFAULT_TOPICS["beta"], setpoint=self.setpoint or DEFAULT_TOPICS["setpoint"],
-                       output_scale=1.0 if self.output_scale is None else float(self.output_scale))
-
-
-class _NotYet(LogReadError):
-    """A topic of a file still being written has not appeared, or has no message yet: wait."""
-
-
-class _FollowedSource(LogSource):
-    """The messages a :class:`McapFollower` has read so far, as a :class:`~mrftcli.io.LogSource`, so that
-    :func:`mrftcli.io.flight_from_source` applies the same topic logic as to a finished log."""
-
-    format = "mcap"
-    default_field = "data"
-
-    def __init__(self, follower: McapFollower, path: Path) -> None:
-        super().__init__(path)
-        self.follower = follower
-
-    def topics(self) -> list[TopicInfo]:
-        return [TopicInfo(name, "", 0, None, ()) for name in self.follower.topics()]
-
-    def missing_topic(self, topic: str) -> LogReadError:
-        err = super().missing_topic(topic)
-        return err if self.follower.closed else _NotYet(str(err))
-
-    def leaves(self, topic: str, field: str | None) -> list[str]:
-        leaves = self.follower.leaves(topic, field)
-        if leaves is None:
-            raise self.missing_topic(topic)
-        return leaves
-
-    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        t, vals = self.follower.values(topic, fields)
-        if t.size == 0 and not self.follower.closed:
-            raise _NotYet(f"{self.path}: {topic} has no messages yet")
-        return t, vals
-
-
-class _McapSnapshot:
-    """FlightLog so far from a growing MCAP (file, or the one inside a ROS 2 bag directory)."""
-
-    def __init__(self, path: Path, layout: _Layout) -> None:
-        self.dir = path if path.is_dir() else None
-        self.follower = None if self.dir else McapFollower(path)
-        self.layout = layout
-        self.path = path
-
-    def poll(self) -> tuple[FlightLog | None, bool, bool]:
-        """(flight so far or None, grew, closed)."""
-        if self.follower is None:
-            files = sorted(self.dir.glob("*.mcap"))
-            if not files:
-                return None, False, False
-            self.follower = McapFollower(files[0])
-        f = self.follower
-        grew = f.poll()
-        return (self._flight() if grew or f.closed else None), grew, f.closed
-
-    def _flight(self) -> FlightLog | None:
-        L = self.layout
-        try:
-            flight = flight_from_source(_FollowedSource(self.follower, self.path), L.loop, L.command, L.output,
-                                        L.beta, L.setpoint, output_scale=L.output_scale, layout="reference")
-        except _NotYet:
-            return None  # a topic the flight needs has not arrived yet: the next poll
-        if flight.command.t.size < 10 or flight.output.t.size < 10:
-            return None
-        flight.source["format"] = "mcap (followed)"
-        return flight
-
-
-class _RereadSnapshot:
-    """FlightLog so far by reading the whole file again whenever it grows (CSV, ULog, ...)."""
-
-    def __init__(self, path: Path, layout: _Layout, fmt: str | None) -> None:
-        self.path = path
-        self.layout = layout
-        self.fmt = fmt
-        self.size = -1
-
-    def poll(self) -> tuple[FlightLog | None, bool, bool]:
-        try:
-            size = self.path.stat().st_size
-        except OSError:
-            return None, False, False
-        if size == self.size or size == 0:
-            return None, False, False
-        self.size = size
-        L = self.layout
-        # a salvaged (half-written) file is the normal state here: the reader keeps its warnings
-        # in FlightLog.warnings instead of printing them (echo_warnings=False)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            try:
-                flight = read_flight(self.path, loop=L.loop, command_topic=L.command, output_topic=L.output,
-                                     beta_topic=L.beta, setpoint_topic=L.setpoint, output_scale=L.output_scale,
-                                     fmt=self.fmt, echo_warnings=False)
-            except LogReadError:
-                return None, True, False  # a half-written row/record or topics not there yet: next poll
-        return flight, True, False
 
 
 # --------------------------------------------------------------------------------------------------
@@ -570,30 +297,26 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
     Tp = check_positive("Tp", Tp)
     idle = check_positive("idle", idle)
     poll = check_positive("poll", poll)
-    if loop not in LOOPS:
-        from .errors import InputError
-
-        raise InputError(f"unknown loop {loop!r}; choose one of {', '.join(LOOPS)}")
+    opts = ReadOptions(loop=loop, command_topic=command_topic, output_topic=output_topic, beta_topic=beta_topic,
+                       setpoint_topic=setpoint_topic, output_scale=output_scale)  # InputError: unknown loop
     path = Path(path)
-    layout = _Layout(loop=loop, command=command_topic, output=output_topic, beta=beta_topic,
-                     setpoint=setpoint_topic, output_scale=output_scale)
     start = clock()
     while not path.exists() or (path.is_file() and path.stat().st_size == 0):
         if clock() - start > idle:
             raise LogReadError(f"{path}: no such file after waiting {idle:g} s; start the recording first")
         sleep(poll)
-    snap = _McapSnapshot(path, layout) if _is_mcap(path, fmt) else _RereadSnapshot(path, layout.filled(), fmt)
+    follower = follow_log(path, opts, fmt)
     tracker = _Tracker()
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None
     last_growth = clock()
     while True:
-        new, grew, closed = snap.poll()
+        snap = follower.poll()
         now = clock()
-        if grew:
+        if snap.grew:
             last_growth = now
-        if new is not None:
-            flight = new
+        if snap.flight is not None:
+            flight = snap.flight
             tests = tracker.update(flight)
             changed = False
             for test in tests:
@@ -608,22 +331,7 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
                 est = _estimate(tests, Tp, min_cycles)
                 if est is not None:
                     yield est
-        if closed or now - last_growth > idle:
-            yield from _final(flight, Tp, min_cycles, "closed" if closed else "idle", len(reported))
+        if snap.closed or now - last_growth > idle:
+            yield from _final(flight, Tp, min_cycles, "closed" if snap.closed else "idle", len(reported))
             return
         sleep(poll)
-
-
-def _is_mcap(path: Path, fmt: str | None) -> bool:
-    if fmt is not None:
-        return fmt in ("mcap", "mcap-json", "ros2-mcap")
-    if path.is_dir():
-        meta = path / "metadata.yaml"
-        if meta.is_file():
-            return "storage_identifier: mcap" in meta.read_text(errors="replace")
-        return any(path.glob("*.mcap"))  # ros2 bag record writes metadata.yaml only at the end
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC or path.suffix.lower() == ".mcap"
-    except OSError:
-        return path.suffix.lower() == ".mcap"

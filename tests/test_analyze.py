@@ -9,6 +9,7 @@ from the independent simulation in ``test_segment_support.py``.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -86,7 +87,7 @@ def test_takeoff_landing_dropouts_and_glitches_around_tests():
     for tg in (12.2, 30.4):
         i = int(np.searchsorted(flight.command.t, tg))
         c[i] = 1.0 - c[i]
-    flight.command = Signal(flight.command.t, c)
+    flight = replace(flight, command=Signal(flight.command.t, c))
     damaged = analyze_flight(flight, Tp)
     _check(damaged, Tp, Td, tau, K)
 

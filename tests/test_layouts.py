@@ -70,12 +70,14 @@ def test_px4_beta_and_windows_from_parameter_changes(analyses):
 
 def test_receive_time_jitter_is_estimated(analyses):
     flight = analyses["hear_x.bag"][0]
-    assert flight.source["timestamps"] == "receive"
-    assert 0.0003 < flight.source["timing_jitter_s"] < 0.005  # written with |N(0, 2 ms)| + 1 ms delays
+    assert flight.timing.stamps == "receive"
+    jitter = flight.timing.timing_jitter_s
+    assert jitter is not None and 0.0003 < jitter < 0.005  # written with |N(0, 2 ms)| + 1 ms delays
+    assert flight.source_json()["timing_jitter_s"] == jitter  # the --json output keeps its keys
     # folded into tau's interval (an offset between the topics' delays does not average out)
     result = analyses["hear_x.bag"][1]
-    assert result.tau.std >= flight.source["timing_jitter_s"]
-    assert result.tau.ci95_high - result.tau.ci95_low >= 2 * 1.96 * flight.source["timing_jitter_s"]
+    assert result.tau.std >= jitter
+    assert result.tau.ci95_high - result.tau.ci95_low >= 2 * 1.96 * jitter
     assert any("timing jitter" in n for n in result.notes)
     assert not any("missing" in w for w in result.warnings)  # receive jitter is not a lost sample
 
@@ -164,10 +166,12 @@ def test_controller_rate_from_the_layout_and_the_option():
     # PX4's position controller decides at 50 Hz while its logger keeps the command at 10 Hz: the
     # layout says so, an explicit rate overrides it, and a wrong rate moves tau by half its period
     log = SAMPLES / "px4_altitude_10hz.ulg"
-    assert read_flight(log, echo_warnings=False).source["controller_rate_hz"] == 50.0
+    assert read_flight(log, echo_warnings=False).timing.controller_rate_hz == 50.0
     fast = read_flight(log, controller_rate_hz=100.0, echo_warnings=False)
-    assert fast.source["controller_rate_hz"] == 100.0
-    assert "controller_rate_hz" not in read_flight(SAMPLES / "design1_altitude.mcap", echo_warnings=False).source
+    assert fast.timing.controller_rate_hz == 100.0
+    assert fast.source_json()["controller_rate_hz"] == 100.0
+    plain = read_flight(SAMPLES / "design1_altitude.mcap", echo_warnings=False)
+    assert plain.timing.controller_rate_hz is None and "controller_rate_hz" not in plain.source_json()
     tau50 = analyze_flight(read_flight(log, echo_warnings=False), 0.0422, n_bootstrap=50).tau.mean
     tau100 = analyze_flight(fast, 0.0422, n_bootstrap=50).tau.mean
     assert tau100 - tau50 == pytest.approx(0.5 / 50.0 - 0.5 / 100.0, abs=2e-3)

@@ -88,7 +88,7 @@ def test_reference_layout_every_format(logs, fmt):
     np.testing.assert_allclose(alt.setpoint.values, 1.2, atol=tol)
     # BatteryState.voltage is float32 in ROS; ULog/CSV keep what was given
     np.testing.assert_allclose(alt.battery_voltage.values, truth["volt"], rtol=1e-6)
-    assert alt.warnings == []
+    assert alt.warnings == ()
     for loop in ("roll", "pitch"):
         fl = read_flight(paths[fmt], loop=loop)
         np.testing.assert_allclose(fl.output.t, truth["t_imu"], atol=1e-6)
@@ -153,7 +153,7 @@ def test_default_optional_topic_of_another_type_is_skipped(tmp_path):
     assert fl.battery_voltage is None
     assert len(fl.warnings) == 1 and "ignored /battery:voltage" in fl.warnings[0]
     fl = read_flight(path, battery_topic="/battery")  # named: read as asked
-    assert fl.battery_voltage.values[0] == 15.0 and fl.warnings == []
+    assert fl.battery_voltage.values[0] == 15.0 and fl.warnings == ()
     with pytest.raises(InputError, match="output scale"):
         read_flight(path, output_scale=0.0)
 
@@ -273,7 +273,7 @@ def test_px4_ulog(shared_dir):
     np.testing.assert_allclose(fl.output.values, Rotation.from_quat(q).as_euler("ZYX")[:, 1], atol=1e-6)
     np.testing.assert_allclose(fl.output.t, raw["timestamp"] / 1e6)
     assert fl.beta is None and fl.battery_voltage is None
-    assert fl.warnings == []  # a whole PX4 log is not flagged as damaged
+    assert fl.warnings == ()  # a whole PX4 log is not flagged as damaged
 
 
 def test_ardupilot_dataflash(shared_dir):

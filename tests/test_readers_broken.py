@@ -202,7 +202,7 @@ def test_cut_ulog_is_read_with_a_warning(good, tmp_path):
     assert 0 < n < 3000
     np.testing.assert_allclose(fl.output.values, truth["roll"][:n], atol=1e-12)
     whole = read_flight(paths["ulog"])
-    assert whole.warnings == []
+    assert whole.warnings == ()
 
 
 def test_ulog_damage_keeps_what_pyulog_reads(good, tmp_path, capsys):

@@ -7,6 +7,8 @@ switch instants; its exact noise-free output is the truth for the switching leve
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -215,7 +217,7 @@ def test_dropped_messages_jitter_and_glitches(sim):
     for tg in (11.3, 17.1, 33.2):  # one-sample false switches
         i = int(np.searchsorted(flight.command.t, tg))
         c[i] = 1.0 - c[i]
-    flight.command = Signal(flight.command.t, c)
+    flight = replace(flight, command=Signal(flight.command.t, c))
     tests = segment(flight)
     assert len(tests) == 2
     for t, b in zip(tests, base):
@@ -229,8 +231,8 @@ def test_dropped_messages_jitter_and_glitches(sim):
 
 def test_negative_loop_gain_is_handled(sim):
     flight = to_flight(sim)
-    flight.output = Signal(flight.output.t, -flight.output.values)
-    flight.setpoint = Signal(flight.setpoint.t, -flight.setpoint.values)
+    flight = replace(flight, output=Signal(flight.output.t, -flight.output.values),
+                     setpoint=Signal(flight.setpoint.t, -flight.setpoint.values))
     neg = segment(flight)
     pos = segment(to_flight(sim))
     for a, b in zip(neg, pos):

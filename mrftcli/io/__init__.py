@@ -17,17 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..validate import check_positive
 from ..errors import InputError, LogReadError
-from .logtypes import LOOPS, FlightLog, Signal, TopicData, TopicInfo
-from .source import LogSource, TopicSpec, parse_spec
 from .attitude import roll_pitch
+from .flight import DEFAULT_TOPICS, ReadOptions, flight_from_source, log_layout, read_loop
 from .layouts import LAYOUT_NAMES, LAYOUTS, Layout, LayoutMatch, detect_layout, get_layout
+from .logtypes import FlightLog, Signal, TopicData, TopicInfo
+from .source import LogSource, TopicSpec, parse_spec
+from .timing import Timing, controller_rate_hz, median_rate_hz
 
 __all__ = [
     "open_log", "read_flight", "flight_from_source", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format", "format_from_name",
-    "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal",
+    "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal", "Timing", "ReadOptions", "read_loop",
+    "median_rate_hz", "controller_rate_hz",
     "LAYOUTS", "LAYOUT_NAMES", "Layout", "LayoutMatch", "detect_layout", "get_layout", "log_layout",
 ]
 
@@ -44,15 +46,6 @@ FORMAT_SUFFIX = {
     "ros2-mcap": "_ros2_mcap/",
     "ulog": ".ulg",
     "csv": ".csv",
-}
-
-#: the reference layout (ROS 2 names, :data:`LAYOUTS` ``["reference"]``) by role, see docs/log-layout.md
-DEFAULT_TOPICS = {
-    "command": LAYOUTS["reference"].loops["altitude"].command,
-    "beta": LAYOUTS["reference"].loops["altitude"].beta,
-    "setpoint": LAYOUTS["reference"].loops["altitude"].setpoint,
-    **{f"output.{loop}": topics.output for loop, topics in LAYOUTS["reference"].loops.items()},
-    "battery": "/battery:voltage",
 }
 
 _MAGIC = {
@@ -249,91 +242,6 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
 
 
 # -- read_flight ---------------------------------------------------------------------------------
-def _get(log: LogSource, spec: str, required: bool):
-    """(t, leaves, values, TopicSpec) for one role, or None if an optional topic is absent."""
-    ts = parse_spec(spec)
-    topic = log.resolve_topic(ts.topic)
-    if topic is None:
-        if required:
-            raise log.missing_topic(ts.topic)
-        return None
-    t, leaves, vals = log.values(topic, ts.field)
-    return t, leaves, vals, TopicSpec(topic, ts.field)
-
-
-def _where(topic: str, leaf: str) -> str:
-    """``topic:leaf`` for FlightLog.source (CSV leaves are whole column names already)."""
-    return leaf if leaf.startswith(topic) else f"{topic}:{leaf}"
-
-
-def log_layout(log: LogSource, layout: str | None = None) -> LayoutMatch:
-    """The layout to read ``log`` with: ``layout`` when named, else the one its topics show.
-
-    A log that matches no known layout is read with the reference layout (its topic options then
-    name what is missing); the match says so in its evidence.
-    """
-    if layout is not None:
-        return LayoutMatch(get_layout(layout), False, "--layout")
-    found = detect_layout(lambda name: log.resolve_topic(name) is not None, log.format)
-    if found is not None:
-        return found
-    return LayoutMatch(LAYOUTS["reference"], False, "default: no known layout's topics in the log")
-
-
-#: PX4 MRFT axis of each loop (parameters MRFT_<AXIS>_BETA, _H, _ENABLE)
-_PX4_AXIS = {"x": "X", "y": "Y", "altitude": "Z"}
-#: below this command rate [Hz] an MRFT cycle of 1-2 Hz has fewer than ~10 samples
-_LOW_RATE_HZ = 25.0
-
-
-def _parameter_tests(log: LogSource, prefix: str, loop: str) -> tuple[Signal | None, list[tuple[float, float]], str]:
-    """beta at each test start and the test windows from the parameter changes (PX4 MRFT patch).
-
-    A test starts when ``<prefix>ENABLE`` is set to 1 and stops when it is set to 0; its beta is the
-    ``<prefix>BETA`` in force at the start (changes stamped at the same instant count as before).
-    """
-    axis = _PX4_AXIS.get(loop)
-    if axis is None:
-        return None, [], ""
-    pre = prefix.format(axis=axis)
-    initial, changes = log.parameters()
-    enable, beta = f"{pre}ENABLE", f"{pre}BETA"
-    beta_now = initial.get(beta, -0.73)  # the patch's default
-    state = initial.get(enable, 0.0)
-    starts: list[tuple[float, float]] = []
-    windows: list[tuple[float, float]] = []
-    for t, name, value in sorted(changes, key=lambda c: c[0]):
-        if name == beta:
-            beta_now = value
-            if starts and starts[-1][0] == t:  # set together with ENABLE: this is the test's beta
-                starts[-1] = (t, value)
-        elif name == enable:
-            if value >= 0.5 and state < 0.5:
-                starts.append((t, beta_now))
-            elif value < 0.5 and state >= 0.5 and starts:
-                windows.append((starts[-1][0], t))
-            state = value
-    if not starts:
-        return None, [], ""
-    if state >= 0.5:
-        windows.append((starts[-1][0], float("inf")))
-    sig = Signal(np.array([s[0] for s in starts]), np.array([s[1] for s in starts]))
-    return sig, windows, f"parameter {beta} when {enable} is set to 1"
-
-
-def _jitter(t: np.ndarray) -> float:
-    """Timing jitter [s] of receive-time stamps: the robust spread of the sample spacing / sqrt 2.
-
-    A stamp e_k late gives spacings dt + e_{k+1} - e_k, whose variance is 2 var(e) for independent
-    delays; the median absolute deviation (x 1.4826) ignores dropped samples and bursts.
-    """
-    if t.size < 20:
-        return float("nan")
-    d = np.diff(t)
-    mad = float(np.median(np.abs(d - np.median(d)))) * 1.4826
-    return mad / np.sqrt(2.0)
-
-
 def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | None = None,
                 output_topic: str | None = None, beta_topic: str | None = None,
                 setpoint_topic: str | None = None, battery_topic: str | None = None,
@@ -367,7 +275,7 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     controller_rate_hz : float, optional
         Rate [Hz] at which the relay decided, when the command may be logged more slowly (default:
         the layout's, e.g. 50 Hz for PX4's position controller; recorded in
-        ``source["controller_rate_hz"]`` for the segmenter).
+        ``FlightLog.timing.controller_rate_hz`` for the segmenter).
     echo_warnings : bool
         Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
         caller that shows them itself (``analyze``, ``watch``).
@@ -376,8 +284,9 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     -------
     FlightLog
         ``command`` and ``output`` always; ``beta``, ``setpoint``, ``battery_voltage`` when logged.
-        ``source`` records the layout, where each signal came from, the scales, the timing
-        (``timestamps``: header or receive, ``timing_jitter_s``) and, for PX4, the test windows.
+        ``source`` records the layout, where each signal came from, the scales and, for PX4, the
+        test windows; ``timing`` the controller rate and the stamps (header or receive, with their
+        jitter).
 
     Raises
     ------
@@ -386,161 +295,12 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     LogReadError
         Unreadable log, or a required topic/field missing (the message lists what exists).
     """
-    _check_read_options(loop, output_scale, command_scale, controller_rate_hz)  # before opening the log
+    opts = ReadOptions(loop, command_topic, output_topic, beta_topic, setpoint_topic, battery_topic,
+                       output_scale, layout, command_scale, controller_rate_hz)  # checked before opening the log
     with open_log(path, fmt, echo_warnings=echo_warnings) as log:
-        flight = flight_from_source(log, loop, command_topic, output_topic, beta_topic, setpoint_topic,
-                                    battery_topic, output_scale, layout=layout, command_scale=command_scale,
-                                    controller_rate_hz=controller_rate_hz)
+        flight = read_loop(log, opts)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))
-
-
-def _check_read_options(loop: str, output_scale: float | None, command_scale: float | None,
-                        controller_rate_hz: float | None) -> float | None:
-    """InputError for an unknown loop or a zero/non-finite scale; the checked controller rate [Hz]."""
-    if loop not in LOOPS:
-        raise InputError(f"unknown loop {loop!r}; choose one of {', '.join(LOOPS)}")
-    if controller_rate_hz is not None:
-        controller_rate_hz = check_positive("controller rate [Hz]", controller_rate_hz)
-    for name, value in (("output", output_scale), ("command", command_scale)):
-        if value is not None and not (np.isfinite(value) and value != 0.0):
-            raise InputError(f"{name} scale must be a finite non-zero number, got {value}")
-    return controller_rate_hz
-
-
-def flight_from_source(log: LogSource, loop: str = "altitude", command_topic: str | None = None,
-                       output_topic: str | None = None, beta_topic: str | None = None,
-                       setpoint_topic: str | None = None, battery_topic: str | None = None,
-                       output_scale: float | None = None, *, layout: str | None = None,
-                       command_scale: float | None = None, controller_rate_hz: float | None = None) -> FlightLog:
-    """The signals of one loop from an open :class:`LogSource` (what :func:`read_flight` does after opening).
-
-    The topic logic (layout, ``TOPIC[:FIELD]`` specs, quaternion -> roll/pitch, scales, optional
-    topics, PX4 test windows) lives here once, for readers of a whole file (:func:`read_flight`) and of
-    a file that is still being written (:mod:`mrftcli.watch`). Parameters, return value and errors
-    are :func:`read_flight`'s; the reader's warnings are added to ``log.warnings`` (and copied into
-    ``FlightLog.warnings``); ``FlightLog.path`` is ``log.path``.
-    """
-    controller_rate_hz = _check_read_options(loop, output_scale, command_scale, controller_rate_hz)
-    match = log_layout(log, layout)
-    lay = match.layout
-    lt = lay.loops.get(loop)
-    if lt is None and (command_topic is None or output_topic is None):
-        raise InputError(f"layout {lay.name} has no {loop} loop (its loops: {', '.join(lay.loops)}); "
-                         "name the topics with --command-topic and --output-topic")
-    ref = lay.name == "reference"
-    spec_cmd = command_topic or lt.command
-    spec_out = output_topic or lt.output
-    spec_beta = beta_topic or (lt.beta if lt is not None else None)
-    spec_sp = setpoint_topic or (lt.setpoint if lt is not None else None)
-    spec_bat = battery_topic or (DEFAULT_TOPICS["battery"] if ref else None)
-    if output_scale is None:
-        output_scale = lt.output_scale if lt is not None and output_topic is None else 1.0
-    if command_scale is None:
-        command_scale = lt.command_scale if lt is not None and command_topic is None else 1.0
-    source: dict = {"format": log.format, "layout": match.describe()}
-    if (controller_rate_hz or lay.controller_rate_hz) is not None:
-        source["controller_rate_hz"] = controller_rate_hz or lay.controller_rate_hz
-    log.prefetch([parse_spec(s).topic for s in (spec_cmd, spec_out, spec_beta, spec_sp, spec_bat) if s])
-    cmd = _get(log, spec_cmd, True)
-    out = _get(log, spec_out, True)
-    t, leaves, vals, spec = out
-    if len(leaves) == 4:
-        if loop not in ("roll", "pitch"):
-            raise LogReadError(f"{log.path}: output {spec} is an orientation quaternion; "
-                               f"for --loop {loop} name a position field")
-        try:
-            roll, pitch = roll_pitch(*(vals[k] for k in leaves))
-        except LogReadError as err:
-            raise LogReadError(f"{log.path}: {spec}: {err}") from None
-        y = roll if loop == "roll" else pitch
-        source["output_conversion"] = f"quaternion -> {loop} (ZYX), rad"
-    else:
-        y = vals[leaves[0]]
-    output = Signal(t, y * output_scale)
-    source["command"] = _where(cmd[3].topic, cmd[1][0])
-    source["output"] = str(spec) if len(leaves) == 4 else _where(spec.topic, leaves[0])
-    if len(cmd[1]) != 1:
-        raise LogReadError(f"{log.path}: command {cmd[3]} is a quaternion; name one number")
-    command = Signal(cmd[0], cmd[2][cmd[1][0]] * command_scale)
-    optional: dict = {}
-    for role, option, default, scale in (
-            ("beta", beta_topic, spec_beta, 1.0),
-            ("setpoint", setpoint_topic, spec_sp, output_scale),
-            ("battery_voltage", battery_topic, spec_bat, 1.0)):
-        # an optional topic the user named must exist and fit; a layout's may be absent
-        # or be something else under the same name (then it is skipped with a warning)
-        if default is None:
-            optional[role] = None
-            continue
-        try:
-            got = _get(log, default, option is not None)
-        except LogReadError as err:
-            if option is not None:
-                raise
-            log.warn(f"ignored {default} as {role}: {err}")
-            got = None
-        if got is None:
-            optional[role] = None
-            continue
-        tt, lv, vv, sp = got
-        if len(lv) != 1:
-            raise LogReadError(f"{log.path}: {role} {sp} is a quaternion; name one number")
-        optional[role] = Signal(tt, vv[lv[0]] * scale)
-        source[role] = _where(sp.topic, lv[0])
-    if optional["beta"] is None and beta_topic is None and lay.parameters:
-        beta_sig, windows, where = _parameter_tests(log, lay.parameters, loop)
-        if beta_sig is not None:
-            optional["beta"] = beta_sig
-            source["beta"] = where
-            source["test_windows"] = [[a, b if np.isfinite(b) else None] for a, b in windows]
-    if output_scale != 1.0:
-        source["output_scale"] = output_scale
-    if command_scale != 1.0:
-        source["command_scale"] = command_scale
-    if lay.timestamps == "receive" or log.format == "bag":
-        # no header stamps: the bag's receive time carries the transport's jitter
-        source["timestamps"] = "receive"
-        source["timing_jitter_s"] = max(_jitter(command.t), _jitter(output.t))
-    command = _finite(log, command, "command", source["command"])
-    output = _finite(log, output, "output", source["output"])
-    rate = _median_rate(command.t)
-    if not ref and rate is not None and rate < _LOW_RATE_HZ:
-        log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
-                 f"{rate / 2:.0f}-{rate:.0f} samples, so switch instants (and tau) are known only to "
-                 f"+-{500 / rate:.0f} ms; {lay.low_rate_fix}")
-    return FlightLog(path=str(log.path), loop=loop, command=command, output=output,
-                     beta=optional["beta"], setpoint=optional["setpoint"],
-                     battery_voltage=optional["battery_voltage"], source=source,
-                     warnings=list(log.warnings))
-
-
-def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
-    """``sig`` without its NaN / infinite values, said in a warning (all of them: an error).
-
-    A NaN in a relay command is not a level: the samples are left out, so a switch next to them is
-    bracketed by the samples around (1-2 missing: the instant is interpolated; more: the cycle is
-    dropped as a gap) rather than read at a made-up level.
-    """
-    bad = ~np.isfinite(sig.values)
-    if not bad.any():
-        return sig
-    if bad.all():
-        raise LogReadError(f"{log.path}: {role} {where}: every value is NaN or infinite; check the "
-                           f"--{role}-topic field")
-    k = np.flatnonzero(bad)
-    log.warn(f"{role} {where}: {k.size} value(s) are NaN or infinite (the first {sig.t[k[0]] - sig.t[0]:.3f} s "
-             f"after its first sample, message {int(k[0]) + 1}); left out as missing samples: a relay switch next to them is "
-             f"interpolated between the samples around it (1-2 missing) or its cycle is dropped (more)")
-    return Signal(sig.t[~bad], sig.values[~bad])
-
-
-def _median_rate(t: np.ndarray) -> float | None:
-    """Median sample rate [Hz] of increasing times (None for fewer than three)."""
-    if t.size < 3:
-        return None
-    d = float(np.median(np.diff(t)))
-    return 1.0 / d if d > 0 else None
 
 
 def list_topics(path: str | Path, fmt: str | None = None) -> tuple[str, list[TopicInfo]]:

@@ -27,7 +27,8 @@ import pandas as pd
 
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
-from .source import Field, LogSource, rate_of, one_line
+from .source import Field, LogSource, one_line
+from .timing import mean_rate_hz
 
 __all__ = ["CsvSource", "write_csv", "TIME_COLUMNS"]
 
@@ -118,7 +119,7 @@ class CsvSource(LogSource):
         for col, raw in self._cols.items():
             present = raw.notna().to_numpy()
             t = np.sort(self._t[present])
-            out.append(TopicInfo(col, str(raw.dtype), int(present.sum()), rate_of(t), ()))
+            out.append(TopicInfo(col, str(raw.dtype), int(present.sum()), mean_rate_hz(t), ()))
         return out
 
     def resolve_topic(self, topic: str) -> str | None:

@@ -24,7 +24,8 @@ import numpy as np
 
 from ..errors import LogReadError
 from .logtypes import TopicInfo
-from .source import LogSource, closest, rate_of, one_line
+from .source import LogSource, closest, one_line
+from .timing import mean_rate_hz
 
 __all__ = ["DataflashSource"]
 
@@ -139,13 +140,13 @@ class DataflashSource(LogSource):
             fields = tuple(c for c in cols if c not in ("TimeUS", "TimeMS"))
             insts = self._instances(name)
             if insts is None or len(insts) < 2:
-                out.append(TopicInfo(name, name, len(t), rate_of(np.sort(t)), fields))
+                out.append(TopicInfo(name, name, len(t), mean_rate_hz(np.sort(t)), fields))
                 continue
             field = self._reader.formats[self._types[name]].instance_field
             for inst in insts:
                 sel = cols[field] == inst
                 out.append(TopicInfo(f"{name}[{int(inst)}]", name, int(sel.sum()),
-                                     rate_of(np.sort(t[sel])), fields))
+                                     mean_rate_hz(np.sort(t[sel])), fields))
         return out
 
     def topic_names(self) -> list[str]:

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
-from .source import LogSource, closest, one_line, rate_of
+from .source import LogSource, closest, one_line
+from .timing import mean_rate_hz
 
 __all__ = ["MatSource", "write_mat", "MAT_MAGIC", "MAT73_MAGIC"]
 
@@ -76,7 +77,7 @@ class MatSource(LogSource):
                                f"{', '.join(sorted(self._vars)[:12]) or 'no numeric vectors'}")
 
     def topics(self) -> list[TopicInfo]:
-        return [TopicInfo(name, "vector", int(self._vars[name].size), rate_of(np.sort(self._vars[tn])), ())
+        return [TopicInfo(name, "vector", int(self._vars[name].size), mean_rate_hz(np.sort(self._vars[tn])), ())
                 for name, tn in sorted(self._signals.items())]
 
     def topic_names(self) -> list[str]:

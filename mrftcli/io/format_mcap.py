@@ -28,7 +28,8 @@ import numpy as np
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
 from . import cdr
-from .source import LogSource, rate_of
+from .source import LogSource
+from .timing import mean_rate_hz
 from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
 
 __all__ = ["McapSource", "McapRecords", "McapChannel", "channel_typestore", "write_mcap", "MCAP_MAGIC"]
@@ -57,7 +58,7 @@ class McapChannel:
 class McapRecords:
     """Schemas, channels and undecoded messages gathered from MCAP records parsed one at a time.
 
-    Whoever walks the records (the salvage pass of :class:`McapSource`, :class:`mrftcli.watch.McapFollower`
+    Whoever walks the records (the salvage pass of :class:`McapSource`, :class:`mrftcli.io.follow.McapFollower`
     on a file still being written) hands each top-level record to :meth:`record`; ``channels`` maps
     channel id -> :class:`McapChannel`, whose ``times`` and ``datas`` collect the messages.
     """
@@ -296,7 +297,7 @@ class McapSource(LogSource):
                 fields = tuple(self._fields(ch))
             except LogReadError:
                 fields = ()
-            out.append(TopicInfo(ch.topic, ch.schema_name or ch.encoding, len(t), rate_of(t), fields))
+            out.append(TopicInfo(ch.topic, ch.schema_name or ch.encoding, len(t), mean_rate_hz(t), fields))
         self._topic_cache = sorted(out, key=lambda i: i.name)
         return self._topic_cache
 

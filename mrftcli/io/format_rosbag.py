@@ -20,7 +20,8 @@ import numpy as np
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
 from . import cdr
-from .source import LogSource, rate_of, one_line
+from .source import LogSource, one_line
+from .timing import mean_rate_hz
 from .msgtypes import numeric_leaves, typestore_for, typestore_from_text
 
 __all__ = ["RosbagSource", "write_rosbag", "reindex_ros1"]
@@ -135,7 +136,7 @@ class RosbagSource(LogSource):
                 fields = tuple(numeric_leaves(self._typestore(conn), conn.msgtype))
             except Exception:  # noqa: BLE001 - listing must not fail on one odd type
                 fields = ()
-            out.append(TopicInfo(topic, conn.msgtype, len(t), rate_of(t), fields))
+            out.append(TopicInfo(topic, conn.msgtype, len(t), mean_rate_hz(t), fields))
         return out
 
     def leaves(self, topic: str, field: str | None) -> list[str]:

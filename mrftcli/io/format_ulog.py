@@ -30,7 +30,8 @@ import numpy as np
 
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
-from .source import Field, LogSource, rate_of, one_line
+from .source import Field, LogSource, one_line
+from .timing import mean_rate_hz
 
 __all__ = ["UlogSource", "write_ulog", "ulog_name", "ULOG_MAGIC"]
 
@@ -113,7 +114,7 @@ class UlogSource(LogSource):
         for d in self._all().data_list:
             t = d.data["timestamp"].astype(np.float64) / 1e6
             fields = tuple(k for k in d.data if k != "timestamp")
-            out.append(TopicInfo(self._key(d.name, d.multi_id), d.name, len(t), rate_of(np.sort(t)),
+            out.append(TopicInfo(self._key(d.name, d.multi_id), d.name, len(t), mean_rate_hz(np.sort(t)),
                                  fields))
         return sorted(out, key=lambda i: i.name)
 

@@ -6,10 +6,12 @@ Times are float seconds (converted once from the logs' nanoseconds/microseconds 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
+from .timing import Timing
 
 __all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS"]
 
@@ -86,7 +88,7 @@ class Signal:
         return int(self.t.size)
 
 
-@dataclass
+@dataclass(frozen=True)
 class FlightLog:
     """The signals mrft-ident needs from one log, for one loop.
 
@@ -109,9 +111,18 @@ class FlightLog:
     battery_voltage : Signal or None
         Battery voltage [V], if logged.
     source : dict
-        Where each series came from (topic/field), format name and reader notes.
-    warnings : list[str]
-        Non-fatal problems met while reading (e.g. salvaged truncated file).
+        Descriptive metadata: where each series came from (topic/field), the format and layout, the
+        scales, the conversions and (PX4) the test windows.
+    warnings : tuple[str, ...]
+        Non-fatal problems met while reading (e.g. salvaged truncated file); a list is stored as a
+        tuple.
+    timing : Timing
+        The controller's rate when the layout or the user gives it, and the stamps' kind and jitter
+        (what the segmenter and the uncertainty of tau use).
+
+    Notes
+    -----
+    The record is frozen: derive a changed flight with :func:`dataclasses.replace`.
     """
 
     path: str
@@ -121,5 +132,30 @@ class FlightLog:
     beta: Signal | None = None
     setpoint: Signal | None = None
     battery_voltage: Signal | None = None
-    source: dict = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)
+    source: dict[str, Any] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    timing: Timing = Timing()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "warnings", tuple(self.warnings))
+
+    def source_json(self) -> dict[str, Any]:
+        """``source`` with the timing written back into its keys, in the order the ``--json`` output
+        has always had them: ``controller_rate_hz`` after ``layout``; ``timestamps`` and
+        ``timing_jitter_s`` last.
+
+        Examples
+        --------
+        >>> flight = FlightLog("f.csv", "altitude", Signal([0.0], [0.0]), Signal([0.0], [0.0]),
+        ...                    source={"format": "csv", "layout": "px4", "command": "c"}, timing=Timing(50.0))
+        >>> list(flight.source_json())
+        ['format', 'layout', 'controller_rate_hz', 'command']
+        """
+        timing = self.timing.source_items()
+        out: dict[str, Any] = {}
+        for key, value in self.source.items():
+            out[key] = value
+            if key == "layout" and "controller_rate_hz" in timing:
+                out["controller_rate_hz"] = timing.pop("controller_rate_hz")
+        out.update(timing)
+        return out

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import LogReadError
 from .logtypes import Signal, TopicInfo
 
-__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "rate_of", "check_times", "spread_batches", "batch_interval", "Field"]
+__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "check_times", "spread_batches", "batch_interval", "Field"]
 
 
 @dataclass(frozen=True)
@@ -63,13 +63,6 @@ def closest(name: str, candidates: list[str]) -> str:
     # 0.7: a typo (/mrft/comand) matches, an unrelated topic of another loop (/imu/data ~ /mrft/beta) does not
     match = difflib.get_close_matches(name, candidates, n=1, cutoff=0.7)
     return f" (did you mean {match[0]}?)" if match else ""
-
-
-def rate_of(t: np.ndarray) -> float | None:
-    """Mean message rate [Hz] from message times [s] (None for fewer than two messages)."""
-    if len(t) < 2 or t[-1] <= t[0]:
-        return None
-    return float((len(t) - 1) / (t[-1] - t[0]))
 
 
 def check_times(t: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray | None, list[str]]:

@@ -1,0 +1,378 @@
+"""One loop's :class:`~mrftcli.io.logtypes.FlightLog` from an open log, in stages.
+
+:func:`flight_from_source` resolves where each role (command, output, beta, setpoint, battery) is
+read from (:func:`role_specs`: the layout, then the ``TOPIC[:FIELD]`` options), reads the command and
+the output (a quaternion output becomes roll or pitch), the optional roles, the PX4 test windows from
+the logged parameters, records the timing (:class:`~mrftcli.io.timing.Timing`), leaves out
+non-finite samples and warns about a command logged too slowly for the MRFT. The same function
+serves a finished file (:func:`mrftcli.io.read_flight`) and one still being written
+(:mod:`mrftcli.io.follow`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError, LogReadError
+from ..validate import check_positive
+from .attitude import roll_pitch
+from .layouts import LAYOUTS, Layout, LayoutMatch, LoopTopics, detect_layout, get_layout
+from .logtypes import LOOPS, FlightLog, Signal
+from .source import LogSource, TopicSpec, parse_spec
+from .timing import Timing, median_rate_hz, receive_jitter_s
+
+__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "flight_from_source", "read_loop", "log_layout",
+           "role_specs"]
+
+#: the reference layout (ROS 2 names, :data:`LAYOUTS` ``["reference"]``) by role, see docs/log-layout.md
+DEFAULT_TOPICS = {
+    "command": LAYOUTS["reference"].loops["altitude"].command,
+    "beta": LAYOUTS["reference"].loops["altitude"].beta,
+    "setpoint": LAYOUTS["reference"].loops["altitude"].setpoint,
+    **{f"output.{loop}": topics.output for loop, topics in LAYOUTS["reference"].loops.items()},
+    "battery": "/battery:voltage",
+}
+
+#: PX4 MRFT axis of each loop (parameters MRFT_<AXIS>_BETA, _H, _ENABLE)
+_PX4_AXIS = {"x": "X", "y": "Y", "altitude": "Z"}
+#: below this command rate [Hz] an MRFT cycle of 1-2 Hz has fewer than ~10 samples
+_LOW_RATE_HZ = 25.0
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """How to read one loop: the options of :func:`mrftcli.io.read_flight`, checked on creation.
+
+    Attributes
+    ----------
+    loop : str
+        One of :data:`~mrftcli.io.logtypes.LOOPS`.
+    command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str or None
+        ``TOPIC[:FIELD]`` overriding the layout.
+    output_scale, command_scale : float or None
+        Factors on the output (and setpoint) and on the command; None: the layout's.
+    layout : str or None
+        A layout name; None: recognised from the topics.
+    controller_rate_hz : float or None
+        Rate [Hz] at which the relay decided; None: the layout's.
+
+    Raises
+    ------
+    InputError
+        Unknown loop, a zero or non-finite scale, a non-positive controller rate.
+    """
+
+    loop: str = "altitude"
+    command_topic: str | None = None
+    output_topic: str | None = None
+    beta_topic: str | None = None
+    setpoint_topic: str | None = None
+    battery_topic: str | None = None
+    output_scale: float | None = None
+    layout: str | None = None
+    command_scale: float | None = None
+    controller_rate_hz: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.loop not in LOOPS:
+            raise InputError(f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
+        if self.controller_rate_hz is not None:
+            object.__setattr__(self, "controller_rate_hz",
+                               check_positive("controller rate [Hz]", self.controller_rate_hz))
+        for name, value in (("output", self.output_scale), ("command", self.command_scale)):
+            if value is not None and not (np.isfinite(value) and value != 0.0):
+                raise InputError(f"{name} scale must be a finite non-zero number, got {value}")
+
+
+@dataclass(frozen=True)
+class RoleSpecs:
+    """Where each role is read from and with which factor, the layout and the options combined.
+
+    Attributes
+    ----------
+    command, output : str
+        ``TOPIC[:FIELD]`` of the command and the output.
+    beta, setpoint, battery : str or None
+        ``TOPIC[:FIELD]`` of the optional roles (None: not read).
+    output_scale, command_scale : float
+        Factors on the output (and setpoint) and on the command.
+    """
+
+    command: str
+    output: str
+    beta: str | None
+    setpoint: str | None
+    battery: str | None
+    output_scale: float
+    command_scale: float
+
+
+@dataclass(frozen=True)
+class _Read:
+    """One role as read: times [s], the leaf names and their values, and the resolved spec."""
+
+    t: np.ndarray
+    leaves: list[str]
+    values: dict[str, np.ndarray]
+    spec: TopicSpec
+
+
+def log_layout(log: LogSource, layout: str | None = None) -> LayoutMatch:
+    """The layout to read ``log`` with: ``layout`` when named, else the one its topics show.
+
+    A log that matches no known layout is read with the reference layout (its topic options then
+    name what is missing); the match says so in its evidence.
+    """
+    if layout is not None:
+        return LayoutMatch(get_layout(layout), False, "--layout")
+    found = detect_layout(lambda name: log.resolve_topic(name) is not None, log.format)
+    if found is not None:
+        return found
+    return LayoutMatch(LAYOUTS["reference"], False, "default: no known layout's topics in the log")
+
+
+def role_specs(lay: Layout, opts: ReadOptions) -> RoleSpecs:
+    """The specs and factors of each role: the options where given, else the layout's.
+
+    Raises
+    ------
+    InputError
+        The layout has no such loop and the options do not name both the command and the output.
+    """
+    lt: LoopTopics | None = lay.loops.get(opts.loop)
+    command, output = opts.command_topic, opts.output_topic
+    if lt is None:
+        if command is None or output is None:
+            raise InputError(f"layout {lay.name} has no {opts.loop} loop (its loops: {', '.join(lay.loops)}); "
+                             "name the topics with --command-topic and --output-topic")
+    else:
+        command, output = command or lt.command, output or lt.output
+    output_scale = opts.output_scale
+    if output_scale is None:
+        output_scale = lt.output_scale if lt is not None and opts.output_topic is None else 1.0
+    command_scale = opts.command_scale
+    if command_scale is None:
+        command_scale = lt.command_scale if lt is not None and opts.command_topic is None else 1.0
+    return RoleSpecs(
+        command=command, output=output,
+        beta=opts.beta_topic or (lt.beta if lt is not None else None),
+        setpoint=opts.setpoint_topic or (lt.setpoint if lt is not None else None),
+        battery=opts.battery_topic or (DEFAULT_TOPICS["battery"] if lay.name == "reference" else None),
+        output_scale=output_scale, command_scale=command_scale)
+
+
+def flight_from_source(log: LogSource, loop: str = "altitude", command_topic: str | None = None,
+                       output_topic: str | None = None, beta_topic: str | None = None,
+                       setpoint_topic: str | None = None, battery_topic: str | None = None,
+                       output_scale: float | None = None, *, layout: str | None = None,
+                       command_scale: float | None = None, controller_rate_hz: float | None = None) -> FlightLog:
+    """The signals of one loop from an open :class:`LogSource` (what :func:`read_flight` does after opening).
+
+    The topic logic (layout, ``TOPIC[:FIELD]`` specs, quaternion -> roll/pitch, scales, optional
+    topics, PX4 test windows) lives here once, for readers of a whole file (:func:`read_flight`) and of
+    a file that is still being written (:mod:`mrftcli.io.follow`). Parameters, return value and errors
+    are :func:`read_flight`'s; the reader's warnings are added to ``log.warnings`` (and copied into
+    ``FlightLog.warnings``); ``FlightLog.path`` is ``log.path``.
+    """
+    opts = ReadOptions(loop, command_topic, output_topic, beta_topic, setpoint_topic, battery_topic,
+                       output_scale, layout, command_scale, controller_rate_hz)
+    return read_loop(log, opts)
+
+
+def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
+    """:func:`flight_from_source` with its options as one record (the stages in order)."""
+    match = log_layout(log, opts.layout)
+    roles = role_specs(match.layout, opts)
+    log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
+                                                roles.battery) if s])
+    cmd = _get_required(log, roles.command)
+    out = _get_required(log, roles.output)
+    source: dict[str, Any] = {"format": log.format, "layout": match.describe()}
+    output, conversion = _output_signal(log, out, opts.loop, roles.output_scale)
+    if conversion is not None:
+        source["output_conversion"] = conversion
+    source["command"] = _where(cmd.spec.topic, cmd.leaves[0])
+    source["output"] = str(out.spec) if conversion is not None else _where(out.spec.topic, out.leaves[0])
+    command = _command_signal(log, cmd, roles.command_scale)
+    optional = _optional_signals(log, opts, roles, source)
+    if optional["beta"] is None and opts.beta_topic is None and match.layout.parameters:
+        optional["beta"] = _parameter_beta(log, match.layout.parameters, opts.loop, source)
+    if roles.output_scale != 1.0:
+        source["output_scale"] = roles.output_scale
+    if roles.command_scale != 1.0:
+        source["command_scale"] = roles.command_scale
+    timing = _timing(log, match.layout, opts, command, output)  # the stamps as logged, before _finite
+    command = _finite(log, command, "command", source["command"])
+    output = _finite(log, output, "output", source["output"])
+    if match.layout.name != "reference":
+        _warn_low_rate(log, command, match.layout)
+    return FlightLog(path=str(log.path), loop=opts.loop, command=command, output=output,
+                     beta=optional["beta"], setpoint=optional["setpoint"],
+                     battery_voltage=optional["battery_voltage"], source=source,
+                     warnings=tuple(log.warnings), timing=timing)
+
+
+# -- the stages ---------------------------------------------------------------------------------
+def _get_required(log: LogSource, spec: str) -> _Read:
+    """One role the flight cannot do without; LogReadError (listing the topics) when absent."""
+    ts = parse_spec(spec)
+    topic = log.resolve_topic(ts.topic)
+    if topic is None:
+        raise log.missing_topic(ts.topic)
+    return _read(log, topic, ts.field)
+
+
+def _get_optional(log: LogSource, spec: str) -> _Read | None:
+    """One optional role, None when its topic is absent."""
+    ts = parse_spec(spec)
+    topic = log.resolve_topic(ts.topic)
+    return None if topic is None else _read(log, topic, ts.field)
+
+
+def _read(log: LogSource, topic: str, field: str | None) -> _Read:
+    t, leaves, vals = log.values(topic, field)
+    return _Read(t, leaves, vals, TopicSpec(topic, field))
+
+
+def _where(topic: str, leaf: str) -> str:
+    """``topic:leaf`` for FlightLog.source (CSV leaves are whole column names already)."""
+    return leaf if leaf.startswith(topic) else f"{topic}:{leaf}"
+
+
+def _output_signal(log: LogSource, out: _Read, loop: str, scale: float) -> tuple[Signal, str | None]:
+    """The loop output times ``scale``, and the conversion made (roll or pitch from a quaternion)."""
+    if len(out.leaves) == 4:
+        if loop not in ("roll", "pitch"):
+            raise LogReadError(f"{log.path}: output {out.spec} is an orientation quaternion; "
+                               f"for --loop {loop} name a position field")
+        try:
+            roll, pitch = roll_pitch(*(out.values[k] for k in out.leaves))
+        except LogReadError as err:
+            raise LogReadError(f"{log.path}: {out.spec}: {err}") from None
+        y = roll if loop == "roll" else pitch
+        return Signal(out.t, y * scale), f"quaternion -> {loop} (ZYX), rad"
+    return Signal(out.t, out.values[out.leaves[0]] * scale), None
+
+
+def _command_signal(log: LogSource, cmd: _Read, scale: float) -> Signal:
+    """The relay command times ``scale`` (one number, never a quaternion)."""
+    if len(cmd.leaves) != 1:
+        raise LogReadError(f"{log.path}: command {cmd.spec} is a quaternion; name one number")
+    return Signal(cmd.t, cmd.values[cmd.leaves[0]] * scale)
+
+
+def _optional_signals(log: LogSource, opts: ReadOptions, roles: RoleSpecs,
+                      source: dict[str, Any]) -> dict[str, Signal | None]:
+    """beta, setpoint and battery voltage where the options or the layout name them.
+
+    An optional topic the user named must exist and fit; a layout's may be absent or be something
+    else under the same name (then it is skipped with a warning).
+    """
+    optional: dict[str, Signal | None] = {}
+    for role, option, spec, scale in (
+            ("beta", opts.beta_topic, roles.beta, 1.0),
+            ("setpoint", opts.setpoint_topic, roles.setpoint, roles.output_scale),
+            ("battery_voltage", opts.battery_topic, roles.battery, 1.0)):
+        optional[role] = None
+        if spec is None:
+            continue
+        try:
+            got = _get_required(log, spec) if option is not None else _get_optional(log, spec)
+        except LogReadError as err:
+            if option is not None:
+                raise
+            log.warn(f"ignored {spec} as {role}: {err}")
+            got = None
+        if got is None:
+            continue
+        if len(got.leaves) != 1:
+            raise LogReadError(f"{log.path}: {role} {got.spec} is a quaternion; name one number")
+        optional[role] = Signal(got.t, got.values[got.leaves[0]] * scale)
+        source[role] = _where(got.spec.topic, got.leaves[0])
+    return optional
+
+
+def _parameter_beta(log: LogSource, prefix: str, loop: str, source: dict[str, Any]) -> Signal | None:
+    """beta from the logged parameter changes (PX4 MRFT patch), the test windows into ``source``."""
+    beta_sig, windows, where = _parameter_tests(log, prefix, loop)
+    if beta_sig is not None:
+        source["beta"] = where
+        source["test_windows"] = [[a, b if np.isfinite(b) else None] for a, b in windows]
+    return beta_sig
+
+
+def _parameter_tests(log: LogSource, prefix: str, loop: str) -> tuple[Signal | None, list[tuple[float, float]], str]:
+    """beta at each test start and the test windows from the parameter changes (PX4 MRFT patch).
+
+    A test starts when ``<prefix>ENABLE`` is set to 1 and stops when it is set to 0; its beta is the
+    ``<prefix>BETA`` in force at the start (changes stamped at the same instant count as before).
+    """
+    axis = _PX4_AXIS.get(loop)
+    if axis is None:
+        return None, [], ""
+    pre = prefix.format(axis=axis)
+    initial, changes = log.parameters()
+    enable, beta = f"{pre}ENABLE", f"{pre}BETA"
+    beta_now = initial.get(beta, -0.73)  # the patch's default
+    state = initial.get(enable, 0.0)
+    starts: list[tuple[float, float]] = []
+    windows: list[tuple[float, float]] = []
+    for t, name, value in sorted(changes, key=lambda c: c[0]):
+        if name == beta:
+            beta_now = value
+            if starts and starts[-1][0] == t:  # set together with ENABLE: this is the test's beta
+                starts[-1] = (t, value)
+        elif name == enable:
+            if value >= 0.5 and state < 0.5:
+                starts.append((t, beta_now))
+            elif value < 0.5 and state >= 0.5 and starts:
+                windows.append((starts[-1][0], t))
+            state = value
+    if not starts:
+        return None, [], ""
+    if state >= 0.5:
+        windows.append((starts[-1][0], float("inf")))
+    sig = Signal(np.array([s[0] for s in starts]), np.array([s[1] for s in starts]))
+    return sig, windows, f"parameter {beta} when {enable} is set to 1"
+
+
+def _timing(log: LogSource, lay: Layout, opts: ReadOptions, command: Signal, output: Signal) -> Timing:
+    """The controller's rate (option, else layout) and the stamps: receive stamps carry jitter."""
+    rate = opts.controller_rate_hz or lay.controller_rate_hz
+    if lay.timestamps == "receive" or log.format == "bag":
+        # no header stamps: the bag's receive time carries the transport's jitter
+        jitter = max(receive_jitter_s(command.t), receive_jitter_s(output.t))
+        return Timing(controller_rate_hz=rate, stamps="receive", timing_jitter_s=jitter)
+    return Timing(controller_rate_hz=rate)
+
+
+def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
+    """``sig`` without its NaN / infinite values, said in a warning (all of them: an error).
+
+    A NaN in a relay command is not a level: the samples are left out, so a switch next to them is
+    bracketed by the samples around (1-2 missing: the instant is interpolated; more: the cycle is
+    dropped as a gap) rather than read at a made-up level.
+    """
+    bad = ~np.isfinite(sig.values)
+    if not bad.any():
+        return sig
+    if bad.all():
+        raise LogReadError(f"{log.path}: {role} {where}: every value is NaN or infinite; check the "
+                           f"--{role}-topic field")
+    k = np.flatnonzero(bad)
+    log.warn(f"{role} {where}: {k.size} value(s) are NaN or infinite (the first {sig.t[k[0]] - sig.t[0]:.3f} s "
+             f"after its first sample, message {int(k[0]) + 1}); left out as missing samples: a relay switch next to them is "
+             f"interpolated between the samples around it (1-2 missing) or its cycle is dropped (more)")
+    return Signal(sig.t[~bad], sig.values[~bad])
+
+
+def _warn_low_rate(log: LogSource, command: Signal, lay: Layout) -> None:
+    """Warn when the command is logged too slowly to place the relay's switches (tau)."""
+    rate = median_rate_hz(command.t)
+    if rate is not None and rate < _LOW_RATE_HZ:
+        log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
+                 f"{rate / 2:.0f}-{rate:.0f} samples, so switch instants (and tau) are known only to "
+                 f"+-{500 / rate:.0f} ms; {lay.low_rate_fix}")

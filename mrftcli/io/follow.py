@@ -1,0 +1,352 @@
+"""Follow a flight log while it is written: the :class:`~mrftcli.io.logtypes.FlightLog` so far, at each poll.
+
+* **MCAP** (a file, or the ``.mcap`` inside a ROS 2 bag directory being recorded): read
+  incrementally by :class:`McapFollower`. The byte offset after the last complete top-level record
+  is kept; each poll parses only the records that arrived since (a chunk only once it is complete,
+  so a half-written chunk is simply waited for) with the ``mcap`` library's record classes, and
+  decodes only the new messages (:func:`mrftcli.io.cdr.extract` for CDR, ``json`` for JSON
+  channels). The Footer record (or Data End) means the writer closed the file.
+* **Anything else** (CSV, ULog, ROS 1 bag, ...): the whole file is read again with
+  :func:`mrftcli.io.read_flight` whenever its size changes (a read that fails on a half-written row
+  or record is retried at the next poll). Such a file never says it is closed: the caller decides
+  from how long it has not grown.
+
+:func:`follow_log` picks the follower; each :meth:`LogFollower.poll` returns a :class:`Snapshot`.
+The same topic logic as for a finished log applies (:func:`mrftcli.io.flight.read_loop`).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from ..errors import LogReadError
+from . import cdr
+from .flight import DEFAULT_TOPICS, ReadOptions, read_loop
+from .format_mcap import MCAP_MAGIC, McapChannel, McapRecords, channel_typestore
+from .logtypes import FlightLog, TopicInfo
+from .source import LogSource
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
+
+__all__ = ["Snapshot", "LogFollower", "McapFollower", "follow_log", "is_mcap"]
+
+#: per channel, per field set: the times [s] and values decoded so far (one array each)
+_Decoded = dict[tuple[str, ...], tuple[list[np.ndarray], dict[str, list[np.ndarray]]]]
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One poll of a followed log.
+
+    Attributes
+    ----------
+    flight : FlightLog or None
+        The flight so far, when the poll brought something new and every required topic is in;
+        None otherwise.
+    grew : bool
+        The file grew since the last poll.
+    closed : bool
+        The writer closed the file (MCAP Footer or Data End record).
+    """
+
+    flight: FlightLog | None
+    grew: bool
+    closed: bool
+
+
+class LogFollower(Protocol):
+    """A log being followed: :meth:`poll` gives the flight so far."""
+
+    def poll(self) -> Snapshot:
+        """Read what the writer added since the last poll."""
+
+
+class McapFollower:
+    """The messages of a growing MCAP file, read record by record as they are completed.
+
+    :meth:`poll` parses what arrived since the last call; :meth:`values` gives one topic field's times
+    [s] and float64 values so far (the same field paths as :mod:`mrftcli.io`); ``closed`` turns True at
+    the Footer (or Data End) record. The records are parsed by :class:`mrftcli.io.format_mcap.McapRecords`,
+    as in the MCAP reader's salvage pass.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.offset = 0
+        self.closed = False
+        self._records = McapRecords()
+        self._decoded: dict[int, _Decoded] = {}  # channel id -> leaves -> (t [s] arrays, values)
+        self._typestores: dict[int, Typestore] = {}
+
+    def poll(self) -> bool:
+        """Read the complete records added since the last poll; True if any message arrived."""
+        data = self._new_bytes()
+        pos = 0
+        if self.offset == 0:
+            if len(data) < len(MCAP_MAGIC):
+                return False
+            if data[:len(MCAP_MAGIC)] != MCAP_MAGIC:
+                raise LogReadError(f"{self.path}: not an MCAP file (bad magic bytes)")
+            pos = len(MCAP_MAGIC)
+        pos, got = self._parse(data, pos)
+        self.offset += pos
+        return got
+
+    def _new_bytes(self) -> bytes:
+        try:
+            with open(self.path, "rb") as fh:
+                fh.seek(self.offset)
+                return fh.read()
+        except OSError as err:
+            raise LogReadError(f"{self.path}: cannot read ({err.strerror})") from None
+
+    def _parse(self, data: bytes, pos: int) -> tuple[int, bool]:
+        """Parse the complete records of ``data`` from ``pos``: (where parsing stopped, any message)."""
+        from mcap.opcode import Opcode
+
+        got = False
+        while pos + 9 <= len(data):
+            op = data[pos]
+            length = int.from_bytes(data[pos + 1:pos + 9], "little")
+            end = pos + 9 + length
+            if end > len(data):
+                break  # a record still being written: wait for the rest
+            if op in (Opcode.FOOTER, Opcode.DATA_END):
+                self.closed = True
+                return end, got
+            try:
+                got |= self._records.record(op, data[pos + 9:end]) > 0
+            except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
+                pass
+            pos = end
+        return pos, got
+
+    def topics(self) -> list[str]:
+        """Topic names seen so far."""
+        return sorted({c.topic for c in self._records.channels.values()})
+
+    def _find(self, topic: str) -> McapChannel | None:
+        for ch in self._records.channels.values():
+            if ch.topic == topic:
+                return ch
+        return None
+
+    def _typestore(self, ch: McapChannel) -> Typestore:
+        if ch.id not in self._typestores:
+            self._typestores[ch.id] = channel_typestore(ch, self.path)
+        return self._typestores[ch.id]
+
+    def leaves(self, topic: str, field_path: str | None) -> list[str] | None:
+        """The numeric leaves ``topic:field`` stands for (four for a quaternion); None if the topic has
+        not appeared yet or (JSON) has no message yet."""
+        ch = self._find(topic)
+        if ch is None:
+            return None
+        path = field_path or "data"
+        if ch.encoding == "json":
+            return self._json_leaves(ch, topic, path)
+        try:
+            return cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
+        except LogReadError as err:
+            raise LogReadError(f"{self.path}: {topic}: {err}") from None
+
+    def _json_leaves(self, ch: McapChannel, topic: str, path: str) -> list[str] | None:
+        sample = ch.datas[0] if ch.datas else None
+        decoded = self._decoded.get(ch.id)
+        if sample is None:
+            return list(next(iter(decoded))) if decoded else None
+        node = json.loads(sample)
+        for key in path.split("."):
+            if not isinstance(node, dict) or key not in node:
+                raise LogReadError(f"{self.path}: {topic}: no field {path!r}")
+            node = node[key]
+        if isinstance(node, dict) and sorted(node) == ["w", "x", "y", "z"]:
+            return [f"{path}.{c}" for c in "xyzw"]
+        return [path]
+
+    def values(self, topic: str, leaves: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Times [s] and values of ``leaves`` of ``topic`` so far (new messages decoded once)."""
+        ch = self._find(topic)
+        key = tuple(leaves)
+        if ch is None:
+            return np.zeros(0), {k: np.zeros(0) for k in leaves}
+        decoded = self._decoded.setdefault(ch.id, {})
+        t_parts, v_parts = decoded.setdefault(key, ([], {k: [] for k in leaves}))
+        if ch.datas:
+            if len(decoded) > 1:
+                raise LogReadError(f"{self.path}: {topic}: read with two field sets")
+            t_parts.append(np.asarray(ch.times, dtype=np.int64) / 1e9)
+            vals = self._decode(ch, leaves)
+            for k in leaves:
+                v_parts[k].append(np.asarray(vals[k], float))
+            ch.times, ch.datas = [], []
+            if len(t_parts) > 1:  # keep one array per leaf
+                t_parts[:] = [np.concatenate(t_parts)]
+                for k in leaves:
+                    v_parts[k][:] = [np.concatenate(v_parts[k])]
+        if not t_parts:
+            return np.zeros(0), {k: np.zeros(0) for k in leaves}
+        return t_parts[0], {k: v_parts[k][0] for k in leaves}
+
+    def _decode(self, ch: McapChannel, leaves: list[str]) -> dict[str, np.ndarray]:
+        """The new messages' values of ``leaves`` (JSON, or CDR / ROS 1 in one vectorised pass)."""
+        if ch.encoding == "json":
+            return {k: np.array([_json_leaf(json.loads(d), k) for d in ch.datas], float) for k in leaves}
+        lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
+        starts = (np.cumsum(lengths) - lengths).astype(np.int64)
+        buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
+        return cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, list(leaves),
+                           ros1=ch.encoding == "ros1")
+
+
+def _json_leaf(node: object, path: str) -> float:
+    for key in path.split("."):
+        node = node.get(key) if isinstance(node, dict) else None
+    return float(node) if isinstance(node, (int, float)) else float("nan")
+
+
+class _NotYet(LogReadError):
+    """A topic of a file still being written has not appeared, or has no message yet: wait."""
+
+
+class _FollowedSource(LogSource):
+    """The messages a :class:`McapFollower` has read so far, as a :class:`~mrftcli.io.LogSource`, so that
+    :func:`mrftcli.io.flight.read_loop` applies the same topic logic as to a finished log."""
+
+    format = "mcap"
+    default_field = "data"
+
+    def __init__(self, follower: McapFollower, path: Path) -> None:
+        super().__init__(path)
+        self.follower = follower
+
+    def topics(self) -> list[TopicInfo]:
+        return [TopicInfo(name, "", 0, None, ()) for name in self.follower.topics()]
+
+    def missing_topic(self, topic: str) -> LogReadError:
+        err = super().missing_topic(topic)
+        return err if self.follower.closed else _NotYet(str(err))
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        leaves = self.follower.leaves(topic, field)
+        if leaves is None:
+            raise self.missing_topic(topic)
+        return leaves
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        t, vals = self.follower.values(topic, fields)
+        if t.size == 0 and not self.follower.closed:
+            raise _NotYet(f"{self.path}: {topic} has no messages yet")
+        return t, vals
+
+
+class _McapLog:
+    """The flight so far from a growing MCAP (a file, or the one inside a ROS 2 bag directory)."""
+
+    def __init__(self, path: Path, opts: ReadOptions) -> None:
+        self.dir = path if path.is_dir() else None
+        self.follower = None if self.dir else McapFollower(path)
+        self.opts = replace(opts, layout="reference")
+        self.path = path
+
+    def poll(self) -> Snapshot:
+        if self.follower is None:
+            assert self.dir is not None  # one of the two is set in __init__
+            files = sorted(self.dir.glob("*.mcap"))
+            if not files:
+                return Snapshot(None, False, False)
+            self.follower = McapFollower(files[0])
+        f = self.follower
+        grew = f.poll()
+        return Snapshot(self._flight(f) if grew or f.closed else None, grew, f.closed)
+
+    def _flight(self, follower: McapFollower) -> FlightLog | None:
+        try:
+            flight = read_loop(_FollowedSource(follower, self.path), self.opts)
+        except _NotYet:
+            return None  # a topic the flight needs has not arrived yet: the next poll
+        if flight.command.t.size < 10 or flight.output.t.size < 10:
+            return None
+        return replace(flight, source={**flight.source, "format": "mcap (followed)"})
+
+
+class _RereadLog:
+    """The flight so far by reading the whole file again whenever it grows (CSV, ULog, ...)."""
+
+    def __init__(self, path: Path, opts: ReadOptions, fmt: str | None) -> None:
+        self.path = path
+        # the reference layout's topics in place of those not named (not the layout's detection)
+        loop = opts.loop
+        self.opts = replace(
+            opts, command_topic=opts.command_topic or DEFAULT_TOPICS["command"],
+            output_topic=opts.output_topic or DEFAULT_TOPICS[f"output.{loop}"],
+            beta_topic=opts.beta_topic or DEFAULT_TOPICS["beta"],
+            setpoint_topic=opts.setpoint_topic or DEFAULT_TOPICS["setpoint"],
+            output_scale=1.0 if opts.output_scale is None else float(opts.output_scale))
+        self.fmt = fmt
+        self.size = -1
+
+    def poll(self) -> Snapshot:
+        from . import read_flight
+
+        try:
+            size = self.path.stat().st_size
+        except OSError:
+            return Snapshot(None, False, False)
+        if size == self.size or size == 0:
+            return Snapshot(None, False, False)
+        self.size = size
+        o = self.opts
+        # a salvaged (half-written) file is the normal state here: the reader keeps its warnings
+        # in FlightLog.warnings instead of printing them (echo_warnings=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                flight = read_flight(self.path, loop=o.loop, command_topic=o.command_topic,
+                                     output_topic=o.output_topic, beta_topic=o.beta_topic,
+                                     setpoint_topic=o.setpoint_topic, output_scale=o.output_scale,
+                                     fmt=self.fmt, echo_warnings=False)
+            except LogReadError:
+                return Snapshot(None, True, False)  # a half-written row/record or topics not there yet
+        return Snapshot(flight, True, False)
+
+
+def follow_log(path: str | Path, opts: ReadOptions, fmt: str | None = None) -> LogFollower:
+    """The follower of ``path``: incremental for MCAP (:func:`is_mcap`), else reading it again as it grows.
+
+    Parameters
+    ----------
+    path : str or Path
+        An existing log file, or a ROS 2 bag directory being recorded.
+    opts : ReadOptions
+        The loop and its topic options (a topic not named: the reference layout's).
+    fmt : str, optional
+        Log format; detected when omitted.
+    """
+    path = Path(path)
+    return _McapLog(path, opts) if is_mcap(path, fmt) else _RereadLog(path, opts, fmt)
+
+
+def is_mcap(path: Path, fmt: str | None = None) -> bool:
+    """Whether ``path`` is followed as MCAP: ``fmt`` says so, a ROS 2 bag directory with mcap
+    storage (``metadata.yaml`` is written only at the end: then any ``.mcap`` in it), the MCAP
+    magic bytes, or the ``.mcap`` suffix."""
+    if fmt is not None:
+        return fmt in ("mcap", "mcap-json", "ros2-mcap")
+    if path.is_dir():
+        meta = path / "metadata.yaml"
+        if meta.is_file():
+            return "storage_identifier: mcap" in meta.read_text(errors="replace")
+        return any(path.glob("*.mcap"))  # ros2 bag record writes metadata.yaml only at the end
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC or path.suffix.lower() == ".mcap"
+    except OSError:
+        return path.suffix.lower() == ".mcap"

@@ -20,6 +20,8 @@ cycle-to-cycle period scatter, each with a standard error from the cycle-to-cycl
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,9 +134,9 @@ def cycle_table(
     t: np.ndarray,
     y: np.ndarray,
     h: float,
-    start: np.ndarray,
-    switch: np.ndarray,
-    end: np.ndarray,
+    start: np.ndarray | Sequence[float],
+    switch: np.ndarray | Sequence[float],
+    end: np.ndarray | Sequence[float],
 ) -> CycleTable:
     """Measure cycles [start_i, end_i) with inner switch switch_i on the sampled output ``y(t)``.
 
@@ -314,7 +316,7 @@ def cycle_scatter(tab: CycleTable, mask: np.ndarray, reference: np.ndarray | Non
         return 0.0
     P_ref = float(np.mean(tab.period[idx]))
     tt = np.linspace(0.0, P_ref, 200, endpoint=False)
-    Y = np.array([tab.waveform(i, tab.start[i] + tt * tab.period[i] / P_ref) for i in idx])
+    Y = np.array([tab.waveform(int(i), tab.start[i] + tt * tab.period[i] / P_ref) for i in idx])
     tm = tab.start[idx] - tab.start[idx].mean()
     X = np.column_stack([np.ones(n), tm]) if n >= 4 else np.ones((n, 1))
     coef, *_ = np.linalg.lstsq(X, Y, rcond=None)

@@ -509,11 +509,13 @@ def fit_base(model: CandidateModel, tests: list[DiagnosedTest], Tp: float, lo: n
         if np.isfinite(pf.chi2):
             prof.append(pf)
     prof.sort(key=lambda f: f.chi2)
-    best = None
-    for pf in prof[:2] or [None]:
-        f = fit_model(model, pf.theta if pf is not None else th0, lo, hi, recs)
+    best: Fit | None = None
+    tries: list[Fit | None] = list(prof[:2]) or [None]
+    for trial in tries:
+        f = fit_model(model, trial.theta if trial is not None else th0, lo, hi, recs)
         if best is None or (f.ok and (not best.ok or f.chi2 < best.chi2)):
             best = f
+    assert best is not None  # (one try at least)
     return best
 
 
@@ -524,8 +526,8 @@ def theta_bounds(cand: Candidate | tuple | None, tests: list[DiagnosedTest]) -> 
     hi = [math.log(100.0), 5.0]
     hmin = min(t.h for t in tests)
     hmax = max(t.h for t in tests)
-    hs = np.mean([t.h for t in tests])
-    extra = {
+    hs = float(np.mean([t.h for t in tests]))
+    extra: dict[str, tuple[float, float]] = {
         "input_bias": (-0.9 * hmin / hs, 0.9 * hmin / hs),
         "gain_drift": (-5.0, 5.0),
         "sensor_lag": (0.002, 3.0),
@@ -609,8 +611,9 @@ def plant_params(model: CandidateModel, fit: Fit) -> dict:
     return out
 
 
-def param_std(fit: Fit, j: int) -> float:
-    if fit.cov is None or j >= fit.cov.shape[0]:
+def param_std(fit: Fit, j: int | None) -> float:
+    """Standard error of theta[j] from the fit's covariance (NaN without one, or no such parameter)."""
+    if fit.cov is None or j is None or j >= fit.cov.shape[0]:
         return float("nan")
     v = fit.cov[j, j]
     return float(math.sqrt(v)) if v >= 0 else float("nan")

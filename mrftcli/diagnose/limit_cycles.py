@@ -468,7 +468,7 @@ def _run_sampled(loop: _Loop, stepper: _PlantStepper, relay: SampledRelay, beta_
 
 def periodic_cycle(
     plant: AugmentedPlant,
-    beta: float,
+    beta: float | tuple[float, float],
     h: float,
     rate_hz: float,
     *,

@@ -106,7 +106,7 @@ class PeriodicSolution:
         return self.Y[0].real + np.real(np.exp(1j * np.outer(np.asarray(t, float), k * w)) @ self.Y[1:n + 1])
 
 
-def _input_series(pl: CyclePlant, P: float, H: float, k: np.ndarray, a: float, b: float) -> np.ndarray:
+def _input_series(pl: CyclePlant, P: float, H: float, k: np.ndarray, a: float, b: float) -> np.ndarray | None:
     """Fourier coefficients c_k (k >= 1, two-sided convention) of the plant input before the delay."""
     w = 2.0 * np.pi / P
     jkw = 1j * k * w
@@ -336,7 +336,7 @@ def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_gue
             break
         step = math.copysign(min(abs(step), 0.3 * P1), step)
         P2 = P1 + step
-        if lo is not None and not (lo < P2 < hi):
+        if lo is not None and hi is not None and not (lo < P2 < hi):
             break
         if P2 <= 0:
             return None

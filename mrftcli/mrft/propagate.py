@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.signal import lfilter
@@ -126,7 +127,7 @@ class LinearPropagator:
 
 
 def rk4_quadratic(
-    x: np.ndarray, h: float, c0: float, c1: float, c2: float,
+    x: np.ndarray | Sequence[float], h: float, c0: float, c1: float, c2: float,
     K: float, c: float, inv_tp: float, inv_ts: float, max_step: float,
 ) -> np.ndarray:
     """RK4 for y' = v, v' = -c v|v| + K p, p' = (w - p)/Tp [, f' = (y - f)/Ts] over a length ``h`` [s].
@@ -166,7 +167,7 @@ def rk4_quadratic(
 
 
 def rk4_rotor(
-    x: np.ndarray, h: float, c0: float, c1: float, c2: float,
+    x: np.ndarray | Sequence[float], h: float, c0: float, c1: float, c2: float,
     K: float, inv_td: float, c: float, hover_thrust: float, inv_tp: float, inv_ts: float, max_step: float,
 ) -> np.ndarray:
     """RK4 with the propulsion lag on rotor speed (thrust rectification) over a length ``h`` [s].

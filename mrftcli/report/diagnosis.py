@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..diagnose.records import DiagnosisFigures, DiagnosisResult
+from ..errors import InputError
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure
 
 __all__ = ["plot_located", "plot_overlay", "plot_harmonics", "plot_evidence", "write_diagnosis_report"]
@@ -33,28 +35,24 @@ def _scale(result):
     return 1.0, "m"
 
 
-def _aug(result):
-    """(name, model, fit) of the reported effect with a waveform model, or None."""
-    p = result.plot
-    if p.get("final") is not None:
-        return p["final"]
-    for name in p.get("effects", []):
-        if name in p.get("fits", {}):
-            model, fit = p["fits"][name]
-            return name, model, fit
-    return None
+def _figures(result: DiagnosisResult) -> DiagnosisFigures:
+    """The result's figures record (a result read back from JSON has none to draw)."""
+    if result.figures is None:
+        raise InputError("this diagnosis has no figures (it was read back from JSON); rerun mrft-ident diagnose "
+                         "with --report")
+    return result.figures
 
 
 def plot_located(result):
     """Output over the log with tests shaded, per-cycle error of the linear model, located segments."""
-    p = result.plot
-    fl = p["flight"]
+    p = _figures(result)
+    fl = p.flight
     s, unit = _scale(result)
     fig, (ax, ax2) = new_figure(2, 1, width=11, height=6, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
     t0 = result.t0  # times from the log start, as analyze shows them
     t = fl.output.t - t0
     ax.plot(t, fl.output.values * s, color=_REC_C, lw=0.6, label="recorded output")
-    for i, test in enumerate(p["tests"]):
+    for i, test in enumerate(p.tests):
         c = TEST_COLOURS[i % len(TEST_COLOURS)]
         ax.axvspan(test.t_start - t0, test.t_end - t0, color=c, alpha=0.10)
         ax.text(test.t_start - t0, 1.0, f" test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}",
@@ -67,9 +65,9 @@ def plot_located(result):
     ax.set_ylabel(f"output [{unit}]")
     ax.set_title("Where the linear model disagrees with the recording")
     ax.legend(loc="lower right", fontsize=8)
-    for i, ce in enumerate(p.get("cycle_errors", [])):
+    for i, ce in enumerate(p.cycle_errors):
         c = TEST_COLOURS[i % len(TEST_COLOURS)]
-        ax2.plot(ce["t"] - t0, 100 * ce["nrmse"], "o-", color=c, ms=3, lw=1)
+        ax2.plot(ce.t - t0, 100 * ce.nrmse, "o-", color=c, ms=3, lw=1)
     ax2.set_ylabel("cycle NRMSE [%]\n(linear model)")
     ax2.set_xlabel("time from the log start [s]")
     feats = [loc for loc in result.located if loc["kind"] == "feature"][:2]
@@ -89,11 +87,11 @@ def _model_cycle_wave(model, fit, i, test, t_ref, tt):
 
 def plot_overlay(result, n_cycles: int = 3):
     """Per test: consecutive held-out cycles, recording vs linear model vs augmented model."""
-    p = result.plot
-    tests = p["tests"]
-    aug = _aug(result)
+    p = _figures(result)
+    tests = p.tests
+    aug = p.augmented()
     s, unit = _scale(result)
-    fl = p["flight"]
+    fl = p.flight
     ty = fl.output.t
     fig, axes = new_figure(1, len(tests), width=4.2 * len(tests), height=3.8, squeeze=False)
     for i, (test, ax) in enumerate(zip(tests, axes[0])):
@@ -112,15 +110,15 @@ def plot_overlay(result, n_cycles: int = 3):
             rec = tab.waveform(j, tab.start[j] + tt)
             ax.plot(tab.start[j] + tt - t0, rec * s, color=_REC_C, lw=2.2, alpha=0.45,
                     label="recording (noise removed)" if j == sel[0] else None)
-            yb = _model_cycle_wave(p["base_model"], p["base"], i, test, tab.t_mid[j], tt)
+            yb = _model_cycle_wave(p.base_model, p.base, i, test, tab.t_mid[j], tt)
             if yb is not None:
                 ax.plot(tab.start[j] + tt - t0, yb * s, "--", color=_BASE_C, lw=1.4,
                         label="linear model" if j == sel[0] else None)
             if aug is not None:
-                ya = _model_cycle_wave(aug[1], aug[2], i, test, tab.t_mid[j], tt)
+                ya = _model_cycle_wave(aug.model, aug.fit, i, test, tab.t_mid[j], tt)
                 if ya is not None:
                     ax.plot(tab.start[j] + tt - t0, ya * s, color=_AUG_C, lw=1.2,
-                            label=f"with {aug[0]}" if j == sel[0] else None)
+                            label=f"with {aug.label}" if j == sel[0] else None)
             ax.axvline(tab.start[j] - t0, color="#999", lw=0.6)
             ax.axvline(tab.switch[j] - t0, color="#999", lw=0.6, ls=":")
         del m
@@ -138,14 +136,14 @@ def plot_harmonics(result):
     """Relative error of G(j k Omega) per odd harmonic, linear vs augmented, per test."""
     effects = result.effects
     harm = effects[0].harmonics if effects else {}
-    p = result.plot
-    tests = p["tests"]
+    p = _figures(result)
+    tests = p.tests
     fig, axes = new_figure(1, len(tests), width=3.6 * len(tests), height=3.4, squeeze=False, sharey=True)
     ks = ["1", "3", "5", "7"]
     for i, (test, ax) in enumerate(zip(tests, axes[0])):
         h = harm.get(str(test.index))
         if h is None:
-            before = p["harmonics"][i] if i < len(p.get("harmonics", [])) else {}
+            before = p.harmonics[i] if i < len(p.harmonics) else {}
             after = {}
         else:
             before, after = h["before"], h["after"]

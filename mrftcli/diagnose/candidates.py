@@ -1,0 +1,271 @@
+"""Stages 2 and 3 of the diagnosis: the linear model's fit (is it rejected?) and each candidate
+effect fitted alone against it.
+
+Each candidate augments the model with one parameter and is refitted together with Td and tau on the
+fitting cycles' features (:mod:`mrftcli.diagnose.fit`). Evidence: BIC = chi^2 + k ln n over the same
+features, ``delta_bic`` = BIC(linear) - BIC(candidate); the held-out cycles confirm
+(:func:`mrftcli.diagnose.heldout.significant`). The candidates are fitted in the order of a cheap
+probe, and once one explains the fitting and the held-out cycles to the noise level the rest are not.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from ..errors import DiagnoseError
+from .fit import (CandidateModel, Fit, candidate_starts, effect_value, fit_base, fit_model, plant_params, residuals,
+                  theta_bounds)
+from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significant
+from .jitter import scatter_reference, scatter_z
+from .physics import CANDIDATES, Candidate
+from .screen import Screen
+
+__all__ = ["PROFILE_NFEV", "REJECT_Z", "REJECT_P", "LinearFit", "fit_linear", "CandidateSearch", "search_candidates",
+           "jacobian", "probe_gain"]
+
+#: function evaluations per profile point of a candidate's grid (Td and tau only)
+PROFILE_NFEV = 6
+#: the linear model counts as rejected (and the candidates are fitted) when some feature is this many
+#: standard errors off, or the chi^2 of its fit has a p-value below REJECT_P
+REJECT_Z = 3.0
+REJECT_P = 0.01
+
+
+@dataclass(frozen=True)
+class LinearFit:
+    """The linear model fitted to the fitting cycles, and whether the recording rejects it.
+
+    Attributes
+    ----------
+    model, fit : CandidateModel, Fit
+        The linear model and its fit.
+    scatter : list of dict
+        Per test, the period scatter noise alone explains on a sampled relay (its ``setting``,
+        variance ``v0``, std ``s0`` [s] and degrees of freedom ``dof``).
+    chi2_scatter : float
+        The fitting cycles' period-scatter chi^2 against that reference (added to every model's).
+    n_all : int
+        Features in the BIC (the fitting cycles' features and one scatter per test).
+    bic : float
+        The linear model's BIC.
+    held_out : dict
+        Its held-out score (:func:`mrftcli.diagnose.heldout.held_out_score`).
+    p_value : float
+        The chi^2 p-value of its fit.
+    rejected : bool
+        Some feature of the fitting or the held-out cycles is :data:`REJECT_Z` standard errors off, or
+        ``p_value`` < :data:`REJECT_P`: the candidates are fitted.
+    """
+
+    model: CandidateModel
+    fit: Fit
+    scatter: list[dict]
+    chi2_scatter: float
+    n_all: int
+    bic: float
+    held_out: dict
+    p_value: float
+    rejected: bool
+
+
+def fit_linear(screen: Screen, Tp: float, path: str, say: Callable[[str], None]) -> LinearFit:
+    """Stage 2: the linear model's fit, its noise-only period scatter and whether it is rejected.
+
+    Raises
+    ------
+    DiagnoseError
+        The linear model reproduces no limit cycle close to the recorded ones.
+    """
+    tests = screen.tests
+    say("fitting the linear model")
+    model = CandidateModel(None, tests, Tp)
+    lo, hi = theta_bounds(None, tests)
+    base = fit_base(model, tests, Tp, lo, hi, screen.recs_fit)
+    if not base.ok:
+        raise DiagnoseError(f"{path}: the linear model reproduces no limit cycle close to the recorded ones")
+    say("simulating the noise-driven scatter")
+    scatter = scatter_reference(tests, model, base, screen.noise)
+    z_sc = scatter_z(tests, scatter, "fit", [sc["v0"] for sc in scatter])
+    chi2_scatter = float(z_sc @ z_sc)
+    n_all = base.n + len(tests)
+    before = held_out_score(model, base, tests, screen.recs_hold)
+    # is the linear model rejected at all? A candidate needs a chi^2 gain of BIC_THRESHOLD + ln n on
+    # the fitting cycles and HOLDOUT_THRESHOLD on the held-out ones; when every feature of both halves
+    # is within REJECT_Z standard errors and the chi^2 is what the noise gives, none is fitted
+    p_base = float(chi2_dist.sf(base.chi2, max(base.n - base.k, 1)))
+    rejected = (p_base < REJECT_P or float(np.max(np.abs(base.resid))) >= REJECT_Z
+                or (before.get("feature_max_abs_z") or 0.0) >= REJECT_Z)
+    return LinearFit(model=model, fit=base, scatter=scatter, chi2_scatter=chi2_scatter, n_all=n_all,
+                     bic=base.chi2 + chi2_scatter + base.k * math.log(n_all), held_out=before, p_value=p_base,
+                     rejected=rejected)
+
+
+@dataclass(frozen=True)
+class CandidateSearch:
+    """Every candidate fitted alone against the linear model (:func:`search_candidates`).
+
+    Attributes
+    ----------
+    rows : list of dict
+        Per deterministic candidate, in the library's order: its evidence and held-out scores, or
+        ``delta_bic`` None and a ``status`` saying why it was not fitted; ``significant`` on each.
+    fits : dict
+        name -> (model, fit) of each candidate fitted.
+    order : list of Candidate
+        The deterministic candidates in the order they were fitted (by their probe).
+    """
+
+    rows: list[dict]
+    fits: dict[str, tuple[CandidateModel, Fit]]
+    order: list[Candidate]
+
+
+def _status_row(cand: Candidate, status: str, probe: float | None = None, with_probe: bool = False) -> dict:
+    row: dict = {"name": cand.name, "parameter": cand.parameter, "unit": cand.unit, "delta_bic": None}
+    if with_probe:
+        row["probe_delta_chi2"] = probe
+    row["status"] = status
+    return row
+
+
+def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndarray, hi: np.ndarray,
+                    recs_fit: list) -> list[np.ndarray]:
+    """The starts worth a full fit from a candidate's grid of starts.
+
+    At each grid value Td and tau are fitted with the effect held (the effect and the delay trade off
+    along a curved valley; the starts are on it already, from the describing function, so a few steps
+    suffice); the best is kept, and the second best too when it is close.
+    """
+    prof = []
+    free = np.ones(len(starts[0]), bool)
+    free[2:] = False
+    for th in starts:
+        pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=PROFILE_NFEV, free=free)
+        if pf.ok and np.isfinite(pf.chi2):
+            prof.append(pf)
+    prof.sort(key=lambda f: f.chi2)
+    return [pf.theta for pf in prof[:2] if pf.chi2 <= 1.5 * prof[0].chi2 + BIC_THRESHOLD]
+
+
+def _fit_candidate(cand: Candidate, screen: Screen, linear: LinearFit, Tp: float,
+                   probe: float | None) -> tuple[dict, CandidateModel | None, Fit | None]:
+    """One candidate fitted alone: its row, and its model and fit (None when the fit failed)."""
+    tests, recs_fit = screen.tests, screen.recs_fit
+    model = CandidateModel(cand, tests, Tp)
+    lo, hi = theta_bounds(cand, tests)
+    best = None
+    starts = candidate_starts(cand, linear.fit, tests, recs_fit, Tp)
+    if len(starts) > 2:
+        starts = _profile_starts(model, starts, lo, hi, recs_fit)
+    for th in starts:
+        f = fit_model(model, th, lo, hi, recs_fit)
+        if f.ok and (best is None or f.chi2 < best.chi2):
+            best = f
+    if best is None:
+        return {"name": cand.name, "delta_bic": None, "status": "fit failed"}, None, None
+    chi2 = best.chi2 + linear.chi2_scatter
+    bic = chi2 + best.k * math.log(linear.n_all)
+    after = held_out_score(model, best, tests, screen.recs_hold)
+    value, std = effect_value(cand, model, best, model.unpack(best.theta))
+    row = {
+        "name": cand.name,
+        "parameter": cand.parameter,
+        "value": value,
+        "std": std,
+        "unit": cand.unit,
+        "chi2": chi2,
+        "bic": bic,
+        "delta_bic": linear.bic - bic,
+        "held_out_before": linear.held_out,
+        "held_out_after": after,
+        "fit_params": plant_params(model, best),
+        "probe_delta_chi2": probe,
+    }
+    return row, model, best
+
+
+def _probe_order(cands: list[Candidate], screen: Screen, linear: LinearFit, Tp: float) -> dict[str, float]:
+    """Each candidate's probe: at its starting values with Td and tau corrected by one Gauss-Newton
+    step on the linear model's Jacobian (3 limit cycles per start instead of a fit)."""
+    J_b = jacobian(linear.model, linear.fit.theta, screen.recs_fit)
+    return {cand.name: probe_gain(CandidateModel(cand, screen.tests, Tp),
+                                  candidate_starts(cand, linear.fit, screen.tests, screen.recs_fit, Tp),
+                                  linear.fit.chi2, J_b, screen.recs_fit)
+            for cand in cands}
+
+
+def search_candidates(screen: Screen, linear: LinearFit, names: list[str], Tp: float,
+                      say: Callable[[str], None]) -> CandidateSearch:
+    """Stage 3: each deterministic candidate of ``names`` fitted alone (when the linear model is rejected)."""
+    rows = []
+    fits: dict[str, tuple[CandidateModel, Fit]] = {}
+    order = [c for c in CANDIDATES if c.name in names and not c.stochastic]
+    probes: dict[str, float] = {}
+    if linear.rejected and order:
+        probes = _probe_order(order, screen, linear, Tp)
+        order.sort(key=lambda c: -probes[c.name])
+    explained_by = None
+    for cand in order:
+        say(f"fitting {cand.name}")
+        if not linear.rejected:
+            rows.append(_status_row(cand, "not fitted: the linear model is not rejected (every feature within "
+                                          f"{REJECT_Z:g} standard errors, chi^2 p = {linear.p_value:.2g})"))
+            continue
+        if explained_by is not None:
+            # a candidate already explains the fitting and the held-out cycles to the noise level: the
+            # others (tried in the order of their probes) could only tie with it within the noise
+            rows.append(_status_row(cand, f"not fitted: {explained_by} explains the cycles to the noise level",
+                                    probes.get(cand.name), with_probe=True))
+            continue
+        row, model, best = _fit_candidate(cand, screen, linear, Tp, probes.get(cand.name))
+        rows.append(row)
+        if model is None or best is None:
+            continue
+        fits[cand.name] = (model, best)
+        if (significant(row) and float(chi2_dist.sf(best.chi2, max(best.n - best.k, 1))) > REJECT_P
+                and explains_held_out(row["held_out_after"], screen.tests)):
+            explained_by = cand.name
+    for cand in CANDIDATES:
+        if cand.name in names and cand.stochastic:
+            say(f"fitting {cand.name}")  # judged after the deterministic selection, against the model chosen there
+    library = {c.name: i for i, c in enumerate(CANDIDATES)}
+    rows.sort(key=lambda r: library[r["name"]])  # the library's order in the output, whatever the fitting order
+    for row in rows:
+        row["significant"] = significant(row)
+    return CandidateSearch(rows=rows, fits=fits, order=order)
+
+
+def jacobian(model: CandidateModel, theta: np.ndarray, recs: list, step: float = 1e-3) -> np.ndarray:
+    """Forward-difference Jacobian of the stacked z residuals at ``theta`` (the fit's diff_step)."""
+    r0 = residuals(model, theta, recs)
+    cols = []
+    for j in range(theta.size):
+        th = theta.copy()
+        th[j] += step * max(abs(th[j]), 1.0)
+        r = residuals(model, th, recs)
+        if r is None or r0 is None:
+            return np.zeros((0 if r0 is None else r0.size, theta.size))
+        cols.append((r - r0) / (th[j] - theta[j]))
+    return np.column_stack(cols)
+
+
+def probe_gain(model: CandidateModel, starts: list[np.ndarray], chi2_ref: float, J: np.ndarray,
+                recs_fit: list) -> float:
+    """How much ``model`` lowers chi^2 below the reference fit's ``chi2_ref`` at its best start, the
+    residual's part along the reference's parameter directions (its Jacobian ``J``) taken out by one
+    Gauss-Newton step: one limit cycle per start instead of a fit."""
+    best = -np.inf
+    for th in starts:
+        r = residuals(model, th, recs_fit)
+        if r is None or not np.all(np.isfinite(r)):
+            continue
+        if J.shape[0] == r.size:
+            d, *_ = np.linalg.lstsq(J, r, rcond=None)
+            r = r - J @ d
+        best = max(best, chi2_ref - float(r @ r))
+    return float(best)

@@ -1,0 +1,421 @@
+"""Stage 4 of the diagnosis: the effects chosen, a second one by forward selection.
+
+The first effect is the significant single candidate with the largest delta BIC. A second effect is
+fitted on top of it (the pair model with the second's parameter at its null value is the first's
+model, so the pair can only do better) and kept on the same evidence and held-out rules against the
+first alone. When the first does not explain the held-out cycles, the next effects by evidence are
+paired too (the first may stand in for a pair whose members are not it), and a swap step lets the
+balance-shifting effects replace one another. Models within :data:`TIE_BIC` are named as
+indistinguishable (docs/benchmarks/diagnose.md, "pair stage").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, jacobian, probe_gain
+from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_value, fit_model, plant_params,
+                  residuals, theta_bounds)
+from .heldout import BIC_THRESHOLD, explains_held_out, fit_summary, harmonic_errors, held_out_score, significant
+from .physics import BY_NAME, Candidate
+from .records import EffectFinding, FinalModel
+from .screen import Screen
+
+__all__ = ["PAIR_PROBE_MIN", "RIVAL_ANCHORS", "TIE_BIC", "EffectSelection", "select_effects", "effect_finding",
+           "harmonics_before_after", "pair_starts", "pair_candidate", "pair_probe"]
+
+#: a second effect is fitted beside a first that already explains the held-out cycles only when its
+#: probe (one Gauss-Newton step from its starts) lowers the fitting cycles' chi^2 by this much
+PAIR_PROBE_MIN = 8.0
+#: effects after the first (by evidence alone) that are paired too when the first does not explain
+#: the held-out cycles
+RIVAL_ANCHORS = 2
+#: models whose BIC differ by less than this are reported as indistinguishable (Kass & Raftery: "not
+#: worth more than a bare mention")
+TIE_BIC = 2.0
+
+
+# --------------------------------------------------------------------------------------------------
+# one pair: starts, fit, probe
+
+
+def effect_finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> EffectFinding:
+    """The :class:`~mrftcli.diagnose.records.EffectFinding` of a candidate's (or a pair's) row."""
+    cand = BY_NAME[row["name"]]
+    return EffectFinding(
+        name=cand.name,
+        explanation=cand.explanation,
+        augmentation=cand.augmentation,
+        parameters={cand.parameter: row["value"], f"{cand.parameter}_std": row["std"], "unit": cand.unit,
+                    **(row.get("fit_params") or {})},
+        evidence={"delta_bic": row["delta_bic"], "bic": row["bic"], "n_features": n_all, "threshold": BIC_THRESHOLD,
+                  **evidence},
+        fit_before=fit_summary(row["held_out_before"]),
+        fit_after=fit_summary(row["held_out_after"]),
+        identification={k: v for k, v in ident.items() if v is not None},
+        harmonics=harm,
+    )
+
+
+def harmonics_before_after(tests: list[DiagnosedTest], base_model: CandidateModel, base: Fit, model: CandidateModel,
+                           fit: Fit) -> dict:
+    """Per test (its index as a string), the held-out cycles' relative G(j k Omega) errors of the model
+    compared with (``before``) and of the model with the effect (``after``)."""
+    out = {}
+    for i, t in enumerate(tests):
+        ev_b = base_model.evaluate(base.theta, i, t.tab.t_mid[t.hold].mean(), key=3000 + i)
+        ev_a = model.evaluate(fit.theta, i, t.tab.t_mid[t.hold].mean(), key=3000 + i)
+        if ev_b is None or ev_a is None:
+            continue
+        out[str(t.index)] = {
+            "before": harmonic_errors(t, t.hold, ev_b, base.K),
+            "after": harmonic_errors(t, t.hold, ev_a, fit.K),
+        }
+    return out
+
+
+#: the value of each candidate's scaled parameter at which its model is the linear one (the nested
+#: start of a pair fit); saturation's is its upper bound, the others' their lower bound when not listed
+_NULL = {"input_bias": 0.0, "gain_drift": 0.0, "asymmetric_gain": 0.0}
+#: the profiled candidates, whose starts carry their own Td and tau (they trade off against the delay)
+_PROFILED = ("sensor_lag", "actuator_rate_limit")
+
+
+def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Candidate, c2: Candidate, fits: dict, base: Fit,
+                 tests: list[DiagnosedTest], recs_fit: list, Tp: float, hi: np.ndarray) -> list[np.ndarray]:
+    """Starts of the pair (c1 fitted already, c2 added): c1's fit with c2 at its null value (the
+    nested model: the pair can only do better than c1 alone), at each of c2's own starts (their Td and
+    tau moved from c1's fit by what c2's start moved them from the linear fit), and, when c2 was
+    fitted alone, its single fit's value."""
+    m1, f1 = fits[c1.name]
+    j1, j2 = model.extra_index(c1.name), model.extra_index(c2.name)
+    k1 = m1.extra_index(c1.name)
+
+    def assemble(head: np.ndarray, x2: float | None) -> np.ndarray:
+        th = np.empty(lo.size)
+        th[:2] = head
+        if j1 is not None:
+            th[j1] = f1.theta[k1]
+        if j2 is not None and x2 is not None:
+            th[j2] = x2
+        return th
+
+    starts = []
+    if j2 is not None:
+        null = _NULL.get(c2.name, hi[j2] if c2.name == "actuator_saturation" else lo[j2])
+        starts.append(assemble(f1.theta[:2], null))
+    for s2 in candidate_starts(c2, base, tests, recs_fit, Tp):
+        head = f1.theta[:2].copy()
+        if c2.replaces_drag:
+            head = np.array([s2[0], f1.theta[1] + s2[1] - base.theta[1]])
+        elif c2.name in _PROFILED:
+            head = head + (s2[:2] - base.theta[:2]) if not c1.replaces_drag else np.array(
+                [head[0], head[1] + s2[1] - base.theta[1]])
+        starts.append(assemble(head, None if c2.replaces_drag else s2[2]))
+    if c2.name in fits and j2 is not None:
+        m2, f2 = fits[c2.name]
+        starts.append(assemble(f1.theta[:2], f2.theta[m2.extra_index(c2.name)]))
+    return starts
+
+
+def pair_candidate(first: dict, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
+                    recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int
+                   ) -> tuple[dict | None, CandidateModel | None, Fit | None]:
+    """Fit the first effect (its row ``first``, fitted alone already) and ``other`` together; evidence
+    and held-out scores against the first alone: the pair's row, model and fit (None, None, None when
+    the two cannot be paired or no fit succeeded).
+
+    The starts (:func:`_pair_starts`) are scored first (one limit cycle each) and the fit runs from
+    the best ones, so the pair never ends worse than the first alone (before, pair fits started only
+    from the two single fits and some ended at delta BIC -1e4 to -1e6). ``delta_bic`` =
+    BIC(first) - BIC(pair): the pair has one parameter more.
+    """
+    c1, c2 = BY_NAME[first["name"]], BY_NAME[other]
+    if c1.replaces_drag and c2.replaces_drag:
+        return None, None, None
+    model = CandidateModel((c1, c2), tests, Tp)
+    lo, hi = theta_bounds((c1, c2), tests)
+    scored = []
+    j2 = model.extra_index(c2.name)
+    for i, th in enumerate(pair_starts(model, lo, c1, c2, fits, base, tests, recs_fit, Tp, hi)):
+        th = np.clip(th, lo + 1e-9, hi - 1e-9)
+        if i > 0 and c2.name in _PROFILED and j2 is not None:
+            # a lag or a slew trades off against the delay along a curved valley (as alone): each of
+            # its starts is scored after a few steps with it held
+            free = np.ones(th.size, bool)
+            free[j2] = False
+            pf = fit_model(model, th, lo, hi, recs_fit, max_nfev=PROFILE_NFEV, free=free)
+            if pf.ok and np.isfinite(pf.chi2):
+                scored.append((pf.chi2, pf.theta))
+            continue
+        r = residuals(model, th, recs_fit)
+        if r is not None and np.all(np.isfinite(r)):
+            scored.append((float(r @ r), th))
+    if not scored:
+        return None, None, None
+    scored.sort(key=lambda x: x[0])
+    best = None
+    for chi2_start, th in scored[:2]:
+        if best is not None and chi2_start > 1.5 * scored[0][0] + BIC_THRESHOLD:
+            break
+        f = fit_model(model, th, lo, hi, recs_fit)
+        if f.ok and (best is None or f.chi2 < best.chi2):
+            best = f
+    if best is None:
+        return None, None, None
+    chi2 = best.chi2 + chi2_scatter
+    bic = chi2 + best.k * math.log(n_all)
+    p = model.unpack(best.theta)
+    values, stds = {}, {}
+    for c in (c1, c2):
+        values[c.name], stds[c.name] = effect_value(c, model, best, p)
+    return {
+        "name": c2.name,
+        "with": c1.name,
+        "parameter": c2.parameter,
+        "values": values,
+        "stds": stds,
+        "unit": c2.unit,
+        "chi2": chi2,
+        "bic": bic,
+        "delta_bic": first["bic"] - bic,
+        "held_out_before": first["held_out_after"],
+        "held_out_after": held_out_score(model, best, tests, recs_hold),
+        "fit_params": plant_params(model, best),
+    }, model, best
+
+
+def pair_probe(first: dict, cand: Candidate, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
+                recs_fit: list, Tp: float) -> float | None:
+    """:func:`_probe_gain` of the pair (the first effect fitted, ``cand`` added) against the first
+    alone (its Jacobian ``J1``), from the pair's starts other than the nested null one; None when the
+    two cannot be paired."""
+    c1 = BY_NAME[first["name"]]
+    if c1.replaces_drag and cand.replaces_drag:
+        return None
+    model = CandidateModel((c1, cand), tests, Tp)
+    lo, hi = theta_bounds((c1, cand), tests)
+    starts = pair_starts(model, lo, c1, cand, fits, base, tests, recs_fit, Tp, hi)
+    if model.extra_index(cand.name) is not None:
+        starts = starts[1:]  # the null start is the first alone: no gain
+    return probe_gain(model, [np.clip(th, lo + 1e-9, hi - 1e-9) for th in starts], fits[c1.name][1].chi2, J1,
+                       recs_fit)
+
+
+# --------------------------------------------------------------------------------------------------
+# the selection
+
+
+@dataclass(frozen=True)
+class EffectSelection:
+    """The deterministic effects chosen (:func:`select_effects`).
+
+    Attributes
+    ----------
+    effects : list of EffectFinding
+        The first effect and, when one passed the rules, the second (empty when no candidate did).
+    pair_rows : list of dict
+        Every pair fitted or probed: ``with`` (the anchor), the candidate added, its evidence and
+        held-out scores against the anchor alone, ``significant``.
+    final : FinalModel or None
+        The model finally chosen (for the jitter's reference, the unexplained check and the plots).
+    warnings : list of str
+        Ties among models the recording cannot rank.
+    """
+
+    effects: list[EffectFinding]
+    pair_rows: list[dict]
+    final: FinalModel | None
+    warnings: list[str]
+
+
+class _Pairs:
+    """The pair fits of one diagnosis: their rows, in the order fitted, and each row's joint fit."""
+
+    def __init__(self, screen: Screen, linear: LinearFit, fits: dict[str, tuple[CandidateModel, Fit]],
+                 Tp: float) -> None:
+        self.screen, self.linear, self.fits, self.Tp = screen, linear, fits, Tp
+        self.rows: list[dict] = []
+        self._joint: list[tuple[dict, CandidateModel, Fit]] = []
+
+    def pair(self, anchor: dict, other: str) -> dict | None:
+        """Fit ``anchor``'s effect and ``other`` together; the row (also kept), or None."""
+        sc, lin = self.screen, self.linear
+        pr, model, fit = pair_candidate(anchor, other, self.fits, lin.fit, sc.tests, self.Tp, sc.recs_fit,
+                                        sc.recs_hold, lin.chi2_scatter, lin.n_all)
+        if pr is not None and model is not None and fit is not None:
+            pr["significant"] = significant(pr)
+            self.rows.append(pr)
+            self._joint.append((pr, model, fit))
+        return pr
+
+    def joint(self, row: dict) -> tuple[CandidateModel, Fit]:
+        """The joint model and fit of a pair row."""
+        return next((m, f) for r, m, f in self._joint if r is row)
+
+    def probe(self, anchor: dict, cand: Candidate, J: np.ndarray) -> float | None:
+        """:func:`pair_probe` of ``cand`` beside ``anchor`` (its fit's Jacobian ``J``)."""
+        sc = self.screen
+        return pair_probe(anchor, cand, self.fits, J, self.linear.fit, sc.tests, sc.recs_fit, self.Tp)
+
+    def probed(self, first: dict, order: list[Candidate]) -> None:
+        """The first explains the held-out cycles to the noise level, yet a second effect can still be
+        plain on the fitting cycles (thrust rectification beside an asymmetric gain or a saturation:
+        delta BIC 40-65): every other candidate is probed, and only those whose probe clears
+        :data:`PAIR_PROBE_MIN` are fitted."""
+        m1, f1 = self.fits[first["name"]]
+        J1 = jacobian(m1, f1.theta, self.screen.recs_fit)
+        for cand in order:
+            if cand.name == first["name"]:
+                continue
+            gain = self.probe(first, cand, J1)
+            if gain is not None and gain >= PAIR_PROBE_MIN:
+                self.pair(first, cand.name)
+            else:
+                self.rows.append({"name": cand.name, "with": first["name"], "parameter": cand.parameter,
+                                  "unit": cand.unit, "values": {}, "delta_bic": None,
+                                  "probe_delta_chi2": gain, "significant": False,
+                                  "status": f"not fitted: its probe lowers chi^2 by less than {PAIR_PROBE_MIN:g}"})
+
+    def rivals(self, first: dict, second: dict | None, rivals: list[dict],
+               cand_rows: list[dict]) -> tuple[dict, dict | None]:
+        """The first may be a stand-in for a pair whose members are not it (a sensor lag imitates a
+        slew with quadratic drag; an asymmetric gain stood in for a gain drift beside a saturation),
+        so the next :data:`RIVAL_ANCHORS` effects by evidence alone are paired too (partners pruned by
+        their probe); such a pair replaces the first's only when it also passes the rules against the
+        first alone and has the lower BIC. Returns (anchor of the second, second)."""
+        tried = {frozenset((pr["with"], pr["name"])) for pr in self.rows}
+        anchor_of_second = first
+        for alt in rivals[:RIVAL_ANCHORS]:
+            m_alt, f_alt = self.fits[alt["name"]]
+            J_alt = None
+            for row in cand_rows:
+                if (row["name"] == alt["name"] or row["name"] not in self.fits
+                        or frozenset((alt["name"], row["name"])) in tried):
+                    continue
+                tried.add(frozenset((alt["name"], row["name"])))
+                if J_alt is None:
+                    J_alt = jacobian(m_alt, f_alt.theta, self.screen.recs_fit)
+                gain = self.probe(alt, BY_NAME[row["name"]], J_alt)
+                if gain is None or gain < PAIR_PROBE_MIN:
+                    continue
+                pr = self.pair(alt, row["name"])
+                if pr is None or not pr["significant"]:
+                    continue
+                against_first = dict(pr, delta_bic=first["bic"] - pr["bic"], held_out_before=first["held_out_after"])
+                if significant(against_first) and (second is None or pr["bic"] < second["bic"]):
+                    second, anchor_of_second = pr, alt
+        return anchor_of_second, second
+
+    def swap(self, first: dict, second: dict, deterministic: list[dict],
+             cand_rows: list[dict]) -> tuple[dict, dict]:
+        """The balance-shifting effects (a trim error, an asymmetric gain, a saturation) stand in for
+        one another, so the first effect found may be the stand-in for the true partner of the second:
+        with the second kept, each other effect significant alone takes the first's place, and the pair
+        with the lowest BIC is kept (it must pass the rules against the second effect alone, as the
+        first pair did against the first)."""
+        anchor = next(r for r in cand_rows if r["name"] == second["name"])
+        if anchor.get("significant"):
+            for row in deterministic[1:]:
+                if row["name"] == second["name"]:
+                    continue
+                pr = self.pair(anchor, row["name"])
+                if pr is not None and pr["significant"] and pr["bic"] < second["bic"]:
+                    first, second = anchor, pr
+        return first, second
+
+
+def _findings(first: dict, second: dict | None, pairs: _Pairs) -> tuple[list[EffectFinding], FinalModel]:
+    """The findings of the effects chosen and the model they make."""
+    lin, tests = pairs.linear, pairs.screen.tests
+    base_params = plant_params(lin.model, lin.fit)
+    m1, f1 = pairs.fits[first["name"]]
+    final = FinalModel(first["name"], m1, f1)
+    effects = [effect_finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
+                              harmonics_before_after(tests, lin.model, lin.fit, m1, f1),
+                              {"compared_with": "linear", "bic_base": lin.bic}, lin.n_all)]
+    if second is None:
+        return effects, final
+    mp, fp = pairs.joint(second)
+    final = FinalModel(f"{first['name']} + {second['name']}", mp, fp)
+    # with both effects modelled, both parameters come from the joint fit
+    par = BY_NAME[first["name"]].parameter
+    value, std = effect_value(BY_NAME[first["name"]], mp, fp, mp.unpack(fp.theta))
+    params = effects[0].parameters
+    params[f"{par}_alone"] = params[par]
+    params[f"{par}_alone_std"] = params[f"{par}_std"]
+    params[par], params[f"{par}_std"] = value, std
+    row2 = dict(second, name=second["name"], value=second["values"][second["name"]],
+                std=second["stds"][second["name"]])
+    effects.append(effect_finding(row2, {"linear": base_params, "with_effect": second["fit_params"],
+                                         "model": f"{first['name']}+{second['name']}"},
+                                  harmonics_before_after(tests, m1, f1, mp, fp),
+                                  {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, lin.n_all))
+    return effects, final
+
+
+def _ties(effects: list[EffectFinding], first: dict, second: dict | None, cand_rows: list[dict],
+          pair_rows: list[dict], fits: dict) -> list[str]:
+    """Models the recording cannot rank (BIC within :data:`TIE_BIC` of the one chosen, and passing the
+    same rules) are named (``evidence["indistinguishable_from"]``): the choice among them is not the
+    data's. Returns the warning, if any."""
+    chosen = {first["name"]} | ({second["name"]} if second is not None else set())
+    label: Callable[[dict], str]
+    if second is None:
+        rows, ref = [r for r in cand_rows if r.get("significant") and r["name"] in fits], first
+        label = lambda r: r["name"]  # noqa: E731
+    else:
+        rows, ref = [pr for pr in pair_rows if pr.get("significant")], second
+        label = lambda r: f"{r['with']}+{r['name']}"  # noqa: E731
+    ties = sorted({label(r) for r in rows
+                   if abs(r["bic"] - ref["bic"]) < TIE_BIC and set(label(r).split("+")) != chosen})
+    if not ties:
+        return []
+    for e in effects:
+        e.evidence["indistinguishable_from"] = ties
+    models = [first["name"] if second is None else f"{first['name']}+{second['name']}", *ties]
+    return [f"{', '.join(models[:-1])} and {models[-1]} fit these tests equally well "
+            f"(BIC within {TIE_BIC:g}): the tests cannot tell them apart; a test at another relay "
+            "height or beta, or longer tests, would"]
+
+
+def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, Tp: float,
+                   say: Callable[..., None]) -> EffectSelection:
+    """Stage 4: the first effect (the significant candidate with the largest delta BIC) and a second one
+    on top of it by forward selection, kept on the same evidence and held-out rules.
+
+    Every other candidate fitted is paired with the first, also one that fitted worse than the linear
+    model alone (quadratic drag beside a rate limit: alone it cannot take the linear drag the slew
+    imitates, with the slew modelled it is found); once the first explains the held-out cycles to the
+    noise level, only those whose probe clears :data:`PAIR_PROBE_MIN`.
+    """
+    cand_rows, fits = search.rows, search.fits
+    deterministic = sorted((r for r in cand_rows if r["significant"] and r["name"] in fits),
+                           key=lambda r: -r["delta_bic"])
+    if not deterministic:
+        return EffectSelection(effects=[], pair_rows=[], final=None, warnings=[])
+    first = deterministic[0]
+    say(f"testing a second effect on top of {first['name']}", more=1)
+    pairs = _Pairs(screen, linear, fits, Tp)
+    searched = not explains_held_out(first["held_out_after"], screen.tests)
+    if searched:
+        for row in cand_rows:
+            if row["name"] != first["name"] and row["name"] in fits:
+                pairs.pair(first, row["name"])
+    else:
+        pairs.probed(first, search.order)
+    good = sorted((pr for pr in pairs.rows if pr["significant"]), key=lambda r: -r["delta_bic"])
+    second = good[0] if good else None
+    if searched:
+        rivals = sorted((r for r in cand_rows if r["name"] in fits and r["name"] != first["name"]
+                         and (r.get("delta_bic") or -1.0) >= BIC_THRESHOLD), key=lambda r: -r["delta_bic"])
+        first, second = pairs.rivals(first, second, rivals, cand_rows)
+    if second is not None:
+        first, second = pairs.swap(first, second, deterministic, cand_rows)
+    effects, final = _findings(first, second, pairs)
+    warnings = _ties(effects, first, second, cand_rows, pairs.rows, fits)
+    return EffectSelection(effects=effects, pair_rows=pairs.rows, final=final, warnings=warnings)

@@ -1,0 +1,112 @@
+"""Stage 1 of the diagnosis: the tests to diagnose, their cycles measured and split, and their features.
+
+The tests are the ones ``analyze`` would use (refused for the same reasons), or the analysis' own
+when one is given; even stable cycles are the fitting set, odd ones are held out.
+"""
+
+from __future__ import annotations
+
+import warnings as pywarnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..analyze import log_start
+from ..errors import DiagnoseError, IdentificationError
+from ..io.logtypes import FlightLog
+from ..segment.records import MrftTest
+from .features import summarize_features
+from .fit import MIN_CYCLES, DiagnosedTest, feature_sigma, prepare_tests, segments_of
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
+
+__all__ = ["Screen", "screen_log"]
+
+
+@dataclass(frozen=True)
+class Screen:
+    """The tests a diagnosis works on (:func:`screen_log`).
+
+    Attributes
+    ----------
+    analysis : AnalysisResult or None
+        The analysis the tests come from (None when analyze refused the log).
+    segments : list of MrftTest
+        The segmenter's tests.
+    tests : list of DiagnosedTest
+        The tests with enough stable cycles, measured and split into fitting / held-out cycles.
+    noise : float
+        Sensor noise std [output units].
+    t0 : float
+        Log start [s].
+    recs_fit, recs_hold, recs_all : list of (FeatureSummary, ndarray)
+        Per test, the features of its fitting, held-out and all stable cycles and their standard errors.
+    warnings : list of str
+        What the user should know about the tests.
+    """
+
+    analysis: AnalysisResult | None
+    segments: list[MrftTest]
+    tests: list[DiagnosedTest]
+    noise: float
+    t0: float
+    recs_fit: list
+    recs_hold: list
+    recs_all: list
+    warnings: list[str]
+
+
+def _analysis_of(flight: FlightLog, Tp: float) -> tuple[AnalysisResult | None, str | None]:
+    """The tests analyze would use, refused for the same reasons (one beta: exit 6; an output that
+    does not follow the relay: the --loop / --output-topic hint), so the two commands agree on what a
+    log supports; the identification's bootstrap and refinement are not needed here. Returns the
+    analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests' frequencies."""
+    from ..analyze import analyze_flight
+
+    with pywarnings.catch_warnings():
+        # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
+        pywarnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            return analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False), None
+        except IdentificationError as exc:
+            # analyze must refuse, but that is the strongest sign of missing physics there is, so the
+            # diagnosis fits the cycles itself
+            return None, str(exc)
+
+
+def screen_log(flight: FlightLog, Tp: float, analysis: AnalysisResult | None,
+               say: Callable[[str], None]) -> Screen:
+    """Stage 1: the tests, their cycles and features (``analysis`` reused when given).
+
+    Raises
+    ------
+    DiagnoseError
+        No test has :data:`~mrftcli.diagnose.fit.MIN_CYCLES` stable cycles.
+    """
+    say("segmenting")
+    refused_by_linear = None  # analyze's IdentificationError, when the diagnosis goes on without it
+    if analysis is None:
+        analysis, refused_by_linear = _analysis_of(flight, Tp)
+    segs = segments_of(flight, analysis)
+    t0_log = log_start(flight)
+    tests, noise, warnings = prepare_tests(flight, segs)
+    if refused_by_linear is not None:
+        warnings.append(f"analyze refuses this log ({refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
+                        "recorded cycles with the linear model and each candidate directly")
+    if not tests:
+        raise DiagnoseError(
+            f"{flight.path}: no MRFT test with at least {MIN_CYCLES} stable cycles; the diagnosis compares "
+            "cycles, so record longer tests"
+        )
+    if len({round(np.mean(t.beta), 2) for t in tests}) < 2:
+        warnings.append("all tests share one beta: Td and tau are fitted from the waveform shape alone (weakly identified)")
+    recs: tuple[list, list, list] = ([], [], [])
+    for t in tests:
+        for mask, store in zip((t.fit, t.hold, np.ones(len(t.tab), bool)), recs):
+            feats = summarize_features(t.tab.subset(mask))
+            store.append((feats, feature_sigma(feats.sigma, feats.values)))
+    return Screen(analysis=analysis, segments=segs, tests=tests, noise=noise, t0=t0_log, recs_fit=recs[0],
+                  recs_hold=recs[1], recs_all=recs[2], warnings=warnings)

@@ -8,8 +8,11 @@ exception is reported as an internal error in one line (``--debug`` shows the tr
 
 from __future__ import annotations
 
+import difflib
 import importlib
+import os
 import sys
+from pathlib import Path
 
 import click
 
@@ -44,7 +47,19 @@ class _LazyGroup(click.Group):
             return None
         module_name, attr, _ = COMMANDS[cmd_name]
         module = importlib.import_module(f"mrftcli.cli.{module_name}")
-        return getattr(module, attr)
+        command: click.Command = getattr(module, attr)
+        return command
+
+    def resolve_command(
+        self, ctx: click.Context, args: list[str]
+    ) -> tuple[str | None, click.Command | None, list[str]]:
+        # A misspelt command ("analyse", the British spelling the docs' prose uses) gets a suggestion.
+        name = args[0] if args else ""
+        if name and not name.startswith("-") and name not in COMMANDS:
+            close = difflib.get_close_matches(name, list(COMMANDS), n=1, cutoff=0.6)
+            hint = f": did you mean '{close[0]}'?" if close else ""
+            raise click.UsageError(f"no command '{name}'{hint}", ctx)
+        return super().resolve_command(ctx, args)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         # Short help without importing every command module.
@@ -66,10 +81,31 @@ def cli(ctx: click.Context, debug: bool) -> None:
     ctx.obj["debug"] = debug
 
 
+def _matplotlib_font_cache_missing() -> bool:
+    """True when matplotlib has no font cache yet (its first import then takes 10-40 s to build one).
+
+    Looked up without importing matplotlib: ``$MPLCONFIGDIR``, else ``$XDG_CACHE_HOME/matplotlib``, else
+    ``~/.cache/matplotlib`` (matplotlib's own order on Linux and macOS).
+    """
+    configured = os.environ.get("MPLCONFIGDIR")
+    if configured:
+        cache = Path(configured)
+    else:
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "matplotlib"
+    return not any(cache.glob("fontlist-v*.json"))
+
+
+#: Commands that import matplotlib (directly, or through python-control).
+_PLOTTING = {"analyze", "diagnose", "tune", "batch", "plan", "watch", "compare", "simulate"}
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the CLI and map errors to one line and an exit code."""
     args = sys.argv[1:] if argv is None else argv
     debug = "--debug" in args
+    if (any(a in _PLOTTING for a in args[:2]) and not {"-h", "--help"} & set(args)
+            and _matplotlib_font_cache_missing()):
+        click.echo("note: first run: matplotlib is building its font cache (once, 10-40 s)", err=True)
     try:
         cli.main(args=args, prog_name="mrft-ident", standalone_mode=False)
     except click.exceptions.Abort:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize
@@ -38,9 +39,9 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from ..validate import check_positive
-from .closed_loop import (SETTLING_BAND, Controller, StepMetrics, as_discrete, criterion, discrete_plants, responses,
+from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, StepMetrics, as_discrete, criterion, discrete_plants, responses,
                           step_metrics)
-from .margins import Margins, frequency_grid, grid_margins, margins, plant_response
+from .margins import LoopMargins, Margins, frequency_grid, loop_margins, plant_response
 
 __all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3"]
@@ -381,15 +382,18 @@ def _load_figures(t: np.ndarray, y: np.ndarray, size: float, objective: str) -> 
             "recovery_s": rec}
 
 
-def _summaries(c: Controller, post: Posterior, plants, objective: str, horizon: float, omega, Gd_all,
-               load: float = 0.0) -> tuple[dict, float]:
-    """Figures over the posterior (``plants``: its draws discretised); the expected criterion."""
+def _summaries(c: Controller, post: Posterior, plants: list[DiscretePlant], objective: str, horizon: float,
+               load: float = 0.0) -> tuple[dict[str, Any], float, LoopMargins]:
+    """Figures over the posterior (``plants``: its draws discretised); the expected criterion; the draws' margins.
+
+    The margins are :func:`loop_margins` of every draw, the same computation as the nominal figure's.
+    """
     t, y, u, yl, _ = responses(plants, c, horizon, load)
     rows = [step_metrics(t, y[i], u[i]) for i in range(post.n)]
-    gm = grid_margins(c, Gd_all, omega)
+    mg = loop_margins(c, post.models(), plants)
     table = {
-        "phase_margin_deg": gm["phase_margin_deg"], "gain_margin": gm["gain_margin"], "Ms": gm["Ms"],
-        "delay_margin_ms": gm["delay_margin_s"] * 1e3,
+        "phase_margin_deg": mg.phase_margin_deg, "gain_margin": mg.gain_margin, "Ms": mg.Ms,
+        "delay_margin_ms": mg.delay_margin_s * 1e3,
         "overshoot_pct": np.array([r.overshoot_pct for r in rows]),
         "rise_s": np.array([r.rise_s for r in rows]), "settling_s": np.array([r.settling_s for r in rows]),
         objective: np.array([getattr(r, objective) for r in rows]),
@@ -410,8 +414,8 @@ def _summaries(c: Controller, post: Posterior, plants, objective: str, horizon: 
         crit = crit + criterion(t, 1.0 - yl, objective)
     expected = float(np.mean(crit)) if np.all(np.isfinite(crit)) else math.inf
     return {"median": med, "worst": worst, "n_draws": post.n, "n_in_set": int(in_set.sum()),
-            "delay_margin": "first-order (phase margin / gain crossover) per draw",
-            "unstable_in_set": int(np.sum(~np.isfinite(crit[in_set])))}, expected
+            "delay_margin": "exact for the sampled loop, per draw (as the nominal figure)",
+            "unstable_in_set": int(np.sum(~mg.stable[in_set]))}, expected, mg
 
 
 def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None, objective: str = "iae",
@@ -511,7 +515,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
                 if ev_all.violation(c) > 0:
                     c = _optimise(ev_all, c)
         found[(name, kind)] = c
-        mg = margins(model, c)
+        mg = loop_margins(c, [model], nominal)[0]
         t, y, u, yl, _ = responses(nominal, c, horizon, load)
         st = step_metrics(t, y[0], u[0])
         J = getattr(st, objective)
@@ -521,7 +525,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
             J = J + load_fig[objective]
         post, expected = ({}, math.nan)
         if posterior is not None:
-            post, expected = _summaries(c, posterior, post_plants, objective, horizon, omega, Gd_all, load)
+            post, expected, _ = _summaries(c, posterior, post_plants, objective, horizon, load)
         cons = {"ms_max": ms_max, "effort_max": effort_max, "noise_gain": c.noise_gain(),
                 "feasible": bool(mg.Ms <= ms_max * (1 + 1e-3) and c.noise_gain() <= effort_max * (1 + 1e-9))}
         if name == "robust" and post:

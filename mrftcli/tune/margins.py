@@ -1,27 +1,39 @@
 """Frequency-domain figures of the sampled loop: gain, phase and delay margins, sensitivity peak Ms.
 
 The loop is L(z) = C_fb(z) Gd(z) (broken at the plant input), with Gd the exact zero-order-hold
-equivalent of the plant and its delay (:func:`mrftcli.tune.closed_loop.discrete_plant`: the
-fractional part of the delay is exact, no Pade approximant) and C_fb the controller from -y to u.
-python-control does the frequency-domain work (:func:`control.stability_margins`, frequency
-responses); the delay margin is found exactly in the time domain: the extra transport delay at which
-the sampled closed loop (:func:`mrftcli.tune.closed_loop.closed_loop_matrices`) loses stability,
-bracketed from the first-order estimate phase margin / crossover frequency and bisected.
+equivalent of the plant and its delay (:func:`mrftcli.tune.closed_loop.plant_transfer`: the delay is
+the phase term z^{-d} and its fractional part is in the hold, no Pade approximant, no delay states)
+and C_fb the controller from -y to u. One computation, :func:`loop_margins`, gives every figure for
+any number of loops at once, the nominal model and the posterior's draws alike (:func:`margins` is
+its one-loop case), so the nominal figure is always one of the draws' figures:
+
+* the crossings are bracketed on a frequency grid (log-spaced, plus a linear part fine enough that
+  the delay's phase turns by less than 0.25 rad between points, so its size grows linearly with the
+  delay) and refined by bisection on the exact response;
+* gain and phase margins are chosen as :func:`control.stability_margins` does (the phase margin of
+  smallest magnitude, the gain margin closest to 1 in log);
+* stability is the Nyquist criterion on the unit circle, indented around the integrators at z = 1;
+* the delay margin is exact for the sampled loop: an extra delay of whole ticks j T turns L by
+  e^{-j omega j T} and leaves |L| alone, so the tick in which the phase margin runs out is known in
+  closed form and the fraction of a tick is bisected on the loop rediscretised with that delay.
+
+The python-control models (:func:`plant_system`, :func:`loop_system`) are kept as the tests' check.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..mrft.model import LoopModel
-from .closed_loop import Controller, as_discrete, closed_loop_matrices, discrete_plant, spectral_radius
+from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, discrete_plant, plants_of_parameters
 
-__all__ = ["Margins", "plant_system", "controller_system", "loop_system", "margins", "frequency_grid",
-           "plant_response", "sensitivity_peak", "grid_margins"]
+__all__ = ["Margins", "LoopMargins", "plant_system", "controller_system", "loop_system", "margins", "loop_margins",
+           "frequency_grid", "margin_grid", "plant_response", "sensitivity_peak"]
 
 
 @dataclass(frozen=True)
@@ -114,23 +126,29 @@ def frequency_grid(rate_hz: float, n: int = 600) -> np.ndarray:
     return np.geomspace(w_nyq * 1e-4, w_nyq * 0.999, n)
 
 
-def plant_response(models, rate_hz: float, omega: np.ndarray) -> np.ndarray:
-    """Gd(e^{j omega T}) of each model (LoopModel or DiscretePlant), shape (M, len(omega)).
+def margin_grid(rate_hz: float, d_max: int) -> np.ndarray:
+    """Frequencies [rad/s] that bracket every crossing of a loop with a delay of up to ``d_max`` ticks.
 
-    Gd(z) = C (z I - Phi)^{-1} (Gamma_b + Gamma_a / z) z^{-d} from :func:`discrete_plant`, evaluated
-    directly (vectorised; the same system as :func:`plant_system`, whose python-control frequency
-    response the tests compare it with).
+    1200 log-spaced points from 1e-6 of Nyquist, and a linear grid on which z^{-(d_max + 4)} turns by
+    at most 0.25 rad per step (so it grows linearly with the delay); the last point is just below
+    Nyquist.
     """
-    omega = np.asarray(omega, float)
-    z = np.exp(1j * omega / rate_hz)
-    out = np.empty((len(models), omega.size), complex)
-    eye = np.eye(3)
-    for i, p in enumerate(as_discrete(models, rate_hz)):
-        Phi, Gam, C, d = p
-        rhs = Gam[1][None, :] + Gam[0][None, :] / z[:, None]
-        x = np.linalg.solve(z[:, None, None] * eye[None] - Phi[None], rhs[..., None])[..., 0]
-        out[i] = (x @ C) * z ** (-d)
-    return out
+    w_nyq = math.pi * rate_hz
+    n_lin = int(math.ceil(math.pi * (d_max + 4) / 0.25))
+    w = np.union1d(np.geomspace(w_nyq * 1e-6, w_nyq, 1200), np.linspace(0.0, w_nyq, n_lin + 1)[1:])
+    return np.append(w[w < w_nyq * (1 - 1e-9)], w_nyq * (1 - 1e-9))
+
+
+def plant_response(models: Sequence[LoopModel | DiscretePlant], rate_hz: float, omega: np.ndarray) -> np.ndarray:
+    """Gd(e^{j omega T}) of each model (LoopModel or DiscretePlant), shape (M, len(omega)), omega in rad/s.
+
+    :func:`mrftcli.tune.closed_loop.plant_transfer` on the unit circle (the same system as
+    :func:`plant_system`, whose python-control frequency response the tests compare it with).
+    """
+    plants = as_discrete(models, rate_hz)
+    if not plants:
+        return np.empty((0, np.size(omega)), complex)
+    return PlantStack.of(plants).transfer(np.exp(1j * np.asarray(omega, float) / rate_hz))
 
 
 def sensitivity_peak(controller: Controller, Gd: np.ndarray, omega: np.ndarray) -> np.ndarray:
@@ -139,98 +157,222 @@ def sensitivity_peak(controller: Controller, Gd: np.ndarray, omega: np.ndarray) 
     return np.max(1.0 / np.abs(1.0 + L), axis=-1)
 
 
-def _stable(model: LoopModel, controller: Controller, extra: float) -> bool:
-    A, *_ = closed_loop_matrices([replace(model, tau=model.tau + extra)], controller)
-    return bool(spectral_radius(A)[0] < 1.0 - 1e-12)
+@dataclass(frozen=True, eq=False)
+class LoopMargins:
+    """The figures of :class:`Margins` for M loops (arrays of shape (M,)); ``[i]`` is loop i's Margins."""
+
+    gain_margin: np.ndarray
+    phase_margin_deg: np.ndarray
+    delay_margin_s: np.ndarray
+    Ms: np.ndarray
+    w_gc: np.ndarray
+    w_pc: np.ndarray
+    stable: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.stable.size)
+
+    def __getitem__(self, i: int) -> Margins:
+        return Margins(float(self.gain_margin[i]), float(self.phase_margin_deg[i]), float(self.delay_margin_s[i]),
+                       float(self.Ms[i]), float(self.w_gc[i]), float(self.w_pc[i]), bool(self.stable[i]))
 
 
 def margins(model: LoopModel, controller: Controller) -> Margins:
-    """Gain, phase and delay margins and Ms of the sampled loop (see the module docstring)."""
-    import control
-
-    stable = _stable(model, controller, 0.0)
-    L = loop_system(model, controller)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        gm, pm, sm, wpc, wgc, _ = control.stability_margins(L)
-    gm = float(gm) if gm is not None and np.isfinite(gm) else math.inf
-    pm = float(pm) if pm is not None and np.isfinite(pm) else math.nan
-    # Ms on a dense grid as well: the loop's peak can fall between the points stability_margins samples
-    w = frequency_grid(controller.rate_hz, 2000)
-    Ms_grid = float(sensitivity_peak(controller, plant_response([model], controller.rate_hz, w), w)[0])
-    Ms = max(1.0 / float(sm) if sm and np.isfinite(sm) and sm > 0 else math.inf, Ms_grid) if stable else math.inf
-    if not stable:
-        return Margins(gm, pm, 0.0, math.inf, float(wgc), float(wpc), False)
-    dm = _delay_margin(model, controller, pm, float(wgc))
-    return Margins(gm, pm, dm, Ms, float(wgc), float(wpc), True)
+    """Gain, phase and delay margins and Ms of the sampled loop on ``model`` (:func:`loop_margins` of one loop)."""
+    return loop_margins(controller, [model])[0]
 
 
-#: Above this many samples of extra delay the delay margin is the first-order figure (the exact one
-#: needs the eigenvalues of a closed-loop matrix this large).
-_EXACT_DELAY_SAMPLES = 300
+#: Regula falsi steps (:func:`_root`): on log frequency within a grid interval, and on the fraction
+#: of a tick of the delay margin.
+_ROOT_STEPS = 16
 
 
-def _delay_margin(model: LoopModel, controller: Controller, pm_deg: float, wgc: float) -> float:
-    guess = math.radians(pm_deg) / wgc if np.isfinite(pm_deg) and pm_deg > 0 and wgc > 0 else 10 * controller.Ts
-    if guess * controller.rate_hz > _EXACT_DELAY_SAMPLES:
-        return guess
-    hi = None
-    lo = 0.0
-    for f in np.linspace(0.25, 3.0, 12):
-        if not _stable(model, controller, f * guess):
-            hi = f * guess
-            break
-        lo = f * guess
-    if hi is None:
-        return math.inf
-    for _ in range(10):  # 1/1024 of the bracket: well below a sample period
-        mid = 0.5 * (lo + hi)
-        if _stable(model, controller, mid):
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
+def _root(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, n: int,
+          f_lo: np.ndarray | None = None, f_hi: np.ndarray | None = None) -> np.ndarray:
+    """A root of each f in [lo, hi] (vectorised over the brackets, a sign change in each).
+
+    Regula falsi with the Illinois modification (superlinear; a bracket of 1 % shrinks below 1e-13
+    in about a dozen steps), so a refinement costs a few evaluations of the loop, whatever the delay.
+    """
+    f_lo = f(lo) if f_lo is None else f_lo
+    f_hi = f(hi) if f_hi is None else f_hi
+    side = np.zeros(lo.shape)
+    for _ in range(n):
+        den = f_hi - f_lo
+        x = np.where(den != 0.0, (lo * f_hi - hi * f_lo) / np.where(den != 0.0, den, 1.0), 0.5 * (lo + hi))
+        fx = f(x)
+        left = np.sign(fx) == np.sign(f_lo)  # the root is in [x, hi]
+        lo, hi = np.where(left, x, lo), np.where(left, hi, x)
+        f_lo, f_hi = np.where(left, fx, f_lo), np.where(left, f_hi, fx)
+        # Illinois: an end kept twice running has its value halved (no one-sided creeping)
+        f_hi = np.where(left & (side > 0), 0.5 * f_hi, f_hi)
+        f_lo = np.where(~left & (side < 0), 0.5 * f_lo, f_lo)
+        side = np.where(left, 1.0, -1.0)
+    den = f_hi - f_lo
+    return np.where(den != 0.0, (lo * f_hi - hi * f_lo) / np.where(den != 0.0, den, 1.0), 0.5 * (lo + hi))
 
 
-def grid_margins(controller: Controller, Gd: np.ndarray, omega: np.ndarray) -> dict:
-    """Margins of many loops at once from their responses on a frequency grid (posterior figures).
+def _golden_min(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, n: int = 40) -> np.ndarray:
+    """The minimiser of each unimodal f on [lo, hi] by golden section (vectorised over the brackets)."""
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo.copy(), hi.copy()
+    for _ in range(n):
+        c, d = b - g * (b - a), a + g * (b - a)
+        left = f(c) < f(d)
+        a, b = np.where(left, a, c), np.where(left, d, b)
+    return 0.5 * (a + b)
 
-    ``Gd`` has shape (M, W) (:func:`plant_response`). The phase of L is unwrapped from the lowest
-    frequency; crossovers are interpolated linearly in log frequency. The delay margin here is the
-    first-order figure phase margin / gain crossover (the exact sampled one is :func:`margins`').
+
+def _first_per_row(rows: np.ndarray, key: np.ndarray, M: int) -> np.ndarray:
+    """Per row, the index (into rows/key) of the smallest key; -1 for a row with none."""
+    out = np.full(M, -1)
+    if rows.size:
+        order = np.lexsort((key, rows))
+        first = np.ones(order.size, bool)
+        first[1:] = rows[order][1:] != rows[order][:-1]
+        out[rows[order[first]]] = order[first]
+    return out
+
+
+class _Loop:
+    """L(e^{j omega T}) of M loops at a frequency per bracket (row index ``rows``), for the refinements."""
+
+    def __init__(self, controller: Controller, stack: PlantStack) -> None:
+        self.c, self.stack, self.T = controller, stack, controller.Ts
+
+    def at(self, rows: np.ndarray, log_w: np.ndarray, stack: PlantStack | None = None) -> np.ndarray:
+        w = np.exp(log_w)
+        st = (stack or self.stack.take(rows))
+        return self.c.feedback_response(w) * st.transfer(np.exp(1j * w * self.T)[:, None])[:, 0]
+
+
+def _crossings(sign_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, k) where a row of values changes sign between grid points k and k + 1."""
+    s = np.sign(sign_of)
+    return np.nonzero((s[:, :-1] * s[:, 1:] < 0) | ((s[:, 1:] == 0) & (s[:, :-1] != 0)))
+
+
+def _nyquist_stable(controller: Controller, L: np.ndarray) -> np.ndarray:
+    """Nyquist criterion on the unit circle (open loop: poles inside, m integrators at z = 1 indented).
+
+    Going round the circle from z = 1+ to 1- and round z = 1 outside, the winding of 1 + L about 0 is
+    (2 Delta arg_{(0, pi)} (1 + L) - m pi) / 2 pi (L is real on the real axis and conjugate-symmetric;
+    the arc about z = 1, where L ~ c / (z - 1)^m, turns it by -m pi). Stable: no winding.
+    """
+    m = 1 + (controller.Ki > 0)  # the plant's integrator, and the controller's
+    ph = np.unwrap(np.angle(1.0 + L), axis=-1)
+    winding = (2.0 * (ph[:, -1] - ph[:, 0]) - m * math.pi) / (2.0 * math.pi)
+    return np.rint(winding) == 0
+
+
+def loop_margins(controller: Controller, models: Sequence[LoopModel],
+                 plants: Sequence[DiscretePlant] | None = None) -> LoopMargins:
+    """Gain, phase and delay margins, Ms and stability of the sampled loop on each of ``models``.
+
+    Parameters
+    ----------
+    controller : Controller
+    models : sequence of LoopModel
+        The plants (the nominal model, or the posterior's draws).
+    plants : sequence of DiscretePlant, optional
+        ``models`` already discretised at the controller rate (saves that step).
 
     Returns
     -------
-    dict of arrays (M,)
-        ``phase_margin_deg`` (smallest over the gain crossovers), ``gain_margin`` (smallest over the
-        -180 deg crossings, inf if none), ``Ms``, ``w_gc`` and ``delay_margin_s``.
+    LoopMargins
+        Per loop: gain margin [-] (inf without a -180 deg crossing), phase margin [deg] (inf without a
+        gain crossover), delay margin [s] (0 when unstable), Ms [-] (inf when unstable), the
+        crossover frequencies [rad/s] and the stability flag (module docstring for the method).
     """
-    L = controller.feedback_response(omega)[None, :] * Gd
-    mag = np.abs(L)
-    ph = np.unwrap(np.angle(L), axis=-1)
-    lw = np.log(omega)
-    M = L.shape[0]
-    pm = np.full(M, np.inf)
-    wgc = np.full(M, np.nan)
-    gm = np.full(M, np.inf)
-    lm = np.log(mag)
-    for i in range(M):
-        s = np.nonzero((lm[i, :-1] > 0) & (lm[i, 1:] <= 0))[0]
-        for k in s:
-            f = lm[i, k] / (lm[i, k] - lm[i, k + 1])
-            p = ph[i, k] + f * (ph[i, k + 1] - ph[i, k])
-            margin = math.degrees(p) + 180.0
-            # the phase is unwrapped from -90 or -180 deg; bring the margin into (-180, 180]
-            margin = (margin + 180.0) % 360.0 - 180.0
-            if margin < pm[i]:
-                pm[i] = margin
-                wgc[i] = math.exp(lw[k] + f * (lw[k + 1] - lw[k]))
-        q = ph[i] + math.pi
-        c = np.nonzero((q[:-1] > 0) & (q[1:] <= 0))[0]
-        for k in c:
-            f = q[k] / (q[k] - q[k + 1])
-            g = math.exp(lm[i, k] + f * (lm[i, k + 1] - lm[i, k]))
-            gm[i] = min(gm[i], 1.0 / g)
-    Ms = np.max(1.0 / np.abs(1.0 + L), axis=-1)
-    dm = np.where(np.isfinite(wgc) & (pm > 0), np.radians(pm) / np.where(np.isfinite(wgc), wgc, 1.0), 0.0)
-    return {"phase_margin_deg": pm, "gain_margin": gm, "Ms": Ms, "w_gc": wgc, "delay_margin_s": dm}
+    models = list(models)
+    plants = as_discrete(plants if plants is not None else models, controller.rate_hz)
+    M = len(plants)
+    stack = PlantStack.of(plants)
+    w = margin_grid(controller.rate_hz, int(stack.d.max()))
+    lw = np.log(w)
+    L = controller.feedback_response(w)[None, :] * stack.transfer(np.exp(1j * w / controller.rate_hz))
+    loop = _Loop(controller, stack)
+    stable = _nyquist_stable(controller, L)
+    pm, wgc, cand = _phase_margins(loop, L, lw, M)
+    gm, wpc = _gain_margins(loop, L, lw, M)
+    Ms = _sensitivity_peaks(loop, L, lw)
+    dm = _delay_margins(loop, models, cand, stable, M)
+    Ms = np.where(stable, Ms, np.inf)
+    return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
+
+
+def _phase_margins(loop: _Loop, L: np.ndarray, lw: np.ndarray, M: int):
+    """Phase margin [deg] of smallest magnitude per loop and its crossover; all the crossovers found."""
+    rows, k = _crossings(np.log(np.abs(L)))
+    x = _root(lambda x: np.log(np.abs(loop.at(rows, x))), lw[k], lw[k + 1], _ROOT_STEPS)
+    pm_all = np.remainder(np.degrees(np.angle(loop.at(rows, x))), 360.0) - 180.0
+    pick = _first_per_row(rows, np.abs(pm_all), M)
+    has = pick >= 0
+    pm = np.where(has, pm_all[pick], np.inf)
+    wgc = np.where(has, np.exp(x[pick]), np.nan)
+    return pm, wgc, (rows, x, pm_all)
+
+
+def _gain_margins(loop: _Loop, L: np.ndarray, lw: np.ndarray, M: int):
+    """Gain margin closest to 1 (in log) over the crossings of the negative real axis, and its frequency."""
+    rows, k = _crossings(L.imag)
+    near = (L.real[rows, k] < 0) | (L.real[rows, k + 1] < 0)
+    rows, k = rows[near], k[near]
+    x = _root(lambda x: loop.at(rows, x).imag, lw[k], lw[k + 1], _ROOT_STEPS)
+    Lx = loop.at(rows, x)
+    neg = Lx.real <= 0
+    rows, x = rows[neg], x[neg]
+    with np.errstate(divide="ignore"):
+        gm_all = 1.0 / np.abs(Lx[neg])
+        pick = _first_per_row(rows, np.abs(np.log(gm_all)), M)
+    has = pick >= 0
+    return np.where(has, gm_all[pick], np.inf), np.where(has, np.exp(x[pick]), np.nan)
+
+
+def _sensitivity_peaks(loop: _Loop, L: np.ndarray, lw: np.ndarray) -> np.ndarray:
+    """max |1 / (1 + L)|: the grid's peak refined between its neighbours by golden section."""
+    dist = np.abs(1.0 + L)
+    k = np.argmin(dist, axis=-1)
+    rows = np.arange(L.shape[0])
+    lo, hi = lw[np.maximum(k - 1, 0)], lw[np.minimum(k + 1, lw.size - 1)]
+    stack = loop.stack
+    x = _golden_min(lambda x: np.abs(1.0 + loop.at(rows, x, stack)), lo, hi)
+    return 1.0 / np.minimum(dist[rows, k], np.abs(1.0 + loop.at(rows, x, stack)))
+
+
+def _delay_margins(loop: _Loop, models: Sequence[LoopModel], cand, stable: np.ndarray, M: int) -> np.ndarray:
+    """The extra delay [s] at which each stable loop loses stability (module docstring): the smallest
+    over its gain crossovers of positive phase margin; inf with none, 0 when unstable."""
+    rows, x, pm_all = cand
+    keep = (pm_all > 0) & stable[rows]
+    rows, x, pm_all = rows[keep], x[keep], pm_all[keep]
+    out = np.where(stable, np.inf, 0.0)
+    if not rows.size:
+        return out
+    T = loop.T
+    w = np.exp(x)
+    ticks = np.floor(np.radians(pm_all) / w / T)  # the last whole tick of delay the crossover survives
+    par = {k: np.array([getattr(models[r], k) for r in rows], float) for k in ("Tp", "Td", "tau", "K")}
+    rate = loop.c.rate_hz
+    span = math.log(1.1)  # the crossover moves little with the hold's fraction: track it within 10 %
+
+    def margin_left(frac: np.ndarray) -> np.ndarray:
+        stack = PlantStack.of(plants_of_parameters(par["Tp"], par["Td"], par["tau"] + ticks * T + frac, par["K"],
+                                                   rate))
+
+        def log_gain(y: np.ndarray) -> np.ndarray:
+            return np.log(np.abs(loop.at(rows, y, stack)))
+
+        lo, hi = x - span, x + span
+        g_lo, g_hi = log_gain(lo), log_gain(hi)
+        ok = np.sign(g_lo) != np.sign(g_hi)
+        xc = np.where(ok, _root(log_gain, lo, hi, _ROOT_STEPS, g_lo, g_hi), x)
+        return np.remainder(np.degrees(np.angle(loop.at(rows, xc, stack))), 360.0) - 180.0
+
+    # whole ticks turn the phase by omega j T exactly: the margin left at 0 and at one more tick
+    left_0 = pm_all - np.degrees(w * ticks * T)
+    left_1 = left_0 - np.degrees(w * T)
+    frac = _root(margin_left, np.zeros(rows.size), np.full(rows.size, T), _ROOT_STEPS // 2, left_0, left_1)
+    dm = ticks * T + np.clip(frac, 0.0, T)
+    np.minimum.at(out, rows, dm)
+    return out

@@ -183,9 +183,8 @@ def test_times_for_people_are_relative_to_the_log_start(design1):
     sf, ref = design1
     fl = flight_from_simulated(sf)
     T0 = 1_700_000_000.0
-    for name in ("command", "output", "setpoint", "beta"):
-        s = getattr(fl, name)
-        setattr(fl, name, Signal(s.t + T0, s.values))
+    fl = replace(fl, **{name: Signal(getattr(fl, name).t + T0, getattr(fl, name).values)
+                       for name in ("command", "output", "setpoint", "beta")})
     result = analyze_flight(fl, D1["Tp"], n_bootstrap=100)
     first = min(float(getattr(fl, n).t[0]) for n in ("command", "output", "setpoint", "beta"))
     assert result.t0 == first

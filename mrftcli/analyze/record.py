@@ -181,6 +181,15 @@ class AnalysisResult:
     log_info: LogInfo | None = None
     recorded: Mapping[str, Any] | None = field(default=None, repr=False)
 
+    @property
+    def estimate_method(self) -> str:
+        """How the MRFT point estimate was found: identify's method, or the weighted least squares with its constraints."""
+        if self.constraints:
+            return "weighted least squares: UFM slices + " + " + ".join(self.constraints.get("used", ["ufm"])[1:])
+        if self.identification is not None:
+            return self.identification.method
+        return str((self.recorded or {}).get("identification", {}).get("method", ""))
+
     def rel(self, t: float) -> float:
         """A log time [s] as seconds since the log's first sample."""
         return float(t) - self.t0
@@ -248,9 +257,7 @@ class AnalysisResult:
 
     def _identification(self, ident: IdentificationResult) -> _JSONDict:
         d = ident.to_dict()
-        used = self.constraints.get("used", ["ufm"]) if self.constraints else ["ufm"]
-        return {"method": d["method"] if not self.constraints else
-                "weighted least squares: UFM slices + " + " + ".join(used[1:]),
+        return {"method": self.estimate_method,
                 "residual": d["residual"],
                 "tests": self._ident_tests(d["tests"]), "beta_used": "effective",
                 "rate_correction": None,
@@ -334,26 +341,32 @@ class AnalysisResult:
 
 
 def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisResult:
-    """:meth:`AnalysisResult.from_json` after the version check (KeyError etc. on bad input)."""
+    """:meth:`AnalysisResult.from_json` after the version check (KeyError etc. on bad input).
+
+    Required: ``parameters`` Td, tau, K (``mean``) and Tp; a hand-written result may leave out the
+    rest (no tests, the model from the parameters, an empty path and loop).
+    """
     p = data["parameters"]
-    inp = data["input"]
-    m = data["model"]
-    Tp = float(p["Tp"]["mean"])
-    method = str(p["Td"].get("method", "mrft"))
-    rejected = tuple(mrft_test_from_json(t) for t in data.get("rejected_tests") or ())
-    reasons = {int(t["index"]): str(t.get("reason", "")) for t in data.get("rejected_tests") or ()}
+    inp = data.get("input") or {}
+    Tp = json_float(p["Tp"]["mean"])
+    Td, tau, K = _estimate(p["Td"]), _estimate(p["tau"]), _estimate(p["K"])
+    m = data.get("model") or {"Tp": Tp, "Td": Td.mean, "tau": tau.mean, "K": K.mean}
+    rejected_rows = data.get("rejected_tests") or ()
     info = LogInfo.from_dict(inp) if "command_samples" in inp else None
-    ident = data.get("identification") or {}
-    constraints = ident.get("constraints") or {}
+    constraints = (data.get("identification") or {}).get("constraints") or {}
     return cls(
-        path=str(inp["path"]), loop=str(inp["loop"]), Tp=Tp,
-        tests=tuple(mrft_test_from_json(t) for t in data["tests"]), rejected=rejected,
-        Td=_estimate(p["Td"]), tau=_estimate(p["tau"]), K=_estimate(p["K"]),
-        model=LoopModel(float(m["Tp"]), json_float(m["Td"]), json_float(m["tau"]), json_float(m["K"])),
+        path=str(inp.get("path", "")), loop=str(inp.get("loop", "")), Tp=Tp,
+        tests=tuple(mrft_test_from_json(t) for t in data.get("tests") or ()),
+        rejected=tuple(mrft_test_from_json(t) for t in rejected_rows),
+        Td=Td, tau=tau, K=K,
+        model=LoopModel(json_float(m["Tp"]), json_float(m["Td"]), json_float(m["tau"]), json_float(m["K"])),
         identification=None, combinations={}, bootstrap={},
-        warnings=tuple(str(w) for w in data.get("warnings") or ()), flight=None, t0=float(inp.get("t0") or 0.0),
-        constraints=dict(constraints) if constraints.get("used") != ["ufm"] or len(constraints) > 1 else {},
-        rejection_reasons=reasons, method=method,
+        warnings=tuple(str(w) for w in data.get("warnings") or ()), flight=None,
+        t0=json_float(inp.get("t0") or 0.0),
+        # the JSON writes {"used": ["ufm"]} when no constraint was used; the record holds {} then
+        constraints={} if dict(constraints) == {"used": ["ufm"]} else dict(constraints),
+        rejection_reasons={int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
+        method=str(p["Td"].get("method", "mrft")),
         parameters_mrft={k: _estimate(v) for k, v in (data.get("parameters_mrft") or {}).items()},
         refinement=None, notes=tuple(str(n) for n in data.get("notes") or ()),
         controller_rate_hz=_recorded_rate(data, info), log_info=info,

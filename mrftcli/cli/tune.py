@@ -6,10 +6,16 @@ import dataclasses
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from ..errors import InputError
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
+    from ..mrft.model import LoopModel
+    from ..tune.design import Posterior
 from .options import dump_json, log_layout_options, tp_option, tqdm_progress
 
 
@@ -29,23 +35,19 @@ def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
                 raise InputError(f"--report {report_dir}: cannot create it in {parent}")
 
 
-def _from_result_json(path: Path, Tp: float):
-    """(model, posterior, note, loop, rate, heights, amplitudes) from an ``analyze --json`` file."""
-    from ..analyze import command_rate_of_result
+def _from_result_json(path: Path, Tp: float) -> tuple[LoopModel, Posterior, str, AnalysisResult]:
+    """(model, posterior, note, the typed result) from an ``analyze --json`` file."""
+    from ..analyze import AnalysisResult
     from ..tune.analysis import model_from_result_json
 
     try:
-        data = json.loads(path.read_text())
-        model, post, note = model_from_result_json(data, Tp)
+        result = AnalysisResult.from_json(json.loads(path.read_text()))
+        model, post, note = model_from_result_json(result, Tp)
     except (ValueError, OSError) as err:
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
     except InputError as err:
         raise InputError(f"{path}: {err}") from err
-    inp = data.get("input", {})
-    rate = command_rate_of_result(data)
-    tests = data.get("tests", [])
-    return (model, post, note, inp.get("loop"), rate, [float(t["h"]) for t in tests if "h" in t],
-            [float(t["amplitude"]) for t in tests if "amplitude" in t])
+    return model, post, note, result
 
 
 @click.command("tune")
@@ -87,7 +89,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --format px4
     """
     from ..mrft.model import LoopModel
-    from ..tune.analysis import log_controller_rate, posterior_from_analysis
+    from ..tune.analysis import posterior_from_analysis
     from ..tune.design import Posterior, tune as run_tune
     from ..tune.export import format_table, hear_json, px4_params
 
@@ -111,10 +113,14 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
             posterior = Posterior.from_spread(model, td_std, tau_std, k_std, n=200, seed=0,
                                               source="log-normal draws from --td-std/--tau-std/--k-std")
     elif str(source).lower().endswith(".json") and Path(source).is_file():
-        model, posterior, note, json_loop, log_rate, heights, amps = _from_result_json(Path(source), Tp)
+        model, posterior, note, result = _from_result_json(Path(source), Tp)
         notes.append(note)
-        if json_loop and json_loop != loop:
-            raise InputError(f"--loop {loop} but {source} was analysed for the {json_loop} loop")
+        if result.loop and result.loop != loop:
+            raise InputError(f"--loop {loop} but {source} was analysed for the {result.loop} loop")
+        # the rate the analysis recorded: the controller's, as when the LOG is given (not the logging rate)
+        log_rate = result.controller_rate_hz
+        heights = [float(t.h) for t in result.tests]
+        amps = [float(t.amplitude_mean) for t in result.tests]
     else:
         from ..analyze import analyze_path
 
@@ -124,8 +130,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
                                   **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
         model = result.model
         posterior = posterior_from_analysis(result)
-        if result.flight is not None:
-            log_rate = log_controller_rate(result.flight)
+        log_rate = result.controller_rate_hz
         heights = [float(t.h) for t in result.tests]
         amps = [float(t.amplitude_mean) for t in result.tests]
         for w in result.warnings:

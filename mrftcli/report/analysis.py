@@ -17,15 +17,19 @@ matplotlib Figure; :func:`write_analysis_report` saves them):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..progress import Progress, report
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
+    from ..mrft.identify import ParameterEstimate
 
 _TWO_PI = 2.0 * math.pi
 
@@ -340,6 +344,39 @@ def plot_cycles(result):
     return fig
 
 
+def _estimate_row(e: ParameterEstimate, label: str, s: float, u: str) -> list[str]:
+    """One parameter's row: estimate, std and 95 % interval, scaled by ``s`` into the unit ``u``."""
+
+    def f(v: float | None) -> str:
+        return "-" if v is None or not math.isfinite(v) else f"{v * s:.4g}"
+
+    hi = e.ci95_high
+    ci = (f"> {f(e.ci95_low)} (not bounded above)" if hi is None or not math.isfinite(hi)
+          else f"{f(e.ci95_low)} - {f(hi)}")
+    return [label, f(e.mean), f(e.std), ci, u]
+
+
+def _estimate_notes(result: AnalysisResult) -> list[str]:
+    """The Table III spread and the weighted estimate against the paper's, as paragraphs."""
+    body = []
+    comb = result.combination_stats()
+    if comb["n"] and comb["Td"]["mean"] is not None:
+        body.append(
+            f"<p>Per combination of cycles ({comb['n']} combinations, as the paper's Table III): "
+            f"Td {comb['Td']['mean']:.4g} &plusmn; {comb['Td']['std'] or 0:.3g} s, "
+            f"tau {comb['tau']['mean'] * 1e3:.4g} &plusmn; {(comb['tau']['std'] or 0) * 1e3:.3g} ms, "
+            f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g}.</p>")
+    cons = result.constraints
+    paper = cons.get("paper_estimate")
+    if paper and paper.get("tau") is not None:
+        pv = cons.get("p_value")
+        body.append(
+            f"<p>Estimate: {esc(result.estimate_method)} (chi-square {cons['chi2']:.2f} for {cons['dof']} "
+            f"degrees of freedom{'' if pv is None else f', p = {pv:.2g}'}). The UFM slices alone (the paper's "
+            f"method) give Td {paper['Td']:.4g} s, tau {paper['tau'] * 1e3:.4g} ms.</p>")
+    return body
+
+
 def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = (),
                           progress: Progress | None = None) -> Path:
     """Write index.html and the PNG figures for one analysis; returns the index path.
@@ -357,20 +394,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
         report(progress, i, len(figures), name)
         save_figure(fn(result), out / name)
         written.append((name, title))
-    d = result.to_dict(cycles=False)
     unit, scale, _ = _units(result)
-    p = d["parameters"]
-
-    def row(key, label, s, u):
-        e = p[key]
-        def f(v):
-            return "-" if v is None or not math.isfinite(v) else f"{v * s:.4g}"
-        hi = e["ci95_high"]
-        ci = (f"> {f(e['ci95_low'])} (not bounded above)" if hi is None or not math.isfinite(hi)
-              else f"{f(e['ci95_low'])} - {f(hi)}")
-        return [label, f(e["mean"]), f(e["std"]), ci, u]
-
-    comb = d["combinations"]
     T0 = _t0(result)
     from ..analyze import describe_t0
 
@@ -380,24 +404,12 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
         f"({esc(describe_t0(T0))})</p>",
         "<h2>Parameters</h2>",
         html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
-                   [row("Td", "Td", 1.0, "s"), row("tau", "tau", 1e3, "ms"), row("K", "K", 1.0, "")]),
+                   [_estimate_row(result.Td, "Td", 1.0, "s"), _estimate_row(result.tau, "tau", 1e3, "ms"),
+                    _estimate_row(result.K, "K", 1.0, "")]),
     ]
     if links:
         body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
-    if comb["n"] and comb["Td"]["mean"] is not None:
-        body.append(
-            f"<p>Per combination of cycles ({comb['n']} combinations, as the paper's Table III): "
-            f"Td {comb['Td']['mean']:.4g} &plusmn; {comb['Td']['std'] or 0:.3g} s, "
-            f"tau {comb['tau']['mean'] * 1e3:.4g} &plusmn; {(comb['tau']['std'] or 0) * 1e3:.3g} ms, "
-            f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g}.</p>")
-    cons = result.constraints
-    paper = cons.get("paper_estimate")
-    if paper and paper.get("tau") is not None:
-        pv = cons.get("p_value")
-        body.append(
-            f"<p>Estimate: {esc(d['identification']['method'])} (chi-square {cons['chi2']:.2f} for {cons['dof']} "
-            f"degrees of freedom{'' if pv is None else f', p = {pv:.2g}'}). The UFM slices alone (the paper's "
-            f"method) give Td {paper['Td']:.4g} s, tau {paper['tau'] * 1e3:.4g} ms.</p>")
+    body += _estimate_notes(result)
     rows = []
     for t in list(result.tests) + list(result.rejected):
         rows.append([t.index + 1, f"{t.t_start - T0:.1f} - {t.t_end - T0:.1f}",

@@ -1,5 +1,8 @@
 """Tune an analysed log: its posterior, its controller rate, and the flat figures ``batch --tune`` stores.
 
+The controller rate is the one the analysis records (``AnalysisResult.controller_rate_hz``), the same
+whether the log or its RESULT.json is tuned (:func:`mrftcli.analyze.analysis_controller_rate`).
+
 Where the posterior comes from:
 
 * an :class:`~mrftcli.analyze.AnalysisResult` (a LOG): with the MRFT estimate, its bootstrap over
@@ -16,18 +19,16 @@ Where the posterior comes from:
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .design import Posterior, TuneResult, tune
 
-if TYPE_CHECKING:
-    from ..analyze import AnalysisResult
-
-__all__ = ["posterior_from_analysis", "model_from_result_json", "controller_rate", "log_controller_rate", "tune_analysis",
+__all__ = ["posterior_from_analysis", "model_from_result_json", "tune_analysis",
            "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES"]
 
 #: The figures :func:`summary_figures` gives (the ``tune_*`` columns of the batch summary).
@@ -41,7 +42,7 @@ NO_CORRELATION_NOTE = ("the RESULT.json holds no draws or covariance, so Td, tau
                        "cautious than from the log itself (tune the LOG to keep it)")
 
 
-def posterior_from_analysis(result: "AnalysisResult", n: int = 400, seed: int = 0) -> Posterior:
+def posterior_from_analysis(result: AnalysisResult, n: int = 400, seed: int = 0) -> Posterior:
     """The posterior of an analysed log (module docstring): bootstrap draws, or the refinement's covariance.
 
     Parameters
@@ -67,61 +68,39 @@ def posterior_from_analysis(result: "AnalysisResult", n: int = 400, seed: int = 
     return Posterior(result.Tp, Td, tau, K, source="analyze bootstrap over stable cycles (joint draws)")
 
 
-def model_from_result_json(data: Mapping[str, Any], Tp: float, n: int = 200,
+def model_from_result_json(data: Mapping[str, Any] | AnalysisResult, Tp: float, n: int = 200,
                            seed: int = 0) -> tuple[LoopModel, Posterior, str]:
-    """(model, posterior, note) from an ``analyze --json`` object (``parameters`` Td, tau, K).
+    """(model, posterior, note) from an ``analyze --json`` object, read by :meth:`AnalysisResult.from_json`.
 
-    The posterior is independent log-normal draws from the reported std (:data:`NO_CORRELATION_NOTE`,
-    returned as the note to show).
+    The model is the reported estimate (``parameters`` Td, tau, K); the posterior is independent
+    log-normal draws from the reported std (:data:`NO_CORRELATION_NOTE`, returned as the note to
+    show). A std the JSON leaves out (null: not determined) counts as 0.
 
     Raises
     ------
     InputError
         Not an analyze result, or analysed with another Tp.
     """
-    try:
-        p = data["parameters"]
-        est = {k: (float(p[k]["mean"]), float(p[k].get("std") or 0.0)) for k in ("Td", "tau", "K")}
-    except (KeyError, TypeError, ValueError) as err:
-        raise InputError(f"not an analyze RESULT.json (needs parameters.Td/tau/K mean and std): {err}") from err
-    tp_file = (p.get("Tp") or {}).get("mean")
-    if tp_file is not None and abs(float(tp_file) - Tp) > 1e-9 * Tp:
-        raise InputError(f"--tp {Tp} differs from the Tp {tp_file} the RESULT.json was identified with")
-    est = {k: (m, s if np.isfinite(s) else 0.0) for k, (m, s) in est.items()}
+    result = data if isinstance(data, AnalysisResult) else AnalysisResult.from_json(data)
+    if abs(result.Tp - Tp) > 1e-9 * Tp:
+        raise InputError(f"--tp {Tp} differs from the Tp {result.Tp} the RESULT.json was identified with")
+    est = {k: (e.mean, e.std if np.isfinite(e.std) else 0.0)
+           for k, e in (("Td", result.Td), ("tau", result.tau), ("K", result.K))}
     model = LoopModel(Tp, est["Td"][0], est["tau"][0], est["K"][0])
     post = Posterior.from_spread(model, est["Td"][1], est["tau"][1], est["K"][1], n=n, seed=seed,
                                  source="RESULT.json: independent log-normal draws from the reported std")
     return model, post, NO_CORRELATION_NOTE
 
 
-def log_controller_rate(flight) -> float | None:
-    """The controller rate [Hz] of a :class:`~mrftcli.io.FlightLog`: the layout's or ``--controller-rate``
-    (``source["controller_rate_hz"]``, e.g. 50 Hz for PX4 logging the command more slowly), else the
-    command's own rate (:func:`controller_rate`)."""
-    rate = (flight.source or {}).get("controller_rate_hz")
-    return float(rate) if rate else controller_rate(flight.command.t)
-
-
-def controller_rate(t_command) -> float | None:
-    """The rate [Hz] of a command's samples: 1 / the median interval, to 0.1 Hz (None if unknown)."""
-    t = np.asarray(t_command, float)
-    if t.size < 3:
-        return None
-    dt = np.diff(t)
-    dt = dt[dt > 0]
-    return round(float(1.0 / np.median(dt)), 1) if dt.size else None
-
-
-def tune_analysis(result: "AnalysisResult", *, kinds=("PD",), rate_hz: float | None = None,
+def tune_analysis(result: AnalysisResult, *, kinds=("PD",), rate_hz: float | None = None,
                   designs=("mrft-rule", "model-based", "robust"), **options) -> TuneResult:
     """:func:`~mrftcli.tune.design.tune` on an analysed log: its model, its posterior, its controller rate.
 
-    ``rate_hz`` defaults to the log's command rate (200 Hz when the log has none); ``options`` go to
+    ``rate_hz`` defaults to the controller rate the analysis records (``result.controller_rate_hz``;
+    200 Hz when it has none); ``options`` go to
     :func:`~mrftcli.tune.design.tune` (``objective``, ``ms_max``, ``effort_max``, ``progress``).
     """
-    rate = rate_hz
-    if rate is None and result.flight is not None:
-        rate = log_controller_rate(result.flight)
+    rate = rate_hz if rate_hz is not None else result.controller_rate_hz
     return tune(result.model, rate or 200.0, posterior=posterior_from_analysis(result), kinds=kinds,
                 designs=designs, loop=result.loop, **options)
 

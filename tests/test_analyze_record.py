@@ -1,0 +1,133 @@
+"""The analysis record: ``AnalysisResult.to_json`` / ``from_json`` round trips, version checks, and the
+controller rate that ``tune`` reads the same from a log and from its RESULT.json.
+
+The oracle of the round trip is the analysis itself (the typed record before writing) and the JSON text
+itself (written, read, written again: the same text); the tune check compares two CLI runs that share
+nothing but the log.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrftcli.analyze import SCHEMA_VERSION, AnalysisResult, analysis_controller_rate, analyze_path
+from mrftcli.errors import InputError
+from mrftcli.jsonable import to_jsonable
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "sample_logs"
+
+
+def _json_text(obj: object) -> str:
+    return json.dumps(to_jsonable(obj), allow_nan=False, sort_keys=False)
+
+
+@pytest.fixture(scope="module")
+def design1() -> AnalysisResult:
+    return analyze_path(SAMPLES / "design1_altitude.mcap", Tp=0.0422, loop="altitude", n_bootstrap=100)
+
+
+@pytest.fixture(scope="module")
+def px4_10hz() -> AnalysisResult:
+    return analyze_path(SAMPLES / "px4_altitude_10hz.ulg", Tp=0.0422, loop="altitude", n_bootstrap=100)
+
+
+def test_to_json_is_the_cli_json_with_the_schema_version_first(design1: AnalysisResult) -> None:
+    d = design1.to_json()
+    assert list(d)[0] == "schema_version" and d["schema_version"] == SCHEMA_VERSION == 1
+    assert {k: v for k, v in d.items() if k != "schema_version"}.keys() == design1.to_dict().keys()
+    assert _json_text({k: v for k, v in d.items() if k != "schema_version"}) == _json_text(design1.to_dict())
+
+
+@pytest.mark.parametrize("name", ["design1", "px4_10hz"])
+def test_from_json_rebuilds_the_typed_record(name: str, request: pytest.FixtureRequest) -> None:
+    result: AnalysisResult = request.getfixturevalue(name)
+    data = json.loads(_json_text(result.to_json()))
+    back = AnalysisResult.from_json(data)
+    for field in ("path", "loop", "Tp", "t0", "Td", "tau", "model", "method", "warnings", "notes",
+                  "controller_rate_hz", "rejection_reasons", "estimate_method"):
+        assert getattr(back, field) == getattr(result, field), field
+    assert back.K.mean == result.K.mean and back.K.std == result.K.std  # K's unit: "" in the record either way
+    assert dict(back.parameters_mrft) == dict(result.parameters_mrft)
+    assert back.flight is None and back.identification is None
+    assert back.log_info == result.log_info
+    for t_back, t in zip(back.tests, result.tests, strict=True):
+        # every per-test figure comes back (the cycles too: means and spreads are recomputed from them)
+        assert _json_text(t_back.to_dict()) == _json_text(t.to_dict())
+        assert t_back.amplitude_mean == t.amplitude_mean and t_back.h == t.h
+        assert np.array_equal(t_back.frequency_hz, t.frequency_hz)
+    assert len(back.rejected) == len(result.rejected)
+
+
+def test_json_read_and_written_again_is_the_same_text(design1: AnalysisResult) -> None:
+    text = _json_text(design1.to_json())
+    back = AnalysisResult.from_json(json.loads(text))
+    assert _json_text(back.to_json()) == text
+    without_cycles = back.to_json(cycles=False)
+    assert all("per_cycle" not in t for t in without_cycles["tests"])
+
+
+def test_a_result_written_before_schema_version_reads_as_version_1(design1: AnalysisResult) -> None:
+    old = json.loads(_json_text(design1.to_dict()))
+    assert AnalysisResult.from_json(old).Td == design1.Td
+
+
+@pytest.mark.parametrize("data, match", [
+    ([1, 2], "expected a JSON object"),
+    ({"schema_version": 99, "parameters": {}}, "schema_version 99 is not supported"),
+    ({"schema_version": "1", "parameters": {}}, "schema_version '1'"),
+    ({"tests": []}, "not an analyze RESULT.json"),
+    ({"parameters": {"Td": {"mean": "x"}, "tau": {"mean": 1}, "K": {"mean": 1}, "Tp": {"mean": 1}}},
+     "not an analyze RESULT.json"),
+])
+def test_bad_json_is_a_one_line_input_error(data: object, match: str) -> None:
+    with pytest.raises(InputError, match=match) as info:
+        AnalysisResult.from_json(data)
+    assert "\n" not in str(info.value)
+
+
+def test_a_hand_written_result_needs_the_parameters_only() -> None:
+    data = {"parameters": {"Td": {"mean": 1.3, "std": 0.1}, "tau": {"mean": 0.03, "std": None},
+                           "K": {"mean": 30.0, "std": 1.0}, "Tp": {"mean": 0.0422}}}
+    r = AnalysisResult.from_json(data)
+    assert (r.model.Td, r.model.tau, r.model.K, r.Tp) == (1.3, 0.03, 30.0, 0.0422)
+    assert np.isnan(r.tau.std) and r.tests == () and r.controller_rate_hz is None
+
+
+def test_the_controller_rate_is_the_declared_one_else_the_tests_logging_rate() -> None:
+    assert analysis_controller_rate(50.0, [10.0, 10.0]) == 50.0
+    assert analysis_controller_rate(None, [199.96, 200.02, 200.01]) == 200.0
+    assert analysis_controller_rate(None, []) is None
+
+
+def test_the_10hz_px4_record_holds_the_50hz_controller(px4_10hz: AnalysisResult) -> None:
+    assert px4_10hz.controller_rate_hz == 50.0
+    assert all(t.rate_hz == pytest.approx(10.0, rel=1e-3) for t in px4_10hz.tests)
+    back = AnalysisResult.from_json(json.loads(_json_text(px4_10hz.to_json())))
+    assert back.controller_rate_hz == 50.0
+
+
+def _cli(*args: str) -> str:
+    proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True, cwd=ROOT,
+                          check=False)
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout
+
+
+def test_tune_designs_for_the_same_rate_from_the_log_and_from_its_result_json(tmp_path: Path) -> None:
+    """The issue's case: the 10 Hz PX4 log of a 50 Hz controller; RESULT.json used to give 10 Hz gains."""
+    log = str(SAMPLES / "px4_altitude_10hz.ulg")
+    result_json = tmp_path / "result.json"
+    _cli("analyze", log, "--tp", "0.0422", "--json", str(result_json))
+    common = ["--tp", "0.0422", "--design", "model-based", "--format", "json"]
+    from_log = json.loads(_cli("tune", log, *common))
+    from_json = json.loads(_cli("tune", str(result_json), *common))
+    assert from_log["rate_hz"] == from_json["rate_hz"] == 50.0
+    for gain in ("Kp", "Ki", "Kd", "Tf"):
+        assert from_json[gain] == pytest.approx(from_log[gain], rel=1e-9), gain

@@ -14,6 +14,8 @@ code  class                       meaning
 6     InsufficientDataError       some tests found, but not enough to identify everything
 7     DiagnoseError               the diagnosis could not be carried out
 8     batch.BatchFailedError      some logs of a batch failed (the others were analysed)
+9     compare.LoopChangedError    compare: some loop changed beyond tolerance
+10    compare.ResultMissingError  compare: a result is missing or unusable (nothing changed)
 ====  ==========================  ==========================================================
 """
 

@@ -45,7 +45,7 @@ def compare(baseline: str, new: str, fail_on: str | None, confidence: float, bon
     unusable.
     """
     from ..compare import CompareOptions, compare as run_compare, format_table, parse_fail_on, to_junit_xml, to_markdown
-    from ..compare.records import ComparisonIncompleteError, LoopChangedError
+    from ..compare.records import ResultMissingError, LoopChangedError
 
     for target, option in ((json_target, "--json"), (junit_target, "--junit"), (markdown_target, "--markdown")):
         check_output_file(target, option)
@@ -66,6 +66,6 @@ def compare(baseline: str, new: str, fail_on: str | None, confidence: float, bon
             f"{len(failed)} parameter(s) changed beyond tolerance: "
             + ", ".join(f"{c.name + ' ' if c.name else ''}{c.loop} {c.parameter}" for c in failed))
     if result.missing:
-        raise ComparisonIncompleteError(
+        raise ResultMissingError(
             f"{len(result.missing)} loop(s) missing or unusable: "
             + ", ".join(f"{m.name + ' ' if m.name else ''}{m.loop} ({m.side})" for m in result.missing))

@@ -20,7 +20,7 @@ from ..errors import InputError, MrftError
 
 __all__ = ["SCHEMA_VERSION", "PARAMETERS", "Estimate", "LoopEstimates", "Tolerance", "ParameterChange",
            "MissingResult", "Comparison", "EXIT_CHANGED", "EXIT_INCOMPLETE", "VERDICTS", "LoopChangedError",
-           "ComparisonIncompleteError"]
+           "ResultMissingError"]
 
 #: Version of the ``compare --json`` record; bump when its layout changes.
 SCHEMA_VERSION = 1
@@ -41,7 +41,7 @@ class LoopChangedError(MrftError):
     exit_code = EXIT_CHANGED
 
 
-class ComparisonIncompleteError(MrftError):
+class ResultMissingError(MrftError):
     """A result is missing on one side or unusable (and nothing changed); exit code 10."""
 
     exit_code = EXIT_INCOMPLETE

@@ -52,7 +52,7 @@ Everything the identification needs comes out as frozen dataclasses (:mod:`.reco
 
 from .cycles import CycleFundamental, cycle_extrema, cycle_fundamental, measure_cycles
 from .records import MrftTest, RelayCycle
-from .runs import RelayRun, estimate_rate_hz, find_relay_runs, regularise_times, robust_sigma
+from .runs import RelayRun, find_relay_runs, regularise_times, robust_sigma
 from .segmenter import segment, segment_arrays
 from .stability import StabilityCriterion, stable_cycles
 from .validity import LimitCycleCheck, ValidityCriterion, check_limit_cycle
@@ -60,7 +60,7 @@ from .validity import LimitCycleCheck, ValidityCriterion, check_limit_cycle
 __all__ = [
     "segment", "segment_arrays",
     "RelayCycle", "MrftTest",
-    "RelayRun", "find_relay_runs", "estimate_rate_hz", "regularise_times", "robust_sigma",
+    "RelayRun", "find_relay_runs", "regularise_times", "robust_sigma",
     "CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles",
     "StabilityCriterion", "stable_cycles",
     "ValidityCriterion", "LimitCycleCheck", "check_limit_cycle",

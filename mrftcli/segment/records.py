@@ -7,6 +7,7 @@ command values in command units. Both are frozen and carry a JSON-ready ``to_dic
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -222,11 +223,11 @@ class MrftTest:
         a = self.amplitude
         return float(a.mean()) if a.size else float("nan")
 
-    def to_dict(self, cycles: bool = True) -> dict:
+    def to_dict(self, cycles: bool = True) -> dict[str, Any]:
         """JSON-ready summary; ``beta`` is the beta used for identification."""
         p = self.period
         a = self.amplitude
-        d = {
+        d: dict[str, Any] = {
             "index": self.index,
             "beta": self.beta,
             "beta_nominal": self.beta_nominal,

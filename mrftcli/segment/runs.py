@@ -2,8 +2,8 @@
 
 * :func:`find_relay_runs` splits the command into chains of flat runs (:class:`RelayRun`) that
   alternate between two levels: the relay stretches.
-* :func:`estimate_rate_hz` and :func:`regularise_times` recover the controller's rate and put jittery
-  receive times back on its sample grid.
+* :func:`regularise_times` puts jittery receive times back on the controller's sample grid (its
+  rate: :func:`mrftcli.io.timing.median_rate_hz`).
 """
 
 from __future__ import annotations
@@ -11,9 +11,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d
 
-__all__ = ["RelayRun", "robust_sigma", "find_relay_runs", "estimate_rate_hz", "regularise_times"]
+__all__ = ["RelayRun", "robust_sigma", "find_relay_runs", "regularise_times"]
 
 _MAD_TO_SIGMA = 1.4826
 #: a command change smaller than this share of the largest one nearby is a moving bias, not a switch
@@ -89,9 +90,47 @@ def find_relay_runs(
         One list of runs per relay stretch, in time order; glitch-absorbing runs have ``glitch``.
     """
     c = np.asarray(command, dtype=float)
-    n = c.size
-    if n < 2 * min_run_samples:
+    if c.size < 2 * min_run_samples:
         return []
+    runs = _flat_runs(c, jump_sigmas, min_run_samples)
+    joiner = _Joiner(c, runs.threshold, np.asarray(breaks if breaks is not None else [], dtype=int),
+                     min_run_samples, max_glitch_samples)
+    chains: list[list[RelayRun]] = []
+    chain: list[RelayRun] = []
+    for i in runs.candidates:
+        run = RelayRun(int(runs.starts[i]), int(runs.stops[i]), float(runs.levels[i]))
+        action, gap = joiner.action(chain, run) if chain else ("restart", 0)
+        if action == "merge":
+            last = chain[-1]
+            chain[-1] = RelayRun(last.start, run.stop, (last.level + run.level) / 2, glitch=(gap > 0) or last.glitch)
+        elif action == "append":
+            chain.append(run)
+        else:
+            if len(chain) >= min_runs:
+                chains.append(chain)
+            # the last run may still open a new chain with this one (e.g. hold level -> relay)
+            chain = [chain[-1], run] if action == "restart-pair" else [run]
+    if len(chain) >= min_runs:
+        chains.append(chain)
+    return _without_hold_level(chains, min_runs)
+
+
+@dataclass(frozen=True, eq=False)
+class _FlatRuns:
+    """The command cut at its jumps: each piece's first index, one past its last, and mean level;
+    which pieces are flat enough to be relay half-periods (``candidates``, indices into the pieces);
+    and the smallest jump that counts as a switch (``threshold``, command units)."""
+
+    starts: NDArray[np.intp]
+    stops: NDArray[np.intp]
+    levels: NDArray[np.float64]
+    candidates: NDArray[np.intp]
+    threshold: float
+
+
+def _flat_runs(c: NDArray[np.float64], jump_sigmas: float, min_run_samples: int) -> _FlatRuns:
+    """Cut the command at its jumps and keep the flat pieces (step 1 of :func:`find_relay_runs`)."""
+    n = c.size
     d = np.diff(c)
     scale = float(np.max(np.abs(c))) if n else 1.0
     thr = max(jump_sigmas * robust_sigma(d), 1e-9 * (scale + 1e-12))
@@ -116,52 +155,54 @@ def find_relay_runs(
     n_small = np.add.reduceat(np.concatenate((small, [False])).astype(int), starts)
     flat_share = np.where(n_small > 0, _SMALL_STEP, 0.2)
     flat = (lengths >= min_run_samples) & (rng <= flat_share * np.minimum(left, right))
-    cand = np.flatnonzero(flat)
-    break_set = np.asarray(breaks if breaks is not None else [], dtype=int)
+    return _FlatRuns(starts, stops, levels, np.flatnonzero(flat), thr)
 
-    chains: list[list[RelayRun]] = []
-    chain: list[RelayRun] = []
 
-    def close() -> None:
-        if len(chain) >= min_runs:
-            chains.append(list(chain))
+@dataclass(frozen=True, eq=False)
+class _Joiner:
+    """How a flat run continues a chain of relay runs (step 2 of :func:`find_relay_runs`)."""
 
-    for i in cand:
-        run = RelayRun(int(starts[i]), int(stops[i]), float(levels[i]))
-        if not chain:
-            chain = [run]
-            continue
+    command: NDArray[np.float64]
+    threshold: float
+    breaks: NDArray[np.intp]
+    min_run_samples: int
+    max_glitch_samples: int
+
+    def action(self, chain: list[RelayRun], run: RelayRun) -> tuple[str, int]:
+        """``"merge"`` (a false switch inside the last run), ``"append"`` (the next half-period),
+        ``"restart-pair"`` (a new chain of the last run and this one) or ``"restart"``; and the gap
+        [samples] before ``run`` (shortened to the glitch limit where the relay chatters)."""
         last = chain[-1]
         gap = run.start - last.stop
-        crosses_break = bool(np.any((break_set > last.start + min_run_samples) & (break_set <= run.start)))
+        crosses_break = bool(np.any((self.breaks > last.start + self.min_run_samples) & (self.breaks <= run.start)))
         step = abs(run.level - last.level)
         ref_jump = abs(last.level - chain[-2].level) if len(chain) >= 2 else step
-        tol = 0.1 * max(ref_jump, thr)
-        if gap > max_glitch_samples and len(chain) >= 2 and gap <= max(r.stop - r.start for r in chain):
-            # A relay switching on quantised noise chatters: a stretch of 1-2 sample runs at the
-            # chain's own two levels, up to a half-period long, is still the same relay (the cycles
-            # around it are dropped as glitches); anything at a third level ends the test.
-            gs = c[last.stop:run.start]
-            at_levels = np.minimum(np.abs(gs - last.level), np.abs(gs - chain[-2].level)) <= tol
-            if at_levels.all():
-                gap = max_glitch_samples
-        if gap <= max_glitch_samples and not crosses_break and step <= tol and len(chain) >= 2:
+        tol = 0.1 * max(ref_jump, self.threshold)
+        if self._chatters(chain, run, gap, tol):
+            gap = self.max_glitch_samples
+        joined = gap <= self.max_glitch_samples and not crosses_break
+        if joined and step <= tol and len(chain) >= 2:
             # Same level again after a short excursion: a false switch / glitch inside a half-period.
-            chain[-1] = RelayRun(last.start, run.stop, (last.level + run.level) / 2, glitch=(gap > 0) or last.glitch)
-            continue
+            return "merge", gap
         alternates = len(chain) < 2 or abs(run.level - chain[-2].level) <= tol
-        if gap <= max_glitch_samples and not crosses_break and step > tol and alternates:
-            chain.append(run)
-            continue
-        close()
-        # The last run may still open a new chain with this one (e.g. hold level -> relay).
-        if gap <= max_glitch_samples and not crosses_break and step > 0:
-            chain = [last, run]
-        else:
-            chain = [run]
-    close()
-    # A chain may start with a run of the hold level before the relay began: drop leading runs that
-    # do not belong to the two alternating levels.
+        if joined and step > tol and alternates:
+            return "append", gap
+        return ("restart-pair" if joined and step > 0 else "restart"), gap
+
+    def _chatters(self, chain: list[RelayRun], run: RelayRun, gap: int, tol: float) -> bool:
+        """A relay switching on quantised noise chatters: a stretch of 1-2 sample runs at the chain's
+        own two levels, up to a half-period long, is still the same relay (the cycles around it are
+        dropped as glitches); anything at a third level ends the test."""
+        if not (gap > self.max_glitch_samples and len(chain) >= 2 and gap <= max(r.stop - r.start for r in chain)):
+            return False
+        last = chain[-1]
+        gs = self.command[last.stop:run.start]
+        return bool((np.minimum(np.abs(gs - last.level), np.abs(gs - chain[-2].level)) <= tol).all())
+
+
+def _without_hold_level(chains: list[list[RelayRun]], min_runs: int) -> list[list[RelayRun]]:
+    """A chain may start with a run of the hold level before the relay began: drop leading runs that
+    do not belong to the two alternating levels (step 3 of :func:`find_relay_runs`)."""
     cleaned = []
     for ch in chains:
         lv = np.array([r.level for r in ch])
@@ -174,15 +215,6 @@ def find_relay_runs(
         if len(ch) >= min_runs:
             cleaned.append(ch)
     return cleaned
-
-
-def estimate_rate_hz(t: np.ndarray) -> float:
-    """Controller rate from timestamps: 1 / median interval [Hz] (robust to drops and jitter)."""
-    dt = np.diff(np.asarray(t, dtype=float))
-    dt = dt[dt > 0]
-    if dt.size == 0:
-        return float("nan")
-    return float(1.0 / np.median(dt))
 
 
 def regularise_times(t: np.ndarray, *, max_residual: float = 0.45) -> tuple[np.ndarray, bool]:

@@ -6,15 +6,17 @@ and the validity check (:mod:`.validity`), into :class:`~mrftcli.segment.records
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import SegmentationError
 from ..io.logtypes import FlightLog
+from ..io.timing import median_rate_hz
 from .cycles import measure_cycles
-from .records import MrftTest
-from .runs import estimate_rate_hz, find_relay_runs, regularise_times
+from .records import MrftTest, RelayCycle
+from .runs import RelayRun, find_relay_runs, regularise_times
 from .stability import StabilityCriterion, stable_cycles
 from .validity import ValidityCriterion, check_limit_cycle
 
@@ -25,6 +27,8 @@ _MAX_INTERP_SAMPLES = 2
 #: a command logged below this rate [Hz] is a logger's sub-sampling of a faster controller (PX4's
 #: default 10 Hz logger over its 50 Hz position controller): its switch instants are only bracketed
 LOW_RATE_HZ = 25.0
+
+FloatArray = NDArray[np.float64]
 
 
 def _missing_before(t: np.ndarray, k: int, dt: float, on_grid: bool, m: int = 8) -> int:
@@ -75,6 +79,189 @@ def _loop_sign(ty: np.ndarray, yy: np.ndarray, tc: np.ndarray, command: np.ndarr
     return -1 if mean_evidence + slope_evidence < 0 else 1
 
 
+@dataclass(frozen=True, eq=False)
+class _Clock:
+    """The command's clock around one test.
+
+    Attributes: ``t`` the command times [s] (regularised near the test when they fit a grid),
+    ``regularised`` whether they were, ``dt`` the median sample period [s], ``rate_hz`` its inverse
+    [Hz], ``controller_rate_hz`` the controller's rate when the logger sub-samples it (else None)
+    and ``ts_controller`` its period [s] (0 when unknown).
+    """
+
+    t: FloatArray
+    regularised: bool
+    dt: float
+    rate_hz: float
+    controller_rate_hz: float | None
+    ts_controller: float
+
+
+@dataclass(frozen=True, eq=False)
+class _Switches:
+    """The relay's levels and switches in one test.
+
+    Attributes: ``h`` half the distance between the levels and ``bias`` their centre [command
+    units]; ``t`` the switch instants [s], ``up`` True at the -h -> +h switches, ``flags`` each
+    switch's problems (``"glitch"``, ``"interp"``, ``"gap"``).
+    """
+
+    h: float
+    bias: float
+    t: FloatArray
+    up: NDArray[np.bool_]
+    flags: list[set[str]]
+
+
+@dataclass(frozen=True, eq=False)
+class _Window:
+    """The output around one test: times [s], values relative to the setpoint when it was logged
+    [output units], and the setpoint's median over the test (None without one)."""
+
+    t: FloatArray
+    y: FloatArray
+    setpoint: float | None
+
+
+def _finite(t: ArrayLike, v: ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """The samples of a signal whose time [s] and value are both finite."""
+    t, v = np.asarray(t, float), np.asarray(v, float)
+    ok = np.isfinite(t) & np.isfinite(v)
+    return t[ok], v[ok]
+
+
+def _test_clock(chain: list[RelayRun], t_cmd: FloatArray, rate_all: float | None,
+                controller_rate_hz: float | None) -> _Clock:
+    """Step 2: the controller's clock over one test (its command times regularised locally)."""
+    i0, i1 = chain[0].start, chain[-1].stop
+    # Regularise the command times locally (a margin of a few samples around the test).
+    j0, j1 = max(i0 - 4, 0), min(i1 + 4, t_cmd.size)
+    t_loc, regularised = regularise_times(t_cmd[j0:j1])
+    tc = np.array(t_cmd, copy=True)
+    tc[j0:j1] = t_loc
+    dt_nom = float(np.median(np.diff(t_cmd[j0:j1])))
+    rate = 1.0 / dt_nom if dt_nom > 0 else (float("nan") if rate_all is None else rate_all)
+    # the controller's period when the logger sub-samples it (0: not known, or not sub-sampled)
+    ctrl = controller_rate_hz if controller_rate_hz and controller_rate_hz > 1.5 * rate else None
+    return _Clock(tc, regularised, dt_nom, rate, ctrl, 1.0 / ctrl if ctrl else 0.0)
+
+
+def _switches(chain: list[RelayRun], clock: _Clock) -> _Switches:
+    """The relay's two levels and its switch instants: the first sample of every run after the first."""
+    levels = np.array([r.level for r in chain])
+    lv_a, lv_b = float(np.median(levels[0::2])), float(np.median(levels[1::2]))
+    hi_is_even = lv_a > lv_b
+    hi, lo = max(lv_a, lv_b), min(lv_a, lv_b)
+    tc = clock.t
+    t_sw = np.array([tc[r.start] for r in chain[1:]])
+    up = np.array([((k + 1) % 2 == 0) == hi_is_even for k in range(len(chain) - 1)])
+    flags = []
+    for k, r in enumerate(chain[1:]):
+        t_k, f = _switch_instant(chain[k], r, clock)
+        if t_k is not None:
+            t_sw[k] = t_k
+        flags.append(f)
+    return _Switches((hi - lo) / 2.0, (hi + lo) / 2.0, t_sw, up, flags)
+
+
+def _switch_instant(prev: RelayRun, run: RelayRun, clock: _Clock) -> tuple[float | None, set[str]]:
+    """The instant [s] of the switch into ``run`` when it is not its first sample's time, and its flags."""
+    tc, dt_nom = clock.t, clock.dt
+    f = set()
+    t_k = None
+    if run.start - prev.stop > 1:
+        f.add("glitch")  # several samples between the levels: the switch instant is not clean
+    missing = _missing_before(tc, run.start, dt_nom, clock.regularised) if run.start > 0 else 0
+    if 1 <= missing <= _MAX_INTERP_SAMPLES:
+        # The switch happened at one of the missing sample instants or at the first sample
+        # seen at the new level: take the middle of those (error within +/- (missing+1)/2
+        # samples, unbiased). The output at this switch is not used for beta.
+        t_k = 0.5 * (tc[run.start - 1] + dt_nom + tc[run.start])
+        f.add("interp")
+    elif missing > _MAX_INTERP_SAMPLES:
+        f.add("gap")
+    if prev.glitch:
+        f.add("glitch")
+    if clock.rate_hz < LOW_RATE_HZ and not f and run.start > 0:
+        # the relay switched at one of the controller's ticks after the last sample at the
+        # old level, up to the first at the new one (its timestamp is the controller tick
+        # that published it): the mean of those ticks is unbiased. Mid-way between the two
+        # samples is early by half a controller period (10 ms for PX4's 50 Hz controller
+        # under its 10 Hz logger), which read as a longer tau.
+        gap = tc[run.start] - tc[run.start - 1]
+        ts_ctrl = clock.ts_controller
+        t_k = 0.5 * (tc[run.start - 1] + tc[run.start]) + (0.5 * ts_ctrl if ts_ctrl < gap else 0.0)
+    return t_k, f
+
+
+def _output_window(t_y: FloatArray, y: FloatArray, t_sp: ArrayLike | None, setpoint: ArrayLike | None,
+                   t_a: float, t_b: float) -> _Window:
+    """The output from 1 s before the first switch ``t_a`` to 1 s after the last ``t_b`` [s]."""
+    m0, m1 = np.searchsorted(t_y, [t_a - 1.0, t_b + 1.0])
+    ty, yy = t_y[m0:m1], y[m0:m1]
+    if ty.size > 8:
+        ty, _ = regularise_times(ty)
+    sp_val = None
+    if t_sp is not None and setpoint is not None and len(np.asarray(t_sp)):
+        sp_in = np.asarray(setpoint, float)[(np.asarray(t_sp) >= t_a) & (np.asarray(t_sp) <= t_b)]
+        if sp_in.size:
+            sp_val = float(np.median(sp_in))
+            yy = yy - np.interp(ty, np.asarray(t_sp, float), np.asarray(setpoint, float))
+    return _Window(ty, yy, sp_val)
+
+
+def _measured_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock,
+                     criterion: StabilityCriterion) -> tuple[list[RelayCycle], dict[str, float]]:
+    """Steps 3-4: measure the cycles, flag outliers and transients, mark the stable limit cycle."""
+    # a sparsely logged test (even its longest cycle has fewer than 72 output samples) is measured
+    # with fewer harmonics where a cycle has fewer than 36; a well-sampled test keeps the full fit,
+    # and its short start-up cycles (a noise-triggered switch) stay unmeasured
+    t_up = sw.t[sw.up]
+    few = False
+    if t_up.size > 1 and win.t.size > 2:
+        few = bool(np.max(np.diff(t_up)) / np.median(np.diff(win.t)) < 72)
+    cycles = measure_cycles(sw.t, sw.up, sw.flags, win.t, sign * win.y, 1.0 / clock.rate_hz, sw.h, few_samples=few)
+    P = np.array([c.period for c in cycles])
+    A = np.array([c.amplitude for c in cycles])
+    reg = np.array([c.regular for c in cycles], bool)
+    stable, consistent, info = stable_cycles(P, A, reg, 1.0 / clock.rate_hz, criterion)
+    final = []
+    for k, c in enumerate(cycles):
+        fl = set(c.flags)
+        if not consistent[k] and c.regular:
+            fl.add("outlier")
+        if consistent[k] and not stable[k]:
+            fl.add("transient")
+        final.append(replace(c, flags=tuple(sorted(fl)), stable=bool(stable[k])))
+    return final, info
+
+
+def _nominal_beta(beta_t: ArrayLike | None, beta_v: ArrayLike | None, after: float, until: float) -> float | None:
+    """The last beta published in (``after``, ``until``] [s] (None without a beta topic or message)."""
+    if beta_t is None or beta_v is None or not len(np.asarray(beta_t)):
+        return None
+    bt = np.asarray(beta_t, float)
+    sel = np.flatnonzero((bt > after) & (bt <= until))
+    return float(np.asarray(beta_v, float)[sel[-1]]) if sel.size else None
+
+
+def _notes(cycles: list[RelayCycle], sign: int) -> tuple[str, ...]:
+    """What the user should know about a test: a negative loop gain, interpolated or dropped switches."""
+    notes: list[str] = []
+    if sign < 0:
+        notes.append("the output falls under +h (negative loop gain); amplitudes are magnitudes")
+    n_interp = sum("interp" in c.flags for c in cycles)
+    if n_interp:
+        notes.append(f"{n_interp} cycle(s) with a switch after 1-2 missing command samples (instant interpolated)")
+    n_gap = sum("gap" in c.flags for c in cycles)
+    n_glitch = sum("glitch" in c.flags for c in cycles)
+    if n_gap:
+        notes.append(f"{n_gap} cycle(s) dropped: command messages missing at a switch")
+    if n_glitch:
+        notes.append(f"{n_glitch} cycle(s) dropped: false switch / glitch in the command")
+    return tuple(notes)
+
+
 def segment_arrays(
     t_cmd: np.ndarray,
     command: np.ndarray,
@@ -117,138 +304,37 @@ def segment_arrays(
     list of MrftTest
         Possibly with tests that have no stable cycle; empty when no relay stretch exists.
     """
-    t_cmd = np.asarray(t_cmd, float)
-    command = np.asarray(command, float)
-    t_y = np.asarray(t_y, float)
-    y = np.asarray(y, float)
-    ok = np.isfinite(t_cmd) & np.isfinite(command)
-    t_cmd, command = t_cmd[ok], command[ok]
-    ok = np.isfinite(t_y) & np.isfinite(y)
-    t_y, y = t_y[ok], y[ok]
+    t_cmd, command = _finite(t_cmd, command)
+    t_y, y = _finite(t_y, y)
     breaks = None
     if beta_t is not None and len(beta_t):
         breaks = np.searchsorted(t_cmd, np.asarray(beta_t, float))
     chains = find_relay_runs(command, breaks=breaks, min_runs=min_runs)
-    rate_all = estimate_rate_hz(t_cmd)
-
+    rate_all = median_rate_hz(t_cmd)
     tests: list[MrftTest] = []
     prev_end = -np.inf
     for chain in chains:
-        i0, i1 = chain[0].start, chain[-1].stop
-        # Regularise the command times locally (a margin of a few samples around the test).
-        j0, j1 = max(i0 - 4, 0), min(i1 + 4, t_cmd.size)
-        t_loc, regularised = regularise_times(t_cmd[j0:j1])
-        tc = np.array(t_cmd, copy=True)
-        tc[j0:j1] = t_loc
-        dt_nom = float(np.median(np.diff(t_cmd[j0:j1])))
-        rate = 1.0 / dt_nom if dt_nom > 0 else rate_all
-        # the controller's period when the logger sub-samples it (0: not known, or not sub-sampled)
-        ctrl = controller_rate_hz if controller_rate_hz and controller_rate_hz > 1.5 * rate else None
-        ts_ctrl = 1.0 / ctrl if ctrl else 0.0
-
-        levels = np.array([r.level for r in chain])
-        lv_a, lv_b = float(np.median(levels[0::2])), float(np.median(levels[1::2]))
-        hi_is_even = lv_a > lv_b
-        hi, lo = max(lv_a, lv_b), min(lv_a, lv_b)
-        h, bias = (hi - lo) / 2.0, (hi + lo) / 2.0
-
-        # Switches: the first sample of every run after the first one.
-        t_sw = np.array([tc[r.start] for r in chain[1:]])
-        up = np.array([((k + 1) % 2 == 0) == hi_is_even for k in range(len(chain) - 1)])
-        flags_sw: list[set] = []
-        for k, r in enumerate(chain[1:]):
-            f = set()
-            prev = chain[k]
-            if r.start - prev.stop > 1:
-                f.add("glitch")  # several samples between the levels: the switch instant is not clean
-            missing = _missing_before(tc, r.start, dt_nom, regularised) if r.start > 0 else 0
-            if 1 <= missing <= _MAX_INTERP_SAMPLES:
-                # The switch happened at one of the missing sample instants or at the first sample
-                # seen at the new level: take the middle of those (error within +/- (missing+1)/2
-                # samples, unbiased). The output at this switch is not used for beta.
-                t_sw[k] = 0.5 * (tc[r.start - 1] + dt_nom + tc[r.start])
-                f.add("interp")
-            elif missing > _MAX_INTERP_SAMPLES:
-                f.add("gap")
-            if prev.glitch:
-                f.add("glitch")
-            if rate < LOW_RATE_HZ and not f and r.start > 0:
-                # the relay switched at one of the controller's ticks after the last sample at the
-                # old level, up to the first at the new one (its timestamp is the controller tick
-                # that published it): the mean of those ticks is unbiased. Mid-way between the two
-                # samples is early by half a controller period (10 ms for PX4's 50 Hz controller
-                # under its 10 Hz logger), which read as a longer tau.
-                gap = tc[r.start] - tc[r.start - 1]
-                t_sw[k] = 0.5 * (tc[r.start - 1] + tc[r.start]) + (0.5 * ts_ctrl if ts_ctrl < gap else 0.0)
-            flags_sw.append(f)
-
-        # Output in the test window (the first to the last switch, with a margin)
-        t_a, t_b = t_sw[0], t_sw[-1]
-        t_first, t_last = float(tc[chain[0].start]), float(tc[chain[-1].stop - 1])
-        m0, m1 = np.searchsorted(t_y, [t_a - 1.0, t_b + 1.0])
-        ty, yy = t_y[m0:m1], y[m0:m1]
-        if ty.size > 8:
-            ty, _ = regularise_times(ty)
-        sp_val = None
-        if t_sp is not None and setpoint is not None and len(t_sp):
-            sp_in = np.asarray(setpoint, float)[(np.asarray(t_sp) >= t_a) & (np.asarray(t_sp) <= t_b)]
-            if sp_in.size:
-                sp_val = float(np.median(sp_in))
-                yy = yy - np.interp(ty, np.asarray(t_sp, float), np.asarray(setpoint, float))
-        sign = _loop_sign(ty, yy, tc, command, bias, t_sw, up)
-        # a sparsely logged test (even its longest cycle has fewer than 72 output samples) is measured
-        # with fewer harmonics where a cycle has fewer than 36; a well-sampled test keeps the full fit,
-        # and its short start-up cycles (a noise-triggered switch) stay unmeasured
-        t_up = t_sw[up]
-        few = False
-        if t_up.size > 1 and ty.size > 2:
-            few = bool(np.max(np.diff(t_up)) / np.median(np.diff(ty)) < 72)
-        cycles = measure_cycles(t_sw, up, flags_sw, ty, sign * yy, 1.0 / rate, h, few_samples=few)
-        notes: list[str] = []
-        if sign < 0:
-            notes.append("the output falls under +h (negative loop gain); amplitudes are magnitudes")
-        P = np.array([c.period for c in cycles])
-        A = np.array([c.amplitude for c in cycles])
-        reg = np.array([c.regular for c in cycles], bool)
-        stable, consistent, info = stable_cycles(P, A, reg, 1.0 / rate, criterion)
-        final = []
-        for k, c in enumerate(cycles):
-            fl = set(c.flags)
-            if not consistent[k] and c.regular:
-                fl.add("outlier")
-            if consistent[k] and not stable[k]:
-                fl.add("transient")
-            final.append(replace(c, flags=tuple(sorted(fl)), stable=bool(stable[k])))
+        clock = _test_clock(chain, t_cmd, rate_all, controller_rate_hz)
+        sw = _switches(chain, clock)
+        t_b = float(sw.t[-1])
+        win = _output_window(t_y, y, t_sp, setpoint, float(sw.t[0]), t_b)
+        sign = _loop_sign(win.t, win.y, clock.t, command, sw.bias, sw.t, sw.up)
+        final, info = _measured_cycles(sw, win, sign, clock, criterion)
         be = np.array([c.beta_effective for c in final if c.stable])
         be = be[np.isfinite(be)]
-        beta_nom = None
-        if beta_t is not None and len(beta_t):
-            bt = np.asarray(beta_t, float)
-            sel = np.flatnonzero((bt > prev_end) & (bt <= t_b))
-            if sel.size:
-                beta_nom = float(np.asarray(beta_v, float)[sel[-1]])
-        n_interp = sum("interp" in c.flags for c in final)
-        if n_interp:
-            notes.append(f"{n_interp} cycle(s) with a switch after 1-2 missing command samples (instant interpolated)")
-        n_gap = sum("gap" in c.flags for c in final)
-        n_glitch = sum("glitch" in c.flags for c in final)
-        if n_gap:
-            notes.append(f"{n_gap} cycle(s) dropped: command messages missing at a switch")
-        if n_glitch:
-            notes.append(f"{n_glitch} cycle(s) dropped: false switch / glitch in the command")
+        beta_eff = float(be.mean()) if be.size else float("nan")
+        beta_nom = _nominal_beta(beta_t, beta_v, prev_end, t_b)
         tests.append(
             MrftTest(
-                index=len(tests), t_start=t_first, t_end=t_last, h=float(h), bias=float(bias),
-                beta_nominal=beta_nom,
-                beta_effective=float(be.mean()) if be.size else float("nan"),
+                index=len(tests), t_start=float(clock.t[chain[0].start]), t_end=float(clock.t[chain[-1].stop - 1]),
+                h=float(sw.h), bias=float(sw.bias), beta_nominal=beta_nom, beta_effective=beta_eff,
                 beta_effective_std=float(be.std(ddof=1)) if be.size > 1 else float("nan"),
-                rate_hz=float(rate), cycles=tuple(final), criterion=criterion,
+                rate_hz=float(clock.rate_hz), cycles=tuple(final), criterion=criterion,
                 period_median=info["period_median"], period_tolerance=info["period_tolerance"],
                 amplitude_median=info["amplitude_median"], amplitude_tolerance=info["amplitude_tolerance"],
-                loop_sign=sign, setpoint=sp_val, timestamps_regularised=regularised,
-                n_switches=len(t_sw), notes=tuple(notes), controller_rate_hz=ctrl,
-                validity=check_limit_cycle(final, float(be.mean()) if be.size else float("nan"), beta_nom,
-                                           validity),
+                loop_sign=sign, setpoint=win.setpoint, timestamps_regularised=clock.regularised,
+                n_switches=len(sw.t), notes=_notes(final, sign), controller_rate_hz=clock.controller_rate_hz,
+                validity=check_limit_cycle(final, beta_eff, beta_nom, validity),
             )
         )
         prev_end = t_b
@@ -277,7 +363,7 @@ def segment(
         Thresholds of the limit-cycle validity check (``MrftTest.validity``).
     controller_rate_hz : float, optional
         Rate the relay decides at [Hz] (see :func:`segment_arrays`); None: the flight's
-        ``source["controller_rate_hz"]`` (set by the log layout) when it has one.
+        ``timing.controller_rate_hz`` (set by the log layout) when it has one.
 
     Returns
     -------
@@ -301,7 +387,7 @@ def segment(
     if flight.setpoint is not None and len(flight.setpoint):
         kw["t_sp"], kw["setpoint"] = flight.setpoint.t, flight.setpoint.values
     if controller_rate_hz is None:
-        controller_rate_hz = flight.source.get("controller_rate_hz")
+        controller_rate_hz = flight.timing.controller_rate_hz
     tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity,
                            controller_rate_hz=controller_rate_hz, **kw)
     if not tests:

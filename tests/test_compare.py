@@ -266,7 +266,7 @@ def test_missing_loop_is_incomplete(results, tmp_path):
 def test_not_an_analysis_is_input_error(tmp_path):
     p = tmp_path / "x.json"
     p.write_text('{"a": 1}')
-    with pytest.raises(InputError, match="not an analysis result"):
+    with pytest.raises(InputError, match="x.json: not an analyze RESULT.json"):
         compare(str(p), str(p))
     with pytest.raises(InputError, match="not a batch output folder"):
         compare(str(tmp_path), str(p))

@@ -20,7 +20,8 @@ A side is one of:
       [vehicle7.altitude]                        # only for the log or vehicle named vehicle7
       tau = { value = 0.050, std = 0.0005 }      # a reference with its own uncertainty
 
-The analysis JSON is read by one function, :func:`estimates_from_analysis`.
+The analysis JSON is read by :meth:`mrftcli.analyze.AnalysisResult.from_json` (in
+:func:`estimates_from_analysis`).
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..mrft.identify import ParameterEstimate
 from .records import PARAMETERS, Estimate, LoopEstimates, Tolerance
 from .tolerance import parse_amount
 
@@ -66,14 +69,22 @@ def _number(x: object) -> float | None:
     return float(x)
 
 
+def _estimate(p: ParameterEstimate) -> Estimate:
+    """The analysis' estimate as compared: NaN (JSON null) is None; a missing upper bound is open."""
+    mean, low, high = (x if math.isfinite(x) else None for x in (p.mean, p.ci95_low, p.ci95_high))
+    if high is None and low is not None:
+        high = math.inf  # Td bounded below only: the tests cannot close its interval
+    std = p.std if math.isfinite(p.std) else None
+    return Estimate(mean=mean, low=low, high=high, std=std)
+
+
 def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str | None = None) -> LoopEstimates:
-    """The loop estimates of one ``analyze --json`` object.
+    """The loop estimates of one ``analyze --json`` object, read through :meth:`AnalysisResult.from_json`.
 
     Parameters
     ----------
     result : Mapping
-        The analysis JSON (``parameters`` with Td, tau, K: ``mean``, ``std``, ``ci95_low``,
-        ``ci95_high`` [SI units]; ``input`` with ``loop`` and ``Tp``).
+        The analysis JSON (Td, tau, K with ``mean``, ``std``, ``ci95_low``, ``ci95_high`` [SI units]).
     source : str
         Where it was read (for messages).
     name : str or None
@@ -82,25 +93,14 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
     Raises
     ------
     InputError
-        Not an analysis result (no ``parameters``/``input``).
+        Not an analysis result.
     """
-    params = result.get("parameters")
-    inp = result.get("input")
-    if not isinstance(params, Mapping) or not isinstance(inp, Mapping) or "loop" not in inp:
-        raise InputError(f"{source}: not an analysis result (no 'parameters' and 'input.loop'); pass the JSON "
-                         "of 'mrft-ident analyze LOG --json FILE', a batch output folder or a reference .toml")
-    estimates = {}
-    for p in PARAMETERS:
-        d = params.get(p)
-        if not isinstance(d, Mapping):
-            continue
-        # JSON has no NaN or infinity: an open bound (Td without an upper limit) is null.
-        estimates[p] = Estimate(mean=_number(d.get("mean")), low=_number(d.get("ci95_low")),
-                                high=_number(d.get("ci95_high")), std=_number(d.get("std")))
-        if estimates[p].high is None and estimates[p].low is not None:
-            estimates[p] = Estimate(mean=estimates[p].mean, low=estimates[p].low, high=math.inf, std=estimates[p].std)
-    return LoopEstimates(loop=str(inp["loop"]), name=name, source=source, parameters=estimates,
-                         tp=_number(inp.get("Tp")))
+    try:
+        analysis = AnalysisResult.from_json(result)
+    except InputError as err:
+        raise InputError(f"{source}: {err}") from None
+    estimates = {"Td": _estimate(analysis.Td), "tau": _estimate(analysis.tau), "K": _estimate(analysis.K)}
+    return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates, tp=analysis.Tp)
 
 
 def _batch_name(record: Mapping[str, Any], by: str) -> str:

@@ -60,12 +60,17 @@ def _who(name: str | None, loop: str) -> str:
     return f"{name} {loop}" if name else loop
 
 
+def _z(z: float | None) -> str:
+    if z is None:
+        return "-"
+    return f"{z:+.1f}" if math.isfinite(z) else ("+inf" if z > 0 else "-inf")
+
+
 def _rows(cmp: Comparison) -> list[list[str]]:
     rows = []
     for c in cmp.changes:
-        z = "-" if c.z is None else (f"{c.z:+.1f}" if math.isfinite(c.z) else ("+inf" if c.z > 0 else "-inf"))
         rows.append([_who(c.name, c.loop), c.parameter, format_value(c.parameter, c.baseline),
-                     format_value(c.parameter, c.new), format_change(c, cmp.confidence), _relative(c), z,
+                     format_value(c.parameter, c.new), format_change(c, cmp.confidence), _relative(c), _z(c.z),
                      c.tolerance or "-", c.verdict])
     for m in cmp.missing:
         rows.append([_who(m.name, m.loop), "-", "-", "-", f"missing on {m.side}: {m.reason}", "-", "-", "-",
@@ -120,7 +125,7 @@ def to_markdown(cmp: Comparison) -> str:
 
 def _case_text(c: ParameterChange, confidence: float) -> str:
     return (f"baseline {format_value(c.parameter, c.baseline)}, new {format_value(c.parameter, c.new)}, "
-            f"change {format_change(c, confidence)}, z {c.z if c.z is not None else '-'}, "
+            f"change {format_change(c, confidence)}, z {_z(c.z)}, "
             f"tolerance {c.tolerance or '-'}, verdict {c.verdict}")
 
 

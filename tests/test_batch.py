@@ -23,6 +23,27 @@ from mrftcli.batch import inputs as I
 from mrftcli.batch import run as B
 from mrftcli.batch import summary as S
 from mrftcli.errors import InputError, InsufficientDataError, LogReadError
+from mrftcli.jsonable import to_jsonable
+from mrftcli.segment import MrftTest, StabilityCriterion
+from mrftcli.segment.records import RelayCycle
+
+
+def toy_analysis(Td: float, tau: float, K: float, Tp: float, tests=((-0.4, 9), (-0.7, 11)), *, std=(0.1, 0.001, 0.0),
+                 **extra) -> dict:
+    """An analyze RESULT.json (what ``AnalysisResult.to_json`` writes) with these estimates and tests of
+    (beta, stable cycles): what the batch reads through ``AnalysisResult.from_json``."""
+    def cycles(beta: float, n: int) -> tuple[RelayCycle, ...]:
+        return tuple(RelayCycle(t_start=i, t_switch=i + 0.5, t_end=i + 1.0, period=1.0, half_period_high=0.5,
+                                half_period_low=0.5, amplitude=0.01, centre=0.0, y_max=0.01, y_min=-0.01,
+                                t_max=i + 0.25, t_min=i + 0.75, y_switch_down=0.0, y_switch_up=0.0, beta_down=beta,
+                                beta_up=beta, beta_effective=beta, stable=True) for i in range(n))
+
+    rows = [MrftTest(index=k, t_start=0.0, t_end=float(n), h=0.1, bias=0.5, beta_nominal=b, beta_effective=b,
+                     beta_effective_std=0.0, rate_hz=200.0, cycles=cycles(b, n), criterion=StabilityCriterion(),
+                     period_median=1.0, period_tolerance=0.1, amplitude_median=0.01,
+                     amplitude_tolerance=0.001).to_dict() for k, (b, n) in enumerate(tests)]
+    est = {name: {"mean": v, "std": s} for name, v, s in (("Td", Td, std[0]), ("tau", tau, std[1]), ("K", K, std[2]))}
+    return to_jsonable({"schema_version": 1, "parameters": {**est, "Tp": {"mean": Tp}}, "tests": rows, **extra})
 
 # --------------------------------------------------------------------------------------------------
 # A toy log format and a worker for it (module level, so processes and Dask can pickle it)
@@ -49,9 +70,7 @@ def fake_worker(task: B.LogTask) -> dict:
         values = dict(line.split("=") for line in text.split())
         tau, Td = float(values["tau"]), float(values["Td"])
         loops.append({"loop": loop, "status": "ok", "error": None, "error_type": None, "exit_code": 0,
-                      "result": {"parameters": {"tau": {"mean": tau, "std": 0.001}, "Td": {"mean": Td, "std": 0.1},
-                                                "K": {"mean": 1.0 / task.settings.tp, "std": 0.0}},
-                                 "tests": [{"beta": -0.4, "cycles": 9}, {"beta": -0.7, "cycles": 11}]},
+                      "result": toy_analysis(Td, tau, 1.0 / task.settings.tp, task.settings.tp),
                       "diagnosis": None})
     return B._record(task, loops, 0.0)
 
@@ -297,7 +316,7 @@ class _FakeResult:
         self._d = d
         self.flight = types.SimpleNamespace(path=path)  # what diagnose is given
 
-    def to_dict(self):
+    def to_json(self):
         return self._d
 
 
@@ -312,9 +331,8 @@ def _fake_analyze_path(path, Tp, loop, *, command_topic=None, output_topic=None,
     if name.startswith("warn"):
         for _ in range(3):
             warnings.warn("Mean of empty slice", RuntimeWarning, stacklevel=1)
-    return _FakeResult({"parameters": {"tau": {"mean": 0.04, "std": 0.001}, "Td": {"mean": Tp * 10, "std": 0.0},
-                                       "K": {"mean": 1.0, "std": 0.0}},
-                        "tests": [], "loop": loop, "command_topic": command_topic}, path)
+    return _FakeResult(toy_analysis(Tp * 10, 0.04, 1.0, Tp, (), std=(0.0, 0.001, 0.0), loop=loop,
+                                    command_topic=command_topic), path)
 
 
 @pytest.fixture
@@ -538,11 +556,11 @@ def test_fleet_report_writes_html_and_png(tmp_path: Path, mplcleanup) -> None:
 
 def test_log_time_prefers_an_absolute_log_time_stamp() -> None:
     mtime = 1_790_000_000.0
-    from_log = S._log_time({"input": {"t_first": 1_700_000_000.5}}, mtime)
+    from_log = S._log_time(1_700_000_000.5, mtime)
     assert from_log == {"log_time": pd.Timestamp("2023-11-14 22:13:20.5", tz="UTC"), "log_time_source": "log"}
     # time since boot / a simulator's 0 s say nothing about the date: the file's mtime is used
-    for result in ({"input": {"t_first": 12.5}}, {"input": {}}, None):
-        assert S._log_time(result, mtime) == {"log_time": pd.Timestamp(mtime, unit="s", tz="UTC"),
+    for t_first in (12.5, None):
+        assert S._log_time(t_first, mtime) == {"log_time": pd.Timestamp(mtime, unit="s", tz="UTC"),
                                               "log_time_source": "mtime"}
 
 

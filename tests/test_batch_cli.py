@@ -14,6 +14,7 @@ import pytest
 from click.testing import CliRunner
 
 from mrftcli.cli.main import cli
+from test_batch import toy_analysis
 
 
 def mrft(*args: str, cwd: Path) -> subprocess.CompletedProcess:
@@ -68,15 +69,14 @@ class _R:
     def __init__(self, d):
         self._d = d
 
-    def to_dict(self):
+    def to_json(self):
         return self._d
 
 
 def _stand_in(path, Tp, loop, *, command_topic=None, output_topic=None, beta_topic=None, output_scale=None):
     # Echo the settings back as "parameters" so the test sees what reached the analysis.
-    return _R({"parameters": {"Td": {"mean": Tp, "std": 0.0}, "tau": {"mean": 0.05, "std": 0.001},
-                              "K": {"mean": output_scale or 1.0, "std": 0.0}},
-               "tests": [{"beta": -0.4, "cycles": 8}], "command_topic": command_topic})
+    return _R(toy_analysis(Tp, 0.05, output_scale or 1.0, Tp, ((-0.4, 8),), std=(0.0, 0.001, 0.0),
+                           command_topic=command_topic))
 
 
 @pytest.fixture

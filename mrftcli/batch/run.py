@@ -144,7 +144,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                                      ("controller_rate_hz", s.controller_rate_hz))
                    if v is not None}
         result = analyze_path(task.path, s.tp, loop, **options)
-        entry["result"] = result.to_dict()
+        entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,
                      exit_code=err.exit_code, result={"partial": err.partial})

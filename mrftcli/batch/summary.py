@@ -17,6 +17,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..analyze import AnalysisResult
+from ..errors import InputError
+
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "SUMMARY_COLUMNS",
            "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers"]
 
@@ -44,28 +47,30 @@ _OUTLIER_COLUMNS = ("tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", 
                     "Td_changed", "outlier", "outlier_reason")
 
 
-def _param(result: Mapping[str, Any] | None, name: str, stat: str) -> float:
+def _analysis(entry: Mapping[str, Any]) -> AnalysisResult | None:
+    """The typed analysis of an ok loop entry (None: not ok, or a result this version cannot read)."""
+    if entry.get("status") != STATUS_OK or entry.get("result") is None:
+        return None
     try:
-        value = result["parameters"][name][stat]  # type: ignore[index]
-        return float(value) if value is not None else math.nan
-    except (KeyError, TypeError, ValueError):
+        return AnalysisResult.from_json(entry["result"])
+    except InputError:
+        return None
+
+
+def _param(result: AnalysisResult | None, name: str, stat: str) -> float:
+    if result is None:
         return math.nan
+    est = {"Td": result.Td, "tau": result.tau, "K": result.K}[name]
+    return float(est.mean if stat == "mean" else est.std)
 
 
-def _tests_figures(result: Mapping[str, Any] | None) -> tuple[int | None, int | None, str]:
-    tests = (result or {}).get("tests")
-    if not isinstance(tests, list):
+def _tests_figures(result: AnalysisResult | None) -> tuple[int | None, int | None, str]:
+    if result is None:
         return None, None, ""
-    cycles = 0
-    betas: list[str] = []
-    for t in tests:
-        c = t.get("cycles") if isinstance(t, Mapping) else None
-        cycles += len(c) if isinstance(c, list) else int(c or 0)
-        # the nominal (published) beta groups logs; the effective one differs by noise from log to log
-        b = (t.get("beta_nominal") if t.get("beta_nominal") is not None else t.get("beta")) if isinstance(t, Mapping) else None
-        if b is not None:
-            betas.append(f"{float(b):g}")
-    return len(tests), cycles, ";".join(betas)
+    # the nominal (published) beta groups logs; the effective one differs by noise from log to log
+    betas = [t.beta_nominal if t.beta_nominal is not None else t.beta for t in result.tests]
+    return (len(result.tests), sum(t.n_stable for t in result.tests),
+            ";".join(f"{b:g}" for b in betas if math.isfinite(b)))
 
 
 #: Log time stamps accepted as absolute (UNIX) times: from 2001 on. Earlier ones (a simulator's 0 s, a
@@ -80,9 +85,8 @@ def _utc(t: Any) -> pd.Timestamp:
     return pd.NaT
 
 
-def _log_time(result: Mapping[str, Any] | None, mtime: Any) -> dict[str, Any]:
-    """When the flight happened: the log's first time stamp if it is a UNIX time, else the file mtime."""
-    t_first = ((result or {}).get("input") or {}).get("t_first")
+def _log_time(t_first: float | None, mtime: Any) -> dict[str, Any]:
+    """When the flight happened: the log's first time stamp [s] if it is a UNIX time, else the file mtime."""
     if isinstance(t_first, (int, float)) and math.isfinite(t_first) and _EPOCH_MIN <= t_first <= time.time() + 86400:
         return {"log_time": _utc(t_first), "log_time_source": "log"}
     return {"log_time": _utc(mtime), "log_time_source": "mtime"}
@@ -96,7 +100,7 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
     vehicle = settings.get("vehicle") or path.parent.name
     mtime = record.get("log_mtime")
     for entry in record.get("loops", []):
-        result = entry.get("result") if entry.get("status") == STATUS_OK else None
+        result = _analysis(entry)
         n_tests, n_cycles, betas = _tests_figures(result)
         diag = entry.get("diagnosis") or {}
         effects = diag.get("effects") or []
@@ -119,7 +123,8 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             "diagnose_error": diag.get("error"),
             "tp": settings.get("tp"),
             "log_mtime": _utc(mtime),
-            **_log_time(result, mtime),
+            **_log_time(result.log_info.t_first if result is not None and result.log_info is not None else None,
+                        mtime),
             "analysed_at": pd.Timestamp(record["analysed_at"]) if record.get("analysed_at") else pd.NaT,
             "elapsed_s": record.get("elapsed_s"),
             # Relative to the output folder, so the folder can be moved or shared as a whole.
@@ -136,7 +141,9 @@ def _with_findings(effects: list) -> dict[str, float | None]:
     out: dict[str, float | None] = {"Td_with_findings": None, "tau_with_findings": None, "K_with_findings": None}
     for e in effects:
         ident = e.get("identification") if isinstance(e, Mapping) else None
-        w = ident.get("with_effect") if isinstance(ident, Mapping) else None
+        if not isinstance(ident, Mapping):
+            continue
+        w = ident.get("with_effect")
         if isinstance(w, Mapping) and w != ident.get("linear"):
             out = {f"{k}_with_findings": w.get(k) for k in ("Td", "tau", "K")}
     return out

@@ -36,7 +36,7 @@ from mrftcli.analyze import analyze_flight  # noqa: E402
 from mrftcli.errors import MrftError  # noqa: E402
 from mrftcli.mrft.lprs import mrft_limit_cycle  # noqa: E402
 from mrftcli.mrft.model import LoopModel  # noqa: E402
-from mrftcli.plan import (FlightLimits, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
+from mrftcli.plan import (FlightLimits, PlanOptions, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
                           planned_information, simulated_std)
 from mrftcli.segment import segment  # noqa: E402
 from mrftcli.sim import FlightSpec, TestSpec, default_noise_std, simulate_flight  # noqa: E402
@@ -85,10 +85,10 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
             continue
         try:
             t0 = time.perf_counter()
-            p = plan_tests(m.Tp, prior, limits, flown=flown, n_tests=1, seed=k, n_simulated=args_sim)
+            p = plan_tests(m.Tp, prior, limits, flown=flown, options=PlanOptions(n_tests=1, seed=k, n_simulated=args_sim))
             t_plan.append(time.perf_counter() - t0)
             rec = p.tests[0]
-            conv_h = [c["h"] for c in p.candidates if abs(c["beta"] + 0.7) < 1e-9]
+            conv_h = [c.h for c in p.candidates if abs(c.beta + 0.7) < 1e-9]
             conv_h = conv_h[0] if conv_h else rec.h
         except MrftError as err:  # the planner refused: the limits admit no test by its criteria
             refused += 1

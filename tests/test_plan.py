@@ -13,7 +13,8 @@ from mrftcli.cli.main import cli
 from mrftcli.errors import InputError, InsufficientDataError
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
-from mrftcli.plan import FlightLimits, FlownTest, Prior, cycle_noise, fisher_information, plan_tests
+from mrftcli.plan import (FlightLimits, FlownTest, PlanOptions, PlanResult, Prior, cycle_noise, fisher_information,
+                          plan_tests, simulated_std)
 
 
 def _narrow_prior(Td=0.8, tau=0.03, K=2.0) -> Prior:
@@ -47,7 +48,7 @@ def test_fisher_information_of_the_ufm_slice_matches_a_finite_difference_of_the_
 def test_predicted_cycle_is_the_exact_sampled_lprs():
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(model.Tp, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=(-0.3, -0.6))
+    p = plan_tests(model.Tp, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
     t = p.tests[0]
     lc = mrft_limit_cycle(model, t.beta, t.h, 200.0)
     assert t.frequency_hz == pytest.approx(lc.frequency_hz, rel=2e-3)
@@ -64,7 +65,7 @@ def test_predicted_cycle_matches_a_simulated_flight():
 
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    t = plan_tests(model.Tp, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=(-0.5,)).tests[0]
+    t = plan_tests(model.Tp, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,))).tests[0]
     sf = simulate_flight(FlightSpec(model=model, tests=(TestSpec(t.beta, t.h, t.duration_s),), rate_hz=200.0,
                                     noise_std=0.0005, seed=5, hover_s=2.0, hold_s=1.0))
     (found,) = segment(flight_from_simulated(sf))
@@ -82,14 +83,14 @@ def test_noise_model_grows_with_the_sensor_noise():
 def test_refuses_when_the_limits_admit_no_test():
     limits = FlightLimits(max_amplitude=1e-5, max_h=1.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     with pytest.raises(InputError, match="admit no MRFT test.*--max-amplitude"):
-        plan_tests(0.04, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=(-0.5,))
+        plan_tests(0.04, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,)))
 
 
 def test_flags_td_when_no_test_can_pin_it_down():
     # a slow drag (Td 3 s) on a fast loop: Td * Omega >> 5 for every beta
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     prior = Prior(Td=(2.5, 3.0), tau=(0.01, 0.012), K=(2.0, 2.1))
-    p = plan_tests(0.02, prior, limits, n_tests=1, n_draws=2, betas=(-0.3, -0.6))
+    p = plan_tests(0.02, prior, limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
     assert any("Td cannot be pinned down" in n for n in p.notes)
 
 
@@ -98,8 +99,7 @@ def test_a_flown_test_is_counted_and_not_repeated():
     lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=lc.frequency_hz, amplitude=lc.amplitude, n_cycles=10)
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=15.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(model.Tp, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, flown=[flown],
-                   n_draws=3, betas=(-0.4, -0.6, -0.8))
+    p = plan_tests(model.Tp, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, flown=[flown], options=PlanOptions(n_draws=3, betas=(-0.4, -0.6, -0.8)))
     assert len(p.tests) == 1 and abs(p.tests[0].beta + 0.4) > 0.1  # one new slice, not the same again
     # the flown test plus the new one say more than the prior alone
     assert all(p.predicted_std[k] < p.prior_std[k] for k in ("Td", "tau", "K"))
@@ -147,24 +147,24 @@ def test_a_beta_whose_switch_noise_would_trigger_is_not_recommended():
     assert gap[-0.9] < 16 < gap[-0.5]
     quiet = FlightLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.00002)
     # without the noise the planner prefers -0.9 here (its slice crosses -0.4's more steeply) ...
-    assert plan_tests(model.Tp, _narrow_prior(), quiet, n_tests=1, n_draws=2, betas=betas).tests[0].beta == -0.9
+    assert plan_tests(model.Tp, _narrow_prior(), quiet, options=PlanOptions(n_tests=1, n_draws=2, betas=betas)).tests[0].beta == -0.9
     # ... with it, -0.9 is set aside, and the plan says why
-    p = plan_tests(model.Tp, _narrow_prior(), limits, n_tests=1, n_draws=2, betas=betas)
+    p = plan_tests(model.Tp, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=betas))
     assert p.tests[0].beta == -0.5
-    row = {c["beta"]: c for c in p.candidates}[-0.9]
-    assert row.get("early_switch") and "noise stds below the extremum" in row["reason"]
-    lc = mrft_limit_cycle(model, -0.9, row["h"], 200.0)
-    assert row["switch_gap"] == pytest.approx(0.1 * lc.amplitude / 0.0002, rel=0.05)
+    row = {c.beta: c for c in p.candidates}[-0.9]
+    assert row.early_switch and "noise stds below the extremum" in row.reason
+    assert row.h is not None and row.switch_gap is not None
+    lc = mrft_limit_cycle(model, -0.9, row.h, 200.0)
+    assert row.switch_gap == pytest.approx(0.1 * lc.amplitude / 0.0002, rel=0.05)
 
 
 def test_forecast_is_the_typical_draw_inside_its_range():
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(0.04, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, n_tests=2, n_draws=6,
-                   betas=(-0.3, -0.6))
+    p = plan_tests(0.04, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, options=PlanOptions(n_tests=2, n_draws=6, betas=(-0.3, -0.6)))
     for k in ("Td", "tau", "K"):
         lo, hi = p.predicted_std_data_range[k]
         assert 0 < lo <= p.predicted_std_data[k] <= hi
-    assert p.to_dict()["predicted_std_tests_only_range"]["Td"] == list(p.predicted_std_data_range["Td"])
+    assert p.to_json()["predicted_std_tests_only_range"]["Td"] == list(p.predicted_std_data_range["Td"])
 
 
 def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
@@ -179,8 +179,8 @@ def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
     h1 = 0.03 / lc.amplitude
     flown = FlownTest(beta=-0.4, h=h1, frequency_hz=lc.frequency_hz, amplitude=0.03, n_cycles=11)
     limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(model.Tp, _narrow_prior(), limits, flown=[flown], n_draws=2, n_simulated=3, betas=(-0.6, -0.8))
-    assert p.n_simulated >= 2 and p.to_dict()["simulated_std"] == p.simulated_std
+    p = plan_tests(model.Tp, _narrow_prior(), limits, flown=[flown], options=PlanOptions(n_draws=2, n_simulated=3, betas=(-0.6, -0.8)))
+    assert p.n_simulated >= 2 and p.to_json()["simulated_std"] == p.simulated_std
     t = p.tests[0]
     est = []
     for seed in range(12):
@@ -202,8 +202,68 @@ def test_simulated_forecast_says_when_the_flights_fail():
     # a noise far above the amplitude: analyze cannot use the simulated flights, and the plan says so
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
     limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(0.04, _narrow_prior(), limits, flown=[flown], n_draws=2, betas=(-0.6,))
-    s = __import__("mrftcli.plan", fromlist=["simulated_std"]).simulated_std(
+    p = plan_tests(0.04, _narrow_prior(), limits, flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6,)))
+    s = simulated_std(
         0.04, np.array([[0.8, 0.03, 2.0]]), [flown], p.tests,
         FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.5))
     assert np.isnan(s).all()
+
+
+def _plan_for_json() -> PlanResult:
+    flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
+    limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    return plan_tests(0.04, _narrow_prior(), limits, flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6, -0.9)))
+
+
+def test_plan_result_round_trips_through_json():
+    p = _plan_for_json()
+    data = json.loads(json.dumps(p.to_json()))  # through text, as a plan --json file
+    assert data["schema_version"] == 1
+    back = PlanResult.from_json(data)
+    assert back == p  # the flown test has no phase, the one field the JSON leaves out
+    assert back.to_json() == p.to_json()
+
+
+def test_plan_result_json_keeps_the_cli_fields():
+    # the JSON of plan --json before the record was versioned, plus schema_version
+    keys = ["schema_version", "Tp", "tests", "predicted_std", "predicted_std_tests_only",
+            "predicted_std_tests_only_range", "simulated_std", "simulated_std_range", "n_simulated", "prior_std",
+            "conventional", "candidates", "notes", "flown_tests", "limits"]
+    data = _plan_for_json().to_json()
+    assert list(data) == keys
+    assert {c["beta"] for c in data["candidates"]} == {-0.6, -0.9}
+    searched = [c for c in data["candidates"] if "predicted_std" in c]
+    assert searched and all(c["admissible"] for c in searched)
+
+
+@pytest.mark.parametrize("data, needle", [
+    ([1, 2], "expected a JSON object"),
+    ({"Tp": 0.04}, "schema_version None is not supported"),
+    ({"schema_version": 2}, "schema_version 2 is not supported"),
+    ({"schema_version": 1, "Tp": 0.04}, "not a valid plan --json result"),
+])
+def test_plan_result_from_json_refuses_bad_input_in_one_line(data, needle):
+    with pytest.raises(InputError, match=needle) as exc:
+        PlanResult.from_json(data)
+    assert "\n" not in str(exc.value)
+
+
+def test_flown_tests_and_prior_of_an_analyze_result_json():
+    # an analyze --json result read back through AnalysisResult.from_json: the tests as analyze
+    # wrote them, and the prior ranges from its estimates (mean +/- 2 std)
+    from pathlib import Path
+
+    from mrftcli.analyze import analyze_path
+    from mrftcli.jsonable import to_jsonable
+    from mrftcli.plan import flown_from_result, prior_range
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
+    data = json.loads(json.dumps(to_jsonable(analyze_path(log, 0.0422, n_bootstrap=20).to_json())))
+    flown, params = flown_from_result(data)
+    assert [(f.beta, f.h, f.frequency_hz, f.amplitude, f.n_cycles) for f in flown] == [
+        (t["beta"], t["h"], t["frequency_hz"], t["amplitude"], t["cycles"]) for t in data["tests"]]
+    td = data["parameters"]["Td"]
+    assert prior_range(params["Td"], (0.2, 3.0)) == pytest.approx(
+        (max(td["mean"] - 2 * td["std"], td["mean"] / 10), td["mean"] + 2 * td["std"]))
+    with pytest.raises(InputError, match="schema_version"):
+        flown_from_result({**data, "schema_version": 99})

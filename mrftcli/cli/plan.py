@@ -4,16 +4,22 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from ..errors import InputError
 from .options import check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
+if TYPE_CHECKING:
+    from ..mrft.identify import ParameterEstimate
+    from ..plan import FlownTest, PlanResult
+
 __all__ = ["plan", "format_plan"]
 
 
-def _flown_from_json(path: Path) -> tuple[list, dict]:
+def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate]]:
     """Flown tests (and identified parameters, if any) from an ``analyze --json`` result file."""
     from ..plan import flown_from_result
 
@@ -27,7 +33,7 @@ def _flown_from_json(path: Path) -> tuple[list, dict]:
         raise InputError(f"{path}: {err}") from err
 
 
-def format_plan(result) -> str:
+def format_plan(result: PlanResult) -> str:
     """The readable table of a :class:`~mrftcli.plan.PlanResult`."""
     lines = []
     for f in result.flown:
@@ -41,7 +47,7 @@ def format_plan(result) -> str:
                      f"{t.td_omega[0]:.1f}-{t.td_omega[1]:.1f}")
     lines += ["", f"{'predicted std':<28} {'Td [s]':>10} {'tau [ms]':>10} {'K':>10}"]
 
-    def row(name: str, s: dict) -> str:
+    def row(name: str, s: dict[str, float]) -> str:
         return f"{name:<28} {s['Td']:>10.4g} {s['tau'] * 1e3:>10.4g} {s['K']:>10.4g}"
 
     lines.append(row("prior", result.prior_std))
@@ -59,8 +65,8 @@ def format_plan(result) -> str:
                      f"{sr['tau'][0] * 1e3:.3g}-{sr['tau'][1] * 1e3:.3g} ms (flights of the same plant scatter "
                      "too: read the range)")
     if result.conventional:
-        betas = "/".join(f"{b:g}" for b in result.conventional["betas"])
-        lines.append(row(f"after beta {betas} instead", result.conventional["predicted_std"]))
+        betas = "/".join(f"{b:g}" for b in result.conventional.betas)
+        lines.append(row(f"after beta {betas} instead", result.conventional.predicted_std))
     for n in result.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
@@ -91,8 +97,10 @@ def format_plan(result) -> str:
                    "them (about 0.1-0.2 s each; 0: the analytic forecast only).")
 @log_layout_options()
 @click.option("--json", "json_target", metavar="FILE|-", help="Write the plan as JSON to FILE, or '-' for stdout.")
-def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s, rate_hz, noise_std, n_tests,
-         n_simulated, json_target, **read_options):
+def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, tau_range: tuple[float, float] | None,
+         k_range: tuple[float, float] | None, max_amplitude: float, max_h: float, time_s: float, rate_hz: float | None,
+         noise_std: float | None, n_tests: int | None, n_simulated: int, json_target: str | None,
+         **read_options: Any) -> None:
     """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
 
     The prior (ranges, and a first test from --from) and the flight's limits give each candidate
@@ -106,12 +114,15 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
 
     Example: mrft-ident plan --tp 0.0422 --from first.mcap --max-amplitude 0.05 --max-h 0.2 --time 20
     """
-    from ..plan import FlightLimits, Prior, flown_from_segments, plan_tests, prior_range
+    from ..plan import FlightLimits, PlanOptions, Prior, flown_from_segments, plan_tests, prior_range
     from ..sim import default_noise_std
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     loop = read_options["loop"]
-    flown, params, measured_noise, log_rate = [], {}, None, None
+    flown: Sequence[FlownTest] = []
+    params: dict[str, ParameterEstimate] = {}
+    measured_noise: float | None = None
+    log_rate: float | None = None
     if source is not None:
         path = Path(source)
         if path.suffix.lower() == ".json":
@@ -134,9 +145,9 @@ def plan(Tp, source, td_range, tau_range, k_range, max_amplitude, max_h, time_s,
     noise = noise_std if noise_std is not None else (measured_noise or default_noise_std(loop))
     limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)
     with tqdm_progress("plan", unit="step") as progress:
-        result = plan_tests(Tp, prior, limits, flown=flown, n_tests=n_tests, n_simulated=n_simulated,
+        result = plan_tests(Tp, prior, limits, flown=flown, options=PlanOptions(n_tests=n_tests, n_simulated=n_simulated),
                             progress=progress)
     if json_target:
-        dump_json(result.to_dict(), json_target)
+        dump_json(result.to_json(), json_target)
     if json_target != "-":
         click.echo(format_plan(result))

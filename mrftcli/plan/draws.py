@@ -1,0 +1,88 @@
+"""Plant draws the design is averaged over: from the prior, or from what the flown tests leave."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..mrft.lprs import unit_cycle
+from .noise import FLOOR_PHASE, cycle_noise
+from .records import FlownTest, Prior
+
+__all__ = ["conditioned_draws"]
+
+_TWO_PI = 2.0 * math.pi
+
+
+def conditioned_draws(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int,
+                      rng: np.random.Generator, rate_hz: float, noise_std: float) -> np.ndarray:
+    """``n`` plants (rows Td [s], tau [s], K) consistent with the flown tests.
+
+    Td from the prior, tau from the first test's UFM slice (Lemma 3), K from its amplitude (UGM);
+    with two betas flown, Td from the least squares of them all. When the flown tests carry their
+    phase, many candidates on the slice are weighted by the likelihood of the measured phases
+    (Gaussian, the noise model's standard error) and ``n`` drawn from them by systematic
+    resampling: the posterior of the flown tests, not the whole slice. Without flown tests: the
+    prior's stratified draws.
+
+    Raises
+    ------
+    InputError
+        The flown test admits no plant with Td in the prior range and a non-negative delay.
+    """
+    if not flown:
+        return prior.draws(n, rng)
+    phased = [t for t in flown if t.phase is not None]
+    out = _on_the_slice(Tp, prior, flown, n, rng, 64 * n if phased else n)
+    if not phased or out.shape[0] <= n:
+        return out
+    return _resample(Tp, out, phased, n, rng, rate_hz, noise_std)
+
+
+def _on_the_slice(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int, rng: np.random.Generator,
+                  m: int) -> np.ndarray:
+    """``m`` prior draws moved onto the first flown test's UFM slice and UGM (rows Td, tau, K)."""
+    draws = prior.draws(m, rng)
+    f = flown[0]
+    omega = _TWO_PI * f.frequency_hz
+    Td = draws[:, 0]
+    if len({round(t.beta, 2) for t in flown}) >= 2:
+        from ..mrft.identify import TestMeasurement, identify
+
+        res = identify([TestMeasurement(beta=t.beta, frequency_hz=t.frequency_hz, amplitude=t.amplitude, h=t.h)
+                        for t in flown], Tp)
+        Td = np.full(n, res.model.Td)
+    th, a_unit = unit_cycle(Tp * omega, Td * omega, f.beta)
+    tau = th / omega
+    K = f.amplitude * omega / (f.h * Td * a_unit)
+    ok = np.isfinite(tau) & (tau >= 0) & (K > 0)
+    inside = ok & (tau >= prior.tau[0]) & (tau <= prior.tau[1])
+    keep = inside if inside.sum() >= max(2, n // 3) else ok
+    if not keep.any():
+        raise InputError("the flown test admits no plant with Td in the prior range and a non-negative delay; "
+                         "check --tp and the Td range")
+    out: np.ndarray = np.stack([Td, tau, K], axis=1)[keep]
+    return out
+
+
+def _resample(Tp: float, out: np.ndarray, phased: Sequence[FlownTest], n: int, rng: np.random.Generator,
+              rate_hz: float, noise_std: float) -> np.ndarray:
+    """``n`` of the plants ``out`` by systematic resampling, weighted by the measured phases' likelihood."""
+    loglik = np.zeros(out.shape[0])
+    for t in phased:
+        assert t.phase is not None  # the caller passes the phased tests only
+        w = _TWO_PI * t.frequency_hz
+        pred = -0.5 * math.pi - np.arctan(Tp * w) - np.arctan(out[:, 0] * w) - out[:, 1] * w
+        # the noise model's per-cycle phase scatter at this test (slope of a triangle-like cycle)
+        sd = cycle_noise(t.amplitude, w, 1.5 * t.amplitude * w, rate_hz, noise_std)["phase"]
+        sd = math.sqrt(sd**2 / t.n_cycles + FLOOR_PHASE**2)
+        r = np.angle(np.exp(1j * (t.phase - pred)))
+        loglik += -0.5 * (r / sd) ** 2
+    wts = np.exp(loglik - loglik.max())
+    cdf = np.cumsum(wts) / wts.sum()
+    idx = np.searchsorted(cdf, (np.arange(n) + rng.uniform()) / n)
+    chosen: np.ndarray = out[np.minimum(idx, out.shape[0] - 1)]
+    return chosen

@@ -1,0 +1,453 @@
+"""The planner's records: what is known (:class:`Prior`, :class:`FlownTest`), what the flight allows
+(:class:`FlightLimits`), and what it recommends (:class:`TestPlan`, :class:`CandidateTest`,
+:class:`PlanResult`, the versioned JSON of ``mrft-ident plan --json``).
+
+Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..validate import check_beta, check_positive, check_time
+
+__all__ = [
+    "Prior",
+    "FlightLimits",
+    "FlownTest",
+    "TestPlan",
+    "CandidateTest",
+    "Conventional",
+    "PlanResult",
+    "PARAMS",
+    "SCHEMA_VERSION",
+]
+
+#: The identified parameters, in the order of every (Td, tau, K) array of the planner.
+PARAMS = ("Td", "tau", "K")
+#: Version of :meth:`PlanResult.to_json`; :meth:`PlanResult.from_json` refuses any other.
+SCHEMA_VERSION = 1
+
+Stds = dict[str, float]
+StdRanges = dict[str, tuple[float, float]]
+
+
+def _check_range(name: str, rng: Sequence[float], unit: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in rng)
+    except (TypeError, ValueError) as err:
+        raise InputError(f"the {name} range must be two numbers LOW HIGH{unit}, got {rng!r}") from err
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise InputError(f"the {name} range must satisfy 0 < LOW <= HIGH{unit}, got {lo:g} {hi:g}")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class Prior:
+    """What is known before the next test: a range for each parameter.
+
+    Attributes
+    ----------
+    Td : (float, float)
+        Drag time constant range [s].
+    tau : (float, float)
+        Loop delay range [s].
+    K : (float, float)
+        Gain range [output units / (command unit s^2)].
+
+    Each range is read as the mean +/- 2 standard deviations (of Td, tau and ln K) for the prior
+    information, and drawn from uniformly (log-uniformly for Td and K).
+    """
+
+    Td: tuple[float, float] = (0.2, 3.0)
+    tau: tuple[float, float] = (0.01, 0.1)
+    K: tuple[float, float] = (0.5, 20.0)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "Td", _check_range("Td", self.Td, " [s]"))
+        object.__setattr__(self, "tau", _check_range("tau", self.tau, " [s]"))
+        object.__setattr__(self, "K", _check_range("K", self.K, ""))
+
+    def information(self) -> np.ndarray:
+        """Prior Fisher information on (Td, tau, ln K): diag(1 / sigma^2), sigma = width / 4."""
+        sig = np.array([(self.Td[1] - self.Td[0]) / 4, (self.tau[1] - self.tau[0]) / 4,
+                        math.log(self.K[1] / self.K[0]) / 4])
+        return np.diag(np.where(sig > 0, 1.0 / np.maximum(sig, 1e-300) ** 2, 1e30))
+
+    def draws(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """``n`` plants (rows Td, tau, K) from the ranges, stratified so few draws cover them."""
+        u = (np.arange(n)[None, :] + rng.uniform(size=(3, n))) / n
+        u = np.array([rng.permutation(row) for row in u])
+        Td = self.Td[0] * (self.Td[1] / self.Td[0]) ** u[0]
+        tau = self.tau[0] + (self.tau[1] - self.tau[0]) * u[1]
+        K = self.K[0] * (self.K[1] / self.K[0]) ** u[2]
+        return np.stack([Td, tau, K], axis=1)
+
+
+@dataclass(frozen=True)
+class FlightLimits:
+    """What the flight allows.
+
+    Attributes
+    ----------
+    max_amplitude : float
+        Largest output amplitude allowed [output units] (e.g. 0.05 m, 5 deg in rad).
+    max_h : float
+        Largest relay height the motors give [command units].
+    time_s : float
+        Relay time available for the next test(s) together [s].
+    rate_hz : float
+        Controller (relay) rate [Hz].
+    noise_std : float
+        Sensor noise standard deviation of the output [output units].
+    """
+
+    max_amplitude: float
+    max_h: float
+    time_s: float
+    rate_hz: float
+    noise_std: float
+
+    def __post_init__(self) -> None:
+        check_positive("the largest amplitude (--max-amplitude)", self.max_amplitude)
+        check_positive("the largest relay height (--max-h)", self.max_h)
+        check_time("the time available (--time)", self.time_s)
+        check_positive("the controller rate (--rate)", self.rate_hz)
+        check_positive("the sensor noise (--noise)", self.noise_std)
+
+    def to_json(self) -> dict[str, float]:
+        """The ``limits`` object of the plan's JSON."""
+        return {"max_amplitude": self.max_amplitude, "max_h": self.max_h, "time_s": self.time_s,
+                "rate_hz": self.rate_hz, "noise_std": self.noise_std}
+
+
+@dataclass(frozen=True)
+class FlownTest:
+    """A test already flown, as measured (from a log or an ``analyze --json`` result).
+
+    Attributes
+    ----------
+    beta : float
+        Effective beta of the test.
+    h : float
+        Relay height [command units].
+    frequency_hz : float
+        Mean limit-cycle frequency [Hz].
+    amplitude : float
+        Mean output amplitude [output units].
+    n_cycles : int
+        Stable cycles used.
+    phase : float, optional
+        Mean phase of the output's fundamental relative to the relay's [rad] (``RelayCycle.phase_h1``);
+        with it the draws are weighted by how well each plant explains it.
+    """
+
+    __test__ = False  # not a pytest class
+
+    beta: float
+    h: float
+    frequency_hz: float
+    amplitude: float
+    n_cycles: int
+    phase: float | None = None
+
+    def __post_init__(self) -> None:
+        check_beta(self.beta)
+        check_positive("h", self.h)
+        check_positive("frequency_hz", self.frequency_hz)
+        check_positive("amplitude", self.amplitude)
+        if int(self.n_cycles) < 1:
+            raise InputError(f"a flown test needs at least one cycle, got {self.n_cycles!r}")
+
+    def to_json(self) -> dict[str, float | int]:
+        """One of the plan's ``flown_tests`` (the phase is not written)."""
+        return {"beta": self.beta, "h": self.h, "frequency_hz": self.frequency_hz, "amplitude": self.amplitude,
+                "n_cycles": self.n_cycles}
+
+
+@dataclass(frozen=True)
+class TestPlan:
+    """One recommended test and its predicted limit cycle (for the prior's central plant).
+
+    Attributes
+    ----------
+    beta, h, duration_s : float
+        The test: MRFT beta, relay height [command units], relay duration [s].
+    frequency_hz, amplitude : float
+        Predicted limit cycle at the controller rate (centre of the sampled relay's band) [Hz],
+        [output units], for the central plant.
+    frequency_range_hz, amplitude_range : (float, float)
+        Range of the prediction over the prior's draws.
+    orbits_hz : tuple of float
+        The sampled relay's admissible periodic orbits for the central plant [Hz].
+    n_cycles : int
+        Predicted stable cycles (``duration / period`` less the transient).
+    td_omega : (float, float)
+        Range of Td * Omega over the draws (above 5 the test says little about Td).
+    """
+
+    __test__ = False
+
+    beta: float
+    h: float
+    duration_s: float
+    frequency_hz: float
+    amplitude: float
+    frequency_range_hz: tuple[float, float]
+    amplitude_range: tuple[float, float]
+    orbits_hz: tuple[float, ...]
+    n_cycles: int
+    td_omega: tuple[float, float]
+
+    def to_json(self) -> dict[str, Any]:
+        """One of the plan's ``tests``."""
+        return {"beta": self.beta, "h": self.h, "duration_s": self.duration_s, "frequency_hz": self.frequency_hz,
+                "amplitude": self.amplitude, "frequency_range_hz": list(self.frequency_range_hz),
+                "amplitude_range": list(self.amplitude_range), "orbits_hz": list(self.orbits_hz),
+                "n_cycles": self.n_cycles, "td_omega": list(self.td_omega)}
+
+
+@dataclass(frozen=True)
+class CandidateTest:
+    """One beta of the grid as a candidate for the first recommended test.
+
+    Attributes
+    ----------
+    beta : float
+        MRFT beta.
+    admissible : bool
+        Whether the limits admit it; ``reason`` says why not (or what to watch).
+    reason : str
+        Empty, or the limit it breaks / the risk it runs.
+    h : float or None
+        The largest relay height within the amplitude and height limits [command units]; None when
+        some plant of the prior has no limit cycle at this beta (then so are the fields below).
+    frequency_hz, amplitude : (float, float) or None
+        Range of the predicted frequency [Hz] and amplitude [output units] over the draws.
+    n_cycles : int or None
+        Fewest predicted stable cycles over the draws.
+    samples_per_period : float or None
+        Controller samples in the shortest period.
+    switch_gap : float or None
+        :func:`~mrftcli.plan.noise.switch_gap` for the typical plant [noise std].
+    early_switch : bool
+        The switch gap is under the admissible line: used only if no beta clears it.
+    predicted_std : dict or None
+        Td, tau [s], K: median std over the draws after this test (admissible candidates only).
+    score : float or None
+        The design criterion, mean of var(ln Td) + var(ln tau) + var(ln K) over the draws.
+    """
+
+    beta: float
+    admissible: bool
+    reason: str
+    h: float | None = None
+    frequency_hz: tuple[float, float] | None = None
+    amplitude: tuple[float, float] | None = None
+    n_cycles: int | None = None
+    samples_per_period: float | None = None
+    switch_gap: float | None = None
+    early_switch: bool = False
+    predicted_std: Stds | None = None
+    score: float | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """One of the plan's ``candidates`` (only the fields that apply)."""
+        if self.h is None or self.frequency_hz is None or self.amplitude is None:
+            return {"beta": self.beta, "admissible": self.admissible, "reason": self.reason}
+        out: dict[str, Any] = {
+            "beta": self.beta, "h": self.h, "frequency_hz": list(self.frequency_hz),
+            "amplitude": list(self.amplitude), "n_cycles": self.n_cycles,
+            "samples_per_period": self.samples_per_period, "admissible": self.admissible, "reason": self.reason,
+            "switch_gap": self.switch_gap,
+        }
+        if self.early_switch:
+            out["early_switch"] = True
+        if self.predicted_std is not None:
+            out["predicted_std"] = self.predicted_std
+        if self.score is not None:
+            out["score"] = self.score
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> CandidateTest:
+        """The record of :meth:`to_json`'s object (``KeyError``/``TypeError`` on a bad one)."""
+        rng = {k: (float(data[k][0]), float(data[k][1])) for k in ("frequency_hz", "amplitude") if k in data}
+        std = data.get("predicted_std")
+        return cls(beta=float(data["beta"]), admissible=bool(data["admissible"]), reason=str(data["reason"]),
+                   h=_opt_float(data.get("h")), frequency_hz=rng.get("frequency_hz"), amplitude=rng.get("amplitude"),
+                   n_cycles=None if data.get("n_cycles") is None else int(data["n_cycles"]),
+                   samples_per_period=_opt_float(data.get("samples_per_period")),
+                   switch_gap=_opt_float(data.get("switch_gap")), early_switch=bool(data.get("early_switch", False)),
+                   predicted_std=None if std is None else _stds(std), score=_opt_float(data.get("score")))
+
+
+@dataclass(frozen=True)
+class Conventional:
+    """The forecast of the conventional beta -0.4 / -0.7 (the one(s) not yet flown), for comparison.
+
+    Attributes
+    ----------
+    betas : tuple of float
+        The conventional betas flown instead of the recommended ones.
+    predicted_std, predicted_std_tests_only : dict
+        Td, tau [s], K: median std over the draws, with the prior and from the tests alone.
+    """
+
+    betas: tuple[float, ...]
+    predicted_std: Stds
+    predicted_std_tests_only: Stds
+
+    def to_json(self) -> dict[str, Any]:
+        """The plan's ``conventional`` object."""
+        return {"betas": list(self.betas), "predicted_std": self.predicted_std,
+                "predicted_std_tests_only": self.predicted_std_tests_only}
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """What :func:`~mrftcli.plan.plan_tests` recommends (``schema_version`` 1 as JSON).
+
+    Attributes
+    ----------
+    Tp : float
+        Known propulsion time constant [s].
+    tests : tuple of TestPlan
+        The recommended next test(s), in flying order.
+    predicted_std : dict
+        Td, tau [s], K: predicted standard deviation after the recommended tests, prior included
+        (the median over the draws: the typical plant's).
+    predicted_std_data : dict
+        The same from the tests alone (flown and recommended): the bootstrap std of ``analyze``'s
+        MRFT estimate (``parameters_mrft``; the waveform refinement, when accepted, is tighter).
+    prior_std : dict
+        The prior's standard deviations (range / 4).
+    conventional : Conventional or None
+        For comparison, the same figures for the conventional beta -0.4 / -0.7 (the one(s) of
+        them not yet flown), with the same h rule and durations.
+    candidates : tuple of CandidateTest
+        Per beta on the grid (for the first recommended test): h, predicted frequency, amplitude,
+        cycles and stds, and whether the limits admit it.
+    notes : tuple of str
+        Parameters no admissible test pins down, and what would help.
+    predicted_std_data_range : dict
+        Td, tau, K -> (low, high): the 10-90 % range of ``predicted_std_data`` over the draws (how
+        much the forecast depends on where in the remaining uncertainty the plant lies).
+    flown : tuple of FlownTest
+        The tests already flown that the plan counted.
+    limits : FlightLimits or None
+        The limits planned within.
+    simulated_std, simulated_std_range : dict
+        With ``n_simulated``: the median and the 10-90 % range over the simulated plants of the
+        bootstrap std ``analyze`` measured on their simulated flights
+        (:func:`~mrftcli.plan.forecast.simulated_std`); empty otherwise.
+    n_simulated : int
+        Simulated flights that ``analyze`` could use.
+    """
+
+    Tp: float
+    tests: tuple[TestPlan, ...]
+    predicted_std: Stds
+    predicted_std_data: Stds
+    prior_std: Stds
+    conventional: Conventional | None
+    candidates: tuple[CandidateTest, ...] = ()
+    notes: tuple[str, ...] = ()
+    predicted_std_data_range: StdRanges = field(default_factory=dict)
+    flown: tuple[FlownTest, ...] = ()
+    limits: FlightLimits | None = field(default=None, repr=False)
+    simulated_std: Stds = field(default_factory=dict)
+    simulated_std_range: StdRanges = field(default_factory=dict)
+    n_simulated: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON object of ``mrft-ident plan --json`` (``schema_version`` first)."""
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "Tp": self.Tp,
+            "tests": [t.to_json() for t in self.tests],
+            "predicted_std": self.predicted_std,
+            "predicted_std_tests_only": self.predicted_std_data,
+            "predicted_std_tests_only_range": {k: list(v) for k, v in self.predicted_std_data_range.items()},
+            "simulated_std": self.simulated_std,
+            "simulated_std_range": {k: list(v) for k, v in self.simulated_std_range.items()},
+            "n_simulated": self.n_simulated,
+            "prior_std": self.prior_std,
+            "conventional": None if self.conventional is None else self.conventional.to_json(),
+            "candidates": [c.to_json() for c in self.candidates],
+            "notes": list(self.notes),
+            "flown_tests": [f.to_json() for f in self.flown],
+            "limits": None if self.limits is None else self.limits.to_json(),
+        }
+
+    @classmethod
+    def from_json(cls, data: object) -> PlanResult:
+        """The plan of a :meth:`to_json` object (e.g. a ``plan --json`` file, parsed).
+
+        Raises
+        ------
+        InputError
+            Not a JSON object, another ``schema_version``, or a missing or malformed field.
+        """
+        if not isinstance(data, Mapping):
+            raise InputError("not a plan --json result (expected a JSON object)")
+        version = data.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise InputError(f"plan JSON schema_version {version!r} is not supported (expected {SCHEMA_VERSION})")
+        try:
+            return cls._parse(data)
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise InputError(f"not a valid plan --json result ({type(err).__name__}: {err})") from err
+
+    @classmethod
+    def _parse(cls, data: Mapping[str, Any]) -> PlanResult:
+        conv = data["conventional"]
+        lim = data["limits"]
+        return cls(
+            Tp=float(data["Tp"]),
+            tests=tuple(_test_plan(t) for t in data["tests"]),
+            predicted_std=_stds(data["predicted_std"]),
+            predicted_std_data=_stds(data["predicted_std_tests_only"]),
+            prior_std=_stds(data["prior_std"]),
+            conventional=None if conv is None else Conventional(
+                betas=tuple(float(b) for b in conv["betas"]), predicted_std=_stds(conv["predicted_std"]),
+                predicted_std_tests_only=_stds(conv["predicted_std_tests_only"])),
+            candidates=tuple(CandidateTest.from_json(c) for c in data["candidates"]),
+            notes=tuple(str(n) for n in data["notes"]),
+            predicted_std_data_range=_ranges(data["predicted_std_tests_only_range"]),
+            flown=tuple(FlownTest(beta=float(f["beta"]), h=float(f["h"]), frequency_hz=float(f["frequency_hz"]),
+                                  amplitude=float(f["amplitude"]), n_cycles=int(f["n_cycles"]))
+                        for f in data["flown_tests"]),
+            limits=None if lim is None else FlightLimits(**{k: float(lim[k]) for k in (
+                "max_amplitude", "max_h", "time_s", "rate_hz", "noise_std")}),
+            simulated_std=_stds(data["simulated_std"]),
+            simulated_std_range=_ranges(data["simulated_std_range"]),
+            n_simulated=int(data["n_simulated"]),
+        )
+
+
+def _opt_float(value: Any) -> float | None:
+    return None if value is None else float(value)
+
+
+def _stds(data: Mapping[str, Any]) -> Stds:
+    return {str(k): float(v) for k, v in data.items()}
+
+
+def _ranges(data: Mapping[str, Any]) -> StdRanges:
+    return {str(k): (float(v[0]), float(v[1])) for k, v in data.items()}
+
+
+def _test_plan(data: Mapping[str, Any]) -> TestPlan:
+    fr, ar, tw = data["frequency_range_hz"], data["amplitude_range"], data["td_omega"]
+    return TestPlan(beta=float(data["beta"]), h=float(data["h"]), duration_s=float(data["duration_s"]),
+                    frequency_hz=float(data["frequency_hz"]), amplitude=float(data["amplitude"]),
+                    frequency_range_hz=(float(fr[0]), float(fr[1])), amplitude_range=(float(ar[0]), float(ar[1])),
+                    orbits_hz=tuple(float(f) for f in data["orbits_hz"]), n_cycles=int(data["n_cycles"]),
+                    td_omega=(float(tw[0]), float(tw[1])))

@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from .options import check_output_file, dump_json
+
+if TYPE_CHECKING:
+    from ..compare import Comparison
+
+__all__ = ["compare", "write_reports", "raise_for"]
 
 
 def _write(target: str, text: str) -> None:
@@ -44,22 +50,38 @@ def compare(baseline: str, new: str, fail_on: str | None, confidence: float, bon
     Exit code 0: nothing changed beyond tolerance; 9: some loop changed; 10: a result is missing or
     unusable.
     """
-    from ..compare import CompareOptions, compare as run_compare, format_table, parse_fail_on, to_junit_xml, to_markdown
-    from ..compare.records import ResultMissingError, LoopChangedError
+    from ..compare import CompareOptions, compare as run_compare, parse_fail_on
 
     for target, option in ((json_target, "--json"), (junit_target, "--junit"), (markdown_target, "--markdown")):
         check_output_file(target, option)
     options = CompareOptions(confidence=confidence, correction="bonferroni" if bonferroni else "none",
                              fail_on=parse_fail_on(fail_on) if fail_on else (), loops=loops)
     result = run_compare(baseline, new, options, by=by)
+    write_reports(result, junit_target=junit_target, markdown_target=markdown_target, json_target=json_target)
+    raise_for(result)
+
+
+def write_reports(result: Comparison, *, junit_target: str | None = None, markdown_target: str | None = None,
+                  json_target: str | None = None, table_err: bool = False) -> None:
+    """Write the requested reports, and the terminal table (to stdout unless a report uses it, or stderr)."""
+    from ..compare import format_table, to_junit_xml, to_markdown
+
     if junit_target:
         _write(junit_target, to_junit_xml(result))
     if markdown_target:
         _write(markdown_target, to_markdown(result))
     if json_target:
         dump_json(result.to_json(), json_target)
-    if json_target != "-" and "-" not in (junit_target, markdown_target):
+    if table_err:
+        click.echo(format_table(result), err=True)
+    elif "-" not in (json_target, junit_target, markdown_target):
         click.echo(format_table(result))
+
+
+def raise_for(result: Comparison) -> None:
+    """Raise the comparison's error (exit 9 changed, 10 missing) with a one-line message; return if neither."""
+    from ..compare.records import LoopChangedError, ResultMissingError
+
     failed = [c for c in result.changes if c.failed]
     if failed:
         raise LoopChangedError(

@@ -137,7 +137,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
         from ..analyze import analyze_path
 
         # settings left unset keep analyze_path's defaults
-        options = {k: v for k, v in (("command_topic", s.command_topic), ("output_topic", s.output_topic),
+        options: dict[str, Any] = {k: v for k, v in (("command_topic", s.command_topic), ("output_topic", s.output_topic),
                                      ("beta_topic", s.beta_topic), ("setpoint_topic", s.setpoint_topic),
                                      ("output_scale", s.output_scale), ("min_stable_cycles", s.min_cycles),
                                      ("command_scale", s.command_scale), ("layout", s.layout),
@@ -154,18 +154,18 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     if task.diagnose:
         entry["diagnosis"] = _diagnose_loop(task, result)
     if task.tune:
-        entry["tune"] = _tune_loop(task, result)
+        entry["tune"] = _tune_loop(result, task.tune)
     return entry
 
 
-def _tune_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
+def _tune_loop(analysis: AnalysisResult, kind: str) -> dict[str, Any]:
     """The gains of an analysed loop (mrftcli.tune.analysis.summary_figures); a failure is recorded
     but leaves the analysis ok."""
     try:
         from ..tune.analysis import summary_figures, tune_analysis
 
-        res = tune_analysis(analysis, kinds=(task.tune,), designs=("model-based", "robust"))
-        return summary_figures(res, task.tune)
+        res = tune_analysis(analysis, kinds=(kind,), designs=("model-based", "robust"))
+        return summary_figures(res, kind)
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)
         return {"tune_error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}"}
@@ -177,6 +177,8 @@ def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
     try:
         from ..diagnose.selection import diagnose
 
+        if analysis.flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
+            raise InputError("the diagnosis needs the analysis's flight signals and Tp")
         return {"status": STATUS_OK, "error": None,
                 **diagnose(analysis.flight, task.settings.tp, analysis=analysis).to_dict()}
     except Exception as err:  # noqa: BLE001

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import click
 from click.core import ParameterSource
@@ -96,7 +97,8 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     from ..batch.run import BatchFailedError, run_batch
     from .options import dump_json, tqdm_progress
 
-    defaults, explicit = {}, {}
+    defaults: dict[str, Any] = {}
+    explicit: dict[str, Any] = {}
     for opt, key in _SETTING_OPTIONS.items():
         value = setting_opts[opt]
         if opt == "loop":

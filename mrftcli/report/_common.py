@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import html
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 import matplotlib
 
@@ -17,7 +17,8 @@ __all__ = ["plt", "new_figure", "save_figure", "html_page", "html_table", "esc",
 #: Colours for tests (colour-blind-safe Okabe-Ito order).
 TEST_COLOURS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000")
 
-_STYLE = {
+# keys typed loosely: matplotlib's stubs type rc_context's keys as a Literal of every rc name
+_STYLE: dict[Any, Any] = {
     "figure.dpi": 100,
     "axes.grid": True,
     "grid.alpha": 0.3,

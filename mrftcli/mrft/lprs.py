@@ -31,16 +31,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 from scipy import linalg, optimize
 
 from ..errors import InputError
 from ..validate import check_beta, check_positive
 from .describing import df_frequency
-from .model import LoopModel
+from .model import LoopModel, PlantModel
 
 __all__ = [
     "LimitCycle",
@@ -64,6 +64,8 @@ _TWO_PI = 2.0 * math.pi
 #: relative separation used when Tp and Td (nearly) coincide: the partial-fraction form is a divided
 #: difference, evaluated at Tm (1 +- _SPLIT/2); the error is O(_SPLIT**2) = 1e-8 relative.
 _SPLIT = 2e-4
+
+FloatArray = NDArray[np.float64]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -107,14 +109,14 @@ class LimitCycle:
     beta: float
     h: float
     rate_hz: float | None
-    t: np.ndarray = field(repr=False)
-    y: np.ndarray = field(repr=False)
+    t: FloatArray = field(repr=False)
+    y: FloatArray = field(repr=False)
     delay_phase: float = float("nan")
     method: str = "lprs"
-    orbits_hz: tuple = ()
-    orbits_amplitude: tuple = ()
+    orbits_hz: tuple[float, ...] = ()
+    orbits_amplitude: tuple[float, ...] = ()
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, object]:
         """JSON-ready summary (no waveform)."""
         return {
             "frequency_hz": self.frequency_hz,
@@ -149,7 +151,7 @@ class SquareWaveResponse:
 
     P = math.pi
 
-    def __init__(self, tp_n: np.ndarray, td_n: np.ndarray) -> None:
+    def __init__(self, tp_n: ArrayLike, td_n: ArrayLike) -> None:
         tp_n = np.asarray(tp_n, dtype=float)
         td_n = np.asarray(td_n, dtype=float)
         tp_n, td_n = np.broadcast_arrays(tp_n, td_n)
@@ -167,8 +169,9 @@ class SquareWaveResponse:
         self.onep = 2.0 + self.em1p  # 1 + E
         self.oned = 2.0 + self.em1d
 
-    def _half(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _half(self, s: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """y0, y0' and y0'' for s in [0, P] (the +h half period)."""
+        s = np.asarray(s, dtype=float)
         P = self.P
         ep = np.exp(-s / self.tp_n)
         ed = np.exp(-s / self.td_n)
@@ -181,7 +184,12 @@ class SquareWaveResponse:
         ddy = -self.cp * dfp / self.tp_n - self.cd * dfd / self.td_n
         return y, dy, ddy
 
-    def eval(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def slope(self, s: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """y0' and y0'' for s in [0, P]: the pair whose root is the extremum of y0."""
+        _, dy, ddy = self._half(s)
+        return dy, ddy
+
+    def eval(self, t: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """y0, y0', y0'' at any t (antisymmetry y0(t + P) = -y0(t))."""
         t = np.asarray(t, dtype=float)
         k = np.floor(t / self.P)
@@ -191,7 +199,8 @@ class SquareWaveResponse:
         return sign * y, sign * dy, sign * ddy
 
 
-def _bracketed_newton(fun, lo, hi, x, xtol, maxiter=100):
+def _bracketed_newton(fun: Callable[[FloatArray], tuple[FloatArray, FloatArray]], lo: ArrayLike, hi: ArrayLike,
+                      x: ArrayLike, xtol: float, maxiter: int = 100) -> FloatArray:
     """Vectorised safeguarded Newton for an increasing function with fun(lo) <= 0 <= fun(hi)."""
     lo = np.array(lo, dtype=float, copy=True)
     hi = np.array(hi, dtype=float, copy=True)
@@ -212,7 +221,7 @@ def _bracketed_newton(fun, lo, hi, x, xtol, maxiter=100):
     return x
 
 
-def unit_cycle(tp_n: ArrayLike, td_n: ArrayLike, beta: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+def unit_cycle(tp_n: ArrayLike, td_n: ArrayLike, beta: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Normalised MRFT solution of G_n(s) = e^{-theta s} / (s (tp_n s+1)(td_n s+1)) at Omega = 1 rad/s.
 
     Lemmas 1-4 of the paper reduce every plant of eq. (2) to this one: a plant (Tp, Td, tau, K)
@@ -248,7 +257,7 @@ def unit_cycle(tp_n: ArrayLike, td_n: ArrayLike, beta: ArrayLike) -> tuple[np.nd
     return unit_crossing(sys_, s0, a, beta), a
 
 
-def unit_extremum(tp_n: ArrayLike, td_n: ArrayLike) -> tuple[SquareWaveResponse, np.ndarray, np.ndarray]:
+def unit_extremum(tp_n: ArrayLike, td_n: ArrayLike) -> tuple[SquareWaveResponse, FloatArray, FloatArray]:
     """The beta-independent half of :func:`unit_cycle`: y0, the instant of its minimum and a_unit.
 
     Returns the :class:`SquareWaveResponse` of ``(tp_n, td_n)`` (broadcast), the instant ``s0`` in
@@ -260,12 +269,12 @@ def unit_extremum(tp_n: ArrayLike, td_n: ArrayLike) -> tuple[SquareWaveResponse,
     zeros = np.zeros(sys_.tp_n.shape)
     # y0' = r crosses 0 upwards exactly once in the +h half period (r(P) = -r(0) and a sum of three
     # exponentials has at most two zeros), so the bracket [0, P] is always valid.
-    s0 = _bracketed_newton(lambda s: sys_._half(s)[1:], zeros, zeros + P, zeros + 0.25 * P, 1e-13 * P)
+    s0 = _bracketed_newton(lambda s: sys_.slope(s), zeros, zeros + P, zeros + 0.25 * P, 1e-13 * P)
     a = -sys_._half(s0)[0]
     return sys_, s0, a
 
 
-def unit_crossing(sys_: SquareWaveResponse, s0: np.ndarray, a: np.ndarray, beta: ArrayLike) -> np.ndarray:
+def unit_crossing(sys_: SquareWaveResponse, s0: FloatArray, a: FloatArray, beta: ArrayLike) -> FloatArray:
     """The UFM value theta [rad] for beta from the output of :func:`unit_extremum`.
 
     theta = P - u, u the ascending crossing of the level beta * a in (s0, s0 + P) (the LPRS
@@ -280,15 +289,16 @@ def unit_crossing(sys_: SquareWaveResponse, s0: np.ndarray, a: np.ndarray, beta:
     ab = np.broadcast_to(a, shape)
     betab = np.broadcast_to(beta, shape)
 
-    def fun(u):
+    def fun(u: FloatArray) -> tuple[FloatArray, FloatArray]:
         y, dy, _ = sys_.eval(u)
         return y - betab * ab, dy
 
     u = _bracketed_newton(fun, s0b, s0b + P, s0b + 0.5 * P * (1.0 + betab), 1e-10 * P)
-    return P - u
+    theta: FloatArray = P - u
+    return theta
 
 
-def unit_cycle_scalar(tp_n: float, td_n: float, beta: float, warm: list | None = None) -> tuple[float, float]:
+def unit_cycle_scalar(tp_n: float, td_n: float, beta: float, warm: list[float] | None = None) -> tuple[float, float]:
     """Scalar :func:`unit_cycle` in plain Python, for root finders that call it one point at a time.
 
     Same closed form and the same safeguarded Newton iterations as :func:`unit_cycle` (equal to
@@ -319,7 +329,7 @@ def unit_cycle_scalar(tp_n: float, td_n: float, beta: float, warm: list | None =
         y = (s - 0.5 * P) + cp * (-2.0 * math.expm1(-s / tp_n) + em1p) / onep + cd * (-2.0 * math.expm1(-s / td_n) + em1d) / oned
         return y, 1.0 + cp * kp * ep + cd * kd * ed, -cp * kp * ep / tp_n - cd * kd * ed / td_n
 
-    def newton(fun, lo: float, hi: float, x: float) -> float:
+    def newton(fun: Callable[[float], tuple[float, float]], lo: float, hi: float, x: float) -> float:
         for _ in range(100):
             f, df = fun(x)
             if f < 0:
@@ -356,7 +366,7 @@ def unit_cycle_scalar(tp_n: float, td_n: float, beta: float, warm: list | None =
     return P - u, a
 
 
-def unit_waveform(tp_n: float, td_n: float, n: int = 512) -> tuple[np.ndarray, np.ndarray]:
+def unit_waveform(tp_n: float, td_n: float, n: int = 512) -> tuple[FloatArray, FloatArray]:
     """One period (t in [0, 2 pi)) of the delay-free normalised output y0 (h = 1, K Td = 1)."""
     sys_ = SquareWaveResponse(np.array(tp_n), np.array(td_n))
     t = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
@@ -370,7 +380,7 @@ def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
     """Exact MRFT frequency [rad/s] of eq. (2) and the normalised unit amplitude at that frequency."""
     Tp, Td, tau = model.Tp, model.Td, model.tau
 
-    warm: list = []
+    warm: list[float] = []
 
     def g(logw: float) -> float:
         w = math.exp(logw)
@@ -395,13 +405,17 @@ def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
     return w, float(a)
 
 
-def mrft_limit_cycle(model: LoopModel, beta: float, h: float = 1.0, rate_hz: float | None = None,
+def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: float | None = None,
                      n_points: int = 512) -> LimitCycle:
-    """Exact MRFT limit cycle of G(s) = K Td e^{-tau s}/(s (Tp s+1)(Td s+1)) (paper eq. 2).
+    """Exact MRFT limit cycle of a plant model; eq. (2) in closed form.
+
+    A :class:`~mrftcli.mrft.model.LoopModel` (G(s) = K Td e^{-tau s}/(s (Tp s+1)(Td s+1)), paper
+    eq. 2) is solved with the closed form of :func:`unit_cycle`; any other
+    :class:`~mrftcli.mrft.model.PlantModel` through its state space (:func:`lti_limit_cycle`).
 
     Parameters
     ----------
-    model : LoopModel
+    model : PlantModel
         The plant.
     beta : float
         MRFT parameter in (-1, 1) (paper eq. 3).
@@ -437,22 +451,30 @@ def mrft_limit_cycle(model: LoopModel, beta: float, h: float = 1.0, rate_hz: flo
     beta = check_beta(beta)
     h = check_positive("h", h)
     rate_hz = None if rate_hz is None else check_positive("rate_hz", rate_hz)
-    if not isinstance(model, LoopModel):
-        raise InputError("model must be a LoopModel")
-    if model.K < 0:
+    if not isinstance(model, PlantModel):
+        raise InputError("model must be a plant model (e.g. a LoopModel)")
+    if model.parameters["K"].value < 0:
         raise InputError("K must be positive for a negative-feedback MRFT loop (invert the command sign)")
     if rate_hz is not None:
-        A, B, C = model.state_space()
-        centre = mrft_limit_cycle(
-            LoopModel(model.Tp, model.Td, model.tau + 0.5 / rate_hz, model.K), beta, h, None, n_points
-        )
-        return sampled_limit_cycle(A, B, C, model.tau, beta, h, rate_hz, _centre=centre)
+        # the centre of the sampled relay's band: the continuous cycle with half a sample more delay
+        centre = mrft_limit_cycle(model.with_parameters(tau=model.delay + 0.5 / rate_hz), beta, h, None, n_points)
+        ss = model.realisation()
+        return sampled_limit_cycle(ss.A, ss.B, ss.C, model.delay, beta, h, rate_hz, _centre=centre)
+    if not isinstance(model, LoopModel):
+        ss = model.realisation()
+        return lti_limit_cycle(ss.A, ss.B, ss.C, model.delay, beta, h, None, n_points)
+    return _closed_form_cycle(model, beta, h, n_points)
+
+
+def _closed_form_cycle(model: LoopModel, beta: float, h: float, n_points: int) -> LimitCycle:
+    """The continuous relay's cycle of eq. (2) from the unit cycle (Lemmas 1-4)."""
     w, a_unit = _exact_omega(model, beta)
+    unit = model.unit_normalisation(w)
     scale = h * model.K * model.Td / w  # Lemmas 2 and 4: y = h K Td y_n(Omega t) / Omega
-    theta = model.tau * w
+    theta = unit.theta
     tn = np.linspace(0.0, _TWO_PI, n_points, endpoint=False)
     # delayed output y(t) = y0(t - tau) in normalised time, t = 0 at the -h -> +h switch
-    y = SquareWaveResponse(np.array(model.Tp * w), np.array(model.Td * w)).eval(tn - theta)[0]
+    y = SquareWaveResponse(np.array(unit.coordinates["tp_n"]), np.array(unit.coordinates["td_n"])).eval(tn - theta)[0]
     T = _TWO_PI / w
     return LimitCycle(
         omega=w,
@@ -491,7 +513,7 @@ class _StateSpaceCycle:
     in continuous time without further matrix exponentials.
     """
 
-    def __init__(self, A, B, C, P: float, n: int = 512) -> None:
+    def __init__(self, A: FloatArray, B: FloatArray, C: FloatArray, P: float, n: int = 512) -> None:
         from scipy.interpolate import CubicHermiteSpline
 
         self.A, self.B, self.C, self.P = A, B, C, P
@@ -522,8 +544,10 @@ class _StateSpaceCycle:
         Phi, Gam = _phi_gamma(self.A, self.B, s)
         return sign * (Phi @ self.x0 + Gam), sign
 
-    def y(self, t):
-        return self.spline(np.mod(t, 2 * self.P))
+    def y(self, t: ArrayLike) -> FloatArray:
+        """The delay-free output y0 at times ``t`` (periodic, h = 1)."""
+        y: FloatArray = self.spline(np.mod(t, 2 * self.P))
+        return y
 
     def condition(self, beta: float) -> tuple[float, float, float]:
         """(u, a_y, t_min): ascending crossing instant of beta*a_y, amplitude and minimum instant."""
@@ -550,16 +574,17 @@ class _StateSpaceCycle:
         return u, a, t_min
 
 
-def _as_state_space(A, B, C):
-    A = np.atleast_2d(np.asarray(A, dtype=float))
-    B = np.asarray(B, dtype=float).reshape(-1)
-    C = np.asarray(C, dtype=float).reshape(-1)
-    n = A.shape[0]
-    if A.shape != (n, n) or B.size != n or C.size != n:
-        raise InputError(f"state space shapes do not match: A {A.shape}, B {B.shape}, C {C.shape}")
-    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B)) and np.all(np.isfinite(C))):
+def _as_state_space(A: ArrayLike, B: ArrayLike, C: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(A, B, C) as float arrays of matching shapes ((n, n), (n,), (n,)), finite."""
+    A_ = np.atleast_2d(np.asarray(A, dtype=float))
+    B_ = np.asarray(B, dtype=float).reshape(-1)
+    C_ = np.asarray(C, dtype=float).reshape(-1)
+    n = A_.shape[0]
+    if A_.shape != (n, n) or B_.size != n or C_.size != n:
+        raise InputError(f"state space shapes do not match: A {A_.shape}, B {B_.shape}, C {C_.shape}")
+    if not (np.all(np.isfinite(A_)) and np.all(np.isfinite(B_)) and np.all(np.isfinite(C_))):
         raise InputError("state-space matrices must be finite")
-    return A, B, C
+    return A_, B_, C_
 
 
 def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: float, h: float = 1.0,
@@ -626,7 +651,8 @@ def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: 
 # ----------------------------------------------------------------------------------------------
 # sampled relay
 # ----------------------------------------------------------------------------------------------
-def _sampled_matrices(A, B, Ts: float, tau: float):
+def _sampled_matrices(A: FloatArray, B: FloatArray, Ts: float,
+                      tau: float) -> tuple[FloatArray, FloatArray, FloatArray, int]:
     """Exact ZOH discretisation with a fractional input delay (modified z-transform).
 
     tau = d Ts + eps with 0 <= eps < Ts.  Over [t_k, t_k+1) the plant sees u_{k-d-1} for eps seconds,
@@ -644,7 +670,8 @@ def _sampled_matrices(A, B, Ts: float, tau: float):
     return Phi, G1, G2, d
 
 
-def _discrete_orbit(Phi, G1, G2, d, C, N: int, h: float) -> np.ndarray:
+def _discrete_orbit(Phi: FloatArray, G1: FloatArray, G2: FloatArray, d: int, C: FloatArray, N: int,
+                    h: float) -> FloatArray:
     """Sampled output y_0..y_N of the symmetric periodic orbit with half period N samples.
 
     The relay holds +h on samples 0..N-1 and -h on N..2N-1; the plant sees it through the exact
@@ -656,7 +683,7 @@ def _discrete_orbit(Phi, G1, G2, d, C, N: int, h: float) -> np.ndarray:
     def u_at(j: int) -> float:
         return h if (j % (2 * N)) < N else -h
 
-    x = np.zeros(n)
+    x: NDArray[np.floating[Any]] = np.zeros(n)
     PhiN = np.eye(n)
     for k in range(N):
         x = Phi @ x + G1 * u_at(k - d - 1) + G2 * u_at(k - d)
@@ -767,7 +794,8 @@ def lprs_first_order(omega: ArrayLike, K: complex, T: complex, tau: float = 0.0)
     # e^gamma / sinh(alpha) = 2 e^{gamma - alpha} / (1 - e^{-2 alpha}); stable for large alpha
     re = 0.5 * K * (1 - alpha * 2 * np.exp(gamma - alpha) / (-np.expm1(-2 * alpha)))
     im = -(np.pi / 4) * K * (1 - 2 * np.exp(gamma - alpha) / (1 + np.exp(-alpha)))
-    return re + 1j * im
+    J: NDArray[np.complex128] = re + 1j * im
+    return J
 
 
 def lprs_soiptd(omega: ArrayLike, model: LoopModel) -> np.ndarray:
@@ -777,11 +805,12 @@ def lprs_soiptd(omega: ArrayLike, model: LoopModel) -> np.ndarray:
         m = 0.5 * (Tp + Td)
         Tp, Td = m * (1 + 0.5 * _SPLIT), m * (1 - 0.5 * _SPLIT)
     g = model.K * model.Td
-    return g * (
+    J: NDArray[np.complex128] = g * (
         lprs_integrator(omega, 1.0, model.tau)
         + lprs_first_order(omega, -Tp * Tp / (Tp - Td), Tp, model.tau)
         + lprs_first_order(omega, Td * Td / (Tp - Td), Td, model.tau)
     )
+    return J
 
 
 def lprs_state_space(omega: ArrayLike, A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float = 0.0) -> np.ndarray:

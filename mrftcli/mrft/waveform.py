@@ -36,14 +36,43 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy import signal
 
 from ..errors import InputError
-from .model import LoopModel
+from .model import PlantModel
 
-__all__ = ["PredictedOutput", "predict_output", "predict_tests", "CommandWindow", "ResponseBasis", "response_basis"]
+__all__ = ["PredictedOutput", "predict_output", "predict_tests", "CommandWindow", "ResponseBasis", "response_basis",
+           "TestSpan"]
+
+FloatArray = NDArray[np.float64]
+
+
+class TestSpan(Protocol):
+    """What :func:`predict_tests` needs of a test (:class:`mrftcli.segment.MrftTest` has it)."""
+
+    @property
+    def index(self) -> int:
+        """The test's number in its log."""
+        ...
+
+    @property
+    def t_start(self) -> float:
+        """Its first relay sample [s]."""
+        ...
+
+    @property
+    def t_end(self) -> float:
+        """Its last relay sample [s]."""
+        ...
+
+    @property
+    def bias(self) -> float:
+        """The relay's centre level [command units]."""
+        ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,12 +122,13 @@ def _grid(t_command: np.ndarray, command: np.ndarray, t_end: float) -> tuple[np.
     return grid, command[np.clip(idx, 0, command.size - 1)], dt
 
 
-def _phi(mu: np.ndarray, s: np.ndarray) -> np.ndarray:
+def _phi(mu: ArrayLike, s: ArrayLike) -> NDArray[np.complex128]:
     """int_0^s e^{mu r} dr elementwise ((e^{mu s} - 1) / mu, and s where mu = 0)."""
+    mu, s = np.asarray(mu), np.asarray(s)
     ms = mu * s
     small = np.abs(ms) < 1e-8
     with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.where(small, s * (1.0 + 0.5 * ms), np.expm1(ms) / np.where(mu == 0, 1.0, mu))
+        out: NDArray[np.complex128] = np.where(small, s * (1.0 + 0.5 * ms), np.expm1(ms) / np.where(mu == 0, 1.0, mu))
     return out
 
 
@@ -136,7 +166,8 @@ class CommandWindow:
     bias: float
 
     @classmethod
-    def from_arrays(cls, t_command, command, t_output, output=None, bias: float = 0.0) -> "CommandWindow":
+    def from_arrays(cls, t_command: ArrayLike, command: ArrayLike, t_output: ArrayLike, output: ArrayLike | None = None,
+                    bias: float = 0.0) -> "CommandWindow":
         """Grid a recorded command (times [s], values) and the output times [s] it drives.
 
         Raises :class:`~mrftcli.errors.InputError` when the command has fewer than two samples,
@@ -158,8 +189,8 @@ class CommandWindow:
 
 
     @classmethod
-    def between(cls, t_start: float, t_end: float, t_command, command, t_output, output,
-                bias: float = 0.0, history: float = 0.0) -> "CommandWindow | None":
+    def between(cls, t_start: float, t_end: float, t_command: ArrayLike, command: ArrayLike, t_output: ArrayLike,
+                output: ArrayLike | None, bias: float = 0.0, history: float = 0.0) -> "CommandWindow | None":
         """The window of a whole recording from ``t_start`` to ``t_end`` [s] (a test's relay span):
         command samples from the first at or after ``t_start - history`` to the first after
         ``t_end``, outputs from ``t_start`` on. None when it holds fewer than 2 command or 8 output
@@ -207,7 +238,7 @@ class ResponseBasis:
     modes: np.ndarray
 
 
-def response_basis(A, B, C, tau: float, window: CommandWindow) -> ResponseBasis:
+def response_basis(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, window: CommandWindow) -> ResponseBasis:
     """Exact zero-order-hold response of x' = A x + B u(t - tau), y = C x over a window.
 
     Diagonalises A (distinct eigenvalues: eq. (2) has 0, -1/Td, -1/Tp; an effect such as a sensor
@@ -228,11 +259,11 @@ def response_basis(A, B, C, tau: float, window: CommandWindow) -> ResponseBasis:
     -------
     ResponseBasis
     """
-    A = np.asarray(A, float)
-    mu, V = np.linalg.eig(A)
+    A_ = np.asarray(A, float)
+    mu, V = np.linalg.eig(A_)
     if np.linalg.cond(V) > 1e8:  # (near-)coincident eigenvalues: split them by a relative 1e-7
         scale = max(float(np.max(np.abs(mu))), 1e-12)
-        mu, V = np.linalg.eig(A + np.diag(1e-7 * scale * np.arange(A.shape[0])))
+        mu, V = np.linalg.eig(A_ + np.diag(1e-7 * scale * np.arange(A_.shape[0])))
     Vinv = np.linalg.inv(V)
     beta = Vinv @ np.asarray(B, float)
     c = np.asarray(C, float) @ V
@@ -273,14 +304,15 @@ def response_basis(A, B, C, tau: float, window: CommandWindow) -> ResponseBasis:
     return ResponseBasis(columns=cols.real, modes=V.real)
 
 
-def predict_output(model: LoopModel, t_command, command, t_output, *, bias: float = 0.0,
-                   output=None, fit_initial: bool = True, x0=None) -> PredictedOutput:
+def predict_output(model: PlantModel, t_command: ArrayLike, command: ArrayLike, t_output: ArrayLike, *,
+                   bias: float = 0.0, output: ArrayLike | None = None, fit_initial: bool = True,
+                   x0: ArrayLike | None = None) -> PredictedOutput:
     """Simulate ``model`` driven by a recorded command, at the recording's output times.
 
     Parameters
     ----------
-    model : LoopModel
-        Tp, Td, tau [s] and K of eq. (2).
+    model : PlantModel
+        The plant (e.g. a :class:`~mrftcli.mrft.model.LoopModel`: Tp, Td, tau [s] and K of eq. (2)).
     t_command, command : array_like
         Command sample times [s] (increasing) and values [command units], as logged.
     t_output : array_like
@@ -317,10 +349,10 @@ def predict_output(model: LoopModel, t_command, command, t_output, *, bias: floa
         raise InputError("fitting the initial state needs the recorded output")
     window = CommandWindow.from_arrays(t_command, command, t_output, output, bias)
     to, yrec = window.t_output, window.output
-    A, B, C = model.state_space()
-    basis = response_basis(A, B, C, model.tau, window)
+    ss = model.realisation()
+    basis = response_basis(ss.A, ss.B, ss.C, model.delay, window)
     cols = basis.columns
-    if fit_initial:
+    if fit_initial and yrec is not None:  # (checked above: fitting needs the recording)
         ok = np.isfinite(yrec)
         coef, *_ = np.linalg.lstsq(cols[ok, 1:], yrec[ok] - cols[ok, 0], rcond=None)
         offset, z_init = float(coef[0]), coef[1:]
@@ -328,9 +360,12 @@ def predict_output(model: LoopModel, t_command, command, t_output, *, bias: floa
     else:
         offset = 0.0
         if x0 is None:
-            x_init = np.array([yrec[0] if yrec is not None and yrec.size else 0.0, 0.0, 0.0])
+            # at rest at the first recorded output: the least-norm state with C x = y (for eq. (2)
+            # [y, 0, 0])
+            y_first = yrec[0] if yrec is not None and yrec.size else 0.0
+            x_init = ss.C * y_first / float(ss.C @ ss.C)
         else:
-            x_init = np.asarray(x0, float).reshape(3)
+            x_init = np.asarray(x0, float).reshape(ss.order)
         z_init = np.linalg.solve(basis.modes, x_init)
     y = cols[:, 0] + offset * cols[:, 1] + cols[:, 2:] @ z_init
     if yrec is None:
@@ -343,15 +378,15 @@ def predict_output(model: LoopModel, t_command, command, t_output, *, bias: floa
     return PredictedOutput(t=to, y=y, residual=resid, x0=np.asarray(x_init, float), input_offset=offset, rms=rms)
 
 
-def predict_tests(model: LoopModel, tests, t_command, command, t_output, output, *,
-                  history: float = 1.0) -> dict[int, PredictedOutput]:
+def predict_tests(model: PlantModel, tests: Sequence[TestSpan], t_command: ArrayLike, command: ArrayLike,
+                  t_output: ArrayLike, output: ArrayLike, *, history: float = 1.0) -> dict[int, PredictedOutput]:
     """:func:`predict_output` over each MRFT test's outputs, driven by its commands from ``history``
     [s] before its first relay sample (the commands sent within tau before a test drive its first
     outputs; :meth:`CommandWindow.between`) to its last.
 
     Parameters
     ----------
-    model : LoopModel
+    model : PlantModel
         The identified model.
     tests : sequence of mrftcli.segment.MrftTest
         The tests (their ``t_start``, ``t_end`` [s] and ``bias`` [command units] are used).

@@ -30,7 +30,7 @@ from ..errors import InputError
 from .inputs import Side
 from .records import PARAMETERS, Comparison, Estimate, LoopEstimates, MissingResult, ParameterChange, Tolerance
 
-__all__ = ["CompareOptions", "compare_sides", "compare_estimates", "critical_z", "side_sigmas", "CORRECTIONS"]
+__all__ = ["CompareOptions", "ChangeTest", "compare_sides", "compare_estimates", "critical_z", "side_sigmas", "CORRECTIONS"]
 
 #: Multiple-comparison corrections: none (per parameter) or Bonferroni over a loop's parameters.
 CORRECTIONS: tuple[str, ...] = ("none", "bonferroni")
@@ -100,22 +100,29 @@ def _undetermined_note(base: Estimate, new: Estimate) -> str:
     return "; ".join(w for w in (why(base, "baseline"), why(new, "new")) if w)
 
 
-def compare_estimates(base: Estimate, new: Estimate, *, z_crit: float, tolerance: Tolerance | None,
-                      fail_without_tolerance: bool) -> tuple[float | None, float | None, float | None, float | None,
-                                                             bool, bool, str]:
-    """Test one parameter's change (module docstring).
+@dataclass(frozen=True)
+class ChangeTest:
+    """One parameter's test: d = new - base, its interval [SI units], the z score (None when
+    undetermined), whether the interval excludes zero, whether d is beyond the tolerance, the verdict
+    (``changed``, ``significant``, ``unchanged`` or ``undetermined``)."""
 
-    Returns
-    -------
-    change, low, high, z : float or None
-        d = new - base, its interval [SI units] and the z score (None when undetermined).
-    significant, beyond : bool
-        The interval excludes zero; the point change is beyond ``tolerance``.
-    verdict : str
-        ``changed``, ``significant``, ``unchanged`` or ``undetermined``.
-    """
+    change: float | None
+    low: float | None
+    high: float | None
+    z: float | None
+    significant: bool
+    beyond: bool
+    verdict: str
+
+
+_UNDETERMINED = ChangeTest(None, None, None, None, False, False, "undetermined")
+
+
+def compare_estimates(base: Estimate, new: Estimate, *, z_crit: float, tolerance: Tolerance | None,
+                      fail_without_tolerance: bool) -> ChangeTest:
+    """Test one parameter's change (module docstring) with the critical value ``z_crit``."""
     if not (base.determined and new.determined):
-        return None, None, None, None, False, False, "undetermined"
+        return _UNDETERMINED
     assert base.mean is not None and new.mean is not None
     b_below, b_above = side_sigmas(base)
     n_below, n_above = side_sigmas(new)
@@ -132,7 +139,7 @@ def compare_estimates(base: Estimate, new: Estimate, *, z_crit: float, tolerance
         verdict = "changed"
     else:
         verdict = "significant"
-    return d, low, high, z, significant, beyond, verdict
+    return ChangeTest(d, low, high, z, significant, beyond, verdict)
 
 
 def _tolerance_for(loop: str, param: str, fail_on: tuple[Tolerance, ...],
@@ -164,13 +171,12 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
     out = []
     for p, (be, ne) in pairs.items():
         tol = _tolerance_for(n.loop, p, options.fail_on, (b, n))
-        d, low, high, z, sig, beyond, verdict = compare_estimates(be, ne, z_crit=z_crit, tolerance=tol,
-                                                                  fail_without_tolerance=fail_without_tolerance)
-        note = _undetermined_note(be, ne) if verdict == "undetermined" else ""
-        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=be.mean, new=ne.mean, change=d,
-                                   low=low, high=high, z=z, significant=sig,
-                                   tolerance=tol.text if tol is not None else None, beyond_tolerance=beyond,
-                                   verdict=verdict, note=note))
+        t = compare_estimates(be, ne, z_crit=z_crit, tolerance=tol, fail_without_tolerance=fail_without_tolerance)
+        note = _undetermined_note(be, ne) if t.verdict == "undetermined" else ""
+        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=be.mean, new=ne.mean, change=t.change,
+                                   low=t.low, high=t.high, z=t.z, significant=t.significant,
+                                   tolerance=tol.text if tol is not None else None, beyond_tolerance=t.beyond,
+                                   verdict=t.verdict, note=note))
     return out
 
 

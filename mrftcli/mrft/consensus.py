@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -148,13 +148,14 @@ class Bootstrap:
     omegas: np.ndarray
     phases: np.ndarray
     ln_amp: np.ndarray
-    weights: dict | None
+    weights: dict[str, np.ndarray] | None
 
 
 def tau_curves(Tp: float, betas: np.ndarray, omegas: np.ndarray, Td: np.ndarray) -> np.ndarray:
     """tau_i(Td) [s], the UFM slices in real units, for arrays (M, n) of betas and omegas and Td (M,)."""
     th, _ = unit_cycle(Tp * omegas, Td[:, None] * omegas, betas)
-    return th / omegas
+    tau: np.ndarray = th / omegas
+    return tau
 
 
 def phase_tau(Tp: float, omegas: np.ndarray | float, phases: np.ndarray | float,
@@ -176,8 +177,9 @@ def phase_tau(Tp: float, omegas: np.ndarray | float, phases: np.ndarray | float,
     0.06
     """
     omegas = np.asarray(omegas, float)
-    return (-np.asarray(phases, float) - 0.5 * math.pi - np.arctan(Tp * omegas)
-            - np.arctan(np.asarray(Td, float) * omegas)) / omegas
+    tau: np.ndarray = (-np.asarray(phases, float) - 0.5 * math.pi - np.arctan(Tp * omegas)
+                       - np.arctan(np.asarray(Td, float) * omegas)) / omegas
+    return tau
 
 
 def consensus_objective(Tp: float, betas: np.ndarray, omegas: np.ndarray, w: np.ndarray, x: np.ndarray,
@@ -298,7 +300,7 @@ def _nanmean_rows(x: np.ndarray, axis: int = 1) -> np.ndarray:
 
 
 def constraint_weights(Tp: float, tests: Sequence[StableCycles], Td_ref: float,
-                       constraints: Sequence[str]) -> dict:
+                       constraints: Sequence[str]) -> dict[str, np.ndarray]:
     """Inverse-variance weights of each test's constraints, from the measured per-cycle scatter.
 
     Each stable cycle c of test i is evaluated at ``Td_ref`` on its own: its UFM value
@@ -348,8 +350,8 @@ def constraint_weights(Tp: float, tests: Sequence[StableCycles], Td_ref: float,
 
 
 def constraint_report(Tp: float, tests: Sequence[StableCycles], Td: float, tau: float, betas: np.ndarray,
-                      omegas: np.ndarray, phases: np.ndarray, ln_amp: np.ndarray, cw: dict,
-                      constraints: Sequence[str]) -> dict:
+                      omegas: np.ndarray, phases: np.ndarray, ln_amp: np.ndarray, cw: dict[str, np.ndarray],
+                      constraints: Sequence[str]) -> dict[str, Any]:
     """The constraints used and their residuals at the estimate (Td, tau) [s] (for the JSON and the warnings).
 
     ``betas``, ``omegas`` [rad/s], ``phases`` [rad] and ``ln_amp`` = ln(a/h) are the tests' means (n,);
@@ -367,7 +369,7 @@ def constraint_report(Tp: float, tests: Sequence[StableCycles], Td: float, tau: 
     kbar = float(np.sum(wk * lnK) / np.sum(wk)) if np.sum(wk) > 0 else float("nan")
     per, chi2, m = [], 0.0, 0
     for i, t in enumerate(tests):
-        row = {"index": t.index, "beta": float(betas[i]), "omega_rad_s": float(omegas[i])}
+        row: dict[str, Any] = {"index": t.index, "beta": float(betas[i]), "omega_rad_s": float(omegas[i])}
         r = float(tau_u[i] - tau)
         row["ufm"] = {"tau_s": float(tau_u[i]), "sigma_s": float(cw["sigma_ufm_s"][i]), "residual_s": r,
                       "normalised": r / float(cw["sigma_ufm_s"][i])}
@@ -400,7 +402,8 @@ def ugm_gain(Tp: float, Td: np.ndarray, omegas: np.ndarray, amps: np.ndarray, hs
     ``Td`` (M,) [s]; ``omegas`` [rad/s], ``amps`` [output units] and ``hs`` [command units] (M, n).
     """
     _, a_unit = unit_cycle(Tp * omegas, Td[:, None] * omegas, np.zeros_like(omegas))
-    return np.mean(amps * omegas / (hs * Td[:, None] * a_unit), axis=1)
+    K: np.ndarray = np.mean(amps * omegas / (hs * Td[:, None] * a_unit), axis=1)
+    return K
 
 
 def bootstrap(Tp: float, tests: Sequence[StableCycles], Td_ref: float, constraints: Sequence[str],
@@ -477,7 +480,7 @@ def bootstrap_estimate(point: float, draws: np.ndarray, centre: float, unit: str
 
 
 def combinations(Tp: float, tests: Sequence[StableCycles], Td_ref: float, max_combinations: int,
-                 rng: np.random.Generator) -> dict:
+                 rng: np.random.Generator) -> dict[str, Any]:
     """Per-combination estimates (paper Table III): one stable cycle from each test.
 
     Every combination when there are at most ``max_combinations``, else a random subset of that

@@ -47,7 +47,8 @@ def df_phase(beta: ArrayLike) -> np.ndarray:
     >>> float(df_phase(0.0)) == -math.pi
     True
     """
-    return -np.pi + np.arcsin(np.clip(np.asarray(beta, float), -1.0, 1.0))
+    phase: np.ndarray = -np.pi + np.arcsin(np.clip(np.asarray(beta, float), -1.0, 1.0))
+    return phase
 
 
 def df_frequency(model: LoopModel, beta: float, extra_delay: float = 0.0) -> float:
@@ -85,7 +86,7 @@ def df_frequency(model: LoopModel, beta: float, extra_delay: float = 0.0) -> flo
         lo /= 2.0
         if lo < 1e-12:
             return float("nan")
-    return optimize.brentq(lag, lo, hi, xtol=1e-14, rtol=1e-14)
+    return float(optimize.brentq(lag, lo, hi, xtol=1e-14, rtol=1e-14))
 
 
 def df_amplitude(model: LoopModel, omega: float, h: float = 1.0) -> float:

@@ -102,7 +102,8 @@ class HarmonicFit:
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
         """The fitted output at times ``x`` from the origin [s] (periodic part plus trend)."""
         xq = np.atleast_1d(np.asarray(x, float))
-        return harmonic_basis(xq, self.period, self.n_harmonics, trend=self.trend, angle=self.angle) @ self.coef
+        y: np.ndarray = harmonic_basis(xq, self.period, self.n_harmonics, trend=self.trend, angle=self.angle) @ self.coef
+        return y
 
 
 def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period",

@@ -75,12 +75,13 @@ from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import optimize
 
 from ..errors import InputError
 from .identify import ParameterEstimate
 from .model import LoopModel
-from .waveform import CommandWindow, response_basis
+from .waveform import CommandWindow, TestSpan, response_basis
 
 __all__ = ["RESIDUAL_FACTOR", "INTERVAL_FACTOR", "TAU_MAX", "COMMAND_HISTORY", "sensor_noise", "OutputErrorFit",
            "fit_output_error", "Refinement", "refine", "loop_model_plant", "refinement_windows", "with_sensor_lag",
@@ -163,11 +164,14 @@ class OutputErrorFit:
     offset_std: tuple[float, ...] = ()
 
 
-def _projected(plant: Plant, windows: Sequence[CommandWindow], p: np.ndarray, keep: list | None = None) -> np.ndarray:
+def _projected(plant: Plant, windows: Sequence[CommandWindow], p: np.ndarray,
+               keep: list[tuple[float, float]] | None = None) -> np.ndarray:
     A, B, C, tau = plant(p)
     out = []
     for w in windows:
         cols = response_basis(A, B, C, tau, w).columns
+        if w.output is None:  # (fit_output_error checks every window has its recording)
+            raise InputError("the output-error fit needs every window's recorded output")
         ok = np.isfinite(w.output)
         y = w.output[ok] - cols[ok, 0]
         X = cols[ok, 1:]
@@ -178,8 +182,8 @@ def _projected(plant: Plant, windows: Sequence[CommandWindow], p: np.ndarray, ke
     return np.concatenate(out)
 
 
-def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0, *, lower=None, upper=None,
-                     max_evaluations: int = 30) -> OutputErrorFit:
+def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0: ArrayLike, *, lower: ArrayLike | None = None,
+                     upper: ArrayLike | None = None, max_evaluations: int = 30) -> OutputErrorFit:
     """Fit a plant's parameters to recorded windows by output error (see the module docstring).
 
     Parameters
@@ -210,7 +214,7 @@ def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0, *, lowe
     res = optimize.least_squares(lambda p: _projected(plant, windows, p), p0, bounds=(lo, hi), method="trf",
                                  x_scale="jac", jac="2-point", diff_step=1e-6, max_nfev=max_evaluations,
                                  xtol=1e-8, ftol=1e-10)
-    offsets: list = []
+    offsets: list[tuple[float, float]] = []
     r = _projected(plant, windows, res.x, offsets)
     n = r.size
     dof = max(n - p0.size - 4 * len(windows), 1)
@@ -220,7 +224,7 @@ def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0, *, lowe
         cov = s2 * np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         cov = np.full((p0.size, p0.size), np.nan)
-    sizes = np.cumsum([int(np.isfinite(w.output).sum()) for w in windows])[:-1]
+    sizes = np.cumsum([int(np.isfinite(w.output).sum()) for w in windows if w.output is not None])[:-1]
     per = tuple(float(np.sqrt(np.mean(x ** 2))) for x in np.split(r, sizes))
     return OutputErrorFit(p=res.x, covariance=cov, std=np.sqrt(np.abs(np.diag(cov))),
                           residual_rms=float(np.sqrt(np.mean(r ** 2))), window_rms=per, n_samples=int(n),
@@ -232,15 +236,15 @@ def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0, *, lowe
 def loop_model_plant(Tp: float) -> Plant:
     """eq. (2) at a known Tp [s] in the parametrisation p = (ln Td, tau [s], K)."""
 
-    def plant(p: np.ndarray):
-        A, B, C = LoopModel(Tp, math.exp(p[0]), max(p[1], 0.0), p[2]).state_space()
-        return A, B, C, max(float(p[1]), 0.0)
+    def plant(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        ss = LoopModel(Tp, math.exp(p[0]), max(p[1], 0.0), p[2]).realisation()
+        return ss.A, ss.B, ss.C, max(float(p[1]), 0.0)
 
     return plant
 
 
-def refinement_windows(tests, t_command, command, t_output, output, *,
-                 history: float = COMMAND_HISTORY) -> list[CommandWindow]:
+def refinement_windows(tests: Sequence[TestSpan], t_command: ArrayLike, command: ArrayLike, t_output: ArrayLike,
+                       output: ArrayLike, *, history: float = COMMAND_HISTORY) -> list[CommandWindow]:
     """Each test's :class:`CommandWindow` for the refinement: its outputs, and its commands from
     ``history`` [s] before it (see the module docstring).
 
@@ -277,7 +281,7 @@ def with_sensor_lag(plant: Plant) -> Plant:
     ((4, 4), [0.0, 0.0, 0.0, 1.0], 0.03)
     """
 
-    def lagged(p: np.ndarray):
+    def lagged(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         p = np.asarray(p, float)
         A, B, C, tau = plant(p[:-1])
         n = A.shape[0]
@@ -410,7 +414,7 @@ class Refinement:
     residual_ratio: float
     fit: OutputErrorFit = field(repr=False)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, object]:
         """The ``refinement`` object of ``analyze --json``."""
         return {"accepted": self.accepted, "reasons": list(self.reasons), "noise_std": self.noise_std,
                 "residual_rms": self.residual_rms, "residual_ratio": self.residual_ratio,
@@ -464,7 +468,7 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     Refinement
     """
     if noise_std is None:
-        noise_std = sensor_noise([w.output for w in windows])
+        noise_std = sensor_noise([w.output for w in windows if w.output is not None])
     plant = loop_model_plant(start.Tp)
     sign = -1.0 if loop_sign < 0 else 1.0
     fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, sign * start.K],

@@ -34,7 +34,8 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from importlib.resources.abc import Traversable
+from typing import Any, Iterable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -96,7 +97,7 @@ class Manifold:
     td_n: np.ndarray
     theta: np.ndarray = field(repr=False)
     amplitude: np.ndarray = field(repr=False)
-    metadata: dict = field(default_factory=dict, repr=False)
+    metadata: dict[str, Any] = field(default_factory=dict, repr=False)
 
     def theta_physical(self) -> np.ndarray:
         """UFM with NaN where no non-negative delay gives unit frequency."""
@@ -222,7 +223,7 @@ def save_manifold(manifold: Manifold, directory: str | Path) -> Path:
     return path
 
 
-def load_manifold(path) -> Manifold:
+def load_manifold(path: str | Path | Traversable) -> Manifold:
     """Read one manifold file (``.npz``; a Traversable from importlib.resources is accepted).
 
     Raises
@@ -296,7 +297,8 @@ class ManifoldSet:
 def _load_dir(directory: str | None) -> ManifoldSet:
     if directory is None:
         root = importlib.resources.files("mrftcli._manifolds")
-        files = [p for p in root.iterdir() if p.name.startswith("ufm_beta") and p.name.endswith(".npz")]
+        files: list[Traversable] | list[Path] = [
+            p for p in root.iterdir() if p.name.startswith("ufm_beta") and p.name.endswith(".npz")]
     else:
         d = Path(directory)
         if not d.is_dir():

@@ -164,11 +164,12 @@ Update = TestUpdate | EstimateUpdate | WatchEnd
 # --------------------------------------------------------------------------------------------------
 
 
-def _window(sig: Signal | None, t_from: float) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+def _window(sig: Signal | None, t_from: float) -> Signal | None:
+    """The samples of ``sig`` from ``t_from`` [s] on; None when there are none."""
     if sig is None or len(sig) == 0:
-        return None, None
+        return None
     i = int(np.searchsorted(sig.t, t_from, side="left"))
-    return sig.t[i:], sig.values[i:]
+    return Signal(sig.t[i:], sig.values[i:]) if i < len(sig) else None
 
 
 class _Tracker:
@@ -180,20 +181,17 @@ class _Tracker:
         self.beta_from = -math.inf
 
     def update(self, flight: FlightLog) -> list[MrftTest]:
-        tc, c = _window(flight.command, self.t_from)
-        ty, y = _window(flight.output, self.t_from)
-        if tc is None or ty is None or tc.size < 10 or ty.size < 10:
+        cmd = _window(flight.command, self.t_from)
+        out = _window(flight.output, self.t_from)
+        if cmd is None or out is None or len(cmd) < 10 or len(out) < 10:
             return list(self.closed)
-        kw = {}
-        bt, bv = _window(flight.beta, self.beta_from)
-        if bt is not None and bt.size:
-            kw["beta_t"], kw["beta_v"] = bt, bv
-        st, sv = _window(flight.setpoint, self.t_from)
-        if st is not None and st.size:
-            kw["t_sp"], kw["setpoint"] = st, sv
-        found = segment_arrays(tc, c, ty, y, **kw)
-        t_last = float(tc[-1])
-        open_tests = []
+        beta = _window(flight.beta, self.beta_from)
+        sp = _window(flight.setpoint, self.t_from)
+        found = segment_arrays(cmd.t, cmd.values, out.t, out.values,
+                               beta_t=None if beta is None else beta.t, beta_v=None if beta is None else beta.values,
+                               t_sp=None if sp is None else sp.t, setpoint=None if sp is None else sp.values)
+        t_last = float(cmd.t[-1])
+        open_tests: list[MrftTest] = []
         for test in found:
             test = replace(test, index=len(self.closed) + len(open_tests))
             period = test.period_median if math.isfinite(test.period_median) else 1.0

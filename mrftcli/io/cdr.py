@@ -20,7 +20,8 @@ The writer side (:func:`serialize_many`) uses the same walk on a template messag
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from rosbags.interfaces import Nodetype
@@ -28,6 +29,7 @@ from rosbags.interfaces import Nodetype
 from ..errors import LogReadError
 
 if TYPE_CHECKING:
+    from rosbags.interfaces.typing import BaseDesc, FieldDesc, NameDesc
     from rosbags.typesys.store import Typestore
 
 __all__ = ["extract", "leaf_paths", "serialize_many", "default_message", "CdrLayoutError", "struct_fields"]
@@ -81,7 +83,8 @@ class _Walk:
         raw = self.buf[idx]
         if self.big is not None and size > 1:
             raw[self.big] = raw[self.big, ::-1]
-        return raw.view("<" + _DTYPE[typ]).ravel()
+        values: np.ndarray = raw.view("<" + _DTYPE[typ]).ravel()
+        return values
 
     def _record(self, path: str, rel: np.ndarray, typ: str, valid: np.ndarray | None = None) -> None:
         if self.active is not None:  # inside a sequence element that some messages lack
@@ -97,17 +100,16 @@ class _Walk:
             rel = self.field(prefix + name, desc, rel)
         return rel
 
-    def field(self, path: str, desc: tuple, rel: np.ndarray) -> np.ndarray:
-        kind, detail = desc
-        if kind == Nodetype.NAME:
+    def field(self, path: str, desc: FieldDesc, rel: np.ndarray) -> np.ndarray:
+        if desc[0] == Nodetype.NAME:
             if self.ros1 and not any(t.startswith(path + ".") for t in self.targets):
                 # ROS 1 has no alignment: a struct without strings/sequences is a constant skip
                 size = self._fixed_size(desc)
                 if size is not None:
                     return rel + size
-            return self.struct(detail, path + ".", rel)
-        if kind == Nodetype.BASE:
-            typ = detail[0]
+            return self.struct(desc[1], path + ".", rel)
+        if desc[0] == Nodetype.BASE:
+            typ = desc[1][0]
             if typ == "string":
                 return self._string(rel)
             if typ not in _SIZE:
@@ -116,27 +118,23 @@ class _Walk:
             if path in self.targets:
                 self._record(path, rel, typ)
             return rel + _SIZE[typ]
-        if kind == Nodetype.ARRAY:
-            sub, length = detail
+        sub, length = desc[1]
+        if desc[0] == Nodetype.ARRAY:
             return self._elements(path, sub, rel, np.full(len(rel), length, dtype=np.int64))
-        if kind == Nodetype.SEQUENCE:
-            sub = detail[0]
-            rel = self._align(rel, 4)
-            count = self._gather(rel, "uint32").astype(np.int64)
-            return self._elements(path, sub, rel + 4, count)
-        raise _Unsupported(f"field kind {kind} at {path}")
+        rel = self._align(rel, 4)  # a sequence: uint32 count, then the elements
+        count = self._gather(rel, "uint32").astype(np.int64)
+        return self._elements(path, sub, rel + 4, count)
 
     def _string(self, rel: np.ndarray) -> np.ndarray:
         rel = self._align(rel, 4)
         length = self._gather(rel, "uint32").astype(np.int64)
         return rel + 4 + length
 
-    def _elements(self, path: str, sub: tuple, rel: np.ndarray, count: np.ndarray) -> np.ndarray:
-        kind, detail = sub
-        if kind == Nodetype.BASE and detail[0] == "wstring":
+    def _elements(self, path: str, sub: BaseDesc | NameDesc, rel: np.ndarray, count: np.ndarray) -> np.ndarray:
+        if sub[0] == Nodetype.BASE and sub[1][0] == "wstring":
             raise _Unsupported("wstring")
-        if kind == Nodetype.BASE and detail[0] != "string":
-            typ = detail[0]
+        if sub[0] == Nodetype.BASE and sub[1][0] != "string":
+            typ = sub[1][0]
             size = _SIZE[typ]
             if not self.ros1 and size > 1:
                 rel = np.where(count > 0, self._align(rel, size), rel)
@@ -146,32 +144,32 @@ class _Walk:
                 except ValueError:
                     continue
                 self._record(target, rel + k * size, typ, valid=count > k)
-            return rel + count * size
+            after: np.ndarray = rel + count * size
+            return after
         # strings or nested types: one vectorised step per element index, masked by the count
         outer = self.active
         for k in range(int(count.max(initial=0))):
             active = count > k
             self.active = active if outer is None else (outer & active)
             elem_path = f"{path}[{k}]"
-            if kind == Nodetype.NAME:
-                new = self.struct(detail, elem_path + ".", rel)
+            if sub[0] == Nodetype.NAME:
+                new = self.struct(sub[1], elem_path + ".", rel)
             else:
                 new = self._string(rel)
             rel = np.where(active, new, rel)
         self.active = outer
         return rel
 
-    def _fixed_size(self, desc: tuple) -> int | None:
+    def _fixed_size(self, desc: FieldDesc) -> int | None:
         """Byte size of a type in ROS 1 (no alignment) if it holds no strings/sequences, else None."""
-        kind, detail = desc
-        if kind == Nodetype.BASE:
-            return _SIZE.get(detail[0])
-        if kind == Nodetype.ARRAY:
-            inner = self._fixed_size(detail[0])
-            return None if inner is None else inner * detail[1]
-        if kind == Nodetype.NAME:
+        if desc[0] == Nodetype.BASE:
+            return _SIZE.get(desc[1][0])
+        if desc[0] == Nodetype.ARRAY:
+            inner = self._fixed_size(desc[1][0])
+            return None if inner is None else inner * desc[1][1]
+        if desc[0] == Nodetype.NAME:
             total = 0
-            for _, sub in self.ts.fielddefs[detail][1]:
+            for _, sub in self.ts.fielddefs[desc[1]][1]:
                 size = self._fixed_size(sub)
                 if size is None:
                     return None
@@ -180,7 +178,8 @@ class _Walk:
         return None
 
 
-def _message_bounds(starts: np.ndarray, lengths: np.ndarray, ros1: bool, buf: np.ndarray):
+def _message_bounds(starts: np.ndarray, lengths: np.ndarray, ros1: bool,
+                    buf: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     starts = np.asarray(starts, dtype=np.int64)
     end = starts + np.asarray(lengths, dtype=np.int64)
     if ros1:
@@ -247,7 +246,8 @@ def extract(typestore: Typestore, msgtype: str, buf: np.ndarray, starts: np.ndar
     return out
 
 
-def _extract_generic(typestore, msgtype, buf, starts, lengths, paths, ros1) -> dict[str, np.ndarray]:
+def _extract_generic(typestore: Typestore, msgtype: str, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+                     paths: list[str], ros1: bool) -> dict[str, np.ndarray]:
     """Per-message fallback through rosbags' deserialiser (types the walker cannot skip)."""
     decode = typestore.deserialize_ros1 if ros1 else typestore.deserialize_cdr
     raw = buf.tobytes()
@@ -258,21 +258,22 @@ def _extract_generic(typestore, msgtype, buf, starts, lengths, paths, ros1) -> d
         except Exception as err:  # noqa: BLE001 - rosbags SerdeError and friends
             raise CdrLayoutError(f"message {i} of {msgtype} cannot be decoded ({type(err).__name__})") from None
         for path in paths:
-            node = msg
+            node: object = msg
             for part in path.split("."):
                 index = None
                 if part.endswith("]"):
                     part, index = part[:-1].split("[")
                 node = getattr(node, part)
                 if index is not None:
-                    node = node[int(index)] if int(index) < len(node) else np.nan
-            out[path][i] = float(node)
+                    seq = cast("Sequence[float]", node)
+                    node = seq[int(index)] if int(index) < len(seq) else np.nan
+            out[path][i] = float(cast("float", node))
     return out
 
 
-def struct_fields(typestore: Typestore, msgtype: str, path: str) -> tuple[str, tuple] | None:
+def struct_fields(typestore: Typestore, msgtype: str, path: str) -> FieldDesc | None:
     """The field description at ``path`` inside ``msgtype`` (``(kind, detail)``), None if absent."""
-    desc: tuple = (Nodetype.NAME, msgtype)
+    desc: FieldDesc = (Nodetype.NAME, msgtype)
     for part in path.split(".") if path else []:
         index = None
         if part.endswith("]") and "[" in part:
@@ -284,7 +285,7 @@ def struct_fields(typestore: Typestore, msgtype: str, path: str) -> tuple[str, t
             return None
         desc = fields[part]
         if index is not None:
-            if desc[0] not in (Nodetype.ARRAY, Nodetype.SEQUENCE) or not index.isdigit():
+            if desc[0] == Nodetype.BASE or desc[0] == Nodetype.NAME or not index.isdigit():
                 return None
             desc = desc[1][0]
     return desc
@@ -301,20 +302,19 @@ def leaf_paths(typestore: Typestore, msgtype: str, path: str) -> list[str]:
     if desc is None:
         parent, _, _ = path.rpartition(".")
         pdesc = struct_fields(typestore, msgtype, parent)
-        names = []
+        names: list[str] = []
         if pdesc is not None and pdesc[0] == Nodetype.NAME:
             names = [n for n, _ in typestore.fielddefs[pdesc[1]][1]]
         hint = f"; fields there: {', '.join(names)}" if names else ""
         raise CdrLayoutError(f"{msgtype} has no field {path!r}{hint}")
-    kind, detail = desc
-    if kind == Nodetype.BASE and detail[0] in _SIZE:
+    if desc[0] == Nodetype.BASE and desc[1][0] in _SIZE:
         return [path]
-    if kind == Nodetype.NAME:
-        names = [n for n, _ in typestore.fielddefs[detail][1]]
+    if desc[0] == Nodetype.NAME:
+        names = [n for n, _ in typestore.fielddefs[desc[1]][1]]
         if sorted(names) == ["w", "x", "y", "z"]:
             return [f"{path}.{c}" for c in "xyzw"]
         raise CdrLayoutError(
-            f"{path!r} of {msgtype} is a {detail}, not a number; pick one of its fields: "
+            f"{path!r} of {msgtype} is a {desc[1]}, not a number; pick one of its fields: "
             + ", ".join(f"{path}.{n}" for n in names))
     raise CdrLayoutError(f"{path!r} of {msgtype} is not a numeric field (use name[i] for arrays)")
 
@@ -324,14 +324,14 @@ def default_message(typestore: Typestore, msgtype: str, frame_id: str) -> object
     """A ``msgtype`` message (rosbags class) with every field zero or empty, quaternion ``w`` one and
     every ``frame_id`` set to ``frame_id``: the template the writers fill in."""
     cls = typestore.types[msgtype]
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     names = [n for n, _ in typestore.fielddefs[msgtype][1]]
     quaternion = sorted(names) == ["w", "x", "y", "z"]
-    for name, (kind, detail) in typestore.fielddefs[msgtype][1]:
-        if kind == Nodetype.NAME:
-            kwargs[name] = default_message(typestore, detail, frame_id)
-        elif kind == Nodetype.BASE:
-            typ = detail[0]
+    for name, desc in typestore.fielddefs[msgtype][1]:
+        if desc[0] == Nodetype.NAME:
+            kwargs[name] = default_message(typestore, desc[1], frame_id)
+        elif desc[0] == Nodetype.BASE:
+            typ = desc[1][0]
             if typ in ("string", "wstring"):
                 kwargs[name] = frame_id if name == "frame_id" else ""
             elif typ == "bool":
@@ -340,8 +340,8 @@ def default_message(typestore: Typestore, msgtype: str, frame_id: str) -> object
                 kwargs[name] = 1.0 if (quaternion and name == "w") else 0.0
             else:
                 kwargs[name] = 0
-        elif kind == Nodetype.ARRAY:
-            sub, length = detail
+        elif desc[0] == Nodetype.ARRAY:
+            sub, length = desc[1]
             if sub[0] == Nodetype.BASE and sub[1][0] in _DTYPE:
                 kwargs[name] = np.zeros(length, dtype=_DTYPE[sub[1][0]])
             elif sub[0] == Nodetype.BASE:
@@ -349,7 +349,7 @@ def default_message(typestore: Typestore, msgtype: str, frame_id: str) -> object
             else:
                 kwargs[name] = [default_message(typestore, sub[1], frame_id) for _ in range(length)]
         else:
-            sub = detail[0]
+            sub = desc[1][0]
             if sub[0] == Nodetype.BASE and sub[1][0] in _DTYPE:
                 kwargs[name] = np.zeros(0, dtype=_DTYPE[sub[1][0]])
             else:
@@ -369,7 +369,7 @@ def serialize_many(typestore: Typestore, msgtype: str, t: np.ndarray, fields: di
         bytes(typestore.serialize_ros1(template_msg, msgtype) if ros1
               else typestore.serialize_cdr(template_msg, msgtype)), dtype=np.uint8)
     n = len(t)
-    values = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
+    values: dict[str, np.ndarray] = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
     has_stamp = struct_fields(typestore, msgtype, "header.stamp.sec") is not None
     if has_stamp:
         ns = np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)

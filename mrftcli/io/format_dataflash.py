@@ -35,7 +35,7 @@ _NP = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q"
 
 def _dtype(msg_struct: str) -> np.dtype:
     """numpy dtype of a DFReader struct string such as ``<QhhH64s``."""
-    fields = []
+    fields: list[str | tuple[str, tuple[int]]] = []
     for count, char in re.findall(r"(\d*)([a-zA-Z?])", msg_struct.lstrip("<")):
         if char == "s":
             fields.append(f"S{count or 1}")

@@ -22,6 +22,7 @@ import mmap
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,7 +33,15 @@ from .source import LogSource
 from .timing import mean_rate_hz
 from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
 
+if TYPE_CHECKING:
+    from mcap.records import Channel, ChunkIndex, Message, Schema
+    from mcap.summary import Summary
+    from rosbags.typesys.store import Typestore
+
 __all__ = ["McapSource", "McapRecords", "McapChannel", "channel_typestore", "write_mcap", "MCAP_MAGIC"]
+
+#: one channel's messages: log times [ns], a byte buffer, and each message's start and length in it
+_RawMessages = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_MESSAGE = 0x05
@@ -64,10 +73,10 @@ class McapRecords:
     """
 
     def __init__(self) -> None:
-        self.schemas: dict[int, object] = {}
+        self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, McapChannel] = {}
 
-    def add_channel(self, rec, schema) -> None:
+    def add_channel(self, rec: Channel, schema: Schema | None) -> None:
         """Register an ``mcap`` Channel record (with its Schema record, or None) once."""
         if rec.id in self.channels:
             return
@@ -105,7 +114,7 @@ class McapRecords:
             return kept
         return 0
 
-    def _keep(self, msg) -> int:
+    def _keep(self, msg: Message) -> int:
         ch = self.channels.get(msg.channel_id)
         if ch is None:
             return 0
@@ -114,7 +123,7 @@ class McapRecords:
         return 1
 
 
-def channel_typestore(ch: McapChannel, path: str | Path):
+def channel_typestore(ch: McapChannel, path: str | Path) -> Typestore:
     """The rosbags typestore that decodes ``ch``'s CDR/ROS 1 messages: from the schema text the file
     carries, else the standard definitions (LogReadError if they do not know the type)."""
     ros1 = ch.encoding == "ros1"
@@ -140,15 +149,16 @@ class McapSource(LogSource):
     def __init__(self, path: str | Path) -> None:
         super().__init__(path)
         self.format = "mcap"
-        self._summary = None
+        self._summary: Summary | None = None
         self._records = McapRecords()
         self._channels: dict[int, McapChannel] = self._records.channels
         self._salvaged = False
-        self._typestores: dict[int, object] = {}
+        self._typestores: dict[int, Typestore] = {}
         self._topic_cache: list[TopicInfo] | None = None
-        self._raw_cache: dict[int, tuple] = {}
-        self._file = None
-        self._data = b""
+        self._raw_cache: dict[int, _RawMessages] = {}
+        self._file: IO[bytes] | None = None
+        self._data: bytes | mmap.mmap = b""
+        self._summary_failed = False
         try:
             self._require_file()
             # memory-mapped: a multi-GB log with camera topics costs only the pages actually read
@@ -174,10 +184,10 @@ class McapSource(LogSource):
         from mcap.reader import SeekingReader
 
         summary = None
-        self._summary_failed = False
         try:
-            self._file.seek(0)
-            summary = SeekingReader(self._file).get_summary()
+            handle = self._handle
+            handle.seek(0)
+            summary = SeekingReader(handle).get_summary()
         except Exception:  # noqa: BLE001 - any damage in the footer/summary -> linear salvage below
             summary = None
             self._summary_failed = True
@@ -187,6 +197,20 @@ class McapSource(LogSource):
                 self._records.add_channel(ch, summary.schemas.get(ch.schema_id))
             return
         self._scan()
+
+    @property
+    def _handle(self) -> IO[bytes]:
+        """The open file (LogReadError once closed)."""
+        if self._file is None:
+            raise LogReadError(f"{self.path}: the file is closed")
+        return self._file
+
+    @property
+    def _index(self) -> Summary:
+        """The summary with the chunk indexes (a file read without salvage has one)."""
+        if self._summary is None:
+            raise LogReadError(f"{self.path}: no MCAP summary (the file was salvaged record by record)")
+        return self._summary
 
     def _scan(self) -> None:
         """Linear salvage pass: every readable record, in file order.
@@ -225,7 +249,7 @@ class McapSource(LogSource):
             pos = end
         if count == 0 and (bad or not complete):
             raise LogReadError(f"{self.path}: corrupt or truncated MCAP, no message could be read")
-        notes = []
+        notes: list[str] = []
         if not complete:
             notes.append("the file ends before its footer")
         if bad:
@@ -273,7 +297,7 @@ class McapSource(LogSource):
         return kept
 
     # -- types --------------------------------------------------------------------------------------
-    def _typestore(self, ch: McapChannel):
+    def _typestore(self, ch: McapChannel) -> Typestore:
         if ch.id not in self._typestores:
             self._typestores[ch.id] = channel_typestore(ch, self.path)
         return self._typestores[ch.id]
@@ -288,7 +312,7 @@ class McapSource(LogSource):
     def topics(self) -> list[TopicInfo]:
         if self._topic_cache is not None:
             return self._topic_cache
-        out = []
+        out: list[TopicInfo] = []
         times = self._index_times(list(self._channels)) if not self._salvaged else {}
         for ch in self._channels.values():
             t_ns = np.asarray(ch.times if self._salvaged else times.get(ch.id, []), dtype=np.int64)
@@ -354,7 +378,7 @@ class McapSource(LogSource):
         return t, vals
 
     # -- raw access ---------------------------------------------------------------------------------
-    def _raw(self, ch: McapChannel):
+    def _raw(self, ch: McapChannel) -> _RawMessages:
         """Log times [ns], one byte buffer, and each message's start and length, in file order."""
         if ch.id not in self._raw_cache:
             self._raw_cache[ch.id] = self._raw_uncached(ch)
@@ -381,7 +405,7 @@ class McapSource(LogSource):
             self._file.close()
             self._file = None
 
-    def _raw_uncached(self, ch: McapChannel):
+    def _raw_uncached(self, ch: McapChannel) -> _RawMessages:
         if self._salvaged:
             lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
             starts = (np.cumsum(lengths) - lengths).astype(np.int64)
@@ -389,9 +413,9 @@ class McapSource(LogSource):
             return np.asarray(ch.times, dtype=np.int64), buf, starts, lengths
         return self._indexed([ch.id])[ch.id]
 
-    def _chunks(self, cids: list[int]):
+    def _chunks(self, cids: list[int]) -> list[ChunkIndex]:
         # a writer may leave the Message Index records out (valid MCAP): such a chunk may hold anything
-        return sorted((c for c in self._summary.chunk_indexes
+        return sorted((c for c in self._index.chunk_indexes
                        if not c.message_index_offsets or any(cid in c.message_index_offsets for cid in cids)),
                       key=lambda c: c.chunk_start_offset)
 
@@ -404,12 +428,12 @@ class McapSource(LogSource):
         return raw.reshape(-1, 2).astype(np.int64)
 
     def _index_times(self, cids: list[int]) -> dict[int, np.ndarray]:
-        out: dict[int, list] = {cid: [] for cid in cids}
-        if any(not c.message_index_offsets for c in self._summary.chunk_indexes):
+        out: dict[int, list[np.ndarray]] = {cid: [] for cid in cids}
+        if any(not c.message_index_offsets for c in self._index.chunk_indexes):
             # no Message Index records: the times come from reading the chunks
             return {cid: v[0] for cid, v in self._indexed(cids).items()}
         try:
-            for chunk in sorted(self._summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            for chunk in sorted(self._index.chunk_indexes, key=lambda c: c.chunk_start_offset):
                 for cid, off in chunk.message_index_offsets.items():
                     if cid in out:
                         out[cid].append(self._message_index(off)[:, 0])
@@ -417,20 +441,22 @@ class McapSource(LogSource):
             raise LogReadError(f"{self.path}: corrupt MCAP message index") from None
         return {cid: np.concatenate(v) if v else np.zeros(0, np.int64) for cid, v in out.items()}
 
-    def _indexed(self, cids: list[int]) -> dict[int, tuple]:
+    def _indexed(self, cids: list[int]) -> dict[int, _RawMessages]:
         """For each channel: log times [ns], bytes, message starts and sizes (file order)."""
         from mcap.data_stream import ReadDataStream
-        from mcap.records import Chunk
+        from mcap.records import Chunk, Message
         from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
 
         # every read chunk goes into one shared buffer; channels keep offsets into it
         buffers: list[np.ndarray] = []
         base = 0
-        parts: dict[int, tuple[list, list, list]] = {cid: ([], [], []) for cid in cids}
+        parts: dict[int, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {
+            cid: ([], [], []) for cid in cids}
         for chunk_index in self._chunks(cids):
             try:
-                self._file.seek(chunk_index.chunk_start_offset + 1 + 8)
-                chunk = Chunk.read(ReadDataStream(self._file))
+                handle = self._handle
+                handle.seek(chunk_index.chunk_start_offset + 1 + 8)
+                chunk = Chunk.read(ReadDataStream(handle))
                 data_stream, size = get_chunk_data_stream(chunk)
                 data = data_stream.read(size)
                 if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
@@ -463,8 +489,7 @@ class McapSource(LogSource):
                     # walk the chunk's records with the library instead
                     self.warn(f"message index of chunk at byte {chunk_index.chunk_start_offset} is "
                               "corrupt; read the chunk record by record")
-                    msgs = [r for r in breakup_chunk(chunk) if getattr(r, "channel_id", None) == cid
-                            and hasattr(r, "log_time")]
+                    msgs = [r for r in breakup_chunk(chunk) if isinstance(r, Message) and r.channel_id == cid]
                     datas = [bytes(m.data) for m in msgs]
                     length = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
                     start = base + (np.cumsum(length) - length)
@@ -477,7 +502,7 @@ class McapSource(LogSource):
                 starts.append(start)
                 lengths.append(length)
         buf = np.concatenate(buffers) if buffers else np.zeros(0, np.uint8)
-        out = {}
+        out: dict[int, _RawMessages] = {}
         for cid, (times, starts, lengths) in parts.items():
             if not times:
                 out[cid] = (np.zeros(0, np.int64), buf, np.zeros(0, np.int64), np.zeros(0, np.int64))
@@ -486,7 +511,7 @@ class McapSource(LogSource):
                             np.concatenate(lengths).astype(np.int64))
         return out
 
-    def _locate(self, arr: np.ndarray, cid: int, index_offset: int):
+    def _locate(self, arr: np.ndarray, cid: int, index_offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Log times, payload starts and sizes of channel ``cid``'s messages in a decompressed chunk.
 
         The Message Index gives each record's offset; every record is checked (opcode, channel id,
@@ -510,7 +535,7 @@ class McapSource(LogSource):
 def _walk_messages(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Offsets, channel ids, log times [ns] and record lengths of the Message records in a chunk's
     records (for chunks written without Message Index records). Stops at a truncated record."""
-    offs = []
+    offs: list[int] = []
     pos, n = 0, len(data)
     mv = memoryview(data)
     while pos + 9 <= n:
@@ -535,8 +560,8 @@ def _message_fields(arr: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 # -- JSON messages -------------------------------------------------------------------------------
-def _json_schema_leaves(schema: dict, prefix: str) -> list[str]:
-    out = []
+def _json_schema_leaves(schema: dict[str, Any], prefix: str) -> list[str]:
+    out: list[str] = []
     for name, sub in (schema.get("properties") or {}).items():
         path = f"{prefix}{name}"
         if sub.get("type") == "object":
@@ -546,7 +571,8 @@ def _json_schema_leaves(schema: dict, prefix: str) -> list[str]:
     return out
 
 
-def _json_values(path: Path, topic: str, buf, starts, lengths, fields: list[str]) -> dict:
+def _json_values(path: Path, topic: str, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,
+                 fields: list[str]) -> dict[str, np.ndarray]:
     """Leaf values of JSON messages (one ``json.loads`` per message: JSON has no fixed layout)."""
     raw = buf.tobytes()
     n = len(starts)
@@ -615,4 +641,4 @@ def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr")
             writer.add_message(channel_id=channel_ids[w], log_time=int(stamps[k]),
                                publish_time=int(stamps[k]), data=per_topic[w][2][i], sequence=seq[w])
             seq[w] += 1
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations

@@ -14,8 +14,11 @@ import os
 import struct
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from rosbags.rosbag1 import Reader as Ros1Reader
+from rosbags.rosbag2 import Reader as Ros2Reader
 
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
@@ -24,7 +27,17 @@ from .source import LogSource, one_line
 from .timing import mean_rate_hz
 from .msgtypes import numeric_leaves, typestore_for, typestore_from_text
 
+if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
+    from rosbags.rosbag1.reader import Header
+    from rosbags.rosbag1.writer import Writer as Ros1Writer
+    from rosbags.rosbag2.writer import Writer as Ros2Writer
+    from rosbags.typesys.store import Typestore
+
 __all__ = ["RosbagSource", "write_rosbag", "reindex_ros1"]
+
+#: one topic's messages as the bag gives them: record times [ns] and raw bytes
+_Raw = tuple[list[int], list[bytes]]
 
 
 class RosbagSource(LogSource):
@@ -36,14 +49,13 @@ class RosbagSource(LogSource):
         super().__init__(path)
         self.format = fmt
         self._ros1 = fmt == "bag"
-        self._typestores: dict[int, object] = {}
+        self._typestores: dict[int, Typestore] = {}
+        self._reader: Ros1Reader | Ros2Reader | None = None
+        self._raw: dict[str, _Raw] = {}
         try:
-            if self._ros1:
-                from rosbags.rosbag1 import Reader
-            else:
-                from rosbags.rosbag2 import Reader
-            self._reader = Reader(self.path)
-            self._reader.open()
+            reader = Ros1Reader(self.path) if self._ros1 else Ros2Reader(self.path)
+            reader.open()
+            self._reader = reader
         except LogReadError:
             raise
         except Exception as err:  # noqa: BLE001 - rosbags raises ReaderError, KeyError, sqlite errors...
@@ -53,8 +65,14 @@ class RosbagSource(LogSource):
                 hint = " (and no complete chunk to salvage: cut off inside the first?)" if self._ros1 else ""
                 raise LogReadError(f"{self.path}: cannot open the {'ROS 1' if self._ros1 else 'ROS 2'} "
                                    f"bag: {detail}{hint}") from None
-        self._conns = {c.topic: c for c in self._reader.connections}
-        self._raw: dict[str, tuple[list, list]] = {}
+        self._conns = {c.topic: c for c in self._bag.connections}
+
+    @property
+    def _bag(self) -> Ros1Reader | Ros2Reader:
+        """The open reader (LogReadError once closed)."""
+        if self._reader is None:
+            raise LogReadError(f"{self.path}: the bag is closed")
+        return self._reader
 
     def _salvage(self) -> bool:
         """Read a ROS 1 bag whose index is missing or cut off, as ``rosbag reindex`` would.
@@ -65,9 +83,7 @@ class RosbagSource(LogSource):
         the reader, with one warning saying what was salvaged (the same wording as a truncated
         MCAP). Returns False when not a single message could be recovered.
         """
-        from rosbags.rosbag1 import Reader
-
-        reader = Reader(self.path)
+        reader = Ros1Reader(self.path)
         try:
             n_msgs, n_chunks, notes = reindex_ros1(reader)
         except Exception:  # noqa: BLE001 - not even the bag header is readable
@@ -83,7 +99,7 @@ class RosbagSource(LogSource):
 
     def close(self) -> None:
         self._raw = {}
-        reader = getattr(self, "_reader", None)
+        reader = self._reader
         if reader is not None:
             try:
                 reader.close()
@@ -91,12 +107,11 @@ class RosbagSource(LogSource):
                 pass
             self._reader = None
 
-    def _typestore(self, conn):
+    def _typestore(self, conn: Connection) -> Typestore:
         if conn.id not in self._typestores:
             ts = None
-            text = getattr(conn.msgdef, "data", "") or ""
-            fmt = getattr(getattr(conn.msgdef, "format", None), "name", "")
-            if text and fmt == "MSG":
+            text = conn.msgdef.data or ""
+            if text and conn.msgdef.format.name == "MSG":
                 try:
                     ts = typestore_from_text(text, conn.msgtype, ros1=self._ros1)
                 except Exception:  # noqa: BLE001 - use the standard definitions instead
@@ -108,7 +123,7 @@ class RosbagSource(LogSource):
             self._typestores[conn.id] = ts
         return self._typestores[conn.id]
 
-    def _conn(self, topic: str):
+    def _conn(self, topic: str) -> Connection:
         conn = self._conns.get(topic)
         if conn is None:
             raise self.missing_topic(topic)
@@ -116,12 +131,13 @@ class RosbagSource(LogSource):
 
     def _times(self) -> dict[str, np.ndarray]:
         out: dict[str, list[int]] = {topic: [] for topic in self._conns}
-        if self._ros1:
-            for conn in self._reader.connections:
-                out[conn.topic].extend(entry.time for entry in self._reader.indexes[conn.id])
+        reader = self._bag
+        if isinstance(reader, Ros1Reader):
+            for conn in reader.connections:
+                out[conn.topic].extend(entry.time for entry in reader.indexes[conn.id])
         else:
             try:
-                for conn, stamp, _ in self._reader.messages(self._reader.connections):
+                for conn, stamp, _ in reader.messages(reader.connections):
                     out[conn.topic].append(stamp)
             except Exception as err:  # noqa: BLE001
                 raise LogReadError(f"{self.path}: corrupt bag data ({type(err).__name__})") from None
@@ -129,7 +145,7 @@ class RosbagSource(LogSource):
 
     def topics(self) -> list[TopicInfo]:
         times = self._times()
-        out = []
+        out: list[TopicInfo] = []
         for topic, conn in sorted(self._conns.items()):
             t = np.sort(times[topic]) / 1e9
             try:
@@ -153,10 +169,10 @@ class RosbagSource(LogSource):
         if conns:
             self._raw.update(self._collect(conns))
 
-    def _collect(self, conns) -> dict[str, tuple[list, list]]:
-        out = {c.topic: ([], []) for c in conns}
+    def _collect(self, conns: list[Connection]) -> dict[str, _Raw]:
+        out: dict[str, _Raw] = {c.topic: ([], []) for c in conns}
         try:
-            for conn, stamp, data in self._reader.messages(conns):
+            for conn, stamp, data in self._bag.messages(conns):
                 stamps, datas = out[conn.topic]
                 stamps.append(stamp)
                 datas.append(data)
@@ -181,14 +197,14 @@ class RosbagSource(LogSource):
         return np.asarray(stamps, dtype=np.int64) / 1e9, vals
 
 
-def _fields(data: bytes):
+def _fields(data: bytes) -> Header:
     """A ROS 1 record's data section parsed as header fields (connection details)."""
     from rosbags.rosbag1.reader import Header
 
     return Header.read(io.BytesIO(struct.pack("<I", len(data)) + data))
 
 
-def _connection(header, data: bytes, owner):
+def _connection(header: Header, data: bytes, owner: Ros1Reader) -> Connection:
     """A rosbags ``Connection`` from a connection record (its header and its data section)."""
     from rosbags.interfaces import Connection, ConnectionExtRosbag1, MessageDefinition, MessageDefinitionFormat
     from rosbags.rosbag1.reader import normalize
@@ -204,7 +220,7 @@ def _connection(header, data: bytes, owner):
                       ConnectionExtRosbag1(callerid, int(latching) if latching not in (None, "") else None), owner)
 
 
-def reindex_ros1(reader) -> tuple[int, int, list[str]]:
+def reindex_ros1(reader: Ros1Reader) -> tuple[int, int, list[str]]:
     """Rebuild the index of a ROS 1 (v2.0) bag in an unopened rosbags ``Reader`` by walking its records.
 
     What ``rosbag reindex`` does, in memory and without writing: after the bag header, every record
@@ -229,9 +245,10 @@ def reindex_ros1(reader) -> tuple[int, int, list[str]]:
         raise r1.ReaderError("not a ROS 1 v2.0 bag")
     r1.Header.read(bio, T.BAGHEADER)
     bio.seek(r1.read_uint32(bio), os.SEEK_CUR)  # the header record's padding
-    conns: dict[int, object] = {}
-    indexes: dict[int, list] = defaultdict(list)
-    chunks, infos = {}, []
+    conns: dict[int, Connection] = {}
+    indexes: dict[int, list[r1.IndexData]] = defaultdict(list)
+    chunks: dict[int, r1.Chunk] = {}
+    infos: list[r1.ChunkInfo] = []
     stop = None
     while bio.tell() < size:
         pos = bio.tell()
@@ -249,7 +266,7 @@ def reindex_ros1(reader) -> tuple[int, int, list[str]]:
                 decompress = r1.decompressors[header.get_string("compression")]
                 raw = decompress(data)
                 counts: dict[int, int] = defaultdict(int)
-                times = []
+                times: list[int] = []
                 chunk = io.BytesIO(raw)
                 while chunk.tell() < len(raw):
                     offset = chunk.tell()
@@ -295,21 +312,7 @@ def write_rosbag(topics: list[TopicData], path: str | Path, fmt: str) -> None:
     # compressed as recorders commonly do (4-5x smaller for these small messages, reads as fast):
     # ROS 1 LZ4 chunks (`rosbag record --lz4`); ROS 2 mcap storage zstd chunks; ROS 2 sqlite3 a
     # zstd-compressed database file (per-message compression gains little on 100-byte messages)
-    if ros1:
-        from rosbags.rosbag1 import Writer
-
-        writer = Writer(Path(path))
-        writer.set_compression(Writer.CompressionFormat.LZ4)
-        # 256 KiB chunks (rosbags' default is 1 MiB): a recording cut short loses at most the chunk
-        # being written (the others are salvaged, see reindex_ros1), as with our MCAP chunks
-        writer.chunk_threshold = 256 * 1024
-    else:
-        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-
-        plugin = StoragePlugin.MCAP if fmt == "ros2-mcap" else StoragePlugin.SQLITE3
-        writer = Writer(Path(path), version=9, storage_plugin=plugin)
-        writer.set_compression(CompressionMode.STORAGE if fmt == "ros2-mcap" else CompressionMode.FILE,
-                               CompressionFormat.ZSTD)
+    writer = _ros1_writer(Path(path)) if ros1 else _ros2_writer(Path(path), fmt)
     with writer:
         conns = [writer.add_connection(td.name, td.msgtype, typestore=ts) for td, _, _ in per_topic]
         which = np.concatenate([np.full(len(ns), k) for k, (_, ns, _) in enumerate(per_topic)]
@@ -319,3 +322,28 @@ def write_rosbag(topics: list[TopicData], path: str | Path, fmt: str) -> None:
         for k in np.lexsort((which, stamps)):
             w, i = int(which[k]), int(idx[k])
             writer.write(conns[w], int(stamps[k]), per_topic[w][2][i])
+
+
+def _ros1_writer(path: Path) -> Ros1Writer:
+    """A ROS 1 bag writer with LZ4 chunks of 256 KiB.
+
+    rosbags' default chunk is 1 MiB: a recording cut short loses at most the chunk being written
+    (the others are salvaged, see :func:`reindex_ros1`), as with our MCAP chunks.
+    """
+    from rosbags.rosbag1 import Writer
+
+    writer = Writer(path)
+    writer.set_compression(Writer.CompressionFormat.LZ4)
+    writer.chunk_threshold = 256 * 1024
+    return writer
+
+
+def _ros2_writer(path: Path, fmt: str) -> Ros2Writer:
+    """A ROS 2 bag writer: mcap storage with zstd chunks, or a zstd-compressed sqlite3 file."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+
+    plugin = StoragePlugin.MCAP if fmt == "ros2-mcap" else StoragePlugin.SQLITE3
+    writer = Writer(path, version=9, storage_plugin=plugin)
+    writer.set_compression(CompressionMode.STORAGE if fmt == "ros2-mcap" else CompressionMode.FILE,
+                           CompressionFormat.ZSTD)
+    return writer

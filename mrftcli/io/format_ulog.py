@@ -25,10 +25,11 @@ import contextlib
 import io
 import re
 from pathlib import Path
+from typing import Any, TypeAlias
 
 import numpy as np
 
-from ..errors import LogReadError
+from ..errors import InputError, LogReadError
 from .logtypes import TopicData, TopicInfo
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
@@ -36,6 +37,11 @@ from .timing import mean_rate_hz
 __all__ = ["UlogSource", "write_ulog", "ulog_name", "ULOG_MAGIC"]
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+#: pyulog's objects (``ULog``, ``ULog.Data``): the package has no type information
+_PyUlog: TypeAlias = Any
+#: dotted field paths as a tree: a leaf is None
+_Tree: TypeAlias = "dict[str, _Tree | None]"
 
 
 def ulog_name(topic: str) -> str:
@@ -54,10 +60,10 @@ class UlogSource(LogSource):
         self._require_file()
         self._end_checked = False
         self._header = self._parse(None, header_only=True)
-        self._full = None
-        self._cache: dict[tuple, object] = {}
+        self._full: _PyUlog | None = None
+        self._cache: dict[tuple[str, int], _PyUlog] = {}
 
-    def _parse(self, names, header_only=False):
+    def _parse(self, names: list[str] | None, header_only: bool = False) -> _PyUlog:
         from pyulog import ULog
 
         noise = io.StringIO()  # pyulog prints its corruption notices; turn them into one warning
@@ -93,7 +99,7 @@ class UlogSource(LogSource):
             pos += 3 + unpack(data, pos)[0]
         return pos != end
 
-    def _all(self):
+    def _all(self) -> _PyUlog:
         if self._full is None:
             self._full = self._parse(None)
         return self._full
@@ -110,7 +116,7 @@ class UlogSource(LogSource):
         return topic, 0
 
     def topics(self) -> list[TopicInfo]:
-        out = []
+        out: list[TopicInfo] = []
         for d in self._all().data_list:
             t = d.data["timestamp"].astype(np.float64) / 1e6
             fields = tuple(k for k in d.data if k != "timestamp")
@@ -133,7 +139,7 @@ class UlogSource(LogSource):
                 return self._key(cand, inst)
         return None
 
-    def _dataset(self, topic: str):
+    def _dataset(self, topic: str) -> _PyUlog:
         name, inst = self._split(topic)
         key = (name, inst)
         if key not in self._cache:
@@ -189,7 +195,7 @@ class UlogSource(LogSource):
                                f"{topic}:FIELD ({', '.join(names[:12])})")
         if field in available:
             return [field]
-        quat = Field.quaternion(field, available, seps=("."))
+        quat = Field.quaternion(field, available, seps=(".",))
         if quat:
             return quat
         if all(f"{field}[{i}]" in available for i in range(4)) and f"{field}[4]" not in available:
@@ -211,20 +217,24 @@ def _message(kind: bytes, payload: bytes) -> bytes:
     return len(payload).to_bytes(2, "little") + kind + payload
 
 
-def _tree(paths: list[str]) -> dict:
-    root: dict = {}
+def _tree(paths: list[str]) -> _Tree:
+    root: _Tree = {}
     for path in paths:
         node = root
         parts = path.split(".")
         for part in parts[:-1]:
-            node = node.setdefault(part, {})
+            child = node.setdefault(part, {})
+            if child is None:
+                raise InputError(f"cannot write {path!r}: {part!r} is a number and a message")
+            node = child
         node[parts[-1]] = None
     return root
 
 
-def _formats(name: str, tree: dict, prefix: str, out: list[str]) -> list[str]:
+def _formats(name: str, tree: _Tree, prefix: str, out: list[str]) -> list[str]:
     """Format strings for ``name`` and its nested types; returns the flattened leaf order."""
-    fields, leaves = [], []
+    fields: list[str] = []
+    leaves: list[str] = []
     if not prefix:
         fields.append("uint64_t timestamp")
     arrays: dict[str, int] = {}  # name[i] leaves become one ``double[N] name`` field (PX4's arrays)

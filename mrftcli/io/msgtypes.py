@@ -3,12 +3,22 @@
 from __future__ import annotations
 
 import json
+from dataclasses import fields as dataclass_fields
+from dataclasses import is_dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rosbags.interfaces import Nodetype
 
 from . import cdr
+
+if TYPE_CHECKING:
+    from rosbags.interfaces.typing import FieldDesc
+    from rosbags.typesys.store import Typestore
+
+#: a JSON Schema node
+JsonSchema = dict[str, Any]
 
 __all__ = ["typestore_for", "typestore_from_text", "numeric_leaves", "json_schema", "json_messages",
            "ros1_name"]
@@ -17,14 +27,14 @@ _INTS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64
 
 
 @lru_cache(maxsize=2)
-def typestore_for(ros1: bool = False):
+def typestore_for(ros1: bool = False) -> Typestore:
     """The standard message definitions (ROS 1 Noetic or ROS 2 Humble). Shared: do not register into."""
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
 
 
-def typestore_from_text(text: str, name: str, ros1: bool = False):
+def typestore_from_text(text: str, name: str, ros1: bool = False) -> Typestore:
     """A typestore holding the definitions a log carries (``.msg`` text with its dependencies).
 
     The log's own definition wins over the standard one, so older or custom message versions decode
@@ -51,38 +61,38 @@ def ros1_name(msgtype: str) -> str:
     return msgtype.replace("/msg/", "/")
 
 
-def numeric_leaves(ts, msgtype: str, prefix: str = "") -> list[str]:
+def numeric_leaves(ts: Typestore, msgtype: str, prefix: str = "") -> list[str]:
     """Dotted paths of the numeric fields of a type (arrays shown as ``name[N]``, sequences ``name[]``)."""
-    out = []
-    for name, (kind, detail) in ts.fielddefs[msgtype][1]:
+    out: list[str] = []
+    for name, desc in ts.fielddefs[msgtype][1]:
         path = prefix + name
-        if kind == Nodetype.NAME:
-            out.extend(numeric_leaves(ts, detail, path + "."))
-        elif kind == Nodetype.BASE and detail[0] not in ("string", "wstring"):
-            out.append(path)
-        elif kind == Nodetype.ARRAY and detail[0][0] == Nodetype.BASE and detail[0][1][0] not in ("string", "wstring"):
-            out.append(f"{path}[{detail[1]}]")
-        elif kind == Nodetype.SEQUENCE and detail[0][0] == Nodetype.BASE and detail[0][1][0] not in ("string", "wstring"):
-            out.append(f"{path}[]")
+        if desc[0] == Nodetype.NAME:
+            out.extend(numeric_leaves(ts, desc[1], path + "."))
+        elif desc[0] == Nodetype.BASE:
+            if desc[1][0] not in ("string", "wstring"):
+                out.append(path)
+        else:
+            (elem, count) = desc[1]
+            if elem[0] == Nodetype.BASE and elem[1][0] not in ("string", "wstring"):
+                out.append(f"{path}[{count}]" if desc[0] == Nodetype.ARRAY else f"{path}[]")
     return out
 
 
-def _schema_of(ts, desc) -> dict:
-    kind, detail = desc
-    if kind == Nodetype.NAME:
+def _schema_of(ts: Typestore, desc: FieldDesc) -> JsonSchema:
+    if desc[0] == Nodetype.NAME:
         return {"type": "object",
-                "properties": {n: _schema_of(ts, d) for n, d in ts.fielddefs[detail][1]}}
-    if kind == Nodetype.BASE:
-        typ = detail[0]
+                "properties": {n: _schema_of(ts, d) for n, d in ts.fielddefs[desc[1]][1]}}
+    if desc[0] == Nodetype.BASE:
+        typ = desc[1][0]
         if typ in ("string", "wstring"):
             return {"type": "string"}
         if typ == "bool":
             return {"type": "boolean"}
         return {"type": "integer" if typ in _INTS else "number"}
-    return {"type": "array", "items": _schema_of(ts, detail[0])}
+    return {"type": "array", "items": _schema_of(ts, desc[1][0])}
 
 
-def json_schema(ts, msgtype: str) -> dict:
+def json_schema(ts: Typestore, msgtype: str) -> JsonSchema:
     """A JSON Schema (draft 2020-12 subset) of a ROS message type, as MCAP ``jsonschema`` expects."""
     schema = _schema_of(ts, (Nodetype.NAME, msgtype))
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
@@ -90,9 +100,10 @@ def json_schema(ts, msgtype: str) -> dict:
     return schema
 
 
-def _to_plain(obj):
-    if hasattr(obj, "__msgtype__"):
-        return {k: _to_plain(getattr(obj, k)) for k in obj.__dataclass_fields__ if k != "__msgtype__"}
+def _to_plain(obj: object) -> Any:
+    """A message (a rosbags dataclass) as nested JSON values."""
+    if is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _to_plain(getattr(obj, f.name)) for f in dataclass_fields(obj) if f.name != "__msgtype__"}
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, list):
@@ -100,7 +111,7 @@ def _to_plain(obj):
     return obj
 
 
-def json_messages(ts, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray],
+def json_messages(ts: Typestore, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray],
                   frame_id: str = "map") -> list[bytes]:
     """JSON text of ``len(t)`` messages (all fields present; unspecified ones zero, quaternion w one).
 
@@ -109,7 +120,7 @@ def json_messages(ts, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray]
     """
     template = _to_plain(cdr.default_message(ts, msgtype, frame_id))
     values = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
-    ints = {}
+    ints: dict[str, np.ndarray] = {}
     if cdr.struct_fields(ts, msgtype, "header.stamp.sec") is not None:
         ns = np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
         ints["header.stamp.sec"] = ns // 1_000_000_000
@@ -131,7 +142,7 @@ def json_messages(ts, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray]
         num, rest = seg.split('@@"', 1)
         slots.append(int(num))
         parts.append(rest)
-    columns = []
+    columns: list[list[str]] = []
     for k in slots:
         path = order[k]
         if path in ints:
@@ -144,8 +155,8 @@ def json_messages(ts, msgtype: str, t: np.ndarray, fields: dict[str, np.ndarray]
     out = []
     for i in range(len(t)):
         pieces = [parts[0]]
-        for j, col in enumerate(columns):
-            pieces.append(col[i])
+        for j, column in enumerate(columns):
+            pieces.append(column[i])
             pieces.append(parts[j + 1])
         out.append("".join(pieces).encode())
     return out

@@ -182,5 +182,5 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
         for test in tests:
             writer.add_metadata(f"mrft_ident.test.{test.number}",
                                 {k: str(v) for k, v in test.__dict__.items()})
-        writer.finish()
+        writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations
     return path

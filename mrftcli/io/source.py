@@ -12,6 +12,7 @@ import sys
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
 
 import numpy as np
 
@@ -162,7 +163,8 @@ class LogSource(ABC):
     def __enter__(self) -> LogSource:
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         self.close()
         if exc_type is None and self.echo_warnings:
             # warnings go to stderr only when reading succeeded: a fatal error stays one line
@@ -225,7 +227,7 @@ class LogSource(ABC):
         return LogReadError(
             f"{self.path}: no topic {topic!r}{closest(topic, names)}; topics in the log: {shown or 'none'}")
 
-    def values(self, topic: str, field: str | None = None) -> tuple[np.ndarray, list[str], dict]:
+    def values(self, topic: str, field: str | None = None) -> tuple[np.ndarray, list[str], dict[str, np.ndarray]]:
         """Checked times [s] and the leaf values for ``topic:field`` (see :meth:`leaves`)."""
         leaves = self.leaves(topic, field)
         t, vals = self.read(topic, leaves)
@@ -257,7 +259,7 @@ class Field:
     """Helpers for dotted field paths in formats that flatten them (CSV, ULog)."""
 
     @staticmethod
-    def quaternion(prefix: str, available: set[str], seps=(".", "/")) -> list[str] | None:
+    def quaternion(prefix: str, available: set[str], seps: tuple[str, ...] = (".", "/")) -> list[str] | None:
         """Leaves ``prefix.x, .y, .z, .w`` (or with ``/``) if all exist in ``available``."""
         for sep in seps:
             names = [f"{prefix}{sep}{c}" for c in "xyzw"]

@@ -43,7 +43,18 @@ def _decimate(t: np.ndarray, rate_hz: float | None) -> np.ndarray:
     return np.arange(0, t.size, step)
 
 
-def _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz):
+@dataclass(frozen=True)
+class _Px4Log:
+    """What the PX4 logger writes of a flight: the topics, the parameters and their changes, the messages."""
+
+    topics: list[TopicData]
+    parameters: dict[str, float]
+    parameter_changes: list[tuple[float, str, float]]
+    messages: list[tuple[float, str]]
+
+
+def _px4(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, setpoint: np.ndarray, bias: float,
+         tests: list[StackTest], log_rate_hz: float | None) -> _Px4Log:
     if loop not in _AXIS:
         raise InputError(f"the PX4 MRFT patch runs on x, y and altitude, not {loop}")
     k = _decimate(t, log_rate_hz)
@@ -75,16 +86,18 @@ def _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz):
     params = {f"MRFT_{a}_{p}": v for a in "XYZ" for p, v in
               (("BETA", -0.73), ("H", 0.05), ("ENABLE", 0.0), ("NO_SWITCH", 0.02), ("N_CONF", 5.0))}
     params["MPC_THR_HOVER"] = hover
-    changes, messages = [], []
+    changes: list[tuple[float, str, float]] = []
+    messages: list[tuple[float, str]] = []
     for test in tests:
         changes += [(test.t_start, f"MRFT_{A}_BETA", test.beta), (test.t_start, f"MRFT_{A}_H", test.h),
                     (test.t_start, f"MRFT_{A}_ENABLE", 1.0), (test.t_end, f"MRFT_{A}_ENABLE", 0.0)]
         on = [int(a == A) for a in "XYZ"]
         messages.append((test.t_start, "MRFT parameters updated, x: %i, y: %i, z: %i" % tuple(on)))
-    return topics, {"parameters": params, "parameter_changes": changes, "messages": messages}
+    return _Px4Log(topics, params, changes, messages)
 
 
-def _hear(loop, t, command, output, setpoint, bias, tests, log_rate_hz, rng):
+def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, setpoint: np.ndarray,
+          log_rate_hz: float | None, rng: np.random.Generator) -> list[TopicData]:
     """HEAR ROS 1: Points without header, stamped at receive time (a few ms of jitter)."""
     names = {"x": ("fh", "x"), "y": ("fh", "y"), "altitude": ("fh", "z"), "roll": ("angle", "x"),
              "pitch": ("angle", "y")}
@@ -96,13 +109,14 @@ def _hear(loop, t, command, output, setpoint, bias, tests, log_rate_hz, rng):
     t_cam = np.arange(t[0], t[-1], 1.0 / 90.0)
     kc = np.clip(np.searchsorted(t, t_cam, side="right") - 1, 0, t.size - 1)
 
-    def received(stamps):
+    def received(stamps: np.ndarray) -> np.ndarray:
         late = np.abs(rng.normal(0.0, 0.002, stamps.size)) + 0.001  # transport + scheduling delay
         # a bag's receive times of one topic increase (1 us apart at least)
         ramp = np.arange(stamps.size) * 1e-6
-        return np.maximum.accumulate(stamps + late - ramp) + ramp
+        stamped: np.ndarray = np.maximum.accumulate(stamps + late - ramp) + ramp
+        return stamped
 
-    def point(values, n):
+    def point(values: np.ndarray, n: int) -> dict[str, np.ndarray]:
         out = {c: np.zeros(n) for c in "xyz"}
         out[comp] = values
         return out
@@ -118,7 +132,8 @@ def _hear(loop, t, command, output, setpoint, bias, tests, log_rate_hz, rng):
     ]
 
 
-def _mat(loop, t, command, output, setpoint, log_rate_hz):
+def _mat(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray,
+         log_rate_hz: float | None) -> list[TopicData]:
     index = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4}[loop]
     out_name = {"x": "x", "y": "y", "altitude": "z", "roll": "roll", "pitch": "pitch"}[loop]
     k = _decimate(t, log_rate_hz)
@@ -167,18 +182,18 @@ def write_stack_log(path: str | Path, layout: str, loop: str, t: np.ndarray, com
     if layout == "px4-mrft":
         from .format_ulog import write_ulog
 
-        topics, extra = _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz)
-        write_ulog(topics, path, **extra)
+        px4 = _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz)
+        write_ulog(px4.topics, path, parameters=px4.parameters, parameter_changes=px4.parameter_changes,
+                   messages=px4.messages)
     elif layout == "hear-ros":
         from .format_rosbag import write_rosbag
 
-        topics = _hear(loop, t, command, output, setpoint, bias, tests, log_rate_hz,
-                       np.random.default_rng(seed))
-        write_rosbag(topics, path, "bag")
+        write_rosbag(_hear(loop, t, command, output, setpoint, log_rate_hz, np.random.default_rng(seed)),
+                     path, "bag")
     elif layout in ("mat", "mat-v73"):
         from .format_mat import write_mat
 
-        write_mat(_mat(loop, t, command, output, setpoint, log_rate_hz), path, v73=layout == "mat-v73")
+        write_mat(_mat(loop, t, command, output, log_rate_hz), path, v73=layout == "mat-v73")
     else:
         raise InputError(f"cannot write layout {layout!r}; choose one of {', '.join(STACK_FORMATS)}")
     return path

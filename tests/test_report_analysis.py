@@ -4,6 +4,7 @@ is left open; computing draws nothing (python-control's compute-then-plot check)
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 
 import matplotlib
 import pytest
@@ -69,9 +70,8 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
 
     sf = simulate_paper_flight(0.0499, 1.8345, 0.0498, 2.0, (-0.4, -0.7), seed=9)
     fl = flight_from_simulated(sf)
-    for name in ("command", "output", "setpoint", "beta"):
-        s = getattr(fl, name)
-        setattr(fl, name, Signal(s.t + 1_700_000_000.0, s.values))
+    fl = replace(fl, **{name: Signal(getattr(fl, name).t + 1_700_000_000.0, getattr(fl, name).values)
+                        for name in ("command", "output", "setpoint", "beta")})
     res = analyze_flight(fl, 0.0499, n_bootstrap=100)
     duration = float(fl.command.t[-1] - fl.command.t[0])
     fig = plot_timeseries(res)

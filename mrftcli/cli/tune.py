@@ -5,17 +5,17 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from ..errors import InputError
 
 if TYPE_CHECKING:
-    from ..analyze import AnalysisResult
     from ..mrft.model import LoopModel
-    from ..tune.design import Posterior
+    from ..tune.design import Posterior, TuneResult
 from .options import dump_json, log_layout_options, tp_option, tqdm_progress
 
 
@@ -35,8 +35,37 @@ def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
                 raise InputError(f"--report {report_dir}: cannot create it in {parent}")
 
 
-def _from_result_json(path: Path, Tp: float) -> tuple[LoopModel, Posterior, str, AnalysisResult]:
-    """(model, posterior, note, the typed result) from an ``analyze --json`` file."""
+@dataclass(frozen=True)
+class _TuneSource:
+    """What the designs start from: the model, its posterior, the controller rate [Hz] the source records
+    (None: unknown), the tests' relay heights and output amplitudes (for the PX4 mapping), notes."""
+
+    model: LoopModel
+    posterior: Posterior | None
+    rate_hz: float | None = None
+    heights: tuple[float, ...] = ()
+    amplitudes: tuple[float, ...] = ()
+    notes: tuple[str, ...] = ()
+
+
+def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None,
+                 stds: tuple[float, float, float]) -> _TuneSource:
+    """The model given with --td/--tau/--k, with a posterior when a std is given."""
+    from ..mrft.model import LoopModel
+    from ..tune.design import Posterior
+
+    if td is None or tau is None:
+        raise InputError("give a LOG or RESULT.json, or the model with --td and --tau (and --k)")
+    model = LoopModel(Tp, td, tau, 1.0 if K is None else K)
+    posterior = None
+    if any(s and s > 0 for s in stds):
+        posterior = Posterior.from_spread(model, *stds, n=200, seed=0,
+                                          source="log-normal draws from --td-std/--tau-std/--k-std")
+    return _TuneSource(model, posterior)
+
+
+def _from_result_json(path: Path, Tp: float, loop: str) -> _TuneSource:
+    """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`."""
     from ..analyze import AnalysisResult
     from ..tune.analysis import model_from_result_json
 
@@ -47,7 +76,55 @@ def _from_result_json(path: Path, Tp: float) -> tuple[LoopModel, Posterior, str,
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
     except InputError as err:
         raise InputError(f"{path}: {err}") from err
-    return model, post, note, result
+    if result.loop and result.loop != loop:
+        raise InputError(f"--loop {loop} but {path} was analysed for the {result.loop} loop")
+    # the rate the analysis recorded: the controller's, as when the LOG is given (not the logging rate)
+    return _TuneSource(model, post, result.controller_rate_hz, tuple(float(t.h) for t in result.tests),
+                       tuple(float(t.amplitude_mean) for t in result.tests), (note,))
+
+
+def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, Any]) -> _TuneSource:
+    """A flight log, analysed as ``analyze`` would (its warnings printed)."""
+    from ..analyze import analyze_path
+    from ..tune.analysis import posterior_from_analysis
+
+    with tqdm_progress("tune", unit="step") as progress:
+        progress(0, 1, "analysing the log")
+        result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
+                              **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
+    for w in result.warnings:
+        click.echo(f"warning: {w}", err=True)
+    return _TuneSource(result.model, posterior_from_analysis(result), result.controller_rate_hz,
+                       tuple(float(t.h) for t in result.tests), tuple(float(t.amplitude_mean) for t in result.tests))
+
+
+def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, fmt: str, design: str | None,
+                   kind: str, json_target: str | None) -> None:
+    """The table or the chosen export on stdout, and every design as JSON with --json."""
+    from ..tune.export import format_table, hear_json, px4_params
+
+    name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
+    chosen = res.get(name, kind)
+    c = chosen.controller
+    data = res.to_dict()
+    data["export"] = {"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)}
+    try:
+        data["export"]["px4"] = px4_params(c, loop, list(src.heights), list(src.amplitudes))
+    except InputError as err:
+        data["export"]["px4"] = {"refused": str(err)}
+    if json_target:
+        dump_json(data, json_target)
+    if fmt == "table":
+        if json_target != "-":
+            click.echo(format_table(res))
+            click.echo(f"export ({name} {kind}): Kp {c.Kp:.5g}  Ki {c.Ki:.5g}  "
+                       f"Kd {c.Kd:.5g}  Tf {c.Tf:.5g} s  rate {rate:g} Hz")
+    elif fmt == "json":
+        dump_json({"design": name, "kind": kind, **c.to_dict()}, None)
+    elif fmt == "hear":
+        dump_json(hear_json(c, loop), None)
+    else:
+        dump_json(px4_params(c, loop, list(src.heights), list(src.amplitudes)), None)
 
 
 @click.command("tune")
@@ -88,10 +165,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
 
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --format px4
     """
-    from ..mrft.model import LoopModel
-    from ..tune.analysis import posterior_from_analysis
-    from ..tune.design import Posterior, tune as run_tune
-    from ..tune.export import format_table, hear_json, px4_params
+    from ..tune.design import tune as run_tune
 
     _check_outputs(json_target, report_dir)
     loop = read_options["loop"]
@@ -99,75 +173,26 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
         # refused before the work starts; the mapping itself is checked again on the gains
         raise InputError("cannot export to PX4: only a PD on the roll or pitch loop maps exactly onto PX4's "
                          f"angle-P / rate-P cascade (got {kind} on {loop}); see docs/tune.md")
-    heights, amps = [], []
-    posterior = None
-    log_rate = None
-    notes = []
     if source is not None and any(v is not None for v in (td, tau, K)):
         raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
     if source is None:
-        if td is None or tau is None:
-            raise InputError("give a LOG or RESULT.json, or the model with --td and --tau (and --k)")
-        model = LoopModel(Tp, td, tau, 1.0 if K is None else K)
-        if any(s and s > 0 for s in (td_std, tau_std, k_std)):
-            posterior = Posterior.from_spread(model, td_std, tau_std, k_std, n=200, seed=0,
-                                              source="log-normal draws from --td-std/--tau-std/--k-std")
+        src = _from_spread(Tp, td, tau, K, (td_std, tau_std, k_std))
     elif str(source).lower().endswith(".json") and Path(source).is_file():
-        model, posterior, note, result = _from_result_json(Path(source), Tp)
-        notes.append(note)
-        if result.loop and result.loop != loop:
-            raise InputError(f"--loop {loop} but {source} was analysed for the {result.loop} loop")
-        # the rate the analysis recorded: the controller's, as when the LOG is given (not the logging rate)
-        log_rate = result.controller_rate_hz
-        heights = [float(t.h) for t in result.tests]
-        amps = [float(t.amplitude_mean) for t in result.tests]
+        src = _from_result_json(Path(source), Tp, loop)
     else:
-        from ..analyze import analyze_path
-
-        with tqdm_progress("tune", unit="step") as progress:
-            progress(0, 1, "analysing the log")
-            result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
-                                  **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
-        model = result.model
-        posterior = posterior_from_analysis(result)
-        log_rate = result.controller_rate_hz
-        heights = [float(t.h) for t in result.tests]
-        amps = [float(t.amplitude_mean) for t in result.tests]
-        for w in result.warnings:
-            click.echo(f"warning: {w}", err=True)
-    rate = rate_hz or log_rate or 200.0
+        src = _from_log(source, Tp, min_cycles, read_options)
+    rate = rate_hz or src.rate_hz or 200.0
     with tqdm_progress("tune", unit="design") as progress:
-        res = run_tune(model, rate, posterior=posterior, objective=objective, ms_max=ms_max, effort_max=effort_max,
-                       loop=loop, progress=progress)
-    if rate_hz is None and log_rate is None:
+        res = run_tune(src.model, rate, posterior=src.posterior, objective=objective, ms_max=ms_max,
+                       effort_max=effort_max, loop=loop, progress=progress)
+    if rate_hz is None and src.rate_hz is None:
         click.echo("note: controller rate 200 Hz assumed (give --rate)", err=True)
-    if notes:
-        res = dataclasses.replace(res, notes=tuple(notes) + res.notes)
+    if src.notes:
+        res = dataclasses.replace(res, notes=src.notes + res.notes)
         if fmt != "table" or json_target == "-":  # the table shows its notes itself
-            for n in notes:
+            for n in src.notes:
                 click.echo(f"note: {n}", err=True)
-    name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
-    chosen = res.get(name, kind)
-    data = res.to_dict()
-    data["export"] = {"design": name, "kind": kind, "generic": chosen.controller.to_dict(),
-                      "hear": hear_json(chosen.controller, loop)}
-    try:
-        data["export"]["px4"] = px4_params(chosen.controller, loop, heights, amps)
-    except InputError as err:
-        data["export"]["px4"] = {"refused": str(err)}
-    if json_target:
-        dump_json(data, json_target)
-    if fmt == "table":
-        if json_target != "-":
-            click.echo(format_table(res))
-            click.echo(f"export ({name} {kind}): Kp {chosen.controller.Kp:.5g}  Ki {chosen.controller.Ki:.5g}  "
-                       f"Kd {chosen.controller.Kd:.5g}  Tf {chosen.controller.Tf:.5g} s  rate {rate:g} Hz")
-    elif fmt == "json":
-        dump_json({"design": name, "kind": kind, **chosen.controller.to_dict()}, None)
-    elif fmt == "hear":
-        dump_json(hear_json(chosen.controller, loop), None)
-    else:
-        dump_json(px4_params(chosen.controller, loop, heights, amps), None)
+    _write_outputs(res, src, rate, loop, fmt, design, kind, json_target)
     if report_dir:
         from ..report.tune import write_tune_report
 

@@ -124,6 +124,7 @@ def main() -> None:
     loop_fa, loop_fa_bonf, loop_n, refused_pairs = 0, 0, 0, 0
     detected, det_refused = 0, 0
     zs: dict[str, list[float]] = {p: [] for p in PARAMS}
+    largest = {p: 0.0 for p in PARAMS}  # largest |change| of an unchanged pair: relative (Td, K), seconds (tau)
     cover = {p: [0, 0] for p in PARAMS}
     t0 = time.process_time()
     for i in range(a.n):
@@ -154,6 +155,8 @@ def main() -> None:
                 fa[c.parameter][1] += 1
                 if c.z is not None and math.isfinite(c.z):
                     zs[c.parameter].append(c.z)
+                size = abs(c.change or 0.0) if c.parameter == "tau" else abs(c.relative or 0.0)
+                largest[c.parameter] = max(largest[c.parameter], size)
             flags = [f"{c.parameter} z {c.z:+.1f}" for c in cmp.changes if c.significant and c.z is not None]
             print(f"      re-flight: {'; '.join(flags) or 'nothing flagged'}")
         if base is None or changed is None:
@@ -176,6 +179,8 @@ def main() -> None:
         rms = math.sqrt(float(np.mean(zz ** 2))) if zz.size else math.nan
         print(f"  {p:4s} {rate(*fa[p])}; undetermined {undetermined[p]}; RMS z {rms:.2f}; "
               f"coverage of the truth by the 95 % intervals {rate(*cover[p])}")
+    print(f"largest change of an unchanged pair: Td {100 * largest['Td']:.2f} %, tau {1e3 * largest['tau']:.3f} ms, "
+          f"K {100 * largest['K']:.3f} %")
     print(f"per loop (any parameter): {rate(loop_fa, loop_n)}; with --bonferroni {rate(loop_fa_bonf, loop_n)}; "
           f"refused pairs {refused_pairs}")
     print(f"tau + {a.delta_ms:g} ms flagged: {rate(detected, a.n)} (refusals counted as misses: {det_refused})")

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import io
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeAlias
 
@@ -273,6 +274,16 @@ def _parameter(name: str, value: float) -> bytes:
     return _message(b"P", bytes([len(key)]) + key + packed)
 
 
+@dataclass(frozen=True)
+class _UlogTopic:
+    """One topic as ULog: its message name, format definitions, stamps [us] and data-message rows."""
+
+    name: str
+    formats: list[str]
+    stamps: np.ndarray
+    rows: np.ndarray  # (messages, bytes per message) uint8
+
+
 def write_ulog(topics: list[TopicData], path: str | Path, *, parameters: dict[str, float] | None = None,
                parameter_changes: list[tuple[float, str, float]] | None = None,
                messages: list[tuple[float, str]] | None = None) -> None:
@@ -288,72 +299,86 @@ def write_ulog(topics: list[TopicData], path: str | Path, *, parameters: dict[st
     definitions = [_message(b"B", bytes(16) + bytes(24))]  # flag bits: no (in)compat flags, no appended data
     info_key = b"char[10] sys_name"
     definitions.append(_message(b"I", bytes([len(info_key)]) + info_key + b"mrft-ident"))
-    chunks_per_topic, names = [], []
+    encoded: list[_UlogTopic] = []
     for msg_id, td in enumerate(topics):
-        name = ulog_name(td.name)
-        if name in names:
-            raise ValueError(f"two topics map to the ULog message {name!r}")
-        names.append(name)
-        fields = dict(td.fields)
-        for key in list(fields):
-            prefix, _, comp = key.rpartition(".")
-            if comp in "xyzw" and prefix.endswith("orientation"):
-                n = len(td.t)
-                for c in "xyzw":
-                    fields.setdefault(f"{prefix}.{c}", np.full(n, 1.0 if c == "w" else 0.0))
-        formats: list[str] = []
-        leaves = _formats(name, _tree(list(fields)), "", formats)
-        definitions.extend(_message(b"F", f.encode()) for f in formats)
-        stamps = np.round(np.asarray(td.t, dtype=np.float64) * 1e6).astype(np.int64)
-        if len(stamps) and stamps.min() < 0:
-            raise ValueError("ULog timestamps must be >= 0 s")
-        dtype = np.dtype([("size", "<u2"), ("type", "u1"), ("msg_id", "<u2"), ("timestamp", "<u8")]
-                         + [(f"f{i}", "<f8") for i in range(len(leaves))])
-        rec = np.zeros(len(stamps), dtype=dtype)
-        rec["size"] = dtype.itemsize - 3
-        rec["type"] = ord("D")
-        rec["msg_id"] = msg_id
-        rec["timestamp"] = stamps
-        for i, leaf in enumerate(leaves):
-            rec[f"f{i}"] = np.asarray(fields[leaf], dtype=np.float64)
-        chunks_per_topic.append((stamps, rec.view(np.uint8).reshape(len(stamps), dtype.itemsize)))
-    subscriptions = [_message(b"A", bytes([0]) + k.to_bytes(2, "little") + n.encode())
-                     for k, n in enumerate(names)]
-    # interleave the data messages of all topics in time order with one scatter per topic
-    stamps = np.concatenate([s for s, _ in chunks_per_topic] or [np.zeros(0, np.int64)])
-    which = np.concatenate([np.full(len(s), k) for k, (s, _) in enumerate(chunks_per_topic)]
-                           or [np.zeros(0, int)])
-    sizes = np.concatenate([np.full(len(s), rows.shape[1]) for s, rows in chunks_per_topic]
-                           or [np.zeros(0, int)])
-    order = np.lexsort((which, stamps))
-    position = np.empty(len(order), dtype=np.int64)
-    position[order] = np.concatenate([[0], np.cumsum(sizes[order])[:-1]]) if len(order) else []
-    data = np.zeros(int(sizes.sum()), dtype=np.uint8)
-    first = 0
-    for _, rows in chunks_per_topic:
-        pos = position[first:first + len(rows)]
-        data[pos[:, None] + np.arange(rows.shape[1])] = rows
-        first += len(rows)
+        topic = _ulog_topic(msg_id, td)
+        if any(other.name == topic.name for other in encoded):
+            raise ValueError(f"two topics map to the ULog message {topic.name!r}")
+        encoded.append(topic)
+        definitions.extend(_message(b"F", f.encode()) for f in topic.formats)
+    subscriptions = [_message(b"A", bytes([0]) + k.to_bytes(2, "little") + topic.name.encode())
+                     for k, topic in enumerate(encoded)]
+    data, sorted_stamps, ends = _interleave(encoded)
     definitions.extend(_parameter(k, v) for k, v in (parameters or {}).items())
     extra = [(t, _parameter(k, v)) for t, k, v in (parameter_changes or [])]
     for t, text in messages or []:
         body = bytes([ord("6")]) + int(round(t * 1e6)).to_bytes(8, "little") + text.encode()
         extra.append((t, _message(b"L", body)))
     if extra:
-        # insert each extra message after the last data message stamped at or before its time
-        sorted_stamps = stamps[order]
-        ends = np.cumsum(sizes[order])
-        raw = data.tobytes()
-        pieces, last = [], 0
-        for t, blob in sorted(extra, key=lambda e: e[0]):
-            k = int(np.searchsorted(sorted_stamps, int(round(t * 1e6)), side="right"))
-            cut = int(ends[k - 1]) if k else 0
-            pieces.extend([raw[last:cut], blob])
-            last = cut
-        pieces.append(raw[last:])
-        data = np.frombuffer(b"".join(pieces), dtype=np.uint8)
+        data = _insert_after(data, sorted_stamps, ends, extra)
     with open(path, "wb") as handle:
         handle.write(head)
         handle.write(b"".join(definitions))
         handle.write(b"".join(subscriptions))
         handle.write(data.tobytes())
+
+
+def _ulog_topic(msg_id: int, td: TopicData) -> _UlogTopic:
+    """One topic's format definitions and data messages (a quaternion's missing parts: x, y, z 0, w 1)."""
+    name = ulog_name(td.name)
+    fields = dict(td.fields)
+    for key in list(fields):
+        prefix, _, comp = key.rpartition(".")
+        if comp in "xyzw" and prefix.endswith("orientation"):
+            n = len(td.t)
+            for c in "xyzw":
+                fields.setdefault(f"{prefix}.{c}", np.full(n, 1.0 if c == "w" else 0.0))
+    formats: list[str] = []
+    leaves = _formats(name, _tree(list(fields)), "", formats)
+    stamps = np.round(np.asarray(td.t, dtype=np.float64) * 1e6).astype(np.int64)
+    if len(stamps) and stamps.min() < 0:
+        raise ValueError("ULog timestamps must be >= 0 s")
+    dtype = np.dtype([("size", "<u2"), ("type", "u1"), ("msg_id", "<u2"), ("timestamp", "<u8")]
+                     + [(f"f{i}", "<f8") for i in range(len(leaves))])
+    rec = np.zeros(len(stamps), dtype=dtype)
+    rec["size"] = dtype.itemsize - 3
+    rec["type"] = ord("D")
+    rec["msg_id"] = msg_id
+    rec["timestamp"] = stamps
+    for i, leaf in enumerate(leaves):
+        rec[f"f{i}"] = np.asarray(fields[leaf], dtype=np.float64)
+    return _UlogTopic(name, formats, stamps, rec.view(np.uint8).reshape(len(stamps), dtype.itemsize))
+
+
+def _interleave(topics: list[_UlogTopic]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The data messages of all topics in time order (one scatter per topic), their stamps [us] in
+    that order and the byte offset where each ends."""
+    stamps = np.concatenate([tp.stamps for tp in topics] or [np.zeros(0, np.int64)])
+    which = np.concatenate([np.full(len(tp.stamps), k) for k, tp in enumerate(topics)] or [np.zeros(0, int)])
+    sizes = np.concatenate([np.full(len(tp.stamps), tp.rows.shape[1]) for tp in topics] or [np.zeros(0, int)])
+    order = np.lexsort((which, stamps))
+    position = np.empty(len(order), dtype=np.int64)
+    position[order] = np.concatenate([[0], np.cumsum(sizes[order])[:-1]]) if len(order) else []
+    data = np.zeros(int(sizes.sum()), dtype=np.uint8)
+    first = 0
+    for tp in topics:
+        pos = position[first:first + len(tp.rows)]
+        data[pos[:, None] + np.arange(tp.rows.shape[1])] = tp.rows
+        first += len(tp.rows)
+    return data, stamps[order], np.cumsum(sizes[order])
+
+
+def _insert_after(data: np.ndarray, sorted_stamps: np.ndarray, ends: np.ndarray,
+                  extra: list[tuple[float, bytes]]) -> np.ndarray:
+    """``data`` with each extra message ``(t [s], bytes)`` after the last data message stamped at or
+    before its time."""
+    raw = data.tobytes()
+    pieces: list[bytes] = []
+    last = 0
+    for t, blob in sorted(extra, key=lambda e: e[0]):
+        k = int(np.searchsorted(sorted_stamps, int(round(t * 1e6)), side="right"))
+        cut = int(ends[k - 1]) if k else 0
+        pieces.extend([raw[last:cut], blob])
+        last = cut
+    pieces.append(raw[last:])
+    return np.frombuffer(b"".join(pieces), dtype=np.uint8)

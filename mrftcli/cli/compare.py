@@ -12,7 +12,7 @@ from .options import check_output_file, dump_json
 if TYPE_CHECKING:
     from ..compare import Comparison
 
-__all__ = ["compare", "write_reports", "raise_for"]
+__all__ = ["compare", "write_reports", "raise_for", "compare_batch"]
 
 
 def _write(target: str, text: str) -> None:
@@ -91,3 +91,20 @@ def raise_for(result: Comparison) -> None:
         raise ResultMissingError(
             f"{len(result.missing)} loop(s) missing or unusable: "
             + ", ".join(f"{m.name + ' ' if m.name else ''}{m.loop} ({m.side})" for m in result.missing))
+
+
+def compare_batch(baseline: str, out_dir: str, fail_on: str | None, *, table_err: bool = False) -> Comparison:
+    """``batch --baseline``: compare a finished batch's ``out_dir`` against ``baseline`` (matched by log).
+
+    Writes ``compare.json``, ``compare.xml`` (JUnit) and ``compare.md`` into ``out_dir`` and prints the
+    table (to stderr with ``table_err``, when stdout carries JSON). The caller decides the exit code
+    (:func:`raise_for`).
+    """
+    from ..compare import CompareOptions, compare as run_compare, parse_fail_on
+
+    options = CompareOptions(fail_on=parse_fail_on(fail_on) if fail_on else ())
+    result = run_compare(baseline, out_dir, options, by="log")
+    out = Path(out_dir)
+    write_reports(result, junit_target=str(out / "compare.xml"), markdown_target=str(out / "compare.md"),
+                  json_target=str(out / "compare.json"), table_err=table_err)
+    return result

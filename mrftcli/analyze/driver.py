@@ -114,6 +114,7 @@ def analyze_flight(
     found = segment(flight, criterion=criterion or StabilityCriterion(), validity=validity or ValidityCriterion(),
                     controller_rate_hz=controller_rate_hz)
     screening = screen(flight, found, Tp, min_stable_cycles)
+    # one generator through the stages in this order: a seed gives the same draws
     rng = np.random.default_rng(seed)
     point = point_estimate(Tp, screening, constraints, n_bootstrap, rng)
     cons = consensus(Tp, point, constraints, screening.ts_ctrl, rng)

@@ -195,8 +195,9 @@ class AnalysisResult:
         return float(t) - self.t0
 
     def combination_stats(self) -> _JSONDict:
-        """Mean and std over the per-combination estimates (paper Table III)."""
-        if self.recorded is not None:
+        """Mean and std over the per-combination estimates (paper Table III); a record read from JSON gives
+        the JSON's figures (the draws are not in it)."""
+        if self.recorded is not None and "combinations" in self.recorded:
             return dict(self.recorded["combinations"])
         out: _JSONDict = {"n": int(self.combinations.get("n", 0))}
         for name in ("Td", "tau", "K"):

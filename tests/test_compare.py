@@ -253,6 +253,16 @@ def test_batch_folders_matched_by_log_and_by_vehicle(results, tmp_path, capsys):
     assert code == EXIT_INCOMPLETE == 10 and "v9 altitude (new)" in err
 
 
+def test_vehicle_with_several_logs_uses_its_latest(results, tmp_path):
+    a = json.loads(Path(results["design1_altitude"]).read_text())
+    b = json.loads(Path(results["design1_altitude_20ms"]).read_text())
+    base = _batch_folder(tmp_path / "base", [("f1.mcap", "v7", a)])
+    new = _batch_folder(tmp_path / "new", [("f1.mcap", "v7", a), ("f2.mcap", "v7", b)])  # f2 is the later
+    cmp = compare(base, new, by="vehicle")
+    assert [(c.name, c.parameter) for c in cmp.changes if c.failed] == [("v7", "tau")]
+    assert any("several logs for v7 altitude" in n for n in cmp.notes)
+
+
 def test_missing_loop_is_incomplete(results, tmp_path):
     data = json.loads(Path(results["reflight"]).read_text())
     data["input"]["loop"] = "roll"

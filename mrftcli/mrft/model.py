@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import ClassVar, Mapping, Protocol, runtime_checkable
+from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,9 +36,11 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
-           "model_family"]
+           "model_family", "model_from_json", "MODEL_SCHEMA_VERSION"]
 
 _INF = math.inf
+#: version of the JSON form of a model (``to_json`` / ``from_json``)
+MODEL_SCHEMA_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -162,6 +164,15 @@ class PlantModel(Protocol):
 
     def with_parameters(self, **values: float) -> PlantModel:
         """A copy with the named parameters set to new values."""
+        ...
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON form: ``schema_version``, ``family`` and the parameters (see :meth:`LoopModel.to_json`)."""
+        ...
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> PlantModel:
+        """The model of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
         ...
 
 
@@ -295,6 +306,80 @@ class LoopModel:
         return UnitNormalisation(omega=omega, coordinates={"tp_n": self.Tp * omega, "td_n": self.Td * omega},
                                  theta=self.tau * omega, amplitude_scale=self.K * self.Td / omega)
 
+    # -- JSON ---------------------------------------------------------------------------------------
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "family", "parameters": {name: {"value", "unit", "known", "bounds"}}}``.
+
+        Infinite bounds are written as null (JSON has no infinity).
+
+        Examples
+        --------
+        >>> d = LoopModel(0.1, 0.7042, 0.06, 1.42).to_json()
+        >>> d["family"], d["parameters"]["tau"]
+        ('soiptd', {'value': 0.06, 'unit': 's', 'known': False, 'bounds': [0.0, None]})
+        >>> LoopModel.from_json(d) == LoopModel(0.1, 0.7042, 0.06, 1.42)
+        True
+        """
+        def bound(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
+        return {"schema_version": MODEL_SCHEMA_VERSION, "family": self.family,
+                "parameters": {p.name: {"value": p.value, "unit": p.unit, "known": p.known,
+                                        "bounds": [bound(p.bounds[0]), bound(p.bounds[1])]}
+                               for p in self.parameters.values()}}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> LoopModel:
+        """The model of a :meth:`to_json` dict.
+
+        Raises
+        ------
+        InputError
+            Not a dict of this schema version and family, or a parameter missing or out of range.
+        """
+        params = _checked_json(data, cls.family)
+        values: dict[str, float] = {}
+        known, ranges = set(), []
+        for name, (_, _, physical) in _LOOP_PARAMETERS.items():
+            entry = params.get(name)
+            if not isinstance(entry, Mapping) or not isinstance(entry.get("value"), (int, float)):
+                raise InputError(f"model JSON: parameter {name!r} needs a numeric 'value'")
+            values[name] = float(entry["value"])
+            if entry.get("known"):
+                known.add(name)
+            lo, hi = _json_bounds(name, entry.get("bounds"))
+            if (lo, hi) != physical:
+                ranges.append((name, lo, hi))
+        return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=frozenset(known),
+                   ranges=tuple(ranges))
+
+
+def _checked_json(data: Mapping[str, Any], family: str) -> Mapping[str, Any]:
+    """The ``parameters`` of a model's JSON after checking its version and family."""
+    if not isinstance(data, Mapping):
+        raise InputError(f"model JSON must be an object, got {type(data).__name__}")
+    version = data.get("schema_version")
+    if version != MODEL_SCHEMA_VERSION:
+        raise InputError(f"model JSON schema_version {version!r} is not supported (expected {MODEL_SCHEMA_VERSION})")
+    if data.get("family") != family:
+        raise InputError(f"model JSON family {data.get('family')!r} is not {family!r}")
+    params = data.get("parameters")
+    if not isinstance(params, Mapping):
+        raise InputError("model JSON needs a 'parameters' object")
+    return params
+
+
+def _json_bounds(name: str, bounds: Any) -> tuple[float, float]:
+    """(low, high) from a JSON ``[low, high]`` with null for an infinite end."""
+    if bounds is None:
+        return _LOOP_PARAMETERS[name][2]
+    if not (isinstance(bounds, (list, tuple)) and len(bounds) == 2
+            and all(b is None or isinstance(b, (int, float)) for b in bounds)):
+        raise InputError(f"model JSON: bounds of {name!r} must be [low, high] (null for no bound)")
+    lo = -_INF if bounds[0] is None else float(bounds[0])
+    hi = _INF if bounds[1] is None else float(bounds[1])
+    return lo, hi
+
 
 #: the plant structures by family name; the next structures register here
 MODEL_FAMILIES: dict[str, type[PlantModel]] = {"soiptd": LoopModel}
@@ -317,3 +402,21 @@ def model_family(name: str) -> type[PlantModel]:
         return MODEL_FAMILIES[name]
     except KeyError:
         raise InputError(f"unknown model family {name!r}; known: {', '.join(sorted(MODEL_FAMILIES))}") from None
+
+
+def model_from_json(data: Mapping[str, Any]) -> PlantModel:
+    """A model of any registered family from its ``to_json`` dict.
+
+    Raises
+    ------
+    InputError
+        Not an object, an unknown family, or bad parameters (one-line message).
+
+    Examples
+    --------
+    >>> model_from_json(LoopModel(0.1, 0.7, 0.06).to_json())
+    LoopModel(Tp=0.1, Td=0.7, tau=0.06, K=1.0)
+    """
+    if not isinstance(data, Mapping):
+        raise InputError(f"model JSON must be an object, got {type(data).__name__}")
+    return model_family(str(data.get("family"))).from_json(data)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
@@ -259,7 +259,7 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
           output_topic: str | None = None, beta_topic: str | None = None, setpoint_topic: str | None = None,
           output_scale: float | None = 1.0, min_cycles: int = 3, idle: float = 10.0, poll: float = 0.02,
           fmt: str | None = None, sleep: Callable[[float], None] = time.sleep,
-          clock: Callable[[], float] = time.monotonic) -> Iterator[Update]:
+          clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
     """Follow ``path`` while it is written and yield updates (see the module docstring).
 
     Parameters

@@ -29,9 +29,7 @@ def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
     ArduPilot DataFlash the message types. Use the names (and the fields shown by ``--fields``) in
     ``--command-topic TOPIC[:FIELD]`` / ``--output-topic TOPIC[:FIELD]``.
     """
-    from ..io import open_log
-
-    from ..io import log_layout
+    from ..io import log_layout, open_log
 
     with open_log(log, fmt) as source:
         infos = source.topics()

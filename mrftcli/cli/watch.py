@@ -4,21 +4,29 @@ from __future__ import annotations
 
 import json
 import math
+from typing import TYPE_CHECKING
 
 import click
 
 from ..jsonable import to_jsonable
 from .options import log_layout_options, tp_option
 
+if TYPE_CHECKING:
+    from ..watch import Update
 
-def _line(update, t0: float) -> str:
+__all__ = ["watch"]
+
+
+def _line(update: Update, t0: float) -> str:
     """One terminal line per update (times in seconds from the first test's start)."""
-    if update.kind == "test":
+    from ..watch import EstimateUpdate, TestUpdate
+
+    if isinstance(update, TestUpdate):
         nom = f"{update.beta_nominal:+.3f}" if update.beta_nominal is not None else "-"
         return (f"test {update.number}  t {update.t_start - t0:7.1f} s  beta nom {nom}  eff {update.beta_effective:+.3f}  "
                 f"f {update.frequency_hz:.4f} Hz  amplitude {update.amplitude:.4g}  "
                 f"cycles {update.stable_cycles}/{update.cycles}")
-    if update.kind == "estimate":
+    if isinstance(update, EstimateUpdate):
         head = "final    " if update.final else "estimate "
         text = (f"{head} Td {update.Td:.4g} s  tau {update.tau * 1e3:.4g} ms  K {update.K:.4g}  "
                 f"(tests {', '.join(map(str, update.tests))})")
@@ -42,8 +50,10 @@ def _line(update, t0: float) -> str:
 @click.option("--poll", type=click.FloatRange(0.001, 5.0), default=0.02, show_default=True,
               help="Seconds between looks at the file.")
 @click.option("--jsonl", is_flag=True, help="Print one JSON object per update (for a ground-station script).")
-def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale, command_scale,
-          layout, controller_rate_hz, fmt, min_cycles, idle, poll, jsonl):
+def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topic: str | None,
+          beta_topic: str | None, setpoint_topic: str | None, output_scale: float | None, command_scale: float | None,
+          layout: str | None, controller_rate_hz: float | None, fmt: str | None, min_cycles: int, idle: float,
+          poll: float, jsonl: bool) -> None:
     """Follow LOG while it is being written and print each MRFT test and the identification as cycles arrive.
 
     LOG is an MCAP file, a ROS 2 bag directory with mcap storage, a CSV or a ULog that a recorder is
@@ -58,6 +68,7 @@ def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic
     Example: mrft-ident watch flight.mcap --tp 0.0422 --jsonl
     """
     from ..errors import InputError, MrftError
+    from ..watch import TestUpdate, WatchEnd
     from ..watch import watch as follow
 
     if layout not in (None, "reference") or command_scale is not None or controller_rate_hz is not None:
@@ -66,13 +77,13 @@ def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic
                          "--command-scale or --controller-rate given); run 'mrft-ident analyze' with the same "
                          "options on the finished log")
     seen = 0
-    t0 = None
+    t0: float | None = None
     updates = follow(log, Tp, loop=loop, command_topic=command_topic, output_topic=output_topic,
                      beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
                      min_cycles=min_cycles, idle=idle, poll=poll, fmt=fmt)
     try:
         for update in updates:
-            if update.kind == "test":
+            if isinstance(update, TestUpdate):
                 seen = max(seen, update.number)
                 if t0 is None:
                     t0 = update.t_start
@@ -80,7 +91,7 @@ def watch(log, Tp, loop, command_topic, output_topic, beta_topic, setpoint_topic
                 click.echo(json.dumps(to_jsonable(update.to_dict()), allow_nan=False))
             else:
                 click.echo(_line(update, t0 or 0.0))
-            if update.kind == "end" and update.error:
+            if isinstance(update, WatchEnd) and update.error:
                 err = MrftError(update.error)
                 err.exit_code = update.exit_code
                 raise err

@@ -98,6 +98,52 @@ def _ns(t: float) -> int:
     return max(int(round(float(t) * 1e9)), 0)
 
 
+#: the JSON fields of the Test and Fit messages and their types (the Parameters' follow the parameters)
+_TEST_PROPS = {"test": "integer", "active": "integer", "beta": "number|null", "beta_nominal": "number|null",
+               "h": "number", "bias": "number", "frequency_hz": "number|null", "amplitude": "number|null",
+               "cycles": "integer", "t_start": "number", "t_end": "number", "rms_residual": "number|null"}
+_FIT_PROPS = {"output": "number|null", "predicted": "number|null", "residual": "number|null", "test": "integer"}
+
+
+def _fit_rows(fits: Sequence[OverlayFit]) -> list[tuple[int, int, bytes]]:
+    """One Fit message (channel 0) per sample of each test's prediction."""
+    rows: list[tuple[int, int, bytes]] = []
+    for fit in fits:
+        t = np.asarray(fit.t, float)
+        out = np.asarray(fit.output, float)
+        pred = np.asarray(fit.predicted, float)
+        for ti, yo, yp in zip(t.tolist(), out.tolist(), pred.tolist()):
+            msg = {"output": _finite(yo), "predicted": _finite(yp),
+                   "residual": _finite(yo - yp), "test": int(fit.number)}
+            rows.append((_ns(ti), 0, json.dumps(msg, separators=(",", ":")).encode()))
+    return rows
+
+
+def _test_rows(tests: Sequence[OverlayTest]) -> list[tuple[int, int, bytes]]:
+    """Two Test messages (channel 1) per test: active at its start, inactive at its end."""
+    rows: list[tuple[int, int, bytes]] = []
+    for test in tests:
+        base = {"test": test.number, "beta": _finite(test.beta), "beta_nominal": _finite(test.beta_nominal),
+                "h": float(test.h), "bias": float(test.bias), "frequency_hz": _finite(test.frequency_hz),
+                "amplitude": _finite(test.amplitude), "cycles": int(test.cycles), "t_start": float(test.t_start),
+                "t_end": float(test.t_end), "rms_residual": _finite(test.rms_residual)}
+        for when, active in ((test.t_start, 1), (test.t_end, 0)):
+            rows.append((_ns(when), 1, json.dumps({**base, "active": active}).encode()))
+    return rows
+
+
+def _parameter_values(parameters: Mapping[str, Mapping[str, float | None]],
+                      names: list[str]) -> dict[str, float | None]:
+    """The Parameters message: ``Td``, ``Td_std``, ``Td_ci95_low``, ... (None where not finite)."""
+    params: dict[str, float | None] = {}
+    for n in names:
+        p = parameters[n]
+        params[n] = _finite(p.get("mean"))
+        for k in ("std", "ci95_low", "ci95_high"):
+            params[f"{n}_{k}"] = _finite(p.get(k))
+    return params
+
+
 def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Sequence[OverlayFit],
                   parameters: Mapping[str, Mapping[str, float | None]], metadata: Mapping[str, str] | None = None) -> Path:
     """Write the results MCAP (see the module docstring for its topics).
@@ -128,34 +174,9 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
     for n in names:
         for k in ("mean", "std", "ci95_low", "ci95_high"):
             param_props[f"{n}_{k}" if k != "mean" else n] = "number|null"
-    test_props = {"test": "integer", "active": "integer", "beta": "number|null", "beta_nominal": "number|null",
-                  "h": "number", "bias": "number", "frequency_hz": "number|null", "amplitude": "number|null",
-                  "cycles": "integer", "t_start": "number", "t_end": "number", "rms_residual": "number|null"}
-    fit_props = {"output": "number|null", "predicted": "number|null", "residual": "number|null", "test": "integer"}
-
     # (log_time, channel, payload), merged in time order
-    rows: list[tuple[int, int, bytes]] = []
-    for fit in fits:
-        t = np.asarray(fit.t, float)
-        out = np.asarray(fit.output, float)
-        pred = np.asarray(fit.predicted, float)
-        for ti, yo, yp in zip(t.tolist(), out.tolist(), pred.tolist()):
-            msg = {"output": _finite(yo), "predicted": _finite(yp),
-                   "residual": _finite(yo - yp), "test": int(fit.number)}
-            rows.append((_ns(ti), 0, json.dumps(msg, separators=(",", ":")).encode()))
-    for test in tests:
-        base = {"test": test.number, "beta": _finite(test.beta), "beta_nominal": _finite(test.beta_nominal),
-                "h": float(test.h), "bias": float(test.bias), "frequency_hz": _finite(test.frequency_hz),
-                "amplitude": _finite(test.amplitude), "cycles": int(test.cycles), "t_start": float(test.t_start),
-                "t_end": float(test.t_end), "rms_residual": _finite(test.rms_residual)}
-        for when, active in ((test.t_start, 1), (test.t_end, 0)):
-            rows.append((_ns(when), 1, json.dumps({**base, "active": active}).encode()))
-    params = {}
-    for n in names:
-        p = parameters[n]
-        params[n] = _finite(p.get("mean"))
-        for k in ("std", "ci95_low", "ci95_high"):
-            params[f"{n}_{k}"] = _finite(p.get(k))
+    rows = _fit_rows(fits) + _test_rows(tests)
+    params = _parameter_values(parameters, names)
     times = [r[0] for r in rows]
     if times:
         for when in sorted({min(times), max(times)}):
@@ -168,7 +189,7 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
         channels = []
         for topic, schema_name, props in zip(
                 OVERLAY_TOPICS, ("mrft_ident/Fit", "mrft_ident/Test", "mrft_ident/Parameters"),
-                (fit_props, test_props, param_props)):
+                (_FIT_PROPS, _TEST_PROPS, param_props)):
             sid = writer.register_schema(schema_name, "jsonschema", _schema(props))
             channels.append(writer.register_channel(topic, "json", sid))
         seq = [0, 0, 0]

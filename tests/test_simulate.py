@@ -462,11 +462,33 @@ def test_hold_controller_recovers_after_a_test(model):
         (dict(effects=Effects(sensor_lag=-1.0)), "sensor_lag"),
         (dict(effects=Effects(gain_drift=-1.0)), "gain_drift"),
         (dict(switching="pid"), "switching"),
+        (dict(abort_error=0.0), "abort_error must be positive"),
+        (dict(effects=Effects(flex_mode_hz=20.0, quadratic_drag=1.0)), "flex_mode_hz cannot be combined"),
+        (dict(effects=Effects(asymmetric_gain=1.0)), "asymmetric_gain"),
+        (dict(confirm_samples=-1), "confirm_samples"),
     ],
 )
 def test_bad_specs_raise_input_error(change, match):
     with pytest.raises(InputError, match=match):
         simulate_flight(replace(short_spec(), **change))
+
+
+def test_flight_settings_schedule_whole_ticks_and_loop_defaults():
+    # the schedule: hover, then each test and its hold, rounded to whole controller ticks
+    from mrftcli.sim.spec import default_bias, default_noise_std, default_setpoint, flight_settings
+
+    spec = replace(short_spec(), rate_hz=100.0, hover_s=1.004, hold_s=0.5,
+                   tests=(MrftTest(-0.4, 0.1, 2.0), MrftTest(-0.7, 0.1, 1.236)))
+    s = flight_settings(spec)
+    assert s.ranges == ((100, 300), (350, 474)) and s.n_ticks == 524 and s.T == 0.01
+    assert (s.noise_std, s.bias, s.setpoint) == (default_noise_std(spec.loop) if spec.noise_std is None
+                                                 else spec.noise_std, default_bias(spec.loop)
+                                                 if spec.bias is None else spec.bias,
+                                                 default_setpoint(spec.loop) if spec.setpoint is None
+                                                 else spec.setpoint)
+    sf = simulate_flight(spec)
+    assert sf.t.size == s.n_ticks
+    assert [round((t["t_start"] - spec.start_time) * 100) for t in sf.truth["tests"]] == [100, 350]
 
 
 def test_reproducible_and_spec_untouched():

@@ -33,9 +33,10 @@ def parse_test(text: str) -> tuple[float, float | None, float | None]:
         except ValueError:
             raise InputError(f"--test {text!r}: {name} {part!r} is not a number") from None
     values += [None] * (3 - len(values))
-    beta, h, duration = values
+    first, h, duration = values
+    assert first is not None  # BETA was checked non-empty above
     try:
-        beta = check_beta(beta)
+        beta = check_beta(first)
         h = None if h is None else check_positive("the relay height H", h)
         duration = None if duration is None else check_time("DURATION", duration)
     except InputError as err:

@@ -232,3 +232,34 @@ def test_bad_spread_and_test_objects():
         identify(t, 0.1, spread="bogus")
     with pytest.raises(InputError, match="TestMeasurement"):
         identify([(-0.4, 0.7), (-0.7, 1.0)], 0.1)
+
+
+def test_identification_json_round_trip():
+    """to_json -> plain JSON -> from_json gives the same record (draws excepted), with and without K."""
+    noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058], amplitude=[0.078, 0.0785], h=1.0),
+             TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189])]
+    for res in (identify(noisy, Tp=0.1, n_draws=50), identify(_tests(PAPER, (-0.2, -0.4, -0.7), amplitude=False), 0.1)):
+        d = json.loads(json.dumps(res.to_json()))
+        assert d["schema_version"] == 1 and d["model"]["family"] == "soiptd"
+        back = IdentificationResult.from_json(d)
+        assert back.to_dict() == res.to_dict()
+        assert back.model == res.model and back.n_draws == res.n_draws and back.draws == {}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(expected 1\)"),
+        (lambda d: d.pop("parameters"), "needs a 'parameters' object"),
+        (lambda d: d["parameters"]["Td"].pop("std"), "Td needs numeric mean, std, ci95_low, ci95_high and a unit"),
+        (lambda d: d.update(warnings="none"), "needs 'tests' \\(objects\\) and 'warnings' \\(strings\\)"),
+        (lambda d: d.update(residual="small"), "residual must be a number or null"),
+        (lambda d: d["model"].update(schema_version=9), "model JSON schema_version 9 is not supported"),
+    ],
+)
+def test_identification_json_errors(change, message):
+    d = json.loads(json.dumps(identify(_tests(PAPER, (-0.4, -0.7)), PAPER.Tp).to_json()))
+    change(d)
+    with pytest.raises(InputError, match=message) as err:
+        IdentificationResult.from_json(d)
+    assert "\n" not in str(err.value)

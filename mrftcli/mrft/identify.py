@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +45,8 @@ __all__ = [
 
 _TWO_PI = 2.0 * math.pi
 FloatArray = NDArray[np.float64]
+#: version of :meth:`IdentificationResult.to_json`
+IDENTIFICATION_SCHEMA_VERSION = 1
 #: |d ln Omega / d ln Td| below which Td is reported as poorly identifiable
 _SENSITIVITY_WARN = 0.05
 
@@ -166,6 +168,22 @@ class ParameterEstimate:
         return {"mean": self.mean, "std": self.std, "ci95_low": self.ci95_low, "ci95_high": self.ci95_high,
                 "unit": self.unit}
 
+    @classmethod
+    def from_dict(cls, name: str, data: Any) -> ParameterEstimate:
+        """The estimate of a :meth:`to_dict` dict (``name`` for the error message).
+
+        Raises
+        ------
+        InputError
+            Not an object with numeric mean, std, ci95_low, ci95_high and a string unit.
+        """
+        keys = ("mean", "std", "ci95_low", "ci95_high")
+        if not (isinstance(data, Mapping) and all(isinstance(data.get(k), (int, float)) for k in keys)
+                and isinstance(data.get("unit"), str)):
+            raise InputError(f"identification JSON: {name} needs numeric {', '.join(keys)} and a unit")
+        return cls(float(data["mean"]), float(data["std"]), float(data["ci95_low"]), float(data["ci95_high"]),
+                   data["unit"])
+
 
 @dataclass(frozen=True, eq=False)
 class IdentificationResult:
@@ -226,6 +244,50 @@ class IdentificationResult:
             "tests": [dict(t) for t in self.tests],
             "warnings": list(self.warnings),
         }
+
+    def to_json(self) -> dict[str, Any]:
+        """:meth:`to_dict` with ``schema_version`` and the whole model (:meth:`LoopModel.to_json`);
+        the Monte Carlo draws are left out."""
+        return {"schema_version": IDENTIFICATION_SCHEMA_VERSION, **self.to_dict(), "model": self.model.to_json()}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> IdentificationResult:
+        """The result of a :meth:`to_json` dict (without draws).
+
+        Raises
+        ------
+        InputError
+            Another schema version, or a field missing or of the wrong type (one-line message).
+        """
+        if not isinstance(data, Mapping):
+            raise InputError(f"identification JSON must be an object, got {type(data).__name__}")
+        if data.get("schema_version") != IDENTIFICATION_SCHEMA_VERSION:
+            raise InputError(f"identification JSON schema_version {data.get('schema_version')!r} is not supported "
+                             f"(expected {IDENTIFICATION_SCHEMA_VERSION})")
+        params = data.get("parameters")
+        if not isinstance(params, Mapping):
+            raise InputError("identification JSON needs a 'parameters' object")
+        K = None if params.get("K") is None else ParameterEstimate.from_dict("K", params["K"])
+        tests, warnings = data.get("tests"), data.get("warnings")
+        if not (isinstance(tests, list) and all(isinstance(t, Mapping) for t in tests)
+                and isinstance(warnings, list) and all(isinstance(w, str) for w in warnings)):
+            raise InputError("identification JSON needs 'tests' (objects) and 'warnings' (strings)")
+        return cls(Td=ParameterEstimate.from_dict("Td", params.get("Td")),
+                   tau=ParameterEstimate.from_dict("tau", params.get("tau")), K=K,
+                   model=LoopModel.from_json(data.get("model", {})),
+                   Tp=ParameterEstimate.from_dict("Tp", params.get("Tp")).mean,
+                   residual=_optional_float("residual", data.get("residual")),
+                   tests=tuple(dict(t) for t in tests), warnings=tuple(warnings),
+                   method=str(data.get("method")), uncertainty=str(data.get("uncertainty")),
+                   rate_hz=_optional_float("rate_hz", data.get("rate_hz")), n_draws=int(data.get("n_draws") or 0))
+
+
+def _optional_float(name: str, value: Any) -> float | None:
+    if value is None:
+        return None
+    if not isinstance(value, (int, float)):
+        raise InputError(f"identification JSON: {name} must be a number or null, got {value!r}")
+    return float(value)
 
 
 # ----------------------------------------------------------------------------------------------

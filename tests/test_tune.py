@@ -270,3 +270,143 @@ def test_result_json_posterior_says_the_correlation_is_lost():
     assert abs(np.corrcoef(post.Td, post.tau)[0, 1]) < 0.2
     with pytest.raises(InputError, match="Tp"):
         model_from_result_json(data, 0.05)
+
+
+# --- long delays (issue 30): margins against an independent frequency response, stability, responses ---
+
+FLIGHT = LoopModel(0.08, 3.205, 0.451, 0.98)  # the issue's lateral loop: 90.2 ticks of delay at 200 Hz
+
+
+def _oracle_loop(model: LoopModel, c: Controller, w: float | np.ndarray, n_alias: int = 400) -> np.ndarray:
+    """L(e^{jwT}) written from scratch: the controller's difference equations in z, and the plant sampled
+    through the zero-order hold as the Poisson sum of G(j w_k) (1 - e^{-j w_k T}) / (j w_k T) with the
+    exact delay e^{-j w_k tau} (shares no code with mrftcli.tune)."""
+    T = 1.0 / c.rate_hz
+    w = np.atleast_1d(np.asarray(w, float))
+    wk = w[:, None] + 2 * np.pi * np.arange(-n_alias, n_alias + 1)[None, :] / T
+    s = 1j * wk
+    G = model.K * model.Td * np.exp(-model.tau * s) / (s * (model.Tp * s + 1) * (model.Td * s + 1))
+    Gd = np.sum(G * (1 - np.exp(-s * T)) / (s * T), axis=1)
+    z = np.exp(1j * w * T)
+    C = c.Kp + c.Ki * T * z / (z - 1) + c.Kd * (z - 1) / ((c.Tf + T) * z - c.Tf)
+    return C * Gd
+
+
+def _oracle_margins(model: LoopModel, c: Controller) -> tuple[float, float, float]:
+    """(PM [deg] of smallest |PM|, GM closest to 1, Ms) of the oracle loop: dense grid + brentq."""
+    from scipy.optimize import brentq, minimize_scalar
+
+    w_nyq = np.pi * c.rate_hz
+    w = np.geomspace(w_nyq * 1e-5, w_nyq * 0.999, 20000)
+    L = _oracle_loop(model, c, w)
+    mag = lambda x: np.log(np.abs(_oracle_loop(model, c, x)[0]))  # noqa: E731
+    im = lambda x: _oracle_loop(model, c, x)[0].imag  # noqa: E731
+    lm = np.log(np.abs(L))
+    pms = [np.remainder(np.degrees(np.angle(_oracle_loop(model, c, brentq(mag, w[i], w[i + 1], xtol=1e-14))[0])),
+                        360) - 180 for i in np.nonzero(np.sign(lm[:-1]) != np.sign(lm[1:]))[0]]
+    gms = []
+    for i in np.nonzero(np.sign(L.imag[:-1]) != np.sign(L.imag[1:]))[0]:
+        Lx = _oracle_loop(model, c, brentq(im, w[i], w[i + 1], xtol=1e-14))[0]
+        if Lx.real < 0:
+            gms.append(1 / abs(Lx))
+    k = int(np.argmin(np.abs(1 + L)))
+    r = minimize_scalar(lambda x: abs(1 + _oracle_loop(model, c, x)[0]), bracket=(w[k - 1], w[k], w[k + 1]))
+    pm = min(pms, key=abs)
+    gm = min(gms, key=lambda g: abs(np.log(g)))
+    return pm, gm, 1 / min(r.fun, np.min(np.abs(1 + L)))
+
+
+def _gains_for(model: LoopModel, rate_hz: float) -> Controller:
+    """A PD with some 40-50 deg of phase margin whatever the delay (independent of the designs)."""
+    wc = 0.5 / (model.tau + model.Tp + 1 / rate_hz)
+    Td_c = 1.5 / wc
+    g = abs(model.K * model.Td / (1j * wc * (model.Tp * 1j * wc + 1) * (model.Td * 1j * wc + 1)))
+    Kp = 1 / (g * abs(1 + 1j * wc * Td_c))
+    return Controller(Kp, 0.0, Kp * Td_c, Td_c / 10, rate_hz)
+
+
+@pytest.mark.parametrize("ticks", [1.0, 7.3, 45.5, 90.2, 200.0])
+def test_margins_against_an_independent_frequency_response_over_delays(ticks):
+    from mrftcli.tune.margins import loop_margins
+
+    model = LoopModel(0.08, 3.205, ticks / 200.0, 0.98)
+    for c in (_gains_for(model, 200.0), Controller(_gains_for(model, 200.0).Kp, 0.02, _gains_for(model, 200.0).Kd,
+                                                   _gains_for(model, 200.0).Tf, 200.0)):
+        mg = loop_margins(c, [model])[0]
+        pm, gm, Ms = _oracle_margins(model, c)
+        assert mg.stable
+        assert mg.phase_margin_deg == pytest.approx(pm, abs=0.05)
+        assert mg.gain_margin == pytest.approx(gm, rel=1e-3)
+        assert mg.Ms == pytest.approx(Ms, rel=1e-3)
+
+
+def test_the_issues_flight_gains_have_their_true_margins():
+    # issue 30: these gains were reported with GM 0.38 and PM -4.3 deg on the very model they were
+    # designed for; the loop's exact response gives one crossover near 0.68 rad/s with PM ~48 deg
+    c = Controller(0.3305, 0.0, 0.5441, 0.1646, 200.0)
+    mg = margins(FLIGHT, c)
+    assert mg.stable and mg.phase_margin_deg == pytest.approx(48.0, abs=1.0)
+    assert mg.w_gc == pytest.approx(0.68, abs=0.02) and mg.gain_margin > 3
+    pm, gm, _ = _oracle_margins(FLIGHT, c)
+    assert mg.phase_margin_deg == pytest.approx(pm, abs=0.05) and mg.gain_margin == pytest.approx(gm, rel=1e-3)
+
+
+def test_stability_and_delay_margin_agree_with_the_closed_loop_eigenvalues():
+    # the Nyquist flag against the spectral radius of the closed-loop state matrix, stable and unstable
+    # loops, short and long delays; the delay margin against the eigenvalues at +-0.1 % of it
+    from dataclasses import replace
+
+    from mrftcli.tune.closed_loop import closed_loop_matrices, spectral_radius
+    from mrftcli.tune.margins import loop_margins
+
+    def rho(m, c, extra=0.0):
+        A, *_ = closed_loop_matrices([replace(m, tau=m.tau + extra)], c)
+        return spectral_radius(A)[0]
+
+    rng = np.random.default_rng(11)
+    for i in range(8):
+        m = LoopModel(float(rng.uniform(0.03, 0.1)), float(np.exp(rng.normal(0, 0.7))),
+                      float(rng.uniform(0.0, 0.25)), float(rng.uniform(0.5, 30)))
+        base = _gains_for(m, 200.0)
+        c = Controller(base.Kp, base.Kp * 0.05 * (i % 2), base.Kd, base.Tf, 200.0)
+        for g in (1.0, 3.0):
+            cg = c.scaled(g)
+            mg = loop_margins(cg, [m])[0]
+            assert mg.stable == (rho(m, cg) < 1.0)
+            if mg.stable and np.isfinite(mg.delay_margin_s):
+                assert rho(m, cg, 0.999 * mg.delay_margin_s) < 1.0 < rho(m, cg, 1.001 * mg.delay_margin_s)
+
+
+@pytest.mark.parametrize("ctrl", [PD, PID])
+def test_long_delay_responses_match_event_simulation(ctrl):
+    # 90.2 ticks of delay: the responses come from the z-transform inversion; the event-driven
+    # continuous-time simulation is the independent check (setpoint and load steps)
+    from mrftcli.tune.closed_loop import STATE_MAX_DELAY, responses
+
+    model = LoopModel(0.0422, 1.301, 0.451, 30.0)
+    assert model.tau * 200 > STATE_MAX_DELAY
+    c = _gains_for(model, 200.0)
+    c = Controller(c.Kp, c.Kp * 0.05 if ctrl.Ki else 0.0, c.Kd, c.Tf, 200.0)
+    t, y, u, yl, _ = responses([model], c, 30.0, load=0.2)
+    _, y2, u2, _ = simulate_step(model, c, 30.0, substeps=1)
+    _, yl2, _, _ = simulate_step(model, c, 30.0, substeps=1, setpoint=0.0, load=0.2)
+    assert np.max(np.abs(y[0] - y2)) < 1e-8 and np.max(np.abs(u[0] - u2)) < 1e-8
+    assert np.max(np.abs(yl[0] - yl2)) < 1e-8
+
+
+def test_nominal_margins_are_one_of_the_posteriors_figures():
+    # one computation for the nominal model and the draws: the nominal figure is the draws' method's
+    # figure on the nominal model, and lies within the range over a posterior centred on it
+    from mrftcli.tune.design import tune
+    from mrftcli.tune.margins import loop_margins
+
+    model = LoopModel(0.08, 3.205, 0.2, 0.98)  # 40 ticks: long enough for the spectral responses
+    post = Posterior.from_spread(model, 0.2, 0.01, 0.05, n=40, seed=2)
+    res = tune(model, 200.0, posterior=post, designs=("model-based",), kinds=("PD",))
+    d = res.get("model-based", "PD")
+    allm = loop_margins(d.controller, [model] + post.models())
+    assert d.margins == allm[0]
+    for name in ("phase_margin_deg", "gain_margin", "Ms", "delay_margin_s"):
+        draws = getattr(allm, name)[1:]
+        assert draws.min() <= getattr(d.margins, name) <= draws.max(), name
+    assert d.posterior["worst"]["phase_margin_deg"] == pytest.approx(np.min(allm.phase_margin_deg[1:][post.in_set()]))

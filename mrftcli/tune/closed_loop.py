@@ -36,7 +36,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "DiscretePlant", "PlantStack", "plant_transfer", "plants_of_parameters", "STATE_MAX_DELAY", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses",
+__all__ = ["Controller", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plant_transfer", "plants_of_parameters", "STATE_MAX_DELAY", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses",
            "step_metrics", "criterion", "simulate_step", "spectral_radius", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
@@ -401,34 +401,44 @@ class PlantStack:
     Gamma: np.ndarray
     C: np.ndarray
     d: np.ndarray
+    triangular: bool = True
 
     @classmethod
     def of(cls, plants: Sequence[DiscretePlant]) -> "PlantStack":
         """Stack ``plants`` (a non-empty sequence)."""
-        return cls(np.stack([p.Phi for p in plants]), np.stack([p.Gamma for p in plants]),
-                   np.stack([p.C for p in plants]), np.array([p.d for p in plants], int))
+        Phi = np.stack([p.Phi for p in plants])
+        return cls(Phi, np.stack([p.Gamma for p in plants]), np.stack([p.C for p in plants]),
+                   np.array([p.d for p in plants], int), not np.any(np.tril(Phi, -1) != 0.0))
 
     def take(self, index: np.ndarray) -> "PlantStack":
         """The plants at ``index`` (repeats allowed)."""
-        return PlantStack(self.Phi[index], self.Gamma[index], self.C[index], self.d[index])
+        return PlantStack(self.Phi[index], self.Gamma[index], self.C[index], self.d[index], self.triangular)
 
     def transfer(self, z: np.ndarray, delayed: bool = True) -> np.ndarray:
         """Gd(z) of each plant at the points ``z`` (W,) or (M, W): shape (M, W) (:func:`plant_transfer`)."""
-        Phi, Gam, C = self.Phi, self.Gamma, self.C
-        z = np.broadcast_to(np.asarray(z, complex), (Phi.shape[0], np.shape(z)[-1]))
-        if np.any(np.tril(Phi, -1) != 0.0):  # not the triangular form of eq. (2): a general solve
-            v = (Gam[:, 1, None, :] + Gam[:, 0, None, :] / z[..., None]) if delayed else \
-                np.broadcast_to((Gam[:, 0] + Gam[:, 1])[:, None, :], z.shape + (3,))
-            x = np.linalg.solve(z[..., None, None] * np.eye(3) - Phi[:, None], v[..., None])[..., 0]
-            out = np.einsum("mwi,mi->mw", x, C)
-        else:
-            b = (Gam[:, 1, :, None] + Gam[:, 0, :, None] / z[:, None, :]) if delayed else \
-                (Gam[:, 0] + Gam[:, 1])[:, :, None]
-            x2 = b[:, 2] / (z - Phi[:, 2, 2, None])
-            x1 = (b[:, 1] + Phi[:, 1, 2, None] * x2) / (z - Phi[:, 1, 1, None])
-            x0 = (b[:, 0] + Phi[:, 0, 1, None] * x1 + Phi[:, 0, 2, None] * x2) / (z - Phi[:, 0, 0, None])
-            out = C[:, 0, None] * x0 + C[:, 1, None] * x1 + C[:, 2, None] * x2
-        return out * z ** (-self.d[:, None].astype(float)) if delayed else out
+        return self.transfers(z)[0 if delayed else 1]
+
+    def transfers(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Gd, Gl) at ``z``: the delayed transfer from the command and the undelayed one of a constant
+        input over each period (:func:`plant_transfer`), sharing the solves; each (M, W)."""
+        z = np.atleast_2d(np.asarray(z, complex))  # (1, W) or (M, W)
+        xa, xb = self._resolvent(z, self.Gamma[:, 0]), self._resolvent(z, self.Gamma[:, 1])
+        # z^-d as exp(-d log z): one logarithm per point, not one per point and plant
+        delay = np.exp(-self.d[:, None] * np.log(z))
+        return (xb + xa / z) * delay, xa + xb
+
+    def _resolvent(self, z: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """C (z I - Phi)^{-1} b for each plant (b: (M, 3)) at the points z (1 or M, W)."""
+        Phi, C = self.Phi, self.C
+        if not self.triangular:  # not the triangular form of eq. (2): a general solve
+            zz = np.broadcast_to(z, (Phi.shape[0], z.shape[-1]))
+            rhs = np.broadcast_to(b[:, None, :, None], zz.shape + (3, 1))
+            x = np.linalg.solve(zz[..., None, None] * np.eye(3) - Phi[:, None], rhs)[..., 0]
+            return np.einsum("mwi,mi->mw", x, C)
+        x2 = b[:, 2, None] / (z - Phi[:, 2, 2, None])
+        x1 = (b[:, 1, None] + Phi[:, 1, 2, None] * x2) / (z - Phi[:, 1, 1, None])
+        x0 = (b[:, 0, None] + Phi[:, 0, 1, None] * x1 + Phi[:, 0, 2, None] * x2) / (z - Phi[:, 0, 0, None])
+        return C[:, 0, None] * x0 + C[:, 1, None] * x1 + C[:, 2, None] * x2
 
 
 def plant_transfer(plants: Sequence[DiscretePlant], z: np.ndarray, delayed: bool = True) -> np.ndarray:
@@ -455,17 +465,21 @@ def plant_transfer(plants: Sequence[DiscretePlant], z: np.ndarray, delayed: bool
 #: whose cost does not depend on d. The shipped sample logs (d <= 16) stay on the state matrices.
 STATE_MAX_DELAY = 24
 #: z-transform inversion: the responses are sampled on the circle |z| = rho with rho^N = this (a loop
-#: growing faster than this over the horizon has diverged, as :func:`criterion` counts it) ...
-_SPECTRAL_GROWTH = 1e3
-#: ... at this many points per tick of the horizon (time aliasing ~ rho^-(4 N) = 1e-12).
-_SPECTRAL_OVERSAMPLE = 4
+#: growing faster than this over the horizon has diverged, as :func:`criterion` counts it from 1e3) ...
+_SPECTRAL_GROWTH = 1e4
+#: ... at this many points per tick of the horizon (time aliasing: the transient left after N ticks
+#: times rho^-(2 N) = 1e-8).
+_SPECTRAL_OVERSAMPLE = 2
 #: Loops transformed at once (bounds the working memory to ~30 MB at a 60 s, 200 Hz horizon).
 _SPECTRAL_CHUNK = 8
 
 
 @dataclass(frozen=True, eq=False)
-class _Spectrum:
-    """The plants' transfer functions on the inversion circle of an N-tick horizon."""
+class PlantSpectrum:
+    """The plants' transfer functions on the inversion circle of an N-tick horizon (:func:`plant_spectrum`).
+
+    Computed once per set of plants and horizon, it serves every controller tried on them.
+    """
 
     z: np.ndarray  # (W,) the circle's points from theta = 0 to pi
     rho: float
@@ -475,16 +489,28 @@ class _Spectrum:
     Gl: np.ndarray  # (M, W)
 
 
-def _spectrum(plants: Sequence[DiscretePlant], n_ticks: int) -> _Spectrum:
+def plant_spectrum(plants: Sequence[DiscretePlant], t_end: float) -> PlantSpectrum | None:
+    """What :func:`responses` of these plants over [0, ``t_end``] [s] needs from them, for reuse across
+    controllers; None when their delays are short enough for the state matrices (nothing to keep)."""
+    if max((p.d for p in plants), default=0) <= STATE_MAX_DELAY:
+        return None
+    return _spectrum(plants, _ticks(t_end, plants[0].rate_hz))
+
+
+def _ticks(t_end: float, rate_hz: float) -> int:
+    return int(math.ceil(t_end * rate_hz)) + 1
+
+
+def _spectrum(plants: Sequence[DiscretePlant], n_ticks: int) -> PlantSpectrum:
     from scipy.fft import next_fast_len
 
     n_fft = next_fast_len(_SPECTRAL_OVERSAMPLE * n_ticks, real=True)
     rho = _SPECTRAL_GROWTH ** (1.0 / max(n_ticks, 1))
     z = rho * np.exp(2j * np.pi * np.arange(n_fft // 2 + 1) / n_fft)
-    return _Spectrum(z, rho, n_fft, n_ticks, plant_transfer(plants, z), plant_transfer(plants, z, delayed=False))
+    return PlantSpectrum(z, rho, n_fft, n_ticks, *PlantStack.of(plants).transfers(z))
 
 
-def _invert(X: np.ndarray, sp: _Spectrum) -> np.ndarray:
+def _invert(X: np.ndarray, sp: PlantSpectrum) -> np.ndarray:
     """x_k, k < N, of the z-transforms X (M, W) sampled on the circle |z| = rho (half spectrum)."""
     from scipy.fft import irfft
 
@@ -492,12 +518,31 @@ def _invert(X: np.ndarray, sp: _Spectrum) -> np.ndarray:
     return x * sp.rho ** np.arange(sp.n_ticks)
 
 
-def _spectral_responses(sp: _Spectrum, controller: Controller, load: float):
+def _half_turns(F: np.ndarray) -> np.ndarray:
+    """Half turns of each row of F (M, W) about 0, F real at both ends (the closed contour's half).
+
+    Counted as crossings of the negative real axis (+1 from Im > 0 to Im < 0, i.e. counter-clockwise)
+    plus the ends' arguments (0 or pi): cheaper than the arguments of every point.
+    """
+    up = F.imag > 0
+    m, k = np.nonzero(up[:, 1:] != up[:, :-1])
+    a, b = F[m, k], F[m, k + 1]
+    re_x = a.real + (b.real - a.real) * a.imag / (a.imag - b.imag)  # where the segment meets the real axis
+    ccw = np.zeros(F.shape[0], int)
+    np.add.at(ccw, m[re_x < 0], np.where(up[m, k], 1, -1)[re_x < 0])
+    return 2 * ccw + (F.real[:, -1] < 0).astype(int) - (F.real[:, 0] < 0).astype(int)
+
+
+def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float):
     """Setpoint and load steps from the closed loop's z-transforms (exact to ~1e-12, see the constants).
 
     Y = Gd C_r S R, U = C_r S R with S = 1 / (1 + C_fb Gd) and R = z / (z - 1) (the unit step); the
-    load step: Y_l = Gl S load R, U_l = -C_fb Y_l. A loop with closed-loop poles outside the circle
-    (1 + C_fb Gd winds around 0 on it) grows faster than the horizon allows: its rows are NaN (diverged).
+    load step: Y_l = Gl S load R, U_l = -C_fb Y_l. The plant's integrator fixes the final values (its
+    input u + load settles at 0: y -> 1, u -> 0 after a setpoint step; u -> -load and y -> load / Kp
+    for a PD, 0 for a PID after a load step); each signal is inverted less its final value times the
+    step, which decays, so that few points on the circle suffice. A loop with closed-loop poles outside
+    the circle (1 + C_fb Gd winds around 0 on it) grows faster than the horizon allows: its rows are
+    NaN (diverged).
     """
     z = sp.z
     T = controller.Ts
@@ -505,15 +550,16 @@ def _spectral_responses(sp: _Spectrum, controller: Controller, load: float):
     Cfb = Cr + controller.Kd * (z - 1.0) / ((controller.Tf + T) * z - controller.Tf)
     R = z / (z - 1.0)
     F = 1.0 + Cfb * sp.Gd
-    winding = np.rint((np.unwrap(np.angle(F), axis=-1)[:, -1] - np.angle(F[:, 0])) / np.pi)
     S = 1.0 / F
-    y = _invert(sp.Gd * (Cr * S * R), sp)
-    u = _invert(Cr * S * R, sp)
+    U = Cr * S * R
+    y = _invert(sp.Gd * U - R, sp) + 1.0
+    u = _invert(U, sp)
     yl = ul = None
     if load:
         Yl = sp.Gl * S * (load * R)
-        yl, ul = _invert(Yl, sp), _invert(-Cfb * Yl, sp)
-    bad = winding != 0
+        y_end = load / controller.Kp if controller.Ki == 0 else 0.0
+        yl, ul = _invert(Yl - y_end * R, sp) + y_end, _invert(-Cfb * Yl + load * R, sp) - load
+    bad = _half_turns(F) != 0
     for arr in (y, u, yl, ul):
         if arr is not None:
             arr[bad] = np.nan
@@ -540,7 +586,8 @@ def _state_responses(plants: Sequence[DiscretePlant], controller: Controller, N:
     return y[0], u[0], None, None
 
 
-def responses(models, controller: Controller, t_end: float, load: float = 0.0):
+def responses(models, controller: Controller, t_end: float, load: float = 0.0,
+              spectrum: PlantSpectrum | None = None):
     """The sampled loop's unit setpoint step and, when ``load`` != 0, its load-disturbance step, from rest.
 
     The load disturbance is a step of ``load`` [command units] added to the plant input at t = 0
@@ -549,7 +596,8 @@ def responses(models, controller: Controller, t_end: float, load: float = 0.0):
     Delays up to :data:`STATE_MAX_DELAY` ticks iterate the closed-loop state matrices; longer ones
     invert the closed loop's z-transform on a circle (cost independent of the delay, in chunks of
     loops); both are exact (to ~1e-12), the second marks a loop that diverges faster than 1e3 over
-    the horizon with NaN.
+    the horizon with NaN. ``spectrum``: :func:`plant_spectrum` of the same ``models`` and ``t_end``
+    (saves recomputing it when many controllers are tried on one set of plants).
 
     Returns
     -------
@@ -557,10 +605,12 @@ def responses(models, controller: Controller, t_end: float, load: float = 0.0):
     y_load, u_load : (M, N) output and command of the load step (None when ``load`` is 0).
     """
     plants = as_discrete(models, controller.rate_hz)
-    N = int(math.ceil(t_end * controller.rate_hz)) + 1
+    N = _ticks(t_end, controller.rate_hz)
     t = np.arange(N) / controller.rate_hz
     if max((p.d for p in plants), default=0) <= STATE_MAX_DELAY:
         return (t, *_state_responses(plants, controller, N, load))
+    if spectrum is not None and spectrum.n_ticks == N and spectrum.Gd.shape[0] == len(plants):
+        return (t, *_spectral_responses(spectrum, controller, load))
     parts = [_spectral_responses(_spectrum(plants[i:i + _SPECTRAL_CHUNK], N), controller, load)
              for i in range(0, len(plants), _SPECTRAL_CHUNK)]
     y, u = (np.concatenate([p[j] for p in parts]) for j in (0, 1))

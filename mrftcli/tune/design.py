@@ -39,7 +39,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from ..validate import check_positive
-from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, StepMetrics, as_discrete, criterion, discrete_plants, responses,
+from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, StepMetrics, as_discrete, criterion, discrete_plants, plant_spectrum, responses,
                           step_metrics)
 from .margins import LoopMargins, Margins, frequency_grid, loop_margins, plant_response
 
@@ -113,9 +113,9 @@ class Posterior:
         d = X - X.mean(axis=0)
         cov = np.atleast_2d(np.cov(d, rowvar=False))
         m2 = np.einsum("ij,jk,ik->i", d, np.linalg.pinv(cov), d)
-        from scipy.stats import chi2
+        from scipy.special import chdtri  # chi2.ppf(0.95, k), the same value, without importing scipy.stats
 
-        return m2 <= chi2.ppf(0.95, X.shape[1])
+        return m2 <= chdtri(X.shape[1], 1.0 - 0.95)
 
     @classmethod
     def from_spread(cls, model: LoopModel, Td_std: float = 0.0, tau_std: float = 0.0, K_std: float = 0.0,
@@ -265,6 +265,7 @@ class _Evaluator:
         self.horizon, self.ms_max, self.effort_max, self.load = horizon, ms_max, effort_max, load
         self.omega = frequency_grid(rate_hz, 400)
         self.Gd = plant_response(list(ms_plants), rate_hz, self.omega)
+        self.spectra: dict[float, PlantSpectrum | None] = {}
 
     def _copy(self, **changes) -> "_Evaluator":
         new = object.__new__(_Evaluator)
@@ -284,7 +285,9 @@ class _Evaluator:
         return float(np.max(1.0 / np.abs(1.0 + L)))
 
     def criterion(self, c: Controller) -> float:
-        t, y, _, yl, _ = responses(self.models, c, self.horizon, self.load)
+        if self.horizon not in self.spectra:  # the plants on the inversion circle, kept across controllers
+            self.spectra[self.horizon] = plant_spectrum(self.models, self.horizon)
+        t, y, _, yl, _ = responses(self.models, c, self.horizon, self.load, self.spectra[self.horizon])
         J = criterion(t, y, self.objective)
         if self.load:
             J = J + criterion(t, 1.0 - yl, self.objective)  # |1 - (1 - y)| = |y|: the load's deviation

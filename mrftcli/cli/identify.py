@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import click
 
 from ..errors import InputError
 from .options import dump_json, tp_option
 
+if TYPE_CHECKING:
+    from ..mrft.identify import ParameterEstimate, TestMeasurement
 
-def _parse_test(text: str):
+
+def _parse_test(text: str) -> TestMeasurement:
     """BETA:FREQ_HZ[:AMPLITUDE:H] -> TestMeasurement."""
     from ..mrft.identify import TestMeasurement
 
@@ -24,7 +29,7 @@ def _parse_test(text: str):
     return TestMeasurement(nums[0], nums[1], amplitude=nums[2], h=nums[3])
 
 
-def _fmt(est, scale: float = 1.0, unit: str = "") -> str:
+def _fmt(est: ParameterEstimate | None, scale: float = 1.0, unit: str = "") -> str:
     if est is None:
         return "-"
     s = f"{est.mean * scale:.5g}{unit}"

@@ -2,8 +2,11 @@
 
 * :func:`open_log` -> a :class:`LogSource` (topics, one field as a time series), any supported format;
 * :func:`read_flight` -> the :class:`~mrftcli.io.logtypes.FlightLog` one loop's analysis needs
-  (:func:`flight_from_source` does the same on an already open :class:`LogSource`);
-* :func:`write_log` -> write :class:`~mrftcli.io.logtypes.TopicData` in any of :data:`FORMATS`.
+  (:func:`flight_from_source` / :func:`read_loop` do the same on an already open :class:`LogSource`,
+  in the stages of :mod:`mrftcli.io.flight`);
+* :func:`write_log` -> write :class:`~mrftcli.io.logtypes.TopicData` in any of :data:`FORMATS`;
+* :mod:`mrftcli.io.timing` -> sample rates from timestamps and the flight's :class:`Timing`;
+  :mod:`mrftcli.io.follow` -> the flight so far from a log still being written.
 
 The layouts (reference topics, how topics map to ULog messages and CSV columns) are documented in
 ``docs/log-layout.md``.

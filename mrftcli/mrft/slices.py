@@ -16,7 +16,7 @@ Units: times in seconds, ``omega`` in rad/s.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -234,30 +234,11 @@ def intersection_draws(Tp: float, betas: Sequence[float], omega_draws: np.ndarra
     if lags is None:
         lags = np.zeros((M, 2))
     grid = Td_ref * np.geomspace(1e-2, 1e2, 49)
-    D = np.empty((M, grid.size))
-    taus = []
-    for i in range(2):
-        w = omega_draws[:, i : i + 1]
-        tp = Tp * w
-        td = grid[None, :] * w
-        covered = ms.covers(betas[i]) and np.all((tp >= ms.tp_n[0]) & (tp <= ms.tp_n[-1]))
-        if covered:
-            th, _ = ms.evaluate(betas[i], np.broadcast_to(tp, td.shape), td)
-            bad = ~np.isfinite(th)
-            if np.any(bad):
-                th_ex, _ = unit_cycle(np.broadcast_to(tp, td.shape)[bad], td[bad], betas[i])
-                th[bad] = th_ex
-        else:
-            th, _ = unit_cycle(np.broadcast_to(tp, td.shape), td, betas[i])
-        taus.append(th / w - lags[:, i : i + 1])
-    D = taus[0] - taus[1]
-    s = np.sign(D)
+    taus = [_draw_curves(Tp, betas[i], omega_draws[:, i : i + 1], grid, ms) - lags[:, i : i + 1] for i in range(2)]
+    s = np.sign(taus[0] - taus[1])
     change = (s[:, :-1] * s[:, 1:] < 0) & (taus[0][:, :-1] >= -1e-12)
-    has = change.any(axis=1)
     k = np.argmax(change, axis=1)
-    x_lo = np.log(grid[k])
-    x_hi = np.log(grid[np.minimum(k + 1, grid.size - 1)])
-    rows = np.nonzero(has)[0]
+    rows = np.nonzero(change.any(axis=1))[0]
     out = np.full(M, np.nan)
     if rows.size == 0:
         return out
@@ -271,10 +252,35 @@ def intersection_draws(Tp: float, betas: Sequence[float], omega_draws: np.ndarra
         gap: FloatArray = (th1 / w1 - l1) - (th2 / w2 - l2)
         return gap
 
-    a, b = x_lo[rows], x_hi[rows]
+    x_lo, x_hi = np.log(grid[k]), np.log(grid[np.minimum(k + 1, grid.size - 1)])
+    out[rows] = np.exp(_illinois(d, x_lo[rows], x_hi[rows], iters))
+    return out
+
+
+def _draw_curves(Tp: float, beta: float, w: FloatArray, grid: FloatArray, ms: ManifoldSet) -> FloatArray:
+    """Each draw's curve tau(Td) [s] on the Td grid [s], (M, grid.size), for draws ``w`` (M, 1) [rad/s]:
+    interpolated manifolds where they cover the draws, the exact closed form elsewhere."""
+    tp = Tp * w
+    td = grid[None, :] * w
+    covered = ms.covers(beta) and np.all((tp >= ms.tp_n[0]) & (tp <= ms.tp_n[-1]))
+    if covered:
+        th, _ = ms.evaluate(beta, np.broadcast_to(tp, td.shape), td)
+        bad = ~np.isfinite(th)
+        if np.any(bad):
+            th_ex, _ = unit_cycle(np.broadcast_to(tp, td.shape)[bad], td[bad], beta)
+            th[bad] = th_ex
+    else:
+        th, _ = unit_cycle(np.broadcast_to(tp, td.shape), td, beta)
+    tau: FloatArray = th / w
+    return tau
+
+
+def _illinois(d: Callable[[FloatArray], FloatArray], a: FloatArray, b: FloatArray, iters: int) -> FloatArray:
+    """Roots of ``d`` bracketed by [a, b] elementwise: the Illinois variant of regula falsi."""
     fa, fb = d(a), d(b)
-    side = np.zeros(rows.size)
-    c_prev = np.full(rows.size, np.inf)
+    side = np.zeros(a.size)
+    c_prev = np.full(a.size, np.inf)
+    c = c_prev
     for _ in range(iters):
         c = (a * fb - b * fa) / (fb - fa)
         c = np.where(np.isfinite(c), c, 0.5 * (a + b))
@@ -290,5 +296,4 @@ def intersection_draws(Tp: float, betas: Sequence[float], omega_draws: np.ndarra
         fb_new = np.where(left, np.where(side == 1, 0.5 * fb, fb), fc)
         side = np.where(left, 1, -1)
         a, b, fa, fb = a_new, b_new, fa_new, fb_new
-    out[rows] = np.exp(c)
-    return out
+    return c

@@ -1,18 +1,19 @@
 """The MRFT maths: the paper's model, the exact limit cycle (LPRS), the describing function, the
 UFM/UGM, identification from measured tests and the consensus of a log's tests.
 
-Modules: :mod:`~mrftcli.mrft.model` (eq. (2)), :mod:`~mrftcli.mrft.lprs` (exact limit cycles),
+Modules: :mod:`~mrftcli.mrft.model` (the model object; eq. (2)), :mod:`~mrftcli.mrft.lprs` (exact limit cycles),
 :mod:`~mrftcli.mrft.describing` (harmonic balance, eqs. (4)-(7)), :mod:`~mrftcli.mrft.ufm`
-(manifolds), :mod:`~mrftcli.mrft.identify` (Td, tau, K from test means) and
+(manifolds), :mod:`~mrftcli.mrft.identify` (Td, tau, K from test means),
+:mod:`~mrftcli.mrft.slices` (the tests' UFM slices and where they meet) and
 :mod:`~mrftcli.mrft.consensus` (weighted constraints and bootstrap over a log's cycles).
 """
 
 from .describing import describing_function_limit_cycle
 from .identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify
 from .lprs import LimitCycle, mrft_limit_cycle, sampled_limit_cycle
-from .model import LoopModel
+from .model import MODEL_FAMILIES, LoopModel, Parameter, PlantModel
 from .ufm import ManifoldSet, load_manifolds
 
-__all__ = ["LoopModel", "LimitCycle", "mrft_limit_cycle", "sampled_limit_cycle", "describing_function_limit_cycle",
-           "ManifoldSet", "load_manifolds", "TestMeasurement", "ParameterEstimate", "IdentificationResult",
+__all__ = ["LoopModel", "PlantModel", "Parameter", "MODEL_FAMILIES", "LimitCycle", "mrft_limit_cycle",
+           "sampled_limit_cycle", "describing_function_limit_cycle", "ManifoldSet", "load_manifolds", "TestMeasurement", "ParameterEstimate", "IdentificationResult",
            "identify"]

@@ -13,6 +13,8 @@ import pytest
 
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
+from mrftcli.diagnose.records import SCHEMA_VERSION, DiagnosisResult, EffectFinding
+from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 CONCEALED = sorted((ROOT / "sample_logs" / "concealed").glob("*.mcap"))
@@ -41,6 +43,23 @@ def test_sampled_relay_without_noise_switches_on_ticks():
     ticks = np.concatenate([run.up, run.down]) * 100.0
     assert np.allclose(ticks, np.round(ticks))
     assert run.up.size == 12
+
+
+def test_sampled_relay_follows_the_checks_rule():
+    # independent oracle: the checks.md rule transcribed in tests/relay_rule.py (not mrftcli.mrft.relay,
+    # which the sampled relay and the simulator both use) replayed on the noise-free ticks
+    from relay_rule import relay_step
+
+    beta, rate = -0.4, 200.0
+    run = run_relay(AugmentedPlant(0.04, 2.0, 0.04, 10.0), beta, 0.1, rate, 8, sampled=SampledRelay(), max_time=60)
+    s, ext, up, down = 1.0, 1e-300, [], []  # the cold start: as if the error had just been positive
+    for k in range(1, run.y.size):
+        s_new, ext = relay_step(s, ext, -run.y[k], beta)
+        if s_new != s:
+            (up if s_new > 0 else down).append(k / rate)
+        s = s_new
+    assert run.up.size == 8
+    assert np.allclose(run.up, up) and np.allclose(run.down, down)
 
 
 def test_input_bias_gives_the_duty_cycle_of_zero_mean_input():
@@ -172,6 +191,10 @@ def test_concealed_log(path, diagnoses):
     effect = truth["concealed_effect"]
     res = diagnoses(path)
     data = json.loads(json.dumps(res.to_dict(), default=float))  # JSON-serialisable
+    # the versioned record reads back to the same JSON (without the figures)
+    back = DiagnosisResult.from_json(json.loads(json.dumps(res.to_json(), default=float)))
+    assert json.dumps(back.to_dict(), default=float) == json.dumps(res.to_dict(), default=float)
+    assert back.figures is None and res.figures is not None
     assert isinstance(data["effects"], list) and isinstance(data["located"], list)
     names = [e.name for e in res.effects]
     if effect is None:
@@ -291,6 +314,66 @@ def test_a_log_no_linear_plant_fits_is_diagnosed_not_refused(tmp_path, monkeypat
     assert "actuator_rate_limit" in found, res.summary
     assert found["actuator_rate_limit"].parameters["R"] == pytest.approx(flight.truth["effects"]["actuator_rate_limit"],
                                                                          rel=0.25)
+
+
+# --------------------------------------------------------------------------------------------------
+# the versioned result
+
+
+def _small_result() -> DiagnosisResult:
+    effect = EffectFinding(name="sensor_lag", explanation="the sensor lags", augmentation="z' = (y - z)/T_lag",
+                           parameters={"T_lag": 0.07, "T_lag_std": 0.002, "unit": "s"},
+                           evidence={"delta_bic": 120.0, "bic": 40.0, "compared_with": "linear"},
+                           fit_before={"nrmse": 0.08, "cycles": 12}, fit_after={"nrmse": 0.01, "cycles": 12},
+                           identification={"linear": {"Td": 2.0}, "with_effect": {"Td": 2.6}},
+                           harmonics={"0": {"before": {"1": 0.1}, "after": {"1": 0.01}}})
+    return DiagnosisResult(path="f.mcap", loop="altitude", Tp=0.0422, effects=[effect],
+                           candidates=[{"name": "sensor_lag", "delta_bic": 120.0, "significant": True}],
+                           located=[{"kind": "feature", "test": 0, "z": 9.5}],
+                           identification={"linear": {"Td": 2.0, "Tp": 0.0422}},
+                           tests=[{"index": 0, "cycles": 24}], noise_std=5e-4, summary="sensor_lag explains it",
+                           warnings=["one"], unexplained=None, t0=1.5)
+
+
+def test_diagnosis_result_json_round_trip():
+    res = _small_result()
+    data = json.loads(json.dumps(res.to_json()))
+    assert data["schema_version"] == SCHEMA_VERSION
+    assert {k: v for k, v in data.items() if k != "schema_version"} == res.to_dict()
+    back = DiagnosisResult.from_json(data)
+    assert back == res and back.to_dict() == res.to_dict()
+    assert EffectFinding.from_dict(res.effects[0].to_dict()) == res.effects[0]
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"schema_version": 99}, "schema_version 99 is not supported"),
+    ({"schema_version": None}, "schema_version None is not supported"),
+    ({"effects": {}}, "'effects' must be a JSON list"),
+    ({"effects": [{"name": "x"}]}, "effect has no 'explanation'"),
+    ({"Tp": "fast"}, "malformed"),
+    ({"unexplained": []}, "'unexplained' must be a JSON object"),
+])
+def test_diagnosis_result_from_bad_json_is_one_line(change, match):
+    data = {**_small_result().to_json(), **change}
+    with pytest.raises(InputError, match=match) as err:
+        DiagnosisResult.from_json(data)
+    assert "\n" not in str(err.value)
+
+
+def test_diagnosis_result_missing_key_and_not_a_dict():
+    data = _small_result().to_json()
+    del data["located"]
+    with pytest.raises(InputError, match="no 'located'"):
+        DiagnosisResult.from_json(data)
+    with pytest.raises(InputError, match="must be a JSON object"):
+        DiagnosisResult.from_json([])  # type: ignore[arg-type]
+
+
+def test_report_refuses_a_result_without_figures(tmp_path):
+    from mrftcli.report.diagnosis import write_diagnosis_report
+
+    with pytest.raises(InputError, match="no figures"):
+        write_diagnosis_report(_small_result(), tmp_path)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -65,9 +65,11 @@ def test_scatter_sample_keeps_a_wide_but_clean_scatter():
 @pytest.mark.slow
 @pytest.mark.parametrize("jitter", [0.0, 0.012])
 def test_predicted_period_scatter_matches_the_flight_simulator(jitter):
-    # independent oracle: the project's flight simulator (its own relay, jitter process and hold
-    # controller), segmented by the segmenter; the prediction runs diagnose's sampled relay at the
-    # true plant and the nominal beta, over windows as long as the recorded test
+    # oracle: the project's flight simulator (its own tick loop, hover, hold controller and noise),
+    # segmented by the segmenter; the prediction runs diagnose's sampled relay at the true plant and the
+    # nominal beta, over windows as long as the recorded test. The relay rule and the jitter process
+    # are mrftcli.mrft's, shared by both: they are checked against independent transcriptions below
+    # and in test_diagnose.py (test_sampled_relay_follows_the_checks_rule)
     model = LoopModel(Tp=0.0422, Td=2.669, tau=0.0464, K=15.0)
     h, beta, noise = 0.0916, -0.4, 0.0005
     v_rec, n_reg, periods, betas = [], [], [], []
@@ -91,3 +93,22 @@ def test_predicted_period_scatter_matches_the_flight_simulator(jitter):
     v_pred, dof = expected_period_variance(setting, jitter)
     assert dof > 600
     assert math.sqrt(np.mean(v_rec) / v_pred) == pytest.approx(1.0, abs=0.2)
+
+
+def test_jitter_process_matches_a_plain_loop():
+    # the Gauss-Markov delay and its first-in-first-out application (mrftcli.mrft.propagate, shared by
+    # the diagnosis and the simulator) against the recursion written out here
+    from mrftcli.mrft.propagate import fifo_delays, gauss_markov
+
+    rng = np.random.default_rng(5)
+    innov = 0.01 * rng.standard_normal(500)
+    phi, tau, T = 0.9, 0.03, 0.005
+    d = np.empty(innov.size)
+    for k, i in enumerate(innov):
+        d[k] = i if k == 0 else phi * d[k - 1] + i
+    assert np.allclose(gauss_markov(innov, phi), d, atol=1e-15)
+    apply_at, latest = np.empty(d.size), -np.inf
+    for k in range(d.size):
+        latest = max(latest, k * T + max(tau + d[k], 0.0))  # a command never overtakes an older one
+        apply_at[k] = latest
+    assert np.allclose(fifo_delays(d, tau, T), apply_at - np.arange(d.size) * T, atol=1e-15)

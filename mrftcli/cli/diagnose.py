@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import click
 
 from ..diagnose.physics import BY_NAME
 from .options import check_output_dir, check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
+if TYPE_CHECKING:
+    from ..diagnose.records import DiagnosisResult
 
-def _g(x, fmt=".4g") -> str:
+
+def _g(x: float | None, fmt: str = ".4g") -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
-def format_summary(result) -> str:
-    """The terminal summary of a :class:`~mrftcli.diagnose.selection.DiagnosisResult`."""
+def format_summary(result: DiagnosisResult) -> str:
+    """The terminal summary of a :class:`~mrftcli.diagnose.records.DiagnosisResult`."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")

@@ -4,21 +4,26 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ._common import ensure_dir, html_page, html_table, new_figure, save_figure
+
+if TYPE_CHECKING:
+    from ..tune.design import TuneResult
 
 __all__ = ["write_tune_report", "plot_bode", "plot_steps"]
 
 _COLOURS = {"mrft-rule": "#D55E00", "model-based": "#0072B2", "robust": "#009E73"}
 
 
-def plot_bode(result, path: str | Path, kind: str = "PD") -> Path:
+def plot_bode(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
     """Bode plot of the sampled loop L = C Gd of each ``kind`` design, crossovers and margins marked."""
-    from ..tune.margins import frequency_grid, plant_response
+    from ..tune.margins import margin_grid, plant_response
 
-    w = frequency_grid(result.rate_hz, 1500)
+    # the margins' grid: fine enough at high frequency for the delay's phase to unwrap at any delay
+    w = margin_grid(result.rate_hz, int(result.model.tau * result.rate_hz))
     Gd = plant_response([result.model], result.rate_hz, w)[0]
     fig, (a1, a2) = new_figure(2, 1, width=9.0, height=6.5, sharex=True)
     for d in result.designs:
@@ -42,7 +47,7 @@ def plot_bode(result, path: str | Path, kind: str = "PD") -> Path:
     return save_figure(fig, path)
 
 
-def plot_steps(result, path: str | Path, kind: str = "PD") -> Path:
+def plot_steps(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
     """Unit setpoint steps of the sampled loop: nominal line and the 2.5-97.5 % band over the posterior."""
     from ..tune.closed_loop import step_response
 
@@ -70,7 +75,7 @@ def plot_steps(result, path: str | Path, kind: str = "PD") -> Path:
     return save_figure(fig, path)
 
 
-def write_tune_report(result, out_dir: str | Path) -> Path:
+def write_tune_report(result: "TuneResult", out_dir: str | Path) -> Path:
     """Write bode_<kind>.png, steps_<kind>.png and index.html to ``out_dir``; returns the index path."""
     out = ensure_dir(out_dir)
     body = [f"<p>Model Tp {result.model.Tp:g} s, Td {result.model.Td:.4g} s, tau {result.model.tau * 1e3:.4g} ms, "

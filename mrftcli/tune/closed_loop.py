@@ -26,8 +26,9 @@ Both are exact for the linear plant (no delay quantisation, no Pade approximant)
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import expm
@@ -168,7 +169,7 @@ class DiscretePlant:
     d: int
     rate_hz: float
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Any]:
         return iter((self.Phi, self.Gamma, self.C, self.d))
 
 
@@ -211,8 +212,10 @@ def discrete_plants(models, rate_hz: float) -> list[DiscretePlant]:
     models = list(models)
     if not models:
         return []
-    return plants_of_parameters(*(np.array([getattr(m, k) for m in models], float) for k in ("Tp", "Td", "tau", "K")),
-                                rate_hz)
+    def column(name: str) -> np.ndarray:
+        return np.array([getattr(m, name) for m in models], float)
+
+    return plants_of_parameters(column("Tp"), column("Td"), column("tau"), column("K"), rate_hz)
 
 
 def plants_of_parameters(Tp: np.ndarray, Td: np.ndarray, tau: np.ndarray, K: np.ndarray,
@@ -289,7 +292,8 @@ def as_discrete(models, rate_hz: float) -> list[DiscretePlant]:
     return out
 
 
-def closed_loop_matrices(models, controller: Controller, d_max: int | None = None):
+def closed_loop_matrices(models: Sequence[LoopModel | DiscretePlant], controller: Controller,
+                         d_max: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closed-loop state matrices for one controller on each of ``models``.
 
     ``models``: LoopModel or DiscretePlant items (the latter saves the discretisation when one set
@@ -533,7 +537,11 @@ def _half_turns(F: np.ndarray) -> np.ndarray:
     return 2 * ccw + (F.real[:, -1] < 0).astype(int) - (F.real[:, 0] < 0).astype(int)
 
 
-def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float):
+#: A loop's responses: setpoint step y, u and load step y, u (None without a load step), each (M, N).
+Steps = tuple[np.ndarray, np.ndarray, "np.ndarray | None", "np.ndarray | None"]
+
+
+def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float) -> Steps:
     """Setpoint and load steps from the closed loop's z-transforms (exact to ~1e-12, see the constants).
 
     Y = Gd C_r S R, U = C_r S R with S = 1 / (1 + C_fb Gd) and R = z / (z - 1) (the unit step); the
@@ -566,7 +574,7 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float):
     return y, u, yl, ul
 
 
-def _state_responses(plants: Sequence[DiscretePlant], controller: Controller, N: int, load: float):
+def _state_responses(plants: Sequence[DiscretePlant], controller: Controller, N: int, load: float) -> Steps:
     """Setpoint and load steps by iterating the closed-loop state matrices (:func:`closed_loop_matrices`)."""
     A, B, Cy, Cu, Du = closed_loop_matrices(plants, controller)
     M, n = B.shape
@@ -586,8 +594,9 @@ def _state_responses(plants: Sequence[DiscretePlant], controller: Controller, N:
     return y[0], u[0], None, None
 
 
-def responses(models, controller: Controller, t_end: float, load: float = 0.0,
-              spectrum: PlantSpectrum | None = None):
+def responses(models: Sequence[LoopModel | DiscretePlant], controller: Controller, t_end: float, load: float = 0.0,
+              spectrum: PlantSpectrum | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The sampled loop's unit setpoint step and, when ``load`` != 0, its load-disturbance step, from rest.
 
     The load disturbance is a step of ``load`` [command units] added to the plant input at t = 0

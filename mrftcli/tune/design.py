@@ -289,7 +289,7 @@ class _Evaluator:
             self.spectra[self.horizon] = plant_spectrum(self.models, self.horizon)
         t, y, _, yl, _ = responses(self.models, c, self.horizon, self.load, self.spectra[self.horizon])
         J = criterion(t, y, self.objective)
-        if self.load:
+        if yl is not None:  # a load step was asked for (self.load != 0)
             J = J + criterion(t, 1.0 - yl, self.objective)  # |1 - (1 - y)| = |y|: the load's deviation
         return float(np.mean(J))
 
@@ -413,7 +413,7 @@ def _summaries(c: Controller, post: Posterior, plants: list[DiscretePlant], obje
         else:
             worst[k] = float(np.max(np.where(np.isnan(s), np.inf, s)))
     crit = table[objective]
-    if load:
+    if yl is not None:  # load != 0
         crit = crit + criterion(t, 1.0 - yl, objective)
     expected = float(np.mean(crit)) if np.all(np.isfinite(crit)) else math.inf
     return {"median": med, "worst": worst, "n_draws": post.n, "n_in_set": int(in_set.sum()),
@@ -475,7 +475,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
     nominal_ev = {k: _Evaluator(nominal, nominal, rate_hz, k, objective, horizons["PD"], ms_max, effort_max)
                   for k in kinds}
     robust_ev = {}
-    if posterior is not None and "robust" in designs:
+    if posterior is not None and in_set_mask is not None and "robust" in designs:
         rng = np.random.default_rng(0)
         idx_all = np.arange(posterior.n)
         idx = np.sort(rng.choice(idx_all, _OPT_DRAWS, replace=False)) if posterior.n > _OPT_DRAWS else idx_all
@@ -512,7 +512,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
                     c = _optimise(ev, warm, step=0.1, maxfev=60)
                 else:
                     c = _optimise(ev, _pid_start(ev, pd))
-            if name == "robust":
+            if name == "robust" and Gd_all is not None and in_set_mask is not None:
                 # the optimisation's draws stood for the 95 % set: hold Ms on all of its draws
                 ev_all = ev.with_ms_models(Gd_all[in_set_mask], omega)
                 if ev_all.violation(c) > 0:
@@ -523,10 +523,11 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         st = step_metrics(t, y[0], u[0])
         J = getattr(st, objective)
         load_fig = {}
-        if load:
+        if yl is not None:  # load != 0
             load_fig = _load_figures(t, yl[0], load, objective)
             J = J + load_fig[objective]
-        post, expected = ({}, math.nan)
+        post: dict[str, Any] = {}
+        expected = math.nan
         if posterior is not None:
             post, expected, _ = _summaries(c, posterior, post_plants, objective, horizon, load)
         cons = {"ms_max": ms_max, "effort_max": effort_max, "noise_gain": c.noise_gain(),

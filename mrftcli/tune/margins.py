@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -249,7 +248,8 @@ class _Loop:
 def _crossings(sign_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(rows, k) where a row of values changes sign between grid points k and k + 1."""
     s = np.sign(sign_of)
-    return np.nonzero((s[:, :-1] * s[:, 1:] < 0) | ((s[:, 1:] == 0) & (s[:, :-1] != 0)))
+    rows, k = np.nonzero((s[:, :-1] * s[:, 1:] < 0) | ((s[:, 1:] == 0) & (s[:, :-1] != 0)))
+    return rows, k
 
 
 def _nyquist_stable(controller: Controller, L: np.ndarray) -> np.ndarray:

@@ -465,21 +465,40 @@ def run_batch(
         raise InputError(f"--jobs must be at least 1, got {jobs}")
     logs = discover_logs(paths, exclude=[out])
     base = {"tp": None, "loops": ("altitude",)} | dict(defaults or {})
-    tasks: list[LogTask] = []
-    for log in logs:
-        settings, _ = resolve_settings(log, base, config, explicit or {})
-        try:
-            mtime = log_mtime(log)
-        except OSError:  # vanished or unreadable since discovery: the worker reports it as that log's failure
-            mtime = math.inf
-        tasks.append(LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune), mtime, tune))
+    tasks = [_task(log, base, config, explicit or {}, diagnose, tune) for log in logs]
     if all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")
-
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(f"cannot create the output folder {out}: {err.strerror or err}") from err
+    rows, todo = _cached_rows(tasks, out, force)
+    if todo:
+        stream = _stream(worker, todo, jobs, scheduler, scheduler_timeout_s)
+        report_progress(progress, 0, len(todo), "")
+        for done, (task, record) in enumerate(stream, 1):
+            jp = result_path(out, Path(task.path))
+            _write_json_atomic(jp, record)
+            rows.extend(summary_rows(record, jp))
+            report_progress(progress, done, len(todo), Path(task.path).name)
+    df, outputs, notes = _write_summary(rows, out, report)
+    counts = {s: int((df["status"] == s).sum()) for s in (STATUS_OK, STATUS_INSUFFICIENT, STATUS_FAILED, STATUS_SKIPPED)}
+    return BatchResult(df, out, outputs, counts, len(logs), notes)
+
+
+def _task(log: Path, base: Mapping[str, Any], config: BatchConfig | None, explicit: Mapping[str, Any],
+          diagnose: bool, tune: str | None) -> LogTask:
+    """One log's unit of work with its resolved settings."""
+    settings, _ = resolve_settings(log, base, config, explicit)
+    try:
+        mtime = log_mtime(log)
+    except OSError:  # vanished or unreadable since discovery: the worker reports it as that log's failure
+        mtime = math.inf
+    return LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune), mtime, tune)
+
+
+def _cached_rows(tasks: Sequence[LogTask], out: Path, force: bool) -> tuple[list[dict[str, Any]], list[LogTask]]:
+    """The summary rows of the logs whose stored result is up to date, and the tasks still to run."""
     rows: list[dict[str, Any]] = []
     todo: list[LogTask] = []
     for task in tasks:
@@ -490,28 +509,29 @@ def run_batch(
             rows.extend(summary_rows(cached, jp, skipped=True))
         else:
             todo.append(task)
+    return rows, todo
 
-    if todo:
-        if worker is analyze_one and not scheduler:
-            # Import the analysis once here, so forked worker processes inherit it instead of each
-            # paying the import (about a second of SciPy and readers) on its first log.
-            try:
-                import mrftcli.analyze  # noqa: F401
-            except Exception:  # noqa: BLE001 - the worker reports it per log
-                pass
-        if scheduler:
-            stream = _run_dask(worker, todo, scheduler, scheduler_timeout_s)
-        elif (jobs or os.cpu_count() or 1) == 1 or len(todo) == 1:
-            stream = _run_inprocess(worker, todo)
-        else:
-            stream = _run_processes(worker, todo, jobs or os.cpu_count() or 1)
-        report_progress(progress, 0, len(todo), "")
-        for done, (task, record) in enumerate(stream, 1):
-            jp = result_path(out, Path(task.path))
-            _write_json_atomic(jp, record)
-            rows.extend(summary_rows(record, jp))
-            report_progress(progress, done, len(todo), Path(task.path).name)
 
+def _stream(worker: Worker, todo: Sequence[LogTask], jobs: int | None, scheduler: str | None,
+            scheduler_timeout_s: float) -> Iterator[tuple[LogTask, dict[str, Any]]]:
+    """(task, record) as the executor finishes them: Dask, this process, or local processes."""
+    if worker is analyze_one and not scheduler:
+        # Import the analysis once here, so forked worker processes inherit it instead of each
+        # paying the import (about a second of SciPy and readers) on its first log.
+        try:
+            import mrftcli.analyze  # noqa: F401
+        except Exception:  # noqa: BLE001 - the worker reports it per log
+            pass
+    if scheduler:
+        return _run_dask(worker, list(todo), scheduler, scheduler_timeout_s)
+    if (jobs or os.cpu_count() or 1) == 1 or len(todo) == 1:
+        return _run_inprocess(worker, list(todo))
+    return _run_processes(worker, list(todo), jobs or os.cpu_count() or 1)
+
+
+def _write_summary(rows: list[dict[str, Any]], out: Path,
+                   report: bool) -> tuple[pd.DataFrame, dict[str, Path], list[str]]:
+    """summary.csv, summary.parquet and the fleet report; the table, the files written and notes."""
     loop_order = {name: i for i, name in enumerate(LOOPS)}
     rows.sort(key=lambda r: (r["path"], loop_order.get(r["loop"], 99), str(r["loop"])))
     df = summary_frame(rows)
@@ -529,5 +549,4 @@ def run_batch(
             outputs["report"] = write_fleet_report(df, out / "report")
         except Exception as err:  # noqa: BLE001 - the results are written; a plotting problem must not lose them
             notes.append(f"the fleet report could not be drawn ({type(err).__name__}: {_one_line(err)})")
-    counts = {s: int((df["status"] == s).sum()) for s in (STATUS_OK, STATUS_INSUFFICIENT, STATUS_FAILED, STATUS_SKIPPED)}
-    return BatchResult(df, out, outputs, counts, len(logs), notes)
+    return df, outputs, notes

@@ -13,7 +13,8 @@ import pytest
 
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
-from mrftcli.diagnose.records import SCHEMA_VERSION, DiagnosisResult, EffectFinding
+from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, EffectFinding, Evidence, HeldOut,
+                                     PairFit)
 from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -204,7 +205,7 @@ def test_concealed_log(path, diagnoses):
     e = res.effects[0]
     value = e.parameters[PARAM[effect]]
     assert value == pytest.approx(truth["effects"][effect], rel=0.25)
-    before, after = e.fit_before["nrmse"], e.fit_after["nrmse"]
+    before, after = e.fit_before.nrmse, e.fit_after.nrmse
     assert after <= 0.5 * before
     assert res.located, "a found effect must come with located disagreements"
 
@@ -230,8 +231,8 @@ def test_two_concealed_effects_are_both_found(tmp_path):
     for e in res.effects:
         par = PARAM[e.name]
         assert e.parameters[par] == pytest.approx(truth[e.name], rel=0.25)
-        assert e.fit_after["nrmse"] <= 0.5 * e.fit_before["nrmse"]
-    assert res.effects[1].evidence["compared_with"] == "linear + input_bias"
+        assert e.fit_after.nrmse <= 0.5 * e.fit_before.nrmse
+    assert res.effects[1].evidence.compared_with == "linear + input_bias"
     joint = res.identification["with_input_bias+sensor_lag"]
     assert joint["tau"] == pytest.approx(0.0464, abs=0.004)
     assert joint["K"] == pytest.approx(15.0, rel=0.05)
@@ -280,7 +281,7 @@ def test_look_alike_pairs_are_told_apart(tmp_path, pair):
         par = {**PARAM, "asymmetric_gain": "a", "actuator_saturation": "U_max", "thrust_rectification": "F"}[e.name]
         assert e.parameters[par] == pytest.approx(truth[e.name], rel=0.25)
     first, second = res.effects
-    assert second.evidence["compared_with"] == f"linear + {first.name}"
+    assert second.evidence.compared_with == f"linear + {first.name}"
     assert f"with_{first.name}+{second.name}" in res.identification
 
 
@@ -323,12 +324,22 @@ def test_a_log_no_linear_plant_fits_is_diagnosed_not_refused(tmp_path, monkeypat
 def _small_result() -> DiagnosisResult:
     effect = EffectFinding(name="sensor_lag", explanation="the sensor lags", augmentation="z' = (y - z)/T_lag",
                            parameters={"T_lag": 0.07, "T_lag_std": 0.002, "unit": "s"},
-                           evidence={"delta_bic": 120.0, "bic": 40.0, "compared_with": "linear"},
-                           fit_before={"nrmse": 0.08, "cycles": 12}, fit_after={"nrmse": 0.01, "cycles": 12},
+                           evidence=Evidence(delta_bic=120.0, bic=40.0, n_features=30, threshold=10.0,
+                                             compared_with="linear", bic_base=160.0),
+                           fit_before=HeldOut("waveform", nrmse=0.08, nrmse_raw=0.09, cycles=12),
+                           fit_after=HeldOut("waveform", nrmse=0.01, nrmse_raw=0.03, cycles=12),
                            identification={"linear": {"Td": 2.0}, "with_effect": {"Td": 2.6}},
                            harmonics={"0": {"before": {"1": 0.1}, "after": {"1": 0.01}}})
     return DiagnosisResult(path="f.mcap", loop="altitude", Tp=0.0422, effects=[effect],
-                           candidates=[{"name": "sensor_lag", "delta_bic": 120.0, "significant": True}],
+                           candidates=[CandidateFit("sensor_lag", "fitted", parameter="T_lag", unit="s", value=0.07,
+                                                    std=0.002, chi2=30.0, bic=40.0, delta_bic=120.0,
+                                                    held_out_before=HeldOut("failed"),
+                                                    held_out_after=HeldOut("scatter", nrmse=0.1, metric="m", cycles=3),
+                                                    fit_params={"Td": 2.6}, probe_delta_chi2=50.0, significant=True),
+                                       CandidateFit("dead_zone", "explained", parameter="delta", unit="cmd",
+                                                    probe_delta_chi2=1.0, status="not fitted")],
+                           second_effect_candidates=[PairFit("input_bias", "sensor_lag", "probed", parameter="d",
+                                                             unit="cmd", probe_delta_chi2=2.0, status="not fitted")],
                            located=[{"kind": "feature", "test": 0, "z": 9.5}],
                            identification={"linear": {"Td": 2.0, "Tp": 0.0422}},
                            tests=[{"index": 0, "cycles": 24}], noise_std=5e-4, summary="sensor_lag explains it",
@@ -352,6 +363,8 @@ def test_diagnosis_result_json_round_trip():
     ({"effects": [{"name": "x"}]}, "effect has no 'explanation'"),
     ({"Tp": "fast"}, "malformed"),
     ({"unexplained": []}, "'unexplained' must be a JSON object"),
+    ({"candidates": [{"name": "x", "colour": "red"}]}, "candidate has unknown keys"),
+    ({"second_effect_candidates": [{"name": "x"}]}, "pair has unknown keys"),
 ])
 def test_diagnosis_result_from_bad_json_is_one_line(change, match):
     data = {**_small_result().to_json(), **change}
@@ -464,7 +477,7 @@ def test_models_the_tests_cannot_rank_are_named(tmp_path):
     write_log(flight.topics, tmp_path / "tie.mcap", "mcap")
     res = diagnose(read_flight(tmp_path / "tie.mcap", "altitude"), flight.truth["Tp"])
     named = {"+".join(sorted(e.name for e in res.effects))}
-    ties = res.effects[0].evidence.get("indistinguishable_from") or []
+    ties = res.effects[0].evidence.indistinguishable_from or []
     named |= {"+".join(sorted(t.split("+"))) for t in ties}
     assert "input_bias+sensor_lag" in named, (res.summary, ties)
     assert len(named) >= 2

@@ -167,8 +167,8 @@ def test_new_effect_is_named_and_measured(results, effect):
     # the held-out waveform error beyond the recording's own scatter is at least halved, and the
     # error as recorded (scatter kept: ~3-4 % here, the floor of any model) falls too
     e = res.effects[0]
-    assert e.fit_after["nrmse"] <= 0.5 * e.fit_before["nrmse"]
-    assert e.fit_after["nrmse_raw"] < e.fit_before["nrmse_raw"]
+    assert e.fit_after.nrmse <= 0.5 * e.fit_before.nrmse
+    assert e.fit_after.nrmse_raw < e.fit_before.nrmse_raw
 
 
 @pytest.mark.slow

@@ -37,33 +37,33 @@ def format_summary(result: DiagnosisResult) -> str:
                  "the held-out cycles' misfit over their amplitude, without and with the effect):")
     lines.append(f"  {'effect':<20} {'parameter':>22} {'delta BIC':>10} {'held-out error':>22}")
     for c in result.candidates:
-        if c.get("delta_bic") is None:
-            lines.append(f"  {c['name']:<20} {'(' + str(c.get('status', 'n/a')) + ')':>22}")
+        if c.delta_bic is None:
+            lines.append(f"  {c.name:<20} {'(' + str(c.status) + ')':>22}")
             continue
-        par = f"{c['parameter']} = {_g(c.get('value'))}"
-        b = (c.get("held_out_before") or {}).get("nrmse_raw")
-        a = (c.get("held_out_after") or {}).get("nrmse_raw")
-        mark = "  <- found" if any(e.name == c["name"] and e.evidence.get("compared_with") == "linear"
+        par = f"{c.parameter} = {_g(c.value)}"
+        b = c.held_out_before.nrmse_raw if c.held_out_before is not None else None
+        a = c.held_out_after.nrmse_raw if c.held_out_after is not None else None
+        mark = "  <- found" if any(e.name == c.name and e.evidence.compared_with == "linear"
                                    for e in result.effects) else ""
-        lines.append(f"  {c['name']:<20} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+        lines.append(f"  {c.name:<20} {par:>22} {c.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
     pairs = result.second_effect_candidates
     if pairs:
-        anchors = list(dict.fromkeys(c["with"] for c in pairs))
+        anchors = list(dict.fromkeys(c.with_ for c in pairs))
         lines.append(f"a second effect on top of {' or '.join(anchors)} (delta BIC against that model alone):")
-        probed = [c for c in pairs if c.get("delta_bic") is None]
-        for c in pairs:
-            if c.get("delta_bic") is None:
+        probed = [c for c in pairs if c.delta_bic is None]
+        for pc in pairs:
+            if pc.delta_bic is None:
                 continue
-            label = c["name"] if len(anchors) == 1 else f"{c['name']} (with {c['with']})"
-            par = f"{c['parameter']} = {_g(c['values'].get(c['name']))}"
-            b = (c.get("held_out_before") or {}).get("nrmse_raw")
-            a = (c.get("held_out_after") or {}).get("nrmse_raw")
-            mark = "  <- found" if any(e.name == c["name"] for e in result.effects) else ""
-            lines.append(f"  + {label:<18} {par:>22} {c['delta_bic']:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+            label = pc.name if len(anchors) == 1 else f"{pc.name} (with {pc.with_})"
+            par = f"{pc.parameter} = {_g(pc.values.get(pc.name))}"
+            b = pc.held_out_before.nrmse_raw if pc.held_out_before is not None else None
+            a = pc.held_out_after.nrmse_raw if pc.held_out_after is not None else None
+            mark = "  <- found" if any(e.name == pc.name for e in result.effects) else ""
+            lines.append(f"  + {label:<18} {par:>22} {pc.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
         if probed:
             # the rows' status carries the threshold ("not fitted: its probe lowers chi^2 by less than N")
-            why = str(probed[0].get("status", "not fitted")).replace("its probe", "each one's probe")
-            lines.append(f"  {why} beside {probed[0]['with']}: " + ", ".join(c["name"] for c in probed))
+            why = str(probed[0].status).replace("its probe", "each one's probe")
+            lines.append(f"  {why} beside {probed[0].with_}: " + ", ".join(c.name for c in probed))
     if result.effects:
         for e in result.effects:
             lines.append(f"found: {e.name}: {e.explanation}")

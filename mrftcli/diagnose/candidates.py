@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
@@ -23,6 +23,7 @@ from .fit import (CandidateModel, Fit, candidate_starts, effect_value, fit_base,
 from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significant
 from .jitter import scatter_reference, scatter_z
 from .physics import CANDIDATES, Candidate
+from .records import CandidateFit, HeldOut
 from .screen import Screen
 
 __all__ = ["PROFILE_NFEV", "REJECT_Z", "REJECT_P", "LinearFit", "fit_linear", "CandidateSearch", "search_candidates",
@@ -53,7 +54,7 @@ class LinearFit:
         Features in the BIC (the fitting cycles' features and one scatter per test).
     bic : float
         The linear model's BIC.
-    held_out : dict
+    held_out : HeldOut
         Its held-out score (:func:`mrftcli.diagnose.heldout.held_out_score`).
     p_value : float
         The chi^2 p-value of its fit.
@@ -68,7 +69,7 @@ class LinearFit:
     chi2_scatter: float
     n_all: int
     bic: float
-    held_out: dict
+    held_out: HeldOut
     p_value: float
     rejected: bool
 
@@ -99,7 +100,7 @@ def fit_linear(screen: Screen, Tp: float, path: str, say: Callable[[str], None])
     # is within REJECT_Z standard errors and the chi^2 is what the noise gives, none is fitted
     p_base = float(chi2_dist.sf(base.chi2, max(base.n - base.k, 1)))
     rejected = (p_base < REJECT_P or float(np.max(np.abs(base.resid))) >= REJECT_Z
-                or (before.get("feature_max_abs_z") or 0.0) >= REJECT_Z)
+                or (before.feature_max_abs_z or 0.0) >= REJECT_Z)
     return LinearFit(model=model, fit=base, scatter=scatter, chi2_scatter=chi2_scatter, n_all=n_all,
                      bic=base.chi2 + chi2_scatter + base.k * math.log(n_all), held_out=before, p_value=p_base,
                      rejected=rejected)
@@ -111,7 +112,7 @@ class CandidateSearch:
 
     Attributes
     ----------
-    rows : list of dict
+    rows : list of CandidateFit
         Per deterministic candidate, in the library's order: its evidence and held-out scores, or
         ``delta_bic`` None and a ``status`` saying why it was not fitted; ``significant`` on each.
     fits : dict
@@ -120,17 +121,9 @@ class CandidateSearch:
         The deterministic candidates in the order they were fitted (by their probe).
     """
 
-    rows: list[dict]
+    rows: list[CandidateFit]
     fits: dict[str, tuple[CandidateModel, Fit]]
     order: list[Candidate]
-
-
-def _status_row(cand: Candidate, status: str, probe: float | None = None, with_probe: bool = False) -> dict:
-    row: dict = {"name": cand.name, "parameter": cand.parameter, "unit": cand.unit, "delta_bic": None}
-    if with_probe:
-        row["probe_delta_chi2"] = probe
-    row["status"] = status
-    return row
 
 
 def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndarray, hi: np.ndarray,
@@ -153,7 +146,7 @@ def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndar
 
 
 def _fit_candidate(cand: Candidate, screen: Screen, linear: LinearFit, Tp: float,
-                   probe: float | None) -> tuple[dict, CandidateModel | None, Fit | None]:
+                   probe: float | None) -> tuple[CandidateFit, CandidateModel | None, Fit | None]:
     """One candidate fitted alone: its row, and its model and fit (None when the fit failed)."""
     tests, recs_fit = screen.tests, screen.recs_fit
     model = CandidateModel(cand, tests, Tp)
@@ -167,25 +160,14 @@ def _fit_candidate(cand: Candidate, screen: Screen, linear: LinearFit, Tp: float
         if f.ok and (best is None or f.chi2 < best.chi2):
             best = f
     if best is None:
-        return {"name": cand.name, "delta_bic": None, "status": "fit failed"}, None, None
+        return CandidateFit(cand.name, "failed", status="fit failed"), None, None
     chi2 = best.chi2 + linear.chi2_scatter
     bic = chi2 + best.k * math.log(linear.n_all)
     after = held_out_score(model, best, tests, screen.recs_hold)
     value, std = effect_value(cand, model, best, model.unpack(best.theta))
-    row = {
-        "name": cand.name,
-        "parameter": cand.parameter,
-        "value": value,
-        "std": std,
-        "unit": cand.unit,
-        "chi2": chi2,
-        "bic": bic,
-        "delta_bic": linear.bic - bic,
-        "held_out_before": linear.held_out,
-        "held_out_after": after,
-        "fit_params": plant_params(model, best),
-        "probe_delta_chi2": probe,
-    }
+    row = CandidateFit(cand.name, "fitted", parameter=cand.parameter, unit=cand.unit, value=value, std=std, chi2=chi2,
+                       bic=bic, delta_bic=linear.bic - bic, held_out_before=linear.held_out, held_out_after=after,
+                       fit_params=plant_params(model, best), probe_delta_chi2=probe)
     return row, model, best
 
 
@@ -202,7 +184,7 @@ def _probe_order(cands: list[Candidate], screen: Screen, linear: LinearFit, Tp: 
 def search_candidates(screen: Screen, linear: LinearFit, names: list[str], Tp: float,
                       say: Callable[[str], None]) -> CandidateSearch:
     """Stage 3: each deterministic candidate of ``names`` fitted alone (when the linear model is rejected)."""
-    rows = []
+    rows: list[CandidateFit] = []
     fits: dict[str, tuple[CandidateModel, Fit]] = {}
     order = [c for c in CANDIDATES if c.name in names and not c.stochastic]
     probes: dict[str, float] = {}
@@ -213,14 +195,16 @@ def search_candidates(screen: Screen, linear: LinearFit, names: list[str], Tp: f
     for cand in order:
         say(f"fitting {cand.name}")
         if not linear.rejected:
-            rows.append(_status_row(cand, "not fitted: the linear model is not rejected (every feature within "
-                                          f"{REJECT_Z:g} standard errors, chi^2 p = {linear.p_value:.2g})"))
+            rows.append(CandidateFit(cand.name, "not_rejected", parameter=cand.parameter, unit=cand.unit,
+                                     status="not fitted: the linear model is not rejected (every feature within "
+                                            f"{REJECT_Z:g} standard errors, chi^2 p = {linear.p_value:.2g})"))
             continue
         if explained_by is not None:
             # a candidate already explains the fitting and the held-out cycles to the noise level: the
             # others (tried in the order of their probes) could only tie with it within the noise
-            rows.append(_status_row(cand, f"not fitted: {explained_by} explains the cycles to the noise level",
-                                    probes.get(cand.name), with_probe=True))
+            rows.append(CandidateFit(cand.name, "explained", parameter=cand.parameter, unit=cand.unit,
+                                     probe_delta_chi2=probes.get(cand.name),
+                                     status=f"not fitted: {explained_by} explains the cycles to the noise level"))
             continue
         row, model, best = _fit_candidate(cand, screen, linear, Tp, probes.get(cand.name))
         rows.append(row)
@@ -228,16 +212,14 @@ def search_candidates(screen: Screen, linear: LinearFit, names: list[str], Tp: f
             continue
         fits[cand.name] = (model, best)
         if (significant(row) and float(chi2_dist.sf(best.chi2, max(best.n - best.k, 1))) > REJECT_P
-                and explains_held_out(row["held_out_after"], screen.tests)):
+                and explains_held_out(row.held_out_after, screen.tests)):
             explained_by = cand.name
     for cand in CANDIDATES:
         if cand.name in names and cand.stochastic:
             say(f"fitting {cand.name}")  # judged after the deterministic selection, against the model chosen there
     library = {c.name: i for i, c in enumerate(CANDIDATES)}
-    rows.sort(key=lambda r: library[r["name"]])  # the library's order in the output, whatever the fitting order
-    for row in rows:
-        row["significant"] = significant(row)
-    return CandidateSearch(rows=rows, fits=fits, order=order)
+    rows.sort(key=lambda r: library[r.name])  # the library's order in the output, whatever the fitting order
+    return CandidateSearch(rows=[replace(r, significant=significant(r)) for r in rows], fits=fits, order=order)
 
 
 def jacobian(model: CandidateModel, theta: np.ndarray, recs: list, step: float = 1e-3) -> np.ndarray:

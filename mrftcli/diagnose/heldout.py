@@ -18,9 +18,10 @@ from scipy.stats import chi2 as chi2_dist
 
 from .features import FEATURE_NAMES, cycle_scatter
 from .fit import CandidateModel, DiagnosedTest, Fit, PredictedCycle, feature_mask
+from .records import CandidateFit, HeldOut, PairFit
 
-__all__ = ["BIC_THRESHOLD", "HOLDOUT_THRESHOLD", "held_out_score", "waveform_errors", "harmonic_errors", "fit_summary",
-           "held_out_p", "explains_held_out", "significant"]
+__all__ = ["BIC_THRESHOLD", "HOLDOUT_THRESHOLD", "held_out_score", "waveform_errors", "harmonic_errors", "held_out_p",
+           "explains_held_out", "significant"]
 
 #: delta BIC above which an effect counts as found (Kass & Raftery: > 10 is very strong evidence)
 BIC_THRESHOLD = 10.0
@@ -101,7 +102,7 @@ def harmonic_errors(test: DiagnosedTest, mask: np.ndarray, ev: PredictedCycle, K
 # held-out score and the evidence rules
 
 
-def held_out_score(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], recs_hold: list) -> dict:
+def held_out_score(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], recs_hold: list) -> HeldOut:
     """Score a fitted model on the held-out cycles: feature z RMS and waveform NRMSE."""
     zs = []
     sse = sst = floor = sse_timed = 0.0
@@ -112,7 +113,7 @@ def held_out_score(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], 
     for i, (test, (f_rec, s)) in enumerate(zip(tests, recs_hold)):
         ev = model.evaluate(fit.theta, i, f_rec.t_mean, key=1000 + i)
         if ev is None:
-            return {"nrmse": None, "feature_rms_z": None}
+            return HeldOut("failed")
         fm = ev.features.copy()
         fm[ia] += math.log(fit.K)
         z = ((f_rec.values - fm) / s)[feature_mask(test)]
@@ -121,7 +122,7 @@ def held_out_score(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], 
             t_refs = np.array([test.t_start, 0.5 * (test.t_start + test.t_end), test.t_end])
             evs = [model.evaluate(fit.theta, i, tr, key=2000 + 10 * i + j) for j, tr in enumerate(t_refs)]
             if any(e is None for e in evs):
-                return {"nrmse": None, "feature_rms_z": None}
+                return HeldOut("failed")
         else:
             t_refs, evs = None, [ev]
         e, v, _, _ = waveform_errors(test, test.hold, evs, fit.K, t_refs, phase=True)
@@ -137,63 +138,62 @@ def held_out_score(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], 
         per_test.append(math.sqrt(max(e.sum() - fl, 0.0) / v.sum()) if v.sum() > 0 else None)
         per_test_raw.append(math.sqrt(e.sum() / v.sum()) if v.sum() > 0 else None)
     z = np.concatenate(zs)
-    return {
-        "nrmse": math.sqrt(max(sse - floor, 0.0) / sst) if sst > 0 else None,
-        "nrmse_raw": math.sqrt(sse / sst) if sst > 0 else None,
-        "nrmse_timed": math.sqrt(sse_timed / sst) if sst > 0 else None,
-        "scatter_nrmse": math.sqrt(floor / sst) if sst > 0 else None,
-        "nrmse_per_test": per_test,
-        "nrmse_raw_per_test": per_test_raw,
-        "feature_rms_z": float(np.sqrt(np.mean(z**2))),
-        "feature_chi2": float(z @ z),
-        "feature_max_abs_z": float(np.max(np.abs(z))) if z.size else 0.0,
-        "cycles": int(sum(int(t.hold.sum()) for t in tests)),
-    }
+    return HeldOut(
+        "waveform",
+        nrmse=math.sqrt(max(sse - floor, 0.0) / sst) if sst > 0 else None,
+        nrmse_raw=math.sqrt(sse / sst) if sst > 0 else None,
+        nrmse_timed=math.sqrt(sse_timed / sst) if sst > 0 else None,
+        scatter_nrmse=math.sqrt(floor / sst) if sst > 0 else None,
+        nrmse_per_test=per_test,
+        nrmse_raw_per_test=per_test_raw,
+        feature_rms_z=float(np.sqrt(np.mean(z**2))),
+        feature_chi2=float(z @ z),
+        feature_max_abs_z=float(np.max(np.abs(z))) if z.size else 0.0,
+        cycles=int(sum(int(t.hold.sum()) for t in tests)),
+    )
 
 
-def fit_summary(h: dict) -> dict:
-    return {k: h.get(k) for k in ("nrmse", "nrmse_raw", "nrmse_timed", "scatter_nrmse", "feature_rms_z", "feature_chi2",
-                                  "cycles",
-                                  "nrmse_per_test",
-                                  "metric") if k in h}
-
-
-def held_out_p(held: dict, tests: list[DiagnosedTest]) -> float:
+def held_out_p(held: HeldOut, tests: list[DiagnosedTest]) -> float:
     """p-value of a model's held-out feature chi^2 (one degree of freedom per held-out feature)."""
-    chi2 = held.get("feature_chi2")
+    chi2 = held.feature_chi2
     if chi2 is None:
         return float("nan")
     return float(chi2_dist.sf(chi2, sum(int(feature_mask(t).sum()) for t in tests)))
 
 
-def explains_held_out(held: dict, tests: list[DiagnosedTest]) -> bool:
+def explains_held_out(held: HeldOut | None, tests: list[DiagnosedTest]) -> bool:
     """True when a model's held-out feature chi^2 is what the noise explains (p > 0.01 against
     chi^2 with one degree of freedom per held-out feature): a second effect would then be fitting
     noise, so the pair stage stops there."""
-    chi2 = held.get("feature_chi2")
+    chi2 = None if held is None else held.feature_chi2
     if chi2 is None:
         return False
     dof = sum(int(feature_mask(t).sum()) for t in tests)
     return float(chi2_dist.sf(chi2, dof)) > 0.01
 
 
-def significant(row: dict) -> bool:
-    db = row.get("delta_bic")
+def significant(row: CandidateFit | PairFit) -> bool:
+    """True when a fitted effect (alone, or added to a first one) passes the evidence rules: delta BIC
+    of at least :data:`BIC_THRESHOLD` and confirmed on the held-out cycles."""
+    db = row.delta_bic
     if db is None or not np.isfinite(db) or db < BIC_THRESHOLD:
         return False
-    b, a = row.get("held_out_before") or {}, row.get("held_out_after") or {}
-    if b.get("nrmse") is None or a.get("nrmse") is None:
+    b, a = row.held_out_before, row.held_out_after
+    if b is None or a is None or b.nrmse is None or a.nrmse is None:
         return False
-    if row["name"] == "delay_jitter":
+    if isinstance(row, CandidateFit) and row.name == "delay_jitter":
         # a jitter below half a controller tick cannot be told from the tick quantisation itself
-        return a["nrmse"] < b["nrmse"] and row.get("value", 0.0) >= row.get("min_value", 0.0)
+        return a.nrmse < b.nrmse and (row.value or 0.0) >= (row.min_value or 0.0)
     # confirmation on the held-out cycles: the whole waveform error as timed (the model cycle on its own
     # period, so the period counts; the recording's scatter is common to both sides) must fall, and the
     # features must be explained better by a clear margin (a small gain on noisy cycles is not a
     # confirmation: a 13 ms delay jitter once made a trim error pass with a held-out chi^2 gain of 7)
-    key = "nrmse_timed" if a.get("nrmse_timed") is not None and b.get("nrmse_timed") is not None else "nrmse"
-    if b.get("feature_chi2") is not None and a.get("feature_chi2") is not None:
-        features_ok = b["feature_chi2"] - a["feature_chi2"] >= HOLDOUT_THRESHOLD
+    if a.nrmse_timed is not None and b.nrmse_timed is not None:
+        err_after, err_before = a.nrmse_timed, b.nrmse_timed
     else:
-        features_ok = (a.get("feature_rms_z") or 0) < (b.get("feature_rms_z") or 0)
-    return a[key] < b[key] and features_ok
+        err_after, err_before = a.nrmse, b.nrmse
+    if b.feature_chi2 is not None and a.feature_chi2 is not None:
+        features_ok = b.feature_chi2 - a.feature_chi2 >= HOLDOUT_THRESHOLD
+    else:
+        features_ok = (a.feature_rms_z or 0) < (b.feature_rms_z or 0)
+    return err_after < err_before and features_ok

@@ -15,6 +15,7 @@ from .fit import CandidateModel, DiagnosedTest, Fit
 from .heldout import BIC_THRESHOLD
 from .limit_cycles import AugmentedPlant, periodic_cycle
 from .physics import Candidate
+from .records import CandidateFit, HeldOut
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
 
 __all__ = ["REFERENCE_WINDOWS", "scatter_reference", "scatter_z", "jitter_candidate"]
@@ -69,18 +70,19 @@ def scatter_z(tests: list[DiagnosedTest], scatter: list[dict], sel: str, v_pred:
 
 
 def jitter_candidate(cand: Candidate, tests: list[DiagnosedTest], scatter: list[dict],
-                     scatter_z: Callable[[str, Sequence[float]], np.ndarray], base: Fit, n_all: int) -> dict:
+                     scatter_z: Callable[[str, Sequence[float]], np.ndarray], base: Fit, n_all: int) -> CandidateFit:
     """Fit the delay-jitter std to the recorded period scatter (:func:`mrftcli.diagnose.scatter.fit_jitter`)."""
     v0 = np.array([sc["v0"] for sc in scatter])
     if not np.isfinite(v0).any():
-        return {"name": cand.name, "delta_bic": None, "status": "no scatter reference (the sampled relay broke down)"}
+        return CandidateFit(cand.name, "failed", status="no scatter reference (the sampled relay broke down)")
 
     z_all = np.clip(scatter_z("all", list(v0)), 0.0, None)
     if float(z_all @ z_all) < BIC_THRESHOLD + math.log(n_all):
         # a jitter only raises the predicted scatter, so its chi^2 gain is at most the sum of the
         # positive z^2: below the threshold its calibration runs (most of a diagnosis' cost) are skipped
-        return {"name": cand.name, "delta_bic": None, "parameter": cand.parameter, "unit": cand.unit,
-                "status": "period scatter within what sensor noise explains (no jitter could reach the evidence threshold)"}
+        return CandidateFit(cand.name, "jitter_below", parameter=cand.parameter, unit=cand.unit,
+                            status="period scatter within what sensor noise explains (no jitter could reach the "
+                                   "evidence threshold)")
 
     # the calibration runs below use N_WINDOWS windows: the noise-only variance is recomputed on the
     # same random numbers, so that the calibrated slope is not biased by the reference's sampling
@@ -118,24 +120,24 @@ def jitter_candidate(cand: Candidate, tests: list[DiagnosedTest], scatter: list[
         s_std = float("nan")
     metric = "pooled relative error of the held-out cycle-to-cycle period scatter, |s_rec - s_model| / s_rec"
     cycles = int(n_hold.sum())
-    return {
-        "min_value": 0.5 / min(t.rate_hz for t in tests),
-        "name": cand.name,
-        "parameter": cand.parameter,
-        "value": jf.sigma,
-        "value_fit_cycles": sigma_fit,
-        "std": s_std,
-        "unit": cand.unit,
-        "chi2": chi2,
-        "bic": bic,
-        "delta_bic": bic_b - bic,
-        "held_out_before": {"nrmse": pooled_scatter_error(v_hold, n_hold, v0),
-                            "feature_rms_z": float(np.sqrt(np.mean(zh_b**2))), "metric": metric, "cycles": cycles},
-        "held_out_after": {"nrmse": pooled_scatter_error(v_hold, n_hold, v_pred),
-                           "feature_rms_z": float(np.sqrt(np.mean(zh_a**2))), "metric": metric, "cycles": cycles},
-        "fit_params": None,
-        "calibration_runs": jf.iterations,
-        "period_scatter": {"recorded": [math.sqrt(v) if np.isfinite(v) else None for v in v_all],
-                           "noise_only": [math.sqrt(v) if np.isfinite(v) else None for v in v0],
-                           "with_jitter": [math.sqrt(v) if np.isfinite(v) else None for v in jf.predicted_var()]},
-    }
+    return CandidateFit(
+        cand.name, "jitter",
+        min_value=0.5 / min(t.rate_hz for t in tests),
+        parameter=cand.parameter,
+        value=jf.sigma,
+        value_fit_cycles=sigma_fit,
+        std=s_std,
+        unit=cand.unit,
+        chi2=chi2,
+        bic=bic,
+        delta_bic=bic_b - bic,
+        held_out_before=HeldOut("scatter", nrmse=pooled_scatter_error(v_hold, n_hold, v0),
+                                feature_rms_z=float(np.sqrt(np.mean(zh_b**2))), metric=metric, cycles=cycles),
+        held_out_after=HeldOut("scatter", nrmse=pooled_scatter_error(v_hold, n_hold, v_pred),
+                               feature_rms_z=float(np.sqrt(np.mean(zh_a**2))), metric=metric, cycles=cycles),
+        fit_params=None,
+        calibration_runs=jf.iterations,
+        period_scatter={"recorded": [math.sqrt(v) if np.isfinite(v) else None for v in v_all],
+                        "noise_only": [math.sqrt(v) if np.isfinite(v) else None for v in v0],
+                        "with_jitter": [math.sqrt(v) if np.isfinite(v) else None for v in jf.predicted_var()]},
+    )

@@ -17,7 +17,7 @@ from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
 from .jitter import scatter_z
-from .records import CycleErrors, EffectFinding, FinalModel
+from .records import CandidateFit, CycleErrors, EffectFinding, FinalModel, HeldOut
 
 __all__ = ["UNEXPLAINED_P", "FEATURE_TEXT", "Located", "locate", "unexplained_mismatch"]
 
@@ -206,8 +206,8 @@ def locate(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, recs_all
     return Located(items=items, cycle_errors=cycle_errors, harmonics=harmonics)
 
 
-def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: dict, effects: list[EffectFinding],
-                         final: FinalModel | None, cand_rows: list[dict], recs_all: list, scatter: list[dict],
+def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: HeldOut, effects: list[EffectFinding],
+                         final: FinalModel | None, cand_rows: list[CandidateFit], recs_all: list, scatter: list[dict],
                          t0_log: float, base_located: list[dict]) -> dict | None:
     """The mismatch no candidate (or pair) explains: where and how large, or None.
 
@@ -232,17 +232,18 @@ def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: dict, ef
     segs = [d for d in located if d["kind"] == "segment"]
     harms = [d for d in located if d["kind"] == "harmonic"]
     worst = feats[0] if feats else None
-    tested = sorted((r for r in cand_rows if r.get("delta_bic") is not None), key=lambda r: -r["delta_bic"])
+    gains = [(r, r.delta_bic) for r in cand_rows if r.delta_bic is not None]
+    tested = [(r, gain) for r, gain in sorted(gains, key=lambda rg: -rg[1])]
     where_tests = sorted({d["test"] + 1 for d in feats})
     out = {
         "after": model_name,
         "what": ("the linear model is rejected, and no candidate effect (or pair) of the library explains the "
                  "mismatch" if final is None else
                  f"the model with {final.label} still leaves a mismatch beyond the noise on the held-out cycles"),
-        "held_out_feature_chi2": held.get("feature_chi2"),
+        "held_out_feature_chi2": held.feature_chi2,
         "held_out_features": sum(int(feature_mask(t).sum()) for t in tests),
         "p_value": p_final,
-        "held_out_nrmse_raw": held.get("nrmse_raw"),
+        "held_out_nrmse_raw": held.nrmse_raw,
         "tests": where_tests,
         "largest": None if worst is None else {
             "test": worst["test"] + 1, "feature": worst["feature"], "what": worst["what"], "z": worst["z"],
@@ -252,8 +253,8 @@ def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: dict, ef
                      for d in segs[:5]],
         "harmonics": [{"test": d["test"] + 1, "harmonic": d["harmonic"], "relative_error": d["relative_error"]}
                       for d in harms[:5]],
-        "best_candidate": None if not tested else {"name": tested[0]["name"], "delta_bic": tested[0]["delta_bic"],
-                                                   "significant": bool(tested[0].get("significant"))},
+        "best_candidate": None if not tested else {"name": tested[0][0].name, "delta_bic": tested[0][1],
+                                                   "significant": bool(tested[0][0].significant)},
     }
     half = None
     if segs:

@@ -13,16 +13,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, jacobian, probe_gain
 from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_value, fit_model, plant_params,
                   residuals, theta_bounds)
-from .heldout import BIC_THRESHOLD, explains_held_out, fit_summary, harmonic_errors, held_out_score, significant
+from .heldout import BIC_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Candidate
-from .records import EffectFinding, FinalModel
+from .records import CandidateFit, EffectFinding, Evidence, FinalModel, PairFit
 from .screen import Screen
 
 __all__ = ["PAIR_PROBE_MIN", "RIVAL_ANCHORS", "TIE_BIC", "EffectSelection", "select_effects", "effect_finding",
@@ -43,19 +43,38 @@ TIE_BIC = 2.0
 # one pair: starts, fit, probe
 
 
-def effect_finding(row: dict, ident: dict, harm: dict, evidence: dict, n_all: int) -> EffectFinding:
-    """The :class:`~mrftcli.diagnose.records.EffectFinding` of a candidate's (or a pair's) row."""
-    cand = BY_NAME[row["name"]]
+def effect_finding(row: CandidateFit | PairFit, ident: dict, harm: dict, compared_with: str, bic_base: float,
+                   n_all: int) -> EffectFinding:
+    """The :class:`~mrftcli.diagnose.records.EffectFinding` of a fitted candidate's (or pair's) row.
+
+    Parameters
+    ----------
+    row : CandidateFit or PairFit
+        The effect's row (a pair's: the effect added, its value from the joint fit).
+    ident : dict
+        ``linear`` and ``with_effect`` plant parameters (and the pair's ``model``).
+    harm : dict
+        Per test, the harmonics' relative errors before and after.
+    compared_with : str
+        The model it beats.
+    bic_base : float
+        That model's BIC.
+    n_all : int
+        Features in the BIC.
+    """
+    cand = BY_NAME[row.name]
+    assert (row.delta_bic is not None and row.bic is not None and row.held_out_before is not None
+            and row.held_out_after is not None)  # (a significant row is a fitted one)
     return EffectFinding(
         name=cand.name,
         explanation=cand.explanation,
         augmentation=cand.augmentation,
-        parameters={cand.parameter: row["value"], f"{cand.parameter}_std": row["std"], "unit": cand.unit,
-                    **(row.get("fit_params") or {})},
-        evidence={"delta_bic": row["delta_bic"], "bic": row["bic"], "n_features": n_all, "threshold": BIC_THRESHOLD,
-                  **evidence},
-        fit_before=fit_summary(row["held_out_before"]),
-        fit_after=fit_summary(row["held_out_after"]),
+        parameters={cand.parameter: row.value, f"{cand.parameter}_std": row.std, "unit": cand.unit,
+                    **(row.fit_params or {})},
+        evidence=Evidence(delta_bic=row.delta_bic, bic=row.bic, n_features=n_all, threshold=BIC_THRESHOLD,
+                          compared_with=compared_with, bic_base=bic_base),
+        fit_before=row.held_out_before,
+        fit_after=row.held_out_after,
         identification={k: v for k, v in ident.items() if v is not None},
         harmonics=harm,
     )
@@ -122,9 +141,9 @@ def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Candidate, c2: Candid
     return starts
 
 
-def pair_candidate(first: dict, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
-                    recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int
-                   ) -> tuple[dict | None, CandidateModel | None, Fit | None]:
+def pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
+                   recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int
+                   ) -> tuple[PairFit | None, CandidateModel | None, Fit | None]:
     """Fit the first effect (its row ``first``, fitted alone already) and ``other`` together; evidence
     and held-out scores against the first alone: the pair's row, model and fit (None, None, None when
     the two cannot be paired or no fit succeeded).
@@ -134,7 +153,7 @@ def pair_candidate(first: dict, other: str, fits: dict, base: Fit, tests: list[D
     from the two single fits and some ended at delta BIC -1e4 to -1e6). ``delta_bic`` =
     BIC(first) - BIC(pair): the pair has one parameter more.
     """
-    c1, c2 = BY_NAME[first["name"]], BY_NAME[other]
+    c1, c2 = BY_NAME[first.name], BY_NAME[other]
     if c1.replaces_drag and c2.replaces_drag:
         return None, None, None
     model = CandidateModel((c1, c2), tests, Tp)
@@ -173,28 +192,19 @@ def pair_candidate(first: dict, other: str, fits: dict, base: Fit, tests: list[D
     values, stds = {}, {}
     for c in (c1, c2):
         values[c.name], stds[c.name] = effect_value(c, model, best, p)
-    return {
-        "name": c2.name,
-        "with": c1.name,
-        "parameter": c2.parameter,
-        "values": values,
-        "stds": stds,
-        "unit": c2.unit,
-        "chi2": chi2,
-        "bic": bic,
-        "delta_bic": first["bic"] - bic,
-        "held_out_before": first["held_out_after"],
-        "held_out_after": held_out_score(model, best, tests, recs_hold),
-        "fit_params": plant_params(model, best),
-    }, model, best
+    assert first.bic is not None  # (a fitted first effect)
+    row = PairFit(c2.name, c1.name, "fitted", parameter=c2.parameter, unit=c2.unit, values=values, stds=stds, chi2=chi2,
+                  bic=bic, delta_bic=first.bic - bic, held_out_before=first.held_out_after,
+                  held_out_after=held_out_score(model, best, tests, recs_hold), fit_params=plant_params(model, best))
+    return row, model, best
 
 
-def pair_probe(first: dict, cand: Candidate, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
+def pair_probe(first: CandidateFit, cand: Candidate, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
                 recs_fit: list, Tp: float) -> float | None:
     """:func:`_probe_gain` of the pair (the first effect fitted, ``cand`` added) against the first
     alone (its Jacobian ``J1``), from the pair's starts other than the nested null one; None when the
     two cannot be paired."""
-    c1 = BY_NAME[first["name"]]
+    c1 = BY_NAME[first.name]
     if c1.replaces_drag and cand.replaces_drag:
         return None
     model = CandidateModel((c1, cand), tests, Tp)
@@ -218,7 +228,7 @@ class EffectSelection:
     ----------
     effects : list of EffectFinding
         The first effect and, when one passed the rules, the second (empty when no candidate did).
-    pair_rows : list of dict
+    pair_rows : list of PairFit
         Every pair fitted or probed: ``with`` (the anchor), the candidate added, its evidence and
         held-out scores against the anchor alone, ``significant``.
     final : FinalModel or None
@@ -228,7 +238,7 @@ class EffectSelection:
     """
 
     effects: list[EffectFinding]
-    pair_rows: list[dict]
+    pair_rows: list[PairFit]
     final: FinalModel | None
     warnings: list[str]
 
@@ -239,148 +249,153 @@ class _Pairs:
     def __init__(self, screen: Screen, linear: LinearFit, fits: dict[str, tuple[CandidateModel, Fit]],
                  Tp: float) -> None:
         self.screen, self.linear, self.fits, self.Tp = screen, linear, fits, Tp
-        self.rows: list[dict] = []
-        self._joint: list[tuple[dict, CandidateModel, Fit]] = []
+        self.rows: list[PairFit] = []
+        self._joint: list[tuple[PairFit, CandidateModel, Fit]] = []
 
-    def pair(self, anchor: dict, other: str) -> dict | None:
+    def pair(self, anchor: CandidateFit, other: str) -> PairFit | None:
         """Fit ``anchor``'s effect and ``other`` together; the row (also kept), or None."""
         sc, lin = self.screen, self.linear
         pr, model, fit = pair_candidate(anchor, other, self.fits, lin.fit, sc.tests, self.Tp, sc.recs_fit,
                                         sc.recs_hold, lin.chi2_scatter, lin.n_all)
         if pr is not None and model is not None and fit is not None:
-            pr["significant"] = significant(pr)
+            pr = replace(pr, significant=significant(pr))
             self.rows.append(pr)
             self._joint.append((pr, model, fit))
         return pr
 
-    def joint(self, row: dict) -> tuple[CandidateModel, Fit]:
+    def joint(self, row: PairFit) -> tuple[CandidateModel, Fit]:
         """The joint model and fit of a pair row."""
         return next((m, f) for r, m, f in self._joint if r is row)
 
-    def probe(self, anchor: dict, cand: Candidate, J: np.ndarray) -> float | None:
+    def probe(self, anchor: CandidateFit, cand: Candidate, J: np.ndarray) -> float | None:
         """:func:`pair_probe` of ``cand`` beside ``anchor`` (its fit's Jacobian ``J``)."""
         sc = self.screen
         return pair_probe(anchor, cand, self.fits, J, self.linear.fit, sc.tests, sc.recs_fit, self.Tp)
 
-    def probed(self, first: dict, order: list[Candidate]) -> None:
+    def probed(self, first: CandidateFit, order: list[Candidate]) -> None:
         """The first explains the held-out cycles to the noise level, yet a second effect can still be
         plain on the fitting cycles (thrust rectification beside an asymmetric gain or a saturation:
         delta BIC 40-65): every other candidate is probed, and only those whose probe clears
         :data:`PAIR_PROBE_MIN` are fitted."""
-        m1, f1 = self.fits[first["name"]]
+        m1, f1 = self.fits[first.name]
         J1 = jacobian(m1, f1.theta, self.screen.recs_fit)
         for cand in order:
-            if cand.name == first["name"]:
+            if cand.name == first.name:
                 continue
             gain = self.probe(first, cand, J1)
             if gain is not None and gain >= PAIR_PROBE_MIN:
                 self.pair(first, cand.name)
             else:
-                self.rows.append({"name": cand.name, "with": first["name"], "parameter": cand.parameter,
-                                  "unit": cand.unit, "values": {}, "delta_bic": None,
-                                  "probe_delta_chi2": gain, "significant": False,
-                                  "status": f"not fitted: its probe lowers chi^2 by less than {PAIR_PROBE_MIN:g}"})
+                self.rows.append(PairFit(cand.name, first.name, "probed", parameter=cand.parameter, unit=cand.unit,
+                                         probe_delta_chi2=gain, status="not fitted: its probe lowers chi^2 by less "
+                                                                       f"than {PAIR_PROBE_MIN:g}"))
 
-    def rivals(self, first: dict, second: dict | None, rivals: list[dict],
-               cand_rows: list[dict]) -> tuple[dict, dict | None]:
+    def rivals(self, first: CandidateFit, second: PairFit | None, rivals: list[CandidateFit],
+               cand_rows: list[CandidateFit]) -> tuple[CandidateFit, PairFit | None]:
         """The first may be a stand-in for a pair whose members are not it (a sensor lag imitates a
         slew with quadratic drag; an asymmetric gain stood in for a gain drift beside a saturation),
         so the next :data:`RIVAL_ANCHORS` effects by evidence alone are paired too (partners pruned by
         their probe); such a pair replaces the first's only when it also passes the rules against the
         first alone and has the lower BIC. Returns (anchor of the second, second)."""
-        tried = {frozenset((pr["with"], pr["name"])) for pr in self.rows}
+        tried = {frozenset((pr.with_, pr.name)) for pr in self.rows}
         anchor_of_second = first
         for alt in rivals[:RIVAL_ANCHORS]:
-            m_alt, f_alt = self.fits[alt["name"]]
+            m_alt, f_alt = self.fits[alt.name]
             J_alt = None
             for row in cand_rows:
-                if (row["name"] == alt["name"] or row["name"] not in self.fits
-                        or frozenset((alt["name"], row["name"])) in tried):
+                if row.name == alt.name or row.name not in self.fits or frozenset((alt.name, row.name)) in tried:
                     continue
-                tried.add(frozenset((alt["name"], row["name"])))
+                tried.add(frozenset((alt.name, row.name)))
                 if J_alt is None:
                     J_alt = jacobian(m_alt, f_alt.theta, self.screen.recs_fit)
-                gain = self.probe(alt, BY_NAME[row["name"]], J_alt)
+                gain = self.probe(alt, BY_NAME[row.name], J_alt)
                 if gain is None or gain < PAIR_PROBE_MIN:
                     continue
-                pr = self.pair(alt, row["name"])
-                if pr is None or not pr["significant"]:
+                pr = self.pair(alt, row.name)
+                if pr is None or not pr.significant or pr.bic is None or first.bic is None:
                     continue
-                against_first = dict(pr, delta_bic=first["bic"] - pr["bic"], held_out_before=first["held_out_after"])
-                if significant(against_first) and (second is None or pr["bic"] < second["bic"]):
+                against_first = replace(pr, delta_bic=first.bic - pr.bic, held_out_before=first.held_out_after)
+                if significant(against_first) and (second is None or pr.bic < _bic(second)):
                     second, anchor_of_second = pr, alt
         return anchor_of_second, second
 
-    def swap(self, first: dict, second: dict, deterministic: list[dict],
-             cand_rows: list[dict]) -> tuple[dict, dict]:
+    def swap(self, first: CandidateFit, second: PairFit, deterministic: list[CandidateFit],
+             cand_rows: list[CandidateFit]) -> tuple[CandidateFit, PairFit]:
         """The balance-shifting effects (a trim error, an asymmetric gain, a saturation) stand in for
         one another, so the first effect found may be the stand-in for the true partner of the second:
         with the second kept, each other effect significant alone takes the first's place, and the pair
         with the lowest BIC is kept (it must pass the rules against the second effect alone, as the
         first pair did against the first)."""
-        anchor = next(r for r in cand_rows if r["name"] == second["name"])
-        if anchor.get("significant"):
+        anchor = next(r for r in cand_rows if r.name == second.name)
+        if anchor.significant:
             for row in deterministic[1:]:
-                if row["name"] == second["name"]:
+                if row.name == second.name:
                     continue
-                pr = self.pair(anchor, row["name"])
-                if pr is not None and pr["significant"] and pr["bic"] < second["bic"]:
+                pr = self.pair(anchor, row.name)
+                if pr is not None and pr.significant and _bic(pr) < _bic(second):
                     first, second = anchor, pr
         return first, second
 
 
-def _findings(first: dict, second: dict | None, pairs: _Pairs) -> tuple[list[EffectFinding], FinalModel]:
+def _bic_gain(row: CandidateFit | PairFit) -> float:
+    """The delta BIC of a fitted row."""
+    assert row.delta_bic is not None  # (only fitted rows are ranked)
+    return row.delta_bic
+
+
+def _bic(row: CandidateFit | PairFit) -> float:
+    """The BIC of a fitted row."""
+    assert row.bic is not None  # (only fitted rows are compared)
+    return row.bic
+
+
+def _findings(first: CandidateFit, second: PairFit | None, pairs: _Pairs) -> tuple[list[EffectFinding], FinalModel]:
     """The findings of the effects chosen and the model they make."""
     lin, tests = pairs.linear, pairs.screen.tests
     base_params = plant_params(lin.model, lin.fit)
-    m1, f1 = pairs.fits[first["name"]]
-    final = FinalModel(first["name"], m1, f1)
-    effects = [effect_finding(first, {"linear": base_params, "with_effect": first["fit_params"]},
-                              harmonics_before_after(tests, lin.model, lin.fit, m1, f1),
-                              {"compared_with": "linear", "bic_base": lin.bic}, lin.n_all)]
+    m1, f1 = pairs.fits[first.name]
+    final = FinalModel(first.name, m1, f1)
+    effects = [effect_finding(first, {"linear": base_params, "with_effect": first.fit_params},
+                              harmonics_before_after(tests, lin.model, lin.fit, m1, f1), "linear", lin.bic, lin.n_all)]
     if second is None:
         return effects, final
     mp, fp = pairs.joint(second)
-    final = FinalModel(f"{first['name']} + {second['name']}", mp, fp)
+    final = FinalModel(f"{first.name} + {second.name}", mp, fp)
     # with both effects modelled, both parameters come from the joint fit
-    par = BY_NAME[first["name"]].parameter
-    value, std = effect_value(BY_NAME[first["name"]], mp, fp, mp.unpack(fp.theta))
+    par = BY_NAME[first.name].parameter
+    value, std = effect_value(BY_NAME[first.name], mp, fp, mp.unpack(fp.theta))
     params = effects[0].parameters
     params[f"{par}_alone"] = params[par]
     params[f"{par}_alone_std"] = params[f"{par}_std"]
     params[par], params[f"{par}_std"] = value, std
-    row2 = dict(second, name=second["name"], value=second["values"][second["name"]],
-                std=second["stds"][second["name"]])
-    effects.append(effect_finding(row2, {"linear": base_params, "with_effect": second["fit_params"],
-                                         "model": f"{first['name']}+{second['name']}"},
-                                  harmonics_before_after(tests, m1, f1, mp, fp),
-                                  {"compared_with": f"linear + {first['name']}", "bic_base": first["bic"]}, lin.n_all))
+    effects.append(effect_finding(second, {"linear": base_params, "with_effect": second.fit_params,
+                                           "model": f"{first.name}+{second.name}"},
+                                  harmonics_before_after(tests, m1, f1, mp, fp), f"linear + {first.name}", _bic(first),
+                                  lin.n_all))
     return effects, final
 
 
-def _ties(effects: list[EffectFinding], first: dict, second: dict | None, cand_rows: list[dict],
-          pair_rows: list[dict], fits: dict) -> list[str]:
+def _ties(effects: list[EffectFinding], first: CandidateFit, second: PairFit | None, cand_rows: list[CandidateFit],
+          pair_rows: list[PairFit], fits: dict) -> tuple[list[EffectFinding], list[str]]:
     """Models the recording cannot rank (BIC within :data:`TIE_BIC` of the one chosen, and passing the
-    same rules) are named (``evidence["indistinguishable_from"]``): the choice among them is not the
-    data's. Returns the warning, if any."""
-    chosen = {first["name"]} | ({second["name"]} if second is not None else set())
-    label: Callable[[dict], str]
+    same rules) are named (``evidence.indistinguishable_from``): the choice among them is not the
+    data's. Returns the effects (with the ties named) and the warning, if any."""
+    chosen = {first.name} | ({second.name} if second is not None else set())
+    rows: list[CandidateFit] | list[PairFit]
     if second is None:
-        rows, ref = [r for r in cand_rows if r.get("significant") and r["name"] in fits], first
-        label = lambda r: r["name"]  # noqa: E731
+        rows, ref = [r for r in cand_rows if r.significant and r.name in fits], _bic(first)
+        labels = [(r.name, _bic(r)) for r in rows]
     else:
-        rows, ref = [pr for pr in pair_rows if pr.get("significant")], second
-        label = lambda r: f"{r['with']}+{r['name']}"  # noqa: E731
-    ties = sorted({label(r) for r in rows
-                   if abs(r["bic"] - ref["bic"]) < TIE_BIC and set(label(r).split("+")) != chosen})
+        rows, ref = [pr for pr in pair_rows if pr.significant], _bic(second)
+        labels = [(f"{r.with_}+{r.name}", _bic(r)) for r in rows]
+    ties = sorted({label for label, bic in labels if abs(bic - ref) < TIE_BIC and set(label.split("+")) != chosen})
     if not ties:
-        return []
-    for e in effects:
-        e.evidence["indistinguishable_from"] = ties
-    models = [first["name"] if second is None else f"{first['name']}+{second['name']}", *ties]
-    return [f"{', '.join(models[:-1])} and {models[-1]} fit these tests equally well "
-            f"(BIC within {TIE_BIC:g}): the tests cannot tell them apart; a test at another relay "
-            "height or beta, or longer tests, would"]
+        return effects, []
+    effects = [replace(e, evidence=replace(e.evidence, indistinguishable_from=ties)) for e in effects]
+    models = [first.name if second is None else f"{first.name}+{second.name}", *ties]
+    return effects, [f"{', '.join(models[:-1])} and {models[-1]} fit these tests equally well "
+                     f"(BIC within {TIE_BIC:g}): the tests cannot tell them apart; a test at another relay "
+                     "height or beta, or longer tests, would"]
 
 
 def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, Tp: float,
@@ -394,28 +409,27 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, T
     noise level, only those whose probe clears :data:`PAIR_PROBE_MIN`.
     """
     cand_rows, fits = search.rows, search.fits
-    deterministic = sorted((r for r in cand_rows if r["significant"] and r["name"] in fits),
-                           key=lambda r: -r["delta_bic"])
+    deterministic = sorted((r for r in cand_rows if r.significant and r.name in fits), key=lambda r: -_bic_gain(r))
     if not deterministic:
         return EffectSelection(effects=[], pair_rows=[], final=None, warnings=[])
     first = deterministic[0]
-    say(f"testing a second effect on top of {first['name']}", more=1)
+    say(f"testing a second effect on top of {first.name}", more=1)
     pairs = _Pairs(screen, linear, fits, Tp)
-    searched = not explains_held_out(first["held_out_after"], screen.tests)
+    searched = not explains_held_out(first.held_out_after, screen.tests)
     if searched:
         for row in cand_rows:
-            if row["name"] != first["name"] and row["name"] in fits:
-                pairs.pair(first, row["name"])
+            if row.name != first.name and row.name in fits:
+                pairs.pair(first, row.name)
     else:
         pairs.probed(first, search.order)
-    good = sorted((pr for pr in pairs.rows if pr["significant"]), key=lambda r: -r["delta_bic"])
+    good = sorted((pr for pr in pairs.rows if pr.significant), key=lambda r: -_bic_gain(r))
     second = good[0] if good else None
     if searched:
-        rivals = sorted((r for r in cand_rows if r["name"] in fits and r["name"] != first["name"]
-                         and (r.get("delta_bic") or -1.0) >= BIC_THRESHOLD), key=lambda r: -r["delta_bic"])
+        rivals = sorted((r for r in cand_rows if r.name in fits and r.name != first.name
+                         and (r.delta_bic or -1.0) >= BIC_THRESHOLD), key=lambda r: -_bic_gain(r))
         first, second = pairs.rivals(first, second, rivals, cand_rows)
     if second is not None:
         first, second = pairs.swap(first, second, deterministic, cand_rows)
     effects, final = _findings(first, second, pairs)
-    warnings = _ties(effects, first, second, cand_rows, pairs.rows, fits)
+    effects, warnings = _ties(effects, first, second, cand_rows, pairs.rows, fits)
     return EffectSelection(effects=effects, pair_rows=pairs.rows, final=final, warnings=warnings)

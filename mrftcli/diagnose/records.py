@@ -19,8 +19,8 @@ if TYPE_CHECKING:
     from ..io.logtypes import FlightLog
     from .fit import CandidateModel, DiagnosedTest, Fit
 
-__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "EffectFinding", "FinalModel", "CycleErrors", "DiagnosisFigures",
-           "DiagnosisResult"]
+__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "EffectFinding",
+           "FinalModel", "CycleErrors", "DiagnosisFigures", "DiagnosisResult"]
 
 #: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away)
 SCHEMA_VERSION = 1
@@ -49,45 +49,45 @@ class EffectFinding:
     ----------
     name, explanation, augmentation : str
         The candidate (:mod:`mrftcli.diagnose.physics`), what it means, how it augments the model.
-    parameters : dict
+    parameters : dict[str, Any]
         Its parameter's value and standard error (the candidate's units), and the plant's fitted with
         it; with a second effect, the value fitted alone too (``<parameter>_alone``).
-    evidence : dict
-        ``delta_bic``, ``bic``, ``n_features``, ``threshold``, ``compared_with`` (the model it beats),
-        ``bic_base`` and, when other models tie with it, ``indistinguishable_from``.
-    fit_before, fit_after : dict
-        The held-out scores of the model it is compared with and of the model with it.
-    identification : dict
+    evidence : Evidence
+        Its delta BIC against the model it beats, and the models it ties with.
+    fit_before, fit_after : HeldOut
+        The held-out scores of the model it is compared with and of the model with it (the JSON keeps
+        :meth:`HeldOut.summary`).
+    identification : dict[str, Any]
         ``linear`` and ``with_effect`` plant parameters (and ``model`` for a pair).
-    harmonics : dict
+    harmonics : dict[str, Any]
         Per test index, the relative errors of G(j k Omega) before and after.
     """
 
     name: str
     explanation: str
     augmentation: str
-    parameters: dict
-    evidence: dict
-    fit_before: dict
-    fit_after: dict
-    identification: dict
-    harmonics: dict = field(default_factory=dict)
+    parameters: dict[str, Any]
+    evidence: Evidence
+    fit_before: HeldOut
+    fit_after: HeldOut
+    identification: dict[str, Any]
+    harmonics: dict[str, Any] = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
             "explanation": self.explanation,
             "augmentation": self.augmentation,
             "parameters": self.parameters,
-            "evidence": self.evidence,
-            "fit_before": self.fit_before,
-            "fit_after": self.fit_after,
+            "evidence": self.evidence.to_dict(),
+            "fit_before": self.fit_before.summary(),
+            "fit_after": self.fit_after.summary(),
             "identification": self.identification,
             "harmonics": self.harmonics,
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> EffectFinding:
+    def from_dict(cls, data: Any) -> EffectFinding:
         """The finding of a :meth:`to_dict` item.
 
         Raises
@@ -100,24 +100,331 @@ class EffectFinding:
         try:
             return cls(name=str(data["name"]), explanation=str(data["explanation"]),
                        augmentation=str(data["augmentation"]), parameters=_dict(data["parameters"], "parameters"),
-                       evidence=_dict(data["evidence"], "evidence"), fit_before=_dict(data["fit_before"], "fit_before"),
-                       fit_after=_dict(data["fit_after"], "fit_after"),
+                       evidence=Evidence.from_dict(data["evidence"]), fit_before=HeldOut.from_dict(data["fit_before"]),
+                       fit_after=HeldOut.from_dict(data["fit_after"]),
                        identification=_dict(data["identification"], "identification"),
                        harmonics=_dict(data.get("harmonics", {}), "harmonics"))
         except KeyError as err:
             raise InputError(f"a diagnosis effect has no {err.args[0]!r}") from None
+        except (TypeError, ValueError) as err:
+            raise InputError(f"a diagnosis effect is malformed ({err})".replace("\n", " ")) from None
 
 
-def _dict(value: Any, key: str) -> dict:
+def _dict(value: Any, key: str) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise InputError(f"the diagnosis' {key!r} must be a JSON object, got {type(value).__name__}")
     return value
 
 
-def _list(value: Any, key: str) -> list:
+def _list(value: Any, key: str) -> list[Any]:
     if not isinstance(value, list):
         raise InputError(f"the diagnosis' {key!r} must be a JSON list, got {type(value).__name__}")
     return value
+
+
+# --------------------------------------------------------------------------------------------------
+# the evidence records (JSON items of ``candidates``, ``second_effect_candidates`` and the effects)
+
+#: the keys of a held-out score's JSON, per kind of score (in this order)
+_HELD_OUT_KEYS = {
+    "waveform": ("nrmse", "nrmse_raw", "nrmse_timed", "scatter_nrmse", "nrmse_per_test", "nrmse_raw_per_test",
+                 "feature_rms_z", "feature_chi2", "feature_max_abs_z", "cycles"),
+    "failed": ("nrmse", "feature_rms_z"),
+    "scatter": ("nrmse", "feature_rms_z", "metric", "cycles"),
+}
+#: the keys an effect's ``fit_before`` / ``fit_after`` keep (in this order)
+_SUMMARY_KEYS = ("nrmse", "nrmse_raw", "nrmse_timed", "scatter_nrmse", "feature_rms_z", "feature_chi2", "cycles",
+                 "nrmse_per_test", "metric")
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """A fitted model scored on the held-out (odd) cycles (:func:`mrftcli.diagnose.heldout.held_out_score`).
+
+    Attributes
+    ----------
+    kind : str
+        ``"waveform"`` (a deterministic model), ``"failed"`` (its limit cycle was not found: every
+        score None) or ``"scatter"`` (the delay jitter, judged on the period scatter alone).
+    nrmse : float or None
+        Waveform NRMSE beyond the recording's own cycle-to-cycle scatter (for the jitter: the relative
+        error of the predicted period scatter).
+    nrmse_raw, nrmse_timed, scatter_nrmse : float or None
+        The NRMSE with that scatter kept; with the model's own period too; the scatter's share.
+    nrmse_per_test, nrmse_raw_per_test : list[Any] of float or None
+        ``nrmse`` and ``nrmse_raw`` per test.
+    feature_rms_z, feature_chi2, feature_max_abs_z : float or None
+        The held-out features' RMS z, chi^2 and largest |z| (z = difference / standard error).
+    metric : str or None
+        What ``nrmse`` measures, for the jitter.
+    cycles : int or None
+        Held-out cycles scored.
+    """
+
+    kind: str
+    nrmse: float | None = None
+    nrmse_raw: float | None = None
+    nrmse_timed: float | None = None
+    scatter_nrmse: float | None = None
+    nrmse_per_test: list[Any] | None = None
+    nrmse_raw_per_test: list[Any] | None = None
+    feature_rms_z: float | None = None
+    feature_chi2: float | None = None
+    feature_max_abs_z: float | None = None
+    metric: str | None = None
+    cycles: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON item (the keys of its kind)."""
+        return {k: getattr(self, k) for k in _HELD_OUT_KEYS[self.kind]}
+
+    def summary(self) -> dict[str, Any]:
+        """The figures an effect's ``fit_before`` / ``fit_after`` report."""
+        keys = _HELD_OUT_KEYS[self.kind]
+        return {k: getattr(self, k) for k in _SUMMARY_KEYS if k in keys}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> HeldOut:
+        """The score of a :meth:`to_dict` (or :meth:`summary`) item."""
+        data = _dict(data, "held_out")
+        kind = "scatter" if "metric" in data else "waveform" if "nrmse_raw" in data else "failed"
+        return cls(kind=kind, **{k: data.get(k) for k in _HELD_OUT_KEYS[kind]})
+
+
+def _held_out_or_none(value: Any) -> HeldOut | None:
+    return None if value is None else HeldOut.from_dict(value)
+
+
+#: the keys of a candidate row's JSON, per layout (in this order)
+_CANDIDATE_KEYS = {
+    "fitted": ("name", "parameter", "value", "std", "unit", "chi2", "bic", "delta_bic", "held_out_before",
+               "held_out_after", "fit_params", "probe_delta_chi2", "significant"),
+    "not_rejected": ("name", "parameter", "unit", "delta_bic", "status", "significant"),
+    "explained": ("name", "parameter", "unit", "delta_bic", "probe_delta_chi2", "status", "significant"),
+    "failed": ("name", "delta_bic", "status", "compared_with", "significant"),
+    "jitter_below": ("name", "delta_bic", "parameter", "unit", "status", "compared_with", "significant"),
+    "jitter": ("min_value", "name", "parameter", "value", "value_fit_cycles", "std", "unit", "chi2", "bic",
+               "delta_bic", "held_out_before", "held_out_after", "fit_params", "calibration_runs", "period_scatter",
+               "compared_with", "significant"),
+}
+
+
+def _item(record: Any, keys: tuple[str, ...]) -> dict[str, Any]:
+    """A record's JSON item: its ``keys`` in order, held-out scores as dicts, an absent ``compared_with`` left out
+    (the jitter's row has one when it was judged against the effects found)."""
+    out = {}
+    for k in keys:
+        v = getattr(record, k)
+        if k == "compared_with" and v is None:
+            continue
+        out[k] = v.to_dict() if isinstance(v, HeldOut) else v
+    return out
+
+
+@dataclass(frozen=True)
+class CandidateFit:
+    """One candidate effect fitted alone against the linear model, or why it was not.
+
+    Attributes
+    ----------
+    name : str
+        The candidate (:data:`mrftcli.diagnose.physics.BY_NAME`).
+    layout : str
+        Which JSON keys the row has (a key of ``_CANDIDATE_KEYS``): ``"fitted"``; not fitted because
+        ``"not_rejected"`` (the linear model explains the cycles), ``"explained"`` (another candidate
+        does) or ``"failed"``; the jitter's ``"jitter"`` or ``"jitter_below"`` (not fitted: the scatter
+        is within what noise explains).
+    parameter, unit : str or None
+        The effect's parameter and its unit.
+    value, std : float or None
+        Its fitted value and standard error.
+    chi2, bic, delta_bic : float or None
+        The fit's chi^2 and BIC, and BIC(linear) - BIC(this); None when not fitted.
+    held_out_before, held_out_after : HeldOut or None
+        The held-out scores of the linear model and of the model with the effect.
+    fit_params : dict[str, Any] or None
+        The plant's parameters fitted with it.
+    probe_delta_chi2 : float or None
+        The chi^2 its probe gained (the fitting order).
+    status : str or None
+        Why it was not fitted.
+    significant : bool
+        It passes the evidence and held-out rules (:func:`mrftcli.diagnose.heldout.significant`).
+    min_value, value_fit_cycles, calibration_runs, period_scatter, compared_with
+        The jitter's: half a tick [s] (below it the jitter is not told from the tick quantisation), the
+        value fitted on the fitting cycles alone, the calibration runs, the recorded / noise-only /
+        predicted period scatter per test [s], the model it was judged against (None: the linear one).
+    """
+
+    name: str
+    layout: str = "fitted"
+    parameter: str | None = None
+    unit: str | None = None
+    value: float | None = None
+    std: float | None = None
+    chi2: float | None = None
+    bic: float | None = None
+    delta_bic: float | None = None
+    held_out_before: HeldOut | None = None
+    held_out_after: HeldOut | None = None
+    fit_params: dict[str, Any] | None = None
+    probe_delta_chi2: float | None = None
+    status: str | None = None
+    significant: bool = False
+    min_value: float | None = None
+    value_fit_cycles: float | None = None
+    calibration_runs: int | None = None
+    period_scatter: dict[str, Any] | None = None
+    compared_with: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON item (``candidates`` of the result)."""
+        return _item(self, _CANDIDATE_KEYS[self.layout])
+
+    @classmethod
+    def from_dict(cls, data: Any) -> CandidateFit:
+        """The row of a :meth:`to_dict` item."""
+        data = _dict(data, "candidates")
+        matches = [lay for lay, keys in _CANDIDATE_KEYS.items()
+                   if set(data) - {"compared_with"} == set(keys) - {"compared_with"}]
+        # a row that is not fitted has the same keys whether it is the jitter's or another candidate's
+        jitter = data.get("name") == "delay_jitter"
+        layout = next((lay for lay in matches if lay.startswith("jitter") == jitter), matches[0] if matches else None)
+        if layout is None:
+            raise InputError(f"a diagnosis candidate has unknown keys {sorted(data)}")
+        fields = {k: data.get(k) for k in _CANDIDATE_KEYS[layout]}
+        for k in ("held_out_before", "held_out_after"):
+            if k in fields:
+                fields[k] = _held_out_or_none(fields[k])
+        return cls(layout=layout, **fields)
+
+
+#: the keys of a pair row's JSON, per layout (in this order)
+_PAIR_KEYS = {
+    "fitted": ("name", "with_", "parameter", "values", "stds", "unit", "chi2", "bic", "delta_bic", "held_out_before",
+               "held_out_after", "fit_params", "significant"),
+    "probed": ("name", "with_", "parameter", "unit", "values", "delta_bic", "probe_delta_chi2", "significant",
+               "status"),
+}
+
+
+@dataclass(frozen=True)
+class PairFit:
+    """A second effect (``name``) fitted together with a first (``with_``: ``with`` in the JSON),
+    scored against the first alone.
+
+    Attributes
+    ----------
+    name, with_ : str
+        The effect added and the effect it is paired with.
+    layout : str
+        ``"fitted"``, or ``"probed"`` (not fitted: its probe gained less than the minimum).
+    parameter, unit : str
+        The added effect's parameter and its unit.
+    values, stds : dict[str, Any]
+        Both effects' values and standard errors from the joint fit (empty when probed).
+    chi2, bic, delta_bic : float or None
+        The joint fit's chi^2 and BIC, and BIC(first alone) - BIC(pair).
+    held_out_before, held_out_after : HeldOut or None
+        The held-out scores of the first alone and of the pair.
+    fit_params : dict[str, Any] or None
+        The plant's parameters fitted with both.
+    probe_delta_chi2 : float or None
+        The probe's chi^2 gain (probed rows).
+    significant : bool
+        It passes the evidence and held-out rules against the first alone.
+    status : str or None
+        Why it was not fitted.
+    """
+
+    name: str
+    with_: str
+    layout: str = "fitted"
+    parameter: str | None = None
+    unit: str | None = None
+    values: dict[str, Any] = field(default_factory=dict)
+    stds: dict[str, Any] = field(default_factory=dict)
+    chi2: float | None = None
+    bic: float | None = None
+    delta_bic: float | None = None
+    held_out_before: HeldOut | None = None
+    held_out_after: HeldOut | None = None
+    fit_params: dict[str, Any] | None = None
+    probe_delta_chi2: float | None = None
+    significant: bool = False
+    status: str | None = None
+
+    @property
+    def value(self) -> float | None:
+        """The added effect's value from the joint fit."""
+        return self.values.get(self.name)
+
+    @property
+    def std(self) -> float | None:
+        """Its standard error."""
+        return self.stds.get(self.name)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON item (``second_effect_candidates`` of the result)."""
+        return {("with" if k == "with_" else k): v for k, v in _item(self, _PAIR_KEYS[self.layout]).items()}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> PairFit:
+        """The row of a :meth:`to_dict` item."""
+        data = _dict(data, "second_effect_candidates")
+        layout = "probed" if "status" in data else "fitted"
+        keys = {"with" if k == "with_" else k for k in _PAIR_KEYS[layout]}
+        if set(data) != keys:
+            raise InputError(f"a diagnosis pair has unknown keys {sorted(data)}")
+        fields = {k: data["with" if k == "with_" else k] for k in _PAIR_KEYS[layout]}
+        for k in ("held_out_before", "held_out_after"):
+            if k in fields:
+                fields[k] = _held_out_or_none(fields[k])
+        return cls(layout=layout, **fields)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """Why an effect is reported.
+
+    Attributes
+    ----------
+    delta_bic, bic : float
+        BIC(the model it is compared with) - BIC(with it), and its BIC.
+    n_features : int
+        Features in the BIC.
+    threshold : float
+        The delta BIC an effect needs (:data:`mrftcli.diagnose.heldout.BIC_THRESHOLD`).
+    compared_with : str
+        The model it beats (``"linear"`` or ``"linear + <first effect>"``).
+    bic_base : float
+        That model's BIC.
+    indistinguishable_from : list[Any] of str or None
+        Models within the tie margin that pass the same rules (None: none).
+    """
+
+    delta_bic: float
+    bic: float
+    n_features: int
+    threshold: float
+    compared_with: str
+    bic_base: float
+    indistinguishable_from: list[str] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {"delta_bic": self.delta_bic, "bic": self.bic, "n_features": self.n_features,
+               "threshold": self.threshold, "compared_with": self.compared_with, "bic_base": self.bic_base}
+        if self.indistinguishable_from is not None:
+            out["indistinguishable_from"] = self.indistinguishable_from
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Evidence:
+        data = _dict(data, "evidence")
+        ties = data.get("indistinguishable_from")
+        return cls(delta_bic=float(data["delta_bic"]), bic=float(data["bic"]), n_features=int(data["n_features"]),
+                   threshold=float(data["threshold"]), compared_with=str(data["compared_with"]),
+                   bic_base=float(data["bic_base"]), indistinguishable_from=None if ties is None else list(ties))
 
 
 @dataclass(frozen=True)
@@ -162,19 +469,19 @@ class DiagnosisFigures:
     ----------
     flight : FlightLog
         The log's signals.
-    tests : list of DiagnosedTest
+    tests : list[Any] of DiagnosedTest
         The tests diagnosed, with their cycles and the fitting/held-out split.
     base_model, base : CandidateModel, Fit
         The linear model and its fit.
-    fits : dict
+    fits : dict[str, Any]
         Each candidate fitted alone: name -> (model, fit).
-    effects : list of str
+    effects : list[Any] of str
         The effects found (names).
     final : FinalModel or None
         The deterministic model finally chosen (None when nothing was found).
-    cycle_errors : list of CycleErrors
+    cycle_errors : list[Any] of CycleErrors
         Per test, the linear model's waveform error per cycle.
-    harmonics : list of dict
+    harmonics : list[Any] of dict
         Per test, the linear model's relative error of G(j k Omega) per odd harmonic ("1", "3", ...).
     """
 
@@ -186,7 +493,7 @@ class DiagnosisFigures:
     effects: list[str]
     final: FinalModel | None
     cycle_errors: list[CycleErrors]
-    harmonics: list[dict]
+    harmonics: list[dict[str, Any]]
 
     def augmented(self) -> FinalModel | None:
         """The reported effect's model to overlay: the final one, else the first effect fitted alone."""
@@ -209,28 +516,28 @@ class DiagnosisResult:
         The log and loop.
     Tp : float
         The propulsion time constant used [s].
-    effects : list of EffectFinding
+    effects : list[Any] of EffectFinding
         Effects the evidence supports (empty when the linear model explains the log).
-    candidates : list of dict
+    candidates : list[Any] of CandidateFit
         Every candidate's evidence and held-out scores (including the rejected ones).
-    second_effect_candidates : list of dict
+    second_effect_candidates : list[Any] of PairFit
         When an effect was found: every other candidate fitted together with it (``with``), with its
         evidence and held-out scores against that effect's model (a second effect is reported when it
         passes the same rules). When the first effect already explains the held-out cycles, a
         candidate whose probe (``probe_delta_chi2``) is too small is listed with ``delta_bic`` None
         and a ``status``.
-    located : list of dict
+    located : list[Any] of dict
         Where the base model disagrees with the recording, largest first.
-    identification : dict
+    identification : dict[str, Any]
         The base (linear) fit and, per found effect, the refit that accounts for it; the analysis'
         own identification when one was given.
-    tests : list of dict
+    tests : list[Any] of dict
         Per test: beta (nominal, effective up/down), h, bias, cycles used, times.
     noise_std : float
         Sensor noise estimated from the residual of the cycle projections [output units].
     summary : str
         One sentence.
-    unexplained : dict or None
+    unexplained : dict[str, Any] or None
         The mismatch that no candidate (or pair) explains, when the linear model is rejected on the
         fitting and the held-out cycles and the model finally chosen still is on the held-out ones
         (chi^2 p-value below ``UNEXPLAINED_P``): ``what``, ``after`` (the model it remains after),
@@ -252,20 +559,20 @@ class DiagnosisResult:
     loop: str
     Tp: float
     effects: list[EffectFinding]
-    candidates: list[dict]
-    located: list[dict]
-    identification: dict
-    tests: list[dict]
+    candidates: list[CandidateFit]
+    located: list[dict[str, Any]]
+    identification: dict[str, Any]
+    tests: list[dict[str, Any]]
     noise_std: float
     summary: str
     warnings: list[str] = field(default_factory=list)
-    second_effect_candidates: list[dict] = field(default_factory=list)
-    unexplained: dict | None = None
+    second_effect_candidates: list[PairFit] = field(default_factory=list)
+    unexplained: dict[str, Any] | None = None
     t0: float = 0.0
     figures: DiagnosisFigures | None = field(default=None, repr=False, compare=False)
     schema_version: int = SCHEMA_VERSION
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """The ``--json`` output (and the batch record's ``diagnosis``)."""
         return {
             "path": self.path,
@@ -275,8 +582,8 @@ class DiagnosisResult:
             "effects": [e.to_dict() for e in self.effects],
             "located": self.located,
             "identification": self.identification,
-            "candidates": self.candidates,
-            "second_effect_candidates": self.second_effect_candidates,
+            "candidates": [c.to_dict() for c in self.candidates],
+            "second_effect_candidates": [c.to_dict() for c in self.second_effect_candidates],
             "unexplained": self.unexplained,
             "t0": self.t0,
             "tests": self.tests,
@@ -285,12 +592,12 @@ class DiagnosisResult:
             "warnings": self.warnings,
         }
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """:meth:`to_dict` with the ``schema_version`` (what :meth:`from_json` reads)."""
         return {"schema_version": self.schema_version, **self.to_dict()}
 
     @classmethod
-    def from_json(cls, data: dict) -> DiagnosisResult:
+    def from_json(cls, data: dict[str, Any]) -> DiagnosisResult:
         """The result of a :meth:`to_json` dict (without its figures).
 
         Raises
@@ -309,15 +616,17 @@ class DiagnosisResult:
             return cls(
                 path=str(data["path"]), loop=str(data["loop"]), Tp=float(data["Tp"]),
                 effects=[EffectFinding.from_dict(e) for e in _list(data["effects"], "effects")],
-                candidates=_list(data["candidates"], "candidates"), located=_list(data["located"], "located"),
+                candidates=[CandidateFit.from_dict(c) for c in _list(data["candidates"], "candidates")],
+                located=_list(data["located"], "located"),
                 identification=_dict(data["identification"], "identification"),
                 tests=_list(data["tests"], "tests"), noise_std=float(data["noise_std"]),
                 summary=str(data["summary"]), warnings=[str(w) for w in _list(data["warnings"], "warnings")],
-                second_effect_candidates=_list(data["second_effect_candidates"], "second_effect_candidates"),
+                second_effect_candidates=[PairFit.from_dict(c) for c in _list(data["second_effect_candidates"],
+                                                                               "second_effect_candidates")],
                 unexplained=None if unexplained is None else _dict(unexplained, "unexplained"),
                 t0=float(data["t0"]),
             )
         except KeyError as err:
             raise InputError(f"the diagnosis has no {err.args[0]!r}; rerun mrft-ident diagnose") from None
         except (TypeError, ValueError) as err:
-            raise InputError(f"the diagnosis JSON is malformed ({err})") from None
+            raise InputError(f"the diagnosis JSON is malformed ({err})".replace("\n", " ")) from None

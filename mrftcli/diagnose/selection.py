@@ -39,7 +39,7 @@ reading the log when a path is given.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -55,7 +55,7 @@ from .jitter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
 from .physics import BY_NAME, CANDIDATES
-from .records import DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel
+from .records import CandidateFit, DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel
 from .screen import Screen, screen_log
 
 if TYPE_CHECKING:
@@ -84,7 +84,7 @@ class _Stages:
 class JitterJudgement:
     """The delay-jitter candidate (:func:`judge_jitter`): its row and, when significant, its finding."""
 
-    row: dict
+    row: CandidateFit
     finding: EffectFinding | None
 
 
@@ -104,18 +104,17 @@ def judge_jitter(screen: Screen, linear: LinearFit, final: FinalModel | None, sa
         scatter_j = scatter_reference(tests, final.model, final.fit, screen.noise)
         row = jitter_candidate(cand, tests, scatter_j, lambda sel, v: scatter_z(tests, scatter_j, sel, v), final.fit,
                                n_all)
-        row["compared_with"] = f"linear + {final.label}"
+        row = replace(row, compared_with=f"linear + {final.label}")
     else:
         row = jitter_candidate(cand, tests, linear.scatter, lambda sel, v: scatter_z(tests, linear.scatter, sel, v),
                                linear.fit, n_all)
-    row["significant"] = significant(row)
-    if not row["significant"]:
+    row = replace(row, significant=significant(row))
+    if not row.significant or row.bic is None or row.delta_bic is None:
         return JitterJudgement(row, None)
     # the jitter acts on the cycle-to-cycle scatter only, which the deterministic effects leave alone
     base_params = plant_params(linear.model, linear.fit)
     finding = effect_finding(row, {"linear": base_params, "with_effect": base_params}, {},
-                             {"compared_with": row.get("compared_with", "linear"),
-                              "bic_base": row["bic"] + row["delta_bic"]}, n_all)
+                             row.compared_with or "linear", row.bic + row.delta_bic, n_all)
     return JitterJudgement(row, finding)
 
 
@@ -245,8 +244,8 @@ def _summary_text(effects: list[EffectFinding], unexplained: dict | None) -> str
     if effects:
         parts = [
             f"{e.name} ({e.parameters.get(BY_NAME[e.name].parameter):.4g} {BY_NAME[e.name].unit}; delta BIC "
-            f"{e.evidence['delta_bic']:.0f} against the {e.evidence['compared_with']} model; held-out NRMSE "
-            f"{_fmt(e.fit_before.get('nrmse'))} -> {_fmt(e.fit_after.get('nrmse'))})"
+            f"{e.evidence.delta_bic:.0f} against the {e.evidence.compared_with} model; held-out NRMSE "
+            f"{_fmt(e.fit_before.nrmse)} -> {_fmt(e.fit_after.nrmse)})"
             for e in effects
         ]
         summary = ("found " if len(parts) > 1 else "") + " and ".join(parts) + (

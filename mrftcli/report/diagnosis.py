@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..diagnose.records import DiagnosisFigures, DiagnosisResult
+from ..diagnose.records import DiagnosisFigures, DiagnosisResult, HeldOut
 from ..errors import InputError
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure
 
@@ -164,11 +164,11 @@ def plot_harmonics(result):
 
 def plot_evidence(result):
     """delta BIC per candidate (threshold line) and held-out NRMSE before/after."""
-    rows = [c for c in result.candidates if c.get("delta_bic") is not None]
-    names = [c["name"] for c in rows]
+    rows = [c for c in result.candidates if c.delta_bic is not None]
+    names = [c.name for c in rows]
     fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
-    db = np.array([c["delta_bic"] for c in rows], float)
-    found = {e.name for e in result.effects if e.evidence.get("compared_with", "linear") == "linear"}
+    db = np.array([c.delta_bic for c in rows], float)
+    found = {e.name for e in result.effects if e.evidence.compared_with == "linear"}
     cols = [_AUG_C if n in found else "#999999" for n in names]
     y = np.arange(len(names))
     ax.barh(y, db, color=cols)
@@ -181,10 +181,8 @@ def plot_evidence(result):
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3))
     # the raw NRMSE (recording's own cycle-to-cycle scatter kept): the scatter-subtracted figure is 0
     # whenever a model is within the scatter, which shows nothing on a bar chart
-    b = [(c.get("held_out_before") or {}).get("nrmse_raw", (c.get("held_out_before") or {}).get("nrmse")) for c in rows]
-    a = [(c.get("held_out_after") or {}).get("nrmse_raw", (c.get("held_out_after") or {}).get("nrmse")) for c in rows]
-    b = 100 * np.array([np.nan if v is None else v for v in b], float)
-    a = 100 * np.array([np.nan if v is None else v for v in a], float)
+    b = 100 * np.array([_nan(_raw_error(c.held_out_before)) for c in rows], float)
+    a = 100 * np.array([_nan(_raw_error(c.held_out_after)) for c in rows], float)
     ax2.barh(y + 0.2, b, 0.4, color=_BASE_C, label="linear model")
     ax2.barh(y - 0.2, a, 0.4, color=_AUG_C, label="with the candidate")
     ax2.set_yticks(y, [n.replace("_", " ") for n in names])
@@ -192,6 +190,17 @@ def plot_evidence(result):
     ax2.set_title("Confirmation on held-out (odd) cycles")
     ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2)
     return fig
+
+
+def _raw_error(held: HeldOut | None) -> float | None:
+    """The held-out waveform error as recorded (the jitter's: its period-scatter error)."""
+    if held is None:
+        return None
+    return held.nrmse_raw if held.kind == "waveform" else held.nrmse
+
+
+def _nan(x: float | None) -> float:
+    return np.nan if x is None else x
 
 
 _NAMES = {"T_lag": ("sensor lag T_lag", 1e3, "ms"), "sigma": ("delay jitter std", 1e3, "ms"),
@@ -224,7 +233,7 @@ def _param_rows(e) -> list[tuple]:
 def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none)."""
     out = ensure_dir(out_dir)
-    fitted = any(c.get("delta_bic") is not None for c in result.candidates)
+    fitted = any(c.delta_bic is not None for c in result.candidates)
     figs = {
         "diagnosis_located.png": plot_located(result),
         "diagnosis_overlay.png": plot_overlay(result),
@@ -240,13 +249,13 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         body.append(f"<h2>Found: {esc(e.name.replace('_', ' '))}</h2><p>{esc(e.explanation)}</p>"
                     f"<p class='muted'>Model: {esc(e.augmentation)}</p>")
         body.append(html_table(["parameter", "value", "+- std", "unit"], _param_rows(e)))
-        before = e.evidence.get("compared_with", "linear")
+        before = e.evidence.compared_with
         fb, fa = e.fit_before, e.fit_after
         body.append("<div class='left2'>" + html_table(
             ["held-out cycles", f"{before} model", f"with {e.identification.get('model', e.name)}".replace("_", " ")],
-            [("waveform error (NRMSE), as recorded", _pct(fb.get("nrmse_raw")), _pct(fa.get("nrmse_raw"))),
-             ("the same beyond the recording's own cycle-to-cycle scatter", _pct(fb.get("nrmse")), _pct(fa.get("nrmse"))),
-             ("features off by (RMS, in standard errors)", _f(fb.get("feature_rms_z")), _f(fa.get("feature_rms_z")))])
+            [("waveform error (NRMSE), as recorded", _pct(fb.nrmse_raw), _pct(fa.nrmse_raw)),
+             ("the same beyond the recording's own cycle-to-cycle scatter", _pct(fb.nrmse), _pct(fa.nrmse)),
+             ("features off by (RMS, in standard errors)", _f(fb.feature_rms_z), _f(fa.feature_rms_z))])
             + "</div>")
     if not result.effects and result.unexplained is None:
         body.append("<p>The linear model explains the log: no candidate has strong evidence confirmed on held-out "
@@ -291,16 +300,16 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         "candidate effect to explain.</p>"))
     pairs = result.second_effect_candidates
     if pairs:
-        anchors = list(dict.fromkeys(c["with"] for c in pairs))
+        anchors = list(dict.fromkeys(c.with_ for c in pairs))
         body.append(f"<h3>A second effect on top of {esc(' or '.join(a.replace('_', ' ') for a in anchors))}</h3>")
         body.append("<div class='left2'>" + html_table(
             ["with", "candidate", "parameter", "evidence against the first effect's model (drop in BIC)",
              "held-out error before", "after", "found"],
-            [(c["with"].replace("_", " "), c["name"].replace("_", " "),
-              f"{c['parameter']} = {_f(c['values'].get(c['name']))}" if c.get("delta_bic") is not None
-              else c.get("status", "-"), _f(c["delta_bic"]),
-              _pct((c.get("held_out_before") or {}).get("nrmse_raw")), _pct((c.get("held_out_after") or {}).get("nrmse_raw")),
-              "yes" if c.get("significant") else "no") for c in pairs]) + "</div>")
+            [(c.with_.replace("_", " "), c.name.replace("_", " "),
+              f"{c.parameter} = {_f(c.values.get(c.name))}" if c.delta_bic is not None else c.status or "-",
+              _f(c.delta_bic), _pct(c.held_out_before.nrmse_raw if c.held_out_before is not None else None),
+              _pct(c.held_out_after.nrmse_raw if c.held_out_after is not None else None),
+              "yes" if c.significant else "no") for c in pairs]) + "</div>")
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
     page = out / "diagnosis.html"
     page.write_text(html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))

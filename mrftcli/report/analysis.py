@@ -20,16 +20,22 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from matplotlib.ticker import ScalarFormatter
 
+from ..errors import InputError
 from ..progress import Progress, report
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
     from ..analyze import AnalysisResult
     from ..mrft.identify import ParameterEstimate
+    from ..segment import MrftTest
 
 _TWO_PI = 2.0 * math.pi
 
@@ -94,29 +100,11 @@ def _time_label(result) -> str:
     return "time from log start [s]"
 
 
-def plot_timeseries(result):
-    """Command and output over the whole log with the tests and their stable cycles marked."""
-    unit, scale, name = _units(result)
-    fl = result.flight
-    T0 = _t0(result)  # every time axis is seconds from the log start (logs carry epoch times)
+def _mark_tests(ax_c: Axes, ax_y: Axes, result: AnalysisResult, colours: dict[int, Any], T0: float) -> None:
+    """Each test shaded, its stable cycles as bars, its label; a beta legend when there are many."""
     tests = list(result.tests) + list(result.rejected)
-    n_zoom = min(len(result.tests), 4)
-    fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)), layout="constrained")
-    # command and output share the time axis and sit close; the zooms get their own row below
-    outer = fig.add_gridspec(2 if n_zoom else 1, 1, height_ratios=[2.3, 1.2][: 2 if n_zoom else 1])
-    top = outer[0].subgridspec(2, 1, height_ratios=[1, 1.3], hspace=0.0)
-    ax_c = fig.add_subplot(top[0])
-    ax_y = fig.add_subplot(top[1], sharex=ax_c)
-    zooms = outer[1].subgridspec(1, n_zoom) if n_zoom else None
-    tc = fl.command.t - T0
-    c = fl.command.values
-    ty, y, rel = _output_relative(result)
-    ty = ty - T0
-    ax_c.plot(tc, c, lw=0.6, color="0.25")
-    ax_y.plot(ty, y, lw=0.6, color="0.25")
-    colours = _group_colours(result)
     many = len(tests) > 4  # long labels would overlap: numbers on the plot, betas in a legend
-    seen: set = set()
+    seen: set[Any] = set()
     for t in tests:
         used = t in result.tests
         col = colours[t.index] if used else "0.6"
@@ -133,49 +121,85 @@ def plot_timeseries(result):
             ax_y.plot([], [], lw=6, alpha=0.5, color=col, label=f"beta {nom:+.2f}")
     if many:
         ax_y.legend(loc="lower right", fontsize=8, ncol=len(seen) or 1, framealpha=0.9)
+
+
+def _output_limits(ax_y: Axes, result: AnalysisResult, ty: np.ndarray, y: np.ndarray, scale: float, T0: float) -> None:
+    """Output limits from the tests and the transient after each (the hold controller's return to the
+    setpoint); take-off and landing would squash the oscillations otherwise."""
+    amp = max(t.amplitude_mean for t in result.tests) * scale
+    after = {t.index: max(3.0, 3.0 / t.frequency_hz_mean) if t.n_stable else 3.0 for t in result.tests}
+    inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0 + after[t.index]) for t in result.tests]
+    lo = min(np.min(y[m]) for m in inside if m.any())
+    hi = max(np.max(y[m]) for m in inside if m.any())
+    pad = 0.6 * amp
+    ax_y.set_ylim(lo - pad, hi + pad)
+
+
+def _zoom(ax: Axes, t: MrftTest, ty: np.ndarray, y: np.ndarray, colour: Any, result: AnalysisResult, rel: bool,
+          T0: float, first: bool) -> None:
+    """Two stable cycles of a test from the middle: samples, fitted extrema, output at the switches."""
+    unit, scale, name = _units(result)
+    st = t.stable
+    mid = len(st) // 2
+    sel = st[max(mid - 1, 0): mid + 1]
+    # zoom axis: seconds from the log start, like the overview (offsets the reader can match)
+    t0, t1 = sel[0].t_start - 0.1 * sel[0].period - T0, sel[-1].t_end + 0.1 * sel[-1].period - T0
+    m = (ty >= t0) & (ty <= t1)
+    ax.plot(ty[m], y[m], ".", ms=2, color="0.45", label="measured")
+    for cyc in sel:
+        centre = cyc.centre * t.loop_sign * scale
+        ax.plot(cyc.t_max - T0, cyc.y_max * t.loop_sign * scale, "v", color=colour, ms=6)
+        ax.plot(cyc.t_min - T0, cyc.y_min * t.loop_sign * scale, "^", color=colour, ms=6)
+        for ts, ys in ((cyc.t_switch, cyc.y_switch_down), (cyc.t_end, cyc.y_switch_up)):
+            ax.axvline(ts - T0, color=colour, lw=0.8, ls="--")
+            ax.plot(ts - T0, ys * t.loop_sign * scale, "o", color=colour, ms=5, mfc="white")
+        ax.axhline(centre, color="0.6", lw=0.6)
+    ax.set_title(f"test {t.index + 1}: {t.frequency_hz_mean:.3f} Hz, a = {t.amplitude_mean * scale:.3g} {unit}",
+                 fontsize=9)
+    ax.set_xlim(t0, t1)
+    ticks = ax.xaxis.get_major_formatter()
+    if isinstance(ticks, ScalarFormatter):  # the default; offsets like +1.7e9 are what the axis must not show
+        ticks.set_useOffset(False)
+    ax.set_xlabel("time from log start [s]")
+    if first:
+        ax.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
+        ax.plot([], [], "v", color="0.3", label="fitted extrema")
+        ax.plot([], [], "o", color="0.3", mfc="white", label="output at switch")
+        ax.legend(loc="best", fontsize=7, framealpha=0.8)
+
+
+def plot_timeseries(result: AnalysisResult) -> Figure:
+    """Command and output over the whole log with the tests and their stable cycles marked."""
+    unit, scale, name = _units(result)
+    fl = result.flight
+    if fl is None:
+        raise InputError("the analysis carries no flight signals to plot")
+    T0 = _t0(result)  # every time axis is seconds from the log start (logs carry epoch times)
+    n_zoom = min(len(result.tests), 4)
+    fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)), layout="constrained")
+    # command and output share the time axis and sit close; the zooms get their own row below
+    outer = fig.add_gridspec(2 if n_zoom else 1, 1, height_ratios=[2.3, 1.2][: 2 if n_zoom else 1])
+    top = outer[0].subgridspec(2, 1, height_ratios=[1, 1.3], hspace=0.0)
+    ax_c = fig.add_subplot(top[0])
+    ax_y = fig.add_subplot(top[1], sharex=ax_c)
+    ty, y, rel = _output_relative(result)
+    ty = ty - T0
+    ax_c.plot(fl.command.t - T0, fl.command.values, lw=0.6, color="0.25")
+    ax_y.plot(ty, y, lw=0.6, color="0.25")
+    colours = _group_colours(result)
+    _mark_tests(ax_c, ax_y, result, colours, T0)
     ax_c.set_ylabel("command [cmd units]")
     ax_y.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
     ax_y.set_xlabel(_time_label(result))
     ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - MRFT tests (shaded) and stable cycles (bars)",
                    pad=16)
-    # Output limits from the tests and the transient after each (the hold controller's return to the
-    # setpoint); take-off and landing would squash the oscillations otherwise.
     if result.tests:
-        amp = max(t.amplitude_mean for t in result.tests) * scale
-        after = {t.index: max(3.0, 3.0 / t.frequency_hz_mean) if t.n_stable else 3.0 for t in result.tests}
-        inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0 + after[t.index]) for t in result.tests]
-        lo = min(np.min(y[m]) for m in inside if m.any())
-        hi = max(np.max(y[m]) for m in inside if m.any())
-        pad = 0.6 * amp
-        ax_y.set_ylim(lo - pad, hi + pad)
+        _output_limits(ax_y, result, ty, y, scale, T0)
     plt.setp(ax_c.get_xticklabels(), visible=False)
-    for k, t in enumerate(result.tests[:n_zoom]):
-        ax = fig.add_subplot(zooms[0, k])
-        st = t.stable
-        mid = len(st) // 2
-        sel = st[max(mid - 1, 0): mid + 1]
-        # zoom axis: seconds from the log start, like the overview (offsets the reader can match)
-        t0, t1 = sel[0].t_start - 0.1 * sel[0].period - T0, sel[-1].t_end + 0.1 * sel[-1].period - T0
-        m = (ty >= t0) & (ty <= t1)
-        ax.plot(ty[m], y[m], ".", ms=2, color="0.45", label="measured")
-        for cyc in sel:
-            centre = cyc.centre * t.loop_sign * scale
-            ax.plot(cyc.t_max - T0, cyc.y_max * t.loop_sign * scale, "v", color=colours[t.index], ms=6)
-            ax.plot(cyc.t_min - T0, cyc.y_min * t.loop_sign * scale, "^", color=colours[t.index], ms=6)
-            for ts, ys in ((cyc.t_switch, cyc.y_switch_down), (cyc.t_end, cyc.y_switch_up)):
-                ax.axvline(ts - T0, color=colours[t.index], lw=0.8, ls="--")
-                ax.plot(ts - T0, ys * t.loop_sign * scale, "o", color=colours[t.index], ms=5, mfc="white")
-            ax.axhline(centre, color="0.6", lw=0.6)
-        ax.set_title(f"test {t.index + 1}: {t.frequency_hz_mean:.3f} Hz, a = {t.amplitude_mean * scale:.3g} {unit}",
-                     fontsize=9)
-        ax.set_xlim(t0, t1)
-        ax.xaxis.get_major_formatter().set_useOffset(False)
-        ax.set_xlabel("time from log start [s]")
-        if k == 0:
-            ax.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
-            ax.plot([], [], "v", color="0.3", label="fitted extrema")
-            ax.plot([], [], "o", color="0.3", mfc="white", label="output at switch")
-            ax.legend(loc="best", fontsize=7, framealpha=0.8)
+    if n_zoom:
+        zooms = outer[1].subgridspec(1, n_zoom)
+        for k, t in enumerate(result.tests[:n_zoom]):
+            _zoom(fig.add_subplot(zooms[0, k]), t, ty, y, colours[t.index], result, rel, T0, k == 0)
     return fig
 
 

@@ -14,6 +14,7 @@ red on the panel of the parameter that is off, and labelled with the log's folde
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib.dates as mdates
 import numpy as np
@@ -25,6 +26,55 @@ __all__ = ["write_fleet_report", "plot_loop"]
 
 #: (column prefix, axis label, scale to display units)
 _PARAMS = (("tau", "tau [ms]", 1e3), ("Td", "Td [s]", 1.0), ("K", "K", 1.0))
+
+
+def _draw_parameter(ax: Any, d: pd.DataFrame, xs: np.ndarray, by_time: bool, vehicles: list[str], names: list[str],
+                    param: tuple[str, str, float]) -> None:
+    """One parameter's panel: each vehicle's estimates with their std, changes and fleet outliers marked."""
+    name, label, scale = param
+    colours = plt.get_cmap("tab10" if len(vehicles) <= 10 else "tab20")
+    for i, v in enumerate(vehicles):
+        sel = (d["vehicle"].astype(str) == v).to_numpy()
+        y = d.loc[sel, f"{name}_mean"].to_numpy(float) * scale
+        e = d.loc[sel, f"{name}_std"].to_numpy(float) * scale
+        ax.errorbar(xs[sel], y, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-" if by_time else "o", ms=5,
+                    lw=1.2, capsize=3, color=colours(i % colours.N), label=v)
+    changed = d[f"{name}_changed"].astype(bool).to_numpy() if f"{name}_changed" in d else np.zeros(len(d), bool)
+    if changed.any():
+        y = d.loc[changed, f"{name}_mean"].to_numpy(float) * scale
+        ax.scatter(xs[changed], y, s=260, marker="s", facecolors="none", edgecolors="black", linewidths=1.5,
+                   label="changed vs own history", zorder=4)
+    flag = f"{name}_outlier"
+    out = d[flag].astype(bool).to_numpy() if flag in d else np.zeros(len(d), bool)
+    if out.any():
+        y = d.loc[out, f"{name}_mean"].to_numpy(float) * scale
+        ax.scatter(xs[out], y, s=180, facecolors="none", edgecolors="red", linewidths=2, label="fleet outlier",
+                   zorder=5)
+    for k in np.flatnonzero(out | changed):
+        yk = float(d.loc[k, f"{name}_mean"]) * scale
+        if np.isfinite(yk) and by_time:  # on the log-order axis the tick label names the log
+            right = k >= len(d) / 2  # label towards the middle so it stays inside
+            ax.annotate(names[k], (xs[k], yk), xytext=(-9 if right else 9, 6), textcoords="offset points",
+                        ha="right" if right else "left", fontsize=8, color="red" if out[k] else "black")
+    ax.margins(x=0.04, y=0.15)
+    ax.set_ylabel(label, fontsize=11)
+    ax.grid(True, alpha=0.3)
+
+
+def _log_order_axis(ax: Any, d: pd.DataFrame, xs: np.ndarray, names: list[str]) -> None:
+    """The x axis as the logs in time order, named; outliers in red."""
+    # folder and file on two lines; few logs stand upright, many are turned about their tick (so
+    # the layout measures them and the first one is not cut at the figure's left edge)
+    two_line = [n.replace("/", "/\n", 1) for n in names]
+    widest = max((len(line) for n in two_line for line in n.splitlines()), default=0)
+    if len(names) * widest <= 110:  # about the characters the axis holds side by side at this font size
+        ax.set_xticks(xs, two_line, fontsize=8)
+    else:
+        ax.set_xticks(xs, two_line, rotation=35, ha="right", rotation_mode="anchor", fontsize=8)
+    for tick, is_out in zip(ax.get_xticklabels(), d["outlier"].astype(bool)):
+        if is_out:
+            tick.set_color("red")
+    ax.set_xlabel(f"logs in time order\n({_time_label(d)}; too few distinct times for a time axis)", fontsize=10)
 
 
 def plot_loop(df: pd.DataFrame, loop: str, path: Path) -> Path:
@@ -39,36 +89,10 @@ def plot_loop(df: pd.DataFrame, loop: str, path: Path) -> Path:
     by_time = len(d) > 0 and bool(times.notna().all()) and times.nunique() > max(1, len(d) // 2)
     xs = times.to_numpy() if by_time else np.arange(len(d), dtype=float)
     vehicles = sorted(d["vehicle"].astype(str).unique())
-    colours = plt.get_cmap("tab10" if len(vehicles) <= 10 else "tab20")
     names = [f"{Path(p).parent.name}/{Path(p).name}" for p in d["path"].astype(str)]
     fig, axes = plt.subplots(3, 1, figsize=(10, 8.5 if by_time else 10), sharex=True, constrained_layout=True)
-    for ax, (name, label, scale) in zip(axes, _PARAMS):
-        for i, v in enumerate(vehicles):
-            sel = (d["vehicle"].astype(str) == v).to_numpy()
-            y = d.loc[sel, f"{name}_mean"].to_numpy(float) * scale
-            e = d.loc[sel, f"{name}_std"].to_numpy(float) * scale
-            ax.errorbar(xs[sel], y, yerr=np.where(np.isfinite(e), e, 0.0), fmt="o-" if by_time else "o", ms=5,
-                        lw=1.2, capsize=3, color=colours(i % colours.N), label=v)
-        changed = d[f"{name}_changed"].astype(bool).to_numpy() if f"{name}_changed" in d else np.zeros(len(d), bool)
-        if changed.any():
-            y = d.loc[changed, f"{name}_mean"].to_numpy(float) * scale
-            ax.scatter(xs[changed], y, s=260, marker="s", facecolors="none", edgecolors="black", linewidths=1.5,
-                       label="changed vs own history", zorder=4)
-        flag = f"{name}_outlier"
-        out = d[flag].astype(bool).to_numpy() if flag in d else np.zeros(len(d), bool)
-        if out.any():
-            y = d.loc[out, f"{name}_mean"].to_numpy(float) * scale
-            ax.scatter(xs[out], y, s=180, facecolors="none", edgecolors="red", linewidths=2, label="fleet outlier",
-                       zorder=5)
-        for k in np.flatnonzero(out | changed):
-            yk = float(d.loc[k, f"{name}_mean"]) * scale
-            if np.isfinite(yk) and by_time:  # on the log-order axis the tick label names the log
-                right = k >= len(d) / 2  # label towards the middle so it stays inside
-                ax.annotate(names[k], (xs[k], yk), xytext=(-9 if right else 9, 6), textcoords="offset points",
-                            ha="right" if right else "left", fontsize=8, color="red" if out[k] else "black")
-        ax.margins(x=0.04, y=0.15)
-        ax.set_ylabel(label, fontsize=11)
-        ax.grid(True, alpha=0.3)
+    for ax, param in zip(axes, _PARAMS):
+        _draw_parameter(ax, d, xs, by_time, vehicles, names, param)
     axes[0].set_title(f"{loop} loop: identified parameters per log (mean +/- std)", fontsize=12)
     if by_time:
         axes[-1].set_xlabel(_time_label(d), fontsize=11)
@@ -76,19 +100,7 @@ def plot_loop(df: pd.DataFrame, loop: str, path: Path) -> Path:
         axes[-1].xaxis.set_major_locator(locator)
         axes[-1].xaxis.set_major_formatter(mdates.ConciseDateFormatter(locator))
     else:
-        # folder and file on two lines; few logs stand upright, many are turned about their tick (so
-        # the layout measures them and the first one is not cut at the figure's left edge)
-        two_line = [n.replace("/", "/\n", 1) for n in names]
-        widest = max((len(line) for n in two_line for line in n.splitlines()), default=0)
-        if len(names) * widest <= 110:  # about the characters the axis holds side by side at this font size
-            axes[-1].set_xticks(xs, two_line, fontsize=8)
-        else:
-            axes[-1].set_xticks(xs, two_line, rotation=35, ha="right", rotation_mode="anchor", fontsize=8)
-        for tick, is_out in zip(axes[-1].get_xticklabels(), d["outlier"].astype(bool)):
-            if is_out:
-                tick.set_color("red")
-        axes[-1].set_xlabel(f"logs in time order\n({_time_label(d)}; too few distinct times for a time axis)",
-                            fontsize=10)
+        _log_order_axis(axes[-1], d, xs, names)
     legend: dict[str, object] = {}
     for ax in axes:  # vehicles, and "outlier" from whichever panel has one
         for handle, label in zip(*ax.get_legend_handles_labels()):

@@ -406,7 +406,7 @@ def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
 
 
 def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: float | None = None,
-                     n_points: int = 512) -> LimitCycle:
+                     n_points: int = 512, eps: float = 0.0) -> LimitCycle:
     """Exact MRFT limit cycle of a plant model; eq. (2) in closed form.
 
     A :class:`~mrftcli.mrft.model.LoopModel` (G(s) = K Td e^{-tau s}/(s (Tp s+1)(Td s+1)), paper
@@ -426,6 +426,8 @@ def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: fl
         decides at sample instants on sampled y and holds its output (see :func:`sampled_limit_cycle`).
     n_points : int
         Number of waveform samples over one period (continuous relay).
+    eps : float
+        Relay hysteresis [output units] (see :func:`lti_limit_cycle`); 0 for the MRFT.
 
     Returns
     -------
@@ -457,12 +459,13 @@ def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: fl
         raise InputError("K must be positive for a negative-feedback MRFT loop (invert the command sign)")
     if rate_hz is not None:
         # the centre of the sampled relay's band: the continuous cycle with half a sample more delay
-        centre = mrft_limit_cycle(model.with_parameters(tau=model.delay + 0.5 / rate_hz), beta, h, None, n_points)
+        centre = mrft_limit_cycle(model.with_parameters(tau=model.delay + 0.5 / rate_hz), beta, h, None, n_points,
+                                  eps=eps)
         ss = model.realisation()
-        return sampled_limit_cycle(ss.A, ss.B, ss.C, model.delay, beta, h, rate_hz, _centre=centre)
-    if not isinstance(model, LoopModel):
+        return sampled_limit_cycle(ss.A, ss.B, ss.C, model.delay, beta, h, rate_hz, _centre=centre, eps=eps)
+    if not isinstance(model, LoopModel) or eps != 0.0:
         ss = model.realisation()
-        return lti_limit_cycle(ss.A, ss.B, ss.C, model.delay, beta, h, None, n_points)
+        return lti_limit_cycle(ss.A, ss.B, ss.C, model.delay, beta, h, None, n_points, eps=eps)
     return _closed_form_cycle(model, beta, h, n_points)
 
 
@@ -549,8 +552,12 @@ class _StateSpaceCycle:
         y: FloatArray = self.spline(np.mod(t, 2 * self.P))
         return y
 
-    def condition(self, beta: float) -> tuple[float, float, float]:
-        """(u, a_y, t_min): ascending crossing instant of beta*a_y, amplitude and minimum instant."""
+    def condition(self, beta: float, offset: float = 0.0) -> tuple[float, float, float]:
+        """(u, a_y, t_min): ascending crossing instant of beta*a_y + offset, amplitude and minimum instant.
+
+        ``offset`` is a relay's hysteresis in this cycle's units (h = 1): the level a hysteresis relay
+        switches at does not scale with the amplitude.
+        """
         P = self.P
         sp = self.spline
         t4, y4 = sp.x, self.y4
@@ -563,7 +570,7 @@ class _StateSpaceCycle:
         else:
             t_min = float(t4[i])
         a = -float(sp(t_min))
-        level = beta * a
+        level = beta * a + offset
         j0 = int(np.searchsorted(t4, t_min))
         seg = y4[j0 : j0 + n2 // 2 + 2] - level
         k = int(np.argmax(seg >= 0))
@@ -588,7 +595,7 @@ def _as_state_space(A: ArrayLike, B: ArrayLike, C: ArrayLike) -> tuple[FloatArra
 
 
 def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: float, h: float = 1.0,
-                    rate_hz: float | None = None, n_points: int = 512) -> LimitCycle:
+                    rate_hz: float | None = None, n_points: int = 512, eps: float = 0.0) -> LimitCycle:
     """Exact MRFT limit cycle of x' = A x + B u(t - tau), y = C x (integrators allowed).
 
     The symmetric periodic state at the ``-h -> +h`` switch solves ``(I + Phi) x0 = -Gamma h`` with
@@ -604,6 +611,9 @@ def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: 
         Transport delay [s], >= 0.
     beta, h, rate_hz, n_points
         As in :func:`mrft_limit_cycle`.
+    eps : float
+        Hysteresis [output units]: the relay switches at ``beta a_y + eps`` (0 for the MRFT; beta = 0
+        and eps > 0 for a relay with hysteresis, both 0 for the ideal relay).
 
     Raises
     ------
@@ -618,11 +628,15 @@ def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: 
     if not math.isfinite(tau) or tau < 0:
         raise InputError(f"tau must be a non-negative time in seconds, got {tau}")
     if rate_hz is not None:
-        return sampled_limit_cycle(A, B, C, tau, beta, h, rate_hz)
+        return sampled_limit_cycle(A, B, C, tau, beta, h, rate_hz, eps=eps)
+    offset = float(eps) / h
 
     def g(logw: float) -> float:
         P = math.pi / math.exp(logw)
-        u, _, _ = _StateSpaceCycle(A, B, C, P).condition(beta)
+        try:
+            u, _, _ = _StateSpaceCycle(A, B, C, P).condition(beta, offset)
+        except InputError:  # the level is beyond the cycle: no switch at this frequency
+            return math.nan
         return (P - u) - tau
 
     ev = np.abs(np.linalg.eigvals(A))
@@ -641,7 +655,7 @@ def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: 
     w = math.exp(logw)
     P = math.pi / w
     cyc = _StateSpaceCycle(A, B, C, P)
-    _, a, _ = cyc.condition(beta)
+    _, a, _ = cyc.condition(beta, offset)
     t = np.linspace(0.0, 2 * P, n_points, endpoint=False)
     y = cyc.y(t - tau) * h
     return LimitCycle(omega=w, frequency_hz=w / _TWO_PI, period=2 * P, amplitude=abs(h) * a, beta=beta,
@@ -697,20 +711,20 @@ def _discrete_orbit(Phi: FloatArray, G1: FloatArray, G2: FloatArray, d: int, C: 
     return ys
 
 
-def _orbit_is_valid(ys: np.ndarray, beta: float) -> bool:
-    """Does the sampled MRFT rule (checks.md section 2) switch exactly at sample N, not before?"""
+def _orbit_is_valid(ys: np.ndarray, beta: float, eps: float = 0.0) -> bool:
+    """Does the sampled MRFT rule (checks.md section 2, level ``beta e_max + eps``) switch exactly at sample N?"""
     e = -ys
     e_max = e[0]
     N = ys.size - 1
     for k in range(1, N + 1):
         e_max = max(e_max, e[k])
-        if e_max > 0 and e[k] <= -beta * e_max:
+        if e_max > 0 and e[k] <= -beta * e_max - eps:
             return k == N
     return False
 
 
 def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: float, h: float,
-                        rate_hz: float, _centre: LimitCycle | None = None) -> LimitCycle:
+                        rate_hz: float, _centre: LimitCycle | None = None, eps: float = 0.0) -> LimitCycle:
     """Limit cycle of the MRFT run at ``rate_hz``: the switch is decided on sampled y, then held (ZOH).
 
     Switching can only happen at samples, so the sampled loop locks onto periodic orbits whose half
@@ -736,7 +750,7 @@ def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, be
     rate_hz = check_positive("rate_hz", rate_hz)
     A, B, C = _as_state_space(A, B, C)
     Ts = 1.0 / rate_hz
-    cont = _centre if _centre is not None else lti_limit_cycle(A, B, C, tau + 0.5 * Ts, beta, h, None)
+    cont = _centre if _centre is not None else lti_limit_cycle(A, B, C, tau + 0.5 * Ts, beta, h, None, eps=eps)
     P = cont.period / 2
     if P / Ts < 4:
         raise InputError(f"rate {rate_hz} Hz is too slow for a limit cycle near {cont.frequency_hz:.3g} Hz "
@@ -747,7 +761,7 @@ def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, be
 
     def check(N: int) -> bool:
         ys = _discrete_orbit(Phi, G1, G2, d, C, N, h)
-        if _orbit_is_valid(ys, beta):
+        if _orbit_is_valid(ys, beta, eps):
             found[N] = float(np.max(np.abs(ys)))
             return True
         return False

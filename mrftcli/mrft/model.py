@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping, Protocol, runtime_checkable
+from typing import Any, ClassVar, Iterable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,7 +36,8 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
-           "model_family", "model_from_json", "MODEL_SCHEMA_VERSION"]
+           "model_family", "model_from_json", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
+           "json_bounds"]
 
 _INF = math.inf
 #: version of the JSON form of a model (``to_json`` / ``from_json``)
@@ -320,13 +321,7 @@ class LoopModel:
         >>> LoopModel.from_json(d) == LoopModel(0.1, 0.7042, 0.06, 1.42)
         True
         """
-        def bound(x: float) -> float | None:
-            return x if math.isfinite(x) else None
-
-        return {"schema_version": MODEL_SCHEMA_VERSION, "family": self.family,
-                "parameters": {p.name: {"value": p.value, "unit": p.unit, "known": p.known,
-                                        "bounds": [bound(p.bounds[0]), bound(p.bounds[1])]}
-                               for p in self.parameters.values()}}
+        return model_json(self.family, self.parameters.values())
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> LoopModel:
@@ -337,7 +332,7 @@ class LoopModel:
         InputError
             Not a dict of this schema version and family, or a parameter missing or out of range.
         """
-        params = _checked_json(data, cls.family)
+        params = model_json_parameters(data, cls.family)
         values: dict[str, float] = {}
         known, ranges = set(), []
         for name, (_, _, physical) in _LOOP_PARAMETERS.items():
@@ -347,14 +342,25 @@ class LoopModel:
             values[name] = float(entry["value"])
             if entry.get("known"):
                 known.add(name)
-            lo, hi = _json_bounds(name, entry.get("bounds"))
+            lo, hi = json_bounds(name, entry.get("bounds"), physical)
             if (lo, hi) != physical:
                 ranges.append((name, lo, hi))
         return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=frozenset(known),
                    ranges=tuple(ranges))
 
 
-def _checked_json(data: Mapping[str, Any], family: str) -> Mapping[str, Any]:
+def model_json(family: str, parameters: Iterable[Parameter]) -> dict[str, Any]:
+    """The JSON form every family shares (infinite bounds written as null: JSON has no infinity)."""
+    def bound(x: float) -> float | None:
+        return x if math.isfinite(x) else None
+
+    return {"schema_version": MODEL_SCHEMA_VERSION, "family": family,
+            "parameters": {p.name: {"value": p.value, "unit": p.unit, "known": p.known,
+                                    "bounds": [bound(p.bounds[0]), bound(p.bounds[1])]}
+                           for p in parameters}}
+
+
+def model_json_parameters(data: Mapping[str, Any], family: str) -> Mapping[str, Any]:
     """The ``parameters`` of a model's JSON after checking its version and family."""
     if not isinstance(data, Mapping):
         raise InputError(f"model JSON must be an object, got {type(data).__name__}")
@@ -369,10 +375,10 @@ def _checked_json(data: Mapping[str, Any], family: str) -> Mapping[str, Any]:
     return params
 
 
-def _json_bounds(name: str, bounds: Any) -> tuple[float, float]:
-    """(low, high) from a JSON ``[low, high]`` with null for an infinite end."""
+def json_bounds(name: str, bounds: Any, physical: tuple[float, float]) -> tuple[float, float]:
+    """(low, high) from a JSON ``[low, high]`` with null for an infinite end (``physical`` when absent)."""
     if bounds is None:
-        return _LOOP_PARAMETERS[name][2]
+        return physical
     if not (isinstance(bounds, (list, tuple)) and len(bounds) == 2
             and all(b is None or isinstance(b, (int, float)) for b in bounds)):
         raise InputError(f"model JSON: bounds of {name!r} must be [low, high] (null for no bound)")
@@ -381,8 +387,11 @@ def _json_bounds(name: str, bounds: Any) -> tuple[float, float]:
     return lo, hi
 
 
-#: the plant structures by family name; the next structures register here
-MODEL_FAMILIES: dict[str, type[PlantModel]] = {"soiptd": LoopModel}
+# the process families (families.py) import this module's records, so they are registered last
+from .families import PROCESS_FAMILIES  # noqa: E402
+
+#: the plant structures by family name: eq. (2) and the process plants of :mod:`mrftcli.mrft.families`
+MODEL_FAMILIES: dict[str, type[PlantModel]] = {"soiptd": LoopModel, **PROCESS_FAMILIES}
 
 
 def model_family(name: str) -> type[PlantModel]:

@@ -1,0 +1,271 @@
+"""Process-plant structures beside eq. (2): FOPDT, SOPDT, IPDT, FOIPDT (Astrom-Hagglund's relay plants).
+
+Each family is a frozen dataclass implementing :class:`~mrftcli.mrft.model.PlantModel`, so every
+caller that takes a plant model (the exact limit cycle :func:`~mrftcli.mrft.lprs.mrft_limit_cycle`,
+the direct identification :mod:`mrftcli.mrft.identify_lti`) takes them unchanged. In every family
+the gain is ``K`` and the transport delay ``tau`` [s]; the JSON ``parameters`` are keyed by these
+names:
+
+========  ===========================================  ==========================
+family    G(s)                                         parameters
+========  ===========================================  ==========================
+fopdt     K e^{-tau s} / (T s + 1)                     K, T, tau
+sopdt     K e^{-tau s} / ((T1 s + 1)(T2 s + 1))        K, T1, T2, tau
+ipdt      K e^{-tau s} / s                             K, tau
+foipdt    K e^{-tau s} / (s (T s + 1))                 K, T, tau
+========  ===========================================  ==========================
+
+K is in output units per command unit (per second for the integrating families). By default no
+parameter is known (the paper's set E is empty) and the ranges (set I) are the physical ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import InputError
+from .model import Parameter, StateSpace, UnitNormalisation, json_bounds, model_json, model_json_parameters
+
+__all__ = ["FOPDT", "SOPDT", "IPDT", "FOIPDT", "PROCESS_FAMILIES"]
+
+_INF = math.inf
+_TIME = ("s", (0.0, _INF))
+
+
+class _Family:
+    """What the four families share: parameters, validation, JSON (subclasses are frozen dataclasses).
+
+    A subclass declares :attr:`_spec` (name -> unit, description, physical bounds; K and tau always
+    present), the number of integrators :attr:`_integrators`, and :meth:`_transfer` (numerator gain and
+    denominator time constants of the delay-free part).
+    """
+
+    family: ClassVar[str]
+    structure: ClassVar[str]
+    _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]]
+    _integrators: ClassVar[int]
+    known: frozenset[str]
+    ranges: tuple[tuple[str, float, float], ...]
+
+    def _check(self) -> None:
+        for name, (unit, _, _) in self._spec.items():
+            value = float(getattr(self, name))
+            if name == "K":
+                if not math.isfinite(value) or value == 0:
+                    raise InputError(f"K must be finite and non-zero, got {value!r}")
+            elif name == "tau":
+                if not math.isfinite(value) or value < 0:
+                    raise InputError(f"tau must be a non-negative time in seconds, got {value!r}")
+            elif not math.isfinite(value) or value <= 0:
+                raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
+        unknown = set(self.known).union(r[0] for r in self.ranges) - set(self._spec)
+        if unknown:
+            raise InputError(f"unknown parameter(s) {sorted(unknown)} of {self.family}; it has {list(self._spec)}")
+
+    @property
+    def parameters(self) -> dict[str, Parameter]:
+        """The named parameters as :class:`~mrftcli.mrft.model.Parameter` records."""
+        ranges = {name: (lo, hi) for name, lo, hi in self.ranges}
+        return {name: Parameter(name, unit, float(getattr(self, name)), name in self.known,
+                                ranges.get(name, bounds), description)
+                for name, (unit, description, bounds) in self._spec.items()}
+
+    @property
+    def delay(self) -> float:
+        """The transport delay tau [s]."""
+        return float(getattr(self, "tau"))
+
+    def with_parameters(self, **values: float) -> Any:
+        """A copy with some parameters replaced (validated as in the constructor)."""
+        bad = set(values) - set(self._spec)
+        if bad:
+            raise InputError(f"unknown parameter(s) {sorted(bad)} of {self.family}; it has {list(self._spec)}")
+        return dataclasses.replace(self, **{k: float(v) for k, v in values.items()})  # type: ignore[type-var]
+
+    def _time_constants(self) -> list[float]:
+        return [float(getattr(self, n)) for n in self._spec if n not in ("K", "tau")]
+
+    def frequency_response(self, omega: ArrayLike) -> NDArray[np.complex128]:
+        """G(j omega) including the delay; ``omega`` in rad/s."""
+        s = 1j * np.asarray(omega, dtype=float)
+        den = s ** self._integrators
+        for T in self._time_constants():
+            den = den * (T * s + 1)
+        response: NDArray[np.complex128] = float(getattr(self, "K")) * np.exp(-self.delay * s) / den
+        return response
+
+    def realisation(self) -> StateSpace:
+        """Delay-free realisation: a chain of first-order lags, then the integrator (if any); y = K x_last."""
+        lags = self._time_constants()
+        n = len(lags) + self._integrators
+        A = np.zeros((n, n))
+        B = np.zeros(n)
+        C = np.zeros(n)
+        for i, T in enumerate(lags):  # x_i' = (x_{i-1} - x_i) / T, x_{-1} = u
+            A[i, i] = -1.0 / T
+            if i > 0:
+                A[i, i - 1] = 1.0 / T
+            else:
+                B[0] = 1.0 / T
+        if self._integrators:
+            if lags:
+                A[n - 1, n - 2] = 1.0
+            else:
+                B[0] = 1.0
+        C[n - 1] = float(getattr(self, "K"))
+        return StateSpace(A, B, C, 0.0)
+
+    def unit_normalisation(self, omega: float) -> UnitNormalisation:
+        """Lemmas 1-4 for this structure: time constants times ``omega``, scale ``K / omega^integrators``."""
+        coords = {f"{n.lower()}_n": float(getattr(self, n)) * omega for n in self._spec if n not in ("K", "tau")}
+        return UnitNormalisation(omega=omega, coordinates=coords, theta=self.delay * omega,
+                                 amplitude_scale=float(getattr(self, "K")) / omega ** self._integrators)
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "family", "parameters": {name: {"value", "unit", "known", "bounds"}}}``."""
+        return model_json(self.family, self.parameters.values())
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Any:
+        """The model of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        params = model_json_parameters(data, cls.family)
+        values: dict[str, float] = {}
+        known: set[str] = set()
+        ranges = []
+        for name, (_, _, physical) in cls._spec.items():
+            entry = params.get(name)
+            if not isinstance(entry, Mapping) or not isinstance(entry.get("value"), (int, float)):
+                raise InputError(f"model JSON: parameter {name!r} needs a numeric 'value'")
+            values[name] = float(entry["value"])
+            if entry.get("known"):
+                known.add(name)
+            lo, hi = json_bounds(name, entry.get("bounds"), physical)
+            if (lo, hi) != physical:
+                ranges.append((name, lo, hi))
+        return cls(**values, known=frozenset(known), ranges=tuple(ranges))  # type: ignore[call-arg]
+
+
+_K = ("output / command", "static gain", (-_INF, _INF))
+_KI = ("output / (command s)", "integrating gain (output rate per command unit)", (-_INF, _INF))
+_TAU = ("s", "transport delay", (0.0, _INF))
+
+
+@dataclass(frozen=True)
+class FOPDT(_Family):
+    """First order plus dead time, G(s) = K e^{-tau s} / (T s + 1).
+
+    Examples
+    --------
+    >>> G = FOPDT(K=2.0, T=0.5, tau=0.1)
+    >>> round(abs(complex(G.frequency_response(2.0))), 4)
+    1.4142
+    >>> G.realisation().order, sorted(G.to_json()["parameters"])
+    (1, ['K', 'T', 'tau'])
+    """
+
+    family: ClassVar[str] = "fopdt"
+    structure: ClassVar[str] = "K e^{-tau s} / (T s + 1)"
+    _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]] = {
+        "K": _K, "T": ("s", "time constant", _TIME[1]), "tau": _TAU}
+    _integrators: ClassVar[int] = 0
+
+    K: float
+    T: float
+    tau: float
+    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
+    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._check()
+
+
+@dataclass(frozen=True)
+class SOPDT(_Family):
+    """Second order plus dead time, G(s) = K e^{-tau s} / ((T1 s + 1)(T2 s + 1)).
+
+    T1 and T2 are interchangeable in G; the identification reports them with T1 >= T2.
+
+    Examples
+    --------
+    >>> G = SOPDT(K=1.0, T1=1.0, T2=0.25, tau=0.1)
+    >>> round(abs(complex(G.frequency_response(1.0))), 4)
+    0.686
+    """
+
+    family: ClassVar[str] = "sopdt"
+    structure: ClassVar[str] = "K e^{-tau s} / ((T1 s + 1)(T2 s + 1))"
+    _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]] = {
+        "K": _K, "T1": ("s", "first time constant", _TIME[1]),
+        "T2": ("s", "second time constant", _TIME[1]), "tau": _TAU}
+    _integrators: ClassVar[int] = 0
+
+    K: float
+    T1: float
+    T2: float
+    tau: float
+    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
+    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._check()
+
+
+@dataclass(frozen=True)
+class IPDT(_Family):
+    """Integrator plus dead time, G(s) = K e^{-tau s} / s.
+
+    Examples
+    --------
+    >>> round(abs(complex(IPDT(K=3.0, tau=0.2).frequency_response(1.5))), 4)
+    2.0
+    """
+
+    family: ClassVar[str] = "ipdt"
+    structure: ClassVar[str] = "K e^{-tau s} / s"
+    _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]] = {"K": _KI, "tau": _TAU}
+    _integrators: ClassVar[int] = 1
+
+    K: float
+    tau: float
+    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
+    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._check()
+
+
+@dataclass(frozen=True)
+class FOIPDT(_Family):
+    """First order, integrator plus dead time, G(s) = K e^{-tau s} / (s (T s + 1)).
+
+    Examples
+    --------
+    >>> G = FOIPDT(K=1.0, T=1.0, tau=0.0)
+    >>> round(abs(complex(G.frequency_response(1.0))), 4)
+    0.7071
+    """
+
+    family: ClassVar[str] = "foipdt"
+    structure: ClassVar[str] = "K e^{-tau s} / (s (T s + 1))"
+    _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]] = {
+        "K": _KI, "T": ("s", "time constant", _TIME[1]), "tau": _TAU}
+    _integrators: ClassVar[int] = 1
+
+    K: float
+    T: float
+    tau: float
+    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
+    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        self._check()
+
+
+#: the process families by name (registered in :data:`mrftcli.mrft.model.MODEL_FAMILIES`)
+PROCESS_FAMILIES: dict[str, type[_Family]] = {c.family: c for c in (FOPDT, SOPDT, IPDT, FOIPDT)}

@@ -2,7 +2,8 @@
 
 from .closed_loop import Controller, StepMetrics, simulate_step, step_metrics, step_response
 from .design import DESIGNS, KINDS, OBJECTIVES, Design, Posterior, TuneResult, mrft_rule, tune
-from .margins import Margins, margins
+from .margins import LoopMargins, Margins, loop_margins, margins
 
 __all__ = ["Controller", "StepMetrics", "simulate_step", "step_metrics", "step_response", "DESIGNS", "KINDS",
-           "OBJECTIVES", "Design", "Posterior", "TuneResult", "mrft_rule", "tune", "Margins", "margins"]
+           "OBJECTIVES", "Design", "Posterior", "TuneResult", "mrft_rule", "tune", "LoopMargins", "Margins",
+           "loop_margins", "margins"]

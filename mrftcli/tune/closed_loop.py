@@ -37,7 +37,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plant_transfer", "plants_of_parameters", "STATE_MAX_DELAY", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses",
+__all__ = ["Controller", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plant_transfer", "plants_of_parameters", "STATE_MAX_DELAY", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses", "outputs",
            "step_metrics", "criterion", "simulate_step", "spectral_radius", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
@@ -541,7 +541,7 @@ def _half_turns(F: np.ndarray) -> np.ndarray:
 Steps = tuple[np.ndarray, np.ndarray, "np.ndarray | None", "np.ndarray | None"]
 
 
-def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float) -> Steps:
+def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float, command: bool = True) -> Steps:
     """Setpoint and load steps from the closed loop's z-transforms (exact to ~1e-12, see the constants).
 
     Y = Gd C_r S R, U = C_r S R with S = 1 / (1 + C_fb Gd) and R = z / (z - 1) (the unit step); the
@@ -550,7 +550,7 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float) 
     for a PD, 0 for a PID after a load step); each signal is inverted less its final value times the
     step, which decays, so that few points on the circle suffice. A loop with closed-loop poles outside
     the circle (1 + C_fb Gd winds around 0 on it) grows faster than the horizon allows: its rows are
-    NaN (diverged).
+    NaN (diverged). Without ``command`` the commands are not inverted (empty (M, 0) arrays).
     """
     z = sp.z
     T = controller.Ts
@@ -561,12 +561,13 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float) 
     S = 1.0 / F
     U = Cr * S * R
     y = _invert(sp.Gd * U - R, sp) + 1.0
-    u = _invert(U, sp)
+    u = _invert(U, sp) if command else np.empty((y.shape[0], 0))
     yl = ul = None
     if load:
         Yl = sp.Gl * S * (load * R)
         y_end = load / controller.Kp if controller.Ki == 0 else 0.0
-        yl, ul = _invert(Yl - y_end * R, sp) + y_end, _invert(-Cfb * Yl + load * R, sp) - load
+        yl = _invert(Yl - y_end * R, sp) + y_end
+        ul = _invert(-Cfb * Yl + load * R, sp) - load if command else np.empty((y.shape[0], 0))
     bad = _half_turns(F) != 0
     for arr in (y, u, yl, ul):
         if arr is not None:
@@ -626,6 +627,22 @@ def responses(models: Sequence[LoopModel | DiscretePlant], controller: Controlle
     if not load:
         return t, y, u, None, None
     return t, y, u, np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts])
+
+
+def outputs(models: Sequence[LoopModel | DiscretePlant], controller: Controller, t_end: float, load: float = 0.0,
+            spectrum: PlantSpectrum | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The outputs of :func:`responses` only: (t, y, y_load), the commands left out (a criterion needs no
+    more, and at long delays this saves half the inversions)."""
+    plants = as_discrete(models, controller.rate_hz)
+    N = _ticks(t_end, controller.rate_hz)
+    t = np.arange(N) / controller.rate_hz
+    if max((p.d for p in plants), default=0) <= STATE_MAX_DELAY:
+        y, _, yl, _ = _state_responses(plants, controller, N, load)
+        return t, y, yl
+    if spectrum is None or spectrum.n_ticks != N or spectrum.Gd.shape[0] != len(plants):
+        spectrum = _spectrum(plants, N)
+    y, _, yl, _ = _spectral_responses(spectrum, controller, load, command=False)
+    return t, y, yl
 
 
 def step_response(models, controller: Controller, t_end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

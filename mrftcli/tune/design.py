@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -39,7 +40,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from ..validate import check_positive
-from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, StepMetrics, as_discrete, criterion, discrete_plants, plant_spectrum, responses,
+from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, StepMetrics, as_discrete, criterion, discrete_plants, outputs, plant_spectrum, responses,
                           step_metrics)
 from .margins import LoopMargins, Margins, frequency_grid, loop_margins, plant_response
 
@@ -287,7 +288,7 @@ class _Evaluator:
     def criterion(self, c: Controller) -> float:
         if self.horizon not in self.spectra:  # the plants on the inversion circle, kept across controllers
             self.spectra[self.horizon] = plant_spectrum(self.models, self.horizon)
-        t, y, _, yl, _ = responses(self.models, c, self.horizon, self.load, self.spectra[self.horizon])
+        t, y, yl = outputs(self.models, c, self.horizon, self.load, self.spectra[self.horizon])
         J = criterion(t, y, self.objective)
         if yl is not None:  # a load step was asked for (self.load != 0)
             J = J + criterion(t, 1.0 - yl, self.objective)  # |1 - (1 - y)| = |y|: the load's deviation
@@ -460,30 +461,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         designs = tuple(d for d in designs if d != "robust")
         notes.append("no posterior (no draws or spreads given): the robust design is left out")
         posterior = None
-    rule_pd, cycle = mrft_rule(model, rate_hz, "PD")
-    horizons = {"PD": _HORIZON_PERIODS * cycle["T0"], "PID": _HORIZON_PERIODS_PID * cycle["T0"]}
-    if effort_max is None:
-        effort_max = rule_pd.noise_gain()
-    else:
-        effort_max = check_positive("--effort-max", effort_max)
-    omega = frequency_grid(rate_hz, 400)
-    # the posterior's draws discretised once: every design's figures and the robust criterion reuse them
-    post_plants = discrete_plants(posterior.models(), rate_hz) if posterior is not None else []
-    Gd_all = plant_response(post_plants, rate_hz, omega) if posterior is not None else None
-    in_set_mask = posterior.in_set() if posterior is not None else None
-    nominal = as_discrete([model], rate_hz)
-    nominal_ev = {k: _Evaluator(nominal, nominal, rate_hz, k, objective, horizons["PD"], ms_max, effort_max)
-                  for k in kinds}
-    robust_ev = {}
-    if posterior is not None and in_set_mask is not None and "robust" in designs:
-        rng = np.random.default_rng(0)
-        idx_all = np.arange(posterior.n)
-        idx = np.sort(rng.choice(idx_all, _OPT_DRAWS, replace=False)) if posterior.n > _OPT_DRAWS else idx_all
-        in_set = np.nonzero(in_set_mask)[0]
-        ms_idx = np.sort(rng.choice(in_set, _OPT_DRAWS, replace=False)) if in_set.size > _OPT_DRAWS else in_set
-        for k in kinds:
-            robust_ev[k] = _Evaluator([post_plants[i] for i in idx], [post_plants[i] for i in ms_idx], rate_hz, k,
-                                      objective, horizons["PD"], ms_max, effort_max)
+    st = _setting(model, rate_hz, posterior, objective, ms_max, effort_max, kinds, "robust" in designs)
     jobs = [(d, k) for d in designs for k in kinds]
     # PD before PID: a PID design starts from the PD design of the same name
     jobs.sort(key=lambda j: (DESIGNS.index(j[0]), KINDS.index(j[1])))
@@ -491,50 +469,113 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
     found: dict[tuple[str, str], Controller] = {}
     for i, (name, kind) in enumerate(jobs):
         report(progress, i, len(jobs), f"{name} {kind}")
-        horizon = horizons[kind]
-        load = 0.0
-        if name == "mrft-rule":
-            c = rule_pd if kind == "PD" else _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz)
-            load = rule_pd.Kp if kind == "PID" else 0.0
-        else:
-            ev = nominal_ev[kind] if name == "model-based" else robust_ev[kind]
-            if kind == "PD":
-                # the robust design starts from the model-based one (warm start) when there is one
-                c = _optimise(ev, found.get(("model-based", "PD"), rule_pd) if name == "robust" else rule_pd)
-            else:
-                pd = found.get((name, "PD"))
-                if pd is None:
-                    pd = _optimise(ev.with_kind("PD"), found.get(("model-based", "PD"), rule_pd))
-                load = pd.Kp
-                ev = ev.with_kind("PID", load=load, horizon=horizon)
-                warm = found.get(("model-based", "PID")) if name == "robust" else None
-                if warm is not None:  # the robust PID is near the model-based one: a short, local search
-                    c = _optimise(ev, warm, step=0.1, maxfev=60)
-                else:
-                    c = _optimise(ev, _pid_start(ev, pd))
-            if name == "robust" and Gd_all is not None and in_set_mask is not None:
-                # the optimisation's draws stood for the 95 % set: hold Ms on all of its draws
-                ev_all = ev.with_ms_models(Gd_all[in_set_mask], omega)
-                if ev_all.violation(c) > 0:
-                    c = _optimise(ev_all, c)
+        c, load = _design(name, kind, st, found)
         found[(name, kind)] = c
-        mg = loop_margins(c, [model], nominal)[0]
-        t, y, u, yl, _ = responses(nominal, c, horizon, load)
-        st = step_metrics(t, y[0], u[0])
-        J = getattr(st, objective)
-        load_fig = {}
-        if yl is not None:  # load != 0
-            load_fig = _load_figures(t, yl[0], load, objective)
-            J = J + load_fig[objective]
-        post: dict[str, Any] = {}
-        expected = math.nan
-        if posterior is not None:
-            post, expected, _ = _summaries(c, posterior, post_plants, objective, horizon, load)
-        cons = {"ms_max": ms_max, "effort_max": effort_max, "noise_gain": c.noise_gain(),
-                "feasible": bool(mg.Ms <= ms_max * (1 + 1e-3) and c.noise_gain() <= effort_max * (1 + 1e-9))}
-        if name == "robust" and post:
-            cons["feasible"] = bool(post["worst"]["Ms"] <= ms_max * (1 + 1e-3) and cons["noise_gain"] <= effort_max * (1 + 1e-9))
-        out.append(Design(name, c, objective, J, expected, mg, st, post, cons, load_fig, horizon))
+        out.append(_figures(name, c, load, st.horizons[kind], st))
     report(progress, len(jobs), len(jobs), "done")
-    return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, float(effort_max), horizons["PD"], cycle,
-                      tuple(out), tuple(notes))
+    return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, st.effort_max, st.horizons["PD"],
+                      st.cycle, tuple(out), tuple(notes))
+
+
+@dataclass(frozen=True, eq=False)
+class _Setting:
+    """What every design of one :func:`tune` call shares: the model, the rule, the posterior's plants."""
+
+    model: LoopModel
+    rate_hz: float
+    posterior: Posterior | None
+    objective: str
+    ms_max: float
+    effort_max: float
+    rule_pd: Controller
+    cycle: dict[str, float]
+    horizons: dict[str, float]
+    nominal: list[DiscretePlant]
+    post_plants: list[DiscretePlant]
+    omega: np.ndarray
+    Gd_all: np.ndarray | None
+    in_set_mask: np.ndarray | None
+    nominal_ev: dict[str, _Evaluator]
+    robust_ev: dict[str, _Evaluator]
+
+
+def _setting(model: LoopModel, rate_hz: float, posterior: Posterior | None, objective: str, ms_max: float,
+             effort_max: float | None, kinds: Sequence[str], robust: bool) -> _Setting:
+    """The MRFT rule and horizons, the noise-gain limit, the draws discretised once, the evaluators."""
+    rule_pd, cycle = mrft_rule(model, rate_hz, "PD")
+    horizons = {"PD": _HORIZON_PERIODS * cycle["T0"], "PID": _HORIZON_PERIODS_PID * cycle["T0"]}
+    effort = rule_pd.noise_gain() if effort_max is None else check_positive("--effort-max", effort_max)
+    omega = frequency_grid(rate_hz, 400)
+    # the posterior's draws discretised once: every design's figures and the robust criterion reuse them
+    post_plants = discrete_plants(posterior.models(), rate_hz) if posterior is not None else []
+    Gd_all = plant_response(post_plants, rate_hz, omega) if posterior is not None else None
+    in_set_mask = posterior.in_set() if posterior is not None else None
+    nominal = as_discrete([model], rate_hz)
+    nominal_ev = {k: _Evaluator(nominal, nominal, rate_hz, k, objective, horizons["PD"], ms_max, effort)
+                  for k in kinds}
+    robust_ev = {}
+    if posterior is not None and in_set_mask is not None and robust:
+        rng = np.random.default_rng(0)
+        idx_all = np.arange(posterior.n)
+        idx = np.sort(rng.choice(idx_all, _OPT_DRAWS, replace=False)) if posterior.n > _OPT_DRAWS else idx_all
+        in_set = np.nonzero(in_set_mask)[0]
+        ms_idx = np.sort(rng.choice(in_set, _OPT_DRAWS, replace=False)) if in_set.size > _OPT_DRAWS else in_set
+        for k in kinds:
+            robust_ev[k] = _Evaluator([post_plants[i] for i in idx], [post_plants[i] for i in ms_idx], rate_hz, k,
+                                      objective, horizons["PD"], ms_max, effort)
+    return _Setting(model, rate_hz, posterior, objective, ms_max, float(effort), rule_pd, cycle, horizons, nominal,
+                    post_plants, omega, Gd_all, in_set_mask, nominal_ev, robust_ev)
+
+
+def _design(name: str, kind: str, st: _Setting, found: dict[tuple[str, str], Controller]) -> tuple[Controller, float]:
+    """One design's controller and the size of its load step (0 for a PD); ``found``: the designs so far."""
+    rule_pd, rate_hz = st.rule_pd, st.rate_hz
+    if name == "mrft-rule":
+        if kind == "PD":
+            return rule_pd, 0.0
+        return _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz), rule_pd.Kp
+    ev = st.nominal_ev[kind] if name == "model-based" else st.robust_ev[kind]
+    load = 0.0
+    if kind == "PD":
+        # the robust design starts from the model-based one (warm start) when there is one
+        c = _optimise(ev, found.get(("model-based", "PD"), rule_pd) if name == "robust" else rule_pd)
+    else:
+        pd = found.get((name, "PD"))
+        if pd is None:
+            pd = _optimise(ev.with_kind("PD"), found.get(("model-based", "PD"), rule_pd))
+        load = pd.Kp
+        ev = ev.with_kind("PID", load=load, horizon=st.horizons[kind])
+        warm = found.get(("model-based", "PID")) if name == "robust" else None
+        if warm is not None:  # the robust PID is near the model-based one: a short, local search
+            c = _optimise(ev, warm, step=0.1, maxfev=60)
+        else:
+            c = _optimise(ev, _pid_start(ev, pd))
+    if name == "robust" and st.Gd_all is not None and st.in_set_mask is not None:
+        # the optimisation's draws stood for the 95 % set: hold Ms on all of its draws
+        ev_all = ev.with_ms_models(st.Gd_all[st.in_set_mask], st.omega)
+        if ev_all.violation(c) > 0:
+            c = _optimise(ev_all, c)
+    return c, load
+
+
+def _figures(name: str, c: Controller, load: float, horizon: float, st: _Setting) -> Design:
+    """A design's nominal margins and steps, its figures over the posterior, its constraints."""
+    objective, ms_max, effort_max = st.objective, st.ms_max, st.effort_max
+    mg = loop_margins(c, [st.model], st.nominal)[0]
+    t, y, u, yl, _ = responses(st.nominal, c, horizon, load)
+    step = step_metrics(t, y[0], u[0])
+    J = getattr(step, objective)
+    load_fig = {}
+    if yl is not None:  # load != 0
+        load_fig = _load_figures(t, yl[0], load, objective)
+        J = J + load_fig[objective]
+    post: dict[str, Any] = {}
+    expected = math.nan
+    if st.posterior is not None:
+        post, expected, _ = _summaries(c, st.posterior, st.post_plants, objective, horizon, load)
+    cons = {"ms_max": ms_max, "effort_max": effort_max, "noise_gain": c.noise_gain(),
+            "feasible": bool(mg.Ms <= ms_max * (1 + 1e-3) and c.noise_gain() <= effort_max * (1 + 1e-9))}
+    if name == "robust" and post:
+        cons["feasible"] = bool(post["worst"]["Ms"] <= ms_max * (1 + 1e-3)
+                                and cons["noise_gain"] <= effort_max * (1 + 1e-9))
+    return Design(name, c, objective, J, expected, mg, step, post, cons, load_fig, horizon)

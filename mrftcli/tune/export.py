@@ -19,9 +19,14 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
 from .closed_loop import Controller
+
+if TYPE_CHECKING:
+    from .design import TuneResult
 
 __all__ = ["generic", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
 
@@ -30,12 +35,12 @@ FORMATS = ("json", "table", "hear", "px4")
 HEAR_PID_ID = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4, "yaw": 5}
 
 
-def generic(c: Controller) -> dict:
+def generic(c: Controller) -> dict[str, Any]:
     """Kp, Ki, Kd, Tf [s] and rate_hz of a controller (parallel form, derivative on the measurement)."""
     return c.to_dict()
 
 
-def hear_json(c: Controller, loop: str) -> dict:
+def hear_json(c: Controller, loop: str) -> dict[str, Any]:
     """The HEAR ``PID_parameters`` JSON object of ``c`` for ``loop``.
 
     Examples
@@ -49,7 +54,8 @@ def hear_json(c: Controller, loop: str) -> dict:
                     "(HEAR's PID has no derivative filter of its own); anti_windup 0 = off"}
 
 
-def px4_conditions(c: Controller, loop: str, relay_heights=(), amplitudes=()) -> list[str]:
+def px4_conditions(c: Controller, loop: str, relay_heights: Sequence[float] = (),
+                   amplitudes: Sequence[float] = ()) -> list[str]:
     """Reasons the PX4 cascade mapping does not hold (empty list: it holds).
 
     ``relay_heights`` and ``amplitudes`` are the MRFT tests' h [command units] and output amplitudes
@@ -71,7 +77,8 @@ def px4_conditions(c: Controller, loop: str, relay_heights=(), amplitudes=()) ->
     return why
 
 
-def px4_params(c: Controller, loop: str, relay_heights=(), amplitudes=()) -> dict:
+def px4_params(c: Controller, loop: str, relay_heights: Sequence[float] = (),
+               amplitudes: Sequence[float] = ()) -> dict[str, Any]:
     """PX4 parameters ``MC_<AXIS>_P`` = Kp / Kd and ``MC_<AXIS>RATE_P`` = Kd, or InputError with the reasons."""
     why = px4_conditions(c, loop, relay_heights, amplitudes)
     if why:
@@ -86,7 +93,7 @@ def px4_params(c: Controller, loop: str, relay_heights=(), amplitudes=()) -> dic
             "conditions": "command = PX4 normalised torque setpoint, output in rad; attitude and rate loops at rate_hz"}
 
 
-def format_table(result) -> str:
+def format_table(result: "TuneResult") -> str:
     """The terminal table of a :class:`~mrftcli.tune.design.TuneResult`."""
     m = result.model
     lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
@@ -94,7 +101,8 @@ def format_table(result) -> str:
     lines.append(f"{'design':<12}{'kind':<5}{'Kp':>10}{'Ki':>10}{'Kd':>10}{'Tf [ms]':>8}{'GM':>7}{'PM[deg]':>8}"
                  f"{'DM[ms]':>8}{'Ms':>6}{'OS[%]':>7}{'rise[s]':>8}{'set[s]':>7}{'J':>8}"
                  f"  {'worst of 95 %: PM':>17}{'Ms':>6}{'OS[%]':>7}")
-    def f(x, fmt):
+
+    def f(x: float | None, fmt: str) -> str:
         return format(x, fmt) if x is not None and math.isfinite(x) else "-"
 
     for d in result.designs:

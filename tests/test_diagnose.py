@@ -13,8 +13,8 @@ import pytest
 
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
-from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, EffectFinding, Evidence, HeldOut,
-                                     PairFit)
+from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, Disagreement, EffectFinding,
+                                     Evidence, HeldOut, PairFit)
 from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -340,7 +340,13 @@ def _small_result() -> DiagnosisResult:
                                                     probe_delta_chi2=1.0, status="not fitted")],
                            second_effect_candidates=[PairFit("input_bias", "sensor_lag", "probed", parameter="d",
                                                              unit="cmd", probe_delta_chi2=2.0, status="not fitted")],
-                           located=[{"kind": "feature", "test": 0, "z": 9.5}],
+                           located=[Disagreement("feature", 0, -0.4, 0.1, 3.0, 20.0, feature="period", what="period",
+                                                 recorded=1.1, model=1.0, difference=0.1, z=9.5, relative=0.1, unit="s",
+                                                 t_start_rel=1.5, t_end_rel=18.5),
+                                    Disagreement("segment", 0, -0.4, 0.1, 3.0, 9.0, cycles=[0, 1], nrmse=0.1,
+                                                 typical_nrmse=0.02, worse_half="low (-h)",
+                                                 half_nrmse={"high": 0.05, "low": 0.15}, t_start_rel=1.5,
+                                                 t_end_rel=7.5)],
                            identification={"linear": {"Td": 2.0, "Tp": 0.0422}},
                            tests=[{"index": 0, "cycles": 24}], noise_std=5e-4, summary="sensor_lag explains it",
                            warnings=["one"], unexplained=None, t0=1.5)
@@ -365,6 +371,7 @@ def test_diagnosis_result_json_round_trip():
     ({"unexplained": []}, "'unexplained' must be a JSON object"),
     ({"candidates": [{"name": "x", "colour": "red"}]}, "candidate has unknown keys"),
     ({"second_effect_candidates": [{"name": "x"}]}, "pair has unknown keys"),
+    ({"located": [{"kind": "wiggle", "test": 0}]}, "unknown kind or keys"),
 ])
 def test_diagnosis_result_from_bad_json_is_one_line(change, match):
     data = {**_small_result().to_json(), **change}

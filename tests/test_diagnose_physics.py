@@ -195,8 +195,8 @@ def test_gain_drift_is_seen_inside_a_test(results):
     assert [e.name for e in res.effects][:1] == ["gain_drift"], res.summary
     assert res.effects[0].parameters["g"] == pytest.approx(-0.003, rel=0.25)
     # the within-test amplitude trend alone disagrees with the linear model in a single test
-    trends = [loc for loc in res.located if loc.get("feature") == "amplitude_trend"]
-    assert trends and abs(trends[0]["z"]) >= 3
+    trends = [loc for loc in res.located if loc.feature == "amplitude_trend"]
+    assert trends and abs(trends[0].z) >= 3
 
 
 def test_epoch_stamps_are_shown_from_the_log_start(logs):

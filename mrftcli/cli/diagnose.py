@@ -80,11 +80,11 @@ def format_summary(result: DiagnosisResult) -> str:
         u = result.unexplained
         lines.append(f"unexplained: {u['what']} (held-out chi^2 {u['held_out_feature_chi2']:.0f} over "
                      f"{u['held_out_features']} features, p = {u['p_value']:.2g})")
-    feats = [loc for loc in result.located if loc["kind"] == "feature"][:4]
+    feats = [loc for loc in result.located if loc.kind == "feature"][:4]
     if feats:
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")
         for loc in feats:
-            lines.append(f"  test {loc['test'] + 1} ({loc['t_start_rel']:.1f}-{loc['t_end_rel']:.1f} s): {loc['what']}, z = {loc['z']:+.1f}")
+            lines.append(f"  test {loc.test + 1} ({loc.t_start_rel:.1f}-{loc.t_end_rel:.1f} s): {loc.what}, z = {loc.z:+.1f}")
     return "\n".join(line.rstrip() for line in lines)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
@@ -17,7 +18,7 @@ from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
 from .jitter import scatter_z
-from .records import CandidateFit, CycleErrors, EffectFinding, FinalModel, HeldOut
+from .records import CandidateFit, CycleErrors, Disagreement, EffectFinding, FinalModel, HeldOut
 
 __all__ = ["UNEXPLAINED_P", "FEATURE_TEXT", "Located", "locate", "unexplained_mismatch"]
 
@@ -49,7 +50,7 @@ class Located:
 
     Attributes
     ----------
-    items : list of dict
+    items : list of Disagreement
         The disagreements, largest first: ``kind`` "feature" (z beyond 3), "harmonic" (G(j k Omega)
         off by more than 5 %) or "segment" (a run of cycles whose waveform error stands out); empty
         when no feature disagrees beyond the noise.
@@ -59,12 +60,12 @@ class Located:
         Per test, the relative error of G(j k Omega) per odd harmonic k.
     """
 
-    items: list[dict]
+    items: list[Disagreement]
     cycle_errors: list[CycleErrors]
     harmonics: list[dict]
 
 
-def _feature_items(t: DiagnosedTest, values: np.ndarray, fm: np.ndarray, z: np.ndarray) -> list[dict]:
+def _feature_items(t: DiagnosedTest, values: np.ndarray, fm: np.ndarray, z: np.ndarray) -> list[Disagreement]:
     """The features of test ``t`` beyond 3 standard errors, recorded (``values``) against model (``fm``)."""
     ia = FEATURE_NAMES.index("log_amplitude")
     out = []
@@ -72,7 +73,7 @@ def _feature_items(t: DiagnosedTest, values: np.ndarray, fm: np.ndarray, z: np.n
         if not feature_mask(t)[j] or abs(z[j]) < 3.0:
             continue
         rec, mod = float(values[j]), float(fm[j])
-        item = {
+        item: dict[str, Any] = {
             "kind": "feature",
             "test": t.index,
             "beta": float(np.mean(t.beta)),
@@ -102,23 +103,22 @@ def _feature_items(t: DiagnosedTest, values: np.ndarray, fm: np.ndarray, z: np.n
             P = float(values[0])
             item["half_periods_recorded"] = {"high": P * (0.5 + rec), "low": P * (0.5 - rec)}
             item["half_periods_model"] = {"high": P * (0.5 + mod), "low": P * (0.5 - mod)}
-        out.append(item)
+        out.append(Disagreement(**item))
     return out
 
 
-def _scatter_item(t: DiagnosedTest, sc: dict) -> dict | None:
+def _scatter_item(t: DiagnosedTest, sc: dict) -> Disagreement | None:
     """The period scatter of test ``t`` when it is beyond 3 standard errors of what noise explains."""
     zs = float(scatter_z([t], [sc], "all", [sc["v0"]])[0])
     if not abs(zs) >= 3.0:
         return None
     s_rec = math.sqrt(t.scatter_var("all")[0])
-    return {"kind": "feature", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
-            "t_start": t.t_start, "t_end": t.t_end, "feature": "period_scatter",
-            "what": FEATURE_TEXT["period_scatter"], "recorded": s_rec, "model": sc["s0"],
-            "difference": s_rec - sc["s0"], "z": zs}
+    return Disagreement("feature", t.index, float(np.mean(t.beta)), t.h, t.t_start, t.t_end, feature="period_scatter",
+                        what=FEATURE_TEXT["period_scatter"], recorded=s_rec, model=sc["s0"],
+                        difference=s_rec - sc["s0"], z=zs)
 
 
-def _harmonic_item(t: DiagnosedTest, harm: dict) -> dict | None:
+def _harmonic_item(t: DiagnosedTest, harm: dict) -> Disagreement | None:
     """The worse of the fundamental and the 3rd harmonic when its G(j k Omega) is off by more than 5 %
     (only these two are well above the noise at realistic amplitudes)."""
     strong = {k: v for k, v in harm.items() if k in ("1", "3")}
@@ -127,15 +127,14 @@ def _harmonic_item(t: DiagnosedTest, harm: dict) -> dict | None:
     kmax = max(strong, key=lambda k: strong[k])
     if not strong[kmax] > 0.05:
         return None
-    return {"kind": "harmonic", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
-            "t_start": t.t_start, "t_end": t.t_end, "harmonic": int(kmax),
-            "what": f"G(j{kmax}Omega) measured from harmonic {kmax} of output/command",
-            "relative_error": harm[kmax], "all": harm}
+    return Disagreement("harmonic", t.index, float(np.mean(t.beta)), t.h, t.t_start, t.t_end, harmonic=int(kmax),
+                        what=f"G(j{kmax}Omega) measured from harmonic {kmax} of output/command",
+                        relative_error=harm[kmax], all=harm)
 
 
-def _segment_items(tests: list[DiagnosedTest], cycle_errors: list[CycleErrors]) -> list[dict]:
+def _segment_items(tests: list[DiagnosedTest], cycle_errors: list[CycleErrors]) -> list[Disagreement]:
     """Runs of cycles whose waveform error stands out from the log's typical cycle."""
-    out: list[dict] = []
+    out: list[Disagreement] = []
     if not cycle_errors:
         return out
     med = float(np.nanmedian(np.concatenate([ce.nrmse for ce in cycle_errors])))
@@ -147,16 +146,22 @@ def _segment_items(tests: list[DiagnosedTest], cycle_errors: list[CycleErrors]) 
         for rr in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
             hi_err = float(np.nanmean(ce.hi[rr]))
             lo_err = float(np.nanmean(ce.lo[rr]))
-            out.append({
-                "kind": "segment", "test": t.index, "beta": float(np.mean(t.beta)), "h": t.h,
-                "t_start": float(ce.start[rr[0]]), "t_end": float(ce.end[rr[-1]]),
-                "cycles": [int(x) for x in rr],
-                "nrmse": float(np.nanmean(ce.nrmse[rr])),
-                "typical_nrmse": med,
-                "worse_half": "high (+h)" if hi_err > lo_err else "low (-h)",
-                "half_nrmse": {"high": hi_err, "low": lo_err},
-            })
+            out.append(Disagreement(
+                "segment", t.index, float(np.mean(t.beta)), t.h, float(ce.start[rr[0]]), float(ce.end[rr[-1]]),
+                cycles=[int(x) for x in rr],
+                nrmse=float(np.nanmean(ce.nrmse[rr])),
+                typical_nrmse=med,
+                worse_half="high (+h)" if hi_err > lo_err else "low (-h)",
+                half_nrmse={"high": hi_err, "low": lo_err},
+            ))
     return out
+
+
+def _rank(d: Disagreement) -> float:
+    """Features first, largest |z| first, then the harmonics, then the segments."""
+    if d.kind == "feature":
+        return -abs(d.z if d.z is not None else 0.0)
+    return 0 if d.kind == "harmonic" else 1
 
 
 def locate(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, recs_all: list, scatter: list[dict]) -> Located:
@@ -173,7 +178,7 @@ def locate(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, recs_all
     scatter : list of dict
         Per test, the noise-only period scatter (:func:`mrftcli.diagnose.jitter.scatter_reference`).
     """
-    items: list[dict] = []
+    items: list[Disagreement] = []
     ia = FEATURE_NAMES.index("log_amplitude")
     cycle_errors: list[CycleErrors] = []
     harmonics: list[dict] = []
@@ -198,17 +203,17 @@ def locate(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, recs_all
         if harmonic_item is not None:
             items.append(harmonic_item)
     # time segments only when some feature disagrees beyond the noise at all: otherwise they would flag noise
-    if any(d["kind"] == "feature" for d in items):
+    if any(d.kind == "feature" for d in items):
         items += _segment_items(tests, cycle_errors)
     else:
         items = []
-    items.sort(key=lambda d: -abs(d.get("z", 0.0)) if d["kind"] == "feature" else (0 if d["kind"] == "harmonic" else 1))
+    items.sort(key=_rank)
     return Located(items=items, cycle_errors=cycle_errors, harmonics=harmonics)
 
 
 def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: HeldOut, effects: list[EffectFinding],
                          final: FinalModel | None, cand_rows: list[CandidateFit], recs_all: list, scatter: list[dict],
-                         t0_log: float, base_located: list[dict]) -> dict | None:
+                         t0_log: float, base_located: list[Disagreement]) -> dict | None:
     """The mismatch no candidate (or pair) explains: where and how large, or None.
 
     Reported when the linear model is rejected on the fitting cycles *and* on the held-out ones
@@ -228,13 +233,13 @@ def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: HeldOut,
     model_name = "linear" if final is None else f"linear + {final.label}"
     # where: the base model's disagreements, or the chosen model's when an effect was modelled
     located = base_located if final is None else locate(tests, final.model, final.fit, recs_all, scatter).items
-    feats = [d for d in located if d["kind"] == "feature"]
-    segs = [d for d in located if d["kind"] == "segment"]
-    harms = [d for d in located if d["kind"] == "harmonic"]
+    feats = [d for d in located if d.kind == "feature"]
+    segs = [d for d in located if d.kind == "segment"]
+    harms = [d for d in located if d.kind == "harmonic"]
     worst = feats[0] if feats else None
     gains = [(r, r.delta_bic) for r in cand_rows if r.delta_bic is not None]
     tested = [(r, gain) for r, gain in sorted(gains, key=lambda rg: -rg[1])]
-    where_tests = sorted({d["test"] + 1 for d in feats})
+    where_tests = sorted({d.test + 1 for d in feats})
     out = {
         "after": model_name,
         "what": ("the linear model is rejected, and no candidate effect (or pair) of the library explains the "
@@ -246,19 +251,19 @@ def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: HeldOut,
         "held_out_nrmse_raw": held.nrmse_raw,
         "tests": where_tests,
         "largest": None if worst is None else {
-            "test": worst["test"] + 1, "feature": worst["feature"], "what": worst["what"], "z": worst["z"],
-            "recorded": worst["recorded"], "model": worst["model"]},
-        "segments": [{"test": d["test"] + 1, "t_start_rel": d["t_start"] - t0_log, "t_end_rel": d["t_end"] - t0_log,
-                      "cycles": [c + 1 for c in d["cycles"]], "nrmse": d["nrmse"], "worse_half": d["worse_half"]}
+            "test": worst.test + 1, "feature": worst.feature, "what": worst.what, "z": worst.z,
+            "recorded": worst.recorded, "model": worst.model},
+        "segments": [{"test": d.test + 1, "t_start_rel": d.t_start - t0_log, "t_end_rel": d.t_end - t0_log,
+                      "cycles": [c + 1 for c in d.cycles or []], "nrmse": d.nrmse, "worse_half": d.worse_half}
                      for d in segs[:5]],
-        "harmonics": [{"test": d["test"] + 1, "harmonic": d["harmonic"], "relative_error": d["relative_error"]}
+        "harmonics": [{"test": d.test + 1, "harmonic": d.harmonic, "relative_error": d.relative_error}
                       for d in harms[:5]],
         "best_candidate": None if not tested else {"name": tested[0][0].name, "delta_bic": tested[0][1],
                                                    "significant": bool(tested[0][0].significant)},
     }
     half = None
     if segs:
-        halves = [d["worse_half"] for d in segs]
+        halves = [d.worse_half for d in segs]
         half = max(set(halves), key=halves.count)
     out["worse_half"] = half
     return out

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from ..io.logtypes import FlightLog
     from .fit import CandidateModel, DiagnosedTest, Fit
 
-__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "EffectFinding",
+__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement", "EffectFinding",
            "FinalModel", "CycleErrors", "DiagnosisFigures", "DiagnosisResult"]
 
 #: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away)
@@ -49,7 +49,7 @@ class EffectFinding:
     ----------
     name, explanation, augmentation : str
         The candidate (:mod:`mrftcli.diagnose.physics`), what it means, how it augments the model.
-    parameters : dict[str, Any]
+    parameters : dict
         Its parameter's value and standard error (the candidate's units), and the plant's fitted with
         it; with a second effect, the value fitted alone too (``<parameter>_alone``).
     evidence : Evidence
@@ -57,9 +57,9 @@ class EffectFinding:
     fit_before, fit_after : HeldOut
         The held-out scores of the model it is compared with and of the model with it (the JSON keeps
         :meth:`HeldOut.summary`).
-    identification : dict[str, Any]
+    identification : dict
         ``linear`` and ``with_effect`` plant parameters (and ``model`` for a pair).
-    harmonics : dict[str, Any]
+    harmonics : dict
         Per test index, the relative errors of G(j k Omega) before and after.
     """
 
@@ -151,7 +151,7 @@ class HeldOut:
         error of the predicted period scatter).
     nrmse_raw, nrmse_timed, scatter_nrmse : float or None
         The NRMSE with that scatter kept; with the model's own period too; the scatter's share.
-    nrmse_per_test, nrmse_raw_per_test : list[Any] of float or None
+    nrmse_per_test, nrmse_raw_per_test : list of float or None
         ``nrmse`` and ``nrmse_raw`` per test.
     feature_rms_z, feature_chi2, feature_max_abs_z : float or None
         The held-out features' RMS z, chi^2 and largest |z| (z = difference / standard error).
@@ -242,7 +242,7 @@ class CandidateFit:
         The fit's chi^2 and BIC, and BIC(linear) - BIC(this); None when not fitted.
     held_out_before, held_out_after : HeldOut or None
         The held-out scores of the linear model and of the model with the effect.
-    fit_params : dict[str, Any] or None
+    fit_params : dict or None
         The plant's parameters fitted with it.
     probe_delta_chi2 : float or None
         The chi^2 its probe gained (the fitting order).
@@ -321,13 +321,13 @@ class PairFit:
         ``"fitted"``, or ``"probed"`` (not fitted: its probe gained less than the minimum).
     parameter, unit : str
         The added effect's parameter and its unit.
-    values, stds : dict[str, Any]
+    values, stds : dict
         Both effects' values and standard errors from the joint fit (empty when probed).
     chi2, bic, delta_bic : float or None
         The joint fit's chi^2 and BIC, and BIC(first alone) - BIC(pair).
     held_out_before, held_out_after : HeldOut or None
         The held-out scores of the first alone and of the pair.
-    fit_params : dict[str, Any] or None
+    fit_params : dict or None
         The plant's parameters fitted with both.
     probe_delta_chi2 : float or None
         The probe's chi^2 gain (probed rows).
@@ -399,7 +399,7 @@ class Evidence:
         The model it beats (``"linear"`` or ``"linear + <first effect>"``).
     bic_base : float
         That model's BIC.
-    indistinguishable_from : list[Any] of str or None
+    indistinguishable_from : list of str or None
         Models within the tie margin that pass the same rules (None: none).
     """
 
@@ -425,6 +425,98 @@ class Evidence:
         return cls(delta_bic=float(data["delta_bic"]), bic=float(data["bic"]), n_features=int(data["n_features"]),
                    threshold=float(data["threshold"]), compared_with=str(data["compared_with"]),
                    bic_base=float(data["bic_base"]), indistinguishable_from=None if ties is None else list(ties))
+
+
+#: the keys of a located disagreement's JSON, per kind (in this order; the optional ones only when set)
+_DISAGREEMENT_KEYS = {
+    "feature": ("kind", "test", "beta", "h", "t_start", "t_end", "feature", "what", "recorded", "model", "difference",
+                "z", "relative", "unit", "half_periods_recorded", "half_periods_model", "t_start_rel", "t_end_rel"),
+    "harmonic": ("kind", "test", "beta", "h", "t_start", "t_end", "harmonic", "what", "relative_error", "all",
+                 "t_start_rel", "t_end_rel"),
+    "segment": ("kind", "test", "beta", "h", "t_start", "t_end", "cycles", "nrmse", "typical_nrmse", "worse_half",
+                "half_nrmse", "t_start_rel", "t_end_rel"),
+}
+_DISAGREEMENT_OPTIONAL = frozenset({"relative", "unit", "half_periods_recorded", "half_periods_model", "t_start_rel",
+                                    "t_end_rel"})
+
+
+@dataclass(frozen=True)
+class Disagreement:
+    """Where a model and the recording disagree (:func:`mrftcli.diagnose.locate.locate`).
+
+    Attributes
+    ----------
+    kind : str
+        ``"feature"`` (a feature beyond 3 standard errors), ``"harmonic"`` (G(j k Omega) off by more
+        than 5 %) or ``"segment"`` (a run of cycles whose waveform error stands out).
+    test : int
+        The test's index (from 0).
+    beta, h : float
+        Its mean effective beta and relay height [command units].
+    t_start, t_end : float
+        Where [s] (log times); ``t_start_rel``, ``t_end_rel`` the same from the log start.
+    feature, what : str or None
+        The feature (:data:`mrftcli.diagnose.features.FEATURE_NAMES`, or ``period_scatter``) and what
+        it is in words (a harmonic's: which G(j k Omega)).
+    recorded, model, difference, z : float or None
+        A feature's recorded and model values (amplitude and period in output units and s), their
+        difference and z (difference / standard error).
+    relative, unit : float or str or None
+        The relative difference (amplitude, period) and the values' unit, where they have one.
+    half_periods_recorded, half_periods_model : dict or None
+        The balance's high and low half periods [s].
+    harmonic, relative_error, all : int, float, dict or None
+        A harmonic's order k, its relative error, and every odd harmonic's.
+    cycles, nrmse, typical_nrmse, worse_half, half_nrmse
+        A segment's cycles (from 0), waveform NRMSE, the log's typical cycle NRMSE, the worse half
+        (``"high (+h)"`` or ``"low (-h)"``) and each half's NRMSE.
+    """
+
+    kind: str
+    test: int
+    beta: float
+    h: float
+    t_start: float
+    t_end: float
+    feature: str | None = None
+    what: str | None = None
+    recorded: float | None = None
+    model: float | None = None
+    difference: float | None = None
+    z: float | None = None
+    relative: float | None = None
+    unit: str | None = None
+    half_periods_recorded: dict[str, float] | None = None
+    half_periods_model: dict[str, float] | None = None
+    harmonic: int | None = None
+    relative_error: float | None = None
+    all: dict[str, float] | None = None
+    cycles: list[int] | None = None
+    nrmse: float | None = None
+    typical_nrmse: float | None = None
+    worse_half: str | None = None
+    half_nrmse: dict[str, float] | None = None
+    t_start_rel: float | None = None
+    t_end_rel: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON item (``located`` of the result)."""
+        out = {}
+        for k in _DISAGREEMENT_KEYS[self.kind]:
+            v = getattr(self, k)
+            if v is None and k in _DISAGREEMENT_OPTIONAL:
+                continue
+            out[k] = v
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Disagreement:
+        """The disagreement of a :meth:`to_dict` item."""
+        data = _dict(data, "located")
+        keys = _DISAGREEMENT_KEYS.get(str(data.get("kind")))
+        if keys is None or not set(data) <= set(keys):
+            raise InputError(f"a located disagreement has unknown kind or keys {sorted(data)}")
+        return cls(**{k: data[k] for k in keys if k in data})
 
 
 @dataclass(frozen=True)
@@ -469,19 +561,19 @@ class DiagnosisFigures:
     ----------
     flight : FlightLog
         The log's signals.
-    tests : list[Any] of DiagnosedTest
+    tests : list of DiagnosedTest
         The tests diagnosed, with their cycles and the fitting/held-out split.
     base_model, base : CandidateModel, Fit
         The linear model and its fit.
-    fits : dict[str, Any]
+    fits : dict
         Each candidate fitted alone: name -> (model, fit).
-    effects : list[Any] of str
+    effects : list of str
         The effects found (names).
     final : FinalModel or None
         The deterministic model finally chosen (None when nothing was found).
-    cycle_errors : list[Any] of CycleErrors
+    cycle_errors : list of CycleErrors
         Per test, the linear model's waveform error per cycle.
-    harmonics : list[Any] of dict
+    harmonics : list of dict
         Per test, the linear model's relative error of G(j k Omega) per odd harmonic ("1", "3", ...).
     """
 
@@ -516,28 +608,28 @@ class DiagnosisResult:
         The log and loop.
     Tp : float
         The propulsion time constant used [s].
-    effects : list[Any] of EffectFinding
+    effects : list of EffectFinding
         Effects the evidence supports (empty when the linear model explains the log).
-    candidates : list[Any] of CandidateFit
+    candidates : list of CandidateFit
         Every candidate's evidence and held-out scores (including the rejected ones).
-    second_effect_candidates : list[Any] of PairFit
+    second_effect_candidates : list of PairFit
         When an effect was found: every other candidate fitted together with it (``with``), with its
         evidence and held-out scores against that effect's model (a second effect is reported when it
         passes the same rules). When the first effect already explains the held-out cycles, a
         candidate whose probe (``probe_delta_chi2``) is too small is listed with ``delta_bic`` None
         and a ``status``.
-    located : list[Any] of dict
+    located : list of Disagreement
         Where the base model disagrees with the recording, largest first.
-    identification : dict[str, Any]
+    identification : dict
         The base (linear) fit and, per found effect, the refit that accounts for it; the analysis'
         own identification when one was given.
-    tests : list[Any] of dict
+    tests : list of dict
         Per test: beta (nominal, effective up/down), h, bias, cycles used, times.
     noise_std : float
         Sensor noise estimated from the residual of the cycle projections [output units].
     summary : str
         One sentence.
-    unexplained : dict[str, Any] or None
+    unexplained : dict or None
         The mismatch that no candidate (or pair) explains, when the linear model is rejected on the
         fitting and the held-out cycles and the model finally chosen still is on the held-out ones
         (chi^2 p-value below ``UNEXPLAINED_P``): ``what``, ``after`` (the model it remains after),
@@ -560,7 +652,7 @@ class DiagnosisResult:
     Tp: float
     effects: list[EffectFinding]
     candidates: list[CandidateFit]
-    located: list[dict[str, Any]]
+    located: list[Disagreement]
     identification: dict[str, Any]
     tests: list[dict[str, Any]]
     noise_std: float
@@ -580,7 +672,7 @@ class DiagnosisResult:
             "Tp": self.Tp,
             "summary": self.summary,
             "effects": [e.to_dict() for e in self.effects],
-            "located": self.located,
+            "located": [d.to_dict() for d in self.located],
             "identification": self.identification,
             "candidates": [c.to_dict() for c in self.candidates],
             "second_effect_candidates": [c.to_dict() for c in self.second_effect_candidates],
@@ -617,7 +709,7 @@ class DiagnosisResult:
                 path=str(data["path"]), loop=str(data["loop"]), Tp=float(data["Tp"]),
                 effects=[EffectFinding.from_dict(e) for e in _list(data["effects"], "effects")],
                 candidates=[CandidateFit.from_dict(c) for c in _list(data["candidates"], "candidates")],
-                located=_list(data["located"], "located"),
+                located=[Disagreement.from_dict(d) for d in _list(data["located"], "located")],
                 identification=_dict(data["identification"], "identification"),
                 tests=_list(data["tests"], "tests"), noise_std=float(data["noise_std"]),
                 summary=str(data["summary"]), warnings=[str(w) for w in _list(data["warnings"], "warnings")],

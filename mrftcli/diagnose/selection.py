@@ -191,12 +191,11 @@ def diagnose(
         effects += [jitter.finding] if jitter.finding is not None else []
     say("locating")
     located = locate(screen.tests, linear.model, linear.fit, screen.recs_all, linear.scatter)
-    for d in located.items:
-        d["t_start_rel"], d["t_end_rel"] = d["t_start"] - screen.t0, d["t_end"] - screen.t0
+    items = [replace(d, t_start_rel=d.t_start - screen.t0, t_end_rel=d.t_end - screen.t0) for d in located.items]
     unexplained = None
     if linear.rejected:
         unexplained = unexplained_mismatch(screen.tests, linear.fit, linear.held_out, effects, chosen.final,
-                                           cand_rows, screen.recs_all, linear.scatter, screen.t0, located.items)
+                                           cand_rows, screen.recs_all, linear.scatter, screen.t0, items)
     warnings = screen.warnings + chosen.warnings
     identification = _identification(flight, Tp, screen, linear, effects, analysis, warnings)
     figures = DiagnosisFigures(flight=flight, tests=screen.tests, base_model=linear.model, base=linear.fit,
@@ -209,7 +208,7 @@ def diagnose(
         Tp=float(Tp),
         effects=effects,
         candidates=cand_rows,
-        located=located.items,
+        located=items,
         identification=identification,
         tests=_test_rows(screen, linear),
         noise_std=screen.noise,

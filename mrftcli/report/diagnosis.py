@@ -57,10 +57,10 @@ def plot_located(result):
         ax.axvspan(test.t_start - t0, test.t_end - t0, color=c, alpha=0.10)
         ax.text(test.t_start - t0, 1.0, f" test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}",
                 transform=ax.get_xaxis_transform(), va="top", fontsize=8, color=c)
-    segs = [loc for loc in result.located if loc["kind"] == "segment"]
+    segs = [loc for loc in result.located if loc.kind == "segment"]
     for k, loc in enumerate(segs):
         for a in (ax, ax2):
-            a.axvspan(loc["t_start"] - t0, loc["t_end"] - t0, color="red", alpha=0.18, lw=0,
+            a.axvspan(loc.t_start - t0, loc.t_end - t0, color="red", alpha=0.18, lw=0,
                       label="located segment" if (k == 0 and a is ax) else None)
     ax.set_ylabel(f"output [{unit}]")
     ax.set_title("Where the linear model disagrees with the recording")
@@ -70,9 +70,9 @@ def plot_located(result):
         ax2.plot(ce.t - t0, 100 * ce.nrmse, "o-", color=c, ms=3, lw=1)
     ax2.set_ylabel("cycle NRMSE [%]\n(linear model)")
     ax2.set_xlabel("time from the log start [s]")
-    feats = [loc for loc in result.located if loc["kind"] == "feature"][:2]
+    feats = [loc for loc in result.located if loc.kind == "feature"][:2]
     if feats:
-        txt = "largest: " + "; ".join(f"test {f['test'] + 1} {f['what']} (z = {f['z']:+.1f})" for f in feats)
+        txt = "largest: " + "; ".join(f"test {f.test + 1} {f.what} (z = {f.z:+.1f})" for f in feats)
         ax2.set_title(txt, fontsize=9)
     return fig
 
@@ -278,15 +278,15 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     body.append("<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>")
     loc_rows = []
     for loc in result.located[:12]:
-        span = f"{loc['t_start'] - t0:.1f}-{loc['t_end'] - t0:.1f}"
-        if loc["kind"] == "feature":
-            loc_rows.append((loc["test"] + 1, span, loc["what"], f"z = {loc['z']:+.1f} standard errors"))
-        elif loc["kind"] == "harmonic":
-            loc_rows.append((loc["test"] + 1, span, loc["what"], f"{100 * loc['relative_error']:.1f} %"))
+        span = f"{loc.t_start - t0:.1f}-{loc.t_end - t0:.1f}"
+        if loc.kind == "feature":
+            loc_rows.append((loc.test + 1, span, loc.what, f"z = {loc.z:+.1f} standard errors"))
+        elif loc.kind == "harmonic":
+            loc_rows.append((loc.test + 1, span, loc.what, f"{100 * (loc.relative_error or 0.0):.1f} %"))
         else:
-            cyc = ", ".join(str(c + 1) for c in loc["cycles"])
-            loc_rows.append((loc["test"] + 1, span, f"cycles {cyc}, worse half: {loc['worse_half']}",
-                             f"NRMSE {100 * loc['nrmse']:.1f} %"))
+            cyc = ", ".join(str(c + 1) for c in loc.cycles or [])
+            loc_rows.append((loc.test + 1, span, f"cycles {cyc}, worse half: {loc.worse_half}",
+                             f"NRMSE {100 * (loc.nrmse or 0.0):.1f} %"))
     if loc_rows:
         body.append("<div class='left3'>" + html_table(["test", "time from the log start [s]", "what", "by how much"],
                                                       loc_rows) + "</div>")

@@ -383,10 +383,9 @@ def test_stability_and_delay_margin_agree_with_the_closed_loop_eigenvalues():
 def test_long_delay_responses_match_event_simulation(ctrl):
     # 90.2 ticks of delay: the responses come from the z-transform inversion; the event-driven
     # continuous-time simulation is the independent check (setpoint and load steps)
-    from mrftcli.tune.closed_loop import STATE_MAX_DELAY, responses
+    from mrftcli.tune.closed_loop import responses
 
     model = LoopModel(0.0422, 1.301, 0.451, 30.0)
-    assert model.tau * 200 > STATE_MAX_DELAY
     c = _gains_for(model, 200.0)
     c = Controller(c.Kp, c.Kp * 0.05 if ctrl.Ki else 0.0, c.Kd, c.Tf, 200.0)
     t, y, u, yl, _ = responses([model], c, 30.0, load=0.2)
@@ -412,3 +411,22 @@ def test_nominal_margins_are_one_of_the_posteriors_figures():
         draws = getattr(allm, name)[1:]
         assert draws.min() <= getattr(d.margins, name) <= draws.max(), name
     assert d.posterior["worst"]["phase_margin_deg"] == pytest.approx(np.min(allm.phase_margin_deg[1:][post.in_set()]))
+
+
+@pytest.mark.parametrize("ctrl", [PD, PID])
+def test_z_transform_route_matches_the_state_matrices(ctrl):
+    # the two routes of responses() on the posterior-like set of short delays (0 to 10 ticks), setpoint
+    # and load steps, outputs and commands; and outputs() is responses() without the commands
+    from mrftcli.tune.closed_loop import outputs, responses
+
+    rng = np.random.default_rng(4)
+    models = [LoopModel(0.0422, float(np.exp(rng.normal(0.2, 0.3))), float(rng.uniform(0.0, 0.05)), 30.0)
+              for _ in range(5)]
+    a = responses(models, ctrl, 4.0, load=0.2, method="state")
+    b = responses(models, ctrl, 4.0, load=0.2)
+    for x, y in zip(a[1:], b[1:]):
+        assert np.max(np.abs(x - y)) < 1e-9
+    t, y, yl = outputs(models, ctrl, 4.0, load=0.2)
+    assert np.array_equal(y, b[1]) and np.array_equal(yl, b[3])
+    with pytest.raises(InputError, match="method"):
+        responses(models, ctrl, 1.0, method="euler")

@@ -266,7 +266,7 @@ class _Evaluator:
         self.horizon, self.ms_max, self.effort_max, self.load = horizon, ms_max, effort_max, load
         self.omega = frequency_grid(rate_hz, 400)
         self.Gd = plant_response(list(ms_plants), rate_hz, self.omega)
-        self.spectra: dict[float, PlantSpectrum | None] = {}
+        self.spectra: dict[float, PlantSpectrum] = {}
 
     def _copy(self, **changes) -> "_Evaluator":
         new = object.__new__(_Evaluator)

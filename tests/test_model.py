@@ -36,6 +36,7 @@ def test_loop_model_is_a_plant_model_with_named_parameters():
     assert [q.known for q in p.values()] == [True, False, False, False]  # the paper's set E: Tp
     assert PAPER.delay == 0.06
     assert MODEL_FAMILIES["soiptd"] is LoopModel and model_family("soiptd") is LoopModel
+    assert all(isinstance(name, str) and hasattr(cls, "realisation") for name, cls in MODEL_FAMILIES.items())
 
 
 def test_ranges_are_the_bounds_of_the_unknown_parameters():
@@ -158,7 +159,7 @@ def test_json_round_trip():
     [
         (lambda d: d.update(schema_version=2), r"schema_version 2 is not supported \(expected 1\)"),
         (lambda d: d.pop("schema_version"), "schema_version None is not supported"),
-        (lambda d: d.update(family="fopdt"), "unknown model family 'fopdt'; known: soiptd"),
+        (lambda d: d.update(family="pidtd"), "unknown model family 'pidtd'; known: .*soiptd"),
         (lambda d: d.pop("parameters"), "needs a 'parameters' object"),
         (lambda d: d["parameters"].pop("Td"), "parameter 'Td' needs a numeric 'value'"),
         (lambda d: d["parameters"]["tau"].update(value="x"), "parameter 'tau' needs a numeric 'value'"),

@@ -39,7 +39,8 @@ def test_top_level_help_lists_every_command():
     [
         (("predict", "--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "1.2"), "beta must lie in the open interval"),
         (("predict", "--tp", "0.1"), "Missing option"),
-        (("no-such-command",), "No such command"),
+        (("no-such-command",), "no command 'no-such-command'"),
+        (("analyse", "x.mcap"), "did you mean 'analyze'?"),
     ],
 )
 def test_usage_errors_are_one_line_with_exit_2(args, needle):

@@ -1,0 +1,427 @@
+"""A plant of any structure from the frequency-response points of its relay tests (a direct exact solve).
+
+A relay test's stable limit cycle is periodic, so each harmonic k of the output is the plant's
+response to the same harmonic of the relay's square wave: ``G(j k Omega) = Y_k / U_k`` exactly, for
+any linear plant and any relay (MRFT, ideal, hysteresis, biased levels), with no describing-function
+approximation (:func:`mrftcli.analyze.general.response_points` measures them). This module fits a
+:class:`~mrftcli.mrft.model.PlantModel` to such points by weighted least squares over its unknown
+parameters, with the paper's constraint sets: the known parameters (set E) are held at their
+values, the unknown ones stay in their ranges (set I).
+
+The solve is separable: for fixed time constants the delay ``tau`` enters the phase and ``ln K`` the
+log-gain linearly, so both have closed-form weighted means; the time constants (0-2 of them in the
+built-in families) are searched on a log grid, and the best grid point is refined together with
+``tau`` and ``K`` (``scipy.optimize.least_squares``). The covariance is the Gauss-Newton one,
+inflated by the reduced chi-square when the points disagree beyond their standard errors; 95 %
+intervals are formed on the log scale for positive parameters and cut at a bound of the set I (then
+one-sided).
+
+What the tests do not pin down is said, not guessed: a parameter whose 95 % interval is wider than a
+factor of e^2 (or, for the delay, than a radian of phase at the tests' frequency) is reported as not
+determined, with the test that would determine it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize
+
+from ..errors import IdentificationError, InputError
+from .model import PlantModel, model_from_json
+
+__all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION"]
+
+#: version of :meth:`LtiIdentification.to_json`
+LTI_SCHEMA_VERSION = 1
+_Z95 = 1.959964
+#: floors of the standard errors (relative gain, phase [rad]): a point measured from few cycles
+#: (or noise-free simulations) must not get an infinite weight
+_SE_FLOOR = (2e-3, 2e-3)
+_GRID = np.geomspace(1e-2, 1e2, 33)  # time constants times the points' median frequency
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ResponsePoint:
+    """One measured point of the plant's frequency response.
+
+    Attributes
+    ----------
+    omega : float
+        Frequency [rad/s].
+    gain : float
+        |G(j omega)| [output units per command unit].
+    phase : float
+        arg G(j omega) [rad], any branch (the fit compares phases modulo 2 pi near its model).
+    se_log_gain, se_phase : float
+        Standard errors of ln gain [-] and of the phase [rad] (the scatter over the test's cycles).
+    test : int
+        Index of the relay test it comes from.
+    harmonic : int
+        k: the point is at k times the test's limit-cycle frequency.
+    """
+
+    omega: float
+    gain: float
+    phase: float
+    se_log_gain: float
+    se_phase: float
+    test: int = 0
+    harmonic: int = 1
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.omega) and self.omega > 0 and math.isfinite(self.gain) and self.gain > 0
+                and math.isfinite(self.phase)):
+            raise InputError(f"a response point needs a positive frequency and gain and a finite phase, "
+                             f"got omega={self.omega!r}, gain={self.gain!r}, phase={self.phase!r}")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"frequency_hz": self.omega / (2 * math.pi), "gain": self.gain, "phase_rad": self.phase,
+                "se_log_gain": self.se_log_gain, "se_phase_rad": self.se_phase, "test": self.test,
+                "harmonic": self.harmonic}
+
+
+@dataclass(frozen=True)
+class LtiEstimate:
+    """One parameter of the identified model.
+
+    Attributes
+    ----------
+    name, unit : str
+        The family's parameter name and its unit.
+    value : float
+        Point estimate (the given value for a known parameter).
+    std : float
+        Standard deviation [unit] (0 for a known parameter).
+    ci95_low, ci95_high : float
+        95 % interval [unit]; an end cut at a bound of the set I is that bound (see ``one_sided``).
+    known : bool
+        In the set E (given, not identified).
+    determined : bool
+        Pinned down by the tests (see the module docstring); False: the value is one of many that fit.
+    one_sided : str
+        ``""``, ``"low"`` or ``"high"``: the interval's end that is the range's bound (open side).
+    """
+
+    name: str
+    unit: str
+    value: float
+    std: float
+    ci95_low: float
+    ci95_high: float
+    known: bool = False
+    determined: bool = True
+    one_sided: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        def finite(x: float) -> float | None:
+            return x if math.isfinite(x) else None
+
+        return {"value": self.value, "unit": self.unit, "std": self.std, "ci95_low": finite(self.ci95_low),
+                "ci95_high": finite(self.ci95_high), "known": self.known, "determined": self.determined,
+                "one_sided": self.one_sided}
+
+    @classmethod
+    def from_json(cls, name: str, data: Any) -> LtiEstimate:
+        if not (isinstance(data, Mapping) and isinstance(data.get("value"), (int, float))
+                and isinstance(data.get("unit"), str)):
+            raise InputError(f"identification JSON: parameter {name!r} needs a numeric value and a unit")
+
+        def num(key: str, default: float) -> float:
+            v = data.get(key)
+            return default if v is None else float(v)
+
+        return cls(name, str(data["unit"]), float(data["value"]), num("std", 0.0), num("ci95_low", -math.inf),
+                   num("ci95_high", math.inf), bool(data.get("known", False)), bool(data.get("determined", True)),
+                   str(data.get("one_sided", "")))
+
+
+@dataclass(frozen=True)
+class LtiIdentification:
+    """Outcome of :func:`identify_lti`.
+
+    Attributes
+    ----------
+    model : PlantModel
+        The plant at the point estimate (known parameters and ranges kept).
+    estimates : tuple of LtiEstimate
+        Every parameter of the family, in its order.
+    points : tuple of ResponsePoint
+        The points fitted.
+    chi2_dof : float or None
+        Weighted misfit per degree of freedom (None without spare points); > 1 widens the intervals.
+    undetermined : tuple of str
+        Names of the parameters the tests do not pin down.
+    advice : str
+        What would determine them (empty when all are determined).
+    """
+
+    model: PlantModel
+    estimates: tuple[LtiEstimate, ...]
+    points: tuple[ResponsePoint, ...]
+    chi2_dof: float | None
+    undetermined: tuple[str, ...] = ()
+    advice: str = ""
+
+    def estimate(self, name: str) -> LtiEstimate:
+        """The estimate of one parameter by name."""
+        for e in self.estimates:
+            if e.name == name:
+                return e
+        raise KeyError(name)
+
+    def to_json(self) -> dict[str, Any]:
+        """``schema_version``, ``model`` (its JSON), ``parameters`` by name, fit figures."""
+        return {"schema_version": LTI_SCHEMA_VERSION, "family": self.model.family, "model": self.model.to_json(),
+                "parameters": {e.name: e.to_json() for e in self.estimates},
+                "points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
+                "undetermined": list(self.undetermined), "advice": self.advice}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> LtiIdentification:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        if not isinstance(data, Mapping):
+            raise InputError(f"identification JSON must be an object, got {type(data).__name__}")
+        if data.get("schema_version") != LTI_SCHEMA_VERSION:
+            raise InputError(f"identification JSON schema_version {data.get('schema_version')!r} is not "
+                             f"supported (expected {LTI_SCHEMA_VERSION})")
+        model = model_from_json(data.get("model", {}))
+        params = data.get("parameters")
+        if not isinstance(params, Mapping):
+            raise InputError("identification JSON needs a 'parameters' object")
+        points = []
+        for p in data.get("points", []):
+            try:
+                points.append(ResponsePoint(2 * math.pi * float(p["frequency_hz"]), float(p["gain"]),
+                                            float(p["phase_rad"]), float(p["se_log_gain"]), float(p["se_phase_rad"]),
+                                            int(p["test"]), int(p["harmonic"])))
+            except (KeyError, TypeError, ValueError) as err:
+                raise InputError(f"identification JSON: bad point {p!r}") from err
+        chi = data.get("chi2_dof")
+        return cls(model, tuple(LtiEstimate.from_json(n, v) for n, v in params.items()), tuple(points),
+                   None if chi is None else float(chi), tuple(str(n) for n in data.get("undetermined", [])),
+                   str(data.get("advice", "")))
+
+
+# ----------------------------------------------------------------------------------------------
+# the solve
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Data:
+    """The points as arrays, with their weights."""
+
+    omega: FloatArray
+    log_gain: FloatArray
+    phase: FloatArray
+    w_gain: FloatArray  # 1 / se
+    w_phase: FloatArray
+    fundamental: NDArray[np.bool_]  # the points at a limit cycle's own frequency
+
+    @classmethod
+    def of(cls, points: Sequence[ResponsePoint]) -> _Data:
+        return cls(np.array([p.omega for p in points]), np.log([p.gain for p in points]),
+                   np.array([p.phase for p in points]),
+                   1.0 / np.maximum([p.se_log_gain for p in points], _SE_FLOOR[0]),
+                   1.0 / np.maximum([p.se_phase for p in points], _SE_FLOOR[1]),
+                   np.array([p.harmonic == 1 for p in points]))
+
+
+def _wrap(x: FloatArray, low: float = -math.pi) -> FloatArray:
+    """x modulo 2 pi into [low, low + 2 pi)."""
+    wrapped: FloatArray = np.mod(x - low, 2 * math.pi) + low
+    return wrapped
+
+
+class _Problem:
+    """The unknown parameters, their scaling (log for positive ones) and the weighted residuals."""
+
+    def __init__(self, model: PlantModel, data: _Data) -> None:
+        self.model, self.data = model, data
+        params = model.parameters
+        self.unknown = [n for n, p in params.items() if not p.known]
+        self.shape = [n for n in self.unknown if n not in ("K", "tau")]
+        self.bounds = {n: params[n].bounds for n in self.unknown}
+        # K keeps the sign of the model's K (the loop's sign is the segmenter's business)
+        self.k_sign = 1.0 if params["K"].value > 0 else -1.0
+        self.log_scaled = {n for n in self.unknown if n != "tau"}
+
+    def values(self, z: FloatArray) -> dict[str, float]:
+        out = {}
+        for n, zi in zip(self.unknown, z):
+            out[n] = self.k_sign * math.exp(zi) if n == "K" else (math.exp(zi) if n in self.log_scaled else float(zi))
+        return out
+
+    def z_of(self, values: Mapping[str, float]) -> FloatArray:
+        return np.array([math.log(abs(values[n])) if n in self.log_scaled else values[n] for n in self.unknown])
+
+    def z_bounds(self) -> tuple[FloatArray, FloatArray]:
+        lo, hi = [], []
+        for n in self.unknown:
+            a, b = self.bounds[n]
+            if n in self.log_scaled:
+                if n == "K":
+                    a, b = (a, b) if self.k_sign > 0 else (-b, -a)
+                lo.append(math.log(a) if a > 0 else -np.inf)
+                hi.append(math.log(b) if 0 < b < np.inf else np.inf)
+            else:
+                lo.append(a)
+                hi.append(b)
+        return np.array(lo), np.array(hi)
+
+    def response(self, values: Mapping[str, float]) -> NDArray[np.complex128]:
+        return self.model.with_parameters(**values).frequency_response(self.data.omega)
+
+    def residuals(self, z: FloatArray) -> FloatArray:
+        G = self.response(self.values(z))
+        d = self.data
+        r_gain = (np.log(np.abs(G)) - d.log_gain) * d.w_gain
+        r_phase = _wrap(np.angle(G) - d.phase) * d.w_phase
+        return np.concatenate([r_gain, r_phase])
+
+    def profile(self, shape_values: Mapping[str, float]) -> tuple[float, dict[str, float]]:
+        """Cost and (K, tau) in closed form for fixed time constants (the separable solve)."""
+        d = self.data
+        base = dict(shape_values)
+        params = self.model.parameters
+        probe = {**base, "K": self.k_sign * abs(params["K"].value) if "K" not in self.unknown else self.k_sign,
+                 "tau": params["tau"].value if "tau" not in self.unknown else 0.0}
+        G = self.model.with_parameters(**probe).frequency_response(d.omega)
+        out = dict(base)
+        if "K" in self.unknown:
+            wg = d.w_gain ** 2
+            lnk = float(np.sum(wg * (d.log_gain - np.log(np.abs(G)))) / np.sum(wg))
+            lo, hi = self.bounds["K"]
+            out["K"] = float(np.clip(self.k_sign * math.exp(lnk), lo, hi))
+        if "tau" in self.unknown:
+            # the delay's phase: on its principal branch at the limit cycles' own frequencies (a relay
+            # cycle is near -pi), then the harmonics' (several turns at k Omega) unwrapped near that delay
+            lag = _wrap(np.angle(G) - d.phase, -0.5 * math.pi)
+            wp = d.w_phase ** 2
+            base_pts = d.fundamental if d.fundamental.any() else d.omega <= d.omega.min()
+            tau = float(np.sum((wp * d.omega * lag)[base_pts]) / np.sum((wp * d.omega ** 2)[base_pts]))
+            lag = d.omega * tau + _wrap(lag - d.omega * tau)
+            tau = float(np.sum(wp * d.omega * lag) / np.sum(wp * d.omega ** 2))
+            lo, hi = self.bounds["tau"]
+            out["tau"] = float(np.clip(tau, max(lo, 0.0), hi))
+        r = self.residuals(self.z_of(out))
+        return float(r @ r), out
+
+
+def _start(problem: _Problem) -> dict[str, float]:
+    """The best point of the log grid over the time constants (K and tau profiled out)."""
+    w_ref = float(np.median(problem.data.omega))
+    best: tuple[float, dict[str, float]] = (math.inf, {})
+    grid = _GRID / w_ref if len(problem.shape) < 2 else _GRID[::2] / w_ref
+    for combo in itertools.product(grid, repeat=len(problem.shape)):
+        if len(combo) == 2 and combo[0] < combo[1]:
+            continue  # two interchangeable lags (SOPDT): search T1 >= T2 only
+        shape = dict(zip(problem.shape, combo))
+        if any(not problem.bounds[n][0] <= v <= problem.bounds[n][1] for n, v in shape.items()):
+            continue
+        try:
+            cost, values = problem.profile(shape)
+        except InputError:
+            continue
+        if cost < best[0]:
+            best = (cost, values)
+    if not best[1] and problem.unknown:
+        raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
+    return best[1]
+
+
+def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdentification:
+    """Identify the unknown parameters of ``model`` from measured frequency-response points.
+
+    Parameters
+    ----------
+    model : PlantModel
+        The structure, with its known parameters (set E, at their values) and ranges (set I). The
+        values of the unknown parameters are ignored except for the sign of K.
+    points : sequence of ResponsePoint
+        G(j omega) measured on the relay tests' limit cycles.
+
+    Returns
+    -------
+    LtiIdentification
+
+    Raises
+    ------
+    IdentificationError
+        No point, or no admissible parameters.
+
+    Examples
+    --------
+    Two exact points of 2 e^{-0.1 s}/(0.5 s + 1) give it back:
+
+    >>> from mrftcli.mrft.families import FOPDT
+    >>> true = FOPDT(K=2.0, T=0.5, tau=0.1)
+    >>> G = true.frequency_response(np.array([5.0, 15.0]))
+    >>> pts = [ResponsePoint(w, abs(g), float(np.angle(g)), 0.01, 0.01) for w, g in zip([5.0, 15.0], G)]
+    >>> fit = identify_lti(FOPDT(K=1.0, T=1.0, tau=0.0), pts)
+    >>> [round(fit.estimate(n).value, 4) for n in ("K", "T", "tau")]
+    [2.0, 0.5, 0.1]
+    """
+    if not points:
+        raise IdentificationError("no frequency-response points to identify from (no stable relay test)")
+    data = _Data.of(points)
+    problem = _Problem(model, data)
+    if not problem.unknown:
+        return _result(problem, {}, np.zeros((0, 0)), None, points)
+    start = _start(problem)
+    z0 = problem.z_of(start)
+    lo, hi = problem.z_bounds()
+    inside = 1e-9 * (1 + np.abs(z0))  # least_squares wants a strictly interior start
+    z0 = np.minimum(np.maximum(z0, np.where(np.isfinite(lo), lo + inside, -np.inf)),
+                    np.where(np.isfinite(hi), hi - inside, np.inf))
+    sol = optimize.least_squares(problem.residuals, z0, bounds=(lo, hi), x_scale="jac", method="trf")
+    n_res, n_par = 2 * len(points), len(problem.unknown)
+    dof = n_res - n_par
+    chi2_dof = float(sol.fun @ sol.fun) / dof if dof > 0 else None
+    J = sol.jac
+    cov = np.linalg.pinv(J.T @ J, rcond=1e-12) * max(1.0, chi2_dof or 1.0)
+    return _result(problem, problem.values(sol.x), cov, chi2_dof, points, sol.x, lo, hi)
+
+
+def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_dof: float | None,
+            points: Sequence[ResponsePoint], z: FloatArray | None = None, lo: FloatArray | None = None,
+            hi: FloatArray | None = None) -> LtiIdentification:
+    """Estimates with their intervals and the determinability verdict."""
+    model = problem.model.with_parameters(**values) if values else problem.model
+    w_ref = float(np.median(problem.data.omega))
+    estimates, undetermined = [], []
+    for name, p in model.parameters.items():
+        if p.known:
+            estimates.append(LtiEstimate(name, p.unit, p.value, 0.0, p.value, p.value, known=True))
+            continue
+        i = problem.unknown.index(name)
+        assert z is not None and lo is not None and hi is not None
+        s = float(math.sqrt(max(cov[i, i], 0.0)))
+        a, b = z[i] - _Z95 * s, z[i] + _Z95 * s
+        side = "low" if a <= lo[i] else ("high" if b >= hi[i] else "")
+        a, b = max(a, lo[i]), min(b, hi[i])
+        if name in problem.log_scaled:
+            sign = problem.k_sign if name == "K" else 1.0
+            ends = sorted([sign * math.exp(a), sign * math.exp(b)])
+            std = abs(p.value) * s
+            determined = b - a < 2.0 and s < 1.0  # the interval within a factor e^2
+        else:
+            ends = [a, b]
+            std = s
+            determined = (b - a) * w_ref < 1.0  # within a radian of phase at the tests' frequency
+        estimates.append(LtiEstimate(name, p.unit, p.value, std, ends[0], ends[1], False, determined, side))
+        if not determined:
+            undetermined.append(name)
+    advice = ""
+    if undetermined:
+        n_freq = len({round(math.log(p.omega), 1) for p in points})
+        advice = (f"{', '.join(undetermined)} not determined by {len(points)} response point(s) at {n_freq} "
+                  "distinct frequencies: state known values (set E), or add a relay test at another phase "
+                  "(an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")
+    return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice)

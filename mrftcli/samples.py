@@ -41,6 +41,12 @@ def sample_log(name: str = "design1_altitude.mcap") -> Path:
     ------
     InputError
         ``name`` is not a packaged sample.
+
+    Examples
+    --------
+    >>> path = sample_log("design1_altitude.csv")
+    >>> path.exists(), path.with_name(path.name + ".truth.json").exists()
+    (True, True)
     """
     if name not in PACKAGED:
         raise InputError(f"no packaged sample log {name!r}: choose one of {', '.join(PACKAGED)}")

@@ -262,14 +262,17 @@ class _Problem:
         return np.array([math.log(abs(values[n])) if n in self.log_scaled else values[n] for n in self.unknown])
 
     def z_bounds(self) -> tuple[FloatArray, FloatArray]:
+        """Bounds of the solver's variables: the set I, and for time constants at most 1e6 times from 1/omega."""
+        w_ref = float(np.median(self.data.omega))
         lo, hi = [], []
         for n in self.unknown:
             a, b = self.bounds[n]
             if n in self.log_scaled:
                 if n == "K":
                     a, b = (a, b) if self.k_sign > 0 else (-b, -a)
-                lo.append(math.log(a) if a > 0 else -np.inf)
-                hi.append(math.log(b) if 0 < b < np.inf else np.inf)
+                span = math.inf if n == "K" else 1e6
+                lo.append(max(math.log(a) if a > 0 else -np.inf, -math.log(span * w_ref)))
+                hi.append(min(math.log(b) if 0 < b < np.inf else np.inf, math.log(span / w_ref)))
             else:
                 lo.append(a)
                 hi.append(b)
@@ -279,8 +282,11 @@ class _Problem:
         return self.model.with_parameters(**values).frequency_response(self.data.omega)
 
     def residuals(self, z: FloatArray) -> FloatArray:
-        G = self.response(self.values(z))
         d = self.data
+        try:
+            G = self.response(self.values(z))
+        except InputError:  # a step out of the structure's domain (e.g. a time constant underflowing to 0)
+            return np.full(2 * d.omega.size, 1e6)
         r_gain = (np.log(np.abs(G)) - d.log_gain) * d.w_gain
         r_phase = _wrap(np.angle(G) - d.phase) * d.w_phase
         return np.concatenate([r_gain, r_phase])
@@ -410,12 +416,13 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
             sign = problem.k_sign if name == "K" else 1.0
             ends = sorted([sign * math.exp(a), sign * math.exp(b)])
             std = abs(p.value) * s
-            determined = b - a < 2.0 and s < 1.0  # the interval within a factor e^2
+            determined = bool(b - a < 2.0)  # the interval within a factor e^2
         else:
             ends = [a, b]
             std = s
             determined = (b - a) * w_ref < 1.0  # within a radian of phase at the tests' frequency
-        estimates.append(LtiEstimate(name, p.unit, p.value, std, ends[0], ends[1], False, determined, side))
+        estimates.append(LtiEstimate(name, p.unit, p.value, float(std), float(ends[0]), float(ends[1]), False,
+                                     bool(determined), side))
         if not determined:
             undetermined.append(name)
     advice = ""

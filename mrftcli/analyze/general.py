@@ -1,0 +1,403 @@
+"""One log, any plant structure and any relay: ``analyze --model NAME`` (beside the eq. (2) path).
+
+Stages, each returning a frozen record:
+
+1. windows (:func:`flight_windows`): the parts of the log to use (``--window``), each segmented on
+   its own (:func:`mrftcli.segment.segment`);
+2. screen: a test needs ``min_stable_cycles`` stable cycles and an output that follows its relay in a
+   steady phase; a noisy one (low signal-to-noise) is kept with a note, weighted by its scatter;
+3. relay (:func:`mrftcli.segment.relay_type.infer_relay`): MRFT, ideal or hysteresis, levels and bias;
+4. response points (:func:`response_points`): ``G(j k Omega) = Y_k / U_k`` on every stable cycle, for
+   the harmonics k = 1, 3, 5: exact for a periodic cycle of a linear plant under any relay;
+5. identification (:func:`mrftcli.mrft.identify_lti.identify_lti`) from all tests' points;
+6. held out (:func:`held_out`): each test's cycle predicted (exact LPRS under its relay, sampled at the
+   controller's rate) by the model identified from the other tests.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import IdentificationError, InputError, SegmentationError
+from ..io.logtypes import FlightLog, Signal
+from ..mrft.harmonics import fit_harmonics
+from ..mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
+from ..mrft.model import PlantModel
+from ..mrft.relays import RelayLaw
+from ..segment import segment
+from ..segment.records import MrftTest
+from ..segment.relay_type import infer_relay
+from .screen import log_start
+
+__all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
+           "flight_windows", "held_out", "GENERAL_SCHEMA_VERSION"]
+
+#: version of :meth:`GeneralAnalysis.to_json`
+GENERAL_SCHEMA_VERSION = 1
+#: harmonics measured on each cycle (odd: a square wave's even harmonics vanish at 50 % duty)
+HARMONICS = (1, 3, 5)
+#: validity failures that only say the output is noisy (kept, weighted by their scatter) or that
+#: compare with eq. (2) (irrelevant to another structure)
+_NOISY = {"snr", "h1_fraction", "phase", "beta_mismatch"}
+
+
+@dataclass(frozen=True)
+class RelayOptions:
+    """What the user states about the relay (None: inferred from the data).
+
+    Attributes
+    ----------
+    kind : str or None
+        ``"mrft"``, ``"ideal"`` or ``"hysteresis"``.
+    beta : float or None
+        MRFT beta.
+    eps : float or None
+        Hysteresis [output units].
+    """
+
+    kind: str | None = None
+    beta: float | None = None
+    eps: float | None = None
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """A test's cycle predicted by the model identified from the other tests.
+
+    Attributes
+    ----------
+    frequency_hz, amplitude : float or None
+        Predicted frequency [Hz] and amplitude [output units]; None when the other tests do not
+        determine the model (``note`` says why).
+    note : str
+        Why there is no prediction, or ``""``.
+    """
+
+    frequency_hz: float | None
+    amplitude: float | None
+    note: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "note": self.note}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> HeldOut:
+        f, a = data.get("frequency_hz"), data.get("amplitude")
+        return cls(None if f is None else float(f), None if a is None else float(a), str(data.get("note", "")))
+
+
+@dataclass(frozen=True)
+class TestSummary:
+    """One relay test as measured, with its relay and its held-out prediction.
+
+    Attributes
+    ----------
+    index : int
+        Test number (0-based, in time order over the windows).
+    t_start, t_end : float
+        Its span [s, log clock].
+    relay : RelayLaw
+        Its relay.
+    frequency_hz, amplitude : float
+        Mean over the stable cycles [Hz], [output units].
+    n_stable, n_cycles : int
+        Stable and all cycles.
+    rate_hz : float
+        The relay's (controller's) rate [Hz].
+    beta_effective : float
+        The switching level measured, over the amplitude [-].
+    notes : tuple of str
+        E.g. why a noisy test was kept.
+    held_out : HeldOut or None
+        The prediction from the other tests.
+    """
+
+    __test__ = False
+
+    index: int
+    t_start: float
+    t_end: float
+    relay: RelayLaw
+    frequency_hz: float
+    amplitude: float
+    n_stable: int
+    n_cycles: int
+    rate_hz: float
+    beta_effective: float
+    notes: tuple[str, ...] = ()
+    held_out: HeldOut | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"index": self.index, "t_start": self.t_start, "t_end": self.t_end, "relay": self.relay.to_json(),
+                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "n_stable": self.n_stable,
+                "n_cycles": self.n_cycles, "rate_hz": self.rate_hz,
+                "beta_effective": self.beta_effective, "notes": list(self.notes),
+                "held_out": None if self.held_out is None else self.held_out.to_json()}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> TestSummary:
+        try:
+            ho = d.get("held_out")
+            return cls(int(d["index"]), float(d["t_start"]), float(d["t_end"]), RelayLaw.from_json(d["relay"]),
+                       float(d["frequency_hz"]), float(d["amplitude"]), int(d["n_stable"]), int(d["n_cycles"]),
+                       float(d["rate_hz"]), float(d["beta_effective"]), tuple(str(n) for n in d.get("notes", [])),
+                       None if ho is None else HeldOut.from_json(ho))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"analysis JSON: bad test entry ({err})") from None
+
+
+@dataclass(frozen=True)
+class GeneralAnalysis:
+    """The outcome of :func:`analyze_general` (``analyze --model NAME``).
+
+    Attributes
+    ----------
+    path, loop : str
+        The log and loop.
+    t0 : float
+        The log start [s]; the tables show times from it.
+    windows : tuple of (float, float)
+        The parts of the log used [s, log clock]; empty: all of it.
+    tests : tuple of TestSummary
+        The tests used.
+    rejected : tuple of (int, float, float, str)
+        Tests left out: index, span [s], reason.
+    identification : LtiIdentification or None
+        The model; None when no test was usable.
+    notes : tuple of str
+        Assumptions and facts a reader needs (the bias assumption, noisy tests).
+    warnings : tuple of str
+        The reader's warnings.
+    """
+
+    path: str
+    loop: str
+    t0: float
+    windows: tuple[tuple[float, float], ...]
+    tests: tuple[TestSummary, ...]
+    rejected: tuple[tuple[int, float, float, str], ...]
+    identification: LtiIdentification | None
+    notes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``--json`` output: ``schema_version``, ``model`` (family, ``parameters`` by name), ``tests``."""
+        ident = self.identification
+        return {"schema_version": GENERAL_SCHEMA_VERSION, "path": self.path, "loop": self.loop, "t0": self.t0,
+                "windows": [list(w) for w in self.windows],
+                "model": None if ident is None else ident.model.family,
+                "parameters": {} if ident is None else {e.name: e.to_json() for e in ident.estimates},
+                "identification": None if ident is None else ident.to_json(),
+                "tests": [t.to_json() for t in self.tests],
+                "rejected_tests": [{"index": i, "t_start": a, "t_end": b, "reason": r} for i, a, b, r in self.rejected],
+                "notes": list(self.notes), "warnings": list(self.warnings)}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> GeneralAnalysis:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        if not isinstance(data, Mapping):
+            raise InputError(f"analysis JSON must be an object, got {type(data).__name__}")
+        if data.get("schema_version") != GENERAL_SCHEMA_VERSION:
+            raise InputError(f"analysis JSON schema_version {data.get('schema_version')!r} is not supported "
+                             f"(expected {GENERAL_SCHEMA_VERSION})")
+        try:
+            ident = data.get("identification")
+            return cls(str(data["path"]), str(data["loop"]), float(data["t0"]),
+                       tuple((float(a), float(b)) for a, b in data.get("windows", [])),
+                       tuple(TestSummary.from_json(t) for t in data["tests"]),
+                       tuple((int(r["index"]), float(r["t_start"]), float(r["t_end"]), str(r["reason"]))
+                             for r in data.get("rejected_tests", [])),
+                       None if ident is None else LtiIdentification.from_json(ident),
+                       tuple(str(n) for n in data.get("notes", [])), tuple(str(w) for w in data.get("warnings", [])))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"analysis JSON: bad or missing field ({err})") from None
+
+
+# ----------------------------------------------------------------------------------------------
+# stages
+# ----------------------------------------------------------------------------------------------
+def flight_windows(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> list[FlightLog]:
+    """The flight cut to each window [s, log clock] (the whole flight when there is none).
+
+    Raises
+    ------
+    InputError
+        A window with t1 <= t0, or one holding no command sample.
+    """
+    if not windows:
+        return [flight]
+
+    def cut(s: Signal | None, a: float, b: float) -> Signal | None:
+        if s is None:
+            return None
+        keep = (s.t >= a) & (s.t <= b)
+        return Signal(s.t[keep], s.values[keep])
+
+    out = []
+    for a, b in windows:
+        if not b > a:
+            raise InputError(f"--window {a:g}:{b:g}: the end must be after the start (seconds from the log start)")
+        part = dataclasses.replace(flight, command=cut(flight.command, a, b), output=cut(flight.output, a, b),
+                                   beta=cut(flight.beta, a, b), setpoint=cut(flight.setpoint, a, b),
+                                   battery_voltage=cut(flight.battery_voltage, a, b))
+        if part.command is None or len(part.command.t) < 2:
+            raise InputError(f"--window {a:g}:{b:g} holds no command samples; the log spans "
+                             f"{flight.command.t[0]:.3f}-{flight.command.t[-1]:.3f} s")
+        out.append(part)
+    return out
+
+
+def _screen(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...]]:
+    """(reason to reject or "", notes) for one test."""
+    if test.n_stable < min_stable_cycles:
+        return f"{test.n_stable} stable cycles (fewer than {min_stable_cycles})", ()
+    failed = set(test.validity.failed) if test.validity is not None else set()
+    hard = failed - _NOISY
+    if hard:
+        reasons = test.validity.reasons if test.validity is not None else ()
+        return "not a limit cycle of its relay: " + ("; ".join(reasons) or ", ".join(sorted(hard))), ()
+    if failed & {"snr", "h1_fraction"}:
+        v = test.validity
+        assert v is not None
+        return "", (f"noisy (fundamental {v.snr:.2g}x the noise std, {100 * v.h1_fraction:.0f} % of the "
+                    "variance): used, weighted by its cycle-to-cycle scatter",)
+    return "", ()
+
+
+def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] = HARMONICS) -> tuple[ResponsePoint, ...]:
+    """G(j k Omega) = Y_k / U_k of the test's stable cycles, averaged over the cycles (module docstring).
+
+    Per cycle, the output over the cycle is fitted with a line plus eight harmonics
+    (:func:`~mrftcli.mrft.harmonics.fit_harmonics`) and divided by the closed-form harmonic of the
+    logged relay square wave, ``U_k = 4 h (1 - e^{-j k Omega d}) / (j k Omega P)`` (d the time at the
+    high level). The mean over the cycles is taken on the log scale (gain) and on the circle (phase);
+    the standard errors are the scatter over sqrt(n). A harmonic the relay hardly excites (|U_k|
+    below 5 % of |U_1| / k) is skipped.
+    """
+    t, y = flight.output.t, flight.output.values * test.loop_sign
+    rows: dict[int, list[tuple[float, complex]]] = {k: [] for k in harmonics}
+    for c in test.stable:
+        P = c.t_end - c.t_start
+        i0, i1 = np.searchsorted(t, [c.t_start, c.t_end])
+        if i1 - i0 < 4 * max(harmonics) + 4:
+            continue
+        fit = fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4))
+        Y = fit.harmonics
+        w = 2 * math.pi / P
+        d = c.t_switch - c.t_start
+        for k in harmonics:
+            if k > Y.size:
+                continue
+            U = 4 * test.h * (1 - np.exp(-1j * k * w * d)) / (1j * k * w * P)
+            if abs(U) < 0.05 * 4 * test.h / (math.pi * k):
+                continue
+            rows[k].append((k * w, complex(Y[k - 1] / U)))
+    points = []
+    for k, vals in rows.items():
+        if len(vals) < 2:
+            continue
+        w_k = np.array([v[0] for v in vals])
+        G = np.array([v[1] for v in vals])
+        logg = np.log(np.abs(G))
+        mean_dir = np.mean(G / np.abs(G))
+        phase = float(np.angle(mean_dir))
+        dev = np.angle(G / np.abs(G) / mean_dir)
+        n = len(vals)
+        points.append(ResponsePoint(float(np.mean(w_k)), float(np.exp(np.mean(logg))), phase,
+                                    float(np.std(logg, ddof=1) / math.sqrt(n)),
+                                    float(np.std(dev, ddof=1) / math.sqrt(n)), test.index, k))
+    return tuple(points)
+
+
+def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoint]) -> HeldOut:
+    """The test's cycle from the model identified on ``points`` (the other tests'), under its relay."""
+    if not points:
+        return HeldOut(None, None, "no other test")
+    try:
+        fit = identify_lti(model, points)
+    except IdentificationError as err:
+        return HeldOut(None, None, str(err))
+    if len(fit.points) * 2 < sum(not e.known for e in fit.estimates):
+        return HeldOut(None, None, f"the other tests do not determine {', '.join(fit.undetermined)}")
+    note = f"{', '.join(fit.undetermined)} poorly determined by the other tests" if fit.undetermined else ""
+    try:
+        lc = test.relay.limit_cycle(fit.model, test.rate_hz)
+    except InputError:
+        if not (test.relay.kind == "hysteresis" and -1 < test.beta_effective < 1):
+            return HeldOut(None, None, "the model has no limit cycle under this relay")
+        # a hysteresis close to the amplitude: the relay switches on the noise before the noise-free
+        # cycle would reach eps; predict at the switching level measured instead (and say so)
+        mrft = RelayLaw("mrft", test.relay.high, test.relay.low, beta=test.beta_effective)
+        try:
+            lc = mrft.limit_cycle(fit.model, test.rate_hz)
+        except InputError:
+            return HeldOut(None, None, "the model has no limit cycle under this relay")
+        note = "; ".join(filter(None, [note, f"the noise-free loop does not reach eps {test.relay.eps:.3g}: "
+                                             f"predicted at the measured switching level (beta {test.beta_effective:.2f})"]))
+    return HeldOut(lc.frequency_hz, lc.amplitude, note)
+
+
+def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions = RelayOptions(),
+                    windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> GeneralAnalysis:
+    """Identify ``model``'s unknown parameters from the relay tests of a flight (module docstring).
+
+    Parameters
+    ----------
+    flight : FlightLog
+        Command and output of one loop.
+    model : PlantModel
+        The structure with its known parameters (set E) and ranges (set I).
+    relay : RelayOptions
+        What is stated about the relay (the rest is inferred per test).
+    windows : sequence of (float, float)
+        Parts of the log to use [s, log clock]; empty: all.
+    min_stable_cycles : int
+        Fewest stable cycles for a test to be used.
+
+    Raises
+    ------
+    SegmentationError
+        No usable relay test.
+    """
+    t0 = log_start(flight)
+    found: list[MrftTest] = []
+    for part in flight_windows(flight, windows):
+        try:
+            found += segment(part)
+        except SegmentationError:
+            if not windows:
+                raise
+    tests, rejected, points, notes = [], [], [], []
+    for i, test in enumerate(found):
+        test = dataclasses.replace(test, index=i)
+        reason, test_notes = _screen(test, min_stable_cycles)
+        pts = response_points(flight, test) if not reason else ()
+        if not reason and not any(p.harmonic == 1 for p in pts):
+            reason = "no cycle long enough to measure its fundamental"
+        if reason:
+            rejected.append((i, test.t_start, test.t_end, reason))
+            continue
+        law = infer_relay(test, relay.kind, relay.beta, relay.eps)
+        tests.append(TestSummary(i, test.t_start, test.t_end, law, float(test.frequency_hz_mean),
+                                 float(test.amplitude_mean), test.n_stable, len(test.cycles),
+                                 float(test.controller_rate_hz or test.rate_hz), float(test.beta_effective),
+                                 test_notes))
+        points += pts
+        notes += [f"test {len(tests)}: {n}" for n in test_notes]
+    if not tests:
+        raise SegmentationError("no usable relay test: " + ("; ".join(f"test {i + 1}: {r}" for i, _, _, r in rejected)
+                                                          or "no relay switching found"))
+    if any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests):
+        notes.insert(0, "assumed: each relay's bias is balanced by the loop's operating point (the cycle is "
+                        "taken about its centre); the response points do not depend on it")
+    ident = identify_lti(model, points)
+    with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index]))
+                      for t in tests)
+    return GeneralAnalysis(flight.path, flight.loop, t0, tuple(windows), with_held, tuple(rejected), ident,
+                           tuple(notes), tuple(flight.warnings))
+

@@ -241,7 +241,7 @@ class _Loop:
 
     def at(self, rows: np.ndarray, log_w: np.ndarray, stack: PlantStack | None = None) -> np.ndarray:
         w = np.exp(log_w)
-        st = (stack or self.stack.take(rows))
+        st = stack if stack is not None else self.stack.take(rows)
         return self.c.feedback_response(w) * st.transfer(np.exp(1j * w * self.T)[:, None])[:, 0]
 
 

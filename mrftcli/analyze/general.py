@@ -35,7 +35,7 @@ from ..segment.relay_type import infer_relay
 from .screen import log_start
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
-           "flight_windows", "held_out", "GENERAL_SCHEMA_VERSION"]
+           "flight_windows", "mask_windows", "held_out", "GENERAL_SCHEMA_VERSION"]
 
 #: version of :meth:`GeneralAnalysis.to_json`
 GENERAL_SCHEMA_VERSION = 1
@@ -252,6 +252,25 @@ def flight_windows(flight: FlightLog, windows: Sequence[tuple[float, float]]) ->
     return out
 
 
+def mask_windows(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> FlightLog:
+    """The flight with only the samples inside the windows [s, log clock] (eq. (2)'s ``--window``)."""
+    if not windows:
+        return flight
+
+    def keep(s: Signal | None) -> Signal | None:
+        if s is None:
+            return None
+        inside = np.zeros(s.t.size, dtype=bool)
+        for a, b in windows:
+            inside |= (s.t >= a) & (s.t <= b)
+        return Signal(s.t[inside], s.values[inside])
+
+    flight_windows(flight, windows)  # the same checks
+    return dataclasses.replace(flight, command=keep(flight.command), output=keep(flight.output),
+                               beta=keep(flight.beta), setpoint=keep(flight.setpoint),
+                               battery_voltage=keep(flight.battery_voltage))
+
+
 def _screen(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...]]:
     """(reason to reject or "", notes) for one test."""
     if test.n_stable < min_stable_cycles:
@@ -275,8 +294,9 @@ def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] 
     Per cycle, the output over the cycle is fitted with a line plus eight harmonics
     (:func:`~mrftcli.mrft.harmonics.fit_harmonics`) and divided by the closed-form harmonic of the
     logged relay square wave, ``U_k = 4 h (1 - e^{-j k Omega d}) / (j k Omega P)`` (d the time at the
-    high level). The mean over the cycles is taken on the log scale (gain) and on the circle (phase);
-    the standard errors are the scatter over sqrt(n). A harmonic the relay hardly excites (|U_k|
+    high level). The mean over the cycles is the complex mean (a mean of magnitudes would be biased
+    upwards by the noise); the standard errors of ln gain and phase are the complex scatter per
+    component over sqrt(n - 1), relative to the mean's modulus. A harmonic the relay hardly excites (|U_k|
     below 5 % of |U_1| / k) is skipped.
     """
     t, y = flight.output.t, flight.output.values * test.loop_sign
@@ -303,14 +323,11 @@ def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] 
             continue
         w_k = np.array([v[0] for v in vals])
         G = np.array([v[1] for v in vals])
-        logg = np.log(np.abs(G))
-        mean_dir = np.mean(G / np.abs(G))
-        phase = float(np.angle(mean_dir))
-        dev = np.angle(G / np.abs(G) / mean_dir)
+        # the complex mean: the noise averages out (a mean of magnitudes would be biased upwards by it)
+        mean = complex(np.mean(G))
         n = len(vals)
-        points.append(ResponsePoint(float(np.mean(w_k)), float(np.exp(np.mean(logg))), phase,
-                                    float(np.std(logg, ddof=1) / math.sqrt(n)),
-                                    float(np.std(dev, ddof=1) / math.sqrt(n)), test.index, k))
+        se = float(np.sqrt(np.mean(np.abs(G - mean) ** 2) / (2 * (n - 1)))) / abs(mean)  # per component, relative
+        points.append(ResponsePoint(float(np.mean(w_k)), abs(mean), float(np.angle(mean)), se, se, test.index, k))
     return tuple(points)
 
 

@@ -7,6 +7,8 @@ import math
 import click
 
 from ..errors import InsufficientDataError, MrftError, SegmentationError
+from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
+                            window_option)
 from .options import (check_output_dir, check_output_file, dump_json, log_layout_options, tp_option,
                       tqdm_progress)
 
@@ -151,7 +153,10 @@ def _stages(progress, weights: dict[str, float]):
 
 @click.command("analyze")
 @click.argument("log", type=click.Path(dir_okay=True))
-@tp_option()
+@tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required by --model soiptd.")
+@structure_options
+@window_option
+@relay_options
 @log_layout_options()
 @click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
               help="Fewest stable cycles for a test to be used.")
@@ -166,10 +171,13 @@ def _stages(progress, weights: dict[str, float]):
                    "amplitude constraints.")
 @click.option("--diagnose", "run_diagnose", is_flag=True,
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose.selection).")
-def analyze(log, Tp, min_cycles, json_target, report_dir, mcap_out, paper_only, run_diagnose, **read_options):
+def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target, report_dir,
+            mcap_out, paper_only, run_diagnose, **read_options):
     """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
 
-    LOG is a log file or a ROS 2 bag folder. Each test's stable limit cycles are measured (frequency,
+    LOG is a log file or a ROS 2 bag folder. With --model fopdt|sopdt|ipdt|foipdt (a process plant under
+    an MRFT, ideal, hysteresis or biased relay) see docs/process-plants.md; the rest of this text is
+    the default, --model soiptd (eq. (2)). Each test's stable limit cycles are measured (frequency,
     amplitude, and the beta the relay actually achieved); two or more betas give Td and tau from the
     intersection of the unit frequency manifolds at the known Tp (paper Fig. 5), K from the
     amplitudes. Each test's fundamental-harmonic phase and the amplitude ratios join the UFM slices as
@@ -197,7 +205,17 @@ def analyze(log, Tp, min_cycles, json_target, report_dir, mcap_out, paper_only, 
         from ..io.overlay import check_overlay_path
 
         check_overlay_path(mcap_out)
+    if model_name != "soiptd":
+        _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target,
+                         (report_dir, mcap_out, paper_only, run_diagnose), read_options)
+        return
+    _check_soiptd(Tp, params, ranges, relay_kind, eps)
     flight = read_flight(log, echo_warnings=False, **read_options)  # the reader's warnings: once, below
+    if windows:
+        from ..analyze.general import mask_windows
+        from ..analyze.screen import log_start
+
+        flight = mask_windows(flight, parse_windows(windows, log_start(flight)))
     weights = {"identify": 6.0, **({"diagnose": 25.0} if run_diagnose else {}), **({"report": 4.0} if report_dir else {})}
     # a bar (stderr, terminal only) when the run is long enough to wait for: a diagnosis or a report
     with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1) as progress:
@@ -257,6 +275,43 @@ def analyze(log, Tp, min_cycles, json_target, report_dir, mcap_out, paper_only, 
     _echo_warnings(result.warnings)
     if index is not None:
         click.echo(f"report: {index}", err=to_stdout)
+
+
+def _check_soiptd(Tp, params, ranges, relay_kind, eps) -> None:
+    """eq. (2) needs --tp; the process-model options do not apply to it."""
+    if Tp is None:
+        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
+    if params or ranges or relay_kind or eps is not None:
+        raise click.UsageError("--param, --range, --relay and --eps take a process model (--model fopdt, sopdt, "
+                               "ipdt or foipdt); eq. (2) takes --tp and reads beta from the log.")
+
+
+def _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target,
+                     soiptd_only, read_options) -> None:
+    """``analyze --model NAME`` for a process plant (:func:`mrftcli.analyze.general.analyze_general`)."""
+    from ..analyze.general import RelayOptions, analyze_general
+    from ..analyze.screen import log_start
+    from ..io import read_flight
+
+    names = ("--report", "--mcap-out", "--paper-only", "--diagnose")
+    used = [n for n, v in zip(names, soiptd_only) if v]
+    if used:
+        raise click.UsageError(f"{', '.join(used)} work with --model soiptd only so far")
+    check_output_file(json_target, "--json")
+    model = build_model(model_name, params, ranges)
+    flight = read_flight(log, echo_warnings=False, **read_options)
+    relay = RelayOptions(relay_kind, None, eps)
+    try:
+        result = analyze_general(flight, model, relay=relay, windows=parse_windows(windows, log_start(flight)),
+                                 min_stable_cycles=min_cycles)
+    except MrftError:
+        _echo_warnings(flight.warnings)
+        raise
+    if json_target:
+        dump_json(result.to_json(), json_target)
+    if json_target != "-":
+        click.echo(format_general(result))
+    _echo_warnings(result.warnings)
 
 
 def _echo_warnings(warnings) -> None:

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError
 from .model import Parameter, StateSpace, UnitNormalisation, json_bounds, model_json, model_json_parameters
 
-__all__ = ["FOPDT", "SOPDT", "IPDT", "FOIPDT", "PROCESS_FAMILIES"]
+__all__ = ["FOPDT", "SOPDT", "IPDT", "FOIPDT", "PROCESS_FAMILIES", "family_model"]
 
 _INF = math.inf
 _TIME = ("s", (0.0, _INF))
@@ -269,3 +269,37 @@ class FOIPDT(_Family):
 
 #: the process families by name (registered in :data:`mrftcli.mrft.model.MODEL_FAMILIES`)
 PROCESS_FAMILIES: dict[str, type[_Family]] = {c.family: c for c in (FOPDT, SOPDT, IPDT, FOIPDT)}
+
+
+def family_model(family: str, known: Mapping[str, float] | None = None,
+                 ranges: Mapping[str, tuple[float, float]] | None = None) -> Any:
+    """A process-family model to identify: the known parameters (set E) at their values, ranges (set I).
+
+    The unknown parameters get placeholder values (1 for K and time constants, 0 for tau) that the
+    identification ignores.
+
+    Raises
+    ------
+    InputError
+        An unknown family or parameter name, or a bad value.
+
+    Examples
+    --------
+    >>> m = family_model("fopdt", known={"tau": 0.05}, ranges={"T": (0.01, 10.0)})
+    >>> [(p.name, p.known, p.bounds) for p in m.parameters.values()][1:]
+    [('T', False, (0.01, 10.0)), ('tau', True, (0.0, inf))]
+    """
+    if family not in PROCESS_FAMILIES:
+        raise InputError(f"unknown process family {family!r}; known: {', '.join(PROCESS_FAMILIES)}")
+    cls = PROCESS_FAMILIES[family]
+    known, ranges = dict(known or {}), dict(ranges or {})
+    bad = (set(known) | set(ranges)) - set(cls._spec)
+    if bad:
+        raise InputError(f"unknown parameter(s) {sorted(bad)} of {family}; it has {', '.join(cls._spec)}")
+    values = {n: (0.0 if n == "tau" else 1.0) for n in cls._spec}
+    values.update(known)
+    for name, (lo, hi) in ranges.items():
+        if not lo < hi:
+            raise InputError(f"range of {name}: low {lo:g} must be below high {hi:g}")
+    return cls(**values, known=frozenset(known),  # type: ignore[call-arg]
+               ranges=tuple((n, float(lo), float(hi)) for n, (lo, hi) in ranges.items()))

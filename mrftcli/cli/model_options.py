@@ -1,0 +1,185 @@
+"""``--model``, ``--param``, ``--range``, ``--window``, ``--relay``, ``--eps``: the plant structure and relay options.
+
+Shared by the commands that take or produce a model (``analyze``, ``identify``, ``predict``), and the
+terminal table of a process-plant analysis (:class:`~mrftcli.analyze.general.GeneralAnalysis`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import click
+
+from ..errors import InputError
+
+if TYPE_CHECKING:
+    from ..analyze.general import GeneralAnalysis
+    from ..mrft.identify_lti import LtiEstimate, LtiIdentification
+
+__all__ = ["MODEL_NAMES", "model_option", "structure_options", "window_option", "relay_options", "parse_params",
+           "parse_ranges", "parse_windows", "build_model", "refuse_model", "format_general", "format_estimates"]
+
+#: the families ``--model`` takes (eq. (2) first: the default)
+MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
+
+
+def model_option(f: Callable[..., Any]) -> Callable[..., Any]:
+    """``--model NAME``: the plant structure (default soiptd, eq. (2) with Tp known)."""
+    return click.option(
+        "--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd", show_default=True,
+        help="Plant structure: soiptd (eq. (2), Tp known), fopdt K e^{-tau s}/(T s+1), sopdt "
+             "K e^{-tau s}/((T1 s+1)(T2 s+1)), ipdt K e^{-tau s}/s, foipdt K e^{-tau s}/(s (T s+1)).")(f)
+
+
+def structure_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """``--model``, ``--param NAME=VALUE`` (known, the paper's set E), ``--range NAME=LO:HI`` (set I)."""
+    f = click.option("--range", "ranges", multiple=True, metavar="NAME=LO:HI",
+                     help="Admissible range of an unknown parameter (the paper's set I), in its unit "
+                          "(s for times). Repeatable. Process models only.")(f)
+    f = click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
+                     help="A known parameter (the paper's set E), in its unit (s for times). Repeatable. "
+                          "Process models only.")(f)
+    return model_option(f)
+
+
+def window_option(f: Callable[..., Any]) -> Callable[..., Any]:
+    """``--window T0:T1`` (repeatable): parts of the log to use, in seconds from the log start."""
+    return click.option("--window", "windows", multiple=True, metavar="T0:T1",
+                        help="Use only this part of the log [s from the log start, as the tables show]. "
+                             "Repeatable.")(f)
+
+
+def relay_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """``--relay KIND`` and ``--eps EPS``: state the relay instead of inferring it (process models)."""
+    f = click.option("--eps", type=float, default=None,
+                     help="Relay hysteresis [output units] (with --relay hysteresis); default: read from the "
+                          "output at the switches.")(f)
+    return click.option("--relay", "relay_kind", type=click.Choice(("mrft", "ideal", "hysteresis")), default=None,
+                        help="Relay type; default: inferred per test (a logged beta: mrft; a switching level "
+                             "beyond the sampling lag: hysteresis; else ideal).")(f)
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"{what}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise InputError(f"{what}: {text!r} must be finite")
+    return value
+
+
+def parse_params(items: Sequence[str]) -> dict[str, float]:
+    """``NAME=VALUE`` items -> {name: value} (one-line InputError on a bad item)."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise InputError(f"--param {item!r}: expected NAME=VALUE, e.g. --param tau=0.05")
+        out[name.strip()] = _number(value, f"--param {name.strip()}")
+    return out
+
+
+def parse_ranges(items: Sequence[str]) -> dict[str, tuple[float, float]]:
+    """``NAME=LO:HI`` items -> {name: (lo, hi)}."""
+    out = {}
+    for item in items:
+        name, sep, span = item.partition("=")
+        lo, sep2, hi = span.partition(":")
+        if not (sep and sep2 and name.strip()):
+            raise InputError(f"--range {item!r}: expected NAME=LO:HI, e.g. --range T=0.01:10")
+        out[name.strip()] = (_number(lo, f"--range {name}"), _number(hi, f"--range {name}"))
+    return out
+
+
+def parse_windows(items: Sequence[str], t0: float) -> list[tuple[float, float]]:
+    """``T0:T1`` items [s from the log start] -> absolute (start, end) [s, log clock]."""
+    out = []
+    for item in items:
+        a, sep, b = item.partition(":")
+        if not sep:
+            raise InputError(f"--window {item!r}: expected T0:T1 in seconds from the log start, e.g. --window 2:3")
+        lo, hi = _number(a, "--window"), _number(b, "--window")
+        if not hi > lo:
+            raise InputError(f"--window {item!r}: the end must be after the start")
+        out.append((t0 + lo, t0 + hi))
+    return out
+
+
+def build_model(model_name: str, params: Sequence[str], ranges: Sequence[str]) -> Any:
+    """The process model of ``--model``/``--param``/``--range`` (not for soiptd)."""
+    from ..mrft.families import family_model
+
+    return family_model(model_name, parse_params(params), parse_ranges(ranges))
+
+
+def refuse_model(model_name: str, command: str) -> None:
+    """A command that cannot take a process model yet says so instead of ignoring ``--model``."""
+    if model_name != "soiptd":
+        raise InputError(f"{command} supports only --model soiptd (eq. (2)) so far; "
+                         f"analyze, identify and predict take --model {model_name}")
+
+
+def _num(x: float | None, digits: int = 4) -> str:
+    if x is None or not math.isfinite(x):
+        return "-"
+    return f"{x:#.{digits}g}".rstrip(".")
+
+
+def format_estimates(ident: LtiIdentification) -> list[str]:
+    """The parameter table: estimate, std, 95 % interval (one-sided at a range's bound), and the verdict."""
+    rows = [("parameter", "unit", "estimate", "± std", "95 % interval", "")]
+    for e in ident.estimates:
+        rows.append((e.name, e.unit, _num(e.value), "" if e.known else _num(e.std, 2), _interval(e),
+                     "known" if e.known else ("" if e.determined else "NOT DETERMINED")))
+    widths = [max(len(r[k]) for r in rows) for k in range(6)]
+    return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+
+
+def _interval(e: LtiEstimate) -> str:
+    if e.known:
+        return ""
+    if e.one_sided == "low":
+        return f"< {_num(e.ci95_high)} (open below: the range's bound {_num(e.ci95_low)})"
+    if e.one_sided == "high" or not math.isfinite(e.ci95_high):
+        return f"> {_num(e.ci95_low)} (open above)"
+    return f"{_num(e.ci95_low)} - {_num(e.ci95_high)}"
+
+
+def format_general(result: GeneralAnalysis) -> str:
+    """The terminal summary of a process-plant analysis."""
+    from ..analyze.screen import describe_t0
+
+    ident = result.identification
+    t0 = result.t0
+    lines = [result.path]
+    if ident is not None:
+        lines.append(f"model {ident.model.family}: G(s) = {ident.model.structure}; loop {result.loop}; "
+                     f"times in seconds from the log start ({describe_t0(t0)})")
+    lines += [f"note: {n}" for n in result.notes if n.startswith("assumed")]
+    head = ("test", "from [s]", "to [s]", "relay", "frequency [Hz]", "amplitude", "held-out f [Hz]",
+            "held-out amplitude", "stable/total")
+    rows = [head]
+    for k, t in enumerate(result.tests):
+        ho = t.held_out
+        rows.append((str(k + 1), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.relay.describe()[7:],
+                     _num(t.frequency_hz), _num(t.amplitude, 3),
+                     _num(ho.frequency_hz) if ho else "-", _num(ho.amplitude, 3) if ho else "-",
+                     f"{t.n_stable}/{t.n_cycles}"))
+    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
+    lines += ["  ".join(c.rjust(w) if k in (0, 1, 2, 4, 5, 6, 7) else c.ljust(w)
+                        for k, (c, w) in enumerate(zip(r, widths))).rstrip() for r in rows]
+    for i, a, b, why in result.rejected:
+        lines.append(f"left out: {a - t0:.2f}-{b - t0:.2f} s: {why}")
+    if ident is not None:
+        chi = f", chi2/dof {ident.chi2_dof:.3g}" if ident.chi2_dof is not None else ""
+        lines.append(f"parameters (direct fit to {len(ident.points)} frequency-response points of the cycles{chi}):")
+        lines += format_estimates(ident)
+        if ident.advice:
+            lines.append(f"not determined: {ident.advice}")
+    for k, t in enumerate(result.tests):
+        if t.held_out is not None and t.held_out.note:
+            lines.append(f"held-out test {k + 1}: {t.held_out.note}")
+    lines += [f"note: {n}" for n in result.notes if not n.startswith("assumed")]
+    return "\n".join(lines)

@@ -430,3 +430,21 @@ def test_z_transform_route_matches_the_state_matrices(ctrl):
     assert np.array_equal(y, b[1]) and np.array_equal(yl, b[3])
     with pytest.raises(InputError, match="method"):
         responses(models, ctrl, 1.0, method="euler")
+
+
+def test_margins_json_round_trip_and_errors():
+    from mrftcli.tune.margins import MARGINS_SCHEMA_VERSION, Margins
+
+    for m in (margins(ROLL, PD), Margins(float("inf"), 40.0, 0.0, float("inf"), 3.0, float("nan"), False)):
+        data = json.loads(json.dumps(m.to_json()))
+        assert data["schema_version"] == MARGINS_SCHEMA_VERSION
+        back = Margins.from_json(data)
+        assert back.to_json() == m.to_json()
+    with pytest.raises(InputError, match="schema_version"):
+        Margins.from_json({**margins(ROLL, PD).to_json(), "schema_version": 99})
+    with pytest.raises(InputError, match="malformed"):
+        Margins.from_json({k: v for k, v in margins(ROLL, PD).to_json().items() if k != "Ms"})
+    with pytest.raises(InputError, match="JSON object"):
+        Margins.from_json([1, 2])
+    with pytest.raises(InputError, match="stable"):
+        Margins.from_json({**margins(ROLL, PD).to_json(), "stable": "yes"})

@@ -25,13 +25,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, discrete_plant, plants_of_parameters
 
-__all__ = ["Margins", "LoopMargins", "plant_system", "controller_system", "loop_system", "margins", "loop_margins",
+__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "controller_system", "loop_system", "margins", "loop_margins",
            "frequency_grid", "margin_grid", "plant_response", "sensitivity_peak"]
 
 
@@ -65,12 +67,60 @@ class Margins:
 
     @property
     def gain_margin_db(self) -> float:
+        """Gain margin [dB]."""
         return 20.0 * math.log10(self.gain_margin) if self.gain_margin > 0 else -math.inf
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """The figures as the ``tune --json`` output shows them (delay margin in ms)."""
         return {"gain_margin": self.gain_margin, "gain_margin_db": self.gain_margin_db,
                 "phase_margin_deg": self.phase_margin_deg, "delay_margin_ms": self.delay_margin_s * 1e3,
                 "Ms": self.Ms, "w_gc_rad_s": self.w_gc, "w_pc_rad_s": self.w_pc, "stable": self.stable}
+
+    def to_json(self) -> dict[str, Any]:
+        """The versioned JSON object (:data:`MARGINS_SCHEMA_VERSION`): the fields in their units, a
+        non-finite figure (no crossing: inf; unstable: Ms inf) as the string "inf", "-inf" or "nan".
+
+        Examples
+        --------
+        >>> m = Margins(3.8, 48.3, 1.24, 1.59, 0.68, 2.11, True)
+        >>> Margins.from_json(m.to_json()) == m
+        True
+        """
+        out: dict[str, Any] = {"schema_version": MARGINS_SCHEMA_VERSION}
+        for name in _MARGIN_FIELDS:
+            v = float(getattr(self, name))
+            out[name] = v if math.isfinite(v) else str(v)
+        out["stable"] = self.stable
+        return out
+
+    @classmethod
+    def from_json(cls, data: Any) -> "Margins":
+        """The record of :meth:`to_json`.
+
+        Raises
+        ------
+        InputError
+            Not a JSON object, another ``schema_version``, or a missing or malformed field.
+        """
+        if not isinstance(data, dict):
+            raise InputError(f"tune margins: expected a JSON object, got {type(data).__name__}")
+        if data.get("schema_version") != MARGINS_SCHEMA_VERSION:
+            raise InputError(f"tune margins: schema_version {data.get('schema_version')!r} is not "
+                             f"{MARGINS_SCHEMA_VERSION}")
+        try:
+            values = [float(data[name]) for name in _MARGIN_FIELDS]
+            stable = data["stable"]
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"tune margins: missing or malformed field ({err})") from err
+        if not isinstance(stable, bool):
+            raise InputError(f"tune margins: 'stable' must be true or false, got {stable!r}")
+        gm, pm, dm, Ms, w_gc, w_pc = values
+        return cls(gm, pm, dm, Ms, w_gc, w_pc, stable)
+
+
+#: Version of :meth:`Margins.to_json`'s object.
+MARGINS_SCHEMA_VERSION = 1
+_MARGIN_FIELDS = ("gain_margin", "phase_margin_deg", "delay_margin_s", "Ms", "w_gc", "w_pc")
 
 
 def plant_system(model: LoopModel, rate_hz: float):

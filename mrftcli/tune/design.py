@@ -260,7 +260,8 @@ class _Evaluator:
     ``load`` > 0 (a PID): the criterion adds the load step of that size (module docstring).
     """
 
-    def __init__(self, plants, ms_plants, rate_hz, kind, objective, horizon, ms_max, effort_max, load=0.0):
+    def __init__(self, plants: Sequence[DiscretePlant], ms_plants: Sequence[DiscretePlant], rate_hz: float, kind: str,
+                 objective: str, horizon: float, ms_max: float, effort_max: float, load: float = 0.0) -> None:
         self.models = as_discrete(plants, rate_hz)
         self.rate_hz, self.kind, self.objective = rate_hz, kind, objective
         self.horizon, self.ms_max, self.effort_max, self.load = horizon, ms_max, effort_max, load
@@ -268,7 +269,7 @@ class _Evaluator:
         self.Gd = plant_response(list(ms_plants), rate_hz, self.omega)
         self.spectra: dict[float, PlantSpectrum] = {}
 
-    def _copy(self, **changes) -> "_Evaluator":
+    def _copy(self, **changes: Any) -> "_Evaluator":
         new = object.__new__(_Evaluator)
         new.__dict__.update(self.__dict__)
         new.__dict__.update(changes)

@@ -22,12 +22,15 @@ from ..mrft.consensus import (Bootstrap, StableCycles, UnboundedTd, bootstrap, b
                               unbounded_td, upper_bound_open)
 from ..mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify
 from ..mrft.model import LoopModel
-from ..mrft.refine import Refinement, refine, refinement_windows
+from ..mrft.refine import COMMAND_HISTORY, Refinement, refine, refinement_windows
+from ..mrft.waveform import CommandWindow
 from ..segment import MrftTest
+from ..segment.runs import SendTimes, rebuild_send_times
 from .screen import Screening
 
-__all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "point_estimate", "consensus",
-           "identifiability", "waveform_refinement", "widen_for_jitter", "TD_OMEGA_LIMIT"]
+__all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "SendTimeWindows", "point_estimate",
+           "consensus", "identifiability", "send_time_windows", "waveform_refinement", "widen_for_jitter",
+           "TD_OMEGA_LIMIT"]
 
 _TWO_PI = 2.0 * math.pi
 #: Td * Omega above which Td is called poorly identifiable (the issue's accuracy boundary).
@@ -129,7 +132,10 @@ class WaveformStage:
     Td, tau, K : ParameterEstimate
         The estimates reported.
     warnings, notes : tuple of str
-        Why the refinement was not used, or not run.
+        Why the refinement was not used, or not run; what a receive-stamped log's rebuild did.
+    on_send_times : bool
+        The refinement ran on every test's rebuilt send times (receive stamps' jitter removed, so
+        tau's interval needs no widening for it: :func:`widen_for_jitter`).
     """
 
     refinement: Refinement | None
@@ -140,6 +146,43 @@ class WaveformStage:
     K: ParameterEstimate
     warnings: tuple[str, ...]
     notes: tuple[str, ...]
+    on_send_times: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class SendTimeWindows:
+    """The refinement's windows of a receive-stamped log on its topics' rebuilt send times (:func:`send_time_windows`).
+
+    Attributes
+    ----------
+    windows : tuple of CommandWindow
+        One per test (a test with fewer than 2 commands or 8 outputs is left out).
+    command, output : tuple of SendTimes
+        Each test's rebuild of the command (no message may be missing) and of the output.
+    """
+
+    windows: tuple[CommandWindow, ...]
+    command: tuple[SendTimes, ...]
+    output: tuple[SendTimes, ...]
+
+    @property
+    def all_rebuilt(self) -> bool:
+        """Every test's command and output were put back on their publishers' grids."""
+        return all(r.rebuilt for r in (*self.command, *self.output))
+
+    def notes(self) -> tuple[str, ...]:
+        """What was rebuilt and how well the grid fits, one line per topic (the first test's figures
+        when every test was rebuilt, else the first reason it was not)."""
+        out = []
+        for topic, rec in (("command", self.command), ("output", self.output)):
+            failed = [i for i, r in enumerate(rec) if not r.rebuilt]
+            if not rec:
+                continue
+            if failed:
+                out.append(rec[failed[0]].describe(topic) + f" (in {len(failed)} of {len(rec)} tests)")
+            else:
+                out.append(rec[0].describe(topic) + f" in {len(rec)} of {len(rec)} tests")
+        return tuple(out)
 
 
 def point_estimate(Tp: float, screening: Screening, constraints: Sequence[str], n_bootstrap: int,
@@ -273,6 +316,46 @@ def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons:
     return Identifiability(Td_est, tau_est, K_est, td_open, tuple(warnings), tuple(notes))
 
 
+def send_time_windows(flight: FlightLog, tests: Sequence[MrftTest],
+                      history: float = COMMAND_HISTORY) -> SendTimeWindows:
+    """The refinement's windows with each test's command and output on their publishers' tick grids.
+
+    Receive stamps are late by a random transport delay: the waveform fit would read that jitter as
+    model error (a residual of 6-9x the sensor noise on logs with 0-3 ms of it). Over each test's
+    window each topic is checked against a fixed-rate publisher and its send times rebuilt
+    (:func:`mrftcli.segment.runs.rebuild_send_times`); a command with missing messages is not
+    rebuilt (a message's position is then not its tick), and its receive times are used as they are.
+
+    Parameters
+    ----------
+    flight : FlightLog
+        The log (receive-stamped).
+    tests : sequence of MrftTest
+        The tests refined.
+    history : float
+        Command before each test its window carries [s].
+
+    Returns
+    -------
+    SendTimeWindows
+    """
+    tc, c = flight.command.t, flight.command.values
+    ty, y = flight.output.t, flight.output.values
+    windows, cmd, out = [], [], []
+    for test in tests:
+        # a margin of a few periods either side keeps the window's edges inside the rebuilt stretch
+        a, b = np.searchsorted(tc, [test.t_start - history - 0.05, test.t_end + 0.05])
+        ya, yb = np.searchsorted(ty, [test.t_start - 0.05, test.t_end + 0.05])
+        sc = rebuild_send_times(tc[a:b], allow_drops=False)
+        so = rebuild_send_times(ty[ya:yb])
+        w = CommandWindow.between(test.t_start, test.t_end, sc.t, c[a:b], so.t, y[ya:yb], test.bias, history)
+        if w is not None:
+            windows.append(w)
+            cmd.append(sc)
+            out.append(so)
+    return SendTimeWindows(tuple(windows), tuple(cmd), tuple(out))
+
+
 def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus, bounds: Identifiability,
                         mrft_params: Mapping[str, ParameterEstimate], refine_waveform: bool) -> WaveformStage:
     """Refine the MRFT estimate by output error on the tests' windows; report it when the data accept it.
@@ -287,8 +370,14 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
                              ("the waveform refinement was not run: the command is logged below the controller's rate",))
     if not (refine_waveform and np.isfinite(cons.K.mean)):
         return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
-    windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
-                                 flight.output.values)
+    send_notes: tuple[str, ...] = ()
+    on_send_times = False
+    if flight.timing.stamps == "receive":
+        rebuilt = send_time_windows(flight, usable)
+        windows, send_notes, on_send_times = list(rebuilt.windows), rebuilt.notes(), rebuilt.all_rebuilt
+    else:
+        windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
+                                     flight.output.values)
     if not windows:
         return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
     # Td bounded from below only: the cost is flat along ln Td, and the fit takes longer
@@ -297,26 +386,29 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
     if not refinement.accepted:
         return WaveformStage(refinement, "mrft", model, Td_est, tau_est, K_est,
                              ("the waveform refinement was not used (" + "; ".join(refinement.reasons)
-                              + "): the MRFT estimate is reported (try --diagnose)",), ())
+                              + "): the MRFT estimate is reported (try --diagnose)",), send_notes)
     Td_est, tau_est, K_est = refinement.Td, refinement.tau, refinement.K
     if bounds.td_open:
         # the waveform does not close it either: keep the one-sided statement, with the
         # consensus's profile lower bound (the Gauss-Newton interval of ln Td is a local
         # linearisation, meaningless where the cost is flat in Td: it gave 1e-5 s)
         Td_est = ParameterEstimate(Td_est.mean, Td_est.std, mrft_params["Td"].ci95_low, float("nan"), "s")
-    return WaveformStage(refinement, "waveform", refinement.model, Td_est, tau_est, K_est, (), ())
+    return WaveformStage(refinement, "waveform", refinement.model, Td_est, tau_est, K_est, (), send_notes,
+                         on_send_times)
 
 
-def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog) -> tuple[ParameterEstimate, str | None]:
+def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog,
+                     on_send_times: bool = False) -> tuple[ParameterEstimate, str | None]:
     """tau with receive-time stamps' jitter in its spread, and the note saying so (None: no jitter).
 
     Receive-time stamps: the command's and the output's transport delays differ by an unknown
     offset of the order of their jitter, which moves every switch against the output alike (no
     averaging over cycles): added to tau's spread in quadrature. Below 0.1 ms it is stamp rounding,
-    not transport.
+    not transport. A waveform estimate on the rebuilt send times (``on_send_times``,
+    :func:`send_time_windows`) has no such offset left, and is returned as it is.
     """
     jitter = float(flight.timing.timing_jitter_s or 0.0)
-    if not (jitter >= 1e-4 and np.isfinite(tau_est.std)):
+    if on_send_times or not (jitter >= 1e-4 and np.isfinite(tau_est.std)):
         return tau_est, None
     std = float(np.hypot(tau_est.std, jitter))
     widen = 1.96 * std - 1.96 * tau_est.std

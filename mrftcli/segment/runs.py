@@ -3,7 +3,10 @@
 * :func:`find_relay_runs` splits the command into chains of flat runs (:class:`RelayRun`) that
   alternate between two levels: the relay stretches.
 * :func:`regularise_times` puts jittery receive times back on the controller's sample grid (its
-  rate: :func:`mrftcli.io.timing.median_rate_hz`).
+  rate: :func:`mrftcli.io.timing.median_rate_hz`), centred on them (the segmenter's clock);
+* :func:`rebuild_send_times` does the same for a receive-stamped topic with the grid moved to the
+  earliest arrivals (:class:`SendTimes`: the send times the waveform refinement needs);
+  :func:`tick_numbers` numbers the messages for both.
 """
 
 from __future__ import annotations
@@ -14,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import maximum_filter1d
 
-__all__ = ["RelayRun", "robust_sigma", "find_relay_runs", "regularise_times"]
+__all__ = ["RelayRun", "robust_sigma", "find_relay_runs", "regularise_times", "tick_numbers", "SendTimes",
+           "rebuild_send_times"]
 
 _MAD_TO_SIGMA = 1.4826
 #: a command change smaller than this share of the largest one nearby is a moving bias, not a switch
@@ -238,20 +242,48 @@ def regularise_times(t: np.ndarray, *, max_residual: float = 0.45) -> tuple[np.n
         The times and whether they were regularised.
     """
     t = np.asarray(t, dtype=float)
-    if t.size < 8:
+    n = tick_numbers(t)
+    if n is None:
         return t, False
+    return _grid_fit(t, n, max_residual)
+
+
+def tick_numbers(t: np.ndarray) -> np.ndarray | None:
+    """The publisher's tick number of each timestamp (dropped ticks are gaps; the first is 0, or +-1
+    when numbered from the clock's phase).
+
+    A clean clock (every interval within 5 % of a whole number of periods) is counted interval by
+    interval. A jittery one is numbered from the clock's phase, not by counting intervals (a count
+    slips by one where jitter makes an interval look like 0.5 or 1.5 periods): the period is where
+    the timestamps' phases t / dt line up best (peak of |mean exp(2 pi i t / dt)|), first on a short
+    stretch with a coarse grid, then on all samples with a fine one.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Increasing timestamps [s].
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Increasing tick numbers (float, whole); None for fewer than 8 stamps, no positive median
+        interval, or numbers that do not increase (reordered or bunched messages).
+
+    Examples
+    --------
+    >>> tick_numbers(np.array([0.0, 0.01, 0.02, 0.04, 0.05, 0.06, 0.07, 0.08])).tolist()
+    [0.0, 1.0, 2.0, 4.0, 5.0, 6.0, 7.0, 8.0]
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 8:
+        return None
     dt0 = np.median(np.diff(t))
     if not dt0 > 0:
-        return t, False
+        return None
     steps = np.diff(t) / dt0
     if np.all(np.abs(steps - np.rint(steps)) < 0.05):
         # clean clock (no jitter to speak of): counting intervals cannot slip
-        n = np.concatenate(([0.0], np.cumsum(np.maximum(np.rint(steps), 1.0))))
-        return _grid_fit(t, n, max_residual)
-    # Sample numbers from the clock's phase, not by counting intervals (a count slips by one where
-    # jitter makes an interval look like 0.5 or 1.5 periods): the period is where the timestamps'
-    # phases t / dt line up best (peak of |mean exp(2 pi i t / dt)|), first on a short stretch
-    # with a coarse grid, then on all samples with a fine one.
+        return np.concatenate(([0.0], np.cumsum(np.maximum(np.rint(steps), 1.0))))
     tr = t - t[0]
     dt = dt0
     sub = np.unique(np.linspace(0, t.size - 1, min(t.size, 400)).astype(int))  # the span matters, not n
@@ -269,8 +301,114 @@ def regularise_times(t: np.ndarray, *, max_residual: float = 0.45) -> tuple[np.n
     phase = np.angle(np.mean(np.exp(2j * np.pi * tr / dt))) / (2 * np.pi) * dt
     n = np.rint((tr - phase) / dt)
     if np.any(np.diff(n) <= 0):
-        return t, False
-    return _grid_fit(t, n, max_residual)
+        return None
+    return n
+
+
+@dataclass(frozen=True, eq=False)
+class SendTimes:
+    """A receive-stamped topic's messages put back on its publisher's tick grid (:func:`rebuild_send_times`).
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        Send times [s]: ``origin + period * tick`` where rebuilt, else the receive times unchanged.
+    rebuilt : bool
+        The receive times fit a fixed-rate publisher and ``t`` is its grid.
+    period : float
+        The publisher's period [s] (NaN when no grid was found).
+    latency_floor : float
+        The earliest arrival's lateness behind the least-squares grid [s], removed from the times:
+        the grid's origin is set by the earliest arrivals (a message cannot arrive before it was sent).
+    spread : float
+        Robust std of the arrivals' lateness about the grid [s] (the transport's jitter).
+    dropped : int
+        Ticks without a message.
+    reason : str
+        Why the times were not rebuilt (empty when they were).
+    """
+
+    t: np.ndarray
+    rebuilt: bool
+    period: float
+    latency_floor: float
+    spread: float
+    dropped: int
+    reason: str = ""
+
+    def describe(self, topic: str) -> str:
+        """One line for the output: what was rebuilt and how well the grid fits."""
+        if not self.rebuilt:
+            return f"receive-stamped {topic} not rebuilt: {self.reason}"
+        drops = f", {self.dropped} ticks without a message" if self.dropped else ""
+        return (f"receive-stamped {topic} rebuilt on its publisher's {1.0 / self.period:.4g} Hz tick grid "
+                f"(arrivals {self.spread * 1e3:.2f} ms std about the grid, {self.latency_floor * 1e3:.2f} ms "
+                f"latency floor removed{drops})")
+
+
+def rebuild_send_times(t: np.ndarray, *, allow_drops: bool = True) -> SendTimes:
+    """Rebuild a receive-stamped topic's send times on its publisher's tick grid.
+
+    A fixed-rate publisher sends message j at t0 + n_j dt; the recorder stamps it on arrival, late
+    by a random 0..L (L may exceed dt: messages then bunch). One message per tick, in order: the
+    tick number is the message's position. Where messages are missing (``allow_drops``) the numbers
+    come from the clock's phase instead (:func:`tick_numbers`, for lateness under a period). dt and
+    a centre are fitted by least squares, and the grid is moved down to the earliest arrivals (no
+    message arrives before it is sent). The numbering is accepted when the earliest arrivals of
+    every stretch of messages agree (within a quarter period): a missing or extra message, or a
+    publisher that is not at a fixed rate, moves them by a period. A constant transport delay below
+    the floor is not observable and stays in the times.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Receive times [s], increasing.
+    allow_drops : bool
+        Accept ticks without a message (an output); False for a command, whose missing message may
+        be the switch (its times are then left as they are).
+
+    Returns
+    -------
+    SendTimes
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(1)
+    >>> sent = 10.0 + 0.005 * np.arange(2000)
+    >>> r = rebuild_send_times(sent + rng.uniform(0.0, 0.003, sent.size))
+    >>> r.rebuilt, bool(np.max(np.abs(r.t - sent)) < 1e-5)
+    (True, True)
+    >>> rebuild_send_times(np.delete(sent, 700), allow_drops=False).rebuilt
+    False
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 8:
+        return SendTimes(t, False, float("nan"), 0.0, float("nan"), 0, "fewer than 8 messages")
+    fit = _floor_fit(t, np.arange(t.size, dtype=float))
+    if fit is None and allow_drops:
+        n = tick_numbers(t)
+        fit = None if n is None else _floor_fit(t, n - n[0])
+    if fit is None:
+        why = ("messages are missing or its publisher is not at a fixed rate, so a message's position is not its "
+               "tick") if not allow_drops else "its stamps are not a fixed-rate publisher's"
+        return SendTimes(t, False, float("nan"), 0.0, float("nan"), 0, why)
+    return fit
+
+
+def _floor_fit(t: np.ndarray, n: np.ndarray) -> SendTimes | None:
+    """The grid t0 + dt n through the earliest arrivals, when they agree along the topic (else None)."""
+    A = np.vstack([np.ones_like(n), n]).T
+    (t0, dt), *_ = np.linalg.lstsq(A, t, rcond=None)
+    if not dt > 0:
+        return None
+    late = t - (t0 + dt * n)
+    size = max(50, t.size // 20)
+    floors = np.minimum.reduceat(late, np.arange(0, late.size, size))
+    if np.ptp(floors) > 0.25 * dt:
+        return None
+    floor = float(np.min(late))
+    return SendTimes(t0 + floor + dt * n, True, float(dt), floor, robust_sigma(late),
+                     int(n[-1] - n[0] - (n.size - 1)))
 
 
 def _grid_fit(t: np.ndarray, n: np.ndarray, max_residual: float) -> tuple[np.ndarray, bool]:

@@ -232,20 +232,12 @@ def flight_windows(flight: FlightLog, windows: Sequence[tuple[float, float]]) ->
     if not windows:
         return [flight]
 
-    def cut(s: Signal | None, a: float, b: float) -> Signal | None:
-        if s is None:
-            return None
-        keep = (s.t >= a) & (s.t <= b)
-        return Signal(s.t[keep], s.values[keep])
-
     out = []
     for a, b in windows:
         if not b > a:
             raise InputError(f"--window {a:g}:{b:g}: the end must be after the start (seconds from the log start)")
-        part = dataclasses.replace(flight, command=cut(flight.command, a, b), output=cut(flight.output, a, b),
-                                   beta=cut(flight.beta, a, b), setpoint=cut(flight.setpoint, a, b),
-                                   battery_voltage=cut(flight.battery_voltage, a, b))
-        if part.command is None or len(part.command.t) < 2:
+        part = _keep(flight, ((a, b),))
+        if len(part.command.t) < 2:
             raise InputError(f"--window {a:g}:{b:g} holds no command samples; the log spans "
                              f"{flight.command.t[0]:.3f}-{flight.command.t[-1]:.3f} s")
         out.append(part)
@@ -257,18 +249,24 @@ def mask_windows(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> F
     if not windows:
         return flight
 
-    def keep(s: Signal | None) -> Signal | None:
-        if s is None:
-            return None
+    flight_windows(flight, windows)  # the same checks
+    return _keep(flight, windows)
+
+
+def _keep(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> FlightLog:
+    """Every signal of the flight cut to the samples inside the windows."""
+    def keep(s: Signal) -> Signal:
         inside = np.zeros(s.t.size, dtype=bool)
         for a, b in windows:
             inside |= (s.t >= a) & (s.t <= b)
         return Signal(s.t[inside], s.values[inside])
 
-    flight_windows(flight, windows)  # the same checks
+    def keep_opt(s: Signal | None) -> Signal | None:
+        return None if s is None else keep(s)
+
     return dataclasses.replace(flight, command=keep(flight.command), output=keep(flight.output),
-                               beta=keep(flight.beta), setpoint=keep(flight.setpoint),
-                               battery_voltage=keep(flight.battery_voltage))
+                               beta=keep_opt(flight.beta), setpoint=keep_opt(flight.setpoint),
+                               battery_voltage=keep_opt(flight.battery_voltage))
 
 
 def _screen(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...]]:
@@ -389,7 +387,10 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
         except SegmentationError:
             if not windows:
                 raise
-    tests, rejected, points, notes = [], [], [], []
+    tests: list[TestSummary] = []
+    rejected: list[tuple[int, float, float, str]] = []
+    points: list[ResponsePoint] = []
+    notes: list[str] = []
     for i, test in enumerate(found):
         test = dataclasses.replace(test, index=i)
         reason, test_notes = _screen(test, min_stable_cycles)

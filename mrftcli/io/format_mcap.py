@@ -1,14 +1,21 @@
 """MCAP: ROS 2 (CDR) and JSON messages (also ROS 1-encoded channels), reader and writers.
 
-Reading goes through the ``mcap`` library's records, in two ways:
+Reading holds one chunk at a time and keeps only the wanted channels' messages, so memory follows
+what is read, not the file (a 40 s flight beside a 30 Hz camera topic is a 1 GB MCAP):
 
 * indexed files (the normal case: chunked, with a summary): only chunks holding a wanted channel are
-  read; each is decompressed once, and its Message Index records (``(log_time, offset)`` pairs for one
-  channel) are read as a numpy array. Message payloads are then located with numpy, without a Python
-  object per message, and CDR fields are gathered by :mod:`mrftcli.io.cdr`.
-* anything else (no summary, unchunked, or a truncated file whose footer is gone): a linear
-  :class:`mcap.stream_reader.StreamReader` pass that keeps every complete message before the damage,
-  with a warning saying how much was salvaged.
+  read (the Chunk Index records say which), with ``pread``, each decompressed once within the size it
+  declares (:mod:`mrftcli.io.mcap_stream`); its Message Index records (``(log_time, offset)`` pairs for
+  one channel) locate the wanted messages with numpy, without a Python object per message, and their
+  bytes are copied out before the next chunk. CDR fields are gathered by :mod:`mrftcli.io.cdr`.
+* anything else (no summary, unchunked, or a truncated file whose footer is gone): a linear pass over
+  the records that keeps every complete message before the damage, skips a chunk it cannot trust (CRC,
+  size over the limits, records that do not parse) and warns saying how much was salvaged; it keeps
+  log times only, and a second pass keeps the wanted channels' bytes.
+
+A chunk declaring more than :data:`~mrftcli.io.mcap_stream.MAX_CHUNK_BYTES` uncompressed, or
+decompressing to more than it declares, is a decompression bomb or damage: the indexed read refuses
+the file (LogReadError naming the chunk and the size), the salvage pass skips that chunk.
 
 Message time is the MCAP ``log_time`` (when the recorder received the message), so every topic,
 including header-less ``std_msgs/msg/Float64``, shares one clock.
@@ -19,6 +26,7 @@ from __future__ import annotations
 import io
 import json
 import mmap
+import os
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,23 +37,27 @@ import numpy as np
 from ..errors import LogReadError
 from .logtypes import TopicData, TopicInfo
 from . import cdr
+from .mcap_stream import (MESSAGE_HEADER_BYTES, OP_CHANNEL, OP_CHUNK, OP_FOOTER, OP_MESSAGE, OP_SCHEMA,
+                          OversizeChunkError, check_declared, chunk_header, decompress_chunk,
+                          walk_records)
 from .source import LogSource
 from .timing import mean_rate_hz
 from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
 
 if TYPE_CHECKING:
-    from mcap.records import Channel, ChunkIndex, Message, Schema
+    from mcap.records import Channel, ChunkIndex, Schema
     from mcap.summary import Summary
     from rosbags.typesys.store import Typestore
 
 __all__ = ["McapSource", "McapRecords", "McapChannel", "channel_typestore", "write_mcap", "MCAP_MAGIC"]
 
-#: one channel's messages: log times [ns], a byte buffer, and each message's start and length in it
+#: one channel's messages: log times [ns], its messages' bytes end to end, each one's start and length
 _RawMessages = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-_OP_MESSAGE = 0x05
-_MSG_HEADER = 2 + 4 + 8 + 8  # channel_id, sequence, log_time, publish_time
+_MSG_HEADER = MESSAGE_HEADER_BYTES
+#: how much of a memory-mapped file the salvage pass reads before handing its pages back [bytes]
+_RELEASE_EVERY = 64 * 2**20
 
 
 @dataclass
@@ -69,12 +81,17 @@ class McapRecords:
 
     Whoever walks the records (the salvage pass of :class:`McapSource`, :class:`mrftcli.io.follow.McapFollower`
     on a file still being written) hands each top-level record to :meth:`record`; ``channels`` maps
-    channel id -> :class:`McapChannel`, whose ``times`` and ``datas`` collect the messages.
+    channel id -> :class:`McapChannel`, whose ``times`` collect every message's log time and ``datas``
+    the bytes of the messages of the channels in ``keep`` (None: all), so that a camera topic beside
+    the wanted ones costs 8 bytes a message, not its image. Chunks are decompressed within what they
+    declare (:func:`mrftcli.io.mcap_stream.decompress_chunk`): a hostile chunk raises, it cannot
+    exhaust memory.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, keep: frozenset[int] | None = None) -> None:
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, McapChannel] = {}
+        self.keep = keep
 
     def add_channel(self, rec: Channel, schema: Schema | None) -> None:
         """Register an ``mcap`` Channel record (with its Schema record, or None) once."""
@@ -86,41 +103,78 @@ class McapRecords:
             schema_encoding=schema.encoding if schema else "",
             schema_data=bytes(schema.data) if schema else b"")
 
-    def record(self, op: int, body: bytes) -> int:
+    def record(self, op: int, body: bytes | memoryview) -> int:
         """Parse one top-level (or in-chunk) record's body; returns the number of messages kept."""
         from mcap.data_stream import ReadDataStream
-        from mcap.opcode import Opcode
-        from mcap.records import Channel, Chunk, Message, Schema
-        from mcap.stream_reader import breakup_chunk
+        from mcap.records import Channel, Message, Schema
 
+        if op == OP_CHUNK:
+            return self.chunk(body, "chunk")
         stream = ReadDataStream(io.BytesIO(body))
-        if op == Opcode.SCHEMA:
+        if op == OP_SCHEMA:
             rec = Schema.read(stream)
             self.schemas[rec.id] = rec
-        elif op == Opcode.CHANNEL:
+        elif op == OP_CHANNEL:
             rec = Channel.read(stream)
             self.add_channel(rec, self.schemas.get(rec.schema_id))
-        elif op == Opcode.MESSAGE:
-            return self._keep(Message.read(stream, len(body)))
-        elif op == Opcode.CHUNK:
-            kept = 0
-            for rec in breakup_chunk(Chunk.read(stream), validate_crc=True):
-                if isinstance(rec, Schema):
-                    self.schemas[rec.id] = rec
-                elif isinstance(rec, Channel):
-                    self.add_channel(rec, self.schemas.get(rec.schema_id))
-                elif isinstance(rec, Message):
-                    kept += self._keep(rec)
-            return kept
+        elif op == OP_MESSAGE:
+            msg = Message.read(stream, len(body))
+            ch = self.channels.get(msg.channel_id)
+            if ch is None:
+                return 0
+            ch.times.append(msg.log_time)
+            if self.keep is None or ch.id in self.keep:
+                ch.datas.append(bytes(msg.data))
+            return 1
         return 0
 
-    def _keep(self, msg: Message) -> int:
-        ch = self.channels.get(msg.channel_id)
-        if ch is None:
-            return 0
-        ch.times.append(msg.log_time)
-        ch.datas.append(bytes(msg.data))
-        return 1
+    def chunk(self, body: bytes | memoryview, where: str, *, partial: bool = False) -> int:
+        """Parse a Chunk record's body; returns the number of messages kept.
+
+        With ``partial`` the body is cut off by the end of the file: the complete records at the start
+        of what decompresses are kept. Otherwise a chunk whose CRC fails or whose records cannot all
+        be trusted is skipped whole (ValueError), and one over the size limits raises
+        :class:`~mrftcli.io.mcap_stream.OversizeChunkError`.
+        """
+        header = chunk_header(body)
+        packed = body[header.records_offset:header.records_offset + header.records_length]
+        if not partial and len(packed) < header.records_length:
+            raise ValueError("chunk cut off")
+        data = decompress_chunk(header, packed, where, partial=partial)
+        if not partial and header.uncompressed_crc and zlib.crc32(data) != header.uncompressed_crc:
+            raise ValueError("CRC mismatch")
+        walk = walk_records(data)
+        if not walk.complete and not partial:
+            raise ValueError(f"unreadable record at byte {walk.stop} of the chunk")
+        for op, off, length in zip(walk.opcodes.tolist(), walk.offsets.tolist(), walk.lengths.tolist()):
+            if op != OP_MESSAGE:
+                self.record(op, data[off + 9:off + 9 + length])
+        off = walk.offsets[walk.opcodes == OP_MESSAGE]
+        rec_len, channel, log_time = _message_fields(np.frombuffer(data, dtype=np.uint8), off)
+        kept = 0
+        for cid in np.unique(channel).tolist():
+            ch = self.channels.get(cid)
+            if ch is None:
+                continue
+            sel = channel == cid
+            ch.times.extend(log_time[sel].tolist())
+            kept += int(sel.sum())
+            if self.keep is None or cid in self.keep:
+                starts = (off[sel] + 9 + _MSG_HEADER).tolist()
+                ch.datas.extend(data[s:s + n] for s, n in zip(starts, (rec_len[sel] - _MSG_HEADER).tolist()))
+        return kept
+
+
+@dataclass(frozen=True)
+class _Salvage:
+    """What a salvage pass read: messages kept, damaged records skipped, messages from a cut-off
+    chunk, whether the footer was reached, and notes on chunks refused for their size."""
+
+    count: int
+    bad: int
+    from_partial: int
+    complete: bool
+    notes: tuple[str, ...]
 
 
 def channel_typestore(ch: McapChannel, path: str | Path) -> Typestore:
@@ -213,88 +267,94 @@ class McapSource(LogSource):
         return self._summary
 
     def _scan(self) -> None:
-        """Linear salvage pass: every readable record, in file order.
+        """The salvage pass when there is no usable summary: every readable record, in file order.
 
-        The top-level framing (``opcode``, ``uint64 length``) is walked here so that one damaged record
-        (say a chunk whose CRC fails) is skipped rather than ending the pass; the records themselves
-        are parsed by the ``mcap`` library. A record cut off by the end of the file ends the pass; if
-        it is a chunk, the complete messages at the start of its (partially decompressed) data are
-        kept as well.
+        It keeps every channel's log times (for :meth:`topics`) but no message bytes; :meth:`_salvaged_raw`
+        walks the file again for the wanted channels' bytes, so memory does not grow with a camera
+        topic. Warns once saying what was salvaged and what was lost.
         """
-        from mcap.opcode import Opcode
-
-        data = self._data
-        size = len(data)
-        pos = len(MCAP_MAGIC)
-        complete = False
-        bad = 0
-        count = 0
-        from_partial = 0
-        while pos + 9 <= size:
-            op = data[pos]
-            length = int.from_bytes(data[pos + 1:pos + 9], "little")
-            start, end = pos + 9, pos + 9 + length
-            if end > size:
-                if op == Opcode.CHUNK:
-                    from_partial = self._partial_chunk(data[start:size])
-                    count += from_partial
-                break
-            try:
-                if op == Opcode.FOOTER:
-                    complete = True
-                    break
-                count += self._records.record(op, data[start:end])
-            except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
-                bad += 1
-            pos = end
-        if count == 0 and (bad or not complete):
-            raise LogReadError(f"{self.path}: corrupt or truncated MCAP, no message could be read")
+        got = self._walk(self._records)
+        if got.count == 0 and (got.bad or not got.complete):
+            detail = f" ({'; '.join(got.notes)})" if got.notes else ""
+            raise LogReadError(f"{self.path}: corrupt or truncated MCAP, no message could be read{detail}")
         notes: list[str] = []
-        if not complete:
+        if not got.complete:
             notes.append("the file ends before its footer")
-        if bad:
-            notes.append(f"{bad} damaged record(s) skipped")
-        if from_partial:
-            notes.append(f"{from_partial} from the cut-off chunk")
+        if got.bad:
+            notes.append(f"{got.bad} damaged record(s) skipped")
+        if got.from_partial:
+            notes.append(f"{got.from_partial} from the cut-off chunk")
+        notes.extend(got.notes)
         if notes or self._summary_failed:
-            self.warn(f"truncated or corrupt MCAP: salvaged {count} messages "
+            self.warn(f"truncated or corrupt MCAP: salvaged {got.count} messages "
                       f"({'; '.join(notes) or 'summary section unreadable'})")
         self._salvaged = True
 
-    def _partial_chunk(self, body: bytes) -> int:
+    def _walk(self, records: McapRecords) -> _Salvage:
+        """Hand every readable top-level record to ``records``, in file order.
+
+        The framing (``opcode``, ``uint64 length``) is walked here so that one damaged record (a chunk
+        whose CRC fails, one over the size limits) is skipped rather than ending the pass; a record cut
+        off by the end of the file ends it (if a chunk, the complete messages at the start of what
+        decompresses are kept), and so does opcode 0, which no writer uses (a zero-filled region:
+        nothing after it can be framed). Only records that are parsed are copied out of the map, and
+        the map's pages are handed back as the pass goes, so memory does not grow with the file.
+        """
+        data = self._data
+        view = memoryview(data)
+        size = len(data)
+        pos = len(MCAP_MAGIC)
+        complete = False
+        bad = count = from_partial = 0
+        notes: list[str] = []
+        released = 0
+        try:
+            while pos + 9 <= size:
+                op = data[pos]
+                length = int.from_bytes(data[pos + 1:pos + 9], "little")
+                start, end = pos + 9, pos + 9 + length
+                where = f"{self.path}: chunk at byte {pos}"
+                if op == 0:
+                    notes.append(f"unreadable bytes from byte {pos} on")
+                    break
+                if end > size:
+                    if op == OP_CHUNK:
+                        from_partial = self._partial_chunk(records, view[start:size], where)
+                        count += from_partial
+                    break
+                if op == OP_FOOTER:
+                    complete = True
+                    break
+                try:
+                    if op == OP_CHUNK:
+                        count += records.chunk(view[start:end], where)
+                    elif op in (OP_SCHEMA, OP_CHANNEL, OP_MESSAGE):
+                        count += records.record(op, data[start:end])
+                except OversizeChunkError as err:
+                    notes.append(f"{str(err).removeprefix(f'{self.path}: ')}, skipped")
+                except Exception:  # noqa: BLE001 - a damaged record: skip it, keep the framing
+                    bad += 1
+                pos = end
+                released = self._release(released, pos)
+        finally:
+            view.release()
+        return _Salvage(count, bad, from_partial, complete, tuple(notes))
+
+    def _release(self, released: int, pos: int) -> int:
+        """Hand back the map's pages before ``pos`` every :data:`_RELEASE_EVERY` bytes (they stay in
+        the page cache; the process's resident set stops growing with the file)."""
+        if not isinstance(self._data, mmap.mmap) or pos - released < _RELEASE_EVERY:
+            return released
+        upto = pos - pos % mmap.PAGESIZE
+        self._data.madvise(mmap.MADV_DONTNEED, released, upto - released)
+        return upto
+
+    def _partial_chunk(self, records: McapRecords, body: memoryview, where: str) -> int:
         """Complete records at the start of a chunk the file ends inside (0 if none can be read)."""
         try:
-            # start/end time, uncompressed size (3 x uint64), crc (uint32), compression (string),
-            # records length (uint64), records
-            n = int.from_bytes(body[28:32], "little")
-            compression = body[32:32 + n].decode()
-            packed = body[32 + n + 8:]
-            if compression == "zstd":
-                import zstandard
-
-                raw = zstandard.ZstdDecompressor().decompressobj().decompress(packed)
-            elif compression == "lz4":
-                import lz4.frame
-
-                raw = lz4.frame.LZ4FrameDecompressor().decompress(packed)
-            elif compression == "":
-                raw = packed
-            else:
-                return 0
-        except Exception:  # noqa: BLE001 - too little of the chunk is left
+            return records.chunk(body, where, partial=True)
+        except Exception:  # noqa: BLE001 - too little of the chunk is left, or it cannot be trusted
             return 0
-        kept, pos = 0, 0
-        while pos + 9 <= len(raw):
-            op = raw[pos]
-            length = int.from_bytes(raw[pos + 1:pos + 9], "little")
-            if pos + 9 + length > len(raw):
-                break
-            try:
-                kept += self._records.record(op, raw[pos + 9:pos + 9 + length])
-            except Exception:  # noqa: BLE001 - stop at the first unreadable record
-                break
-            pos += 9 + length
-        return kept
 
     # -- types --------------------------------------------------------------------------------------
     def _typestore(self, ch: McapChannel) -> Typestore:
@@ -385,13 +445,11 @@ class McapSource(LogSource):
         return self._raw_cache[ch.id]
 
     def prefetch(self, topics: list[str]) -> None:
-        """Read the wanted channels in one pass over the chunks (each chunk decompressed once)."""
-        if self._salvaged:
-            return
+        """Read the wanted channels in one pass over the chunks (each chunk decompressed once, one at a time)."""
         cids = [c.id for c in self._channels.values()
                 if c.topic in topics and c.id not in self._raw_cache]
         if cids:
-            self._raw_cache.update(self._indexed(cids))
+            self._raw_cache.update(self._salvaged_raw(cids) if self._salvaged else self._indexed(cids))
 
     def close(self) -> None:
         self._raw_cache.clear()
@@ -407,11 +465,22 @@ class McapSource(LogSource):
 
     def _raw_uncached(self, ch: McapChannel) -> _RawMessages:
         if self._salvaged:
-            lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
-            starts = (np.cumsum(lengths) - lengths).astype(np.int64)
-            buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
-            return np.asarray(ch.times, dtype=np.int64), buf, starts, lengths
+            return self._salvaged_raw([ch.id])[ch.id]
         return self._indexed([ch.id])[ch.id]
+
+    def _salvaged_raw(self, cids: list[int]) -> dict[int, _RawMessages]:
+        """The wanted channels' messages of a salvaged file: a second pass keeping their bytes only."""
+        records = McapRecords(keep=frozenset(cids))
+        self._walk(records)  # what it skips was said by the first pass's warning
+        out: dict[int, _RawMessages] = {}
+        for cid in cids:
+            ch = records.channels.get(cid)
+            times, datas = (ch.times, ch.datas) if ch is not None else ([], [])
+            lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+            starts = (np.cumsum(lengths) - lengths).astype(np.int64)
+            buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
+            out[cid] = (np.asarray(times, dtype=np.int64), buf, starts, lengths)
+        return out
 
     def _chunks(self, cids: list[int]) -> list[ChunkIndex]:
         # a writer may leave the Message Index records out (valid MCAP): such a chunk may hold anything
@@ -421,17 +490,17 @@ class McapSource(LogSource):
 
     def _message_index(self, offset: int) -> np.ndarray:
         """(log_time, offset) pairs of one Message Index record at file ``offset``, shape (n, 2)."""
-        data = self._data
         # opcode(1) length(8) channel_id(2) records_length(4) records(16 each)
-        n_bytes = int.from_bytes(data[offset + 11:offset + 15], "little")
-        raw = np.frombuffer(data, dtype="<u8", count=n_bytes // 8, offset=offset + 15)
-        return raw.reshape(-1, 2).astype(np.int64)
+        head = os.pread(self._handle.fileno(), 15, offset)
+        n_bytes = int.from_bytes(head[11:15], "little")
+        raw = os.pread(self._handle.fileno(), n_bytes - n_bytes % 16, offset + 15)
+        return np.frombuffer(raw, dtype="<u8").reshape(-1, 2).astype(np.int64)
 
     def _index_times(self, cids: list[int]) -> dict[int, np.ndarray]:
         out: dict[int, list[np.ndarray]] = {cid: [] for cid in cids}
         if any(not c.message_index_offsets for c in self._index.chunk_indexes):
-            # no Message Index records: the times come from reading the chunks
-            return {cid: v[0] for cid, v in self._indexed(cids).items()}
+            # no Message Index records: the times come from reading the chunks (not their bytes)
+            return {cid: v[0] for cid, v in self._indexed(cids, payload=False).items()}
         try:
             for chunk in sorted(self._index.chunk_indexes, key=lambda c: c.chunk_start_offset):
                 for cid, off in chunk.message_index_offsets.items():
@@ -441,74 +510,84 @@ class McapSource(LogSource):
             raise LogReadError(f"{self.path}: corrupt MCAP message index") from None
         return {cid: np.concatenate(v) if v else np.zeros(0, np.int64) for cid, v in out.items()}
 
-    def _indexed(self, cids: list[int]) -> dict[int, _RawMessages]:
-        """For each channel: log times [ns], bytes, message starts and sizes (file order)."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Chunk, Message
-        from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
+    def _chunk_data(self, chunk_index: ChunkIndex) -> bytes:
+        """One chunk's records, decompressed (read with ``pread``: nothing of the file stays mapped).
 
-        # every read chunk goes into one shared buffer; channels keep offsets into it
-        buffers: list[np.ndarray] = []
-        base = 0
+        Raises OversizeChunkError for a chunk over the size limits (before its data are read),
+        ValueError (or the decompressor's error) for a damaged one.
+        """
+        fd = self._handle.fileno()
+        at = chunk_index.chunk_start_offset
+        where = f"{self.path}: chunk at byte {at}"
+        head = os.pread(fd, 9 + 1024, at)
+        if len(head) < 9 or head[0] != OP_CHUNK:
+            raise ValueError("no chunk record at its index's offset")
+        header = chunk_header(head[9:])
+        if header.records_length > header.uncompressed_size + (header.uncompressed_size >> 6) + 1024:
+            raise ValueError("compressed records longer than they can be")
+        check_declared(header, where)  # before reading what it would decompress
+        packed = os.pread(fd, header.records_length, at + 9 + header.records_offset)
+        if len(packed) < header.records_length:
+            raise ValueError("chunk cut off by the end of the file")
+        data = decompress_chunk(header, packed, where)
+        if header.uncompressed_crc and zlib.crc32(data) != header.uncompressed_crc:
+            raise ValueError("CRC mismatch")
+        return data
+
+    def _indexed(self, cids: list[int], *, payload: bool = True) -> dict[int, _RawMessages]:
+        """For each channel: log times [ns], its messages' bytes, their starts and sizes (file order).
+
+        One chunk is held at a time; only the wanted channels' message bytes are copied out of it
+        (none without ``payload``: times only), so memory follows what is wanted, not the file.
+        """
         parts: dict[int, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {
             cid: ([], [], []) for cid in cids}
         for chunk_index in self._chunks(cids):
             try:
-                handle = self._handle
-                handle.seek(chunk_index.chunk_start_offset + 1 + 8)
-                chunk = Chunk.read(ReadDataStream(handle))
-                data_stream, size = get_chunk_data_stream(chunk)
-                data = data_stream.read(size)
-                if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-                    raise ValueError("CRC mismatch")
+                data = self._chunk_data(chunk_index)
+            except OversizeChunkError:
+                raise
             except Exception as err:  # noqa: BLE001 - one damaged chunk: keep the others, say so
                 self.warn(f"chunk at byte {chunk_index.chunk_start_offset} is corrupt "
                           f"({type(err).__name__}: {err}); its messages are skipped")
                 continue
             whole = np.frombuffer(data, dtype=np.uint8)
-            buffers.append(whole)
-            chunk_base = base
-            base += len(whole)
-            if not chunk_index.message_index_offsets:
-                off, channel, log_time, rec_len = _walk_messages(data)
-                for cid in cids:
-                    sel = channel == cid
-                    times, starts, lengths = parts[cid]
-                    times.append(log_time[sel])
-                    starts.append(off[sel] + 9 + _MSG_HEADER + chunk_base)
-                    lengths.append(rec_len[sel] - _MSG_HEADER)
+            for cid, (t_ns, start, length) in self._chunk_messages(whole, chunk_index, cids).items():
+                times, bufs, lengths = parts[cid]
+                times.append(t_ns)
+                bufs.append(_gather(whole, start, length) if payload else np.zeros(0, np.uint8))
+                lengths.append(length)
+        out: dict[int, _RawMessages] = {}
+        for cid, (times, bufs, lengths) in parts.items():
+            t_ns = np.concatenate(times) if times else np.zeros(0, np.int64)
+            size = np.concatenate(lengths).astype(np.int64) if lengths else np.zeros(0, np.int64)
+            buf = np.concatenate(bufs) if bufs else np.zeros(0, np.uint8)
+            out[cid] = (t_ns, buf, (np.cumsum(size) - size).astype(np.int64), size)
+        return out
+
+    def _chunk_messages(self, whole: np.ndarray, chunk_index: ChunkIndex,
+                        cids: list[int]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Log times, payload starts and sizes of the wanted channels' messages in one decompressed
+        chunk: from its Message Index records, else (none written, or damaged) from walking it."""
+        out: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        offsets = chunk_index.message_index_offsets
+        walked: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        for cid in cids:
+            if offsets and cid not in offsets:
                 continue
-            for cid in cids:
-                if cid not in chunk_index.message_index_offsets:
-                    continue
+            if offsets:
                 try:
-                    t_ns, start, length = self._locate(whole, cid, chunk_index.message_index_offsets[cid])
-                    start = start + chunk_base
+                    out[cid] = self._locate(whole, cid, offsets[cid])
+                    continue
                 except (ValueError, IndexError):
-                    # the index (outside the CRC-checked chunk) is damaged but the chunk is fine:
-                    # walk the chunk's records with the library instead
+                    # the index (outside the CRC-checked chunk) is damaged but the chunk is fine
                     self.warn(f"message index of chunk at byte {chunk_index.chunk_start_offset} is "
                               "corrupt; read the chunk record by record")
-                    msgs = [r for r in breakup_chunk(chunk) if isinstance(r, Message) and r.channel_id == cid]
-                    datas = [bytes(m.data) for m in msgs]
-                    length = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
-                    start = base + (np.cumsum(length) - length)
-                    t_ns = np.array([m.log_time for m in msgs], dtype=np.int64)
-                    extra = np.frombuffer(b"".join(datas), dtype=np.uint8)
-                    buffers.append(extra)
-                    base += len(extra)
-                times, starts, lengths = parts[cid]
-                times.append(t_ns)
-                starts.append(start)
-                lengths.append(length)
-        buf = np.concatenate(buffers) if buffers else np.zeros(0, np.uint8)
-        out: dict[int, _RawMessages] = {}
-        for cid, (times, starts, lengths) in parts.items():
-            if not times:
-                out[cid] = (np.zeros(0, np.int64), buf, np.zeros(0, np.int64), np.zeros(0, np.int64))
-            else:
-                out[cid] = (np.concatenate(times), buf, np.concatenate(starts).astype(np.int64),
-                            np.concatenate(lengths).astype(np.int64))
+            if walked is None:
+                walked = _walk_messages(whole)
+            off, channel, log_time, rec_len = walked
+            sel = channel == cid
+            out[cid] = (log_time[sel], off[sel] + 9 + _MSG_HEADER, rec_len[sel] - _MSG_HEADER)
         return out
 
     def _locate(self, arr: np.ndarray, cid: int, index_offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -522,7 +601,7 @@ class McapSource(LogSource):
         off = index[:, 1]
         if len(off) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
-        if off.min() < 0 or off.max() + 9 + _MSG_HEADER > len(arr) or (arr[off] != _OP_MESSAGE).any():
+        if off.min() < 0 or off.max() + 9 + _MSG_HEADER > len(arr) or (arr[off] != OP_MESSAGE).any():
             raise ValueError("message index points outside the chunk")
 
         rec_len, channel, log_time = _message_fields(arr, off)
@@ -532,22 +611,27 @@ class McapSource(LogSource):
         return log_time, off + 9 + _MSG_HEADER, rec_len - _MSG_HEADER
 
 
-def _walk_messages(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _walk_messages(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Offsets, channel ids, log times [ns] and record lengths of the Message records in a chunk's
-    records (for chunks written without Message Index records). Stops at a truncated record."""
-    offs: list[int] = []
-    pos, n = 0, len(data)
-    mv = memoryview(data)
-    while pos + 9 <= n:
-        length = int.from_bytes(mv[pos + 1:pos + 9], "little")
-        if pos + 9 + length > n:
-            break
-        if data[pos] == _OP_MESSAGE and length >= _MSG_HEADER:
-            offs.append(pos)
-        pos += 9 + length
-    off = np.array(offs, dtype=np.int64)
-    rec_len, channel, log_time = _message_fields(np.frombuffer(data, dtype=np.uint8), off)
+    records (for chunks written without Message Index records, or whose index is damaged).
+
+    Raises ValueError if the walk stops before the end (a record that cannot be trusted).
+    """
+    walk = walk_records(arr.data)
+    if not walk.complete:
+        raise ValueError(f"unreadable record at byte {walk.stop} of the chunk")
+    off = walk.offsets[walk.opcodes == OP_MESSAGE]
+    rec_len, channel, log_time = _message_fields(arr, off)
     return off, channel, log_time, rec_len
+
+
+def _gather(arr: np.ndarray, starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The bytes ``arr[starts[i]:starts[i] + lengths[i]]`` end to end, in one vectorised copy."""
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, np.uint8)
+    ends = np.cumsum(lengths)
+    return arr[np.repeat(starts - (ends - lengths), lengths) + np.arange(total)]
 
 
 def _message_fields(arr: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

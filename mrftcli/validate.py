@@ -23,11 +23,15 @@ import math
 
 from .errors import InputError
 
-__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "TP_RANGE"]
+__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "TP_RANGE", "TP_MISSING"]
 
 #: Physical range of the propulsion time constant Tp [s]: a multirotor's motor and propeller respond in
 #: tens of milliseconds (the paper's 42.2 ms); 1 ms is below any rotor's inertia, 2 s is an airship.
 TP_RANGE = (1e-3, 2.0)
+
+#: What Tp is and how to give it, said when it is missing (the model rests on it: never assumed).
+TP_MISSING = ("the propulsion time constant Tp [s] from a bench test of the motor and propeller is required, "
+              "e.g. --tp 0.0422 (42.2 ms)")
 
 
 def check_beta(beta: float) -> float:
@@ -54,6 +58,9 @@ def check_positive(name: str, value: float) -> float:
 
 def check_time(name: str, value: float) -> float:
     """A positive, finite time in seconds called ``name`` in messages (Tp, Td, tau, a duration)."""
+    if value is None:
+        what = TP_MISSING if name == "Tp" else "give it as a positive time in seconds"
+        raise InputError(f"{name} is missing: {what}")
     try:
         v = float(value)
     except (TypeError, ValueError) as err:

@@ -16,7 +16,7 @@ import click
 from ..errors import InputError
 from ..jsonable import to_jsonable
 from ..progress import Progress
-from ..validate import check_beta, check_tp
+from ..validate import TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress",
            "check_output_file", "check_output_dir"]
@@ -86,6 +86,9 @@ BETA = _BetaType()
 def _positive_time(ctx: click.Context | None, param: click.Parameter | None, value: float | None) -> float | None:
     """``--tp``'s callback: :func:`mrftcli.validate.check_tp`, its message as click's BadParameter."""
     if value is None:
+        if param is not None and param.required:
+            # click 8.3+ passes a required option's explicit default None through to the callback
+            raise click.UsageError(f"missing --tp: {TP_MISSING}", ctx)
         return None
     try:
         return check_tp(value)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
+from ..validate import check_time
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
@@ -37,11 +39,13 @@ def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
 
 @dataclass(frozen=True)
 class _TuneSource:
-    """What the designs start from: the model, its posterior, the controller rate [Hz] the source records
-    (None: unknown), the tests' relay heights and output amplitudes (for the PX4 mapping), notes."""
+    """What the designs start from: the model, its posterior, the loop and the controller rate [Hz] the
+    source records (None: unknown), the tests' relay heights and output amplitudes (for the PX4 mapping),
+    notes."""
 
     model: LoopModel
     posterior: Posterior | None
+    loop: str | None
     rate_hz: float | None = None
     heights: tuple[float, ...] = ()
     amplitudes: tuple[float, ...] = ()
@@ -50,22 +54,45 @@ class _TuneSource:
 
 def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None,
                  stds: tuple[float, float, float]) -> _TuneSource:
-    """The model given with --td/--tau/--k, with a posterior when a std is given."""
+    """The model given with --td/--tau/--k, with a posterior when a std is given.
+
+    Every parameter is required: the gains scale as 1/K, so an assumed K = 1 would print gains off by
+    the factor the true K differs from 1 (issue 26).
+    """
     from ..mrft.model import LoopModel
     from ..tune.design import Posterior
 
-    if td is None or tau is None:
-        raise InputError("give a LOG or RESULT.json, or the model with --td and --tau (and --k)")
-    model = LoopModel(Tp, td, tau, 1.0 if K is None else K)
+    if td is None and tau is None and K is None:
+        raise InputError("give a LOG or RESULT.json, or the model with --td S, --tau S and --k K")
+    missing = [f"--{name}" for name, v in (("td", td), ("tau", tau), ("k", K)) if v is None]
+    if missing:
+        raise InputError(f"missing {', '.join(missing)}: the model needs Td [s], tau [s] and the gain K "
+                         "[output unit per command unit] (analyze reports all three; the gains scale as 1/K)")
+    assert td is not None and tau is not None and K is not None  # narrowed by the check above
+    check_time("--td", td)
+    check_time("--tau", tau)
+    if not math.isfinite(K) or K == 0:
+        raise InputError(f"--k must be a finite, non-zero gain, got {K}")
+    model = LoopModel(Tp, td, tau, K)
     posterior = None
     if any(s and s > 0 for s in stds):
         posterior = Posterior.from_spread(model, *stds, n=200, seed=0,
                                           source="log-normal draws from --td-std/--tau-std/--k-std")
-    return _TuneSource(model, posterior)
+    return _TuneSource(model, posterior, None)
 
 
-def _from_result_json(path: Path, Tp: float, loop: str) -> _TuneSource:
-    """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`."""
+def _check_px4(fmt: str, loop: str, kind: str) -> None:
+    """Only a roll/pitch PD exports to PX4 (refused before the work; the gains are checked again)."""
+    if fmt == "px4" and (loop not in ("roll", "pitch") or kind != "PD"):
+        raise InputError("cannot export to PX4: only a PD on the roll or pitch loop maps exactly onto PX4's "
+                         f"angle-P / rate-P cascade (got {kind} on {loop}); see docs/tune.md")
+
+
+def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
+    """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`.
+
+    Without ``loop`` (no --loop) the loop is the one the file was analysed for.
+    """
     from ..analyze import AnalysisResult
     from ..tune.analysis import model_from_result_json
 
@@ -76,10 +103,13 @@ def _from_result_json(path: Path, Tp: float, loop: str) -> _TuneSource:
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
     except InputError as err:
         raise InputError(f"{path}: {err}") from err
-    if result.loop and result.loop != loop:
+    if loop is not None and result.loop and result.loop != loop:
         raise InputError(f"--loop {loop} but {path} was analysed for the {result.loop} loop")
+    if not (loop or result.loop):
+        raise InputError(f"give --loop altitude|roll|pitch: {path} does not record its loop")
     # the rate the analysis recorded: the controller's, as when the LOG is given (not the logging rate)
-    return _TuneSource(model, post, result.controller_rate_hz, tuple(float(t.h) for t in result.tests),
+    return _TuneSource(model, post, loop or result.loop, result.controller_rate_hz,
+                       tuple(float(t.h) for t in result.tests),
                        tuple(float(t.amplitude_mean) for t in result.tests), (note,))
 
 
@@ -94,7 +124,7 @@ def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, A
                               **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
-    return _TuneSource(result.model, posterior_from_analysis(result), result.controller_rate_hz,
+    return _TuneSource(result.model, posterior_from_analysis(result), result.loop, result.controller_rate_hz,
                        tuple(float(t.h) for t in result.tests), tuple(float(t.amplitude_mean) for t in result.tests))
 
 
@@ -135,11 +165,13 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, fm
               help="Fewest stable cycles for a test to be used (as analyze).")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
 @click.option("--tau", type=float, help="tau [s], with --td.")
-@click.option("--k", "K", type=float, help="K, with --td (default 1: gains then scale as 1/K).")
+@click.option("--k", "K", type=float, help="Gain K [output unit per command unit], with --td (required: the gains "
+              "scale as 1/K).")
 @click.option("--td-std", type=float, default=0.0, help="Std of Td [s] for the robust design (with --td).")
 @click.option("--tau-std", type=float, default=0.0, help="Std of tau [s] for the robust design (with --td).")
 @click.option("--k-std", type=float, default=0.0, help="Std of K for the robust design (with --td).")
-@click.option("--rate", "rate_hz", type=float, help="Controller rate [Hz] (default: from the log; 200 otherwise).")
+@click.option("--rate", "rate_hz", type=click.FloatRange(0, None, min_open=True), metavar="HZ",
+              help="Controller rate [Hz] (default: the rate the log or RESULT.json records; required otherwise).")
 @click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
               help="Criterion of a unit setpoint step.")
 @click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
@@ -168,25 +200,30 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     from ..tune.design import tune as run_tune
 
     _check_outputs(json_target, report_dir)
-    loop = read_options["loop"]
-    if fmt == "px4" and (loop not in ("roll", "pitch") or kind != "PD"):
-        # refused before the work starts; the mapping itself is checked again on the gains
-        raise InputError("cannot export to PX4: only a PD on the roll or pitch loop maps exactly onto PX4's "
-                         f"angle-P / rate-P cascade (got {kind} on {loop}); see docs/tune.md")
     if source is not None and any(v is not None for v in (td, tau, K)):
         raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
+    is_result = source is not None and str(source).lower().endswith(".json") and Path(source).is_file()
+    loop: str | None = read_options["loop"]
+    if loop is None and not is_result:
+        # the gains, their HEAR/PX4 export and the log's signals all depend on the loop: never assumed
+        raise InputError("give --loop altitude|roll|pitch: the loop the gains are for")
+    if loop is not None:
+        _check_px4(fmt, loop, kind)  # before the work starts
     if source is None:
         src = _from_spread(Tp, td, tau, K, (td_std, tau_std, k_std))
-    elif str(source).lower().endswith(".json") and Path(source).is_file():
+    elif is_result:
         src = _from_result_json(Path(source), Tp, loop)
     else:
         src = _from_log(source, Tp, min_cycles, read_options)
-    rate = rate_hz or src.rate_hz or 200.0
+    loop = loop or src.loop
+    _check_px4(fmt, loop, kind)
+    rate = rate_hz or src.rate_hz
+    if rate is None:
+        raise InputError("give --rate HZ, the rate the controller runs at: the gains are designed for the sampled "
+                         "loop and the source records no rate")
     with tqdm_progress("tune", unit="design") as progress:
         res = run_tune(src.model, rate, posterior=src.posterior, objective=objective, ms_max=ms_max,
                        effort_max=effort_max, loop=loop, progress=progress)
-    if rate_hz is None and src.rate_hz is None:
-        click.echo("note: controller rate 200 Hz assumed (give --rate)", err=True)
     if src.notes:
         res = dataclasses.replace(res, notes=src.notes + res.notes)
         if fmt != "table" or json_target == "-":  # the table shows its notes itself
@@ -197,3 +234,16 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
         from ..report.tune import write_tune_report
 
         click.echo(f"report: {write_tune_report(res, report_dir)}", err=fmt != "table" or json_target == "-")
+
+
+def _loop_required(command: click.Command) -> None:
+    """tune's --loop has no default (the shared option's is altitude): the gains are for one loop."""
+    for param in command.params:
+        if param.name == "loop" and isinstance(param, click.Option):
+            param.default = None
+            param.show_default = False
+            param.help = ("Loop the gains are for (required with a LOG or --td; default for a RESULT.json: the "
+                          "loop it was analysed for).")
+
+
+_loop_required(tune)

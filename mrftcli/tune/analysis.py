@@ -18,6 +18,7 @@ Where the posterior comes from:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,7 +30,15 @@ from ..mrft.model import LoopModel
 from .design import Posterior, TuneResult, tune
 
 __all__ = ["posterior_from_analysis", "model_from_result_json", "tune_analysis",
-           "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES"]
+           "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES", "ASSUMED_RATE_HZ",
+           "RATE_ASSUMED_NOTE"]
+
+#: Controller rate [Hz] :func:`tune_analysis` assumes when neither the caller nor the analysis gives one.
+ASSUMED_RATE_HZ = 200.0
+
+#: The note a result tuned at :data:`ASSUMED_RATE_HZ` carries first.
+RATE_ASSUMED_NOTE = (f"assumption: controller rate {ASSUMED_RATE_HZ:g} Hz (the log records none; give the rate "
+                     "to tune for your controller)")
 
 #: The figures :func:`summary_figures` gives (the ``tune_*`` columns of the batch summary).
 SUMMARY_FIGURES = ("tune_design", "tune_kind", "tune_Kp", "tune_Ki", "tune_Kd", "tune_Tf", "tune_rate_hz",
@@ -97,12 +106,16 @@ def tune_analysis(result: AnalysisResult, *, kinds=("PD",), rate_hz: float | Non
     """:func:`~mrftcli.tune.design.tune` on an analysed log: its model, its posterior, its controller rate.
 
     ``rate_hz`` defaults to the controller rate the analysis records (``result.controller_rate_hz``;
-    200 Hz when it has none); ``options`` go to
+    :data:`ASSUMED_RATE_HZ` when it has none, and the result's first note says so); ``options`` go to
     :func:`~mrftcli.tune.design.tune` (``objective``, ``ms_max``, ``effort_max``, ``progress``).
     """
     rate = rate_hz if rate_hz is not None else result.controller_rate_hz
-    return tune(result.model, rate or 200.0, posterior=posterior_from_analysis(result), kinds=kinds,
-                designs=designs, loop=result.loop, **options)
+    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result), kinds=kinds,
+               designs=designs, loop=result.loop, **options)
+    if not rate:
+        # stated with the gains (their notes reach the table, the JSON and the report): never a silent default
+        res = dataclasses.replace(res, notes=(RATE_ASSUMED_NOTE, *res.notes))
+    return res
 
 
 def summary_figures(res: TuneResult, kind: str = "PD") -> dict[str, Any]:

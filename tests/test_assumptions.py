@@ -1,0 +1,97 @@
+"""Issue 26: never a confident wrong answer. Each case is run from the CLI as the user meets it.
+
+The oracles are independent of the code under test: the truth sidecars of the sample logs (the
+simulator's plant), and the closed-form scaling of the gains with 1/K.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "sample_logs"
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    """``mrft-ident ARGS`` in a fresh interpreter, as a user runs it."""
+    return subprocess.run([sys.executable, "-m", "mrftcli", *args], capture_output=True, text=True, cwd=ROOT,
+                          timeout=300)
+
+
+def one_line_error(proc: subprocess.CompletedProcess[str], code: int = 2) -> str:
+    """The process failed with ``code`` and one ``error:`` line on stderr (no traceback); that line."""
+    assert proc.returncode == code, (proc.returncode, proc.stdout, proc.stderr)
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert "Traceback" not in proc.stderr
+    return lines[0]
+
+
+# item 1: tune rests on no silent default
+
+MODEL = ["--tp", "0.0422", "--td", "1.3", "--tau", "0.03"]
+
+
+def test_tune_without_k_names_the_option():
+    err = one_line_error(run("tune", *MODEL, "--loop", "roll", "--rate", "200"))
+    assert "--k" in err and "gain K" in err
+
+
+def test_tune_without_loop_names_the_option():
+    err = one_line_error(run("tune", *MODEL, "--k", "30", "--rate", "200"))
+    assert "--loop" in err
+
+
+def test_tune_without_a_rate_names_the_option():
+    err = one_line_error(run("tune", *MODEL, "--k", "30", "--loop", "roll"))
+    assert "--rate" in err
+
+
+def test_tune_gains_scale_as_one_over_k():
+    """The MRFT rule's Kp for K = 30 is the K = 1 one over 30 (G is linear in K): the K given is the K used."""
+    def kp(k: str) -> float:
+        proc = run("tune", *MODEL, "--k", k, "--loop", "roll", "--rate", "200", "--design", "mrft-rule",
+                   "--format", "json")
+        assert proc.returncode == 0, proc.stderr
+        return float(json.loads(proc.stdout)["Kp"])
+
+    assert kp("30") == pytest.approx(kp("1") / 30, rel=1e-6)
+    assert kp("30") == pytest.approx(1.955, abs=1e-3)  # the issue's figure
+
+
+def test_tune_result_json_takes_its_loop_from_the_file(tmp_path):
+    result = tmp_path / "r.json"
+    log = str(SAMPLES / "design1_roll.mcap")
+    assert run("analyze", log, "--tp", "0.0422", "--loop", "roll", "--json", str(result)).returncode == 0
+    proc = run("tune", str(result), "--tp", "0.0422", "--format", "hear")
+    assert proc.returncode == 0, proc.stderr
+    explicit = run("tune", str(result), "--tp", "0.0422", "--format", "hear", "--loop", "roll")
+    assert proc.stdout == explicit.stdout  # the file's loop, roll, was used
+    err = one_line_error(run("tune", log, "--tp", "0.0422"))  # a LOG needs its loop
+    assert "--loop" in err
+
+
+# item 7: a missing --tp names the option and what it is
+
+@pytest.mark.parametrize("command", [
+    ["analyze", "sample_logs/design1_altitude.mcap"],
+    ["diagnose", "sample_logs/design1_altitude.mcap"],
+    ["tune", "--td", "1.3", "--tau", "0.03", "--k", "30", "--loop", "roll", "--rate", "200"],
+    ["plan", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--rate", "200"],
+])
+def test_missing_tp_says_which_option_and_what_it_is(command):
+    err = one_line_error(run(*command))
+    assert "missing --tp" in err and "propulsion time constant" in err and "None" not in err
+
+
+def test_library_missing_tp_is_an_input_error():
+    from mrftcli.errors import InputError
+    from mrftcli.validate import check_tp
+
+    with pytest.raises(InputError, match="Tp is missing"):
+        check_tp(None)  # type: ignore[arg-type]  # what an unset option passes

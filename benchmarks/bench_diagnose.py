@@ -92,19 +92,19 @@ def run_case(case: tuple) -> dict:
     if res is not None:
         out["found"] = [e.name for e in res.effects]
         out["unexplained"] = res.unexplained is not None
-        out["cycles_used"] = [t["cycles"] for t in res.tests]
+        out["cycles_used"] = [t.cycles for t in res.tests]
         out["values"] = {e.name: e.parameters.get(PARAM[e.name]) for e in res.effects}
-        out["nrmse_steps"] = {e.name: (e.fit_before.get("nrmse"), e.fit_after.get("nrmse")) for e in res.effects}
+        out["nrmse_steps"] = {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects}
         if res.effects:
             e = res.effects[0]
             out["value"] = e.parameters.get(PARAM[e.name])
-            out["nrmse_before"] = e.fit_before.get("nrmse")
-            out["nrmse_after"] = e.fit_after.get("nrmse")
+            out["nrmse_before"] = e.fit_before.nrmse
+            out["nrmse_after"] = e.fit_after.nrmse
             # without the recording's cycle-to-cycle scatter taken out (the metric before it was)
-            out["raw_before"] = e.fit_before.get("nrmse_raw")
-            out["raw_after"] = e.fit_after.get("nrmse_raw")
+            out["raw_before"] = e.fit_before.nrmse_raw
+            out["raw_after"] = e.fit_after.nrmse_raw
             # the recording's own cycle-to-cycle scatter on the held-out cycles: no model goes below it
-            out["raw_floor"] = e.fit_after.get("scatter_nrmse")
+            out["raw_floor"] = e.fit_after.scatter_nrmse
     return out
 
 

@@ -14,7 +14,7 @@ import pytest
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
 from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, Disagreement, EffectFinding,
-                                     Evidence, HeldOut, PairFit)
+                                     Evidence, HeldOut, PairFit, TestRow, Unexplained)
 from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -348,8 +348,15 @@ def _small_result() -> DiagnosisResult:
                                                  half_nrmse={"high": 0.05, "low": 0.15}, t_start_rel=1.5,
                                                  t_end_rel=7.5)],
                            identification={"linear": {"Td": 2.0, "Tp": 0.0422}},
-                           tests=[{"index": 0, "cycles": 24}], noise_std=5e-4, summary="sensor_lag explains it",
-                           warnings=["one"], unexplained=None, t0=1.5)
+                           tests=[TestRow(index=0, beta_nominal=None, beta_effective_up=-0.41, beta_effective_down=-0.39,
+                                          h=0.1, bias=0.5, rate_hz=200.0, t_start=3.0, t_end=20.0, t_start_rel=1.5,
+                                          t_end_rel=18.5, cycles=24, stable_cycles_found=25, cycles_fit=12,
+                                          cycles_held_out=12, period_scatter=None, period_scatter_noise_model=0.002)],
+                           noise_std=5e-4, summary="sensor_lag explains it", warnings=["one"],
+                           unexplained=Unexplained(after="linear + sensor_lag", what="a mismatch", held_out_feature_chi2=80.0,
+                                                   held_out_features=20, p_value=1e-8, held_out_nrmse_raw=0.05,
+                                                   tests=[1], largest={"test": 1, "z": 5.0}, segments=[], harmonics=[],
+                                                   best_candidate=None, worse_half=None), t0=1.5)
 
 
 def test_diagnosis_result_json_round_trip():
@@ -369,6 +376,8 @@ def test_diagnosis_result_json_round_trip():
     ({"effects": [{"name": "x"}]}, "effect has no 'explanation'"),
     ({"Tp": "fast"}, "malformed"),
     ({"unexplained": []}, "'unexplained' must be a JSON object"),
+    ({"unexplained": {"what": "x"}}, "unexplained has keys"),
+    ({"tests": [{"index": 0}]}, "test row has keys"),
     ({"candidates": [{"name": "x", "colour": "red"}]}, "candidate has unknown keys"),
     ({"second_effect_candidates": [{"name": "x"}]}, "pair has unknown keys"),
     ({"located": [{"kind": "wiggle", "test": 0}]}, "unknown kind or keys"),

@@ -25,11 +25,11 @@ def format_summary(result: DiagnosisResult) -> str:
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
     lines.append(f"{'':>4} {'[s]':>11} {'nominal':>8} {'effective':>9} {'[command]':>9} {'used':>6}")
     for t in result.tests:
-        nom = f"{t['beta_nominal']:+.3f}" if t["beta_nominal"] is not None else "-"
-        beff = 0.5 * (t["beta_effective_up"] + t["beta_effective_down"])
-        span = f"{t['t_start_rel']:.1f}-{t['t_end_rel']:.1f}"
-        lines.append(f"{t['index'] + 1:>4} {span:>11} {nom:>8} {beff:>+9.3f} "
-                     f"{t['h']:>9.4g} {t['cycles']:>6d}")
+        nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
+        beff = 0.5 * (t.beta_effective_up + t.beta_effective_down)
+        span = f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}"
+        lines.append(f"{t.index + 1:>4} {span:>11} {nom:>8} {beff:>+9.3f} "
+                     f"{t.h:>9.4g} {t.cycles:>6d}")
     lin = result.identification.get("linear", {})
     lines.append(f"linear model fitted to the cycles: Td {_g(lin.get('Td'))} s  tau {_g(1e3 * lin['tau'] if 'tau' in lin else None)} ms"
                  f"  K {_g(lin.get('K'))}")
@@ -78,8 +78,8 @@ def format_summary(result: DiagnosisResult) -> str:
         lines.append("found: nothing: the linear model explains the log")
     if result.unexplained is not None:
         u = result.unexplained
-        lines.append(f"unexplained: {u['what']} (held-out chi^2 {u['held_out_feature_chi2']:.0f} over "
-                     f"{u['held_out_features']} features, p = {u['p_value']:.2g})")
+        lines.append(f"unexplained: {u.what} (held-out chi^2 {u.held_out_feature_chi2:.0f} over "
+                     f"{u.held_out_features} features, p = {u.p_value:.2g})")
     feats = [loc for loc in result.located if loc.kind == "feature"][:4]
     if feats:
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")

@@ -18,7 +18,7 @@ from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
 from .jitter import scatter_z
-from .records import CandidateFit, CycleErrors, Disagreement, EffectFinding, FinalModel, HeldOut
+from .records import CandidateFit, CycleErrors, Disagreement, EffectFinding, FinalModel, HeldOut, Unexplained
 
 __all__ = ["UNEXPLAINED_P", "FEATURE_TEXT", "Located", "locate", "unexplained_mismatch"]
 
@@ -213,7 +213,7 @@ def locate(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, recs_all
 
 def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: HeldOut, effects: list[EffectFinding],
                          final: FinalModel | None, cand_rows: list[CandidateFit], recs_all: list, scatter: list[dict],
-                         t0_log: float, base_located: list[Disagreement]) -> dict | None:
+                         t0_log: float, base_located: list[Disagreement]) -> Unexplained | None:
     """The mismatch no candidate (or pair) explains: where and how large, or None.
 
     Reported when the linear model is rejected on the fitting cycles *and* on the held-out ones
@@ -240,30 +240,29 @@ def unexplained_mismatch(tests: list[DiagnosedTest], base: Fit, before: HeldOut,
     gains = [(r, r.delta_bic) for r in cand_rows if r.delta_bic is not None]
     tested = [(r, gain) for r, gain in sorted(gains, key=lambda rg: -rg[1])]
     where_tests = sorted({d.test + 1 for d in feats})
-    out = {
-        "after": model_name,
-        "what": ("the linear model is rejected, and no candidate effect (or pair) of the library explains the "
-                 "mismatch" if final is None else
-                 f"the model with {final.label} still leaves a mismatch beyond the noise on the held-out cycles"),
-        "held_out_feature_chi2": held.feature_chi2,
-        "held_out_features": sum(int(feature_mask(t).sum()) for t in tests),
-        "p_value": p_final,
-        "held_out_nrmse_raw": held.nrmse_raw,
-        "tests": where_tests,
-        "largest": None if worst is None else {
-            "test": worst.test + 1, "feature": worst.feature, "what": worst.what, "z": worst.z,
-            "recorded": worst.recorded, "model": worst.model},
-        "segments": [{"test": d.test + 1, "t_start_rel": d.t_start - t0_log, "t_end_rel": d.t_end - t0_log,
-                      "cycles": [c + 1 for c in d.cycles or []], "nrmse": d.nrmse, "worse_half": d.worse_half}
-                     for d in segs[:5]],
-        "harmonics": [{"test": d.test + 1, "harmonic": d.harmonic, "relative_error": d.relative_error}
-                      for d in harms[:5]],
-        "best_candidate": None if not tested else {"name": tested[0][0].name, "delta_bic": tested[0][1],
-                                                   "significant": bool(tested[0][0].significant)},
-    }
     half = None
     if segs:
         halves = [d.worse_half for d in segs]
         half = max(set(halves), key=halves.count)
-    out["worse_half"] = half
-    return out
+    return Unexplained(
+        after=model_name,
+        what=("the linear model is rejected, and no candidate effect (or pair) of the library explains the "
+              "mismatch" if final is None else
+              f"the model with {final.label} still leaves a mismatch beyond the noise on the held-out cycles"),
+        held_out_feature_chi2=held.feature_chi2,
+        held_out_features=sum(int(feature_mask(t).sum()) for t in tests),
+        p_value=p_final,
+        held_out_nrmse_raw=held.nrmse_raw,
+        tests=where_tests,
+        largest=None if worst is None else {
+            "test": worst.test + 1, "feature": worst.feature, "what": worst.what, "z": worst.z,
+            "recorded": worst.recorded, "model": worst.model},
+        segments=[{"test": d.test + 1, "t_start_rel": d.t_start - t0_log, "t_end_rel": d.t_end - t0_log,
+                   "cycles": [c + 1 for c in d.cycles or []], "nrmse": d.nrmse, "worse_half": d.worse_half}
+                  for d in segs[:5]],
+        harmonics=[{"test": d.test + 1, "harmonic": d.harmonic, "relative_error": d.relative_error}
+                   for d in harms[:5]],
+        best_candidate=None if not tested else {"name": tested[0][0].name, "delta_bic": tested[0][1],
+                                                "significant": bool(tested[0][0].significant)},
+        worse_half=half,
+    )

@@ -8,7 +8,7 @@ figures (:class:`DiagnosisFigures`) hold live models and fits and are never seri
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from ..io.logtypes import FlightLog
     from .fit import CandidateModel, DiagnosedTest, Fit
 
-__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement", "EffectFinding",
+__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement", "TestRow", "Unexplained", "EffectFinding",
            "FinalModel", "CycleErrors", "DiagnosisFigures", "DiagnosisResult"]
 
 #: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away)
@@ -520,6 +520,123 @@ class Disagreement:
 
 
 @dataclass(frozen=True)
+class TestRow:
+    """One test as the diagnosis used it (``tests`` of the result; the JSON keys are the fields, in order).
+
+    Attributes
+    ----------
+    index : int
+        The test's index (from 0).
+    beta_nominal : float or None
+        The beta the log records (None when it does not).
+    beta_effective_up, beta_effective_down : float
+        The switching levels the relay achieved (-h -> +h, +h -> -h).
+    h, bias : float
+        Relay height and hover command [command units].
+    rate_hz : float
+        Controller rate [Hz].
+    t_start, t_end, t_start_rel, t_end_rel : float
+        The test's span [s]: log times, and from the log start.
+    cycles, stable_cycles_found, cycles_fit, cycles_held_out : int
+        Stable cycles used, found by the segmenter (None when unknown), fitted, held out.
+    period_scatter, period_scatter_noise_model : float or None
+        The recorded cycle-to-cycle period std [s] (None under 3 cycles), and what noise alone explains.
+    """
+
+    __test__ = False  # (not a pytest test class)
+
+    index: int
+    beta_nominal: float | None
+    beta_effective_up: float
+    beta_effective_down: float
+    h: float
+    bias: float
+    rate_hz: float
+    t_start: float
+    t_end: float
+    t_start_rel: float
+    t_end_rel: float
+    cycles: int
+    stable_cycles_found: int | None
+    cycles_fit: int
+    cycles_held_out: int
+    period_scatter: float | None
+    period_scatter_noise_model: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON item."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> TestRow:
+        """The row of a :meth:`to_dict` item."""
+        data = _dict(data, "tests")
+        names = [f.name for f in fields(cls)]
+        if set(data) != set(names):
+            raise InputError(f"a diagnosis test row has keys {sorted(data)}, not {names}")
+        return cls(**data)
+
+
+@dataclass(frozen=True)
+class Unexplained:
+    """The mismatch no candidate (or pair) explains (``unexplained`` of the result; JSON keys = fields).
+
+    Attributes
+    ----------
+    after : str
+        The model it remains after (``"linear"`` or ``"linear + <effects>"``).
+    what : str
+        In words.
+    held_out_feature_chi2 : float or None
+        That model's held-out feature chi^2, over ``held_out_features`` features: ``p_value``.
+    held_out_features : int
+        Held-out features.
+    p_value : float
+        The chi^2 p-value.
+    held_out_nrmse_raw : float or None
+        Its held-out waveform NRMSE (the recording's scatter kept).
+    tests : list of int
+        The tests that disagree (from 1).
+    largest : dict or None
+        The largest disagreement: test (from 1), feature, what, z, recorded, model.
+    segments : list of dict
+        Runs of cycles that stand out: test, times from the log start, cycles (from 1), nrmse, worse half.
+    harmonics : list of dict
+        Harmonics off by more than 5 %: test, harmonic, relative_error.
+    best_candidate : dict or None
+        The candidate with the largest delta BIC (name, delta_bic, significant).
+    worse_half : str or None
+        The half-cycle most segments are worse in.
+    """
+
+    after: str
+    what: str
+    held_out_feature_chi2: float | None
+    held_out_features: int
+    p_value: float
+    held_out_nrmse_raw: float | None
+    tests: list[int]
+    largest: dict[str, Any] | None
+    segments: list[dict[str, Any]]
+    harmonics: list[dict[str, Any]]
+    best_candidate: dict[str, Any] | None
+    worse_half: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON item."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Unexplained:
+        """The record of a :meth:`to_dict` item."""
+        data = _dict(data, "unexplained")
+        names = [f.name for f in fields(cls)]
+        if set(data) != set(names):
+            raise InputError(f"the diagnosis' unexplained has keys {sorted(data)}, not {names}")
+        return cls(**data)
+
+
+@dataclass(frozen=True)
 class FinalModel:
     """The deterministic model finally chosen: ``label`` (e.g. ``"input_bias + sensor_lag"``), the
     model and its fit."""
@@ -623,13 +740,13 @@ class DiagnosisResult:
     identification : dict
         The base (linear) fit and, per found effect, the refit that accounts for it; the analysis'
         own identification when one was given.
-    tests : list of dict
+    tests : list of TestRow
         Per test: beta (nominal, effective up/down), h, bias, cycles used, times.
     noise_std : float
         Sensor noise estimated from the residual of the cycle projections [output units].
     summary : str
         One sentence.
-    unexplained : dict or None
+    unexplained : Unexplained or None
         The mismatch that no candidate (or pair) explains, when the linear model is rejected on the
         fitting and the held-out cycles and the model finally chosen still is on the held-out ones
         (chi^2 p-value below ``UNEXPLAINED_P``): ``what``, ``after`` (the model it remains after),
@@ -654,12 +771,12 @@ class DiagnosisResult:
     candidates: list[CandidateFit]
     located: list[Disagreement]
     identification: dict[str, Any]
-    tests: list[dict[str, Any]]
+    tests: list[TestRow]
     noise_std: float
     summary: str
     warnings: list[str] = field(default_factory=list)
     second_effect_candidates: list[PairFit] = field(default_factory=list)
-    unexplained: dict[str, Any] | None = None
+    unexplained: Unexplained | None = None
     t0: float = 0.0
     figures: DiagnosisFigures | None = field(default=None, repr=False, compare=False)
     schema_version: int = SCHEMA_VERSION
@@ -676,9 +793,9 @@ class DiagnosisResult:
             "identification": self.identification,
             "candidates": [c.to_dict() for c in self.candidates],
             "second_effect_candidates": [c.to_dict() for c in self.second_effect_candidates],
-            "unexplained": self.unexplained,
+            "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
             "t0": self.t0,
-            "tests": self.tests,
+            "tests": [t.to_dict() for t in self.tests],
             "noise_std": self.noise_std,
             "nrmse_definition": NRMSE_DEFINITION,
             "warnings": self.warnings,
@@ -711,11 +828,11 @@ class DiagnosisResult:
                 candidates=[CandidateFit.from_dict(c) for c in _list(data["candidates"], "candidates")],
                 located=[Disagreement.from_dict(d) for d in _list(data["located"], "located")],
                 identification=_dict(data["identification"], "identification"),
-                tests=_list(data["tests"], "tests"), noise_std=float(data["noise_std"]),
+                tests=[TestRow.from_dict(t) for t in _list(data["tests"], "tests")], noise_std=float(data["noise_std"]),
                 summary=str(data["summary"]), warnings=[str(w) for w in _list(data["warnings"], "warnings")],
                 second_effect_candidates=[PairFit.from_dict(c) for c in _list(data["second_effect_candidates"],
                                                                                "second_effect_candidates")],
-                unexplained=None if unexplained is None else _dict(unexplained, "unexplained"),
+                unexplained=None if unexplained is None else Unexplained.from_dict(unexplained),
                 t0=float(data["t0"]),
             )
         except KeyError as err:

@@ -55,7 +55,7 @@ from .jitter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
 from .physics import BY_NAME, CANDIDATES
-from .records import CandidateFit, DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel
+from .records import CandidateFit, DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel, TestRow, Unexplained
 from .screen import Screen, screen_log
 
 if TYPE_CHECKING:
@@ -238,7 +238,7 @@ def _identification(flight: FlightLog, Tp: float, screen: Screen, linear: Linear
     return identification
 
 
-def _summary_text(effects: list[EffectFinding], unexplained: dict | None) -> str:
+def _summary_text(effects: list[EffectFinding], unexplained: Unexplained | None) -> str:
     """One sentence: the effects found (or none) and what remains unexplained."""
     if effects:
         parts = [
@@ -252,39 +252,39 @@ def _summary_text(effects: list[EffectFinding], unexplained: dict | None) -> str
     else:
         summary = "the linear model explains the log: no candidate effect has strong evidence confirmed on held-out cycles"
     if unexplained is not None:
-        lg = unexplained.get("largest")
+        lg = unexplained.largest
         where = f" (largest: test {lg['test']}, {lg['what']}, z = {lg['z']:+.1f})" if lg else ""
         if effects:
-            summary += "; unexplained: " + unexplained["what"] + where
+            summary += "; unexplained: " + unexplained.what + where
         else:
-            summary = "unexplained: " + unexplained["what"] + where
+            summary = "unexplained: " + unexplained.what + where
     return summary
 
 
-def _test_rows(screen: Screen, linear: LinearFit) -> list[dict]:
+def _test_rows(screen: Screen, linear: LinearFit) -> list[TestRow]:
     """Per test: beta (nominal, effective up/down), h, bias, cycles used, times, period scatter."""
     t0_log = screen.t0
     return [
-        {
-            "index": t.index,
-            "beta_nominal": t.beta_nominal,
-            "beta_effective_up": t.beta[0],
-            "beta_effective_down": t.beta[1],
-            "h": t.h,
-            "bias": t.bias,
-            "rate_hz": t.rate_hz,
-            "t_start": t.t_start,
-            "t_end": t.t_end,
-            "t_start_rel": t.t_start - t0_log,
-            "t_end_rel": t.t_end - t0_log,
-            "cycles": len(t.tab),
-            "stable_cycles_found": next((int(sum(c.stable for c in g.cycles)) for g in screen.segments
-                                         if g.index == t.index), None),
-            "cycles_fit": int(t.fit.sum()),
-            "cycles_held_out": int(t.hold.sum()),
-            "period_scatter": math.sqrt(t.scatter_var("all")[0]) if t.scatter_var("all")[1] >= 3 else None,
-            "period_scatter_noise_model": sc["s0"],
-        }
+        TestRow(
+            index=t.index,
+            beta_nominal=t.beta_nominal,
+            beta_effective_up=t.beta[0],
+            beta_effective_down=t.beta[1],
+            h=t.h,
+            bias=t.bias,
+            rate_hz=t.rate_hz,
+            t_start=t.t_start,
+            t_end=t.t_end,
+            t_start_rel=t.t_start - t0_log,
+            t_end_rel=t.t_end - t0_log,
+            cycles=len(t.tab),
+            stable_cycles_found=next((int(sum(c.stable for c in g.cycles)) for g in screen.segments
+                                      if g.index == t.index), None),
+            cycles_fit=int(t.fit.sum()),
+            cycles_held_out=int(t.hold.sum()),
+            period_scatter=math.sqrt(t.scatter_var("all")[0]) if t.scatter_var("all")[1] >= 3 else None,
+            period_scatter_noise_model=sc["s0"],
+        )
         for t, sc in zip(screen.tests, linear.scatter)
     ]
 

@@ -263,11 +263,11 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     u = result.unexplained
     if u is not None:
         body.append("<h2>Unexplained mismatch</h2>")
-        body.append(f"<p>{esc(u['what'])}: on the held-out cycles the features are off by chi^2 "
-                    f"{_f(u['held_out_feature_chi2'])} over {u['held_out_features']} features (p = {u['p_value']:.2g}), "
-                    f"waveform error {_pct(u['held_out_nrmse_raw'])}.</p>")
-        if u.get("largest"):
-            lg = u["largest"]
+        body.append(f"<p>{esc(u.what)}: on the held-out cycles the features are off by chi^2 "
+                    f"{_f(u.held_out_feature_chi2)} over {u.held_out_features} features (p = {u.p_value:.2g}), "
+                    f"waveform error {_pct(u.held_out_nrmse_raw)}.</p>")
+        if u.largest:
+            lg = u.largest
             body.append(f"<p>Largest: test {lg['test']}, {esc(lg['what'])} (z = {lg['z']:+.1f}).</p>")
     ident = result.identification
     body.append("<h2>Identification</h2>")

@@ -397,8 +397,9 @@ class McapSource(LogSource):
         path = field if field is not None else self.default_field
         if ch.encoding == "json":
             return self._json_leaves(ch, path)
+        ts = self._typestore(ch)  # its errors name the path and topic already
         try:
-            return cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
+            return cdr.leaf_paths(ts, ch.schema_name, path)
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
 
@@ -430,8 +431,9 @@ class McapSource(LogSource):
             return t, _json_values(self.path, topic, buf, starts, lengths, fields)
         if ch.encoding not in ("cdr", "ros1"):
             raise LogReadError(f"{self.path}: {topic}: unsupported message encoding {ch.encoding!r}")
+        ts = self._typestore(ch)  # its errors name the path and topic already
         try:
-            vals = cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, fields,
+            vals = cdr.extract(ts, ch.schema_name, buf, starts, lengths, fields,
                                 ros1=ch.encoding == "ros1")
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None

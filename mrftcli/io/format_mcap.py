@@ -189,6 +189,9 @@ def channel_typestore(ch: McapChannel, path: str | Path) -> Typestore:
             ts = None
     if ts is None:
         ts = typestore_for(ros1=ros1)
+        if not ch.schema_name:
+            raise LogReadError(f"{path}: {ch.topic}: the channel has no schema (the file does not say "
+                               "what its messages hold); it cannot be decoded")
         if ch.schema_name not in ts.fielddefs:
             raise LogReadError(f"{path}: {ch.topic}: cannot decode type {ch.schema_name!r} "
                                f"(schema encoding {ch.schema_encoding!r})")

@@ -152,8 +152,9 @@ class McapFollower:
         path = field_path or "data"
         if ch.encoding == "json":
             return self._json_leaves(ch, topic, path)
+        ts = self._typestore(ch)  # its errors name the path and topic already
         try:
-            return cdr.leaf_paths(self._typestore(ch), ch.schema_name, path)
+            return cdr.leaf_paths(ts, ch.schema_name, path)
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
 

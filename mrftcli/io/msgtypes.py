@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from rosbags.interfaces import Nodetype
 
+from ..errors import LogReadError
 from . import cdr
 
 if TYPE_CHECKING:
@@ -20,7 +21,7 @@ if TYPE_CHECKING:
 #: a JSON Schema node
 JsonSchema = dict[str, Any]
 
-__all__ = ["typestore_for", "typestore_from_text", "numeric_leaves", "json_schema", "json_messages",
+__all__ = ["typestore_for", "typestore_from_text", "check_type_graph", "numeric_leaves", "json_schema", "json_messages",
            "ros1_name"]
 
 _INTS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "byte", "char"}
@@ -39,6 +40,13 @@ def typestore_from_text(text: str, name: str, ros1: bool = False) -> Typestore:
 
     The log's own definition wins over the standard one, so older or custom message versions decode
     as recorded.
+
+    Raises
+    ------
+    LogReadError
+        The definitions name a type they do not define, or a type that contains itself
+        (:func:`check_type_graph`); a hostile or careless schema must not reach the decoders, which
+        recurse into nested types.
     """
     from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 
@@ -46,14 +54,41 @@ def typestore_from_text(text: str, name: str, ros1: bool = False) -> Typestore:
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     try:
         store.register(types)
-        return store
     except Exception:  # noqa: BLE001 - conflicts with a standard definition: start from builtins only
-        pass
-    base = store
-    store = get_typestore(Stores.EMPTY)
-    store.register({k: v for k, v in base.fielddefs.items() if k.startswith("builtin_interfaces/")})
-    store.register(types)
+        base = store
+        store = get_typestore(Stores.EMPTY)
+        store.register({k: v for k, v in base.fielddefs.items() if k.startswith("builtin_interfaces/")})
+        store.register(types)
+    check_type_graph(store, name)
     return store
+
+
+def check_type_graph(ts: Typestore, msgtype: str) -> None:
+    """Check that every type ``msgtype`` nests is defined and none contains itself.
+
+    Raises
+    ------
+    LogReadError
+        Naming the undefined type, or the cycle (``A -> B -> A``).
+    """
+    done: set[str] = set()
+
+    def visit(name: str, path: tuple[str, ...]) -> None:
+        if name in path:
+            cycle = " -> ".join(path[path.index(name):] + (name,))
+            raise LogReadError(f"message type {msgtype} contains itself ({cycle}): not a finite message")
+        if name in done:
+            return
+        if name not in ts.fielddefs:
+            where = f" (in {path[-1]})" if path else ""
+            raise LogReadError(f"message type {name} is not defined{where}")
+        for _field, desc in ts.fielddefs[name][1]:
+            inner = desc if desc[0] == Nodetype.NAME else (desc[1][0] if desc[0] != Nodetype.BASE else None)
+            if inner is not None and inner[0] == Nodetype.NAME:
+                visit(inner[1], path + (name,))
+        done.add(name)
+
+    visit(msgtype, ())
 
 
 def ros1_name(msgtype: str) -> str:

@@ -86,7 +86,7 @@ def test_tune_result_json_takes_its_loop_from_the_file(tmp_path):
 ])
 def test_missing_tp_says_which_option_and_what_it_is(command):
     err = one_line_error(run(*command))
-    assert "missing --tp" in err and "propulsion time constant" in err and "None" not in err
+    assert "--tp" in err and "propulsion time constant" in err and "None" not in err
 
 
 def test_library_missing_tp_is_an_input_error():

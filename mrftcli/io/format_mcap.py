@@ -528,8 +528,6 @@ class McapSource(LogSource):
         if len(head) < 9 or head[0] != OP_CHUNK:
             raise ValueError("no chunk record at its index's offset")
         header = chunk_header(head[9:])
-        if header.records_length > header.uncompressed_size + (header.uncompressed_size >> 6) + 1024:
-            raise ValueError("compressed records longer than they can be")
         check_declared(header, where)  # before reading what it would decompress
         packed = os.pread(fd, header.records_length, at + 9 + header.records_offset)
         if len(packed) < header.records_length:

@@ -146,7 +146,8 @@ def decompress_chunk(header: ChunkHeader, packed: bytes | memoryview, where: str
 
 
 def check_declared(header: ChunkHeader, where: str, *, limit: int = MAX_CHUNK_BYTES) -> None:
-    """Refuse a chunk whose declared uncompressed size is over ``limit`` [bytes] (before reading it).
+    """Refuse a chunk whose declared uncompressed size, or compressed size, is over ``limit`` [bytes]
+    (before reading its records).
 
     Raises
     ------
@@ -157,6 +158,10 @@ def check_declared(header: ChunkHeader, where: str, *, limit: int = MAX_CHUNK_BY
         raise OversizeChunkError(f"{where} declares {_mib(header.uncompressed_size)} uncompressed, over "
                                  f"the {_mib(limit)} a chunk may hold: refused (a damaged file or a "
                                  "decompression bomb)")
+    # incompressible data grows by well under 1/64 in zstd and lz4 frames
+    if header.records_length > limit + (limit >> 6):
+        raise OversizeChunkError(f"{where} holds {_mib(header.records_length)} of compressed records, over "
+                                 f"the {_mib(limit)} a chunk may hold: refused (a damaged file)")
 
 
 def _zstd(packed: bytes | memoryview, declared: int, partial: bool) -> bytes:

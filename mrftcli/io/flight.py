@@ -24,7 +24,7 @@ from .logtypes import LOOPS, FlightLog, Signal
 from .source import LogSource, TopicSpec, parse_spec
 from .timing import Timing, median_rate_hz, receive_jitter_s
 
-__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "flight_from_source", "read_loop", "log_layout",
+__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "ABSURD_MAGNITUDE", "flight_from_source", "read_loop", "log_layout",
            "role_specs"]
 
 #: the reference layout (ROS 2 names, :data:`LAYOUTS` ``["reference"]``) by role, see docs/log-layout.md
@@ -38,6 +38,8 @@ DEFAULT_TOPICS = {
 
 #: PX4 MRFT axis of each loop (parameters MRFT_<AXIS>_BETA, _H, _ENABLE)
 _PX4_AXIS = {"x": "X", "y": "Y", "altitude": "Z"}
+#: a command or output sample beyond this magnitude is corrupt (its square overflows float64 in fits)
+ABSURD_MAGNITUDE = 1e100
 #: below this command rate [Hz] an MRFT cycle of 1-2 Hz has fewer than ~10 samples
 _LOW_RATE_HZ = 25.0
 
@@ -204,9 +206,10 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
         source["output_scale"] = roles.output_scale
     if roles.command_scale != 1.0:
         source["command_scale"] = roles.command_scale
+    optional["beta"] = _finite_beta(log, optional["beta"], source.get("beta", ""))
     timing = _timing(log, match.layout, opts, command, output)  # the stamps as logged, before _finite
-    command = _finite(log, command, "command", source["command"])
-    output = _finite(log, output, "output", source["output"])
+    command = _finite(log, _bounded(log, command, "command", source["command"]), "command", source["command"])
+    output = _finite(log, _bounded(log, output, "output", source["output"]), "output", source["output"])
     if match.layout.name != "reference":
         _warn_low_rate(log, command, match.layout)
     return FlightLog(path=str(log.path), loop=opts.loop, command=command, output=output,
@@ -347,6 +350,42 @@ def _timing(log: LogSource, lay: Layout, opts: ReadOptions, command: Signal, out
         jitter = max(receive_jitter_s(command.t), receive_jitter_s(output.t))
         return Timing(controller_rate_hz=rate, stamps="receive", timing_jitter_s=jitter)
     return Timing(controller_rate_hz=rate)
+
+
+def _finite_beta(log: LogSource, beta: Signal | None, where: str) -> Signal | None:
+    """``beta`` without NaN / infinite values (a parameter set to NaN), said in a warning.
+
+    A beta that is not a number says nothing about the test it was published for: that test is
+    read as one with no beta logged (its effective beta from the switching levels, as the
+    segmenter does for any test without a beta message), never with a NaN relay rule.
+    """
+    if beta is None:
+        return None
+    bad = ~np.isfinite(beta.values)
+    if not bad.any():
+        return beta
+    log.warn(f"beta {where}: {int(bad.sum())} value(s) are NaN or infinite (the first at {beta.t[bad][0]:.3f} s); "
+             "left out: the tests they were published for are read as tests without a logged beta")
+    return Signal(beta.t[~bad], beta.values[~bad]) if not bad.all() else None
+
+
+def _bounded(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
+    """``sig`` without values beyond :data:`ABSURD_MAGNITUDE`, said in a warning.
+
+    No sensor or command reads 1e100 in any unit; such a value is a corrupt sample, and its square
+    overflows float64 in every fit downstream. It is left out like a NaN (:func:`_finite`).
+    """
+    with np.errstate(invalid="ignore"):
+        bad = np.abs(sig.values) > ABSURD_MAGNITUDE
+    if not bad.any():
+        return sig
+    if bad.all():
+        raise LogReadError(f"{log.path}: {role} {where}: every value is beyond +-{ABSURD_MAGNITUDE:.0e}; "
+                           f"check the --{role}-topic field")
+    k = np.flatnonzero(bad)
+    log.warn(f"{role} {where}: {k.size} value(s) beyond +-{ABSURD_MAGNITUDE:.0e} (the first {sig.values[k[0]]:.3g} "
+             f"at message {int(k[0]) + 1}): corrupt samples, left out as missing samples")
+    return Signal(sig.t[~bad], sig.values[~bad])
 
 
 def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:

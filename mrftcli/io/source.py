@@ -92,6 +92,9 @@ def check_times(t: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray | None
             f"{what}: timestamps go backwards ({len(back)} times, first at message {i + 1}: "
             f"{t[i]:.6f} s -> {t[i + 1]:.6f} s)")
     dup = dt == 0
+    if dup.all():
+        raise LogReadError(f"{what}: all {len(t)} messages carry the same time ({t[0]:.6f} s): the recorder "
+                           "did not stamp them, so no rate or delay can be measured")
     if dup.any():
         t_new, period = spread_batches(t)
         notes.append(

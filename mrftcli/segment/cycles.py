@@ -25,6 +25,8 @@ __all__ = ["CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cy
 
 #: harmonics of the per-cycle fits (truncation error near 5e-4 of the amplitude)
 _HARMONICS = 8
+#: largest output magnitude a cycle is fitted at: above ~1e150 the sums of squares overflow float64
+_LARGEST = 1e150
 #: fewest samples per period a cycle is measured from (a line and one harmonic, twice over)
 MIN_SAMPLES_PER_CYCLE = 8
 
@@ -197,6 +199,8 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
     npar = 2 * H + 2
     if H < 1 or tt.size < 2 * npar:
         return CycleFundamental(complex(nan, nan), nan, nan, nan)
+    if not np.isfinite(yy).all() or np.abs(yy).max() > _LARGEST:
+        return CycleFundamental(complex(nan, nan), nan, nan, nan)  # squares would overflow float64
     fit = fit_harmonics(tt, yy, P, H)
     coef, resid = fit.coef, fit.residual
     noise = float(np.sqrt(resid @ resid / (tt.size - npar)))

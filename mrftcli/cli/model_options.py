@@ -131,7 +131,8 @@ def format_estimates(ident: LtiIdentification) -> list[str]:
     """The parameter table: estimate, std, 95 % interval (one-sided at a range's bound), and the verdict."""
     rows = [("parameter", "unit", "estimate", "± std", "95 % interval", "")]
     for e in ident.estimates:
-        rows.append((e.name, e.unit, _num(e.value), "" if e.known else _num(e.std, 2), _interval(e),
+        rows.append((e.name, e.unit, _num(e.value), "" if e.known else (_num(e.std, 2) if e.determined else "-"),
+                     _interval(e),
                      "known" if e.known else ("" if e.determined else "NOT DETERMINED")))
     widths = [max(len(r[k]) for r in rows) for k in range(6)]
     return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]

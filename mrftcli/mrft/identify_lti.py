@@ -124,7 +124,9 @@ class LtiEstimate:
         def finite(x: float) -> float | None:
             return x if math.isfinite(x) else None
 
-        return {"value": self.value, "unit": self.unit, "std": self.std, "ci95_low": finite(self.ci95_low),
+        # an undetermined parameter has no standard deviation worth the name: null, not a number
+        std = self.std if self.determined or self.known else None
+        return {"value": self.value, "unit": self.unit, "std": std, "ci95_low": finite(self.ci95_low),
                 "ci95_high": finite(self.ci95_high), "known": self.known, "determined": self.determined,
                 "one_sided": self.one_sided}
 
@@ -392,12 +394,20 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     chi2_dof = float(sol.fun @ sol.fun) / dof if dof > 0 else None
     J = sol.jac
     cov = np.linalg.pinv(J.T @ J, rcond=1e-12) * max(1.0, chi2_dof or 1.0)
-    return _result(problem, problem.values(sol.x), cov, chi2_dof, points, sol.x, lo, hi)
+    return _result(problem, problem.values(sol.x), cov, chi2_dof, points, sol.x, lo, hi, _null_parameters(problem, J))
+
+
+def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
+    """The parameters along which the fit is flat (fewer independent figures than unknowns)."""
+    _, sv, Vt = np.linalg.svd(J, full_matrices=True)
+    rank = int(np.sum(sv > 1e-6 * sv[0])) if sv.size and sv[0] > 0 else 0
+    null = Vt[rank:]
+    return {n for k, n in enumerate(problem.unknown) if null.size and np.max(np.abs(null[:, k])) > 0.1}
 
 
 def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_dof: float | None,
             points: Sequence[ResponsePoint], z: FloatArray | None = None, lo: FloatArray | None = None,
-            hi: FloatArray | None = None) -> LtiIdentification:
+            hi: FloatArray | None = None, flat: set[str] | None = None) -> LtiIdentification:
     """Estimates with their intervals and the determinability verdict."""
     model = problem.model.with_parameters(**values) if values else problem.model
     w_ref = float(np.median(problem.data.omega))
@@ -421,6 +431,8 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
             ends = [a, b]
             std = s
             determined = (b - a) * w_ref < 1.0  # within a radian of phase at the tests' frequency
+        if flat and name in flat:  # no interval along a flat direction: the data say nothing there
+            determined, ends, side = False, [p.bounds[0], p.bounds[1]], "low" if p.bounds[0] > -math.inf else ""
         estimates.append(LtiEstimate(name, p.unit, p.value, float(std), float(ends[0]), float(ends[1]), False,
                                      bool(determined), side))
         if not determined:

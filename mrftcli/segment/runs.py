@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import optimize
 from scipy.ndimage import maximum_filter1d
 
 __all__ = ["RelayRun", "robust_sigma", "find_relay_runs", "regularise_times", "tick_numbers", "SendTimes",
@@ -317,11 +318,12 @@ class SendTimes:
         The receive times fit a fixed-rate publisher and ``t`` is its grid.
     period : float
         The publisher's period [s] (NaN when no grid was found).
-    latency_floor : float
-        The earliest arrival's lateness behind the least-squares grid [s], removed from the times:
-        the grid's origin is set by the earliest arrivals (a message cannot arrive before it was sent).
+    lateness : float
+        Mean lateness of the arrivals behind the earliest ones [s], removed from the times: the
+        grid's origin is set by the earliest arrivals (a message cannot arrive before it was sent).
     spread : float
-        Robust std of the arrivals' lateness about the grid [s] (the transport's jitter).
+        Robust std (1.4826 MAD) of the arrivals' lateness about the grid [s] (the transport's
+        jitter; 0.37 L for a lateness uniform over 0..L).
     dropped : int
         Ticks without a message.
     reason : str
@@ -331,7 +333,7 @@ class SendTimes:
     t: np.ndarray
     rebuilt: bool
     period: float
-    latency_floor: float
+    lateness: float
     spread: float
     dropped: int
     reason: str = ""
@@ -342,8 +344,8 @@ class SendTimes:
             return f"receive-stamped {topic} not rebuilt: {self.reason}"
         drops = f", {self.dropped} ticks without a message" if self.dropped else ""
         return (f"receive-stamped {topic} rebuilt on its publisher's {1.0 / self.period:.4g} Hz tick grid "
-                f"(arrivals {self.spread * 1e3:.2f} ms std about the grid, {self.latency_floor * 1e3:.2f} ms "
-                f"latency floor removed{drops})")
+                f"(arrivals {self.spread * 1e3:.2f} ms std about the grid; {self.lateness * 1e3:.2f} ms of mean "
+                f"lateness behind the earliest arrivals removed{drops})")
 
 
 def rebuild_send_times(t: np.ndarray, *, allow_drops: bool = True) -> SendTimes:
@@ -396,18 +398,30 @@ def rebuild_send_times(t: np.ndarray, *, allow_drops: bool = True) -> SendTimes:
 
 
 def _floor_fit(t: np.ndarray, n: np.ndarray) -> SendTimes | None:
-    """The grid t0 + dt n through the earliest arrivals, when they agree along the topic (else None)."""
+    """The grid t0 + dt n through the earliest arrivals, when they agree along the topic (else None).
+
+    The grid is the highest line under every arrival (a linear programme: the support's lower edge,
+    which a bounded lateness pins far better than least squares pins the mean's line: a few us
+    against 35 us at the ends of 4000 messages with 0-3 ms of lateness).
+    """
+    # relative to the first stamp: epoch stamps (1.7e9 s) would cost the fit its precision
+    tr = t - t[0]
     A = np.vstack([np.ones_like(n), n]).T
-    (t0, dt), *_ = np.linalg.lstsq(A, t, rcond=None)
+    (c0, dt), *_ = np.linalg.lstsq(A, tr, rcond=None)
     if not dt > 0:
         return None
-    late = t - (t0 + dt * n)
-    size = max(50, t.size // 20)
-    floors = np.minimum.reduceat(late, np.arange(0, late.size, size))
+    late = tr - (c0 + dt * n)
+    # the earliest arrival of each of up to 20 equal stretches (50 messages at least: a few
+    # messages need not hold one that came early)
+    parts = max(1, min(20, t.size // 50))
+    floors = np.minimum.reduceat(late, np.linspace(0, late.size, parts + 1).astype(int)[:-1])
     if np.ptp(floors) > 0.25 * dt:
         return None
-    floor = float(np.min(late))
-    return SendTimes(t0 + floor + dt * n, True, float(dt), floor, robust_sigma(late),
+    lp = optimize.linprog([-float(n.size), -float(n.sum())], A_ub=A, b_ub=tr, bounds=[(None, None), (None, None)],
+                          method="highs")
+    t0, period = (float(lp.x[0]), float(lp.x[1])) if lp.success and lp.x[1] > 0 else (c0 + float(np.min(late)), dt)
+    grid = t0 + period * n
+    return SendTimes(t[0] + grid, True, period, float(np.mean(tr - grid)), robust_sigma(late),
                      int(n[-1] - n[0] - (n.size - 1)))
 
 

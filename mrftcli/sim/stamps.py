@@ -89,14 +89,15 @@ def recorded_flight(flight: SimulatedFlight, *, command: ReceiveStamping | None 
     flight : SimulatedFlight
         The simulated flight (every controller tick).
     command, output : ReceiveStamping, optional
-        How each topic reaches the recorder; None: stamped at the source, every tick logged.
+        How each topic reaches the recorder; None: stamped at the source, every tick logged
+        (``late_max=0`` with ``drop`` > 0: stamped at the source, some messages lost).
     seed : int
         Seed of the lateness and the drops.
 
     Returns
     -------
     FlightLog
-        ``timing.stamps`` is ``"receive"`` when either topic is receive-stamped (with the jitter a
+        ``timing.stamps`` is ``"receive"`` when either topic arrives late (with the jitter a
         reader measures, :func:`mrftcli.io.timing.receive_jitter_s`).
     """
     rng = np.random.default_rng(seed)
@@ -110,7 +111,7 @@ def recorded_flight(flight: SimulatedFlight, *, command: ReceiveStamping | None 
 
     cmd, out = topic(flight.command, command), topic(flight.output_measured, output)
     timing = Timing()
-    if command is not None or output is not None:
+    if any(s is not None and s.late_max > 0 for s in (command, output)):
         timing = Timing(None, "receive", max(receive_jitter_s(cmd.t), receive_jitter_s(out.t)))
     return FlightLog(path="simulated", loop=flight.spec.loop, command=cmd, output=out, timing=timing,
                      source={"format": "simulated"})

@@ -302,8 +302,9 @@ def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] 
     for c in test.stable:
         P = c.t_end - c.t_start
         i0, i1 = np.searchsorted(t, [c.t_start, c.t_end])
-        if i1 - i0 < 4 * max(harmonics) + 4:
+        if i1 - i0 < 10:  # a line and the fundamental need a few samples each
             continue
+        # up to eight harmonics, two samples per fitted function (16 samples a cycle: k <= 3)
         fit = fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4))
         Y = fit.harmonics
         w = 2 * math.pi / P
@@ -408,8 +409,12 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
         points += pts
         notes += [f"test {len(tests)}: {n}" for n in test_notes]
     if not tests:
-        raise SegmentationError("no usable relay test: " + ("; ".join(f"test {i + 1}: {r}" for i, _, _, r in rejected)
-                                                          or "no relay switching found"))
+        reasons: dict[str, list[str]] = {}
+        for i, _, _, r in rejected:
+            reasons.setdefault(r, []).append(str(i + 1))
+        raise SegmentationError("no usable relay test: " + ("; ".join(f"test(s) {', '.join(ix)}: {r}"
+                                                                      for r, ix in reasons.items())
+                                                            or "no relay switching found"))
     if any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests):
         notes.insert(0, "assumed: each relay's bias is balanced by the loop's operating point (the cycle is "
                         "taken about its centre); the response points do not depend on it")

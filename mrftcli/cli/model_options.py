@@ -179,8 +179,10 @@ def format_general(result: GeneralAnalysis) -> str:
         lines += format_estimates(ident)
         if ident.advice:
             lines.append(f"not determined: {ident.advice}")
+    by_note: dict[str, list[str]] = {}
     for k, t in enumerate(result.tests):
         if t.held_out is not None and t.held_out.note:
-            lines.append(f"held-out test {k + 1}: {t.held_out.note}")
+            by_note.setdefault(t.held_out.note, []).append(str(k + 1))
+    lines += [f"held-out test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
     lines += [f"note: {n}" for n in result.notes if not n.startswith("assumed")]
     return "\n".join(lines)

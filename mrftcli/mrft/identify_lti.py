@@ -17,7 +17,7 @@ intervals are formed on the log scale for positive parameters and cut at a bound
 one-sided).
 
 What the tests do not pin down is said, not guessed: a parameter whose 95 % interval is wider than a
-factor of e^2 (or, for the delay, than a radian of phase at the tests' frequency) is reported as not
+factor of e^2 (or, for the delay, than a radian of phase at the limit cycles' median frequency) is reported as not
 determined, with the test that would determine it.
 """
 
@@ -410,7 +410,8 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
             hi: FloatArray | None = None, flat: set[str] | None = None) -> LtiIdentification:
     """Estimates with their intervals and the determinability verdict."""
     model = problem.model.with_parameters(**values) if values else problem.model
-    w_ref = float(np.median(problem.data.omega))
+    d = problem.data
+    w_ref = float(np.median(d.omega[d.fundamental] if d.fundamental.any() else d.omega))
     estimates, undetermined = [], []
     for name, p in model.parameters.items():
         if p.known:

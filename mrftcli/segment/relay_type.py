@@ -9,7 +9,7 @@ centre (``beta_effective * amplitude`` of the stable cycles, the level ``L``):
   which raises the level by ``L_s = a sin(Omega Ts / 2)``; a level within three standard errors (or
   5 % of the amplitude) of ``L_s`` is an ideal relay;
 * a larger level is a hysteresis ``eps = L - L_s`` [output units];
-* a level below ``L_s`` by as much (phase lead) is an MRFT with beta < 0 at the effective beta.
+* a negative level beyond that floor (phase lead) is an MRFT with beta < 0 at the effective beta.
 
 MRFT and hysteresis give the same level within one test (``beta a = eps``); they differ across
 tests of different amplitude, so an MRFT without a logged beta must be stated (``kind="mrft"``).
@@ -76,7 +76,7 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
     excess = level - lag_level if math.isfinite(level) else 0.0
     if kind is None:
         floor = max(3.0 * se if math.isfinite(se) else 0.0, 0.05 * amp)
-        if excess < -floor:  # a level below the crossing: phase lead, which only an MRFT (beta < 0) gives
+        if level < -floor:  # switching before the crossing: phase lead, which only an MRFT (beta < 0) gives
             return RelayLaw("mrft", high, low, beta=float(test.beta_effective), source=stated)
         kind = "ideal" if excess <= floor else "hysteresis"
     if kind == "ideal":

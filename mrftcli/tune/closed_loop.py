@@ -37,13 +37,72 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plant_transfer", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses", "outputs",
+__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plant_transfer", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses", "outputs",
            "step_metrics", "criterion", "simulate_step", "spectral_radius", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
 SETTLING_BAND = 0.02
 #: |y| beyond this many step heights: the loop diverged (unstable).
 _DIVERGED = 1e3
+
+
+@dataclass(frozen=True)
+class RateFilter:
+    """A flight stack's second-order Butterworth low-pass on the measured rate (PX4's ``IMU_GYRO_CUTOFF``,
+    ArduPilot's ``INS_GYRO_FILTER``, HEAR_FC's rate filter), in place of the design's first-order Tf.
+
+    The stacks run it as a biquad from the bilinear transform with prewarping (PX4 and ArduPilot
+    ``LowPassFilter2p``): with omega_c = tan(pi f_c / f_s) and c = 1 + sqrt(2) omega_c + omega_c^2,
+    b = omega_c^2 (1, 2, 1) / c and a = (1, 2 (omega_c^2 - 1) / c, (1 - sqrt(2) omega_c + omega_c^2) / c).
+    It is modelled at the controller rate f_s (PX4 filters at the raw gyro rate and publishes at
+    ``IMU_GYRO_RATEMAX``: for cutoffs well below the control rate the two responses agree; the
+    tuning notes say so).
+
+    Attributes
+    ----------
+    cutoff_hz : float
+        Cutoff [Hz]; 0 disables the filter (the stacks' convention), as does a cutoff at or above
+        half the controller rate (PX4 and ArduPilot then bypass it).
+    parameter : str
+        The stack's parameter that sets it (for messages), e.g. ``"IMU_GYRO_CUTOFF"``.
+
+    Examples
+    --------
+    >>> f = RateFilter(40.0)
+    >>> round(abs(f.response(np.array([1.0 + 0j]), 400.0)[0]), 12)
+    1.0
+    """
+
+    cutoff_hz: float
+    parameter: str = ""
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.cutoff_hz) and self.cutoff_hz >= 0):
+            raise InputError(f"the rate filter's cutoff must be a number >= 0 Hz, got {self.cutoff_hz!r}")
+
+    def active(self, rate_hz: float) -> bool:
+        """Whether the stack runs the filter at ``rate_hz`` (0 < cutoff < rate / 2)."""
+        return 0.0 < self.cutoff_hz < 0.5 * rate_hz
+
+    def coefficients(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """(b, a) of the biquad at ``rate_hz`` (b = (1, 0, 0), a = (1, 0, 0) when bypassed)."""
+        if not self.active(rate_hz):
+            return np.array([1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
+        w = math.tan(math.pi * self.cutoff_hz / rate_hz)
+        c = 1.0 + math.sqrt(2.0) * w + w * w
+        b0 = w * w / c
+        return (np.array([b0, 2.0 * b0, b0]),
+                np.array([1.0, 2.0 * (w * w - 1.0) / c, (1.0 - math.sqrt(2.0) * w + w * w) / c]))
+
+    def response(self, z: np.ndarray, rate_hz: float) -> np.ndarray:
+        """B(z) = (b0 + b1 z^-1 + b2 z^-2) / (1 + a1 z^-1 + a2 z^-2) at complex ``z``."""
+        b, a = self.coefficients(rate_hz)
+        zi = 1.0 / np.asarray(z, complex)
+        return (b[0] + b[1] * zi + b[2] * zi * zi) / (a[0] + a[1] * zi + a[2] * zi * zi)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "2nd-order Butterworth (bilinear, prewarped) on the measured rate",
+                "cutoff_hz": self.cutoff_hz, "parameter": self.parameter}
 
 
 @dataclass(frozen=True)
@@ -64,6 +123,9 @@ class Controller:
         Derivative filter time constant [s] (>= 0).
     rate_hz : float
         Controller rate [Hz].
+    rate_filter : RateFilter, optional
+        The flight stack's filter on the measured rate: the derivative is then the backward
+        difference of y through it, D(z) = (z - 1) / (T z) B(z), and Tf is not used (set it to 0).
 
     Examples
     --------
@@ -77,6 +139,7 @@ class Controller:
     Kd: float
     Tf: float
     rate_hz: float
+    rate_filter: RateFilter | None = None
 
     def __post_init__(self) -> None:
         for name in ("Kp", "Ki", "Kd", "Tf"):
@@ -97,24 +160,45 @@ class Controller:
 
     def scaled(self, g: float) -> "Controller":
         """The same controller with Kp, Ki, Kd multiplied by ``g`` (Tf kept)."""
-        return Controller(self.Kp * g, self.Ki * g, self.Kd * g, self.Tf, self.rate_hz)
+        return Controller(self.Kp * g, self.Ki * g, self.Kd * g, self.Tf, self.rate_hz, self.rate_filter)
+
+    def derivative_response(self, z: np.ndarray) -> np.ndarray:
+        """D(z), the derivative path from y [per second]: (z - 1) / ((Tf + T) z - Tf), or with the stack's
+        filter (z - 1) / (T z) B(z)."""
+        T = self.Ts
+        z = np.asarray(z, complex)
+        if self.rate_filter is None:
+            return (z - 1.0) / ((self.Tf + T) * z - self.Tf)
+        return (z - 1.0) / (T * z) * self.rate_filter.response(z, self.rate_hz)
 
     def feedback_response(self, omega: np.ndarray) -> np.ndarray:
         """C_fb(e^{j omega T}): the controller from -y to u (the loop is L = C_fb Gd), omega in rad/s."""
         T = self.Ts
         z = np.exp(1j * np.asarray(omega, float) * T)
+        if self.rate_filter is not None:
+            return self.Kp + self.Ki * T * z / (z - 1.0) + self.Kd * self.derivative_response(z)
         return (self.Kp + self.Ki * T * z / (z - 1.0) + self.Kd * (z - 1.0) / ((self.Tf + T) * z - self.Tf))
 
     def noise_gain(self) -> float:
-        """|C_fb| at the Nyquist frequency [command units / output unit]: how much sensor noise reaches u.
+        """The largest |C_fb| over frequency [command units / output unit]: how much sensor noise reaches u.
 
-        With backward differences the derivative's gain is largest at z = -1.
+        With backward differences and a first-order filter the derivative's gain is largest at
+        z = -1 (Nyquist); a stack's Butterworth has its zeros there, so its peak is searched on a
+        grid up to Nyquist.
         """
         T = self.Ts
-        return abs(self.Kp - self.Ki * T / 2.0 + self.Kd * 2.0 / (2.0 * self.Tf + T))
+        if self.rate_filter is None:
+            return abs(self.Kp - self.Ki * T / 2.0 + self.Kd * 2.0 / (2.0 * self.Tf + T))
+        w = np.linspace(0.05, 1.0, 400) * math.pi * self.rate_hz
+        return float(np.max(np.abs(self.feedback_response(w))))
 
     def to_dict(self) -> dict:
-        """Kp, Ki, Kd, Tf [s], rate_hz and the form."""
+        """Kp, Ki, Kd, Tf [s], rate_hz and the form (and the stack's rate filter when there is one)."""
+        if self.rate_filter is not None:
+            return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz,
+                    "rate_filter": self.rate_filter.to_dict(),
+                    "form": "parallel; derivative on measurement through the stack's rate filter; backward "
+                            "differences"}
         return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz,
                 "form": "parallel; derivative on measurement, first-order filter Tf; backward differences"}
 
@@ -307,6 +391,9 @@ def closed_loop_matrices(models: Sequence[LoopModel | DiscretePlant], controller
     A : (M, n, n); B : (M, n); Cy : (M, n); Cu : (M, n); Du : (M,)
         z_{k+1} = A z_k + B r,  y_k = Cy z_k,  u_k = Cu z_k + Du r.
     """
+    if controller.rate_filter is not None:
+        raise InputError("the state matrices model the first-order derivative filter only: a stack's rate "
+                         "filter goes through method='z-transform' (the default)")
     models = list(models)
     plants = as_discrete(models, controller.rate_hz)
     D = max(p.d for p in plants) if d_max is None else int(d_max)
@@ -554,7 +641,10 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float, 
     z = sp.z
     T = controller.Ts
     Cr = controller.Kp + controller.Ki * T * z / (z - 1.0)
-    Cfb = Cr + controller.Kd * (z - 1.0) / ((controller.Tf + T) * z - controller.Tf)
+    if controller.rate_filter is None:  # the expression as before (same rounding, same designs)
+        Cfb = Cr + controller.Kd * (z - 1.0) / ((controller.Tf + T) * z - controller.Tf)
+    else:
+        Cfb = Cr + controller.Kd * controller.derivative_response(z)
     R = z / (z - 1.0)
     F = 1.0 + Cfb * sp.Gd
     S = 1.0 / F
@@ -754,11 +844,19 @@ def simulate_step(model: LoopModel, controller: Controller, t_end: float, subste
     w = 0.0  # plant input now
     cmds: list[float] = []
     next_arrival = 0  # index of the next command to arrive
+    filt = controller.rate_filter
+    bq, aq = filt.coefficients(controller.rate_hz) if filt is not None else (None, None)
+    v1 = v2 = 0.0  # the biquad's delay line (direct form II)
     for k in range(N):
         yk = float(C @ x)
         e = setpoint - yk
         I += Ki * T * e
-        D = (Tf * D - Kd * (yk - y_prev)) / (Tf + T)
+        if bq is not None and aq is not None:  # the stack's filter on the rate (y_k - y_{k-1}) / T
+            v0 = (yk - y_prev) / T - aq[1] * v1 - aq[2] * v2
+            D = -Kd * (bq[0] * v0 + bq[1] * v1 + bq[2] * v2)
+            v1, v2 = v0, v1
+        else:
+            D = (Tf * D - Kd * (yk - y_prev)) / (Tf + T)
         y_prev = yk
         uk = Kp * e + I + D
         y_t[k], u_t[k] = yk, uk

@@ -40,8 +40,8 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from ..validate import check_positive
-from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, StepMetrics, as_discrete, criterion, discrete_plants, outputs, plant_spectrum, responses,
-                          step_metrics)
+from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, RateFilter, StepMetrics, as_discrete,
+                          criterion, discrete_plants, outputs, plant_spectrum, responses, step_metrics)
 from .margins import LoopMargins, Margins, frequency_grid, loop_margins, plant_response
 
 __all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
@@ -207,6 +207,7 @@ class TuneResult:
     rule_cycle: dict
     designs: tuple[Design, ...]
     notes: tuple[str, ...] = ()
+    rate_filter: RateFilter | None = None
 
     def get(self, name: str, kind: str) -> Design:
         for d in self.designs:
@@ -225,19 +226,28 @@ class TuneResult:
                            "n_in_95_set": int(self.posterior.in_set().sum())} if self.posterior else None),
             "designs": [d.to_dict() for d in self.designs],
             "notes": list(self.notes),
+            **({"rate_filter": self.rate_filter.to_dict()} if self.rate_filter is not None else {}),
         }
 
 
-def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None) -> Controller:
-    """Parallel gains from (Kp, Td_c, Ti); a PID without Ti takes TI_RATIO x Td_c."""
+def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None,
+                rate_filter: RateFilter | None = None) -> Controller:
+    """Parallel gains from (Kp, Td_c, Ti); a PID without Ti takes TI_RATIO x Td_c.
+
+    The derivative filter is Tf = Td_c / FILTER_N, or the stack's ``rate_filter`` (then Tf = 0).
+    """
     Ki = Kp / (Ti if Ti is not None else TI_RATIO * Td_c) if kind == "PID" else 0.0
+    if rate_filter is not None:
+        return Controller(Kp, Ki, Kp * Td_c, 0.0, rate_hz, rate_filter)
     return Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, rate_hz)
 
 
-def mrft_rule(model: LoopModel, rate_hz: float, kind: str = "PD") -> tuple[Controller, dict]:
+def mrft_rule(model: LoopModel, rate_hz: float, kind: str = "PD",
+              rate_filter: RateFilter | None = None) -> tuple[Controller, dict]:
     """The DNN-MRFT rule (checks.md section 5) on the MRFT limit cycle at beta = -0.7 of ``model``.
 
-    Returns the controller and the cycle used (``T0`` [s], ``a0`` for h = 1).
+    Returns the controller and the cycle used (``T0`` [s], ``a0`` for h = 1). ``rate_filter``: the
+    stack's filter on the measured rate, in place of Tf.
 
     Examples
     --------
@@ -250,7 +260,7 @@ def mrft_rule(model: LoopModel, rate_hz: float, kind: str = "PD") -> tuple[Contr
     lc = mrft_limit_cycle(model, RULE_BETA, 1.0, rate_hz=rate_hz)
     T0, a0 = float(lc.period), float(lc.amplitude)
     Kp = RULE_C1 * 4.0 / (math.pi * a0)
-    return _controller(kind, Kp, RULE_C3 * T0, rate_hz), {"beta": RULE_BETA, "T0": T0, "a0": a0, "h": 1.0,
+    return _controller(kind, Kp, RULE_C3 * T0, rate_hz, rate_filter=rate_filter), {"beta": RULE_BETA, "T0": T0, "a0": a0, "h": 1.0,
                                                            "c1": RULE_C1, "c3": RULE_C3}
 
 
@@ -261,8 +271,10 @@ class _Evaluator:
     """
 
     def __init__(self, plants: Sequence[DiscretePlant], ms_plants: Sequence[DiscretePlant], rate_hz: float, kind: str,
-                 objective: str, horizon: float, ms_max: float, effort_max: float, load: float = 0.0) -> None:
+                 objective: str, horizon: float, ms_max: float, effort_max: float, load: float = 0.0,
+                 rate_filter: RateFilter | None = None) -> None:
         self.models = as_discrete(plants, rate_hz)
+        self.rate_filter = rate_filter
         self.rate_hz, self.kind, self.objective = rate_hz, kind, objective
         self.horizon, self.ms_max, self.effort_max, self.load = horizon, ms_max, effort_max, load
         self.omega = frequency_grid(rate_hz, 400)
@@ -300,7 +312,7 @@ class _Evaluator:
 
     def controller(self, p: np.ndarray) -> Controller:
         Ti = math.exp(p[2]) if p.size > 2 else None
-        return _controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz, Ti)
+        return _controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz, Ti, self.rate_filter)
 
     def cost(self, p: np.ndarray) -> float:
         c = self.controller(p)
@@ -335,7 +347,8 @@ def _feasible_start(ev: _Evaluator, start: Controller) -> Controller:
             Td_c = Td0 * f
             Kp = start.Kp * g
             Ki = Kp / (Ti_ratio * Td_c) if Ti_ratio else 0.0
-            c = Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, ev.rate_hz)
+            c = (Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, ev.rate_hz) if ev.rate_filter is None
+                 else Controller(Kp, Ki, Kp * Td_c, 0.0, ev.rate_hz, ev.rate_filter))
             if ev.violation(c) == 0.0:
                 J = ev.criterion(c)
                 if J < best_J:
@@ -352,7 +365,7 @@ def _pid_start(ev: _Evaluator, pd: Controller) -> Controller:
     slowest integral and start far from the optimum).
     """
     Td_c = pd.Kd / pd.Kp
-    cands = [_controller("PID", pd.Kp, Td_c, ev.rate_hz, r * Td_c) for r in (2.0, 3.0, 4.0, 6.0, 8.0, 16.0)]
+    cands = [_controller("PID", pd.Kp, Td_c, ev.rate_hz, r * Td_c, ev.rate_filter) for r in (2.0, 3.0, 4.0, 6.0, 8.0, 16.0)]
     return min(cands, key=lambda c: ev.cost(_params(c)))
 
 
@@ -425,7 +438,7 @@ def _summaries(c: Controller, post: Posterior, plants: list[DiscretePlant], obje
 
 def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None, objective: str = "iae",
          ms_max: float = 1.6, effort_max: float | None = None, designs=DESIGNS, kinds=KINDS, loop: str = "",
-         progress: Progress | None = None) -> TuneResult:
+         progress: Progress | None = None, rate_filter: RateFilter | None = None) -> TuneResult:
     """Design PD and PID controllers for ``model`` at ``rate_hz`` (see the module docstring).
 
     Parameters
@@ -444,6 +457,9 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         Limit on the controller's noise gain [command units / output unit]; default: the MRFT rule's.
     progress : Progress, optional
         Called as ``progress(done, total, stage)`` per design.
+    rate_filter : RateFilter, optional
+        The flight stack's filter on the measured rate (``tune --export``): every design, the MRFT
+        rule's included, runs its derivative through it instead of Tf = Td_c / FILTER_N.
 
     Returns
     -------
@@ -462,7 +478,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         designs = tuple(d for d in designs if d != "robust")
         notes.append("no posterior (no draws or spreads given): the robust design is left out")
         posterior = None
-    st = _setting(model, rate_hz, posterior, objective, ms_max, effort_max, kinds, "robust" in designs)
+    st = _setting(model, rate_hz, posterior, objective, ms_max, effort_max, kinds, "robust" in designs, rate_filter)
     jobs = [(d, k) for d in designs for k in kinds]
     # PD before PID: a PID design starts from the PD design of the same name
     jobs.sort(key=lambda j: (DESIGNS.index(j[0]), KINDS.index(j[1])))
@@ -475,7 +491,7 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         out.append(_figures(name, c, load, st.horizons[kind], st))
     report(progress, len(jobs), len(jobs), "done")
     return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, st.effort_max, st.horizons["PD"],
-                      st.cycle, tuple(out), tuple(notes))
+                      st.cycle, tuple(out), tuple(notes), rate_filter)
 
 
 @dataclass(frozen=True, eq=False)
@@ -498,12 +514,14 @@ class _Setting:
     in_set_mask: np.ndarray | None
     nominal_ev: dict[str, _Evaluator]
     robust_ev: dict[str, _Evaluator]
+    rate_filter: RateFilter | None = None
 
 
 def _setting(model: LoopModel, rate_hz: float, posterior: Posterior | None, objective: str, ms_max: float,
-             effort_max: float | None, kinds: Sequence[str], robust: bool) -> _Setting:
+             effort_max: float | None, kinds: Sequence[str], robust: bool,
+             rate_filter: RateFilter | None = None) -> _Setting:
     """The MRFT rule and horizons, the noise-gain limit, the draws discretised once, the evaluators."""
-    rule_pd, cycle = mrft_rule(model, rate_hz, "PD")
+    rule_pd, cycle = mrft_rule(model, rate_hz, "PD", rate_filter)
     horizons = {"PD": _HORIZON_PERIODS * cycle["T0"], "PID": _HORIZON_PERIODS_PID * cycle["T0"]}
     effort = rule_pd.noise_gain() if effort_max is None else check_positive("--effort-max", effort_max)
     omega = frequency_grid(rate_hz, 400)
@@ -512,8 +530,8 @@ def _setting(model: LoopModel, rate_hz: float, posterior: Posterior | None, obje
     Gd_all = plant_response(post_plants, rate_hz, omega) if posterior is not None else None
     in_set_mask = posterior.in_set() if posterior is not None else None
     nominal = as_discrete([model], rate_hz)
-    nominal_ev = {k: _Evaluator(nominal, nominal, rate_hz, k, objective, horizons["PD"], ms_max, effort)
-                  for k in kinds}
+    nominal_ev = {k: _Evaluator(nominal, nominal, rate_hz, k, objective, horizons["PD"], ms_max, effort,
+                                rate_filter=rate_filter) for k in kinds}
     robust_ev = {}
     if posterior is not None and in_set_mask is not None and robust:
         rng = np.random.default_rng(0)
@@ -523,9 +541,9 @@ def _setting(model: LoopModel, rate_hz: float, posterior: Posterior | None, obje
         ms_idx = np.sort(rng.choice(in_set, _OPT_DRAWS, replace=False)) if in_set.size > _OPT_DRAWS else in_set
         for k in kinds:
             robust_ev[k] = _Evaluator([post_plants[i] for i in idx], [post_plants[i] for i in ms_idx], rate_hz, k,
-                                      objective, horizons["PD"], ms_max, effort)
+                                      objective, horizons["PD"], ms_max, effort, rate_filter=rate_filter)
     return _Setting(model, rate_hz, posterior, objective, ms_max, float(effort), rule_pd, cycle, horizons, nominal,
-                    post_plants, omega, Gd_all, in_set_mask, nominal_ev, robust_ev)
+                    post_plants, omega, Gd_all, in_set_mask, nominal_ev, robust_ev, rate_filter)
 
 
 def _design(name: str, kind: str, st: _Setting, found: dict[tuple[str, str], Controller]) -> tuple[Controller, float]:
@@ -534,7 +552,7 @@ def _design(name: str, kind: str, st: _Setting, found: dict[tuple[str, str], Con
     if name == "mrft-rule":
         if kind == "PD":
             return rule_pd, 0.0
-        return _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz), rule_pd.Kp
+        return _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz, rate_filter=st.rate_filter), rule_pd.Kp
     ev = st.nominal_ev[kind] if name == "model-based" else st.robust_ev[kind]
     load = 0.0
     if kind == "PD":

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,7 +119,7 @@ def test_cli_bad_input_is_one_line_and_non_zero(args, needle, capsys):
     from mrftcli.cli.main import main
 
     with pytest.raises(SystemExit) as exc:
-        main(["plan", *args])
+        main(["plan", *args, "--rate", "200"])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and needle in err and "\n" not in err and "Traceback" not in err
 
@@ -128,7 +131,7 @@ def test_cli_json_from_an_analyze_result(tmp_path):
     src.write_text(json.dumps({"partial": {"tests": [{"beta": -0.4, "h": 1.0, "frequency_hz": lc.frequency_hz,
                                                       "amplitude": lc.amplitude, "cycles": 10}]}}))
     res = CliRunner().invoke(cli, ["plan", "--tp", "0.04", "--from", str(src), "--td-range", "0.3", "2",
-                                   "--max-amplitude", "0.05", "--max-h", "5", "--time", "15", "--json", "-"])
+                                   "--max-amplitude", "0.05", "--max-h", "5", "--time", "15", "--rate", "200", "--json", "-"])
     assert res.exit_code == 0, res.output
     data = json.loads(res.output)
     assert len(data["tests"]) == 1 and data["flown_tests"][0]["beta"] == -0.4
@@ -225,8 +228,8 @@ def test_plan_result_round_trips_through_json():
 
 
 def test_plan_result_json_keeps_the_cli_fields():
-    # the JSON of plan --json before the record was versioned, plus schema_version
-    keys = ["schema_version", "Tp", "tests", "predicted_std", "predicted_std_tests_only",
+    # the JSON of plan --json before the record was versioned, plus schema_version and (issue 26) assumptions
+    keys = ["schema_version", "assumptions", "Tp", "tests", "predicted_std", "predicted_std_tests_only",
             "predicted_std_tests_only_range", "simulated_std", "simulated_std_range", "n_simulated", "prior_std",
             "conventional", "candidates", "notes", "flown_tests", "limits"]
     data = _plan_for_json().to_json()
@@ -267,3 +270,48 @@ def test_flown_tests_and_prior_of_an_analyze_result_json():
         (max(td["mean"] - 2 * td["std"], td["mean"] / 10), td["mean"] + 2 * td["std"]))
     with pytest.raises(InputError, match="schema_version"):
         flown_from_result({**data, "schema_version": 99})
+
+
+# issue 26 item 3: from the CLI as the user meets it
+
+def _plan_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "mrftcli", "plan", *args], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[1], timeout=300)
+
+
+LIMITS = ["--tp", "0.0422", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--rate", "200"]
+
+
+def test_cli_refusal_names_the_options_that_help():
+    # 0.5 mm of assumed noise at 200 Hz: even the largest 5 cm cycle moves < 4 noise stds per tick
+    proc = _plan_cli(*LIMITS, "--simulate", "0")
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+    err = proc.stderr
+    assert "--noise" in err and "--k-range" in err and "assumed" in err and "altitude loop's default" in err
+
+
+def test_cli_states_its_assumptions_first_and_in_the_json():
+    proc = _plan_cli(*LIMITS, "--noise", "0.0002", "--k-range", "2", "8", "--simulate", "0", "--json", "-")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert [a.split()[1] for a in data["assumptions"]] == ["Td", "tau"]  # K and the noise were given
+    again = PlanResult.from_json(data)
+    assert again.assumptions == tuple(data["assumptions"])
+    text = _plan_cli(*LIMITS, "--noise", "0.0002", "--k-range", "2", "8", "--simulate", "0").stdout
+    assert text.splitlines()[0].startswith("assumption: prior Td 0.2-3 s")
+
+
+def test_cli_without_a_rate_names_the_option():
+    proc = _plan_cli(*LIMITS[:-2], "--noise", "0.0002", "--simulate", "0")
+    assert proc.returncode == 2 and "--rate" in proc.stderr
+
+
+def test_a_recommendation_its_simulation_loses_is_not_made():
+    """The wide default K prior (40x) under 0.2 mm noise: the low-gain plants cycle too small and analyze
+    loses the planned tests in simulation, so no test is recommended; with the prior narrowed, it is."""
+    proc = _plan_cli(*LIMITS, "--noise", "0.0002", "--simulate", "8")
+    assert proc.returncode == 2 and "flies reliably" in proc.stderr and "--k-range" in proc.stderr
+    ok = _plan_cli(*LIMITS, "--noise", "0.0002", "--k-range", "2", "8", "--simulate", "8", "--json", "-")
+    assert ok.returncode == 0, ok.stderr
+    data = json.loads(ok.stdout)
+    assert data["n_simulated"] >= 7  # at most one of the 8 simulated flights lost

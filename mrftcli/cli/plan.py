@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from collections.abc import Sequence
@@ -19,8 +20,20 @@ if TYPE_CHECKING:
 __all__ = ["plan", "format_plan"]
 
 
-def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate]]:
-    """Flown tests (and identified parameters, if any) from an ``analyze --json`` result file."""
+def _json_rate(data: object) -> float | None:
+    """The controller rate [Hz] an ``analyze --json`` result records (declared, else its tests'), or None."""
+    if not isinstance(data, dict):
+        return None
+    declared = ((data.get("input") or {}).get("source") or {}).get("controller_rate_hz")
+    rates = sorted(float(t["rate_hz"]) for t in data.get("tests") or () if isinstance(t, dict) and t.get("rate_hz"))
+    if declared:
+        return float(declared)
+    return rates[len(rates) // 2] if rates else None
+
+
+def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None]:
+    """Flown tests (and identified parameters, if any) and the controller rate [Hz] (None: not recorded)
+    from an ``analyze --json`` result file."""
     from ..plan import flown_from_result
 
     try:
@@ -28,14 +41,14 @@ def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEs
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
     try:
-        return flown_from_result(data)
+        return (*flown_from_result(data), _json_rate(data))
     except InputError as err:
         raise InputError(f"{path}: {err}") from err
 
 
 def format_plan(result: PlanResult) -> str:
-    """The readable table of a :class:`~mrftcli.plan.PlanResult`."""
-    lines = []
+    """The readable table of a :class:`~mrftcli.plan.PlanResult` (its assumptions first)."""
+    lines = [f"assumption: {a}" for a in result.assumptions]
     for f in result.flown:
         lines.append(f"flown     beta {f.beta:+.3f}  h {f.h:.4g}  {f.frequency_hz:.4g} Hz  amplitude {f.amplitude:.4g}  "
                      f"{f.n_cycles} cycles")
@@ -79,15 +92,15 @@ def format_plan(result: PlanResult) -> str:
 @click.option("--td-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="Prior range of Td [s] (default 0.2 3, or the analysed value +/- 2 std).")
 @click.option("--tau-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
-              help="Prior range of tau [s] (default 0.01 0.1).")
+              help="Prior range of tau [s] (default 0.01 0.1, stated as an assumption).")
 @click.option("--k-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
-              help="Prior range of K (default 0.5 20).")
+              help="Prior range of K [output unit per command unit] (default 0.5 20, stated as an assumption).")
 @click.option("--max-amplitude", type=float, required=True,
               help="Largest output amplitude allowed [output units, e.g. 0.05 m or 0.087 rad].")
 @click.option("--max-h", type=float, required=True, help="Largest relay height the motors give [command units].")
 @click.option("--time", "time_s", type=float, required=True, help="Relay time available for the next test(s) [s].")
 @click.option("--rate", "rate_hz", type=float, default=None,
-              help="Controller rate [Hz] (default: the first test's, else 200).")
+              help="Controller rate [Hz] (default: the --from log's; required otherwise).")
 @click.option("--noise", "noise_std", type=float, default=None,
               help="Sensor noise std [output units] (default: measured in the log, else the loop's default).")
 @click.option("--tests", "n_tests", type=click.IntRange(1, 4), default=None,
@@ -126,7 +139,7 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
     if source is not None:
         path = Path(source)
         if path.suffix.lower() == ".json":
-            flown, params = _flown_from_json(path)
+            flown, params, log_rate = _flown_from_json(path)
         else:
             from ..errors import SegmentationError
             from ..io import read_flight
@@ -138,15 +151,35 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
             if not flown:
                 raise SegmentationError(f"{path}: no MRFT test with 3 or more stable cycles to plan from")
             log_rate = float(found[0].rate_hz)
-    prior = Prior(Td=td_range if td_range is not None else prior_range(params.get("Td"), (0.2, 3.0)),
-                  tau=tau_range if tau_range is not None else prior_range(params.get("tau"), (0.01, 0.1)),
-                  K=k_range if k_range is not None else prior_range(params.get("K"), (0.5, 20.0)))
-    rate = rate_hz if rate_hz is not None else (log_rate or 200.0)
-    noise = noise_std if noise_std is not None else (measured_noise or default_noise_std(loop))
+    assumed: list[str] = []
+    ranges = {}
+    for name, given, default, unit, option in (("Td", td_range, (0.2, 3.0), "s", "--td-range"),
+                                               ("tau", tau_range, (0.01, 0.1), "s", "--tau-range"),
+                                               ("K", k_range, (0.5, 20.0), "output unit per command unit",
+                                                "--k-range")):
+        ranges[name] = given if given is not None else prior_range(params.get(name), default)
+        if given is None and name not in params:
+            assumed.append(f"prior {name} {default[0]:g}-{default[1]:g} {unit} (the default; give {option})")
+    prior = Prior(Td=ranges["Td"], tau=ranges["tau"], K=ranges["K"])
+    rate = rate_hz if rate_hz is not None else log_rate
+    if rate is None:
+        raise InputError("give --rate HZ, the rate the controller runs at (the test's frequency and its samples "
+                         "per period depend on it; --from a log measures it)")
+    noise = noise_std if noise_std is not None else measured_noise
+    if noise is None:
+        noise = default_noise_std(loop)
+        assumed.append(f"sensor noise std {noise:.3g} [output units] (the {loop} loop's default, not measured; "
+                       "give --noise)")
     limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)
-    with tqdm_progress("plan", unit="step") as progress:
-        result = plan_tests(Tp, prior, limits, flown=flown, options=PlanOptions(n_tests=n_tests, n_simulated=n_simulated),
-                            progress=progress)
+    try:
+        with tqdm_progress("plan", unit="step") as progress:
+            result = plan_tests(Tp, prior, limits, flown=flown, progress=progress,
+                                options=PlanOptions(n_tests=n_tests, n_simulated=n_simulated))
+    except InputError as err:
+        if not assumed:
+            raise
+        raise InputError(f"{err} (assumed: {'; '.join(assumed)})") from None
+    result = dataclasses.replace(result, assumptions=tuple(assumed))
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":

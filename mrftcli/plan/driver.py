@@ -18,7 +18,7 @@ bootstrap std of ``analyze``'s MRFT estimate (``parameters_mrft``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,7 +31,7 @@ from .fisher import flown_information, posterior_covariance
 from .forecast import SimulatedForecast, simulated_forecast, std_median, std_range
 from .noise import MIN_SWITCH_GAP
 from .records import CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, TestPlan
-from .search import (DesignSpace, Information, admissible_betas, assess, choose_tests, conventional_information,
+from .search import (Choice, DesignSpace, Information, admissible_betas, assess, choose_tests, conventional_information,
                      design_space, recommended_test, with_first_round)
 
 __all__ = ["PlanOptions", "plan_tests", "plan_notes", "DEFAULT_BETAS", "TD_OMEGA_LIMIT"]
@@ -119,10 +119,14 @@ def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence
     admissible, early_only = admissible_betas(candidates, betas)
     infos = {b: space.information(b, _height(candidates[b])) for b in admissible}
     conventional = conventional_information(space, flown, n_tests)
-    choice = choose_tests(space, admissible, infos, start, None if conventional is None else
-                          [inf for _, inf in conventional], n_tests,
-                          lambda j: report(progress, len(betas) * (j + 2), total, "planning"))
-    tests = tuple(recommended_test(space, b, candidates[b]) for b in choice.betas)
+    conv_infos = None if conventional is None else [inf for _, inf in conventional]
+
+    def choose(pool: Sequence[float]) -> tuple[Choice, tuple[TestPlan, ...]]:
+        c = choose_tests(space, pool, {b: infos[b] for b in pool}, start, conv_infos, n_tests,
+                         lambda j: report(progress, len(betas) * (j + 2), total, "planning"))
+        return c, tuple(recommended_test(space, b, candidates[b]) for b in c.betas)
+
+    choice, tests, sim, dropped = _flown_choice(choose, admissible, space, prior, flown, options, rng, progress)
     prior_std = _prior_std(prior, plants)
     post = std_median(choice.information.total, plants)
     notes = plan_notes(tests, _lowest_frequency(candidates[b] for b in admissible), post, prior_std, limits)
@@ -130,9 +134,14 @@ def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence
         notes.append(f"at every admissible beta the relay switches fewer than {MIN_SWITCH_GAP:g} noise stds below "
                      "the extremum for the typical plant: noise may trigger switches early; allow a larger amplitude "
                      "(--max-amplitude) or narrow the K range")
-    sim = _simulate(space, prior, flown, tests, options, rng, progress)
+    if dropped:
+        notes.append(f"beta {', '.join(f'{b:g}' for b in dropped)} not recommended: analyze lost the test in some "
+                     "of its simulated flights")
+    _refuse_failing(sim, options)
     if sim.note:
-        notes.append(sim.note)
+        notes.append(sim.note + ("" if not any(sim.lost) else
+                                 "; no admissible beta flew cleanly on every plant: this is the least-failing "
+                                 "choice (allow a larger amplitude, or measure the sensor noise: --noise)"))
     return PlanResult(Tp=Tp, tests=tests, predicted_std=post, predicted_std_data=std_median(choice.information.data,
                                                                                               plants),
                       simulated_std=sim.std, simulated_std_range=sim.std_range, n_simulated=sim.n_used,
@@ -194,6 +203,61 @@ def _conventional(space: DesignSpace, start: Information,
         acc = acc.plus(inf)
     return Conventional(betas=tuple(b for b, _ in conventional), predicted_std=std_median(acc.total, space.plants),
                         predicted_std_tests_only=std_median(acc.data, space.plants))
+
+
+#: Rounds of :func:`_flown_choice`: each drops the betas the simulated flights lost and chooses again.
+SIMULATED_ROUNDS = 3
+
+
+def _flown_choice(choose: Callable[[Sequence[float]], tuple[Choice, tuple[TestPlan, ...]]],
+                  admissible: Sequence[float], space: DesignSpace, prior: Prior, flown: Sequence[FlownTest],
+                  options: PlanOptions, rng: np.random.Generator, progress: Progress | None
+                  ) -> tuple[Choice, tuple[TestPlan, ...], SimulatedForecast, tuple[float, ...]]:
+    """The recommendation that its own simulated forecast does not fail (issue 26).
+
+    The chosen tests are flown in simulation (``options.n_simulated`` plants); a planned beta that
+    analyze lost on any plant is dropped from the pool and the choice is made again, for at most
+    :data:`SIMULATED_ROUNDS` rounds. The round with the fewest lost tests is kept (the first on a tie).
+    Returns the choice, its tests, their simulated forecast and the betas dropped.
+    """
+    pool = list(admissible)
+    dropped: list[float] = []
+    best: tuple[Choice, tuple[TestPlan, ...], SimulatedForecast] | None = None
+    for _ in range(SIMULATED_ROUNDS):
+        choice, tests = choose(pool)
+        sim = _simulate(space, prior, flown, tests, options, rng, progress)
+        if best is None or sum(sim.lost) < sum(best[2].lost):
+            best = (choice, tests, sim)
+        bad = {t.beta for t, n in zip(tests, sim.lost) if n > 0}
+        if not bad or not [b for b in pool if b not in bad]:
+            break
+        dropped += sorted(bad)
+        pool = [b for b in pool if b not in bad]
+    assert best is not None
+    kept = {t.beta for t in best[1]}
+    return best[0], best[1], best[2], tuple(b for b in dropped if b not in kept)
+
+
+#: Largest share of the simulated flights (at least one) that may lose a planned test for the plan still to
+#: recommend it.
+MAX_LOST_SHARE = 0.25
+
+
+def _refuse_failing(sim: SimulatedForecast, options: PlanOptions) -> None:
+    """Refuse a recommendation its own simulated forecast fails (more than :data:`MAX_LOST_SHARE` lost).
+
+    Raises
+    ------
+    InputError
+        Naming the share lost and the options that make the tests robust.
+    """
+    n = int(options.n_simulated)
+    lost = max(sim.lost, default=0)
+    if n > 0 and lost > max(1.0, MAX_LOST_SHARE * n):  # one lost flight is noise, not a pattern
+        raise InputError(f"no test within the limits flies reliably: analyze lost the best planned test on {lost} of "
+                         f"{n} simulated plausible plants (plants of the prior whose cycle is too small for the "
+                         "noise): narrow the gain prior (--k-range), give the measured sensor noise (--noise) or "
+                         "allow a larger amplitude (--max-amplitude, --max-h)")
 
 
 def _simulate(space: DesignSpace, prior: Prior, flown: Sequence[FlownTest], tests: Sequence[TestPlan],

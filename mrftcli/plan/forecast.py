@@ -13,7 +13,8 @@ from .fisher import posterior_covariance, posterior_stds
 from .noise import LOST_CYCLES
 from .records import PARAMS, FlightLimits, FlownTest, TestPlan
 
-__all__ = ["std_median", "std_range", "simulated_std", "SimulatedForecast", "simulated_forecast"]
+__all__ = ["std_median", "std_range", "simulated_std", "simulated_flights", "SimulatedForecast",
+           "simulated_forecast"]
 
 
 def _stds_over_draws(infos: Sequence[np.ndarray], plants: np.ndarray) -> list[np.ndarray]:
@@ -72,6 +73,23 @@ def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tes
         std of Td [s], tau [s], K per plant; NaN where ``analyze`` could not use the simulated flight
         (it locked up on noise, or a test was lost).
     """
+    return simulated_flights(Tp, plants, flown, tests, limits, n_bootstrap=n_bootstrap, seed=seed,
+                             progress=progress)[0]
+
+
+def simulated_flights(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
+                      limits: FlightLimits, *, n_bootstrap: int = 100, seed: int = 0,
+                      progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`simulated_std` and which planned test analyze lost on each plant.
+
+    Returns
+    -------
+    std : ndarray, shape (n, 3)
+        As :func:`simulated_std`.
+    lost : ndarray of bool, shape (n, len(tests))
+        True where the planned test was not among the tests analyze used (every test of a flight
+        analyze refused as a whole).
+    """
     from ..analyze import analyze_flight
     from ..errors import MrftError
     from ..io.logtypes import FlightLog, Signal
@@ -81,6 +99,7 @@ def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tes
     specs += [TestSpec(t.beta, t.h, t.duration_s) for t in tests]
     rng = np.random.default_rng(seed)
     out = np.full((len(plants), 3), np.nan)
+    lost = np.ones((len(plants), len(tests)), bool)
     for k, p in enumerate(plants):
         model = LoopModel(Tp, float(p[0]), float(p[1]), float(p[2]))
         try:
@@ -92,13 +111,14 @@ def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tes
             with np.errstate(all="ignore"):
                 res = analyze_flight(flight, Tp, n_bootstrap=n_bootstrap, refine_waveform=False,
                                      seed=int(rng.integers(1 << 30)))
+            lost[k] = [not any(abs(m.beta_effective - t.beta) < 0.1 for m in res.tests) for t in tests]
             # a planned test analyze lost counts as no forecast (its std would be the flown tests')
-            if all(any(abs(m.beta_effective - t.beta) < 0.1 for m in res.tests) for t in tests):
+            if not lost[k].any():
                 out[k] = (res.Td.std, res.tau.std, res.K.std)
         except MrftError:
             pass
         report(progress, k + 1, len(plants), "simulating")
-    return out
+    return out, lost
 
 
 @dataclass(frozen=True)
@@ -113,19 +133,22 @@ class SimulatedForecast:
         Simulated flights analyze could use.
     note : str or None
         What to tell the user when some flights were lost.
+    lost : tuple of int
+        Per planned test, the simulated flights on which analyze lost it.
     """
 
     std: dict[str, float]
     std_range: dict[str, tuple[float, float]]
     n_used: int
     note: str | None = None
+    lost: tuple[int, ...] = ()
 
 
 def simulated_forecast(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
                        limits: FlightLimits, n_simulated: int, *, seed: int,
                        progress: Progress | None = None) -> SimulatedForecast:
     """:func:`simulated_std` on the first ``n_simulated`` of ``plants``, summarised over the usable flights."""
-    s = simulated_std(Tp, plants[:n_simulated], flown, tests, limits, seed=seed, progress=progress)
+    s, lost = simulated_flights(Tp, plants[:n_simulated], flown, tests, limits, seed=seed, progress=progress)
     s = s[np.all(np.isfinite(s), axis=1)]
     n_sim = int(s.shape[0])
     std: dict[str, float] = {}
@@ -138,4 +161,4 @@ def simulated_forecast(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest]
     if n_sim < n_simulated:
         note = (f"analyze could not use the simulated flight of {n_simulated - n_sim} of "
                 f"{n_simulated} plants (lost or locked-up tests): the test may fail on noise")
-    return SimulatedForecast(std, rng, n_sim, note)
+    return SimulatedForecast(std, rng, n_sim, note, tuple(int(n) for n in lost.sum(axis=0)))

@@ -349,6 +349,9 @@ class PlanResult:
         (:func:`~mrftcli.plan.forecast.simulated_std`); empty otherwise.
     n_simulated : int
         Simulated flights that ``analyze`` could use.
+    assumptions : tuple of str
+        What the plan assumed rather than was given (a default sensor noise, a default prior range),
+        each naming the option that gives it; shown first.
     """
 
     Tp: float
@@ -365,11 +368,13 @@ class PlanResult:
     simulated_std: Stds = field(default_factory=dict)
     simulated_std_range: StdRanges = field(default_factory=dict)
     n_simulated: int = 0
+    assumptions: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """JSON object of ``mrft-ident plan --json`` (``schema_version`` first)."""
         return {
             "schema_version": SCHEMA_VERSION,
+            "assumptions": list(self.assumptions),
             "Tp": self.Tp,
             "tests": [t.to_json() for t in self.tests],
             "predicted_std": self.predicted_std,
@@ -429,6 +434,8 @@ class PlanResult:
             simulated_std=_stds(data["simulated_std"]),
             simulated_std_range=_ranges(data["simulated_std_range"]),
             n_simulated=int(data["n_simulated"]),
+            # absent from plans written before issue 26 (nothing was stated then)
+            assumptions=tuple(str(a) for a in data.get("assumptions", ())),
         )
 
 

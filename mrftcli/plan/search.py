@@ -187,11 +187,35 @@ def admissible_betas(candidates: Mapping[float, CandidateTest], betas: Sequence[
     """
     admissible = [b for b in betas if candidates[b].admissible]
     if not admissible:
-        reasons = "; ".join(sorted({candidates[b].reason for b in betas}))
-        raise InputError(f"the limits admit no MRFT test ({reasons}): allow a larger amplitude "
-                         "(--max-amplitude, --max-h) or more time (--time)")
+        reasons = sorted({candidates[b].reason for b in betas})
+        raise InputError(f"the limits admit no MRFT test ({'; '.join(reasons)}): {_remedies(reasons)}")
     clear = [b for b in admissible if not candidates[b].early_switch]
     return clear or admissible, not clear
+
+
+#: What relaxes each refusal of :func:`_refusal` (its message's start -> the options that help).
+_REMEDIES = (
+    ("fewer than 8 controller", "a faster controller (--rate)"),
+    ("fewer than", "more time (--time)"),
+    ("the output moves less", "a smaller sensor noise (--noise: measure it on a hover), a larger amplitude "
+                              "(--max-amplitude) or a narrower gain prior (--k-range: h is set by its highest-gain "
+                              "plant, so the others cycle smaller)"),
+    ("the typical amplitude", "a smaller sensor noise (--noise), a larger amplitude (--max-amplitude, --max-h) or a "
+                              "narrower gain prior (--k-range)"),
+    ("no limit cycle", "a narrower prior (--td-range, --tau-range)"),
+)
+
+
+def _remedies(reasons: Sequence[str]) -> str:
+    """The options that relax ``reasons`` (in the order of :data:`_REMEDIES`, each once)."""
+    helps: list[str] = []
+    for reason in reasons:
+        for start, remedy in _REMEDIES:
+            if reason.startswith(start):
+                if remedy not in helps:
+                    helps.append(remedy)
+                break
+    return "allow " + "; or ".join(helps) if helps else "relax the limits"
 
 
 def conventional_information(space: DesignSpace, flown: Sequence[FlownTest],

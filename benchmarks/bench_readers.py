@@ -15,13 +15,27 @@ ways in the same run and checks that they agree exactly:
 
 Also ``read_flight(loop="roll")`` end to end (two of the three topics, quaternion -> roll).
 
-Run: ``python benchmarks/bench_readers.py [--minutes 10] [--repeat 2] [--seed N]``. Prints best-of-N
-times per stage and the ratios against the mcap + rosbags baseline.
+Heavy bags (issue 24.1, ``--heavy 1,3``): the 40 s MRFT flight of ``sample_logs/design1_altitude.mcap``
+recorded as ``ros2 bag record -a`` writes it beside a camera (``sensor_msgs/msg/CompressedImage`` at
+30 Hz, incompressible frames sized so the file is the given GB), a point cloud (10 Hz, 200 KB) and a
+raw IMU (400 Hz), in 768 KiB zstd chunks with message indexes (rosbag2's mcap defaults), written to
+/tmp and deleted after. Each run is a fresh subprocess whose CPU time (user + system) and peak
+resident memory come from ``os.wait4``: ``mrft-ident analyze`` on the heavy bag, against the baseline
+(the ``mcap`` library's ``iter_messages(topics=[the flight's topics])`` on the heavy bag, plus
+``mrft-ident analyze`` on the light bag, the same flight written the same way without the heavy
+topics). The heavy bag's analysis must equal the light one's.
+
+Run: ``python benchmarks/bench_readers.py [--minutes 10] [--repeat 2] [--seed N] [--heavy GB,...]
+[--skip-light]``. Prints best-of-N times per stage and the ratios against the mcap + rosbags
+baseline; with ``--heavy``, CPU, peak memory and the ratio per heavy bag.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -135,13 +149,142 @@ def best(fn, repeat: int) -> tuple[float, object]:
     return min(times), result
 
 
+# -- heavy bags (issue 24.1) ----------------------------------------------------------------------
+FLIGHT = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
+FLIGHT_TP = "0.0422"  # its Tp [s] (the .truth.json)
+CHUNK_BYTES = 768 * 1024  # rosbag2's mcap storage default chunk size
+
+
+def _msgdef(msgtype: str) -> bytes:
+    from mrftcli.io.msgtypes import typestore_for
+
+    return typestore_for(ros1=False).generate_msgdef(msgtype, ros_version=2)[0].encode()
+
+
+def write_bag(path: Path, gigabytes: float, seed: int) -> None:
+    """The sample flight's messages, and (``gigabytes`` > 0) a camera, a point cloud and a raw IMU
+    beside them, interleaved in log-time order, as rosbag2 writes an MCAP."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(FLIGHT, "rb") as f:
+        flight = [(s, c, m.log_time, m.publish_time, bytes(m.data))
+                  for s, c, m in make_reader(f).iter_messages(log_time_order=True)]
+    t0, t1 = flight[0][2], flight[-1][2]
+    rng = np.random.default_rng(seed)
+    heavy: list[tuple[str, str, float, int]] = []
+    if gigabytes > 0:
+        seconds = (t1 - t0) / 1e9
+        # the camera takes what the other two leave of the file's size
+        frame = int((gigabytes * 1e9 - seconds * (10 * 200_000 + 400 * 324)) / (seconds * 30))
+        heavy = [("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", 30.0, frame),
+                 ("/points", "sensor_msgs/msg/PointCloud2", 10.0, 200_000),
+                 ("/imu/data_raw", "sensor_msgs/msg/Imu", 400.0, 324)]
+    # a few distinct incompressible payloads per topic (JPEG frames do not compress)
+    payloads = {name: [rng.bytes(size) for _ in range(4)] for name, _, _, size in heavy}
+    events = [(t, 0, i) for i, (_, _, t, _, _) in enumerate(flight)]
+    for k, (name, _, rate, _) in enumerate(heavy, start=1):
+        events += [(int(t), k, i) for i, t in enumerate(np.arange(t0, t1, 1e9 / rate))]
+    events.sort()
+    with open(path, "wb") as stream:
+        writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=CHUNK_BYTES)
+        writer.start(profile="ros2", library="bench_readers")
+        channels: dict[str, int] = {}
+        for s, c, *_ in flight:
+            if c.topic not in channels:
+                sid = writer.register_schema(s.name, s.encoding, s.data)
+                channels[c.topic] = writer.register_channel(c.topic, c.message_encoding, sid)
+        for name, msgtype, _, _ in heavy:
+            sid = writer.register_schema(msgtype, "ros2msg", _msgdef(msgtype))
+            channels[name] = writer.register_channel(name, "cdr", sid)
+        for t, k, i in events:
+            if k == 0:
+                _, c, log_time, publish_time, data = flight[i]
+                writer.add_message(channels[c.topic], log_time, data, publish_time)
+            else:
+                name = heavy[k - 1][0]
+                writer.add_message(channels[name], t, payloads[name][i % 4], t)
+        writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations
+
+
+def _measured(args: list[str], tree: Path | None = None) -> tuple[float, float, str]:
+    """Run ``args`` in a fresh process: (CPU [s], peak resident memory [MB], stdout); the child is
+    reaped with ``os.wait4``, which gives its own resource usage. ``tree``: run another checkout's
+    ``mrftcli`` (the code before a change)."""
+    env = dict(os.environ, PYTHONPATH=str(tree)) if tree is not None else None
+    # (``python -m`` puts the working directory first on the path: run in the tree)
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tree)
+    assert proc.stdout is not None and proc.stderr is not None
+    out = proc.stdout.read().decode()
+    err = proc.stderr.read().decode()
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(args)} failed ({proc.returncode}): {err.strip()}")
+    return usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, out
+
+
+def _library_read(path: Path) -> list[str]:
+    topics = ["/mrft/command", "/mocap/pose", "/mrft/setpoint", "/mrft/beta", "/battery"]
+    code = ("import sys; from mcap.reader import make_reader\n"
+            "with open(sys.argv[1], 'rb') as f:\n"
+            f"    n = sum(1 for _ in make_reader(f).iter_messages(topics={topics!r}))\n"
+            "print(n)")
+    return [sys.executable, "-c", code, str(path)]
+
+
+def _analyze(path: Path) -> list[str]:
+    return [sys.executable, "-m", "mrftcli", "analyze", str(path), "--tp", FLIGHT_TP, "--loop", "altitude"]
+
+
+def heavy_bags(sizes: list[float], seed: int, before: Path | None = None) -> None:
+    """Issue 24.1's figures: peak memory and CPU of analyze on heavy bags against the baseline (and,
+    with ``before``, of the analyze of another checkout)."""
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        light = Path(tmp) / "light.mcap"
+        write_bag(light, 0, seed)
+        cpu_light, mem_light, out_light = _measured(_analyze(light))
+        print(f"light bag {light.stat().st_size / 1e6:.2f} MB: analyze {cpu_light:.2f} s CPU, "
+              f"{mem_light:.0f} MB peak")
+        print(f"{'bag':>8s} {'analyze CPU [s]':>15s} {'peak [MB]':>9s} {'mcap read CPU [s]':>17s} "
+              f"{'peak [MB]':>9s} {'baseline CPU [s]':>16s} {'ratio':>6s}")
+        for gb in sizes:
+            path = Path(tmp) / f"heavy_{gb:g}gb.mcap"
+            try:
+                write_bag(path, gb, seed)
+                cpu, mem, out = _measured(_analyze(path))
+                cpu_lib, mem_lib, _ = _measured(_library_read(path))
+                old = _measured(_analyze(path), before) if before is not None else None
+            finally:
+                size = path.stat().st_size / 1e9 if path.exists() else float("nan")
+                path.unlink(missing_ok=True)
+            if out.replace(str(path), "LOG") != out_light.replace(str(light), "LOG"):
+                raise SystemExit(f"MISMATCH: analyze on the {gb:g} GB bag differs from the light bag")
+            base = cpu_lib + cpu_light
+            print(f"{size:7.2f}G {cpu:15.2f} {mem:9.0f} {cpu_lib:17.2f} {mem_lib:9.0f} {base:16.2f} "
+                  f"{cpu / base:5.2f}x" + (f"   before: {old[0]:.2f} s CPU, {old[1]:.0f} MB peak" if old else ""))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--seed", type=int, default=None, help="log content seed (default: fresh)")
+    parser.add_argument("--heavy", default="", help="heavy bag sizes [GB], comma-separated (issue 24.1)")
+    parser.add_argument("--skip-light", action="store_true", help="only the heavy bags")
+    parser.add_argument("--before", type=Path, default=None,
+                        help="a checkout of the code before the change: its analyze on the heavy bags too")
     args = parser.parse_args()
     seed = int(np.random.SeedSequence().entropy % 2**32) if args.seed is None else args.seed
+    if not args.skip_light:
+        light_log(args.minutes, args.repeat, seed)
+    if args.heavy:
+        heavy_bags([float(x) for x in args.heavy.split(",")], seed, args.before)
+
+
+def light_log(minutes: float, repeat: int, seed: int) -> None:
+    """The reference-layout log: our reader against the libraries' per-message decoding."""
+    args = argparse.Namespace(minutes=minutes, repeat=repeat)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "bench.mcap"
         start = time.perf_counter()

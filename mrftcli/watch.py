@@ -46,7 +46,7 @@ from .mrft.consensus import SAME_BETA
 from .segment import MrftTest, segment_arrays
 from .validate import check_positive
 
-__all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Update", "watch"]
+__all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "Update", "watch"]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -156,7 +156,28 @@ class WatchEnd:
         return {"kind": self.kind, **asdict(self)}
 
 
-Update = TestUpdate | EstimateUpdate | WatchEnd
+@dataclass(frozen=True)
+class Restart:
+    """The followed file was truncated or replaced (a new recording): everything reported before
+    belongs to the old one, and the tests are numbered from 1 again.
+
+    Attributes
+    ----------
+    reason : str
+        What was seen (the file shrank, or another file took its name).
+    wall_time : float
+        When it was noticed (``time.time()``) [s].
+    """
+
+    kind: ClassVar[str] = "restart"
+    reason: str
+    wall_time: float
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, **asdict(self)}
+
+
+Update = TestUpdate | EstimateUpdate | WatchEnd | Restart
 
 
 # --------------------------------------------------------------------------------------------------
@@ -258,7 +279,8 @@ def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_
 def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic: str | None = None,
           output_topic: str | None = None, beta_topic: str | None = None, setpoint_topic: str | None = None,
           output_scale: float | None = 1.0, min_cycles: int = 3, idle: float = 10.0, poll: float = 0.02,
-          fmt: str | None = None, sleep: Callable[[float], None] = time.sleep,
+          fmt: str | None = None, wait: float | None = None, time_unit: str | None = None,
+          sleep: Callable[[float], None] = time.sleep,
           clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
     """Follow ``path`` while it is written and yield updates (see the module docstring).
 
@@ -266,7 +288,8 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
     ----------
     path : str or Path
         An MCAP file, a ROS 2 bag directory with mcap storage, or any log :func:`mrftcli.io.read_flight`
-        reads (CSV, ULog, ...). It may not exist yet (it is waited for up to ``idle`` seconds).
+        reads (CSV, ULog, ...). It may not exist yet: it is waited for (a ground station starts
+        ``watch`` before the logger), until the generator is closed or for ``wait`` seconds.
     Tp : float
         Known propulsion time constant [s].
     loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale
@@ -279,31 +302,36 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
         Seconds between polls of the file [s].
     fmt : str, optional
         Log format (detected when omitted; a missing file or a ``.mcap`` name is followed as MCAP).
+    wait : float, optional
+        Longest wait for the file to appear [s]; None waits until the generator is closed (Ctrl-C).
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        Unit of a CSV's time column (see :func:`mrftcli.io.read_flight`).
     sleep, clock
         Injected for tests (default :func:`time.sleep`, :func:`time.monotonic`).
 
     Yields
     ------
-    TestUpdate, EstimateUpdate or WatchEnd
+    TestUpdate, EstimateUpdate, Restart or WatchEnd
         The last one is a :class:`WatchEnd`; stop early by closing the generator (Ctrl-C in the CLI).
+        A :class:`Restart` when the file is truncated or replaced (a new recording): the tests so far
+        are forgotten.
 
     Raises
     ------
     LogReadError
-        The file never appeared, is not a log, or lacks a required topic once closed.
+        The file did not appear within ``wait`` seconds, is not a log, or lacks a required topic once
+        closed.
     """
     Tp = check_positive("Tp", Tp)
     idle = check_positive("idle", idle)
     poll = check_positive("poll", poll)
+    if wait is not None:
+        wait = check_positive("wait", wait)
     opts = ReadOptions(loop=loop, command_topic=command_topic, output_topic=output_topic, beta_topic=beta_topic,
                        setpoint_topic=setpoint_topic, output_scale=output_scale)  # InputError: unknown loop
     path = Path(path)
-    start = clock()
-    while not path.exists() or (path.is_file() and path.stat().st_size == 0):
-        if clock() - start > idle:
-            raise LogReadError(f"{path}: no such file after waiting {idle:g} s; start the recording first")
-        sleep(poll)
-    follower = follow_log(path, opts, fmt)
+    _wait_for(path, wait, poll, sleep, clock)
+    follower = follow_log(path, opts, fmt, time_unit=time_unit)
     tracker = _Tracker()
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None
@@ -311,6 +339,9 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
     while True:
         snap = follower.poll()
         now = clock()
+        if snap.restarted is not None:
+            tracker, reported, flight = _Tracker(), {}, None
+            yield Restart(reason=snap.restarted, wall_time=time.time())
         if snap.grew:
             last_growth = now
         if snap.flight is not None:
@@ -332,4 +363,15 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
         if snap.closed or now - last_growth > idle:
             yield from _final(flight, Tp, min_cycles, "closed" if snap.closed else "idle", len(reported))
             return
+        sleep(poll)
+
+
+def _wait_for(path: Path, wait: float | None, poll: float, sleep: Callable[[float], None],
+              clock: Callable[[], float]) -> None:
+    """Return once ``path`` exists and is not empty; LogReadError after ``wait`` seconds (None: never)."""
+    start = clock()
+    while not path.exists() or (path.is_file() and path.stat().st_size == 0):
+        if wait is not None and clock() - start > wait:
+            raise LogReadError(f"{path}: no such file after waiting {wait:g} s (--wait); start the recording, "
+                               "or wait longer")
         sleep(poll)

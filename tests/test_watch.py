@@ -80,7 +80,7 @@ def test_csv_stops_after_idle_and_survives_half_written_rows(repo_root, tmp_path
 def test_a_file_that_never_appears_is_a_one_line_error(tmp_path):
     clock = iter(range(1000))
     with pytest.raises(LogReadError, match="no such file"):
-        list(watch(tmp_path / "none.mcap", 0.04, idle=3.0, sleep=lambda dt: None, clock=lambda: float(next(clock))))
+        list(watch(tmp_path / "none.mcap", 0.04, wait=3.0, sleep=lambda dt: None, clock=lambda: float(next(clock))))
 
 
 def test_cli_jsonl_prints_one_object_per_update(repo_root):

@@ -154,6 +154,7 @@ def analyze_path(
     layout: str | None = None,
     command_scale: float | None = None,
     controller_rate_hz: float | None = None,
+    time_unit: str | None = None,
     min_stable_cycles: int = 3,
     criterion: StabilityCriterion | None = None,
     n_bootstrap: int = 400,
@@ -182,6 +183,8 @@ def analyze_path(
         One of :data:`mrftcli.io.LAYOUT_NAMES` (recognised from the topics when omitted).
     controller_rate_hz : float, optional
         Rate [Hz] at which the relay decided (default: the layout's; see :func:`mrftcli.io.read_flight`).
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        Unit of a CSV's or ``.mat`` file's times (see :func:`mrftcli.io.read_flight`).
     min_stable_cycles, criterion, n_bootstrap, max_combinations, seed, constraints, validity
         As in :func:`analyze_flight`.
 
@@ -202,7 +205,8 @@ def analyze_path(
     flight = read_flight(path, loop=loop, command_topic=command_topic, output_topic=output_topic,
                          beta_topic=beta_topic, setpoint_topic=setpoint_topic, battery_topic=battery_topic,
                          output_scale=output_scale, fmt=fmt, layout=layout, command_scale=command_scale,
-                         controller_rate_hz=controller_rate_hz, echo_warnings=False)  # the reader's warnings come once, in the result's
+                         controller_rate_hz=controller_rate_hz, time_unit=time_unit,
+                         echo_warnings=False)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, Tp, min_stable_cycles=min_stable_cycles, criterion=criterion,
                           n_bootstrap=n_bootstrap, max_combinations=max_combinations, seed=seed,
                           constraints=constraints, validity=validity)

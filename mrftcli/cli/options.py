@@ -114,21 +114,22 @@ def _scale(ctx: click.Context | None, param: click.Parameter | None, value: floa
 #: The names :func:`log_layout_options` gives the command: exactly :func:`mrftcli.io.read_flight`'s
 #: keyword arguments, so a command passes them on as ``read_flight(log, **read_options)``.
 READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
-                "command_scale", "layout", "controller_rate_hz", "fmt")
+                "command_scale", "layout", "controller_rate_hz", "fmt", "time_unit")
 
 
 def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--format"):
     """The options that say how to read a loop from a log, shared by every command that reads one.
 
     ``--format``, ``--layout``, ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``,
-    ``--setpoint-topic``, ``--output-scale``, ``--command-scale`` and ``--controller-rate``; the command receives them under
+    ``--setpoint-topic``, ``--output-scale``, ``--command-scale``, ``--controller-rate`` and ``--time-unit``
+    (not for batch); the command receives them under
     the names of :data:`READ_OPTIONS` (those of :func:`mrftcli.io.read_flight`). With
     ``config_defaults`` (batch) ``--loop`` defaults to None so that a per-log config file can fill it,
     and may be repeated; batch finds its logs by name and has no ``--format``. ``format_flag`` renames
     ``--format`` for a command whose ``--format`` already means something else (tune: ``--log-format``,
     received as ``log_fmt``).
     """
-    from ..io import LAYOUT_NAMES, READ_FORMATS
+    from ..io import LAYOUT_NAMES, READ_FORMATS, TIME_UNITS
     from ..io.logtypes import LOOPS
 
     if config_defaults:
@@ -161,6 +162,11 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
                           "(default: the layout's, 50 Hz for px4-mrft)."),
     ]
     if not config_defaults:
+        options.append(click.option(
+            "--time-unit", type=click.Choice(list(TIME_UNITS)), default=None,
+            help="Unit of a CSV's time column or a .mat file's time vectors (default: the column's name "
+                 "says, else s); a log whose command rate is below 1 Hz or above 100 kHz is refused "
+                 "with the unit that fits."))
         options.insert(0, click.option(
             format_flag, "fmt" if format_flag == "--format" else "log_fmt", type=click.Choice(READ_FORMATS), default=None,
             help="Log format (default: detected from the file)."))

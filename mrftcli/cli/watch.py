@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
@@ -19,7 +20,10 @@ __all__ = ["watch"]
 
 def _line(update: Update, t0: float) -> str:
     """One terminal line per update (times in seconds from the first test's start)."""
-    from ..watch import EstimateUpdate, TestUpdate
+    from ..watch import EstimateUpdate, Restart, TestUpdate
+
+    if isinstance(update, Restart):
+        return f"restarted: {update.reason} (a new recording); following it from its start"
 
     if isinstance(update, TestUpdate):
         nom = f"{update.beta_nominal:+.3f}" if update.beta_nominal is not None else "-"
@@ -49,15 +53,19 @@ def _line(update: Update, t0: float) -> str:
               help="Stop when the log has not grown for this many seconds (CSV, ULog; MCAP stops at its footer).")
 @click.option("--poll", type=click.FloatRange(0.001, 5.0), default=0.02, show_default=True,
               help="Seconds between looks at the file.")
+@click.option("--wait", type=click.FloatRange(0, None, min_open=True), default=None, metavar="SECONDS",
+              help="Longest wait for LOG to appear (default: until Ctrl-C).")
 @click.option("--jsonl", is_flag=True, help="Print one JSON object per update (for a ground-station script).")
 def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topic: str | None,
           beta_topic: str | None, setpoint_topic: str | None, output_scale: float | None, command_scale: float | None,
-          layout: str | None, controller_rate_hz: float | None, fmt: str | None, min_cycles: int, idle: float,
-          poll: float, jsonl: bool) -> None:
+          layout: str | None, controller_rate_hz: float | None, fmt: str | None, time_unit: str | None,
+          min_cycles: int, idle: float, poll: float, wait: float | None, jsonl: bool) -> None:
     """Follow LOG while it is being written and print each MRFT test and the identification as cycles arrive.
 
     LOG is an MCAP file, a ROS 2 bag directory with mcap storage, a CSV or a ULog that a recorder is
-    still writing (it may not exist yet). Each test is printed once it has --min-cycles stable cycles
+    still writing. It may not exist yet: it is waited for (start watch before the logger) until Ctrl-C,
+    or for --wait seconds. A file truncated or replaced by a new recording is followed from its start
+    again ("restarted"). Each test is printed once it has --min-cycles stable cycles
     (frequency, amplitude, effective beta) and again at every new cycle; as soon as two betas are in,
     the estimate of Td, tau and K follows each update. When the writer closes the file (MCAP footer,
     or no growth for --idle seconds) the whole log is analysed as by 'mrft-ident analyze' and the final
@@ -68,7 +76,7 @@ def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topi
     Example: mrft-ident watch flight.mcap --tp 0.0422 --jsonl
     """
     from ..errors import InputError, MrftError
-    from ..watch import TestUpdate, WatchEnd
+    from ..watch import Restart, TestUpdate, WatchEnd
     from ..watch import watch as follow
 
     if layout not in (None, "reference") or command_scale is not None or controller_rate_hz is not None:
@@ -78,15 +86,20 @@ def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topi
                          "options on the finished log")
     seen = 0
     t0: float | None = None
+    if not Path(log).exists():
+        limit = f"for up to {wait:g} s" if wait is not None else "until Ctrl-C"
+        click.echo(f"waiting for {log} to appear ({limit})", err=True)
     updates = follow(log, Tp, loop=loop, command_topic=command_topic, output_topic=output_topic,
                      beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
-                     min_cycles=min_cycles, idle=idle, poll=poll, fmt=fmt)
+                     min_cycles=min_cycles, idle=idle, poll=poll, fmt=fmt, wait=wait, time_unit=time_unit)
     try:
         for update in updates:
             if isinstance(update, TestUpdate):
                 seen = max(seen, update.number)
                 if t0 is None:
                     t0 = update.t_start
+            elif isinstance(update, Restart):
+                seen, t0 = 0, None
             if jsonl:
                 click.echo(json.dumps(to_jsonable(update.to_dict()), allow_nan=False))
             else:

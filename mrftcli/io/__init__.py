@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import InputError, LogReadError
 from .attitude import roll_pitch
+from .clock import TIME_UNITS, check_time_unit
 from .flight import DEFAULT_TOPICS, ReadOptions, flight_from_source, log_layout, read_loop
 from .layouts import LAYOUT_NAMES, LAYOUTS, Layout, LayoutMatch, detect_layout, get_layout
 from .logtypes import FlightLog, Signal, TopicData, TopicInfo
@@ -32,7 +33,7 @@ __all__ = [
     "open_log", "read_flight", "flight_from_source", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format", "format_from_name",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal", "Timing", "ReadOptions", "read_loop",
-    "median_rate_hz", "controller_rate_hz",
+    "median_rate_hz", "controller_rate_hz", "TIME_UNITS",
     "LAYOUTS", "LAYOUT_NAMES", "Layout", "LayoutMatch", "detect_layout", "get_layout", "log_layout",
 ]
 
@@ -115,7 +116,8 @@ def detect_format(path: str | Path) -> str:
                        f"({', '.join(READ_FORMATS)})")
 
 
-def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = True) -> LogSource:
+def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = True,
+             time_unit: str | None = None) -> LogSource:
     """Open a flight log; use as ``with open_log(path) as log: log.topics(); log.series(t, f)``.
 
     Parameters
@@ -128,12 +130,18 @@ def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = 
     echo_warnings : bool
         Print the reader's warnings (``warning: ...`` on stderr) when the ``with`` block ends; with
         False they are only kept in ``LogSource.warnings`` for the caller to show (``watch``).
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        The unit of a CSV's time column or a ``.mat`` file's time vectors (default: the column's name
+        says, else seconds); other formats define their clock, and refuse it.
 
     Raises
     ------
+    InputError
+        Unknown format or time unit; a time unit for a format whose clock has one.
     LogReadError
         Unknown format, unreadable/corrupt/empty file.
     """
+    check_time_unit(time_unit)
     path = Path(path)
     if fmt is None:
         fmt = detect_format(path)
@@ -141,12 +149,15 @@ def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = 
         raise InputError(f"unknown log format {fmt!r}; choose one of {', '.join(READ_FORMATS)}")
     elif not path.exists():
         raise LogReadError(f"{path}: no such file or directory")
-    source = _open(path, fmt)
+    if time_unit is not None and fmt not in ("csv", "mat"):
+        raise InputError(f"--time-unit applies to CSV and .mat logs, whose times carry no unit; a {fmt} log's "
+                         "clock has its own")
+    source = _open(path, fmt, time_unit)
     source.echo_warnings = echo_warnings
     return source
 
 
-def _open(path: Path, fmt: str) -> LogSource:
+def _open(path: Path, fmt: str, time_unit: str | None = None) -> LogSource:
     if fmt in ("mcap", "mcap-json"):
         from .format_mcap import McapSource
 
@@ -177,10 +188,10 @@ def _open(path: Path, fmt: str) -> LogSource:
     if fmt == "mat":
         from .format_mat import MatSource
 
-        return MatSource(path)
+        return MatSource(path, time_unit)
     from .format_csv import CsvSource
 
-    return CsvSource(path)
+    return CsvSource(path, time_unit)
 
 
 def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
@@ -250,7 +261,8 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
                 setpoint_topic: str | None = None, battery_topic: str | None = None,
                 output_scale: float | None = None, fmt: str | None = None, *,
                 layout: str | None = None, command_scale: float | None = None,
-                controller_rate_hz: float | None = None, echo_warnings: bool = True) -> FlightLog:
+                controller_rate_hz: float | None = None, echo_warnings: bool = True,
+                time_unit: str | None = None) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
@@ -282,6 +294,10 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     echo_warnings : bool
         Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
         caller that shows them itself (``analyze``, ``watch``).
+    time_unit : {"s", "ms", "us", "ns"}, optional
+        The unit of a CSV's time column or a ``.mat`` file's time vectors (:func:`open_log`). Without
+        it a command sampled faster than 100 kHz or slower than 1 Hz is refused, naming the unit that
+        makes it plausible (:mod:`mrftcli.io.clock`).
 
     Returns
     -------
@@ -296,11 +312,12 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     InputError
         Unknown loop or layout, or a loop the layout does not record.
     LogReadError
-        Unreadable log, or a required topic/field missing (the message lists what exists).
+        Unreadable log, or a required topic/field missing (the message lists what exists); a
+        command sampled at a rate no flight stack has (a time unit mistaken).
     """
     opts = ReadOptions(loop, command_topic, output_topic, beta_topic, setpoint_topic, battery_topic,
                        output_scale, layout, command_scale, controller_rate_hz)  # checked before opening the log
-    with open_log(path, fmt, echo_warnings=echo_warnings) as log:
+    with open_log(path, fmt, echo_warnings=echo_warnings, time_unit=time_unit) as log:
         flight = read_loop(log, opts)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))

@@ -19,6 +19,7 @@ import numpy as np
 from ..errors import InputError, LogReadError
 from ..validate import check_positive
 from .attitude import roll_pitch
+from .clock import check_rate
 from .layouts import LAYOUTS, Layout, LayoutMatch, LoopTopics, detect_layout, get_layout
 from .logtypes import LOOPS, FlightLog, Signal
 from .source import LogSource, TopicSpec, parse_spec
@@ -191,6 +192,7 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
                                                 roles.battery) if s])
     cmd = _get_required(log, roles.command)
+    check_rate(cmd.t, f"{log.path}: the command {cmd.spec}", log.time_unit, log.time_unit_settable)
     out = _get_required(log, roles.output)
     source: dict[str, Any] = {"format": log.format, "layout": match.describe()}
     output, conversion = _output_signal(log, out, opts.loop, roles.output_scale)

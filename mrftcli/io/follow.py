@@ -11,6 +11,9 @@
   or record is retried at the next poll). Such a file never says it is closed: the caller decides
   from how long it has not grown.
 
+A file that shrinks, or whose inode changes (another file renamed onto the name), is a new
+recording: the follower starts over and says so in :attr:`Snapshot.restarted`.
+
 :func:`follow_log` picks the follower; each :meth:`LogFollower.poll` returns a :class:`Snapshot`.
 The same topic logic as for a finished log applies (:func:`mrftcli.io.flight.read_loop`).
 """
@@ -25,7 +28,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from ..errors import LogReadError
+from ..errors import InputError, LogReadError
 from . import cdr
 from .flight import DEFAULT_TOPICS, ReadOptions, read_loop
 from .format_mcap import MCAP_MAGIC, McapChannel, McapRecords, channel_typestore
@@ -54,11 +57,36 @@ class Snapshot:
         The file grew since the last poll.
     closed : bool
         The writer closed the file (MCAP Footer or Data End record).
+    restarted : str or None
+        Why the follower started over since the last poll (the file shrank, or another file took
+        its name: a new recording); None when it did not. What was read before belongs to the old
+        recording.
     """
 
     flight: FlightLog | None
     grew: bool
     closed: bool
+    restarted: str | None = None
+
+
+def _identity(path: Path) -> tuple[int, int] | None:
+    """(inode, size [bytes]) of ``path``, None when it cannot be stat'ed (not there yet)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_size
+
+
+def _replaced(before: tuple[int, int] | None, now: tuple[int, int] | None) -> str | None:
+    """Why the file at a path is not the one read before: shrunk, or a new file (inode); else None."""
+    if before is None or now is None:
+        return None
+    if now[0] != before[0]:
+        return "another file took its name"
+    if now[1] < before[1]:
+        return f"the file shrank from {before[1]} to {now[1]} bytes"
+    return None
 
 
 class LogFollower(Protocol):
@@ -256,6 +284,8 @@ class _McapLog:
         self.follower = None if self.dir else McapFollower(path)
         self.opts = replace(opts, layout="reference")
         self.path = path
+        #: (inode, size) when last read: a smaller size or another inode is a new recording
+        self.seen = None if self.dir else _identity(path)
 
     def poll(self) -> Snapshot:
         if self.follower is None:
@@ -264,9 +294,16 @@ class _McapLog:
             if not files:
                 return Snapshot(None, False, False)
             self.follower = McapFollower(files[0])
+            self.seen = _identity(files[0])
         f = self.follower
+        now = _identity(f.path)
+        restarted = _replaced(self.seen, now)
+        if restarted is not None:
+            # a new recording under the same name: what was parsed belongs to the old one
+            f = self.follower = McapFollower(f.path)
         grew = f.poll()
-        return Snapshot(self._flight(f) if grew or f.closed else None, grew, f.closed)
+        self.seen = _identity(f.path) if grew or restarted else now
+        return Snapshot(self._flight(f) if grew or f.closed else None, grew, f.closed, restarted)
 
     def _flight(self, follower: McapFollower) -> FlightLog | None:
         try:
@@ -281,7 +318,7 @@ class _McapLog:
 class _RereadLog:
     """The flight so far by reading the whole file again whenever it grows (CSV, ULog, ...)."""
 
-    def __init__(self, path: Path, opts: ReadOptions, fmt: str | None) -> None:
+    def __init__(self, path: Path, opts: ReadOptions, fmt: str | None, time_unit: str | None = None) -> None:
         self.path = path
         # the reference layout's topics in place of those not named (not the layout's detection)
         loop = opts.loop
@@ -292,18 +329,21 @@ class _RereadLog:
             setpoint_topic=opts.setpoint_topic or DEFAULT_TOPICS["setpoint"],
             output_scale=1.0 if opts.output_scale is None else float(opts.output_scale))
         self.fmt = fmt
+        self.time_unit = time_unit
         self.size = -1
+        self.seen: tuple[int, int] | None = None  # (inode, size) when last read
 
     def poll(self) -> Snapshot:
         from . import read_flight
 
-        try:
-            size = self.path.stat().st_size
-        except OSError:
+        now = _identity(self.path)
+        if now is None:
             return Snapshot(None, False, False)
-        if size == self.size or size == 0:
+        restarted = _replaced(self.seen, now)
+        size = now[1]
+        if restarted is None and (size == self.size or size == 0):
             return Snapshot(None, False, False)
-        self.size = size
+        self.size, self.seen = size, now
         o = self.opts
         # a salvaged (half-written) file is the normal state here: the reader keeps its warnings
         # in FlightLog.warnings instead of printing them (echo_warnings=False)
@@ -313,13 +353,15 @@ class _RereadLog:
                 flight = read_flight(self.path, loop=o.loop, command_topic=o.command_topic,
                                      output_topic=o.output_topic, beta_topic=o.beta_topic,
                                      setpoint_topic=o.setpoint_topic, output_scale=o.output_scale,
-                                     fmt=self.fmt, echo_warnings=False)
+                                     fmt=self.fmt, echo_warnings=False, time_unit=self.time_unit)
             except LogReadError:
-                return Snapshot(None, True, False)  # a half-written row/record or topics not there yet
-        return Snapshot(flight, True, False)
+                # a half-written row/record or topics not there yet
+                return Snapshot(None, size > 0, False, restarted)
+        return Snapshot(flight, True, False, restarted)
 
 
-def follow_log(path: str | Path, opts: ReadOptions, fmt: str | None = None) -> LogFollower:
+def follow_log(path: str | Path, opts: ReadOptions, fmt: str | None = None, *,
+               time_unit: str | None = None) -> LogFollower:
     """The follower of ``path``: incremental for MCAP (:func:`is_mcap`), else reading it again as it grows.
 
     Parameters
@@ -330,9 +372,21 @@ def follow_log(path: str | Path, opts: ReadOptions, fmt: str | None = None) -> L
         The loop and its topic options (a topic not named: the reference layout's).
     fmt : str, optional
         Log format; detected when omitted.
+    time_unit : str, optional
+        Unit of a CSV's time column (:func:`mrftcli.io.read_flight`); an MCAP's clock has its own.
+
+    Raises
+    ------
+    InputError
+        ``time_unit`` for an MCAP log.
     """
     path = Path(path)
-    return _McapLog(path, opts) if is_mcap(path, fmt) else _RereadLog(path, opts, fmt)
+    if is_mcap(path, fmt):
+        if time_unit is not None:
+            raise InputError("--time-unit applies to CSV and .mat logs, whose times carry no unit; an MCAP "
+                             "log's clock has its own")
+        return _McapLog(path, opts)
+    return _RereadLog(path, opts, fmt, time_unit)
 
 
 def is_mcap(path: Path, fmt: str | None = None) -> bool:

@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import LogReadError
+from .clock import TIME_UNITS
 from .logtypes import TopicData, TopicInfo
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
@@ -55,7 +56,11 @@ class CsvSource(LogSource):
     format = "csv"
     default_field = None
 
-    def __init__(self, path: str | Path) -> None:
+    time_unit_settable = True
+
+    def __init__(self, path: str | Path, time_unit: str | None = None) -> None:
+        """Read ``path``; ``time_unit`` (one of :data:`~mrftcli.io.clock.TIME_UNITS`) overrides the unit
+        the time column's name implies (``__time``: s, ``timestamp``: us, ...)."""
         super().__init__(path)
         try:
             self._require_file()
@@ -94,7 +99,11 @@ class CsvSource(LogSource):
             raise LogReadError(f"{self.path}: time column {time_col!r} is not numeric (row {bad + 2})")
         if len(t) == 0:
             raise LogReadError(f"{self.path}: the CSV has a header but no rows")
-        self._t = t * TIME_COLUMNS[time_col.lower()]
+        factor = TIME_COLUMNS[time_col.lower()]
+        if time_unit is not None:
+            factor = TIME_UNITS[time_unit]
+        self.time_unit = next(u for u, f in TIME_UNITS.items() if f == factor)
+        self._t = t * factor
         self._cols: dict[str, pd.Series] = {c: frame[c] for c in cols if c != time_col}
 
     def _numeric(self, col: str) -> tuple[np.ndarray, np.ndarray]:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import LogReadError
+from .clock import TIME_UNITS
 from .logtypes import TopicData, TopicInfo
 from .source import LogSource, closest, one_line
 from .timing import mean_rate_hz
@@ -56,8 +57,14 @@ class MatSource(LogSource):
     format = "mat"
     default_field = None
 
-    def __init__(self, path: str | Path) -> None:
+    time_unit_settable = True
+
+    def __init__(self, path: str | Path, time_unit: str | None = None) -> None:
+        """Read ``path``; its time vectors are in seconds unless ``time_unit`` (one of
+        :data:`~mrftcli.io.clock.TIME_UNITS`) says otherwise."""
         super().__init__(path)
+        self.time_unit = time_unit or "s"
+        self._factor = TIME_UNITS[self.time_unit]
         self._require_file()
         try:
             self._vars = _load(self.path)
@@ -77,7 +84,8 @@ class MatSource(LogSource):
                                f"{', '.join(sorted(self._vars)[:12]) or 'no numeric vectors'}")
 
     def topics(self) -> list[TopicInfo]:
-        return [TopicInfo(name, "vector", int(self._vars[name].size), mean_rate_hz(np.sort(self._vars[tn])), ())
+        return [TopicInfo(name, "vector", int(self._vars[name].size),
+                          mean_rate_hz(np.sort(self._vars[tn] * self._factor)), ())
                 for name, tn in sorted(self._signals.items())]
 
     def topic_names(self) -> list[str]:
@@ -92,7 +100,7 @@ class MatSource(LogSource):
         return [topic]
 
     def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        return self._vars[self._signals[topic]].copy(), {f: self._vars[f].copy() for f in fields}
+        return self._vars[self._signals[topic]] * self._factor, {f: self._vars[f].copy() for f in fields}
 
 
 def write_mat(topics: list[TopicData], path: str | Path, *, v73: bool = False) -> None:

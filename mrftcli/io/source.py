@@ -156,6 +156,10 @@ class LogSource(ABC):
     echo_warnings: bool = True
     #: what a missing FIELD means for this format (ROS: ``data``)
     default_field: str | None = None
+    #: the unit the reader took the log's times to be in (:data:`mrftcli.io.clock.TIME_UNITS`)
+    time_unit: str = "s"
+    #: the format's times carry no unit, so ``--time-unit`` may say which (CSV, ``.mat``)
+    time_unit_settable: bool = False
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)

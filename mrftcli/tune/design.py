@@ -44,8 +44,79 @@ from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectru
                           criterion, discrete_plants, outputs, plant_spectrum, responses, step_metrics)
 from .margins import LoopMargins, Margins, frequency_grid, loop_margins, plant_response
 
+
+def _encode(obj: Any) -> Any:
+    """JSON-able copy: numpy values to Python, a non-finite float to the string "inf", "-inf" or "nan"."""
+    if isinstance(obj, dict):
+        return {str(k): _encode(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [_encode(v) for v in (obj.tolist() if isinstance(obj, np.ndarray) else obj)]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (float, np.floating)):
+        v = float(obj)
+        return v if math.isfinite(v) else str(v)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def _decode(obj: Any) -> Any:
+    """Inverse of :func:`_encode` on the figures' dicts (the strings "inf", "-inf", "nan" become floats)."""
+    if isinstance(obj, dict):
+        return {k: _decode(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_decode(v) for v in obj]
+    if isinstance(obj, str) and obj in ("inf", "-inf", "nan"):
+        return float(obj)
+    return obj
+
+
+def _number(data: dict[str, Any], key: str, what: str) -> float:
+    """``data[key]`` as a float (``_encode``'s strings allowed), or InputError naming the field."""
+    try:
+        v = data[key]
+        if isinstance(v, bool):
+            raise TypeError("a boolean")
+        return float(v)
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f"{what}: missing or malformed '{key}' ({err})") from err
+
+
+def _check_version(data: Any, what: str) -> dict[str, Any]:
+    if not isinstance(data, dict):
+        raise InputError(f"{what}: expected a JSON object, got {type(data).__name__}")
+    if data.get("schema_version") != TUNE_SCHEMA_VERSION:
+        raise InputError(f"{what}: schema_version {data.get('schema_version')!r} is not {TUNE_SCHEMA_VERSION}")
+    return data
+
+
+def _controller_json(c: Controller) -> dict[str, Any]:
+    out: dict[str, Any] = {"Kp": c.Kp, "Ki": c.Ki, "Kd": c.Kd, "Tf": c.Tf, "rate_hz": c.rate_hz}
+    if c.rate_filter is not None:
+        out["rate_filter"] = {"cutoff_hz": c.rate_filter.cutoff_hz, "parameter": c.rate_filter.parameter}
+    return out
+
+
+def _rate_filter_from(data: Any, what: str) -> RateFilter | None:
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise InputError(f"{what}: 'rate_filter' must be an object or null")
+    return RateFilter(_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
+
+
+def _controller_from(data: Any, what: str) -> Controller:
+    if not isinstance(data, dict):
+        raise InputError(f"{what}: 'controller' must be an object")
+    return Controller(*(_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz")),
+                      _rate_filter_from(data.get("rate_filter"), what))
+
 __all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
-           "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3"]
+           "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
+
+#: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it).
+TUNE_SCHEMA_VERSION = 1
 
 OBJECTIVES = ("iae", "itae")
 DESIGNS = ("mrft-rule", "model-based", "robust")
@@ -191,6 +262,36 @@ class Design:
                 "horizon_s": self.horizon_s, "margins": self.margins.to_dict(), "step": self.step.to_dict(),
                 "load_step": self.load or None, "posterior": self.posterior, "constraints": self.constraints}
 
+    def to_json(self) -> dict[str, Any]:
+        """The versioned JSON object (:data:`TUNE_SCHEMA_VERSION`); non-finite figures as "inf"/"nan"."""
+        return {"schema_version": TUNE_SCHEMA_VERSION, "name": self.name, "controller": _controller_json(self.controller),
+                "objective": self.objective, "criterion": _encode(self.criterion),
+                "criterion_expected": _encode(self.criterion_expected), "margins": self.margins.to_json(),
+                "step": _encode(self.step.to_dict()), "posterior": _encode(self.posterior),
+                "constraints": _encode(self.constraints), "load": _encode(self.load),
+                "horizon_s": _encode(self.horizon_s)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> "Design":
+        """The record of :meth:`to_json`; InputError (one line) on another version or a malformed field."""
+        what = "tune design"
+        data = _check_version(data, what)
+        step = data.get("step")
+        if not isinstance(step, dict):
+            raise InputError(f"{what}: 'step' must be an object")
+        fields = ("overshoot_pct", "rise_s", "settling_s", "iae", "itae", "peak_u")
+        name, objective = data.get("name"), data.get("objective")
+        if name not in DESIGNS or objective not in OBJECTIVES:
+            raise InputError(f"{what}: unknown design {name!r} or objective {objective!r}")
+        extras = {k: _decode(data.get(k, {})) for k in ("posterior", "constraints", "load")}
+        if not all(isinstance(v, dict) for v in extras.values()):
+            raise InputError(f"{what}: 'posterior', 'constraints' and 'load' must be objects")
+        return cls(name, _controller_from(data.get("controller"), what), objective,
+                   _number(data, "criterion", what), _number(data, "criterion_expected", what),
+                   Margins.from_json(data.get("margins")),
+                   StepMetrics(*(_number(step, k, what) for k in fields)),
+                   extras["posterior"], extras["constraints"], extras["load"], _number(data, "horizon_s", what))
+
 
 @dataclass(frozen=True)
 class TuneResult:
@@ -214,6 +315,61 @@ class TuneResult:
             if d.name == name and d.kind == kind:
                 return d
         raise KeyError((name, kind))
+
+    def to_json(self) -> dict[str, Any]:
+        """The versioned JSON object (:data:`TUNE_SCHEMA_VERSION`): the model, the posterior's draws, the
+        setting, every design (:meth:`Design.to_json`), the notes and the stack's rate filter.
+
+        Examples
+        --------
+        >>> res = tune(LoopModel(0.0422, 1.301, 0.0297, 30.0), 200.0, designs=("mrft-rule",), kinds=("PD",))
+        >>> TuneResult.from_json(res.to_json()).designs[0].controller == res.designs[0].controller
+        True
+        """
+        m, post = self.model, self.posterior
+        return {"schema_version": TUNE_SCHEMA_VERSION,
+                "model": {"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K},
+                "posterior": (None if post is None else
+                              {"Td": _encode(post.Td), "tau": _encode(post.tau), "K": _encode(post.K),
+                               "source": post.source}),
+                "rate_hz": self.rate_hz, "loop": self.loop, "objective": self.objective, "ms_max": self.ms_max,
+                "effort_max": _encode(self.effort_max), "horizon_s": _encode(self.horizon_s),
+                "rule_cycle": _encode(self.rule_cycle), "designs": [d.to_json() for d in self.designs],
+                "notes": list(self.notes),
+                "rate_filter": (None if self.rate_filter is None else
+                                {"cutoff_hz": self.rate_filter.cutoff_hz, "parameter": self.rate_filter.parameter})}
+
+    @classmethod
+    def from_json(cls, data: Any) -> "TuneResult":
+        """The record of :meth:`to_json`.
+
+        Raises
+        ------
+        InputError
+            Not a JSON object, another ``schema_version``, or a missing or malformed field.
+        """
+        what = "tune result"
+        data = _check_version(data, what)
+        md, pd = data.get("model"), data.get("posterior")
+        if not isinstance(md, dict):
+            raise InputError(f"{what}: 'model' must be an object")
+        model = LoopModel(*(_number(md, k, what) for k in ("Tp", "Td", "tau", "K")))
+        post = None
+        if pd is not None:
+            if not isinstance(pd, dict) or not all(isinstance(pd.get(k), list) for k in ("Td", "tau", "K")):
+                raise InputError(f"{what}: 'posterior' must hold the lists Td, tau and K")
+            try:
+                draws = [np.asarray(_decode(pd[k]), float) for k in ("Td", "tau", "K")]
+            except (TypeError, ValueError) as err:
+                raise InputError(f"{what}: malformed posterior draws ({err})") from err
+            post = Posterior(model.Tp, *draws, source=str(pd.get("source", "")))
+        designs, notes, cycle = data.get("designs"), data.get("notes", []), data.get("rule_cycle")
+        if not isinstance(designs, list) or not isinstance(notes, list) or not isinstance(cycle, dict):
+            raise InputError(f"{what}: 'designs' and 'notes' must be lists, 'rule_cycle' an object")
+        return cls(model, post, _number(data, "rate_hz", what), str(data.get("loop", "")),
+                   str(data.get("objective", "")), _number(data, "ms_max", what), _number(data, "effort_max", what),
+                   _number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
+                   tuple(str(n) for n in notes), _rate_filter_from(data.get("rate_filter"), what))
 
     def to_dict(self) -> dict:
         m = self.model

@@ -247,3 +247,40 @@ def test_in_process_salvage_names_what_was_skipped(bombs):
     assert f"declares 4096 MiB uncompressed, over the {MAX_CHUNK_BYTES >> 20} MiB" in warning
     with pytest.raises(LogReadError, match="refused"):
         _read(bombs["indexed"])
+
+
+# -- ROS 2 bags split over several mcap files ------------------------------------------------------
+def test_split_ros2_bag_reads_as_the_whole(tmp_path):
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    from mrftcli.io import read_flight
+
+    whole = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude_ros2_mcap"
+    bag = tmp_path / "split_bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text((whole / "metadata.yaml").read_text())
+    with open(next(whole.glob("*.mcap")), "rb") as f:
+        msgs = list(make_reader(f).iter_messages())
+    cut = len(msgs) // 3
+    # the second file's name sorts first: the reader must order by time, not by name
+    for name, part in (("b_0.mcap", msgs[:cut]), ("a_1.mcap", msgs[cut:])):
+        with open(bag / name, "wb") as stream:
+            writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 16)
+            writer.start(profile="ros2", library="test")
+            ids: dict[str, int] = {}
+            for s, c, m in part:
+                if c.topic not in ids:
+                    ids[c.topic] = writer.register_channel(c.topic, c.message_encoding,
+                                                           writer.register_schema(s.name, s.encoding, s.data))
+                writer.add_message(ids[c.topic], m.log_time, m.data, m.publish_time)
+            writer.finish()
+    a, b = read_flight(whole, loop="altitude"), read_flight(bag, loop="altitude")
+    for name in ("command", "output", "setpoint"):
+        np.testing.assert_array_equal(getattr(a, name).t, getattr(b, name).t)
+        np.testing.assert_array_equal(getattr(a, name).values, getattr(b, name).values)
+    with open_log(bag) as log:
+        assert type(log).__name__ == "McapBagSource"
+        counts = {i.name: i.count for i in log.topics()}
+    with open_log(whole) as log:
+        assert counts == {i.name: i.count for i in log.topics()}

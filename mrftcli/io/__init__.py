@@ -173,6 +173,10 @@ def _open(path: Path, fmt: str, time_unit: str | None = None) -> LogSource:
             source = McapSource(files[0])
             source.format = "ros2-mcap"
             return source
+        if files and "compression_mode: message" not in meta.lower():
+            from .format_rosbag import McapBagSource
+
+            return McapBagSource(path, files)
     if fmt in ("bag", "ros2-sqlite3", "ros2-mcap"):
         from .format_rosbag import RosbagSource
 

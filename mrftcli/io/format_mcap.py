@@ -376,17 +376,35 @@ class McapSource(LogSource):
         if self._topic_cache is not None:
             return self._topic_cache
         out: list[TopicInfo] = []
-        times = self._index_times(list(self._channels)) if not self._salvaged else {}
+        times = self.channel_times()
         for ch in self._channels.values():
-            t_ns = np.asarray(ch.times if self._salvaged else times.get(ch.id, []), dtype=np.int64)
-            t = np.sort(t_ns) / 1e9
-            try:
-                fields = tuple(self._fields(ch))
-            except LogReadError:
-                fields = ()
-            out.append(TopicInfo(ch.topic, ch.schema_name or ch.encoding, len(t), mean_rate_hz(t), fields))
+            t = np.sort(times[ch.id]) / 1e9
+            out.append(TopicInfo(ch.topic, ch.schema_name or ch.encoding, len(t), mean_rate_hz(t),
+                                 self._leaves_or_none(ch)))
         self._topic_cache = sorted(out, key=lambda i: i.name)
         return self._topic_cache
+
+    def channel_times(self) -> dict[int, np.ndarray]:
+        """Every channel's message log times [ns] (file order), by channel id: from the Message Index
+        records, without reading a chunk when the file has them."""
+        if self._salvaged:
+            return {cid: np.asarray(ch.times, dtype=np.int64) for cid, ch in self._channels.items()}
+        times = self._index_times(list(self._channels))
+        return {cid: times.get(cid, np.zeros(0, np.int64)) for cid in self._channels}
+
+    def topic_fields(self, topic: str) -> tuple[str, ...]:
+        """The numeric leaves of ``topic``'s message type (none if its type cannot be decoded)."""
+        return self._leaves_or_none(self._channel(topic))
+
+    def _leaves_or_none(self, ch: McapChannel) -> tuple[str, ...]:
+        try:
+            return tuple(self._fields(ch))
+        except LogReadError:
+            return ()
+
+    def channel_topics(self) -> dict[int, tuple[str, str]]:
+        """Channel id -> (topic, type name) of every channel."""
+        return {cid: (ch.topic, ch.schema_name or ch.encoding) for cid, ch in self._channels.items()}
 
     def _fields(self, ch: McapChannel) -> list[str]:
         if ch.encoding == "json":

@@ -34,7 +34,7 @@ if TYPE_CHECKING:
     from rosbags.rosbag2.writer import Writer as Ros2Writer
     from rosbags.typesys.store import Typestore
 
-__all__ = ["RosbagSource", "write_rosbag", "reindex_ros1"]
+__all__ = ["RosbagSource", "McapBagSource", "write_rosbag", "reindex_ros1"]
 
 #: one topic's messages as the bag gives them: record times [ns] and raw bytes
 _Raw = tuple[list[int], list[bytes]]
@@ -195,6 +195,76 @@ class RosbagSource(LogSource):
         except LogReadError as err:
             raise LogReadError(f"{self.path}: {topic}: {err}") from None
         return np.asarray(stamps, dtype=np.int64) / 1e9, vals
+
+
+class McapBagSource(LogSource):
+    """A ROS 2 bag with mcap storage split over several files (``--max-bag-size``), read file by file
+    with :class:`~mrftcli.io.format_mcap.McapSource` and merged in log-time order.
+
+    rosbags reads these too, but decompresses each chunk whole with no limit and walks every
+    message of every topic; the MCAP reader holds one chunk at a time, keeps only the wanted
+    topics' bytes and refuses decompression bombs (:mod:`mrftcli.io.mcap_stream`). Bags whose
+    messages are compressed one by one (``compression_mode: message``) stay with rosbags.
+    """
+
+    default_field = "data"
+
+    def __init__(self, path: str | Path, files: list[Path]) -> None:
+        from .format_mcap import McapSource
+
+        super().__init__(path)
+        self.format = "ros2-mcap"
+        self._parts: list[McapSource] = []
+        try:
+            for file in files:
+                part = McapSource(file)
+                part.echo_warnings = False
+                self._parts.append(part)
+        except BaseException:
+            self.close()
+            raise
+        for part in self._parts:
+            self.warnings.extend(w for w in part.warnings if w not in self.warnings)
+
+    def close(self) -> None:
+        for part in self._parts:
+            part.close()
+
+    def _holding(self, topic: str) -> list[LogSource]:
+        parts: list[LogSource] = [p for p in self._parts if topic in p.topic_names()]
+        if not parts:
+            raise self.missing_topic(topic)
+        return parts
+
+    def topics(self) -> list[TopicInfo]:
+        times: dict[str, list[np.ndarray]] = defaultdict(list)
+        types: dict[str, str] = {}
+        fields: dict[str, tuple[str, ...]] = {}
+        for part in self._parts:
+            names = part.channel_topics()
+            for cid, t_ns in part.channel_times().items():
+                topic, msgtype = names[cid]
+                times[topic].append(t_ns)
+                types.setdefault(topic, msgtype)
+                fields.setdefault(topic, part.topic_fields(topic))
+        out = []
+        for topic in sorted(times):
+            t = np.sort(np.concatenate(times[topic])) / 1e9
+            out.append(TopicInfo(topic, types[topic], len(t), mean_rate_hz(t), fields[topic]))
+        return out
+
+    def leaves(self, topic: str, field: str | None) -> list[str]:
+        return self._holding(topic)[0].leaves(topic, field)
+
+    def prefetch(self, topics: list[str]) -> None:
+        for part in self._parts:
+            part.prefetch([t for t in topics if t in part.topic_names()])
+
+    def read(self, topic: str, fields: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        reads = [part.read(topic, fields) for part in self._holding(topic)]
+        t = np.concatenate([r[0] for r in reads])
+        order = np.argsort(t, kind="stable")  # files in any order; ties keep file order
+        return t[order], {f: np.concatenate([r[1][f] for r in reads])[order] for f in fields}
 
 
 def _fields(data: bytes) -> Header:

@@ -23,12 +23,21 @@ __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS
 
 
 def dump_json(obj: Any, target: str | None) -> None:
-    """Write ``obj`` as JSON to ``target`` (a path, or ``-`` / None for stdout)."""
+    """Write ``obj`` as JSON to ``target`` (a path, or ``-`` / None for stdout).
+
+    A file is written atomically (:func:`mrftcli.io.atomic.write_text_atomic`): a reader never sees
+    half of it, and a failed write leaves the old file as it was (InputError naming the path).
+    """
+    from ..io.atomic import write_text_atomic
+
     text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False)
     if target in (None, "-"):
         click.echo(text)
-    else:
-        Path(target).write_text(text + "\n")
+        return
+    try:
+        write_text_atomic(target, text + "\n")
+    except OSError as err:
+        raise InputError(f"--json {target}: cannot write ({err.strerror or err}); choose a writable path") from None
 
 
 def _writable_dir(folder: Path, option: str, what: Path) -> None:

@@ -37,6 +37,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import InputError
+from .atomic import atomic_path
 
 __all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS"]
 
@@ -183,7 +184,7 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
             rows.append((when, 2, json.dumps(params).encode()))
     rows.sort(key=lambda r: (r[0], r[1]))
 
-    with open(path, "wb") as stream:
+    with atomic_path(path) as tmp, open(tmp, "wb") as stream:  # a viewer never opens half a file
         writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 20)
         writer.start(profile="", library="mrft-ident")
         channels = []

@@ -1,0 +1,68 @@
+"""Atomic output files: a reader never sees half a file, a crash never leaves one (tracker issue 29, item 8).
+
+Each helper writes into a temporary file next to the target (same folder, so the same file system)
+and renames it over the target with :func:`os.replace`, which is atomic on POSIX and Windows: the
+target is the old file or the whole new one, never a prefix. A failed write removes the temporary
+file and leaves the target as it was.
+
+* :func:`write_text_atomic`, :func:`write_bytes_atomic`: a whole file from memory;
+* :func:`atomic_path`: a temporary path for writers that take a path or a stream (matplotlib's
+  ``savefig``, the MCAP writer, pandas' ``to_csv``), renamed when the block ends without an error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+__all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path"]
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary path beside ``path``; renamed onto ``path`` when the block ends without an error.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> with atomic_path(folder / "out.txt") as tmp:
+    ...     _ = tmp.write_text("whole")
+    >>> (folder / "out.txt").read_text(), sorted(p.name for p in folder.iterdir())
+    ('whole', ['out.txt'])
+    """
+    path = Path(path)
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        if path.exists() and not path.is_file():
+            raise IsADirectoryError(21, "not a file", str(path))
+        mode = 0o666 & ~_umask()
+        os.chmod(tmp, mode)  # mkstemp makes it 0600; an output file gets the usual permissions
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (see the module docstring); the path written."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+    return Path(path)
+
+
+def write_text_atomic(path: str | Path, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (see the module docstring); the path written."""
+    return write_bytes_atomic(path, text.encode(encoding))

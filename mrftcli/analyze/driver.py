@@ -18,9 +18,12 @@ from ..io.logtypes import FlightLog
 from ..mrft.consensus import CONSTRAINTS, combinations
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
-from .estimate import consensus, identifiability, point_estimate, waveform_refinement, widen_for_jitter
+from ..mrft.profile import profile_tp
+from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
+from .estimate import (WaveformStage, consensus, identifiability, point_estimate, waveform_refinement,
+                       widen_for_jitter)
 from .record import AnalysisResult, LogInfo, analysis_controller_rate
-from .screen import screen
+from .screen import Screening, screen
 
 __all__ = ["analyze_flight", "analyze_path"]
 
@@ -123,8 +126,9 @@ def analyze_flight(
     bounds = identifiability(Tp, screening, point, cons, constraints, rng)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, refine_waveform)
-    tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.on_send_times)
-    warnings = [*screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
+    tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
+    tp_warning = _tp_check(flight, screening, wave)
+    warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
     usable, rejected = screening.usable, screening.rejected
     return AnalysisResult(
@@ -137,6 +141,23 @@ def analyze_flight(
         controller_rate_hz=analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]),
         log_info=LogInfo.from_flight(flight),
     )
+
+
+def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage) -> tuple[str, ...]:
+    """Where the waveform residual rejects eq. (2), whether another Tp fits (issue 26): a wrong Tp
+    otherwise yields a tight, wrong tau. The warning, first of all, or nothing.
+
+    Profiles the output-error fit over Tp (:func:`mrftcli.mrft.profile.profile_tp`, about 1 s of CPU),
+    only when the refinement ran and its residual exceeded the acceptance factor.
+    """
+    ref = wave.refinement
+    if ref is None or ref.residual_ratio <= RESIDUAL_FACTOR or not screening.usable:
+        return ()
+    usable = screening.usable
+    windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
+                                 flight.output.values)
+    profile = profile_tp(windows, ref.model, loop_sign=usable[0].loop_sign, noise_std=ref.noise_std)
+    return (profile.message(),) if profile.rejects_given else ()
 
 
 def analyze_path(

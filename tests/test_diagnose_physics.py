@@ -176,7 +176,7 @@ def test_frame_mode_outside_the_library_is_reported_unexplained(results):
     res, _ = results("flex_mode_hz")
     u = res.unexplained
     assert u is not None, res.summary
-    assert u["p_value"] < 1e-3 and u["tests"], u
+    assert u.p_value < 1e-3 and u.tests, u
     assert "unexplained" in res.summary
     assert res.to_dict()["unexplained"]["held_out_features"] > 0
 
@@ -185,9 +185,9 @@ def test_clean_short_tests_use_every_test_and_report_nothing(results, logs):
     res, truth = results("short")
     assert [e.name for e in res.effects] == [] and res.unexplained is None, res.summary
     assert len(res.tests) == 3, res.warnings
-    short = min(res.tests, key=lambda t: t["cycles"])
-    assert 4 <= short["cycles"] <= 6  # a test with 4-5 stable cycles is used, not dropped
-    assert short["cycles"] == short["stable_cycles_found"]
+    short = min(res.tests, key=lambda t: t.cycles)
+    assert 4 <= short.cycles <= 6  # a test with 4-5 stable cycles is used, not dropped
+    assert short.cycles == short.stable_cycles_found
 
 
 def test_gain_drift_is_seen_inside_a_test(results):

@@ -23,32 +23,53 @@ __all__ = ["MatSource", "write_mat", "MAT_MAGIC", "MAT73_MAGIC"]
 MAT_MAGIC = b"MATLAB 5.0 MAT-file"
 MAT73_MAGIC = b"MATLAB 7.3 MAT-file"
 _SHARED_TIMES = ("t", "time", "timestamp")
+#: largest HDF5 dataset read [elements] (a v7.3 file's datasets can claim any size)
+_MAX_ELEMENTS = 200_000_000
 
 
-def _load(path: Path) -> dict[str, np.ndarray]:
-    """Every numeric vector in the file, raveled to 1-D float64 (v7.3 through h5py)."""
+def _vector(name: str, arr: np.ndarray, out: dict[str, np.ndarray], skipped: dict[str, str]) -> None:
+    """Put ``arr`` into ``out`` as a 1-D float64 vector, or say in ``skipped`` why it is not one."""
+    shape = " x ".join(map(str, arr.shape)) or "scalar"
+    if arr.dtype.kind == "c":
+        skipped[name] = f"{name} holds complex numbers ({shape}); save the real signal"
+    elif arr.dtype.kind not in "fiub":
+        skipped[name] = f"{name} is not numeric ({arr.dtype.kind!r} data)"
+    elif arr.ndim == 0:
+        skipped[name] = f"{name} is a single number, not a vector"
+    elif arr.ndim > 2 or (arr.size and min(arr.shape) != 1):
+        skipped[name] = f"{name} is a {shape} matrix, not a vector; save one vector per signal"
+    elif not arr.size:
+        skipped[name] = f"{name} is empty"
+    else:
+        out[name] = arr.astype(np.float64).ravel()
+
+
+def _load(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """Every numeric vector in the file, raveled to 1-D float64 (v7.3 through h5py), and why each
+    other variable is not one (name -> reason: a matrix, complex, not numeric)."""
     with open(path, "rb") as handle:
         head = handle.read(128)
     out: dict[str, np.ndarray] = {}
+    skipped: dict[str, str] = {}
     if head.startswith(MAT73_MAGIC) or head[:8] == b"\x89HDF\r\n\x1a\n":
         import h5py
 
         with h5py.File(path, "r") as f:
             for name, obj in f.items():
-                if isinstance(obj, h5py.Dataset) and obj.dtype.kind in "fiub" and not name.startswith("#"):
-                    arr = np.asarray(obj[()], dtype=np.float64)
-                    if arr.ndim <= 2 and min(arr.shape or (1,)) == 1:
-                        out[name] = arr.ravel()
-        return out
+                if isinstance(obj, h5py.Dataset) and not name.startswith("#"):
+                    if obj.size > _MAX_ELEMENTS:
+                        skipped[name] = f"{name} has {obj.size} elements (more than {_MAX_ELEMENTS})"
+                        continue
+                    _vector(name, np.asarray(obj[()]), out, skipped)
+        return out, skipped
     from scipy.io import loadmat
 
     raw = loadmat(str(path), squeeze_me=False, mat_dtype=False)
     for name, arr in raw.items():
-        if name.startswith("__") or not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiub":
+        if name.startswith("__") or not isinstance(arr, np.ndarray):
             continue
-        if arr.ndim <= 2 and arr.size and min(arr.shape) == 1:
-            out[name] = arr.astype(np.float64).ravel()
-    return out
+        _vector(name, arr, out, skipped)
+    return out, skipped
 
 
 class MatSource(LogSource):
@@ -67,7 +88,7 @@ class MatSource(LogSource):
         self._factor = TIME_UNITS[self.time_unit]
         self._require_file()
         try:
-            self._vars = _load(self.path)
+            self._vars, self._skipped = _load(self.path)
         except Exception as err:  # noqa: BLE001 - scipy/h5py raise many kinds on bad bytes
             raise LogReadError(f"{self.path}: not a readable MATLAB file ({one_line(err)})") from None
         self._signals: dict[str, str] = {}  # signal -> its time vector
@@ -79,9 +100,20 @@ class MatSource(LogSource):
                 if cand is not None and cand in self._vars and self._vars[cand].size == arr.size:
                     self._signals[name] = cand
                     break
+            else:
+                own = next((c for c in (f"{name}_t", f"{name}_time", shared) if c and c in self._vars), None)
+                self._skipped[name] = (
+                    f"{name} has {arr.size} samples but its time vector {own} has {self._vars[own].size}"
+                    if own is not None else f"{name} has no time vector ({name}_t or a shared t)")
         if not self._signals:
             raise LogReadError(f"{self.path}: no signal with a time vector (<name>_t or a shared t) among "
                                f"{', '.join(sorted(self._vars)[:12]) or 'no numeric vectors'}")
+
+    def missing_topic(self, topic: str) -> LogReadError:
+        """The usual message, with why a variable of that name was not read as a signal."""
+        err = super().missing_topic(topic)
+        why = self._skipped.get(topic)
+        return err if why is None else LogReadError(f"{self.path}: no signal {topic!r}: {why}")
 
     def topics(self) -> list[TopicInfo]:
         return [TopicInfo(name, "vector", int(self._vars[name].size),

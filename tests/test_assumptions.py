@@ -95,3 +95,39 @@ def test_library_missing_tp_is_an_input_error():
 
     with pytest.raises(InputError, match="Tp is missing"):
         check_tp(None)  # type: ignore[arg-type]  # what an unset option passes
+
+
+# item 2: a wrong Tp is named, not absorbed into a tight wrong tau (truth: the sample's sidecar)
+
+def _truth(log: str) -> dict:
+    return json.loads((SAMPLES / f"{log}.truth.json").read_text())
+
+
+@pytest.mark.parametrize("factor", [1 / 10, 1 / 3])
+def test_a_too_small_tp_is_named_with_the_tp_the_recording_fits(factor):
+    truth = _truth("design1_altitude.mcap")
+    Tp = truth["Tp"] * factor
+    proc = run("analyze", "sample_logs/design1_altitude.mcap", "--tp", f"{Tp:.6g}", "--loop", "altitude",
+               "--json", "-")
+    data = json.loads(proc.stdout)
+    first = data["warnings"][0]
+    assert first.startswith("the recording fits Tp = ") and "check --tp" in first
+    best = float(first.split("Tp = ")[1].split(" s")[0])
+    low, high = (float(v) for v in first.split("[")[1].split("]")[0].split(", "))
+    assert best == pytest.approx(truth["Tp"], rel=0.02)
+    assert low <= truth["Tp"] * 1.01 and high >= truth["Tp"] * 0.99 and not low <= Tp <= high
+
+
+@pytest.mark.parametrize("factor", [3, 10])
+def test_a_too_large_tp_is_refused_naming_tp(factor):
+    Tp = _truth("design1_altitude.mcap")["Tp"] * factor
+    err = one_line_error(run("analyze", "sample_logs/design1_altitude.mcap", "--tp", f"{Tp:.6g}", "--loop",
+                             "altitude"), code=5)
+    assert "Tp" in err and "check Tp" in err
+
+
+def test_the_right_tp_gets_no_tp_warning():
+    truth = _truth("design1_altitude.mcap")
+    proc = run("analyze", "sample_logs/design1_altitude.mcap", "--tp", repr(truth["Tp"]), "--loop", "altitude",
+               "--json", "-")
+    assert proc.returncode == 0 and not any("fits Tp" in w for w in json.loads(proc.stdout)["warnings"])

@@ -93,7 +93,7 @@ def detect_format(path: str | Path) -> str:
     if path.is_dir():
         meta = path / "metadata.yaml"
         if not meta.is_file():
-            raise LogReadError(f"{path}: a directory but not a ROS 2 bag (no metadata.yaml)")
+            raise LogReadError(_not_a_bag(path))
         text = meta.read_text(errors="replace")
         return "ros2-mcap" if "storage_identifier: mcap" in text else "ros2-sqlite3"
     try:
@@ -114,6 +114,20 @@ def detect_format(path: str | Path) -> str:
     raise LogReadError(f"{path}: unknown log format (not MCAP, ROS 1 bag, ROS 2 bag, ULog, "
                        "DataFlash, MATLAB or CSV); if it is one of these, pass --format "
                        f"({', '.join(READ_FORMATS)})")
+
+
+def _not_a_bag(path: Path) -> str:
+    """Why a folder is not one log: a folder of logs (then: batch), or a ROS 2 bag without its metadata."""
+    logs = [p for p in path.iterdir() if p.suffix.lower() in _LOG_SUFFIXES or (p / "metadata.yaml").is_file()]
+    if len(logs) > 1 or (logs and not any(path.glob("*.db3")) and not any(path.glob("*.mcap"))):
+        return (f"{path}: a folder of {len(logs)} log(s), not one log; analyse each with "
+                f"'mrft-ident batch {path}', or name one file")
+    return (f"{path}: a directory but not a ROS 2 bag (no metadata.yaml; 'ros2 bag reindex' rebuilds it); "
+            f"for a folder of logs use 'mrft-ident batch {path}'")
+
+
+#: file suffixes of the logs a folder may hold (:func:`_not_a_bag`)
+_LOG_SUFFIXES = {".mcap", ".bag", ".ulg", ".csv", ".mat", ".bin", ".db3"}
 
 
 def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = True,

@@ -104,3 +104,23 @@ def test_dropped_commands_keep_the_widened_interval(flight):
     assert any("receive-stamped command not rebuilt" in n for n in r.notes)
     assert any("folded into tau's interval" in n for n in r.notes)
     assert r.tau.ci95_low <= m.tau <= r.tau.ci95_high
+
+
+def test_an_output_on_another_clock_is_not_rebuilt_and_the_interval_stays_widened():
+    """HEAR's 90 Hz camera topic forwards the latest 200 Hz sample: its own grid would put the
+    samples 0-5 ms late. The shipped log's truth sidecar is the oracle."""
+    import json
+    from pathlib import Path
+
+    from mrftcli.io import read_flight
+
+    log = Path(__file__).parents[1] / "sample_logs" / "hear_x.bag"
+    truth = json.loads(log.with_name(log.name + ".truth.json").read_text())
+    r = analyze_flight(read_flight(log, loop="x", echo_warnings=False), Tp=truth["Tp"], n_bootstrap=100)
+    assert any("receive-stamped command rebuilt" in n for n in r.notes)
+    assert any("90 Hz publisher is not on the controller's 200 Hz ticks" in n for n in r.notes)
+    assert any("folded into tau's interval" in n for n in r.notes)
+    assert r.method == "mrft"
+    for name in ("tau", "K"):  # (Td's is the MRFT bootstrap's, not this stage's)
+        est = getattr(r, name)
+        assert est.ci95_low <= truth[name] <= est.ci95_high, name

@@ -126,7 +126,7 @@ def analyze_flight(
     bounds = identifiability(Tp, screening, point, cons, constraints, rng)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, refine_waveform)
-    tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.on_send_times)
+    tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     tp_warning = _tp_check(flight, screening, wave)
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]

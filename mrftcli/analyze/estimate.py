@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -133,9 +133,10 @@ class WaveformStage:
         The estimates reported.
     warnings, notes : tuple of str
         Why the refinement was not used, or not run; what a receive-stamped log's rebuild did.
-    on_send_times : bool
-        The refinement ran on every test's rebuilt send times (receive stamps' jitter removed, so
-        tau's interval needs no widening for it: :func:`widen_for_jitter`).
+    send_times : SendTimeWindows or None
+        The rebuilt send times the refinement ran on (every test's; None: on the logged times). The
+        command's jitter is then removed, and tau's interval is widened for the output's only
+        (:func:`widen_for_jitter`).
     """
 
     refinement: Refinement | None
@@ -146,7 +147,7 @@ class WaveformStage:
     K: ParameterEstimate
     warnings: tuple[str, ...]
     notes: tuple[str, ...]
-    on_send_times: bool = False
+    send_times: SendTimeWindows | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,6 +165,12 @@ class SendTimeWindows:
     windows: tuple[CommandWindow, ...]
     command: tuple[SendTimes, ...]
     output: tuple[SendTimes, ...]
+
+    @property
+    def output_spread(self) -> float:
+        """The largest robust std of the output's arrivals about its grid over the tests [s]
+        (about 0 for an output stamped at the source)."""
+        return max((r.spread for r in self.output), default=0.0)
 
     @property
     def all_rebuilt(self) -> bool:
@@ -347,7 +354,7 @@ def send_time_windows(flight: FlightLog, tests: Sequence[MrftTest],
         a, b = np.searchsorted(tc, [test.t_start - history - 0.05, test.t_end + 0.05])
         ya, yb = np.searchsorted(ty, [test.t_start - 0.05, test.t_end + 0.05])
         sc = rebuild_send_times(tc[a:b], allow_drops=False)
-        so = rebuild_send_times(ty[ya:yb])
+        so = _on_controller_ticks(rebuild_send_times(ty[ya:yb]), sc, ty[ya:yb])
         w = CommandWindow.between(test.t_start, test.t_end, sc.t, c[a:b], so.t, y[ya:yb], test.bias, history)
         if w is not None:
             windows.append(w)
@@ -356,10 +363,29 @@ def send_time_windows(flight: FlightLog, tests: Sequence[MrftTest],
     return SendTimeWindows(tuple(windows), tuple(cmd), tuple(out))
 
 
-def _refinement_windows(flight: FlightLog,
-                        usable: Sequence[MrftTest]) -> tuple[list[CommandWindow], tuple[str, ...], bool]:
-    """The refinement's windows, the notes on a receive-stamped log's rebuild, and whether every
-    window is on rebuilt send times.
+def _on_controller_ticks(output: SendTimes, command: SendTimes, t_output: np.ndarray) -> SendTimes:
+    """A receive-stamped output's rebuild, kept only when its publisher ticks on the controller's
+    clock (its period a whole number of command periods).
+
+    A publisher on another clock (HEAR's 90 Hz camera topic under a 200 Hz controller) sends the
+    latest sample it holds: which instant each message samples is not known, up to a controller
+    period, and its own grid would put the samples 0-5 ms late. An output stamped at the source
+    (no spread about its grid) keeps its times whatever its rate.
+    """
+    if not (output.rebuilt and command.rebuilt) or output.spread < 1e-4:
+        return output
+    ratio = output.period / command.period
+    if abs(ratio - round(ratio)) <= 1e-3 * ratio:
+        return output
+    return replace(output, t=t_output, rebuilt=False,
+                   reason=f"its {1 / output.period:.4g} Hz publisher is not on the controller's {1 / command.period:.4g} "
+                          "Hz ticks, so the instant each message samples is not known")
+
+
+def _refinement_windows(flight: FlightLog, usable: Sequence[MrftTest]
+                        ) -> tuple[list[CommandWindow], tuple[str, ...], SendTimeWindows | None]:
+    """The refinement's windows, the notes on a receive-stamped log's rebuild, and the rebuild when
+    every window is on rebuilt send times.
 
     All or nothing: a window left on receive times carries its topic's mean lateness into tau
     (+1.5 ms for 0-3 ms) while the rebuilt ones pull the fit to the noise, so the guard would pass
@@ -368,13 +394,13 @@ def _refinement_windows(flight: FlightLog,
     if flight.timing.stamps == "receive":
         rebuilt = send_time_windows(flight, usable)
         if rebuilt.all_rebuilt:
-            return list(rebuilt.windows), rebuilt.notes(), True
+            return list(rebuilt.windows), rebuilt.notes(), rebuilt
         notes = rebuilt.notes()
     else:
         notes = ()
     windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
                                  flight.output.values)
-    return windows, notes, False
+    return windows, notes, None
 
 
 def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus, bounds: Identifiability,
@@ -391,11 +417,11 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
                              ("the waveform refinement was not run: the command is logged below the controller's rate",))
     if not (refine_waveform and np.isfinite(cons.K.mean)):
         return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
-    windows, send_notes, on_send_times = _refinement_windows(flight, usable)
+    windows, send_notes, send_times = _refinement_windows(flight, usable)
     if not windows:
         return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
     guard = mrft_params
-    if on_send_times:
+    if send_times is not None:
         # the MRFT estimate read the switches at their receive times: its tau is off by about the
         # mean lateness, which its interval holds only with the jitter folded in
         guard = {**mrft_params, "tau": widen_for_jitter(mrft_params["tau"], flight)[0]}
@@ -413,27 +439,34 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
         # linearisation, meaningless where the cost is flat in Td: it gave 1e-5 s)
         Td_est = ParameterEstimate(Td_est.mean, Td_est.std, mrft_params["Td"].ci95_low, float("nan"), "s")
     return WaveformStage(refinement, "waveform", refinement.model, Td_est, tau_est, K_est, (), send_notes,
-                         on_send_times)
+                         send_times)
 
 
 def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog,
-                     on_send_times: bool = False) -> tuple[ParameterEstimate, str | None]:
+                     send_times: SendTimeWindows | None = None) -> tuple[ParameterEstimate, str | None]:
     """tau with receive-time stamps' jitter in its spread, and the note saying so (None: no jitter).
 
     Receive-time stamps: the command's and the output's transport delays differ by an unknown
     offset of the order of their jitter, which moves every switch against the output alike (no
     averaging over cycles): added to tau's spread in quadrature. Below 0.1 ms it is stamp rounding,
-    not transport. A waveform estimate on the rebuilt send times (``on_send_times``,
-    :func:`send_time_windows`) has no such offset left, and is returned as it is.
+    not transport. A waveform estimate on the rebuilt send times (``send_times``,
+    :func:`send_time_windows`) has the command's lateness removed, its earliest arrivals taken as
+    sent on time; a receive-stamped output's earliest arrivals need not be on time against the
+    command's (and a publisher that samples between its own ticks, as HEAR's camera topic does,
+    spreads them further), so the output's spread about its grid is what is added then.
     """
-    jitter = float(flight.timing.timing_jitter_s or 0.0)
-    if on_send_times or not (jitter >= 1e-4 and np.isfinite(tau_est.std)):
+    if send_times is not None:
+        jitter = send_times.output_spread
+        text = (f"receive-stamped output: its arrivals' {jitter * 1e3:.1f} ms spread about its grid is folded into "
+                "tau's interval (its earliest arrivals need not be on time against the command's)")
+    else:
+        jitter = float(flight.timing.timing_jitter_s or 0.0)
+        text = f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded into tau's interval"
+    if not (jitter >= 1e-4 and np.isfinite(tau_est.std)):
         return tau_est, None
     std = float(np.hypot(tau_est.std, jitter))
     widen = 1.96 * std - 1.96 * tau_est.std
-    tau_est = ParameterEstimate(tau_est.mean, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s")
-    return tau_est, (f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded "
-                     "into tau's interval")
+    return ParameterEstimate(tau_est.mean, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s"), text
 
 
 def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,

@@ -345,7 +345,7 @@ class SendTimes:
         drops = f", {self.dropped} ticks without a message" if self.dropped else ""
         return (f"receive-stamped {topic} rebuilt on its publisher's {1.0 / self.period:.4g} Hz tick grid "
                 f"(arrivals {self.spread * 1e3:.2f} ms std about the grid; {self.lateness * 1e3:.2f} ms of mean "
-                f"lateness behind the earliest arrivals removed{drops})")
+                f"lateness behind the earliest arrivals removed, those taken as sent on time{drops})")
 
 
 def rebuild_send_times(t: np.ndarray, *, allow_drops: bool = True) -> SendTimes:

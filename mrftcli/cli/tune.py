@@ -18,7 +18,58 @@ from ..validate import check_time
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
     from ..tune.design import Posterior, TuneResult
+    from ..tune.stacks import StackSetting
 from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+
+#: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
+_FORMAT_ALIAS = {"table": None, "json": "generic", "hear": "hear", "px4": "px4"}
+
+
+@dataclass(frozen=True)
+class _ExportOptions:
+    """What ``--export`` asked for: the stack (None: the design table), the file, the stack's settings."""
+
+    stack: str | None
+    out: str | None
+    gyro_cutoff_hz: float | None
+    hover_thrust: float | None
+    clamp: bool
+
+
+def _resolve_export(fmt: str | None, export: str | None) -> str | None:
+    """``--export``, or the deprecated ``--format`` it replaces (a note on stderr)."""
+    if fmt is None:
+        return export
+    if export is not None:
+        raise InputError("give --export only (--format is its deprecated alias)")
+    new = _FORMAT_ALIAS[fmt]
+    click.echo(f"note: --format is deprecated and will be removed in the next release; use "
+               f"{'--export ' + new if new else 'no option (the table is the default)'}", err=True)
+    return new
+
+
+def _check_out(out: str | None) -> None:
+    if out:
+        parent = Path(out).resolve().parent
+        if not parent.is_dir() or not os.access(parent, os.W_OK):
+            raise InputError(f"--out {out}: folder {parent} does not exist or is not writable")
+        if Path(out).is_dir():
+            raise InputError(f"--out {out}: is a folder; give a file name")
+
+
+def _write_atomically(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder (never a half-written file)."""
+    import tempfile
+
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.resolve().parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, target)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
@@ -81,11 +132,22 @@ def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None
     return _TuneSource(model, posterior, None)
 
 
-def _check_px4(fmt: str, loop: str, kind: str) -> None:
-    """Only a roll/pitch PD exports to PX4 (refused before the work; the gains are checked again)."""
-    if fmt == "px4" and (loop not in ("roll", "pitch") or kind != "PD"):
-        raise InputError("cannot export to PX4: only a PD on the roll or pitch loop maps exactly onto PX4's "
-                         f"angle-P / rate-P cascade (got {kind} on {loop}); see docs/tune.md")
+def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
+    """A stack that cannot take this loop or kind is refused before the work (the values are checked again)."""
+    from ..tune.stacks import check_exportable
+
+    if ex.stack is not None and ex.stack not in ("generic", "hear"):
+        check_exportable(ex.stack, loop, kind, ex.hover_thrust)
+
+
+def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
+                   rate_source: float | None) -> StackSetting | None:
+    """The rate and rate filter the chosen stack runs (None: no stack; the generic export designs as the table)."""
+    from ..tune.stacks import stack_setting
+
+    if ex.stack is None or ex.stack == "generic":
+        return None
+    return stack_setting(ex.stack, loop, rate_given, rate_source, ex.gyro_cutoff_hz)
 
 
 def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
@@ -128,33 +190,73 @@ def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, A
                        tuple(float(t.h) for t in result.tests), tuple(float(t.amplitude_mean) for t in result.tests))
 
 
-def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, fmt: str, design: str | None,
-                   kind: str, json_target: str | None) -> None:
-    """The table or the chosen export on stdout, and every design as JSON with --json."""
+def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, design: str | None,
+                   kind: str, json_target: str | None, ex: _ExportOptions) -> None:
+    """The table, or the chosen export (on stdout or --out), and every design as JSON with --json."""
     from ..tune.export import format_table, hear_json, px4_params
+    from ..tune.stacks import export_design
 
     name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
     chosen = res.get(name, kind)
     c = chosen.controller
     data = res.to_dict()
     data["export"] = {"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)}
-    try:
-        data["export"]["px4"] = px4_params(c, loop, list(src.heights), list(src.amplitudes))
-    except InputError as err:
-        data["export"]["px4"] = {"refused": str(err)}
+    stack_export, refused = None, None
+    if ex.stack in (None, "generic"):
+        try:
+            data["export"]["px4"] = px4_params(c, loop, list(src.heights), list(src.amplitudes))
+        except InputError as err:
+            data["export"]["px4"] = {"refused": str(err)}
+    else:
+        try:
+            stack_export = export_design(ex.stack, c, res.model, loop, f"{name} {kind}", clamp=ex.clamp,
+                                         hover_thrust=ex.hover_thrust, heights=src.heights,
+                                         amplitudes=src.amplitudes, notes=res.notes)
+            data["export"]["stack"] = stack_export.to_json()
+        except InputError as err:
+            refused = err
+            data["export"]["stack"] = {"stack": ex.stack, "refused": str(err)}
     if json_target:
         dump_json(data, json_target)
-    if fmt == "table":
+    if refused is not None:
+        raise refused
+    if ex.stack is None:
         if json_target != "-":
             click.echo(format_table(res))
             click.echo(f"export ({name} {kind}): Kp {c.Kp:.5g}  Ki {c.Ki:.5g}  "
                        f"Kd {c.Kd:.5g}  Tf {c.Tf:.5g} s  rate {rate:g} Hz")
-    elif fmt == "json":
-        dump_json({"design": name, "kind": kind, **c.to_dict()}, None)
-    elif fmt == "hear":
-        dump_json(hear_json(c, loop), None)
+        return
+    if stack_export is None:  # generic: the controller as JSON
+        text = json.dumps({"design": name, "kind": kind, **c.to_dict()}, indent=2) + "\n"
+        summary = [f"export generic ({name} {kind}, {loop})"]
     else:
-        dump_json(px4_params(c, loop, list(src.heights), list(src.amplitudes)), None)
+        text, summary = stack_export.file_text(), _stack_summary(stack_export)
+    if ex.out:
+        _write_atomically(ex.out, text)
+        summary.append(f"written: {ex.out}")
+        click.echo("\n".join(summary), err=json_target == "-")
+    else:
+        click.echo(text, nl=False)
+        click.echo("\n".join(summary), err=True)
+
+
+def _stack_summary(e: Any) -> list[str]:
+    """The lines that say what was exported: values with their ranges, the margins with the stack's filter,
+    the notes, and PX4's ``param set`` lines."""
+    from ..tune.stack_params import STACK_PARAMS
+
+    rows = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
+    out = [f"export {e.stack} ({e.design}, {e.loop}):"]
+    for n, v in e.params.items():
+        p = rows.get(n)
+        rng = f"  [{p.minimum:g} .. {p.maximum:g} {p.unit}]" if p else ""
+        out.append(f"  {n} = {v:.6g}{rng}")
+    m = e.margins
+    out.append(f"margins with the stack's filter and rate: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
+               f"delay margin {m.delay_margin_s * 1e3:.1f} ms  Ms {m.Ms:.3g}")
+    out += [f"note: {n}" for n in e.notes]
+    out += e.console_lines()
+    return out
 
 
 @click.command("tune")
@@ -177,17 +279,29 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, fm
 @click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
 @click.option("--effort-max", type=float, default=None,
               help="Limit on the controller's noise gain |C| at Nyquist [command/output unit] (default: the MRFT rule's).")
-@click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default="table",
-              show_default=True, help="What to print: the design table, or one export format.")
+@click.option("--export", "export", type=click.Choice(["generic", "px4", "ardupilot", "hear"]), default=None,
+              help="Design for the stack's own rate and rate filter and write what it loads: PX4 QGroundControl "
+                   ".params (and param set lines), ArduPilot .param, HEAR PID JSON, generic JSON; checked "
+                   "against the stack's parameter ranges.")
+@click.option("--out", "out", metavar="FILE", help="Write the export to FILE (atomically); default: stdout.")
+@click.option("--gyro-cutoff", "gyro_cutoff", type=click.FloatRange(0, None), metavar="HZ",
+              help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] the design runs with (default: the "
+                   "stack's default, stated in the output; use one value for roll and pitch).")
+@click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
+              help="PX4 MPC_THR_HOVER (normalised), required for the PX4 altitude export.")
+@click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound (the "
+              "resulting margins are stated) instead of refusing.")
+@click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default=None,
+              help="Deprecated alias of --export (json = generic).")
 @click.option("--design", type=click.Choice(["robust", "model-based", "mrft-rule"]), default=None,
-              help="Design exported by --format hear/px4 (default: robust, else model-based).")
+              help="Design exported (default: robust, else model-based).")
 @click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
-              help="Controller exported by --format hear/px4.")
+              help="Controller exported.")
 @click.option("--json", "json_target", metavar="FILE|-", help="Write every design (Kp, Ki, Kd, Tf, rate, figures) as JSON.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, objective, ms_max, effort_max,
-         fmt, design, kind, json_target, report_dir, **read_options):
+         export, out, gyro_cutoff, hover_thrust, clamp, fmt, design, kind, json_target, report_dir, **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
     SOURCE is a flight log (analysed exactly as `analyze` would, same options), an analyze
@@ -195,11 +309,15 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     delay margins, Ms and the step response of the sampled loop (overshoot, rise, settling), nominal
     and over the identification's posterior (median, worst of the 95 % set).
 
-    Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --format px4
+    Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --export px4 --out roll.params
     """
     from ..tune.design import tune as run_tune
 
+    ex = _ExportOptions(_resolve_export(fmt, export), out, gyro_cutoff, hover_thrust, clamp)
     _check_outputs(json_target, report_dir)
+    _check_out(out)
+    if out and ex.stack is None:
+        raise InputError("--out needs --export generic|px4|ardupilot|hear")
     if source is not None and any(v is not None for v in (td, tau, K)):
         raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
     is_result = source is not None and str(source).lower().endswith(".json") and Path(source).is_file()
@@ -208,7 +326,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
         # the gains, their HEAR/PX4 export and the log's signals all depend on the loop: never assumed
         raise InputError("give --loop altitude|roll|pitch: the loop the gains are for")
     if loop is not None:
-        _check_px4(fmt, loop, kind)  # before the work starts
+        _check_stack(ex, loop, kind)  # before the work starts
     if source is None:
         src = _from_spread(Tp, td, tau, K, (td_std, tau_std, k_std))
     elif is_result:
@@ -216,24 +334,28 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     else:
         src = _from_log(source, Tp, min_cycles, read_options)
     loop = loop or src.loop
-    _check_px4(fmt, loop, kind)
-    rate = rate_hz or src.rate_hz
+    _check_stack(ex, loop, kind)
+    setting = _stack_setting(ex, loop, rate_hz, src.rate_hz)
+    rate = setting.rate_hz if setting is not None else rate_hz or src.rate_hz
     if rate is None:
         raise InputError("give --rate HZ, the rate the controller runs at: the gains are designed for the sampled "
                          "loop and the source records no rate")
     with tqdm_progress("tune", unit="design") as progress:
         res = run_tune(src.model, rate, posterior=src.posterior, objective=objective, ms_max=ms_max,
-                       effort_max=effort_max, loop=loop, progress=progress)
-    if src.notes:
-        res = dataclasses.replace(res, notes=src.notes + res.notes)
-        if fmt != "table" or json_target == "-":  # the table shows its notes itself
-            for n in src.notes:
+                       effort_max=effort_max, loop=loop, progress=progress,
+                       rate_filter=setting.rate_filter if setting is not None else None)
+    notes = src.notes + (setting.notes if setting is not None else ())
+    if notes:
+        res = dataclasses.replace(res, notes=notes + res.notes)
+        # the table shows its notes itself, a stack's export in its summary
+        if ex.stack == "generic" or (json_target == "-" and ex.stack is None):
+            for n in notes:
                 click.echo(f"note: {n}", err=True)
-    _write_outputs(res, src, rate, loop, fmt, design, kind, json_target)
+    _write_outputs(res, src, rate, loop, design, kind, json_target, ex)
     if report_dir:
         from ..report.tune import write_tune_report
 
-        click.echo(f"report: {write_tune_report(res, report_dir)}", err=fmt != "table" or json_target == "-")
+        click.echo(f"report: {write_tune_report(res, report_dir)}", err=ex.stack is not None or json_target == "-")
 
 
 def _loop_required(command: click.Command) -> None:

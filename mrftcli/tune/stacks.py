@@ -1,0 +1,338 @@
+"""Gains as the flight stacks load them: the cascade mappings, the stacks' ranges, their filters and files.
+
+Each stack is a :class:`Stack`: the rate and the filter on the measured rate it really runs (so that
+``tune --export`` designs the loop the vehicle will fly, :func:`stack_setting`), the mapping of a
+PD on the loop's output onto its parameters and back (:func:`export_design`), and the file it loads
+(:meth:`StackExport.file_text`).
+
+* **PX4** roll/pitch: the angle P feeding the rate PID (``src/lib/rate_control/rate_control.cpp``:
+  torque = K (P e_rate + I int e_rate + D d(e_rate)) with the rate loop's I, D and FF at 0) is
+  u = P_rate (P_att (r - y) - y'), a PD with the derivative on the measurement: ``MC_ROLL_P`` =
+  Kp / Kd, ``MC_ROLLRATE_P`` = Kd. The measured rate goes through ``IMU_GYRO_CUTOFF``, one
+  2nd-order Butterworth for all three axes (yaw included), and the rate loop runs at
+  ``IMU_GYRO_RATEMAX`` (100, 250, 400, 800, 1000 or 2000 Hz).
+* **PX4** altitude: ``MPC_Z_P`` (m -> m/s) feeding the vertical velocity PID (m/s -> m/s^2), with
+  thrust = acceleration x hover thrust / g: u = (h/g) P_vel (P_z e - v), so ``MPC_Z_P`` = Kp / Kd and
+  ``MPC_Z_VEL_P_ACC`` = Kd g / h. PX4 requires ``MPC_Z_VEL_I_ACC`` >= 0.2: the export sets that
+  minimum and recomputes the margins with it (its integral adds (h/g) I_acc to the loop's
+  proportional gain and (h/g) I_acc P_z as integral gain).
+* **ArduPilot** roll/pitch: ``ATC_ANG_RLL_P`` feeding the ``ATC_RAT_RLL_*`` PID (rad/s error ->
+  motor output), the same mapping as PX4's; the gyro goes through ``INS_GYRO_FILTER`` (2nd-order
+  Butterworth, ``LowPassFilter2p``). ``ATC_RAT_RLL_I`` >= 0.01 is documented: set at that minimum,
+  the margins recomputed with it. ArduPilot's altitude (``PSC_ACCZ_*``) closes a loop on the
+  measured acceleration, which a PD on the altitude does not contain: refused.
+* **HEAR** (HEAR_FC): the PID of ``PID_param.msg`` computes u += kd PV_DOT and HEAR_FC feeds PV_DOT
+  through a Gain(-1) block, i.e. PV_DOT = -(filtered rate); the rate is filtered by HEAR_FC's own
+  2nd-order Butterworth (50 Hz at 200 Hz), which the design uses.
+
+Every exported value is checked against the stack's documented range
+(:mod:`mrftcli.tune.stack_params`): out of range it is refused, or with ``clamp`` set to the bound,
+and the margins of the loop the clamped values give (with the stack's filter) are reported.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+from .closed_loop import Controller, RateFilter
+from .margins import Margins, loop_margins
+from .stack_params import PX4_GYRO_RATES_HZ, RangeViolation, check_ranges, param
+
+__all__ = ["EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
+           "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
+
+#: ``tune --export`` choices.
+EXPORTS = ("generic", "px4", "ardupilot", "hear")
+#: g [m/s^2] of PX4's thrust = acceleration x hover thrust / g.
+STANDARD_GRAVITY = 9.80665
+#: HEAR_FC's rate filter: 2nd-order Butterworth at 50 Hz, run at 200 Hz (tracker issue 25, InnerSysNodelet.cpp).
+HEAR_FILTER_HZ, HEAR_RATE_HZ = 50.0, 200.0
+#: Version of :meth:`StackExport.to_json`'s object.
+EXPORT_SCHEMA_VERSION = 1
+#: Integral gains a PD leaves at 0 but the stack requires above a minimum: set to it (not a refusal).
+_STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RLL_I", "ATC_RAT_PIT_I"}
+_AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
+
+
+def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | None = None) -> None:
+    """InputError (before any work) when ``stack`` cannot take a ``kind`` design of ``loop``."""
+    if stack not in EXPORTS:
+        raise InputError(f"unknown export {stack!r}; choose from {', '.join(EXPORTS)}")
+    if stack in ("px4", "ardupilot") and kind != "PD":
+        raise InputError(f"cannot export a PID to {stack}: its rate-loop (velocity-loop) I acts on the measured "
+                         "rate, not on the error of a parallel PID; export the PD (--kind PD)")
+    if stack == "ardupilot" and loop not in ("roll", "pitch"):
+        raise InputError(f"cannot export the {loop} loop to ArduPilot: its altitude cascade (PSC_ACCZ_*) feeds back "
+                         "the measured acceleration, which the identified PD does not contain; roll and pitch export")
+    if stack == "px4" and loop not in ("roll", "pitch", "altitude"):
+        raise InputError(f"cannot export the {loop} loop to PX4: only roll, pitch and altitude map onto its cascades")
+    if stack == "px4" and loop == "altitude" and hover_thrust is None:
+        raise InputError("give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): PX4's vertical velocity loop "
+                         "outputs acceleration, converted to thrust by hover thrust / g")
+    if hover_thrust is not None and not (0.0 < hover_thrust < 1.0):
+        raise InputError(f"--hover-thrust must be a normalised thrust in (0, 1), got {hover_thrust}")
+
+
+@dataclass(frozen=True)
+class StackSetting:
+    """The loop a stack really runs: its controller rate [Hz], its filter on the measured rate, notes."""
+
+    stack: str
+    rate_hz: float
+    rate_filter: RateFilter | None
+    notes: tuple[str, ...]
+
+
+def _px4_rate(rate_given: float | None, rate_source: float | None) -> tuple[float, str]:
+    if rate_given is not None:
+        if rate_given not in PX4_GYRO_RATES_HZ:
+            raise InputError(f"--rate {rate_given:g}: PX4's rate loop runs at IMU_GYRO_RATEMAX, one of "
+                             f"{', '.join(f'{r:g}' for r in PX4_GYRO_RATES_HZ)} Hz")
+        return rate_given, f"designed at IMU_GYRO_RATEMAX = {rate_given:g} Hz (--rate)"
+    if rate_source is None:
+        raise InputError("give --rate HZ (PX4's IMU_GYRO_RATEMAX: 100, 250, 400, 800, 1000 or 2000)")
+    rate = min(PX4_GYRO_RATES_HZ, key=lambda r: (abs(math.log(r / rate_source)), -r))
+    return rate, (f"designed at IMU_GYRO_RATEMAX = {rate:g} Hz, the PX4 choice nearest the log's {rate_source:g} Hz "
+                  "(--rate to choose another)")
+
+
+def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: float | None,
+                  gyro_cutoff_hz: float | None) -> StackSetting:
+    """The rate and rate filter ``stack`` runs for ``loop``, and the notes that state them.
+
+    ``rate_given``: --rate; ``rate_source``: the rate the log records; ``gyro_cutoff_hz``: --gyro-cutoff
+    (default: the stack's default cutoff, stated in the notes).
+    """
+    if stack == "generic":
+        rate = rate_given or rate_source
+        if rate is None:
+            raise InputError("give --rate HZ, the rate the controller runs at")
+        return StackSetting(stack, rate, None, ())
+    if stack == "hear":
+        rate = rate_given or HEAR_RATE_HZ
+        notes = (f"HEAR_FC filters the rate with a 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz; designed with it "
+                 f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --rate to change)"),)
+        return StackSetting(stack, rate, RateFilter(HEAR_FILTER_HZ, "HEAR_FC rate filter"), notes)
+    if stack == "px4" and loop == "altitude":
+        rate = rate_given or rate_source
+        if rate is None:
+            raise InputError("give --rate HZ, the rate of PX4's position controller (the local position's rate)")
+        return StackSetting(stack, rate, RateFilter(0.0, "none"), (
+            f"PX4 altitude: designed at {rate:g} Hz with the vertical velocity unfiltered (PX4 uses the EKF's "
+            "estimate; its lag is not modelled)",))
+    name, default = ("IMU_GYRO_CUTOFF", param("px4", "IMU_GYRO_CUTOFF").default) if stack == "px4" else \
+        ("INS_GYRO_FILTER", param("ardupilot", "INS_GYRO_FILTER").default)
+    cutoff = default if gyro_cutoff_hz is None else gyro_cutoff_hz
+    said = (f"{name} = {cutoff:g} Hz" + (f" ({stack}'s default; --gyro-cutoff to change)" if gyro_cutoff_hz is None
+                                         else " (--gyro-cutoff)")
+            + ": one 2nd-order Butterworth on all three axes, so roll and pitch must be tuned with the same value")
+    if stack == "px4":
+        rate, rate_note = _px4_rate(rate_given, rate_source)
+    else:
+        rate = rate_given or rate_source
+        if rate is None:
+            raise InputError("give --rate HZ, ArduPilot's main loop rate (SCHED_LOOP_RATE)")
+        rate_note = f"designed at {rate:g} Hz: set SCHED_LOOP_RATE to it"
+    return StackSetting(stack, rate, RateFilter(cutoff, name), (rate_note, said))
+
+
+@dataclass(frozen=True)
+class StackExport:
+    """A design as one stack loads it, checked against the stack's ranges.
+
+    Attributes
+    ----------
+    stack, loop : str
+    design : str
+        ``"<name> <kind>"`` of the exported design.
+    params : dict
+        Parameter name -> value, in the order written (HEAR: its message's fields).
+    clamped : tuple of (name, value designed, value exported)
+        Values set to the stack's bound.
+    margins : Margins
+        Of the loop the exported values give, with the stack's rate filter and rate.
+    notes : tuple of str
+    """
+
+    stack: str
+    loop: str
+    design: str
+    params: dict[str, float]
+    clamped: tuple[tuple[str, float, float], ...]
+    margins: Margins
+    notes: tuple[str, ...]
+
+    def to_json(self) -> dict[str, Any]:
+        """The versioned JSON object (:data:`EXPORT_SCHEMA_VERSION`)."""
+        return {"schema_version": EXPORT_SCHEMA_VERSION, "stack": self.stack, "loop": self.loop,
+                "design": self.design, "params": dict(self.params),
+                "clamped": [{"name": n, "designed": a, "exported": b} for n, a, b in self.clamped],
+                "margins": self.margins.to_json(), "notes": list(self.notes)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> "StackExport":
+        """The record of :meth:`to_json`; InputError (one line) on another version or a malformed field."""
+        if not isinstance(data, dict):
+            raise InputError(f"stack export: expected a JSON object, got {type(data).__name__}")
+        if data.get("schema_version") != EXPORT_SCHEMA_VERSION:
+            raise InputError(f"stack export: schema_version {data.get('schema_version')!r} is not "
+                             f"{EXPORT_SCHEMA_VERSION}")
+        try:
+            params = {str(k): float(v) for k, v in data["params"].items()}
+            clamped = tuple((str(c["name"]), float(c["designed"]), float(c["exported"])) for c in data["clamped"])
+            fields = (str(data["stack"]), str(data["loop"]), str(data["design"]))
+            notes = tuple(str(n) for n in data["notes"])
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            raise InputError(f"stack export: missing or malformed field ({err})") from err
+        return cls(*fields, params, clamped, Margins.from_json(data.get("margins")), notes)
+
+    def file_text(self) -> str:
+        """What the stack loads: QGroundControl ``.params`` (PX4), ``.param`` (ArduPilot), JSON (HEAR)."""
+        if self.stack == "px4":
+            return _qgc_params(self)
+        if self.stack == "ardupilot":
+            head = [f"# mrft-ident tune: {self.design} for {self.loop} (load in Mission Planner / MAVProxy)"]
+            return "\n".join(head + [f"{n},{_fmt(v)}" for n, v in self.params.items()]) + "\n"
+        import json
+
+        return json.dumps(_hear_object(self), indent=2) + "\n"
+
+    def console_lines(self) -> list[str]:
+        """PX4 shell / MAVLink console ``param set NAME VALUE`` lines (PX4 only)."""
+        return [f"param set {n} {_fmt(v)}" for n, v in self.params.items()] if self.stack == "px4" else []
+
+
+def _fmt(v: float) -> str:
+    return str(int(v)) if float(v).is_integer() and abs(v) >= 1 else f"{v:.6g}"
+
+
+def _qgc_params(e: StackExport) -> str:
+    """QGroundControl's parameter file: tab-separated vehicle id, component id, name, value, MAVLink type
+    (9 = REAL32, 6 = INT32); comment lines start with '#'."""
+    lines = ["# Onboard parameters for Vehicle 1", "#", "# Stack: PX4 Pro", "# Vehicle: Multi-Rotor",
+             f"# mrft-ident tune: {e.design} for {e.loop}", "#",
+             "# Vehicle-Id Component-Id Name Value Type"]
+    ints = {"IMU_GYRO_RATEMAX"}
+    for n, v in e.params.items():
+        lines.append(f"1\t1\t{n}\t{int(v) if n in ints else format(v, '.18f')}\t{6 if n in ints else 9}")
+    return "\n".join(lines) + "\n"
+
+
+def _hear_object(e: StackExport) -> dict[str, Any]:
+    p = e.params
+    return {"PID_parameters": {k: (int(v) if k in ("id", "en_pv_derivation") else v) for k, v in p.items()},
+            "sign": "HEAR computes u += kd * PV_DOT: feed PV_DOT with the NEGATED filtered rate, -dy/dt (HEAR_FC's "
+                    "Gain(-1) block); kd is positive",
+            "ros_msg_PID_param": {("id" if k == "id" else f"pid_{k}"): (int(v) if k in ("id", "en_pv_derivation")
+                                                                      else v) for k, v in p.items()},
+            "rate_filter": f"HEAR_FC's 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz (designed with it)"}
+
+
+def _cascade(c: Controller, loop: str, stack: str, hover_thrust: float | None) -> dict[str, float]:
+    """The stack's parameters for the PD ``c`` (unclamped)."""
+    rate_filter = c.rate_filter
+    if stack == "px4" and loop == "altitude":
+        assert hover_thrust is not None  # check_exportable asked for it
+        return {"MPC_Z_P": c.Kp / c.Kd, "MPC_Z_VEL_P_ACC": c.Kd * STANDARD_GRAVITY / hover_thrust,
+                "MPC_Z_VEL_I_ACC": 0.0, "MPC_Z_VEL_D_ACC": 0.0}
+    cutoff = rate_filter.cutoff_hz if rate_filter is not None else 0.0
+    if stack == "px4":
+        ax = loop.upper()
+        return {f"MC_{ax}_P": c.Kp / c.Kd, f"MC_{ax}RATE_P": c.Kd, f"MC_{ax}RATE_I": 0.0, f"MC_{ax}RATE_D": 0.0,
+                f"MC_{ax}RATE_K": 1.0, f"MC_{ax}RATE_FF": 0.0, "IMU_GYRO_CUTOFF": cutoff,
+                "IMU_GYRO_RATEMAX": c.rate_hz}
+    ax = _AXIS_AP[loop]
+    return {f"ATC_ANG_{ax}_P": c.Kp / c.Kd, f"ATC_RAT_{ax}_P": c.Kd, f"ATC_RAT_{ax}_I": 0.0,
+            f"ATC_RAT_{ax}_D": 0.0, f"ATC_RAT_{ax}_FF": 0.0, f"ATC_RAT_{ax}_FLTE": 0.0,
+            f"ATC_RAT_{ax}_FLTT": 100.0, "INS_GYRO_FILTER": cutoff}
+
+
+def _loop_controller(p: dict[str, float], c: Controller, loop: str, stack: str,
+                     hover_thrust: float | None) -> Controller:
+    """The controller from -y to u that the stack's values ``p`` give (the loop's C_fb: the margins depend on
+    nothing else). A rate-loop integral I_r on (P_a e - y') adds I_r to the proportional gain on y and
+    I_r P_a as integral gain (so is it for PX4's velocity loop, scaled by h / g)."""
+    if stack == "px4" and loop == "altitude":
+        assert hover_thrust is not None
+        s = hover_thrust / STANDARD_GRAVITY
+        pz, pv, iv = p["MPC_Z_P"], p["MPC_Z_VEL_P_ACC"], p["MPC_Z_VEL_I_ACC"]
+        return Controller(s * (pv * pz + iv), s * iv * pz, s * pv, c.Tf, c.rate_hz, c.rate_filter)
+    if stack == "px4":
+        ax = loop.upper()
+        pa, pr, ir = p[f"MC_{ax}_P"], p[f"MC_{ax}RATE_P"] * p[f"MC_{ax}RATE_K"], p[f"MC_{ax}RATE_I"]
+    else:
+        ax = _AXIS_AP[loop]
+        pa, pr, ir = p[f"ATC_ANG_{ax}_P"], p[f"ATC_RAT_{ax}_P"], p[f"ATC_RAT_{ax}_I"]
+    return Controller(pr * pa + ir, ir * pa, pr, c.Tf, c.rate_hz, c.rate_filter)
+
+
+def _check_units(loop: str, heights: Sequence[float], amplitudes: Sequence[float]) -> list[str]:
+    """Reasons the log's units are not the stack's (normalised command, radians)."""
+    why = []
+    if any(h > 1.0 for h in heights):
+        why.append(f"the MRFT relay height ({max(heights):.3g}) exceeds 1: the command was not the stack's "
+                   "normalised torque/thrust setpoint")
+    if loop in ("roll", "pitch") and any(a > 1.0 for a in amplitudes):
+        why.append(f"the oscillation amplitude ({max(amplitudes):.3g}) is not an angle in radians (degrees? "
+                   "use --output-scale 0.0174533)")
+    return why
+
+
+def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design: str, *, clamp: bool = False,
+                  hover_thrust: float | None = None, heights: Sequence[float] = (),
+                  amplitudes: Sequence[float] = (), notes: Sequence[str] = ()) -> StackExport:
+    """``c`` (designed with the stack's rate and filter, :func:`stack_setting`) as ``stack`` loads it.
+
+    Raises
+    ------
+    InputError
+        The loop, kind or units do not map (the reasons), or a value is outside the stack's documented
+        range and ``clamp`` is off (each value, its bound and the source, and the margins clamping
+        would give).
+    """
+    check_exportable(stack, loop, c.kind, hover_thrust)
+    if stack in ("px4", "ardupilot"):
+        why = _check_units(loop, heights, amplitudes)
+        if c.Kd <= 0:
+            why.append("the design has no derivative gain (the rate P would be 0)")
+        if why:
+            raise InputError(f"cannot export to {stack}: " + "; ".join(why))
+    out_notes = list(notes)
+    if stack == "hear":
+        from .export import HEAR_PID_ID
+
+        params = {"id": float(HEAR_PID_ID.get(loop, -1)), "kp": c.Kp, "ki": c.Ki, "kd": c.Kd, "kdd": 0.0,
+                  "anti_windup": 0.0, "en_pv_derivation": 1.0, "dt": c.Ts}
+        return StackExport(stack, loop, design, params, (), loop_margins(c, [model])[0], tuple(out_notes))
+    if stack == "generic":
+        params = {"Kp": c.Kp, "Ki": c.Ki, "Kd": c.Kd, "Tf": c.Tf, "rate_hz": c.rate_hz}
+        return StackExport(stack, loop, design, params, (), loop_margins(c, [model])[0], tuple(out_notes))
+    params = _cascade(c, loop, stack, hover_thrust)
+    bad = check_ranges(stack, params)
+    gains = [v for v in bad if v.param.name not in _STRUCTURAL]
+    clamped_params = {**params, **{v.param.name: v.clamped for v in bad}}
+    margins = loop_margins(_loop_controller(clamped_params, c, loop, stack, hover_thrust), [model])[0]
+    if gains and not clamp:
+        raise InputError(f"cannot export to {stack}: " + "; ".join(v.message() for v in gains)
+                         + f". Clamped to the bounds the loop would have Ms {margins.Ms:.3g}, GM {margins.gain_margin:.3g}"
+                         + f", PM {margins.phase_margin_deg:.1f} deg (--clamp to export that)")
+    for v in bad:
+        why = ("the stack's minimum (the PD has none)" if v.param.name in _STRUCTURAL else "the stack's bound (--clamp)")
+        out_notes.append(f"{v.param.name} set to {v.clamped:g} instead of {v.value:.4g}: {why}")
+    if bad:
+        out_notes.append(f"with these values the loop has Ms {margins.Ms:.3g}, GM {margins.gain_margin:.3g}, "
+                         f"PM {margins.phase_margin_deg:.1f} deg, delay margin {margins.delay_margin_s * 1e3:.1f} ms "
+                         "(nominal model, the stack's filter)")
+    if stack == "ardupilot":
+        w = margins.w_gc
+        lag = math.degrees(math.atan(w / (2 * math.pi * 100.0))) if math.isfinite(w) else 0.0
+        out_notes.append(f"ATC_RAT_*_FLTT = 100 Hz (its maximum) filters the rate target: {lag:.1f} deg of phase at "
+                         "the crossover on the P path, not in the margins above; ArduPilot's angle P is linear only "
+                         "for small errors (sqrt controller) and ATC_INPUT_TC shapes the setpoint")
+    clamped = tuple((v.param.name, v.value, v.clamped) for v in bad)
+    return StackExport(stack, loop, design, clamped_params, clamped, margins, tuple(out_notes))

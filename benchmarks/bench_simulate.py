@@ -9,7 +9,7 @@ fixed-step Euler integration at T/20 with the delay rounded to that step, in pla
 CPU times (process time, best of 3 where marked) and the ratio; figures are recorded in
 docs/benchmarks/simulate.md.
 
-The last rows time :func:`mrftcli.sim.plant.taylor_expm` and :func:`scipy.linalg.expm` on the
+The last rows time :func:`mrftcli.mrft.propagate.taylor_expm` and :func:`scipy.linalg.expm` on the
 augmented matrices a flight exponentiates (one control period, its delay sub-intervals, multiples
 of the T/64 grid), count how many a flight needs, and print how far apart the two results are.
 """
@@ -25,7 +25,7 @@ import numpy as np
 import scipy.linalg
 
 from mrftcli.mrft.model import LoopModel
-from mrftcli.sim import plant
+from mrftcli.mrft import propagate
 from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, simulate_flight
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -104,7 +104,7 @@ def main() -> None:
 
 def expm_rows(spec: FlightSpec) -> None:
     """taylor_expm against scipy.linalg.expm on the very matrices ``spec``'s flights exponentiate."""
-    original = plant.taylor_expm
+    original = propagate.taylor_expm
     seen: list[np.ndarray] = []
 
     def recording(M: np.ndarray) -> np.ndarray:
@@ -114,11 +114,11 @@ def expm_rows(spec: FlightSpec) -> None:
     counts = []
     for eff in (Effects(), Effects(delay_jitter=0.003), Effects(actuator_rate_limit=1.0)):
         before = len(seen)
-        plant.taylor_expm = recording
+        propagate.taylor_expm = recording
         try:
             simulate_flight(replace(spec, effects=eff))
         finally:
-            plant.taylor_expm = original
+            propagate.taylor_expm = original
         counts.append(len(seen) - before)
     diff = max(float(np.abs(original(M) - scipy.linalg.expm(M)).max()) for M in seen)
     same = all(np.array_equal(original(M), scipy.linalg.expm(M)) for M in seen)

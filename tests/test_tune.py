@@ -183,13 +183,15 @@ def test_cli_manual_model_px4_and_errors(tmp_path):
     from mrftcli.cli.main import cli
 
     r = CliRunner().invoke(cli, ["tune", "--tp", "0.0422", "--td", "1.3", "--tau", "0.03", "--k", "30",
-                                 "--loop", "roll", "--rate", "200", "--format", "px4",
+                                 "--loop", "roll", "--rate", "250", "--export", "px4", "--design", "model-based",
                                  "--json", str(tmp_path / "t.json")])
     assert r.exit_code == 0, r.output
-    px4 = json.loads(r.output)
+    rows = [ln.split("\t") for ln in r.stdout.splitlines() if ln.startswith("1\t1\t")]  # the QGC .params lines
+    px4 = {row[2]: float(row[3]) for row in rows}
     data = json.loads((tmp_path / "t.json").read_text())
     mb = [d for d in data["designs"] if d["design"] == "model-based" and d["kind"] == "PD"][0]
     assert px4["MC_ROLL_P"] == pytest.approx(mb["Kp"] / mb["Kd"])
+    assert data["export"]["stack"]["params"]["MC_ROLLRATE_P"] == pytest.approx(mb["Kd"])
     assert mb["margins"]["Ms"] <= 1.6 * 1.001
     from mrftcli.cli.main import main
 

@@ -1,0 +1,253 @@
+"""``tune --export``: the stacks' parameter table, every sample log's exports against it, the margins of
+the loop the exported values give (recomputed here from the values alone, with scipy's Butterworth),
+the stack's filter in the sampled loop, the files the stacks load, versioned records."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from mrftcli.errors import InputError
+from mrftcli.mrft.model import LoopModel
+from mrftcli.tune.closed_loop import Controller, RateFilter, responses, simulate_step
+from mrftcli.tune.design import Design, TuneResult, Posterior, tune
+from mrftcli.tune.margins import plant_system
+from mrftcli.tune.stack_params import PX4_GYRO_RATES_HZ, STACK_PARAMS, check_ranges, param
+from mrftcli.tune.stacks import (STANDARD_GRAVITY, StackExport, check_exportable, export_design,
+                                 stack_setting)
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+HOVER = 0.5
+
+
+def _sample_models() -> list[tuple[str, LoopModel, float]]:
+    """(loop, truth model, controller rate) of every sample log, each distinct one once (analysing every
+    log takes minutes; benchmarks/bench_exports.py exports the analysed logs)."""
+    seen = {}
+    for f in sorted(SAMPLES.glob("*.truth.json")):
+        d = json.loads(f.read_text())
+        key = (d["loop"], d["Tp"], d["Td"], d["tau"], d["K"], d.get("rate_hz", 200.0))
+        seen.setdefault(key, f.name.split(".")[0])
+    return [(k[0], LoopModel(*k[1:5]), float(k[5])) for k in seen]
+
+
+MODELS = _sample_models()
+
+
+# --- the vendored table ---------------------------------------------------------------------------
+
+def test_table_rows_are_sourced_and_ordered():
+    for p in STACK_PARAMS:
+        assert p.minimum <= p.maximum, p.name
+        assert p.source and ("/" in p.source), p.name  # repository and file
+        if math.isfinite(p.default):
+            assert p.contains(p.default), p.name  # the stack's default is within its own range
+    # the issue's figures, as the sources give them
+    assert (param("px4", "MC_ROLLRATE_P").minimum, param("px4", "MC_ROLLRATE_P").maximum) == (0.01, 0.5)
+    assert (param("px4", "MPC_Z_P").minimum, param("px4", "MPC_Z_P").maximum) == (0.1, 1.5)
+    assert param("px4", "MPC_Z_VEL_I_ACC").minimum == 0.2
+    assert PX4_GYRO_RATES_HZ == (100.0, 250.0, 400.0, 800.0, 1000.0, 2000.0)
+    assert [v.param.name for v in check_ranges("px4", {"MC_ROLLRATE_P": 0.628, "MC_ROLL_P": 3.0})] == ["MC_ROLLRATE_P"]
+    assert [v.param.name for v in check_ranges("px4", {"MC_ROLLRATE_P": 0.0082})] == ["MC_ROLLRATE_P"]
+
+
+def test_rate_filter_is_scipys_butterworth():
+    for fc, fs in ((40.0, 250.0), (20.0, 400.0), (50.0, 200.0)):
+        b, a = signal.butter(2, fc, fs=fs)
+        mb, ma = RateFilter(fc).coefficients(fs)
+        np.testing.assert_allclose(mb, b, rtol=1e-12)
+        np.testing.assert_allclose(ma, a, rtol=1e-12, atol=1e-15)
+    assert not RateFilter(0.0).active(250.0) and not RateFilter(130.0).active(250.0)
+
+
+def test_filtered_loop_steps_match_the_event_driven_simulation():
+    m = LoopModel(0.0422, 1.301, 0.0297, 30.0)
+    c = Controller(0.3, 0.0, 0.11, 0.0, 250.0, RateFilter(20.0, "IMU_GYRO_CUTOFF"))
+    _, y, _, _, _ = responses([m], c, 3.0)
+    _, ys, _, _ = simulate_step(m, c, 3.0)
+    n = min(y.shape[1], ys.size)
+    assert np.max(np.abs(y[0, :n] - ys[:n])) < 1e-8
+    with pytest.raises(InputError, match="z-transform"):
+        responses([m], c, 1.0, method="state")
+
+
+# --- independent margins from the exported values alone -------------------------------------------
+
+def _loop_from_params(stack: str, loop: str, p: dict[str, float], model: LoopModel, rate: float,
+                      cutoff: float | None, w: np.ndarray) -> np.ndarray:
+    """L(e^{jwT}) from the stack's parameter values: the cascade written out here, scipy's Butterworth
+    on the rate (backward difference), python-control's sampled plant."""
+    T = 1.0 / rate
+    z = np.exp(1j * w * T)
+    if cutoff and 0 < cutoff < rate / 2:
+        b, a = signal.butter(2, cutoff, fs=rate)
+        B = np.polyval(b[::-1], 1 / z) / np.polyval(a[::-1], 1 / z)
+    else:
+        B = np.ones_like(z)
+    rate_meas = (z - 1) / (T * z) * B  # the measured rate of y, per unit y
+    integ = T * z / (z - 1)
+    if stack == "px4" and loop == "altitude":
+        s = HOVER / STANDARD_GRAVITY
+        pz, pv, iv = p["MPC_Z_P"], p["MPC_Z_VEL_P_ACC"], p["MPC_Z_VEL_I_ACC"]
+        vel_err = pz + rate_meas  # velocity setpoint from -y, minus the velocity
+        C = s * (pv * vel_err + iv * integ * vel_err)
+    elif stack in ("px4", "ardupilot"):
+        ax = loop.upper() if stack == "px4" else {"roll": "RLL", "pitch": "PIT"}[loop]
+        if stack == "px4":
+            pa, pr, ir = p[f"MC_{ax}_P"], p[f"MC_{ax}RATE_P"] * p[f"MC_{ax}RATE_K"], p[f"MC_{ax}RATE_I"]
+        else:
+            pa, pr, ir = p[f"ATC_ANG_{ax}_P"], p[f"ATC_RAT_{ax}_P"], p[f"ATC_RAT_{ax}_I"]
+        rate_err = pa + rate_meas
+        C = pr * rate_err + ir * integ * rate_err
+    else:  # HEAR: u = kp e + ki int e + kd PV_DOT with PV_DOT = -(filtered rate)
+        C = p["kp"] + p["ki"] * integ + p["kd"] * rate_meas
+    sys = plant_system(model, rate)
+    A, Bm, Cm = (np.asarray(x) for x in (sys.A, sys.B, sys.C))
+    G = np.array([(Cm @ np.linalg.solve(zk * np.eye(A.shape[0]) - A, Bm))[0, 0] for zk in z])
+    return C * G
+
+
+def _ms_gm(L: np.ndarray) -> tuple[float, float]:
+    ms = float(np.max(1.0 / np.abs(1.0 + L)))
+    k = np.nonzero((np.sign(L.imag[:-1]) != np.sign(L.imag[1:])) & (L.real[:-1] < 0))[0]
+    if not k.size:
+        return ms, math.inf
+    f = L.imag[k] / (L.imag[k] - L.imag[k + 1])  # linear interpolation to Im L = 0
+    gm = 1.0 / np.abs(L[k] + f * (L[k + 1] - L[k]))
+    return ms, float(gm[np.argmin(np.abs(np.log(gm)))])
+
+
+STACK_LOOPS = [(stack, loop, m, rate) for loop, m, rate in MODELS for stack in ("px4", "ardupilot", "hear")
+               if not (stack == "ardupilot" and loop not in ("roll", "pitch"))
+               and not (stack == "px4" and loop not in ("roll", "pitch", "altitude"))]
+
+
+@pytest.mark.parametrize("stack,loop,model,rate", STACK_LOOPS,
+                         ids=[f"{s}-{lp}-Td{m.Td}" for s, lp, m, _ in STACK_LOOPS])
+def test_every_sample_export_is_in_range_with_its_margins(stack, loop, model, rate):
+    """Every design of every sample model, exported (clamped where the stack's range says so): every name
+    is a vendored parameter of the stack, every value in its range, and the margins the export states are
+    those of the loop its values give, recomputed here from the values alone."""
+    st = stack_setting(stack, loop, None, rate, None)
+    res = tune(model, st.rate_hz, kinds=("PD",), designs=("mrft-rule", "model-based"), loop=loop,
+               rate_filter=st.rate_filter)
+    cutoff = st.rate_filter.cutoff_hz if st.rate_filter is not None else None
+    w = np.geomspace(1e-3, 0.999, 3000) * math.pi * st.rate_hz
+    for d in res.designs:
+        try:
+            export_design(stack, d.controller, model, loop, d.name, hover_thrust=HOVER)
+        except InputError as err:  # refused: it names a parameter outside its range
+            assert "is above the maximum" in str(err) or "is below the minimum" in str(err), err
+        e = export_design(stack, d.controller, model, loop, d.name, clamp=True, hover_thrust=HOVER)
+        if stack != "hear":
+            rows = {p.name: p for p in STACK_PARAMS if p.stack == stack}
+            assert set(e.params) <= set(rows), set(e.params) - set(rows)
+            assert not check_ranges(stack, e.params)
+        ms, gm = _ms_gm(_loop_from_params(stack, loop, e.params, model, st.rate_hz, cutoff, w))
+        assert e.margins.Ms == pytest.approx(ms, rel=5e-3), (d.name, e.params)
+        if math.isfinite(gm):
+            assert e.margins.gain_margin == pytest.approx(gm, rel=1e-2), (d.name, e.params)
+
+
+# --- the issue's cases ----------------------------------------------------------------------------
+
+def test_px4_mrft_rule_out_of_range_is_refused_then_clamped_with_margins():
+    m = LoopModel(0.0499, 0.887, 0.0228, 20.0)  # design2_roll's truth
+    st = stack_setting("px4", "roll", None, 200.0, None)
+    assert st.rate_hz == 250.0 and st.rate_filter is not None and st.rate_filter.cutoff_hz == 40.0
+    res = tune(m, st.rate_hz, kinds=("PD",), designs=("mrft-rule",), loop="roll", rate_filter=st.rate_filter)
+    c = res.designs[0].controller
+    big = Controller(c.Kp * 3, 0.0, c.Kd * 3, 0.0, c.rate_hz, c.rate_filter)  # MC_ROLLRATE_P far above 0.5
+    with pytest.raises(InputError, match=r"MC_ROLLRATE_P = .* above the maximum 0.5.*--clamp"):
+        export_design("px4", big, m, "roll", "x")
+    e = export_design("px4", big, m, "roll", "x", clamp=True)
+    assert e.params["MC_ROLLRATE_P"] == 0.5 and e.clamped[0][0] == "MC_ROLLRATE_P"
+    assert any("Ms" in n for n in e.notes)
+    with pytest.raises(InputError, match="IMU_GYRO_RATEMAX"):
+        stack_setting("px4", "roll", 200.0, None, None)
+
+
+def test_refusals_before_the_work():
+    with pytest.raises(InputError, match="hover-thrust"):
+        check_exportable("px4", "altitude", "PD")
+    with pytest.raises(InputError, match="acceleration"):
+        check_exportable("ardupilot", "altitude", "PD")
+    with pytest.raises(InputError, match="PID"):
+        check_exportable("px4", "roll", "PID")
+
+
+def test_hear_sign_and_ros_form():
+    c = Controller(0.4, 0.0, 0.15, 0.0, 200.0, RateFilter(50.0))
+    e = export_design("hear", c, LoopModel(0.0422, 1.3, 0.03, 30.0), "roll", "robust PD")
+    obj = json.loads(e.file_text())
+    assert obj["PID_parameters"]["kd"] == pytest.approx(0.15) and obj["PID_parameters"]["id"] == 3
+    assert "NEGATED" in obj["sign"]
+    assert set(obj["ros_msg_PID_param"]) == {"id", "pid_kp", "pid_ki", "pid_kd", "pid_kdd", "pid_anti_windup",
+                                             "pid_en_pv_derivation", "pid_dt"}  # PID_param.msg's fields
+
+
+def test_px4_params_file_is_qgroundcontrols_format():
+    m = LoopModel(0.0499, 0.887, 0.0228, 20.0)
+    e = export_design("px4", Controller(0.9, 0.0, 0.25, 0.0, 250.0, RateFilter(40.0)), m, "roll", "x")
+    rows = [ln.split("\t") for ln in e.file_text().splitlines() if not ln.startswith("#")]
+    assert all(len(r) == 5 and r[:2] == ["1", "1"] for r in rows)
+    values = {r[2]: float(r[3]) for r in rows}
+    assert values["MC_ROLL_P"] == pytest.approx(0.9 / 0.25) and values["IMU_GYRO_RATEMAX"] == 250
+    assert {r[2]: r[4] for r in rows}["IMU_GYRO_RATEMAX"] == "6"
+    assert "param set MC_ROLLRATE_P 0.25" in e.console_lines()
+
+
+# --- versioned records ----------------------------------------------------------------------------
+
+def test_records_round_trip_and_refuse_other_versions():
+    m = LoopModel(0.0422, 1.301, 0.0297, 30.0)
+    post = Posterior.from_spread(m, 0.1, 0.002, 2.0, n=12)
+    res = tune(m, 250.0, posterior=post, kinds=("PD",), designs=("mrft-rule",), rate_filter=RateFilter(40.0))
+    data = json.loads(json.dumps(res.to_json()))
+    back = TuneResult.from_json(data)
+    assert back.to_json() == res.to_json() and back.rate_filter == res.rate_filter
+    assert Design.from_json(data["designs"][0]).controller == res.designs[0].controller
+    e = export_design("px4", res.designs[0].controller.scaled(0.5), m, "roll", "x", clamp=True)
+    assert StackExport.from_json(json.loads(json.dumps(e.to_json()))) == e
+    for bad in ({**data, "schema_version": 99}, [], {**data, "model": None}):
+        with pytest.raises(InputError):
+            TuneResult.from_json(bad)
+    with pytest.raises(InputError, match="schema_version"):
+        StackExport.from_json({**e.to_json(), "schema_version": 0})
+
+
+# --- the CLI, as a user runs it -------------------------------------------------------------------
+
+def _run(args: list[str], capsys) -> tuple[int, str, str]:
+    """``mrft-ident tune`` on design2_roll's model through the console entry point: (exit code, stdout, stderr)."""
+    from mrftcli.cli.main import main
+
+    code = 0
+    try:
+        main(["tune", "--tp", "0.0499", "--td", "0.887", "--tau", "0.0228", "--k", "20", "--loop", "roll", *args])
+    except SystemExit as e:
+        code = int(e.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
+    out = tmp_path / "roll.params"
+    code, stdout, err = _run(["--rate", "250", "--export", "px4", "--out", str(out), "--design", "model-based"], capsys)
+    assert code == 0, err
+    assert out.read_text().startswith("# Onboard parameters") and "param set MC_ROLL_P" in stdout
+    assert not list(tmp_path.glob(".roll.params.*"))  # the temporary file was renamed
+    code, stdout, err = _run(["--rate", "250", "--export", "ardupilot", "--design", "model-based", "--clamp"], capsys)
+    assert code == 0, err
+    assert stdout.startswith("# mrft-ident") and "ATC_RAT_RLL_P," in stdout  # the .param file on stdout
+    code, _, err = _run(["--rate", "200", "--export", "px4"], capsys)
+    assert code == 2 and err.startswith("error:") and "IMU_GYRO_RATEMAX" in err and len(err.splitlines()) == 1
+    code, _, err = _run(["--rate", "250", "--export", "px4", "--out", str(tmp_path / "no" / "x.params")], capsys)
+    assert code == 2 and "--out" in err
+    code, stdout, err = _run(["--rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)
+    assert code == 0 and "deprecated" in err and json.loads(stdout)["Kp"] > 0

@@ -109,8 +109,8 @@ def _rate_filter_from(data: Any, what: str) -> RateFilter | None:
 def _controller_from(data: Any, what: str) -> Controller:
     if not isinstance(data, dict):
         raise InputError(f"{what}: 'controller' must be an object")
-    return Controller(*(_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz")),
-                      _rate_filter_from(data.get("rate_filter"), what))
+    Kp, Ki, Kd, Tf, rate = (_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
+    return Controller(Kp, Ki, Kd, Tf, rate, _rate_filter_from(data.get("rate_filter"), what))
 
 __all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
@@ -353,7 +353,8 @@ class TuneResult:
         md, pd = data.get("model"), data.get("posterior")
         if not isinstance(md, dict):
             raise InputError(f"{what}: 'model' must be an object")
-        model = LoopModel(*(_number(md, k, what) for k in ("Tp", "Td", "tau", "K")))
+        Tp, Td, tau, K = (_number(md, k, what) for k in ("Tp", "Td", "tau", "K"))
+        model = LoopModel(Tp, Td, tau, K)
         post = None
         if pd is not None:
             if not isinstance(pd, dict) or not all(isinstance(pd.get(k), list) for k in ("Td", "tau", "K")):
@@ -362,7 +363,7 @@ class TuneResult:
                 draws = [np.asarray(_decode(pd[k]), float) for k in ("Td", "tau", "K")]
             except (TypeError, ValueError) as err:
                 raise InputError(f"{what}: malformed posterior draws ({err})") from err
-            post = Posterior(model.Tp, *draws, source=str(pd.get("source", "")))
+            post = Posterior(model.Tp, draws[0], draws[1], draws[2], str(pd.get("source", "")))
         designs, notes, cycle = data.get("designs"), data.get("notes", []), data.get("rule_cycle")
         if not isinstance(designs, list) or not isinstance(notes, list) or not isinstance(cycle, dict):
             raise InputError(f"{what}: 'designs' and 'notes' must be lists, 'rule_cycle' an object")

@@ -1,5 +1,9 @@
 """Gains in the form a user pastes into a flight stack: generic JSON/table, HEAR PID JSON, PX4 parameters.
 
+These are the design's own forms (its first-order Tf, its rate), kept for ``tune --json``'s ``export``
+block; ``tune --export`` designs with the rate and filter each stack really runs and writes the file
+it loads, checked against its ranges (:mod:`mrftcli.tune.stacks`).
+
 * **generic**: Kp, Ki, Kd (parallel form), Tf [s] (first-order derivative filter), rate [Hz], with the
   derivative on the measurement (:class:`mrftcli.tune.closed_loop.Controller`).
 * **HEAR** (the HEAR flight stack's ``PID_parameters`` JSON: ``id``, ``kp``, ``ki``, ``kd``, ``kdd``,
@@ -50,8 +54,9 @@ def hear_json(c: Controller, loop: str) -> dict[str, Any]:
     """
     return {"id": HEAR_PID_ID.get(loop, -1), "kp": c.Kp, "ki": c.Ki, "kd": c.Kd, "kdd": 0.0, "anti_windup": 0.0,
             "en_pv_derivation": 1, "dt": c.Ts,
-            "note": f"feed PV_DOT with the output rate filtered by a first-order lag of {c.Tf * 1e3:.1f} ms "
-                    "(HEAR's PID has no derivative filter of its own); anti_windup 0 = off"}
+            "note": "HEAR computes u += kd * PV_DOT: feed PV_DOT with the NEGATED output rate (HEAR_FC's Gain(-1) "
+                    f"block), filtered by a first-order lag of {c.Tf * 1e3:.1f} ms as designed (HEAR_FC's own filter is "
+                    "a 2nd-order Butterworth at 50 Hz: tune --export hear designs with it); anti_windup 0 = off"}
 
 
 def px4_conditions(c: Controller, loop: str, relay_heights: Sequence[float] = (),

@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, RateFilter
 from .margins import Margins, loop_margins
-from .stack_params import PX4_GYRO_RATES_HZ, RangeViolation, check_ranges, param
+from .stack_params import PX4_GYRO_RATES_HZ, check_ranges, param
 
 __all__ = ["EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
@@ -322,8 +322,9 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
                          + f". Clamped to the bounds the loop would have Ms {margins.Ms:.3g}, GM {margins.gain_margin:.3g}"
                          + f", PM {margins.phase_margin_deg:.1f} deg (--clamp to export that)")
     for v in bad:
-        why = ("the stack's minimum (the PD has none)" if v.param.name in _STRUCTURAL else "the stack's bound (--clamp)")
-        out_notes.append(f"{v.param.name} set to {v.clamped:g} instead of {v.value:.4g}: {why}")
+        reason = ("the stack's minimum (the PD has none)" if v.param.name in _STRUCTURAL
+                  else "the stack's bound (--clamp)")
+        out_notes.append(f"{v.param.name} set to {v.clamped:g} instead of {v.value:.4g}: {reason}")
     if bad:
         out_notes.append(f"with these values the loop has Ms {margins.Ms:.3g}, GM {margins.gain_margin:.3g}, "
                          f"PM {margins.phase_margin_deg:.1f} deg, delay margin {margins.delay_margin_s * 1e3:.1f} ms "

@@ -69,23 +69,39 @@ class Snapshot:
     restarted: str | None = None
 
 
-def _identity(path: Path) -> tuple[int, int] | None:
-    """(inode, size [bytes]) of ``path``, None when it cannot be stat'ed (not there yet)."""
+#: bytes at the start of a followed file compared at each poll: another recording differs there
+_HEAD_BYTES = 4096
+
+#: what identifies the file being followed: (inode, size [bytes], its first bytes)
+_Identity = tuple[int, int, bytes]
+
+
+def _identity(path: Path) -> _Identity | None:
+    """(inode, size [bytes], first :data:`_HEAD_BYTES` bytes) of ``path``; None when it cannot be read."""
     try:
         st = path.stat()
+        with open(path, "rb") as fh:
+            head = fh.read(_HEAD_BYTES)
     except OSError:
         return None
-    return st.st_ino, st.st_size
+    return st.st_ino, st.st_size, head
 
 
-def _replaced(before: tuple[int, int] | None, now: tuple[int, int] | None) -> str | None:
-    """Why the file at a path is not the one read before: shrunk, or a new file (inode); else None."""
+def _replaced(before: _Identity | None, now: _Identity | None) -> str | None:
+    """Why the file at a path is not the one read before (a new recording), or None.
+
+    It shrank; another file took the name (inode); or its first bytes changed (truncated and
+    rewritten between two polls, already longer than before).
+    """
     if before is None or now is None:
         return None
     if now[0] != before[0]:
         return "another file took its name"
     if now[1] < before[1]:
         return f"the file shrank from {before[1]} to {now[1]} bytes"
+    k = min(len(before[2]), len(now[2]))
+    if now[2][:k] != before[2][:k]:
+        return "the file was rewritten from its start"
     return None
 
 
@@ -331,7 +347,7 @@ class _RereadLog:
         self.fmt = fmt
         self.time_unit = time_unit
         self.size = -1
-        self.seen: tuple[int, int] | None = None  # (inode, size) when last read
+        self.seen: _Identity | None = None  # the file when last read
 
     def poll(self) -> Snapshot:
         from . import read_flight

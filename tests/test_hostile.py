@@ -1,0 +1,206 @@
+"""Broken and hostile files through the CLI (tracker issue 29; the full corpus: benchmarks/bench_hostile.py).
+
+The corpus is built by ``scripts/make_hostile_corpus.py`` from the shipped sample logs; each case
+here runs the CLI in a capped subprocess (the benchmark's runner) and checks the issue's contract:
+no internal error, no library warning on stderr, the input unchanged, and exit 0 only with the
+truth's numbers. The oracle of "right numbers" is the simulation's truth sidecar, not the tool.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_hostile import run_one  # noqa: E402
+from make_hostile_corpus import build_corpus  # noqa: E402
+
+from mrftcli.errors import InputError, LogReadError  # noqa: E402
+from mrftcli.io import read_flight  # noqa: E402
+from mrftcli.io.atomic import write_text_atomic  # noqa: E402
+from mrftcli.io.clock import suggest_unit  # noqa: E402
+from mrftcli.io.follow import follow_log  # noqa: E402
+from mrftcli.io.flight import ReadOptions  # noqa: E402
+
+#: fast cases, each a different failure of the issue (the benchmark runs every case and command)
+FAST = {
+    "csv_time_ms.csv": ("analyze", "pass --time-unit ms"),
+    "mat_time_ms.mat": ("analyze", "pass --time-unit ms"),
+    "mcap_mutual_schema.mcap": ("topics", None),
+    "mcap_mutual_schema.mcap ": ("analyze", "cannot decode"),
+    "mcap_zero_times.mcap": ("analyze", "same time"),
+    "mcap_no_schema.mcap": ("analyze", "has no schema"),
+    "mat_nx2.mat": ("analyze", "4930 x 2 matrix"),
+    "mat_complex.mat": ("analyze", "complex"),
+    "mat_length.mat": ("analyze", "4923 samples but its time vector z_t has 4930"),
+    "folder_of_logs": ("analyze", "mrft-ident batch"),
+    "design1_altitude_noise.csv": ("analyze", None),
+    "px4_beta_nan.ulg": ("diagnose", None),
+}
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    out = tmp_path_factory.mktemp("hostile") / "corpus"
+    names = sorted({n.strip() for n in FAST} | {"csv_1e308.csv"})
+    manifest = build_corpus(out, only="^(" + "|".join(map(lambda n: n.replace(".", r"\."), names)) + ")$")
+    return out, {e["name"]: e for e in manifest}
+
+
+@pytest.mark.parametrize("key", list(FAST))
+def test_hostile_case_is_refused_or_right(corpus, key):
+    out, manifest = corpus
+    name = key.strip()
+    command, message = FAST[key]
+    run = run_one(manifest[name], out, command, timeout=100.0)
+    assert not run.internal, run.stderr
+    assert not run.hang and not run.big and not run.modified
+    assert not run.warned, run.stderr
+    assert not run.wrong, run.wrong
+    if manifest[name]["expect"] == "refuse" and command != "topics":  # topics lists what it can
+        assert run.code in (2, 3, 4, 5, 6, 7), run.stderr
+        assert run.stderr.count("\n") == 1, run.stderr  # one line
+    if message is not None:
+        assert message in run.stderr
+
+
+def test_a_corrupt_sample_of_1e308_is_left_out_and_the_numbers_stay_right(corpus):
+    out, manifest = corpus
+    run = run_one(manifest["csv_1e308.csv"], out, "analyze", timeout=100.0)
+    assert run.code == 0 and not run.wrong and not run.warned and not run.internal, run.stderr
+    assert "beyond +-1e+100" in run.stderr
+
+
+def test_time_unit_ms_reads_the_times_the_seconds_file_has(corpus):
+    out, _ = corpus
+    seconds = read_flight(ROOT / "sample_logs" / "design1_altitude.csv", echo_warnings=False)
+    ms = read_flight(out / "csv_time_ms.csv", time_unit="ms", echo_warnings=False)
+    np.testing.assert_allclose(ms.command.t, seconds.command.t, rtol=0, atol=2e-6)
+    with pytest.raises(LogReadError, match="--time-unit ms"):
+        read_flight(out / "csv_time_ms.csv", echo_warnings=False)
+    with pytest.raises(InputError, match="CSV and .mat"):
+        read_flight(ROOT / "sample_logs" / "design1_altitude.mcap", time_unit="ms")
+
+
+def test_suggested_unit_is_the_one_that_gives_a_controller_rate():
+    # 200 Hz with times in ms, us, ns read as seconds: the inverse factor each time
+    assert suggest_unit(200.0 / 1e3, "s") == ("ms", 200.0)
+    assert suggest_unit(200.0 / 1e6, "s") == ("us", 200.0)
+    assert suggest_unit(200.0 / 1e9, "s") == ("ns", 200.0)
+    assert suggest_unit(200.0 * 1e3, "ms") == ("s", 200.0)  # seconds taken for milliseconds
+    assert suggest_unit(1e-12, "s") is None
+
+
+def test_analyze_cli_with_time_unit_gives_the_seconds_file_numbers(corpus):
+    out, _ = corpus
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(out / "csv_time_ms.csv"), "--tp", "0.0422",
+                           "--time-unit", "ms", "--json", "-"], capture_output=True, text=True, timeout=100)
+    assert proc.returncode == 0, proc.stderr
+    truth = json.loads((ROOT / "sample_logs" / "design1_altitude.csv.truth.json").read_text())
+    got = json.loads(proc.stdout)["parameters"]
+    for name in ("Td", "tau", "K"):  # the clean file's own errors are below 15 %
+        assert abs(got[name]["mean"] / truth[name] - 1) < 0.2, (name, got[name]["mean"], truth[name])
+
+
+# -- watch: a file that does not exist yet, a file replaced by another recording ------------------
+def test_watch_waits_for_a_missing_file_then_says_how_long_it_waited(tmp_path):
+    env = dict(os.environ)
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "watch", str(tmp_path / "later.csv"), "--tp", "0.0422",
+                           "--wait", "0.3"], capture_output=True, text=True, timeout=100, env=env)
+    assert proc.returncode == 3
+    lines = proc.stderr.strip().splitlines()
+    assert lines[0].startswith("waiting for") and "0.3 s" in lines[0]
+    assert "no such file after waiting 0.3 s" in lines[1] and "Traceback" not in proc.stderr
+
+
+def test_watch_without_wait_keeps_waiting_until_the_file_appears(tmp_path):
+    from mrftcli.watch import watch
+
+    log = tmp_path / "late.csv"
+    polls = []
+
+    def sleep(dt):  # the logger starts after 1000 polls (20 s at the default poll), later than --idle
+        polls.append(dt)
+        if len(polls) == 1000:
+            log.write_bytes((ROOT / "sample_logs" / "design1_altitude.csv").read_bytes())
+
+    clock = iter(np.arange(1e6) * 0.02)
+    updates = list(watch(log, 0.0422, idle=1.0, sleep=sleep, clock=lambda: float(next(clock))))
+    assert updates[-1].reason == "idle" and updates[-1].tests == 2 and updates[-1].exit_code == 0
+
+
+@pytest.mark.parametrize("name", ["design1_altitude.csv", "design1_altitude.mcap"])
+def test_follower_starts_over_when_the_file_is_truncated_and_rewritten(tmp_path, name):
+    src = (ROOT / "sample_logs" / name).read_bytes()
+    log = tmp_path / name
+    log.write_bytes(src)
+    follower = follow_log(log, ReadOptions())
+    first = follower.poll()
+    assert first.flight is not None and first.restarted is None
+    # another recording under the same name: truncated, then a shorter one written in place
+    other = src[:len(src) // 2] if name.endswith(".csv") else (ROOT / "sample_logs" / "design2_altitude.mcap").read_bytes()
+    with open(log, "r+b") as fh:
+        fh.truncate(0)
+        fh.write(other)
+    snap = follower.poll()
+    assert snap.restarted is not None  # shrank (CSV), or rewritten from its start, already longer (MCAP)
+    assert snap.flight is not None
+    alone = tmp_path / f"alone_{name}"
+    alone.write_bytes(other)
+    expected = read_flight(alone, echo_warnings=False).command  # the new recording read on its own
+    np.testing.assert_array_equal(snap.flight.command.t, expected.t)
+    np.testing.assert_array_equal(snap.flight.command.values, expected.values)
+
+
+def test_watch_reports_a_restart_and_forgets_the_old_tests(tmp_path):
+    from mrftcli.watch import Restart, TestUpdate, watch
+
+    log = tmp_path / "run.csv"
+    log.write_bytes((ROOT / "sample_logs" / "design1_altitude.csv").read_bytes())
+    second = (ROOT / "sample_logs" / "design2_altitude.mcap")
+    from mrftcli.io import open_log, write_log
+    from mrftcli.io.logtypes import TopicData
+
+    with open_log(second) as src:
+        t, v = src.read("/mrft/command", ["data"])
+        tz, vz = src.read("/mocap/pose", ["pose.position.z"])
+    short = tmp_path / "short.csv"
+    write_log([TopicData("/mrft/command", "std_msgs/msg/Float64", t[:2000], {"data": v["data"][:2000]}),
+               TopicData("/mocap/pose", "geometry_msgs/msg/PoseStamped", tz[:2000],
+                         {"pose.position.z": vz["pose.position.z"][:2000]})], short, "csv")
+    state = {"n": 0}
+
+    def sleep(dt):
+        state["n"] += 1
+        if state["n"] == 3:
+            log.write_bytes(short.read_bytes())  # smaller: a new recording
+
+    clock = iter(np.arange(1e6) * 0.02)
+    updates = list(watch(log, 0.0422, idle=0.5, sleep=sleep, clock=lambda: float(next(clock))))
+    kinds = [type(u).__name__ for u in updates]
+    assert "Restart" in kinds
+    after = updates[kinds.index("Restart") + 1:]
+    assert all(u.t_start < 10.0 + t[0] for u in after if isinstance(u, TestUpdate))
+    assert isinstance(updates[kinds.index("Restart")], Restart)
+
+
+# -- atomic writes --------------------------------------------------------------------------------
+def test_atomic_write_leaves_the_old_file_whole_when_it_fails(tmp_path):
+    target = tmp_path / "result.json"
+    target.write_text("old\n")
+    write_text_atomic(target, "new\n")
+    assert target.read_text() == "new\n"
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    with pytest.raises(OSError):
+        write_text_atomic(folder, "x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_folder", "result.json"]  # no temporary left

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, LogReadError
+from ..io.clock import implausible_timing
 from ..io.logtypes import FlightLog
 from ..mrft.consensus import CONSTRAINTS, combinations
 from ..segment import StabilityCriterion, ValidityCriterion, segment
@@ -34,6 +35,15 @@ def _check_constraints(constraints: Sequence[str]) -> tuple[str, ...]:
     if bad:
         raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
     return out
+
+
+def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | None) -> None:
+    """Refuse a limit-cycle period [s] or a delay [s] no vehicle loop has: the log's clock unit is
+    wrong (:mod:`mrftcli.io.clock` gives the thresholds), and every number would scale with it."""
+    why = implausible_timing(period_s, delay_s)
+    if why is not None:
+        raise LogReadError(f"{flight.path}: {why}: the log's times are not in the unit they were read in; "
+                           "check the time column's unit (--time-unit for CSV and .mat logs)")
 
 
 def analyze_flight(
@@ -90,6 +100,9 @@ def analyze_flight(
 
     Raises
     ------
+    LogReadError
+        A limit-cycle period over 60 s or a delay over 10 s: the log's times are in another unit
+        than they were read in (:mod:`mrftcli.io.clock`).
     SegmentationError
         No relay test in the log, or no test with ``min_stable_cycles`` stable cycles whose output
         is a limit cycle of its relay (the message says what was found and why it is not usable).
@@ -117,6 +130,7 @@ def analyze_flight(
     found = segment(flight, criterion=criterion or StabilityCriterion(), validity=validity or ValidityCriterion(),
                     controller_rate_hz=controller_rate_hz)
     screening = screen(flight, found, Tp, min_stable_cycles)
+    _check_clock(flight, max((1.0 / t.frequency_hz_mean for t in screening.usable), default=None), None)
     # one generator through the stages in this order: a seed gives the same draws
     rng = np.random.default_rng(seed)
     point = point_estimate(Tp, screening, constraints, n_bootstrap, rng)
@@ -127,6 +141,7 @@ def analyze_flight(
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
+    _check_clock(flight, None, tau_est.mean)
     tp_warning = _tp_check(flight, screening, wave)
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]

@@ -1,0 +1,135 @@
+"""Benchmark: ``tune --export`` on every sample log, as a user runs it, against the export it replaces.
+
+For each sample log (analysed as ``tune LOG`` analyses it: the truth sidecar gives only the loop and
+Tp, the figures a user knows; the posterior is the analysis's), the robust PD (model-based without a
+posterior) is exported to each stack that has the loop, with the stack's defaults (PX4: the
+IMU_GYRO_RATEMAX choice nearest the log's rate and IMU_GYRO_CUTOFF 40 Hz; ArduPilot: the log's rate,
+INS_GYRO_FILTER 20 Hz; HEAR: 200 Hz and HEAR_FC's 50 Hz Butterworth; PX4 altitude: hover thrust 0.5).
+
+Per export: refused (the reason counts as a miss), exported in range, or exported with values set to
+the stack's bounds (``--clamp``); and the nominal Ms / GM of the loop the exported values give with
+the stack's filter (:func:`mrftcli.tune.stacks.export_design`).
+
+The baseline is the export the issue found (``--format px4`` before): the design made with its own
+first-order Tf at the log's rate, its PX4 values unchecked, flown with IMU_GYRO_CUTOFF = 1/(2 pi Tf)
+as PX4 runs it (a 2nd-order Butterworth): the Ms the design table claimed, the Ms as flown, and how
+many values fall outside PX4's ranges.
+
+Run: ``nice -n 10 python benchmarks/bench_exports.py [--only REGEX]`` (about 10 minutes on 2 busy
+cores for all logs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "sample_logs"
+STACKS = ("px4", "ardupilot", "hear")
+HOVER = 0.5
+
+
+def _logs(only: str | None) -> list[Path]:
+    logs = sorted(p for p in SAMPLES.iterdir() if (SAMPLES / (p.name + ".truth.json")).exists())
+    return [p for p in logs if not only or re.search(only, p.name)]
+
+
+def _baseline(res, model, loop: str):
+    """The export the issue found: the design's own Tf, flown with PX4's Butterworth at 1/(2 pi Tf)."""
+    from mrftcli.tune.closed_loop import Controller, RateFilter
+    from mrftcli.tune.margins import loop_margins
+    from mrftcli.tune.stack_params import check_ranges
+
+    d = res.get("robust" if any(x.name == "robust" for x in res.designs) else "model-based", "PD")
+    c = d.controller
+    cutoff = 1.0 / (2 * math.pi * c.Tf)
+    flown = loop_margins(Controller(c.Kp, 0.0, c.Kd, 0.0, c.rate_hz, RateFilter(cutoff)), [model])[0]
+    ax = loop.upper()
+    out_of_range = (len(check_ranges("px4", {f"MC_{ax}_P": c.Kp / c.Kd, f"MC_{ax}RATE_P": c.Kd,
+                                             "IMU_GYRO_CUTOFF": cutoff, "IMU_GYRO_RATEMAX": c.rate_hz}))
+                    + (c.rate_hz not in (100, 250, 400, 800, 1000, 2000)))
+    return d.margins.Ms, flown.Ms, flown.gain_margin, out_of_range
+
+
+def _one(path: Path) -> list[dict]:
+    from mrftcli.analyze import analyze_path
+    from mrftcli.errors import MrftError
+    from mrftcli.tune.analysis import posterior_from_analysis
+    from mrftcli.tune.design import tune
+    from mrftcli.tune.stacks import check_exportable, export_design, stack_setting
+
+    truth = json.loads((SAMPLES / (path.name + ".truth.json")).read_text())
+    loop, Tp = truth["loop"], truth["Tp"]
+    try:
+        a = analyze_path(path, Tp, loop)
+    except MrftError as err:
+        return [{"log": path.name, "stack": s, "outcome": f"refused (analysis: {err})"} for s in STACKS]
+    post = posterior_from_analysis(a)
+    rows = []
+    base = None
+    if loop in ("roll", "pitch") and a.controller_rate_hz:
+        res0 = tune(a.model, a.controller_rate_hz, posterior=post, kinds=("PD",), loop=loop)
+        base = _baseline(res0, a.model, loop)
+    for stack in STACKS:
+        row: dict = {"log": path.name, "stack": stack, "loop": loop}
+        try:
+            check_exportable(stack, loop, "PD", HOVER)
+            st = stack_setting(stack, loop, None, a.controller_rate_hz, None)
+            res = tune(a.model, st.rate_hz, posterior=post, kinds=("PD",), loop=loop, rate_filter=st.rate_filter)
+            name = "robust" if any(x.name == "robust" for x in res.designs) else "model-based"
+            heights = [float(t.h) for t in a.tests]
+            amps = [float(t.amplitude_mean) for t in a.tests]
+            c = res.get(name, "PD").controller
+            try:
+                e = export_design(stack, c, a.model, loop, name, hover_thrust=HOVER, heights=heights, amplitudes=amps)
+                row["outcome"] = "in range" if not e.clamped else "minimum I set"
+            except MrftError:
+                e = export_design(stack, c, a.model, loop, name, clamp=True, hover_thrust=HOVER, heights=heights,
+                                  amplitudes=amps)
+                row["outcome"] = "clamped (refused without --clamp)"
+            row.update(Ms=e.margins.Ms, GM=e.margins.gain_margin, rate=st.rate_hz,
+                       clamped=[n for n, _, _ in e.clamped])
+        except MrftError as err:
+            row["outcome"] = f"refused: {err}"
+        if stack == "px4" and base is not None:
+            row.update(base_Ms_claimed=base[0], base_Ms_flown=base[1], base_GM_flown=base[2], base_out_of_range=base[3])
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", help="regex on the sample log names")
+    args = ap.parse_args()
+    t0 = time.process_time()
+    rows = [r for p in _logs(args.only) for r in _one(p)]
+    print(f"{'log':<34}{'stack':<10}{'rate':>6}{'Ms':>6}{'GM':>6}  outcome   | before (PX4): Ms claimed / flown, "
+          "GM flown, values out of range")
+    for r in rows:
+        f = (lambda k, fmt: format(r[k], fmt) if k in r and math.isfinite(r[k]) else "-")
+        line = f"{r['log']:<34}{r['stack']:<10}{f('rate', '.0f'):>6}{f('Ms', '.2f'):>6}{f('GM', '.2f'):>6}  {r['outcome'][:90]}"
+        if "base_Ms_flown" in r:
+            line += (f" | {r['base_Ms_claimed']:.2f} / {r['base_Ms_flown']:.2f}, {r['base_GM_flown']:.2f}, "
+                     f"{r['base_out_of_range']}")
+        print(line)
+    done = [r for r in rows if "Ms" in r]
+    refused = [r for r in rows if r["outcome"].startswith("refused")]
+    over = [r for r in done if r["Ms"] > 1.6 * 1.001]
+    base = [r for r in rows if "base_Ms_flown" in r]
+    print(f"\nexports: {len(rows)}; written {len(done)} (clamped {sum('clamped' in r['outcome'] for r in done)}); "
+          f"refused {len(refused)}; Ms above 1.6 with the stack's filter: {len(over)}")
+    if base:
+        print(f"before (PX4 roll/pitch, {len(base)} logs): Ms as flown above 1.6: "
+              f"{sum(r['base_Ms_flown'] > 1.6 * 1.001 for r in base)}; worst flown Ms "
+              f"{max(r['base_Ms_flown'] for r in base):.2f} (claimed {max(r['base_Ms_claimed'] for r in base):.2f}); "
+              f"logs with values PX4 cannot take: {sum(r['base_out_of_range'] > 0 for r in base)}")
+    print(f"CPU {time.process_time() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

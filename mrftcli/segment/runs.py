@@ -300,7 +300,7 @@ def tick_numbers(t: np.ndarray) -> np.ndarray | None:
         else:
             dt = cand[j]
     phase = np.angle(np.mean(np.exp(2j * np.pi * tr / dt))) / (2 * np.pi) * dt
-    n = np.rint((tr - phase) / dt)
+    n: np.ndarray = np.rint((tr - phase) / dt)
     if np.any(np.diff(n) <= 0):
         return None
     return n

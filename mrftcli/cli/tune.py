@@ -318,6 +318,8 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
     _check_out(out)
     if out and ex.stack is None:
         raise InputError("--out needs --export generic|px4|ardupilot|hear")
+    if ex.stack is not None and not out and json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
     if source is not None and any(v is not None for v in (td, tau, K)):
         raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
     is_result = source is not None and str(source).lower().endswith(".json") and Path(source).is_file()

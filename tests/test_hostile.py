@@ -204,3 +204,54 @@ def test_atomic_write_leaves_the_old_file_whole_when_it_fails(tmp_path):
     with pytest.raises(OSError):
         write_text_atomic(folder, "x")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_folder", "result.json"]  # no temporary left
+
+
+# -- batch: write what can be written, report the rest --------------------------------------------
+def test_batch_writes_every_result_it_can_and_reports_the_rest(tmp_path):
+    from test_batch import fake_worker, write_toy
+
+    from mrftcli.batch import run as B
+    from mrftcli.batch.inputs import result_path
+
+    fleet = tmp_path / "fleet"
+    for name in ("a.csv", "b.csv", "c.csv"):
+        write_toy(fleet / name)
+    out = tmp_path / "out"
+    (out / "logs").mkdir(parents=True)
+    blocked = result_path(out, (fleet / "b.csv").resolve())
+    blocked.mkdir()  # a folder where b's record goes: that one write fails, the others must not
+    res = B.run_batch([fleet], out, defaults={"tp": 0.05}, jobs=1, report=False, worker=fake_worker)
+    assert len(res.unwritten) == 1 and str(blocked) in res.unwritten[0]
+    assert res.counts["ok"] == 3  # b's row is kept in the summary
+    written = sorted(p.name for p in (out / "logs").iterdir() if p.is_file())
+    assert len(written) == 2 and (out / "summary.csv").is_file()
+    assert "could not be written" in res.notes[0]
+
+
+def test_batch_output_logs_being_a_file_is_a_one_line_input_error(tmp_path):
+    from test_batch import fake_worker, write_toy
+
+    from mrftcli.batch import run as B
+
+    write_toy(tmp_path / "fleet" / "a.csv")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "logs").write_text("not a folder")
+    with pytest.raises(InputError, match=r"logs is a file, not a folder"):
+        B.run_batch([tmp_path / "fleet"], out, defaults={"tp": 0.05}, jobs=1, report=False, worker=fake_worker)
+
+
+def test_a_period_no_vehicle_has_is_refused_as_a_clock_unit():
+    from dataclasses import replace
+
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.io.logtypes import Signal
+
+    f = read_flight(ROOT / "sample_logs" / "design1_altitude.csv", echo_warnings=False)
+
+    def slow(s):  # a 200 Hz log stamped in units of 10 ms: 2 Hz passes the rate check, periods of 73-130 s
+        return Signal(s.t * 100, s.values)
+
+    g = replace(f, command=slow(f.command), output=slow(f.output), beta=slow(f.beta), setpoint=None)
+    with pytest.raises(LogReadError, match="limit-cycle period of 129.5 s"):
+        analyze_flight(g, 0.0422, n_bootstrap=20)

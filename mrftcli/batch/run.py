@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from .. import __version__
+from ..io.atomic import atomic_path, write_text_atomic
 from .inputs import BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
 from .summary import (
     STATUS_FAILED,
@@ -351,6 +352,8 @@ class BatchResult:
         Logs discovered.
     notes : list of str
         Problems that did not stop the batch (e.g. the fleet report could not be drawn).
+    unwritten : list of str
+        ``path: reason`` of each output file that could not be written (the others were).
     """
 
     summary: pd.DataFrame
@@ -359,6 +362,7 @@ class BatchResult:
     counts: dict[str, int]
     n_logs: int
     notes: list[str] = field(default_factory=list)
+    unwritten: list[str] = field(default_factory=list)
 
     @property
     def failed(self) -> pd.DataFrame:
@@ -399,9 +403,24 @@ def _to_json_text(obj: Any) -> str:
 
 def _write_json_atomic(path: Path, obj: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_text(_to_json_text(obj) + "\n")
-    os.replace(tmp, path)
+    write_text_atomic(path, _to_json_text(obj) + "\n")
+
+
+def _check_out_dir(out: Path) -> None:
+    """Create ``out`` and its ``logs`` folder before any work; InputError naming what is in the way."""
+    for folder in (out, out / "logs"):
+        if folder.exists() and not folder.is_dir():
+            raise InputError(f"{folder} is a file, not a folder: batch stores {'its results' if folder == out else 'one record per log'} "
+                             "there; move the file away or choose another output folder")
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise InputError(f"cannot create the output folder {folder}: {err.strerror or err}") from err
+
+
+def _unwritten(path: Path, err: OSError) -> str:
+    """One line for a result that could not be written."""
+    return f"{path}: {err.strerror or err}"
 
 
 def run_batch(
@@ -468,22 +487,26 @@ def run_batch(
     tasks = [_task(log, base, config, explicit or {}, diagnose, tune) for log in logs]
     if all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create the output folder {out}: {err.strerror or err}") from err
+    _check_out_dir(out)
     rows, todo = _cached_rows(tasks, out, force)
+    unwritten: list[str] = []
     if todo:
         stream = _stream(worker, todo, jobs, scheduler, scheduler_timeout_s)
         report_progress(progress, 0, len(todo), "")
         for done, (task, record) in enumerate(stream, 1):
             jp = result_path(out, Path(task.path))
-            _write_json_atomic(jp, record)
+            try:
+                _write_json_atomic(jp, record)
+            except OSError as err:  # a full disk or a folder gone: keep the row, write the others
+                unwritten.append(_unwritten(jp, err))
             rows.extend(summary_rows(record, jp))
             report_progress(progress, done, len(todo), Path(task.path).name)
-    df, outputs, notes = _write_summary(rows, out, report)
+    df, outputs, notes = _write_summary(rows, out, report, unwritten)
+    if unwritten:
+        notes.insert(0, f"{len(unwritten)} output file(s) could not be written (first: {unwritten[0]}); "
+                        "the results that were are complete")
     counts = {s: int((df["status"] == s).sum()) for s in (STATUS_OK, STATUS_INSUFFICIENT, STATUS_FAILED, STATUS_SKIPPED)}
-    return BatchResult(df, out, outputs, counts, len(logs), notes)
+    return BatchResult(df, out, outputs, counts, len(logs), notes, unwritten)
 
 
 def _task(log: Path, base: Mapping[str, Any], config: BatchConfig | None, explicit: Mapping[str, Any],
@@ -529,9 +552,13 @@ def _stream(worker: Worker, todo: Sequence[LogTask], jobs: int | None, scheduler
     return _run_processes(worker, list(todo), jobs or os.cpu_count() or 1)
 
 
-def _write_summary(rows: list[dict[str, Any]], out: Path,
-                   report: bool) -> tuple[pd.DataFrame, dict[str, Path], list[str]]:
-    """summary.csv, summary.parquet and the fleet report; the table, the files written and notes."""
+def _write_summary(rows: list[dict[str, Any]], out: Path, report: bool,
+                   unwritten: list[str]) -> tuple[pd.DataFrame, dict[str, Path], list[str]]:
+    """summary.csv, summary.parquet and the fleet report; the table, the files written and notes.
+
+    Each file is written atomically; one that cannot be written is added to ``unwritten`` and
+    left out of the outputs, and the others are still written.
+    """
     loop_order = {name: i for i, name in enumerate(LOOPS)}
     rows.sort(key=lambda r: (r["path"], loop_order.get(r["loop"], 99), str(r["loop"])))
     df = summary_frame(rows)
@@ -539,8 +566,13 @@ def _write_summary(rows: list[dict[str, Any]], out: Path,
     csv_df = df.copy()
     for col in ("log_time", "log_mtime", "analysed_at"):
         csv_df[col] = csv_df[col].map(lambda t: t.isoformat() if pd.notna(t) else "")
-    csv_df.to_csv(outputs["csv"], index=False)
-    df.to_parquet(outputs["parquet"], index=False, engine="pyarrow")
+    for key, write in (("csv", lambda p: csv_df.to_csv(p, index=False)),
+                       ("parquet", lambda p: df.to_parquet(p, index=False, engine="pyarrow"))):
+        try:
+            with atomic_path(outputs[key]) as tmp:
+                write(tmp)
+        except OSError as err:
+            unwritten.append(_unwritten(outputs.pop(key), err))
     notes: list[str] = []
     if report and len(df):
         try:

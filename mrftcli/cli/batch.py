@@ -133,4 +133,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
             f"(first: {Path(str(first['path'])).name} [{first['loop']}]: {first['error']}); "
             f"{result.summary_line()}"
         )
+    if result.unwritten:
+        raise BatchFailedError(f"{len(result.unwritten)} output file(s) could not be written (first: "
+                               f"{result.unwritten[0]}); {result.summary_line()}")
     click.echo(result.summary_line(), err=True)

@@ -225,6 +225,12 @@ def _amp_text(x: float, loop: str) -> str:
     return f"{x * 1e3:.2g} {'mm' if loop == 'altitude' else 'mrad'}"
 
 
+def _median(values: Sequence[float]) -> float | None:
+    """Median of the finite values, None when there is none (no All-NaN warning, no 'nan' in a message)."""
+    finite = [x for x in values if np.isfinite(x)]
+    return float(np.median(finite)) if finite else None
+
+
 def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Mapping[int, str], min_stable_cycles: int,
                        t0: float) -> str:
     """The one-line SegmentationError when no test survives :func:`screen_tests`."""
@@ -235,9 +241,9 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
     lost = [t for t in found if t.validity is not None and not t.validity.follows_relay]
     if lost and len(lost) * 2 >= n:
         v = [t.validity for t in lost if t.validity is not None]
-        amp = float(np.nanmedian([x.amplitude for x in v]))
-        snr = float(np.nanmedian([x.snr for x in v]))
-        frac = float(np.nanmedian([x.h1_fraction for x in v]))
+        amp, snr, frac = (_median([getattr(x, k) for x in v]) for k in ("amplitude", "snr", "h1_fraction"))
+        if amp is None or snr is None or frac is None:  # no cycle could be measured: no figures to quote
+            return head + f"{out} does not follow them (no cycle of it could be measured): is --loop/--output-topic right?"
         return (head + f"{out} does not follow them (output amplitude {_amp_text(amp, flight.loop)}, "
                 f"{snr:.2g}x the noise at the relay frequency; fraction of variance at the relay frequency "
                 f"{frac:.2f}): is --loop/--output-topic right?")

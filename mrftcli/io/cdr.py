@@ -219,6 +219,15 @@ def extract(typestore: Typestore, msgtype: str, buf: np.ndarray, starts: np.ndar
     CdrLayoutError
         A path is not a numeric leaf of the type, or a message is too short for its type.
     """
+    # corrupt or NaN/inf numbers become NaN/inf here, silently: the flight reader leaves them out
+    # with its own warning (io/flight); numpy's cast warnings would only reach the terminal
+    with np.errstate(invalid="ignore", over="ignore"):
+        return _extract(typestore, msgtype, buf, starts, lengths, paths, ros1)
+
+
+def _extract(typestore: Typestore, msgtype: str, buf: np.ndarray, starts: np.ndarray,
+             lengths: np.ndarray, paths: list[str], ros1: bool) -> dict[str, np.ndarray]:
+    """:func:`extract` without the floating-point error state."""
     for path in paths:
         leaf_paths(typestore, msgtype, path)  # raises a clear error for unknown/non-leaf paths
     body, end, big = _message_bounds(starts, lengths, ros1, buf)

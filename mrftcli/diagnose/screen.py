@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..analyze import log_start
-from ..errors import DiagnoseError, IdentificationError
+from ..errors import DiagnoseError, IdentificationError, InsufficientDataError
 from ..io.logtypes import FlightLog
 from ..segment.records import MrftTest
 from .features import summarize_features
@@ -60,10 +60,12 @@ class Screen:
 
 
 def _analysis_of(flight: FlightLog, Tp: float) -> tuple[AnalysisResult | None, str | None]:
-    """The tests analyze would use, refused for the same reasons (one beta: exit 6; an output that
-    does not follow the relay: the --loop / --output-topic hint), so the two commands agree on what a
+    """The tests analyze would use, refused for the same reasons (an output that does not follow
+    the relay: the --loop / --output-topic hint), so the two commands agree on what a
     log supports; the identification's bootstrap and refinement are not needed here. Returns the
-    analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests' frequencies."""
+    analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests' frequencies, or
+    when a single beta is left (a test that saturates at the larger relay height is not an MRFT
+    limit cycle of eq. (2), yet its flattening is the evidence of the saturation)."""
     from ..analyze import analyze_flight
 
     with pywarnings.catch_warnings():
@@ -75,6 +77,21 @@ def _analysis_of(flight: FlightLog, Tp: float) -> tuple[AnalysisResult | None, s
             # analyze must refuse, but that is the strongest sign of missing physics there is, so the
             # diagnosis fits the cycles itself
             return None, str(exc)
+        except InsufficientDataError as exc:
+            # one usable beta: refused as analyze refuses it, unless the log flew tests to compare
+            # (another beta analyze left out, or another relay height: a test that flattens at the
+            # larger one is the evidence of a saturation)
+            if not _comparable(segments_of(flight, None)):
+                raise
+            return None, str(exc)
+
+
+def _comparable(tests: list[MrftTest]) -> bool:
+    """Whether the flown tests differ in beta or in relay height (by more than 10 %)."""
+    from ..analyze.screen import group_betas
+
+    hs = sorted(abs(t.h) for t in tests)
+    return len(group_betas(tests)) > 1 or (len(hs) > 1 and hs[-1] > 1.1 * hs[0])
 
 
 def screen_log(flight: FlightLog, Tp: float, analysis: AnalysisResult | None,

@@ -417,12 +417,16 @@ def _floor_fit(t: np.ndarray, n: np.ndarray) -> SendTimes | None:
     floors = np.minimum.reduceat(late, np.linspace(0, late.size, parts + 1).astype(int)[:-1])
     if np.ptp(floors) > 0.25 * dt:
         return None
+    spread = robust_sigma(late)
+    dropped = int(n[-1] - n[0] - (n.size - 1))
+    if np.ptp(late) < 1e-5:
+        # already on a grid to the stamps' rounding (stamped at the source): kept as logged
+        return SendTimes(t, True, float(dt), 0.0, spread, dropped)
     lp = optimize.linprog([-float(n.size), -float(n.sum())], A_ub=A, b_ub=tr, bounds=[(None, None), (None, None)],
                           method="highs")
     t0, period = (float(lp.x[0]), float(lp.x[1])) if lp.success and lp.x[1] > 0 else (c0 + float(np.min(late)), dt)
     grid = t0 + period * n
-    return SendTimes(t[0] + grid, True, period, float(np.mean(tr - grid)), robust_sigma(late),
-                     int(n[-1] - n[0] - (n.size - 1)))
+    return SendTimes(t[0] + grid, True, period, float(np.mean(tr - grid)), spread, dropped)
 
 
 def _grid_fit(t: np.ndarray, n: np.ndarray, max_residual: float) -> tuple[np.ndarray, bool]:

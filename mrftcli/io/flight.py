@@ -378,7 +378,7 @@ def _bounded(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
     overflows float64 in every fit downstream. It is left out like a NaN (:func:`_finite`).
     """
     with np.errstate(invalid="ignore"):
-        bad = np.abs(sig.values) > ABSURD_MAGNITUDE
+        bad = np.isfinite(sig.values) & (np.abs(sig.values) > ABSURD_MAGNITUDE)  # NaN, inf: _finite
     if not bad.any():
         return sig
     if bad.all():

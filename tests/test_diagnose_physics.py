@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import mrftcli
+
 from mrftcli.diagnose.fit import cycle_plant
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.diagnose.periodic import CyclePlant, periodic_solution
@@ -217,6 +219,23 @@ def test_one_beta_is_refused_as_analyze_does(logs):
     r = subprocess.run([sys.executable, "-m", "mrftcli.cli", "diagnose", str(path), "--tp", str(truth["Tp"])],
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 6 and "only one beta" in r.stderr
+
+
+def test_a_test_that_saturates_at_the_larger_relay_height_is_diagnosed_not_refused(tmp_path):
+    # one beta at two relay heights: analyze has a single beta (exit 6), but the tests can be compared,
+    # and the larger one flattening at the actuator limit is the evidence of the saturation (issue 27)
+    m = gen.PLANTS["design1"]
+    h1 = plan_test(m, -0.4, gen.AMPLITUDE, cycles=8).h
+    limit = 0.5 + 0.7 * 2.0 * h1  # inside the third test's relay step only
+    path, truth = _flight("actuator_saturation", limit, seed=11, cycles=(8, 8, 8), betas=(-0.4, -0.4, -0.4), h3=2.0,
+                          tmp=tmp_path)
+    fl = read_flight(path, "altitude")
+    with pytest.raises(InsufficientDataError, match="only one beta"):
+        mrftcli.analyze_flight(fl, truth["Tp"])
+    res = diagnose(fl, truth["Tp"])
+    assert [e.name for e in res.effects] == ["actuator_saturation"], res.summary
+    assert res.effects[0].parameters["U_max"] == pytest.approx(limit, rel=0.1)
+    assert any("analyze refuses this log" in w for w in res.warnings)
 
 
 def test_an_output_that_does_not_follow_the_relay_gets_analyze_message(logs):

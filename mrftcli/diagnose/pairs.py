@@ -22,7 +22,7 @@ from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_v
                   residuals, theta_bounds)
 from .heldout import BIC_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Candidate
-from .records import CandidateFit, EffectFinding, Evidence, FinalModel, PairFit
+from .records import CandidateFit, EffectFinding, Evidence, FinalModel, HeldOut, PairFit
 from .screen import Screen
 
 __all__ = ["PAIR_PROBE_MIN", "RIVAL_ANCHORS", "TIE_BIC", "EffectSelection", "select_effects", "effect_finding",
@@ -398,6 +398,22 @@ def _ties(effects: list[EffectFinding], first: CandidateFit, second: PairFit | N
                      "height or beta, or longer tests, would"]
 
 
+def _unconfirmed(cand_rows: list[CandidateFit], found: set[str]) -> list[str]:
+    """One warning naming the candidates with strong evidence on the fitting cycles whose refit does
+    not improve the held-out cycles (not reported as effects, issue 27)."""
+    rows = [r for r in cand_rows if r.name not in found and r.name != "delay_jitter" and not r.significant
+            and r.delta_bic is not None and r.delta_bic >= BIC_THRESHOLD]
+    if not rows:
+        return []
+    parts = [f"{r.name} (delta BIC {r.delta_bic:.0f}; held-out NRMSE {_nrmse(r.held_out_before)} -> "
+             f"{_nrmse(r.held_out_after)})" for r in rows]
+    return ["not reported, their refit does not improve the held-out cycles: " + ", ".join(parts)]
+
+
+def _nrmse(held: HeldOut | None) -> str:
+    return "n/a" if held is None or held.nrmse is None else f"{held.nrmse:.3g}"
+
+
 def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, Tp: float,
                    say: Callable[..., None]) -> EffectSelection:
     """Stage 4: the first effect (the significant candidate with the largest delta BIC) and a second one
@@ -432,4 +448,5 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, T
         first, second = pairs.swap(first, second, deterministic, cand_rows)
     effects, final = _findings(first, second, pairs)
     effects, warnings = _ties(effects, first, second, cand_rows, pairs.rows, fits)
+    warnings += _unconfirmed(cand_rows, {e.name for e in effects})
     return EffectSelection(effects=effects, pair_rows=pairs.rows, final=final, warnings=warnings)

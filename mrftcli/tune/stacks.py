@@ -66,9 +66,12 @@ def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | Non
     if stack in ("px4", "ardupilot") and kind != "PD":
         raise InputError(f"cannot export a PID to {stack}: its rate-loop (velocity-loop) I acts on the measured "
                          "rate, not on the error of a parallel PID; export the PD (--kind PD)")
-    if stack == "ardupilot" and loop not in ("roll", "pitch"):
-        raise InputError(f"cannot export the {loop} loop to ArduPilot: its altitude cascade (PSC_ACCZ_*) feeds back "
+    if stack == "ardupilot" and loop == "altitude":
+        raise InputError("cannot export the altitude loop to ArduPilot: its altitude cascade (PSC_ACCZ_*) feeds back "
                          "the measured acceleration, which the identified PD does not contain; roll and pitch export")
+    if stack == "ardupilot" and loop not in ("roll", "pitch"):
+        raise InputError(f"cannot export the {loop} loop to ArduPilot: only roll and pitch map onto its angle-P / "
+                         "rate-PID cascade")
     if stack == "px4" and loop not in ("roll", "pitch", "altitude"):
         raise InputError(f"cannot export the {loop} loop to PX4: only roll, pitch and altitude map onto its cascades")
     if stack == "px4" and loop == "altitude" and hover_thrust is None:

@@ -1,8 +1,8 @@
 """Relay tests on process plants, simulated here independently of mrftcli (the oracle of test_families).
 
 The plant is built from its transfer function's polynomials (``scipy.signal.tf2ss``, not the
-families' realisations), stepped exactly (zero-order hold) on a fine grid of ``oversample`` steps per
-controller sample; the delay is a whole number of fine steps (error below half a step). The relay
+families' realisations), stepped exactly (zero-order hold) from sample to sample, the delay included
+exactly (whole steps plus a fraction, the step split at the fraction). The relay
 decides at the controller's rate on the noisy output (e = 0 - y), holds its level, and runs one of:
 ``mrft`` (tests/relay_rule.py, checks.md section 2), ``ideal``, ``hysteresis`` (switch low when e
 falls through -eps, high when it rises through +eps). The bias is the operating point: the plant
@@ -48,7 +48,7 @@ class Window:
 
 
 def simulate(family: str, params: dict[str, float], windows: list[Window], rate_hz: float, noise_std: float,
-             seed: int = 0, oversample: int = 20, lead: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             seed: int = 0, oversample: int = 1, lead: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t [s], command, output) sampled at ``rate_hz``; ``noise_std`` [output units] on the output."""
     rng = np.random.default_rng(seed)
     num, den = polynomials(family, params)
@@ -56,12 +56,20 @@ def simulate(family: str, params: dict[str, float], windows: list[Window], rate_
     n = A.shape[0]
     Ts = 1.0 / rate_hz
     dt = Ts / oversample
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n], M[:n, n] = A * dt, B[:, 0] * dt
-    E = linalg.expm(M)
-    Phi, Gam = E[:n, :n], E[:n, n]
-    d = int(round(params["tau"] / dt))
-    buf = [0.0] * (d + 1)  # plant input (deviation from the bias), delayed by d fine steps
+
+    def zoh(step: float) -> tuple[np.ndarray, np.ndarray]:
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n] = A * step, B[:, 0] * step
+        E = linalg.expm(M)
+        return E[:n, :n], E[:n, n]
+
+    # the delay exactly: d whole fine steps and a fraction; within a step the plant sees the older
+    # input for the fraction, then the newer one
+    d = int(params["tau"] // dt)
+    frac = params["tau"] - d * dt
+    Phi_a, Gam_a = zoh(frac)
+    Phi_b, Gam_b = zoh(dt - frac)
+    buf = [0.0] * (d + 2)  # plant input (deviation from the bias) of the last d + 2 fine steps
     x = np.zeros(n)
     ts, us, ys = [], [], []
     t = 0.0
@@ -99,7 +107,8 @@ def simulate(family: str, params: dict[str, float], windows: list[Window], rate_
             ys.append(y)
             for _ in range(oversample):
                 buf.append(u - bias)
-                x = Phi @ x + Gam * buf.pop(0)
+                buf.pop(0)
+                x = Phi_b @ (Phi_a @ x + Gam_a * buf[0]) + Gam_b * buf[1]
             t += Ts
             bias0 = bias
     return np.array(ts), np.array(us), np.array(ys)

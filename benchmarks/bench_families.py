@@ -1,0 +1,162 @@
+"""Benchmark: process plants of every family under every relay, identified from simulated recordings.
+
+Each recording is drawn fresh: a plant of the family (K log-uniform in [0.5, 5]; time constants
+log-uniform in [0.3, 3] s, SOPDT's second lag 0.1-0.5 of the first; tau 0.1-1 of the main time
+constant, or 0.1-0.8 s for IPDT), a controller rate uniform in 50-200 Hz, white output noise of 1-3 %
+of the ideal relay's amplitude, and 3-4 relay windows of about 14 cycles each with rests between
+them, of one relay type:
+
+* ``mrft``: betas drawn in [-0.3, 0.3] (integrating families: [-0.6, 0]), stated as MRFT;
+* ``ideal``: relay heights 1-2;
+* ``hysteresis``: eps 5-40 % of the ideal relay's amplitude;
+* ``biased``: asymmetric levels (bias 20-50 % of h) with a hysteresis of 5-30 %.
+
+The simulator (tests/process_sim.py) shares no code with mrftcli. Each recording is written as a CSV
+and analysed with ``analyze_general`` (what ``analyze --model NAME`` runs). Scored per recording:
+every parameter within 5 % of the truth; every 95 % interval covering the truth; held-out frequency
+within 10 % on every test. A recording the tool refuses (no usable test, an undetermined parameter)
+counts as a miss. Also timed: :func:`identify_lti` on the recordings' response points.
+
+Run: ``nice -n 10 python benchmarks/bench_families.py [--n 10] [--seed 0]`` (n recordings per family
+and relay; about 1.5 s each).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+# one BLAS thread: the small least-squares fits are 50x slower when BLAS threads fight for shared cores
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+FAMILIES = ("fopdt", "sopdt", "ipdt", "foipdt")
+RELAYS = ("mrft", "ideal", "hysteresis", "biased")
+
+
+def draw_plant(family: str, rng: np.random.Generator) -> dict[str, float]:
+    lu = lambda lo, hi: float(np.exp(rng.uniform(np.log(lo), np.log(hi))))  # noqa: E731
+    K = lu(0.5, 5.0)
+    if family == "ipdt":
+        return {"K": K, "tau": rng.uniform(0.1, 0.8)}
+    T = lu(0.3, 3.0)
+    tau = T * rng.uniform(0.1, 1.0)
+    if family == "sopdt":
+        return {"K": K, "T1": T, "T2": T * rng.uniform(0.1, 0.5), "tau": tau}
+    return {"K": K, "T": T, "tau": tau}
+
+
+def draw_windows(family: str, relay: str, amp: float, period: float, rng: np.random.Generator):
+    from process_sim import Window
+
+    n = int(rng.integers(3, 5))
+    dur = 14 * period
+    integrating = family in ("ipdt", "foipdt")
+    out = []
+    for k in range(n):
+        h = float(rng.uniform(1.0, 2.0))
+        if relay == "mrft":
+            beta = float(rng.uniform(-0.6, 0.0) if integrating else rng.uniform(-0.3, 0.3))
+            out.append(Window("mrft", h, -h, beta=beta, duration=dur * 1.5, rest=period))
+        elif relay == "ideal":
+            out.append(Window("ideal", h, -h, duration=dur, rest=period))
+        elif relay == "hysteresis":
+            eps = float(rng.uniform(0.05, 0.4)) * amp * h
+            out.append(Window("hysteresis", h, -h, eps=eps, duration=dur * 2, rest=period))
+        else:
+            bias = float(rng.uniform(0.2, 0.5)) * h * (1 if k % 2 == 0 else -1)
+            eps = float(rng.uniform(0.05, 0.3)) * amp * h
+            out.append(Window("hysteresis", bias + h, bias - h, eps=eps, duration=dur * 2, rest=period))
+    return out
+
+
+def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path) -> dict[str, object]:
+    from process_sim import simulate, write_csv
+
+    from mrftcli.analyze.general import RelayOptions, analyze_general
+    from mrftcli.errors import MrftError
+    from mrftcli.io import read_flight
+    from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
+    from mrftcli.mrft.relays import RelayLaw
+
+    params = draw_plant(family, rng)
+    true = PROCESS_FAMILIES[family](**params)
+    ideal = RelayLaw("ideal", 1.0, -1.0).limit_cycle(true)  # the scale of the draws' relays
+    windows = draw_windows(family, relay, ideal.amplitude, ideal.period, rng)
+    rate = float(rng.uniform(50.0, 200.0))
+    noise = float(rng.uniform(0.01, 0.03)) * ideal.amplitude
+    t, u, y = simulate(family, params, windows, rate, noise, seed=int(rng.integers(1 << 31)))
+    path = tmp / "rec.csv"
+    write_csv(str(path), t, u, y)
+    flight = read_flight(path, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    try:
+        res = analyze_general(flight, family_model(family),
+                              relay=RelayOptions("mrft") if relay == "mrft" else RelayOptions())
+    except MrftError as err:
+        return {"within5": False, "covered": False, "held10": False, "refused": str(err)[:80], "points": []}
+    ident = res.identification
+    assert ident is not None
+    within = all(abs(ident.estimate(n).value / v - 1) <= 0.05 for n, v in params.items()) and not ident.undetermined
+    covered = all(ident.estimate(n).ci95_low <= v <= ident.estimate(n).ci95_high for n, v in params.items())
+    held = [t.held_out.frequency_hz / t.frequency_hz - 1 for t in res.tests
+            if t.held_out is not None and t.held_out.frequency_hz is not None]
+    held10 = len(held) == len(res.tests) and all(abs(h) <= 0.10 for h in held)
+    return {"within5": within, "covered": covered, "held10": held10, "refused": "",
+            "n_tests": len(res.tests), "n_windows": len(windows), "points": ident.points,
+            "model": family_model(family), "worst": max(abs(ident.estimate(n).value / v - 1) for n, v in params.items())}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, default=10, help="recordings per family and relay")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    from mrftcli.mrft.identify_lti import identify_lti
+
+    rng = np.random.default_rng(args.seed)
+    print(f"{args.n} fresh recordings per family and relay (seed {args.seed})")
+    print(f"{'family':<7} {'relay':<11} {'within 5 %':>10} {'95 % covers':>11} {'held-out 10 %':>13} "
+          f"{'refused':>7} {'tests/windows':>13} {'median worst err':>16}")
+    totals = {"within5": 0, "covered": 0, "held10": 0, "n": 0}
+    timing_cases = []
+    t_start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        for family in FAMILIES:
+            for relay in RELAYS:
+                rows = [one_recording(family, relay, rng, Path(d)) for _ in range(args.n)]
+                ok = {k: sum(bool(r[k]) for r in rows) for k in ("within5", "covered", "held10")}
+                refused = sum(bool(r["refused"]) for r in rows)
+                tw = f"{sum(r.get('n_tests', 0) for r in rows)}/{sum(r.get('n_windows', 0) for r in rows)}"
+                worst = np.median([r["worst"] for r in rows if "worst" in r]) if refused < len(rows) else float("nan")
+                print(f"{family:<7} {relay:<11} {ok['within5']:>7}/{args.n:<2} {ok['covered']:>8}/{args.n:<2} "
+                      f"{ok['held10']:>10}/{args.n:<2} {refused:>7} {tw:>13} {100 * worst:>15.1f}%")
+                for r in rows:
+                    if r["refused"]:
+                        print(f"    refused: {r['refused']}")
+                for k in ("within5", "covered", "held10"):
+                    totals[k] += ok[k]
+                totals["n"] += args.n
+                timing_cases += [(r["model"], r["points"]) for r in rows if r["points"]]
+    n = totals["n"]
+    print(f"all: within 5 % {totals['within5']}/{n} ({100 * totals['within5'] / n:.0f} %), "
+          f"95 % intervals cover {totals['covered']}/{n} ({100 * totals['covered'] / n:.0f} %), "
+          f"held-out frequency within 10 % {totals['held10']}/{n} ({100 * totals['held10'] / n:.0f} %); "
+          f"{time.perf_counter() - t_start:.0f} s")
+    per_family: dict[str, list[float]] = {}
+    for model, points in timing_cases:
+        t0 = time.perf_counter()
+        identify_lti(model, points)
+        per_family.setdefault(model.family, []).append(time.perf_counter() - t0)
+    print("identify_lti per call (median over the recordings' response points): "
+          + ", ".join(f"{f} {1e3 * np.median(v):.1f} ms" for f, v in per_family.items()))
+
+
+if __name__ == "__main__":
+    main()

@@ -9,6 +9,7 @@ clear message, no NaN and no library warning.
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -120,3 +121,66 @@ def test_cli_ends_with_a_clear_message_without_nan_or_library_warnings(path, tp)
         # the plant does not follow eq. (2) (or one beta only): said in one line, with the reason
         last = proc.stderr.strip().splitlines()[-1]
         assert last.startswith("error: ") and ("eq. (2)" in last or "one beta" in last or "follow" in last)
+
+
+# --- issue 22: the process-plant path (analyze --model fopdt) on the real recordings ---------------
+@pytest.fixture(scope="module")
+def fopdt_10k():
+    from mrftcli.analyze.general import analyze_general
+    from mrftcli.mrft.families import family_model
+
+    flight = read_flight(FILE_10K, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return analyze_general(flight, family_model("fopdt"))
+
+
+def test_fopdt_10k_every_clean_window_a_test_with_its_relay(fopdt_10k):
+    tests = fopdt_10k.tests
+    assert [round(t.t_start) for t in tests] == [w[0] for w in WINDOWS_10K]
+    assert not any(t.t_end > 5.0 and t.t_start < 5.9 for t in tests)  # the stuck window
+    for t, (_, hi, lo, bias, period) in zip(tests, WINDOWS_10K):
+        assert t.relay.kind == "hysteresis"
+        assert (t.relay.high, t.relay.low) == pytest.approx((hi, lo), rel=0.02)
+        assert t.relay.bias == pytest.approx(bias, rel=0.05)
+    # README: eps ~1.2e-6 in 2-5 s, ~4e-6 in 6-8 s (read at the switch instants)
+    assert all(0.6e-6 < t.relay.eps < 2e-6 for t in tests[:3])
+    assert all(3e-6 < t.relay.eps < 5e-6 for t in tests[3:])
+
+
+def test_fopdt_10k_model_and_held_out(fopdt_10k):
+    ident = fopdt_10k.identification
+    assert ident is not None and not ident.undetermined
+    # the published describing-function fit: |K| 6.7e-9 / 8.1e-9, T 24 / 32 ms, delay 4.2 / 3.8 ms;
+    # ours (exact harmonics, complex means) sits near it: same delay, shorter T, smaller K
+    assert 2e-9 < ident.estimate("K").value < 1e-8
+    assert 0.005 < ident.estimate("T").value < 0.04
+    assert 0.003 < ident.estimate("tau").value < 0.006
+    held = [t.held_out for t in fopdt_10k.tests]
+    assert all(h is not None and h.frequency_hz is not None for h in held)
+    # the short-hysteresis windows 1 and 3 are predicted by the others within 10 %; windows 2, 4, 5
+    # are not (docs/process-plants.md: FOPDT misfit, and 4-5 switch on the noise near the peak)
+    for k in (0, 2):
+        assert held[k].frequency_hz == pytest.approx(fopdt_10k.tests[k].frequency_hz, rel=0.10)
+    text = json.dumps(fopdt_10k.to_json())
+    assert "NaN" not in text and "Infinity" not in text
+
+
+def test_fopdt_5k_ideal_relay_says_what_it_determines():
+    from mrftcli.analyze.general import analyze_general
+    from mrftcli.cli.model_options import format_general
+    from mrftcli.mrft.families import family_model
+
+    flight = read_flight(FILE_5K, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    result = analyze_general(flight, family_model("fopdt"))
+    assert len(result.tests) >= 15
+    assert sum(t.relay.kind == "ideal" for t in result.tests) >= 0.8 * len(result.tests)
+    text = format_general(result)
+    assert "nan" not in text.lower()
+    ident = result.identification
+    assert ident is not None
+    # one relay type at one phase: the table says which parameters the tests leave open, if any
+    for e in ident.estimates:
+        assert ("NOT DETERMINED" in text) == bool(ident.undetermined)
+        assert np.isfinite(e.value)
+    assert "NaN" not in json.dumps(result.to_json())

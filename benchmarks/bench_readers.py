@@ -34,9 +34,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
+import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -207,21 +210,40 @@ def write_bag(path: Path, gigabytes: float, seed: int) -> None:
         writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations
 
 
-def _measured(args: list[str], tree: Path | None = None) -> tuple[float, float, str]:
-    """Run ``args`` in a fresh process: (CPU [s], peak resident memory [MB], stdout); the child is
-    reaped with ``os.wait4``, which gives its own resource usage. ``tree``: run another checkout's
-    ``mrftcli`` (the code before a change)."""
+def _run(args: list[str], *, tree: Path | None = None, timeout: float | None = None,
+         address_space: int | None = None) -> tuple[int | None, float, float, str, str]:
+    """Run ``args`` in a fresh process: (exit code, None if killed at ``timeout`` [s]; CPU [s]; peak
+    resident memory [MB]; stdout; stderr). The child is reaped with ``os.wait4``, which gives its own
+    resource usage. ``tree``: run another checkout's ``mrftcli`` (the code before a change);
+    ``address_space``: an ``RLIMIT_AS`` cap [bytes]."""
+    def limit() -> None:
+        if address_space is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (address_space, address_space))
+
     env = dict(os.environ, PYTHONPATH=str(tree)) if tree is not None else None
-    # (``python -m`` puts the working directory first on the path: run in the tree)
-    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tree)
-    assert proc.stdout is not None and proc.stderr is not None
-    out = proc.stdout.read().decode()
-    err = proc.stderr.read().decode()
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(args)} failed ({proc.returncode}): {err.strip()}")
-    return usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, out
+    killed: list[bool] = []
+
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        # (``python -m`` puts the working directory first on the path: run in the tree)
+        proc = subprocess.Popen(args, stdout=out, stderr=err, env=env, cwd=tree, preexec_fn=limit)
+        timer = threading.Timer(timeout or 1e9, lambda: (killed.append(True), proc.kill()))
+        timer.start()
+        _, status, usage = os.wait4(proc.pid, 0)
+        timer.cancel()
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        out.seek(0)
+        err.seek(0)
+        texts = out.read().decode(errors="replace"), err.read().decode(errors="replace")
+    code = None if killed else proc.returncode
+    return code, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, *texts
+
+
+def _measured(args: list[str], tree: Path | None = None) -> tuple[float, float, str]:
+    """(CPU [s], peak resident memory [MB], stdout) of a run that must succeed."""
+    code, cpu, peak, out, err = _run(args, tree=tree)
+    if code != 0:
+        raise SystemExit(f"{' '.join(args)} failed ({code}): {err.strip()}")
+    return cpu, peak, out
 
 
 def _library_read(path: Path) -> list[str]:
@@ -265,13 +287,110 @@ def heavy_bags(sizes: list[float], seed: int, before: Path | None = None) -> Non
                   f"{cpu / base:5.2f}x" + (f"   before: {old[0]:.2f} s CPU, {old[1]:.0f} MB peak" if old else ""))
 
 
+# -- decompression bombs (issue 29.2) -------------------------------------------------------------
+GIB = 1 << 30
+
+
+def _record(op: int, body: bytes) -> bytes:
+    return struct.pack("<BQ", op, len(body)) + body
+
+
+def _string(text: str) -> bytes:
+    return struct.pack("<I", len(text)) + text.encode()
+
+
+def _rle_zstd(total: int) -> bytes:
+    """A valid zstd frame of ``total`` zeros as 128 KiB RLE blocks (4 bytes each: 4 GiB in 128 KiB)."""
+    out = [struct.pack("<IBBQ", 0xFD2FB528, 0xC0, 7 << 3, total)]
+    left = total
+    while left > 0:
+        n = min(1 << 17, left)
+        left -= n
+        out.append(int((n << 3) | 2 | (left == 0)).to_bytes(3, "little") + b"\0")
+    return b"".join(out)
+
+
+def _lz4_zeros(total: int) -> bytes:
+    import lz4.frame
+
+    comp = lz4.frame.LZ4FrameCompressor()
+    parts, block = [comp.begin()], bytes(64 << 20)
+    for _ in range(total // len(block)):
+        parts.append(comp.compress(block))
+    parts.append(comp.flush())
+    return b"".join(parts)
+
+
+def _bomb_chunk(compression: str, declared: int, payload: bytes) -> bytes:
+    # crc 0 means "not written": nothing checks the inflated bytes
+    return _record(0x06, struct.pack("<QQQI", 0, 10**18, declared, 0) + _string(compression)
+                   + struct.pack("<Q", len(payload)) + payload)
+
+
+def bomb_files(folder: Path) -> dict[str, tuple[Path, bool]]:
+    """The sample flight with a bomb chunk after its chunks: name -> (file, whether a correct reader
+    may give the flight's numbers: the bomb cannot be in its index)."""
+    flight = FLIGHT.read_bytes()
+    data_end = flight.rindex(_record(0x0F, struct.pack("<I", 0)), 0, len(flight) - 8 - 29)
+    summary_start = data_end + 13
+    summary = flight[summary_start:len(flight) - 8 - 29]  # up to the footer (29 bytes) and magic
+    bombs = {"zstd_4gib": _bomb_chunk("zstd", 4 * GIB, _rle_zstd(4 * GIB)),
+             "lz4_2gib": _bomb_chunk("lz4", 2 * GIB, _lz4_zeros(2 * GIB)),
+             "zstd_liar": _bomb_chunk("zstd", 1 << 20, _rle_zstd(4 * GIB))}
+    out: dict[str, tuple[Path, bool]] = {}
+    for name, chunk in bombs.items():
+        head = flight[:data_end] + chunk
+        index = _record(0x08, struct.pack("<QQQQ", 0, 10**18, data_end, len(chunk)) + struct.pack("<IQ", 0, 0)
+                        + _string("x") + struct.pack("<QQ", len(chunk), 0))
+        rest = _record(0x0F, struct.pack("<I", 0)) + summary + index
+        footer = _record(0x02, struct.pack("<QQI", len(head) + 13, 0, 0)) + flight[:8]
+        out[f"{name}.mcap"] = (folder / f"{name}.mcap", False)
+        out[f"{name}.mcap"][0].write_bytes(head + rest + footer)
+        if name != "zstd_liar":  # summary and footer cut off: the salvage pass
+            out[f"{name}_nosummary.mcap"] = (folder / f"{name}_nosummary.mcap", True)
+            out[f"{name}_nosummary.mcap"][0].write_bytes(head)
+            out[f"{name}_cut.mcap"] = (folder / f"{name}_cut.mcap", True)
+            out[f"{name}_cut.mcap"][0].write_bytes(head[:len(head) - len(chunk) // 2])
+    return out
+
+
+def bombs(timeout: float) -> None:
+    """Issue 29.2: every bomb through topics, analyze and diagnose (internal errors, hangs, runs over
+    1 GB, exit 0 with numbers other than the clean flight's)."""
+    commands = {"topics": [], "analyze": ["--tp", FLIGHT_TP, "--loop", "altitude"],
+                "diagnose": ["--tp", FLIGHT_TP, "--loop", "altitude", "--json", "-"]}
+    clean: dict[str, str] = {}
+    for command, extra in commands.items():
+        if command != "topics":
+            _, _, out = _measured([sys.executable, "-m", "mrftcli", command, str(FLIGHT), *extra])
+            clean[command] = out.replace(str(FLIGHT), "LOG")
+    totals = {"runs": 0, "internal": 0, "hangs": 0, "over_1gb": 0, "wrong_exit_0": 0}
+    with tempfile.TemporaryDirectory(dir="/tmp") as tmp:
+        print(f"{'file':28s} {'command':9s} {'exit':>4s} {'peak [MB]':>9s}  first line of stderr")
+        for name, (path, may_succeed) in bomb_files(Path(tmp)).items():
+            for command, extra in commands.items():
+                code, _, peak, out, err = _run([sys.executable, "-m", "mrftcli", command, str(path), *extra],
+                                               timeout=timeout, address_space=3 * GIB)
+                totals["runs"] += 1
+                totals["hangs"] += code is None
+                totals["internal"] += code is not None and (code not in (0, 2, 3, 4, 5, 6, 7) or "Traceback" in err)
+                totals["over_1gb"] += peak > 1024
+                same = command == "topics" or out.replace(str(path), "LOG") == clean[command]
+                totals["wrong_exit_0"] += code == 0 and not (may_succeed and same)
+                print(f"{name:28s} {command:9s} {code if code is not None else 'hang':>4} {peak:9.0f}  "
+                      f"{(err.strip().splitlines() or [''])[0][:110]}")
+    print("totals: " + ", ".join(f"{k} {v}" for k, v in totals.items()))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--seed", type=int, default=None, help="log content seed (default: fresh)")
     parser.add_argument("--heavy", default="", help="heavy bag sizes [GB], comma-separated (issue 24.1)")
-    parser.add_argument("--skip-light", action="store_true", help="only the heavy bags")
+    parser.add_argument("--skip-light", action="store_true", help="only the heavy bags (or bombs)")
+    parser.add_argument("--bombs", action="store_true", help="decompression bombs through the CLI (issue 29.2)")
+    parser.add_argument("--timeout", type=float, default=120.0, help="per bomb run [s]")
     parser.add_argument("--before", type=Path, default=None,
                         help="a checkout of the code before the change: its analyze on the heavy bags too")
     args = parser.parse_args()
@@ -280,6 +399,8 @@ def main() -> None:
         light_log(args.minutes, args.repeat, seed)
     if args.heavy:
         heavy_bags([float(x) for x in args.heavy.split(",")], seed, args.before)
+    if args.bombs:
+        bombs(args.timeout)
 
 
 def light_log(minutes: float, repeat: int, seed: int) -> None:

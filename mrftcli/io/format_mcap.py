@@ -556,11 +556,15 @@ class McapSource(LogSource):
         return data
 
     def _indexed(self, cids: list[int], *, payload: bool = True) -> dict[int, _RawMessages]:
-        """For each channel: log times [ns], its messages' bytes, their starts and sizes (file order).
+        """For each channel: log times [ns], a byte buffer, its messages' starts and sizes (file order).
 
-        One chunk is held at a time; only the wanted channels' message bytes are copied out of it
-        (none without ``payload``: times only), so memory follows what is wanted, not the file.
+        One chunk is held at a time. When the wanted messages make up at least half of it (a light
+        log) the chunk is kept whole, as copying them out would only cost time; otherwise (a camera
+        beside them) only their bytes are copied out, so memory follows what is wanted, not the file
+        (at most twice it). Without ``payload``, times only.
         """
+        pieces: list[np.ndarray] = []  # the one buffer all channels index into, in pieces
+        base = 0
         parts: dict[int, tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]] = {
             cid: ([], [], []) for cid in cids}
         for chunk_index in self._chunks(cids):
@@ -573,17 +577,30 @@ class McapSource(LogSource):
                           f"({type(err).__name__}: {err}); its messages are skipped")
                 continue
             whole = np.frombuffer(data, dtype=np.uint8)
-            for cid, (t_ns, start, length) in self._chunk_messages(whole, chunk_index, cids).items():
-                times, bufs, lengths = parts[cid]
+            found = self._chunk_messages(whole, chunk_index, cids)
+            wanted = sum(int(length.sum()) for _, _, length in found.values())
+            keep_whole = payload and 2 * wanted >= len(whole)
+            if keep_whole:
+                pieces.append(whole)
+            for cid, (t_ns, start, length) in found.items():
+                times, starts, lengths = parts[cid]
                 times.append(t_ns)
-                bufs.append(_gather(whole, start, length) if payload else np.zeros(0, np.uint8))
                 lengths.append(length)
+                if keep_whole:
+                    starts.append(start + base)
+                elif payload:
+                    pieces.append(_gather(whole, start, length))
+                    starts.append(base + np.cumsum(length) - length)
+                    base += int(length.sum())
+            if keep_whole:
+                base += len(whole)
+        buf = np.concatenate(pieces) if pieces else np.zeros(0, np.uint8)
         out: dict[int, _RawMessages] = {}
-        for cid, (times, bufs, lengths) in parts.items():
+        for cid, (times, starts, lengths) in parts.items():
             t_ns = np.concatenate(times) if times else np.zeros(0, np.int64)
             size = np.concatenate(lengths).astype(np.int64) if lengths else np.zeros(0, np.int64)
-            buf = np.concatenate(bufs) if bufs else np.zeros(0, np.uint8)
-            out[cid] = (t_ns, buf, (np.cumsum(size) - size).astype(np.int64), size)
+            first = np.concatenate(starts).astype(np.int64) if starts else np.zeros(0, np.int64)
+            out[cid] = (t_ns, buf, first if payload else np.zeros_like(size), size)
         return out
 
     def _chunk_messages(self, whole: np.ndarray, chunk_index: ChunkIndex,

@@ -87,6 +87,9 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
         for _, channel, message in reader.iter_messages():
             msgs.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        schemas = {channel.topic: reader.get_summary().schemas[channel.schema_id].name
+                   for channel in reader.get_summary().channels.values()}
+        attachments = {a.name: (a.media_type, a.data) for a in reader.iter_attachments()}
     fit = msgs["/mrft_ident/fit"]
     t = np.array([m[0] for m in fit]) / 1e9
     resid = np.array([m[1]["residual"] for m in fit])
@@ -95,8 +98,27 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
     assert all(any(a - 0.01 <= ti <= b + 0.01 for a, b in spans) for ti in t[:: 50])
     assert np.sqrt(np.mean(resid ** 2)) == pytest.approx(truth["noise_std"], rel=0.15)
     tests = [m[1] for m in msgs["/mrft_ident/tests"]]
-    assert [x["active"] for x in tests] == [1, 0, 1, 0]
-    assert [round(x["beta_nominal"], 3) for x in tests[::2]] == [-0.4, -0.7]
+    # a square pulse per test: a plot joining the points never draws a diagonal across a test
+    assert [x["active"] for x in tests] == [0, 1, 1, 0, 0, 1, 1, 0]
+    edges = [m[0] / 1e9 for m in msgs["/mrft_ident/tests"]]
+    assert edges[0] == edges[1] and edges[2] == edges[3]
+    # Foxglove marks the tests on its timeline: foxglove.Event, start and span of each test
+    assert schemas["/mrft_ident/events"] == "foxglove.Event"
+    events = [m[1] for m in msgs["/mrft_ident/events"]]
+    assert len(events) == 2
+    for ev, x in zip(events, truth["tests"]):
+        start = ev["timestamp"]["sec"] + ev["timestamp"]["nsec"] / 1e9
+        span = ev["duration"]["sec"] + ev["duration"]["nsec"] / 1e9
+        assert x["t_start"] - 0.5 <= start and start + span <= x["t_end"] + 0.5
+        assert {kv["key"] for kv in ev["metadata"]} >= {"test", "beta", "h", "frequency_hz"}
+    # the analysis rides along and reads back as the record analyze --json writes
+    from mrftcli.analyze import AnalysisResult
+
+    media, data = attachments["analysis.json"]
+    assert media == "application/json"
+    back = AnalysisResult.from_json(json.loads(data))
+    assert back.tau.mean == pytest.approx(msgs["/mrft_ident/parameters"][0][1]["tau"], rel=1e-9)
+    assert [round(x["beta_nominal"], 3) for x in tests[::4]] == [-0.4, -0.7]
     params = msgs["/mrft_ident/parameters"][0][1]
     assert params["tau"] == pytest.approx(truth["tau"], abs=1e-3)
     assert "mrft_ident.test.2" in meta and meta["mrft_ident"]["loop"] == "altitude"

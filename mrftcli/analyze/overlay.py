@@ -14,7 +14,8 @@ def analysis_overlay(result: AnalysisResult) -> dict[str, Any]:
     """What the results MCAP of an analysis shows, as the keyword arguments of
     :func:`mrftcli.io.overlay.write_overlay`: its tests, the identified model's prediction over each
     test (:func:`mrftcli.mrft.waveform.predict_tests`, driven by the recorded command), the
-    parameters [s; K in output units / (command unit s^2)] and metadata strings.
+    parameters [s; K in output units / (command unit s^2)], metadata strings and the analysis itself
+    (``result.to_json()``, attached to the MCAP as ``analysis.json``).
 
     Raises
     ------
@@ -41,4 +42,5 @@ def analysis_overlay(result: AnalysisResult) -> dict[str, Any]:
     params = {"Tp": {"mean": result.Tp, "std": 0.0, "ci95_low": result.Tp, "ci95_high": result.Tp}, **params}
     meta = {"log": str(result.path), "loop": result.loop, "mrft_ident_version": __version__,
             "time_base": "the original log's time [s] (MCAP log_time = seconds * 1e9)"}
-    return {"tests": tests, "fits": fits, "parameters": params, "metadata": meta}
+    return {"tests": tests, "fits": fits, "parameters": params, "metadata": meta,
+            "analysis_json": result.to_json()}

@@ -14,15 +14,24 @@ Topics
     relay command, :func:`mrftcli.mrft.waveform.predict_output`), ``residual`` (output - predicted),
     ``test`` (test number, 1-based).
 ``/mrft_ident/tests``
-    Two messages per test, at its start (``active`` 1) and end (``active`` 0): test number, beta
-    (effective, used), nominal beta, relay h and bias, frequency, amplitude, stable cycles, start and
-    end times [s] and the RMS residual of the fit. Plotted, ``active`` marks the tests.
+    Four messages per test, two at its start (``active`` 0 then 1) and two at its end (1 then 0): test
+    number, beta (effective, used), nominal beta, relay h and bias, frequency [Hz], amplitude (output
+    units), stable cycles, start and end times [s] and the RMS residual of the fit. Plotted (PlotJuggler,
+    Foxglove's Plot panel), ``active`` is a square pulse over each test: a line between one test's end
+    and the next one's start stays at 0 instead of drawing a diagonal across the test.
+``/mrft_ident/events``
+    One ``foxglove.Event`` per test (the schema name Foxglove recognises, its JSON schema: ``timestamp``
+    {sec, nsec}, ``duration`` {sec, nsec}, ``metadata`` [{key, value}]): the test's start and span with
+    its number, beta, h, frequency, amplitude and fit residual as strings, so Foxglove marks the tests
+    on its timeline.
 ``/mrft_ident/parameters``
     The identified Tp, Td, tau [s] and K with standard deviations and 95 % intervals, at the first and
     the last output sample (so a plot draws them as lines across the log).
 
 Metadata records (``mrft_ident``, ``mrft_ident.test.N``) repeat the parameters and the tests as
-strings for tools that list metadata (``mcap info``, Foxglove's metadata panel).
+strings for tools that list metadata (``mcap info``, Foxglove's metadata panel). The analysis itself
+(``analyze --json``'s object) rides along as the attachment ``analysis.json`` (``application/json``)
+when the caller passes it.
 """
 
 from __future__ import annotations
@@ -39,10 +48,31 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS"]
+__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS",
+           "FOXGLOVE_EVENT_SCHEMA", "ANALYSIS_ATTACHMENT"]
 
 #: the topics :func:`write_overlay` writes
-OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters")
+OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters", "/mrft_ident/events")
+
+#: Foxglove recognises an event channel by this exact schema name only
+FOXGLOVE_EVENT_SCHEMA = "foxglove.Event"
+
+#: the name of the analysis JSON attached to the results MCAP
+ANALYSIS_ATTACHMENT = "analysis.json"
+
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
+                                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
+#: foxglove.Event as JSON schema (github.com/foxglove/schemas, schemas/jsonschema/Event.json)
+_EVENT_SCHEMA = {
+    "title": FOXGLOVE_EVENT_SCHEMA, "type": "object",
+    "properties": {
+        "timestamp": {**_TIME, "title": "time"},
+        "duration": {**_TIME, "title": "duration"},
+        "metadata": {"type": "array", "items": {
+            "title": "foxglove.EventKeyValue", "type": "object",
+            "properties": {"key": {"type": "string"}, "value": {"type": "string"}}}},
+    },
+}
 
 
 @dataclass(frozen=True)
@@ -91,6 +121,13 @@ def _schema(properties: dict[str, str]) -> bytes:
     return json.dumps({"type": "object", "properties": {k: types[v] for k, v in properties.items()}}).encode()
 
 
+def _json_bytes(data: Mapping[str, object]) -> bytes:
+    """Strict JSON (NaN and infinities as null, which every JSON reader accepts)."""
+    from ..jsonable import to_jsonable
+
+    return json.dumps(to_jsonable(data), allow_nan=False).encode()
+
+
 def _finite(x: float | None) -> float | None:
     return float(x) if x is not None and math.isfinite(float(x)) else None
 
@@ -121,15 +158,33 @@ def _fit_rows(fits: Sequence[OverlayFit]) -> list[tuple[int, int, bytes]]:
 
 
 def _test_rows(tests: Sequence[OverlayTest]) -> list[tuple[int, int, bytes]]:
-    """Two Test messages (channel 1) per test: active at its start, inactive at its end."""
+    """Four Test messages (channel 1) per test: a square pulse, 0 then 1 at its start, 1 then 0 at its end."""
     rows: list[tuple[int, int, bytes]] = []
     for test in tests:
         base = {"test": test.number, "beta": _finite(test.beta), "beta_nominal": _finite(test.beta_nominal),
                 "h": float(test.h), "bias": float(test.bias), "frequency_hz": _finite(test.frequency_hz),
                 "amplitude": _finite(test.amplitude), "cycles": int(test.cycles), "t_start": float(test.t_start),
                 "t_end": float(test.t_end), "rms_residual": _finite(test.rms_residual)}
-        for when, active in ((test.t_start, 1), (test.t_end, 0)):
+        for when, active in ((test.t_start, 0), (test.t_start, 1), (test.t_end, 1), (test.t_end, 0)):
             rows.append((_ns(when), 1, json.dumps({**base, "active": active}).encode()))
+    return rows
+
+
+def _stamp(ns: int) -> dict[str, int]:
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def _event_rows(tests: Sequence[OverlayTest]) -> list[tuple[int, int, bytes]]:
+    """One ``foxglove.Event`` (channel 3) per test, at its start, lasting its span."""
+    rows: list[tuple[int, int, bytes]] = []
+    for test in tests:
+        start, end = _ns(test.t_start), _ns(test.t_end)
+        fields = {"test": test.number, "beta": test.beta, "h": test.h, "frequency_hz": test.frequency_hz,
+                  "amplitude": test.amplitude, "cycles": test.cycles, "rms_residual": test.rms_residual}
+        meta = [{"key": "name", "value": f"MRFT test {test.number}"}]
+        meta += [{"key": k, "value": f"{v:.6g}" if isinstance(v, float) else str(v)} for k, v in fields.items()]
+        msg = {"timestamp": _stamp(start), "duration": _stamp(max(end - start, 0)), "metadata": meta}
+        rows.append((start, 3, json.dumps(msg).encode()))
     return rows
 
 
@@ -146,7 +201,8 @@ def _parameter_values(parameters: Mapping[str, Mapping[str, float | None]],
 
 
 def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Sequence[OverlayFit],
-                  parameters: Mapping[str, Mapping[str, float | None]], metadata: Mapping[str, str] | None = None) -> Path:
+                  parameters: Mapping[str, Mapping[str, float | None]], metadata: Mapping[str, str] | None = None,
+                  analysis_json: Mapping[str, object] | None = None) -> Path:
     """Write the results MCAP (see the module docstring for its topics).
 
     Parameters
@@ -162,6 +218,9 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
         units / (command unit s^2)).
     metadata : mapping, optional
         Extra strings for the ``mrft_ident`` metadata record (log path, loop, version).
+    analysis_json : mapping, optional
+        The analysis as JSON values (``AnalysisResult.to_json()`` made JSON-able), attached as
+        ``analysis.json`` (``application/json``); NaN is written as null.
 
     Returns
     -------
@@ -177,23 +236,27 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
             param_props[f"{n}_{k}" if k != "mean" else n] = "number|null"
     # (log_time, channel, payload), merged in time order
     rows = _fit_rows(fits) + _test_rows(tests)
+    events = _event_rows(tests)
     params = _parameter_values(parameters, names)
     times = [r[0] for r in rows]
     if times:
         for when in sorted({min(times), max(times)}):
             rows.append((when, 2, json.dumps(params).encode()))
-    rows.sort(key=lambda r: (r[0], r[1]))
+    # a stable sort: a test's two edge messages at one time keep their order (0 then 1, 1 then 0)
+    rows = sorted(rows + events, key=lambda r: (r[0], r[1]))
 
     with atomic_path(path) as tmp, open(tmp, "wb") as stream:  # a viewer never opens half a file
         writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 20)
         writer.start(profile="", library="mrft-ident")
         channels = []
-        for topic, schema_name, props in zip(
-                OVERLAY_TOPICS, ("mrft_ident/Fit", "mrft_ident/Test", "mrft_ident/Parameters"),
-                (_FIT_PROPS, _TEST_PROPS, param_props)):
-            sid = writer.register_schema(schema_name, "jsonschema", _schema(props))
+        schemas = (_schema(_FIT_PROPS), _schema(_TEST_PROPS), _schema(param_props),
+                   json.dumps(_EVENT_SCHEMA).encode())
+        for topic, schema_name, schema in zip(
+                OVERLAY_TOPICS, ("mrft_ident/Fit", "mrft_ident/Test", "mrft_ident/Parameters",
+                                 FOXGLOVE_EVENT_SCHEMA), schemas):
+            sid = writer.register_schema(schema_name, "jsonschema", schema)
             channels.append(writer.register_channel(topic, "json", sid))
-        seq = [0, 0, 0]
+        seq = [0, 0, 0, 0]
         for log_time, ch, data in rows:
             writer.add_message(channel_id=channels[ch], log_time=log_time, publish_time=log_time, data=data,
                                sequence=seq[ch])
@@ -204,5 +267,9 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
         for test in tests:
             writer.add_metadata(f"mrft_ident.test.{test.number}",
                                 {k: str(v) for k, v in test.__dict__.items()})
+        if analysis_json is not None:
+            first = times[0] if times else 0
+            writer.add_attachment(create_time=first, log_time=first, name=ANALYSIS_ATTACHMENT,
+                                  media_type="application/json", data=_json_bytes(analysis_json))
         writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations
     return path

@@ -102,6 +102,10 @@ def _one(path: Path) -> list[dict]:
     return rows
 
 
+def _cell(r: dict, key: str, fmt: str) -> str:
+    return format(r[key], fmt) if key in r and math.isfinite(r[key]) else "-"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", help="regex on the sample log names")
@@ -111,8 +115,8 @@ def main() -> None:
     print(f"{'log':<34}{'stack':<10}{'rate':>6}{'Ms':>6}{'GM':>6}  outcome   | before (PX4): Ms claimed / flown, "
           "GM flown, values out of range")
     for r in rows:
-        f = (lambda k, fmt: format(r[k], fmt) if k in r and math.isfinite(r[k]) else "-")
-        line = f"{r['log']:<34}{r['stack']:<10}{f('rate', '.0f'):>6}{f('Ms', '.2f'):>6}{f('GM', '.2f'):>6}  {r['outcome'][:90]}"
+        line = (f"{r['log']:<34}{r['stack']:<10}{_cell(r, 'rate', '.0f'):>6}{_cell(r, 'Ms', '.2f'):>6}"
+                f"{_cell(r, 'GM', '.2f'):>6}  {r['outcome'][:90]}")
         if "base_Ms_flown" in r:
             line += (f" | {r['base_Ms_claimed']:.2f} / {r['base_Ms_flown']:.2f}, {r['base_GM_flown']:.2f}, "
                      f"{r['base_out_of_range']}")

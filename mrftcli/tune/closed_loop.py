@@ -69,7 +69,7 @@ class RateFilter:
     Examples
     --------
     >>> f = RateFilter(40.0)
-    >>> round(abs(f.response(np.array([1.0 + 0j]), 400.0)[0]), 12)
+    >>> round(float(abs(f.response(np.array([1.0 + 0j]), 400.0)[0])), 12)  # unit gain at DC
     1.0
     """
 

@@ -64,6 +64,8 @@ class TestUpdate:
         Test number in the log, 1-based.
     t_start, t_cycle_end : float
         The relay's first command sample and the end of the newest stable cycle [s, log time].
+    t_log_start : float
+        The log's first command sample [s, log time]: a terminal shows test times from it, as analyze does.
     beta_nominal : float or None
         Beta from the beta topic.
     beta_effective : float
@@ -91,6 +93,7 @@ class TestUpdate:
     stable_cycles: int
     cycles: int
     wall_time: float
+    t_log_start: float
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, **asdict(self)}
@@ -355,7 +358,8 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
                     yield TestUpdate(number=test.index + 1, t_start=test.t_start, t_cycle_end=_newest_end(test),
                                      beta_nominal=test.beta_nominal, beta_effective=test.beta_effective,
                                      frequency_hz=test.frequency_hz_mean, amplitude=test.amplitude_mean, h=test.h,
-                                     stable_cycles=test.n_stable, cycles=len(test.cycles), wall_time=time.time())
+                                     stable_cycles=test.n_stable, cycles=len(test.cycles), wall_time=time.time(),
+                                     t_log_start=float(flight.command.t[0]))
             if changed:
                 est = _estimate(tests, Tp, min_cycles)
                 if est is not None:

@@ -14,6 +14,7 @@ import pytest
 
 from mrftcli.analyze import analyze_path
 from mrftcli.errors import LogReadError
+from mrftcli.io import read_flight
 from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, watch
 
 
@@ -112,3 +113,22 @@ def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):
     out = first + out
     assert proc.returncode == 130
     assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err
+
+
+def test_cli_text_prints_each_test_at_its_own_start_from_the_log_start(repo_root):
+    """The time on a test's line is where analyze (and the truth sidecar) puts it, not the previous boundary."""
+    log = repo_root / "sample_logs" / "design1_altitude.mcap"
+    truth = json.loads(log.with_name(log.name + ".truth.json").read_text())
+    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "watch", str(log), "--tp", "0.0422"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    starts = {}
+    for line in run.stdout.splitlines():
+        if line.startswith("test "):
+            words = line.split()
+            starts[int(words[1])] = float(words[3])
+            assert " m  cycles" in line  # the amplitude's unit
+    t0 = read_flight(log, "altitude").command.t[0]
+    for i, x in enumerate(truth["tests"], start=1):
+        assert starts[i] == pytest.approx(x["t_start"] - t0, abs=0.1)
+    assert starts[1] > 1.0  # not 0.0: the first test does not start at the log's first sample

@@ -17,6 +17,11 @@ from .options import (check_output_dir, check_output_file, dump_json, log_layout
 _OUTPUT_UNIT = {"altitude": "m", "x": "m", "y": "m", "roll": "rad", "pitch": "rad"}
 
 
+def output_unit(loop: str) -> str:
+    """The output's unit of a loop (``m``, ``rad``; ``output unit`` for a loop not listed)."""
+    return _OUTPUT_UNIT.get(loop, "output unit")
+
+
 def _num(x: float | None, digits: int = 4) -> str:
     """``digits`` significant digits, trailing zeros kept, so a column reads alike (0.1800 beside 0.05839)."""
     if x is None or not math.isfinite(x):

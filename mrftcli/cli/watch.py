@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..jsonable import to_jsonable
+from .analyze import output_unit
 from .options import log_layout_options, tp_option
 
 if TYPE_CHECKING:
@@ -18,8 +19,9 @@ if TYPE_CHECKING:
 __all__ = ["watch"]
 
 
-def _line(update: Update, t0: float) -> str:
-    """One terminal line per update (times in seconds from the first test's start)."""
+def _line(update: Update, unit: str) -> str:
+    """One terminal line per update (a test's start in seconds from the log's first command sample, as analyze
+    prints it; amplitude in the output's ``unit``, K in ``unit``/s² per command unit)."""
     from ..watch import EstimateUpdate, Restart, TestUpdate
 
     if isinstance(update, Restart):
@@ -27,16 +29,18 @@ def _line(update: Update, t0: float) -> str:
 
     if isinstance(update, TestUpdate):
         nom = f"{update.beta_nominal:+.3f}" if update.beta_nominal is not None else "-"
-        return (f"test {update.number}  t {update.t_start - t0:7.1f} s  beta nom {nom}  eff {update.beta_effective:+.3f}  "
-                f"f {update.frequency_hz:.4f} Hz  amplitude {update.amplitude:.4g}  "
+        return (f"test {update.number}  t {update.t_start - update.t_log_start:7.1f} s  beta nom {nom}  "
+                f"eff {update.beta_effective:+.3f}  f {update.frequency_hz:.4f} Hz  "
+                f"amplitude {update.amplitude:.4g} {unit}  "
                 f"cycles {update.stable_cycles}/{update.cycles}")
     if isinstance(update, EstimateUpdate):
         head = "final    " if update.final else "estimate "
-        text = (f"{head} Td {update.Td:.4g} s  tau {update.tau * 1e3:.4g} ms  K {update.K:.4g}  "
+        k_unit = f"{unit}/s² per command unit"
+        text = (f"{head} Td {update.Td:.4g} s  tau {update.tau * 1e3:.4g} ms  K {update.K:.4g} {k_unit}  "
                 f"(tests {', '.join(map(str, update.tests))})")
         if update.final and update.std:
             sd = update.std
-            text += (f"  std: Td {sd['Td']:.2g} s, tau {sd['tau'] * 1e3:.2g} ms, K {sd['K']:.2g}"
+            text += (f"  std: Td {sd['Td']:.2g} s, tau {sd['tau'] * 1e3:.2g} ms, K {sd['K']:.2g} {k_unit}"
                      if all(math.isfinite(sd[k]) for k in ("Td", "tau", "K")) else "")
         return text
     return f"stopped: the writer {'closed the file' if update.reason == 'closed' else 'stopped writing'}; " \
@@ -85,7 +89,6 @@ def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topi
                          "--command-scale or --controller-rate given); run 'mrft-ident analyze' with the same "
                          "options on the finished log")
     seen = 0
-    t0: float | None = None
     if not Path(log).exists():
         limit = f"for up to {wait:g} s" if wait is not None else "until Ctrl-C"
         click.echo(f"waiting for {log} to appear ({limit})", err=True)
@@ -96,14 +99,12 @@ def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topi
         for update in updates:
             if isinstance(update, TestUpdate):
                 seen = max(seen, update.number)
-                if t0 is None:
-                    t0 = update.t_start
             elif isinstance(update, Restart):
-                seen, t0 = 0, None
+                seen = 0
             if jsonl:
                 click.echo(json.dumps(to_jsonable(update.to_dict()), allow_nan=False))
             else:
-                click.echo(_line(update, t0 or 0.0))
+                click.echo(_line(update, output_unit(loop)))
             if isinstance(update, WatchEnd) and update.error:
                 err = MrftError(update.error)
                 err.exit_code = update.exit_code

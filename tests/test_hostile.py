@@ -255,3 +255,21 @@ def test_a_period_no_vehicle_has_is_refused_as_a_clock_unit():
     g = replace(f, command=slow(f.command), output=slow(f.output), beta=slow(f.beta), setpoint=None)
     with pytest.raises(LogReadError, match="limit-cycle period of 129.5 s"):
         analyze_flight(g, 0.0422, n_bootstrap=20)
+
+
+def test_a_large_csv_read_column_by_column_gives_the_same_flight(monkeypatch):
+    from mrftcli.io import format_csv
+
+    path = ROOT / "sample_logs" / "design1_altitude.csv"
+    whole = read_flight(path, echo_warnings=False)
+    with format_csv.CsvSource(path) as log:
+        counts = [(i.name, i.count) for i in log.topics()]
+    monkeypatch.setattr(format_csv, "LARGE_CSV_BYTES", 1000)  # every file is "large"
+    lazy = read_flight(path, echo_warnings=False)
+    for role in ("command", "output", "beta", "setpoint"):
+        a, b = getattr(whole, role), getattr(lazy, role)
+        np.testing.assert_array_equal(a.t, b.t)
+        np.testing.assert_array_equal(a.values, b.values)
+    with format_csv.CsvSource(path) as log:
+        assert isinstance(log._cols, format_csv._LazyColumns) and not log._cols.loaded  # nothing parsed yet
+        assert [(i.name, i.count) for i in log.topics()] == counts

@@ -20,6 +20,7 @@ Layout written (and the default one read)::
 from __future__ import annotations
 
 import io
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,13 @@ from .logtypes import TopicData, TopicInfo
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
 
-__all__ = ["CsvSource", "write_csv", "TIME_COLUMNS"]
+__all__ = ["CsvSource", "write_csv", "TIME_COLUMNS", "LARGE_CSV_BYTES"]
+
+#: a CSV larger than this [bytes] is parsed column by column, only the columns a command uses
+#: (:class:`_LazyColumns`); smaller ones are parsed whole, as one cut mid-row must be
+LARGE_CSV_BYTES = 64 << 20
+#: bytes of text parsed at a time in a large CSV
+_BLOCK_BYTES = 16 << 20
 
 #: accepted time column names -> factor to seconds
 TIME_COLUMNS = {
@@ -63,20 +70,11 @@ class CsvSource(LogSource):
         the time column's name implies (``__time``: s, ``timestamp``: us, ...)."""
         super().__init__(path)
         try:
-            self._require_file()
-            raw = self.path.read_bytes()
-            if not raw.endswith(b"\n") and b"\n" in raw.rstrip(b"\n"):
-                # a file cut off mid-row: the last row may hold a cut number, drop it rather than
-                # read a wrong value
-                raw = raw[:raw.rindex(b"\n") + 1]
-                self.warn("CSV does not end with a line break (truncated?): its last, partial row "
-                          "was dropped")
-            head = raw[:4096]
-            if b"\x00" in head or _undecodable(head):
-                # never echo a binary file's bytes in the message
-                raise LogReadError(f"{self.path}: a binary file, not a CSV (text with a time column); "
-                                   "pass its own --format, or leave --format out to detect it")
-            frame = _read_frame(raw)
+            size = self._require_file()
+            if size > LARGE_CSV_BYTES and _ends_with_newline(self.path):
+                frame = self._open_large()
+            else:
+                frame = self._read_whole()
         except LogReadError:
             raise
         except OSError as err:
@@ -84,10 +82,46 @@ class CsvSource(LogSource):
         except Exception as err:  # noqa: BLE001 - pandas/pyarrow parse errors of many kinds
             msg = "".join(ch if ch.isprintable() else "?" for ch in one_line(err))[:200]
             raise LogReadError(f"{self.path}: not a readable CSV ({msg})") from None
-        if frame.shape[1] < 2:
+        self._set_columns(frame, time_unit)
+
+    def _read_whole(self) -> pd.DataFrame:
+        """Every column of a file of up to :data:`LARGE_CSV_BYTES` (or one cut mid-row), parsed at once."""
+        raw = self.path.read_bytes()
+        if not raw.endswith(b"\n") and b"\n" in raw.rstrip(b"\n"):
+            # a file cut off mid-row: the last row may hold a cut number, drop it rather than
+            # read a wrong value
+            raw = raw[:raw.rindex(b"\n") + 1]
+            self.warn("CSV does not end with a line break (truncated?): its last, partial row "
+                      "was dropped")
+        head = raw[:4096]
+        if b"\x00" in head or _undecodable(head):
+            # never echo a binary file's bytes in the message
+            raise LogReadError(f"{self.path}: a binary file, not a CSV (text with a time column); "
+                               "pass its own --format, or leave --format out to detect it")
+        return _read_frame(raw)
+
+    def _open_large(self) -> pd.DataFrame:
+        """A large file's header and time column only; the data columns are parsed when asked for."""
+        with open(self.path, "rb") as handle:
+            head = handle.read(4096)
+        if b"\x00" in head or _undecodable(head):
+            raise LogReadError(f"{self.path}: a binary file, not a CSV (text with a time column); "
+                               "pass its own --format, or leave --format out to detect it")
+        names = [str(c) for c in pd.read_csv(self.path, nrows=0).columns]
+        time_raw = next((c for c in names if c.strip().lower() in TIME_COLUMNS), None)
+        if time_raw is None or len(names) < 2:
+            return pd.DataFrame(columns=names)  # the checks below say what is wrong
+        self._lazy = _LazyColumns(self, names, time_raw)
+        return self._lazy.read([time_raw])
+
+    def _set_columns(self, frame: pd.DataFrame, time_unit: str | None) -> None:
+        """The time column [s] and the data columns (or their lazy loader) from ``frame``."""
+        lazy = getattr(self, "_lazy", None)
+        names = lazy.names if lazy is not None else [str(c) for c in frame.columns]
+        if len(names) < 2:
             raise LogReadError(f"{self.path}: a CSV log needs a time column and at least one data column")
-        cols = [str(c).strip() for c in frame.columns]
-        frame.columns = cols
+        cols = [c.strip() for c in names]
+        frame.columns = [str(c).strip() for c in frame.columns]
         time_col = next((c for c in cols if c.lower() in TIME_COLUMNS), None)
         if time_col is None:
             raise LogReadError(
@@ -104,7 +138,14 @@ class CsvSource(LogSource):
             factor = TIME_UNITS[time_unit]
         self.time_unit = next(u for u, f in TIME_UNITS.items() if f == factor)
         self._t = t * factor
-        self._cols: dict[str, pd.Series] = {c: frame[c] for c in cols if c != time_col}
+        self._cols: Mapping[str, pd.Series] = (
+            {c: frame[c] for c in cols if c != time_col} if lazy is None else lazy)
+
+    def prefetch(self, topics: list[str]) -> None:
+        """Parse the columns of ``topics`` in one pass over a large file (see :data:`LARGE_CSV_BYTES`)."""
+        if isinstance(self._cols, _LazyColumns):
+            prefixes = tuple(f"{t}{sep}" for t in topics for sep in ("/", ".", ":"))
+            self._cols.load([c for c in self._cols if c in topics or c.startswith(prefixes)])
 
     def _numeric(self, col: str) -> tuple[np.ndarray, np.ndarray]:
         raw = self._cols[col]
@@ -125,6 +166,8 @@ class CsvSource(LogSource):
 
     def topics(self) -> list[TopicInfo]:
         out = []
+        if isinstance(self._cols, _LazyColumns):
+            self._cols.load(list(self._cols))
         for col, raw in self._cols.items():
             present = raw.notna().to_numpy()
             t = np.sort(self._t[present])
@@ -175,6 +218,69 @@ class CsvSource(LogSource):
                                    "the same times; a quaternion needs all four in every row")
             out[col] = v
         return t0, out
+
+
+class _LazyColumns(Mapping[str, pd.Series]):
+    """The data columns of a large CSV, parsed on first use, only those asked for (float64 each).
+
+    A 10-million-row log of ten columns is 400 MB of text; parsed whole it took 2.3 GB. The
+    analysis needs the time column and two to five others: each :meth:`load` parses just those
+    (pyarrow's multi-threaded reader with ``usecols``), so memory is the file's rows times the
+    columns used, 8 bytes each.
+    """
+
+    def __init__(self, source: CsvSource, names: list[str], time_raw: str) -> None:
+        self.source = source
+        self.names = names
+        self.time_raw = time_raw
+        self.raw = {n.strip(): n for n in names if n != time_raw}
+        self.loaded: dict[str, pd.Series] = {}
+
+    def read(self, raw_names: list[str]) -> pd.DataFrame:
+        """Columns ``raw_names`` (as in the file) parsed from the whole file."""
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
+        parts: dict[str, list[np.ndarray]] = {n: [] for n in raw_names}
+        try:
+            # block by block: memory is the columns read plus one block, never the whole text
+            reader = pacsv.open_csv(self.source.path, read_options=pacsv.ReadOptions(block_size=_BLOCK_BYTES),
+                                    convert_options=pacsv.ConvertOptions(
+                                        include_columns=raw_names, column_types={n: pa.float64() for n in raw_names}))
+            for batch in reader:
+                for n in raw_names:
+                    parts[n].append(batch.column(n).to_numpy(zero_copy_only=False))
+            return pd.DataFrame({n: np.concatenate(parts[n]) if parts[n] else np.zeros(0) for n in raw_names})
+        except Exception as err:  # noqa: BLE001 - pyarrow's conversion errors name the column and row
+            msg = "".join(ch if ch.isprintable() else "?" for ch in one_line(err))[:200]
+            raise LogReadError(f"{self.source.path}: column(s) {', '.join(raw_names)} not numbers ({msg})") from None
+
+    def load(self, names: list[str]) -> None:
+        """Parse the columns ``names`` (stripped names) not parsed yet, in one pass."""
+        todo = [n for n in names if n not in self.loaded and n in self.raw]
+        if todo:
+            frame = self.read([self.raw[n] for n in todo])
+            for n in todo:
+                self.loaded[n] = frame[self.raw[n]]
+
+    def __getitem__(self, name: str) -> pd.Series:
+        self.load([name])
+        return self.loaded[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.raw
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.raw)
+
+    def __len__(self) -> int:
+        return len(self.raw)
+
+
+def _ends_with_newline(path: Path) -> bool:
+    with open(path, "rb") as handle:
+        handle.seek(-1, 2)
+        return handle.read(1) == b"\n"
 
 
 def _read_frame(raw: bytes) -> pd.DataFrame:

@@ -251,3 +251,14 @@ def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
     assert code == 2 and "--out" in err
     code, stdout, err = _run(["--rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)
     assert code == 0 and "deprecated" in err and json.loads(stdout)["Kp"] > 0
+
+
+def test_cli_json_holds_the_versioned_record(tmp_path, capsys):
+    code, _, err = _run(["--rate", "250", "--export", "px4", "--out", str(tmp_path / "r.params"),
+                         "--json", str(tmp_path / "t.json")], capsys)
+    assert code == 0, err
+    data = json.loads((tmp_path / "t.json").read_text())
+    res = TuneResult.from_json(data["tune_result"])
+    assert res.rate_filter == RateFilter(40.0, "IMU_GYRO_CUTOFF") and res.rate_hz == 250.0
+    e = StackExport.from_json(data["export"]["stack"])
+    assert e.params["MC_ROLLRATE_P"] == pytest.approx(res.get("model-based", "PD").controller.Kd)

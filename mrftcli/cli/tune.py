@@ -201,6 +201,8 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     c = chosen.controller
     data = res.to_dict()
     data["export"] = {"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)}
+    # the versioned record a later process reads back with TuneResult.from_json (the keys above are the report)
+    data["tune_result"] = res.to_json()
     stack_export, refused = None, None
     if ex.stack in (None, "generic"):
         try:

@@ -81,6 +81,10 @@ def write_tune_report(result: "TuneResult", out_dir: str | Path) -> Path:
     body = [f"<p>Model Tp {result.model.Tp:g} s, Td {result.model.Td:.4g} s, tau {result.model.tau * 1e3:.4g} ms, "
             f"K {result.model.K:.4g}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
             f"{result.ms_max:g}.</p>"]
+    if result.rate_filter is not None:  # an export's design: Tf is replaced by the stack's filter
+        f = result.rate_filter
+        body.append(f"<p>Derivative through the stack's rate filter ({f.parameter or 'rate filter'}: 2nd-order "
+                    f"Butterworth at {f.cutoff_hz:g} Hz), not Tf; every figure and plot includes it.</p>")
     rows = []
     for d in result.designs:
         w = d.posterior.get("worst", {}) if d.posterior else {}

@@ -21,7 +21,6 @@ from mrftcli.errors import InputError
 from mrftcli.io import read_flight
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model
 from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
-from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import MODEL_FAMILIES, model_from_json
 from mrftcli.mrft.relays import RelayLaw
 
@@ -213,3 +212,25 @@ def test_cli_analyze_model_json_and_refusals(tmp_path):
     assert bad.returncode == 2 and "unknown parameter" in bad.stderr and "Traceback" not in bad.stderr
     no_tp = subprocess.run(cmd[:-2], capture_output=True, text=True, timeout=60)
     assert no_tp.returncode == 2 and "--tp" in no_tp.stderr
+
+
+def test_cli_identify_and_predict_process_model():
+    # predict the FOPDT hysteresis cycle (closed form above), then identify the model back from two
+    # exact points of its response; a point short: the table says what is not determined
+    run = lambda *a: subprocess.run([sys.executable, "-m", "mrftcli", *a], capture_output=True, text=True,  # noqa: E731
+                                    timeout=60)
+    out = run("predict", "--model", "fopdt", "--param", "K=2", "--param", "T=0.5", "--param", "tau=0.1",
+              "--beta", "0", "--eps", "0.3", "--h", "1.5", "--json")
+    assert out.returncode == 0, out.stderr
+    a = 2 * 1.5 - (2 * 1.5 - 0.3) * math.exp(-0.2)
+    assert json.loads(out.stdout)["amplitude"] == pytest.approx(a, rel=1e-8)
+    G = FOPDT(K=2.0, T=0.5, tau=0.1).frequency_response(np.array([2 * math.pi * 0.8, 2 * math.pi * 2.4]))
+    pts = [f"--point={f}:{float(abs(g))!r}:{float(math.degrees(np.angle(g)))!r}:0.001:0.05" for f, g in zip((0.8, 2.4), G)]
+    out = run("identify", "--model", "fopdt", *pts, "--json")
+    assert out.returncode == 0, out.stderr
+    params = json.loads(out.stdout)["parameters"]
+    assert [params[n]["value"] for n in ("K", "T", "tau")] == pytest.approx([2.0, 0.5, 0.1], rel=1e-3)
+    one = run("identify", "--model", "fopdt", pts[0])
+    assert one.returncode == 0 and "NOT DETERMINED" in one.stdout and "nan" not in one.stdout.lower()
+    bad = run("predict", "--model", "fopdt", "--param", "K=2", "--beta", "0")
+    assert bad.returncode == 2 and "needs every parameter" in bad.stderr

@@ -7,10 +7,12 @@ from typing import TYPE_CHECKING
 import click
 
 from ..errors import InputError
+from .model_options import build_model, format_estimates, structure_options
 from .options import dump_json, tp_option
 
 if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate, TestMeasurement
+    from ..mrft.identify_lti import ResponsePoint
 
 
 def _parse_test(text: str) -> TestMeasurement:
@@ -39,18 +41,33 @@ def _fmt(est: ParameterEstimate | None, scale: float = 1.0, unit: str = "") -> s
 
 
 @click.command("identify")
-@tp_option(help="Known propulsion time constant Tp [s].")
-@click.option("--test", "tests", multiple=True, required=True, metavar="BETA:FREQ_HZ[:AMPLITUDE:H]",
+@tp_option(required=False, help="Known propulsion time constant Tp [s] (--model soiptd).")
+@structure_options
+@click.option("--point", "points", multiple=True, metavar="FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG]",
+              help="A measured point of G(j omega) (process models): frequency [Hz], gain [output per command], "
+                   "phase [deg], optional standard errors (relative gain, deg; default 1 %, 0.6 deg). Repeat.")
+@click.option("--test", "tests", multiple=True, metavar="BETA:FREQ_HZ[:AMPLITUDE:H]",
               help="One MRFT test: beta and frequency [Hz], optionally amplitude and relay height. Repeat (>= 2).")
 @click.option("--rate", "rate_hz", type=float, default=None,
               help="Relay rate [Hz]: removes the half-sample switching lag from tau (nominal betas).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
-def identify(Tp: float, tests: tuple[str, ...], rate_hz: float | None, as_json: bool) -> None:
+def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...],
+             points: tuple[str, ...], tests: tuple[str, ...], rate_hz: float | None, as_json: bool) -> None:
     """Identify Td, tau (and K when amplitudes are given) from two or more MRFT tests.
+
+    With --model fopdt|sopdt|ipdt|foipdt: the process model's unknown parameters from measured points
+    of its frequency response (--point; analyze --model measures them on a log's relay cycles).
 
     Example: mrft-ident identify --tp 0.1 --test -0.4:0.70564 --test -0.7:1.01884
     """
     from ..mrft.identify import identify as run
+
+    if model_name != "soiptd":
+        _identify_process(model_name, params, ranges, points, tests, as_json)
+        return
+    if Tp is None or not tests or points or params or ranges:
+        raise click.UsageError("--model soiptd takes --tp and two or more --test BETA:FREQ_HZ[:AMPLITUDE:H] "
+                               "(--point, --param and --range are for process models)")
 
     measured = [_parse_test(t) for t in tests]
     result = run(measured, Tp, rate_hz=rate_hz)
@@ -71,3 +88,39 @@ def identify(Tp: float, tests: tuple[str, ...], rate_hz: float | None, as_json: 
         click.echo(line)
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
+
+
+def _parse_point(text: str) -> ResponsePoint:
+    """FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG] -> ResponsePoint."""
+    import math
+
+    from ..mrft.identify_lti import ResponsePoint
+
+    parts = text.split(":")
+    if len(parts) not in (3, 5):
+        raise InputError(f"--point {text!r}: expected FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG]")
+    try:
+        nums = [float(p) for p in parts]
+    except ValueError:
+        raise InputError(f"--point {text!r}: every field must be a number") from None
+    se_rel, se_deg = (nums[3], nums[4]) if len(nums) == 5 else (0.01, 0.6)
+    return ResponsePoint(2 * math.pi * nums[0], nums[1], math.radians(nums[2]), se_rel, math.radians(se_deg))
+
+
+def _identify_process(model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], points: tuple[str, ...],
+                      tests: tuple[str, ...], as_json: bool) -> None:
+    """``identify --model NAME --point ...``."""
+    from ..mrft.identify_lti import identify_lti
+
+    if tests or not points:
+        raise click.UsageError(f"--model {model_name} identifies from --point FREQ_HZ:GAIN:PHASE_DEG "
+                               "(measured on a log by analyze --model); --test is for --model soiptd")
+    model = build_model(model_name, params, ranges)
+    result = identify_lti(model, [_parse_point(p) for p in points])
+    if as_json:
+        dump_json(result.to_json(), None)
+        return
+    click.echo(f"model {model.family}: G(s) = {model.structure}  [direct fit to {len(points)} point(s)]")
+    click.echo("\n".join(format_estimates(result)))
+    if result.advice:
+        click.echo(f"not determined: {result.advice}")

@@ -141,6 +141,8 @@ def format_estimates(ident: LtiIdentification) -> list[str]:
 def _interval(e: LtiEstimate) -> str:
     if e.known:
         return ""
+    if not e.determined and not math.isfinite(e.ci95_high):
+        return f"anywhere above {_num(e.ci95_low)}" if math.isfinite(e.ci95_low) else "anywhere"
     if e.one_sided == "low":
         return f"< {_num(e.ci95_high)} (open below: the range's bound {_num(e.ci95_low)})"
     if e.one_sided == "high" or not math.isfinite(e.ci95_high):

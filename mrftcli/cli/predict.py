@@ -4,19 +4,24 @@ from __future__ import annotations
 
 import click
 
+from .model_options import build_model, structure_options
 from .options import BETA, dump_json, tp_option
 
 
 @click.command("predict")
-@tp_option(help="Propulsion time constant Tp [s].")
-@click.option("--td", "Td", type=float, required=True, help="Drag time constant Td [s].")
-@click.option("--tau", type=float, required=True, help="Loop delay tau [s].")
+@tp_option(required=False, help="Propulsion time constant Tp [s] (--model soiptd).")
+@structure_options
+@click.option("--eps", type=float, default=0.0, show_default=True,
+              help="Relay hysteresis [output units] (0: MRFT; with --beta 0 a relay with hysteresis).")
+@click.option("--td", "Td", type=float, default=None, help="Drag time constant Td [s] (--model soiptd).")
+@click.option("--tau", type=float, default=None, help="Loop delay tau [s] (--model soiptd).")
 @click.option("--k", "K", type=float, default=1.0, show_default=True, help="Gain K (K*Td = rate gain).")
 @click.option("--beta", type=BETA, required=True, help="MRFT parameter beta in (-1, 1).")
 @click.option("--h", type=float, default=1.0, show_default=True, help="Relay amplitude h [command units].")
 @click.option("--rate", "rate_hz", type=float, default=None, help="Relay rate [Hz] (sampled relay); default continuous.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
-def predict(Tp: float, Td: float, tau: float, K: float, beta: float, h: float, rate_hz: float | None,
+def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float,
+            Td: float | None, tau: float | None, K: float, beta: float, h: float, rate_hz: float | None,
             as_json: bool) -> None:
     """Predict the MRFT limit cycle (frequency in Hz, amplitude) of G(s) = K Td e^{-tau s}/(s(Tp s+1)(Td s+1)).
 
@@ -28,6 +33,13 @@ def predict(Tp: float, Td: float, tau: float, K: float, beta: float, h: float, r
     from ..mrft.lprs import mrft_limit_cycle
     from ..mrft.model import LoopModel
 
+    if model_name != "soiptd":
+        _predict_process(model_name, params, ranges, eps, beta, h, rate_hz, as_json)
+        return
+    if Tp is None or Td is None or tau is None or params or ranges or eps:
+        raise click.UsageError("--model soiptd takes --tp, --td and --tau (--param, --range and --eps are for "
+                               "process models)")
+
     model = LoopModel(Tp, Td, tau, K)
     lc = mrft_limit_cycle(model, beta, h, rate_hz)
     df_f, df_a = describing_function_limit_cycle(model, beta, h)
@@ -38,16 +50,41 @@ def predict(Tp: float, Td: float, tau: float, K: float, beta: float, h: float, r
         dump_json(out, None)
         return
     rows = [
-        ("model", f"Tp={Tp:g} s  Td={Td:g} s  tau={tau:g} s  K={K:g}"),
-        ("MRFT", f"beta={beta:g}  h={h:g}" + (f"  rate={rate_hz:g} Hz" if rate_hz else "  (continuous relay)")),
+        ("model", f"Tp={Tp:g} s  Td={Td:g} s  tau={tau:g} s  K={K:g} [output units/s² per command unit]"),
+        ("MRFT", f"beta={beta:g}  h={h:g} [command units]" + (f"  rate={rate_hz:g} Hz" if rate_hz else "  (continuous relay)")),
         ("frequency", f"{lc.frequency_hz:.6g} Hz  ({lc.omega:.6g} rad/s, period {lc.period:.6g} s)"),
-        ("amplitude", f"{lc.amplitude:.6g}"),
+        ("amplitude", f"{lc.amplitude:.6g} [output units]"),
         ("tau*Omega", f"{lc.delay_phase:.6g} rad"),
     ]
     if rate_hz:
         orbits = ", ".join(f"{f:.5g}" for f in lc.orbits_hz) or "none (quasi-periodic)"
         rows.append(("sampled orbits", f"{orbits} Hz"))
-    rows.append(("DF estimate", f"{df_f:.6g} Hz, amplitude {df_a:.6g}  (approximate, for comparison)"))
+    rows.append(("DF estimate", f"{df_f:.6g} Hz, amplitude {df_a:.6g} [output units]  (approximate, for comparison)"))
     width = max(len(r[0]) for r in rows)
     for name, value in rows:
         click.echo(f"{name:<{width}}  {value}")
+
+
+def _predict_process(model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float, beta: float,
+                     h: float, rate_hz: float | None, as_json: bool) -> None:
+    """``predict --model NAME --param K=.. --param tau=.. ...``: the exact cycle under an MRFT or a hysteresis relay."""
+    from ..errors import InputError
+    from ..mrft.relays import RelayLaw
+
+    model = build_model(model_name, params, ranges)
+    missing = [p.name for p in model.parameters.values() if not p.known]
+    if missing:
+        raise InputError(f"predict --model {model_name} needs every parameter: add --param "
+                         + " ".join(f"{n}=VALUE" for n in missing))
+    kind = "mrft" if beta != 0 else ("hysteresis" if eps else "ideal")
+    relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
+    lc = relay.limit_cycle(model, rate_hz)
+    out = {**lc.to_dict(), "model": model.to_json(), "relay": relay.to_json()}
+    if as_json:
+        dump_json(out, None)
+        return
+    values = "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())
+    click.echo(f"model      {model.family}: G(s) = {model.structure};  {values}")
+    click.echo(f"{relay.describe()}" + (f", rate {rate_hz:g} Hz" if rate_hz else " (continuous relay)"))
+    click.echo(f"frequency  {lc.frequency_hz:.6g} Hz  ({lc.omega:.6g} rad/s, period {lc.period:.6g} s)")
+    click.echo(f"amplitude  {lc.amplitude:.6g} [output units]")

@@ -399,10 +399,18 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
 
 def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
     """The parameters along which the fit is flat (fewer independent figures than unknowns)."""
-    _, sv, Vt = np.linalg.svd(J, full_matrices=True)
+    norms = np.linalg.norm(J, axis=0)
+    Js = J / np.where(norms > 0, norms, 1.0)  # column-scaled: the verdict must not depend on units
+    _, sv, Vt = np.linalg.svd(Js, full_matrices=True)
     rank = int(np.sum(sv > 1e-6 * sv[0])) if sv.size and sv[0] > 0 else 0
     null = Vt[rank:]
-    return {n for k, n in enumerate(problem.unknown) if null.size and np.max(np.abs(null[:, k])) > 0.1}
+    flat = {n for k, n in enumerate(problem.unknown) if null.size and np.max(np.abs(null[:, k])) > 0.1}
+    flat |= {n for k, n in enumerate(problem.unknown) if norms[k] == 0}
+    n_freq = len({round(math.log(w), 2) for w in problem.data.omega})
+    if flat and 2 * n_freq < len(problem.unknown):
+        # fewer figures than unknowns: a local null direction is one of many; none is pinned down
+        flat = set(problem.unknown)
+    return flat
 
 
 def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_dof: float | None,

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
+from .analyze import output_unit
 from .options import check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
 if TYPE_CHECKING:
@@ -46,19 +47,20 @@ def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEs
         raise InputError(f"{path}: {err}") from err
 
 
-def format_plan(result: PlanResult) -> str:
-    """The readable table of a :class:`~mrftcli.plan.PlanResult` (its assumptions first)."""
+def format_plan(result: PlanResult, unit: str = "output unit") -> str:
+    """The readable table of a :class:`~mrftcli.plan.PlanResult` (its assumptions first); amplitudes in the
+    output's ``unit`` (``m``, ``rad``), K in ``unit``/s² per command unit."""
     lines = [f"assumption: {a}" for a in result.assumptions]
     for f in result.flown:
-        lines.append(f"flown     beta {f.beta:+.3f}  h {f.h:.4g}  {f.frequency_hz:.4g} Hz  amplitude {f.amplitude:.4g}  "
+        lines.append(f"flown     beta {f.beta:+.3f}  h {f.h:.4g}  {f.frequency_hz:.4g} Hz  amplitude {f.amplitude:.4g} {unit}  "
                      f"{f.n_cycles} cycles")
-    head = f"{'test':<5} {'beta':>6} {'h':>8} {'duration':>9} {'frequency':>18} {'amplitude':>11} {'cycles':>6}  Td*Omega"
+    head = f"{'test':<5} {'beta':>6} {'h':>8} {'duration':>9} {'frequency':>18} {f'amplitude [{unit}]':>13} {'cycles':>6}  Td*Omega"
     lines += ["", "recommended next test(s):", head]
     for i, t in enumerate(result.tests, 1):
         lines.append(f"{i:<5} {t.beta:>+6.2f} {t.h:>8.4g} {t.duration_s:>8.1f}s {t.frequency_hz:>8.4g} Hz "
-                     f"({t.frequency_range_hz[0]:.3g}-{t.frequency_range_hz[1]:.3g}) {t.amplitude:>11.4g} {t.n_cycles:>6}  "
+                     f"({t.frequency_range_hz[0]:.3g}-{t.frequency_range_hz[1]:.3g}) {t.amplitude:>13.4g} {t.n_cycles:>6}  "
                      f"{t.td_omega[0]:.1f}-{t.td_omega[1]:.1f}")
-    lines += ["", f"{'predicted std':<28} {'Td [s]':>10} {'tau [ms]':>10} {'K':>10}"]
+    lines += ["", f"{'predicted std':<28} {'Td [s]':>10} {'tau [ms]':>10} {'K':>10}  (K in {unit}/s² per command unit)"]
 
     def row(name: str, s: dict[str, float]) -> str:
         return f"{name:<28} {s['Td']:>10.4g} {s['tau'] * 1e3:>10.4g} {s['K']:>10.4g}"
@@ -183,4 +185,4 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":
-        click.echo(format_plan(result))
+        click.echo(format_plan(result, output_unit(loop)))

@@ -10,6 +10,7 @@ import click
 from ..errors import InputError
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
+from .analyze import output_unit
 from .options import dump_json, tp_option, tqdm_progress
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
@@ -199,10 +200,13 @@ def simulate(
         return
     truth = flight.truth
     click.echo(f"wrote {out} ({fmt}, {truth['duration']:.1f} s at {rate:g} Hz) and {sidecar}")
-    click.echo(f"  model: Tp {tp:g} s, Td {td:g} s, tau {tau:g} s, K {k:g}; loop {loop}, noise {truth['noise_std']:g}")
+    unit = output_unit(loop)
+    click.echo(f"  model: Tp {tp:g} s, Td {td:g} s, tau {tau:g} s, K {k:g} {unit}/s² per command unit; loop {loop}, "
+               f"noise {truth['noise_std']:g} {unit}")
     for i, test in enumerate(truth["tests"], 1):
         click.echo(
-            f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g}, {test['t_start']:.2f}-{test['t_end']:.2f} s"
+            f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g} [command], "
+            f"{test['t_start']:.2f}-{test['t_end']:.2f} s"
         )
     if truth["effects_active"]:
         click.echo("  effects: " + ", ".join(f"{n}={truth['effects'][n]:g}" for n in truth["effects_active"]))

@@ -97,9 +97,23 @@ def format_table(result) -> str:
             f"spread over {c['n']} combinations of stable cycles: Td {_num(c['Td']['mean'])} ± {_num(c['Td']['std'] or 0, 2)} s, "
             f"tau {_num(c['tau']['mean'] * 1e3)} ± {_num((c['tau']['std'] or 0) * 1e3, 2)} ms"
         )
+    mrft_interval = any("MRFT interval" in note for note in result.notes)
+    if (c["n"] and c["Td"]["mean"] is not None) or mrft_interval:
+        lines.append(uncertainty_sentence(ref is not None and ref.accepted, mrft_interval))
     for note in result.notes:
         lines.append(f"note: {note}")
     return "\n".join(line.rstrip() for line in lines)
+
+
+def uncertainty_sentence(refined: bool, mrft_interval: bool) -> str:
+    """Which of the uncertainties an analysis prints a user should act on (one line, also in the report)."""
+    source = "the waveform refinement over all stable cycles" if refined else "the estimate from all stable cycles"
+    others = "the spread over combinations (how much subsets of cycles disagree)"
+    if mrft_interval:
+        others += " and the MRFT interval (frequencies and amplitudes alone)"
+    wider = " and are wider by design" if refined else ""
+    return (f"uncertainty: use the ± std and 95 % interval above ({source}); {others} check the data"
+            f"{wider}, not the uncertainty of these values")
 
 
 def _read_as(result) -> str:

@@ -249,6 +249,8 @@ def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
     assert code == 2 and err.startswith("error:") and "IMU_GYRO_RATEMAX" in err and len(err.splitlines()) == 1
     code, _, err = _run(["--rate", "250", "--export", "px4", "--out", str(tmp_path / "no" / "x.params")], capsys)
     assert code == 2 and "--out" in err
+    code, _, err = _run(["--rate", "200", "--export", "hear", "--gyro-cutoff", "30"], capsys)
+    assert code == 2 and "--gyro-cutoff" in err
     code, stdout, err = _run(["--rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)
     assert code == 0 and "deprecated" in err and json.loads(stdout)["Kp"] > 0
 

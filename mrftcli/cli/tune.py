@@ -138,6 +138,11 @@ def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
 
     if ex.stack is not None and ex.stack not in ("generic", "hear"):
         check_exportable(ex.stack, loop, kind, ex.hover_thrust)
+    # an option the chosen export does not use is an error, not silently ignored
+    if ex.gyro_cutoff_hz is not None and not (ex.stack in ("px4", "ardupilot") and loop in ("roll", "pitch")):
+        raise InputError("--gyro-cutoff is for --export px4|ardupilot on roll or pitch (the stack's gyro filter)")
+    if ex.hover_thrust is not None and not (ex.stack == "px4" and loop == "altitude"):
+        raise InputError("--hover-thrust is for --export px4 on the altitude loop")
 
 
 def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,

@@ -9,17 +9,11 @@ import click
 from ..errors import InsufficientDataError, MrftError, SegmentationError
 from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
                             window_option)
+from ..report.wording import output_unit, uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, log_layout_options, tp_option,
                       tqdm_progress)
 
 
-#: the output's unit by loop (after --output-scale): roll and pitch come from a quaternion in rad
-_OUTPUT_UNIT = {"altitude": "m", "x": "m", "y": "m", "roll": "rad", "pitch": "rad"}
-
-
-def output_unit(loop: str) -> str:
-    """The output's unit of a loop (``m``, ``rad``; ``output unit`` for a loop not listed)."""
-    return _OUTPUT_UNIT.get(loop, "output unit")
 
 
 def _num(x: float | None, digits: int = 4) -> str:
@@ -60,7 +54,7 @@ def format_table(result) -> str:
     from ..analyze import describe_t0
 
     t0 = result.t0
-    unit = _OUTPUT_UNIT.get(result.loop, "output unit")
+    unit = output_unit(result.loop)
     lines = [f"{result.path}",
              f"loop {result.loop}, Tp {result.Tp:g} s (known); times in seconds from the log start"
              + (f" ({describe_t0(t0)})" if t0 else "")]
@@ -104,16 +98,6 @@ def format_table(result) -> str:
         lines.append(f"note: {note}")
     return "\n".join(line.rstrip() for line in lines)
 
-
-def uncertainty_sentence(refined: bool, mrft_interval: bool) -> str:
-    """Which of the uncertainties an analysis prints a user should act on (one line, also in the report)."""
-    source = "the waveform refinement over all stable cycles" if refined else "the estimate from all stable cycles"
-    others = "the spread over combinations (how much subsets of cycles disagree)"
-    if mrft_interval:
-        others += " and the MRFT interval (frequencies and amplitudes alone)"
-    wider = " and are wider by design" if refined else ""
-    return (f"uncertainty: use the ± std and 95 % interval above ({source}); {others} check the data"
-            f"{wider}, not the uncertainty of these values")
 
 
 def _read_as(result) -> str:

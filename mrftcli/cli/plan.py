@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
-from .analyze import output_unit
+from ..report.wording import output_unit
 from .options import check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
 if TYPE_CHECKING:

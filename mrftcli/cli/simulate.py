@@ -10,7 +10,7 @@ import click
 from ..errors import InputError
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
-from .analyze import output_unit
+from ..report.wording import output_unit
 from .options import dump_json, tp_option, tqdm_progress
 
 __all__ = ["simulate", "parse_test", "parse_effect"]

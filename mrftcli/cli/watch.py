@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import click
 
 from ..jsonable import to_jsonable
-from .analyze import output_unit
+from ..report.wording import output_unit
 from .options import log_layout_options, tp_option
 
 if TYPE_CHECKING:

@@ -57,7 +57,7 @@ _RawMessages = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _MSG_HEADER = MESSAGE_HEADER_BYTES
 #: how much of a memory-mapped file the salvage pass reads before handing its pages back [bytes]
-_RELEASE_EVERY = 64 * 2**20
+_RELEASE_EVERY = 16 * 2**20
 
 
 @dataclass
@@ -207,7 +207,7 @@ class McapSource(LogSource):
         super().__init__(path)
         self.format = "mcap"
         self._summary: Summary | None = None
-        self._records = McapRecords()
+        self._records = McapRecords(keep=frozenset())  # times only: bytes come from a second pass
         self._channels: dict[int, McapChannel] = self._records.channels
         self._salvaged = False
         self._typestores: dict[int, Typestore] = {}

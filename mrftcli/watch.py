@@ -1,14 +1,16 @@
 """Follow a flight log while it is written: MRFT tests and the identification as cycles arrive.
 
 :func:`watch` is a generator of typed update records (:class:`TestUpdate`, :class:`EstimateUpdate`,
-:class:`WatchEnd`); ``mrft-ident watch`` prints them. It never prints itself.
+:class:`Restart`, :class:`WatchEnd`); ``mrft-ident watch`` prints them. It never prints itself.
 
 How the log is followed
 -----------------------
 :func:`mrftcli.io.follow.follow_log` gives the flight so far at each poll: an MCAP file (or a ROS 2
 bag directory with mcap storage) is parsed incrementally and says when its writer closed it; any
 other log is read again whenever its size changes. The writer has closed the file when it has not
-grown for ``idle`` seconds (this also ends an MCAP whose writer died without a footer).
+grown for ``idle`` seconds (this also ends an MCAP whose writer died without a footer). A file that
+does not exist yet is waited for (a ground station starts ``watch`` before the logger); one that is
+truncated or replaced by another recording is followed from its start again (:class:`Restart`).
 
 Incremental segmentation and identification
 -------------------------------------------

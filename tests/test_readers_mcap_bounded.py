@@ -149,6 +149,11 @@ def test_salvage_without_summary_reads_the_same(light, tmp_path):
     assert len(warnings) == 1 and "salvaged 458 messages" in warnings[0]  # 400 commands, 58 frames
     with open_log(cut, echo_warnings=False) as log:
         info = {i.name: i for i in log.topics()}
+        log.prefetch(["/mrft/command"])
+        # what the reader holds: the command's bytes, none of the camera's
+        held = [d for ch in log._records.channels.values() for d in ch.datas]  # noqa: SLF001
+        buffers = [raw[1] for raw in log._raw_cache.values()]  # noqa: SLF001
+    assert held == [] and sum(b.nbytes for b in buffers) == 400 * 12
     assert info["/mrft/command"].count == 400 and info["/camera/image/compressed"].count == 58
 
 

@@ -103,12 +103,12 @@ def _truth(log: str) -> dict:
     return json.loads((SAMPLES / f"{log}.truth.json").read_text())
 
 
-@pytest.mark.parametrize("factor", [1 / 10, 1 / 3])
-def test_a_too_small_tp_is_named_with_the_tp_the_recording_fits(factor):
-    truth = _truth("design1_altitude.mcap")
+@pytest.mark.parametrize("log, factor", [("design1_altitude.mcap", 1 / 10), ("design1_altitude.mcap", 1 / 3),
+                                         ("design2_roll.mcap", 3), ("design1_pitch.mcap", 10)])
+def test_a_wrong_tp_is_named_with_the_tp_the_recording_fits(log, factor):
+    truth = _truth(log)
     Tp = truth["Tp"] * factor
-    proc = run("analyze", "sample_logs/design1_altitude.mcap", "--tp", f"{Tp:.6g}", "--loop", "altitude",
-               "--json", "-")
+    proc = run("analyze", f"sample_logs/{log}", "--tp", f"{Tp:.6g}", "--loop", truth["loop"], "--json", "-")
     data = json.loads(proc.stdout)
     first = data["warnings"][0]
     assert first.startswith("the recording fits Tp = ") and "check --tp" in first
@@ -119,7 +119,7 @@ def test_a_too_small_tp_is_named_with_the_tp_the_recording_fits(factor):
 
 
 @pytest.mark.parametrize("factor", [3, 10])
-def test_a_too_large_tp_is_refused_naming_tp(factor):
+def test_a_too_large_tp_the_frequencies_refuse_names_tp(factor):
     Tp = _truth("design1_altitude.mcap")["Tp"] * factor
     err = one_line_error(run("analyze", "sample_logs/design1_altitude.mcap", "--tp", f"{Tp:.6g}", "--loop",
                              "altitude"), code=5)

@@ -8,7 +8,8 @@ so the output-error residual rejects the model.
 
 Method: for Tp on a grid, Td, tau and K are refitted by output error
 (:func:`~mrftcli.mrft.refine.fit_output_error`, each started from the previous point), giving the
-profile RSS(Tp). Coarse: :data:`GRID_FACTORS` times the given Tp (log-spaced, 1/10 to 10), then a
+profile RSS(Tp), over the Tp that stay the fast pole (Tp < Td: eq. (2) is symmetric in Tp and Td up
+to K's scale, so the swapped plant fits as well). Coarse: :data:`GRID_FACTORS` times the given Tp (log-spaced, 1/10 to 10), then a
 bounded scalar refinement of ln Tp between the best point's neighbours. With white sensor noise
 the profile deviance is ``n ln(RSS(Tp) / RSS_min)`` (n output samples); the interval is where it
 stays below 3.84 (chi-square, 1 degree of freedom, 95 %), from the curvature at the minimum. It is
@@ -107,8 +108,11 @@ def profile_tp(windows: Sequence[CommandWindow], start: LoopModel, *, loop_sign:
 
     def rss(Tp: float) -> float:
         near, p0 = _nearest_start(fits, Tp, (start.Tp, p))
-        # the fast pole trades with the delay: start tau where Tp + tau, the lag they add, is kept
-        q = np.array([p0[0], max(p0[1] + near - Tp, 1e-4), p0[2]])
+        Td0 = math.exp(p0[0])
+        # the neighbour's fast and slow poles (a fit on the swapped branch, Td < Tp, has them exchanged);
+        # the start keeps the slow pole, K Td (the low-frequency gain) and fast pole + tau (the lag they add)
+        fast, slow = min(near, Td0), max(near, Td0)
+        q = np.array([math.log(slow), max(p0[1] + fast - Tp, 1e-4), p0[2] * Td0 / slow])
         fit = fit_output_error(windows, loop_model_plant(Tp), q, lower=[math.log(Tp * 1e-2), 0.0, -np.inf],
                                upper=[math.log(1e6), 1.0, np.inf], max_evaluations=max_evaluations)
         value = fit.residual_rms ** 2 * fit.n_samples
@@ -116,20 +120,33 @@ def profile_tp(windows: Sequence[CommandWindow], start: LoopModel, *, loop_sign:
         return value
 
     grid = [start.Tp * f for f in GRID_FACTORS]
-    for Tp in grid:
-        rss(Tp)
-    coarse = min(grid, key=lambda t: fits[t][0])
+    middle = int(np.argmin(np.abs(np.log(GRID_FACTORS))))
+    # continuation outward from the given Tp: each fit starts from its neighbour's
+    for i in [*range(middle, -1, -1), *range(middle + 1, len(grid))]:
+        rss(grid[i])
+    coarse = min(_ordered(fits, grid), key=lambda t: fits[t][0])
     i = grid.index(coarse)
     lo, hi = math.log(grid[max(i - 1, 0)]), math.log(grid[min(i + 1, len(grid) - 1)])
     optimize.minimize_scalar(lambda x: rss(math.exp(x)), bounds=(lo, hi), method="bounded",
                              options={"xatol": 0.01, "maxiter": 12})
-    best = min(fits, key=lambda t: fits[t][0])
-    half = _half_width(fits, best, n)
+    best = min(_ordered(fits, list(fits)), key=lambda t: fits[t][0])
+    half = _half_width({t: fits[t] for t in _ordered(fits, list(fits))}, best, n)
     ratio = {t: math.sqrt(v / n) / noise for t, (v, _) in fits.items()}
     given = start.Tp
     return TpProfile(given=given, best=best, low=best * math.exp(-half), high=best * math.exp(half),
                      residual_ratio_given=ratio[min(fits, key=lambda t: abs(math.log(t / given)))],
                      residual_ratio_best=ratio[best], grid=tuple(sorted(ratio.items())))
+
+
+def _ordered(fits: dict[float, tuple[float, np.ndarray]], tps: Sequence[float]) -> list[float]:
+    """The Tp of ``tps`` whose fit keeps Tp < Td (all of them when none does).
+
+    Eq. (2)'s response is symmetric in Tp and Td up to K's scale (G = K Td / (s (Tp s + 1)(Td s + 1))),
+    so the profile has a second minimum at Tp = the true Td with Td = the true Tp; the paper's
+    propulsion lag is the fast pole.
+    """
+    kept = [t for t in tps if math.exp(float(fits[t][1][0])) > t]
+    return kept or list(tps)
 
 
 def _nearest_start(fits: dict[float, tuple[float, np.ndarray]], Tp: float,

@@ -40,6 +40,7 @@ from scipy import linalg, optimize
 from ..errors import InputError
 from ..validate import check_beta, check_positive
 from .describing import df_frequency
+from .matexp import phi_gamma_small
 from .model import LoopModel, PlantModel
 
 __all__ = [
@@ -507,35 +508,6 @@ def _phi_gamma(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.n
     return E[:n, :n], E[:n, n]
 
 
-def _expm_small(M: FloatArray) -> FloatArray:
-    """e^M of a small matrix: scaling and squaring with a degree-14 Taylor polynomial.
-
-    scipy's expm costs ~10 ms on a 3x3 matrix (its dispatch, not the arithmetic); the limit-cycle
-    search needs hundreds. With ||M / 2^s|| <= 1/2 the truncation error is below 1e-16 relative.
-    """
-    norm = float(np.max(np.sum(np.abs(M), axis=1)))
-    s = max(0, int(math.ceil(math.log2(norm))) + 1) if norm > 0 else 0
-    X = M / 2.0 ** s
-    E = np.eye(M.shape[0])
-    term = np.eye(M.shape[0])
-    for k in range(1, 15):
-        term = term @ X / k
-        E = E + term
-    for _ in range(s):
-        E = E @ E
-    return E
-
-
-def _phi_gamma_small(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_phi_gamma` with :func:`_expm_small` (the continuous limit-cycle search)."""
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A * t
-    M[:n, n] = B * t
-    E = _expm_small(M)
-    return E[:n, :n], E[:n, n]
-
-
 class _StateSpaceCycle:
     """Periodic solution of x' = A x + B u for the square wave of half period P (h = 1).
 
@@ -549,10 +521,10 @@ class _StateSpaceCycle:
         from scipy.interpolate import CubicHermiteSpline
 
         self.A, self.B, self.C, self.P = A, B, C, P
-        Phi, Gam = _phi_gamma_small(A, B, P)
+        Phi, Gam = phi_gamma_small(A, B, P)
         # symmetric periodic state at the -h -> +h switch: x(P) = -x(0)  =>  (I + Phi) x0 = -Gamma
         self.x0 = -np.linalg.solve(np.eye(A.shape[0]) + Phi, Gam)
-        Pd, Gd = _phi_gamma_small(A, B, P / n)
+        Pd, Gd = phi_gamma_small(A, B, P / n)
         xs = np.empty((n + 1, A.shape[0]))
         xs[0] = self.x0
         for k in range(n):

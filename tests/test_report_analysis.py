@@ -7,6 +7,7 @@ import re
 from dataclasses import replace
 
 import matplotlib
+import numpy as np
 import pytest
 
 from mrftcli.analyze import analyze_flight
@@ -58,8 +59,11 @@ def test_write_report(result, tmp_path):
     for png in re.findall(r"src='([^']+\.png)'", html):
         data = (tmp_path / "out" / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
-    assert len(re.findall(r"src='([^']+\.png)'", html)) == 4
+    assert len(re.findall(r"src='([^']+\.png)'", html)) == 6
     assert f"{result.tau.mean * 1e3:.4g}" in html and f"{result.Td.mean:.4g}" in html
+    # K has its unit; the amplitude the unit the CLI prints; one sentence says which uncertainty to use
+    assert "<td>m/s² per command unit</td>" in html and "amplitude [m]" in html
+    assert "Uncertainty: use the ± std and 95 % interval above" in html
     assert plt.get_fignums() == []  # every figure closed
     assert matplotlib.get_backend().lower() == "agg"
 
@@ -85,3 +89,43 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
     html = write_analysis_report(res, tmp_path / "out").read_text()
     assert "1700000" not in html
     assert f"{t1.t_start - res.t0:.1f} - {t1.t_end - res.t0:.1f}" in html
+
+
+def test_model_output_leaves_the_simulated_sensor_noise_as_residual(result):
+    """Oracle: the simulator's noise std (0.5 mm); the identified model's residual is that noise."""
+    from mrftcli.report.model_figures import plot_fit
+
+    fig = plot_fit(result)
+    n = len(result.tests)
+    assert len(fig.axes) == 2 * n
+    for ax in fig.axes[n:]:  # the residual row
+        resid = np.asarray(ax.get_lines()[0].get_ydata(), float)
+        assert np.sqrt(np.mean(resid ** 2)) == pytest.approx(0.0005, rel=0.2)
+
+
+def test_bode_is_the_closed_form_and_the_ellipse_holds_95_percent(result):
+    """Oracle: |G| and arg G of eq. (2) in closed form at the tests' frequencies; the drawn ellipse
+    holds about 95 % of the posterior draws it summarises."""
+    from matplotlib.path import Path as MplPath
+
+    from mrftcli.report.model_figures import plot_uncertainty, posterior_draws
+
+    draws, _ = posterior_draws(result)
+    assert draws.shape[0] >= 100
+    assert np.std(draws[:, 0]) == pytest.approx(result.Td.std, rel=0.5)
+    fig = plot_uncertainty(result)
+    ax_m, ax_p, ax_e = fig.axes
+    m = result.model
+    w_line, mag = (np.asarray(a, float) for a in ax_m.get_lines()[0].get_data())
+    _, ph = (np.asarray(a, float) for a in ax_p.get_lines()[0].get_data())
+    for w in (2 * np.pi * t.frequency_hz_mean for t in result.tests):
+        i = int(np.argmin(np.abs(w_line - w)))
+        wi = w_line[i]
+        closed = m.K * m.Td / (wi * np.hypot(1, m.Tp * wi) * np.hypot(1, m.Td * wi))
+        assert mag[i] == pytest.approx(20 * np.log10(closed), abs=1e-6)
+        arg = -90 - np.degrees(np.arctan(m.Tp * wi) + np.arctan(m.Td * wi) + m.tau * wi)
+        assert ph[i] == pytest.approx(arg, abs=1e-6)
+    ring = [ln for ln in ax_e.get_lines() if ln.get_label() == "95 % ellipse"][0]
+    inside = MplPath(np.column_stack(ring.get_data())).contains_points(
+        np.column_stack([draws[:, 0], draws[:, 1] * 1e3]))
+    assert 0.9 < inside.mean() < 0.99

@@ -13,6 +13,10 @@ matplotlib Figure; :func:`write_analysis_report` saves them):
    the bootstrap distribution of the estimate, with the point estimate and 95 % interval.
 4. :func:`plot_cycles` - per test, each cycle's period and amplitude against the stable-cycle
    tolerances (why a cycle was kept or left out).
+5. :func:`mrftcli.report.model_figures.plot_fit` - the model's output over the measured one, and the
+   residual.
+6. :func:`mrftcli.report.model_figures.plot_uncertainty` - Bode plot of the identified plant with its
+   95 % band, and the Td-tau correlation ellipse.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from matplotlib.ticker import ScalarFormatter
 from ..errors import InputError
 from ..progress import Progress, report
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
+from .model_figures import plot_fit, plot_uncertainty
+from .wording import gain_unit, output_unit, uncertainty_sentence
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -41,8 +47,10 @@ _TWO_PI = 2.0 * math.pi
 
 __all__ = ["plot_timeseries", "plot_manifolds", "plot_spread", "plot_cycles", "write_analysis_report"]
 
-_UNITS = {"altitude": ("m", 1.0, "altitude"), "roll": ("deg", 180.0 / math.pi, "roll"),
-          "pitch": ("deg", 180.0 / math.pi, "pitch")}
+#: the figures' output unit, scale from the output's unit and axis name, by loop (attitude drawn in deg;
+#: the tables keep the output's own unit, as the CLI and the JSON)
+_UNITS = {"altitude": ("m", 1.0, "altitude"), "x": ("m", 1.0, "x"), "y": ("m", 1.0, "y"),
+          "roll": ("deg", 180.0 / math.pi, "roll"), "pitch": ("deg", 180.0 / math.pi, "pitch")}
 
 
 def _units(result):
@@ -389,13 +397,23 @@ def _estimate_notes(result: AnalysisResult) -> list[str]:
             f"<p>Per combination of cycles ({comb['n']} combinations, as the paper's Table III): "
             f"Td {comb['Td']['mean']:.4g} &plusmn; {comb['Td']['std'] or 0:.3g} s, "
             f"tau {comb['tau']['mean'] * 1e3:.4g} &plusmn; {(comb['tau']['std'] or 0) * 1e3:.3g} ms, "
-            f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g}.</p>")
+            f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g} {esc(gain_unit(result.loop))}.</p>")
+    ref = result.refinement
+    refined = ref is not None and ref.accepted
+    if refined:
+        body.append(f"<p>The values above are the waveform refinement's (output error over every stable cycle, "
+                    f"residual {ref.residual_ratio:.2f}x the sensor noise), started from the MRFT estimate below.</p>")
+    mrft_interval = any("MRFT interval" in note for note in result.notes)
+    sentence = uncertainty_sentence(refined, mrft_interval)
+    body.append(f"<p><b>{esc(sentence[0].upper() + sentence[1:])}.</b></p>")
+    body += [f"<p class='muted'>Note: {esc(note)}</p>" for note in result.notes]
     cons = result.constraints
     paper = cons.get("paper_estimate")
     if paper and paper.get("tau") is not None:
         pv = cons.get("p_value")
+        head = "MRFT estimate (the refinement's start)" if refined else "Estimate"
         body.append(
-            f"<p>Estimate: {esc(result.estimate_method)} (chi-square {cons['chi2']:.2f} for {cons['dof']} "
+            f"<p>{head}: {esc(result.estimate_method)} (chi-square {cons['chi2']:.2f} for {cons['dof']} "
             f"degrees of freedom{'' if pv is None else f', p = {pv:.2g}'}). The UFM slices alone (the paper's "
             f"method) give Td {paper['Td']:.4g} s, tau {paper['tau'] * 1e3:.4g} ms.</p>")
     return body
@@ -412,13 +430,15 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
     figures = (("timeseries.png", plot_timeseries, "Flight and detected MRFT tests"),
                ("manifolds.png", plot_manifolds, "Manifold intersection (paper Fig. 5)"),
                ("spread.png", plot_spread, "Parameter spread"),
-               ("cycles.png", plot_cycles, "Cycles and the stable-cycle criterion"))
+               ("cycles.png", plot_cycles, "Cycles and the stable-cycle criterion"),
+               ("fit.png", plot_fit, "Model output over the measured output, and the residual"),
+               ("uncertainty.png", plot_uncertainty, "Bode plot of the identified plant with its 95 % band; "
+                                                     "Td-tau correlation"))
     written = []
     for i, (name, fn, title) in enumerate(figures):
         report(progress, i, len(figures), name)
         save_figure(fn(result), out / name)
         written.append((name, title))
-    unit, scale, _ = _units(result)
     T0 = _t0(result)
     from ..analyze import describe_t0
 
@@ -429,7 +449,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
         "<h2>Parameters</h2>",
         html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
                    [_estimate_row(result.Td, "Td", 1.0, "s"), _estimate_row(result.tau, "tau", 1e3, "ms"),
-                    _estimate_row(result.K, "K", 1.0, "")]),
+                    _estimate_row(result.K, "K", 1.0, gain_unit(result.loop))]),
     ]
     if links:
         body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
@@ -441,12 +461,12 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
                      f"{t.beta_effective:+.4f}" if math.isfinite(t.beta_effective) else "-",
                      f"{t.h:.4g}", f"{t.bias:.4g}",
                      f"{t.frequency_hz_mean:.4f}" if t.n_stable else "-",
-                     f"{t.amplitude_mean * scale:.4g}" if t.n_stable else "-",
+                     f"{t.amplitude_mean:.4g}" if t.n_stable else "-",
                      f"{t.n_stable} / {len(t.cycles)}", f"{t.rate_hz:.1f}",
                      "used" if t in result.tests else "left out"])
     body += ["<h2>Tests</h2>",
              html_table(["test", "t [s from log start]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
-                         f"amplitude [{unit}]", "stable / cycles", "rate [Hz]", ""], rows)]
+                         f"amplitude [{output_unit(result.loop)}]", "stable / cycles", "rate [Hz]", ""], rows)]
     if result.warnings:
         body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in result.warnings)
                     + "</ul>")

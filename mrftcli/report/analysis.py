@@ -400,7 +400,7 @@ def _estimate_notes(result: AnalysisResult) -> list[str]:
             f"K {comb['K']['mean']:.4g} &plusmn; {comb['K']['std'] or 0:.3g} {esc(gain_unit(result.loop))}.</p>")
     ref = result.refinement
     refined = ref is not None and ref.accepted
-    if refined:
+    if ref is not None and refined:
         body.append(f"<p>The values above are the waveform refinement's (output error over every stable cycle, "
                     f"residual {ref.residual_ratio:.2f}x the sensor noise), started from the MRFT estimate below.</p>")
     mrft_interval = any("MRFT interval" in note for note in result.notes)

@@ -6,9 +6,9 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..errors import InputError
+from ..errors import InputError, InsufficientDataError
 from .model_options import build_model, format_estimates, structure_options
-from .options import dump_json, tp_option
+from .options import controller_rate_option, dump_json, json_option, tp_option
 
 if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate, TestMeasurement
@@ -48,11 +48,11 @@ def _fmt(est: ParameterEstimate | None, scale: float = 1.0, unit: str = "") -> s
                    "phase [deg], optional standard errors (relative gain, deg; default 1 %, 0.6 deg). Repeat.")
 @click.option("--test", "tests", multiple=True, metavar="BETA:FREQ_HZ[:AMPLITUDE:H]",
               help="One MRFT test: beta and frequency [Hz], optionally amplitude and relay height. Repeat (>= 2).")
-@click.option("--rate", "rate_hz", type=float, default=None,
-              help="Relay rate [Hz]: removes the half-sample switching lag from tau (nominal betas).")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+@controller_rate_option("rate_hz", detail="at which the relay decided: removes the half-sample switching lag "
+                                           "from tau (nominal betas; default: a continuous relay).")
+@json_option()
 def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...],
-             points: tuple[str, ...], tests: tuple[str, ...], rate_hz: float | None, as_json: bool) -> None:
+             points: tuple[str, ...], tests: tuple[str, ...], rate_hz: float | None, json_target: str | None) -> None:
     """Identify Td, tau (and K when amplitudes are given) from two or more MRFT tests.
 
     With --model fopdt|sopdt|ipdt|foipdt: the process model's unknown parameters from measured points
@@ -63,16 +63,23 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
     from ..mrft.identify import identify as run
 
     if model_name != "soiptd":
-        _identify_process(model_name, params, ranges, points, tests, as_json)
+        _identify_process(model_name, params, ranges, points, tests, json_target)
         return
     if Tp is None or not tests or points or params or ranges:
         raise click.UsageError("--model soiptd takes --tp and two or more --test BETA:FREQ_HZ[:AMPLITUDE:H] "
                                "(--point, --param and --range are for process models)")
 
     measured = [_parse_test(t) for t in tests]
-    result = run(measured, Tp, rate_hz=rate_hz)
-    if as_json:
-        dump_json(result.to_dict(), None)
+    try:
+        result = run(measured, Tp, rate_hz=rate_hz)
+    except InputError as err:
+        if len({t.beta for t in measured}) < 2:
+            # tests given but too few to determine Td and tau: the documented exit code 6, not a bad option
+            raise InsufficientDataError(str(err)) from None
+        raise
+    if json_target:
+        dump_json(result.to_dict(), json_target)
+    if json_target == "-":
         return
     click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {Tp:g} s (known)  [{result.method}]")
     click.echo(f"{'Td':<4} {_fmt(result.Td, 1.0, ' s')}")
@@ -108,7 +115,7 @@ def _parse_point(text: str) -> ResponsePoint:
 
 
 def _identify_process(model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], points: tuple[str, ...],
-                      tests: tuple[str, ...], as_json: bool) -> None:
+                      tests: tuple[str, ...], json_target: str | None) -> None:
     """``identify --model NAME --point ...``."""
     from ..mrft.identify_lti import identify_lti
 
@@ -117,8 +124,9 @@ def _identify_process(model_name: str, params: tuple[str, ...], ranges: tuple[st
                                "(measured on a log by analyze --model); --test is for --model soiptd")
     model = build_model(model_name, params, ranges)
     result = identify_lti(model, [_parse_point(p) for p in points])
-    if as_json:
-        dump_json(result.to_json(), None)
+    if json_target:
+        dump_json(result.to_json(), json_target)
+    if json_target == "-":
         return
     click.echo(f"model {model.family}: G(s) = {model.structure}  [direct fit to {len(points)} point(s)]")
     click.echo("\n".join(format_estimates(result)))

@@ -19,7 +19,25 @@ from ..progress import Progress
 from ..validate import TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress",
-           "check_output_file", "check_output_dir"]
+           "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
+           "HZ", "SHARED_HELP"]
+
+#: Words each shared option's help contains: one wording wherever the option appears
+#: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
+SHARED_HELP: dict[str, str] = {
+    "--json": "Write the result as JSON to FILE, or to stdout with '-'",
+    "--controller-rate": "Controller rate [Hz]",
+    "--quiet": "No progress bar",
+    "--min-cycles": "stable cycles",
+    "--loop": "Loop",
+    "--format": "Log format",
+    "--time-unit": "Unit of a CSV's time column",
+    "--report": "to DIR",
+    "--tp": "time constant Tp [s]",
+}
+
+#: A rate in Hz: a positive, finite number (every ``--controller-rate``).
+HZ = click.FloatRange(0, None, min_open=True)
 
 
 def dump_json(obj: Any, target: str | None) -> None:
@@ -38,6 +56,60 @@ def dump_json(obj: Any, target: str | None) -> None:
         write_text_atomic(target, text + "\n")
     except OSError as err:
         raise InputError(f"--json {target}: cannot write ({err.strerror or err}); choose a writable path") from None
+
+
+def json_option(dest: str = "json_target", *, what: str = "result"):
+    """``--json FILE|-``: the one JSON output option of every command.
+
+    A bare ``--json`` (the old flag of identify, predict, simulate, topics and batch) means ``-``, stdout,
+    so scripts written for the flag keep working. Give ``-`` explicitly before a positional argument
+    (``--json - LOG``): click takes the next word as FILE.
+    """
+    return click.option("--json", dest, metavar="FILE|-", is_flag=False, flag_value="-", default=None,
+                        help=f"{SHARED_HELP['--json']} (a bare --json is '-'); '-' prints no table. "
+                             f"Holds the {what}.")
+
+
+def quiet_option():
+    """``-q/--quiet``: no progress bar, on every command that draws one (output otherwise the same)."""
+    return click.option("-q", "--quiet", "quiet", is_flag=True,
+                        help=f"{SHARED_HELP['--quiet']} (the output is otherwise the same).")
+
+
+def _deprecated_rate(dest: str, default: float | None):
+    """The hidden ``--rate`` alias: says it is deprecated (one line on stderr) and hands its value on."""
+
+    def take(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+        if value is not None:
+            click.echo("note: --rate is deprecated; use --controller-rate HZ (same meaning)", err=True)
+            ctx.meta[f"mrftcli.rate_alias.{dest}"] = value
+        return value
+
+    def merge(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+        alias = ctx.meta.get(f"mrftcli.rate_alias.{dest}")
+        if alias is not None and value is not None:
+            raise click.BadParameter("give --controller-rate only (--rate is its deprecated name)")
+        # the default is applied here, not by click, so that a given --rate is told from the default
+        return value if value is not None else alias if alias is not None else default
+
+    # eager: the alias is processed before --controller-rate whatever the order on the command line
+    alias = click.option("--rate", type=HZ, default=None, hidden=True, expose_value=False, is_eager=True,
+                         callback=take)
+    return alias, merge
+
+
+def controller_rate_option(dest: str = "controller_rate_hz", *, default: float | None = None,
+                           detail: str = "(default: the rate the log records)."):
+    """``--controller-rate HZ`` (and the hidden, deprecated ``--rate``): the rate the controller runs at."""
+    alias, merge = _deprecated_rate(dest, default)
+    main = click.option("--controller-rate", dest, type=HZ, default=None,
+                        show_default=f"{default:g}" if default is not None else False,
+                        metavar="HZ", callback=merge, help=f"{SHARED_HELP['--controller-rate']} {detail}")
+
+    def decorate(func):
+        return main(alias(func))
+
+    return decorate
 
 
 def _writable_dir(folder: Path, option: str, what: Path) -> None:
@@ -146,12 +218,12 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
                             help="Loop to identify; repeat for several (default: altitude; overrides the config).")
     else:
         loop = click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True,
-                            help="Which loop the log's MRFT tests excite.")
+                            help="Loop the log's MRFT tests excite.")
     options = [
         loop,
         click.option("--layout", type=click.Choice(LAYOUT_NAMES), default=None,
                      help="Where the flight stack records the loop (default: recognised from the topics; "
-                          "see docs/log-layouts.md)."),
+                          "see docs/log-layout.md)."),
         click.option("--command-topic", metavar="TOPIC[:FIELD]", default=None,
                      help="Command the MRFT block sent (default: the layout's, /mrft/command)."),
         click.option("--output-topic", metavar="TOPIC[:FIELD]", default=None,
@@ -165,10 +237,8 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
                           "e.g. 0.0174533 for degrees)."),
         click.option("--command-scale", type=float, default=None, callback=_scale,
                      help="Factor applied to the command (default: the layout's, 1 or -1 for PX4's thrust)."),
-        click.option("--controller-rate", "controller_rate_hz", type=click.FloatRange(0, None, min_open=True),
-                     default=None, metavar="HZ",
-                     help="Rate at which the relay decided, when the log records the command more slowly "
-                          "(default: the layout's, 50 Hz for px4-mrft)."),
+        controller_rate_option(detail="at which the relay decided, when the log records the command more "
+                                      "slowly (default: the layout's, 50 Hz for px4-mrft)."),
     ]
     if not config_defaults:
         options.append(click.option(

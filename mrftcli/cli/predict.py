@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from .model_options import build_model, structure_options
-from .options import BETA, dump_json, tp_option
+from .options import BETA, controller_rate_option, dump_json, json_option, tp_option
 
 
 @click.command("predict")
@@ -18,14 +18,14 @@ from .options import BETA, dump_json, tp_option
 @click.option("--k", "K", type=float, default=1.0, show_default=True, help="Gain K (K*Td = rate gain).")
 @click.option("--beta", type=BETA, required=True, help="MRFT parameter beta in (-1, 1).")
 @click.option("--h", type=float, default=1.0, show_default=True, help="Relay amplitude h [command units].")
-@click.option("--rate", "rate_hz", type=float, default=None, help="Relay rate [Hz] (sampled relay); default continuous.")
-@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
+@controller_rate_option("rate_hz", detail="at which the relay decides (a sampled relay; default: continuous).")
+@json_option()
 def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float,
             Td: float | None, tau: float | None, K: float, beta: float, h: float, rate_hz: float | None,
-            as_json: bool) -> None:
+            json_target: str | None) -> None:
     """Predict the MRFT limit cycle (frequency in Hz, amplitude) of G(s) = K Td e^{-tau s}/(s(Tp s+1)(Td s+1)).
 
-    Exact (LPRS) for the continuous relay. With --rate, the centre of the band of limit cycles of the
+    Exact (LPRS) for the continuous relay. With --controller-rate, the centre of the band of limit cycles of the
     sampled relay and every admissible sampled orbit. The describing-function estimate is shown for
     comparison.
     """
@@ -34,7 +34,7 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     from ..mrft.model import LoopModel
 
     if model_name != "soiptd":
-        _predict_process(model_name, params, ranges, eps, beta, h, rate_hz, as_json)
+        _predict_process(model_name, params, ranges, eps, beta, h, rate_hz, json_target)
         return
     if Tp is None or Td is None or tau is None or params or ranges or eps:
         raise click.UsageError("--model soiptd takes --tp, --td and --tau (--param, --range and --eps are for "
@@ -46,8 +46,9 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     out = lc.to_dict()
     out.update({"model": {"Tp": Tp, "Td": Td, "tau": tau, "K": K},
                 "describing_function": {"frequency_hz": df_f, "amplitude": df_a}})
-    if as_json:
-        dump_json(out, None)
+    if json_target:
+        dump_json(out, json_target)
+    if json_target == "-":
         return
     rows = [
         ("model", f"Tp={Tp:g} s  Td={Td:g} s  tau={tau:g} s  K={K:g} [output units/s² per command unit]"),
@@ -66,7 +67,7 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
 
 
 def _predict_process(model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float, beta: float,
-                     h: float, rate_hz: float | None, as_json: bool) -> None:
+                     h: float, rate_hz: float | None, json_target: str | None) -> None:
     """``predict --model NAME --param K=.. --param tau=.. ...``: the exact cycle under an MRFT or a hysteresis relay."""
     from ..errors import InputError
     from ..mrft.relays import RelayLaw
@@ -80,8 +81,9 @@ def _predict_process(model_name: str, params: tuple[str, ...], ranges: tuple[str
     relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
     lc = relay.limit_cycle(model, rate_hz)
     out = {**lc.to_dict(), "model": model.to_json(), "relay": relay.to_json()}
-    if as_json:
-        dump_json(out, None)
+    if json_target:
+        dump_json(out, json_target)
+    if json_target == "-":
         return
     values = "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())
     click.echo(f"model      {model.family}: G(s) = {model.structure};  {values}")

@@ -57,7 +57,7 @@ def test_build_ufm(tmp_path):
         (("predict", "--tp", "0.1", "--td", "0.7", "--tau", "-0.06", "--beta", "-0.4"), 2, "tau"),
         (("predict", "--tp", "-0.1", "--td", "0.7", "--tau", "0.06", "--beta", "-0.4"), 2, "Tp"),
         (("predict", "--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "-0.4", "--h", "0"), 2, "h"),
-        (("identify", "--tp", "0.1", "--test", "-0.4:0.7"), 2, "two tests"),
+        (("identify", "--tp", "0.1", "--test", "-0.4:0.7"), 6, "two tests"),  # too few tests: exit 6 (issue 25)
         (("identify", "--tp", "0.1", "--test", "-0.4:0.7", "--test", "-0.7:0.5"), 5, "do not intersect"),
         (("identify", "--tp", "0.3", "--test", "0.3:40", "--test", "-0.7:50"), 5, "too fast"),
         (("identify", "--tp", "0.1", "--test", "1.4:0.7", "--test", "-0.7:1.0"), 2, "beta"),

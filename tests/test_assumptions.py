@@ -131,3 +131,23 @@ def test_the_right_tp_gets_no_tp_warning():
     proc = run("analyze", "sample_logs/design1_altitude.mcap", "--tp", repr(truth["Tp"]), "--loop", "altitude",
                "--json", "-")
     assert proc.returncode == 0 and not any("fits Tp" in w for w in json.loads(proc.stdout)["warnings"])
+
+
+# item 4: diagnose says how its linear model relates to analyze's, which refit to take, and units
+
+def test_diagnose_names_analyzes_model_one_estimate_and_units():
+    proc = run("diagnose", "sample_logs/concealed/flight_02.mcap", "--tp", "0.0422", "--loop", "altitude")
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "analyze's model of this log" in out and "differ by that choice of data" in out
+    assert out.count("<- the estimate to use") == 1  # one recommended estimate for the one effect found
+    assert "T_lag = 0.0703 s" in out  # the candidate's parameter with its unit
+    for line in out.splitlines():
+        if line.lstrip().startswith(("linear model", "analyze's model", "refit")):
+            assert "m/s² per command unit" in line, line
+    truth = json.loads((SAMPLES / "concealed" / "flight_02.mcap.truth.json").read_text()) \
+        if (SAMPLES / "concealed" / "flight_02.mcap.truth.json").exists() else None
+    if truth is not None and "Td" in truth:  # the recommended estimate against the simulator's plant
+        rec = next(line for line in out.splitlines() if "<- the estimate to use" in line)
+        Td = float(rec.split("Td ")[1].split(" s")[0])
+        assert Td == pytest.approx(truth["Td"], rel=0.05)

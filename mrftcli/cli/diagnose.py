@@ -8,9 +8,11 @@ from typing import TYPE_CHECKING
 import click
 
 from ..diagnose.physics import BY_NAME
+from ..report.wording import gain_unit, output_unit
 from .options import check_output_dir, check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
 
 if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
     from ..diagnose.records import DiagnosisResult
 
 
@@ -18,8 +20,56 @@ def _g(x: float | None, fmt: str = ".4g") -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
-def format_summary(result: DiagnosisResult) -> str:
-    """The terminal summary of a :class:`~mrftcli.diagnose.records.DiagnosisResult`."""
+def _unit(name: str, loop: str) -> str:
+    """A candidate parameter's unit in the loop's output unit ("-" for a ratio)."""
+    unit = BY_NAME[name].unit
+    return "-" if unit in ("", "1", "-") else unit.replace("output unit", output_unit(loop))
+
+
+def _model_lines(result: DiagnosisResult, analysis: AnalysisResult | None) -> list[str]:
+    """The linear model with units, and analyze's model of the same log with the reason they differ
+    (issue 26: one model per log across commands, or the reason in the output)."""
+    k_unit = gain_unit(result.loop)
+    lin = result.identification.get("linear", {})
+    spans = ", ".join(f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}" for t in result.tests)
+    lines = [f"linear model fitted to the stable cycles diagnose uses ({spans} s): Td {_g(lin.get('Td'))} s  "
+             f"tau {_g(1e3 * lin['tau'] if 'tau' in lin else None)} ms  K {_g(lin.get('K'))} {k_unit}"]
+    if analysis is None:
+        return lines
+    how = "waveform refinement" if analysis.method == "waveform" else "MRFT estimate"
+    a_spans = ", ".join(f"{t.t_start - analysis.t0:.1f}-{t.t_end - analysis.t0:.1f}" for t in analysis.tests)
+    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): Td {analysis.Td.mean:.4g} s  "
+                 f"tau {1e3 * analysis.tau.mean:.4g} ms  K {abs(analysis.K.mean):.4g} {k_unit}: "
+                 + ("it leaves out the effect found below: take the estimate marked there" if result.effects else
+                    "the model to use")
+                 + "; diagnose refits the linear model to the cycles it compares the candidates on (the stable "
+                   "cycles above, by their features), so the two differ by that choice of data")
+    return lines
+
+
+def _effect_lines(result: DiagnosisResult) -> list[str]:
+    """Each effect found with its refits, one of them marked as the estimate to take, with units."""
+    k_unit = gain_unit(result.loop)
+    lines = []
+    for e in result.effects:
+        cand = BY_NAME[e.name]  # its parameter's name
+        lines.append(f"found: {e.name}: {e.explanation}")
+        w = e.identification.get("with_effect", {})
+        wf = result.identification.get(f"waveform_with_{e.name}")
+        lines.append(f"  refit to the cycles with {e.identification.get('model', e.name)}: Td {_g(w.get('Td'))} s  "
+                     f"tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms  K {_g(w.get('K'))} {k_unit}"
+                     + ("" if wf else "  <- the estimate to use"))
+        if wf:
+            lines.append(f"  refit to the recorded waveform: {cand.parameter} = {_g(wf['value'])} {_unit(e.name, result.loop)}  "
+                         f"Td {_g(wf['Td'])} s  tau {_g(1e3 * wf['tau'])} ms  K {_g(wf['K'])} {k_unit}  "
+                         "<- the estimate to use (every sample, as analyze's refinement; the cycle refit is what "
+                         "the selection compared)")
+    return lines
+
+
+def format_summary(result: DiagnosisResult, analysis: AnalysisResult | None = None) -> str:
+    """The terminal summary of a :class:`~mrftcli.diagnose.records.DiagnosisResult` (with ``analysis``,
+    analyze's model of the same log beside the diagnosis' linear model)."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
@@ -30,22 +80,20 @@ def format_summary(result: DiagnosisResult) -> str:
         span = f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}"
         lines.append(f"{t.index + 1:>4} {span:>11} {nom:>8} {beff:>+9.3f} "
                      f"{t.h:>9.4g} {t.cycles:>6d}")
-    lin = result.identification.get("linear", {})
-    lines.append(f"linear model fitted to the cycles: Td {_g(lin.get('Td'))} s  tau {_g(1e3 * lin['tau'] if 'tau' in lin else None)} ms"
-                 f"  K {_g(lin.get('K'))}")
+    lines += _model_lines(result, analysis)
     lines.append("candidates (found = delta BIC > 10 and better on the held-out cycles; held-out error = RMS of\n"
                  "the held-out cycles' misfit over their amplitude, without and with the effect):")
-    lines.append(f"  {'effect':<20} {'parameter':>22} {'delta BIC':>10} {'held-out error':>22}")
+    lines.append(f"  {'effect':<20} {'parameter [unit]':>38} {'delta BIC':>10} {'held-out error':>22}")
     for c in result.candidates:
         if c.delta_bic is None:
-            lines.append(f"  {c.name:<20} {'(' + str(c.status) + ')':>22}")
+            lines.append(f"  {c.name:<20} {'(' + str(c.status) + ')':>38}")
             continue
-        par = f"{c.parameter} = {_g(c.value)}"
+        par = f"{c.parameter} = {_g(c.value)} {_unit(c.name, result.loop)}"
         b = c.held_out_before.nrmse_raw if c.held_out_before is not None else None
         a = c.held_out_after.nrmse_raw if c.held_out_after is not None else None
         mark = "  <- found" if any(e.name == c.name and e.evidence.compared_with == "linear"
                                    for e in result.effects) else ""
-        lines.append(f"  {c.name:<20} {par:>22} {c.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+        lines.append(f"  {c.name:<20} {par:>38} {c.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
     pairs = result.second_effect_candidates
     if pairs:
         anchors = list(dict.fromkeys(c.with_ for c in pairs))
@@ -55,25 +103,17 @@ def format_summary(result: DiagnosisResult) -> str:
             if pc.delta_bic is None:
                 continue
             label = pc.name if len(anchors) == 1 else f"{pc.name} (with {pc.with_})"
-            par = f"{pc.parameter} = {_g(pc.values.get(pc.name))}"
+            par = f"{pc.parameter} = {_g(pc.values.get(pc.name))} {_unit(pc.name, result.loop)}"
             b = pc.held_out_before.nrmse_raw if pc.held_out_before is not None else None
             a = pc.held_out_after.nrmse_raw if pc.held_out_after is not None else None
             mark = "  <- found" if any(e.name == pc.name for e in result.effects) else ""
-            lines.append(f"  + {label:<18} {par:>22} {pc.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
+            lines.append(f"  + {label:<18} {par:>38} {pc.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
         if probed:
             # the rows' status carries the threshold ("not fitted: its probe lowers chi^2 by less than N")
             why = str(probed[0].status).replace("its probe", "each one's probe")
             lines.append(f"  {why} beside {probed[0].with_}: " + ", ".join(c.name for c in probed))
     if result.effects:
-        for e in result.effects:
-            lines.append(f"found: {e.name}: {e.explanation}")
-            w = e.identification.get("with_effect", {})
-            lines.append(f"  refit with {e.identification.get('model', e.name)}: Td {_g(w.get('Td'))} s  tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms"
-                         f"  K {_g(w.get('K'))}")
-            wf = result.identification.get(f"waveform_with_{e.name}")
-            if wf:
-                lines.append(f"  on the recorded waveform: {BY_NAME[e.name].parameter} = {_g(wf['value'])} "
-                             f"{BY_NAME[e.name].unit}  Td {_g(wf['Td'])} s  tau {_g(1e3 * wf['tau'])} ms  K {_g(wf['K'])}")
+        lines += _effect_lines(result)
     elif result.unexplained is None:
         lines.append("found: nothing: the linear model explains the log")
     if result.unexplained is not None:
@@ -124,7 +164,14 @@ def diagnose(log, Tp, json_target, report_dir, **read_options):
     if json_target:
         dump_json(result.to_dict(), json_target)
     if not to_stdout:
-        click.echo(format_summary(result))
+        from ..analyze import analyze_flight
+        from ..errors import MrftError
+
+        try:  # analyze's model of the same log, beside the diagnosis' own (about 1 s)
+            analysis: AnalysisResult | None = analyze_flight(flight, Tp)
+        except MrftError:
+            analysis = None
+        click.echo(format_summary(result, analysis))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     if report_dir:

@@ -34,6 +34,7 @@ baseline; with ``--heavy``, CPU, peak memory and the ratio per heavy bag.
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
 import resource
 import struct
@@ -292,9 +293,12 @@ def heavy_bags(sizes: list[float], seed: int, before: Path | None = None) -> Non
             finally:
                 size = path.stat().st_size / 1e9 if path.exists() else float("nan")
                 path.unlink(missing_ok=True)
-            for got in (out, out_cut):
+            for what, got in (("", out), (" cut before its summary", out_cut)):
                 if got.replace(str(path), "LOG") != out_light.replace(str(light), "LOG"):
-                    raise SystemExit(f"MISMATCH: analyze on the {gb:g} GB bag differs from the light bag")
+                    diff = difflib.unified_diff(out_light.replace(str(light), "LOG").splitlines(),
+                                                got.replace(str(path), "LOG").splitlines(), lineterm="")
+                    raise SystemExit(f"MISMATCH: analyze on the {gb:g} GB bag{what} differs from the light "
+                                     "bag:\n" + "\n".join(diff))
             base = cpu_lib + cpu_light
             print(f"{size:7.2f}G {cpu:15.2f} {mem:9.0f} {cpu_lib:17.2f} {mem_lib:9.0f} {base:16.2f} "
                   f"{cpu / base:5.2f}x   summary cut: {cpu_cut:.2f} s CPU, {mem_cut:.0f} MB peak"

@@ -11,7 +11,7 @@ from ..errors import InputError
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
-from .options import dump_json, tp_option, tqdm_progress
+from .options import controller_rate_option, dump_json, json_option, quiet_option, tp_option, tqdm_progress
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
 
@@ -83,7 +83,7 @@ def _format_of(path: Path, fmt: str | None) -> str:
 @click.option("--td", type=float, required=True, help="Drag time constant Td [s].")
 @click.option("--tau", type=float, required=True, help="Transport delay tau [s].")
 @click.option("--k", "k", type=float, default=1.0, show_default=True, help="Gain K (K*Td: command -> output rate).")
-@click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True, help="Which loop.")
+@click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True, help="Loop to simulate.")
 @click.option(
     "--test",
     "tests",
@@ -93,7 +93,7 @@ def _format_of(path: Path, fmt: str | None) -> str:
     help="One MRFT test (repeat for more). H [command units] defaults to the relay height for which "
     "the describing function predicts --amplitude; DURATION [s] to 14 predicted periods + 2 s.",
 )
-@click.option("--rate", type=float, default=200.0, show_default=True, help="Controller rate [Hz].")
+@controller_rate_option("rate", default=200.0, detail="at which the simulated relay decides and the log is stamped.")
 @click.option("--noise", type=float, default=None, help="Output noise std [m or rad]; default 0.0005 m / 0.05 deg.")
 @click.option("--amplitude", type=float, default=None, help="Planned amplitude for tests without H [m or rad]; default 0.05 m / 5 deg.")
 @click.option("--bias", type=float, default=None, help="Hover command; default 0.5 (altitude) / 0 (roll, pitch).")
@@ -117,12 +117,13 @@ def _format_of(path: Path, fmt: str | None) -> str:
     help="Add an effect: input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, "
     "delay_jitter (and delay_jitter_correlation, battery_voltage). See docs/simulator.md.",
 )
-@click.option("--format", "fmt", default=None, help="Log format (default: from the file name): mcap, mcap-json, bag, ros2-sqlite3, ros2-mcap, ulog, csv.")
+@click.option("--format", "fmt", default=None, metavar="FMT", help="Log format to write (default: from the file name): mcap, mcap-json, bag, ros2-sqlite3, ros2-mcap, ulog, csv.")
 @click.option("--out", "out", required=True, type=click.Path(dir_okay=True, path_type=Path), help="Log to write; the sidecar goes to OUT.truth.json.")
-@click.option("--json", "as_json", is_flag=True, help="Print the ground truth and paths as JSON.")
+@json_option(what="ground truth and the paths written")
+@quiet_option()
 def simulate(
     tp, td, tau, k, loop, tests, rate, noise, amplitude, bias, setpoint, hover_s, hold_s, switching,
-    seed, start_time, effects, fmt, out, as_json,
+    seed, start_time, effects, fmt, out, json_target, quiet,
 ) -> None:
     """Simulate a closed-loop MRFT flight on G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)).
 
@@ -140,7 +141,7 @@ def simulate(
     if fmt is not None and fmt not in FORMATS:
         raise InputError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
     fmt = _format_of(out, fmt)
-    check_positive("--rate (a frequency in Hz)", rate)
+    check_positive("--controller-rate (a frequency in Hz)", rate)
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     effect_values = dict(parse_effect(text) for text in effects)  # every option checked before planning
@@ -184,7 +185,7 @@ def simulate(
 
     total_s = hover_s + sum(t.duration + hold_s for t in specs)
     # a bar only for flights long enough to wait for (and only on a terminal)
-    with tqdm_progress("simulating", unit="tick", enabled=total_s > 120) as progress:
+    with tqdm_progress("simulating", unit="tick", enabled=total_s > 120 and not quiet) as progress:
         flight = simulate_flight(spec, progress=progress)
     sidecar = write_flight(flight, out, fmt)
     for i, test in enumerate(flight.truth["tests"], 1):
@@ -195,8 +196,9 @@ def simulate(
                 "noise-triggered switch); use a larger H, less --noise or --switching hear",
                 err=True,
             )
-    if as_json:
-        dump_json({"log": str(out), "format": fmt, "sidecar": str(sidecar), "truth": flight.truth}, None)
+    if json_target:
+        dump_json({"log": str(out), "format": fmt, "sidecar": str(sidecar), "truth": flight.truth}, json_target)
+    if json_target == "-":
         return
     truth = flight.truth
     click.echo(f"wrote {out} ({fmt}, {truth['duration']:.1f} s at {rate:g} Hz) and {sidecar}")

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import click
 
-from .options import dump_json
+from ..io import READ_FORMATS
+
+from .options import dump_json, json_option
 
 __all__ = ["topics"]
 
@@ -18,11 +20,10 @@ def _rate(value: float | None) -> str:
 @click.command("topics")
 @click.argument("log", type=click.Path(exists=False, dir_okay=True))
 @click.option("--format", "fmt", default=None, metavar="FMT",
-              help="Log format (mcap, mcap-json, bag, ros2-sqlite3, ros2-mcap, ulog, csv, dataflash); "
-                   "detected from the file when omitted.")
+              help=f"Log format (default: detected from the file): {', '.join(READ_FORMATS)}.")
 @click.option("--fields", is_flag=True, help="Also list each topic's numeric fields.")
-@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
-def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
+@json_option(what="topics, the format and the layout")
+def topics(log: str, fmt: str | None, fields: bool, json_target: str | None) -> None:
     """List the topics of LOG with message types, counts and mean rates.
 
     For ULog the topics are the logged messages (``name.N`` for instance N), for CSV the columns, for
@@ -40,7 +41,7 @@ def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
             from ..errors import LogReadError
 
             raise LogReadError(f"{log}: the log holds no messages (empty or cut off early)")
-    if as_json:
+    if json_target:
         dump_json({
             "path": log,
             "format": fmt_name,
@@ -48,7 +49,8 @@ def topics(log: str, fmt: str | None, fields: bool, as_json: bool) -> None:
             "topics": [{"name": i.name, "type": i.msgtype, "count": i.count, "rate_hz": i.rate_hz,
                         "fields": list(i.fields)} for i in infos],
             "warnings": warnings,
-        }, None)
+        }, json_target)
+    if json_target == "-":
         return
     rows = [(i.name, i.msgtype, str(i.count), _rate(i.rate_hz)) for i in infos]
     head = ("topic", "type", "count", "rate_hz")

@@ -2,20 +2,34 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ._common import ensure_dir, html_page, html_table, new_figure, save_figure
+from ..errors import InputError
+from ..jsonable import to_jsonable
+from ._common import ensure_dir, esc, html_page, html_table, new_figure, save_figure
+from .wording import gain_unit, output_unit
 
 if TYPE_CHECKING:
-    from ..tune.design import TuneResult
+    from ..tune.design import Design, TuneResult
 
-__all__ = ["write_tune_report", "plot_bode", "plot_steps"]
+__all__ = ["write_tune_report", "plot_bode", "plot_steps", "recommended_design"]
 
 _COLOURS = {"mrft-rule": "#D55E00", "model-based": "#0072B2", "robust": "#009E73"}
+
+
+def _phase_on_margin_branch(w: np.ndarray, L: np.ndarray, w_gc: float, pm_deg: float) -> np.ndarray:
+    """arg L [deg] unwrapped along ``w`` and shifted by whole turns so that it passes through -180 + PM at the
+    gain crossover (``np.angle`` starts a loop with two integrators on the +180 branch)."""
+    ph = np.degrees(np.unwrap(np.angle(L)))
+    if math.isfinite(w_gc) and math.isfinite(pm_deg):
+        i = int(np.argmin(np.abs(np.log(w / w_gc))))
+        return ph - 360.0 * np.round((ph[i] - (-180.0 + pm_deg)) / 360.0)
+    return ph - 360.0 * np.ceil(ph[0] / 360.0)  # no crossover: start in (-360, 0]
 
 
 def plot_bode(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
@@ -31,11 +45,18 @@ def plot_bode(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
             continue
         L = d.controller.feedback_response(w) * Gd
         col = _COLOURS.get(d.name)
-        a1.semilogx(w, 20 * np.log10(np.abs(L)), color=col, label=f"{d.name} (PM {d.margins.phase_margin_deg:.0f} deg, "
-                    f"GM {20 * math.log10(d.margins.gain_margin):.1f} dB, DM {d.margins.delay_margin_s * 1e3:.0f} ms)")
-        a2.semilogx(w, np.degrees(np.unwrap(np.angle(L))), color=col)
-        if math.isfinite(d.margins.w_gc):
-            a2.plot([d.margins.w_gc], [-180 + d.margins.phase_margin_deg], "o", color=col)
+        g = d.margins
+        a1.semilogx(w, 20 * np.log10(np.abs(L)), color=col, label=f"{d.name} (PM {g.phase_margin_deg:.0f} deg, "
+                    f"GM {20 * math.log10(g.gain_margin):.1f} dB, DM {g.delay_margin_s * 1e3:.0f} ms)")
+        a2.semilogx(w, _phase_on_margin_branch(w, L, g.w_gc, g.phase_margin_deg), color=col)
+        if math.isfinite(g.w_gc) and math.isfinite(g.phase_margin_deg):
+            # the margin drawn where it is read: from -180 deg up to the phase at the gain crossover
+            a1.plot([g.w_gc], [0.0], "o", color=col)
+            a2.plot([g.w_gc, g.w_gc], [-180.0, -180.0 + g.phase_margin_deg], color=col, lw=2.5)
+            a2.plot([g.w_gc], [-180 + g.phase_margin_deg], "o", color=col)
+        if math.isfinite(g.w_pc) and math.isfinite(g.gain_margin) and g.gain_margin > 0:
+            a1.plot([g.w_pc, g.w_pc], [0.0, -20 * math.log10(g.gain_margin)], color=col, lw=2.5)
+            a2.plot([g.w_pc], [-180.0], "s", color=col, ms=4)
     a1.axhline(0, color="k", lw=0.8)
     a2.axhline(-180, color="k", lw=0.8)
     a1.set_ylabel("|L| [dB]")
@@ -75,26 +96,70 @@ def plot_steps(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path
     return save_figure(fig, path)
 
 
+#: below this phase margin a loop rings and a small model error destabilises it (the usual 30-60 deg design range)
+_PM_MIN_DEG = 30.0
+
+
+def recommended_design(result: TuneResult) -> tuple[str, str]:
+    """The design and kind ``tune`` exports when no ``--design``/``--kind`` is given: robust (else
+    model-based), PD (else the first kind designed)."""
+    names = {d.name for d in result.designs}
+    kinds = [d.kind for d in result.designs]
+    name = "robust" if "robust" in names else "model-based"
+    return name, "PD" if "PD" in kinds else (kinds[0] if kinds else "PD")
+
+
+def _flag(d: Design, ms_max: float) -> str:
+    """Why a design should not be flown as it is (Ms over the bound, PM under 30 deg), else 'yes'."""
+    why = []
+    if not math.isfinite(d.margins.Ms) or d.margins.Ms > ms_max * 1.001:
+        why.append(f"Ms {d.margins.Ms:.1f} > {ms_max:g}")
+    if not math.isfinite(d.margins.phase_margin_deg) or d.margins.phase_margin_deg < _PM_MIN_DEG:
+        why.append(f"PM {d.margins.phase_margin_deg:.1f} deg < {_PM_MIN_DEG:g} deg")
+    return "NO: " + ", ".join(why) if why else "yes"
+
+
+def _recommended_section(result: TuneResult, name: str, kind: str) -> str:
+    """The design tune exports by default and its generic export (the controller as JSON)."""
+    try:
+        d = result.get(name, kind)
+    except (KeyError, ValueError, InputError):
+        return "<p>No robust or model-based design to recommend.</p>"
+    c = d.controller
+    y = output_unit(result.loop)
+    export = json.dumps({"design": name, "kind": kind, **to_jsonable(c.to_dict())}, indent=2)
+    return (f"<h2>Recommended: {esc(name)} {esc(kind)}</h2>"
+            f"<p>The design <code>tune</code> exports without <code>--design</code>/<code>--kind</code>: "
+            f"Kp {c.Kp:.5g} cmd/{y}, Ki {c.Ki:.5g} cmd/({y} s), Kd {c.Kd:.5g} cmd s/{y}, Tf {c.Tf * 1e3:.4g} ms "
+            f"at {c.rate_hz:g} Hz; PM {d.margins.phase_margin_deg:.1f} deg, Ms {d.margins.Ms:.2f}. "
+            f"Its generic export (<code>tune --export generic</code>):</p><pre>{esc(export)}</pre>")
+
+
 def write_tune_report(result: "TuneResult", out_dir: str | Path) -> Path:
     """Write bode_<kind>.png, steps_<kind>.png and index.html to ``out_dir``; returns the index path."""
     out = ensure_dir(out_dir)
     body = [f"<p>Model Tp {result.model.Tp:g} s, Td {result.model.Td:.4g} s, tau {result.model.tau * 1e3:.4g} ms, "
-            f"K {result.model.K:.4g}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
+            f"K {result.model.K:.4g} {gain_unit(result.loop)}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
             f"{result.ms_max:g}.</p>"]
     if result.rate_filter is not None:  # an export's design: Tf is replaced by the stack's filter
         f = result.rate_filter
         body.append(f"<p>Derivative through the stack's rate filter ({f.parameter or 'rate filter'}: 2nd-order "
                     f"Butterworth at {f.cutoff_hz:g} Hz), not Tf; every figure and plot includes it.</p>")
+    name, kind = recommended_design(result)
     rows = []
     for d in result.designs:
         w = d.posterior.get("worst", {}) if d.posterior else {}
-        rows.append([d.name, d.kind, f"{d.controller.Kp:.4g}", f"{d.controller.Ki:.4g}", f"{d.controller.Kd:.4g}",
+        label = f"{d.name} (recommended)" if (d.name, d.kind) == (name, kind) else d.name
+        rows.append([label, d.kind, f"{d.controller.Kp:.4g}", f"{d.controller.Ki:.4g}", f"{d.controller.Kd:.4g}",
                      f"{d.controller.Tf * 1e3:.2f}", f"{d.margins.phase_margin_deg:.1f}",
                      f"{d.margins.delay_margin_s * 1e3:.1f}", f"{d.margins.Ms:.2f}", f"{d.step.overshoot_pct:.1f}",
                      f"{d.step.settling_s:.2f}", f"{w.get('phase_margin_deg', float('nan')):.1f}",
-                     f"{w.get('Ms', float('nan')):.2f}"])
-    body.append(html_table(["design", "kind", "Kp", "Ki", "Kd", "Tf [ms]", "PM [deg]", "DM [ms]", "Ms", "OS [%]",
-                            "settling [s]", "worst PM (95 %)", "worst Ms (95 %)"], rows))
+                     f"{w.get('Ms', float('nan')):.2f}", _flag(d, result.ms_max)])
+    y = output_unit(result.loop)
+    body.append(html_table(["design", "kind", f"Kp [cmd/{y}]", f"Ki [cmd/({y} s)]", f"Kd [cmd s/{y}]", "Tf [ms]",
+                            "PM [deg]", "DM [ms]", "Ms", "OS [%]", "settling [s]", "worst PM [deg] (95 %)",
+                            "worst Ms (95 %)", "fit to fly?"], rows))
+    body.append(_recommended_section(result, name, kind))
     for kind in sorted({d.kind for d in result.designs}):
         b = plot_bode(result, out / f"bode_{kind}.png", kind)
         s = plot_steps(result, out / f"steps_{kind}.png", kind)

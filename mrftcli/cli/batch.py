@@ -9,7 +9,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
-from .options import log_layout_options, tp_option
+from .options import json_option, log_layout_options, quiet_option, tp_option
 
 __all__ = ["batch"]
 
@@ -80,12 +80,18 @@ def _print_table(df, limit: int = 50) -> None:
 @click.option("--tune-pid", "tune_kind", flag_value="PID", help="As --tune, with a PID.")
 @click.option("--force", is_flag=True, help="Recompute logs whose results are up to date.")
 @click.option("--no-report", is_flag=True, help="Skip the fleet report (HTML + PNG).")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout instead of a table.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@json_option(what="fleet summary (counts, notes, outputs, one row per log and loop)")
+@click.option("--baseline", type=click.Path(exists=True), default=None,
+              help="At the end, compare the results against this baseline (a batch folder or reference .toml; matched "
+                   "by log name) as `mrft-ident compare`: compare.json/.xml/.md in --out; exit 9 when a loop changed.")
+@click.option("--fail-on", "fail_on", metavar="SPEC", default=None,
+              help="Tolerances for --baseline, as compare --fail-on (e.g. tau:+5ms,K:10%).")
+@quiet_option()
 @click.pass_context
 def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, scheduler: str | None,
           scheduler_timeout: float, out_dir: str, config_file: str | None, diagnose: bool, force: bool,
-          no_report: bool, as_json: bool, quiet: bool, tune_kind: str | None, **setting_opts) -> None:
+          no_report: bool, json_target: str | None, quiet: bool, tune_kind: str | None, baseline: str | None,
+          fail_on: str | None, **setting_opts) -> None:
     """Analyse every flight log under PATH... (files, folders, globs) and summarise the fleet.
 
     Folders are searched recursively for .mcap, .bag, .ulg, .csv and .bin logs and ROS 2 bag folders.
@@ -106,25 +112,38 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
         if value is None:
             continue
         source = ctx.get_parameter_source(opt)
-        (explicit if source in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT) else defaults)[key] = value
+        given = source in (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
+        given = given or f"mrftcli.rate_alias.{opt}" in ctx.meta  # the deprecated --rate spelling
+        (explicit if given else defaults)[key] = value
     config = load_config(config_file) if config_file else None
+    if fail_on:
+        from ..compare import parse_fail_on
+
+        parse_fail_on(fail_on)  # a malformed spec stops before the work, not after it
 
     with tqdm_progress("batch", unit="log", enabled=not quiet) as progress:
         result = run_batch(paths, out_dir, defaults=defaults, config=config, explicit=explicit, diagnose=diagnose,
                            jobs=jobs, scheduler=scheduler, scheduler_timeout_s=scheduler_timeout, force=force,
                            report=not no_report, progress=progress, tune=tune_kind)
     df = result.summary
-    if as_json:
+    if json_target:
         rows = df.astype(object).where(df.notna(), None)
         for col in ("log_time", "log_mtime", "analysed_at"):
             rows[col] = [t.isoformat() if t is not None else None for t in rows[col]]
         dump_json({"logs": result.n_logs, "counts": result.counts, "out_dir": str(result.out_dir), "notes": result.notes,
                    "outputs": {k: str(v) for k, v in result.outputs.items()},
-                   "rows": rows.to_dict(orient="records")}, "-")
-    else:
+                   "rows": rows.to_dict(orient="records")}, json_target)
+    if json_target != "-":
         _print_table(df)
     for note in result.notes:
         click.echo(f"warning: {note}", err=True)
+    comparison = None
+    if baseline:
+        from .compare import compare_batch, raise_for
+
+        comparison = compare_batch(baseline, out_dir, fail_on, table_err=json_target == "-")
+        if any(c.failed for c in comparison.changes):
+            raise_for(comparison)  # exit 9: a loop changed, whatever else failed
     failed = result.failed
     if len(failed):
         first = failed.iloc[0]
@@ -137,3 +156,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
         raise BatchFailedError(f"{len(result.unwritten)} output file(s) could not be written (first: "
                                f"{result.unwritten[0]}); {result.summary_line()}")
     click.echo(result.summary_line(), err=True)
+    if comparison is not None:
+        from .compare import raise_for as raise_for_missing
+
+        raise_for_missing(comparison)  # exit 10: a loop of the baseline has no result here

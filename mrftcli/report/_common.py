@@ -64,7 +64,8 @@ def html_table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:
     """A plain HTML table (cells escaped)."""
     head = "".join(f"<th>{esc(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{esc(c)}</td>" for c in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    # the wrapper scrolls a table wider than the page instead of letting it run past the page's edge
+    return f"<div class='table-wrap'><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>"
 
 
 _CSS = """
@@ -75,6 +76,9 @@ table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.92em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }
 th { background: #f3f3f3; } td:first-child, th:first-child { text-align: left; }
 img { max-width: 100%; border: 1px solid #eee; }
+.table-wrap { max-width: 100%; overflow-x: auto; }
+td:first-child { overflow-wrap: anywhere; min-width: 10em; }
+pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; }
 .warn { color: #8a4b00; } .muted { color: #666; font-size: 0.9em; }
 """
 

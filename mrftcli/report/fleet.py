@@ -133,8 +133,15 @@ def _cell(column: str, v: object) -> str:
     return str(v)
 
 
+#: column headers with their units (tau cells carry "ms" themselves)
+_HEADERS = {"Td_mean": "Td [s]", "Td_std": "Td std [s]", "tau_mean": "tau", "tau_std": "tau std",
+            "K_mean": "K [m or rad /s² per command unit]", "K_std": "K std", "log_time": "log time (UTC)",
+            "n_tests": "tests", "n_cycles": "cycles"}
+
+
 def _table(df: pd.DataFrame, columns: list[str]) -> str:
-    return html_table(columns, ([_cell(c, row[c]) for c in columns] for _, row in df.iterrows()))
+    return html_table([_HEADERS.get(c, c) for c in columns],
+                      ([_cell(c, row[c]) for c in columns] for _, row in df.iterrows()))
 
 
 def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:

@@ -263,6 +263,21 @@ def test_vehicle_with_several_logs_uses_its_latest(results, tmp_path):
     assert any("several logs for v7 altitude" in n for n in cmp.notes)
 
 
+def test_batch_baseline_compares_at_the_end(results, tmp_path, repo_root):
+    """``batch --baseline``: the batch's results against a baseline folder, reports in --out, exit 9."""
+    a = json.loads(Path(results["design1_altitude"]).read_text())
+    base = _batch_folder(tmp_path / "base", [("design1_altitude_20ms.mcap", "v7", a)])
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main(["batch", str(repo_root / "sample_logs" / "design1_altitude_20ms.mcap"), "--tp", str(TP), "--jobs", "1",
+              "--out", str(out), "--no-report", "-q", "--baseline", base, "--fail-on", "tau:+5ms"])
+    assert exc.value.code == EXIT_CHANGED
+    assert ET.parse(out / "compare.xml").getroot().get("failures") == "1"
+    record = json.loads((out / "compare.json").read_text())
+    assert record["exit_code"] == 9 and record["fail_on"] == ["tau:+5ms"]
+    assert "| design1_altitude_20ms.mcap altitude | tau |" in (out / "compare.md").read_text()
+
+
 def test_missing_loop_is_incomplete(results, tmp_path):
     data = json.loads(Path(results["reflight"]).read_text())
     data["input"]["loop"] = "roll"

@@ -10,8 +10,8 @@ from ..errors import InsufficientDataError, MrftError, SegmentationError
 from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
                             window_option)
 from ..report.wording import output_unit, uncertainty_sentence
-from .options import (check_output_dir, check_output_file, dump_json, log_layout_options, tp_option,
-                      tqdm_progress)
+from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
+                      min_cycles_option, quiet_option, tp_option, tqdm_progress)
 
 
 
@@ -161,9 +161,8 @@ def _stages(progress, weights: dict[str, float]):
 @window_option
 @relay_options
 @log_layout_options()
-@click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
-              help="Fewest stable cycles for a test to be used.")
-@click.option("--json", "json_target", metavar="FILE|-", help="Write the result as JSON to FILE, or '-' for stdout.")
+@min_cycles_option()
+@json_option(what="analysis")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR (created if missing).")
 @click.option("--mcap-out", "mcap_out", metavar="FILE", type=click.Path(dir_okay=False),
@@ -174,8 +173,9 @@ def _stages(progress, weights: dict[str, float]):
                    "amplitude constraints.")
 @click.option("--diagnose", "run_diagnose", is_flag=True,
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose.selection).")
+@quiet_option()
 def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target, report_dir,
-            mcap_out, paper_only, run_diagnose, **read_options):
+            mcap_out, paper_only, run_diagnose, quiet, **read_options):
     """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
 
     LOG is a log file or a ROS 2 bag folder. With --model fopdt|sopdt|ipdt|foipdt (a process plant under
@@ -221,7 +221,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         flight = mask_windows(flight, parse_windows(windows, log_start(flight)))
     weights = {"identify": 6.0, **({"diagnose": 25.0} if run_diagnose else {}), **({"report": 4.0} if report_dir else {})}
     # a bar (stderr, terminal only) when the run is long enough to wait for: a diagnosis or a report
-    with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1) as progress:
+    with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1 and not quiet) as progress:
         stage = _stages(progress, weights)
         stage("identify")(0, 1, "segmenting and identifying")
         try:

@@ -9,7 +9,8 @@ import click
 
 from ..diagnose.physics import BY_NAME
 from ..report.wording import gain_unit, output_unit
-from .options import check_output_dir, check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
+from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
+                      min_cycles_option, quiet_option, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
@@ -132,10 +133,12 @@ def format_summary(result: DiagnosisResult, analysis: AnalysisResult | None = No
 @click.argument("log", type=click.Path(dir_okay=True))
 @tp_option()
 @log_layout_options()
-@click.option("--json", "json_target", metavar="FILE|-", help="Write the diagnosis as JSON to FILE, or '-' for stdout.")
+@min_cycles_option()
+@json_option(what="diagnosis")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR (created if missing).")
-def diagnose(log, Tp, json_target, report_dir, **read_options):
+@quiet_option()
+def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options):
     """Find where the linear model and LOG disagree, name the missing physics, fit it and compare.
 
     The linear model G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) is fitted to the recorded
@@ -158,8 +161,14 @@ def diagnose(log, Tp, json_target, report_dir, **read_options):
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
     flight = read_flight(log, **read_options)
-    with tqdm_progress("diagnose", unit="stage") as progress:
-        result = run(flight, Tp, progress=progress)
+    given: AnalysisResult | None = None
+    if min_cycles != 3:
+        from ..analyze import analyze_flight as analyze_given
+
+        # the diagnosis reuses an analysis made with the user's cycle count (its own default is analyze's, 3)
+        given = analyze_given(flight, Tp, min_stable_cycles=min_cycles)
+    with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
+        result = run(flight, Tp, analysis=given, progress=progress)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_dict(), json_target)
@@ -168,7 +177,7 @@ def diagnose(log, Tp, json_target, report_dir, **read_options):
         from ..errors import MrftError
 
         try:  # analyze's model of the same log, beside the diagnosis' own (about 1 s)
-            analysis: AnalysisResult | None = analyze_flight(flight, Tp)
+            analysis: AnalysisResult | None = given or analyze_flight(flight, Tp)
         except MrftError:
             analysis = None
         click.echo(format_summary(result, analysis))

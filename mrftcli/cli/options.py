@@ -20,7 +20,7 @@ from ..validate import TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress",
            "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP"]
+           "HZ", "SHARED_HELP", "min_cycles_option"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -74,6 +74,13 @@ def quiet_option():
     """``-q/--quiet``: no progress bar, on every command that draws one (output otherwise the same)."""
     return click.option("-q", "--quiet", "quiet", is_flag=True,
                         help=f"{SHARED_HELP['--quiet']} (the output is otherwise the same).")
+
+
+def min_cycles_option(default: int | None = 3, detail: str = ""):
+    """``--min-cycles N``: the fewest stable relay cycles a test needs to be used (analyze's rule)."""
+    return click.option("--min-cycles", type=click.IntRange(2, None), default=default,
+                        show_default=default is not None,
+                        help=f"Fewest {SHARED_HELP['--min-cycles']} for a test to be used{detail}.")
 
 
 def _deprecated_rate(dest: str, default: float | None):

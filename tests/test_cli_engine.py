@@ -21,7 +21,7 @@ def test_predict_json_paper_example():
 
 
 def test_predict_table_and_sampled():
-    p = run("predict", "--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "-0.7", "--rate", "200")
+    p = run("predict", "--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "-0.7", "--controller-rate", "200")
     assert p.returncode == 0, p.stderr
     assert "frequency" in p.stdout and "sampled orbits" in p.stdout
 

@@ -119,7 +119,7 @@ def test_cli_bad_input_is_one_line_and_non_zero(args, needle, capsys):
     from mrftcli.cli.main import main
 
     with pytest.raises(SystemExit) as exc:
-        main(["plan", *args, "--rate", "200"])
+        main(["plan", *args, "--controller-rate", "200"])
     err = capsys.readouterr().err.strip()
     assert exc.value.code == 2 and needle in err and "\n" not in err and "Traceback" not in err
 
@@ -131,7 +131,7 @@ def test_cli_json_from_an_analyze_result(tmp_path):
     src.write_text(json.dumps({"partial": {"tests": [{"beta": -0.4, "h": 1.0, "frequency_hz": lc.frequency_hz,
                                                       "amplitude": lc.amplitude, "cycles": 10}]}}))
     res = CliRunner().invoke(cli, ["plan", "--tp", "0.04", "--from", str(src), "--td-range", "0.3", "2",
-                                   "--max-amplitude", "0.05", "--max-h", "5", "--time", "15", "--rate", "200", "--json", "-"])
+                                   "--max-amplitude", "0.05", "--max-h", "5", "--time", "15", "--controller-rate", "200", "--json", "-"])
     assert res.exit_code == 0, res.output
     data = json.loads(res.output)
     assert len(data["tests"]) == 1 and data["flown_tests"][0]["beta"] == -0.4
@@ -279,7 +279,7 @@ def _plan_cli(*args: str) -> subprocess.CompletedProcess[str]:
                           cwd=Path(__file__).resolve().parents[1], timeout=300)
 
 
-LIMITS = ["--tp", "0.0422", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--rate", "200"]
+LIMITS = ["--tp", "0.0422", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--controller-rate", "200"]
 
 
 def test_cli_refusal_names_the_options_that_help():
@@ -303,7 +303,7 @@ def test_cli_states_its_assumptions_first_and_in_the_json():
 
 def test_cli_without_a_rate_names_the_option():
     proc = _plan_cli(*LIMITS[:-2], "--noise", "0.0002", "--simulate", "0")
-    assert proc.returncode == 2 and "--rate" in proc.stderr
+    assert proc.returncode == 2 and "--controller-rate" in proc.stderr
 
 
 def test_a_recommendation_its_simulation_loses_is_not_made():

@@ -12,7 +12,8 @@ import click
 
 from ..errors import InputError
 from ..report.wording import output_unit
-from .options import check_output_file, dump_json, log_layout_options, tp_option, tqdm_progress
+from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
+                      tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate
@@ -101,8 +102,6 @@ def format_plan(result: PlanResult, unit: str = "output unit") -> str:
               help="Largest output amplitude allowed [output units, e.g. 0.05 m or 0.087 rad].")
 @click.option("--max-h", type=float, required=True, help="Largest relay height the motors give [command units].")
 @click.option("--time", "time_s", type=float, required=True, help="Relay time available for the next test(s) [s].")
-@click.option("--rate", "rate_hz", type=float, default=None,
-              help="Controller rate [Hz] (default: the --from log's; required otherwise).")
 @click.option("--noise", "noise_std", type=float, default=None,
               help="Sensor noise std [output units] (default: measured in the log, else the loop's default).")
 @click.option("--tests", "n_tests", type=click.IntRange(1, 4), default=None,
@@ -111,11 +110,13 @@ def format_plan(result: PlanResult, unit: str = "output unit") -> str:
               help="Also fly the recommended test(s) in simulation on this many plausible plants and analyse "
                    "them (about 0.1-0.2 s each; 0: the analytic forecast only).")
 @log_layout_options()
-@click.option("--json", "json_target", metavar="FILE|-", help="Write the plan as JSON to FILE, or '-' for stdout.")
+@min_cycles_option(detail=" from a --from log (at least 3 are used)")
+@json_option(what="plan")
+@quiet_option()
 def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, tau_range: tuple[float, float] | None,
-         k_range: tuple[float, float] | None, max_amplitude: float, max_h: float, time_s: float, rate_hz: float | None,
-         noise_std: float | None, n_tests: int | None, n_simulated: int, json_target: str | None,
-         **read_options: Any) -> None:
+         k_range: tuple[float, float] | None, max_amplitude: float, max_h: float, time_s: float,
+         noise_std: float | None, n_tests: int | None, n_simulated: int, min_cycles: int, json_target: str | None,
+         quiet: bool, **read_options: Any) -> None:
     """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
 
     The prior (ranges, and a first test from --from) and the flight's limits give each candidate
@@ -134,6 +135,8 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     loop = read_options["loop"]
+    # one idea, one option: the controller rate the log is read at is the rate the plan is made for
+    rate_hz: float | None = read_options["controller_rate_hz"]
     flown: Sequence[FlownTest] = []
     params: dict[str, ParameterEstimate] = {}
     measured_noise: float | None = None
@@ -149,9 +152,10 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
 
             flight = read_flight(path, **read_options)
             found = segment(flight)
-            flown, measured_noise = flown_from_segments(found)
+            flown, measured_noise = flown_from_segments([t for t in found if t.n_stable >= min_cycles])
             if not flown:
-                raise SegmentationError(f"{path}: no MRFT test with 3 or more stable cycles to plan from")
+                raise SegmentationError(f"{path}: no MRFT test with {max(min_cycles, 3)} or more stable cycles "
+                                        "to plan from")
             log_rate = float(found[0].rate_hz)
     assumed: list[str] = []
     ranges = {}
@@ -165,7 +169,7 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
     prior = Prior(Td=ranges["Td"], tau=ranges["tau"], K=ranges["K"])
     rate = rate_hz if rate_hz is not None else log_rate
     if rate is None:
-        raise InputError("give --rate HZ, the rate the controller runs at (the test's frequency and its samples "
+        raise InputError("give --controller-rate HZ, the rate the controller runs at (the test's frequency and its samples "
                          "per period depend on it; --from a log measures it)")
     noise = noise_std if noise_std is not None else measured_noise
     if noise is None:
@@ -174,7 +178,7 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
                        "give --noise)")
     limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)
     try:
-        with tqdm_progress("plan", unit="step") as progress:
+        with tqdm_progress("plan", unit="step", enabled=not quiet) as progress:
             result = plan_tests(Tp, prior, limits, flown=flown, progress=progress,
                                 options=PlanOptions(n_tests=n_tests, n_simulated=n_simulated))
     except InputError as err:

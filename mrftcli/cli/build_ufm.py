@@ -7,16 +7,17 @@ from pathlib import Path
 import click
 
 from ..errors import InputError
-from .options import BETA, tqdm_progress
+from .options import BETA, quiet_option, tqdm_progress
 
 
 @click.command("build-ufm")
 @click.option("--beta", "betas", type=BETA, multiple=True, help="A beta in (-1, 1); repeat for several.")
 @click.option("--shipped", is_flag=True, help="Build the shipped set: beta -0.9 to -0.1 in steps of 0.05.")
-@click.option("--out", "out", type=click.Path(file_okay=False), required=True, help="Output directory.")
+@click.option("--out", "-o", "out", type=click.Path(file_okay=False), required=True,
+              help="Folder the manifolds are written to (created if missing).")
 @click.option("--n-tp", type=click.IntRange(8, 4001), default=None, help="Grid points over Tp*Omega (default 201).")
 @click.option("--n-td", type=click.IntRange(8, 4001), default=None, help="Grid points over Td*Omega (default 201).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option()
 def build_ufm(betas: tuple[float, ...], shipped: bool, out: str, n_tp: int | None, n_td: int | None,
               quiet: bool) -> None:
     """Build UFM/UGM files (ufm_beta±B.npz + .json) for the given betas into OUT.

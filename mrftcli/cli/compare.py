@@ -7,7 +7,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from .options import check_output_file, dump_json
+from ..io.logtypes import LOOPS
+from .options import check_output_file, dump_json, json_option
 
 if TYPE_CHECKING:
     from ..compare import Comparison
@@ -35,10 +36,11 @@ def _write(target: str, text: str) -> None:
               help="Test each of a loop's m parameters at 1-(1-confidence)/m: at most 1-confidence false alarms per loop.")
 @click.option("--match", "by", type=click.Choice(["log", "vehicle"]), default="log", show_default=True,
               help="How batch folders are matched: by log file name, or by the vehicle of the batch config.")
-@click.option("--loop", "loops", multiple=True, metavar="LOOP", help="Compare only this loop (repeatable).")
+@click.option("--loop", "loops", multiple=True, type=click.Choice(LOOPS),
+              help="Loop to compare; repeat for several (default: every loop in both).")
 @click.option("--junit", "junit_target", metavar="FILE|-", help="Write a JUnit XML report (one case per loop and parameter).")
 @click.option("--markdown", "markdown_target", metavar="FILE|-", help="Write a Markdown table (merge-request comment).")
-@click.option("--json", "json_target", metavar="FILE|-", help="Write the comparison record as JSON ('-': stdout, no table).")
+@json_option(what="comparison record")
 def compare(baseline: str, new: str, fail_on: str | None, confidence: float, bonferroni: bool, by: str,
             loops: tuple[str, ...], junit_target: str | None, markdown_target: str | None,
             json_target: str | None) -> None:

@@ -118,7 +118,7 @@ def _format_of(path: Path, fmt: str | None) -> str:
     "delay_jitter (and delay_jitter_correlation, battery_voltage). See docs/simulator.md.",
 )
 @click.option("--format", "fmt", default=None, metavar="FMT", help="Log format to write (default: from the file name): mcap, mcap-json, bag, ros2-sqlite3, ros2-mcap, ulog, csv.")
-@click.option("--out", "out", required=True, type=click.Path(dir_okay=True, path_type=Path), help="Log to write; the sidecar goes to OUT.truth.json.")
+@click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=True, path_type=Path), help="Log to write; the sidecar goes to OUT.truth.json.")
 @json_option(what="ground truth and the paths written")
 @quiet_option()
 def simulate(

@@ -11,7 +11,7 @@ import click
 
 from ..jsonable import to_jsonable
 from ..report.wording import output_unit
-from .options import log_layout_options, tp_option
+from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
     from ..watch import Update
@@ -51,8 +51,7 @@ def _line(update: Update, unit: str) -> str:
 @click.argument("log", type=click.Path())
 @tp_option()
 @log_layout_options()
-@click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
-              help="Stable cycles a test needs before it is shown and used.")
+@min_cycles_option(detail=" (and shown)")
 @click.option("--idle", type=click.FloatRange(0, None, min_open=True), default=10.0, show_default=True,
               help="Stop when the log has not grown for this many seconds (CSV, ULog; MCAP stops at its footer).")
 @click.option("--poll", type=click.FloatRange(0.001, 5.0), default=0.02, show_default=True,

@@ -10,7 +10,8 @@ test whose larger relay height drives the actuator into its limit stays in the l
 (an MrftError: the tool declined the log) counts as a miss wherever it happens.
 
 Drawn per log: platform, simulator seed, the effect's realistic magnitude times a factor in
-[0.7, 1.3] (``scripts/make_concealed_logs.effect_value``), test durations, rate, noise, amplitude.
+[0.7, 1.3] (``scripts/make_concealed_logs.effect_value``; a delay jitter of 6 ms std times that
+factor, as the issue's flights had), test durations, rate, noise, amplitude.
 The effects: the ten of the library (``--per-effect`` logs each), a flexible sensor mount outside
 the library (``--outside`` logs: a mode of 2-15 Hz, damping 0.02-0.1, between the airframe and the
 sensor; ``unexplained`` expected, or the resonance named), and ``--clean`` clean controls.
@@ -78,6 +79,8 @@ def fly(case: dict):
     for name, sc in zip(names, case["scales"]):
         if name == OUTSIDE:
             effects = replace(effects, flex_mode_hz=case["flex_hz"] * sc, flex_mode_damping=case["flex_damping"])
+        elif name == "delay_jitter":
+            effects = replace(effects, delay_jitter=0.006 * sc)  # ~4-8 ms std, as the flights had
         else:
             effects = replace(effects, **{name: gen.effect_value(name, model, tests, sc)})
     spec = FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=case["rate"], effects=effects,
@@ -193,6 +196,7 @@ def main() -> None:
     outside = [r for r in results if r["effect"] == OUTSIDE]
     if outside:
         ok = [r for r in outside if r.get("unexplained") or "sensor_resonance" in (r.get("found") or [])]
+        only = [r for r in ok if not set(r.get("found") or []) - {"sensor_resonance"}]
         print(f"{'sensor mount (out)':<20} {len(outside):>3} unexplained or resonance {_pct(len(ok), len(outside))}: "
               + str([(f"{r['flex_hz'] * r['scales'][0]:.1f} Hz", r.get("found"), r.get("unexplained"),
                       (r.get("where") or {}).get("what"), r.get("error")) for r in outside]))
@@ -222,7 +226,8 @@ def main() -> None:
     print(f"  clean kept clean            {_pct(len(kept), len(clean))} (>= 90 %)")
     print(f"  no spurious second effect   {_pct(tot['alone'], tot['right'])} of the named (>= 90 %)")
     if outside:
-        print(f"  out-of-library unexplained  {_pct(len(ok), len(outside))} (>= 80 %)")
+        print(f"  out-of-library unexplained  {_pct(len(ok), len(outside))} (>= 80 %); with no library effect named "
+              f"beside it {_pct(len(only), len(outside))}")
     print(f"  held-out NRMSE halved       {_pct(tot['halved'], tot['right'])} of the named (>= 80 %)")
     print(f"  parameter within 25 %       {_pct(tot['within'], tot['right'])} of the named")
     cpu, cpu_a = np.array([r["cpu"] for r in results]), np.array([r["cpu_analyze"] for r in results])

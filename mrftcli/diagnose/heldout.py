@@ -5,7 +5,8 @@ the features' z-scores against their standard errors, and the waveform NRMSE of 
 recorded cycles against the model's (phase-normalised, with the recording's own cycle-to-cycle
 scatter taken out). An effect counts (:func:`significant`) when its delta BIC reaches
 :data:`BIC_THRESHOLD` on the fitting cycles *and* it lowers the held-out features' chi^2 by
-:data:`HOLDOUT_THRESHOLD` with a smaller timed waveform error and no larger reported (scatter-subtracted) NRMSE.
+:data:`HOLDOUT_THRESHOLD` with a smaller timed waveform error. A finding whose reported (scatter-subtracted) NRMSE rises is
+not reported (:func:`mrftcli.diagnose.pairs.select_effects`), though it may anchor the pair search.
 """
 
 from __future__ import annotations
@@ -196,6 +197,4 @@ def significant(row: CandidateFit | PairFit) -> bool:
         features_ok = b.feature_chi2 - a.feature_chi2 >= HOLDOUT_THRESHOLD
     else:
         features_ok = (a.feature_rms_z or 0) < (b.feature_rms_z or 0)
-    # and the held-out NRMSE the finding reports (scatter taken out) must not rise: a sensor lag once
-    # passed on the timed error while its reported NRMSE went 0.011 -> 0.013 (issue 27)
-    return err_after < err_before and features_ok and a.nrmse <= b.nrmse
+    return err_after < err_before and features_ok

@@ -55,6 +55,7 @@ from .jitter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
 from .physics import BY_NAME, CANDIDATES
+from .resonance import resonance_mismatch
 from .records import CandidateFit, DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel, TestRow, Unexplained
 from .screen import Screen, screen_log
 
@@ -196,6 +197,10 @@ def diagnose(
     if linear.rejected:
         unexplained = unexplained_mismatch(screen.tests, linear.fit, linear.held_out, effects, chosen.final,
                                            cand_rows, screen.recs_all, linear.scatter, screen.t0, items)
+    if unexplained is None:
+        # a lightly damped mode above the fitted harmonics leaves the features alone (issue 27)
+        unexplained = resonance_mismatch(flight, screen.tests,
+                                         "linear" if chosen.final is None else f"linear + {chosen.final.label}")
     warnings = screen.warnings + chosen.warnings
     identification = _identification(flight, Tp, screen, linear, effects, analysis, warnings)
     figures = DiagnosisFigures(flight=flight, tests=screen.tests, base_model=linear.model, base=linear.fit,

@@ -38,24 +38,24 @@ MODEL = ["--tp", "0.0422", "--td", "1.3", "--tau", "0.03"]
 
 
 def test_tune_without_k_names_the_option():
-    err = one_line_error(run("tune", *MODEL, "--loop", "roll", "--rate", "200"))
+    err = one_line_error(run("tune", *MODEL, "--loop", "roll", "--controller-rate", "200"))
     assert "--k" in err and "gain K" in err
 
 
 def test_tune_without_loop_names_the_option():
-    err = one_line_error(run("tune", *MODEL, "--k", "30", "--rate", "200"))
+    err = one_line_error(run("tune", *MODEL, "--k", "30", "--controller-rate", "200"))
     assert "--loop" in err
 
 
 def test_tune_without_a_rate_names_the_option():
     err = one_line_error(run("tune", *MODEL, "--k", "30", "--loop", "roll"))
-    assert "--rate" in err
+    assert "--controller-rate" in err
 
 
 def test_tune_gains_scale_as_one_over_k():
     """The MRFT rule's Kp for K = 30 is the K = 1 one over 30 (G is linear in K): the K given is the K used."""
     def kp(k: str) -> float:
-        proc = run("tune", *MODEL, "--k", k, "--loop", "roll", "--rate", "200", "--design", "mrft-rule",
+        proc = run("tune", *MODEL, "--k", k, "--loop", "roll", "--controller-rate", "200", "--design", "mrft-rule",
                    "--format", "json")
         assert proc.returncode == 0, proc.stderr
         return float(json.loads(proc.stdout)["Kp"])
@@ -81,8 +81,8 @@ def test_tune_result_json_takes_its_loop_from_the_file(tmp_path):
 @pytest.mark.parametrize("command", [
     ["analyze", "sample_logs/design1_altitude.mcap"],
     ["diagnose", "sample_logs/design1_altitude.mcap"],
-    ["tune", "--td", "1.3", "--tau", "0.03", "--k", "30", "--loop", "roll", "--rate", "200"],
-    ["plan", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--rate", "200"],
+    ["tune", "--td", "1.3", "--tau", "0.03", "--k", "30", "--loop", "roll", "--controller-rate", "200"],
+    ["plan", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--controller-rate", "200"],
 ])
 def test_missing_tp_says_which_option_and_what_it_is(command):
     err = one_line_error(run(*command))

@@ -279,8 +279,6 @@ def _stack_summary(e: Any) -> list[str]:
 @click.option("--td-std", type=float, default=0.0, help="Std of Td [s] for the robust design (with --td).")
 @click.option("--tau-std", type=float, default=0.0, help="Std of tau [s] for the robust design (with --td).")
 @click.option("--k-std", type=float, default=0.0, help="Std of K for the robust design (with --td).")
-@click.option("--rate", "rate_hz", type=click.FloatRange(0, None, min_open=True), metavar="HZ",
-              help="Controller rate [Hz] (default: the rate the log or RESULT.json records; required otherwise).")
 @click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
               help="Criterion of a unit setpoint step.")
 @click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
@@ -307,7 +305,7 @@ def _stack_summary(e: Any) -> list[str]:
 @click.option("--json", "json_target", metavar="FILE|-", help="Write every design (Kp, Ki, Kd, Tf, rate, figures) as JSON.")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
-def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, objective, ms_max, effort_max,
+def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
          export, out, gyro_cutoff, hover_thrust, clamp, fmt, design, kind, json_target, report_dir, **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
@@ -344,11 +342,13 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, rate_hz, ob
         src = _from_log(source, Tp, min_cycles, read_options)
     loop = loop or src.loop
     _check_stack(ex, loop, kind)
+    # --controller-rate (the shared option; --rate its deprecated alias): the rate the gains are for
+    rate_hz: float | None = read_options.get("controller_rate_hz")
     setting = _stack_setting(ex, loop, rate_hz, src.rate_hz)
     rate = setting.rate_hz if setting is not None else rate_hz or src.rate_hz
     if rate is None:
-        raise InputError("give --rate HZ, the rate the controller runs at: the gains are designed for the sampled "
-                         "loop and the source records no rate")
+        raise InputError("give --controller-rate HZ, the rate the controller runs at: the gains are designed for "
+                         "the sampled loop and the source records no rate")
     with tqdm_progress("tune", unit="design") as progress:
         res = run_tune(src.model, rate, posterior=src.posterior, objective=objective, ms_max=ms_max,
                        effort_max=effort_max, loop=loop, progress=progress,

@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import InputError
 from .timing import Timing
 
-__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS"]
+__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS", "output_unit", "gain_unit"]
 
 #: The loops mrft-ident identifies.
 LOOPS = ("altitude", "roll", "pitch", "x", "y")
@@ -159,3 +159,30 @@ class FlightLog:
                 out["controller_rate_hz"] = timing.pop("controller_rate_hz")
         out.update(timing)
         return out
+
+
+#: the output's unit by loop (after --output-scale): roll and pitch come from a quaternion in rad
+_OUTPUT_UNIT = {"altitude": "m", "x": "m", "y": "m", "roll": "rad", "pitch": "rad"}
+
+
+def output_unit(loop: str) -> str:
+    """The output's unit of a loop: ``m`` or ``rad`` (``output unit`` for a loop not listed).
+
+    Examples
+    --------
+    >>> output_unit("roll"), output_unit("altitude"), output_unit("level")
+    ('rad', 'm', 'output unit')
+    """
+    return _OUTPUT_UNIT.get(loop, "output unit")
+
+
+def gain_unit(loop: str) -> str:
+    """The unit of eq. (2)'s K for a loop: output unit/s² per command unit (K Td: command -> output rate).
+
+    Examples
+    --------
+    >>> gain_unit("altitude")
+    'm/s² per command unit'
+    """
+    return f"{output_unit(loop)}/s² per command unit"
+

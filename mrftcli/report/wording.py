@@ -3,20 +3,9 @@ CLI's text output imports it without loading a plotting library)."""
 
 from __future__ import annotations
 
+from ..io.logtypes import gain_unit, output_unit
+
 __all__ = ["output_unit", "gain_unit", "uncertainty_sentence"]
-
-#: the output's unit by loop (after --output-scale): roll and pitch come from a quaternion in rad
-_OUTPUT_UNIT = {"altitude": "m", "x": "m", "y": "m", "roll": "rad", "pitch": "rad"}
-
-
-def output_unit(loop: str) -> str:
-    """The output's unit of a loop: ``m`` or ``rad`` (``output unit`` for a loop not listed)."""
-    return _OUTPUT_UNIT.get(loop, "output unit")
-
-
-def gain_unit(loop: str) -> str:
-    """The unit of eq. (2)'s K for a loop: output unit/s² per command unit (K Td: command -> output rate)."""
-    return f"{output_unit(loop)}/s² per command unit"
 
 
 def uncertainty_sentence(refined: bool, mrft_interval: bool) -> str:

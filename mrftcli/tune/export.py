@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
+from ..io.logtypes import gain_unit, output_unit
 from .closed_loop import Controller
 
 if TYPE_CHECKING:
@@ -110,6 +111,9 @@ def format_table(result: "TuneResult") -> str:
     def f(x: float | None, fmt: str) -> str:
         return format(x, fmt) if x is not None and math.isfinite(x) else "-"
 
+    y = output_unit(result.loop)
+    lines.insert(1, f"gains: Kp [command per {y}], Ki [command per {y} s], Kd [command s per {y}]; "
+                    f"K [{gain_unit(result.loop)}]")
     for d in result.designs:
         c, g, s = d.controller, d.margins, d.step
         w = d.posterior.get("worst", {}) if d.posterior else {}

@@ -238,16 +238,25 @@ def test_a_test_that_saturates_at_the_larger_relay_height_is_diagnosed_not_refus
     assert any("analyze refuses this log" in w for w in res.warnings)
 
 
-def test_a_sensor_mount_mode_above_the_fitted_harmonics_is_unexplained_where_it_rings(tmp_path):
+@pytest.mark.parametrize("mode_hz", [None, 8.0])
+def test_a_sensor_mount_mode_rings_above_the_fitted_harmonics_at_its_frequency(tmp_path, mode_hz):
     # an 8 Hz mount (6-7x the test frequency) rings after each switch, above the 7 fitted harmonics;
-    # the simulator's mode (sim.flight) is the oracle, the diagnosis knows nothing of it (issue 27)
-    path, truth = _flight("flex_mode_hz", 8.0, seed=12, cycles=(10, 10, 10), h3=2.0, noise_std=0.0003, tmp=tmp_path)
-    res = diagnose(read_flight(path, "altitude"), truth["Tp"])
-    assert res.unexplained is not None, res.summary
-    lg = res.unexplained.largest
-    assert lg["feature"] == "residual_above_harmonics", res.summary
-    f = float(lg["what"].split("near ")[1].split(" Hz")[0])
-    assert f == pytest.approx(8.0, rel=0.15)
+    # the simulator's mode (sim.flight) is the oracle, the stage knows nothing of it; the same flight
+    # without the mode shows nothing (issue 27)
+    from mrftcli.diagnose.resonance import resonance_mismatch
+    from mrftcli.diagnose.screen import screen_log
+
+    path, truth = _flight(None if mode_hz is None else "flex_mode_hz", mode_hz or 0.0, seed=12, cycles=(10, 10, 10),
+                          h3=2.0, noise_std=0.0003, tmp=tmp_path)
+    fl = read_flight(path, "altitude")
+    screen = screen_log(fl, truth["Tp"], None, lambda *a, **k: None)
+    found = resonance_mismatch(fl, screen.tests, "linear")
+    if mode_hz is None:
+        assert found is None, found
+        return
+    assert found is not None and found.largest["feature"] == "residual_above_harmonics"
+    f = float(found.largest["what"].split("near ")[1].split(" Hz")[0])
+    assert f == pytest.approx(mode_hz, rel=0.15)
 
 
 def test_an_output_that_does_not_follow_the_relay_gets_analyze_message(logs):

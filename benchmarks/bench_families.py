@@ -117,6 +117,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=10, help="recordings per family and relay")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--families", default=",".join(FAMILIES), help="comma-separated subset")
+    ap.add_argument("--relays", default=",".join(RELAYS), help="comma-separated subset")
     args = ap.parse_args()
     from mrftcli.mrft.identify_lti import identify_lti
 
@@ -128,8 +130,8 @@ def main() -> None:
     timing_cases = []
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
-        for family in FAMILIES:
-            for relay in RELAYS:
+        for family in args.families.split(","):
+            for relay in args.relays.split(","):
                 rows = [one_recording(family, relay, rng, Path(d)) for _ in range(args.n)]
                 ok = {k: sum(bool(r[k]) for r in rows) for k in ("within5", "covered", "held10")}
                 refused = sum(bool(r["refused"]) for r in rows)

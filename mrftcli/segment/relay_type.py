@@ -9,7 +9,8 @@ centre (``beta_effective * amplitude`` of the stable cycles, the level ``L``):
   which raises the level by ``L_s = a sin(Omega Ts / 2)``; a level within three standard errors (or
   5 % of the amplitude) of ``L_s`` is an ideal relay;
 * a larger level is a hysteresis ``eps = L - L_s`` [output units];
-* a negative level beyond that floor (phase lead) is an MRFT with beta < 0 at the effective beta.
+* a negative level beyond that floor (phase lead) is an MRFT with beta < 0 at the level less ``L_s``
+  (also when ``kind="mrft"`` is stated without a beta and none is logged).
 
 MRFT and hysteresis give the same level within one test (``beta a = eps``); they differ across
 tests of different amplitude, so an MRFT without a logged beta must be stated (``kind="mrft"``).
@@ -66,8 +67,13 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
     if kind is None and test.beta_nominal is not None:
         kind = "mrft"
     if kind == "mrft":
-        b = beta if beta is not None else (test.beta_nominal if test.beta_nominal is not None
-                                           else test.beta_effective)
+        if beta is None and test.beta_nominal is None:
+            # the measured level less the sampling lag's: the sampled prediction adds that lag itself
+            level, _, amp = switching_level(test)
+            beta = float(np.clip((level - _sampling_level(test, amp)) / amp, -0.99, 0.99))
+            return RelayLaw("mrft", high, low, beta=beta, source=stated)
+        b = beta if beta is not None else test.beta_nominal
+        assert b is not None
         return RelayLaw("mrft", high, low, beta=float(b), source="stated" if beta is not None else stated)
     if kind == "hysteresis" and eps is not None:
         return RelayLaw("hysteresis", high, low, eps=float(eps), source="stated")
@@ -77,7 +83,7 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
     if kind is None:
         floor = max(3.0 * se if math.isfinite(se) else 0.0, 0.05 * amp)
         if level < -floor:  # switching before the crossing: phase lead, which only an MRFT (beta < 0) gives
-            return RelayLaw("mrft", high, low, beta=float(test.beta_effective), source=stated)
+            return RelayLaw("mrft", high, low, beta=float(np.clip(excess / amp, -0.99, 0.99)), source=stated)
         kind = "ideal" if excess <= floor else "hysteresis"
     if kind == "ideal":
         return RelayLaw("ideal", high, low, source=stated)

@@ -129,3 +129,28 @@ def test_cli_scheduler_runs_on_a_local_dask_cluster(tmp_path: Path, stand_in, mo
     doc = json.loads(r.stdout)
     assert doc["counts"]["ok"] == 3 and [Path(x["path"]).name for x in doc["rows"]] == ["f.mcap", "e.mcap", "f.mcap"]
     assert all(x["Td_mean"] == 0.05 for x in doc["rows"])  # Tp reached the analysis on the cluster
+
+
+def test_mixed_fleet_skips_a_loop_whose_topics_are_absent(tmp_path: Path) -> None:
+    """Issue 25: an altitude log and a roll log asked for both loops: each log's other loop is skipped
+    ("skipped: no <loop> topics"), not failed, and the batch exits 0."""
+    import shutil
+
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    (tmp_path / "fleet").mkdir()
+    for name in ("design1_altitude.mcap", "design1_roll.mcap"):
+        shutil.copy(samples / name, tmp_path / "fleet" / name)
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "altitude",
+                                 "--loop", "roll", "--out", str(tmp_path / "out"), "--jobs", "1",
+                                 "--no-report", "--json", "-", "-q"])
+    assert r.exit_code == 0, r.output
+    data = json.loads(r.stdout)
+    status = {(Path(row["path"]).name, row["loop"]): (row["status"], row["error"]) for row in data["rows"]}
+    assert status[("design1_altitude.mcap", "altitude")][0] == "ok"
+    assert status[("design1_roll.mcap", "roll")][0] == "ok"
+    # the roll log has no /mocap/pose, the altitude log no /imu/data
+    assert status[("design1_roll.mcap", "altitude")] == ("skipped-no-topics",
+                                                          "skipped: no altitude topics (/mocap/pose:pose.position.z)")
+    assert status[("design1_altitude.mcap", "roll")] == ("skipped-no-topics",
+                                                          "skipped: no roll topics (/imu/data:orientation)")
+    assert data["counts"]["failed"] == 0 and data["counts"]["skipped-no-topics"] == 2

@@ -46,6 +46,7 @@ from .inputs import BatchConfig, LogSettings, discover_logs, log_mtime, resolve_
 from .summary import (
     STATUS_FAILED,
     STATUS_INSUFFICIENT,
+    STATUS_NO_TOPICS,
     STATUS_OK,
     STATUS_SKIPPED,
     summary_frame,
@@ -60,7 +61,7 @@ from ..progress import report as report_progress
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["BatchFailedError", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
+__all__ = ["BatchFailedError", "absent_topics", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
            "run_batch"]
 
 #: Record format version: bump when the record layout changes, so old results are recomputed.
@@ -128,6 +129,30 @@ def _failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
     }
 
 
+def absent_topics(path: str | Path, loop: str, layout: str | None = None) -> tuple[str, ...]:
+    """The topics of ``loop`` (command, output) that the log's layout names and the log does not hold.
+
+    The layout is the one :func:`mrftcli.io.log_layout` reads the log with (named, or recognised from
+    the topics). A layout without the loop gives its name as the one absent topic. Empty: the loop's
+    topics are there (whether its tests are is the analysis's question).
+    """
+    from ..io import log_layout, open_log
+
+    with open_log(path) as source:
+        lay = log_layout(source, layout).layout
+        topics = lay.loops.get(loop)
+        if topics is None:
+            return (f"{lay.name} layout has no {loop} loop",)
+        specs = (topics.command, topics.output)
+        return tuple(spec for spec in specs if source.resolve_topic(spec.split(":", 1)[0]) is None)
+
+
+def _skipped_entry(entry: dict[str, Any], loop: str, absent: tuple[str, ...]) -> dict[str, Any]:
+    entry.update(status=STATUS_NO_TOPICS, error=f"skipped: no {loop} topics ({', '.join(absent)})",
+                 error_type="NoTopics")
+    return entry
+
+
 def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     s = task.settings
     entry: dict[str, Any] = {"loop": loop, "status": STATUS_OK, "error": None, "error_type": None,
@@ -135,6 +160,14 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     try:
         if s.tp is None:
             raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
+        if s.command_topic is None and s.output_topic is None:
+            # a fleet of mixed loops: a log that does not record this loop is skipped, not failed
+            try:
+                absent = absent_topics(task.path, loop, s.layout)
+            except Exception:  # noqa: BLE001 - an unreadable log: the analysis says why, in its own words
+                absent = ()
+            if absent:
+                return _skipped_entry(entry, loop, absent)
         from ..analyze import analyze_path
 
         # settings left unset keep analyze_path's defaults
@@ -506,6 +539,8 @@ def run_batch(
         notes.insert(0, f"{len(unwritten)} output file(s) could not be written (first: {unwritten[0]}); "
                         "the results that were are complete")
     counts = {s: int((df["status"] == s).sum()) for s in (STATUS_OK, STATUS_INSUFFICIENT, STATUS_FAILED, STATUS_SKIPPED)}
+    if (df["status"] == STATUS_NO_TOPICS).any():  # named only when it happens (a fleet of mixed loops)
+        counts[STATUS_NO_TOPICS] = int((df["status"] == STATUS_NO_TOPICS).sum())
     return BatchResult(df, out, outputs, counts, len(logs), notes, unwritten)
 
 

@@ -238,25 +238,25 @@ def _run(args: list[str], capsys) -> tuple[int, str, str]:
 
 def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
     out = tmp_path / "roll.params"
-    code, stdout, err = _run(["--rate", "250", "--export", "px4", "--out", str(out), "--design", "model-based"], capsys)
+    code, stdout, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(out), "--design", "model-based"], capsys)
     assert code == 0, err
     assert out.read_text().startswith("# Onboard parameters") and "param set MC_ROLL_P" in stdout
     assert not list(tmp_path.glob(".roll.params.*"))  # the temporary file was renamed
-    code, stdout, err = _run(["--rate", "250", "--export", "ardupilot", "--design", "model-based", "--clamp"], capsys)
+    code, stdout, err = _run(["--controller-rate", "250", "--export", "ardupilot", "--design", "model-based", "--clamp"], capsys)
     assert code == 0, err
     assert stdout.startswith("# mrft-ident") and "ATC_RAT_RLL_P," in stdout  # the .param file on stdout
-    code, _, err = _run(["--rate", "200", "--export", "px4"], capsys)
+    code, _, err = _run(["--controller-rate", "200", "--export", "px4"], capsys)
     assert code == 2 and err.startswith("error:") and "IMU_GYRO_RATEMAX" in err and len(err.splitlines()) == 1
-    code, _, err = _run(["--rate", "250", "--export", "px4", "--out", str(tmp_path / "no" / "x.params")], capsys)
+    code, _, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(tmp_path / "no" / "x.params")], capsys)
     assert code == 2 and "--out" in err
-    code, _, err = _run(["--rate", "200", "--export", "hear", "--gyro-cutoff", "30"], capsys)
+    code, _, err = _run(["--controller-rate", "200", "--export", "hear", "--gyro-cutoff", "30"], capsys)
     assert code == 2 and "--gyro-cutoff" in err
-    code, stdout, err = _run(["--rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)
+    code, stdout, err = _run(["--controller-rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)
     assert code == 0 and "deprecated" in err and json.loads(stdout)["Kp"] > 0
 
 
 def test_cli_json_holds_the_versioned_record(tmp_path, capsys):
-    code, _, err = _run(["--rate", "250", "--export", "px4", "--out", str(tmp_path / "r.params"),
+    code, _, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(tmp_path / "r.params"),
                          "--json", str(tmp_path / "t.json")], capsys)
     assert code == 0, err
     data = json.loads((tmp_path / "t.json").read_text())

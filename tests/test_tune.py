@@ -183,7 +183,7 @@ def test_cli_manual_model_px4_and_errors(tmp_path):
     from mrftcli.cli.main import cli
 
     r = CliRunner().invoke(cli, ["tune", "--tp", "0.0422", "--td", "1.3", "--tau", "0.03", "--k", "30",
-                                 "--loop", "roll", "--rate", "250", "--export", "px4", "--design", "model-based",
+                                 "--loop", "roll", "--controller-rate", "250", "--export", "px4", "--design", "model-based",
                                  "--json", str(tmp_path / "t.json")])
     assert r.exit_code == 0, r.output
     rows = [ln.split("\t") for ln in r.stdout.splitlines() if ln.startswith("1\t1\t")]  # the QGC .params lines

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from ..mrft.model import LoopModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackSetting
-from .options import dump_json, log_layout_options, tp_option, tqdm_progress
+from .options import dump_json, json_option, log_layout_options, min_cycles_option, quiet_option, tp_option, tqdm_progress
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
 _FORMAT_ALIAS = {"table": None, "json": "generic", "hear": "hear", "px4": "px4"}
@@ -180,12 +180,13 @@ def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
                        tuple(float(t.amplitude_mean) for t in result.tests), (note,))
 
 
-def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, Any]) -> _TuneSource:
+def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, Any],
+              quiet: bool = False) -> _TuneSource:
     """A flight log, analysed as ``analyze`` would (its warnings printed)."""
     from ..analyze import analyze_path
     from ..tune.analysis import posterior_from_analysis
 
-    with tqdm_progress("tune", unit="step") as progress:
+    with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
         progress(0, 1, "analysing the log")
         result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
                               **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
@@ -270,8 +271,7 @@ def _stack_summary(e: Any) -> list[str]:
 @click.argument("source", required=False, type=click.Path(dir_okay=True))
 @tp_option()
 @log_layout_options(format_flag="--log-format")
-@click.option("--min-cycles", type=click.IntRange(2, None), default=3, show_default=True,
-              help="Fewest stable cycles for a test to be used (as analyze).")
+@min_cycles_option(detail=" (as analyze)")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
 @click.option("--tau", type=float, help="tau [s], with --td.")
 @click.option("--k", "K", type=float, help="Gain K [output unit per command unit], with --td (required: the gains "
@@ -288,7 +288,7 @@ def _stack_summary(e: Any) -> list[str]:
               help="Design for the stack's own rate and rate filter and write what it loads: PX4 QGroundControl "
                    ".params (and param set lines), ArduPilot .param, HEAR PID JSON, generic JSON; checked "
                    "against the stack's parameter ranges.")
-@click.option("--out", "out", metavar="FILE", help="Write the export to FILE (atomically); default: stdout.")
+@click.option("--out", "-o", "out", metavar="FILE", help="Write the export to FILE (atomically); default: stdout.")
 @click.option("--gyro-cutoff", "gyro_cutoff", type=click.FloatRange(0, None), metavar="HZ",
               help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] the design runs with (default: the "
                    "stack's default, stated in the output; use one value for roll and pitch).")
@@ -296,17 +296,19 @@ def _stack_summary(e: Any) -> list[str]:
               help="PX4 MPC_THR_HOVER (normalised), required for the PX4 altitude export.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound (the "
               "resulting margins are stated) instead of refusing.")
-@click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default=None,
+@click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default=None, hidden=True,
               help="Deprecated alias of --export (json = generic).")
 @click.option("--design", type=click.Choice(["robust", "model-based", "mrft-rule"]), default=None,
               help="Design exported (default: robust, else model-based).")
 @click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
               help="Controller exported.")
-@click.option("--json", "json_target", metavar="FILE|-", help="Write every design (Kp, Ki, Kd, Tf, rate, figures) as JSON.")
+@json_option(what="every design (Kp, Ki, Kd, Tf, rate, figures) and the tune_result record")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
+@quiet_option()
 def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
-         export, out, gyro_cutoff, hover_thrust, clamp, fmt, design, kind, json_target, report_dir, **read_options):
+         export, out, gyro_cutoff, hover_thrust, clamp, fmt, design, kind, json_target, report_dir, quiet,
+         **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
     SOURCE is a flight log (analysed exactly as `analyze` would, same options), an analyze
@@ -339,7 +341,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, 
     elif is_result:
         src = _from_result_json(Path(source), Tp, loop)
     else:
-        src = _from_log(source, Tp, min_cycles, read_options)
+        src = _from_log(source, Tp, min_cycles, read_options, quiet)
     loop = loop or src.loop
     _check_stack(ex, loop, kind)
     # --controller-rate (the shared option; --rate its deprecated alias): the rate the gains are for
@@ -349,7 +351,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, 
     if rate is None:
         raise InputError("give --controller-rate HZ, the rate the controller runs at: the gains are designed for "
                          "the sampled loop and the source records no rate")
-    with tqdm_progress("tune", unit="design") as progress:
+    with tqdm_progress("tune", unit="design", enabled=not quiet) as progress:
         res = run_tune(src.model, rate, posterior=src.posterior, objective=objective, ms_max=ms_max,
                        effort_max=effort_max, loop=loop, progress=progress,
                        rate_filter=setting.rate_filter if setting is not None else None)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 
 import pytest
 
 
 def run(*args):
-    return subprocess.run(["mrft-ident", *args], capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-m", "mrftcli", *args], capture_output=True, text=True, timeout=120)
 
 
 def test_predict_json_paper_example():

@@ -127,6 +127,7 @@ def run_case(case: dict) -> dict:
         out["cycles_used"] = [t.cycles for t in res.tests]
         out["values"] = {e.name: e.parameters.get(PARAM.get(e.name, ""), float("nan")) for e in res.effects}
         out["nrmse"] = {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects}
+        out["dropped"] = [w for w in res.warnings if "not reported" in w]
     return out
 
 
@@ -154,10 +155,12 @@ def single_rows(results: list[dict], effects: list[str]) -> dict:
         for key, val in (("n", rs), ("right", right), ("alone", alone), ("halved", halved), ("within", within)):
             tot[key] += len(val)
         tot["refused"] += sum(r["refused"] for r in rs)
-        other = [r.get("found") if r.get("found") != [effect] else None for r in rs]
+        other = [r.get("found") if r.get("error") is None else r["error"][:70] for r in rs if r.get("found") != [effect]]
         print(f"{effect:<20} {len(rs):>3} {len(right):>3}/{len(rs):<2} {len(alone):>3}/{len(right):<2} "
-              f"{len(within):>2}/{len(right):<2} {len(halved):>4}/{len(right):<3} "
-              f"{[o if r.get('error') is None else r['error'][:70] for o, r in zip(other, rs) if o or r.get('error')]}")
+              f"{len(within):>2}/{len(right):<2} {len(halved):>4}/{len(right):<3} {other}")
+        for r in rs:
+            if r.get("found") != [effect] and r.get("dropped"):
+                print(f"  {'':<18} {r['rate']:.0f} Hz: {' | '.join(r['dropped'])}")
         steps = [f"{r['nrmse'][effect][0]:.3f}->{r['nrmse'][effect][1]:.3f}" if r["nrmse"][effect][1] is not None
                  else "n/a" for r in right]
         vals = [f"{r['values'][effect]:.4g}/{r['true_values'][effect]:.4g}" for r in right]

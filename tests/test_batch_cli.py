@@ -154,3 +154,27 @@ def test_mixed_fleet_skips_a_loop_whose_topics_are_absent(tmp_path: Path) -> Non
     assert status[("design1_altitude.mcap", "roll")] == ("skipped-no-topics",
                                                           "skipped: no roll topics (/imu/data:orientation)")
     assert data["counts"]["failed"] == 0 and data["counts"]["skipped-no-topics"] == 2
+
+
+def test_loop_auto_finds_the_loops_from_the_topics(tmp_path: Path) -> None:
+    """--loop auto: each log's loops whose topics it holds; a loop whose output does not follow the relay
+    is skipped (no MRFT test on it), the tested one identified near the simulation's truth."""
+    import shutil
+
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    (tmp_path / "fleet").mkdir()
+    for name in ("design1_altitude.mcap", "design1_roll.mcap"):
+        shutil.copy(samples / name, tmp_path / "fleet" / name)
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "auto",
+                                 "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "--json", "-", "-q"])
+    assert r.exit_code == 0, r.output
+    rows = json.loads(r.stdout)["rows"]
+    status = {(Path(row["path"]).name, row["loop"]): row["status"] for row in rows}
+    assert status == {("design1_altitude.mcap", "altitude"): "ok", ("design1_altitude.mcap", "x"): "skipped-no-tests",
+                      ("design1_altitude.mcap", "y"): "skipped-no-tests", ("design1_roll.mcap", "roll"): "ok",
+                      ("design1_roll.mcap", "pitch"): "skipped-no-tests"}
+    for row in rows:
+        if row["status"] == "ok":
+            truth = json.loads((samples / (Path(row["path"]).name + ".truth.json")).read_text())
+            td = truth["Td"]
+            assert abs(row["Td_mean"] - td) < 0.1 * td, (row["loop"], row["Td_mean"], td)

@@ -102,6 +102,10 @@ def _check_tp(value: Any, where: str) -> float:
         raise InputError(f"{where}: {err}") from None
 
 
+#: ``loop = "auto"``: every loop whose topics the log holds and whose relay tests are found.
+AUTO_LOOP = "auto"
+
+
 def _check_loops(value: Any, where: str) -> tuple[str, ...]:
     items = [value] if isinstance(value, str) else value
     if not isinstance(items, (list, tuple)) or not items:
@@ -110,8 +114,8 @@ def _check_loops(value: Any, where: str) -> tuple[str, ...]:
     for item in items:
         for part in str(item).split(",") if isinstance(item, str) else [item]:
             part = part.strip() if isinstance(part, str) else part
-            if part not in LOOPS:
-                raise InputError(f"{where}: loop must be one of {', '.join(LOOPS)}, got {part!r}")
+            if part not in (*LOOPS, AUTO_LOOP):
+                raise InputError(f"{where}: loop must be one of {', '.join(LOOPS)} or auto, got {part!r}")
             if part not in loops:
                 loops.append(part)
     return tuple(loops)

@@ -42,10 +42,11 @@ import pandas as pd
 
 from .. import __version__
 from ..io.atomic import atomic_path, write_text_atomic
-from .inputs import BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
+from .inputs import AUTO_LOOP, BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
 from .summary import (
     STATUS_FAILED,
     STATUS_INSUFFICIENT,
+    STATUS_NO_TESTS,
     STATUS_NO_TOPICS,
     STATUS_OK,
     STATUS_SKIPPED,
@@ -61,7 +62,7 @@ from ..progress import report as report_progress
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["BatchFailedError", "absent_topics", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
+__all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
            "run_batch"]
 
 #: Record format version: bump when the record layout changes, so old results are recomputed.
@@ -145,6 +146,35 @@ def absent_topics(path: str | Path, loop: str, layout: str | None = None) -> tup
             return (f"{lay.name} layout has no {loop} loop",)
         specs = (topics.command, topics.output)
         return tuple(spec for spec in specs if source.resolve_topic(spec.split(":", 1)[0]) is None)
+
+
+def loops_in_log(path: str | Path, layout: str | None = None) -> tuple[str, ...]:
+    """The loops of the log's layout whose command and output topics the log holds (``--loop auto``)."""
+    from ..io import log_layout, open_log
+
+    with open_log(path) as source:
+        lay = log_layout(source, layout).layout
+        return tuple(loop for loop, topics in lay.loops.items()
+                     if all(source.resolve_topic(spec.split(":", 1)[0]) is not None
+                            for spec in (topics.command, topics.output)))
+
+
+def _auto_loops(task: LogTask) -> tuple[str, ...]:
+    """``--loop auto``: the loops the log records; altitude (the old default) when it cannot be opened,
+    so that the analysis reports why."""
+    try:
+        return loops_in_log(task.path, task.settings.layout) or ("altitude",)
+    except Exception:  # noqa: BLE001 - the analysis says why the log cannot be read
+        return ("altitude",)
+
+
+def _untested_skipped(loops: list[dict[str, Any]]) -> None:
+    """``--loop auto``: a loop without relay tests is skipped when another loop of the log had some
+    (a log where no loop had any keeps its failures)."""
+    untested = [e for e in loops if e["status"] == STATUS_FAILED and e.get("error_type") == "SegmentationError"]
+    if len(untested) < len(loops):
+        for e in untested:
+            e.update(status=STATUS_NO_TESTS, error=f"skipped: no MRFT test on the {e['loop']} loop ({e['error']})")
 
 
 def _skipped_entry(entry: dict[str, Any], loop: str, absent: tuple[str, ...]) -> dict[str, Any]:
@@ -236,7 +266,9 @@ def analyze_one(task: LogTask) -> dict[str, Any]:
     """
     t0 = time.perf_counter()
     loops = []
-    for loop in task.settings.loops:
+    auto = AUTO_LOOP in task.settings.loops
+    chosen = _auto_loops(task) if auto else task.settings.loops
+    for loop in chosen:
         # Python warnings raised by the numerics go into the record instead of interleaving on the
         # terminal from many processes.
         with warnings.catch_warnings(record=True) as caught:
@@ -244,6 +276,8 @@ def analyze_one(task: LogTask) -> dict[str, Any]:
             entry = _analyze_loop(task, loop)
         entry["python_warnings"] = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
         loops.append(entry)
+    if auto:
+        _untested_skipped(loops)
     # Plain JSON values (NaN -> None) made here, in the worker, so the parent only writes them.
     return to_jsonable(_record(task, loops, time.perf_counter() - t0))
 
@@ -539,8 +573,9 @@ def run_batch(
         notes.insert(0, f"{len(unwritten)} output file(s) could not be written (first: {unwritten[0]}); "
                         "the results that were are complete")
     counts = {s: int((df["status"] == s).sum()) for s in (STATUS_OK, STATUS_INSUFFICIENT, STATUS_FAILED, STATUS_SKIPPED)}
-    if (df["status"] == STATUS_NO_TOPICS).any():  # named only when it happens (a fleet of mixed loops)
-        counts[STATUS_NO_TOPICS] = int((df["status"] == STATUS_NO_TOPICS).sum())
+    for status in (STATUS_NO_TOPICS, STATUS_NO_TESTS):  # named only when they happen (a fleet of mixed loops)
+        if (df["status"] == status).any():
+            counts[status] = int((df["status"] == status).sum())
     return BatchResult(df, out, outputs, counts, len(logs), notes, unwritten)
 
 

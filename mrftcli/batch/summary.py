@@ -20,13 +20,17 @@ import pandas as pd
 from ..analyze import AnalysisResult
 from ..errors import InputError
 
-__all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "SUMMARY_COLUMNS",
+__all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
+           "SUMMARY_COLUMNS",
            "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers"]
 
 #: Statuses of a row in the summary.
 STATUS_OK, STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_SKIPPED = ("ok", "failed", "insufficient", "skipped-uptodate")
 #: A loop asked for whose topics the log does not hold (a fleet of mixed loops): not a failure.
 STATUS_NO_TOPICS = "skipped-no-topics"
+#: With ``--loop auto``: a loop whose topics are there but on which no relay test was found, in a log
+#: where another loop's were (a loop that was not tested).
+STATUS_NO_TESTS = "skipped-no-tests"
 
 
 SUMMARY_COLUMNS = [

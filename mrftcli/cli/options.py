@@ -221,8 +221,10 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
     from ..io.logtypes import LOOPS
 
     if config_defaults:
-        loop = click.option("--loop", multiple=True, type=click.Choice(LOOPS),
-                            help="Loop to identify; repeat for several (default: altitude; overrides the config).")
+        loop = click.option("--loop", multiple=True, type=click.Choice((*LOOPS, "auto")),
+                            help="Loop to identify; repeat for several; auto: every loop whose topics the log "
+                                 "holds, a loop without relay tests skipped (default: altitude; overrides "
+                                 "the config).")
     else:
         loop = click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True,
                             help="Loop the log's MRFT tests excite.")

@@ -448,7 +448,7 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, T
     cand_rows, fits = search.rows, search.fits
     deterministic = sorted((r for r in cand_rows if r.significant and r.name in fits), key=lambda r: -_bic_gain(r))
     if not deterministic:
-        return EffectSelection(effects=[], pair_rows=[], final=None, warnings=[])
+        return EffectSelection(effects=[], pair_rows=[], final=None, warnings=_unconfirmed(cand_rows, set()))
     first = deterministic[0]
     say(f"testing a second effect on top of {first.name}", more=1)
     pairs = _Pairs(screen, linear, fits, Tp)

@@ -41,8 +41,10 @@ __all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", 
 LTI_SCHEMA_VERSION = 1
 _Z95 = 1.959964
 #: floors of the standard errors (relative gain, phase [rad]): a point measured from few cycles
-#: (or noise-free simulations) must not get an infinite weight
-_SE_FLOOR = (2e-3, 2e-3)
+#: (or noise-free simulations) must not get an infinite weight, and the cycle-to-cycle scatter misses
+#: the few tenths of a percent a sampled relay's jitter leaves in the mean (bench_families: 0.2 %
+#: gave 72 % coverage overall, 0.5 % 88 % on the hysteresis and biased rows)
+_SE_FLOOR = (5e-3, 5e-3)
 _GRID = np.geomspace(1e-2, 1e2, 33)  # time constants times the points' median frequency
 
 FloatArray = NDArray[np.float64]

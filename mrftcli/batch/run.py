@@ -169,12 +169,16 @@ def _auto_loops(task: LogTask) -> tuple[str, ...]:
 
 
 def _untested_skipped(loops: list[dict[str, Any]]) -> None:
-    """``--loop auto``: a loop without relay tests is skipped when another loop of the log had some
-    (a log where no loop had any keeps its failures)."""
-    untested = [e for e in loops if e["status"] == STATUS_FAILED and e.get("error_type") == "SegmentationError"]
+    """``--loop auto``: a loop without relay tests (or whose field the log's topic lacks: a CSV or ULog
+    holding z alone) is skipped when another loop of the log was not (a log where every loop failed
+    keeps its failures)."""
+    why = {"SegmentationError": (STATUS_NO_TESTS, "no MRFT test on the {} loop"),
+           "InputError": (STATUS_NO_TOPICS, "no {} topics"), "LogReadError": (STATUS_NO_TOPICS, "no {} topics")}
+    untested = [e for e in loops if e["status"] == STATUS_FAILED and e.get("error_type") in why]
     if len(untested) < len(loops):
         for e in untested:
-            e.update(status=STATUS_NO_TESTS, error=f"skipped: no MRFT test on the {e['loop']} loop ({e['error']})")
+            status, text = why[e["error_type"]]
+            e.update(status=status, error=f"skipped: {text.format(e['loop'])} ({e['error']})")
 
 
 def _skipped_entry(entry: dict[str, Any], loop: str, absent: tuple[str, ...]) -> dict[str, Any]:
@@ -550,7 +554,7 @@ def run_batch(
     if jobs is not None and jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {jobs}")
     logs = discover_logs(paths, exclude=[out])
-    base = {"tp": None, "loops": ("altitude",)} | dict(defaults or {})
+    base = {"tp": None, "loops": (AUTO_LOOP,)} | dict(defaults or {})
     tasks = [_task(log, base, config, explicit or {}, diagnose, tune) for log in logs]
     if all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")

@@ -223,7 +223,7 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
     if config_defaults:
         loop = click.option("--loop", multiple=True, type=click.Choice((*LOOPS, "auto")),
                             help="Loop to identify; repeat for several; auto: every loop whose topics the log "
-                                 "holds, a loop without relay tests skipped (default: altitude; overrides "
+                                 "holds, a loop without relay tests skipped (default: auto; overrides "
                                  "the config).")
     else:
         loop = click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True,

@@ -173,7 +173,7 @@ def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     if loop is not None and result.loop and result.loop != loop:
         raise InputError(f"--loop {loop} but {path} was analysed for the {result.loop} loop")
     if not (loop or result.loop):
-        raise InputError(f"give --loop altitude|roll|pitch: {path} does not record its loop")
+        raise InputError(f"give --loop altitude|roll|pitch|x|y: {path} does not record its loop")
     # the rate the analysis recorded: the controller's, as when the LOG is given (not the logging rate)
     return _TuneSource(model, post, loop or result.loop, result.controller_rate_hz,
                        tuple(float(t.h) for t in result.tests),
@@ -333,7 +333,7 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, 
     loop: str | None = read_options["loop"]
     if loop is None and not is_result:
         # the gains, their HEAR/PX4 export and the log's signals all depend on the loop: never assumed
-        raise InputError("give --loop altitude|roll|pitch: the loop the gains are for")
+        raise InputError("give --loop altitude|roll|pitch|x|y: the loop the gains are for")
     if loop is not None:
         _check_stack(ex, loop, kind)  # before the work starts
     if source is None:

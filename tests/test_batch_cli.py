@@ -18,7 +18,7 @@ from test_batch import toy_analysis
 
 
 def mrft(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(["mrft-ident", *args], cwd=cwd, capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-m", "mrftcli", *args], cwd=cwd, capture_output=True, text=True, timeout=120)
 
 
 def test_bad_log_exits_8_with_one_line_and_rows_written(tmp_path: Path) -> None:

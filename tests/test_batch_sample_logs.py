@@ -19,6 +19,7 @@ import glob
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -77,7 +78,7 @@ def batch_run(tmp_path_factory, sweep_size):
     cfg.write_text("\n".join(lines))
     out = tmp / "out"
     proc = subprocess.run(
-        ["mrft-ident", "batch", *map(str, logs), "--config", str(cfg), "--out", str(out), "--jobs", "2",
+        [sys.executable, "-m", "mrftcli", "batch", *map(str, logs), "--config", str(cfg), "--out", str(out), "--jobs", "2",
          "--json", "--quiet"],
         capture_output=True, text=True, timeout=900,
     )

@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
-from .model import Parameter, StateSpace, UnitNormalisation, json_bounds, model_json, model_json_parameters
+from .model import Parameter, StateSpace, UnitNormalisation, json_parameter_values, model_json, model_json_parameters
 
 __all__ = ["FOPDT", "SOPDT", "IPDT", "FOIPDT", "PROCESS_FAMILIES", "family_model"]
 
@@ -134,21 +134,8 @@ class _Family:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> Any:
         """The model of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        params = model_json_parameters(data, cls.family)
-        values: dict[str, float] = {}
-        known: set[str] = set()
-        ranges = []
-        for name, (_, _, physical) in cls._spec.items():
-            entry = params.get(name)
-            if not isinstance(entry, Mapping) or not isinstance(entry.get("value"), (int, float)):
-                raise InputError(f"model JSON: parameter {name!r} needs a numeric 'value'")
-            values[name] = float(entry["value"])
-            if entry.get("known"):
-                known.add(name)
-            lo, hi = json_bounds(name, entry.get("bounds"), physical)
-            if (lo, hi) != physical:
-                ranges.append((name, lo, hi))
-        return cls(**values, known=frozenset(known), ranges=tuple(ranges))  # type: ignore[call-arg]
+        values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), cls._spec)
+        return cls(**values, known=known, ranges=ranges)  # type: ignore[call-arg]
 
 
 _K = ("output / command", "static gain", (-_INF, _INF))

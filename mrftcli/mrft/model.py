@@ -332,21 +332,8 @@ class LoopModel:
         InputError
             Not a dict of this schema version and family, or a parameter missing or out of range.
         """
-        params = model_json_parameters(data, cls.family)
-        values: dict[str, float] = {}
-        known, ranges = set(), []
-        for name, (_, _, physical) in _LOOP_PARAMETERS.items():
-            entry = params.get(name)
-            if not isinstance(entry, Mapping) or not isinstance(entry.get("value"), (int, float)):
-                raise InputError(f"model JSON: parameter {name!r} needs a numeric 'value'")
-            values[name] = float(entry["value"])
-            if entry.get("known"):
-                known.add(name)
-            lo, hi = json_bounds(name, entry.get("bounds"), physical)
-            if (lo, hi) != physical:
-                ranges.append((name, lo, hi))
-        return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=frozenset(known),
-                   ranges=tuple(ranges))
+        values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), _LOOP_PARAMETERS)
+        return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=known, ranges=ranges)
 
 
 def model_json(family: str, parameters: Iterable[Parameter]) -> dict[str, Any]:
@@ -373,6 +360,30 @@ def model_json_parameters(data: Mapping[str, Any], family: str) -> Mapping[str, 
     if not isinstance(params, Mapping):
         raise InputError("model JSON needs a 'parameters' object")
     return params
+
+
+def json_parameter_values(
+    params: Mapping[str, Any], spec: Mapping[str, tuple[str, str, tuple[float, float]]]
+) -> tuple[dict[str, float], frozenset[str], tuple[tuple[str, float, float], ...]]:
+    """Values, the known set (E) and the ranges narrower than physical (I) of a model JSON's parameters.
+
+    ``spec`` maps each parameter of the structure to ``(unit, description, physical range)``; every one
+    must be present with a numeric ``value``. Raises :class:`~mrftcli.errors.InputError` otherwise.
+    """
+    values: dict[str, float] = {}
+    known: set[str] = set()
+    ranges: list[tuple[str, float, float]] = []
+    for name, (_, _, physical) in spec.items():
+        entry = params.get(name)
+        if not isinstance(entry, Mapping) or not isinstance(entry.get("value"), (int, float)):
+            raise InputError(f"model JSON: parameter {name!r} needs a numeric 'value'")
+        values[name] = float(entry["value"])
+        if entry.get("known"):
+            known.add(name)
+        lo, hi = json_bounds(name, entry.get("bounds"), physical)
+        if (lo, hi) != physical:
+            ranges.append((name, lo, hi))
+    return values, frozenset(known), tuple(ranges)
 
 
 def json_bounds(name: str, bounds: Any, physical: tuple[float, float]) -> tuple[float, float]:

@@ -40,7 +40,7 @@ def sample_log(name: str = "design1_altitude.mcap") -> Path:
     Raises
     ------
     InputError
-        ``name`` is not a packaged sample.
+        ``name`` is not a packaged sample, or the install lacks it.
 
     Examples
     --------
@@ -50,8 +50,12 @@ def sample_log(name: str = "design1_altitude.mcap") -> Path:
     """
     if name not in PACKAGED:
         raise InputError(f"no packaged sample log {name!r}: choose one of {', '.join(PACKAGED)}")
+    candidates = [Path(__file__).resolve().parents[1] / "sample_logs" / name]  # a source checkout
     try:
-        path = Path(str(importlib.resources.files("mrftcli._samples").joinpath(name)))
+        candidates.insert(0, Path(str(importlib.resources.files("mrftcli._samples").joinpath(name))))
     except ModuleNotFoundError:  # a source checkout that was never installed
-        path = Path(__file__).resolve().parents[1] / "sample_logs" / name
-    return path
+        pass
+    for path in candidates:
+        if path.exists():
+            return path
+    raise InputError(f"the packaged sample log {name!r} is missing from this install (reinstall mrft-ident)")

@@ -111,3 +111,6 @@ def test_every_subpackage_is_in_the_wheel():
     listed = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {".".join(p.parent.relative_to(root).parts) for p in (root / "mrftcli").rglob("__init__.py")}
     assert found <= listed, sorted(found - listed)
+    # folders installed under another name (manifolds/ -> mrftcli._manifolds, sample_logs/ -> mrftcli._samples)
+    mapped = set(tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"])
+    assert mapped <= listed, sorted(mapped - listed)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from collections.abc import Collection
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -30,12 +31,14 @@ import numpy as np
 
 from ..errors import InputError, LogReadError
 from . import cdr
-from .flight import DEFAULT_TOPICS, ReadOptions, read_loop
+from .flight import DEFAULT_TOPICS, ReadOptions, read_loop, role_specs
 from .format_mcap import MCAP_MAGIC, McapChannel, McapRecords, channel_typestore
+from .layouts import get_layout
 from .logtypes import FlightLog, TopicInfo
-from .source import LogSource
+from .source import LogSource, parse_spec
 
 if TYPE_CHECKING:
+    from mcap.records import Channel, Schema
     from rosbags.typesys.store import Typestore
 
 __all__ = ["Snapshot", "LogFollower", "McapFollower", "follow_log", "is_mcap"]
@@ -112,6 +115,25 @@ class LogFollower(Protocol):
         """Read what the writer added since the last poll."""
 
 
+class _WantedRecords(McapRecords):
+    """:class:`~mrftcli.io.format_mcap.McapRecords` keeping the bytes of the channels of ``topics`` only.
+
+    A followed file's channels appear as it is written, so the channel ids to keep are not known at
+    the start: each Channel record of a wanted topic adds its id to ``keep`` as it is registered
+    (before the messages of the chunk that declares it are gathered). Other channels (a camera)
+    cost their log times only.
+    """
+
+    def __init__(self, topics: frozenset[str]) -> None:
+        super().__init__(keep=frozenset())
+        self.topics = topics
+
+    def add_channel(self, rec: Channel, schema: Schema | None) -> None:
+        super().add_channel(rec, schema)
+        if rec.topic in self.topics and self.keep is not None:
+            self.keep = self.keep | {rec.id}
+
+
 class McapFollower:
     """The messages of a growing MCAP file, read record by record as they are completed.
 
@@ -119,13 +141,22 @@ class McapFollower:
     [s] and float64 values so far (the same field paths as :mod:`mrftcli.io`); ``closed`` turns True at
     the Footer (or Data End) record. The records are parsed by :class:`mrftcli.io.format_mcap.McapRecords`,
     as in the MCAP reader's salvage pass.
+
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP file being written.
+    topics : collection of str, optional
+        The topics whose messages are kept (the others' bytes are dropped as they are parsed: a
+        follower of a camera bag holds the loop's topics only); None keeps every topic.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, topics: Collection[str] | None = None) -> None:
         self.path = Path(path)
         self.offset = 0
         self.closed = False
-        self._records = McapRecords()
+        self.wanted = None if topics is None else frozenset(topics)
+        self._records = McapRecords() if self.wanted is None else _WantedRecords(self.wanted)
         self._decoded: dict[int, _Decoded] = {}  # channel id -> leaves -> (t [s] arrays, values)
         self._typestores: dict[int, Typestore] = {}
 
@@ -176,7 +207,15 @@ class McapFollower:
         """Topic names seen so far."""
         return sorted({c.topic for c in self._records.channels.values()})
 
+    def kept_bytes(self) -> int:
+        """Bytes of message data held and not yet decoded, over every channel (what ``topics`` bounds)."""
+        return sum(len(d) for ch in self._records.channels.values() for d in ch.datas)
+
     def _find(self, topic: str) -> McapChannel | None:
+        if self.wanted is not None and topic not in self.wanted:
+            # its bytes were dropped as parsed: asking for it is a caller's mistake, not an absent topic
+            raise LogReadError(f"{self.path}: topic {topic!r} is not one this follower keeps "
+                               f"({', '.join(sorted(self.wanted))})")
         for ch in self._records.channels.values():
             if ch.topic == topic:
                 return ch
@@ -297,8 +336,9 @@ class _McapLog:
 
     def __init__(self, path: Path, opts: ReadOptions) -> None:
         self.dir = path if path.is_dir() else None
-        self.follower = None if self.dir else McapFollower(path)
         self.opts = replace(opts, layout="reference")
+        self.topics = _wanted_topics(self.opts)
+        self.follower = None if self.dir else McapFollower(path, self.topics)
         self.path = path
         #: (inode, size) when last read: a smaller size or another inode is a new recording
         self.seen = None if self.dir else _identity(path)
@@ -309,14 +349,14 @@ class _McapLog:
             files = sorted(self.dir.glob("*.mcap"))
             if not files:
                 return Snapshot(None, False, False)
-            self.follower = McapFollower(files[0])
+            self.follower = McapFollower(files[0], self.topics)
             self.seen = _identity(files[0])
         f = self.follower
         now = _identity(f.path)
         restarted = _replaced(self.seen, now)
         if restarted is not None:
             # a new recording under the same name: what was parsed belongs to the old one
-            f = self.follower = McapFollower(f.path)
+            f = self.follower = McapFollower(f.path, self.topics)
         grew = f.poll()
         self.seen = _identity(f.path) if grew or restarted else now
         return Snapshot(self._flight(f) if grew or f.closed else None, grew, f.closed, restarted)
@@ -329,6 +369,14 @@ class _McapLog:
         if flight.command.t.size < 10 or flight.output.t.size < 10:
             return None
         return replace(flight, source={**flight.source, "format": "mcap (followed)"})
+
+
+def _wanted_topics(opts: ReadOptions) -> frozenset[str]:
+    """The topics :func:`~mrftcli.io.flight.read_loop` reads for ``opts`` (layout named): the command,
+    output, beta, setpoint and battery roles' topics."""
+    specs = role_specs(get_layout(opts.layout or "reference"), opts)
+    roles = (specs.command, specs.output, specs.beta, specs.setpoint, specs.battery)
+    return frozenset(parse_spec(s).topic for s in roles if s is not None)
 
 
 class _RereadLog:

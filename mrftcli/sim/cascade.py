@@ -1,0 +1,312 @@
+"""Cascaded flights: an outer MRFT (x or y) through the closed inner attitude loop, with known truth.
+
+One flight holds the inner loop's own MRFT tests first (the attitude PD replaced by the relay on
+the inner command), then the outer loop's (the relay on the outer command, the inner PD closing the
+attitude loop), as a vehicle is identified from take-off. Between tests a position hold (a PID on
+the position, :func:`outer_hold_gains`) and the inner PD keep the vehicle in place.
+
+At each controller tick t_k (one rate for both loops, :attr:`InnerGains.rate_hz`):
+
+1. measure the attitude alpha(t_k) and the position y(t_k - tau) (plus white noise);
+2. the outer command c_k: the outer relay (outer tests) or the position hold;
+   the attitude setpoint alpha_ref = c_k (commanded attitude) or c_k / g (commanded acceleration);
+3. the inner command u_k: the inner relay (inner tests, on the error 0 - alpha) or the inner PD
+   (derivative on the measured attitude, first-order filter Tf, backward differences);
+4. u_k is held for one period and reaches the plant tau_inner later.
+
+The plant between ticks is propagated exactly (:mod:`mrftcli.sim.cascade_plant`). Conventions and
+the truth record: :mod:`mrftcli.sim.cascade_spec`; writing the logs: :mod:`mrftcli.sim.cascade_write`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, inner_closed_loop
+from .cascade_spec import CascadeSpec, CascadeTestTruth, CascadeTruth, InnerGains
+from .control import HearMrftRelay, MrftRelay, design_hold_pid, df_prediction, make_relay
+
+__all__ = ["CascadeFlight", "simulate_cascade", "outer_hold_gains", "approximate_outer_model", "inner_pd",
+           "command_gain"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CascadeFlight:
+    """A simulated cascaded flight at the controller rate, in the output's direction (see
+    :mod:`mrftcli.sim.cascade_spec`; the pitch loop's logged angle and command are the negatives).
+
+    Attributes
+    ----------
+    spec : CascadeSpec
+    truth : CascadeTruth
+    t : ndarray
+        Tick times (log time) [s].
+    inner_command : ndarray
+        u_k [inner command units].
+    outer_command : ndarray
+        c_k [rad or m/s^2].
+    attitude_setpoint : ndarray
+        alpha_ref [rad] (0 during the inner tests).
+    attitude_true, attitude_measured : ndarray
+        alpha(t_k) and what the controller saw [rad].
+    position_true, position_measured : ndarray
+        y(t_k) and the delayed, noisy measurement [m].
+    other_attitude : ndarray
+        The other attitude axis (noise only) [rad].
+    """
+
+    spec: CascadeSpec
+    truth: CascadeTruth
+    t: Array
+    inner_command: Array
+    outer_command: Array
+    attitude_setpoint: Array
+    attitude_true: Array
+    attitude_measured: Array
+    position_true: Array
+    position_measured: Array
+    other_attitude: Array
+
+
+def command_gain(commanded: str, g: float) -> float:
+    """alpha_ref per unit outer command: 1 (attitude [rad]) or 1/g (acceleration [m/s^2])."""
+    return 1.0 if commanded == "attitude" else 1.0 / g
+
+
+def inner_pd(inner: LoopModel, rate_hz: float, phase_margin_deg: float = 40.0, derivative_time: float = 0.3,
+             filter_ratio: float = 10.0) -> InnerGains:
+    """A PD for the attitude plant with a given phase margin (continuous design, half a tick of hold).
+
+    C(s) = Kp (1 + Td_c s / (Tf s + 1)), Tf = Td_c / ``filter_ratio``; the crossover is the highest
+    frequency where arg C G = -180 deg + ``phase_margin_deg``, and Kp puts |C G| = 1 there.
+
+    Parameters
+    ----------
+    inner : LoopModel
+        The attitude plant.
+    rate_hz : float
+        Controller rate [Hz].
+    phase_margin_deg : float
+        Design phase margin [deg].
+    derivative_time : float
+        Td_c = Kd / Kp [s].
+    filter_ratio : float
+        Td_c / Tf.
+
+    Raises
+    ------
+    InputError
+        No crossover reaches that margin with this derivative time.
+    """
+    td_c = float(derivative_time)
+    tf = td_c / filter_ratio
+    omega = np.geomspace(0.05, 0.95 * math.pi * rate_hz, 4000)
+    g = inner.frequency_response(omega) * np.exp(-0.5j * omega / rate_hz)
+    c = 1.0 + td_c * 1j * omega / (tf * 1j * omega + 1.0)
+    phase = np.unwrap(np.angle(g * c))
+    above = np.flatnonzero(phase >= -math.pi + math.radians(phase_margin_deg))
+    if above.size == 0:
+        raise InputError(f"no PD with derivative time {td_c:g} s reaches a {phase_margin_deg:g} deg phase margin "
+                         f"on this plant; use a longer derivative time or a smaller margin")
+    i = int(above[-1])
+    kp = 1.0 / float(np.abs(g[i] * c[i]))
+    return InnerGains(kp, 0.0, kp * td_c, tf, rate_hz)
+
+
+def _equivalent_lag(plant: CascadePlant, gains: InnerGains) -> float:
+    """The closed inner loop's equivalent lag [s]: pi/4 over the frequency where it lags 45 deg."""
+    omega = np.geomspace(0.05, 0.99 * math.pi / plant.T, 400)
+    phase = np.unwrap(np.angle(inner_closed_loop(plant, gains, omega)))
+    beyond = np.flatnonzero(phase < -math.pi / 4)
+    if beyond.size == 0:
+        return plant.T
+    return float(math.pi / 4 / omega[beyond[0]])
+
+
+def approximate_outer_model(inner: LoopModel, gains: InnerGains, Td: float, tau: float, K: float,
+                            g: float = 9.81) -> LoopModel:
+    """Eq. (2) standing in for the cascade when planning tests and the position hold (never for truth):
+    Tp = the closed inner loop's equivalent lag, the outer Td, tau and K."""
+    plant = cascade_plant(inner, Td, tau, gains.rate_hz, g)
+    return LoopModel(_equivalent_lag(plant, gains), Td, tau, K)
+
+
+def outer_hold_gains(spec: CascadeSpec) -> InnerGains:
+    """The position hold between tests (position error -> outer command), checked stable on the cascade.
+
+    The simulator's hold PID (60 deg design margin) on :func:`approximate_outer_model`, its gains
+    halved until the exact closed loop (:func:`closed_loop_radius`) is stable.
+    """
+    plant = cascade_plant(spec.inner, spec.Td, spec.tau, spec.rate_hz, spec.g)
+    approx = approximate_outer_model(spec.inner, spec.gains, spec.Td, spec.tau, spec.K, spec.g)
+    pid = design_hold_pid(approx, spec.rate_hz, 60.0)
+    scale = 1.0
+    for _ in range(8):
+        hold = InnerGains(pid.Kp * scale, pid.Ki * scale, pid.Kd * scale, pid.Tf, spec.rate_hz)
+        if closed_loop_radius(plant, spec.gains, hold, command_gain(spec.commanded, spec.g)) < 1.0:
+            return hold
+        scale *= 0.5
+    raise InputError("no stable position hold found for this cascade; check the outer Td, tau and the inner gains")
+
+
+@dataclass(frozen=True)
+class _Schedule:
+    """The tests in flight order: loop kind ("inner"/"outer"), tick ranges, relays, abort limits."""
+
+    kinds: tuple[str, ...]
+    ranges: tuple[tuple[int, int], ...]
+    n_ticks: int
+    limits: tuple[float, ...]
+
+
+def _schedule(spec: CascadeSpec, approx: LoopModel, noise: tuple[float, float]) -> _Schedule:
+    rate = spec.rate_hz
+    k = int(round(spec.hover_s * rate))
+    kinds, ranges, limits = [], [], []
+    for kind, tests, model, std in (("inner", spec.inner_tests, spec.inner, noise[0]),
+                                    ("outer", spec.outer_tests, approx, noise[1])):
+        for test in tests:
+            n = int(round(test.duration * rate))
+            if n < 2:
+                raise InputError(f"a test must cover at least two controller periods, got {test.duration!r} s")
+            kinds.append(kind)
+            ranges.append((k, k + n))
+            limits.append(max(10.0 * df_prediction(model, test.beta, test.h, rate)[1], 50.0 * std))
+            k += n + int(round(spec.hold_s * rate))
+    return _Schedule(tuple(kinds), tuple(ranges), k, tuple(limits))
+
+
+class _CascadeController:
+    """Both loops' controllers, tick by tick: relays during tests, the inner PD and the position hold."""
+
+    def __init__(self, spec: CascadeSpec, schedule: _Schedule, hold: InnerGains, noise: tuple[float, float]):
+        self.T = 1.0 / spec.rate_hz
+        self.inner, self.hold = spec.gains, hold
+        self.conv = command_gain(spec.commanded, spec.g)
+        self.schedule = schedule
+        self.tests = (*spec.inner_tests, *spec.outer_tests)
+        self.mode = np.full(schedule.n_ticks, -1, dtype=np.int64)
+        for j, (k0, k1) in enumerate(schedule.ranges):
+            self.mode[k0:k1] = j
+        self.aborted: list[int | None] = [None] * len(self.tests)
+        thresholds = {"inner": 10.0 * noise[0], "outer": 10.0 * noise[1]}
+        self.relays: list[MrftRelay | HearMrftRelay] = [
+            make_relay(t.beta, spec.switching, thresholds[kind], 5, 0.02 * spec.rate_hz)
+            for t, kind in zip(self.tests, schedule.kinds)]
+        self.d_in = self.i_in = self.d_out = self.i_out = 0.0
+        self.a_prev = self.y_prev = 0.0
+
+    def _relay(self, j: int, k: int, e: float) -> float:
+        if abs(e) > self.schedule.limits[j]:
+            # a flight stack's safety net: the hold takes over for the rest of the test
+            self.aborted[j] = k
+            self.mode[k:self.schedule.ranges[j][1]] = -1
+            return math.nan
+        relay = self.relays[j]
+        s = relay.start(e) if k == self.schedule.ranges[j][0] else relay.step(e)
+        return s * self.tests[j].h
+
+    def step(self, k: int, alpha_m: float, y_m: float) -> tuple[float, float, float]:
+        """(u, c, alpha_ref) of tick ``k`` for the measured attitude [rad] and position [m]."""
+        T, hold, inner = self.T, self.hold, self.inner
+        j = int(self.mode[k])
+        kind = self.schedule.kinds[j] if j >= 0 else "hold"
+        e_o = -y_m
+        self.d_out = (hold.Tf * self.d_out - hold.Kd * (y_m - self.y_prev)) / (hold.Tf + T)
+        self.y_prev = y_m
+        c = self._relay(j, k, e_o) if kind == "outer" else math.nan
+        if math.isnan(c):
+            if kind == "hold" or self.mode[k] < 0:
+                self.i_out += hold.Ki * T * e_o  # the integrators are frozen during tests
+            c = hold.Kp * e_o + self.i_out + self.d_out
+        alpha_ref = self.conv * c
+        self.d_in = (inner.Tf * self.d_in - inner.Kd * (alpha_m - self.a_prev)) / (inner.Tf + T)
+        self.a_prev = alpha_m
+        u = self._relay(j, k, -alpha_m) if kind == "inner" else math.nan
+        if kind == "inner" and not math.isnan(u):
+            return u, c, 0.0
+        e_i = alpha_ref - alpha_m
+        if self.mode[k] < 0:
+            self.i_in += inner.Ki * T * e_i
+        return inner.Kp * e_i + self.i_in + self.d_in, c, alpha_ref
+
+
+@dataclass(frozen=True)
+class _Draws:
+    attitude: Array
+    position: Array
+    other: Array
+
+
+def _fly(plant: CascadePlant, controller: _CascadeController, draws: _Draws, n_ticks: int) -> dict[str, Array]:
+    """The tick loop: measure, control, propagate the period piece by piece (exact)."""
+    rec = {name: np.empty(n_ticks) for name in ("u", "c", "ref", "alpha", "alpha_m", "y", "y_m")}
+    x = np.zeros(5)
+    line: deque[float] = deque([0.0] * (plant.m_in + 2), maxlen=plant.m_in + 2)
+    samples: deque[float] = deque([0.0] * max(plant.n_y, 1), maxlen=max(plant.n_y, 1))
+    for k in range(n_ticks):
+        y_meas = (samples[0] if plant.n_y > 0 else float(x[3])) + draws.position[k]
+        alpha_m = float(x[0]) + draws.attitude[k]
+        u, c, ref = controller.step(k, alpha_m, y_meas)
+        for name, value in (("u", u), ("c", c), ("ref", ref), ("alpha", x[0]), ("alpha_m", alpha_m), ("y", x[3]),
+                            ("y_m", y_meas)):
+            rec[name][k] = value
+        line.append(u)
+        ua, ub = line[0], line[1]
+        for seg in plant.segments:
+            if seg.sample_y_before and plant.n_y > 0:
+                samples.append(float(x[3]))
+            x = seg.Phi @ x + seg.Gamma * (ub if seg.newer else ua)
+    return rec
+
+
+def simulate_cascade(spec: CascadeSpec) -> CascadeFlight:
+    """Fly a cascaded flight: hover, the inner tests, the outer tests, each followed by a hold.
+
+    Raises
+    ------
+    InputError
+        The inner gains do not stabilise the attitude plant, or no stable position hold exists.
+    """
+    from .._version import __version__
+
+    plant = cascade_plant(spec.inner, spec.Td, spec.tau, spec.rate_hz, spec.g)
+    radius = closed_loop_radius(plant, spec.gains)
+    if radius >= 1.0:
+        raise InputError(f"the inner gains do not stabilise the {spec.inner_loop} plant (closed-loop spectral "
+                         f"radius {radius:.3f} >= 1); use smaller gains")
+    noise = spec.noise()
+    approx = approximate_outer_model(spec.inner, spec.gains, spec.Td, spec.tau, spec.K, spec.g)
+    schedule = _schedule(spec, approx, noise)
+    hold = outer_hold_gains(spec)
+    controller = _CascadeController(spec, schedule, hold, noise)
+    rng = np.random.default_rng(spec.seed)
+    n = schedule.n_ticks
+    draws = _Draws(rng.normal(0.0, noise[0], n) if noise[0] > 0 else np.zeros(n),
+                   rng.normal(0.0, noise[1], n) if noise[1] > 0 else np.zeros(n),
+                   rng.normal(0.0, noise[0], n) if noise[0] > 0 else np.zeros(n))
+    rec = _fly(plant, controller, draws, n)
+    T = plant.T
+    loops = {"inner": spec.inner_loop, "outer": spec.axis}
+    tests = tuple(
+        CascadeTestTruth(loops[kind], test.beta, test.h, spec.start_time + k0 * T,
+                         spec.start_time + (k1 if k_abort is None else k_abort) * T, k_abort is not None)
+        for test, kind, (k0, k1), k_abort in zip(controller.tests, schedule.kinds, schedule.ranges,
+                                                  controller.aborted))
+    truth = CascadeTruth(
+        axis=spec.axis, inner_loop=spec.inner_loop, commanded=spec.commanded, K=spec.K, Td=spec.Td, tau=spec.tau,
+        g=spec.g, inner=spec.inner, gains=spec.gains, outer_hold=hold, attitude_noise_std=noise[0],
+        position_noise_std=noise[1], switching=spec.switching, seed=spec.seed, start_time=spec.start_time,
+        duration=n * T, tests=tests, mrftcli_version=__version__)
+    t: Array = spec.start_time + np.arange(n, dtype=float) * T
+    return CascadeFlight(spec, truth, t, rec["u"], rec["c"], rec["ref"],
+                         rec["alpha"], rec["alpha_m"], rec["y"], rec["y_m"], draws.other)

@@ -13,11 +13,14 @@ Examples
 from __future__ import annotations
 
 import math
+from collections.abc import Collection, Mapping
 from typing import Any
 
 import numpy as np
 
-__all__ = ["to_jsonable"]
+from .errors import InputError
+
+__all__ = ["to_jsonable", "check_schema_version"]
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -40,3 +43,50 @@ def to_jsonable(obj: Any) -> Any:
     if isinstance(obj, np.bool_):
         return bool(obj)
     return obj
+
+
+def check_schema_version(data: Any, what: str, supported: int | Collection[int], *, missing: int | None = None,
+                         fix: str = "write it again with this version of mrft-ident") -> Mapping[str, Any]:
+    """``data`` as a mapping after checking it is a JSON object whose ``schema_version`` this version reads.
+
+    The one check every record's ``from_json`` starts with.
+
+    Parameters
+    ----------
+    data : Any
+        The parsed JSON.
+    what : str
+        The record's name for the message, e.g. ``"tune margins"``.
+    supported : int or collection of int
+        The schema version(s) this version of mrft-ident reads.
+    missing : int or None
+        The version a JSON without ``schema_version`` is taken to have (records written before the field
+        existed); None: such a JSON is refused.
+    fix : str
+        What the user should do, ending the one-line message.
+
+    Raises
+    ------
+    InputError
+        ``data`` is not a JSON object, or its version is not supported (one line, naming the fix).
+
+    Examples
+    --------
+    >>> check_schema_version({"schema_version": 2, "x": 1}, "demo", 2)["x"]
+    1
+    >>> check_schema_version({"schema_version": 3}, "demo", (1, 2))
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: demo: schema_version 3 is not supported (this version reads 1, 2); write it again with this version of mrft-ident
+    """
+    if not isinstance(data, Mapping):
+        raise InputError(f"{what}: expected a JSON object, got {type(data).__name__}")
+    versions = (supported,) if isinstance(supported, int) else tuple(supported)
+    version = data.get("schema_version", missing)
+    if version is None:
+        raise InputError(f"{what}: no schema_version (is this a {what}?); {fix}")
+    if isinstance(version, bool) or version not in versions:
+        readable = ", ".join(str(v) for v in versions)
+        raise InputError(f"{what}: schema_version {version!r} is not supported (this version reads {readable}); "
+                         f"{fix}")
+    return data

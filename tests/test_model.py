@@ -176,7 +176,7 @@ def test_json_errors_are_one_line_input_errors(change, message):
 
 
 def test_json_must_be_an_object():
-    with pytest.raises(InputError, match="model JSON must be an object, got list"):
+    with pytest.raises(InputError, match="model JSON: expected a JSON object, got list"):
         model_from_json([1, 2])  # type: ignore[arg-type]  # the bad input under test
     with pytest.raises(InputError, match="family None is not 'soiptd'"):
         LoopModel.from_json({"schema_version": 1})

@@ -23,6 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
 from ..mrft.harmonics import fit_harmonics
@@ -202,11 +203,7 @@ class GeneralAnalysis:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> GeneralAnalysis:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        if not isinstance(data, Mapping):
-            raise InputError(f"analysis JSON must be an object, got {type(data).__name__}")
-        if data.get("schema_version") != GENERAL_SCHEMA_VERSION:
-            raise InputError(f"analysis JSON schema_version {data.get('schema_version')!r} is not supported "
-                             f"(expected {GENERAL_SCHEMA_VERSION})")
+        data = check_schema_version(data, "analysis JSON", GENERAL_SCHEMA_VERSION)
         try:
             ident = data.get("identification")
             return cls(str(data["path"]), str(data["loop"]), float(data["t0"]),

@@ -20,6 +20,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..io.logtypes import FlightLog
 from ..mrft.identify import IdentificationResult, ParameterEstimate
@@ -328,12 +329,8 @@ class AnalysisResult:
         InputError
             Not an analyze result, or a ``schema_version`` newer than this version reads.
         """
-        if not isinstance(data, Mapping):
-            raise InputError(f"not an analyze RESULT.json: expected a JSON object, got {type(data).__name__}")
-        version = data.get("schema_version", 1)
-        if not isinstance(version, int) or not 1 <= version <= SCHEMA_VERSION:
-            raise InputError(f"analyze RESULT.json schema_version {version!r} is not supported (this version reads "
-                             f"1-{SCHEMA_VERSION}): update mrft-ident")
+        data = check_schema_version(data, "analyze RESULT.json", range(1, SCHEMA_VERSION + 1), missing=1,
+                                    fix="update mrft-ident")
         try:
             return _from_json(cls, data)
         except (KeyError, TypeError, ValueError, AttributeError) as err:

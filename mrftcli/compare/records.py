@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..jsonable import check_schema_version
 from ..errors import InputError, MrftError
 
 __all__ = ["SCHEMA_VERSION", "PARAMETERS", "Estimate", "LoopEstimates", "Tolerance", "ParameterChange",
@@ -312,12 +313,8 @@ class Comparison:
             Not a comparison record, a schema version other than :data:`SCHEMA_VERSION`, or a
             missing or mistyped field.
         """
-        if not isinstance(data, Mapping) or "schema_version" not in data:
-            raise InputError("not a compare record (no schema_version); pass the output of 'mrft-ident compare --json'")
-        version = data["schema_version"]
-        if version != SCHEMA_VERSION:
-            raise InputError(f"compare record schema_version {version!r} is not supported (this version reads "
-                             f"{SCHEMA_VERSION}); re-run 'mrft-ident compare' with this version")
+        data = check_schema_version(data, "compare record", SCHEMA_VERSION,
+                                    fix="pass the output of 'mrft-ident compare --json' of this version")
         try:
             return cls(
                 baseline=str(data["baseline"]),

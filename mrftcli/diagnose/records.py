@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 
 if TYPE_CHECKING:
@@ -814,12 +815,7 @@ class DiagnosisResult:
         InputError
             Not a diagnosis of this schema version, or a key missing or of the wrong kind.
         """
-        if not isinstance(data, dict):
-            raise InputError(f"a diagnosis must be a JSON object, got {type(data).__name__}")
-        version = data.get("schema_version")
-        if version != SCHEMA_VERSION:
-            raise InputError(f"diagnosis schema_version {version!r} is not supported (this version reads "
-                             f"{SCHEMA_VERSION}); rerun mrft-ident diagnose")
+        check_schema_version(data, "diagnosis", SCHEMA_VERSION, fix="rerun mrft-ident diagnose")
         try:
             unexplained = data["unexplained"]
             return cls(

@@ -17,6 +17,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 
 __all__ = ["Timing", "TIMING_SCHEMA_VERSION", "median_rate_hz", "mean_rate_hz", "receive_jitter_s",
@@ -166,11 +167,7 @@ class Timing:
         InputError
             Not a dict, another schema version, or a field of the wrong kind.
         """
-        if not isinstance(data, dict):
-            raise InputError(f"timing: expected a JSON object, got {type(data).__name__}")
-        if data.get("schema_version") != TIMING_SCHEMA_VERSION:
-            raise InputError(f"timing: schema_version {data.get('schema_version')!r} is not "
-                             f"{TIMING_SCHEMA_VERSION}; write it again with this version of mrft-ident")
+        check_schema_version(data, "timing", TIMING_SCHEMA_VERSION)
         stamps = data.get("stamps")
         if stamps not in ("header", "receive"):
             raise InputError(f"timing: stamps must be 'header' or 'receive', got {stamps!r}")

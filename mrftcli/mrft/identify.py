@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
+from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
 from ..validate import check_beta, check_time
 from .lprs import unit_cycle, unit_cycle_scalar
@@ -259,11 +260,7 @@ class IdentificationResult:
         InputError
             Another schema version, or a field missing or of the wrong type (one-line message).
         """
-        if not isinstance(data, Mapping):
-            raise InputError(f"identification JSON must be an object, got {type(data).__name__}")
-        if data.get("schema_version") != IDENTIFICATION_SCHEMA_VERSION:
-            raise InputError(f"identification JSON schema_version {data.get('schema_version')!r} is not supported "
-                             f"(expected {IDENTIFICATION_SCHEMA_VERSION})")
+        data = check_schema_version(data, "identification JSON", IDENTIFICATION_SCHEMA_VERSION)
         params = data.get("parameters")
         if not isinstance(params, Mapping):
             raise InputError("identification JSON needs a 'parameters' object")

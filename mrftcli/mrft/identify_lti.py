@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
+from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
 from .model import PlantModel, model_from_json
 
@@ -191,11 +192,7 @@ class LtiIdentification:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> LtiIdentification:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        if not isinstance(data, Mapping):
-            raise InputError(f"identification JSON must be an object, got {type(data).__name__}")
-        if data.get("schema_version") != LTI_SCHEMA_VERSION:
-            raise InputError(f"identification JSON schema_version {data.get('schema_version')!r} is not "
-                             f"supported (expected {LTI_SCHEMA_VERSION})")
+        data = check_schema_version(data, "identification JSON", LTI_SCHEMA_VERSION)
         model = model_from_json(data.get("model", {}))
         params = data.get("parameters")
         if not isinstance(params, Mapping):

@@ -33,6 +33,7 @@ from typing import Any, ClassVar, Iterable, Mapping, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
@@ -349,11 +350,7 @@ def model_json(family: str, parameters: Iterable[Parameter]) -> dict[str, Any]:
 
 def model_json_parameters(data: Mapping[str, Any], family: str) -> Mapping[str, Any]:
     """The ``parameters`` of a model's JSON after checking its version and family."""
-    if not isinstance(data, Mapping):
-        raise InputError(f"model JSON must be an object, got {type(data).__name__}")
-    version = data.get("schema_version")
-    if version != MODEL_SCHEMA_VERSION:
-        raise InputError(f"model JSON schema_version {version!r} is not supported (expected {MODEL_SCHEMA_VERSION})")
+    data = check_schema_version(data, "model JSON", MODEL_SCHEMA_VERSION)
     if data.get("family") != family:
         raise InputError(f"model JSON family {data.get('family')!r} is not {family!r}")
     params = data.get("parameters")

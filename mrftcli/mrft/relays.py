@@ -21,6 +21,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 from .lprs import LimitCycle, mrft_limit_cycle
 from .model import PlantModel
@@ -113,8 +114,7 @@ class RelayLaw:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> RelayLaw:
         """The relay of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        if not isinstance(data, Mapping) or data.get("schema_version") != RELAY_SCHEMA_VERSION:
-            raise InputError(f"relay JSON needs schema_version {RELAY_SCHEMA_VERSION}")
+        data = check_schema_version(data, "relay JSON", RELAY_SCHEMA_VERSION)
         try:
             return cls(str(data["kind"]), float(data["high"]), float(data["low"]), float(data.get("beta", 0.0)),
                        float(data.get("eps", 0.0)), str(data.get("source", "inferred")))

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..validate import check_beta, check_positive, check_time
 
@@ -400,11 +401,7 @@ class PlanResult:
         InputError
             Not a JSON object, another ``schema_version``, or a missing or malformed field.
         """
-        if not isinstance(data, Mapping):
-            raise InputError("not a plan --json result (expected a JSON object)")
-        version = data.get("schema_version")
-        if version != SCHEMA_VERSION:
-            raise InputError(f"plan JSON schema_version {version!r} is not supported (expected {SCHEMA_VERSION})")
+        data = check_schema_version(data, "plan --json result", SCHEMA_VERSION, fix="run plan again with this version")
         try:
             return cls._parse(data)
         except (KeyError, TypeError, ValueError, IndexError) as err:

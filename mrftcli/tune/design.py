@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
@@ -84,11 +85,7 @@ def _number(data: dict[str, Any], key: str, what: str) -> float:
 
 
 def _check_version(data: Any, what: str) -> dict[str, Any]:
-    if not isinstance(data, dict):
-        raise InputError(f"{what}: expected a JSON object, got {type(data).__name__}")
-    if data.get("schema_version") != TUNE_SCHEMA_VERSION:
-        raise InputError(f"{what}: schema_version {data.get('schema_version')!r} is not {TUNE_SCHEMA_VERSION}")
-    return data
+    return dict(check_schema_version(data, what, TUNE_SCHEMA_VERSION))
 
 
 def _controller_json(c: Controller) -> dict[str, Any]:

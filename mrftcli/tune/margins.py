@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, discrete_plant, plants_of_parameters
@@ -102,11 +103,7 @@ class Margins:
         InputError
             Not a JSON object, another ``schema_version``, or a missing or malformed field.
         """
-        if not isinstance(data, dict):
-            raise InputError(f"tune margins: expected a JSON object, got {type(data).__name__}")
-        if data.get("schema_version") != MARGINS_SCHEMA_VERSION:
-            raise InputError(f"tune margins: schema_version {data.get('schema_version')!r} is not "
-                             f"{MARGINS_SCHEMA_VERSION}")
+        check_schema_version(data, "tune margins", MARGINS_SCHEMA_VERSION)
         try:
             values = [float(data[name]) for name in _MARGIN_FIELDS]
             stable = data["stable"]

@@ -37,6 +37,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, RateFilter
@@ -180,11 +181,7 @@ class StackExport:
     @classmethod
     def from_json(cls, data: Any) -> "StackExport":
         """The record of :meth:`to_json`; InputError (one line) on another version or a malformed field."""
-        if not isinstance(data, dict):
-            raise InputError(f"stack export: expected a JSON object, got {type(data).__name__}")
-        if data.get("schema_version") != EXPORT_SCHEMA_VERSION:
-            raise InputError(f"stack export: schema_version {data.get('schema_version')!r} is not "
-                             f"{EXPORT_SCHEMA_VERSION}")
+        check_schema_version(data, "stack export", EXPORT_SCHEMA_VERSION)
         try:
             params = {str(k): float(v) for k, v in data["params"].items()}
             clamped = tuple((str(c["name"]), float(c["designed"]), float(c["exported"])) for c in data["clamped"])

@@ -19,6 +19,7 @@ from .records import MrftTest, RelayCycle
 from .runs import RelayRun, find_relay_runs, regularise_times
 from .stability import StabilityCriterion, stable_cycles
 from .validity import ValidityCriterion, check_limit_cycle
+from .vernier import TickSwitches, measure_folded, switch_ticks
 
 __all__ = ["segment", "segment_arrays"]
 
@@ -96,6 +97,11 @@ class _Clock:
     controller_rate_hz: float | None
     ts_controller: float
 
+    @property
+    def sub_sampled(self) -> bool:
+        """Logged below :data:`LOW_RATE_HZ` with the controller's rate known: the vernier path."""
+        return self.controller_rate_hz is not None and self.rate_hz < LOW_RATE_HZ
+
 
 @dataclass(frozen=True, eq=False)
 class _Switches:
@@ -103,7 +109,8 @@ class _Switches:
 
     Attributes: ``h`` half the distance between the levels and ``bias`` their centre [command
     units]; ``t`` the switch instants [s], ``up`` True at the -h -> +h switches, ``flags`` each
-    switch's problems (``"glitch"``, ``"interp"``, ``"gap"``).
+    switch's problems (``"glitch"``, ``"interp"``, ``"gap"``); ``vernier`` the instants on the
+    controller's ticks of a test logged below its rate (:func:`~mrftcli.segment.vernier.switch_ticks`).
     """
 
     h: float
@@ -111,6 +118,7 @@ class _Switches:
     t: FloatArray
     up: NDArray[np.bool_]
     flags: list[set[str]]
+    vernier: TickSwitches | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,7 +169,14 @@ def _switches(chain: list[RelayRun], clock: _Clock) -> _Switches:
         if t_k is not None:
             t_sw[k] = t_k
         flags.append(f)
-    return _Switches((hi - lo) / 2.0, (hi + lo) / 2.0, t_sw, up, flags)
+    vernier = None
+    if clock.sub_sampled and t_sw.size >= 2:
+        # the switch ticks from the vernier of every switch's logging bracket (:mod:`.vernier`)
+        before = np.array([tc[r.start - 1] for r in chain[1:]])
+        after = np.array([tc[r.start] for r in chain[1:]])
+        vernier = switch_ticks(before, after, clock.ts_controller)
+        t_sw = vernier.t
+    return _Switches((hi - lo) / 2.0, (hi + lo) / 2.0, t_sw, up, flags, vernier)
 
 
 def _switch_instant(prev: RelayRun, run: RelayRun, clock: _Clock) -> tuple[float | None, set[str]]:
@@ -210,9 +225,11 @@ def _output_window(t_y: FloatArray, y: FloatArray, t_sp: ArrayLike | None, setpo
     return _Window(ty, yy, sp_val)
 
 
-def _measured_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock,
-                     criterion: StabilityCriterion) -> tuple[list[RelayCycle], dict[str, float]]:
+def _measured_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock, criterion: StabilityCriterion,
+                     beta_nominal: float | None) -> tuple[list[RelayCycle], dict[str, float]]:
     """Steps 3-4: measure the cycles, flag outliers and transients, mark the stable limit cycle."""
+    if clock.sub_sampled:
+        return _folded_cycles(sw, win, sign, clock, criterion, beta_nominal)
     # a sparsely logged test (even its longest cycle has fewer than 72 output samples) is measured
     # with fewer harmonics where a cycle has fewer than 36; a well-sampled test keeps the full fit,
     # and its short start-up cycles (a noise-triggered switch) stay unmeasured
@@ -221,10 +238,49 @@ def _measured_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock,
     if t_up.size > 1 and win.t.size > 2:
         few = bool(np.max(np.diff(t_up)) / np.median(np.diff(win.t)) < 72)
     cycles = measure_cycles(sw.t, sw.up, sw.flags, win.t, sign * win.y, 1.0 / clock.rate_hz, sw.h, few_samples=few)
+    return _mark_stable(cycles, 1.0 / clock.rate_hz, criterion)
+
+
+def _folded_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock, criterion: StabilityCriterion,
+                   beta_nominal: float | None) -> tuple[list[RelayCycle], dict[str, float]]:
+    """Steps 3-4 below the controller's rate: each cycle against the waveform folded over the test
+    (:mod:`.vernier`); a period is a whole number of controller ticks.
+
+    Where the logging locks to the cycle the vernier leaves every instant a common shift within its
+    bracket: the relay's own rule decides it (it switches where the output crosses its level, -beta
+    times the amplitude): the shift whose stable cycles' effective beta is closest to the nominal
+    beta (within a controller tick: the sampled relay switches up to a tick after the crossing).
+    """
+    y = sign * win.y
+    shifts = [0]
+    v = sw.vernier
+    if v is not None and v.locked and beta_nominal is not None:
+        shifts = list(range(-v.room[0], v.room[1] + 1))
+    best: tuple[float, list[RelayCycle], dict[str, float]] | None = None
+    for m in shifts:
+        t_sw = v.shifted(m) if v is not None and m else sw.t
+        cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, win.t, y, sw.h), clock.ts_controller,
+                                    criterion)
+        stable = np.array([c.stable for c in cycles], bool)
+        if stable.sum() >= 2:  # the waveform again from the stable limit cycle alone
+            cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, win.t, y, sw.h, fold=stable),
+                                        clock.ts_controller, criterion)
+        be = np.array([c.beta_effective for c in cycles if c.stable])
+        miss = abs(float(np.nanmean(be)) - beta_nominal) if beta_nominal is not None and np.isfinite(be).any() else 0.0
+        if best is None or miss < best[0]:
+            best = (miss, cycles, info)
+    assert best is not None  # shifts holds 0 at least
+    return best[1], best[2]
+
+
+def _mark_stable(cycles: list[RelayCycle], dt: float,
+                 criterion: StabilityCriterion) -> tuple[list[RelayCycle], dict[str, float]]:
+    """Step 4: flag outliers and transients and mark the stable limit cycle (``dt``: the period's
+    quantum [s], the controller's sample period)."""
     P = np.array([c.period for c in cycles])
     A = np.array([c.amplitude for c in cycles])
     reg = np.array([c.regular for c in cycles], bool)
-    stable, consistent, info = stable_cycles(P, A, reg, 1.0 / clock.rate_hz, criterion)
+    stable, consistent, info = stable_cycles(P, A, reg, dt, criterion)
     final = []
     for k, c in enumerate(cycles):
         fl = set(c.flags)
@@ -309,8 +365,10 @@ def segment_arrays(
     breaks = None
     if beta_t is not None and len(beta_t):
         breaks = np.searchsorted(t_cmd, np.asarray(beta_t, float))
-    chains = find_relay_runs(command, breaks=breaks, min_runs=min_runs)
     rate_all = median_rate_hz(t_cmd)
+    # below the controller's rate a fast test's half-period is 2 logged samples (a 2.5 Hz cycle at 10 Hz)
+    sub = bool(controller_rate_hz and rate_all and rate_all < LOW_RATE_HZ and controller_rate_hz > 1.5 * rate_all)
+    chains = find_relay_runs(command, breaks=breaks, min_runs=min_runs, min_run_samples=2 if sub else 3)
     tests: list[MrftTest] = []
     prev_end = -np.inf
     for chain in chains:
@@ -319,11 +377,11 @@ def segment_arrays(
         t_b = float(sw.t[-1])
         win = _output_window(t_y, y, t_sp, setpoint, float(sw.t[0]), t_b)
         sign = _loop_sign(win.t, win.y, clock.t, command, sw.bias, sw.t, sw.up)
-        final, info = _measured_cycles(sw, win, sign, clock, criterion)
+        beta_nom = _nominal_beta(beta_t, beta_v, prev_end, t_b)
+        final, info = _measured_cycles(sw, win, sign, clock, criterion, beta_nom)
         be = np.array([c.beta_effective for c in final if c.stable])
         be = be[np.isfinite(be)]
         beta_eff = float(be.mean()) if be.size else float("nan")
-        beta_nom = _nominal_beta(beta_t, beta_v, prev_end, t_b)
         tests.append(
             MrftTest(
                 index=len(tests), t_start=float(clock.t[chain[0].start]), t_end=float(clock.t[chain[-1].stop - 1]),

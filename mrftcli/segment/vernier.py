@@ -1,0 +1,351 @@
+"""Tests logged below the controller's rate: switch instants and cycles from the vernier of many cycles.
+
+PX4 runs its MRFT at 50 Hz and logs the loop at 10 Hz: a 2 Hz limit cycle gets 5 logged samples, a
+half-period 2-3. One cycle says little, but the test says much more (issue 24, part 3):
+
+* **Switch instants on the controller's ticks** (:func:`switch_ticks`). The relay switches at a
+  controller tick; the logged sample before a switch shows the old level and the one after it the
+  new level, so the switch is one of the ticks in between (5 at 50 / 10 Hz). Every half-period is
+  a whole number of ticks and nearly the same from cycle to cycle, while the logging instants
+  slide along the cycle (unless a period is a multiple of the logging period): the brackets of
+  many switches intersect, as on a vernier scale. The tick sequence through every bracket whose
+  half-periods are closest to their means (least squares, a dynamic programme over the few
+  candidates) is the switch sequence; where the logging locks to the cycle the ticks are
+  ambiguous by a common shift and the bracket's middle is taken (unbiased, as before).
+* **The output folded over the test** (:func:`measure_folded`). With the switch instants known,
+  every output sample has a known phase in its cycle; folded over the test's cycles the samples
+  fill the cycle at many phases, and one harmonic series (as many harmonics as the distinct phases
+  carry, up to 8) is the cycle's waveform: its extrema, its fundamental and its level at the
+  switches. Each cycle is then measured against that waveform with three numbers from its own 4-6
+  samples (level, scale, phase shift), so its amplitude and phase scatter as the cycle does: the
+  analysis's bootstrap over cycles sees the data's own spread.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..mrft.harmonics import harmonic_basis
+from .cycles import harmonics_for
+from .records import RelayCycle
+
+__all__ = ["TickSwitches", "switch_ticks", "FoldedWaveform", "fold_waveform", "measure_folded",
+           "MIN_LOGGED_PER_CYCLE"]
+
+FloatArray = NDArray[np.float64]
+
+#: fewest logged output samples per cycle a sub-sampled test is measured from (level, scale and
+#: phase of the folded waveform, and one sample to spare)
+MIN_LOGGED_PER_CYCLE = 4
+#: most candidate ticks per switch (a bracket wider than this is a logging gap: its switch is left out)
+_MAX_CANDIDATES = 16
+#: weight of a candidate's distance from its bracket's middle [per tick^2]: decides only between
+#: sequences the half-periods cannot tell apart (a logging rate locked to the cycle)
+_TIE_BREAK = 1e-2
+#: a half-period's squared deviation from its mean counts up to this [tick^2]: a start-up cycle
+#: (half-periods several ticks longer) costs the same wherever its switches are, so it cannot pull
+#: the steady cycles' switches off their places
+_CAP = 2.25
+#: harmonics of the folded waveform (as the per-cycle fits of a well-sampled test)
+_HARMONICS = 8
+
+
+@dataclass(frozen=True, eq=False)
+class TickSwitches:
+    """The switch instants of one test on the controller's ticks (:func:`switch_ticks`).
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        Switch instants [s]: the controller tick at which the relay took its new level.
+    ticks : numpy.ndarray
+        Their tick numbers from the first switch's bracket (int).
+    half_period_ticks : tuple of float
+        The mean half-period after an even-numbered and after an odd-numbered switch [ticks].
+    scatter_ticks : float
+        RMS deviation of the half-periods from those means [ticks] (0: a strictly periodic relay).
+    locked : bool
+        The logging instants do not slide along the cycle (every bracket holds the same place in
+        its cycle): the instants share an unknown shift within a bracket, the middle taken.
+    room : tuple of int
+        How many ticks every instant can move down and up together and stay in its bracket (the
+        shifts :meth:`shifted` takes; (0, 0) when the vernier pins them).
+    ts : float
+        The controller's period [s].
+    """
+
+    t: FloatArray
+    ticks: NDArray[np.int64]
+    half_period_ticks: tuple[float, float]
+    scatter_ticks: float
+    locked: bool
+    room: tuple[int, int] = (0, 0)
+    ts: float = 0.0
+
+    def shifted(self, m: int) -> FloatArray:
+        """The instants [s] moved by ``m`` ticks together (within ``room``)."""
+        if not -self.room[0] <= m <= self.room[1]:
+            raise ValueError(f"a shift of {m} ticks leaves the brackets (room {self.room})")
+        return np.asarray(self.t + m * self.ts, dtype=float)
+
+
+def switch_ticks(t_before: FloatArray, t_after: FloatArray, ts: float) -> TickSwitches:
+    """The relay's switch ticks inside the logging brackets, from the vernier of many switches.
+
+    Parameters
+    ----------
+    t_before, t_after : numpy.ndarray
+        Per switch, the time of the last logged sample at the old level and of the first at the new
+        one [s] (both on the controller's ticks: the logger stamps a sample with its tick).
+    ts : float
+        The controller's period [s].
+
+    Returns
+    -------
+    TickSwitches
+
+    Examples
+    --------
+    A relay at 50 Hz with half-periods of 13 ticks, logged every 5th tick:
+
+    >>> ts = 0.02
+    >>> true = 3 + 13 * np.arange(20)
+    >>> after = 5 * np.ceil(true / 5)
+    >>> sw = switch_ticks((after - 5) * ts, after * ts, ts)
+    >>> bool(np.all(sw.ticks + sw.ticks[0] * 0 == true - true[0] + sw.ticks[0])), sw.half_period_ticks
+    (True, (13.0, 13.0))
+    >>> bool(np.allclose(sw.t, true * ts))
+    True
+    """
+    origin = float(t_after[0])
+    lo = np.rint((np.asarray(t_before) - origin) / ts).astype(np.int64) + 1
+    hi = np.rint((np.asarray(t_after) - origin) / ts).astype(np.int64)
+    lo = np.maximum(np.minimum(lo, hi), hi - _MAX_CANDIDATES + 1)
+    mid = np.asarray(0.5 * (lo + hi), dtype=np.float64)
+    H = _half_periods(mid)
+    ticks = mid.astype(np.int64)
+    for _ in range(3):  # the half-periods from the sequence, the sequence from the half-periods
+        ticks = _best_sequence(lo, hi, H)
+        H = _half_periods(ticks.astype(float))
+    d = np.diff(ticks) - H[np.arange(ticks.size - 1) % 2]
+    scatter = float(np.sqrt(np.mean(np.minimum(d ** 2, _CAP)))) if d.size else 0.0
+    # locked: the whole sequence can move together inside the brackets of its steady switches
+    # (beyond the first few, a start-up transient's)
+    steady = slice(min(4, max(ticks.size - 6, 0)), None)
+    room = (int(np.min((ticks - lo)[steady])), int(np.min((hi - ticks)[steady])))
+    locked = bool(sum(room) > 0 and ticks.size > 2)
+    return TickSwitches(np.asarray(origin + ticks * ts, dtype=np.float64), ticks, (float(H[0]), float(H[1])), scatter, locked, room, ts)
+
+
+def _half_periods(s: FloatArray) -> FloatArray:
+    """The mean half-period after even- and odd-numbered switches [ticks]: s_j = a + b j + c (-1)^j."""
+    j = np.arange(s.size, dtype=float)
+    if s.size < 3:
+        d = float(np.mean(np.diff(s))) if s.size > 1 else 0.0
+        return np.array([d, d])
+    A = np.column_stack([np.ones_like(j), j, (-1.0) ** j])
+    (_, b, c), *_ = np.linalg.lstsq(A, s, rcond=None)
+    return np.array([b - 2 * c, b + 2 * c])
+
+
+def _best_sequence(lo: NDArray[np.int64], hi: NDArray[np.int64], H: FloatArray) -> NDArray[np.int64]:
+    """The ticks, one in each bracket [lo, hi], whose half-periods are closest to ``H`` (least
+    squares; a Viterbi pass over the candidates)."""
+    n = lo.size
+    cands = [np.arange(lo[j], hi[j] + 1) for j in range(n)]
+    centre = 0.5 * (lo + hi)
+    cost = _TIE_BREAK * (cands[0] - centre[0]) ** 2
+    back: list[NDArray[np.intp]] = []
+    for j in range(1, n):
+        step = cands[j][:, None] - cands[j - 1][None, :] - H[(j - 1) % 2]
+        total = cost[None, :] + np.minimum(step ** 2, _CAP)
+        arg = np.argmin(total, axis=1)
+        back.append(arg)
+        cost = total[np.arange(cands[j].size), arg] + _TIE_BREAK * (cands[j] - centre[j]) ** 2
+    k = int(np.argmin(cost))
+    out = np.empty(n, dtype=np.int64)
+    for j in range(n - 1, -1, -1):
+        out[j] = cands[j][k]
+        if j > 0:
+            k = int(back[j - 1][k])
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class FoldedWaveform:
+    """A test's limit cycle from its output folded over the cycles (:func:`fold_waveform`).
+
+    The waveform is w(phi) = sum_k Re(W_k exp(2 pi j k phi)), phi the phase in the cycle from its
+    -h -> +h switch (0..1), zero mean; the output of cycle i is about c_i + s_i w(phi - d_i).
+
+    Attributes
+    ----------
+    coef : numpy.ndarray
+        Complex W_1..W_H [output units].
+    amplitude : float
+        (max - min) / 2 of w [output units].
+    centre : float
+        (max + min) / 2 of w (w has zero mean; its extrema need not be symmetric) [output units].
+    phi_max, phi_min : float
+        Phases of w's maximum and minimum [cycles].
+    noise_std : float
+        Residual standard deviation of the folded fit [output units].
+    h1_fraction : float
+        0.5 |W_1|^2 over the mean square of the de-trended samples [-].
+    distinct_phases : int
+        Distinct phases the samples fell on (the logging instants' vernier) [-].
+    """
+
+    coef: NDArray[np.complex128]
+    amplitude: float
+    centre: float
+    phi_max: float
+    phi_min: float
+    noise_std: float
+    h1_fraction: float
+    distinct_phases: int
+
+    def __call__(self, phi: FloatArray) -> FloatArray:
+        """w at the phases ``phi`` [cycles] [output units]."""
+        k = np.arange(1, self.coef.size + 1)
+        e = np.exp(2j * np.pi * np.multiply.outer(np.asarray(phi, float), k))
+        return np.asarray((e @ self.coef).real, dtype=float)
+
+    def slope(self, phi: FloatArray) -> FloatArray:
+        """dw / dphi at ``phi`` [output units per cycle]."""
+        k = np.arange(1, self.coef.size + 1)
+        e = np.exp(2j * np.pi * np.multiply.outer(np.asarray(phi, float), k))
+        return np.asarray((e @ (2j * np.pi * k * self.coef)).real, dtype=float)
+
+
+def _phases(t: FloatArray, t0: FloatArray, t2: FloatArray) -> tuple[FloatArray, NDArray[np.intp]]:
+    """Each sample's phase in its cycle [0, 1) and its cycle's index (-1: in no cycle)."""
+    k = np.searchsorted(t0, t, side="right") - 1
+    inside = (k >= 0) & (t < t2[np.clip(k, 0, None)])
+    k = np.where(inside, k, -1)
+    kk = np.clip(k, 0, None)
+    return np.where(inside, (t - t0[kk]) / (t2[kk] - t0[kk]), np.nan), k
+
+
+def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) -> FoldedWaveform | None:
+    """The output's waveform over the cycles [t0_i, t2_i) folded at their phases.
+
+    Least squares over every sample in a cycle: a line in time (the level's drift over the test)
+    plus harmonics 1..H of the phase, H as many as the distinct phases carry twice over
+    (:func:`~mrftcli.segment.cycles.harmonics_for`), at least 1 and at most 8. None when the
+    samples fall on fewer than 4 distinct phases.
+    """
+    phi, k = _phases(t, t0, t2)
+    sel = k >= 0
+    tt, yy, ph = t[sel], y[sel], phi[sel]
+    distinct = int(np.unique(np.round(ph, 3)).size)
+    if distinct < MIN_LOGGED_PER_CYCLE:
+        return None
+    H = int(min(_HARMONICS, max(1, harmonics_for(distinct))))
+    x = (tt - tt.mean()) / max(float(np.ptp(tt)), 1e-9)
+    basis = harmonic_basis(ph, 1.0, H)  # [1, phi, cos k..., sin k...]
+    A = np.column_stack([np.ones_like(x), x, basis[:, 2:]])
+    sol, *_ = np.linalg.lstsq(A, yy, rcond=None)
+    resid = yy - A @ sol
+    dof = max(yy.size - A.shape[1], 1)
+    coef = sol[2:2 + H] - 1j * sol[2 + H:]
+    w = FoldedWaveform(coef, 0.0, 0.0, 0.0, 0.0, float(np.sqrt(resid @ resid / dof)), float("nan"), distinct)
+    grid = np.linspace(0.0, 1.0, 2001)
+    wg = w(grid)
+    detrended = yy - sol[0] - sol[1] * x
+    ms = float(detrended @ detrended / yy.size)
+    return FoldedWaveform(coef, float(0.5 * (wg.max() - wg.min())), float(0.5 * (wg.max() + wg.min())),
+                          float(grid[np.argmax(wg)]), float(grid[np.argmin(wg)]), w.noise_std,
+                          float(0.5 * abs(coef[0]) ** 2 / ms) if ms > 0 else float("nan"), distinct)
+
+
+def _cycle_fit(w: FoldedWaveform, ph: FloatArray, yy: FloatArray) -> tuple[float, float, float] | None:
+    """Level c, scale s and phase shift d [cycles] of one cycle's samples against ``w``:
+    y ~ c + s w(phi - d), linearised in d (y ~ c + s w - s d w'). None for under 4 samples or s <= 0."""
+    if yy.size < MIN_LOGGED_PER_CYCLE:
+        return None
+    A = np.column_stack([np.ones_like(ph), w(ph), -w.slope(ph)])
+    (c, s, sd), *_ = np.linalg.lstsq(A, yy, rcond=None)
+    if not s > 0:
+        return None
+    return float(c), float(s), float(sd / s)
+
+
+def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[str]], t_y: FloatArray,
+                   y: FloatArray, h: float, fold: NDArray[np.bool_] | None = None) -> list[RelayCycle]:
+    """The cycles of a sub-sampled test, each measured against the test's folded waveform.
+
+    Parameters
+    ----------
+    t_sw : numpy.ndarray
+        Switch instants [s] (on the controller's ticks: :func:`switch_ticks`).
+    up : numpy.ndarray of bool
+        True at the -h -> +h switches.
+    flags_sw : list of set of str
+        Per switch: ``interp``, ``gap``, ``glitch`` (see :class:`~mrftcli.segment.records.RelayCycle`).
+    t_y, y : numpy.ndarray
+        Output times [s] and values [output units], relative to the setpoint and signed so that +h
+        raises them.
+    h : float
+        Relay half-height [command units].
+    fold : numpy.ndarray of bool, optional
+        Per cycle (up-down-up triple, in order): folded into the waveform (the stable limit cycle,
+        once known: a start-up cycle's larger swing would distort it); None: the regular cycles.
+
+    Returns
+    -------
+    list of RelayCycle
+        One per up-down-up triple of switches, not yet marked stable; all ``irregular`` when the
+        samples do not fill the cycle (:func:`fold_waveform` returns None).
+    """
+    ups = np.flatnonzero(up)
+    triples = [(a, b) for a, b in zip(ups[:-1], ups[1:]) if b - a == 2]
+    if not triples:
+        return []
+    flags = [set().union(flags_sw[a], flags_sw[a + 1], flags_sw[b]) for a, b in triples]
+    t0 = np.array([t_sw[a] for a, _ in triples])
+    t1 = np.array([t_sw[a + 1] for a, _ in triples])
+    t2 = np.array([t_sw[b] for _, b in triples])
+    use = np.array([not ({"gap", "glitch"} & f) for f in flags]) if fold is None else np.asarray(fold, bool)
+    w = fold_waveform(t_y, y, t0[use], t2[use]) if use.sum() >= 2 else None
+    phi, k = _phases(t_y, t0, t2)
+    return [_folded_cycle(w, phi[k == i], y[k == i], t0[i], t1[i], t2[i], h, flags[i]) for i in range(t0.size)]
+
+
+def _folded_cycle(w: FoldedWaveform | None, ph: FloatArray, yy: FloatArray, t0: float, t1: float, t2: float,
+                  h: float, flags: set[str]) -> RelayCycle:
+    """One cycle's record from its fit against the folded waveform ``w`` (NaNs and ``irregular`` without one)."""
+    P = t2 - t0
+    nan = float("nan")
+    fit = _cycle_fit(w, ph, yy) if w is not None else None
+    if w is None or fit is None:
+        return RelayCycle(t_start=t0, t_switch=t1, t_end=t2, period=P, half_period_high=t1 - t0,
+                          half_period_low=t2 - t1, amplitude=nan, centre=nan, y_max=nan, y_min=nan, t_max=nan,
+                          t_min=nan, y_switch_down=nan, y_switch_up=nan, beta_down=nan, beta_up=nan,
+                          beta_effective=nan, flags=tuple(sorted(flags | {"irregular"})))
+    c, s, d = fit
+    amp, centre = s * w.amplitude, c + s * w.centre
+    phi1 = (t1 - t0) / P
+    y_dn = c + s * float(w(np.array([phi1 - d]))[0])
+    y_up = c + s * float(w(np.array([-d]))[0])
+    b_dn = (y_dn - centre) / amp if "interp" not in flags else nan
+    b_up = -(y_up - centre) / amp if "interp" not in flags else nan
+    # the fundamental against the relay's square wave (+h on [0, phi1), -h after): Y1 / U1
+    y1 = s * complex(w.coef[0]) * np.exp(-2j * np.pi * d)
+    u1 = 2.0 * h * (2.0 - 2.0 * np.exp(-2j * np.pi * phi1)) / (2j * np.pi)
+    g1 = y1 / u1
+    ph1 = float(np.angle(g1))
+    if ph1 > 0:
+        ph1 -= 2.0 * np.pi  # the plant's phase lies in (-2 pi, 0]
+    be = [b for b in (b_dn, b_up) if np.isfinite(b)]
+    return RelayCycle(
+        t_start=t0, t_switch=t1, t_end=t2, period=P, half_period_high=t1 - t0, half_period_low=t2 - t1,
+        amplitude=amp, centre=centre, y_max=centre + amp, y_min=centre - amp,
+        t_max=t0 + P * ((w.phi_max + d) % 1.0), t_min=t0 + P * ((w.phi_min + d) % 1.0),
+        y_switch_down=y_dn, y_switch_up=y_up, beta_down=b_dn, beta_up=b_up,
+        beta_effective=float(np.mean(be)) if be else nan, flags=tuple(sorted(flags)),
+        phase_h1=ph1, gain_h1=float(abs(g1)), noise_std=w.noise_std, h1_fraction=w.h1_fraction,
+        amplitude_h1=float(abs(y1)))

@@ -17,19 +17,80 @@ if TYPE_CHECKING:
     from ..analyze.general import GeneralAnalysis
     from ..mrft.identify_lti import LtiEstimate, LtiIdentification
 
-__all__ = ["MODEL_NAMES", "model_option", "structure_options", "window_option", "relay_options", "parse_params",
+__all__ = ["MODEL_NAMES", "DECLARED", "model_option", "unsupported_model_option", "structure_options", "window_option", "relay_options", "parse_params",
            "parse_ranges", "parse_windows", "build_model", "refuse_model", "format_general", "format_estimates"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
 
 
+#: ``model_name`` when ``--model-file`` declared the structure (the file's path is in the context's meta)
+DECLARED = "declared"
+_META_KEY = "mrftcli.model_file"
+_MODEL_HELP = ("Plant structure: soiptd (eq. (2), Tp known), fopdt K e^{-tau s}/(T s+1), sopdt "
+               "K e^{-tau s}/((T1 s+1)(T2 s+1)), ipdt K e^{-tau s}/s, foipdt K e^{-tau s}/(s (T s+1)).")
+_MODEL_FILE_HELP = ("A plant structure you declare: a TOML/JSON file with transfer_function = \"K*exp(-tau*s)/"
+                    "(T*s+1)**2\" (or numerator/denominator/delay) and [parameters] NAME = {value = V} (known) "
+                    "or {range = [LO, HI]} (to identify); see docs/process-plants.md.")
+
+
+def _explicit(ctx: click.Context, name: str) -> bool:
+    source = ctx.get_parameter_source(name)
+    return source is not None and source.name == "COMMANDLINE"
+
+
+def _model_file_seen(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+    """Keep the file's path for :func:`build_model` (the commands see ``model_name == DECLARED``)."""
+    if value is None:
+        return
+    if ctx.params.get("model_name") not in (None, "soiptd") or (
+            "model_name" in ctx.params and _explicit(ctx, "model_name")):
+        raise InputError("give --model NAME or --model-file FILE, not both")
+    ctx.meta[_META_KEY] = value
+
+
+def _model_seen(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    """``--model``, or :data:`DECLARED` after a ``--model-file`` (click processes the options given on the
+    command line first, in their order, then the others: a --model-file given is always seen here)."""
+    if _META_KEY in ctx.meta:
+        if value != "soiptd" or _explicit(ctx, "model_name"):
+            raise InputError("give --model NAME or --model-file FILE, not both")
+        return DECLARED
+    return value
+
+
 def model_option(f: Callable[..., Any]) -> Callable[..., Any]:
-    """``--model NAME``: the plant structure (default soiptd, eq. (2) with Tp known)."""
-    return click.option(
-        "--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd", show_default=True,
-        help="Plant structure: soiptd (eq. (2), Tp known), fopdt K e^{-tau s}/(T s+1), sopdt "
-             "K e^{-tau s}/((T1 s+1)(T2 s+1)), ipdt K e^{-tau s}/s, foipdt K e^{-tau s}/(s (T s+1)).")(f)
+    """``--model NAME`` (default soiptd, eq. (2) with Tp known) and ``--model-file FILE`` (a declared structure).
+
+    ``--model-file`` does not reach the command as an argument: the command receives
+    ``model_name == DECLARED`` and :func:`build_model` reads the file (the commands keep one switch on
+    ``model_name``).
+    """
+    f = click.option("--model-file", "model_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+                     expose_value=False, callback=_model_file_seen, help=_MODEL_FILE_HELP)(f)
+    return click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd",
+                        show_default=True, callback=_model_seen, help=_MODEL_HELP)(f)
+
+
+def unsupported_model_option(command: str, instead: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--model`` / ``--model-file`` on a command that designs or forecasts for eq. (2) only so far.
+
+    A process model there is a one-line error naming what is supported (not click's "no such option"),
+    before any work starts.
+    """
+    def refuse(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
+        if value is not None and value != "soiptd":
+            what = f"--model {value}" if param.name == "model_name" else "--model-file"
+            raise InputError(f"{command} supports only --model soiptd (eq. (2)) so far, not {what}; {instead}")
+
+    def decorate(f: Callable[..., Any]) -> Callable[..., Any]:
+        f = click.option("--model-file", "model_file", type=click.Path(dir_okay=False), default=None,
+                         metavar="FILE", expose_value=False, callback=refuse,
+                         help=f"Not supported by {command} yet (a one-line error): {instead}.")(f)
+        return click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd",
+                            show_default=True, expose_value=False, callback=refuse,
+                            help=f"Plant structure; {command} supports soiptd (eq. (2)) only so far.")(f)
+    return decorate
 
 
 def structure_options(f: Callable[..., Any]) -> Callable[..., Any]:
@@ -108,17 +169,41 @@ def parse_windows(items: Sequence[str], t0: float) -> list[tuple[float, float]]:
 
 
 def build_model(model_name: str, params: Sequence[str], ranges: Sequence[str]) -> Any:
-    """The process model of ``--model``/``--param``/``--range`` (not for soiptd)."""
+    """The process model of ``--model``/``--param``/``--range``, or of ``--model-file`` (not for soiptd).
+
+    With a model file, ``--param`` and ``--range`` override its parameters' values and ranges.
+    """
+    if model_name == DECLARED:
+        return _declared(params, ranges)
     from ..mrft.families import family_model
 
     return family_model(model_name, parse_params(params), parse_ranges(ranges))
 
 
+def _declared(params: Sequence[str], ranges: Sequence[str]) -> Any:
+    from ..mrft.model_file import declared_model, load_model_file
+
+    path = click.get_current_context().meta[_META_KEY]
+    model = load_model_file(path)
+    if not (params or ranges):
+        return model
+    extra_known, extra_ranges = parse_params(params), parse_ranges(ranges)
+    names = {n for n, _ in model.values}
+    bad = sorted((set(extra_known) | set(extra_ranges)) - names)
+    if bad:
+        raise InputError(f"--param/--range {', '.join(bad)}: not a parameter of {path} ({', '.join(sorted(names))})")
+    known = {n: v for n, v in model.values if n in model.known and n not in extra_ranges}
+    rng = {n: (lo, hi) for n, lo, hi in model.ranges if n not in extra_known}
+    return declared_model(model.transfer_function, {**known, **extra_known}, {**rng, **extra_ranges},
+                          dict(model.units))
+
+
 def refuse_model(model_name: str, command: str) -> None:
     """A command that cannot take a process model yet says so instead of ignoring ``--model``."""
     if model_name != "soiptd":
+        what = "--model-file" if model_name == DECLARED else f"--model {model_name}"
         raise InputError(f"{command} supports only --model soiptd (eq. (2)) so far; "
-                         f"analyze, identify and predict take --model {model_name}")
+                         f"analyze, identify and predict take {what}")
 
 
 def _num(x: float | None, digits: int = 4) -> str:
@@ -158,7 +243,8 @@ def format_general(result: GeneralAnalysis) -> str:
     t0 = result.t0
     lines = [result.path]
     if ident is not None:
-        lines.append(f"model {ident.model.family}: G(s) = {ident.model.structure}; loop {result.loop}; "
+        structure = getattr(ident.model, "transfer_function", ident.model.structure)
+        lines.append(f"model {ident.model.family}: G(s) = {structure}; loop {result.loop}; "
                      f"times in seconds from the log start ({describe_t0(t0)})")
     lines += [f"note: {n}" for n in result.notes if n.startswith("assumed")]
     head = ("test", "from [s]", "to [s]", "relay", "frequency [Hz]", "amplitude", "held-out f [Hz]",

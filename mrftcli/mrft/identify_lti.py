@@ -251,7 +251,9 @@ class _Problem:
         self.bounds = {n: params[n].bounds for n in self.unknown}
         # K keeps the sign of the model's K (the loop's sign is the segmenter's business)
         self.k_sign = 1.0 if params["K"].value > 0 else -1.0
-        self.log_scaled = {n for n in self.unknown if n != "tau"}
+        # positive parameters on the log scale (a declared parameter whose range reaches below 0, e.g.
+        # an unstable pole's coefficient, stays linear); K on the log of its modulus, its sign kept
+        self.log_scaled = {n for n in self.unknown if n != "tau" and (n == "K" or self.bounds[n][0] >= 0)}
 
     def values(self, z: FloatArray) -> dict[str, float]:
         out = {}
@@ -323,11 +325,10 @@ class _Problem:
 
 def _start(problem: _Problem) -> dict[str, float]:
     """The best point of the log grid over the time constants (K and tau profiled out)."""
-    w_ref = float(np.median(problem.data.omega))
     best: tuple[float, dict[str, float]] = (math.inf, {})
-    grid = _GRID / w_ref if len(problem.shape) < 2 else _GRID[::2] / w_ref
-    for combo in itertools.product(grid, repeat=len(problem.shape)):
-        if len(combo) == 2 and combo[0] < combo[1]:
+    symmetric = problem.model.family == "sopdt"
+    for combo in itertools.product(*_axes(problem)):
+        if symmetric and combo[0] < combo[1]:
             continue  # two interchangeable lags (SOPDT): search T1 >= T2 only
         shape = dict(zip(problem.shape, combo))
         if any(not problem.bounds[n][0] <= v <= problem.bounds[n][1] for n, v in shape.items()):
@@ -341,6 +342,22 @@ def _start(problem: _Problem) -> dict[str, float]:
     if not best[1] and problem.unknown:
         raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
     return best[1]
+
+
+def _axes(problem: _Problem) -> list[FloatArray]:
+    """The search grid's axes: time constants on a log grid about 1/omega (the built-in families), or
+    each declared parameter across its range (set I; log-spaced when positive), about 2000 points in all."""
+    w_ref = float(np.median(problem.data.omega))
+    d = len(problem.shape)
+    if not getattr(problem.model, "grid_from_ranges", False):
+        grid = _GRID / w_ref if d < 2 else _GRID[::2] / w_ref
+        return [grid] * d
+    m = max(4, min(33, int(round(2000 ** (1 / max(d, 1))))))
+    axes = []
+    for n in problem.shape:
+        lo, hi = problem.bounds[n]
+        axes.append(np.geomspace(lo, hi, m) if lo > 0 else np.linspace(lo, hi, m))
+    return axes
 
 
 def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdentification:
@@ -379,6 +396,11 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
         raise IdentificationError("no frequency-response points to identify from (no stable relay test)")
     data = _Data.of(points)
     problem = _Problem(model, data)
+    if getattr(model, "grid_from_ranges", False) and len(problem.unknown) > 2 * len(points):
+        raise IdentificationError(
+            f"{len(problem.unknown)} unknowns ({', '.join(problem.unknown)}) but the tests give {2 * len(points)} "
+            "figures (gain and phase of each response point): state more parameters' values in the model "
+            "file, or add relay tests at other phases")
     if not problem.unknown:
         return _result(problem, {}, np.zeros((0, 0)), None, points)
     start = _start(problem)

@@ -397,9 +397,11 @@ def json_bounds(name: str, bounds: Any, physical: tuple[float, float]) -> tuple[
 
 # the process families (families.py) import this module's records, so they are registered last
 from .families import PROCESS_FAMILIES  # noqa: E402
+from .model_file import DeclaredModel  # noqa: E402
 
-#: the plant structures by family name: eq. (2) and the process plants of :mod:`mrftcli.mrft.families`
-MODEL_FAMILIES: dict[str, type[PlantModel]] = {"soiptd": LoopModel, **PROCESS_FAMILIES}
+#: the plant structures by family name: eq. (2), the process plants of :mod:`mrftcli.mrft.families`
+#: and a structure declared in a model file (:mod:`mrftcli.mrft.model_file`)
+MODEL_FAMILIES: dict[str, type[PlantModel]] = {"soiptd": LoopModel, **PROCESS_FAMILIES, "declared": DeclaredModel}
 
 
 def model_family(name: str) -> type[PlantModel]:

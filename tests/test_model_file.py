@@ -1,0 +1,141 @@
+"""``--model-file``: a declared transfer function parsed into a plant model and identified (issue 22).
+
+Oracles: the transfer function evaluated by hand (numpy polynomials), the state space's own
+frequency response C (jwI - A)^-1 B, and relay tests simulated by tests/process_sim.py (no code shared
+with mrftcli).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrftcli.errors import IdentificationError, InputError
+from mrftcli.mrft.identify_lti import ResponsePoint, identify_lti
+from mrftcli.mrft.model import model_from_json
+from mrftcli.mrft.model_file import DeclaredModel, declared_model, load_model_file, parse_model_spec
+
+sys.path.insert(0, str(Path(__file__).parent))
+from process_sim import Window, simulate, write_csv  # noqa: E402
+
+DOUBLE_LAG = "K*exp(-tau*s)/(T*s + 1)**2"
+
+
+def _ss_response(m, w):
+    ss = m.realisation()
+    return np.array([ss.C @ np.linalg.solve(1j * x * np.eye(ss.order) - ss.A, ss.B) + ss.D for x in w])
+
+
+def test_declared_response_realisation_and_json():
+    m = declared_model(DOUBLE_LAG, {"K": 2.0, "T": 0.5, "tau": 0.1})
+    w = np.array([0.3, 2.0, 11.0])
+    by_hand = 2.0 * np.exp(-0.1j * w) / (0.5j * w + 1) ** 2
+    assert m.frequency_response(w) == pytest.approx(by_hand, rel=1e-12)
+    assert _ss_response(m, w) * np.exp(-0.1j * w) == pytest.approx(by_hand, rel=1e-9)
+    assert m.realisation().order == 2
+    back = model_from_json(json.loads(json.dumps(m.to_json())))
+    assert isinstance(back, DeclaredModel) and back == m and back.parameters == m.parameters
+    with pytest.raises(InputError, match="schema_version"):
+        DeclaredModel.from_json({**m.to_json(), "schema_version": 99})
+
+
+def test_declared_minimal_unstable_and_implicit_gain_delay():
+    # (s + 3)(T s + 1) written out: the common factor cancels, one state is left
+    m = declared_model("K*(s + 3)/(T*s**2 + (3*T + 1)*s + 3)", {"K": 1.0, "T": 0.2})
+    assert m.realisation().order == 1
+    w = np.array([1.0, 7.0])
+    assert _ss_response(m, w) == pytest.approx(1.0 / (0.2j * w + 1), rel=1e-9)
+    # an unstable pole is allowed (the relay stabilises the loop)
+    assert _ss_response(declared_model("K/(T*s - 1)", {"K": 2.0, "T": 0.2}), w) == pytest.approx(2.0 / (0.2j * w - 1))
+    plain = declared_model("1/(s*(T*s + 1))", {"T": 0.5})
+    assert plain.parameters["K"].known and plain.parameters["tau"].value == 0.0
+    shifted = plain.with_parameters(tau=0.05)
+    assert shifted.frequency_response([2.0]) == pytest.approx(plain.frequency_response([2.0]) * np.exp(-0.1j))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("K*s**2/(T*s + 1)*exp(-tau*s)", "not strictly proper"),
+    ("K*exp(-tau*s)/(T*s + 1)/Q", "unknown symbol"),
+    ("K*exp(-2*tau*s)/(T*s + 1)", "exp\\(-tau\\*s\\)"),
+    ("K/(T*s + 1) + exp(-tau*s)", "factor"),
+    ("K**2*exp(-tau*s)/(T*s + 1)", "K must be a factor"),
+    ("__import__('os').system('true')", "may hold only"),
+])
+def test_declared_errors(text, message):
+    with pytest.raises(InputError, match=message):
+        declared_model(text, {"K": 1.0, "T": 0.5, "tau": 0.1})
+
+
+def test_model_file_formats_and_errors(tmp_path):
+    toml = tmp_path / "m.toml"
+    toml.write_text(f'transfer_function = "{DOUBLE_LAG}"\n[parameters]\nK = {{ range = [0.1, 10] }}\n'
+                    'T = { range = [0.01, 10], unit = "s" }\ntau = { value = 0.1, unit = "s" }\n')
+    m = load_model_file(toml)
+    assert m.known == {"tau"} and dict((n, (lo, hi)) for n, lo, hi in m.ranges) == {"K": (0.1, 10), "T": (0.01, 10)}
+    tf = parse_model_spec({"numerator": ["K"], "denominator": ["T**2", "2*T", 1], "delay": "tau",
+                           "parameters": {"K": {"value": 2.0}, "T": {"value": 0.5}, "tau": {"value": 0.1}}})
+    assert tf.frequency_response([3.0]) == pytest.approx(declared_model(
+        DOUBLE_LAG, {"K": 2.0, "T": 0.5, "tau": 0.1}).frequency_response([3.0]))
+    bad = tmp_path / "bad.json"
+    for text, message in [("{", "not valid JSON"), ('{"transfer_function": "1/(T*s+1)"}', "parameters"),
+                          ('{"transfer_function": "1/(T*s+1)", "parameters": {"T": {"value": 1, "range": [0, 1]}}}',
+                           "not both")]:
+        bad.write_text(text)
+        with pytest.raises(InputError, match=message):
+            load_model_file(bad)
+
+
+def test_identify_declared_from_exact_points_and_too_many_unknowns():
+    true = declared_model(DOUBLE_LAG, {"K": 2.0, "T": 0.5, "tau": 0.1})
+    w = np.array([2.0, 5.0, 9.0])
+    G = 2.0 * np.exp(-0.1j * w) / (0.5j * w + 1) ** 2  # by hand, not through the model
+    pts = [ResponsePoint(x, abs(g), float(np.angle(g)), 0.01, 0.01, i) for i, (x, g) in enumerate(zip(w, G))]
+    model = declared_model(DOUBLE_LAG, {}, {"K": (0.1, 10), "T": (0.01, 10), "tau": (0.0, 1.0)})
+    fit = identify_lti(model, pts)
+    for name, value in {"K": 2.0, "T": 0.5, "tau": 0.1}.items():
+        assert fit.estimate(name).value == pytest.approx(value, rel=1e-4)
+    assert true.frequency_response(w) == pytest.approx(G)
+    with pytest.raises(IdentificationError, match="3 unknowns"):
+        identify_lti(model, pts[:1])
+
+
+def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):
+    # the simulator's SOPDT with T1 = T2 is the declared double lag; two hysteresis settings
+    params = {"K": 1.5, "T1": 0.4, "T2": 0.4, "tau": 0.1}
+    windows = [Window("hysteresis", 1.0, -1.0, eps=e, duration=12.0, rest=2.0) for e in (0.02, 0.12)]
+    t, u, y = simulate("sopdt", params, windows, 50.0, 0.002, seed=3)
+    csv = tmp_path / "rec.csv"
+    write_csv(str(csv), t, u, y)
+    spec = tmp_path / "double.toml"
+    spec.write_text(f'transfer_function = "{DOUBLE_LAG}"\n[parameters]\nK = {{ range = [0.1, 10] }}\n'
+                    'T = { range = [0.01, 10], unit = "s" }\ntau = { range = [0.0, 1.0], unit = "s" }\n')
+    out = tmp_path / "r.json"
+    from mrftcli.cli.main import main
+
+    with pytest.raises(SystemExit) as exit_:  # in-process: a subprocess costs seconds of imports
+        main(["analyze", str(csv), "--command-topic", "u_relay", "--output-topic", "y_output",
+              "--model-file", str(spec), "--json", str(out)])
+    assert exit_.value.code in (0, None)
+    assert f"G(s) = {DOUBLE_LAG}" in capsys.readouterr().out
+    got = json.loads(out.read_text())["parameters"]
+    for name, value in {"K": 1.5, "T": 0.4, "tau": 0.1}.items():
+        assert got[name]["value"] == pytest.approx(value, rel=0.05)
+        assert got[name]["ci95_low"] <= value <= got[name]["ci95_high"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["analyze", "x.csv", "--model", "fopdt", "--model-file", "m.toml"], "not both"),
+    (["tune", "x.json", "--model", "fopdt"], "tune supports only --model soiptd"),
+    (["batch", "x", "--model-file", "m.toml"], "batch supports only --model soiptd"),
+])
+def test_cli_model_refusals_are_one_line(argv, message, capsys):
+    from mrftcli.cli.main import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.strip().count("\n") == 0 and message in err

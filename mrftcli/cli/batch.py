@@ -9,6 +9,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
+from .model_options import unsupported_model_option
 from .options import json_option, log_layout_options, quiet_option, tp_option
 
 __all__ = ["batch"]
@@ -59,6 +60,7 @@ def _print_table(df, limit: int = 50) -> None:
 
 
 @click.command("batch")
+@unsupported_model_option("batch", "run analyze --model NAME (or --model-file FILE) per log; batch analyses eq. (2) loops")
 @click.argument("paths", nargs=-1, required=True, metavar="PATH...")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
               help="Local worker processes (default: the number of cores); 1 runs in this process.")

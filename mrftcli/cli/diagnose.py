@@ -9,6 +9,7 @@ import click
 
 from ..diagnose.physics import BY_NAME
 from ..report.wording import gain_unit, output_unit
+from .model_options import unsupported_model_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, tp_option, tqdm_progress)
 
@@ -130,6 +131,7 @@ def format_summary(result: DiagnosisResult, analysis: AnalysisResult | None = No
 
 
 @click.command("diagnose")
+@unsupported_model_option("diagnose", "analyze --model NAME (or --model-file FILE) fits a process plant and reports each test's held-out prediction")
 @click.argument("log", type=click.Path(dir_okay=True))
 @tp_option()
 @log_layout_options()

@@ -12,6 +12,7 @@ import click
 
 from ..errors import InputError
 from ..report.wording import output_unit
+from .model_options import unsupported_model_option
 from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
                       tp_option, tqdm_progress)
 
@@ -89,6 +90,7 @@ def format_plan(result: PlanResult, unit: str = "output unit") -> str:
 
 
 @click.command("plan")
+@unsupported_model_option("plan", "plan forecasts tests of an eq. (2) loop; for a process plant choose relay settings from docs/process-plants.md")
 @tp_option()
 @click.option("--from", "source", metavar="LOG|JSON", type=click.Path(exists=True),
               help="A first test: a log with MRFT test(s), or the JSON of 'mrft-ident analyze --json'.")

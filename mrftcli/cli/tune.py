@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from ..mrft.model import LoopModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackSetting
+from .model_options import unsupported_model_option
 from .options import dump_json, json_option, log_layout_options, min_cycles_option, quiet_option, tp_option, tqdm_progress
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
@@ -155,6 +156,13 @@ def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
     return stack_setting(ex.stack, loop, rate_given, rate_source, ex.gyro_cutoff_hz)
 
 
+def _refuse_process_result(data: Any, path: Path) -> None:
+    """An ``analyze --model NAME`` (process plant) result: one line naming what tune supports (issue 22)."""
+    if isinstance(data, dict) and isinstance(data.get("model"), str) and data["model"] != "soiptd":
+        raise InputError(f"it holds a {data['model']} model (analyze --model {data['model']}); tune designs for "
+                         "--model soiptd (eq. (2)) only so far: its parameters and intervals are in that file")
+
+
 def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`.
 
@@ -164,7 +172,9 @@ def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     from ..tune.analysis import model_from_result_json
 
     try:
-        result = AnalysisResult.from_json(json.loads(path.read_text()))
+        data = json.loads(path.read_text())
+        _refuse_process_result(data, path)
+        result = AnalysisResult.from_json(data)
         model, post, note = model_from_result_json(result, Tp)
     except (ValueError, OSError) as err:
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
@@ -268,6 +278,7 @@ def _stack_summary(e: Any) -> list[str]:
 
 
 @click.command("tune")
+@unsupported_model_option("tune", "analyze --model NAME reports the process model's parameters with their intervals; tune designs PD/PID for eq. (2) loops")
 @click.argument("source", required=False, type=click.Path(dir_okay=True))
 @tp_option()
 @log_layout_options(format_flag="--log-format")

@@ -11,6 +11,7 @@ import click
 
 from ..jsonable import to_jsonable
 from ..report.wording import output_unit
+from .model_options import unsupported_model_option
 from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
@@ -48,6 +49,7 @@ def _line(update: Update, unit: str) -> str:
 
 
 @click.command("watch")
+@unsupported_model_option("watch", "record the log and run analyze --model NAME on it")
 @click.argument("log", type=click.Path())
 @tp_option()
 @log_layout_options()

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
+from ..io.atomic import write_text_atomic
 from ..io.logtypes import LOOPS
 from .options import check_output_file, dump_json, json_option
 
@@ -20,7 +21,7 @@ def _write(target: str, text: str) -> None:
     if target == "-":
         click.echo(text, nl=False)
     else:
-        Path(target).write_text(text)
+        write_text_atomic(target, text)
 
 
 @click.command("compare")

@@ -29,6 +29,8 @@ import pandas as pd
 from ..errors import LogReadError
 from .clock import TIME_UNITS
 from .logtypes import TopicData, TopicInfo
+from ..progress import Progress, report
+from .atomic import atomic_path
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
 
@@ -37,8 +39,8 @@ __all__ = ["CsvSource", "write_csv", "TIME_COLUMNS", "LARGE_CSV_BYTES"]
 #: a CSV larger than this [bytes] is parsed column by column, only the columns a command uses
 #: (:class:`_LazyColumns`); smaller ones are parsed whole, as one cut mid-row must be
 LARGE_CSV_BYTES = 64 << 20
-#: bytes of text parsed at a time in a large CSV
-_BLOCK_BYTES = 16 << 20
+#: rows parsed at a time in a large CSV (about 12 MB of text at 10 columns)
+_BLOCK_ROWS = 1 << 18
 
 #: accepted time column names -> factor to seconds
 TIME_COLUMNS = {
@@ -65,10 +67,12 @@ class CsvSource(LogSource):
 
     time_unit_settable = True
 
-    def __init__(self, path: str | Path, time_unit: str | None = None) -> None:
+    def __init__(self, path: str | Path, time_unit: str | None = None, progress: Progress | None = None) -> None:
         """Read ``path``; ``time_unit`` (one of :data:`~mrftcli.io.clock.TIME_UNITS`) overrides the unit
-        the time column's name implies (``__time``: s, ``timestamp``: us, ...)."""
+        the time column's name implies (``__time``: s, ``timestamp``: us, ...); ``progress`` is told
+        how far the passes over a large file are (bytes of the file's size)."""
         super().__init__(path)
+        self.progress = progress
         try:
             size = self._require_file()
             if size > LARGE_CSV_BYTES and _ends_with_newline(self.path):
@@ -223,10 +227,11 @@ class CsvSource(LogSource):
 class _LazyColumns(Mapping[str, pd.Series]):
     """The data columns of a large CSV, parsed on first use, only those asked for (float64 each).
 
-    A 10-million-row log of ten columns is 400 MB of text; parsed whole it took 2.3 GB. The
-    analysis needs the time column and two to five others: each :meth:`load` parses just those
-    (pyarrow's multi-threaded reader with ``usecols``), so memory is the file's rows times the
-    columns used, 8 bytes each.
+    A 10-million-row log of ten columns is 470 MB of text; parsed whole it took 2.3 GB, and pyarrow's
+    block reader still held 1.2 GB (its pool keeps what it parsed). Each pass here reads the file
+    :data:`_BLOCK_ROWS` rows at a time (pandas' C parser, ``usecols``) and keeps one float64 copy of
+    the columns asked for: memory is the file's rows times the columns used, 8 bytes each, plus one
+    block. Listing the topics keeps no column at all (counts and time spans per block).
     """
 
     def __init__(self, source: CsvSource, names: list[str], time_raw: str) -> None:
@@ -236,36 +241,55 @@ class _LazyColumns(Mapping[str, pd.Series]):
         self.raw = {n.strip(): n for n in names if n != time_raw}
         self.loaded: dict[str, pd.Series] = {}
 
-    def read(self, raw_names: list[str]) -> pd.DataFrame:
-        """Columns ``raw_names`` (as in the file) parsed from the whole file."""
-        import pyarrow as pa
-        import pyarrow.csv as pacsv
-
-        parts: dict[str, list[np.ndarray]] = {n: [] for n in raw_names}
+    def _blocks(self, raw_names: list[str], stage: str) -> Iterator[pd.DataFrame]:
+        """The columns ``raw_names`` (as in the file) as float64, :data:`_BLOCK_ROWS` rows at a time;
+        progress (bytes read of the file's size) goes to ``source.progress``."""
+        path = self.source.path
+        total = float(path.stat().st_size)
         try:
-            # block by block: memory is the columns read plus one block, never the whole text
-            reader = pacsv.open_csv(self.source.path, read_options=pacsv.ReadOptions(block_size=_BLOCK_BYTES),
-                                    convert_options=pacsv.ConvertOptions(
-                                        include_columns=raw_names, column_types={n: pa.float64() for n in raw_names}))
-            for batch in reader:
-                for n in raw_names:
-                    parts[n].append(batch.column(n).to_numpy(zero_copy_only=False))
-            return pd.DataFrame({n: np.concatenate(parts[n]) if parts[n] else np.zeros(0) for n in raw_names})
-        except Exception as err:  # noqa: BLE001 - pyarrow's conversion errors name the column and row
+            with open(path, "rb") as handle:
+                chunks = pd.read_csv(handle, usecols=raw_names, dtype={n: np.float64 for n in raw_names},
+                                     chunksize=_BLOCK_ROWS, engine="c")
+                for block in chunks:
+                    report(self.source.progress, float(handle.tell()), total, stage)
+                    yield block
+        except (ValueError, pd.errors.ParserError) as err:  # the parser's message names the value or row
             msg = "".join(ch if ch.isprintable() else "?" for ch in one_line(err))[:200]
-            raise LogReadError(f"{self.source.path}: column(s) {', '.join(raw_names)} not numbers ({msg})") from None
+            raise LogReadError(f"{path}: column(s) {', '.join(raw_names)} not numbers ({msg})") from None
+
+    def read(self, raw_names: list[str]) -> pd.DataFrame:
+        """Columns ``raw_names`` (as in the file) parsed from the whole file, one float64 array each."""
+        parts: dict[str, list[np.ndarray]] = {n: [] for n in raw_names}
+        for block in self._blocks(raw_names, f"reading {len(raw_names)} column(s)"):
+            for n in raw_names:
+                parts[n].append(block[n].to_numpy(dtype=np.float64, copy=True))
+        columns: dict[str, np.ndarray] = {}
+        for n in raw_names:  # one column's pieces at a time: the peak is one column over the result
+            columns[n] = np.concatenate(parts.pop(n)) if parts[n] else np.zeros(0)
+        return pd.DataFrame(columns, copy=False)
 
     def listing(self, t: np.ndarray) -> list[TopicInfo]:
-        """Every column's count and mean rate [Hz] at times ``t`` [s], one column parsed at a time
-        (memory: one column, whatever the width of the file)."""
+        """Every column's count and mean rate [Hz] at times ``t`` [s] (row k at ``t[k]``), in one pass
+        that keeps per column only its count and first and last time (memory: one block)."""
+        raws = list(self.raw.values())
+        count = dict.fromkeys(raws, 0)
+        first: dict[str, float] = {}
+        last: dict[str, float] = {}
+        row = 0
+        for block in self._blocks(raws, "listing the columns"):
+            tb = t[row: row + len(block)]
+            row += len(block)
+            for n in raws:
+                ts = tb[block[n].notna().to_numpy()]
+                if ts.size:
+                    count[n] += int(ts.size)
+                    first[n] = min(first.get(n, np.inf), float(ts.min()))
+                    last[n] = max(last.get(n, -np.inf), float(ts.max()))
         out = []
-        for name, raw in self.raw.items():
-            values = self.loaded[name] if name in self.loaded else self.read([raw])[raw]
-            present = values.notna().to_numpy()
-            ts = t[present]
-            span = float(ts.max() - ts.min()) if ts.size > 1 else 0.0
-            rate = (ts.size - 1) / span if span > 0 else None  # mean_rate_hz without sorting the times
-            out.append(TopicInfo(name, "float64", int(present.sum()), rate, ()))
+        for name, n in self.raw.items():
+            span = last[n] - first[n] if count[n] > 1 else 0.0
+            rate = (count[n] - 1) / span if span > 0 else None  # mean_rate_hz without sorting the times
+            out.append(TopicInfo(name, "float64", count[n], rate, ()))
         return out
 
     def load(self, names: list[str]) -> None:
@@ -334,4 +358,5 @@ def write_csv(topics: list[TopicData], path: str | Path) -> None:
             columns[csv_column(td.name, name)] = col
     # time gets more digits than the values (absolute times at ns resolution)
     columns["__time"] = np.array([f"{v:.9f}" for v in all_t], dtype=object)
-    pd.DataFrame(columns).to_csv(path, index=False, float_format="%.10g", na_rep="")
+    with atomic_path(path) as tmp:  # a killed run never leaves a cut CSV that reads as a shorter log
+        pd.DataFrame(columns).to_csv(tmp, index=False, float_format="%.10g", na_rep="")

@@ -35,6 +35,7 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import LogReadError
+from .atomic import atomic_path
 from .logtypes import TopicData, TopicInfo
 from . import cdr
 from .mcap_stream import (MESSAGE_HEADER_BYTES, OP_CHANNEL, OP_CHUNK, OP_FOOTER, OP_MESSAGE, OP_SCHEMA,
@@ -736,7 +737,8 @@ def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr")
         else:
             datas = json_messages(ts, td.msgtype, t, td.fields)
         per_topic.append((td, np.round(t * 1e9).astype(np.int64), datas))
-    with open(path, "wb") as stream:
+    # a temporary file renamed when whole (io/atomic): a killed run never leaves a log that looks complete
+    with atomic_path(path) as tmp, open(tmp, "wb") as stream:
         # 256 KiB chunks: a truncated file loses at most the chunk being written (salvage, see _scan)
         writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 18)
         writer.start(profile="ros2" if encoding == "cdr" else "", library="mrft-ident")

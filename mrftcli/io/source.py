@@ -17,6 +17,7 @@ from types import TracebackType
 import numpy as np
 
 from ..errors import LogReadError
+from ..progress import Progress
 from .logtypes import Signal, TopicInfo
 
 __all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "check_times", "spread_batches", "batch_interval", "Field"]
@@ -160,6 +161,9 @@ class LogSource(ABC):
     time_unit: str = "s"
     #: the format's times carry no unit, so ``--time-unit`` may say which (CSV, ``.mat``)
     time_unit_settable: bool = False
+    #: told how far a long read is (:mod:`mrftcli.progress`: bytes read of the file's size, and what
+    #: is being read); readers of files that take seconds to parse call it (a large CSV)
+    progress: Progress | None = None
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)

@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike
 
 from .._version import __version__
 from ..errors import InputError
+from ..io.atomic import atomic_path, write_text_atomic
 from ..progress import Progress, report
 from ..validate import check_beta
 from .lprs import unit_crossing, unit_cycle, unit_extremum
@@ -211,15 +212,17 @@ def save_manifold(manifold: Manifold, directory: str | Path) -> Path:
     stem = _file_stem(manifold.beta)
     meta_text = json.dumps(manifold.metadata, indent=2, sort_keys=True)
     path = directory / f"{stem}.npz"
-    np.savez_compressed(
-        path,
-        tp=manifold.tp_n,
-        td=manifold.td_n,
-        theta=np.asarray(manifold.theta, dtype=np.float32),
-        amplitude=np.asarray(manifold.amplitude, dtype=np.float32),
-        metadata=np.array(meta_text),
-    )
-    (directory / f"{stem}.json").write_text(meta_text + "\n")
+    # each file through a temporary one renamed when whole: a killed build-ufm leaves no cut manifold
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle:
+        np.savez_compressed(
+            handle,
+            tp=manifold.tp_n,
+            td=manifold.td_n,
+            theta=np.asarray(manifold.theta, dtype=np.float32),
+            amplitude=np.asarray(manifold.amplitude, dtype=np.float32),
+            metadata=np.array(meta_text),
+        )
+    write_text_atomic(directory / f"{stem}.json", meta_text + "\n")
     return path
 
 

@@ -12,7 +12,10 @@ matplotlib.use("Agg")  # never needs a display; set before pyplot is imported
 
 import matplotlib.pyplot as plt  # noqa: E402
 
-__all__ = ["plt", "new_figure", "save_figure", "html_page", "html_table", "esc", "ensure_dir"]
+from ..io.atomic import atomic_path, write_text_atomic  # noqa: E402
+
+__all__ = ["plt", "new_figure", "save_figure", "savefig_atomic", "write_page", "html_page", "html_table", "esc",
+           "ensure_dir"]
 
 #: Colours for tests (colour-blind-safe Okabe-Ito order).
 TEST_COLOURS = ("#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000")
@@ -55,9 +58,23 @@ def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
     with plt.rc_context(_STYLE):
         if fig.get_layout_engine() is None:  # a figure laid out as constrained keeps its own layout
             fig.tight_layout()
-        fig.savefig(path, dpi=dpi)
+        savefig_atomic(fig, path, dpi=dpi)
     plt.close(fig)
     return path
+
+
+def savefig_atomic(fig, path: str | Path, *, dpi: int = 110) -> Path:
+    """``fig.savefig`` into a temporary file renamed onto ``path`` (:mod:`mrftcli.io.atomic`): a run
+    killed mid-report never leaves a cut PNG; the format is the path's suffix (PNG without one)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".").lower() or "png")
+    return path
+
+
+def write_page(path: str | Path, page: str) -> Path:
+    """Write an HTML page (:func:`html_page`) atomically: a reader never sees half a page."""
+    return write_text_atomic(path, page)
 
 
 def html_table(header: Iterable[str], rows: Iterable[Iterable[object]]) -> str:

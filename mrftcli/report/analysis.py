@@ -31,7 +31,7 @@ from matplotlib.ticker import ScalarFormatter
 
 from ..errors import InputError
 from ..progress import Progress, report
-from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure
+from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure, write_page
 from .model_figures import plot_fit, plot_uncertainty
 from .wording import gain_unit, output_unit, uncertainty_sentence
 
@@ -475,6 +475,6 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
     body.append("<p class='muted'>The effective beta is the switching level the relay actually achieved, "
                 "measured from the output at the switch instants; identification uses it (see docs/usage-analyze.md).</p>")
     index = out / "index.html"
-    index.write_text(html_page(f"MRFT analysis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    write_page(index, html_page(f"MRFT analysis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
     report(progress, len(figures), len(figures), "index.html")
     return index

@@ -20,7 +20,7 @@ import matplotlib.dates as mdates
 import numpy as np
 import pandas as pd
 
-from ._common import esc, html_page, html_table, plt
+from ._common import esc, html_page, html_table, plt, savefig_atomic, write_page
 
 __all__ = ["write_fleet_report", "plot_loop"]
 
@@ -108,7 +108,7 @@ def plot_loop(df: pd.DataFrame, loop: str, path: Path) -> Path:
     if legend:
         axes[0].legend(list(legend.values()), list(legend.keys()), title="vehicle", fontsize=9,
                        loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.savefig(path, dpi=110)
+    savefig_atomic(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -173,5 +173,5 @@ def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:
     parts.append(_table(df, ["path", "loop", "vehicle", "status", "tau_mean", "tau_std", "Td_mean", "Td_std",
                              "K_mean", "K_std", "n_tests", "n_cycles", "findings", "log_time", "error"]))
     index = out_dir / "index.html"
-    index.write_text(html_page("mrft-ident fleet report", "\n".join(parts)))
+    write_page(index, html_page("mrft-ident fleet report", "\n".join(parts)))
     return index

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..jsonable import to_jsonable
-from ._common import ensure_dir, esc, html_page, html_table, new_figure, save_figure
+from ._common import ensure_dir, esc, html_page, html_table, new_figure, save_figure, write_page
 from .wording import gain_unit, output_unit
 
 if TYPE_CHECKING:
@@ -165,5 +165,5 @@ def write_tune_report(result: "TuneResult", out_dir: str | Path) -> Path:
         s = plot_steps(result, out / f"steps_{kind}.png", kind)
         body.append(f"<h2>{kind}</h2><img src='{b.name}'><img src='{s.name}'>")
     index = out / "index.html"
-    index.write_text(html_page("mrft-ident tune", "\n".join(body)))
+    write_page(index, html_page("mrft-ident tune", "\n".join(body)))
     return index

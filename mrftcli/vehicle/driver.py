@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..analyze import AnalysisResult, analyze_flight
@@ -18,14 +18,16 @@ from ..analyze.options import AnalyzeOptions
 from ..errors import InputError, MrftError
 from ..io import ReadOptions, read_flight
 from ..progress import Progress, report
-from ..tune.analysis import RATE_ASSUMED_NOTE, tune_analysis
+from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
+from .gains import TuneOptions, tune_loop
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
 from .next_tests import missing_from_error, missing_topics
 from .record import LoopGains, MissingLoop, VehicleLoop, VehicleResult
 
-__all__ = ["VehicleOptions", "identify_vehicle", "tp_per_loop", "EQ2_OUTER_ASSUMPTION"]
+__all__ = ["VehicleOptions", "identify_vehicle", "tp_per_loop", "find_loops", "identify_inner", "identify_outer",
+           "EQ2_OUTER_ASSUMPTION"]
 
 #: The assumption stated when an outer loop is identified with eq. (2) (its ``{loops}``, ``{inner}`` filled in).
 EQ2_OUTER_ASSUMPTION = ("{loops} identified with eq. (2) at Tp = {tp} s, its Td and tau absorbing the closed "
@@ -48,12 +50,9 @@ class VehicleOptions:
         Fewest stable cycles for a test to be used (analyze's ``--min-cycles``).
     n_bootstrap : int
         Bootstrap draws of each loop's uncertainty (the robust designs' posterior).
-    kind : {"PD", "PID"}
-        The controller recommended for every loop.
-    objective : {"iae", "itae"}
-        The designs' criterion (as ``tune``).
-    ms_max : float
-        Limit on the sensitivity peak Ms (> 1).
+    tune : TuneOptions
+        Controller kind, criterion, Ms limit and the ``--export`` stack (as ``tune``); its ``rate_hz``
+        is taken from ``controller_rate_hz``.
     plan : bool
         Plan the next test of a loop flown at one beta (about a second each).
     """
@@ -64,16 +63,15 @@ class VehicleOptions:
     controller_rate_hz: float | None = None
     min_stable_cycles: int = 3
     n_bootstrap: int = 400
-    kind: str = "PD"
-    objective: str = "iae"
-    ms_max: float = 1.6
+    tune: TuneOptions = TuneOptions()
     plan: bool = True
 
     def __post_init__(self) -> None:
-        if self.kind not in KINDS:
-            raise InputError(f"unknown controller kind {self.kind!r}; choose from {', '.join(KINDS)}")
-        if self.objective not in OBJECTIVES:
-            raise InputError(f"unknown objective {self.objective!r}; choose from {', '.join(OBJECTIVES)}")
+        if self.tune.kind not in KINDS:
+            raise InputError(f"unknown controller kind {self.tune.kind!r}; choose from {', '.join(KINDS)}")
+        if self.tune.objective not in OBJECTIVES:
+            raise InputError(f"unknown objective {self.tune.objective!r}; choose from {', '.join(OBJECTIVES)}")
+        object.__setattr__(self, "tune", dataclasses.replace(self.tune, rate_hz=self.controller_rate_hz))
 
     def read(self, loop: str) -> ReadOptions:
         """How ``loop`` is read from the log."""
@@ -81,6 +79,7 @@ class VehicleOptions:
                            controller_rate_hz=self.controller_rate_hz)
 
     def analyze(self) -> AnalyzeOptions:
+        """How each loop's tests are screened and identified."""
         return AnalyzeOptions(min_stable_cycles=self.min_stable_cycles, n_bootstrap=self.n_bootstrap)
 
 
@@ -130,14 +129,6 @@ def _identify_eq2(path: str, loop: str, Tp: float, options: VehicleOptions) -> A
     return analyze_flight(flight, Tp, options=options.analyze())
 
 
-def _tune(result: AnalysisResult, options: VehicleOptions) -> LoopGains:
-    """Robust gains (model-based without a posterior) at the loop's controller rate, as ``tune``."""
-    res = tune_analysis(result, kinds=(options.kind,), rate_hz=options.controller_rate_hz,
-                        designs=("model-based", "robust"), objective=options.objective, ms_max=options.ms_max)
-    design = "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
-    return LoopGains(design, options.kind, res)
-
-
 def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner_gains: Mapping[str, object] | None = None,
                      options: VehicleOptions | None = None, progress: Progress | None = None) -> VehicleResult:
     """Identify and tune every loop one flight holds tests of; say which tests the others need.
@@ -170,42 +161,71 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
     log = str(path)
     found = find_loops(log, opts, tps)
     opts = dataclasses.replace(opts, layout=found.layout)
-    loops: dict[str, VehicleLoop] = {}
-    missing = dict(found.missing)
-    warnings: list[str] = []
-    assumptions: list[str] = []
-    eq2_outer: list[str] = []
+    acc = _Accumulated(missing=dict(found.missing))
     total = len(found.loops) + 1
     for i, loop in enumerate(found.loops):
         report(progress, i, total, f"{loop}: identifying and tuning")
-        try:
-            result = _identify_eq2(log, loop, tps[loop], opts)
-        except MrftError as err:
-            missing[loop] = missing_from_error(loop, err, tps[loop], log, opts.controller_rate_hz, opts.plan)
-            continue
-        role = "outer" if loop in OUTER_LOOPS else "inner"
-        notes: tuple[str, ...] = ()
-        if role == "outer":
-            eq2_outer.append(loop)
-            notes = (EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{tps[loop]:g}", inner=INNER_OF[loop]),)
-        gains, stated, refused = _tuned(result, opts)
-        warnings += [f"{loop}: {w}" for w in (*result.warnings, *refused)]
-        assumptions += [f"{loop}: {n}" for n in stated]
-        loops[loop] = VehicleLoop(loop, role, "eq2", result, gains, notes)
-    if eq2_outer:
-        inner = "/".join(INNER_OF[loop] for loop in eq2_outer)
-        tp = "/".join(f"{tps[loop]:g}" for loop in eq2_outer)
-        assumptions.insert(0, EQ2_OUTER_ASSUMPTION.format(loops=", ".join(eq2_outer), tp=tp, inner=inner))
+        if loop in OUTER_LOOPS:
+            identify_outer(log, loop, tps[loop], opts, inner_gains, acc)
+        else:
+            identify_inner(log, loop, tps[loop], opts, acc)
     report(progress, total, total, "done")
-    ordered = {loop: missing[loop] for loop in VEHICLE_ORDER if loop in missing}
-    return VehicleResult(log, found.layout, loops, ordered, tuple(assumptions), tuple(warnings))
+    ordered = {loop: acc.missing[loop] for loop in VEHICLE_ORDER if loop in acc.missing}
+    return VehicleResult(log, found.layout, acc.loops, ordered, (*acc.first, *acc.assumptions), tuple(acc.warnings))
+
+
+@dataclass
+class _Accumulated:
+    """What the stages have found so far (private to :func:`identify_vehicle`; the result is frozen)."""
+
+    loops: dict[str, VehicleLoop] = field(default_factory=dict)
+    missing: dict[str, MissingLoop] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    #: assumptions shown first: what a whole route rests on
+    first: list[str] = field(default_factory=list)
+    assumptions: list[str] = field(default_factory=list)
+
+    def add(self, entry: VehicleLoop, stated: tuple[str, ...], refused: tuple[str, ...]) -> None:
+        self.loops[entry.loop] = entry
+        self.warnings += [f"{entry.loop}: {w}" for w in (*entry.analysis.warnings, *refused)]
+        self.assumptions += [f"{entry.loop}: {n}" for n in stated]
+
+
+def identify_inner(log: str, loop: str, Tp: float, options: VehicleOptions, acc: _Accumulated) -> None:
+    """An inner loop (altitude, roll, pitch): eq. (2) at the known Tp, tuned; or the tests it needs."""
+    try:
+        result = _identify_eq2(log, loop, Tp, options)
+    except MrftError as err:
+        acc.missing[loop] = missing_from_error(loop, err, Tp, log, options.controller_rate_hz, options.plan)
+        return
+    gains, stated, refused = _tuned(result, options)
+    acc.add(VehicleLoop(loop, "inner", "eq2", result, gains), stated, refused)
+
+
+def identify_outer(log: str, loop: str, Tp: float, options: VehicleOptions, inner_gains: Mapping[str, object] | None,
+                   acc: _Accumulated) -> None:
+    """An outer loop (x, y): through the closed inner loop when its gains in use are given, else eq. (2)
+    (the first assumption says so, naming ``--inner-gains``); tuned; or the tests it needs."""
+    inner = INNER_OF[loop]
+    if inner_gains is not None and inner in inner_gains:
+        raise InputError("--inner-gains: the identification through the closed inner loop is not available in "
+                         "this version; leave --inner-gains out to identify x and y with eq. (2)")
+    try:
+        result = _identify_eq2(log, loop, Tp, options)
+    except MrftError as err:
+        acc.missing[loop] = missing_from_error(loop, err, Tp, log, options.controller_rate_hz, options.plan)
+        return
+    said = EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{Tp:g}", inner=inner)
+    acc.first.append(said)
+    gains, stated, refused = _tuned(result, options)
+    acc.add(VehicleLoop(loop, "outer", "eq2", result, gains, (said,)), stated, refused)
 
 
 def _tuned(result: AnalysisResult,
            options: VehicleOptions) -> tuple[LoopGains | None, tuple[str, ...], tuple[str, ...]]:
     """The loop's gains, the assumptions they rest on, and why it was not tuned (None, (), (why,))."""
     try:
-        gains = _tune(result, options)
+        gains = tune_loop(result, options.tune)
     except MrftError as err:
         return None, (), (f"not tuned: {' '.join(str(err).split())}",)
     return gains, tuple(n for n in gains.tune.notes if n == RATE_ASSUMED_NOTE), ()

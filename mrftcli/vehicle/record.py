@@ -29,6 +29,7 @@ from ..jsonable import check_schema_version
 from ..plan import PlanResult
 from ..tune.closed_loop import Controller
 from ..tune.design import Design, TuneResult
+from ..tune.stacks import StackExport
 
 __all__ = ["VEHICLE_SCHEMA_VERSION", "ROLES", "ROUTES", "MISSING_REASONS", "LoopGains", "VehicleLoop",
            "MissingLoop", "VehicleResult"]
@@ -71,11 +72,17 @@ class LoopGains:
         ``PD`` or ``PID``.
     tune : TuneResult
         Every design, with margins nominal and over the posterior.
+    export : StackExport or None
+        The design as the ``--export`` stack loads it (checked against its ranges).
+    export_refused : str or None
+        Why the stack could not take this loop (one line), when an export was asked for.
     """
 
     design: str
     kind: str
     tune: TuneResult
+    export: StackExport | None = None
+    export_refused: str | None = None
 
     @property
     def chosen(self) -> Design:
@@ -88,14 +95,16 @@ class LoopGains:
         return self.chosen.controller
 
     def to_json(self) -> dict[str, Any]:
-        """``design``, ``kind``, ``generic`` (tune's generic export), ``units`` and ``tune_result``."""
+        """``design``, ``kind``, ``generic`` (tune's generic export), ``units``, the margins, ``export``
+        (or ``export_refused``) and ``tune_result``."""
         y = output_unit(self.tune.loop) if self.tune.loop in LOOPS else "output unit"
         margins = self.chosen.margins
         return {"design": self.design, "kind": self.kind, "generic": self.controller.to_dict(),
                 "units": {"Kp": f"command/{y}", "Ki": f"command/({y} s)", "Kd": f"command s/{y}", "Tf": "s",
                           "rate_hz": "Hz"},
                 "phase_margin_deg": margins.phase_margin_deg, "delay_margin_ms": margins.delay_margin_s * 1e3,
-                "tune_result": self.tune.to_json()}
+                "export": None if self.export is None else self.export.to_json(),
+                "export_refused": self.export_refused, "tune_result": self.tune.to_json()}
 
     @classmethod
     def from_json(cls, data: object) -> LoopGains:
@@ -109,7 +118,10 @@ class LoopGains:
             tune.get(design, kind)
         except KeyError:
             raise InputError(f"{what}: the tune result has no {design} {kind} design") from None
-        return cls(design, kind, tune)
+        export, refused = data.get("export"), data.get("export_refused")
+        if not (refused is None or isinstance(refused, str)):
+            raise InputError(f"{what}: 'export_refused' must be a string or null")
+        return cls(design, kind, tune, None if export is None else StackExport.from_json(export), refused)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,186 @@
+"""``mrft-ident vehicle``: every loop of one flight identified and tuned, and the tests the others need."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from ..errors import InputError, SegmentationError
+from ..io.logtypes import gain_unit, output_unit
+from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
+                      min_cycles_option, quiet_option, tp_option, tqdm_progress)
+
+if TYPE_CHECKING:
+    from ..vehicle import VehicleResult
+
+__all__ = ["vehicle", "format_vehicle"]
+
+#: The shared log options that apply to a whole flight (the topic and scale options are one loop's).
+_FLIGHT_OPTIONS = ("fmt", "layout", "controller_rate_hz", "time_unit", "rate")
+
+
+def _flight_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--format``, ``--layout``, ``--controller-rate`` and ``--time-unit``: the shared options' own
+    definitions (:func:`~mrftcli.cli.options.log_layout_options`), so their wording is one everywhere."""
+
+    def probe() -> None:
+        """Collects the shared options."""
+
+    log_layout_options()(probe)
+    shared = [p for p in getattr(probe, "__click_params__", []) if p.name in _FLIGHT_OPTIONS]
+    func.__click_params__ = [*getattr(func, "__click_params__", []), *shared]  # type: ignore[attr-defined]
+    return func
+
+
+def _num(x: float, digits: int = 4) -> str:
+    return "-" if not math.isfinite(x) else f"{x:#.{digits}g}".rstrip(".")
+
+
+def _loop_rows(result: VehicleResult) -> list[list[str]]:
+    rows = []
+    for name, entry in result.loops.items():
+        a, g = entry.analysis, entry.gains
+        c = g.controller if g is not None else None
+        pm = g.chosen.margins.phase_margin_deg if g is not None else math.nan
+        rows.append([name, entry.role, entry.route, str(len(a.tests)), _num(a.Td.mean), _num(a.tau.mean * 1e3),
+                     f"{_num(a.K.mean)} {gain_unit(name)}", g.design if g is not None else "not tuned",
+                     "-" if c is None else f"{_num(c.Kp)} cmd/{output_unit(name)}",
+                     "-" if c is None else f"{_num(c.Kd)} cmd s/{output_unit(name)}",
+                     "-" if c is None else f"{c.rate_hz:g}", _num(pm, 3)])
+    return rows
+
+
+def format_vehicle(result: VehicleResult) -> str:
+    """The terminal summary: the assumptions first, one row per identified loop, then the missing loops."""
+    lines = [f"assumption: {a}" for a in result.assumptions]
+    lines.append(f"{result.path} (layout {result.layout or 'not recognised'}); inner loops first")
+    header = ["loop", "role", "model", "tests", "Td [s]", "tau [ms]", "K", "design", "Kp", "Kd", "rate [Hz]",
+              "PM [deg]"]
+    rows = _loop_rows(result)
+    widths = [max(len(h), *(len(r[k]) for r in rows)) if rows else len(h) for k, h in enumerate(header)]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [header, *rows]]
+    if not rows:
+        lines.append("(no loop identified)")
+    for name, entry in result.loops.items():
+        if entry.gains is not None and entry.gains.export_refused:
+            lines.append(f"{name}: not exported: {entry.gains.export_refused}")
+    for name, miss in result.missing.items():
+        lines.append(f"{name}: {miss.reason}: {miss.next_tests}")
+    return "\n".join(lines)
+
+
+def _inner_gains(path: str | None) -> dict[str, Any] | None:
+    """GAINS.json: a loop name -> the generic gains ``tune`` exports (read only when given)."""
+    if path is None:
+        return None
+    try:
+        data = json.loads(open(path).read())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"--inner-gains {path}: not a readable JSON file ({err})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"--inner-gains {path}: expected an object mapping a loop to its gains, "
+                         "e.g. {\"roll\": {\"Kp\": .., \"Ki\": .., \"Kd\": .., \"Tf\": .., \"rate_hz\": ..}}")
+    return data
+
+
+def _export_text(result: VehicleResult, stack: str) -> str:
+    """The ``--export`` file: one JSON object by loop (generic, hear) or the stack's parameter files."""
+    from ..tune.export import hear_json
+
+    gains = {name: e.gains for name, e in result.loops.items() if e.gains is not None}
+    if stack == "generic":
+        return json.dumps({name: g.controller.to_dict() for name, g in gains.items()}, indent=2) + "\n"
+    exports = {name: g.export for name, g in gains.items() if g.export is not None}
+    if not exports:
+        raise InputError(f"no loop of this flight can be exported to {stack} (the reasons are in the table)")
+    if stack == "hear":
+        return json.dumps({name: hear_json(gains[name].controller, name) for name in exports}, indent=2) + "\n"
+    return "".join(e.file_text() for e in exports.values())
+
+
+@click.command("vehicle")
+@click.argument("log", type=click.Path(dir_okay=True))
+@tp_option()
+@click.option("--inner-gains", "inner_gains", metavar="GAINS.json", type=click.Path(dir_okay=False),
+              help="The inner loops' gains in use during the flight (a loop name -> tune's generic export); "
+                   "without them x and y are identified with eq. (2), as the first line says.")
+@_flight_options
+@min_cycles_option()
+@click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
+              help="Controller tuned for every loop.")
+@click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
+              help="Criterion of a unit setpoint step.")
+@click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
+@click.option("--export", "export", type=click.Choice(["generic", "px4", "ardupilot", "hear"]), default=None,
+              help="Write every loop's gains as the stack loads them (px4, ardupilot, hear: designed for the "
+                   "stack's rate and rate filter) or generic JSON (the GAINS.json --inner-gains reads).")
+@click.option("--out", "-o", "out", metavar="FILE", help="Write the export to FILE (atomically); default: stdout.")
+@click.option("--gyro-cutoff", "gyro_cutoff", type=click.FloatRange(0, None), metavar="HZ",
+              help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] (default: the stack's, stated).")
+@click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
+              help="PX4 MPC_THR_HOVER (normalised), for the PX4 altitude export.")
+@click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound instead of "
+              "refusing (the margins are stated).")
+@json_option(what="vehicle record: loops.<name> (the analysis, gains.generic) and the missing loops")
+@click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
+              help="Write an HTML report with a page per loop to DIR (created if missing).")
+@quiet_option()
+def vehicle(log: str, Tp: float, inner_gains: str | None, min_cycles: int, kind: str, objective: str, ms_max: float,
+            export: str | None, out: str | None, gyro_cutoff: float | None, hover_thrust: float | None, clamp: bool,
+            json_target: str | None, report_dir: str | None, quiet: bool, **read_options: Any) -> None:
+    """Identify and tune every loop one flight holds MRFT tests of; say which tests the others need.
+
+    The loops are found from the log's topics (any layout analyze reads); inner loops (altitude,
+    roll, pitch) are identified first with eq. (2) at the known Tp, outer loops (x, y) through the
+    closed inner loop (--inner-gains) or with eq. (2), which the first line then says. Each loop is
+    tuned as `tune` does (robust over the identification's posterior). docs/vehicle.md.
+
+    Example: mrft-ident vehicle flight.bag --tp 0.0422 --json vehicle.json --report out/
+    """
+    from ..vehicle import StackOptions, TuneOptions, VehicleOptions, identify_vehicle
+
+    check_output_file(json_target, "--json")
+    check_output_dir(report_dir, "--report")
+    check_output_file(out, "--out")
+    if out and export is None:
+        raise InputError("--out needs --export generic|px4|ardupilot|hear")
+    if export is not None and not out and json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
+    stack = None if export is None else StackOptions(export, gyro_cutoff, hover_thrust, clamp)
+    gains = _inner_gains(inner_gains)
+    options = VehicleOptions(layout=read_options["layout"], fmt=read_options["fmt"],
+                             time_unit=read_options["time_unit"], controller_rate_hz=read_options["controller_rate_hz"],
+                             min_stable_cycles=min_cycles,
+                             tune=TuneOptions(kind=kind, objective=objective, ms_max=ms_max, stack=stack))
+    with tqdm_progress("vehicle", unit="loop", enabled=not quiet) as progress:
+        result = identify_vehicle(log, Tp, inner_gains=gains, options=options, progress=progress)
+        index = None
+        if report_dir:
+            from ..report.vehicle import write_vehicle_report
+
+            index = write_vehicle_report(result, report_dir)
+    if json_target:
+        dump_json(result.to_json(), json_target)
+    to_stdout = json_target == "-"
+    if not to_stdout:
+        click.echo(format_vehicle(result), err=export is not None and not out)
+    for w in result.warnings:
+        click.echo(f"warning: {w}", err=True)
+    if not result.loops:
+        # nothing to tune: the exit code says so (the table and the JSON say what each loop needs)
+        raise SegmentationError(f"{log}: no loop has usable MRFT tests; the table above names the tests to fly")
+    if export is not None:
+        from ..io.atomic import write_text_atomic
+
+        text = _export_text(result, export)
+        if out:
+            write_text_atomic(out, text)
+            click.echo(f"export {export}: {out}", err=to_stdout)
+        else:
+            click.echo(text, nl=False)
+    if index is not None:
+        click.echo(f"report: {index}", err=to_stdout or (export is not None and not out))

@@ -1,0 +1,120 @@
+"""Tune one identified loop of the vehicle as ``tune`` does, optionally for a flight stack's rate and filter.
+
+Without a stack the designs run at the controller rate the analysis records (as ``tune LOG``); with
+``--export px4|ardupilot|hear`` each loop the stack takes is designed with the stack's own rate and
+rate filter (:func:`mrftcli.tune.stacks.stack_setting`) and exported as it loads it
+(:func:`mrftcli.tune.stacks.export_design`); a loop the stack cannot take is tuned without it and
+the refusal is recorded with the gains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..analyze import AnalysisResult
+from ..errors import InputError
+from ..tune.analysis import ASSUMED_RATE_HZ, RATE_ASSUMED_NOTE, posterior_from_analysis
+from ..tune.design import tune
+from ..tune.stacks import StackSetting, check_exportable, export_design, stack_setting
+from .record import LoopGains
+
+__all__ = ["StackOptions", "TuneOptions", "tune_loop", "STACKS"]
+
+#: What ``--export`` takes: ``generic`` (tune's generic JSON, the GAINS.json ``--inner-gains`` reads)
+#: and the stacks with their own rate and filter.
+STACKS = ("generic", "hear", "px4", "ardupilot")
+
+
+@dataclass(frozen=True)
+class StackOptions:
+    """The flight stack the gains are for (``--export``) and its settings, as ``tune --export``.
+
+    Attributes
+    ----------
+    stack : str
+        One of :data:`STACKS`.
+    gyro_cutoff_hz : float or None
+        PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz]; None: the stack's default (stated).
+    hover_thrust : float or None
+        PX4 MPC_THR_HOVER (normalised), for PX4's altitude loop.
+    clamp : bool
+        Export values outside the stack's ranges at the bound instead of refusing.
+    """
+
+    stack: str
+    gyro_cutoff_hz: float | None = None
+    hover_thrust: float | None = None
+    clamp: bool = False
+
+    def __post_init__(self) -> None:
+        if self.stack not in STACKS:
+            raise InputError(f"unknown export {self.stack!r}; choose from {', '.join(STACKS)}")
+
+
+@dataclass(frozen=True)
+class TuneOptions:
+    """How every loop is tuned: the controller kind, the criterion, the Ms limit, the rate, the stack."""
+
+    kind: str = "PD"
+    objective: str = "iae"
+    ms_max: float = 1.6
+    rate_hz: float | None = None
+    stack: StackOptions | None = None
+
+
+def _setting(result: AnalysisResult, options: TuneOptions) -> tuple[StackSetting | None, str | None]:
+    """The stack's setting for this loop, or (None, why the stack cannot take it)."""
+    st = options.stack
+    if st is None or st.stack == "generic":
+        return None, None
+    try:
+        check_exportable(st.stack, result.loop, options.kind, st.hover_thrust)
+        setting = stack_setting(st.stack, result.loop, options.rate_hz, result.controller_rate_hz, st.gyro_cutoff_hz)
+    except InputError as err:
+        return None, str(err)
+    return setting, None
+
+
+def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
+    """Robust gains (model-based without a posterior) for one analysed loop, and its stack export.
+
+    Parameters
+    ----------
+    result : AnalysisResult
+        The loop's analysis (model, posterior, controller rate [Hz]).
+    options : TuneOptions
+
+    Returns
+    -------
+    LoopGains
+        ``export`` holds the stack's parameters, or ``export_refused`` says why not.
+
+    Raises
+    ------
+    MrftError
+        No design could be made (the tune's own error).
+    """
+    setting, refused = _setting(result, options)
+    rate = setting.rate_hz if setting is not None else options.rate_hz or result.controller_rate_hz
+    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result),
+               kinds=(options.kind,), designs=("model-based", "robust"), loop=result.loop,
+               objective=options.objective, ms_max=options.ms_max,
+               rate_filter=setting.rate_filter if setting is not None else None)
+    notes = (*(() if rate else (RATE_ASSUMED_NOTE,)), *(setting.notes if setting is not None else ()))
+    if notes:
+        from dataclasses import replace
+
+        res = replace(res, notes=(*notes, *res.notes))
+    design = "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
+    gains = LoopGains(design, options.kind, res, export_refused=refused)
+    st = options.stack
+    if st is None or refused is not None:
+        return gains
+    try:
+        export = export_design(st.stack, gains.controller, res.model, result.loop, f"{design} {options.kind}",
+                               clamp=st.clamp, hover_thrust=st.hover_thrust,
+                               heights=tuple(float(t.h) for t in result.tests),
+                               amplitudes=tuple(float(t.amplitude_mean) for t in result.tests), notes=res.notes)
+    except InputError as err:
+        return LoopGains(design, options.kind, res, export_refused=str(err))
+    return LoopGains(design, options.kind, res, export=export)

@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..validate import check_beta, check_positive
 from .describing import df_frequency
 from .matexp import phi_gamma_small
-from .model import LoopModel, PlantModel
+from .model import LoopModel, PlantModel, SampledPlantModel
 
 __all__ = [
     "LimitCycle",
@@ -458,6 +458,10 @@ def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: fl
         raise InputError("model must be a plant model (e.g. a LoopModel)")
     if model.parameters["K"].value < 0:
         raise InputError("K must be positive for a negative-feedback MRFT loop (invert the command sign)")
+    if isinstance(model, SampledPlantModel):  # a controller inside the plant: exact only at the relay's rate
+        if rate_hz is None or eps != 0.0:
+            raise InputError(f"the {model.family} model's cycle needs the relay's rate (rate_hz) and the MRFT (eps 0)")
+        return model.sampled_limit_cycle(beta, h, rate_hz)
     if rate_hz is not None:
         # the centre of the sampled relay's band: the continuous cycle with half a sample more delay
         centre = mrft_limit_cycle(model.with_parameters(tau=model.delay + 0.5 / rate_hz), beta, h, None, n_points,

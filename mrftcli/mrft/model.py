@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Iterable, Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Iterable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,8 +36,11 @@ from numpy.typing import ArrayLike, NDArray
 from ..jsonable import check_schema_version
 from ..errors import InputError
 
+if TYPE_CHECKING:
+    from .lprs import LimitCycle
+
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
-           "model_family", "model_from_json", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
+           "model_family", "model_from_json", "SampledPlantModel", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
            "json_bounds"]
 
 _INF = math.inf
@@ -175,6 +178,19 @@ class PlantModel(Protocol):
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> PlantModel:
         """The model of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        ...
+
+
+@runtime_checkable
+class SampledPlantModel(Protocol):
+    """A plant whose exact object is sampled (a controller inside it, as the cascade of an outer loop).
+
+    :func:`~mrftcli.mrft.lprs.mrft_limit_cycle` hands its MRFT cycle at a relay rate to the model.
+    """
+
+    def sampled_limit_cycle(self, beta: float, h: float, rate_hz: float,
+                            n_guess: float | None = None) -> LimitCycle:
+        """The exact MRFT limit cycle with the relay at ``rate_hz`` [Hz] (``n_guess``: a half period [ticks] near it)."""
         ...
 
 
@@ -439,3 +455,10 @@ def model_from_json(data: Mapping[str, Any]) -> PlantModel:
     if not isinstance(data, Mapping):
         raise InputError(f"model JSON must be an object, got {type(data).__name__}")
     return model_family(str(data.get("family"))).from_json(data)
+
+
+# the cascade of an outer loop (cascade.py) is built on this module's records and on the limit cycles
+# that import it, so it is registered after everything here is defined
+from .cascade import CascadeModel  # noqa: E402
+
+MODEL_FAMILIES["cascade"] = CascadeModel

@@ -1,0 +1,335 @@
+"""Identification of an outer loop through its closed inner loop (the cascade of :mod:`mrftcli.mrft.cascade`).
+
+Td and tau (and K when it is not known) are found from the outer MRFT tests' mean frequencies and
+amplitudes through the exact sampled limit cycle of the whole cascade
+(:meth:`~mrftcli.mrft.cascade.CascadeModel.sampled_limit_cycle`), by weighted least squares in
+logarithms. The inner model's uncertainty is propagated by solving again for draws of the inner loop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import optimize
+
+from ..errors import IdentificationError, InputError
+from ..jsonable import check_schema_version
+from ..validate import check_positive
+from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop, json_number
+from .identify import TestMeasurement
+from .identify_lti import LtiEstimate
+from .lprs import LimitCycle
+
+__all__ = ["CascadeIdentification", "CascadeTestFit", "identify_cascade", "CASCADE_ID_SCHEMA_VERSION"]
+
+FloatArray = NDArray[np.float64]
+_INF = math.inf
+#: version of :meth:`CascadeIdentification.to_json`
+CASCADE_ID_SCHEMA_VERSION = 1
+_Z95 = 1.959964
+#: floor of the standard errors of ln(frequency) and ln(amplitude) of a test (as identify_lti's)
+_SE_FLOOR = 5e-3
+
+
+@dataclass(frozen=True)
+class CascadeTestFit:
+    """One outer test as measured and as the identified cascade predicts it.
+
+    Attributes
+    ----------
+    beta, h : float
+        The relay's beta and height [command units].
+    frequency_hz, amplitude : float
+        Measured mean frequency [Hz] and amplitude [output units] (NaN: no amplitude).
+    predicted_hz, predicted_amplitude : float
+        The exact sampled cycle's centre for the estimate [Hz], [output units].
+    band_hz : tuple of float
+        (lowest, highest) frequency of the admissible sampled orbits [Hz].
+    """
+
+    beta: float
+    h: float
+    frequency_hz: float
+    amplitude: float
+    predicted_hz: float
+    predicted_amplitude: float
+    band_hz: tuple[float, float]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"beta": self.beta, "h": self.h, "frequency_hz": self.frequency_hz,
+                "amplitude": self.amplitude if math.isfinite(self.amplitude) else None,
+                "predicted_hz": self.predicted_hz, "predicted_amplitude": self.predicted_amplitude,
+                "band_hz": list(self.band_hz)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> CascadeTestFit:
+        if not isinstance(data, Mapping):
+            raise InputError("cascade identification JSON: each test must be an object")
+        amp = data.get("amplitude")
+        band = data.get("band_hz") or [math.nan, math.nan]
+        return cls(json_number(data, "beta", "cascade test"), json_number(data, "h", "cascade test"),
+                   json_number(data, "frequency_hz", "cascade test"), math.nan if amp is None else float(amp),
+                   json_number(data, "predicted_hz", "cascade test"), json_number(data, "predicted_amplitude", "cascade test"),
+                   (float(band[0]), float(band[1])))
+
+
+@dataclass(frozen=True)
+class CascadeIdentification:
+    """The outer loop identified through its inner loop (:func:`identify_cascade`).
+
+    Attributes
+    ----------
+    model : CascadeModel
+        The point estimate (with the nominal inner loop).
+    estimates : mapping of str to LtiEstimate
+        Td [s], tau [s], K with std and 95 % interval: the tests' scatter and the inner model's
+        draws together (``std`` is their root sum of squares).
+    tests : tuple of CascadeTestFit
+        Each test measured and predicted.
+    rate_hz : float
+        The outer relay's rate [Hz].
+    inner_draws : int
+        How many draws of the inner loop were solved (0: the inner model taken as exact).
+    inner_std : mapping of str to float
+        The part of each std due to the inner model alone [unit].
+    """
+
+    model: CascadeModel
+    estimates: Mapping[str, LtiEstimate]
+    tests: tuple[CascadeTestFit, ...]
+    rate_hz: float
+    inner_draws: int = 0
+    inner_std: Mapping[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "model", "parameters", "tests", "rate_hz", "inner_draws", "inner_std"}``."""
+        return {"schema_version": CASCADE_ID_SCHEMA_VERSION, "model": self.model.to_json(),
+                "parameters": {k: e.to_json() for k, e in self.estimates.items()},
+                "tests": [t.to_json() for t in self.tests], "rate_hz": self.rate_hz,
+                "inner_draws": self.inner_draws, "inner_std": dict(self.inner_std)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> CascadeIdentification:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        d = check_schema_version(data, "cascade identification JSON", CASCADE_ID_SCHEMA_VERSION)
+        params = d.get("parameters")
+        if not isinstance(params, Mapping) or "model" not in d:
+            raise InputError("cascade identification JSON needs 'model' and 'parameters'")
+        model = CascadeModel.from_json(d["model"])
+        return cls(model, {k: LtiEstimate.from_json(k, v) for k, v in params.items()},
+                   tuple(CascadeTestFit.from_json(t) for t in d.get("tests") or ()),
+                   json_number(d, "rate_hz", "cascade identification JSON"), int(d.get("inner_draws") or 0),
+                   {str(k): float(v) for k, v in (d.get("inner_std") or {}).items()})
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What the solver holds fixed: the tests, their weights, the free parameters and their bounds."""
+
+    tests: tuple[TestMeasurement, ...]
+    rate_hz: float
+    free: tuple[str, ...]  # "Td", "tau" and maybe "K"
+    lower: FloatArray
+    upper: FloatArray
+    se_f: FloatArray  # standard errors of ln f per test
+    se_a: FloatArray  # of ln a (inf: no amplitude)
+    #: each test's last half period [ticks]: the next evaluation's start (a cache, not part of the problem)
+    hints: dict[int, float] = field(default_factory=dict, compare=False)
+
+    def model(self, base: CascadeModel, theta: FloatArray) -> CascadeModel:
+        values = {name: (float(v) if name == "tau" else math.exp(float(v))) for name, v in zip(self.free, theta)}
+        return base.with_parameters(**values)
+
+    def cycles(self, model: CascadeModel) -> list[LimitCycle]:
+        out = []
+        for i, t in enumerate(self.tests):
+            h = float(t.h or 1.0)
+            try:
+                lc = model.sampled_limit_cycle(t.beta, h, self.rate_hz, self.hints.get(i))
+            except InputError:
+                if i not in self.hints:
+                    raise
+                lc = model.sampled_limit_cycle(t.beta, h, self.rate_hz)  # the last cycle was far from this one
+            self.hints[i] = 0.5 * self.rate_hz / lc.frequency_hz
+            out.append(lc)
+        return out
+
+    def residuals(self, base: CascadeModel, theta: FloatArray) -> FloatArray:
+        try:
+            cycles = self.cycles(self.model(base, theta))
+        except InputError:
+            return np.full(2 * len(self.tests), 1e3)
+        out = []
+        for t, lc, sf, sa in zip(self.tests, cycles, self.se_f, self.se_a):
+            out.append((math.log(lc.frequency_hz) - math.log(t.frequency_mean)) / sf)
+            a = t.amplitude_mean
+            out.append(0.0 if a is None or not math.isfinite(sa) else (math.log(lc.amplitude) - math.log(a)) / sa)
+        return np.array(out)
+
+
+def _theta0(problem: _Problem, base: CascadeModel) -> FloatArray:
+    """The best start on a coarse grid of Td (and K) with tau in a few steps (the cost is not convex)."""
+    best, best_cost = None, _INF
+    i_tau = problem.free.index("tau")
+    taus = np.clip([0.02, 0.06, 0.15], problem.lower[i_tau], problem.upper[i_tau])
+    grid: list[list[float]] = [list(np.linspace(problem.lower[0], problem.upper[0], 5)), list(taus)]
+    if "K" in problem.free:
+        grid.append([math.log(base.K)])
+    for point in np.array(np.meshgrid(*grid)).reshape(len(grid), -1).T:
+        problem.hints.clear()  # the grid's models are far apart: each its own first guess
+        r = problem.residuals(base, point)
+        cost = float(r @ r)
+        if cost < best_cost:
+            best, best_cost = point, cost
+    assert best is not None
+    problem.hints.clear()
+    return np.asarray(best, dtype=float)
+
+
+def _solve(problem: _Problem, base: CascadeModel, theta0: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Least squares from ``theta0``: the estimate and the Jacobian of the weighted residuals."""
+    x0 = np.clip(theta0, problem.lower + 1e-9, problem.upper - 1e-9)
+    sol = optimize.least_squares(lambda th: problem.residuals(base, th), x0, bounds=(problem.lower, problem.upper),
+                                 diff_step=1e-4, x_scale=np.ones_like(x0), xtol=1e-8, max_nfev=60)
+    return np.asarray(sol.x, dtype=float), np.asarray(sol.jac, dtype=float)
+
+
+def _weights(tests: Sequence[TestMeasurement], cycles: Sequence[LimitCycle]) -> tuple[FloatArray, FloatArray]:
+    """Standard errors of ln f and ln a: the cycles' scatter, a floor, and the sampled band's spread.
+
+    The loop may lock onto any admissible orbit of the band (and wander between them): the band's
+    width over sqrt(12) (uniform over the band) is part of what the centre cannot predict.
+    """
+    se_f, se_a = [], []
+    for t, lc in zip(tests, cycles):
+        f_band = (max(lc.orbits_hz) - min(lc.orbits_hz)) / lc.frequency_hz if lc.orbits_hz else 0.0
+        a_band = ((max(lc.orbits_amplitude) - min(lc.orbits_amplitude)) / lc.amplitude
+                  if lc.orbits_amplitude else 0.0)
+        se_f.append(math.hypot(math.hypot(t.frequency_sem / t.frequency_mean, _SE_FLOOR), f_band / math.sqrt(12)))
+        a = t.amplitude_mean
+        if a is None:
+            se_a.append(_INF)
+        else:
+            se_a.append(math.hypot(math.hypot(float(t.amplitude_sem or 0.0) / a, _SE_FLOOR), a_band / math.sqrt(12)))
+    return np.array(se_f), np.array(se_a)
+
+
+def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz: float, *, K: float | None = 1.0,
+                     Td_bounds: tuple[float, float] = (0.05, 50.0), tau_bounds: tuple[float, float] = (0.0, 0.5),
+                     inner_draws: Sequence[InnerLoop] = ()) -> CascadeIdentification:
+    """Td and tau (and K when ``K`` is None) of the outer loop from its MRFT tests, through the exact cycle.
+
+    Each test's mean frequency and amplitude are matched, in logarithms and weighted by their
+    standard errors, to the centre of the exact sampled cycle of the cascade
+    (:meth:`CascadeModel.sampled_limit_cycle`). The standard errors hold the cycles' scatter, a
+    floor of 0.5 % and the spread of the sampled band. The inner model's uncertainty is propagated
+    by solving again for every draw of ``inner_draws`` (started at the estimate): their spread adds
+    (in quadrature) to the Gauss-Newton spread of the tests.
+
+    Parameters
+    ----------
+    inner : InnerLoop
+        The inner loop's identified plant (nominal) and its controller during the outer tests.
+    tests : sequence of TestMeasurement
+        The outer tests: nominal beta, per-cycle frequencies [Hz], amplitudes [output units], h.
+    rate_hz : float
+        The outer relay's rate [Hz] (the inner controller's or a whole divisor of it).
+    K : float or None
+        The known gain (1 for a commanded acceleration, :data:`G` for a commanded attitude [rad]);
+        None to identify it (two tests at different beta, with amplitudes, are then needed).
+    Td_bounds, tau_bounds : (float, float)
+        The set I of Td [s] and tau [s].
+    inner_draws : sequence of InnerLoop
+        Draws of the inner loop (its model's uncertainty); empty: the inner model taken as exact.
+
+    Returns
+    -------
+    CascadeIdentification
+
+    Raises
+    ------
+    IdentificationError
+        Too few tests or amplitudes for the unknowns.
+    InputError
+        Bad bounds or rates.
+    """
+    tests = tuple(tests)
+    check_positive("rate_hz", rate_hz)
+    if not tests:
+        raise IdentificationError("no outer-loop MRFT test to identify the cascade from")
+    if any(t.h is None or t.amplitude_mean is None for t in tests):
+        raise IdentificationError("the cascade identification needs every test's amplitude and relay height h")
+    if K is None and len({round(t.beta, 3) for t in tests}) < 2:
+        raise IdentificationError("identifying K needs tests at two different beta; or state K (1 for a commanded "
+                                  "acceleration, 9.81 for a commanded attitude in rad)")
+    lo_td, hi_td = Td_bounds
+    if not (0 < lo_td < hi_td) or not (0 <= tau_bounds[0] < tau_bounds[1]):
+        raise InputError(f"bad bounds: Td {Td_bounds}, tau {tau_bounds} (need 0 < low < high)")
+    free = ("Td", "tau") if K is not None else ("Td", "tau", "K")
+    lower = [math.log(lo_td), tau_bounds[0]] + ([math.log(1e-3)] if K is None else [])
+    upper = [math.log(hi_td), tau_bounds[1]] + ([math.log(1e3)] if K is None else [])
+    k0 = G if K is None else K
+    base = CascadeModel(inner, Td=math.sqrt(lo_td * hi_td), tau=0.5 * sum(tau_bounds), K=k0,
+                        known=frozenset() if K is None else frozenset({"K"}),
+                        ranges=(("Td", lo_td, hi_td), ("tau", *tau_bounds)))
+    problem = _Problem(tests, rate_hz, free, np.array(lower), np.array(upper),
+                       np.full(len(tests), _SE_FLOOR), np.full(len(tests), _SE_FLOOR))
+    theta, _ = _solve(problem, base, _theta0(problem, base))
+    # second pass with the sampled band's spread in the weights (it depends on the estimate)
+    se_f, se_a = _weights(tests, problem.cycles(problem.model(base, theta)))
+    problem = _Problem(tests, rate_hz, free, problem.lower, problem.upper, se_f, se_a, problem.hints)
+    theta, jac = _solve(problem, base, theta)
+    return _result(problem, base, theta, jac, inner_draws)
+
+
+def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: FloatArray,
+            inner_draws: Sequence[InnerLoop]) -> CascadeIdentification:
+    """Estimates with the tests' spread (Gauss-Newton) and the inner draws' spread; the tests' fits."""
+    model = problem.model(base, theta)
+    r = problem.residuals(base, theta)
+    dof = r.size - theta.size
+    scale = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
+    cov = np.linalg.pinv(jac.T @ jac) * scale
+    var_inner = np.zeros(theta.size)
+    draws = []
+    for draw in inner_draws:
+        try:
+            draws.append(_solve(problem, model.with_inner(draw), theta)[0])
+        except (InputError, IdentificationError, np.linalg.LinAlgError):
+            continue  # a draw whose inner loop does not oscillate with this outer loop: not counted
+    if len(draws) >= 2:
+        var_inner = np.var(np.array(draws), axis=0, ddof=1)
+    std = np.sqrt(np.diag(cov) + var_inner)
+    omega = 2 * math.pi * float(np.median([t.frequency_mean for t in problem.tests]))
+    estimates = {name: _estimate(name, float(theta[i]), float(std[i]), problem.lower[i], problem.upper[i], omega)
+                 for i, name in enumerate(problem.free)}
+    if "K" not in problem.free:
+        estimates["K"] = LtiEstimate("K", CASCADE_PARAMETERS["K"][0], model.K, 0.0, model.K, model.K, known=True)
+    inner_std = {name: (math.sqrt(var_inner[i]) * (1.0 if name == "tau" else float(getattr(model, name))))
+                 for i, name in enumerate(problem.free)}
+    fits = tuple(CascadeTestFit(t.beta, float(t.h or 1.0), t.frequency_mean, float(t.amplitude_mean or math.nan),
+                                lc.frequency_hz, lc.amplitude,
+                                (min(lc.orbits_hz, default=math.nan), max(lc.orbits_hz, default=math.nan)))
+                 for t, lc in zip(problem.tests, problem.cycles(model)))
+    return CascadeIdentification(model, estimates, fits, problem.rate_hz, len(draws), inner_std)
+
+
+def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> LtiEstimate:
+    """A parameter's estimate: Td and K on the log scale (``value`` is ln), tau on the linear scale, cut at the set I.
+
+    Not determined (as in :mod:`mrftcli.mrft.identify_lti`): a 95 % interval wider than a factor of
+    e^2, or for tau than a radian of phase at the tests' median frequency ``omega`` [rad/s].
+    """
+    unit = CASCADE_PARAMETERS[name][0]
+    if name == "tau":
+        lo, hi = value - _Z95 * std, value + _Z95 * std
+        one_sided = "low" if lo < low else ""
+        return LtiEstimate(name, unit, value, std, max(lo, low), min(hi, high), one_sided=one_sided,
+                           determined=2 * _Z95 * std * omega < 1.0)
+    x = math.exp(value)
+    lo, hi = math.exp(value - _Z95 * std), math.exp(value + _Z95 * std)
+    return LtiEstimate(name, unit, x, x * std, lo, hi, determined=2 * _Z95 * std < 2.0)

@@ -30,6 +30,7 @@ import os
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Callable
 from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
@@ -41,7 +42,7 @@ from . import cdr
 from .mcap_stream import (MESSAGE_HEADER_BYTES, OP_CHANNEL, OP_CHUNK, OP_FOOTER, OP_MESSAGE, OP_SCHEMA,
                           OversizeChunkError, check_declared, chunk_header, decompress_chunk,
                           walk_records)
-from .source import LogSource
+from .source import LogSource, one_line
 from .timing import mean_rate_hz
 from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
 
@@ -178,16 +179,23 @@ class _Salvage:
     notes: tuple[str, ...]
 
 
-def channel_typestore(ch: McapChannel, path: str | Path) -> Typestore:
+def channel_typestore(ch: McapChannel, path: str | Path, warn: Callable[[str], None] | None = None) -> Typestore:
     """The rosbags typestore that decodes ``ch``'s CDR/ROS 1 messages: from the schema text the file
-    carries, else the standard definitions (LogReadError if they do not know the type)."""
+    carries, else the standard definitions (LogReadError if they do not know the type).
+
+    A schema the file carries but that cannot be used (a type that contains itself, a nested type it
+    never defines) is not guessed past silently: the standard definition of the type it names is
+    used and ``warn`` is told so in one line (``FlightLog.warnings``: the terminal and the JSON);
+    without ``warn`` such a schema is refused.
+    """
     ros1 = ch.encoding == "ros1"
     ts = None
+    broken = None
     if ch.schema_data and ch.schema_encoding in ("ros2msg", "ros1msg"):
         try:
             ts = typestore_from_text(ch.schema_data.decode(), ch.schema_name, ros1=ros1)
-        except Exception:  # noqa: BLE001 - fall back to the standard definitions
-            ts = None
+        except Exception as err:  # noqa: BLE001 - any parse or type-graph failure: the standard definition, said
+            broken = one_line(err, 120)
     if ts is None:
         ts = typestore_for(ros1=ros1)
         if not ch.schema_name:
@@ -196,6 +204,13 @@ def channel_typestore(ch: McapChannel, path: str | Path) -> Typestore:
         if ch.schema_name not in ts.fielddefs:
             raise LogReadError(f"{path}: {ch.topic}: cannot decode type {ch.schema_name!r} "
                                f"(schema encoding {ch.schema_encoding!r})")
+        if broken is not None:
+            what = f"the file's schema for {ch.schema_name} is unusable ({broken})"
+            if warn is None:
+                raise LogReadError(f"{path}: {ch.topic}: {what}; it cannot be decoded")
+            # no topic in the text: the channels sharing the schema give one warning (warn drops repeats)
+            warn(f"{what}; its channels are decoded with the standard {ch.schema_name} definition "
+                 "(check the recorder)")
     return ts
 
 
@@ -363,7 +378,7 @@ class McapSource(LogSource):
     # -- types --------------------------------------------------------------------------------------
     def _typestore(self, ch: McapChannel) -> Typestore:
         if ch.id not in self._typestores:
-            self._typestores[ch.id] = channel_typestore(ch, self.path)
+            self._typestores[ch.id] = channel_typestore(ch, self.path, self.warn)
         return self._typestores[ch.id]
 
     def _channel(self, topic: str) -> McapChannel:

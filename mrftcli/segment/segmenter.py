@@ -246,31 +246,63 @@ def _folded_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock, criter
     """Steps 3-4 below the controller's rate: each cycle against the waveform folded over the test
     (:mod:`.vernier`); a period is a whole number of controller ticks.
 
-    Where the logging locks to the cycle the vernier leaves every instant a common shift within its
-    bracket: the relay's own rule decides it (it switches where the output crosses its level, -beta
-    times the amplitude): the shift whose stable cycles' effective beta is closest to the nominal
-    beta (within a controller tick: the sampled relay switches up to a tick after the crossing).
+    Where the logging locks to the cycle the vernier leaves the up-switches and the down-switches
+    each a common shift within their brackets: the relay's own rule decides them. The sampled relay
+    switches at the first tick after the output crosses its level (+-beta times the amplitude about
+    the centre), so the level is crossed between the tick before the switch and the switch: the
+    shifts are those where the mean of the stable cycles' effective beta at the switches and at the
+    ticks before them is closest to the nominal beta, at each kind of switch.
     """
     y = sign * win.y
-    shifts = [0]
     v = sw.vernier
-    if v is not None and v.locked and beta_nominal is not None:
-        shifts = list(range(-v.room[0], v.room[1] + 1))
-    best: tuple[float, list[RelayCycle], dict[str, float]] | None = None
-    for m in shifts:
-        t_sw = v.shifted(m) if v is not None and m else sw.t
-        cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, win.t, y, sw.h), clock.ts_controller,
-                                    criterion)
-        stable = np.array([c.stable for c in cycles], bool)
-        if stable.sum() >= 2:  # the waveform again from the stable limit cycle alone
-            cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, win.t, y, sw.h, fold=stable),
-                                        clock.ts_controller, criterion)
-        be = np.array([c.beta_effective for c in cycles if c.stable])
-        miss = abs(float(np.nanmean(be)) - beta_nominal) if beta_nominal is not None and np.isfinite(be).any() else 0.0
-        if best is None or miss < best[0]:
-            best = (miss, cycles, info)
-    assert best is not None  # shifts holds 0 at least
-    return best[1], best[2]
+    if v is None or not v.locked or beta_nominal is None:
+        return _folded_pass(sw, sw.t, win.t, y, clock, criterion)
+    up_even = bool(sw.up[0])  # the even-numbered switches are the -h -> +h ones
+    done: dict[tuple[int, int], tuple[list[RelayCycle], dict[str, float], float, float]] = {}
+
+    def measured(m: tuple[int, int]) -> tuple[list[RelayCycle], dict[str, float], float, float]:
+        if m not in done:
+            cycles, info = _folded_pass(sw, v.shifted(*m, inside=False), win.t, y, clock, criterion)
+            dn, up = _switch_levels(cycles)
+            done[m] = (cycles, info, dn, up)
+        return done[m]
+
+    def miss(m: tuple[int, int]) -> float:
+        me, mo = m
+        _, _, dn, up = measured(m)
+        _, _, dn_b, _ = measured((me, mo - 1) if up_even else (me - 1, mo))  # down-switches a tick earlier
+        _, _, _, up_b = measured((me - 1, mo) if up_even else (me, mo - 1))  # up-switches a tick earlier
+        d = float(np.hypot(0.5 * (dn + dn_b) - beta_nominal, 0.5 * (up + up_b) - beta_nominal))
+        return d if np.isfinite(d) else float("inf")
+
+    best = min(v.shifts(), key=miss)
+    cycles, info, _, _ = measured(best)
+    return cycles, info
+
+
+def _folded_pass(sw: _Switches, t_sw: FloatArray, t_y: FloatArray, y: FloatArray, clock: _Clock,
+                 criterion: StabilityCriterion) -> tuple[list[RelayCycle], dict[str, float]]:
+    """The cycles at switch instants ``t_sw`` [s], the waveform folded over the regular cycles, then
+    again over the stable ones (a start-up cycle's larger swing would distort it)."""
+    cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, t_y, y, sw.h), clock.ts_controller, criterion)
+    stable = np.array([c.stable for c in cycles], bool)
+    if stable.sum() >= 2:
+        cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, t_y, y, sw.h, fold=stable),
+                                    clock.ts_controller, criterion)
+    return cycles, info
+
+
+def _switch_levels(cycles: list[RelayCycle]) -> tuple[float, float]:
+    """The stable cycles' mean effective beta at the down- and at the up-switches (NaN without one)."""
+    st = [c for c in cycles if c.stable]
+    dn = np.array([c.beta_down for c in st], float)
+    up = np.array([c.beta_up for c in st], float)
+    return _nanmean(dn), _nanmean(up)
+
+
+def _nanmean(x: FloatArray) -> float:
+    """The mean of the finite values (NaN when there is none)."""
+    return float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
 
 
 def _mark_stable(cycles: list[RelayCycle], dt: float,

@@ -68,11 +68,13 @@ class TickSwitches:
     scatter_ticks : float
         RMS deviation of the half-periods from those means [ticks] (0: a strictly periodic relay).
     locked : bool
-        The logging instants do not slide along the cycle (every bracket holds the same place in
-        its cycle): the instants share an unknown shift within a bracket, the middle taken.
-    room : tuple of int
-        How many ticks every instant can move down and up together and stay in its bracket (the
-        shifts :meth:`shifted` takes; (0, 0) when the vernier pins them).
+        The logging instants do not slide along the cycle: the even-numbered switches (or the odd
+        ones) can move together within their brackets without changing a half-period's fit (a
+        period that is a whole number of logging periods).
+    room : tuple of tuple of int
+        How many ticks the even-numbered and the odd-numbered switches can move down and up
+        together and stay in their brackets (the shifts :meth:`shifted` takes); ((0, 0), (0, 0))
+        when the vernier pins them.
     ts : float
         The controller's period [s].
     """
@@ -82,13 +84,20 @@ class TickSwitches:
     half_period_ticks: tuple[float, float]
     scatter_ticks: float
     locked: bool
-    room: tuple[int, int] = (0, 0)
+    room: tuple[tuple[int, int], tuple[int, int]] = ((0, 0), (0, 0))
     ts: float = 0.0
 
-    def shifted(self, m: int) -> FloatArray:
-        """The instants [s] moved by ``m`` ticks together (within ``room``)."""
-        if not -self.room[0] <= m <= self.room[1]:
-            raise ValueError(f"a shift of {m} ticks leaves the brackets (room {self.room})")
+    def shifts(self) -> list[tuple[int, int]]:
+        """Every (even, odd) shift [ticks] within ``room``."""
+        (e0, e1), (o0, o1) = self.room
+        return [(me, mo) for me in range(-e0, e1 + 1) for mo in range(-o0, o1 + 1)]
+
+    def shifted(self, even: int, odd: int, *, inside: bool = True) -> FloatArray:
+        """The instants [s] with the even-numbered switches moved by ``even`` ticks and the odd ones by
+        ``odd`` (``inside``: only within ``room``; False: anywhere, for a level one tick beyond)."""
+        if inside and (even, odd) not in self.shifts():
+            raise ValueError(f"a shift of ({even}, {odd}) ticks leaves the brackets (room {self.room})")
+        m = np.where(np.arange(self.t.size) % 2 == 0, even, odd)
         return np.asarray(self.t + m * self.ts, dtype=float)
 
 
@@ -134,10 +143,20 @@ def switch_ticks(t_before: FloatArray, t_after: FloatArray, ts: float) -> TickSw
     scatter = float(np.sqrt(np.mean(np.minimum(d ** 2, _CAP)))) if d.size else 0.0
     # locked: the whole sequence can move together inside the brackets of its steady switches
     # (beyond the first few, a start-up transient's)
-    steady = slice(min(4, max(ticks.size - 6, 0)), None)
-    room = (int(np.min((ticks - lo)[steady])), int(np.min((hi - ticks)[steady])))
-    locked = bool(sum(room) > 0 and ticks.size > 2)
-    return TickSwitches(np.asarray(origin + ticks * ts, dtype=np.float64), ticks, (float(H[0]), float(H[1])), scatter, locked, room, ts)
+    steady = np.arange(ticks.size) >= min(4, max(ticks.size - 6, 0))
+    room = (_room(ticks, lo, hi, steady, 0), _room(ticks, lo, hi, steady, 1))
+    locked = bool(sum(room[0]) + sum(room[1]) > 0 and ticks.size > 2)
+    return TickSwitches(np.asarray(origin + ticks * ts, dtype=np.float64), ticks, (float(H[0]), float(H[1])),
+                        scatter, locked, room, ts)
+
+
+def _room(ticks: NDArray[np.int64], lo: NDArray[np.int64], hi: NDArray[np.int64], steady: NDArray[np.bool_],
+          parity: int) -> tuple[int, int]:
+    """How far [ticks] the steady switches of one parity can move down and up together inside their brackets."""
+    sel = steady & (np.arange(ticks.size) % 2 == parity)
+    if not sel.any():
+        return (0, 0)
+    return int(np.min((ticks - lo)[sel])), int(np.min((hi - ticks)[sel]))
 
 
 def _half_periods(s: FloatArray) -> FloatArray:

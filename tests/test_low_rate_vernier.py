@@ -1,0 +1,107 @@
+"""Tests logged at 10 Hz below a 50 Hz relay (PX4): switch instants and cycles from the vernier (issue 24 part 3).
+
+Oracles: the flight simulator's full-rate command (where the relay really switched: the ticks at
+which the 50 Hz command changes) and its noise-free output (each cycle's true extrema), neither
+seen by the segmenter, which gets every 5th tick of the command and of the noisy output.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mrftcli.mrft.model import LoopModel
+from mrftcli.segment import segment_arrays
+from mrftcli.segment.vernier import fold_waveform, switch_ticks
+from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
+
+RATE = 50.0
+TS = 1.0 / RATE
+
+
+@pytest.fixture(scope="module")
+def flight():
+    """A 50 Hz MRFT flight with a 2.1 Hz test (beta -0.8: 4-5 logged samples per cycle at 10 Hz) and a
+    0.8 Hz one (beta -0.3)."""
+    m = LoopModel(0.0422, 1.6, 0.015, 15.0)
+    tests = tuple(plan_test(m, b, 0.05, rate_hz=RATE, cycles=14.0) for b in (-0.8, -0.3))
+    spec = FlightSpec(model=m, tests=tests, loop="altitude", rate_hz=RATE, noise_std=5e-4, bias=0.5, setpoint=1.0,
+                      hover_s=3.0, hold_s=3.0, seed=7)
+    return simulate_flight(spec)
+
+
+def _true_switches(fl, t_a, t_b):
+    """The ticks at which the full-rate command changed level inside [t_a, t_b] [s]."""
+    k = np.flatnonzero(np.abs(np.diff(fl.command)) > 1e-9) + 1
+    t = fl.t[k]
+    return t[(t >= t_a - 1e-9) & (t <= t_b + 1e-9)]
+
+
+def _ten_hz(fl, beta_t=None):
+    sub = slice(0, None, 5)  # PX4's logger: every 5th controller tick, stamped with its tick
+    t, c, y, sp = fl.t[sub], fl.command[sub], fl.output_measured[sub], fl.setpoint[sub]
+    bt = np.array([e["t_start"] for e in fl.truth["tests"]])
+    bv = np.array([e["beta"] for e in fl.truth["tests"]])
+    return segment_arrays(t, c, t, y, t_sp=t, setpoint=sp, beta_t=bt, beta_v=bv, controller_rate_hz=RATE)
+
+
+def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight):
+    tests = _ten_hz(flight)
+    assert [round(t.beta_nominal, 2) for t in tests] == [-0.8, -0.3]
+    fast = tests[0]
+    assert fast.rate_hz == pytest.approx(10.0) and fast.controller_rate_hz == pytest.approx(RATE)
+    assert fast.rate_hz / fast.frequency_hz_mean < 5.5  # under 8 samples per cycle: dropped before
+    for t, exact in zip(tests, (0.9, 0.5)):
+        true = _true_switches(flight, t.cycles[0].t_start - 0.5, t.cycles[-1].t_end + 0.5)
+        got = np.array([x for c in t.stable for x in (c.t_start, c.t_switch)])
+        err = np.array([np.min(np.abs(true - g)) for g in got])
+        # a logging bracket holds 5 ticks; the stable cycles' switches are on their tick, or (the slow
+        # test's orbit wanders by a tick from cycle to cycle, 32-34 ticks a half-period) one or two off
+        assert np.mean(err < 1e-6) >= exact and err.max() <= 2 * TS + 1e-6
+
+
+def test_amplitude_and_period_match_the_noise_free_output(flight):
+    for t in _ten_hz(flight):
+        st = t.stable
+        assert len(st) >= 3
+        for c in st:
+            sel = (flight.t >= c.t_start) & (flight.t < c.t_end)
+            y = flight.output_true[sel] - flight.setpoint[sel]
+            true_amp = 0.5 * (y.max() - y.min())  # sampled at 50 Hz: within 0.5 % of the continuous peak
+            assert c.amplitude == pytest.approx(true_amp, rel=0.03)
+        true = _true_switches(flight, st[0].t_start - 0.5, st[-1].t_end + 0.5)
+        nearest = [true[np.argmin(np.abs(true - x))] for c in st for x in (c.t_start, c.t_end)]
+        true_period = np.diff(np.reshape(nearest, (-1, 2)), axis=1).ravel()
+        assert np.abs(t.period - true_period).max() <= 2 * TS + 1e-6
+        assert t.period.mean() == pytest.approx(true_period.mean(), abs=0.5 * TS)
+
+
+def test_switch_ticks_pins_a_sliding_bracket_and_says_when_the_logging_is_locked():
+    # half-periods of 13 ticks alternate with 12 (a sampled relay between two orbits), logged every 5th tick
+    true = np.concatenate(([0], np.cumsum(np.tile([13, 12], 15)))) + 2
+    after = 5 * np.ceil(true / 5)
+    sw = switch_ticks((after - 5) * TS, after * TS, TS)
+    # a period of 25 ticks is 5 logging periods: the up-switches keep their place in their brackets,
+    # and so do the down-switches: each kind is known up to a common shift, which shifted() spans
+    assert sw.locked and len(sw.shifts()) == 25
+    assert sum(np.allclose(sw.shifted(*m), true * TS, atol=1e-9) for m in sw.shifts()) == 1
+    # 13-tick half-periods slide along the 5-tick logging grid: every switch is pinned
+    true = 2 + 13 * np.arange(30)
+    after = 5 * np.ceil(true / 5)
+    sw = switch_ticks((after - 5) * TS, after * TS, TS)
+    assert not sw.locked and sw.shifts() == [(0, 0)]
+    np.testing.assert_allclose(sw.t, true * TS, atol=1e-9)
+
+
+def test_fold_waveform_recovers_a_known_waveform_from_five_samples_a_cycle():
+    # y = cos + 0.1 cos 3: four-and-a-bit samples per cycle whose phases slide (period 0.47 s, 10 Hz)
+    P = 0.47
+    t = np.arange(0.0, 14 * P, 0.1)
+    y = np.cos(2 * np.pi * t / P) + 0.1 * np.cos(6 * np.pi * t / P)
+    t0 = np.arange(14) * P
+    w = fold_waveform(t, y, t0, t0 + P)
+    assert w is not None and w.distinct_phases > 20
+    assert w.amplitude == pytest.approx(1.1, rel=1e-3)  # the peak, not the fundamental (1.0)
+    assert abs(w.coef[0]) == pytest.approx(1.0, rel=1e-3)
+    # too few distinct phases: two samples a cycle at the same places
+    assert fold_waveform(np.arange(0.0, 14.0, 0.5), np.ones(28), np.arange(14.0), np.arange(1.0, 15.0)) is None

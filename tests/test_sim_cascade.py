@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -241,3 +243,49 @@ def test_layouts_read_back(tmp_path, axis):
     np.testing.assert_allclose(log.command.values, sign * flight.inner_command, atol=1e-9)
     np.testing.assert_allclose(log.output.values, sign * flight.attitude_measured, atol=1e-6)
     assert sidecar_path(ref).exists()
+
+
+INNER_CLI = ("--cascade", "y", "--inner-tp", "0.0422", "--inner-td", "1.301", "--inner-tau", "0.0297",
+             "--inner-k", "30", "--td", "2", "--tau", "0.03", "--hover", "0.5", "--hold", "0.5")
+
+
+def test_cli_cascade_writes_both_loops(tmp_path):
+    gains = tmp_path / "gains.json"
+    gains.write_text(json.dumps({"roll": {"Kp": 0.3, "Ki": 0.0, "Kd": 0.09, "Tf": 0.03, "rate_hz": 100.0}}))
+    res = subprocess.run([sys.executable, "-m", "mrftcli", "simulate", *INNER_CLI, "--inner-test", "-0.5::2",
+                          "--test", "-0.5::4", "--inner-gains", str(gains), "--out", "c.bag", "--json", "out.json"],
+                         capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert "assumption" not in res.stdout and "hear-ros layout" in res.stdout
+    out = json.loads((tmp_path / "out.json").read_text())
+    truth = CascadeTruth.from_json(out["truth"])
+    assert truth.gains == InnerGains(0.3, 0.0, 0.09, 0.03, 100.0)  # the gains' rate: no --controller-rate given
+    assert [t.loop for t in truth.tests] == ["roll", "y"] and truth.K == 1.0 and out["assumptions"] == []
+
+
+def _main(capsys, *args):
+    from mrftcli.cli.main import main
+
+    try:
+        main(["simulate", *args])
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    return code, capsys.readouterr()
+
+
+def test_cli_cascade_states_its_assumption_and_refuses_bad_input(tmp_path, capsys):
+    code, out = _main(capsys, *INNER_CLI, "--inner-test", "-0.5::1", "--out", str(tmp_path / "d.bag"))
+    assert code == 0 and out.out.startswith("assumption: the inner roll PD")
+    gains = tmp_path / "gains.json"
+    gains.write_text(json.dumps({"pitch": {"Kp": 0.3, "Ki": 0.0, "Kd": 0.09, "Tf": 0.03, "rate_hz": 100.0}}))
+    bag = str(tmp_path / "e.bag")
+    for extra, message in ((("--inner-gains", str(gains), "--out", bag), "no 'roll' gains"),
+                           (("--k", "2", "--out", bag), "--k is not used with --cascade"),
+                           (("--out", str(tmp_path / "e.mcap"), "--layout", "hear-ros"), "ROS 1 bag"),
+                           (("--out", bag, "--inner-tp", "-1"), "Tp must be a positive")):
+        code, out = _main(capsys, *INNER_CLI, "--test", "-0.5::4", *extra)
+        assert code == 2 and message in out.err, out.err
+    code, out = _main(capsys, "--inner-tp", "0.04", "--tp", "0.04", "--td", "1", "--tau", "0.03", "--test", "-0.5",
+                      "--out", str(tmp_path / "f.mcap"))
+    assert code == 2 and "--inner-tp needs --cascade" in out.err

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
 from ..errors import InputError
 from ..io.logtypes import LOOPS
@@ -78,24 +81,193 @@ def _format_of(path: Path, fmt: str | None) -> str:
     return guessed
 
 
+def _given(ctx: click.Context, names: tuple[str, ...], why: str) -> None:
+    """UsageError naming the first of ``names`` given on the command line (with ``why``)."""
+    for param in ctx.command.params:
+        if param.name in names and ctx.get_parameter_source(param.name) == ParameterSource.COMMANDLINE:
+            raise click.UsageError(f"{param.opts[0]} {why}")
+
+
+def _required(*pairs: tuple[str, object]) -> None:
+    """click's own message for the first option that is missing."""
+    for option, value in pairs:
+        if value is None:
+            raise click.UsageError(f"Missing option '{option}'.")
+
+
+@dataclass(frozen=True)
+class LoopModelInputs:
+    """--inner-tp, --inner-td, --inner-tau, --inner-k as given (None: missing)."""
+
+    Tp: float | None
+    Td: float | None
+    tau: float | None
+    K: float | None
+
+
+@dataclass(frozen=True)
+class CascadeOptions:
+    """What ``simulate --cascade`` was asked for (pairs are (inner, outer) or (hover, hold))."""
+
+    axis: str
+    inner: LoopModelInputs
+    gains_path: Path | None
+    inner_tests: tuple[str, ...]
+    outer_tests: tuple[str, ...]
+    Td: float
+    tau: float
+    commanded: str
+    rate_hz: float | None  # None: not given (the gains' rate, else 200 Hz)
+    noise: tuple[float | None, float | None]
+    amplitude: tuple[float | None, float | None]
+    hover_hold: tuple[float, float]
+    switching: str
+    seed: int
+    start_time: float
+    layout: str | None
+    fmt: str | None
+
+
+def _inner_gains(path: Path, inner_loop: str, axis: str):
+    """The inner loop's gains from GAINS.json (tune's generic form, keyed by loop name)."""
+    from ..sim.cascade_spec import InnerGains
+
+    try:
+        data = json.loads(path.read_text())
+    except OSError as err:
+        raise InputError(f"--inner-gains {path}: cannot read it ({err.strerror})") from None
+    except ValueError:
+        raise InputError(f"--inner-gains {path}: not JSON; expected {{\"{inner_loop}\": {{\"Kp\": ..}}}}") from None
+    if not isinstance(data, dict) or inner_loop not in data:
+        held = ", ".join(sorted(data)) if isinstance(data, dict) else "no object"
+        raise InputError(f"--inner-gains {path}: no {inner_loop!r} gains (the inner loop of --cascade {axis}); "
+                         f"it holds: {held or 'nothing'}")
+    return InnerGains.from_generic(data[inner_loop], f"--inner-gains {path} ({inner_loop})")
+
+
+def _cascade_tests(texts: tuple[str, ...], model, amplitude: float, rate_hz: float):
+    """The tests of one loop, H and DURATION planned by the describing function where not given."""
+    from ..sim.flight import TestSpec, plan_test
+
+    specs = []
+    for text in texts:
+        beta, h, duration = parse_test(text)
+        if h is None or duration is None:
+            planned = plan_test(model, beta, amplitude, rate_hz=rate_hz)
+            h = planned.h if h is None else h
+            duration = planned.duration if duration is None else duration
+        specs.append(TestSpec(beta=beta, h=h, duration=duration))
+    return tuple(specs)
+
+
+def _cascade_layout(opts: CascadeOptions, out: Path) -> tuple[str, str]:
+    """(layout, format) of the cascaded log: hear-ros is a ROS 1 bag."""
+    layout = opts.layout or ("hear-ros" if out.suffix == ".bag" else "reference")
+    if layout == "hear-ros":
+        if (opts.fmt or "bag") != "bag" or out.suffix != ".bag":
+            raise InputError(f"--out {out.name}: the HEAR layout is a ROS 1 bag; name the log *.bag "
+                             "(or use --layout reference)")
+        return layout, "bag"
+    from ..io import FORMATS
+
+    if opts.fmt is not None and opts.fmt not in FORMATS:
+        raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
+    return layout, _format_of(out, opts.fmt)
+
+
+def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) -> None:
+    """``simulate --cascade``: check, plan, fly, write, report."""
+    from ..mrft.model import LoopModel
+    from ..sim.cascade import approximate_outer_model, inner_pd, simulate_cascade
+    from ..sim.cascade_spec import CASCADE_AXES, STANDARD_GRAVITY, CascadeSpec
+    from ..sim.cascade_write import write_cascade
+
+    i = opts.inner
+    _required(("--inner-tp", i.Tp), ("--inner-td", i.Td), ("--inner-tau", i.tau), ("--inner-k", i.K))
+    if not (opts.inner_tests or opts.outer_tests):
+        raise click.UsageError("--cascade needs at least one --inner-test or --test")
+    layout, fmt = _cascade_layout(opts, out)
+    if out.parent and not out.parent.exists():
+        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
+    inner_loop = CASCADE_AXES[opts.axis]
+    assert i.Tp is not None and i.Td is not None and i.tau is not None and i.K is not None  # _required above
+    inner = LoopModel(i.Tp, i.Td, i.tau, i.K)
+    assumptions = []
+    if opts.gains_path is not None:
+        gains = _inner_gains(opts.gains_path, inner_loop, opts.axis)
+        if opts.rate_hz is not None and abs(gains.rate_hz - opts.rate_hz) > 1e-9 * opts.rate_hz:
+            raise InputError(f"--inner-gains rate_hz {gains.rate_hz:g} Hz differs from --controller-rate "
+                             f"{opts.rate_hz:g} Hz; the inner and outer loops tick together")
+    else:
+        gains = inner_pd(inner, opts.rate_hz or 200.0)
+        assumptions.append(f"assumption: the inner {inner_loop} PD is the simulator's design (40 deg phase margin, "
+                           f"derivative time 0.3 s): Kp {gains.Kp:.4g}, Kd {gains.Kd:.4g}, Tf {gains.Tf:.4g} s at "
+                           f"{gains.rate_hz:g} Hz; give --inner-gains GAINS.json to fly yours")
+    check_positive("--controller-rate (a frequency in Hz)", gains.rate_hz)
+    K = STANDARD_GRAVITY if opts.commanded == "attitude" else 1.0
+    approx = approximate_outer_model(inner, gains, opts.Td, opts.tau, K, STANDARD_GRAVITY)
+    amp_in = math.radians(5.0) if opts.amplitude[0] is None else opts.amplitude[0]
+    amp_out = 0.1 if opts.amplitude[1] is None else opts.amplitude[1]
+    spec = CascadeSpec(inner=inner, gains=gains, Td=opts.Td, tau=opts.tau, axis=opts.axis, commanded=opts.commanded,
+                       inner_tests=_cascade_tests(opts.inner_tests, inner, amp_in, gains.rate_hz),
+                       outer_tests=_cascade_tests(opts.outer_tests, approx, amp_out, gains.rate_hz),
+                       attitude_noise_std=opts.noise[0], position_noise_std=opts.noise[1],
+                       hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1], seed=opts.seed,
+                       start_time=opts.start_time, switching=opts.switching)
+    flight = simulate_cascade(spec)
+    sidecar = write_cascade(flight, out, layout, fmt)
+    truth = json.loads(sidecar.read_text())
+    for n, test in enumerate(flight.truth.tests, 1):
+        if test.aborted:
+            click.echo(f"warning: test {n} ({test.loop}, beta {test.beta}) was aborted at t = {test.t_end:.2f} s: "
+                       "the error exceeded the safety limit; use a larger H, less noise or --switching hear", err=True)
+    if json_target:
+        dump_json({"log": str(out), "format": fmt, "layout": layout, "sidecar": str(sidecar),
+                   "assumptions": assumptions, "truth": truth}, json_target)
+    if json_target == "-":
+        return
+    _echo_cascade(flight, out, sidecar, layout, fmt, assumptions)
+
+
+def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assumptions: list[str]) -> None:
+    tr = flight.truth
+    for line in assumptions:
+        click.echo(line)
+    click.echo(f"wrote {out} ({layout} layout, {fmt}, {tr.duration:.1f} s at {tr.gains.rate_hz:g} Hz) and {sidecar}")
+    m, gn = tr.inner, tr.gains
+    click.echo(f"  inner {tr.inner_loop}: Tp {m.Tp:g} s, Td {m.Td:g} s, tau {m.tau:g} s, K {m.K:g} rad/s² per "
+               f"command unit; PD Kp {gn.Kp:.4g}, Ki {gn.Ki:.4g}, Kd {gn.Kd:.4g}, Tf {gn.Tf:.4g} s")
+    unit = "rad" if tr.commanded == "attitude" else "m/s²"
+    click.echo(f"  outer {tr.axis}: Td {tr.Td:g} s, tau {tr.tau:g} s, K {tr.K:g} (commanded {tr.commanded} [{unit}]); "
+               f"noise {tr.position_noise_std:g} m, {tr.attitude_noise_std:g} rad")
+    for n, test in enumerate(tr.tests, 1):
+        what = "inner command" if test.loop == tr.inner_loop else unit
+        click.echo(f"  test {n}: {test.loop} beta {test.beta:+.3f}, h {test.h:.4g} [{what}], "
+                   f"{test.t_start:.2f}-{test.t_end:.2f} s")
+
+
 @click.command("simulate")
-@tp_option("tp", help="Propulsion time constant Tp [s].")
-@click.option("--td", type=float, required=True, help="Drag time constant Td [s].")
-@click.option("--tau", type=float, required=True, help="Transport delay tau [s].")
+@tp_option("tp", required=False, help="Propulsion time constant Tp [s] (required without --cascade).")
+@click.option("--td", type=float, default=None, help="Drag time constant Td [s] (with --cascade: the outer Td of "
+              "y'' = g roll - y'/Td). Required.")
+@click.option("--tau", type=float, default=None, help="Transport delay tau [s] (with --cascade: the position "
+              "measurement delay). Required.")
 @click.option("--k", "k", type=float, default=1.0, show_default=True, help="Gain K (K*Td: command -> output rate).")
 @click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True, help="Loop to simulate.")
 @click.option(
     "--test",
     "tests",
     multiple=True,
-    required=True,
     metavar="BETA[:H[:DURATION]]",
-    help="One MRFT test (repeat for more). H [command units] defaults to the relay height for which "
-    "the describing function predicts --amplitude; DURATION [s] to 14 predicted periods + 2 s.",
+    help="One MRFT test (repeat for more; with --cascade: an outer-loop test). H [command units] defaults "
+    "to the relay height for which the describing function predicts --amplitude; DURATION [s] to 14 "
+    "predicted periods + 2 s.",
 )
-@controller_rate_option("rate", default=200.0, detail="at which the simulated relay decides and the log is stamped.")
-@click.option("--noise", type=float, default=None, help="Output noise std [m or rad]; default 0.0005 m / 0.05 deg.")
-@click.option("--amplitude", type=float, default=None, help="Planned amplitude for tests without H [m or rad]; default 0.05 m / 5 deg.")
+@controller_rate_option("controller_rate_hz", default=200.0, detail="at which the simulated relay decides and the log is stamped.")
+@click.option("--noise", type=float, default=None, help="Output noise std [m or rad]; default 0.0005 m / 0.05 deg "
+              "(with --cascade: the position's, 0.0002 m).")
+@click.option("--amplitude", type=float, default=None, help="Planned amplitude for tests without H [m or rad]; "
+              "default 0.05 m / 5 deg (with --cascade: the outer tests', 0.1 m).")
 @click.option("--bias", type=float, default=None, help="Hover command; default 0.5 (altitude) / 0 (roll, pitch).")
 @click.option("--setpoint", type=float, default=None, help="Setpoint; default 1 m (altitude) / 0 rad.")
 @click.option("--hover", "hover_s", type=float, default=5.0, show_default=True, help="Hover before the first test [s].")
@@ -117,22 +289,72 @@ def _format_of(path: Path, fmt: str | None) -> str:
     help="Add an effect: input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, "
     "delay_jitter (and delay_jitter_correlation, battery_voltage). See docs/simulator.md.",
 )
+@click.option("--cascade", type=click.Choice(["x", "y"]), default=None,
+              help="Fly a cascaded flight: the outer loop X (through pitch) or Y (through roll), the inner "
+              "attitude loop closed by a PD; --inner-test tests first, then the --test tests. Needs --inner-tp, "
+              "--inner-td, --inner-tau, --inner-k. See docs/simulator.md.")
+@click.option("--inner-tp", type=float, default=None, help="--cascade: the attitude plant's Tp [s].")
+@click.option("--inner-td", type=float, default=None, help="--cascade: the attitude plant's Td [s].")
+@click.option("--inner-tau", type=float, default=None, help="--cascade: the attitude plant's tau [s].")
+@click.option("--inner-k", type=float, default=None,
+              help="--cascade: the attitude plant's K [rad/s^2 per inner command unit].")
+@click.option("--inner-gains", type=click.Path(dir_okay=False, path_type=Path), default=None, metavar="GAINS.json",
+              help="--cascade: the inner PD in tune's generic form ({\"roll\": {\"Kp\", \"Ki\", \"Kd\", \"Tf\", "
+              "\"rate_hz\"}}); its rate_hz must be --controller-rate. Default: a PD the simulator designs (40 deg "
+              "phase margin, derivative time 0.3 s), stated in the output.")
+@click.option("--inner-test", "inner_tests", multiple=True, metavar="BETA[:H[:DURATION]]",
+              help="--cascade: an MRFT test of the inner attitude loop (repeat for more; H in inner command units).")
+@click.option("--inner-noise", type=float, default=None, help="--cascade: attitude noise std [rad]; default 0.05 deg.")
+@click.option("--inner-amplitude", type=float, default=None,
+              help="--cascade: planned amplitude of inner tests without H [rad]; default 5 deg.")
+@click.option("--commanded", type=click.Choice(["acceleration", "attitude"]), default="acceleration",
+              show_default=True, help="--cascade: what the outer MRFT drives: an acceleration [m/s^2] (K = 1) "
+              "or the attitude setpoint [rad] (K = g).")
+@click.option("--layout", type=click.Choice(["hear-ros", "reference"]), default=None,
+              help="--cascade: the log layout (default: hear-ros for a .bag, else reference).")
 @click.option("--format", "fmt", default=None, metavar="FMT", help="Log format to write (default: from the file name): mcap, mcap-json, bag, ros2-sqlite3, ros2-mcap, ulog, csv.")
 @click.option("--out", "-o", "out", required=True, type=click.Path(dir_okay=True, path_type=Path), help="Log to write; the sidecar goes to OUT.truth.json.")
 @json_option(what="ground truth and the paths written")
 @quiet_option()
+@click.pass_context
 def simulate(
-    tp, td, tau, k, loop, tests, rate, noise, amplitude, bias, setpoint, hover_s, hold_s, switching,
-    seed, start_time, effects, fmt, out, json_target, quiet,
+    ctx, tp, td, tau, k, loop, tests, controller_rate_hz, noise, amplitude, bias, setpoint, hover_s, hold_s, switching,
+    seed, start_time, effects, cascade, inner_tp, inner_td, inner_tau, inner_k, inner_gains, inner_tests,
+    inner_noise, inner_amplitude, commanded, layout, fmt, out, json_target, quiet,
 ) -> None:
     """Simulate a closed-loop MRFT flight on G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)).
 
     Writes OUT in the reference layout (/mrft/command, /mrft/beta, /mrft/setpoint, /mocap/pose or
     /imu/data, /battery) and the ground truth next to it as OUT.truth.json.
 
+    With --cascade x|y: a cascaded flight, the outer position loop through the inner attitude loop
+    (closed by a sampled PD), the inner loop's tests first; written in the HEAR layout (.bag) or the
+    reference layout.
+
     Example: mrft-ident simulate --tp 0.0422 --td 2.669 --tau 0.0464 --k 19.6 --test -0.4 --test -0.7
     --out alt.mcap
+
+    Example: mrft-ident simulate --cascade y --inner-tp 0.0422 --inner-td 1.301 --inner-tau 0.0297
+    --inner-k 30 --inner-test -0.4 --inner-test -0.7 --td 2 --tau 0.03 --test -0.4 --test -0.7
+    --out cascade_y.bag
     """
+    # the option's own name: "rate" would also be the hidden --rate alias' name, and click then hands
+    # --controller-rate's value to the alias too (simulate --controller-rate was refused as given twice)
+    rate = controller_rate_hz
+    if cascade is not None:
+        _given(ctx, ("tp", "k", "loop", "bias", "setpoint", "effects"), "is not used with --cascade")
+        _required(("--td", td), ("--tau", tau))
+        rate_given = (ctx.get_parameter_source("controller_rate_hz") == ParameterSource.COMMANDLINE
+                      or ctx.meta.get("mrftcli.rate_alias.controller_rate_hz") is not None)
+        options = CascadeOptions(cascade, LoopModelInputs(inner_tp, inner_td, inner_tau, inner_k), inner_gains,
+                                 tuple(inner_tests), tuple(tests), td, tau, commanded, rate if rate_given else None,
+                                 (inner_noise, noise), (inner_amplitude, amplitude), (hover_s, hold_s), switching,
+                                 seed, start_time, layout, fmt)
+        _simulate_cascade(options, out, json_target)
+        return
+    _given(ctx, ("inner_tp", "inner_td", "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise",
+                 "inner_amplitude", "commanded", "layout"), "needs --cascade x|y")
+    _required(("--tp", tp), ("--td", td), ("--tau", tau), ("--test", tests or None))
     from ..mrft.model import LoopModel
     from ..io import FORMATS
     from ..sim.flight import Effects, FlightSpec, TestSpec, plan_test, simulate_flight, write_flight

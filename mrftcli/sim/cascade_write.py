@@ -4,8 +4,8 @@ Two layouts (docs/log-layout.md, docs/simulator.md):
 
 * ``hear-ros`` (a ROS 1 bag, as HEAR records a cascade): ``/fh_des`` (the outer command, x or y;
   z the hover thrust 9.81), ``/angle_u`` (the inner commands: x roll, y pitch), ``/opti/pos`` and
-  ``/opti/ori`` (position and attitude as measured), ``/waypoint_reference/pos``, ``/angle_ref``
-  (the attitude setpoint); ``geometry_msgs/Point`` has no header, so every message is stamped at
+  ``/opti/ori`` (position and attitude as measured), ``/waypoint_reference/pos`` and ``/angle_ref``
+  (the attitude setpoint) at a tenth of the rate; ``geometry_msgs/Point`` has no header, so every message is stamped at
   its receive time (1 ms plus a half-normal 2 ms late, increasing per topic). Both loops' tests are
   found from these topics (``--loop roll`` / ``--loop y``).
 * ``reference``: the reference layout holds one MRFT block per log, so ``/mrft/command``,
@@ -120,7 +120,8 @@ def _hear_topics(flight: CascadeFlight, rng: np.random.Generator) -> list[TopicD
         TopicData("/opti/pos", point, received(t), pos),
         TopicData("/opti/ori", point, received(t), xyz(x=roll, y=pitch)),
         TopicData("/waypoint_reference/pos", point, received(t[ref]), {c: np.zeros(ref.size) for c in "xyz"}),
-        TopicData("/angle_ref", point, received(t), xyz(**{angle_axis: inner_ref})),
+        TopicData("/angle_ref", point, received(t[ref]), {c: (inner_ref[ref] if c == angle_axis else np.zeros(ref.size))
+                                                          for c in "xyz"}),
     ]
 
 

@@ -33,9 +33,12 @@ from ..mrft.relays import RelayLaw
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
+from ..segment.stability import stable_cycles
+from ..segment.validity import check_limit_cycle
 from .screen import log_start
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
+           "chattering_cycles",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
 #: version of :meth:`GeneralAnalysis.to_json`
@@ -268,6 +271,31 @@ def _keep(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> FlightLo
                                battery_voltage=keep_opt(flight.battery_voltage))
 
 
+def chattering_cycles(test: MrftTest, min_stable_cycles: int) -> MrftTest | None:
+    """The test with its stable cycles found again when the relay chatters at its switches, else None.
+
+    A relay without hysteresis switches on the noise near the crossing when the output changes by less
+    than the noise per sample (an ideal relay or an MRFT on a slow integrating plant at 50-200 Hz):
+    the segmenter absorbs the false switches and flags every cycle ``glitch``, so none is stable
+    although the cycles repeat. For a process plant the cycles' response points do not need a clean
+    square wave (:func:`response_points` then takes the logged command's own harmonics), so the
+    stability criterion and the limit-cycle check are applied again with the glitches allowed.
+    """
+    if test.n_stable >= min_stable_cycles or not any("glitch" in c.flags for c in test.cycles):
+        return None
+    regular = np.array([not ({"gap", "irregular"} & set(c.flags)) for c in test.cycles])
+    rate = test.controller_rate_hz or test.rate_hz
+    stable, _, _ = stable_cycles(np.array([c.period for c in test.cycles]),
+                                 np.array([c.amplitude for c in test.cycles]), regular, 1.0 / rate)
+    if int(stable.sum()) < min_stable_cycles:
+        return None
+    cycles = tuple(dataclasses.replace(c, stable=bool(k)) for c, k in zip(test.cycles, stable))
+    levels = np.array([c.beta_effective for c, k in zip(test.cycles, stable) if k], float)
+    beta = float(np.nanmean(levels)) if np.isfinite(levels).any() else float("nan")
+    return dataclasses.replace(test, cycles=cycles, beta_effective=beta,
+                               validity=check_limit_cycle(cycles, beta, test.beta_nominal))
+
+
 def _screen(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...]]:
     """(reason to reject or "", notes) for one test."""
     if test.n_stable < min_stable_cycles:
@@ -308,10 +336,12 @@ def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] 
         Y = fit.harmonics
         w = 2 * math.pi / P
         d = c.t_switch - c.t_start
+        chatter = _command_harmonics(flight.command, c.t_start, P, harmonics) if "glitch" in c.flags else None
         for k in harmonics:
             if k > Y.size:
                 continue
-            U = 4 * test.h * (1 - np.exp(-1j * k * w * d)) / (1j * k * w * P)
+            U = (chatter[k] if chatter is not None
+                 else 4 * test.h * (1 - np.exp(-1j * k * w * d)) / (1j * k * w * P))
             if abs(U) < 0.05 * 4 * test.h / (math.pi * k):
                 continue
             rows[k].append((k * w, complex(Y[k - 1] / U)))
@@ -327,6 +357,25 @@ def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] 
         se = float(np.sqrt(np.mean(np.abs(G - mean) ** 2) / (2 * (n - 1)))) / abs(mean)  # per component, relative
         points.append(ResponsePoint(float(np.mean(w_k)), abs(mean), float(np.angle(mean)), se, se, test.index, k))
     return tuple(points)
+
+
+def _command_harmonics(command: Signal, t0: float, P: float, harmonics: Sequence[int]) -> dict[int, complex]:
+    """The logged command's harmonics over [t0, t0 + P] (held between its samples), scaled as U_k.
+
+    Exact for a zero-order-held command: each sample's level over its hold interval integrates in
+    closed form. Used where the relay chattered, so the square wave's closed form does not hold.
+    """
+    t, u = command.t, command.values
+    i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
+    i1 = int(np.searchsorted(t, t0 + P, side="left"))
+    edges = np.clip(np.append(t[i0:i1], t0 + P), t0, t0 + P) - t0
+    levels = u[i0:i1]
+    out = {}
+    for k in harmonics:
+        jw = 1j * k * 2 * math.pi / P
+        # 2/P * integral of u e^{-jw t}: the fit_harmonics convention (amplitude, not half of it)
+        out[k] = complex(2.0 / P * np.sum(levels * (np.exp(-jw * edges[:-1]) - np.exp(-jw * edges[1:])) / jw))
+    return out
 
 
 def identify_points(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdentification:
@@ -407,7 +456,13 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
     notes: list[str] = []
     for i, test in enumerate(found):
         test = dataclasses.replace(test, index=i)
+        chattered = chattering_cycles(test, min_stable_cycles)
+        test = chattered or test
         reason, test_notes = _screen(test, min_stable_cycles)
+        if chattered is not None:
+            test_notes += ("the relay chatters at its switches (it switches on the noise near the crossing): "
+                           "the cycles are used with the logged command's own harmonics; a hysteresis of a few "
+                           "noise standard deviations avoids it",)
         pts = response_points(flight, test) if not reason else ()
         if not reason and not any(p.harmonic == 1 for p in pts):
             reason = "no cycle long enough to measure its fundamental"

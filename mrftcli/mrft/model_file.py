@@ -87,8 +87,9 @@ def _check_text(text: str, what: str) -> str:
 @lru_cache(maxsize=64)
 def _compile(text: str, names: tuple[str, ...]) -> _Compiled:
     """Parse ``text`` (a transfer function in s of ``names``) with sympy; cached per structure."""
-    import sympy
-    from sympy.parsing.sympy_parser import parse_expr, standard_transformations
+    # sympy ships no type information (no py.typed): its objects are Any here
+    import sympy  # type: ignore[import-untyped]
+    from sympy.parsing.sympy_parser import parse_expr, standard_transformations  # type: ignore[import-untyped]
 
     s = sympy.Symbol("s")
     symbols = {n: sympy.Symbol(n, real=True) for n in names}

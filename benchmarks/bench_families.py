@@ -82,7 +82,7 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path) 
 
     from mrftcli.analyze.general import RelayOptions, analyze_general
     from mrftcli.errors import MrftError
-    from mrftcli.io import read_flight
+    from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
     from mrftcli.mrft.relays import RelayLaw
 
@@ -95,7 +95,7 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path) 
     t, u, y = simulate(family, params, windows, rate, noise, seed=int(rng.integers(1 << 31)))
     path = tmp / "rec.csv"
     write_csv(str(path), t, u, y)
-    flight = read_flight(path, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     try:
         res = analyze_general(flight, family_model(family),
                               relay=RelayOptions("mrft") if relay == "mrft" else RelayOptions())

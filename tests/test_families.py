@@ -18,7 +18,7 @@ import pytest
 
 from mrftcli.analyze.general import GeneralAnalysis, analyze_general
 from mrftcli.errors import InputError
-from mrftcli.io import read_flight
+from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model
 from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
 from mrftcli.mrft.model import MODEL_FAMILIES, model_from_json
@@ -165,7 +165,7 @@ def test_analyze_general_biased_hysteresis_fopdt(tmp_path):
     windows = [Window("hysteresis", 1.5, -0.5, eps=e, duration=30.0) for e in (0.05, 0.3)]
     windows.append(Window("hysteresis", 2.0, -1.0, eps=0.15, duration=30.0))
     path = _recording(tmp_path, "fopdt", params, windows)
-    flight = read_flight(path, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     result = analyze_general(flight, family_model("fopdt"))
     assert len(result.tests) == 3
     for t, w in zip(result.tests, windows):
@@ -187,7 +187,7 @@ def test_analyze_general_ideal_relay_ipdt_and_windows(tmp_path):
     params = dict(K=0.5, tau=0.4)
     windows = [Window("ideal", h, -h, duration=25.0) for h in (1.0, 2.0)]
     path = _recording(tmp_path, "ipdt", params, windows, rate_hz=50.0)
-    flight = read_flight(path, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     only_second = analyze_general(flight, family_model("ipdt"), windows=[(30.0, 55.0)])
     assert len(only_second.tests) == 1 and only_second.tests[0].relay.h == pytest.approx(2.0)
     assert only_second.tests[0].relay.kind == "ideal"

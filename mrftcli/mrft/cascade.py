@@ -170,6 +170,24 @@ class InnerLoop:
     controller: InnerController
     loop: str = ""
 
+    def closed_response(self, omega: ArrayLike) -> NDArray[np.complex128]:
+        """T_inner(j omega): the continuous inner output over a held reference, fundamental only; rad/s.
+
+        C_ref(z) G_i(j omega) / (1 + C_fb(z) G_id(z)), z = e^{j omega T}: C_ref = Kp + Ki T z / (z - 1)
+        acts on the reference, C_fb adds the derivative on the measurement, G_id is the exact
+        zero-order-hold equivalent of the plant with its delay (the hold's factors of reference and
+        command cancel).
+        """
+        w = np.asarray(omega, dtype=float)
+        ctrl = self.controller
+        T = ctrl.Ts
+        z = np.exp(1j * w * T)
+        c_ref = ctrl.Kp + ctrl.Ki * T * z / (z - 1.0)
+        c_fb = c_ref + ctrl.Kd * (z - 1.0) / ((ctrl.Tf + T) * z - ctrl.Tf)
+        out: NDArray[np.complex128] = c_ref * self.plant.frequency_response(w) / (
+            1.0 + c_fb * _inner_discrete(self).frequency_response(w))
+        return out
+
     def to_json(self) -> dict[str, Any]:
         """``{"schema_version", "loop", "plant": <model JSON>, "gains": <generic form>}``."""
         return {"schema_version": INNER_LOOP_SCHEMA_VERSION, "loop": self.loop, "plant": self.plant.to_json(),
@@ -448,14 +466,8 @@ class CascadeModel:
         """
         w = np.asarray(omega, dtype=float)
         s = 1j * w
-        ctrl = self.inner.controller
-        T = ctrl.Ts
-        z = np.exp(s * T)
-        c_ref = ctrl.Kp + ctrl.Ki * T * z / (z - 1.0)
-        c_fb = c_ref + ctrl.Kd * (z - 1.0) / ((ctrl.Tf + T) * z - ctrl.Tf)
-        inner_d = _inner_discrete(self.inner).frequency_response(w)
-        t_inner = c_ref * self.inner.plant.frequency_response(w) / (1.0 + c_fb * inner_d)
-        response: NDArray[np.complex128] = self.K * self.Td * np.exp(-self.tau * s) * t_inner / (s * (self.Td * s + 1))
+        response: NDArray[np.complex128] = (self.K * self.Td * np.exp(-self.tau * s) * self.inner.closed_response(w)
+                                            / (s * (self.Td * s + 1)))
         return response
 
     def to_json(self) -> dict[str, Any]:

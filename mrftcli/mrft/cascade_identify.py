@@ -172,22 +172,47 @@ class _Problem:
 
 
 def _theta0(problem: _Problem, base: CascadeModel) -> FloatArray:
-    """The best start on a coarse grid of Td (and K) with tau in a few steps (the cost is not convex)."""
-    best, best_cost = None, _INF
-    i_tau = problem.free.index("tau")
-    taus = np.clip([0.02, 0.06, 0.15], problem.lower[i_tau], problem.upper[i_tau])
-    grid: list[list[float]] = [list(np.linspace(problem.lower[0], problem.upper[0], 5)), list(taus)]
-    if "K" in problem.free:
-        grid.append([math.log(base.K)])
-    for point in np.array(np.meshgrid(*grid)).reshape(len(grid), -1).T:
-        problem.hints.clear()  # the grid's models are far apart: each its own first guess
-        r = problem.residuals(base, point)
-        cost = float(r @ r)
-        if cost < best_cost:
-            best, best_cost = point, cost
-    assert best is not None
-    problem.hints.clear()
-    return np.asarray(best, dtype=float)
+    """A start for the exact solve: the best point of a (Td, tau, K) grid by the describing function.
+
+    T_inner does not depend on the outer parameters, so it is computed once; the relay's sampling
+    lag is half a tick of delay. The describing function is only the start (a few % off the
+    exact cycle, which the least squares then matches).
+    """
+    T = 1.0 / problem.rate_hz
+    w = np.geomspace(1e-2, 0.99 * math.pi * problem.rate_hz, 700)
+    s = 1j * w
+    t_inner = base.inner.closed_response(w) * np.exp(-0.5 * T * s)
+    i_td, i_tau = problem.free.index("Td"), problem.free.index("tau")
+    tds = np.exp(np.linspace(problem.lower[i_td], problem.upper[i_td], 25))
+    taus = np.linspace(problem.lower[i_tau], min(problem.upper[i_tau], 0.3), 21)
+    TD, TAU = np.meshgrid(tds, taus, indexing="ij")
+    shape = (TD.size, 1)
+    G = (TD.reshape(shape) * np.exp(-TAU.reshape(shape) * s) * t_inner / (s * (TD.reshape(shape) * s + 1)))
+    phase = np.unwrap(np.angle(G), axis=1)
+    mag = np.abs(G)
+    cost = np.zeros(TD.size)
+    log_k = np.zeros(TD.size)  # ln K per grid point: known, or the tests' mean amplitude ratio
+    preds = []
+    for t in problem.tests:
+        f = phase - (math.asin(t.beta) - math.pi)
+        cross = np.argmax((f[:, :-1] > 0) & (f[:, 1:] <= 0), axis=1)
+        ok = (f[np.arange(f.shape[0]), cross] > 0) & (f[np.arange(f.shape[0]), cross + 1] <= 0)
+        w0 = np.where(ok, w[cross], np.nan)
+        a0 = 4.0 * float(t.h or 1.0) / math.pi * mag[np.arange(f.shape[0]), cross]
+        preds.append((w0, a0))
+        log_k += (math.log(float(t.amplitude_mean or 1.0)) - np.log(a0)) / len(problem.tests)
+    if "K" not in problem.free:
+        log_k[:] = math.log(base.K)
+    for t, (w0, a0) in zip(problem.tests, preds):
+        cost += (np.log(w0 / (2 * math.pi)) - math.log(t.frequency_mean)) ** 2
+        cost += (np.log(a0) + log_k - math.log(float(t.amplitude_mean or 1.0))) ** 2
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    if not np.isfinite(cost).any():
+        raise IdentificationError("no outer model in the ranges Td, tau oscillates like the tests (check the inner "
+                                  "gains and model, and the outer command's K)")
+    k = int(np.argmin(cost))
+    theta = [math.log(TD.flat[k]), TAU.flat[k]] + ([float(log_k[k])] if "K" in problem.free else [])
+    return np.array(theta)
 
 
 def _solve(problem: _Problem, base: CascadeModel, theta0: FloatArray) -> tuple[FloatArray, FloatArray]:

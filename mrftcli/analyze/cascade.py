@@ -1,0 +1,379 @@
+"""One outer loop (x, y) through its closed inner loop: ``analyze LOG --loop x|y --inner-model R --inner-gains G``.
+
+Stages, each returning a frozen record:
+
+1. the inner loop (:func:`inner_loop_of`): the inner analysis' eq. (2) model and the controller
+   flying it (the gains file's entry for the inner loop: roll for y, pitch for x), and draws of it
+   over the inner analysis' uncertainty (:func:`inner_draws`);
+2. screen (:func:`screen_outer`): the outer tests found in the log, those with too few stable
+   cycles or whose output does not follow the relay left out (the eq. (2)-specific phase checks do
+   not apply to the cascade);
+3. identification (:func:`mrftcli.mrft.cascade_identify.identify_cascade`) through the exact sampled
+   cycle of the cascade.
+
+The result, :class:`CascadeAnalysis`, is versioned JSON (``analyze --json``) with the cascade model
+(family ``"cascade"``, read back by :func:`mrftcli.mrft.model.model_from_json`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InputError, SegmentationError
+from ..io.logtypes import FlightLog
+from ..jsonable import check_schema_version
+from ..mrft.cascade import G, InnerController, InnerLoop
+from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
+from ..mrft.identify import TestMeasurement
+from ..mrft.model import LoopModel
+from ..segment import segment
+from ..segment.records import MrftTest
+from .mrfttest_json import mrft_test_from_json
+from .record import AnalysisResult, analysis_controller_rate
+from .screen import log_start
+
+__all__ = ["CascadeOptions", "CascadeAnalysis", "analyze_cascade", "inner_loop_of", "inner_draws", "inner_gains_of",
+           "screen_outer", "CASCADE_ANALYSIS_SCHEMA_VERSION", "OUTER_COMMANDS"]
+
+#: version of :meth:`CascadeAnalysis.to_json`
+CASCADE_ANALYSIS_SCHEMA_VERSION = 1
+#: what the outer relay commands -> K of the cascade (None: identified)
+OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "identify": None}
+
+
+@dataclass(frozen=True)
+class CascadeOptions:
+    """How the outer loop is analysed.
+
+    Attributes
+    ----------
+    commanded : {"acceleration", "attitude", "identify"}
+        What the outer relay commands: an acceleration [m/s^2] (K = 1), an attitude [rad]
+        (K = g = 9.81), or identify K (two betas needed).
+    min_stable_cycles : int
+        Fewest stable cycles for a test to be used.
+    n_draws : int
+        Draws of the inner loop propagated through the solve (0: the inner model taken as exact).
+    seed : int
+        Seed of the draws.
+    Td_bounds, tau_bounds : (float, float)
+        The set I of the outer Td [s] and tau [s].
+    """
+
+    commanded: str = "acceleration"
+    min_stable_cycles: int = 3
+    n_draws: int = 30
+    seed: int = 0
+    Td_bounds: tuple[float, float] = (0.05, 50.0)
+    tau_bounds: tuple[float, float] = (0.0, 0.5)
+
+    def __post_init__(self) -> None:
+        if self.commanded not in OUTER_COMMANDS:
+            raise InputError(f"--outer-command must be one of {', '.join(OUTER_COMMANDS)}, got {self.commanded!r}")
+
+    @property
+    def K(self) -> float | None:
+        """The known K (None: identified)."""
+        return OUTER_COMMANDS[self.commanded]
+
+
+@dataclass(frozen=True, eq=False)
+class CascadeAnalysis:
+    """An outer loop identified through its closed inner loop.
+
+    Attributes
+    ----------
+    path, loop : str
+        The log and the outer loop (``"x"``, ``"y"``).
+    identification : CascadeIdentification
+        The cascade model (``identification.model``), its parameters with intervals, each test's fit.
+    tests, rejected : tuple of MrftTest
+        The outer tests used and those left out (``rejection_reasons`` says why).
+    rejection_reasons : mapping of int to str
+        ``MrftTest.index`` -> why it was left out.
+    controller_rate_hz : float
+        The outer relay's rate [Hz].
+    assumptions : tuple of str
+        What the numbers rest on (K, the inner model and gains): printed first, kept in the JSON.
+    warnings : tuple of str
+        What the user should act on.
+    t0 : float
+        The log's first sample time [s].
+    recorded : mapping or None
+        The JSON a record was read from (None for a fresh analysis).
+    """
+
+    path: str
+    loop: str
+    identification: CascadeIdentification
+    tests: tuple[MrftTest, ...]
+    rejected: tuple[MrftTest, ...] = ()
+    rejection_reasons: Mapping[int, str] = field(default_factory=dict)
+    controller_rate_hz: float = 0.0
+    assumptions: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    t0: float = 0.0
+    recorded: Mapping[str, Any] | None = field(default=None, repr=False)
+
+    @property
+    def model(self) -> Any:
+        """The identified :class:`~mrftcli.mrft.cascade.CascadeModel`."""
+        return self.identification.model
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "kind": "cascade", "input", "assumptions", "model", "parameters", "identification",
+        "tests", "rejected_tests", "warnings"}`` (docs/cascade.md); a record read by :meth:`from_json` writes
+        back the object it was read from (the rejected tests' cycles are not in it)."""
+        if self.recorded is not None:
+            return dict(self.recorded)
+        ident = self.identification
+        return {"schema_version": CASCADE_ANALYSIS_SCHEMA_VERSION, "kind": "cascade",
+                "input": {"path": self.path, "loop": self.loop, "t0": self.t0,
+                          "controller_rate_hz": self.controller_rate_hz},
+                "assumptions": list(self.assumptions), "model": ident.model.to_json(),
+                "parameters": {k: e.to_json() for k, e in ident.estimates.items()},
+                "identification": ident.to_json(),
+                "tests": [t.to_dict(cycles=True) for t in self.tests],
+                "rejected_tests": [{**t.to_dict(cycles=False), "reason": self.rejection_reasons.get(t.index, "")}
+                                   for t in self.rejected],
+                "warnings": list(self.warnings)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> CascadeAnalysis:
+        """The record of a :meth:`to_json` dict.
+
+        Raises
+        ------
+        InputError
+            Not a cascade analysis of this version, or a missing part (one-line message).
+        """
+        d = check_schema_version(data, "cascade analysis JSON", CASCADE_ANALYSIS_SCHEMA_VERSION)
+        if d.get("kind") != "cascade" or "identification" not in d:
+            raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
+        inp = d.get("input") or {}
+        try:
+            rejected_rows = d.get("rejected_tests") or ()
+            return cls(str(inp.get("path", "")), str(inp.get("loop", "")),
+                       CascadeIdentification.from_json(d["identification"]),
+                       tuple(mrft_test_from_json(t) for t in d.get("tests") or ()),
+                       tuple(mrft_test_from_json(t) for t in rejected_rows),
+                       {int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
+                       float(inp.get("controller_rate_hz") or 0.0),
+                       tuple(str(a) for a in d.get("assumptions") or ()),
+                       tuple(str(w) for w in d.get("warnings") or ()), float(inp.get("t0") or 0.0), dict(d))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"cascade analysis JSON: bad tests ({type(err).__name__}: {err})") from err
+
+
+# ----------------------------------------------------------------------------------------------
+# stage 1: the inner loop
+# ----------------------------------------------------------------------------------------------
+def inner_gains_of(data: Any, inner_name: str) -> InnerController:
+    """The inner loop's controller from a gains file's JSON.
+
+    Accepted: ``{"roll": {"Kp", "Ki", "Kd", "Tf", "rate_hz"}, ...}`` (a map of loop names); the
+    output of ``tune --export generic`` (one controller, ``Kp`` ... at the top); ``tune --json``
+    (its ``export.generic``, checked against its ``loop``); a vehicle record (``loops.<name>.gains.generic``).
+
+    Raises
+    ------
+    InputError
+        Not an object, or no gains for ``inner_name`` (the message names --inner-gains).
+    """
+    if not isinstance(data, Mapping):
+        raise InputError(f"--inner-gains: expected a JSON object, got {type(data).__name__}")
+    what = f"--inner-gains ({inner_name})"
+    if "Kp" in data:  # tune --export generic: one controller
+        return InnerController.from_json(data, what)
+    export = data.get("export")
+    if isinstance(export, Mapping) and "generic" in export:  # tune --json
+        loop = data.get("loop")
+        if loop and loop != inner_name:
+            raise InputError(f"--inner-gains holds gains of the {loop} loop; the outer loop goes through {inner_name}")
+        return InnerController.from_json(export["generic"], what)
+    loops = data.get("loops")
+    if isinstance(loops, Mapping):  # a vehicle record
+        entry = loops.get(inner_name)
+        gains = entry.get("gains") if isinstance(entry, Mapping) else None
+        if isinstance(gains, Mapping) and "generic" in gains:
+            return InnerController.from_json(gains["generic"], what)
+    if inner_name not in data:
+        raise InputError(f"--inner-gains has no gains for the {inner_name} loop (found: "
+                         f"{', '.join(map(str, data)) or 'nothing'}); give {{\"{inner_name}\": {{\"Kp\": ..., \"Ki\": ..., "
+                         "\"Kd\": ..., \"Tf\": ..., \"rate_hz\": ...}}")
+    return InnerController.from_json(data[inner_name], what)
+
+
+def inner_loop_of(result: AnalysisResult, controller: InnerController, inner_name: str) -> InnerLoop:
+    """The inner loop of an inner analysis (its eq. (2) point estimate) and its controller.
+
+    Raises
+    ------
+    InputError
+        The analysis is of another loop than ``inner_name`` (the message names --inner-model).
+    """
+    if result.loop and result.loop != inner_name:
+        raise InputError(f"--inner-model is an analysis of the {result.loop} loop; the outer loop goes through "
+                         f"{inner_name} (analyze the {inner_name} tests and pass that result)")
+    return InnerLoop(result.model, controller, inner_name)
+
+
+def inner_draws(result: AnalysisResult, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
+    """``n`` draws of the inner loop over the inner analysis' uncertainty (Td, tau, K; Tp known).
+
+    Td and K are drawn log-normal with their relative std, tau normal (kept >= 0), independently:
+    the analysis JSON keeps their spreads, not their correlation (which would narrow the spread
+    of the outer estimate, not widen it).
+    """
+    if n <= 0:
+        return []
+    rng = np.random.default_rng(seed)
+    model = result.model
+    out: list[InnerLoop] = []
+
+    def rel(est: Any, value: float) -> float:
+        std = float(est.std)
+        return std / abs(value) if math.isfinite(std) and value else 0.0
+
+    s_td, s_k = rel(result.Td, model.Td), rel(result.K, model.K)
+    s_tau = float(result.tau.std) if math.isfinite(result.tau.std) else 0.0
+    for _ in range(n):
+        draw = LoopModel(model.Tp, model.Td * math.exp(rng.normal(0.0, s_td)),
+                         max(0.0, model.tau + rng.normal(0.0, s_tau)), model.K * math.exp(rng.normal(0.0, s_k)))
+        out.append(InnerLoop(draw, inner.controller, inner.loop))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# stage 2: the outer tests
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Screened:
+    usable: tuple[MrftTest, ...]
+    rejected: tuple[MrftTest, ...]
+    reasons: Mapping[int, str]
+
+
+def screen_outer(found: Sequence[MrftTest], min_stable_cycles: int) -> _Screened:
+    """The outer tests to use: enough stable cycles and an output that follows the relay.
+
+    The phase and beta checks of ``MrftTest.validity`` compare with eq. (2) and do not apply here.
+    """
+    reasons: dict[int, str] = {}
+    for t in found:
+        v = t.validity
+        if v is not None and not v.follows_relay:
+            reasons[t.index] = "the output does not follow this relay: " + "; ".join(v.reasons)
+        elif t.n_stable < min_stable_cycles:
+            reasons[t.index] = f"{t.n_stable} stable cycles (need {min_stable_cycles})"
+    usable = tuple(t for t in found if t.index not in reasons)
+    return _Screened(usable, tuple(t for t in found if t.index in reasons), reasons)
+
+
+def _measurement(t: MrftTest) -> TestMeasurement:
+    """The test's per-cycle frequencies and amplitudes at its nominal beta (the exact sampled cycle
+    holds the sampling lag the effective beta would count again)."""
+    beta = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
+    st = t.stable
+    return TestMeasurement(beta=float(beta), frequency_hz=[c.frequency_hz for c in st],
+                           amplitude=[c.amplitude for c in st], h=float(t.h))
+
+
+# ----------------------------------------------------------------------------------------------
+# the driver
+# ----------------------------------------------------------------------------------------------
+def analyze_cascade(flight: FlightLog, inner: InnerLoop, *, options: CascadeOptions = CascadeOptions(),
+                    draws: Sequence[InnerLoop] = (), assumptions: Sequence[str] = ()) -> CascadeAnalysis:
+    """The outer loop of ``flight`` identified through ``inner`` (the module docstring's stages).
+
+    Parameters
+    ----------
+    flight : FlightLog
+        The outer loop's signals (command: the outer relay's output; output: the position [m]).
+    inner : InnerLoop
+        The inner loop's model and controller (:func:`inner_loop_of`).
+    options : CascadeOptions
+        K, the screening and the draws.
+    draws : sequence of InnerLoop
+        Draws of the inner loop (:func:`inner_draws`); empty: the inner model taken as exact.
+    assumptions : sequence of str
+        Extra assumptions to state (the caller's), before the ones this function adds.
+
+    Raises
+    ------
+    SegmentationError
+        No usable outer test.
+    IdentificationError
+        The tests do not determine the unknowns.
+    InputError
+        The outer rate does not divide the inner controller's rate.
+    """
+    t0 = log_start(flight)
+    found = segment(flight, controller_rate_hz=flight.timing.controller_rate_hz)
+    screened = screen_outer(found, options.min_stable_cycles)
+    if not screened.usable:
+        why = "; ".join(f"test {i + 1}: {r}" for i, r in screened.reasons.items())
+        raise SegmentationError(f"{flight.path}: no usable {flight.loop} relay test for the cascade"
+                                + (f" ({why})" if why else " (no relay switching found on the command)"))
+    rate = analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in screened.usable])
+    if rate is None:
+        raise InputError("the outer loop's controller rate is unknown: give --controller-rate HZ")
+    rate = _snap_rate(rate, inner.controller.rate_hz)
+    ident = identify_cascade(inner, [_measurement(t) for t in screened.usable], rate, K=options.K,
+                             Td_bounds=options.Td_bounds, tau_bounds=options.tau_bounds, inner_draws=draws)
+    stated = list(assumptions) + _assumptions(options, inner, rate, ident)
+    warnings = [f"test {t.index + 1} left out: {screened.reasons[t.index]}" for t in screened.rejected]
+    warnings += _fit_warnings(ident)
+    warnings += list(flight.warnings)
+    return CascadeAnalysis(flight.path, flight.loop, ident, screened.usable, screened.rejected, screened.reasons,
+                           rate, tuple(stated), tuple(warnings), t0)
+
+
+def _snap_rate(rate: float, inner_rate: float) -> float:
+    """The outer rate as the inner rate over a whole number when the log's rate is within 2 % of one.
+
+    A rate measured from stamps (199.7 Hz) is the controller's 200 Hz; a rate that is not close to a
+    divisor of the inner controller's is a mismatch (one-line error naming both options).
+    """
+    m = inner_rate / rate
+    if round(m) >= 1 and abs(m - round(m)) < 0.02 * round(m):
+        return inner_rate / round(m)
+    raise InputError(f"the outer loop runs at {rate:g} Hz but the inner gains' rate_hz is {inner_rate:g} Hz: the outer "
+                     "rate must equal it or divide it (check --inner-gains rate_hz and --controller-rate)")
+
+
+def _assumptions(options: CascadeOptions, inner: InnerLoop, rate: float, ident: CascadeIdentification) -> list[str]:
+    what = {"acceleration": "the outer relay commands an acceleration [m/s^2]: K = 1 (--outer-command)",
+            "attitude": f"the outer relay commands an attitude [rad]: K = g = {G} m/s^2 per rad (--outer-command)",
+            "identify": "K identified from the tests (--outer-command identify)"}[options.commanded]
+    c = inner.controller
+    p = inner.plant.parameters
+    plant = ", ".join(f"{n} {q.value:.4g}{' ' + q.unit if q.unit == 's' else ''}" for n, q in p.items())
+    out = [what,
+           f"inner loop {inner.loop}: {inner.plant.family} {plant} (--inner-model), flown by Kp {c.Kp:.4g}, "
+           f"Ki {c.Ki:.4g}, Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz (--inner-gains)",
+           f"outer relay at {rate:g} Hz"]
+    if ident.inner_draws:
+        out.append(f"the inner model's uncertainty: {ident.inner_draws} draws solved and added to the intervals")
+    else:
+        out.append("the inner model taken as exact (no draws): the intervals hold the outer tests' scatter only")
+    return out
+
+
+def _fit_warnings(ident: CascadeIdentification) -> list[str]:
+    out = []
+    for i, t in enumerate(ident.tests):
+        lo, hi = t.band_hz
+        if math.isfinite(lo) and not (0.97 * lo <= t.frequency_hz <= 1.03 * hi):
+            out.append(f"test {i + 1}: measured {t.frequency_hz:.4g} Hz, outside the identified cascade's band of "
+                       f"sampled orbits {lo:.4g}-{hi:.4g} Hz: the inner model or gains may not be those flown")
+    for name, e in ident.estimates.items():
+        if not e.known and not e.determined:
+            out.append(f"{name} is not determined by these tests (95 % interval {e.ci95_low:.4g}-{e.ci95_high:.4g} "
+                       f"{e.unit}): add a test at another beta")
+    return out
+

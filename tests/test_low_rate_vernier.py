@@ -51,6 +51,12 @@ def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight):
     fast = tests[0]
     assert fast.rate_hz == pytest.approx(10.0) and fast.controller_rate_hz == pytest.approx(RATE)
     assert fast.rate_hz / fast.frequency_hz_mean < 5.5  # under 8 samples per cycle: dropped before
+    # the record says how coarse the test is and how its switches were placed: the 2.5 Hz test is 20
+    # ticks a cycle, 4 logging periods, so the logging is locked to it and the nominal beta decides
+    d = fast.to_dict(cycles=False)
+    assert d["samples_per_cycle"] == pytest.approx(4.0) and d["switch_timing"] == "vernier-locked-beta"
+    assert any("locked to the cycle" in n for n in fast.notes)
+    assert tests[1].switch_timing == "vernier" and not tests[1].notes
     for t, exact in zip(tests, (0.9, 0.5)):
         true = _true_switches(flight, t.cycles[0].t_start - 0.5, t.cycles[-1].t_end + 0.5)
         got = np.array([x for c in t.stable for x in (c.t_start, c.t_switch)])

@@ -151,6 +151,13 @@ class MrftTest:
     validity : LimitCycleCheck or None
         Whether the output follows this relay as an MRFT limit cycle, with the measured figures
         (:func:`~mrftcli.segment.validity.check_limit_cycle`).
+    switch_timing : str or None
+        How the switch instants of a test logged below the controller's rate were placed
+        (:mod:`~mrftcli.segment.vernier`): ``"vernier"`` (on their controller ticks: the logging
+        instants slide along the cycle), ``"vernier-locked-beta"`` (the logging locked to the cycle:
+        up- and down-switches each placed within their logging brackets by the nominal beta),
+        ``"vernier-locked"`` (locked and no nominal beta: the brackets' middles); None when the
+        command is logged at the controller's rate.
     """
 
     index: int
@@ -175,6 +182,13 @@ class MrftTest:
     notes: tuple[str, ...] = ()
     validity: LimitCycleCheck | None = None
     controller_rate_hz: float | None = None
+    switch_timing: str | None = None
+
+    @property
+    def samples_per_cycle(self) -> float:
+        """Logged command samples per stable cycle: ``rate_hz`` / the limit cycle's frequency [-] (NaN
+        without a stable cycle)."""
+        return float(self.rate_hz / self.frequency_hz_mean)
 
     @property
     def valid(self) -> bool:
@@ -259,6 +273,10 @@ class MrftTest:
             },
             "notes": list(self.notes),
         }
+        if self.controller_rate_hz is not None:
+            # logged below the controller's rate: how coarse, and how the switches were placed
+            d["samples_per_cycle"] = self.samples_per_cycle
+            d["switch_timing"] = self.switch_timing
         if self.validity is not None:
             d["validity"] = self.validity.to_dict()
         if cycles:

@@ -333,6 +333,26 @@ def _nominal_beta(beta_t: ArrayLike | None, beta_v: ArrayLike | None, after: flo
     return float(np.asarray(beta_v, float)[sel[-1]]) if sel.size else None
 
 
+def _switch_timing(sw: _Switches, beta_nominal: float | None) -> str | None:
+    """How a sub-sampled test's switches were placed (``MrftTest.switch_timing``); None at the controller's rate."""
+    if sw.vernier is None:
+        return None
+    if not sw.vernier.locked:
+        return "vernier"
+    return "vernier-locked-beta" if beta_nominal is not None else "vernier-locked"
+
+
+def _timing_notes(sw: _Switches, clock: _Clock, beta_nominal: float | None) -> tuple[str, ...]:
+    """The assumption a locked logging grid needs (the switches placed by the relay's nominal beta)."""
+    if sw.vernier is None or not sw.vernier.locked or not sw.up.size:
+        return ()
+    spc = clock.rate_hz * float(np.median(np.diff(sw.t[sw.up]))) if sw.up.sum() > 1 else float("nan")
+    how = (f"placed where the output crosses the nominal beta {beta_nominal:g}" if beta_nominal is not None
+           else "at the middles of their logging brackets (no beta logged)")
+    return (f"logged at {clock.rate_hz:.0f} Hz ({spc:.1f} samples a cycle), locked to the cycle: the logging "
+            f"instants do not slide along it, so the switches are {how}, not pinned by the vernier",)
+
+
 def _notes(cycles: list[RelayCycle], sign: int) -> tuple[str, ...]:
     """What the user should know about a test: a negative loop gain, interpolated or dropped switches."""
     notes: list[str] = []
@@ -423,7 +443,8 @@ def segment_arrays(
                 period_median=info["period_median"], period_tolerance=info["period_tolerance"],
                 amplitude_median=info["amplitude_median"], amplitude_tolerance=info["amplitude_tolerance"],
                 loop_sign=sign, setpoint=win.setpoint, timestamps_regularised=clock.regularised,
-                n_switches=len(sw.t), notes=_notes(final, sign), controller_rate_hz=clock.controller_rate_hz,
+                n_switches=len(sw.t), notes=_notes(final, sign) + _timing_notes(sw, clock, beta_nom),
+                controller_rate_hz=clock.controller_rate_hz, switch_timing=_switch_timing(sw, beta_nom),
                 validity=check_limit_cycle(final, beta_eff, beta_nom, validity),
             )
         )

@@ -279,34 +279,41 @@ class CascadeTruth:
         return tuple(t for t in self.tests if t.loop == loop)
 
     def to_json(self) -> dict[str, Any]:
-        """Plain JSON values, with ``schema_version`` and the inner gains in tune's generic form."""
+        """Plain JSON values, with ``schema_version``.
+
+        The top level describes the inner loop as every simulator sidecar describes its eq. (2) loop
+        (``loop``, ``Tp``, ``Td``, ``tau``, ``K``, ``rate_hz``, ``noise_std``, ``tests``), so the tools
+        that read a sample log's sidecar treat the flight as the inner loop's log; ``outer`` holds the
+        outer loop (its truth and tests) and ``inner_gains`` the PD in tune's generic form, keyed by
+        the inner loop as GAINS.json is.
+        """
+        unit = "rad" if self.commanded == "attitude" else "m/s^2"
         return {
             "format": "mrft-ident cascade simulation truth",
             "schema_version": CASCADE_TRUTH_SCHEMA,
-            "axis": self.axis,
-            "inner_loop": self.inner_loop,
-            "commanded": self.commanded,
-            "outer": {"K": self.K, "Td": self.Td, "tau": self.tau, "g": self.g,
-                      "command_unit": "rad" if self.commanded == "attitude" else "m/s^2"},
-            "inner": {"Tp": self.inner.Tp, "Td": self.inner.Td, "tau": self.inner.tau, "K": self.inner.K},
+            "loop": self.inner_loop,
+            "Tp": self.inner.Tp, "Td": self.inner.Td, "tau": self.inner.tau, "K": self.inner.K,
+            "rate_hz": self.gains.rate_hz,
+            "noise_std": self.attitude_noise_std,
+            "tests": [t.to_json() for t in self.tests_of(self.inner_loop)],
+            "outer": {"loop": self.axis, "K": self.K, "Td": self.Td, "tau": self.tau, "g": self.g,
+                      "commanded": self.commanded, "command_unit": unit, "noise_std": self.position_noise_std,
+                      "tests": [t.to_json() for t in self.tests_of(self.axis)]},
             "inner_gains": {self.inner_loop: self.gains.generic()},
             "outer_hold": self.outer_hold.generic(),
-            "attitude_noise_std": self.attitude_noise_std,
-            "position_noise_std": self.position_noise_std,
             "switching": self.switching,
             "seed": self.seed,
             "start_time": self.start_time,
             "duration": self.duration,
-            "tests": [t.to_json() for t in self.tests],
             "layout": self.layout,
             "log_format": self.log_format,
             "log_file": self.log_file,
             "mrftcli_version": self.mrftcli_version,
             "units": {"time": "s", "position": "m", "attitude": "rad", "inner_command": "inner command units",
-                      "outer_command": "rad" if self.commanded == "attitude" else "m/s^2"},
+                      "outer_command": unit},
             "conventions": "FRD/NED: y'' = g roll - y'/Td, x'' = -g pitch - x'/Td; the outer command is in the "
-                           "output's direction; the inner command reaches the plant tau_inner later (zero-order "
-                           "hold); the position is measured tau (outer) late",
+                           "output's direction; the inner command reaches the plant tau (inner) later (zero-order "
+                           "hold); the position is measured outer.tau late; tests in flight order, inner first",
         }
 
     @classmethod
@@ -314,24 +321,24 @@ class CascadeTruth:
         """The record of a sidecar's JSON; InputError (one line) on a wrong version or a missing field."""
         d = check_schema_version(data, "cascade truth", CASCADE_TRUTH_SCHEMA,
                                  fix="simulate the flight again with this version of mrft-ident")
+        what = "cascade truth"
         try:
-            outer, inner = d["outer"], d["inner"]
-            inner_loop = str(d["inner_loop"])
-            tests = tuple(CascadeTestTruth.from_json(t) for t in d["tests"])
+            outer = d["outer"]
+            inner_loop = str(d["loop"])
+            tests = tuple(CascadeTestTruth.from_json(t) for t in [*d["tests"], *outer["tests"]])
             return cls(
-                axis=str(d["axis"]), inner_loop=inner_loop, commanded=str(d["commanded"]),
-                K=_number(outer, "K", "cascade truth"), Td=_number(outer, "Td", "cascade truth"),
-                tau=_number(outer, "tau", "cascade truth"), g=_number(outer, "g", "cascade truth"),
-                inner=LoopModel(_number(inner, "Tp", "cascade truth inner"), _number(inner, "Td", "cascade truth inner"),
-                                _number(inner, "tau", "cascade truth inner"), _number(inner, "K", "cascade truth inner")),
-                gains=InnerGains.from_generic(d["inner_gains"][inner_loop], "cascade truth inner_gains"),
-                outer_hold=InnerGains.from_generic(d["outer_hold"], "cascade truth outer_hold"),
-                attitude_noise_std=_number(d, "attitude_noise_std", "cascade truth"),
-                position_noise_std=_number(d, "position_noise_std", "cascade truth"),
-                switching=str(d["switching"]), seed=int(d["seed"]),
-                start_time=_number(d, "start_time", "cascade truth"), duration=_number(d, "duration", "cascade truth"),
-                tests=tests, layout=str(d.get("layout", "")), log_format=str(d.get("log_format", "")),
-                log_file=str(d.get("log_file", "")), mrftcli_version=str(d.get("mrftcli_version", "")),
+                axis=str(outer["loop"]), inner_loop=inner_loop, commanded=str(outer["commanded"]),
+                K=_number(outer, "K", what), Td=_number(outer, "Td", what), tau=_number(outer, "tau", what),
+                g=_number(outer, "g", what),
+                inner=LoopModel(_number(d, "Tp", what), _number(d, "Td", what), _number(d, "tau", what),
+                                _number(d, "K", what)),
+                gains=InnerGains.from_generic(d["inner_gains"][inner_loop], f"{what} inner_gains"),
+                outer_hold=InnerGains.from_generic(d["outer_hold"], f"{what} outer_hold"),
+                attitude_noise_std=_number(d, "noise_std", what), position_noise_std=_number(outer, "noise_std", what),
+                switching=str(d["switching"]), seed=int(d["seed"]), start_time=_number(d, "start_time", what),
+                duration=_number(d, "duration", what), tests=tests, layout=str(d.get("layout", "")),
+                log_format=str(d.get("log_format", "")), log_file=str(d.get("log_file", "")),
+                mrftcli_version=str(d.get("mrftcli_version", "")),
             )
         except (KeyError, TypeError) as err:
             raise InputError(f"cascade truth: missing or malformed field {err}; simulate the flight again") from None

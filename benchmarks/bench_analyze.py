@@ -12,6 +12,7 @@ Run: ``python benchmarks/bench_analyze.py`` (about 30 s including the simulation
 
 from __future__ import annotations
 
+from mrftcli.io import ReadOptions
 import tempfile
 import time
 from pathlib import Path
@@ -40,18 +41,18 @@ def main() -> None:
         write_flight(flight, path, "mcap")
         print(f"log: {flight.t[-1] - flight.t[0]:.0f} s at 200 Hz, {flight.t.size} samples per topic, "
               f"{path.stat().st_size / 1e6:.1f} MB (simulated and written in {time.perf_counter() - t0:.1f} s)")
-        analyze_path(path, 0.0422, "altitude")  # warm-up: imports, manifold loading
+        analyze_path(path, 0.0422, read=ReadOptions(loop="altitude"))  # warm-up: imports, manifold loading
         runs = []
         for _ in range(3):
             t0 = time.perf_counter()
-            result = analyze_path(path, 0.0422, "altitude")
+            result = analyze_path(path, 0.0422, read=ReadOptions(loop="altitude"))
             runs.append(time.perf_counter() - t0)
         total = float(np.median(runs))
         from mrftcli.io import read_flight
         from mrftcli.segment import segment
 
         t0 = time.perf_counter()
-        fl = read_flight(path, loop="altitude")
+        fl = read_flight(path, ReadOptions(loop="altitude"))
         t_read = time.perf_counter() - t0
         t0 = time.perf_counter()
         segment(fl)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.batch.run import run_batch
+from mrftcli.batch.run import BatchOptions, run_batch
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
 
@@ -51,7 +51,8 @@ def timed(label: str, n: int, repeat: int, **kw) -> float:
     for _ in range(repeat):
         c0 = _cpu()
         t0 = time.perf_counter()
-        res = run_batch(force=True, report=False, **kw)
+        opts = BatchOptions(force=True, report=False, **{k: kw.pop(k) for k in ("jobs", "scheduler") if k in kw})
+        res = run_batch(options=opts, **kw)
         dt = min(dt, time.perf_counter() - t0)
         cpu = min(cpu, _cpu() - c0)
     counts = ", ".join(f"{v} {k}" for k, v in res.counts.items() if v)

@@ -28,6 +28,7 @@ Usage::
 
 from __future__ import annotations
 
+from mrftcli.io import ReadOptions
 import argparse
 import importlib.util
 import os
@@ -103,13 +104,13 @@ def run_case(case: dict) -> dict:
         write_log(flight.topics, path, "mcap")
         t0 = time.process_time()
         try:
-            analyze_flight(read_flight(path, "altitude"), truth["Tp"])
+            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
         except MrftError:
             pass
         cpu_analyze = time.process_time() - t0
         t0 = time.process_time()
         try:
-            res = diagnose(read_flight(path, "altitude"), truth["Tp"])
+            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
             err, refused = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, err = None, f"{type(exc).__name__}: {exc}"

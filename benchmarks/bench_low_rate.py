@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.analyze import analyze_flight
-from mrftcli.io import read_flight
+from mrftcli.analyze import AnalyzeOptions, analyze_flight
+from mrftcli.io import ReadOptions, read_flight
 from mrftcli.io.stacks import StackTest, write_stack_log
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.control import df_prediction
@@ -57,8 +57,7 @@ for k in range(N):
         p = write_stack_log(out / f"f{lr}.ulg", "px4-mrft", "altitude", fl.t, fl.command, fl.output_measured,
                             fl.setpoint, fl.truth["bias"], st, log_rate_hz=lr if lr < 50 else None)
         try:
-            r = analyze_flight(read_flight(p, loop="altitude", echo_warnings=False), Tp=0.0422, n_bootstrap=200,
-                               seed=1, controller_rate_hz=50.0)
+            r = analyze_flight(read_flight(p, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422, options=AnalyzeOptions(n_bootstrap=200, seed=1, controller_rate_hz=50.0))
         except Exception as e:  # a failure counts as a miss
             fail[lr].append(type(e).__name__)
             row.append(f"{lr} Hz: {type(e).__name__} |")

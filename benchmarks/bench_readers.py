@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mrftcli.io import cdr, open_log, read_flight, write_log
+from mrftcli.io import ReadOptions, cdr, open_log, read_flight, write_log
 from mrftcli.io.logtypes import TopicData
 
 TOPICS = ["/mrft/command", "/mocap/pose", "/imu/data"]
@@ -453,7 +453,7 @@ def light_log(minutes: float, repeat: int, seed: int) -> None:
             for key in ref:
                 if not np.array_equal(ref[key], result[key]):
                     raise SystemExit(f"MISMATCH in {key} ({name} vs mcap + mcap_ros2)")
-        t_flight, _ = best(lambda: read_flight(path, loop="roll"), args.repeat)
+        t_flight, _ = best(lambda: read_flight(path, ReadOptions(loop="roll")), args.repeat)
 
         base = t_raw + t_rb
         print(f"{'path':46s} {'container [s]':>13s} {'CDR [s]':>9s} {'total [s]':>10s} {'vs mcap+rosbags':>16s}")

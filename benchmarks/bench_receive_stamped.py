@@ -20,7 +20,7 @@ import sys
 
 import numpy as np
 
-from mrftcli.analyze import analyze_flight
+from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 from mrftcli.sim.stamps import ReceiveStamping, recorded_flight
@@ -57,7 +57,7 @@ for k in range(N):
     for name, (cmd, out) in VARIANTS.items():
         flight = recorded_flight(fl, command=cmd, output=out, seed=stamp_seed)
         try:
-            r = analyze_flight(flight, Tp=0.0422, n_bootstrap=200, seed=1)
+            r = analyze_flight(flight, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=200, seed=1))
         except Exception as e:  # a refusal or failure counts as a miss
             fail[name].append(type(e).__name__)
             row.append(f"{name}: {type(e).__name__} |")

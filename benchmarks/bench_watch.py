@@ -125,8 +125,8 @@ def _on_disk(path: str, flushes: list) -> list[tuple[float, float]]:
 
 def run(seed: int, rate_hz: float) -> dict:
     from mrftcli.analyze import analyze_flight
-    from mrftcli.io import read_flight
-    from mrftcli.watch import watch
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.watch import WatchOptions, watch
 
     with tempfile.TemporaryDirectory() as tmp:
         log = os.path.join(tmp, "live.mcap")
@@ -134,7 +134,7 @@ def run(seed: int, rate_hz: float) -> dict:
         proc = subprocess.Popen([sys.executable, __file__, "--writer", log, flushes, str(seed), str(rate_hz)])
         try:
             Tp = _model(np.random.default_rng(seed)).Tp
-            updates = list(watch(log, Tp, idle=5.0, poll=0.01, loop="altitude"))
+            updates = list(watch(log, Tp, read=ReadOptions(loop="altitude"), options=WatchOptions(idle=5.0, poll=0.01)))
         finally:
             proc.wait()
         info = json.loads(Path(flushes).read_text())

@@ -11,6 +11,8 @@ The Python API a notebook needs is here (imported lazily, so ``mrft-ident --help
 :func:`read_flight`    one loop's signals from a log (:func:`mrftcli.io.read_flight`)
 :func:`analyze_flight` segment a flight's MRFT tests and identify Td, tau, K with uncertainty
 :func:`analyze_path`   read a log and analyse it (:mod:`mrftcli.analyze`)
+:class:`ReadOptions`   how to read a loop from a log (topics, scales, layout, format, time unit)
+:class:`AnalyzeOptions` the analysis's knobs (min cycles, bootstrap draws, seed, constraints, ...)
 :func:`diagnose_flight` where the identified model and the recording disagree
                        (:func:`mrftcli.diagnose.diagnose`; the name ``diagnose`` is the subpackage's)
 :func:`predict`        the exact MRFT limit cycle of a model (:func:`mrftcli.mrft.lprs.mrft_limit_cycle`)
@@ -37,8 +39,8 @@ Td 0.7042 s, tau 0.0600 s
 Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, tau 46.4 ms, K 19.62):
 
 >>> log = mrftcli.sample_log("design1_altitude.mcap")  # installed with the package
->>> flight = mrftcli.read_flight(log, loop="altitude")
->>> analysis = mrftcli.analyze_flight(flight, Tp=0.0422, n_bootstrap=100)
+>>> flight = mrftcli.read_flight(log, mrftcli.ReadOptions(loop="altitude"))
+>>> analysis = mrftcli.analyze_flight(flight, Tp=0.0422, options=mrftcli.AnalyzeOptions(n_bootstrap=100))
 >>> print(f"{len(analysis.tests)} tests: Td {analysis.Td.mean:.1f} s, tau {analysis.tau.mean * 1e3:.0f} ms, "
 ...       f"K {analysis.K.mean:.0f}")
 2 tests: Td 2.7 s, tau 46 ms, K 20
@@ -55,8 +57,10 @@ from ._version import __version__
 #: public name -> (module, attribute), imported on first use (PEP 562)
 _LAZY = {
     "read_flight": ("mrftcli.io", "read_flight"),
+    "ReadOptions": ("mrftcli.io", "ReadOptions"),
     "analyze_flight": ("mrftcli.analyze", "analyze_flight"),
     "analyze_path": ("mrftcli.analyze", "analyze_path"),
+    "AnalyzeOptions": ("mrftcli.analyze", "AnalyzeOptions"),
     "diagnose_flight": ("mrftcli.diagnose", "diagnose"),
     "predict": ("mrftcli.mrft.lprs", "mrft_limit_cycle"),
     "identify": ("mrftcli.mrft.identify", "identify"),
@@ -68,9 +72,9 @@ _LAZY = {
 __all__ = ["__version__", *_LAZY]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load on first use
-    from .analyze import analyze_flight, analyze_path
+    from .analyze import AnalyzeOptions, analyze_flight, analyze_path
     from .diagnose import diagnose as diagnose_flight
-    from .io import read_flight
+    from .io import ReadOptions, read_flight
     from .mrft.identify import TestMeasurement, identify
     from .mrft.lprs import mrft_limit_cycle as predict
     from .mrft.model import LoopModel

@@ -36,19 +36,61 @@ import math
 import time
 from collections.abc import Callable, Generator, Iterator
 from dataclasses import asdict, dataclass, field, replace
+from numbers import Integral
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
-from .errors import InsufficientDataError, LogReadError, MrftError
+from .errors import InputError, InsufficientDataError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
 from .mrft.consensus import SAME_BETA
 from .segment import MrftTest, segment_arrays
 from .validate import check_positive
 
-__all__ = ["TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "Update", "watch"]
+__all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "Update", "watch"]
+
+
+@dataclass(frozen=True)
+class WatchOptions:
+    """How a log is followed (:func:`watch`), checked on creation.
+
+    Attributes
+    ----------
+    min_cycles : int
+        Stable cycles a test needs before it is reported and used (also the final analysis's
+        ``min_stable_cycles``).
+    idle : float
+        Seconds without growth after which the writer is taken to have closed the file [s].
+    poll : float
+        Seconds between polls of the file [s].
+    wait : float, optional
+        Longest wait for the file to appear [s]; None waits until the generator is closed (Ctrl-C).
+
+    Raises
+    ------
+    InputError
+        ``min_cycles`` below 1; ``idle``, ``poll`` or ``wait`` not a positive number.
+
+    Examples
+    --------
+    >>> WatchOptions(idle=5.0).poll
+    0.02
+    """
+
+    min_cycles: int = 3
+    idle: float = 10.0
+    poll: float = 0.02
+    wait: float | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.min_cycles, bool) or not isinstance(self.min_cycles, Integral) or self.min_cycles < 1:
+            raise InputError(f"min_cycles must be a whole number of at least 1, got {self.min_cycles!r}")
+        object.__setattr__(self, "idle", check_positive("idle", self.idle))
+        object.__setattr__(self, "poll", check_positive("poll", self.poll))
+        if self.wait is not None:
+            object.__setattr__(self, "wait", check_positive("wait", self.wait))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -262,14 +304,14 @@ def _estimate(tests: list[MrftTest], Tp: float, min_cycles: int) -> EstimateUpda
 
 def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_tests: int
            ) -> Iterator[Update]:
-    from .analyze import analyze_flight
+    from .analyze import AnalyzeOptions, analyze_flight
 
     if flight is None:
         yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error="no data in the log",
                        exit_code=LogReadError.exit_code)
         return
     try:
-        res = analyze_flight(flight, Tp, min_stable_cycles=min_cycles)
+        res = analyze_flight(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     except (MrftError, InsufficientDataError) as err:
         yield WatchEnd(reason=reason, tests=n_tests, wall_time=time.time(), error=str(err), exit_code=err.exit_code)
         return
@@ -281,10 +323,7 @@ def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_
     yield WatchEnd(reason=reason, tests=len(res.tests), wall_time=time.time())
 
 
-def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic: str | None = None,
-          output_topic: str | None = None, beta_topic: str | None = None, setpoint_topic: str | None = None,
-          output_scale: float | None = 1.0, min_cycles: int = 3, idle: float = 10.0, poll: float = 0.02,
-          fmt: str | None = None, wait: float | None = None, time_unit: str | None = None,
+def watch(path: str | Path, Tp: float, *, read: ReadOptions | None = None, options: WatchOptions | None = None,
           sleep: Callable[[float], None] = time.sleep,
           clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
     """Follow ``path`` while it is written and yield updates (see the module docstring).
@@ -294,23 +333,15 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
     path : str or Path
         An MCAP file, a ROS 2 bag directory with mcap storage, or any log :func:`mrftcli.io.read_flight`
         reads (CSV, ULog, ...). It may not exist yet: it is waited for (a ground station starts
-        ``watch`` before the logger), until the generator is closed or for ``wait`` seconds.
+        ``watch`` before the logger), until the generator is closed or for ``options.wait`` seconds.
     Tp : float
         Known propulsion time constant [s].
-    loop, command_topic, output_topic, beta_topic, setpoint_topic, output_scale
-        The log layout, as for :func:`mrftcli.io.read_flight`.
-    min_cycles : int
-        Stable cycles a test needs before it is reported and used.
-    idle : float
-        Seconds without growth after which the writer is taken to have closed the file [s].
-    poll : float
-        Seconds between polls of the file [s].
-    fmt : str, optional
-        Log format (detected when omitted; a missing file or a ``.mcap`` name is followed as MCAP).
-    wait : float, optional
-        Longest wait for the file to appear [s]; None waits until the generator is closed (Ctrl-C).
-    time_unit : {"s", "ms", "us", "ns"}, optional
-        Unit of a CSV's time column (see :func:`mrftcli.io.read_flight`).
+    read : ReadOptions, optional
+        The loop and the log layout, as for :func:`mrftcli.io.read_flight` (``fmt`` None: detected; a
+        missing file or a ``.mcap`` name is followed as MCAP); None: ``ReadOptions()``.
+    options : WatchOptions, optional
+        Stable cycles per test, idle time, poll interval and the longest wait for the file; None:
+        ``WatchOptions()``.
     sleep, clock
         Injected for tests (default :func:`time.sleep`, :func:`time.monotonic`).
 
@@ -328,15 +359,12 @@ def watch(path: str | Path, Tp: float, *, loop: str = "altitude", command_topic:
         closed.
     """
     Tp = check_positive("Tp", Tp)
-    idle = check_positive("idle", idle)
-    poll = check_positive("poll", poll)
-    if wait is not None:
-        wait = check_positive("wait", wait)
-    opts = ReadOptions(loop=loop, command_topic=command_topic, output_topic=output_topic, beta_topic=beta_topic,
-                       setpoint_topic=setpoint_topic, output_scale=output_scale)  # InputError: unknown loop
+    opts = ReadOptions() if read is None else read
+    wopts = WatchOptions() if options is None else options
+    min_cycles, idle, poll = wopts.min_cycles, wopts.idle, wopts.poll
     path = Path(path)
-    _wait_for(path, wait, poll, sleep, clock)
-    follower = follow_log(path, opts, fmt, time_unit=time_unit)
+    _wait_for(path, wopts.wait, poll, sleep, clock)
+    follower = follow_log(path, opts, opts.fmt, time_unit=opts.time_unit)
     tracker = _Tracker()
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None

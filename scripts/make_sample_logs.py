@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from mrftcli.mrft.model import LoopModel
-from mrftcli.io import FORMATS, log_filename, read_flight
+from mrftcli.io import FORMATS, ReadOptions, log_filename, read_flight
 from mrftcli.io.stacks import StackTest, write_stack_log
 from mrftcli.sim.flight import FlightSpec, plan_test, sidecar_path, simulate_flight, write_flight
 
@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"{path} is {size} bytes, over the {MAX_FILE_BYTES} byte limit")
             written.append(path)
             if args.check:
-                log = read_flight(path, loop=flight.spec.loop)
+                log = read_flight(path, ReadOptions(loop=flight.spec.loop))
                 n = len(log.command)
                 got = log.output.values
                 if n != flight.t.size or np.max(np.abs(got - flight.output_measured)) > 1e-6:

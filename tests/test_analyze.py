@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mrftcli.analyze import AnalysisResult, analyze_flight
+from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.jsonable import to_jsonable
 from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from mrftcli.io.logtypes import Signal
@@ -166,14 +166,14 @@ def test_weighted_constraints_are_reported_with_residuals(design1):
 
 def test_paper_only_estimate_is_the_ufm_intersection(design1):
     sf, weighted = design1
-    paper = analyze_flight(flight_from_simulated(sf), D1["Tp"], constraints=(), n_bootstrap=100, refine_waveform=False)
+    paper = analyze_flight(flight_from_simulated(sf), D1["Tp"], options=AnalyzeOptions(constraints=(), n_bootstrap=100, refine_waveform=False))
     assert paper.constraints == {}
     assert paper.model.tau == pytest.approx(paper.identification.model.tau, abs=1e-12)
     assert paper.model.Td == pytest.approx(paper.identification.model.Td, rel=1e-12)
     assert paper.identification.model.tau == pytest.approx(weighted.identification.model.tau, abs=1e-12)
     assert paper.to_dict(cycles=False)["identification"]["constraints"] == {"used": ["ufm"]}
     with pytest.raises(InputError, match="constraint"):
-        analyze_flight(flight_from_simulated(sf), D1["Tp"], constraints=("harmonics",))
+        analyze_flight(flight_from_simulated(sf), D1["Tp"], options=AnalyzeOptions(constraints=("harmonics",)))
 
 
 def test_times_for_people_are_relative_to_the_log_start(design1):
@@ -185,7 +185,7 @@ def test_times_for_people_are_relative_to_the_log_start(design1):
     T0 = 1_700_000_000.0
     fl = replace(fl, **{name: Signal(getattr(fl, name).t + T0, getattr(fl, name).values)
                        for name in ("command", "output", "setpoint", "beta")})
-    result = analyze_flight(fl, D1["Tp"], n_bootstrap=100)
+    result = analyze_flight(fl, D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
     first = min(float(getattr(fl, n).t[0]) for n in ("command", "output", "setpoint", "beta"))
     assert result.t0 == first
     d = result.to_dict(cycles=False)

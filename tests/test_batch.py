@@ -97,11 +97,12 @@ def fleet(tmp_path: Path) -> Path:
 
 
 def run(paths, out, **kw):
+    """run_batch with the test defaults (one job, no report, the fake worker); BatchOptions fields by keyword."""
     kw.setdefault("defaults", {"tp": 0.05})
-    kw.setdefault("jobs", 1)
-    kw.setdefault("report", False)
     kw.setdefault("worker", fake_worker)
-    return B.run_batch(paths if isinstance(paths, list) else [paths], out, **kw)
+    fields = B.BatchOptions.__dataclass_fields__
+    options = B.BatchOptions(**({"jobs": 1, "report": False} | {k: kw.pop(k) for k in list(kw) if k in fields}))
+    return B.run_batch(paths if isinstance(paths, list) else [paths], out, options=options, **kw)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -320,7 +321,13 @@ class _FakeResult:
         return self._d
 
 
-def _fake_analyze_path(path, Tp, loop, *, command_topic=None, output_topic=None, beta_topic=None):
+def _fake_analyze_path(path, Tp, *, read, options):
+    """Takes the loop and three topics of ``read``; any other read setting fails as an unknown keyword did."""
+    unsupported = [f for f in ("setpoint_topic", "battery_topic", "output_scale", "layout", "command_scale",
+                               "controller_rate_hz") if getattr(read, f) is not None]
+    if unsupported:
+        raise TypeError(f"_fake_analyze_path() got an unexpected setting {unsupported[0]!r}")
+    loop, command_topic = read.loop, read.command_topic
     name = Path(path).name
     if name.startswith("single"):
         raise InsufficientDataError("only one beta found (-0.4); need two", partial={"tau": {"mean": 0.05}})
@@ -337,8 +344,11 @@ def _fake_analyze_path(path, Tp, loop, *, command_topic=None, output_topic=None,
 
 @pytest.fixture
 def fake_analyze(monkeypatch):
+    from mrftcli.analyze.options import AnalyzeOptions
+
     mod = types.ModuleType("mrftcli.analyze")
     mod.analyze_path = _fake_analyze_path
+    mod.AnalyzeOptions = AnalyzeOptions
     monkeypatch.setitem(sys.modules, "mrftcli.analyze", mod)
     return mod
 
@@ -399,8 +409,9 @@ def test_diagnose_findings_and_failures(tmp_path: Path, fake_analyze, monkeypatc
     monkeypatch.setitem(sys.modules, "mrftcli.diagnose.selection", mod)
     for name in ("good.mcap", "clean.mcap", "nodiag.mcap"):
         write_toy(tmp_path / "logs" / name)
-    kw = {"defaults": {"tp": 0.1}, "jobs": 1, "report": False}
-    df = B.run_batch([tmp_path / "logs"], tmp_path / "out", diagnose=True, **kw).summary.set_index("path")
+    kw = {"defaults": {"tp": 0.1}}
+    df = B.run_batch([tmp_path / "logs"], tmp_path / "out", options=B.BatchOptions(diagnose=True, jobs=1, report=False),
+                     **kw).summary.set_index("path")
     row = {Path(p).name: r for p, r in df.iterrows()}
     assert row["good.mcap"]["findings"] == "input_bias;sensor_lag"
     assert (row["good.mcap"]["tau_with_findings"], row["good.mcap"]["K_with_findings"]) == (0.04, 11.0)
@@ -410,14 +421,15 @@ def test_diagnose_findings_and_failures(tmp_path: Path, fake_analyze, monkeypatc
     nd = row["nodiag.mcap"]
     assert (nd["status"], pd.isna(nd["findings"]), nd["diagnose_error"]) == ("ok", True, "no test with 6 stable cycles")
     # without --diagnose: not run, so no findings at all; and the settings hash differs, so it recomputes
-    df2 = B.run_batch([tmp_path / "logs"], tmp_path / "out", **kw).summary
+    df2 = B.run_batch([tmp_path / "logs"], tmp_path / "out", options=B.BatchOptions(jobs=1, report=False), **kw).summary
     assert df2["findings"].isna().all() and (df2["status"] == "ok").all()
 
 
 def test_insufficient_rows_and_cli_like_summary(tmp_path: Path, fake_analyze) -> None:
     for name in ("good.mcap", "single.mcap", "unreadable.mcap"):
         write_toy(tmp_path / "logs" / name)
-    res = B.run_batch([tmp_path / "logs"], tmp_path / "out", defaults={"tp": 0.1}, jobs=1, report=False)
+    res = B.run_batch([tmp_path / "logs"], tmp_path / "out", options=B.BatchOptions(jobs=1, report=False),
+                      defaults={"tp": 0.1})
     assert res.summary["status"].tolist() == ["ok", "insufficient", "failed"]
     assert "1 ok, 1 insufficient, 1 failed" in res.summary_line()
     assert res.summary.loc[1, "error"] == "only one beta found (-0.4); need two"

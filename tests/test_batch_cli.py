@@ -73,16 +73,19 @@ class _R:
         return self._d
 
 
-def _stand_in(path, Tp, loop, *, command_topic=None, output_topic=None, beta_topic=None, output_scale=None):
+def _stand_in(path, Tp, *, read, options):
     # Echo the settings back as "parameters" so the test sees what reached the analysis.
-    return _R(toy_analysis(Tp, 0.05, output_scale or 1.0, Tp, ((-0.4, 8),), std=(0.0, 0.001, 0.0),
-                           command_topic=command_topic))
+    return _R(toy_analysis(Tp, 0.05, read.output_scale or 1.0, Tp, ((-0.4, 8),), std=(0.0, 0.001, 0.0),
+                           command_topic=read.command_topic))
 
 
 @pytest.fixture
 def stand_in(monkeypatch):
+    from mrftcli.analyze.options import AnalyzeOptions
+
     mod = types.ModuleType("mrftcli.analyze")
     mod.analyze_path = _stand_in
+    mod.AnalyzeOptions = AnalyzeOptions
     monkeypatch.setitem(sys.modules, "mrftcli.analyze", mod)
 
 

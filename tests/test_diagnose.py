@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mrftcli.io import ReadOptions
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
 from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, Disagreement, EffectFinding,
@@ -114,7 +115,7 @@ def test_model_features_do_not_depend_on_evaluation_history():
     from mrftcli.diagnose.fit import CandidateModel, prepare_tests, segments_of
     from mrftcli.io import read_flight
 
-    flight = read_flight(CONCEALED[0], "altitude")
+    flight = read_flight(CONCEALED[0], ReadOptions(loop="altitude"))
     tests, _, _ = prepare_tests(flight, segments_of(flight, None))
     model = CandidateModel(None, tests, 0.0422)
     theta, far = np.array([math.log(2.0), 0.47]), np.array([math.log(4.0), 0.40])
@@ -141,7 +142,7 @@ def diagnoses():
             from mrftcli.diagnose.selection import diagnose
             from mrftcli.io import read_flight
 
-            cache[path] = diagnose(read_flight(path, "altitude"), _truth(path)["Tp"])
+            cache[path] = diagnose(read_flight(path, ReadOptions(loop="altitude")), _truth(path)["Tp"])
         return cache[path]
 
     return get
@@ -226,7 +227,7 @@ def test_two_concealed_effects_are_both_found(tmp_path):
     flight = gen.make_case("input_bias+sensor_lag", "design1", 5)
     truth = flight.truth["effects"]
     write_log(flight.topics, tmp_path / "two.mcap", "mcap")
-    res = diagnose(read_flight(tmp_path / "two.mcap", "altitude"), flight.truth["Tp"])
+    res = diagnose(read_flight(tmp_path / "two.mcap", ReadOptions(loop="altitude")), flight.truth["Tp"])
     assert [e.name for e in res.effects] == ["input_bias", "sensor_lag"]
     for e in res.effects:
         par = PARAM[e.name]
@@ -275,7 +276,7 @@ def test_look_alike_pairs_are_told_apart(tmp_path, pair):
     flight = gen.make_case(pair, plant, seed, scale, cycles=cycles, rate_hz=rate, noise_std=noise, amplitude=amplitude)
     truth = flight.truth["effects"]
     write_log(flight.topics, tmp_path / "two.mcap", "mcap")
-    res = diagnose(read_flight(tmp_path / "two.mcap", "altitude"), flight.truth["Tp"])
+    res = diagnose(read_flight(tmp_path / "two.mcap", ReadOptions(loop="altitude")), flight.truth["Tp"])
     assert sorted(e.name for e in res.effects) == sorted(pair.split("+")), res.summary
     for e in res.effects:
         par = {**PARAM, "asymmetric_gain": "a", "actuator_saturation": "U_max", "thrust_rectification": "F"}[e.name]
@@ -303,7 +304,7 @@ def test_a_log_no_linear_plant_fits_is_diagnosed_not_refused(tmp_path, monkeypat
     flight = gen.make_case("actuator_rate_limit+delay_jitter", "design1", 404444922, (1.2570, 0.8681),
                            cycles=12.4796, rate_hz=100.0, noise_std=0.00093235, amplitude=0.071672)
     write_log(flight.topics, tmp_path / "slew.mcap", "mcap")
-    log = read_flight(tmp_path / "slew.mcap", "altitude")
+    log = read_flight(tmp_path / "slew.mcap", ReadOptions(loop="altitude"))
 
     def refuse(*args, **kwargs):
         raise IdentificationError(f"{log.path}: no plant of eq. (2) produces these tests' frequencies")
@@ -491,7 +492,7 @@ def test_models_the_tests_cannot_rank_are_named(tmp_path):
                            cycles=8.801354717530746, rate_hz=250.0, noise_std=0.00048256267041108664,
                            amplitude=0.0955844207641889)
     write_log(flight.topics, tmp_path / "tie.mcap", "mcap")
-    res = diagnose(read_flight(tmp_path / "tie.mcap", "altitude"), flight.truth["Tp"])
+    res = diagnose(read_flight(tmp_path / "tie.mcap", ReadOptions(loop="altitude")), flight.truth["Tp"])
     named = {"+".join(sorted(e.name for e in res.effects))}
     ties = res.effects[0].evidence.indistinguishable_from or []
     named |= {"+".join(sorted(t.split("+"))) for t in ties}

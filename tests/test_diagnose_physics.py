@@ -25,7 +25,7 @@ from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.diagnose.periodic import CyclePlant, periodic_solution
 from mrftcli.diagnose.selection import diagnose
 from mrftcli.errors import InsufficientDataError, SegmentationError
-from mrftcli.io import read_flight, write_log
+from mrftcli.io import ReadOptions, read_flight, write_log
 from mrftcli.io.logtypes import Signal
 from mrftcli.sim.flight import Effects, FlightSpec, plan_test, simulate_flight
 from mrftcli.sim.flight import TestSpec as FlownTest
@@ -149,7 +149,7 @@ def results(logs):
     def get(name):
         if name not in cache:
             path, truth = logs[name]
-            cache[name] = (diagnose(read_flight(path, "altitude"), truth["Tp"]), truth)
+            cache[name] = (diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"]), truth)
         return cache[name]
 
     return get
@@ -215,7 +215,7 @@ def test_epoch_stamps_are_shown_from_the_log_start(logs):
 def test_one_beta_is_refused_as_analyze_does(logs):
     path, truth = logs["one_beta"]
     with pytest.raises(InsufficientDataError, match="only one beta"):
-        diagnose(read_flight(path, "altitude"), truth["Tp"])
+        diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
     r = subprocess.run([sys.executable, "-m", "mrftcli.cli", "diagnose", str(path), "--tp", str(truth["Tp"])],
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 6 and "only one beta" in r.stderr
@@ -229,7 +229,7 @@ def test_a_test_that_saturates_at_the_larger_relay_height_is_diagnosed_not_refus
     limit = 0.5 + 0.7 * 2.0 * h1  # inside the third test's relay step only
     path, truth = _flight("actuator_saturation", limit, seed=11, cycles=(8, 8, 8), betas=(-0.4, -0.4, -0.4), h3=2.0,
                           tmp=tmp_path)
-    fl = read_flight(path, "altitude")
+    fl = read_flight(path, ReadOptions(loop="altitude"))
     with pytest.raises(InsufficientDataError, match="only one beta"):
         mrftcli.analyze_flight(fl, truth["Tp"])
     res = diagnose(fl, truth["Tp"])
@@ -248,7 +248,7 @@ def test_a_sensor_mount_mode_rings_above_the_fitted_harmonics_at_its_frequency(t
 
     path, truth = _flight(None if mode_hz is None else "flex_mode_hz", mode_hz or 0.0, seed=12, cycles=(10, 10, 10),
                           h3=2.0, noise_std=0.0003, tmp=tmp_path)
-    fl = read_flight(path, "altitude")
+    fl = read_flight(path, ReadOptions(loop="altitude"))
     screen = screen_log(fl, truth["Tp"], None, lambda *a, **k: None)
     found = resonance_mismatch(fl, screen.tests, "linear")
     if mode_hz is None:
@@ -261,7 +261,7 @@ def test_a_sensor_mount_mode_rings_above_the_fitted_harmonics_at_its_frequency(t
 
 def test_an_output_that_does_not_follow_the_relay_gets_analyze_message(logs):
     path, truth = logs["epoch"]
-    fl = read_flight(path, "altitude")
+    fl = read_flight(path, ReadOptions(loop="altitude"))
     rng = np.random.default_rng(0)
     noise = dataclasses.replace(fl, output=Signal(fl.output.t, 0.0005 * rng.standard_normal(fl.output.t.size)))
     with pytest.raises(SegmentationError, match="--loop/--output-topic"):

@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_hostile import run_one  # noqa: E402
 from make_hostile_corpus import build_corpus  # noqa: E402
 
+from mrftcli.analyze import AnalyzeOptions  # noqa: E402
 from mrftcli.errors import InputError, LogReadError  # noqa: E402
 from mrftcli.io import read_flight  # noqa: E402
 from mrftcli.io.atomic import write_text_atomic  # noqa: E402
@@ -83,12 +84,12 @@ def test_a_corrupt_sample_of_1e308_is_left_out_and_the_numbers_stay_right(corpus
 def test_time_unit_ms_reads_the_times_the_seconds_file_has(corpus):
     out, _ = corpus
     seconds = read_flight(ROOT / "sample_logs" / "design1_altitude.csv", echo_warnings=False)
-    ms = read_flight(out / "csv_time_ms.csv", time_unit="ms", echo_warnings=False)
+    ms = read_flight(out / "csv_time_ms.csv", ReadOptions(time_unit="ms"), echo_warnings=False)
     np.testing.assert_allclose(ms.command.t, seconds.command.t, rtol=0, atol=2e-6)
     with pytest.raises(LogReadError, match="--time-unit ms"):
         read_flight(out / "csv_time_ms.csv", echo_warnings=False)
     with pytest.raises(InputError, match="CSV and .mat"):
-        read_flight(ROOT / "sample_logs" / "design1_altitude.mcap", time_unit="ms")
+        read_flight(ROOT / "sample_logs" / "design1_altitude.mcap", ReadOptions(time_unit="ms"))
 
 
 def test_suggested_unit_is_the_one_that_gives_a_controller_rate():
@@ -123,7 +124,7 @@ def test_watch_waits_for_a_missing_file_then_says_how_long_it_waited(tmp_path):
 
 
 def test_watch_without_wait_keeps_waiting_until_the_file_appears(tmp_path):
-    from mrftcli.watch import watch
+    from mrftcli.watch import WatchOptions, watch
 
     log = tmp_path / "late.csv"
     polls = []
@@ -134,7 +135,7 @@ def test_watch_without_wait_keeps_waiting_until_the_file_appears(tmp_path):
             log.write_bytes((ROOT / "sample_logs" / "design1_altitude.csv").read_bytes())
 
     clock = iter(np.arange(1e6) * 0.02)
-    updates = list(watch(log, 0.0422, idle=1.0, sleep=sleep, clock=lambda: float(next(clock))))
+    updates = list(watch(log, 0.0422, options=WatchOptions(idle=1.0), sleep=sleep, clock=lambda: float(next(clock))))
     assert updates[-1].reason == "idle" and updates[-1].tests == 2 and updates[-1].exit_code == 0
 
 
@@ -162,7 +163,7 @@ def test_follower_starts_over_when_the_file_is_truncated_and_rewritten(tmp_path,
 
 
 def test_watch_reports_a_restart_and_forgets_the_old_tests(tmp_path):
-    from mrftcli.watch import Restart, TestUpdate, watch
+    from mrftcli.watch import Restart, TestUpdate, WatchOptions, watch
 
     log = tmp_path / "run.csv"
     log.write_bytes((ROOT / "sample_logs" / "design1_altitude.csv").read_bytes())
@@ -185,7 +186,7 @@ def test_watch_reports_a_restart_and_forgets_the_old_tests(tmp_path):
             log.write_bytes(short.read_bytes())  # smaller: a new recording
 
     clock = iter(np.arange(1e6) * 0.02)
-    updates = list(watch(log, 0.0422, idle=0.5, sleep=sleep, clock=lambda: float(next(clock))))
+    updates = list(watch(log, 0.0422, options=WatchOptions(idle=0.5), sleep=sleep, clock=lambda: float(next(clock))))
     kinds = [type(u).__name__ for u in updates]
     assert "Restart" in kinds
     after = updates[kinds.index("Restart") + 1:]
@@ -220,7 +221,8 @@ def test_batch_writes_every_result_it_can_and_reports_the_rest(tmp_path):
     (out / "logs").mkdir(parents=True)
     blocked = result_path(out, (fleet / "b.csv").resolve())
     blocked.mkdir()  # a folder where b's record goes: that one write fails, the others must not
-    res = B.run_batch([fleet], out, defaults={"tp": 0.05}, jobs=1, report=False, worker=fake_worker)
+    res = B.run_batch([fleet], out, options=B.BatchOptions(jobs=1, report=False), defaults={"tp": 0.05},
+                        worker=fake_worker)
     assert len(res.unwritten) == 1 and str(blocked) in res.unwritten[0]
     assert res.counts["ok"] == 3  # b's row is kept in the summary
     written = sorted(p.name for p in (out / "logs").iterdir() if p.is_file())
@@ -238,7 +240,8 @@ def test_batch_output_logs_being_a_file_is_a_one_line_input_error(tmp_path):
     out.mkdir()
     (out / "logs").write_text("not a folder")
     with pytest.raises(InputError, match=r"logs is a file, not a folder"):
-        B.run_batch([tmp_path / "fleet"], out, defaults={"tp": 0.05}, jobs=1, report=False, worker=fake_worker)
+        B.run_batch([tmp_path / "fleet"], out, options=B.BatchOptions(jobs=1, report=False), defaults={"tp": 0.05},
+                    worker=fake_worker)
 
 
 def test_a_period_no_vehicle_has_is_refused_as_a_clock_unit():
@@ -254,7 +257,7 @@ def test_a_period_no_vehicle_has_is_refused_as_a_clock_unit():
 
     g = replace(f, command=slow(f.command), output=slow(f.output), beta=slow(f.beta), setpoint=None)
     with pytest.raises(LogReadError, match="limit-cycle period of 129.5 s"):
-        analyze_flight(g, 0.0422, n_bootstrap=20)
+        analyze_flight(g, 0.0422, options=AnalyzeOptions(n_bootstrap=20))
 
 
 def test_a_large_csv_read_column_by_column_gives_the_same_flight(monkeypatch):

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mrftcli.analyze import analyze_flight
-from mrftcli.io import LAYOUTS, detect_layout, log_layout, open_log, read_flight
+from mrftcli.analyze import AnalyzeOptions, analyze_flight
+from mrftcli.io import LAYOUTS, ReadOptions, detect_layout, log_layout, open_log, read_flight
 from mrftcli.io.logtypes import TopicData
 from mrftcli.segment.cycles import cycle_fundamental, harmonics_for
 
@@ -32,8 +32,8 @@ def analyses() -> dict:
     out = {}
     for name in STACK_LOGS:
         tr = truth(name)
-        flight = read_flight(SAMPLES / name, loop=tr["loop"], echo_warnings=False)
-        out[name] = (flight, analyze_flight(flight, Tp=tr["Tp"], n_bootstrap=200, seed=1), tr)
+        flight = read_flight(SAMPLES / name, ReadOptions(loop=tr["loop"]), echo_warnings=False)
+        out[name] = (flight, analyze_flight(flight, Tp=tr["Tp"], options=AnalyzeOptions(n_bootstrap=200, seed=1)), tr)
     return out
 
 
@@ -101,15 +101,14 @@ def test_detection_of_the_stacks_without_sample_logs():
 
 def test_named_layout_and_explicit_topics_override(tmp_path):
     name = "hear_x.bag"
-    flight = read_flight(SAMPLES / name, loop="x", layout="hear-ros", echo_warnings=False)
+    flight = read_flight(SAMPLES / name, ReadOptions(loop="x", layout="hear-ros"), echo_warnings=False)
     assert flight.source["layout"] == "hear-ros (--layout)"
-    own = read_flight(SAMPLES / name, loop="x", command_topic="/fh_des:x", output_topic="/opti/pos:x",
-                      layout="reference", echo_warnings=False)
+    own = read_flight(SAMPLES / name, ReadOptions(loop="x", command_topic="/fh_des:x", output_topic="/opti/pos:x", layout="reference"), echo_warnings=False)
     np.testing.assert_array_equal(own.output.values, flight.output.values)
     from mrftcli.errors import InputError
 
     with pytest.raises(InputError, match="no roll loop"):
-        read_flight(SAMPLES / "px4_altitude_50hz.ulg", loop="roll", echo_warnings=False)
+        read_flight(SAMPLES / "px4_altitude_50hz.ulg", ReadOptions(loop="roll"), echo_warnings=False)
 
 
 def test_mat_v73_reads_like_v5(tmp_path):
@@ -158,7 +157,7 @@ def test_simulator_writes_x_and_y_as_positions(tmp_path, loop):
     assert flight.truth["units"]["output"] == "m" and flight.truth["noise_std"] == 0.0005
     path = tmp_path / "f.mcap"
     write_log(flight.topics, path, "mcap")
-    log = read_flight(path, loop=loop, echo_warnings=False)
+    log = read_flight(path, ReadOptions(loop=loop), echo_warnings=False)
     np.testing.assert_allclose(log.output.values, flight.output_measured)
     np.testing.assert_allclose(log.command.values, flight.command)
 
@@ -168,13 +167,13 @@ def test_controller_rate_from_the_layout_and_the_option():
     # layout says so, an explicit rate overrides it, and a wrong rate moves tau by half its period
     log = SAMPLES / "px4_altitude_10hz.ulg"
     assert read_flight(log, echo_warnings=False).timing.controller_rate_hz == 50.0
-    fast = read_flight(log, controller_rate_hz=100.0, echo_warnings=False)
+    fast = read_flight(log, ReadOptions(controller_rate_hz=100.0), echo_warnings=False)
     assert fast.timing.controller_rate_hz == 100.0
     assert fast.source_json()["controller_rate_hz"] == 100.0
     plain = read_flight(SAMPLES / "design1_altitude.mcap", echo_warnings=False)
     assert plain.timing.controller_rate_hz is None and "controller_rate_hz" not in plain.source_json()
-    tau50 = analyze_flight(read_flight(log, echo_warnings=False), 0.0422, n_bootstrap=50).tau.mean
-    tau100 = analyze_flight(fast, 0.0422, n_bootstrap=50).tau.mean
+    tau50 = analyze_flight(read_flight(log, echo_warnings=False), 0.0422, options=AnalyzeOptions(n_bootstrap=50)).tau.mean
+    tau100 = analyze_flight(fast, 0.0422, options=AnalyzeOptions(n_bootstrap=50)).tau.mean
     assert tau100 - tau50 == pytest.approx(0.5 / 50.0 - 0.5 / 100.0, abs=2e-3)
 
 

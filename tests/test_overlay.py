@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from mrftcli.errors import InputError
-from mrftcli.io import read_flight
+from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.waveform import predict_output, predict_tests
 from mrftcli.segment import segment
@@ -63,7 +63,7 @@ def test_bad_arguments_are_input_errors():
 def test_true_model_leaves_the_sensor_noise_as_residual(repo_root, name):
     path = repo_root / "sample_logs" / name
     truth = json.loads(path.with_name(name + ".truth.json").read_text())
-    flight = read_flight(path, truth["loop"])
+    flight = read_flight(path, ReadOptions(loop=truth["loop"]))
     model = LoopModel(truth["Tp"], truth["Td"], truth["tau"], truth["K"])
     fits = predict_tests(model, segment(flight), flight.command.t, flight.command.values, flight.output.t,
                          flight.output.values)

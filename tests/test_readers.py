@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from mrftcli.errors import InputError, LogReadError
 from mrftcli.io.logtypes import TopicData
 from mrftcli.io import (FORMATS, log_filename, open_log, read_flight, roll_pitch, write_log)
-from mrftcli.io import cdr
+from mrftcli.io import ReadOptions, cdr
 from mrftcli.io.msgtypes import typestore_for
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -79,7 +79,7 @@ def logs(tmp_path_factory):
 def test_reference_layout_every_format(logs, fmt):
     paths, truth = logs
     tol = TOL.get(fmt, 1e-12)
-    alt = read_flight(paths[fmt], loop="altitude")
+    alt = read_flight(paths[fmt], ReadOptions(loop="altitude"))
     np.testing.assert_allclose(alt.command.t, truth["t"], atol=1e-6)
     np.testing.assert_allclose(alt.command.values, truth["cmd"], atol=tol)
     np.testing.assert_allclose(alt.output.t, truth["t_pose"], atol=1e-6)
@@ -90,7 +90,7 @@ def test_reference_layout_every_format(logs, fmt):
     np.testing.assert_allclose(alt.battery_voltage.values, truth["volt"], rtol=1e-6)
     assert alt.warnings == ()
     for loop in ("roll", "pitch"):
-        fl = read_flight(paths[fmt], loop=loop)
+        fl = read_flight(paths[fmt], ReadOptions(loop=loop))
         np.testing.assert_allclose(fl.output.t, truth["t_imu"], atol=1e-6)
         np.testing.assert_allclose(fl.output.values, truth[loop], atol=max(tol, 1e-12) * 10)
         assert np.all(np.diff(fl.output.t) >= 0)
@@ -127,20 +127,16 @@ def test_topic_options_other_layout(tmp_path):
     ]
     for fmt in ("mcap", "bag", "ulog", "csv"):
         path = write_log(topics, log_filename(tmp_path / "other", fmt), fmt)
-        fl = read_flight(path, loop="altitude", command_topic="/uav1/thrust",
-                         output_topic="/uav1/odom:pose.position.z", beta_topic="/uav1/test_beta:data",
-                         output_scale=-1.0)
+        fl = read_flight(path, ReadOptions(loop="altitude", command_topic="/uav1/thrust", output_topic="/uav1/odom:pose.position.z", beta_topic="/uav1/test_beta:data", output_scale=-1.0))
         np.testing.assert_allclose(fl.command.values, cmd, atol=1e-8)
         np.testing.assert_allclose(fl.output.values, -alt, atol=1e-8)
         np.testing.assert_allclose(fl.output.t, t_od, atol=1e-6)
         assert fl.beta.values[0] == pytest.approx(0.4)
         assert fl.setpoint is None and fl.battery_voltage is None  # defaults absent: no error
-        rl = read_flight(path, loop="roll", command_topic="/uav1/thrust:data",
-                         output_topic="/uav1/odom:pose.orientation")
+        rl = read_flight(path, ReadOptions(loop="roll", command_topic="/uav1/thrust:data", output_topic="/uav1/odom:pose.orientation"))
         np.testing.assert_allclose(rl.output.values, roll, atol=1e-8)
         with pytest.raises(LogReadError, match="orientation quaternion"):
-            read_flight(path, loop="altitude", command_topic="/uav1/thrust",
-                        output_topic="/uav1/odom:pose.orientation")
+            read_flight(path, ReadOptions(loop="altitude", command_topic="/uav1/thrust", output_topic="/uav1/odom:pose.orientation"))
 
 
 def test_default_optional_topic_of_another_type_is_skipped(tmp_path):
@@ -152,30 +148,30 @@ def test_default_optional_topic_of_another_type_is_skipped(tmp_path):
     fl = read_flight(path)
     assert fl.battery_voltage is None
     assert len(fl.warnings) == 1 and "ignored /battery:voltage" in fl.warnings[0]
-    fl = read_flight(path, battery_topic="/battery")  # named: read as asked
+    fl = read_flight(path, ReadOptions(battery_topic="/battery"))  # named: read as asked
     assert fl.battery_voltage.values[0] == 15.0 and fl.warnings == ()
     with pytest.raises(InputError, match="output scale"):
-        read_flight(path, output_scale=0.0)
+        read_flight(path, ReadOptions(output_scale=0.0))
 
 
 def test_missing_topics_and_fields(logs):
     paths, _ = logs
     mcap = paths["mcap"]
     with pytest.raises(LogReadError, match=r"no topic '/mrft/comand'.*did you mean /mrft/command\?") as err:
-        read_flight(mcap, command_topic="/mrft/comand")
+        read_flight(mcap, ReadOptions(command_topic="/mrft/comand"))
     assert str(mcap) in str(err.value) and "/imu/data" in str(err.value)
     with pytest.raises(LogReadError, match=r"no field 'pose\.position\.q'.*fields there: x, y, z"):
-        read_flight(mcap, output_topic="/mocap/pose:pose.position.q")
+        read_flight(mcap, ReadOptions(output_topic="/mocap/pose:pose.position.q"))
     with pytest.raises(LogReadError, match="no topic '/beta2'"):  # a named optional topic must exist
-        read_flight(mcap, beta_topic="/beta2")
+        read_flight(mcap, ReadOptions(beta_topic="/beta2"))
     with pytest.raises(InputError, match="unknown loop"):
-        read_flight(mcap, loop="yaw")
+        read_flight(mcap, ReadOptions(loop="yaw"))
     with pytest.raises(LogReadError, match="pose.position"):
-        read_flight(mcap, output_topic="/mocap/pose:pose.position")  # a struct, not a number
+        read_flight(mcap, ReadOptions(output_topic="/mocap/pose:pose.position"))  # a struct, not a number
     with pytest.raises(LogReadError, match="no column"):
-        read_flight(paths["csv"], output_topic="/mocap/pose:pose.position.q")
+        read_flight(paths["csv"], ReadOptions(output_topic="/mocap/pose:pose.position.q"))
     with pytest.raises(LogReadError, match="no field 'zz'"):
-        read_flight(paths["ulog"], output_topic="/mocap/pose:zz")
+        read_flight(paths["ulog"], ReadOptions(output_topic="/mocap/pose:zz"))
 
 
 def test_series_and_topics_api(logs, tmp_path):
@@ -202,7 +198,7 @@ def test_series_and_topics_api(logs, tmp_path):
     plain.write_bytes(zstandard.ZstdDecompressor().decompress(packed.read_bytes(),
                                                                max_output_size=1 << 30))
     for storage, expect in ((plain, "ros2-sqlite3"), (next(paths["ros2-mcap"].glob("*.mcap")), "mcap")):
-        fl = read_flight(storage, loop="pitch")
+        fl = read_flight(storage, ReadOptions(loop="pitch"))
         assert fl.source["format"] == expect
         np.testing.assert_allclose(fl.output.values, truth["pitch"], atol=1e-12)
 
@@ -268,8 +264,7 @@ def test_px4_ulog(shared_dir):
 
     raw = ULog(str(path), ["vehicle_attitude"]).get_dataset("vehicle_attitude").data
     q = np.c_[raw["q[1]"], raw["q[2]"], raw["q[3]"], raw["q[0]"]]
-    fl = read_flight(path, loop="pitch", command_topic="actuator_controls_0:control[1]",
-                     output_topic="vehicle_attitude:q")
+    fl = read_flight(path, ReadOptions(loop="pitch", command_topic="actuator_controls_0:control[1]", output_topic="vehicle_attitude:q"))
     np.testing.assert_allclose(fl.output.values, Rotation.from_quat(q).as_euler("ZYX")[:, 1], atol=1e-6)
     np.testing.assert_allclose(fl.output.t, raw["timestamp"] / 1e6)
     assert fl.beta is None and fl.battery_voltage is None
@@ -290,8 +285,7 @@ def test_ardupilot_dataflash(shared_dir):
             s = log.series(topic, column)
             np.testing.assert_allclose(s.t, ref[:, 0] / 1e6, rtol=0, atol=1e-9)
             np.testing.assert_allclose(s.values, ref[:, 1], rtol=1e-6)
-    fl = read_flight(path, loop="roll", command_topic="RCOU:C1", output_topic="ATT:Roll",
-                     output_scale=math.pi / 180)
+    fl = read_flight(path, ReadOptions(loop="roll", command_topic="RCOU:C1", output_topic="ATT:Roll", output_scale=math.pi / 180))
     assert np.abs(fl.output.values).max() < math.pi
 
 
@@ -334,7 +328,7 @@ def test_custom_message_type_from_the_mcap_schema(tmp_path):
         ref = [(m.log_time, d.thrust, d.alt) for _, _, m, d in
                make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
     ref = np.array(ref, dtype=float)
-    fl = read_flight(path, command_topic="/drone:thrust", output_topic="/drone:alt")
+    fl = read_flight(path, ReadOptions(command_topic="/drone:thrust", output_topic="/drone:alt"))
     np.testing.assert_array_equal(fl.command.values, ref[:, 1])
     np.testing.assert_array_equal(fl.output.values, ref[:, 2])
     np.testing.assert_allclose(fl.output.t, ref[:, 0] / 1e9)
@@ -369,7 +363,7 @@ def test_mcap_without_message_index_records(tmp_path, index):
         for _, ch, m in reader.iter_messages():
             w.add_message(cids[ch.id], m.log_time, m.data, m.publish_time, m.sequence)
         w.finish()
-    a, b = read_flight(src, "altitude"), read_flight(out, "altitude")
+    a, b = read_flight(src, ReadOptions(loop="altitude")), read_flight(out, ReadOptions(loop="altitude"))
     for x, y in ((a.command, b.command), (a.output, b.output)):
         assert np.array_equal(x.t, y.t)
         assert np.array_equal(x.values, y.values)

@@ -15,7 +15,7 @@ import pytest
 
 from mrftcli.errors import LogReadError
 from mrftcli.io.logtypes import TopicData
-from mrftcli.io import log_filename, open_log, read_flight, write_log
+from mrftcli.io import ReadOptions, log_filename, open_log, read_flight, write_log
 from mrftcli.io.cdr import serialize_many
 from mrftcli.io.msgtypes import typestore_for
 from test_readers import synthetic_flight
@@ -49,7 +49,7 @@ def _flip(src, dst, fraction, n=16):
 def test_truncated_mcap_is_salvaged_with_a_warning(good, tmp_path, fmt, capsys):
     paths, truth = good
     cut = _cut(paths[fmt], tmp_path / paths[fmt].name, 0.6)
-    fl = read_flight(cut, loop="roll")
+    fl = read_flight(cut, ReadOptions(loop="roll"))
     assert len(fl.warnings) == 1 and "salvaged" in fl.warnings[0] and str(cut) in fl.warnings[0]
     assert "warning:" in capsys.readouterr().err
     n = len(fl.command)
@@ -65,7 +65,7 @@ def test_truncated_ros1_bag_is_reindexed_from_its_complete_chunks(good, tmp_path
     # its complete chunks are read back as `rosbag reindex` would, with the MCAP salvage warning
     paths, truth = good
     cut = _cut(paths["bag"], tmp_path / "cut.bag", fraction)
-    fl = read_flight(cut, loop="roll")
+    fl = read_flight(cut, ReadOptions(loop="roll"))
     assert len(fl.warnings) == 1 and "salvaged" in fl.warnings[0] and str(cut) in fl.warnings[0]
     assert "rosbag reindex" in fl.warnings[0] and "warning:" in capsys.readouterr().err
     n = len(fl.command)
@@ -108,7 +108,7 @@ def test_corrupt_mcap_chunk_is_skipped_not_misread(good, tmp_path):
     data[mid:mid + 8] = bytes(255 - b for b in data[mid:mid + 8])
     bad = tmp_path / "flip.mcap"
     bad.write_bytes(bytes(data))
-    fl = read_flight(bad, loop="altitude")
+    fl = read_flight(bad, ReadOptions(loop="altitude"))
     assert any("corrupt" in w for w in fl.warnings)
     t = fl.output.t
     keep = np.isin(np.round(truth["t_pose"], 6), np.round(t, 6))
@@ -196,7 +196,7 @@ def test_empty_logs(tmp_path):
 def test_cut_ulog_is_read_with_a_warning(good, tmp_path):
     paths, truth = good
     cut = _cut(paths["ulog"], tmp_path / "cut.ulg", 0.6)
-    fl = read_flight(cut, loop="roll")
+    fl = read_flight(cut, ReadOptions(loop="roll"))
     assert any("ends inside a message" in w for w in fl.warnings)
     n = len(fl.output)
     assert 0 < n < 3000
@@ -208,7 +208,7 @@ def test_cut_ulog_is_read_with_a_warning(good, tmp_path):
 def test_ulog_damage_keeps_what_pyulog_reads(good, tmp_path, capsys):
     paths, truth = good
     bad = _flip(paths["ulog"], tmp_path / "flip.ulg", 0.5)
-    fl = read_flight(bad, loop="altitude")
+    fl = read_flight(bad, ReadOptions(loop="altitude"))
     captured = capsys.readouterr()
     assert captured.out == ""  # pyulog's own prints are captured and summarised
     assert any("corrupt" in w for w in fl.warnings)
@@ -316,7 +316,7 @@ def test_nan_and_inf_in_the_relay_column_are_said_and_left_out(repo_root, tmp_pa
     all_bad = tmp_path / "allnan.csv"
     all_bad.write_text("time,cmd,y\n" + "".join(f"{k * 0.01},inf,{k}\n" for k in range(50)))
     with pytest.raises(LogReadError, match="every value is NaN or infinite"):
-        read_flight(all_bad, command_topic="cmd", output_topic="y", echo_warnings=False)
+        read_flight(all_bad, ReadOptions(command_topic="cmd", output_topic="y"), echo_warnings=False)
 
 
 @pytest.mark.parametrize("name", ["design1_altitude.mcap", "design1_altitude.ulg"])

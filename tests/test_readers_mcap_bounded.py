@@ -21,7 +21,7 @@ import pytest
 import zstandard
 
 from mrftcli.errors import LogReadError
-from mrftcli.io import open_log
+from mrftcli.io import ReadOptions, open_log
 from mrftcli.io.mcap_stream import MAX_CHUNK_BYTES, ChunkHeader, OversizeChunkError, decompress_chunk
 
 MAGIC = b"\x89MCAP0\r\n"
@@ -280,7 +280,7 @@ def test_split_ros2_bag_reads_as_the_whole(tmp_path):
                                                            writer.register_schema(s.name, s.encoding, s.data))
                 writer.add_message(ids[c.topic], m.log_time, m.data, m.publish_time)
             writer.finish()
-    a, b = read_flight(whole, loop="altitude"), read_flight(bag, loop="altitude")
+    a, b = read_flight(whole, ReadOptions(loop="altitude")), read_flight(bag, ReadOptions(loop="altitude"))
     for name in ("command", "output", "setpoint"):
         np.testing.assert_array_equal(getattr(a, name).t, getattr(b, name).t)
         np.testing.assert_array_equal(getattr(a, name).values, getattr(b, name).values)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mrftcli.io import read_flight
+from mrftcli.io import ReadOptions, read_flight
 from mrftcli.segment import segment
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real_relay"
@@ -36,7 +36,7 @@ pytestmark = pytest.mark.skipif(
 def _tests(path: Path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no library warning may escape the segmenter
-        flight = read_flight(path, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+        flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
         return segment(flight)
 
 
@@ -129,7 +129,7 @@ def fopdt_10k():
     from mrftcli.analyze.general import analyze_general
     from mrftcli.mrft.families import family_model
 
-    flight = read_flight(FILE_10K, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    flight = read_flight(FILE_10K, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         return analyze_general(flight, family_model("fopdt"))
@@ -171,7 +171,7 @@ def test_fopdt_5k_ideal_relay_says_what_it_determines():
     from mrftcli.cli.model_options import format_general
     from mrftcli.mrft.families import family_model
 
-    flight = read_flight(FILE_5K, command_topic="u_relay", output_topic="y_output", echo_warnings=False)
+    flight = read_flight(FILE_5K, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     result = analyze_general(flight, family_model("fopdt"))
     assert len(result.tests) >= 15
     assert sum(t.relay.kind == "ideal" for t in result.tests) >= 0.8 * len(result.tests)

@@ -10,7 +10,7 @@ import matplotlib
 import numpy as np
 import pytest
 
-from mrftcli.analyze import analyze_flight
+from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io.logtypes import Signal
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
@@ -76,7 +76,7 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
     fl = flight_from_simulated(sf)
     fl = replace(fl, **{name: Signal(getattr(fl, name).t + 1_700_000_000.0, getattr(fl, name).values)
                         for name in ("command", "output", "setpoint", "beta")})
-    res = analyze_flight(fl, 0.0499, n_bootstrap=100)
+    res = analyze_flight(fl, 0.0499, options=AnalyzeOptions(n_bootstrap=100))
     duration = float(fl.command.t[-1] - fl.command.t[0])
     fig = plot_timeseries(res)
     fig.canvas.draw()

@@ -14,8 +14,8 @@ import pytest
 
 from mrftcli.analyze import analyze_path
 from mrftcli.errors import LogReadError
-from mrftcli.io import read_flight
-from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, watch
+from mrftcli.io import ReadOptions, read_flight
+from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, WatchOptions, watch
 
 
 class _Writer:
@@ -43,7 +43,7 @@ class _Writer:
 
 def _follow(writer, **kw):
     out = []
-    for u in watch(writer.dst, 0.0422, sleep=writer.sleep, clock=writer.clock, **kw):
+    for u in watch(writer.dst, 0.0422, options=WatchOptions(**kw), sleep=writer.sleep, clock=writer.clock):
         out.append((u, min(writer.pos, len(writer.data))))
     return out
 
@@ -81,7 +81,7 @@ def test_csv_stops_after_idle_and_survives_half_written_rows(repo_root, tmp_path
 def test_a_file_that_never_appears_is_a_one_line_error(tmp_path):
     clock = iter(range(1000))
     with pytest.raises(LogReadError, match="no such file"):
-        list(watch(tmp_path / "none.mcap", 0.04, wait=3.0, sleep=lambda dt: None, clock=lambda: float(next(clock))))
+        list(watch(tmp_path / "none.mcap", 0.04, options=WatchOptions(wait=3.0), sleep=lambda dt: None, clock=lambda: float(next(clock))))
 
 
 def test_cli_jsonl_prints_one_object_per_update(repo_root):
@@ -128,7 +128,7 @@ def test_cli_text_prints_each_test_at_its_own_start_from_the_log_start(repo_root
             words = line.split()
             starts[int(words[1])] = float(words[3])
             assert " m  cycles" in line  # the amplitude's unit
-    t0 = read_flight(log, "altitude").command.t[0]
+    t0 = read_flight(log, ReadOptions(loop="altitude")).command.t[0]
     for i, x in enumerate(truth["tests"], start=1):
         assert starts[i] == pytest.approx(x["t_start"] - t0, abs=0.1)
     assert starts[1] > 1.0  # not 0.0: the first test does not start at the log's first sample

@@ -1,7 +1,7 @@
 """One flight log in, the loop's model out: read -> segment -> identify, with uncertainty.
 
-:func:`analyze_flight` takes a :class:`~mrftcli.io.logtypes.FlightLog`; :func:`analyze_path` reads the
-log first. Both are pure (no printing, no files written) and return an :class:`AnalysisResult`.
+:func:`analyze_flight` takes a :class:`~mrftcli.io.logtypes.FlightLog` and an :class:`AnalyzeOptions`;
+:func:`analyze_path` reads the log first (with a :class:`mrftcli.io.ReadOptions`). Both are pure (no printing, no files written) and return an :class:`AnalysisResult`.
 
 How the figures are obtained
 ----------------------------
@@ -36,10 +36,11 @@ from __future__ import annotations
 
 from ..mrft.consensus import CONSTRAINTS
 from .driver import analyze_flight, analyze_path
+from .options import AnalyzeOptions
 from .overlay import analysis_overlay
 from .record import SCHEMA_VERSION, AnalysisResult, LogInfo, analysis_controller_rate, command_rate_of_result
 from .screen import ASSUMED_TD_RANGE, describe_t0, log_start
 
-__all__ = ["AnalysisResult", "LogInfo", "SCHEMA_VERSION", "analyze_flight", "analyze_path", "analysis_overlay",
+__all__ = ["AnalyzeOptions", "AnalysisResult", "LogInfo", "SCHEMA_VERSION", "analyze_flight", "analyze_path", "analysis_overlay",
            "analysis_controller_rate", "command_rate_of_result", "log_start", "describe_t0", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]

@@ -8,33 +8,26 @@ combinations -> identifiability -> waveform refinement -> timing jitter
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, LogReadError
+from ..errors import LogReadError
 from ..io.clock import implausible_timing
+from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
-from ..mrft.consensus import CONSTRAINTS, combinations
-from ..segment import StabilityCriterion, ValidityCriterion, segment
-from ..validate import check_tp
+from ..mrft.consensus import combinations
 from ..mrft.profile import profile_tp
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
+from ..segment import StabilityCriterion, ValidityCriterion, segment
+from ..validate import check_tp
 from .estimate import (WaveformStage, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
+from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, analysis_controller_rate
 from .screen import Screening, screen
 
 __all__ = ["analyze_flight", "analyze_path"]
-
-
-def _check_constraints(constraints: Sequence[str]) -> tuple[str, ...]:
-    out = tuple(constraints)
-    bad = [c for c in out if c not in CONSTRAINTS]
-    if bad:
-        raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
-    return out
 
 
 def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | None) -> None:
@@ -46,20 +39,7 @@ def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | Non
                            "check the time column's unit (--time-unit for CSV and .mat logs)")
 
 
-def analyze_flight(
-    flight: FlightLog,
-    Tp: float,
-    *,
-    min_stable_cycles: int = 3,
-    criterion: StabilityCriterion | None = None,
-    n_bootstrap: int = 400,
-    max_combinations: int = 400,
-    seed: int = 0,
-    constraints: Sequence[str] = CONSTRAINTS,
-    validity: ValidityCriterion | None = None,
-    refine_waveform: bool = True,
-    controller_rate_hz: float | None = None,
-) -> AnalysisResult:
+def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | None = None) -> AnalysisResult:
     """Segment the MRFT tests of a flight and identify Td, tau and K (see the module docstring).
 
     Parameters
@@ -68,30 +48,10 @@ def analyze_flight(
         Command and output (and optional beta/setpoint) of one loop.
     Tp : float
         Known propulsion time constant [s] (bench test).
-    min_stable_cycles : int
-        Fewest stable cycles for a test to be used.
-    criterion : StabilityCriterion, optional
-        Stable-limit-cycle criterion for the segmenter.
-    n_bootstrap : int
-        Bootstrap draws for the uncertainty.
-    max_combinations : int
-        Cap on the per-combination identifications (a seeded random subset above it).
-    seed : int
-        Seed of the bootstrap and of the combination subset.
-    constraints : sequence of {"phase", "amplitude"}
-        Weighted constraints added to the UFM slices for the point estimate and the bootstrap
-        (Beyond the paper, see the module docstring); ``()`` gives the paper's method alone.
-    validity : ValidityCriterion, optional
-        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`):
-        a test whose output does not follow its relay as an MRFT limit cycle is rejected, and so are
-        the tests whose loop-gain sign disagrees with the others' (:func:`mrftcli.analyze.screen.screen_tests`).
-    refine_waveform : bool
-        Refine the MRFT estimate by output error on the tests' windows and report it when the data
-        accept it (:func:`mrftcli.mrft.refine.refine`); False: the MRFT estimate alone.
-    controller_rate_hz : float, optional
-        Rate the relay decides at [Hz] when the log sub-samples it (PX4 logs its 50 Hz position
-        controller at 10 Hz by default); None: the flight's ``timing.controller_rate_hz``.
-        A log below the controller's rate is identified as a sampled relay at the nominal beta
+    options : AnalyzeOptions, optional
+        The analysis's knobs (stability and validity criteria, bootstrap draws, Table III cap, seed,
+        constraints, waveform refinement, controller rate); None: ``AnalyzeOptions()``. A log below
+        the controller's rate is identified as a sampled relay at the nominal beta
         (:func:`mrftcli.analyze.screen.low_rate_period`).
 
     Returns
@@ -118,28 +78,31 @@ def analyze_flight(
     A shipped sample log (simulated Design I altitude loop: Td 2.669 s, tau 46.4 ms, K 19.62):
 
     >>> from pathlib import Path
-    >>> from mrftcli.io import read_flight
+    >>> from mrftcli.io import ReadOptions, read_flight
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.mcap"
-    >>> result = analyze_flight(read_flight(log, loop="altitude"), Tp=0.0422, n_bootstrap=100)
+    >>> flight = read_flight(log, ReadOptions(loop="altitude"))
+    >>> result = analyze_flight(flight, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=100))
     >>> print(f"Td {result.Td.mean:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
     ...       f"tau {result.tau.mean * 1e3:.1f} ms")
     Td 2.66 s (2.65-2.67), tau 46.4 ms
     """
     Tp = check_tp(Tp)
-    constraints = _check_constraints(constraints)
-    found = segment(flight, criterion=criterion or StabilityCriterion(), validity=validity or ValidityCriterion(),
-                    controller_rate_hz=controller_rate_hz)
-    screening = screen(flight, found, Tp, min_stable_cycles)
+    opts = AnalyzeOptions() if options is None else options
+    constraints = opts.constraints
+    found = segment(flight, criterion=opts.criterion or StabilityCriterion(),
+                    validity=opts.validity or ValidityCriterion(), controller_rate_hz=opts.controller_rate_hz)
+    screening = screen(flight, found, Tp, opts.min_stable_cycles)
     _check_clock(flight, max((1.0 / t.frequency_hz_mean for t in screening.usable), default=None), None)
     # one generator through the stages in this order: a seed gives the same draws
-    rng = np.random.default_rng(seed)
-    point = point_estimate(Tp, screening, constraints, n_bootstrap, rng)
+    rng = np.random.default_rng(opts.seed)
+    point = point_estimate(Tp, screening, constraints, opts.n_bootstrap, rng)
     cons = consensus(Tp, point, constraints, screening.ts_ctrl, rng)
     n = len(screening.usable)
-    combos = combinations(Tp, list(point.cycles), cons.Td_point, int(min(max_combinations, max(50, 4000 // n))), rng)
+    n_combinations = int(min(opts.max_combinations, max(50, 4000 // n)))
+    combos = combinations(Tp, list(point.cycles), cons.Td_point, n_combinations, rng)
     bounds = identifiability(Tp, screening, point, cons, constraints, rng)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
-    wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, refine_waveform)
+    wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.mean)
     tp_warning = _tp_check(flight, screening, wave)
@@ -175,30 +138,8 @@ def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage) -> t
     return (profile.message(),) if profile.rejects_given else ()
 
 
-def analyze_path(
-    path: str | Path,
-    Tp: float,
-    loop: str = "altitude",
-    *,
-    command_topic: str | None = None,
-    output_topic: str | None = None,
-    beta_topic: str | None = None,
-    setpoint_topic: str | None = None,
-    battery_topic: str | None = None,
-    output_scale: float | None = None,
-    fmt: str | None = None,
-    layout: str | None = None,
-    command_scale: float | None = None,
-    controller_rate_hz: float | None = None,
-    time_unit: str | None = None,
-    min_stable_cycles: int = 3,
-    criterion: StabilityCriterion | None = None,
-    n_bootstrap: int = 400,
-    max_combinations: int = 400,
-    seed: int = 0,
-    constraints: Sequence[str] = CONSTRAINTS,
-    validity: ValidityCriterion | None = None,
-) -> AnalysisResult:
+def analyze_path(path: str | Path, Tp: float, *, read: ReadOptions | None = None,
+                 options: AnalyzeOptions | None = None) -> AnalysisResult:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters
@@ -207,21 +148,10 @@ def analyze_path(
         The flight log (any supported format).
     Tp : float
         Known propulsion time constant [s].
-    loop : {"altitude", "roll", "pitch"}
-        The loop to analyse.
-    command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str, optional
-        ``TOPIC[:FIELD]`` overrides of the reference layout.
-    output_scale, command_scale : float, optional
-        Factors applied to the output and setpoint, and to the command (default: the layout's).
-    fmt : str, optional
-        Log format (detected when omitted).
-    layout : str, optional
-        One of :data:`mrftcli.io.LAYOUT_NAMES` (recognised from the topics when omitted).
-    controller_rate_hz : float, optional
-        Rate [Hz] at which the relay decided (default: the layout's; see :func:`mrftcli.io.read_flight`).
-    time_unit : {"s", "ms", "us", "ns"}, optional
-        Unit of a CSV's or ``.mat`` file's times (see :func:`mrftcli.io.read_flight`).
-    min_stable_cycles, criterion, n_bootstrap, max_combinations, seed, constraints, validity
+    read : ReadOptions, optional
+        How to read the loop (loop, topics, scales, layout, controller rate, format, time unit; see
+        :func:`mrftcli.io.read_flight`); None: ``ReadOptions()``, the altitude loop.
+    options : AnalyzeOptions, optional
         As in :func:`analyze_flight`.
 
     Returns
@@ -232,17 +162,12 @@ def analyze_path(
     --------
     >>> from pathlib import Path
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.csv"
-    >>> result = analyze_path(log, Tp=0.0422, loop="altitude", n_bootstrap=100)
+    >>> result = analyze_path(log, Tp=0.0422, read=ReadOptions(loop="altitude"),
+    ...                       options=AnalyzeOptions(n_bootstrap=100))
     >>> [round(t.beta_nominal, 1) for t in result.tests], f"{result.K.mean:.1f}"
     ([-0.4, -0.7], '19.6')
     """
     from ..io import read_flight
 
-    flight = read_flight(path, loop=loop, command_topic=command_topic, output_topic=output_topic,
-                         beta_topic=beta_topic, setpoint_topic=setpoint_topic, battery_topic=battery_topic,
-                         output_scale=output_scale, fmt=fmt, layout=layout, command_scale=command_scale,
-                         controller_rate_hz=controller_rate_hz, time_unit=time_unit,
-                         echo_warnings=False)  # the reader's warnings come once, in the result's
-    return analyze_flight(flight, Tp, min_stable_cycles=min_stable_cycles, criterion=criterion,
-                          n_bootstrap=n_bootstrap, max_combinations=max_combinations, seed=seed,
-                          constraints=constraints, validity=validity)
+    flight = read_flight(path, read, echo_warnings=False)  # the reader's warnings come once, in the result's
+    return analyze_flight(flight, Tp, options=options)

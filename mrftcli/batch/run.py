@@ -58,12 +58,13 @@ from ..io.logtypes import LOOPS
 from ..jsonable import to_jsonable
 from ..progress import Progress
 from ..progress import report as report_progress
+from ..validate import check_positive
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
-           "run_batch"]
+           "BatchOptions", "run_batch"]
 
 #: Record format version: bump when the record layout changes, so old results are recomputed.
 _RECORD_VERSION = 1
@@ -202,16 +203,15 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                 absent = ()
             if absent:
                 return _skipped_entry(entry, loop, absent)
-        from ..analyze import analyze_path
+        from ..analyze import AnalyzeOptions, analyze_path
+        from ..io import ReadOptions
 
-        # settings left unset keep analyze_path's defaults
-        options: dict[str, Any] = {k: v for k, v in (("command_topic", s.command_topic), ("output_topic", s.output_topic),
-                                     ("beta_topic", s.beta_topic), ("setpoint_topic", s.setpoint_topic),
-                                     ("output_scale", s.output_scale), ("min_stable_cycles", s.min_cycles),
-                                     ("command_scale", s.command_scale), ("layout", s.layout),
-                                     ("controller_rate_hz", s.controller_rate_hz))
-                   if v is not None}
-        result = analyze_path(task.path, s.tp, loop, **options)
+        # settings left unset (None) keep the options' defaults
+        read = ReadOptions(loop=loop, command_topic=s.command_topic, output_topic=s.output_topic,
+                           beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
+                           command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
+        options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
+        result = analyze_path(task.path, s.tp, read=read, options=options)
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,
@@ -494,37 +494,17 @@ def _unwritten(path: Path, err: OSError) -> str:
     return f"{path}: {err.strerror or err}"
 
 
-def run_batch(
-    paths: Iterable[str | os.PathLike[str]],
-    out_dir: str | os.PathLike[str],
-    *,
-    defaults: Mapping[str, Any] | None = None,
-    config: BatchConfig | None = None,
-    explicit: Mapping[str, Any] | None = None,
-    diagnose: bool = False,
-    jobs: int | None = None,
-    scheduler: str | None = None,
-    scheduler_timeout_s: float = 10.0,
-    force: bool = False,
-    report: bool = True,
-    progress: Progress | None = None,
-    worker: Worker = analyze_one,
-    tune: str | None = None,
-) -> BatchResult:
-    """Analyse every log under ``paths`` and write the outputs to ``out_dir``.
+@dataclass(frozen=True)
+class BatchOptions:
+    """What a batch does besides analysing each log, and where it runs (:func:`run_batch`), checked on creation.
 
-    Parameters
+    Attributes
     ----------
-    paths : iterable of path-like
-        Files, folders and globs (see :func:`discover_logs`).
-    out_dir : path-like
-        Output folder (created); it is excluded from discovery.
-    defaults, config, explicit : mappings of :class:`LogSettings` fields
-        Settings precedence, lowest first: ``defaults`` (the CLI's defaults), ``config`` (its
-        ``[defaults]`` then every matching ``[[logs]]`` entry in file order), ``explicit`` (options the
-        user gave on the command line).
     diagnose : bool
         Also run the diagnosis on each identified loop.
+    tune : {"PD", "PID"}, optional
+        Also design that controller on each identified loop (:mod:`mrftcli.tune`); its gains and
+        figures become the summary's ``tune_*`` columns.
     jobs : int, optional
         Local worker processes (default ``os.cpu_count()``); 1 runs in this process.
     scheduler : str, optional
@@ -535,12 +515,62 @@ def run_batch(
         Recompute logs whose stored result is up to date.
     report : bool
         Write the fleet report (HTML + PNG).
+
+    Raises
+    ------
+    InputError
+        ``jobs`` below 1, a non-positive scheduler timeout.
+
+    Examples
+    --------
+    >>> BatchOptions(jobs=1, report=False).scheduler is None
+    True
+    """
+
+    diagnose: bool = False
+    tune: str | None = None
+    jobs: int | None = None
+    scheduler: str | None = None
+    scheduler_timeout_s: float = 10.0
+    force: bool = False
+    report: bool = True
+
+    def __post_init__(self) -> None:
+        if self.jobs is not None and self.jobs < 1:
+            raise InputError(f"--jobs must be at least 1, got {self.jobs}")
+        object.__setattr__(self, "scheduler_timeout_s",
+                           check_positive("scheduler timeout [s]", self.scheduler_timeout_s))
+
+
+def run_batch(
+    paths: Iterable[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str],
+    *,
+    options: BatchOptions | None = None,
+    defaults: Mapping[str, Any] | None = None,
+    config: BatchConfig | None = None,
+    explicit: Mapping[str, Any] | None = None,
+    progress: Progress | None = None,
+    worker: Worker = analyze_one,
+) -> BatchResult:
+    """Analyse every log under ``paths`` and write the outputs to ``out_dir``.
+
+    Parameters
+    ----------
+    paths : iterable of path-like
+        Files, folders and globs (see :func:`discover_logs`).
+    out_dir : path-like
+        Output folder (created); it is excluded from discovery.
+    options : BatchOptions, optional
+        Diagnosis, controller design, executor (jobs, Dask scheduler), cache and report; None:
+        ``BatchOptions()``.
+    defaults, config, explicit : mappings of :class:`LogSettings` fields
+        Settings precedence, lowest first: ``defaults`` (the CLI's defaults), ``config`` (its
+        ``[defaults]`` then every matching ``[[logs]]`` entry in file order), ``explicit`` (options the
+        user gave on the command line).
     progress : Progress, optional
         Called as ``progress(done, total, name)`` with the logs analysed so far out of those to
         analyse (up-to-date logs are not counted) and the name of the last one.
-    tune : {"PD", "PID"}, optional
-        Also design that controller on each identified loop (:mod:`mrftcli.tune`); its gains and
-        figures become the summary's ``tune_*`` columns.
     worker : callable
         ``LogTask -> record``; :func:`analyze_one` unless testing or reusing the machinery. Must be
         picklable (a module-level function) for processes and Dask.
@@ -550,19 +580,18 @@ def run_batch(
     InputError
         Bad paths, no Tp anywhere, bad jobs, or an unreachable scheduler.
     """
+    opts = BatchOptions() if options is None else options
     out = Path(out_dir)
-    if jobs is not None and jobs < 1:
-        raise InputError(f"--jobs must be at least 1, got {jobs}")
     logs = discover_logs(paths, exclude=[out])
     base = {"tp": None, "loops": (AUTO_LOOP,)} | dict(defaults or {})
-    tasks = [_task(log, base, config, explicit or {}, diagnose, tune) for log in logs]
+    tasks = [_task(log, base, config, explicit or {}, opts.diagnose, opts.tune) for log in logs]
     if all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")
     _check_out_dir(out)
-    rows, todo = _cached_rows(tasks, out, force)
+    rows, todo = _cached_rows(tasks, out, opts.force)
     unwritten: list[str] = []
     if todo:
-        stream = _stream(worker, todo, jobs, scheduler, scheduler_timeout_s)
+        stream = _stream(worker, todo, opts.jobs, opts.scheduler, opts.scheduler_timeout_s)
         report_progress(progress, 0, len(todo), "")
         for done, (task, record) in enumerate(stream, 1):
             jp = result_path(out, Path(task.path))
@@ -572,7 +601,7 @@ def run_batch(
                 unwritten.append(_unwritten(jp, err))
             rows.extend(summary_rows(record, jp))
             report_progress(progress, done, len(todo), Path(task.path).name)
-    df, outputs, notes = _write_summary(rows, out, report, unwritten)
+    df, outputs, notes = _write_summary(rows, out, opts.report, unwritten)
     if unwritten:
         notes.insert(0, f"{len(unwritten)} output file(s) could not be written (first: {unwritten[0]}); "
                         "the results that were are complete")

@@ -197,8 +197,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
-    from ..analyze import analyze_flight
-    from ..io import read_flight
+    from ..analyze import AnalyzeOptions, analyze_flight
+    from ..io import ReadOptions, read_flight
 
     to_stdout = json_target == "-"
     # every output is checked before the work starts, all in the same way (parents created)
@@ -213,7 +213,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
                          (report_dir, mcap_out, paper_only, run_diagnose), read_options)
         return
     _check_soiptd(Tp, params, ranges, relay_kind, eps)
-    flight = read_flight(log, echo_warnings=False, **read_options)  # the reader's warnings: once, below
+    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)  # the reader's warnings: once, below
     if windows:
         from ..analyze.general import mask_windows
         from ..analyze.screen import log_start
@@ -225,8 +225,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         stage = _stages(progress, weights)
         stage("identify")(0, 1, "segmenting and identifying")
         try:
-            result = analyze_flight(flight, Tp, min_stable_cycles=min_cycles,
-                                    **({"constraints": ()} if paper_only else {}))
+            options = AnalyzeOptions(min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}))
+            result = analyze_flight(flight, Tp, options=options)
         except InsufficientDataError as err:
             if json_target:
                 dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
@@ -294,7 +294,7 @@ def _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, 
     """``analyze --model NAME`` for a process plant (:func:`mrftcli.analyze.general.analyze_general`)."""
     from ..analyze.general import RelayOptions, analyze_general
     from ..analyze.screen import log_start
-    from ..io import read_flight
+    from ..io import ReadOptions, read_flight
 
     names = ("--report", "--mcap-out", "--paper-only", "--diagnose")
     used = [n for n, v in zip(names, soiptd_only) if v]
@@ -302,7 +302,7 @@ def _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, 
         raise click.UsageError(f"{', '.join(used)} work with --model soiptd only so far")
     check_output_file(json_target, "--json")
     model = build_model(model_name, params, ranges)
-    flight = read_flight(log, echo_warnings=False, **read_options)
+    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
     relay = RelayOptions(relay_kind, None, eps)
     try:
         result = analyze_general(flight, model, relay=relay, windows=parse_windows(windows, log_start(flight)),

@@ -102,7 +102,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     Exit code 8 when some logs failed (the others are still analysed and written).
     """
     from ..batch.inputs import load_config
-    from ..batch.run import BatchFailedError, run_batch
+    from ..batch.run import BatchFailedError, BatchOptions, run_batch
     from .options import dump_json, tqdm_progress
 
     defaults: dict[str, Any] = {}
@@ -124,9 +124,10 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
         parse_fail_on(fail_on)  # a malformed spec stops before the work, not after it
 
     with tqdm_progress("batch", unit="log", enabled=not quiet) as progress:
-        result = run_batch(paths, out_dir, defaults=defaults, config=config, explicit=explicit, diagnose=diagnose,
-                           jobs=jobs, scheduler=scheduler, scheduler_timeout_s=scheduler_timeout, force=force,
-                           report=not no_report, progress=progress, tune=tune_kind)
+        options = BatchOptions(diagnose=diagnose, tune=tune_kind, jobs=jobs, scheduler=scheduler,
+                               scheduler_timeout_s=scheduler_timeout, force=force, report=not no_report)
+        result = run_batch(paths, out_dir, options=options, defaults=defaults, config=config, explicit=explicit,
+                           progress=progress)
     df = result.summary
     if json_target:
         rows = df.astype(object).where(df.notna(), None)

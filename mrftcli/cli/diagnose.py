@@ -158,17 +158,18 @@ def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options
     Example: mrft-ident diagnose flight.mcap --tp 0.0422 --json - --report out/
     """
     from ..diagnose.selection import diagnose as run
-    from ..io import read_flight
+    from ..io import ReadOptions, read_flight
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
-    flight = read_flight(log, **read_options)
+    flight = read_flight(log, ReadOptions(**read_options))
     given: AnalysisResult | None = None
     if min_cycles != 3:
+        from ..analyze import AnalyzeOptions
         from ..analyze import analyze_flight as analyze_given
 
         # the diagnosis reuses an analysis made with the user's cycle count (its own default is analyze's, 3)
-        given = analyze_given(flight, Tp, min_stable_cycles=min_cycles)
+        given = analyze_given(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
         result = run(flight, Tp, analysis=given, progress=progress)
     to_stdout = json_target == "-"

@@ -199,8 +199,8 @@ def _scale(ctx: click.Context | None, param: click.Parameter | None, value: floa
     return value
 
 
-#: The names :func:`log_layout_options` gives the command: exactly :func:`mrftcli.io.read_flight`'s
-#: keyword arguments, so a command passes them on as ``read_flight(log, **read_options)``.
+#: The names :func:`log_layout_options` gives the command: exactly :class:`mrftcli.io.ReadOptions`'
+#: fields, so a command passes them on as ``read_flight(log, ReadOptions(**read_options))``.
 READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
                 "command_scale", "layout", "controller_rate_hz", "fmt", "time_unit")
 

@@ -149,10 +149,10 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
             flown, params, log_rate = _flown_from_json(path)
         else:
             from ..errors import SegmentationError
-            from ..io import read_flight
+            from ..io import ReadOptions, read_flight
             from ..segment import segment
 
-            flight = read_flight(path, **read_options)
+            flight = read_flight(path, ReadOptions(**read_options))
             found = segment(flight)
             flown, measured_noise = flown_from_segments([t for t in found if t.n_stable >= min_cycles])
             if not flown:

@@ -193,13 +193,14 @@ def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
 def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, Any],
               quiet: bool = False) -> _TuneSource:
     """A flight log, analysed as ``analyze`` would (its warnings printed)."""
-    from ..analyze import analyze_path
+    from ..analyze import AnalyzeOptions, analyze_path
+    from ..io import ReadOptions
     from ..tune.analysis import posterior_from_analysis
 
     with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
         progress(0, 1, "analysing the log")
-        result = analyze_path(source, Tp, min_stable_cycles=min_cycles,
-                              **{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
+        read = ReadOptions(**{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
+        result = analyze_path(source, Tp, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     return _TuneSource(result.model, posterior_from_analysis(result), result.loop, result.controller_rate_hz,

@@ -81,7 +81,8 @@ def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topi
     Example: mrft-ident watch flight.mcap --tp 0.0422 --jsonl
     """
     from ..errors import InputError, MrftError
-    from ..watch import Restart, TestUpdate, WatchEnd
+    from ..io import ReadOptions
+    from ..watch import Restart, TestUpdate, WatchEnd, WatchOptions
     from ..watch import watch as follow
 
     if layout not in (None, "reference") or command_scale is not None or controller_rate_hz is not None:
@@ -93,9 +94,9 @@ def watch(log: str, Tp: float, loop: str, command_topic: str | None, output_topi
     if not Path(log).exists():
         limit = f"for up to {wait:g} s" if wait is not None else "until Ctrl-C"
         click.echo(f"waiting for {log} to appear ({limit})", err=True)
-    updates = follow(log, Tp, loop=loop, command_topic=command_topic, output_topic=output_topic,
-                     beta_topic=beta_topic, setpoint_topic=setpoint_topic, output_scale=output_scale,
-                     min_cycles=min_cycles, idle=idle, poll=poll, fmt=fmt, wait=wait, time_unit=time_unit)
+    read = ReadOptions(loop=loop, command_topic=command_topic, output_topic=output_topic, beta_topic=beta_topic,
+                       setpoint_topic=setpoint_topic, output_scale=output_scale, fmt=fmt, time_unit=time_unit)
+    updates = follow(log, Tp, read=read, options=WatchOptions(min_cycles=min_cycles, idle=idle, poll=poll, wait=wait))
     try:
         for update in updates:
             if isinstance(update, TestUpdate):

@@ -66,13 +66,14 @@ def _analysis_of(flight: FlightLog, Tp: float) -> tuple[AnalysisResult | None, s
     analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests' frequencies, or
     when a single beta is left (a test that saturates at the larger relay height is not an MRFT
     limit cycle of eq. (2), yet its flattening is the evidence of the saturation)."""
-    from ..analyze import analyze_flight
+    from ..analyze import AnalyzeOptions, analyze_flight
 
     with pywarnings.catch_warnings():
         # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
         pywarnings.simplefilter("ignore", RuntimeWarning)
         try:
-            return analyze_flight(flight, Tp, n_bootstrap=1, max_combinations=10, refine_waveform=False), None
+            options = AnalyzeOptions(n_bootstrap=1, max_combinations=10, refine_waveform=False)
+            return analyze_flight(flight, Tp, options=options), None
         except IdentificationError as exc:
             # analyze must refuse, but that is the strongest sign of missing physics there is, so the
             # diagnosis fits the cycles itself

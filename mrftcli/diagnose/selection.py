@@ -165,7 +165,7 @@ def diagnose(
     >>> from pathlib import Path
     >>> import mrftcli
     >>> log = Path(mrftcli.__file__).parents[1] / "sample_logs" / "concealed" / "flight_02.mcap"
-    >>> flight = mrftcli.read_flight(log, loop="altitude")
+    >>> flight = mrftcli.read_flight(log, mrftcli.ReadOptions(loop="altitude"))
     >>> diagnose(flight, Tp=-0.04)
     Traceback (most recent call last):
     ...

@@ -2,7 +2,7 @@
 
 * :func:`open_log` -> a :class:`LogSource` (topics, one field as a time series), any supported format;
 * :func:`read_flight` -> the :class:`~mrftcli.io.logtypes.FlightLog` one loop's analysis needs
-  (:func:`flight_from_source` / :func:`read_loop` do the same on an already open :class:`LogSource`,
+  with its :class:`ReadOptions` (:func:`read_loop` does the same on an already open :class:`LogSource`,
   in the stages of :mod:`mrftcli.io.flight`);
 * :func:`write_log` -> write :class:`~mrftcli.io.logtypes.TopicData` in any of :data:`FORMATS`;
 * :mod:`mrftcli.io.timing` -> sample rates from timestamps and the flight's :class:`Timing`;
@@ -23,14 +23,14 @@ import numpy as np
 from ..errors import InputError, LogReadError
 from .attitude import roll_pitch
 from .clock import TIME_UNITS, check_time_unit
-from .flight import DEFAULT_TOPICS, ReadOptions, flight_from_source, log_layout, read_loop
+from .flight import DEFAULT_TOPICS, ReadOptions, log_layout, read_loop
 from .layouts import LAYOUT_NAMES, LAYOUTS, Layout, LayoutMatch, detect_layout, get_layout
 from .logtypes import FlightLog, Signal, TopicData, TopicInfo
 from .source import LogSource, TopicSpec, parse_spec
 from .timing import Timing, controller_rate_hz, median_rate_hz
 
 __all__ = [
-    "open_log", "read_flight", "flight_from_source", "write_log", "LogSource", "TopicSpec", "parse_spec",
+    "open_log", "read_flight", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format", "format_from_name",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal", "Timing", "ReadOptions", "read_loop",
     "median_rate_hz", "controller_rate_hz", "TIME_UNITS",
@@ -274,48 +274,39 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
 
 
 # -- read_flight ---------------------------------------------------------------------------------
-def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | None = None,
-                output_topic: str | None = None, beta_topic: str | None = None,
-                setpoint_topic: str | None = None, battery_topic: str | None = None,
-                output_scale: float | None = None, fmt: str | None = None, *,
-                layout: str | None = None, command_scale: float | None = None,
-                controller_rate_hz: float | None = None, echo_warnings: bool = True,
-                time_unit: str | None = None) -> FlightLog:
+def read_flight(path: str | Path, options: ReadOptions | None = None, *,
+                echo_warnings: bool = True) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
     ----------
     path : str or Path
         The log (any format :func:`open_log` reads).
-    loop : {"altitude", "roll", "pitch", "x", "y"}
-        Which loop; picks the layout's topics and turns a quaternion output into roll or pitch
-        (ZYX convention, :mod:`mrftcli.io.attitude`).
-    command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str, optional
-        ``TOPIC[:FIELD]`` overriding the layout (:data:`~mrftcli.io.layouts.LAYOUTS`); FIELD is a
-        dotted path into the message (ULog: message field, ``name.N`` for instance N; CSV: column;
-        DataFlash: ``TYPE:Column``; ``.mat``: the vector's name). An omitted FIELD means ``data`` for
-        ROS topics.
-    output_scale : float, optional
-        Factor applied to the output and the setpoint (e.g. ``-1`` for a NED ``z`` as altitude,
-        ``pi/180`` for degrees). Default: the layout's (1, or -1 for PX4's NED z).
-    fmt : str, optional
-        Log format; detected when omitted.
-    layout : str, optional
-        One of :data:`~mrftcli.io.layouts.LAYOUT_NAMES`; recognised from the topics when omitted
-        (``FlightLog.source["layout"]`` says which and why).
-    command_scale : float, optional
-        Factor applied to the command (default: the layout's; -1 for PX4's upward-negative thrust).
-    controller_rate_hz : float, optional
-        Rate [Hz] at which the relay decided, when the command may be logged more slowly (default:
-        the layout's, e.g. 50 Hz for PX4's position controller; recorded in
-        ``FlightLog.timing.controller_rate_hz`` for the segmenter).
+    options : ReadOptions, optional
+        How to read the loop (default ``ReadOptions()``: the altitude loop, layout recognised from the
+        topics, format detected):
+
+        * ``loop`` picks the layout's topics and turns a quaternion output into roll or pitch (ZYX
+          convention, :mod:`mrftcli.io.attitude`);
+        * ``command_topic`` ... ``battery_topic`` are ``TOPIC[:FIELD]`` overriding the layout
+          (:data:`~mrftcli.io.layouts.LAYOUTS`); FIELD is a dotted path into the message (ULog:
+          message field, ``name.N`` for instance N; CSV: column; DataFlash: ``TYPE:Column``; ``.mat``:
+          the vector's name). An omitted FIELD means ``data`` for ROS topics;
+        * ``output_scale`` multiplies the output and the setpoint (e.g. ``-1`` for a NED ``z`` as
+          altitude, ``pi/180`` for degrees), ``command_scale`` the command (-1 for PX4's
+          upward-negative thrust); None: the layout's;
+        * ``layout`` is one of :data:`~mrftcli.io.layouts.LAYOUT_NAMES`; None: recognised from the
+          topics (``FlightLog.source["layout"]`` says which and why);
+        * ``controller_rate_hz`` [Hz] is the rate at which the relay decided, when the command may be
+          logged more slowly (None: the layout's, e.g. 50 Hz for PX4's position controller; recorded
+          in ``FlightLog.timing.controller_rate_hz`` for the segmenter);
+        * ``fmt`` names the log format (None: detected);
+        * ``time_unit`` is the unit of a CSV's time column or a ``.mat`` file's time vectors
+          (:func:`open_log`). Without it a command sampled faster than 100 kHz or slower than 1 Hz is
+          refused, naming the unit that makes it plausible (:mod:`mrftcli.io.clock`).
     echo_warnings : bool
         Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
         caller that shows them itself (``analyze``, ``watch``).
-    time_unit : {"s", "ms", "us", "ns"}, optional
-        The unit of a CSV's time column or a ``.mat`` file's time vectors (:func:`open_log`). Without
-        it a command sampled faster than 100 kHz or slower than 1 Hz is refused, naming the unit that
-        makes it plausible (:mod:`mrftcli.io.clock`).
 
     Returns
     -------
@@ -328,14 +319,21 @@ def read_flight(path: str | Path, loop: str = "altitude", command_topic: str | N
     Raises
     ------
     InputError
-        Unknown loop or layout, or a loop the layout does not record.
+        Unknown layout or format, a loop the layout does not record, a time unit for a format whose
+        clock has one.
     LogReadError
         Unreadable log, or a required topic/field missing (the message lists what exists); a
         command sampled at a rate no flight stack has (a time unit mistaken).
+
+    Examples
+    --------
+    >>> from mrftcli.samples import sample_log
+    >>> flight = read_flight(sample_log("design1_altitude.csv"), ReadOptions(loop="altitude"))
+    >>> flight.loop, flight.source["layout"].split(" ")[0]
+    ('altitude', 'reference')
     """
-    opts = ReadOptions(loop, command_topic, output_topic, beta_topic, setpoint_topic, battery_topic,
-                       output_scale, layout, command_scale, controller_rate_hz)  # checked before opening the log
-    with open_log(path, fmt, echo_warnings=echo_warnings, time_unit=time_unit) as log:
+    opts = ReadOptions() if options is None else options  # checked on creation, before the log is opened
+    with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit) as log:
         flight = read_loop(log, opts)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))

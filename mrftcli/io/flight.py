@@ -1,6 +1,6 @@
 """One loop's :class:`~mrftcli.io.logtypes.FlightLog` from an open log, in stages.
 
-:func:`flight_from_source` resolves where each role (command, output, beta, setpoint, battery) is
+:func:`read_loop` resolves where each role (command, output, beta, setpoint, battery) is
 read from (:func:`role_specs`: the layout, then the ``TOPIC[:FIELD]`` options), reads the command and
 the output (a quaternion output becomes roll or pitch), the optional roles, the PX4 test windows from
 the logged parameters, records the timing (:class:`~mrftcli.io.timing.Timing`), leaves out
@@ -19,14 +19,13 @@ import numpy as np
 from ..errors import InputError, LogReadError
 from ..validate import check_positive
 from .attitude import roll_pitch
-from .clock import check_rate
+from .clock import check_rate, check_time_unit
 from .layouts import LAYOUTS, Layout, LayoutMatch, LoopTopics, detect_layout, get_layout
 from .logtypes import LOOPS, FlightLog, Signal
 from .source import LogSource, TopicSpec, parse_spec
 from .timing import Timing, median_rate_hz, receive_jitter_s
 
-__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "ABSURD_MAGNITUDE", "flight_from_source", "read_loop", "log_layout",
-           "role_specs"]
+__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "ABSURD_MAGNITUDE", "read_loop", "log_layout", "role_specs"]
 
 #: the reference layout (ROS 2 names, :data:`LAYOUTS` ``["reference"]``) by role, see docs/log-layout.md
 DEFAULT_TOPICS = {
@@ -61,11 +60,27 @@ class ReadOptions:
         A layout name; None: recognised from the topics.
     controller_rate_hz : float or None
         Rate [Hz] at which the relay decided; None: the layout's.
+    fmt : str or None
+        Log format (one of :data:`mrftcli.io.READ_FORMATS`); None: detected when the file is opened.
+        Used where a file is opened (:func:`mrftcli.io.read_flight`, :func:`mrftcli.watch.watch`);
+        :func:`read_loop` reads a log that is open already.
+    time_unit : {"s", "ms", "us", "ns"} or None
+        Unit of a CSV's time column or a ``.mat`` file's time vectors; None: the column's name says,
+        else seconds (:func:`mrftcli.io.open_log`). Used where a file is opened, as ``fmt``.
 
     Raises
     ------
     InputError
-        Unknown loop, a zero or non-finite scale, a non-positive controller rate.
+        Unknown loop or time unit, a zero or non-finite scale, a non-positive controller rate.
+
+    Examples
+    --------
+    >>> ReadOptions(loop="roll", output_scale=0.0174533).layout is None
+    True
+    >>> ReadOptions(loop="yaw")
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: unknown loop 'yaw'; choose one of altitude, roll, pitch, x, y
     """
 
     loop: str = "altitude"
@@ -78,6 +93,8 @@ class ReadOptions:
     layout: str | None = None
     command_scale: float | None = None
     controller_rate_hz: float | None = None
+    fmt: str | None = None
+    time_unit: str | None = None
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
@@ -88,6 +105,7 @@ class ReadOptions:
         for name, value in (("output", self.output_scale), ("command", self.command_scale)):
             if value is not None and not (np.isfinite(value) and value != 0.0):
                 raise InputError(f"{name} scale must be a finite non-zero number, got {value}")
+        check_time_unit(self.time_unit)
 
 
 @dataclass(frozen=True)
@@ -167,26 +185,17 @@ def role_specs(lay: Layout, opts: ReadOptions) -> RoleSpecs:
         output_scale=output_scale, command_scale=command_scale)
 
 
-def flight_from_source(log: LogSource, loop: str = "altitude", command_topic: str | None = None,
-                       output_topic: str | None = None, beta_topic: str | None = None,
-                       setpoint_topic: str | None = None, battery_topic: str | None = None,
-                       output_scale: float | None = None, *, layout: str | None = None,
-                       command_scale: float | None = None, controller_rate_hz: float | None = None) -> FlightLog:
-    """The signals of one loop from an open :class:`LogSource` (what :func:`read_flight` does after opening).
+def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
+    """The signals of one loop from an open :class:`LogSource` (what :func:`mrftcli.io.read_flight` does
+    after opening), the stages in order.
 
     The topic logic (layout, ``TOPIC[:FIELD]`` specs, quaternion -> roll/pitch, scales, optional
-    topics, PX4 test windows) lives here once, for readers of a whole file (:func:`read_flight`) and of
-    a file that is still being written (:mod:`mrftcli.io.follow`). Parameters, return value and errors
-    are :func:`read_flight`'s; the reader's warnings are added to ``log.warnings`` (and copied into
-    ``FlightLog.warnings``); ``FlightLog.path`` is ``log.path``.
+    topics, PX4 test windows) lives here once, for readers of a whole file (:func:`mrftcli.io.read_flight`)
+    and of a file that is still being written (:mod:`mrftcli.io.follow`). Errors are
+    :func:`mrftcli.io.read_flight`'s; ``opts.fmt`` and ``opts.time_unit`` are not used (the log is open);
+    the reader's warnings are added to ``log.warnings`` (and copied into ``FlightLog.warnings``);
+    ``FlightLog.path`` is ``log.path``.
     """
-    opts = ReadOptions(loop, command_topic, output_topic, beta_topic, setpoint_topic, battery_topic,
-                       output_scale, layout, command_scale, controller_rate_hz)
-    return read_loop(log, opts)
-
-
-def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
-    """:func:`flight_from_source` with its options as one record (the stages in order)."""
     match = log_layout(log, opts.layout)
     roles = role_specs(match.layout, opts)
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,

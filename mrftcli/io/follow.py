@@ -414,10 +414,8 @@ class _RereadLog:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                flight = read_flight(self.path, loop=o.loop, command_topic=o.command_topic,
-                                     output_topic=o.output_topic, beta_topic=o.beta_topic,
-                                     setpoint_topic=o.setpoint_topic, output_scale=o.output_scale,
-                                     fmt=self.fmt, echo_warnings=False, time_unit=self.time_unit)
+                flight = read_flight(self.path, replace(o, fmt=self.fmt, time_unit=self.time_unit),
+                                     echo_warnings=False)
             except LogReadError:
                 # a half-written row/record or topics not there yet
                 return Snapshot(None, size > 0, False, restarted)

@@ -90,7 +90,7 @@ def simulated_flights(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest],
         True where the planned test was not among the tests analyze used (every test of a flight
         analyze refused as a whole).
     """
-    from ..analyze import analyze_flight
+    from ..analyze import AnalyzeOptions, analyze_flight
     from ..errors import MrftError
     from ..io.logtypes import FlightLog, Signal
     from ..sim import FlightSpec, TestSpec, simulate_flight
@@ -109,8 +109,8 @@ def simulated_flights(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest],
             flight = FlightLog(path="<simulated>", loop=sf.spec.loop, command=Signal(sf.t, sf.command),
                                output=Signal(sf.t, sf.output_measured), setpoint=Signal(sf.t, sf.setpoint))
             with np.errstate(all="ignore"):
-                res = analyze_flight(flight, Tp, n_bootstrap=n_bootstrap, refine_waveform=False,
-                                     seed=int(rng.integers(1 << 30)))
+                res = analyze_flight(flight, Tp, options=AnalyzeOptions(
+                    n_bootstrap=n_bootstrap, refine_waveform=False, seed=int(rng.integers(1 << 30))))
             lost[k] = [not any(abs(m.beta_effective - t.beta) < 0.1 for m in res.tests) for t in tests]
             # a planned test analyze lost counts as no forecast (its std would be the flown tests')
             if not lost[k].any():

@@ -1,0 +1,91 @@
+"""The knobs of one analysis (:func:`mrftcli.analyze.analyze_flight`) as one frozen, checked record.
+
+How a log is read is :class:`mrftcli.io.ReadOptions`; how its tests are screened and identified is
+:class:`AnalyzeOptions`. Every caller (``analyze``, ``tune``, ``batch``, ``watch``, ``diagnose``,
+``plan``) builds one record instead of repeating a keyword list.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from numbers import Integral
+
+from ..errors import InputError
+from ..mrft.consensus import CONSTRAINTS
+from ..segment import StabilityCriterion, ValidityCriterion
+from ..validate import check_positive
+
+__all__ = ["AnalyzeOptions"]
+
+
+@dataclass(frozen=True)
+class AnalyzeOptions:
+    """How the MRFT tests of a flight are screened and identified, checked on creation.
+
+    Attributes
+    ----------
+    min_stable_cycles : int
+        Fewest stable relay cycles a test needs to be used (default 3).
+    criterion : StabilityCriterion, optional
+        Stable-limit-cycle criterion of the segmenter; None: ``StabilityCriterion()``.
+    validity : ValidityCriterion, optional
+        Thresholds of the limit-cycle validity check (:func:`mrftcli.segment.check_limit_cycle`): a test
+        whose output does not follow its relay as an MRFT limit cycle is rejected, and so are the tests
+        whose loop-gain sign disagrees with the others' (:func:`mrftcli.analyze.screen.screen_tests`);
+        None: ``ValidityCriterion()``.
+    n_bootstrap : int
+        Bootstrap draws for the uncertainty (default 400; fewer for logs with many tests).
+    max_combinations : int
+        Cap on the per-combination identifications of the paper's Table III (a seeded random subset
+        above it; default 400).
+    seed : int
+        Seed of the bootstrap and of the combination subset: a seed gives the same figures.
+    constraints : tuple of {"phase", "amplitude"}
+        Weighted constraints added to the UFM slices for the point estimate and the bootstrap (beyond
+        the paper, :mod:`mrftcli.mrft.consensus`); ``()`` gives the paper's method alone.
+    refine_waveform : bool
+        Refine the MRFT estimate by output error on the tests' windows and report it when the data
+        accept it (:func:`mrftcli.mrft.refine.refine`); False: the MRFT estimate alone.
+    controller_rate_hz : float, optional
+        Rate [Hz] the relay decides at, overriding the flight's ``timing.controller_rate_hz`` for the
+        segmenter (a log sub-sampling its controller); None: the flight's.
+
+    Raises
+    ------
+    InputError
+        ``min_stable_cycles``, ``n_bootstrap`` or ``max_combinations`` below 1, an unknown constraint,
+        a non-positive controller rate.
+
+    Examples
+    --------
+    >>> AnalyzeOptions(n_bootstrap=100, constraints=()).constraints
+    ()
+    >>> AnalyzeOptions(constraints=("phase", "gain"))
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: unknown constraint(s) ['gain']; choose from ['phase', 'amplitude']
+    """
+
+    min_stable_cycles: int = 3
+    criterion: StabilityCriterion | None = None
+    validity: ValidityCriterion | None = None
+    n_bootstrap: int = 400
+    max_combinations: int = 400
+    seed: int = 0
+    constraints: tuple[str, ...] = CONSTRAINTS
+    refine_waveform: bool = True
+    controller_rate_hz: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("min_stable_cycles", "n_bootstrap", "max_combinations"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
+                raise InputError(f"{name} must be a whole number of at least 1, got {value!r}")
+        constraints = tuple(self.constraints)
+        bad = [c for c in constraints if c not in CONSTRAINTS]
+        if bad:
+            raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
+        object.__setattr__(self, "constraints", constraints)  # a list given: stored as the tuple
+        if self.controller_rate_hz is not None:
+            object.__setattr__(self, "controller_rate_hz",
+                               check_positive("controller rate [Hz]", self.controller_rate_hz))

@@ -10,6 +10,7 @@ from ..errors import InsufficientDataError, MrftError, SegmentationError
 from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
                             window_option)
 from ..report.wording import output_unit, uncertainty_sentence
+from .cascade_options import cascade_options, pop_cascade_options, run_cascade
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, tp_option, tqdm_progress)
 
@@ -173,6 +174,7 @@ def _stages(progress, weights: dict[str, float]):
                    "amplitude constraints.")
 @click.option("--diagnose", "run_diagnose", is_flag=True,
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose.selection).")
+@cascade_options
 @quiet_option()
 def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target, report_dir,
             mcap_out, paper_only, run_diagnose, quiet, **read_options):
@@ -200,6 +202,12 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     from ..analyze import AnalyzeOptions, analyze_flight
     from ..io import ReadOptions, read_flight
 
+    cascade = pop_cascade_options(read_options)  # --inner-model: the outer loop through its inner loop
+    if cascade.requested:
+        run_cascade(log, cascade, read_options, min_cycles=min_cycles, json_target=json_target,
+                    unsupported={"--report": report_dir, "--mcap-out": mcap_out, "--paper-only": paper_only,
+                                 "--diagnose": run_diagnose, "--window": windows, "--model": model_name != "soiptd"})
+        return
     to_stdout = json_target == "-"
     # every output is checked before the work starts, all in the same way (parents created)
     check_output_file(json_target, "--json")

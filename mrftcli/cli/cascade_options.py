@@ -1,0 +1,164 @@
+"""``analyze LOG --loop x|y --inner-model RESULT.json --inner-gains GAINS.json``: an outer loop through its inner loop.
+
+The options and their handling; ``cli/analyze.py`` only pops them (:func:`pop_cascade_options`) and
+hands over (:func:`run_cascade`). The maths is :mod:`mrftcli.analyze.cascade`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+import click
+
+from ..errors import InputError, MrftError
+from .options import check_output_file, dump_json
+
+__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade", "format_cascade"]
+
+_KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
+
+
+def cascade_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """The click options of the cascade route (``--inner-model``, ``--inner-gains``, ``--outer-command``, ``--inner-draws``)."""
+    f = click.option("--inner-draws", "inner_draws", type=click.IntRange(0, 1000), default=30, show_default=True,
+                     metavar="N",
+                     help="With --inner-model: draws of the inner model solved to carry its uncertainty into "
+                          "the outer estimate (0: take it as exact).")(f)
+    f = click.option("--outer-command", "outer_command", type=click.Choice(["acceleration", "attitude", "identify"]),
+                     default="acceleration", show_default=True,
+                     help="With --inner-model: what the outer relay commands, an acceleration [m/s^2] (K = 1) or an "
+                          "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the output.")(f)
+    f = click.option("--inner-gains", "inner_gains", metavar="GAINS.json", type=click.Path(dir_okay=False),
+                     help="With --inner-model: the inner controller flown during the outer tests, "
+                          '{"roll": {"Kp", "Ki", "Kd", "Tf", "rate_hz"}} (roll for y, pitch for x); tune '
+                          "--export generic or tune --json output is read too. See docs/cascade.md.")(f)
+    f = click.option("--inner-model", "inner_model", metavar="RESULT.json", type=click.Path(dir_okay=False),
+                     help="Analyse --loop x|y through the closed inner loop: the inner (roll for y, pitch for x) "
+                          "loop's analyze --json result. See docs/cascade.md.")(f)
+    return f
+
+
+@dataclass(frozen=True)
+class CascadeRequest:
+    """The cascade options as given (None: not given).
+
+    Attributes
+    ----------
+    inner_model, inner_gains : str or None
+        The paths of the inner analysis and of the gains file.
+    outer_command : str
+        ``"acceleration"``, ``"attitude"`` or ``"identify"``.
+    inner_draws : int
+        Draws of the inner model.
+    """
+
+    inner_model: str | None
+    inner_gains: str | None
+    outer_command: str
+    inner_draws: int
+
+    @property
+    def requested(self) -> bool:
+        """Was the cascade route asked for (either file given)?"""
+        return self.inner_model is not None or self.inner_gains is not None
+
+
+def pop_cascade_options(options: dict[str, Any]) -> CascadeRequest:
+    """Take the cascade options out of a command's keyword arguments (the rest are the reader's)."""
+    values = {k: options.pop(k, None) for k in _KEYS}
+    return CascadeRequest(values["inner_model"], values["inner_gains"], values["outer_command"] or "acceleration",
+                          int(values["inner_draws"] if values["inner_draws"] is not None else 30))
+
+
+def _read_json(path: str, option: str) -> Any:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
+    except OSError as err:
+        raise InputError(f"{option} {path}: cannot read it ({err.strerror or err})") from err
+    except ValueError as err:
+        raise InputError(f"{option} {path}: not JSON ({err})") from err
+
+
+def _check(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -> str:
+    """The inner loop's name; one-line errors naming the option otherwise."""
+    from ..mrft.cascade import INNER_LOOP_OF
+
+    if loop not in INNER_LOOP_OF:
+        raise click.UsageError(f"--inner-model and --inner-gains take an outer loop: --loop x or y (got --loop {loop})")
+    inner = INNER_LOOP_OF[loop]
+    if request.inner_model is None:
+        raise click.UsageError(f"--inner-gains needs --inner-model RESULT.json: the {inner} loop's analyze --json result")
+    if request.inner_gains is None:
+        raise click.UsageError(f"--inner-model needs --inner-gains GAINS.json: the gains the {inner} loop flew during "
+                               f"the {loop} tests")
+    used = [name for name, value in unsupported.items() if value]
+    if used:
+        raise click.UsageError(f"{', '.join(used)} do not work with --inner-model (the cascade) yet")
+    return inner
+
+
+def run_cascade(log: str, request: CascadeRequest, read_options: dict[str, Any], *, min_cycles: int,
+                json_target: str | None, unsupported: Mapping[str, Any]) -> None:
+    """``analyze`` through the inner loop: read, identify, print (assumptions first), ``--json``."""
+    from ..analyze.cascade import CascadeOptions, analyze_cascade, inner_draws, inner_gains_of, inner_loop_of
+    from ..analyze.record import AnalysisResult
+    from ..io import ReadOptions, read_flight
+
+    inner_name = _check(request, str(read_options.get("loop")), unsupported)
+    check_output_file(json_target, "--json")
+    result = AnalysisResult.from_json(_read_json(request.inner_model or "", "--inner-model"))
+    controller = inner_gains_of(_read_json(request.inner_gains or "", "--inner-gains"), inner_name)
+    inner = inner_loop_of(result, controller, inner_name)
+    options = CascadeOptions(commanded=request.outer_command, min_stable_cycles=min_cycles,
+                             n_draws=request.inner_draws)
+    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
+    try:
+        analysis = analyze_cascade(flight, inner, options=options,
+                                   draws=inner_draws(result, inner, options.n_draws, options.seed),
+                                   assumptions=(f"inner model from {request.inner_model}",))
+    except MrftError:
+        for w in flight.warnings:
+            click.echo(f"warning: {w}", err=True)
+        raise
+    if json_target:
+        dump_json(analysis.to_json(), json_target)
+    if json_target != "-":
+        click.echo(format_cascade(analysis))
+    for w in analysis.warnings:
+        click.echo(f"warning: {w}", err=True)
+
+
+def _fmt(x: float, digits: int = 4) -> str:
+    return f"{x:#.{digits}g}".rstrip(".") if math.isfinite(x) else "-"
+
+
+def format_cascade(analysis: Any) -> str:
+    """The terminal summary of a :class:`~mrftcli.analyze.cascade.CascadeAnalysis`: assumptions, tests, parameters."""
+    from ..io.logtypes import output_unit
+
+    ident = analysis.identification
+    unit = output_unit(analysis.loop)
+    lines = [f"{analysis.path}", f"loop {analysis.loop} through the closed inner loop (cascade model "
+                                 f"{ident.model.structure}); times in seconds from the log start"]
+    lines += [f"assumption: {a}" for a in analysis.assumptions]
+    lines.append(f"{'test':>4}  {'from':>6}  {'to':>6}  {'beta':>6}  {'h':>6}  {'frequency':>9}  {'predicted':>9}  "
+                 f"{'sampled band':>15}  {'amplitude':>9}  {'predicted':>9}")
+    lines.append(f"{'':>4}  {'[s]':>6}  {'[s]':>6}  {'':>6}  {'':>6}  {'[Hz]':>9}  {'[Hz]':>9}  {'[Hz]':>15}  "
+                 f"{'[' + unit + ']':>9}  {'[' + unit + ']':>9}")
+    for t, fit in zip(analysis.tests, ident.tests):
+        band = f"{_fmt(fit.band_hz[0])}-{_fmt(fit.band_hz[1])}"
+        lines.append(f"{t.index + 1:>4}  {t.t_start - analysis.t0:>6.1f}  {t.t_end - analysis.t0:>6.1f}  "
+                     f"{fit.beta:>+6.3f}  {_fmt(fit.h, 3):>6}  {_fmt(fit.frequency_hz):>9}  {_fmt(fit.predicted_hz):>9}  "
+                     f"{band:>15}  {_fmt(fit.amplitude):>9}  {_fmt(fit.predicted_amplitude):>9}")
+    lines.append(f"{'parameter':<10}{'unit':<30}{'estimate':>10}{'std':>10}  95 % interval")
+    for name, e in ident.estimates.items():
+        if e.known:
+            lines.append(f"{name:<10}{e.unit:<30}{_fmt(e.value):>10}{'':>10}  known (--outer-command)")
+            continue
+        interval = f"{_fmt(e.ci95_low)} - {_fmt(e.ci95_high)}" + ("" if e.determined else " (not determined)")
+        lines.append(f"{name:<10}{e.unit:<30}{_fmt(e.value):>10}{_fmt(e.std, 2):>10}  {interval}")
+    return "\n".join(lines)

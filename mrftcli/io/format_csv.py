@@ -153,8 +153,12 @@ class CsvSource(LogSource):
 
     def _numeric(self, col: str) -> tuple[np.ndarray, np.ndarray]:
         raw = self._cols[col]
-        values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
-        present = raw.notna().to_numpy()
+        if raw.dtype == np.float64:  # a large file's column (parsed as float64): no copy to convert
+            values = raw.to_numpy()
+            present = ~np.isnan(values)
+        else:
+            values = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+            present = raw.notna().to_numpy()
         if (present & np.isnan(values)).any():
             bad = int(np.flatnonzero(present & np.isnan(values))[0])
             raise LogReadError(f"{self.path}: column {col!r} holds a non-number at row {bad + 2}")
@@ -166,6 +170,8 @@ class CsvSource(LogSource):
             first = int(idx[np.flatnonzero(np.diff(idx) > 1)[0]] + 1)
             self.warn(f"column {col!r}: {holes} blank or NaN cell(s) among its rows (the first at row "
                       f"{first + 2}): read as missing samples")
+        if idx.size == values.size:  # every row holds a sample: the column itself (callers copy what they scale)
+            return self._t.copy(), values
         return self._t[present], values[present]
 
     def topics(self) -> list[TopicInfo]:
@@ -258,15 +264,31 @@ class _LazyColumns(Mapping[str, pd.Series]):
             raise LogReadError(f"{path}: column(s) {', '.join(raw_names)} not numbers ({msg})") from None
 
     def read(self, raw_names: list[str]) -> pd.DataFrame:
-        """Columns ``raw_names`` (as in the file) parsed from the whole file, one float64 array each."""
-        parts: dict[str, list[np.ndarray]] = {n: [] for n in raw_names}
+        """Columns ``raw_names`` (as in the file) parsed from the whole file, one float64 array each.
+
+        The arrays are allocated once at the file's line count and filled block by block: no list of
+        pieces to concatenate (twice the column at the end, and a heap the pieces leave fragmented).
+        """
+        rows = self._line_count()
+        columns = {n: np.empty(rows, dtype=np.float64) for n in raw_names}
+        at = 0
         for block in self._blocks(raw_names, f"reading {len(raw_names)} column(s)"):
+            k = min(len(block), rows - at)
             for n in raw_names:
-                parts[n].append(block[n].to_numpy(dtype=np.float64, copy=True))
-        columns: dict[str, np.ndarray] = {}
-        for n in raw_names:  # one column's pieces at a time: the peak is one column over the result
-            columns[n] = np.concatenate(parts.pop(n)) if parts[n] else np.zeros(0)
-        return pd.DataFrame(columns, copy=False)
+                columns[n][at: at + k] = block[n].to_numpy(dtype=np.float64)[:k]
+            at += k
+        # blank lines are not rows: the arrays' tails are unused then
+        return pd.DataFrame({n: v[:at] for n, v in columns.items()}, copy=False)
+
+    def _line_count(self) -> int:
+        """Lines after the header (an upper bound on the rows), counted once in 16 MB reads."""
+        if not hasattr(self, "_lines"):
+            lines = 0
+            with open(self.source.path, "rb") as handle:
+                while block := handle.read(16 << 20):
+                    lines += block.count(b"\n")
+            self._lines = max(lines - 1, 0)
+        return self._lines
 
     def listing(self, t: np.ndarray) -> list[TopicInfo]:
         """Every column's count and mean rate [Hz] at times ``t`` [s] (row k at ``t[k]``), in one pass

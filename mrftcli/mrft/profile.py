@@ -29,7 +29,7 @@ from .model import LoopModel
 from .refine import RESIDUAL_FACTOR, loop_model_plant, fit_output_error, sensor_noise
 from .waveform import CommandWindow
 
-__all__ = ["TpProfile", "profile_tp", "GRID_FACTORS", "CHI2_95"]
+__all__ = ["TpProfile", "profile_tp", "tp_not_checkable", "BELOW_CONTROLLER_RATE", "GRID_FACTORS", "CHI2_95"]
 
 #: Factors of the given Tp on the coarse grid (log-spaced, 1/10 to 10).
 GRID_FACTORS = tuple(float(f) for f in np.logspace(-1.0, 1.0, 9))
@@ -71,11 +71,45 @@ class TpProfile:
         holds = self.residual_ratio_best <= max(RESIDUAL_FACTOR, 0.5 * self.residual_ratio_given)
         return outside and holds
 
+    @property
+    def holds_nowhere(self) -> bool:
+        """Eq. (2) leaves the residual above :data:`~mrftcli.mrft.refine.RESIDUAL_FACTOR` times the noise
+        at every Tp fitted: the waveform cannot tell a right Tp from a wrong one."""
+        return self.residual_ratio_best > RESIDUAL_FACTOR
+
     def message(self) -> str:
         """The one line the user reads (Tp in seconds, the residuals as multiples of the noise)."""
         return (f"the recording fits Tp = {self.best:.3g} s [{self.low:.3g}, {self.high:.3g}] better than the given "
                 f"{self.given:.3g} s (waveform residual {self.residual_ratio_best:.2f}x the sensor noise against "
                 f"{self.residual_ratio_given:.2f}x): check --tp; Td, tau and K rest on it")
+
+    def warnings(self) -> tuple[str, ...]:
+        """What the analysis says about the given Tp: :meth:`message` where the recording names another
+        Tp, :func:`tp_not_checkable` where eq. (2) holds at no Tp, nothing where the given one fits."""
+        if self.rejects_given:
+            return (self.message(),)
+        if self.holds_nowhere:
+            low, high = self.grid[0][0], self.grid[-1][0]
+            return (tp_not_checkable(self.given, (
+                f"eq. (2) leaves the waveform residual at {self.residual_ratio_best:.2f}x the sensor noise or more "
+                f"at every Tp from {low:.3g} to {high:.3g} s")),)
+        return ()
+
+
+#: Why a log sampled below the controller's rate cannot check Tp (:func:`tp_not_checkable`).
+BELOW_CONTROLLER_RATE = "the command is logged below the controller's rate: the waveform the plant received is not known"
+
+
+def tp_not_checkable(given: float, reason: str) -> str:
+    """The warning for a log whose waveform cannot check the given Tp [s] (``reason``: why, in words).
+
+    Examples
+    --------
+    >>> tp_not_checkable(0.0422, BELOW_CONTROLLER_RATE)[:60]
+    'Tp is not checkable from this log (the command is logged bel'
+    """
+    return (f"Tp is not checkable from this log ({reason}): Td, tau and K rest on the given Tp = {given:.3g} s, "
+            "and a wrong Tp would move them within a tight interval; check --tp against the bench test")
 
 
 def profile_tp(windows: Sequence[CommandWindow], start: LoopModel, *, loop_sign: int = 1,

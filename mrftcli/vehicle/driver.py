@@ -16,7 +16,7 @@ from pathlib import Path
 from ..analyze import AnalysisResult, analyze_flight
 from ..analyze.options import AnalyzeOptions
 from ..errors import InputError, MrftError
-from ..io import ReadOptions, read_flight
+from ..io import LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
@@ -111,22 +111,22 @@ class _Found:
     missing: dict[str, MissingLoop]
 
 
-def find_loops(path: str, options: VehicleOptions, tps: Mapping[str, float]) -> _Found:
-    """The loops whose command and output topics the log holds (:func:`~mrftcli.vehicle.loops.loops_in_log`'s
-    rule), in the vehicle's order."""
-    from ..io import log_layout, open_log
-
-    with open_log(path, options.fmt, echo_warnings=False, time_unit=options.time_unit) as source:
-        layout = log_layout(source, options.layout).layout
-        absent = {loop: layout_absent(source, layout, loop) for loop in VEHICLE_ORDER}
+def find_loops(source: LogSource, options: VehicleOptions, tps: Mapping[str, float]) -> _Found:
+    """The loops whose command and output topics the open log holds (:func:`~mrftcli.vehicle.loops.loops_in_log`'s
+    rule), in the vehicle's order; their topics are read in one pass (a bag is read once, not once per loop)."""
+    layout = log_layout(source, options.layout).layout
+    absent = {loop: layout_absent(source, layout, loop) for loop in VEHICLE_ORDER}
     missing = {loop: missing_topics(loop, gone, tps[loop]) for loop, gone in absent.items() if gone}
-    return _Found(layout.name, tuple(loop for loop in VEHICLE_ORDER if not absent[loop]), missing)
+    present = tuple(loop for loop in VEHICLE_ORDER if not absent[loop])
+    specs = [spec for loop in present for spec in (layout.loops[loop].command, layout.loops[loop].output,
+                                                   layout.loops[loop].setpoint, layout.loops[loop].beta) if spec]
+    source.prefetch(sorted({parse_spec(spec).topic for spec in specs}))
+    return _Found(layout.name, present, missing)
 
 
-def _identify_eq2(path: str, loop: str, Tp: float, options: VehicleOptions) -> AnalysisResult:
+def _identify_eq2(source: LogSource, loop: str, Tp: float, options: VehicleOptions) -> AnalysisResult:
     """One loop with eq. (2) at the known Tp, as ``analyze`` (the reader's warnings kept in the result)."""
-    flight = read_flight(path, options.read(loop), echo_warnings=False)
-    return analyze_flight(flight, Tp, options=options.analyze())
+    return analyze_flight(read_loop(source, options.read(loop)), Tp, options=options.analyze())
 
 
 def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner_gains: Mapping[str, object] | None = None,
@@ -159,16 +159,17 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
     opts = options or VehicleOptions()
     tps = tp_per_loop(Tp)
     log = str(path)
-    found = find_loops(log, opts, tps)
-    opts = dataclasses.replace(opts, layout=found.layout)
-    acc = _Accumulated(missing=dict(found.missing))
-    total = len(found.loops) + 1
-    for i, loop in enumerate(found.loops):
-        report(progress, i, total, f"{loop}: identifying and tuning")
-        if loop in OUTER_LOOPS:
-            identify_outer(log, loop, tps[loop], opts, inner_gains, acc)
-        else:
-            identify_inner(log, loop, tps[loop], opts, acc)
+    with open_log(log, opts.fmt, echo_warnings=False, time_unit=opts.time_unit) as source:
+        found = find_loops(source, opts, tps)
+        opts = dataclasses.replace(opts, layout=found.layout)
+        acc = _Accumulated(missing=dict(found.missing))
+        total = len(found.loops) + 1
+        for i, loop in enumerate(found.loops):
+            report(progress, i, total, f"{loop}: identifying and tuning")
+            if loop in OUTER_LOOPS:
+                identify_outer(source, loop, tps[loop], opts, inner_gains, acc)
+            else:
+                identify_inner(source, loop, tps[loop], opts, acc)
     report(progress, total, total, "done")
     ordered = {loop: acc.missing[loop] for loop in VEHICLE_ORDER if loop in acc.missing}
     return VehicleResult(log, found.layout, acc.loops, ordered, (*acc.first, *acc.assumptions), tuple(acc.warnings))
@@ -191,19 +192,20 @@ class _Accumulated:
         self.assumptions += [f"{entry.loop}: {n}" for n in stated]
 
 
-def identify_inner(log: str, loop: str, Tp: float, options: VehicleOptions, acc: _Accumulated) -> None:
+def identify_inner(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc: _Accumulated) -> None:
     """An inner loop (altitude, roll, pitch): eq. (2) at the known Tp, tuned; or the tests it needs."""
     try:
-        result = _identify_eq2(log, loop, Tp, options)
+        result = _identify_eq2(source, loop, Tp, options)
     except MrftError as err:
-        acc.missing[loop] = missing_from_error(loop, err, Tp, log, options.controller_rate_hz, options.plan)
+        acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
+                                               options.plan)
         return
     gains, stated, refused = _tuned(result, options)
     acc.add(VehicleLoop(loop, "inner", "eq2", result, gains), stated, refused)
 
 
-def identify_outer(log: str, loop: str, Tp: float, options: VehicleOptions, inner_gains: Mapping[str, object] | None,
-                   acc: _Accumulated) -> None:
+def identify_outer(source: LogSource, loop: str, Tp: float, options: VehicleOptions,
+                   inner_gains: Mapping[str, object] | None, acc: _Accumulated) -> None:
     """An outer loop (x, y): through the closed inner loop when its gains in use are given, else eq. (2)
     (the first assumption says so, naming ``--inner-gains``); tuned; or the tests it needs."""
     inner = INNER_OF[loop]
@@ -211,9 +213,10 @@ def identify_outer(log: str, loop: str, Tp: float, options: VehicleOptions, inne
         raise InputError("--inner-gains: the identification through the closed inner loop is not available in "
                          "this version; leave --inner-gains out to identify x and y with eq. (2)")
     try:
-        result = _identify_eq2(log, loop, Tp, options)
+        result = _identify_eq2(source, loop, Tp, options)
     except MrftError as err:
-        acc.missing[loop] = missing_from_error(loop, err, Tp, log, options.controller_rate_hz, options.plan)
+        acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
+                                               options.plan)
         return
     said = EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{Tp:g}", inner=inner)
     acc.first.append(said)

@@ -1,0 +1,181 @@
+"""mrft-ident vehicle (issue 23): every loop of one flight found from its topics, identified, tuned; the
+loops without tests named with what to fly; the vehicle record's round trip.
+
+The flight is a HEAR-layout bag with roll tests, then y tests, each flown by the simulator on a known
+plant of eq. (2): the simulator is the oracle, and the analysis shares no code with it.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
+from mrftcli.io import write_log
+from mrftcli.io.logtypes import TopicData
+from mrftcli.mrft.model import LoopModel
+from mrftcli.sim import FlightSpec, TestSpec, simulate_flight
+from mrftcli.vehicle import (VEHICLE_ORDER, StackOptions, TuneOptions, VehicleOptions, VehicleResult, identify_vehicle,
+                             loops_in_log, tp_per_loop)
+from mrftcli.vehicle.next_tests import NOT_FOLLOWING, missing_from_error
+
+TP = 0.0422
+ROLL = LoopModel(TP, 1.301, 0.0297, 30.0)
+
+
+Y = LoopModel(TP, 2.0, 0.08, 1.0)
+
+
+def _point(n: int, **columns: np.ndarray) -> dict[str, np.ndarray]:
+    out = {c: np.zeros(n) for c in "xyz"}
+    out.update(columns)
+    return out
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    """A HEAR-layout bag (/angle_u, /opti/ori, /fh_des, /opti/pos): two roll tests, then two y tests.
+
+    Each loop is flown by the simulator on its own plant of eq. (2) (the y plant standing for the closed
+    roll loop and the translational dynamics), so both have a known truth.
+    """
+    roll = simulate_flight(FlightSpec(ROLL, (TestSpec(-0.5, 0.17, 10.0), TestSpec(-0.2, 0.17, 10.0)), loop="roll",
+                                      hover_s=2.0, hold_s=2.0, seed=3))
+    y = simulate_flight(FlightSpec(Y, (TestSpec(-0.6, 0.9, 14.0), TestSpec(-0.3, 0.35, 16.0)), loop="y",
+                                   hover_s=2.0, hold_s=2.0, seed=4))
+    t = np.concatenate([roll.t, y.t + roll.t[-1] + 0.005])
+    quiet = np.random.default_rng(5)
+    nr, ny = roll.t.size, y.t.size
+    topics = [
+        TopicData("/angle_u", "geometry_msgs/msg/Point", t, _point(t.size, x=np.r_[roll.command, np.zeros(ny)])),
+        TopicData("/opti/ori", "geometry_msgs/msg/Point", t,
+                  _point(t.size, x=np.r_[roll.output_measured, quiet.normal(0, 1e-3, ny)])),
+        TopicData("/fh_des", "geometry_msgs/msg/Point", t,
+                  _point(t.size, y=np.r_[np.zeros(nr), y.command], z=np.full(t.size, 9.81))),
+        TopicData("/opti/pos", "geometry_msgs/msg/Point", t,
+                  _point(t.size, y=np.r_[quiet.normal(0, 5e-4, nr), y.output_measured], z=np.ones(t.size))),
+    ]
+    return write_log(topics, tmp_path_factory.mktemp("vehicle") / "roll_y.bag", "bag")
+
+
+@pytest.fixture(scope="module")
+def result(flight):
+    return identify_vehicle(flight, TP, options=VehicleOptions(n_bootstrap=100))
+
+
+def test_roll_and_y_identified_and_tuned_from_one_flight(result):
+    assert list(result.loops) == ["roll", "y"]  # inner loop first
+    roll = result.loops["roll"]
+    assert (roll.role, roll.route) == ("inner", "eq2")
+    y = result.loops["y"]
+    assert (y.role, y.route) == ("outer", "eq2") and len(y.analysis.tests) == 2
+    for entry, truth in ((roll, ROLL), (y, Y)):  # the flown plants (the simulator's truth) within 2 %
+        a = entry.analysis
+        assert a.Td.mean == pytest.approx(truth.Td, rel=0.02)
+        assert a.tau.mean == pytest.approx(truth.tau, rel=0.02)
+        assert a.K.mean == pytest.approx(truth.K, rel=0.02)
+    for entry in result.loops.values():
+        assert entry.gains is not None and entry.gains.design == "robust"
+        c = entry.gains.controller
+        assert c.Kp > 0 and c.Kd > 0 and entry.gains.chosen.margins.phase_margin_deg > 30
+
+
+def test_outer_loop_on_eq2_is_said_first_naming_the_option(result):
+    assert result.assumptions[0].startswith("y identified with eq. (2)")
+    assert "--inner-gains" in result.assumptions[0]
+    assert result.loops["y"].route_notes == (result.assumptions[0],)
+
+
+def test_loops_without_tests_get_the_tests_to_fly(result, flight):
+    assert loops_in_log(flight) == ("altitude", "x", "y", "roll", "pitch")  # the HEAR layout's topics are all there
+    assert list(result.missing) == ["altitude", "pitch", "x"]
+    for name, miss in result.missing.items():
+        assert miss.reason == "no-tests"
+        assert f"mrft-ident plan --tp {TP:g} --loop {name}" in miss.next_tests
+    assert "pitch loop's new gains" in result.missing["x"].next_tests  # x rides on pitch
+
+
+def test_record_round_trip(result):
+    data = json.loads(json.dumps(result.to_json(), allow_nan=True))
+    back = VehicleResult.from_json(data)
+    assert json.loads(json.dumps(back.to_json(), allow_nan=True)) == data
+    roll = data["loops"]["roll"]
+    assert {"parameters", "tests", "model", "gains", "role", "route"} <= set(roll)
+    assert set(roll["gains"]["generic"]) >= {"Kp", "Ki", "Kd", "Tf", "rate_hz"}
+    assert back.loops["roll"].gains.controller == result.loops["roll"].gains.controller
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"schema_version": 99}, "schema_version 99 is not supported"),
+    ({"loops": {"yaw": {}}}, "unknown loop(s) yaw"),
+    ({"missing": {"x": {"reason": "lost", "message": "", "next_tests": ""}}}, "'reason' must be one of"),
+])
+def test_record_refuses_bad_input_in_one_line(result, change, message):
+    data = {**result.to_json(), **change}
+    with pytest.raises(InputError, match="vehicle") as err:
+        VehicleResult.from_json(data)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_tp_per_loop():
+    assert tp_per_loop(0.05) == dict.fromkeys(VEHICLE_ORDER, 0.05)
+    with pytest.raises(InputError, match="no Tp for the x, y loop"):
+        tp_per_loop({"altitude": 0.04, "roll": 0.03, "pitch": 0.03})
+
+
+def test_shared_command_tests_of_another_loop_mean_no_tests():
+    """The reference layout's /mrft/command serves every loop: tests the loop's output does not follow are
+    another loop's, so the loop has none (not 'fly them again')."""
+    err = SegmentationError("2 relay test(s) found on /mrft/command, but /imu/data pitch does not follow them")
+    err.rejected_tests = [{"index": 0, "reason": f"{NOT_FOLLOWING}: output amplitude 0.2x the noise"}]
+    miss = missing_from_error("pitch", err, TP, "f.mcap")
+    assert miss.reason == "no-tests" and "another loop's tests" in miss.message
+
+
+def test_single_beta_loop_gets_a_planned_second_test(tmp_path):
+    flown = simulate_flight(FlightSpec(ROLL, (TestSpec(-0.5, 0.17, 10.0),), loop="roll", hover_s=2.0, hold_s=2.0))
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.io import ReadOptions, read_flight
+
+    path = write_log(flown.topics, tmp_path / "one_beta.mcap")
+    with pytest.raises(InsufficientDataError) as err:
+        analyze_flight(read_flight(path, ReadOptions(loop="roll")), TP)
+    miss = missing_from_error("roll", err.value, TP, str(path))
+    assert miss.reason == "single-beta" and miss.plan is not None
+    t = miss.plan.tests[0]  # the planner's recommendation, passed on as the hint
+    assert -0.95 < t.beta < 0 and t.beta != -0.5 and f"beta {t.beta:+.2f}, h {t.h:.3g}" in miss.next_tests
+    assert miss.plan.flown and miss.plan.flown[0].beta == pytest.approx(-0.5, abs=0.05)  # it counted the flown test
+    assert any("--max-amplitude" in a for a in miss.plan.assumptions)  # the limits it took are stated
+
+
+def test_stack_export_designs_with_the_stack_filter(result):
+    """--export ardupilot: roll designed with the stack's gyro filter at its rate; a value below the stack's
+    range is set to the bound with --clamp and the export says so."""
+    from mrftcli.vehicle import tune_loop
+
+    roll = tune_loop(result.loops["roll"].analysis, TuneOptions(stack=StackOptions("ardupilot", clamp=True)))
+    assert roll.export is not None and roll.export.stack == "ardupilot" and roll.export_refused is None
+    assert roll.tune.rate_filter is not None and roll.tune.rate_filter.parameter == "INS_GYRO_FILTER"
+    assert roll.export.params["ATC_ANG_RLL_P"] >= 3.0  # ArduPilot's minimum
+    assert all(n in " ".join(roll.export.notes) for n, _, _ in roll.export.clamped)
+
+
+def test_cli_vehicle(flight, tmp_path):
+    out_json, gains = tmp_path / "vehicle.json", tmp_path / "gains.json"
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "vehicle", str(flight), "--tp", str(TP), "-q",
+                           "--json", str(out_json), "--export", "generic", "--out", str(gains)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith("assumption: y identified with eq. (2)")
+    assert any(line.startswith("roll  inner  eq2") for line in lines)
+    assert any("tau [ms]" in line for line in lines) and "rad/s² per command unit" in proc.stdout
+    assert "Traceback" not in proc.stderr
+    record = VehicleResult.from_json(json.loads(out_json.read_text()))
+    assert list(record.loops) == ["roll", "y"]
+    exported = json.loads(gains.read_text())  # the GAINS.json --inner-gains reads
+    assert exported["roll"]["Kp"] == pytest.approx(record.loops["roll"].gains.controller.Kp)

@@ -35,9 +35,9 @@ FORMAT_EXCEPTIONS = {
     "tune": "a hidden, deprecated alias of --export; the log's format is --log-format",
 }
 #: What --out names per command (docs/usage.md, "One grammar").
-OUT_KIND = {"batch": "folder", "build-ufm": "folder", "simulate": "file", "tune": "file"}
+OUT_KIND = {"batch": "folder", "build-ufm": "folder", "simulate": "file", "tune": "file", "vehicle": "file"}
 #: Commands that draw a progress bar, so take -q/--quiet.
-PROGRESS = {"analyze", "diagnose", "batch", "plan", "tune", "simulate", "build-ufm"}
+PROGRESS = {"analyze", "diagnose", "batch", "plan", "tune", "simulate", "build-ufm", "vehicle"}
 
 
 def _commands() -> dict[str, click.Command]:

@@ -7,13 +7,15 @@ analysed (the 10 Hz log with the controller's rate, 50 Hz, as the PX4 layout kno
 * ``slow`` (issue 11): Td 1-3 s, tau 30-70 ms, K 10-25, Tp 42.2 ms, beta -0.6 and -0.2 (tests at
   0.4-1.3 Hz: 8-25 samples per cycle at 10 Hz);
 * ``fast`` (issue 24 part 3): tau 15-50 ms, beta -0.8 and -0.3 (the faster test at 1.6-2.4 Hz:
-  4-6 samples per cycle at 10 Hz).
+  4-6 samples per cycle at 10 Hz);
+* ``users``: as ``fast``, flown as people fly them: 8-14 cycles per test and a relay height for an
+  amplitude of 2-8 cm, drawn per test (a refusal counts as a miss).
 
 Prints each plant's truth, its tests' frequencies and both logs' estimates and intervals, then per
 log rate: the coverage of each parameter's 95 % interval, the mean interval widths, how many flights
 had both tests used, and the failures (a failure, e.g. "only one beta was tested", counts as a miss);
 and the 10 Hz / 50 Hz width ratios.
-Usage: nice -n 10 python benchmarks/bench_low_rate.py [SEED] [N] [slow|fast]
+Usage: nice -n 10 python benchmarks/bench_low_rate.py [SEED] [N] [slow|fast|users]
 Figures: docs/benchmarks/low_rate.md.
 """
 import math
@@ -33,7 +35,8 @@ from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 SEED = int(sys.argv[1]) if len(sys.argv) > 1 else 20261122
 N = int(sys.argv[2]) if len(sys.argv) > 2 else 20
 MODE = sys.argv[3] if len(sys.argv) > 3 else "slow"
-DRAWS = {"slow": ((0.03, 0.07), (-0.6, -0.2)), "fast": ((0.015, 0.05), (-0.8, -0.3))}
+DRAWS = {"slow": ((0.03, 0.07), (-0.6, -0.2)), "fast": ((0.015, 0.05), (-0.8, -0.3)),
+         "users": ((0.015, 0.05), (-0.8, -0.3))}
 TAU_RANGE, BETAS = DRAWS[MODE]
 RATES = (10, 50)
 PARS = ("Td", "tau", "K")
@@ -46,7 +49,11 @@ both = {r: 0 for r in RATES}
 fail = {r: [] for r in RATES}
 for k in range(N):
     m = LoopModel(0.0422, float(rng.uniform(1.0, 3.0)), float(rng.uniform(*TAU_RANGE)), float(rng.uniform(10, 25)))
-    tests = tuple(plan_test(m, b, 0.05, rate_hz=50.0, cycles=14.0) for b in BETAS)
+    if MODE == "users":
+        tests = tuple(plan_test(m, b, float(rng.uniform(0.02, 0.08)), rate_hz=50.0,
+                                cycles=float(rng.integers(8, 15))) for b in BETAS)
+    else:
+        tests = tuple(plan_test(m, b, 0.05, rate_hz=50.0, cycles=14.0) for b in BETAS)
     spec = FlightSpec(model=m, tests=tests, loop="altitude", rate_hz=50.0, noise_std=float(rng.uniform(2e-4, 1e-3)),
                       bias=0.5, setpoint=1.0, hover_s=3.0, hold_s=3.0, seed=int(rng.integers(1 << 30)))
     fl = simulate_flight(spec)
@@ -57,12 +64,14 @@ for k in range(N):
         p = write_stack_log(out / f"f{lr}.ulg", "px4-mrft", "altitude", fl.t, fl.command, fl.output_measured,
                             fl.setpoint, fl.truth["bias"], st, log_rate_hz=lr if lr < 50 else None)
         try:
-            r = analyze_flight(read_flight(p, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422, options=AnalyzeOptions(n_bootstrap=200, seed=1, controller_rate_hz=50.0))
+            r = analyze_flight(read_flight(p, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422,
+                               options=AnalyzeOptions(n_bootstrap=200, seed=1, controller_rate_hz=50.0))
         except Exception as e:  # a failure counts as a miss
             fail[lr].append(type(e).__name__)
             row.append(f"{lr} Hz: {type(e).__name__} |")
             continue
         both[lr] += len(r.tests) == len(BETAS)
+        spc = [f"{t.rate_hz / t.frequency_hz_mean:.1f}" for t in r.tests]
         for name in PARS:
             est, truth = getattr(r, name), getattr(m, name)
             ok = bool(est.ci95_low <= truth <= est.ci95_high)
@@ -70,7 +79,8 @@ for k in range(N):
             width[lr][name].append((est.ci95_high - est.ci95_low) / truth)
         row.append(f"{lr} Hz: tau {r.tau.mean * 1e3:.1f} [{r.tau.ci95_low * 1e3:.1f}, {r.tau.ci95_high * 1e3:.1f}] "
                    f"Td {r.Td.mean:.3f} [{r.Td.ci95_low:.3f}, {r.Td.ci95_high:.3f}] K {r.K.mean:.2f} "
-                   f"[{r.K.ci95_low:.2f}, {r.K.ci95_high:.2f}] ({r.method}, {len(r.tests)} tests) |")
+                   f"[{r.K.ci95_low:.2f}, {r.K.ci95_high:.2f}] ({r.method}, {len(r.tests)} tests, {'/'.join(spc)} "
+                   "samples per cycle) |")
     print(k, *row, flush=True)
 
 

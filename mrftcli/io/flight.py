@@ -11,6 +11,7 @@ serves a finished file (:func:`mrftcli.io.read_flight`) and one still being writ
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -388,15 +389,12 @@ def _bounded(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
     """
     with np.errstate(invalid="ignore"):
         bad = np.isfinite(sig.values) & (np.abs(sig.values) > ABSURD_MAGNITUDE)  # NaN, inf: _finite
-    if not bad.any():
-        return sig
-    if bad.all():
-        raise LogReadError(f"{log.path}: {role} {where}: every value is beyond +-{ABSURD_MAGNITUDE:.0e}; "
-                           f"check the --{role}-topic field")
-    k = np.flatnonzero(bad)
-    log.warn(f"{role} {where}: {k.size} value(s) beyond +-{ABSURD_MAGNITUDE:.0e} (the first {sig.values[k[0]]:.3g} "
-             f"at message {int(k[0]) + 1}): corrupt samples, left out as missing samples")
-    return Signal(sig.t[~bad], sig.values[~bad])
+
+    def warning(k: np.ndarray) -> str:
+        return (f"{role} {where}: {k.size} value(s) beyond +-{ABSURD_MAGNITUDE:.0e} (the first {sig.values[k[0]]:.3g} "
+                f"at message {int(k[0]) + 1}): corrupt samples, left out as missing samples")
+
+    return _left_out(log, sig, bad, f"{role} {where}: every value is beyond +-{ABSURD_MAGNITUDE:.0e}", role, warning)
 
 
 def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
@@ -407,15 +405,24 @@ def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
     dropped as a gap) rather than read at a made-up level.
     """
     bad = ~np.isfinite(sig.values)
+
+    def warning(k: np.ndarray) -> str:
+        return (f"{role} {where}: {k.size} value(s) are NaN or infinite (the first {sig.t[k[0]] - sig.t[0]:.3f} s "
+                f"after its first sample, message {int(k[0]) + 1}); left out as missing samples: a relay switch next "
+                f"to them is interpolated between the samples around it (1-2 missing) or its cycle is dropped (more)")
+
+    return _left_out(log, sig, bad, f"{role} {where}: every value is NaN or infinite", role, warning)
+
+
+def _left_out(log: LogSource, sig: Signal, bad: np.ndarray, all_bad: str, role: str,
+              warning: Callable[[np.ndarray], str]) -> Signal:
+    """``sig`` without the samples ``bad`` marks; the warning names them (``warning(indices)``), and a
+    signal with none left is a LogReadError (``all_bad``, then the option that names another field)."""
     if not bad.any():
         return sig
     if bad.all():
-        raise LogReadError(f"{log.path}: {role} {where}: every value is NaN or infinite; check the "
-                           f"--{role}-topic field")
-    k = np.flatnonzero(bad)
-    log.warn(f"{role} {where}: {k.size} value(s) are NaN or infinite (the first {sig.t[k[0]] - sig.t[0]:.3f} s "
-             f"after its first sample, message {int(k[0]) + 1}); left out as missing samples: a relay switch next to them is "
-             f"interpolated between the samples around it (1-2 missing) or its cycle is dropped (more)")
+        raise LogReadError(f"{log.path}: {all_bad}; check the --{role}-topic field")
+    log.warn(warning(np.flatnonzero(bad)))
     return Signal(sig.t[~bad], sig.values[~bad])
 
 

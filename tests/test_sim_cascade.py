@@ -25,7 +25,7 @@ from mrftcli.errors import InputError
 from mrftcli.io import read_flight
 from mrftcli.io.flight import ReadOptions
 from mrftcli.mrft.model import LoopModel
-from mrftcli.sim.cascade import approximate_outer_model, command_gain, inner_pd, simulate_cascade
+from mrftcli.sim.cascade import command_gain, inner_pd, plan_outer_test, simulate_cascade
 from mrftcli.sim.cascade_plant import (cascade_plant, closed_loop_radius, controller_response, inner_closed_loop,
                                        outer_phase_margin, outer_plant_response)
 from mrftcli.sim.cascade_spec import CascadeSpec, CascadeTruth, InnerGains
@@ -40,10 +40,10 @@ RATE = 200.0
 
 def _spec(**kw) -> CascadeSpec:
     gains = inner_pd(ROLL, RATE)
-    approx = approximate_outer_model(ROLL, gains, 2.0, 0.03, 1.0)
+    plant = cascade_plant(ROLL, 2.0, 0.03, RATE, 9.81)
     base = dict(inner=ROLL, gains=gains, Td=2.0, tau=0.03, axis="y", commanded="acceleration",
                 inner_tests=(plan_test(ROLL, -0.5, math.radians(5), RATE, cycles=6),),
-                outer_tests=(plan_test(approx, -0.6, 0.1, RATE, cycles=6),), hover_s=1.0, hold_s=2.0)
+                outer_tests=(plan_outer_test(plant, gains, 1.0, -0.6, 0.1, cycles=6),), hover_s=1.0, hold_s=2.0)
     base.update(kw)
     return CascadeSpec(**base)
 

@@ -145,15 +145,15 @@ def _inner_gains(path: Path, inner_loop: str, axis: str):
     return InnerGains.from_generic(data[inner_loop], f"--inner-gains {path} ({inner_loop})")
 
 
-def _cascade_tests(texts: tuple[str, ...], model, amplitude: float, rate_hz: float):
-    """The tests of one loop, H and DURATION planned by the describing function where not given."""
-    from ..sim.flight import TestSpec, plan_test
+def _cascade_tests(texts: tuple[str, ...], plan):
+    """The tests of one loop, H and DURATION planned by ``plan(beta)`` (the describing function) where not given."""
+    from ..sim.flight import TestSpec
 
     specs = []
     for text in texts:
         beta, h, duration = parse_test(text)
         if h is None or duration is None:
-            planned = plan_test(model, beta, amplitude, rate_hz=rate_hz)
+            planned = plan(beta)
             h = planned.h if h is None else h
             duration = planned.duration if duration is None else duration
         specs.append(TestSpec(beta=beta, h=h, duration=duration))
@@ -178,8 +178,10 @@ def _cascade_layout(opts: CascadeOptions, out: Path) -> tuple[str, str]:
 def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) -> None:
     """``simulate --cascade``: check, plan, fly, write, report."""
     from ..mrft.model import LoopModel
-    from ..sim.cascade import approximate_outer_model, inner_pd, simulate_cascade
+    from ..sim.cascade import command_gain, inner_pd, plan_outer_test, simulate_cascade
+    from ..sim.cascade_plant import cascade_plant
     from ..sim.cascade_spec import CASCADE_AXES, STANDARD_GRAVITY, CascadeSpec
+    from ..sim.flight import plan_test
     from ..sim.cascade_write import write_cascade
 
     i = opts.inner
@@ -204,13 +206,18 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
                            f"derivative time 0.3 s): Kp {gains.Kp:.4g}, Kd {gains.Kd:.4g}, Tf {gains.Tf:.4g} s at "
                            f"{gains.rate_hz:g} Hz; give --inner-gains GAINS.json to fly yours")
     check_positive("--controller-rate (a frequency in Hz)", gains.rate_hz)
-    K = STANDARD_GRAVITY if opts.commanded == "attitude" else 1.0
-    approx = approximate_outer_model(inner, gains, opts.Td, opts.tau, K, STANDARD_GRAVITY)
+    if not (math.isfinite(opts.tau) and opts.tau >= 0):
+        raise InputError(f"--tau (the position measurement delay) must be a time >= 0 s, got {opts.tau!r}")
+    plant = cascade_plant(inner, check_positive("--td (the outer Td, s)", opts.Td), opts.tau, gains.rate_hz,
+                          STANDARD_GRAVITY)
+    conv = command_gain(opts.commanded, STANDARD_GRAVITY)
     amp_in = math.radians(5.0) if opts.amplitude[0] is None else opts.amplitude[0]
     amp_out = 0.1 if opts.amplitude[1] is None else opts.amplitude[1]
     spec = CascadeSpec(inner=inner, gains=gains, Td=opts.Td, tau=opts.tau, axis=opts.axis, commanded=opts.commanded,
-                       inner_tests=_cascade_tests(opts.inner_tests, inner, amp_in, gains.rate_hz),
-                       outer_tests=_cascade_tests(opts.outer_tests, approx, amp_out, gains.rate_hz),
+                       inner_tests=_cascade_tests(opts.inner_tests,
+                                                  lambda b: plan_test(inner, b, amp_in, rate_hz=gains.rate_hz)),
+                       outer_tests=_cascade_tests(opts.outer_tests,
+                                                  lambda b: plan_outer_test(plant, gains, conv, b, amp_out)),
                        attitude_noise_std=opts.noise[0], position_noise_std=opts.noise[1],
                        hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1], seed=opts.seed,
                        start_time=opts.start_time, switching=opts.switching)

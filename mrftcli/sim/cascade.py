@@ -29,12 +29,13 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..mrft.model import LoopModel
-from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, inner_closed_loop
+from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, inner_closed_loop, outer_plant_response
 from .cascade_spec import CascadeSpec, CascadeTestTruth, CascadeTruth, InnerGains
 from .control import HearMrftRelay, MrftRelay, design_hold_pid, df_prediction, make_relay
+from .spec import TestSpec
 
 __all__ = ["CascadeFlight", "simulate_cascade", "outer_hold_gains", "approximate_outer_model", "inner_pd",
-           "command_gain"]
+           "command_gain", "outer_describing_function", "plan_outer_test"]
 
 Array = NDArray[np.float64]
 
@@ -134,10 +135,46 @@ def _equivalent_lag(plant: CascadePlant, gains: InnerGains) -> float:
 
 def approximate_outer_model(inner: LoopModel, gains: InnerGains, Td: float, tau: float, K: float,
                             g: float = 9.81) -> LoopModel:
-    """Eq. (2) standing in for the cascade when planning tests and the position hold (never for truth):
+    """Eq. (2) standing in for the cascade when designing the position hold (never for truth):
     Tp = the closed inner loop's equivalent lag, the outer Td, tau and K."""
     plant = cascade_plant(inner, Td, tau, gains.rate_hz, g)
     return LoopModel(_equivalent_lag(plant, gains), Td, tau, K)
+
+
+def outer_describing_function(plant: CascadePlant, gains: InnerGains, command_gain: float, beta: float,
+                              ) -> tuple[float, float]:
+    """The describing function's outer cycle on the exact discrete G_outer (planning only).
+
+    Omega where arg G_outer(e^{j Omega T}) = -pi + asin(beta), and |G_outer| there.
+
+    Returns
+    -------
+    omega : float
+        Frequency [rad/s].
+    gain : float
+        |G_outer(e^{j Omega T})| [m per outer command unit]; the amplitude is 4 h gain / pi.
+    """
+    omega = np.geomspace(1e-2, 0.99 * math.pi / plant.T, 2000)
+    response = outer_plant_response(plant, gains, command_gain, omega)
+    phase = np.unwrap(np.angle(response))
+    below = np.flatnonzero(phase <= -math.pi + math.asin(beta))
+    if below.size == 0:
+        raise InputError("the cascade's phase never reaches the MRFT's; check the outer Td and tau")
+    i = int(below[0])
+    return float(omega[i]), float(abs(response[i]))
+
+
+def plan_outer_test(plant: CascadePlant, gains: InnerGains, command_gain: float, beta: float, amplitude: float,
+                    cycles: float = 14.0, min_duration: float = 8.0) -> TestSpec:
+    """An outer :class:`TestSpec` whose describing-function amplitude is ``amplitude`` [m].
+
+    The duration covers ``cycles`` predicted periods plus 2 s, and at least ``min_duration`` [s].
+    """
+    if not amplitude > 0:
+        raise InputError(f"the planned amplitude must be positive, got {amplitude!r}")
+    omega, gain = outer_describing_function(plant, gains, command_gain, beta)
+    duration = max(min_duration, cycles * 2.0 * math.pi / omega + 2.0)
+    return TestSpec(beta=beta, h=float(amplitude * math.pi / (4.0 * gain)), duration=float(round(duration, 1)))
 
 
 def outer_hold_gains(spec: CascadeSpec) -> InnerGains:
@@ -168,19 +205,24 @@ class _Schedule:
     limits: tuple[float, ...]
 
 
-def _schedule(spec: CascadeSpec, approx: LoopModel, noise: tuple[float, float]) -> _Schedule:
+def _schedule(spec: CascadeSpec, plant: CascadePlant, noise: tuple[float, float]) -> _Schedule:
+    """The tests in flight order; each aborts beyond 10 x its describing-function amplitude (>= 50 noise std)."""
     rate = spec.rate_hz
     k = int(round(spec.hover_s * rate))
     kinds, ranges, limits = [], [], []
-    for kind, tests, model, std in (("inner", spec.inner_tests, spec.inner, noise[0]),
-                                    ("outer", spec.outer_tests, approx, noise[1])):
+    conv = command_gain(spec.commanded, spec.g)
+    for kind, tests, std in (("inner", spec.inner_tests, noise[0]), ("outer", spec.outer_tests, noise[1])):
         for test in tests:
             n = int(round(test.duration * rate))
             if n < 2:
                 raise InputError(f"a test must cover at least two controller periods, got {test.duration!r} s")
             kinds.append(kind)
             ranges.append((k, k + n))
-            limits.append(max(10.0 * df_prediction(model, test.beta, test.h, rate)[1], 50.0 * std))
+            if kind == "inner":
+                amplitude = df_prediction(spec.inner, test.beta, test.h, rate)[1]
+            else:
+                amplitude = 4.0 * test.h * outer_describing_function(plant, spec.gains, conv, test.beta)[1] / math.pi
+            limits.append(max(10.0 * amplitude, 50.0 * std))
             k += n + int(round(spec.hold_s * rate))
     return _Schedule(tuple(kinds), tuple(ranges), k, tuple(limits))
 
@@ -285,8 +327,7 @@ def simulate_cascade(spec: CascadeSpec) -> CascadeFlight:
         raise InputError(f"the inner gains do not stabilise the {spec.inner_loop} plant (closed-loop spectral "
                          f"radius {radius:.3f} >= 1); use smaller gains")
     noise = spec.noise()
-    approx = approximate_outer_model(spec.inner, spec.gains, spec.Td, spec.tau, spec.K, spec.g)
-    schedule = _schedule(spec, approx, noise)
+    schedule = _schedule(spec, plant, noise)
     hold = outer_hold_gains(spec)
     controller = _CascadeController(spec, schedule, hold, noise)
     rng = np.random.default_rng(spec.seed)

@@ -330,6 +330,8 @@ class _Problem:
 
 def _start(problem: _Problem) -> dict[str, float]:
     """The best point of the log grid over the time constants (K and tau profiled out)."""
+    if hasattr(problem.model, "frequency_response_grid"):
+        return _start_grid(problem)
     best: tuple[float, dict[str, float]] = (math.inf, {})
     symmetric = problem.model.family == "sopdt"
     for combo in itertools.product(*_axes(problem)):
@@ -347,6 +349,52 @@ def _start(problem: _Problem) -> dict[str, float]:
     if not best[1] and problem.unknown:
         raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
     return best[1]
+
+
+def _start_grid(problem: _Problem) -> dict[str, float]:
+    """:func:`_start` with every grid point at once (:meth:`frequency_response_grid`; the same profile
+    as :meth:`_Problem.profile`, vectorised over the grid: a loop over model objects cost 2-90 ms)."""
+    d, params = problem.data, problem.model.parameters
+    axes = _axes(problem)
+    combos = (np.array(list(itertools.product(*axes)), dtype=float) if axes else np.zeros((1, 0)))
+    keep = np.ones(len(combos), bool)
+    if problem.model.family == "sopdt":
+        keep &= combos[:, 0] >= combos[:, 1]  # two interchangeable lags: T1 >= T2 only
+    for k, n in enumerate(problem.shape):
+        keep &= (combos[:, k] >= problem.bounds[n][0]) & (combos[:, k] <= problem.bounds[n][1])
+    combos = combos[keep]
+    if not len(combos) and problem.unknown:
+        raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
+    values: dict[str, Any] = {n: p.value for n, p in params.items()}
+    values.update({n: combos[:, k] for k, n in enumerate(problem.shape)})
+    values["K"] = problem.k_sign * abs(params["K"].value) if "K" not in problem.unknown else problem.k_sign
+    values["tau"] = params["tau"].value if "tau" not in problem.unknown else 0.0
+    G = problem.model.frequency_response_grid(d.omega, values)  # type: ignore[attr-defined]
+    log_gain, phase = np.log(np.abs(G)), np.angle(G)
+    K = np.full(len(combos), values["K"])
+    if "K" in problem.unknown:
+        wg = d.w_gain ** 2
+        lnk = (wg * (d.log_gain - log_gain)).sum(axis=1) / wg.sum()
+        K = np.clip(problem.k_sign * np.exp(lnk), *problem.bounds["K"])
+        log_gain = log_gain + np.log(np.abs(K))[:, None]
+    tau = np.zeros(len(combos))
+    if "tau" in problem.unknown:
+        lag = _wrap(phase - d.phase, -0.5 * math.pi)
+        wp = d.w_phase ** 2
+        base = d.fundamental if d.fundamental.any() else d.omega <= d.omega.min()
+        t1 = (wp * d.omega * lag)[:, base].sum(axis=1) / (wp * d.omega ** 2)[base].sum()
+        lag = d.omega * t1[:, None] + _wrap(lag - d.omega * t1[:, None])
+        lo, hi = problem.bounds["tau"]
+        tau = np.clip((wp * d.omega * lag).sum(axis=1) / (wp * d.omega ** 2).sum(), max(lo, 0.0), hi)
+        phase = phase - d.omega * tau[:, None]
+    cost = (((log_gain - d.log_gain) * d.w_gain) ** 2).sum(axis=1) + ((_wrap(phase - d.phase) * d.w_phase) ** 2).sum(axis=1)
+    i = int(np.argmin(cost))
+    out = {n: float(combos[i, k]) for k, n in enumerate(problem.shape)}
+    if "K" in problem.unknown:
+        out["K"] = float(K[i])
+    if "tau" in problem.unknown:
+        out["tau"] = float(tau[i])
+    return out
 
 
 def _axes(problem: _Problem) -> list[FloatArray]:

@@ -20,6 +20,7 @@ if TYPE_CHECKING:
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackSetting
 from .model_options import unsupported_model_option
+from .cascade_options import is_cascade_result, run_cascade_tune
 from .options import dump_json, json_option, log_layout_options, min_cycles_option, quiet_option, tp_option, tqdm_progress
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
@@ -281,7 +282,7 @@ def _stack_summary(e: Any) -> list[str]:
 @click.command("tune")
 @unsupported_model_option("tune", "analyze --model NAME reports the process model's parameters with their intervals; tune designs PD/PID for eq. (2) loops")
 @click.argument("source", required=False, type=click.Path(dir_okay=True))
-@tp_option()
+@tp_option(required=False)  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
 @log_layout_options(format_flag="--log-format")
 @min_cycles_option(detail=" (as analyze)")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
@@ -333,6 +334,14 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, 
     from ..tune.design import tune as run_tune
 
     ex = _ExportOptions(_resolve_export(fmt, export), out, gyro_cutoff, hover_thrust, clamp)
+    if source is not None and str(source).lower().endswith(".json") and is_cascade_result(source):
+        # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
+        run_cascade_tune(source, json_target=json_target, ms_max=ms_max, design=design, export=ex.stack, out=out,
+                         unsupported={"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
+                                      "--design mrft-rule": design == "mrft-rule"})
+        return
+    if Tp is None:
+        raise click.UsageError("Missing option '--tp'.")
     _check_outputs(json_target, report_dir)
     _check_out(out)
     if out and ex.stack is None:

@@ -17,7 +17,7 @@ from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
 from ..mrft.consensus import combinations
-from ..mrft.profile import profile_tp
+from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
@@ -105,7 +105,7 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.mean)
-    tp_warning = _tp_check(flight, screening, wave)
+    tp_warning = _tp_check(flight, screening, wave, Tp, opts.refine_waveform)
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
     usable, rejected = screening.usable, screening.rejected
@@ -121,21 +121,27 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     )
 
 
-def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage) -> tuple[str, ...]:
-    """Where the waveform residual rejects eq. (2), whether another Tp fits (issue 26): a wrong Tp
-    otherwise yields a tight, wrong tau. The warning, first of all, or nothing.
+def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: float,
+              refine: bool) -> tuple[str, ...]:
+    """What the waveform says about the given Tp [s] (issue 26): a wrong Tp otherwise yields a tight,
+    wrong tau. The warning, first of all: the recording fits another Tp, or this log cannot check Tp
+    (the command logged below the controller's rate; eq. (2) holding at no Tp); or nothing.
 
     Profiles the output-error fit over Tp (:func:`mrftcli.mrft.profile.profile_tp`, about 1 s of CPU),
     only when the refinement ran and its residual exceeded the acceptance factor.
     """
     ref = wave.refinement
-    if ref is None or ref.residual_ratio <= RESIDUAL_FACTOR or not screening.usable:
+    if not screening.usable:
+        return ()
+    if ref is None:
+        return (tp_not_checkable(Tp, BELOW_CONTROLLER_RATE),) if refine and screening.ts_ctrl else ()
+    if ref.residual_ratio <= RESIDUAL_FACTOR:
         return ()
     usable = screening.usable
     windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
                                  flight.output.values)
     profile = profile_tp(windows, ref.model, loop_sign=usable[0].loop_sign, noise_std=ref.noise_std)
-    return (profile.message(),) if profile.rejects_given else ()
+    return profile.warnings()
 
 
 def analyze_path(path: str | Path, Tp: float, *, read: ReadOptions | None = None,

@@ -179,3 +179,31 @@ def test_cli_vehicle(flight, tmp_path):
     assert list(record.loops) == ["roll", "y"]
     exported = json.loads(gains.read_text())  # the GAINS.json --inner-gains reads
     assert exported["roll"]["Kp"] == pytest.approx(record.loops["roll"].gains.controller.Kp)
+
+
+def test_batch_vehicle_writes_a_vehicle_record_per_log(tmp_path):
+    """batch --vehicle: each log's record holds its vehicle record; the summary has a row per loop with the
+    gains' tune_* figures, and the loops without tests skipped with the tests to fly."""
+    from pathlib import Path
+
+    from mrftcli.batch import BatchOptions, run_batch
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_roll.mcap"
+    res = run_batch([log], tmp_path / "out", defaults={"tp": TP},
+                    options=BatchOptions(vehicle=True, jobs=1, report=False))
+    record = json.loads(next((tmp_path / "out" / "logs").glob("*.json")).read_text())
+    vehicle = VehicleResult.from_json(record["vehicle"])
+    rows = res.summary.set_index("loop")
+    assert rows.loc["roll", "status"] == "ok"
+    assert rows.loc["roll", "tune_Kp"] == pytest.approx(vehicle.loops["roll"].gains.controller.Kp)
+    assert rows.loc["roll", "Td_mean"] == pytest.approx(ROLL.Td, rel=0.02)
+    assert rows.loc["pitch", "status"] == "skipped-no-tests" and "next: fly MRFT tests" in rows.loc["pitch", "error"]
+
+
+def test_batch_vehicle_refuses_per_loop_options():
+    from click.testing import CliRunner
+
+    from mrftcli.cli.main import cli
+
+    out = CliRunner().invoke(cli, ["batch", "x.mcap", "--tp", "0.04", "--vehicle", "--loop", "roll"])
+    assert out.exit_code == 2 and "--vehicle finds each log's loops from its topics" in out.output

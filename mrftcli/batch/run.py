@@ -42,6 +42,7 @@ import pandas as pd
 
 from .. import __version__
 from ..io.atomic import atomic_path, write_text_atomic
+from ..vehicle.loops import absent_topics, loops_in_log  # one implementation: batch --loop auto and vehicle
 from .inputs import AUTO_LOOP, BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
 from .summary import (
     STATUS_FAILED,
@@ -76,13 +77,15 @@ class BatchFailedError(MrftError):
     exit_code = 8
 
 
-def settings_hash(settings: LogSettings, diagnose: bool, tune: str | None = None) -> str:
-    """A short hash of everything that changes a log's result (settings, --diagnose, --tune, tool version).
+def settings_hash(settings: LogSettings, diagnose: bool, tune: str | None = None, vehicle: bool = False) -> str:
+    """A short hash of everything that changes a log's result (settings, --diagnose, --tune, --vehicle, tool
+    version).
 
     The vehicle name is left out: it only labels the summary row, so renaming does not recompute.
     """
     relevant = {k: v for k, v in settings.to_dict().items() if k != "vehicle"}
-    extra = {"tune": tune} if tune else {}  # untuned batches keep their earlier hashes
+    # untuned batches keep their earlier hashes; a vehicle record is another result than the loops' analyses
+    extra = {**({"tune": tune} if tune else {}), **({"vehicle_record": True} if vehicle else {})}
     blob = json.dumps(
         {"settings": relevant, "diagnose": bool(diagnose), "version": __version__, "record": _RECORD_VERSION,
          **extra},
@@ -107,6 +110,8 @@ class LogTask:
     log_mtime: float = 0.0
     #: Controller kind to tune ("PD" or "PID") on each identified loop, or None.
     tune: str | None = None
+    #: Identify and tune the whole vehicle (mrftcli.vehicle): the record holds its vehicle record.
+    vehicle: bool = False
 
 
 def _now_iso() -> str:
@@ -129,35 +134,6 @@ def _failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
         "result": None,
         "diagnosis": None,
     }
-
-
-def absent_topics(path: str | Path, loop: str, layout: str | None = None) -> tuple[str, ...]:
-    """The topics of ``loop`` (command, output) that the log's layout names and the log does not hold.
-
-    The layout is the one :func:`mrftcli.io.log_layout` reads the log with (named, or recognised from
-    the topics). A layout without the loop gives its name as the one absent topic. Empty: the loop's
-    topics are there (whether its tests are is the analysis's question).
-    """
-    from ..io import log_layout, open_log
-
-    with open_log(path) as source:
-        lay = log_layout(source, layout).layout
-        topics = lay.loops.get(loop)
-        if topics is None:
-            return (f"{lay.name} layout has no {loop} loop",)
-        specs = (topics.command, topics.output)
-        return tuple(spec for spec in specs if source.resolve_topic(spec.split(":", 1)[0]) is None)
-
-
-def loops_in_log(path: str | Path, layout: str | None = None) -> tuple[str, ...]:
-    """The loops of the log's layout whose command and output topics the log holds (``--loop auto``)."""
-    from ..io import log_layout, open_log
-
-    with open_log(path) as source:
-        lay = log_layout(source, layout).layout
-        return tuple(loop for loop, topics in lay.loops.items()
-                     if all(source.resolve_topic(spec.split(":", 1)[0]) is not None
-                            for spec in (topics.command, topics.output)))
 
 
 def _auto_loops(task: LogTask) -> tuple[str, ...]:
@@ -268,6 +244,10 @@ def analyze_one(task: LogTask) -> dict[str, Any]:
         when insufficient), ``diagnosis`` (the diagnose JSON, or None) and ``python_warnings`` (the
         distinct warnings the numerics raised, which are kept here rather than printed).
     """
+    if task.vehicle:
+        from .vehicle import vehicle_one
+
+        return vehicle_one(task)
     t0 = time.perf_counter()
     loops = []
     auto = AUTO_LOOP in task.settings.loops
@@ -515,6 +495,10 @@ class BatchOptions:
         Recompute logs whose stored result is up to date.
     report : bool
         Write the fleet report (HTML + PNG).
+    vehicle : bool
+        Identify and tune every loop of each log as ``mrft-ident vehicle`` (:mod:`mrftcli.batch.vehicle`):
+        each log's record holds its vehicle record, the summary one row per loop (``tune`` sets the
+        controller kind).
 
     Raises
     ------
@@ -534,6 +518,7 @@ class BatchOptions:
     scheduler_timeout_s: float = 10.0
     force: bool = False
     report: bool = True
+    vehicle: bool = False
 
     def __post_init__(self) -> None:
         if self.jobs is not None and self.jobs < 1:
@@ -584,7 +569,7 @@ def run_batch(
     out = Path(out_dir)
     logs = discover_logs(paths, exclude=[out])
     base = {"tp": None, "loops": (AUTO_LOOP,)} | dict(defaults or {})
-    tasks = [_task(log, base, config, explicit or {}, opts.diagnose, opts.tune) for log in logs]
+    tasks = [_task(log, base, config, explicit or {}, opts.diagnose, opts.tune, opts.vehicle) for log in logs]
     if all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")
     _check_out_dir(out)
@@ -613,14 +598,14 @@ def run_batch(
 
 
 def _task(log: Path, base: Mapping[str, Any], config: BatchConfig | None, explicit: Mapping[str, Any],
-          diagnose: bool, tune: str | None) -> LogTask:
+          diagnose: bool, tune: str | None, vehicle: bool = False) -> LogTask:
     """One log's unit of work with its resolved settings."""
     settings, _ = resolve_settings(log, base, config, explicit)
     try:
         mtime = log_mtime(log)
     except OSError:  # vanished or unreadable since discovery: the worker reports it as that log's failure
         mtime = math.inf
-    return LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune), mtime, tune)
+    return LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune, vehicle), mtime, tune, vehicle)
 
 
 def _cached_rows(tasks: Sequence[LogTask], out: Path, force: bool) -> tuple[list[dict[str, Any]], list[LogTask]]:

@@ -80,6 +80,9 @@ def _print_table(df, limit: int = 50) -> None:
 @click.option("--tune", "tune_kind", flag_value="PD", default=None,
               help="Also tune a PD on each loop (robust design, as `tune`): tune_* columns in the summary.")
 @click.option("--tune-pid", "tune_kind", flag_value="PID", help="As --tune, with a PID.")
+@click.option("--vehicle", "vehicle", is_flag=True,
+              help="Identify and tune every loop of each log as `mrft-ident vehicle` (loops from the topics, inner "
+                   "loops first; a vehicle record per log, tune_* columns; --tune-pid for PIDs).")
 @click.option("--force", is_flag=True, help="Recompute logs whose results are up to date.")
 @click.option("--no-report", is_flag=True, help="Skip the fleet report (HTML + PNG).")
 @json_option(what="fleet summary (counts, notes, outputs, one row per log and loop)")
@@ -93,7 +96,7 @@ def _print_table(df, limit: int = 50) -> None:
 def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, scheduler: str | None,
           scheduler_timeout: float, out_dir: str, config_file: str | None, diagnose: bool, force: bool,
           no_report: bool, json_target: str | None, quiet: bool, tune_kind: str | None, baseline: str | None,
-          fail_on: str | None, **setting_opts) -> None:
+          fail_on: str | None, vehicle: bool, **setting_opts) -> None:
     """Analyse every flight log under PATH... (files, folders, globs) and summarise the fleet.
 
     Folders are searched recursively for .mcap, .bag, .ulg, .csv and .bin logs and ROS 2 bag folders.
@@ -118,6 +121,11 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
         given = given or f"mrftcli.rate_alias.{opt}" in ctx.meta  # the deprecated --rate spelling
         (explicit if given else defaults)[key] = value
     config = load_config(config_file) if config_file else None
+    if vehicle and (diagnose or explicit.get("loops") or any(
+            setting_opts[k] is not None for k in ("command_topic", "output_topic", "beta_topic", "setpoint_topic",
+                                                  "output_scale", "command_scale"))):
+        raise click.UsageError("--vehicle finds each log's loops from its topics: give it without --diagnose, --loop "
+                               "and the topic and scale options (run analyze or batch without --vehicle for those)")
     if fail_on:
         from ..compare import parse_fail_on
 
@@ -125,7 +133,8 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
 
     with tqdm_progress("batch", unit="log", enabled=not quiet) as progress:
         options = BatchOptions(diagnose=diagnose, tune=tune_kind, jobs=jobs, scheduler=scheduler,
-                               scheduler_timeout_s=scheduler_timeout, force=force, report=not no_report)
+                               scheduler_timeout_s=scheduler_timeout, force=force, report=not no_report,
+                               vehicle=vehicle)
         result = run_batch(paths, out_dir, options=options, defaults=defaults, config=config, explicit=explicit,
                            progress=progress)
     df = result.summary

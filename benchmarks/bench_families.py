@@ -24,6 +24,8 @@ and relay; about 1.5 s each).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
 import os
 import sys
 import tempfile
@@ -151,13 +153,41 @@ def main() -> None:
           f"95 % intervals cover {totals['covered']}/{n} ({100 * totals['covered'] / n:.0f} %), "
           f"held-out frequency within 10 % {totals['held10']}/{n} ({100 * totals['held10'] / n:.0f} %); "
           f"{time.perf_counter() - t_start:.0f} s")
+    now = _time_calls(identify_lti, timing_cases)
+    with _library_route():
+        before = _time_calls(identify_lti, timing_cases)
+    print("identify_lti per call (median over the recordings' response points; best of 3 repeats): "
+          + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms" for f, v in now.items()))
+    print("  the library route in the same process (a model object per grid point, scipy least_squares): "
+          + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms ({np.median(v) / np.median(now[f]):.1f}x)"
+                      for f, v in before.items()))
+
+
+def _time_calls(identify_lti, cases) -> dict[str, list[float]]:
     per_family: dict[str, list[float]] = {}
-    for model, points in timing_cases:
-        t0 = time.perf_counter()
-        identify_lti(model, points)
-        per_family.setdefault(model.family, []).append(time.perf_counter() - t0)
-    print("identify_lti per call (median over the recordings' response points): "
-          + ", ".join(f"{f} {1e3 * np.median(v):.1f} ms" for f, v in per_family.items()))
+    for model, points in cases:
+        best = math.inf
+        for _ in range(3):
+            t0 = time.perf_counter()
+            identify_lti(model, points)
+            best = min(best, time.perf_counter() - t0)
+        per_family.setdefault(model.family, []).append(best)
+    return per_family
+
+
+@contextlib.contextmanager
+def _library_route():
+    """identify_lti as it was before the hand-written grid and Levenberg-Marquardt (the baseline)."""
+    import mrftcli.mrft.identify_lti as lti
+    from mrftcli.mrft import families
+
+    grid = families._Family.frequency_response_grid
+    del families._Family.frequency_response_grid  # identify_lti then loops over models and calls least_squares
+    try:
+        yield
+    finally:
+        families._Family.frequency_response_grid = grid  # type: ignore[method-assign]
+        assert hasattr(lti, "_levenberg_marquardt")
 
 
 if __name__ == "__main__":

@@ -197,40 +197,52 @@ def test_analyze_general_ideal_relay_ipdt_and_windows(tmp_path):
     assert ident.estimate("K").value == pytest.approx(0.5, rel=0.05)
 
 
-def test_cli_analyze_model_json_and_refusals(tmp_path):
+def _cli(capsys, *argv: str) -> tuple[int, str, str]:
+    """The CLI in-process (exit code, stdout, stderr): a subprocess costs seconds of imports."""
+    from mrftcli.cli.main import main
+
+    try:
+        main(list(argv))
+        code = 0
+    except SystemExit as done:
+        code = int(done.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_analyze_model_json_and_refusals(tmp_path, capsys):
     path = _recording(tmp_path, "foipdt", dict(K=0.5, T=1.0, tau=0.3),
                       [Window("hysteresis", 1.0, -1.0, eps=e, duration=30.0) for e in (0.02, 0.1)])
-    cmd = [sys.executable, "-m", "mrftcli", "analyze", str(path), "--command-topic", "u_relay",
-           "--output-topic", "y_output", "--model", "foipdt"]
-    out = subprocess.run(cmd + ["--json", "-"], capture_output=True, text=True, timeout=120)
+    cmd = ["analyze", str(path), "--command-topic", "u_relay", "--output-topic", "y_output", "--model", "foipdt"]
+    # one run through the installed entry point (python -m mrftcli), the refusals in-process
+    out = subprocess.run([sys.executable, "-m", "mrftcli", *cmd, "--json", "-"], capture_output=True, text=True,
+                         timeout=120)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert set(data["parameters"]) == {"K", "T", "tau"}
     assert all("held_out" in t and set(t["held_out"]) >= {"frequency_hz", "amplitude"} for t in data["tests"])
     assert "NaN" not in out.stdout
-    bad = subprocess.run(cmd + ["--param", "Td=1"], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "unknown parameter" in bad.stderr and "Traceback" not in bad.stderr
-    no_tp = subprocess.run(cmd[:-2], capture_output=True, text=True, timeout=60)
-    assert no_tp.returncode == 2 and "--tp" in no_tp.stderr
+    code, _, err = _cli(capsys, *cmd, "--param", "Td=1")
+    assert code == 2 and "unknown parameter" in err and "Traceback" not in err
+    code, _, err = _cli(capsys, *cmd[:-2])
+    assert code == 2 and "--tp" in err
 
 
-def test_cli_identify_and_predict_process_model():
+def test_cli_identify_and_predict_process_model(capsys):
     # predict the FOPDT hysteresis cycle (closed form above), then identify the model back from two
     # exact points of its response; a point short: the table says what is not determined
-    run = lambda *a: subprocess.run([sys.executable, "-m", "mrftcli", *a], capture_output=True, text=True,  # noqa: E731
-                                    timeout=60)
-    out = run("predict", "--model", "fopdt", "--param", "K=2", "--param", "T=0.5", "--param", "tau=0.1",
-              "--beta", "0", "--eps", "0.3", "--h", "1.5", "--json")
-    assert out.returncode == 0, out.stderr
+    code, out, err = _cli(capsys, "predict", "--model", "fopdt", "--param", "K=2", "--param", "T=0.5", "--param",
+                          "tau=0.1", "--beta", "0", "--eps", "0.3", "--h", "1.5", "--json")
+    assert code == 0, err
     a = 2 * 1.5 - (2 * 1.5 - 0.3) * math.exp(-0.2)
-    assert json.loads(out.stdout)["amplitude"] == pytest.approx(a, rel=1e-8)
+    assert json.loads(out)["amplitude"] == pytest.approx(a, rel=1e-8)
     G = FOPDT(K=2.0, T=0.5, tau=0.1).frequency_response(np.array([2 * math.pi * 0.8, 2 * math.pi * 2.4]))
     pts = [f"--point={f}:{float(abs(g))!r}:{float(math.degrees(np.angle(g)))!r}:0.001:0.05" for f, g in zip((0.8, 2.4), G)]
-    out = run("identify", "--model", "fopdt", *pts, "--json")
-    assert out.returncode == 0, out.stderr
-    params = json.loads(out.stdout)["parameters"]
+    code, out, err = _cli(capsys, "identify", "--model", "fopdt", *pts, "--json")
+    assert code == 0, err
+    params = json.loads(out)["parameters"]
     assert [params[n]["value"] for n in ("K", "T", "tau")] == pytest.approx([2.0, 0.5, 0.1], rel=1e-3)
-    one = run("identify", "--model", "fopdt", pts[0])
-    assert one.returncode == 0 and "NOT DETERMINED" in one.stdout and "nan" not in one.stdout.lower()
-    bad = run("predict", "--model", "fopdt", "--param", "K=2", "--beta", "0")
-    assert bad.returncode == 2 and "needs every parameter" in bad.stderr
+    code, out, _ = _cli(capsys, "identify", "--model", "fopdt", pts[0])
+    assert code == 0 and "NOT DETERMINED" in out and "nan" not in out.lower()
+    code, _, err = _cli(capsys, "predict", "--model", "fopdt", "--param", "K=2", "--beta", "0")
+    assert code == 2 and "needs every parameter" in err

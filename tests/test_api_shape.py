@@ -117,4 +117,5 @@ def test_the_four_regrouped_functions_are_short():
     from mrftcli.io import read_flight
     from mrftcli.watch import watch
 
-    assert [n_parameters(f) for f in (read_flight, analyze_flight, analyze_path, watch, run_batch)] == [3, 3, 4, 6, 8]
+    counts = {f.__name__: n_parameters(f) for f in (read_flight, analyze_flight, analyze_path, watch, run_batch)}
+    assert max(counts.values()) <= 8, counts  # were 14, 11, 21, 16 and 14

@@ -246,3 +246,21 @@ def test_cli_identify_and_predict_process_model(capsys):
     assert code == 0 and "NOT DETERMINED" in out and "nan" not in out.lower()
     code, _, err = _cli(capsys, "predict", "--model", "fopdt", "--param", "K=2", "--beta", "0")
     assert code == 2 and "needs every parameter" in err
+
+
+def test_analyze_general_chattering_ideal_relay_ipdt(tmp_path):
+    # 200 Hz and noise 2 % of the amplitude: the output moves 0.0025 a sample near the crossing, less
+    # than the noise, so the ideal relay switches on the noise at every crossing (the segmenter flags
+    # every cycle); the cycles are still used, from the logged command's own harmonics
+    params = dict(K=0.5, tau=0.4)
+    windows = [Window("ideal", h, -h, duration=20.0, rest=2.0) for h in (1.0, 1.5)]
+    path = _recording(tmp_path, "ipdt", params, windows, rate_hz=200.0, noise=0.004, seed=2)
+    flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
+    result = analyze_general(flight, family_model("ipdt"))
+    assert len(result.tests) == 2 and all(t.relay.kind == "ideal" for t in result.tests)
+    assert any("chatters" in n for n in result.notes)
+    ident = result.identification
+    assert ident is not None
+    for name, value in params.items():
+        assert ident.estimate(name).value == pytest.approx(value, rel=0.05)
+        assert ident.estimate(name).ci95_low <= value <= ident.estimate(name).ci95_high

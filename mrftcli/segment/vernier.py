@@ -49,6 +49,8 @@ _TIE_BREAK = 1e-2
 #: (half-periods several ticks longer) costs the same wherever its switches are, so it cannot pull
 #: the steady cycles' switches off their places
 _CAP = 2.25
+#: switches on either side of a half-period that set its expected length (:func:`_half_periods`)
+_WINDOW = 6
 #: harmonics of the folded waveform (as the per-cycle fits of a well-sampled test)
 _HARMONICS = 8
 
@@ -64,7 +66,8 @@ class TickSwitches:
     ticks : numpy.ndarray
         Their tick numbers from the first switch's bracket (int).
     half_period_ticks : tuple of float
-        The mean half-period after an even-numbered and after an odd-numbered switch [ticks].
+        The mean half-period after an even-numbered and after an odd-numbered switch [ticks] (NaN
+        with fewer than 3 switches).
     scatter_ticks : float
         RMS deviation of the half-periods from those means [ticks] (0: a strictly periodic relay).
     locked : bool
@@ -139,14 +142,15 @@ def switch_ticks(t_before: FloatArray, t_after: FloatArray, ts: float) -> TickSw
     for _ in range(3):  # the half-periods from the sequence, the sequence from the half-periods
         ticks = _best_sequence(lo, hi, H)
         H = _half_periods(ticks.astype(float))
-    d = np.diff(ticks) - H[np.arange(ticks.size - 1) % 2]
+    d = np.diff(ticks) - H
     scatter = float(np.sqrt(np.mean(np.minimum(d ** 2, _CAP)))) if d.size else 0.0
     # locked: the whole sequence can move together inside the brackets of its steady switches
     # (beyond the first few, a start-up transient's)
     steady = np.arange(ticks.size) >= min(4, max(ticks.size - 6, 0))
     room = (_room(ticks, lo, hi, steady, 0), _room(ticks, lo, hi, steady, 1))
     locked = bool(sum(room[0]) + sum(room[1]) > 0 and ticks.size > 2)
-    return TickSwitches(np.asarray(origin + ticks * ts, dtype=np.float64), ticks, (float(H[0]), float(H[1])),
+    return TickSwitches(np.asarray(origin + ticks * ts, dtype=np.float64), ticks,
+                        (float(np.mean(H[0::2])), float(np.mean(H[1::2]))) if H.size > 1 else (np.nan, np.nan),
                         scatter, locked, room, ts)
 
 
@@ -160,14 +164,22 @@ def _room(ticks: NDArray[np.int64], lo: NDArray[np.int64], hi: NDArray[np.int64]
 
 
 def _half_periods(s: FloatArray) -> FloatArray:
-    """The mean half-period after even- and odd-numbered switches [ticks]: s_j = a + b j + c (-1)^j."""
-    j = np.arange(s.size, dtype=float)
-    if s.size < 3:
-        d = float(np.mean(np.diff(s))) if s.size > 1 else 0.0
-        return np.array([d, d])
+    """The half-period after each switch [ticks] (one fewer than ``s``), from a least-squares fit
+    s_j = a + b j + c (-1)^j over the :data:`_WINDOW` switches on either side: the half-period after
+    an even-numbered switch b - 2c, after an odd one b + 2c. Local, because a sampled relay can move
+    to another orbit during a test (PX4's sample flight: 44-tick cycles, then 48)."""
+    n = s.size
+    if n < 3:
+        d = float(np.mean(np.diff(s))) if n > 1 else 0.0
+        return np.full(max(n - 1, 0), d)
+    j = np.arange(n, dtype=float)
     A = np.column_stack([np.ones_like(j), j, (-1.0) ** j])
-    (_, b, c), *_ = np.linalg.lstsq(A, s, rcond=None)
-    return np.array([b - 2 * c, b + 2 * c])
+    out = np.empty(n - 1)
+    for i in range(n - 1):
+        lo, hi = max(0, min(i - _WINDOW, n - 2 * _WINDOW - 1)), min(n, max(i + _WINDOW + 2, 2 * _WINDOW + 1))
+        (_, b, c), *_ = np.linalg.lstsq(A[lo:hi], s[lo:hi], rcond=None)
+        out[i] = b - 2 * c * (-1.0) ** i
+    return out
 
 
 def _best_sequence(lo: NDArray[np.int64], hi: NDArray[np.int64], H: FloatArray) -> NDArray[np.int64]:
@@ -179,7 +191,7 @@ def _best_sequence(lo: NDArray[np.int64], hi: NDArray[np.int64], H: FloatArray) 
     cost = _TIE_BREAK * (cands[0] - centre[0]) ** 2
     back: list[NDArray[np.intp]] = []
     for j in range(1, n):
-        step = cands[j][:, None] - cands[j - 1][None, :] - H[(j - 1) % 2]
+        step = cands[j][:, None] - cands[j - 1][None, :] - H[j - 1]
         total = cost[None, :] + np.minimum(step ** 2, _CAP)
         arg = np.argmin(total, axis=1)
         back.append(arg)

@@ -1,0 +1,283 @@
+"""The cascade of an outer loop (issue 23 part A): exact sampled cycle, identification, analyze and tune.
+
+Oracles: an independent per-tick simulation written here (scipy's expm on fine sub-steps, the
+relay rule of checks.md section 2, the inner PD of tune's generic form), sharing no code with
+:mod:`mrftcli.mrft.cascade`; and the existing sampled machinery of :mod:`mrftcli.mrft.lprs` for a
+plain eq. (2) plant.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+from mrftcli.errors import IdentificationError, InputError
+from mrftcli.mrft.cascade import G, CascadeModel, DiscreteStateSpace, InnerController, InnerLoop, discrete_limit_cycle
+from mrftcli.mrft.cascade_identify import CascadeIdentification, identify_cascade
+from mrftcli.mrft.identify import TestMeasurement
+from mrftcli.mrft.lprs import mrft_limit_cycle
+from mrftcli.mrft.model import MODEL_FAMILIES, LoopModel, model_from_json
+
+RATE = 100.0
+INNER = LoopModel(Tp=0.04, Td=0.5, tau=0.0125, K=40.0)
+GAINS = InnerController(Kp=0.6, Ki=0.0, Kd=0.12, Tf=0.02, rate_hz=RATE)
+
+
+def _cascade(Td: float = 0.8, tau: float = 0.0335, K: float = 1.0) -> CascadeModel:
+    return CascadeModel(InnerLoop(INNER, GAINS, "roll"), Td=Td, tau=tau, K=K)
+
+
+def _simulate(beta: float, h: float, Td: float, tau: float, K: float, t_end: float, every: int = 1,
+              sub: int = 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-tick loop: outer relay (every ``every`` ticks) -> inner PD -> eq. (2) with its delay -> p'' = K phi - p'/Td.
+
+    Exact between sub-steps (delays are whole sub-steps here); returns tick times, measured y, relay u.
+    """
+    T = 1.0 / RATE
+    dt = T / sub
+    A = np.array([[0, 1, 0, 0, 0], [0, -1 / INNER.Td, INNER.K, 0, 0], [0, 0, -1 / INNER.Tp, 0, 0],
+                  [0, 0, 0, 0, 1], [K, 0, 0, 0, -1 / Td]], float)
+    B = np.array([0, 0, 1 / INNER.Tp, 0, 0.0])
+    M = np.zeros((6, 6))
+    M[:5, :5], M[:5, 5] = A * dt, B * dt
+    E = expm(M)
+    Ph, Gm = E[:5, :5], E[:5, 5]
+    d_in, d_out = round(INNER.tau / dt), round(tau / dt)
+    x = np.zeros(5)
+    x[3] = -0.02  # an initial offset starts the relay
+    cmd = [0.0] * (d_in + 1)  # the command per sub-step, delayed by d_in sub-steps
+    hist = [x[3]] * (d_out + 1)
+    D = phi_prev = 0.0
+    u, e_max, e_min, c = h, 0.0, 0.0, 0.0
+    ts, ys, us = [], [], []
+    for k in range(int(t_end * RATE)):
+        y = hist[-1 - d_out]
+        if k % every == 0:
+            e = -y
+            if u > 0:
+                e_max = max(e_max, e)
+                if e_max > 0 and e <= -beta * e_max:
+                    u, e_min = -h, e
+            else:
+                e_min = min(e_min, e)
+                if e_min < 0 and e >= -beta * e_min:
+                    u, e_max = h, e
+        phi = x[0]
+        ei = u - phi
+        D = (GAINS.Tf * D - GAINS.Kd * (phi - phi_prev)) / (GAINS.Tf + T)
+        phi_prev = phi
+        c = GAINS.Kp * ei + D
+        ts.append(k * T), ys.append(y), us.append(u)
+        for _ in range(sub):
+            cmd.append(c)
+            x = Ph @ x + Gm * cmd[-1 - d_in]
+            hist.append(x[3])
+        del cmd[:-(d_in + 2)], hist[:-(d_out + 2)]
+    return np.array(ts), np.array(ys), np.array(us)
+
+
+def _cycles(ts: np.ndarray, ys: np.ndarray, us: np.ndarray, last: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    up = np.nonzero((us[1:] > 0) & (us[:-1] < 0))[0] + 1
+    f = 1.0 / np.diff(ts[up])[-last:]
+    a = np.array([(ys[i:j].max() - ys[i:j].min()) / 2 for i, j in zip(up[-last - 1:-1], up[-last:])])
+    return f, a
+
+
+@pytest.fixture(scope="module")
+def flown() -> dict[float, tuple[np.ndarray, np.ndarray]]:
+    """The independent simulation's last cycles at two betas (Td 0.8 s, tau 33.5 ms, K 1)."""
+    return {beta: _cycles(*_simulate(beta, 1.0, 0.8, 0.0335, 1.0, t_end), last=2)
+            for beta, t_end in ((-0.3, 15.0), (0.3, 40.0))}
+
+
+def test_cycle_matches_an_independent_simulation(flown) -> None:
+    """The simulated loop locks onto one of the exact admissible orbits: its frequency and amplitude."""
+    for beta, (f, a) in flown.items():
+        lc = _cascade().sampled_limit_cycle(beta, 1.0, RATE)
+        k = int(np.argmin(np.abs(np.array(lc.orbits_hz) - f[-1])))
+        assert f[-1] == pytest.approx(lc.orbits_hz[k], rel=1e-9)
+        assert a[-1] == pytest.approx(lc.orbits_amplitude[k], rel=2e-3)  # the sim's max is on its tick grid
+        assert min(lc.orbits_hz) <= lc.frequency_hz <= max(lc.orbits_hz)
+
+
+def test_outer_relay_at_half_the_rate() -> None:
+    """An outer relay deciding every second tick: the lifted realisation's orbits hold the simulated one."""
+    f, _ = _cycles(*_simulate(-0.3, 1.0, 0.8, 0.0335, 1.0, 20.0, every=2))
+    lc = mrft_limit_cycle(_cascade(), -0.3, 1.0, rate_hz=RATE / 2)
+    assert min(abs(o - f[-1]) for o in lc.orbits_hz) < 1e-9 * f[-1]
+    with pytest.raises(InputError, match="whole divisor"):
+        _cascade().discrete_realisation(RATE / 2.5)
+
+
+def test_discrete_cycle_of_eq2_agrees_with_lprs() -> None:
+    """For eq. (2) alone (its exact ZOH equivalent built here by scipy), the orbits equal lprs.sampled_limit_cycle's."""
+    plant = LoopModel(Tp=0.1, Td=1 / 1.42, tau=0.06, K=1.42)
+    T = 1.0 / 200.0
+    A, B, C = plant.state_space()
+    M = np.zeros((4, 4))
+    M[:3, :3], M[:3, 3] = A * T, B * T
+    E = expm(M)
+    d = round(plant.tau / T)  # 12 whole ticks: a buffer of the held commands
+    n = 3 + d
+    Phi = np.zeros((n, n))
+    Phi[:3, :3], Phi[:3, 3 + d - 1] = E[:3, :3], E[:3, 3]
+    Gamma = np.zeros(n)
+    Gamma[3] = 1.0
+    for j in range(1, d):
+        Phi[3 + j, 3 + j - 1] = 1.0
+    Cd = np.concatenate([C, np.zeros(d)])
+    lc = discrete_limit_cycle(DiscreteStateSpace(Phi, Gamma, Cd, 200.0), -0.4, 1.0, plant.frequency_response)
+    ref = mrft_limit_cycle(plant, -0.4, 1.0, rate_hz=200.0)
+    assert lc.orbits_hz == pytest.approx(ref.orbits_hz, rel=1e-12)
+    assert lc.orbits_amplitude == pytest.approx(ref.orbits_amplitude, rel=1e-9)
+    assert lc.frequency_hz == pytest.approx(ref.frequency_hz, rel=2e-3)  # both centres of the same band
+
+
+def test_model_protocol_and_json_round_trip() -> None:
+    m = _cascade(K=G)
+    assert MODEL_FAMILIES["cascade"] is CascadeModel
+    assert model_from_json(json.loads(json.dumps(m.to_json()))) == m
+    assert m.parameters["K"].known and not m.parameters["Td"].known
+    with pytest.raises(InputError, match="no continuous realisation"):
+        m.realisation()
+    with pytest.raises(InputError, match="rate_hz"):
+        mrft_limit_cycle(m, -0.3, 1.0)
+    bad = m.to_json()
+    bad["inner"]["schema_version"] = 99
+    with pytest.raises(InputError) as err:
+        model_from_json(bad)
+    assert "\n" not in str(err.value)
+    with pytest.raises(InputError, match="Kp"):
+        InnerController.from_json({"Ki": 0, "Kd": 0, "Tf": 0, "rate_hz": 100})
+
+
+def test_frequency_response_low_frequency_limit() -> None:
+    """At low frequency T_inner -> 1 (a PD closing a type-1 inner loop): G_outer -> K Td e^{-tau s} / (s (Td s + 1))."""
+    m = _cascade(Td=0.8, tau=0.03, K=G)
+    assert complex(m.inner.closed_response(np.array([1e-5]))[0]) == pytest.approx(1.0, abs=1e-4)
+    w = np.array([1e-4])
+    ref = G * 0.8 * np.exp(-0.03j * w) / (1j * w * (0.8j * w + 1))
+    assert abs(complex(m.frequency_response(w)[0] / ref[0]) - 1.0) < 1e-3
+
+
+def _tests(flown) -> list[TestMeasurement]:
+    return [TestMeasurement(beta, f, a, 1.0) for beta, (f, a) in flown.items()]
+
+
+def test_identification_recovers_the_outer_loop(flown) -> None:
+    res = identify_cascade(InnerLoop(INNER, GAINS, "roll"), _tests(flown), RATE, K=1.0)
+    td, tau = res.estimates["Td"], res.estimates["tau"]
+    assert td.value == pytest.approx(0.8, rel=0.03) and td.ci95_low <= 0.8 <= td.ci95_high
+    # the loop locks onto one orbit of the sampled band: tau is known to about half a tick (5 ms at 100 Hz)
+    assert tau.value == pytest.approx(0.0335, abs=5e-3) and tau.ci95_low <= 0.0335 <= tau.ci95_high
+    back = CascadeIdentification.from_json(json.loads(json.dumps(res.to_json())))
+    assert back.to_json() == json.loads(json.dumps(res.to_json()))
+
+
+def test_identification_of_K_and_the_inner_draws(flown) -> None:
+    inner = InnerLoop(INNER, GAINS, "roll")
+    free = identify_cascade(inner, _tests(flown), RATE, K=None)
+    assert free.estimates["K"].value == pytest.approx(1.0, rel=0.05) and not free.estimates["K"].known
+    draws = [InnerLoop(INNER.with_parameters(Td=INNER.Td * s, tau=INNER.tau + 0.002 * (s - 1) * 5), GAINS)
+             for s in (0.9, 1.1, 0.95, 1.05)]
+    wide = identify_cascade(inner, _tests(flown), RATE, K=1.0, inner_draws=draws)
+    exact = identify_cascade(inner, _tests(flown), RATE, K=1.0)
+    assert wide.inner_draws == 4 and wide.estimates["Td"].std > exact.estimates["Td"].std
+    with pytest.raises(IdentificationError, match="two different beta"):
+        identify_cascade(inner, _tests(flown)[:1], RATE, K=None)
+
+
+def test_inner_gains_forms_and_errors() -> None:
+    from mrftcli.analyze.cascade import inner_gains_of
+
+    g = GAINS.to_json()
+    assert inner_gains_of({"roll": g}, "roll") == GAINS
+    assert inner_gains_of({"design": "robust", "kind": "PD", **g, "form": "parallel"}, "roll") == GAINS
+    assert inner_gains_of({"loop": "roll", "export": {"generic": g}}, "roll") == GAINS
+    assert inner_gains_of({"loops": {"roll": {"gains": {"generic": g}}}}, "roll") == GAINS
+    with pytest.raises(InputError, match="no gains for the roll loop"):
+        inner_gains_of({"pitch": g}, "roll")
+    with pytest.raises(InputError, match="holds gains of the pitch loop"):
+        inner_gains_of({"loop": "pitch", "export": {"generic": g}}, "roll")
+
+
+def test_tune_on_the_cascade_keeps_its_margins() -> None:
+    """The robust PD holds its phase margin on every draw; the closed loop of the independent form is stable."""
+    from mrftcli.tune.cascade import CascadeTuneResult, closed_loop_matrix, tune_cascade
+
+    m = _cascade()
+    draws = [m.with_parameters(Td=0.7, tau=0.04), m.with_parameters(Td=0.9, tau=0.028)]
+    res = tune_cascade(m, RATE, draws=draws, loop="y", horizon_s=6.0)
+    robust = res.get("robust")
+    assert robust.worst is not None and robust.worst.phase_margin_deg >= 45.0 - 1e-6 and robust.worst.stable
+    for model in [m, *draws]:
+        A, _, _ = closed_loop_matrix(model.discrete_realisation(RATE), robust.controller)
+        assert np.max(np.abs(np.linalg.eigvals(A))) < 1.0
+    assert CascadeTuneResult.from_json(json.loads(json.dumps(res.to_json()))).to_json() == json.loads(
+        json.dumps(res.to_json()))
+
+
+def test_cli_option_errors(tmp_path) -> None:
+    """Bad cascade options: a one-line error naming the option, exit 2 (no log is read)."""
+    inner = tmp_path / "roll.json"
+    inner.write_text(json.dumps({"schema_version": 1, "input": {"loop": "roll"},
+                                 "parameters": {"Tp": {"mean": 0.04}, "Td": {"mean": 0.5, "std": 0.02},
+                                                "tau": {"mean": 0.0125, "std": 0.001}, "K": {"mean": 40.0, "std": 1}}}))
+    gains = tmp_path / "gains.json"
+    gains.write_text(json.dumps({"pitch": GAINS.to_json()}))
+    log = tmp_path / "missing.csv"
+
+    r = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(log), "--loop", "y", "--inner-model", str(inner)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "--inner-gains" in r.stderr and "Traceback" not in r.stderr
+    from click.testing import CliRunner
+
+    from mrftcli.cli.main import cli
+
+    def run(*args: str) -> Any:
+        return CliRunner().invoke(cli, ["analyze", str(log), *args])
+
+    res = run("--loop", "roll", "--inner-model", str(inner), "--inner-gains", str(gains))
+    assert res.exit_code == 2 and "--loop x or y" in res.output
+    res = run("--loop", "y", "--inner-model", str(inner), "--inner-gains", str(gains))
+    assert isinstance(res.exception, InputError) and "no gains for the roll loop" in str(res.exception)
+
+
+def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
+    """A simulated HEAR flight's y tests through the roll loop: analyze --inner-model, then tune its result."""
+    from click.testing import CliRunner
+
+    from mrftcli.cli.main import cli
+    from mrftcli.sim.cascade import simulate_cascade
+    from mrftcli.sim.cascade_spec import CascadeSpec, InnerGains
+    from mrftcli.sim.cascade_write import write_cascade
+    from mrftcli.sim.spec import TestSpec
+
+    gains = InnerGains(GAINS.Kp, GAINS.Ki, GAINS.Kd, GAINS.Tf, RATE)
+    spec = CascadeSpec(inner=INNER, gains=gains, Td=0.8, tau=0.0335, axis="y",
+                       outer_tests=(TestSpec(-0.3, 1.0, 20.0),), hover_s=1.0, hold_s=1.0, seed=3)
+    log = tmp_path / "flight"
+    write_cascade(simulate_cascade(spec), log, layout="hear-ros")
+    inner = tmp_path / "roll.json"
+    inner.write_text(json.dumps({"schema_version": 1, "input": {"loop": "roll"},
+                                 "parameters": {"Tp": {"mean": INNER.Tp}, "Td": {"mean": INNER.Td, "std": 0.01},
+                                                "tau": {"mean": INNER.tau, "std": 5e-4}, "K": {"mean": INNER.K, "std": 0.5}}}))
+    gfile = tmp_path / "gains.json"
+    gfile.write_text(json.dumps({"roll": GAINS.to_json()}))
+    out = tmp_path / "y.json"
+    res = CliRunner().invoke(cli, ["analyze", str(log), "--loop", "y", "--inner-model", str(inner), "--inner-gains",
+                                   str(gfile), "--inner-draws", "0", "--json", str(out)])
+    assert res.exit_code == 0, res.output
+    assert res.output.splitlines()[2].startswith("assumption:") and "K = 1" in res.output
+    data = json.loads(out.read_text())
+    assert data["kind"] == "cascade" and model_from_json(data["model"]).family == "cascade"
+    assert data["parameters"]["Td"]["ci95_low"] <= 0.8 <= data["parameters"]["Td"]["ci95_high"]
+    res = CliRunner().invoke(cli, ["tune", str(out), "--export", "generic"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["Kp"] > 0

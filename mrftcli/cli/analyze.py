@@ -12,7 +12,7 @@ from .model_options import (build_model, format_general, parse_windows, relay_op
 from ..report.wording import output_unit, uncertainty_sentence
 from .cascade_options import cascade_options, pop_cascade_options, run_cascade
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, quiet_option, tp_option, tqdm_progress)
+                      min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
 
 
 
@@ -221,7 +221,9 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
                          (report_dir, mcap_out, paper_only, run_diagnose), read_options)
         return
     _check_soiptd(Tp, params, ranges, relay_kind, eps)
-    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)  # the reader's warnings: once, below
+    with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
+        flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False,  # its warnings: once, below
+                             progress=progress)
     if windows:
         from ..analyze.general import mask_windows
         from ..analyze.screen import log_start

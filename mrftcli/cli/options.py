@@ -7,6 +7,7 @@ import json
 import math
 import os
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from ..jsonable import to_jsonable
 from ..progress import Progress
 from ..validate import TP_MISSING, check_beta, check_tp
 
-__all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress",
+__all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
            "HZ", "SHARED_HELP", "min_cycles_option"]
 
@@ -268,12 +269,15 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
 
 
 @contextlib.contextmanager
-def tqdm_progress(desc: str, *, unit: str = "it", enabled: bool = True) -> Iterator[Progress]:
+def tqdm_progress(desc: str, *, unit: str = "it", enabled: bool = True, after_s: float = 0.0,
+                  unit_scale: bool = False) -> Iterator[Progress]:
     """A :class:`~mrftcli.progress.Progress` callback that draws a tqdm bar on stderr.
 
     The bar is drawn only on a terminal (and when ``enabled``), so piped and captured output is the
     same with or without it; it is removed when the block ends. ``total`` may change between calls
     (a library function that learns its amount of work as it goes); ``stage`` is shown after the bar.
+    ``after_s`` [s]: nothing is drawn until the work has taken that long (a bar that would flash
+    for a fast file is noise); ``unit_scale``: counts shown with k/M/G prefixes (bytes).
 
     Examples
     --------
@@ -283,10 +287,11 @@ def tqdm_progress(desc: str, *, unit: str = "it", enabled: bool = True) -> Itera
     from tqdm import tqdm
 
     bar = tqdm(total=None, desc=desc, unit=unit, file=sys.stderr, disable=None if enabled else True,
-               leave=False, dynamic_ncols=True)
+               leave=False, dynamic_ncols=True, unit_scale=unit_scale, delay=after_s)
+    start = time.monotonic()
 
     def progress(done: float, total: float, stage: str = "") -> None:
-        if bar.disable:
+        if bar.disable or time.monotonic() - start < after_s:
             return
         bar.total = total
         bar.n = done
@@ -298,3 +303,21 @@ def tqdm_progress(desc: str, *, unit: str = "it", enabled: bool = True) -> Itera
         yield progress
     finally:
         bar.close()
+
+
+#: A read shorter than this [s] draws no bar (:func:`read_progress`).
+READ_BAR_AFTER_S = 2.0
+
+
+@contextlib.contextmanager
+def read_progress(enabled: bool = True) -> Iterator[Progress]:
+    """The bar of a long log read (bytes of the file; a large CSV's passes), drawn once the read has
+    taken :data:`READ_BAR_AFTER_S` seconds: a file that reads in a blink shows nothing.
+
+    Examples
+    --------
+    >>> with read_progress() as progress:   # not a terminal here: draws nothing
+    ...     progress(1 << 20, 1 << 30, "reading 2 column(s)")
+    """
+    with tqdm_progress("reading", unit="B", enabled=enabled, after_s=READ_BAR_AFTER_S, unit_scale=True) as progress:
+        yield progress

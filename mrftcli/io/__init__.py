@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, LogReadError
+from ..progress import Progress
 from .attitude import roll_pitch
 from .clock import TIME_UNITS, check_time_unit
 from .flight import DEFAULT_TOPICS, ReadOptions, log_layout, read_loop
@@ -131,7 +132,7 @@ _LOG_SUFFIXES = {".mcap", ".bag", ".ulg", ".csv", ".mat", ".bin", ".db3"}
 
 
 def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = True,
-             time_unit: str | None = None) -> LogSource:
+             time_unit: str | None = None, progress: Progress | None = None) -> LogSource:
     """Open a flight log; use as ``with open_log(path) as log: log.topics(); log.series(t, f)``.
 
     Parameters
@@ -147,6 +148,9 @@ def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = 
     time_unit : {"s", "ms", "us", "ns"}, optional
         The unit of a CSV's time column or a ``.mat`` file's time vectors (default: the column's name
         says, else seconds); other formats define their clock, and refuse it.
+    progress : Progress, optional
+        Told how far a read that takes seconds is (:mod:`mrftcli.progress`: bytes of the file read,
+        and what): a large CSV's passes; other formats read fast enough not to call it.
 
     Raises
     ------
@@ -166,12 +170,12 @@ def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = 
     if time_unit is not None and fmt not in ("csv", "mat"):
         raise InputError(f"--time-unit applies to CSV and .mat logs, whose times carry no unit; a {fmt} log's "
                          "clock has its own")
-    source = _open(path, fmt, time_unit)
+    source = _open(path, fmt, time_unit, progress)
     source.echo_warnings = echo_warnings
     return source
 
 
-def _open(path: Path, fmt: str, time_unit: str | None = None) -> LogSource:
+def _open(path: Path, fmt: str, time_unit: str | None = None, progress: Progress | None = None) -> LogSource:
     if fmt in ("mcap", "mcap-json"):
         from .format_mcap import McapSource
 
@@ -209,7 +213,7 @@ def _open(path: Path, fmt: str, time_unit: str | None = None) -> LogSource:
         return MatSource(path, time_unit)
     from .format_csv import CsvSource
 
-    return CsvSource(path, time_unit)
+    return CsvSource(path, time_unit, progress)
 
 
 def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
@@ -275,7 +279,7 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
 
 # -- read_flight ---------------------------------------------------------------------------------
 def read_flight(path: str | Path, options: ReadOptions | None = None, *,
-                echo_warnings: bool = True) -> FlightLog:
+                echo_warnings: bool = True, progress: Progress | None = None) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
@@ -307,6 +311,8 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
     echo_warnings : bool
         Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
         caller that shows them itself (``analyze``, ``watch``).
+    progress : Progress, optional
+        Told how far a long read is (:func:`open_log`); the CLI draws it as a bar.
 
     Returns
     -------
@@ -333,13 +339,14 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
     ('altitude', 'reference')
     """
     opts = ReadOptions() if options is None else options  # checked on creation, before the log is opened
-    with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit) as log:
+    with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit, progress=progress) as log:
         flight = read_loop(log, opts)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))
 
 
-def list_topics(path: str | Path, fmt: str | None = None) -> tuple[str, list[TopicInfo]]:
-    """Format name and topics of a log (what ``mrft-ident topics`` shows)."""
-    with open_log(path, fmt) as log:
+def list_topics(path: str | Path, fmt: str | None = None, *,
+                progress: Progress | None = None) -> tuple[str, list[TopicInfo]]:
+    """Format name and topics of a log (what ``mrft-ident topics`` shows); ``progress`` as :func:`open_log`."""
+    with open_log(path, fmt, progress=progress) as log:
         return log.format, log.topics()

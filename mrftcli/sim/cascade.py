@@ -31,7 +31,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, inner_closed_loop, outer_plant_response
 from .cascade_spec import CascadeSpec, CascadeTestTruth, CascadeTruth, InnerGains
-from .control import HearMrftRelay, MrftRelay, design_hold_pid, df_prediction, make_relay
+from .control import HearMrftRelay, MrftRelay, df_prediction, make_relay
 from .spec import TestSpec
 
 __all__ = ["CascadeFlight", "simulate_cascade", "outer_hold_gains", "approximate_outer_model", "inner_pd",
@@ -88,7 +88,8 @@ def inner_pd(inner: LoopModel, rate_hz: float, phase_margin_deg: float = 40.0, d
     """A PD for the attitude plant with a given phase margin (continuous design, half a tick of hold).
 
     C(s) = Kp (1 + Td_c s / (Tf s + 1)), Tf = Td_c / ``filter_ratio``; the crossover is the highest
-    frequency where arg C G = -180 deg + ``phase_margin_deg``, and Kp puts |C G| = 1 there.
+    frequency where arg C G = -180 deg + ``phase_margin_deg`` (at least 3 / Td of the plant: on the
+    derivative's lead), and Kp puts |C G| = 1 there.
 
     Parameters
     ----------
@@ -114,7 +115,10 @@ def inner_pd(inner: LoopModel, rate_hz: float, phase_margin_deg: float = 40.0, d
     g = inner.frequency_response(omega) * np.exp(-0.5j * omega / rate_hz)
     c = 1.0 + td_c * 1j * omega / (tf * 1j * omega + 1.0)
     phase = np.unwrap(np.angle(g * c))
-    above = np.flatnonzero(phase >= -math.pi + math.radians(phase_margin_deg))
+    # the crossover sits on the derivative's lead, well beyond the drag corner 1/Td: below it the loop
+    # would be a slow one that never uses the derivative, not a vehicle's attitude loop
+    lead = omega >= 3.0 / inner.Td
+    above = np.flatnonzero(lead & (phase >= -math.pi + math.radians(phase_margin_deg)))
     if above.size == 0:
         raise InputError(f"no PD with derivative time {td_c:g} s reaches a {phase_margin_deg:g} deg phase margin "
                          f"on this plant; use a longer derivative time or a smaller margin")
@@ -177,19 +181,32 @@ def plan_outer_test(plant: CascadePlant, gains: InnerGains, command_gain: float,
     return TestSpec(beta=beta, h=float(amplitude * math.pi / (4.0 * gain)), duration=float(round(duration, 1)))
 
 
-def outer_hold_gains(spec: CascadeSpec) -> InnerGains:
-    """The position hold between tests (position error -> outer command), checked stable on the cascade.
+def outer_hold_gains(spec: CascadeSpec, phase_margin_deg: float = 60.0) -> InnerGains:
+    """The position hold between tests (position error -> outer command), designed on the exact cascade.
 
-    The simulator's hold PID (60 deg design margin) on :func:`approximate_outer_model`, its gains
-    halved until the exact closed loop (:func:`closed_loop_radius`) is stable.
+    A PID in the hold's fixed shape (derivative time 2 / omega_c, filter N = 10, integral time
+    10 / omega_c) whose crossover omega_c is the highest frequency where arg C G_outer reaches
+    -180 deg + ``phase_margin_deg`` on the exact discrete G_outer; |C G_outer| = 1 there. Its gains
+    are halved until the exact closed loop (:func:`closed_loop_radius`) is stable.
     """
     plant = cascade_plant(spec.inner, spec.Td, spec.tau, spec.rate_hz, spec.g)
-    approx = approximate_outer_model(spec.inner, spec.gains, spec.Td, spec.tau, spec.K, spec.g)
-    pid = design_hold_pid(approx, spec.rate_hz, 60.0)
+    conv = command_gain(spec.commanded, spec.g)
+    omega = np.geomspace(1e-2, 0.99 * math.pi / plant.T, 1500)
+    g = outer_plant_response(plant, spec.gains, conv, omega)
+    a, n_filter, ti = 2.0, 10.0, 10.0
+    c_norm = 1.0 + 1.0 / (ti * 1j) + a * 1j / (a / n_filter * 1j + 1.0)  # C / Kp at omega = omega_c (scale-free)
+    phase = np.unwrap(np.angle(g)) + math.atan2(c_norm.imag, c_norm.real)
+    above = np.flatnonzero(phase >= -math.pi + math.radians(phase_margin_deg))
+    if above.size == 0:
+        raise InputError("no position hold reaches its phase margin on this cascade; check the outer Td, tau and "
+                         "the inner gains")
+    i = int(above[-1])
+    w_c = float(omega[i])
+    kp = 1.0 / float(abs(g[i]) * abs(c_norm))
     scale = 1.0
     for _ in range(8):
-        hold = InnerGains(pid.Kp * scale, pid.Ki * scale, pid.Kd * scale, pid.Tf, spec.rate_hz)
-        if closed_loop_radius(plant, spec.gains, hold, command_gain(spec.commanded, spec.g)) < 1.0:
+        hold = InnerGains(kp * scale, kp * scale * w_c / ti, kp * scale * a / w_c, a / w_c / n_filter, spec.rate_hz)
+        if closed_loop_radius(plant, spec.gains, hold, conv) < 1.0:
             return hold
         scale *= 0.5
     raise InputError("no stable position hold found for this cascade; check the outer Td, tau and the inner gains")
@@ -240,6 +257,7 @@ class _CascadeController:
         for j, (k0, k1) in enumerate(schedule.ranges):
             self.mode[k0:k1] = j
         self.aborted: list[int | None] = [None] * len(self.tests)
+        self.start_error = [0.0] * len(self.tests)
         thresholds = {"inner": 10.0 * noise[0], "outer": 10.0 * noise[1]}
         self.relays: list[MrftRelay | HearMrftRelay] = [
             make_relay(t.beta, spec.switching, thresholds[kind], 5, 0.02 * spec.rate_hz)
@@ -248,7 +266,11 @@ class _CascadeController:
         self.a_prev = self.y_prev = 0.0
 
     def _relay(self, j: int, k: int, e: float) -> float:
-        if abs(e) > self.schedule.limits[j]:
+        if k == self.schedule.ranges[j][0]:
+            # a test that starts away from the setpoint (the vehicle drifted during the previous test) may
+            # first travel back: the safety net is counted from where it started
+            self.start_error[j] = abs(e)
+        if abs(e) > self.schedule.limits[j] + self.start_error[j]:
             # a flight stack's safety net: the hold takes over for the rest of the test
             self.aborted[j] = k
             self.mode[k:self.schedule.ranges[j][1]] = -1

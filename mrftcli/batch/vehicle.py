@@ -17,11 +17,12 @@ from typing import Any
 from ..errors import InputError
 from ..jsonable import to_jsonable
 from ..tune.analysis import summary_figures
+from ..tune.design import TuneResult
 from ..vehicle import MissingLoop, VehicleLoop, VehicleOptions, VehicleResult, identify_vehicle
 from ..vehicle.gains import TuneOptions
 from .inputs import AUTO_LOOP
 from .run import LogTask, _failed_entry, _record
-from .summary import STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_NO_TESTS, STATUS_NO_TOPICS, STATUS_OK
+from .summary import STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_NO_TESTS, STATUS_NO_TOPICS, STATUS_OK, TUNE_COLUMNS
 
 __all__ = ["vehicle_one", "vehicle_options"]
 
@@ -40,8 +41,16 @@ def vehicle_options(task: LogTask) -> VehicleOptions:
 
 
 def _ok_entry(entry: VehicleLoop) -> dict[str, Any]:
-    tune = ({"tune_error": "not tuned (see the vehicle record's warnings)"} if entry.gains is None
-            else summary_figures(entry.gains.tune, entry.gains.kind))
+    g = entry.gains
+    if g is None:
+        tune: dict[str, Any] = {"tune_error": "not tuned (see the vehicle record's warnings)"}
+    elif isinstance(g.tune, TuneResult):
+        tune = summary_figures(g.tune, g.kind)
+    else:  # an outer loop tuned on the cascade: its gains and nominal margins (no step figures there)
+        c = g.controller
+        tune = {k: None for k in TUNE_COLUMNS} | {"tune_design": g.design, "tune_kind": g.kind, "tune_Kp": c.Kp,
+                                                  "tune_Ki": c.Ki, "tune_Kd": c.Kd, "tune_Tf": c.Tf,
+                                                  "tune_rate_hz": c.rate_hz, "tune_pm_deg": g.phase_margin_deg}
     return {"loop": entry.loop, "status": STATUS_OK, "error": None, "error_type": None, "exit_code": 0,
             "result": entry.analysis.to_json(), "diagnosis": None, "tune": tune, "role": entry.role,
             "route": entry.route}

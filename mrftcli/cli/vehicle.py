@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from ..analyze import AnalysisResult
 from ..errors import InputError, SegmentationError
 from ..io.logtypes import gain_unit, output_unit
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
@@ -43,11 +44,14 @@ def _num(x: float, digits: int = 4) -> str:
 def _loop_rows(result: VehicleResult) -> list[list[str]]:
     rows = []
     for name, entry in result.loops.items():
-        a, g = entry.analysis, entry.gains
+        g, est = entry.gains, entry.estimates
         c = g.controller if g is not None else None
-        pm = g.chosen.margins.phase_margin_deg if g is not None else math.nan
-        rows.append([name, entry.role, entry.route, str(len(a.tests)), _num(a.Td.mean), _num(a.tau.mean * 1e3),
-                     f"{_num(a.K.mean)} {gain_unit(name)}", g.design if g is not None else "not tuned",
+        pm = g.phase_margin_deg if g is not None else math.nan
+        k_unit = gain_unit(name) if isinstance(entry.analysis, AnalysisResult) else \
+            entry.analysis.identification.estimates["K"].unit
+        rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), _num(est["Td"][0]),
+                     _num(est["tau"][0] * 1e3), f"{_num(est['K'][0])} {k_unit}",
+                     g.design if g is not None else "not tuned",
                      "-" if c is None else f"{_num(c.Kp)} cmd/{output_unit(name)}",
                      "-" if c is None else f"{_num(c.Kd)} cmd s/{output_unit(name)}",
                      "-" if c is None else f"{c.rate_hz:g}", _num(pm, 3)])
@@ -106,8 +110,17 @@ def _export_text(result: VehicleResult, stack: str) -> str:
 @click.argument("log", type=click.Path(dir_okay=True))
 @tp_option()
 @click.option("--inner-gains", "inner_gains", metavar="GAINS.json", type=click.Path(dir_okay=False),
-              help="The inner loops' gains in use during the flight (a loop name -> tune's generic export); "
-                   "without them x and y are identified with eq. (2), as the first line says.")
+              help="The inner controllers flown during the outer tests, {\"roll\": {\"Kp\", \"Ki\", \"Kd\", "
+                   "\"Tf\", \"rate_hz\"}} (roll for y, pitch for x; tune --export generic or a vehicle record "
+                   "is read too): x and y are identified through the closed inner loop. Without them: eq. (2), "
+                   "as the first line says.")
+@click.option("--outer-command", "outer_command", type=click.Choice(["acceleration", "attitude", "identify"]),
+              default="acceleration", show_default=True,
+              help="With --inner-gains: what the outer relays command, an acceleration [m/s^2] (K = 1) or an "
+                   "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the output.")
+@click.option("--inner-draws", "inner_draws", type=click.IntRange(0, 1000), default=30, show_default=True,
+              metavar="N", help="With --inner-gains: draws of the inner model solved to carry its uncertainty into "
+                                "the outer estimate (0: take it as exact).")
 @_flight_options
 @min_cycles_option()
 @click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
@@ -129,7 +142,7 @@ def _export_text(result: VehicleResult, stack: str) -> str:
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with a page per loop to DIR (created if missing).")
 @quiet_option()
-def vehicle(log: str, Tp: float, inner_gains: str | None, min_cycles: int, kind: str, objective: str, ms_max: float,
+def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, inner_draws: int, min_cycles: int, kind: str, objective: str, ms_max: float,
             export: str | None, out: str | None, gyro_cutoff: float | None, hover_thrust: float | None, clamp: bool,
             json_target: str | None, report_dir: str | None, quiet: bool, **read_options: Any) -> None:
     """Identify and tune every loop one flight holds MRFT tests of; say which tests the others need.
@@ -154,7 +167,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, min_cycles: int, kind:
     gains = _inner_gains(inner_gains)
     options = VehicleOptions(layout=read_options["layout"], fmt=read_options["fmt"],
                              time_unit=read_options["time_unit"], controller_rate_hz=read_options["controller_rate_hz"],
-                             min_stable_cycles=min_cycles,
+                             min_stable_cycles=min_cycles, outer_command=outer_command, inner_draws=inner_draws,
                              tune=TuneOptions(kind=kind, objective=objective, ms_max=ms_max, stack=stack))
     with tqdm_progress("vehicle", unit="loop", enabled=not quiet) as progress:
         result = identify_vehicle(log, Tp, inner_gains=gains, options=options, progress=progress)

@@ -13,7 +13,10 @@ from pathlib import Path
 
 from ..io.atomic import write_text_atomic
 from ..progress import Progress, report
-from ..vehicle import VehicleResult
+from ..analyze import AnalysisResult
+from ..analyze.cascade import CascadeAnalysis
+from ..tune.design import TuneResult
+from ..vehicle import VehicleLoop, VehicleResult
 from ._common import ensure_dir, esc, html_page, html_table
 from .analysis import write_analysis_report
 from .tune import write_tune_report
@@ -29,14 +32,16 @@ def _num(x: float, digits: int = 4) -> str:
 def _loop_rows(result: VehicleResult) -> list[list[str]]:
     rows = []
     for name, entry in result.loops.items():
-        a, g = entry.analysis, entry.gains
+        g, est = entry.gains, entry.estimates
         y = output_unit(name)
         gains = ("not tuned" if g is None else
                  f"{g.design} {g.kind}: Kp {_num(g.controller.Kp)} cmd/{y}, Ki {_num(g.controller.Ki)} cmd/({y} s), "
                  f"Kd {_num(g.controller.Kd)} cmd s/{y}, Tf {_num(g.controller.Tf * 1e3)} ms at {g.controller.rate_hz:g} Hz")
-        pm = "-" if g is None else f"{g.chosen.margins.phase_margin_deg:.1f}"
-        rows.append([name, entry.role, entry.route, str(len(a.tests)), _num(a.Td.mean), _num(a.tau.mean * 1e3),
-                     f"{_num(a.K.mean)} {gain_unit(name)}", gains, pm])
+        pm = "-" if g is None else f"{g.phase_margin_deg:.1f}"
+        k_unit = gain_unit(name) if isinstance(entry.analysis, AnalysisResult) else \
+            entry.analysis.identification.estimates["K"].unit
+        rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), _num(est["Td"][0]),
+                     _num(est["tau"][0] * 1e3), f"{_num(est['K'][0])} {k_unit}", gains, pm])
     return rows
 
 
@@ -67,6 +72,36 @@ def _index_body(result: VehicleResult) -> str:
     return "\n".join(body)
 
 
+def _cascade_page(entry: VehicleLoop, folder: Path) -> Path:
+    """An outer loop identified through its closed inner loop: its assumptions, parameters, tests, gains."""
+    assert isinstance(entry.analysis, CascadeAnalysis)  # only called for the cascade route
+    a = entry.analysis
+    est = a.identification.estimates
+    body = [f"<p><a href='../index.html'>The vehicle</a> - the {esc(entry.loop)} loop through the closed "
+            f"{esc(a.model.inner.loop or 'inner')} loop: G(s) = K T<sub>inner</sub>(s) Td e<sup>-tau s</sup> / "
+            "(s (Td s + 1))</p>",
+            "<h2>Assumptions</h2><ul>" + "".join(f"<li>{esc(x)}</li>" for x in a.assumptions) + "</ul>",
+            "<h2>Parameters</h2>",
+            html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
+                       [[k, f"{e.value:.4g}", "known" if e.known else f"{e.std:.2g}",
+                         "" if e.known else f"{e.ci95_low:.4g} - {e.ci95_high:.4g}", e.unit] for k, e in est.items()]),
+            "<h2>Tests</h2>",
+            html_table(["test", "beta nominal", "h", "frequency [Hz]", "amplitude [m]", "stable / cycles"],
+                       [[t.index + 1, "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}", f"{t.h:.4g}",
+                         f"{t.frequency_hz_mean:.4f}", f"{t.amplitude_mean:.4g}", f"{t.n_stable} / {len(t.cycles)}"]
+                        for t in a.tests])]
+    if entry.gains is not None:
+        c = entry.gains.controller
+        body.append(f"<h2>Gains</h2><p>{esc(entry.gains.design)} PD on the exact sampled cascade: Kp {c.Kp:.4g}, "
+                    f"Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz; phase margin "
+                    f"{entry.gains.phase_margin_deg:.1f} deg</p>")
+    if a.warnings:
+        body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in a.warnings) + "</ul>")
+    index = ensure_dir(folder) / "index.html"
+    write_text_atomic(index, html_page(f"MRFT cascade: {Path(a.path).name} ({entry.loop})", "\n".join(body)))
+    return index
+
+
 def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: Progress | None = None) -> Path:
     """Write the vehicle's index.html and a page per loop (analysis and gains); returns the index path.
 
@@ -80,10 +115,13 @@ def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: P
         report(progress, i, len(names), f"report: {name}")
         entry = result.loops[name]
         links = [("../index.html", "The vehicle")]
-        if entry.gains is not None:
+        if entry.gains is not None and isinstance(entry.gains.tune, TuneResult):
             write_tune_report(entry.gains.tune, out / name / "gains")
             links.append(("gains/index.html", f"Gains of the {name} loop"))
-        write_analysis_report(entry.analysis, out / name, links=links)
+        if isinstance(entry.analysis, AnalysisResult):
+            write_analysis_report(entry.analysis, out / name, links=links)
+        else:
+            _cascade_page(entry, out / name)
     report(progress, len(names), len(names), "index.html")
     index = out / "index.html"
     write_text_atomic(index, html_page(f"MRFT vehicle: {Path(result.path).name}", _index_body(result)))

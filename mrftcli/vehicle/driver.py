@@ -21,19 +21,21 @@ from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
+from ..analyze.cascade import OUTER_COMMANDS, inner_gains_of
+from ..mrft.cascade import InnerController
 from .gains import TuneOptions, tune_loop
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
 from .next_tests import missing_from_error, missing_topics
+from .outer import OuterOptions, cascade_outer, tune_outer
 from .record import LoopGains, MissingLoop, VehicleLoop, VehicleResult
 
 __all__ = ["VehicleOptions", "identify_vehicle", "tp_per_loop", "find_loops", "identify_inner", "identify_outer",
            "EQ2_OUTER_ASSUMPTION"]
 
-#: The assumption stated when an outer loop is identified with eq. (2) (its ``{loops}``, ``{inner}`` filled in).
+#: The assumption stated when an outer loop is identified with eq. (2) (``{loops}``, ``{tp}``, ``{inner}`` and
+#: ``{why}`` the cascade could not be used filled in).
 EQ2_OUTER_ASSUMPTION = ("{loops} identified with eq. (2) at Tp = {tp} s, its Td and tau absorbing the closed "
-                        "{inner} loop: the inner gains in use during the flight are not given (--inner-gains "
-                        "GAINS.json identifies {loops} through the closed inner loop); the outer gains are tuned "
-                        "for the inner loop as flown")
+                        "{inner} loop: {why}; the outer gains are tuned for the inner loop as flown")
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,11 @@ class VehicleOptions:
         is taken from ``controller_rate_hz``.
     plan : bool
         Plan the next test of a loop flown at one beta (about a second each).
+    outer_command : {"acceleration", "attitude", "identify"}
+        What the outer relays command (``--outer-command``), for the outer loops identified through the
+        cascade; stated in the assumptions.
+    inner_draws : int
+        Draws of the inner model carried into an outer estimate through the cascade.
     """
 
     layout: str | None = None
@@ -65,12 +72,16 @@ class VehicleOptions:
     n_bootstrap: int = 400
     tune: TuneOptions = TuneOptions()
     plan: bool = True
+    outer_command: str = "acceleration"
+    inner_draws: int = 30
 
     def __post_init__(self) -> None:
         if self.tune.kind not in KINDS:
             raise InputError(f"unknown controller kind {self.tune.kind!r}; choose from {', '.join(KINDS)}")
         if self.tune.objective not in OBJECTIVES:
             raise InputError(f"unknown objective {self.tune.objective!r}; choose from {', '.join(OBJECTIVES)}")
+        if self.outer_command not in OUTER_COMMANDS:
+            raise InputError(f"--outer-command must be one of {', '.join(OUTER_COMMANDS)}, got {self.outer_command!r}")
         object.__setattr__(self, "tune", dataclasses.replace(self.tune, rate_hz=self.controller_rate_hz))
 
     def read(self, loop: str) -> ReadOptions:
@@ -81,6 +92,11 @@ class VehicleOptions:
     def analyze(self) -> AnalyzeOptions:
         """How each loop's tests are screened and identified."""
         return AnalyzeOptions(min_stable_cycles=self.min_stable_cycles, n_bootstrap=self.n_bootstrap)
+
+    def outer(self) -> OuterOptions:
+        """How an outer loop is identified through the cascade and tuned on it."""
+        return OuterOptions(commanded=self.outer_command, inner_draws=self.inner_draws,
+                            min_stable_cycles=self.min_stable_cycles, ms_max=self.tune.ms_max)
 
 
 def tp_per_loop(Tp: float | Mapping[str, float]) -> dict[str, float]:
@@ -206,22 +222,49 @@ def identify_inner(source: LogSource, loop: str, Tp: float, options: VehicleOpti
 
 def identify_outer(source: LogSource, loop: str, Tp: float, options: VehicleOptions,
                    inner_gains: Mapping[str, object] | None, acc: _Accumulated) -> None:
-    """An outer loop (x, y): through the closed inner loop when its gains in use are given, else eq. (2)
-    (the first assumption says so, naming ``--inner-gains``); tuned; or the tests it needs."""
+    """An outer loop (x, y): through the closed inner loop when the inner loop has a model from this flight
+    and its gains in use are given, else eq. (2) (the first assumption says so and why, naming the
+    option); tuned; or the tests it needs."""
     inner = INNER_OF[loop]
-    if inner_gains is not None and inner in inner_gains:
-        raise InputError("--inner-gains: the identification through the closed inner loop is not available in "
-                         "this version; leave --inner-gains out to identify x and y with eq. (2)")
+    controller, why_not = _inner_controller(inner, inner_gains, acc)
     try:
-        result = _identify_eq2(source, loop, Tp, options)
+        if controller is not None:
+            analysis = cascade_outer(source, options.read(loop), acc.loops[inner], controller, options.outer())
+        else:
+            result = _identify_eq2(source, loop, Tp, options)
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
         return
-    said = EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{Tp:g}", inner=inner)
+    if controller is not None:
+        acc.first += [f"{loop}: {a}" for a in analysis.assumptions]
+        try:
+            gains: LoopGains | None = tune_outer(analysis, acc.loops[inner], options.outer())
+            refused: tuple[str, ...] = ()
+        except MrftError as err:
+            gains, refused = None, (f"not tuned: {' '.join(str(err).split())}",)
+        notes = (f"identified through the closed {inner} loop",) + (() if gains is None else gains.tune.notes[:1])
+        acc.add(VehicleLoop(loop, "outer", "cascade", analysis, gains, notes), (), refused)
+        return
+    said = EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{Tp:g}", inner=inner, why=why_not)
     acc.first.append(said)
     gains, stated, refused = _tuned(result, options)
     acc.add(VehicleLoop(loop, "outer", "eq2", result, gains, (said,)), stated, refused)
+
+
+def _inner_controller(inner: str, inner_gains: Mapping[str, object] | None,
+                      acc: _Accumulated) -> tuple[InnerController | None, str]:
+    """The controller that flew ``inner`` (from ``--inner-gains``), or (None, why the cascade cannot be used)."""
+    if inner_gains is None:
+        return None, ("the inner gains in use during the flight are not given (--inner-gains GAINS.json identifies "
+                      "it through the closed inner loop)")
+    if inner not in acc.loops:
+        return None, (f"the {inner} loop has no model from this flight (fly its tests in the same flight to "
+                      "identify the outer loop through it)")
+    try:
+        return inner_gains_of(inner_gains, inner), ""
+    except InputError as err:
+        return None, f"{err}"
 
 
 def _tuned(result: AnalysisResult,

@@ -23,12 +23,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..analyze import AnalysisResult
+from ..analyze.cascade import CascadeAnalysis
 from ..errors import InputError
 from ..io.logtypes import LOOPS, output_unit
 from ..jsonable import check_schema_version
 from ..plan import PlanResult
 from ..tune.closed_loop import Controller
-from ..tune.design import Design, TuneResult
+from ..tune.cascade import CascadeTuneResult
+from ..tune.design import TuneResult
 from ..tune.stacks import StackExport
 
 __all__ = ["VEHICLE_SCHEMA_VERSION", "ROLES", "ROUTES", "MISSING_REASONS", "LoopGains", "VehicleLoop",
@@ -62,7 +64,7 @@ def _choice(data: Mapping[str, Any], key: str, choices: tuple[str, ...], what: s
 
 @dataclass(frozen=True)
 class LoopGains:
-    """The gains recommended for one loop: one design of its :class:`~mrftcli.tune.design.TuneResult`.
+    """The gains recommended for one loop: one design of its tune result.
 
     Attributes
     ----------
@@ -70,8 +72,9 @@ class LoopGains:
         ``robust`` (when the identification gave a posterior) or ``model-based``.
     kind : str
         ``PD`` or ``PID``.
-    tune : TuneResult
-        Every design, with margins nominal and over the posterior.
+    tune : TuneResult or CascadeTuneResult
+        Every design with its margins: eq. (2)'s (:func:`mrftcli.tune.design.tune`), or an outer loop's
+        on the exact sampled cascade (:func:`mrftcli.tune.cascade.tune_cascade`).
     export : StackExport or None
         The design as the ``--export`` stack loads it (checked against its ranges).
     export_refused : str or None
@@ -80,29 +83,39 @@ class LoopGains:
 
     design: str
     kind: str
-    tune: TuneResult
+    tune: TuneResult | CascadeTuneResult
     export: StackExport | None = None
     export_refused: str | None = None
 
     @property
-    def chosen(self) -> Design:
-        """The recommended design."""
-        return self.tune.get(self.design, self.kind)
-
-    @property
     def controller(self) -> Controller:
         """The recommended controller (gains per the loop's output unit, Tf [s], rate [Hz])."""
-        return self.chosen.controller
+        if isinstance(self.tune, CascadeTuneResult):
+            return self.tune.get(self.design).controller
+        return self.tune.get(self.design, self.kind).controller
+
+    @property
+    def phase_margin_deg(self) -> float:
+        """The recommended design's nominal phase margin [deg]."""
+        if isinstance(self.tune, CascadeTuneResult):
+            return self.tune.get(self.design).nominal.phase_margin_deg
+        return self.tune.get(self.design, self.kind).margins.phase_margin_deg
+
+    @property
+    def delay_margin_ms(self) -> float | None:
+        """The recommended design's nominal delay margin [ms] (None on a cascade: not computed there)."""
+        if isinstance(self.tune, CascadeTuneResult):
+            return None
+        return self.tune.get(self.design, self.kind).margins.delay_margin_s * 1e3
 
     def to_json(self) -> dict[str, Any]:
         """``design``, ``kind``, ``generic`` (tune's generic export), ``units``, the margins, ``export``
         (or ``export_refused``) and ``tune_result``."""
         y = output_unit(self.tune.loop) if self.tune.loop in LOOPS else "output unit"
-        margins = self.chosen.margins
         return {"design": self.design, "kind": self.kind, "generic": self.controller.to_dict(),
                 "units": {"Kp": f"command/{y}", "Ki": f"command/({y} s)", "Kd": f"command s/{y}", "Tf": "s",
                           "rate_hz": "Hz"},
-                "phase_margin_deg": margins.phase_margin_deg, "delay_margin_ms": margins.delay_margin_s * 1e3,
+                "phase_margin_deg": self.phase_margin_deg, "delay_margin_ms": self.delay_margin_ms,
                 "export": None if self.export is None else self.export.to_json(),
                 "export_refused": self.export_refused, "tune_result": self.tune.to_json()}
 
@@ -112,16 +125,19 @@ class LoopGains:
         what = "vehicle gains"
         if not isinstance(data, Mapping):
             raise InputError(f"{what}: expected a JSON object")
-        tune = TuneResult.from_json(data.get("tune_result"))
+        raw = data.get("tune_result")
+        cascade = isinstance(raw, Mapping) and raw.get("kind") == "cascade"
+        tune = CascadeTuneResult.from_json(raw) if cascade else TuneResult.from_json(raw)
         design, kind = str(data.get("design")), str(data.get("kind"))
-        try:
-            tune.get(design, kind)
-        except KeyError:
-            raise InputError(f"{what}: the tune result has no {design} {kind} design") from None
         export, refused = data.get("export"), data.get("export_refused")
         if not (refused is None or isinstance(refused, str)):
             raise InputError(f"{what}: 'export_refused' must be a string or null")
-        return cls(design, kind, tune, None if export is None else StackExport.from_json(export), refused)
+        gains = cls(design, kind, tune, None if export is None else StackExport.from_json(export), refused)
+        try:
+            gains.controller
+        except (KeyError, InputError):
+            raise InputError(f"{what}: the tune result has no {design} {kind} design") from None
+        return gains
 
 
 @dataclass(frozen=True)
@@ -136,10 +152,10 @@ class VehicleLoop:
         ``inner`` or ``outer`` (:data:`ROLES`).
     route : str
         The model identified (:data:`ROUTES`).
-    analysis : AnalysisResult
-        Tests, parameters with their uncertainty, the model.
+    analysis : AnalysisResult or CascadeAnalysis
+        Tests, parameters with their uncertainty, the model (eq. (2), or the cascade for an outer loop).
     gains : LoopGains or None
-        The tuned gains; None when tuning failed (``route_notes`` says why).
+        The tuned gains; None when tuning failed (the vehicle's warnings say why).
     route_notes : tuple of str
         What the route assumed (e.g. eq. (2) for an outer loop without the inner gains in use).
     """
@@ -147,9 +163,18 @@ class VehicleLoop:
     loop: str
     role: str
     route: str
-    analysis: AnalysisResult
+    analysis: AnalysisResult | CascadeAnalysis
     gains: LoopGains | None
     route_notes: tuple[str, ...] = ()
+
+    @property
+    def estimates(self) -> dict[str, tuple[float, float]]:
+        """Td [s], tau [s] and K: (estimate, std) whatever the route."""
+        if isinstance(self.analysis, CascadeAnalysis):
+            est = self.analysis.identification.estimates
+            return {k: (float(est[k].value), float(est[k].std)) for k in ("Td", "tau", "K") if k in est}
+        a = self.analysis
+        return {"Td": (a.Td.mean, a.Td.std), "tau": (a.tau.mean, a.tau.std), "K": (a.K.mean, a.K.std)}
 
     def to_json(self) -> dict[str, Any]:
         """The analysis JSON with ``role``, ``route``, ``route_notes`` and ``gains`` added."""
@@ -164,8 +189,10 @@ class VehicleLoop:
         if not isinstance(data, Mapping):
             raise InputError(f"{what}: expected a JSON object")
         gains = data.get("gains")
+        analysis: AnalysisResult | CascadeAnalysis
         try:
-            analysis = AnalysisResult.from_json(data)
+            analysis = (CascadeAnalysis.from_json(data) if data.get("kind") == "cascade"
+                        else AnalysisResult.from_json(data))
         except InputError as err:
             raise InputError(f"{what}: {err}") from None
         return cls(loop, _choice(data, "role", ROLES, what), _choice(data, "route", ROUTES, what), analysis,

@@ -207,3 +207,40 @@ def test_batch_vehicle_refuses_per_loop_options():
 
     out = CliRunner().invoke(cli, ["batch", "x.mcap", "--tp", "0.04", "--vehicle", "--loop", "roll"])
     assert out.exit_code == 2 and "--vehicle finds each log's loops from its topics" in out.output
+
+
+@pytest.fixture(scope="module")
+def cascaded(tmp_path_factory):
+    """A HEAR-layout flight from the cascade simulator: roll tests, then y tests through the roll loop closed
+    by a PD at 100 Hz (the outer relay commands an acceleration, K = 1); the PD as GAINS.json."""
+    from mrftcli.sim.cascade import inner_pd, simulate_cascade
+    from mrftcli.sim.cascade_spec import CascadeSpec
+    from mrftcli.sim.cascade_write import write_cascade
+
+    gains = inner_pd(ROLL, 100.0)
+    spec = CascadeSpec(ROLL, gains, Td=2.0, tau=0.03, axis="y", commanded="acceleration",
+                       inner_tests=(TestSpec(-0.4, 0.12, 8.0), TestSpec(-0.7, 0.33, 6.0)),
+                       outer_tests=(TestSpec(-0.4, 0.3, 24.0), TestSpec(-0.7, 0.9, 18.0)), seed=2, hover_s=2.0,
+                       hold_s=2.0)
+    path = tmp_path_factory.mktemp("cascade") / "cascade_y.bag"
+    write_cascade(simulate_cascade(spec), path, "hear-ros")
+    return path, {"roll": gains.generic()}
+
+
+def test_outer_loop_through_the_closed_inner_loop(cascaded):
+    """With the inner gains flown, y is identified on the cascade (Td within 10 % of the simulator's, its
+    interval covering tau) and tuned on the cascade closed by the roll loop's new gains."""
+    path, gains = cascaded
+    res = identify_vehicle(path, TP, inner_gains=gains, options=VehicleOptions(n_bootstrap=100, inner_draws=5))
+    y = res.loops["y"]
+    assert (y.role, y.route) == ("outer", "cascade")
+    est = y.analysis.identification.estimates
+    assert est["Td"].value == pytest.approx(2.0, rel=0.10)
+    assert est["tau"].ci95_low <= 0.03 <= est["tau"].ci95_high
+    assert any(a.startswith("y: the outer relay commands an acceleration") for a in res.assumptions[:6])
+    assert not any("eq. (2)" in a for a in res.assumptions)  # nothing fell back
+    roll_new = res.loops["roll"].gains.controller
+    assert y.gains is not None and y.gains.tune.model.inner.controller.Kp == pytest.approx(roll_new.Kp)
+    assert y.gains.phase_margin_deg >= 35
+    back = VehicleResult.from_json(json.loads(json.dumps(res.to_json(), allow_nan=True)))
+    assert back.loops["y"].route == "cascade" and back.loops["y"].gains.controller == y.gains.controller

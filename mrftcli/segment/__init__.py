@@ -46,6 +46,13 @@ chained by :func:`segment` / :func:`segment_arrays` (:mod:`.segmenter`):
    :class:`ValidityCriterion` and docs/usage-analyze.md; :func:`mrftcli.analyze.analyze_flight`
    rejects the failing tests and those whose loop-gain sign disagrees with the others'.
 
+**Logged below the controller's rate** (PX4's 10 Hz logger over its 50 Hz controller; the
+controller's rate from the layout or ``controller_rate_hz``), a fast test has 2-sample half-periods
+and 4-6 samples a cycle: runs of 2 samples count, the switch instants are put on the controller's
+ticks from the vernier of every switch's logging bracket (:func:`switch_ticks`), and each cycle is
+measured against the output folded over the test's stable cycles (:func:`measure_folded`,
+:mod:`.vernier`); ``MrftTest.switch_timing`` and ``samples_per_cycle`` say how.
+
 Everything the identification needs comes out as frozen dataclasses (:mod:`.records`):
 :class:`RelayCycle` and :class:`MrftTest`.
 """
@@ -56,6 +63,7 @@ from .runs import RelayRun, find_relay_runs, regularise_times, robust_sigma
 from .segmenter import segment, segment_arrays
 from .stability import StabilityCriterion, stable_cycles
 from .validity import LimitCycleCheck, ValidityCriterion, check_limit_cycle
+from .vernier import FoldedWaveform, TickSwitches, fold_waveform, measure_folded, switch_ticks
 
 __all__ = [
     "segment", "segment_arrays",
@@ -64,4 +72,5 @@ __all__ = [
     "CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles",
     "StabilityCriterion", "stable_cycles",
     "ValidityCriterion", "LimitCycleCheck", "check_limit_cycle",
+    "TickSwitches", "switch_ticks", "FoldedWaveform", "fold_waveform", "measure_folded",
 ]

@@ -7,6 +7,8 @@ with its true Tp times 1/10, 1/3, 1, 3 and 10, as ``analyze`` runs. Each run is 
   truth within 2 % (``mrftcli.mrft.profile``);
 * refused: an error naming Tp (exit non-zero, e.g. "no plant of eq. (2) with Tp = ... fits");
 * silent: exit 0 without a Tp warning, with tau more than 10 % from the truth: a confident wrong answer;
+* unchecked: exit 0, tau more than 10 % off, and the first warning says "Tp is not checkable from this
+  log" with the reason (the command logged below the controller's rate; eq. (2) fitting at no Tp);
 * fine: the true Tp (factor 1) with no Tp warning, or a wrong Tp whose tau is still within 10 %.
 
 Also the CPU the profile adds: analyze at the wrong Tp against the same log at the true Tp, in the
@@ -55,8 +57,11 @@ def outcome(log: Path, truth: dict, factor: float) -> tuple[str, float, str]:
         ok = low <= truth["Tp"] * 1.02 and high >= truth["Tp"] * 0.98
         return ("named" if ok else "named wrongly"), cpu, named[0][:70]
     off = abs(r.tau.mean - truth["tau"]) / truth["tau"]
+    unchecked = [w for w in r.warnings if w.startswith("Tp is not checkable")]
     if factor != 1.0 and off > 0.10:
-        return "silent", cpu, f"tau {r.tau.mean * 1e3:.1f} ms, truth {truth['tau'] * 1e3:.1f} ms"
+        # the log cannot tell Tp, and the first warning says so: not a silent answer, not a named Tp
+        return ("unchecked" if unchecked and r.warnings[0] == unchecked[0] else "silent"), cpu, \
+            f"tau {r.tau.mean * 1e3:.1f} ms, truth {truth['tau'] * 1e3:.1f} ms"
     return ("fine" if factor == 1.0 or off <= 0.10 else "silent"), cpu, f"tau {r.tau.mean * 1e3:.1f} ms"
 
 

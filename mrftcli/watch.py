@@ -38,7 +38,7 @@ from collections.abc import Callable, Generator, Iterator
 from dataclasses import asdict, dataclass, field, replace
 from numbers import Integral
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -139,7 +139,7 @@ class TestUpdate:
     wall_time: float
     t_log_start: float
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, **asdict(self)}
 
 
@@ -178,10 +178,10 @@ class EstimateUpdate:
     t_cycle_end: float
     final: bool
     wall_time: float
-    std: dict = field(default_factory=dict)
+    std: dict[str, float] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, **asdict(self)}
 
 
@@ -199,7 +199,7 @@ class WatchEnd:
     error: str | None = None
     exit_code: int = 0
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, **asdict(self)}
 
 
@@ -220,7 +220,7 @@ class Restart:
     reason: str
     wall_time: float
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"kind": self.kind, **asdict(self)}
 
 

@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from ..diagnose.physics import BY_NAME
-from ..report.wording import gain_unit, output_unit
+from ..diagnose.physics import BY_NAME, unit_in_loop
+from ..report.wording import gain_unit
 from .model_options import unsupported_model_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, tp_option, tqdm_progress)
@@ -16,6 +16,7 @@ from .options import (check_output_dir, check_output_file, dump_json, json_optio
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
     from ..diagnose.records import DiagnosisResult
+    from ..io.logtypes import FlightLog
 
 
 def _g(x: float | None, fmt: str = ".4g") -> str:
@@ -25,53 +26,61 @@ def _g(x: float | None, fmt: str = ".4g") -> str:
 def _unit(name: str, loop: str) -> str:
     """A candidate parameter's unit in the loop's output unit ("-" for a ratio)."""
     unit = BY_NAME[name].unit
-    return "-" if unit in ("", "1", "-") else unit.replace("output unit", output_unit(loop))
+    return "-" if unit in ("", "1", "-") else str(unit_in_loop(unit, loop))
 
 
-def _model_lines(result: DiagnosisResult, analysis: AnalysisResult | None) -> list[str]:
+def _model_lines(result: DiagnosisResult) -> list[str]:
     """The linear model with units, and analyze's model of the same log with the reason they differ
     (issue 26: one model per log across commands, or the reason in the output)."""
     k_unit = gain_unit(result.loop)
-    lin = result.identification.get("linear", {})
+    ident = result.identification
+    lin = ident.linear
     spans = ", ".join(f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}" for t in result.tests)
-    lines = [f"linear model fitted to the stable cycles diagnose uses ({spans} s): Td {_g(lin.get('Td'))} s  "
-             f"tau {_g(1e3 * lin['tau'] if 'tau' in lin else None)} ms  K {_g(lin.get('K'))} {k_unit}"]
-    if analysis is None:
+    lines = [f"linear model fitted to the stable cycles diagnose uses ({spans} s): Td {_g(lin.Td)} s  "
+             f"tau {_g(None if lin.tau is None else 1e3 * lin.tau)} ms  K {_g(lin.K)} {k_unit}"]
+    a = ident.analyze
+    if a is None or a.method is None:
         return lines
-    how = "waveform refinement" if analysis.method == "waveform" else "MRFT estimate"
-    a_spans = ", ".join(f"{t.t_start - analysis.t0:.1f}-{t.t_end - analysis.t0:.1f}" for t in analysis.tests)
-    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): Td {analysis.Td.mean:.4g} s  "
-                 f"tau {1e3 * analysis.tau.mean:.4g} ms  K {abs(analysis.K.mean):.4g} {k_unit}: "
-                 + ("it leaves out the effect found below: take the estimate marked there" if result.effects else
-                    "the model to use")
-                 + "; diagnose refits the linear model to the cycles it compares the candidates on (the stable "
-                   "cycles above, by their features), so the two differ by that choice of data")
+    how = "waveform refinement" if a.method == "waveform" else "MRFT estimate"
+    a_spans = ", ".join(f"{t0:.1f}-{t1:.1f}" for t0, t1 in a.tests)
+    est = a.estimate
+    rec = ident.recommended
+    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): Td {_g(est.Td)} s  "
+                 f"tau {_g(None if est.tau is None else 1e3 * est.tau)} ms  K {_g(est.K)} {k_unit}: "
+                 + ("the model to use" if rec is not None and rec.source == "analyze" else
+                    "it leaves out the effect found below: take the estimate marked there")
+                 + f"; {a.differs_because}")
     return lines
 
 
 def _effect_lines(result: DiagnosisResult) -> list[str]:
-    """Each effect found with its refits, one of them marked as the estimate to take, with units."""
+    """Each effect found with its refits, the recommended one marked as the estimate to take, with units."""
     k_unit = gain_unit(result.loop)
+    ident = result.identification
+    chosen = ident.recommended.source if ident.recommended is not None else None
     lines = []
     for e in result.effects:
         cand = BY_NAME[e.name]  # its parameter's name
         lines.append(f"found: {e.name}: {e.explanation}")
-        w = e.identification.get("with_effect", {})
-        wf = result.identification.get(f"waveform_with_{e.name}")
-        lines.append(f"  refit to the cycles with {e.identification.get('model', e.name)}: Td {_g(w.get('Td'))} s  "
-                     f"tau {_g(1e3 * w['tau'] if 'tau' in w else None)} ms  K {_g(w.get('K'))} {k_unit}"
-                     + ("" if wf else "  <- the estimate to use"))
-        if wf:
-            lines.append(f"  refit to the recorded waveform: {cand.parameter} = {_g(wf['value'])} {_unit(e.name, result.loop)}  "
-                         f"Td {_g(wf['Td'])} s  tau {_g(1e3 * wf['tau'])} ms  K {_g(wf['K'])} {k_unit}  "
-                         "<- the estimate to use (every sample, as analyze's refinement; the cycle refit is what "
-                         "the selection compared)")
+        model = e.identification.get("model", e.name)
+        w = ident.refits.get(model)
+        if w is None:
+            continue
+        lines.append(f"  refit to the cycles with {model}: Td {_g(w.Td)} s  "
+                     f"tau {_g(None if w.tau is None else 1e3 * w.tau)} ms  K {_g(w.K)} {k_unit}"
+                     + ("  <- the estimate to use" if chosen == f"with_{model}" else ""))
+        wf = ident.waveform.get(e.name)
+        if wf is not None:
+            lines.append(f"  refit to the recorded waveform: {cand.parameter} = {_g(wf.value)} {_unit(e.name, result.loop)}  "
+                         f"Td {_g(wf.Td)} s  tau {_g(None if wf.tau is None else 1e3 * wf.tau)} ms  K {_g(wf.K)} {k_unit}"
+                         + ("  <- the estimate to use (every sample, as analyze's refinement; the cycle refit is what "
+                            "the selection compared)" if chosen == f"waveform_with_{e.name}" else ""))
     return lines
 
 
-def format_summary(result: DiagnosisResult, analysis: AnalysisResult | None = None) -> str:
-    """The terminal summary of a :class:`~mrftcli.diagnose.records.DiagnosisResult` (with ``analysis``,
-    analyze's model of the same log beside the diagnosis' linear model)."""
+def format_summary(result: DiagnosisResult) -> str:
+    """The terminal summary of a :class:`~mrftcli.diagnose.records.DiagnosisResult` (analyze's model of
+    the same log beside the diagnosis' linear model when its identification holds it)."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
@@ -82,7 +91,7 @@ def format_summary(result: DiagnosisResult, analysis: AnalysisResult | None = No
         span = f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}"
         lines.append(f"{t.index + 1:>4} {span:>11} {nom:>8} {beff:>+9.3f} "
                      f"{t.h:>9.4g} {t.cycles:>6d}")
-    lines += _model_lines(result, analysis)
+    lines += _model_lines(result)
     lines.append("candidates (found = delta BIC > 10 and better on the held-out cycles; held-out error = RMS of\n"
                  "the held-out cycles' misfit over their amplitude, without and with the effect):")
     lines.append(f"  {'effect':<20} {'parameter [unit]':>38} {'delta BIC':>10} {'held-out error':>22}")
@@ -172,18 +181,12 @@ def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options
         given = analyze_given(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
         result = run(flight, Tp, analysis=given, progress=progress)
+    result = _with_analysis(result, flight, Tp, given)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_dict(), json_target)
     if not to_stdout:
-        from ..analyze import analyze_flight
-        from ..errors import MrftError
-
-        try:  # analyze's model of the same log, beside the diagnosis' own (about 1 s)
-            analysis: AnalysisResult | None = given or analyze_flight(flight, Tp)
-        except MrftError:
-            analysis = None
-        click.echo(format_summary(result, analysis))
+        click.echo(format_summary(result))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     if report_dir:
@@ -191,3 +194,21 @@ def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options
 
         index = write_diagnosis_report(result, report_dir)
         click.echo(f"report: {index}", err=to_stdout)
+
+
+def _with_analysis(result: DiagnosisResult, flight: FlightLog, Tp: float,
+                   given: AnalysisResult | None) -> DiagnosisResult:
+    """The diagnosis with analyze's model of the same log (about 1 s; the one the user was given
+    with --min-cycles) and the recommendation made again with it, for the terminal and the JSON alike."""
+    from dataclasses import replace
+
+    from ..analyze import analyze_flight
+    from ..diagnose.identification import with_analysis
+    from ..diagnose.selection import deterministic
+    from ..errors import MrftError
+
+    try:
+        analysis = given or analyze_flight(flight, Tp)
+    except MrftError:
+        return result  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
+    return replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects)))

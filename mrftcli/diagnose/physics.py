@@ -17,7 +17,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["Candidate", "CANDIDATES", "BY_NAME"]
+from ..io.logtypes import output_unit
+
+__all__ = ["Candidate", "CANDIDATES", "BY_NAME", "unit_in_loop"]
 
 
 @dataclass(frozen=True)
@@ -158,3 +160,14 @@ def df_quadratic_drag(Td: float, velocity_amplitude: float) -> float:
     The first harmonic of c v|v| for v = V sin(wt) is (8 / (3 pi)) c V v, so 1/Td = 8 c V / (3 pi).
     """
     return 3.0 * math.pi / (8.0 * Td * velocity_amplitude)
+
+
+def unit_in_loop(unit: str | None, loop: str) -> str | None:
+    """A candidate parameter's unit with the loop's output unit spelt out, as the terminal shows it.
+
+    Examples
+    --------
+    >>> unit_in_loop("1/output unit", "altitude"), unit_in_loop("command units/s", "roll")
+    ('1/m', 'command units/s')
+    """
+    return None if unit is None else unit.replace("output unit", output_unit(loop))

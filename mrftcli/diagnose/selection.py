@@ -51,10 +51,11 @@ from ..validate import check_time
 from .candidates import LinearFit, fit_linear, search_candidates
 from .fit import plant_params
 from .heldout import BIC_THRESHOLD, significant
+from .identification import Identification, ModelEstimate, analyze_model
 from .jitter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
-from .physics import BY_NAME, CANDIDATES
+from .physics import BY_NAME, CANDIDATES, unit_in_loop
 from .resonance import resonance_mismatch
 from .records import CandidateFit, DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel, TestRow, Unexplained
 from .screen import Screen, screen_log
@@ -62,7 +63,7 @@ from .screen import Screen, screen_log
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["diagnose", "judge_jitter", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
+__all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
 
 
 class _Stages:
@@ -202,6 +203,8 @@ def diagnose(
         unexplained = resonance_mismatch(flight, screen.tests,
                                          "linear" if chosen.final is None else f"linear + {chosen.final.label}")
     warnings = screen.warnings + chosen.warnings
+    effects = [replace(e, parameters={**e.parameters, "unit": unit_in_loop(e.parameters.get("unit"), flight.loop)})
+               for e in effects]
     identification = _identification(flight, Tp, screen, linear, effects, analysis, warnings)
     figures = DiagnosisFigures(flight=flight, tests=screen.tests, base_model=linear.model, base=linear.fit,
                                fits=search.fits, effects=[e.name for e in effects], final=chosen.final,
@@ -212,14 +215,14 @@ def diagnose(
         loop=flight.loop,
         Tp=float(Tp),
         effects=effects,
-        candidates=cand_rows,
+        candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in cand_rows],
         located=items,
         identification=identification,
         tests=_test_rows(screen, linear),
         noise_std=screen.noise,
         summary=_summary_text(effects, unexplained),
         warnings=warnings,
-        second_effect_candidates=chosen.pair_rows,
+        second_effect_candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in chosen.pair_rows],
         unexplained=unexplained,
         t0=screen.t0,
         figures=figures,
@@ -231,23 +234,28 @@ def diagnose(
 
 
 def _identification(flight: FlightLog, Tp: float, screen: Screen, linear: LinearFit, effects: list[EffectFinding],
-                    analysis: AnalysisResult | None, warnings: list[str]) -> dict:
-    """The linear fit, the refit with each found effect, the waveform refits and analyze's estimate."""
-    identification = {"linear": {**plant_params(linear.model, linear.fit), "Tp": Tp}}
-    for e in effects:
-        key = f"with_{e.identification.get('model', e.name)}"
-        identification[key] = {**e.identification["with_effect"], "Tp": Tp}
-    identification.update(_waveform_refits(flight, screen.analysis, effects, warnings))
-    if analysis is not None:
-        identification["analyze"] = _analysis_params(analysis)
-    return identification
+                    analysis: AnalysisResult | None, warnings: list[str]) -> Identification:
+    """The linear fit, the refit with each found effect, the waveform refits, analyze's model (when
+    given) and the one estimate to take."""
+    lin = plant_params(linear.model, linear.fit)
+    refits = {e.identification.get("model", e.name): ModelEstimate(**{**e.identification["with_effect"], "Tp": Tp})
+              for e in effects}
+    ident = Identification(loop=flight.loop, linear=ModelEstimate(**{**lin, "Tp": Tp}), refits=refits,
+                           waveform=_waveform_refits(flight, screen.analysis, effects, warnings),
+                           analyze=None if analysis is None else analyze_model(analysis))
+    return ident.recommend(deterministic(effects))
+
+
+def deterministic(effects: list[EffectFinding]) -> list[str]:
+    """The names of the effects a deterministic model refits (the delay jitter leaves Td, tau, K alone)."""
+    return [e.name for e in effects if e.name != "delay_jitter"]
 
 
 def _summary_text(effects: list[EffectFinding], unexplained: Unexplained | None) -> str:
     """One sentence: the effects found (or none) and what remains unexplained."""
     if effects:
         parts = [
-            f"{e.name} ({e.parameters.get(BY_NAME[e.name].parameter):.4g} {BY_NAME[e.name].unit}; delta BIC "
+            f"{e.name} ({e.parameters.get(BY_NAME[e.name].parameter):.4g} {e.parameters['unit']}; delta BIC "
             f"{e.evidence.delta_bic:.0f} against the {e.evidence.compared_with} model; held-out NRMSE "
             f"{_fmt(e.fit_before.nrmse)} -> {_fmt(e.fit_after.nrmse)})"
             for e in effects
@@ -299,12 +307,12 @@ def _fmt(x: float | None) -> str:
 
 
 def _waveform_refits(flight: FlightLog, analysis: AnalysisResult | None, effects: list[EffectFinding],
-                     warnings: list[str]) -> dict:
+                     warnings: list[str]) -> dict[str, ModelEstimate]:
     """The output-error refit of issue 16 with each found effect it can model (a sensor lag, an input bias).
 
     The same problem as :func:`mrftcli.mrft.refine.refine` with one more parameter, fitted on the
     recorded waveform of the analysis' test windows: the effect's parameter and Td, tau, K with it
-    accounted for, beside the cycle-feature fit's (``identification["waveform_with_<effect>"]``).
+    accounted for, beside the cycle-feature fit's (``identification.waveform[<effect>]``).
     Skipped for a command logged below the controller's rate (the waveform is not known there).
     """
     from ..mrft.refine import EFFECTS, refinement_windows, refit_with_effect
@@ -324,13 +332,6 @@ def _waveform_refits(flight: FlightLog, analysis: AnalysisResult | None, effects
         except MrftError as err:
             warnings.append(f"the waveform refit with {name} failed ({err}); the cycle-feature fit stands")
             continue
-        out[f"waveform_with_{name}"] = {"Td": r.model.Td, "tau": r.model.tau, "K": r.model.K, "Tp": r.model.Tp,
-                                        "value": r.value, "value_std": r.value_std,
-                                        "residual_rms": r.fit.residual_rms}
+        out[name] = ModelEstimate(kind="waveform", Td=r.model.Td, tau=r.model.tau, K=r.model.K, Tp=r.model.Tp,
+                                  value=r.value, value_std=r.value_std, residual_rms=r.fit.residual_rms)
     return out
-
-
-def _analysis_params(analysis: AnalysisResult) -> dict:
-    """Td, tau [s] and K (the point estimates) of an analysis, the finite ones."""
-    means = {"Td": analysis.Td.mean, "tau": analysis.tau.mean, "K": analysis.K.mean}
-    return {k: float(v) for k, v in means.items() if v is not None and math.isfinite(float(v))}

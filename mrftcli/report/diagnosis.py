@@ -20,6 +20,7 @@ import numpy as np
 
 from ..diagnose.records import DiagnosisFigures, DiagnosisResult, HeldOut
 from ..errors import InputError
+from ..io.logtypes import gain_unit
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure
 
 __all__ = ["plot_located", "plot_overlay", "plot_harmonics", "plot_evidence", "write_diagnosis_report"]
@@ -212,7 +213,7 @@ _MODEL_NAMES = {"linear": "linear model", "analyze": "analyze (MRFT consensus)"}
 _LEFT = "<style>.left3 td:nth-child(n+3), .left2 td:nth-child(n+2) { text-align: left; }</style>"
 
 
-def _param_rows(e) -> list[tuple]:
+def _param_rows(e, loop: str) -> list[tuple]:
     """(parameter, value, +- std, unit) for people: names in words, times in ms."""
     out = []
     for key, v in e.parameters.items():
@@ -224,7 +225,7 @@ def _param_rows(e) -> list[tuple]:
             label += " (fitted alone)"
         if base in ("tau", "Td", "K"):
             label, scale, unit = {"tau": ("delay tau", 1e3, "ms"), "Td": ("drag time constant Td", 1.0, "s"),
-                                  "K": ("gain K", 1.0, "output units/(command unit s^2)")}[base]
+                                  "K": ("gain K", 1.0, gain_unit(loop))}[base]
         std = e.parameters.get(f"{key}_std")
         out.append((label, _f(scale * v), "-" if std is None else _f(scale * std), unit))
     return out
@@ -248,7 +249,7 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     for e in result.effects:
         body.append(f"<h2>Found: {esc(e.name.replace('_', ' '))}</h2><p>{esc(e.explanation)}</p>"
                     f"<p class='muted'>Model: {esc(e.augmentation)}</p>")
-        body.append(html_table(["parameter", "value", "+- std", "unit"], _param_rows(e)))
+        body.append(html_table(["parameter", "value", "+- std", "unit"], _param_rows(e, result.loop)))
         before = e.evidence.compared_with
         fb, fa = e.fit_before, e.fit_after
         body.append("<div class='left2'>" + html_table(
@@ -271,10 +272,17 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
             body.append(f"<p>Largest: test {lg['test']}, {esc(lg['what'])} (z = {lg['z']:+.1f}).</p>")
     ident = result.identification
     body.append("<h2>Identification</h2>")
-    body.append(html_table(["model", "Td [s]", "tau [ms]", "K"],
-                           [(_MODEL_NAMES.get(k, k.replace("with_", "with ").replace("_", " ")), _f(v.get("Td")),
-                             _f(1e3 * v["tau"]) if v.get("tau") is not None else "-", _f(v.get("K")))
-                            for k, v in ident.items()]))
+    rec = ident.recommended
+    body.append(html_table(["model", "Td [s]", "tau [ms]", f"K [{esc(gain_unit(result.loop))}]", ""],
+                           [(_MODEL_NAMES.get(k, k.replace("with_", "with ").replace("_", " ")), _f(v.Td),
+                             _f(1e3 * v.tau) if v.tau is not None else "-", _f(v.K),
+                             "the estimate to use" if rec is not None and rec.source == k else "")
+                            for k, v in ident.entries().items()]))
+    if rec is not None:
+        body.append(f"<p>Recommended: {esc(rec.why)}.</p>")
+    if ident.analyze is not None and ident.analyze.differs_because:
+        body.append(f"<p class='muted'>analyze's model and the linear fit differ: {esc(ident.analyze.differs_because)}."
+                    "</p>")
     body.append("<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>")
     loc_rows = []
     for loc in result.located[:12]:

@@ -21,7 +21,7 @@ import numpy as np
 from ..diagnose.records import DiagnosisFigures, DiagnosisResult, HeldOut
 from ..errors import InputError
 from ..io.logtypes import gain_unit
-from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure
+from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure, write_page
 
 __all__ = ["plot_located", "plot_overlay", "plot_harmonics", "plot_evidence", "write_diagnosis_report"]
 
@@ -320,9 +320,9 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
               "yes" if c.significant else "no") for c in pairs]) + "</div>")
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
     page = out / "diagnosis.html"
-    page.write_text(html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
     if not (out / "index.html").exists():
-        (out / "index.html").write_text(page.read_text())
+        write_page(out / "index.html", page.read_text())
     return page
 
 

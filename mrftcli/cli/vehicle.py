@@ -106,6 +106,19 @@ def _export_text(result: VehicleResult, stack: str) -> str:
     return "".join(e.file_text() for e in exports.values())
 
 
+def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | None,
+                         hover_thrust: float | None) -> None:
+    """What the export cannot do is refused before the work, as ``tune`` does (an unused option is an error)."""
+    from ..tune.stacks import check_exportable
+
+    if export in ("px4", "ardupilot") and kind != "PD":
+        check_exportable(export, "roll", kind)  # its one-line reason: the stack's rate loop takes a PD
+    if gyro_cutoff is not None and export not in ("px4", "ardupilot"):
+        raise InputError("--gyro-cutoff is for --export px4|ardupilot (the stack's gyro filter on roll and pitch)")
+    if hover_thrust is not None and export != "px4":
+        raise InputError("--hover-thrust is for --export px4 (the altitude loop)")
+
+
 @click.command("vehicle")
 @click.argument("log", type=click.Path(dir_okay=True))
 @tp_option()
@@ -163,6 +176,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
         raise InputError("--out needs --export generic|px4|ardupilot|hear")
     if export is not None and not out and json_target == "-":
         raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
+    _check_stack_options(export, kind, gyro_cutoff, hover_thrust)
     stack = None if export is None else StackOptions(export, gyro_cutoff, hover_thrust, clamp)
     gains = _inner_gains(inner_gains)
     options = VehicleOptions(layout=read_options["layout"], fmt=read_options["fmt"],

@@ -96,7 +96,8 @@ class VehicleOptions:
     def outer(self) -> OuterOptions:
         """How an outer loop is identified through the cascade and tuned on it."""
         return OuterOptions(commanded=self.outer_command, inner_draws=self.inner_draws,
-                            min_stable_cycles=self.min_stable_cycles, ms_max=self.tune.ms_max)
+                            min_stable_cycles=self.min_stable_cycles, ms_max=self.tune.ms_max,
+                            stack=None if self.tune.stack is None else self.tune.stack.stack)
 
 
 def tp_per_loop(Tp: float | Mapping[str, float]) -> dict[str, float]:
@@ -186,6 +187,8 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
                 identify_outer(source, loop, tps[loop], opts, inner_gains, acc)
             else:
                 identify_inner(source, loop, tps[loop], opts, acc)
+    if inner_gains is not None and not any(loop in acc.loops for loop in OUTER_LOOPS):
+        acc.warnings.append("--inner-gains not used: the flight gives no model of x or y")
     report(progress, total, total, "done")
     ordered = {loop: acc.missing[loop] for loop in VEHICLE_ORDER if loop in acc.missing}
     return VehicleResult(log, found.layout, acc.loops, ordered, (*acc.first, *acc.assumptions), tuple(acc.warnings))

@@ -40,12 +40,15 @@ class OuterOptions:
         Fewest stable cycles for an outer test to be used.
     ms_max : float
         Limit on the outer loop's sensitivity peak.
+    stack : str or None
+        The ``--export`` asked for (the cascade route exports the generic form only).
     """
 
     commanded: str = "acceleration"
     inner_draws: int = 30
     min_stable_cycles: int = 3
     ms_max: float = 1.6
+    stack: str | None = None
 
 
 def cascade_outer(source: LogSource, read: ReadOptions, inner: VehicleLoop, controller: InnerController,
@@ -96,4 +99,8 @@ def tune_outer(analysis: CascadeAnalysis, inner: VehicleLoop, options: OuterOpti
                                           ms_max=options.ms_max)
     res = dataclasses.replace(res, notes=(said, *res.notes))
     design = "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
-    return LoopGains(design, "PD", res)
+    refused = None
+    if options.stack not in (None, "generic"):
+        refused = (f"the {analysis.loop} loop is designed on the cascade at the flight's rate, without "
+                   f"{options.stack}'s rate filter: export its generic gains (--export generic)")
+    return LoopGains(design, "PD", res, export_refused=refused)

@@ -14,7 +14,14 @@ import inspect
 import pkgutil
 from collections.abc import Callable, Iterator
 
+import pytest
+
 import mrftcli
+from mrftcli.analyze import AnalyzeOptions
+from mrftcli.batch import BatchOptions
+from mrftcli.errors import InputError
+from mrftcli.io import ReadOptions
+from mrftcli.watch import WatchOptions
 
 #: the most parameters a public function may take; a longer list becomes an options record
 #: (``ReadOptions``, ``AnalyzeOptions``, ``WatchOptions``, ``BatchOptions``, ``PlanOptions``, ...)
@@ -119,3 +126,30 @@ def test_the_four_regrouped_functions_are_short():
 
     counts = {f.__name__: n_parameters(f) for f in (read_flight, analyze_flight, analyze_path, watch, run_batch)}
     assert max(counts.values()) <= 8, counts  # were 14, 11, 21, 16 and 14
+
+
+@pytest.mark.parametrize(("make", "needle"), [
+    (lambda: AnalyzeOptions(min_stable_cycles=0), "min_stable_cycles must be a whole number of at least 1, got 0"),
+    (lambda: AnalyzeOptions(n_bootstrap=2.5), "n_bootstrap must be a whole number"),
+    (lambda: AnalyzeOptions(constraints=["phase", "gain"]), r"unknown constraint\(s\) \['gain'\]"),
+    (lambda: AnalyzeOptions(controller_rate_hz=-50.0), "controller rate"),
+    (lambda: ReadOptions(time_unit="h"), "unknown time unit 'h'"),
+    (lambda: ReadOptions(loop="yaw"), "unknown loop 'yaw'"),
+    (lambda: WatchOptions(idle=0.0), "idle"),
+    (lambda: WatchOptions(min_cycles=0), "min_cycles must be a whole number of at least 1"),
+    (lambda: BatchOptions(jobs=0), "--jobs must be at least 1, got 0"),
+    (lambda: BatchOptions(scheduler_timeout_s=float("nan")), "scheduler timeout"),
+])
+def test_an_options_record_refuses_a_bad_value_on_creation_in_one_line(make, needle):
+    with pytest.raises(InputError, match=needle) as exc:
+        make()
+    assert "\n" not in str(exc.value)
+
+
+def test_options_records_are_frozen_and_normalised():
+    opts = AnalyzeOptions(constraints=["phase"])
+    assert opts.constraints == ("phase",)  # a list given is stored as the tuple (hashable, immutable)
+    for record in (opts, ReadOptions(), WatchOptions(), BatchOptions()):
+        assert dataclasses.is_dataclass(record)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            record.seed = 1  # type: ignore[misc]  # the point: assignment is refused

@@ -11,7 +11,7 @@ from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit
 from .model_options import unsupported_model_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, quiet_option, tp_option, tqdm_progress)
+                      min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
@@ -171,7 +171,8 @@ def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
-    flight = read_flight(log, ReadOptions(**read_options))
+    with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
+        flight = read_flight(log, ReadOptions(**read_options), progress=progress)
     given: AnalysisResult | None = None
     if min_cycles != 3:
         from ..analyze import AnalyzeOptions

@@ -37,7 +37,7 @@ FORMAT_EXCEPTIONS = {
 #: What --out names per command (docs/usage.md, "One grammar").
 OUT_KIND = {"batch": "folder", "build-ufm": "folder", "simulate": "file", "tune": "file", "vehicle": "file"}
 #: Commands that draw a progress bar, so take -q/--quiet.
-PROGRESS = {"analyze", "diagnose", "batch", "plan", "tune", "simulate", "build-ufm", "vehicle"}
+PROGRESS = {"analyze", "diagnose", "batch", "plan", "tune", "simulate", "build-ufm", "vehicle", "topics"}
 
 
 def _commands() -> dict[str, click.Command]:

@@ -6,7 +6,7 @@ import click
 
 from ..io import READ_FORMATS
 
-from .options import dump_json, json_option
+from .options import dump_json, json_option, quiet_option, read_progress
 
 __all__ = ["topics"]
 
@@ -23,7 +23,8 @@ def _rate(value: float | None) -> str:
               help=f"Log format (default: detected from the file): {', '.join(READ_FORMATS)}.")
 @click.option("--fields", is_flag=True, help="Also list each topic's numeric fields.")
 @json_option(what="topics, the format and the layout")
-def topics(log: str, fmt: str | None, fields: bool, json_target: str | None) -> None:
+@quiet_option()
+def topics(log: str, fmt: str | None, fields: bool, json_target: str | None, quiet: bool) -> None:
     """List the topics of LOG with message types, counts and mean rates.
 
     For ULog the topics are the logged messages (``name.N`` for instance N), for CSV the columns, for
@@ -32,7 +33,8 @@ def topics(log: str, fmt: str | None, fields: bool, json_target: str | None) -> 
     """
     from ..io import log_layout, open_log
 
-    with open_log(log, fmt) as source:
+    # a bar only for a read that takes seconds (a large CSV's passes)
+    with read_progress(not quiet) as progress, open_log(log, fmt, progress=progress) as source:
         infos = source.topics()
         warnings = list(source.warnings)
         fmt_name = source.format

@@ -152,11 +152,13 @@ def cascade_route(spec, bag: Path, out: Outcome) -> None:
 
 
 def tune_cascade(analysis):
-    """The cascade route's recommended robust PD (tune on the cascade analysis)."""
-    from mrftcli.tune.analysis import tune_analysis
+    """The cascade route's recommended robust PD: what ``tune RESULT.json`` designs on a cascade analysis
+    (30 draws of the outer Td, tau over their intervals)."""
+    from mrftcli.tune.cascade import outer_draws, tune_cascade as design
 
-    res = tune_analysis(analysis, kinds=("PD",), designs=("robust",))
-    return res.get("robust", "PD").controller
+    draws = outer_draws(analysis.model, analysis.identification.estimates, 30)
+    res = design(analysis.model, analysis.controller_rate_hz, draws=draws, loop=analysis.loop)
+    return res.get("robust").controller
 
 
 def eq2_route(spec, bag: Path, out: Outcome) -> None:

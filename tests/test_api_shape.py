@@ -153,3 +153,10 @@ def test_options_records_are_frozen_and_normalised():
         assert dataclasses.is_dataclass(record)
         with pytest.raises(dataclasses.FrozenInstanceError):
             record.seed = 1  # type: ignore[misc]  # the point: assignment is refused
+
+
+def test_the_cli_log_options_are_read_options_fields():
+    """Every command passes its shared log options on as ``ReadOptions(**read_options)``."""
+    from mrftcli.cli.options import READ_OPTIONS
+
+    assert set(READ_OPTIONS) <= {f.name for f in dataclasses.fields(ReadOptions)}

@@ -59,21 +59,6 @@ def _check_out(out: str | None) -> None:
             raise InputError(f"--out {out}: is a folder; give a file name")
 
 
-def _write_atomically(path: str, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder (never a half-written file)."""
-    import tempfile
-
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", dir=target.resolve().parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
     """Output paths are checked before the work starts (one-line error, exit 2)."""
     if json_target and json_target != "-":
@@ -252,7 +237,9 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     else:
         text, summary = stack_export.file_text(), _stack_summary(stack_export)
     if ex.out:
-        _write_atomically(ex.out, text)
+        from ..io.atomic import write_text_atomic
+
+        write_text_atomic(ex.out, text)  # the usual permissions, never a half-written file
         summary.append(f"written: {ex.out}")
         click.echo("\n".join(summary), err=json_target == "-")
     else:

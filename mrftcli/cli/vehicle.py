@@ -189,7 +189,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
         if report_dir:
             from ..report.vehicle import write_vehicle_report
 
-            index = write_vehicle_report(result, report_dir)
+            index = write_vehicle_report(result, report_dir, progress=progress)
     if json_target:
         dump_json(result.to_json(), json_target)
     to_stdout = json_target == "-"

@@ -32,6 +32,7 @@ from ..mrft.identify import TestMeasurement
 from ..mrft.model import LoopModel
 from ..segment import segment
 from ..segment.records import MrftTest
+from ..segment.relay_type import infer_relay
 from .mrfttest_json import mrft_test_from_json
 from .record import AnalysisResult, analysis_controller_rate
 from .screen import log_start
@@ -275,12 +276,17 @@ def screen_outer(found: Sequence[MrftTest], min_stable_cycles: int) -> _Screened
 
 
 def _measurement(t: MrftTest) -> TestMeasurement:
-    """The test's per-cycle frequencies and amplitudes at its nominal beta (the exact sampled cycle
-    holds the sampling lag the effective beta would count again)."""
-    beta = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
+    """The test's per-cycle frequencies and amplitudes at its nominal beta.
+
+    The exact sampled cycle holds the sampling lag itself, so the effective beta (measured at the
+    switches, lag included) would count it twice (a bias of about half a tick in tau): without a
+    logged beta, the measured level less the sampling lag's
+    (:func:`mrftcli.segment.relay_type.infer_relay`).
+    """
+    beta = t.beta_nominal if t.beta_nominal is not None else infer_relay(t, kind="mrft").beta
     st = t.stable
-    return TestMeasurement(beta=float(beta), frequency_hz=[c.frequency_hz for c in st],
-                           amplitude=[c.amplitude for c in st], h=float(t.h))
+    return TestMeasurement(beta=float(beta),
+                           frequency_hz=[c.frequency_hz for c in st], amplitude=[c.amplitude for c in st], h=float(t.h))
 
 
 # ----------------------------------------------------------------------------------------------

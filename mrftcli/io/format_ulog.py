@@ -31,6 +31,7 @@ from typing import Any, TypeAlias
 import numpy as np
 
 from ..errors import InputError, LogReadError
+from .atomic import atomic_path
 from .logtypes import TopicData, TopicInfo
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
@@ -316,7 +317,7 @@ def write_ulog(topics: list[TopicData], path: str | Path, *, parameters: dict[st
         extra.append((t, _message(b"L", body)))
     if extra:
         data = _insert_after(data, sorted_stamps, ends, extra)
-    with open(path, "wb") as handle:
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle:  # a killed run leaves no cut log
         handle.write(head)
         handle.write(b"".join(definitions))
         handle.write(b"".join(subscriptions))

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..io.atomic import write_text_atomic
 from ..io.logtypes import TopicData
 from .control import HoldPID, noise_margin
 from .spec import FlightSettings, FlightSpec
@@ -200,7 +201,7 @@ def write_flight(flight: SimulatedFlight, path: str | Path, fmt: str) -> Path:
     truth["log_format"] = fmt
     truth["log_file"] = Path(path).name
     side = sidecar_path(path)
-    side.write_text(json.dumps(jsonable(truth), indent=2, allow_nan=False) + "\n")
+    write_text_atomic(side, json.dumps(jsonable(truth), indent=2, allow_nan=False) + "\n")
     return side
 
 

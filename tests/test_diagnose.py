@@ -430,6 +430,20 @@ def test_diagnosis_result_missing_key_and_not_a_dict():
         DiagnosisResult.from_json([])  # type: ignore[arg-type]
 
 
+def test_terminal_marks_the_one_recommended_estimate_with_units():
+    from mrftcli.cli.diagnose import format_summary
+
+    text = format_summary(_small_result())
+    assert text.count("<- the estimate to use") == 1
+    (marked,) = [line for line in text.splitlines() if "<- the estimate to use" in line]
+    assert "refit to the recorded waveform: T_lag = 0.069 s" in marked and "K 12.4 m/s² per command unit" in marked
+    assert "analyze's model of this log (waveform refinement, tests 1.5-18.5 s)" in text
+    assert "another choice of data" in text
+    # nothing found: analyze's model is the one to use, and no refit is marked
+    clean = format_summary(replace(_small_result(), identification=_small_result().identification.recommend([])))
+    assert "the model to use" in clean and "<- the estimate to use" not in clean
+
+
 def test_report_refuses_a_result_without_figures(tmp_path):
     from mrftcli.report.diagnosis import write_diagnosis_report
 
@@ -458,6 +472,13 @@ def test_cli_json_on_an_input_bias_log(tmp_path):
     assert e["fit_after"]["nrmse"] < e["fit_before"]["nrmse"]
     assert any(loc.get("feature") == "balance" for loc in data["located"])
     assert "with_input_bias" in data["identification"]
+    # issue 26 item 4: analyze's model of the log and why the linear fit differs, one estimate to take, units
+    ident = data["identification"]
+    assert set(ident["analyze"]) >= {"Td", "tau", "K", "method", "tests", "differs_because"}
+    assert ident["recommended"]["source"] == "waveform_with_input_bias"
+    assert ident["recommended"]["Td"] == ident["waveform_with_input_bias"]["Td"]
+    assert ident["units"]["K"] == "m/s² per command unit"
+    assert {c["name"]: c.get("unit") for c in data["candidates"]}["quadratic_drag"] == "1/m"
     for png in ("diagnosis_located.png", "diagnosis_overlay.png", "diagnosis_harmonics.png"):
         assert (tmp_path / png).stat().st_size > 10_000
 

@@ -26,7 +26,8 @@ Two routes on each flight:
 Each route's recommended robust PD (``tune``'s ``robust`` design) is then put on the TRUE cascade:
 the exact discrete loop of the simulator's plant, inner PD and the designed outer controller
 (:func:`mrftcli.sim.cascade_plant.outer_phase_margin`: the phase margin at every gain crossover,
--inf when the closed loop is unstable). Target: the cascade route keeps >= 35 deg on every flight.
+-inf when the closed loop is unstable), and its crossover frequency (how fast the loop is). Target:
+the cascade route keeps >= 35 deg on every flight.
 A route that refuses (no usable test, a failed solve, no design) counts as a miss.
 
 Run: ``nice -n 10 python benchmarks/bench_cascade.py [--n 20] [--seed 0]`` (about 20-40 s per flight).
@@ -66,11 +67,13 @@ class Outcome:
     cascade_tau_covers: bool = False
     cascade_error: str = ""
     cascade_pm: float = math.nan
+    cascade_wc: float = math.nan
     cascade_tune_error: str = ""
     eq2_Td: float = math.nan
     eq2_tau: float = math.nan
     eq2_error: str = ""
     eq2_pm: float = math.nan
+    eq2_wc: float = math.nan
     eq2_tune_error: str = ""
     cpu_s: float = 0.0
 
@@ -118,15 +121,16 @@ def _gains_of(controller):
     return InnerGains(controller.Kp, controller.Ki, controller.Kd, controller.Tf, controller.rate_hz)
 
 
-def _margin(spec, controller) -> float:
+def _margin(spec, controller) -> tuple[float, float]:
+    """(phase margin [deg], its crossover [rad/s]) of ``controller`` on the true cascade."""
     from mrftcli.sim.cascade import command_gain
     from mrftcli.sim.cascade_plant import cascade_plant, outer_phase_margin
 
     plant = cascade_plant(spec.inner, spec.Td, spec.tau, spec.rate_hz, spec.g)
     if getattr(controller, "rate_filter", None) is not None:
         raise RuntimeError("the design uses a stack's rate filter; the truth loop models Tf only")
-    return outer_phase_margin(plant, spec.gains, _gains_of(controller), command_gain(spec.commanded, spec.g)
-                              ).phase_margin_deg
+    m = outer_phase_margin(plant, spec.gains, _gains_of(controller), command_gain(spec.commanded, spec.g))
+    return m.phase_margin_deg, m.crossover_rad_s
 
 
 def cascade_route(spec, bag: Path, out: Outcome) -> None:
@@ -146,7 +150,7 @@ def cascade_route(spec, bag: Path, out: Outcome) -> None:
     out.cascade_td_covers = est["Td"].ci95_low <= spec.Td <= est["Td"].ci95_high
     out.cascade_tau_covers = est["tau"].ci95_low <= spec.tau <= est["tau"].ci95_high
     try:
-        out.cascade_pm = _margin(spec, tune_cascade(analysis))
+        out.cascade_pm, out.cascade_wc = _margin(spec, tune_cascade(analysis))
     except Exception as err:  # noqa: BLE001 - a refusal is a miss, recorded with its reason
         out.cascade_tune_error = f"{type(err).__name__}: {err}"
 
@@ -170,7 +174,7 @@ def eq2_route(spec, bag: Path, out: Outcome) -> None:
     out.eq2_Td, out.eq2_tau = result.Td.mean, result.tau.mean
     try:
         res = tune_analysis(result, kinds=("PD",), designs=("robust",))
-        out.eq2_pm = _margin(spec, res.get("robust", "PD").controller)
+        out.eq2_pm, out.eq2_wc = _margin(spec, res.get("robust", "PD").controller)
     except Exception as err:  # noqa: BLE001 - a refusal is a miss
         out.eq2_tune_error = f"{type(err).__name__}: {err}"
 
@@ -205,13 +209,14 @@ def _pct(k: int, n: int) -> str:
 def report(outcomes: list[Outcome]) -> None:
     n = len(outcomes)
     print(f"\n{'seed':>4} {'ax':>2} {'cmd':>5} {'rate':>4} {'Td':>6} {'tau ms':>6} | {'casc Td':>7} {'tau ms':>6} "
-          f"{'cov':>3} {'PM':>6} | {'eq2 Td':>6} {'tau ms':>6} {'PM':>6} | cpu s")
+          f"{'cov':>3} {'PM':>6} {'wc':>5} | {'eq2 Td':>6} {'tau ms':>6} {'PM':>6} {'wc':>5} | cpu s")
     for o in outcomes:
         t = o.truth
         cov = ("T" if o.cascade_td_covers else "-") + ("t" if o.cascade_tau_covers else "-")
         print(f"{o.seed:>4} {t['axis']:>2} {t['commanded'][:5]:>5} {t['rate']:>4.0f} {t['Td']:>6.3f} "
               f"{t['tau'] * 1e3:>6.1f} | {o.cascade_Td:>7.3f} {o.cascade_tau * 1e3:>6.1f} {cov:>3} {o.cascade_pm:>6.1f} "
-              f"| {o.eq2_Td:>6.3f} {o.eq2_tau * 1e3:>6.1f} {o.eq2_pm:>6.1f} | {o.cpu_s:5.1f}")
+              f"{o.cascade_wc:>5.2f} | {o.eq2_Td:>6.3f} {o.eq2_tau * 1e3:>6.1f} {o.eq2_pm:>6.1f} {o.eq2_wc:>5.2f} | "
+              f"{o.cpu_s:5.1f}")
         for what in ("cascade_error", "cascade_tune_error", "eq2_error", "eq2_tune_error"):
             if getattr(o, what):
                 print(f"      {what}: {getattr(o, what)}")
@@ -238,6 +243,11 @@ def report(outcomes: list[Outcome]) -> None:
               f"{_pct(int(np.sum(pm >= PM_TARGET_DEG)), n)}; unstable {int(np.sum(pm == -np.inf))}; refused "
               f"{int(np.sum(np.isnan(pm)))}; min {np.min(finite) if finite.size else math.nan:.1f} deg, median "
               f"{np.median(finite) if finite.size else math.nan:.1f} deg")
+    ratio = np.array([o.cascade_wc / o.eq2_wc for o in outcomes], float)
+    ratio = ratio[np.isfinite(ratio)]
+    if ratio.size:
+        print(f"crossover of the cascade route's robust PD over the eq. (2) route's, on the true cascade: median "
+              f"{np.median(ratio):.2f}x (range {ratio.min():.2f}-{ratio.max():.2f}x, {ratio.size} flights with both)")
     cpu = [o.cpu_s for o in outcomes]
     print(f"CPU per flight (simulate, write, both routes, both designs): median {np.median(cpu):.1f} s, "
           f"max {np.max(cpu):.1f} s")

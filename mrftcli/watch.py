@@ -364,7 +364,7 @@ def watch(path: str | Path, Tp: float, *, read: ReadOptions | None = None, optio
     min_cycles, idle, poll = wopts.min_cycles, wopts.idle, wopts.poll
     path = Path(path)
     _wait_for(path, wopts.wait, poll, sleep, clock)
-    follower = follow_log(path, opts, opts.fmt, time_unit=opts.time_unit)
+    follower = follow_log(path, opts)
     tracker = _Tracker()
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None

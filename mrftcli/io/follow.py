@@ -382,7 +382,7 @@ def _wanted_topics(opts: ReadOptions) -> frozenset[str]:
 class _RereadLog:
     """The flight so far by reading the whole file again whenever it grows (CSV, ULog, ...)."""
 
-    def __init__(self, path: Path, opts: ReadOptions, fmt: str | None, time_unit: str | None = None) -> None:
+    def __init__(self, path: Path, opts: ReadOptions) -> None:
         self.path = path
         # the reference layout's topics in place of those not named (not the layout's detection)
         loop = opts.loop
@@ -392,8 +392,6 @@ class _RereadLog:
             beta_topic=opts.beta_topic or DEFAULT_TOPICS["beta"],
             setpoint_topic=opts.setpoint_topic or DEFAULT_TOPICS["setpoint"],
             output_scale=1.0 if opts.output_scale is None else float(opts.output_scale))
-        self.fmt = fmt
-        self.time_unit = time_unit
         self.size = -1
         self.seen: _Identity | None = None  # the file when last read
 
@@ -414,16 +412,14 @@ class _RereadLog:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                flight = read_flight(self.path, replace(o, fmt=self.fmt, time_unit=self.time_unit),
-                                     echo_warnings=False)
+                flight = read_flight(self.path, o, echo_warnings=False)
             except LogReadError:
                 # a half-written row/record or topics not there yet
                 return Snapshot(None, size > 0, False, restarted)
         return Snapshot(flight, True, False, restarted)
 
 
-def follow_log(path: str | Path, opts: ReadOptions, fmt: str | None = None, *,
-               time_unit: str | None = None) -> LogFollower:
+def follow_log(path: str | Path, opts: ReadOptions) -> LogFollower:
     """The follower of ``path``: incremental for MCAP (:func:`is_mcap`), else reading it again as it grows.
 
     Parameters
@@ -431,24 +427,22 @@ def follow_log(path: str | Path, opts: ReadOptions, fmt: str | None = None, *,
     path : str or Path
         An existing log file, or a ROS 2 bag directory being recorded.
     opts : ReadOptions
-        The loop and its topic options (a topic not named: the reference layout's).
-    fmt : str, optional
-        Log format; detected when omitted.
-    time_unit : str, optional
-        Unit of a CSV's time column (:func:`mrftcli.io.read_flight`); an MCAP's clock has its own.
+        The loop and its topic options (a topic not named: the reference layout's); ``opts.fmt`` the
+        log format (None: detected), ``opts.time_unit`` the unit of a CSV's time column
+        (:func:`mrftcli.io.read_flight`; an MCAP's clock has its own).
 
     Raises
     ------
     InputError
-        ``time_unit`` for an MCAP log.
+        ``opts.time_unit`` for an MCAP log.
     """
     path = Path(path)
-    if is_mcap(path, fmt):
-        if time_unit is not None:
+    if is_mcap(path, opts.fmt):
+        if opts.time_unit is not None:
             raise InputError("--time-unit applies to CSV and .mat logs, whose times carry no unit; an MCAP "
                              "log's clock has its own")
         return _McapLog(path, opts)
-    return _RereadLog(path, opts, fmt, time_unit)
+    return _RereadLog(path, opts)
 
 
 def is_mcap(path: Path, fmt: str | None = None) -> bool:

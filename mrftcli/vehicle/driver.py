@@ -15,8 +15,8 @@ from pathlib import Path
 
 from ..analyze import AnalysisResult, analyze_flight
 from ..analyze.options import AnalyzeOptions
-from ..errors import InputError, MrftError
-from ..io import LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
+from ..errors import InputError, LogReadError, MrftError
+from ..io import FlightLog, LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
@@ -141,9 +141,14 @@ def find_loops(source: LogSource, options: VehicleOptions, tps: Mapping[str, flo
     return _Found(layout.name, present, missing)
 
 
-def _identify_eq2(source: LogSource, loop: str, Tp: float, options: VehicleOptions) -> AnalysisResult:
-    """One loop with eq. (2) at the known Tp, as ``analyze`` (the reader's warnings kept in the result)."""
-    return analyze_flight(read_loop(source, options.read(loop)), Tp, options=options.analyze())
+def _read(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc: _Accumulated) -> FlightLog | None:
+    """The loop's signals, or None with the loop recorded as missing: a field the log's topic does not
+    hold (a CSV or ULog with z alone) means the loop is not recorded, as ``batch --loop auto`` says."""
+    try:
+        return read_loop(source, options.read(loop))
+    except (InputError, LogReadError) as err:
+        acc.missing[loop] = missing_topics(loop, (" ".join(str(err).split()),), Tp)
+        return None
 
 
 def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner_gains: Mapping[str, object] | None = None,
@@ -213,8 +218,11 @@ class _Accumulated:
 
 def identify_inner(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc: _Accumulated) -> None:
     """An inner loop (altitude, roll, pitch): eq. (2) at the known Tp, tuned; or the tests it needs."""
+    flight = _read(source, loop, Tp, options, acc)
+    if flight is None:
+        return
     try:
-        result = _identify_eq2(source, loop, Tp, options)
+        result = analyze_flight(flight, Tp, options=options.analyze())
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
@@ -229,12 +237,15 @@ def identify_outer(source: LogSource, loop: str, Tp: float, options: VehicleOpti
     and its gains in use are given, else eq. (2) (the first assumption says so and why, naming the
     option); tuned; or the tests it needs."""
     inner = INNER_OF[loop]
+    flight = _read(source, loop, Tp, options, acc)
+    if flight is None:
+        return
     controller, why_not = _inner_controller(inner, inner_gains, acc)
     try:
         if controller is not None:
-            analysis = cascade_outer(source, options.read(loop), acc.loops[inner], controller, options.outer())
+            analysis = cascade_outer(flight, acc.loops[inner], controller, options.outer())
         else:
-            result = _identify_eq2(source, loop, Tp, options)
+            result = analyze_flight(flight, Tp, options=options.analyze())
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)

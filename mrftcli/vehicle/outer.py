@@ -15,7 +15,7 @@ import math
 
 from ..analyze import AnalysisResult
 from ..analyze.cascade import CascadeAnalysis, CascadeOptions, analyze_cascade, inner_draws, inner_loop_of
-from ..io import LogSource, ReadOptions, read_loop
+from ..io import FlightLog
 from ..mrft.cascade import InnerController, InnerLoop
 from ..tune.cascade import CascadeTuneResult, outer_draws, tune_cascade
 from .record import LoopGains, VehicleLoop
@@ -51,9 +51,9 @@ class OuterOptions:
     stack: str | None = None
 
 
-def cascade_outer(source: LogSource, read: ReadOptions, inner: VehicleLoop, controller: InnerController,
+def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: InnerController,
                   options: OuterOptions) -> CascadeAnalysis:
-    """The outer loop ``read.loop`` of the open log through ``inner`` closed by ``controller`` (the gains flown).
+    """The outer loop of ``flight`` through ``inner`` closed by ``controller`` (the gains flown).
 
     Raises
     ------
@@ -64,7 +64,7 @@ def cascade_outer(source: LogSource, read: ReadOptions, inner: VehicleLoop, cont
     loop = inner_loop_of(inner.analysis, controller, inner.loop)
     copts = CascadeOptions(commanded=options.commanded, min_stable_cycles=options.min_stable_cycles,
                            n_draws=options.inner_draws)
-    return analyze_cascade(read_loop(source, read), loop, options=copts,
+    return analyze_cascade(flight, loop, options=copts,
                            draws=inner_draws(inner.analysis, loop, copts.n_draws, copts.seed),
                            assumptions=(f"inner model: the {inner.loop} loop identified in this flight",))
 

@@ -6,6 +6,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import click
 from click.core import ParameterSource
@@ -363,58 +364,81 @@ def simulate(
                  "inner_amplitude", "commanded", "layout"), "needs --cascade x|y")
     _required(("--tp", tp), ("--td", td), ("--tau", tau), ("--test", tests or None))
     from ..mrft.model import LoopModel
-    from ..io import FORMATS
-    from ..sim.flight import Effects, FlightSpec, TestSpec, plan_test, simulate_flight, write_flight
 
-    model = LoopModel(tp, td, tau, k)
-    if fmt is not None and fmt not in FORMATS:
-        raise InputError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
-    fmt = _format_of(out, fmt)
+    _simulate_loop(LoopOptions(LoopModel(tp, td, tau, k), loop, tuple(tests), rate, noise, amplitude, bias, setpoint,
+                               (hover_s, hold_s), switching, seed, start_time, tuple(effects), fmt, quiet),
+                   out, json_target)
+
+
+@dataclass(frozen=True)
+class LoopOptions:
+    """What ``simulate`` (one loop, eq. (2)) was asked for."""
+
+    model: Any
+    loop: str
+    tests: tuple[str, ...]
+    rate_hz: float
+    noise: float | None
+    amplitude: float | None
+    bias: float | None
+    setpoint: float | None
+    hover_hold: tuple[float, float]
+    switching: str
+    seed: int
+    start_time: float
+    effects: tuple[str, ...]
+    fmt: str | None
+    quiet: bool
+
+
+def _loop_spec(opts: LoopOptions, out: Path):
+    """The checked :class:`FlightSpec` and the log format (every option checked before planning)."""
+    from ..io import FORMATS
+    from ..sim.flight import Effects, FlightSpec, TestSpec, default_noise_std, noise_margin, plan_test
+
+    model, rate = opts.model, opts.rate_hz
+    if opts.fmt is not None and opts.fmt not in FORMATS:
+        raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
+    fmt = _format_of(out, opts.fmt)
     check_positive("--controller-rate (a frequency in Hz)", rate)
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
-    effect_values = dict(parse_effect(text) for text in effects)  # every option checked before planning
-    if amplitude is None:
-        amplitude = _DEFAULT_AMPLITUDE[loop]
+    effect_values = dict(parse_effect(text) for text in opts.effects)  # every option checked before planning
+    amplitude = _DEFAULT_AMPLITUDE[opts.loop] if opts.amplitude is None else opts.amplitude
     specs = []
-    for text in tests:
+    for text in opts.tests:
         beta, h, duration = parse_test(text)
         if h is None or duration is None:
             planned = plan_test(model, beta, amplitude, rate_hz=rate)
             h = planned.h if h is None else h
             duration = planned.duration if duration is None else duration
         specs.append(TestSpec(beta=beta, h=h, duration=duration))
-    from ..sim.flight import default_noise_std, noise_margin
-
-    noise_std = default_noise_std(loop) if noise is None else noise
+    noise_std = default_noise_std(opts.loop) if opts.noise is None else opts.noise
     for i, test in enumerate(specs, 1):
         margin = noise_margin(model, test.beta, test.h, rate, noise_std)
-        if margin < 4.0 and switching == "checks":
+        if margin < 4.0 and opts.switching == "checks":
             click.echo(
                 f"warning: test {i} (beta {test.beta}): the output moves only {margin:.1f} noise std per tick "
                 "near the zero crossing (< 4); the MRFT relay may lock up. Use a larger H or --amplitude, "
                 "less --noise, or --switching hear",
                 err=True,
             )
-    spec = FlightSpec(
-        model=model,
-        tests=tuple(specs),
-        loop=loop,
-        rate_hz=rate,
-        noise_std=noise,
-        bias=bias,
-        setpoint=setpoint,
-        hover_s=hover_s,
-        hold_s=hold_s,
-        effects=Effects(**effect_values),
-        seed=seed,
-        start_time=start_time,
-        switching=switching,
-    )
+    spec = FlightSpec(model=model, tests=tuple(specs), loop=opts.loop, rate_hz=rate, noise_std=opts.noise,
+                      bias=opts.bias, setpoint=opts.setpoint, hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1],
+                      effects=Effects(**effect_values), seed=opts.seed, start_time=opts.start_time,
+                      switching=opts.switching)
+    return spec, fmt
 
-    total_s = hover_s + sum(t.duration + hold_s for t in specs)
+
+def _simulate_loop(opts: LoopOptions, out: Path, json_target: str | None) -> None:
+    """``simulate`` of one loop: check and plan, fly (a bar for long flights), write, report."""
+    from ..sim.flight import simulate_flight, write_flight
+
+    spec, fmt = _loop_spec(opts, out)
+    hover_s, hold_s = opts.hover_hold
+    total_s = hover_s + sum(t.duration + hold_s for t in spec.tests)
     # a bar only for flights long enough to wait for (and only on a terminal)
-    with tqdm_progress("simulating", unit="tick", enabled=total_s > 120 and not quiet) as progress:
+    with tqdm_progress("simulating", unit="tick", enabled=total_s > 120 and not opts.quiet) as progress:
         flight = simulate_flight(spec, progress=progress)
     sidecar = write_flight(flight, out, fmt)
     for i, test in enumerate(flight.truth["tests"], 1):
@@ -430,10 +454,11 @@ def simulate(
     if json_target == "-":
         return
     truth = flight.truth
-    click.echo(f"wrote {out} ({fmt}, {truth['duration']:.1f} s at {rate:g} Hz) and {sidecar}")
+    m, loop = opts.model, opts.loop
+    click.echo(f"wrote {out} ({fmt}, {truth['duration']:.1f} s at {opts.rate_hz:g} Hz) and {sidecar}")
     unit = output_unit(loop)
-    click.echo(f"  model: Tp {tp:g} s, Td {td:g} s, tau {tau:g} s, K {k:g} {unit}/s² per command unit; loop {loop}, "
-               f"noise {truth['noise_std']:g} {unit}")
+    click.echo(f"  model: Tp {m.Tp:g} s, Td {m.Td:g} s, tau {m.tau:g} s, K {m.K:g} {unit}/s² per command unit; "
+               f"loop {loop}, noise {truth['noise_std']:g} {unit}")
     for i, test in enumerate(truth["tests"], 1):
         click.echo(
             f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g} [command], "

@@ -29,7 +29,6 @@ from ..jsonable import check_schema_version
 from ..mrft.cascade import G, InnerController, InnerLoop
 from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
 from ..mrft.identify import TestMeasurement
-from ..mrft.model import LoopModel
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
@@ -220,33 +219,24 @@ def inner_loop_of(result: AnalysisResult, controller: InnerController, inner_nam
     if result.loop and result.loop != inner_name:
         raise InputError(f"--inner-model is an analysis of the {result.loop} loop; the outer loop goes through "
                          f"{inner_name} (analyze the {inner_name} tests and pass that result)")
-    return InnerLoop(result.model, controller, inner_name)
+    std = tuple((name, float(est.std)) for name, est in (("Td", result.Td), ("tau", result.tau), ("K", result.K))
+                if math.isfinite(est.std) and est.std > 0)
+    return InnerLoop(result.model, controller, inner_name, std)
 
 
 def inner_draws(result: AnalysisResult, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
-    """``n`` draws of the inner loop over the inner analysis' uncertainty (Td, tau, K; Tp known).
+    """``n`` draws of the inner loop over its std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`; Tp known).
 
-    Td and K are drawn log-normal with their relative std, tau normal (kept >= 0), independently:
-    the analysis JSON keeps their spreads, not their correlation (which would narrow the spread
-    of the outer estimate, not widen it).
+    Td and K are drawn log-normal, tau normal (kept >= 0), independently: the analysis JSON keeps
+    their spreads, not their correlation. ``result`` is the inner analysis (its std, when ``inner``
+    carries none).
     """
     if n <= 0:
         return []
+    if not inner.std:
+        inner = inner_loop_of(result, inner.controller, inner.loop or result.loop)
     rng = np.random.default_rng(seed)
-    model = result.model
-    out: list[InnerLoop] = []
-
-    def rel(est: Any, value: float) -> float:
-        std = float(est.std)
-        return std / abs(value) if math.isfinite(std) and value else 0.0
-
-    s_td, s_k = rel(result.Td, model.Td), rel(result.K, model.K)
-    s_tau = float(result.tau.std) if math.isfinite(result.tau.std) else 0.0
-    for _ in range(n):
-        draw = LoopModel(model.Tp, model.Td * math.exp(rng.normal(0.0, s_td)),
-                         max(0.0, model.tau + rng.normal(0.0, s_tau)), model.K * math.exp(rng.normal(0.0, s_k)))
-        out.append(InnerLoop(draw, inner.controller, inner.loop))
-    return out
+    return [inner.draw(rng) for _ in range(n)]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -164,11 +164,28 @@ class InnerLoop:
         The inner controller in use during the outer tests.
     loop : str
         Its name (``"roll"``, ``"pitch"``), for messages; may be empty.
+    std : tuple of (str, float)
+        The standard deviations of the plant's identified parameters, ``(name, std [unit])`` (the
+        inner analysis' uncertainty, for draws of the inner loop); empty: taken as exact.
     """
 
     plant: PlantModel
     controller: InnerController
     loop: str = ""
+    std: tuple[tuple[str, float], ...] = field(default=(), compare=False)
+
+    def draw(self, rng: np.random.Generator) -> InnerLoop:
+        """One draw of the inner loop over :attr:`std`: times and gains log-normal, the delay normal (kept >= 0)."""
+        values = {}
+        for name, sd in self.std:
+            value = self.plant.parameters[name].value
+            if not (math.isfinite(sd) and sd > 0):
+                continue
+            if name == "tau":
+                values[name] = max(0.0, value + rng.normal(0.0, sd))
+            elif value != 0:
+                values[name] = value * math.exp(rng.normal(0.0, sd / abs(value)))
+        return InnerLoop(self.plant.with_parameters(**values), self.controller, self.loop, self.std)
 
     def closed_response(self, omega: ArrayLike) -> NDArray[np.complex128]:
         """T_inner(j omega): the continuous inner output over a held reference, fundamental only; rad/s.
@@ -191,7 +208,7 @@ class InnerLoop:
     def to_json(self) -> dict[str, Any]:
         """``{"schema_version", "loop", "plant": <model JSON>, "gains": <generic form>}``."""
         return {"schema_version": INNER_LOOP_SCHEMA_VERSION, "loop": self.loop, "plant": self.plant.to_json(),
-                "gains": self.controller.to_json()}
+                "gains": self.controller.to_json(), "std": dict(self.std)}
 
     @classmethod
     def from_json(cls, data: Any) -> InnerLoop:
@@ -199,7 +216,15 @@ class InnerLoop:
         d = check_schema_version(data, "inner loop JSON", INNER_LOOP_SCHEMA_VERSION)
         if "plant" not in d or "gains" not in d:
             raise InputError("inner loop JSON needs 'plant' and 'gains'")
-        return cls(model_from_json(d["plant"]), InnerController.from_json(d["gains"]), str(d.get("loop", "")))
+        std = d.get("std") or {}
+        if not isinstance(std, Mapping) or not all(isinstance(v, (int, float)) for v in std.values()):
+            raise InputError("inner loop JSON: 'std' must map parameter names to numbers")
+        plant = model_from_json(d["plant"])
+        unknown = set(std) - set(plant.parameters)
+        if unknown:
+            raise InputError(f"inner loop JSON: 'std' names {sorted(unknown)}, not parameters of the plant")
+        return cls(plant, InnerController.from_json(d["gains"]), str(d.get("loop", "")),
+                   tuple((str(k), float(v)) for k, v in std.items()))
 
 
 # ----------------------------------------------------------------------------------------------

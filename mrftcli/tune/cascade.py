@@ -325,7 +325,11 @@ def _design(name: str, nominal: DiscreteStateSpace, plants: Sequence[DiscreteSta
 
 
 def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed: int = 0) -> list[CascadeModel]:
-    """``n`` cascades with Td, K log-normal and tau normal (>= 0) over the identification's std (inner nominal)."""
+    """``n`` cascades over the identification's std (Td, K log-normal, tau normal >= 0) and the inner loop's.
+
+    The inner loop is drawn over its own std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`: the inner
+    analysis' uncertainty) when it carries one.
+    """
     rng = np.random.default_rng(seed)
     out = []
 
@@ -335,9 +339,11 @@ def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed:
         return s if math.isfinite(s) else 0.0
 
     for _ in range(n):
-        out.append(model.with_parameters(Td=model.Td * math.exp(rng.normal(0.0, std("Td") / model.Td)),
-                                         tau=max(0.0, model.tau + rng.normal(0.0, std("tau"))),
-                                         K=model.K * math.exp(rng.normal(0.0, std("K") / model.K))))
+        inner = model.inner.draw(rng) if model.inner.std else model.inner
+        out.append(model.with_inner(inner).with_parameters(
+            Td=model.Td * math.exp(rng.normal(0.0, std("Td") / model.Td)),
+            tau=max(0.0, model.tau + rng.normal(0.0, std("tau"))),
+            K=model.K * math.exp(rng.normal(0.0, std("K") / model.K))))
     return out
 
 
@@ -376,6 +382,7 @@ def tune_cascade(model: CascadeModel, rate_hz: float, *, draws: Sequence[Cascade
     if len(draws) >= 2:
         plants = [nominal] + [d.discrete_realisation(rate_hz) for d in draws]
         designs.append(_design("robust", nominal, plants, rate_hz, ms_max, pm_min_deg, horizon_s))
+        inner = "and of the inner plant over its std" if model.inner.std else "the inner model at its estimate"
         notes.append(f"robust: the constraints held on the nominal model and {len(draws)} draws of the outer Td, tau "
-                     "(and K) over their intervals; the inner model at its estimate")
+                     f"(and K) over their intervals, {inner}")
     return CascadeTuneResult(loop, rate_hz, model, tuple(designs), ms_max, pm_min_deg, len(draws), tuple(notes))

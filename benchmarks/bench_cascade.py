@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -259,14 +260,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     args = parser.parse_args(argv)
     outcomes = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(args.seed, args.seed + args.n):
-            outcomes.append(run_flight(seed, Path(tmp)))
-            o = outcomes[-1]
-            print(f"flight {seed}: cascade Td {o.cascade_Td:.3f} / {o.truth['Td']:.3f} s, tau "
-                  f"{o.cascade_tau * 1e3:.1f} / {o.truth['tau'] * 1e3:.1f} ms, PM {o.cascade_pm:.1f} vs eq. (2) "
-                  f"{o.eq2_pm:.1f} deg ({o.cpu_s:.1f} s)", flush=True)
-    report(outcomes)
+
+    def stop(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)  # a stopped run still reports the flights it finished
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for seed in range(args.seed, args.seed + args.n):
+                outcomes.append(run_flight(seed, Path(tmp)))
+                o = outcomes[-1]
+                print(f"flight {seed}: cascade Td {o.cascade_Td:.3f} / {o.truth['Td']:.3f} s, tau "
+                      f"{o.cascade_tau * 1e3:.1f} / {o.truth['tau'] * 1e3:.1f} ms, PM {o.cascade_pm:.1f} vs eq. (2) "
+                      f"{o.eq2_pm:.1f} deg ({o.cpu_s:.1f} s)", flush=True)
+    except KeyboardInterrupt:
+        print(f"stopped after {len(outcomes)} of {args.n} flights", flush=True)
+    if outcomes:
+        report(outcomes)
     return 0
 
 

@@ -222,6 +222,8 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
                        attitude_noise_std=opts.noise[0], position_noise_std=opts.noise[1],
                        hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1], seed=opts.seed,
                        start_time=opts.start_time, switching=opts.switching)
+    if spec.switching == "checks":
+        _warn_noise_margins(spec, plant, conv)
     flight = simulate_cascade(spec)
     sidecar = write_cascade(flight, out, layout, fmt)
     truth = json.loads(sidecar.read_text())
@@ -235,6 +237,24 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     if json_target == "-":
         return
     _echo_cascade(flight, out, sidecar, layout, fmt, assumptions)
+
+
+def _warn_noise_margins(spec, plant, conv: float) -> None:
+    """The one-loop path's lock-up warning for each test (docs/simulator.md: margin a Omega / (rate std) < 4)."""
+    from ..sim.cascade import outer_describing_function
+    from ..sim.flight import noise_margin
+
+    att, pos = spec.noise()
+    for i, test in enumerate((*spec.inner_tests, *spec.outer_tests), 1):
+        if i <= len(spec.inner_tests):
+            margin = noise_margin(spec.inner, test.beta, test.h, spec.rate_hz, att)
+        else:
+            omega, gain = outer_describing_function(plant, spec.gains, conv, test.beta)
+            margin = 4.0 * test.h * gain / math.pi * omega / (spec.rate_hz * pos) if pos > 0 else math.inf
+        if margin < 4.0:
+            click.echo(f"warning: test {i} (beta {test.beta}): the output moves only {margin:.1f} noise std per tick "
+                       "near the zero crossing (< 4); the MRFT relay may lock up. Use a larger H or amplitude, less "
+                       "noise, or --switching hear", err=True)
 
 
 def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assumptions: list[str]) -> None:

@@ -453,7 +453,7 @@ def model_from_json(data: Mapping[str, Any]) -> PlantModel:
     LoopModel(Tp=0.1, Td=0.7, tau=0.06, K=1.0)
     """
     if not isinstance(data, Mapping):
-        raise InputError(f"model JSON must be an object, got {type(data).__name__}")
+        raise InputError(f"model JSON: expected a JSON object, got {type(data).__name__}")
     return model_family(str(data.get("family"))).from_json(data)
 
 

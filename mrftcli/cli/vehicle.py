@@ -70,8 +70,14 @@ def format_vehicle(result: VehicleResult) -> str:
     if not rows:
         lines.append("(no loop identified)")
     for name, entry in result.loops.items():
-        if entry.gains is not None and entry.gains.export_refused:
-            lines.append(f"{name}: not exported: {entry.gains.export_refused}")
+        g = entry.gains
+        if g is not None and g.export_refused:
+            lines.append(f"{name}: not exported: {g.export_refused}")
+        if g is not None and g.export is not None:
+            m = g.export.margins  # with the stack's filter and rate, and any value set to the stack's bound
+            lines.append(f"{name}: export {g.export.stack}: PM {m.phase_margin_deg:.1f} deg, delay margin "
+                         f"{m.delay_margin_s * 1e3:.1f} ms, Ms {m.Ms:.3g}")
+            lines += [f"{name}: export note: {n}" for n in g.export.notes]
     for name, miss in result.missing.items():
         lines.append(f"{name}: {miss.reason}: {miss.next_tests}")
     return "\n".join(lines)
@@ -92,8 +98,9 @@ def _inner_gains(path: str | None) -> dict[str, Any] | None:
 
 
 def _export_text(result: VehicleResult, stack: str) -> str:
-    """The ``--export`` file: one JSON object by loop (generic, hear) or the stack's parameter files."""
-    from ..tune.export import hear_json
+    """The ``--export`` file: one JSON object by loop (generic, hear) or one parameter file (px4, ardupilot)
+    holding every exported loop's parameters."""
+    import dataclasses
 
     gains = {name: e.gains for name, e in result.loops.items() if e.gains is not None}
     if stack == "generic":
@@ -102,8 +109,17 @@ def _export_text(result: VehicleResult, stack: str) -> str:
     if not exports:
         raise InputError(f"no loop of this flight can be exported to {stack} (the reasons are in the table)")
     if stack == "hear":
-        return json.dumps({name: hear_json(gains[name].controller, name) for name in exports}, indent=2) + "\n"
-    return "".join(e.file_text() for e in exports.values())
+        return json.dumps({name: json.loads(e.file_text()) for name, e in exports.items()}, indent=2) + "\n"
+    params: dict[str, float] = {}
+    for e in exports.values():
+        for key, value in e.params.items():
+            if key in params and params[key] != value:  # a setting two loops share (the gyro rate, its filter)
+                raise InputError(f"--export {stack}: {key} differs between the loops ({params[key]:g}, {value:g}); "
+                                 "export them one at a time with tune")
+            params[key] = value
+    first = next(iter(exports.values()))
+    merged = dataclasses.replace(first, loop=", ".join(exports), params=params)
+    return merged.file_text()
 
 
 def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | None,

@@ -266,3 +266,29 @@ def test_an_output_that_does_not_follow_the_relay_gets_analyze_message(logs):
     noise = dataclasses.replace(fl, output=Signal(fl.output.t, 0.0005 * rng.standard_normal(fl.output.t.size)))
     with pytest.raises(SegmentationError, match="--loop/--output-topic"):
         diagnose(noise, truth["Tp"])
+
+
+def test_band_excess_is_calibrated_on_noise_and_finds_a_mode_in_every_test():
+    # under noise alone each harmonic's squared excess is chi^2 with 2 degrees of freedom (drawn here,
+    # sharing nothing with the stage): the Bonferroni-corrected band p-value must not fall below alpha
+    # more often than alpha; a mode ringing near 11 Hz in each of three tests of different periods is
+    # found there (the tests' harmonics k / P fall at different frequencies, the band pools them)
+    from mrftcli.diagnose.resonance import BAND_HZ, PeriodicResidual, band_excess
+
+    rng = np.random.default_rng(5)
+    periods = (0.8, 0.95, 1.3)
+
+    def rows(planted: float = 0.0) -> list[PeriodicResidual]:
+        out = []
+        for i, P in enumerate(periods):
+            f = np.arange(8, 40) / P
+            z2 = rng.chisquare(2, f.size) + planted * (np.abs(f - 11.0) < 0.6)
+            out.append(PeriodicResidual(i, float(z2.sum()), 2 * f.size, 0.0, 0.0, harmonics_hz=f, z2=z2))
+        return out
+
+    ps = np.array([band_excess(rows()).p_value for _ in range(400)])
+    assert np.mean(ps < 0.05) <= 0.05 and np.mean(ps < 0.2) <= 0.2
+    found = band_excess(rows(planted=25.0))
+    assert found.p_value < 1e-6
+    assert abs(found.frequency_hz - 11.0) <= BAND_HZ
+    assert found.tests == [0, 1, 2]

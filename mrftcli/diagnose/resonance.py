@@ -153,19 +153,17 @@ def band_excess(rows: list[PeriodicResidual]) -> BandExcess | None:
     z2 = np.concatenate([r.z2 for r in rows])
     owner = np.concatenate([np.full(r.z2.size, r.test) for r in rows])
     centres = np.arange(float(f.min()), float(f.max()) + 1e-9, BAND_HZ)
-    best: BandExcess | None = None
-    for fc in centres:
-        m = np.abs(f - fc) <= BAND_HZ
-        dof = 2 * int(m.sum())
-        if dof == 0:
-            continue
-        chi2 = float(z2[m].sum())
-        p = min(1.0, float(chi2_dist.sf(chi2, dof)) * centres.size)
-        if best is None or p < best.p_value:
-            tests = sorted({int(t) for t in np.unique(owner[m]) if z2[m & (owner == t)].sum() > 2 * (m & (owner == t)).sum()})
-            best = BandExcess(frequency_hz=float(np.average(f[m], weights=z2[m] + 1e-12)), chi2=chi2, dof=dof,
-                              p_value=p, tests=tests)
-    return best
+    in_band = np.abs(f[None, :] - centres[:, None]) <= BAND_HZ  # (bands, harmonics)
+    dof = 2 * in_band.sum(axis=1)
+    chi2 = in_band @ z2
+    p = np.minimum(1.0, chi2_dist.sf(chi2, np.maximum(dof, 1)) * centres.size)
+    p[dof == 0] = 1.0
+    j = int(np.argmin(p))
+    m = in_band[j]
+    # the tests whose share of the band exceeds its degrees of freedom (they ring there)
+    tests = sorted(int(t) for t in np.unique(owner[m]) if z2[m & (owner == t)].sum() > 2 * np.sum(m & (owner == t)))
+    return BandExcess(frequency_hz=float(np.average(f[m], weights=z2[m] + 1e-12)), chi2=float(chi2[j]),
+                      dof=int(dof[j]), p_value=float(p[j]), tests=tests)
 
 
 def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str) -> Unexplained | None:

@@ -57,7 +57,8 @@ from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
 from .physics import BY_NAME, CANDIDATES, unit_in_loop
 from .resonance import resonance_mismatch
-from .records import CandidateFit, DiagnosisFigures, DiagnosisResult, EffectFinding, FinalModel, TestRow, Unexplained
+from .records import (CandidateFit, DiagnosisFigures, DiagnosisResult, Disagreement, EffectFinding, FinalModel,
+                      TestRow, Unexplained)
 from .screen import Screen, screen_log
 
 if TYPE_CHECKING:
@@ -194,39 +195,38 @@ def diagnose(
     say("locating")
     located = locate(screen.tests, linear.model, linear.fit, screen.recs_all, linear.scatter)
     items = [replace(d, t_start_rel=d.t_start - screen.t0, t_end_rel=d.t_end - screen.t0) for d in located.items]
-    unexplained = None
-    if linear.rejected:
-        unexplained = unexplained_mismatch(screen.tests, linear.fit, linear.held_out, effects, chosen.final,
-                                           cand_rows, screen.recs_all, linear.scatter, screen.t0, items)
-    if unexplained is None:
-        # a lightly damped mode above the fitted harmonics leaves the features alone (issue 27)
-        unexplained = resonance_mismatch(flight, screen.tests,
-                                         "linear" if chosen.final is None else f"linear + {chosen.final.label}")
+    unexplained = _unexplained(flight, screen, linear, effects, chosen.final, cand_rows, items)
     warnings = screen.warnings + chosen.warnings
     effects = [replace(e, parameters={**e.parameters, "unit": unit_in_loop(e.parameters.get("unit"), flight.loop)})
                for e in effects]
-    identification = _identification(flight, Tp, screen, linear, effects, analysis, warnings)
     figures = DiagnosisFigures(flight=flight, tests=screen.tests, base_model=linear.model, base=linear.fit,
                                fits=search.fits, effects=[e.name for e in effects], final=chosen.final,
                                cycle_errors=located.cycle_errors, harmonics=located.harmonics)
     say.finish()
     return DiagnosisResult(
-        path=str(flight.path),
-        loop=flight.loop,
-        Tp=float(Tp),
-        effects=effects,
+        path=str(flight.path), loop=flight.loop, Tp=float(Tp), effects=effects,
+        # the parameters' units spelt in the loop's unit, as the terminal prints them (issue 26)
         candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in cand_rows],
-        located=items,
-        identification=identification,
-        tests=_test_rows(screen, linear),
-        noise_std=screen.noise,
-        summary=_summary_text(effects, unexplained),
+        located=items, identification=_identification(flight, Tp, screen, linear, effects, analysis, warnings),
+        tests=_test_rows(screen, linear), noise_std=screen.noise, summary=_summary_text(effects, unexplained),
         warnings=warnings,
         second_effect_candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in chosen.pair_rows],
-        unexplained=unexplained,
-        t0=screen.t0,
-        figures=figures,
+        unexplained=unexplained, t0=screen.t0, figures=figures,
     )
+
+
+def _unexplained(flight: FlightLog, screen: Screen, linear: LinearFit, effects: list[EffectFinding],
+                 final: FinalModel | None, cand_rows: list[CandidateFit], items: list[Disagreement]) -> Unexplained | None:
+    """Stage 6b: what no candidate explains, on the features (when the linear model is rejected), else
+    a ringing above the fitted harmonics."""
+    unexplained = None
+    if linear.rejected:
+        unexplained = unexplained_mismatch(screen.tests, linear.fit, linear.held_out, effects, final, cand_rows,
+                                           screen.recs_all, linear.scatter, screen.t0, items)
+    if unexplained is None:
+        # a lightly damped mode above the fitted harmonics leaves the features alone (issue 27)
+        unexplained = resonance_mismatch(flight, screen.tests, "linear" if final is None else f"linear + {final.label}")
+    return unexplained
 
 
 # --------------------------------------------------------------------------------------------------

@@ -171,6 +171,11 @@ class CsvSource(LogSource):
             self.warn(f"column {col!r}: {holes} blank or NaN cell(s) among its rows (the first at row "
                       f"{first + 2}): read as missing samples")
         if idx.size == values.size:  # every row holds a sample: the column itself (callers copy what they scale)
+            if isinstance(self._cols, _LazyColumns):
+                # a large file's signals share its one time array (read-only, so no one can change
+                # another signal's times): 8 bytes a row per signal less
+                self._t.flags.writeable = False
+                return self._t, values
             return self._t.copy(), values
         return self._t[present], values[present]
 

@@ -278,6 +278,35 @@ def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
     data = json.loads(out.read_text())
     assert data["kind"] == "cascade" and model_from_json(data["model"]).family == "cascade"
     assert data["parameters"]["Td"]["ci95_low"] <= 0.8 <= data["parameters"]["Td"]["ci95_high"]
+    from mrftcli.analyze.cascade import CascadeAnalysis
+
+    back = CascadeAnalysis.from_json(data)
+    assert back.to_json() == data and back.model == model_from_json(data["model"])
+    assert dict(back.model.inner.std)["Td"] == pytest.approx(0.01)
     res = CliRunner().invoke(cli, ["tune", str(out), "--export", "generic"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.output)["Kp"] > 0
+
+
+def test_records_refuse_other_versions() -> None:
+    """Every record's from_json: a one-line InputError on another schema_version or a wrong shape."""
+    from mrftcli.analyze.cascade import CascadeAnalysis
+    from mrftcli.tune.cascade import CascadeTuneResult
+
+    for cls in (InnerLoop, CascadeIdentification, CascadeAnalysis, CascadeTuneResult):
+        for bad in ({"schema_version": 99}, [], {"schema_version": 1}):
+            with pytest.raises(InputError) as err:
+                cls.from_json(bad)
+            assert "\n" not in str(err.value)
+
+
+def test_inner_loop_draws_over_its_std() -> None:
+    inner = InnerLoop(INNER, GAINS, "roll", (("Td", 0.05), ("tau", 0.002)))
+    assert InnerLoop.from_json(json.loads(json.dumps(inner.to_json()))).std == inner.std
+    rng = np.random.default_rng(1)
+    draws = [inner.draw(rng).plant.parameters for _ in range(200)]
+    td = np.array([d["Td"].value for d in draws])
+    assert np.std(np.log(td)) == pytest.approx(0.05 / INNER.Td, rel=0.2)
+    assert all(d["K"].value == INNER.K and d["Tp"].value == INNER.Tp for d in draws)
+    with pytest.raises(InputError, match="not parameters of the plant"):
+        InnerLoop.from_json({**inner.to_json(), "std": {"T9": 1.0}})

@@ -289,3 +289,49 @@ def test_cli_cascade_states_its_assumption_and_refuses_bad_input(tmp_path, capsy
     code, out = _main(capsys, "--inner-tp", "0.04", "--tp", "0.04", "--td", "1", "--tau", "0.03", "--test", "-0.5",
                       "--out", str(tmp_path / "f.mcap"))
     assert code == 2 and "--inner-tp needs --cascade" in out.err
+
+
+# ------------------------------------------------------------------------------------------------
+# simulate --model NAME: the process families of issue 22 (mrftcli.sim.process)
+
+
+@pytest.mark.parametrize("family, params", [("sopdt", {"K": 1.5, "T1": 1.0, "T2": 0.3, "tau": 0.1234}),
+                                            ("ipdt", {"K": 0.8, "tau": 0.3})])
+def test_process_flight_matches_the_independent_process_sim(family, params):
+    import process_sim
+
+    from mrftcli.mrft.families import PROCESS_FAMILIES
+    from mrftcli.sim.process import ProcessSpec, plan_process_test, simulate_process
+
+    model = PROCESS_FAMILIES[family](**params)
+    test = plan_process_test(model, -0.3, 0.1, 100.0, cycles=5)
+    flight = simulate_process(ProcessSpec(model, (test,), rate_hz=100.0, hover_s=1.0, hold_s=5.0))
+    n = int(round(test.duration * 100))
+    window = process_sim.Window("mrft", test.h, -test.h, beta=-0.3, duration=test.duration)
+    _, u, y = process_sim.simulate(family, params, [window], 100.0, 0.0, lead=1.0)
+    np.testing.assert_allclose(flight.command[100:100 + n], u[100:100 + n], atol=1e-12)
+    np.testing.assert_allclose(flight.output_true[:100 + n], y[:100 + n], atol=1e-9)
+    assert np.count_nonzero(np.diff(flight.command[100:100 + n])) >= 6  # it oscillated
+    assert abs(flight.output_true[-1]) < 0.02  # the hold brought it back
+
+
+def test_process_truth_round_trip_and_cli_errors(tmp_path, capsys):
+    from mrftcli.sim.process import ProcessTruth
+
+    code, out = _main(capsys, "--model", "foipdt", "--param", "K=0.8", "--param", "T=0.5", "--param", "tau=0.15",
+                      "--test", "-0.3::6", "--hover", "1", "--hold", "1", "--out", str(tmp_path / "p.mcap"))
+    assert code == 0 and "model foipdt" in out.out and "1 % of --amplitude" in out.out
+    data = json.loads((tmp_path / "p.mcap.truth.json").read_text())
+    truth = ProcessTruth.from_json(data)
+    assert truth.model.family == "foipdt" and truth.model.tau == 0.15 and truth.log_file == "p.mcap"
+    assert ProcessTruth.from_json(json.loads(json.dumps(truth.to_json()))) == truth
+    with pytest.raises(InputError, match="schema_version"):
+        ProcessTruth.from_json({**data, "schema_version": 2})
+    for args, message in ((("--model", "ipdt", "--param", "K=1"), "needs --param tau=VALUE"),
+                          (("--model", "ipdt", "--param", "K=1", "--param", "tau=0.1", "--param", "T=1"),
+                           "--param T: --model ipdt has the parameters K, tau"),
+                          (("--model", "fopdt", "--param", "K=1", "--param", "T=1", "--param", "tau=0.1", "--k", "2"),
+                           "--k is not used with --model fopdt"),
+                          (("--param", "K=1", "--tp", "0.1", "--td", "1", "--tau", "0.1"), "--param needs --model")):
+        code, out = _main(capsys, *args, "--test", "-0.3", "--out", str(tmp_path / "q.mcap"))
+        assert code == 2 and message in out.err, out.err

@@ -15,6 +15,7 @@ from ..errors import InputError
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
+from .model_options import MODEL_NAMES, parse_params
 from .options import controller_rate_option, dump_json, json_option, quiet_option, tp_option, tqdm_progress
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
@@ -317,6 +318,12 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
     help="Add an effect: input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, "
     "delay_jitter (and delay_jitter_correlation, battery_voltage). See docs/simulator.md.",
 )
+@click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd", show_default=True,
+              help="Plant structure: soiptd (eq. (2): --tp, --td, --tau, --k) or a process family (fopdt, sopdt, "
+              "ipdt, foipdt) with its parameters as --param NAME=VALUE; see docs/simulator.md.")
+@click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
+              help="--model fopdt|sopdt|ipdt|foipdt: a parameter of the plant (K, T, T1, T2, tau; times in s). "
+              "Repeat for each.")
 @click.option("--cascade", type=click.Choice(["x", "y"]), default=None,
               help="Fly a cascaded flight: the outer loop X (through pitch) or Y (through roll), the inner "
               "attitude loop closed by a PD; --inner-test tests first, then the --test tests. Needs --inner-tp, "
@@ -347,7 +354,7 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
 @click.pass_context
 def simulate(
     ctx, tp, td, tau, k, loop, tests, controller_rate_hz, noise, amplitude, bias, setpoint, hover_s, hold_s, switching,
-    seed, start_time, effects, cascade, inner_tp, inner_td, inner_tau, inner_k, inner_gains, inner_tests,
+    seed, start_time, effects, model_name, params, cascade, inner_tp, inner_td, inner_tau, inner_k, inner_gains, inner_tests,
     inner_noise, inner_amplitude, commanded, layout, fmt, out, json_target, quiet,
 ) -> None:
     """Simulate a closed-loop MRFT flight on G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)).
@@ -369,6 +376,15 @@ def simulate(
     # the option's own name: "rate" would also be the hidden --rate alias' name, and click then hands
     # --controller-rate's value to the alias too (simulate --controller-rate was refused as given twice)
     rate = controller_rate_hz
+    if model_name != "soiptd":
+        _given(ctx, ("tp", "td", "tau", "k", "bias", "setpoint", "effects", "cascade", "inner_tp", "inner_td",
+                     "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise", "inner_amplitude",
+                     "commanded", "layout"), f"is not used with --model {model_name} (its parameters are --param)")
+        _required(("--test", tests or None))
+        _simulate_process(ProcessOptions(model_name, tuple(params), loop, tuple(tests), rate, noise, amplitude,
+                                         (hover_s, hold_s), switching, seed, start_time, fmt), out, json_target)
+        return
+    _given(ctx, ("params",), "needs --model fopdt|sopdt|ipdt|foipdt (eq. (2) takes --tp, --td, --tau, --k)")
     if cascade is not None:
         _given(ctx, ("tp", "k", "loop", "bias", "setpoint", "effects"), "is not used with --cascade")
         _required(("--td", td), ("--tau", tau))
@@ -388,6 +404,86 @@ def simulate(
     _simulate_loop(LoopOptions(LoopModel(tp, td, tau, k), loop, tuple(tests), rate, noise, amplitude, bias, setpoint,
                                (hover_s, hold_s), switching, seed, start_time, tuple(effects), fmt, quiet),
                    out, json_target)
+
+
+@dataclass(frozen=True)
+class ProcessOptions:
+    """What ``simulate --model NAME`` (a process family) was asked for."""
+
+    family: str
+    params: tuple[str, ...]
+    loop: str
+    tests: tuple[str, ...]
+    rate_hz: float
+    noise: float | None
+    amplitude: float | None
+    hover_hold: tuple[float, float]
+    switching: str
+    seed: int
+    start_time: float
+    fmt: str | None
+
+
+def _process_model(family: str, items: tuple[str, ...]):
+    """The family's model of ``--param`` values; one-line errors naming a missing or unknown parameter."""
+    from ..mrft.families import PROCESS_FAMILIES
+
+    cls = PROCESS_FAMILIES[family]
+    names = list(cls._spec)
+    values = parse_params(items)
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise InputError(f"--param {unknown[0]}: --model {family} has the parameters {', '.join(names)}")
+    missing = [n for n in names if n not in values]
+    if missing:
+        raise InputError(f"--model {family} needs --param {' --param '.join(f'{n}=VALUE' for n in missing)} "
+                         f"({cls.structure})")
+    return cls(**values)
+
+
+def _simulate_process(opts: ProcessOptions, out: Path, json_target: str | None) -> None:
+    """``simulate --model NAME``: check, plan, fly, write, report."""
+    from ..io import FORMATS
+    from ..sim.flight import TestSpec
+    from ..sim.process import ProcessSpec, plan_process_test, simulate_process, write_process
+
+    model = _process_model(opts.family, opts.params)
+    if opts.fmt is not None and opts.fmt not in FORMATS:
+        raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
+    fmt = _format_of(out, opts.fmt)
+    check_positive("--controller-rate (a frequency in Hz)", opts.rate_hz)
+    if out.parent and not out.parent.exists():
+        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
+    amplitude = 0.05 if opts.amplitude is None else check_positive("--amplitude", opts.amplitude)
+    noise = 0.01 * amplitude if opts.noise is None else opts.noise
+    specs = []
+    for text in opts.tests:
+        beta, h, duration = parse_test(text)
+        if h is None or duration is None:
+            planned = plan_process_test(model, beta, amplitude, opts.rate_hz)
+            h = planned.h if h is None else h
+            duration = planned.duration if duration is None else duration
+        specs.append(TestSpec(beta=beta, h=h, duration=duration))
+    spec = ProcessSpec(model, tuple(specs), opts.loop, opts.rate_hz, noise, opts.hover_hold[0], opts.hover_hold[1],
+                       opts.seed, opts.start_time, opts.switching)
+    flight = simulate_process(spec)
+    sidecar = write_process(flight, out, fmt)
+    truth = json.loads(sidecar.read_text())
+    for i, test in enumerate(truth["tests"], 1):
+        if test["aborted"]:
+            click.echo(f"warning: test {i} (beta {test['beta']}) was aborted at t = {test['t_end']:.2f} s: the "
+                       "error exceeded the safety limit; use a larger H, less --noise or --switching hear", err=True)
+    if json_target:
+        dump_json({"log": str(out), "format": fmt, "sidecar": str(sidecar), "truth": truth}, json_target)
+    if json_target == "-":
+        return
+    click.echo(f"wrote {out} ({fmt}, {flight.truth.duration:.1f} s at {opts.rate_hz:g} Hz) and {sidecar}")
+    values = ", ".join(f"{n} {p.value:g}{' ' + p.unit if p.unit == 's' else ''}" for n, p in model.parameters.items())
+    click.echo(f"  model {opts.family}: {model.structure}; {values}; noise {noise:g} [output units]"
+               f"{' (1 % of --amplitude)' if opts.noise is None else ''}")
+    for i, test in enumerate(truth["tests"], 1):
+        click.echo(f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g} [command], "
+                   f"{test['t_start']:.2f}-{test['t_end']:.2f} s")
 
 
 @dataclass(frozen=True)

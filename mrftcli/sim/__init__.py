@@ -7,7 +7,8 @@ defaults, validation and schedule); ``flight`` flies it (:func:`simulate_flight`
 position loop through the closed inner attitude loop): ``cascade_spec`` (:class:`CascadeSpec`,
 :class:`InnerGains`, the :class:`CascadeTruth` sidecar), ``cascade`` (:func:`simulate_cascade`),
 ``cascade_plant`` (the exact discrete cascade, its responses and margins), ``cascade_write``
-(:func:`write_cascade`: HEAR and reference layouts).
+(:func:`write_cascade`: HEAR and reference layouts). The process families of issue 22: ``process``
+(:func:`simulate_process`, :class:`ProcessTruth`).
 """
 
 from .flight import (EFFECT_NAMES, Effects, FlightSpec, SimulatedFlight, TestSpec, default_noise_std, noise_margin,
@@ -15,7 +16,9 @@ from .flight import (EFFECT_NAMES, Effects, FlightSpec, SimulatedFlight, TestSpe
 from .cascade import CascadeFlight, simulate_cascade
 from .cascade_spec import CascadeSpec, CascadeTruth, InnerGains
 from .cascade_write import write_cascade
+from .process import ProcessSpec, ProcessTruth, simulate_process, write_process
 
 __all__ = ["Effects", "TestSpec", "FlightSpec", "SimulatedFlight", "simulate_flight", "write_flight", "plan_test",
            "noise_margin", "default_noise_std", "sidecar_path", "EFFECT_NAMES", "CascadeSpec", "InnerGains",
-           "CascadeTruth", "CascadeFlight", "simulate_cascade", "write_cascade"]
+           "CascadeTruth", "CascadeFlight", "simulate_cascade", "write_cascade", "ProcessSpec", "ProcessTruth",
+           "simulate_process", "write_process"]

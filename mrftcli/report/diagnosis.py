@@ -231,7 +231,7 @@ def _param_rows(e, loop: str) -> list[tuple]:
     return out
 
 
-def write_diagnosis_report(result, out_dir: str | Path) -> Path:
+def write_diagnosis_report(result: DiagnosisResult, out_dir: str | Path) -> Path:
     """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none)."""
     out = ensure_dir(out_dir)
     fitted = any(c.delta_bic is not None for c in result.candidates)
@@ -244,8 +244,26 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         figs["diagnosis_evidence.png"] = plot_evidence(result)
     for name, fig in figs.items():
         save_figure(fig, out / name)
-    t0 = result.t0
-    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>"]
+    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>", *_effect_sections(result), *_identification_section(result),
+            "<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>", _located_table(result)]
+    body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
+    body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
+    body.append("<h2>Evidence for each candidate</h2>" + (
+        "<img src='diagnosis_evidence.png'>" if fitted else
+        "<p>No candidate was fitted: the cycles do not reject the linear model, so there is nothing for a "
+        "candidate effect to explain.</p>"))
+    body += _pairs_section(result)
+    body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
+    page = out / "diagnosis.html"
+    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    if not (out / "index.html").exists():
+        write_page(out / "index.html", page.read_text())
+    return page
+
+
+def _effect_sections(result: DiagnosisResult) -> list[str]:
+    """Each effect found (parameters with units, held-out scores), or what the log shows instead."""
+    body = []
     for e in result.effects:
         body.append(f"<h2>Found: {esc(e.name.replace('_', ' '))}</h2><p>{esc(e.explanation)}</p>"
                     f"<p class='muted'>Model: {esc(e.augmentation)}</p>")
@@ -270,6 +288,12 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
         if u.largest:
             lg = u.largest
             body.append(f"<p>Largest: test {lg['test']}, {esc(lg['what'])} (z = {lg['z']:+.1f}).</p>")
+    return body
+
+
+def _identification_section(result: DiagnosisResult) -> list[str]:
+    """Every estimate of the plant, the one to take marked, and why analyze's differs."""
+    body = []
     ident = result.identification
     body.append("<h2>Identification</h2>")
     rec = ident.recommended
@@ -283,7 +307,12 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
     if ident.analyze is not None and ident.analyze.differs_because:
         body.append(f"<p class='muted'>analyze's model and the linear fit differ: {esc(ident.analyze.differs_because)}."
                     "</p>")
-    body.append("<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>")
+    return body
+
+
+def _located_table(result: DiagnosisResult) -> str:
+    """Where the linear model disagrees: features, harmonics, segments (times from the log start)."""
+    t0 = result.t0
     loc_rows = []
     for loc in result.located[:12]:
         span = f"{loc.t_start - t0:.1f}-{loc.t_end - t0:.1f}"
@@ -295,17 +324,15 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
             cyc = ", ".join(str(c + 1) for c in loc.cycles or [])
             loc_rows.append((loc.test + 1, span, f"cycles {cyc}, worse half: {loc.worse_half}",
                              f"NRMSE {100 * (loc.nrmse or 0.0):.1f} %"))
-    if loc_rows:
-        body.append("<div class='left3'>" + html_table(["test", "time from the log start [s]", "what", "by how much"],
-                                                      loc_rows) + "</div>")
-    else:
-        body.append("<p>Every feature is within 3 standard errors of the linear model's.</p>")
-    body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
-    body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
-    body.append("<h2>Evidence for each candidate</h2>" + (
-        "<img src='diagnosis_evidence.png'>" if fitted else
-        "<p>No candidate was fitted: the cycles do not reject the linear model, so there is nothing for a "
-        "candidate effect to explain.</p>"))
+    if not loc_rows:
+        return "<p>Every feature is within 3 standard errors of the linear model's.</p>"
+    return "<div class='left3'>" + html_table(["test", "time from the log start [s]", "what", "by how much"],
+                                              loc_rows) + "</div>"
+
+
+def _pairs_section(result: DiagnosisResult) -> list[str]:
+    """The second effects tried on top of the first (their evidence and held-out errors)."""
+    body: list[str] = []
     pairs = result.second_effect_candidates
     if pairs:
         anchors = list(dict.fromkeys(c.with_ for c in pairs))
@@ -318,12 +345,7 @@ def write_diagnosis_report(result, out_dir: str | Path) -> Path:
               _f(c.delta_bic), _pct(c.held_out_before.nrmse_raw if c.held_out_before is not None else None),
               _pct(c.held_out_after.nrmse_raw if c.held_out_after is not None else None),
               "yes" if c.significant else "no") for c in pairs]) + "</div>")
-    body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
-    page = out / "diagnosis.html"
-    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
-    if not (out / "index.html").exists():
-        write_page(out / "index.html", page.read_text())
-    return page
+    return body
 
 
 def _pct(x) -> str:

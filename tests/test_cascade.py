@@ -34,7 +34,7 @@ def _cascade(Td: float = 0.8, tau: float = 0.0335, K: float = 1.0) -> CascadeMod
 
 
 def _simulate(beta: float, h: float, Td: float, tau: float, K: float, t_end: float, every: int = 1,
-              sub: int = 20) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              sub: int = 20, gains: InnerController = GAINS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-tick loop: outer relay (every ``every`` ticks) -> inner PD -> eq. (2) with its delay -> p'' = K phi - p'/Td.
 
     Exact between sub-steps (delays are whole sub-steps here); returns tick times, measured y, relay u.
@@ -53,7 +53,7 @@ def _simulate(beta: float, h: float, Td: float, tau: float, K: float, t_end: flo
     x[3] = -0.02  # an initial offset starts the relay
     cmd = [0.0] * (d_in + 1)  # the command per sub-step, delayed by d_in sub-steps
     hist = [x[3]] * (d_out + 1)
-    D = phi_prev = 0.0
+    I = D = phi_prev = 0.0
     u, e_max, e_min, c = h, 0.0, 0.0, 0.0
     ts, ys, us = [], [], []
     for k in range(int(t_end * RATE)):
@@ -70,9 +70,10 @@ def _simulate(beta: float, h: float, Td: float, tau: float, K: float, t_end: flo
                     u, e_max = h, e
         phi = x[0]
         ei = u - phi
-        D = (GAINS.Tf * D - GAINS.Kd * (phi - phi_prev)) / (GAINS.Tf + T)
+        I += gains.Ki * T * ei
+        D = (gains.Tf * D - gains.Kd * (phi - phi_prev)) / (gains.Tf + T)
         phi_prev = phi
-        c = GAINS.Kp * ei + D
+        c = gains.Kp * ei + I + D
         ts.append(k * T), ys.append(y), us.append(u)
         for _ in range(sub):
             cmd.append(c)
@@ -104,6 +105,16 @@ def test_cycle_matches_an_independent_simulation(flown) -> None:
         assert f[-1] == pytest.approx(lc.orbits_hz[k], rel=1e-9)
         assert a[-1] == pytest.approx(lc.orbits_amplitude[k], rel=2e-3)  # the sim's max is on its tick grid
         assert min(lc.orbits_hz) <= lc.frequency_hz <= max(lc.orbits_hz)
+
+
+def test_cycle_with_an_inner_pid() -> None:
+    """The inner controller's integral path: a PID flown by the independent simulation, the same orbits."""
+    pid = InnerController(Kp=0.6, Ki=0.3, Kd=0.12, Tf=0.02, rate_hz=RATE)
+    f, a = _cycles(*_simulate(-0.3, 1.0, 0.8, 0.0335, 1.0, 15.0, gains=pid), last=1)
+    lc = CascadeModel(InnerLoop(INNER, pid), Td=0.8, tau=0.0335, K=1.0).sampled_limit_cycle(-0.3, 1.0, RATE)
+    k = int(np.argmin(np.abs(np.array(lc.orbits_hz) - f[-1])))
+    assert f[-1] == pytest.approx(lc.orbits_hz[k], rel=1e-9)
+    assert a[-1] == pytest.approx(lc.orbits_amplitude[k], rel=2e-3)
 
 
 def test_outer_relay_at_half_the_rate() -> None:

@@ -1,0 +1,524 @@
+"""Robust PI/PID/PD gains for a process plant: ``tune RESULT.json`` of ``analyze --model NAME``.
+
+The plant is any :class:`~mrftcli.mrft.model.PlantModel` (the FOPDT/SOPDT/IPDT/FOIPDT families, a
+declared structure): its delay-free realisation ``realisation()`` and its delay ``tau`` give the exact
+zero-order-hold equivalent at the controller rate (:func:`discretise`: tau = d T + eps, the input
+held over a tick reaches the plant eps late, the modified z-transform), so the margins are those of
+the sampled loop with no approximation. The loop, its margins and its stability are computed as for
+the cascade's outer loop (:func:`mrftcli.tune.cascade.closed_loop_matrix`,
+:func:`~mrftcli.tune.cascade.cascade_margins`: one implementation of each), with the controller of
+:class:`~mrftcli.tune.closed_loop.Controller` (parallel PID, derivative on the measurement through
+Tf = Td_c / ``FILTER_N``, backward differences).
+
+The design, for each kind: on a grid of integral times Ti (PI, PID) and derivative times Td_c (PD,
+PID), scaled by the nominal plant's ultimate period Tu, the largest Kp that keeps every model (the
+nominal one for ``model-based``; the nominal and the draws for ``robust``) stable with Ms <= ``ms_max``
+and a phase margin >= ``pm_min_deg``; of those, the least IAE on the nominal model: of a unit load
+step at the plant input for a PI/PID (the disturbance a process loop rejects; Astrom-Hagglund's
+criterion), of a unit setpoint step for a PD (offered on integrating plants only: on a
+self-regulating plant a PD leaves a steady error).
+
+A plant whose gain is negative (reverse acting) is designed on -G: the controller's gains are
+positive and act on -e (``reverse_acting`` in the record).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from ..jsonable import check_schema_version
+from ..mrft.cascade import DiscreteStateSpace
+from ..mrft.matexp import phi_gamma_small
+from ..mrft.model import PlantModel, model_from_json
+from .cascade import CascadeMargins, cascade_margins, closed_loop_matrix
+from .closed_loop import Controller
+from .design import FILTER_N
+
+__all__ = ["ProcessDesign", "ProcessTuneResult", "ProcessTuneOptions", "discretise", "discrete_response",
+           "process_draws", "tune_process", "PROCESS_KINDS", "PROCESS_TUNE_SCHEMA_VERSION"]
+
+#: version of :meth:`ProcessTuneResult.to_json`
+PROCESS_TUNE_SCHEMA_VERSION = 1
+#: the controllers designed (PD on integrating plants only)
+PROCESS_KINDS = ("PI", "PID", "PD")
+_TI_GRID = np.geomspace(0.1, 10.0, 14)  # integral times Ti, in ultimate periods Tu
+_TDC_GRID = np.geomspace(0.02, 0.5, 8)  # derivative times Td_c, in Tu
+_PID_TDC_GRID = np.geomspace(0.03, 0.3, 5)
+_LOAD_PERIODS = 20.0  # horizon of the load step, in Tu (integral action is slow)
+_STEP_PERIODS = 8.0  # horizon of a PD's setpoint step, in Tu
+FloatArray = NDArray[np.float64]
+
+
+# ----------------------------------------------------------------------------------------------
+# the exact discrete plant
+# ----------------------------------------------------------------------------------------------
+def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
+    """The exact ZOH equivalent of ``model`` with its delay at ``rate_hz`` [Hz].
+
+    tau = d T + eps (0 <= eps < T): over a tick the plant sees u_{k-d-1} for eps seconds, then u_{k-d}.
+    State X_k = [x_k, u_{k-1}, ..., u_{k-d-1}] so the delay is part of the state (the closed loop's
+    eigenvalues then decide stability).
+
+    Raises
+    ------
+    InputError
+        A plant with direct feedthrough (D != 0: not a relay-test plant), or a bad rate.
+    """
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
+    ss = model.realisation()
+    if abs(ss.D) > 0:
+        raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
+                         "tune designs for strictly proper plants")
+    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
+    T = 1.0 / rate_hz
+    d = int(math.floor(model.delay / T + 1e-12))
+    eps = max(model.delay - d * T, 0.0)
+    Phi, _ = phi_gamma_small(A, B, T)
+    Pr, G_new = phi_gamma_small(A, B, T - eps)
+    G_old = Pr @ phi_gamma_small(A, B, eps)[1]
+    n = A.shape[0]
+    N = n + d + 1
+    Ad = np.zeros((N, N))
+    Bd = np.zeros(N)
+    Ad[:n, :n] = Phi
+    Ad[:n, n + d] = G_old  # u_{k-d-1}
+    if d == 0:
+        Bd[:n] = G_new  # u_k itself
+    else:
+        Ad[:n, n + d - 1] = G_new  # u_{k-d}
+    Bd[n] = 1.0  # the buffer: u_k becomes u_{(k+1)-1}
+    for j in range(1, d + 1):
+        Ad[n + j, n + j - 1] = 1.0
+    Cd = np.zeros(N)
+    Cd[:n] = C
+    return DiscreteStateSpace(Ad, Bd, Cd, rate_hz)
+
+
+def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[np.complex128]:
+    """G_d(e^{j omega T}) of :func:`discretise` without the delay buffer's states (fast on long delays)."""
+    ss = model.realisation()
+    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
+    T = 1.0 / rate_hz
+    d = int(math.floor(model.delay / T + 1e-12))
+    eps = max(model.delay - d * T, 0.0)
+    Phi, _ = phi_gamma_small(A, B, T)
+    Pr, G_new = phi_gamma_small(A, B, T - eps)
+    G_old = Pr @ phi_gamma_small(A, B, eps)[1]
+    w = np.atleast_1d(np.asarray(omega, float))
+    z = np.exp(1j * w * T)
+    M = z[:, None, None] * np.eye(A.shape[0])[None] - Phi[None]
+    rhs = (G_new[None, :] + G_old[None, :] / z[:, None])[..., None]
+    out: NDArray[np.complex128] = (np.linalg.solve(M, rhs)[..., 0] @ C) * z ** (-d)
+    return out.reshape(np.shape(omega))
+
+
+# ----------------------------------------------------------------------------------------------
+# records
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ProcessTuneOptions:
+    """The design's limits.
+
+    Attributes
+    ----------
+    ms_max : float
+        Sensitivity peak limit on every model [-] (> 1).
+    pm_min_deg : float
+        Least phase margin on every model [deg].
+    n_draws : int
+        Draws of the robust design (0: model-based only).
+    seed : int
+        Seed of the draws.
+    """
+
+    ms_max: float = 1.6
+    pm_min_deg: float = 45.0
+    n_draws: int = 30
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.ms_max) and self.ms_max > 1.0):
+            raise InputError(f"--ms-max must be a number above 1, got {self.ms_max!r}")
+        if not (math.isfinite(self.pm_min_deg) and 0.0 <= self.pm_min_deg < 90.0):
+            raise InputError(f"the least phase margin must be in [0, 90) deg, got {self.pm_min_deg!r}")
+        if self.n_draws < 0:
+            raise InputError(f"the number of draws must be >= 0, got {self.n_draws}")
+
+
+@dataclass(frozen=True)
+class ProcessDesign:
+    """One controller: its gains, nominal margins, the worst over the draws, its criterion.
+
+    Attributes
+    ----------
+    name : str
+        ``"model-based"`` or ``"robust"``.
+    kind : str
+        ``"PI"``, ``"PID"`` or ``"PD"``.
+    controller : Controller
+        Kp [command / output unit], Ki [command / (output unit s)], Kd [command s / output unit], Tf [s].
+    nominal : CascadeMargins
+        Margins on the nominal model.
+    worst : CascadeMargins or None
+        The worst of each figure over the nominal model and the draws (None without draws).
+    iae : float
+        The criterion on the nominal model [output unit s] (``criterion`` says which).
+    criterion : str
+        ``"load step"`` (unit step at the plant input) or ``"setpoint step"``.
+    """
+
+    name: str
+    kind: str
+    controller: Controller
+    nominal: CascadeMargins
+    worst: CascadeMargins | None
+    iae: float
+    criterion: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "kind": self.kind, "generic": self.controller.to_dict(),
+                "nominal": self.nominal.to_json(), "worst": None if self.worst is None else self.worst.to_json(),
+                "iae": self.iae if math.isfinite(self.iae) else None, "criterion": self.criterion}
+
+    @classmethod
+    def from_json(cls, d: Any) -> ProcessDesign:
+        if not isinstance(d, Mapping) or not isinstance(d.get("generic"), Mapping):
+            raise InputError("process tune JSON: each design needs 'generic' gains")
+        g = d["generic"]
+        try:
+            c = Controller(float(g["Kp"]), float(g["Ki"]), float(g["Kd"]), float(g["Tf"]), float(g["rate_hz"]))
+            worst = d.get("worst")
+            iae = d.get("iae")
+            return cls(str(d["name"]), str(d["kind"]), c, CascadeMargins.from_json(d.get("nominal")),
+                       None if worst is None else CascadeMargins.from_json(worst),
+                       math.inf if iae is None else float(iae), str(d.get("criterion", "")))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"process tune JSON: bad design ({type(err).__name__}: {err})") from None
+
+
+@dataclass(frozen=True)
+class ProcessTuneResult:
+    """The designs of :func:`tune_process` (``tune RESULT.json`` of a process analysis).
+
+    Attributes
+    ----------
+    loop : str
+        The loop (the analysis' name for it).
+    rate_hz : float
+        The controller rate [Hz].
+    model : PlantModel
+        The nominal plant.
+    designs : tuple of ProcessDesign
+    options : ProcessTuneOptions
+    reverse_acting : bool
+        The plant's gain is negative: the gains act on -e.
+    ultimate_period_s : float
+        Tu of the nominal sampled loop [s] (the grids' scale).
+    notes : tuple of str
+        What the designs rest on.
+    """
+
+    loop: str
+    rate_hz: float
+    model: PlantModel
+    designs: tuple[ProcessDesign, ...]
+    options: ProcessTuneOptions
+    reverse_acting: bool
+    ultimate_period_s: float
+    notes: tuple[str, ...] = field(default=())
+
+    def get(self, name: str, kind: str) -> ProcessDesign:
+        """The design ``name`` of ``kind``; InputError naming the ones there are."""
+        for d in self.designs:
+            if d.name == name and d.kind == kind:
+                return d
+        have = ", ".join(f"{d.name} {d.kind}" for d in self.designs)
+        raise InputError(f"no {name} {kind} design for this plant (have: {have})")
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "kind": "process", "loop", "rate_hz", "model", "designs", ...}``."""
+        o = self.options
+        return {"schema_version": PROCESS_TUNE_SCHEMA_VERSION, "kind": "process", "loop": self.loop,
+                "rate_hz": self.rate_hz, "model": self.model.to_json(), "designs": [d.to_json() for d in self.designs],
+                "ms_max": o.ms_max, "pm_min_deg": o.pm_min_deg, "n_draws": o.n_draws, "seed": o.seed,
+                "reverse_acting": self.reverse_acting, "ultimate_period_s": self.ultimate_period_s,
+                "notes": list(self.notes)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> ProcessTuneResult:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        d = check_schema_version(data, "process tune JSON", PROCESS_TUNE_SCHEMA_VERSION)
+        if d.get("kind") != "process" or not isinstance(d.get("designs"), list):
+            raise InputError("not a process tune JSON (needs kind 'process' and 'designs')")
+        try:
+            options = ProcessTuneOptions(float(d["ms_max"]), float(d["pm_min_deg"]), int(d["n_draws"]),
+                                         int(d.get("seed", 0)))
+            return cls(str(d.get("loop", "")), float(d["rate_hz"]), model_from_json(d["model"]),
+                       tuple(ProcessDesign.from_json(x) for x in d["designs"]), options,
+                       bool(d.get("reverse_acting")), float(d["ultimate_period_s"]),
+                       tuple(str(n) for n in d.get("notes") or ()))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"process tune JSON: {type(err).__name__}: {err}") from None
+
+
+# ----------------------------------------------------------------------------------------------
+# the draws
+# ----------------------------------------------------------------------------------------------
+def process_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int = 0) -> tuple[list[PlantModel], tuple[str, ...]]:
+    """``n`` plants over the identification's uncertainty, and notes on how they were drawn.
+
+    A positive parameter is drawn log-normal with its std (relative spread std / value), one that may
+    be zero or negative normal, each kept within its bounds; an undetermined one uniformly over its
+    95 % interval. ``estimates`` are :class:`~mrftcli.mrft.identify_lti.LtiEstimate` records.
+
+    Raises
+    ------
+    InputError
+        An undetermined parameter whose interval is open (nothing bounds the draws).
+    """
+    rng = np.random.default_rng(seed)
+    bounds = {p.name: p.bounds for p in model.parameters.values()}
+    notes: list[str] = []
+    free = [e for e in estimates if not e.known and e.name in bounds]
+    for e in free:
+        if not e.determined:
+            if not (math.isfinite(e.ci95_low) and math.isfinite(e.ci95_high)):
+                raise InputError(f"{e.name} is not determined by the tests and its interval is open: give it with "
+                                 f"analyze --param {e.name}=VALUE (or a --range) before tuning")
+            notes.append(f"{e.name} is not determined by the tests: drawn uniformly over its 95 % interval "
+                         f"[{e.ci95_low:.4g}, {e.ci95_high:.4g}] {e.unit}")
+    out: list[PlantModel] = []
+    for _ in range(n):
+        values: dict[str, float] = {}
+        for e in free:
+            lo, hi = bounds[e.name]
+            if not e.determined:
+                v = float(rng.uniform(e.ci95_low, e.ci95_high))
+            elif not (e.std and math.isfinite(e.std) and e.std > 0):
+                continue
+            elif e.value > 0 and lo >= 0:
+                v = e.value * math.exp(rng.normal(0.0, e.std / e.value))
+            else:
+                v = e.value + rng.normal(0.0, e.std)
+            values[e.name] = float(min(max(v, lo), hi))
+        if values:
+            out.append(model.with_parameters(**values))
+    return out, tuple(notes)
+
+
+# ----------------------------------------------------------------------------------------------
+# the design
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Plants:
+    """The nominal discrete plant and every model the constraints hold on, with their responses on ``omega``."""
+
+    nominal: DiscreteStateSpace
+    all: tuple[DiscreteStateSpace, ...]
+    Gd: NDArray[np.complex128]
+    omega: FloatArray
+
+
+def _sign(model: PlantModel) -> float:
+    """+1 or -1: the sign of the plant's gain (K when the structure has one, else its low-frequency response)."""
+    params = model.parameters
+    if "K" in params:
+        return 1.0 if params["K"].value > 0 else -1.0
+    A = np.asarray(model.realisation().A, float)
+    integrators = int(np.sum(np.abs(np.linalg.eigvals(A)) < 1e-12))
+    w = 1e-6
+    g = complex(np.asarray(model.frequency_response(np.array([w])))[0]) * (1j * w) ** integrators
+    return 1.0 if g.real > 0 else -1.0
+
+
+def _ultimate(model: PlantModel, rate_hz: float, sign: float) -> float:
+    """The ultimate angular frequency [rad/s] of the sampled loop: the first -180 deg crossing of G_d."""
+    omega = np.geomspace(1e-6, 0.999 * math.pi, 4000) * rate_hz
+    phase = np.unwrap(np.angle(sign * discrete_response(model, rate_hz, omega)))
+    phase -= 2 * math.pi * round(float(phase[0]) / (2 * math.pi))  # start in (-pi, pi]
+    below = np.nonzero(phase <= -math.pi)[0]
+    return float(omega[below[0]]) if below.size else float(omega[-1])
+
+
+def _scaled(ss: DiscreteStateSpace, sign: float) -> DiscreteStateSpace:
+    return DiscreteStateSpace(ss.Phi, ss.Gamma, sign * ss.C, ss.rate_hz)
+
+
+def _responses(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
+    """The outputs Cy z_k of z_{k+1} = A z_k + B, z_0 = 0, over ``count`` ticks (exact, by doubling)."""
+    S = np.zeros((count, A.shape[0]))
+    step, have = A.copy(), 1  # step = A^have; S[k] = sum_{j<k} A^j B
+    with np.errstate(all="ignore"):
+        while have < count:
+            take = min(have, count - have)
+            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + (A @ S[have - 1] + B)
+            have += take
+            step = step @ step
+    out: FloatArray = S @ Cy
+    return out
+
+
+def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) -> float:
+    """IAE [output unit s] of a unit load step at the plant input (``load``) or of a unit setpoint step."""
+    A, B, Cy = closed_loop_matrix(ss, c)
+    if load:
+        B = np.zeros(A.shape[0])
+        B[:ss.order] = ss.Gamma
+    count = max(2, int(horizon_s * c.rate_hz))
+    y = _responses(A, B, Cy, count)
+    total = float(np.sum(np.abs(y if load else 1.0 - y))) * c.Ts
+    return total if math.isfinite(total) else math.inf
+
+
+def _stable(ss: DiscreteStateSpace, c: Controller) -> bool:
+    A, _, _ = closed_loop_matrix(ss, c)
+    return bool(np.max(np.abs(np.linalg.eigvals(A))) < 1.0 - 1e-9)
+
+
+def _ok(c: Controller, p: _Plants, o: ProcessTuneOptions) -> bool:
+    """The constraints on every model: the frequency figures first, the eigenvalues only if they hold."""
+    figures = cascade_margins(c, p.Gd, p.omega)
+    if not all(ms <= o.ms_max and pm >= o.pm_min_deg for pm, _, ms, _ in figures):
+        return False
+    return all(_stable(ss, c) for ss in p.all)
+
+
+def _largest_gain(make: Any, ku: float, p: _Plants, o: ProcessTuneOptions) -> Controller | None:
+    """The largest Kp in [1e-4, 10] x the ultimate gain meeting the constraints.
+
+    A coarse scan from the top finds the largest feasible grid gain (on an integrating plant a PI is
+    infeasible at low gains too: the feasible gains are an interval), then a bisection in log Kp.
+    """
+    grid = np.geomspace(1e-4 * ku, 10.0 * ku, 21)[::-1]
+    for i, kp in enumerate(grid):
+        if _ok(make(float(kp)), p, o):
+            break
+    else:
+        return None
+    if i == 0:
+        return make(float(grid[0]))
+    lo, hi = float(grid[i]), float(grid[i - 1])
+    while hi / lo > 1.02:
+        mid = math.sqrt(lo * hi)
+        if _ok(make(mid), p, o):
+            lo = mid
+        else:
+            hi = mid
+    return make(lo)
+
+
+def _candidates(kind: str, tu: float, rate_hz: float) -> list[Any]:
+    """Controller makers ``Kp -> Controller`` over the kind's grid of (Ti, Td_c)."""
+    def maker(ti: float | None, tdc: float) -> Any:
+        def make(kp: float) -> Controller:
+            return Controller(kp, 0.0 if ti is None else kp / ti, kp * tdc, tdc / FILTER_N, rate_hz)
+        return make
+
+    if kind == "PI":
+        return [maker(float(ti) * tu, 0.0) for ti in _TI_GRID]
+    if kind == "PD":
+        return [maker(None, float(td) * tu) for td in _TDC_GRID]
+    return [maker(float(ti) * tu, float(td) * tu) for ti in _TI_GRID for td in _PID_TDC_GRID if ti >= 2.0 * td]
+
+
+def _margins(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: NDArray[np.complex128],
+             omega: FloatArray) -> list[CascadeMargins]:
+    return [CascadeMargins(pm, gm, ms, wc, _stable(ss, c))
+            for ss, (pm, gm, ms, wc) in zip(plants, cascade_margins(c, Gd, omega))]
+
+
+def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: ProcessTuneOptions) -> ProcessDesign | None:
+    load = kind != "PD"
+    horizon = (_LOAD_PERIODS if load else _STEP_PERIODS) * tu
+    best: tuple[float, Controller] | None = None
+    for make in _candidates(kind, tu, p.nominal.rate_hz):
+        c = _largest_gain(make, ku, p, o)
+        if c is None:
+            continue
+        J = _iae(p.nominal, c, horizon, load)
+        if best is None or J < best[0]:
+            best = (J, c)
+    if best is None:
+        return None
+    J, c = best
+    nominal = _margins(c, [p.nominal], p.Gd[:1], p.omega)[0]
+    worst = None
+    if len(p.all) > 1:
+        m = _margins(c, p.all, p.Gd, p.omega)
+        worst = CascadeMargins(min(x.phase_margin_deg for x in m), min(x.gain_margin for x in m),
+                               max(x.Ms for x in m), min(x.crossover_hz for x in m), all(x.stable for x in m))
+    return ProcessDesign(name, kind, c, nominal, worst, J, "load step" if load else "setpoint step")
+
+
+def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, omega: FloatArray) -> _Plants:
+    ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
+    Gd = np.array([sign * discrete_response(m, rate_hz, omega) for m in models])
+    return _Plants(ss[0], ss, Gd, omega)
+
+
+def _integrating(model: PlantModel) -> bool:
+    A = np.asarray(model.realisation().A, float)
+    return bool(np.any(np.abs(np.linalg.eigvals(A)) < 1e-12))
+
+
+def tune_process(model: PlantModel, rate_hz: float, *, draws: Sequence[PlantModel] = (), loop: str = "",
+                 options: ProcessTuneOptions = ProcessTuneOptions(),
+                 kinds: Sequence[str] | None = None) -> ProcessTuneResult:
+    """Model-based (and, with ``draws``, robust) PI/PID (and PD on integrating plants) gains (module docstring).
+
+    Parameters
+    ----------
+    model : PlantModel
+        The nominal plant.
+    rate_hz : float
+        The controller rate [Hz].
+    draws : sequence of PlantModel
+        Models the robust design holds its constraints on (:func:`process_draws`); fewer than 2: none.
+    loop : str
+        The loop's name (for the record).
+    options : ProcessTuneOptions
+        The limits.
+    kinds : sequence of str, optional
+        The controllers to design (default: PI and PID, and PD on an integrating plant).
+
+    Raises
+    ------
+    InputError
+        A bad rate, a plant with feedthrough, or no controller of any kind meets the constraints.
+    """
+    discretise(model, rate_hz)  # checks the rate and the plant before the work
+    integrating = _integrating(model)
+    kinds = tuple(kinds) if kinds is not None else (("PI", "PID", "PD") if integrating else ("PI", "PID"))
+    sign = _sign(model)
+    wu = _ultimate(model, rate_hz, sign)
+    tu = 2 * math.pi / wu
+    ku = 1.0 / max(float(np.abs(discrete_response(model, rate_hz, np.array([wu])))[0]), 1e-300)
+    omega = np.geomspace(min(1e-3 * wu, 0.1 * rate_hz), 0.999 * math.pi * rate_hz, 700)
+    sets = [("model-based", _plants([model], rate_hz, sign, omega))]
+    if len(draws) >= 2:
+        sets.append(("robust", _plants([model, *draws], rate_hz, sign, omega)))
+    designs = [d for kind in kinds for name, p in sets if (d := _design(name, kind, p, ku, tu, options)) is not None]
+    if not designs:
+        raise InputError(f"no {'/'.join(kinds)} keeps Ms <= {options.ms_max:g} and a phase margin >= "
+                         f"{options.pm_min_deg:g} deg on this plant at {rate_hz:g} Hz (relax --ms-max, or check "
+                         "the identified model and the controller rate)")
+    notes = [f"the exact sampled loop at {rate_hz:g} Hz (zero-order hold, the delay exact): Ms <= {options.ms_max:g}, "
+             f"phase margin >= {options.pm_min_deg:g} deg; least IAE of a unit load step at the plant input (PI, "
+             "PID) or of a unit setpoint step (PD)"]
+    if len(draws) >= 2:
+        notes.append(f"robust: the constraints held on the nominal model and {len(draws)} draws over the "
+                     "identification's intervals")
+    else:
+        notes.append("no robust design: the record gives no spread to draw from")
+    if sign < 0:
+        notes.append("the plant's gain is negative: reverse acting, the controller acts on -e (gains shown positive)")
+    if not integrating and "PD" not in kinds:
+        notes.append("no PD: the plant is self-regulating, a PD would leave a steady error")
+    return ProcessTuneResult(loop, rate_hz, model, tuple(designs), options, sign < 0, tu, tuple(notes))

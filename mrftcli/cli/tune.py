@@ -247,7 +247,22 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
         click.echo("\n".join(summary), err=True)
 
 
-def _stack_summary(e: Any) -> list[str]:
+def _parse_cutoff(value: str | None) -> tuple[bool, float | None]:
+    """``--gyro-cutoff``: (auto, the cutoff [Hz] or None)."""
+    if value is None:
+        return False, None
+    if value.strip().lower() == "auto":
+        return True, None
+    try:
+        hz = float(value)
+    except ValueError:
+        raise InputError(f"--gyro-cutoff {value}: give auto or a cutoff in Hz (0: the filter off)") from None
+    if not (math.isfinite(hz) and hz >= 0):
+        raise InputError(f"--gyro-cutoff {value}: the cutoff must be a finite frequency >= 0 Hz")
+    return False, hz
+
+
+def _stack_summary(e: Any, console: bool = True) -> list[str]:
     """The lines that say what was exported: values with their ranges, the margins with the stack's filter,
     the notes, and PX4's ``param set`` lines."""
     from ..tune.stack_params import STACK_PARAMS
@@ -262,13 +277,14 @@ def _stack_summary(e: Any) -> list[str]:
     out.append(f"margins with the stack's filter and rate: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
                f"delay margin {m.delay_margin_s * 1e3:.1f} ms  Ms {m.Ms:.3g}")
     out += [f"note: {n}" for n in e.notes]
-    out += e.console_lines()
+    if console:
+        out += e.console_lines()
     return out
 
 
 @click.command("tune")
 @unsupported_model_option("tune", "analyze --model NAME reports the process model's parameters with their intervals; tune designs PD/PID for eq. (2) loops")
-@click.argument("source", required=False, type=click.Path(dir_okay=True))
+@click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
 @tp_option(required=False)  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
 @log_layout_options(format_flag="--log-format")
 @min_cycles_option(detail=" (as analyze)")
@@ -289,9 +305,10 @@ def _stack_summary(e: Any) -> list[str]:
                    ".params (and param set lines), ArduPilot .param, HEAR PID JSON, generic JSON; checked "
                    "against the stack's parameter ranges.")
 @click.option("--out", "-o", "out", metavar="FILE", help="Write the export to FILE (atomically); default: stdout.")
-@click.option("--gyro-cutoff", "gyro_cutoff", type=click.FloatRange(0, None), metavar="HZ",
-              help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] the design runs with (default: the "
-                   "stack's default, stated in the output; use one value for roll and pitch).")
+@click.option("--gyro-cutoff", "gyro_cutoff", metavar="auto|HZ",
+              help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] the design runs with (one SOURCE: default "
+                   "the stack's default, stated; ROLL.json PITCH.json: default auto, the cutoff designed from both "
+                   "axes, docs/tune.md).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="PX4 MPC_THR_HOVER (normalised), required for the PX4 altitude export.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound (the "
@@ -306,13 +323,15 @@ def _stack_summary(e: Any) -> list[str]:
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()
-def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
+def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
          export, out, gyro_cutoff, hover_thrust, clamp, fmt, design, kind, json_target, report_dir, quiet,
          **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
     SOURCE is a flight log (analysed exactly as `analyze` would, same options), an analyze
-    RESULT.json, or absent with --td/--tau/--k. Each design is reported with its gain, phase and
+    RESULT.json, or absent with --td/--tau/--k; or two RESULT.json files, a roll and a pitch one, with
+    --export px4|ardupilot: both axes designed with one gyro cutoff (--gyro-cutoff auto|HZ) and one
+    file written. Each design is reported with its gain, phase and
     delay margins, Ms and the step response of the sampled loop (overshoot, rise, settling), nominal
     and over the identification's posterior (median, worst of the 95 % set).
 
@@ -320,7 +339,28 @@ def tune(source, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, 
     """
     from ..tune.design import tune as run_tune
 
-    ex = _ExportOptions(_resolve_export(fmt, export), out, gyro_cutoff, hover_thrust, clamp)
+    if len(sources) > 2:
+        raise InputError(f"{len(sources)} sources: give one SOURCE, or a roll and a pitch RESULT.json with "
+                         "--export px4|ardupilot")
+    cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
+    ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp)
+    if len(sources) == 2:
+        unsupported = {"--td/--tau/--k": any(v is not None for v in (td, tau, K)), "--report": report_dir,
+                       "--effort-max": effort_max, "--hover-thrust": hover_thrust, "--loop": read_options["loop"],
+                       "--design mrft-rule": design == "mrft-rule"}
+        given = [k for k, v in unsupported.items() if v]
+        if given:
+            raise InputError(f"{', '.join(given)} cannot be used with two results (the joint roll and pitch export)")
+        from .tune_axes import AxesRequest, tune_axes
+
+        tune_axes(AxesRequest(sources, Tp, ex.stack, out, clamp, cutoff_auto or cutoff_hz is None, cutoff_hz,
+                              read_options.get("controller_rate_hz"), objective, ms_max, design or "robust", kind,
+                              json_target, quiet))
+        return
+    if cutoff_auto:
+        raise InputError("--gyro-cutoff auto designs one cutoff from the roll and the pitch loop: give ROLL.json "
+                         "PITCH.json (or --gyro-cutoff HZ)")
+    source = sources[0] if sources else None
     if source is not None and str(source).lower().endswith(".json") and is_cascade_result(source):
         # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
         run_cascade_tune(source, json_target=json_target, ms_max=ms_max, design=design, export=ex.stack, out=out,

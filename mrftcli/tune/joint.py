@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from ..errors import InputError
@@ -35,8 +35,10 @@ from ..jsonable import check_schema_version
 from ..mrft.model import LoopModel
 from .closed_loop import RateFilter
 from .design import Posterior, TuneResult, tune
+from .stacks import StackExport, export_design
 
-__all__ = ["AxisModel", "CutoffTrial", "JointCutoff", "joint_gyro_cutoff", "design_axes", "JOINT_CUTOFFS_HZ",
+__all__ = ["AxisModel", "AxisSource", "CutoffTrial", "JointCutoff", "JointExport", "joint_gyro_cutoff", "design_axes",
+           "export_axes", "JOINT_CUTOFFS_HZ",
            "JOINT_MAX_LOSS", "JOINT_SCHEMA_VERSION", "GYRO_FILTER_PARAM"]
 
 #: Candidate cutoffs [Hz] (round values a user would set); those at or above half the rate are left out.
@@ -268,3 +270,91 @@ def _why_none(t: CutoffTrial, ref: CutoffTrial, loops: Sequence[str], name: str,
             why.append(f"the {lp} robust PD loses {100 * (j / j0 - 1):.0f} % of its IAE")
     return (f"no {name} at or below {t.cutoff_hz:g} Hz suits both axes: at {t.cutoff_hz:g} Hz " + "; ".join(why)
             + " (give --gyro-cutoff HZ to design both axes with a cutoff you choose)")
+
+
+@dataclass(frozen=True)
+class AxisSource:
+    """What one axis's export checks besides its design: the tests' relay heights and output amplitudes."""
+
+    heights: tuple[float, ...] = ()
+    amplitudes: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True)
+class JointExport:
+    """Both axes' exports with one gyro cutoff: one file for the stack.
+
+    Attributes
+    ----------
+    stack : str
+    exports : tuple of StackExport
+        Per axis (roll, pitch), each with its margins under the stack's filter at the common cutoff.
+    cutoff : JointCutoff or None
+        How the cutoff was chosen (None: given with ``--gyro-cutoff HZ``).
+    """
+
+    stack: str
+    exports: tuple[StackExport, ...]
+    cutoff: JointCutoff | None = None
+
+    def params(self) -> dict[str, float]:
+        """Every parameter once, in the axes' order (the shared ones, equal by construction, once)."""
+        out: dict[str, float] = {}
+        for e in self.exports:
+            for n, v in e.params.items():
+                if n in out and out[n] != v:
+                    raise InputError(f"{n} differs between the axes ({out[n]:g} and {v:g}): not one file")
+                out[n] = v
+        return out
+
+    def _merged(self) -> StackExport:
+        first = self.exports[0]
+        return replace(first, loop=" and ".join(e.loop for e in self.exports), params=self.params())
+
+    def file_text(self) -> str:
+        """The one file the stack loads (PX4 ``.params``, ArduPilot ``.param``)."""
+        return self._merged().file_text()
+
+    def console_lines(self) -> list[str]:
+        """PX4's ``param set`` lines for both axes."""
+        return self._merged().console_lines()
+
+    def to_json(self) -> dict[str, Any]:
+        """The versioned object (:data:`JOINT_SCHEMA_VERSION`): each axis's export record and the cutoff's."""
+        return {"schema_version": JOINT_SCHEMA_VERSION, "stack": self.stack, "params": self.params(),
+                "axes": [e.to_json() for e in self.exports],
+                "cutoff": None if self.cutoff is None else self.cutoff.to_json()}
+
+    @classmethod
+    def from_json(cls, data: Any) -> "JointExport":
+        """The record of :meth:`to_json`; InputError (one line) on another version or a malformed field."""
+        d = check_schema_version(data, "joint export", JOINT_SCHEMA_VERSION)
+        try:
+            exports = tuple(StackExport.from_json(e) for e in d["axes"])
+            cutoff = None if d["cutoff"] is None else JointCutoff.from_json(d["cutoff"])
+            return cls(str(d["stack"]), exports, cutoff)
+        except (KeyError, TypeError) as err:
+            raise InputError(f"joint export: missing or malformed field ({err})") from err
+
+
+def export_axes(stack: str, results: Sequence[TuneResult], design: str, sources: Sequence[AxisSource], *,
+                clamp: bool = False, cutoff: JointCutoff | None = None) -> JointExport:
+    """Each axis's ``design`` PD (designed with the common cutoff) as ``stack`` loads it, in one record.
+
+    Raises
+    ------
+    InputError
+        An axis's values do not map or are out of the stack's range (:func:`export_design`'s reasons,
+        prefixed with the axis).
+    """
+    exports = []
+    for res, src in zip(results, sources):
+        d = res.get(design, "PD")
+        try:
+            exports.append(export_design(stack, d.controller, res.model, res.loop, f"{design} PD", clamp=clamp,
+                                         heights=src.heights, amplitudes=src.amplitudes, notes=res.notes))
+        except InputError as err:
+            raise InputError(f"{res.loop}: {err}") from err
+    out = JointExport(stack, tuple(exports), cutoff)
+    out.params()  # one value per shared parameter, checked before anything is written
+    return out

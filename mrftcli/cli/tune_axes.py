@@ -1,0 +1,156 @@
+"""``mrft-ident tune ROLL.json PITCH.json --export px4|ardupilot``: both axes with one gyro cutoff, one file.
+
+PX4's ``IMU_GYRO_CUTOFF`` and ArduPilot's ``INS_GYRO_FILTER`` are one Butterworth on all axes, so the
+roll and pitch designs share it: chosen from both loops (``--gyro-cutoff auto``, the default here:
+:func:`mrftcli.tune.joint.joint_gyro_cutoff`) or given (``--gyro-cutoff HZ``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import click
+
+from ..errors import InputError
+from .options import dump_json, tqdm_progress
+
+__all__ = ["AxesRequest", "tune_axes"]
+
+
+@dataclass(frozen=True)
+class AxesRequest:
+    """What ``tune ROLL.json PITCH.json`` was asked for.
+
+    Attributes
+    ----------
+    sources : tuple of str
+        The two analyze RESULT.json files.
+    Tp : float or None
+        Propulsion time constant [s] (--tp), the same for both axes.
+    stack : str or None
+        ``--export``.
+    out : str or None
+        ``--out FILE``.
+    clamp : bool
+    auto : bool
+        Choose the cutoff from both axes (else ``cutoff_hz``).
+    cutoff_hz : float or None
+        ``--gyro-cutoff HZ``.
+    rate_hz : float or None
+        ``--controller-rate``.
+    objective : str
+    ms_max : float
+    design : str
+        ``robust`` or ``model-based``.
+    kind : str
+    json_target : str or None
+    quiet : bool
+    """
+
+    sources: tuple[str, ...]
+    Tp: float | None
+    stack: str | None
+    out: str | None
+    clamp: bool
+    auto: bool
+    cutoff_hz: float | None
+    rate_hz: float | None
+    objective: str
+    ms_max: float
+    design: str
+    kind: str
+    json_target: str | None
+    quiet: bool
+
+
+def _check_request(req: AxesRequest) -> str:
+    """The stack, after the checks that need no file (one-line errors)."""
+    from .tune import _check_out, _check_outputs
+
+    if req.Tp is None:
+        raise click.UsageError("Missing option '--tp'.")
+    if req.stack not in ("px4", "ardupilot"):
+        raise InputError("two results are designed together only with --export px4|ardupilot (their one gyro "
+                         "filter on all axes); tune each result alone otherwise")
+    if req.kind != "PD":
+        raise InputError(f"cannot export a PID to {req.stack}: its rate-loop I acts on the measured rate; "
+                         "export the PD (--kind PD)")
+    for s in req.sources:
+        if not (s.lower().endswith(".json") and Path(s).is_file()):
+            raise InputError(f"{s}: with two sources give analyze RESULT.json files (analyze each log with "
+                             "--json FILE first)")
+    _check_outputs(req.json_target, None)
+    _check_out(req.out)
+    if not req.out and req.json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
+    return req.stack
+
+
+def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
+    """The two axes (roll first) with their sources, and the rate both records share."""
+    from ..tune.joint import AxisModel, AxisSource
+    from .tune import _from_result_json
+
+    assert req.Tp is not None
+    srcs = [(path, _from_result_json(Path(path), req.Tp, None)) for path in req.sources]
+    (pa, a), (pb, b) = srcs
+    if a.loop == b.loop:
+        raise InputError(f"{pa} and {pb} are both for the {a.loop} loop: give one roll and one pitch result")
+    for path, s in srcs:
+        if s.loop not in ("roll", "pitch"):
+            raise InputError(f"{path} is for the {s.loop} loop: the joint gyro cutoff is for roll and pitch")
+        if s.posterior is None:
+            raise InputError(f"{path} has no spreads: the robust designs need the posterior")
+    if req.rate_hz is None and a.rate_hz != b.rate_hz:
+        raise InputError(f"{pa} records {a.rate_hz} Hz and {pb} {b.rate_hz} Hz: one rate loop runs both axes; "
+                         "analyse logs of one controller rate or give --controller-rate HZ")
+    srcs.sort(key=lambda ps: ps[1].loop != "roll")
+    axes = [AxisModel(str(s.loop), s.model, s.posterior) for _, s in srcs if s.posterior is not None]
+    return axes, [(AxisSource(s.heights, s.amplitudes), s.notes) for _, s in srcs], a.rate_hz
+
+
+def tune_axes(req: AxesRequest) -> None:
+    """Design roll and pitch with one gyro cutoff and write the one file the stack loads."""
+    from ..tune.closed_loop import RateFilter
+    from ..tune.joint import GYRO_FILTER_PARAM, design_axes, export_axes, joint_gyro_cutoff
+    from ..tune.stacks import stack_setting
+    from .tune import _stack_summary
+
+    stack = _check_request(req)
+    axes, extra, rate_source = _axes(req)
+    # the rate the stack runs (PX4: an IMU_GYRO_RATEMAX choice), stated; its cutoff note is replaced below
+    setting = stack_setting(stack, "roll", req.rate_hz, rate_source, req.cutoff_hz)
+    rate, name = setting.rate_hz, GYRO_FILTER_PARAM[stack]
+    joint = None
+    with tqdm_progress("tune", unit="step", enabled=not req.quiet) as progress:
+        progress(0, 1, "designing roll and pitch with one gyro cutoff")
+        if req.auto:
+            joint = joint_gyro_cutoff(axes, stack, rate, objective=req.objective, ms_max=req.ms_max)
+            results, said = joint.results, joint.note()
+        else:
+            assert req.cutoff_hz is not None
+            results = design_axes(axes, rate, RateFilter(req.cutoff_hz, name), objective=req.objective,
+                                  ms_max=req.ms_max)
+            said = f"{name} = {req.cutoff_hz:g} Hz (--gyro-cutoff) for roll and pitch: one filter on all axes"
+    results = tuple(dataclasses.replace(r, notes=(*notes, setting.notes[0], said, *r.notes))
+                    for r, (_, notes) in zip(results, extra))
+    export = export_axes(stack, results, req.design, [src for src, _ in extra], clamp=req.clamp, cutoff=joint)
+    if req.json_target:
+        dump_json({"export": {"joint": export.to_json()},
+                   "tune_results": {r.loop: r.to_json() for r in results}}, req.json_target)
+    summary = [f"{name} = {export.params()[name]:g} Hz for both axes ({'auto' if req.auto else '--gyro-cutoff'})"]
+    for e in export.exports:
+        summary += _stack_summary(e, console=False)
+    summary += export.console_lines()
+    text = export.file_text()
+    if req.out:
+        from ..io.atomic import write_text_atomic
+
+        write_text_atomic(req.out, text)
+        summary.append(f"written: {req.out}")
+        click.echo("\n".join(summary), err=req.json_target == "-")
+    else:
+        click.echo(text, nl=False)
+        click.echo("\n".join(summary), err=True)

@@ -19,7 +19,8 @@ if TYPE_CHECKING:
     from ..mrft.model import LoopModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackSetting
-from .model_options import unsupported_model_option
+from .model_options import meta_model_options
+from .process_tune import ProcessTuneRequest, process_tune_asked, run_process_tune
 from .cascade_options import is_cascade_result, run_cascade_tune
 from .options import dump_json, json_option, log_layout_options, min_cycles_option, quiet_option, tp_option, tqdm_progress
 
@@ -283,7 +284,7 @@ def _stack_summary(e: Any, console: bool = True) -> list[str]:
 
 
 @click.command("tune")
-@unsupported_model_option("tune", "analyze --model NAME reports the process model's parameters with their intervals; tune designs PD/PID for eq. (2) loops")
+@meta_model_options("tune")
 @click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
 @tp_option(required=False)  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
 @log_layout_options(format_flag="--log-format")
@@ -317,8 +318,8 @@ def _stack_summary(e: Any, console: bool = True) -> list[str]:
               help="Deprecated alias of --export (json = generic).")
 @click.option("--design", type=click.Choice(["robust", "model-based", "mrft-rule"]), default=None,
               help="Design exported (default: robust, else model-based).")
-@click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
-              help="Controller exported.")
+@click.option("--kind", type=click.Choice(["PD", "PI", "PID"]), default="PD", show_default=True,
+              help="Controller exported (PI: process plants only, their default).")
 @json_option(what="every design (Kp, Ki, Kd, Tf, rate, figures) and the tune_result record")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
@@ -344,6 +345,16 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
                          "--export px4|ardupilot")
     cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
     ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp)
+    ctx = click.get_current_context()
+    if len(sources) < 2 and process_tune_asked(ctx, sources[0] if sources else None):  # tune/process.py
+        run_process_tune(ctx, ProcessTuneRequest(
+            sources[0] if sources else None, read_options.get("controller_rate_hz"), json_target, ms_max, design,
+            kind, ex.stack, out, {"--tp": Tp, "--td/--tau/--k": any(v is not None for v in (td, tau, K)),
+                                  "--report": report_dir, "--effort-max": effort_max, "--hover-thrust": hover_thrust,
+                                  "--gyro-cutoff": gyro_cutoff, "--clamp": clamp, "--objective itae": objective != "iae"}))
+        return
+    if kind == "PI":
+        raise InputError("--kind PI is for process plants (analyze --model NAME's result); eq. (2) loops take PD or PID")
     if len(sources) == 2:
         unsupported = {"--td/--tau/--k": any(v is not None for v in (td, tau, K)), "--report": report_dir,
                        "--effort-max": effort_max, "--hover-thrust": hover_thrust, "--loop": read_options["loop"],

@@ -129,7 +129,7 @@ def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["analyze", "x.csv", "--model", "fopdt", "--model-file", "m.toml"], "not both"),
-    (["tune", "x.json", "--model", "fopdt"], "tune on a process plant takes the RESULT.json"),
+    (["tune", "x.json", "--model", "fopdt"], "give a RESULT.json or --model with --param, not both"),
     (["batch", "x", "--model-file", "m.toml"], "batch supports only --model soiptd"),
 ])
 def test_cli_model_refusals_are_one_line(argv, message, capsys):

@@ -21,12 +21,12 @@ TS = 1.0 / RATE
 
 @pytest.fixture(scope="module")
 def flight():
-    """A 50 Hz MRFT flight with a 2.1 Hz test (beta -0.8: 4-5 logged samples per cycle at 10 Hz) and a
-    0.8 Hz one (beta -0.3)."""
+    """A 50 Hz MRFT flight with a 2.5 Hz test (beta -0.8: 4 logged samples per cycle at 10 Hz, the
+    logging locked to the cycle) and a 0.9 Hz one (beta -0.3, an orbit that wanders by a few ticks)."""
     m = LoopModel(0.0422, 1.6, 0.015, 15.0)
     tests = tuple(plan_test(m, b, 0.05, rate_hz=RATE, cycles=14.0) for b in (-0.8, -0.3))
     spec = FlightSpec(model=m, tests=tests, loop="altitude", rate_hz=RATE, noise_std=5e-4, bias=0.5, setpoint=1.0,
-                      hover_s=3.0, hold_s=3.0, seed=7)
+                      hover_s=3.0, hold_s=3.0, seed=3)
     return simulate_flight(spec)
 
 
@@ -57,13 +57,15 @@ def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight):
     assert d["samples_per_cycle"] == pytest.approx(4.0) and d["switch_timing"] == "vernier-locked-beta"
     assert any("locked to the cycle" in n for n in fast.notes)
     assert tests[1].switch_timing == "vernier" and not tests[1].notes
-    for t, exact in zip(tests, (0.9, 0.5)):
+    for t, exact, worst in zip(tests, (1.0, 0.5), (0, 3)):
         true = _true_switches(flight, t.cycles[0].t_start - 0.5, t.cycles[-1].t_end + 0.5)
         got = np.array([x for c in t.stable for x in (c.t_start, c.t_switch)])
         err = np.array([np.min(np.abs(true - g)) for g in got])
-        # a logging bracket holds 5 ticks; the stable cycles' switches are on their tick, or (the slow
-        # test's orbit wanders by a tick from cycle to cycle, 32-34 ticks a half-period) one or two off
-        assert np.mean(err < 1e-6) >= exact and err.max() <= 2 * TS + 1e-6
+        # a logging bracket holds 5 ticks (a guess is on its tick 1 time in 5); the fast test's
+        # switches are on their tick; the slow test's orbit wanders by 1-3 ticks from cycle to cycle
+        # (26-30 ticks a half-period), and half its switches or more are on their tick, none more
+        # than 3 off
+        assert np.mean(err < 1e-6) >= exact and err.max() <= worst * TS + 1e-6
 
 
 def test_amplitude_and_period_match_the_noise_free_output(flight):

@@ -19,7 +19,7 @@ from .records import MrftTest, RelayCycle
 from .runs import RelayRun, find_relay_runs, regularise_times
 from .stability import StabilityCriterion, stable_cycles
 from .validity import ValidityCriterion, check_limit_cycle
-from .vernier import TickSwitches, measure_folded, switch_ticks
+from .vernier import TickSwitches, measure_folded, refine_by_waveform, switch_ticks
 
 __all__ = ["segment", "segment_arrays"]
 
@@ -258,7 +258,8 @@ def _folded_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock, criter
     y = sign * win.y
     v = sw.vernier
     if v is None or not v.locked or beta_nominal is None:
-        return _folded_pass(sw, sw.t, win.t, y, clock, criterion)
+        t_sw = refine_by_waveform(v, sw.up, win.t, y) if v is not None and not v.locked else sw.t
+        return _folded_pass(sw, t_sw, win.t, y, clock, criterion)
     up_even = bool(sw.up[0])  # the even-numbered switches are the -h -> +h ones
     done: dict[tuple[int, int], tuple[list[RelayCycle], dict[str, float], float, float]] = {}
 

@@ -89,6 +89,8 @@ class TickSwitches:
     locked: bool
     room: tuple[tuple[int, int], tuple[int, int]] = ((0, 0), (0, 0))
     ts: float = 0.0
+    lo: NDArray[np.int64] | None = None
+    hi: NDArray[np.int64] | None = None
 
     def shifts(self) -> list[tuple[int, int]]:
         """Every (even, odd) shift [ticks] within ``room``."""
@@ -151,7 +153,47 @@ def switch_ticks(t_before: FloatArray, t_after: FloatArray, ts: float) -> TickSw
     locked = bool(sum(room[0]) + sum(room[1]) > 0 and ticks.size > 2)
     return TickSwitches(np.asarray(origin + ticks * ts, dtype=np.float64), ticks,
                         (float(np.mean(H[0::2])), float(np.mean(H[1::2]))) if H.size > 1 else (np.nan, np.nan),
-                        scatter, locked, room, ts)
+                        scatter, locked, room, ts, lo, hi)
+
+
+def refine_by_waveform(sw: TickSwitches, up: NDArray[np.bool_], t_y: FloatArray, y: FloatArray,
+                       sweeps: int = 2) -> FloatArray:
+    """The switch instants [s] moved, one at a time within its bracket, to where the output folded
+    over the cycles fits one waveform best (least residual of :func:`fold_waveform`).
+
+    A wrong tick puts its cycle's samples at wrong phases, off the waveform by the output's slope
+    times a tick; the half-periods alone cannot see that where the orbit wanders by a tick or more
+    from cycle to cycle. A common shift of a locked grid does not change the fit (decided elsewhere).
+    """
+    if sw.lo is None or sw.hi is None:
+        return sw.t
+    ticks = sw.ticks.copy()
+    origin = float(sw.t[0] - sw.ticks[0] * sw.ts)
+
+    def residual(tk: NDArray[np.int64]) -> float:
+        t_sw = origin + tk * sw.ts
+        ups = np.flatnonzero(up)
+        tri = [(a, b) for a, b in zip(ups[:-1], ups[1:]) if b - a == 2]
+        if len(tri) < 2:
+            return float("inf")
+        w = fold_waveform(t_y, y, np.array([t_sw[a] for a, _ in tri]), np.array([t_sw[b] for _, b in tri]))
+        return w.noise_std if w is not None else float("inf")
+
+    best = residual(ticks)
+    for _ in range(sweeps):
+        moved = False
+        for j in range(ticks.size):
+            for c in range(int(sw.lo[j]), int(sw.hi[j]) + 1):
+                if c == ticks[j]:
+                    continue
+                trial = ticks.copy()
+                trial[j] = c
+                r = residual(trial)
+                if r < best:
+                    best, ticks, moved = r, trial, True
+        if not moved:
+            break
+    return np.asarray(origin + ticks * sw.ts, dtype=float)
 
 
 def _room(ticks: NDArray[np.int64], lo: NDArray[np.int64], hi: NDArray[np.int64], steady: NDArray[np.bool_],

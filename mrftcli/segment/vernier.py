@@ -32,7 +32,7 @@ from ..mrft.harmonics import harmonic_basis
 from .cycles import harmonics_for
 from .records import RelayCycle
 
-__all__ = ["TickSwitches", "switch_ticks", "FoldedWaveform", "fold_waveform", "measure_folded",
+__all__ = ["TickSwitches", "switch_ticks", "refine_by_waveform", "FoldedWaveform", "fold_waveform", "measure_folded",
            "MIN_LOGGED_PER_CYCLE"]
 
 FloatArray = NDArray[np.float64]

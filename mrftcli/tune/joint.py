@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
+from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..mrft.model import LoopModel
@@ -38,7 +39,7 @@ from .design import Posterior, TuneResult, tune
 from .stacks import StackExport, export_design
 
 __all__ = ["AxisModel", "AxisSource", "CutoffTrial", "JointCutoff", "JointExport", "joint_gyro_cutoff", "design_axes",
-           "export_axes", "JOINT_CUTOFFS_HZ",
+           "export_axes", "joint_cutoff_of_analyses", "JOINT_CUTOFFS_HZ",
            "JOINT_MAX_LOSS", "JOINT_SCHEMA_VERSION", "GYRO_FILTER_PARAM"]
 
 #: Candidate cutoffs [Hz] (round values a user would set); those at or above half the rate are left out.
@@ -358,3 +359,16 @@ def export_axes(stack: str, results: Sequence[TuneResult], design: str, sources:
     out = JointExport(stack, tuple(exports), cutoff)
     out.params()  # one value per shared parameter, checked before anything is written
     return out
+
+
+def joint_cutoff_of_analyses(analyses: Sequence[AnalysisResult], stack: str, rate_hz: float, *,
+                             objective: str = "iae", ms_max: float = 1.6) -> JointCutoff:
+    """:func:`joint_gyro_cutoff` of a roll and a pitch analysis (their posteriors as ``tune LOG`` draws them).
+
+    The hook the ``vehicle`` command calls once both loops are identified.
+    """
+    from .analysis import posterior_from_analysis
+
+    axes = [AxisModel(a.loop, a.model, posterior_from_analysis(a)) for a in analyses]
+    return joint_gyro_cutoff(sorted(axes, key=lambda x: x.loop != "roll"), stack, rate_hz, objective=objective,
+                             ms_max=ms_max)

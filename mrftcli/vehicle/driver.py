@@ -23,7 +23,7 @@ from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
 from ..analyze.cascade import OUTER_COMMANDS, inner_gains_of
 from ..mrft.cascade import InnerController
-from .gains import TuneOptions, tune_loop
+from .gains import TuneOptions, joint_gyro_gains, tune_loop
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
 from .next_tests import missing_from_error, missing_topics
 from .outer import OuterOptions, cascade_outer, tune_outer
@@ -192,6 +192,7 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
                 identify_outer(source, loop, tps[loop], opts, inner_gains, acc)
             else:
                 identify_inner(source, loop, tps[loop], opts, acc)
+    acc.loops.update(joint_gyro_gains(acc.loops, opts.tune))  # one gyro cutoff for roll and pitch (issue 25)
     if inner_gains is not None and not any(loop in acc.loops for loop in OUTER_LOOPS):
         acc.warnings.append("--inner-gains not used: the flight gives no model of x or y")
     report(progress, total, total, "done")

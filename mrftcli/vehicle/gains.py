@@ -9,16 +9,17 @@ the refusal is recorded with the gains.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..tune.analysis import ASSUMED_RATE_HZ, RATE_ASSUMED_NOTE, posterior_from_analysis
-from ..tune.design import tune
+from ..tune.design import TuneResult, tune
 from ..tune.stacks import StackSetting, check_exportable, export_design, stack_setting
-from .record import LoopGains
+from .record import LoopGains, VehicleLoop
 
-__all__ = ["StackOptions", "TuneOptions", "tune_loop", "STACKS"]
+__all__ = ["StackOptions", "TuneOptions", "tune_loop", "joint_gyro_gains", "STACKS"]
 
 #: What ``--export`` takes: ``generic`` (tune's generic JSON, the GAINS.json ``--inner-gains`` reads)
 #: and the stacks with their own rate and filter.
@@ -118,3 +119,48 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
     return LoopGains(design, options.kind, res, export=export)
+
+
+def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> dict[str, VehicleLoop]:
+    """Roll and pitch re-designed with ONE gyro cutoff chosen from both (PX4 ``IMU_GYRO_CUTOFF`` / ArduPilot
+    ``INS_GYRO_FILTER`` filter all axes: :func:`mrftcli.tune.joint.joint_cutoff_of_analyses`).
+
+    Only for ``--export px4|ardupilot`` without ``--gyro-cutoff`` when both loops were tuned and exported on
+    the eq. (2) route at one rate; otherwise ``{}`` (the loops keep the stated default cutoff). The
+    entries to replace, with the choice stated first in each loop's notes.
+    """
+    from dataclasses import replace
+
+    from ..tune.joint import GYRO_FILTER_PARAM, joint_cutoff_of_analyses
+
+    st = options.stack
+    pair = [loops.get(loop) for loop in ("roll", "pitch")]
+    if st is None or st.stack not in GYRO_FILTER_PARAM or st.gyro_cutoff_hz is not None or options.kind != "PD":
+        return {}
+    entries = [v for v in pair if v is not None and v.route == "eq2" and isinstance(v.analysis, AnalysisResult)
+               and v.gains is not None and v.gains.export is not None and isinstance(v.gains.tune, TuneResult)]
+    rates = {v.gains.tune.rate_hz for v in entries if v.gains is not None}
+    if len(entries) != 2 or len(rates) != 1:
+        return {}
+    name = GYRO_FILTER_PARAM[st.stack]
+    try:
+        joint = joint_cutoff_of_analyses([v.analysis for v in entries if isinstance(v.analysis, AnalysisResult)],
+                                         st.stack, rates.pop(), objective=options.objective, ms_max=options.ms_max)
+    except InputError:  # no cutoff suits both: the loops keep the stated default (their notes say so)
+        return {}
+    out = {}
+    for v, res in zip(entries, joint.results):
+        assert v.gains is not None and isinstance(v.analysis, AnalysisResult)
+        kept = tuple(n for n in v.gains.tune.notes if not n.startswith(name))  # the default cutoff's note
+        res = replace(res, notes=(joint.note(), *kept, *res.notes))
+        try:
+            export = export_design(st.stack, res.get(v.gains.design, "PD").controller, res.model, v.loop,
+                                   f"{v.gains.design} PD", clamp=st.clamp,
+                                   heights=tuple(float(t.h) for t in v.analysis.tests),
+                                   amplitudes=tuple(float(t.amplitude_mean) for t in v.analysis.tests),
+                                   notes=res.notes)
+        except InputError as err:
+            out[v.loop] = replace(v, gains=LoopGains(v.gains.design, "PD", res, export_refused=str(err)))
+            continue
+        out[v.loop] = replace(v, gains=LoopGains(v.gains.design, "PD", res, export=export))
+    return out

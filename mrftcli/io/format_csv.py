@@ -115,7 +115,7 @@ class CsvSource(LogSource):
         time_raw = next((c for c in names if c.strip().lower() in TIME_COLUMNS), None)
         if time_raw is None or len(names) < 2:
             return pd.DataFrame(columns=names)  # the checks below say what is wrong
-        self._lazy = _LazyColumns(self, names, time_raw)
+        self._lazy = _LazyColumns(self.path, self.progress, names, time_raw)
         return self._lazy.read([time_raw])
 
     def _set_columns(self, frame: pd.DataFrame, time_unit: str | None) -> None:
@@ -245,8 +245,11 @@ class _LazyColumns(Mapping[str, pd.Series]):
     block. Listing the topics keeps no column at all (counts and time spans per block).
     """
 
-    def __init__(self, source: CsvSource, names: list[str], time_raw: str) -> None:
-        self.source = source
+    def __init__(self, path: Path, progress: Progress | None, names: list[str], time_raw: str) -> None:
+        # the file and the progress callback, not the source: a reference back to it would make a
+        # cycle that keeps the parsed columns alive after the read, until the garbage collector runs
+        self.path = path
+        self.progress = progress
         self.names = names
         self.time_raw = time_raw
         self.raw = {n.strip(): n for n in names if n != time_raw}
@@ -254,15 +257,15 @@ class _LazyColumns(Mapping[str, pd.Series]):
 
     def _blocks(self, raw_names: list[str], stage: str) -> Iterator[pd.DataFrame]:
         """The columns ``raw_names`` (as in the file) as float64, :data:`_BLOCK_ROWS` rows at a time;
-        progress (bytes read of the file's size) goes to ``source.progress``."""
-        path = self.source.path
+        progress (bytes read of the file's size) goes to ``progress``."""
+        path = self.path
         total = float(path.stat().st_size)
         try:
             with open(path, "rb") as handle:
                 chunks = pd.read_csv(handle, usecols=raw_names, dtype={n: np.float64 for n in raw_names},
                                      chunksize=_BLOCK_ROWS, engine="c")
                 for block in chunks:
-                    report(self.source.progress, float(handle.tell()), total, stage)
+                    report(self.progress, float(handle.tell()), total, stage)
                     yield block
         except (ValueError, pd.errors.ParserError) as err:  # the parser's message names the value or row
             msg = "".join(ch if ch.isprintable() else "?" for ch in one_line(err))[:200]
@@ -289,7 +292,7 @@ class _LazyColumns(Mapping[str, pd.Series]):
         """Lines after the header (an upper bound on the rows), counted once in 16 MB reads."""
         if not hasattr(self, "_lines"):
             lines = 0
-            with open(self.source.path, "rb") as handle:
+            with open(self.path, "rb") as handle:
                 while block := handle.read(16 << 20):
                     lines += block.count(b"\n")
             self._lines = max(lines - 1, 0)

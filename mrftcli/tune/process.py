@@ -52,6 +52,8 @@ _TDC_GRID = np.geomspace(0.02, 0.5, 8)  # derivative times Td_c, in Tu
 _PID_TDC_GRID = np.geomspace(0.03, 0.3, 5)
 _LOAD_PERIODS = 20.0  # horizon of the load step, in Tu (integral action is slow)
 _STEP_PERIODS = 8.0  # horizon of a PD's setpoint step, in Tu
+#: frequency points of the search's constraint checks and of the reported margins (log-spaced)
+_SEARCH_POINTS, _FIGURE_POINTS = 400, 3000
 FloatArray = NDArray[np.float64]
 
 
@@ -318,12 +320,15 @@ def process_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int
 # ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class _Plants:
-    """The nominal discrete plant and every model the constraints hold on, with their responses on ``omega``."""
+    """The nominal discrete plant and every model the constraints hold on, with their responses on the
+    search's grid ``omega`` and on the reported figures' finer grid ``fine_omega`` [rad/s]."""
 
     nominal: DiscreteStateSpace
     all: tuple[DiscreteStateSpace, ...]
     Gd: NDArray[np.complex128]
     omega: FloatArray
+    fine: NDArray[np.complex128]
+    fine_omega: FloatArray
 
 
 def _sign(model: PlantModel) -> float:
@@ -384,10 +389,22 @@ def _stable(ss: DiscreteStateSpace, c: Controller) -> bool:
 
 def _ok(c: Controller, p: _Plants, o: ProcessTuneOptions) -> bool:
     """The constraints on every model: the frequency figures first, the eigenvalues only if they hold."""
-    figures = cascade_margins(c, p.Gd, p.omega)
-    if not all(ms <= o.ms_max and pm >= o.pm_min_deg for pm, _, ms, _ in figures):
+    L = c.feedback_response(p.omega)[None, :] * p.Gd
+    if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
         return False
-    return all(_stable(ss, c) for ss in p.all)
+    figures = cascade_margins(c, p.Gd, p.omega)
+    if not all(pm >= o.pm_min_deg for pm, _, _, _ in figures):
+        return False
+    return _all_stable(p.all, c)
+
+
+def _all_stable(plants: Sequence[DiscreteStateSpace], c: Controller) -> bool:
+    """Every closed loop's spectral radius below 1 (the eigenvalues of same-sized loops in one call)."""
+    by_size: dict[int, list[FloatArray]] = {}
+    for ss in plants:
+        A = closed_loop_matrix(ss, c)[0]
+        by_size.setdefault(A.shape[0], []).append(A)
+    return all(float(np.max(np.abs(np.linalg.eigvals(np.stack(group))))) < 1.0 - 1e-9 for group in by_size.values())
 
 
 def _largest_gain(make: Any, ku: float, p: _Plants, o: ProcessTuneOptions) -> Controller | None:
@@ -448,19 +465,20 @@ def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: ProcessTu
     if best is None:
         return None
     J, c = best
-    nominal = _margins(c, [p.nominal], p.Gd[:1], p.omega)[0]
+    nominal = _margins(c, [p.nominal], p.fine[:1], p.fine_omega)[0]
     worst = None
     if len(p.all) > 1:
-        m = _margins(c, p.all, p.Gd, p.omega)
+        m = _margins(c, p.all, p.fine, p.fine_omega)
         worst = CascadeMargins(min(x.phase_margin_deg for x in m), min(x.gain_margin for x in m),
                                max(x.Ms for x in m), min(x.crossover_hz for x in m), all(x.stable for x in m))
     return ProcessDesign(name, kind, c, nominal, worst, J, "load step" if load else "setpoint step")
 
 
-def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, omega: FloatArray) -> _Plants:
+def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, w_low: float) -> _Plants:
     ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
-    Gd = np.array([sign * discrete_response(m, rate_hz, omega) for m in models])
-    return _Plants(ss[0], ss, Gd, omega)
+    grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
+    Gd, fine = (np.array([sign * discrete_response(m, rate_hz, w) for m in models]) for w in grids)
+    return _Plants(ss[0], ss, Gd, grids[0], fine, grids[1])
 
 
 def _integrating(model: PlantModel) -> bool:
@@ -500,10 +518,10 @@ def tune_process(model: PlantModel, rate_hz: float, *, draws: Sequence[PlantMode
     wu = _ultimate(model, rate_hz, sign)
     tu = 2 * math.pi / wu
     ku = 1.0 / max(float(np.abs(discrete_response(model, rate_hz, np.array([wu])))[0]), 1e-300)
-    omega = np.geomspace(min(1e-3 * wu, 0.1 * rate_hz), 0.999 * math.pi * rate_hz, 700)
-    sets = [("model-based", _plants([model], rate_hz, sign, omega))]
+    w_low = min(1e-3 * wu, 0.1 * rate_hz)
+    sets = [("model-based", _plants([model], rate_hz, sign, w_low))]
     if len(draws) >= 2:
-        sets.append(("robust", _plants([model, *draws], rate_hz, sign, omega)))
+        sets.append(("robust", _plants([model, *draws], rate_hz, sign, w_low)))
     designs = [d for kind in kinds for name, p in sets if (d := _design(name, kind, p, ku, tu, options)) is not None]
     if not designs:
         raise InputError(f"no {'/'.join(kinds)} keeps Ms <= {options.ms_max:g} and a phase margin >= "

@@ -1,0 +1,170 @@
+"""tune on process plants (mrftcli/tune/process.py, cli/process_tune.py).
+
+The oracle of the margins is python-control on the plant's pulse transfer function written here from
+its closed form (the modified z-transform of K e^{-tau s} / (T s + 1) and K e^{-tau s} / s under a
+zero-order hold, the delay d T + eps), sharing no code with the library's discretisation.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import control
+import numpy as np
+import pytest
+
+from mrftcli.analyze.general import GeneralAnalysis, TestSummary
+from mrftcli.errors import InputError
+from mrftcli.mrft.families import FOPDT, IPDT
+from mrftcli.mrft.identify_lti import LtiEstimate, LtiIdentification
+from mrftcli.mrft.relays import RelayLaw
+from mrftcli.tune.process import (ProcessTuneOptions, ProcessTuneResult, discrete_response, process_draws,
+                                  tune_process)
+
+
+def _fopdt_z(K: float, Tc: float, tau: float, T: float) -> control.TransferFunction:
+    """K [(1 - b) z + (b - a)] / (z^{d+1} (z - a)), a = e^{-T/Tc}, b = e^{-(T - eps)/Tc}."""
+    d = int(math.floor(tau / T + 1e-12))
+    eps = tau - d * T
+    a, b = math.exp(-T / Tc), math.exp(-(T - eps) / Tc)
+    den = np.polymul(np.r_[1.0, np.zeros(d + 1)], [1.0, -a])
+    return control.tf([K * (1 - b), K * (b - a)], den, T)
+
+
+def _ipdt_z(K: float, tau: float, T: float) -> control.TransferFunction:
+    """K [(T - eps) z + eps] / (z^{d+1} (z - 1))."""
+    d = int(math.floor(tau / T + 1e-12))
+    eps = tau - d * T
+    return control.tf([K * (T - eps), K * eps], np.polymul(np.r_[1.0, np.zeros(d + 1)], [1.0, -1.0]), T)
+
+
+def _controller_z(c, T: float) -> control.TransferFunction:
+    z = control.tf([1.0, 0.0], [1.0], T)
+    C = c.Kp + c.Ki * T * z / (z - 1) if c.Ki > 0 else control.tf([c.Kp], [1.0], T)
+    if c.Kd > 0:
+        C = C + c.Kd * (z - 1) / ((c.Tf + T) * z - c.Tf)
+    return C
+
+
+def _check_against_control(design, G: control.TransferFunction, sign: float = 1.0) -> None:
+    L = _controller_z(design.controller, G.dt) * G * sign
+    gm, pm, sm, _, _, _ = control.stability_margins(L)
+    assert design.nominal.phase_margin_deg == pytest.approx(pm, abs=1.0)
+    assert design.nominal.gain_margin == pytest.approx(gm, rel=0.02)
+    assert design.nominal.Ms == pytest.approx(1.0 / sm, rel=0.01)
+    poles = control.feedback(L, 1).poles()
+    assert np.max(np.abs(poles)) < 1.0 and design.nominal.stable
+
+
+def test_fopdt_fractional_delay_margins_match_python_control():
+    model = FOPDT(K=2.0, T=1.0, tau=0.33)  # 6.6 ticks at 20 Hz: the fraction matters
+    w = np.geomspace(0.05, 60.0, 50)
+    G = _fopdt_z(2.0, 1.0, 0.33, 0.05)
+    assert np.allclose(discrete_response(model, 20.0, w), G(np.exp(1j * w * 0.05)), rtol=1e-9, atol=1e-12)
+    res = tune_process(model, 20.0, kinds=("PID",))
+    (design,) = res.designs
+    assert design.kind == "PID" and design.controller.Ki > 0 and design.controller.Kd > 0
+    _check_against_control(design, G)
+    assert design.nominal.Ms <= 1.6 + 1e-9 and design.nominal.phase_margin_deg >= 45.0 - 1e-9
+
+
+def test_reverse_acting_integrating_plant_gets_pd_and_pi():
+    model = IPDT(K=-0.5, tau=0.21)
+    res = tune_process(model, 50.0, kinds=("PD", "PI"))
+    assert res.reverse_acting and any("reverse acting" in n for n in res.notes)
+    G = _ipdt_z(-0.5, 0.21, 0.02)
+    for kind in ("PD", "PI"):
+        design = res.get("model-based", kind)
+        _check_against_control(design, G, sign=-1.0)  # the gains act on -e
+
+
+def test_robust_design_holds_on_every_draw_and_round_trips():
+    model = FOPDT(K=2.0, T=1.0, tau=0.3)
+    draws = [model.with_parameters(T=1.3, tau=0.36), model.with_parameters(K=2.4, T=0.8)]
+    res = tune_process(model, 20.0, draws=draws, kinds=("PI",))
+    robust = res.get("robust", "PI")
+    assert robust.worst is not None and robust.worst.Ms <= 1.6 + 1e-9 and robust.worst.stable
+    for m, G in zip(draws, (_fopdt_z(2.0, 1.3, 0.36, 0.05), _fopdt_z(2.4, 0.8, 0.3, 0.05))):
+        L = _controller_z(robust.controller, 0.05) * G
+        assert 1.0 / control.stability_margins(L)[2] <= 1.6 * 1.01
+    back = ProcessTuneResult.from_json(json.loads(json.dumps(res.to_json())))
+    assert back.to_json() == res.to_json()
+    with pytest.raises(InputError, match="schema_version"):
+        ProcessTuneResult.from_json({**res.to_json(), "schema_version": 99})
+    with pytest.raises(InputError):
+        ProcessTuneResult.from_json({"schema_version": 1, "kind": "cascade"})
+    with pytest.raises(InputError, match="ms-max"):
+        ProcessTuneOptions(ms_max=0.9)
+
+
+def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[LtiEstimate]:
+    return [LtiEstimate("K", "output / command", 2.0, 0.1, 1.8, 2.2),
+            LtiEstimate("T", "s", 1.0, std_T, 0.8, hi, determined=determined),
+            LtiEstimate("tau", "s", 0.3, 0.01, 0.28, 0.32)]
+
+
+def test_draws_follow_the_intervals_and_refuse_an_open_one():
+    model = FOPDT(K=2.0, T=1.0, tau=0.3)
+    draws, notes = process_draws(model, _estimates(0.1), 400, seed=1)
+    T = np.array([m.parameters["T"].value for m in draws])
+    assert np.std(np.log(T)) == pytest.approx(0.1, rel=0.15) and not notes
+    draws, notes = process_draws(model, _estimates(math.nan, determined=False), 50)
+    assert notes and all(0.8 <= m.parameters["T"].value <= 1.2 for m in draws)
+    with pytest.raises(InputError, match="analyze --param T=VALUE"):
+        process_draws(model, _estimates(math.nan, determined=False, hi=math.inf), 5)
+
+
+def _result_json(path, rate_hz: float = 20.0, std_T: float = 0.05) -> None:
+    model = FOPDT(K=2.0, T=1.0, tau=0.3)
+    relay = RelayLaw("ideal", 1.0, -1.0)
+    test = TestSummary(0, 2.0, 20.0, relay, 0.83, 0.55, 14, 15, rate_hz, 0.0)
+    estimates = _estimates(std_T) if std_T else [LtiEstimate(e.name, e.unit, e.value, 0.0, e.value, e.value)
+                                                 for e in _estimates(0.0)]
+    ident = LtiIdentification(model, tuple(estimates), (), None)
+    path.write_text(json.dumps(GeneralAnalysis("p.csv", "level", 0.0, (), (test,), (), ident).to_json()))
+
+
+def test_cli_tune_process_result(tmp_path):
+    src = tmp_path / "r.json"
+    _result_json(src, std_T=0.0)  # no spread: the model-based design only (the robust one is tested above)
+    out = subprocess.run([sys.executable, "-m", "mrftcli", "tune", str(src), "--kind", "PI", "--json", "-"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    res = ProcessTuneResult.from_json(data)
+    assert res.rate_hz == 20.0 and any("analysis' tests' rate" in n for n in res.notes)
+    assert data["export"]["design"] == "model-based" and data["export"]["kind"] == "PI"
+    assert any("no robust design" in n for n in res.notes)
+    _check_against_control(res.get("model-based", "PI"), _fopdt_z(2.0, 1.0, 0.3, 0.05))
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--export", "px4"], "UAV flight stack"),
+    (["--design", "mrft-rule"], "mrft-rule"),
+    (["--tp", "0.05"], "--tp: not for a process plant"),
+])
+def test_cli_tune_process_refusals_are_one_line(tmp_path, capsys, extra, message):
+    from mrftcli.cli.main import main
+
+    src = tmp_path / "r.json"
+    _result_json(src)
+    with pytest.raises(SystemExit) as exit_:
+        main(["tune", str(src), *extra])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.strip().count("\n") == 0 and message in err
+
+
+def test_cli_tune_from_parameters_needs_every_one_and_a_rate(capsys):
+    from mrftcli.cli.main import main
+
+    for argv, message in ((["--param", "K=2", "--param", "T=1"], "missing tau"),
+                          (["--param", "K=2", "--param", "T=1", "--param", "tau=0.3"], "--controller-rate"),
+                          (["--kind", "PI", "--td", "1", "--tau", "0.03", "--k", "3", "--tp", "0.04", "--loop", "roll"],
+                           "--kind PI is for process plants")):
+        with pytest.raises(SystemExit) as exit_:
+            main(["tune", *(["--model", "fopdt"] if "--td" not in argv else []), *argv])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and message in err, err

@@ -13,7 +13,7 @@ independent per-tick integration that shares no code with :mod:`mrftcli.mrft.cas
 * noise: attitude 0.03-0.08 deg, position 0.1-0.3 mm (white, per tick);
 * tests as people fly them: the inner loop at beta -0.4 and -0.7 (8 cycles, 5 deg), then the outer
   loop at -0.4 and -0.7 (8 cycles, 8-15 cm), in one flight, written in the HEAR layout (receive-time
-  stamps) with its truth.
+  stamps) with its truth (``--layout reference``: the reference layout, stamped at the source).
 
 Two routes on each flight:
 
@@ -30,7 +30,8 @@ the exact discrete loop of the simulator's plant, inner PD and the designed oute
 the cascade route keeps >= 35 deg on every flight.
 A route that refuses (no usable test, a failed solve, no design) counts as a miss.
 
-Run: ``nice -n 10 python benchmarks/bench_cascade.py [--n 20] [--seed 0]`` (about 20-40 s per flight).
+Run: ``nice -n 10 python benchmarks/bench_cascade.py [--n 20] [--seed 0] [--layout hear-ros|reference]``
+(6-16 s of CPU per flight).
 """
 
 from __future__ import annotations
@@ -134,13 +135,23 @@ def _margin(spec, controller) -> tuple[float, float]:
     return m.phase_margin_deg, m.crossover_rad_s
 
 
-def cascade_route(spec, bag: Path, out: Outcome) -> None:
+def _inner_read(spec, layout: str):
+    """How the inner loop is read: the HEAR layout by its topics, the reference layout's inner MRFT block by name."""
+    from mrftcli.io.flight import ReadOptions
+
+    if layout == "reference":
+        return ReadOptions(loop=spec.inner_loop, command_topic="/mrft/inner/command:data",
+                           beta_topic="/mrft/inner/beta:data")
+    return ReadOptions(loop=spec.inner_loop)
+
+
+def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:
     from mrftcli.analyze import analyze_path
     from mrftcli.analyze.cascade import CascadeOptions, analyze_cascade, inner_draws, inner_gains_of, inner_loop_of
     from mrftcli.io import read_flight
     from mrftcli.io.flight import ReadOptions
 
-    inner_result = analyze_path(bag, spec.inner.Tp, read=ReadOptions(loop=spec.inner_loop))
+    inner_result = analyze_path(bag, spec.inner.Tp, read=_inner_read(spec, layout))
     controller = inner_gains_of({spec.inner_loop: spec.gains.generic()}, spec.inner_loop)
     inner = inner_loop_of(inner_result, controller, spec.inner_loop)
     flight = read_flight(bag, ReadOptions(loop=spec.axis), echo_warnings=False)
@@ -166,7 +177,7 @@ def tune_cascade(analysis):
     return res.get("robust").controller
 
 
-def eq2_route(spec, bag: Path, out: Outcome) -> None:
+def eq2_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:
     from mrftcli.analyze import analyze_path
     from mrftcli.io.flight import ReadOptions
     from mrftcli.tune.analysis import tune_analysis
@@ -180,7 +191,7 @@ def eq2_route(spec, bag: Path, out: Outcome) -> None:
         out.eq2_tune_error = f"{type(err).__name__}: {err}"
 
 
-def run_flight(seed: int, folder: Path) -> Outcome:
+def run_flight(seed: int, folder: Path, layout: str = "hear-ros") -> Outcome:
     from mrftcli.sim.cascade import simulate_cascade
     from mrftcli.sim.cascade_write import write_cascade
 
@@ -188,13 +199,13 @@ def run_flight(seed: int, folder: Path) -> Outcome:
     spec = draw_spec(rng, seed)
     t0 = time.process_time()
     flight = simulate_cascade(spec)
-    bag = folder / f"cascade_{seed}.bag"
-    write_cascade(flight, bag, "hear-ros")
+    bag = folder / (f"cascade_{seed}.bag" if layout == "hear-ros" else f"cascade_{seed}.mcap")
+    write_cascade(flight, bag, layout)
     out = Outcome(seed, {"axis": spec.axis, "commanded": spec.commanded, "Td": spec.Td, "tau": spec.tau,
                          "rate": spec.rate_hz, "inner": spec.inner, "aborted": sum(t.aborted for t in flight.truth.tests)})
     for route, err_field in ((cascade_route, "cascade_error"), (eq2_route, "eq2_error")):
         try:
-            route(spec, bag, out)
+            route(spec, bag, out, layout)
         except Exception as err:  # noqa: BLE001 - a refusal is a miss
             setattr(out, err_field, f"{type(err).__name__}: {err}".splitlines()[0][:200])
             if os.environ.get("BENCH_TRACE"):
@@ -258,6 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=20, help="flights (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="first seed")
+    parser.add_argument("--layout", choices=("hear-ros", "reference"), default="hear-ros",
+                        help="the log layout: HEAR (receive-time stamps, no beta logged; default) or the reference "
+                             "layout (stamped at the source, beta logged)")
     args = parser.parse_args(argv)
     outcomes = []
 
@@ -268,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for seed in range(args.seed, args.seed + args.n):
-                outcomes.append(run_flight(seed, Path(tmp)))
+                outcomes.append(run_flight(seed, Path(tmp), args.layout))
                 o = outcomes[-1]
                 print(f"flight {seed}: cascade Td {o.cascade_Td:.3f} / {o.truth['Td']:.3f} s, tau "
                       f"{o.cascade_tau * 1e3:.1f} / {o.truth['tau'] * 1e3:.1f} ms, PM {o.cascade_pm:.1f} vs eq. (2) "

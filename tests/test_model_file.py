@@ -130,7 +130,7 @@ def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):
 @pytest.mark.parametrize("argv, message", [
     (["analyze", "x.csv", "--model", "fopdt", "--model-file", "m.toml"], "not both"),
     (["tune", "x.json", "--model", "fopdt"], "give a RESULT.json or --model with --param, not both"),
-    (["batch", "x", "--model-file", "m.toml"], "batch supports only --model soiptd"),
+    (["batch", "x", "--model-file", "m.toml"], "--model-file m.toml: cannot read it"),
 ])
 def test_cli_model_refusals_are_one_line(argv, message, capsys):
     from mrftcli.cli.main import main

@@ -44,6 +44,7 @@ from .. import __version__
 from ..io.atomic import atomic_path, write_text_atomic
 from ..vehicle.loops import absent_topics, loops_in_log  # one implementation: batch --loop auto and vehicle
 from .inputs import AUTO_LOOP, BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
+from .process import model_key
 from .summary import (
     STATUS_FAILED,
     STATUS_INSUFFICIENT,
@@ -77,15 +78,17 @@ class BatchFailedError(MrftError):
     exit_code = 8
 
 
-def settings_hash(settings: LogSettings, diagnose: bool, tune: str | None = None, vehicle: bool = False) -> str:
-    """A short hash of everything that changes a log's result (settings, --diagnose, --tune, --vehicle, tool
-    version).
+def settings_hash(settings: LogSettings, diagnose: bool, tune: str | None = None, vehicle: bool = False,
+                  model: str = "") -> str:
+    """A short hash of everything that changes a log's result (settings, --diagnose, --tune, --vehicle, the
+    process model's JSON ``model`` (:func:`mrftcli.batch.process.model_key`), tool version).
 
     The vehicle name is left out: it only labels the summary row, so renaming does not recompute.
     """
     relevant = {k: v for k, v in settings.to_dict().items() if k != "vehicle"}
     # untuned batches keep their earlier hashes; a vehicle record is another result than the loops' analyses
-    extra = {**({"tune": tune} if tune else {}), **({"vehicle_record": True} if vehicle else {})}
+    extra = {**({"tune": tune} if tune else {}), **({"vehicle_record": True} if vehicle else {}),
+             **({"model": model} if model else {})}
     blob = json.dumps(
         {"settings": relevant, "diagnose": bool(diagnose), "version": __version__, "record": _RECORD_VERSION,
          **extra},
@@ -112,6 +115,9 @@ class LogTask:
     tune: str | None = None
     #: Identify and tune the whole vehicle (mrftcli.vehicle): the record holds its vehicle record.
     vehicle: bool = False
+    #: A process model (PlantModel, ``--model NAME``/``--model-file``): each loop analysed with it
+    #: (:mod:`mrftcli.batch.process`); None: eq. (2).
+    model: Any = None
 
 
 def _now_iso() -> str:
@@ -169,6 +175,11 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     entry: dict[str, Any] = {"loop": loop, "status": STATUS_OK, "error": None, "error_type": None,
                              "exit_code": 0, "result": None, "diagnosis": None}
     try:
+        if task.model is not None:
+            from .process import analyze_process_loop
+
+            entry["result"] = analyze_process_loop(task.path, loop, s, task.model)
+            return entry
         if s.tp is None:
             raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
         if s.command_topic is None and s.output_topic is None:
@@ -499,11 +510,15 @@ class BatchOptions:
         Identify and tune every loop of each log as ``mrft-ident vehicle`` (:mod:`mrftcli.batch.vehicle`):
         each log's record holds its vehicle record, the summary one row per loop (``tune`` sets the
         controller kind).
+    model : PlantModel, optional
+        A process model (``--model NAME``, ``--model-file``): each loop is analysed with it
+        (:mod:`mrftcli.batch.process`, no Tp needed); its record is the process analysis and the
+        summary adds the model and its parameters with units. Not with ``diagnose``, ``tune``, ``vehicle``.
 
     Raises
     ------
     InputError
-        ``jobs`` below 1, a non-positive scheduler timeout.
+        ``jobs`` below 1, a non-positive scheduler timeout, a model with diagnose, tune or vehicle.
 
     Examples
     --------
@@ -519,8 +534,15 @@ class BatchOptions:
     force: bool = False
     report: bool = True
     vehicle: bool = False
+    model: Any = None
 
     def __post_init__(self) -> None:
+        if self.model is not None:
+            used = [n for n, v in (("--diagnose", self.diagnose), ("--tune", self.tune), ("--vehicle", self.vehicle))
+                    if v]
+            if used:
+                raise InputError(f"{', '.join(used)}: not with --model (batch --model analyses each log's process "
+                                 "model; diagnose, tune and vehicle work on eq. (2) loops)")
         if self.jobs is not None and self.jobs < 1:
             raise InputError(f"--jobs must be at least 1, got {self.jobs}")
         object.__setattr__(self, "scheduler_timeout_s",
@@ -569,8 +591,9 @@ def run_batch(
     out = Path(out_dir)
     logs = discover_logs(paths, exclude=[out])
     base = {"tp": None, "loops": (AUTO_LOOP,)} | dict(defaults or {})
-    tasks = [_task(log, base, config, explicit or {}, opts.diagnose, opts.tune, opts.vehicle) for log in logs]
-    if all(t.settings.tp is None for t in tasks):
+    tasks = [_task(log, base, config, explicit or {}, opts.diagnose, opts.tune, opts.vehicle, opts.model)
+             for log in logs]
+    if opts.model is None and all(t.settings.tp is None for t in tasks):
         raise InputError("no Tp given: pass --tp SECONDS or a config file that sets tp for the logs")
     _check_out_dir(out)
     rows, todo = _cached_rows(tasks, out, opts.force)
@@ -598,14 +621,16 @@ def run_batch(
 
 
 def _task(log: Path, base: Mapping[str, Any], config: BatchConfig | None, explicit: Mapping[str, Any],
-          diagnose: bool, tune: str | None, vehicle: bool = False) -> LogTask:
+          diagnose: bool, tune: str | None, vehicle: bool = False, model: Any = None) -> LogTask:
     """One log's unit of work with its resolved settings."""
     settings, _ = resolve_settings(log, base, config, explicit)
     try:
         mtime = log_mtime(log)
     except OSError:  # vanished or unreadable since discovery: the worker reports it as that log's failure
         mtime = math.inf
-    return LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune, vehicle), mtime, tune, vehicle)
+    key = "" if model is None else model_key(model)
+    return LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune, vehicle, key), mtime, tune,
+                   vehicle, model)
 
 
 def _cached_rows(tasks: Sequence[LogTask], out: Path, force: bool) -> tuple[list[dict[str, Any]], list[LogTask]]:

@@ -19,6 +19,7 @@ import pandas as pd
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from .process import PROCESS_COLUMNS, process_columns
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
            "SUMMARY_COLUMNS",
@@ -137,8 +138,30 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             "result_json": json_path.relative_to(json_path.parent.parent).as_posix() if json_path is not None else None,
             "settings_hash": record.get("settings_hash"),
             **({k: (entry.get("tune") or {}).get(k) for k in TUNE_COLUMNS} if "tune" in entry else {}),
+            **(process_columns(entry.get("result") if entry.get("status") == STATUS_OK else None)
+               if _is_process(entry) else {}),
         })
     return rows
+
+
+def _is_process(entry: Mapping[str, Any]) -> bool:
+    """A loop analysed with ``batch --model`` (its result is a process analysis: ``model`` names a family)."""
+    result = entry.get("result")
+    return isinstance(result, Mapping) and isinstance(result.get("model"), str) and result.get("model") != "soiptd"
+
+
+def _process_frame(rows: list[dict[str, Any]], index: pd.Index) -> pd.DataFrame:
+    """PROCESS_COLUMNS, then each parameter's ``p_NAME``, ``p_NAME_std`` (float) and ``p_NAME_unit``, in the
+    order the rows name them."""
+    names: list[str] = []
+    for r in rows:
+        names += [k for k in r if k.startswith("p_") and k not in names]
+    columns = PROCESS_COLUMNS + names
+    frame = pd.DataFrame([{k: r.get(k) for k in columns} for r in rows], index=index, columns=columns)
+    for col in columns:
+        text = col in PROCESS_COLUMNS or col.endswith("_unit")
+        frame[col] = frame[col].astype("string" if text else float)
+    return frame
 
 
 def _with_findings(effects: list) -> dict[str, float | None]:
@@ -258,6 +281,8 @@ def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     for col in ("log_time", "log_mtime", "analysed_at"):
         df[col] = pd.to_datetime(df[col], utc=True)
     df = flag_outliers(df)
+    if any("model" in r for r in rows):  # batch --model: the process model and its parameters with units
+        return pd.concat([df[SUMMARY_COLUMNS], _process_frame(rows, df.index)], axis=1)
     if any("tune_Kp" in r for r in rows):
         tuned = pd.DataFrame([{k: r.get(k) for k in TUNE_COLUMNS} for r in rows], index=df.index, columns=TUNE_COLUMNS)
         for col in TUNE_COLUMNS:

@@ -9,7 +9,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
-from .model_options import unsupported_model_option
+from .model_options import build_model, structure_options
 from .options import json_option, log_layout_options, quiet_option, tp_option
 
 __all__ = ["batch"]
@@ -38,7 +38,44 @@ def _fmt(x: float) -> str:
     return "" if not math.isfinite(x) else f"{x:.4g}"
 
 
+def _process_model(ctx: click.Context, setting_opts: dict[str, Any]) -> Any:
+    """``--model``/``--model-file`` with ``--param``/``--range``: the process model (None: eq. (2)); the options
+    are taken out of ``setting_opts``."""
+    name, params, ranges = (setting_opts.pop(k) for k in ("model_name", "params", "ranges"))
+    if name == "soiptd":
+        if params or ranges:
+            raise click.UsageError("--param/--range are for a process model: give --model NAME or --model-file FILE")
+        return None
+    if setting_opts.get("tp") is not None and ctx.get_parameter_source("tp") is ParameterSource.COMMANDLINE:
+        raise click.UsageError("--tp is eq. (2)'s propulsion time constant: with --model give the known parameters "
+                               "with --param NAME=VALUE")
+    return build_model(name, params, ranges)
+
+
+def _print_process_table(df, limit: int = 50) -> None:
+    """The process rows: log, loop, status, model and its parameters with units (value ± std unit)."""
+    shown = df if len(df) <= limit else df[(df["result_status"] != "ok") | df["outlier"]]
+    if len(shown) < len(df):
+        click.echo(f"({len(df) - len(shown)} ok rows not shown; see summary.csv)")
+    header = f"{'log':<36} {'loop':<9} {'status':<16} {'model':<8} parameters (value ± std unit) / note"
+    click.echo(header)
+    click.echo("-" * len(header))
+    for _, r in shown.iterrows():
+        name = Path(str(r["path"])).name
+        name = name if len(name) <= 36 else "..." + name[-33:]
+        text = r["parameters"] if isinstance(r["parameters"], str) else ""
+        if r["result_status"] != "ok" and isinstance(r["error"], str):
+            text = r["error"]
+        if r["outlier"]:
+            text = f"OUTLIER {r['outlier_reason']} {text}".strip()
+        model = r["model"] if isinstance(r["model"], str) else ""
+        click.echo(f"{name:<36} {r['loop']:<9} {r['status']:<16} {model:<8} {text}".rstrip())
+
+
 def _print_table(df, limit: int = 50) -> None:
+    if "parameters" in df:
+        _print_process_table(df, limit)
+        return
     shown = df if len(df) <= limit else df[(df["result_status"] != "ok") | df["outlier"]]
     if len(shown) < len(df):
         click.echo(f"({len(df) - len(shown)} ok rows not shown; see summary.csv)")
@@ -60,7 +97,7 @@ def _print_table(df, limit: int = 50) -> None:
 
 
 @click.command("batch")
-@unsupported_model_option("batch", "run analyze --model NAME (or --model-file FILE) per log; batch analyses eq. (2) loops")
+@structure_options
 @click.argument("paths", nargs=-1, required=True, metavar="PATH...")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=None,
               help="Local worker processes (default: the number of cores); 1 runs in this process.")
@@ -108,6 +145,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     from ..batch.run import BatchFailedError, BatchOptions, run_batch
     from .options import dump_json, tqdm_progress
 
+    model = _process_model(ctx, setting_opts)
     defaults: dict[str, Any] = {}
     explicit: dict[str, Any] = {}
     for opt, key in _SETTING_OPTIONS.items():
@@ -134,7 +172,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     with tqdm_progress("batch", unit="log", enabled=not quiet) as progress:
         options = BatchOptions(diagnose=diagnose, tune=tune_kind, jobs=jobs, scheduler=scheduler,
                                scheduler_timeout_s=scheduler_timeout, force=force, report=not no_report,
-                               vehicle=vehicle)
+                               vehicle=vehicle, model=model)
         result = run_batch(paths, out_dir, options=options, defaults=defaults, config=config, explicit=explicit,
                            progress=progress)
     df = result.summary

@@ -276,11 +276,11 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
 
 
 @click.command("simulate")
-@tp_option("tp", required=False, help="Propulsion time constant Tp [s] (required without --cascade).")
-@click.option("--td", type=float, default=None, help="Drag time constant Td [s] (with --cascade: the outer Td of "
-              "y'' = g roll - y'/Td). Required.")
-@click.option("--tau", type=float, default=None, help="Transport delay tau [s] (with --cascade: the position "
-              "measurement delay). Required.")
+@tp_option("tp", required=False, help="Propulsion time constant Tp [s] (eq. (2); not with --cascade or a process --model).")
+@click.option("--td", type=float, default=None, help="Drag time constant Td [s] (eq. (2); with --cascade: the "
+              "outer Td of y'' = g roll - y'/Td).")
+@click.option("--tau", type=float, default=None, help="Transport delay tau [s] (eq. (2); with --cascade: the "
+              "position measurement delay).")
 @click.option("--k", "k", type=float, default=1.0, show_default=True, help="Gain K (K*Td: command -> output rate).")
 @click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True, help="Loop to simulate.")
 @click.option(
@@ -364,7 +364,7 @@ def simulate(
 
     With --cascade x|y: a cascaded flight, the outer position loop through the inner attitude loop
     (closed by a sampled PD), the inner loop's tests first; written in the HEAR layout (.bag) or the
-    reference layout.
+    reference layout. With --model fopdt|sopdt|ipdt|foipdt and --param NAME=VALUE: a process plant.
 
     Example: mrft-ident simulate --tp 0.0422 --td 2.669 --tau 0.0464 --k 19.6 --test -0.4 --test -0.7
     --out alt.mcap

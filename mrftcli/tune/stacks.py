@@ -19,8 +19,10 @@ PD on the loop's output onto its parameters and back (:func:`export_design`), an
 * **ArduPilot** roll/pitch: ``ATC_ANG_RLL_P`` feeding the ``ATC_RAT_RLL_*`` PID (rad/s error ->
   motor output), the same mapping as PX4's; the gyro goes through ``INS_GYRO_FILTER`` (2nd-order
   Butterworth, ``LowPassFilter2p``). ``ATC_RAT_RLL_I`` >= 0.01 is documented: set at that minimum,
-  the margins recomputed with it. ArduPilot's altitude (``PSC_ACCZ_*``) closes a loop on the
-  measured acceleration, which a PD on the altitude does not contain: refused.
+  the margins recomputed with it. ArduPilot's altitude cascade is refused with
+  :data:`ARDUPILOT_ALTITUDE_REFUSAL`: ``PSC_ACCZ_*`` closes its innermost loop on the IMU's vertical
+  acceleration, whose delay (the actuator's part of the identified tau, which also holds the altitude
+  sensor's) the model does not give; its ranges are vendored (:mod:`mrftcli.tune.stack_params`).
 * **HEAR** (HEAR_FC): the PID of ``PID_param.msg`` computes u += kd PV_DOT and HEAR_FC feeds PV_DOT
   through a Gain(-1) block, i.e. PV_DOT = -(filtered rate); the rate is filtered by HEAR_FC's own
   2nd-order Butterworth (50 Hz at 200 Hz), which the design uses.
@@ -44,7 +46,7 @@ from .closed_loop import Controller, RateFilter
 from .margins import Margins, loop_margins
 from .stack_params import PX4_GYRO_RATES_HZ, check_ranges, param
 
-__all__ = ["EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
+__all__ = ["EXPORTS", "ARDUPILOT_ALTITUDE_REFUSAL", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -55,6 +57,15 @@ STANDARD_GRAVITY = 9.80665
 HEAR_FILTER_HZ, HEAR_RATE_HZ = 50.0, 200.0
 #: Version of :meth:`StackExport.to_json`'s object.
 EXPORT_SCHEMA_VERSION = 1
+#: Why ArduPilot's altitude cascade is not exported (AC_PosControl.cpp ``update_z_controller``): its inner loop
+#: feeds back a signal the identified model does not give with its own delay.
+ARDUPILOT_ALTITUDE_REFUSAL = (
+    "cannot export the altitude loop to ArduPilot: PSC_ACCZ_P/I/D close the innermost loop on the IMU's earth-frame "
+    "vertical acceleration (AC_PosControl.cpp get_z_accel_cmss, through INS_ACCEL_FILTER) and PSC_VELZ_* on the EKF's "
+    "vertical velocity, but the identified model (thrust -> measured altitude) has one delay tau lumping the "
+    "actuator and the altitude sensor: the delay of the thrust -> accelerometer path and the EKF velocity's lag are "
+    "not identified (identify the acceleration loop, an MRFT on the measured vertical acceleration, to design it); "
+    "roll and pitch export, and PX4's altitude (--export px4 --hover-thrust X)")
 #: Integral gains a PD leaves at 0 but the stack requires above a minimum: set to it (not a refusal).
 _STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RLL_I", "ATC_RAT_PIT_I"}
 _AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
@@ -68,8 +79,7 @@ def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | Non
         raise InputError(f"cannot export a PID to {stack}: its rate-loop (velocity-loop) I acts on the measured "
                          "rate, not on the error of a parallel PID; export the PD (--kind PD)")
     if stack == "ardupilot" and loop == "altitude":
-        raise InputError("cannot export the altitude loop to ArduPilot: its altitude cascade (PSC_ACCZ_*) feeds back "
-                         "the measured acceleration, which the identified PD does not contain; roll and pitch export")
+        raise InputError(ARDUPILOT_ALTITUDE_REFUSAL)
     if stack == "ardupilot" and loop not in ("roll", "pitch"):
         raise InputError(f"cannot export the {loop} loop to ArduPilot: only roll and pitch map onto its angle-P / "
                          "rate-PID cascade")

@@ -1,0 +1,71 @@
+"""batch --model NAME: each log analysed as a process plant (mrftcli/batch/process.py).
+
+The logs are relay tests simulated by tests/process_sim.py (independent of mrftcli); the truth is
+the simulated plant's parameters.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+sys.path.insert(0, os.path.dirname(__file__))
+from process_sim import Window, simulate, write_csv  # noqa: E402
+
+from mrftcli.batch import BatchOptions, run_batch  # noqa: E402
+from mrftcli.errors import InputError  # noqa: E402
+from mrftcli.mrft.families import family_model  # noqa: E402
+
+_TRUTH = {"a.csv": dict(K=2.0, T=1.0, tau=0.3), "b.csv": dict(K=1.5, T=0.8, tau=0.25)}
+_READ = {"command_topic": "u_relay", "output_topic": "y_output"}
+
+
+def _fleet(folder, names=("a.csv", "b.csv")):
+    folder.mkdir(exist_ok=True)
+    for i, name in enumerate(names):
+        windows = [Window("hysteresis", 1.0, -1.0, eps=e, duration=20.0) for e in (0.05, 0.3)]
+        t, u, y = simulate("fopdt", _TRUTH[name], windows, 20.0, 0.01, seed=i)
+        write_csv(str(folder / name), t, u, y)
+    return folder
+
+
+def test_batch_fopdt_rows_hold_the_parameters_with_units(tmp_path):
+    logs = _fleet(tmp_path / "logs")
+    options = BatchOptions(jobs=1, report=False, model=family_model("fopdt"))
+    res = run_batch([logs], tmp_path / "out", options=options, explicit=_READ)
+    df = res.summary
+    assert list(df["status"]) == ["ok", "ok"] and list(df["model"]) == ["fopdt", "fopdt"]
+    for _, row in df.iterrows():
+        truth = _TRUTH[os.path.basename(str(row["path"]))]
+        for name, value in truth.items():
+            assert row[f"p_{name}"] == pytest.approx(value, rel=0.1)
+        assert row["p_T_unit"] == "s" and row["p_tau_unit"] == "s" and row["p_K_unit"] == "output / command"
+        assert " s" in row["parameters"] and "output / command" in row["parameters"]
+        assert row["tau_mean"] == row["p_tau"]  # the fleet's tau flags see the delay
+    record = json.loads((tmp_path / "out" / str(df["result_json"].iloc[0])).read_text())
+    assert record["loops"][0]["result"]["model"] == "fopdt"  # the process analysis record
+    again = run_batch([logs], tmp_path / "out", options=options, explicit=_READ)
+    assert set(again.summary["status"]) == {"skipped-uptodate"}
+    known = BatchOptions(jobs=1, report=False, model=family_model("fopdt", known={"tau": 0.3}))
+    other = run_batch([logs], tmp_path / "out", options=known, explicit=_READ)
+    assert set(other.summary["status"]) == {"ok"}  # another model is another result: recomputed
+
+
+def test_batch_model_refuses_eq2_extras():
+    with pytest.raises(InputError, match="--diagnose, --tune: not with --model"):
+        BatchOptions(diagnose=True, tune="PD", model=family_model("ipdt"))
+
+
+def test_cli_batch_model(tmp_path):
+    logs = _fleet(tmp_path / "logs", names=("a.csv",))
+    out = subprocess.run([sys.executable, "-m", "mrftcli", "batch", str(logs), "--model", "fopdt", "--command-topic",
+                          "u_relay", "--output-topic", "y_output", "--out", str(tmp_path / "out"), "--jobs", "1",
+                          "--no-report", "-q"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "parameters (value ± std unit)" in out.stdout
+    line = next(ln for ln in out.stdout.splitlines() if ln.startswith("a.csv"))
+    assert "fopdt" in line and "tau 0.3" in line and " s" in line and "output / command" in line

@@ -124,10 +124,11 @@ def tune_axes(req: AxesRequest) -> None:
     setting = stack_setting(stack, "roll", req.rate_hz, rate_source, req.cutoff_hz)
     rate, name = setting.rate_hz, GYRO_FILTER_PARAM[stack]
     joint = None
-    with tqdm_progress("tune", unit="step", enabled=not req.quiet) as progress:
+    with tqdm_progress("tune", unit="cutoff", enabled=not req.quiet) as progress:
         progress(0, 1, "designing roll and pitch with one gyro cutoff")
         if req.auto:
-            joint = joint_gyro_cutoff(axes, stack, rate, objective=req.objective, ms_max=req.ms_max)
+            joint = joint_gyro_cutoff(axes, stack, rate, objective=req.objective, ms_max=req.ms_max,
+                                      progress=progress)
             results, said = joint.results, joint.note()
         else:
             assert req.cutoff_hz is not None

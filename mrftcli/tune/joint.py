@@ -34,6 +34,7 @@ from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..mrft.model import LoopModel
+from ..progress import Progress, report
 from .closed_loop import RateFilter
 from .design import Posterior, TuneResult, tune
 from .stacks import StackExport, export_design
@@ -208,7 +209,7 @@ def _check_axes(axes: Sequence[AxisModel], stack: str) -> None:
 
 def joint_gyro_cutoff(axes: Sequence[AxisModel], stack: str, rate_hz: float, *, objective: str = "iae",
                       ms_max: float = 1.6, max_loss: float = JOINT_MAX_LOSS,
-                      candidates: Sequence[float] = JOINT_CUTOFFS_HZ) -> JointCutoff:
+                      candidates: Sequence[float] = JOINT_CUTOFFS_HZ, progress: Progress | None = None) -> JointCutoff:
     """The stack's one gyro cutoff for roll and pitch, chosen from both axes (criterion: module docstring).
 
     Parameters
@@ -226,6 +227,8 @@ def joint_gyro_cutoff(axes: Sequence[AxisModel], stack: str, rate_hz: float, *, 
     candidates : sequence of float
         Cutoffs to choose from [Hz]; those at or above half ``rate_hz`` (where the filter is bypassed)
         are left out.
+    progress : Progress, optional
+        Called as ``progress(done, total, stage)`` per cutoff tried (total: the most it may try).
 
     Returns
     -------
@@ -245,16 +248,19 @@ def joint_gyro_cutoff(axes: Sequence[AxisModel], stack: str, rate_hz: float, *, 
     if not cands:
         raise InputError(f"no candidate gyro cutoff below half the rate ({rate_hz / 2:g} Hz)")
     name = GYRO_FILTER_PARAM[stack]
+    report(progress, 0, len(cands) + 1, f"{name} off (the reference)")
     ref_results = design_axes(axes, rate_hz, RateFilter(0.0, name), objective=objective, ms_max=ms_max)
     reference = _trial(0.0, ref_results, None, max_loss)
     trials: list[CutoffTrial] = []
     chosen: tuple[float, tuple[TuneResult, ...]] | None = None
-    for f in cands:
+    for i, f in enumerate(cands):
+        report(progress, i + 1, len(cands) + 1, f"{name} {f:g} Hz")
         results = design_axes(axes, rate_hz, RateFilter(f, name), objective=objective, ms_max=ms_max)
         trials.append(_trial(f, results, reference, max_loss))
         if not trials[-1].passed:
             break
         chosen = (f, results)
+    report(progress, len(cands) + 1, len(cands) + 1, "done")
     if chosen is None:
         raise InputError(_why_none(trials[0], reference, [a.loop for a in axes], name, max_loss, ms_max))
     return JointCutoff(stack, name, chosen[0], rate_hz, tuple(a.loop for a in axes), max_loss, reference,

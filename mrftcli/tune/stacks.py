@@ -144,7 +144,8 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
     cutoff = default if gyro_cutoff_hz is None else gyro_cutoff_hz
     said = (f"{name} = {cutoff:g} Hz" + (f" ({stack}'s default; --gyro-cutoff to change)" if gyro_cutoff_hz is None
                                          else " (--gyro-cutoff)")
-            + ": one 2nd-order Butterworth on all three axes, so roll and pitch must be tuned with the same value")
+            + ": one 2nd-order Butterworth on all three axes, so roll and pitch must be tuned with the same value "
+              "(tune ROLL.json PITCH.json designs both with one cutoff)")
     if stack == "px4":
         rate, rate_note = _px4_rate(rate_given, rate_source)
     else:

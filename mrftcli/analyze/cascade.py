@@ -62,6 +62,9 @@ class CascadeOptions:
         Seed of the draws.
     Td_bounds, tau_bounds : (float, float)
         The set I of the outer Td [s] and tau [s].
+    inner_source, gains_source : str
+        Where the inner model and the inner gains came from, as the assumptions state it (the options
+        of ``analyze``; ``vehicle`` names its own sources).
     """
 
     commanded: str = "acceleration"
@@ -70,6 +73,8 @@ class CascadeOptions:
     seed: int = 0
     Td_bounds: tuple[float, float] = (0.05, 50.0)
     tau_bounds: tuple[float, float] = (0.0, 0.5)
+    inner_source: str = "--inner-model"
+    gains_source: str = "--inner-gains"
 
     def __post_init__(self) -> None:
         if self.commanded not in OUTER_COMMANDS:
@@ -350,8 +355,8 @@ def _assumptions(options: CascadeOptions, inner: InnerLoop, rate: float, ident: 
     p = inner.plant.parameters
     plant = ", ".join(f"{n} {q.value:.4g}{' ' + q.unit if q.unit == 's' else ''}" for n, q in p.items())
     out = [what,
-           f"inner loop {inner.loop}: {inner.plant.family} {plant} (--inner-model), flown by Kp {c.Kp:.4g}, "
-           f"Ki {c.Ki:.4g}, Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz (--inner-gains)",
+           f"inner loop {inner.loop}: {inner.plant.family} {plant} ({options.inner_source}), flown by Kp {c.Kp:.4g}, "
+           f"Ki {c.Ki:.4g}, Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz ({options.gains_source})",
            f"outer relay at {rate:g} Hz"]
     if ident.inner_draws:
         out.append(f"the inner model's uncertainty: {ident.inner_draws} draws solved and added to the intervals")

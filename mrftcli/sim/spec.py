@@ -124,6 +124,8 @@ class Effects:
 class TestSpec:
     """One MRFT test: beta in (-1, 1), relay height h [command units], duration of the relay [s]."""
 
+    __test__ = False  # not a pytest test class, although its name starts with "Test"
+
     beta: float
     h: float
     duration: float = 12.0

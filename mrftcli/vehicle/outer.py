@@ -63,7 +63,9 @@ def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: InnerContro
     assert isinstance(inner.analysis, AnalysisResult)  # an inner loop is identified with eq. (2)
     loop = inner_loop_of(inner.analysis, controller, inner.loop)
     copts = CascadeOptions(commanded=options.commanded, min_stable_cycles=options.min_stable_cycles,
-                           n_draws=options.inner_draws)
+                           n_draws=options.inner_draws,
+                           inner_source=f"identified from the {inner.loop} tests of this flight",
+                           gains_source="--inner-gains")
     return analyze_cascade(flight, loop, options=copts,
                            draws=inner_draws(inner.analysis, loop, copts.n_draws, copts.seed),
                            assumptions=(f"inner model: the {inner.loop} loop identified in this flight",))

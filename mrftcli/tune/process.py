@@ -534,7 +534,7 @@ def tune_process(model: PlantModel, rate_hz: float, *, draws: Sequence[PlantMode
         notes.append(f"robust: the constraints held on the nominal model and {len(draws)} draws over the "
                      "identification's intervals")
     else:
-        notes.append("no robust design: the record gives no spread to draw from")
+        notes.append("no robust design: the source gives the parameters without a spread to draw from")
     if sign < 0:
         notes.append("the plant's gain is negative: reverse acting, the controller acts on -e (gains shown positive)")
     if not integrating and "PD" not in kinds:

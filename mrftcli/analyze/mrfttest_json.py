@@ -87,4 +87,5 @@ def mrft_test_from_json(d: Mapping[str, Any]) -> MrftTest:
         notes=tuple(str(n) for n in d.get("notes") or ()),
         validity=_validity(validity) if isinstance(validity, Mapping) else None,
         controller_rate_hz=json_opt_float(d.get("controller_rate_hz")),
+        switch_timing=str(d["switch_timing"]) if d.get("switch_timing") is not None else None,
     )

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -407,7 +407,7 @@ def _all_stable(plants: Sequence[DiscreteStateSpace], c: Controller) -> bool:
     return all(float(np.max(np.abs(np.linalg.eigvals(np.stack(group))))) < 1.0 - 1e-9 for group in by_size.values())
 
 
-def _largest_gain(make: Any, ku: float, p: _Plants, o: ProcessTuneOptions) -> Controller | None:
+def _largest_gain(make: Callable[[float], Controller], ku: float, p: _Plants, o: ProcessTuneOptions) -> Controller | None:
     """The largest Kp in [1e-4, 10] x the ultimate gain meeting the constraints.
 
     A coarse scan from the top finds the largest feasible grid gain (on an integrating plant a PI is
@@ -431,9 +431,9 @@ def _largest_gain(make: Any, ku: float, p: _Plants, o: ProcessTuneOptions) -> Co
     return make(lo)
 
 
-def _candidates(kind: str, tu: float, rate_hz: float) -> list[Any]:
+def _candidates(kind: str, tu: float, rate_hz: float) -> list[Callable[[float], Controller]]:
     """Controller makers ``Kp -> Controller`` over the kind's grid of (Ti, Td_c)."""
-    def maker(ti: float | None, tdc: float) -> Any:
+    def maker(ti: float | None, tdc: float) -> Callable[[float], Controller]:
         def make(kp: float) -> Controller:
             return Controller(kp, 0.0 if ti is None else kp / ti, kp * tdc, tdc / FILTER_N, rate_hz)
         return make

@@ -145,6 +145,7 @@ def test_cli_tune_process_result(tmp_path):
     (["--export", "px4"], "UAV flight stack"),
     (["--design", "mrft-rule"], "mrft-rule"),
     (["--tp", "0.05"], "--tp: not for a process plant"),
+    (["--export", "generic", "--json", "-"], "both go to stdout"),
 ])
 def test_cli_tune_process_refusals_are_one_line(tmp_path, capsys, extra, message):
     from mrftcli.cli.main import main

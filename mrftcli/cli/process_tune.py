@@ -116,6 +116,8 @@ def _check(req: ProcessTuneRequest) -> None:
                          "model-based and robust designs")
     if req.out and req.export is None:
         raise InputError("--out needs --export generic")
+    if req.export == "generic" and not req.out and req.json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
     check_output_file(req.json_target, "--json")
 
 

@@ -60,6 +60,34 @@ FloatArray = NDArray[np.float64]
 # ----------------------------------------------------------------------------------------------
 # the exact discrete plant
 # ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class _HeldDelay:
+    """x_{k+1} = Phi x_k + G_old u_{k-d-1} + G_new u_{k-d}, y_k = C x_k: the plant at one rate with tau = d T + eps."""
+
+    Phi: FloatArray
+    G_old: FloatArray
+    G_new: FloatArray
+    C: FloatArray
+    d: int
+
+
+def _held_delay(model: PlantModel, rate_hz: float) -> _HeldDelay:
+    """The modified z-transform of the realisation: over a tick the plant sees u_{k-d-1} for eps seconds, then u_{k-d}."""
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
+    ss = model.realisation()
+    if abs(ss.D) > 0:
+        raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
+                         "tune designs for strictly proper plants")
+    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
+    T = 1.0 / rate_hz
+    d = int(math.floor(model.delay / T + 1e-12))
+    eps = max(model.delay - d * T, 0.0)
+    Phi, _ = phi_gamma_small(A, B, T)
+    rest, G_new = phi_gamma_small(A, B, T - eps)
+    return _HeldDelay(Phi, rest @ phi_gamma_small(A, B, eps)[1], G_new, C, d)
+
+
 def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
     """The exact ZOH equivalent of ``model`` with its delay at ``rate_hz`` [Hz].
 
@@ -72,52 +100,34 @@ def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
     InputError
         A plant with direct feedthrough (D != 0: not a relay-test plant), or a bad rate.
     """
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
-    ss = model.realisation()
-    if abs(ss.D) > 0:
-        raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
-                         "tune designs for strictly proper plants")
-    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
-    T = 1.0 / rate_hz
-    d = int(math.floor(model.delay / T + 1e-12))
-    eps = max(model.delay - d * T, 0.0)
-    Phi, _ = phi_gamma_small(A, B, T)
-    Pr, G_new = phi_gamma_small(A, B, T - eps)
-    G_old = Pr @ phi_gamma_small(A, B, eps)[1]
-    n = A.shape[0]
+    h = _held_delay(model, rate_hz)
+    n, d = h.Phi.shape[0], h.d
     N = n + d + 1
     Ad = np.zeros((N, N))
     Bd = np.zeros(N)
-    Ad[:n, :n] = Phi
-    Ad[:n, n + d] = G_old  # u_{k-d-1}
+    Ad[:n, :n] = h.Phi
+    Ad[:n, n + d] = h.G_old  # u_{k-d-1}
     if d == 0:
-        Bd[:n] = G_new  # u_k itself
+        Bd[:n] = h.G_new  # u_k itself
     else:
-        Ad[:n, n + d - 1] = G_new  # u_{k-d}
+        Ad[:n, n + d - 1] = h.G_new  # u_{k-d}
     Bd[n] = 1.0  # the buffer: u_k becomes u_{(k+1)-1}
     for j in range(1, d + 1):
         Ad[n + j, n + j - 1] = 1.0
     Cd = np.zeros(N)
-    Cd[:n] = C
+    Cd[:n] = h.C
     return DiscreteStateSpace(Ad, Bd, Cd, rate_hz)
 
 
 def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[np.complex128]:
-    """G_d(e^{j omega T}) of :func:`discretise` without the delay buffer's states (fast on long delays)."""
-    ss = model.realisation()
-    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
-    T = 1.0 / rate_hz
-    d = int(math.floor(model.delay / T + 1e-12))
-    eps = max(model.delay - d * T, 0.0)
-    Phi, _ = phi_gamma_small(A, B, T)
-    Pr, G_new = phi_gamma_small(A, B, T - eps)
-    G_old = Pr @ phi_gamma_small(A, B, eps)[1]
+    """G_d(e^{j omega T}) of :func:`discretise` [output / command], ``omega`` in rad/s, without the delay
+    buffer's states: C (zI - Phi)^-1 (G_new + G_old / z) z^-d (fast on long delays)."""
+    h = _held_delay(model, rate_hz)
     w = np.atleast_1d(np.asarray(omega, float))
-    z = np.exp(1j * w * T)
-    M = z[:, None, None] * np.eye(A.shape[0])[None] - Phi[None]
-    rhs = (G_new[None, :] + G_old[None, :] / z[:, None])[..., None]
-    out: NDArray[np.complex128] = (np.linalg.solve(M, rhs)[..., 0] @ C) * z ** (-d)
+    z = np.exp(1j * w / rate_hz)
+    M = z[:, None, None] * np.eye(h.Phi.shape[0])[None] - h.Phi[None]
+    rhs = (h.G_new[None, :] + h.G_old[None, :] / z[:, None])[..., None]
+    out: NDArray[np.complex128] = (np.linalg.solve(M, rhs)[..., 0] @ h.C) * z ** (-h.d)
     return out.reshape(np.shape(omega))
 
 

@@ -30,6 +30,12 @@ def flight():
     return simulate_flight(spec)
 
 
+@pytest.fixture(scope="module")
+def ten_hz(flight):
+    """The flight's tests as segmented from its 10 Hz log (every 5th tick)."""
+    return _ten_hz(flight)
+
+
 def _true_switches(fl, t_a, t_b):
     """The ticks at which the full-rate command changed level inside [t_a, t_b] [s]."""
     k = np.flatnonzero(np.abs(np.diff(fl.command)) > 1e-9) + 1
@@ -45,8 +51,8 @@ def _ten_hz(fl, beta_t=None):
     return segment_arrays(t, c, t, y, t_sp=t, setpoint=sp, beta_t=bt, beta_v=bv, controller_rate_hz=RATE)
 
 
-def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight):
-    tests = _ten_hz(flight)
+def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight, ten_hz):
+    tests = ten_hz
     assert [round(t.beta_nominal, 2) for t in tests] == [-0.8, -0.3]
     fast = tests[0]
     assert fast.rate_hz == pytest.approx(10.0) and fast.controller_rate_hz == pytest.approx(RATE)
@@ -68,8 +74,8 @@ def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight):
         assert np.mean(err < 1e-6) >= exact and err.max() <= worst * TS + 1e-6
 
 
-def test_amplitude_and_period_match_the_noise_free_output(flight):
-    for t in _ten_hz(flight):
+def test_amplitude_and_period_match_the_noise_free_output(flight, ten_hz):
+    for t in ten_hz:
         st = t.stable
         assert len(st) >= 3
         for c in st:

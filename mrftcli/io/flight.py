@@ -431,5 +431,6 @@ def _warn_low_rate(log: LogSource, command: Signal, lay: Layout) -> None:
     rate = median_rate_hz(command.t)
     if rate is not None and rate < _LOW_RATE_HZ:
         log.warn(f"the command is logged at {rate:.0f} Hz: an MRFT cycle of 1-2 Hz gets "
-                 f"{rate / 2:.0f}-{rate:.0f} samples, so switch instants (and tau) are known only to "
-                 f"+-{500 / rate:.0f} ms; {lay.low_rate_fix}")
+                 f"{rate / 2:.0f}-{rate:.0f} samples and each logged switch is known only to +-{500 / rate:.0f} ms "
+                 "(the segmenter places the switches on the controller's ticks from many of them: tau's interval "
+                 f"stays wide); {lay.low_rate_fix}")

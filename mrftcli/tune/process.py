@@ -54,6 +54,10 @@ _LOAD_PERIODS = 20.0  # horizon of the load step, in Tu (integral action is slow
 _STEP_PERIODS = 8.0  # horizon of a PD's setpoint step, in Tu
 #: frequency points of the search's constraint checks and of the reported margins (log-spaced)
 _SEARCH_POINTS, _FIGURE_POINTS = 400, 3000
+#: the stability contour's radius above 1: closed-loop poles within it of the unit circle count as stable
+_CONTOUR_MARGIN = 1e-6
+#: delay-augmented loops above this order are stepped as sparse matrices (the doubling's products cost N^3)
+_DENSE_ORDER = 64
 FloatArray = NDArray[np.float64]
 
 
@@ -122,13 +126,16 @@ def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
 def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[np.complex128]:
     """G_d(e^{j omega T}) of :func:`discretise` [output / command], ``omega`` in rad/s, without the delay
     buffer's states: C (zI - Phi)^-1 (G_new + G_old / z) z^-d (fast on long delays)."""
-    h = _held_delay(model, rate_hz)
     w = np.atleast_1d(np.asarray(omega, float))
-    z = np.exp(1j * w / rate_hz)
+    return _response_at(_held_delay(model, rate_hz), np.exp(1j * w / rate_hz)).reshape(np.shape(omega))
+
+
+def _response_at(h: _HeldDelay, z: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """G_d(z) at any points z (the unit circle, or the stability contour just outside it)."""
     M = z[:, None, None] * np.eye(h.Phi.shape[0])[None] - h.Phi[None]
     rhs = (h.G_new[None, :] + h.G_old[None, :] / z[:, None])[..., None]
     out: NDArray[np.complex128] = (np.linalg.solve(M, rhs)[..., 0] @ h.C) * z ** (-h.d)
-    return out.reshape(np.shape(omega))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -331,7 +338,8 @@ def process_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int
 @dataclass(frozen=True)
 class _Plants:
     """The nominal discrete plant and every model the constraints hold on, with their responses on the
-    search's grid ``omega`` and on the reported figures' finer grid ``fine_omega`` [rad/s]."""
+    search's grid ``omega`` and on the reported figures' finer grid ``fine_omega`` [rad/s]; G_d on the
+    stability contour (:func:`_stability_contour`) and each plant's poles outside it (``unstable``)."""
 
     nominal: DiscreteStateSpace
     all: tuple[DiscreteStateSpace, ...]
@@ -339,6 +347,9 @@ class _Plants:
     omega: FloatArray
     fine: NDArray[np.complex128]
     fine_omega: FloatArray
+    contour: NDArray[np.complex128]
+    on_contour: NDArray[np.complex128]
+    unstable: NDArray[np.int64]
 
 
 def _sign(model: PlantModel) -> float:
@@ -380,6 +391,20 @@ def _responses(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> Floa
     return out
 
 
+def _stepped(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
+    """As :func:`_responses`, tick by tick with A sparse (a long delay's shift chain is mostly zeros)."""
+    from scipy.sparse import csr_matrix
+
+    As = csr_matrix(A)
+    z = np.zeros(A.shape[0])
+    y = np.empty(count)
+    with np.errstate(all="ignore"):
+        for k in range(count):
+            y[k] = Cy @ z
+            z = As @ z + B
+    return y
+
+
 def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) -> float:
     """IAE [output unit s] of a unit load step at the plant input (``load``) or of a unit setpoint step."""
     A, B, Cy = closed_loop_matrix(ss, c)
@@ -387,34 +412,48 @@ def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) ->
         B = np.zeros(A.shape[0])
         B[:ss.order] = ss.Gamma
     count = max(2, int(horizon_s * c.rate_hz))
-    y = _responses(A, B, Cy, count)
+    y = _responses(A, B, Cy, count) if A.shape[0] <= _DENSE_ORDER else _stepped(A, B, Cy, count)
     total = float(np.sum(np.abs(y if load else 1.0 - y))) * c.Ts
     return total if math.isfinite(total) else math.inf
 
 
-def _stable(ss: DiscreteStateSpace, c: Controller) -> bool:
-    A, _, _ = closed_loop_matrix(ss, c)
-    return bool(np.max(np.abs(np.linalg.eigvals(A))) < 1.0 - 1e-9)
+def _stability_contour(d_max: int) -> NDArray[np.complex128]:
+    """The upper half of the circle |z| = 1 + ``_CONTOUR_MARGIN``, from z real > 1 to z real < -1, dense
+    near z = 1 (where an integrator's pole sits just inside) and enough points for the delay's turns."""
+    theta = np.concatenate([[0.0], np.geomspace(1e-9, 1e-2, 300, endpoint=False),
+                            np.linspace(1e-2, math.pi, max(1500, 12 * (d_max + 4)))])
+    contour: NDArray[np.complex128] = np.asarray((1.0 + _CONTOUR_MARGIN) * np.exp(1j * theta), dtype=np.complex128)
+    return contour
+
+
+def _stable_all(c: Controller, p: _Plants, index: Sequence[int] | None = None) -> NDArray[np.bool_]:
+    """Is each closed loop stable? The Nyquist criterion on the contour just outside the unit circle.
+
+    1 + L(z) has as many zeros as poles (L strictly proper), so the closed-loop poles outside the
+    contour number P - W: P the plant's poles outside it, W the winding of 1 + L(z) about 0 as z goes
+    round the contour once (twice the half turn: the coefficients are real). Stable: W = P. The
+    controller's integrator (z = 1) and the delay's poles (z = 0) lie inside. Exact, and linear in the
+    delay where the eigenvalues of the delay-augmented loop cost its cube; it is run on gains that
+    already passed the Ms check, so 1 + L stays away from 0 and the sampled phase follows it.
+    """
+    rows = slice(None) if index is None else list(index)
+    z = p.contour
+    C = c.Kp + c.Ki * c.Ts * z / (z - 1.0) + c.Kd * c.derivative_response(z)
+    F = 1.0 + C[None, :] * p.on_contour[rows]
+    turns = np.diff(np.unwrap(np.angle(F), axis=1)[:, [0, -1]], axis=1)[:, 0] / math.pi
+    stable: NDArray[np.bool_] = np.round(turns).astype(np.int64) == p.unstable[rows]
+    return stable
 
 
 def _ok(c: Controller, p: _Plants, o: ProcessTuneOptions) -> bool:
-    """The constraints on every model: the frequency figures first, the eigenvalues only if they hold."""
+    """The constraints on every model: the frequency figures first, stability (Nyquist) only if they hold."""
     L = c.feedback_response(p.omega)[None, :] * p.Gd
     if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
         return False
     figures = cascade_margins(c, p.Gd, p.omega)
     if not all(pm >= o.pm_min_deg for pm, _, _, _ in figures):
         return False
-    return _all_stable(p.all, c)
-
-
-def _all_stable(plants: Sequence[DiscreteStateSpace], c: Controller) -> bool:
-    """Every closed loop's spectral radius below 1 (the eigenvalues of same-sized loops in one call)."""
-    by_size: dict[int, list[FloatArray]] = {}
-    for ss in plants:
-        A = closed_loop_matrix(ss, c)[0]
-        by_size.setdefault(A.shape[0], []).append(A)
-    return all(float(np.max(np.abs(np.linalg.eigvals(np.stack(group))))) < 1.0 - 1e-9 for group in by_size.values())
+    return bool(np.all(_stable_all(c, p)))
 
 
 def _largest_gain(make: Callable[[float], Controller], ku: float, p: _Plants, o: ProcessTuneOptions) -> Controller | None:
@@ -455,10 +494,11 @@ def _candidates(kind: str, tu: float, rate_hz: float) -> list[Callable[[float], 
     return [maker(float(ti) * tu, float(td) * tu) for ti in _TI_GRID for td in _PID_TDC_GRID if ti >= 2.0 * td]
 
 
-def _margins(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: NDArray[np.complex128],
-             omega: FloatArray) -> list[CascadeMargins]:
-    return [CascadeMargins(pm, gm, ms, wc, _stable(ss, c))
-            for ss, (pm, gm, ms, wc) in zip(plants, cascade_margins(c, Gd, omega))]
+def _margins(c: Controller, p: _Plants, count: int) -> list[CascadeMargins]:
+    """The reported figures of the first ``count`` models on the fine grid."""
+    stable = _stable_all(c, p, range(count))
+    return [CascadeMargins(pm, gm, ms, wc, bool(ok))
+            for ok, (pm, gm, ms, wc) in zip(stable, cascade_margins(c, p.fine[:count], p.fine_omega))]
 
 
 def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: ProcessTuneOptions) -> ProcessDesign | None:
@@ -475,10 +515,10 @@ def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: ProcessTu
     if best is None:
         return None
     J, c = best
-    nominal = _margins(c, [p.nominal], p.fine[:1], p.fine_omega)[0]
+    nominal = _margins(c, p, 1)[0]
     worst = None
     if len(p.all) > 1:
-        m = _margins(c, p.all, p.fine, p.fine_omega)
+        m = _margins(c, p, len(p.all))
         worst = CascadeMargins(min(x.phase_margin_deg for x in m), min(x.gain_margin for x in m),
                                max(x.Ms for x in m), min(x.crossover_hz for x in m), all(x.stable for x in m))
     return ProcessDesign(name, kind, c, nominal, worst, J, "load step" if load else "setpoint step")
@@ -488,7 +528,11 @@ def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, w_low: fl
     ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
     grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
     Gd, fine = (np.array([sign * discrete_response(m, rate_hz, w) for m in models]) for w in grids)
-    return _Plants(ss[0], ss, Gd, grids[0], fine, grids[1])
+    held = [_held_delay(m, rate_hz) for m in models]
+    contour = _stability_contour(max(h.d for h in held))
+    on_contour = np.array([sign * _response_at(h, contour) for h in held])
+    unstable = np.array([int(np.sum(np.abs(np.linalg.eigvals(h.Phi)) > 1.0 + _CONTOUR_MARGIN)) for h in held])
+    return _Plants(ss[0], ss, Gd, grids[0], fine, grids[1], contour, on_contour, unstable)
 
 
 def _integrating(model: PlantModel) -> bool:

@@ -92,6 +92,13 @@ def _held(fig: object) -> bool:
     return isinstance(fig, tuple) and fig[0] and fig[1] <= MS_LIMIT * MS_TOLERANCE
 
 
+def _show(r: dict[str, object], key: str) -> str:
+    f = r.get(key)
+    if not isinstance(f, tuple):
+        return "refused: " + str(r.get("refused", "no design"))
+    return f"{'stable' if f[0] else 'UNSTABLE'} Ms {f[1]:.3f} PM {f[2]:.1f}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=24, help="recordings (spread over the four families)")
@@ -107,11 +114,7 @@ def main() -> None:
     print(f"{args.n} recordings, {cpu:.0f} s CPU ({cpu / args.n:.1f} s each)")
     print("family  rate [Hz]  model-based PI on the truth (stable, Ms, PM deg)   robust PI on the truth")
     for r in rows:
-        def show(key: str) -> str:
-            f = r.get(key)
-            return "refused: " + str(r.get("refused", "no design")) if f is None else \
-                f"{'stable' if f[0] else 'UNSTABLE'} Ms {f[1]:.3f} PM {f[2]:.1f}"
-        print(f"{r['family']:<7} {r['rate']:9.1f}  {show('model-based'):<48} {show('robust')}")
+        print(f"{r['family']:<7} {r['rate']:9.1f}  {_show(r, 'model-based'):<48} {_show(r, 'robust')}")
     for key in ("model-based", "robust"):
         held = sum(_held(r.get(key)) for r in rows)
         stable = sum(isinstance(r.get(key), tuple) and r[key][0] for r in rows)

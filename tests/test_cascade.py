@@ -321,3 +321,53 @@ def test_inner_loop_draws_over_its_std() -> None:
     assert all(d["K"].value == INNER.K and d["Tp"].value == INNER.Tp for d in draws)
     with pytest.raises(InputError, match="not parameters of the plant"):
         InnerLoop.from_json({**inner.to_json(), "std": {"T9": 1.0}})
+
+
+def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
+    """Issue 23: on a HEAR-layout (receive-stamped, beta not logged) flight at 100 Hz, the outer tau
+    read through the orbits' switch levels is within 3 ms and its interval; the band's centre at the
+    beta inferred from the level less half a tick (the route before) is off by 6.5 ms.
+
+    Oracle: the cascade simulator (:mod:`mrftcli.sim.cascade`, a per-tick integration sharing no
+    code with :mod:`mrftcli.mrft.cascade`) and its true tau.
+    """
+    from mrftcli.analyze.cascade import CascadeOptions, _measurement, analyze_cascade
+    from mrftcli.io import read_flight
+    from mrftcli.io.flight import ReadOptions
+    from mrftcli.sim.cascade import simulate_cascade
+    from mrftcli.sim.cascade_spec import CascadeSpec, InnerGains
+    from mrftcli.sim.cascade_write import write_cascade
+    from mrftcli.sim.spec import TestSpec
+
+    inner = LoopModel(Tp=0.064, Td=2.33, tau=0.0338, K=24.8)
+    gains = InnerController(0.2558, 0.0, 0.1081, 0.04225, RATE)
+    tau = 0.0351
+    spec = CascadeSpec(inner=inner, gains=InnerGains(gains.Kp, gains.Ki, gains.Kd, gains.Tf, RATE), Td=1.42, tau=tau,
+                       axis="y", commanded="attitude",
+                       outer_tests=(TestSpec(-0.4, 0.02, 25.0), TestSpec(-0.7, 0.031, 20.0)),
+                       attitude_noise_std=6.8e-4, position_noise_std=2.9e-4, hover_s=1.0, hold_s=2.0, seed=2)
+    log = tmp_path / "flight.bag"
+    write_cascade(simulate_cascade(spec), log, layout="hear-ros")
+    flight = read_flight(log, ReadOptions(loop="y"), echo_warnings=False)
+    assert flight.timing.stamps == "receive"
+    loop = InnerLoop(inner, gains, "roll")
+    analysis = analyze_cascade(flight, loop, options=CascadeOptions(commanded="attitude"))
+    est = analysis.identification.estimates["tau"]
+    before = identify_cascade(loop, [_measurement(t) for t in analysis.tests], RATE, K=G).estimates["tau"]
+    assert abs(est.value - tau) < 3e-3 and est.ci95_low <= tau <= est.ci95_high
+    assert abs(est.value - tau) < abs(before.value - tau) - 2e-3
+    assert any("receive-time stamps" in a for a in analysis.assumptions)
+
+
+def test_orbit_at_matches_the_exact_cycle() -> None:
+    """The orbit of a whole half period is one of the exact cycle's admissible orbits; its switch
+    level is past beta by at most one tick's rise (the relay decides on samples)."""
+    model = _cascade()
+    lc = model.sampled_limit_cycle(-0.3, 1.0, RATE)
+    n = RATE / (2 * lc.orbits_hz[0])
+    orbit = model.orbit_at(n, 1.0, RATE)
+    assert orbit.amplitude == pytest.approx(lc.orbits_amplitude[0], rel=1e-9)
+    rise = np.sin(2 * np.pi * lc.orbits_hz[0] / RATE)  # the cycle's largest rise over a tick, over its amplitude
+    assert -0.3 - 1e-9 <= orbit.switch_level <= -0.3 + rise
+    with pytest.raises(InputError, match="half period"):
+        model.orbit_at(1.0, 1.0, RATE)

@@ -8,8 +8,10 @@ Stages, each returning a frozen record:
 2. screen (:func:`screen_outer`): the outer tests found in the log, those with too few stable
    cycles or whose output does not follow the relay left out (the eq. (2)-specific phase checks do
    not apply to the cascade);
-3. identification (:func:`mrftcli.mrft.cascade_identify.identify_cascade`) through the exact sampled
-   cycle of the cascade.
+3. the measurements (:func:`outer_levels`): each test's frequencies and amplitudes, and its output
+   at the relay's switches (which places the fractional delay between ticks, and needs no beta);
+4. identification (:func:`mrftcli.mrft.cascade_identify.identify_cascade`) through the exact sampled
+   orbits of the cascade.
 
 The result, :class:`CascadeAnalysis`, is versioned JSON (``analyze --json``) with the cascade model
 (family ``"cascade"``, read back by :func:`mrftcli.mrft.model.model_from_json`).
@@ -31,13 +33,13 @@ from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
 from ..mrft.identify import TestMeasurement
 from ..segment import segment
 from ..segment.records import MrftTest
-from ..segment.relay_type import infer_relay
+from ..segment.relay_type import infer_relay, switching_level
 from .mrfttest_json import mrft_test_from_json
 from .record import AnalysisResult, analysis_controller_rate
 from .screen import log_start
 
 __all__ = ["CascadeOptions", "CascadeAnalysis", "analyze_cascade", "inner_loop_of", "inner_draws", "inner_gains_of",
-           "screen_outer", "CASCADE_ANALYSIS_SCHEMA_VERSION", "OUTER_COMMANDS"]
+           "screen_outer", "outer_levels", "CASCADE_ANALYSIS_SCHEMA_VERSION", "OUTER_COMMANDS"]
 
 #: version of :meth:`CascadeAnalysis.to_json`
 CASCADE_ANALYSIS_SCHEMA_VERSION = 1
@@ -284,6 +286,25 @@ def _measurement(t: MrftTest) -> TestMeasurement:
                            frequency_hz=[c.frequency_hz for c in st], amplitude=[c.amplitude for c in st], h=float(t.h))
 
 
+def outer_levels(tests: Sequence[MrftTest], rate_hz: float) -> list[tuple[float, float]] | None:
+    """Each test's output at the relay's switches over its amplitude [-] and its standard error.
+
+    The level at the switches places the orbit's switching sample against the delay continuously,
+    where the band of orbits moves by whole ticks (half a tick is 5 ms at 100 Hz); and it needs no
+    beta, which a log without one (HEAR's) would give only as the level less an average half tick
+    of sampling lag, a few thousandths off on a locked orbit (5-9 ms of tau at beta -0.7). None
+    when a test has no level or its command is logged below the relay's rate (its switch
+    instants are then off by up to a logging period).
+    """
+    out = []
+    for t in tests:
+        level, se, amp = switching_level(t)
+        if not (math.isfinite(level) and math.isfinite(amp) and amp > 0 and t.rate_hz >= 0.9 * rate_hz):
+            return None
+        out.append((level / amp, se / amp if math.isfinite(se) else math.nan))
+    return out
+
+
 # ----------------------------------------------------------------------------------------------
 # the driver
 # ----------------------------------------------------------------------------------------------
@@ -324,9 +345,14 @@ def analyze_cascade(flight: FlightLog, inner: InnerLoop, *, options: CascadeOpti
     if rate is None:
         raise InputError("the outer loop's controller rate is unknown: give --controller-rate HZ")
     rate = _snap_rate(rate, inner.controller.rate_hz)
+    jitter = float(flight.timing.timing_jitter_s or 0.0) if flight.timing.stamps == "receive" else 0.0
     ident = identify_cascade(inner, [_measurement(t) for t in screened.usable], rate, K=options.K,
-                             Td_bounds=options.Td_bounds, tau_bounds=options.tau_bounds, inner_draws=draws)
+                             Td_bounds=options.Td_bounds, tau_bounds=options.tau_bounds, inner_draws=draws,
+                             switch_levels=outer_levels(screened.usable, rate), tau_timing_std=jitter)
     stated = list(assumptions) + _assumptions(options, inner, rate, ident)
+    if jitter >= 1e-4:
+        stated.append(f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded into "
+                      "tau's interval")
     warnings = [f"test {t.index + 1} left out: {screened.reasons[t.index]}" for t in screened.rejected]
     warnings += _fit_warnings(ident)
     warnings += list(flight.warnings)

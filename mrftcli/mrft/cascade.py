@@ -54,7 +54,7 @@ from .model import Parameter, PlantModel, StateSpace, json_parameter_values, mod
     model_json_parameters
 
 __all__ = ["InnerController", "InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
-           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "json_number"]
+           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "json_number", "SwitchedOrbit"]
 
 if TYPE_CHECKING:
     from .lprs import LimitCycle
@@ -521,6 +521,57 @@ class CascadeModel:
         """
         return discrete_limit_cycle(self.discrete_realisation(rate_hz), beta, h, self.frequency_response, self.tau,
                                     n_guess)
+
+    def orbit_at(self, half_period: float, h: float, rate_hz: float) -> SwitchedOrbit:
+        """The symmetric orbit of a measured half period [ticks]: its amplitude and its level at the switch.
+
+        The orbit of a whole half period N does not depend on beta (beta only decides which N the
+        relay admits): the measured half period names the orbit the loop is on, whose amplitude and
+        output at the switching sample are smooth functions of Td and tau. A half period between
+        whole ticks (the loop alternating between neighbouring orbits, or the mean over cycles) is
+        interpolated linearly between them.
+
+        Parameters
+        ----------
+        half_period : float
+            The measured half period [ticks of ``rate_hz``], >= 2.
+        h : float
+            Relay amplitude [command units], > 0.
+        rate_hz : float
+            The outer relay's rate [Hz].
+
+        Returns
+        -------
+        SwitchedOrbit
+        """
+        h = check_positive("h", h)
+        if not (math.isfinite(half_period) and half_period >= 2):
+            raise InputError(f"half period must be at least 2 ticks, got {half_period!r}")
+        n0 = int(math.floor(half_period))
+        # beta is not used by the orbits' samples (only by their admissibility, not read here)
+        orb = _orbits(self.discrete_realisation(rate_hz), 0.0, h, n0, n0 + 1)
+        amp = orb.amplitude
+        level = np.array([orb.samples[i, orb.N[i]] / amp[i] for i in range(2)])
+        frac = half_period - n0
+        return SwitchedOrbit(float((1 - frac) * amp[0] + frac * amp[1]),
+                             float((1 - frac) * level[0] + frac * level[1]))
+
+
+@dataclass(frozen=True)
+class SwitchedOrbit:
+    """One symmetric orbit of the sampled relay (:meth:`CascadeModel.orbit_at`).
+
+    Attributes
+    ----------
+    amplitude : float
+        max |y| over the orbit's samples [output units].
+    switch_level : float
+        The output at the sample the relay switches on (+h -> -h), over the amplitude [-]: what the
+        log's ``beta_down`` measures (about beta less the rise over the sampling lag).
+    """
+
+    amplitude: float
+    switch_level: float
 
 
 def _inner_discrete(inner: InnerLoop) -> DiscreteStateSpace:

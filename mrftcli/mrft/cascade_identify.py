@@ -33,6 +33,8 @@ CASCADE_ID_SCHEMA_VERSION = 1
 _Z95 = 1.959964
 #: floor of the standard errors of ln(frequency) and ln(amplitude) of a test (as identify_lti's)
 _SE_FLOOR = 5e-3
+#: floor of the standard error of a test's switch level over its amplitude [-] (about 0.7 ms of tau at 2 rad/s)
+_SE_LEVEL_FLOOR = 1e-3
 
 
 @dataclass(frozen=True)
@@ -137,6 +139,9 @@ class _Problem:
     upper: FloatArray
     se_f: FloatArray  # standard errors of ln f per test
     se_a: FloatArray  # of ln a (inf: no amplitude)
+    #: each test's measured level at the down switch over its amplitude (None: match the frequencies instead)
+    levels: FloatArray | None = None
+    se_l: FloatArray | None = None  # their standard errors
     #: each test's last half period [ticks]: the next evaluation's start (a cache, not part of the problem)
     hints: dict[int, float] = field(default_factory=dict, compare=False)
 
@@ -159,6 +164,8 @@ class _Problem:
         return out
 
     def residuals(self, base: CascadeModel, theta: FloatArray) -> FloatArray:
+        if self.levels is not None:
+            return self.orbit_residuals(self.model(base, theta))
         try:
             cycles = self.cycles(self.model(base, theta))
         except InputError:
@@ -169,6 +176,26 @@ class _Problem:
             a = t.amplitude_mean
             out.append(0.0 if a is None or not math.isfinite(sa) else (math.log(lc.amplitude) - math.log(a)) / sa)
         return np.array(out)
+
+    def orbit_residuals(self, model: CascadeModel) -> FloatArray:
+        """Each test's amplitude and switch level against the orbit of its measured half period.
+
+        The measured frequency names the orbit (a whole number of ticks per half period, or between
+        two when the loop alternates); at that orbit the amplitude holds Td (K known) and the level
+        at the switch holds tau continuously, where the centre of the band of orbits moves by whole
+        ticks only and the beta to match it must be known to a few thousandths (issue 23).
+        """
+        assert self.levels is not None and self.se_l is not None
+        out = []
+        for t, level, sl, sa in zip(self.tests, self.levels, self.se_l, self.se_a):
+            try:
+                orbit = model.orbit_at(0.5 * self.rate_hz / t.frequency_mean, float(t.h or 1.0), self.rate_hz)
+            except InputError:
+                return np.full(2 * len(self.tests), 1e3)
+            out += [(math.log(orbit.amplitude) - math.log(float(t.amplitude_mean or 1.0))) / sa,
+                    (orbit.switch_level - level) / sl]
+        r = np.array(out)
+        return r if np.isfinite(r).all() else np.full(r.size, 1e3)
 
 
 def _theta0(problem: _Problem, base: CascadeModel) -> FloatArray:
@@ -245,7 +272,9 @@ def _weights(tests: Sequence[TestMeasurement], cycles: Sequence[LimitCycle]) -> 
 
 def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz: float, *, K: float | None = 1.0,
                      Td_bounds: tuple[float, float] = (0.05, 50.0), tau_bounds: tuple[float, float] = (0.0, 0.5),
-                     inner_draws: Sequence[InnerLoop] = ()) -> CascadeIdentification:
+                     inner_draws: Sequence[InnerLoop] = (),
+                     switch_levels: Sequence[tuple[float, float]] | None = None,
+                     tau_timing_std: float = 0.0) -> CascadeIdentification:
     """Td and tau (and K when ``K`` is None) of the outer loop from its MRFT tests, through the exact cycle.
 
     Each test's mean frequency and amplitude are matched, in logarithms and weighted by their
@@ -270,6 +299,15 @@ def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz
         The set I of Td [s] and tau [s].
     inner_draws : sequence of InnerLoop
         Draws of the inner loop (its model's uncertainty); empty: the inner model taken as exact.
+    switch_levels : sequence of (float, float), optional
+        Each test's measured output at the relay's down switch over its amplitude [-] and its
+        standard error (``MrftTest`` ``beta_down``). Given, the tests are matched at the orbit of
+        their measured half period (:meth:`CascadeModel.orbit_at`: amplitude and switch level)
+        rather than by the band's centre at beta: beta then serves the start only, and the
+        fractional delay between ticks is read from the level.
+    tau_timing_std : float
+        Timing uncertainty between command and output stamps [s] (receive-time stamps' jitter),
+        added to tau's spread in quadrature.
 
     Returns
     -------
@@ -303,16 +341,32 @@ def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz
                         ranges=(("Td", lo_td, hi_td), ("tau", *tau_bounds)))
     problem = _Problem(tests, rate_hz, free, np.array(lower), np.array(upper),
                        np.full(len(tests), _SE_FLOOR), np.full(len(tests), _SE_FLOOR))
+    if switch_levels is not None:
+        problem = _orbit_problem(problem, switch_levels)
+        theta, jac = _solve(problem, base, _theta0(problem, base))
+        return _result(problem, base, theta, jac, inner_draws, tau_timing_std)
     theta, _ = _solve(problem, base, _theta0(problem, base))
     # second pass with the sampled band's spread in the weights (it depends on the estimate)
     se_f, se_a = _weights(tests, problem.cycles(problem.model(base, theta)))
-    problem = _Problem(tests, rate_hz, free, problem.lower, problem.upper, se_f, se_a, problem.hints)
+    problem = _Problem(tests, rate_hz, free, problem.lower, problem.upper, se_f, se_a, hints=problem.hints)
     theta, jac = _solve(problem, base, theta)
-    return _result(problem, base, theta, jac, inner_draws)
+    return _result(problem, base, theta, jac, inner_draws, tau_timing_std)
+
+
+def _orbit_problem(problem: _Problem, switch_levels: Sequence[tuple[float, float]]) -> _Problem:
+    """The problem matched at the measured orbits: amplitudes and switch levels with their standard errors."""
+    levels = np.array([float(level) for level, _ in switch_levels])
+    if levels.size != len(problem.tests) or not np.isfinite(levels).all():
+        raise InputError(f"switch_levels: need one finite level per test ({len(problem.tests)}), got {levels.size}")
+    se_l = np.array([math.hypot(float(se) if math.isfinite(se) else 0.0, _SE_LEVEL_FLOOR) for _, se in switch_levels])
+    se_a = np.array([math.hypot(float(t.amplitude_sem or 0.0) / float(t.amplitude_mean or 1.0), _SE_FLOOR)
+                     for t in problem.tests])
+    return _Problem(problem.tests, problem.rate_hz, problem.free, problem.lower, problem.upper, problem.se_f, se_a,
+                    levels, se_l)
 
 
 def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: FloatArray,
-            inner_draws: Sequence[InnerLoop]) -> CascadeIdentification:
+            inner_draws: Sequence[InnerLoop], tau_timing_std: float = 0.0) -> CascadeIdentification:
     """Estimates with the tests' spread (Gauss-Newton) and the inner draws' spread; the tests' fits."""
     model = problem.model(base, theta)
     r = problem.residuals(base, theta)
@@ -328,7 +382,8 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
             continue  # a draw whose inner loop does not oscillate with this outer loop: not counted
     if len(draws) >= 2:
         var_inner = np.var(np.array(draws), axis=0, ddof=1)
-    std = np.sqrt(np.diag(cov) + var_inner)
+    timing = np.array([tau_timing_std ** 2 if name == "tau" else 0.0 for name in problem.free])
+    std = np.sqrt(np.diag(cov) + var_inner + timing)
     omega = 2 * math.pi * float(np.median([t.frequency_mean for t in problem.tests]))
     estimates = {name: _estimate(name, float(theta[i]), float(std[i]), problem.lower[i], problem.upper[i], omega)
                  for i, name in enumerate(problem.free)}

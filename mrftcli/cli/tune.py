@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
-from ..validate import check_time
+from ..validate import TP_MISSING, check_time
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
@@ -286,7 +286,7 @@ def _stack_summary(e: Any, console: bool = True) -> list[str]:
 @click.command("tune")
 @meta_model_options("tune")
 @click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
-@tp_option(required=False)  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
+@tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required, except for a cascade RESULT.json (analyze --inner-model), which carries its inner loop's.")  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
 @log_layout_options(format_flag="--log-format")
 @min_cycles_option(detail=" (as analyze)")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
@@ -379,7 +379,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
                                       "--design mrft-rule": design == "mrft-rule"})
         return
     if Tp is None:
-        raise click.UsageError("Missing option '--tp'.")
+        raise click.UsageError(f"missing --tp: {TP_MISSING}")
     _check_outputs(json_target, report_dir)
     _check_out(out)
     if out and ex.stack is None:

@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 
 from ..errors import InputError
+from ..validate import TP_MISSING
 from .options import dump_json, tqdm_progress
 
 __all__ = ["AxesRequest", "tune_axes"]
@@ -70,7 +71,7 @@ def _check_request(req: AxesRequest) -> str:
     from .tune import _check_out, _check_outputs
 
     if req.Tp is None:
-        raise click.UsageError("Missing option '--tp'.")
+        raise click.UsageError(f"missing --tp: {TP_MISSING}")
     if req.stack not in ("px4", "ardupilot"):
         raise InputError("two results are designed together only with --export px4|ardupilot (their one gyro "
                          "filter on all axes); tune each result alone otherwise")

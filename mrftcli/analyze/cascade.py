@@ -33,7 +33,7 @@ from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
 from ..mrft.identify import TestMeasurement
 from ..segment import segment
 from ..segment.records import MrftTest
-from ..segment.relay_type import infer_relay, switching_level
+from ..segment.relay_type import infer_relay
 from .mrfttest_json import mrft_test_from_json
 from .record import AnalysisResult, analysis_controller_rate
 from .screen import log_start
@@ -298,10 +298,13 @@ def outer_levels(tests: Sequence[MrftTest], rate_hz: float) -> list[tuple[float,
     """
     out = []
     for t in tests:
-        level, se, amp = switching_level(t)
-        if not (math.isfinite(level) and math.isfinite(amp) and amp > 0 and t.rate_hz >= 0.9 * rate_hz):
+        # the mean over the cycles, as the frequency's: a loop wandering between orbits has a level per orbit
+        levels = np.array([c.beta_effective for c in t.stable], dtype=float)
+        levels = levels[np.isfinite(levels)]
+        if not (levels.size and t.rate_hz >= 0.9 * rate_hz):
             return None
-        out.append((level / amp, se / amp if math.isfinite(se) else math.nan))
+        se = float(np.std(levels, ddof=1) / math.sqrt(levels.size)) if levels.size > 1 else math.nan
+        out.append((float(np.mean(levels)), se))
     return out
 
 

@@ -65,14 +65,14 @@ def fake_worker(task: B.LogTask) -> dict:
     for loop in task.settings.loops:
         if "\x00" in text:
             err = LogReadError(f"{Path(task.path).name}: not a toy log")
-            loops.append(B._failed_entry(loop, err))
+            loops.append(B.failed_entry(loop, err))
             continue
         values = dict(line.split("=") for line in text.split())
         tau, Td = float(values["tau"]), float(values["Td"])
         loops.append({"loop": loop, "status": "ok", "error": None, "error_type": None, "exit_code": 0,
                       "result": toy_analysis(Td, tau, 1.0 / task.settings.tp, task.settings.tp),
                       "diagnosis": None})
-    return B._record(task, loops, 0.0)
+    return B.log_record(task, loops, 0.0)
 
 
 def killing_worker(task: B.LogTask) -> dict:

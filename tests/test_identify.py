@@ -249,12 +249,12 @@ def test_identification_json_round_trip():
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(expected 1\)"),
+        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(this version reads 1\)"),
         (lambda d: d.pop("parameters"), "needs a 'parameters' object"),
         (lambda d: d["parameters"]["Td"].pop("std"), "Td needs numeric mean, std, ci95_low, ci95_high and a unit"),
         (lambda d: d.update(warnings="none"), "needs 'tests' \\(objects\\) and 'warnings' \\(strings\\)"),
         (lambda d: d.update(residual="small"), "residual must be a number or null"),
-        (lambda d: d["model"].update(schema_version=9), "model JSON schema_version 9 is not supported"),
+        (lambda d: d["model"].update(schema_version=9), "model JSON: schema_version 9 is not supported"),
     ],
 )
 def test_identification_json_errors(change, message):

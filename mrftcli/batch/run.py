@@ -66,7 +66,7 @@ if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
-           "BatchOptions", "run_batch"]
+           "BatchOptions", "run_batch", "failed_entry", "log_record"]
 
 #: Record format version: bump when the record layout changes, so old results are recomputed.
 _RECORD_VERSION = 1
@@ -129,7 +129,8 @@ def _one_line(err: BaseException) -> str:
     return text or type(err).__name__
 
 
-def _failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
+def failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
+    """A loop's row in a log's record when its analysis raised ``err`` (the message and the exit code's status)."""
     known = isinstance(err, MrftError)
     return {
         "loop": loop,
@@ -205,7 +206,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                      exit_code=err.exit_code, result={"partial": err.partial})
         return entry
     except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
-        return _failed_entry(loop, err)
+        return failed_entry(loop, err)
     if task.diagnose:
         entry["diagnosis"] = _diagnose_loop(task, result)
     if task.tune:
@@ -274,10 +275,11 @@ def analyze_one(task: LogTask) -> dict[str, Any]:
     if auto:
         _untested_skipped(loops)
     # Plain JSON values (NaN -> None) made here, in the worker, so the parent only writes them.
-    return to_jsonable(_record(task, loops, time.perf_counter() - t0))
+    return to_jsonable(log_record(task, loops, time.perf_counter() - t0))
 
 
-def _record(task: LogTask, loops: list[dict[str, Any]], elapsed: float) -> dict[str, Any]:
+def log_record(task: LogTask, loops: list[dict[str, Any]], elapsed: float) -> dict[str, Any]:
+    """One log's batch record: its loops' rows, the settings, the tool version and the elapsed time [s]."""
     return {
         "record_version": _RECORD_VERSION,
         "tool_version": __version__,
@@ -295,7 +297,7 @@ def _record(task: LogTask, loops: list[dict[str, Any]], elapsed: float) -> dict[
 
 def _crashed_record(task: LogTask, err: BaseException) -> dict[str, Any]:
     """A record for a log whose worker itself died (process killed, Dask worker lost...)."""
-    return _record(task, [_failed_entry(loop, err) for loop in task.settings.loops], 0.0)
+    return log_record(task, [failed_entry(loop, err) for loop in task.settings.loops], 0.0)
 
 
 # --------------------------------------------------------------------------------------------------

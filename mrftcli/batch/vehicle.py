@@ -21,7 +21,7 @@ from ..tune.design import TuneResult
 from ..vehicle import MissingLoop, VehicleLoop, VehicleOptions, VehicleResult, identify_vehicle
 from ..vehicle.gains import TuneOptions
 from .inputs import AUTO_LOOP
-from .run import LogTask, _failed_entry, _record
+from .run import LogTask, failed_entry, log_record
 from .summary import STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_NO_TESTS, STATUS_NO_TOPICS, STATUS_OK, TUNE_COLUMNS
 
 __all__ = ["vehicle_one", "vehicle_options"]
@@ -83,10 +83,10 @@ def vehicle_one(task: LogTask) -> dict[str, Any]:
             result = identify_vehicle(task.path, task.settings.tp, options=vehicle_options(task))
             loops, vehicle = _entries(result), result.to_json()
         except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
-            loops = [_failed_entry(AUTO_LOOP, err)]  # the log's loops are unknown: its row says 'auto' as --loop
+            loops = [failed_entry(AUTO_LOOP, err)]  # the log's loops are unknown: its row says 'auto' as --loop
     found = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
     for entry in loops:
         entry["python_warnings"] = found
-    record = _record(task, loops, time.perf_counter() - t0)
+    record = log_record(task, loops, time.perf_counter() - t0)
     record["vehicle"] = vehicle
     return to_jsonable(record)

@@ -51,7 +51,7 @@ def _resolve_export(fmt: str | None, export: str | None) -> str | None:
     return new
 
 
-def _check_out(out: str | None) -> None:
+def check_out(out: str | None) -> None:
     if out:
         parent = Path(out).resolve().parent
         if not parent.is_dir() or not os.access(parent, os.W_OK):
@@ -60,7 +60,7 @@ def _check_out(out: str | None) -> None:
             raise InputError(f"--out {out}: is a folder; give a file name")
 
 
-def _check_outputs(json_target: str | None, report_dir: str | None) -> None:
+def check_outputs(json_target: str | None, report_dir: str | None) -> None:
     """Output paths are checked before the work starts (one-line error, exit 2)."""
     if json_target and json_target != "-":
         parent = Path(json_target).resolve().parent
@@ -150,7 +150,7 @@ def _refuse_process_result(data: Any, path: Path) -> None:
                          "--model soiptd (eq. (2)) only so far: its parameters and intervals are in that file")
 
 
-def _from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
+def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`.
 
     Without ``loop`` (no --loop) the loop is the one the file was analysed for.
@@ -236,7 +236,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
         text = json.dumps({"design": name, "kind": kind, **c.to_dict()}, indent=2) + "\n"
         summary = [f"export generic ({name} {kind}, {loop})"]
     else:
-        text, summary = stack_export.file_text(), _stack_summary(stack_export)
+        text, summary = stack_export.file_text(), stack_summary(stack_export)
     if ex.out:
         from ..io.atomic import write_text_atomic
 
@@ -263,7 +263,7 @@ def _parse_cutoff(value: str | None) -> tuple[bool, float | None]:
     return False, hz
 
 
-def _stack_summary(e: Any, console: bool = True) -> list[str]:
+def stack_summary(e: Any, console: bool = True) -> list[str]:
     """The lines that say what was exported: values with their ranges, the margins with the stack's filter,
     the notes, and PX4's ``param set`` lines."""
     from ..tune.stack_params import STACK_PARAMS
@@ -380,8 +380,8 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         return
     if Tp is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
-    _check_outputs(json_target, report_dir)
-    _check_out(out)
+    check_outputs(json_target, report_dir)
+    check_out(out)
     if out and ex.stack is None:
         raise InputError("--out needs --export generic|px4|ardupilot|hear")
     if ex.stack is not None and not out and json_target == "-":
@@ -398,7 +398,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     if source is None:
         src = _from_spread(Tp, td, tau, K, (td_std, tau_std, k_std))
     elif is_result:
-        src = _from_result_json(Path(source), Tp, loop)
+        src = from_result_json(Path(source), Tp, loop)
     else:
         src = _from_log(source, Tp, min_cycles, read_options, quiet)
     loop = loop or src.loop

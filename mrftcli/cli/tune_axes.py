@@ -68,7 +68,7 @@ class AxesRequest:
 
 def _check_request(req: AxesRequest) -> str:
     """The stack, after the checks that need no file (one-line errors)."""
-    from .tune import _check_out, _check_outputs
+    from .tune import check_out, check_outputs
 
     if req.Tp is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
@@ -82,8 +82,8 @@ def _check_request(req: AxesRequest) -> str:
         if not (s.lower().endswith(".json") and Path(s).is_file()):
             raise InputError(f"{s}: with two sources give analyze RESULT.json files (analyze each log with "
                              "--json FILE first)")
-    _check_outputs(req.json_target, None)
-    _check_out(req.out)
+    check_outputs(req.json_target, None)
+    check_out(req.out)
     if not req.out and req.json_target == "-":
         raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
     return req.stack
@@ -92,10 +92,10 @@ def _check_request(req: AxesRequest) -> str:
 def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
     """The two axes (roll first) with their sources, and the rate both records share."""
     from ..tune.joint import AxisModel, AxisSource
-    from .tune import _from_result_json
+    from .tune import from_result_json
 
     assert req.Tp is not None
-    srcs = [(path, _from_result_json(Path(path), req.Tp, None)) for path in req.sources]
+    srcs = [(path, from_result_json(Path(path), req.Tp, None)) for path in req.sources]
     (pa, a), (pb, b) = srcs
     if a.loop == b.loop:
         raise InputError(f"{pa} and {pb} are both for the {a.loop} loop: give one roll and one pitch result")
@@ -117,7 +117,7 @@ def tune_axes(req: AxesRequest) -> None:
     from ..tune.closed_loop import RateFilter
     from ..tune.joint import GYRO_FILTER_PARAM, design_axes, export_axes, joint_gyro_cutoff
     from ..tune.stacks import stack_setting
-    from .tune import _stack_summary
+    from .tune import stack_summary
 
     stack = _check_request(req)
     axes, extra, rate_source = _axes(req)
@@ -144,7 +144,7 @@ def tune_axes(req: AxesRequest) -> None:
                    "tune_results": {r.loop: r.to_json() for r in results}}, req.json_target)
     summary = [f"{name} = {export.params()[name]:g} Hz for both axes ({'auto' if req.auto else '--gyro-cutoff'})"]
     for e in export.exports:
-        summary += _stack_summary(e, console=False)
+        summary += stack_summary(e, console=False)
     summary += export.console_lines()
     text = export.file_text()
     if req.out:

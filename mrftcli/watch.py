@@ -255,9 +255,7 @@ class _Tracker:
             return list(self.closed)
         beta = _window(flight.beta, self.beta_from)
         sp = _window(flight.setpoint, self.t_from)
-        found = segment_arrays(cmd.t, cmd.values, out.t, out.values,
-                               beta_t=None if beta is None else beta.t, beta_v=None if beta is None else beta.values,
-                               t_sp=None if sp is None else sp.t, setpoint=None if sp is None else sp.values)
+        found = segment_arrays(cmd, out, beta=beta, setpoint=sp)
         t_last = float(cmd.t[-1])
         open_tests: list[MrftTest] = []
         for test in found:

@@ -30,10 +30,6 @@ MAX_PARAMETERS = 10
 #: qualified name -> why it is allowed more for now. Each entry must still be over the limit (a stale
 #: exception fails the test, so the list shrinks as they are fixed).
 EXCEPTIONS = {
-    # TODO(issue 21): an options record for the segmenter's arrays and thresholds (segment/ is another
-    # engineer's area in this round).
-    "mrftcli.segment.segmenter.segment_arrays": "the command, output, beta and setpoint arrays (t, values) "
-                                                "plus the criteria; a SegmentInput record is the fix",
     # TODO(issue 21): the rotor ODE's coefficients as one record (mrft/ is another engineer's area).
     "mrftcli.mrft.propagate.rk4_rotor": "an inner-loop integrator called per tick: the state, the step and "
                                         "the plant's coefficients as plain floats, for speed",

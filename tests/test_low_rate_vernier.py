@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from mrftcli.mrft.model import LoopModel
-from mrftcli.segment import segment_arrays
+from mrftcli.io.logtypes import Signal
+from mrftcli.segment import SegmentOptions, segment_arrays
 from mrftcli.segment.vernier import fold_waveform, switch_ticks
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
@@ -48,7 +49,8 @@ def _ten_hz(fl, beta_t=None):
     t, c, y, sp = fl.t[sub], fl.command[sub], fl.output_measured[sub], fl.setpoint[sub]
     bt = np.array([e["t_start"] for e in fl.truth["tests"]])
     bv = np.array([e["beta"] for e in fl.truth["tests"]])
-    return segment_arrays(t, c, t, y, t_sp=t, setpoint=sp, beta_t=bt, beta_v=bv, controller_rate_hz=RATE)
+    return segment_arrays(Signal(t, c), Signal(t, y), setpoint=Signal(t, sp), beta=Signal(bt, bv),
+                          options=SegmentOptions(controller_rate_hz=RATE))
 
 
 def test_both_tests_are_found_and_every_switch_is_on_its_true_tick(flight, ten_hz):

@@ -242,7 +242,7 @@ def test_negative_loop_gain_is_handled(sim):
 
 
 def test_segment_arrays_without_beta_or_setpoint(sim):
-    tests = segment_arrays(sim.t, sim.command, sim.t, sim.y_meas)
+    tests = segment_arrays(Signal(sim.t, sim.command), Signal(sim.t, sim.y_meas))
     assert len(tests) == 2
     assert all(t.beta_nominal is None and t.setpoint is None for t in tests)
     assert tests[0].beta_effective == pytest.approx(-0.4, abs=0.04)
@@ -325,3 +325,14 @@ def test_harmonic_fit_is_bit_identical_to_the_projections_it_replaced():
     fit = fit_harmonics(tt, yy, P, H, trend="centred", angle="frequency_first")
     assert np.array_equal(fit.coef, coef) and np.array_equal(fit.residual, yy - X @ coef)
     assert np.array_equal(fit.harmonics, coef[2: 2 + H] - 1j * coef[2 + H:])
+
+
+def test_segment_options_are_checked_on_creation():
+    from mrftcli.errors import InputError
+    from mrftcli.segment import SegmentOptions
+
+    assert SegmentOptions(min_runs=np.int64(4)).min_runs == 4
+    for bad in ({"min_runs": 1}, {"min_runs": 2.5}, {"min_runs": True}, {"controller_rate_hz": 0.0},
+                {"controller_rate_hz": float("nan")}):
+        with pytest.raises(InputError):
+            SegmentOptions(**bad)

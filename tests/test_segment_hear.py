@@ -11,6 +11,7 @@ import pytest
 from scipy.ndimage import median_filter
 
 from mrftcli.mrft.model import LoopModel
+from mrftcli.io.logtypes import Signal
 from mrftcli.segment import segment_arrays
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
@@ -43,9 +44,9 @@ def test_beta_and_h_hold_when_the_bias_inside_the_command_moves(flight, drift):
     # the plant's trim moves with the bias (the PID's median follows it), so the relay part of the
     # command and the output are those of the flight without it: h and beta must come out the same
     t, y = flight.t, flight.output_measured
-    plain = _stable(segment_arrays(t, flight.command, t, y, t_sp=t, setpoint=flight.setpoint))
+    plain = _stable(segment_arrays(Signal(t, flight.command), Signal(t, y), setpoint=Signal(t, flight.setpoint)))
     bias = hear_bias(t, drift * max(e["h"] for e in flight.truth["tests"]), np.random.default_rng(3))
-    moved = _stable(segment_arrays(t, flight.command + bias, t, y, t_sp=t, setpoint=flight.setpoint))
+    moved = _stable(segment_arrays(Signal(t, flight.command + bias), Signal(t, y), setpoint=Signal(t, flight.setpoint)))
     assert len(moved) == len(plain) == 2
     for a, b, tr in zip(plain, moved, flight.truth["tests"]):
         assert b.h == pytest.approx(tr["h"], rel=0.01)  # h from the two levels, the drift cancels
@@ -65,7 +66,8 @@ def test_receive_jitter_is_not_read_as_missing_samples_but_a_lost_one_still_is(f
     def received(stamps):
         return np.maximum.accumulate(stamps + 0.001 + np.abs(rng.normal(0.0, 0.002, stamps.size)))
 
-    tests = _stable(segment_arrays(received(t), c, received(t), y, t_sp=t, setpoint=flight.setpoint))
+    tests = _stable(segment_arrays(Signal(received(t), c), Signal(received(t), y),
+                                   setpoint=Signal(t, flight.setpoint)))
     assert len(tests) == 2
     assert not any("missing" in n for tt in tests for n in tt.notes)
     assert not any("interp" in cy.flags for tt in tests for cy in tt.cycles)
@@ -74,7 +76,8 @@ def test_receive_jitter_is_not_read_as_missing_samples_but_a_lost_one_still_is(f
     sw = sw[(t[sw] > 8.0) & (t[sw] < 16.0)][[2, 6, 10]]
     keep = np.ones(t.size, bool)
     keep[sw - 1] = False
-    tests = _stable(segment_arrays(received(t)[keep], c[keep], received(t), y, t_sp=t, setpoint=flight.setpoint))
+    tests = _stable(segment_arrays(Signal(received(t)[keep], c[keep]), Signal(received(t), y),
+                                  setpoint=Signal(t, flight.setpoint)))
     cycles = [cy for tt in tests for cy in tt.cycles if "interp" in cy.flags]
     flagged = {x for cy in cycles for x in (cy.t_start, cy.t_switch, cy.t_end)}
     assert len({k for k in sw if any(abs(t[k] - f) < 0.02 for f in flagged)}) == 3

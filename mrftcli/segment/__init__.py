@@ -2,7 +2,7 @@
 
 The segmenter works on the command the MRFT block sent (``FlightLog.command``) and the loop output
 (``FlightLog.output``). It is a chain of small pure functions on numpy arrays, one module per step,
-chained by :func:`segment` / :func:`segment_arrays` (:mod:`.segmenter`):
+chained by :func:`segment` / :func:`segment_arrays` (:mod:`.segmenter`; its settings: :class:`SegmentOptions`):
 
 1. **Relay runs** (:func:`find_relay_runs`, :mod:`.runs`). The command is split at jumps larger than
    ``jump_sigmas`` times a robust (MAD) scale of its sample-to-sample increments. A *flat run* is a
@@ -60,13 +60,13 @@ Everything the identification needs comes out as frozen dataclasses (:mod:`.reco
 from .cycles import CycleFundamental, cycle_extrema, cycle_fundamental, measure_cycles
 from .records import MrftTest, RelayCycle
 from .runs import RelayRun, find_relay_runs, regularise_times, robust_sigma
-from .segmenter import segment, segment_arrays
+from .segmenter import SegmentOptions, segment, segment_arrays
 from .stability import StabilityCriterion, stable_cycles
 from .validity import LimitCycleCheck, ValidityCriterion, check_limit_cycle
 from .vernier import FoldedWaveform, TickSwitches, fold_waveform, measure_folded, switch_ticks
 
 __all__ = [
-    "segment", "segment_arrays",
+    "segment", "segment_arrays", "SegmentOptions",
     "RelayCycle", "MrftTest",
     "RelayRun", "find_relay_runs", "regularise_times", "robust_sigma",
     "CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles",

@@ -11,9 +11,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..errors import SegmentationError
-from ..io.logtypes import FlightLog
+from ..errors import InputError, SegmentationError
+from ..io.logtypes import FlightLog, Signal
 from ..io.timing import median_rate_hz
+from ..validate import check_positive
 from .cycles import measure_cycles
 from .records import MrftTest, RelayCycle
 from .runs import RelayRun, find_relay_runs, regularise_times
@@ -21,7 +22,7 @@ from .stability import StabilityCriterion, stable_cycles
 from .validity import ValidityCriterion, check_limit_cycle
 from .vernier import TickSwitches, measure_folded, refine_by_waveform, switch_ticks
 
-__all__ = ["segment", "segment_arrays"]
+__all__ = ["segment", "segment_arrays", "SegmentOptions"]
 
 #: a switch after at most this many missing command samples is interpolated, after more it is a gap
 _MAX_INTERP_SAMPLES = 2
@@ -30,6 +31,45 @@ _MAX_INTERP_SAMPLES = 2
 LOW_RATE_HZ = 25.0
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SegmentOptions:
+    """How the segmenter finds and judges tests (:func:`segment_arrays`); checked on creation.
+
+    Attributes
+    ----------
+    criterion : StabilityCriterion
+        Stable-limit-cycle settings (step 4).
+    min_runs : int
+        Fewest relay half-periods for a stretch of switching to count as a test (>= 2).
+    validity : ValidityCriterion
+        Thresholds of the limit-cycle validity check stored in ``MrftTest.validity`` (step 5).
+    controller_rate_hz : float, optional
+        Rate the relay decides at [Hz] (> 0), when the command may be logged below it (a logger that
+        sub-samples the controller); None: unknown (a switch is then placed mid-way between the two
+        command samples around it, as for a continuous relay).
+
+    Raises
+    ------
+    InputError
+        ``min_runs`` below 2 or not an integer, ``controller_rate_hz`` not a positive number.
+    """
+
+    criterion: StabilityCriterion = StabilityCriterion()
+    min_runs: int = 6
+    validity: ValidityCriterion = ValidityCriterion()
+    controller_rate_hz: float | None = None
+
+    def __post_init__(self) -> None:
+        # a relay test alternates between two levels: one half-period is no test
+        if isinstance(self.min_runs, bool) or not isinstance(self.min_runs, (int, np.integer)) or self.min_runs < 2:
+            raise InputError(f"the segmenter's min_runs must be an integer >= 2 (relay half-periods), got "
+                             f"{self.min_runs!r}")
+        object.__setattr__(self, "min_runs", int(self.min_runs))
+        if self.controller_rate_hz is not None:
+            object.__setattr__(self, "controller_rate_hz",
+                               check_positive("controller rate [Hz]", self.controller_rate_hz))
 
 
 def _missing_before(t: np.ndarray, k: int, dt: float, on_grid: bool, m: int = 8) -> int:
@@ -374,64 +414,56 @@ def _notes(cycles: list[RelayCycle], sign: int) -> tuple[str, ...]:
 
 
 def segment_arrays(
-    t_cmd: np.ndarray,
-    command: np.ndarray,
-    t_y: np.ndarray,
-    y: np.ndarray,
+    command: Signal,
+    output: Signal,
     *,
-    beta_t: np.ndarray | None = None,
-    beta_v: np.ndarray | None = None,
-    t_sp: np.ndarray | None = None,
-    setpoint: np.ndarray | None = None,
-    criterion: StabilityCriterion = StabilityCriterion(),
-    min_runs: int = 6,
-    validity: ValidityCriterion = ValidityCriterion(),
-    controller_rate_hz: float | None = None,
+    beta: Signal | None = None,
+    setpoint: Signal | None = None,
+    options: SegmentOptions = SegmentOptions(),
 ) -> list[MrftTest]:
     """Find the MRFT tests in command/output arrays (steps 1-5 of :mod:`mrftcli.segment`).
 
     Parameters
     ----------
-    t_cmd, command : numpy.ndarray
+    command : Signal
         Command timestamps [s] (increasing) and values [command units].
-    t_y, y : numpy.ndarray
+    output : Signal
         Output timestamps [s] (increasing) and values [output units].
-    beta_t, beta_v : numpy.ndarray, optional
-        Beta topic messages (time [s], value).
-    t_sp, setpoint : numpy.ndarray, optional
-        Setpoint series; when given, outputs are measured relative to it.
-    criterion : StabilityCriterion
-    min_runs : int
-        Fewest relay half-periods for a stretch to count as a test.
-    validity : ValidityCriterion
-        Thresholds of the limit-cycle validity check stored in ``MrftTest.validity``.
-    controller_rate_hz : float, optional
-        Rate the relay decides at [Hz], when the command may be logged below it (a logger that
-        sub-samples the controller); None: unknown (a switch is then placed mid-way between the two
-        command samples around it, as for a continuous relay).
+    beta : Signal, optional
+        Beta topic messages (time [s], value [-]).
+    setpoint : Signal, optional
+        Setpoint series [s, output units]; when given, outputs are measured relative to it.
+    options : SegmentOptions
+        The stability and validity criteria, the fewest half-periods of a test, the controller's rate.
 
     Returns
     -------
     list of MrftTest
         Possibly with tests that have no stable cycle; empty when no relay stretch exists.
     """
-    t_cmd, command = _finite(t_cmd, command)
-    t_y, y = _finite(t_y, y)
+    t_cmd, cmd = _finite(command.t, command.values)
+    t_y, y = _finite(output.t, output.values)
+    beta_t = beta_v = t_sp = sp = None
+    if beta is not None:
+        beta_t, beta_v = beta.t, beta.values
+    if setpoint is not None:
+        t_sp, sp = setpoint.t, setpoint.values
+    criterion, min_runs, controller_rate_hz = options.criterion, options.min_runs, options.controller_rate_hz
     breaks = None
     if beta_t is not None and len(beta_t):
         breaks = np.searchsorted(t_cmd, np.asarray(beta_t, float))
     rate_all = median_rate_hz(t_cmd)
     # below the controller's rate a fast test's half-period is 2 logged samples (a 2.5 Hz cycle at 10 Hz)
     sub = bool(controller_rate_hz and rate_all and rate_all < LOW_RATE_HZ and controller_rate_hz > 1.5 * rate_all)
-    chains = find_relay_runs(command, breaks=breaks, min_runs=min_runs, min_run_samples=2 if sub else 3)
+    chains = find_relay_runs(cmd, breaks=breaks, min_runs=min_runs, min_run_samples=2 if sub else 3)
     tests: list[MrftTest] = []
     prev_end = -np.inf
     for chain in chains:
         clock = _test_clock(chain, t_cmd, rate_all, controller_rate_hz)
         sw = _switches(chain, clock)
         t_b = float(sw.t[-1])
-        win = _output_window(t_y, y, t_sp, setpoint, float(sw.t[0]), t_b)
-        sign = _loop_sign(win.t, win.y, clock.t, command, sw.bias, sw.t, sw.up)
+        win = _output_window(t_y, y, t_sp, sp, float(sw.t[0]), t_b)
+        sign = _loop_sign(win.t, win.y, clock.t, cmd, sw.bias, sw.t, sw.up)
         beta_nom = _nominal_beta(beta_t, beta_v, prev_end, t_b)
         final, info = _measured_cycles(sw, win, sign, clock, criterion, beta_nom)
         be = np.array([c.beta_effective for c in final if c.stable])
@@ -448,7 +480,7 @@ def segment_arrays(
                 loop_sign=sign, setpoint=win.setpoint, timestamps_regularised=clock.regularised,
                 n_switches=len(sw.t), notes=_notes(final, sign) + _timing_notes(sw, clock, beta_nom),
                 controller_rate_hz=clock.controller_rate_hz, switch_timing=_switch_timing(sw, beta_nom),
-                validity=check_limit_cycle(final, beta_eff, beta_nom, validity),
+                validity=check_limit_cycle(final, beta_eff, beta_nom, options.validity),
             )
         )
         prev_end = t_b
@@ -489,21 +521,18 @@ def segment(
     SegmentationError
         When the command never switches between two levels (no relay test at all).
     """
-    t_c, c = flight.command.t, flight.command.values
-    t_y, y = flight.output.t, flight.output.values
+    t_c, t_y = flight.command.t, flight.output.t
     if t_c.size < 10 or t_y.size < 10:
         raise SegmentationError(
             f"{flight.path}: too few samples (command {t_c.size}, output {t_y.size}) to look for MRFT tests"
         )
-    kw = {}
-    if flight.beta is not None and len(flight.beta):
-        kw["beta_t"], kw["beta_v"] = flight.beta.t, flight.beta.values
-    if flight.setpoint is not None and len(flight.setpoint):
-        kw["t_sp"], kw["setpoint"] = flight.setpoint.t, flight.setpoint.values
     if controller_rate_hz is None:
         controller_rate_hz = flight.timing.controller_rate_hz
-    tests = segment_arrays(t_c, c, t_y, y, criterion=criterion, min_runs=min_runs, validity=validity,
-                           controller_rate_hz=controller_rate_hz, **kw)
+    options = SegmentOptions(criterion=criterion, min_runs=min_runs, validity=validity,
+                             controller_rate_hz=controller_rate_hz)
+    beta = flight.beta if flight.beta is not None and len(flight.beta) else None
+    setpoint = flight.setpoint if flight.setpoint is not None and len(flight.setpoint) else None
+    tests = segment_arrays(flight.command, flight.output, beta=beta, setpoint=setpoint, options=options)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"
         raise SegmentationError(

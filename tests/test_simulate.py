@@ -648,3 +648,20 @@ def test_cli_warns_when_the_noise_margin_is_small(tmp_path):
                 "--out", str(tmp_path / "r.csv"))
     assert proc.returncode == 0
     assert "may lock up" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_rotor_coefficients_are_checked_and_the_rotor_speed_lags_in_closed_form():
+    from mrftcli.mrft.propagate import RotorCoefficients, rk4_rotor
+
+    for bad in ({"hover_thrust": 0.0}, {"inv_tp": -1.0}, {"max_step": 0.0}, {"inv_td": -0.1},
+                {"quadratic_drag": float("nan")}, {"K": float("inf")}):
+        with pytest.raises(InputError):
+            RotorCoefficients(**{"K": 1.0, "inv_td": 0.5, "quadratic_drag": 0.0, "hover_thrust": 0.4,
+                                 "inv_tp": 1 / 0.0422, "inv_ts": 0.0, "max_step": 1e-3, **bad})
+    # K = 0: the rotor speed alone, q' = (sqrt(1 + w/F) - 1 - q)/Tp, an exponential towards q_c
+    F, Tp, w, q0, v0, h = 0.4, 0.0422, 0.1, 0.0, 0.3, 0.05
+    plant = RotorCoefficients(0.0, 0.0, 0.0, F, 1.0 / Tp, 0.0, 1e-3)
+    y, v, q = rk4_rotor([0.0, v0, q0], h, w, 0.0, 0.0, plant)
+    q_c = math.sqrt(1.0 + w / F) - 1.0
+    assert q == pytest.approx(q_c + (q0 - q_c) * math.exp(-h / Tp), rel=1e-7)  # RK4 at 1 ms: ~1e-9
+    assert (y, v) == pytest.approx((v0 * h, v0), rel=1e-12)

@@ -32,7 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..mrft.propagate import LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor
+from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
+                              rk4_quadratic, rk4_rotor)
 from ..mrft.relay import MrftRelay
 
 __all__ = ["AugmentedPlant", "RelayRun", "SampledRelay", "run_relay", "periodic_cycle", "quasi_static_plant"]
@@ -226,15 +227,18 @@ class _PlantStepper:
         self.prop = _Propagator(A, B, T)
         self.inv_tp = 1.0 / plant.Tp
         self.inv_lag = 1.0 / plant.sensor_lag if self.lag else 0.0
+        # the rotor's coefficients once per run (advance is called per event)
+        self.rotor_plant = RotorCoefficients(plant.K, 0.0 if self.quad else 1.0 / plant.Td, plant.quadratic_drag,
+                                             plant.hover_thrust, self.inv_tp, self.inv_lag, 0.0025) \
+            if self.rotor else None
 
     def advance(self, x: tuple, hstep: float, a0: float, slope: float) -> tuple:
         """The state after ``hstep`` [s] with the actuator at ``a0`` moving at ``slope`` [units/s]."""
         p = self.plant
         c0, c1 = a0 + p.input_bias, slope
-        if self.rotor:
+        if self.rotor_plant is not None:
             # the rotor-speed RK4 (state q: relative rotor speed in place of the force)
-            return tuple(rk4_rotor(x, hstep, c0, c1, 0.0, p.K, 0.0 if self.quad else 1.0 / p.Td,
-                                   p.quadratic_drag, p.hover_thrust, self.inv_tp, self.inv_lag, 0.0025).tolist())
+            return tuple(rk4_rotor(x, hstep, c0, c1, 0.0, self.rotor_plant).tolist())
         if self.quad:
             # RK4 (input polynomial of degree <= 1 here), at most 2.5 ms substeps
             return tuple(rk4_quadratic(x, hstep, c0, c1, 0.0, p.K, p.quadratic_drag, self.inv_tp, self.inv_lag,

@@ -11,11 +11,15 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["taylor_expm", "LinearPropagator", "rk4_quadratic", "rk4_rotor", "actuator_pieces", "gauss_markov",
+from ..errors import InputError
+
+__all__ = ["taylor_expm", "LinearPropagator", "rk4_quadratic", "RotorCoefficients", "rk4_rotor",
+           "actuator_pieces", "gauss_markov",
            "fifo_delays"]
 
 
@@ -166,22 +170,71 @@ def rk4_quadratic(
     return np.array([y, v, p, f]) if lag else np.array([y, v, p])
 
 
+@dataclass(frozen=True)
+class RotorCoefficients:
+    """The coefficients of the rotor-speed plant :func:`rk4_rotor` integrates; checked on creation.
+
+    Built once per run (a flight, a diagnosed test): :func:`rk4_rotor` is called per tick.
+
+    Attributes
+    ----------
+    K : float
+        Plant gain [output units / s^2 per command unit].
+    inv_td : float
+        1/Td [1/s], the linear drag (>= 0; 0 when quadratic drag replaces it).
+    quadratic_drag : float
+        c in v' = ... - c v|v| [1/output unit] (>= 0).
+    hover_thrust : float
+        F [command units] (> 0): the hover thrust above the zero-thrust command.
+    inv_tp : float
+        1/Tp [1/s] (> 0), the propulsion lag on the rotor speed.
+    inv_ts : float
+        1/Ts [1/s] (>= 0) of the sensor lag f' = (y - f)/Ts (0: no lag state).
+    max_step : float
+        Longest RK4 step [s] (> 0).
+
+    Raises
+    ------
+    InputError
+        A coefficient that is not finite or is out of its range.
+    """
+
+    K: float
+    inv_td: float
+    quadratic_drag: float
+    hover_thrust: float
+    inv_tp: float
+    inv_ts: float
+    max_step: float
+
+    def __post_init__(self) -> None:
+        for name in ("K", "inv_td", "quadratic_drag", "hover_thrust", "inv_tp", "inv_ts", "max_step"):
+            value = float(getattr(self, name))
+            need = "> 0" if name in ("hover_thrust", "inv_tp", "max_step") else ">= 0"
+            in_range = value > 0 if need == "> 0" else (value >= 0 or name == "K")  # K carries the loop's sign
+            if not (math.isfinite(value) and in_range):
+                raise InputError(f"the rotor plant's {name} must be finite and {need}, got {value!r}")
+            object.__setattr__(self, name, value)
+
+
 def rk4_rotor(
-    x: np.ndarray | Sequence[float], h: float, c0: float, c1: float, c2: float,
-    K: float, inv_td: float, c: float, hover_thrust: float, inv_tp: float, inv_ts: float, max_step: float,
+    x: np.ndarray | Sequence[float], h: float, c0: float, c1: float, c2: float, plant: RotorCoefficients,
 ) -> np.ndarray:
     """RK4 with the propulsion lag on rotor speed (thrust rectification) over a length ``h`` [s].
 
     ``x`` holds (y, v, q[, f]): q = omega / omega_hover - 1 the relative rotor speed. The rotor
     speed follows the speed the command asks for, q' = (sqrt(1 + w/F) - 1 - q)/Tp, and the thrust
-    [command units] is p = F ((1 + q)^2 - 1), F = ``hover_thrust`` (the hover thrust above the
-    zero-thrust command); v' = -v/Td - c v|v| + K p (``inv_td`` = 1/Td, ``c`` quadratic drag, either
-    may be 0). For small swings p ~ w lagged by Tp, the linear model. w(s) = c0 + c1 s + c2 s^2 / 2.
+    [command units] is p = F ((1 + q)^2 - 1), F = ``plant.hover_thrust`` (the hover thrust above the
+    zero-thrust command); v' = -v/Td - c v|v| + K p (``plant.inv_td`` = 1/Td, ``plant.quadratic_drag``
+    = c, either may be 0). For small swings p ~ w lagged by Tp, the linear model.
+    w(s) = c0 + c1 s + c2 s^2 / 2 [command units], s [s] from the start of the step.
     """
+    # plain locals: the RK4 stages below read them four times a substep
+    K, inv_td, c, F = plant.K, plant.inv_td, plant.quadratic_drag, plant.hover_thrust
+    inv_tp, inv_ts, max_step = plant.inv_tp, plant.inv_ts, plant.max_step
     n_sub = max(1, math.ceil(h / max_step - 1e-9))
     dt = h / n_sub
     lag = len(x) == 4
-    F = hover_thrust
     st = np.array([float(v) for v in x[:3]] + [float(x[3]) if lag else 0.0])
 
     def deriv(z: np.ndarray, s: float) -> np.ndarray:

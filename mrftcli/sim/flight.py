@@ -58,8 +58,8 @@ from .control import (
     noise_margin,
     relay_sequence,
 )
-from .plant import (LinearPropagator, PeriodPropagator, actuator_pieces, command_shaper, fifo_delays, gauss_markov,
-                    rk4_quadratic, rk4_rotor)
+from .plant import (LinearPropagator, PeriodPropagator, RotorCoefficients, actuator_pieces, command_shaper,
+                    fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor)
 from .sidecar import flight_topics, sidecar_path, truth_record, write_flight
 from .spec import (EFFECT_NAMES, Effects, FlightSettings, FlightSpec, TestSpec, default_bias, default_noise_std,
                    default_setpoint, flight_settings)
@@ -525,15 +525,17 @@ def _piece_propagator(spec: FlightSpec, prop: LinearPropagator, drive: Drive,
     inv_tp = 1.0 / model.Tp
     inv_ts = 1.0 / eff.sensor_lag if eff.sensor_lag > 0 else 0.0
     rk4_step = drive.T / 20.0
+    # the rotor's coefficients once per flight (propagate runs per actuator piece)
+    rotor_plant = RotorCoefficients(K, 0.0 if quadratic else 1.0 / model.Td, c_drag, eff.thrust_rectification,
+                                    inv_tp, inv_ts, rk4_step) if rotor else None
 
     def propagate(x: np.ndarray, h: float, ts: float, a0: float, slope: float) -> np.ndarray:
         g0 = 1.0 + gd * ts
         c0 = g0 * a0 - bias + ib
         c1 = g0 * slope + gd * a0
         c2 = 2.0 * gd * slope
-        if rotor:
-            out: np.ndarray = rk4_rotor(x, h, c0, c1, c2, K, 0.0 if quadratic else 1.0 / model.Td, c_drag,
-                                        eff.thrust_rectification, inv_tp, inv_ts, rk4_step)
+        if rotor_plant is not None:
+            out: np.ndarray = rk4_rotor(x, h, c0, c1, c2, rotor_plant)
             return out
         if not quadratic:
             return prop.step(x, h, c0, c1, c2)

@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from ..mrft.propagate import (LinearPropagator, actuator_pieces, fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor,
-                              taylor_expm)
+from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
+                              rk4_quadratic, rk4_rotor, taylor_expm)
 
-__all__ = ["taylor_expm", "LinearPropagator", "PeriodPropagator", "rk4_quadratic", "rk4_rotor", "command_shaper",
-           "actuator_pieces", "gauss_markov", "fifo_delays"]
+__all__ = ["taylor_expm", "LinearPropagator", "PeriodPropagator", "rk4_quadratic", "RotorCoefficients", "rk4_rotor",
+           "command_shaper", "actuator_pieces", "gauss_markov", "fifo_delays"]
 
 
 # --------------------------------------------------------------------------------------------------

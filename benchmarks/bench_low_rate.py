@@ -27,7 +27,7 @@ import numpy as np
 
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io import ReadOptions, read_flight
-from mrftcli.io.stacks import StackTest, write_stack_log
+from mrftcli.io.stacks import StackLogSpec, StackTest, write_stack_log
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.control import df_prediction
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
@@ -61,8 +61,8 @@ for k in range(N):
     freqs = [df_prediction(m, b, 1.0, 50.0)[0] / (2 * math.pi) for b in BETAS]
     row = [f"Td {m.Td:.3f} tau {m.tau * 1e3:.1f} K {m.K:.2f} tests {freqs[0]:.2f}/{freqs[1]:.2f} Hz |"]
     for lr in RATES:
-        p = write_stack_log(out / f"f{lr}.ulg", "px4-mrft", "altitude", fl.t, fl.command, fl.output_measured,
-                            fl.setpoint, fl.truth["bias"], st, log_rate_hz=lr if lr < 50 else None)
+        log = StackLogSpec("px4-mrft", "altitude", fl.truth["bias"], st, log_rate_hz=lr if lr < 50 else None)
+        p = write_stack_log(out / f"f{lr}.ulg", log, fl.t, fl.command, fl.output_measured, fl.setpoint)
         try:
             r = analyze_flight(read_flight(p, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422,
                                options=AnalyzeOptions(n_bootstrap=200, seed=1, controller_rate_hz=50.0))

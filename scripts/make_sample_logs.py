@@ -36,7 +36,7 @@ import numpy as np
 
 from mrftcli.mrft.model import LoopModel
 from mrftcli.io import FORMATS, ReadOptions, log_filename, read_flight
-from mrftcli.io.stacks import StackTest, write_stack_log
+from mrftcli.io.stacks import StackLogSpec, StackTest, write_stack_log
 from mrftcli.sim.flight import FlightSpec, plan_test, sidecar_path, simulate_flight, write_flight
 
 REPO = Path(__file__).resolve().parents[1]
@@ -105,8 +105,8 @@ def build_stack(name: str):
 def write_stack(flight, name: str, out: Path) -> Path:
     layout, _, loop, _, _, log_rate, _, seed = STACKS[name]
     tests = [StackTest(e["t_start"], e["t_end"], e["beta"], e["h"]) for e in flight.truth["tests"]]
-    path = write_stack_log(out / name, layout, loop, flight.t, flight.command, flight.output_measured,
-                           flight.setpoint, flight.truth["bias"], tests, log_rate_hz=log_rate, seed=seed)
+    spec = StackLogSpec(layout, loop, flight.truth["bias"], tests, log_rate_hz=log_rate, seed=seed)
+    path = write_stack_log(out / name, spec, flight.t, flight.command, flight.output_measured, flight.setpoint)
     truth = dict(flight.truth)
     truth.update(log_format={"px4-mrft": "ulog", "hear-ros": "bag", "mat": "mat"}[layout], log_file=name,
                  layout=layout, log_rate_hz=log_rate or flight.spec.rate_hz)

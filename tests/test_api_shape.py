@@ -30,8 +30,6 @@ MAX_PARAMETERS = 10
 #: qualified name -> why it is allowed more for now. Each entry must still be over the limit (a stale
 #: exception fails the test, so the list shrinks as they are fixed).
 EXCEPTIONS = {
-    # TODO(issue 21): a StackLogSpec record (io/stacks.py is another engineer's area in this round).
-    "mrftcli.io.stacks.write_stack_log": "the flight's arrays and the stack's test list; a StackLogSpec is the fix",
     # TODO(issue 21): the design settings (objective, Ms, noise gain, effort, rate) as a TuneOptions record
     # (tune/ is another engineer's area in this round).
     "mrftcli.tune.design.tune": "the model and the design settings; a TuneOptions record is the fix",

@@ -201,3 +201,19 @@ def test_analyze_prints_the_layout_and_the_feedback_sign_with_its_evidence():
     flipped = CliRunner().invoke(cli, ["analyze", log, "--tp", "0.0422", "--output-scale", "1"])
     assert flipped.exit_code == 0, flipped.output
     assert "feedback sign - (the output falls while the relay is high in 2/2 tests" in flipped.output
+
+
+def test_stack_log_spec_is_checked_and_a_mat_log_reads_back_its_arrays(tmp_path):
+    from mrftcli.errors import InputError
+    from mrftcli.io.stacks import StackLogSpec, StackTest, write_stack_log
+
+    for bad in ({"layout": "ardupilot"}, {"bias": float("nan")}, {"log_rate_hz": 0.0}):
+        with pytest.raises(InputError):
+            StackLogSpec(**{"layout": "mat", "loop": "altitude", "bias": 0.5, **bad})
+    spec = StackLogSpec("mat", "altitude", 0.5, [StackTest(1.0, 2.0, -0.5, 0.05)])
+    assert spec.tests == (StackTest(1.0, 2.0, -0.5, 0.05),)
+    t = np.arange(200) / 100.0
+    command, output = 0.5 + 0.05 * np.sign(np.sin(2 * np.pi * t)), 1.0 + 0.01 * np.sin(2 * np.pi * t)
+    path = write_stack_log(tmp_path / "f.mat", spec, t, command, output, 1.0)
+    flight = read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False)
+    assert np.allclose(flight.command.values, command) and np.allclose(flight.output.values, output)

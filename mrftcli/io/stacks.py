@@ -9,6 +9,8 @@ beta, h and the test windows as parameter changes. The sample logs and the layou
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +19,7 @@ import numpy as np
 from ..errors import InputError
 from .logtypes import TopicData
 
-__all__ = ["StackTest", "write_stack_log", "STACK_FORMATS"]
+__all__ = ["StackTest", "StackLogSpec", "write_stack_log", "STACK_FORMATS"]
 
 #: layout -> the format its logs are written in
 STACK_FORMATS = {"px4-mrft": "ulog", "hear-ros": "bag", "mat": "mat", "mat-v73": "mat"}
@@ -32,6 +34,49 @@ class StackTest:
     t_end: float
     beta: float
     h: float
+
+
+@dataclass(frozen=True)
+class StackLogSpec:
+    """How a flight stack logs one loop's flight (:func:`write_stack_log`); checked on creation.
+
+    Attributes
+    ----------
+    layout : {"px4-mrft", "hear-ros", "mat", "mat-v73"}
+        The flight stack's layout (:data:`STACK_FORMATS`).
+    loop : str
+        The loop the tests excite (in the loop's frame: altitude up, command = bias + relay).
+    bias : float
+        The command's trim [command units] (hover thrust for altitude).
+    tests : tuple of StackTest
+        The tests' windows [s], beta [-] and h [command units] (PX4 logs them as parameter changes);
+        any sequence is kept as a tuple.
+    log_rate_hz : float, optional
+        The logger's rate [Hz] (> 0; PX4's default profile: 10 Hz); None logs every controller tick.
+    seed : int
+        Seed of the receive-time jitter (hear-ros).
+
+    Raises
+    ------
+    InputError
+        An unknown layout, a bias that is not finite, a logging rate that is not positive.
+    """
+
+    layout: str
+    loop: str
+    bias: float
+    tests: Sequence[StackTest] = ()
+    log_rate_hz: float | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.layout not in STACK_FORMATS:
+            raise InputError(f"cannot write layout {self.layout!r}; choose one of {', '.join(STACK_FORMATS)}")
+        if not math.isfinite(self.bias):
+            raise InputError(f"the command's trim (bias) must be a finite number, got {self.bias!r}")
+        if self.log_rate_hz is not None and not (math.isfinite(self.log_rate_hz) and self.log_rate_hz > 0):
+            raise InputError(f"the logging rate must be a positive number [Hz] or None, got {self.log_rate_hz!r}")
+        object.__setattr__(self, "tests", tuple(self.tests))
 
 
 def _decimate(t: np.ndarray, rate_hz: float | None) -> np.ndarray:
@@ -54,7 +99,7 @@ class _Px4Log:
 
 
 def _px4(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, setpoint: np.ndarray, bias: float,
-         tests: list[StackTest], log_rate_hz: float | None) -> _Px4Log:
+         tests: Sequence[StackTest], log_rate_hz: float | None) -> _Px4Log:
     if loop not in _AXIS:
         raise InputError(f"the PX4 MRFT patch runs on x, y and altitude, not {loop}")
     k = _decimate(t, log_rate_hz)
@@ -141,37 +186,29 @@ def _mat(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray,
             TopicData(out_name, "vector", t[k], {"data": output[k]})]
 
 
-def write_stack_log(path: str | Path, layout: str, loop: str, t: np.ndarray, command: np.ndarray,
-                    output: np.ndarray, setpoint: np.ndarray | float, bias: float,
-                    tests: list[StackTest], *, log_rate_hz: float | None = None, seed: int = 0) -> Path:
-    """Write one loop's flight as ``layout`` logs it.
+def write_stack_log(path: str | Path, spec: StackLogSpec, t: np.ndarray, command: np.ndarray,
+                    output: np.ndarray, setpoint: np.ndarray | float) -> Path:
+    """Write one loop's flight as ``spec.layout`` logs it.
 
     Parameters
     ----------
     path : str or Path
         Target file (``.ulg`` for ``px4-mrft``, ``.bag`` for ``hear-ros``, ``.mat`` for ``mat`` and
         ``mat-v73``).
-    layout : {"px4-mrft", "hear-ros", "mat", "mat-v73"}
-    loop : str
-        The loop the tests excite (in the loop's frame: altitude up, command = bias + relay).
+    spec : StackLogSpec
+        The layout, the loop, the command's trim, the tests, the logger's rate and the jitter's seed.
     t, command, output : numpy.ndarray
-        Controller ticks [s], the command sent (bias + relay output) and the measured output.
+        Controller ticks [s], the command sent (bias + relay output) [command units] and the measured
+        output [output units].
     setpoint : numpy.ndarray or float
         The loop reference [output units].
-    bias : float
-        The command's trim (hover thrust for altitude).
-    tests : list of StackTest
-        The tests' windows, beta and h (PX4 logs them as parameter changes).
-    log_rate_hz : float, optional
-        The logger's rate (PX4's default profile: 10 Hz); None logs every controller tick.
-    seed : int
-        Seed of the receive-time jitter (hear-ros).
 
     Returns
     -------
     Path
         The written file.
     """
+    layout, loop, log_rate_hz = spec.layout, spec.loop, spec.log_rate_hz
     t = np.asarray(t, float)
     command = np.asarray(command, float)
     output = np.asarray(output, float)
@@ -182,13 +219,13 @@ def write_stack_log(path: str | Path, layout: str, loop: str, t: np.ndarray, com
     if layout == "px4-mrft":
         from .format_ulog import write_ulog
 
-        px4 = _px4(loop, t, command, output, setpoint, bias, tests, log_rate_hz)
+        px4 = _px4(loop, t, command, output, setpoint, spec.bias, spec.tests, log_rate_hz)
         write_ulog(px4.topics, path, parameters=px4.parameters, parameter_changes=px4.parameter_changes,
                    messages=px4.messages)
     elif layout == "hear-ros":
         from .format_rosbag import write_rosbag
 
-        write_rosbag(_hear(loop, t, command, output, setpoint, log_rate_hz, np.random.default_rng(seed)),
+        write_rosbag(_hear(loop, t, command, output, setpoint, log_rate_hz, np.random.default_rng(spec.seed)),
                      path, "bag")
     elif layout in ("mat", "mat-v73"):
         from .format_mat import write_mat

@@ -61,7 +61,7 @@ def _one(path: Path) -> list[dict]:
     from mrftcli.analyze import analyze_path
     from mrftcli.errors import MrftError
     from mrftcli.tune.analysis import posterior_from_analysis
-    from mrftcli.tune.design import tune
+    from mrftcli.tune.design import DesignOptions, tune
     from mrftcli.tune.stacks import check_exportable, export_design, stack_setting
 
     truth = json.loads((SAMPLES / (path.name + ".truth.json")).read_text())
@@ -74,14 +74,15 @@ def _one(path: Path) -> list[dict]:
     rows = []
     base = None
     if loop in ("roll", "pitch") and a.controller_rate_hz:
-        res0 = tune(a.model, a.controller_rate_hz, posterior=post, kinds=("PD",), loop=loop)
+        res0 = tune(a.model, a.controller_rate_hz, posterior=post, options=DesignOptions(kinds=("PD",)), loop=loop)
         base = _baseline(res0, a.model, loop)
     for stack in STACKS:
         row: dict = {"log": path.name, "stack": stack, "loop": loop}
         try:
             check_exportable(stack, loop, "PD", HOVER)
             st = stack_setting(stack, loop, None, a.controller_rate_hz, None)
-            res = tune(a.model, st.rate_hz, posterior=post, kinds=("PD",), loop=loop, rate_filter=st.rate_filter)
+            res = tune(a.model, st.rate_hz, posterior=post, loop=loop,
+                       options=DesignOptions(kinds=("PD",), rate_filter=st.rate_filter))
             name = "robust" if any(x.name == "robust" for x in res.designs) else "model-based"
             heights = [float(t.h) for t in a.tests]
             amps = [float(t.amplitude_mean) for t in a.tests]

@@ -39,11 +39,11 @@ TABLE_III = [  # platform, loop, Tp, Td mean, Td std, tau mean, tau std (checks.
 
 
 def _check(name, model, post, rate, out):
-    from mrftcli.tune import simulate_step, step_metrics, tune
+    from mrftcli.tune import DesignOptions, simulate_step, step_metrics, tune
 
     t0 = time.perf_counter()
     c0 = time.process_time()
-    res = tune(model, rate, posterior=post, kinds=("PD", "PID"))
+    res = tune(model, rate, posterior=post, options=DesignOptions(kinds=("PD", "PID")))
     cpu = time.process_time() - c0
     rule, mb, rob = (res.get(n, "PD") for n in ("mrft-rule", "model-based", "robust"))
     pid = res.get("robust", "PID")
@@ -53,8 +53,8 @@ def _check(name, model, post, rate, out):
     d_os = sim.overshoot_pct - rob.step.overshoot_pct
     d_st = (sim.settling_s / rob.step.settling_s - 1) * 100 if math.isfinite(rob.step.settling_s) else math.nan
     # model-based vs the rule at the rule's Ms (equal or better Ms) and noise gain
-    eq = tune(model, rate, objective=res.objective, ms_max=max(rule.margins.Ms, 1.01), designs=("model-based",),
-              kinds=("PD",)).get("model-based", "PD")
+    eq = tune(model, rate, options=DesignOptions(objective=res.objective, ms_max=max(rule.margins.Ms, 1.01),
+                                                 designs=("model-based",), kinds=("PD",))).get("model-based", "PD")
     w = rob.posterior["worst"]
     row = dict(name=name, pm_worst=w["phase_margin_deg"], ms_worst=w["Ms"], dm=rob.margins.delay_margin_s * 1e3,
                dm_worst=w["delay_margin_ms"], os_pred=rob.step.overshoot_pct, os_sim=sim.overshoot_pct, d_os=d_os,

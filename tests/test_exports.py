@@ -15,7 +15,7 @@ from scipy import signal
 from mrftcli.errors import InputError
 from mrftcli.mrft.model import LoopModel
 from mrftcli.tune.closed_loop import Controller, RateFilter, responses, simulate_step
-from mrftcli.tune.design import Design, TuneResult, Posterior, tune
+from mrftcli.tune.design import Design, DesignOptions, TuneResult, Posterior, tune
 from mrftcli.tune.margins import plant_system
 from mrftcli.tune.stack_params import PX4_GYRO_RATES_HZ, STACK_PARAMS, check_ranges, param
 from mrftcli.tune.stacks import (STANDARD_GRAVITY, StackExport, check_exportable, export_design,
@@ -134,8 +134,8 @@ def test_every_sample_export_is_in_range_with_its_margins(stack, loop, model, ra
     is a vendored parameter of the stack, every value in its range, and the margins the export states are
     those of the loop its values give, recomputed here from the values alone."""
     st = stack_setting(stack, loop, None, rate, None)
-    res = tune(model, st.rate_hz, kinds=("PD",), designs=("mrft-rule", "model-based"), loop=loop,
-               rate_filter=st.rate_filter)
+    res = tune(model, st.rate_hz, loop=loop, options=DesignOptions(kinds=("PD",), designs=("mrft-rule", "model-based"),
+                                                                 rate_filter=st.rate_filter))
     cutoff = st.rate_filter.cutoff_hz if st.rate_filter is not None else None
     w = np.geomspace(1e-3, 0.999, 3000) * math.pi * st.rate_hz
     for d in res.designs:
@@ -160,7 +160,8 @@ def test_px4_mrft_rule_out_of_range_is_refused_then_clamped_with_margins():
     m = LoopModel(0.0499, 0.887, 0.0228, 20.0)  # design2_roll's truth
     st = stack_setting("px4", "roll", None, 200.0, None)
     assert st.rate_hz == 250.0 and st.rate_filter is not None and st.rate_filter.cutoff_hz == 40.0
-    res = tune(m, st.rate_hz, kinds=("PD",), designs=("mrft-rule",), loop="roll", rate_filter=st.rate_filter)
+    res = tune(m, st.rate_hz, loop="roll",
+               options=DesignOptions(kinds=("PD",), designs=("mrft-rule",), rate_filter=st.rate_filter))
     c = res.designs[0].controller
     big = Controller(c.Kp * 3, 0.0, c.Kd * 3, 0.0, c.rate_hz, c.rate_filter)  # MC_ROLLRATE_P far above 0.5
     with pytest.raises(InputError, match=r"MC_ROLLRATE_P = .* above the maximum 0.5.*--clamp"):
@@ -207,7 +208,8 @@ def test_px4_params_file_is_qgroundcontrols_format():
 def test_records_round_trip_and_refuse_other_versions():
     m = LoopModel(0.0422, 1.301, 0.0297, 30.0)
     post = Posterior.from_spread(m, 0.1, 0.002, 2.0, n=12)
-    res = tune(m, 250.0, posterior=post, kinds=("PD",), designs=("mrft-rule",), rate_filter=RateFilter(40.0))
+    res = tune(m, 250.0, posterior=post,
+               options=DesignOptions(kinds=("PD",), designs=("mrft-rule",), rate_filter=RateFilter(40.0)))
     data = json.loads(json.dumps(res.to_json()))
     back = TuneResult.from_json(data)
     assert back.to_json() == res.to_json() and back.rate_filter == res.rate_filter

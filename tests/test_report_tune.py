@@ -16,10 +16,11 @@ pytestmark = pytest.mark.usefixtures("mplcleanup")
 
 @pytest.fixture(scope="module")
 def result():
-    from mrftcli.tune.design import tune
+    from mrftcli.tune.design import DesignOptions, tune
 
     # design1's altitude loop (sample_logs/design1_altitude.mcap.truth.json), no posterior: PD only
-    return tune(LoopModel(0.0422, 2.669, 0.0464, 19.62), 200.0, kinds=("PD", "PID"), loop="altitude")
+    return tune(LoopModel(0.0422, 2.669, 0.0464, 19.62), 200.0, options=DesignOptions(kinds=("PD", "PID")),
+                loop="altitude")
 
 
 def test_phase_is_on_the_margins_branch(result):

@@ -246,10 +246,10 @@ def test_load_step_matches_event_simulation_and_pd_offset():
 def test_pid_design_optimises_integral_action_within_the_limits():
     # the model-based PID chooses its own Ti: it must satisfy Ms <= 1.6, reject the load step (recover
     # within the horizon) and beat the fixed-ratio PID (Ti = 4 Td_c at the same Kp, Td_c) on its criterion
-    from mrftcli.tune.design import TI_RATIO, tune
+    from mrftcli.tune.design import TI_RATIO, DesignOptions, tune
     from mrftcli.tune.closed_loop import criterion, responses
 
-    res = tune(ROLL, 200.0, designs=("model-based",), kinds=("PD", "PID"))
+    res = tune(ROLL, 200.0, options=DesignOptions(designs=("model-based",), kinds=("PD", "PID")))
     pd, pid = res.get("model-based", "PD"), res.get("model-based", "PID")
     c = pid.controller
     assert c.Ki > 0 and pid.margins.Ms <= 1.6 * 1.002
@@ -400,12 +400,12 @@ def test_long_delay_responses_match_event_simulation(ctrl):
 def test_nominal_margins_are_one_of_the_posteriors_figures():
     # one computation for the nominal model and the draws: the nominal figure is the draws' method's
     # figure on the nominal model, and lies within the range over a posterior centred on it
-    from mrftcli.tune.design import tune
+    from mrftcli.tune.design import DesignOptions, tune
     from mrftcli.tune.margins import loop_margins
 
     model = LoopModel(0.08, 3.205, 0.2, 0.98)  # 40 ticks: long enough for the spectral responses
     post = Posterior.from_spread(model, 0.2, 0.01, 0.05, n=40, seed=2)
-    res = tune(model, 200.0, posterior=post, designs=("model-based",), kinds=("PD",))
+    res = tune(model, 200.0, posterior=post, options=DesignOptions(designs=("model-based",), kinds=("PD",)))
     d = res.get("model-based", "PD")
     allm = loop_margins(d.controller, [model] + post.models())
     assert d.margins == allm[0]
@@ -450,3 +450,13 @@ def test_margins_json_round_trip_and_errors():
         Margins.from_json([1, 2])
     with pytest.raises(InputError, match="stable"):
         Margins.from_json({**margins(ROLL, PD).to_json(), "stable": "yes"})
+
+
+def test_design_options_are_checked_on_creation():
+    from mrftcli.tune import DesignOptions
+
+    assert DesignOptions(designs=["robust"], kinds=["PD"]).designs == ("robust",)
+    for bad in ({"objective": "ise"}, {"ms_max": 1.0}, {"ms_max": float("nan")}, {"effort_max": 0.0},
+                {"designs": ("lqr",)}, {"kinds": ("PI",)}):
+        with pytest.raises(InputError):
+            DesignOptions(**bad)

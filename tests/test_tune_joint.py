@@ -12,7 +12,7 @@ import pytest
 from mrftcli.errors import InputError
 from mrftcli.mrft.model import LoopModel
 from mrftcli.tune.closed_loop import RateFilter
-from mrftcli.tune.design import Posterior, tune
+from mrftcli.tune.design import DesignOptions, Posterior, tune
 from mrftcli.tune.joint import (AxisModel, AxisSource, JointCutoff, JointExport, export_axes,
                                 joint_gyro_cutoff)
 from mrftcli.tune.margins import loop_margins
@@ -41,8 +41,9 @@ def _passes(axes: list[AxisModel], cutoff: float, reference: list[float]) -> tup
     """Brute force at one cutoff: tune's robust PD per axis, its Ms recomputed on every draw of the 95 % set."""
     ok, J = True, []
     for a, j0 in zip(axes, reference or [math.inf, math.inf]):
-        d = tune(a.model, RATE, posterior=a.posterior, designs=("model-based", "robust"), kinds=("PD",),
-                 rate_filter=RateFilter(cutoff, "IMU_GYRO_CUTOFF")).get("robust", "PD")
+        options = DesignOptions(designs=("model-based", "robust"), kinds=("PD",),
+                                rate_filter=RateFilter(cutoff, "IMU_GYRO_CUTOFF"))
+        d = tune(a.model, RATE, posterior=a.posterior, options=options).get("robust", "PD")
         draws = [a.posterior.models()[i] for i in np.nonzero(a.posterior.in_set())[0]]
         worst = float(np.max(loop_margins(d.controller, draws).Ms))
         J.append(d.criterion_expected)

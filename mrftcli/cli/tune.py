@@ -338,6 +338,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
 
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --export px4 --out roll.params
     """
+    from ..tune.design import DesignOptions
     from ..tune.design import tune as run_tune
 
     if len(sources) > 2:
@@ -411,9 +412,9 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         raise InputError("give --controller-rate HZ, the rate the controller runs at: the gains are designed for "
                          "the sampled loop and the source records no rate")
     with tqdm_progress("tune", unit="design", enabled=not quiet) as progress:
-        res = run_tune(src.model, rate, posterior=src.posterior, objective=objective, ms_max=ms_max,
-                       effort_max=effort_max, loop=loop, progress=progress,
-                       rate_filter=setting.rate_filter if setting is not None else None)
+        options = DesignOptions(objective=objective, ms_max=ms_max, effort_max=effort_max,
+                                rate_filter=setting.rate_filter if setting is not None else None)
+        res = run_tune(src.model, rate, posterior=src.posterior, options=options, loop=loop, progress=progress)
     notes = src.notes + (setting.notes if setting is not None else ())
     if notes:
         res = dataclasses.replace(res, notes=notes + res.notes)

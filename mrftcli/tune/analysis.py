@@ -27,7 +27,7 @@ import numpy as np
 from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..mrft.model import LoopModel
-from .design import Posterior, TuneResult, tune
+from .design import DesignOptions, Posterior, TuneResult, tune
 
 __all__ = ["posterior_from_analysis", "model_from_result_json", "tune_analysis",
            "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES", "ASSUMED_RATE_HZ",
@@ -107,11 +107,12 @@ def tune_analysis(result: AnalysisResult, *, kinds=("PD",), rate_hz: float | Non
 
     ``rate_hz`` defaults to the controller rate the analysis records (``result.controller_rate_hz``;
     :data:`ASSUMED_RATE_HZ` when it has none, and the result's first note says so); ``options`` go to
-    :func:`~mrftcli.tune.design.tune` (``objective``, ``ms_max``, ``effort_max``, ``progress``).
+    its :class:`~mrftcli.tune.design.DesignOptions` (``objective``, ``ms_max``, ``effort_max``) and ``progress``.
     """
     rate = rate_hz if rate_hz is not None else result.controller_rate_hz
-    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result), kinds=kinds,
-               designs=designs, loop=result.loop, **options)
+    progress = options.pop("progress", None)
+    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result),
+               options=DesignOptions(kinds=kinds, designs=designs, **options), loop=result.loop, progress=progress)
     if not rate:
         # stated with the gains (their notes reach the table, the JSON and the report): never a silent default
         res = dataclasses.replace(res, notes=(RATE_ASSUMED_NOTE, *res.notes))

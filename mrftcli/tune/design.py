@@ -109,7 +109,7 @@ def _controller_from(data: Any, what: str) -> Controller:
     Kp, Ki, Kd, Tf, rate = (_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
     return Controller(Kp, Ki, Kd, Tf, rate, _rate_filter_from(data.get("rate_filter"), what))
 
-__all__ = ["Posterior", "Design", "TuneResult", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
+__all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
 
 #: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it).
@@ -319,7 +319,8 @@ class TuneResult:
 
         Examples
         --------
-        >>> res = tune(LoopModel(0.0422, 1.301, 0.0297, 30.0), 200.0, designs=("mrft-rule",), kinds=("PD",))
+        >>> res = tune(LoopModel(0.0422, 1.301, 0.0297, 30.0), 200.0,
+        ...            options=DesignOptions(designs=("mrft-rule",), kinds=("PD",)))
         >>> TuneResult.from_json(res.to_json()).designs[0].controller == res.designs[0].controller
         True
         """
@@ -590,9 +591,54 @@ def _summaries(c: Controller, post: Posterior, plants: list[DiscretePlant], obje
             "unstable_in_set": int(np.sum(~mg.stable[in_set]))}, expected, mg
 
 
-def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None, objective: str = "iae",
-         ms_max: float = 1.6, effort_max: float | None = None, designs=DESIGNS, kinds=KINDS, loop: str = "",
-         progress: Progress | None = None, rate_filter: RateFilter | None = None) -> TuneResult:
+@dataclass(frozen=True)
+class DesignOptions:
+    """The design settings of :func:`tune`; checked on creation (a one-line ``InputError``).
+
+    Attributes
+    ----------
+    objective : {"iae", "itae"}
+        Criterion of the unit setpoint step over ``6 T0`` (T0: the MRFT period at beta = -0.7).
+    ms_max : float
+        Limit on the sensitivity peak Ms [-] (> 1).
+    effort_max : float, optional
+        Limit on the controller's noise gain [command units / output unit] (> 0); None: the MRFT
+        rule's.
+    designs : tuple of str
+        Which of :data:`DESIGNS` to make (the robust one needs a posterior).
+    kinds : tuple of str
+        Which of :data:`KINDS` to make.
+    rate_filter : RateFilter, optional
+        The flight stack's filter on the measured rate (``tune --export``): every design, the MRFT
+        rule's included, runs its derivative through it instead of Tf = Td_c / FILTER_N.
+    """
+
+    objective: str = "iae"
+    ms_max: float = 1.6
+    effort_max: float | None = None
+    designs: Sequence[str] = DESIGNS
+    kinds: Sequence[str] = KINDS
+    rate_filter: RateFilter | None = None
+
+    def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise InputError(f"unknown objective {self.objective!r}; choose from {', '.join(OBJECTIVES)}")
+        if not (math.isfinite(self.ms_max) and self.ms_max > 1.0):
+            raise InputError(f"--ms-max must be a number above 1, got {self.ms_max!r}")
+        if self.effort_max is not None:
+            check_positive("--effort-max", self.effort_max)
+        bad = [d for d in self.designs if d not in DESIGNS]
+        if bad:
+            raise InputError(f"unknown design(s) {bad}; choose from {', '.join(DESIGNS)}")
+        bad = [k for k in self.kinds if k not in KINDS]
+        if bad:
+            raise InputError(f"unknown controller kind(s) {bad}; choose from {', '.join(KINDS)}")
+        object.__setattr__(self, "designs", tuple(self.designs))
+        object.__setattr__(self, "kinds", tuple(self.kinds))
+
+
+def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None,
+         options: DesignOptions = DesignOptions(), loop: str = "", progress: Progress | None = None) -> TuneResult:
     """Design PD and PID controllers for ``model`` at ``rate_hz`` (see the module docstring).
 
     Parameters
@@ -603,36 +649,27 @@ def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None
         Controller rate [Hz].
     posterior : Posterior, optional
         Parameter draws; without it the robust design is left out (it would equal the model-based one).
-    objective : {"iae", "itae"}
-        Criterion of the unit setpoint step over ``8 T0`` (T0: the MRFT period at beta = -0.7).
-    ms_max : float
-        Limit on the sensitivity peak Ms [-] (> 1).
-    effort_max : float, optional
-        Limit on the controller's noise gain [command units / output unit]; default: the MRFT rule's.
+    options : DesignOptions
+        The objective, the Ms and noise-gain limits, the designs and kinds, the stack's rate filter.
+    loop : str
+        The loop's name, recorded in the result.
     progress : Progress, optional
         Called as ``progress(done, total, stage)`` per design.
-    rate_filter : RateFilter, optional
-        The flight stack's filter on the measured rate (``tune --export``): every design, the MRFT
-        rule's included, runs its derivative through it instead of Tf = Td_c / FILTER_N.
 
     Returns
     -------
     TuneResult
     """
-    if objective not in OBJECTIVES:
-        raise InputError(f"unknown objective {objective!r}; choose from {', '.join(OBJECTIVES)}")
     rate_hz = check_positive("the controller rate [Hz]", rate_hz)
-    if not (math.isfinite(ms_max) and ms_max > 1.0):
-        raise InputError(f"--ms-max must be a number above 1, got {ms_max!r}")
-    bad = [d for d in designs if d not in DESIGNS]
-    if bad:
-        raise InputError(f"unknown design(s) {bad}; choose from {', '.join(DESIGNS)}")
+    objective, ms_max, kinds, rate_filter = options.objective, options.ms_max, options.kinds, options.rate_filter
+    designs = options.designs
     notes = []
     if posterior is None or posterior.n < 2:
         designs = tuple(d for d in designs if d != "robust")
         notes.append("no posterior (no draws or spreads given): the robust design is left out")
         posterior = None
-    st = _setting(model, rate_hz, posterior, objective, ms_max, effort_max, kinds, "robust" in designs, rate_filter)
+    st = _setting(model, rate_hz, posterior, objective, ms_max, options.effort_max, kinds, "robust" in designs,
+                  rate_filter)
     jobs = [(d, k) for d in designs for k in kinds]
     # PD before PID: a PID design starts from the PD design of the same name
     jobs.sort(key=lambda j: (DESIGNS.index(j[0]), KINDS.index(j[1])))

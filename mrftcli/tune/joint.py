@@ -36,7 +36,7 @@ from ..jsonable import check_schema_version
 from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from .closed_loop import RateFilter
-from .design import Posterior, TuneResult, tune
+from .design import DesignOptions, Posterior, TuneResult, tune
 from .stacks import StackExport, export_design
 
 __all__ = ["AxisModel", "AxisSource", "CutoffTrial", "JointCutoff", "JointExport", "joint_gyro_cutoff", "design_axes",
@@ -179,9 +179,9 @@ class JointCutoff:
 def design_axes(axes: Sequence[AxisModel], rate_hz: float, rate_filter: RateFilter, *, objective: str = "iae",
                 ms_max: float = 1.6) -> tuple[TuneResult, ...]:
     """Each axis's model-based and robust PD at ``rate_hz`` with ``rate_filter`` (tune's designs, PD only)."""
-    return tuple(tune(a.model, rate_hz, posterior=a.posterior, objective=objective, ms_max=ms_max,
-                      designs=("model-based", "robust"), kinds=("PD",), loop=a.loop, rate_filter=rate_filter)
-                 for a in axes)
+    options = DesignOptions(objective=objective, ms_max=ms_max, designs=("model-based", "robust"), kinds=("PD",),
+                            rate_filter=rate_filter)
+    return tuple(tune(a.model, rate_hz, posterior=a.posterior, options=options, loop=a.loop) for a in axes)
 
 
 def _trial(cutoff_hz: float, results: Sequence[TuneResult], reference: CutoffTrial | None,

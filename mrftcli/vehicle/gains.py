@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..tune.analysis import ASSUMED_RATE_HZ, RATE_ASSUMED_NOTE, posterior_from_analysis
-from ..tune.design import TuneResult, tune
+from ..tune.design import DesignOptions, TuneResult, tune
 from ..tune.stacks import StackSetting, check_exportable, export_design, stack_setting
 from .record import LoopGains, VehicleLoop
 
@@ -97,10 +97,10 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     """
     setting, refused = _setting(result, options)
     rate = setting.rate_hz if setting is not None else options.rate_hz or result.controller_rate_hz
-    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result),
-               kinds=(options.kind,), designs=("model-based", "robust"), loop=result.loop,
-               objective=options.objective, ms_max=options.ms_max,
-               rate_filter=setting.rate_filter if setting is not None else None)
+    settings = DesignOptions(objective=options.objective, ms_max=options.ms_max, designs=("model-based", "robust"),
+                             kinds=(options.kind,), rate_filter=setting.rate_filter if setting is not None else None)
+    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result), options=settings,
+               loop=result.loop)
     notes = (*(() if rate else (RATE_ASSUMED_NOTE,)), *(setting.notes if setting is not None else ()))
     if notes:
         from dataclasses import replace

@@ -287,10 +287,10 @@ def tick_numbers(t: np.ndarray) -> np.ndarray | None:
     whole = np.rint(steps)
     if _all_near(steps, whole, 0.05):
         # clean clock (no jitter to speak of): counting intervals cannot slip
-        n = np.empty(t.size)
-        n[0] = 0.0
-        np.cumsum(np.maximum(whole, 1.0, out=whole), out=n[1:])
-        return n
+        ticks = np.empty(t.size)
+        ticks[0] = 0.0
+        np.cumsum(np.maximum(whole, 1.0, out=whole), out=ticks[1:])
+        return ticks
     del steps, whole
     tr = t - t[0]
     dt = dt0

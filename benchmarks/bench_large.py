@@ -47,7 +47,7 @@ class Run:
 
 
 def run(path: Path, rows: int, command: str, out: Path) -> Run:
-    """One command on one file in its own process: exit code, wall and CPU time [s], peak RSS [MB]."""
+    """One command on one file in its own process: exit code, wall and CPU time [s], peak RSS [MiB]."""
     argv = [sys.executable, "-m", "mrftcli", *[a.format(out=out) for a in COMMANDS[command][:1]], str(path),
             *[a.format(out=out) for a in COMMANDS[command][1:]]]
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     folder = args.keep or Path(tempfile.mkdtemp(prefix="bench_large_"))
     folder.mkdir(parents=True, exist_ok=True)
-    print("| rows | command | exit | wall [s] | CPU [s] | peak RSS [MB] | CPU per M rows [s] |")
+    print("| rows | command | exit | wall [s] | CPU [s] | peak RSS [MiB] | CPU per M rows [s] |")
     print("|---|---|---|---|---|---|---|")
     runs: list[Run] = []
     for rows in (args.rows // 5, args.rows):

@@ -328,7 +328,9 @@ def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] 
     rows: dict[int, list[tuple[float, complex]]] = {k: [] for k in harmonics}
     for c in test.stable:
         P = c.t_end - c.t_start
-        i0, i1 = np.searchsorted(t, [c.t_start, c.t_end])
+        # the cycle is [t_start, t_end): a sample within a millionth of a period of a bound counts as on
+        # it, so rounding in the times (1e-14 s) cannot move a sample across (it moved K by 0.25 %)
+        i0, i1 = np.searchsorted(t, [c.t_start - 1e-6 * P, c.t_end - 1e-6 * P])
         if i1 - i0 < 10:  # a line and the fundamental need a few samples each
             continue
         # up to eight harmonics, two samples per fitted function (16 samples a cycle: k <= 3)

@@ -29,9 +29,9 @@ def sweep_plants(n: int, seed: int):
 
 
 @pytest.mark.slow
-def test_thirty_random_plants():
+def test_thirty_random_plants(sweep_size):
     failures, tau_errors, covered = [], [], {"tau": 0, "K": 0, "Td": 0}
-    plants = list(sweep_plants(30, seed=0))
+    plants = list(sweep_plants(sweep_size(30, 12), seed=0))  # 12 in CI; --full-sweeps: the 30
     for k, loop, Tp, Td, tau, K in plants:
         betas = (-0.4, -0.7) if loop == "altitude" else (-0.5, -0.8)
         sf = simulate_paper_flight(Tp, Td, tau, K, betas, loop=loop, cycles=12.0, seed=k)

@@ -52,17 +52,28 @@ def _process_model(ctx: click.Context, setting_opts: dict[str, Any]) -> Any:
     return build_model(name, params, ranges)
 
 
-def _print_process_table(df, limit: int = 50) -> None:
-    """The process rows: log, loop, status, model and its parameters with units (value ± std unit)."""
+def _shown_rows(df, limit: int):
+    """All rows up to ``limit``; beyond it only the failed and outlying ones (the count left out is said)."""
     shown = df if len(df) <= limit else df[(df["result_status"] != "ok") | df["outlier"]]
     if len(shown) < len(df):
         click.echo(f"({len(df) - len(shown)} ok rows not shown; see summary.csv)")
+    return shown
+
+
+def _short_name(path: Any) -> str:
+    """A log's file name in the table's 36 columns (its end kept)."""
+    name = Path(str(path)).name
+    return name if len(name) <= 36 else "..." + name[-33:]
+
+
+def _print_process_table(df, limit: int = 50) -> None:
+    """The process rows: log, loop, status, model and its parameters with units (value ± std unit)."""
+    shown = _shown_rows(df, limit)
     header = f"{'log':<36} {'loop':<9} {'status':<16} {'model':<8} parameters (value ± std unit) / note"
     click.echo(header)
     click.echo("-" * len(header))
     for _, r in shown.iterrows():
-        name = Path(str(r["path"])).name
-        name = name if len(name) <= 36 else "..." + name[-33:]
+        name = _short_name(r["path"])
         text = r["parameters"] if isinstance(r["parameters"], str) else ""
         if r["result_status"] != "ok" and isinstance(r["error"], str):
             text = r["error"]
@@ -76,15 +87,12 @@ def _print_table(df, limit: int = 50) -> None:
     if "parameters" in df:
         _print_process_table(df, limit)
         return
-    shown = df if len(df) <= limit else df[(df["result_status"] != "ok") | df["outlier"]]
-    if len(shown) < len(df):
-        click.echo(f"({len(df) - len(shown)} ok rows not shown; see summary.csv)")
+    shown = _shown_rows(df, limit)
     header = f"{'log':<36} {'loop':<9} {'status':<16} {'tau ms':>8} {'+/-':>6} {'Td s':>8} {'+/-':>7} {'K':>8}  note"
     click.echo(header)
     click.echo("-" * len(header))
     for _, r in shown.iterrows():
-        name = Path(str(r["path"])).name
-        name = name if len(name) <= 36 else "..." + name[-33:]
+        name = _short_name(r["path"])
         note = r["error"] if r["result_status"] != "ok" and isinstance(r["error"], str) else ""
         if r["outlier"]:
             note = f"OUTLIER {r['outlier_reason']} {note}".strip()

@@ -25,6 +25,18 @@ writer closes the file, the whole log goes through :func:`mrftcli.analyze.analyz
 weighted estimate with bootstrap uncertainty, exactly what ``mrft-ident analyze`` prints) and the last
 update has ``final=True``.
 
+A process plant (:func:`watch_model`, ``watch --model NAME``)
+--------------------------------------------------------------
+The same tracker finds the tests; each is screened as ``analyze --model`` screens it (stable cycles,
+an output that follows its relay, a chattering relay's cycles found again), its relay inferred or
+taken as stated (:func:`mrftcli.segment.relay_type.infer_relay`) and its cycles' frequency-response
+points measured (:func:`mrftcli.analyze.general.response_points`) once per new stable cycle. Every
+new cycle is followed by the fit of the model to all tests' points
+(:func:`mrftcli.analyze.general.identify_points`): a :class:`ProcessEstimateUpdate` that names the
+parameters the tests so far do not determine, and the test that would, instead of a number. When the
+writer closes the file the whole log goes through :func:`mrftcli.analyze.general.analyze_general`,
+exactly what ``mrft-ident analyze --model NAME`` prints (with each test's held-out prediction).
+
 Every update carries ``t_cycle_end``, the log time of the newest cycle end it includes, and
 ``wall_time``, when it was produced (``time.time()``), so that a benchmark can measure the latency
 from a cycle's end reaching the file to the updated estimate (benchmarks/bench_watch.py).
@@ -34,22 +46,33 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Callable, Generator, Iterator, Mapping
 from dataclasses import asdict, dataclass, field, replace
 from numbers import Integral
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
+from .analyze.general import (GeneralAnalysis, RelayOptions, analyze_general, chattering_cycles, identify_points,
+                              response_points)
 from .errors import InputError, InsufficientDataError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
+from .jsonable import check_schema_version
 from .mrft.consensus import SAME_BETA
+from .mrft.identify_lti import LtiEstimate, ResponsePoint
+from .mrft.model import PlantModel
+from .mrft.relays import RelayLaw
 from .segment import MrftTest, segment_arrays
+from .segment.relay_type import infer_relay
 from .validate import check_positive
 
-__all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "Update", "watch"]
+__all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "ProcessTestUpdate",
+           "ProcessEstimateUpdate", "Update", "watch", "watch_model", "WATCH_PROCESS_SCHEMA_VERSION"]
+
+#: version of :meth:`ProcessTestUpdate.to_json` and :meth:`ProcessEstimateUpdate.to_json` (``watch --model --jsonl``)
+WATCH_PROCESS_SCHEMA_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -224,7 +247,140 @@ class Restart:
         return {"kind": self.kind, **asdict(self)}
 
 
-Update = TestUpdate | EstimateUpdate | WatchEnd | Restart
+def _floats(data: Mapping[str, Any], *names: str) -> list[float]:
+    return [float(data[n]) for n in names]
+
+
+@dataclass(frozen=True)
+class ProcessTestUpdate:
+    """A relay test of a process plant (:func:`watch_model`), reported as :class:`TestUpdate` is.
+
+    Attributes
+    ----------
+    number : int
+        Test number in the log, 1-based.
+    t_start, t_cycle_end, t_log_start : float
+        The relay's first command sample, the end of the newest stable cycle and the log's first command
+        sample [s, log time].
+    relay : RelayLaw
+        The relay, inferred from the data or as stated (``relay.source``): kind, levels, bias, beta or eps.
+    beta_effective : float
+        The switching level measured, over the amplitude [-].
+    frequency_hz, amplitude : float
+        Limit-cycle frequency [Hz] and output amplitude [output units] (means over the stable cycles).
+    stable_cycles, cycles : int
+        Stable and all complete cycles so far.
+    wall_time : float
+        When the update was produced (``time.time()``) [s].
+    notes : tuple of str
+        How the test is used when not plainly (a noisy output, a chattering relay).
+    """
+
+    __test__: ClassVar[bool] = False
+    kind: ClassVar[str] = "test"
+    number: int
+    t_start: float
+    t_cycle_end: float
+    t_log_start: float
+    relay: RelayLaw
+    beta_effective: float
+    frequency_hz: float
+    amplitude: float
+    stable_cycles: int
+    cycles: int
+    wall_time: float
+    notes: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """One ``--jsonl`` line: ``kind``, ``schema_version``, the figures and ``relay`` (its JSON)."""
+        return {"kind": self.kind, "schema_version": WATCH_PROCESS_SCHEMA_VERSION, "number": self.number,
+                "t_start": self.t_start, "t_cycle_end": self.t_cycle_end, "t_log_start": self.t_log_start,
+                "relay": self.relay.to_json(), "beta_effective": self.beta_effective,
+                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "stable_cycles": self.stable_cycles,
+                "cycles": self.cycles, "wall_time": self.wall_time, "notes": list(self.notes)}
+
+    to_dict = to_json
+
+    @classmethod
+    def from_json(cls, data: Any) -> ProcessTestUpdate:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        d = check_schema_version(data, "watch test update", WATCH_PROCESS_SCHEMA_VERSION)
+        try:
+            t_start, t_end, t_log, beta, f, a, wall = _floats(d, "t_start", "t_cycle_end", "t_log_start",
+                                                              "beta_effective", "frequency_hz", "amplitude",
+                                                              "wall_time")
+            return cls(int(d["number"]), t_start, t_end, t_log, RelayLaw.from_json(d["relay"]), beta, f, a,
+                       int(d["stable_cycles"]), int(d["cycles"]), wall, tuple(str(n) for n in d.get("notes", [])))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"watch test update: bad or missing field ({err})") from None
+
+
+@dataclass(frozen=True)
+class ProcessEstimateUpdate:
+    """The process model identified from the tests so far (:func:`watch_model`).
+
+    Attributes
+    ----------
+    family : str
+        The model's family (``fopdt``, ... or ``declared``).
+    estimates : tuple of LtiEstimate
+        Every parameter of the family, with its unit, std and 95 % interval (known ones flagged).
+    tests : tuple of int
+        Numbers of the tests used.
+    t_cycle_end : float
+        Newest cycle end included [s, log time].
+    final : bool
+        True for the last update: the whole log through :func:`mrftcli.analyze.general.analyze_general`.
+    wall_time : float
+        When the update was produced (``time.time()``) [s].
+    undetermined : tuple of str
+        The parameters the tests so far do not pin down (their values are one of many that fit).
+    advice : str
+        What would determine them (empty when all are).
+    analysis : GeneralAnalysis or None
+        The final update's analysis, exactly ``analyze --model --json``'s record (held-out predictions,
+        notes); None before.
+    """
+
+    kind: ClassVar[str] = "estimate"
+    family: str
+    estimates: tuple[LtiEstimate, ...]
+    tests: tuple[int, ...]
+    t_cycle_end: float
+    final: bool
+    wall_time: float
+    undetermined: tuple[str, ...] = ()
+    advice: str = ""
+    analysis: GeneralAnalysis | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """One ``--jsonl`` line: ``parameters`` keyed by name as in ``analyze --model --json``."""
+        return {"kind": self.kind, "schema_version": WATCH_PROCESS_SCHEMA_VERSION, "model": self.family,
+                "parameters": {e.name: e.to_json() for e in self.estimates}, "tests": list(self.tests),
+                "t_cycle_end": self.t_cycle_end, "final": self.final, "wall_time": self.wall_time,
+                "undetermined": list(self.undetermined), "advice": self.advice,
+                "analysis": None if self.analysis is None else self.analysis.to_json()}
+
+    to_dict = to_json
+
+    @classmethod
+    def from_json(cls, data: Any) -> ProcessEstimateUpdate:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        d = check_schema_version(data, "watch estimate update", WATCH_PROCESS_SCHEMA_VERSION)
+        try:
+            params = d["parameters"]
+            if not isinstance(params, Mapping):
+                raise TypeError("'parameters' is not an object")
+            analysis = d.get("analysis")
+            return cls(str(d["model"]), tuple(LtiEstimate.from_json(n, v) for n, v in params.items()),
+                       tuple(int(i) for i in d["tests"]), float(d["t_cycle_end"]), bool(d["final"]),
+                       float(d["wall_time"]), tuple(str(n) for n in d.get("undetermined", [])),
+                       str(d.get("advice", "")), None if analysis is None else GeneralAnalysis.from_json(analysis))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"watch estimate update: bad or missing field ({err})") from None
+
+
+Update = TestUpdate | EstimateUpdate | WatchEnd | Restart | ProcessTestUpdate | ProcessEstimateUpdate
 
 
 # --------------------------------------------------------------------------------------------------
@@ -321,10 +477,187 @@ def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_
     yield WatchEnd(reason=reason, tests=len(res.tests), wall_time=time.time())
 
 
+# --------------------------------------------------------------------------------------------------
+# what the loop asks of a model: which tests it uses, how it reports them, the estimate
+# --------------------------------------------------------------------------------------------------
+
+
+class _Identifier(Protocol):
+    def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
+        """The test as the model uses it, or None (not usable yet)."""
+
+    def test_update(self, test: MrftTest, flight: FlightLog) -> Update:
+        """The update reporting a usable test."""
+
+    def estimate(self, tests: list[MrftTest]) -> Update | None:
+        """The estimate from the usable tests, or None when they give none yet."""
+
+    def final(self, flight: FlightLog | None, reason: str, n_tests: int) -> Iterator[Update]:
+        """The whole log's analysis, then :class:`WatchEnd`."""
+
+
+class _PaperIdentifier:
+    """eq. (2) with Tp known: the paper's point estimate per update, :func:`analyze_flight` at the end."""
+
+    def __init__(self, Tp: float, min_cycles: int) -> None:
+        self.Tp, self.min_cycles = Tp, min_cycles
+
+    def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
+        return test if _usable(test, self.min_cycles) else None
+
+    def test_update(self, test: MrftTest, flight: FlightLog) -> Update:
+        return TestUpdate(number=test.index + 1, t_start=test.t_start, t_cycle_end=_newest_end(test),
+                          beta_nominal=test.beta_nominal, beta_effective=test.beta_effective,
+                          frequency_hz=test.frequency_hz_mean, amplitude=test.amplitude_mean, h=test.h,
+                          stable_cycles=test.n_stable, cycles=len(test.cycles), wall_time=time.time(),
+                          t_log_start=float(flight.command.t[0]))
+
+    def estimate(self, tests: list[MrftTest]) -> Update | None:
+        return _estimate(tests, self.Tp, self.min_cycles)
+
+    def final(self, flight: FlightLog | None, reason: str, n_tests: int) -> Iterator[Update]:
+        return _final(flight, self.Tp, self.min_cycles, reason, n_tests)
+
+
+#: validity failures ``analyze --model`` keeps a test with (analyze/general.py's screen): a noisy output
+#: is weighted by its scatter, and the phase and beta checks compare with eq. (2), not this structure
+_PROCESS_KEPT = frozenset({"snr", "h1_fraction", "phase", "beta_mismatch"})
+
+
+@dataclass(frozen=True)
+class _Measured:
+    """One usable test of a process plant: as used, its relay and its frequency-response points."""
+
+    test: MrftTest
+    relay: RelayLaw
+    points: tuple[ResponsePoint, ...]
+    notes: tuple[str, ...]
+
+
+def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles: int) -> _Measured | None:
+    """The test screened, its relay and points as ``analyze --model`` takes them; None: not usable (yet)."""
+    chattered = chattering_cycles(test, min_cycles)
+    used = chattered or test
+    failed = set(used.validity.failed) if used.validity is not None else set()
+    if used.n_stable < min_cycles or failed - _PROCESS_KEPT:
+        return None
+    points = response_points(flight, used)
+    if not any(p.harmonic == 1 for p in points):  # no cycle long enough for its fundamental
+        return None
+    notes: tuple[str, ...] = (("noisy: used, weighted by its cycle-to-cycle scatter",) if failed & {"snr", "h1_fraction"} else ())
+    if chattered is not None:
+        notes += ("the relay chatters at its switches: its cycles are used with the logged command's harmonics",)
+    return _Measured(used, infer_relay(used, relay.kind, relay.beta, relay.eps), points, notes)
+
+
+class _ProcessIdentifier:
+    """A process plant: each test measured once per new stable cycle, the model fitted to all points."""
+
+    def __init__(self, model: PlantModel, relay: RelayOptions, min_cycles: int) -> None:
+        self.model, self.relay, self.min_cycles = model, relay, min_cycles
+        self._seen: dict[tuple[float, int, float], _Measured | None] = {}
+        self._by_index: dict[int, _Measured] = {}
+
+    def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
+        key = (test.t_start, test.n_stable, _newest_end(test))
+        if key not in self._seen:  # the open test's cycles are measured again only when one is added
+            self._seen[key] = _measure(test, flight, self.relay, self.min_cycles)
+        measured = self._seen[key]
+        if measured is None:
+            return None
+        used = replace(measured.test, index=test.index)
+        self._by_index[test.index] = replace(measured, test=used)
+        return used
+
+    def test_update(self, test: MrftTest, flight: FlightLog) -> Update:
+        m = self._by_index[test.index]
+        return ProcessTestUpdate(number=test.index + 1, t_start=test.t_start, t_cycle_end=_newest_end(test),
+                                 t_log_start=float(flight.command.t[0]), relay=m.relay,
+                                 beta_effective=float(test.beta_effective), frequency_hz=float(test.frequency_hz_mean),
+                                 amplitude=float(test.amplitude_mean), stable_cycles=test.n_stable,
+                                 cycles=len(test.cycles), wall_time=time.time(), notes=m.notes)
+
+    def estimate(self, tests: list[MrftTest]) -> Update | None:
+        points = [p for t in tests for p in self._by_index[t.index].points]
+        try:
+            fit = identify_points(self.model, points)
+        except MrftError:
+            return None
+        return ProcessEstimateUpdate(fit.model.family, fit.estimates, tuple(t.index + 1 for t in tests),
+                                     max(_newest_end(t) for t in tests), False, time.time(), fit.undetermined,
+                                     fit.advice)
+
+    def final(self, flight: FlightLog | None, reason: str, n_tests: int) -> Iterator[Update]:
+        if flight is None:
+            yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error="no data in the log",
+                           exit_code=LogReadError.exit_code)
+            return
+        try:
+            res = analyze_general(flight, self.model, relay=self.relay, min_stable_cycles=self.min_cycles)
+        except MrftError as err:
+            yield WatchEnd(reason=reason, tests=n_tests, wall_time=time.time(), error=str(err),
+                           exit_code=err.exit_code)
+            return
+        fit = res.identification
+        assert fit is not None  # analyze_general raises when no test is usable
+        yield ProcessEstimateUpdate(fit.model.family, fit.estimates, tuple(t.index + 1 for t in res.tests),
+                                    max(t.t_end for t in res.tests), True, time.time(), fit.undetermined,
+                                    fit.advice, analysis=res)
+        yield WatchEnd(reason=reason, tests=len(res.tests), wall_time=time.time())
+
+
+# --------------------------------------------------------------------------------------------------
+# the follow loop
+# --------------------------------------------------------------------------------------------------
+
+
+def _updates(tests: list[MrftTest], flight: FlightLog, ident: _Identifier,
+             reported: dict[int, int]) -> Iterator[Update]:
+    """Each usable test with a new stable cycle, then the estimate when any was new."""
+    used = [u for u in (ident.usable(t, flight) for t in tests) if u is not None]
+    changed = False
+    for test in used:
+        if reported.get(test.index) != test.n_stable:
+            reported[test.index] = test.n_stable
+            changed = True
+            yield ident.test_update(test, flight)
+    if changed:
+        est = ident.estimate(used)
+        if est is not None:
+            yield est
+
+
+def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, options: WatchOptions,
+            sleep: Callable[[float], None], clock: Callable[[], float]) -> Generator[Update, None, None]:
+    """The loop of :func:`watch` and :func:`watch_model` (``make`` builds the model's identifier afresh
+    at the start and at every restart)."""
+    _wait_for(path, options.wait, options.poll, sleep, clock)
+    follower = follow_log(path, read)
+    tracker, ident = _Tracker(), make()
+    reported: dict[int, int] = {}  # test index -> stable cycles last reported
+    flight = None
+    last_growth = clock()
+    while True:
+        snap = follower.poll()
+        now = clock()
+        if snap.restarted is not None:
+            tracker, ident, reported, flight = _Tracker(), make(), {}, None
+            yield Restart(reason=snap.restarted, wall_time=time.time())
+        if snap.grew:
+            last_growth = now
+        if snap.flight is not None:
+            flight = snap.flight
+            yield from _updates(tracker.update(flight), flight, ident, reported)
+        if snap.closed or now - last_growth > options.idle:
+            yield from ident.final(flight, "closed" if snap.closed else "idle", len(reported))
+            return
+        sleep(options.poll)
+
+
 def watch(path: str | Path, Tp: float, *, read: ReadOptions | None = None, options: WatchOptions | None = None,
           sleep: Callable[[float], None] = time.sleep,
           clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
-    """Follow ``path`` while it is written and yield updates (see the module docstring).
+    """Follow ``path`` while it is written and yield updates of eq. (2) (see the module docstring).
 
     Parameters
     ----------
@@ -357,45 +690,54 @@ def watch(path: str | Path, Tp: float, *, read: ReadOptions | None = None, optio
         closed.
     """
     Tp = check_positive("Tp", Tp)
-    opts = ReadOptions() if read is None else read
     wopts = WatchOptions() if options is None else options
-    min_cycles, idle, poll = wopts.min_cycles, wopts.idle, wopts.poll
-    path = Path(path)
-    _wait_for(path, wopts.wait, poll, sleep, clock)
-    follower = follow_log(path, opts)
-    tracker = _Tracker()
-    reported: dict[int, int] = {}  # test index -> stable cycles last reported
-    flight = None
-    last_growth = clock()
-    while True:
-        snap = follower.poll()
-        now = clock()
-        if snap.restarted is not None:
-            tracker, reported, flight = _Tracker(), {}, None
-            yield Restart(reason=snap.restarted, wall_time=time.time())
-        if snap.grew:
-            last_growth = now
-        if snap.flight is not None:
-            flight = snap.flight
-            tests = tracker.update(flight)
-            changed = False
-            for test in tests:
-                if _usable(test, min_cycles) and reported.get(test.index) != test.n_stable:
-                    reported[test.index] = test.n_stable
-                    changed = True
-                    yield TestUpdate(number=test.index + 1, t_start=test.t_start, t_cycle_end=_newest_end(test),
-                                     beta_nominal=test.beta_nominal, beta_effective=test.beta_effective,
-                                     frequency_hz=test.frequency_hz_mean, amplitude=test.amplitude_mean, h=test.h,
-                                     stable_cycles=test.n_stable, cycles=len(test.cycles), wall_time=time.time(),
-                                     t_log_start=float(flight.command.t[0]))
-            if changed:
-                est = _estimate(tests, Tp, min_cycles)
-                if est is not None:
-                    yield est
-        if snap.closed or now - last_growth > idle:
-            yield from _final(flight, Tp, min_cycles, "closed" if snap.closed else "idle", len(reported))
-            return
-        sleep(poll)
+    return _follow(Path(path), lambda: _PaperIdentifier(Tp, wopts.min_cycles), ReadOptions() if read is None else read,
+                   wopts, sleep, clock)
+
+
+def watch_model(path: str | Path, model: PlantModel, *, relay: RelayOptions | None = None,
+                read: ReadOptions | None = None, options: WatchOptions | None = None,
+                sleep: Callable[[float], None] = time.sleep,
+                clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
+    """Follow ``path`` while it is written and yield updates of a process plant's identification.
+
+    The live counterpart of :func:`mrftcli.analyze.general.analyze_general` (``watch --model NAME``;
+    module docstring): each usable test as a :class:`ProcessTestUpdate` (its relay inferred or as
+    stated), after each new cycle a :class:`ProcessEstimateUpdate` (naming the parameters the tests so
+    far do not determine), and when the writer closes the file the whole log's analysis (``final``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The log, as for :func:`watch`.
+    model : PlantModel
+        The structure with its known parameters (set E) and ranges (set I), e.g.
+        ``mrftcli.mrft.families.family_model("fopdt")``.
+    relay : RelayOptions, optional
+        What is stated about the relay (the rest is inferred per test); None: all inferred.
+    read, options, sleep, clock
+        As for :func:`watch`.
+
+    Yields
+    ------
+    ProcessTestUpdate, ProcessEstimateUpdate, Restart or WatchEnd
+        The last one is a :class:`WatchEnd` (its ``error`` the final analysis's one-line message).
+
+    Raises
+    ------
+    LogReadError
+        As for :func:`watch`.
+
+    Examples
+    --------
+    >>> from mrftcli.mrft.families import family_model
+    >>> updates = watch_model("plant.csv", family_model("fopdt"),
+    ...                       read=ReadOptions(command_topic="u_relay", output_topic="y_output"))
+    """
+    rel = RelayOptions() if relay is None else relay
+    wopts = WatchOptions() if options is None else options
+    return _follow(Path(path), lambda: _ProcessIdentifier(model, rel, wopts.min_cycles),
+                   ReadOptions() if read is None else read, wopts, sleep, clock)
 
 
 def _wait_for(path: Path, wait: float | None, poll: float, sleep: Callable[[float], None],

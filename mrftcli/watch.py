@@ -547,7 +547,10 @@ def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles:
     notes: tuple[str, ...] = (("noisy: used, weighted by its cycle-to-cycle scatter",) if failed & {"snr", "h1_fraction"} else ())
     if chattered is not None:
         notes += ("the relay chatters at its switches: its cycles are used with the logged command's harmonics",)
-    return _Measured(used, infer_relay(used, relay.kind, relay.beta, relay.eps), points, notes)
+    law = infer_relay(used, relay.kind, relay.beta, relay.eps)
+    if abs(law.bias) > 1e-9 * law.h:  # analyze --model states the same assumption in its first lines
+        notes += ("assumed: the relay's bias is balanced by the loop's operating point",)
+    return _Measured(used, law, points, notes)
 
 
 class _ProcessIdentifier:

@@ -384,13 +384,16 @@ class _RereadLog:
 
     def __init__(self, path: Path, opts: ReadOptions) -> None:
         self.path = path
-        # the reference layout's topics in place of those not named (not the layout's detection)
+        # the reference layout's topics in place of those not named (not the layout's detection); a
+        # log whose command and output are named (a process recording: time, u_relay, y_output) is not
+        # in the reference layout, so its optional beta and setpoint are not looked for there either
         loop = opts.loop
+        named = opts.command_topic is not None and opts.output_topic is not None
         self.opts = replace(
             opts, command_topic=opts.command_topic or DEFAULT_TOPICS["command"],
             output_topic=opts.output_topic or DEFAULT_TOPICS[f"output.{loop}"],
-            beta_topic=opts.beta_topic or DEFAULT_TOPICS["beta"],
-            setpoint_topic=opts.setpoint_topic or DEFAULT_TOPICS["setpoint"],
+            beta_topic=opts.beta_topic or (None if named else DEFAULT_TOPICS["beta"]),
+            setpoint_topic=opts.setpoint_topic or (None if named else DEFAULT_TOPICS["setpoint"]),
             output_scale=1.0 if opts.output_scale is None else float(opts.output_scale))
         self.size = -1
         self.seen: _Identity | None = None  # the file when last read

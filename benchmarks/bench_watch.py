@@ -13,7 +13,17 @@ Baseline in the same process: the cost of what the incremental path avoids, one 
 and analysis (:func:`mrftcli.io.read_flight` + :func:`mrftcli.analyze.analyze_flight`) of the
 finished log, as a ratio to the median per-update latency.
 
-Usage: python benchmarks/bench_watch.py [--runs 2] [--seed N]
+``--model fopdt``: a process plant instead (``watch --model fopdt``, :func:`mrftcli.watch.watch_model`).
+The writer draws a random FOPDT plant and records three relay windows as an engineer running relay
+autotuning would (an ideal relay, a biased relay with a small hysteresis, a symmetric relay with a
+larger one), simulated by ``tests/process_sim.py`` (independent of mrftcli), at 50, 100 or 200 Hz by
+run, noise 1 % of the amplitude; it writes them in real time as an MCAP (``--format mcap``: the command
+on ``/mrft/command``, the output on ``/mocap/pose`` z) or as a CSV with a process recording's three
+columns (``--format csv``: time, u_relay, y_output; a row per sample, flushed every few ms). The
+baseline is the finished log read and analysed whole as ``analyze --model fopdt`` does
+(``read_flight`` + ``analyze_general``).
+
+Usage: python benchmarks/bench_watch.py [--runs 2] [--seed N] [--model fopdt [--format mcap|csv]]
 """
 
 from __future__ import annotations
@@ -30,6 +40,11 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # process_sim: the independent simulator
+
+#: the process plant's CSV columns (a KSTAR-style recording)
+CSV_TOPICS = ("u_relay", "y_output")
+
 
 def _model(rng):
     from mrftcli.mrft.model import LoopModel
@@ -38,10 +53,8 @@ def _model(rng):
                      tau=float(rng.uniform(0.02, 0.07)), K=float(rng.uniform(10, 30)))
 
 
-def _writer(out: str, flushes: str, seed: int, rate_hz: float) -> None:
-    """Simulate a flight and write it in real time as an MCAP (runs in its own process)."""
-    from mcap.writer import CompressionType, Writer
-
+def _eq2_rows(seed: int, rate_hz: float) -> tuple[list, dict]:
+    """An MRFT flight of eq. (2) as (log time, topic, message type, CDR bytes) rows, and its truth."""
     from mrftcli.io.cdr import serialize_many
     from mrftcli.io.msgtypes import typestore_for
     from mrftcli.sim import FlightSpec, plan_test, simulate_flight
@@ -58,7 +71,48 @@ def _writer(out: str, flushes: str, seed: int, rate_hz: float) -> None:
         t = np.asarray(td.t, float)
         datas = serialize_many(ts, td.msgtype, t, td.fields)
         rows.extend((float(ti), td.name, td.msgtype, d) for ti, d in zip(t, datas))
-    rows.sort(key=lambda r: r[0])
+    return rows, {"Td": model.Td, "tau": model.tau, "K": model.K, "Tp": model.Tp}
+
+
+def _fopdt_recording(seed: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """A random FOPDT plant under three relay windows (tests/process_sim.py): t [s], command, output, truth."""
+    from process_sim import Window, simulate
+
+    rng = np.random.default_rng(seed)
+    T = float(rng.uniform(0.3, 2.0))
+    truth = {"K": float(rng.uniform(0.5, 5.0)), "T": T, "tau": float(rng.uniform(0.1, 0.4) * T)}
+    h = 1.0
+    a = truth["K"] * h * (1 - math.exp(-truth["tau"] / T))  # the ideal relay's amplitude
+    windows = [Window("ideal", h, -h, duration=10.0, rest=2.0),
+               Window("hysteresis", 1.5 * h, -0.5 * h, eps=0.1 * a, duration=10.0, rest=2.0),
+               Window("hysteresis", h, -h, eps=0.4 * a, duration=10.0, rest=2.0)]
+    t, u, y = simulate("fopdt", truth, windows, rate_hz, 0.01 * a, seed=seed)
+    return t, u, y, truth
+
+
+def _fopdt_rows(seed: int, rate_hz: float) -> tuple[list, dict]:
+    """The FOPDT recording as MCAP rows in the reference layout (/mrft/command, /mocap/pose z)."""
+    from mrftcli.io.cdr import serialize_many
+    from mrftcli.io.msgtypes import typestore_for
+
+    t, u, y, truth = _fopdt_recording(seed, rate_hz)
+    ts = typestore_for(ros1=False)
+    rows = []
+    for name, msgtype, fields in (("/mrft/command", "std_msgs/msg/Float64", {"data": u}),
+                                  ("/mocap/pose", "geometry_msgs/msg/PoseStamped",
+                                   {"pose.position.z": y, "pose.orientation.w": np.ones(t.size)})):
+        datas = serialize_many(ts, msgtype, t, fields)
+        rows.extend((float(ti), name, msgtype, d) for ti, d in zip(t, datas))
+    return rows, truth
+
+
+def _write_mcap(out: str, rows: list) -> list:
+    """Write the rows as an MCAP in real time, 1 KiB chunks; (file offset, newest log time, wall) per flush."""
+    from mcap.writer import CompressionType, Writer
+
+    from mrftcli.io.msgtypes import typestore_for
+
+    ts = typestore_for(ros1=False)
     t_first = rows[0][0]
     log = []
     with open(out, "wb") as stream:
@@ -75,8 +129,7 @@ def _writer(out: str, flushes: str, seed: int, rate_hz: float) -> None:
         wall0 = time.time() + 0.2
         i = 0
         while i < len(rows):
-            now = time.time()
-            due = t_first + (now - wall0)
+            due = t_first + (time.time() - wall0)
             j = i
             while j < len(rows) and rows[j][0] <= due:
                 t, name, _, data = rows[j]
@@ -86,16 +139,46 @@ def _writer(out: str, flushes: str, seed: int, rate_hz: float) -> None:
             if j > i:
                 stream.flush()
                 # what is in the file now: the messages of every closed chunk
-                pos = stream.tell()
-                log.append((pos, rows[j - 1][0], time.time()))
+                log.append((stream.tell(), rows[j - 1][0], time.time()))
                 i = j
             time.sleep(0.002)
         writer.finish()
         stream.flush()
+    return log
+
+
+def _write_csv(out: str, t: np.ndarray, u: np.ndarray, y: np.ndarray) -> list:
+    """Write the three columns in real time, whole rows flushed every few ms; (offset, newest time, wall)."""
+    log = []
+    with open(out, "w") as fh:
+        fh.write("time," + ",".join(CSV_TOPICS) + "\n")
+        fh.flush()
+        wall0 = time.time() + 0.2
+        i = 0
+        while i < t.size:
+            due = t[0] + (time.time() - wall0)
+            j = int(np.searchsorted(t, due, side="right"))
+            if j > i:
+                fh.write("".join(f"{t[k]:.10g},{u[k]:.10g},{y[k]:.10g}\n" for k in range(i, j)))
+                fh.flush()
+                log.append((fh.tell(), float(t[j - 1]), time.time()))
+                i = j
+            time.sleep(0.002)
+    return log
+
+
+def _writer(out: str, flushes: str, seed: int, rate_hz: float, model: str, fmt: str) -> None:
+    """Simulate a flight and write it in real time (runs in its own process); the flushes and truth to ``flushes``."""
+    if model == "fopdt" and fmt == "csv":
+        t, u, y, truth = _fopdt_recording(seed, rate_hz)
+        log = _write_csv(out, t, u, y)
+    else:
+        rows, truth = _fopdt_rows(seed, rate_hz) if model == "fopdt" else _eq2_rows(seed, rate_hz)
+        rows.sort(key=lambda r: r[0])
+        log = _write_mcap(out, rows)
     # the file offset after each flush tells which messages were complete on disk then; the
     # latency side only needs (newest log time on disk, wall time), reconstructed below
-    Path(flushes).write_text(json.dumps({"flushes": log, "truth": {"Td": model.Td, "tau": model.tau, "K": model.K,
-                                                                  "Tp": model.Tp}, "rate_hz": rate_hz}))
+    Path(flushes).write_text(json.dumps({"flushes": log, "truth": truth, "rate_hz": rate_hz}))
 
 
 def _on_disk(path: str, flushes: list) -> list[tuple[float, float]]:
@@ -123,71 +206,120 @@ def _on_disk(path: str, flushes: list) -> list[tuple[float, float]]:
     return out
 
 
-def run(seed: int, rate_hz: float) -> dict:
-    from mrftcli.analyze import analyze_flight
-    from mrftcli.io import ReadOptions, read_flight
-    from mrftcli.watch import WatchOptions, watch
+def _latencies(updates: list, disk: list[tuple[float, float]]) -> list[float]:
+    """Per non-final update with a cycle: its wall time - when its newest cycle's end was on disk [s]."""
+    newest = np.array([d[0] for d in disk])
+    walls = np.array([d[1] for d in disk])
+    lat = []
+    for u in updates:
+        if u.kind == "end" or getattr(u, "final", False):
+            continue
+        k = int(np.searchsorted(newest, u.t_cycle_end - 1e-6))
+        if k < walls.size:
+            lat.append(u.wall_time - walls[k])
+    return lat
 
+
+def _follow(log: str, model: str, fmt: str, seed: int) -> list:
+    """The updates of watch (eq. (2)) or watch_model (``--model fopdt``) on the growing file."""
+    from mrftcli.io import ReadOptions
+    from mrftcli.mrft.families import family_model
+    from mrftcli.watch import WatchOptions, watch, watch_model
+
+    options = WatchOptions(idle=5.0, poll=0.01)
+    if model == "fopdt":
+        read = ReadOptions(command_topic=CSV_TOPICS[0], output_topic=CSV_TOPICS[1]) if fmt == "csv" else \
+            ReadOptions(loop="altitude")
+        return list(watch_model(log, family_model("fopdt"), read=read, options=options))
+    Tp = _model(np.random.default_rng(seed)).Tp
+    return list(watch(log, Tp, read=ReadOptions(loop="altitude"), options=options))
+
+
+def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float]:
+    """(read [s], read + analyse [s]) of the finished log whole: what re-running analyze per update costs."""
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.analyze.general import analyze_general
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.families import family_model
+
+    read = ReadOptions(command_topic=CSV_TOPICS[0], output_topic=CSV_TOPICS[1]) if fmt == "csv" else ReadOptions()
+    t0 = time.perf_counter()
+    flight = read_flight(log, read, echo_warnings=False)
+    t1 = time.perf_counter()
+    try:
+        if model == "fopdt":
+            analyze_general(flight, family_model("fopdt"))
+        else:
+            analyze_flight(flight, truth["Tp"])
+    except Exception:  # noqa: BLE001 - the baseline's cost is what matters
+        pass
+    return t1 - t0, time.perf_counter() - t0
+
+
+def _final_error(updates: list, truth: dict, model: str) -> str:
+    """The final estimate against the truth: tau's error [ms] (eq. (2)); each parameter's [%] and coverage."""
+    final = [u for u in updates if getattr(u, "final", False)]
+    if not final:
+        return "no final estimate (" + "; ".join(str(u.error) for u in updates if u.kind == "end") + ")"
+    if model != "fopdt":
+        return f"final tau error {(final[0].tau - truth['tau']) * 1e3:+.2f} ms"
+    parts = []
+    for e in final[0].estimates:
+        inside = e.ci95_low <= truth[e.name] <= e.ci95_high
+        parts.append(f"{e.name} {100 * (e.value / truth[e.name] - 1):+.1f} %{'' if inside else ' (outside its interval)'}")
+    return "final " + ", ".join(parts)
+
+
+def run(seed: int, rate_hz: float, model: str = "soiptd", fmt: str = "mcap") -> dict:
     with tempfile.TemporaryDirectory() as tmp:
-        log = os.path.join(tmp, "live.mcap")
+        log = os.path.join(tmp, f"live.{fmt}")
         flushes = os.path.join(tmp, "flushes.json")
-        proc = subprocess.Popen([sys.executable, __file__, "--writer", log, flushes, str(seed), str(rate_hz)])
+        proc = subprocess.Popen([sys.executable, __file__, "--writer", log, flushes, str(seed), str(rate_hz), model,
+                                 fmt])
         try:
-            Tp = _model(np.random.default_rng(seed)).Tp
-            updates = list(watch(log, Tp, read=ReadOptions(loop="altitude"), options=WatchOptions(idle=5.0, poll=0.01)))
+            updates = _follow(log, model, fmt, seed)
         finally:
             proc.wait()
         info = json.loads(Path(flushes).read_text())
-        disk = _on_disk(log, info["flushes"])
-        newest = np.array([d[0] for d in disk])
-        walls = np.array([d[1] for d in disk])
-        lat = []
-        for u in updates:
-            if u.kind == "end" or getattr(u, "final", False):
-                continue
-            k = int(np.searchsorted(newest, u.t_cycle_end - 1e-6))
-            if k < walls.size:
-                lat.append(u.wall_time - walls[k])
-        # baseline: one whole-file re-read + analysis of the finished log
-        t0 = time.perf_counter()
-        flight = read_flight(log)
-        t1 = time.perf_counter()
-        try:
-            analyze_flight(flight, info["truth"]["Tp"])
-        except Exception:  # noqa: BLE001 - the baseline's cost is what matters
-            pass
-        t2 = time.perf_counter()
-        final = [u for u in updates if getattr(u, "final", False)]
-        return {"seed": seed, "rate_hz": rate_hz, "updates": len(lat), "latency": lat,
-                "reread_s": t1 - t0, "reread_analyze_s": t2 - t0,
-                "final_tau_err_ms": (final[0].tau - info["truth"]["tau"]) * 1e3 if final else None}
+        disk = (_on_disk(log, info["flushes"]) if fmt == "mcap"
+                else [(t_newest, wall) for _, t_newest, wall in info["flushes"]])  # whole rows: on disk when flushed
+        reread, reread_analyze = _baseline(log, model, fmt, info["truth"])
+        return {"seed": seed, "rate_hz": rate_hz, "latency": _latencies(updates, disk), "reread_s": reread,
+                "reread_analyze_s": reread_analyze, "final": _final_error(updates, info["truth"], model)}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=None, help="first seed (default: fresh)")
+    ap.add_argument("--model", choices=("soiptd", "fopdt"), default="soiptd",
+                    help="soiptd: eq. (2) (watch); fopdt: a process plant (watch --model fopdt)")
+    ap.add_argument("--format", dest="fmt", choices=("mcap", "csv"), default="mcap",
+                    help="how the recorder writes (csv: --model fopdt only)")
     args = ap.parse_args()
+    if args.fmt == "csv" and args.model != "fopdt":
+        ap.error("--format csv is for --model fopdt (eq. (2)'s recorder writes MCAP)")
     seed0 = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 100000)
-    rates = [200.0, 100.0, 250.0]
+    rates = [100.0, 50.0, 200.0] if args.model == "fopdt" else [200.0, 100.0, 250.0]
     all_lat = []
     for r in range(args.runs):
-        res = run(seed0 + r, rates[r % len(rates)])
+        res = run(seed0 + r, rates[r % len(rates)], args.model, args.fmt)
         lat = np.array(res["latency"])
         all_lat.extend(lat.tolist())
-        print(f"seed {res['seed']}  {res['rate_hz']:.0f} Hz  updates {res['updates']}  latency median "
+        print(f"seed {res['seed']}  {res['rate_hz']:.0f} Hz  updates {lat.size}  latency median "
               f"{np.median(lat) * 1e3:.0f} ms  p90 {np.percentile(lat, 90) * 1e3:.0f} ms  max {lat.max() * 1e3:.0f} ms  "
               f"| whole-file re-read {res['reread_s'] * 1e3:.0f} ms, + analyze {res['reread_analyze_s'] * 1e3:.0f} ms "
-              f"({res['reread_analyze_s'] / np.median(lat):.1f}x the median latency)  final tau error "
-              f"{res['final_tau_err_ms']:.2f} ms" if lat.size else f"seed {res['seed']}: no updates")
+              f"({res['reread_analyze_s'] / np.median(lat):.1f}x the median latency)  {res['final']}"
+              if lat.size else f"seed {res['seed']}: no updates; {res['final']}")
     a = np.array(all_lat)
     if a.size:
-        print(f"all: {a.size} updates, latency median {np.median(a) * 1e3:.0f} ms, p90 {np.percentile(a, 90) * 1e3:.0f} ms, "
-              f"max {a.max() * 1e3:.0f} ms; share <= 0.2 s: {np.mean(a <= 0.2) * 100:.0f} %")
+        print(f"all ({args.model}, {args.fmt}): {a.size} updates, latency median {np.median(a) * 1e3:.0f} ms, "
+              f"p90 {np.percentile(a, 90) * 1e3:.0f} ms, max {a.max() * 1e3:.0f} ms; "
+              f"share <= 0.2 s: {np.mean(a <= 0.2) * 100:.0f} %")
 
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--writer":
-        _writer(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]))
+        _writer(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]), sys.argv[6], sys.argv[7])
     else:
         main()

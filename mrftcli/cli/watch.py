@@ -57,10 +57,11 @@ def _process_test_line(update: ProcessTestUpdate) -> str:
 
 
 def _parameter(e: LtiEstimate, final: bool) -> str:
+    unit = f" {e.unit}" if e.unit else ""  # a declared model's parameter may have no unit
     if e.known:
-        return f"{e.name} {e.value:.4g} {e.unit} (known)"
+        return f"{e.name} {e.value:.4g}{unit} (known)"
     spread = f" ± {e.std:.2g}" if final and math.isfinite(e.std) else ""
-    return f"{e.name} {e.value:.4g}{spread} {e.unit}"
+    return f"{e.name} {e.value:.4g}{spread}{unit}"
 
 
 def _process_estimate_line(update: ProcessEstimateUpdate) -> str:

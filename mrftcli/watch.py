@@ -1,7 +1,9 @@
 """Follow a flight log while it is written: MRFT tests and the identification as cycles arrive.
 
-:func:`watch` is a generator of typed update records (:class:`TestUpdate`, :class:`EstimateUpdate`,
-:class:`Restart`, :class:`WatchEnd`); ``mrft-ident watch`` prints them. It never prints itself.
+:func:`watch` (eq. (2)) and :func:`watch_model` (a process plant, ``--model NAME``) are generators of
+typed update records (:class:`TestUpdate`, :class:`EstimateUpdate`; :class:`ProcessTestUpdate`,
+:class:`ProcessEstimateUpdate`; :class:`Restart`, :class:`WatchEnd`); ``mrft-ident watch`` prints
+them. Neither prints itself.
 
 How the log is followed
 -----------------------

@@ -14,8 +14,9 @@ half-period 2-3. One cycle says little, but the test says much more (issue 24, p
   ambiguous by a common shift and the bracket's middle is taken (unbiased, as before).
 * **The output folded over the test** (:func:`measure_folded`). With the switch instants known,
   every output sample has a known phase in its cycle; folded over the test's cycles the samples
-  fill the cycle at many phases, and one harmonic series (as many harmonics as the distinct phases
-  carry, up to 8) is the cycle's waveform: its extrema, its fundamental and its level at the
+  fill the cycle at many phases, and one harmonic series (up to 8 harmonics, as many as the
+  distinct phases carry and the cycles left out in turn confirm: :func:`fold_harmonics`) is the
+  cycle's waveform: its extrema, its fundamental and its level at the
   switches. Each cycle is then measured against that waveform with three numbers from its own 4-6
   samples (level, scale, phase shift), so its amplitude and phase scatter as the cycle does: the
   analysis's bootstrap over cycles sees the data's own spread.
@@ -32,8 +33,8 @@ from ..mrft.harmonics import harmonic_basis
 from .cycles import harmonics_for
 from .records import RelayCycle
 
-__all__ = ["TickSwitches", "switch_ticks", "refine_by_waveform", "FoldedWaveform", "fold_waveform", "measure_folded",
-           "MIN_LOGGED_PER_CYCLE"]
+__all__ = ["TickSwitches", "switch_ticks", "refine_by_waveform", "FoldedWaveform", "fold_waveform", "fold_harmonics",
+           "measure_folded", "MIN_LOGGED_PER_CYCLE"]
 
 FloatArray = NDArray[np.float64]
 
@@ -170,13 +171,21 @@ def refine_by_waveform(sw: TickSwitches, up: NDArray[np.bool_], t_y: FloatArray,
     ticks = sw.ticks.copy()
     origin = float(sw.t[0] - sw.ticks[0] * sw.ts)
 
-    def residual(tk: NDArray[np.int64]) -> float:
+    ups = np.flatnonzero(up)
+    tri = [(a, b) for a, b in zip(ups[:-1], ups[1:]) if b - a == 2]
+    if len(tri) < 2:
+        return sw.t
+
+    def bounds(tk: NDArray[np.int64]) -> tuple[FloatArray, FloatArray]:
         t_sw = origin + tk * sw.ts
-        ups = np.flatnonzero(up)
-        tri = [(a, b) for a, b in zip(ups[:-1], ups[1:]) if b - a == 2]
-        if len(tri) < 2:
-            return float("inf")
-        w = fold_waveform(t_y, y, np.array([t_sw[a] for a, _ in tri]), np.array([t_sw[b] for _, b in tri]))
+        return np.array([t_sw[a] for a, _ in tri]), np.array([t_sw[b] for _, b in tri])
+
+    # the harmonics decided once, at the vernier's ticks: residuals of folds with different
+    # harmonics would not compare
+    H = fold_harmonics(t_y, y, *bounds(ticks))
+
+    def residual(tk: NDArray[np.int64]) -> float:
+        w = fold_waveform(t_y, y, *bounds(tk), harmonics=H)
         return w.noise_std if w is not None else float("inf")
 
     best = residual(ticks)
@@ -303,13 +312,15 @@ def _phases(t: FloatArray, t0: FloatArray, t2: FloatArray) -> tuple[FloatArray, 
     return np.where(inside, (t - t0[kk]) / (t2[kk] - t0[kk]), np.nan), k
 
 
-def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) -> FoldedWaveform | None:
+def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray,
+                  harmonics: int | None = None) -> FoldedWaveform | None:
     """The output's waveform over the cycles [t0_i, t2_i) folded at their phases.
 
     Least squares over every sample in a cycle: a line in time (the level's drift over the test)
     plus harmonics 1..H of the phase, H as many as the distinct phases carry twice over
-    (:func:`~mrftcli.segment.cycles.harmonics_for`), at least 1 and at most 8. None when the
-    samples fall on fewer than 4 distinct phases.
+    (:func:`~mrftcli.segment.cycles.harmonics_for`), at least 1 and at most 8, or fewer when
+    ``harmonics`` says so (:func:`fold_harmonics`). None when the samples fall on fewer than 4
+    distinct phases.
     """
     phi, k = _phases(t, t0, t2)
     sel = k >= 0
@@ -318,9 +329,9 @@ def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) 
     if distinct < MIN_LOGGED_PER_CYCLE:
         return None
     H = int(min(_HARMONICS, max(1, harmonics_for(distinct))))
-    x = (tt - tt.mean()) / max(float(np.ptp(tt)), 1e-9)
-    basis = harmonic_basis(ph, 1.0, H)  # [1, phi, cos k..., sin k...]
-    A = np.column_stack([np.ones_like(x), x, basis[:, 2:]])
+    if harmonics is not None:
+        H = int(min(H, max(1, harmonics)))
+    A = _fold_design(tt, ph, H)
     sol, *_ = np.linalg.lstsq(A, yy, rcond=None)
     resid = yy - A @ sol
     dof = max(yy.size - A.shape[1], 1)
@@ -328,11 +339,52 @@ def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) 
     w = FoldedWaveform(coef, 0.0, 0.0, 0.0, 0.0, float(np.sqrt(resid @ resid / dof)), float("nan"), distinct)
     grid = np.linspace(0.0, 1.0, 2001)
     wg = w(grid)
-    detrended = yy - sol[0] - sol[1] * x
+    detrended = yy - A[:, :2] @ sol[:2]
     ms = float(detrended @ detrended / yy.size)
     return FoldedWaveform(coef, float(0.5 * (wg.max() - wg.min())), float(0.5 * (wg.max() + wg.min())),
                           float(grid[np.argmax(wg)]), float(grid[np.argmin(wg)]), w.noise_std,
                           float(0.5 * abs(coef[0]) ** 2 / ms) if ms > 0 else float("nan"), distinct)
+
+
+def _fold_design(t: FloatArray, phi: FloatArray, H: int) -> FloatArray:
+    """The fold's design matrix: [1, time scaled to the span (the level's drift), cos k phi (k = 1..H),
+    sin k phi (k = 1..H)]."""
+    x = (t - t.mean()) / max(float(np.ptp(t)), 1e-9)
+    basis = harmonic_basis(phi, 1.0, H)  # [1, phi, cos k..., sin k...]
+    return np.column_stack([np.ones_like(x), x, basis[:, 2:]])
+
+
+def fold_harmonics(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) -> int:
+    """The harmonics [-] a fold over the cycles [t0_i, t2_i) carries: the number that best predicts
+    each cycle's samples from the fold of the others (leave one cycle out).
+
+    The distinct phases of a sliding logging grid allow 8 (:func:`fold_waveform`); an orbit that
+    wanders by a tick or more from cycle to cycle (a small relay height among noise) has each cycle
+    off the common waveform in its own way, and 8 harmonics over 5 samples a cycle then fit those
+    deviations: the fold rings at its extrema, the amplitude is read long and the level at the
+    switches 0.1-0.4 short of the relay's beta (the test refused as not switching at its nominal
+    beta). A cycle left out keeps its own deviation, so its prediction error grows once the
+    harmonics start fitting the others'. A periodic orbit keeps its harmonics. Fewer than 3
+    cycles: the distinct phases decide alone.
+    """
+    phi, k = _phases(t, t0, t2)
+    sel = k >= 0
+    tt, yy, ph, kk = t[sel], y[sel], phi[sel], k[sel]
+    distinct = int(np.unique(np.round(ph, 3)).size)
+    h_max = int(min(_HARMONICS, max(1, harmonics_for(distinct))))
+    cycles = np.unique(kk)
+    if cycles.size < 3 or h_max <= 1:
+        return h_max
+    A = _fold_design(tt, ph, h_max)
+    errors = np.zeros(h_max)
+    for i in cycles:
+        out = kk == i
+        for H in range(1, h_max + 1):
+            cols = np.r_[0:2 + H, 2 + h_max:2 + h_max + H]  # the line and harmonics 1..H (cosines, sines)
+            sol, *_ = np.linalg.lstsq(A[~out][:, cols], yy[~out], rcond=None)
+            r = yy[out] - A[out][:, cols] @ sol
+            errors[H - 1] += float(r @ r)
+    return int(np.argmin(errors)) + 1
 
 
 def _cycle_fit(w: FoldedWaveform, ph: FloatArray, yy: FloatArray) -> tuple[float, float, float] | None:
@@ -383,7 +435,7 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
     t1 = np.array([t_sw[a + 1] for a, _ in triples])
     t2 = np.array([t_sw[b] for _, b in triples])
     use = np.array([not ({"gap", "glitch"} & f) for f in flags]) if fold is None else np.asarray(fold, bool)
-    w = fold_waveform(t_y, y, t0[use], t2[use]) if use.sum() >= 2 else None
+    w = fold_waveform(t_y, y, t0[use], t2[use], fold_harmonics(t_y, y, t0[use], t2[use])) if use.sum() >= 2 else None
     phi, k = _phases(t_y, t0, t2)
     return [_folded_cycle(w, phi[k == i], y[k == i], t0[i], t1[i], t2[i], h, flags[i]) for i in range(t0.size)]
 

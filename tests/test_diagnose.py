@@ -16,7 +16,7 @@ from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
 from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, Disagreement, EffectFinding,
                                      Evidence, HeldOut, PairFit, TestRow, Unexplained)
-from mrftcli.diagnose.identification import AnalyzeModel, Identification, ModelEstimate
+from mrftcli.diagnose.identification import AnalyzeModel, EffectIdentification, Identification, ModelEstimate
 from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -332,7 +332,7 @@ def _small_result() -> DiagnosisResult:
                                              compared_with="linear", bic_base=160.0),
                            fit_before=HeldOut("waveform", nrmse=0.08, nrmse_raw=0.09, cycles=12),
                            fit_after=HeldOut("waveform", nrmse=0.01, nrmse_raw=0.03, cycles=12),
-                           identification={"linear": {"Td": 2.0}, "with_effect": {"Td": 2.6}},
+                           identification=EffectIdentification.of({"Td": 2.0}, {"Td": 2.6}),
                            harmonics={"0": {"before": {"1": 0.1}, "after": {"1": 0.01}}})
     return DiagnosisResult(path="f.mcap", loop="altitude", Tp=0.0422, effects=[effect],
                            candidates=[CandidateFit("sensor_lag", "fitted", parameter="T_lag", unit="s", value=0.07,
@@ -396,8 +396,26 @@ def test_identification_json_round_trip_and_one_recommended_estimate():
     assert replace(ident, analyze=None).recommend([]).recommended.estimate.plant() == ident.linear.plant()
 
 
+def test_effect_identification_is_a_typed_record_with_the_json_layout_of_before():
+    # the layout a diagnosis JSON always had: linear, with_effect (tau, K, Td), model for a pair only
+    pair = EffectIdentification.of({"tau": 0.046, "K": 12.4, "Td": 2.6}, {"tau": 0.044, "K": 12.6, "Td": 2.7},
+                                   "input_bias+sensor_lag")
+    data = json.loads(json.dumps(pair.to_json()))
+    assert data == {"linear": {"tau": 0.046, "K": 12.4, "Td": 2.6}, "with_effect": {"tau": 0.044, "K": 12.6, "Td": 2.7},
+                    "model": "input_bias+sensor_lag"}
+    assert list(data["linear"]) == ["tau", "K", "Td"]
+    assert EffectIdentification.from_json(data) == pair and pair.model_of("sensor_lag") == "input_bias+sensor_lag"
+    alone = EffectIdentification.of({"tau": 0.046, "K": 12.4}, {"tau": 0.05, "K": 12.0})
+    assert "model" not in alone.to_json() and alone.model_of("quadratic_drag") == "quadratic_drag"
+    assert EffectIdentification.from_json(json.loads(json.dumps(alone.to_json()))) == alone
+
+
 @pytest.mark.parametrize("change, match", [
     ({"schema_version": 99}, "schema_version 99 is not supported"),
+    ({"effects": [{**_small_result().effects[0].to_dict(), "identification": {"linear": {}}}]},
+     "identification must be an object with 'linear' and 'with_effect'"),
+    ({"effects": [{**_small_result().effects[0].to_dict(),
+                   "identification": {"linear": {}, "with_effect": {}, "model": 3}}]}, "'model' must be a name"),
     ({"schema_version": None}, "no schema_version"),
     ({"effects": {}}, "'effects' must be a JSON list"),
     ({"effects": [{"name": "x"}]}, "effect has no 'explanation'"),

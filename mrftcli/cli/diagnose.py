@@ -62,7 +62,7 @@ def _effect_lines(result: DiagnosisResult) -> list[str]:
     for e in result.effects:
         cand = BY_NAME[e.name]  # its parameter's name
         lines.append(f"found: {e.name}: {e.explanation}")
-        model = e.identification.get("model", e.name)
+        model = e.identification.model_of(e.name)
         w = ident.refits.get(model)
         if w is None:
             continue

@@ -19,8 +19,8 @@ from ..io.logtypes import gain_unit, output_unit
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["ModelEstimate", "AnalyzeModel", "Recommendation", "Identification", "analyze_model", "with_analysis",
-           "DIFFERS_BECAUSE"]
+__all__ = ["ModelEstimate", "EffectIdentification", "AnalyzeModel", "Recommendation", "Identification",
+           "analyze_model", "with_analysis", "DIFFERS_BECAUSE"]
 
 #: why the diagnosis' linear model is not analyze's (the terminal and the JSON say it)
 DIFFERS_BECAUSE = ("diagnose refits the linear model to the cycles it compares the candidates on (the stable "
@@ -86,6 +86,66 @@ def _number(value: Any, key: str) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise InputError(f"the diagnosis' identification {key!r} must be a number, got {value!r:.40}")
     return float(value)
+
+
+@dataclass(frozen=True)
+class EffectIdentification:
+    """The plant's parameters beside one effect found (``EffectFinding.identification``).
+
+    Attributes
+    ----------
+    linear : ModelEstimate
+        Eq. (2) fitted to the stable cycles' features without the effect (Td, tau [s], K).
+    with_effect : ModelEstimate
+        The same refitted with the effect (for a second effect: with both, the joint fit).
+    model : str or None
+        The model refitted, when it is not the effect alone (``"<first>+<second>"`` for a pair).
+    """
+
+    linear: ModelEstimate
+    with_effect: ModelEstimate
+    model: str | None = None
+
+    def model_of(self, effect: str) -> str:
+        """The refit's model name: :attr:`model`, else the ``effect``'s own."""
+        return self.model if self.model is not None else effect
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON object: ``linear``, ``with_effect`` (their fitted Td, tau, K) and ``model`` when set."""
+        out: dict[str, Any] = {"linear": self.linear.to_json(), "with_effect": self.with_effect.to_json()}
+        if self.model is not None:
+            out["model"] = self.model
+        return out
+
+    @classmethod
+    def from_json(cls, data: Any) -> EffectIdentification:
+        """The record of a :meth:`to_json` object.
+
+        Raises
+        ------
+        InputError
+            Not an object with ``linear`` and ``with_effect`` estimates (one line).
+        """
+        if not isinstance(data, dict) or not {"linear", "with_effect"} <= set(data):
+            raise InputError("a diagnosis effect's identification must be an object with 'linear' and 'with_effect' "
+                             f"estimates, got {data!r:.80}; rerun mrft-ident diagnose")
+        model = data.get("model")
+        if model is not None and not isinstance(model, str):
+            raise InputError(f"a diagnosis effect's identification 'model' must be a name, got {model!r:.40}")
+        return cls(linear=ModelEstimate.from_json(data["linear"]), with_effect=ModelEstimate.from_json(data["with_effect"]),
+                   model=model)
+
+    @classmethod
+    def of(cls, linear: dict[str, float], with_effect: dict[str, float], model: str | None = None) -> EffectIdentification:
+        """The record of two fits' plant parameters (``{"tau", "K", "Td"}`` [s, s, gain], those fitted)."""
+        def estimate(p: dict[str, float]) -> ModelEstimate:
+            unknown = set(p) - {"Td", "tau", "K"}
+            if unknown:
+                raise InputError(f"a plant estimate holds Td, tau and K only, got {sorted(unknown)}")
+            Td, tau, K = (None if p.get(k) is None else float(p[k]) for k in ("Td", "tau", "K"))
+            return ModelEstimate(Td=Td, tau=tau, K=K)
+
+        return cls(linear=estimate(linear), with_effect=estimate(with_effect), model=model)
 
 
 @dataclass(frozen=True)

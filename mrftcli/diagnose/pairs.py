@@ -22,6 +22,7 @@ from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_v
                   residuals, theta_bounds)
 from .heldout import BIC_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Candidate
+from .identification import EffectIdentification
 from .records import CandidateFit, EffectFinding, Evidence, FinalModel, HeldOut, PairFit
 from .screen import Screen
 
@@ -43,16 +44,16 @@ TIE_BIC = 2.0
 # one pair: starts, fit, probe
 
 
-def effect_finding(row: CandidateFit | PairFit, ident: dict, harm: dict, compared_with: str, bic_base: float,
-                   n_all: int) -> EffectFinding:
+def effect_finding(row: CandidateFit | PairFit, ident: EffectIdentification, harm: dict, compared_with: str,
+                   bic_base: float, n_all: int) -> EffectFinding:
     """The :class:`~mrftcli.diagnose.records.EffectFinding` of a fitted candidate's (or pair's) row.
 
     Parameters
     ----------
     row : CandidateFit or PairFit
         The effect's row (a pair's: the effect added, its value from the joint fit).
-    ident : dict
-        ``linear`` and ``with_effect`` plant parameters (and the pair's ``model``).
+    ident : EffectIdentification
+        The plant's ``linear`` and ``with_effect`` estimates (and the pair's ``model``).
     harm : dict
         Per test, the harmonics' relative errors before and after.
     compared_with : str
@@ -75,7 +76,7 @@ def effect_finding(row: CandidateFit | PairFit, ident: dict, harm: dict, compare
                           compared_with=compared_with, bic_base=bic_base),
         fit_before=row.held_out_before,
         fit_after=row.held_out_after,
-        identification={k: v for k, v in ident.items() if v is not None},
+        identification=ident,
         harmonics=harm,
     )
 
@@ -355,7 +356,7 @@ def _findings(first: CandidateFit, second: PairFit | None, pairs: _Pairs) -> tup
     base_params = plant_params(lin.model, lin.fit)
     m1, f1 = pairs.fits[first.name]
     final = FinalModel(first.name, m1, f1)
-    effects = [effect_finding(first, {"linear": base_params, "with_effect": first.fit_params},
+    effects = [effect_finding(first, EffectIdentification.of(base_params, first.fit_params or {}),
                               harmonics_before_after(tests, lin.model, lin.fit, m1, f1), "linear", lin.bic, lin.n_all)]
     if second is None:
         return effects, final
@@ -368,8 +369,8 @@ def _findings(first: CandidateFit, second: PairFit | None, pairs: _Pairs) -> tup
     params[f"{par}_alone"] = params[par]
     params[f"{par}_alone_std"] = params[f"{par}_std"]
     params[par], params[f"{par}_std"] = value, std
-    effects.append(effect_finding(second, {"linear": base_params, "with_effect": second.fit_params,
-                                           "model": f"{first.name}+{second.name}"},
+    effects.append(effect_finding(second, EffectIdentification.of(base_params, second.fit_params or {},
+                                                                  f"{first.name}+{second.name}"),
                                   harmonics_before_after(tests, m1, f1, mp, fp), f"linear + {first.name}", _bic(first),
                                   lin.n_all))
     return effects, final

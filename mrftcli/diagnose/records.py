@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..jsonable import check_schema_version
-from .identification import Identification
+from .identification import EffectIdentification, Identification
 from .rows import (CandidateFit, Disagreement, Evidence, HeldOut, PairFit, TestRow, Unexplained, expect_list,
                    expect_object)
 
@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from .fit import CandidateModel, DiagnosedTest, Fit
 
 __all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement",
-           "TestRow", "Unexplained", "Identification", "EffectFinding", "FinalModel", "CycleErrors", "DiagnosisFigures",
+           "TestRow", "Unexplained", "Identification", "EffectIdentification", "EffectFinding", "FinalModel", "CycleErrors", "DiagnosisFigures",
            "DiagnosisResult"]
 
 #: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away)
@@ -64,8 +64,8 @@ class EffectFinding:
     fit_before, fit_after : HeldOut
         The held-out scores of the model it is compared with and of the model with it (the JSON keeps
         :meth:`HeldOut.summary`).
-    identification : dict
-        ``linear`` and ``with_effect`` plant parameters (and ``model`` for a pair).
+    identification : EffectIdentification
+        The plant's ``linear`` and ``with_effect`` estimates (and the refit's ``model`` for a pair).
     harmonics : dict
         Per test index, the relative errors of G(j k Omega) before and after.
     """
@@ -77,7 +77,7 @@ class EffectFinding:
     evidence: Evidence
     fit_before: HeldOut
     fit_after: HeldOut
-    identification: dict[str, Any]
+    identification: EffectIdentification
     harmonics: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -89,7 +89,7 @@ class EffectFinding:
             "evidence": self.evidence.to_dict(),
             "fit_before": self.fit_before.summary(),
             "fit_after": self.fit_after.summary(),
-            "identification": self.identification,
+            "identification": self.identification.to_json(),
             "harmonics": self.harmonics,
         }
 
@@ -109,7 +109,7 @@ class EffectFinding:
                        augmentation=str(data["augmentation"]), parameters=expect_object(data["parameters"], "parameters"),
                        evidence=Evidence.from_dict(data["evidence"]), fit_before=HeldOut.from_dict(data["fit_before"]),
                        fit_after=HeldOut.from_dict(data["fit_after"]),
-                       identification=expect_object(data["identification"], "identification"),
+                       identification=EffectIdentification.from_json(data["identification"]),
                        harmonics=expect_object(data.get("harmonics", {}), "harmonics"))
         except InputError:
             raise

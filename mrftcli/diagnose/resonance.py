@@ -23,9 +23,11 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from ..io.logtypes import FlightLog
+from ..mrft.model import LoopModel
 from .features import N_HARM
 from .fit import DiagnosedTest
 from .records import Unexplained
+from .ringing import RINGING_P, RingingFit, fit_ringing, switch_harmonics
 
 __all__ = ["RESONANCE_P", "BAND_HZ", "PeriodicResidual", "BandExcess", "periodic_residual", "band_excess",
            "resonance_mismatch"]
@@ -166,9 +168,12 @@ def band_excess(rows: list[PeriodicResidual]) -> BandExcess | None:
                       dof=int(dof[j]), p_value=float(p[j]), tests=tests)
 
 
-def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str) -> Unexplained | None:
-    """The ``unexplained`` answer when the residual above the fitted harmonics is not noise in some
-    band (p < :data:`RESONANCE_P`, Bonferroni over the bands: :func:`band_excess`).
+def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str,
+                       plant: LoopModel | None = None) -> Unexplained | None:
+    """The ``unexplained`` answer when a mode rings after the relay switches (the matched fit of
+    :func:`~mrftcli.diagnose.ringing.fit_ringing` against ``plant``'s harmonics, p <
+    :data:`~mrftcli.diagnose.ringing.RINGING_P`), or when the residual above the fitted harmonics is
+    not noise in some band (p < :data:`RESONANCE_P`, Bonferroni over the bands: :func:`band_excess`).
 
     Parameters
     ----------
@@ -178,7 +183,14 @@ def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str
         The diagnosed tests (their cycle tables hold the fitted harmonics).
     after : str
         The model finally chosen (``"linear"`` or ``"linear + <effects>"``).
+    plant : LoopModel, optional
+        Eq. (2) with the diagnosis' linear fit (its harmonics above the fitted ones are what a clean
+        loop shows there); without it only the band statistic is judged.
     """
+    if plant is not None:
+        ringing = fit_ringing([r for r in (switch_harmonics(flight, t, plant) for t in tests) if r is not None])
+        if ringing is not None and ringing.p_value < RINGING_P:
+            return _ringing_answer(ringing, after)
     rows = [r for r in (periodic_residual(flight, t) for t in tests) if r is not None]
     band = band_excess(rows)
     if band is None or band.p_value >= RESONANCE_P:
@@ -201,6 +213,30 @@ def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str
         largest={"test": worst.test + 1, "feature": "residual_above_harmonics",
                  "what": f"residual above harmonic {N_HARM} near {f:.1f} Hz",
                  "z": (zw - dofw) / math.sqrt(2 * max(dofw, 1)), "recorded": worst.rms, "model": 0.0},
+        segments=[],
+        harmonics=[],
+        best_candidate=None,
+        worse_half=None,
+    )
+
+
+def _ringing_answer(fit: RingingFit, after: str) -> Unexplained:
+    """The ``unexplained`` answer of a mode found ringing after the switches (its frequency and damping)."""
+    f, zeta = fit.frequency_hz, fit.damping
+    at = f"at or below {f:.1f} Hz" if fit.at_lowest else f"at {f:.1f} Hz, damping {zeta:.2f}"
+    what = (f"a ringing after every relay switch {at} (a lightly damped mode between the airframe and the sensor: "
+            "a flexible sensor mount or a frame mode, outside the candidate library)")
+    return Unexplained(
+        after=after,
+        what=what,
+        held_out_feature_chi2=None,
+        held_out_features=0,
+        p_value=fit.p_value,
+        held_out_nrmse_raw=None,
+        tests=[t + 1 for t in fit.tests],
+        largest={"test": (fit.tests or [0])[-1] + 1, "feature": "ringing_after_switches",
+                 "what": f"ringing {at}, after the relay switches",
+                 "z": math.sqrt(fit.chi2_drop), "recorded": fit.rms, "model": 0.0},
         segments=[],
         harmonics=[],
         best_candidate=None,

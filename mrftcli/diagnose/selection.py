@@ -46,12 +46,13 @@ import numpy as np
 
 from ..errors import InputError, MrftError
 from ..io.logtypes import FlightLog
+from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from ..validate import check_time
 from .candidates import LinearFit, fit_linear, search_candidates
 from .fit import plant_params
 from .heldout import BIC_THRESHOLD, significant
-from .identification import Identification, ModelEstimate, analyze_model
+from .identification import EffectIdentification, Identification, ModelEstimate, analyze_model
 from .jitter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
@@ -116,7 +117,7 @@ def judge_jitter(screen: Screen, linear: LinearFit, final: FinalModel | None, sa
         return JitterJudgement(row, None)
     # the jitter acts on the cycle-to-cycle scatter only, which the deterministic effects leave alone
     base_params = plant_params(linear.model, linear.fit)
-    finding = effect_finding(row, {"linear": base_params, "with_effect": base_params}, {},
+    finding = effect_finding(row, EffectIdentification.of(base_params, base_params), {},
                              row.compared_with or "linear", row.bic + row.delta_bic, n_all)
     return JitterJudgement(row, finding)
 
@@ -195,7 +196,7 @@ def diagnose(
     say("locating")
     located = locate(screen.tests, linear.model, linear.fit, screen.recs_all, linear.scatter)
     items = [replace(d, t_start_rel=d.t_start - screen.t0, t_end_rel=d.t_end - screen.t0) for d in located.items]
-    unexplained = _unexplained(flight, screen, linear, effects, chosen.final, cand_rows, items)
+    unexplained = _unexplained(flight, screen, linear, effects, chosen.final, cand_rows, items, Tp)
     warnings = screen.warnings + chosen.warnings
     effects = [replace(e, parameters={**e.parameters, "unit": unit_in_loop(e.parameters.get("unit"), flight.loop)})
                for e in effects]
@@ -216,16 +217,23 @@ def diagnose(
 
 
 def _unexplained(flight: FlightLog, screen: Screen, linear: LinearFit, effects: list[EffectFinding],
-                 final: FinalModel | None, cand_rows: list[CandidateFit], items: list[Disagreement]) -> Unexplained | None:
+                 final: FinalModel | None, cand_rows: list[CandidateFit], items: list[Disagreement],
+                 Tp: float) -> Unexplained | None:
     """Stage 6b: what no candidate explains, on the features (when the linear model is rejected), else
-    a ringing above the fitted harmonics."""
+    a mode ringing after the switches (against the linear fit's harmonics, Tp [s] known)."""
     unexplained = None
     if linear.rejected:
         unexplained = unexplained_mismatch(screen.tests, linear.fit, linear.held_out, effects, final, cand_rows,
                                            screen.recs_all, linear.scatter, screen.t0, items)
     if unexplained is None:
         # a lightly damped mode above the fitted harmonics leaves the features alone (issue 27)
-        unexplained = resonance_mismatch(flight, screen.tests, "linear" if final is None else f"linear + {final.label}")
+        lin = plant_params(linear.model, linear.fit)
+        try:
+            plant: LoopModel | None = LoopModel(Tp=Tp, Td=lin["Td"], tau=lin["tau"], K=abs(lin["K"]))
+        except (InputError, TypeError):
+            plant = None  # a fit at a bound eq. (2) refuses: the band statistic alone
+        unexplained = resonance_mismatch(flight, screen.tests, "linear" if final is None else f"linear + {final.label}",
+                                         plant)
     return unexplained
 
 
@@ -238,8 +246,7 @@ def _identification(flight: FlightLog, Tp: float, screen: Screen, linear: Linear
     """The linear fit, the refit with each found effect, the waveform refits, analyze's model (when
     given) and the one estimate to take."""
     lin = plant_params(linear.model, linear.fit)
-    refits = {e.identification.get("model", e.name): ModelEstimate(**{**e.identification["with_effect"], "Tp": Tp})
-              for e in effects}
+    refits = {e.identification.model_of(e.name): replace(e.identification.with_effect, Tp=float(Tp)) for e in effects}
     ident = Identification(loop=flight.loop, linear=ModelEstimate(**{**lin, "Tp": Tp}), refits=refits,
                            waveform=_waveform_refits(flight, screen.analysis, effects, warnings),
                            analyze=None if analysis is None else analyze_model(analysis))

@@ -271,7 +271,7 @@ def _effect_sections(result: DiagnosisResult) -> list[str]:
         before = e.evidence.compared_with
         fb, fa = e.fit_before, e.fit_after
         body.append("<div class='left2'>" + html_table(
-            ["held-out cycles", f"{before} model", f"with {e.identification.get('model', e.name)}".replace("_", " ")],
+            ["held-out cycles", f"{before} model", f"with {e.identification.model_of(e.name)}".replace("_", " ")],
             [("waveform error (NRMSE), as recorded", _pct(fb.nrmse_raw), _pct(fa.nrmse_raw)),
              ("the same beyond the recording's own cycle-to-cycle scatter", _pct(fb.nrmse), _pct(fa.nrmse)),
              ("features off by (RMS, in standard errors)", _f(fb.feature_rms_z), _f(fa.feature_rms_z))])

@@ -26,7 +26,6 @@ import numpy as np
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
-from ..mrft.harmonics import fit_harmonics
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
@@ -36,6 +35,7 @@ from ..segment.relay_type import infer_relay
 from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .screen import log_start
+from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
            "chattering_cycles",
@@ -121,6 +121,12 @@ class TestSummary:
         E.g. why a noisy test was kept.
     held_out : HeldOut or None
         The prediction from the other tests.
+    switching : SwitchingLevel or None
+        The smooth waveform's level at the switches and its amplitude
+        (:func:`~mrftcli.analyze.smooth_cycle.switching_level`).
+    effective_relay : RelayLaw or None
+        ``relay`` at that level (``source "effective"``): what the held-out prediction uses; None for
+        an ideal relay or without a measured level.
     """
 
     __test__ = False
@@ -137,22 +143,47 @@ class TestSummary:
     beta_effective: float
     notes: tuple[str, ...] = ()
     held_out: HeldOut | None = None
+    switching: SwitchingLevel | None = None
+    effective_relay: RelayLaw | None = None
+
+    @property
+    def predicting_relay(self) -> RelayLaw:
+        """The relay a model's limit cycle is computed under: the effective one where there is one."""
+        return self.effective_relay or self.relay
+
+    def describe_relay(self) -> str:
+        """The relay without its ``relay: `` prefix, with the effective level where there is one.
+
+        E.g. ``hysteresis eps 3.76e-06 (effective, on the cycle's smooth waveform: 3.48e-06), levels
+        +1200 / -720, bias +240``.
+        """
+        text = self.relay.describe()[len("relay: "):]
+        eff = self.effective_relay
+        if eff is None:
+            return text
+        value = f"{eff.eps:.3g}" if eff.kind == "hysteresis" else f"{eff.beta:+.3g}"
+        head, sep, rest = text.partition(", levels")
+        return f"{head} (effective, on the cycle's smooth waveform: {value}){sep}{rest}"
 
     def to_json(self) -> dict[str, Any]:
         return {"index": self.index, "t_start": self.t_start, "t_end": self.t_end, "relay": self.relay.to_json(),
                 "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "n_stable": self.n_stable,
                 "n_cycles": self.n_cycles, "rate_hz": self.rate_hz,
                 "beta_effective": self.beta_effective, "notes": list(self.notes),
-                "held_out": None if self.held_out is None else self.held_out.to_json()}
+                "held_out": None if self.held_out is None else self.held_out.to_json(),
+                "switching": None if self.switching is None else self.switching.to_json(),
+                "effective_relay": None if self.effective_relay is None else self.effective_relay.to_json()}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> TestSummary:
         try:
-            ho = d.get("held_out")
+            ho, sw, eff = d.get("held_out"), d.get("switching"), d.get("effective_relay")
             return cls(int(d["index"]), float(d["t_start"]), float(d["t_end"]), RelayLaw.from_json(d["relay"]),
                        float(d["frequency_hz"]), float(d["amplitude"]), int(d["n_stable"]), int(d["n_cycles"]),
                        float(d["rate_hz"]), float(d["beta_effective"]), tuple(str(n) for n in d.get("notes", [])),
-                       None if ho is None else HeldOut.from_json(ho))
+                       None if ho is None else HeldOut.from_json(ho),
+                       None if sw is None else SwitchingLevel.from_json(sw),
+                       None if eff is None else RelayLaw.from_json(eff))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"analysis JSON: bad test entry ({err})") from None
 
@@ -313,32 +344,23 @@ def _screen(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...
     return "", ()
 
 
-def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] = HARMONICS) -> tuple[ResponsePoint, ...]:
+def response_points(flight: FlightLog, test: MrftTest, harmonics: Sequence[int] = HARMONICS,
+                    fits: Sequence[CycleFit] | None = None) -> tuple[ResponsePoint, ...]:
     """G(j k Omega) = Y_k / U_k of the test's stable cycles, averaged over the cycles (module docstring).
 
     Per cycle, the output over the cycle is fitted with a line plus eight harmonics
-    (:func:`~mrftcli.mrft.harmonics.fit_harmonics`) and divided by the closed-form harmonic of the
-    logged relay square wave, ``U_k = 4 h (1 - e^{-j k Omega d}) / (j k Omega P)`` (d the time at the
-    high level). The mean over the cycles is the complex mean (a mean of magnitudes would be biased
-    upwards by the noise); the standard errors of ln gain and phase are the complex scatter per
-    component over sqrt(n - 1), relative to the mean's modulus. A harmonic the relay hardly excites (|U_k|
-    below 5 % of |U_1| / k) is skipped.
+    (:func:`~mrftcli.analyze.smooth_cycle.cycle_fits`; ``fits`` if already made) and divided by the
+    closed-form harmonic of the logged relay square wave, ``U_k = 4 h (1 - e^{-j k Omega d}) / (j k Omega P)``
+    (d the time at the high level). The mean over the cycles is the complex mean (a mean of
+    magnitudes would be biased upwards by the noise); the standard errors of ln gain and phase are
+    the complex scatter per component over sqrt(n - 1), relative to the mean's modulus. A harmonic
+    the relay hardly excites (|U_k| below 5 % of |U_1| / k) is skipped.
     """
-    t, y = flight.output.t, flight.output.values * test.loop_sign
     rows: dict[int, list[tuple[float, complex]]] = {k: [] for k in harmonics}
-    for c in test.stable:
-        P = c.t_end - c.t_start
-        # the cycle is [t_start, t_end): a sample within a millionth of a period of a bound counts as on
-        # it, so rounding in the times (1e-14 s) cannot move a sample across (it moved K by 0.25 %)
-        i0, i1 = np.searchsorted(t, [c.t_start - 1e-6 * P, c.t_end - 1e-6 * P])
-        if i1 - i0 < 10:  # a line and the fundamental need a few samples each
-            continue
-        # up to eight harmonics, two samples per fitted function (16 samples a cycle: k <= 3)
-        fit = fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4))
-        Y = fit.harmonics
+    for f in (cycle_fits(flight, test) if fits is None else fits):
+        P, d, Y = f.period, f.t_high, f.harmonics
         w = 2 * math.pi / P
-        d = c.t_switch - c.t_start
-        chatter = _command_harmonics(flight.command, c.t_start, P, harmonics) if "glitch" in c.flags else None
+        chatter = _command_harmonics(flight.command, f.t_start, P, harmonics) if f.chattered else None
         for k in harmonics:
             if k > Y.size:
                 continue
@@ -395,7 +417,11 @@ def identify_points(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiId
 
 
 def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoint]) -> HeldOut:
-    """The test's cycle from the model identified on ``points`` (the other tests'), under its relay."""
+    """The test's cycle from the model identified on ``points`` (the other tests'), under its relay.
+
+    The relay is the effective one where there is one (:attr:`TestSummary.predicting_relay`): the
+    level the smooth waveform had at the switches, which is what a noise-free model must reproduce.
+    """
     if not points:
         return HeldOut(None, None, "no other test")
     try:
@@ -405,20 +431,22 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
     if len(fit.points) * 2 < sum(not e.known for e in fit.estimates):
         return HeldOut(None, None, f"the other tests do not determine {', '.join(fit.undetermined)}")
     note = f"{', '.join(fit.undetermined)} poorly determined by the other tests" if fit.undetermined else ""
+    relay = test.predicting_relay
     try:
-        lc = test.relay.limit_cycle(fit.model, test.rate_hz)
+        lc = relay.limit_cycle(fit.model, test.rate_hz)
     except InputError:
-        if not (test.relay.kind == "hysteresis" and -1 < test.beta_effective < 1):
+        # the model's noise-free cycle never reaches the level (its gain is too low at the recorded
+        # frequency): predict at the level relative to the amplitude measured instead (and say so)
+        beta = test.switching.beta if test.switching is not None else test.beta_effective
+        if not (relay.kind == "hysteresis" and -1 < beta < 1):
             return HeldOut(None, None, "the model has no limit cycle under this relay")
-        # a hysteresis close to the amplitude: the relay switches on the noise before the noise-free
-        # cycle would reach eps; predict at the switching level measured instead (and say so)
-        mrft = RelayLaw("mrft", test.relay.high, test.relay.low, beta=test.beta_effective)
+        mrft = RelayLaw("mrft", relay.high, relay.low, beta=beta)
         try:
             lc = mrft.limit_cycle(fit.model, test.rate_hz)
         except InputError:
             return HeldOut(None, None, "the model has no limit cycle under this relay")
-        note = "; ".join(filter(None, [note, f"the noise-free loop does not reach eps {test.relay.eps:.3g}: "
-                                             f"predicted at the measured switching level (beta {test.beta_effective:.2f})"]))
+        note = "; ".join(filter(None, [note, f"the noise-free loop does not reach eps {relay.eps:.3g}: "
+                                             f"predicted at the measured switching level (beta {beta:.2f})"]))
     return HeldOut(lc.frequency_hz, lc.amplitude, note)
 
 
@@ -465,17 +493,19 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
             test_notes += ("the relay chatters at its switches (it switches on the noise near the crossing): "
                            "the cycles are used with the logged command's own harmonics; a hysteresis of a few "
                            "noise standard deviations avoids it",)
-        pts = response_points(flight, test) if not reason else ()
+        fits = cycle_fits(flight, test) if not reason else ()
+        pts = response_points(flight, test, fits=fits) if not reason else ()
         if not reason and not any(p.harmonic == 1 for p in pts):
             reason = "no cycle long enough to measure its fundamental"
         if reason:
             rejected.append((i, test.t_start, test.t_end, reason))
             continue
         law = infer_relay(test, relay.kind, relay.beta, relay.eps)
+        level = switching_level(fits)
         tests.append(TestSummary(i, test.t_start, test.t_end, law, float(test.frequency_hz_mean),
                                  float(test.amplitude_mean), test.n_stable, len(test.cycles),
                                  float(test.controller_rate_hz or test.rate_hz), float(test.beta_effective),
-                                 test_notes))
+                                 test_notes, switching=level, effective_relay=effective_relay(law, level, test)))
         points += pts
         notes += [f"test {len(tests)}: {n}" for n in test_notes]
     if not tests:

@@ -304,7 +304,7 @@ def format_general(result: GeneralAnalysis) -> str:
     rows = [head]
     for k, t in enumerate(result.tests):
         ho = t.held_out
-        rows.append((str(k + 1), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.relay.describe()[7:],
+        rows.append((str(k + 1), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.describe_relay(),
                      _num(t.frequency_hz), _num(t.amplitude, 3),
                      _num(ho.frequency_hz) if ho else "-", _num(ho.amplitude, 3) if ho else "-",
                      f"{t.n_stable}/{t.n_cycles}"))

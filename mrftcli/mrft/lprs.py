@@ -640,8 +640,12 @@ def lti_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: 
         P = math.pi / math.exp(logw)
         try:
             u, _, _ = _StateSpaceCycle(A, B, C, P).condition(beta, offset)
-        except InputError:  # the level is beyond the cycle: no switch at this frequency
-            return math.nan
+        except InputError:
+            # the level is beyond the cycle: no switch at this frequency. The crossing tends to the
+            # peak as the level nears it, where the condition is negative (-t_min - tau): negative
+            # here too, so a cycle just below this frequency is bracketed (a hysteresis near the
+            # amplitude put it within one grid step of this region and NaN hid it)
+            return -(P + tau)
         return (P - u) - tau
 
     ev = np.abs(np.linalg.eigvals(A))

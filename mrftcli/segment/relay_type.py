@@ -25,7 +25,7 @@ import numpy as np
 from ..mrft.relays import RelayLaw
 from .records import MrftTest
 
-__all__ = ["infer_relay", "switching_level"]
+__all__ = ["infer_relay", "switching_level", "sampling_level"]
 
 
 def switching_level(test: MrftTest) -> tuple[float, float, float]:
@@ -70,7 +70,7 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
         if beta is None and test.beta_nominal is None:
             # the measured level less the sampling lag's: the sampled prediction adds that lag itself
             level, _, amp = switching_level(test)
-            beta = float(np.clip((level - _sampling_level(test, amp)) / amp, -0.99, 0.99))
+            beta = float(np.clip((level - sampling_level(test, amp)) / amp, -0.99, 0.99))
             return RelayLaw("mrft", high, low, beta=beta, source=stated)
         b = beta if beta is not None else test.beta_nominal
         assert b is not None
@@ -78,7 +78,7 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
     if kind == "hysteresis" and eps is not None:
         return RelayLaw("hysteresis", high, low, eps=float(eps), source="stated")
     level, se, amp = switching_level(test)
-    lag_level = _sampling_level(test, amp)
+    lag_level = sampling_level(test, amp)
     excess = level - lag_level if math.isfinite(level) else 0.0
     if kind is None:
         floor = max(3.0 * se if math.isfinite(se) else 0.0, 0.05 * amp)
@@ -90,8 +90,12 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
     return RelayLaw("hysteresis", high, low, eps=max(float(excess), 0.0), source=stated)
 
 
-def _sampling_level(test: MrftTest, amplitude: float) -> float:
-    """The mean level a relay deciding on samples adds: the cycle's rise over half a sample [output units]."""
+def sampling_level(test: MrftTest, amplitude: float) -> float:
+    """The mean level a relay deciding on samples adds: the cycle's rise over half a sample [output units].
+
+    ``amplitude`` is the cycle's [output units]; the rate is the test's controller rate (else its
+    logged rate) and the frequency its stable cycles' mean. 0 without stable cycles.
+    """
     rate = test.controller_rate_hz or test.rate_hz
     if not (rate and math.isfinite(amplitude) and test.n_stable):
         return 0.0

@@ -1,0 +1,179 @@
+"""A test's smooth periodic waveform and the relay's effective switching level on it.
+
+Each stable cycle's output is fitted with a line plus harmonics of its period
+(:func:`cycle_fits`, the fits :func:`mrftcli.analyze.general.response_points` divides by the relay's
+harmonics). Their complex mean over the cycles, in the cycle's phase from its ``-h -> +h`` switch,
+is the test's smooth waveform: the noise averages out, the plant's response to the relay stays.
+
+A relay deciding on a noisy error switches when the *noisy* error crosses its level, so the smooth
+output at the switching instants is what a noise-free model of the loop must reproduce for its
+limit cycle (LPRS) to have the recorded phase. :func:`switching_level` reads that level, half the
+difference between each cycle's smooth output at its ``+h -> -h`` and its ``-h -> +h`` switch (the
+bias's offset cancels), and the mean smooth waveform's amplitude; :func:`effective_relay` turns it into the
+relay the held-out prediction uses: a hysteresis ``eps`` [output units] or an MRFT ``beta`` (the
+level over the amplitude), less the mean lag of a relay deciding on samples (the sampled prediction
+adds that lag itself).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.logtypes import FlightLog
+from ..jsonable import check_schema_version
+from ..mrft.harmonics import fit_harmonics
+from ..mrft.relays import RelayLaw
+from ..segment.records import MrftTest
+from ..segment.relay_type import sampling_level
+
+__all__ = ["CycleFit", "SwitchingLevel", "cycle_fits", "switching_level", "effective_relay",
+           "SWITCHING_SCHEMA_VERSION"]
+
+#: version of :meth:`SwitchingLevel.to_json`
+SWITCHING_SCHEMA_VERSION = 1
+#: phase samples of the smooth waveform over one period (its extrema to ~1e-5 of the amplitude)
+_PHASES = 4096
+
+
+@dataclass(frozen=True, eq=False)
+class CycleFit:
+    """One stable cycle's output as harmonics of its period.
+
+    Attributes
+    ----------
+    t_start : float
+        The cycle's ``-h -> +h`` switch [s, log clock]; the harmonics' phase origin.
+    period : float
+        P [s].
+    t_high : float
+        Time at the high level, from ``t_start`` to the ``+h -> -h`` switch [s].
+    harmonics : numpy.ndarray
+        Y_k, k = 1..H [output units] (:attr:`mrftcli.mrft.harmonics.HarmonicFit.harmonics`).
+    chattered : bool
+        The relay chattered in this cycle (its square wave is not the closed form).
+    """
+
+    t_start: float
+    period: float
+    t_high: float
+    harmonics: np.ndarray
+    chattered: bool = False
+
+
+@dataclass(frozen=True)
+class SwitchingLevel:
+    """The smooth output at a test's switching instants.
+
+    Attributes
+    ----------
+    level : float
+        Half the difference between the smooth output at the ``+h -> -h`` and at the ``-h -> +h``
+        switches [output units]: a hysteresis relay's eps, an MRFT's ``beta * amplitude``.
+    amplitude : float
+        Half the smooth waveform's peak-to-peak [output units].
+    n_cycles : int
+        The cycles averaged.
+    level_se : float
+        The level's standard error [output units].
+    """
+
+    level: float
+    amplitude: float
+    n_cycles: int
+    level_se: float = 0.0
+
+    @property
+    def beta(self) -> float:
+        """The level over the amplitude [-]."""
+        return self.level / self.amplitude
+
+    def to_json(self) -> dict[str, Any]:
+        return {"schema_version": SWITCHING_SCHEMA_VERSION, "level": self.level, "amplitude": self.amplitude,
+                "n_cycles": self.n_cycles,
+                "level_se": self.level_se}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> SwitchingLevel:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        data = check_schema_version(data, "switching level JSON", SWITCHING_SCHEMA_VERSION)
+        try:
+            return cls(float(data["level"]), float(data["amplitude"]), int(data["n_cycles"]),
+                       float(data.get("level_se", 0.0)))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"switching level JSON: bad or missing field ({err})") from None
+
+
+def cycle_fits(flight: FlightLog, test: MrftTest) -> tuple[CycleFit, ...]:
+    """Each stable cycle of ``test`` fitted with a line plus up to eight harmonics of its period.
+
+    Cycles with fewer than ten samples are skipped (a line and the fundamental need a few each).
+    """
+    t, y = flight.output.t, flight.output.values * test.loop_sign
+    fits = []
+    for c in test.stable:
+        P = c.t_end - c.t_start
+        # the cycle is [t_start, t_end): a sample within a millionth of a period of a bound counts as on
+        # it, so rounding in the times (1e-14 s) cannot move a sample across (it moved K by 0.25 %)
+        i0, i1 = np.searchsorted(t, [c.t_start - 1e-6 * P, c.t_end - 1e-6 * P])
+        if i1 - i0 < 10:
+            continue
+        # up to eight harmonics, two samples per fitted function (16 samples a cycle: k <= 3)
+        fit = fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4))
+        fits.append(CycleFit(c.t_start, P, c.t_switch - c.t_start, fit.harmonics, "glitch" in c.flags))
+    return tuple(fits)
+
+
+def switching_level(fits: Sequence[CycleFit]) -> SwitchingLevel | None:
+    """The smooth output's level at the switches and the smooth amplitude (module docstring); None under two cycles.
+
+    The level is the mean over the cycles of each cycle's smooth output (its harmonics) at its own
+    switches: a noisy relay's switches jitter from cycle to cycle, and one mean waveform evaluated
+    at the mean switch would blur the level there (by 3-10 % where the switch is near the peak, on
+    the KSTAR windows). Its standard error is the cycles' scatter over sqrt(n). The amplitude is
+    that of the mean waveform (the complex mean of the harmonics every cycle carries, in the cycle's
+    phase): the noise, which inflates each cycle's own extrema, averages out.
+
+    Examples
+    --------
+    A cosine lagging the switches by a quarter period is at zero at both switches:
+
+    >>> h = np.array([1j])  # Re(j e^{j phi}) = -sin(phi): 0 at phi = 0 and at phi = pi
+    >>> s = switching_level([CycleFit(0.0, 1.0, 0.5, h), CycleFit(1.0, 1.0, 0.5, h)])
+    >>> round(s.level, 9) + 0.0, round(s.amplitude, 6), s.n_cycles
+    (0.0, 1.0, 2)
+    """
+    if len(fits) < 2:
+        return None
+    levels = []
+    for f in fits:
+        k = np.arange(1, f.harmonics.size + 1)
+        up, down = np.real(np.exp(1j * np.outer([0.0, 2 * math.pi * f.t_high / f.period], k)) @ f.harmonics)
+        levels.append(0.5 * (down - up))
+    n = min(f.harmonics.size for f in fits)
+    Y = np.mean([f.harmonics[:n] for f in fits], axis=0)
+    phase = np.linspace(0.0, 2 * math.pi, _PHASES, endpoint=False)
+    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, n + 1))) @ Y)
+    return SwitchingLevel(float(np.mean(levels)), float(0.5 * (wave.max() - wave.min())), len(fits),
+                          float(np.std(levels, ddof=1) / math.sqrt(len(levels))))
+
+
+def effective_relay(relay: RelayLaw, level: SwitchingLevel | None, test: MrftTest) -> RelayLaw | None:
+    """The relay at the smooth waveform's switching level (``source="effective"``), or None.
+
+    A hysteresis relay gets ``eps = level - L_s`` [output units], an MRFT ``beta = (level - L_s) /
+    amplitude`` (clipped to [-0.99, 0.99]); ``L_s`` is the sampled relay's mean lag
+    (:func:`mrftcli.segment.relay_type.sampling_level`). None for an ideal relay (it has no level to
+    move) or without a measured level.
+    """
+    if level is None or relay.kind == "ideal" or not (math.isfinite(level.level) and level.amplitude > 0):
+        return None
+    excess = level.level - sampling_level(test, level.amplitude)
+    if relay.kind == "hysteresis":
+        return RelayLaw("hysteresis", relay.high, relay.low, eps=max(excess, 0.0), source="effective")
+    return RelayLaw("mrft", relay.high, relay.low, beta=float(np.clip(excess / level.amplitude, -0.99, 0.99)),
+                    source="effective")

@@ -14,9 +14,9 @@ and analysis (:func:`mrftcli.io.read_flight` + :func:`mrftcli.analyze.analyze_fl
 finished log, as a ratio to the median per-update latency.
 
 ``--model fopdt``: a process plant instead (``watch --model fopdt``, :func:`mrftcli.watch.watch_model`).
-The writer draws a random FOPDT plant and records three relay windows as an engineer running relay
-autotuning would (an ideal relay, a biased relay with a small hysteresis, a symmetric relay with a
-larger one), simulated by ``tests/process_sim.py`` (independent of mrftcli), at 50, 100 or 200 Hz by
+The writer draws a random FOPDT plant (K 0.5-5, T 0.2-1 s, tau 0.1-0.4 T) and records three relay
+windows of about a dozen cycles each, as an engineer running relay autotuning would (an ideal relay, a
+biased relay with a small hysteresis, a symmetric relay with a larger one), simulated by ``tests/process_sim.py`` (independent of mrftcli), at 50, 100 or 200 Hz by
 run, noise 1 % of the amplitude; it writes them in real time as an MCAP (``--format mcap``: the command
 on ``/mrft/command``, the output on ``/mocap/pose`` z) or as a CSV with a process recording's three
 columns (``--format csv``: time, u_relay, y_output; a row per sample, flushed every few ms). The
@@ -74,18 +74,29 @@ def _eq2_rows(seed: int, rate_hz: float) -> tuple[list, dict]:
     return rows, {"Td": model.Td, "tau": model.tau, "K": model.K, "Tp": model.Tp}
 
 
+def _ideal_period(T: float, tau: float) -> float:
+    """The period of an FOPDT loop under an ideal relay [s]: the phase crossover, atan(w T) + w tau = pi."""
+    lo, hi = 1e-6, math.pi / tau
+    for _ in range(60):
+        w = 0.5 * (lo + hi)
+        lo, hi = (w, hi) if math.atan(w * T) + w * tau < math.pi else (lo, w)
+    return 2 * math.pi / lo
+
+
 def _fopdt_recording(seed: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """A random FOPDT plant under three relay windows (tests/process_sim.py): t [s], command, output, truth."""
     from process_sim import Window, simulate
 
     rng = np.random.default_rng(seed)
-    T = float(rng.uniform(0.3, 2.0))
+    T = float(rng.uniform(0.2, 1.0))
     truth = {"K": float(rng.uniform(0.5, 5.0)), "T": T, "tau": float(rng.uniform(0.1, 0.4) * T)}
     h = 1.0
     a = truth["K"] * h * (1 - math.exp(-truth["tau"] / T))  # the ideal relay's amplitude
-    windows = [Window("ideal", h, -h, duration=10.0, rest=2.0),
-               Window("hysteresis", 1.5 * h, -0.5 * h, eps=0.1 * a, duration=10.0, rest=2.0),
-               Window("hysteresis", h, -h, eps=0.4 * a, duration=10.0, rest=2.0)]
+    # as an engineer runs them: about a dozen cycles per window (the hysteresis lengthens the period)
+    period = _ideal_period(T, truth["tau"])
+    windows = [Window("ideal", h, -h, duration=max(6.0, 12 * period), rest=2.0),
+               Window("hysteresis", 1.5 * h, -0.5 * h, eps=0.1 * a, duration=max(6.0, 14 * period), rest=2.0),
+               Window("hysteresis", h, -h, eps=0.4 * a, duration=max(6.0, 18 * period), rest=2.0)]
     t, u, y = simulate("fopdt", truth, windows, rate_hz, 0.01 * a, seed=seed)
     return t, u, y, truth
 

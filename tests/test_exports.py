@@ -39,14 +39,20 @@ def _sample_models() -> list[tuple[str, LoopModel, float]]:
 MODELS = _sample_models()
 
 
+#: AC_PosControl.cpp's constructor sets these to 0 (off / no integral) below their own @Range's minimum
+DEFAULTS_OUTSIDE_RANGE = ("PSC_VELZ_I", "PSC_ACCZ_FLTT", "PSC_ACCZ_FLTD")
+
+
 # --- the vendored table ---------------------------------------------------------------------------
 
 def test_table_rows_are_sourced_and_ordered():
     for p in STACK_PARAMS:
         assert p.minimum <= p.maximum, p.name
         assert p.source and ("/" in p.source), p.name  # repository and file
-        if math.isfinite(p.default):
+        if math.isfinite(p.default) and p.name not in DEFAULTS_OUTSIDE_RANGE:
             assert p.contains(p.default), p.name  # the stack's default is within its own range
+    for name in DEFAULTS_OUTSIDE_RANGE:
+        assert param("ardupilot", name).default == 0.0 and not param("ardupilot", name).contains(0.0)
     # the issue's figures, as the sources give them
     assert (param("px4", "MC_ROLLRATE_P").minimum, param("px4", "MC_ROLLRATE_P").maximum) == (0.01, 0.5)
     assert (param("px4", "MPC_Z_P").minimum, param("px4", "MPC_Z_P").maximum) == (0.1, 1.5)
@@ -122,8 +128,71 @@ def _ms_gm(L: np.ndarray) -> tuple[float, float]:
     return ms, float(gm[np.argmin(np.abs(np.log(gm)))])
 
 
+#: _zoh_output's discretisations and state responses, per (model, delay, rate) and frequency grid
+_ZOH_CACHE: dict = {}
+
+
+def _zoh_output(model: LoopModel, C: np.ndarray, delay: float, rate: float, z: np.ndarray) -> np.ndarray:
+    """The sampled transfer from the held throttle to the output C x delayed by ``delay`` [s] (whole ticks in
+    z^-d, the fraction in the hold), from scipy's expm of eq. (2)'s states [z, v, thrust] written out here."""
+    T = 1.0 / rate
+    _cache = _ZOH_CACHE
+    key = (model, round(delay, 12), rate)
+    if key not in _cache:
+        from scipy.linalg import expm
+
+        A = np.array([[0.0, 1.0, 0.0], [0.0, -1.0 / model.Td, model.K], [0.0, 0.0, -1.0 / model.Tp]])
+        B = np.array([0.0, 0.0, 1.0 / model.Tp])
+
+        def step(t: float) -> tuple[np.ndarray, np.ndarray]:
+            E = expm(np.block([[A, B[:, None]], [np.zeros((1, 4))]]) * t)
+            return E[:3, :3], E[:3, 3]
+
+        d = int(math.floor(delay / T + 1e-12))
+        eps = max(delay - d * T, 0.0)
+        (Phi, _), (E_rest, G0), (_, G_eps) = step(T), step(T - eps), step(eps)
+        _cache[key] = (Phi, G0, E_rest @ G_eps, d)
+    Phi, G0, G1, d = _cache[key]
+    zkey = (key, z.size, complex(z[0]), complex(z[-1]))
+    if zkey not in _cache:  # the state's response, shared by the three outputs
+        rhs = G0[None, :] + G1[None, :] / z[:, None]
+        _cache[zkey] = np.linalg.solve(z[:, None, None] * np.eye(3) - Phi, rhs[..., None])[..., 0] * z[:, None] ** (-d)
+    return _cache[zkey] @ C
+
+
+def _ardupilot_z_worst(p: dict[str, float], model: LoopModel, rate: float, w: np.ndarray) -> tuple[float, float]:
+    """(largest Ms, smallest GM) over the splits of tau of ArduPilot's z loops written from the values alone
+    (AC_PID's first-order filters, scipy's Butterworth for INS_ACCEL_FILTER, the motors' 2 Hz throttle filter)."""
+    T = 1.0 / rate
+    z = np.exp(1j * w * T)
+
+    def lp(hz: float) -> np.ndarray:
+        al = T / (T + 1.0 / (2 * math.pi * hz)) if hz > 0 else 1.0
+        return al / (1 - (1 - al) / z)
+
+    b, a = signal.butter(2, p["INS_ACCEL_FILTER"], fs=rate)
+    F_acc = np.polyval(b[::-1], 1 / z) / np.polyval(a[::-1], 1 / z)
+    integ = T * z / (z - 1)
+    Cv = lp(p["PSC_VELZ_FLTE"]) * (p["PSC_VELZ_P"] + p["PSC_VELZ_I"] * integ)
+    Ca = lp(p["PSC_ACCZ_FLTE"]) * (p["PSC_ACCZ_P"] + p["PSC_ACCZ_I"] * integ)
+    ms, gm = 0.0, math.inf
+    for i in range(5):  # the actuator's delay in quarters of tau; each measurement's at 0, half, all of the rest
+        ta = model.tau * i / 4
+        rest = model.tau - ta
+        Ga = _zoh_output(model, np.array([0.0, -1.0 / model.Td, model.K]), ta, rate, z)
+        for fv in ((0.0, 0.5, 1.0) if rest > 0 else (0.0,)):
+            Gv = _zoh_output(model, np.array([0.0, 1.0, 0.0]), ta + fv * rest, rate, z)
+            for fz in ((0.0, 0.5, 1.0) if rest > 0 else (0.0,)):
+                Gz = _zoh_output(model, np.array([1.0, 0.0, 0.0]), ta + fz * rest, rate, z)
+                L = 0.1 * lp(2.0) * Ca * (F_acc * Ga + Cv * (Gv + p["PSC_POSZ_P"] * Gz))
+                m_i, g_i = _ms_gm(L)
+                ms, gm = max(ms, m_i), min(gm, g_i)
+    return ms, gm
+
+
+#: every sample model to every stack that has its loop (ArduPilot altitude: AC_PosControl's z cascade)
 STACK_LOOPS = [(stack, loop, m, rate) for loop, m, rate in MODELS for stack in ("px4", "ardupilot", "hear")
-               if not (stack == "ardupilot" and loop not in ("roll", "pitch"))
+               if not (stack == "ardupilot" and loop not in ("roll", "pitch", "altitude"))
                and not (stack == "px4" and loop not in ("roll", "pitch", "altitude"))]
 
 
@@ -138,6 +207,15 @@ def test_every_sample_export_is_in_range_with_its_margins(stack, loop, model, ra
                                                                  rate_filter=st.rate_filter))
     cutoff = st.rate_filter.cutoff_hz if st.rate_filter is not None else None
     w = np.geomspace(1e-3, 0.999, 3000) * math.pi * st.rate_hz
+    if stack == "ardupilot" and loop == "altitude":  # the cascade's design searches: its model-based PD only
+        d = res.get("model-based", "PD")
+        e = export_design(stack, d.controller, model, loop, d.name, clamp=True, hover_thrust=HOVER)
+        rows = {p.name: p for p in STACK_PARAMS if p.stack == stack}
+        assert set(e.params) <= set(rows) and not check_ranges(stack, e.params), e.params
+        assert e.assumptions and "every split" in e.assumptions[0]
+        ms, gm = _ardupilot_z_worst(e.params, model, st.rate_hz, np.geomspace(1e-3, 0.999, 1200) * math.pi * st.rate_hz)
+        assert e.margins.Ms == pytest.approx(ms, rel=5e-3) and e.margins.gain_margin == pytest.approx(gm, rel=1e-2)
+        return
     for d in res.designs:
         try:
             export_design(stack, d.controller, model, loop, d.name, hover_thrust=HOVER)
@@ -176,7 +254,7 @@ def test_px4_mrft_rule_out_of_range_is_refused_then_clamped_with_margins():
 def test_refusals_before_the_work():
     with pytest.raises(InputError, match="hover-thrust"):
         check_exportable("px4", "altitude", "PD")
-    with pytest.raises(InputError, match="acceleration"):
+    with pytest.raises(InputError, match="MOT_THST_HOVER"):
         check_exportable("ardupilot", "altitude", "PD")
     with pytest.raises(InputError, match="PID"):
         check_exportable("px4", "roll", "PID")

@@ -1,37 +1,123 @@
-"""ArduPilot's altitude cascade (tracker issue 25): refused with the quantity the model lacks named, its
-ranges vendored with their source; the CLI says it in one line."""
+"""ArduPilot's altitude cascade (tracker issue 25): AC_PosControl's z loops exported with their margins held
+for every split of tau; the refusals; an independent simulation of ArduPilot's code checks the margins."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
+from scipy import linalg, signal
 
 from mrftcli.errors import InputError
+from mrftcli.mrft.model import LoopModel
+from mrftcli.tune.ardupilot_z import design_z_cascade, split_grid
+from mrftcli.tune.closed_loop import Controller, RateFilter
 from mrftcli.tune.stack_params import STACK_PARAMS, check_ranges, param
-from mrftcli.tune.stacks import check_exportable
+from mrftcli.tune.stacks import check_exportable, export_design
+
+#: tau 40 ms at 200 Hz: every split of the grid is whole ticks, so the simulation below needs no sub-steps
+MODEL = LoopModel(0.0422, 2.669, 0.040, 19.62)
+RATE = 200.0
 
 
-def test_refusal_names_the_missing_quantities_and_the_source():
-    with pytest.raises(InputError) as err:
-        check_exportable("ardupilot", "altitude", "PD")
-    msg = str(err.value)
-    assert "\n" not in msg and "PSC_ACCZ" in msg and "AC_PosControl.cpp" in msg
-    assert "accelerometer path" in msg and "EKF velocity's lag" in msg  # what is not identified
-    assert "--export px4" in msg  # what can be done instead
+def _pd() -> Controller:
+    """A PD of the altitude loop (the shape tune's model-based PD has on design1_altitude)."""
+    return Controller(0.53, 0.0, 0.226, 0.0, RATE, RateFilter(0.0, "none"))
+
+
+def test_refusals_name_the_option_and_the_units():
+    with pytest.raises(InputError, match="MOT_THST_HOVER"):
+        check_exportable("ardupilot", "altitude", "PD")  # the hover throttle is required
+    with pytest.raises(InputError, match="outside MOT_THST_HOVER's range 0.2-0.8"):
+        check_exportable("ardupilot", "altitude", "PD", 0.9)
+    with pytest.raises(InputError, match="not ArduPilot's throttle") as err:
+        export_design("ardupilot", _pd(), MODEL, "altitude", "x", hover_thrust=0.2)  # K 19.6 against g / 0.2 = 49
+    assert "\n" not in str(err.value)
+    with pytest.raises(InputError, match="x loop"):
+        check_exportable("ardupilot", "x", "PD", 0.5)
 
 
 def test_psc_ranges_are_vendored_with_their_source():
     rows = {p.name: p for p in STACK_PARAMS if p.name.startswith("PSC_")}
     assert {"PSC_POSZ_P", "PSC_VELZ_P", "PSC_ACCZ_P", "PSC_ACCZ_I", "PSC_ACCZ_D"} <= set(rows)
-    assert all("AC_PosControl.cpp" in p.source and p.stack == "ardupilot" for p in rows.values())
+    assert all("AC_PosControl.cpp" in p.source and "46d6887e" in p.source and p.verified for p in rows.values())
     assert (param("ardupilot", "PSC_ACCZ_P").minimum, param("ardupilot", "PSC_ACCZ_P").maximum) == (0.2, 1.5)
+    assert (param("ardupilot", "PSC_ACCZ_P").default, param("ardupilot", "PSC_VELZ_P").default) == (0.5, 5.0)
     assert [v.param.name for v in check_ranges("ardupilot", {"PSC_POSZ_P": 0.5, "PSC_VELZ_P": 5.0})] == ["PSC_POSZ_P"]
 
 
-def test_cli_refuses_in_one_line(capsys):
-    from mrftcli.cli.main import main
+def test_split_grid_covers_tau():
+    g = split_grid(0.04)
+    assert len(g) == 37 and len(set(g)) == 37
+    assert all(0 <= s.actuator_s <= 0.04 + 1e-15 and max(s.velocity_s, s.altitude_s) <= 0.04 - s.actuator_s + 1e-15
+               for s in g)
 
-    with pytest.raises(SystemExit) as ex:
-        main(["tune", "--tp", "0.0422", "--td", "3.0", "--tau", "0.05", "--k", "10", "--loop", "altitude",
-              "--export", "ardupilot"])
-    err = capsys.readouterr().err
-    assert ex.value.code == 2 and len(err.strip().splitlines()) == 1 and "PSC_ACCZ" in err
+
+def _simulate(p: dict[str, float], model: LoopModel, split_ticks: tuple[int, int, int], k: float,
+              seconds: float) -> np.ndarray:
+    """ArduPilot's z loops as its code runs them (AC_P_1D, AC_PID_Basic, AC_PID, the motors' 2 Hz throttle
+    filter, INS_ACCEL_FILTER as scipy's Butterworth), the throttle scaled by ``k``, on the plant stepped
+    exactly (scipy's expm); delays in whole ticks: the actuator's, and the velocity's and altitude's
+    measurements' beyond it. Returns z [m] per tick."""
+    T = 1.0 / RATE
+    A = np.array([[0.0, 1.0, 0.0], [0.0, -1.0 / model.Td, model.K], [0.0, 0.0, -1.0 / model.Tp]])
+    B = np.array([0.0, 0.0, 1.0 / model.Tp])
+    E = linalg.expm(np.block([[A, B[:, None]], [np.zeros((1, 4))]]) * T)
+    Phi, Gam = E[:3, :3], E[:3, 3]
+
+    def alpha(hz: float) -> float:
+        return 1.0 if hz <= 0 else T / (T + 1.0 / (2.0 * math.pi * hz))
+
+    b, a = signal.butter(2, p["INS_ACCEL_FILTER"], fs=RATE)
+    na, nv, nz = split_ticks
+    n = int(seconds * RATE)
+    xs = [np.array([0.01, 0.0, 0.0])]  # 1 cm off the target
+    us = [0.0] * (na + 1)
+    e_v = i_v = e_a = thr = 0.0
+    acc_in, acc_out = [0.0, 0.0], [0.0, 0.0]
+    out = np.empty(n)
+    for i in range(n):
+        x = xs[-1]
+        z_m = 100 * xs[max(i - nz, 0)][0]  # cm
+        v_m = 100 * xs[max(i - nv, 0)][1]
+        a_raw = 100 * (-x[1] / model.Td + model.K * x[2])
+        a_m = (b[0] * a_raw + b[1] * acc_in[0] + b[2] * acc_in[1] - a[1] * acc_out[0] - a[2] * acc_out[1]) / a[0]
+        acc_in, acc_out = [a_raw, acc_in[0]], [a_m, acc_out[0]]
+        v_t = p["PSC_POSZ_P"] * (0.0 - z_m)
+        e_v += alpha(p["PSC_VELZ_FLTE"]) * ((v_t - v_m) - e_v)
+        i_v += e_v * p["PSC_VELZ_I"] * T
+        a_t = p["PSC_VELZ_P"] * e_v + i_v
+        e_a += alpha(p["PSC_ACCZ_FLTE"]) * ((a_t - a_m) - e_a)
+        thr_in = k * 0.001 * p["PSC_ACCZ_P"] * e_a
+        thr += alpha(2.0) * (thr_in - thr)
+        us.append(thr)
+        xs.append(Phi @ x + Gam * us[-1 - na])
+        out[i] = x[0]
+    return out
+
+
+def test_cascade_gain_margin_against_an_independent_simulation():
+    """The exported values, flown as ArduPilot's code runs them on the split of smallest gain margin: the
+    loop with the throttle scaled by 0.95 GM settles, by 1.05 GM it grows (the GM the export states, from
+    the frequency response, is where the simulated loop turns unstable)."""
+    design, clamped = design_z_cascade(_pd(), MODEL)
+    assert not clamped
+    p = design.gains.params()
+    assert not check_ranges("ardupilot", p)
+    rows = design.figures.per_row
+    i = min(range(len(rows)), key=lambda j: rows[j].gain_margin)
+    s = design.figures.splits[i]
+    ticks = tuple(int(round(v * RATE)) for v in (s.actuator_s, s.velocity_s, s.altitude_s))
+    gm = rows[i].gain_margin
+    assert math.isfinite(gm) and gm > 1.5
+
+    def envelope(k: float) -> tuple[float, float]:
+        z = _simulate(p, MODEL, ticks, k, 12.0)
+        third = z.size // 3
+        return float(np.max(np.abs(z[third:2 * third]))), float(np.max(np.abs(z[2 * third:])))
+
+    mid, late = envelope(0.95 * gm)
+    assert late < 0.7 * mid  # decays
+    mid, late = envelope(1.05 * gm)
+    assert late > 1.3 * mid  # grows

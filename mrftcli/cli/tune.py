@@ -129,8 +129,8 @@ def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
     # an option the chosen export does not use is an error, not silently ignored
     if ex.gyro_cutoff_hz is not None and not (ex.stack in ("px4", "ardupilot") and loop in ("roll", "pitch")):
         raise InputError("--gyro-cutoff is for --export px4|ardupilot on roll or pitch (the stack's gyro filter)")
-    if ex.hover_thrust is not None and not (ex.stack == "px4" and loop == "altitude"):
-        raise InputError("--hover-thrust is for --export px4 on the altitude loop")
+    if ex.hover_thrust is not None and not (ex.stack in ("px4", "ardupilot") and loop == "altitude"):
+        raise InputError("--hover-thrust is for --export px4|ardupilot on the altitude loop")
 
 
 def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
@@ -269,13 +269,14 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
     from ..tune.stack_params import STACK_PARAMS
 
     rows = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
-    out = [f"export {e.stack} ({e.design}, {e.loop}):"]
+    out = [f"assumption: {a}" for a in e.assumptions] + [f"export {e.stack} ({e.design}, {e.loop}):"]
     for n, v in e.params.items():
         p = rows.get(n)
         rng = f"  [{p.minimum:g} .. {p.maximum:g} {p.unit}]" if p else ""
         out.append(f"  {n} = {v:.6g}{rng}")
     m = e.margins
-    out.append(f"margins with the stack's filter and rate: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
+    worst = " (the worst over the splits of tau)" if e.assumptions else ""
+    out.append(f"margins with the stack's filter and rate{worst}: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
                f"delay margin {m.delay_margin_s * 1e3:.1f} ms  Ms {m.Ms:.3g}")
     out += [f"note: {n}" for n in e.notes]
     if console:
@@ -311,7 +312,8 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
                    "the stack's default, stated; ROLL.json PITCH.json: default auto, the cutoff designed from both "
                    "axes, docs/tune.md).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
-              help="PX4 MPC_THR_HOVER (normalised), required for the PX4 altitude export.")
+              help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), required for "
+                   "the altitude exports.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound (the "
               "resulting margins are stated) instead of refusing.")
 @click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default=None, hidden=True,

@@ -15,12 +15,14 @@ Sources (read for tracker issue 25):
   IamPete1/ardupilot fork: the @Range lines of ``RAT_RLL_*``/``RAT_PIT_*``),
   ``libraries/AC_AttitudeControl/AC_AttitudeControl.cpp`` (``ANG_RLL_P``/``ANG_PIT_P`` @Range),
   ``libraries/AP_InertialSensor/AP_InertialSensor.cpp`` (``GYRO_FILTER`` @Range 0 127 in the version
-  read; the commit was not pinned), ``libraries/AC_AttitudeControl/AC_PosControl.cpp`` (the altitude
-  cascade's ``PSC_POSZ_P``, ``PSC_VELZ_*`` (an ``AC_PID_Basic`` in Copter 4.x) and ``PSC_ACCZ_*``
-  @Range lines; commit not pinned). ``update_z_controller`` there gives the structure: velocity target
-  = POSZ_P x altitude error [cm/s]; acceleration target = VELZ PID of the velocity error (the EKF's
+  read; the commit was not pinned; ``ACCEL_FILTER`` 0 127 likewise), ``libraries/AC_AttitudeControl/AC_PosControl.cpp``
+  at 46d6887e (Copter 4.x: the altitude cascade's ``PSC_POSZ_P``, ``PSC_VELZ_*`` (an ``AC_PID_Basic``) and
+  ``PSC_ACCZ_*`` @Range lines and the constructor's defaults), ``libraries/AP_Motors/AP_MotorsMulticopter.cpp``
+  (``THST_HOVER`` @Range 0.2 0.8; commit not pinned). ``update_z_controller`` gives the structure: velocity
+  target = POSZ_P x altitude error [cm/s]; acceleration target = VELZ PID of the velocity error (the EKF's
   vertical velocity) [cm/s^2]; throttle = hover throttle + 0.001 x ACCZ PID of (acceleration target -
-  ``get_z_accel_cmss()``, the IMU's earth-frame vertical acceleration) [cm/s^2].
+  ``get_z_accel_cmss()``, the IMU's earth-frame vertical acceleration) [cm/s^2], through the motors' 2 Hz
+  throttle filter (:mod:`mrftcli.tune.ardupilot_z`).
 * HEAR (github.com/oussamaabdulhay/HEAR_Architecture ``msg/PID_param.msg``, commit 832c597e): the
   message's fields; HEAR documents no ranges (its rows have none).
 """
@@ -42,8 +44,9 @@ _POS = f"{_PX4} src/modules/mc_pos_control/multicopter_position_control_gain_par
 _AP_MULTI = "ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_AttitudeControl_Multi.cpp (@Range; read @29643d00 of a fork)"
 _AP_ATC = "ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_AttitudeControl.cpp (@Range; commit not pinned)"
 _AP_INS = "ArduPilot/ardupilot libraries/AP_InertialSensor/AP_InertialSensor.cpp (@Range; commit not pinned)"
-_AP_PSC = ("ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_PosControl.cpp (@Range; Copter 4.x, _VELZ_ an "
-           "AC_PID_Basic; commit not pinned)")
+_AP_PSC = ("ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_PosControl.cpp (@Range and the constructor's defaults; "
+           "Copter 4.x, _VELZ_ an AC_PID_Basic; @46d6887e)")
+_AP_MOT = "ArduPilot/ardupilot libraries/AP_Motors/AP_MotorsMulticopter.cpp (@Range; commit not pinned)"
 
 #: PX4's ``IMU_GYRO_RATEMAX`` choices [Hz]: the rate controller's loop rate (imu_gyro_parameters.yaml).
 PX4_GYRO_RATES_HZ = (100.0, 250.0, 400.0, 800.0, 1000.0, 2000.0)
@@ -131,22 +134,24 @@ def _rows() -> tuple[StackParam, ...]:
         ("ATC_RAT_PIT_FLTT", 5.0, 100.0, "Hz", math.nan, _AP_MULTI, True),
         ("ATC_RAT_PIT_FLTD", 5.0, 100.0, "Hz", math.nan, _AP_MULTI, True),
         ("INS_GYRO_FILTER", 0.0, 127.0, "Hz", 20.0, _AP_INS, False),
-        # the altitude cascade (vendored for the refusal's record and a future export: tune does not write them)
-        ("PSC_POSZ_P", 1.0, 3.0, "(cm/s)/cm", math.nan, _AP_PSC, False),
-        ("PSC_VELZ_P", 1.0, 8.0, "(cm/s^2)/(cm/s)", math.nan, _AP_PSC, False),
-        ("PSC_VELZ_I", 0.02, 1.0, "(cm/s^2)/cm", math.nan, _AP_PSC, False),
-        ("PSC_VELZ_D", 0.0, 1.0, "(cm/s^2)/(cm/s^2)", math.nan, _AP_PSC, False),
-        ("PSC_VELZ_FF", 0.0, 1.0, "-", math.nan, _AP_PSC, False),
-        ("PSC_VELZ_FLTE", 0.0, 100.0, "Hz", math.nan, _AP_PSC, False),
-        ("PSC_VELZ_FLTD", 0.0, 100.0, "Hz", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_P", 0.2, 1.5, "(throttle/1000)/(cm/s^2)", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_I", 0.0, 3.0, "(throttle/1000)/(cm/s)", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_D", 0.0, 0.4, "(throttle/1000)/(cm/s^3)", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_FF", 0.0, 0.5, "(throttle/1000)/(cm/s^2)", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_IMAX", 0.0, 1000.0, "throttle/1000", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_FLTT", 1.0, 50.0, "Hz", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_FLTE", 1.0, 100.0, "Hz", math.nan, _AP_PSC, False),
-        ("PSC_ACCZ_FLTD", 1.0, 100.0, "Hz", math.nan, _AP_PSC, False),
+        ("INS_ACCEL_FILTER", 0.0, 127.0, "Hz", 20.0, _AP_INS, False),
+        # the altitude cascade (AC_PosControl z, exported by tune/ardupilot_z.py); defaults from its constructor
+        ("PSC_POSZ_P", 1.0, 3.0, "(cm/s)/cm", 1.0, _AP_PSC, True),
+        ("PSC_VELZ_P", 1.0, 8.0, "(cm/s^2)/(cm/s)", 5.0, _AP_PSC, True),
+        ("PSC_VELZ_I", 0.02, 1.0, "(cm/s^2)/cm", 0.0, _AP_PSC, True),
+        ("PSC_VELZ_D", 0.0, 1.0, "(cm/s^2)/(cm/s^2)", 0.0, _AP_PSC, True),
+        ("PSC_VELZ_FF", 0.0, 1.0, "-", 0.0, _AP_PSC, True),
+        ("PSC_VELZ_FLTE", 0.0, 100.0, "Hz", 5.0, _AP_PSC, True),
+        ("PSC_VELZ_FLTD", 0.0, 100.0, "Hz", 5.0, _AP_PSC, True),
+        ("PSC_ACCZ_P", 0.2, 1.5, "(throttle/1000)/(cm/s^2)", 0.5, _AP_PSC, True),
+        ("PSC_ACCZ_I", 0.0, 3.0, "(throttle/1000)/(cm/s)", 1.0, _AP_PSC, True),
+        ("PSC_ACCZ_D", 0.0, 0.4, "(throttle/1000)/(cm/s^3)", 0.0, _AP_PSC, True),
+        ("PSC_ACCZ_FF", 0.0, 0.5, "(throttle/1000)/(cm/s^2)", 0.0, _AP_PSC, True),
+        ("PSC_ACCZ_IMAX", 0.0, 1000.0, "throttle/1000", 800.0, _AP_PSC, True),
+        ("PSC_ACCZ_FLTT", 1.0, 50.0, "Hz", 0.0, _AP_PSC, True),
+        ("PSC_ACCZ_FLTE", 1.0, 100.0, "Hz", 20.0, _AP_PSC, True),
+        ("PSC_ACCZ_FLTD", 1.0, 100.0, "Hz", 0.0, _AP_PSC, True),
+        ("MOT_THST_HOVER", 0.2, 0.8, "throttle 0-1", math.nan, _AP_MOT, False),
     ]
     rows = [StackParam("px4", n, lo, hi, u, d, src) for n, lo, hi, u, d, src in px4]
     rows += [StackParam("ardupilot", n, lo, hi, u, d, src, v) for n, lo, hi, u, d, src, v in ap]

@@ -19,10 +19,13 @@ PD on the loop's output onto its parameters and back (:func:`export_design`), an
 * **ArduPilot** roll/pitch: ``ATC_ANG_RLL_P`` feeding the ``ATC_RAT_RLL_*`` PID (rad/s error ->
   motor output), the same mapping as PX4's; the gyro goes through ``INS_GYRO_FILTER`` (2nd-order
   Butterworth, ``LowPassFilter2p``). ``ATC_RAT_RLL_I`` >= 0.01 is documented: set at that minimum,
-  the margins recomputed with it. ArduPilot's altitude cascade is refused with
-  :data:`ARDUPILOT_ALTITUDE_REFUSAL`: ``PSC_ACCZ_*`` closes its innermost loop on the IMU's vertical
-  acceleration, whose delay (the actuator's part of the identified tau, which also holds the altitude
-  sensor's) the model does not give; its ranges are vendored (:mod:`mrftcli.tune.stack_params`).
+  the margins recomputed with it.
+* **ArduPilot** altitude: ``AC_PosControl``'s z cascade ``PSC_POSZ_P`` -> ``PSC_VELZ_*`` ->
+  ``PSC_ACCZ_*`` (the innermost loop on the IMU's vertical acceleration, the throttle through a 2 Hz
+  filter), designed by :mod:`mrftcli.tune.ardupilot_z` so that its margins hold for every split of the
+  identified tau between the motors and the sensors (the split is not identifiable from one altitude test:
+  stated first in the output, in :attr:`StackExport.assumptions`). Needs ``--hover-thrust``
+  (``MOT_THST_HOVER``): the command must be ArduPilot's throttle, K about g / hover.
 * **HEAR** (HEAR_FC): the PID of ``PID_param.msg`` computes u += kd PV_DOT and HEAR_FC feeds PV_DOT
   through a Gain(-1) block, i.e. PV_DOT = -(filtered rate); the rate is filtered by HEAR_FC's own
   2nd-order Butterworth (50 Hz at 200 Hz), which the design uses.
@@ -46,7 +49,7 @@ from .closed_loop import Controller, RateFilter
 from .margins import Margins, loop_margins
 from .stack_params import PX4_GYRO_RATES_HZ, check_ranges, param
 
-__all__ = ["EXPORTS", "ARDUPILOT_ALTITUDE_REFUSAL", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
+__all__ = ["EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -57,15 +60,6 @@ STANDARD_GRAVITY = 9.80665
 HEAR_FILTER_HZ, HEAR_RATE_HZ = 50.0, 200.0
 #: Version of :meth:`StackExport.to_json`'s object.
 EXPORT_SCHEMA_VERSION = 1
-#: Why ArduPilot's altitude cascade is not exported (AC_PosControl.cpp ``update_z_controller``): its inner loop
-#: feeds back a signal the identified model does not give with its own delay.
-ARDUPILOT_ALTITUDE_REFUSAL = (
-    "cannot export the altitude loop to ArduPilot: PSC_ACCZ_P/I/D close the innermost loop on the IMU's earth-frame "
-    "vertical acceleration (AC_PosControl.cpp get_z_accel_cmss, through INS_ACCEL_FILTER) and PSC_VELZ_* on the EKF's "
-    "vertical velocity, but the identified model (thrust -> measured altitude) has one delay tau lumping the "
-    "actuator and the altitude sensor: the delay of the thrust -> accelerometer path and the EKF velocity's lag are "
-    "not identified (identify the acceleration loop, an MRFT on the measured vertical acceleration, to design it); "
-    "roll and pitch export, and PX4's altitude (--export px4 --hover-thrust X)")
 #: Integral gains a PD leaves at 0 but the stack requires above a minimum: set to it (not a refusal).
 _STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RLL_I", "ATC_RAT_PIT_I"}
 _AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
@@ -78,18 +72,24 @@ def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | Non
     if stack in ("px4", "ardupilot") and kind != "PD":
         raise InputError(f"cannot export a PID to {stack}: its rate-loop (velocity-loop) I acts on the measured "
                          "rate, not on the error of a parallel PID; export the PD (--kind PD)")
-    if stack == "ardupilot" and loop == "altitude":
-        raise InputError(ARDUPILOT_ALTITUDE_REFUSAL)
-    if stack == "ardupilot" and loop not in ("roll", "pitch"):
-        raise InputError(f"cannot export the {loop} loop to ArduPilot: only roll and pitch map onto its angle-P / "
-                         "rate-PID cascade")
+    if stack == "ardupilot" and loop not in ("roll", "pitch", "altitude"):
+        raise InputError(f"cannot export the {loop} loop to ArduPilot: only roll and pitch (the angle-P / rate-PID "
+                         "cascade) and altitude (AC_PosControl's z cascade) map")
     if stack == "px4" and loop not in ("roll", "pitch", "altitude"):
         raise InputError(f"cannot export the {loop} loop to PX4: only roll, pitch and altitude map onto its cascades")
     if stack == "px4" and loop == "altitude" and hover_thrust is None:
         raise InputError("give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): PX4's vertical velocity loop "
                          "outputs acceleration, converted to thrust by hover thrust / g")
+    if stack == "ardupilot" and loop == "altitude" and hover_thrust is None:
+        raise InputError("give --hover-thrust X (MOT_THST_HOVER, throttle 0-1): ArduPilot adds it to the "
+                         "acceleration loop's output, and the identified K must be its throttle's (about g / X)")
     if hover_thrust is not None and not (0.0 < hover_thrust < 1.0):
         raise InputError(f"--hover-thrust must be a normalised thrust in (0, 1), got {hover_thrust}")
+    if stack == "ardupilot" and loop == "altitude" and hover_thrust is not None and not param(
+            "ardupilot", "MOT_THST_HOVER").contains(hover_thrust):
+        row = param("ardupilot", "MOT_THST_HOVER")
+        raise InputError(f"--hover-thrust {hover_thrust:g} is outside MOT_THST_HOVER's range {row.minimum:g}-"
+                         f"{row.maximum:g} (AP_MotorsMulticopter.cpp): give the vehicle's learned hover throttle")
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,14 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
         notes = (f"HEAR_FC filters the rate with a 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz; designed with it "
                  f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --rate to change)"),)
         return StackSetting(stack, rate, RateFilter(HEAR_FILTER_HZ, "HEAR_FC rate filter"), notes)
+    if stack == "ardupilot" and loop == "altitude":
+        rate = rate_given or rate_source
+        if rate is None:
+            raise InputError("give --rate HZ, ArduPilot's main loop rate (SCHED_LOOP_RATE), at which AC_PosControl "
+                             "runs the z cascade")
+        return StackSetting(stack, rate, RateFilter(0.0, "none"), (
+            f"ArduPilot altitude: designed at {rate:g} Hz: set SCHED_LOOP_RATE to it (AC_PosControl runs the z "
+            "cascade every main-loop tick)",))
     if stack == "px4" and loop == "altitude":
         rate = rate_given or rate_source
         if rate is None:
@@ -170,8 +178,11 @@ class StackExport:
     clamped : tuple of (name, value designed, value exported)
         Values set to the stack's bound.
     margins : Margins
-        Of the loop the exported values give, with the stack's rate filter and rate.
+        Of the loop the exported values give, with the stack's rate filter and rate (ArduPilot altitude: the
+        worst over the splits of tau).
     notes : tuple of str
+    assumptions : tuple of str
+        What the values rest on that the log cannot show (said first in the output).
     """
 
     stack: str
@@ -181,13 +192,14 @@ class StackExport:
     clamped: tuple[tuple[str, float, float], ...]
     margins: Margins
     notes: tuple[str, ...]
+    assumptions: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The versioned JSON object (:data:`EXPORT_SCHEMA_VERSION`)."""
         return {"schema_version": EXPORT_SCHEMA_VERSION, "stack": self.stack, "loop": self.loop,
                 "design": self.design, "params": dict(self.params),
                 "clamped": [{"name": n, "designed": a, "exported": b} for n, a, b in self.clamped],
-                "margins": self.margins.to_json(), "notes": list(self.notes)}
+                "margins": self.margins.to_json(), "notes": list(self.notes), "assumptions": list(self.assumptions)}
 
     @classmethod
     def from_json(cls, data: Any) -> "StackExport":
@@ -198,9 +210,10 @@ class StackExport:
             clamped = tuple((str(c["name"]), float(c["designed"]), float(c["exported"])) for c in data["clamped"])
             fields = (str(data["stack"]), str(data["loop"]), str(data["design"]))
             notes = tuple(str(n) for n in data["notes"])
+            assumptions = tuple(str(n) for n in data.get("assumptions", []))
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"stack export: missing or malformed field ({err})") from err
-        return cls(*fields, params, clamped, Margins.from_json(data.get("margins")), notes)
+        return cls(*fields, params, clamped, Margins.from_json(data.get("margins")), notes, assumptions)
 
     def file_text(self) -> str:
         """What the stack loads: QGroundControl ``.params`` (PX4), ``.param`` (ArduPilot), JSON (HEAR)."""
@@ -208,6 +221,7 @@ class StackExport:
             return _qgc_params(self)
         if self.stack == "ardupilot":
             head = [f"# mrft-ident tune: {self.design} for {self.loop} (load in Mission Planner / MAVProxy)"]
+            head += [f"# assumption: {a}" for a in self.assumptions]
             return "\n".join(head + [f"{n},{_fmt(v)}" for n, v in self.params.items()]) + "\n"
         import json
 
@@ -323,6 +337,9 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     if stack == "generic":
         params = {"Kp": c.Kp, "Ki": c.Ki, "Kd": c.Kd, "Tf": c.Tf, "rate_hz": c.rate_hz}
         return StackExport(stack, loop, design, params, (), loop_margins(c, [model])[0], tuple(out_notes))
+    if stack == "ardupilot" and loop == "altitude":
+        assert hover_thrust is not None  # check_exportable asked for it
+        return _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes)
     params = _cascade(c, loop, stack, hover_thrust)
     bad = check_ranges(stack, params)
     gains = [v for v in bad if v.param.name not in _STRUCTURAL]
@@ -348,3 +365,41 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
                          "for small errors (sqrt controller) and ATC_INPUT_TC shapes the setpoint")
     clamped = tuple((v.param.name, v.value, v.clamped) for v in bad)
     return StackExport(stack, loop, design, clamped_params, clamped, margins, tuple(out_notes))
+
+
+def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: bool, hover_thrust: float,
+                        notes: list[str]) -> StackExport:
+    """ArduPilot's z cascade for the PD ``c`` (:func:`mrftcli.tune.ardupilot_z.design_z_cascade`), its values
+    checked against the vendored ranges, its margins the worst over the splits of tau."""
+    from .ardupilot_z import THROTTLE_CUTOFF_HZ, check_units, design_z_cascade, split_assumption
+
+    check_units(model, hover_thrust)
+    z, clamped = design_z_cascade(c, model, clamp=clamp)
+    clamp_notes = [f"{n} set to {v:g} instead of {d:.4g}: the stack's bound (--clamp)" for n, d, v in clamped]
+    params = z.gains.params()
+    bad = check_ranges("ardupilot", params)
+    if bad:  # the design keeps every value in range: a violation here is a defect, never exported
+        raise InputError("cannot export to ardupilot: " + "; ".join(v.message() for v in bad))
+    w, split = z.figures.worst(), z.figures.worst_split()
+    tried = ", ".join(f"{p:g}: {g:.2f}" for p, g in z.tried)
+    notes = [*notes, *clamp_notes,
+             f"the cascade keeps {100 * z.kept:.0f} % of the {design}'s loop gain (PSC_ACCZ_P {z.gains.acc_p:g}; kept "
+             f"per PSC_ACCZ_P tried: {tried}) with Ms <= {z.ms_target:.3g}, the PD's own on the nominal model, on every "
+             f"split; the worst split is {split.describe()}: Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}, PM "
+             f"{w.phase_margin_deg:.1f} deg, delay margin {w.delay_margin_s * 1e3:.1f} ms",
+             f"in the loop: the motors' {THROTTLE_CUTOFF_HZ:g} Hz throttle filter (AC_PosControl "
+             "POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ), INS_ACCEL_FILTER, PSC_VELZ_FLTE and PSC_ACCZ_FLTE at the values "
+             "written; PSC_ACCZ_FLTT and _FLTD are not written (ArduPilot's default 0, off, is below their "
+             "documented 1 Hz; the design runs with FLTT off; _FLTD is unused with _D 0)",
+             f"PSC_VELZ_I = {z.gains.vel_i:g} (its documented minimum) and PSC_ACCZ_I = 0: the design is a PD; "
+             "ArduPilot's default PSC_ACCZ_I = 2 x PSC_ACCZ_P corrects a wrong MOT_THST_HOVER but adds phase lag "
+             "the margins above do not include",
+             f"MOT_THST_HOVER = {hover_thrust:g} (--hover-thrust; not written, ArduPilot learns it): K "
+             f"{model.K:.4g} m/s^2 per throttle unit against g / MOT_THST_HOVER = {STANDARD_GRAVITY / hover_thrust:.4g}; "
+             "the log's command is taken as the throttle after the 2 Hz filter (an MRFT at the mixer); for a test "
+             "flown through set_throttle_out the filter is in the identified Tp and tau already, and this loop "
+             "counts it twice",
+             "AC_P_1D's square-root controller and the PSC_ACCZ_IMAX / speed limits make the cascade nonlinear for "
+             "large errors: the margins are those of the linear region"]
+    assumption = split_assumption(z.tau, len(z.figures.splits))
+    return StackExport("ardupilot", "altitude", design, params, clamped, w, tuple(notes), (assumption,))

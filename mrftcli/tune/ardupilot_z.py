@@ -1,0 +1,489 @@
+"""ArduPilot's altitude cascade (``AC_PosControl::update_z_controller``) designed for every split of tau.
+
+**The cascade** (ArduPilot/ardupilot ``libraries/AC_AttitudeControl/AC_PosControl.cpp`` @46d6887e, Copter 4.x;
+``AC_PID.cpp``, ``AC_PID_Basic.cpp``, ``AP_MotorsMulticopter.cpp``), run every main-loop tick T:
+
+* velocity target [cm/s] = ``PSC_POSZ_P`` x (altitude target - the EKF's altitude) (``AC_P_1D``: linear for
+  small errors);
+* acceleration target [cm/s^2] = the ``AC_PID_Basic`` ``PSC_VELZ_P``/``_I`` of the velocity error (the EKF's
+  vertical velocity), the error through ``PSC_VELZ_FLTE``; ``_D`` and ``_FF`` 0;
+* throttle = ``MOT_THST_HOVER`` + 0.001 x the ``AC_PID`` ``PSC_ACCZ_P``/``_I`` of (the target through
+  ``PSC_ACCZ_FLTT`` - ``get_z_accel_cmss()``, the IMU's earth-frame vertical acceleration through
+  ``INS_ACCEL_FILTER``), the error through ``PSC_ACCZ_FLTE``; ``_D`` and ``_FF`` 0;
+* the throttle reaches the motors through a 2 Hz first-order low-pass (``set_throttle_out(...,
+  POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ)``, ``AP_MotorsMulticopter::update_throttle_filter``).
+
+ArduPilot's first-order filters are y_k = y_{k-1} + alpha (x_k - y_{k-1}), alpha = T / (T + 1 / (2 pi f))
+(f = 0: off); its integrators add Ki e_k T before the output. Broken at the throttle, with eq. (2)'s states
+x = [z, v, thrust] giving the altitude z, the velocity v and the acceleration a = -v / Td + K x3, each measured
+with its own delay, the loop is (SI units: 0.001 x 100 cm/m = 0.1)
+
+    L = 0.1 F_thr E_a (P_a + I_a T z/(z-1)) [F_acc G_a + F_T E_v (P_v + I_v T z/(z-1)) (G_v + P_z G_z)]
+
+with G_a, G_v, G_z the exact zero-order-hold transfers of the three outputs (their delays in the hold and
+z^-d, :class:`mrftcli.tune.closed_loop.PlantStack`), F_acc ``INS_ACCEL_FILTER``'s 2nd-order Butterworth at the
+loop rate (as the gyro filter is modelled), F_thr, F_T, E_a, E_v the first-order filters above.
+
+**The split of tau.** One altitude MRFT identifies one delay tau, from the throttle to the measured altitude:
+the actuator's part and the altitude measurement's, lumped. The accelerometer sees the actuator's part alone;
+the EKF's velocity and altitude some of the rest each. The split is not identifiable from one altitude test,
+so every figure is the worst over a grid of splits (:func:`split_grid`): the actuator's delay tau_a at 0, 1/4,
+1/2, 3/4 and all of tau, and the velocity's and the altitude's measurement delays each at 0, half and all of
+tau - tau_a (37 splits).
+
+**The design** (:func:`design_z_cascade`), from tune's PD u = Kp e - Kd v: P_z = Kp / Kd; the acceleration
+feedback 0.1 P_a a divides the low-frequency loop gain by 1 + 0.1 P_a K, so P_v = g (1 + 0.1 P_a K) Kd /
+(0.1 P_a) keeps the PD's loop at g = 1. For each ``PSC_ACCZ_P`` candidate the largest g <= 1 at which every
+split's loop is stable with Ms at most the PD's own (nominal) Ms is found (a scan down over the g that keep
+``PSC_VELZ_P`` in its range, then bisection); the candidates are tried in increasing P_a until one keeps less
+than the best so far (a stronger acceleration feedback then only loses to its own loop's Ms), and the one that
+keeps the most of the PD (largest g, then the smaller P_a) is exported.
+``PSC_VELZ_I`` is set at its documented minimum 0.02 and ``PSC_ACCZ_I`` at 0 (the design is a PD), both in the
+margins.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..mrft.model import LoopModel
+from .closed_loop import Controller, PlantStack, RateFilter, plants_of_parameters
+from .margins import Margins, margin_grid
+from .stack_params import param
+
+__all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
+           "cascade_figures", "design_z_cascade", "split_assumption", "THROTTLE_CUTOFF_HZ", "ACCZ_P_CANDIDATES",
+           "UNIT_TOLERANCE", "check_units"]
+
+#: ``POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ`` [Hz] (AC_PosControl.h): the motors' first-order throttle filter in the z loop.
+THROTTLE_CUTOFF_HZ = 2.0
+#: ``PSC_ACCZ_P`` values tried [(throttle/1000)/(cm/s^2)], within ArduPilot's 0.2-1.5.
+ACCZ_P_CANDIDATES = (0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.5)
+#: K hover / g may differ from 1 by this factor before the command is refused as not ArduPilot's throttle.
+UNIT_TOLERANCE = 2.0
+_G = 9.80665
+#: Bisection steps on log g between two scan points (to 0.15 %).
+_STEPS = 8
+#: Points of the downward scan of g over its range.
+_SCAN = 10
+_G_MIN = 0.05
+
+
+@dataclass(frozen=True)
+class DelaySplit:
+    """One split of the identified tau [s]: the actuator's part and each measurement's beyond it.
+
+    Attributes
+    ----------
+    actuator_s : float
+        Throttle -> thrust delay [s]: the acceleration loop's (the IMU's own is taken as 0).
+    velocity_s, altitude_s : float
+        The EKF velocity's and altitude's delays beyond the actuator's [s].
+    """
+
+    actuator_s: float
+    velocity_s: float
+    altitude_s: float
+
+    def describe(self) -> str:
+        return (f"actuator {self.actuator_s * 1e3:.1f} ms, velocity +{self.velocity_s * 1e3:.1f} ms, altitude "
+                f"+{self.altitude_s * 1e3:.1f} ms")
+
+
+def split_grid(tau: float, n: int = 4) -> tuple[DelaySplit, ...]:
+    """The splits of ``tau`` [s] the figures are the worst over: tau_a = tau i / n, i = 0..n; each measurement's
+    delay at 0, half and all of tau - tau_a (one split at tau_a = tau): 9 n + 1 splits."""
+    out = []
+    for i in range(n + 1):
+        ta = tau * i / n
+        rest = max(tau - ta, 0.0)
+        fractions = (0.0, 0.5, 1.0) if rest > 0 else (0.0,)
+        out += [DelaySplit(ta, fv * rest, fz * rest) for fv in fractions for fz in fractions]
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class ZCascadeGains:
+    """The AC_PosControl z gains and filters of one design, in ArduPilot's units.
+
+    Attributes
+    ----------
+    pos_p : float
+        ``PSC_POSZ_P`` [(cm/s)/cm].
+    vel_p, vel_i : float
+        ``PSC_VELZ_P`` [(cm/s^2)/(cm/s)], ``PSC_VELZ_I`` [(cm/s^2)/cm].
+    vel_flte_hz : float
+        ``PSC_VELZ_FLTE`` [Hz] (0: off).
+    acc_p, acc_i : float
+        ``PSC_ACCZ_P`` [(throttle/1000)/(cm/s^2)], ``PSC_ACCZ_I`` [(throttle/1000)/(cm/s)].
+    acc_flte_hz, acc_fltt_hz : float
+        ``PSC_ACCZ_FLTE``, ``PSC_ACCZ_FLTT`` [Hz] (0: off).
+    accel_filter_hz : float
+        ``INS_ACCEL_FILTER`` [Hz].
+    rate_hz : float
+        The loop rate (``SCHED_LOOP_RATE``) [Hz].
+    """
+
+    pos_p: float
+    vel_p: float
+    vel_i: float
+    vel_flte_hz: float
+    acc_p: float
+    acc_i: float
+    acc_flte_hz: float
+    acc_fltt_hz: float
+    accel_filter_hz: float
+    rate_hz: float
+
+    def params(self) -> dict[str, float]:
+        """The values the ``.param`` file sets (``PSC_ACCZ_FLTT`` is not written: 0, ArduPilot's default, is
+        below its documented range; the design runs with it off)."""
+        return {"PSC_POSZ_P": self.pos_p, "PSC_VELZ_P": self.vel_p, "PSC_VELZ_I": self.vel_i, "PSC_VELZ_D": 0.0,
+                "PSC_VELZ_FF": 0.0, "PSC_VELZ_FLTE": self.vel_flte_hz, "PSC_ACCZ_P": self.acc_p,
+                "PSC_ACCZ_I": self.acc_i, "PSC_ACCZ_D": 0.0, "PSC_ACCZ_FF": 0.0, "PSC_ACCZ_FLTE": self.acc_flte_hz,
+                "INS_ACCEL_FILTER": self.accel_filter_hz}
+
+    @classmethod
+    def from_params(cls, p: dict[str, float], rate_hz: float) -> "ZCascadeGains":
+        """The gains of a ``.param`` mapping (``PSC_ACCZ_FLTT`` absent: off)."""
+        return cls(p["PSC_POSZ_P"], p["PSC_VELZ_P"], p["PSC_VELZ_I"], p["PSC_VELZ_FLTE"], p["PSC_ACCZ_P"],
+                   p["PSC_ACCZ_I"], p["PSC_ACCZ_FLTE"], p.get("PSC_ACCZ_FLTT", 0.0), p["INS_ACCEL_FILTER"], rate_hz)
+
+    @property
+    def integrators(self) -> int:
+        """Integrators of the loop at z = 1: the plant's and each nonzero integral gain's."""
+        return 1 + (self.vel_i > 0) + (self.acc_i > 0)
+
+
+def _first_order(cutoff_hz: float, rate_hz: float, z: np.ndarray) -> np.ndarray:
+    """ArduPilot's first-order low-pass alpha / (1 - (1 - alpha) z^-1) at ``z`` (cutoff 0: 1)."""
+    if cutoff_hz <= 0:
+        return np.ones_like(z)
+    T = 1.0 / rate_hz
+    alpha = T / (T + 1.0 / (2.0 * math.pi * cutoff_hz))
+    return alpha / (1.0 - (1.0 - alpha) / z)
+
+
+@dataclass(frozen=True, eq=False)
+class _Paths:
+    """The plant's three measured outputs for every (model, split) row: acceleration, velocity, altitude."""
+
+    acc: PlantStack
+    vel: PlantStack
+    alt: PlantStack
+
+    def take(self, rows: np.ndarray) -> "_Paths":
+        return _Paths(self.acc.take(rows), self.vel.take(rows), self.alt.take(rows))
+
+
+def _paths(models: Sequence[LoopModel], splits: Sequence[DelaySplit], rate_hz: float) -> _Paths:
+    rows = [(m, s) for m in models for s in splits]
+    Tp, Td, K = (np.array([getattr(m, k) for m, _ in rows], float) for k in ("Tp", "Td", "K"))
+    ta = np.array([s.actuator_s for _, s in rows])
+
+    def stack(delay: np.ndarray, C: np.ndarray) -> PlantStack:
+        st = PlantStack.of(plants_of_parameters(Tp, Td, delay, K, rate_hz))
+        return replace(st, C=C)
+
+    zero = np.zeros(len(rows))
+    return _Paths(stack(ta, np.column_stack([zero, -1.0 / Td, K])),
+                  stack(ta + np.array([s.velocity_s for _, s in rows]), np.column_stack([zero, 1.0 + zero, zero])),
+                  stack(ta + np.array([s.altitude_s for _, s in rows]), np.column_stack([1.0 + zero, zero, zero])))
+
+
+def cascade_loop(g: ZCascadeGains, paths: _Paths, z: np.ndarray) -> np.ndarray:
+    """L at the points ``z`` ((1, W) for all rows, or (R, 1) with ``paths`` taken to R rows): shape (rows, W)."""
+    return _loop_of(g, (paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z)), z)
+
+
+def _loop_of(g: ZCascadeGains, plant: tuple[np.ndarray, np.ndarray, np.ndarray], z: np.ndarray) -> np.ndarray:
+    """L from the plant's three responses (G_a, G_v, G_z) at ``z`` (the search keeps them across gains)."""
+    r = g.rate_hz
+    T = 1.0 / r
+    Ga, Gv, Gz = plant
+    integ = T * z / (z - 1.0)
+    Cv = _first_order(g.vel_flte_hz, r, z) * (g.vel_p + g.vel_i * integ)
+    Ca = _first_order(g.acc_flte_hz, r, z) * (g.acc_p + g.acc_i * integ)
+    Facc = RateFilter(g.accel_filter_hz).response(z, r)
+    inner = Facc * Ga + _first_order(g.acc_fltt_hz, r, z) * Cv * (Gv + g.pos_p * Gz)
+    return np.asarray(0.1 * _first_order(THROTTLE_CUTOFF_HZ, r, z) * Ca * inner, complex)
+
+
+@dataclass(frozen=True)
+class ZCascadeFigures:
+    """Per (model, split) row: the margins of the cascade's loop, and the worst over the rows."""
+
+    per_row: tuple[Margins, ...]
+    splits: tuple[DelaySplit, ...]
+
+    def worst(self) -> Margins:
+        """Smallest GM, PM and delay margin, largest Ms (its row's crossovers), stable only if every row is."""
+        rows = self.per_row
+        w = max(rows, key=lambda m: m.Ms)
+        return Margins(min(m.gain_margin for m in rows), min(m.phase_margin_deg for m in rows),
+                       min(m.delay_margin_s for m in rows), w.Ms, w.w_gc, w.w_pc, all(m.stable for m in rows))
+
+    def worst_split(self) -> DelaySplit:
+        """The split of the largest Ms (rows cycle through the splits per model)."""
+        i = max(range(len(self.per_row)), key=lambda k: self.per_row[k].Ms)
+        return self.splits[i % len(self.splits)]
+
+
+def _bisect(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, n: int = 40) -> np.ndarray:
+    """A sign change of each f in [lo, hi] (vectorised)."""
+    f_lo = f(lo)
+    for _ in range(n):
+        mid = 0.5 * (lo + hi)
+        f_mid = f(mid)
+        same = np.sign(f_mid) == np.sign(f_lo)
+        lo, f_lo = np.where(same, mid, lo), np.where(same, f_mid, f_lo)
+        hi = np.where(same, hi, mid)
+    return np.asarray(0.5 * (lo + hi), float)
+
+
+def _crossings(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s = np.sign(v)
+    rows, k = np.nonzero(s[:, :-1] * s[:, 1:] < 0)
+    return rows, k
+
+
+def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Sequence[DelaySplit]) -> ZCascadeFigures:
+    """GM, PM, delay margin, Ms and stability of the cascade on every (model, split).
+
+    Stability is the Nyquist criterion on the unit circle (open loop: poles inside, :attr:`integrators` at
+    z = 1 indented); crossings are bracketed on :func:`mrftcli.tune.margins.margin_grid` and bisected; Ms is
+    the grid's peak refined by golden section; the delay margin is PM / w_gc at each gain crossover of positive
+    margin (exact for an extra delay of whole ticks, the hold's fraction aside).
+    """
+    r = g.rate_hz
+    T = 1.0 / r
+    d_max = int(max(s.actuator_s + max(s.velocity_s, s.altitude_s) for s in splits) * r) + 1
+    w = margin_grid(r, d_max)
+    lw = np.log(w)
+    paths = _paths(models, splits, r)
+    L = cascade_loop(g, paths, np.exp(1j * w * T)[None, :])
+    M = L.shape[0]
+
+    def at(rows: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return cascade_loop(g, paths.take(rows), np.exp(1j * np.exp(x) * T)[:, None])[:, 0]
+
+    ph = np.unwrap(np.angle(1.0 + L), axis=-1)
+    stable = np.rint((2.0 * (ph[:, -1] - ph[:, 0]) - g.integrators * math.pi) / (2.0 * math.pi)) == 0
+    # phase margins: every gain crossover; the one of smallest |PM| reported, all of positive PM for the delay margin
+    rows, k = _crossings(np.log(np.abs(L)))
+    x = _bisect(lambda y: np.log(np.abs(at(rows, y))), lw[k], lw[k + 1])
+    pm_all = np.remainder(np.degrees(np.angle(at(rows, x))), 360.0) - 180.0
+    pm, wgc, dm = np.full(M, np.inf), np.full(M, np.nan), np.where(stable, np.inf, 0.0)
+    for i, xi, p in zip(rows, x, pm_all):
+        if abs(p) < abs(pm[i]):
+            pm[i], wgc[i] = p, math.exp(xi)
+        if p > 0 and stable[i]:
+            dm[i] = min(dm[i], math.radians(p) / math.exp(xi))
+    # gain margins: crossings of the negative real axis, the one closest to 1 (in log)
+    rows, k = _crossings(L.imag)
+    x = _bisect(lambda y: at(rows, y).imag, lw[k], lw[k + 1])
+    Lx = at(rows, x)
+    gm, wpc = np.full(M, np.inf), np.full(M, np.nan)
+    for i, xi, v in zip(rows, x, Lx):
+        if v.real < 0 and abs(math.log(1.0 / abs(v))) < abs(math.log(gm[i])):
+            gm[i], wpc[i] = 1.0 / abs(v), math.exp(xi)
+    Ms = _sensitivity_peaks(at, L, lw)
+    out = tuple(Margins(float(gm[i]), float(pm[i]), float(dm[i]), float(Ms[i]) if stable[i] else math.inf,
+                        float(wgc[i]), float(wpc[i]), bool(stable[i])) for i in range(M))
+    return ZCascadeFigures(out, tuple(splits))
+
+
+def _sensitivity_peaks(at: Callable[[np.ndarray, np.ndarray], np.ndarray], L: np.ndarray,
+                       lw: np.ndarray) -> np.ndarray:
+    """max |1 / (1 + L)| per row: the grid's peak refined by golden section between its neighbours."""
+    dist = np.abs(1.0 + L)
+    k = np.argmin(dist, axis=-1)
+    rows = np.arange(L.shape[0])
+    a, b = lw[np.maximum(k - 1, 0)], lw[np.minimum(k + 1, lw.size - 1)]
+    phi = (math.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(30):
+        c, d = b - phi * (b - a), a + phi * (b - a)
+        left = np.abs(1.0 + at(rows, c)) < np.abs(1.0 + at(rows, d))
+        a, b = np.where(left, a, c), np.where(left, d, b)
+    best = np.minimum(dist[rows, k], np.abs(1.0 + at(rows, 0.5 * (a + b))))
+    return np.asarray(1.0 / best, float)
+
+
+@dataclass(frozen=True)
+class ZCascadeDesign:
+    """The exported cascade, how it was chosen, and its worst figures over the splits.
+
+    Attributes
+    ----------
+    gains : ZCascadeGains
+    kept : float
+        g: the fraction of the PD's loop gain the cascade keeps (1: the PD's low-frequency loop).
+    ms_target : float
+        The Ms every split's loop is held to: the PD's own on the nominal model [-].
+    figures : ZCascadeFigures
+        Per split, on the nominal model.
+    tau : float
+        The identified delay that was split [s].
+    tried : tuple of (float, float)
+        Per ``PSC_ACCZ_P`` candidate, the largest g found (0: none holds the Ms).
+    """
+
+    gains: ZCascadeGains
+    kept: float
+    ms_target: float
+    figures: ZCascadeFigures
+    tau: float
+    tried: tuple[tuple[float, float], ...]
+
+    def summary(self) -> dict[str, Any]:
+        """The design's choice as JSON values (the export record's notes say it in words)."""
+        w = self.figures.worst()
+        return {"kept": self.kept, "ms_target": self.ms_target, "splits": len(self.figures.splits),
+                "worst_split": self.figures.worst_split().describe(), "worst": w.to_json(),
+                "tried": [{"PSC_ACCZ_P": p, "kept": k} for p, k in self.tried]}
+
+
+def split_assumption(tau: float, n_splits: int) -> str:
+    """The stated assumption (first lines of the output and the JSON)."""
+    return (f"the split of tau {tau * 1e3:.0f} ms between the motors and the sensors is not identifiable from one "
+            f"altitude test: the margins hold for every split ({n_splits} on a grid: the actuator's delay, which the "
+            "accelerometer loop sees, from 0 to tau; the EKF velocity's and altitude's each from 0 to the rest)")
+
+
+def _gains(pz: float, pv: float, pa: float, rate_hz: float) -> ZCascadeGains:
+    """The gains with ArduPilot's filter defaults (``PSC_VELZ_FLTE`` 5 Hz, ``PSC_ACCZ_FLTE`` 20 Hz,
+    ``INS_ACCEL_FILTER`` 20 Hz), ``PSC_VELZ_I`` at its minimum and ``PSC_ACCZ_I`` 0."""
+    return ZCascadeGains(pz, pv, param("ardupilot", "PSC_VELZ_I").minimum, 5.0, pa, 0.0, 20.0, 0.0, 20.0, rate_hz)
+
+
+class _Check:
+    """Whether gains hold: every split's loop (nominal model) stable with its grid Ms at most the target (the
+    search's test; the reported figures are :func:`cascade_figures`'s, refined)."""
+
+    def __init__(self, model: LoopModel, splits: Sequence[DelaySplit], rate_hz: float, ms_target: float) -> None:
+        d_max = int(max(s.actuator_s + max(s.velocity_s, s.altitude_s) for s in splits) * rate_hz) + 1
+        w = margin_grid(rate_hz, d_max)
+        self.z = np.exp(1j * w / rate_hz)[None, :]
+        paths = _paths([model], splits, rate_hz)
+        self.plant = (paths.acc.transfer(self.z), paths.vel.transfer(self.z), paths.alt.transfer(self.z))
+        self.ms_target, self.rate_hz = ms_target, rate_hz
+
+    def holds(self, gains: ZCascadeGains) -> bool:
+        L = _loop_of(gains, self.plant, self.z)
+        ph = np.unwrap(np.angle(1.0 + L), axis=-1)
+        winding = np.rint((2.0 * (ph[:, -1] - ph[:, 0]) - gains.integrators * math.pi) / (2.0 * math.pi))
+        return bool(np.all(winding == 0) and np.max(1.0 / np.abs(1.0 + L)) <= self.ms_target)
+
+
+def _largest_g(pz: float, v_full: float, pa: float, check: _Check, g_range: tuple[float, float]) -> float:
+    """The largest g in ``g_range`` at which the cascade holds (0: none): scanned down from the top (the
+    test is not monotone in g: a small g leaves the acceleration loop alone, whose Ms may exceed the target),
+    then bisected on log g between the first that holds and the one above it."""
+    def ok(g: float) -> bool:
+        return check.holds(_gains(pz, g * v_full, pa, check.rate_hz))
+
+    lo_g, hi_g = g_range
+    if not (0.0 < lo_g <= hi_g):
+        return 0.0
+    scan = np.geomspace(hi_g, lo_g, _SCAN) if hi_g > lo_g else np.array([hi_g])
+    for i, g in enumerate(scan):
+        if ok(float(g)):
+            if i == 0:
+                return float(g)
+            lo, hi = math.log(g), math.log(scan[i - 1])
+            for _ in range(_STEPS):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if ok(math.exp(mid)) else (lo, mid)
+            return math.exp(lo)
+    return 0.0
+
+
+def check_units(model: LoopModel, hover_thrust: float) -> None:
+    """InputError unless K is about g / hover (the command is ArduPilot's throttle 0-1, the output metres)."""
+    expected = _G / hover_thrust
+    if not (1.0 / UNIT_TOLERANCE <= model.K / expected <= UNIT_TOLERANCE):
+        raise InputError(f"cannot export the altitude loop to ardupilot: K {model.K:.4g} m/s^2 per command unit is "
+                         f"not near g / MOT_THST_HOVER = {expected:.4g} (--hover-thrust {hover_thrust:g}): the log's "
+                         "command is not ArduPilot's throttle (0-1) or its altitude not in metres")
+
+
+def design_z_cascade(pd: Controller, model: LoopModel, *,
+                     clamp: bool = False) -> tuple[ZCascadeDesign, tuple[tuple[str, float, float], ...]]:
+    """The cascade for tune's PD ``pd`` (module docstring), and the values set to ArduPilot's bounds.
+
+    Returns
+    -------
+    design : ZCascadeDesign
+    clamped : tuple of (name, value designed, value exported)
+        Empty unless ``clamp`` let a value out of range be exported at its bound.
+
+    Raises
+    ------
+    InputError
+        ``PSC_POSZ_P`` = Kp / Kd is outside 1-3, or no ``PSC_ACCZ_P`` candidate gives a loop that holds the Ms
+        with ``PSC_VELZ_P`` in 1-8, and ``clamp`` is off (the message names the closest and its margins;
+        ``--clamp`` exports it at the bounds).
+    """
+    from .margins import margins as pd_margins
+
+    rate = pd.rate_hz
+    splits = split_grid(model.tau)
+    ms_target = pd_margins(model, pd).Ms
+    pz_designed = pd.Kp / pd.Kd
+    row = param("ardupilot", "PSC_POSZ_P")
+    pz = row.clamp(pz_designed)
+    clamped: list[tuple[str, float, float]] = []
+    if pz != pz_designed:
+        if not clamp:
+            raise InputError(f"cannot export to ardupilot: PSC_POSZ_P = Kp / Kd = {pz_designed:.4g} is outside its "
+                             f"range {row.minimum:g}-{row.maximum:g} [(cm/s)/cm] (AC_PosControl.cpp) (--clamp to "
+                             "export it at the bound, with the margins that result)")
+        clamped.append(("PSC_POSZ_P", pz_designed, pz))
+    check = _Check(model, splits, rate, ms_target)
+    lo_v, hi_v = param("ardupilot", "PSC_VELZ_P").minimum, param("ardupilot", "PSC_VELZ_P").maximum
+    tried, best = [], None
+    for pa in ACCZ_P_CANDIDATES:
+        v_full = (1.0 + 0.1 * pa * model.K) * pd.Kd / (0.1 * pa)
+        # g is searched where PSC_VELZ_P = g v_full is in its range
+        g = _largest_g(pz, v_full, pa, check, (max(_G_MIN, lo_v / v_full), min(1.0, hi_v / v_full)))
+        tried.append((pa, g))
+        if g > 0 and (best is None or g > best[1] * 1.001):
+            best = (pa, g, g * v_full)
+        elif best is not None and g <= best[1]:
+            break  # past the best: a stronger acceleration feedback only holds less (its own loop's Ms)
+    if best is None:
+        pa, v_designed, v = _closest(pz, model, pd.Kd, splits, rate, clamp)
+        best = (pa, 0.0, v)
+        clamped.append(("PSC_VELZ_P", v_designed, v))
+    pa, g, pv = best
+    gains = _gains(pz, pv, pa, rate)
+    design = ZCascadeDesign(gains, g, ms_target, cascade_figures(gains, [model], splits), model.tau, tuple(tried))
+    return design, tuple(clamped)
+
+
+def _closest(pz: float, model: LoopModel, kd: float, splits: Sequence[DelaySplit], rate: float,
+             clamp: bool) -> tuple[float, float, float]:
+    """With no candidate holding the Ms in range: the PD itself (g = 1) per ``PSC_ACCZ_P``, its PSC_VELZ_P set to
+    the range; the one of smallest worst Ms, as (PSC_ACCZ_P, PSC_VELZ_P designed, exported); refused without
+    ``clamp``."""
+    best: tuple[float, float, float, Margins] | None = None
+    for pa in ACCZ_P_CANDIDATES:
+        v_designed = (1.0 + 0.1 * pa * model.K) * kd / (0.1 * pa)
+        v = param("ardupilot", "PSC_VELZ_P").clamp(v_designed)
+        w = cascade_figures(_gains(pz, v, pa, rate), [model], splits).worst()
+        if best is None or w.Ms < best[3].Ms:
+            best = (pa, v_designed, v, w)
+    assert best is not None
+    pa, v_designed, v, w = best
+    if not clamp:
+        raise InputError(f"cannot export to ardupilot: no PSC_ACCZ_P in 0.2-1.5 holds the PD's Ms on every split of "
+                         f"tau with PSC_VELZ_P in its range 1-8 (AC_PosControl.cpp); the closest, PSC_ACCZ_P {pa:g} "
+                         f"with PSC_VELZ_P {v_designed:.4g} set to {v:g}, has Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}, "
+                         f"PM {w.phase_margin_deg:.1f} deg on its worst split (--clamp to export that)")
+    return pa, v_designed, v

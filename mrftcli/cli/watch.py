@@ -15,6 +15,7 @@ from .model_options import build_model, relay_options, structure_options
 from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
+    from ..analyze.general import TestSummary
     from ..mrft.identify_lti import LtiEstimate
     from ..mrft.model import PlantModel
     from ..watch import EstimateUpdate, ProcessEstimateUpdate, ProcessTestUpdate, TestUpdate, Update, WatchEnd
@@ -57,6 +58,7 @@ def _process_test_line(update: ProcessTestUpdate) -> str:
 
 
 def _parameter(e: LtiEstimate, final: bool) -> str:
+    """One parameter with its unit (and its std on the final update)."""
     unit = f" {e.unit}" if e.unit else ""  # a declared model's parameter may have no unit
     if e.known:
         return f"{e.name} {e.value:.4g}{unit} (known)"
@@ -77,7 +79,8 @@ def _process_estimate_line(update: ProcessEstimateUpdate) -> str:
     return text
 
 
-def _held_out_line(test: Any) -> str:
+def _held_out_line(test: TestSummary) -> str:
+    """A test's cycle as predicted from the other tests, beside the measured one."""
     ho = test.held_out
     if ho is None or ho.frequency_hz is None or ho.amplitude is None:
         return f"\nheld-out test {test.index + 1}: {ho.note if ho is not None else 'none'}"

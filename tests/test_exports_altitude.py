@@ -121,3 +121,30 @@ def test_cascade_gain_margin_against_an_independent_simulation():
     assert late < 0.7 * mid  # decays
     mid, late = envelope(1.05 * gm)
     assert late > 1.3 * mid  # grows
+
+
+def test_cli_writes_the_param_file_with_the_assumption_first(tmp_path, capsys):
+    from mrftcli.cli.main import main
+    from mrftcli.tune.stacks import StackExport
+
+    args = ["tune", "--tp", "0.0422", "--td", "2.669", "--tau", "0.040", "--k", "19.62", "--loop", "altitude",
+            "--controller-rate", "200", "--export", "ardupilot"]
+    with pytest.raises(SystemExit) as ex:
+        main(args)
+    err = capsys.readouterr().err
+    assert ex.value.code == 2 and len(err.strip().splitlines()) == 1 and "--hover-thrust" in err
+    out, js = tmp_path / "alt.param", tmp_path / "alt.json"
+    try:
+        main([*args, "--hover-thrust", "0.5", "--out", str(out), "--json", str(js)])
+    except SystemExit as e:
+        assert not e.code
+    stdout = capsys.readouterr().out
+    assert stdout.startswith("assumption: the split of tau 40 ms between the motors and the sensors")
+    lines = out.read_text().splitlines()
+    assert lines[1].startswith("# assumption:")
+    values = dict(ln.split(",") for ln in lines if not ln.startswith("#"))
+    assert set(values) >= {"PSC_POSZ_P", "PSC_VELZ_P", "PSC_ACCZ_P", "PSC_ACCZ_I", "INS_ACCEL_FILTER"}
+    import json
+
+    e = StackExport.from_json(json.loads(js.read_text())["export"]["stack"])
+    assert e.assumptions and e.margins.Ms <= 1.6 + 1e-3 and e.params["PSC_VELZ_P"] == pytest.approx(float(values["PSC_VELZ_P"]), rel=1e-5)

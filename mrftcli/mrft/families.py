@@ -88,6 +88,16 @@ class _Family:
             raise InputError(f"unknown parameter(s) {sorted(bad)} of {self.family}; it has {list(self._spec)}")
         return dataclasses.replace(self, **{k: float(v) for k, v in values.items()})  # type: ignore[type-var]
 
+    @property
+    def lags(self) -> tuple[str, ...]:
+        """The names of the time constants T_i of the first-order lags (T_i s + 1) in G's denominator."""
+        return tuple(n for n in self._spec if n not in ("K", "tau"))
+
+    @property
+    def integrators(self) -> int:
+        """n: the power of s in G's denominator (1 for the integrating families)."""
+        return self._integrators
+
     def _time_constants(self) -> list[float]:
         return [float(getattr(self, n)) for n in self._spec if n not in ("K", "tau")]
 

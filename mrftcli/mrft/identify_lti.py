@@ -27,8 +27,10 @@ determined, with the test that would determine it.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
+import statistics
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
@@ -38,6 +40,7 @@ from scipy import optimize
 
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
+from .lti_kernel import LagChainKernel
 from .model import PlantModel, model_from_json
 
 __all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION"]
@@ -233,14 +236,31 @@ class _Data:
     w_gain: FloatArray  # 1 / se
     w_phase: FloatArray
     fundamental: NDArray[np.bool_]  # the points at a limit cycle's own frequency
+    w_median: float  # median omega [rad/s]: the time constants' grid is about 1/w_median
+    w_cycles: float  # median omega of the fundamentals (all points without one) [rad/s]
+    base: NDArray[np.bool_]  # the points whose phase fixes the delay's branch (the fundamentals)
 
     @classmethod
     def of(cls, points: Sequence[ResponsePoint]) -> _Data:
-        return cls(np.array([p.omega for p in points]), np.log([p.gain for p in points]),
-                   np.array([p.phase for p in points]),
+        omega = np.array([p.omega for p in points])
+        fundamental = np.array([p.harmonic == 1 for p in points])
+        cycles = omega[fundamental] if fundamental.any() else omega
+        return cls(omega, np.log([p.gain for p in points]), np.array([p.phase for p in points]),
                    1.0 / np.maximum([p.se_log_gain for p in points], _SE_FLOOR[0]),
                    1.0 / np.maximum([p.se_phase for p in points], _SE_FLOOR[1]),
-                   np.array([p.harmonic == 1 for p in points]))
+                   fundamental, _median(omega), _median(cycles),
+                   fundamental if fundamental.any() else omega <= omega.min())
+
+
+def _median(x: FloatArray) -> float:
+    """``np.median`` of a short 1-D array (the same value; np.median's overhead was a tenth of a call)."""
+    return float(statistics.median(x.tolist()))
+
+
+def _clip(x: FloatArray, lo: Any, hi: Any) -> FloatArray:
+    """``np.clip`` (the same values, NaN kept) without its per-call overhead."""
+    out: FloatArray = np.minimum(np.maximum(x, lo), hi)
+    return out
 
 
 def _wrap(x: FloatArray, low: float = -math.pi) -> FloatArray:
@@ -263,6 +283,9 @@ class _Problem:
         # positive parameters on the log scale (a declared parameter whose range reaches below 0, e.g.
         # an unstable pole's coefficient, stays linear); K on the log of its modulus, its sign kept
         self.log_scaled = {n for n in self.unknown if n != "tau" and (n == "K" or self.bounds[n][0] >= 0)}
+        self.given = {n: p.value for n, p in params.items()}  # the known values (and placeholders)
+        # the built-in families' residuals and Jacobian in closed form (None: any other structure)
+        self.kernel = LagChainKernel.of(model, self.given, self.unknown, self.log_scaled, data)
 
     def values(self, z: FloatArray) -> dict[str, float]:
         out = {}
@@ -275,7 +298,7 @@ class _Problem:
 
     def z_bounds(self) -> tuple[FloatArray, FloatArray]:
         """Bounds of the solver's variables: the set I, and for time constants at most 1e6 times from 1/omega."""
-        w_ref = float(np.median(self.data.omega))
+        w_ref = self.data.w_median
         lo, hi = [], []
         for n in self.unknown:
             a, b = self.bounds[n]
@@ -322,7 +345,7 @@ class _Problem:
             # cycle is near -pi), then the harmonics' (several turns at k Omega) unwrapped near that delay
             lag = _wrap(np.angle(G) - d.phase, -0.5 * math.pi)
             wp = d.w_phase ** 2
-            base_pts = d.fundamental if d.fundamental.any() else d.omega <= d.omega.min()
+            base_pts = d.base
             tau = float(np.sum((wp * d.omega * lag)[base_pts]) / np.sum((wp * d.omega ** 2)[base_pts]))
             lag = d.omega * tau + _wrap(lag - d.omega * tau)
             tau = float(np.sum(wp * d.omega * lag) / np.sum(wp * d.omega ** 2))
@@ -334,7 +357,7 @@ class _Problem:
 
 def _start(problem: _Problem) -> dict[str, float]:
     """The best point of the log grid over the time constants (K and tau profiled out)."""
-    if hasattr(problem.model, "frequency_response_grid"):
+    if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
         return _start_grid(problem)
     best: tuple[float, dict[str, float]] = (math.inf, {})
     symmetric = problem.model.family == "sopdt"
@@ -356,44 +379,42 @@ def _start(problem: _Problem) -> dict[str, float]:
 
 
 def _start_grid(problem: _Problem) -> dict[str, float]:
-    """:func:`_start` with every grid point at once (:meth:`frequency_response_grid`; the same profile
-    as :meth:`_Problem.profile`, vectorised over the grid: a loop over model objects cost 2-90 ms)."""
-    d, params = problem.data, problem.model.parameters
-    axes = _axes(problem)
-    combos = (np.array(list(itertools.product(*axes)), dtype=float) if axes else np.zeros((1, 0)))
-    keep = np.ones(len(combos), bool)
-    if problem.model.family == "sopdt":
-        keep &= combos[:, 0] >= combos[:, 1]  # two interchangeable lags: T1 >= T2 only
-    for k, n in enumerate(problem.shape):
-        keep &= (combos[:, k] >= problem.bounds[n][0]) & (combos[:, k] <= problem.bounds[n][1])
-    combos = combos[keep]
+    """:func:`_start` with every grid point at once (:func:`_grid_misfit`; the same profile as
+    :meth:`_Problem.profile`, vectorised over the grid: a loop over model objects cost 2-90 ms)."""
+    d = problem.data
+    n = len(problem.shape)
+    if getattr(problem.model, "grid_from_ranges", False):
+        axis, index = np.zeros(0), np.zeros((0, n), np.intp)
+        combos = np.array(list(itertools.product(*_axes(problem))), dtype=float) if n else np.zeros((1, 0))
+    else:  # the built-in families: the unit grid of _axes about 1/omega
+        unit, index = _unit_grid(n, n > 1 and problem.model.family == "sopdt")
+        axis = unit / d.w_median
+        combos = axis[index]
+    if any(problem.bounds[name] != (0.0, math.inf) for name in problem.shape):
+        keep = np.ones(len(combos), bool)
+        for k, name in enumerate(problem.shape):
+            keep &= (combos[:, k] >= problem.bounds[name][0]) & (combos[:, k] <= problem.bounds[name][1])
+        combos, index = combos[keep], index[keep]
     if not len(combos) and problem.unknown:
         raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
-    values: dict[str, Any] = {n: p.value for n, p in params.items()}
-    values.update({n: combos[:, k] for k, n in enumerate(problem.shape)})
-    values["K"] = problem.k_sign * abs(params["K"].value) if "K" not in problem.unknown else problem.k_sign
-    values["tau"] = params["tau"].value if "tau" not in problem.unknown else 0.0
-    G = problem.model.frequency_response_grid(d.omega, values)  # type: ignore[attr-defined]
-    log_gain, phase = np.log(np.abs(G)), np.angle(G)
-    K = np.full(len(combos), values["K"])
-    if "K" in problem.unknown:
+    gain, phase = _grid_misfit(problem, combos, axis, index)
+    if "K" in problem.unknown:  # ln|K|: the weighted mean log-gain misfit
         wg = d.w_gain ** 2
-        lnk = (wg * (d.log_gain - log_gain)).sum(axis=1) / wg.sum()
-        K = np.clip(problem.k_sign * np.exp(lnk), *problem.bounds["K"])
-        log_gain = log_gain + np.log(np.abs(K))[:, None]
-    tau = np.zeros(len(combos))
+        K = _clip(problem.k_sign * np.exp(-(gain @ wg) / wg.sum()), *problem.bounds["K"])
+        gain = gain + np.log(np.abs(K))[:, None]
     if "tau" in problem.unknown:
-        lag = _wrap(phase - d.phase, -0.5 * math.pi)
-        wp = d.w_phase ** 2
-        base = d.fundamental if d.fundamental.any() else d.omega <= d.omega.min()
-        t1 = (wp * d.omega * lag)[:, base].sum(axis=1) / (wp * d.omega ** 2)[base].sum()
+        # the delay's phase: on its principal branch at the limit cycles' own frequencies (a relay
+        # cycle is near -pi), then the harmonics' (several turns at k Omega) unwrapped near that delay
+        lag = _wrap(phase, -0.5 * math.pi)
+        wp_omega = d.w_phase ** 2 * d.omega
+        t1 = lag @ (wp_omega * d.base) / (wp_omega * d.omega)[d.base].sum()
         lag = d.omega * t1[:, None] + _wrap(lag - d.omega * t1[:, None])
         lo, hi = problem.bounds["tau"]
-        tau = np.clip((wp * d.omega * lag).sum(axis=1) / (wp * d.omega ** 2).sum(), max(lo, 0.0), hi)
+        tau = _clip(lag @ wp_omega / (wp_omega @ d.omega), max(lo, 0.0), hi)
         phase = phase - d.omega * tau[:, None]
-    cost = (((log_gain - d.log_gain) * d.w_gain) ** 2).sum(axis=1) + ((_wrap(phase - d.phase) * d.w_phase) ** 2).sum(axis=1)
+    cost = gain ** 2 @ d.w_gain ** 2 + _wrap(phase) ** 2 @ d.w_phase ** 2
     i = int(np.argmin(cost))
-    out = {n: float(combos[i, k]) for k, n in enumerate(problem.shape)}
+    out = {name: float(combos[i, k]) for k, name in enumerate(problem.shape)}
     if "K" in problem.unknown:
         out["K"] = float(K[i])
     if "tau" in problem.unknown:
@@ -401,10 +422,39 @@ def _start_grid(problem: _Problem) -> dict[str, float]:
     return out
 
 
+def _grid_misfit(problem: _Problem, combos: FloatArray, axis: FloatArray,
+                 index: NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:
+    """The model's ln|G| and arg G (any branch) minus the points' for each grid row of time constants
+    (``combos``; for the families also as indices into ``axis``), with K at its sign (or its known
+    value) and tau at 0 (or its known value): shape (rows, points) [-], [rad]."""
+    d = problem.data
+    if problem.kernel is not None:
+        return problem.kernel.lag_grid(axis, index)
+    params = problem.model.parameters
+    values: dict[str, Any] = dict(problem.given)
+    values.update({n: combos[:, k] for k, n in enumerate(problem.shape)})
+    values["K"] = problem.k_sign * abs(params["K"].value) if "K" not in problem.unknown else problem.k_sign
+    values["tau"] = params["tau"].value if "tau" not in problem.unknown else 0.0
+    G = problem.model.frequency_response_grid(d.omega, values)  # type: ignore[attr-defined]
+    return np.log(np.abs(G)) - d.log_gain, np.angle(G) - d.phase
+
+
+@functools.lru_cache(maxsize=8)
+def _unit_grid(n: int, symmetric: bool) -> tuple[FloatArray, NDArray[np.intp]]:
+    """The families' search grid in units of 1/omega (:func:`_axes`): the axis' values and, per grid
+    point, the index of each of the ``n`` time constants on it (cached: the same for every call);
+    ``symmetric``: two interchangeable lags (SOPDT), T1 >= T2 only."""
+    axis = np.array(_GRID if n < 2 else _GRID[::2])
+    rows = [c for c in itertools.product(range(axis.size), repeat=n) if not symmetric or c[0] >= c[1]]
+    index = np.array(rows, dtype=np.intp).reshape(len(rows), n)
+    axis.flags.writeable = index.flags.writeable = False
+    return axis, index
+
+
 def _axes(problem: _Problem) -> list[FloatArray]:
     """The search grid's axes: time constants on a log grid about 1/omega (the built-in families), or
     each declared parameter across its range (set I; log-spaced when positive), about 2000 points in all."""
-    w_ref = float(np.median(problem.data.omega))
+    w_ref = problem.data.w_median
     d = len(problem.shape)
     if not getattr(problem.model, "grid_from_ranges", False):
         grid = _GRID / w_ref if d < 2 else _GRID[::2] / w_ref
@@ -466,7 +516,7 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     inside = 1e-9 * (1 + np.abs(z0))  # least_squares wants a strictly interior start
     z0 = np.minimum(np.maximum(z0, np.where(np.isfinite(lo), lo + inside, -np.inf)),
                     np.where(np.isfinite(hi), hi - inside, np.inf))
-    if hasattr(problem.model, "frequency_response_grid"):
+    if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
         z, r, J = _levenberg_marquardt(problem, z0, lo, hi)
     else:
         sol = optimize.least_squares(problem.residuals, z0, bounds=(lo, hi), x_scale="jac", method="trf")
@@ -474,14 +524,24 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     n_res, n_par = 2 * len(points), len(problem.unknown)
     dof = n_res - n_par
     chi2_dof = float(r @ r) / dof if dof > 0 else None
-    cov: FloatArray = np.asarray(np.linalg.pinv(J.T @ J, rcond=1e-12), dtype=np.float64) * max(1.0, chi2_dof or 1.0)
+    cov = _pinv_psd(J.T @ J) * max(1.0, chi2_dof or 1.0)
     return _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, _null_parameters(problem, J))
+
+
+def _pinv_psd(A: FloatArray) -> FloatArray:
+    """``np.linalg.pinv(A, rcond=1e-12)`` of a symmetric positive semi-definite A (J^T J) through its
+    eigendecomposition: the same matrix (to rounding) at half pinv's cost; directions whose eigenvalue
+    is below 1e-12 of the largest (the data's flat ones) get no variance, as in pinv."""
+    w, V = np.linalg.eigh(A)
+    keep = w > 1e-12 * w[-1] if w.size else w > 0
+    out: FloatArray = (V[:, keep] / w[keep]) @ V[:, keep].T
+    return out
 
 
 def _residuals_batch(problem: _Problem, Z: FloatArray) -> FloatArray:
     """:meth:`_Problem.residuals` of several parameter vectors (rows of ``Z``) in one numpy expression."""
     d = problem.data
-    values: dict[str, Any] = {n: p.value for n, p in problem.model.parameters.items()}
+    values: dict[str, Any] = dict(problem.given)
     rows = [problem.values(z) for z in Z]
     values.update({n: np.array([v[n] for v in rows]) for n in problem.unknown})
     G = problem.model.frequency_response_grid(d.omega, values)  # type: ignore[attr-defined]
@@ -496,34 +556,54 @@ def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray,
     """The weighted least-squares fit from the grid's start: (z, residuals, Jacobian) at the solution.
 
     Hand-written where ``scipy.optimize.least_squares`` (trf) was 90 % of a call: from the grid's start
-    it needs 3-6 steps, but its set-up, bound handling and numerical Jacobian cost 1-2 ms; here the
-    Jacobian's forward differences are one batch of :func:`_residuals_batch` and a step is a 2-4
-    unknown linear solve (bounds by projection: the set I's edges). Same minimum (the tests compare).
+    it needs 3-6 steps, but its set-up, bound handling and numerical Jacobian cost 1-2 ms; here a step
+    is a 2-4 unknown linear solve (bounds by projection: the set I's edges). The residuals and the
+    Jacobian are the built-in families' closed forms (:class:`~mrftcli.mrft.lti_kernel.LagChainKernel`)
+    or, for another structure with a response grid, :func:`_residuals_batch` and its forward
+    differences. Same minimum (the tests compare).
     """
+    kernel = problem.kernel
+
+    def residuals(z: FloatArray) -> FloatArray:
+        return kernel.residuals(z) if kernel is not None else _residuals_batch(problem, z[None, :])[0]
+
     def jacobian(z: FloatArray, r: FloatArray) -> FloatArray:
+        if kernel is not None:
+            return kernel.jacobian(z)
         h = 1e-7 * np.maximum(1.0, np.abs(z))
         h = np.where(z + h > hi, -h, h)  # stay inside the range at its upper edge
         J: FloatArray = ((_residuals_batch(problem, z + np.diag(h)) - r) / h[:, None]).T
         return J
 
-    z = np.clip(z, lo, hi)
-    r = _residuals_batch(problem, z[None, :])[0]
+    def largest(x: NDArray[np.floating[Any]]) -> float:  # max |x| of a 2-4 vector (np.max's overhead was a tenth of a step)
+        return float(max(map(abs, x.tolist())))
+
+    z = _clip(z, lo, hi)
+    r = residuals(z)
     cost, lam = float(r @ r), 1e-3
     for _ in range(100):
         J = jacobian(z, r)
         A, g = J.T @ J, J.T @ r
-        scale = np.diag(np.maximum(np.diag(A), 1e-12))
+        scale = np.maximum(np.diag(A), 1e-12)
+        tol = 1e-10 * (1 + largest(z))
+        step = np.linalg.solve(A + np.diag(lam * scale), g)
+        if largest(step) <= tol or 2 * float(g @ step) - float(step @ A @ step) <= 1e-12 * cost:
+            break  # converged: the next step would move z, or lower the cost, by less than the tolerance
+        cost_new = cost
         while lam < 1e12:
-            z_new = np.clip(z - np.linalg.solve(A + lam * scale, g), lo, hi)
-            r_new = _residuals_batch(problem, z_new[None, :])[0]
+            z_new = _clip(z - step, lo, hi)
+            r_new = residuals(z_new)
             cost_new = float(r_new @ r_new)
             if cost_new < cost:
                 lam = max(lam / 10, 1e-12)
                 break
+            if cost_new - cost <= 1e-12 * cost:
+                break  # the cost flat to rounding: shorter steps only trade rounding noise
             lam *= 10
-        else:
+            step = np.linalg.solve(A + np.diag(lam * scale), g)
+        if not cost_new < cost:
             break  # no step lowers the cost: a minimum (within the range)
-        done = cost - cost_new <= 1e-12 * cost or np.max(np.abs(z_new - z)) <= 1e-10 * (1 + np.max(np.abs(z)))
+        done = cost - cost_new <= 1e-12 * cost or largest(z_new - z) <= tol
         z, r, cost = z_new, r_new, cost_new
         if done:
             break
@@ -534,12 +614,13 @@ def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
     """The parameters along which the fit is flat (fewer independent figures than unknowns)."""
     norms = np.linalg.norm(J, axis=0)
     Js = J / np.where(norms > 0, norms, 1.0)  # column-scaled: the verdict must not depend on units
-    _, sv, Vt = np.linalg.svd(Js, full_matrices=True)
+    # V's rows are all there without U's full square (the residuals outnumber the unknowns) at a fraction of its cost
+    _, sv, Vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < Js.shape[1])
     rank = int(np.sum(sv > 1e-6 * sv[0])) if sv.size and sv[0] > 0 else 0
     null = Vt[rank:]
     flat = {n for k, n in enumerate(problem.unknown) if null.size and np.max(np.abs(null[:, k])) > 0.1}
     flat |= {n for k, n in enumerate(problem.unknown) if norms[k] == 0}
-    n_freq = len({round(math.log(w), 2) for w in problem.data.omega})
+    n_freq = len({round(math.log(w), 2) for w in problem.data.omega.tolist()})
     if flat and 2 * n_freq < len(problem.unknown):
         # fewer figures than unknowns: a local null direction is one of many; none is pinned down
         flat = set(problem.unknown)
@@ -552,7 +633,7 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
     """Estimates with their intervals and the determinability verdict."""
     model = problem.model.with_parameters(**values) if values else problem.model
     d = problem.data
-    w_ref = float(np.median(d.omega[d.fundamental] if d.fundamental.any() else d.omega))
+    w_ref = d.w_cycles
     estimates, undetermined = [], []
     for name, p in model.parameters.items():
         if p.known:

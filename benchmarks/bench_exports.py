@@ -4,7 +4,14 @@ For each sample log (analysed as ``tune LOG`` analyses it: the truth sidecar giv
 Tp, the figures a user knows; the posterior is the analysis's), the robust PD (model-based without a
 posterior) is exported to each stack that has the loop, with the stack's defaults (PX4: the
 IMU_GYRO_RATEMAX choice nearest the log's rate and IMU_GYRO_CUTOFF 40 Hz; ArduPilot: the log's rate,
-INS_GYRO_FILTER 20 Hz; HEAR: 200 Hz and HEAR_FC's 50 Hz Butterworth; PX4 altitude: hover thrust 0.5).
+INS_GYRO_FILTER 20 Hz; HEAR: 200 Hz and HEAR_FC's 50 Hz Butterworth; PX4 and ArduPilot altitude: hover
+thrust 0.5, the samples' trim).
+
+ArduPilot's altitude export is AC_PosControl's z cascade (:mod:`mrftcli.tune.ardupilot_z`): its Ms / GM are the
+worst over the 37 splits of tau between the motors and the sensors (nominal model), with ArduPilot's own filters
+(the motors' 2 Hz throttle filter, INS_ACCEL_FILTER, PSC_VELZ_FLTE, PSC_ACCZ_FLTE); the row adds PSC_ACCZ_P, the
+fraction of the PD's loop gain kept, and the worst Ms over 20 draws of the analysis's 95 % set, each over the
+splits of its own tau.
 
 Per export: refused (the reason counts as a miss), exported in range, or exported with values set to
 the stack's bounds (``--clamp``); and the nominal Ms / GM of the loop the exported values give with
@@ -96,12 +103,28 @@ def _one(path: Path) -> list[dict]:
                 row["outcome"] = "clamped (refused without --clamp)"
             row.update(Ms=e.margins.Ms, GM=e.margins.gain_margin, rate=st.rate_hz,
                        clamped=[n for n, _, _ in e.clamped])
+            if stack == "ardupilot" and loop == "altitude":
+                row.update(_z_cascade_row(e, post, st.rate_hz))
         except MrftError as err:
             row["outcome"] = f"refused: {err}"
         if stack == "px4" and base is not None:
             row.update(base_Ms_claimed=base[0], base_Ms_flown=base[1], base_GM_flown=base[2], base_out_of_range=base[3])
         rows.append(row)
     return rows
+
+
+def _z_cascade_row(e, post, rate: float) -> dict:
+    """PSC_ACCZ_P, the PD's loop gain kept, and the worst Ms over 20 draws of the 95 % set x their own splits."""
+    import numpy as np
+
+    from mrftcli.tune.ardupilot_z import ZCascadeGains, cascade_figures, split_grid
+
+    g = ZCascadeGains.from_params(e.params, rate)
+    idx = np.flatnonzero(post.in_set())
+    idx = idx[np.linspace(0, idx.size - 1, min(20, idx.size)).astype(int)] if idx.size else idx
+    worst = max((cascade_figures(g, [m], split_grid(m.tau)).worst().Ms for m in post.models(idx)), default=math.nan)
+    kept = next((n for n in e.notes if n.startswith("the cascade keeps")), "")
+    return {"acc_p": g.acc_p, "kept": kept.split(" ")[3] if kept else "-", "post_Ms": worst}
 
 
 def _cell(r: dict, key: str, fmt: str) -> str:
@@ -119,6 +142,9 @@ def main() -> None:
     for r in rows:
         line = (f"{r['log']:<34}{r['stack']:<10}{_cell(r, 'rate', '.0f'):>6}{_cell(r, 'Ms', '.2f'):>6}"
                 f"{_cell(r, 'GM', '.2f'):>6}  {r['outcome'][:90]}")
+        if "post_Ms" in r:
+            line += (f" | PSC_ACCZ_P {r['acc_p']:g}, keeps {r['kept']} % of the PD, Ms over the 95 % set x splits "
+                     f"{r['post_Ms']:.2f}")
         if "base_Ms_flown" in r:
             line += (f" | {r['base_Ms_claimed']:.2f} / {r['base_Ms_flown']:.2f}, {r['base_GM_flown']:.2f}, "
                      f"{r['base_out_of_range']}")
@@ -129,6 +155,12 @@ def main() -> None:
     base = [r for r in rows if "base_Ms_flown" in r]
     print(f"\nexports: {len(rows)}; written {len(done)} (clamped {sum('clamped' in r['outcome'] for r in done)}); "
           f"refused {len(refused)}; Ms above 1.6 with the stack's filter: {len(over)}")
+    z = [r for r in rows if "post_Ms" in r]
+    if z:
+        print(f"ArduPilot altitude ({len(z)} logs): written {len(z)}, Ms (worst split, nominal) "
+              f"{min(r['Ms'] for r in z):.2f}-{max(r['Ms'] for r in z):.2f}, GM {min(r['GM'] for r in z):.2f}-"
+              f"{max(r['GM'] for r in z):.2f}; over the 95 % set x splits Ms {min(r['post_Ms'] for r in z):.2f}-"
+              f"{max(r['post_Ms'] for r in z):.2f}")
     if base:
         print(f"before (PX4 roll/pitch, {len(base)} logs): Ms as flown above 1.6: "
               f"{sum(r['base_Ms_flown'] > 1.6 * 1.001 for r in base)}; worst flown Ms "

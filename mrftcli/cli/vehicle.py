@@ -131,8 +131,8 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
         check_exportable(export, "roll", kind)  # its one-line reason: the stack's rate loop takes a PD
     if gyro_cutoff is not None and export not in ("px4", "ardupilot"):
         raise InputError("--gyro-cutoff is for --export px4|ardupilot (the stack's gyro filter on roll and pitch)")
-    if hover_thrust is not None and export != "px4":
-        raise InputError("--hover-thrust is for --export px4 (the altitude loop)")
+    if hover_thrust is not None and export not in ("px4", "ardupilot"):
+        raise InputError("--hover-thrust is for --export px4|ardupilot (the altitude loop)")
 
 
 @click.command("vehicle")
@@ -164,7 +164,8 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
 @click.option("--gyro-cutoff", "gyro_cutoff", type=click.FloatRange(0, None), metavar="HZ",
               help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] (default: the stack's, stated).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
-              help="PX4 MPC_THR_HOVER (normalised), for the PX4 altitude export.")
+              help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), for the "
+                   "altitude export.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound instead of "
               "refusing (the margins are stated).")
 @json_option(what="vehicle record: loops.<name> (the analysis, gains.generic) and the missing loops")

@@ -106,7 +106,7 @@ def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None
     missing = [f"--{name}" for name, v in (("td", td), ("tau", tau), ("k", K)) if v is None]
     if missing:
         raise InputError(f"missing {', '.join(missing)}: the model needs Td [s], tau [s] and the gain K "
-                         "[output unit per command unit] (analyze reports all three; the gains scale as 1/K)")
+                         "[output unit / s^2 per command unit] (analyze reports all three; the gains scale as 1/K)")
     assert td is not None and tau is not None and K is not None  # narrowed by the check above
     check_time("--td", td)
     check_time("--tau", tau)
@@ -292,14 +292,14 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
 @min_cycles_option(detail=" (as analyze)")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
 @click.option("--tau", type=float, help="tau [s], with --td.")
-@click.option("--k", "K", type=float, help="Gain K [output unit per command unit], with --td (required: the gains "
-              "scale as 1/K).")
+@click.option("--k", "K", type=float, help="Gain K [output unit / s^2 per command unit, e.g. m/s^2 for altitude], "
+              "with --td (required: the gains scale as 1/K).")
 @click.option("--td-std", type=float, default=0.0, help="Std of Td [s] for the robust design (with --td).")
 @click.option("--tau-std", type=float, default=0.0, help="Std of tau [s] for the robust design (with --td).")
 @click.option("--k-std", type=float, default=0.0, help="Std of K for the robust design (with --td).")
 @click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
               help="Criterion of a unit setpoint step.")
-@click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
+@click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms [-].")
 @click.option("--effort-max", type=float, default=None,
               help="Limit on the controller's noise gain |C| at Nyquist [command/output unit] (default: the MRFT rule's).")
 @click.option("--export", "export", type=click.Choice(["generic", "px4", "ardupilot", "hear"]), default=None,
@@ -322,7 +322,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
               help="Design exported (default: robust, else model-based).")
 @click.option("--kind", type=click.Choice(["PD", "PI", "PID"]), default="PD", show_default=True,
               help="Controller exported (PI: process plants only, their default).")
-@json_option(what="every design (Kp, Ki, Kd, Tf, rate, figures) and the tune_result record")
+@json_option(what="designs (Kp, Ki, Kd, Tf, rate, figures), the export record and the tune_result record")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()

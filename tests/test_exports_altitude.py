@@ -147,4 +147,8 @@ def test_cli_writes_the_param_file_with_the_assumption_first(tmp_path, capsys):
     import json
 
     e = StackExport.from_json(json.loads(js.read_text())["export"]["stack"])
+    from mrftcli.report.tune import export_section
+
+    page = export_section(e)  # tune --report's section on the export: its assumption first
+    assert page.index("Assumption:") < page.index("PSC_ACCZ_P") and "worst over the splits" in page
     assert e.assumptions and e.margins.Ms <= 1.6 + 1e-3 and e.params["PSC_VELZ_P"] == pytest.approx(float(values["PSC_VELZ_P"]), rel=1e-5)

@@ -18,7 +18,7 @@ from ..validate import TP_MISSING, check_time
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
     from ..tune.design import Posterior, TuneResult
-    from ..tune.stacks import StackSetting
+    from ..tune.stacks import StackExport, StackSetting
 from .model_options import meta_model_options
 from .process_tune import ProcessTuneRequest, process_tune_asked, run_process_tune
 from .cascade_options import is_cascade_result, run_cascade_tune
@@ -195,8 +195,9 @@ def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, A
 
 
 def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, design: str | None,
-                   kind: str, json_target: str | None, ex: _ExportOptions) -> None:
-    """The table, or the chosen export (on stdout or --out), and every design as JSON with --json."""
+                   kind: str, json_target: str | None, ex: _ExportOptions) -> StackExport | None:
+    """The table, or the chosen export (on stdout or --out), and every design as JSON with --json; returns the
+    stack export (None: the table or the generic export)."""
     from ..tune.export import format_table, hear_json, px4_params
     from ..tune.stacks import export_design
 
@@ -231,7 +232,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
             click.echo(format_table(res))
             click.echo(f"export ({name} {kind}): Kp {c.Kp:.5g}  Ki {c.Ki:.5g}  "
                        f"Kd {c.Kd:.5g}  Tf {c.Tf:.5g} s  rate {rate:g} Hz")
-        return
+        return None
     if stack_export is None:  # generic: the controller as JSON
         text = json.dumps({"design": name, "kind": kind, **c.to_dict()}, indent=2) + "\n"
         summary = [f"export generic ({name} {kind}, {loop})"]
@@ -246,6 +247,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     else:
         click.echo(text, nl=False)
         click.echo("\n".join(summary), err=True)
+    return stack_export
 
 
 def _parse_cutoff(value: str | None) -> tuple[bool, float | None]:
@@ -424,11 +426,12 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         if ex.stack == "generic" or (json_target == "-" and ex.stack is None):
             for n in notes:
                 click.echo(f"note: {n}", err=True)
-    _write_outputs(res, src, rate, loop, design, kind, json_target, ex)
+    stack_export = _write_outputs(res, src, rate, loop, design, kind, json_target, ex)
     if report_dir:
         from ..report.tune import write_tune_report
 
-        click.echo(f"report: {write_tune_report(res, report_dir)}", err=ex.stack is not None or json_target == "-")
+        click.echo(f"report: {write_tune_report(res, report_dir, stack_export)}",
+                   err=ex.stack is not None or json_target == "-")
 
 
 def _loop_required(command: click.Command) -> None:

@@ -16,8 +16,9 @@ from .wording import gain_unit, output_unit
 
 if TYPE_CHECKING:
     from ..tune.design import Design, TuneResult
+    from ..tune.stacks import StackExport
 
-__all__ = ["write_tune_report", "plot_bode", "plot_steps", "recommended_design"]
+__all__ = ["write_tune_report", "plot_bode", "plot_steps", "recommended_design", "export_section"]
 
 _COLOURS = {"mrft-rule": "#D55E00", "model-based": "#0072B2", "robust": "#009E73"}
 
@@ -135,8 +136,31 @@ def _recommended_section(result: TuneResult, name: str, kind: str) -> str:
             f"Its generic export (<code>tune --export generic</code>):</p><pre>{esc(export)}</pre>")
 
 
-def write_tune_report(result: "TuneResult", out_dir: str | Path) -> Path:
-    """Write bode_<kind>.png, steps_<kind>.png and index.html to ``out_dir``; returns the index path."""
+def export_section(e: "StackExport") -> str:
+    """The stack export as written (``tune --export``): its assumptions first, each value with its documented
+    range, the margins of the loop the values give with the stack's filter, the notes and the file."""
+    from ..tune.stack_params import STACK_PARAMS
+
+    ranges = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
+    rows = [[n, f"{v:.6g}", (f"{ranges[n].minimum:g} .. {ranges[n].maximum:g}" if n in ranges else "-"),
+             ranges[n].unit if n in ranges else "-"] for n, v in e.params.items()]
+    m = e.margins
+    worst = " (the worst over the splits of tau)" if e.assumptions else ""
+    parts = [f"<h2>Export: {esc(e.stack)} ({esc(e.design)}, {esc(e.loop)})</h2>"]
+    parts += [f"<p><b>Assumption:</b> {esc(a)}</p>" for a in e.assumptions]
+    parts.append(html_table(["parameter", "value", "documented range", "unit"], rows))
+    parts.append(f"<p>Margins with the stack's filter and rate{worst}: GM {m.gain_margin:.3g}, PM "
+                 f"{m.phase_margin_deg:.1f} deg, delay margin {m.delay_margin_s * 1e3:.1f} ms, Ms {m.Ms:.3g}.</p>")
+    if e.notes:
+        parts.append("<ul>" + "".join(f"<li>{esc(n)}</li>" for n in e.notes) + "</ul>")
+    parts.append(f"<p>The file the stack loads:</p><pre>{esc(e.file_text())}</pre>")
+    return "\n".join(parts)
+
+
+def write_tune_report(result: "TuneResult", out_dir: str | Path, export: "StackExport | None" = None) -> Path:
+    """Write bode_<kind>.png, steps_<kind>.png and index.html to ``out_dir``; returns the index path.
+
+    ``export``: the stack export written with ``--export`` (shown after the recommended design)."""
     out = ensure_dir(out_dir)
     body = [f"<p>Model Tp {result.model.Tp:g} s, Td {result.model.Td:.4g} s, tau {result.model.tau * 1e3:.4g} ms, "
             f"K {result.model.K:.4g} {gain_unit(result.loop)}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
@@ -160,6 +184,8 @@ def write_tune_report(result: "TuneResult", out_dir: str | Path) -> Path:
                             "PM [deg]", "DM [ms]", "Ms", "OS [%]", "settling [s]", "worst PM [deg] (95 %)",
                             "worst Ms (95 %)", "fit to fly?"], rows))
     body.append(_recommended_section(result, name, kind))
+    if export is not None:
+        body.append(export_section(export))
     for kind in sorted({d.kind for d in result.designs}):
         b = plot_bode(result, out / f"bode_{kind}.png", kind)
         s = plot_steps(result, out / f"steps_{kind}.png", kind)

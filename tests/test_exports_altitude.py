@@ -152,3 +152,12 @@ def test_cli_writes_the_param_file_with_the_assumption_first(tmp_path, capsys):
     page = export_section(e)  # tune --report's section on the export: its assumption first
     assert page.index("Assumption:") < page.index("PSC_ACCZ_P") and "worst over the splits" in page
     assert e.assumptions and e.margins.Ms <= 1.6 + 1e-3 and e.params["PSC_VELZ_P"] == pytest.approx(float(values["PSC_VELZ_P"]), rel=1e-5)
+
+
+def test_out_of_range_position_gain_is_refused_then_clamped_with_its_margins():
+    slow = Controller(0.1, 0.0, 0.226, 0.0, RATE, RateFilter(0.0, "none"))  # Kp / Kd = 0.44 < PSC_POSZ_P's 1
+    with pytest.raises(InputError, match=r"PSC_POSZ_P = Kp / Kd = 0.4425 is outside its range 1-3.*--clamp"):
+        export_design("ardupilot", slow, MODEL, "altitude", "x", hover_thrust=0.5)
+    e = export_design("ardupilot", slow, MODEL, "altitude", "x", hover_thrust=0.5, clamp=True)
+    assert e.params["PSC_POSZ_P"] == 1.0 and e.clamped[0][:2] == ("PSC_POSZ_P", pytest.approx(0.1 / 0.226))
+    assert any(n.startswith("PSC_POSZ_P set to 1") for n in e.notes) and e.margins.stable

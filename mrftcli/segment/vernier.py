@@ -185,8 +185,8 @@ def refine_by_waveform(sw: TickSwitches, up: NDArray[np.bool_], t_y: FloatArray,
     H = fold_harmonics(t_y, y, *bounds(ticks))
 
     def residual(tk: NDArray[np.int64]) -> float:
-        w = fold_waveform(t_y, y, *bounds(tk), harmonics=H)
-        return w.noise_std if w is not None else float("inf")
+        fit = _fold_fit(t_y, y, *bounds(tk), harmonics=H)  # the fit's residual only: no waveform's extrema
+        return fit[3] if fit is not None else float("inf")
 
     best = residual(ticks)
     for _ in range(sweeps):
@@ -322,6 +322,27 @@ def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray,
     ``harmonics`` says so (:func:`fold_harmonics`). None when the samples fall on fewer than 4
     distinct phases.
     """
+    fit = _fold_fit(t, y, t0, t2, harmonics)
+    if fit is None:
+        return None
+    A, yy, sol, noise_std, distinct = fit
+    H = (sol.size - 2) // 2
+    coef = sol[2:2 + H] - 1j * sol[2 + H:]
+    w = FoldedWaveform(coef, 0.0, 0.0, 0.0, 0.0, noise_std, float("nan"), distinct)
+    grid = np.linspace(0.0, 1.0, 2001)
+    wg = w(grid)
+    detrended = yy - A[:, :2] @ sol[:2]
+    ms = float(detrended @ detrended / yy.size)
+    return FoldedWaveform(coef, float(0.5 * (wg.max() - wg.min())), float(0.5 * (wg.max() + wg.min())),
+                          float(grid[np.argmax(wg)]), float(grid[np.argmin(wg)]), w.noise_std,
+                          float(0.5 * abs(coef[0]) ** 2 / ms) if ms > 0 else float("nan"), distinct)
+
+
+def _fold_fit(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray, harmonics: int | None
+              ) -> tuple[FloatArray, FloatArray, FloatArray, float, int] | None:
+    """The fold's least squares (:func:`fold_waveform`): design matrix, the samples in a cycle
+    [output units], the solution, the residual standard deviation [output units] and the distinct
+    phases; None under 4 distinct phases."""
     phi, k = _phases(t, t0, t2)
     sel = k >= 0
     tt, yy, ph = t[sel], y[sel], phi[sel]
@@ -335,15 +356,7 @@ def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray,
     sol, *_ = np.linalg.lstsq(A, yy, rcond=None)
     resid = yy - A @ sol
     dof = max(yy.size - A.shape[1], 1)
-    coef = sol[2:2 + H] - 1j * sol[2 + H:]
-    w = FoldedWaveform(coef, 0.0, 0.0, 0.0, 0.0, float(np.sqrt(resid @ resid / dof)), float("nan"), distinct)
-    grid = np.linspace(0.0, 1.0, 2001)
-    wg = w(grid)
-    detrended = yy - A[:, :2] @ sol[:2]
-    ms = float(detrended @ detrended / yy.size)
-    return FoldedWaveform(coef, float(0.5 * (wg.max() - wg.min())), float(0.5 * (wg.max() + wg.min())),
-                          float(grid[np.argmax(wg)]), float(grid[np.argmin(wg)]), w.noise_std,
-                          float(0.5 * abs(coef[0]) ** 2 / ms) if ms > 0 else float("nan"), distinct)
+    return A, yy, sol, float(np.sqrt(resid @ resid / dof)), distinct
 
 
 def _fold_design(t: FloatArray, phi: FloatArray, H: int) -> FloatArray:

@@ -356,7 +356,7 @@ def _fold_fit(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray, harm
     sol, *_ = np.linalg.lstsq(A, yy, rcond=None)
     resid = yy - A @ sol
     dof = max(yy.size - A.shape[1], 1)
-    return A, yy, sol, float(np.sqrt(resid @ resid / dof)), distinct
+    return A, yy, np.asarray(sol, dtype=np.float64), float(np.sqrt(resid @ resid / dof)), distinct
 
 
 def _fold_design(t: FloatArray, phi: FloatArray, H: int) -> FloatArray:

@@ -336,3 +336,39 @@ def test_segment_options_are_checked_on_creation():
                 {"controller_rate_hz": float("nan")}):
         with pytest.raises(InputError):
             SegmentOptions(**bad)
+
+
+# ----------------------------------------------------------------------------------------------- cycle bounds
+
+
+@pytest.mark.parametrize("shift", [-1e-13, 1e-13])
+def test_a_sample_on_a_cycle_bound_counts_the_same_whatever_the_rounding(sim, shift):
+    """Output samples lying on the switch instants (one clock for both signals) are moved 1e-13 s
+    either side, as two grid fits' rounding moves them: every cycle holds the same samples, so every
+    measurement agrees to rounding (counting one sample more or less moved Td by 0.4 %)."""
+    flight = to_flight(sim)
+    moved = replace(flight, output=Signal(flight.output.t + shift, flight.output.values))
+    for a, b in zip(segment(flight), segment(moved), strict=True):
+        assert [c.stable for c in a.cycles] == [c.stable for c in b.cycles]
+        for name in ("noise_std", "phase_h1", "gain_h1", "amplitude", "beta_effective"):
+            x = np.array([getattr(c, name) for c in a.stable])
+            y = np.array([getattr(c, name) for c in b.stable])
+            np.testing.assert_allclose(y, x, rtol=1e-7, atol=1e-10, err_msg=name)
+
+
+def test_a_flight_segmented_twice_is_measured_once(sim, monkeypatch):
+    """diagnose segments a log analyze refused (one beta) again: the second pass over the same
+    flight with the same options is the first one's tests; other options or another flight are measured."""
+    import mrftcli.segment.segmenter as segmenter
+
+    calls = []
+    measure = segmenter.segment_arrays
+    monkeypatch.setattr(segmenter, "segment_arrays", lambda *a, **k: calls.append(1) or measure(*a, **k))
+    flight = to_flight(sim)
+    first = segment(flight)
+    again = segment(flight)
+    assert len(calls) == 1 and again == first and again is not first
+    assert len(segment(flight, min_runs=8)) == len(first) and len(calls) == 2  # other options: measured
+    other = segment(to_flight(sim))  # an equal flight, but another object: measured
+    assert len(calls) == 3 and [t.frequency_hz_mean for t in other] == [t.frequency_hz_mean for t in first]
+    assert segmenter._LAST._entry is None  # that flight is gone: its tests are not kept

@@ -21,7 +21,7 @@ from ..mrft.harmonics import HarmonicFit, fit_harmonics
 from .records import RelayCycle
 
 __all__ = ["CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles", "harmonics_for",
-           "MIN_SAMPLES_PER_CYCLE"]
+           "samples_between", "MIN_SAMPLES_PER_CYCLE", "ON_BOUND"]
 
 #: harmonics of the per-cycle fits (truncation error near 5e-4 of the amplitude)
 _HARMONICS = 8
@@ -29,6 +29,27 @@ _HARMONICS = 8
 _LARGEST = 1e150
 #: fewest samples per period a cycle is measured from (a line and one harmonic, twice over)
 MIN_SAMPLES_PER_CYCLE = 8
+#: a sample within this share of a sample period of a cycle's bound lies on it [-]: the switch
+#: instants and the output's times come from two separate grid fits (or one grid's rounding), so a
+#: sample on a bound is 1e-14 s either side of it by chance, and counting it or not moved Td by 0.4 %
+ON_BOUND = 1e-2
+
+
+def samples_between(t: np.ndarray, lo: float, hi: float, dt: float) -> tuple[int, int]:
+    """Indices ``i0, i1`` of the samples in the half-open span [``lo``, ``hi``) of times ``t`` [s].
+
+    A sample within :data:`ON_BOUND` sample periods ``dt`` [s] of a bound lies on it: it belongs to
+    the span it opens and not to the one it closes, whatever the rounding of the times.
+
+    Examples
+    --------
+    >>> t = np.arange(10) * 0.1
+    >>> samples_between(t, 0.3 + 1e-14, 0.6 - 1e-14, 0.1), samples_between(t, 0.3 - 1e-14, 0.6 + 1e-14, 0.1)
+    ((3, 6), (3, 6))
+    """
+    tol = ON_BOUND * dt if dt > 0 else 0.0
+    i0, i1 = np.searchsorted(t, [lo - tol, hi - tol])
+    return int(i0), int(i1)
 
 
 def harmonics_for(n_samples: int) -> int:
@@ -83,7 +104,7 @@ def _periodic_fit(t: np.ndarray, y: np.ndarray, tc: float, P: float, dt: float,
     decided a switch and the one before each: their noise is biased by first-passage selection.
     Returns None when there are too few samples.
     """
-    i0, i1 = np.searchsorted(t, [tc - 0.5 * P, tc + 0.5 * P])
+    i0, i1 = samples_between(t, tc - 0.5 * P, tc + 0.5 * P, dt)
     tt = t[i0:i1]
     yy = y[i0:i1]
     j0, j1 = np.searchsorted(t_switch, [tc - 0.5 * P - 2 * dt, tc + 0.5 * P + 2 * dt])
@@ -142,7 +163,7 @@ def cycle_extrema(t: np.ndarray, y: np.ndarray, t_switch: np.ndarray, t0: float,
 
 
 def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: float,
-                      h: float, few_samples: bool = True) -> CycleFundamental:
+                      h: float, few_samples: bool = True, dt: float | None = None) -> CycleFundamental:
     """Fundamental of one cycle and how much of the output it explains (Beyond the paper).
 
     The relay output is u = +h on [t0, t1) and -h on [t1, t2) (the plant's input between the logged
@@ -173,6 +194,9 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
         Relay half-height [command units].
     few_samples : bool
         Fewer harmonics below 36 samples (:func:`harmonics_for`); False keeps eight and returns NaNs.
+    dt : float, optional
+        Sample period [s]: a sample within :data:`ON_BOUND` periods of ``t0`` or ``t2`` lies on that
+        bound (:func:`samples_between`); None: within a millionth of the cycle's period ``t2 - t0``.
 
     Returns
     -------
@@ -193,7 +217,7 @@ def cycle_fundamental(t: np.ndarray, y: np.ndarray, t0: float, t1: float, t2: fl
     """
     nan = float("nan")
     P = t2 - t0
-    i0, i1 = np.searchsorted(t, [t0, t2])
+    i0, i1 = samples_between(t, t0, t2, dt if dt else 1e-6 * P / ON_BOUND)
     tt, yy = t[i0:i1] - t0, y[i0:i1]
     H = harmonics_for(tt.size) if few_samples else _HARMONICS
     npar = 2 * H + 2
@@ -272,7 +296,7 @@ def measure_cycles(
             b_up = -(y_up - centre) / amp if not interp_up else float("nan")
             if interp_dn and interp_up:
                 flags.add("irregular")
-        g1, noise, frac, a1 = cycle_fundamental(t_y, y, t0, t1, t2, h, few_samples)
+        g1, noise, frac, a1 = cycle_fundamental(t_y, y, t0, t1, t2, h, few_samples, dt)
         if interp_dn or interp_up or "gap" in flags:
             g1 = complex(float("nan"), float("nan"))  # the square wave's timing is not known
         ph1 = float(np.angle(g1)) if np.isfinite(g1) else float("nan")

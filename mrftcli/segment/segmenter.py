@@ -6,6 +6,7 @@ and the validity check (:mod:`.validity`), into :class:`~mrftcli.segment.records
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -15,7 +16,7 @@ from ..errors import InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
 from ..io.timing import median_rate_hz
 from ..validate import check_positive
-from .cycles import measure_cycles
+from .cycles import ON_BOUND, measure_cycles, samples_between
 from .records import MrftTest, RelayCycle
 from .runs import RelayRun, find_relay_runs, regularise_times
 from .stability import StabilityCriterion, stable_cycles
@@ -89,7 +90,7 @@ def _missing_before(t: np.ndarray, k: int, dt: float, on_grid: bool, m: int = 8)
 
 
 def _loop_sign(ty: np.ndarray, yy: np.ndarray, tc: np.ndarray, command: np.ndarray, bias: float,
-               t_sw: np.ndarray, up: np.ndarray) -> int:
+               t_sw: np.ndarray, up: np.ndarray, dt: float) -> int:
     """+1 when the output is the relay's feedback as logged, -1 when it is its negative.
 
     Two pieces of evidence, each scaled by the output's spread: (1) the relay rule itself: an MRFT
@@ -100,7 +101,8 @@ def _loop_sign(ty: np.ndarray, yy: np.ndarray, tc: np.ndarray, command: np.ndarr
     is weak where the switch is near an extremum (beta near +-1: a hysteresis relay) and (1) where
     the output is flat at the switch (beta near -1); their sum decides. (1) follows the relay, so a
     plant that lags by less than 90 degrees keeps its sign and fails the phase check downstream
-    rather than being flipped into a look-alike.
+    rather than being flipped into a look-alike. ``dt``: the sample period [s] (a sample on a switch
+    instant, within a hundredth of it, is the switch's: :func:`~mrftcli.segment.cycles.samples_between`).
     """
     cmd_at_y = np.interp(ty, tc, command)
     hi_mask = cmd_at_y > bias
@@ -111,8 +113,9 @@ def _loop_sign(ty: np.ndarray, yy: np.ndarray, tc: np.ndarray, command: np.ndarr
     slope_evidence = 0.0
     if t_sw.size >= 3:
         win = 0.125 * float(np.median(np.diff(t_sw))) * 2.0
-        i_sw = np.searchsorted(ty, t_sw)
-        i_pre = np.searchsorted(ty, t_sw - win)
+        tol = ON_BOUND * dt if dt > 0 else 0.0  # as samples_between: a sample on a switch instant is the new level's
+        i_sw = np.searchsorted(ty, t_sw - tol)
+        i_pre = np.searchsorted(ty, t_sw - win - tol)
         rise = np.array([yy[b - 1] - yy[a] if b - 1 > a else np.nan for a, b in zip(i_pre, i_sw)])
         ok = np.isfinite(rise)
         if ok[up].any() and ok[~up].any():
@@ -252,9 +255,10 @@ def _switch_instant(prev: RelayRun, run: RelayRun, clock: _Clock) -> tuple[float
 
 
 def _output_window(t_y: FloatArray, y: FloatArray, t_sp: ArrayLike | None, setpoint: ArrayLike | None,
-                   t_a: float, t_b: float) -> _Window:
-    """The output from 1 s before the first switch ``t_a`` to 1 s after the last ``t_b`` [s]."""
-    m0, m1 = np.searchsorted(t_y, [t_a - 1.0, t_b + 1.0])
+                   t_a: float, t_b: float, dt: float) -> _Window:
+    """The output from 1 s before the first switch ``t_a`` to 1 s after the last ``t_b`` [s] (``dt``: the
+    sample period [s], for a sample on those bounds: :func:`~mrftcli.segment.cycles.samples_between`)."""
+    m0, m1 = samples_between(t_y, t_a - 1.0, t_b + 1.0, dt)
     ty, yy = t_y[m0:m1], y[m0:m1]
     if ty.size > 8:
         ty, _ = regularise_times(ty)
@@ -462,8 +466,8 @@ def segment_arrays(
         clock = _test_clock(chain, t_cmd, rate_all, controller_rate_hz)
         sw = _switches(chain, clock)
         t_b = float(sw.t[-1])
-        win = _output_window(t_y, y, t_sp, sp, float(sw.t[0]), t_b)
-        sign = _loop_sign(win.t, win.y, clock.t, cmd, sw.bias, sw.t, sw.up)
+        win = _output_window(t_y, y, t_sp, sp, float(sw.t[0]), t_b, clock.dt)
+        sign = _loop_sign(win.t, win.y, clock.t, cmd, sw.bias, sw.t, sw.up, clock.dt)
         beta_nom = _nominal_beta(beta_t, beta_v, prev_end, t_b)
         final, info = _measured_cycles(sw, win, sign, clock, criterion, beta_nom)
         be = np.array([c.beta_effective for c in final if c.stable])
@@ -530,9 +534,12 @@ def segment(
         controller_rate_hz = flight.timing.controller_rate_hz
     options = SegmentOptions(criterion=criterion, min_runs=min_runs, validity=validity,
                              controller_rate_hz=controller_rate_hz)
-    beta = flight.beta if flight.beta is not None and len(flight.beta) else None
-    setpoint = flight.setpoint if flight.setpoint is not None and len(flight.setpoint) else None
-    tests = segment_arrays(flight.command, flight.output, beta=beta, setpoint=setpoint, options=options)
+    tests = _LAST.get(flight, options)
+    if tests is None:
+        beta = flight.beta if flight.beta is not None and len(flight.beta) else None
+        setpoint = flight.setpoint if flight.setpoint is not None and len(flight.setpoint) else None
+        tests = segment_arrays(flight.command, flight.output, beta=beta, setpoint=setpoint, options=options)
+        _LAST.keep(flight, options, tests)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"
         raise SegmentationError(
@@ -540,5 +547,39 @@ def segment(
             f"switches back and forth between two levels for {min_runs} or more half-periods; check "
             "--command-topic"
         )
-    return tests
+    return list(tests)
+
+
+class _LastSegmentation:
+    """The last flight segmented, by identity, with its options and tests.
+
+    A use case may segment one flight twice: ``diagnose`` lets ``analyze`` segment it, and segments
+    it again when analyze refuses the log (one beta); on a 14-hour log each pass measures 50 000
+    cycles (about a minute of CPU), so the second is taken from here. A :class:`FlightLog` is frozen
+    and its arrays are not written after reading; only a weak reference to it is kept, and the
+    tests are let go with it. One entry, replaced whole (a thread never sees half of one).
+    """
+
+    def __init__(self) -> None:
+        self._entry: tuple[weakref.ref[FlightLog], SegmentOptions, tuple[MrftTest, ...]] | None = None
+
+    def get(self, flight: FlightLog, options: SegmentOptions) -> list[MrftTest] | None:
+        """The tests of ``flight`` segmented with ``options`` when they are the last ones, else None."""
+        entry = self._entry
+        if entry is not None and entry[0]() is flight and entry[1] == options:
+            return list(entry[2])
+        return None
+
+    def keep(self, flight: FlightLog, options: SegmentOptions, tests: list[MrftTest]) -> None:
+        """Remember ``tests`` as the segmentation of ``flight`` with ``options``."""
+        self._entry = (weakref.ref(flight, self._forget), options, tuple(tests))
+
+    def _forget(self, ref: weakref.ref[FlightLog]) -> None:
+        """The flight is gone: let its tests go (unless a newer flight took the entry)."""
+        entry = self._entry
+        if entry is not None and entry[0] is ref:
+            self._entry = None
+
+
+_LAST = _LastSegmentation()
 

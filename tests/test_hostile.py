@@ -207,6 +207,37 @@ def test_atomic_write_leaves_the_old_file_whole_when_it_fails(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_folder", "result.json"]  # no temporary left
 
 
+@pytest.mark.parametrize("fmt", ["bag", "csv"])
+def test_a_simulated_log_killed_while_written_leaves_the_old_log_whole(tmp_path, monkeypatch, fmt):
+    """simulate writes a ROS 1 bag chunk by chunk: a run that dies mid-way must not leave a cut bag
+    that reads as a shorter flight (issue 29, item 8), nor a temporary file."""
+    import mrftcli.io as io
+    from mrftcli.io.logtypes import TopicData
+    from mrftcli.sim.sidecar import write_log_atomic
+
+    def topics(n):
+        t = np.arange(n) * 0.01
+        return [TopicData("/mrft/command", "std_msgs/msg/Float64", t, {"data": np.sin(t)})]
+
+    target = tmp_path / f"flight.{fmt}"
+    write_log_atomic(topics(50), target, fmt)
+    old = target.read_bytes()
+    real = io.write_log
+
+    def dies_midway(topics, path, fmt=None, **kw):
+        real(topics, path, fmt, **kw)
+        Path(path).write_bytes(Path(path).read_bytes()[:100])  # what a kill leaves: the first bytes
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io, "write_log", dies_midway)
+    with pytest.raises(KeyboardInterrupt):
+        write_log_atomic(topics(500), target, fmt)
+    assert target.read_bytes() == old and [p.name for p in tmp_path.iterdir()] == [target.name]
+    monkeypatch.setattr(io, "write_log", real)
+    write_log_atomic(topics(500), target, fmt)  # over an existing file (rosbags refuses to overwrite one)
+    assert [t.count for t in io.list_topics(target)[1]] == [500]
+
+
 # -- batch: write what can be written, report the rest --------------------------------------------
 def test_batch_writes_every_result_it_can_and_reports_the_rest(tmp_path):
     from test_batch import fake_worker, write_toy

@@ -7,7 +7,8 @@ file and leaves the target as it was.
 
 * :func:`write_text_atomic`, :func:`write_bytes_atomic`: a whole file from memory;
 * :func:`atomic_path`: a temporary path for writers that take a path or a stream (matplotlib's
-  ``savefig``, the MCAP writer, pandas' ``to_csv``), renamed when the block ends without an error.
+  ``savefig``, the MCAP writer, pandas' ``to_csv``), renamed when the block ends without an error;
+  ``create=False`` for writers that refuse a path that exists (rosbags' ROS 1 bag writer).
 """
 
 from __future__ import annotations
@@ -22,8 +23,11 @@ __all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path"]
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
+def atomic_path(path: str | Path, *, create: bool = True) -> Iterator[Path]:
     """A temporary path beside ``path``; renamed onto ``path`` when the block ends without an error.
+
+    ``create``: the temporary file exists (empty) when the block starts; False: its name is free
+    (a name no other file has, for writers that refuse to overwrite), and the block must create it.
 
     Examples
     --------
@@ -33,11 +37,18 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     ...     _ = tmp.write_text("whole")
     >>> (folder / "out.txt").read_text(), sorted(p.name for p in folder.iterdir())
     ('whole', ['out.txt'])
+    >>> with atomic_path(folder / "out.txt", create=False) as tmp:
+    ...     fresh = not tmp.exists()
+    ...     _ = tmp.write_text("again")
+    >>> fresh, (folder / "out.txt").read_text(), sorted(p.name for p in folder.iterdir())
+    (True, 'again', ['out.txt'])
     """
     path = Path(path)
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(name)
+    if not create:
+        tmp.unlink()  # the name stays ours in practice: mkstemp's random part, in the target's folder
     try:
         yield tmp
         if path.exists() and not path.is_file():

@@ -31,7 +31,7 @@ from ..errors import InputError
 from ..io.atomic import write_text_atomic
 from ..io.logtypes import TopicData
 from .cascade import CascadeFlight
-from .sidecar import sidecar_path
+from .sidecar import sidecar_path, write_log_atomic
 
 __all__ = ["CASCADE_LAYOUTS", "cascade_topics", "write_cascade"]
 
@@ -146,7 +146,7 @@ def write_cascade(flight: CascadeFlight, path: str | Path, layout: str = "hear-r
     fmt : str, optional
         The log format (default: ``bag`` for hear-ros, else from the file name).
     """
-    from ..io import format_from_name, write_log
+    from ..io import format_from_name
 
     path = Path(path)
     if layout not in CASCADE_LAYOUTS:
@@ -154,7 +154,7 @@ def write_cascade(flight: CascadeFlight, path: str | Path, layout: str = "hear-r
     fmt = fmt or CASCADE_LAYOUTS[layout] or format_from_name(path)
     if fmt is None:
         raise InputError(f"cannot tell the log format from {path.name!r}; pass a format")
-    write_log(cascade_topics(flight, layout, seed=flight.spec.seed + 1), path, fmt)
+    write_log_atomic(cascade_topics(flight, layout, seed=flight.spec.seed + 1), path, fmt)
     truth = dataclasses.replace(flight.truth, layout=layout, log_format=fmt, log_file=path.name)
     side = sidecar_path(path)
     write_text_atomic(side, json.dumps(truth.to_json(), indent=2, allow_nan=False) + "\n")

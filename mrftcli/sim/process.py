@@ -34,7 +34,7 @@ from ..validate import check_beta
 from .cascade_spec import InnerGains
 from .control import SWITCHING_RULES, HearMrftRelay, MrftRelay, make_relay
 from .plant import taylor_expm
-from .sidecar import sidecar_path
+from .sidecar import sidecar_path, write_log_atomic
 from .spec import TestSpec
 
 __all__ = ["ProcessSpec", "ProcessTruth", "ProcessFlight", "simulate_process", "write_process", "process_hold",
@@ -343,10 +343,9 @@ def _topics(flight: ProcessFlight) -> list[TopicData]:
 
 def write_process(flight: ProcessFlight, path: str | Path, fmt: str) -> Path:
     """Write the flight in the reference layout (format ``fmt``) and its :class:`ProcessTruth`; the sidecar."""
-    from ..io import write_log
     from ..io.atomic import write_text_atomic
 
-    write_log(_topics(flight), path, fmt)
+    write_log_atomic(_topics(flight), path, fmt)
     truth = dataclasses.replace(flight.truth, log_format=fmt, log_file=Path(path).name)
     side = sidecar_path(path)
     write_text_atomic(side, json.dumps(truth.to_json(), indent=2, allow_nan=False) + "\n")

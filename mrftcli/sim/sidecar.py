@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..io.atomic import write_text_atomic
+from ..io.atomic import atomic_path, write_text_atomic
 from ..io.logtypes import TopicData
 from .control import HoldPID, noise_margin
 from .spec import FlightSettings, FlightSpec
@@ -23,7 +23,7 @@ from .spec import FlightSettings, FlightSpec
 if TYPE_CHECKING:
     from .flight import SimulatedFlight
 
-__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "jsonable"]
+__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "write_log_atomic", "jsonable"]
 
 
 def truth_record(spec: FlightSpec, settings: FlightSettings, pid: HoldPID, rate_true: np.ndarray,
@@ -192,11 +192,35 @@ def sidecar_path(log_path: str | Path) -> Path:
     return p.with_name(p.name.rstrip("/") + ".truth.json")
 
 
-def write_flight(flight: SimulatedFlight, path: str | Path, fmt: str) -> Path:
-    """Write ``flight`` as a log in format ``fmt`` plus its sidecar; return the sidecar path."""
+#: formats written as a directory (a ROS 2 bag): no one-step swap of a directory for another exists
+_DIRECTORY_FORMATS = ("ros2-sqlite3", "ros2-mcap")
+
+
+def write_log_atomic(topics: list[TopicData], path: str | Path, fmt: str) -> Path:
+    """Write ``topics`` as a log of format ``fmt`` into a temporary file renamed onto ``path``.
+
+    A simulation killed while it writes (a ROS 1 bag is written chunk by chunk) leaves the old file
+    or none, never a cut log that reads as a shorter flight (:mod:`mrftcli.io.atomic`). A ROS 2 bag
+    directory is written in place.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     from ..io import write_log  # the writers live with the readers
 
-    write_log(flight.topics, path, fmt)
+    if fmt in _DIRECTORY_FORMATS:
+        return write_log(topics, path, fmt)
+    with atomic_path(path, create=False) as tmp:  # create=False: rosbags refuses a file that exists
+        write_log(topics, tmp, fmt)
+    return Path(path)
+
+
+def write_flight(flight: SimulatedFlight, path: str | Path, fmt: str) -> Path:
+    """Write ``flight`` as a log in format ``fmt`` (atomically: :func:`write_log_atomic`) plus its
+    sidecar; return the sidecar path."""
+    write_log_atomic(flight.topics, path, fmt)
     truth = dict(flight.truth)
     truth["log_format"] = fmt
     truth["log_file"] = Path(path).name

@@ -148,3 +148,25 @@ def test_a_wandering_orbit_at_beta_minus_0_8_is_measured_at_its_level_and_amplit
             levels.append(sign * (0.5 * (y[k - 1] + y[k]) - 0.5 * (hi_ + lo_)) / (0.5 * (hi_ - lo_)))
     assert test.amplitude_mean == pytest.approx(np.mean(amps), rel=0.05)
     assert abs(test.beta_effective - np.mean(levels)) < 0.1
+
+
+def test_the_switching_lag_drawn_into_the_bootstrap_keeps_td_where_the_tests_put_it(flight, tmp_path):
+    # each test's place in the sampled relay's 0..Ts band is unseen at 10 Hz; drawn per test into the
+    # bootstrap (not a linearised spread added in quadrature: Td [-1.2, 5.5] s, tau [-1.7, 23] ms on
+    # this flight), the intervals stay positive and still hold the simulator's truth
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.io.stacks import StackLogSpec, StackTest, write_stack_log
+
+    tests = [StackTest(e["t_start"], e["t_end"], e["beta"], e["h"]) for e in flight.truth["tests"]]
+    spec = StackLogSpec("px4-mrft", "altitude", flight.truth["bias"], tests, log_rate_hz=10)
+    path = write_stack_log(tmp_path / "px4_10hz.ulg", spec, flight.t, flight.command, flight.output_measured,
+                           flight.setpoint)
+    r = analyze_flight(read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422,
+                       options=AnalyzeOptions(n_bootstrap=100, seed=1))
+    assert len(r.tests) == 2 and all(t.controller_rate_hz == pytest.approx(RATE) for t in r.tests)
+    truth = {"Td": 1.6, "tau": 0.015, "K": 15.0}
+    for name, value in truth.items():
+        est = getattr(r, name)
+        assert est.ci95_low <= value <= est.ci95_high, (name, est)
+    assert r.Td.ci95_low > 0.25 * truth["Td"] and r.tau.ci95_low > 0.0

@@ -15,7 +15,11 @@ The simulator (tests/process_sim.py) shares no code with mrftcli. Each recording
 and analysed with ``analyze_general`` (what ``analyze --model NAME`` runs). Scored per recording:
 every parameter within 5 % of the truth; every 95 % interval covering the truth; held-out frequency
 within 10 % on every test. A recording the tool refuses (no usable test, an undetermined parameter)
-counts as a miss. Also timed: :func:`identify_lti` on the recordings' response points.
+counts as a miss. Also timed: :func:`identify_lti` on the recordings' response points, by its route
+for the built-in families (the closed-form residuals and Jacobian of ``mrft/lti_kernel.py``) and,
+in the same process, alternating per recording, by the general route (a response grid and
+forward-difference Jacobian, what any other structure with a grid gets) and the library route
+(a model object per grid point, ``scipy.optimize.least_squares``).
 
 Run: ``nice -n 10 python benchmarks/bench_families.py [--n 10] [--seed 0]`` (n recordings per family
 and relay; about 1.5 s each).
@@ -153,41 +157,60 @@ def main() -> None:
           f"95 % intervals cover {totals['covered']}/{n} ({100 * totals['covered'] / n:.0f} %), "
           f"held-out frequency within 10 % {totals['held10']}/{n} ({100 * totals['held10'] / n:.0f} %); "
           f"{time.perf_counter() - t_start:.0f} s")
-    now = _time_calls(identify_lti, timing_cases)
-    with _library_route():
-        before = _time_calls(identify_lti, timing_cases)
-    print("identify_lti per call (median over the recordings' response points; best of 3 repeats): "
-          + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms" for f, v in now.items()))
-    print("  the library route in the same process (a model object per grid point, scipy least_squares): "
-          + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms ({np.median(v) / np.median(now[f]):.1f}x)"
-                      for f, v in before.items()))
+    times = _time_calls(identify_lti, timing_cases)
+    _print_timing(times)
 
 
-def _time_calls(identify_lti, cases) -> dict[str, list[float]]:
-    per_family: dict[str, list[float]] = {}
+#: the routes timed, each as identify_lti with a set of its fast paths switched off (same process)
+ROUTES = ("closed form", "general", "library")
+
+
+def _print_timing(times: dict[str, dict[str, list[float]]]) -> None:
+    now = times["closed form"]
+    print("identify_lti per call (median over the recordings' response points; best of 5 calls each, the routes "
+          "interleaved): " + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms" for f, v in now.items()))
+    labels = {"general": "the general route (the same code without the families' closed form: a response grid, "
+                         "forward-difference Jacobian)",
+              "library": "the library route (a model object per grid point, scipy least_squares)"}
+    for route, label in labels.items():
+        print(f"  {label}: " + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms ({np.median(v) / np.median(now[f]):.1f}x)"
+                                         for f, v in times[route].items()))
+
+
+def _time_calls(identify_lti, cases) -> dict[str, dict[str, list[float]]]:
+    """Per route and family, each recording's best of 5 calls [s]; the routes alternate per recording,
+    so a shared machine's load falls on all of them alike."""
+    per_route: dict[str, dict[str, list[float]]] = {r: {} for r in ROUTES}
     for model, points in cases:
-        best = math.inf
-        for _ in range(3):
-            t0 = time.perf_counter()
-            identify_lti(model, points)
-            best = min(best, time.perf_counter() - t0)
-        per_family.setdefault(model.family, []).append(best)
-    return per_family
+        for route in ROUTES:
+            with _route(route):
+                best = math.inf
+                for _ in range(5):
+                    t0 = time.perf_counter()
+                    identify_lti(model, points)
+                    best = min(best, time.perf_counter() - t0)
+            per_route[route].setdefault(model.family, []).append(best)
+    return per_route
 
 
 @contextlib.contextmanager
-def _library_route():
-    """identify_lti as it was before the hand-written grid and Levenberg-Marquardt (the baseline)."""
-    import mrftcli.mrft.identify_lti as lti
+def _route(route: str):
+    """identify_lti with its fast paths switched off down to ``route``: "general" without the families'
+    closed-form kernel (mrft/lti_kernel.py), "library" also without the response grid and the hand-written
+    Levenberg-Marquardt (a model object per grid point, scipy's least_squares: the first implementation)."""
     from mrftcli.mrft import families
+    from mrftcli.mrft.lti_kernel import LagChainKernel
 
-    grid = families._Family.frequency_response_grid
-    del families._Family.frequency_response_grid  # identify_lti then loops over models and calls least_squares
+    of, grid = LagChainKernel.__dict__["of"], families._Family.frequency_response_grid
     try:
+        if route != "closed form":
+            LagChainKernel.of = classmethod(lambda cls, *a, **k: None)  # type: ignore[method-assign]
+        if route == "library":
+            del families._Family.frequency_response_grid
         yield
     finally:
+        LagChainKernel.of = of  # type: ignore[method-assign]
         families._Family.frequency_response_grid = grid  # type: ignore[method-assign]
-        assert hasattr(lti, "_levenberg_marquardt")
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
+from scipy.linalg import lapack
 
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
@@ -252,6 +253,14 @@ class _Data:
                    fundamental if fundamental.any() else omega <= omega.min())
 
 
+def _wrap_grid(x: FloatArray, low: float = -math.pi) -> FloatArray:
+    """:func:`_wrap` for the search grid's large arrays: x - 2 pi floor((x - low) / 2 pi), a fifth of
+    np.mod's cost (its remainder is exact, this one within an ulp: a start, not the fit)."""
+    turns = np.floor((x - low) * (0.5 / math.pi))
+    wrapped: FloatArray = x - 2 * math.pi * turns
+    return wrapped
+
+
 def _median(x: FloatArray) -> float:
     """``np.median`` of a short 1-D array (the same value; np.median's overhead was a tenth of a call)."""
     return float(statistics.median(x.tolist()))
@@ -405,14 +414,14 @@ def _start_grid(problem: _Problem) -> dict[str, float]:
     if "tau" in problem.unknown:
         # the delay's phase: on its principal branch at the limit cycles' own frequencies (a relay
         # cycle is near -pi), then the harmonics' (several turns at k Omega) unwrapped near that delay
-        lag = _wrap(phase, -0.5 * math.pi)
+        lag = _wrap_grid(phase, -0.5 * math.pi)
         wp_omega = d.w_phase ** 2 * d.omega
         t1 = lag @ (wp_omega * d.base) / (wp_omega * d.omega)[d.base].sum()
-        lag = d.omega * t1[:, None] + _wrap(lag - d.omega * t1[:, None])
+        lag = d.omega * t1[:, None] + _wrap_grid(lag - d.omega * t1[:, None])
         lo, hi = problem.bounds["tau"]
         tau = _clip(lag @ wp_omega / (wp_omega @ d.omega), max(lo, 0.0), hi)
         phase = phase - d.omega * tau[:, None]
-    cost = gain ** 2 @ d.w_gain ** 2 + _wrap(phase) ** 2 @ d.w_phase ** 2
+    cost = gain ** 2 @ d.w_gain ** 2 + _wrap_grid(phase) ** 2 @ d.w_phase ** 2
     i = int(np.argmin(cost))
     out = {name: float(combos[i, k]) for k, name in enumerate(problem.shape)}
     if "K" in problem.unknown:
@@ -513,9 +522,7 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     start = _start(problem)
     z0 = problem.z_of(start)
     lo, hi = problem.z_bounds()
-    inside = 1e-9 * (1 + np.abs(z0))  # least_squares wants a strictly interior start
-    z0 = np.minimum(np.maximum(z0, np.where(np.isfinite(lo), lo + inside, -np.inf)),
-                    np.where(np.isfinite(hi), hi - inside, np.inf))
+    z0 = _interior(z0, lo, hi)
     if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
         z, r, J = _levenberg_marquardt(problem, z0, lo, hi)
     else:
@@ -528,11 +535,23 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     return _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, _null_parameters(problem, J))
 
 
+def _interior(z: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray:
+    """``z`` moved inside its bounds by 1e-9 (1 + |z|) (least_squares wants a strictly interior start);
+    in Python floats: 2-4 of them, where a dozen numpy calls cost more than the fit's step."""
+    out = []
+    for zi, a, b in zip(z.tolist(), lo.tolist(), hi.tolist()):
+        inside = 1e-9 * (1 + abs(zi))
+        out.append(min(max(zi, a + inside if math.isfinite(a) else -math.inf), b - inside if math.isfinite(b) else math.inf))
+    return np.array(out)
+
+
 def _pinv_psd(A: FloatArray) -> FloatArray:
     """``np.linalg.pinv(A, rcond=1e-12)`` of a symmetric positive semi-definite A (J^T J) through its
     eigendecomposition: the same matrix (to rounding) at half pinv's cost; directions whose eigenvalue
     is below 1e-12 of the largest (the data's flat ones) get no variance, as in pinv."""
-    w, V = np.linalg.eigh(A)
+    w, V, info = lapack.dsyevd(A)  # np.linalg.eigh's LAPACK routine without numpy's 7 us of checks per call
+    if info != 0:
+        w, V = np.linalg.eigh(A)
     keep = w > 1e-12 * w[-1] if w.size else w > 0
     out: FloatArray = (V[:, keep] / w[keep]) @ V[:, keep].T
     return out
@@ -564,35 +583,36 @@ def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray,
     """
     kernel = problem.kernel
 
-    def residuals(z: FloatArray) -> FloatArray:
-        return kernel.residuals(z) if kernel is not None else _residuals_batch(problem, z[None, :])[0]
+    def evaluate(z: FloatArray) -> tuple[FloatArray, FloatArray | None]:
+        """Residuals and, from the closed form, the Jacobian (None: forward differences when needed)."""
+        return kernel.evaluate(z) if kernel is not None else (_residuals_batch(problem, z[None, :])[0], None)
 
-    def jacobian(z: FloatArray, r: FloatArray) -> FloatArray:
-        if kernel is not None:
-            return kernel.jacobian(z)
+    def jacobian(z: FloatArray, r: FloatArray, J: FloatArray | None) -> FloatArray:
+        if J is not None:
+            return J
         h = 1e-7 * np.maximum(1.0, np.abs(z))
         h = np.where(z + h > hi, -h, h)  # stay inside the range at its upper edge
-        J: FloatArray = ((_residuals_batch(problem, z + np.diag(h)) - r) / h[:, None]).T
-        return J
+        J_fd: FloatArray = ((_residuals_batch(problem, z + np.diag(h)) - r) / h[:, None]).T
+        return J_fd
 
     def largest(x: NDArray[np.floating[Any]]) -> float:  # max |x| of a 2-4 vector (np.max's overhead was a tenth of a step)
         return float(max(map(abs, x.tolist())))
 
     z = _clip(z, lo, hi)
-    r = residuals(z)
+    r, J_z = evaluate(z)
     cost, lam = float(r @ r), 1e-3
     for _ in range(100):
-        J = jacobian(z, r)
+        J = J_z = jacobian(z, r, J_z)
         A, g = J.T @ J, J.T @ r
         scale = np.maximum(np.diag(A), 1e-12)
         tol = 1e-10 * (1 + largest(z))
-        step = np.linalg.solve(A + np.diag(lam * scale), g)
+        step = _solve(A + np.diag(lam * scale), g)
         if largest(step) <= tol or 2 * float(g @ step) - float(step @ A @ step) <= 1e-12 * cost:
             break  # converged: the next step would move z, or lower the cost, by less than the tolerance
         cost_new = cost
         while lam < 1e12:
             z_new = _clip(z - step, lo, hi)
-            r_new = residuals(z_new)
+            r_new, J_new = evaluate(z_new)
             cost_new = float(r_new @ r_new)
             if cost_new < cost:
                 lam = max(lam / 10, 1e-12)
@@ -600,14 +620,23 @@ def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray,
             if cost_new - cost <= 1e-12 * cost:
                 break  # the cost flat to rounding: shorter steps only trade rounding noise
             lam *= 10
-            step = np.linalg.solve(A + np.diag(lam * scale), g)
+            step = _solve(A + np.diag(lam * scale), g)
         if not cost_new < cost:
             break  # no step lowers the cost: a minimum (within the range)
         done = cost - cost_new <= 1e-12 * cost or largest(z_new - z) <= tol
-        z, r, cost = z_new, r_new, cost_new
+        z, r, J_z, cost = z_new, r_new, J_new, cost_new
         if done:
             break
-    return z, r, jacobian(z, r)
+    return z, r, jacobian(z, r, J_z)
+
+
+def _solve(M: FloatArray, b: FloatArray) -> FloatArray:
+    """``np.linalg.solve(M, b)`` through its LAPACK routine (dgesv) called directly: a 2-4 unknown system
+    costs 1 us there and 6-10 us through numpy's checks, and the fit solves 5-10 of them."""
+    _, _, x, info = lapack.dgesv(M, b)
+    if info != 0:
+        return np.asarray(np.linalg.solve(M, b), dtype=np.float64)  # singular: numpy's LinAlgError, as before
+    return np.asarray(x, dtype=np.float64)
 
 
 def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
@@ -615,11 +644,14 @@ def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
     norms = np.linalg.norm(J, axis=0)
     Js = J / np.where(norms > 0, norms, 1.0)  # column-scaled: the verdict must not depend on units
     # V's rows are all there without U's full square (the residuals outnumber the unknowns) at a fraction of its cost
-    _, sv, Vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < Js.shape[1])
-    rank = int(np.sum(sv > 1e-6 * sv[0])) if sv.size and sv[0] > 0 else 0
+    _, sv, Vt, info = lapack.dgesdd(Js, full_matrices=int(Js.shape[0] < Js.shape[1]))  # np.linalg.svd's routine
+    if info != 0:
+        _, sv, Vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < Js.shape[1])
+    sv_list = sv.tolist()
+    rank = sum(v > 1e-6 * sv_list[0] for v in sv_list) if sv_list and sv_list[0] > 0 else 0
     null = Vt[rank:]
     flat = {n for k, n in enumerate(problem.unknown) if null.size and np.max(np.abs(null[:, k])) > 0.1}
-    flat |= {n for k, n in enumerate(problem.unknown) if norms[k] == 0}
+    flat |= {n for n, norm in zip(problem.unknown, norms.tolist()) if norm == 0}
     n_freq = len({round(math.log(w), 2) for w in problem.data.omega.tolist()})
     if flat and 2 * n_freq < len(problem.unknown):
         # fewer figures than unknowns: a local null direction is one of many; none is pinned down

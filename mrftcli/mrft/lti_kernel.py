@@ -84,22 +84,25 @@ class LagChainKernel:
     gain0, phase0 : ndarray
         The known part of the model's log-gain and phase minus the measured ones (the integrators,
         the known parameters, the sign of K) [-], [rad].
-    w_gain, w_phase : ndarray
-        The weights, 1 / standard error [-], [1/rad].
-    k_index, tau_index : int
-        The positions of ln|K| and tau in ``z`` (-1 when known).
+    weights : ndarray
+        1 / standard error of the log-gains [-], then of the phases [1/rad].
+    constant : ndarray
+        The Jacobian's columns that do not depend on z (ln|K|: w_gain; tau: -omega w_phase), the
+        lags' columns zero.
     lag_index : tuple of int
         The positions in ``z`` of ln T of each unknown lag.
+    k_index, tau_index : int
+        The positions of ln|K| and tau in ``z`` (-1 when known).
     """
 
     omega: FloatArray
     gain0: FloatArray
     phase0: FloatArray
-    w_gain: FloatArray
-    w_phase: FloatArray
+    weights: FloatArray
+    constant: FloatArray
+    lag_index: tuple[int, ...]
     k_index: int
     tau_index: int
-    lag_index: tuple[int, ...]
 
     @classmethod
     def of(cls, model: object, values: Mapping[str, float], unknown: Sequence[str], log_scaled: set[str],
@@ -114,10 +117,17 @@ class LagChainKernel:
         if any(n not in ("K", "tau") and n not in log_scaled for n in unknown):
             return None
         gain0, phase0 = cls.known_part(chain, values, unknown, points.omega)
-        return cls(points.omega, gain0 - points.log_gain, phase0 - points.phase, points.w_gain, points.w_phase,
-                   unknown.index("K") if "K" in unknown else -1,
-                   unknown.index("tau") if "tau" in unknown else -1,
-                   tuple(unknown.index(n) for n in chain.lags if n in unknown))
+        m = points.omega.size
+        k_index = unknown.index("K") if "K" in unknown else -1
+        tau_index = unknown.index("tau") if "tau" in unknown else -1
+        constant = np.zeros((2 * m, len(unknown)))
+        if k_index >= 0:
+            constant[:m, k_index] = points.w_gain
+        if tau_index >= 0:
+            constant[m:, tau_index] = -points.omega * points.w_phase
+        return cls(points.omega, gain0 - points.log_gain, phase0 - points.phase,
+                   np.concatenate([points.w_gain, points.w_phase]), constant,
+                   tuple(unknown.index(n) for n in chain.lags if n in unknown), k_index, tau_index)
 
     @staticmethod
     def known_part(model: LagChain, values: Mapping[str, float], unknown: Sequence[str],
@@ -137,30 +147,31 @@ class LagChainKernel:
 
     def residuals(self, z: FloatArray) -> FloatArray:
         """The weighted residuals at ``z``."""
-        gain, phase = self._misfit(z)
-        r: FloatArray = np.concatenate([gain * self.w_gain, _wrap(phase) * self.w_phase])
-        return r
+        return self.evaluate(z)[0]
 
     def jacobian(self, z: FloatArray) -> FloatArray:
         """d residuals / d z at ``z``: shape (2 points, unknowns)."""
-        m = self.omega.size
-        J = self._constant_columns(z.size)
-        for i in self.lag_index:  # a loop: one or two lags, cheaper than their 2-D arrays
-            x = math.exp(z[i]) * self.omega
-            q = 1.0 / (1.0 + x * x)
-            J[:m, i] = -x * x * q * self.w_gain
-            J[m:, i] = -x * q * self.w_phase
-        return J
+        return self.evaluate(z)[1]
 
-    def _constant_columns(self, n: int) -> FloatArray:
-        """A new Jacobian with the columns that do not depend on z filled (ln|K|: w_gain; tau: -omega w_phase)."""
+    def evaluate(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The weighted residuals at ``z`` and their Jacobian, in one pass (they share each lag's T omega)."""
+        zs = z.tolist()
         m = self.omega.size
-        J = np.zeros((2 * m, n))
+        gain, phase, J = self.gain0, self.phase0, self.constant.copy()
         if self.k_index >= 0:
-            J[:m, self.k_index] = self.w_gain
+            gain = gain + zs[self.k_index]
         if self.tau_index >= 0:
-            J[m:, self.tau_index] = -self.omega * self.w_phase
-        return J
+            phase = phase - zs[self.tau_index] * self.omega
+        for i in self.lag_index:  # a loop: one or two lags, cheaper than their 2-D arrays
+            x = math.exp(zs[i]) * self.omega
+            x2 = x * x
+            gain = gain - 0.5 * np.log1p(x2)
+            phase = phase - np.arctan(x)
+            q = 1.0 / (1.0 + x2)
+            J[:m, i] = (q - 1.0) * self.weights[:m]  # d ln|G| / d ln T = -x^2 / (1 + x^2)
+            J[m:, i] = -x * q * self.weights[m:]  # d arg G / d ln T = -x / (1 + x^2)
+        r: FloatArray = np.concatenate([gain, _wrap(phase)]) * self.weights
+        return r, J
 
     def lag_grid(self, values: FloatArray, index: NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:
         """The log-gain and phase misfits with ln|K| and tau at 0 over a grid of the unknown time
@@ -168,23 +179,12 @@ class LagChainKernel:
         ``values`` [s]; returns two arrays of shape (rows, points) [-], [rad] (the phase not wrapped).
         Each lag's terms are evaluated once per grid value, not once per row (a product grid repeats them).
         """
-        x = values[:, None] * self.omega
-        half_log, angle = 0.5 * np.log1p(x * x), np.arctan(x)
         gain = np.broadcast_to(self.gain0, (len(index), self.omega.size))
         phase = np.broadcast_to(self.phase0, gain.shape)
-        for k in range(index.shape[1]):
-            gain = gain - half_log[index[:, k]]
-            phase = phase - angle[index[:, k]]
-        return gain, phase
-
-    def _misfit(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
-        gain, phase = self.gain0, self.phase0
-        if self.k_index >= 0:
-            gain = gain + z[self.k_index]
-        if self.tau_index >= 0:
-            phase = phase - z[self.tau_index] * self.omega
-        for i in self.lag_index:
-            x = math.exp(z[i]) * self.omega
-            gain = gain - 0.5 * np.log1p(x * x)
-            phase = phase - np.arctan(x)
+        if index.shape[1]:
+            x = values[:, None] * self.omega
+            half_log, angle = 0.5 * np.log1p(x * x), np.arctan(x)
+            for k in range(index.shape[1]):
+                gain = gain - half_log[index[:, k]]
+                phase = phase - angle[index[:, k]]
         return gain, phase

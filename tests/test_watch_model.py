@@ -8,7 +8,6 @@ transfer function's polynomials, stepped exactly), whose truth the final estimat
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -113,31 +112,44 @@ def test_updates_round_trip_through_json_and_refuse_another_version(recording):
         ProcessTestUpdate.from_json({"schema_version": 1, "number": 1})
 
 
-def test_cli_model_options_refused_where_they_do_not_apply(capsys, recording):
+def _cli(capsys, *argv):
+    """The CLI in-process (exit code, stdout, stderr): a subprocess costs seconds of imports."""
     from mrftcli.cli.main import main
 
-    def run(*argv):
-        try:
-            main(["watch", str(recording), *argv])
-        except SystemExit as done:
-            return int(done.code or 0), capsys.readouterr().err
-        return 0, capsys.readouterr().err
+    try:
+        main(list(argv))
+        code = 0
+    except SystemExit as done:
+        code = int(done.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
 
-    code, err = run("--model", "fopdt", "--tp", "0.04")
+
+def test_cli_model_options_refused_where_they_do_not_apply(capsys, recording):
+    code, _, err = _cli(capsys, "watch", str(recording), "--model", "fopdt", "--tp", "0.04")
     assert code == 2 and "--param" in err and "Traceback" not in err
-    code, err = run("--param", "K=2")  # eq. (2) with a process option (and without --tp)
+    code, _, err = _cli(capsys, "watch", str(recording), "--param", "K=2")  # eq. (2) with a process option
     assert code == 2 and "--tp" in err
 
 
-def test_cli_jsonl_final_estimate_recovers_the_simulated_plant(recording):
-    run = subprocess.run([sys.executable, "-m", "mrftcli", "watch", str(recording), "--model", "fopdt",
-                          "--command-topic", "u_relay", "--output-topic", "y_output", "--idle", "0.1", "--jsonl"],
-                         capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
-    rows = [json.loads(line) for line in run.stdout.splitlines()]
+def test_cli_final_estimate_recovers_the_simulated_plant(capsys, recording):
+    argv = ["watch", str(recording), "--model", "fopdt", "--command-topic", "u_relay", "--output-topic", "y_output",
+            "--idle", "0.1"]
+    code, out, err = _cli(capsys, *argv, "--jsonl")
+    assert code == 0 and err == "", err
+    rows = [json.loads(line) for line in out.splitlines()]
     assert [r["kind"] for r in rows[-2:]] == ["estimate", "end"] and rows[-2]["final"] is True
     assert rows[0]["kind"] == "test" and rows[0]["relay"]["kind"] == "hysteresis"
     params = rows[-2]["parameters"]
     for name, value in TRUTH.items():
         assert params[name]["value"] == pytest.approx(value, rel=0.05), name
         assert params[name]["ci95_low"] <= value <= params[name]["ci95_high"], name
+    # the text: the structure first, each test with its relay as inferred, units on every number
+    code, out, _ = _cli(capsys, *argv)
+    lines = out.splitlines()
+    assert code == 0 and lines[0].startswith("model fopdt: G(s) = K e^{-tau s}")
+    tests = [line for line in lines if line.startswith("test ")]
+    assert tests and all("relay: hysteresis" in t and "(inferred)" in t and "output units" in t for t in tests)
+    final = next(line for line in lines if line.startswith("final"))
+    assert "K " in final and " output / command" in final and "tau " in final and " s " in final and "±" in final
+    assert sum(line.startswith("held-out test") for line in lines) == 2

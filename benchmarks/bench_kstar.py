@@ -13,7 +13,10 @@ kstar_signals21801_biased_relay.csv`` read in place:
    the delay, as the sampled prediction does) have all five frequencies within 10 %? The cycle is in
    closed form (below), so the search covers the whole (K, T, tau) space; the optimum is checked
    against the library's exact sampled LPRS (:meth:`mrftcli.mrft.relays.RelayLaw.limit_cycle`);
-3. the held-out errors of ``--model sopdt`` and of a declared structure with an unstable pole.
+3. the held-out errors of ``--model sopdt`` and of a declared structure with an unstable pole;
+4. does the effective level hurt where the truth is known? bench_families' draws (every family under
+   MRFT, hysteresis and biased relays, noise 1-3 % of the amplitude): each test's held-out error
+   under the relay as inferred and under the effective one, from the same analyses.
 
 The closed form: under a symmetric relay +-h with hysteresis eps, the delay-free periodic response of
 K / (T s + 1) rises over a half period P from -K h tanh(P / 2T) to +K h tanh(P / 2T); the delayed output
@@ -23,7 +26,8 @@ and one only when eps < K h. The frequency is 1 / (2 x T). With q_i = 1 / (2 x_i
 the best T for the worst relative error is 2 / (max q + min q), the error (max q - min q) /
 (max q + min q): the search is over K and r alone.
 
-Run: ``nice -n 10 python benchmarks/bench_kstar.py`` (about a minute of CPU; ``--quick`` skips part 3).
+Run: ``nice -n 10 python benchmarks/bench_kstar.py [--sims 2]`` (about 2 minutes of CPU; ``--quick``
+skips part 3, ``--sims 0`` part 4).
 """
 
 from __future__ import annotations
@@ -172,6 +176,56 @@ def library_check(best: dict[str, float], tests, relays) -> list[float]:
     return [law.limit_cycle(model, t.rate_hz).frequency_hz for t, law in zip(tests, relays)]
 
 
+def simulated_held_out(n: int, seed: int) -> dict[str, list[float]]:
+    """Held-out errors on bench_families' draws (noise 1-3 % of the amplitude) under both relays.
+
+    n recordings per family for the relays the effective level applies to (MRFT, hysteresis, biased
+    hysteresis); every test's held-out relative frequency error, under the relay as inferred and
+    under the effective one, from the same analysis (inf where there is no prediction).
+    """
+    import tempfile
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from bench_families import FAMILIES, draw_plant, draw_windows
+    from process_sim import simulate, write_csv
+
+    from mrftcli.analyze.general import RelayOptions, analyze_general
+    from mrftcli.errors import MrftError
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
+    from mrftcli.mrft.relays import RelayLaw
+
+    rng = np.random.default_rng(seed)
+    out: dict[str, list[float]] = {"inferred": [], "effective": []}
+    with tempfile.TemporaryDirectory() as d:
+        for family in FAMILIES:
+            for relay in ("mrft", "hysteresis", "biased"):
+                for _ in range(n):
+                    params = draw_plant(family, rng)
+                    ideal = RelayLaw("ideal", 1.0, -1.0).limit_cycle(PROCESS_FAMILIES[family](**params))
+                    windows = draw_windows(family, relay, ideal.amplitude, ideal.period, rng)
+                    rate = float(rng.uniform(50.0, 200.0))
+                    noise = float(rng.uniform(0.01, 0.03)) * ideal.amplitude
+                    t, u, y = simulate(family, params, windows, rate, noise, seed=int(rng.integers(1 << 31)))
+                    path = Path(d) / "rec.csv"
+                    write_csv(str(path), t, u, y)
+                    flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"),
+                                         echo_warnings=False)
+                    try:
+                        with warnings.catch_warnings():
+                            warnings.simplefilter("ignore")
+                            res = analyze_general(flight, family_model(family),
+                                                  relay=RelayOptions("mrft") if relay == "mrft" else RelayOptions())
+                    except MrftError:
+                        out["inferred"].append(math.inf)  # a refusal is a miss either way
+                        out["effective"].append(math.inf)
+                        continue
+                    out["inferred"] += held_errors(res, baseline=True)
+                    out["effective"] += held_errors(res)
+    return out
+
+
 def _row(name: str, errs: list[float]) -> str:
     cells = ", ".join("none" if not math.isfinite(e) else f"{100 * e:+.1f} %" for e in errs)
     worst = max(abs(e) for e in errs)
@@ -182,6 +236,8 @@ def _row(name: str, errs: list[float]) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="skip the sopdt and declared-structure analyses")
+    ap.add_argument("--sims", type=int, default=2, help="simulated recordings per family and relay (0: none)")
+    ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     if not FILE.is_file():
         sys.exit(f"needs {FILE} (the KSTAR recording, read in place)")
@@ -225,6 +281,14 @@ def main() -> None:
             und = f", not determined: {', '.join(ident.undetermined)}" if ident is not None and ident.undetermined else ""
             print(f"  {name}: {chi}{und}")
             print(_row("effective relay", held_errors(r)))
+    if args.sims:
+        print(f"4. does the effective level hurt? bench_families' draws ({args.sims} per family and relay: "
+              "MRFT, hysteresis, biased; noise 1-3 %), held-out frequency error per test:")
+        sims = simulated_held_out(args.sims, args.seed)
+        for name, errs in sims.items():
+            e = np.abs(np.array(errs))
+            print(f"  relay {name:<9}: within 10 % {int(np.sum(e <= 0.10))}/{e.size}, median |error| "
+                  f"{100 * np.median(e):.2f} %, 90th percentile {100 * np.quantile(e, 0.9):.2f} %")
     print(f"CPU {time.process_time() - t_start:.0f} s")
 
 

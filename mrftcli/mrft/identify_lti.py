@@ -243,13 +243,11 @@ class _Data:
 
     @classmethod
     def of(cls, points: Sequence[ResponsePoint]) -> _Data:
-        omega = np.array([p.omega for p in points])
-        fundamental = np.array([p.harmonic == 1 for p in points])
+        table = np.array([(p.omega, p.gain, p.phase, p.se_log_gain, p.se_phase, p.harmonic == 1) for p in points])
+        omega, fundamental = table[:, 0], table[:, 5] > 0
         cycles = omega[fundamental] if fundamental.any() else omega
-        return cls(omega, np.log([p.gain for p in points]), np.array([p.phase for p in points]),
-                   1.0 / np.maximum([p.se_log_gain for p in points], _SE_FLOOR[0]),
-                   1.0 / np.maximum([p.se_phase for p in points], _SE_FLOOR[1]),
-                   fundamental, _median(omega), _median(cycles),
+        return cls(omega, np.log(table[:, 1]), table[:, 2], 1.0 / np.maximum(table[:, 3], _SE_FLOOR[0]),
+                   1.0 / np.maximum(table[:, 4], _SE_FLOOR[1]), fundamental, _median(omega), _median(cycles),
                    fundamental if fundamental.any() else omega <= omega.min())
 
 

@@ -23,7 +23,11 @@ columns (``--format csv``: time, u_relay, y_output; a row per sample, flushed ev
 baseline is the finished log read and analysed whole as ``analyze --model fopdt`` does
 (``read_flight`` + ``analyze_general``).
 
-Usage: python benchmarks/bench_watch.py [--runs 2] [--seed N] [--model fopdt [--format mcap|csv]]
+``--replay CSV``: a real recording (the KSTAR files of ../shared/data/real_relay/) written again in
+real time at its own rate (10 kHz), followed with ``watch --model fopdt``; no truth, so the final is
+compared with ``analyze --model fopdt`` on the finished file.
+
+Usage: python benchmarks/bench_watch.py [--runs 2] [--seed N] [--model fopdt [--format mcap|csv]] [--replay CSV]
 """
 
 from __future__ import annotations
@@ -41,6 +45,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # process_sim: the independent simulator
+# one BLAS thread (as the other benchmarks): the segmenter's small per-cycle least-squares fits are several
+# times slower when BLAS threads fight for the shared cores (KSTAR replay: 18 s of CPU instead of 3 s)
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 #: the process plant's CSV columns (a KSTAR-style recording)
 CSV_TOPICS = ("u_relay", "y_output")
@@ -178,9 +186,21 @@ def _write_csv(out: str, t: np.ndarray, u: np.ndarray, y: np.ndarray) -> list:
     return log
 
 
-def _writer(out: str, flushes: str, seed: int, rate_hz: float, model: str, fmt: str) -> None:
-    """Simulate a flight and write it in real time (runs in its own process); the flushes and truth to ``flushes``."""
-    if model == "fopdt" and fmt == "csv":
+def _recorded(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A real recording's time [s], u_relay and y_output columns (the KSTAR files' header)."""
+    with open(path) as fh:
+        names = fh.readline().strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[names.index(n) for n in ("time", *CSV_TOPICS)])
+    return data[:, 0], data[:, 1], data[:, 2]
+
+
+def _writer(out: str, flushes: str, seed: int, rate_hz: float, model: str, fmt: str, replay: str = "") -> None:
+    """Simulate a flight (or replay a recording) and write it in real time (runs in its own process); the
+    flushes and truth to ``flushes``."""
+    if replay:
+        t, u, y = _recorded(replay)
+        log, truth = _write_csv(out, t, u, y), {}
+    elif model == "fopdt" and fmt == "csv":
         t, u, y, truth = _fopdt_recording(seed, rate_hz)
         log = _write_csv(out, t, u, y)
     else:
@@ -246,7 +266,7 @@ def _follow(log: str, model: str, fmt: str, seed: int) -> list:
     return list(watch(log, Tp, read=ReadOptions(loop="altitude"), options=options))
 
 
-def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float]:
+def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float, object]:
     """(read [s], read + analyse [s]) of the finished log whole: what re-running analyze per update costs."""
     from mrftcli.analyze import analyze_flight
     from mrftcli.analyze.general import analyze_general
@@ -257,21 +277,28 @@ def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float
     t0 = time.perf_counter()
     flight = read_flight(log, read, echo_warnings=False)
     t1 = time.perf_counter()
+    result = None
     try:
         if model == "fopdt":
-            analyze_general(flight, family_model("fopdt"))
+            result = analyze_general(flight, family_model("fopdt"))
         else:
-            analyze_flight(flight, truth["Tp"])
+            result = analyze_flight(flight, truth["Tp"])
     except Exception:  # noqa: BLE001 - the baseline's cost is what matters
         pass
-    return t1 - t0, time.perf_counter() - t0
+    return t1 - t0, time.perf_counter() - t0, result
 
 
-def _final_error(updates: list, truth: dict, model: str) -> str:
-    """The final estimate against the truth: tau's error [ms] (eq. (2)); each parameter's [%] and coverage."""
+def _final_error(updates: list, truth: dict, model: str, analysis: object = None) -> str:
+    """The final estimate against the truth: tau's error [ms] (eq. (2)); each parameter's [%] and coverage.
+    A replayed recording has no truth: the final against ``analysis`` (analyze --model on the finished file)."""
     final = [u for u in updates if getattr(u, "final", False)]
     if not final:
         return "no final estimate (" + "; ".join(str(u.error) for u in updates if u.kind == "end") + ")"
+    if not truth:
+        ref = {e.name: e.value for e in analysis.identification.estimates} if analysis is not None else {}
+        same = ref and all(_same(e.value, ref[e.name]) for e in final[0].estimates)
+        return ("final " + ", ".join(f"{e.name} {e.value:.4g} {e.unit}" for e in final[0].estimates)
+                + ("; the same as analyze --model on the finished file" if same else "; NOT analyze --model's"))
     if model != "fopdt":
         return f"final tau error {(final[0].tau - truth['tau']) * 1e3:+.2f} ms"
     parts = []
@@ -281,12 +308,17 @@ def _final_error(updates: list, truth: dict, model: str) -> str:
     return "final " + ", ".join(parts)
 
 
-def run(seed: int, rate_hz: float, model: str = "soiptd", fmt: str = "mcap") -> dict:
+def _same(a: float, b: float) -> bool:
+    """Equal within a relative 1e-9 (the same numbers, whatever the last bits)."""
+    return abs(a - b) <= 1e-9 * max(abs(a), abs(b))
+
+
+def run(seed: int, rate_hz: float, model: str = "soiptd", fmt: str = "mcap", replay: str = "") -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         log = os.path.join(tmp, f"live.{fmt}")
         flushes = os.path.join(tmp, "flushes.json")
         proc = subprocess.Popen([sys.executable, __file__, "--writer", log, flushes, str(seed), str(rate_hz), model,
-                                 fmt])
+                                 fmt, replay])
         try:
             updates = _follow(log, model, fmt, seed)
         finally:
@@ -294,9 +326,9 @@ def run(seed: int, rate_hz: float, model: str = "soiptd", fmt: str = "mcap") -> 
         info = json.loads(Path(flushes).read_text())
         disk = (_on_disk(log, info["flushes"]) if fmt == "mcap"
                 else [(t_newest, wall) for _, t_newest, wall in info["flushes"]])  # whole rows: on disk when flushed
-        reread, reread_analyze = _baseline(log, model, fmt, info["truth"])
+        reread, reread_analyze, analysis = _baseline(log, model, fmt, info["truth"])
         return {"seed": seed, "rate_hz": rate_hz, "latency": _latencies(updates, disk), "reread_s": reread,
-                "reread_analyze_s": reread_analyze, "final": _final_error(updates, info["truth"], model)}
+                "reread_analyze_s": reread_analyze, "final": _final_error(updates, info["truth"], model, analysis)}
 
 
 def main() -> None:
@@ -307,17 +339,23 @@ def main() -> None:
                     help="soiptd: eq. (2) (watch); fopdt: a process plant (watch --model fopdt)")
     ap.add_argument("--format", dest="fmt", choices=("mcap", "csv"), default="mcap",
                     help="how the recorder writes (csv: --model fopdt only)")
+    ap.add_argument("--replay", metavar="CSV", default="",
+                    help="replay a real recording (columns time, u_relay, y_output: the KSTAR files) in real time "
+                         "instead of simulating (implies --model fopdt --format csv --runs 1)")
     args = ap.parse_args()
+    if args.replay:
+        args.model, args.fmt, args.runs = "fopdt", "csv", 1
     if args.fmt == "csv" and args.model != "fopdt":
         ap.error("--format csv is for --model fopdt (eq. (2)'s recorder writes MCAP)")
     seed0 = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % 100000)
     rates = [100.0, 50.0, 200.0] if args.model == "fopdt" else [200.0, 100.0, 250.0]
     all_lat = []
     for r in range(args.runs):
-        res = run(seed0 + r, rates[r % len(rates)], args.model, args.fmt)
+        res = run(seed0 + r, rates[r % len(rates)], args.model, args.fmt, args.replay)
         lat = np.array(res["latency"])
         all_lat.extend(lat.tolist())
-        print(f"seed {res['seed']}  {res['rate_hz']:.0f} Hz  updates {lat.size}  latency median "
+        rate = "replayed at its own rate" if args.replay else f"{res['rate_hz']:.0f} Hz"
+        print(f"seed {res['seed']}  {rate}  updates {lat.size}  latency median "
               f"{np.median(lat) * 1e3:.0f} ms  p90 {np.percentile(lat, 90) * 1e3:.0f} ms  max {lat.max() * 1e3:.0f} ms  "
               f"| whole-file re-read {res['reread_s'] * 1e3:.0f} ms, + analyze {res['reread_analyze_s'] * 1e3:.0f} ms "
               f"({res['reread_analyze_s'] / np.median(lat):.1f}x the median latency)  {res['final']}"
@@ -331,6 +369,7 @@ def main() -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--writer":
-        _writer(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]), sys.argv[6], sys.argv[7])
+        _writer(sys.argv[2], sys.argv[3], int(sys.argv[4]), float(sys.argv[5]), sys.argv[6], sys.argv[7],
+                sys.argv[8])
     else:
         main()

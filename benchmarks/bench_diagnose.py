@@ -216,6 +216,8 @@ def run_case(case: dict) -> dict:
         out["found"] = [e.name for e in res.effects]
         out["unexplained"] = res.unexplained is not None
         out["where"] = res.unexplained.largest if res.unexplained is not None else None
+        # a mode found ringing (or ringing above the fitted harmonics): what a library flight must not show
+        out["resonance"] = (out["where"] or {}).get("feature") in ("ringing_after_switches", "residual_above_harmonics")
         out["cycles_used"] = [t.cycles for t in res.tests]
         out["values"] = {e.name: e.parameters.get(PARAM.get(e.name, ""), float("nan")) for e in res.effects}
         out["nrmse"] = {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects}
@@ -306,6 +308,10 @@ def main() -> None:
     if clean:
         print(f"{'clean':<20} {len(clean):>3} kept clean {_pct(len(kept), len(clean))}: "
               + str([(r.get("found"), r.get("unexplained"), r.get("error")) for r in clean if r not in kept]))
+    library = [r for r in results if r["effect"] not in (None, OUTSIDE)]
+    called = [r for r in library + clean if r.get("resonance")]
+    print(f"library and clean flights called a resonance: {len(called)}/{len(library) + len(clean)} "
+          + str([(r["effect"], r["where"]["what"]) for r in called]))
     pair_rs = [r for r in results if r["effect"] and "+" in r["effect"]]
     if pair_rs:
         both = sum(set(r.get("found") or []) == set(r["true_values"]) for r in pair_rs)

@@ -50,6 +50,8 @@ _F_STEP = 0.01
 
 #: the template's amplitude against the physics' (a mode is not 5 % of a resonance)
 _ALPHA = (0.5, 2.0)
+#: how many standard errors the fitted amplitude may lie outside :data:`_ALPHA`
+_ALPHA_Z = 3.0
 
 
 @dataclass(frozen=True)
@@ -240,14 +242,18 @@ def fit_ringing(rows: list[SwitchHarmonics]) -> RingingFit | None:
     ok = den >= MIN_TEMPLATE_CHI2
     if not ok.any():
         return None
+    trials = int(ok.sum())
     alpha_hat = np.where(ok, num / np.where(ok, den, 1.0), 0.0)
     alpha = np.clip(alpha_hat, *_ALPHA)
+    # a template is the physics only where the data allow its amplitude: alpha_hat within
+    # _ALPHA_Z standard errors (1 / sqrt(den)) of the physical range (a lag's or a slew's broad
+    # attenuation fits a strong template at a third of its amplitude: not a mode)
+    ok &= (alpha - alpha_hat) ** 2 * den <= _ALPHA_Z**2
     drop = np.where(ok & (alpha_hat > 0), den * (2.0 * alpha_hat * alpha - alpha * alpha), 0.0)
     i, j = np.unravel_index(int(np.argmax(drop)), drop.shape)
     total = sum(float(np.sum(np.abs(r.residual) ** 2 * r.weight[:, None])) for r in rows)
     dof = sum(2 * r.residual.size for r in rows)
     dispersion = max(1.0, (total - float(drop[i, j])) / max(dof - 3, 1))
-    trials = int(ok.sum())
     score = float(drop[i, j]) / dispersion
     p = min(1.0, float(chi2_dist.sf(score, 1)) * trials)
     tests = [r.test for r, nt in zip(rows, per_test[:, i, j]) if nt > 0]

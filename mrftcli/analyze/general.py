@@ -450,6 +450,61 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
     return HeldOut(lc.frequency_hz, lc.amplitude, note)
 
 
+@dataclass(frozen=True)
+class _MeasuredTest:
+    """One test through screening, its relay and its response points (a stage of :func:`analyze_general`)."""
+
+    summary: TestSummary | None
+    points: tuple[ResponsePoint, ...] = ()
+    rejected: tuple[int, float, float, str] | None = None
+
+
+def _find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> list[MrftTest]:
+    """The relay tests of each window (a window without one is skipped; no window: the log's, or the error)."""
+    found: list[MrftTest] = []
+    for part in flight_windows(flight, windows):
+        try:
+            found += segment(part)
+        except SegmentationError:
+            if not windows:
+                raise
+    return found
+
+
+def _measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_stable_cycles: int) -> _MeasuredTest:
+    """Screen one test; a usable one gets its relay (as inferred and effective) and its response points."""
+    chattered = chattering_cycles(test, min_stable_cycles)
+    test = chattered or test
+    reason, notes = _screen(test, min_stable_cycles)
+    if chattered is not None:
+        notes += ("the relay chatters at its switches (it switches on the noise near the crossing): "
+                  "the cycles are used with the logged command's own harmonics; a hysteresis of a few "
+                  "noise standard deviations avoids it",)
+    fits = cycle_fits(flight, test) if not reason else ()
+    pts = response_points(flight, test, fits=fits) if not reason else ()
+    if not reason and not any(p.harmonic == 1 for p in pts):
+        reason = "no cycle long enough to measure its fundamental"
+    if reason:
+        return _MeasuredTest(None, (), (test.index, test.t_start, test.t_end, reason))
+    law = infer_relay(test, relay.kind, relay.beta, relay.eps)
+    level = switching_level(fits)
+    summary = TestSummary(test.index, test.t_start, test.t_end, law, float(test.frequency_hz_mean),
+                          float(test.amplitude_mean), test.n_stable, len(test.cycles),
+                          float(test.controller_rate_hz or test.rate_hz), float(test.beta_effective), notes,
+                          switching=level, effective_relay=effective_relay(law, level, test))
+    return _MeasuredTest(summary, pts)
+
+
+def _no_usable_test(rejected: Sequence[tuple[int, float, float, str]]) -> SegmentationError:
+    """The error naming why each test was left out."""
+    reasons: dict[str, list[str]] = {}
+    for i, _, _, r in rejected:
+        reasons.setdefault(r, []).append(str(i + 1))
+    return SegmentationError("no usable relay test: " + ("; ".join(f"test(s) {', '.join(ix)}: {r}"
+                                                                   for r, ix in reasons.items())
+                                                         or "no relay switching found"))
+
+
 def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions = RelayOptions(),
                     windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> GeneralAnalysis:
     """Identify ``model``'s unknown parameters from the relay tests of a flight (module docstring).
@@ -473,48 +528,14 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
         No usable relay test.
     """
     t0 = log_start(flight)
-    found: list[MrftTest] = []
-    for part in flight_windows(flight, windows):
-        try:
-            found += segment(part)
-        except SegmentationError:
-            if not windows:
-                raise
-    tests: list[TestSummary] = []
-    rejected: list[tuple[int, float, float, str]] = []
-    points: list[ResponsePoint] = []
-    notes: list[str] = []
-    for i, test in enumerate(found):
-        test = dataclasses.replace(test, index=i)
-        chattered = chattering_cycles(test, min_stable_cycles)
-        test = chattered or test
-        reason, test_notes = _screen(test, min_stable_cycles)
-        if chattered is not None:
-            test_notes += ("the relay chatters at its switches (it switches on the noise near the crossing): "
-                           "the cycles are used with the logged command's own harmonics; a hysteresis of a few "
-                           "noise standard deviations avoids it",)
-        fits = cycle_fits(flight, test) if not reason else ()
-        pts = response_points(flight, test, fits=fits) if not reason else ()
-        if not reason and not any(p.harmonic == 1 for p in pts):
-            reason = "no cycle long enough to measure its fundamental"
-        if reason:
-            rejected.append((i, test.t_start, test.t_end, reason))
-            continue
-        law = infer_relay(test, relay.kind, relay.beta, relay.eps)
-        level = switching_level(fits)
-        tests.append(TestSummary(i, test.t_start, test.t_end, law, float(test.frequency_hz_mean),
-                                 float(test.amplitude_mean), test.n_stable, len(test.cycles),
-                                 float(test.controller_rate_hz or test.rate_hz), float(test.beta_effective),
-                                 test_notes, switching=level, effective_relay=effective_relay(law, level, test)))
-        points += pts
-        notes += [f"test {len(tests)}: {n}" for n in test_notes]
+    measured = [_measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
+                for i, test in enumerate(_find_tests(flight, windows))]
+    tests = [m.summary for m in measured if m.summary is not None]
+    rejected = [m.rejected for m in measured if m.rejected is not None]
+    points = [p for m in measured for p in m.points]
+    notes = [f"test {k}: {n}" for k, t in enumerate(tests, 1) for n in t.notes]
     if not tests:
-        reasons: dict[str, list[str]] = {}
-        for i, _, _, r in rejected:
-            reasons.setdefault(r, []).append(str(i + 1))
-        raise SegmentationError("no usable relay test: " + ("; ".join(f"test(s) {', '.join(ix)}: {r}"
-                                                                      for r, ix in reasons.items())
-                                                            or "no relay switching found"))
+        raise _no_usable_test(rejected)
     if any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests):
         notes.insert(0, "assumed: each relay's bias is balanced by the loop's operating point (the cycle is "
                         "taken about its centre); the response points do not depend on it")

@@ -462,6 +462,25 @@ def test_terminal_marks_the_one_recommended_estimate_with_units():
     assert "the model to use" in clean and "<- the estimate to use" not in clean
 
 
+def test_terminal_states_a_mode_found_ringing_with_its_frequency_and_p_value():
+    # the ringing's unexplained answer has no held-out feature chi^2 (it is judged on the residual
+    # above the fitted harmonics): the terminal says its frequency, damping and p-value (it raised a
+    # TypeError on the None before)
+    from mrftcli.cli.diagnose import format_summary
+    from mrftcli.diagnose.resonance import ringing_answer
+    from mrftcli.diagnose.ringing import RingingFit
+
+    fit = RingingFit(frequency_hz=12.06, damping=0.05, amplitude=0.98, chi2_drop=149.3, template_chi2=154.4,
+                     dispersion=1.0, trials=358, p_value=8.6e-32, tests=[0, 1, 2], rms=1.4e-4)
+    answer = ringing_answer(fit, "linear")
+    assert answer.tests == [1, 2, 3] and answer.largest["feature"] == "ringing_after_switches"
+    text = format_summary(replace(_small_result(), effects=[], unexplained=answer))
+    (line,) = [x for x in text.splitlines() if x.startswith("unexplained:")]
+    assert "a ringing after every relay switch at 12.1 Hz, damping 0.05" in line and line.endswith("(p = 8.6e-32)")
+    low = ringing_answer(replace(fit, at_lowest=True), "linear")
+    assert "at or below 12.1 Hz" in low.what and "damping" not in low.what.split("(")[0]
+
+
 def test_report_refuses_a_result_without_figures(tmp_path):
     from mrftcli.report.diagnosis import write_diagnosis_report
 

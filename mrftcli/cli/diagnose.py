@@ -129,8 +129,10 @@ def format_summary(result: DiagnosisResult) -> str:
         lines.append("found: nothing: the linear model explains the log")
     if result.unexplained is not None:
         u = result.unexplained
-        lines.append(f"unexplained: {u.what} (held-out chi^2 {u.held_out_feature_chi2:.0f} over "
-                     f"{u.held_out_features} features, p = {u.p_value:.2g})")
+        # a mode ringing above the fitted harmonics is judged on the residual, not the held-out features
+        held = ("" if u.held_out_feature_chi2 is None else
+                f"held-out chi^2 {u.held_out_feature_chi2:.0f} over {u.held_out_features} features, ")
+        lines.append(f"unexplained: {u.what} ({held}p = {u.p_value:.2g})")
     feats = [loc for loc in result.located if loc.kind == "feature"][:4]
     if feats:
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")

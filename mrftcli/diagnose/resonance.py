@@ -30,7 +30,7 @@ from .records import Unexplained
 from .ringing import RINGING_P, RingingFit, fit_ringing, switch_harmonics
 
 __all__ = ["RESONANCE_P", "BAND_HZ", "PeriodicResidual", "BandExcess", "periodic_residual", "band_excess",
-           "resonance_mismatch"]
+           "resonance_mismatch", "ringing_answer"]
 
 #: p-value below which the folded residual is not noise (strict: a clean log must stay clean)
 RESONANCE_P = 1e-6
@@ -190,7 +190,7 @@ def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str
     if plant is not None:
         ringing = fit_ringing([r for r in (switch_harmonics(flight, t, plant) for t in tests) if r is not None])
         if ringing is not None and ringing.p_value < RINGING_P:
-            return _ringing_answer(ringing, after)
+            return ringing_answer(ringing, after)
     rows = [r for r in (periodic_residual(flight, t) for t in tests) if r is not None]
     band = band_excess(rows)
     if band is None or band.p_value >= RESONANCE_P:
@@ -220,7 +220,7 @@ def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str
     )
 
 
-def _ringing_answer(fit: RingingFit, after: str) -> Unexplained:
+def ringing_answer(fit: RingingFit, after: str) -> Unexplained:
     """The ``unexplained`` answer of a mode found ringing after the switches (its frequency and damping)."""
     f, zeta = fit.frequency_hz, fit.damping
     at = f"at or below {f:.1f} Hz" if fit.at_lowest else f"at {f:.1f} Hz, damping {zeta:.2f}"

@@ -59,7 +59,9 @@ def robust_sigma(x: np.ndarray) -> float:
     x = np.asarray(x, dtype=float)
     if x.size == 0:
         return 0.0
-    return float(_MAD_TO_SIGMA * np.median(np.abs(x - np.median(x))))
+    dev = x - np.median(x)
+    np.abs(dev, out=dev)  # in place, and the median may reorder it: one temporary, not three
+    return float(_MAD_TO_SIGMA * np.median(dev, overwrite_input=True))
 
 
 def find_relay_runs(
@@ -137,14 +139,18 @@ def _flat_runs(c: NDArray[np.float64], jump_sigmas: float, min_run_samples: int)
     """Cut the command at its jumps and keep the flat pieces (step 1 of :func:`find_relay_runs`)."""
     n = c.size
     d = np.diff(c)
-    scale = float(np.max(np.abs(c))) if n else 1.0
+    scale = float(max(np.max(c), -np.min(c))) if n else 1.0  # max |c| without a copy of |c|
     thr = max(jump_sigmas * robust_sigma(d), 1e-9 * (scale + 1e-12))
+    np.abs(d, out=d)  # only the steps' sizes from here (in place: 8 bytes a sample on a 14-hour log)
     # A bias inside the command that moves (HEAR's 50-sample median of the PID output) steps by a
     # little at most samples: such steps, under 5 % of the largest change within +-1000 samples (a
     # relay switch nearby), are not switches, or they would split every half-period into short runs.
-    local = maximum_filter1d(np.abs(d), size=2001, mode="nearest")
-    small = (np.abs(d) > thr) & (np.abs(d) <= _SMALL_STEP * local)
-    cut = np.flatnonzero((np.abs(d) > thr) & ~small) + 1
+    local = maximum_filter1d(d, size=2001, mode="nearest")
+    local *= _SMALL_STEP
+    big = d > thr
+    small = big & (d <= local)
+    del local
+    cut = np.flatnonzero(big & ~small) + 1
     starts = np.concatenate(([0], cut))
     stops = np.concatenate((cut, [n]))
     lengths = stops - starts
@@ -278,13 +284,20 @@ def tick_numbers(t: np.ndarray) -> np.ndarray | None:
     t = np.asarray(t, dtype=float)
     if t.size < 8:
         return None
-    dt0 = np.median(np.diff(t))
+    steps = np.diff(t)
+    dt0 = np.median(steps)
     if not dt0 > 0:
         return None
-    steps = np.diff(t) / dt0
-    if np.all(np.abs(steps - np.rint(steps)) < 0.05):
+    # in place: a 14-hour log holds tens of millions of stamps, and each temporary is 8 bytes a stamp
+    steps /= dt0
+    whole = np.rint(steps)
+    if _all_near(steps, whole, 0.05):
         # clean clock (no jitter to speak of): counting intervals cannot slip
-        return np.concatenate(([0.0], np.cumsum(np.maximum(np.rint(steps), 1.0))))
+        ticks = np.empty(t.size)
+        ticks[0] = 0.0
+        np.cumsum(np.maximum(whole, 1.0, out=whole), out=ticks[1:])
+        return ticks
+    del steps, whole
     tr = t - t[0]
     dt = dt0
     sub = np.unique(np.linspace(0, t.size - 1, min(t.size, 400)).astype(int))  # the span matters, not n
@@ -431,10 +444,30 @@ def _floor_fit(t: np.ndarray, n: np.ndarray) -> SendTimes | None:
 
 def _grid_fit(t: np.ndarray, n: np.ndarray, max_residual: float) -> tuple[np.ndarray, bool]:
     """``t0 + dt n`` fitted to the times ``t`` [s] of sample numbers ``n`` by least squares, when every
-    time lies within ``max_residual`` periods of it; else ``t`` unchanged (and False)."""
-    A = np.vstack([np.ones_like(n), n]).T
-    (t0, dt), *_ = np.linalg.lstsq(A, t, rcond=None)
-    fit = t0 + dt * n
-    if dt > 0 and np.max(np.abs(t - fit)) <= max_residual * dt:
+    time lies within ``max_residual`` periods of it; else ``t`` unchanged (and False).
+
+    The straight line's closed form about the means rather than :func:`numpy.linalg.lstsq` on the
+    design matrix [1, n]: the same fit (to rounding) with two work arrays instead of the matrix, its
+    copy and the solver's workspace (about 48 bytes a sample on a 14-hour log, benchmarks/bench_large.py).
+    """
+    n_mean, t_mean = float(n.mean()), float(t.mean())
+    dn = n - n_mean
+    e = t - t_mean
+    dt = float(np.dot(dn, e) / np.dot(dn, dn))
+    del e
+    dn *= dt  # dn becomes the fit about the mean time
+    dn += t_mean
+    fit = dn
+    if dt > 0 and _max_abs_diff(t, fit) <= max_residual * dt:
         return fit, True
     return t, False
+
+
+def _all_near(a: np.ndarray, b: np.ndarray, tol: float, block: int = 1 << 20) -> bool:
+    """``all(|a - b| < tol)`` in blocks (no full-length temporary)."""
+    return all(bool((np.abs(a[i:i + block] - b[i:i + block]) < tol).all()) for i in range(0, a.size, block))
+
+
+def _max_abs_diff(a: np.ndarray, b: np.ndarray, block: int = 1 << 20) -> float:
+    """``max(|a - b|)`` in blocks (no full-length temporary); 0 for empty arrays."""
+    return max((float(np.abs(a[i:i + block] - b[i:i + block]).max()) for i in range(0, a.size, block)), default=0.0)

@@ -190,9 +190,14 @@ def _test_clock(chain: list[RelayRun], t_cmd: FloatArray, rate_all: float | None
     # Regularise the command times locally (a margin of a few samples around the test).
     j0, j1 = max(i0 - 4, 0), min(i1 + 4, t_cmd.size)
     t_loc, regularised = regularise_times(t_cmd[j0:j1])
-    tc = np.array(t_cmd, copy=True)
-    tc[j0:j1] = t_loc
-    dt_nom = float(np.median(np.diff(t_cmd[j0:j1])))
+    if j0 == 0 and j1 == t_cmd.size:
+        tc = t_loc  # the test spans the log (a 14-hour test): no second full-length copy
+    else:
+        tc = np.array(t_cmd, copy=True)
+        tc[j0:j1] = t_loc
+    del t_loc
+    # the median of a temporary may reorder it in place (no copy of 8 bytes a sample)
+    dt_nom = float(np.median(np.diff(t_cmd[j0:j1]), overwrite_input=True))
     rate = 1.0 / dt_nom if dt_nom > 0 else (float("nan") if rate_all is None else rate_all)
     # the controller's period when the logger sub-samples it (0: not known, or not sub-sampled)
     ctrl = controller_rate_hz if controller_rate_hz and controller_rate_hz > 1.5 * rate else None
@@ -282,8 +287,9 @@ def _measured_cycles(sw: _Switches, win: _Window, sign: int, clock: _Clock, crit
     t_up = sw.t[sw.up]
     few = False
     if t_up.size > 1 and win.t.size > 2:
-        few = bool(np.max(np.diff(t_up)) / np.median(np.diff(win.t)) < 72)
-    cycles = measure_cycles(sw.t, sw.up, sw.flags, win.t, sign * win.y, 1.0 / clock.rate_hz, sw.h, few_samples=few)
+        few = bool(np.max(np.diff(t_up)) / np.median(np.diff(win.t), overwrite_input=True) < 72)
+    y = win.y if sign > 0 else -win.y  # not sign * y: no full-length copy when the sign is +1
+    cycles = measure_cycles(sw.t, sw.up, sw.flags, win.t, y, 1.0 / clock.rate_hz, sw.h, few_samples=few)
     return _mark_stable(cycles, 1.0 / clock.rate_hz, criterion)
 
 

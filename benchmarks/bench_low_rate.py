@@ -68,7 +68,8 @@ for k in range(N):
                                options=AnalyzeOptions(n_bootstrap=200, seed=1, controller_rate_hz=50.0))
         except Exception as e:  # a failure counts as a miss
             fail[lr].append(type(e).__name__)
-            row.append(f"{lr} Hz: {type(e).__name__} |")
+            # what the user is told, after the path: the refusal's reason
+            row.append(f"{lr} Hz: {type(e).__name__}: {str(e).split(': ', 1)[-1][:160]} |")
             continue
         both[lr] += len(r.tests) == len(BETAS)
         spc = [f"{t.rate_hz / t.frequency_hz_mean:.1f}" for t in r.tests]

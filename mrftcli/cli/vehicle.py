@@ -118,7 +118,8 @@ def _export_text(result: VehicleResult, stack: str) -> str:
                                  "export them one at a time with tune")
             params[key] = value
     first = next(iter(exports.values()))
-    merged = dataclasses.replace(first, loop=", ".join(exports), params=params)
+    merged = dataclasses.replace(first, loop=", ".join(exports), params=params,
+                                 assumptions=tuple(f"{n}: {a}" for n, e in exports.items() for a in e.assumptions))
     return merged.file_text()
 
 

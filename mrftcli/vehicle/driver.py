@@ -289,4 +289,7 @@ def _tuned(result: AnalysisResult,
         gains = tune_loop(result, options.tune)
     except MrftError as err:
         return None, (), (f"not tuned: {' '.join(str(err).split())}",)
-    return gains, tuple(n for n in gains.tune.notes if n == RATE_ASSUMED_NOTE), ()
+    # what the gains rest on that the log cannot show: an assumed rate, an export's (ArduPilot altitude's split of tau)
+    stated = (*(n for n in gains.tune.notes if n == RATE_ASSUMED_NOTE),
+              *(gains.export.assumptions if gains.export is not None else ()))
+    return gains, stated, ()

@@ -42,13 +42,15 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # process_sim: the independent simulator
-# one BLAS thread (as the other benchmarks): the segmenter's small per-cycle least-squares fits are several
-# times slower when BLAS threads fight for the shared cores (KSTAR replay: 18 s of CPU instead of 3 s)
+# one BLAS thread, set before numpy is imported (OpenBLAS reads it when it loads; later it has no effect):
+# the segmenter's small per-cycle least-squares fits cost several times the CPU when BLAS threads fight
+# for the shared cores (the KSTAR replay in-process: 19 s of CPU with the default threads, 3 s with one)
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # process_sim: the independent simulator
 
 #: the process plant's CSV columns (a KSTAR-style recording)
 CSV_TOPICS = ("u_relay", "y_output")

@@ -14,7 +14,7 @@ from mrftcli.mrft.model import LoopModel
 from mrftcli.tune.ardupilot_z import design_z_cascade, split_grid
 from mrftcli.tune.closed_loop import Controller, RateFilter
 from mrftcli.tune.stack_params import STACK_PARAMS, check_ranges, param
-from mrftcli.tune.stacks import check_exportable, export_design
+from mrftcli.tune.stacks import check_exportable, export_design, stack_setting
 
 #: tau 40 ms at 200 Hz: every split of the grid is whole ticks, so the simulation below needs no sub-steps
 MODEL = LoopModel(0.0422, 2.669, 0.040, 19.62)
@@ -36,6 +36,8 @@ def test_refusals_name_the_option_and_the_units():
     assert "\n" not in str(err.value)
     with pytest.raises(InputError, match="x loop"):
         check_exportable("ardupilot", "x", "PD", 0.5)
+    with pytest.raises(InputError, match="outside SCHED_LOOP_RATE's range 50-400 Hz"):
+        stack_setting("ardupilot", "altitude", None, 25.0, None)  # ArduPilot runs no loop below 50 Hz
 
 
 def test_psc_ranges_are_vendored_with_their_source():

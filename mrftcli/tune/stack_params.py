@@ -47,6 +47,7 @@ _AP_INS = "ArduPilot/ardupilot libraries/AP_InertialSensor/AP_InertialSensor.cpp
 _AP_PSC = ("ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_PosControl.cpp (@Range and the constructor's defaults; "
            "Copter 4.x, _VELZ_ an AC_PID_Basic; @46d6887e)")
 _AP_MOT = "ArduPilot/ardupilot libraries/AP_Motors/AP_MotorsMulticopter.cpp (@Range; commit not pinned)"
+_AP_SCHED = "ArduPilot/ardupilot libraries/AP_Scheduler/AP_Scheduler.cpp (@Range 50 400; commit not pinned)"
 
 #: PX4's ``IMU_GYRO_RATEMAX`` choices [Hz]: the rate controller's loop rate (imu_gyro_parameters.yaml).
 PX4_GYRO_RATES_HZ = (100.0, 250.0, 400.0, 800.0, 1000.0, 2000.0)
@@ -152,6 +153,7 @@ def _rows() -> tuple[StackParam, ...]:
         ("PSC_ACCZ_FLTE", 1.0, 100.0, "Hz", 20.0, _AP_PSC, True),
         ("PSC_ACCZ_FLTD", 1.0, 100.0, "Hz", 0.0, _AP_PSC, True),
         ("MOT_THST_HOVER", 0.2, 0.8, "throttle 0-1", math.nan, _AP_MOT, False),
+        ("SCHED_LOOP_RATE", 50.0, 400.0, "Hz", math.nan, _AP_SCHED, False),
     ]
     rows = [StackParam("px4", n, lo, hi, u, d, src) for n, lo, hi, u, d, src in px4]
     rows += [StackParam("ardupilot", n, lo, hi, u, d, src, v) for n, lo, hi, u, d, src, v in ap]

@@ -115,6 +115,17 @@ def _px4_rate(rate_given: float | None, rate_source: float | None) -> tuple[floa
                   "(--rate to choose another)")
 
 
+def _ardupilot_rate(rate: float | None) -> float:
+    """ArduPilot's main loop rate [Hz] (``SCHED_LOOP_RATE``, 50-400 Hz), at which its loops run."""
+    if rate is None:
+        raise InputError("give --controller-rate HZ, ArduPilot's main loop rate (SCHED_LOOP_RATE, 50-400 Hz)")
+    row = param("ardupilot", "SCHED_LOOP_RATE")
+    if not row.contains(rate):
+        raise InputError(f"the design rate {rate:g} Hz is outside SCHED_LOOP_RATE's range {row.minimum:g}-"
+                         f"{row.maximum:g} Hz (AP_Scheduler.cpp): give --controller-rate HZ within it")
+    return rate
+
+
 def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: float | None,
                   gyro_cutoff_hz: float | None) -> StackSetting:
     """The rate and rate filter ``stack`` runs for ``loop``, and the notes that state them.
@@ -133,10 +144,7 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
                  f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --rate to change)"),)
         return StackSetting(stack, rate, RateFilter(HEAR_FILTER_HZ, "HEAR_FC rate filter"), notes)
     if stack == "ardupilot" and loop == "altitude":
-        rate = rate_given or rate_source
-        if rate is None:
-            raise InputError("give --rate HZ, ArduPilot's main loop rate (SCHED_LOOP_RATE), at which AC_PosControl "
-                             "runs the z cascade")
+        rate = _ardupilot_rate(rate_given or rate_source)
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
             f"ArduPilot altitude: designed at {rate:g} Hz: set SCHED_LOOP_RATE to it (AC_PosControl runs the z "
             "cascade every main-loop tick)",))
@@ -157,9 +165,7 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
     if stack == "px4":
         rate, rate_note = _px4_rate(rate_given, rate_source)
     else:
-        rate = rate_given or rate_source
-        if rate is None:
-            raise InputError("give --rate HZ, ArduPilot's main loop rate (SCHED_LOOP_RATE)")
+        rate = _ardupilot_rate(rate_given or rate_source)
         rate_note = f"designed at {rate:g} Hz: set SCHED_LOOP_RATE to it"
     return StackSetting(stack, rate, RateFilter(cutoff, name), (rate_note, said))
 

@@ -377,7 +377,9 @@ def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: boo
                         notes: list[str]) -> StackExport:
     """ArduPilot's z cascade for the PD ``c`` (:func:`mrftcli.tune.ardupilot_z.design_z_cascade`), its values
     checked against the vendored ranges, its margins the worst over the splits of tau."""
-    from .ardupilot_z import THROTTLE_CUTOFF_HZ, check_units, design_z_cascade, split_assumption
+    from dataclasses import replace
+
+    from .ardupilot_z import THROTTLE_CUTOFF_HZ, cascade_figures, check_units, design_z_cascade, split_assumption
 
     check_units(model, hover_thrust)
     z, clamped = design_z_cascade(c, model, clamp=clamp)
@@ -388,6 +390,9 @@ def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: boo
         raise InputError("cannot export to ardupilot: " + "; ".join(v.message() for v in bad))
     w, split = z.figures.worst(), z.figures.worst_split()
     tried = ", ".join(f"{p:g}: {g:.2f}" for p, g in z.tried)
+    # what ArduPilot's usual integral would cost this loop (said, not exported)
+    with_i = replace(z.gains, acc_i=2.0 * z.gains.acc_p)
+    ms_i = cascade_figures(with_i, [model], z.figures.splits).worst().Ms
     notes = [*notes, *clamp_notes,
              f"the cascade keeps {100 * z.kept:.0f} % of the {design}'s loop gain (PSC_ACCZ_P {z.gains.acc_p:g}; kept "
              f"per PSC_ACCZ_P tried: {tried}) with Ms <= {z.ms_target:.3g}, the PD's own on the nominal model, on every "
@@ -398,8 +403,8 @@ def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: boo
              "written; PSC_ACCZ_FLTT and _FLTD are not written (ArduPilot's default 0, off, is below their "
              "documented 1 Hz; the design runs with FLTT off; _FLTD is unused with _D 0)",
              f"PSC_VELZ_I = {z.gains.vel_i:g} (its documented minimum) and PSC_ACCZ_I = 0: the design is a PD; "
-             "ArduPilot's default PSC_ACCZ_I = 2 x PSC_ACCZ_P corrects a wrong MOT_THST_HOVER but adds phase lag "
-             "the margins above do not include",
+             f"ArduPilot's usual PSC_ACCZ_I = 2 x PSC_ACCZ_P ({with_i.acc_i:g}) corrects a wrong MOT_THST_HOVER "
+             f"but would make the worst Ms {ms_i:.3g}",
              f"MOT_THST_HOVER = {hover_thrust:g} (--hover-thrust; not written, ArduPilot learns it): K "
              f"{model.K:.4g} m/s^2 per throttle unit against g / MOT_THST_HOVER = {STANDARD_GRAVITY / hover_thrust:.4g}; "
              "the log's command is taken as the throttle after the 2 Hz filter (an MRFT at the mixer); for a test "

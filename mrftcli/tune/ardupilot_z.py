@@ -47,7 +47,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 
@@ -67,7 +66,6 @@ THROTTLE_CUTOFF_HZ = 2.0
 ACCZ_P_CANDIDATES = (0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.5)
 #: K hover / g may differ from 1 by this factor before the command is refused as not ArduPilot's throttle.
 UNIT_TOLERANCE = 2.0
-_G = 9.80665
 #: Bisection steps on log g between two scan points (to 0.15 %).
 _STEPS = 8
 #: Points of the downward scan of g over its range.
@@ -341,13 +339,6 @@ class ZCascadeDesign:
     tau: float
     tried: tuple[tuple[float, float], ...]
 
-    def summary(self) -> dict[str, Any]:
-        """The design's choice as JSON values (the export record's notes say it in words)."""
-        w = self.figures.worst()
-        return {"kept": self.kept, "ms_target": self.ms_target, "splits": len(self.figures.splits),
-                "worst_split": self.figures.worst_split().describe(), "worst": w.to_json(),
-                "tried": [{"PSC_ACCZ_P": p, "kept": k} for p, k in self.tried]}
-
 
 def split_assumption(tau: float, n_splits: int) -> str:
     """The stated assumption (first lines of the output and the JSON)."""
@@ -406,7 +397,9 @@ def _largest_g(pz: float, v_full: float, pa: float, check: _Check, g_range: tupl
 
 def check_units(model: LoopModel, hover_thrust: float) -> None:
     """InputError unless K is about g / hover (the command is ArduPilot's throttle 0-1, the output metres)."""
-    expected = _G / hover_thrust
+    from .stacks import STANDARD_GRAVITY
+
+    expected = STANDARD_GRAVITY / hover_thrust
     if not (1.0 / UNIT_TOLERANCE <= model.K / expected <= UNIT_TOLERANCE):
         raise InputError(f"cannot export the altitude loop to ardupilot: K {model.K:.4g} m/s^2 per command unit is "
                          f"not near g / MOT_THST_HOVER = {expected:.4g} (--hover-thrust {hover_thrust:g}): the log's "

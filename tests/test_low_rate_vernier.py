@@ -170,3 +170,19 @@ def test_the_switching_lag_drawn_into_the_bootstrap_keeps_td_where_the_tests_put
         est = getattr(r, name)
         assert est.ci95_low <= value <= est.ci95_high, (name, est)
     assert r.Td.ci95_low > 0.25 * truth["Td"] and r.tau.ci95_low > 0.0
+
+
+def test_the_noise_of_a_folded_test_is_the_sensors_and_an_output_that_is_not_the_loops_stays_refused(flight, ten_hz):
+    # the validity check's SNR divides by the scatter about each cycle's own fit (as at the
+    # controller's rate), not about the fold: a wandering orbit's cycle-to-cycle change is the limit
+    # cycle's, and counted as noise it refused a clean test ("3x the noise, need 3x")
+    fast = ten_hz[0]
+    assert fast.validity.ok and fast.validity.noise_std == pytest.approx(5e-4, rel=0.25)  # the simulator's noise
+    sub = slice(0, None, 5)
+    t, c, sp = flight.t[sub], flight.command[sub], flight.setpoint[sub]
+    y = sp + 0.01 * np.random.default_rng(0).standard_normal(t.size)  # an output that does not follow the relay
+    bt = np.array([e["t_start"] for e in flight.truth["tests"]])
+    bv = np.array([e["beta"] for e in flight.truth["tests"]])
+    tests = segment_arrays(Signal(t, c), Signal(t, y), setpoint=Signal(t, sp), beta=Signal(bt, bv),
+                           options=SegmentOptions(controller_rate_hz=RATE))
+    assert tests and all(not x.validity.ok and "snr" in x.validity.failed for x in tests)

@@ -24,7 +24,7 @@ half-period 2-3. One cycle says little, but the test says much more (issue 24, p
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -450,7 +450,29 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
     use = np.array([not ({"gap", "glitch"} & f) for f in flags]) if fold is None else np.asarray(fold, bool)
     w = fold_waveform(t_y, y, t0[use], t2[use], fold_harmonics(t_y, y, t0[use], t2[use])) if use.sum() >= 2 else None
     phi, k = _phases(t_y, t0, t2)
+    if w is not None:
+        # the noise about each folded cycle's own fit, not about the fold: an orbit's cycle-to-cycle
+        # deviation is the limit cycle's, and the validity check's SNR is against the sensor noise
+        # (the well-sampled path's per-cycle fits have it too)
+        w = replace(w, noise_std=_cycle_noise(w, phi, k, y, np.flatnonzero(use)))
     return [_folded_cycle(w, phi[k == i], y[k == i], t0[i], t1[i], t2[i], h, flags[i]) for i in range(t0.size)]
+
+
+def _cycle_noise(w: FoldedWaveform, phi: FloatArray, k: NDArray[np.intp], y: FloatArray,
+                 cycles: NDArray[np.intp]) -> float:
+    """The residual standard deviation [output units] of the cycles' own fits against ``w``
+    (:func:`_cycle_fit`: level, scale, phase shift each), pooled; the fold's when none fits."""
+    rss, dof = 0.0, 0
+    for i in cycles:
+        ph, yy = phi[k == i], y[k == i]
+        if yy.size <= 3:
+            continue
+        A = np.column_stack([np.ones_like(ph), w(ph), -w.slope(ph)])
+        sol, *_ = np.linalg.lstsq(A, yy, rcond=None)
+        r = yy - A @ sol
+        rss += float(r @ r)
+        dof += yy.size - 3
+    return float(np.sqrt(rss / dof)) if dof > 0 else w.noise_std
 
 
 def _folded_cycle(w: FoldedWaveform | None, ph: FloatArray, yy: FloatArray, t0: float, t1: float, t2: float,

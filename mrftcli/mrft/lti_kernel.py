@@ -69,7 +69,7 @@ def _wrap(x: FloatArray) -> FloatArray:
     return wrapped
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: no field-wise == or hash
 class LagChainKernel:
     """The weighted residuals of a lag chain against measured points, and their Jacobian.
 

@@ -546,7 +546,8 @@ def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles:
     points = response_points(flight, used)
     if not any(p.harmonic == 1 for p in points):  # no cycle long enough for its fundamental
         return None
-    notes: tuple[str, ...] = (("noisy: used, weighted by its cycle-to-cycle scatter",) if failed & {"snr", "h1_fraction"} else ())
+    noisy = bool(failed & {"snr", "h1_fraction"})
+    notes: tuple[str, ...] = ("noisy: used, weighted by its cycle-to-cycle scatter",) if noisy else ()
     if chattered is not None:
         notes += ("the relay chatters at its switches: its cycles are used with the logged command's harmonics",)
     law = infer_relay(used, relay.kind, relay.beta, relay.eps)
@@ -560,14 +561,17 @@ class _ProcessIdentifier:
 
     def __init__(self, model: PlantModel, relay: RelayOptions, min_cycles: int) -> None:
         self.model, self.relay, self.min_cycles = model, relay, min_cycles
-        self._seen: dict[tuple[float, int, float], _Measured | None] = {}
+        # per test (by its start): the stable cycles it was last measured with, and the measurement; one
+        # entry per test, so a test of thousands of cycles holds one copy of them, not one per cycle
+        self._seen: dict[float, tuple[tuple[int, float], _Measured | None]] = {}
         self._by_index: dict[int, _Measured] = {}
 
     def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
-        key = (test.t_start, test.n_stable, _newest_end(test))
-        if key not in self._seen:  # the open test's cycles are measured again only when one is added
-            self._seen[key] = _measure(test, flight, self.relay, self.min_cycles)
-        measured = self._seen[key]
+        stable = (test.n_stable, _newest_end(test))
+        seen = self._seen.get(test.t_start)
+        if seen is None or seen[0] != stable:  # the open test is measured again only when a cycle is added
+            seen = self._seen[test.t_start] = (stable, _measure(test, flight, self.relay, self.min_cycles))
+        measured = seen[1]
         if measured is None:
             return None
         used = replace(measured.test, index=test.index)

@@ -64,6 +64,7 @@ class Run:
     hang: bool
     modified: bool
     wrong: str  # why an exit 0 is wrong ('' when it is not)
+    cpu_s: float = float("nan")  # user + system CPU [s] (the shared machine's load does not inflate it)
 
     @property
     def internal(self) -> bool:
@@ -130,18 +131,18 @@ def run_one(entry: dict, corpus: Path, command: str, timeout: float = TIMEOUT_S)
             argv += ["--json", str(out_json)]
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
         start = time.perf_counter()
-        code, err, rss, hang = _capped(argv, env, tmp, timeout)
+        code, err, rss, hang, cpu = _capped(argv, env, tmp, timeout)
         seconds = time.perf_counter() - start
         wrong = ""
         if code == 0 and command == "analyze":
             result = json.loads(out_json.read_text()) if out_json.exists() else {}
             wrong = wrong_numbers(entry, result)
     return Run(entry["name"], command, code, seconds, rss, err, hang,
-               digest(path) != before, wrong)
+               digest(path) != before, wrong, cpu)
 
 
-def _capped(argv: list[str], env: dict[str, str], cwd: str, timeout: float) -> tuple[int, str, int, bool]:
-    """Exit code, stderr, peak RSS [bytes] and whether it was killed at ``timeout`` [s]."""
+def _capped(argv: list[str], env: dict[str, str], cwd: str, timeout: float) -> tuple[int, str, int, bool, float]:
+    """Exit code, stderr, peak RSS [bytes], whether it was killed at ``timeout`` [s], and its CPU time [s]."""
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
                             preexec_fn=_cap, cwd=cwd)
     killed = threading.Event()
@@ -158,7 +159,7 @@ def _capped(argv: list[str], env: dict[str, str], cwd: str, timeout: float) -> t
     timer.cancel()
     proc.returncode = os.waitstatus_to_exitcode(status)
     proc.stderr.close()
-    return proc.returncode, err, usage.ru_maxrss * 1024, killed.is_set()
+    return proc.returncode, err, usage.ru_maxrss * 1024, killed.is_set(), usage.ru_utime + usage.ru_stime
 
 
 def table(runs: list[Run]) -> str:
@@ -207,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                 runs.append(run)
                 if args.verbose:
                     print(f"{run.case:36s} {command:9s} exit {run.code} {run.seconds:6.1f} s "
-                          f"{run.rss_bytes / 1e6:7.0f} MB {run.wrong}", flush=True)
+                          f"({run.cpu_s:6.1f} s CPU) {run.rss_bytes / 1e6:7.0f} MB {run.wrong}", flush=True)
         print(f"{len(manifest)} cases x {args.commands}: memory cap {MEMORY_CAP >> 30} GiB (address space), "
               f"timeout {TIMEOUT_S:.0f} s")
         print(table(runs))

@@ -372,3 +372,21 @@ def test_a_flight_segmented_twice_is_measured_once(sim, monkeypatch):
     other = segment(to_flight(sim))  # an equal flight, but another object: measured
     assert len(calls) == 3 and [t.frequency_hz_mean for t in other] == [t.frequency_hz_mean for t in first]
     assert segmenter._LAST._entry is None  # that flight is gone: its tests are not kept
+
+
+def test_a_test_longer_than_max_cycles_is_measured_on_its_first_cycles_and_says_so(sim, monkeypatch):
+    """A 14-hour relay test (50 000 cycles, a minute of CPU a pass) is measured on its first
+    MAX_CYCLES cycles: the same cycles as when measured whole, a note naming what was left out."""
+    import mrftcli.segment.segmenter as segmenter
+
+    whole = segment(to_flight(sim))
+    monkeypatch.setattr(segmenter, "MAX_CYCLES", 6)
+    cut = segment(to_flight(sim))
+    assert len(cut) == len(whole)
+    for a, b in zip(whole, cut, strict=True):
+        assert len(a.cycles) > 6 >= len(b.cycles) >= 5 and b.t_end < a.t_end and b.t_start == pytest.approx(a.t_start)
+        assert [c.period for c in b.cycles] == pytest.approx([c.period for c in a.cycles[:len(b.cycles)]], rel=1e-9)
+        assert [c.amplitude for c in b.cycles] == pytest.approx([c.amplitude for c in a.cycles[:len(b.cycles)]],
+                                                                 rel=1e-9)
+        assert any("after the first 6: only those are measured" in n for n in b.notes)
+        assert not any("only those are measured" in n for n in a.notes)

@@ -23,8 +23,11 @@ from .stability import StabilityCriterion, stable_cycles
 from .validity import ValidityCriterion, check_limit_cycle
 from .vernier import TickSwitches, measure_folded, refine_by_waveform, switch_ticks
 
-__all__ = ["segment", "segment_arrays", "SegmentOptions"]
+__all__ = ["segment", "segment_arrays", "SegmentOptions", "MAX_CYCLES"]
 
+#: relay cycles measured per test at most: a relay test's limit cycle repeats itself, and measuring a
+#: cycle costs about a millisecond of CPU (a 14-hour single test holds 50 000 cycles: a minute, per pass)
+MAX_CYCLES = 5000
 #: a switch after at most this many missing command samples is interpolated, after more it is a gap
 _MAX_INTERP_SAMPLES = 2
 #: a command logged below this rate [Hz] is a logger's sub-sampling of a faster controller (PX4's
@@ -181,6 +184,20 @@ def _finite(t: ArrayLike, v: ArrayLike) -> tuple[FloatArray, FloatArray]:
     if ok.all():  # the usual case: no copy (a 10-million-row log's four signals are 320 MB)
         return t, v
     return t[ok], v[ok]
+
+
+def _first_cycles(chain: list[RelayRun], t_cmd: FloatArray) -> tuple[list[RelayRun], tuple[str, ...]]:
+    """Step 1b: the relay runs of a test's first :data:`MAX_CYCLES` cycles, and the note saying what
+    was left out (none when nothing was): the clock, the output window and the cycles measured stay
+    bounded however long the relay ran."""
+    keep = 2 * MAX_CYCLES + 2  # half-periods (and the run the first switch closes)
+    if len(chain) <= keep:
+        return chain, ()
+    rest = chain[keep:]
+    span = float(t_cmd[rest[-1].stop - 1] - t_cmd[rest[0].start])
+    return chain[:keep], (f"the relay runs on for {len(rest) // 2} more cycles ({span:.0f} s) after the first "
+                          f"{MAX_CYCLES}: only those are measured (the limit cycle repeats itself; each cycle "
+                          "measured costs about a millisecond)",)
 
 
 def _test_clock(chain: list[RelayRun], t_cmd: FloatArray, rate_all: float | None,
@@ -468,7 +485,8 @@ def segment_arrays(
     chains = find_relay_runs(cmd, breaks=breaks, min_runs=min_runs, min_run_samples=2 if sub else 3)
     tests: list[MrftTest] = []
     prev_end = -np.inf
-    for chain in chains:
+    for found in chains:
+        chain, cut = _first_cycles(found, t_cmd)
         clock = _test_clock(chain, t_cmd, rate_all, controller_rate_hz)
         sw = _switches(chain, clock)
         t_b = float(sw.t[-1])
@@ -488,7 +506,7 @@ def segment_arrays(
                 period_median=info["period_median"], period_tolerance=info["period_tolerance"],
                 amplitude_median=info["amplitude_median"], amplitude_tolerance=info["amplitude_tolerance"],
                 loop_sign=sign, setpoint=win.setpoint, timestamps_regularised=clock.regularised,
-                n_switches=len(sw.t), notes=_notes(final, sign) + _timing_notes(sw, clock, beta_nom),
+                n_switches=len(sw.t), notes=_notes(final, sign) + _timing_notes(sw, clock, beta_nom) + cut,
                 controller_rate_hz=clock.controller_rate_hz, switch_timing=_switch_timing(sw, beta_nom),
                 validity=check_limit_cycle(final, beta_eff, beta_nom, options.validity),
             )

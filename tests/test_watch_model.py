@@ -153,3 +153,17 @@ def test_cli_final_estimate_recovers_the_simulated_plant(capsys, recording):
     final = next(line for line in lines if line.startswith("final"))
     assert "K " in final and " output / command" in final and "tau " in final and " s " in final and "±" in final
     assert sum(line.startswith("held-out test") for line in lines) == 2
+
+
+def test_cli_model_file_is_the_declared_structure(capsys, recording, tmp_path):
+    spec = tmp_path / "fopdt.toml"
+    spec.write_text('transfer_function = "K*exp(-tau*s)/(T*s+1)"\n[parameters]\nK = {range = [0.1, 10]}\n'
+                    'T = {range = [0.01, 10]}\ntau = {value = 0.1}\n')
+    code, out, err = _cli(capsys, "watch", str(recording), "--model-file", str(spec), "--command-topic", "u_relay",
+                          "--output-topic", "y_output", "--idle", "0.1", "--jsonl")
+    assert code == 0, err
+    final = [json.loads(line) for line in out.splitlines()][-2]
+    assert final["model"] == "declared" and final["final"] is True
+    assert final["parameters"]["tau"]["known"] is True  # the file's known value (the paper's set E)
+    for name in ("K", "T"):
+        assert final["parameters"][name]["value"] == pytest.approx(TRUTH[name], rel=0.05), name

@@ -84,14 +84,28 @@ def test_a_file_that_never_appears_is_a_one_line_error(tmp_path):
         list(watch(tmp_path / "none.mcap", 0.04, options=WatchOptions(wait=3.0), sleep=lambda dt: None, clock=lambda: float(next(clock))))
 
 
-def test_cli_jsonl_prints_one_object_per_update(repo_root):
-    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "watch", str(repo_root / "sample_logs" / "design1_altitude.mcap"),
-                          "--tp", "0.0422", "--jsonl"], capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
-    rows = [json.loads(line) for line in run.stdout.splitlines()]
+def _cli(capsys, *argv):
+    """The CLI in-process (exit code, stdout, stderr): a subprocess costs seconds of imports (the Ctrl-C
+    test below is the one that needs a process of its own)."""
+    from mrftcli.cli.main import main
+
+    try:
+        main(list(argv))
+        code = 0
+    except SystemExit as done:
+        code = int(done.code or 0)
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_jsonl_prints_one_object_per_update(repo_root, capsys):
+    code, out, err = _cli(capsys, "watch", str(repo_root / "sample_logs" / "design1_altitude.mcap"), "--tp", "0.0422",
+                          "--jsonl")
+    assert code == 0, err
+    rows = [json.loads(line) for line in out.splitlines()]
     assert rows[-1] == {**rows[-1], "kind": "end", "reason": "closed"}
     assert [r["kind"] for r in rows[-2:]] == ["estimate", "end"] and rows[-2]["final"] is True
-    assert run.stderr == ""
+    assert err == ""
 
 
 def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):
@@ -115,15 +129,14 @@ def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):
     assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err
 
 
-def test_cli_text_prints_each_test_at_its_own_start_from_the_log_start(repo_root):
+def test_cli_text_prints_each_test_at_its_own_start_from_the_log_start(repo_root, capsys):
     """The time on a test's line is where analyze (and the truth sidecar) puts it, not the previous boundary."""
     log = repo_root / "sample_logs" / "design1_altitude.mcap"
     truth = json.loads(log.with_name(log.name + ".truth.json").read_text())
-    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "watch", str(log), "--tp", "0.0422"],
-                         capture_output=True, text=True, timeout=120)
-    assert run.returncode == 0, run.stderr
+    code, out, err = _cli(capsys, "watch", str(log), "--tp", "0.0422")
+    assert code == 0, err
     starts = {}
-    for line in run.stdout.splitlines():
+    for line in out.splitlines():
         if line.startswith("test "):
             words = line.split()
             starts[int(words[1])] = float(words[3])

@@ -29,7 +29,8 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from make_hostile_corpus import _big_csv  # noqa: E402
 
 #: what each command is asked (the corpus's file is one single-beta flight: analyze refuses it, exit 6,
-#: after reading and segmenting every cycle, which is the work that grows with the log)
+#: after reading it, finding its relay runs and measuring the test's first 5000 cycles,
+#: mrftcli.segment.segmenter.MAX_CYCLES: the reading and the relay runs are the work that grows with the log)
 COMMANDS = {
     "topics": ["topics"],
     "analyze": ["analyze", "--tp", "0.1", "--loop", "altitude", "--json", "{out}"],

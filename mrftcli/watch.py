@@ -399,9 +399,13 @@ def _window(sig: Signal | None, t_from: float) -> Signal | None:
 
 
 class _Tracker:
-    """Tests so far: closed ones frozen, the open window segmented again at each poll."""
+    """Tests so far: closed ones frozen, the open window segmented again at each poll.
 
-    def __init__(self) -> None:
+    A test closes once ``max(quiet_s, 3 periods)`` of command without relay switching follow it [s].
+    """
+
+    def __init__(self, quiet_s: float) -> None:
+        self.quiet_s = quiet_s
         self.closed: list[MrftTest] = []
         self.t_from = -math.inf
         self.beta_from = -math.inf
@@ -419,7 +423,7 @@ class _Tracker:
         for test in found:
             test = replace(test, index=len(self.closed) + len(open_tests))
             period = test.period_median if math.isfinite(test.period_median) else 1.0
-            if not open_tests and t_last - test.t_end > max(1.0, 3.0 * period):
+            if not open_tests and t_last - test.t_end > max(self.quiet_s, 3.0 * period):
                 self.closed.append(test)
                 self.t_from = test.t_end + 1e-9
                 self.beta_from = test.t_end + 1e-9
@@ -485,6 +489,9 @@ def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_
 
 
 class _Identifier(Protocol):
+    #: the shortest quiet spell after a test that closes it [s] (:class:`_Tracker`)
+    quiet_s: float
+
     def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
         """The test as the model uses it, or None (not usable yet)."""
 
@@ -500,6 +507,8 @@ class _Identifier(Protocol):
 
 class _PaperIdentifier:
     """eq. (2) with Tp known: the paper's point estimate per update, :func:`analyze_flight` at the end."""
+
+    quiet_s = 1.0  # a multirotor's loops cycle at about 0.3-3 Hz: a second without switching ends a test
 
     def __init__(self, Tp: float, min_cycles: int) -> None:
         self.Tp, self.min_cycles = Tp, min_cycles
@@ -558,6 +567,11 @@ def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles:
 
 class _ProcessIdentifier:
     """A process plant: each test measured once per new stable cycle, the model fitted to all points."""
+
+    # a process plant's time scale is its own (a tokamak cycles in 25 ms, a furnace in minutes): three
+    # periods without switching end a test (at 10 kHz, a fixed second kept the previous test in every
+    # poll's segmentation, twice the work)
+    quiet_s = 0.0
 
     def __init__(self, model: PlantModel, relay: RelayOptions, min_cycles: int) -> None:
         self.model, self.relay, self.min_cycles = model, relay, min_cycles
@@ -642,7 +656,8 @@ def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, opti
     at the start and at every restart)."""
     _wait_for(path, options.wait, options.poll, sleep, clock)
     follower = follow_log(path, read)
-    tracker, ident = _Tracker(), make()
+    ident = make()
+    tracker = _Tracker(ident.quiet_s)
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None
     last_growth = clock()
@@ -650,7 +665,8 @@ def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, opti
         snap = follower.poll()
         now = clock()
         if snap.restarted is not None:
-            tracker, ident, reported, flight = _Tracker(), make(), {}, None
+            ident, reported, flight = make(), {}, None
+            tracker = _Tracker(ident.quiet_s)
             yield Restart(reason=snap.restarted, wall_time=time.time())
         if snap.grew:
             last_growth = now

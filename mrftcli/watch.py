@@ -17,8 +17,8 @@ truncated or replaced by another recording is followed from its start again (:cl
 Incremental segmentation and identification
 -------------------------------------------
 Tests are found with :func:`mrftcli.segment.segment_arrays` on a window that starts after the last
-*closed* test (one followed by ``max(1 s, 3 periods)`` of command without relay switching), so
-the cost of a poll does not grow with the flight. A test is reported (:class:`TestUpdate`) once it
+*closed* test (one followed by ``max(1 s, 3 periods)`` of command without relay switching; for a
+process plant 3 periods, whatever its time scale), so the cost of a poll does not grow with the flight. A test is reported (:class:`TestUpdate`) once it
 has ``min_cycles`` stable cycles that follow the relay (``MrftTest.valid``), and again at every new
 stable cycle. As soon as two betas are in, every update of a test is followed by the identification
 (:class:`EstimateUpdate`): the paper's point estimate from the tests' mean effective betas,

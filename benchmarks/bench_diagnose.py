@@ -14,7 +14,9 @@ Drawn per log: platform, simulator seed, the effect's realistic magnitude times 
 factor, as the issue's flights had), test durations, rate, noise, amplitude.
 The effects: the ten of the library (``--per-effect`` logs each), a flexible sensor mount outside
 the library (``--outside`` logs: a mode of 2-15 Hz, damping 0.02-0.1, between the airframe and the
-sensor; ``unexplained`` expected, or the resonance named), and ``--clean`` clean controls.
+sensor, its frequency drawn as it is, with no magnitude factor; ``unexplained`` expected, or the
+resonance named; each printed with its oracle SNR, :func:`mount_snr`), and ``--clean`` clean controls.
+Library and clean flights called a resonance are counted.
 
 Printed, with the issue's targets: right effect named (>= 90 %), clean kept clean (>= 90 %), no
 spurious second effect among the named (>= 90 %), out-of-library flights answered ``unexplained``

@@ -186,3 +186,21 @@ def test_the_noise_of_a_folded_test_is_the_sensors_and_an_output_that_is_not_the
     tests = segment_arrays(Signal(t, c), Signal(t, y), setpoint=Signal(t, sp), beta=Signal(bt, bv),
                            options=SegmentOptions(controller_rate_hz=RATE))
     assert tests and all(not x.validity.ok and "snr" in x.validity.failed for x in tests)
+
+
+def test_a_test_that_changes_orbit_is_folded_over_one_orbit():
+    # the 2.3 Hz test settles in 20-tick cycles (4 logging periods: 4 samples a cycle at the same
+    # phases) and moves to 23-25-tick ones; folded together the two orbits made one waveform that
+    # read the amplitude 41 % long (K +22 % outside its interval); the fold takes the cycles of one
+    # orbit (period within 10 % of the median), and each cycle is measured against it
+    m = LoopModel(0.0422, 2.942015362110934, 0.017509361416051937, 15.878255202321345)
+    spec = FlightSpec(model=m, tests=(plan_test(m, -0.8, 0.05, rate_hz=RATE, cycles=14.0),), loop="altitude",
+                      rate_hz=RATE, noise_std=0.000651768104031005, bias=0.5, setpoint=1.0, hover_s=3.0, hold_s=3.0,
+                      seed=409493471)
+    fl = simulate_flight(spec)
+    (test,) = _ten_hz(fl)
+    periods = np.rint(test.period / TS)
+    assert periods.min() <= 20 and periods.max() >= 24  # both orbits among the stable cycles
+    y = fl.output_true - fl.setpoint  # the oracle: the noise-free 50 Hz output over each stable cycle
+    true = np.mean([0.5 * np.ptp(y[(fl.t >= c.t_start) & (fl.t < c.t_end)]) for c in test.stable])
+    assert test.amplitude_mean == pytest.approx(true, rel=0.03)

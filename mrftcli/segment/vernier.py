@@ -431,7 +431,8 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
         Relay half-height [command units].
     fold : numpy.ndarray of bool, optional
         Per cycle (up-down-up triple, in order): folded into the waveform (the stable limit cycle,
-        once known: a start-up cycle's larger swing would distort it); None: the regular cycles.
+        once known: a start-up cycle's larger swing would distort it); None: the regular cycles. Of
+        those, the ones of the median orbit (:func:`_one_orbit`).
 
     Returns
     -------
@@ -448,6 +449,10 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
     t1 = np.array([t_sw[a + 1] for a, _ in triples])
     t2 = np.array([t_sw[b] for _, b in triples])
     use = np.array([not ({"gap", "glitch"} & f) for f in flags]) if fold is None else np.asarray(fold, bool)
+    if use.sum() >= 2:
+        # one waveform is one orbit's: a test that moves to another orbit (20-tick cycles, then 24)
+        # folded whole read its amplitude 41 % long; the other orbit's cycles are measured against it
+        use = use & _one_orbit(t2 - t0, use)
     w = fold_waveform(t_y, y, t0[use], t2[use], fold_harmonics(t_y, y, t0[use], t2[use])) if use.sum() >= 2 else None
     phi, k = _phases(t_y, t0, t2)
     if w is not None:
@@ -456,6 +461,16 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
         # (the well-sampled path's per-cycle fits have it too)
         w = replace(w, noise_std=_cycle_noise(w, phi, k, y, np.flatnonzero(use)))
     return [_folded_cycle(w, phi[k == i], y[k == i], t0[i], t1[i], t2[i], h, flags[i]) for i in range(t0.size)]
+
+
+#: a cycle whose period is this far from the folded cycles' median [-] is of another orbit
+_ORBIT_TOLERANCE = 0.1
+
+
+def _one_orbit(P: FloatArray, use: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """The cycles of the folded ones' orbit: period within :data:`_ORBIT_TOLERANCE` of their median."""
+    med = float(np.median(P[use]))
+    return np.asarray(np.abs(P - med) <= _ORBIT_TOLERANCE * med, dtype=bool)
 
 
 def _cycle_noise(w: FoldedWaveform, phi: FloatArray, k: NDArray[np.intp], y: FloatArray,

@@ -195,7 +195,8 @@ def _grid(rows: list[SwitchHarmonics]) -> np.ndarray:
     hi = min(r.band_hz[1] for r in rows)
     if not hi > lo:
         return np.zeros(0)
-    return np.exp(np.arange(math.log(lo), math.log(hi), _F_STEP))
+    grid: np.ndarray = np.exp(np.arange(math.log(lo), math.log(hi), _F_STEP))
+    return grid
 
 
 def _template(r: SwitchHarmonics, wn: np.ndarray, zeta: np.ndarray) -> np.ndarray:

@@ -231,8 +231,9 @@ def fit_ringing(rows: list[SwitchHarmonics]) -> RingingFit | None:
     """The mode whose ringing after the switches best explains the tests' residual (None: no template).
 
     For each frequency of the grid and damping of :data:`DAMPINGS` whose template weighs at least
-    :data:`MIN_TEMPLATE_CHI2`: the amplitude alpha (least squares, clipped to [0.5, 2]) and the chi^2
-    drop den (2 alpha_hat alpha - alpha^2) of subtracting it. The best drop is divided by the rest's
+    :data:`MIN_TEMPLATE_CHI2`: the amplitude alpha (least squares, clipped to [0.5, 2]; a template whose
+    fitted amplitude lies more than three standard errors outside that range is not a mode) and the
+    chi^2 drop den (2 alpha_hat alpha - alpha^2) of subtracting it. The best drop is divided by the rest's
     chi^2 per degree of freedom (at least 1) and given its chi^2(1) p-value times the templates tried.
     """
     rows = [r for r in rows if r.k.size]

@@ -5,8 +5,13 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import matplotlib
-import pytest
+# One BLAS thread per test process, as the CLI runs (mrftcli/cli/__init__.py): with -n 2 on 2 cores, two
+# workers each spinning a BLAS pool over small matrices only contend. Set before numpy loads (matplotlib).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import matplotlib  # noqa: E402 - after the thread settings above
+import pytest  # noqa: E402
 
 matplotlib.use("Agg")
 

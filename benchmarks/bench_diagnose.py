@@ -273,6 +273,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=None, help="master seed (default: fresh every run)")
     ap.add_argument("--effects", default=None, help="comma-separated subset of the library's effects (default: all)")
     ap.add_argument("--pairs", type=int, default=0, help="also this many logs with two effects at once")
+    ap.add_argument("--only", default=None,
+                    help="run only the drawn cases of these kinds (comma-separated effects, 'clean', 'outside'): the "
+                         "seed's draws are unchanged, so a run's misses are reproduced by its seed")
     ap.add_argument("--lookalikes", action="store_true",
                     help="only the look-alike pairs' flights (LOOKALIKE_FLIGHTS), with the whole library")
     args = ap.parse_args()
@@ -290,6 +293,9 @@ def main() -> None:
     for _ in range(args.pairs):
         a, b = sorted(rng.choice(len(gen.EFFECTS), 2, replace=False))
         cases.append(draw_case(rng, f"{gen.EFFECTS[a]}+{gen.EFFECTS[b]}", plants))
+    if args.only is not None:
+        kinds = {{"clean": None, "outside": OUTSIDE}.get(k, k) for k in args.only.split(",")}
+        cases = [c for c in cases if c["effect"] in kinds]
     print(f"master seed {master}: {len(cases)} logs, {args.jobs} processes; rates {RATES} Hz, noise 0.5-1 mm, "
           "tests 10-14 s, third test at 2x the first's relay height, nothing re-flown or dropped")
     t0 = time.perf_counter()

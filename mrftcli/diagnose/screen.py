@@ -23,7 +23,10 @@ from .fit import MIN_CYCLES, DiagnosedTest, feature_sigma, prepare_tests, segmen
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["Screen", "screen_log"]
+__all__ = ["Screen", "screen_log", "lost_height_pair"]
+
+#: two tests at one beta are at two relay heights when the larger is this much above the smaller
+HEIGHT_RATIO = 1.1
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,47 @@ def _comparable(tests: list[MrftTest]) -> bool:
     from ..analyze.screen import group_betas
 
     hs = sorted(abs(t.h) for t in tests)
-    return len(group_betas(tests)) > 1 or (len(hs) > 1 and hs[-1] > 1.1 * hs[0])
+    return len(group_betas(tests)) > 1 or (len(hs) > 1 and hs[-1] > HEIGHT_RATIO * hs[0])
+
+
+def _height_pairs(tests: list[MrftTest]) -> list[list[MrftTest]]:
+    """The groups of tests at one beta flown at two relay heights (or more)."""
+    from ..analyze.screen import group_betas
+
+    groups = [[tests[i] for i in g] for g in group_betas(tests)]
+    return [g for g in groups if max(abs(t.h) for t in g) > HEIGHT_RATIO * min(abs(t.h) for t in g)]
+
+
+def lost_height_pair(flown: list[MrftTest], kept: set[int]) -> str | None:
+    """A warning when the tests left out break the only comparison of one beta at two relay heights.
+
+    On a relay test a dead zone delta [command units] is exactly a gain of 1 - delta / h: the relay
+    steps through the band at once, so each test's square wave is only smaller, never reshaped. The
+    linear model's K absorbs it on one test, and on tests at different betas Td, tau and K absorb it
+    (two tests leave one feature of freedom beyond the three parameters). Only two tests at one beta
+    and two heights show it, as an amplitude ratio other than the heights'. When the flight had such a
+    pair and a test of it was left out (a relay that locked up in the air, too few stable cycles), the
+    diagnosis cannot see a dead zone, and its "nothing found" must say so.
+
+    Parameters
+    ----------
+    flown : list of MrftTest
+        Every test the segmenter found in the log, used or not.
+    kept : set of int
+        ``MrftTest.index`` of the tests the diagnosis works on.
+
+    Returns
+    -------
+    str or None
+        The warning, or None when no such pair was flown or one is kept.
+    """
+    pairs = _height_pairs(flown)
+    if not pairs or _height_pairs([t for t in flown if t.index in kept]):
+        return None
+    lost = [t for g in pairs for t in g if t.index not in kept]
+    what = ", ".join(f"test {t.index + 1} (beta {t.beta:.2f}, h {abs(t.h):.3g})" for t in lost)
+    return (f"{what} left out: no two tests left share a beta at two relay heights, so a gain that changes with "
+            "the relay height (a dead zone) cannot be told from the linear model's gain; fly it again to test for one")
 
 
 def screen_log(flight: FlightLog, Tp: float, analysis: AnalysisResult | None,
@@ -114,6 +157,9 @@ def screen_log(flight: FlightLog, Tp: float, analysis: AnalysisResult | None,
     if refused_by_linear is not None:
         warnings.append(f"analyze refuses this log ({refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
                         "recorded cycles with the linear model and each candidate directly")
+    flown = segs if analysis is None else sorted([*analysis.tests, *analysis.rejected], key=lambda s: s.index)
+    lost = lost_height_pair(flown, {t.index for t in tests})
+    warnings += [lost] if lost is not None else []
     if not tests:
         raise DiagnoseError(
             f"{flight.path}: no MRFT test with at least {MIN_CYCLES} stable cycles; the diagnosis compares "

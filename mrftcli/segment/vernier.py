@@ -431,8 +431,7 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
         Relay half-height [command units].
     fold : numpy.ndarray of bool, optional
         Per cycle (up-down-up triple, in order): folded into the waveform (the stable limit cycle,
-        once known: a start-up cycle's larger swing would distort it); None: the regular cycles. Of
-        those, the ones of the median orbit (:func:`_one_orbit`).
+        once known: a start-up cycle's larger swing would distort it); None: the regular cycles.
 
     Returns
     -------
@@ -449,10 +448,6 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
     t1 = np.array([t_sw[a + 1] for a, _ in triples])
     t2 = np.array([t_sw[b] for _, b in triples])
     use = np.array([not ({"gap", "glitch"} & f) for f in flags]) if fold is None else np.asarray(fold, bool)
-    if use.sum() >= 2:
-        # one waveform is one orbit's: a test that moves to another orbit (20-tick cycles, then 24)
-        # folded whole read its amplitude 41 % long; the other orbit's cycles are measured against it
-        use = use & _one_orbit(t2 - t0, use)
     w = fold_waveform(t_y, y, t0[use], t2[use], fold_harmonics(t_y, y, t0[use], t2[use])) if use.sum() >= 2 else None
     phi, k = _phases(t_y, t0, t2)
     if w is not None:
@@ -460,17 +455,41 @@ def measure_folded(t_sw: FloatArray, up: NDArray[np.bool_], flags_sw: list[set[s
         # deviation is the limit cycle's, and the validity check's SNR is against the sensor noise
         # (the well-sampled path's per-cycle fits have it too)
         w = replace(w, noise_std=_cycle_noise(w, phi, k, y, np.flatnonzero(use)))
-    return [_folded_cycle(w, phi[k == i], y[k == i], t0[i], t1[i], t2[i], h, flags[i]) for i in range(t0.size)]
+    cycles = [_folded_cycle(w, phi[k == i], y[k == i], t0[i], t1[i], t2[i], h, flags[i]) for i in range(t0.size)]
+    if w is not None and not _samples_reach(w, cycles, phi, k, y, np.flatnonzero(use)):
+        # the fold claims extrema that none of the samples shows: the cycles are not measured
+        return [replace(c, flags=tuple(sorted(set(c.flags) | {"irregular"}))) for c in cycles]
+    return cycles
 
 
-#: a cycle whose period is this far from the folded cycles' median [-] is of another orbit
-_ORBIT_TOLERANCE = 0.1
+#: most the folded cycles' mean amplitude may exceed the largest half-swing of one cycle's
+#: samples [-] where the logging instants slide over the cycle (the samples then come within a few
+#: % of both extrema; well-measured tests were at 0.6-1.05 of it, mis-folded ones at 1.14-1.47)
+_REACH = 1.1
+#: distinct phases from which the samples are taken to fill the cycle (a sliding logging grid)
+_FILLED = 12
 
 
-def _one_orbit(P: FloatArray, use: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """The cycles of the folded ones' orbit: period within :data:`_ORBIT_TOLERANCE` of their median."""
-    med = float(np.median(P[use]))
-    return np.asarray(np.abs(P - med) <= _ORBIT_TOLERANCE * med, dtype=bool)
+def _samples_reach(w: FoldedWaveform, cycles: list[RelayCycle], phi: FloatArray, k: NDArray[np.intp],
+                   y: FloatArray, folded: NDArray[np.intp]) -> bool:
+    """Do the samples reach the amplitude measured from the fold (within :data:`_REACH`)?
+
+    Where the switches are placed a few ticks off over an orbit that wanders (5-7 samples a cycle),
+    or a test moves from one orbit to another, the fold is of mis-aligned cycles and rings: the
+    amplitude read 20-45 % long while the level at the switches still passed the validity check.
+    Over a sliding grid (:data:`_FILLED` distinct phases or more) some sample comes close to each
+    extremum, so the largest half-swing of one cycle's samples bounds the amplitude.
+    A locked grid (4 samples a cycle at the same phases) may miss the extrema by 30 %: not judged.
+    """
+    if w.distinct_phases < _FILLED:
+        return True
+    swings, amps = [], []
+    for i in folded:
+        yy = y[k == i]
+        if yy.size and np.isfinite(cycles[i].amplitude):
+            swings.append(0.5 * float(np.ptp(yy)))
+            amps.append(cycles[i].amplitude)
+    return not amps or bool(np.mean(amps) <= _REACH * max(swings))
 
 
 def _cycle_noise(w: FoldedWaveform, phi: FloatArray, k: NDArray[np.intp], y: FloatArray,

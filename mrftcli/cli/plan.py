@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
@@ -12,15 +13,16 @@ import click
 
 from ..errors import InputError
 from ..report.wording import output_unit
-from .model_options import unsupported_model_option
+from .model_options import build_model, format_estimates, parse_windows, relay_options, structure_options, window_option
 from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
                       tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate
     from ..plan import FlownTest, PlanResult
+    from ..plan.process_records import ProcessPlan
 
-__all__ = ["plan", "format_plan"]
+__all__ = ["plan", "format_plan", "format_process_plan"]
 
 
 def _json_rate(data: object) -> float | None:
@@ -89,21 +91,104 @@ def format_plan(result: PlanResult, unit: str = "output unit") -> str:
     return "\n".join(lines)
 
 
+def _num(x: float, digits: int = 4) -> str:
+    return f"{x:#.{digits}g}".rstrip(".") if math.isfinite(x) else "not determined"
+
+
+def format_process_plan(result: ProcessPlan, source: str) -> str:
+    """The readable plan of a process plant: assumptions, the current model (what is undetermined), the
+    candidates ranked (frequency [Hz], amplitude [output units], std after per parameter [its unit])."""
+    ident = result.identification
+    structure = getattr(ident.model, "transfer_function", ident.model.structure)
+    lines = [f"assumption: {a}" for a in result.assumptions]
+    chi = f", chi2/dof {ident.chi2_dof:.3g}" if ident.chi2_dof is not None else ""
+    lines += [f"model {ident.model.family}: G(s) = {structure}; from the relay tests of {source} "
+              f"({len(ident.points)} response points{chi})", *format_estimates(ident)]
+    lines.append(f"not determined by the recorded tests: {', '.join(result.undetermined)}" if result.undetermined
+                 else "every parameter is determined by the recorded tests; a next test narrows them")
+    names = list(result.std_now)
+    units = {e.name: e.unit for e in ident.estimates}
+    head = ["rank", "relay", "frequency [Hz]", "amplitude [output units]", "phase [deg]",
+            *(f"std {n} [{units[n]}]" for n in names)]
+    rows = [head, ["now", "(the recorded tests)", "", "", "", *(_num(result.std_now[n], 3) for n in names)]]
+    for k, c in enumerate(result.candidates, 1):
+        rows.append([str(k), c.relay.describe()[len("relay: "):] + ("" if c.within_limit else " (over --max-amplitude)"),
+                     _num(c.frequency_hz), _num(c.amplitude, 3), f"{c.phase_deg:.0f}",
+                     *(_num(c.std_after[n], 3) for n in names)])
+    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
+    lines += ["", f"candidate next tests (exact limit cycle of this model at {result.rate_hz:g} Hz; std after "
+                  "adding each to the recorded tests):"]
+    lines += ["  ".join(c.ljust(w) if k == 1 else c.rjust(w) for k, (c, w) in enumerate(zip(r, widths))).rstrip()
+              for r in rows]
+    best = result.recommended
+    lines += ["", f"recommended: {best.relay.describe()[len('relay: '):]}: {result.why}"]
+    lines += [f"note: {n}" for n in result.notes]
+    return "\n".join(lines)
+
+
+def plan_process_command(source: str | None, model_name: str, params: Sequence[str], ranges: Sequence[str],
+                         windows: Sequence[str], relay_kind: str | None, eps: float | None, *,
+                         max_amplitude: float | None, max_h: float | None, min_cycles: int,
+                         json_target: str | None, read_options: dict[str, Any]) -> None:
+    """``plan LOG --model NAME``: the log analysed as ``analyze --model`` does, then the next relay tests ranked."""
+    from ..analyze.general import RelayOptions, analyze_general
+    from ..analyze.screen import log_start
+    from ..io import ReadOptions, read_flight
+    from ..plan.process import plan_process
+
+    ctx = click.get_current_context()
+    eq2 = [f"--{n.replace('_', '-')}" for n in ("tp", "td_range", "tau_range", "k_range", "time", "noise", "tests",
+                                                 "simulate")
+           if (src := ctx.get_parameter_source({"tp": "Tp", "time": "time_s", "noise": "noise_std",
+                                                "tests": "n_tests", "simulate": "n_simulated"}.get(n, n)))
+           is not None and src.name == "COMMANDLINE"]
+    if eq2:
+        raise click.UsageError(f"{', '.join(eq2)} plan eq. (2) tests; with --model {model_name} give the log of "
+                               "the recorded relay tests (and optionally --max-amplitude, --max-h)")
+    if source is None:
+        raise click.UsageError("plan --model NAME needs the log of the recorded relay tests: plan LOG --model NAME")
+    if source.lower().endswith(".json"):
+        raise click.UsageError("plan --model NAME reads the log of the relay tests, not a JSON result: plan LOG "
+                               "--model NAME")
+    for name, value in (("--max-amplitude", max_amplitude), ("--max-h", max_h)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be a positive number [{'output' if 'ampl' in name else 'command'} "
+                             f"units], got {value}")
+    check_output_file(json_target, "--json")
+    model = build_model(model_name, params, ranges)
+    flight = read_flight(source, ReadOptions(**read_options), echo_warnings=False)
+    analysis = analyze_general(flight, model, relay=RelayOptions(relay_kind, None, eps),
+                               windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
+    result = plan_process(analysis, max_amplitude=max_amplitude, max_h=max_h)
+    if json_target:
+        dump_json(result.to_json(), json_target)
+    if json_target != "-":
+        click.echo(format_process_plan(result, source))
+
+
 @click.command("plan")
-@unsupported_model_option("plan", "plan forecasts tests of an eq. (2) loop; for a process plant choose relay settings from docs/process-plants.md")
-@tp_option()
+@click.argument("log", required=False, type=click.Path(exists=True, dir_okay=False))
+@structure_options
+@relay_options
+@window_option
+@tp_option(required=False)
 @click.option("--from", "source", metavar="LOG|JSON", type=click.Path(exists=True),
-              help="A first test: a log with MRFT test(s), or the JSON of 'mrft-ident analyze --json'.")
+              help="A first test: a log with MRFT test(s), or the JSON of 'mrft-ident analyze --json'. "
+                   "With --model NAME: the log of the recorded relay tests (or give it as LOG).")
 @click.option("--td-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="Prior range of Td [s] (default 0.2 3, or the analysed value +/- 2 std).")
 @click.option("--tau-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="Prior range of tau [s] (default 0.01 0.1, stated as an assumption).")
 @click.option("--k-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="Prior range of K [output unit per command unit] (default 0.5 20, stated as an assumption).")
-@click.option("--max-amplitude", type=float, required=True,
-              help="Largest output amplitude allowed [output units, e.g. 0.05 m or 0.087 rad].")
-@click.option("--max-h", type=float, required=True, help="Largest relay height the motors give [command units].")
-@click.option("--time", "time_s", type=float, required=True, help="Relay time available for the next test(s) [s].")
+@click.option("--max-amplitude", type=float, default=None,
+              help="Largest output amplitude allowed [output units, e.g. 0.05 m or 0.087 rad]. Required for "
+                   "eq. (2); with --model NAME optional (a candidate over it is never recommended).")
+@click.option("--max-h", type=float, default=None,
+              help="Largest relay height the motors give [command units]. Required for eq. (2); with --model "
+                   "NAME the candidates' relay half-height (default: the recorded tests').")
+@click.option("--time", "time_s", type=float, default=None,
+              help="Relay time available for the next test(s) [s] (eq. (2), required there).")
 @click.option("--noise", "noise_std", type=float, default=None,
               help="Sensor noise std [output units] (default: measured in the log, else the loop's default).")
 @click.option("--tests", "n_tests", type=click.IntRange(1, 4), default=None,
@@ -115,8 +200,10 @@ def format_plan(result: PlanResult, unit: str = "output unit") -> str:
 @min_cycles_option(detail=" from a --from log (at least 3 are used)")
 @json_option(what="plan")
 @quiet_option()
-def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, tau_range: tuple[float, float] | None,
-         k_range: tuple[float, float] | None, max_amplitude: float, max_h: float, time_s: float,
+def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], relay_kind: str | None,
+         eps: float | None, windows: tuple[str, ...], Tp: float | None, source: str | None, td_range: tuple[float, float] | None, tau_range: tuple[float, float] | None,
+         k_range: tuple[float, float] | None, max_amplitude: float | None, max_h: float | None,
+         time_s: float | None,
          noise_std: float | None, n_tests: int | None, n_simulated: int, min_cycles: int, json_target: str | None,
          quiet: bool, **read_options: Any) -> None:
     """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
@@ -127,11 +214,33 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
     deviations of Td, tau and K after it (Fisher information of the frequency, phase and amplitude
     analyze measures; docs/plan.md). Says when a parameter cannot be pinned down and what would help.
 
+    With --model NAME (or --model-file FILE), for a process plant: the log's relay tests are analysed
+    as 'analyze --model' does, and the next relay tests (ideal, hysteresis, MRFT) are ranked by the
+    parameters' std after each, predicted with the exact limit cycle of the current model
+    (docs/process-plants.md, "Planning the next test").
+
     Exit codes: 0 ok, 2 bad option or limits that admit no test, 3 unreadable log, 4 no usable test
     in the --from log.
 
     Example: mrft-ident plan --tp 0.0422 --from first.mcap --max-amplitude 0.05 --max-h 0.2 --time 20
+
+    Example: mrft-ident plan first.csv --model fopdt --command-topic u_relay --output-topic y_output
     """
+    if log is not None and source is not None:
+        raise click.UsageError("give the log as LOG or as --from LOG, not both")
+    source = source if log is None else log
+    if model_name != "soiptd":
+        plan_process_command(source, model_name, params, ranges, windows, relay_kind, eps,
+                             max_amplitude=max_amplitude, max_h=max_h, min_cycles=min_cycles,
+                             json_target=json_target, read_options=read_options)
+        return
+    if params or ranges or windows or relay_kind or eps is not None:
+        raise click.UsageError("--param, --range, --window, --relay and --eps take a process model (--model fopdt, "
+                               "sopdt, ipdt, foipdt or --model-file); eq. (2) plans from --tp and the ranges")
+    for name, value in (("--tp", Tp), ("--max-amplitude", max_amplitude), ("--max-h", max_h), ("--time", time_s)):
+        if value is None:
+            raise click.UsageError(f"Missing option '{name}'.")
+    assert Tp is not None and max_amplitude is not None and max_h is not None and time_s is not None
     from ..plan import FlightLimits, PlanOptions, Prior, flown_from_segments, plan_tests, prior_range
     from ..sim import default_noise_std
 
@@ -140,13 +249,13 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
     # one idea, one option: the controller rate the log is read at is the rate the plan is made for
     rate_hz: float | None = read_options["controller_rate_hz"]
     flown: Sequence[FlownTest] = []
-    params: dict[str, ParameterEstimate] = {}
+    estimates: dict[str, ParameterEstimate] = {}
     measured_noise: float | None = None
     log_rate: float | None = None
     if source is not None:
         path = Path(source)
         if path.suffix.lower() == ".json":
-            flown, params, log_rate = _flown_from_json(path)
+            flown, estimates, log_rate = _flown_from_json(path)
         else:
             from ..errors import SegmentationError
             from ..io import ReadOptions, read_flight
@@ -160,15 +269,15 @@ def plan(Tp: float, source: str | None, td_range: tuple[float, float] | None, ta
                                         "to plan from")
             log_rate = float(found[0].rate_hz)
     assumed: list[str] = []
-    ranges = {}
+    prior_ranges = {}
     for name, given, default, unit, option in (("Td", td_range, (0.2, 3.0), "s", "--td-range"),
                                                ("tau", tau_range, (0.01, 0.1), "s", "--tau-range"),
                                                ("K", k_range, (0.5, 20.0), "output unit per command unit",
                                                 "--k-range")):
-        ranges[name] = given if given is not None else prior_range(params.get(name), default)
-        if given is None and name not in params:
+        prior_ranges[name] = given if given is not None else prior_range(estimates.get(name), default)
+        if given is None and name not in estimates:
             assumed.append(f"prior {name} {default[0]:g}-{default[1]:g} {unit} (the default; give {option})")
-    prior = Prior(Td=ranges["Td"], tau=ranges["tau"], K=ranges["K"])
+    prior = Prior(Td=prior_ranges["Td"], tau=prior_ranges["tau"], K=prior_ranges["K"])
     rate = rate_hz if rate_hz is not None else log_rate
     if rate is None:
         raise InputError("give --controller-rate HZ, the rate the controller runs at (the test's frequency and its samples "

@@ -9,6 +9,7 @@ import pytest
 
 from mrftcli.diagnose.scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
                                       refit_sigma, scatter_sample)
+from mrftcli.diagnose.jitter import variance_deviance_z
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.mrft.model import LoopModel
 from mrftcli.segment import segment
@@ -39,6 +40,27 @@ def test_fit_jitter_is_zero_when_noise_explains_the_scatter():
     jf = fit_jitter(0.9 * v0, np.array([14, 13]), v0, cal)
     assert jf.sigma == 0.0
     assert refit_sigma(jf, 0.8 * v0, np.array([7, 7])) == 0.0
+
+
+@pytest.mark.parametrize("dof", [2, 4, 7, 14])
+def test_variance_deviance_is_the_chi2_likelihood_ratio_and_calibrated_under_no_jitter(dof):
+    from scipy.special import digamma
+    from scipy.stats import chi2
+
+    def loglik(s2, v):  # density of a sample variance s2 of dof degrees of freedom about v
+        return math.log(dof / v) + chi2.logpdf(dof * s2 / v, dof)
+
+    for r in (0.3, 0.9, 1.0, 2.5, 6.0):
+        z = variance_deviance_z(r, dof)
+        assert z**2 == pytest.approx(2.0 * (loglik(r, r) - loglik(r, 1.0)), rel=1e-9, abs=1e-12)
+        assert math.copysign(1.0, z) == math.copysign(1.0, math.log(r)) or r == 1.0
+    # without a jitter (the periods' variance is the model's), E[z^2] = -dof (psi(dof/2) + ln(2/dof)), ~1
+    rng = np.random.default_rng(7)
+    r = rng.chisquare(dof, 40000) / dof
+    z2 = np.array([variance_deviance_z(x, dof) for x in r]) ** 2
+    expected = -dof * (digamma(dof / 2) + math.log(2.0 / dof))
+    assert np.mean(z2) == pytest.approx(expected, rel=0.03)
+    assert 1.0 < expected < 1.35
 
 
 def test_pooled_scatter_error_closed_form():

@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit
-from .model_options import unsupported_model_option
+from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
+                            window_option)
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
+    from ..diagnose.process_plant import ProcessDiagnosis
     from ..diagnose.records import DiagnosisResult
     from ..io.logtypes import FlightLog
 
@@ -142,16 +144,19 @@ def format_summary(result: DiagnosisResult) -> str:
 
 
 @click.command("diagnose")
-@unsupported_model_option("diagnose", "analyze --model NAME (or --model-file FILE) fits a process plant and reports each test's held-out prediction")
 @click.argument("log", type=click.Path(dir_okay=True))
-@tp_option()
+@tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required by --model soiptd.")
+@structure_options
+@window_option
+@relay_options
 @log_layout_options()
 @min_cycles_option()
 @json_option(what="diagnosis")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR (created if missing).")
 @quiet_option()
-def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options):
+def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target, report_dir,
+             quiet, **read_options):
     """Find where the linear model and LOG disagree, name the missing physics, fit it and compare.
 
     The linear model G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) is fitted to the recorded
@@ -163,6 +168,11 @@ def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options
     looked for on top of the first one by the same rules. A mismatch that none explains is reported
     as "unexplained" with where it is and how large. Times are from the log start.
 
+    With --model fopdt|sopdt|ipdt|foipdt or --model-file FILE (a process plant), each test's mean
+    cycle is checked against the exact limit cycle of the model identified from the other tests and
+    from all tests: frequency and amplitude against their scatter, the waveform residual by harmonic
+    against the noise; the first line is the verdict (docs/process-plants.md).
+
     Exit codes: 0 ok (with or without a finding), 2 bad option, 3 unreadable log, 4 no relay test,
     6 only one beta tested (as analyze), 7 the diagnosis could not be carried out.
 
@@ -173,6 +183,11 @@ def diagnose(log, Tp, min_cycles, json_target, report_dir, quiet, **read_options
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
+    if model_name != "soiptd":
+        _diagnose_process(log, model_name, (params, ranges, windows, relay_kind, eps), min_cycles, json_target,
+                          report_dir, read_options)
+        return
+    _check_soiptd(Tp, params or ranges or windows or relay_kind or eps is not None)
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         flight = read_flight(log, ReadOptions(**read_options), progress=progress)
     given: AnalysisResult | None = None
@@ -215,3 +230,67 @@ def _with_analysis(result: DiagnosisResult, flight: FlightLog, Tp: float,
     except MrftError:
         return result  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
     return replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects)))
+
+
+def _check_soiptd(Tp: float | None, process_options: bool) -> None:
+    """eq. (2) needs --tp; the process-model options do not apply to it."""
+    if Tp is None:
+        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
+    if process_options:
+        raise click.UsageError("--param, --range, --window, --relay and --eps work with a process model "
+                               "(--model fopdt, sopdt, ipdt, foipdt or --model-file) in diagnose so far")
+
+
+def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...], min_cycles: int,
+                      json_target: str | None, report_dir: str | None, read_options: dict[str, Any]) -> None:
+    """``diagnose --model NAME``: a process plant's tests against its model
+    (:func:`mrftcli.diagnose.process_plant.diagnose_process`)."""
+    from ..analyze.general import RelayOptions
+    from ..analyze.screen import log_start
+    from ..diagnose.process_plant import diagnose_process
+    from ..io import ReadOptions, read_flight
+
+    params, ranges, windows, relay_kind, eps = model_options
+    if report_dir:
+        raise click.UsageError("--report works with --model soiptd only so far; --json FILE|- writes the diagnosis")
+    model = build_model(model_name, params, ranges)
+    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
+    result = diagnose_process(flight, model, relay=RelayOptions(relay_kind, None, eps),
+                              windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
+    if json_target:
+        dump_json(result.to_json(), json_target)
+    if json_target != "-":
+        click.echo(format_process(result))
+    for w in result.analysis.warnings:
+        click.echo(f"warning: {w}", err=True)
+
+
+def _pct_z(err: float | None, z: float | None) -> str:
+    return "-" if err is None else f"{100 * err:+.1f} %" + ("" if z is None else f" ({z:+.1f} sd)")
+
+
+def format_process(result: ProcessDiagnosis) -> str:
+    """The terminal summary of a process-plant diagnosis: the verdict first, the checks, then the analysis."""
+    t0 = result.analysis.t0
+    lines = [result.verdict]
+    head = ("test", "from-to [s]", "frequency [Hz]", "held-out f [Hz]", "error (z)", "amplitude", "held-out amplitude",
+            "error (z)", "residual/noise: fund.", "2-3", "higher")
+    rows = [head]
+    for c in result.checks:
+        bands = {b.band: f"{b.ratio:.1f}" for b in c.all_bands}
+        rows.append((str(c.index + 1), f"{c.t_start - t0:.2f}-{c.t_end - t0:.2f}",
+                     f"{c.frequency_hz:.4g} ± {c.frequency_se_hz:.2g}", _g(c.held_out_frequency_hz),
+                     _pct_z(c.frequency_error, c.frequency_z), f"{c.amplitude:.3g} ± {c.amplitude_se:.2g}",
+                     _g(c.held_out_amplitude, ".3g"), _pct_z(c.amplitude_error, c.amplitude_z),
+                     bands.get("fundamental", "-"), bands.get("2-3", "-"), bands.get("higher", "-")))
+    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
+    lines += ["  ".join(cell.rjust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]
+    lines.append("(amplitudes in output units; held out: the model of the other tests; z = difference / its sd "
+                 "(the measurement's and the held-out model's); residual/noise: the mean cycle against the model "
+                 "of all tests, per harmonic band)")
+    lines += [f"disagreement: {text}" for text in result.located]
+    lines += [f"test {c.index + 1}: {c.note}" for c in result.checks if c.note]
+    lines += [f"note: {n}" for n in result.notes]
+    lines.append("")
+    lines.append(format_general(result.analysis))
+    return "\n".join(lines)

@@ -1,0 +1,113 @@
+"""``diagnose --model NAME`` (mrftcli.diagnose.process_plant) on recordings of tests/process_sim.py.
+
+The oracle is the independent simulator: a FOPDT recorded under two hysteresis relays (one biased) is a
+FOPDT, so the check must call it consistent; a second-order plant recorded the same way and analysed
+as FOPDT is not, and its mean cycle differs from any FOPDT cycle in its higher harmonics (a
+second-order plant rounds the corners a first-order one has after each switch).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+from process_sim import Window, simulate, write_csv  # noqa: E402
+
+from mrftcli.diagnose.process_plant import ProcessDiagnosis, diagnose_process  # noqa: E402
+from mrftcli.errors import InputError  # noqa: E402
+from mrftcli.io import ReadOptions, read_flight  # noqa: E402
+from mrftcli.mrft.families import family_model  # noqa: E402
+
+WINDOWS = [Window("hysteresis", 1.0, -1.0, eps=0.05, duration=25.0),
+           Window("hysteresis", 1.5, -0.5, eps=0.3, duration=25.0)]
+READ = ReadOptions(command_topic="u_relay", output_topic="y_output")
+
+
+def _recording(tmp_path: Path, family: str, params: dict[str, float]) -> Path:
+    t, u, y = simulate(family, params, WINDOWS, 100.0, 0.01, seed=1)
+    path = tmp_path / f"{family}.csv"
+    write_csv(str(path), t, u, y)
+    return path
+
+
+@pytest.fixture(scope="module")
+def fopdt_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _recording(tmp_path_factory.mktemp("fopdt"), "fopdt", dict(K=2.0, T=1.0, tau=0.3))
+
+
+@pytest.fixture(scope="module")
+def sopdt_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _recording(tmp_path_factory.mktemp("sopdt"), "sopdt", dict(K=2.0, T1=0.7, T2=0.3, tau=0.15))
+
+
+@pytest.fixture(scope="module")
+def fopdt_diagnosis(fopdt_csv: Path) -> ProcessDiagnosis:
+    return diagnose_process(read_flight(fopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
+
+
+def test_clean_fopdt_under_two_relays_is_consistent(fopdt_diagnosis):
+    result = fopdt_diagnosis
+    assert result.consistent and result.verdict == "consistent with FOPDT within the tests' scatter"
+    assert not result.located and len(result.checks) == 2
+    for check in result.checks:
+        # each test's cycle predicted from the OTHER test's model: within 1 % and 3 sd
+        assert check.frequency_error is not None and abs(check.frequency_error) < 0.01
+        assert check.frequency_z is not None and abs(check.frequency_z) < 3
+        assert check.amplitude_error is not None and abs(check.amplitude_error) < 0.03
+        assert [b.band for b in check.all_bands] == ["fundamental", "2-3", "higher"]
+        assert all(b.ratio < 3 for b in check.all_bands + check.held_out_bands)
+
+
+def test_second_order_plant_analysed_as_fopdt_is_located(sopdt_csv):
+    result = diagnose_process(read_flight(sopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
+    assert not result.consistent
+    assert result.verdict.startswith("unexplained by FOPDT: test ")
+    assert "harmonics 2-3 (most at 3)" in result.verdict  # the FOPDT cycle's corners: the 3rd harmonic
+    for check in result.checks:
+        bands = {b.band: b for b in check.all_bands}
+        assert bands["2-3"].ratio > 3 and bands["2-3"].peak == 3
+        assert bands["fundamental"].ratio < bands["2-3"].ratio
+    assert any("chi2/dof" in text for text in result.located)  # the response points disagree too
+
+
+def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
+    result = fopdt_diagnosis
+    data = json.loads(json.dumps(result.to_json()))
+    assert data["schema_version"] == 1 and data["consistent"] is True
+    assert data["checks"][0]["held_out"]["frequency_hz"] == pytest.approx(result.checks[0].held_out_frequency_hz)
+    back = ProcessDiagnosis.from_json(data)
+    assert back.to_json() == result.to_json()
+    with pytest.raises(InputError, match="schema_version"):
+        ProcessDiagnosis.from_json({**data, "schema_version": 99})
+    with pytest.raises(InputError, match="process diagnosis JSON"):
+        ProcessDiagnosis.from_json({"schema_version": 1, "verdict": "x"})
+
+
+def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
+    out = tmp_path / "d.json"
+    run = subprocess.run([sys.executable, "-m", "mrftcli", "diagnose", str(sopdt_csv), "--command-topic", "u_relay",
+                          "--output-topic", "y_output", "--model", "fopdt", "--json", str(out)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    lines = run.stdout.splitlines()
+    assert lines[0].startswith("unexplained by FOPDT: test ")
+    assert "frequency [Hz]" in lines[1] and "Traceback" not in run.stderr
+    assert ProcessDiagnosis.from_json(json.loads(out.read_text())).verdict == lines[0]
+
+
+def test_cli_diagnose_process_options_need_a_process_model(fopdt_csv):
+    from click.testing import CliRunner
+
+    from mrftcli.cli import cli
+
+    runner = CliRunner()
+    res = runner.invoke(cli, ["diagnose", str(fopdt_csv), "--tp", "0.05", "--relay", "ideal"])
+    assert res.exit_code == 2 and "process model" in res.output
+    res = runner.invoke(cli, ["diagnose", str(fopdt_csv), "--command-topic", "u_relay", "--output-topic",
+                              "y_output"])
+    assert res.exit_code == 2 and "--tp" in res.output

@@ -292,7 +292,7 @@ class MeasuredWaveform:
     se : numpy.ndarray
         Standard error of each Y_k (complex scatter over sqrt(n)) [output units].
     frequency_hz, frequency_se_hz : float
-        Mean of 1/P over the cycles and its standard error [Hz].
+        1 / the cycles' mean period P and its standard error [Hz].
     amplitude, amplitude_se : float
         Half the mean waveform's peak-to-peak, and the cycles' scatter of their own over sqrt(n)
         [output units].
@@ -332,9 +332,11 @@ def measured_waveform(flight: FlightLog, test: MrftTest, fits: Sequence[CycleFit
     n = len(fits)
     mean = Y.mean(axis=0)
     se = np.sqrt(np.mean(np.abs(Y - mean) ** 2, axis=0) / (n - 1))
-    freq = np.array([1.0 / f.period for f in fits])
+    # 1 / mean period, as the analysis's table (a mean of 1 / P is biased up by the periods' scatter)
+    periods = np.array([f.period for f in fits])
+    freq = 1.0 / float(periods.mean())
     amps = np.array([_peak_amplitude(y) for y in Y])
-    return MeasuredWaveform(mean, se, float(freq.mean()), float(freq.std(ddof=1) / math.sqrt(n)),
+    return MeasuredWaveform(mean, se, freq, freq ** 2 * float(periods.std(ddof=1)) / math.sqrt(n),
                             _peak_amplitude(mean), float(amps.std(ddof=1) / math.sqrt(n)),
                             response_points(flight, test, fits=fits))
 

@@ -6,7 +6,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -110,11 +110,14 @@ def format_process_plan(result: ProcessPlan, source: str) -> str:
     units = {e.name: e.unit for e in ident.estimates}
     head = ["rank", "relay", "frequency [Hz]", "amplitude [output units]", "phase [deg]",
             *(f"std {n} [{units[n]}]" for n in names)]
-    rows = [head, ["now", "(the recorded tests)", "", "", "", *(_num(result.std_now[n], 3) for n in names)]]
+    def stds(values: Mapping[str, float], undetermined: Sequence[str]) -> list[str]:
+        return ["not determined" if n in undetermined else _num(values[n], 3) for n in names]
+
+    rows = [head, ["now", "(the recorded tests)", "", "", "", *stds(result.std_now, result.undetermined)]]
     for k, c in enumerate(result.candidates, 1):
         rows.append([str(k), c.relay.describe()[len("relay: "):] + ("" if c.within_limit else " (over --max-amplitude)"),
                      _num(c.frequency_hz), _num(c.amplitude, 3), f"{c.phase_deg:.0f}",
-                     *(_num(c.std_after[n], 3) for n in names)])
+                     *stds(c.std_after, c.undetermined_after)])
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["", f"candidate next tests (exact limit cycle of this model at {result.rate_hz:g} Hz; std after "
                   "adding each to the recorded tests):"]

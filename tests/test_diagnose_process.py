@@ -111,3 +111,12 @@ def test_cli_diagnose_process_options_need_a_process_model(fopdt_csv):
     res = runner.invoke(cli, ["diagnose", str(fopdt_csv), "--command-topic", "u_relay", "--output-topic",
                               "y_output"])
     assert res.exit_code == 2 and "--tp" in res.output
+
+
+def test_one_test_is_not_held_out_and_says_so(fopdt_csv):
+    flight = read_flight(fopdt_csv, READ, echo_warnings=False)
+    result = diagnose_process(flight, family_model("fopdt"), windows=[(0.0, 28.0)])
+    (check,) = result.checks
+    assert check.held_out_frequency_hz is None and check.frequency_z is None
+    assert check.note == "no other test to hold it out against"
+    assert result.verdict.startswith("consistent with FOPDT within the noise, on one test only")

@@ -531,8 +531,10 @@ def _verdict(model: PlantModel, checks: Sequence[TestCheck], located: Sequence[s
     name = _family_name(model)
     if not located:
         held = sum(c.held_out_frequency_hz is not None for c in checks)
-        how = "within the tests' scatter" if held else "within the noise (no test could be held out: one test)"
-        return f"consistent with {name} {how}"
+        if not held:
+            return (f"consistent with {name} within the noise, on one test only (the model is fitted to it, "
+                    "nothing is held out: a second relay test checks it)")
+        return f"consistent with {name} within the tests' scatter"
     more = f" ({len(located) - 1} more below)" if len(located) > 1 else ""
     return f"unexplained by {name}: {located[0]}{more}"
 

@@ -563,15 +563,20 @@ def diagnose_process(flight: FlightLog, model: PlantModel, *, relay: RelayOption
     """
     analysis = analyze_general(flight, model, relay=relay, windows=windows, min_stable_cycles=min_stable_cycles)
     by_index = {t.index: t for t in _tests(flight, windows, min_stable_cycles)}
-    measured = {s.index: measured_waveform(flight, by_index[s.index]) for s in analysis.tests}
+    measured, skipped = {}, []
+    for s in analysis.tests:
+        try:
+            measured[s.index] = measured_waveform(flight, by_index[s.index])
+        except InputError as err:  # a test the analysis used but whose cycles are too short to fit here
+            skipped.append(f"not checked: {err}")
     all_model = analysis.identification.model if analysis.identification is not None else None
     checks = tuple(check_test(model, s, measured[s.index],
                               [p for i, m in measured.items() if i != s.index for p in m.points], all_model)
-                   for s in analysis.tests)
+                   for s in analysis.tests if s.index in measured)
     misfit = _misfit(analysis.identification)
     # where the residual sits first (per test, largest first); the fit's overall misfit after it
     ranked = sorted((item for c in checks for item in _locate(c)), key=lambda item: -item[0])
     located = tuple(text for _, text in ranked) + ((misfit[1],) if misfit else ())
-    notes = ("not checked: an actuator limit (a command or output flattening at a level) and delay jitter "
-             "(switch-instant scatter); no effect is refitted, so none is named",)
+    notes = (*skipped, "not checked: an actuator limit (a command or output flattening at a level) and delay "
+                       "jitter (switch-instant scatter); no effect is refitted, so none is named")
     return ProcessDiagnosis(analysis, checks, _verdict(model, checks, located), located, notes)

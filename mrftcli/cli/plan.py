@@ -174,7 +174,7 @@ def plan_process_command(source: str | None, model_name: str, params: Sequence[s
 @structure_options
 @relay_options
 @window_option
-@tp_option(required=False)
+@tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required by --model soiptd.")
 @click.option("--from", "source", metavar="LOG|JSON", type=click.Path(exists=True),
               help="A first test: a log with MRFT test(s), or the JSON of 'mrft-ident analyze --json'. "
                    "With --model NAME: the log of the recorded relay tests (or give it as LOG).")
@@ -240,7 +240,9 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
     if params or ranges or windows or relay_kind or eps is not None:
         raise click.UsageError("--param, --range, --window, --relay and --eps take a process model (--model fopdt, "
                                "sopdt, ipdt, foipdt or --model-file); eq. (2) plans from --tp and the ranges")
-    for name, value in (("--tp", Tp), ("--max-amplitude", max_amplitude), ("--max-h", max_h), ("--time", time_s)):
+    if Tp is None:
+        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
+    for name, value in (("--max-amplitude", max_amplitude), ("--max-h", max_h), ("--time", time_s)):
         if value is None:
             raise click.UsageError(f"Missing option '{name}'.")
     assert Tp is not None and max_amplitude is not None and max_h is not None and time_s is not None

@@ -288,8 +288,15 @@ def format_process(result: ProcessDiagnosis) -> str:
     lines.append("(amplitudes in output units; held out: the model of the other tests; z = difference / its sd "
                  "(the measurement's and the held-out model's); residual/noise: the mean cycle against the model "
                  "of all tests, per harmonic band)")
-    lines += [f"disagreement: {text}" for text in result.located]
-    lines += [f"test {c.index + 1}: {c.note}" for c in result.checks if c.note]
+    shown = 8  # the largest; the JSON's "located" holds them all
+    lines += [f"disagreement: {text}" for text in result.located[:shown]]
+    if len(result.located) > shown:
+        lines.append(f"... and {len(result.located) - shown} more disagreements (all in --json's \"located\")")
+    by_note: dict[str, list[str]] = {}
+    for c in result.checks:
+        if c.note:
+            by_note.setdefault(c.note, []).append(str(c.index + 1))
+    lines += [f"test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
     lines += [f"note: {n}" for n in result.notes]
     lines.append("")
     lines.append(format_general(result.analysis))

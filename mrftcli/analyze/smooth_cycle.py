@@ -1,8 +1,8 @@
 """A test's smooth periodic waveform and the relay's effective switching level on it.
 
-Each stable cycle's output is fitted with a line plus harmonics of its period
-(:func:`cycle_fits`, the fits :func:`mrftcli.analyze.general.response_points` divides by the relay's
-harmonics). Their complex mean over the cycles, in the cycle's phase from its ``-h -> +h`` switch,
+Each stable cycle's output, less the drift its level shows from one cycle to the next, is fitted
+with a constant plus harmonics of its period (:func:`cycle_fits`, the fits
+:func:`mrftcli.analyze.general.response_points` divides by the relay's harmonics). Their complex mean over the cycles, in the cycle's phase from its ``-h -> +h`` switch,
 is the test's smooth waveform: the noise averages out, the plant's response to the relay stays.
 
 A relay deciding on a noisy error switches when the *noisy* error crosses its level, so the smooth
@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.logtypes import FlightLog
 from ..jsonable import check_schema_version
-from ..mrft.harmonics import fit_harmonics
+from ..mrft.harmonics import fit_harmonics, harmonic_basis
 from ..mrft.relays import RelayLaw
 from ..segment.records import MrftTest
 from ..segment.relay_type import sampling_level
@@ -109,23 +109,79 @@ class SwitchingLevel:
 
 
 def cycle_fits(flight: FlightLog, test: MrftTest) -> tuple[CycleFit, ...]:
-    """Each stable cycle of ``test`` fitted with a line plus up to eight harmonics of its period.
+    """Each stable cycle of ``test`` as a level, its drift and up to eight harmonics of its period.
 
-    Cycles with fewer than ten samples are skipped (a line and the fundamental need a few each).
+    A cycle's drift is not fitted from its own samples: over one period a free line is not orthogonal
+    to the harmonics, so the harmonics the fit leaves out (a triangle has all odd ones) project onto
+    the line and the line's sawtooth series hands them back to harmonics 1..H (-0.77 % at the
+    fundamental of a triangle with H = 3, +2.3 % at the 3rd: an IPDT's K read 1 % low). The drift is
+    what the cycle's level does from one cycle to the next (:func:`_drift_rates`); with it removed a
+    constant plus the harmonics, orthogonal on a uniform grid, leave out nothing that leaks into them.
+    Cycles with fewer than ten samples are skipped (the level and the fundamental need a few each).
     """
     t, y = flight.output.t, flight.output.values * test.loop_sign
-    fits = []
+    spans = []
     for c in test.stable:
         P = c.t_end - c.t_start
         # the cycle is [t_start, t_end): a sample within a millionth of a period of a bound counts as on
         # it, so rounding in the times (1e-14 s) cannot move a sample across (it moved K by 0.25 %)
         i0, i1 = np.searchsorted(t, [c.t_start - 1e-6 * P, c.t_end - 1e-6 * P])
-        if i1 - i0 < 10:
-            continue
-        # up to eight harmonics, two samples per fitted function (16 samples a cycle: k <= 3)
-        fit = fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4))
-        fits.append(CycleFit(c.t_start, P, c.t_switch - c.t_start, fit.harmonics, "glitch" in c.flags))
+        if i1 - i0 >= 10:
+            spans.append((c, int(i0), int(i1)))
+    projections = [_level_and_harmonics(t[i0:i1] - c.t_start, y[i0:i1], c.t_end - c.t_start)
+                   for c, i0, i1 in spans]
+    rates = _drift_rates([c.t_start + 0.5 * (c.t_end - c.t_start) for c, _, _ in spans],
+                         [float(coef_y[0]) for coef_y, _ in projections])
+    if len(spans) == 1:
+        # a lone cycle has no neighbour: its drift is fitted with its harmonics as a free line, which
+        # leaks the harmonics left out into the ones fitted (above)
+        c, i0, i1 = spans[0]
+        P = c.t_end - c.t_start
+        rates = [float(fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4)).coef[1]) / P]
+    fits = []
+    for (c, _, _), (coef_y, coef_ramp), rate in zip(spans, projections, rates):
+        H = (coef_y.size - 1) // 2
+        coef = coef_y - rate * coef_ramp  # by linearity: the fit of y minus the drift line
+        fits.append(CycleFit(c.t_start, c.t_end - c.t_start, c.t_switch - c.t_start,
+                             coef[1: 1 + H] - 1j * coef[1 + H:], "glitch" in c.flags))
     return tuple(fits)
+
+
+def _level_and_harmonics(x: np.ndarray, y: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``[c, a_1..a_H, b_1..b_H]`` of one cycle's output and of the ramp ``x - P / 2``.
+
+    The basis is a constant plus the cosines and sines of harmonics 1..H (H up to eight, two samples
+    per fitted function: 16 samples a cycle give H = 3), the same as
+    :func:`~mrftcli.mrft.harmonics.harmonic_basis` without its trend column; ``x`` is the time from
+    the cycle's start [s]. The ramp's fit is what a drift of one output unit per second adds.
+    """
+    H = min(8, (x.size - 2) // 4)
+    A = np.delete(harmonic_basis(x, period, H), 1, axis=1)
+    coef, *_ = np.linalg.lstsq(A, np.column_stack([y, x - 0.5 * period]), rcond=None)
+    return coef[:, 0], coef[:, 1]
+
+
+def _drift_rates(mid_times: Sequence[float], levels: Sequence[float]) -> list[float]:
+    """Each cycle's drift [output units / s]: the central difference of its neighbours' levels.
+
+    A cycle's fitted constant is its level at mid-cycle (the mean over a period carries no harmonic),
+    so the difference of the neighbours' levels over their mid-times is the drift at the cycle,
+    exact for a linear drift; the first and the last cycle take the one-sided difference. Zero for a
+    lone cycle (no neighbour to read it from).
+
+    Examples
+    --------
+    >>> _drift_rates([0.5, 1.5, 2.5], [1.0, 2.0, 4.0])
+    [1.0, 1.5, 2.0]
+    """
+    n = len(levels)
+    if n < 2:
+        return [0.0] * n
+    rates = []
+    for i in range(n):
+        a, b = max(i - 1, 0), min(i + 1, n - 1)
+        rates.append((levels[b] - levels[a]) / (mid_times[b] - mid_times[a]))
+    return rates
 
 
 def switching_level(fits: Sequence[CycleFit]) -> SwitchingLevel | None:

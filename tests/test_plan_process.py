@@ -120,12 +120,20 @@ def test_cli_plan_model_prints_the_ranked_candidates_and_the_json(first):
 
     from mrftcli.cli.main import cli
 
-    path, _ = first
+    path, analysis = first
     args = ["plan", str(path), "--model", "fopdt", "--command-topic", "u_relay", "--output-topic", "y_output"]
     res = CliRunner().invoke(cli, [*args, "--json", "-"])
     assert res.exit_code == 0, res.output
     plan = ProcessPlan.from_json(json.loads(res.stdout))
     assert plan.identification.model.family == "fopdt" and plan.recommended.relay.kind != "ideal"
+    # the same plan from the analysis' JSON (analyze --model fopdt --json), without reading the log again
+    saved = path.with_suffix(".json")
+    saved.write_text(json.dumps(analysis.to_json()))
+    again = CliRunner().invoke(cli, ["plan", str(saved), "--model", "fopdt", "--json", "-"])
+    assert again.exit_code == 0, again.output
+    assert ProcessPlan.from_json(json.loads(again.stdout)).recommended == plan.recommended
+    wrong = CliRunner().invoke(cli, ["plan", str(saved), "--model", "sopdt"])
+    assert isinstance(wrong.exception, InputError) and "give --model fopdt" in str(wrong.exception)
     text = CliRunner().invoke(cli, args).output.splitlines()
     assert text[0].startswith("assumption:") and any(line.startswith("recommended: ") for line in text)
     assert any("frequency [Hz]" in line and "std K [output / command]" in line for line in text)

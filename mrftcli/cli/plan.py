@@ -20,6 +20,7 @@ from .options import (check_output_file, dump_json, json_option, log_layout_opti
 if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate
     from ..plan import FlownTest, PlanResult
+    from ..analyze.general import GeneralAnalysis
     from ..plan.process_records import ProcessPlan
 
 __all__ = ["plan", "format_plan", "format_process_plan"]
@@ -129,6 +130,24 @@ def format_process_plan(result: ProcessPlan, source: str) -> str:
     return "\n".join(lines)
 
 
+def _process_analysis_json(path: Path, model_name: str) -> GeneralAnalysis:
+    """The process analysis of an ``analyze --model NAME --json`` file, whose model must be ``model_name``'s."""
+    from ..analyze.general import GeneralAnalysis
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
+    try:
+        analysis = GeneralAnalysis.from_json(data)
+    except InputError as err:
+        raise InputError(f"{path}: {err} (plan --model NAME reads an 'analyze --model NAME --json' result)") from None
+    family = analysis.identification.model.family if analysis.identification is not None else None
+    if family != model_name:
+        raise InputError(f"{path} holds a {family} analysis, not --model {model_name}: give --model {family}")
+    return analysis
+
+
 def plan_process_command(source: str | None, model_name: str, params: Sequence[str], ranges: Sequence[str],
                          windows: Sequence[str], relay_kind: str | None, eps: float | None, *,
                          max_amplitude: float | None, max_h: float | None, min_cycles: int,
@@ -150,18 +169,21 @@ def plan_process_command(source: str | None, model_name: str, params: Sequence[s
                                "the recorded relay tests (and optionally --max-amplitude, --max-h)")
     if source is None:
         raise click.UsageError("plan --model NAME needs the log of the recorded relay tests: plan LOG --model NAME")
-    if source.lower().endswith(".json"):
-        raise click.UsageError("plan --model NAME reads the log of the relay tests, not a JSON result: plan LOG "
-                               "--model NAME")
     for name, value in (("--max-amplitude", max_amplitude), ("--max-h", max_h)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a positive number [{'output' if 'ampl' in name else 'command'} "
                              f"units], got {value}")
     check_output_file(json_target, "--json")
-    model = build_model(model_name, params, ranges)
-    flight = read_flight(source, ReadOptions(**read_options), echo_warnings=False)
-    analysis = analyze_general(flight, model, relay=RelayOptions(relay_kind, None, eps),
-                               windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
+    if source.lower().endswith(".json"):
+        if params or ranges or windows or relay_kind or eps is not None:
+            raise click.UsageError("--param, --range, --window, --relay and --eps apply to a log; an analyze --json "
+                                   "result was analysed with its own")
+        analysis = _process_analysis_json(Path(source), model_name)
+    else:
+        model = build_model(model_name, params, ranges)
+        flight = read_flight(source, ReadOptions(**read_options), echo_warnings=False)
+        analysis = analyze_general(flight, model, relay=RelayOptions(relay_kind, None, eps),
+                                   windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
     result = plan_process(analysis, max_amplitude=max_amplitude, max_h=max_h)
     if json_target:
         dump_json(result.to_json(), json_target)

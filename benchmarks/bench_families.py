@@ -21,8 +21,13 @@ in the same process, alternating per recording, by the general route (a response
 forward-difference Jacobian, what any other structure with a grid gets) and the library route
 (a model object per grid point, ``scipy.optimize.least_squares``).
 
-Run: ``nice -n 10 python benchmarks/bench_families.py [--n 10] [--seed 0]`` (n recordings per family
-and relay; about 1.5 s each).
+With ``--baseline`` each recording is analysed a second time, in the same process, with the per-cycle
+fit before issue 22's fix (each cycle's own free line plus harmonics, which hands the harmonics left
+out back to those fitted: an IPDT's K ~1 % low under the ideal relay), and the same scores and K's
+median error are printed for both.
+
+Run: ``nice -n 10 python benchmarks/bench_families.py [--n 10] [--seed 0] [--baseline]`` (n recordings
+per family and relay; about 1.5 s each, 2 s with the baseline).
 """
 
 from __future__ import annotations
@@ -83,11 +88,11 @@ def draw_windows(family: str, relay: str, amp: float, period: float, rng: np.ran
     return out
 
 
-def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path) -> dict[str, object]:
+def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path,
+                  baseline: bool = False) -> dict[str, object]:
     from process_sim import simulate, write_csv
 
     from mrftcli.analyze.general import RelayOptions, analyze_general
-    from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
     from mrftcli.mrft.relays import RelayLaw
@@ -102,9 +107,24 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path) 
     path = tmp / "rec.csv"
     write_csv(str(path), t, u, y)
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
+    relay_options = RelayOptions("mrft") if relay == "mrft" else RelayOptions()
+    model = family_model(family)
+    row = _score(lambda: analyze_general(flight, model, relay=relay_options), model, params, len(windows))
+    if baseline:
+        with _free_line_fits():
+            base = _score(lambda: analyze_general(flight, model, relay=relay_options), model, params, len(windows))
+        row.update({f"base_{k}": base[k] for k in ("within5", "covered", "held10")})
+        row["base_worst"] = base.get("worst", math.nan)
+        row["base_K_err"] = base.get("K_err", math.nan)
+    return row
+
+
+def _score(analyse, model, params: dict[str, float], n_windows: int) -> dict[str, object]:
+    """One recording's scores (module docstring) from ``analyse()``, an ``analyze_general`` call of ``model``."""
+    from mrftcli.errors import MrftError
+
     try:
-        res = analyze_general(flight, family_model(family),
-                              relay=RelayOptions("mrft") if relay == "mrft" else RelayOptions())
+        res = analyse()
     except MrftError as err:
         return {"within5": False, "covered": False, "held10": False, "refused": str(err)[:80], "points": []}
     ident = res.identification
@@ -115,8 +135,38 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path) 
             if t.held_out is not None and t.held_out.frequency_hz is not None]
     held10 = len(held) == len(res.tests) and all(abs(h) <= 0.10 for h in held)
     return {"within5": within, "covered": covered, "held10": held10, "refused": "",
-            "n_tests": len(res.tests), "n_windows": len(windows), "points": ident.points,
-            "model": family_model(family), "worst": max(abs(ident.estimate(n).value / v - 1) for n, v in params.items())}
+            "n_tests": len(res.tests), "n_windows": n_windows, "points": ident.points,
+            "model": model,
+            "worst": max(abs(ident.estimate(n).value / v - 1) for n, v in params.items()),
+            "K_err": ident.estimate("K").value / params["K"] - 1}
+
+
+@contextlib.contextmanager
+def _free_line_fits():
+    """``analyze_general`` with the per-cycle fit before issue 22's fix: each cycle's own free line plus
+    harmonics (the baseline; it hands the harmonics left out back to those fitted through the line)."""
+    from mrftcli.analyze import general
+    from mrftcli.analyze.smooth_cycle import CycleFit
+    from mrftcli.mrft.harmonics import fit_harmonics
+
+    def free_line(flight, test):
+        t, y = flight.output.t, flight.output.values * test.loop_sign
+        fits = []
+        for c in test.stable:
+            P = c.t_end - c.t_start
+            i0, i1 = np.searchsorted(t, [c.t_start - 1e-6 * P, c.t_end - 1e-6 * P])
+            if i1 - i0 < 10:
+                continue
+            fit = fit_harmonics(t[i0:i1] - c.t_start, y[i0:i1], P, min(8, (i1 - i0 - 2) // 4))
+            fits.append(CycleFit(c.t_start, P, c.t_switch - c.t_start, fit.harmonics, "glitch" in c.flags))
+        return tuple(fits)
+
+    fixed = general.cycle_fits
+    general.cycle_fits = free_line
+    try:
+        yield
+    finally:
+        general.cycle_fits = fixed
 
 
 def main() -> None:
@@ -125,6 +175,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--families", default=",".join(FAMILIES), help="comma-separated subset")
     ap.add_argument("--relays", default=",".join(RELAYS), help="comma-separated subset")
+    ap.add_argument("--baseline", action="store_true",
+                    help="also analyse each recording with the per-cycle free line (before issue 22's fix)")
     args = ap.parse_args()
     from mrftcli.mrft.identify_lti import identify_lti
 
@@ -132,13 +184,13 @@ def main() -> None:
     print(f"{args.n} fresh recordings per family and relay (seed {args.seed})")
     print(f"{'family':<7} {'relay':<11} {'within 5 %':>10} {'95 % covers':>11} {'held-out 10 %':>13} "
           f"{'refused':>7} {'tests/windows':>13} {'median worst err':>16}")
-    totals = {"within5": 0, "covered": 0, "held10": 0, "n": 0}
+    totals = {"within5": 0, "covered": 0, "held10": 0, "n": 0, "base_within5": 0, "base_covered": 0, "base_held10": 0}
     timing_cases = []
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         for family in args.families.split(","):
             for relay in args.relays.split(","):
-                rows = [one_recording(family, relay, rng, Path(d)) for _ in range(args.n)]
+                rows = [one_recording(family, relay, rng, Path(d), args.baseline) for _ in range(args.n)]
                 ok = {k: sum(bool(r[k]) for r in rows) for k in ("within5", "covered", "held10")}
                 refused = sum(bool(r["refused"]) for r in rows)
                 tw = f"{sum(r.get('n_tests', 0) for r in rows)}/{sum(r.get('n_windows', 0) for r in rows)}"
@@ -148,6 +200,8 @@ def main() -> None:
                 for r in rows:
                     if r["refused"]:
                         print(f"    refused: {r['refused']}")
+                if args.baseline:
+                    _print_baseline(rows, args.n, totals)
                 for k in ("within5", "covered", "held10"):
                     totals[k] += ok[k]
                 totals["n"] += args.n
@@ -157,8 +211,23 @@ def main() -> None:
           f"95 % intervals cover {totals['covered']}/{n} ({100 * totals['covered'] / n:.0f} %), "
           f"held-out frequency within 10 % {totals['held10']}/{n} ({100 * totals['held10'] / n:.0f} %); "
           f"{time.perf_counter() - t_start:.0f} s")
+    if args.baseline:
+        print(f"  free line (baseline, same recordings): within 5 % {totals['base_within5']}/{n}, "
+              f"95 % intervals cover {totals['base_covered']}/{n}, held-out within 10 % {totals['base_held10']}/{n}")
     times = _time_calls(identify_lti, timing_cases)
     _print_timing(times)
+
+
+def _print_baseline(rows: list[dict[str, object]], n: int, totals: dict[str, int]) -> None:
+    """The same recordings' scores with the per-cycle free line, and K's median error under both fits."""
+    base = {k: sum(bool(r.get(f"base_{k}")) for r in rows) for k in ("within5", "covered", "held10")}
+    for k, v in base.items():
+        totals[f"base_{k}"] += v
+    k_now = np.median([r["K_err"] for r in rows if "K_err" in r]) if any("K_err" in r for r in rows) else math.nan
+    k_base = (np.nanmedian([r["base_K_err"] for r in rows if "base_K_err" in r])
+              if any("base_K_err" in r for r in rows) else math.nan)
+    print(f"{'':<7} {'free line':<11} {base['within5']:>7}/{n:<2} {base['covered']:>8}/{n:<2} "
+          f"{base['held10']:>10}/{n:<2}   median K error {100 * k_now:+.2f} % (free line {100 * k_base:+.2f} %)")
 
 
 #: the routes timed, each as identify_lti with a set of its fast paths switched off (same process)

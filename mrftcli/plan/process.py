@@ -24,6 +24,7 @@ frequency) adds an independent point.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from typing import Mapping, Sequence
@@ -201,6 +202,24 @@ def _why(best: ProcessCandidate, std_now: Mapping[str, float], undetermined: Seq
             f"{best.std_after[best_name]:.3g}).")
 
 
+def _forecast_all(model: PlantModel, relays: Sequence[RelayLaw], rate_hz: float, F_now: FloatArray,
+                  noise: Mapping[int, tuple[float, float]], w_ref: float,
+                  max_amplitude: float | None) -> tuple[list[ProcessCandidate], list[str]]:
+    """Every relay forecast (:func:`forecast_candidate`), marked over ``max_amplitude`` [output units]; and the
+    relays without a limit cycle on the model, described."""
+    out, skipped = [], []
+    for relay in relays:
+        try:
+            c = forecast_candidate(model, relay, rate_hz, F_now, noise, w_ref)
+        except InputError:
+            skipped.append(relay.describe()[len("relay: "):])
+            continue
+        if max_amplitude is not None and c.amplitude > max_amplitude:
+            c = dataclasses.replace(c, within_limit=False)
+        out.append(c)
+    return out, skipped
+
+
 def plan_process(analysis: GeneralAnalysis, *, max_amplitude: float | None = None,
                  max_h: float | None = None) -> ProcessPlan:
     """Rank the next relay tests for the model of ``analysis`` (module docstring).
@@ -242,17 +261,7 @@ def plan_process(analysis: GeneralAnalysis, *, max_amplitude: float | None = Non
     except InputError:
         a_ideal = a_rec
     noise = {k: (se * math.sqrt(widen), a) for k, (se, a) in _noise(points, a_rec).items()}
-    out, skipped = [], []
-    for relay in candidate_relays(levels, a_ideal):
-        try:
-            c = forecast_candidate(model, relay, rate, F_now, noise, w_ref)
-        except InputError:
-            skipped.append(relay.describe()[len("relay: "):])
-            continue
-        if max_amplitude is not None and c.amplitude > max_amplitude:
-            c = ProcessCandidate(c.relay, c.frequency_hz, c.amplitude, c.gain, c.phase_deg, c.std_after,
-                                 c.undetermined_after, within_limit=False)
-        out.append(c)
+    out, skipped = _forecast_all(model, candidate_relays(levels, a_ideal), rate, F_now, noise, w_ref, max_amplitude)
     if not out:
         raise InputError("no candidate relay has a limit cycle on the current model: "
                          f"{'; '.join(skipped)}")

@@ -13,7 +13,7 @@ import pytest
 from mrftcli.mrft.model import LoopModel
 from mrftcli.io.logtypes import Signal
 from mrftcli.segment import SegmentOptions, segment_arrays
-from mrftcli.segment.vernier import fold_waveform, switch_ticks
+from mrftcli.segment.vernier import fold_harmonics, fold_waveform, switch_ticks
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
 RATE = 50.0
@@ -121,6 +121,23 @@ def test_fold_waveform_recovers_a_known_waveform_from_five_samples_a_cycle():
     assert abs(w.coef[0]) == pytest.approx(1.0, rel=1e-3)
     # too few distinct phases: two samples a cycle at the same places
     assert fold_waveform(np.arange(0.0, 14.0, 0.5), np.ones(28), np.arange(14.0), np.arange(1.0, 15.0)) is None
+
+
+def test_a_fold_over_a_locked_grid_of_12_phases_reads_the_peak_not_the_fundamental():
+    # a 1.2 s cycle logged at 10 Hz: 12 samples a cycle at the same 12 phases (the logging locked to
+    # it); the output of a relay through an integrating plant is near a parabola, whose fundamental
+    # is 32 / pi^3 = 1.032 of its peak (closed form): one harmonic read K 3 % long (issue 24 part 3)
+    P, n = 1.2, 10
+    t = np.arange(0.0, n * P, 0.1)
+    phi = (t / P) % 1.0
+    y = np.where(phi < 0.5, 1.0 - (4 * phi - 1) ** 2, (4 * phi - 3) ** 2 - 1)  # peak 1, odd harmonics only
+    y = y + np.random.default_rng(5).normal(0.0, 0.002, t.size)
+    t0 = np.arange(n) * P
+    assert fold_harmonics(t, y, t0, t0 + P) >= 3
+    w = fold_waveform(t, y, t0, t0 + P, fold_harmonics(t, y, t0, t0 + P))
+    assert w is not None and w.distinct_phases == 12
+    assert abs(w.coef[0]) == pytest.approx(32 / np.pi ** 3, rel=5e-3)
+    assert w.amplitude == pytest.approx(1.0, rel=1e-2)  # one harmonic: 1.032
 
 
 def test_a_wandering_orbit_at_beta_minus_0_8_is_measured_at_its_level_and_amplitude():

@@ -30,7 +30,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..mrft.harmonics import harmonic_basis
-from .cycles import harmonics_for
 from .records import RelayCycle
 
 __all__ = ["TickSwitches", "switch_ticks", "refine_by_waveform", "FoldedWaveform", "fold_waveform", "fold_harmonics",
@@ -317,8 +316,8 @@ def fold_waveform(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray,
     """The output's waveform over the cycles [t0_i, t2_i) folded at their phases.
 
     Least squares over every sample in a cycle: a line in time (the level's drift over the test)
-    plus harmonics 1..H of the phase, H as many as the distinct phases carry twice over
-    (:func:`~mrftcli.segment.cycles.harmonics_for`), at least 1 and at most 8, or fewer when
+    plus harmonics 1..H of the phase, H as many as the distinct phases carry (:func:`_fold_h_max`),
+    at least 1 and at most 8, or fewer when
     ``harmonics`` says so (:func:`fold_harmonics`). None when the samples fall on fewer than 4
     distinct phases.
     """
@@ -349,7 +348,7 @@ def _fold_fit(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray, harm
     distinct = int(np.unique(np.round(ph, 3)).size)
     if distinct < MIN_LOGGED_PER_CYCLE:
         return None
-    H = int(min(_HARMONICS, max(1, harmonics_for(distinct))))
+    H = _fold_h_max(distinct)
     if harmonics is not None:
         H = int(min(H, max(1, harmonics)))
     A = _fold_design(tt, ph, H)
@@ -357,6 +356,19 @@ def _fold_fit(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray, harm
     resid = yy - A @ sol
     dof = max(yy.size - A.shape[1], 1)
     return A, yy, np.asarray(sol, dtype=np.float64), float(np.sqrt(resid @ resid / dof)), distinct
+
+
+def _fold_h_max(distinct: int) -> int:
+    """Most harmonics [-] a fold over ``distinct`` phases carries: the line and 2 H coefficients with
+    a phase to spare, at most :data:`_HARMONICS` (:func:`fold_harmonics` picks among them).
+
+    The fold's limit is its distinct phases, not its samples per cycle: every cycle repeats them, so
+    a grid locked to a 1.2 s cycle (12 phases, 10 Hz) carries 4 harmonics, where the per-cycle rule
+    (:func:`~mrftcli.segment.cycles.harmonics_for`, twice over its 12 samples) allowed 2: with one
+    harmonic the near-parabolic output of an integrating plant read its peak as its fundamental,
+    32 / pi^3 = 1.032 of it, and K 2-3 % long, outside its interval (issue 24 part 3).
+    """
+    return int(min(_HARMONICS, max(1, (distinct - 3) // 2)))
 
 
 def _fold_design(t: FloatArray, phi: FloatArray, H: int) -> FloatArray:
@@ -384,7 +396,7 @@ def fold_harmonics(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray)
     sel = k >= 0
     tt, yy, ph, kk = t[sel], y[sel], phi[sel], k[sel]
     distinct = int(np.unique(np.round(ph, 3)).size)
-    h_max = int(min(_HARMONICS, max(1, harmonics_for(distinct))))
+    h_max = _fold_h_max(distinct)
     cycles = np.unique(kk)
     if cycles.size < 3 or h_max <= 1:
         return h_max

@@ -148,3 +148,14 @@ def test_cli_refuses_eq2_options_with_a_process_model(first):
     res = CliRunner().invoke(cli, ["plan", str(path), "--model", "fopdt", "--tp", "0.04", "--command-topic",
                                    "u_relay", "--output-topic", "y_output"])
     assert res.exit_code == 2 and "--tp" in res.output and "Traceback" not in res.output
+
+
+def test_a_model_already_at_its_floor_says_no_next_test_is_needed(tmp_path):
+    # IPDT from one long, clean ideal-relay test: K and tau at the identification's 0.5 % floor
+    t, u, y = simulate("ipdt", dict(K=1.5, tau=0.25), [Window("ideal", 1.0, -1.0, duration=15.0, rest=2.0)],
+                       100.0, 0.003, seed=1)
+    write_csv(str(tmp_path / "ipdt.csv"), t, u, y)
+    plan = plan_process(analyze_general(read_flight(tmp_path / "ipdt.csv", READ, echo_warnings=False),
+                                        family_model("ipdt")))
+    assert plan.undetermined == () and "a next test is not needed" in plan.why
+    assert abs(plan.std_now["K"] / 1.5 - 0.005) < 0.001

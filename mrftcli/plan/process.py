@@ -195,6 +195,9 @@ def _why(best: ProcessCandidate, std_now: Mapping[str, float], undetermined: Seq
         return f"{phase}, {where}: it determines {', '.join(fixed)} (not determined by the recorded tests)."
     if not gains:
         return f"{phase}, {where}; no candidate determines {', '.join(undetermined)}."
+    if not undetermined and max(gains.values()) < 1.1:
+        return ("no candidate narrows any parameter by 10 % or more: the recorded tests already pin the model down "
+                "(to the identification's floor of 0.5 %, or their own scatter); a next test is not needed.")
     best_name = max((n for n in gains if math.isfinite(gains[n])), key=lambda n: gains[n], default=None)
     if best_name is None:
         return f"{phase}, {where}: it narrows every parameter the recorded tests left undetermined."

@@ -148,11 +148,24 @@ def _process_analysis_json(path: Path, model_name: str) -> GeneralAnalysis:
     return analysis
 
 
-def plan_process_command(source: str | None, model_name: str, params: Sequence[str], ranges: Sequence[str],
-                         windows: Sequence[str], relay_kind: str | None, eps: float | None, *,
-                         max_amplitude: float | None, max_h: float | None, min_cycles: int,
-                         json_target: str | None, read_options: dict[str, Any]) -> None:
+@dataclasses.dataclass(frozen=True)
+class _ProcessOptions:
+    """What ``plan --model NAME`` passes on: the structure (``--model``/``--param``/``--range``), the parts of
+    the log and the relay as stated (``--window``, ``--relay``, ``--eps`` [output units])."""
+
+    model_name: str
+    params: tuple[str, ...] = ()
+    ranges: tuple[str, ...] = ()
+    windows: tuple[str, ...] = ()
+    relay_kind: str | None = None
+    eps: float | None = None
+
+
+def _plan_process(source: str | None, opts: _ProcessOptions, *, max_amplitude: float | None, max_h: float | None,
+                  min_cycles: int, json_target: str | None, read_options: dict[str, Any]) -> None:
     """``plan LOG --model NAME``: the log analysed as ``analyze --model`` does, then the next relay tests ranked."""
+    model_name, params, ranges, windows = opts.model_name, opts.params, opts.ranges, opts.windows
+    relay_kind, eps = opts.relay_kind, opts.eps
     from ..analyze.general import RelayOptions, analyze_general
     from ..analyze.screen import log_start
     from ..io import ReadOptions, read_flight
@@ -255,9 +268,9 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
         raise click.UsageError("give the log as LOG or as --from LOG, not both")
     source = source if log is None else log
     if model_name != "soiptd":
-        plan_process_command(source, model_name, params, ranges, windows, relay_kind, eps,
-                             max_amplitude=max_amplitude, max_h=max_h, min_cycles=min_cycles,
-                             json_target=json_target, read_options=read_options)
+        _plan_process(source, _ProcessOptions(model_name, params, ranges, windows, relay_kind, eps),
+                      max_amplitude=max_amplitude, max_h=max_h, min_cycles=min_cycles, json_target=json_target,
+                      read_options=read_options)
         return
     if params or ranges or windows or relay_kind or eps is not None:
         raise click.UsageError("--param, --range, --window, --relay and --eps take a process model (--model fopdt, "

@@ -190,7 +190,9 @@ def _why(best: ProcessCandidate, std_now: Mapping[str, float], undetermined: Seq
     gains = {n: std_now[n] / s for n, s in best.std_after.items() if math.isfinite(s) and s > 0}
     fixed = [n for n in undetermined if n not in best.undetermined_after]
     phase = f"its cycle at {best.frequency_hz:.4g} Hz puts a response point at {best.phase_deg:.0f} deg"
-    where = ("where the recorded tests sit at " + ", ".join(f"{p:.0f}" for p in phases_now) + " deg")
+    listed = (", ".join(f"{p:.0f}" for p in phases_now) if len(phases_now) <= 3
+              else f"{min(phases_now):.0f} to {max(phases_now):.0f}")
+    where = f"where the recorded tests sit at {listed} deg"
     if fixed:
         return f"{phase}, {where}: it determines {', '.join(fixed)} (not determined by the recorded tests)."
     if not gains:

@@ -278,6 +278,10 @@ def plan_process(analysis: GeneralAnalysis, *, max_amplitude: float | None = Non
                    "[command units] with the recorded tests' noise (their points' scatter, scaled by the "
                    "amplitude)",)
     notes = tuple(f"no limit cycle on the current model: {s}" for s in skipped)
+    if widen > 3:
+        notes += (f"the recorded points disagree with {model.family} beyond their scatter (chi2/dof {widen:.3g}): the "
+                  "forecast widens their errors by it, and no next test fixes a structure that does not fit (compare "
+                  "another --model, and the held-out predictions of analyze --model)",)
     if max_amplitude is not None and not ranked[0].within_limit:
         notes += (f"no candidate stays within --max-amplitude {max_amplitude:g}: the first is the least over it",)
     return ProcessPlan(ident, float(rate), std_now, undetermined, tuple(ranked),

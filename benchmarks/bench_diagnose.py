@@ -27,6 +27,7 @@ Usage::
 
     nice -n 10 python benchmarks/bench_diagnose.py [--per-effect 3] [--outside 3] [--clean 5] [--jobs 1] [--seed N]
     nice -n 10 python benchmarks/bench_diagnose.py --lookalikes
+    nice -n 10 python benchmarks/bench_diagnose.py --seed N --only delay_jitter,dead_zone  # a run's cases again
 """
 
 from __future__ import annotations

@@ -27,7 +27,8 @@ Usage::
 
     nice -n 10 python benchmarks/bench_diagnose.py [--per-effect 3] [--outside 3] [--clean 5] [--jobs 1] [--seed N]
     nice -n 10 python benchmarks/bench_diagnose.py --lookalikes
-    nice -n 10 python benchmarks/bench_diagnose.py --seed N --only delay_jitter,dead_zone  # a run's cases again
+    # a run's cases of some kinds again: the same --seed, --per-effect, --outside, --clean, --pairs
+    nice -n 10 python benchmarks/bench_diagnose.py --per-effect 3 --outside 10 --clean 5 --seed N --only delay_jitter,dead_zone
 """
 
 from __future__ import annotations
@@ -275,8 +276,8 @@ def main() -> None:
     ap.add_argument("--effects", default=None, help="comma-separated subset of the library's effects (default: all)")
     ap.add_argument("--pairs", type=int, default=0, help="also this many logs with two effects at once")
     ap.add_argument("--only", default=None,
-                    help="run only the drawn cases of these kinds (comma-separated effects, 'clean', 'outside'): the "
-                         "seed's draws are unchanged, so a run's misses are reproduced by its seed")
+                    help="run only the drawn cases of these kinds (comma-separated effects, 'clean', 'outside'): with "
+                         "the run's --seed and counts the draws are unchanged, so its misses are reproduced")
     ap.add_argument("--lookalikes", action="store_true",
                     help="only the look-alike pairs' flights (LOOKALIKE_FLIGHTS), with the whole library")
     args = ap.parse_args()

@@ -31,6 +31,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import stats
 
 from ..analyze.general import GeneralAnalysis
 from ..errors import InputError
@@ -278,7 +279,9 @@ def plan_process(analysis: GeneralAnalysis, *, max_amplitude: float | None = Non
                    "[command units] with the recorded tests' noise (their points' scatter, scaled by the "
                    "amplitude)",)
     notes = tuple(f"no limit cycle on the current model: {s}" for s in skipped)
-    if widen > 3:
+    dof = 2 * len(points) - len(names)
+    # beyond chance at 0.1 % (chi2 with the fit's degrees of freedom): a misfit the structure must answer for
+    if dof > 0 and widen > float(stats.chi2.ppf(0.999, dof)) / dof:
         notes += (f"the recorded points disagree with {model.family} beyond their scatter (chi2/dof {widen:.3g}): the "
                   "forecast widens their errors by it, and no next test fixes a structure that does not fit (compare "
                   "another --model, and the held-out predictions of analyze --model)",)

@@ -13,7 +13,7 @@ import pytest
 from mrftcli.mrft.model import LoopModel
 from mrftcli.io.logtypes import Signal
 from mrftcli.segment import SegmentOptions, segment_arrays
-from mrftcli.segment.vernier import fold_harmonics, fold_waveform, switch_ticks
+from mrftcli.segment.vernier import fold_amplitudes, fold_harmonics, fold_waveform, switch_ticks
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
 RATE = 50.0
@@ -138,6 +138,27 @@ def test_a_fold_over_a_locked_grid_of_12_phases_reads_the_peak_not_the_fundament
     assert w is not None and w.distinct_phases == 12
     assert abs(w.coef[0]) == pytest.approx(32 / np.pi ** 3, rel=5e-3)
     assert w.amplitude == pytest.approx(1.0, rel=1e-2)  # one harmonic: 1.032
+
+
+def test_fold_amplitudes_carries_the_harmonic_counts_the_cycles_cannot_tell_apart():
+    # the near-parabola (peak 1, third harmonic 0.038) over 3 cycles at a sliding 10 Hz grid, among
+    # noise of 5 % of it: leaving one of 3 cycles out cannot tell the harmonic counts apart, and
+    # the amplitudes they give bracket the peak where the one chosen is 2.5 % off; over 14 quiet
+    # cycles the choice is clear and the peak alone is left
+    def parabola(n, noise, seed):
+        P = 1.27
+        t = np.arange(0.0, n * P, 0.1)
+        phi = (t / P) % 1.0
+        y = np.where(phi < 0.5, 1.0 - (4 * phi - 1) ** 2, (4 * phi - 3) ** 2 - 1)
+        return t, y + np.random.default_rng(seed).normal(0.0, noise, t.size), np.arange(n) * P, P
+
+    t, y, t0, P = parabola(3, 0.05, 1)
+    amps = fold_amplitudes(t, y, t0, t0 + P)
+    assert abs(amps[0] - 1.0) > 0.02  # the choice alone: 2.5 % off
+    assert amps.size >= 2 and amps.min() <= 1.0 <= amps.max() and np.ptp(amps) > 0.03
+    t, y, t0, P = parabola(14, 0.001, 3)
+    amps = fold_amplitudes(t, y, t0, t0 + P)
+    assert np.all(np.abs(amps - 1.0) < 0.005)
 
 
 def test_a_wandering_orbit_at_beta_minus_0_8_is_measured_at_its_level_and_amplitude():

@@ -100,7 +100,7 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     n = len(screening.usable)
     n_combinations = int(min(opts.max_combinations, max(50, 4000 // n)))
     combos = combinations(Tp, list(point.cycles), cons.Td_point, n_combinations, rng)
-    bounds = identifiability(Tp, screening, point, cons, constraints, rng)
+    bounds = identifiability(Tp, screening, point, cons, constraints, rng, flight)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)

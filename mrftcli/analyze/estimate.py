@@ -26,6 +26,7 @@ from ..mrft.refine import COMMAND_HISTORY, Refinement, refine, refinement_window
 from ..mrft.waveform import CommandWindow
 from ..segment import MrftTest
 from ..segment.runs import SendTimes, rebuild_send_times
+from ..segment.vernier import fold_amplitudes
 from .screen import Screening
 
 __all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "SendTimeWindows", "point_estimate",
@@ -285,7 +286,8 @@ def _constraint_info(Tp: float, cycles: Sequence[StableCycles], boot: Bootstrap,
 
 
 def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons: Consensus,
-                    constraints: Sequence[str], rng: np.random.Generator) -> Identifiability:
+                    constraints: Sequence[str], rng: np.random.Generator,
+                    flight: FlightLog | None = None) -> Identifiability:
     """Td's upper end when the data do not close it, Td * Omega, and a low-rate log's switching lag.
 
     The likelihood may not close as Td -> infinity: then Td has a lower bound only (the upper end
@@ -293,6 +295,9 @@ def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons:
     :data:`TD_OMEGA_LIMIT` is usual for an altitude loop (slow drag, fast loop): information, not a
     warning, unless the interval is too wide to use (then the user should act: another test,
     'mrft-ident plan').
+
+    A low-rate log's switching lag and its folds' harmonic counts (from ``flight``'s output) are
+    drawn into the intervals (:func:`widen_for_orbits`).
     """
     usable, ts_ctrl = screening.usable, screening.ts_ctrl
     Td_est, tau_est, K_est = cons.Td, cons.tau, cons.K
@@ -314,8 +319,9 @@ def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons:
         else:
             notes.append(text)
     if ts_ctrl and point.limit is None:
+        shapes = [fold_amplitude_ratios(flight, t) for t in usable] if flight is not None else None
         Td_est, tau_est, K_est = widen_for_orbits(Tp, list(point.cycles), Td_hat, constraints, ts_ctrl,
-                                                  (Td_est, tau_est, K_est), rng, point.n_draws)
+                                                  (Td_est, tau_est, K_est), rng, point.n_draws, shapes)
         rate = min(t.rate_hz for t in usable)
         notes.append(f"command logged at {rate:.0f} Hz below the {1 / ts_ctrl:.0f} Hz controller: identified as "
                      "a sampled relay at the nominal beta (the logged switch instants and output levels are too "
@@ -514,10 +520,30 @@ def stable_cycles(test: MrftTest, ts_ctrl: float = 0.0) -> StableCycles:
                         index=test.index)
 
 
+def fold_amplitude_ratios(flight: FlightLog, test: MrftTest) -> np.ndarray:
+    """A sub-sampled test's amplitude at each harmonic count its fold cannot tell apart, over the
+    one it was measured with [-] (:func:`mrftcli.segment.vernier.fold_amplitudes` over its stable
+    cycles; [1.0] for a test measured cycle by cycle or when the fold does not compare).
+
+    The ratio is the same for the output as logged (sign, setpoint offset and units cancel).
+    """
+    st = test.stable
+    if test.switch_timing is None or len(st) < 3:
+        return np.ones(1)
+    t0 = np.array([c.t_start for c in st])
+    t2 = np.array([c.t_end for c in st])
+    t, y = np.asarray(flight.output.t, float), np.asarray(flight.output.values, float)
+    inside = (t >= t0[0]) & (t < t2[-1])
+    amps = fold_amplitudes(t[inside], y[inside], t0, t2)
+    return amps / amps[0] if amps.size and amps[0] > 0 else np.ones(1)
+
+
 def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constraints: Sequence[str],
                      ts_ctrl: float, estimates: tuple[ParameterEstimate, ...], rng: np.random.Generator,
-                     n_draws: int = 200) -> tuple[ParameterEstimate, ...]:
-    """Td, tau, K with the sampled relay's switching lag per test drawn into the bootstrap.
+                     n_draws: int = 200, shapes: Sequence[np.ndarray] | None = None
+                     ) -> tuple[ParameterEstimate, ...]:
+    """Td, tau, K with the sampled relay's switching lag and the fold's harmonic count per test
+    drawn into the bootstrap.
 
     A relay sampled at period Ts switches 0..Ts after the crossing of its level; the band centre
     takes Ts / 2, and where in that band a test's cycles settled (its orbits) is common to all its
@@ -530,6 +556,11 @@ def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constrain
     interval where the tests put the plant (Td's was [-1.8, 8.0] s: the slices bend as a lag moves
     them, and a symmetric spread crossed zero) and uses the band's uniform spread (95 % within
     +-0.475 Ts, not +-1.96 Ts / sqrt(12)).
+
+    ``shapes``: per test, its amplitude at each harmonic count its fold cannot tell apart over the
+    one measured (:func:`fold_amplitude_ratios`); each group draws one per test (stratified as the
+    lags), so the amplitude's dependence on that choice, common to the test's cycles, is in the
+    interval (K read 1-3 % long from a 3-cycle fold with one harmonic, outside its interval).
     """
     n = len(cycles)
     groups = int(min(max(n_draws // 8, 1), 25))
@@ -537,9 +568,14 @@ def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constrain
     base = bootstrap(Tp, cycles, Td, constraints, 0, rng)
     strata = np.argsort(rng.random((n, groups)), axis=1)  # each test's lags: one per stratum of the band
     lags = ((strata + rng.random((n, groups))) / groups - 0.5) * ts_ctrl
+    # the harmonic count's draws, stratified and independent of the lags' (drawn only where a fold
+    # leaves a choice: the other tests' draws stay as they were)
+    spread = shapes is not None and any(r.size > 1 for r in shapes)
+    picks = np.argsort(rng.random((n, groups)), axis=1) if spread else strata
     draws = []
     for g in range(groups):
-        moved = [replace(c, beta=c.beta + _TWO_PI / c.period * np.sqrt(1.0 - c.beta ** 2) * lags[i, g])
+        moved = [replace(c, beta=c.beta + _TWO_PI / c.period * np.sqrt(1.0 - c.beta ** 2) * lags[i, g],
+                         amplitude=c.amplitude * _shape(shapes, i, picks[i, g], groups))
                  for i, c in enumerate(cycles)]
         b = bootstrap(Tp, moved, Td, constraints, per, rng)
         draws.append(np.column_stack([b.Td[1:], b.tau[1:], b.K[1:]]))
@@ -552,3 +588,11 @@ def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constrain
             continue
         out.append(bootstrap_estimate(est.mean, pooled[:, j], float(centre[j]), est.unit))
     return tuple(out)
+
+
+def _shape(shapes: Sequence[np.ndarray] | None, test: int, stratum: int, groups: int) -> float:
+    """The amplitude ratio [-] a group's stratum draws for a test (1 without ``shapes``)."""
+    if shapes is None or shapes[test].size <= 1:
+        return 1.0
+    r = shapes[test]
+    return float(r[stratum * r.size // groups])

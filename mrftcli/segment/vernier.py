@@ -33,7 +33,7 @@ from ..mrft.harmonics import harmonic_basis
 from .records import RelayCycle
 
 __all__ = ["TickSwitches", "switch_ticks", "refine_by_waveform", "FoldedWaveform", "fold_waveform", "fold_harmonics",
-           "measure_folded", "MIN_LOGGED_PER_CYCLE"]
+           "fold_amplitudes", "measure_folded", "MIN_LOGGED_PER_CYCLE"]
 
 FloatArray = NDArray[np.float64]
 
@@ -392,24 +392,55 @@ def fold_harmonics(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray)
     harmonics start fitting the others'. A periodic orbit keeps its harmonics. Fewer than 3
     cycles: the distinct phases decide alone.
     """
+    errors, h_max = _loo_errors(t, y, t0, t2)
+    return h_max if errors is None else int(np.argmin(errors.sum(axis=0))) + 1
+
+
+def fold_amplitudes(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) -> FloatArray:
+    """The fold's amplitude [output units] at every harmonic count the leave-one-cycle-out
+    criterion of :func:`fold_harmonics` cannot tell from its choice (the chosen one first).
+
+    The choice is a statistic of the same cycles, not a known: with a few cycles, or an orbit that
+    wanders, one harmonic and three predict the cycles left out about equally well while their
+    amplitudes differ by the waveform's shape (the fundamental of a near-parabola is 1.032 of its
+    peak). A count is indistinguishable when its excess prediction error over the chosen one,
+    paired by cycle, is within two standard errors of zero (a t-test over the cycles at about 95
+    %); the spread of these amplitudes is a systematic error of the test's amplitude, common to its
+    cycles (:func:`mrftcli.analyze.estimate.widen_for_orbits` draws it per test). Empty when the
+    samples do not fill the cycle; the choice alone with under 3 cycles.
+    """
+    errors, h_max = _loo_errors(t, y, t0, t2)
+    best = h_max if errors is None else int(np.argmin(errors.sum(axis=0))) + 1
+    counts = [best]
+    if errors is not None:
+        d = errors - errors[:, [best - 1]]  # (cycles, counts): excess error of each count, per cycle
+        se = d.std(axis=0, ddof=1) / np.sqrt(d.shape[0])
+        counts += [H + 1 for H in range(h_max) if H + 1 != best and d[:, H].mean() <= 2.0 * se[H]]
+    amps = [w.amplitude for w in (fold_waveform(t, y, t0, t2, H) for H in counts) if w is not None]
+    return np.asarray(amps, dtype=np.float64)
+
+
+def _loo_errors(t: FloatArray, y: FloatArray, t0: FloatArray, t2: FloatArray) -> tuple[FloatArray | None, int]:
+    """Per cycle (rows) and harmonic count 1..H (columns), the squared error [output units^2] of
+    predicting the cycle's samples from the fold of the others, and the most harmonics H the
+    distinct phases carry; None (no comparison) under 3 cycles or with H = 1."""
     phi, k = _phases(t, t0, t2)
     sel = k >= 0
     tt, yy, ph, kk = t[sel], y[sel], phi[sel], k[sel]
-    distinct = int(np.unique(np.round(ph, 3)).size)
-    h_max = _fold_h_max(distinct)
+    h_max = _fold_h_max(int(np.unique(np.round(ph, 3)).size))
     cycles = np.unique(kk)
     if cycles.size < 3 or h_max <= 1:
-        return h_max
+        return None, h_max
     A = _fold_design(tt, ph, h_max)
-    errors = np.zeros(h_max)
-    for i in cycles:
+    errors = np.zeros((cycles.size, h_max))
+    for j, i in enumerate(cycles):
         out = kk == i
         for H in range(1, h_max + 1):
             cols = np.r_[0:2 + H, 2 + h_max:2 + h_max + H]  # the line and harmonics 1..H (cosines, sines)
             sol, *_ = np.linalg.lstsq(A[~out][:, cols], yy[~out], rcond=None)
             r = yy[out] - A[out][:, cols] @ sol
-            errors[H - 1] += float(r @ r)
-    return int(np.argmin(errors)) + 1
+            errors[j, H - 1] = float(r @ r)
+    return errors, h_max
 
 
 def _cycle_fit(w: FoldedWaveform, ph: FloatArray, yy: FloatArray) -> tuple[float, float, float] | None:

@@ -11,7 +11,8 @@ analysed (the 10 Hz log with the controller's rate, 50 Hz, as the PX4 layout kno
 * ``users``: as ``fast``, flown as people fly them: 8-14 cycles per test and a relay height for an
   amplitude of 2-8 cm, drawn per test (a refusal counts as a miss).
 
-Prints each plant's truth, its tests' frequencies and both logs' estimates and intervals, then per
+Prints each plant's truth, its tests' frequencies and both logs' estimates and intervals (K's error
+over its std: a sign common to the misses would be a bias, not scatter), then per
 log rate: the coverage of each parameter's 95 % interval, the mean interval widths, how many flights
 had both tests used, and the failures (a failure, e.g. "only one beta was tested", counts as a miss);
 and the 10 Hz / 50 Hz width ratios.
@@ -80,7 +81,7 @@ for k in range(N):
             width[lr][name].append((est.ci95_high - est.ci95_low) / truth)
         row.append(f"{lr} Hz: tau {r.tau.mean * 1e3:.1f} [{r.tau.ci95_low * 1e3:.1f}, {r.tau.ci95_high * 1e3:.1f}] "
                    f"Td {r.Td.mean:.3f} [{r.Td.ci95_low:.3f}, {r.Td.ci95_high:.3f}] K {r.K.mean:.2f} "
-                   f"[{r.K.ci95_low:.2f}, {r.K.ci95_high:.2f}] ({r.method}, {len(r.tests)} tests, {'/'.join(spc)} "
+                   f"[{r.K.ci95_low:.2f}, {r.K.ci95_high:.2f}] (error/std {(r.K.mean - m.K) / r.K.std:+.1f}) ({r.method}, {len(r.tests)} tests, {'/'.join(spc)} "
                    "samples per cycle) |")
     print(k, *row, flush=True)
 

@@ -140,3 +140,41 @@ def test_write_text_atomic_keeps_umask_permissions(tmp_path: Path) -> None:
     mask = os.umask(0)
     os.umask(mask)
     assert path.stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def _bag_size(bag: Path) -> int:
+    from mrftcli.io import open_log
+
+    with open_log(bag) as src:
+        return int(src.read("/mrft/command", ["data"])[0].size)
+
+
+def test_ros2_bag_folder_replaced_whole_or_not_at_all(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ROS 2 bag is a folder: a write that fails half-way leaves the old bag readable under its name and
+    no hidden staging folder; a write that ends replaces it whole."""
+    import mrftcli.sim.sidecar as sidecar
+    from mrftcli.io.logtypes import TopicData
+
+    def topics(n: int) -> list[TopicData]:
+        return [TopicData("/mrft/command", "std_msgs/msg/Float64", np.arange(n) * 0.01, {"data": np.ones(n)})]
+
+    bag = tmp_path / "flight"
+    sidecar.write_log_atomic(topics(5), bag, "ros2-mcap")
+
+    import mrftcli.io
+
+    real_write = mrftcli.io.write_log
+
+    def cut(topic_list, folder, fmt):  # the real writer, then a failure before it returns
+        real_write(topic_list, folder, fmt)
+        raise Boom("killed mid-write")
+
+    monkeypatch.setattr("mrftcli.io.write_log", cut)
+    with pytest.raises(Boom):
+        sidecar.write_log_atomic(topics(9), bag, "ros2-mcap")
+    monkeypatch.undo()
+    assert _names(tmp_path) == ["flight"]
+    assert _bag_size(bag) == 5
+    sidecar.write_log_atomic(topics(9), bag, "ros2-mcap")
+    assert _names(tmp_path) == ["flight"]
+    assert _bag_size(bag) == 9

@@ -8,18 +8,20 @@ file and leaves the target as it was.
 * :func:`write_text_atomic`, :func:`write_bytes_atomic`: a whole file from memory;
 * :func:`atomic_path`: a temporary path for writers that take a path or a stream (matplotlib's
   ``savefig``, the MCAP writer, pandas' ``to_csv``), renamed when the block ends without an error;
-  ``create=False`` for writers that refuse a path that exists (rosbags' ROS 1 bag writer).
+  ``create=False`` for writers that refuse a path that exists (rosbags' ROS 1 bag writer);
+* :func:`atomic_directory`: the same for a writer that makes a folder (a ROS 2 bag).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path"]
+__all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path", "atomic_directory"]
 
 
 @contextlib.contextmanager
@@ -59,6 +61,39 @@ def atomic_path(path: str | Path, *, create: bool = True) -> Iterator[Path]:
     finally:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+
+
+@contextlib.contextmanager
+def atomic_directory(path: str | Path) -> Iterator[Path]:
+    """A free path of the same name as ``path`` in a hidden folder beside it, moved onto ``path`` when
+    the block ends without an error.
+
+    The block's writer creates the folder (a ROS 2 bag: rosbags names the files inside after their
+    folder, so it sees the final name). An existing ``path`` is moved aside into the hidden folder
+    first and removed once the new folder is in place, so ``path`` holds the old folder or the whole
+    new one, never a half-written one; a failed write leaves ``path`` as it was.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> for text in ("old", "new"):
+    ...     with atomic_directory(folder / "bag") as tmp:
+    ...         tmp.mkdir()
+    ...         _ = (tmp / "bag_0.mcap").write_text(text)
+    >>> (folder / "bag" / "bag_0.mcap").read_text(), sorted(p.name for p in folder.iterdir())
+    ('new', ['bag'])
+    """
+    path = Path(path)
+    staging = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        new = staging / path.name
+        yield new
+        if path.exists() or path.is_symlink():
+            os.replace(path, staging / ".replaced")  # aside, inside the folder removed below
+        os.replace(new, path)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _umask() -> int:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..io.atomic import atomic_path, write_text_atomic
+from ..io.atomic import atomic_directory, atomic_path, write_text_atomic
 from ..io.logtypes import TopicData
 from .control import HoldPID, noise_margin
 from .spec import FlightSettings, FlightSpec
@@ -200,8 +200,8 @@ def write_log_atomic(topics: list[TopicData], path: str | Path, fmt: str) -> Pat
     """Write ``topics`` as a log of format ``fmt`` into a temporary file renamed onto ``path``.
 
     A simulation killed while it writes (a ROS 1 bag is written chunk by chunk) leaves the old file
-    or none, never a cut log that reads as a shorter flight (:mod:`mrftcli.io.atomic`). A ROS 2 bag
-    directory is written in place.
+    or none, never a cut log that reads as a shorter flight (:mod:`mrftcli.io.atomic`); a ROS 2 bag
+    folder is written beside it under a hidden name and moved into place the same way.
 
     Returns
     -------
@@ -211,7 +211,9 @@ def write_log_atomic(topics: list[TopicData], path: str | Path, fmt: str) -> Pat
     from ..io import write_log  # the writers live with the readers
 
     if fmt in _DIRECTORY_FORMATS:
-        return write_log(topics, path, fmt)
+        with atomic_directory(path) as folder:
+            write_log(topics, folder, fmt)
+        return Path(path)
     with atomic_path(path, create=False) as tmp:  # create=False: rosbags refuses a file that exists
         write_log(topics, tmp, fmt)
     return Path(path)

@@ -38,7 +38,7 @@ from .screen import log_start
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
-           "chattering_cycles",
+           "chattering_cycles", "find_tests",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
 #: version of :meth:`GeneralAnalysis.to_json`
@@ -459,8 +459,9 @@ class _MeasuredTest:
     rejected: tuple[int, float, float, str] | None = None
 
 
-def _find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> list[MrftTest]:
-    """The relay tests of each window (a window without one is skipped; no window: the log's, or the error)."""
+def find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> list[MrftTest]:
+    """The relay tests of each window, in the order :func:`analyze_general` numbers them (a window
+    without one is skipped; no window: the log's, or the :class:`SegmentationError`)."""
     found: list[MrftTest] = []
     for part in flight_windows(flight, windows):
         try:
@@ -529,7 +530,7 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
     """
     t0 = log_start(flight)
     measured = [_measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
-                for i, test in enumerate(_find_tests(flight, windows))]
+                for i, test in enumerate(find_tests(flight, windows))]
     tests = [m.summary for m in measured if m.summary is not None]
     rejected = [m.rejected for m in measured if m.rejected is not None]
     points = [p for m in measured for p in m.points]

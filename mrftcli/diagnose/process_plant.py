@@ -30,16 +30,15 @@ import numpy as np
 from scipy.stats import chi2, norm
 
 from ..analyze.general import (GeneralAnalysis, RelayOptions, TestSummary, analyze_general, chattering_cycles,
-                               flight_windows, identify_points, response_points)
+                               find_tests, identify_points, response_points)
 from ..analyze.smooth_cycle import CycleFit, cycle_fits
-from ..errors import IdentificationError, InputError, SegmentationError
+from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog
 from ..jsonable import check_schema_version
 from ..mrft.harmonics import fit_harmonics
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
 from ..mrft.model import PlantModel
-from ..segment import segment
 from ..segment.records import MrftTest
 
 __all__ = ["ProcessDiagnosis", "TestCheck", "BandResidual", "MeasuredWaveform", "diagnose_process",
@@ -469,15 +468,8 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
 # ----------------------------------------------------------------------------------------------
 def _tests(flight: FlightLog, windows: Sequence[tuple[float, float]], min_stable_cycles: int) -> list[MrftTest]:
     """The relay tests as :func:`~mrftcli.analyze.general.analyze_general` numbers them (index = order)."""
-    found: list[MrftTest] = []
-    for part in flight_windows(flight, windows):
-        try:
-            found += segment(part)
-        except SegmentationError:
-            if not windows:
-                raise
     out = []
-    for i, test in enumerate(found):
+    for i, test in enumerate(find_tests(flight, windows)):
         test = dataclasses.replace(test, index=i)
         out.append(chattering_cycles(test, min_stable_cycles) or test)
     return out

@@ -25,6 +25,7 @@ from mrftcli.mrft.model import MODEL_FAMILIES, model_from_json
 from mrftcli.mrft.relays import RelayLaw
 
 sys.path.insert(0, str(Path(__file__).parent))
+from cli_helpers import run_cli as _cli  # noqa: E402
 from process_sim import Window, simulate, write_csv  # noqa: E402
 
 MODELS = [FOPDT(K=2.0, T=0.5, tau=0.1), SOPDT(K=1.5, T1=1.0, T2=0.25, tau=0.1), IPDT(K=3.0, tau=0.2),
@@ -195,19 +196,6 @@ def test_analyze_general_ideal_relay_ipdt_and_windows(tmp_path):
     assert ident is not None
     assert ident.estimate("tau").value == pytest.approx(0.4, rel=0.05)
     assert ident.estimate("K").value == pytest.approx(0.5, rel=0.05)
-
-
-def _cli(capsys, *argv: str) -> tuple[int, str, str]:
-    """The CLI in-process (exit code, stdout, stderr): a subprocess costs seconds of imports."""
-    from mrftcli.cli.main import main
-
-    try:
-        main(list(argv))
-        code = 0
-    except SystemExit as done:
-        code = int(done.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_cli_analyze_model_json_and_refusals(tmp_path, capsys):

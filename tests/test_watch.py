@@ -12,33 +12,12 @@ import sys
 
 import pytest
 
+from cli_helpers import LiveWriter, run_cli as _cli
+
 from mrftcli.analyze import analyze_path
 from mrftcli.errors import LogReadError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, WatchOptions, watch
-
-
-class _Writer:
-    """Appends the next slice of a log at every poll (the watch's sleep), and a fake clock."""
-
-    def __init__(self, src, dst, step):
-        self.data = src.read_bytes()
-        self.dst = dst
-        self.step = step
-        self.pos = 0
-        self.now = 0.0
-        self.sizes = []
-        dst.write_bytes(b"")
-
-    def sleep(self, dt):
-        self.now += dt
-        if self.pos < len(self.data):
-            with open(self.dst, "ab") as fh:
-                fh.write(self.data[self.pos:self.pos + self.step])
-            self.pos += self.step
-
-    def clock(self):
-        return self.now
 
 
 def _follow(writer, **kw):
@@ -52,7 +31,7 @@ def test_mcap_tests_and_estimate_arrive_before_the_file_is_complete(repo_root, t
     src = repo_root / "sample_logs" / "design1_altitude.mcap"
     truth = json.loads(src.with_name(src.name + ".truth.json").read_text())
     # odd slices cut records and chunks anywhere: a half-written chunk must be waited for, not fatal
-    w = _Writer(src, tmp_path / "live.mcap", 7919)
+    w = LiveWriter(src.read_bytes(), tmp_path / "live.mcap", 7919)
     got = _follow(w, idle=5.0)
     tests = [(u, pos) for u, pos in got if isinstance(u, TestUpdate)]
     assert tests and tests[0][0].number == 1 and tests[0][1] < len(w.data)
@@ -71,7 +50,7 @@ def test_mcap_tests_and_estimate_arrive_before_the_file_is_complete(repo_root, t
 
 def test_csv_stops_after_idle_and_survives_half_written_rows(repo_root, tmp_path):
     src = repo_root / "sample_logs" / "design1_altitude.csv"
-    w = _Writer(src, tmp_path / "live.csv", 40011)  # slices end in the middle of rows
+    w = LiveWriter(src.read_bytes(), tmp_path / "live.csv", 40011)  # slices end in the middle of rows
     got = _follow(w, idle=0.5, poll=0.05)
     end = got[-1][0]
     assert isinstance(end, WatchEnd) and end.reason == "idle" and end.exit_code == 0
@@ -82,20 +61,6 @@ def test_a_file_that_never_appears_is_a_one_line_error(tmp_path):
     clock = iter(range(1000))
     with pytest.raises(LogReadError, match="no such file"):
         list(watch(tmp_path / "none.mcap", 0.04, options=WatchOptions(wait=3.0), sleep=lambda dt: None, clock=lambda: float(next(clock))))
-
-
-def _cli(capsys, *argv):
-    """The CLI in-process (exit code, stdout, stderr): a subprocess costs seconds of imports (the Ctrl-C
-    test below is the one that needs a process of its own)."""
-    from mrftcli.cli.main import main
-
-    try:
-        main(list(argv))
-        code = 0
-    except SystemExit as done:
-        code = int(done.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_cli_jsonl_prints_one_object_per_update(repo_root, capsys):

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+from cli_helpers import LiveWriter, run_cli as _cli  # noqa: E402
 from process_sim import Window, simulate, write_csv  # noqa: E402
 
 from mrftcli.analyze.general import analyze_general  # noqa: E402
@@ -39,26 +40,8 @@ def recording(tmp_path_factory):
     return path
 
 
-class _Writer:
-    """Appends the next slice of a log at every poll (the watch's sleep), and a fake clock."""
-
-    def __init__(self, data: bytes, dst: Path, step: int):
-        self.data, self.dst, self.step, self.pos, self.now = data, dst, step, 0, 0.0
-        dst.write_bytes(b"")
-
-    def sleep(self, dt):
-        self.now += dt
-        if self.pos < len(self.data):
-            with open(self.dst, "ab") as fh:
-                fh.write(self.data[self.pos:self.pos + self.step])
-            self.pos += self.step
-
-    def clock(self):
-        return self.now
-
-
 def test_live_estimates_arrive_before_the_end_and_the_final_is_analyze_model(recording, tmp_path):
-    w = _Writer(recording.read_bytes(), tmp_path / "live.csv", 9001)  # slices end in the middle of rows
+    w = LiveWriter(recording.read_bytes(), tmp_path / "live.csv", 9001)  # slices end in the middle of rows
     got = [(u, w.pos) for u in watch_model(w.dst, family_model("fopdt"), read=READ,
                                            options=WatchOptions(idle=0.3, poll=0.1), sleep=w.sleep, clock=w.clock)]
     tests = [u for u, _ in got if isinstance(u, ProcessTestUpdate)]
@@ -110,19 +93,6 @@ def test_updates_round_trip_through_json_and_refuse_another_version(recording):
         ProcessEstimateUpdate.from_json({**estimate.to_json(), "schema_version": 99})
     with pytest.raises(InputError, match="watch test update"):
         ProcessTestUpdate.from_json({"schema_version": 1, "number": 1})
-
-
-def _cli(capsys, *argv):
-    """The CLI in-process (exit code, stdout, stderr): a subprocess costs seconds of imports."""
-    from mrftcli.cli.main import main
-
-    try:
-        main(list(argv))
-        code = 0
-    except SystemExit as done:
-        code = int(done.code or 0)
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_cli_model_options_refused_where_they_do_not_apply(capsys, recording):

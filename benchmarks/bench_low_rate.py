@@ -16,7 +16,9 @@ over its std: a sign common to the misses would be a bias, not scatter), then pe
 log rate: the coverage of each parameter's 95 % interval, the mean interval widths, how many flights
 had both tests used, and the failures (a failure, e.g. "only one beta was tested", counts as a miss);
 and the 10 Hz / 50 Hz width ratios.
-Usage: nice -n 10 python benchmarks/bench_low_rate.py [SEED] [N] [slow|fast|users]
+Usage: nice -n 10 python benchmarks/bench_low_rate.py [SEED] [N] [slow|fast|users] [--only I[,J...]]
+(``--only``: fly and analyse only those plants of the draw, numbered from 0; the others are drawn
+and skipped, so plant I is the same flight as in the full run.)
 Figures: docs/benchmarks/low_rate.md.
 """
 import math
@@ -33,9 +35,15 @@ from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.control import df_prediction
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
-SEED = int(sys.argv[1]) if len(sys.argv) > 1 else 20261122
-N = int(sys.argv[2]) if len(sys.argv) > 2 else 20
-MODE = sys.argv[3] if len(sys.argv) > 3 else "slow"
+ARGS = sys.argv[1:]
+ONLY: set[int] | None = None
+if "--only" in ARGS:
+    i = ARGS.index("--only")
+    ONLY = {int(v) for v in ARGS[i + 1].split(",")}
+    del ARGS[i:i + 2]
+SEED = int(ARGS[0]) if len(ARGS) > 0 else 20261122
+N = int(ARGS[1]) if len(ARGS) > 1 else 20
+MODE = ARGS[2] if len(ARGS) > 2 else "slow"
 DRAWS = {"slow": ((0.03, 0.07), (-0.6, -0.2)), "fast": ((0.015, 0.05), (-0.8, -0.3)),
          "users": ((0.015, 0.05), (-0.8, -0.3))}
 TAU_RANGE, BETAS = DRAWS[MODE]
@@ -57,6 +65,8 @@ for k in range(N):
         tests = tuple(plan_test(m, b, 0.05, rate_hz=50.0, cycles=14.0) for b in BETAS)
     spec = FlightSpec(model=m, tests=tests, loop="altitude", rate_hz=50.0, noise_std=float(rng.uniform(2e-4, 1e-3)),
                       bias=0.5, setpoint=1.0, hover_s=3.0, hold_s=3.0, seed=int(rng.integers(1 << 30)))
+    if ONLY is not None and k not in ONLY:
+        continue  # drawn (the draws after it stay the same), not flown
     fl = simulate_flight(spec)
     st = [StackTest(e["t_start"], e["t_end"], e["beta"], e["h"]) for e in fl.truth["tests"]]
     freqs = [df_prediction(m, b, 1.0, 50.0)[0] / (2 * math.pi) for b in BETAS]

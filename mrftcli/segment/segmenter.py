@@ -354,11 +354,13 @@ def _folded_pass(sw: _Switches, t_sw: FloatArray, t_y: FloatArray, y: FloatArray
                  criterion: StabilityCriterion) -> tuple[list[RelayCycle], dict[str, float]]:
     """The cycles at switch instants ``t_sw`` [s], the waveform folded over the regular cycles, then
     again over the stable ones (a start-up cycle's larger swing would distort it)."""
-    cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, t_y, y, sw.h), clock.ts_controller, criterion)
+    err = sw.vernier.period_error() if sw.vernier is not None else 0.0
+    cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, t_y, y, sw.h), clock.ts_controller, criterion,
+                                err)
     stable = np.array([c.stable for c in cycles], bool)
     if stable.sum() >= 2:
         cycles, info = _mark_stable(measure_folded(t_sw, sw.up, sw.flags, t_y, y, sw.h, fold=stable),
-                                    clock.ts_controller, criterion)
+                                    clock.ts_controller, criterion, err)
     return cycles, info
 
 
@@ -375,14 +377,14 @@ def _nanmean(x: FloatArray) -> float:
     return float(np.nanmean(x)) if np.isfinite(x).any() else float("nan")
 
 
-def _mark_stable(cycles: list[RelayCycle], dt: float,
-                 criterion: StabilityCriterion) -> tuple[list[RelayCycle], dict[str, float]]:
+def _mark_stable(cycles: list[RelayCycle], dt: float, criterion: StabilityCriterion,
+                 period_error: float = 0.0) -> tuple[list[RelayCycle], dict[str, float]]:
     """Step 4: flag outliers and transients and mark the stable limit cycle (``dt``: the period's
     quantum [s], the controller's sample period)."""
     P = np.array([c.period for c in cycles])
     A = np.array([c.amplitude for c in cycles])
     reg = np.array([c.regular for c in cycles], bool)
-    stable, consistent, info = stable_cycles(P, A, reg, dt, criterion)
+    stable, consistent, info = stable_cycles(P, A, reg, dt, criterion, period_error)
     final = []
     for k, c in enumerate(cycles):
         fl = set(c.flags)

@@ -71,6 +71,7 @@ def stable_cycles(
     regular: np.ndarray,
     dt: float,
     criterion: StabilityCriterion = StabilityCriterion(),
+    period_error: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Apply the stable-limit-cycle criterion (module docstring).
 
@@ -83,8 +84,13 @@ def stable_cycles(
     dt : float
         Controller sample period [s].
     criterion : StabilityCriterion
-
-    Returns
+    period_error : float
+        The measured periods' own error [s], added to the period floor: 0 where every switch is
+        on a logged sample (the floor's ``period_floor_samples`` covers the quantisation); a test
+        logged below its controller's rate has its switches placed from the vernier
+        (:mod:`~mrftcli.segment.vernier`), and where its orbit wanders or the logging locks to it
+        over a stretch a switch may sit a tick or more off: a cycle of the limit cycle then reads
+        outside the floor and breaks the run of consistent cycles (the cap still applies).
     -------
     (stable, consistent, info)
         Boolean masks and the medians/tolerances used.
@@ -102,7 +108,8 @@ def stable_cycles(
     Pm, am = float(np.median(P[ref])), float(np.median(a[ref]))
     sP, sa = robust_sigma(P[ref]), robust_sigma(a[ref])
     c = criterion
-    tolP = min(max(c.mad_k * sP, c.period_floor_samples * dt, c.period_floor_rel * Pm), c.period_cap_rel * Pm)
+    tolP = min(max(c.mad_k * sP, c.period_floor_samples * dt + period_error, c.period_floor_rel * Pm),
+               c.period_cap_rel * Pm)
     tola = min(max(c.mad_k * sa, c.amplitude_floor_rel * am), c.amplitude_cap_rel * am)
     # a noisy test (its cycles scatter beyond half the floors) about a level that does not move: every
     # regular cycle inside the stationary caps is consistent (the robust sigma of a jittery MRFT at

@@ -92,6 +92,14 @@ class TickSwitches:
     lo: NDArray[np.int64] | None = None
     hi: NDArray[np.int64] | None = None
 
+    def period_error(self) -> float:
+        """A measured period's error [s] at about 95 %: the difference of two switches, each placed
+        to within ``scatter_ticks`` (the half-periods' RMS deviation from their local means, which
+        bounds how far the vernier can tell a switch from its neighbours'), at two standard
+        deviations: 2 sqrt(2) scatter ticks; 0 for a strictly periodic relay (every switch pinned).
+        """
+        return float(2.0 * np.sqrt(2.0) * self.scatter_ticks * self.ts)
+
     def shifts(self) -> list[tuple[int, int]]:
         """Every (even, odd) shift [ticks] within ``room``."""
         (e0, e1), (o0, o1) = self.room

@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from ..analyze.general import GeneralAnalysis
     from ..mrft.identify_lti import LtiEstimate, LtiIdentification
 
-__all__ = ["MODEL_NAMES", "DECLARED", "model_option", "unsupported_model_option", "meta_model_options",
+__all__ = ["MODEL_NAMES", "DECLARED", "model_option", "meta_model_options",
            "meta_model", "structure_options", "window_option", "relay_options", "parse_params",
            "parse_ranges", "parse_windows", "build_model", "refuse_model", "format_general", "format_estimates"]
 
@@ -71,27 +71,6 @@ def model_option(f: Callable[..., Any]) -> Callable[..., Any]:
                      expose_value=False, callback=_model_file_seen, help=_MODEL_FILE_HELP)(f)
     return click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd",
                         show_default=True, callback=_model_seen, help=_MODEL_HELP)(f)
-
-
-def unsupported_model_option(command: str, instead: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """``--model`` / ``--model-file`` on a command that designs or forecasts for eq. (2) only so far.
-
-    A process model there is a one-line error naming what is supported (not click's "no such option"),
-    before any work starts.
-    """
-    def refuse(ctx: click.Context, param: click.Parameter, value: str | None) -> None:
-        if value is not None and value != "soiptd":
-            what = f"--model {value}" if param.name == "model_name" else "--model-file"
-            raise InputError(f"{command} supports only --model soiptd (eq. (2)) so far, not {what}; {instead}")
-
-    def decorate(f: Callable[..., Any]) -> Callable[..., Any]:
-        f = click.option("--model-file", "model_file", type=click.Path(dir_okay=False), default=None,
-                         metavar="FILE", expose_value=False, callback=refuse,
-                         help=f"Not supported by {command} yet (a one-line error): {instead}.")(f)
-        return click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd",
-                            show_default=True, expose_value=False, callback=refuse,
-                            help=f"Plant structure; {command} supports soiptd (eq. (2)) only so far.")(f)
-    return decorate
 
 
 _META_MODEL = "mrftcli.meta_model"

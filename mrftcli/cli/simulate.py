@@ -321,9 +321,12 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
 @click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd", show_default=True,
               help="Plant structure: soiptd (eq. (2): --tp, --td, --tau, --k) or a process family (fopdt, sopdt, "
               "ipdt, foipdt) with its parameters as --param NAME=VALUE; see docs/simulator.md.")
+@click.option("--model-file", "model_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              metavar="FILE", help="A plant structure you declare (the TOML/JSON file of analyze --model-file): "
+              "its known parameters as in the file, every unknown one's true value as --param NAME=VALUE.")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE",
-              help="--model fopdt|sopdt|ipdt|foipdt: a parameter of the plant (K, T, T1, T2, tau; times in s). "
-              "Repeat for each.")
+              help="--model fopdt|sopdt|ipdt|foipdt or --model-file: a parameter of the plant (K, T, T1, T2, tau; "
+              "times in s). Repeat for each.")
 @click.option("--cascade", type=click.Choice(["x", "y"]), default=None,
               help="Fly a cascaded flight: the outer loop X (through pitch) or Y (through roll), the inner "
               "attitude loop closed by a PD; --inner-test tests first, then the --test tests. Needs --inner-tp, "
@@ -354,7 +357,7 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
 @click.pass_context
 def simulate(
     ctx, tp, td, tau, k, loop, tests, controller_rate_hz, noise, amplitude, bias, setpoint, hover_s, hold_s, switching,
-    seed, start_time, effects, model_name, params, cascade, inner_tp, inner_td, inner_tau, inner_k, inner_gains, inner_tests,
+    seed, start_time, effects, model_name, model_file, params, cascade, inner_tp, inner_td, inner_tau, inner_k, inner_gains, inner_tests,
     inner_noise, inner_amplitude, commanded, layout, fmt, out, json_target, quiet,
 ) -> None:
     """Simulate a closed-loop MRFT flight on G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)).
@@ -376,13 +379,16 @@ def simulate(
     # the option's own name: "rate" would also be the hidden --rate alias' name, and click then hands
     # --controller-rate's value to the alias too (simulate --controller-rate was refused as given twice)
     rate = controller_rate_hz
-    if model_name != "soiptd":
+    if model_file is not None:
+        _given(ctx, ("model_name",), "is not used with --model-file (the file declares the structure)")
+    if model_name != "soiptd" or model_file is not None:
         _given(ctx, ("tp", "td", "tau", "k", "bias", "setpoint", "effects", "cascade", "inner_tp", "inner_td",
                      "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise", "inner_amplitude",
-                     "commanded", "layout"), f"is not used with --model {model_name} (its parameters are --param)")
+                     "commanded", "layout"), "is not used with a process --model or --model-file (its parameters are --param)")
         _required(("--test", tests or None))
         _simulate_process(ProcessOptions(model_name, tuple(params), loop, tuple(tests), rate, noise, amplitude,
-                                         (hover_s, hold_s), switching, seed, start_time, fmt), out, json_target)
+                                         (hover_s, hold_s), switching, seed, start_time, fmt, model_file),
+                          out, json_target)
         return
     _given(ctx, ("params",), "needs --model fopdt|sopdt|ipdt|foipdt (eq. (2) takes --tp, --td, --tau, --k)")
     if cascade is not None:
@@ -408,7 +414,7 @@ def simulate(
 
 @dataclass(frozen=True)
 class ProcessOptions:
-    """What ``simulate --model NAME`` (a process family) was asked for."""
+    """What ``simulate --model NAME`` (a process family) or ``--model-file FILE`` was asked for."""
 
     family: str
     params: tuple[str, ...]
@@ -422,11 +428,32 @@ class ProcessOptions:
     seed: int
     start_time: float
     fmt: str | None
+    model_file: str | None = None
+
+
+def _declared_model(path: str, items: tuple[str, ...]) -> Any:
+    """The declared structure of ``--model-file`` with every parameter's true value: the file's known ones,
+    ``--param`` for the rest (an unknown one's start inside its range is not a truth to fly)."""
+    from ..mrft.model_file import load_model_file
+
+    model = load_model_file(path)
+    values = parse_params(items)
+    names = [n for n, _ in model.values]
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise InputError(f"--param {unknown[0]}: {path} has the parameters {', '.join(names)}")
+    missing = [n for n in names if n not in model.known and n not in values]
+    if missing:
+        raise InputError(f"{path}: {', '.join(missing)} unknown in the file (a range): give the plant's true "
+                         f"value{'s' if len(missing) > 1 else ''} to fly with "
+                         + " ".join(f"--param {n}=VALUE" for n in missing))
+    return model.with_parameters(**values) if values else model
 
 
 def _process_model(family: str, items: tuple[str, ...]):
     """The family's model of ``--param`` values; one-line errors naming a missing or unknown parameter."""
     from ..mrft.families import PROCESS_FAMILIES
+
 
     cls = PROCESS_FAMILIES[family]
     names = list(cls._spec)
@@ -447,7 +474,8 @@ def _simulate_process(opts: ProcessOptions, out: Path, json_target: str | None) 
     from ..sim.flight import TestSpec
     from ..sim.process import ProcessSpec, plan_process_test, simulate_process, write_process
 
-    model = _process_model(opts.family, opts.params)
+    model = (_declared_model(opts.model_file, opts.params) if opts.model_file is not None
+             else _process_model(opts.family, opts.params))
     if opts.fmt is not None and opts.fmt not in FORMATS:
         raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
     fmt = _format_of(out, opts.fmt)
@@ -479,7 +507,8 @@ def _simulate_process(opts: ProcessOptions, out: Path, json_target: str | None) 
         return
     click.echo(f"wrote {out} ({fmt}, {flight.truth.duration:.1f} s at {opts.rate_hz:g} Hz) and {sidecar}")
     values = ", ".join(f"{n} {p.value:g}{' ' + p.unit if p.unit == 's' else ''}" for n, p in model.parameters.items())
-    click.echo(f"  model {opts.family}: {model.structure}; {values}; noise {noise:g} [output units]"
+    structure = model.transfer_function if model.family == "declared" else model.structure
+    click.echo(f"  model {model.family}: {structure}; {values}; noise {noise:g} [output units]"
                f"{' (1 % of --amplitude)' if opts.noise is None else ''}")
     for i, test in enumerate(truth["tests"], 1):
         click.echo(f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g} [command], "

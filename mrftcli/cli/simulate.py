@@ -382,9 +382,10 @@ def simulate(
     if model_file is not None:
         _given(ctx, ("model_name",), "is not used with --model-file (the file declares the structure)")
     if model_name != "soiptd" or model_file is not None:
+        what = "--model-file" if model_file is not None else f"--model {model_name}"
         _given(ctx, ("tp", "td", "tau", "k", "bias", "setpoint", "effects", "cascade", "inner_tp", "inner_td",
                      "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise", "inner_amplitude",
-                     "commanded", "layout"), "is not used with a process --model or --model-file (its parameters are --param)")
+                     "commanded", "layout"), f"is not used with {what} (its parameters are --param)")
         _required(("--test", tests or None))
         _simulate_process(ProcessOptions(model_name, tuple(params), loop, tuple(tests), rate, noise, amplitude,
                                          (hover_s, hold_s), switching, seed, start_time, fmt, model_file),

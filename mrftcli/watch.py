@@ -57,7 +57,7 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from .analyze.general import (GeneralAnalysis, RelayOptions, analyze_general, chattering_cycles, identify_points,
-                              response_points)
+                              response_points, screen_test)
 from .errors import InputError, InsufficientDataError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
@@ -530,11 +530,6 @@ class _PaperIdentifier:
         return _final(flight, self.Tp, self.min_cycles, reason, n_tests)
 
 
-#: validity failures ``analyze --model`` keeps a test with (analyze/general.py's screen): a noisy output
-#: is weighted by its scatter, and the phase and beta checks compare with eq. (2), not this structure
-_PROCESS_KEPT = frozenset({"snr", "h1_fraction", "phase", "beta_mismatch"})
-
-
 @dataclass(frozen=True)
 class _Measured:
     """One usable test of a process plant: as used, its relay and its frequency-response points."""
@@ -549,14 +544,12 @@ def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles:
     """The test screened, its relay and points as ``analyze --model`` takes them; None: not usable (yet)."""
     chattered = chattering_cycles(test, min_cycles)
     used = chattered or test
-    failed = set(used.validity.failed) if used.validity is not None else set()
-    if used.n_stable < min_cycles or failed - _PROCESS_KEPT:
+    reason, notes = screen_test(used, min_cycles)  # the rule analyze --model screens with
+    if reason:
         return None
     points = response_points(flight, used)
     if not any(p.harmonic == 1 for p in points):  # no cycle long enough for its fundamental
         return None
-    noisy = bool(failed & {"snr", "h1_fraction"})
-    notes: tuple[str, ...] = ("noisy: used, weighted by its cycle-to-cycle scatter",) if noisy else ()
     if chattered is not None:
         notes += ("the relay chatters at its switches: its cycles are used with the logged command's harmonics",)
     law = infer_relay(used, relay.kind, relay.beta, relay.eps)

@@ -38,7 +38,7 @@ from .screen import log_start
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
-           "chattering_cycles", "find_tests",
+           "chattering_cycles", "find_tests", "screen_test",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
 #: version of :meth:`GeneralAnalysis.to_json`
@@ -327,8 +327,12 @@ def chattering_cycles(test: MrftTest, min_stable_cycles: int) -> MrftTest | None
                                validity=check_limit_cycle(cycles, beta, test.beta_nominal))
 
 
-def _screen(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...]]:
-    """(reason to reject or "", notes) for one test."""
+def screen_test(test: MrftTest, min_stable_cycles: int) -> tuple[str, tuple[str, ...]]:
+    """(reason to reject or "", notes) for one test of a process plant (``watch --model`` screens the same).
+
+    A noisy output is kept and weighted by its scatter; the phase and beta checks compare with eq. (2),
+    not with this structure, so they do not reject.
+    """
     if test.n_stable < min_stable_cycles:
         return f"{test.n_stable} stable cycles (fewer than {min_stable_cycles})", ()
     failed = set(test.validity.failed) if test.validity is not None else set()
@@ -476,7 +480,7 @@ def _measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_st
     """Screen one test; a usable one gets its relay (as inferred and effective) and its response points."""
     chattered = chattering_cycles(test, min_stable_cycles)
     test = chattered or test
-    reason, notes = _screen(test, min_stable_cycles)
+    reason, notes = screen_test(test, min_stable_cycles)
     if chattered is not None:
         notes += ("the relay chatters at its switches (it switches on the noise near the crossing): "
                   "the cycles are used with the logged command's own harmonics; a hysteresis of a few "

@@ -38,7 +38,8 @@ from .screen import log_start
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
-           "chattering_cycles", "find_tests", "screen_test",
+           "chattering_cycles", "find_tests", "screen_test", "MeasuredTest", "measure_tests",
+           "general_analysis",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
 #: version of :meth:`GeneralAnalysis.to_json`
@@ -455,12 +456,19 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
 
 
 @dataclass(frozen=True)
-class _MeasuredTest:
-    """One test through screening, its relay and its response points (a stage of :func:`analyze_general`)."""
+class MeasuredTest:
+    """One test through screening, its relay and its response points (a stage of :func:`analyze_general`).
+
+    A usable test has ``summary``, ``points``, the test as used (``test``, its chattering cycles
+    re-marked) and its per-cycle fits (``fits``); a rejected one has ``rejected`` (index, span [s],
+    reason) only. ``diagnose --model`` reuses ``test`` and ``fits`` instead of segmenting again.
+    """
 
     summary: TestSummary | None
     points: tuple[ResponsePoint, ...] = ()
     rejected: tuple[int, float, float, str] | None = None
+    test: MrftTest | None = None
+    fits: tuple[CycleFit, ...] = ()
 
 
 def find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> list[MrftTest]:
@@ -476,7 +484,7 @@ def find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> lis
     return found
 
 
-def _measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_stable_cycles: int) -> _MeasuredTest:
+def _measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_stable_cycles: int) -> MeasuredTest:
     """Screen one test; a usable one gets its relay (as inferred and effective) and its response points."""
     chattered = chattering_cycles(test, min_stable_cycles)
     test = chattered or test
@@ -490,14 +498,14 @@ def _measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_st
     if not reason and not any(p.harmonic == 1 for p in pts):
         reason = "no cycle long enough to measure its fundamental"
     if reason:
-        return _MeasuredTest(None, (), (test.index, test.t_start, test.t_end, reason))
+        return MeasuredTest(None, (), (test.index, test.t_start, test.t_end, reason))
     law = infer_relay(test, relay.kind, relay.beta, relay.eps)
     level = switching_level(fits)
     summary = TestSummary(test.index, test.t_start, test.t_end, law, float(test.frequency_hz_mean),
                           float(test.amplitude_mean), test.n_stable, len(test.cycles),
                           float(test.controller_rate_hz or test.rate_hz), float(test.beta_effective), notes,
                           switching=level, effective_relay=effective_relay(law, level, test))
-    return _MeasuredTest(summary, pts)
+    return MeasuredTest(summary, pts, test=test, fits=tuple(fits))
 
 
 def _no_usable_test(rejected: Sequence[tuple[int, float, float, str]]) -> SegmentationError:
@@ -532,9 +540,26 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
     SegmentationError
         No usable relay test.
     """
+    return general_analysis(flight, model, measure_tests(flight, relay, windows, min_stable_cycles), windows)
+
+
+def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
+                  windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> list[MeasuredTest]:
+    """Stage 1 of :func:`analyze_general`: every relay test found, numbered in order, screened and measured."""
+    return [_measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
+            for i, test in enumerate(find_tests(flight, windows))]
+
+
+def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
+                     windows: Sequence[tuple[float, float]] = ()) -> GeneralAnalysis:
+    """Stage 2 of :func:`analyze_general`: ``model`` identified from the measured tests, each held out.
+
+    Raises
+    ------
+    SegmentationError
+        No usable relay test.
+    """
     t0 = log_start(flight)
-    measured = [_measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
-                for i, test in enumerate(find_tests(flight, windows))]
     tests = [m.summary for m in measured if m.summary is not None]
     rejected = [m.rejected for m in measured if m.rejected is not None]
     points = [p for m in measured for p in m.points]

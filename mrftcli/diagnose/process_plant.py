@@ -29,8 +29,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2, norm
 
-from ..analyze.general import (GeneralAnalysis, RelayOptions, TestSummary, analyze_general, chattering_cycles,
-                               find_tests, identify_points, response_points)
+from ..analyze.general import (GeneralAnalysis, RelayOptions, TestSummary, general_analysis, identify_points,
+                               measure_tests, response_points)
 from ..analyze.smooth_cycle import CycleFit, cycle_fits
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog
@@ -466,15 +466,6 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
 # ----------------------------------------------------------------------------------------------
 # the driver
 # ----------------------------------------------------------------------------------------------
-def _tests(flight: FlightLog, windows: Sequence[tuple[float, float]], min_stable_cycles: int) -> list[MrftTest]:
-    """The relay tests as :func:`~mrftcli.analyze.general.analyze_general` numbers them (index = order)."""
-    out = []
-    for i, test in enumerate(find_tests(flight, windows)):
-        test = dataclasses.replace(test, index=i)
-        out.append(chattering_cycles(test, min_stable_cycles) or test)
-    return out
-
-
 def _family_name(model: PlantModel) -> str:
     return model.family.upper() if model.family != "declared" else "the declared model"
 
@@ -553,12 +544,15 @@ def diagnose_process(flight: FlightLog, model: PlantModel, *, relay: RelayOption
     SegmentationError
         No usable relay test.
     """
-    analysis = analyze_general(flight, model, relay=relay, windows=windows, min_stable_cycles=min_stable_cycles)
-    by_index = {t.index: t for t in _tests(flight, windows, min_stable_cycles)}
+    stage = measure_tests(flight, relay, windows, min_stable_cycles)  # segmented once, for both uses
+    analysis = general_analysis(flight, model, stage, windows)
+    by_index = {m.summary.index: m for m in stage if m.summary is not None}
     measured, skipped = {}, []
     for s in analysis.tests:
+        used = by_index[s.index]
+        assert used.test is not None  # a usable test carries the test as used
         try:
-            measured[s.index] = measured_waveform(flight, by_index[s.index])
+            measured[s.index] = measured_waveform(flight, used.test, used.fits)
         except InputError as err:  # a test the analysis used but whose cycles are too short to fit here
             skipped.append(f"not checked: {err}")
     all_model = analysis.identification.model if analysis.identification is not None else None

@@ -46,7 +46,8 @@ def analyze_process_loop(path: str, loop: str, settings: Any, model: Any) -> dic
     read = ReadOptions(loop=loop, command_topic=settings.command_topic, output_topic=settings.output_topic,
                        beta_topic=settings.beta_topic, setpoint_topic=settings.setpoint_topic,
                        output_scale=settings.output_scale, command_scale=settings.command_scale,
-                       layout=settings.layout, controller_rate_hz=settings.controller_rate_hz)
+                       layout=settings.layout, controller_rate_hz=settings.controller_rate_hz,
+                       any_time_scale=True)  # a process plant: any time scale
     flight = read_flight(path, read, echo_warnings=False)
     min_cycles = 3 if settings.min_cycles is None else settings.min_cycles
     result = analyze_general(flight, model, min_stable_cycles=min_cycles)

@@ -312,7 +312,8 @@ def _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, 
         raise click.UsageError(f"{', '.join(used)} work with --model soiptd only so far")
     check_output_file(json_target, "--json")
     model = build_model(model_name, params, ranges)
-    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
+    # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
+    flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
     relay = RelayOptions(relay_kind, None, eps)
     try:
         result = analyze_general(flight, model, relay=relay, windows=parse_windows(windows, log_start(flight)),

@@ -254,7 +254,7 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
     if report_dir:
         raise click.UsageError("--report works with --model soiptd only so far; --json FILE|- writes the diagnosis")
     model = build_model(model_name, params, ranges)
-    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
+    flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
     result = diagnose_process(flight, model, relay=RelayOptions(relay_kind, None, eps),
                               windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
     if json_target:

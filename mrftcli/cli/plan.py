@@ -194,7 +194,7 @@ def _plan_process(source: str | None, opts: _ProcessOptions, *, max_amplitude: f
         analysis = _process_analysis_json(Path(source), model_name)
     else:
         model = build_model(model_name, params, ranges)
-        flight = read_flight(source, ReadOptions(**read_options), echo_warnings=False)
+        flight = read_flight(source, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
         analysis = analyze_general(flight, model, relay=RelayOptions(relay_kind, None, eps),
                                    windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
     result = plan_process(analysis, max_amplitude=max_amplitude, max_h=max_h)

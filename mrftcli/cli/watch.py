@@ -184,7 +184,8 @@ def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], 
                                "--command-scale or --controller-rate given); run 'mrft-ident analyze' with the same "
                                "options on the finished log")
     read = ReadOptions(loop=loop, command_topic=command_topic, output_topic=output_topic, beta_topic=beta_topic,
-                       setpoint_topic=setpoint_topic, output_scale=output_scale, fmt=fmt, time_unit=time_unit)
+                       setpoint_topic=setpoint_topic, output_scale=output_scale, fmt=fmt, time_unit=time_unit,
+                       any_time_scale=model_name != "soiptd")
     model = None if model_name == "soiptd" else build_model(model_name, params, ranges)
     updates = _start(log, Tp, model, read, relay_kind, eps, min_cycles, (idle, poll, wait))
     if model is not None and not jsonl:

@@ -68,6 +68,11 @@ class ReadOptions:
     time_unit : {"s", "ms", "us", "ns"} or None
         Unit of a CSV's time column or a ``.mat`` file's time vectors; None: the column's name says,
         else seconds (:func:`mrftcli.io.open_log`). Used where a file is opened, as ``fmt``.
+    any_time_scale : bool
+        A process plant's loop (``--model NAME``, ``--model-file``): any sample rate is plausible (a
+        10 kHz plasma loop, a furnace logged once a minute), so the command's rate is not checked
+        against what flight stacks log (:func:`~mrftcli.io.clock.check_rate`: eq. (2)'s vehicle loops
+        only). ``time_unit`` still converts a log written in other units.
 
     Raises
     ------
@@ -96,6 +101,7 @@ class ReadOptions:
     controller_rate_hz: float | None = None
     fmt: str | None = None
     time_unit: str | None = None
+    any_time_scale: bool = False
 
     def __post_init__(self) -> None:
         if self.loop not in LOOPS:
@@ -202,7 +208,8 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
                                                 roles.battery) if s])
     cmd = _get_required(log, roles.command)
-    check_rate(cmd.t, f"{log.path}: the command {cmd.spec}", log.time_unit, log.time_unit_settable)
+    if not opts.any_time_scale:  # eq. (2)'s vehicle loops: a rate no flight stack logs is a wrong unit
+        check_rate(cmd.t, f"{log.path}: the command {cmd.spec}", log.time_unit, log.time_unit_settable)
     out = _get_required(log, roles.output)
     source: dict[str, Any] = {"format": log.format, "layout": match.describe()}
     output, conversion = _output_signal(log, out, opts.loop, roles.output_scale)
@@ -222,7 +229,7 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     timing = _timing(log, match.layout, opts, command, output)  # the stamps as logged, before _finite
     command = _finite(log, _bounded(log, command, "command", source["command"]), "command", source["command"])
     output = _finite(log, _bounded(log, output, "output", source["output"]), "output", source["output"])
-    if match.layout.name != "reference":
+    if match.layout.name != "reference" and not opts.any_time_scale:
         _warn_low_rate(log, command, match.layout)
     return FlightLog(path=str(log.path), loop=opts.loop, command=command, output=output,
                      beta=optional["beta"], setpoint=optional["setpoint"],

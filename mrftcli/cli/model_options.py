@@ -266,6 +266,15 @@ def _interval(e: LtiEstimate) -> str:
     return f"{_num(e.ci95_low)} - {_num(e.ci95_high)}"
 
 
+def format_combination(ident: LtiIdentification) -> list[str]:
+    """The line naming what the tests determine of the parameters they leave undetermined (K/T1)."""
+    c = ident.combination
+    if c is None:
+        return []
+    return [f"determined: {c.name} = {_num(c.value)} {c.unit} (95 % {_num(c.ci95_low)} - {_num(c.ci95_high)}); "
+            f"{', '.join(ident.undetermined)} trade off along it"]
+
+
 def format_general(result: GeneralAnalysis) -> str:
     """The terminal summary of a process-plant analysis."""
     from ..analyze.screen import describe_t0
@@ -298,6 +307,7 @@ def format_general(result: GeneralAnalysis) -> str:
         lines += format_estimates(ident)
         if ident.advice:
             lines.append(f"not determined: {ident.advice}")
+        lines += format_combination(ident)
     by_note: dict[str, list[str]] = {}
     for k, t in enumerate(result.tests):
         if t.held_out is not None and t.held_out.note:

@@ -32,6 +32,7 @@ determined, with the test that would determine it.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import itertools
 import math
@@ -46,10 +47,12 @@ from scipy.linalg import lapack
 
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
+from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel
 from .model import PlantModel, model_from_json
 
-__all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION"]
+__all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION",
+           "STATIC_HARMONIC", "static_gain_point"]
 
 #: version of :meth:`LtiIdentification.to_json`
 LTI_SCHEMA_VERSION = 1
@@ -64,7 +67,11 @@ _SE_FLOOR = (5e-3, 5e-3)
 #: (bench_families: IPDT's K off by -0.7 % on every draw of an ideal relay, at 3x its std) do not
 #: average down over the tests as the points' scatter does
 _PARAM_FLOOR = 5e-3
-_GRID = np.geomspace(1e-2, 1e2, 33)  # time constants times the points' median frequency
+_GRID = np.geomspace(1e-2, 1e2, 33)
+#: :attr:`ResponsePoint.harmonic` of a static-gain point
+STATIC_HARMONIC = 0
+#: a static-gain point's frequency, relative to the lowest test frequency
+_STATIC_OMEGA = 1e-6  # time constants times the points' median frequency
 
 FloatArray = NDArray[np.float64]
 
@@ -86,7 +93,10 @@ class ResponsePoint:
     test : int
         Index of the relay test it comes from.
     harmonic : int
-        k: the point is at k times the test's limit-cycle frequency.
+        k: the point is at k times the test's limit-cycle frequency; 0: the static gain (measured from
+        a biased relay's mean levels, :data:`STATIC_HARMONIC`), placed at a frequency far below the
+        tests' where every self-regulating plant's response is its static gain, its phase carrying
+        no figure.
     """
 
     omega: float
@@ -184,6 +194,9 @@ class LtiIdentification:
         Names of the parameters the tests do not pin down.
     advice : str
         What would determine them (empty when all are determined).
+    combination : DeterminedCombination or None
+        The product of the undetermined parameters' powers that the tests do determine (e.g. K/T1),
+        if any (:func:`~mrftcli.mrft.determined.determined_combination`).
     """
 
     model: PlantModel
@@ -192,6 +205,7 @@ class LtiIdentification:
     chi2_dof: float | None
     undetermined: tuple[str, ...] = ()
     advice: str = ""
+    combination: DeterminedCombination | None = None
 
     def estimate(self, name: str) -> LtiEstimate:
         """The estimate of one parameter by name."""
@@ -205,7 +219,8 @@ class LtiIdentification:
         return {"schema_version": LTI_SCHEMA_VERSION, "family": self.model.family, "model": self.model.to_json(),
                 "parameters": {e.name: e.to_json() for e in self.estimates},
                 "points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
-                "undetermined": list(self.undetermined), "advice": self.advice}
+                "undetermined": list(self.undetermined), "advice": self.advice,
+                "determined_combination": None if self.combination is None else self.combination.to_json()}
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> LtiIdentification:
@@ -224,9 +239,10 @@ class LtiIdentification:
             except (KeyError, TypeError, ValueError) as err:
                 raise InputError(f"identification JSON: bad point {p!r}") from err
         chi = data.get("chi2_dof")
+        combo = data.get("determined_combination")
         return cls(model, tuple(LtiEstimate.from_json(n, v) for n, v in params.items()), tuple(points),
                    None if chi is None else float(chi), tuple(str(n) for n in data.get("undetermined", [])),
-                   str(data.get("advice", "")))
+                   str(data.get("advice", "")), None if combo is None else DeterminedCombination.from_json(combo))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -248,12 +264,14 @@ class _Data:
 
     @classmethod
     def of(cls, points: Sequence[ResponsePoint]) -> _Data:
-        table = np.array([(p.omega, p.gain, p.phase, p.se_log_gain, p.se_phase, p.harmonic == 1) for p in points])
-        omega, fundamental = table[:, 0], table[:, 5] > 0
-        cycles = omega[fundamental] if fundamental.any() else omega
+        table = np.array([(p.omega, p.gain, p.phase, p.se_log_gain, p.se_phase, p.harmonic == 1,
+                           p.harmonic != STATIC_HARMONIC) for p in points])
+        omega, fundamental, dynamic = table[:, 0], table[:, 5] > 0, table[:, 6] > 0
+        tests = omega[dynamic] if dynamic.any() else omega  # a static point is no test frequency
+        cycles = omega[fundamental] if fundamental.any() else tests
         return cls(omega, np.log(table[:, 1]), table[:, 2], 1.0 / np.maximum(table[:, 3], _SE_FLOOR[0]),
-                   1.0 / np.maximum(table[:, 4], _SE_FLOOR[1]), fundamental, _median(omega), _median(cycles),
-                   fundamental if fundamental.any() else omega <= omega.min())
+                   1.0 / np.maximum(table[:, 4], _SE_FLOOR[1]), fundamental, _median(tests), _median(cycles),
+                   fundamental if fundamental.any() else omega <= tests.min())
 
 
 def _wrap_grid(x: FloatArray, low: float = -math.pi) -> FloatArray:
@@ -531,11 +549,31 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     else:
         sol = optimize.least_squares(problem.residuals, z0, bounds=(lo, hi), x_scale="jac", method="trf")
         z, r, J = sol.x, sol.fun, sol.jac
-    n_res, n_par = 2 * len(points), len(problem.unknown)
+    n_static = sum(p.harmonic == STATIC_HARMONIC for p in points)  # its phase residual carries no figure
+    n_res, n_par = 2 * len(points) - n_static, len(problem.unknown)
     dof = n_res - n_par
     chi2_dof = float(r @ r) / dof if dof > 0 else None
-    cov = _pinv_psd(J.T @ J) * max(1.0, chi2_dof or 1.0)
-    return _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, _null_parameters(problem, J))
+    inflate = max(1.0, chi2_dof or 1.0)
+    cov = _pinv_psd(J.T @ J) * inflate
+    out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, _null_parameters(problem, J))
+    if len(out.undetermined) >= 2:
+        log_names = [n for n in problem.unknown if n in problem.log_scaled]
+        keep = [problem.unknown.index(n) for n in log_names]
+        F = (J.T @ J)[np.ix_(keep, keep)] / inflate
+        units = {n: p.unit for n, p in model.parameters.items()}
+        combo = determined_combination(log_names, z[keep], F, out.undetermined, units, {"K": problem.k_sign})
+        out = dataclasses.replace(out, combination=combo)
+    return out
+
+
+def static_gain_point(gain: float, se_log_gain: float, points: Sequence[ResponsePoint]) -> ResponsePoint:
+    """The static gain ``gain`` [output / command] (relative standard error ``se_log_gain``) as a response
+    point at :data:`_STATIC_OMEGA` times the lowest frequency of ``points``, phase 0: for a
+    self-regulating plant G there is its static gain to 1e-6 (the delay's and lags' phase is
+    ``omega (tau + T)``, a micro-radian)."""
+    w = min(p.omega for p in points) * _STATIC_OMEGA
+    return ResponsePoint(w, abs(gain), 0.0 if gain > 0 else math.pi, se_log_gain, 1.0, test=-1,
+                         harmonic=STATIC_HARMONIC)
 
 
 def _interior(z: FloatArray, lo: FloatArray, hi: FloatArray) -> FloatArray:

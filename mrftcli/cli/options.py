@@ -133,27 +133,35 @@ def _writable_dir(folder: Path, option: str, what: Path) -> None:
         raise InputError(f"{option} {what}: the folder {folder} is not writable; choose a writable path")
 
 
-def check_output_file(target: str | None, option: str = "--json") -> None:
+def check_output_file(target: str | None, option: str = "--json", *, inputs: tuple[str, ...] = ()) -> None:
     """Check an output file before the work starts: its folder is created if missing and must be writable.
 
     ``None`` and ``-`` (stdout) pass. The same rule as :func:`check_output_dir`, so ``--json`` and
     ``--report`` behave alike: missing parents are created, an unwritable place is refused (exit 2)
-    before minutes of analysis, not after.
+    before minutes of analysis, not after. Never through a symbolic link, onto one of ``inputs``, or
+    (``--json``) over a file that is not a JSON document (:func:`mrftcli.io.atomic.check_output_path`).
     """
+    from ..io.atomic import check_output_path, looks_like_json
+
     if target in (None, "-"):
         return
     path = Path(target)
-    if path.is_dir():
-        raise InputError(f"{option} {target}: is a folder; give a file name, e.g. {path / 'result.json'}")
+    json_out = option == "--json"
+    check_output_path(path, option, inputs=inputs, ours=looks_like_json if json_out else None,
+                      what="a JSON document" if json_out else "")
     if path.exists() and not os.access(path, os.W_OK):
         raise InputError(f"{option} {target}: the file is not writable; choose another path")
     _writable_dir(path.parent if str(path.parent) else Path("."), option, path)
 
 
 def check_output_dir(target: str | None, option: str = "--report") -> None:
-    """Check an output folder before the work starts: created (with its parents) if missing, writable."""
+    """Check an output folder before the work starts: created (with its parents) if missing, writable;
+    never a symbolic link (:func:`mrftcli.io.atomic.check_output_path`)."""
+    from ..io.atomic import check_output_path
+
     if target is None:
         return
+    check_output_path(target, option, folder=True)
     _writable_dir(Path(target), option, Path(target))
 
 

@@ -70,6 +70,13 @@ def parse_effect(text: str) -> tuple[str, float]:
     return name, number
 
 
+def _check_log_target(out: Path, fmt: str) -> None:
+    """``--out`` is this tool's to replace (:func:`mrftcli.sim.sidecar.check_log_target`), before the work."""
+    from ..sim.sidecar import check_log_target
+
+    check_log_target(out, fmt)
+
+
 def _format_of(path: Path, fmt: str | None) -> str:
     from ..io import FORMATS, format_from_name
 
@@ -193,6 +200,7 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     layout, fmt = _cascade_layout(opts, out)
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
+    _check_log_target(out, fmt)
     inner_loop = CASCADE_AXES[opts.axis]
     assert i.Tp is not None and i.Td is not None and i.tau is not None and i.K is not None  # _required above
     inner = LoopModel(i.Tp, i.Td, i.tau, i.K)
@@ -483,6 +491,7 @@ def _simulate_process(opts: ProcessOptions, out: Path, json_target: str | None) 
     check_positive("--controller-rate (a frequency in Hz)", opts.rate_hz)
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
+    _check_log_target(out, fmt)
     amplitude = 0.05 if opts.amplitude is None else check_positive("--amplitude", opts.amplitude)
     noise = 0.01 * amplitude if opts.noise is None else opts.noise
     specs = []
@@ -549,6 +558,7 @@ def _loop_spec(opts: LoopOptions, out: Path):
     check_positive("--controller-rate (a frequency in Hz)", rate)
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
+    _check_log_target(out, fmt)
     effect_values = dict(parse_effect(text) for text in opts.effects)  # every option checked before planning
     amplitude = _DEFAULT_AMPLITUDE[opts.loop] if opts.amplitude is None else opts.amplitude
     specs = []

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,7 +21,8 @@ if TYPE_CHECKING:
 from .model_options import meta_model_options
 from .process_tune import ProcessTuneRequest, process_tune_asked, run_process_tune
 from .cascade_options import is_cascade_result, run_cascade_tune
-from .options import dump_json, json_option, log_layout_options, min_cycles_option, quiet_option, tp_option, tqdm_progress
+from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options, min_cycles_option,
+                      quiet_option, tp_option, tqdm_progress)
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
 _FORMAT_ALIAS = {"table": None, "json": "generic", "hear": "hear", "px4": "px4"}
@@ -37,6 +37,7 @@ class _ExportOptions:
     gyro_cutoff_hz: float | None
     hover_thrust: float | None
     clamp: bool
+    stack_version: str | None = None
 
 
 def _resolve_export(fmt: str | None, export: str | None) -> str | None:
@@ -52,28 +53,14 @@ def _resolve_export(fmt: str | None, export: str | None) -> str | None:
 
 
 def check_out(out: str | None) -> None:
-    if out:
-        parent = Path(out).resolve().parent
-        if not parent.is_dir() or not os.access(parent, os.W_OK):
-            raise InputError(f"--out {out}: folder {parent} does not exist or is not writable")
-        if Path(out).is_dir():
-            raise InputError(f"--out {out}: is a folder; give a file name")
+    """``--out FILE`` checked before the work (the shared rule, :func:`.options.check_output_file`)."""
+    check_output_file(out, "--out")
 
 
 def check_outputs(json_target: str | None, report_dir: str | None) -> None:
     """Output paths are checked before the work starts (one-line error, exit 2)."""
-    if json_target and json_target != "-":
-        parent = Path(json_target).resolve().parent
-        if not parent.is_dir() or not os.access(parent, os.W_OK):
-            raise InputError(f"--json {json_target}: folder {parent} does not exist or is not writable")
-    if report_dir:
-        p = Path(report_dir)
-        if p.exists() and (not p.is_dir() or not os.access(p, os.W_OK)):
-            raise InputError(f"--report {report_dir}: not a writable folder")
-        if not p.exists():
-            parent = p.resolve().parent
-            if not parent.is_dir() or not os.access(parent, os.W_OK):
-                raise InputError(f"--report {report_dir}: cannot create it in {parent}")
+    check_output_file(json_target, "--json")
+    check_output_dir(report_dir, "--report")
 
 
 @dataclass(frozen=True)
@@ -218,7 +205,8 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
         try:
             stack_export = export_design(ex.stack, c, res.model, loop, f"{name} {kind}", clamp=ex.clamp,
                                          hover_thrust=ex.hover_thrust, heights=src.heights,
-                                         amplitudes=src.amplitudes, notes=res.notes)
+                                         amplitudes=src.amplitudes, notes=res.notes, version=ex.stack_version,
+                                         posterior_models=_in_set(src))
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err
@@ -250,6 +238,16 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     return stack_export
 
 
+def _in_set(src: _TuneSource) -> list[Any]:
+    """The posterior's 95 % set's models (empty without a posterior)."""
+    post = src.posterior
+    if post is None:
+        return []
+    import numpy as np
+
+    return list(post.models(np.flatnonzero(post.in_set())))
+
+
 def _parse_cutoff(value: str | None) -> tuple[bool, float | None]:
     """``--gyro-cutoff``: (auto, the cutoff [Hz] or None)."""
     if value is None:
@@ -271,7 +269,8 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
     from ..tune.stack_params import STACK_PARAMS
 
     rows = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
-    out = [f"assumption: {a}" for a in e.assumptions] + [f"export {e.stack} ({e.design}, {e.loop}):"]
+    version = f", ArduPilot Copter {e.version} names" if e.version else ""
+    out = [f"assumption: {a}" for a in e.assumptions] + [f"export {e.stack} ({e.design}, {e.loop}{version}):"]
     for n, v in e.params.items():
         p = rows.get(n)
         rng = f"  [{p.minimum:g} .. {p.maximum:g} {p.unit}]" if p else ""
@@ -280,6 +279,8 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
     worst = " (the worst over the splits of tau)" if e.assumptions else ""
     out.append(f"margins with the stack's filter and rate{worst}: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
                f"delay margin {m.delay_margin_s * 1e3:.1f} ms  Ms {m.Ms:.3g}")
+    out += [f"pre-arm: {r['rule']} with {r['value']:.6g}: {'pass' if r['passed'] else 'FAIL'} ({r['source']})"
+            for r in e.prearm]
     out += [f"note: {n}" for n in e.notes]
     if console:
         out += e.console_lines()
@@ -316,6 +317,9 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), required for "
                    "the altitude exports.")
+@click.option("--stack-version", "stack_version", type=click.Choice(["4.6", "4.7"]), default=None,
+              help="ArduPilot release whose parameter names and scalings the file uses (4.7 renamed PSC_POSZ_/VELZ_/"
+                   "ACCZ_ to PSC_D_POS_/D_VEL_/D_ACC_); default: the current stable release, 4.7, named in the file.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound (the "
               "resulting margins are stated) instead of refusing.")
 @click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default=None, hidden=True,
@@ -329,7 +333,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()
 def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
-         export, out, gyro_cutoff, hover_thrust, clamp, fmt, design, kind, json_target, report_dir, quiet,
+         export, out, gyro_cutoff, hover_thrust, stack_version, clamp, fmt, design, kind, json_target, report_dir, quiet,
          **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
@@ -349,7 +353,9 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         raise InputError(f"{len(sources)} sources: give one SOURCE, or a roll and a pitch RESULT.json with "
                          "--export px4|ardupilot")
     cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
-    ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp)
+    ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version)
+    if stack_version is not None and ex.stack != "ardupilot":
+        raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()
     if len(sources) < 2 and process_tune_asked(ctx, sources[0] if sources else None):  # tune/process.py
         run_process_tune(ctx, ProcessTuneRequest(

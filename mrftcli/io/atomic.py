@@ -9,7 +9,10 @@ file and leaves the target as it was.
 * :func:`atomic_path`: a temporary path for writers that take a path or a stream (matplotlib's
   ``savefig``, the MCAP writer, pandas' ``to_csv``), renamed when the block ends without an error;
   ``create=False`` for writers that refuse a path that exists (rosbags' ROS 1 bag writer);
-* :func:`atomic_directory`: the same for a writer that makes a folder (a ROS 2 bag).
+* :func:`atomic_directory`: the same for a writer that makes a folder (a ROS 2 bag);
+* :func:`check_output_path`: the one check of every output path before the work starts (issue 35):
+  never through a symbolic link, never onto an input, a special file or a file or folder the tool
+  did not write.
 """
 
 from __future__ import annotations
@@ -18,10 +21,73 @@ import contextlib
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path", "atomic_directory"]
+from ..errors import InputError
+
+__all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path", "atomic_directory", "check_output_path",
+           "looks_like_json", "is_empty"]
+
+
+def is_empty(path: Path) -> bool:
+    """An empty file or an empty folder: replacing it loses nothing."""
+    if path.is_dir():
+        return not any(path.iterdir())
+    return path.stat().st_size == 0
+
+
+def looks_like_json(path: Path) -> bool:
+    """A file whose first non-blank byte opens a JSON document (what ``--json FILE`` writes)."""
+    with open(path, "rb") as fh:
+        head = fh.read(256).lstrip()
+    return head[:1] in (b"{", b"[")
+
+
+def check_output_path(path: str | Path, option: str, *, folder: bool = False,
+                      ours: Callable[[Path], bool] | None = None, what: str = "",
+                      inputs: Iterable[str | Path] = ()) -> Path:
+    """Refuse an output path that would write through a link or replace what the tool did not write.
+
+    One rule for every output (``--json``, ``--out``, ``--report``, ``--mcap-out``), checked before the
+    work starts (a one-line :class:`~mrftcli.errors.InputError`):
+
+    * a symbolic link is never followed (nor replaced): the file it points at is someone else's;
+    * a special file (FIFO, device, socket) and any of the command's ``inputs`` are never written;
+    * a file where a folder is written (``folder``) or a folder where a file is, is refused;
+    * an existing, non-empty target is replaced only if ``ours(path)`` says the tool wrote it (a ROS 2 bag
+      folder with its simulation sidecar, a JSON document); ``what`` names what the tool writes there.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = (folder / "notes.txt").write_text("field notes")
+    >>> check_output_path(folder / "notes.txt", "--json", ours=looks_like_json, what="a JSON document")
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: --json ...notes.txt: exists and is not a JSON document this tool wrote; not replacing it: remove it or choose another path
+    """
+    path = Path(path)
+    if path.is_symlink():
+        raise InputError(f"{option} {path}: is a symbolic link; not writing through it onto another file: "
+                         "give the real path")
+    if not path.exists():
+        return path
+    if not (path.is_file() or path.is_dir()):
+        raise InputError(f"{option} {path}: is not a regular file or folder; choose another path")
+    for source in inputs:
+        if Path(source).exists() and os.path.samefile(path, source):
+            raise InputError(f"{option} {path}: is an input of this command; inputs are never written over: "
+                             "choose another path")
+    if folder and path.is_file():
+        raise InputError(f"{option} {path}: is a file; give a folder")
+    if not folder and path.is_dir():
+        raise InputError(f"{option} {path}: is a folder; give a file name")
+    if ours is not None and not is_empty(path) and not ours(path):
+        raise InputError(f"{option} {path}: exists and is not {what or 'an output'} this tool wrote; not "
+                         "replacing it: remove it or choose another path")
+    return path
 
 
 @contextlib.contextmanager

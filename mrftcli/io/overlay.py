@@ -104,15 +104,24 @@ class OverlayFit:
 
 def check_overlay_path(path: str | Path) -> Path:
     """The output path if it can be written (checked before any work), else a one-line InputError."""
+    from .atomic import check_output_path
+
     path = Path(path)
     if path.is_dir():
         raise InputError(f"--mcap-out {path}: is a directory; give a file name such as fit.mcap")
+    check_output_path(path, "--mcap-out", ours=_is_mcap, what="an MCAP file")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"--mcap-out {path}: the folder {parent} does not exist; create it first")
     if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
         raise InputError(f"--mcap-out {path}: not writable; choose another path")
     return path
+
+
+def _is_mcap(path: Path) -> bool:
+    """An MCAP file (its magic bytes): what ``--mcap-out`` replaces."""
+    with open(path, "rb") as fh:
+        return fh.read(5) == b"\x89MCAP"
 
 
 def _schema(properties: dict[str, str]) -> bytes:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..io.atomic import atomic_directory, atomic_path, write_text_atomic
+from ..io.atomic import atomic_directory, atomic_path, check_output_path, write_text_atomic
 from ..io.logtypes import TopicData
 from .control import HoldPID, noise_margin
 from .spec import FlightSettings, FlightSpec
@@ -23,7 +23,8 @@ from .spec import FlightSettings, FlightSpec
 if TYPE_CHECKING:
     from .flight import SimulatedFlight
 
-__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "write_log_atomic", "jsonable"]
+__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "write_log_atomic", "jsonable",
+           "check_log_target"]
 
 
 def truth_record(spec: FlightSpec, settings: FlightSettings, pid: HoldPID, rate_true: np.ndarray,
@@ -196,6 +197,30 @@ def sidecar_path(log_path: str | Path) -> Path:
 _DIRECTORY_FORMATS = ("ros2-sqlite3", "ros2-mcap")
 
 
+def _is_bag(path: Path) -> bool:
+    """A ROS 2 bag folder (its metadata.yaml), or a file (a file log is replaced as before)."""
+    return not path.is_dir() or (path / "metadata.yaml").is_file()
+
+
+def _simulated(path: Path) -> bool:
+    """A log this tool simulated: its truth sidecar lies beside it (a ROS 2 bag: also its metadata.yaml)."""
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        return False
+    return sidecar_path(path).is_file()
+
+
+def check_log_target(path: str | Path, fmt: str, option: str = "--out") -> Path:
+    """Refuse a simulated log's target that is not this tool's to replace (one-line InputError).
+
+    An existing file or folder is replaced only if it is empty or a log ``simulate`` wrote (its
+    ``.truth.json`` sidecar beside it): a user's folder, a recorded flight or a symbolic link is never
+    removed or written through (:func:`mrftcli.io.atomic.check_output_path`, issue 35).
+    """
+    folder = fmt in _DIRECTORY_FORMATS
+    return check_output_path(path, option, folder=folder, ours=_simulated,
+                             what="a ROS 2 bag folder" if folder else "a log")
+
+
 def write_log_atomic(topics: list[TopicData], path: str | Path, fmt: str) -> Path:
     """Write ``topics`` as a log of format ``fmt`` into a temporary file renamed onto ``path``.
 
@@ -210,6 +235,8 @@ def write_log_atomic(topics: list[TopicData], path: str | Path, fmt: str) -> Pat
     """
     from ..io import write_log  # the writers live with the readers
 
+    # again at the write (a library caller): a folder that is not a ROS 2 bag is not replaced via the staging
+    check_output_path(path, "log", folder=fmt in _DIRECTORY_FORMATS, ours=_is_bag, what="a ROS 2 bag folder")
     if fmt in _DIRECTORY_FORMATS:
         with atomic_directory(path) as folder:
             write_log(topics, folder, fmt)

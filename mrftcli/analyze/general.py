@@ -26,7 +26,8 @@ import numpy as np
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
-from ..mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
+from ..mrft.identify_lti import (STATIC_HARMONIC, LtiIdentification, ResponsePoint, identify_lti,
+                                 static_gain_point)
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 from ..segment import segment
@@ -35,6 +36,7 @@ from ..segment.relay_type import infer_relay
 from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .screen import log_start
+from .static_gain import StaticGain, is_self_regulating, static_gain
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
@@ -211,6 +213,9 @@ class GeneralAnalysis:
         Assumptions and facts a reader needs (the bias assumption, noisy tests).
     warnings : tuple of str
         The reader's warnings.
+    static_gain : StaticGain or None
+        K measured from a biased relay's mean levels and the given operating point (``--baseline``),
+        one more constraint of the fit.
     """
 
     path: str
@@ -222,6 +227,7 @@ class GeneralAnalysis:
     identification: LtiIdentification | None
     notes: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    static_gain: StaticGain | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The ``--json`` output: ``schema_version``, ``model`` (family, ``parameters`` by name), ``tests``."""
@@ -233,21 +239,23 @@ class GeneralAnalysis:
                 "identification": None if ident is None else ident.to_json(),
                 "tests": [t.to_json() for t in self.tests],
                 "rejected_tests": [{"index": i, "t_start": a, "t_end": b, "reason": r} for i, a, b, r in self.rejected],
-                "notes": list(self.notes), "warnings": list(self.warnings)}
+                "notes": list(self.notes), "warnings": list(self.warnings),
+                "static_gain": None if self.static_gain is None else self.static_gain.to_json()}
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> GeneralAnalysis:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
         data = check_schema_version(data, "analysis JSON", GENERAL_SCHEMA_VERSION)
         try:
-            ident = data.get("identification")
+            ident, sg = data.get("identification"), data.get("static_gain")
             return cls(str(data["path"]), str(data["loop"]), float(data["t0"]),
                        tuple((float(a), float(b)) for a, b in data.get("windows", [])),
                        tuple(TestSummary.from_json(t) for t in data["tests"]),
                        tuple((int(r["index"]), float(r["t_start"]), float(r["t_end"]), str(r["reason"]))
                              for r in data.get("rejected_tests", [])),
                        None if ident is None else LtiIdentification.from_json(ident),
-                       tuple(str(n) for n in data.get("notes", [])), tuple(str(w) for w in data.get("warnings", [])))
+                       tuple(str(n) for n in data.get("notes", [])), tuple(str(w) for w in data.get("warnings", [])),
+                       None if sg is None else StaticGain.from_json(sg))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"analysis JSON: bad or missing field ({err})") from None
 
@@ -427,7 +435,7 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
     The relay is the effective one where there is one (:attr:`TestSummary.predicting_relay`): the
     level the smooth waveform had at the switches, which is what a noise-free model must reproduce.
     """
-    if not points:
+    if not any(p.harmonic != STATIC_HARMONIC for p in points):  # the static gain alone is no test
         return HeldOut(None, None, "no other test")
     try:
         fit = identify_points(model, points)
@@ -519,7 +527,8 @@ def _no_usable_test(rejected: Sequence[tuple[int, float, float, str]]) -> Segmen
 
 
 def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions = RelayOptions(),
-                    windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> GeneralAnalysis:
+                    windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3,
+                    baseline: tuple[float, float] | None = None) -> GeneralAnalysis:
     """Identify ``model``'s unknown parameters from the relay tests of a flight (module docstring).
 
     Parameters
@@ -534,13 +543,20 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
         Parts of the log to use [s, log clock]; empty: all.
     min_stable_cycles : int
         Fewest stable cycles for a test to be used.
+    baseline : (float, float) or None
+        The operating point ``Y0`` [output units] (the output with the command at 0) and its standard
+        deviation: the biased relays' mean levels then measure the static gain
+        (:mod:`~mrftcli.analyze.static_gain`), one more constraint of the fit.
 
     Raises
     ------
     SegmentationError
         No usable relay test.
+    InputError
+        ``baseline`` on an integrating plant, or under relays symmetric about the command's zero.
     """
-    return general_analysis(flight, model, measure_tests(flight, relay, windows, min_stable_cycles), windows)
+    return general_analysis(flight, model, measure_tests(flight, relay, windows, min_stable_cycles), windows,
+                            baseline)
 
 
 def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
@@ -551,7 +567,8 @@ def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
 
 
 def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
-                     windows: Sequence[tuple[float, float]] = ()) -> GeneralAnalysis:
+                     windows: Sequence[tuple[float, float]] = (),
+                     baseline: tuple[float, float] | None = None) -> GeneralAnalysis:
     """Stage 2 of :func:`analyze_general`: ``model`` identified from the measured tests, each held out.
 
     Raises
@@ -569,9 +586,28 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
     if any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests):
         notes.insert(0, "assumed: each relay's bias is balanced by the loop's operating point (the cycle is "
                         "taken about its centre); the response points do not depend on it")
+    sg = None
+    if baseline is not None:
+        sg = _static_gain(flight, model, measured, points, baseline)
+        points.append(static_gain_point(sg.value, sg.std / abs(sg.value), points))
+        notes.insert(0, f"measured: {sg.describe()}")
     ident = identify_points(model, points)
+    if sg is None and "K" in ident.undetermined and any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests) \
+            and is_self_regulating(model, min(p.omega for p in points)):
+        notes.append("the biased relay's mean levels would determine K: give the operating point with --baseline Y0 "
+                     "(the output with the command at 0, e.g. the ambient temperature): K = (mean output - Y0) / "
+                     "mean command")
     with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index]))
                       for t in tests)
     return GeneralAnalysis(flight.path, flight.loop, t0, tuple(windows), with_held, tuple(rejected), ident,
-                           tuple(notes), tuple(flight.warnings))
+                           tuple(notes), tuple(flight.warnings), sg)
+
+
+def _static_gain(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
+                 points: Sequence[ResponsePoint], baseline: tuple[float, float]) -> StaticGain:
+    """K from the used tests' mean levels (``--baseline``); InputError on an integrating plant."""
+    if not is_self_regulating(model, min(p.omega for p in points)):
+        raise InputError(f"--baseline: {model.family} integrates (no static gain): the mean levels say nothing of K; "
+                         "leave --baseline out")
+    return static_gain(flight, [m.test for m in measured if m.summary is not None and m.test is not None], *baseline)
 

@@ -7,8 +7,8 @@ import math
 import click
 
 from ..errors import InsufficientDataError, MrftError, SegmentationError
-from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
-                            window_option)
+from .model_options import (baseline_option, build_model, format_general, parse_baseline, parse_windows,
+                            relay_options, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
 from .cascade_options import cascade_options, pop_cascade_options, run_cascade
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
@@ -161,6 +161,7 @@ def _stages(progress, weights: dict[str, float]):
 @structure_options
 @window_option
 @relay_options
+@baseline_option
 @log_layout_options()
 @min_cycles_option()
 @json_option(what="analysis")
@@ -202,6 +203,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     from ..analyze import AnalyzeOptions, analyze_flight
     from ..io import ReadOptions, read_flight
 
+    baseline = parse_baseline(read_options.pop("baseline", None))  # a process model's operating point
     cascade = pop_cascade_options(read_options)  # --inner-model: the outer loop through its inner loop
     if cascade.requested:
         run_cascade(log, cascade, read_options, min_cycles=min_cycles, json_target=json_target,
@@ -217,10 +219,13 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
         check_overlay_path(mcap_out)
     if model_name != "soiptd":
-        _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target,
-                         (report_dir, mcap_out, paper_only, run_diagnose), read_options)
+        _analyze_process(log, model_name, params, ranges, windows, (relay_kind, eps, baseline), min_cycles,
+                         json_target, (report_dir, mcap_out, paper_only, run_diagnose), read_options)
         return
     _check_soiptd(Tp, params, ranges, relay_kind, eps)
+    if baseline is not None:
+        raise click.UsageError("--baseline takes a process model (--model fopdt or sopdt, or --model-file); eq. (2) "
+                               "integrates (no static gain)")
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False,  # its warnings: once, below
                              progress=progress)
@@ -299,7 +304,7 @@ def _check_soiptd(Tp, params, ranges, relay_kind, eps) -> None:
                                "ipdt or foipdt); eq. (2) takes --tp and reads beta from the log.")
 
 
-def _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target,
+def _analyze_process(log, model_name, params, ranges, windows, relay_baseline, min_cycles, json_target,
                      soiptd_only, read_options) -> None:
     """``analyze --model NAME`` for a process plant (:func:`mrftcli.analyze.general.analyze_general`)."""
     from ..analyze.general import RelayOptions, analyze_general
@@ -314,10 +319,11 @@ def _analyze_process(log, model_name, params, ranges, windows, relay_kind, eps, 
     model = build_model(model_name, params, ranges)
     # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
     flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
+    relay_kind, eps, baseline = relay_baseline
     relay = RelayOptions(relay_kind, None, eps)
     try:
         result = analyze_general(flight, model, relay=relay, windows=parse_windows(windows, log_start(flight)),
-                                 min_stable_cycles=min_cycles)
+                                 min_stable_cycles=min_cycles, baseline=baseline)
     except MrftError:
         _echo_warnings(flight.warnings)
         raise

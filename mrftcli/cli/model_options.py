@@ -152,6 +152,27 @@ def relay_options(f: Callable[..., Any]) -> Callable[..., Any]:
                              "beyond the sampling lag: hysteresis; else ideal).")(f)
 
 
+def baseline_option(f: Callable[..., Any]) -> Callable[..., Any]:
+    """``--baseline Y0[:STD]``: the operating point that lets a biased relay's mean levels measure K."""
+    return click.option("--baseline", "baseline", metavar="Y0[:STD]", default=None,
+                        help="Process models: the output with the command at 0 (a heater off: the ambient "
+                             "temperature) [output units], with its standard deviation after ':' (default: "
+                             "exact). A biased relay's mean levels then measure the static gain K = (mean "
+                             "output - Y0) / mean command, one more constraint of the fit.")(f)
+
+
+def parse_baseline(text: str | None) -> tuple[float, float] | None:
+    """``Y0[:STD]`` of ``--baseline`` as (Y0, STD); None when not given."""
+    if text is None:
+        return None
+    head, _, tail = text.partition(":")
+    y0 = _number(head, "--baseline")
+    std = _number(tail, "--baseline STD") if tail else 0.0
+    if std < 0:
+        raise InputError(f"--baseline: the standard deviation must be >= 0, got {std:g}")
+    return y0, std
+
+
 def _number(text: str, what: str) -> float:
     try:
         value = float(text)
@@ -308,6 +329,10 @@ def format_general(result: GeneralAnalysis) -> str:
         if ident.advice:
             lines.append(f"not determined: {ident.advice}")
         lines += format_combination(ident)
+        if ident.undetermined:
+            model = "--model-file FILE" if hasattr(ident.model, "transfer_function") else f"--model {ident.model.family}"
+            lines.append(f"next test: 'mrft-ident plan {result.path} {model}' (with this command's topic options) "
+                         f"ranks the relay tests that would determine {', '.join(ident.undetermined)}")
     by_note: dict[str, list[str]] = {}
     for k, t in enumerate(result.tests):
         if t.held_out is not None and t.held_out.note:

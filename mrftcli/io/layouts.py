@@ -196,8 +196,25 @@ _MAT = Layout(
     low_rate_fix="log the controller output and the output at the controller's rate",
 )
 
+# ArduCopter with mrft-ident's Lua relay (scripts/sitl/mrft_relay.lua): one DataFlash message MRFT per
+# script tick holding the relay's decision (bias + relay, before the delay FIFO), the EKF's output
+# (altitude [m] or roll/pitch [rad]) and beta. One axis per log: the loop is whatever the log's tests ran.
+def _ardupilot_mrft() -> LoopTopics:
+    return LoopTopics("MRFT:Cmd", "MRFT:Out", "MRFT:SP", "MRFT:B")
+
+
+_ARDUPILOT_MRFT = Layout(
+    name="ardupilot-mrft",
+    title="ArduCopter with mrft-ident's Lua MRFT relay (DataFlash message MRFT)",
+    loops={loop: _ardupilot_mrft() for loop in ("altitude", "roll", "pitch")},
+    signature=("MRFT",),
+    formats=("dataflash",),
+    low_rate_fix="the script logs every tick; raise its rate with PERIOD_MS in mrft_relay.lua",
+)
+
 #: every layout by name (``--layout NAME``)
-LAYOUTS: dict[str, Layout] = {lay.name: lay for lay in (_REFERENCE, _PX4, _HEAR, _HEAR_2020, _MAVROS, _MAT)}
+LAYOUTS: dict[str, Layout] = {lay.name: lay for lay in (_REFERENCE, _PX4, _HEAR, _HEAR_2020, _MAVROS, _MAT,
+                                                        _ARDUPILOT_MRFT)}
 #: what ``--layout`` accepts
 LAYOUT_NAMES = tuple(LAYOUTS)
 
@@ -254,7 +271,7 @@ def detect_layout(topics: Collection[str] | Callable[[str], bool], fmt: str | No
     True
     """
     has = topics if callable(topics) else set(topics).__contains__
-    for name in ("px4-mrft", "hear-2020", "hear-ros", "mavros", "mat", "reference"):
+    for name in ("px4-mrft", "ardupilot-mrft", "hear-2020", "hear-ros", "mavros", "mat", "reference"):
         lay = LAYOUTS[name]
         if lay.formats and fmt is not None and fmt not in lay.formats and not (
                 fmt == "mcap-json" and "mcap" in lay.formats):

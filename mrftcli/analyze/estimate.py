@@ -160,7 +160,9 @@ class SendTimeWindows:
     windows : tuple of CommandWindow
         One per test (a test with fewer than 2 commands or 8 outputs is left out).
     command, output : tuple of SendTimes
-        Each test's rebuild of the command (no message may be missing) and of the output.
+        Each test's rebuild of the command and of the output (missing messages are ticks without
+        one; a window's :attr:`~mrftcli.mrft.waveform.CommandWindow.free` ticks are where a switch
+        may sit in a gap).
     """
 
     windows: tuple[CommandWindow, ...]
@@ -190,6 +192,11 @@ class SendTimeWindows:
                 out.append(rec[failed[0]].describe(topic) + f" (in {len(failed)} of {len(rec)} tests)")
             else:
                 out.append(rec[0].describe(topic) + f" in {len(rec)} of {len(rec)} tests")
+        unknown = sum(w.free.size for w in self.windows)
+        if unknown:
+            out.append(f"{unknown} command tick(s) without a message where a switch may sit (the messages either side "
+                       "differ): each such switch's time carries one tick of uncertainty, its command fitted from "
+                       "the output and its uncertainty in the intervals")
         return tuple(out)
 
 
@@ -336,8 +343,10 @@ def send_time_windows(flight: FlightLog, tests: Sequence[MrftTest],
     Receive stamps are late by a random transport delay: the waveform fit would read that jitter as
     model error (a residual of 6-9x the sensor noise on logs with 0-3 ms of it). Over each test's
     window each topic is checked against a fixed-rate publisher and its send times rebuilt
-    (:func:`mrftcli.segment.runs.rebuild_send_times`); a command with missing messages is not
-    rebuilt (a message's position is then not its tick), and its receive times are used as they are.
+    (:func:`mrftcli.segment.runs.rebuild_send_times`), the tick numbering running on through
+    missing messages (a dropped command message is one missing tick, not a missing switch; where a
+    switch may sit in the gap the window leaves that tick's command free,
+    :attr:`mrftcli.mrft.waveform.CommandWindow.free`).
 
     Parameters
     ----------
@@ -359,7 +368,7 @@ def send_time_windows(flight: FlightLog, tests: Sequence[MrftTest],
         # a margin of a few periods either side keeps the window's edges inside the rebuilt stretch
         a, b = np.searchsorted(tc, [test.t_start - history - 0.05, test.t_end + 0.05])
         ya, yb = np.searchsorted(ty, [test.t_start - 0.05, test.t_end + 0.05])
-        sc = rebuild_send_times(tc[a:b], allow_drops=False)
+        sc = rebuild_send_times(tc[a:b])
         so = _on_controller_ticks(rebuild_send_times(ty[ya:yb]), sc, ty[ya:yb])
         w = CommandWindow.between(test.t_start, test.t_end, sc.t, c[a:b], so.t, y[ya:yb], test.bias, history)
         if w is not None:

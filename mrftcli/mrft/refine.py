@@ -22,6 +22,13 @@ scaled by the residual variance, s^2 (J^T J)^{-1}, s^2 = |r|^2 / (N - n_p - 4 n_
 sensor noise and a model that holds it is the Cramer-Rao bound at the estimate (the projected
 Jacobian gives the bound with the nuisance parameters unknown).
 
+A command message that was not logged where the messages either side differ by a switch
+(:attr:`~mrftcli.mrft.waveform.CommandWindow.free`: the switch may sit at that tick or at the next
+message, one tick of uncertainty in its time) leaves that tick's command unknown: it enters the
+output linearly too, so it is one more nuisance parameter of the projection (its pulse response,
+:attr:`~mrftcli.mrft.waveform.ResponseBasis.pulses`), and the output decides where the switch sat
+as far as it can, its uncertainty in the parameters' covariance (and one degree of freedom fewer).
+
 Acceptance (:func:`refine`)
 ---------------------------
 The refined estimate is used only when the data say the model holds:
@@ -169,12 +176,14 @@ def _projected(plant: Plant, windows: Sequence[CommandWindow], p: np.ndarray,
     A, B, C, tau = plant(p)
     out = []
     for w in windows:
-        cols = response_basis(A, B, C, tau, w).columns
+        basis = response_basis(A, B, C, tau, w)
+        cols = basis.columns
         if w.output is None:  # (fit_output_error checks every window has its recording)
             raise InputError("the output-error fit needs every window's recorded output")
         ok = np.isfinite(w.output)
         y = w.output[ok] - cols[ok, 0]
-        X = cols[ok, 1:]
+        # an unknown tick's command (a switch that may sit in a gap) is one more linear nuisance
+        X = np.hstack([cols[ok, 1:], basis.pulses[ok]]) if w.free.size else cols[ok, 1:]
         coef, *_ = np.linalg.lstsq(X, y, rcond=None)
         out.append(y - X @ coef)
         if keep is not None:  # the offset and its unscaled variance (X^T X)^-1 [0, 0]
@@ -217,7 +226,7 @@ def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0: ArrayLi
     offsets: list[tuple[float, float]] = []
     r = _projected(plant, windows, res.x, offsets)
     n = r.size
-    dof = max(n - p0.size - 4 * len(windows), 1)
+    dof = max(n - p0.size - sum(4 + w.free.size for w in windows), 1)
     s2 = float(r @ r) / dof
     J = res.jac
     try:

@@ -35,7 +35,7 @@ equilibrium of the linear model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -103,8 +103,10 @@ class PredictedOutput:
     rms: float
 
 
-def _grid(t_command: np.ndarray, command: np.ndarray, t_end: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """The command on a uniform grid at its median rate up to ``t_end`` (zero-order hold)."""
+def _grid(t_command: np.ndarray, command: np.ndarray, t_end: float
+          ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The command on a uniform grid at its median rate up to ``t_end`` (zero-order hold), and the
+    grid instants whose command is not known (:func:`_unknown_ticks`)."""
     dt = float(np.median(np.diff(t_command)))
     if not (math.isfinite(dt) and dt > 0):
         raise InputError("command times must increase")
@@ -118,8 +120,34 @@ def _grid(t_command: np.ndarray, command: np.ndarray, t_end: float) -> tuple[np.
     n = int(math.floor((max(t_end, t_command[-1]) - t_command[0]) / dt + 1e-9)) + 2
     grid = t_command[0] + dt * np.arange(n)
     # the sample in force at each grid instant (a half-sample tolerance absorbs receive jitter)
-    idx = np.searchsorted(t_command, grid + 0.5 * dt, side="right") - 1
-    return grid, command[np.clip(idx, 0, command.size - 1)], dt
+    idx = np.clip(np.searchsorted(t_command, grid + 0.5 * dt, side="right") - 1, 0, command.size - 1)
+    ug = command[idx]
+    free = _unknown_ticks(idx, command)
+    if free.size:
+        # the switch is at one of the missing ticks or at the next message: the middle of the two
+        # levels stands for it in a prediction (a fit leaves these ticks free)
+        ug = ug.copy()
+        ug[free] = 0.5 * (command[idx[free]] + command[np.minimum(idx[free] + 1, command.size - 1)])
+    return grid, ug, dt, free
+
+
+#: a jump between the messages either side of a gap larger than this share of the window's largest
+#: jump between messages is a switch that may sit in the gap (a PID command's steps are far smaller)
+_SWITCH_SHARE = 0.25
+
+
+def _unknown_ticks(idx: np.ndarray, command: np.ndarray) -> NDArray[np.intp]:
+    """Grid instants without a message of their own (``idx``: the message in force at each, held
+    from an earlier one) where the messages either side of the gap differ by a switch: the switch
+    may sit at any of them, so their command is not known."""
+    held = np.flatnonzero(np.diff(idx) == 0) + 1
+    if held.size == 0 or command.size < 2:
+        return held
+    jump = np.abs(np.diff(command))
+    nxt = idx[held]
+    step = jump[np.minimum(nxt, jump.size - 1)]
+    out: NDArray[np.intp] = held[(nxt < jump.size) & (step > _SWITCH_SHARE * float(jump.max()))]
+    return out
 
 
 def _phi(mu: ArrayLike, s: ArrayLike) -> NDArray[np.complex128]:
@@ -155,6 +183,11 @@ class CommandWindow:
         Recorded output at ``t_output`` [output units].
     bias : float
         The command level subtracted (the relay's centre level) [command units].
+    free : numpy.ndarray
+        Grid instants whose command is not known: no message was logged for them and the messages
+        either side of the gap differ by a switch, which may sit at any of them (one tick of
+        uncertainty in that switch's time). ``u`` holds the middle of the two levels there; a fit
+        leaves them free (:attr:`ResponseBasis.pulses`).
     """
 
     dt: float
@@ -164,6 +197,7 @@ class CommandWindow:
     t_output: np.ndarray
     output: np.ndarray | None
     bias: float
+    free: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
 
     @classmethod
     def from_arrays(cls, t_command: ArrayLike, command: ArrayLike, t_output: ArrayLike, output: ArrayLike | None = None,
@@ -183,9 +217,9 @@ class CommandWindow:
         yrec = None if output is None else np.asarray(output, float)
         if yrec is not None and yrec.shape != to.shape:
             raise InputError("output and t_output must have the same length")
-        grid, ug, dt = _grid(tc, uc - bias, float(to[-1]) if to.size else float(tc[-1]))
+        grid, ug, dt, free = _grid(tc, uc - bias, float(to[-1]) if to.size else float(tc[-1]))
         k = np.clip(np.searchsorted(grid, to + 1e-12, side="right") - 1, 0, grid.size - 1)
-        return cls(dt=dt, u=ug, k=k, s=to - grid[k], t_output=to, output=yrec, bias=float(bias))
+        return cls(dt=dt, u=ug, k=k, s=to - grid[k], t_output=to, output=yrec, bias=float(bias), free=free)
 
 
     @classmethod
@@ -232,10 +266,13 @@ class ResponseBasis:
 
     y = columns[:, 0] + offset * columns[:, 1] + columns[:, 2:] @ z0, where ``offset`` is a constant
     added to the command and z0 the initial state in modal coordinates (x0 = ``modes`` @ z0).
+    ``pulses[:, j]`` is the output's change per unit of command at the window's unknown tick
+    ``free[j]`` (:attr:`CommandWindow.free`; ``u`` holds the middle of the two levels there).
     """
 
     columns: np.ndarray
     modes: np.ndarray
+    pulses: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 def response_basis(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, window: CommandWindow) -> ResponseBasis:
@@ -270,11 +307,15 @@ def response_basis(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, window:
     dt = window.dt
     d = int(math.floor(tau / dt + 1e-12))
     f = min(max(tau / dt - d, 0.0), 1.0)
-    ug = window.u
-    n = ug.size
-    pad = np.full(d + 1, ug[0])
-    ua = np.concatenate([pad, ug])[:n]  # u_{j-d-1}: in force over [t_j, t_j + f dt)
-    ub = np.concatenate([pad[1:], ug])[:n]  # u_{j-d}: in force over [t_j + f dt, t_{j+1})
+    n = window.u.size
+    # the command, and a unit pulse at each unknown tick: the forced response of each (one filter)
+    U = np.zeros((n, 1 + window.free.size))
+    U[:, 0] = window.u
+    U[window.free, 1 + np.arange(window.free.size)] = 1.0
+    pad = np.zeros((d + 1, U.shape[1]))
+    pad[:, 0] = window.u[0]
+    ua = np.concatenate([pad, U])[:n]  # u_{j-d-1}: in force over [t_j, t_j + f dt)
+    ub = np.concatenate([pad[1:], U])[:n]  # u_{j-d}: in force over [t_j + f dt, t_{j+1})
     lam = np.exp(mu * dt)
     gb = beta * _phi(mu, (1.0 - f) * dt)
     ga = beta * np.exp(mu * (1.0 - f) * dt) * _phi(mu, f * dt)
@@ -288,20 +329,22 @@ def response_basis(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, window:
                   np.exp(np.outer(s2, mu)) * _phi(mu, f * dt)[None, :])
     pb = np.where(first[:, None], 0.0, _phi(mu[None, :], s2[:, None]))
     cols = np.zeros((m, 2 + mu.size), dtype=complex)
+    forced = np.zeros((m, U.shape[1]), dtype=complex)
     jj = np.arange(n)
     for i in range(mu.size):
         # z_{j+1} = lam z_j + ga a_j + gb b_j, z_0 = 0: strictly causal first-order filter
-        zf = signal.lfilter([0.0, 1.0], [1.0, -lam[i]], ga[i] * ua + gb[i] * ub)
+        zf = signal.lfilter([0.0, 1.0], [1.0, -lam[i]], ga[i] * ua + gb[i] * ub, axis=0)
         if abs(lam[i] - 1.0) < 1e-12:
             zs = (ga[i] + gb[i]) * jj
         else:
             zs = (ga[i] + gb[i]) * (1.0 - lam[i] ** jj) / (1.0 - lam[i])
-        cols[:, 0] += c[i] * (es[:, i] * zf[k] + beta[i] * (pa[:, i] * ua[k] + pb[:, i] * ub[k]))
+        forced += c[i] * (es[:, i, None] * zf[k] + beta[i] * (pa[:, i, None] * ua[k] + pb[:, i, None] * ub[k]))
         cols[:, 1] += c[i] * (es[:, i] * zs[k] + beta[i] * (pa[:, i] + pb[:, i]))
         cols[:, 2 + i] = c[i] * es[:, i] * lam[i] ** k
     if np.iscomplexobj(mu) and np.any(np.abs(mu.imag) > 0):
         raise InputError("the plant has oscillatory modes; response_basis handles real eigenvalues only")
-    return ResponseBasis(columns=cols.real, modes=V.real)
+    cols[:, 0] = forced[:, 0]
+    return ResponseBasis(columns=cols.real, modes=V.real, pulses=forced[:, 1:].real)
 
 
 def predict_output(model: PlantModel, t_command: ArrayLike, command: ArrayLike, t_output: ArrayLike, *,

@@ -76,7 +76,8 @@ def test_20ms_pair_flags_tau_and_nothing_else(results, capsys):
     assert tau.change == pytest.approx(0.020, abs=0.5e-3)
     assert tau.low is not None and tau.high is not None and tau.low < tau.change < tau.high
     assert 0.019 < tau.low and tau.high < 0.021  # the interval is printed with it
-    assert "+20.01 ms [+19.96, +20.06] (95 %)" in out
+    assert "+20.01 [+19.96, +20.06]" in out and "tau ms" in out and "change [95 % interval]" in out
+    assert max(len(line) for line in out.splitlines()[2:]) <= 100  # the table fits a terminal
     assert by["Td"].verdict == by["K"].verdict == "unchanged"
 
 
@@ -201,7 +202,7 @@ def test_reference_file(results, tmp_path, capsys):
     ref.write_text('[altitude]\nTd = { value = 2.669, tol = "25%" }\ntau = { value = 0.0464, tol = "+5ms" }\n'
                    "K = 19.62\n")
     code, out, _ = _run([str(ref), results["design1_altitude_20ms"]], capsys)
-    assert code == 9 and "tau:+5ms" in out
+    assert code == 9 and any("tau ms" in line and "+5ms" in line and "changed" in line for line in out.splitlines())
     cmp = compare(str(ref), results["design1_altitude"])
     by = _by_param(cmp)
     assert by["tau"].verdict == "unchanged" and by["Td"].verdict in ("unchanged", "significant")
@@ -244,7 +245,9 @@ def test_batch_folders_matched_by_log_and_by_vehicle(results, tmp_path, capsys):
     cmp = compare(base, new)
     failed = {(c.name, c.parameter) for c in cmp.changes if c.failed}
     assert failed == {("f1.mcap", "tau")}
-    assert {(m.name, m.side) for m in cmp.missing} == {("f3.mcap", "new"), ("f4.mcap", "baseline")}
+    assert {(m.name, m.side) for m in cmp.missing} == {("f3.mcap", "new")}
+    # f4 failed in new and is not in the baseline: no result on either side, so not a change (a note)
+    assert any(n.startswith("f4.mcap altitude: not compared") for n in cmp.notes)
     assert cmp.exit_code == EXIT_CHANGED  # a change takes precedence over missing results
     by_vehicle = compare(base, new, by="vehicle")
     assert {m.name for m in by_vehicle.missing} == {"v9"}
@@ -318,6 +321,8 @@ def test_junit_xml_is_read_by_a_standard_parser(results, tmp_path, capsys):
 
 def test_junit_marks_undetermined_skipped_and_missing_as_error():
     base = _side("b", Td=Estimate(mean=2.0, low=1.9, high=2.1))
+    base = Side(path="b", kind="analysis", loops=(*base.loops, LoopEstimates(
+        loop="roll", name=None, source="b", parameters={"Td": Estimate(0.1, 0.09, 0.11)})))
     new = Side(path="n", kind="analysis", loops=(
         LoopEstimates(loop="altitude", name=None, source="n", parameters={"Td": Estimate(2.0, 1.5, math.inf)}),
         LoopEstimates(loop="roll", name=None, source="n", error="failed: no relay")))
@@ -361,3 +366,72 @@ def test_bad_record_is_one_line_input_error(results, mutate, match):
     with pytest.raises(InputError, match=match) as exc:
         Comparison.from_json(data)
     assert "\n" not in str(exc.value)
+
+
+# ---------------------------------------------------------------------------------------------------
+# issue 40: absent or failed on both sides is not a change; every reference table applies
+
+
+def _record(folder: Path, log: str, vehicle: str, loops: list[dict]) -> None:
+    (folder / "logs").mkdir(parents=True, exist_ok=True)
+    record = {"path": f"/flights/{vehicle}/{log}", "settings": {"vehicle": vehicle}, "log_mtime": 1.0, "loops": loops}
+    (folder / "logs" / f"{log}.{abs(hash(log)) % 16**8:08x}.json").write_text(json.dumps(record))
+
+
+def _auto_loops(result: dict, *, roll: str = "skipped-no-tests") -> list[dict]:
+    """batch --loop auto on an altitude log: altitude ok, x and y absent, roll as given."""
+    absent = [{"loop": lp, "status": "skipped-no-tests", "error": f"skipped: no MRFT test on the {lp} loop " + "(...) " * 60,
+               "result": None} for lp in ("x", "y")]
+    return [{"loop": "altitude", "status": "ok", "error": None, "result": result}, *absent,
+            {"loop": "roll", "status": roll, "error": "no MRFT relay test in the command", "result": None}]
+
+
+def test_folder_against_itself_passes_and_fits_100_columns(results, tmp_path, capsys):
+    a = json.loads(Path(results["design1_altitude"]).read_text())
+    _record(tmp_path / "r", "f1.mcap", "v7", _auto_loops(a, roll="failed"))
+    code, out, err = _run([str(tmp_path / "r"), str(tmp_path / "r")], capsys)
+    assert code == 0, err
+    assert max(map(len, out.splitlines()[2:])) <= 100
+    assert "f1.mcap roll: not compared, no result on either side" in out  # failed on both: a note
+    code, _, _ = _run([str(tmp_path / "r"), str(tmp_path / "r"), "--loop", "altitude", "--loop", "roll",
+                       "--loop", "pitch"], capsys)
+    assert code == 0
+
+
+def test_loop_on_one_side_only_is_missing_and_its_reason_wrapped(results, tmp_path, capsys):
+    a = json.loads(Path(results["design1_altitude"]).read_text())
+    _record(tmp_path / "b", "f1.mcap", "v7", _auto_loops(a))
+    loops = _auto_loops(a)
+    loops[0] = {"loop": "altitude", "status": "failed", "error": "no MRFT relay test in the command " * 8,
+                "result": None}
+    _record(tmp_path / "n", "f1.mcap", "v7", loops)
+    code, out, err = _run([str(tmp_path / "b"), str(tmp_path / "n")], capsys)
+    assert code == 10 and "f1.mcap altitude (new)" in err
+    assert max(map(len, out.splitlines()[2:])) <= 100 and "missing: f1.mcap altitude on new: failed:" in out
+
+
+def test_plain_and_named_reference_tables_both_apply(results, tmp_path, capsys):
+    """The docs' reference: [altitude] for every altitude loop, [vehicle7.altitude] for vehicle7 only."""
+    ref = tmp_path / "ref.toml"
+    ref.write_text('[altitude]\nTd = { value = 2.669, tol = "25%" }\ntau = { value = 0.0464, tol = "+5ms" }\n'
+                   'K = 19.62\n\n[roll]\ntau = { value = 0.0297, tol = "5ms" }\n\n'
+                   '[vehicle7.altitude]\ntau = { value = 0.050, tol = "+25ms" }\n')
+    # one analysis: the plain table applies; [roll] and vehicle7 match nothing, and say so
+    cmp = compare(str(ref), results["design1_altitude_20ms"])
+    assert {(c.name, c.parameter) for c in cmp.changes} == {(None, "Td"), (None, "tau"), (None, "K")}
+    assert cmp.exit_code == 9 and _by_param(cmp)["tau"].tolerance == "tau:+5ms"
+    assert any("[roll] matches no roll loop" in n for n in cmp.notes)
+    assert any("[vehicle7.altitude] matches nothing" in n for n in cmp.notes)
+    # a batch by vehicle: vehicle7's own tau (+25 ms tolerance) overrides, its Td and K come from [altitude]
+    b = json.loads(Path(results["design1_altitude_20ms"]).read_text())
+    _record(tmp_path / "n", "f1.mcap", "vehicle7", _auto_loops(b))
+    _record(tmp_path / "n", "f2.mcap", "vehicle8", _auto_loops(b))
+    code, out, err = _run([str(ref), str(tmp_path / "n"), "--match", "vehicle"], capsys)
+    cmp = compare(str(ref), str(tmp_path / "n"), by="vehicle")
+    got = {(c.name, c.parameter): c for c in cmp.changes}
+    assert set(got) == {(v, p) for v in ("vehicle7", "vehicle8") for p in ("Td", "tau", "K")}
+    assert got[("vehicle7", "tau")].baseline == 0.050 and got[("vehicle7", "tau")].tolerance == "tau:+25ms"
+    assert not got[("vehicle7", "tau")].failed and got[("vehicle8", "tau")].failed
+    assert got[("vehicle7", "Td")].tolerance == "Td:25%"
+    assert cmp.missing == ()  # roll: no such loop in the logs, so [roll] does not apply (a note)
+    assert code == 9 and "vehicle8 altitude tau" in err and "[roll] matches no roll loop" in " ".join(out.split())

@@ -180,35 +180,95 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
     return out
 
 
-def _match(base: Side, new: Side) -> list[tuple[str | None, str, LoopEstimates | None, LoopEstimates | None]]:
-    """(name, loop, baseline loop, new loop) for every key on either side.
+_Row = tuple[str | None, str, LoopEstimates | None, LoopEstimates | None]
+
+
+def _merged(named: LoopEstimates | None, plain: LoopEstimates | None, kind: str) -> LoopEstimates | None:
+    """A named entry over its side's plain entry for the loop.
+
+    For a reference both apply: the named table's parameters and tolerances win, the plain table's
+    fill in the rest (``[vehicle7.altitude] tau`` overrides ``[altitude] tau`` for vehicle7 only).
+    """
+    if named is None or plain is None or kind != "reference":
+        return named if named is not None else plain
+    params = {**plain.parameters, **named.parameters}
+    own = {t.parameter for t in named.tolerances}
+    tols = (*named.tolerances, *(t for t in plain.tolerances if t.parameter not in own))
+    return LoopEstimates(loop=named.loop, name=named.name, source=named.source, parameters=params,
+                         tolerances=tols)
+
+
+def _present(e: LoopEstimates | None) -> bool:
+    """The entry stands for a loop the log holds (identified, or failed), not an absent one."""
+    return e is not None and not e.absent
+
+
+def _match(base: Side, new: Side) -> tuple[list[_Row], list[str]]:
+    """(name, loop, baseline loop, new loop) for every key on either side, and notes on what matched nothing.
 
     Named entries (batch logs or vehicles, named reference tables) match by (name, loop); an unnamed
-    entry (a single analysis, a reference's [loop] table) stands for its loop on every name.
+    entry (a single analysis, a reference's [loop] table) stands for its loop on every name. A
+    reference's entry applies only where the other side holds the loop; one that applies nowhere is
+    a note (a named reference table whose name the other side does not have at all, too).
     """
-    named_b = {e.key: e for e in base.loops if e.name is not None}
-    named_n = {e.key: e for e in new.loops if e.name is not None}
-    any_b = {e.loop: e for e in base.loops if e.name is None}
-    any_n = {e.loop: e for e in new.loops if e.name is None}
-    keys = list(dict.fromkeys([*named_b, *named_n]))
-    rows: list[tuple[str | None, str, LoopEstimates | None, LoopEstimates | None]] = [
-        (name, loop, named_b.get((name, loop)) or any_b.get(loop), named_n.get((name, loop)) or any_n.get(loop))
-        for name, loop in keys]
-    named_loops = {loop for _, loop in keys}
-    for loop in dict.fromkeys([*any_b, *any_n]):
-        if loop not in named_loops:
-            rows.append((None, loop, any_b.get(loop), any_n.get(loop)))
-    return rows
+    sides = (base, new)
+    named = [{e.key: e for e in s.loops if e.name is not None} for s in sides]
+    plain = [{e.loop: e for e in s.loops if e.name is None} for s in sides]
+    names = [{e.name for e in s.loops if e.name is not None} for s in sides]
+    refs = [s.kind == "reference" for s in sides]
+    used: set[tuple[int, str]] = set()
+    rows: list[_Row] = []
+    for name, loop in dict.fromkeys([*named[0], *named[1]]):
+        if any(refs[i] and (name, loop) in named[i] and name not in names[1 - i] for i in (0, 1)):
+            continue  # a reference table for a name the other side does not have: noted below
+        own = [named[i].get((name, loop)) for i in (0, 1)]
+        pair = [_merged(own[i], plain[i].get(loop), sides[i].kind) for i in (0, 1)]
+        for i in (0, 1):
+            if own[i] is None and pair[i] is not None:
+                if refs[i] and not _present(pair[1 - i]):
+                    pair[i] = None  # a plain reference table does not apply to a loop the log does not hold
+                else:
+                    used.add((i, loop))
+        rows.append((name, loop, pair[0], pair[1]))
+    notes = []
+    for loop in dict.fromkeys([*plain[0], *plain[1]]):
+        pair = [plain[0].get(loop), plain[1].get(loop)]
+        unused = [pair[i] is not None and (i, loop) not in used for i in (0, 1)]
+        if not any(unused):
+            continue
+        for i in (0, 1):
+            entry = pair[i]
+            if unused[i] and refs[i] and pair[1 - i] is None and entry is not None:
+                notes.append(f"{entry.source}: [{loop}] matches no {loop} loop in {sides[1 - i].path}")
+                pair[i] = None
+        if pair[0] is not None or pair[1] is not None:
+            rows.append((None, loop, pair[0], pair[1]))
+    for i in (0, 1):
+        if refs[i]:
+            notes += [f"{e.source}: [{e.name}.{e.loop}] matches nothing in {sides[1 - i].path} (no {e.name})"
+                      for e in named[i].values() if e.name not in names[1 - i]]
+    return rows, notes
 
 
 def _missing(name: str | None, loop: str, b: LoopEstimates | None, n: LoopEstimates | None) -> MissingResult | None:
-    if b is None or n is None:
-        side = "both" if b is None and n is None else ("baseline" if b is None else "new")
-        return MissingResult(name=name, loop=loop, side=side, reason=f"no {side} result for this loop")
-    if b.error is not None or n.error is not None:
-        side = "both" if b.error and n.error else ("baseline" if b.error else "new")
-        return MissingResult(name=name, loop=loop, side=side, reason=(b.error or n.error or "").strip())
+    """The loop cannot be compared because it is on one side only (absent, or failed, on the other)."""
+    if b is None or n is None or not b.usable or not n.usable:
+        side = "baseline" if b is None or not b.usable else "new"
+        other = n if side == "baseline" else b
+        gone = b if side == "baseline" else n
+        reason = (gone.error or "").strip() if gone is not None else f"no {side} result for this loop"
+        assert other is not None
+        return MissingResult(name=name, loop=loop, side=side, reason=reason or f"no {side} result for this loop")
     return None
+
+
+def _neither(name: str | None, loop: str, b: LoopEstimates | None, n: LoopEstimates | None) -> str | None:
+    """None when some side has a result for the loop; else a note when it failed (not merely absent) on both."""
+    if (b is not None and b.usable) or (n is not None and n.usable):
+        return None
+    if _present(b) or _present(n):
+        return f"{name + ' ' if name else ''}{loop}: not compared, no result on either side"
+    return ""
 
 
 def compare_sides(base: Side, new: Side, options: CompareOptions | None = None) -> Comparison:
@@ -233,8 +293,15 @@ def compare_sides(base: Side, new: Side, options: CompareOptions | None = None) 
     changes: list[ParameterChange] = []
     missing: list[MissingResult] = []
     notes = [*base.notes, *new.notes]
-    for name, loop, b, n in _match(base, new):
+    rows, unmatched = _match(base, new)
+    notes += unmatched
+    for name, loop, b, n in rows:
         if options.loops and loop not in options.loops:
+            continue
+        neither = _neither(name, loop, b, n)
+        if neither is not None:  # absent or failed on both sides: not a change
+            if neither:
+                notes.append(neither)
             continue
         gap = _missing(name, loop, b, n)
         if gap is not None:

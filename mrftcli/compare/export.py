@@ -9,11 +9,13 @@ JUnit: one ``<testsuite>`` (``mrft-ident compare``) with one ``<testcase>`` per 
 from __future__ import annotations
 
 import math
+import textwrap
 import xml.etree.ElementTree as ET
 
 from .records import Comparison, MissingResult, ParameterChange
 
-__all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "format_change", "DISPLAY_UNITS"]
+__all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "format_change", "DISPLAY_UNITS",
+           "TABLE_WIDTH"]
 
 #: Parameter -> (display unit, factor from SI) for reports; the records stay in SI.
 DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3), "K": ("", 1.0)}
@@ -73,12 +75,14 @@ def _rows(cmp: Comparison) -> list[list[str]]:
                      format_value(c.parameter, c.new), format_change(c, cmp.confidence), _relative(c), _z(c.z),
                      c.tolerance or "-", c.verdict])
     for m in cmp.missing:
-        rows.append([_who(m.name, m.loop), "-", "-", "-", f"missing on {m.side}: {m.reason}", "-", "-", "-",
-                     "missing"])
+        rows.append([_who(m.name, m.loop), "-", "-", "-", f"missing on {m.side}", "-", "-", "-", "missing"])
     return rows
 
 
 _HEADER = ["loop", "param", "baseline", "new", "change [interval]", "relative", "z", "tolerance", "verdict"]
+
+#: The terminal table's width limit [characters]: a terminal, and a PR comment's code block.
+TABLE_WIDTH = 100
 
 
 def _summary(cmp: Comparison) -> str:
@@ -93,18 +97,66 @@ def _summary(cmp: Comparison) -> str:
     return f"no change beyond tolerance in {len(cmp.changes)} parameters; exit code 0"
 
 
+def _short_change(c: ParameterChange) -> str:
+    """The change and its interval in the parameter's display unit, without the unit (the header has it)."""
+    if c.change is None or c.low is None or c.high is None:
+        return "undetermined"
+    _, f = _scale(c.parameter)
+    return f"{c.change * f:+.4g} [{c.low * f:+.4g}, {c.high * f:+.4g}]"
+
+
+def _number(x: float | None, factor: float) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x * factor:.4g}"
+
+
+def _terminal_rows(cmp: Comparison) -> list[tuple[str | None, list[str]]]:
+    """(name, cells) per change and missing loop, for the terminal table (units in the param cell)."""
+    out: list[tuple[str | None, list[str]]] = []
+    for c in cmp.changes:
+        unit, f = _scale(c.parameter)
+        tol = (c.tolerance or "-").split(":")[-1]
+        out.append((c.name, [c.loop, f"{c.parameter} {unit}".rstrip(), _number(c.baseline, f), _number(c.new, f),
+                             _short_change(c), _relative(c), _z(c.z), tol, c.verdict]))
+    for m in cmp.missing:
+        out.append((m.name, [m.loop, "-", "-", "-", f"missing on {m.side}", "-", "-", "-", "missing"]))
+    return out
+
+
+def _wrapped(prefix: str, text: str) -> list[str]:
+    return textwrap.wrap(f"{prefix}{text}", TABLE_WIDTH, subsequent_indent="  ", break_on_hyphens=False) or [prefix]
+
+
 def format_table(cmp: Comparison) -> str:
-    """The terminal report: header lines, one row per loop and parameter, notes, a verdict line."""
-    rows = [_HEADER, *_rows(cmp)]
-    widths = [max(len(r[i]) for r in rows) for i in range(len(_HEADER))]
+    """The terminal report: header lines, one row per loop and parameter (under its log or vehicle name),
+    the missing loops' reasons and the notes, a verdict line; at most :data:`TABLE_WIDTH` columns."""
+    header = ["loop", "param", "baseline", "new", f"change [{100 * cmp.confidence:.3g} % interval]", "rel.", "z",
+              "tol.", "verdict"]
+    rows = _terminal_rows(cmp)
+    widths = [max(len(r[i]) for r in [header, *(cells for _, cells in rows)]) for i in range(len(header))]
+    sep = "  " if sum(widths) + 2 * (len(widths) - 1) <= TABLE_WIDTH else " "
+
+    def line(cells: list[str]) -> str:
+        return sep.join(cell.ljust(w) for cell, w in zip(cells, widths)).rstrip()
+
     lines = [f"baseline {cmp.baseline}", f"new      {cmp.new}",
              f"confidence {100 * cmp.confidence:.3g} % per parameter"
              + (" (Bonferroni over each loop's parameters)" if cmp.correction == "bonferroni" else "")
              + (f"; fail on {', '.join(cmp.fail_on)}" if cmp.fail_on else "; fail on any significant change"
-                if not any(c.tolerance for c in cmp.changes) else "")]
-    lines += ["  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]
-    lines += [f"note: {n}" for n in cmp.notes]
-    lines.append(_summary(cmp))
+                if not any(c.tolerance for c in cmp.changes) else ""), line(header)]
+    shown: str | None = None
+    for name, cells in sorted(rows, key=lambda r: r[0] or "") if any(n for n, _ in rows) else rows:
+        if name is not None and name != shown:
+            lines.append(name if len(name) <= TABLE_WIDTH else "..." + name[-(TABLE_WIDTH - 3):])
+            shown = name
+        lines.append(line(cells))
+    for c in cmp.changes:
+        if c.verdict == "undetermined" and c.note:
+            lines += _wrapped("undetermined: ", f"{_who(c.name, c.loop)} {c.parameter}: {c.note}")
+    for m in cmp.missing:
+        lines += _wrapped("missing: ", f"{_who(m.name, m.loop)} on {m.side}: {m.reason}")
+    for n in cmp.notes:
+        lines += _wrapped("note: ", n)
+    lines += _wrapped("", _summary(cmp))
     return "\n".join(lines)
 
 
@@ -119,7 +171,8 @@ def to_markdown(cmp: Comparison) -> str:
     for r in _rows(cmp):
         r[-1] = icon.get(r[-1], r[-1])
         lines.append("| " + " | ".join(cell.replace("|", "\\|") for cell in r) + " |")
-    lines += ["", *(f"> note: {n}" for n in cmp.notes), f"**{_summary(cmp)}**", ""]
+    lines += ["", *(f"- missing: {_who(m.name, m.loop)} on {m.side}: {m.reason}" for m in cmp.missing),
+              *(f"> note: {n}" for n in cmp.notes), f"**{_summary(cmp)}**", ""]
     return "\n".join(lines)
 
 

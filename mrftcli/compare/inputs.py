@@ -48,6 +48,9 @@ MATCH_BY: tuple[str, ...] = ("log", "vehicle")
 
 _REFERENCE_KEYS = frozenset({"value", "tol", "std"})
 
+#: Batch statuses of a loop the log does not hold (no topics for it, no test on it): absent, not failed.
+_ABSENT = frozenset({"skipped-no-topics", "skipped-no-tests"})
+
 
 @dataclass(frozen=True)
 class Side:
@@ -130,9 +133,10 @@ def estimates_from_batch_record(record: Mapping[str, Any], *, source: str, by: s
         loop = str(entry.get("loop"))
         result = entry.get("result")
         if entry.get("status") != "ok" or not isinstance(result, Mapping) or "parameters" not in result:
-            reason = entry.get("error") or f"status {entry.get('status')}"
-            out.append(LoopEstimates(loop=loop, name=name, source=source,
-                                     error=f"{entry.get('status')}: {reason}"))
+            status = str(entry.get("status"))
+            reason = entry.get("error") or f"status {status}"
+            out.append(LoopEstimates(loop=loop, name=name, source=source, error=f"{status}: {reason}",
+                                     absent=status in _ABSENT))
             continue
         est = estimates_from_analysis(result, source=source, name=name)
         out.append(est)

@@ -156,6 +156,9 @@ class LoopEstimates:
         Why this loop is unusable (a failed or insufficient analysis); None when usable.
     tolerances : tuple of Tolerance
         Tolerances that come with it (a reference file's ``tol``).
+    absent : bool
+        The log does not hold this loop at all (a batch row skipped for want of its topics or of any
+        test on it): not a result, and not a failure either.
     """
 
     loop: str
@@ -165,6 +168,12 @@ class LoopEstimates:
     tp: float | None = None
     error: str | None = None
     tolerances: tuple[Tolerance, ...] = ()
+    absent: bool = False
+
+    @property
+    def usable(self) -> bool:
+        """True when this loop has estimates to compare (neither absent nor failed)."""
+        return self.error is None and not self.absent
 
     @property
     def key(self) -> tuple[str | None, str]:

@@ -46,6 +46,36 @@ def _dtype(msg_struct: str) -> np.dtype:
     return np.dtype([(f"f{i}", f) for i, f in enumerate(fields)])
 
 
+_FMT_HEAD = b"\xa3\x95\x80"  # a FMT message: the two header bytes and FMT's own type, 128
+_FMT_NAME = re.compile(rb"[A-Z0-9]{1,4}\x00*")
+_FMT_FORMAT = re.compile(rb"[a-zA-Z]{1,16}\x00*")
+
+
+def check_formats(path: Path) -> None:
+    """Refuse a log whose ``FMT`` defines a message shorter than its 3-byte header plus one byte.
+
+    pymavlink's scan steps from message to message by each type's declared length: a length of 0 never
+    advances (a hang, issue 35), 1-2 step backwards, 3 holds no field. Each FMT (found by its header and
+    a well-formed name and format, so that stray bytes are not taken for one) is checked before
+    pymavlink reads the file: one-line :class:`~mrftcli.errors.LogReadError`.
+    """
+    import mmap
+
+    with open(path, "rb") as fh:
+        if path.stat().st_size == 0:
+            return
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            pos = data.find(_FMT_HEAD)
+            while pos >= 0:
+                body = data[pos + 3:pos + 3 + 22]
+                if (len(body) == 22 and _FMT_NAME.fullmatch(body[2:6]) and _FMT_FORMAT.fullmatch(body[6:22])
+                        and body[1] < 4):
+                    name = body[2:6].rstrip(b"\x00").decode()
+                    raise LogReadError(f"{path}: FMT defines message {name} (type {body[0]}) as {body[1]} bytes "
+                                       "long, less than its 3-byte header and one value; the log is damaged")
+                pos = data.find(_FMT_HEAD, pos + 1)
+
+
 class DataflashSource(LogSource):
     """An ArduPilot DataFlash binary log."""
 
@@ -58,6 +88,7 @@ class DataflashSource(LogSource):
 
         try:
             self._require_file()
+            check_formats(self.path)
             noise = io.StringIO()
             with contextlib.redirect_stderr(noise), contextlib.redirect_stdout(noise):
                 self._reader = DFReader_binary(str(self.path), zero_time_base=False)

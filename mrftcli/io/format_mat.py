@@ -23,8 +23,52 @@ __all__ = ["MatSource", "write_mat", "MAT_MAGIC", "MAT73_MAGIC"]
 MAT_MAGIC = b"MATLAB 5.0 MAT-file"
 MAT73_MAGIC = b"MATLAB 7.3 MAT-file"
 _SHARED_TIMES = ("t", "time", "timestamp")
-#: largest HDF5 dataset read [elements] (a v7.3 file's datasets can claim any size)
-_MAX_ELEMENTS = 200_000_000
+#: largest variable read [bytes]: 256 MiB, 33.5 M doubles (a 9-hour flight at 1 kHz); a file's variables
+#: can claim any size, and a few small files asking for GB each must not take the machine (issue 35)
+_MAX_BYTES = 1 << 28
+#: deflate (zlib, HDF5's gzip) expands at most 1032:1; a larger ratio is a declared size no data backs
+_MAX_RATIO = 1100
+
+
+def _too_large(name: str, declared: int, stored: int) -> str | None:
+    """Why a variable declaring ``declared`` bytes from ``stored`` bytes of the file is not read, or None."""
+    if declared > _MAX_BYTES:
+        return (f"{name} declares {declared / 2**20:.0f} MiB, more than the {_MAX_BYTES >> 20} MiB a variable may "
+                "hold; save the flight in shorter files")
+    if declared > _MAX_RATIO * max(stored, 1):
+        return (f"{name} declares {declared} bytes from {stored} stored (more than deflate's 1032:1): "
+                "never written or damaged")
+    return None
+
+
+def _check_v5_sizes(path: Path) -> None:
+    """Refuse a v5 file whose variable (compressed or not) declares more than it can hold, before scipy
+    inflates it: the tag of each element and of each compressed one's inner matrix, read from its first
+    bytes (a 1.5 MB file of one compressed vector of 200 M zeros asked scipy for 3.1 GB)."""
+    import struct
+    import zlib
+
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        head = fh.read(128)
+        order = "<" if head[126:128] == b"IM" else ">"
+        pos = 128
+        while pos + 8 <= size:
+            fh.seek(pos)
+            kind, nbytes = struct.unpack(order + "II", fh.read(8))
+            if kind & 0xFFFF0000:  # a small data element (no variable) ends the walk
+                break
+            if kind == 15:  # miCOMPRESSED: the inner miMATRIX tag gives the inflated size
+                inner = zlib.decompressobj().decompress(fh.read(min(nbytes, 4096)), 16)
+                if len(inner) >= 8:
+                    declared = struct.unpack(order + "I", inner[4:8])[0]
+                    why = _too_large(f"variable at byte {pos}", declared, nbytes)
+                    if why:
+                        raise LogReadError(f"{path}: {why}")
+            elif nbytes > size - pos - 8:
+                raise LogReadError(f"{path}: a variable at byte {pos} declares {nbytes} bytes, more than the file "
+                                   f"holds after it ({size - pos - 8}); the file is cut or damaged")
+            pos += 8 + nbytes + (-nbytes % 8 if kind != 15 else 0)
 
 
 def _vector(name: str, arr: np.ndarray, out: dict[str, np.ndarray], skipped: dict[str, str]) -> None:
@@ -57,13 +101,17 @@ def _load(path: Path) -> tuple[dict[str, np.ndarray], dict[str, str]]:
         with h5py.File(path, "r") as f:
             for name, obj in f.items():
                 if isinstance(obj, h5py.Dataset) and not name.startswith("#"):
-                    if obj.size > _MAX_ELEMENTS:
-                        skipped[name] = f"{name} has {obj.size} elements (more than {_MAX_ELEMENTS})"
+                    # declared against stored: a never-written gzip dataset claims any size from no bytes
+                    why = _too_large(name, int(obj.size) * obj.dtype.itemsize, int(obj.id.get_storage_size()))
+                    if why:
+                        skipped[name] = why
                         continue
                     _vector(name, np.asarray(obj[()]), out, skipped)
         return out, skipped
     from scipy.io import loadmat
 
+    if head.startswith(MAT_MAGIC[:10]) and len(head) == 128:
+        _check_v5_sizes(path)
     raw = loadmat(str(path), squeeze_me=False, mat_dtype=False)
     for name, arr in raw.items():
         if name.startswith("__") or not isinstance(arr, np.ndarray):
@@ -89,6 +137,8 @@ class MatSource(LogSource):
         self._require_file()
         try:
             self._vars, self._skipped = _load(self.path)
+        except LogReadError:
+            raise
         except Exception as err:  # noqa: BLE001 - scipy/h5py raise many kinds on bad bytes
             raise LogReadError(f"{self.path}: not a readable MATLAB file ({one_line(err)})") from None
         self._signals: dict[str, str] = {}  # signal -> its time vector
@@ -105,6 +155,8 @@ class MatSource(LogSource):
                 self._skipped[name] = (
                     f"{name} has {arr.size} samples but its time vector {own} has {self._vars[own].size}"
                     if own is not None else f"{name} has no time vector ({name}_t or a shared t)")
+        if not self._signals and not self._vars and self._skipped:
+            raise LogReadError(f"{self.path}: no signal read: {next(iter(self._skipped.values()))}")
         if not self._signals:
             raise LogReadError(f"{self.path}: no signal with a time vector (<name>_t or a shared t) among "
                                f"{', '.join(sorted(self._vars)[:12]) or 'no numeric vectors'}")

@@ -36,7 +36,7 @@ from .logtypes import TopicData, TopicInfo
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
 
-__all__ = ["UlogSource", "write_ulog", "ulog_name", "ULOG_MAGIC"]
+__all__ = ["UlogSource", "write_ulog", "ulog_name", "ULOG_MAGIC", "check_format_sizes"]
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 
@@ -44,6 +44,76 @@ ULOG_MAGIC = b"ULog\x01\x12\x35"
 _PyUlog: TypeAlias = Any
 #: dotted field paths as a tree: a leaf is None
 _Tree: TypeAlias = "dict[str, _Tree | None]"
+
+
+#: bytes of each ULog base type (PX4 "ULog file format")
+_BASE_SIZES = {"int8_t": 1, "uint8_t": 1, "bool": 1, "char": 1, "int16_t": 2, "uint16_t": 2, "int32_t": 4,
+               "uint32_t": 4, "float": 4, "int64_t": 8, "uint64_t": 8, "double": 8}
+#: a data message's frame holds a uint16 size: no message format can be larger
+_MAX_MESSAGE = 0xFFFF
+_FIELD = re.compile(r"^\s*([A-Za-z_][\w]*)(?:\[(\d+)\])?\s+\S+\s*$")
+
+
+def _format_definitions(data: bytes) -> dict[str, list[tuple[str, int]]]:
+    """The ``F`` messages of the definitions section (up to the first subscription or data message):
+    for each format name its fields as (type, count)."""
+    import struct
+
+    unpack = struct.Struct("<HB").unpack_from
+    formats: dict[str, list[tuple[str, int]]] = {}
+    pos = 16
+    while pos + 3 <= len(data):
+        size, kind = unpack(data, pos)
+        if kind in (ord("A"), ord("D")):
+            break
+        if kind == ord("F"):
+            text = data[pos + 3:pos + 3 + size].decode("ascii", "replace")
+            name, _, body = text.partition(":")
+            fields = []
+            for part in body.split(";"):
+                match = _FIELD.match(part)
+                if match:
+                    fields.append((match.group(1), int(match.group(2) or 1)))
+            formats[name.strip()] = fields
+        pos += 3 + size
+    return formats
+
+
+def check_format_sizes(path: Path) -> None:
+    """Refuse a ULog whose message formats declare more bytes than a ULog message can hold.
+
+    pyulog builds each format's numpy type before reading a byte of data: a 168-byte file nesting
+    ``inner[65535]`` of ``uint8_t[65535]`` asked for 3.9 GB (issue 35). A data message's frame has a
+    uint16 size, so a format over 65535 bytes (or one that contains itself) is damage or hostility:
+    one-line :class:`~mrftcli.errors.LogReadError` before pyulog parses.
+    """
+    with open(path, "rb") as fh:
+        data = fh.read(1 << 22)  # the definitions come first; 4 MB is far more than any stack writes
+    formats = _format_definitions(data)
+    sizes: dict[str, int] = {}
+
+    def size_of(name: str, depth: int) -> int:
+        if name in _BASE_SIZES:
+            return _BASE_SIZES[name]
+        if name in sizes:
+            return sizes[name]
+        if name not in formats:
+            return 0  # an unknown type is pyulog's to report
+        if depth > 32:
+            return _MAX_MESSAGE + 1
+        sizes[name] = _MAX_MESSAGE + 1  # while it is measured: a format containing itself is too large
+        total = 0
+        for kind, count in formats[name]:
+            total += size_of(kind, depth + 1) * count
+            if total > _MAX_MESSAGE:
+                break
+        sizes[name] = total
+        return total
+
+    for name in formats:
+        if size_of(name, 0) > _MAX_MESSAGE:
+            raise LogReadError(f"{path}: ULog format {name!r} declares more than {_MAX_MESSAGE} bytes per message "
+                               "(nested arrays), more than a ULog message can hold; the file is damaged")
 
 
 def ulog_name(topic: str) -> str:
@@ -60,6 +130,7 @@ class UlogSource(LogSource):
     def __init__(self, path: str | Path) -> None:
         super().__init__(path)
         self._require_file()
+        check_format_sizes(self.path)
         self._end_checked = False
         self._header = self._parse(None, header_only=True)
         self._full: _PyUlog | None = None

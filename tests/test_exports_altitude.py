@@ -37,13 +37,25 @@ def test_refusals_name_the_option_and_the_units():
     with pytest.raises(InputError, match="x loop"):
         check_exportable("ardupilot", "x", "PD", 0.5)
     with pytest.raises(InputError, match="outside SCHED_LOOP_RATE's range 50-400 Hz"):
-        stack_setting("ardupilot", "altitude", None, 25.0, None)  # ArduPilot runs no loop below 50 Hz
+        stack_setting("ardupilot", "altitude", 25.0, None, None)  # ArduPilot runs no loop below 50 Hz
+
+
+def test_the_design_rate_is_the_stacks_never_the_logs():
+    """A 50 Hz log is designed at SCHED_LOOP_RATE's default 400 Hz (or the vehicle's, given), never advice to
+    change the vehicle-wide rate; what the log's rate costs is said."""
+    st = stack_setting("ardupilot", "altitude", None, 50.0, None)
+    text = " ".join(st.notes)
+    assert st.rate_hz == 400.0 and "set SCHED_LOOP_RATE" not in text and "20.0 ms" in text
+    assert stack_setting("ardupilot", "roll", 200.0, 50.0, None).rate_hz == 200.0
+    px4 = stack_setting("px4", "roll", None, 50.0, None)
+    assert px4.rate_hz == 400.0 and "not written" in " ".join(px4.notes)
 
 
 def test_psc_ranges_are_vendored_with_their_source():
     rows = {p.name: p for p in STACK_PARAMS if p.name.startswith("PSC_")}
     assert {"PSC_POSZ_P", "PSC_VELZ_P", "PSC_ACCZ_P", "PSC_ACCZ_I", "PSC_ACCZ_D"} <= set(rows)
-    assert all("AC_PosControl.cpp" in p.source and "46d6887e" in p.source and p.verified for p in rows.values())
+    assert all("AC_PosControl.cpp" in p.source and ("46d6887e" in p.source or p.name.startswith("PSC_D_"))
+               and p.verified for p in rows.values())
     assert (param("ardupilot", "PSC_ACCZ_P").minimum, param("ardupilot", "PSC_ACCZ_P").maximum) == (0.2, 1.5)
     assert (param("ardupilot", "PSC_ACCZ_P").default, param("ardupilot", "PSC_VELZ_P").default) == (0.5, 5.0)
     assert [v.param.name for v in check_ranges("ardupilot", {"PSC_POSZ_P": 0.5, "PSC_VELZ_P": 5.0})] == ["PSC_POSZ_P"]
@@ -76,7 +88,7 @@ def _simulate(p: dict[str, float], model: LoopModel, split_ticks: tuple[int, int
     n = int(seconds * RATE)
     xs = [np.array([0.01, 0.0, 0.0])]  # 1 cm off the target
     us = [0.0] * (na + 1)
-    e_v = i_v = e_a = thr = 0.0
+    e_v = i_v = e_a = i_a = thr = 0.0
     acc_in, acc_out = [0.0, 0.0], [0.0, 0.0]
     out = np.empty(n)
     for i in range(n):
@@ -91,7 +103,8 @@ def _simulate(p: dict[str, float], model: LoopModel, split_ticks: tuple[int, int
         i_v += e_v * p["PSC_VELZ_I"] * T
         a_t = p["PSC_VELZ_P"] * e_v + i_v
         e_a += alpha(p["PSC_ACCZ_FLTE"]) * ((a_t - a_m) - e_a)
-        thr_in = k * 0.001 * p["PSC_ACCZ_P"] * e_a
+        i_a += e_a * p["PSC_ACCZ_I"] * T  # AC_PID::update_i, ahead of the output
+        thr_in = k * 0.001 * (p["PSC_ACCZ_P"] * e_a + i_a)
         thr += alpha(2.0) * (thr_in - thr)
         us.append(thr)
         xs.append(Phi @ x + Gam * us[-1 - na])
@@ -106,6 +119,7 @@ def test_cascade_gain_margin_against_an_independent_simulation():
     design, clamped = design_z_cascade(_pd(), MODEL)
     assert not clamped
     p = design.gains.params()
+    assert p["PSC_ACCZ_I"] > 0  # AC_PosControl::pre_arm_checks: "PSC_ACCZ_I must be > 0"
     assert not check_ranges("ardupilot", p)
     rows = design.figures.per_row
     i = min(range(len(rows)), key=lambda j: rows[j].gain_margin)
@@ -130,7 +144,7 @@ def test_cli_writes_the_param_file_with_the_assumption_first(tmp_path, capsys):
     from mrftcli.tune.stacks import StackExport
 
     args = ["tune", "--tp", "0.0422", "--td", "2.669", "--tau", "0.040", "--k", "19.62", "--loop", "altitude",
-            "--controller-rate", "200", "--export", "ardupilot"]
+            "--controller-rate", "200", "--export", "ardupilot", "--stack-version", "4.6"]
     with pytest.raises(SystemExit) as ex:
         main(args)
     err = capsys.readouterr().err
@@ -159,8 +173,8 @@ def test_cli_writes_the_param_file_with_the_assumption_first(tmp_path, capsys):
 def test_out_of_range_position_gain_is_refused_then_clamped_with_its_margins():
     slow = Controller(0.1, 0.0, 0.226, 0.0, RATE, RateFilter(0.0, "none"))  # Kp / Kd = 0.44 < PSC_POSZ_P's 1
     with pytest.raises(InputError, match=r"PSC_POSZ_P = Kp / Kd = 0.4425 is outside its range 1-3.*--clamp"):
-        export_design("ardupilot", slow, MODEL, "altitude", "x", hover_thrust=0.5)
-    e = export_design("ardupilot", slow, MODEL, "altitude", "x", hover_thrust=0.5, clamp=True)
+        export_design("ardupilot", slow, MODEL, "altitude", "x", hover_thrust=0.5, version="4.6")
+    e = export_design("ardupilot", slow, MODEL, "altitude", "x", hover_thrust=0.5, clamp=True, version="4.6")
     assert e.params["PSC_POSZ_P"] == 1.0 and e.clamped[0][:2] == ("PSC_POSZ_P", pytest.approx(0.1 / 0.226))
     assert any(n.startswith("PSC_POSZ_P set to 1") for n in e.notes) and e.margins.stable
 
@@ -177,3 +191,50 @@ def test_the_grid_bounds_splits_off_it():
         splits.append(DelaySplit(ta, rng.uniform(0.0, MODEL.tau - ta), rng.uniform(0.0, MODEL.tau - ta)))
     grid, off = design.figures.worst(), cascade_figures(design.gains, [MODEL], splits).worst()
     assert off.stable and off.Ms <= grid.Ms * 1.005 and off.gain_margin >= grid.gain_margin / 1.005
+
+
+def test_every_prearm_rule_of_the_written_values_passes_in_both_versions():
+    """AC_PosControl::pre_arm_checks (POSZ_P, VELZ_P, ACCZ_P, ACCZ_I > 0; 4.7: D_POS_P, D_VEL_P, D_ACC_P, D_ACC_I)
+    on the file's values; 4.7's names and scalings are 4.6's renamed, the _D_ACC_ gains x 0.1."""
+    from mrftcli.tune.ardupilot_versions import to_46_units
+
+    e46 = export_design("ardupilot", _pd(), MODEL, "altitude", "x", hover_thrust=0.5, version="4.6")
+    e47 = export_design("ardupilot", _pd(), MODEL, "altitude", "x", hover_thrust=0.5, version="4.7")
+    assert [r["rule"] for r in e46.prearm] == ["PSC_POSZ_P > 0", "PSC_VELZ_P > 0", "PSC_ACCZ_P > 0", "PSC_ACCZ_I > 0"]
+    assert [r["rule"] for r in e47.prearm] == ["PSC_D_POS_P > 0", "PSC_D_VEL_P > 0", "PSC_D_ACC_P > 0",
+                                               "PSC_D_ACC_I > 0"]
+    assert all(r["passed"] for r in e46.prearm + e47.prearm)
+    assert all(":18" in r["source"] for r in e46.prearm)  # the source line
+    assert not any(n.startswith(("PSC_POSZ", "PSC_VELZ", "PSC_ACCZ")) for n in e47.params)
+    assert e47.params["PSC_D_ACC_P"] == pytest.approx(0.1 * e46.params["PSC_ACCZ_P"])
+    assert to_46_units(e47.params) == pytest.approx(e46.params, rel=1e-3)
+    assert "Copter 4.7 parameter names" in e47.file_text().splitlines()[0]
+    assert not check_ranges("ardupilot", e47.params) and not check_ranges("ardupilot", e46.params)
+
+
+def test_a_failing_prearm_rule_is_a_refusal():
+    from mrftcli.tune.ardupilot_versions import prearm_checks
+
+    bad = prearm_checks({"PSC_ACCZ_I": 0.0, "PSC_ACCZ_P": 0.5, "ATC_RAT_RLL_I": 0.0}, "4.6")
+    assert [(r.rule.rule, r.passed) for r in bad] == [("PSC_ACCZ_P > 0", True), ("PSC_ACCZ_I > 0", False),
+                                                     ("ATC_RAT_RLL_I > 0", False)]
+    assert "AC_PosControl.cpp:1860" in bad[1].rule.source
+
+
+def test_the_cascade_holds_over_the_posterior_draws():
+    """Held on the posterior's extreme draws: every draw of the 95 % set (not only those the design used), each
+    over its own splits, has Ms within 2 % of the PD's own worst (the search's grid is coarser)."""
+    from mrftcli.tune.ardupilot_z import cascade_figures
+    from mrftcli.tune.design import Posterior
+    from mrftcli.tune.margins import margins
+
+    post = Posterior.from_spread(MODEL, 0.1, 0.004, 0.5, n=60, seed=3, source="test")
+    draws = post.models(np.flatnonzero(post.in_set()))
+    e = export_design("ardupilot", _pd(), MODEL, "altitude", "x", hover_thrust=0.5, version="4.6",
+                      posterior_models=draws)
+    from mrftcli.tune.ardupilot_z import ZCascadeGains
+
+    g = ZCascadeGains.from_params(e.params, RATE)
+    target = max(margins(m, _pd()).Ms for m in [MODEL, *draws])
+    worst = max(cascade_figures(g, [m], split_grid(m.tau)).worst().Ms for m in draws[::4])
+    assert worst <= 1.02 * target and e.margins.Ms <= 1.02 * target

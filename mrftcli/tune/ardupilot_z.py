@@ -33,13 +33,17 @@ tau - tau_a (37 splits).
 
 **The design** (:func:`design_z_cascade`), from tune's PD u = Kp e - Kd v: P_z = Kp / Kd; the acceleration
 feedback 0.1 P_a a divides the low-frequency loop gain by 1 + 0.1 P_a K, so P_v = g (1 + 0.1 P_a K) Kd /
-(0.1 P_a) keeps the PD's loop at g = 1. For each ``PSC_ACCZ_P`` candidate the largest g <= 1 at which every
-split's loop is stable with Ms at most the PD's own (nominal) Ms is found (a scan down over the g that keep
-``PSC_VELZ_P`` in its range, then bisection); the candidates are tried in increasing P_a until one keeps less
-than the best so far (a stronger acceleration feedback then only loses to its own loop's Ms), and the one that
-keeps the most of the PD (largest g, then the smaller P_a) is exported.
-``PSC_VELZ_I`` is set at its documented minimum 0.02 and ``PSC_ACCZ_I`` at 0 (the design is a PD), both in the
-margins.
+(0.1 P_a) keeps the PD's loop at g = 1. ``PSC_ACCZ_I`` must be > 0 (``AC_PosControl::pre_arm_checks``: "PSC_ACCZ_I
+must be > 0"), so the acceleration loop is a PI, I_a = r P_a (ArduPilot's default r = 2: P 0.5, I 1.0). For each
+``PSC_ACCZ_P`` candidate the largest g <= 1 at which every loop is stable with Ms at most the PD's own is found
+(a scan down over the g that keep ``PSC_VELZ_P`` in its range, then bisection); "every loop" is every split of
+tau of the nominal model and of the posterior's 95 % set's extreme draws (:func:`robust_models`: the smallest
+and largest tau, K, Td and Tp, each over its own splits), and the PD's Ms is its worst over the same models,
+so the cascade is robust as tune's robust design is. The candidates are tried in increasing P_a until one
+keeps less than the best so far; r is tried from the smallest (0.1) up, and the largest r that keeps at
+least 95 % of the smallest r's g is exported (a stronger integral costs phase at the crossover). The
+ranges are the chosen version's (:func:`mrftcli.tune.ardupilot_versions.z_bounds`). ``PSC_VELZ_I`` is set at
+0.02 (4.6's documented minimum), in the margins.
 """
 
 from __future__ import annotations
@@ -58,12 +62,18 @@ from .stack_params import param
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
            "cascade_figures", "design_z_cascade", "split_assumption", "THROTTLE_CUTOFF_HZ", "ACCZ_P_CANDIDATES",
-           "UNIT_TOLERANCE", "check_units"]
+           "UNIT_TOLERANCE", "check_units", "ACCZ_I_RATIOS", "robust_models"]
 
 #: ``POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ`` [Hz] (AC_PosControl.h): the motors' first-order throttle filter in the z loop.
 THROTTLE_CUTOFF_HZ = 2.0
 #: ``PSC_ACCZ_P`` values tried [(throttle/1000)/(cm/s^2)], within ArduPilot's 0.2-1.5.
 ACCZ_P_CANDIDATES = (0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.5)
+#: ``PSC_ACCZ_I`` / ``PSC_ACCZ_P`` ratios tried [1/s], from the smallest (ArduPilot's default is 2).
+ACCZ_I_RATIOS = (0.1, 0.2, 0.5, 1.0, 2.0)
+#: A larger integral is kept while g stays within this fraction of the smallest ratio's.
+_I_KEEP = 0.95
+#: VELZ_I written [(cm/s^2)/cm]: 4.6's documented minimum (4.7's is 0).
+_VELZ_I = 0.02
 #: K hover / g may differ from 1 by this factor before the command is refused as not ArduPilot's throttle.
 UNIT_TOLERANCE = 2.0
 #: Bisection steps on log g between two scan points (to 0.15 %).
@@ -181,7 +191,11 @@ class _Paths:
 
 
 def _paths(models: Sequence[LoopModel], splits: Sequence[DelaySplit], rate_hz: float) -> _Paths:
-    rows = [(m, s) for m in models for s in splits]
+    return _paths_of([(m, s) for m in models for s in splits], rate_hz)
+
+
+def _paths_of(rows: Sequence[tuple[LoopModel, DelaySplit]], rate_hz: float) -> _Paths:
+    """The three outputs of each (model, split) row."""
     Tp, Td, K = (np.array([getattr(m, k) for m, _ in rows], float) for k in ("Tp", "Td", "K"))
     ta = np.array([s.actuator_s for _, s in rows])
 
@@ -323,13 +337,17 @@ class ZCascadeDesign:
     kept : float
         g: the fraction of the PD's loop gain the cascade keeps (1: the PD's low-frequency loop).
     ms_target : float
-        The Ms every split's loop is held to: the PD's own on the nominal model [-].
+        The Ms every loop is held to: the PD's own worst over the nominal model and :attr:`models` [-].
     figures : ZCascadeFigures
         Per split, on the nominal model.
     tau : float
         The identified delay that was split [s].
-    tried : tuple of (float, float)
-        Per ``PSC_ACCZ_P`` candidate, the largest g found (0: none holds the Ms).
+    tried : tuple of (float, float, float)
+        Per (``PSC_ACCZ_I`` / ``PSC_ACCZ_P`` ratio, ``PSC_ACCZ_P``) tried, the largest g found (0: none holds).
+    robust : Margins
+        The worst over the nominal model and :attr:`models`, each over its own splits of tau.
+    models : tuple of LoopModel
+        The posterior draws the design holds the Ms on besides the nominal model (empty: none given).
     """
 
     gains: ZCascadeGains
@@ -337,7 +355,9 @@ class ZCascadeDesign:
     ms_target: float
     figures: ZCascadeFigures
     tau: float
-    tried: tuple[tuple[float, float], ...]
+    tried: tuple[tuple[float, float, float], ...]
+    robust: Margins
+    models: tuple[LoopModel, ...] = ()
 
 
 def split_assumption(tau: float, n_splits: int) -> str:
@@ -347,37 +367,86 @@ def split_assumption(tau: float, n_splits: int) -> str:
             "accelerometer loop sees, from 0 to tau; the EKF velocity's and altitude's each from 0 to the rest)")
 
 
-def _gains(pz: float, pv: float, pa: float, rate_hz: float) -> ZCascadeGains:
+def robust_models(models: Sequence[LoopModel]) -> tuple[LoopModel, ...]:
+    """The draws the cascade is held on: the smallest and the largest tau, K, Td and Tp of ``models`` (the
+    posterior's 95 % set), without repeats (at most 8)."""
+    if not models:
+        return ()
+    idx: list[int] = []
+    for key in ("tau", "K", "Td", "Tp"):
+        v = [getattr(m, key) for m in models]
+        for i in (int(np.argmin(v)), int(np.argmax(v))):
+            if i not in idx:
+                idx.append(i)
+    return tuple(models[i] for i in idx)
+
+
+def robust_figures(g: ZCascadeGains, models: Sequence[LoopModel]) -> Margins:
+    """The worst margins of ``g`` over ``models``, each over its own splits of tau."""
+    rows = [cascade_figures(g, [m], split_grid(m.tau)).worst() for m in models]
+    w = max(rows, key=lambda m: m.Ms)
+    return Margins(min(m.gain_margin for m in rows), min(m.phase_margin_deg for m in rows),
+                   min(m.delay_margin_s for m in rows), w.Ms, w.w_gc, w.w_pc, all(m.stable for m in rows))
+
+
+def _gains(pz: float, pv: float, pa: float, ai: float, rate_hz: float) -> ZCascadeGains:
     """The gains with ArduPilot's filter defaults (``PSC_VELZ_FLTE`` 5 Hz, ``PSC_ACCZ_FLTE`` 20 Hz,
-    ``INS_ACCEL_FILTER`` 20 Hz), ``PSC_VELZ_I`` at its minimum and ``PSC_ACCZ_I`` 0."""
-    return ZCascadeGains(pz, pv, param("ardupilot", "PSC_VELZ_I").minimum, 5.0, pa, 0.0, 20.0, 0.0, 20.0, rate_hz)
+    ``INS_ACCEL_FILTER`` 20 Hz), ``PSC_VELZ_I`` 0.02 and ``PSC_ACCZ_I`` ``ai``."""
+    return ZCascadeGains(pz, pv, _VELZ_I, 5.0, pa, ai, 20.0, 0.0, 20.0, rate_hz)
 
 
 class _Check:
-    """Whether gains hold: every split's loop (nominal model) stable with its grid Ms at most the target (the
-    search's test; the reported figures are :func:`cascade_figures`'s, refined)."""
+    """Whether gains hold: every (model, split) row's loop stable with its grid Ms at most the target (the
+    search's test; the reported figures are :func:`cascade_figures`'s, refined). The plant's and the fixed
+    filters' responses are kept; the loop is :func:`_loop_of`'s, factored for the search's gains."""
 
-    def __init__(self, model: LoopModel, splits: Sequence[DelaySplit], rate_hz: float, ms_target: float) -> None:
-        d_max = int(max(s.actuator_s + max(s.velocity_s, s.altitude_s) for s in splits) * rate_hz) + 1
-        w = margin_grid(rate_hz, d_max)
-        self.z = np.exp(1j * w / rate_hz)[None, :]
-        paths = _paths([model], splits, rate_hz)
-        self.plant = (paths.acc.transfer(self.z), paths.vel.transfer(self.z), paths.alt.transfer(self.z))
-        self.ms_target, self.rate_hz = ms_target, rate_hz
+    def __init__(self, models: Sequence[LoopModel], rate_hz: float, ms_target: float) -> None:
+        # the nominal model (first) over the full grid of splits, the draws over a coarser one (n = 2: 19)
+        rows = [(m, s) for i, m in enumerate(models) for s in split_grid(m.tau, 4 if i == 0 else 2)]
+        d_max = int(max(s.actuator_s + max(s.velocity_s, s.altitude_s) for _, s in rows) * rate_hz) + 1
+        # the search's grid: margin_grid's linear part (the delays' phase) and 300 log points from 1e-6 of
+        # Nyquist (the reported figures use margin_grid itself and are refined)
+        full = margin_grid(rate_hz, d_max)
+        w = np.union1d(full[full >= 0.05 * math.pi * rate_hz][::2],
+                       np.geomspace(1e-6 * math.pi * rate_hz, 0.05 * math.pi * rate_hz, 300))
+        z = np.exp(1j * w / rate_hz)[None, :]
+        paths = _paths_of(rows, rate_hz)
+        Ga, self.Gv, self.Gz = paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z)
+        self.z, self.ms_target, self.rate_hz = z, ms_target, rate_hz
+        self._acc_fb = Ga  # times INS_ACCEL_FILTER's response, per gains (cached by cutoff)
+        self._cache: dict[tuple[str, float], np.ndarray] = {}
 
-    def holds(self, gains: ZCascadeGains) -> bool:
-        L = _loop_of(gains, self.plant, self.z)
+    def _part(self, key: str, value: float) -> np.ndarray:
+        k = (key, value)
+        if k not in self._cache:
+            r, z = self.rate_hz, self.z
+            if key == "pz":
+                self._cache[k] = self.Gv + value * self.Gz
+            elif key == "ins":
+                self._cache[k] = RateFilter(value).response(z, r) * self._acc_fb
+            else:  # a first-order filter at ``value`` Hz
+                self._cache[k] = _first_order(value, r, z)
+        return self._cache[k]
+
+    def holds(self, g: ZCascadeGains) -> bool:
+        integ = (1.0 / self.rate_hz) * self.z / (self.z - 1.0)
+        Cv = self._part("f", g.vel_flte_hz) * (g.vel_p + g.vel_i * integ)
+        Ca = self._part("f", g.acc_flte_hz) * (g.acc_p + g.acc_i * integ)
+        inner = self._part("ins", g.accel_filter_hz) + self._part("f", g.acc_fltt_hz) * Cv * self._part("pz", g.pos_p)
+        L = 0.1 * self._part("f", THROTTLE_CUTOFF_HZ) * Ca * inner
+        if np.max(1.0 / np.abs(1.0 + L)) > self.ms_target:
+            return False
         ph = np.unwrap(np.angle(1.0 + L), axis=-1)
-        winding = np.rint((2.0 * (ph[:, -1] - ph[:, 0]) - gains.integrators * math.pi) / (2.0 * math.pi))
-        return bool(np.all(winding == 0) and np.max(1.0 / np.abs(1.0 + L)) <= self.ms_target)
+        winding = np.rint((2.0 * (ph[:, -1] - ph[:, 0]) - g.integrators * math.pi) / (2.0 * math.pi))
+        return bool(np.all(winding == 0))
 
 
-def _largest_g(pz: float, v_full: float, pa: float, check: _Check, g_range: tuple[float, float]) -> float:
+def _largest_g(pz: float, v_full: float, pa: float, ai: float, check: _Check, g_range: tuple[float, float]) -> float:
     """The largest g in ``g_range`` at which the cascade holds (0: none): scanned down from the top (the
     test is not monotone in g: a small g leaves the acceleration loop alone, whose Ms may exceed the target),
     then bisected on log g between the first that holds and the one above it."""
     def ok(g: float) -> bool:
-        return check.holds(_gains(pz, g * v_full, pa, check.rate_hz))
+        return check.holds(_gains(pz, g * v_full, pa, ai, check.rate_hz))
 
     lo_g, hi_g = g_range
     if not (0.0 < lo_g <= hi_g):
@@ -406,9 +475,42 @@ def check_units(model: LoopModel, hover_thrust: float) -> None:
                          "command is not ArduPilot's throttle (0-1) or its altitude not in metres")
 
 
-def design_z_cascade(pd: Controller, model: LoopModel, *,
-                     clamp: bool = False) -> tuple[ZCascadeDesign, tuple[tuple[str, float, float], ...]]:
+_Bounds = dict[str, tuple[float, float]]
+
+
+def _default_bounds() -> _Bounds:
+    return {n: (param("ardupilot", n).minimum, param("ardupilot", n).maximum)
+            for n in ("PSC_POSZ_P", "PSC_VELZ_P", "PSC_VELZ_I", "PSC_ACCZ_P", "PSC_ACCZ_I")}
+
+
+def _search(pz: float, kd: float, K: float, ratio: float, check: _Check,
+            bounds: _Bounds) -> tuple[list[tuple[float, float, float]], tuple[float, float, float] | None]:
+    """For one ``PSC_ACCZ_I`` / ``_P`` ratio: per ``PSC_ACCZ_P`` candidate in range, the largest g; the best
+    (P_a, g, P_v) or None."""
+    lo_v, hi_v = bounds["PSC_VELZ_P"]
+    lo_a, hi_a = bounds["PSC_ACCZ_P"]
+    tried: list[tuple[float, float, float]] = []
+    best: tuple[float, float, float] | None = None
+    for pa in (p for p in ACCZ_P_CANDIDATES if lo_a <= p <= hi_a):
+        ai = min(ratio * pa, bounds["PSC_ACCZ_I"][1])
+        v_full = (1.0 + 0.1 * pa * K) * kd / (0.1 * pa)
+        # g is searched where PSC_VELZ_P = g v_full is in its range
+        g = _largest_g(pz, v_full, pa, ai, check, (max(_G_MIN, lo_v / v_full), min(1.0, hi_v / v_full)))
+        tried.append((ratio, pa, g))
+        if g > 0 and (best is None or g > best[1] * 1.001):
+            best = (pa, g, g * v_full)
+        elif best is not None and g <= best[1]:
+            break  # past the best: a stronger acceleration feedback only holds less (its own loop's Ms)
+    return tried, best
+
+
+def design_z_cascade(pd: Controller, model: LoopModel, *, clamp: bool = False, models: Sequence[LoopModel] = (),
+                     bounds: _Bounds | None = None
+                     ) -> tuple[ZCascadeDesign, tuple[tuple[str, float, float], ...]]:
     """The cascade for tune's PD ``pd`` (module docstring), and the values set to ArduPilot's bounds.
+
+    ``models``: posterior draws (:func:`robust_models`) the cascade must hold on besides ``model``;
+    ``bounds``: the ranges in 4.6's names and units (default 4.6's; :func:`mrftcli.tune.ardupilot_versions.z_bounds`).
 
     Returns
     -------
@@ -419,64 +521,70 @@ def design_z_cascade(pd: Controller, model: LoopModel, *,
     Raises
     ------
     InputError
-        ``PSC_POSZ_P`` = Kp / Kd is outside 1-3, or no ``PSC_ACCZ_P`` candidate gives a loop that holds the Ms
-        with ``PSC_VELZ_P`` in 1-8, and ``clamp`` is off (the message names the closest and its margins;
-        ``--clamp`` exports it at the bounds).
+        ``PSC_POSZ_P`` = Kp / Kd is outside its range, or no ``PSC_ACCZ_P`` candidate gives a loop that holds the
+        Ms with ``PSC_VELZ_P`` in its range, and ``clamp`` is off (the message names the closest and its
+        margins; ``--clamp`` exports it at the bounds).
     """
     from .margins import margins as pd_margins
 
+    b = bounds or _default_bounds()
     rate = pd.rate_hz
-    splits = split_grid(model.tau)
-    ms_target = pd_margins(model, pd).Ms
+    every = (model, *models)
+    ms_target = max(pd_margins(m, pd).Ms for m in every)
     pz_designed = pd.Kp / pd.Kd
-    row = param("ardupilot", "PSC_POSZ_P")
-    pz = row.clamp(pz_designed)
+    lo_z, hi_z = b["PSC_POSZ_P"]
+    pz = min(max(pz_designed, lo_z), hi_z)
     clamped: list[tuple[str, float, float]] = []
     if pz != pz_designed:
         if not clamp:
             raise InputError(f"cannot export to ardupilot: PSC_POSZ_P = Kp / Kd = {pz_designed:.4g} is outside its "
-                             f"range {row.minimum:g}-{row.maximum:g} [(cm/s)/cm] (AC_PosControl.cpp) (--clamp to "
+                             f"range {lo_z:g}-{hi_z:g} [(cm/s)/cm] (AC_PosControl.cpp) (--clamp to "
                              "export it at the bound, with the margins that result)")
         clamped.append(("PSC_POSZ_P", pz_designed, pz))
-    check = _Check(model, splits, rate, ms_target)
-    lo_v, hi_v = param("ardupilot", "PSC_VELZ_P").minimum, param("ardupilot", "PSC_VELZ_P").maximum
-    tried, best = [], None
-    for pa in ACCZ_P_CANDIDATES:
-        v_full = (1.0 + 0.1 * pa * model.K) * pd.Kd / (0.1 * pa)
-        # g is searched where PSC_VELZ_P = g v_full is in its range
-        g = _largest_g(pz, v_full, pa, check, (max(_G_MIN, lo_v / v_full), min(1.0, hi_v / v_full)))
-        tried.append((pa, g))
-        if g > 0 and (best is None or g > best[1] * 1.001):
-            best = (pa, g, g * v_full)
-        elif best is not None and g <= best[1]:
-            break  # past the best: a stronger acceleration feedback only holds less (its own loop's Ms)
-    if best is None:
-        pa, v_designed, v = _closest(pz, model, pd.Kd, splits, rate, clamp)
-        best = (pa, 0.0, v)
+    check = _Check(every, rate, ms_target)
+    tried, first = _search(pz, pd.Kd, model.K, ACCZ_I_RATIOS[0], check, b)
+    chosen = (ACCZ_I_RATIOS[0], first) if first is not None else None
+    for ratio in ACCZ_I_RATIOS[1:] if first is not None else ():
+        t, best = _search(pz, pd.Kd, model.K, ratio, check, b)
+        tried += t
+        if best is None or best[1] < _I_KEEP * first[1]:
+            break
+        chosen = (ratio, best)
+    if chosen is None:
+        pa, ai, v_designed, v = _closest(pz, model, pd.Kd, rate, clamp, b)
         clamped.append(("PSC_VELZ_P", v_designed, v))
-    pa, g, pv = best
-    gains = _gains(pz, pv, pa, rate)
-    design = ZCascadeDesign(gains, g, ms_target, cascade_figures(gains, [model], splits), model.tau, tuple(tried))
+        ratio, g = ai / pa, 0.0
+    else:
+        ratio, (pa, g, v) = chosen
+        ai = min(ratio * pa, b["PSC_ACCZ_I"][1])
+    gains = _gains(pz, v, pa, ai, rate)
+    nominal = cascade_figures(gains, [model], split_grid(model.tau))
+    design = ZCascadeDesign(gains, g, ms_target, nominal, model.tau, tuple(tried),
+                            robust_figures(gains, every), tuple(models))
     return design, tuple(clamped)
 
 
-def _closest(pz: float, model: LoopModel, kd: float, splits: Sequence[DelaySplit], rate: float,
-             clamp: bool) -> tuple[float, float, float]:
-    """With no candidate holding the Ms in range: the PD itself (g = 1) per ``PSC_ACCZ_P``, its PSC_VELZ_P set to
-    the range; the one of smallest worst Ms, as (PSC_ACCZ_P, PSC_VELZ_P designed, exported); refused without
-    ``clamp``."""
-    best: tuple[float, float, float, Margins] | None = None
-    for pa in ACCZ_P_CANDIDATES:
+def _closest(pz: float, model: LoopModel, kd: float, rate: float, clamp: bool,
+             b: _Bounds) -> tuple[float, float, float, float]:
+    """With no candidate holding the Ms in range: the PD itself (g = 1) per ``PSC_ACCZ_P``, with the smallest
+    integral ratio, its PSC_VELZ_P set to the range; the one of smallest worst Ms, as (PSC_ACCZ_P, PSC_ACCZ_I,
+    PSC_VELZ_P designed, exported); refused without ``clamp``."""
+    best: tuple[float, float, float, float, Margins] | None = None
+    splits = split_grid(model.tau)
+    lo_v, hi_v = b["PSC_VELZ_P"]
+    for pa in (p for p in ACCZ_P_CANDIDATES if b["PSC_ACCZ_P"][0] <= p <= b["PSC_ACCZ_P"][1]):
+        ai = ACCZ_I_RATIOS[0] * pa
         v_designed = (1.0 + 0.1 * pa * model.K) * kd / (0.1 * pa)
-        v = param("ardupilot", "PSC_VELZ_P").clamp(v_designed)
-        w = cascade_figures(_gains(pz, v, pa, rate), [model], splits).worst()
-        if best is None or w.Ms < best[3].Ms:
-            best = (pa, v_designed, v, w)
+        v = min(max(v_designed, lo_v), hi_v)
+        w = cascade_figures(_gains(pz, v, pa, ai, rate), [model], splits).worst()
+        if best is None or w.Ms < best[4].Ms:
+            best = (pa, ai, v_designed, v, w)
     assert best is not None
-    pa, v_designed, v, w = best
+    pa, ai, v_designed, v, w = best
     if not clamp:
-        raise InputError(f"cannot export to ardupilot: no PSC_ACCZ_P in 0.2-1.5 holds the PD's Ms on every split of "
-                         f"tau with PSC_VELZ_P in its range 1-8 (AC_PosControl.cpp); the closest, PSC_ACCZ_P {pa:g} "
-                         f"with PSC_VELZ_P {v_designed:.4g} set to {v:g}, has Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}, "
-                         f"PM {w.phase_margin_deg:.1f} deg on its worst split (--clamp to export that)")
-    return pa, v_designed, v
+        raise InputError(f"cannot export to ardupilot: no PSC_ACCZ_P in {b['PSC_ACCZ_P'][0]:g}-{b['PSC_ACCZ_P'][1]:g} "
+                         f"holds the PD's Ms on every split of tau with PSC_VELZ_P in its range {lo_v:g}-{hi_v:g} "
+                         f"(AC_PosControl.cpp); the closest, PSC_ACCZ_P {pa:g} with PSC_VELZ_P {v_designed:.4g} set to "
+                         f"{v:g}, has Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}, PM {w.phase_margin_deg:.1f} deg on its "
+                         "worst split (--clamp to export that)")
+    return pa, ai, v_designed, v

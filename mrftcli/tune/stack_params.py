@@ -47,7 +47,12 @@ _AP_INS = "ArduPilot/ardupilot libraries/AP_InertialSensor/AP_InertialSensor.cpp
 _AP_PSC = ("ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_PosControl.cpp (@Range and the constructor's defaults; "
            "Copter 4.x, _VELZ_ an AC_PID_Basic; @46d6887e)")
 _AP_MOT = "ArduPilot/ardupilot libraries/AP_Motors/AP_MotorsMulticopter.cpp (@Range; commit not pinned)"
-_AP_SCHED = "ArduPilot/ardupilot libraries/AP_Scheduler/AP_Scheduler.cpp (@Range 50 400; commit not pinned)"
+_AP_SCHED = ("ArduPilot/ardupilot libraries/AP_Scheduler/AP_Scheduler.cpp (@Range 50 400, @RebootRequired: True, "
+             "lines 64-65 @2598e9d4 of blitzy-public-samples/ardupilot-blitzy, upstream master 2025-07-21)")
+_IMU = f"{_PX4} src/modules/sensors/vehicle_imu/imu_parameters.yaml @d709b046 (enum 100/200/250/400, reboot_required)"
+#: AC_PosControl.cpp after the 4.7 rename (_POSZ_ -> _D_POS_, _VELZ_ -> _D_VEL_, _ACCZ_ -> _D_ACC_ in m, s).
+_AP_PSC47 = ("ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_PosControl.cpp (@Range of _D_POS_/_D_VEL_/_D_ACC_ "
+             "and convert_parameters 'Added: Nov-2024 for 4.7'; a stored upstream copy after the rename)")
 
 #: PX4's ``IMU_GYRO_RATEMAX`` choices [Hz]: the rate controller's loop rate (imu_gyro_parameters.yaml).
 PX4_GYRO_RATES_HZ = (100.0, 250.0, 400.0, 800.0, 1000.0, 2000.0)
@@ -73,6 +78,9 @@ class StackParam:
         Repository, file and commit it was read from.
     verified : bool
         False when the source could not be read at a pinned version (the row then says what is known).
+    reboot_required : bool
+        The stack's metadata says a change takes effect only after a reboot (PX4 ``reboot_required: true``,
+        ArduPilot ``@RebootRequired: True``).
     """
 
     stack: str
@@ -83,6 +91,7 @@ class StackParam:
     default: float
     source: str
     verified: bool = True
+    reboot_required: bool = False
 
     def contains(self, value: float) -> bool:
         """Whether ``value`` is within the documented range (a tiny relative slack for float rounding)."""
@@ -112,6 +121,7 @@ def _rows() -> tuple[StackParam, ...]:
         ("MC_PITCHRATE_K", 0.01, 5.0, "-", 1.0, _RATE),
         ("IMU_GYRO_CUTOFF", 0.0, 1000.0, "Hz", 40.0, _GYRO),
         ("IMU_GYRO_RATEMAX", 100.0, 2000.0, "Hz", 400.0, _GYRO),
+        ("IMU_INTEG_RATE", 100.0, 1000.0, "Hz", 200.0, _IMU),
         ("MPC_Z_P", 0.1, 1.5, "(m/s)/m", 1.0, _POS),
         ("MPC_Z_VEL_P_ACC", 2.0, 15.0, "(m/s^2)/(m/s)", 4.0, _POS),
         ("MPC_Z_VEL_I_ACC", 0.2, 3.0, "(m/s^2)/m", 2.0, _POS),
@@ -153,10 +163,23 @@ def _rows() -> tuple[StackParam, ...]:
         ("PSC_ACCZ_FLTE", 1.0, 100.0, "Hz", 20.0, _AP_PSC, True),
         ("PSC_ACCZ_FLTD", 1.0, 100.0, "Hz", 0.0, _AP_PSC, True),
         ("MOT_THST_HOVER", 0.2, 0.8, "throttle 0-1", math.nan, _AP_MOT, False),
-        ("SCHED_LOOP_RATE", 50.0, 400.0, "Hz", math.nan, _AP_SCHED, False),
+        ("SCHED_LOOP_RATE", 50.0, 400.0, "Hz", 400.0, _AP_SCHED, True),
+        # 4.7's names of the altitude cascade (SI units: _D_ACC_ gains are 4.6's _ACCZ_ x 0.1)
+        ("PSC_D_POS_P", 0.5, 4.0, "(m/s)/m", 1.0, _AP_PSC47, True),
+        ("PSC_D_VEL_P", 1.0, 10.0, "(m/s^2)/(m/s)", 5.0, _AP_PSC47, True),
+        ("PSC_D_VEL_I", 0.0, 10.0, "(m/s^2)/m", math.nan, _AP_PSC47, True),
+        ("PSC_D_VEL_D", 0.0, 2.0, "(m/s^2)/(m/s^2)", math.nan, _AP_PSC47, True),
+        ("PSC_D_VEL_FF", 0.0, 2.0, "-", math.nan, _AP_PSC47, True),
+        ("PSC_D_VEL_FLTE", 0.0, 100.0, "Hz", 5.0, _AP_PSC47, True),
+        ("PSC_D_ACC_P", 0.01, 0.25, "throttle/(m/s^2)", 0.05, _AP_PSC47, True),
+        ("PSC_D_ACC_I", 0.0, 0.5, "throttle/(m/s)", 0.1, _AP_PSC47, True),
+        ("PSC_D_ACC_D", 0.0, 0.1, "throttle/(m/s^3)", 0.0, _AP_PSC47, True),
+        ("PSC_D_ACC_FF", 0.0, 0.1, "throttle/(m/s^2)", math.nan, _AP_PSC47, True),
+        ("PSC_D_ACC_FLTE", 1.0, 100.0, "Hz", 20.0, _AP_PSC47, True),
     ]
-    rows = [StackParam("px4", n, lo, hi, u, d, src) for n, lo, hi, u, d, src in px4]
-    rows += [StackParam("ardupilot", n, lo, hi, u, d, src, v) for n, lo, hi, u, d, src, v in ap]
+    reboot = {"IMU_GYRO_RATEMAX", "IMU_INTEG_RATE", "SCHED_LOOP_RATE"}  # the stacks' reboot flags (sources above)
+    rows = [StackParam("px4", n, lo, hi, u, d, src, True, n in reboot) for n, lo, hi, u, d, src in px4]
+    rows += [StackParam("ardupilot", n, lo, hi, u, d, src, v, n in reboot) for n, lo, hi, u, d, src, v in ap]
     return tuple(rows)
 
 

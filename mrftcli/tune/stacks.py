@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from ..jsonable import check_schema_version
@@ -102,36 +102,54 @@ class StackSetting:
     notes: tuple[str, ...]
 
 
-def _px4_rate(rate_given: float | None, rate_source: float | None) -> tuple[float, str]:
+def _log_rate_cost(rate: float, rate_source: float | None) -> tuple[str, ...]:
+    """What designing at the stack's ``rate`` [Hz] from a log at ``rate_source`` [Hz] means (never advice to change
+    the vehicle's rate: those are vehicle-wide and need a reboot)."""
+    if rate_source is None or abs(rate_source - rate) <= 1e-6 * rate:
+        return ()
+    return (f"the log records at {rate_source:g} Hz, the stack runs this loop at {rate:g} Hz: designed at {rate:g} Hz "
+            "(the vehicle's rate is not changed: it is vehicle-wide and needs a reboot); the log's sampling adds up "
+            f"to {1e3 / rate_source:.1f} ms of delay to the identified tau, which the design carries as plant delay "
+            f"(conservative when the vehicle runs at {rate:g} Hz)",)
+
+
+def _px4_rate(rate_given: float | None, rate_source: float | None) -> tuple[float, tuple[str, ...]]:
+    """PX4's rate loop runs at ``IMU_GYRO_RATEMAX``: the vehicle's (--controller-rate) or its default 400 Hz."""
     if rate_given is not None:
         if rate_given not in PX4_GYRO_RATES_HZ:
-            raise InputError(f"--rate {rate_given:g}: PX4's rate loop runs at IMU_GYRO_RATEMAX, one of "
-                             f"{', '.join(f'{r:g}' for r in PX4_GYRO_RATES_HZ)} Hz")
-        return rate_given, f"designed at IMU_GYRO_RATEMAX = {rate_given:g} Hz (--rate)"
-    if rate_source is None:
-        raise InputError("give --rate HZ (PX4's IMU_GYRO_RATEMAX: 100, 250, 400, 800, 1000 or 2000)")
-    rate = min(PX4_GYRO_RATES_HZ, key=lambda r: (abs(math.log(r / rate_source)), -r))
-    return rate, (f"designed at IMU_GYRO_RATEMAX = {rate:g} Hz, the PX4 choice nearest the log's {rate_source:g} Hz "
-                  "(--rate to choose another)")
+            raise InputError(f"--controller-rate {rate_given:g}: PX4's rate loop runs at IMU_GYRO_RATEMAX, one of "
+                             f"{', '.join(f'{r:g}' for r in PX4_GYRO_RATES_HZ)} Hz: give the vehicle's")
+        return rate_given, (f"designed at IMU_GYRO_RATEMAX = {rate_given:g} Hz (--controller-rate, the vehicle's)",
+                            *_log_rate_cost(rate_given, rate_source))
+    rate = param("px4", "IMU_GYRO_RATEMAX").default
+    return rate, (f"designed at IMU_GYRO_RATEMAX = {rate:g} Hz, PX4's default (imu_gyro_parameters.yaml): give "
+                  "--controller-rate HZ if the vehicle's differs (not written: it is vehicle-wide and needs a reboot)",
+                  *_log_rate_cost(rate, rate_source))
 
 
-def _ardupilot_rate(rate: float | None) -> float:
-    """ArduPilot's main loop rate [Hz] (``SCHED_LOOP_RATE``, 50-400 Hz), at which its loops run."""
-    if rate is None:
-        raise InputError("give --controller-rate HZ, ArduPilot's main loop rate (SCHED_LOOP_RATE, 50-400 Hz)")
+def _ardupilot_rate(rate_given: float | None, rate_source: float | None) -> tuple[float, tuple[str, ...]]:
+    """ArduPilot's main loop rate [Hz] (``SCHED_LOOP_RATE``), at which its attitude and z loops run: the vehicle's
+    (--controller-rate) or Copter's default 400 Hz; never the log's."""
     row = param("ardupilot", "SCHED_LOOP_RATE")
-    if not row.contains(rate):
-        raise InputError(f"the design rate {rate:g} Hz is outside SCHED_LOOP_RATE's range {row.minimum:g}-"
-                         f"{row.maximum:g} Hz (AP_Scheduler.cpp): give --controller-rate HZ within it")
-    return rate
+    if rate_given is None:
+        return row.default, (f"designed at SCHED_LOOP_RATE = {row.default:g} Hz, Copter's default (AP_Scheduler.cpp "
+                             "SCHEDULER_DEFAULT_LOOP_RATE): give --controller-rate HZ if the vehicle's differs (it is "
+                             "vehicle-wide, @RebootRequired: never changed for one loop)",
+                             *_log_rate_cost(row.default, rate_source))
+    if not row.contains(rate_given):
+        raise InputError(f"--controller-rate {rate_given:g} Hz is outside SCHED_LOOP_RATE's range {row.minimum:g}-"
+                         f"{row.maximum:g} Hz (AP_Scheduler.cpp): give the vehicle's main loop rate")
+    return rate_given, (f"designed at SCHED_LOOP_RATE = {rate_given:g} Hz (--controller-rate, the vehicle's)",
+                        *_log_rate_cost(rate_given, rate_source))
 
 
 def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: float | None,
                   gyro_cutoff_hz: float | None) -> StackSetting:
     """The rate and rate filter ``stack`` runs for ``loop``, and the notes that state them.
 
-    ``rate_given``: --rate; ``rate_source``: the rate the log records; ``gyro_cutoff_hz``: --gyro-cutoff
-    (default: the stack's default cutoff, stated in the notes).
+    ``rate_given``: --controller-rate (the vehicle's rate); ``rate_source``: the rate the log records (never the
+    design rate of a stack that has its own); ``gyro_cutoff_hz``: --gyro-cutoff (default: the stack's default
+    cutoff, stated in the notes).
     """
     if stack == "generic":
         rate = rate_given or rate_source
@@ -144,10 +162,9 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
                  f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --rate to change)"),)
         return StackSetting(stack, rate, RateFilter(HEAR_FILTER_HZ, "HEAR_FC rate filter"), notes)
     if stack == "ardupilot" and loop == "altitude":
-        rate = _ardupilot_rate(rate_given or rate_source)
+        rate, notes = _ardupilot_rate(rate_given, rate_source)
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
-            f"ArduPilot altitude: designed at {rate:g} Hz: set SCHED_LOOP_RATE to it (AC_PosControl runs the z "
-            "cascade every main-loop tick)",))
+            *notes, "AC_PosControl runs the z cascade every main-loop tick"))
     if stack == "px4" and loop == "altitude":
         rate = rate_given or rate_source
         if rate is None:
@@ -162,12 +179,9 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
                                          else " (--gyro-cutoff)")
             + ": one 2nd-order Butterworth on all three axes, so roll and pitch must be tuned with the same value "
               "(tune ROLL.json PITCH.json designs both with one cutoff)")
-    if stack == "px4":
-        rate, rate_note = _px4_rate(rate_given, rate_source)
-    else:
-        rate = _ardupilot_rate(rate_given or rate_source)
-        rate_note = f"designed at {rate:g} Hz: set SCHED_LOOP_RATE to it"
-    return StackSetting(stack, rate, RateFilter(cutoff, name), (rate_note, said))
+    rate, rate_notes = _px4_rate(rate_given, rate_source) if stack == "px4" else _ardupilot_rate(rate_given,
+                                                                                                 rate_source)
+    return StackSetting(stack, rate, RateFilter(cutoff, name), (*rate_notes, said))
 
 
 @dataclass(frozen=True)
@@ -189,6 +203,11 @@ class StackExport:
     notes : tuple of str
     assumptions : tuple of str
         What the values rest on that the log cannot show (said first in the output).
+    version : str
+        The stack version whose names the file uses (ArduPilot: ``4.6`` or ``4.7``; empty: one naming).
+    prearm : tuple of dict
+        The stack's pre-arm rules on the values written (:func:`mrftcli.tune.ardupilot_versions.prearm_checks`):
+        ``rule``, ``value``, ``passed``, ``source``.
     """
 
     stack: str
@@ -199,13 +218,16 @@ class StackExport:
     margins: Margins
     notes: tuple[str, ...]
     assumptions: tuple[str, ...] = ()
+    version: str = ""
+    prearm: tuple[dict[str, Any], ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The versioned JSON object (:data:`EXPORT_SCHEMA_VERSION`)."""
         return {"schema_version": EXPORT_SCHEMA_VERSION, "stack": self.stack, "loop": self.loop,
                 "design": self.design, "params": dict(self.params),
                 "clamped": [{"name": n, "designed": a, "exported": b} for n, a, b in self.clamped],
-                "margins": self.margins.to_json(), "notes": list(self.notes), "assumptions": list(self.assumptions)}
+                "margins": self.margins.to_json(), "notes": list(self.notes), "assumptions": list(self.assumptions),
+                "version": self.version, "prearm": [dict(r) for r in self.prearm]}
 
     @classmethod
     def from_json(cls, data: Any) -> "StackExport":
@@ -217,16 +239,20 @@ class StackExport:
             fields = (str(data["stack"]), str(data["loop"]), str(data["design"]))
             notes = tuple(str(n) for n in data["notes"])
             assumptions = tuple(str(n) for n in data.get("assumptions", []))
+            version = str(data.get("version", ""))
+            prearm = tuple(dict(r) for r in data.get("prearm", []))
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"stack export: missing or malformed field ({err})") from err
-        return cls(*fields, params, clamped, Margins.from_json(data.get("margins")), notes, assumptions)
+        return cls(*fields, params, clamped, Margins.from_json(data.get("margins")), notes, assumptions, version,
+                   prearm)
 
     def file_text(self) -> str:
         """What the stack loads: QGroundControl ``.params`` (PX4), ``.param`` (ArduPilot), JSON (HEAR)."""
         if self.stack == "px4":
             return _qgc_params(self)
         if self.stack == "ardupilot":
-            head = [f"# mrft-ident tune: {self.design} for {self.loop} (load in Mission Planner / MAVProxy)"]
+            head = [f"# mrft-ident tune: {self.design} for {self.loop}, ArduPilot Copter {self.version} parameter names "
+                    "(load in Mission Planner / MAVProxy; a ground station skips names the firmware does not have)"]
             head += [f"# assumption: {a}" for a in self.assumptions]
             return "\n".join(head + [f"{n},{_fmt(v)}" for n, v in self.params.items()]) + "\n"
         import json
@@ -275,8 +301,7 @@ def _cascade(c: Controller, loop: str, stack: str, hover_thrust: float | None) -
     if stack == "px4":
         ax = loop.upper()
         return {f"MC_{ax}_P": c.Kp / c.Kd, f"MC_{ax}RATE_P": c.Kd, f"MC_{ax}RATE_I": 0.0, f"MC_{ax}RATE_D": 0.0,
-                f"MC_{ax}RATE_K": 1.0, f"MC_{ax}RATE_FF": 0.0, "IMU_GYRO_CUTOFF": cutoff,
-                "IMU_GYRO_RATEMAX": c.rate_hz}
+                f"MC_{ax}RATE_K": 1.0, f"MC_{ax}RATE_FF": 0.0, "IMU_GYRO_CUTOFF": cutoff}
     ax = _AXIS_AP[loop]
     return {f"ATC_ANG_{ax}_P": c.Kp / c.Kd, f"ATC_RAT_{ax}_P": c.Kd, f"ATC_RAT_{ax}_I": 0.0,
             f"ATC_RAT_{ax}_D": 0.0, f"ATC_RAT_{ax}_FF": 0.0, f"ATC_RAT_{ax}_FLTE": 0.0,
@@ -316,17 +341,25 @@ def _check_units(loop: str, heights: Sequence[float], amplitudes: Sequence[float
 
 def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design: str, *, clamp: bool = False,
                   hover_thrust: float | None = None, heights: Sequence[float] = (),
-                  amplitudes: Sequence[float] = (), notes: Sequence[str] = ()) -> StackExport:
+                  amplitudes: Sequence[float] = (), notes: Sequence[str] = (), version: str | None = None,
+                  posterior_models: Sequence[LoopModel] = ()) -> StackExport:
     """``c`` (designed with the stack's rate and filter, :func:`stack_setting`) as ``stack`` loads it.
+
+    ``version``: ArduPilot's (``--stack-version``; default the current stable release, named in the file);
+    ``posterior_models``: the posterior's 95 % set, which ArduPilot's altitude cascade is held on.
 
     Raises
     ------
     InputError
-        The loop, kind or units do not map (the reasons), or a value is outside the stack's documented
+        The loop, kind or units do not map (the reasons), a value is outside the stack's documented
         range and ``clamp`` is off (each value, its bound and the source, and the margins clamping
-        would give).
+        would give), or a value written fails one of the stack's pre-arm rules (never written).
     """
+    from .ardupilot_versions import check_version
+
     check_exportable(stack, loop, c.kind, hover_thrust)
+    if stack != "ardupilot" and version is not None:
+        raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     if stack in ("px4", "ardupilot"):
         why = _check_units(loop, heights, amplitudes)
         if c.Kd <= 0:
@@ -345,7 +378,44 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         return StackExport(stack, loop, design, params, (), loop_margins(c, [model])[0], tuple(out_notes))
     if stack == "ardupilot" and loop == "altitude":
         assert hover_thrust is not None  # check_exportable asked for it
-        return _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes)
+        e = _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes, check_version(version),
+                                posterior_models)
+        return _with_prearm(e)
+    e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
+    if stack == "ardupilot":
+        e = replace(e, version=check_version(version))
+        return _with_prearm(e)
+    return _with_reboot_note(e)
+
+
+def _with_reboot_note(e: StackExport) -> StackExport:
+    """The export with a note naming the written values that need a reboot (the stacks' metadata)."""
+    from .stack_params import STACK_PARAMS
+
+    rows = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
+    need = [n for n in e.params if n in rows and rows[n].reboot_required]
+    if not need:
+        return e
+    note = (f"{', '.join(need)} take effect only after a reboot (reboot_required / @RebootRequired in the stack's "
+            "parameter metadata)")
+    return replace(e, notes=(*e.notes, note))
+
+
+def _with_prearm(e: StackExport) -> StackExport:
+    """ArduPilot: every pre-arm rule on the values written, checked (a failure is a refusal, never a file)."""
+    from .ardupilot_versions import prearm_checks
+
+    checks = prearm_checks(e.params, e.version)
+    failed = [r for r in checks if not r.passed]
+    if failed:
+        raise InputError("cannot export to ardupilot: the vehicle would refuse to arm: " + "; ".join(
+            f"{r.rule.rule} fails with {r.value:g} ({r.rule.source})" for r in failed))
+    return _with_reboot_note(replace(e, prearm=tuple(r.to_json() for r in checks)))
+
+
+def _cascade_export(stack: str, c: Controller, model: LoopModel, loop: str, design: str, clamp: bool,
+                    hover_thrust: float | None, out_notes: list[str]) -> StackExport:
+    """PX4 (attitude, altitude) and ArduPilot attitude: the cascade mapping, its ranges, its margins."""
     params = _cascade(c, loop, stack, hover_thrust)
     bad = check_ranges(stack, params)
     gains = [v for v in bad if v.param.name not in _STRUCTURAL]
@@ -374,37 +444,41 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
 
 
 def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: bool, hover_thrust: float,
-                        notes: list[str]) -> StackExport:
-    """ArduPilot's z cascade for the PD ``c`` (:func:`mrftcli.tune.ardupilot_z.design_z_cascade`), its values
-    checked against the vendored ranges, its margins the worst over the splits of tau."""
-    from dataclasses import replace
-
-    from .ardupilot_z import THROTTLE_CUTOFF_HZ, cascade_figures, check_units, design_z_cascade, split_assumption
+                        notes: list[str], version: str, posterior: Sequence[LoopModel]) -> StackExport:
+    """ArduPilot's z cascade for the PD ``c`` (:func:`mrftcli.tune.ardupilot_z.design_z_cascade`) in ``version``'s
+    names, its values checked against that version's ranges, its margins the worst over the splits of tau of the
+    nominal model and the posterior's extreme draws."""
+    from .ardupilot_versions import ardupilot_names, z_bounds
+    from .ardupilot_z import THROTTLE_CUTOFF_HZ, check_units, design_z_cascade, robust_models, split_assumption
 
     check_units(model, hover_thrust)
-    z, clamped = design_z_cascade(c, model, clamp=clamp)
+    draws = robust_models(posterior)
+    z, clamped = design_z_cascade(c, model, clamp=clamp, models=draws, bounds=z_bounds(version))
     clamp_notes = [f"{n} set to {v:g} instead of {d:.4g}: the stack's bound (--clamp)" for n, d, v in clamped]
-    params = z.gains.params()
+    params = ardupilot_names(z.gains.params(), version)
     bad = check_ranges("ardupilot", params)
     if bad:  # the design keeps every value in range: a violation here is a defect, never exported
         raise InputError("cannot export to ardupilot: " + "; ".join(v.message() for v in bad))
-    w, split = z.figures.worst(), z.figures.worst_split()
-    tried = ", ".join(f"{p:g}: {g:.2f}" for p, g in z.tried)
-    # what ArduPilot's usual integral would cost this loop (said, not exported)
-    with_i = replace(z.gains, acc_i=2.0 * z.gains.acc_p)
-    ms_i = cascade_figures(with_i, [model], z.figures.splits).worst().Ms
+    w, split, r = z.figures.worst(), z.figures.worst_split(), z.robust
+    tried = ", ".join(f"{p:g}/{ratio:g}: {g:.2f}" for ratio, p, g in z.tried)
+    i_name = "PSC_ACCZ_I" if version == "4.6" else "PSC_D_ACC_I"
+    held = (f"the nominal model and {len(draws)} extreme draws of the posterior's 95 % set (smallest and largest "
+            "tau, K, Td, Tp)" if draws else "the nominal model (no posterior given)")
     notes = [*notes, *clamp_notes,
-             f"the cascade keeps {100 * z.kept:.0f} % of the {design}'s loop gain (PSC_ACCZ_P {z.gains.acc_p:g}; kept "
-             f"per PSC_ACCZ_P tried: {tried}) with Ms <= {z.ms_target:.3g}, the PD's own on the nominal model, on every "
-             f"split; the worst split is {split.describe()}: Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}, PM "
-             f"{w.phase_margin_deg:.1f} deg, delay margin {w.delay_margin_s * 1e3:.1f} ms",
+             f"ArduPilot Copter {version} names and units (--stack-version; 4.7 renamed PSC_POSZ_/VELZ_/ACCZ_ to "
+             "PSC_D_POS_/D_VEL_/D_ACC_, the _D_ACC_ gains x 0.1)",
+             f"the cascade keeps {100 * z.kept:.0f} % of the {design}'s loop gain (PSC_ACCZ_P {z.gains.acc_p:g}, "
+             f"PSC_ACCZ_I {z.gains.acc_i:.4g} = {z.gains.acc_i / z.gains.acc_p:g} x P, in 4.6 units; kept per P/ratio "
+             f"tried: {tried}) with Ms <= {z.ms_target:.3g}, the PD's own worst, on every split of tau of {held}",
+             f"margins written (the worst over those models and splits): Ms {r.Ms:.3g}, GM {r.gain_margin:.3g}, PM "
+             f"{r.phase_margin_deg:.1f} deg, delay margin {r.delay_margin_s * 1e3:.1f} ms; nominal model's worst split "
+             f"({split.describe()}): Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}",
              f"in the loop: the motors' {THROTTLE_CUTOFF_HZ:g} Hz throttle filter (AC_PosControl "
-             "POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ), INS_ACCEL_FILTER, PSC_VELZ_FLTE and PSC_ACCZ_FLTE at the values "
-             "written; PSC_ACCZ_FLTT and _FLTD are not written (ArduPilot's default 0, off, is below their "
-             "documented 1 Hz; the design runs with FLTT off; _FLTD is unused with _D 0)",
-             f"PSC_VELZ_I = {z.gains.vel_i:g} (its documented minimum) and PSC_ACCZ_I = 0: the design is a PD; "
-             f"ArduPilot's usual PSC_ACCZ_I = 2 x PSC_ACCZ_P ({with_i.acc_i:g}) corrects a wrong MOT_THST_HOVER "
-             f"but would make the worst Ms {ms_i:.3g}",
+             "POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ), INS_ACCEL_FILTER, the velocity and acceleration error filters at "
+             "the values written, and the acceleration loop's integral (AC_PID: integrator += Ki e dt, ahead of "
+             f"the output); {i_name} > 0 is a pre-arm rule (AC_PosControl::pre_arm_checks); the target filter "
+             "(_ACCZ_FLTT / _D_ACC_FLTT) is not written and runs off in the design",
+             f"PSC_VELZ_I = {z.gains.vel_i:g} (4.6's documented minimum), in the margins",
              f"MOT_THST_HOVER = {hover_thrust:g} (--hover-thrust; not written, ArduPilot learns it): K "
              f"{model.K:.4g} m/s^2 per throttle unit against g / MOT_THST_HOVER = {STANDARD_GRAVITY / hover_thrust:.4g}; "
              "the log's command is taken as the throttle after the 2 Hz filter (an MRFT at the mixer); for a test "
@@ -413,4 +487,4 @@ def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: boo
              "AC_P_1D's square-root controller and the PSC_ACCZ_IMAX / speed limits make the cascade nonlinear for "
              "large errors: the margins are those of the linear region"]
     assumption = split_assumption(z.tau, len(z.figures.splits))
-    return StackExport("ardupilot", "altitude", design, params, clamped, w, tuple(notes), (assumption,))
+    return StackExport("ardupilot", "altitude", design, params, clamped, r, tuple(notes), (assumption,), version)

@@ -163,7 +163,9 @@ def _read_batch_folder(folder: Path, by: str) -> Side:
         mtime = _number(record.get("log_mtime")) if isinstance(record, Mapping) else None
         for est in estimates_from_batch_record(record, source=str(f), by=by):
             previous = latest.get(est.key)
-            if previous is not None:
+            if previous is not None and est.absent:
+                continue  # a log without this loop says nothing about the vehicle's other logs
+            if previous is not None and not previous[1].absent:
                 notes.append(f"{folder}: several logs for {est.name} {est.loop}; the latest (by log time) is used")
                 if previous[0] > (mtime or 0.0):
                     continue

@@ -27,7 +27,7 @@ from typing import Any
 
 from pymavlink import mavutil
 
-__all__ = ["Sitl", "SitlError", "fly_mrft", "load_params", "read_param_file", "AXES"]
+__all__ = ["Sitl", "SitlError", "fly_mrft", "load_params", "read_param_file", "tp_of_filter", "AXES", "TP_FILTER"]
 
 HERE = Path(__file__).resolve().parent
 AXES = {"altitude": 1, "roll": 2, "pitch": 3}
@@ -252,10 +252,33 @@ def firmware_version(sitl: Sitl) -> str:
     return texts[0] if texts else "ArduCopter (version text not seen)"
 
 
+#: the main loop's rate (SCHED_LOOP_RATE, ArduCopter's default) [Hz]
+LOOP_HZ = 400.0
+#: the first-order filter on the relay's path that plays eq. (2)'s Tp: SITL's motors have no lag, so
+#: the altitude tests go through ArduPilot's throttle filter (PILOT_THR_FILT, applied by
+#: set_throttle_out) and the roll/pitch tests through the rate PID's target filter (ATC_RAT_*_FLTT,
+#: which filters the feed-forward the script drives), each at a known cutoff [Hz]
+TP_FILTER = {"altitude": ("PILOT_THR_FILT", 5.0), "roll": ("ATC_RAT_RLL_FLTT", 20.0),
+             "pitch": ("ATC_RAT_PIT_FLTT", 20.0)}
+
+
+def tp_of_filter(cutoff_hz: float, rate_hz: float = LOOP_HZ) -> float:
+    """Time constant [s] of ArduPilot's first-order low-pass at ``rate_hz``.
+
+    ``y_k = y_(k-1) + a (x_k - y_(k-1))``, ``a = T / (T + 1/(2 pi f))``: the pole ``1 - a`` is that of a
+    continuous lag ``-T / ln(1 - a)`` (33.1 ms at 5 Hz, 9.15 ms at 20 Hz, 400 Hz), advanced by one
+    sample T (the filter takes the new input in the same tick), which the identified delay absorbs.
+    """
+    dt = 1.0 / rate_hz
+    alpha = dt / (dt + 1.0 / (2.0 * math.pi * cutoff_hz))
+    return -dt / math.log(1.0 - alpha)
+
+
 def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, float]], delay_ms: float,
              duration_s: float, speedup: float, alt_m: float = 10.0) -> dict[str, Any]:
     """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the log and how it was flown."""
-    with Sitl(ap_dir, workdir, speedup) as sitl:
+    filt_name, filt_hz = TP_FILTER[axis]
+    with Sitl(ap_dir, workdir, speedup, {filt_name: filt_hz}) as sitl:
         sitl.wait(3)
         version = firmware_version(sitl)
         sitl.set_mode("GUIDED")
@@ -268,7 +291,9 @@ def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, fl
         log = sitl.newest_log()
     return {"stack": "ArduPilot SITL", "version": version, "frame": "quad (SITL --model quad, copter.parm)",
             "loop": axis, "relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 5,
-            "loop_rate_hz": 400, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
+            "loop_rate_hz": LOOP_HZ, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
+            "tp_s": tp_of_filter(filt_hz), "tp_source": f"{filt_name} = {filt_hz:g} Hz first-order filter at "
+            f"{LOOP_HZ:g} Hz (SITL's motors have no lag)",
             "tests": runs, "prearm_refusals_before_arming": sorted(set(refusals)), "log": str(log)}
 
 

@@ -181,3 +181,23 @@ def test_loop_auto_finds_the_loops_from_the_topics(tmp_path: Path) -> None:
             truth = json.loads((samples / (Path(row["path"]).name + ".truth.json")).read_text())
             td = truth["Td"]
             assert abs(row["Td_mean"] - td) < 0.1 * td, (row["loop"], row["Td_mean"], td)
+
+
+def test_mat_logs_found_and_identified_rows_first(tmp_path: Path) -> None:
+    """Issue 40 item 3: a folder's .mat log is discovered (analyze reads it); the table lists the
+    identified loops first and each log's loops without tests on one line after it."""
+    import shutil
+
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    (tmp_path / "fleet").mkdir()
+    for name in ("dnn_altitude.mat", "design1_altitude.mcap"):
+        shutil.copy(samples / name, tmp_path / "fleet" / name)
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0499", "--out", str(tmp_path / "out"),
+                                 "--jobs", "1", "--no-report", "-q"])
+    assert r.exit_code == 0, r.output
+    lines = r.stdout.splitlines()
+    assert [line.split()[:3] for line in lines[2:4]] == [["design1_altitude.mcap", "altitude", "ok"],
+                                                         ["dnn_altitude.mat", "altitude", "ok"]]
+    assert lines[4:] == ["skipped design1_altitude.mcap: x, y (no MRFT test on them)"]
+    truth = json.loads((samples / "dnn_altitude.mat.truth.json").read_text())
+    assert abs(float(lines[3].split()[5]) - truth["Td"]) < 0.1 * truth["Td"]

@@ -36,7 +36,7 @@ __all__ = [
 
 #: File suffixes (lower case) picked up when a folder or a glob is searched. A folder that holds a
 #: ``metadata.yaml`` is a ROS 2 bag and counts as one log (it is not searched further).
-SUPPORTED_SUFFIXES = (".mcap", ".bag", ".ulg", ".csv", ".bin")
+SUPPORTED_SUFFIXES = (".mcap", ".bag", ".ulg", ".csv", ".bin", ".mat")
 
 # --------------------------------------------------------------------------------------------------
 # Settings

@@ -83,10 +83,35 @@ def _print_process_table(df, limit: int = 50) -> None:
         click.echo(f"{name:<36} {r['loop']:<9} {r['status']:<16} {model:<8} {text}".rstrip())
 
 
+#: Statuses of a loop a log does not hold: listed after the table, one line per log.
+_ABSENT = ("skipped-no-tests", "skipped-no-topics")
+
+
+def _split_absent(df):
+    """(rows of the table, one line per log naming its absent loops) for the terminal summary."""
+    absent = df["result_status"].isin(_ABSENT)
+    lines = []
+    for path, rows in df[absent].groupby("path", sort=False):
+        why = {"skipped-no-tests": "no MRFT test on them", "skipped-no-topics": "no topics for them"}
+        parts = [f"{', '.join(map(str, g['loop']))} ({why.get(str(status), status)})"
+                 for status, g in rows.groupby("result_status", sort=False)]
+        lines.append(f"skipped {_short_name(path)}: {'; '.join(parts)}")
+    return df[~absent], lines
+
+
 def _print_table(df, limit: int = 50) -> None:
+    """The identified (and failed) rows first; then each log's loops it does not hold, on one line."""
+    df, absent = _split_absent(df)
+    df = df.sort_values("result_status", key=lambda s: s != "ok", kind="stable")  # identified rows first
     if "parameters" in df:
         _print_process_table(df, limit)
-        return
+    else:
+        _print_loop_table(df, limit)
+    for line in absent:
+        click.echo(line)
+
+
+def _print_loop_table(df, limit: int) -> None:
     shown = _shown_rows(df, limit)
     header = f"{'log':<36} {'loop':<9} {'status':<16} {'tau ms':>8} {'+/-':>6} {'Td s':>8} {'+/-':>7} {'K':>8}  note"
     click.echo(header)

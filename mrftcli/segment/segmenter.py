@@ -51,8 +51,9 @@ class SegmentOptions:
         Thresholds of the limit-cycle validity check stored in ``MrftTest.validity`` (step 5).
     controller_rate_hz : float, optional
         Rate the relay decides at [Hz] (> 0), when the command may be logged below it (a logger that
-        sub-samples the controller); None: unknown (a switch is then placed mid-way between the two
-        command samples around it, as for a continuous relay).
+        sub-samples the controller); at the command's own rate (within 1.5x: every decision logged) a
+        switch is at the first sample at the new level, however slow the log; None: unknown (a switch is
+        then placed mid-way between the two command samples around it, as for a continuous relay).
 
     Raises
     ------
@@ -133,7 +134,10 @@ class _Clock:
     Attributes: ``t`` the command times [s] (regularised near the test when they fit a grid),
     ``regularised`` whether they were, ``dt`` the median sample period [s], ``rate_hz`` its inverse
     [Hz], ``controller_rate_hz`` the controller's rate when the logger sub-samples it (else None)
-    and ``ts_controller`` its period [s] (0 when unknown).
+    and ``ts_controller`` its period [s] (0 when unknown); ``every_decision`` the controller's rate is
+    known to be the log's (each logged sample a decision: a switch is at its first sample);
+    ``irregular`` a slow log sampled at jittered intervals (a recorder every 3 s +-2 s): no grid, so
+    no sample is "missing" before a switch.
     """
 
     t: FloatArray
@@ -142,6 +146,8 @@ class _Clock:
     rate_hz: float
     controller_rate_hz: float | None
     ts_controller: float
+    every_decision: bool = False
+    irregular: bool = False
 
     @property
     def sub_sampled(self) -> bool:
@@ -218,7 +224,19 @@ def _test_clock(chain: list[RelayRun], t_cmd: FloatArray, rate_all: float | None
     rate = 1.0 / dt_nom if dt_nom > 0 else (float("nan") if rate_all is None else rate_all)
     # the controller's period when the logger sub-samples it (0: not known, or not sub-sampled)
     ctrl = controller_rate_hz if controller_rate_hz and controller_rate_hz > 1.5 * rate else None
-    return _Clock(tc, regularised, dt_nom, rate, ctrl, 1.0 / ctrl if ctrl else 0.0)
+    return _Clock(tc, regularised, dt_nom, rate, ctrl, 1.0 / ctrl if ctrl else 0.0,
+                  every_decision=bool(controller_rate_hz) and ctrl is None,
+                  irregular=_irregular(t_cmd[j0:j1], rate))
+
+
+def _irregular(t: FloatArray, rate: float) -> bool:
+    """A slow log (below :data:`LOW_RATE_HZ`) whose intervals spread by over 20 % (interquartile range
+    over the median): a recorder with jittered sampling, not a grid with lost samples. Receive stamps
+    of a vehicle's 10-50 Hz log jitter by a few ms, a few percent of the period."""
+    if not rate < LOW_RATE_HZ or t.size < 8:
+        return False
+    q25, q50, q75 = np.percentile(np.diff(t), [25, 50, 75])
+    return bool(q50 > 0 and (q75 - q25) > 0.2 * q50)
 
 
 def _switches(chain: list[RelayRun], clock: _Clock) -> _Switches:
@@ -253,7 +271,7 @@ def _switch_instant(prev: RelayRun, run: RelayRun, clock: _Clock) -> tuple[float
     t_k = None
     if run.start - prev.stop > 1:
         f.add("glitch")  # several samples between the levels: the switch instant is not clean
-    missing = _missing_before(tc, run.start, dt_nom, clock.regularised) if run.start > 0 else 0
+    missing = _missing_before(tc, run.start, dt_nom, clock.regularised) if run.start > 0 and not clock.irregular else 0
     if 1 <= missing <= _MAX_INTERP_SAMPLES:
         # The switch happened at one of the missing sample instants or at the first sample
         # seen at the new level: take the middle of those (error within +/- (missing+1)/2
@@ -264,7 +282,7 @@ def _switch_instant(prev: RelayRun, run: RelayRun, clock: _Clock) -> tuple[float
         f.add("gap")
     if prev.glitch:
         f.add("glitch")
-    if clock.rate_hz < LOW_RATE_HZ and not f and run.start > 0:
+    if clock.rate_hz < LOW_RATE_HZ and not f and run.start > 0 and not clock.every_decision:
         # the relay switched at one of the controller's ticks after the last sample at the
         # old level, up to the first at the new one (its timestamp is the controller tick
         # that published it): the mean of those ticks is unbiased. Mid-way between the two

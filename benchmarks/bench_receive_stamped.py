@@ -2,8 +2,8 @@
 
 Fresh random altitude plants (Td 1-3 s, tau 20-80 ms, K 10-25, Tp 42.2 ms) flown as people fly them:
 a 100 or 200 Hz controller (HEAR switching), two tests per flight at two betas (-0.6 and -0.3) and
-two relay heights (describing-function amplitudes 3-8 cm, drawn per test), 6 cycles each, sensor
-noise 0.3-1 mm. Each flight is recorded (mrftcli/sim/stamps.py, no file written):
+two relay heights (describing-function amplitudes 3-8 cm, drawn per test), 6-10 cycles each (drawn),
+sensor noise 0.3-1 mm. Each flight is recorded (mrftcli/sim/stamps.py, no file written):
 
 * ``source``: both topics stamped at the source, every message (the baseline);
 * ``recv``: both topics stamped on arrival, each message 0-3 ms late (uniform), none lost;
@@ -14,8 +14,9 @@ Every recording of a flight is analysed (``analyze_flight``, 200 draws) in the s
 refusal or failure counts as a miss (no error, not covered). Prints per setting the RMS error of
 Td [%], tau [ms], K [%], the coverage of the 95 % intervals, how often the waveform estimate was
 reported, refusals, and the RMS ratio to ``source`` on the same flights.
-Usage: nice -n 10 python benchmarks/bench_receive_stamped.py [SEED] [N] [SETTINGS]
-(SETTINGS: comma-separated names, default all). Figures: docs/benchmarks/receive_stamped.md.
+Usage: OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/bench_receive_stamped.py [SEED] [N] [SETTINGS]
+(SETTINGS: comma-separated names, default all; one BLAS thread: on a busy shared machine a threaded
+lstsq of a few thousand rows took 50x its single-thread time). Figures: docs/benchmarks/receive_stamped.md.
 """
 import sys
 import time
@@ -60,8 +61,8 @@ def flight(rng: np.random.Generator) -> tuple[LoopModel, object]:
     """One flight as people fly it (module docstring)."""
     m = LoopModel(0.0422, float(rng.uniform(1.0, 3.0)), float(rng.uniform(0.02, 0.08)), float(rng.uniform(10, 25)))
     rate = float(rng.choice([100.0, 200.0]))
-    tests = tuple(plan_test(m, b, float(rng.uniform(0.03, 0.08)), rate_hz=rate, cycles=6, min_duration=3.0)
-                  for b in (-0.6, -0.3))
+    tests = tuple(plan_test(m, b, float(rng.uniform(0.03, 0.08)), rate_hz=rate, cycles=int(rng.integers(6, 11)),
+                            min_duration=3.0) for b in (-0.6, -0.3))
     spec = FlightSpec(model=m, tests=tests, loop="altitude", switching="hear", rate_hz=rate,
                       noise_std=float(rng.uniform(3e-4, 1e-3)), seed=int(rng.integers(1 << 30)))
     return m, simulate_flight(spec)

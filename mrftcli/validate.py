@@ -23,11 +23,20 @@ import math
 
 from .errors import InputError
 
-__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "TP_RANGE", "TP_MISSING"]
+__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "TP_RANGE", "TP_MISSING",
+           "check_rate", "check_spread", "MAX_TIME_S", "MAX_RATE_HZ"]
 
 #: Physical range of the propulsion time constant Tp [s]: a multirotor's motor and propeller respond in
 #: tens of milliseconds (the paper's 42.2 ms); 1 ms is below any rotor's inertia, 2 s is an airship.
 TP_RANGE = (1e-3, 2.0)
+
+#: Longest time any option or model parameter may be [s]: a week. A relay test, a delay, a time constant
+#: or a flight's time budget beyond it is a typo or hostile (1e300 s made root finders fail, 1e9 s plans
+#: asked for GB); a process plant's hours are well inside.
+MAX_TIME_S = 7 * 86400.0
+
+#: Fastest rate [Hz] any option may give: the 100 kHz the log readers accept (:mod:`mrftcli.io.clock`).
+MAX_RATE_HZ = 100e3
 
 #: What Tp is and how to give it, said when it is missing (the model rests on it: never assumed).
 TP_MISSING = ("the propulsion time constant Tp [s] from a bench test of the motor and propeller is required, "
@@ -67,7 +76,43 @@ def check_time(name: str, value: float) -> float:
         raise InputError(f"{name} must be a positive time in seconds, got {value!r}") from err
     if not math.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
+    if v > MAX_TIME_S:
+        raise InputError(f"{name} = {v:g} s is longer than a week ({MAX_TIME_S:g} s); give it in seconds")
     return v
+
+
+def check_rate(name: str, value: float) -> float:
+    """A rate [Hz] called ``name`` in messages: positive, finite and at most :data:`MAX_RATE_HZ`.
+
+    Examples
+    --------
+    >>> check_rate("--controller-rate", 1e300)
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: --controller-rate = 1e+300 Hz is above 100000 Hz, the fastest rate a log is read at
+    """
+    v = check_positive(f"{name} (a rate in Hz)", value)
+    if v > MAX_RATE_HZ:
+        raise InputError(f"{name} = {v:g} Hz is above {MAX_RATE_HZ:g} Hz, the fastest rate a log is read at")
+    return v
+
+
+def check_spread(name: str, std: float, value: float) -> float:
+    """A standard deviation ``std`` of a parameter whose value is ``value``: finite, >= 0 and at most ten
+    times the value (a wider spread is no prior: 1e300 overflowed the log-normal draws).
+
+    Examples
+    --------
+    >>> check_spread("--td-std", 1e300, 0.5)
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: --td-std = 1e+300 is not a spread of the value 0.5: give a number from 0 to 5 (ten times the value)
+    """
+    limit = 10.0 * abs(value)
+    if not (math.isfinite(std) and 0 <= std <= limit):
+        raise InputError(f"{name} = {std:g} is not a spread of the value {value:g}: give a number from 0 to "
+                         f"{limit:g} (ten times the value)")
+    return std
 
 
 def check_tp(value: float) -> float:

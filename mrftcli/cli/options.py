@@ -17,7 +17,7 @@ import click
 from ..errors import InputError
 from ..jsonable import to_jsonable
 from ..progress import Progress
-from ..validate import TP_MISSING, check_beta, check_tp
+from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
@@ -37,8 +37,8 @@ SHARED_HELP: dict[str, str] = {
     "--tp": "time constant Tp [s]",
 }
 
-#: A rate in Hz: a positive, finite number (every ``--controller-rate``).
-HZ = click.FloatRange(0, None, min_open=True)
+#: A rate in Hz: positive, at most the 100 kHz the readers accept (every ``--controller-rate``; 1e300 hung predict).
+HZ = click.FloatRange(0, MAX_RATE_HZ, min_open=True)
 
 
 def dump_json(obj: Any, target: str | None) -> None:

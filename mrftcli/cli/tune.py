@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
-from ..validate import TP_MISSING, check_time
+from ..validate import TP_MISSING, check_spread, check_time
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
@@ -100,6 +100,8 @@ def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None
     if not math.isfinite(K) or K == 0:
         raise InputError(f"--k must be a finite, non-zero gain, got {K}")
     model = LoopModel(Tp, td, tau, K)
+    for name, std, value in zip(("--td-std", "--tau-std", "--k-std"), stds, (td, tau, K)):
+        check_spread(name, std, value)
     posterior = None
     if any(s and s > 0 for s in stds):
         posterior = Posterior.from_spread(model, *stds, n=200, seed=0,

@@ -35,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
+from ..validate import MAX_TIME_S
 
 if TYPE_CHECKING:
     from .lprs import LimitCycle
@@ -260,6 +261,10 @@ class LoopModel:
                 raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
         if not np.isfinite(self.tau) or self.tau < 0:
             raise InputError(f"tau must be a non-negative time in seconds, got {self.tau!r}")
+        for name in ("Tp", "Td", "tau"):  # the shared bound of every time (a week): 1e300 broke the root finders
+            if getattr(self, name) > MAX_TIME_S:
+                raise InputError(f"{name} = {getattr(self, name):g} s is longer than a week ({MAX_TIME_S:g} s); "
+                                 "give it in seconds")
         if not np.isfinite(self.K) or self.K == 0:
             raise InputError(f"K must be finite and non-zero, got {self.K!r}")
         unknown = set(self.known).union(r[0] for r in self.ranges) - set(_LOOP_PARAMETERS)

@@ -26,7 +26,7 @@ from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..mrft.model import LoopModel
 from .control import SWITCHING_RULES
-from .spec import TestSpec
+from .spec import TestSpec, check_flight_size
 
 __all__ = ["InnerGains", "CascadeSpec", "CascadeTestTruth", "CascadeTruth", "CASCADE_AXES", "COMMANDED",
            "STANDARD_GRAVITY", "CASCADE_TRUTH_SCHEMA"]
@@ -166,6 +166,8 @@ class CascadeSpec:
                 raise InputError(f"{name} must be a non-negative time in seconds, got {value!r}")
         if not (self.inner_tests or self.outer_tests):
             raise InputError("give at least one MRFT test (inner or outer)")
+        tests = (*self.inner_tests, *self.outer_tests)
+        check_flight_size(self.hover_s + sum(t.duration + self.hold_s for t in tests), self.gains.rate_hz)
 
     @property
     def inner_loop(self) -> str:

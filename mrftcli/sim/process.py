@@ -35,7 +35,7 @@ from .cascade_spec import InnerGains
 from .control import SWITCHING_RULES, HearMrftRelay, MrftRelay, make_relay
 from .plant import taylor_expm
 from .sidecar import sidecar_path, write_log_atomic
-from .spec import TestSpec
+from .spec import TestSpec, check_flight_size
 
 __all__ = ["ProcessSpec", "ProcessTruth", "ProcessFlight", "simulate_process", "write_process", "process_hold",
            "plan_process_test", "PROCESS_TRUTH_SCHEMA"]
@@ -99,6 +99,7 @@ class ProcessSpec:
                 raise InputError(f"test {i}: the relay height h must be positive, got {test.h!r}")
             if not (math.isfinite(test.duration) and test.duration * self.rate_hz >= 2):
                 raise InputError(f"test {i}: the duration must cover at least two controller periods")
+        check_flight_size(self.hover_s + sum(t.duration + self.hold_s for t in self.tests), self.rate_hz)
 
 
 @dataclass(frozen=True)

@@ -14,10 +14,12 @@ import numpy as np
 from ..errors import InputError
 from ..io.logtypes import LOOPS
 from ..mrft.model import LoopModel
-from ..validate import check_beta
+from ..validate import check_beta, check_rate
 from .control import SWITCHING_RULES
 
 __all__ = [
+    "check_flight_size",
+    "MAX_SIM_TICKS",
     "Effects",
     "TestSpec",
     "FlightSpec",
@@ -194,6 +196,22 @@ def default_setpoint(loop: str) -> float:
 # validation
 
 
+#: most controller ticks one simulated flight may have: 10 M (14 h at 200 Hz, 100 s at 100 kHz), a few
+#: hundred MB of arrays; a 1e6 s test or a 1e7 Hz rate asked for 3.2 GB (issue 35)
+MAX_SIM_TICKS = 10_000_000
+
+
+def check_flight_size(duration_s: float, rate_hz: float) -> None:
+    """Refuse a simulated flight of more than :data:`MAX_SIM_TICKS` controller ticks (one-line InputError),
+    and a rate above the 100 kHz the readers accept, before any array is allocated."""
+    check_rate("the controller rate (--controller-rate)", rate_hz)
+    ticks = duration_s * rate_hz
+    if not math.isfinite(ticks) or ticks > MAX_SIM_TICKS:
+        raise InputError(f"the flight would be {duration_s:.4g} s at {rate_hz:g} Hz, {ticks:.3g} controller ticks, "
+                         f"more than the {MAX_SIM_TICKS:.0e} simulated at once; give shorter tests (DURATION) or a "
+                         "lower --controller-rate")
+
+
 def validate_spec(spec: FlightSpec) -> None:
     """Check everything :func:`~mrftcli.sim.flight.simulate_flight` needs of ``spec``.
 
@@ -232,6 +250,7 @@ def _check_tests(spec: FlightSpec) -> None:
             raise InputError(f"test {i}: the relay height h must be positive, got {test.h!r}")
         if not (math.isfinite(test.duration) and test.duration * spec.rate_hz >= 2):
             raise InputError(f"test {i}: the duration must cover at least two controller periods, got {test.duration!r} s")
+    check_flight_size(spec.hover_s + sum(t.duration + spec.hold_s for t in spec.tests), spec.rate_hz)
 
 
 def _check_switching(spec: FlightSpec) -> None:

@@ -12,15 +12,96 @@ Examples
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from collections.abc import Collection, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .errors import InputError
 
-__all__ = ["to_jsonable", "check_schema_version"]
+__all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_json_file", "load_toml_text", "MAX_JSON_DEPTH",
+           "json_depth"]
+
+
+#: deepest nesting of objects and arrays a JSON (or TOML) file the tool reads may have; the records
+#: nest a dozen levels, and Python's parsers recurse (a file nested 100,000 deep would exhaust the stack)
+MAX_JSON_DEPTH = 64
+
+#: a JSON string (brackets inside strings do not nest)
+_JSON_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"')
+
+
+def json_depth(text: str) -> int:
+    """The deepest nesting of ``[``/``{`` in JSON ``text`` (brackets in strings not counted), in one
+    vectorised pass: the check runs before the parser, whose recursion a deep file would exhaust.
+
+    Examples
+    --------
+    >>> json_depth('{"a": [[1, "]]]"], {}]}')
+    3
+    """
+    import numpy as np
+
+    codes = np.frombuffer(_JSON_STRING.sub('""', text).encode("utf-8", "replace"), dtype=np.uint8)
+    if not codes.size:
+        return 0
+    steps = ((codes == ord("[")) | (codes == ord("{"))).astype(np.int32)
+    steps -= ((codes == ord("]")) | (codes == ord("}"))).astype(np.int32)
+    return int(np.cumsum(steps).max())
+
+
+def load_json_text(text: str, what: str) -> Any:
+    """The parsed JSON ``text``; one-line :class:`~mrftcli.errors.InputError` naming ``what`` when it is
+    not JSON or is nested deeper than :data:`MAX_JSON_DEPTH` (the one JSON reader of the tool's inputs).
+
+    Examples
+    --------
+    >>> load_json_text('{"a": [1, 2]}', "demo")
+    {'a': [1, 2]}
+    >>> load_json_text("[" * 100000, "demo")
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: demo: JSON nested 100000 deep, more than the 64 levels any file mrft-ident reads has; is it the right file?
+    """
+    depth = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise InputError(f"{what}: JSON nested {depth} deep, more than the {MAX_JSON_DEPTH} levels any file "
+                         "mrft-ident reads has; is it the right file?")
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise InputError(f"{what}: JSON nested too deep to read") from None
+    except ValueError as err:
+        raise InputError(f"{what}: not valid JSON ({str(err).splitlines()[0]})") from None
+
+
+def load_json_file(path: str | Path, what: str | None = None) -> Any:
+    """The parsed JSON file at ``path`` (:func:`load_json_text`); InputError when it cannot be read."""
+    what = what or str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"{what}: cannot read it ({getattr(err, 'strerror', None) or err})") from None
+    return load_json_text(text, what)
+
+
+def load_toml_text(text: str, what: str) -> Any:
+    """The parsed TOML ``text``; one-line InputError when it is not TOML or nests arrays or inline tables
+    deeper than :data:`MAX_JSON_DEPTH` (``tomllib`` recurses on them)."""
+    import tomllib
+
+    if json_depth(text) > MAX_JSON_DEPTH:  # TOML's arrays and inline tables use JSON's brackets
+        raise InputError(f"{what}: TOML nested more than {MAX_JSON_DEPTH} deep; is it the right file?")
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise InputError(f"{what}: TOML nested too deep to read") from None
+    except (ValueError, tomllib.TOMLDecodeError) as err:
+        raise InputError(f"{what}: not valid TOML ({str(err).splitlines()[0]})") from None
 
 
 def to_jsonable(obj: Any) -> Any:

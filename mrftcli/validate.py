@@ -23,12 +23,17 @@ import math
 
 from .errors import InputError
 
-__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "TP_RANGE", "TP_MISSING",
-           "check_rate", "check_spread", "MAX_TIME_S", "MAX_RATE_HZ"]
+__all__ = ["check_beta", "check_positive", "check_time", "check_tp", "check_parameter_value", "TP_RANGE", "TP_MISSING",
+           "PARAMETER_MAGNITUDE", "check_rate", "check_spread", "MAX_TIME_S",
+           "MAX_RATE_HZ"]
 
 #: Physical range of the propulsion time constant Tp [s]: a multirotor's motor and propeller respond in
 #: tens of milliseconds (the paper's 42.2 ms); 1 ms is below any rotor's inertia, 2 s is an airship.
 TP_RANGE = (1e-3, 2.0)
+
+#: The magnitudes a model parameter's value or range end may have (0 allowed): a physical quantity in SI
+#: units (s for times), far beyond any plant's and far from the floats' underflow and overflow.
+PARAMETER_MAGNITUDE = (1e-9, 1e9)
 
 #: Longest time any option or model parameter may be [s]: a week. A relay test, a delay, a time constant
 #: or a flight's time budget beyond it is a typo or hostile (1e300 s made root finders fail, 1e9 s plans
@@ -134,3 +139,20 @@ def check_tp(value: float) -> float:
         raise InputError(f"Tp = {v:g} s is outside the physical range {low:g}-{high:g} s of a propulsion time "
                          "constant (tens of ms for a multirotor); give it in seconds, e.g. 0.0422")
     return v
+
+
+def check_parameter_value(what: str, value: float) -> float:
+    """A model parameter's value or range end: finite, and 0 or of a magnitude within :data:`PARAMETER_MAGNITUDE`.
+
+    Examples
+    --------
+    >>> check_parameter_value("--param T", 1e-300)
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: --param T = 1e-300 is outside the physical range: give 0 or a magnitude from 1e-09 to 1e+09 (SI units, s for times)
+    """
+    low, high = PARAMETER_MAGNITUDE
+    if not (math.isfinite(value) and (value == 0 or low <= abs(value) <= high)):
+        raise InputError(f"{what} = {value:g} is outside the physical range: give 0 or a magnitude from {low:g} "
+                         f"to {high:g} (SI units, s for times)")
+    return value

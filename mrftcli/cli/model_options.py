@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import click
 
 from ..errors import InputError
+from ..validate import check_parameter_value
 
 if TYPE_CHECKING:
     from ..analyze.general import GeneralAnalysis
@@ -190,7 +191,7 @@ def parse_params(items: Sequence[str]) -> dict[str, float]:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
             raise InputError(f"--param {item!r}: expected NAME=VALUE, e.g. --param tau=0.05")
-        out[name.strip()] = _number(value, f"--param {name.strip()}")
+        out[name.strip()] = check_parameter_value(f"--param {name.strip()}", _number(value, f"--param {name.strip()}"))
     return out
 
 
@@ -202,7 +203,8 @@ def parse_ranges(items: Sequence[str]) -> dict[str, tuple[float, float]]:
         lo, sep2, hi = span.partition(":")
         if not (sep and sep2 and name.strip()):
             raise InputError(f"--range {item!r}: expected NAME=LO:HI, e.g. --range T=0.01:10")
-        out[name.strip()] = (_number(lo, f"--range {name}"), _number(hi, f"--range {name}"))
+        out[name.strip()] = (check_parameter_value(f"--range {name}", _number(lo, f"--range {name}")),
+                             check_parameter_value(f"--range {name}", _number(hi, f"--range {name}")))
     return out
 
 

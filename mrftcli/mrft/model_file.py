@@ -20,9 +20,11 @@ number or an expression of the parameters) and a delay::
     delay = "tau"
 
 A parameter with a ``value`` is known (set E); one with a ``range = [lo, hi]`` is identified within
-it (set I). The expression is parsed by sympy (never evaluated as Python), which also cancels common
-factors of numerator and denominator, so the realisation (``scipy.signal.tf2ss``, the controllable
-canonical form of the coprime pair) is minimal. python-control's own ``tf2ss``/``minreal`` would do
+it (set I). The text is parsed by :mod:`mrftcli.mrft.tf_parse` from Python's ``ast`` tree (only
+numbers, the parameters, s, arithmetic, whole-number powers and exp(-tau*s); nothing is evaluated, see
+docs/security.md); sympy, given the expression built from that tree, cancels common factors of
+numerator and denominator, so the realisation (``scipy.signal.tf2ss``, the controllable canonical
+form of the coprime pair) is minimal. python-control's own ``tf2ss``/``minreal`` would do
 the same but its import costs about 2 s at every CLI start; sympy's ``cancel`` is the library
 doing the algebra here, not hand-written code.
 
@@ -36,72 +38,86 @@ refused (a relay loop needs a strictly proper plant).
 from __future__ import annotations
 
 import dataclasses
-import json
+import keyword
 import math
-import re
-import tomllib
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
+from ..validate import PARAMETER_MAGNITUDE, check_parameter_value
+from ..jsonable import load_json_text, load_toml_text
 from .model import Parameter, StateSpace, UnitNormalisation, json_parameter_values, model_json, model_json_parameters
+from .tf_parse import MAX_ORDER, check_transfer_text, parse_transfer_function
 
 __all__ = ["DeclaredModel", "load_model_file", "parse_model_spec", "declared_model"]
 
-#: what a transfer-function text may hold: names, numbers, arithmetic, parentheses (nothing else
-#: reaches sympy's parser, which evaluates its input)
-_SAFE_TEXT = re.compile(r"^[A-Za-z0-9_+\-*/^(). \t]*$")
 #: functions a transfer function may use besides its parameters and s
 _FUNCTIONS = ("exp",)
 _DEFAULT_UNITS = {"K": "output / command", "tau": "s"}
+#: most parameters a model file may declare
+MAX_PARAMETERS = 32
+#: largest model file [bytes]
+MAX_MODEL_FILE = 1 << 20
+
+
+#: one monomial of an expanded polynomial: (power of s, coefficient, ((parameter index, power), ...))
+_Monomial = tuple[int, float, tuple[tuple[int, int], ...]]
 
 
 @dataclass(frozen=True)
 class _Compiled:
-    """The parsed structure: names in order, and numeric functions of the parameter values.
+    """The parsed structure: names in order, and the coefficients of the delay-free, K-free part R(s).
 
-    ``numerator`` and ``denominator`` give the coefficient arrays in s (highest power first) of the
-    delay-free, K-free part R(s); G(s) = K R(s) e^{-tau s}.
+    G(s) = K R(s) e^{-tau s}. R's numerator and denominator are expanded polynomials in s and the
+    parameters, stored as their monomials, so a coefficient array in s (highest power first) is a sum
+    of products of the parameter values: no expression is evaluated.
     """
 
     text: str
     names: tuple[str, ...]
-    numerator: Callable[..., Any]
-    denominator: Callable[..., Any]
+    numerator: tuple[_Monomial, ...]
+    denominator: tuple[_Monomial, ...]
     order: int
 
+    def coefficients(self, values: Sequence[float]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Numerator and denominator coefficients in s (highest power first) at the parameter ``values``."""
+        return _polynomial(self.numerator, values), _polynomial(self.denominator, values)
 
-def _check_text(text: str, what: str) -> str:
-    if not isinstance(text, str) or not text.strip():
-        raise InputError(f"model file: {what} must be a non-empty expression in s, e.g. \"K*exp(-tau*s)/(T*s + 1)\"")
-    if not _SAFE_TEXT.match(text) or "__" in text:
-        raise InputError(f"model file: {what} {text!r} may hold only names, numbers, + - * / ** ^ and parentheses")
-    return text.replace("^", "**")
+
+def _polynomial(monomials: tuple[_Monomial, ...], values: Sequence[float]) -> NDArray[np.float64]:
+    # a plain loop: a few dozen monomials, called at every frequency response (numpy's overhead dominates)
+    degree = max((k for k, _, _ in monomials), default=0)
+    out = [0.0] * (degree + 1)
+    for k, c, factors in monomials:
+        for j, e in factors:
+            c *= values[j] ** e
+        out[degree - k] += c
+    return np.array(out, dtype=float)
+
+
+def _monomials(poly: Any) -> tuple[_Monomial, ...]:
+    return tuple((int(m[0]), float(c), tuple((j, int(e)) for j, e in enumerate(m[1:]) if e))
+                 for m, c in poly.terms())
+
+
+def _check_text(text: Any, what: str) -> str:
+    return check_transfer_text(text, f"model file: {what}")
 
 
 @lru_cache(maxsize=64)
 def _compile(text: str, names: tuple[str, ...]) -> _Compiled:
-    """Parse ``text`` (a transfer function in s of ``names``) with sympy; cached per structure."""
+    """Parse ``text`` (a transfer function in s of ``names``) from its syntax tree; cached per structure."""
     # sympy ships no type information (no py.typed): its objects are Any here
     import sympy  # type: ignore[import-untyped]
-    from sympy.parsing.sympy_parser import parse_expr, standard_transformations  # type: ignore[import-untyped]
 
+    expr = parse_transfer_function(text, names, "model file: transfer_function")
     s = sympy.Symbol("s")
     symbols = {n: sympy.Symbol(n, real=True) for n in names}
-    local: dict[str, Any] = {"s": s, "exp": sympy.exp, **symbols}
-    unknown = sorted(set(re.findall(r"[A-Za-z_][A-Za-z0-9_]*", text)) - set(local))
-    if unknown:
-        raise InputError(f"model file: unknown symbol(s) {', '.join(unknown)} in {text!r}: declare each under "
-                         "[parameters] with a value (known) or a range (to identify); s and exp are built in")
-    try:
-        expr = parse_expr(text, local_dict=local, transformations=standard_transformations, evaluate=True)
-    except (SyntaxError, TypeError, ValueError, sympy.SympifyError) as err:
-        raise InputError(f"model file: cannot parse the transfer function {text!r} ({type(err).__name__})") from None
     unused = sorted(n for n in names if symbols[n] not in expr.free_symbols)
     if unused:
         raise InputError(f"model file: parameter(s) {', '.join(unused)} do not appear in {text!r}")
@@ -112,16 +128,18 @@ def _compile(text: str, names: tuple[str, ...]) -> _Compiled:
         if K in rational.free_symbols:
             raise InputError(f"model file: K must be a factor of the transfer function (the gain), in {text!r}")
     num, den = sympy.fraction(sympy.cancel(sympy.together(rational)))
+    shape = [symbols[n] for n in names]
     try:
-        pn, pd = sympy.Poly(num, s), sympy.Poly(den, s)
+        pn, pd = sympy.Poly(num, s, *shape), sympy.Poly(den, s, *shape)
     except sympy.PolynomialError:
         raise InputError(f"model file: {text!r} is not a rational function of s (times exp(-tau*s))") from None
-    if pd.degree() < 1 or pn.degree() >= pd.degree():
-        raise InputError(f"model file: {text!r} is not strictly proper (numerator degree {pn.degree()}, "
-                         f"denominator {pd.degree()}): a relay loop needs more poles than zeros")
-    shape = [symbols[n] for n in names]
-    return _Compiled(text, names, sympy.lambdify(shape, pn.all_coeffs(), "numpy"),
-                     sympy.lambdify(shape, pd.all_coeffs(), "numpy"), int(pd.degree()))
+    if not (pn.domain.is_Numerical and pd.domain.is_Numerical):
+        raise InputError(f"model file: {text!r} is not a rational function of s (times exp(-tau*s))")
+    num_order, den_order = pn.degree(s), pd.degree(s)
+    if den_order < 1 or num_order >= den_order:
+        raise InputError(f"model file: {text!r} is not strictly proper (numerator degree {num_order}, "
+                         f"denominator {den_order}): a relay loop needs more poles than zeros")
+    return _Compiled(text, names, _monomials(pn), _monomials(pd), int(den_order))
 
 
 def _without_delay(expr: Any, s: Any, tau: Any, text: str) -> Any:
@@ -131,9 +149,13 @@ def _without_delay(expr: Any, s: Any, tau: Any, text: str) -> Any:
     exps = list(expr.atoms(sympy.exp))
     if not exps:
         return expr
-    if tau is None or len(exps) != 1 or sympy.simplify(exps[0].args[0] + tau * s) != 0:
+    if tau is None or len(exps) != 1 or sympy.cancel(exps[0].args[0] + tau * s) != 0:
         raise InputError(f"model file: write the delay as one factor exp(-tau*s) with a parameter tau, in {text!r}")
     rational = expr.subs(exps[0], 1)
+    # a factor of the product as written (cheap); else the algebra says whether it factors out
+    factors = sympy.Mul.make_args(expr)
+    if exps[0] in factors and not any(f.has(sympy.exp) for f in factors if f != exps[0]):
+        return rational
     if sympy.simplify(expr - rational * exps[0]) != 0:
         raise InputError(f"model file: exp(-tau*s) must be a factor of the transfer function, in {text!r}")
     return rational
@@ -176,30 +198,31 @@ class DeclaredModel:
 
     def __post_init__(self) -> None:
         names = tuple(n for n, _ in self.values)
+        if len(names) > MAX_PARAMETERS:
+            raise InputError(f"model file: {len(names)} parameters, more than the {MAX_PARAMETERS} a model may have")
         for name, value in self.values:
-            if not math.isfinite(value):
-                raise InputError(f"model file: parameter {name} must be finite, got {value!r}")
+            if not (math.isfinite(value) and abs(value) <= PARAMETER_MAGNITUDE[1]):
+                raise InputError(f"model file: parameter {name} must be finite and at most "
+                                 f"{PARAMETER_MAGNITUDE[1]:g} in size, got {value!r}")
         values = dict(self.values)
         if values.get("K", 1.0) == 0:
             raise InputError("model file: K must be non-zero")
         if values.get("tau", 0.0) < 0:
             raise InputError(f"model file: tau must be a non-negative delay [s], got {values['tau']!r}")
-        _compile(_check_text(self.transfer_function, "transfer_function"),
-                 tuple(n for n in names if n not in ("K", "tau")) + tuple(n for n in ("K", "tau") if n in names))
+        _check_text(self.transfer_function, "transfer_function")
+        _ = self._compiled  # parsed (and refused) on creation: every reader of a model goes through here
 
     @property
     def _compiled(self) -> _Compiled:
         names = tuple(n for n, _ in self.values)
         shape = tuple(n for n in names if n not in ("K", "tau"))
-        return _compile(self.transfer_function.replace("^", "**"), shape + tuple(n for n in ("K", "tau") if n in names))
+        # the text is checked inside the cached parse: this runs at every frequency response
+        return _compile(self.transfer_function, shape + tuple(n for n in ("K", "tau") if n in names))
 
     def _coefficients(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         c = self._compiled
         values = dict(self.values)
-        args = [values[n] for n in c.names]
-        num = np.atleast_1d(np.asarray(c.numerator(*args), dtype=float))
-        den = np.atleast_1d(np.asarray(c.denominator(*args), dtype=float))
-        return num, den
+        return c.coefficients([values[n] for n in c.names])
 
     @property
     def parameters(self) -> dict[str, Parameter]:
@@ -295,7 +318,11 @@ def declared_model(transfer_function: str, known: Mapping[str, float] | None = N
     for name, (lo, hi) in ranges.items():
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
             raise InputError(f"model file: range of {name} must be finite with low < high, got [{lo}, {hi}]")
+        check_parameter_value(f"model file: range of {name}", lo)
+        check_parameter_value(f"model file: range of {name}", hi)
         values[name] = math.sqrt(lo * hi) if lo > 0 else (-math.sqrt(lo * hi) if hi < 0 else 0.5 * (lo + hi))
+    for name, value in known.items():
+        check_parameter_value(f"model file: parameter {name}", value)
     values.update({n: float(v) for n, v in known.items()})
     names = _declared_names(transfer_function, values)
     return DeclaredModel(transfer_function, tuple((n, values[n]) for n in names),
@@ -306,9 +333,13 @@ def declared_model(transfer_function: str, known: Mapping[str, float] | None = N
 def _declared_names(text: str, values: Mapping[str, float]) -> list[str]:
     """The parameter names in a stable order: K first, the shape parameters as given, tau last."""
     text = _check_text(text, "transfer_function")
+    if len(values) > MAX_PARAMETERS:
+        raise InputError(f"model file: {len(values)} parameters, more than the {MAX_PARAMETERS} a model may have")
     for name in values:
-        if not name.isidentifier() or name in ("s",) + _FUNCTIONS:
-            raise InputError(f"model file: {name!r} cannot name a parameter (s and exp are reserved)")
+        if (not name.isidentifier() or keyword.iskeyword(name) or len(name) > 64
+                or name in ("s",) + _FUNCTIONS):
+            raise InputError(f"model file: {name[:64]!r} cannot name a parameter (a name of letters, digits and _, "
+                             "not a Python keyword; s and exp are reserved)")
     return sorted(values, key=lambda n: (n != "K", n == "tau"))
 
 
@@ -324,7 +355,13 @@ def _spec_text(spec: Mapping[str, Any]) -> str:
         coeffs = spec[key]
         if not isinstance(coeffs, list) or not coeffs:
             raise InputError(f"model file: {key} must be a list of coefficients (numbers or expressions)")
-        terms = [f"({_check_text(str(c), key)})*s**{len(coeffs) - 1 - i}" for i, c in enumerate(coeffs)]
+        if len(coeffs) > MAX_ORDER + 1:
+            raise InputError(f"model file: {key} has {len(coeffs)} coefficients, a polynomial of order "
+                             f"{len(coeffs) - 1}, above the model order limit of {MAX_ORDER}")
+        for i, c in enumerate(coeffs):
+            if isinstance(c, bool) or not isinstance(c, (str, int, float)):
+                raise InputError(f"model file: {key}[{i}] must be a number or an expression in the parameters")
+        terms = [f"({_check_text(str(c), f'{key}[{i}]')})*s**{len(coeffs) - 1 - i}" for i, c in enumerate(coeffs)]
         return " + ".join(terms)
 
     text = f"({poly('numerator')})/({poly('denominator')})"
@@ -382,14 +419,15 @@ def load_model_file(path: str | Path) -> DeclaredModel:
     """
     p = Path(path)
     try:
-        text = p.read_text()
-    except OSError as err:
-        raise InputError(f"--model-file {path}: cannot read it ({err.strerror or err})") from None
-    try:
-        spec = json.loads(text) if p.suffix.lower() == ".json" else tomllib.loads(text)
-    except (ValueError, tomllib.TOMLDecodeError) as err:
-        kind = "JSON" if p.suffix.lower() == ".json" else "TOML"
-        raise InputError(f"--model-file {path}: not valid {kind} ({str(err).splitlines()[0]})") from None
+        size = p.stat().st_size
+        if size > MAX_MODEL_FILE:
+            raise InputError(f"--model-file {path}: {size} bytes, more than the {MAX_MODEL_FILE} a model file "
+                             "may have (a transfer function and its parameters)")
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"--model-file {path}: cannot read it ({getattr(err, 'strerror', None) or err})") from None
+    what = f"--model-file {path}"
+    spec = load_json_text(text, what) if p.suffix.lower() == ".json" else load_toml_text(text, what)
     try:
         return parse_model_spec(spec)
     except InputError as err:

@@ -68,6 +68,12 @@ _SE_FLOOR = (5e-3, 5e-3)
 #: average down over the tests as the points' scatter does
 _PARAM_FLOOR = 5e-3
 _GRID = np.geomspace(1e-2, 1e2, 33)
+#: 95 % point of the chi-square distribution with one degree of freedom (the profile's rise)
+_CHI2_95 = 3.841458820694124
+#: a positive parameter is determined when its 95 % interval is within this log width: a factor
+#: 1.25 either way. Issue 38: a factor e^2 called K 10.2 [7.2, 14.5] determined where one relay
+#: setting saw only K/T1 (the truth 32); a user acts on a parameter pinned to +-25 %, not to 2x.
+_DETERMINED_LOG_WIDTH = 2 * math.log(1.25)
 #: :attr:`ResponsePoint.harmonic` of a static-gain point
 STATIC_HARMONIC = 0
 #: a static-gain point's frequency, relative to the lowest test frequency
@@ -555,7 +561,11 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     chi2_dof = float(r @ r) / dof if dof > 0 else None
     inflate = max(1.0, chi2_dof or 1.0)
     cov = _pinv_psd(J.T @ J) * inflate
-    out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, _null_parameters(problem, J))
+    flat = _null_parameters(problem, J)
+    profiled = None
+    if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
+        profiled = _profile_ends(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, cov, flat)
+    out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, flat, profiled)
     if len(out.undetermined) >= 2:
         log_names = [n for n in problem.unknown if n in problem.log_scaled]
         keep = [problem.unknown.index(n) for n in log_names]
@@ -611,8 +621,8 @@ def _residuals_batch(problem: _Problem, Z: FloatArray) -> FloatArray:
     return out
 
 
-def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray,
-                         hi: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray,
+                         fixed: int | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The weighted least-squares fit from the grid's start: (z, residuals, Jacobian) at the solution.
 
     Hand-written where ``scipy.optimize.least_squares`` (trf) was 90 % of a call: from the grid's start
@@ -620,7 +630,8 @@ def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray,
     is a 2-4 unknown linear solve (bounds by projection: the set I's edges). The residuals and the
     Jacobian are the built-in families' closed forms (:class:`~mrftcli.mrft.lti_kernel.LagChainKernel`)
     or, for another structure with a response grid, :func:`_residuals_batch` and its forward
-    differences. Same minimum (the tests compare).
+    differences. Same minimum (the tests compare). ``fixed``: the index of an unknown held at its
+    value in ``z`` (its Jacobian column zeroed: the profile of :func:`_profile_ends`).
     """
     kernel = problem.kernel
 
@@ -629,11 +640,16 @@ def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray,
         return kernel.evaluate(z) if kernel is not None else (_residuals_batch(problem, z[None, :])[0], None)
 
     def jacobian(z: FloatArray, r: FloatArray, J: FloatArray | None) -> FloatArray:
+        if J is not None and fixed is not None:
+            J = J.copy()
+            J[:, fixed] = 0.0
         if J is not None:
             return J
         h = 1e-7 * np.maximum(1.0, np.abs(z))
         h = np.where(z + h > hi, -h, h)  # stay inside the range at its upper edge
         J_fd: FloatArray = ((_residuals_batch(problem, z + np.diag(h)) - r) / h[:, None]).T
+        if fixed is not None:
+            J_fd[:, fixed] = 0.0
         return J_fd
 
     def largest(x: NDArray[np.floating[Any]]) -> float:  # max |x| of a 2-4 vector (np.max's overhead was a tenth of a step)
@@ -700,9 +716,53 @@ def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
     return flat
 
 
+def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, cost0: float, delta: float,
+                  cov: FloatArray, flat: set[str]) -> dict[int, tuple[float, float]]:
+    """Each unknown's 95 % profile-likelihood interval [in z], where it reaches past the linear one.
+
+    The Gauss-Newton interval is exact for a fit that is linear in the parameters; one relay setting
+    sees a slow plant's K and T1 only through the slope at its frequency, where the cost is a curved
+    valley and the linear interval can sit on one side of the truth. So the cost is profiled (the
+    other unknowns refitted with this one held) at the linear interval's ends and beyond, doubling
+    the step until it rises by ``delta`` (chi-square 95 %, one degree of freedom, times the misfit's
+    inflation) or reaches the range's bound; the end is interpolated on sqrt(rise). A lower cost
+    found on the way (a second minimum) is walked past the same way.
+    """
+    out = {}
+    for i, name in enumerate(problem.unknown):
+        if name in flat:
+            continue
+        half = _Z95 * max(math.sqrt(max(cov[i, i], 0.0)), 1e-9 * (1 + abs(z[i])))
+        ends = []
+        for sign in (-1.0, 1.0):
+            bound = lo[i] if sign < 0 else hi[i]
+            prev_x, prev_rise, end = z[i], 0.0, None
+            start = z.copy()
+            for mult in (1.0, 2.0, 4.0, 8.0):
+                x = z[i] + sign * mult * half
+                at_bound = (x - bound) * sign >= 0
+                x = bound if at_bound else x
+                start[i] = x
+                zf, r, _ = _levenberg_marquardt(problem, start, lo, hi, fixed=i)
+                rise = float(r @ r) - cost0
+                if rise >= delta:
+                    frac = (math.sqrt(delta) - math.sqrt(max(prev_rise, 0.0))) / \
+                        (math.sqrt(rise) - math.sqrt(max(prev_rise, 0.0)))
+                    end = prev_x + frac * (x - prev_x)
+                    break
+                if at_bound:
+                    end = bound
+                    break
+                prev_x, prev_rise, start = x, rise, zf.copy()
+            ends.append(z[i] + sign * 16 * half if end is None else end)
+        out[i] = (ends[0], ends[1])
+    return out
+
+
 def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_dof: float | None,
             points: Sequence[ResponsePoint], z: FloatArray | None = None, lo: FloatArray | None = None,
-            hi: FloatArray | None = None, flat: set[str] | None = None) -> LtiIdentification:
+            hi: FloatArray | None = None, flat: set[str] | None = None,
+            profiled: Mapping[int, tuple[float, float]] | None = None) -> LtiIdentification:
     """Estimates with their intervals and the determinability verdict."""
     model = problem.model.with_parameters(**values) if values else problem.model
     d = problem.data
@@ -717,13 +777,15 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         s = float(math.sqrt(max(cov[i, i], 0.0)))
         s = max(s, _PARAM_FLOOR / w_ref if name == "tau" else (_PARAM_FLOOR if name in problem.log_scaled else 0.0))
         a, b = z[i] - _Z95 * s, z[i] + _Z95 * s
+        if profiled and i in profiled:  # the profile's ends where they reach further (never narrower)
+            a, b = min(a, profiled[i][0]), max(b, profiled[i][1])
         side = "low" if a <= lo[i] else ("high" if b >= hi[i] else "")
         a, b = max(a, lo[i]), min(b, hi[i])
         if name in problem.log_scaled:
             sign = problem.k_sign if name == "K" else 1.0
             ends = sorted([sign * math.exp(a), sign * math.exp(b)])
             std = abs(p.value) * s
-            determined = bool(b - a < 2.0)  # the interval within a factor e^2
+            determined = bool(b - a < _DETERMINED_LOG_WIDTH)
         else:
             ends = [a, b]
             std = s

@@ -38,7 +38,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_logs"
-STACKS = ("px4", "ardupilot", "hear")
+STACKS = ("px4", "ardupilot", "ardupilot-4.6", "hear")
 HOVER = 0.5
 
 
@@ -83,8 +83,16 @@ def _one(path: Path) -> list[dict]:
     if loop in ("roll", "pitch") and a.controller_rate_hz:
         res0 = tune(a.model, a.controller_rate_hz, posterior=post, options=DesignOptions(kinds=("PD",)), loop=loop)
         base = _baseline(res0, a.model, loop)
-    for stack in STACKS:
-        row: dict = {"log": path.name, "stack": stack, "loop": loop}
+    import numpy as np
+
+    draws = post.models(np.flatnonzero(post.in_set())) if post is not None else []
+    for name_ in STACKS:
+        stack, version = (name_.split("-") + [None])[:2] if name_.startswith("ardupilot") else (name_, None)
+        if stack == "ardupilot" and version is None:
+            version = "4.7"
+        row: dict = {"log": path.name, "stack": name_, "loop": loop}
+        if name_ == "ardupilot-4.6" and loop != "altitude":
+            continue  # roll/pitch names are the same in both versions
         try:
             check_exportable(stack, loop, "PD", HOVER)
             st = stack_setting(stack, loop, None, a.controller_rate_hz, None)
@@ -95,16 +103,24 @@ def _one(path: Path) -> list[dict]:
             amps = [float(t.amplitude_mean) for t in a.tests]
             c = res.get(name, "PD").controller
             try:
-                e = export_design(stack, c, a.model, loop, name, hover_thrust=HOVER, heights=heights, amplitudes=amps)
-                row["outcome"] = "in range" if not e.clamped else "minimum I set"
+                e = export_design(stack, c, a.model, loop, name, hover_thrust=HOVER, heights=heights, amplitudes=amps,
+                                  version=version, posterior_models=draws)
+                inside = any("designed inside it" in n for n in e.notes)
+                row["outcome"] = ("designed inside the ranges" if inside else "in range" if not e.clamped
+                                  else "minimum I set")
             except MrftError:
                 e = export_design(stack, c, a.model, loop, name, clamp=True, hover_thrust=HOVER, heights=heights,
-                                  amplitudes=amps)
+                                  amplitudes=amps, version=version, posterior_models=draws)
                 row["outcome"] = "clamped (refused without --clamp)"
             row.update(Ms=e.margins.Ms, GM=e.margins.gain_margin, rate=st.rate_hz,
-                       clamped=[n for n, _, _ in e.clamped])
+                       clamped=[n for n, _, _ in e.clamped], prearm=list(e.prearm))
+            cost = next((n for n in e.notes if "its cost: IAE" in n), "")
+            if cost:
+                row["cost"] = cost.split("its cost: ")[1]
             if stack == "ardupilot" and loop == "altitude":
                 row.update(_z_cascade_row(e, post, st.rate_hz))
+                if row.get("post_Ms", 0) > row["Ms"]:
+                    row["Ms"] = row["post_Ms"]  # the worst of what is written, over every draw checked
         except MrftError as err:
             row["outcome"] = f"refused: {err}"
         if stack == "px4" and base is not None:
@@ -119,12 +135,25 @@ def _z_cascade_row(e, post, rate: float) -> dict:
 
     from mrftcli.tune.ardupilot_z import ZCascadeGains, cascade_figures, split_grid
 
-    g = ZCascadeGains.from_params(e.params, rate)
+    from mrftcli.tune.ardupilot_versions import to_46_units
+
+    g = ZCascadeGains.from_params(to_46_units(e.params), rate)
     idx = np.flatnonzero(post.in_set())
     idx = idx[np.linspace(0, idx.size - 1, min(20, idx.size)).astype(int)] if idx.size else idx
     worst = max((cascade_figures(g, [m], split_grid(m.tau)).worst().Ms for m in post.models(idx)), default=math.nan)
     kept = next((n for n in e.notes if n.startswith("the cascade keeps")), "")
-    return {"acc_p": g.acc_p, "kept": kept.split(" ")[3] if kept else "-", "post_Ms": worst}
+    return {"acc_p": g.acc_p, "acc_i": g.acc_i, "kept": kept.split(" ")[3] if kept else "-", "post_Ms": worst}
+
+
+def _prearm_table(rows: list[dict]) -> None:
+    """Per pre-arm rule: its source line and how many written files pass it."""
+    table: dict[tuple[str, str], list[bool]] = {}
+    for r in rows:
+        for c in r.get("prearm", []):
+            table.setdefault((c["rule"], c["source"]), []).append(bool(c["passed"]))
+    print(f"\n{'pre-arm rule':<22}{'pass':>8}  source")
+    for (rule, src), ok in table.items():
+        print(f"{rule:<22}{sum(ok):>4}/{len(ok):<3}  {src}")
 
 
 def _cell(r: dict, key: str, fmt: str) -> str:
@@ -143,8 +172,10 @@ def main() -> None:
         line = (f"{r['log']:<34}{r['stack']:<10}{_cell(r, 'rate', '.0f'):>6}{_cell(r, 'Ms', '.2f'):>6}"
                 f"{_cell(r, 'GM', '.2f'):>6}  {r['outcome'][:90]}")
         if "post_Ms" in r:
-            line += (f" | PSC_ACCZ_P {r['acc_p']:g}, keeps {r['kept']} % of the PD, Ms over the 95 % set x splits "
-                     f"{r['post_Ms']:.2f}")
+            line += (f" | ACCZ_P {r['acc_p']:g} I {r['acc_i']:.3g} (4.6 units), keeps {r['kept']} %, Ms over 20 draws "
+                     f"x splits {r['post_Ms']:.2f}")
+        if "cost" in r:
+            line += f" | cost {r['cost']}"
         if "base_Ms_flown" in r:
             line += (f" | {r['base_Ms_claimed']:.2f} / {r['base_Ms_flown']:.2f}, {r['base_GM_flown']:.2f}, "
                      f"{r['base_out_of_range']}")
@@ -155,6 +186,12 @@ def main() -> None:
     base = [r for r in rows if "base_Ms_flown" in r]
     print(f"\nexports: {len(rows)}; written {len(done)} (clamped {sum('clamped' in r['outcome'] for r in done)}); "
           f"refused {len(refused)}; Ms above 1.6 with the stack's filter: {len(over)}")
+    _prearm_table(rows)
+    for name_ in STACKS:
+        w = [r for r in done if r["stack"] == name_]
+        if w:
+            print(f"{name_}: {len(w)} written, worst Ms {max(r['Ms'] for r in w):.2f}, worst GM "
+                  f"{min(r['GM'] for r in w):.2f}")
     z = [r for r in rows if "post_Ms" in r]
     if z:
         print(f"ArduPilot altitude ({len(z)} logs): written {len(z)}, Ms (worst split, nominal) "

@@ -209,9 +209,10 @@ def test_every_sample_export_is_in_range_with_its_margins(stack, loop, model, ra
     w = np.geomspace(1e-3, 0.999, 3000) * math.pi * st.rate_hz
     if stack == "ardupilot" and loop == "altitude":  # the cascade's design searches: its model-based PD only
         d = res.get("model-based", "PD")
-        e = export_design(stack, d.controller, model, loop, d.name, clamp=True, hover_thrust=HOVER)
+        e = export_design(stack, d.controller, model, loop, d.name, clamp=True, hover_thrust=HOVER, version="4.6")
         rows = {p.name: p for p in STACK_PARAMS if p.stack == stack}
         assert set(e.params) <= set(rows) and not check_ranges(stack, e.params), e.params
+        assert e.prearm and all(r["passed"] for r in e.prearm)
         assert e.assumptions and "every split" in e.assumptions[0]
         ms, gm = _ardupilot_z_worst(e.params, model, st.rate_hz, np.geomspace(1e-3, 0.999, 1200) * math.pi * st.rate_hz)
         assert e.margins.Ms == pytest.approx(ms, rel=5e-3) and e.margins.gain_margin == pytest.approx(gm, rel=1e-2)
@@ -220,13 +221,16 @@ def test_every_sample_export_is_in_range_with_its_margins(stack, loop, model, ra
         try:
             export_design(stack, d.controller, model, loop, d.name, hover_thrust=HOVER)
         except InputError as err:  # refused: it names a parameter outside its range
-            assert "is above the maximum" in str(err) or "is below the minimum" in str(err), err
+            assert ("is above the maximum" in str(err) or "is below the minimum" in str(err)
+                    or "keeps Ms" in str(err)), err
         e = export_design(stack, d.controller, model, loop, d.name, clamp=True, hover_thrust=HOVER)
         if stack != "hear":
             rows = {p.name: p for p in STACK_PARAMS if p.stack == stack}
             assert set(e.params) <= set(rows), set(e.params) - set(rows)
             assert not check_ranges(stack, e.params)
-        ms, gm = _ms_gm(_loop_from_params(stack, loop, e.params, model, st.rate_hz, cutoff, w))
+        # HEAR z: gains converted to HEAR's acceleration command (x K) fly a plant of K = 1 (issue 37)
+        flown = LoopModel(model.Tp, model.Td, model.tau, 1.0) if e.assumptions and stack == "hear" else model
+        ms, gm = _ms_gm(_loop_from_params(stack, loop, e.params, flown, st.rate_hz, cutoff, w))
         assert e.margins.Ms == pytest.approx(ms, rel=5e-3), (d.name, e.params)
         if math.isfinite(gm):
             assert e.margins.gain_margin == pytest.approx(gm, rel=1e-2), (d.name, e.params)
@@ -236,8 +240,10 @@ def test_every_sample_export_is_in_range_with_its_margins(stack, loop, model, ra
 
 def test_px4_mrft_rule_out_of_range_is_refused_then_clamped_with_margins():
     m = LoopModel(0.0499, 0.887, 0.0228, 20.0)  # design2_roll's truth
-    st = stack_setting("px4", "roll", None, 200.0, None)
+    st = stack_setting("px4", "roll", 250.0, 200.0, None)  # the vehicle's IMU_GYRO_RATEMAX given
     assert st.rate_hz == 250.0 and st.rate_filter is not None and st.rate_filter.cutoff_hz == 40.0
+    # without it, PX4's default 400 Hz, never the log's rate (issue 37)
+    assert stack_setting("px4", "roll", None, 200.0, None).rate_hz == 400.0
     res = tune(m, st.rate_hz, loop="roll",
                options=DesignOptions(kinds=("PD",), designs=("mrft-rule",), rate_filter=st.rate_filter))
     c = res.designs[0].controller
@@ -276,8 +282,8 @@ def test_px4_params_file_is_qgroundcontrols_format():
     rows = [ln.split("\t") for ln in e.file_text().splitlines() if not ln.startswith("#")]
     assert all(len(r) == 5 and r[:2] == ["1", "1"] for r in rows)
     values = {r[2]: float(r[3]) for r in rows}
-    assert values["MC_ROLL_P"] == pytest.approx(0.9 / 0.25) and values["IMU_GYRO_RATEMAX"] == 250
-    assert {r[2]: r[4] for r in rows}["IMU_GYRO_RATEMAX"] == "6"
+    assert values["MC_ROLL_P"] == pytest.approx(0.9 / 0.25)
+    assert "IMU_GYRO_RATEMAX" not in values  # vehicle-wide and reboot_required: never written (issue 37)
     assert "param set MC_ROLLRATE_P 0.25" in e.console_lines()
 
 

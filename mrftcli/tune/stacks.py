@@ -42,6 +42,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
+import numpy as np
+
 from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
@@ -58,6 +60,14 @@ EXPORTS = ("generic", "px4", "ardupilot", "hear")
 STANDARD_GRAVITY = 9.80665
 #: HEAR_FC's rate filter: 2nd-order Butterworth at 50 Hz, run at 200 Hz (tracker issue 25, InnerSysNodelet.cpp).
 HEAR_FILTER_HZ, HEAR_RATE_HZ = 50.0, 200.0
+#: HEAR_FC's outer loops (x, y, z; oussamaabdulhay/HEAR_FC Flight_controller/HEAR_nodelet/OuterSysNodelet.cpp
+#: @11421487): the velocity through ``BWFilter2`` with ``coeff_120Hz_2nd_butter_5hz``, whose coefficients
+#: (a1 -1.27963, a2 0.477592, b 0.04949, 0.09898, 0.04949) are a 2nd-order Butterworth at 1/12 of the sampling
+#: rate (scipy.signal.butter(2, 1/6): 10 Hz at 120 Hz, despite the name), run at ``FREQUENCY`` 200 Hz
+#: (OuterSysNodelet.h @3a375019): 16.7 Hz. The z command is an acceleration [m/s^2]: PID + ``BIAS_Z_VALUE`` 9.8,
+#: saturated at ``SAT_Z_VALUE`` 22.
+HEAR_OUTER_CUTOFF_RATIO, HEAR_OUTER_RATE_HZ, HEAR_Z_BIAS, HEAR_Z_SAT = 1.0 / 12.0, 200.0, 9.8, 22.0
+_HEAR_OUTER = ("x", "y", "altitude")
 #: Version of :meth:`StackExport.to_json`'s object.
 EXPORT_SCHEMA_VERSION = 1
 #: Integral gains a PD leaves at 0 but the stack requires above a minimum: set to it (not a refusal).
@@ -156,6 +166,13 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
         if rate is None:
             raise InputError("give --rate HZ, the rate the controller runs at")
         return StackSetting(stack, rate, None, ())
+    if stack == "hear" and loop in _HEAR_OUTER:
+        rate = rate_given or HEAR_OUTER_RATE_HZ
+        cut = HEAR_OUTER_CUTOFF_RATIO * rate
+        notes = (f"HEAR_FC's outer loops (OuterSysNodelet) filter the velocity with BWFilter2 coeff_120Hz_2nd_butter_5hz, "
+                 f"a 2nd-order Butterworth at 1/12 of the loop rate: {cut:.3g} Hz at {rate:g} Hz; designed with it"
+                 + ("" if rate_given else " (HEAR_FC's outer-loop FREQUENCY; --controller-rate to change)"),)
+        return StackSetting(stack, rate, RateFilter(cut, "HEAR_FC outer velocity filter"), notes)
     if stack == "hear":
         rate = rate_given or HEAR_RATE_HZ
         notes = (f"HEAR_FC filters the rate with a 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz; designed with it "
@@ -287,7 +304,10 @@ def _hear_object(e: StackExport) -> dict[str, Any]:
                     "Gain(-1) block); kd is positive",
             "ros_msg_PID_param": {("id" if k == "id" else f"pid_{k}"): (int(v) if k in ("id", "en_pv_derivation")
                                                                       else v) for k, v in p.items()},
-            "rate_filter": f"HEAR_FC's 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz (designed with it)"}
+            "rate_filter": (f"HEAR_FC's outer-loop velocity filter, a 2nd-order Butterworth at {1.0 / (12 * p['dt']):.3g} Hz "
+                            "(BWFilter2 coeff_120Hz_2nd_butter_5hz at the loop rate; designed with it)"
+                            if e.loop in _HEAR_OUTER else
+                            f"HEAR_FC's 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz (designed with it)")}
 
 
 def _cascade(c: Controller, loop: str, stack: str, hover_thrust: float | None) -> dict[str, float]:
@@ -368,11 +388,7 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
             raise InputError(f"cannot export to {stack}: " + "; ".join(why))
     out_notes = list(notes)
     if stack == "hear":
-        from .export import HEAR_PID_ID
-
-        params = {"id": float(HEAR_PID_ID.get(loop, -1)), "kp": c.Kp, "ki": c.Ki, "kd": c.Kd, "kdd": 0.0,
-                  "anti_windup": 0.0, "en_pv_derivation": 1.0, "dt": c.Ts}
-        return StackExport(stack, loop, design, params, (), loop_margins(c, [model])[0], tuple(out_notes))
+        return _hear_export(c, model, loop, design, out_notes)
     if stack == "generic":
         params = {"Kp": c.Kp, "Ki": c.Ki, "Kd": c.Kd, "Tf": c.Tf, "rate_hz": c.rate_hz}
         return StackExport(stack, loop, design, params, (), loop_margins(c, [model])[0], tuple(out_notes))
@@ -381,11 +397,86 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         e = _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes, check_version(version),
                                 posterior_models)
         return _with_prearm(e)
+    if stack == "px4" and loop == "altitude" and not clamp:
+        assert hover_thrust is not None
+        c = _px4_z_inside(c, model, hover_thrust, posterior_models, out_notes)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
     if stack == "ardupilot":
         e = replace(e, version=check_version(version))
         return _with_prearm(e)
     return _with_reboot_note(e)
+
+
+def _px4_z_inside(c: Controller, model: LoopModel, hover: float, posterior: Sequence[LoopModel],
+                  notes: list[str]) -> Controller:
+    """PX4 altitude with ``MPC_Z_P`` and ``MPC_Z_VEL_P_ACC`` as constraints of the design: ``c`` when its values are
+    in range; else the PD with ``MPC_Z_P`` at the bound and the ``MPC_Z_VEL_P_ACC`` (in its range) of least IAE
+    whose loop, with PX4's minimum ``MPC_Z_VEL_I_ACC``, keeps Ms at most ``c``'s own worst over the nominal model
+    and the posterior's 95 % set (``c`` is robust there); the cost in IAE is said in ``notes``."""
+    from .closed_loop import criterion, step_response
+
+    rz, rv = param("px4", "MPC_Z_P"), param("px4", "MPC_Z_VEL_P_ACC")
+    pz = c.Kp / c.Kd
+    if rz.contains(pz) and rv.contains(c.Kd * STANDARD_GRAVITY / hover):
+        return c
+    iv = param("px4", "MPC_Z_VEL_I_ACC").minimum
+    models = [model, *posterior[:: max(1, len(posterior) // 40)]]
+
+    def loop_of(pz_: float, pv: float) -> Controller:
+        return _loop_controller({"MPC_Z_P": pz_, "MPC_Z_VEL_P_ACC": pv, "MPC_Z_VEL_I_ACC": iv}, c, "altitude", "px4",
+                                hover)
+
+    def iae(ctrl: Controller) -> float:
+        t, y, _ = step_response([model], ctrl, 20.0)
+        return float(criterion(t, y)[0])
+
+    limit = float(np.max(loop_margins(loop_of(pz, c.Kd * STANDARD_GRAVITY / hover), models).Ms))
+    limit = max(limit, float(np.max(loop_margins(c, models).Ms)))
+    pz_in = rz.clamp(pz)
+    best: tuple[float, float] | None = None
+    for pv in np.geomspace(rv.minimum, rv.maximum, 48):
+        lm = loop_margins(loop_of(pz_in, float(pv)), models)
+        if bool(np.all(lm.stable)) and float(np.max(lm.Ms)) <= limit:
+            j = iae(loop_of(pz_in, float(pv)))
+            if best is None or j < best[1]:
+                best = (float(pv), j)
+    if best is None:
+        raise InputError(f"cannot export to px4: no MPC_Z_VEL_P_ACC in {rv.minimum:g}-{rv.maximum:g} keeps Ms <= "
+                         f"{limit:.3g} with MPC_Z_P at its bound {pz_in:g} (the design wants {pz:.4g}); --clamp "
+                         "exports the design clamped, with its margins")
+    pv, j = best
+    j0 = iae(loop_of(pz, c.Kd * STANDARD_GRAVITY / hover))
+    notes.append(f"MPC_Z_P {pz:.4g} is outside PX4's range {rz.minimum:g}-{rz.maximum:g}: designed inside it "
+                 f"(MPC_Z_P {pz_in:g}, MPC_Z_VEL_P_ACC {pv:.4g} of {rv.minimum:g}-{rv.maximum:g}, the least IAE with Ms "
+                 f"<= {limit:.3g} over the nominal model and {len(models) - 1} posterior draws); its cost: IAE "
+                 f"{j:.4g} s against {j0:.4g} s unconstrained ({100 * (j / j0 - 1):+.0f} %)")
+    return Controller(pz_in * pv * hover / STANDARD_GRAVITY, 0.0, pv * hover / STANDARD_GRAVITY, c.Tf, c.rate_hz,
+                      c.rate_filter)
+
+
+def _hear_export(c: Controller, model: LoopModel, loop: str, design: str, notes: list[str]) -> StackExport:
+    """HEAR's PID message; the z command in HEAR's units (an acceleration, m/s^2) or converted, stated."""
+    from .export import HEAR_PID_ID
+
+    scale, assumptions = 1.0, ()
+    if loop == "altitude":
+        K = model.K
+        if 0.5 <= K <= 2.0:
+            notes.append(f"the log's z command is taken as HEAR's (an acceleration in m/s^2: K {K:.3g} ~ 1); HEAR adds "
+                         f"{HEAR_Z_BIAS:g} and saturates at {HEAR_Z_SAT:g} (OuterSysNodelet.h), so the PID's output "
+                         f"swings at most {HEAR_Z_SAT - HEAR_Z_BIAS:.3g} m/s^2 above hover")
+        elif K > 2.0:
+            scale = K
+            assumptions = (f"the log's z command is not HEAR's acceleration command (K {K:.4g} m/s^2 per command unit, "
+                           "e.g. a normalised thrust): kp, ki, kd converted to HEAR's m/s^2 by x K, assuming HEAR_FC's "
+                           "Force2Rot makes the commanded acceleration (K = 1 in HEAR's units)",)
+        else:
+            raise InputError(f"cannot export the altitude loop to hear: K {K:.4g} per command unit is neither HEAR's "
+                             "acceleration command (K ~ 1 m/s^2 per m/s^2) nor a thrust it can convert (K > 2): check "
+                             "the log's command and altitude units")
+    params = {"id": float(HEAR_PID_ID.get(loop, -1)), "kp": scale * c.Kp, "ki": scale * c.Ki, "kd": scale * c.Kd,
+              "kdd": 0.0, "anti_windup": 0.0, "en_pv_derivation": 1.0, "dt": c.Ts}
+    return StackExport("hear", loop, design, params, (), loop_margins(c, [model])[0], tuple(notes), assumptions)
 
 
 def _with_reboot_note(e: StackExport) -> StackExport:

@@ -638,7 +638,11 @@ class McapSource(LogSource):
                     self.warn(f"message index of chunk at byte {chunk_index.chunk_start_offset} is "
                               "corrupt; read the chunk record by record")
             if walked is None:
-                walked = _walk_messages(whole)
+                try:
+                    walked = _walk_messages(whole)
+                except ValueError as err:  # no CRC caught it and the index cannot be trusted: refuse, naming it
+                    raise LogReadError(f"{self.path}: the chunk at byte {chunk_index.chunk_start_offset} is damaged "
+                                       f"({err}); recover the readable part with 'mcap recover'") from None
             off, channel, log_time, rec_len = walked
             sel = channel == cid
             out[cid] = (log_time[sel], off[sel] + 9 + _MSG_HEADER, rec_len[sel] - _MSG_HEADER)

@@ -11,6 +11,7 @@ code  class                       meaning
 3     LogReadError                the log cannot be read (format, truncation, missing topic)
 4     SegmentationError           no usable MRFT limit cycle in the log
 5     IdentificationError         the measured figures admit no model (or no unique one)
+5     TpRejectedError             the recording rejects the given Tp and fits another one
 6     InsufficientDataError       some tests found, but not enough to identify everything
 7     DiagnoseError               the diagnosis could not be carried out
 8     batch.BatchFailedError      some logs of a batch failed (the others were analysed)
@@ -27,6 +28,7 @@ __all__ = [
     "LogReadError",
     "SegmentationError",
     "IdentificationError",
+    "TpRejectedError",
     "InsufficientDataError",
     "DiagnoseError",
 ]
@@ -65,6 +67,16 @@ class IdentificationError(MrftError, ValueError):
     """The measured limit cycles admit no model in the manifold range, or the problem is ill-posed."""
 
     exit_code = 5
+
+
+class TpRejectedError(IdentificationError):
+    """The recording rejects the given Tp and fits another one (``best`` [s]); ``result`` is the analysis
+    at the given Tp (its ``tp_check`` says so), for a JSON that says which."""
+
+    def __init__(self, message: str, best: float, result: object = None) -> None:
+        super().__init__(message)
+        self.best = best
+        self.result = result
 
 
 class InsufficientDataError(MrftError):

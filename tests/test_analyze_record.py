@@ -41,7 +41,7 @@ def px4_10hz() -> AnalysisResult:
 
 def test_to_json_is_the_cli_json_with_the_schema_version_first(design1: AnalysisResult) -> None:
     d = design1.to_json()
-    assert list(d)[0] == "schema_version" and d["schema_version"] == SCHEMA_VERSION == 1
+    assert list(d)[0] == "schema_version" and d["schema_version"] == SCHEMA_VERSION == 2
     assert {k: v for k, v in d.items() if k != "schema_version"}.keys() == design1.to_dict().keys()
     assert _json_text({k: v for k, v in d.items() if k != "schema_version"}) == _json_text(design1.to_dict())
 
@@ -52,7 +52,7 @@ def test_from_json_rebuilds_the_typed_record(name: str, request: pytest.FixtureR
     data = json.loads(_json_text(result.to_json()))
     back = AnalysisResult.from_json(data)
     for field in ("path", "loop", "Tp", "t0", "Td", "tau", "model", "method", "warnings", "notes",
-                  "controller_rate_hz", "rejection_reasons", "estimate_method"):
+                  "controller_rate_hz", "rejection_reasons", "estimate_method", "tp_check"):
         assert getattr(back, field) == getattr(result, field), field
     assert back.K.mean == result.K.mean and back.K.std == result.K.std  # K's unit: "" in the record either way
     assert dict(back.parameters_mrft) == dict(result.parameters_mrft)
@@ -132,3 +132,15 @@ def test_tune_designs_for_the_same_rate_from_the_log_and_from_its_result_json(tm
     assert from_log["rate_hz"] == from_json["rate_hz"] == 50.0
     for gain in ("Kp", "Ki", "Kd", "Tf"):
         assert from_json[gain] == pytest.approx(from_log[gain], rel=1e-9), gain
+
+
+def test_version_2_adds_noise_and_tp_check_and_version_1_still_reads(design1: AnalysisResult) -> None:
+    """Issue 40: the measured sensor noise and the verdict on Tp in the JSON; a version-1 JSON (without
+    them) reads as before."""
+    d = json.loads(_json_text(design1.to_json()))
+    truth = json.loads((SAMPLES / "design1_altitude.mcap.truth.json").read_text())
+    assert d["noise"]["std"] == pytest.approx(truth["noise_std"], rel=0.1)  # the simulation's sensor noise
+    assert d["tp_check"]["verdict"] == "consistent" and d["tp_check"]["given"] == 0.0422
+    old = {k: v for k, v in d.items() if k not in ("noise", "tp_check")} | {"schema_version": 1}
+    back = AnalysisResult.from_json(old)
+    assert back.tp_check is None and back.tau == design1.tau

@@ -8,11 +8,12 @@ combinations -> identifiability -> waveform refinement -> timing jitter
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import LogReadError
+from ..errors import LogReadError, TpRejectedError
 from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
@@ -24,10 +25,10 @@ from ..validate import check_tp
 from .estimate import (WaveformStage, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
 from .options import AnalyzeOptions
-from .record import AnalysisResult, LogInfo, analysis_controller_rate
+from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
 from .screen import Screening, screen
 
-__all__ = ["analyze_flight", "analyze_path"]
+__all__ = ["analyze_flight", "analyze_path", "refuse_rejected_tp"]
 
 
 def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | None) -> None:
@@ -105,7 +106,7 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.mean)
-    tp_warning = _tp_check(flight, screening, wave, Tp, opts.refine_waveform)
+    tp_warning, tp_check = _tp_check(flight, screening, wave, Tp, opts.refine_waveform)
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
     usable, rejected = screening.usable, screening.rejected
@@ -117,31 +118,62 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
         rejection_reasons={t.index: screening.reasons[t.index] for t in rejected}, method=wave.method,
         parameters_mrft=mrft_params, refinement=wave.refinement, notes=tuple(notes),
         controller_rate_hz=analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]),
-        log_info=LogInfo.from_flight(flight),
+        log_info=LogInfo.from_flight(flight), tp_check=tp_check,
     )
 
 
 def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: float,
-              refine: bool) -> tuple[str, ...]:
+              refine: bool) -> tuple[tuple[str, ...], TpCheck | None]:
     """What the waveform says about the given Tp [s] (issue 26): a wrong Tp otherwise yields a tight,
-    wrong tau. The warning, first of all: the recording fits another Tp, or this log cannot check Tp
-    (the command logged below the controller's rate; eq. (2) holding at no Tp); or nothing.
+    wrong tau. The warning, first of all (the recording fits another Tp, or this log cannot check Tp:
+    the command logged below the controller's rate; eq. (2) holding at no Tp), and the verdict
+    (:class:`TpCheck`; None when the waveform refinement did not run).
 
     Profiles the output-error fit over Tp (:func:`mrftcli.mrft.profile.profile_tp`, about 1 s of CPU),
     only when the refinement ran and its residual exceeded the acceptance factor.
     """
     ref = wave.refinement
     if not screening.usable:
-        return ()
+        return (), None
     if ref is None:
-        return (tp_not_checkable(Tp, BELOW_CONTROLLER_RATE),) if refine and screening.ts_ctrl else ()
+        if refine and screening.ts_ctrl:
+            return (tp_not_checkable(Tp, BELOW_CONTROLLER_RATE),), TpCheck("not-checkable", Tp)
+        return (), None
     if ref.residual_ratio <= RESIDUAL_FACTOR:
-        return ()
+        return (), TpCheck("consistent", Tp, residual_ratio_given=float(ref.residual_ratio))
     usable = screening.usable
     windows = refinement_windows(usable, flight.command.t, flight.command.values, flight.output.t,
                                  flight.output.values)
     profile = profile_tp(windows, ref.model, loop_sign=usable[0].loop_sign, noise_std=ref.noise_std)
-    return profile.warnings()
+    verdict = "rejected" if profile.rejects_given else "not-checkable" if profile.holds_nowhere else "consistent"
+    return profile.warnings(), TpCheck(verdict, Tp, profile.best, profile.low, profile.high,
+                                       profile.residual_ratio_given, profile.residual_ratio_best)
+
+
+def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> AnalysisResult:
+    """The analysis, unless the recording rejects its Tp (``result.tp_check.verdict == "rejected"``).
+
+    A wrong Tp moves Td, tau and K within tight, wrong intervals, so a Tp the recording rejects is a
+    refusal (exit 5, naming the better Tp) unless the user keeps it (``accept``, ``--accept-tp``): the
+    result's verdict is then ``accepted``.
+
+    Raises
+    ------
+    TpRejectedError
+        The recording rejects the given Tp and ``accept`` is False (``best``: the Tp it fits [s];
+        ``result``: the analysis at the given Tp, its verdict ``rejected``).
+    """
+    check = result.tp_check
+    if check is None or check.verdict != "rejected":
+        return result
+    if accept:
+        return dataclasses.replace(result, tp_check=dataclasses.replace(check, verdict="accepted"))
+    assert check.best is not None
+    raise TpRejectedError(
+        f"the recording rejects Tp = {check.given:.4g} s: it fits Tp = {check.best:.4g} s "
+        f"[{check.low:.4g}, {check.high:.4g}] (waveform residual {check.residual_ratio_best:.2f}x the sensor noise "
+        f"against {check.residual_ratio_given:.2f}x); rerun with --tp {check.best:.4g}, or pass --accept-tp to keep "
+        f"{check.given:.4g} s (Td, tau and K rest on it)", best=check.best, result=result)
 
 
 def analyze_path(path: str | Path, Tp: float, *, read: ReadOptions | None = None,

@@ -29,10 +29,57 @@ from ..mrft.refine import Refinement
 from ..segment import MrftTest
 from .mrfttest_json import json_float, json_opt_float, mrft_test_from_json
 
-__all__ = ["AnalysisResult", "LogInfo", "SCHEMA_VERSION", "K_UNIT", "analysis_controller_rate", "command_rate_of_result"]
+__all__ = ["AnalysisResult", "LogInfo", "TpCheck", "TP_VERDICTS", "SCHEMA_VERSION", "K_UNIT",
+           "analysis_controller_rate", "command_rate_of_result", "measured_noise_std"]
 
-#: Version of the JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md).
-SCHEMA_VERSION = 1
+#: Version of the JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md). 2 added ``noise``
+#: (the measured sensor noise) and ``tp_check`` (the recording's verdict on the given Tp); version 1
+#: records are read as before (no noise, no verdict).
+SCHEMA_VERSION = 2
+
+#: What the recording says about the given Tp: ``consistent`` (the waveform accepts it), ``rejected``
+#: (it fits another Tp clearly better), ``accepted`` (rejected, kept by the user's ``--accept-tp``),
+#: ``not-checkable`` (the log cannot tell; the warning says why).
+TP_VERDICTS = ("consistent", "rejected", "accepted", "not-checkable")
+
+
+@dataclass(frozen=True)
+class TpCheck:
+    """The recording's verdict on the given Tp (:data:`TP_VERDICTS`), with the profile's figures when run.
+
+    ``given``, ``best``, ``low``, ``high`` in seconds (``best`` in [``low``, ``high``], its 95 %
+    profile interval); ``residual_ratio_given`` / ``_best``: the waveform residual RMS over the sensor
+    noise at the given and at the best Tp. None where the profile did not run.
+    """
+
+    verdict: str
+    given: float
+    best: float | None = None
+    low: float | None = None
+    high: float | None = None
+    residual_ratio_given: float | None = None
+    residual_ratio_best: float | None = None
+
+    def to_dict(self) -> _JSONDict:
+        return {"verdict": self.verdict, "given": self.given, "best": self.best, "low": self.low, "high": self.high,
+                "residual_ratio_given": self.residual_ratio_given, "residual_ratio_best": self.residual_ratio_best,
+                "unit": "s"}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> TpCheck:
+        verdict = str(d["verdict"])
+        if verdict not in TP_VERDICTS:
+            raise ValueError(f"unknown tp_check verdict {verdict!r}")
+        return cls(verdict, json_float(d["given"]), *(json_opt_float(d.get(k)) for k in
+                                                       ("best", "low", "high", "residual_ratio_given",
+                                                        "residual_ratio_best")))
+
+
+def measured_noise_std(tests: Sequence[MrftTest]) -> float | None:
+    """The sensor noise std [output units] the tests measured: the median residual of their stable
+    cycles' fits (None when none was measured). What ``plan`` plans with, from a log or its JSON."""
+    noise = [c.noise_std for t in tests for c in t.stable if np.isfinite(c.noise_std)]
+    return float(np.median(noise)) if noise else None
 #: K's unit as the JSON states it.
 K_UNIT = "output units / (command unit s^2)"
 _JSONDict = dict[str, Any]
@@ -181,6 +228,7 @@ class AnalysisResult:
     controller_rate_hz: float | None = None
     log_info: LogInfo | None = None
     recorded: Mapping[str, Any] | None = field(default=None, repr=False)
+    tp_check: TpCheck | None = None
 
     @property
     def estimate_method(self) -> str:
@@ -300,6 +348,9 @@ class AnalysisResult:
             "identification": self._identification(self.identification),
             "uncertainty": {"method": "bootstrap over stable cycles",
                             "draws": int(np.isfinite(np.asarray(self.bootstrap.get("Td", []), float)).sum())},
+            "noise": {"std": measured_noise_std(self.tests), "unit": "output units",
+                      "source": "median residual of the used tests' stable cycle fits"},
+            "tp_check": self.tp_check.to_dict() if self.tp_check is not None else None,
             "warnings": list(self.warnings),
             "notes": list(self.notes),
             "input": self._input(),
@@ -369,6 +420,7 @@ def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisRe
         refinement=None, notes=tuple(str(n) for n in data.get("notes") or ()),
         controller_rate_hz=_recorded_rate(data, info), log_info=info,
         recorded=copy.deepcopy(dict(data)),
+        tp_check=TpCheck.from_dict(data["tp_check"]) if isinstance(data.get("tp_check"), Mapping) else None,
     )
 
 

@@ -67,6 +67,9 @@ class LogSettings:
         Fewest stable cycles for a test to be used (analyze's ``--min-cycles``); None = its default.
     vehicle : str or None
         Vehicle name used to group logs in the fleet report; None -> the log's parent folder name.
+    accept_tp : bool
+        Keep a Tp the recording rejects (analyze's ``--accept-tp``); else that loop fails with exit
+        code 5, naming the Tp the recording fits.
     """
 
     tp: float | None = None
@@ -81,6 +84,7 @@ class LogSettings:
     command_scale: float | None = None
     layout: str | None = None
     controller_rate_hz: float | None = None
+    accept_tp: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -90,7 +94,7 @@ class LogSettings:
 
 #: Keys a config entry may set, with the validator for each (value, where) -> value.
 _SETTING_KEYS = ("tp", "loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale",
-                 "min_cycles", "vehicle", "command_scale", "layout", "controller_rate_hz")
+                 "min_cycles", "vehicle", "command_scale", "layout", "controller_rate_hz", "accept_tp")
 
 
 def _check_tp(value: Any, where: str) -> float:
@@ -165,6 +169,10 @@ def _validate_entry(raw: Any, where: str, *, needs_match: bool) -> tuple[str | N
                     or value <= 0:
                 raise InputError(f"{where}: controller_rate_hz must be a positive rate in Hz, got {value!r}")
             out[key] = float(value)
+        elif key == "accept_tp":
+            if not isinstance(value, bool):
+                raise InputError(f"{where}: accept_tp must be true or false, got {value!r}")
+            out[key] = value
         elif key == "min_cycles":
             if isinstance(value, bool) or not isinstance(value, int) or value < 2:
                 raise InputError(f"{where}: min_cycles must be an integer of at least 2, got {value!r}")

@@ -55,7 +55,7 @@ from .summary import (
     summary_frame,
     summary_rows,
 )
-from ..errors import InputError, InsufficientDataError, MrftError
+from ..errors import InputError, InsufficientDataError, MrftError, TpRejectedError
 from ..io.logtypes import LOOPS
 from ..jsonable import to_jsonable
 from ..progress import Progress
@@ -191,7 +191,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                 absent = ()
             if absent:
                 return _skipped_entry(entry, loop, absent)
-        from ..analyze import AnalyzeOptions, analyze_path
+        from ..analyze import AnalyzeOptions, analyze_path, refuse_rejected_tp
         from ..io import ReadOptions
 
         # settings left unset (None) keep the options' defaults
@@ -199,12 +199,16 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
-        result = analyze_path(task.path, s.tp, read=read, options=options)
+        result = refuse_rejected_tp(analyze_path(task.path, s.tp, read=read, options=options), s.accept_tp)
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,
                      exit_code=err.exit_code, result={"partial": err.partial})
         return entry
+    except TpRejectedError as err:  # failed (exit code 5), the analysis at the given Tp kept: tp_check says so
+        rejected = failed_entry(loop, err)
+        rejected["result"] = err.result.to_json() if hasattr(err.result, "to_json") else None
+        return rejected
     except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
         return failed_entry(loop, err)
     if task.diagnose:

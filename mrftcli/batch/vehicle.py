@@ -29,7 +29,8 @@ __all__ = ["vehicle_one", "vehicle_options"]
 #: The summary status of a missing loop's reason (a loop without tests is skipped only when the log
 #: holds another loop's model, as ``--loop auto`` does).
 _STATUS = {"no-topics": STATUS_NO_TOPICS, "no-tests": STATUS_NO_TESTS, "unusable-tests": STATUS_NO_TESTS,
-           "single-beta": STATUS_INSUFFICIENT, "failed": STATUS_FAILED}
+           "single-beta": STATUS_INSUFFICIENT, "failed": STATUS_FAILED,
+           "wrong-tp": STATUS_FAILED}
 
 
 def vehicle_options(task: LogTask) -> VehicleOptions:
@@ -37,7 +38,7 @@ def vehicle_options(task: LogTask) -> VehicleOptions:
     s = task.settings
     return VehicleOptions(layout=s.layout, controller_rate_hz=s.controller_rate_hz,
                           min_stable_cycles=3 if s.min_cycles is None else s.min_cycles,
-                          tune=TuneOptions(kind=task.tune or "PD"))
+                          accept_tp=s.accept_tp, tune=TuneOptions(kind=task.tune or "PD"))
 
 
 def _ok_entry(entry: VehicleLoop) -> dict[str, Any]:

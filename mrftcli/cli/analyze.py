@@ -6,7 +6,7 @@ import math
 
 import click
 
-from ..errors import InsufficientDataError, MrftError, SegmentationError
+from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from .model_options import (baseline_option, build_model, format_general, parse_baseline, parse_windows,
                             relay_options, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
@@ -15,6 +15,13 @@ from .options import (check_output_dir, check_output_file, dump_json, json_optio
                       min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
 
 
+
+
+def accept_tp_option(f):
+    """``--accept-tp``: keep a Tp the recording rejects (analyze, batch, vehicle)."""
+    return click.option("--accept-tp", "accept_tp", is_flag=True, default=False,
+                        help="Keep the given --tp even when the recording fits another Tp clearly better (by default "
+                             "that is exit 5, naming the better Tp); the JSON's tp_check says 'accepted'.")(f)
 
 
 def _num(x: float | None, digits: int = 4) -> str:
@@ -164,6 +171,7 @@ def _stages(progress, weights: dict[str, float]):
 @baseline_option
 @log_layout_options()
 @min_cycles_option()
+@accept_tp_option
 @json_option(what="analysis")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with plots to DIR (created if missing).")
@@ -177,8 +185,8 @@ def _stages(progress, weights: dict[str, float]):
               help="Also locate model mismatch and name the missing physics (mrftcli.diagnose.selection).")
 @cascade_options
 @quiet_option()
-def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_cycles, json_target, report_dir,
-            mcap_out, paper_only, run_diagnose, quiet, **read_options):
+def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_cycles, accept_tp, json_target,
+            report_dir, mcap_out, paper_only, run_diagnose, quiet, **read_options):
     """Find the MRFT tests in LOG, identify Td, tau and K of the loop, and report.
 
     LOG is a log file or a ROS 2 bag folder. With --model fopdt|sopdt|ipdt|foipdt (a process plant under
@@ -195,12 +203,13 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     same loop-gain sign as the other tests); tests that are not are rejected with the reason.
 
     Exit codes: 0 ok, 2 bad option, 3 unreadable log, 4 no usable relay test (none, too short, or
-    the output does not follow the relay), 5 no plant fits, 6 a single usable beta or not enough
-    data (the partial result is printed, and written by --json).
+    the output does not follow the relay), 5 no plant fits, or the recording rejects --tp (it names
+    the Tp it fits; --accept-tp keeps yours), 6 a single usable beta or not enough data (the partial
+    result is printed, and written by --json).
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
-    from ..analyze import AnalyzeOptions, analyze_flight
+    from ..analyze import AnalyzeOptions, analyze_flight, refuse_rejected_tp
     from ..io import ReadOptions, read_flight
 
     baseline = parse_baseline(read_options.pop("baseline", None))  # a process model's operating point
@@ -241,7 +250,12 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         stage("identify")(0, 1, "segmenting and identifying")
         try:
             options = AnalyzeOptions(min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}))
-            result = analyze_flight(flight, Tp, options=options)
+            result = refuse_rejected_tp(analyze_flight(flight, Tp, options=options), accept_tp)
+        except TpRejectedError as err:
+            if json_target and err.result is not None:  # the JSON says which: tp_check.verdict "rejected"
+                dump_json(err.result.to_json(), json_target)
+            _echo_warnings(flight.warnings)
+            raise
         except InsufficientDataError as err:
             if json_target:
                 dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)

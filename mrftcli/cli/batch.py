@@ -10,6 +10,7 @@ import click
 from click.core import ParameterSource
 
 from .model_options import build_model, structure_options
+from .analyze import accept_tp_option
 from .options import json_option, log_layout_options, quiet_option, tp_option
 
 __all__ = ["batch"]
@@ -27,6 +28,7 @@ _SETTING_OPTIONS = {
     "layout": "layout",
     "controller_rate_hz": "controller_rate_hz",
     "min_cycles": "min_cycles",
+    "accept_tp": "accept_tp",
 }
 
 
@@ -146,6 +148,7 @@ def _print_loop_table(df, limit: int) -> None:
 @log_layout_options(config_defaults=True)
 @click.option("--min-cycles", type=click.IntRange(2, None), default=None,
               help="Fewest stable cycles for a test to be used (default: analyze's, 3).")
+@accept_tp_option
 @click.option("--diagnose", is_flag=True, help="Also run the model-mismatch diagnosis on each loop.")
 @click.option("--tune", "tune_kind", flag_value="PD", default=None,
               help="Also tune a PD on each loop (robust design, as `tune`): tune_* columns in the summary.")

@@ -10,8 +10,9 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..analyze import AnalysisResult
-from ..errors import InputError, SegmentationError
+from ..errors import InputError, SegmentationError, TpRejectedError
 from ..io.logtypes import gain_unit, output_unit
+from .analyze import accept_tp_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, tp_option, tqdm_progress)
 
@@ -153,6 +154,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
                                 "the outer estimate (0: take it as exact).")
 @_flight_options
 @min_cycles_option()
+@accept_tp_option
 @click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,
               help="Controller tuned for every loop.")
 @click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
@@ -173,7 +175,8 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write an HTML report with a page per loop to DIR (created if missing).")
 @quiet_option()
-def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, inner_draws: int, min_cycles: int, kind: str, objective: str, ms_max: float,
+def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, inner_draws: int, min_cycles: int,
+            accept_tp: bool, kind: str, objective: str, ms_max: float,
             export: str | None, out: str | None, gyro_cutoff: float | None, hover_thrust: float | None, clamp: bool,
             json_target: str | None, report_dir: str | None, quiet: bool, **read_options: Any) -> None:
     """Identify and tune every loop one flight holds MRFT tests of; say which tests the others need.
@@ -200,7 +203,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
     options = VehicleOptions(layout=read_options["layout"], fmt=read_options["fmt"],
                              time_unit=read_options["time_unit"], controller_rate_hz=read_options["controller_rate_hz"],
                              min_stable_cycles=min_cycles, outer_command=outer_command, inner_draws=inner_draws,
-                             tune=TuneOptions(kind=kind, objective=objective, ms_max=ms_max, stack=stack))
+                             accept_tp=accept_tp, tune=TuneOptions(kind=kind, objective=objective, ms_max=ms_max, stack=stack))
     with tqdm_progress("vehicle", unit="loop", enabled=not quiet) as progress:
         result = identify_vehicle(log, Tp, inner_gains=gains, options=options, progress=progress)
         index = None
@@ -215,6 +218,9 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
         click.echo(format_vehicle(result), err=export is not None and not out)
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
+    wrong_tp = [m.message for m in result.missing.values() if m.reason == "wrong-tp"]
+    if wrong_tp:  # as analyze: the given Tp is wrong for this flight (the table and the JSON are written)
+        raise TpRejectedError(f"{log}: {wrong_tp[0]}", best=math.nan)
     if not result.loops:
         # nothing to tune: the exit code says so (the table and the JSON say what each loop needs)
         raise SegmentationError(f"{log}: no loop has usable MRFT tests; the table above names the tests to fly")

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..analyze import AnalysisResult, analyze_flight
+from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
 from ..analyze.options import AnalyzeOptions
 from ..errors import InputError, LogReadError, MrftError
 from ..io import FlightLog, LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
@@ -62,6 +62,9 @@ class VehicleOptions:
         cascade; stated in the assumptions.
     inner_draws : int
         Draws of the inner model carried into an outer estimate through the cascade.
+    accept_tp : bool
+        Keep a Tp the recording rejects (``--accept-tp``); else that loop is missing, naming the Tp it
+        fits (:func:`mrftcli.analyze.refuse_rejected_tp`).
     """
 
     layout: str | None = None
@@ -74,6 +77,7 @@ class VehicleOptions:
     plan: bool = True
     outer_command: str = "acceleration"
     inner_draws: int = 30
+    accept_tp: bool = False
 
     def __post_init__(self) -> None:
         if self.tune.kind not in KINDS:
@@ -223,7 +227,7 @@ def identify_inner(source: LogSource, loop: str, Tp: float, options: VehicleOpti
     if flight is None:
         return
     try:
-        result = analyze_flight(flight, Tp, options=options.analyze())
+        result = refuse_rejected_tp(analyze_flight(flight, Tp, options=options.analyze()), options.accept_tp)
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
@@ -246,7 +250,7 @@ def identify_outer(source: LogSource, loop: str, Tp: float, options: VehicleOpti
         if controller is not None:
             analysis = cascade_outer(flight, acc.loops[inner], controller, options.outer())
         else:
-            result = analyze_flight(flight, Tp, options=options.analyze())
+            result = refuse_rejected_tp(analyze_flight(flight, Tp, options=options.analyze()), options.accept_tp)
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)

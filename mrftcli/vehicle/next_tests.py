@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from ..errors import InputError, InsufficientDataError, MrftError, SegmentationError
+from ..errors import InputError, InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from ..plan import FlightLimits, PlanOptions, PlanResult, Prior, flown_from_result, plan_tests
 from ..sim import default_noise_std
 from .loops import INNER_OF
@@ -110,6 +110,10 @@ def missing_from_error(loop: str, err: MrftError, Tp: float, log: str, rate_hz: 
         return MissingLoop(loop, "no-tests", message,
                            f"fly MRFT tests on the {loop} loop at two betas{_after_inner(loop)} "
                            f"({_plan_command(loop, Tp)} designs them)")
+    if isinstance(err, TpRejectedError):
+        return MissingLoop(loop, "wrong-tp", message,
+                           f"no new test needed: rerun with --tp {err.best:.4g} (the Tp this flight fits), or "
+                           f"--accept-tp to keep {Tp:g} s")
     if isinstance(err, InputError) and "topic" in message:
         return MissingLoop(loop, "no-topics", message,
                            f"record the {loop} loop's command and output and fly MRFT tests on it at two betas")

@@ -45,7 +45,8 @@ ROLES = ("inner", "outer")
 ROUTES = ("eq2", "cascade")
 #: Why a loop has no result: its topics are not in the log, it has no relay test, its tests are not
 #: usable, it was flown at one beta only (Td and tau are not separable), or the analysis failed.
-MISSING_REASONS = ("no-topics", "no-tests", "unusable-tests", "single-beta", "failed")
+#: ``wrong-tp``: the recording rejects the given Tp (it fits another; ``--accept-tp`` keeps it).
+MISSING_REASONS = ("no-topics", "no-tests", "unusable-tests", "single-beta", "failed", "wrong-tp")
 
 
 def _str_list(data: Mapping[str, Any], key: str, what: str) -> tuple[str, ...]:

@@ -38,18 +38,21 @@ from sitl import Sitl, fly_mrft, load_params, read_param_file  # noqa: E402
 from sitl_analysis import analyze_log, held_out  # noqa: E402
 from sitl_physics import implied_model  # noqa: E402
 
-#: (name, loop, added delay [ms], [(beta, h), ...]); h in throttle (altitude) or mixer (roll) units
+#: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in throttle (altitude)
+#: or mixer (roll) units, chosen for a few cm / a few degrees of oscillation
 FLIGHTS = [
-    ("altitude", "altitude", 0.0, [(-0.2, 0.06), (-0.4, 0.06), (-0.6, 0.08)]),
-    ("altitude_20ms", "altitude", 20.0, [(-0.2, 0.04), (-0.4, 0.04), (-0.6, 0.05)]),
-    ("roll", "roll", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)]),
-    ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)]),
+    ("altitude", "altitude", 0.0, [(-0.2, 0.06), (-0.4, 0.06), (-0.6, 0.08)], 18.0),
+    ("altitude_20ms", "altitude", 20.0, [(-0.2, 0.04), (-0.4, 0.04), (-0.6, 0.05)], 18.0),
+    ("roll", "roll", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 10.0),
+    ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 10.0),
 ]
 
 
-def fly_campaign(ap: Path, logs: Path, speedup: float, duration: float) -> None:
+def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
     logs.mkdir(parents=True, exist_ok=True)
-    for name, loop, delay, tests in FLIGHTS:
+    for name, loop, delay, tests, duration in FLIGHTS:
+        if only and name not in only:
+            continue
         out = logs / f"{name}.BIN"
         if out.exists():
             print(f"  {name}: {out} exists, not re-flown")
@@ -63,8 +66,10 @@ def fly_campaign(ap: Path, logs: Path, speedup: float, duration: float) -> None:
 
 def analyse(logs: Path) -> dict[str, dict]:
     results: dict[str, dict] = {}
-    for name, loop, delay, tests in FLIGHTS:
+    for name, loop, delay, tests, _ in FLIGHTS:
         log = logs / f"{name}.BIN"
+        if not log.exists():
+            continue
         side = json.loads(Path(f"{log}.json").read_text())
         tp = side["tp_s"]
         res = analyze_log(log, tp, loop)
@@ -169,26 +174,69 @@ def refly(ap: Path, params: dict[str, Path], work: Path, speedup: float) -> None
         for name, value in shaping.items():
             sitl.set_param(name, value)
         sitl.wait(10)
-        _attitude_step(sitl, 10.0)
+        times = {"roll": _attitude_step(sitl, 10.0)}
         sitl.wait(5)
+        alt = sitl.altitude()
+        times["altitude"] = sitl.boot_ms / 1000
         sitl.mav.mav.set_position_target_local_ned_send(0, sitl.mav.target_system, sitl.mav.target_component,
-                                                        1, 0b110111111000, 0, 0, -12.0, 0, 0, 0, 0, 0, 0, 0, 0)
+                                                        1, 0b110111111000, 0, 0, -(alt + 2.0), 0, 0, 0, 0, 0, 0,
+                                                        0, 0)
         sitl.wait(12)
         sitl.land()
         log = sitl.newest_log()
     shutil.copy(log, work / "refly.BIN")
     print(f"  re-fly log: {work / 'refly.BIN'}")
+    evaluate_refly(work / "refly.BIN", work, times)
 
 
-def _attitude_step(sitl: Sitl, roll_deg: float) -> None:
-    """Hold level 3 s then roll_deg for 3 s by SET_ATTITUDE_TARGET (climb rate 0)."""
+def evaluate_refly(log: Path, work: Path, times: dict[str, float]) -> None:
+    """Hover steadiness and the two steps' overshoot and settling against tune's prediction.
+
+    ``times``: when each step was commanded [s since boot, the log's TimeUS clock].
+    """
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        ta, att = src.read("ATT", ["DesRoll", "Roll"])
+        tc, ctun = src.read("CTUN", ["DAlt", "Alt"])
+    roll = att["Roll"]
+    # the commanded instants are known to a MAVLink message (0.1 s); the log's targets pin them
+    t_step = float(ta[(ta > times["roll"] - 0.5) & (att["DesRoll"] > 1.0)][0])
+    hover = (ta > t_step - 8.0) & (ta < t_step - 0.1)
+    alt_hover = (tc > t_step - 8.0) & (tc < t_step - 0.1)
+    print(f"  hover (8 s before the roll step): roll std {np.std(roll[hover]):.3f} deg, peak-to-peak "
+          f"{np.ptp(roll[hover]):.3f} deg; altitude std {np.std(ctun['Alt'][alt_hover]) * 100:.2f} cm")
+    win = (ta >= t_step) & (ta < t_step + 2.9)
+    got = step_stats(ta[win], roll[win], t_step, float(np.mean(roll[hover])), 10.0)
+    pred = _predicted(work / "roll_tune.json")
+    print(f"  roll step 0 -> 10 deg (raw: ATC_RATE_FF_ENAB 0, ATC_INPUT_TC 0): overshoot "
+          f"{got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.3f} s; tune predicted "
+          f"{pred.get('overshoot_pct', float('nan')):.1f} %, {pred.get('settling_s') or float('nan'):.3f} s")
+    d0 = float(np.median(ctun["DAlt"][(tc > times["altitude"] - 3) & (tc < times["altitude"] - 0.5)]))
+    t_step = float(tc[(tc > times["altitude"] - 0.5) & (ctun["DAlt"] > d0 + 0.02)][0])
+    base = float(np.mean(ctun["Alt"][(tc > t_step - 3) & (tc < t_step)]))
+    win = (tc >= t_step) & (tc < t_step + 11)
+    got = step_stats(tc[win], ctun["Alt"][win], t_step, base, base + 2.0)
+    pred = _predicted(work / "altitude_tune.json")
+    print(f"  altitude step +2 m (ArduPilot shapes the target with its speed and acceleration limits): "
+          f"overshoot {got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.2f} s; tune predicted "
+          f"for an unshaped step {pred.get('overshoot_pct', float('nan')):.1f} %, "
+          f"{pred.get('settling_s') or float('nan'):.2f} s")
+
+
+def _attitude_step(sitl: Sitl, roll_deg: float) -> float:
+    """Hold level 3 s then roll_deg for 3 s by SET_ATTITUDE_TARGET (climb rate 0); the step's time [s]."""
+    t_step = 0.0
     for angle, seconds in ((0.0, 3.0), (roll_deg, 3.0), (0.0, 3.0)):
         q = _quat(math.radians(angle))
+        if angle:
+            t_step = sitl.boot_ms / 1000
         end = sitl.boot_ms + seconds * 1000
         while sitl.boot_ms < end:
             sitl.mav.mav.set_attitude_target_send(0, sitl.mav.target_system, sitl.mav.target_component,
                                                   0b00000111, q, 0, 0, 0, 0.5)
             sitl.wait(0.1)
+    return t_step
 
 
 def _quat(roll: float) -> list[float]:
@@ -201,17 +249,18 @@ def main() -> int:
     ap.add_argument("--logs", type=Path, default=Path("/tmp/sitl_campaign"), help="folder of the MRFT logs")
     ap.add_argument("--analyze-only", action="store_true", help="analyse the logs in --logs; no SITL")
     ap.add_argument("--speedup", type=float, default=1.0)
-    ap.add_argument("--duration", type=float, default=12.0, help="each MRFT test's length [s]")
+    ap.add_argument("--only", nargs="*", default=[], help="fly only these flights (names in FLIGHTS)")
+    ap.add_argument("--no-refly", action="store_true", help="stop after the analysis")
     args = ap.parse_args()
     if not args.analyze_only:
         if not (args.ap / "build/sitl/bin/arducopter").exists():
             subprocess.run([str(ROOT / "scripts/sitl/build_ardupilot.sh"), str(args.ap)], check=True)
         print("1. MRFT flights in SITL")
-        fly_campaign(args.ap, args.logs, args.speedup, args.duration)
+        fly_campaign(args.ap, args.logs, args.speedup, args.only)
     print("2. analysis of the DataFlash logs")
     results = analyse(args.logs)
     report_analysis(results)
-    if args.analyze_only:
+    if args.analyze_only or args.no_refly:
         return 0
     print("3. tune --export ardupilot, load, re-fly")
     params = export(results, args.logs / "export")

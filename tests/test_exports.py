@@ -242,8 +242,8 @@ def test_px4_mrft_rule_out_of_range_is_refused_then_clamped_with_margins():
     m = LoopModel(0.0499, 0.887, 0.0228, 20.0)  # design2_roll's truth
     st = stack_setting("px4", "roll", 250.0, 200.0, None)  # the vehicle's IMU_GYRO_RATEMAX given
     assert st.rate_hz == 250.0 and st.rate_filter is not None and st.rate_filter.cutoff_hz == 40.0
-    # without it, PX4's default 400 Hz, never the log's rate (issue 37)
-    assert stack_setting("px4", "roll", None, 200.0, None).rate_hz == 400.0
+    # without it, PX4's attitude loop's default IMU_INTEG_RATE 200 Hz, never the log's rate (issue 37)
+    assert stack_setting("px4", "roll", None, 250.0, None).rate_hz == 200.0
     res = tune(m, st.rate_hz, loop="roll",
                options=DesignOptions(kinds=("PD",), designs=("mrft-rule",), rate_filter=st.rate_filter))
     c = res.designs[0].controller
@@ -253,8 +253,8 @@ def test_px4_mrft_rule_out_of_range_is_refused_then_clamped_with_margins():
     e = export_design("px4", big, m, "roll", "x", clamp=True)
     assert e.params["MC_ROLLRATE_P"] == 0.5 and e.clamped[0][0] == "MC_ROLLRATE_P"
     assert any("Ms" in n for n in e.notes)
-    with pytest.raises(InputError, match="IMU_GYRO_RATEMAX"):
-        stack_setting("px4", "roll", 200.0, None, None)
+    with pytest.raises(InputError, match="IMU_INTEG_RATE"):
+        stack_setting("px4", "roll", 300.0, None, None)
 
 
 def test_refusals_before_the_work():
@@ -333,8 +333,8 @@ def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
     code, stdout, err = _run(["--controller-rate", "250", "--export", "ardupilot", "--design", "model-based", "--clamp"], capsys)
     assert code == 0, err
     assert stdout.startswith("# mrft-ident") and "ATC_RAT_RLL_P," in stdout  # the .param file on stdout
-    code, _, err = _run(["--controller-rate", "200", "--export", "px4"], capsys)
-    assert code == 2 and err.startswith("error:") and "IMU_GYRO_RATEMAX" in err and len(err.splitlines()) == 1
+    code, _, err = _run(["--controller-rate", "300", "--export", "px4"], capsys)
+    assert code == 2 and err.startswith("error:") and "IMU_INTEG_RATE" in err and len(err.splitlines()) == 1
     code, _, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(tmp_path / "no" / "x.params")], capsys)
     assert code == 2 and "--out" in err
     code, _, err = _run(["--controller-rate", "200", "--export", "hear", "--gyro-cutoff", "30"], capsys)

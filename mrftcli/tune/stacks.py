@@ -49,9 +49,9 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, RateFilter
 from .margins import Margins, loop_margins
-from .stack_params import PX4_GYRO_RATES_HZ, check_ranges, param
+from .stack_params import check_ranges, param
 
-__all__ = ["EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
+__all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -123,17 +123,27 @@ def _log_rate_cost(rate: float, rate_source: float | None) -> tuple[str, ...]:
             f"(conservative when the vehicle runs at {rate:g} Hz)",)
 
 
+#: PX4's ``IMU_INTEG_RATE`` choices [Hz] (imu_parameters.yaml): the EKF's, hence the attitude loop's, rate.
+PX4_ATTITUDE_RATES_HZ = (100.0, 200.0, 250.0, 400.0)
+
+
 def _px4_rate(rate_given: float | None, rate_source: float | None) -> tuple[float, tuple[str, ...]]:
-    """PX4's rate loop runs at ``IMU_GYRO_RATEMAX``: the vehicle's (--controller-rate) or its default 400 Hz."""
+    """PX4's attitude loop (mc_att_control) runs on each attitude estimate, at ``IMU_INTEG_RATE``: the vehicle's
+    (--controller-rate) or its default 200 Hz. The rate loop runs faster, at ``IMU_GYRO_RATEMAX`` (default 400
+    Hz); the design models both at the attitude rate (the rate path's extra delay at the slower rate is
+    conservative)."""
+    rows = param("px4", "IMU_INTEG_RATE"), param("px4", "IMU_GYRO_RATEMAX")
+    both = (f"the rate loop runs at IMU_GYRO_RATEMAX (default {rows[1].default:g} Hz), modelled at the attitude rate "
+            "(conservative); neither is written: both are vehicle-wide and reboot_required")
     if rate_given is not None:
-        if rate_given not in PX4_GYRO_RATES_HZ:
-            raise InputError(f"--controller-rate {rate_given:g}: PX4's rate loop runs at IMU_GYRO_RATEMAX, one of "
-                             f"{', '.join(f'{r:g}' for r in PX4_GYRO_RATES_HZ)} Hz: give the vehicle's")
-        return rate_given, (f"designed at IMU_GYRO_RATEMAX = {rate_given:g} Hz (--controller-rate, the vehicle's)",
-                            *_log_rate_cost(rate_given, rate_source))
-    rate = param("px4", "IMU_GYRO_RATEMAX").default
-    return rate, (f"designed at IMU_GYRO_RATEMAX = {rate:g} Hz, PX4's default (imu_gyro_parameters.yaml): give "
-                  "--controller-rate HZ if the vehicle's differs (not written: it is vehicle-wide and needs a reboot)",
+        if rate_given not in PX4_ATTITUDE_RATES_HZ:
+            raise InputError(f"--controller-rate {rate_given:g}: PX4's attitude loop runs at IMU_INTEG_RATE, one of "
+                             f"{', '.join(f'{r:g}' for r in PX4_ATTITUDE_RATES_HZ)} Hz: give the vehicle's")
+        return rate_given, (f"designed at IMU_INTEG_RATE = {rate_given:g} Hz (--controller-rate, the vehicle's "
+                            f"attitude-loop rate); {both}", *_log_rate_cost(rate_given, rate_source))
+    rate = rows[0].default
+    return rate, (f"designed at IMU_INTEG_RATE = {rate:g} Hz, PX4's default (imu_parameters.yaml), the attitude loop's "
+                  f"rate: give --controller-rate HZ if the vehicle's differs; {both}",
                   *_log_rate_cost(rate, rate_source))
 
 

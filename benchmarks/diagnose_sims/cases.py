@@ -1,0 +1,154 @@
+"""Flights drawn as pilots fly them, flown in RotorPy or JSBSim, diagnosed and scored (issue 39).
+
+Per flight: a platform of the simulator, an altitude loop at 50-500 Hz, 0.5-1 mm of sensor noise,
+20-40 ms of latency, three MRFT tests of 10-14 s (beta -0.4 and -0.7 at one planned amplitude of
+5-10 cm, then beta -0.4 at twice the first relay height), one effect produced physically (or none,
+or a flexible sensor mount the library does not have) at a realistic magnitude times a factor in
+[0.7, 1.3]. Nothing is flown again or dropped; a refusal counts as a miss.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .loop import LoopSpec, fly, flight_topics, relay_height
+
+__all__ = ["EFFECTS", "MOUNT", "RATES", "draw_case", "run_case"]
+
+#: the library's names of the effects each simulator produces physically
+EFFECTS = ("quadratic_drag", "actuator_saturation", "sensor_lag", "gain_drift", "actuator_rate_limit", "delay_jitter")
+MOUNT = "flex_mount"  # out of the library: a sensor on a spring, 10 Hz to 0.8 of the Nyquist frequency
+RATES = (50.0, 100.0, 200.0, 250.0, 500.0)
+BETAS = (-0.4, -0.7, -0.4)
+
+
+def draw_case(rng: np.random.Generator, sim: str, effect: str | None) -> dict:
+    """One flight's draw (the simulator's platform, rate, noise, amplitude, durations, magnitude)."""
+    if sim == "rotorpy":
+        from .rotorpy_flight import PLATFORMS
+    else:
+        from .jsbsim_flight import PLATFORMS
+    rate = float(rng.choice(RATES))
+    return {"sim": sim, "effect": effect, "platform": str(rng.choice(PLATFORMS)), "seed": int(rng.integers(1 << 30)),
+            "scale": float(rng.uniform(0.7, 1.3)), "rate": rate, "noise": float(rng.uniform(0.0005, 0.001)),
+            "amplitude": float(rng.uniform(0.05, 0.10)), "latency": float(rng.uniform(0.02, 0.04)),
+            "durations": tuple(round(float(rng.uniform(10.0, 14.0)), 1) for _ in range(3)),
+            "mount_hz": float(rng.uniform(10.0, 0.8 * rate / 2)), "mount_zeta": float(rng.uniform(0.02, 0.1))}
+
+
+def _omega(model, beta: float) -> float:
+    """The MRFT's describing-function frequency [rad/s] on the planning model."""
+    target = -math.pi + math.asin(beta)
+    lo, hi = 1e-3, 1e3
+    for _ in range(100):
+        w = math.sqrt(lo * hi)
+        ph = -w * model.tau - math.pi / 2 - math.atan(w * model.Tp) - math.atan(w * model.Td)
+        lo, hi = (w, hi) if ph > target else (lo, w)
+    return math.sqrt(lo * hi)
+
+
+def build(case: dict):
+    """The vehicle, the loop spec, Tp given to the tool, and the truth (library parameter, approximate)."""
+    sim, effect, sc = case["sim"], case["effect"], case["scale"]
+    mod = importlib.import_module(f".{sim}_flight", __package__)
+    model = mod.platform_model(case["platform"])
+    amp = case["amplitude"]
+    # the planned amplitude's relay heights, as a pilot caps them: at most 15 % of the hover command
+    # at beta -0.4 (a fast loop then oscillates by 1-3 cm), 25 % at -0.7 (its higher frequency shrinks
+    # the amplitude), the third test at twice the first's height
+    hover = mod.hover_command(case["platform"])
+    h1, h2 = (min(relay_height(model, b, amp), cap * hover) for b, cap in ((-0.4, 0.15), (-0.7, 0.25)))
+    heights = (h1, h2, 2.0 * h1)
+    amp = amp * h1 / relay_height(model, -0.4, amp)  # the first test's planned amplitude [m]
+    kw: dict = {}
+    loop: dict = {}
+    truth: float | None = None
+    w = _omega(model, -0.4)
+    if effect == "quadratic_drag":
+        c = 3.0 * math.pi / (8.0 * model.Td * amp * w) * sc  # damps like the linear model at the test speed
+        kw["drag_c"], truth = c, c
+    elif effect == "actuator_saturation":
+        truth = kw["u_max"] = mod.hover_command(case["platform"]) + 0.7 * sc * max(heights)
+    elif effect == "gain_drift":
+        truth = kw["drift"] = -0.001 * sc
+    elif effect == "actuator_rate_limit":
+        truth = kw["slew_u"] = 2.0 * h1 / (0.045 * sc)
+    elif effect == "sensor_lag":
+        truth = loop["lag"] = 0.07 * sc
+    elif effect == "delay_jitter":
+        loop["jitter"] = 0.012 * sc / math.sqrt(1 - 2 / math.pi)  # half-normal lateness, std 12 ms x factor
+        truth = 0.012 * sc
+    elif effect == MOUNT:
+        loop.update(mount_hz=case["mount_hz"], mount_zeta=case["mount_zeta"])
+    vehicle = mod.make_vehicle(case["platform"], **kw)
+    tests = tuple((b, h, d) for b, h, d in zip(BETAS, heights, case["durations"]))
+    spec = LoopSpec(rate=case["rate"], tests=tests, latency=case["latency"], noise=case["noise"], seed=case["seed"],
+                    planning=model, abort=10 * amp, **loop)
+    return vehicle, spec, mod.tool_tp(case["platform"]), truth
+
+
+def mount_snr(rec, spec: LoopSpec) -> float:
+    """The oracle SNR of the mount's ringing: what the mount adds to the true altitude beyond its
+    quasi-static part (least squares on y, y', y''), summed squared inside the tests over the noise variance."""
+    d = rec.y_mount - rec.y_true
+    T = 1.0 / spec.rate
+    v = np.gradient(rec.y_true, T)
+    a = np.gradient(v, T)
+    inside = np.zeros(d.size, bool)
+    for t0, t1 in zip(rec.test_starts, rec.test_ends):
+        inside |= (rec.t >= t0) & (rec.t <= t1)
+    X = np.column_stack([np.ones(d.size), v, a])[inside]
+    coef, *_ = np.linalg.lstsq(X, d[inside], rcond=None)
+    ring = d[inside] - X @ coef
+    return float(np.sum(ring**2) / spec.noise**2)
+
+
+def run_case(case: dict) -> dict:
+    """Fly, write MCAP, analyze and diagnose (CPU timed in this process), and what was found."""
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.diagnose.selection import diagnose
+    from mrftcli.errors import MrftError
+    from mrftcli.io import ReadOptions, read_flight, write_log
+
+    t0 = time.process_time()
+    vehicle, spec, Tp, truth = build(case)
+    rec = fly(vehicle, spec)
+    cpu_sim = time.process_time() - t0
+    out = {**case, "cpu_sim": cpu_sim, "Tp": Tp, "aborted": sum(rec.aborted), "min_margin": float("nan"),
+           "true_values": {case["effect"]: truth} if truth is not None else {},
+           "snr": mount_snr(rec, spec) if case["effect"] == MOUNT else None}
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "flight.mcap"
+        write_log(flight_topics(rec, [b for b, _, _ in spec.tests]), path, "mcap")
+        t0 = time.process_time()
+        try:
+            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), Tp)
+        except MrftError:
+            pass
+        out["cpu_analyze"] = time.process_time() - t0
+        t0 = time.process_time()
+        try:
+            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), Tp)
+            out["error"], out["refused"] = None, False
+        except Exception as exc:  # noqa: BLE001 - a benchmark records failures
+            res, out["error"] = None, f"{type(exc).__name__}: {exc}"
+            out["refused"] = isinstance(exc, MrftError)
+        out["cpu"] = time.process_time() - t0
+    if res is not None:
+        out["found"] = [e.name for e in res.effects]
+        out["unexplained"] = res.unexplained is not None
+        out["where"] = res.unexplained.largest if res.unexplained is not None else None
+        out["resonance"] = (out["where"] or {}).get("feature") in ("ringing_after_switches", "residual_above_harmonics")
+        out["cycles_used"] = [t.cycles for t in res.tests]
+        from bench_diagnose import PARAM  # noqa: PLC0415 - the parameter names, one home
+
+        out["values"] = {e.name: e.parameters.get(PARAM.get(e.name, ""), float("nan")) for e in res.effects}
+        out["nrmse"] = {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects}
+        out["dropped"] = [w for w in res.warnings if "not reported" in w]
+    return out

@@ -72,6 +72,44 @@ def test_true_model_leaves_the_sensor_noise_as_residual(repo_root, name):
         assert fit.rms == pytest.approx(truth["noise_std"], rel=0.1)
 
 
+def _fields(buf: bytes) -> list[tuple[int, object]]:
+    """Protobuf wire format read by hand (an oracle sharing no code with foxglove-sdk): (field, value)."""
+    out, i = [], 0
+
+    def varint() -> int:
+        nonlocal i
+        v = shift = 0
+        while True:
+            b = buf[i]
+            i += 1
+            v |= (b & 0x7F) << shift
+            shift += 7
+            if not b & 0x80:
+                return v
+
+    while i < len(buf):
+        key = varint()
+        if key & 7 == 0:
+            out.append((key >> 3, varint()))
+        else:  # length-delimited (the only other wire type foxglove.Event uses)
+            n = varint()
+            out.append((key >> 3, buf[i:i + n]))
+            i += n
+    return out
+
+
+def _event(buf: bytes) -> dict:
+    """foxglove.Event{1 start_time, 2 end_time: Timestamp{1 sec, 2 nsec}, 3 metadata: KeyValuePair{1, 2}}."""
+    ev: dict = {3: []}
+    for f, v in _fields(buf):
+        if f in (1, 2):
+            ev[f] = dict(_fields(v))
+        elif f == 3:
+            kv = dict(_fields(v))
+            ev[3].append((kv[1].decode(), kv[2].decode()))
+    return ev
+
+
 def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_path):
     from mcap.reader import make_reader
 
@@ -85,9 +123,12 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
         reader = make_reader(fh)
         msgs = {}
         for _, channel, message in reader.iter_messages():
-            msgs.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+            data = _event(message.data) if channel.message_encoding == "protobuf" else json.loads(message.data)
+            msgs.setdefault(channel.topic, []).append((message.log_time, data))
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
         schemas = {channel.topic: reader.get_summary().schemas[channel.schema_id].name
+                   for channel in reader.get_summary().channels.values()}
+        records = {channel.topic: reader.get_summary().schemas[channel.schema_id]
                    for channel in reader.get_summary().channels.values()}
         attachments = {a.name: (a.media_type, a.data) for a in reader.iter_attachments()}
     fit = msgs["/mrft_ident/fit"]
@@ -104,13 +145,19 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
     assert edges[0] == edges[1] and edges[2] == edges[3]
     # Foxglove marks the tests on its timeline: foxglove.Event, start and span of each test
     assert schemas["/mrft_ident/events"] == "foxglove.Event"
+    # the current Foxglove schema, byte for byte the one the maintained package ships (issue 37)
+    from foxglove.messages import Event
+
+    shipped = Event.get_schema()
+    rec = records["/mrft_ident/events"]
+    assert (rec.name, rec.encoding, rec.data) == (shipped.name, shipped.encoding, bytes(shipped.data))
+    assert b"start_time" in rec.data and b"end_time" in rec.data and b"KeyValuePair" in rec.data
     events = [m[1] for m in msgs["/mrft_ident/events"]]
     assert len(events) == 2
     for ev, x in zip(events, truth["tests"]):
-        start = ev["timestamp"]["sec"] + ev["timestamp"]["nsec"] / 1e9
-        span = ev["duration"]["sec"] + ev["duration"]["nsec"] / 1e9
-        assert x["t_start"] - 0.5 <= start and start + span <= x["t_end"] + 0.5
-        assert {kv["key"] for kv in ev["metadata"]} >= {"test", "beta", "h", "frequency_hz"}
+        start, end = ev[1][1] + ev[1].get(2, 0) / 1e9, ev[2][1] + ev[2].get(2, 0) / 1e9
+        assert x["t_start"] - 0.5 <= start < end <= x["t_end"] + 0.5
+        assert {k for k, _ in ev[3]} >= {"test", "beta", "h", "frequency_hz"}
     # the analysis rides along and reads back as the record analyze --json writes
     from mrftcli.analyze import AnalysisResult
 

@@ -20,10 +20,11 @@ Topics
     Foxglove's Plot panel), ``active`` is a square pulse over each test: a line between one test's end
     and the next one's start stays at 0 instead of drawing a diagonal across the test.
 ``/mrft_ident/events``
-    One ``foxglove.Event`` per test (the schema name Foxglove recognises, its JSON schema: ``timestamp``
-    {sec, nsec}, ``duration`` {sec, nsec}, ``metadata`` [{key, value}]): the test's start and span with
-    its number, beta, h, frequency, amplitude and fit residual as strings, so Foxglove marks the tests
-    on its timeline.
+    One ``foxglove.Event`` per test in the current Foxglove schema, taken from the maintained package
+    (``foxglove-sdk``'s ``foxglove.messages.Event``: its protobuf schema and its encoder; ``start_time``,
+    ``end_time``, ``metadata`` [KeyValuePair{key, value}]): the test's start and end with its number,
+    beta, h, frequency, amplitude and fit residual as strings, so Foxglove marks the tests on its
+    timeline. This channel is protobuf; the others JSON.
 ``/mrft_ident/parameters``
     The identified Tp, Td, tau [s] and K with standard deviations and 95 % intervals, at the first and
     the last output sample (so a plot draws them as lines across the log).
@@ -49,7 +50,7 @@ from ..errors import InputError
 from .atomic import atomic_path
 
 __all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS",
-           "FOXGLOVE_EVENT_SCHEMA", "ANALYSIS_ATTACHMENT"]
+           "FOXGLOVE_EVENT_SCHEMA", "ANALYSIS_ATTACHMENT", "foxglove_event_schema"]
 
 #: the topics :func:`write_overlay` writes
 OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters", "/mrft_ident/events")
@@ -60,19 +61,14 @@ FOXGLOVE_EVENT_SCHEMA = "foxglove.Event"
 #: the name of the analysis JSON attached to the results MCAP
 ANALYSIS_ATTACHMENT = "analysis.json"
 
-_TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
-                                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
-#: foxglove.Event as JSON schema (github.com/foxglove/schemas, schemas/jsonschema/Event.json)
-_EVENT_SCHEMA = {
-    "title": FOXGLOVE_EVENT_SCHEMA, "type": "object",
-    "properties": {
-        "timestamp": {**_TIME, "title": "time"},
-        "duration": {**_TIME, "title": "duration"},
-        "metadata": {"type": "array", "items": {
-            "title": "foxglove.EventKeyValue", "type": "object",
-            "properties": {"key": {"type": "string"}, "value": {"type": "string"}}}},
-    },
-}
+
+
+def foxglove_event_schema() -> tuple[str, str, bytes]:
+    """(name, encoding, data) of ``foxglove.Event`` as foxglove-sdk ships it (never hand-written)."""
+    from foxglove.messages import Event
+
+    schema = Event.get_schema()
+    return schema.name, schema.encoding, bytes(schema.data)
 
 
 @dataclass(frozen=True)
@@ -184,16 +180,18 @@ def _stamp(ns: int) -> dict[str, int]:
 
 
 def _event_rows(tests: Sequence[OverlayTest]) -> list[tuple[int, int, bytes]]:
-    """One ``foxglove.Event`` (channel 3) per test, at its start, lasting its span."""
+    """One ``foxglove.Event`` (channel 3) per test, from its start to its end, encoded by foxglove-sdk."""
+    from foxglove.messages import Event, KeyValuePair, Timestamp
+
     rows: list[tuple[int, int, bytes]] = []
     for test in tests:
-        start, end = _ns(test.t_start), _ns(test.t_end)
+        start, end = _ns(test.t_start), max(_ns(test.t_end), _ns(test.t_start))
         fields = {"test": test.number, "beta": test.beta, "h": test.h, "frequency_hz": test.frequency_hz,
                   "amplitude": test.amplitude, "cycles": test.cycles, "rms_residual": test.rms_residual}
-        meta = [{"key": "name", "value": f"MRFT test {test.number}"}]
-        meta += [{"key": k, "value": f"{v:.6g}" if isinstance(v, float) else str(v)} for k, v in fields.items()]
-        msg = {"timestamp": _stamp(start), "duration": _stamp(max(end - start, 0)), "metadata": meta}
-        rows.append((start, 3, json.dumps(msg).encode()))
+        meta = [KeyValuePair(key="name", value=f"MRFT test {test.number}")]
+        meta += [KeyValuePair(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v)) for k, v in fields.items()]
+        msg = Event(start_time=Timestamp(**_stamp(start)), end_time=Timestamp(**_stamp(end)), metadata=meta)
+        rows.append((start, 3, bytes(msg.encode())))
     return rows
 
 
@@ -258,13 +256,13 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
         writer = Writer(stream, compression=CompressionType.ZSTD, chunk_size=1 << 20)
         writer.start(profile="", library="mrft-ident")
         channels = []
-        schemas = (_schema(_FIT_PROPS), _schema(_TEST_PROPS), _schema(param_props),
-                   json.dumps(_EVENT_SCHEMA).encode())
-        for topic, schema_name, schema in zip(
-                OVERLAY_TOPICS, ("mrft_ident/Fit", "mrft_ident/Test", "mrft_ident/Parameters",
-                                 FOXGLOVE_EVENT_SCHEMA), schemas):
-            sid = writer.register_schema(schema_name, "jsonschema", schema)
-            channels.append(writer.register_channel(topic, "json", sid))
+        event_name, event_encoding, event_schema = foxglove_event_schema()
+        schemas = ((_schema(_FIT_PROPS), "jsonschema", "json"), (_schema(_TEST_PROPS), "jsonschema", "json"),
+                   (_schema(param_props), "jsonschema", "json"), (event_schema, event_encoding, event_encoding))
+        for topic, schema_name, (schema, encoding, message_encoding) in zip(
+                OVERLAY_TOPICS, ("mrft_ident/Fit", "mrft_ident/Test", "mrft_ident/Parameters", event_name), schemas):
+            sid = writer.register_schema(schema_name, encoding, schema)
+            channels.append(writer.register_channel(topic, message_encoding, sid))
         seq = [0, 0, 0, 0]
         for log_time, ch, data in rows:
             writer.add_message(channel_id=channels[ch], log_time=log_time, publish_time=log_time, data=data,

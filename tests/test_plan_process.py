@@ -83,17 +83,18 @@ def test_recommended_relay_simulated_and_analysed_pins_k_and_t_down(first, tmp_p
 
 
 def test_parameters_one_test_leaves_undetermined_are_determined_by_the_plan(tmp_path):
-    # a noisier first test (0.04 output units, 8 s): K and T trade along its one phase
+    # a noisier first test (0.02 output units, 8 s): K and T trade along its one phase (issue 38: determined
+    # means within a factor 1.25, so 0.04 left K at +-25 % even after the recommended test)
     w1 = Window("ideal", 1.0, -1.0, duration=8.0, rest=2.0)
-    _, analysis = _analyse(tmp_path, "noisy.csv", [w1], 0.04, 3)
+    _, analysis = _analyse(tmp_path, "noisy.csv", [w1], 0.02, 3)
     plan = plan_process(analysis)
     assert set(plan.undetermined) == {"K", "T"}
-    assert plan.std_now["K"] > 0.5 * plan.identification.estimate("K").value
+    assert plan.std_now["K"] > 0.1 * plan.identification.estimate("K").value
     best = plan.recommended
     assert best.undetermined_after == () and "determines K, T" in plan.why
     again = next(c for c in plan.candidates if c.relay.kind == "ideal")  # more cycles at the same phase
     assert again.std_after["K"] > 1.5 * best.std_after["K"]
-    _, both = _analyse(tmp_path, "noisy2.csv", [w1, _window(best.relay, 8.0)], 0.04, 3)
+    _, both = _analyse(tmp_path, "noisy2.csv", [w1, _window(best.relay, 8.0)], 0.02, 3)
     for name in ("K", "T", "tau"):
         e = both.identification.estimate(name)
         assert e.determined and e.ci95_low <= TRUTH[name] <= e.ci95_high, (name, e)

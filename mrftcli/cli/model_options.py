@@ -295,7 +295,7 @@ def format_combination(ident: LtiIdentification) -> list[str]:
     if c is None:
         return []
     return [f"determined: {c.name} = {_num(c.value)} {c.unit} (95 % {_num(c.ci95_low)} - {_num(c.ci95_high)}); "
-            f"{', '.join(ident.undetermined)} trade off along it"]
+            f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
 
 
 def format_general(result: GeneralAnalysis) -> str:

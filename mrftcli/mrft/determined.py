@@ -15,6 +15,7 @@ factor e (``K/T1`` rather than ``K^1 T1^-0.93``); the combination is reported on
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -115,9 +116,30 @@ def _variance(S: NDArray[np.float64], e: NDArray[np.float64]) -> float:
     return float(np.sum(c[~blind] ** 2 / w[~blind]))
 
 
+def _best_direction(F: NDArray[np.float64], sel: list[int]) -> tuple[float, NDArray[np.float64]] | None:
+    """(std, exponents) of the best-determined power product of the parameters ``sel``, or None."""
+    S = _schur_information(F, sel)
+    w, V = np.linalg.eigh(S)
+    if not w.size or w[-1] <= 0:
+        return None
+    v = V[:, -1]
+    e = v / v[int(np.argmax(np.abs(v)))]  # the strongest factor at power 1
+    rounded = np.round(2 * e) / 2
+    var_exact = _variance(S, e)
+    var_round = _variance(S, rounded) if np.any(rounded != 0) else math.inf
+    if var_round <= 4 * var_exact or 2 * _Z95 * math.sqrt(var_round) < 0.5 * _LOG_WIDTH:
+        # halves, as written by hand, where they cost at most a factor 2 in the std or stay within a factor e
+        e, var = rounded, var_round
+    else:
+        e = np.round(e, 2)
+        var = _variance(S, e)
+    return (math.sqrt(var), e) if math.isfinite(var) else None
+
+
 def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDArray[np.float64],
                            undetermined: Sequence[str], units: Mapping[str, str],
-                           signs: Mapping[str, float] | None = None) -> DeterminedCombination | None:
+                           signs: Mapping[str, float] | None = None,
+                           log_width: float = _LOG_WIDTH) -> DeterminedCombination | None:
     """The best-determined power product of the undetermined log-scaled parameters, or None.
 
     Parameters
@@ -134,6 +156,9 @@ def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDAr
         Unit of each parameter.
     signs : mapping, optional
         Sign of each parameter's value (K may be negative); default positive.
+    log_width : float
+        The widest 95 % interval, in log units, of a determined combination (default a factor e^2).
+        Of the combinations within it, the one with the fewest factors, then the least uncertain.
 
     Examples
     --------
@@ -147,23 +172,17 @@ def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDAr
     sel = [i for i, n in enumerate(names) if n in undetermined]
     if len(sel) < 2:
         return None
-    S = _schur_information(np.asarray(F, dtype=np.float64), sel)
-    w, V = np.linalg.eigh(S)
-    if not w.size or w[-1] <= 0:
+    best: tuple[float, list[int], NDArray[np.float64]] | None = None
+    for size in range(2, len(sel) + 1):  # the fewest factors first: K/T1 before K T2^0.5/T1
+        for sub in itertools.combinations(sel, size):
+            found = _best_direction(np.asarray(F, dtype=np.float64), list(sub))
+            if found is not None and 2 * _Z95 * found[0] < log_width and (best is None or found[0] < best[0]):
+                best = (found[0], list(sub), found[1])
+        if best is not None:
+            break
+    if best is None:
         return None
-    v = V[:, -1]
-    e = v / v[int(np.argmax(np.abs(v)))]  # the strongest factor at power 1
-    rounded = np.round(2 * e) / 2
-    var_exact = _variance(S, e)
-    var_round = _variance(S, rounded) if np.any(rounded != 0) else math.inf
-    if var_round <= 4 * var_exact or 2 * _Z95 * math.sqrt(var_round) < 0.5 * _LOG_WIDTH:
-        # halves, as written by hand, where they cost at most a factor 2 in the std or stay within a factor e
-        e, var = rounded, var_round
-    else:
-        e, var = np.round(e, 2), _variance(S, np.round(e, 2))
-    s = math.sqrt(var) if math.isfinite(var) else math.inf
-    if not 2 * _Z95 * s < _LOG_WIDTH:
-        return None
+    s, sel, e = best
     pick = [(names[i], float(ei)) for i, ei in zip(sel, e.tolist()) if ei != 0]
     log_value = float(sum(ei * z[i] for i, ei in zip(sel, e.tolist())))
     sign = 1.0

@@ -25,9 +25,11 @@ inflated by the reduced chi-square when the points disagree beyond their standar
 intervals are formed on the log scale for positive parameters and cut at a bound of the set I (then
 one-sided).
 
-What the tests do not pin down is said, not guessed: a parameter whose 95 % interval is wider than a
-factor of e^2 (or, for the delay, than a radian of phase at the limit cycles' median frequency) is reported as not
-determined, with the test that would determine it.
+What the tests do not pin down is said, not guessed: a parameter whose 95 % interval (the linear one,
+or the profile likelihood's where that reaches further) is wider than a factor of 1.25 either way
+(:data:`DETERMINED_LOG_WIDTH`; or, for the delay, than a radian of phase at the limit cycles' median
+frequency) is reported as not determined, with the test that would determine it and the product of
+powers of the undetermined parameters that the tests do determine (:mod:`~mrftcli.mrft.determined`).
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ from .lti_kernel import LagChainKernel
 from .model import PlantModel, model_from_json
 
 __all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION",
-           "STATIC_HARMONIC", "static_gain_point"]
+           "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
 
 #: version of :meth:`LtiIdentification.to_json`
 LTI_SCHEMA_VERSION = 1
@@ -73,7 +75,7 @@ _CHI2_95 = 3.841458820694124
 #: a positive parameter is determined when its 95 % interval is within this log width: a factor
 #: 1.25 either way. Issue 38: a factor e^2 called K 10.2 [7.2, 14.5] determined where one relay
 #: setting saw only K/T1 (the truth 32); a user acts on a parameter pinned to +-25 %, not to 2x.
-_DETERMINED_LOG_WIDTH = 2 * math.log(1.25)
+DETERMINED_LOG_WIDTH = 2 * math.log(1.25)
 #: :attr:`ResponsePoint.harmonic` of a static-gain point
 STATIC_HARMONIC = 0
 #: a static-gain point's frequency, relative to the lowest test frequency
@@ -571,7 +573,8 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
         keep = [problem.unknown.index(n) for n in log_names]
         F = (J.T @ J)[np.ix_(keep, keep)] / inflate
         units = {n: p.unit for n, p in model.parameters.items()}
-        combo = determined_combination(log_names, z[keep], F, out.undetermined, units, {"K": problem.k_sign})
+        combo = determined_combination(log_names, z[keep], F, out.undetermined, units, {"K": problem.k_sign},
+                                       DETERMINED_LOG_WIDTH)
         out = dataclasses.replace(out, combination=combo)
     return out
 
@@ -785,7 +788,7 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
             sign = problem.k_sign if name == "K" else 1.0
             ends = sorted([sign * math.exp(a), sign * math.exp(b)])
             std = abs(p.value) * s
-            determined = bool(b - a < _DETERMINED_LOG_WIDTH)
+            determined = bool(b - a < DETERMINED_LOG_WIDTH)
         else:
             ends = [a, b]
             std = s

@@ -35,7 +35,7 @@ from scipy import stats
 
 from ..analyze.general import GeneralAnalysis
 from ..errors import InputError
-from ..mrft.identify_lti import LtiIdentification, ResponsePoint
+from ..mrft.identify_lti import DETERMINED_LOG_WIDTH, LtiIdentification, ResponsePoint
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 from .process_records import ProcessCandidate, ProcessPlan
@@ -112,11 +112,13 @@ def _stds(model: PlantModel, names: Sequence[str], F: FloatArray, w_ref: float) 
 
 
 def _undetermined(model: PlantModel, stds: Mapping[str, float], w_ref: float) -> tuple[str, ...]:
-    """identify_lti's verdict: a 95 % interval wider than a factor e^2, or (tau) than a radian at w_ref."""
+    """identify_lti's verdict: a 95 % interval wider than :data:`DETERMINED_LOG_WIDTH` (a factor 1.25 either
+    way), or (tau) than a radian at w_ref."""
     out = []
     for name, s in stds.items():
         v = model.parameters[name].value
-        wide = 2 * 1.959964 * (s / abs(v) if _is_log(name, v) else s * w_ref) >= (2.0 if _is_log(name, v) else 1.0)
+        wide = 2 * 1.959964 * (s / abs(v) if _is_log(name, v) else s * w_ref) >= (
+            DETERMINED_LOG_WIDTH if _is_log(name, v) else 1.0)
         if not math.isfinite(s) or wide:
             out.append(name)
     return tuple(out)

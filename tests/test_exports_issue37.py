@@ -84,3 +84,20 @@ def test_reboot_required_from_the_stacks_metadata():
     e = StackExport("px4", "roll", "x", {"MC_ROLL_P": 4.0, "IMU_GYRO_RATEMAX": 400.0}, (),
                     Margins(2.0, 45.0, 0.01, 1.5, 1.0, 2.0, True), ())
     assert any(n.startswith("IMU_GYRO_RATEMAX take effect only after a reboot") for n in _with_reboot_note(e).notes)
+
+
+def test_generic_export_carries_its_units_in_the_file(tmp_path):
+    """tune --export generic: the file says the unit of every number (the output's from the loop)."""
+    import json
+
+    from mrftcli.cli.main import main
+
+    out = tmp_path / "g.json"
+    try:
+        main(["tune", "--tp", "0.0499", "--td", "0.887", "--tau", "0.0228", "--k", "20", "--loop", "roll",
+              "--controller-rate", "200", "--export", "generic", "--out", str(out), "-q"])
+    except SystemExit as e:
+        assert not e.code
+    data = json.loads(out.read_text())
+    assert data["units"]["Kp"] == "command unit per rad" and data["units"]["Tf"] == "s"
+    assert data["units"]["rate_hz"] == "Hz" and data["loop"] == "roll" and data["Kp"] > 0

@@ -224,7 +224,9 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
                        f"Kd {c.Kd:.5g}  Tf {c.Tf:.5g} s  rate {rate:g} Hz")
         return None
     if stack_export is None:  # generic: the controller as JSON
-        text = json.dumps({"design": name, "kind": kind, **c.to_dict()}, indent=2) + "\n"
+        from ..tune.export import generic_file
+
+        text = json.dumps(generic_file(c, name, kind, loop), indent=2) + "\n"
         summary = [f"export generic ({name} {kind}, {loop})"]
     else:
         text, summary = stack_export.file_text(), stack_summary(stack_export)

@@ -33,7 +33,7 @@ from .closed_loop import Controller
 if TYPE_CHECKING:
     from .design import TuneResult
 
-__all__ = ["generic", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
+__all__ = ["generic", "generic_file", "generic_units", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
 
 FORMATS = ("json", "table", "hear", "px4")
 #: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
@@ -43,6 +43,25 @@ HEAR_PID_ID = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4, "yaw": 5}
 def generic(c: Controller) -> dict[str, Any]:
     """Kp, Ki, Kd, Tf [s] and rate_hz of a controller (parallel form, derivative on the measurement)."""
     return c.to_dict()
+
+
+def generic_units(loop: str) -> dict[str, str]:
+    """The units of the generic export's numbers for ``loop`` (the command's unit is the log's).
+
+    Examples
+    --------
+    >>> generic_units("roll")["Kp"]
+    'command unit per rad'
+    """
+    y = output_unit(loop)
+    return {"Kp": f"command unit per {y}", "Ki": f"command unit per ({y} s)", "Kd": f"command unit s per {y}",
+            "Tf": "s", "rate_hz": "Hz", "cutoff_hz": "Hz", "command": "the log's command unit (the relay's)",
+            "output": y}
+
+
+def generic_file(c: Controller, design: str, kind: str, loop: str) -> dict[str, Any]:
+    """The generic export as written (``tune --export generic``): the controller with its units in the file."""
+    return {"design": design, "kind": kind, "loop": loop, **c.to_dict(), "units": generic_units(loop)}
 
 
 def hear_json(c: Controller, loop: str) -> dict[str, Any]:

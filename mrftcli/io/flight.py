@@ -11,6 +11,7 @@ serves a finished file (:func:`mrftcli.io.read_flight`) and one still being writ
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -229,6 +230,7 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     timing = _timing(log, match.layout, opts, command, output)  # the stamps as logged, before _finite
     command = _finite(log, _bounded(log, command, "command", source["command"]), "command", source["command"])
     output = _finite(log, _bounded(log, output, "output", source["output"]), "output", source["output"])
+    output = _fresh(log, output, source["output"])
     if match.layout.name != "reference" and not opts.any_time_scale:
         _warn_low_rate(log, command, match.layout)
     return FlightLog(path=str(log.path), loop=opts.loop, command=command, output=output,
@@ -419,6 +421,94 @@ def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
                 f"to them is interpolated between the samples around it (1-2 missing) or its cycle is dropped (more)")
 
     return _left_out(log, sig, bad, f"{role} {where}: every value is NaN or infinite", role, warning)
+
+
+#: a held sample repeats its predecessor in runs of at most this many (a sensor at a third of the log's
+#: rate or faster), and at least this share of all samples must be such repeats for the output to be
+#: called stale: a flat stretch (saturation, a pause) repeats in long runs, a quantised signal now and then
+#: (real KSTAR recordings: 8 % of the samples in short runs; a sensor at half the log's rate: 50 %)
+_STALE_RUN, _STALE_SHARE = 3, 0.25
+
+
+def stale_samples(values: np.ndarray) -> np.ndarray | None:
+    """The samples that exactly repeat their predecessor in short runs (:data:`_STALE_RUN`), when at least
+    :data:`_STALE_SHARE` of the samples do (a sample-and-hold sensor slower than the log, a logger
+    re-writing its last value); else None.
+
+    Only a finely resolved output is judged (its typical step at least 3 times its smallest): exact repeats
+    of a coarsely quantised signal are its resolution, not staleness.
+    """
+    y = np.asarray(values, dtype=np.float64)
+    if len(y) < 100:
+        return None
+    steps = np.abs(np.diff(y))
+    steps = steps[steps > 0]
+    if len(steps) < 50 or np.median(steps) < 3 * steps.min():
+        return None
+    same = np.r_[False, y[1:] == y[:-1]]
+    edges = np.diff(np.r_[0, same.astype(np.int8), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    short = np.zeros(len(y) + 1, dtype=np.int64)
+    keep = ends - starts <= _STALE_RUN
+    np.add.at(short, starts[keep], 1)
+    np.add.at(short, ends[keep], -1)
+    held = np.cumsum(short[:-1]) > 0
+    return held if held.mean() >= _STALE_SHARE else None
+
+
+def interleaved_delay(t: np.ndarray, values: np.ndarray) -> tuple[float, float]:
+    """(delay [s], its standard error [s]) of the odd samples behind the even ones.
+
+    The even samples interpolated at the odd samples' times leave a residual of ``-delay`` times the slope
+    (linear interpolation's own error follows the curvature, which the slope does not predict, and the
+    noise of the interpolation and of the slope are uncorrelated): a least-squares fit of the residual on
+    the slope. A sensor whose every second sample is an older measurement (sample-and-hold) shows as a
+    delay of a sample or more; a fresh one as 0.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    te, ye, to, yo = t[0::2], y[0::2], t[1::2], y[1::2]
+    inside = (to > te[0]) & (to < te[-1])
+    to, yo = to[inside], yo[inside]
+    dte = np.diff(te)
+    if len(to) < 8 or (dte <= 0).any():
+        return 0.0, float("inf")
+    slope = np.interp(to, 0.5 * (te[1:] + te[:-1]), np.diff(ye) / dte)
+    resid = yo - np.interp(to, te, ye)
+    ss = float(np.dot(slope, slope))
+    if ss <= 0:
+        return 0.0, float("inf")
+    delay = -float(np.dot(resid, slope)) / ss
+    rest = resid + delay * slope
+    return delay, math.sqrt(float(np.dot(rest, rest)) / (len(to) - 1) / ss)
+
+
+def _stale_mask(sig: Signal) -> tuple[np.ndarray, str] | None:
+    """The stale samples of ``sig`` and what they are, or None (:func:`stale_samples`, :func:`interleaved_delay`)."""
+    held = stale_samples(sig.values)
+    if held is not None:
+        return held, f"{100 * held.mean():.0f} % of the samples repeat the one before exactly"
+    dt = float(np.median(np.diff(sig.t))) if len(sig.t) > 1 else float("nan")
+    if len(sig.t) < 100 or not dt > 0:
+        return None
+    delay, se = interleaved_delay(sig.t, sig.values)
+    if abs(delay) < 0.5 * dt or abs(delay) < 5 * se:
+        return None
+    bad = np.zeros(len(sig.t), dtype=bool)
+    bad[(1 if delay > 0 else 0)::2] = True  # the phase that lags
+    return bad, f"every second sample is {1e3 * abs(delay):.3g} ms older than its neighbours"
+
+
+def _fresh(log: LogSource, sig: Signal, where: str) -> Signal:
+    """``sig`` without stale samples (:func:`stale_samples`), said in a warning naming the fix: a stale sample
+    is an old measurement at a new time, and half the tests' samples held 20 ms biased tau by 10 ms."""
+    found = _stale_mask(sig)
+    if found is None:
+        return sig
+    bad, what = found
+    log.warn(f"output {where}: {what}: a stale, sample-and-hold sensor slower than the log; those samples are "
+             "left out (they would add their age to the loop's delay); log only the sensor's fresh samples")
+    return Signal(sig.t[~bad], sig.values[~bad])
 
 
 def _left_out(log: LogSource, sig: Signal, bad: np.ndarray, all_bad: str, role: str,

@@ -39,6 +39,8 @@ __all__ = [
     "ParameterEstimate",
     "IdentificationResult",
     "identify",
+    "gain_disagreement",
+    "GAIN_FLOOR",
     "ufm_slice",
     "tau_curve",
     "intersection_draws",
@@ -508,6 +510,37 @@ def _per_test(inputs: _Inputs, m: _Measured, point: _Point,
     return tuple(rows), warns
 
 
+#: relative error [-] every test's own gain carries beyond its amplitude's standard error (the cycle's
+#: shape, the plant's unmodelled dynamics): tests agreeing to within a few of these are consistent
+GAIN_FLOOR = 0.1
+
+
+def gain_disagreement(tests: Sequence[TestMeasurement], gains: Sequence[float | None]) -> list[str]:
+    """A warning naming two tests whose own K disagree beyond their intervals (a typed or logged amplitude
+    or relay height off by a factor, a test on another vehicle), or nothing.
+
+    Each test's K carries its amplitude's relative standard error and :data:`GAIN_FLOOR`; two tests
+    disagree when ``|ln K_i - ln K_j|`` exceeds three times their combined error (10x: ln 10 = 2.3
+    against 0.42 without standard errors).
+    """
+    rows = [(i, k, math.hypot(GAIN_FLOOR, (t.amplitude_sem or 0.0) / t.amplitude_mean))
+            for i, (t, k) in enumerate(zip(tests, gains))
+            if k is not None and k > 0 and t.amplitude_mean]
+    worst = None
+    for a in range(len(rows)):
+        for b in range(a + 1, len(rows)):
+            (i, ki, si), (j, kj, sj) = rows[a], rows[b]
+            z = abs(math.log(ki / kj)) / math.hypot(si, sj)
+            if z > 3 and (worst is None or z > worst[0]):
+                worst = (z, i, ki, j, kj)
+    if worst is None:
+        return []
+    _, i, ki, j, kj = worst
+    return [f"the tests' own gains disagree: test {i + 1} gives K {ki:.4g}, test {j + 1} K {kj:.4g} "
+            f"({max(ki, kj) / min(ki, kj):.2g}x, beyond their intervals): check each test's amplitude and relay "
+            "height H (units, a typo); K is their mean and is not to be trusted"]
+
+
 def _uncertainty(inputs: _Inputs, m: _Measured, point: _Point, gains: list[float | None],
                  ms: ManifoldSet) -> _Spread:
     """The spread of the estimates: none, Monte Carlo (two tests) or the delta method (three or more)."""
@@ -662,7 +695,7 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
     gains = _test_gains(inputs, measured, point.Td)
     per_test, identifiability = _per_test(inputs, measured, point, gains)
     est = _uncertainty(inputs, measured, point, gains, ms)
-    warns = [*point.warnings, *identifiability, *est.warnings]
+    warns = [*point.warnings, *identifiability, *est.warnings, *gain_disagreement(inputs.tests, gains)]
     if est.Td.std > 0.3 * point.Td:
         warns.append(f"Td is poorly determined by these tests: std {est.Td.std:.3g} s is "
                      f"{100 * est.Td.std / point.Td:.0f} % of the estimate")

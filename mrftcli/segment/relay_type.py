@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from ..errors import InputError
 from ..mrft.relays import RelayLaw
 from .records import MrftTest
 
@@ -76,6 +77,11 @@ def infer_relay(test: MrftTest, kind: str | None = None, beta: float | None = No
         assert b is not None
         return RelayLaw("mrft", high, low, beta=float(b), source="stated" if beta is not None else stated)
     if kind == "hysteresis" and eps is not None:
+        amp = float(test.amplitude_mean)
+        if not (math.isfinite(eps) and 0 <= eps < amp):  # the recording's own level: switches at +-eps < swing
+            raise InputError(f"--eps {eps:g} is not below test {test.index + 1}'s own output amplitude {amp:.3g} "
+                             "[output units]: a hysteresis relay switches where the error crosses +-eps, inside "
+                             "the swing; give eps in output units, or leave it out to measure it")
         return RelayLaw("hysteresis", high, low, eps=float(eps), source="stated")
     level, se, amp = switching_level(test)
     lag_level = sampling_level(test, amp)

@@ -23,8 +23,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_json_file", "load_toml_text", "MAX_JSON_DEPTH",
-           "json_depth"]
+__all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_json_file", "load_toml_text", "load_yaml_text",
+           "MAX_JSON_DEPTH", "MAX_YAML_NODES", "json_depth"]
 
 
 #: deepest nesting of objects and arrays a JSON (or TOML) file the tool reads may have; the records
@@ -102,6 +102,76 @@ def load_toml_text(text: str, what: str) -> Any:
         raise InputError(f"{what}: TOML nested too deep to read") from None
     except (ValueError, tomllib.TOMLDecodeError) as err:
         raise InputError(f"{what}: not valid TOML ({str(err).splitlines()[0]})") from None
+
+
+#: most values a YAML file may expand to, aliases counted at every use (a settings file holds hundreds;
+#: a 341-byte "billion laughs" file of nested aliases expands to 10**9)
+MAX_YAML_NODES = 100_000
+
+
+def load_yaml_text(text: str, what: str) -> Any:
+    r"""The parsed YAML ``text`` through PyYAML's safe loader (plain values only: no Python object is
+    ever constructed), after checking on the composed node graph that it expands to at most
+    :data:`MAX_YAML_NODES` values nested at most :data:`MAX_JSON_DEPTH` deep, with no recursive alias.
+
+    Examples
+    --------
+    >>> load_yaml_text("a: &x [1, 2]\nb: *x", "demo")
+    {'a': [1, 2], 'b': [1, 2]}
+    >>> load_yaml_text("a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+    ...     f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 10)}]\n" for i in range(5)), "demo")
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: demo: its aliases expand to more than 100000 values (a settings file holds hundreds); is it the right file?
+    """
+    import yaml  # PyYAML, only needed for YAML configs
+
+    if json_depth(text) > MAX_JSON_DEPTH:  # flow collections use JSON's brackets; PyYAML's composer recurses
+        raise InputError(f"{what}: YAML nested more than {MAX_JSON_DEPTH} deep; is it the right file?")
+    # the pure-Python safe loader: libyaml's (CSafeLoader) crashes the process on deeply nested input
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_yaml_graph(node, what)
+        return loader.construct_document(node)
+    except yaml.YAMLError as err:
+        raise InputError(f"{what}: not valid YAML: {' '.join(str(err).split())}") from None
+    except RecursionError:
+        raise InputError(f"{what}: YAML nested too deep to read") from None
+    finally:
+        loader.dispose()
+
+
+def _check_yaml_graph(root: Any, what: str) -> None:
+    """Expanded size and depth of a composed YAML node graph (aliases share nodes), without recursion."""
+    size: dict[int, int] = {}
+    depth: dict[int, int] = {}
+    open_nodes: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, finished = stack.pop()
+        key = id(node)
+        children = [c for pair in node.value for c in (pair if isinstance(pair, tuple) else (pair,))] \
+            if isinstance(node.value, list) else []
+        if finished:
+            open_nodes.discard(key)
+            size[key] = 1 + sum(size[id(c)] for c in children)
+            depth[key] = 1 + max((depth[id(c)] for c in children), default=0)
+            if size[key] > MAX_YAML_NODES:
+                raise InputError(f"{what}: its aliases expand to more than {MAX_YAML_NODES} values (a settings "
+                                 "file holds hundreds); is it the right file?")
+            if depth[key] > MAX_JSON_DEPTH:
+                raise InputError(f"{what}: YAML nested more than {MAX_JSON_DEPTH} deep; is it the right file?")
+            continue
+        if key in size:
+            continue
+        if key in open_nodes:
+            raise InputError(f"{what}: a recursive YAML alias (a value that contains itself)")
+        open_nodes.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in children if id(c) not in size)
 
 
 def to_jsonable(obj: Any) -> Any:

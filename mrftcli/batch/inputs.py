@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..jsonable import load_toml_text, load_yaml_text
 from ..io.layouts import LAYOUT_NAMES
 from ..io.logtypes import LOOPS
 from ..validate import check_tp
@@ -252,21 +253,14 @@ def load_config(path: str | os.PathLike[str]) -> BatchConfig:
         raise InputError(f"cannot read config file {p}: {err.strerror or err}") from err
     if p.suffix.lower() in (".yaml", ".yml"):
         try:
-            import yaml  # PyYAML, only needed for YAML configs
+            import yaml  # noqa: F401  # PyYAML, only needed for YAML configs
         except ImportError as err:  # pragma: no cover - depends on the environment
             raise InputError(f"{p}: YAML configs need PyYAML (pip install pyyaml), or use TOML") from err
-        try:
-            raw = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            raise InputError(f"{p}: not valid YAML: {' '.join(str(err).split())}") from err
+        # the safe loader, its aliases' expansion and its depth bounded (a 341-byte file can expand to 10**9)
+        raw = load_yaml_text(text, str(p))
         raw = {} if raw is None else raw
     else:
-        import tomllib
-
-        try:
-            raw = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as err:
-            raise InputError(f"{p}: not valid TOML: {err}") from err
+        raw = load_toml_text(text, str(p))
     if not isinstance(raw, Mapping):
         raise InputError(f"{p}: expected a mapping with [defaults] and [[logs]], got {type(raw).__name__}")
     for key in raw:

@@ -57,7 +57,7 @@ from .summary import (
 )
 from ..errors import InputError, InsufficientDataError, MrftError, TpRejectedError
 from ..io.logtypes import LOOPS
-from ..jsonable import to_jsonable
+from ..jsonable import load_json_text, to_jsonable
 from ..progress import Progress
 from ..progress import report as report_progress
 from ..validate import check_positive
@@ -450,8 +450,8 @@ def _load_cached(json_path: Path, task: LogTask) -> dict[str, Any] | None:
     try:
         if json_path.stat().st_mtime <= task.log_mtime:
             return None
-        record = json.loads(json_path.read_text())
-    except (OSError, ValueError):
+        record = load_json_text(json_path.read_text(), str(json_path))
+    except (OSError, ValueError):  # unreadable, not JSON or nested too deep: analysed again
         return None
     if record.get("settings_hash") != task.settings_hash or record.get("path") != task.path:
         return None

@@ -14,6 +14,7 @@ from typing import Any, Callable, Mapping
 import click
 
 from ..errors import InputError, MrftError
+from ..jsonable import load_json_text
 from .options import check_output_file, dump_json
 
 __all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade", "format_cascade",
@@ -77,9 +78,11 @@ def pop_cascade_options(options: dict[str, Any]) -> CascadeRequest:
 def _read_json(path: str, option: str) -> Any:
     try:
         with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
+            return load_json_text(fh.read(), f"{option} {path}")
     except OSError as err:
         raise InputError(f"{option} {path}: cannot read it ({err.strerror or err})") from err
+    except InputError:
+        raise
     except ValueError as err:
         raise InputError(f"{option} {path}: not JSON ({err})") from err
 
@@ -173,8 +176,8 @@ def is_cascade_result(path: str) -> bool:
     (the caller's own reader then says why)."""
     try:
         with open(path, encoding="utf-8") as fh:
-            data = json.load(fh)
-    except (OSError, ValueError):
+            data = load_json_text(fh.read(), path)
+    except (OSError, ValueError):  # InputError too: the caller's own reader then says why
         return False
     return isinstance(data, dict) and data.get("kind") == "cascade"
 

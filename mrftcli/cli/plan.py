@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 from collections.abc import Mapping, Sequence
@@ -12,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
+from ..jsonable import load_json_text
 from ..report.wording import output_unit
 from .model_options import build_model, format_estimates, parse_windows, relay_options, structure_options, window_option
 from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
@@ -43,8 +43,8 @@ def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEs
     from ..plan import flown_from_result
 
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = load_json_text(path.read_text(), str(path))
+    except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
     try:
         return (*flown_from_result(data), _json_rate(data))
@@ -135,8 +135,8 @@ def _process_analysis_json(path: Path, model_name: str) -> GeneralAnalysis:
     from ..analyze.general import GeneralAnalysis
 
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        data = load_json_text(path.read_text(), str(path))
+    except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
     try:
         analysis = GeneralAnalysis.from_json(data)

@@ -15,6 +15,7 @@ from typing import Any, Mapping
 import click
 
 from ..errors import InputError
+from ..jsonable import load_json_text
 from .model_options import meta_model
 from .options import check_output_file, dump_json
 
@@ -60,8 +61,8 @@ class ProcessTuneRequest:
 def _read_json(path: str) -> Any:
     try:
         with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
+            return load_json_text(fh.read(), path)
+    except (OSError, ValueError):  # InputError too: the caller's own reader then says why
         return None
 
 

@@ -12,6 +12,7 @@ import click
 from click.core import ParameterSource
 
 from ..errors import InputError
+from ..jsonable import load_json_text
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
@@ -142,9 +143,11 @@ def _inner_gains(path: Path, inner_loop: str, axis: str):
     from ..sim.cascade_spec import InnerGains
 
     try:
-        data = json.loads(path.read_text())
+        data = load_json_text(path.read_text(), f"--inner-gains {path}")
     except OSError as err:
         raise InputError(f"--inner-gains {path}: cannot read it ({err.strerror})") from None
+    except InputError:
+        raise
     except ValueError:
         raise InputError(f"--inner-gains {path}: not JSON; expected {{\"{inner_loop}\": {{\"Kp\": ..}}}}") from None
     if not isinstance(data, dict) or inner_loop not in data:

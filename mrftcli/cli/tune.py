@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
+from ..jsonable import load_json_text
 from ..validate import TP_MISSING, check_spread, check_time
 
 if TYPE_CHECKING:
@@ -148,7 +149,7 @@ def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     from ..tune.analysis import model_from_result_json
 
     try:
-        data = json.loads(path.read_text())
+        data = load_json_text(path.read_text(), str(path))
         _refuse_process_result(data, path)
         result = AnalysisResult.from_json(data)
         model, post, note = model_from_result_json(result, Tp)

@@ -11,6 +11,7 @@ import click
 
 from ..analyze import AnalysisResult
 from ..errors import InputError, SegmentationError, TpRejectedError
+from ..jsonable import load_json_text
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
@@ -89,7 +90,8 @@ def _inner_gains(path: str | None) -> dict[str, Any] | None:
     if path is None:
         return None
     try:
-        data = json.loads(open(path).read())
+        with open(path, encoding="utf-8") as fh:
+            data = load_json_text(fh.read(), f"--inner-gains {path}")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise InputError(f"--inner-gains {path}: not a readable JSON file ({err})") from None
     if not isinstance(data, dict):

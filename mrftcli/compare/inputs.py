@@ -26,9 +26,7 @@ The analysis JSON is read by :meth:`mrftcli.analyze.AnalysisResult.from_json` (i
 
 from __future__ import annotations
 
-import json
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +34,7 @@ from typing import Any
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..jsonable import load_json_text, load_toml_text
 from ..mrft.identify import ParameterEstimate
 from .records import PARAMETERS, Estimate, LoopEstimates, Tolerance
 from .tolerance import parse_amount
@@ -145,8 +144,10 @@ def estimates_from_batch_record(record: Mapping[str, Any], *, source: str, by: s
 
 def _read_json(path: Path) -> Any:
     try:
-        return json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        return load_json_text(path.read_text(), str(path))  # depth-checked: the one reader of input JSON
+    except InputError as err:
+        raise InputError(f"{err}; pass an analysis JSON, a batch folder or a reference .toml") from None
+    except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: cannot read it as JSON ({err}); pass an analysis JSON, a batch folder "
                          "or a reference .toml") from None
 
@@ -219,8 +220,10 @@ def read_reference(path: Path) -> Side:
         Unreadable TOML, an unknown key or parameter, a non-finite value, a malformed tolerance.
     """
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as err:
+        data = load_toml_text(path.read_text(), "TOML")
+    except InputError as err:
+        raise InputError(f"{path}: cannot read it as TOML ({str(err).removeprefix('TOML: ')})") from None
+    except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: cannot read it as TOML ({err})") from None
     loops = []
     for key, table in data.items():

@@ -92,6 +92,8 @@ def check_transfer_text(text: Any, what: str = "transfer_function") -> str:
                          "have; write it with fewer terms (a product of factors)")
     depth = 0
     for column, char in enumerate(text, start=1):
+        if char < " " and char not in "\t\n\r":
+            raise _refuse(what, text, f"control character U+{ord(char):04X} at column {column} is not allowed")
         depth += (char in _OPEN) - (char in _CLOSE)
         if depth > MAX_NESTING:
             raise _refuse(what, text, f"parentheses nested deeper than {MAX_NESTING} at column {column}")

@@ -544,10 +544,11 @@ def design_z_cascade(pd: Controller, model: LoopModel, *, clamp: bool = False, m
     check = _Check(every, rate, ms_target)
     tried, first = _search(pz, pd.Kd, model.K, ACCZ_I_RATIOS[0], check, b)
     chosen = (ACCZ_I_RATIOS[0], first) if first is not None else None
+    g_first = first[1] if first is not None else 0.0
     for ratio in ACCZ_I_RATIOS[1:] if first is not None else ():
         t, best = _search(pz, pd.Kd, model.K, ratio, check, b)
         tried += t
-        if best is None or best[1] < _I_KEEP * first[1]:
+        if best is None or best[1] < _I_KEEP * g_first:
             break
         chosen = (ratio, best)
     if chosen is None:

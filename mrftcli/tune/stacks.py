@@ -189,9 +189,9 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
                  f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --rate to change)"),)
         return StackSetting(stack, rate, RateFilter(HEAR_FILTER_HZ, "HEAR_FC rate filter"), notes)
     if stack == "ardupilot" and loop == "altitude":
-        rate, notes = _ardupilot_rate(rate_given, rate_source)
+        rate, ap_notes = _ardupilot_rate(rate_given, rate_source)
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
-            *notes, "AC_PosControl runs the z cascade every main-loop tick"))
+            *ap_notes, "AC_PosControl runs the z cascade every main-loop tick"))
     if stack == "px4" and loop == "altitude":
         rate = rate_given or rate_source
         if rate is None:
@@ -468,7 +468,7 @@ def _hear_export(c: Controller, model: LoopModel, loop: str, design: str, notes:
     """HEAR's PID message; the z command in HEAR's units (an acceleration, m/s^2) or converted, stated."""
     from .export import HEAR_PID_ID
 
-    scale, assumptions = 1.0, ()
+    scale, assumptions = 1.0, ()  # type: tuple[float, tuple[str, ...]]
     if loop == "altitude":
         K = model.K
         if 0.5 <= K <= 2.0:

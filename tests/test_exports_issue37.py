@@ -101,3 +101,18 @@ def test_generic_export_carries_its_units_in_the_file(tmp_path):
     data = json.loads(out.read_text())
     assert data["units"]["Kp"] == "command unit per rad" and data["units"]["Tf"] == "s"
     assert data["units"]["rate_hz"] == "Hz" and data["loop"] == "roll" and data["Kp"] > 0
+
+
+def test_ardupilot_roll_export_passes_every_prearm_rule_on_its_values():
+    """AC_AttitudeControl::pre_arm_checks (ANG P > 0; rate P, I > 0 with FF 0; D >= 0) and the ACRO_BAL check
+    (angle P at least ACRO_BAL_*, whose documented maximum is 3), each with its source line."""
+    m = LoopModel(0.0499, 0.887, 0.0228, 20.0)
+    st = stack_setting("ardupilot", "roll", None, None, None)
+    res = tune(m, st.rate_hz, loop="roll", options=DesignOptions(kinds=("PD",), designs=("model-based",),
+                                                                rate_filter=st.rate_filter))
+    e = export_design("ardupilot", res.designs[0].controller, m, "roll", "x", clamp=True)
+    rules = {r["rule"]: r for r in e.prearm}
+    assert set(rules) == {"ATC_ANG_RLL_P > 0", "ATC_ANG_RLL_P >= ACRO_BAL_ROLL (<= 3)", "ATC_RAT_RLL_P > 0",
+                          "ATC_RAT_RLL_I > 0", "ATC_RAT_RLL_D >= 0"}
+    assert all(r["passed"] for r in e.prearm) and e.version == "4.7"
+    assert rules["ATC_RAT_RLL_I > 0"]["source"].startswith("libraries/AC_AttitudeControl/AC_AttitudeControl.cpp:1454")

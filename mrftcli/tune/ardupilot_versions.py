@@ -19,7 +19,8 @@ the same for both versions (not re-read for 4.7).
 **Pre-arm rules** (:func:`prearm_checks`): the vehicle refuses to arm on ``AC_PosControl::pre_arm_checks``
 (``_POSZ_P``, ``_VELZ_P``, ``_ACCZ_P``, ``_ACCZ_I`` > 0; 4.7: ``_D_POS_P``, ``_D_VEL_P``, ``_D_ACC_P``,
 ``_D_ACC_I``) and ``AC_AttitudeControl::pre_arm_checks`` (``ANG_*_P`` > 0; with ``RAT_*_FF`` 0 the rate P and I
-> 0; D >= 0), both called from ``AP_Arming_Copter::parameter_checks`` ("Bad parameter: %s"). Each rule is
+> 0; D >= 0), both called from ``AP_Arming_Copter::parameter_checks`` ("Bad parameter: %s"), which also
+refuses ``ACRO_BAL_ROLL``/``_PITCH`` above the angle P (checked against their largest documented value, 3). Each rule is
 checked on the values written, with its source line.
 """
 
@@ -97,18 +98,22 @@ def z_bounds(version: str) -> dict[str, tuple[float, float]]:
 
 @dataclass(frozen=True)
 class PreArmRule:
-    """One pre-arm rule on one parameter: ``value > 0`` (``strict``) or ``>= 0``, and where the stack says so."""
+    """One pre-arm rule on one parameter: ``value > bound`` (``strict``) or ``>= bound``, and where the stack
+    says so; ``bound_name`` names a vehicle parameter the bound stands for (at its largest documented value)."""
 
     param: str
     strict: bool
     source: str
+    bound: float = 0.0
+    bound_name: str = ""
 
     @property
     def rule(self) -> str:
-        return f"{self.param} {'>' if self.strict else '>='} 0"
+        against = f"{self.bound_name} (<= {self.bound:g})" if self.bound_name else f"{self.bound:g}"
+        return f"{self.param} {'>' if self.strict else '>='} {against}"
 
     def passes(self, value: float) -> bool:
-        return value > 0 if self.strict else value >= 0
+        return value > self.bound if self.strict else value >= self.bound
 
 
 @dataclass(frozen=True)
@@ -130,8 +135,10 @@ def _rules(version: str) -> tuple[PreArmRule, ...]:
         psc = [PreArmRule(n, True, _PSC46.format(line)) for n, line in
                (("PSC_POSZ_P", 1848), ("PSC_VELZ_P", 1852), ("PSC_ACCZ_P", 1856), ("PSC_ACCZ_I", 1860))]
     atc = []
-    for ax in ("RLL", "PIT"):
+    for ax, acro in (("RLL", "ACRO_BAL_ROLL"), ("PIT", "ACRO_BAL_PITCH")):
         atc += [PreArmRule(f"ATC_ANG_{ax}_P", True, _ATC.format(1418)),
+                # AP_Arming_Copter::parameter_checks "Check ACRO_BAL_ROLL/PITCH"; ACRO_BAL_* @Range 0 3
+                PreArmRule(f"ATC_ANG_{ax}_P", False, f"ArduCopter/AP_Arming_Copter.cpp:229 ({_BLITZY})", 3.0, acro),
                 PreArmRule(f"ATC_RAT_{ax}_P", True, _ATC.format(1450)),  # with FF 0 (line 1438: else branch)
                 PreArmRule(f"ATC_RAT_{ax}_I", True, _ATC.format(1454)),
                 PreArmRule(f"ATC_RAT_{ax}_D", False, _ATC.format(1460))]

@@ -179,8 +179,10 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     """
     from ..batch.inputs import load_config
     from ..batch.run import BatchFailedError, BatchOptions, run_batch
-    from .options import dump_json, tqdm_progress
+    from .options import check_output_dir, check_output_file, dump_json, tqdm_progress
 
+    check_output_dir(out_dir, "--out")  # the shared rule: never a symbolic link (io.atomic.check_output_path)
+    check_output_file(json_target, "--json")
     model = _process_model(ctx, setting_opts)
     defaults: dict[str, Any] = {}
     explicit: dict[str, Any] = {}

@@ -246,3 +246,54 @@ def test_a_result_json_of_a_declared_model_is_parsed_again_on_reading(tmp_path):
         with pytest.raises(InputError):
             model_from_json({**data, "transfer_function": hostile})
     assert not (tmp_path / MARKER).exists()
+
+
+@pytest.fixture(scope="module")
+def declared_batch(tmp_path_factory):
+    """A simulated double-lag relay recording, its declared model file, and a batch run over it."""
+    from process_sim import Window, simulate, write_csv
+
+    root = tmp_path_factory.mktemp("declared_batch")
+    logs = root / "logs"
+    logs.mkdir()
+    windows = [Window("hysteresis", 1.0, -1.0, eps=e, duration=12.0, rest=2.0) for e in (0.02, 0.12)]
+    t, u, y = simulate("sopdt", {"K": 1.5, "T1": 0.4, "T2": 0.4, "tau": 0.1}, windows, 50.0, 0.002, seed=3)
+    write_csv(str(logs / "rec.csv"), t, u, y)
+    spec = root / "double.toml"
+    spec.write_text('transfer_function = "K*exp(-tau*s)/(T*s + 1)**2"\n[parameters]\nK = { range = [0.1, 10] }\n'
+                    'T = { range = [0.01, 10] }\ntau = { range = [0.0, 1.0] }\n')
+    from mrftcli.cli.main import main
+
+    argv = ["batch", str(logs), "--model-file", str(spec), "--command-topic", "u_relay", "--output-topic",
+            "y_output", "--out", str(root / "out")]
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code in (0, None)
+    return root, argv
+
+
+def test_a_hostile_model_read_back_from_results_and_batch_records_is_refused(declared_batch, capsys):
+    root, argv = declared_batch
+    record_path = next((root / "out" / "logs").glob("*.json"))
+    legit = "K*exp(-tau*s)/(T*s + 1)**2"
+    marker = root / MARKER
+    hostile = _payloads(marker)[0]
+    record = json.loads(record_path.read_text())
+    # an analysis JSON of the declared model, its text replaced: tune and plan --from read the model back
+    result = record["loops"][0]["result"]
+    assert result["identification"]["model"]["transfer_function"] == legit
+    result["identification"]["model"]["transfer_function"] = hostile
+    bad = root / "bad.json"
+    bad.write_text(json.dumps(result))
+    _refused(capsys, root / "out", "tune", str(bad), expect="not allowed")
+    _refused(capsys, root / "out", "plan", "--model-file", str(root / "double.toml"), "--from", str(bad),
+             expect="not allowed")
+    # the batch's own record, edited: not taken as up to date, analysed again (the record rewritten)
+    record_path.write_text(json.dumps(record))
+    code, out, err = run_cli(capsys, *argv)
+    assert code == 0 and "skipped-uptodate" not in out, out + err
+    again = json.loads(next((root / "out" / "logs").glob("*.json")).read_text())
+    assert again["loops"][0]["result"]["identification"]["model"]["transfer_function"] == legit
+    assert not marker.exists()
+    code, out, _ = run_cli(capsys, *argv)  # and a legitimate record is kept
+    assert code == 0 and "skipped-uptodate" in out

@@ -457,7 +457,29 @@ def _load_cached(json_path: Path, task: LogTask) -> dict[str, Any] | None:
         return None
     if any(e.get("status") == STATUS_FAILED for e in record.get("loops", [])):
         return None
+    if not _declared_models_parse(record):
+        return None  # a declared model's text no longer parses (edited, or written by hand): analysed again
     return record
+
+
+def _declared_models_parse(record: Any) -> bool:
+    """Does every declared model (``family: declared``) in a stored record parse through the one
+    transfer-function parser (mrft/tf_parse.py)? A record is read back as it would be by tune or plan."""
+    from ..mrft.model import model_from_json
+
+    stack = [record]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, dict):
+            if node.get("family") == "declared" and "transfer_function" in node:
+                try:
+                    model_from_json(node)
+                except MrftError:
+                    return False
+            stack.extend(v for v in node.values() if isinstance(v, (dict, list)))
+        elif isinstance(node, list):
+            stack.extend(v for v in node if isinstance(v, (dict, list)))
+    return True
 
 
 def _to_json_text(obj: Any) -> str:

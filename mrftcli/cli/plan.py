@@ -37,17 +37,51 @@ def _json_rate(data: object) -> float | None:
     return rates[len(rates) // 2] if rates else None
 
 
-def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None]:
-    """Flown tests (and identified parameters, if any) and the controller rate [Hz] (None: not recorded)
-    from an ``analyze --json`` result file."""
-    from ..plan import flown_from_result
+def _from_analysis(data: object) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
+    """Flown tests, identified parameters (if any), the controller rate [Hz] and the measured sensor noise
+    [output units] (None: not recorded) of an ``analyze --json`` object: the one route from a log's
+    analysis to a plan, whether the analysis was run here or read from its JSON."""
+    from ..plan import flown_from_result, noise_from_result
+
+    return (*flown_from_result(data), _json_rate(data), noise_from_result(data))
+
+
+def _from_log(path: Path, Tp: float, min_cycles: int, read_options: Mapping[str, Any]
+              ) -> tuple[Sequence[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
+    """As :func:`_from_analysis` for a log: analysed at Tp (as ``analyze``), its JSON planned from, so
+    ``plan --from LOG`` and ``plan --from`` its ``analyze --json`` give one plan. A log analyze cannot
+    identify (a single beta, no plant) is planned from its segmented tests."""
+    import json
+
+    from ..analyze import AnalyzeOptions, analyze_flight
+    from ..errors import IdentificationError, InsufficientDataError, SegmentationError
+    from ..io import ReadOptions, read_flight
+    from ..jsonable import to_jsonable
+    from ..plan import flown_from_segments
+    from ..segment import segment
+
+    flight = read_flight(path, ReadOptions(**read_options))
+    try:
+        result = analyze_flight(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
+        return _from_analysis(json.loads(json.dumps(to_jsonable(result.to_json()))))
+    except (InsufficientDataError, IdentificationError, SegmentationError):
+        pass  # planned from what the segmenter measured, below
+    found = segment(flight)
+    flown, noise = flown_from_segments([t for t in found if t.n_stable >= min_cycles])
+    if not flown:
+        raise SegmentationError(f"{path}: no MRFT test with {max(min_cycles, 3)} or more stable cycles to plan from")
+    return flown, {}, float(found[0].rate_hz), noise
+
+
+def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
+    """:func:`_from_analysis` of an ``analyze --json`` result file."""
 
     try:
         data = load_json_text(path.read_text(), str(path))
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
     try:
-        return (*flown_from_result(data), _json_rate(data))
+        return _from_analysis(data)
     except InputError as err:
         raise InputError(f"{path}: {err}") from err
 
@@ -281,7 +315,7 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
         if value is None:
             raise click.UsageError(f"Missing option '{name}'.")
     assert Tp is not None and max_amplitude is not None and max_h is not None and time_s is not None
-    from ..plan import FlightLimits, PlanOptions, Prior, flown_from_segments, plan_tests, prior_range
+    from ..plan import FlightLimits, PlanOptions, Prior, plan_tests, prior_range
     from ..sim import default_noise_std
 
     check_output_file(json_target, "--json")  # before the work, as analyze
@@ -295,27 +329,20 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
     if source is not None:
         path = Path(source)
         if path.suffix.lower() == ".json":
-            flown, estimates, log_rate = _flown_from_json(path)
+            flown, estimates, log_rate, measured_noise = _flown_from_json(path)
         else:
-            from ..errors import SegmentationError
-            from ..io import ReadOptions, read_flight
-            from ..segment import segment
-
-            flight = read_flight(path, ReadOptions(**read_options))
-            found = segment(flight)
-            flown, measured_noise = flown_from_segments([t for t in found if t.n_stable >= min_cycles])
-            if not flown:
-                raise SegmentationError(f"{path}: no MRFT test with {max(min_cycles, 3)} or more stable cycles "
-                                        "to plan from")
-            log_rate = float(found[0].rate_hz)
+            flown, estimates, log_rate, measured_noise = _from_log(path, Tp, min_cycles, read_options)
     assumed: list[str] = []
     prior_ranges = {}
     for name, given, default, unit, option in (("Td", td_range, (0.2, 3.0), "s", "--td-range"),
                                                ("tau", tau_range, (0.01, 0.1), "s", "--tau-range"),
                                                ("K", k_range, (0.5, 20.0), "output unit per command unit",
                                                 "--k-range")):
-        prior_ranges[name] = given if given is not None else prior_range(estimates.get(name), default)
-        if given is None and name not in estimates:
+        # the analysis' intervals come from the flown tests' cycles, which the plan counts already (their
+        # information, and draws conditioned on them): narrowing the prior with them counts the tests twice
+        known = {} if flown else estimates
+        prior_ranges[name] = given if given is not None else prior_range(known.get(name), default)
+        if given is None and name not in known:
             assumed.append(f"prior {name} {default[0]:g}-{default[1]:g} {unit} (the default; give {option})")
     prior = Prior(Td=prior_ranges["Td"], tau=prior_ranges["tau"], K=prior_ranges["K"])
     rate = rate_hz if rate_hz is not None else log_rate

@@ -38,7 +38,7 @@ from __future__ import annotations
 from .driver import DEFAULT_BETAS, TD_OMEGA_LIMIT, PlanOptions, plan_tests
 from .fisher import fisher_information, flown_information, planned_information
 from .forecast import simulated_std
-from .inputs import flown_from_result, flown_from_segments, prior_range
+from .inputs import flown_from_result, flown_from_segments, noise_from_result, prior_range
 from .noise import NOISE_MODEL, cycle_noise, switch_gap
 from .records import CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, TestPlan
 
@@ -48,6 +48,7 @@ __all__ = [
     "FlownTest",
     "flown_from_segments",
     "flown_from_result",
+    "noise_from_result",
     "prior_range",
     "TestPlan",
     "CandidateTest",

@@ -18,7 +18,7 @@ bootstrap std of ``analyze``'s MRFT estimate (``parameters_mrft``).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,20 +120,27 @@ def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence
     infos = {b: space.information(b, _height(candidates[b])) for b in admissible}
     conventional = conventional_information(space, flown, n_tests)
     conv_infos = None if conventional is None else [inf for _, inf in conventional]
+    conv_betas = () if conventional is None else tuple(b for b, _ in conventional)
 
     def choose(pool: Sequence[float]) -> tuple[Choice, tuple[TestPlan, ...]]:
         c = choose_tests(space, pool, {b: infos[b] for b in pool}, start, conv_infos, n_tests,
-                         lambda j: report(progress, len(betas) * (j + 2), total, "planning"))
+                         lambda j: report(progress, len(betas) * (j + 2), total, "planning"), conv_betas)
         return c, tuple(recommended_test(space, b, candidates[b]) for b in c.betas)
 
     choice, tests, sim, dropped = _flown_choice(choose, admissible, space, prior, flown, options, rng, progress)
     prior_std = _prior_std(prior, plants)
     post = std_median(choice.information.total, plants)
-    notes = plan_notes(tests, _lowest_frequency(candidates[b] for b in admissible), post, prior_std, limits)
+    centre = dict(zip(("Td", "tau", "K"), map(float, np.exp(np.mean(np.log(plants), axis=0)))))
+    notes = plan_notes(tests, _lowest_frequency(candidates[b] for b in admissible), post, prior_std, limits,
+                       centre=centre, post_data=std_median(choice.information.data, plants))
     if early_only:
         notes.append(f"at every admissible beta the relay switches fewer than {MIN_SWITCH_GAP:g} noise stds below "
                      "the extremum for the typical plant: noise may trigger switches early; allow a larger amplitude "
                      "(--max-amplitude) or narrow the K range")
+    conv = _conventional(space, start, conventional)
+    worse = _worse_than_conventional(post, conv)
+    if worse and conv is not None:
+        notes.append(_worse_note(worse, conv.betas, admissible, dropped))
     if dropped:
         notes.append(f"beta {', '.join(f'{b:g}' for b in dropped)} not recommended: analyze lost the test in some "
                      "of its simulated flights")
@@ -146,9 +153,33 @@ def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence
                                                                                               plants),
                       simulated_std=sim.std, simulated_std_range=sim.std_range, n_simulated=sim.n_used,
                       predicted_std_data_range=std_range(choice.information.data, plants),
-                      prior_std=prior_std, conventional=_conventional(space, start, conventional),
+                      prior_std=prior_std, conventional=conv,
                       candidates=tuple(with_first_round(candidates[b], choice.first_round) for b in betas),
                       notes=tuple(notes), flown=tuple(flown), limits=limits)
+
+
+def _worse_than_conventional(post: Mapping[str, float], conv: Conventional | None) -> str:
+    """``Td``, ``tau`` or ``Td and tau`` where the predicted std exceeds the conventional tests' ("": none)."""
+    if conv is None:
+        return ""
+    worse = [p for p in ("Td", "tau") if post[p] > conv.predicted_std[p] * (1 + 1e-6)]
+    return " and ".join(worse)
+
+
+def _worse_note(worse: str, conv_betas: Sequence[float], admissible: Sequence[float],
+                dropped: Sequence[float]) -> str:
+    """Why the recommendation is predicted worse than the conventional betas (which the choice prefers
+    whenever they are all still candidates: :func:`~mrftcli.plan.search.choose_tests`)."""
+    why = []
+    outside = [b for b in conv_betas if b not in admissible]
+    lost = [b for b in conv_betas if b in dropped]
+    if outside:
+        why.append(f"beta {', '.join(f'{b:g}' for b in outside)} is not a candidate here (inadmissible, or its relay "
+                   "switches too near the extremum for the noise)")
+    if lost:
+        why.append(f"analyze lost beta {', '.join(f'{b:g}' for b in lost)} in the simulated flights")
+    return (f"the recommended tests are predicted worse than the conventional beta {' / '.join(f'{b:g}' for b in conv_betas)} "
+            f"for {worse}: " + ("; ".join(why) or "the simulated flights dropped the betas that did as well"))
 
 
 def _resolve(options: PlanOptions, flown: Sequence[FlownTest]) -> tuple[tuple[float, ...], int]:
@@ -207,6 +238,15 @@ def _conventional(space: DesignSpace, start: Information,
 
 #: Rounds of :func:`_flown_choice`: each drops the betas the simulated flights lost and chooses again.
 SIMULATED_ROUNDS = 3
+#: Share of the simulated flights (at least one) a planned beta must be lost on to be dropped: one flight of
+#: the default 8, so that more simulated plants (``--simulate 64``) sharpen the forecast instead of dropping
+#: every beta that one plant of 64 happens to lose.
+DROP_LOST_SHARE = 1.0 / 8.0
+
+
+def _lost_too_often(lost: int, n: int) -> bool:
+    """A planned beta lost on ``lost`` of ``n`` simulated flights is dropped (:data:`DROP_LOST_SHARE`)."""
+    return lost > 0 and lost >= max(1.0, DROP_LOST_SHARE * n) * (1 - 1e-9)
 
 
 def _flown_choice(choose: Callable[[Sequence[float]], tuple[Choice, tuple[TestPlan, ...]]],
@@ -228,7 +268,7 @@ def _flown_choice(choose: Callable[[Sequence[float]], tuple[Choice, tuple[TestPl
         sim = _simulate(space, prior, flown, tests, options, rng, progress)
         if best is None or sum(sim.lost) < sum(best[2].lost):
             best = (choice, tests, sim)
-        bad = {t.beta for t, n in zip(tests, sim.lost) if n > 0}
+        bad = {t.beta for t, n in zip(tests, sim.lost) if _lost_too_often(n, int(options.n_simulated))}
         if not bad or not [b for b in pool if b not in bad]:
             break
         dropped += sorted(bad)
@@ -274,27 +314,38 @@ def _simulate(space: DesignSpace, prior: Prior, flown: Sequence[FlownTest], test
     return simulated_forecast(space.Tp, plants, flown, tests, lim, n, seed=options.seed, progress=progress)
 
 
+#: A parameter is poorly determined when its predicted std exceeds this share of its value (and half the
+#: prior's std): a std of a few per cent is a parameter pinned down, whatever the prior was.
+POORLY_DETERMINED = 0.1
+
+
 def plan_notes(tests: Sequence[TestPlan], lowest_f: float, post: dict[str, float], prior_std: dict[str, float],
-               limits: FlightLimits) -> list[str]:
+               limits: FlightLimits, *, centre: Mapping[str, float] | None = None,
+               post_data: Mapping[str, float] | None = None) -> list[str]:
     """Which parameters no admissible test pins down, and what would help.
 
     ``lowest_f`` is the lowest frequency an admissible test reaches [Hz]; ``post`` and ``prior_std``
-    the stds after the tests and of the prior.
+    the stds after the tests and of the prior; ``centre`` the typical plant's Td, tau [s] and K (a
+    parameter whose predicted std is within :data:`POORLY_DETERMINED` of it is not named);
+    ``post_data`` the stds from the tests alone (Td is "not pinned down by any test" only when the tests
+    leave it loose, whatever the prior says).
     """
     notes = []
+    loose = {p: centre is None or post[p] > POORLY_DETERMINED * abs(centre[p]) for p in ("Td", "tau", "K")}
+    td_tests_loose = centre is None or post_data is None or post_data["Td"] > POORLY_DETERMINED * abs(centre["Td"])
     best_tdw = min(min(t.td_omega) for t in tests)
     helps = (f"What would help: a lower test frequency (a beta nearer 0 or positive; the lowest here is "
              f"{lowest_f:.3g} Hz), a larger amplitude or more time (more cycles), or a Td from elsewhere (a step "
              "response, a drag model)")
-    if best_tdw > TD_OMEGA_LIMIT:
+    if td_tests_loose and best_tdw > TD_OMEGA_LIMIT:
         notes.append(f"Td cannot be pinned down by any admissible test: Td*Omega stays above {best_tdw:.1f} (the "
                      f"frequencies hardly depend on Td above {TD_OMEGA_LIMIT:g}). " + helps)
-    elif post["Td"] > 0.5 * prior_std["Td"]:
+    elif loose["Td"] and post["Td"] > 0.5 * prior_std["Td"]:
         notes.append(f"Td stays poorly determined: its predicted std is {post['Td'] / prior_std['Td']:.0%} of the "
                      f"prior's (Td*Omega up to {max(max(t.td_omega) for t in tests):.1f} over the prior). " + helps)
-    if post["tau"] > 0.5 * prior_std["tau"]:
+    if loose["tau"] and post["tau"] > 0.5 * prior_std["tau"]:
         notes.append("tau stays poorly determined: allow a larger amplitude (--max-amplitude) or more time (--time)")
-    if post["K"] > 0.5 * prior_std["K"]:
+    if loose["K"] and post["K"] > 0.5 * prior_std["K"]:
         notes.append("K stays poorly determined: allow a larger amplitude or relay height")
     capped = [t for t in tests if t.h >= limits.max_h * (1 - 1e-9)]
     if capped:

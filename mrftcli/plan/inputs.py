@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate
     from ..segment.records import MrftTest
 
-__all__ = ["flown_from_segments", "flown_from_result", "prior_range"]
+__all__ = ["flown_from_segments", "flown_from_result", "noise_from_result", "prior_range"]
 
 
 def flown_from_segments(tests: Sequence[MrftTest]) -> tuple[tuple[FlownTest, ...], float | None]:
@@ -26,8 +26,10 @@ def flown_from_segments(tests: Sequence[MrftTest]) -> tuple[tuple[FlownTest, ...
     Tests with fewer than 3 stable cycles are left out. Returns the tests and the median per-cycle
     residual noise of the segmenter's cycle fits [output units] (None when none was measured).
     """
+    from ..analyze import measured_noise_std
+
     out: list[FlownTest] = []
-    noise: list[float] = []
+    kept = []
     for t in tests:
         if t.n_stable < MIN_CYCLES or not np.isfinite(t.beta_effective):
             continue
@@ -36,8 +38,8 @@ def flown_from_segments(tests: Sequence[MrftTest]) -> tuple[tuple[FlownTest, ...
         out.append(FlownTest(beta=float(t.beta_effective), h=float(t.h), frequency_hz=float(t.frequency_hz_mean),
                              amplitude=float(t.amplitude_mean), n_cycles=int(t.n_stable),
                              phase=float(ph.mean()) if ph.size >= 2 else None))
-        noise.extend(c.noise_std for c in t.stable if np.isfinite(c.noise_std))
-    return tuple(out), (float(np.median(noise)) if noise else None)
+        kept.append(t)
+    return tuple(out), measured_noise_std(kept)
 
 
 def flown_from_result(data: object) -> tuple[list[FlownTest], dict[str, ParameterEstimate]]:
@@ -61,12 +63,26 @@ def flown_from_result(data: object) -> tuple[list[FlownTest], dict[str, Paramete
         from ..analyze import AnalysisResult
 
         result = AnalysisResult.from_json(data)
-        flown = [FlownTest(beta=t.beta, h=t.h, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
-                           n_cycles=t.n_stable) for t in result.tests]
+        # the tests as the log gives them (effective beta, the fundamental's phase): one plan for a log and its JSON
+        flown = list(flown_from_segments(result.tests)[0])
         params = {"Td": result.Td, "tau": result.tau, "K": result.K}
     if not flown:
         raise InputError("no MRFT test in this JSON (give the output of 'mrft-ident analyze --json')")
     return flown, params
+
+
+def noise_from_result(data: object) -> float | None:
+    """The sensor noise std [output units] an ``analyze --json`` result measured: its ``noise.std``
+    (schema 2), else the median residual of its tests' stable cycle fits (schema 1), as
+    :func:`flown_from_segments` measures it from the log; None when neither is there."""
+    if not isinstance(data, dict) or "parameters" not in data:
+        return None
+    noise = data.get("noise")
+    if isinstance(noise, dict) and isinstance(noise.get("std"), (int, float)) and noise["std"] > 0:
+        return float(noise["std"])
+    from ..analyze import AnalysisResult, measured_noise_std
+
+    return measured_noise_std(AnalysisResult.from_json(data).tests)
 
 
 def _partial_tests(partial: Mapping[str, Any]) -> list[FlownTest]:

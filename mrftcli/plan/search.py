@@ -234,13 +234,16 @@ def conventional_information(space: DesignSpace, flown: Sequence[FlownTest],
 
 def choose_tests(space: DesignSpace, admissible: Sequence[float], infos: Mapping[float, list[np.ndarray]],
                  start: Information, conventional: Sequence[list[np.ndarray]] | None, n_tests: int,
-                 on_test: Callable[[int], None]) -> Choice:
+                 on_test: Callable[[int], None], conventional_betas: Sequence[float] = ()) -> Choice:
     """The next ``n_tests`` tests, one at a time, each the admissible beta of the least mean design
     cost (:func:`~mrftcli.plan.fisher.design_cost`) after the tests before it.
 
     Guard: among the candidates predicted no worse than the conventional beta for Td and tau (if any
     is), the one with the smallest total relative variance: a user who replaces the -0.4/-0.7 recipe
     should not lose on the delay or the drag by the plan's own model. ``on_test(j)`` after the j-th.
+    The guard holds for the tests together too: when the greedy tests are predicted worse than the
+    conventional ones (``conventional_betas``, all in ``admissible``) for Td or tau (median std over the
+    draws, as reported), the conventional tests are chosen.
     """
     plants = space.plants
     chosen: list[float] = []
@@ -263,7 +266,20 @@ def choose_tests(space: DesignSpace, admissible: Sequence[float], infos: Mapping
         chosen.append(best)
         acc = acc.plus(infos[best])
         on_test(j)
+    if conventional is not None and conventional_betas and len(conventional) == n_tests \
+            and all(b in admissible for b in conventional_betas):
+        conv = start
+        for inf in conventional:
+            conv = conv.plus(inf)
+        if np.any(_median_stds(acc.total, plants)[:2] > _median_stds(conv.total, plants)[:2] * (1 + 1e-9)):
+            return Choice(tuple(conventional_betas), conv, first)
     return Choice(tuple(chosen), acc, first)
+
+
+def _median_stds(total: Sequence[np.ndarray], plants: np.ndarray) -> np.ndarray:
+    """Median over the draws of (std Td, std tau, std K) the information ``total`` leaves (as reported)."""
+    out: np.ndarray = np.median([posterior_stds(posterior_covariance(A), p) for A, p in zip(total, plants)], axis=0)
+    return out
 
 
 def _rms_stds(covs: Sequence[np.ndarray], plants: np.ndarray) -> np.ndarray:

@@ -201,6 +201,7 @@ class DeclaredModel:
         if len(names) > MAX_PARAMETERS:
             raise InputError(f"model file: {len(names)} parameters, more than the {MAX_PARAMETERS} a model may have")
         for name, value in self.values:
+            _check_name(name)
             if not (math.isfinite(value) and abs(value) <= PARAMETER_MAGNITUDE[1]):
                 raise InputError(f"model file: parameter {name} must be finite and at most "
                                  f"{PARAMETER_MAGNITUDE[1]:g} in size, got {value!r}")
@@ -336,11 +337,15 @@ def _declared_names(text: str, values: Mapping[str, float]) -> list[str]:
     if len(values) > MAX_PARAMETERS:
         raise InputError(f"model file: {len(values)} parameters, more than the {MAX_PARAMETERS} a model may have")
     for name in values:
-        if (not name.isidentifier() or keyword.iskeyword(name) or len(name) > 64
-                or name in ("s",) + _FUNCTIONS):
-            raise InputError(f"model file: {name[:64]!r} cannot name a parameter (a name of letters, digits and _, "
-                             "not a Python keyword; s and exp are reserved)")
+        _check_name(name)
     return sorted(values, key=lambda n: (n != "K", n == "tau"))
+
+
+def _check_name(name: str) -> None:
+    if (not isinstance(name, str) or not name.isidentifier() or keyword.iskeyword(name) or len(name) > 64
+            or name in ("s",) + _FUNCTIONS):
+        raise InputError(f"model file: {str(name)[:64]!r} cannot name a parameter (a name of letters, digits and _, "
+                         "not a Python keyword; s and exp are reserved)")
 
 
 def _spec_text(spec: Mapping[str, Any]) -> str:

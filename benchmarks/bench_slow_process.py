@@ -17,8 +17,9 @@ two logged samples. The relay is
 The simulator (tests/thermal_sim.py: tf2ss, exact event-to-event propagation, the delay exact)
 shares no code with mrftcli. Each recording is written as a CSV, read as ``analyze --model`` reads it
 (any time scale) and analysed with :func:`~mrftcli.analyze.general.analyze_general`. Scored per
-parameter: a determined one within 5 % of the truth; an undetermined one named (``determined``
-False); 95 % coverage of every parameter's interval; **false determined**: a parameter called
+parameter: a determined one (95 % interval within a factor 1.25 either way) within 5 % of the truth,
+and the same among those whose interval is within +-10 %; an undetermined one named (``determined``
+False), with the determined combination the tool names; 95 % coverage of every parameter's interval; **false determined**: a parameter called
 determined whose 95 % interval excludes the truth (and **gross**: by more than the interval's
 half-width). A refusal counts as a miss on every figure.
 
@@ -46,6 +47,8 @@ from process_sim import polynomials, write_csv  # noqa: E402
 from thermal_sim import INTEGRATING, RelayWindow, simulate_relay  # noqa: E402
 
 FAMILIES = ("fopdt", "sopdt", "foipdt")
+#: a determined parameter whose 95 % interval is within a factor 1.1 either way (log half-width)
+_TIGHT = math.log(1.1)
 RELAYS = ("symmetric", "biased")
 
 
@@ -169,7 +172,8 @@ def summarise(rows: list[dict[str, object]], names: dict[str, tuple[str, ...]]) 
         groups.setdefault((str(r["family"]), str(r["relay"]), int(r["settings"])), []).append(r)  # type: ignore[arg-type]
     print(f"{'family':<7} {'relay':<19} {'set':>3} {'n':>3} {'refused':>7} {'determined':>10} {'within 5 %':>10} "
           f"{'95 % covers':>11} {'false det.':>10} {'gross':>5}  undetermined (named), determined combination")
-    tot = {"param": 0, "det": 0, "w5": 0, "cov": 0, "false": 0, "gross": 0, "refused": 0, "rec": 0}
+    tot = {"param": 0, "det": 0, "w5": 0, "cov": 0, "false": 0, "gross": 0, "refused": 0, "rec": 0, "tight": 0,
+           "tight5": 0}
     for (fam, relay, k), rs in sorted(groups.items()):
         n = len(rs)
         refused = sum("refused" in r for r in rs)
@@ -179,6 +183,9 @@ def summarise(rows: list[dict[str, object]], names: dict[str, tuple[str, ...]]) 
         cov = sum(v["covered"] for r in rs for v in r["params"].values())  # type: ignore[union-attr]
         fal = sum(v["false"] for r in rs for v in r["params"].values())  # type: ignore[union-attr]
         gro = sum(v["gross"] for r in rs for v in r["params"].values())  # type: ignore[union-attr]
+        tight = [v for r in rs for v in r["params"].values() if v["determined"] and v["half"] <= _TIGHT]  # type: ignore[union-attr]
+        tot["tight"] += len(tight)
+        tot["tight5"] += sum(abs(v["err"]) <= 0.05 for v in tight)
         und: dict[str, int] = {}
         for r in rs:
             for name, v in r["params"].items():  # type: ignore[union-attr]
@@ -199,7 +206,8 @@ def summarise(rows: list[dict[str, object]], names: dict[str, tuple[str, ...]]) 
     print(f"all: {tot['rec']} analyses, {tot['refused']} refused; {tot['det']}/{tot['param']} parameters determined, "
           f"{tot['w5']}/{tot['det']} of them within 5 % ({100 * tot['w5'] / max(tot['det'], 1):.0f} %); 95 % intervals "
           f"cover {tot['cov']}/{tot['param']} ({100 * tot['cov'] / max(tot['param'], 1):.0f} %); determined but the "
-          f"interval excludes the truth: {tot['false']} ({tot['gross']} by more than its half-width)")
+          f"interval excludes the truth: {tot['false']} ({tot['gross']} by more than its half-width); of the "
+          f"determined ones with a 95 % interval within +-10 %: {tot['tight5']}/{tot['tight']} within 5 %")
     combos = [r for r in rows if "combination_covered" in r]
     if combos:
         print(f"determined combinations: {len(combos)}, their 95 % intervals cover the truth on "

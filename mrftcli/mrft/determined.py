@@ -139,7 +139,8 @@ def _best_direction(F: NDArray[np.float64], sel: list[int]) -> tuple[float, NDAr
 def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDArray[np.float64],
                            undetermined: Sequence[str], units: Mapping[str, str],
                            signs: Mapping[str, float] | None = None,
-                           log_width: float = _LOG_WIDTH) -> DeterminedCombination | None:
+                           log_width: float = _LOG_WIDTH,
+                           region: Sequence[NDArray[np.float64]] = ()) -> DeterminedCombination | None:
     """The best-determined power product of the undetermined log-scaled parameters, or None.
 
     Parameters
@@ -159,6 +160,10 @@ def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDAr
     log_width : float
         The widest 95 % interval, in log units, of a determined combination (default a factor e^2).
         Of the combinations within it, the one with the fewest factors, then the least uncertain.
+    region : sequence of ndarray
+        Points of ``z`` inside the 95 % confidence region (the profile likelihood's, where the fit is
+        not linear): the combination's interval is widened to hold its value at each of them, so a
+        curved valley (SOPDT's two lags) cannot make it overconfident.
 
     Examples
     --------
@@ -172,23 +177,29 @@ def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDAr
     sel = [i for i, n in enumerate(names) if n in undetermined]
     if len(sel) < 2:
         return None
-    best: tuple[float, list[int], NDArray[np.float64]] | None = None
+    best: tuple[float, list[int], NDArray[np.float64], float, float] | None = None
     for size in range(2, len(sel) + 1):  # the fewest factors first: K/T1 before K T2^0.5/T1
         for sub in itertools.combinations(sel, size):
             found = _best_direction(np.asarray(F, dtype=np.float64), list(sub))
-            if found is not None and 2 * _Z95 * found[0] < log_width and (best is None or found[0] < best[0]):
-                best = (found[0], list(sub), found[1])
+            if found is None or np.count_nonzero(found[1]) < 2:
+                continue
+            c0 = float(sum(ei * z[i] for i, ei in zip(sub, found[1].tolist())))
+            c_region = [float(sum(ei * zr[i] for i, ei in zip(sub, found[1].tolist()))) for zr in region]
+            a = min([c0 - _Z95 * found[0], *c_region])
+            b = max([c0 + _Z95 * found[0], *c_region])
+            if b - a < log_width and (best is None or b - a < best[3] - best[4]):
+                best = (found[0], list(sub), found[1], b, a)
         if best is not None:
             break
     if best is None:
         return None
-    s, sel, e = best
+    _, sel, e, hi_log, lo_log = best
     pick = [(names[i], float(ei)) for i, ei in zip(sel, e.tolist()) if ei != 0]
     log_value = float(sum(ei * z[i] for i, ei in zip(sel, e.tolist())))
     sign = 1.0
     for n, ei in pick:
         if (signs or {}).get(n, 1.0) < 0 and float(ei).is_integer() and int(ei) % 2:
             sign = -sign
-    ends = sorted([sign * math.exp(log_value - _Z95 * s), sign * math.exp(log_value + _Z95 * s)])
+    ends = sorted([sign * math.exp(lo_log), sign * math.exp(hi_log)])
     pick.sort(key=lambda ne: -ne[1])
     return DeterminedCombination(tuple(pick), sign * math.exp(log_value), ends[0], ends[1], _unit(pick, units))

@@ -564,9 +564,9 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     inflate = max(1.0, chi2_dof or 1.0)
     cov = _pinv_psd(J.T @ J) * inflate
     flat = _null_parameters(problem, J)
-    profiled = None
+    profiled, region = None, [z]
     if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
-        profiled = _profile_ends(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, cov, flat)
+        profiled = _profile_ends(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, cov, flat, region)
     out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, flat, profiled)
     if len(out.undetermined) >= 2:
         log_names = [n for n in problem.unknown if n in problem.log_scaled]
@@ -574,8 +574,21 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
         F = (J.T @ J)[np.ix_(keep, keep)] / inflate
         units = {n: p.unit for n, p in model.parameters.items()}
         combo = determined_combination(log_names, z[keep], F, out.undetermined, units, {"K": problem.k_sign},
-                                       DETERMINED_LOG_WIDTH)
+                                       DETERMINED_LOG_WIDTH, [_same_order(problem, z, zr)[keep] for zr in region])
         out = dataclasses.replace(out, combination=combo)
+    return out
+
+
+def _same_order(problem: _Problem, z: FloatArray, zr: FloatArray) -> FloatArray:
+    """``zr`` with SOPDT's two lags in the estimate's order: the plant is the same with T1 and T2 swapped,
+    so a profile point past the swap is the same point of the confidence region."""
+    if problem.model.family != "sopdt" or not {"T1", "T2"} <= set(problem.unknown):
+        return zr
+    i, j = problem.unknown.index("T1"), problem.unknown.index("T2")
+    if (z[i] - z[j]) * (zr[i] - zr[j]) >= 0:
+        return zr
+    out = zr.copy()
+    out[i], out[j] = zr[j], zr[i]
     return out
 
 
@@ -720,7 +733,8 @@ def _null_parameters(problem: _Problem, J: FloatArray) -> set[str]:
 
 
 def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, cost0: float, delta: float,
-                  cov: FloatArray, flat: set[str]) -> dict[int, tuple[float, float]]:
+                  cov: FloatArray, flat: set[str],
+                  region: list[FloatArray] | None = None) -> dict[int, tuple[float, float]]:
     """Each unknown's 95 % profile-likelihood interval [in z], where it reaches past the linear one.
 
     The Gauss-Newton interval is exact for a fit that is linear in the parameters; one relay setting
@@ -729,7 +743,8 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
     other unknowns refitted with this one held) at the linear interval's ends and beyond, doubling
     the step until it rises by ``delta`` (chi-square 95 %, one degree of freedom, times the misfit's
     inflation) or reaches the range's bound; the end is interpolated on sqrt(rise). A lower cost
-    found on the way (a second minimum) is walked past the same way.
+    found on the way (a second minimum) is walked past the same way. The refitted points inside the
+    region (their rise below ``delta``) are appended to ``region``.
     """
     out = {}
     for i, name in enumerate(problem.unknown):
@@ -748,6 +763,8 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
                 start[i] = x
                 zf, r, _ = _levenberg_marquardt(problem, start, lo, hi, fixed=i)
                 rise = float(r @ r) - cost0
+                if region is not None and rise < delta:
+                    region.append(zf.copy())
                 if rise >= delta:
                     frac = (math.sqrt(delta) - math.sqrt(max(prev_rise, 0.0))) / \
                         (math.sqrt(rise) - math.sqrt(max(prev_rise, 0.0)))

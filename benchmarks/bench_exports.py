@@ -123,10 +123,28 @@ def _one(path: Path) -> list[dict]:
                     row["Ms"] = row["post_Ms"]  # the worst of what is written, over every draw checked
         except MrftError as err:
             row["outcome"] = f"refused: {err}"
+        if stack == "hear" and loop in ("x", "y", "altitude") and "Ms" in row:
+            row["hear_before"] = _hear_before(a.model, post, loop)
         if stack == "px4" and base is not None:
             row.update(base_Ms_claimed=base[0], base_Ms_flown=base[1], base_GM_flown=base[2], base_out_of_range=base[3])
         rows.append(row)
     return rows
+
+
+def _hear_before(model, post, loop: str) -> tuple[float, float]:
+    """The HEAR export before issue 37: designed with the inner loops' 50 Hz filter, flown with the outer
+    loops' own (HEAR_FC's rate/12, 16.7 Hz at 200 Hz): (Ms stated, Ms flown)."""
+    from dataclasses import replace
+
+    from mrftcli.tune.closed_loop import RateFilter
+    from mrftcli.tune.design import DesignOptions, tune
+    from mrftcli.tune.margins import loop_margins
+
+    res = tune(model, 200.0, posterior=post, loop=loop,
+               options=DesignOptions(kinds=("PD",), rate_filter=RateFilter(50.0, "HEAR_FC rate filter")))
+    d = res.get("robust" if any(x.name == "robust" for x in res.designs) else "model-based", "PD")
+    flown = loop_margins(replace(d.controller, rate_filter=RateFilter(200.0 / 12, "outer")), [model])[0]
+    return d.margins.Ms, flown.Ms
 
 
 def _z_cascade_row(e, post, rate: float) -> dict:
@@ -176,6 +194,8 @@ def main() -> None:
                      f"x splits {r['post_Ms']:.2f}")
         if "cost" in r:
             line += f" | cost {r['cost']}"
+        if "hear_before" in r:
+            line += f" | before: designed with 50 Hz, Ms stated {r['hear_before'][0]:.2f}, flown {r['hear_before'][1]:.2f}"
         if "base_Ms_flown" in r:
             line += (f" | {r['base_Ms_claimed']:.2f} / {r['base_Ms_flown']:.2f}, {r['base_GM_flown']:.2f}, "
                      f"{r['base_out_of_range']}")

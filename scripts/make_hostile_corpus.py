@@ -298,6 +298,144 @@ def _ulog_param(name: bytes, value: float) -> Callable[[Path], None]:
     return build
 
 
+# -- issue 35: small files that declare huge sizes, damage, stale samples -------------------------
+def ulog_nested(dst: Path) -> None:
+    """A 168-byte ULog whose format nests ``inner[65535]`` of ``uint8_t[65535]`` (3.9 GB per message)."""
+    def msg(kind: str, payload: bytes) -> bytes:
+        return struct.pack("<HB", len(payload), ord(kind)) + payload
+
+    head = b"ULog\x01\x12\x35" + b"\x01" + struct.pack("<Q", 0)
+    fmts = msg("F", b"inner:uint8_t[65535] a;") + msg("F", b"outer:uint64_t timestamp;inner[65535] b;")
+    add = msg("A", struct.pack("<BH", 0, 1) + b"outer")
+    data = msg("D", struct.pack("<H", 1) + struct.pack("<Q", 1000) + bytes(16))
+    dst.write_bytes(head + msg("B", bytes(40)) + fmts + add + data)
+
+
+def dataflash_short_fmt(length: int) -> Callable[[Path], None]:
+    """A DataFlash log whose FMT declares a message type ``length`` bytes long (0: pymavlink's scan hung)."""
+    def fmt(t: int, n: int, name: bytes, form: bytes, cols: bytes) -> bytes:
+        return b"\xa3\x95\x80" + struct.pack("<BB4s16s64s", t, n, name, form, cols)
+
+    def build(dst: Path) -> None:
+        head = fmt(128, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns") + fmt(129, 15, b"ATT", b"Qf",
+                                                                                           b"TimeUS,Roll")
+        att = b"".join(b"\xa3\x95\x81" + struct.pack("<Qf", 1000 * i, 0.1) for i in range(20))
+        bad = fmt(200, length, b"BAD", b"Q", b"TimeUS") + b"\xa3\x95\xc8" + struct.pack("<Q", 5)
+        dst.write_bytes(head + att + bad + att)
+    return build
+
+
+def mat_v5_zeros(n: int) -> Callable[[Path], None]:
+    """A v5 .mat holding one compressed vector ``z`` of ``n`` zeros (200 M: 1.5 MB declaring 1.6 GB).
+
+    Deflate restarts after a full flush, so one 16 MB block's compressed bytes are written over and over:
+    the file is built in well under a second without ever holding the zeros."""
+    import zlib
+
+    def build(dst: Path) -> None:
+        def tag(kind: int, nbytes: int) -> bytes:
+            return struct.pack("<II", kind, nbytes)
+
+        head = (tag(6, 8) + struct.pack("<II", 6, 0) + tag(5, 8) + struct.pack("<ii", n, 1)
+                + tag(1, 1) + b"z" + bytes(7) + tag(9, 8 * n))
+        comp = zlib.compressobj(9)
+        parts = [comp.compress(tag(14, len(head) + 8 * n) + head), comp.flush(zlib.Z_FULL_FLUSH)]
+        block = 1 << 24
+        whole, rest = divmod(8 * n, block)
+        if whole:
+            parts.append((comp.compress(bytes(block)) + comp.flush(zlib.Z_FULL_FLUSH)) * whole)
+        parts.append(comp.compress(bytes(rest)) + comp.flush())
+        payload = b"".join(parts)
+        text = b"MATLAB 5.0 MAT-file, hostile corpus".ljust(116, b" ")
+        dst.write_bytes(text + bytes(8) + struct.pack("<H", 0x0100) + b"IM" + tag(15, len(payload)) + payload)
+    return build
+
+
+def mat_v73_unwritten(n: int) -> Callable[[Path], None]:
+    """A v7.3 .mat (HDF5) with gzip datasets ``z`` and ``z_t`` of ``n`` doubles never written (4 kB)."""
+    def build(dst: Path) -> None:
+        import h5py
+
+        with h5py.File(dst, "w", userblock_size=512) as f:
+            for name in ("z", "z_t"):
+                f.create_dataset(name, shape=(n, 1), dtype="f8", chunks=(1 << 16, 1), compression="gzip")
+        with open(dst, "r+b") as fh:
+            fh.write(b"MATLAB 7.3 MAT-file, hostile corpus".ljust(116, b" ") + bytes(8)
+                     + struct.pack("<H", 0x0200) + b"IM")
+    return build
+
+
+def mcap_uncompressed_damaged(dst: Path) -> None:
+    """design1_altitude.mcap in uncompressed chunks without CRCs, one message record's length garbled in the
+    middle of the first chunk: neither a CRC nor the message index can vouch for what follows."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(SAMPLES / "design1_altitude.mcap", "rb") as handle:
+        reader = make_reader(handle)
+        summary = reader.get_summary()
+        assert summary is not None
+        msgs = [m for _s, _c, m in reader.iter_messages(log_time_order=False)]
+    with open(dst, "wb") as out:
+        writer = Writer(out, compression=CompressionType.NONE, enable_crcs=False)
+        writer.start("ros2", "mrft-ident hostile corpus")
+        sid = {k: writer.register_schema(v.name, v.encoding, v.data) for k, v in summary.schemas.items()}
+        cid = {k: writer.register_channel(v.topic, v.message_encoding, sid[v.schema_id])
+               for k, v in summary.channels.items()}
+        for m in msgs:
+            writer.add_message(cid[m.channel_id], m.log_time, m.data, m.publish_time)
+        writer.finish()
+    data = bytearray(dst.read_bytes())
+    pos = 8  # magic; walk top-level records to the first chunk
+    while data[pos] != 0x06:
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    body = pos + 9
+    records = body + 8 + 8 + 8 + 4 + 4 + struct.unpack_from("<I", data, body + 28)[0] + 8
+    end = records + struct.unpack_from("<Q", data, records - 8)[0]
+    rec, count = records, 0
+    while rec < end:  # the records of the chunk; garble the length of the 200th message
+        length = struct.unpack_from("<Q", data, rec + 1)[0]
+        if data[rec] == 0x05:
+            count += 1
+            if count == 200:
+                struct.pack_into("<Q", data, rec + 1, length + 0x1234567)
+                break
+        rec += 9 + length
+    dst.write_bytes(bytes(data))
+
+
+def csv_stale(lag: int = 4) -> Callable[[Path], None]:
+    """design1_altitude.csv whose every second output sample is the measurement ``lag`` samples (20 ms)
+    older: a stale, sample-and-hold sensor (tau read 10 ms long)."""
+    def build(dst: Path) -> None:
+        lines = (SAMPLES / "design1_altitude.csv").read_text().splitlines()
+        values = [line.split(",")[4] for line in lines[1:]]
+        out = [lines[0]]
+        for i, line in enumerate(lines[1:]):
+            cells = line.split(",")
+            if i % 2 == 1 and i >= lag:
+                cells[4] = values[i - lag]
+            out.append(",".join(cells))
+        dst.write_text("\n".join(out) + "\n")
+    return build
+
+
+def _issue35_cases() -> list[Case]:
+    """The files issue 35 names (items 3-5)."""
+    d1 = "design1_altitude.csv"
+    return [
+        Case("ulog_nested.ulg", ulog_nested, "refuse", why="format nesting inner[65535] of uint8_t[65535]"),
+        Case("dataflash_fmt0.bin", dataflash_short_fmt(0), "refuse", why="FMT of length 0 (pymavlink hung)"),
+        Case("dataflash_fmt1.bin", dataflash_short_fmt(1), "refuse", why="FMT of length 1 (numpy warning)"),
+        Case("mat_v5_zeros.mat", mat_v5_zeros(200_000_000), "refuse", why="1.5 MB declaring 200 M compressed zeros"),
+        Case("mat_v73_unwritten.mat", mat_v73_unwritten(190_000_000), "refuse",
+             why="v7.3 gzip datasets of 190 M doubles never written"),
+        Case("mcap_uncompressed_damaged.mcap", mcap_uncompressed_damaged, "either", "design1_altitude.mcap",
+             why="uncompressed chunk without CRC, a record's length garbled"),
+        Case("csv_stale.csv", csv_stale(), "right", d1, why="every second output sample 20 ms old"),
+    ]
+
+
 # -- the cases ------------------------------------------------------------------------------------
 def _format_cases() -> list[Case]:
     """Each shipped format cut, flipped, emptied, zeroed and replaced by noise."""
@@ -383,7 +521,7 @@ def _issue_cases(big_rows: int) -> list[Case]:
 
 def cases(big_rows: int = 1_000_000) -> list[Case]:
     """Every case, in a fixed order."""
-    return _format_cases() + _issue_cases(big_rows)
+    return _format_cases() + _issue_cases(big_rows) + _issue35_cases()
 
 
 CASES = cases

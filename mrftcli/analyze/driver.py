@@ -26,6 +26,7 @@ from .estimate import (WaveformStage, consensus, identifiability, point_estimate
                        widen_for_jitter)
 from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
+from .residual import MISMATCH_WORDS, residual_verdict
 from .screen import Screening, screen
 
 __all__ = ["analyze_flight", "analyze_path", "refuse_rejected_tp"]
@@ -110,7 +111,7 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
     usable, rejected = screening.usable, screening.rejected
-    return AnalysisResult(
+    return _residual_worded(AnalysisResult(
         path=str(flight.path), loop=flight.loop, Tp=Tp, tests=usable, rejected=rejected,
         Td=wave.Td, tau=tau_est, K=wave.K, model=wave.model, identification=point.identification,
         combinations=combos, bootstrap=dict(cons.draws), warnings=tuple(dict.fromkeys(warnings)), flight=flight,
@@ -119,7 +120,19 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
         parameters_mrft=mrft_params, refinement=wave.refinement, notes=tuple(notes),
         controller_rate_hz=analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]),
         log_info=LogInfo.from_flight(flight), tp_check=tp_check,
-    )
+    ))
+
+
+def _residual_worded(result: AnalysisResult) -> AnalysisResult:
+    """The warnings worded by the one residual verdict (:func:`mrftcli.analyze.residual.residual_verdict`):
+    with receive-time stamps the waveform residual cannot say the recording holds dynamics eq. (2)
+    leaves out (diagnose, which reads the same verdict, decides on the cycles' features)."""
+    verdict = residual_verdict(result)
+    if verdict is None or verdict.verdict != "untestable":
+        return result
+    why = ("with receive-time stamps it holds the transport's timing jitter too, so it cannot tell timing from "
+           "dynamics eq. (2) leaves out; diagnose decides on the cycles' features")
+    return dataclasses.replace(result, warnings=tuple(w.replace(MISMATCH_WORDS, why) for w in result.warnings))
 
 
 def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: float,

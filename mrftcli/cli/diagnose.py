@@ -16,6 +16,7 @@ from .options import (check_output_dir, check_output_file, dump_json, json_optio
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
+    from ..analyze.residual import ResidualVerdict
     from ..diagnose.process_plant import ProcessDiagnosis
     from ..diagnose.records import DiagnosisResult
     from ..io.logtypes import FlightLog
@@ -80,9 +81,10 @@ def _effect_lines(result: DiagnosisResult) -> list[str]:
     return lines
 
 
-def format_summary(result: DiagnosisResult) -> str:
+def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = None) -> str:
     """The terminal summary of a :class:`~mrftcli.diagnose.records.DiagnosisResult` (analyze's model of
-    the same log beside the diagnosis' linear model when its identification holds it)."""
+    the same log beside the diagnosis' linear model when its identification holds it), with the
+    waveform residual's verdict analyze gives (``residual``: one verdict for both commands)."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
@@ -128,7 +130,11 @@ def format_summary(result: DiagnosisResult) -> str:
     if result.effects:
         lines += _effect_lines(result)
     elif result.unexplained is None:
-        lines.append("found: nothing: the linear model explains the log")
+        mismatch = residual is not None and residual.verdict == "mismatch"
+        lines.append("found: nothing among the candidates" if mismatch else
+                     "found: nothing: the linear model explains the log")
+    if residual is not None and not result.effects:
+        lines.append(f"waveform residual (analyze's test): {residual.sentence}")
     if result.unexplained is not None:
         u = result.unexplained
         # a mode ringing above the fitted harmonics is judged on the residual, not the held-out features
@@ -199,12 +205,14 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         given = analyze_given(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
         result = run(flight, Tp, analysis=given, progress=progress)
-    result = _with_analysis(result, flight, Tp, given)
+    result, analysis = _with_analysis(result, flight, Tp, given)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_dict(), json_target)
     if not to_stdout:
-        click.echo(format_summary(result))
+        from ..analyze.residual import residual_verdict
+
+        click.echo(format_summary(result, residual_verdict(analysis) if analysis is not None else None))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     if report_dir:
@@ -215,9 +223,10 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
 
 
 def _with_analysis(result: DiagnosisResult, flight: FlightLog, Tp: float,
-                   given: AnalysisResult | None) -> DiagnosisResult:
+                   given: AnalysisResult | None) -> tuple[DiagnosisResult, AnalysisResult | None]:
     """The diagnosis with analyze's model of the same log (about 1 s; the one the user was given
-    with --min-cycles) and the recommendation made again with it, for the terminal and the JSON alike."""
+    with --min-cycles) and the recommendation made again with it, for the terminal and the JSON alike;
+    and that analysis (None when analyze refuses the log)."""
     from dataclasses import replace
 
     from ..analyze import analyze_flight
@@ -228,8 +237,9 @@ def _with_analysis(result: DiagnosisResult, flight: FlightLog, Tp: float,
     try:
         analysis = given or analyze_flight(flight, Tp)
     except MrftError:
-        return result  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
-    return replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects)))
+        return result, None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
+    return (replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects))),
+            analysis)
 
 
 def _check_soiptd(Tp: float | None, process_options: bool) -> None:

@@ -1,8 +1,9 @@
-"""Broken and hostile files through the CLI, under a memory cap (tracker issue 29).
+"""Broken and hostile files and option sets through the CLI, under a memory cap (tracker issues 29, 35).
 
 Builds the corpus (``scripts/make_hostile_corpus.py``) and runs ``analyze``, ``topics`` and
 ``diagnose`` on every case, each in its own process with an address-space cap
-(``RLIMIT_AS``) and a timeout, and prints one table:
+(``RLIMIT_AS``) and a timeout, then every option set of :data:`OPTION_CASES` (outputs onto someone's files
+and links, absurd numbers, typed nonsense) in a folder of someone's files, and prints one table:
 
 * internal errors: exit 1, another unexpected code, a signal, or ``Traceback`` on stderr;
 * hangs: runs past the timeout;
@@ -48,6 +49,8 @@ TIMEOUT_S = 120.0
 #: own errors reach 15 % on tau; a unit error is a factor of 1000)
 TOLERANCE = {"Td": 0.35, "tau": 0.35, "K": 0.35}
 COMMANDS = ("topics", "analyze", "diagnose")
+#: the table's rows: the commands on every file, then the option sets (issue 35)
+ROWS = (*COMMANDS, "options")
 _WARNING = re.compile(r"\b[A-Z][A-Za-z]*Warning: ")
 
 
@@ -162,11 +165,74 @@ def _capped(argv: list[str], env: dict[str, str], cwd: str, timeout: float) -> t
     return proc.returncode, err, usage.ru_maxrss * 1024, killed.is_set(), usage.ru_utime + usage.ru_stime
 
 
+# -- option sets (issue 35): outputs onto what the tool did not write, absurd numbers, typed nonsense --------
+_LOG = str(ROOT / "sample_logs" / "design1_altitude.mcap")
+_MODEL = ("--tp", "0.0422", "--td", "0.5", "--tau", "0.03")
+_PLAN = ("plan", "--tp", "0.0422", "--from", _LOG, "--max-amplitude", "0.05", "--max-h", "0.2")
+#: (name, argv, expect): ``refuse`` (exit 2-7, nothing in the folder changed), ``warn:WORD`` (exit 0 with
+#: WORD on stderr). Each runs in a folder holding ``notes/`` (someone's files) and links into it.
+OPTION_CASES: tuple[tuple[str, tuple[str, ...], str], ...] = (
+    ("simulate_ros2_onto_folder", ("simulate", *_MODEL, "--test", "-0.4:0.2:2", "--format", "ros2-mcap",
+                                   "--out", "notes"), "refuse"),
+    ("simulate_out_link", ("simulate", *_MODEL, "--test", "-0.4:0.2:2", "--out", "link.mcap"), "refuse"),
+    ("simulate_out_recorded_log", ("simulate", *_MODEL, "--test", "-0.4:0.2:2", "--out", "notes/flight.mcap"),
+     "refuse"),
+    ("predict_json_link", ("predict", *_MODEL, "--beta", "-0.4", "--json", "link.json"), "refuse"),
+    ("predict_json_not_json", ("predict", *_MODEL, "--beta", "-0.4", "--json", "notes/a.txt"), "refuse"),
+    ("analyze_mcap_out_link", ("analyze", _LOG, "--tp", "0.0422", "--mcap-out", "link.mcap"), "refuse"),
+    ("analyze_report_link", ("analyze", _LOG, "--tp", "0.0422", "--report", "linkdir"), "refuse"),
+    ("simulate_test_1e6s", ("simulate", *_MODEL, "--test", "-0.4:0.2:1e6", "--out", "x.mcap"), "refuse"),
+    ("simulate_test_5e5s", ("simulate", *_MODEL, "--test", "-0.4:0.2:5e5", "--out", "x.mcap"), "refuse"),
+    ("simulate_rate_1e7", ("simulate", *_MODEL, "--test", "-0.4", "--controller-rate", "1e7", "--out", "x.mcap"),
+     "refuse"),
+    ("predict_rate_1e300", ("predict", *_MODEL, "--beta", "-0.4", "--controller-rate", "1e300"), "refuse"),
+    ("predict_td_1e300", ("predict", "--tp", "0.0422", "--td", "1e300", "--tau", "0.03", "--beta", "-0.4"), "refuse"),
+    ("predict_tau_1e300", ("predict", "--tp", "0.0422", "--td", "0.5", "--tau", "1e300", "--beta", "-0.4"), "refuse"),
+    ("tune_td_std_1e300", ("tune", *_MODEL, "--k", "1", "--td-std", "1e300", "--loop", "altitude",
+                           "--controller-rate", "200"), "refuse"),
+    ("plan_time_1e300", (*_PLAN, "--time", "1e300"), "refuse"),
+    ("plan_tests4_time_1e9", (*_PLAN, "--tests", "4", "--time", "1e9"), "refuse"),
+    ("analyze_eps_1e300", ("analyze", _LOG, "--model", "fopdt", "--relay", "hysteresis", "--eps", "1e300"), "refuse"),
+    ("identify_amplitude_typo", ("identify", "--tp", "0.1", "--test", "-0.4:0.705643:0.078530:1", "--test",
+                                 "-0.7:1.018843:0.0035602:1"), "warn:disagree"),
+)
+
+
+def _option_folder(folder: Path) -> None:
+    """Someone's files, and links pointing into them, where each option set runs."""
+    notes = folder / "notes"
+    notes.mkdir()
+    (notes / "a.txt").write_text("field notes: the only copy\n")
+    (notes / "flight.mcap").write_bytes((ROOT / "sample_logs" / "design1_altitude.mcap").read_bytes())
+    for name, target in (("link.mcap", notes / "a.txt"), ("link.json", notes / "a.txt"), ("linkdir", notes)):
+        (folder / name).symlink_to(target)
+
+
+def run_options(name: str, args: tuple[str, ...], expect: str, timeout: float = TIMEOUT_S) -> Run:
+    """One option set in a capped subprocess, in a folder of someone's files (:func:`_option_folder`)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        _option_folder(folder)
+        before = digest(folder)
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MPLBACKEND="Agg")
+        start = time.perf_counter()
+        code, err, rss, hang, cpu = _capped([sys.executable, "-m", "mrftcli", *args], env, tmp, timeout)
+        seconds = time.perf_counter() - start
+        changed = digest(folder) != before or sorted(p.name for p in folder.iterdir()) != [
+            "link.json", "link.mcap", "linkdir", "notes"]
+    wrong = ""
+    if expect == "refuse" and code == 0:
+        wrong = "exit 0 on options that must be refused"
+    elif expect.startswith("warn:") and (code != 0 or expect[5:] not in err):
+        wrong = f"no warning '{expect[5:]}' (exit {code})"
+    return Run(name, "options", code, seconds, rss, err, hang, changed, wrong, cpu)
+
+
 def table(runs: list[Run]) -> str:
     """The summary table (per command) and one line per failing run."""
     lines = ["| command | runs | internal errors | hangs | > 1 GB | warnings | inputs modified | wrong exit 0 |",
              "|---|---|---|---|---|---|---|---|"]
-    for command in COMMANDS:
+    for command in ROWS:
         rs = [r for r in runs if r.command == command]
         if not rs:
             continue
@@ -195,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--commands", default=",".join(COMMANDS))
     parser.add_argument("--corpus", type=Path, help="build into this folder (default: a temporary one)")
     parser.add_argument("--verbose", action="store_true", help="print each run as it ends")
+    parser.add_argument("--no-options", action="store_true", help="skip the option sets (issue 35)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         corpus = args.corpus or Path(tmp) / "corpus"
@@ -209,7 +276,16 @@ def main(argv: list[str] | None = None) -> int:
                 if args.verbose:
                     print(f"{run.case:36s} {command:9s} exit {run.code} {run.seconds:6.1f} s "
                           f"({run.cpu_s:6.1f} s CPU) {run.rss_bytes / 1e6:7.0f} MB {run.wrong}", flush=True)
-        print(f"{len(manifest)} cases x {args.commands}: memory cap {MEMORY_CAP >> 30} GiB (address space), "
+        if not args.no_options:
+            for name, option_args, expect in OPTION_CASES:
+                if args.only and not re.search(args.only, name):
+                    continue
+                run = run_options(name, option_args, expect)
+                runs.append(run)
+                if args.verbose:
+                    print(f"{run.case:36s} options   exit {run.code} {run.seconds:6.1f} s ({run.cpu_s:6.1f} s CPU) "
+                          f"{run.rss_bytes / 1e6:7.0f} MB {run.wrong}", flush=True)
+        print(f"{len(manifest)} cases x {args.commands}, {sum(r.command == 'options' for r in runs)} option sets: memory cap {MEMORY_CAP >> 30} GiB (address space), "
               f"timeout {TIMEOUT_S:.0f} s")
         print(table(runs))
         slow = max(runs, key=lambda r: r.seconds)

@@ -155,7 +155,6 @@ def _deep_json(depth: int = 100_000) -> str:
 @pytest.mark.parametrize("argv", [
     ("predict", "--beta", "-0.4", "--model-file", "{deep}"),
     ("tune", "{deep}", "--tp", "0.0422"),
-    ("tune", "{deep}", "--model-file", "{good}"),
     ("plan", "--from", "{deep}", "--tp", "0.0422", "--max-amplitude", "0.5", "--max-h", "0.2", "--time", "60"),
     ("compare", "{deep}", "{deep}"),
     ("vehicle", "{log}", "--tp", "0.0422", "--inner-gains", "{deep}"),
@@ -166,7 +165,8 @@ def test_json_nested_100000_deep_is_a_one_line_error(tmp_path, capsys, argv):
     deep = tmp_path / "deep.json"
     deep.write_text(_deep_json())
     good = tmp_path / "good.toml"
-    good.write_text(_toml("K*exp(-tau*s)/(T*s + 1)"))
+    good.write_text('transfer_function = "K*exp(-tau*s)/(T*s + 1)"\n[parameters]\nK = { range = [0.1, 10] }\n'
+                    'T = { range = [0.01, 10] }\ntau = { value = 0.05 }\n')
     log = Path(__file__).parent.parent / "sample_logs" / "design1_altitude.csv"
     names = {"deep": str(deep), "good": str(good), "log": str(log), "out": str(tmp_path / "out.csv")}
     err = _refused(capsys, tmp_path, *(a.format(**names) for a in argv))

@@ -29,6 +29,8 @@ SKIP = (
     (r"--report ", "slow (plots); the report is tested in tests/test_report_analysis.py and test_tune.py"),
     (r"^mrft-ident (diagnose|build-ufm|simulate) ", "slow (> 10 s of CPU); tested in their own test files"),
     (r"^mrft-ident compare ", "needs two analysed batches (tests/test_compare.py)"),
+    (r"heater\.csv", "the slow thermal example's log is written by scripts/make_thermal_example.py "
+     "(the same flow on a shorter recording: tests/test_slow_process.py)"),
     (r"flight\.bag --tp 0\.0499", "a user's roll log with another Tp"),
     (r"--inner-model roll\.json|^mrft-ident tune y\.json", "the cascade chain reads the files the example before "
      "it writes (the workers of pytest -n do not share them); run end to end in tests/test_cascade.py"),

@@ -84,11 +84,30 @@ def test_baseline_measures_the_static_gain(capsys, heater_log):
         assert p["ci95_low"] <= HEATER[name] <= p["ci95_high"]
 
 
+def test_baseline_topic_measures_the_static_gain(capsys, heater_log, tmp_path):
+    # the ambient logged beside the heater (noisy, and at its own times): each cycle's own mean of it
+    data = np.loadtxt(heater_log, delimiter=",", skiprows=1)
+    rng = np.random.default_rng(5)
+    ambient = AMBIENT + 0.1 * rng.standard_normal(len(data))
+    path = tmp_path / "heater_ambient.csv"
+    np.savetxt(path, np.column_stack([data, ambient]), delimiter=",", header="time,u_relay,y_output,ambient",
+               comments="", fmt="%.10g")
+    code, out, err, result = _analyze(capsys, path, "--baseline-topic", "ambient")
+    assert code == 0, err
+    assert abs(result["static_gain"]["baseline"] - AMBIENT) < 0.05
+    assert abs(result["parameters"]["K"]["value"] / HEATER["K"] - 1) < 0.05 and result["parameters"]["K"]["determined"]
+    code, _, err = run_cli(capsys, "analyze", str(path), *TOPICS, "--model", "sopdt", "--baseline", "20",
+                           "--baseline-topic", "ambient")
+    assert code == 2 and "once" in err
+    code, _, err = run_cli(capsys, "analyze", str(path), *TOPICS, "--model", "sopdt", "--baseline-topic", "nope")
+    assert code != 0 and "nope" in err and "Traceback" not in err
+
+
 def test_baseline_refusals(capsys, heater_log, tmp_path):
     code, _, err = run_cli(capsys, "analyze", str(heater_log), *TOPICS, "--model", "foipdt", "--baseline", "20")
     assert code == 2 and "integrates" in err and "Traceback" not in err
     code, _, err = run_cli(capsys, "analyze", str(heater_log), *TOPICS, "--tp", "0.04", "--baseline", "20")
-    assert code == 2 and "--baseline takes a process model" in err
+    assert code == 2 and "take a process model" in err
     code, _, err = run_cli(capsys, "analyze", str(heater_log), *TOPICS, "--model", "sopdt", "--baseline", "warm")
     assert code == 2 and "--baseline" in err
     # a relay symmetric about the command's zero: its mean levels say nothing of K

@@ -528,7 +528,7 @@ def _no_usable_test(rejected: Sequence[tuple[int, float, float, str]]) -> Segmen
 
 def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions = RelayOptions(),
                     windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3,
-                    baseline: tuple[float, float] | None = None) -> GeneralAnalysis:
+                    baseline: tuple[float | Signal, float] | None = None) -> GeneralAnalysis:
     """Identify ``model``'s unknown parameters from the relay tests of a flight (module docstring).
 
     Parameters
@@ -543,9 +543,10 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
         Parts of the log to use [s, log clock]; empty: all.
     min_stable_cycles : int
         Fewest stable cycles for a test to be used.
-    baseline : (float, float) or None
-        The operating point ``Y0`` [output units] (the output with the command at 0) and its standard
-        deviation: the biased relays' mean levels then measure the static gain
+    baseline : (float or Signal, float) or None
+        The operating point ``Y0`` [output units] (the output with the command at 0; or its logged
+        signal, e.g. the ambient temperature) and its standard deviation: the biased relays' mean
+        levels then measure the static gain
         (:mod:`~mrftcli.analyze.static_gain`), one more constraint of the fit.
 
     Raises
@@ -568,7 +569,7 @@ def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
 
 def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
                      windows: Sequence[tuple[float, float]] = (),
-                     baseline: tuple[float, float] | None = None) -> GeneralAnalysis:
+                     baseline: tuple[float | Signal, float] | None = None) -> GeneralAnalysis:
     """Stage 2 of :func:`analyze_general`: ``model`` identified from the measured tests, each held out.
 
     Raises
@@ -604,7 +605,7 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
 
 
 def _static_gain(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
-                 points: Sequence[ResponsePoint], baseline: tuple[float, float]) -> StaticGain:
+                 points: Sequence[ResponsePoint], baseline: tuple[float | Signal, float]) -> StaticGain:
     """K from the used tests' mean levels (``--baseline``); InputError on an integrating plant."""
     if not is_self_regulating(model, min(p.omega for p in points)):
         raise InputError(f"--baseline: {model.family} integrates (no static gain): the mean levels say nothing of K; "

@@ -100,8 +100,25 @@ def is_self_regulating(model: PlantModel, omega: float) -> bool:
     return bool(np.all(np.isfinite(g)) and g[0] < 2 * g[1])
 
 
-def static_gain(flight: FlightLog, tests: Sequence[MrftTest], baseline: float, baseline_std: float = 0.0) -> StaticGain:
+def _check_cover(baseline: Signal, tests: Sequence[MrftTest]) -> None:
+    """InputError unless the baseline's readings span the stable cycles (to within one cycle at each end)."""
+    spans = [(c.t_start, c.t_end) for t in tests for c in t.cycles if c.stable and c.t_end > c.t_start]
+    if not spans or baseline.t.size == 0:
+        raise InputError("--baseline-topic: no readings of the operating point")
+    first, last = min(a for a, _ in spans), max(b for _, b in spans)
+    period = float(np.median([b - a for a, b in spans]))
+    if baseline.t[0] > first + period or baseline.t[-1] < last - period:
+        raise InputError(f"--baseline-topic: its readings ({baseline.t[0]:.6g}-{baseline.t[-1]:.6g} s) do not "
+                         f"cover the relay test's stable cycles ({first:.6g}-{last:.6g} s)")
+
+
+def static_gain(flight: FlightLog, tests: Sequence[MrftTest], baseline: float | Signal,
+                baseline_std: float = 0.0) -> StaticGain:
     """K from the stable cycles' mean levels of ``tests`` and the operating point ``baseline``.
+
+    ``baseline`` is a number [output units] or a logged signal (the ambient temperature's topic):
+    then each cycle's own mean of it is that cycle's operating point (a drifting ambient is followed;
+    its readings' noise is in the cycles' scatter), and :attr:`StaticGain.baseline` is its mean.
 
     Raises
     ------
@@ -109,16 +126,24 @@ def static_gain(flight: FlightLog, tests: Sequence[MrftTest], baseline: float, b
         Fewer than two stable cycles, or a mean command too close to the command's zero (a symmetric
         relay) for the mean levels to say anything of K.
     """
-    us, ys = [], []
+    us, ys, bs = [], [], []
     for test in tests:
         u, y = cycle_means(flight, test)
         us.append(u)
         ys.append(y)
+        if isinstance(baseline, Signal):
+            bs.append(np.array([_mean(baseline, c.t_start, c.t_end, False) for c in test.cycles
+                                if c.stable and c.t_end > c.t_start]))
     u, y = np.concatenate(us), np.concatenate(ys)
     n = u.size
     if n < 2:
         raise InputError("--baseline: fewer than two stable cycles to take the mean levels over")
-    d = y - baseline
+    if isinstance(baseline, Signal):
+        _check_cover(baseline, tests)
+    y0 = np.concatenate(bs) if isinstance(baseline, Signal) else np.full(n, float(baseline))
+    if not np.all(np.isfinite(y0)):
+        raise InputError("--baseline-topic: its readings do not cover the relay test's cycles")
+    d = y - y0
     k = float(np.sum(u * d) / np.sum(u * u))
     resid = d - k * u
     se_scatter = math.sqrt(float(np.sum(resid ** 2)) / max(n - 1, 1) / float(np.sum(u * u)))
@@ -128,4 +153,4 @@ def static_gain(flight: FlightLog, tests: Sequence[MrftTest], baseline: float, b
     if abs(mean_u) < _MIN_T * max(se_u, 1e-12 * float(np.max(np.abs(u)) or 1.0)):
         raise InputError(f"--baseline: the relay's mean command {mean_u:.3g} is at the command's zero (a symmetric "
                          "relay): its mean levels do not determine the static gain; a biased relay (e.g. 0/1) does")
-    return StaticGain(k, math.hypot(se_scatter, se_base), baseline, baseline_std, mean_u, float(np.mean(y)), n)
+    return StaticGain(k, math.hypot(se_scatter, se_base), float(np.mean(y0)), baseline_std, mean_u, float(np.mean(y)), n)

@@ -212,7 +212,11 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     from ..analyze import AnalyzeOptions, analyze_flight, refuse_rejected_tp
     from ..io import ReadOptions, read_flight
 
-    baseline = parse_baseline(read_options.pop("baseline", None))  # a process model's operating point
+    # a process model's operating point: a number, or a topic of the log
+    baseline = parse_baseline(read_options.pop("baseline", None))
+    baseline_topic = read_options.pop("baseline_topic", None)
+    if baseline is not None and baseline_topic is not None:
+        raise click.UsageError("give the operating point once: --baseline Y0[:STD] or --baseline-topic TOPIC[:FIELD]")
     cascade = pop_cascade_options(read_options)  # --inner-model: the outer loop through its inner loop
     if cascade.requested:
         run_cascade(log, cascade, read_options, min_cycles=min_cycles, json_target=json_target,
@@ -228,13 +232,13 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
         check_overlay_path(mcap_out)
     if model_name != "soiptd":
-        _analyze_process(log, model_name, params, ranges, windows, (relay_kind, eps, baseline), min_cycles,
-                         json_target, (report_dir, mcap_out, paper_only, run_diagnose), read_options)
+        _analyze_process(log, model_name, params, ranges, windows, (relay_kind, eps, baseline or baseline_topic),
+                         min_cycles, json_target, (report_dir, mcap_out, paper_only, run_diagnose), read_options)
         return
     _check_soiptd(Tp, params, ranges, relay_kind, eps)
-    if baseline is not None:
-        raise click.UsageError("--baseline takes a process model (--model fopdt or sopdt, or --model-file); eq. (2) "
-                               "integrates (no static gain)")
+    if baseline is not None or baseline_topic is not None:
+        raise click.UsageError("--baseline and --baseline-topic take a process model (--model fopdt or sopdt, or "
+                               "--model-file); eq. (2) integrates (no static gain)")
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False,  # its warnings: once, below
                              progress=progress)
@@ -334,6 +338,8 @@ def _analyze_process(log, model_name, params, ranges, windows, relay_baseline, m
     # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
     flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
     relay_kind, eps, baseline = relay_baseline
+    if isinstance(baseline, str):  # --baseline-topic: the operating point as logged
+        baseline = (_baseline_signal(log, baseline, read_options), 0.0)
     relay = RelayOptions(relay_kind, None, eps)
     try:
         result = analyze_general(flight, model, relay=relay, windows=parse_windows(windows, log_start(flight)),
@@ -346,6 +352,24 @@ def _analyze_process(log, model_name, params, ranges, windows, relay_baseline, m
     if json_target != "-":
         click.echo(format_general(result))
     _echo_warnings(result.warnings)
+
+
+def _baseline_signal(log, spec: str, read_options):
+    """The ``--baseline-topic`` signal [s, output units] from the log (the reader's clock and time unit)."""
+    import numpy as np
+
+    from ..io import open_log
+    from ..io.logtypes import Signal
+    from ..io.source import parse_spec
+
+    ts = parse_spec(spec)
+    with open_log(log, read_options.get("fmt"), echo_warnings=False, time_unit=read_options.get("time_unit")) as src:
+        topic = src.resolve_topic(ts.topic)
+        if topic is None:
+            raise src.missing_topic(ts.topic)
+        t, leaves, values = src.values(topic, ts.field)
+    scale = read_options.get("output_scale") or 1.0  # the output's units
+    return Signal(np.asarray(t, float), scale * np.asarray(values[leaves[0]], float))
 
 
 def _echo_warnings(warnings) -> None:

@@ -154,7 +154,11 @@ def relay_options(f: Callable[..., Any]) -> Callable[..., Any]:
 
 
 def baseline_option(f: Callable[..., Any]) -> Callable[..., Any]:
-    """``--baseline Y0[:STD]``: the operating point that lets a biased relay's mean levels measure K."""
+    """``--baseline Y0[:STD]`` or ``--baseline-topic``: the operating point that lets a biased relay's mean
+    levels measure K."""
+    f = click.option("--baseline-topic", "baseline_topic", metavar="TOPIC[:FIELD]", default=None,
+                     help="Process models: the logged operating point (e.g. the ambient temperature) instead of "
+                          "--baseline: each stable cycle's own mean of it is that cycle's Y0.")(f)
     return click.option("--baseline", "baseline", metavar="Y0[:STD]", default=None,
                         help="Process models: the output with the command at 0 (a heater off: the ambient "
                              "temperature) [output units], with its standard deviation after ':' (default: "
@@ -307,7 +311,7 @@ def format_general(result: GeneralAnalysis) -> str:
     lines = [result.path]
     if ident is not None:
         structure = getattr(ident.model, "transfer_function", ident.model.structure)
-        lines.append(f"model {ident.model.family}: G(s) = {structure}; loop {result.loop}; "
+        lines.append(f"model {ident.model.family}: G(s) = {structure}; "
                      f"times in seconds from the log start ({describe_t0(t0)})")
     lines += [f"note: {n}" for n in result.notes if n.startswith("assumed")]
     head = ("test", "from [s]", "to [s]", "relay", "frequency [Hz]", "amplitude", "held-out f [Hz]",

@@ -667,7 +667,14 @@ def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, opti
             flight = snap.flight
             yield from _updates(tracker.update(flight), flight, ident, reported)
         if snap.closed or now - last_growth > options.idle:
-            yield from ident.final(flight, "closed" if snap.closed else "idle", len(reported))
+            reason = "closed" if snap.closed else "idle"
+            if flight is None and read.fmt is None:  # nothing read: say whether it is a log at all
+                not_a_log = _not_a_log(path)
+                if not_a_log is not None:
+                    yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error=not_a_log,
+                                   exit_code=LogReadError.exit_code)
+                    return
+            yield from ident.final(flight, reason, len(reported))
             return
         sleep(options.poll)
 
@@ -756,6 +763,17 @@ def watch_model(path: str | Path, model: PlantModel, *, relay: RelayOptions | No
     wopts = WatchOptions() if options is None else options
     return _follow(Path(path), lambda: _ProcessIdentifier(model, rel, wopts.min_cycles),
                    ReadOptions() if read is None else read, wopts, sleep, clock)
+
+
+def _not_a_log(path: Path) -> str | None:
+    """Why ``path`` is not a log of any format read (a PNG, a text file...), or None when it may be one."""
+    from .io import detect_format
+
+    try:
+        detect_format(path)
+    except LogReadError as err:
+        return f"not a log: {err}"
+    return None
 
 
 def _wait_for(path: Path, wait: float | None, poll: float, sleep: Callable[[float], None],

@@ -38,3 +38,24 @@ def test_tables_scroll_inside_the_page_and_name_their_units(tmp_path):
     assert "max-width: 1100px" in html  # the page itself keeps its width; the wrapper scrolls
     assert "<th>Td [s]</th>" in html and "<th>K [m or rad /s² per command unit]</th>" in html
     assert "ms</td>" in html  # tau cells carry their unit
+
+
+@pytest.mark.parametrize("n", [6, 12, 40])
+def test_fleet_plot_labels_do_not_overlap_and_k_has_its_unit(tmp_path, monkeypatch, n):
+    """Issue 40: on the log-order axis (logs without distinct times) no two x labels overlap (their
+    rendered boxes, measured by matplotlib's renderer), and the K axis names its unit."""
+    import mrftcli.report.fleet as fleet
+
+    figs = []
+    monkeypatch.setattr(fleet, "savefig_atomic", lambda fig, path, **kw: figs.append(fig))
+    monkeypatch.setattr(fleet.plt, "close", lambda fig: None)
+    df = _summary(n)
+    df["log_time"] = pd.Timestamp("2026-01-01", tz="UTC")  # one time stamp: the logs in order, named
+    fleet.plot_loop(df, "altitude", tmp_path / "fleet.png")
+    fig = figs[0]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    axes = fig.get_axes()
+    boxes = [t.get_window_extent(renderer) for t in axes[2].get_xticklabels() if t.get_text()]
+    assert boxes and all(a.x1 <= b.x0 + 0.5 for a, b in zip(boxes, boxes[1:])), "x labels overlap"
+    assert axes[2].get_ylabel() == "K [m/s² per command unit]"

@@ -160,11 +160,17 @@ def format_cascade(analysis: Any) -> str:
                      f"{band:>15}  {_fmt(fit.amplitude):>9}  {_fmt(fit.predicted_amplitude):>9}")
     lines.append(f"{'parameter':<10}{'unit':<30}{'estimate':>10}{'std':>10}  95 % interval")
     for name, e in ident.estimates.items():
+        # tau in ms, as analyze shows it (the record keeps seconds)
+        f, u = (1e3, "ms") if name == "tau" and e.unit == "s" else (1.0, e.unit)
+
+        def show(x: float, digits: int = 4, f: float = f) -> str:
+            return _fmt(x * f, digits)
+
         if e.known:
-            lines.append(f"{name:<10}{e.unit:<30}{_fmt(e.value):>10}{'':>10}  known (--outer-command)")
+            lines.append(f"{name:<10}{u:<30}{show(e.value):>10}{'':>10}  known (--outer-command)")
             continue
-        interval = f"{_fmt(e.ci95_low)} - {_fmt(e.ci95_high)}" + ("" if e.determined else " (not determined)")
-        lines.append(f"{name:<10}{e.unit:<30}{_fmt(e.value):>10}{_fmt(e.std, 2):>10}  {interval}")
+        interval = f"{show(e.ci95_low)} - {show(e.ci95_high)}" + ("" if e.determined else " (not determined)")
+        lines.append(f"{name:<10}{u:<30}{show(e.value):>10}{show(e.std, 2):>10}  {interval}")
     return "\n".join(lines)
 
 

@@ -100,17 +100,25 @@ def _matplotlib_font_cache_missing() -> bool:
 _PLOTTING = {"analyze", "diagnose", "tune", "batch", "plan", "watch", "compare", "simulate"}
 
 
+def _command(args: list[str]) -> str:
+    """``mrft-ident COMMAND`` for a message (the first argument that names a command)."""
+    name = next((a for a in args if a in COMMANDS), None)
+    return f"mrft-ident {name}" if name else "mrft-ident"
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the CLI and map errors to one line and an exit code."""
     args = sys.argv[1:] if argv is None else argv
+    if not args:  # bare mrft-ident: its help, as --help gives it (not inside an error)
+        args = ["--help"]
     debug = "--debug" in args
     if (any(a in _PLOTTING for a in args[:2]) and not {"-h", "--help"} & set(args)
             and _matplotlib_font_cache_missing()):
         click.echo("note: first run: matplotlib is building its font cache (once, 10-40 s)", err=True)
     try:
         cli.main(args=args, prog_name="mrft-ident", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("Aborted.", err=True)
+    except click.exceptions.Abort:  # Ctrl-C: worded as watch words it
+        click.echo(f"interrupted: stopped {_command(args)} (Ctrl-C)", err=True)
         sys.exit(130)
     except click.UsageError as err:
         # One line, naming the problem and where help is, instead of click's three-line usage block.
@@ -126,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
         click.echo(f"error: {err}", err=True)
         sys.exit(err.exit_code)
     except KeyboardInterrupt:
-        click.echo("Interrupted.", err=True)
+        click.echo(f"interrupted: stopped {_command(args)} (Ctrl-C)", err=True)
         sys.exit(130)
     except OSError as err:
         # A path the user gave cannot be written or read (permissions, missing folder, full disk).

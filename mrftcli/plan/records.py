@@ -119,7 +119,7 @@ class FlightLimits:
         check_positive("the largest amplitude (--max-amplitude)", self.max_amplitude)
         check_positive("the largest relay height (--max-h)", self.max_h)
         check_time("the time available (--time)", self.time_s)
-        check_positive("the controller rate (--rate)", self.rate_hz)
+        check_positive("the controller rate (--controller-rate)", self.rate_hz)
         check_positive("the sensor noise (--noise)", self.noise_std)
 
     def to_json(self) -> dict[str, float]:

@@ -195,7 +195,7 @@ def admissible_betas(candidates: Mapping[float, CandidateTest], betas: Sequence[
 
 #: What relaxes each refusal of :func:`_refusal` (its message's start -> the options that help).
 _REMEDIES = (
-    ("fewer than 8 controller", "a faster controller (--rate)"),
+    ("fewer than 8 controller", "a faster controller (--controller-rate)"),
     ("fewer than", "more time (--time)"),
     ("the output moves less", "a smaller sensor noise (--noise: measure it on a hover), a larger amplitude "
                               "(--max-amplitude) or a narrower gain prior (--k-range: h is set by its highest-gain "

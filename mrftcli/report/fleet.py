@@ -13,6 +13,7 @@ red on the panel of the parameter that is off, and labelled with the log's folde
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ import matplotlib.dates as mdates
 import numpy as np
 import pandas as pd
 
+from ..io.logtypes import gain_unit
 from ._common import esc, html_page, html_table, plt, savefig_atomic, write_page
 
 __all__ = ["write_fleet_report", "plot_loop"]
@@ -67,10 +69,15 @@ def _log_order_axis(ax: Any, d: pd.DataFrame, xs: np.ndarray, names: list[str]) 
     # the layout measures them and the first one is not cut at the figure's left edge)
     two_line = [n.replace("/", "/\n", 1) for n in names]
     widest = max((len(line) for n in two_line for line in n.splitlines()), default=0)
-    if len(names) * widest <= 110:  # about the characters the axis holds side by side at this font size
+    if len(names) * widest <= 90:  # about the characters the axis holds side by side at this font size
         ax.set_xticks(xs, two_line, fontsize=8)
     else:
-        ax.set_xticks(xs, two_line, rotation=35, ha="right", rotation_mode="anchor", fontsize=8)
+        # upright text is two lines (about 22 px at 8 pt) wide per log: on the ~700 px axis, name every
+        # step-th log (and every outlier) so that no two labels overlap
+        step = max(1, math.ceil(len(names) * 24 / 700))
+        out = d["outlier"].astype(bool).to_numpy()
+        shown = [n if k % step == 0 or out[k] else "" for k, n in enumerate(two_line)]
+        ax.set_xticks(xs, shown, rotation=90, ha="center", fontsize=8)
     for tick, is_out in zip(ax.get_xticklabels(), d["outlier"].astype(bool)):
         if is_out:
             tick.set_color("red")
@@ -91,7 +98,8 @@ def plot_loop(df: pd.DataFrame, loop: str, path: Path) -> Path:
     vehicles = sorted(d["vehicle"].astype(str).unique())
     names = [f"{Path(p).parent.name}/{Path(p).name}" for p in d["path"].astype(str)]
     fig, axes = plt.subplots(3, 1, figsize=(10, 8.5 if by_time else 10), sharex=True, constrained_layout=True)
-    for ax, param in zip(axes, _PARAMS):
+    params = [p if p[0] != "K" else ("K", f"K [{gain_unit(loop)}]", 1.0) for p in _PARAMS]
+    for ax, param in zip(axes, params):
         _draw_parameter(ax, d, xs, by_time, vehicles, names, param)
     axes[0].set_title(f"{loop} loop: identified parameters per log (mean +/- std)", fontsize=12)
     if by_time:

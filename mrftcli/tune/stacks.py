@@ -174,7 +174,7 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
     if stack == "generic":
         rate = rate_given or rate_source
         if rate is None:
-            raise InputError("give --rate HZ, the rate the controller runs at")
+            raise InputError("give --controller-rate HZ, the rate the controller runs at")
         return StackSetting(stack, rate, None, ())
     if stack == "hear" and loop in _HEAR_OUTER:
         rate = rate_given or HEAR_OUTER_RATE_HZ
@@ -186,7 +186,7 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
     if stack == "hear":
         rate = rate_given or HEAR_RATE_HZ
         notes = (f"HEAR_FC filters the rate with a 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz; designed with it "
-                 f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --rate to change)"),)
+                 f"at {rate:g} Hz" + ("" if rate_given else " (HEAR_FC's inner-loop rate; --controller-rate to change)"),)
         return StackSetting(stack, rate, RateFilter(HEAR_FILTER_HZ, "HEAR_FC rate filter"), notes)
     if stack == "ardupilot" and loop == "altitude":
         rate, ap_notes = _ardupilot_rate(rate_given, rate_source)
@@ -195,7 +195,7 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
     if stack == "px4" and loop == "altitude":
         rate = rate_given or rate_source
         if rate is None:
-            raise InputError("give --rate HZ, the rate of PX4's position controller (the local position's rate)")
+            raise InputError("give --controller-rate HZ, the rate of PX4's position controller (the local position's rate)")
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
             f"PX4 altitude: designed at {rate:g} Hz with the vertical velocity unfiltered (PX4 uses the EKF's "
             "estimate; its lag is not modelled)",))

@@ -596,8 +596,8 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
     if sg is None and "K" in ident.undetermined and any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests) \
             and is_self_regulating(model, min(p.omega for p in points)):
         notes.append("the biased relay's mean levels would determine K: give the operating point with --baseline Y0 "
-                     "(the output with the command at 0, e.g. the ambient temperature): K = (mean output - Y0) / "
-                     "mean command")
+                     "(the output with the command at 0, e.g. the ambient temperature) or --baseline-topic TOPIC: "
+                     "K = (mean output - Y0) / mean command")
     with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index]))
                       for t in tests)
     return GeneralAnalysis(flight.path, flight.loop, t0, tuple(windows), with_held, tuple(rejected), ident,

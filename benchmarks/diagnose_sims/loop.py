@@ -64,27 +64,34 @@ def relay_height(model: PlanningModel, beta: float, amplitude: float) -> float:
 class Relay:
     """MRFT (Boiko 2013): leave +h once the error has fallen from its peak e_max > 0 to -beta e_max
     (beta < 0: before the zero crossing), leave -h likewise from the trough; the first switch waits for
-    the error to cross ``start`` beyond zero so noise at rest does not start it."""
+    the error to cross ``start`` beyond zero so noise at rest does not start it. As flight stacks do
+    against noise-triggered switches (which lock the relay up), a peak counts once ``confirm`` samples
+    have passed without a new one."""
 
-    def __init__(self, beta: float, start: float) -> None:
-        self.beta, self.start, self.sign, self.peak, self.armed = beta, start, 0.0, 0.0, False
+    def __init__(self, beta: float, start: float, confirm: int) -> None:
+        self.beta, self.start, self.confirm = beta, start, confirm
+        self.sign, self.peak, self.armed, self.age = 0.0, 0.0, False, 0
+
+    def _switch(self, sign: float, e: float) -> None:
+        self.sign, self.peak, self.age = sign, e, 0
 
     def __call__(self, e: float) -> float:
         if self.sign == 0.0:
-            self.sign, self.peak = (1.0 if e >= 0 else -1.0), e
+            self._switch(1.0 if e >= 0 else -1.0, e)
             return self.sign
         if not self.armed:
             if self.sign * e < -self.start:
-                self.sign, self.peak, self.armed = -self.sign, e, True
+                self._switch(-self.sign, e)
+                self.armed = True
             return self.sign
-        if self.sign > 0:
-            self.peak = max(self.peak, e)
-            if self.peak > 0 and e <= -self.beta * self.peak:
-                self.sign, self.peak = -1.0, e
-        else:
-            self.peak = min(self.peak, e)
-            if self.peak < 0 and e >= -self.beta * self.peak:
-                self.sign, self.peak = 1.0, e
+        self.age += 1
+        if self.sign * e > self.sign * self.peak:  # a new extremum of this half
+            self.peak, self.age = e, 0
+        confirmed = self.age >= self.confirm
+        if self.sign > 0 and confirmed and self.peak > 0 and e <= -self.beta * self.peak:
+            self._switch(-1.0, e)
+        elif self.sign < 0 and confirmed and self.peak < 0 and e >= -self.beta * self.peak:
+            self._switch(1.0, e)
         return self.sign
 
 
@@ -107,6 +114,7 @@ class LoopSpec:
     hover_s: float = 2.0
     hold_s: float = 2.5
     abort: float = 0.5  # [m] the safety abort's error
+    start: float = 0.0  # [m] the error beyond which the relay makes its first switch (at least 10 noise std)
     planning: PlanningModel | None = None
 
 
@@ -178,7 +186,8 @@ def fly(vehicle: Vehicle, spec: LoopSpec) -> FlightRecord:
     mount = Mount(spec.mount_hz, spec.mount_zeta, r) if spec.mount_hz > 0 else None
     a_lag = math.exp(-T / spec.lag) if spec.lag > 0 else 0.0
     filt, integ, yprev, dterm = r, 0.0, r, 0.0
-    relays = [Relay(beta, 10 * spec.noise) for beta, _, _ in spec.tests]
+    confirm = max(1, int(round(0.01 * spec.rate)))  # 10 ms of samples
+    relays = [Relay(beta, max(10 * spec.noise, spec.start), confirm) for beta, _, _ in spec.tests]
     bias, aborted = vehicle.hover, [False] * len(spec.tests)
     pending: list[tuple[float, float]] = []  # (time the command reaches the motors, command)
     u_plant, last_apply = vehicle.hover, 0.0

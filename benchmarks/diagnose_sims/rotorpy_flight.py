@@ -13,7 +13,7 @@ Effects produced in the simulator (none by ``mrftcli``'s code):
 * ``actuator_saturation``: ``rotor_speed_max`` lowered so the thrust caps at u_max = 1 + 0.7 f h_max.
 * ``gain_drift``: a sagging battery, the motors reaching omega sqrt(1 + g t) of the commanded speed.
 * ``actuator_rate_limit``: an ESC that slews the motor-speed command at R_omega [rad/s^2], updated
-  at 1 kHz (truth in command units/s near hover: 2 R_omega / omega_0).
+  at 400 Hz (truth in command units/s near hover: 2 R_omega / omega_0).
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ class RotorPyVehicle:
         if self.slew <= 0:
             self._step(target * math.sqrt(max(1.0 + self.drift * (self.t + 0.5 * dt), 0.0)), dt)
             return
-        n = max(1, int(math.ceil(dt / 0.001)))
+        n = max(1, int(math.ceil(dt / 0.0025)))
         for _ in range(n):
             step = dt / n
             self.esc += float(np.clip(target - self.esc, -self.slew * step, self.slew * step))

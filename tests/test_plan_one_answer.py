@@ -59,3 +59,23 @@ def test_simulated_plan_never_silently_worse_than_the_conventional_pair(tmp_path
     worse = [p for p in ("Td", "tau") if data["predicted_std"][p] > conv[p] * (1 + 1e-6)]
     if worse:
         assert any("predicted worse than the conventional beta" in n for n in data["notes"]), data["notes"]
+
+
+def test_single_beta_log_and_its_exit_6_json_give_one_plan(tmp_path, capsys):
+    """One flown beta: analyze exits 6 with its partial (now with the noise and each test's phase); the plan
+    from that JSON equals the plan from the log."""
+    log = tmp_path / "one.mcap"
+    code, _, err = run_cli(capsys, "simulate", "--tp", "0.0422", "--td", "2.669", "--tau", "0.0464", "--k", "19.6",
+                           "--test", "-0.4", "--noise", "0.0003", "--out", str(log))
+    assert code == 0, err
+    partial = tmp_path / "one.json"
+    code, _, _ = run_cli(capsys, "analyze", str(log), "--tp", "0.0422", "--json", str(partial))
+    assert code == 6
+    noise = json.loads(partial.read_text())["partial"]["noise"]["std"]
+    assert noise == pytest.approx(0.0003, rel=0.15)  # the simulated sensor noise
+    plans = []
+    for source in (log, partial):
+        code, stdout, err = run_cli(capsys, "plan", *LIMITS, "--from", str(source), "--simulate", "0", "--json", "-")
+        assert code == 0, err
+        plans.append(json.loads(stdout))
+    assert plans[0] == plans[1] and plans[0]["limits"]["noise_std"] == pytest.approx(noise)

@@ -264,15 +264,24 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
 
 
 def partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -> dict[str, Any]:
-    """What one beta can say: tau(Td) over the assumed Td range, per test."""
+    """What one beta can say: tau(Td) over the assumed Td range, per test; with each test's mean phase of
+    its fundamental [rad] (``phase_h1``) and the measured sensor noise (``noise``), which ``plan`` uses
+    as it does from the log."""
+    from .record import measured_noise_std
+
     Td = np.geomspace(ASSUMED_TD_RANGE[0], ASSUMED_TD_RANGE[1], 9)
     rows = []
     for t in tests:
         d = t.to_dict(cycles=False)
-        d.update(t_start_rel=t.t_start - t0, t_end_rel=t.t_end - t0)
+        ph = np.array([c.phase_h1 for c in t.stable], float)
+        ph = ph[np.isfinite(ph)]
+        d.update(t_start_rel=t.t_start - t0, t_end_rel=t.t_end - t0,
+                 phase_h1=float(ph.mean()) if ph.size >= 2 else None)
         rows.append(d)
     slices: list[dict[str, Any]] = []
-    out = {"assumed_Td_range_s": list(ASSUMED_TD_RANGE), "t0": t0, "tests": rows, "tau_for_assumed_Td": slices}
+    out = {"assumed_Td_range_s": list(ASSUMED_TD_RANGE), "t0": t0, "tests": rows, "tau_for_assumed_Td": slices,
+           "noise": {"std": measured_noise_std(tests), "unit": "output units",
+                     "source": "median residual of the tests' stable cycle fits"}}
     for t in tests:
         try:
             tau = ufm_slice(Tp, t.beta, t.frequency_hz_mean, Td)

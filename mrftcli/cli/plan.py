@@ -31,7 +31,10 @@ def _json_rate(data: object) -> float | None:
     if not isinstance(data, dict):
         return None
     declared = ((data.get("input") or {}).get("source") or {}).get("controller_rate_hz")
-    rates = sorted(float(t["rate_hz"]) for t in data.get("tests") or () if isinstance(t, dict) and t.get("rate_hz"))
+    partial = data.get("partial")
+    # a single-beta log's exit-6 object: its partial's tests
+    tests = data.get("tests") or (partial.get("tests") if isinstance(partial, dict) else None) or ()
+    rates = sorted(float(t["rate_hz"]) for t in tests if isinstance(t, dict) and t.get("rate_hz"))
     if declared:
         return float(declared)
     return rates[len(rates) // 2] if rates else None
@@ -61,11 +64,15 @@ def _from_log(path: Path, Tp: float, min_cycles: int, read_options: Mapping[str,
     from ..segment import segment
 
     flight = read_flight(path, ReadOptions(**read_options))
+    data: dict[str, Any] | None = None
     try:
-        result = analyze_flight(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
-        return _from_analysis(json.loads(json.dumps(to_jsonable(result.to_json()))))
-    except (InsufficientDataError, IdentificationError, SegmentationError):
+        data = analyze_flight(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles)).to_json()
+    except InsufficientDataError as err:  # one beta: the object analyze --json writes for exit 6
+        data = {"error": str(err), "exit_code": err.exit_code, "partial": err.partial}
+    except (IdentificationError, SegmentationError):
         pass  # planned from what the segmenter measured, below
+    if data is not None:
+        return _from_analysis(json.loads(json.dumps(to_jsonable(data))))
     found = segment(flight)
     flown, noise = flown_from_segments([t for t in found if t.n_stable >= min_cycles])
     if not flown:

@@ -75,11 +75,16 @@ def noise_from_result(data: object) -> float | None:
     """The sensor noise std [output units] an ``analyze --json`` result measured: its ``noise.std``
     (schema 2), else the median residual of its tests' stable cycle fits (schema 1), as
     :func:`flown_from_segments` measures it from the log; None when neither is there."""
-    if not isinstance(data, dict) or "parameters" not in data:
+    if not isinstance(data, dict):
         return None
+    if "parameters" not in data:  # the exit-6 object of a single-beta log: its partial's noise, if recorded
+        partial = data.get("partial")
+        data = partial if isinstance(partial, dict) else {}
     noise = data.get("noise")
     if isinstance(noise, dict) and isinstance(noise.get("std"), (int, float)) and noise["std"] > 0:
         return float(noise["std"])
+    if "parameters" not in data:
+        return None
     from ..analyze import AnalysisResult, measured_noise_std
 
     return measured_noise_std(AnalysisResult.from_json(data).tests)
@@ -91,8 +96,10 @@ def _partial_tests(partial: Mapping[str, Any]) -> list[FlownTest]:
     flown = []
     for t in partial.get("tests") or []:
         try:
+            phase = t.get("phase_h1")
             flown.append(FlownTest(beta=float(t["beta"]), h=float(t["h"]), frequency_hz=float(t["frequency_hz"]),
-                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"])))
+                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"]),
+                                   phase=float(phase) if isinstance(phase, (int, float)) else None))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"a test lacks beta, h, frequency_hz, amplitude or cycles ({err})") from err
     return flown

@@ -745,15 +745,27 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
     inflation) or reaches the range's bound; the end is interpolated on sqrt(rise). A lower cost
     found on the way (a second minimum) is walked past the same way. The refitted points inside the
     region (their rise below ``delta``) are appended to ``region``.
+
+    Where the fit is linear enough this costs two residual evaluations a parameter, no refit: at the
+    linear interval's end, with the others moved along their linear regression on it (the linear
+    profile), the cost rises by ``delta`` exactly for a linear fit; a rise within 0.5-2 ``delta``
+    keeps the linear end. Only a flatter or a steeper (curved) rise is profiled.
     """
     out = {}
     for i, name in enumerate(problem.unknown):
         if name in flat:
             continue
         half = _Z95 * max(math.sqrt(max(cov[i, i], 0.0)), 1e-9 * (1 + abs(z[i])))
+        slope = cov[:, i] / cov[i, i] if cov[i, i] > 0 else np.eye(z.size)[i]
         ends = []
         for sign in (-1.0, 1.0):
             bound = lo[i] if sign < 0 else hi[i]
+            probe = z + sign * half * slope
+            if np.all(probe >= lo) and np.all(probe <= hi):
+                rise = float(np.sum(_cost_residuals(problem, probe) ** 2)) - cost0
+                if 0.5 * delta <= rise <= 2.0 * delta:  # linear enough: the linear end stands
+                    ends.append(z[i] + sign * half)
+                    continue
             prev_x, prev_rise, end = z[i], 0.0, None
             start = z.copy()
             for mult in (1.0, 2.0, 4.0, 8.0):
@@ -776,6 +788,13 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
                 prev_x, prev_rise, start = x, rise, zf.copy()
             ends.append(z[i] + sign * 16 * half if end is None else end)
         out[i] = (ends[0], ends[1])
+    return out
+
+
+def _cost_residuals(problem: _Problem, z: FloatArray) -> FloatArray:
+    """The weighted residuals at ``z`` by the fit's own route (closed form, or the response grid)."""
+    out: FloatArray = (problem.kernel.residuals(z) if problem.kernel is not None
+                       else _residuals_batch(problem, z[None, :])[0])
     return out
 
 

@@ -1,0 +1,269 @@
+"""The PX4 SITL campaign (issue 42): fly the fork's MRFT, analyse the ULogs, export, load, re-fly.
+
+Run through ``benchmarks/bench_sitl.py --stack px4`` (which prints the figures); the ArduPilot
+campaign's helpers are reused: ``sitl_analysis`` (tests found, held out), ``bench_sitl.step_stats``.
+
+1. build PX4 SITL with the MRFT port if needed (``build_px4.sh``);
+2. fly the altitude MRFT at three betas, and again with MRFT_DELAY = 20 ms (the relay's output held
+   20 ms inside mc_pos_control); keep the ULogs;
+3. analyse each ULog as PX4 wrote it (``px4-mrft`` layout): tests found, held-out frequency, the
+   +20 ms increment, Td / K beside what SIH's parameters imply;
+4. ``tune --export px4`` (altitude), load the ``.params`` over MAVLink, read back, arm, take off, fly an
+   altitude step in OFFBOARD (a true step of the position setpoint), compare with the prediction.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+from px4_sitl import SIH_MODEL, Px4Sitl, fly_mrft, load_params, read_qgc_params  # noqa: E402
+from sitl_analysis import analyze_log, held_out  # noqa: E402
+
+__all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
+           "run"]
+
+G = 9.80665
+#: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust
+FLIGHTS = [
+    ("px4_altitude", "altitude", 0.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.6, 0.06)], 14.0),
+    ("px4_altitude_20ms", "altitude", 20.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.6, 0.06)], 14.0),
+]
+
+
+def sih_implied(loop: str, model: dict[str, float] = SIH_MODEL) -> dict[str, float]:
+    """K [m/s^2 per unit thrust], Td [s] and Tp [s] that SIH's quadrotor implies (eq. (2)'s form).
+
+    ``sih.cpp``: thrust ``T_MAX * sum(u_i)`` along body z, each ``u_i`` a first-order lag ``SIH_T_TAU`` of the
+    motor command, linear drag ``-SIH_KDV v``; PX4's allocator gives each motor the collective thrust
+    setpoint (THR_MDL_FAC 0: linear), so a unit of thrust accelerates ``4 T_MAX / MASS`` and the drag's
+    time constant is ``MASS / KDV``. x and y add the attitude loop's lag, which eq. (2) does not hold.
+    """
+    if loop not in ("altitude", "x", "y"):
+        raise ValueError(f"loop must be altitude, x or y, not {loop!r}")
+    return {"K": 4 * model["SIH_T_MAX"] / model["SIH_MASS"], "Td": model["SIH_MASS"] / model["SIH_KDV"],
+            "Tp": model["SIH_T_TAU"]}
+
+
+def _ulog_rate(log: Path, topic: str = "vehicle_local_position_setpoint") -> float:
+    """Median publication rate [Hz] of a topic in a ULog (mc_pos_control's rate for the setpoint)."""
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        t, _ = src.read(topic, ["z"])
+    return float(1.0 / np.median(np.diff(t)))
+
+
+def _hover(log: Path) -> float:
+    """Hover thrust PX4 estimated during the flight (median of hover_thrust_estimate)."""
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        _, d = src.read("hover_thrust_estimate", ["hover_thrust"])
+    return float(np.median(d["hover_thrust"]))
+
+
+def fly_campaign(px4: Path, logs: Path, speedup: float, only: list[str]) -> None:
+    logs.mkdir(parents=True, exist_ok=True)
+    for name, loop, delay, tests, duration in FLIGHTS:
+        if only and name not in only:
+            continue
+        out = logs / f"{name}.ulg"
+        if out.exists():
+            print(f"  {name}: {out} exists, not re-flown")
+            continue
+        t0 = time.monotonic()
+        info = fly_mrft(px4, Path(f"/tmp/mrft_px4_{name}"), loop, tests, delay, duration, speedup)
+        shutil.copy(info.pop("log"), out)
+        Path(f"{out}.json").write_text(json.dumps(info, indent=2) + "\n")
+        print(f"  {name}: flown in {time.monotonic() - t0:.0f} s wall, {out.stat().st_size / 1e6:.2f} MB")
+
+
+def analyse(logs: Path) -> dict[str, dict[str, Any]]:
+    results: dict[str, dict[str, Any]] = {}
+    for name, loop, delay, tests, _ in FLIGHTS:
+        log = logs / f"{name}.ulg"
+        if not log.exists():
+            continue
+        side = json.loads(Path(f"{log}.json").read_text())
+        tp = side["tp_s"]
+        res = analyze_log(log, tp, loop)
+        held = held_out(log, tp, loop, res) if len(res.tests) >= 3 else []
+        implied = sih_implied(loop)
+        results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": len(res.tests),
+                         "Td": res.Td.mean, "tau": res.tau.mean, "K": res.K.mean, "tp": tp, "implied": implied,
+                         "held": held, "tests": res.tests, "log": log, "hover": _hover(log),
+                         "rate_hz": _ulog_rate(log)}
+        print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.mean:.3f} s  "
+              f"tau {res.tau.mean * 1e3:.2f} ms  K {res.K.mean:.2f}   (SIH: Td {implied['Td']:.3f} s, "
+              f"K {implied['K']:.2f}, Tp {tp * 1e3:.1f} ms; mc_pos_control at {results[name]['rate_hz']:.1f} Hz)")
+        for t in res.tests:
+            print(f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  f {t.frequency_hz_mean:.3f} Hz  "
+                  f"amplitude {t.amplitude_mean:.4g}  cycles {t.n_stable}")
+        for ho in held:
+            print(f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
+                  f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)")
+    return results
+
+
+def report(results: dict[str, dict[str, Any]]) -> None:
+    errs = [abs(h.error) for r in results.values() for h in r["held"]]
+    print(f"tests found: {sum(r['found'] for r in results.values())}/{sum(r['flown'] for r in results.values())}")
+    if errs:
+        print(f"held-out frequency error: max {max(errs) * 100:.2f} %, median {np.median(errs) * 100:.2f} %, "
+              f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
+    if "px4_altitude" in results and "px4_altitude_20ms" in results:
+        inc = results["px4_altitude_20ms"]["tau"] - results["px4_altitude"]["tau"]
+        print(f"altitude: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True)
+    if proc.returncode not in (0, 6):
+        print(proc.stdout[-2000:], proc.stderr[-2000:])
+    return proc
+
+
+def export(results: dict[str, dict[str, Any]], work: Path) -> Path | None:
+    """``tune --export px4`` for the altitude loop, as the current code writes it (no --clamp)."""
+    work.mkdir(parents=True, exist_ok=True)
+    r = results["px4_altitude"]
+    params, js = work / "altitude.params", work / "altitude_tune.json"
+    for p in (params, js):
+        p.unlink(missing_ok=True)
+    proc = _cli("tune", str(r["log"]), "--tp", f"{r['tp']:.6f}", "--loop", "altitude", "--controller-rate",
+                f"{r['rate_hz']:.1f}", "--export", "px4", "--hover-thrust", f"{r['hover']:.4f}", "--out", str(params),
+                "--json", str(js))
+    print(f"  tune --export px4 (altitude, --hover-thrust {r['hover']:.4f}, --controller-rate {r['rate_hz']:.1f}): "
+          f"exit {proc.returncode} {proc.stderr.strip()[:300]}")
+    print("    " + "\n    ".join(proc.stdout.strip().splitlines()[:16]))
+    return params if params.exists() else None
+
+
+def predicted_step(result: dict[str, Any], params: dict[str, float], hover: float, t_end: float = 10.0
+                   ) -> dict[str, float]:
+    """Overshoot and settling of the flown PX4 gains on the identified model (tune's sampled loop).
+
+    PX4: ``acc = VEL_P (Z_P e - v) + VEL_I int(Z_P e - v) + ...``, thrust = acc hover / g; in the parallel
+    form on the position error: ``Kp = Z_P VEL_P h/g``, ``Kd = VEL_P h/g`` (on the measurement),
+    ``Ki = Z_P VEL_I h/g``; the integral's ``-VEL_I h/g (y - y0)`` remnant is left out (0.2 of the 4-7
+    that VEL_P is).
+    """
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.tune.closed_loop import Controller, step_metrics, step_response
+
+    s = hover / G
+    ctrl = Controller(Kp=params["MPC_Z_P"] * params["MPC_Z_VEL_P_ACC"] * s,
+                      Ki=params["MPC_Z_P"] * params.get("MPC_Z_VEL_I_ACC", 0.0) * s,
+                      Kd=params["MPC_Z_VEL_P_ACC"] * s, Tf=0.0, rate_hz=result["rate_hz"])
+    model = LoopModel(result["tp"], result["Td"], result["tau"], result["K"])
+    t, y, u = step_response([model], ctrl, t_end)
+    m = step_metrics(t, y[0], u[0])
+    return {"overshoot_pct": m.overshoot_pct, "settling_s": m.settling_s, "rise_s": m.rise_s}
+
+
+def _offboard_hold(sitl: Px4Sitl, x: float, y: float, z: float, seconds: float) -> None:
+    """Stream a position setpoint (NED) at 20 Hz for ``seconds`` of simulated time."""
+    end = sitl.boot_ms + seconds * 1000
+    while sitl.boot_ms < end:
+        sitl.mav.mav.set_position_target_local_ned_send(0, sitl.mav.target_system, sitl.mav.target_component, 1,
+                                                        0b110111111000, x, y, z, 0, 0, 0, 0, 0, 0, 0, 0)
+        sitl.wait(0.05)
+
+
+def refly(px4: Path, params_file: Path, work: Path, speedup: float, step_m: float = 1.0) -> dict[str, Any]:
+    """Load the export, read it back, arm, take off, fly an altitude step in OFFBOARD; the ULog."""
+    params = read_qgc_params(params_file)
+    with Px4Sitl(px4, work / "refly", speedup) as sitl:
+        rows = load_params(sitl, params)
+        changed = [r for r in rows if not r["unchanged"]]
+        print(f"  loaded {len(rows)} parameters, read back: {len(changed)} rejected or changed")
+        for r in changed:
+            print(f"    {r['name']}: wrote {r['written']:g}, read {r['read_back']:g}")
+        try:
+            refusals = sitl.takeoff(5.0)
+        except Exception as err:  # noqa: BLE001 - reported, the figure is the refusal
+            print(f"  arming / take-off: REFUSED ({err})")
+            return {"rows": rows, "armed": False}
+        print(f"  pre-arm: passed (refusals while the EKF settled: {sorted(set(refusals)) or 'none'})")
+        msg = sitl.wait(5, lambda m: m.get_type() == "LOCAL_POSITION_NED")
+        x, y, z = float(msg.x), float(msg.y), float(msg.z)
+        _offboard_hold(sitl, x, y, z, 1.0)
+        sitl.set_mode("OFFBOARD")
+        _offboard_hold(sitl, x, y, z, 8.0)
+        t_step = sitl.boot_ms / 1000
+        _offboard_hold(sitl, x, y, z - step_m, 12.0)
+        sitl.set_mode("LOITER")
+        sitl.land()
+        sitl.wait(2)
+    log = sitl.newest_log()
+    shutil.copy(log, work / "refly.ulg")
+    return {"rows": rows, "armed": True, "t_step": t_step, "z0": z, "step_m": step_m, "log": work / "refly.ulg"}
+
+
+def evaluate_refly(flown: dict[str, Any], pred: dict[str, float]) -> dict[str, float]:
+    """The flown altitude step's overshoot and settling (2 %) against the prediction."""
+    from bench_sitl import step_stats
+
+    from mrftcli.io import open_log
+
+    with open_log(flown["log"], echo_warnings=False) as src:
+        ts, sp = src.read("trajectory_setpoint", ["position[2]"])
+        tz, pos = src.read("vehicle_local_position", ["z"])
+    zsp = sp["position[2]"]
+    z0 = flown["z0"]
+    moved = np.nonzero(np.isfinite(zsp) & (zsp < z0 - 0.5 * flown["step_m"]))[0]
+    t_step = float(ts[moved[0]])
+    alt = -pos["z"]
+    before = (tz > t_step - 3) & (tz < t_step)
+    base = float(np.mean(alt[before]))
+    hover = (tz > t_step - 6) & (tz < t_step)
+    win = (tz >= t_step) & (tz < t_step + 11)
+    got = step_stats(tz[win], alt[win], t_step, base, base + flown["step_m"])
+    print(f"  hover (6 s before the step): altitude std {np.std(alt[hover]) * 100:.2f} cm, "
+          f"peak-to-peak {np.ptp(alt[hover]) * 100:.2f} cm")
+    print(f"  altitude step +{flown['step_m']:g} m (OFFBOARD position setpoint, unshaped): overshoot "
+          f"{got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.2f} s; predicted "
+          f"{pred['overshoot_pct']:.1f} %, {pred['settling_s']:.2f} s")
+    return got
+
+
+def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bool, no_refly: bool) -> int:
+    """The whole PX4 campaign (``bench_sitl.py --stack px4``)."""
+    if not analyze_only:
+        if not (px4 / "build/px4_sitl_default/bin/px4").exists():
+            subprocess.run([str(HERE / "build_px4.sh"), str(px4)], check=True)
+        print("1. MRFT flights in PX4 SITL (SIH)")
+        fly_campaign(px4, logs, speedup, only)
+    print("2. analysis of the ULogs")
+    results = analyse(logs)
+    report(results)
+    if analyze_only or no_refly or "px4_altitude" not in results:
+        return 0
+    print("3. tune --export px4, load, re-fly")
+    params_file = export(results, logs / "export")
+    if params_file is None:
+        print("  no export written: nothing to fly")
+        return 1
+    flown = refly(px4, params_file, logs / "export", speedup)
+    if flown.get("armed"):
+        values = {k: v for k, (v, _) in read_qgc_params(params_file).items()}
+        r = results["px4_altitude"]
+        pred = predicted_step(r, values, r["hover"])
+        got = evaluate_refly(flown, pred)
+        for key in ("overshoot_pct", "settling_s"):
+            if math.isfinite(pred[key]) and pred[key] > 0:
+                print(f"    {key}: flown / predicted = {got[key] / pred[key]:.2f}")
+    return 0

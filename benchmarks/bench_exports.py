@@ -105,7 +105,7 @@ def _one(path: Path) -> list[dict]:
             try:
                 e = export_design(stack, c, a.model, loop, name, hover_thrust=HOVER, heights=heights, amplitudes=amps,
                                   version=version, posterior_models=draws)
-                inside = any("designed inside it" in n for n in e.notes)
+                inside = any("designed inside" in n for n in e.notes)
                 row["outcome"] = ("designed inside the ranges" if inside else "in range" if not e.clamped
                                   else "minimum I set")
             except MrftError:

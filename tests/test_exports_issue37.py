@@ -116,3 +116,21 @@ def test_ardupilot_roll_export_passes_every_prearm_rule_on_its_values():
                           "ATC_RAT_RLL_I > 0", "ATC_RAT_RLL_D >= 0"}
     assert all(r["passed"] for r in e.prearm) and e.version == "4.7"
     assert rules["ATC_RAT_RLL_I > 0"]["source"].startswith("libraries/AC_AttitudeControl/AC_AttitudeControl.cpp:1454")
+
+
+def test_ardupilot_roll_designed_inside_the_ranges_without_clamp():
+    """A PD whose ATC_ANG_RLL_P = Kp / Kd falls below ArduPilot's 3 is exported at 3 with the ATC_RAT_RLL_P of least
+    IAE holding its Ms (no --clamp); the values, recomputed alone (ATC_RAT_RLL_I at its minimum 0.01), give the
+    Ms stated, within the PD's own."""
+    m = LoopModel(0.0422, 1.301, 0.0297, 30.0)  # design1_roll's truth
+    st = stack_setting("ardupilot", "roll", None, None, None)
+    c = Controller(0.25, 0.0, 0.1, 0.0, st.rate_hz, st.rate_filter)  # Kp / Kd = 2.5 < 3
+    from mrftcli.tune.margins import loop_margins
+
+    e = export_design("ardupilot", c, m, "roll", "x")
+    assert e.params["ATC_ANG_RLL_P"] == pytest.approx(3.0) and not check_ranges("ardupilot", e.params)
+    assert any("designed inside" in n and "its cost: IAE" in n for n in e.notes)
+    w = np.geomspace(1e-3, 0.999, 3000) * math.pi * st.rate_hz
+    ms, _ = _ms_gm(_loop_from_params("ardupilot", "roll", e.params, m, st.rate_hz, st.rate_filter.cutoff_hz, w))
+    assert e.margins.Ms == pytest.approx(ms, rel=5e-3)
+    assert ms < 1.46  # better than the clamped design (Ms 1.46 at ATC_ANG_RLL_P 3, ATC_RAT_RLL_P 0.1)

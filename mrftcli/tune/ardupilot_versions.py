@@ -113,7 +113,9 @@ class PreArmRule:
         return f"{self.param} {'>' if self.strict else '>='} {against}"
 
     def passes(self, value: float) -> bool:
-        return value > self.bound if self.strict else value >= self.bound
+        if self.strict:
+            return value > self.bound
+        return value >= self.bound - 1e-9 * max(1.0, abs(self.bound))  # a value written at the bound
 
 
 @dataclass(frozen=True)

@@ -407,9 +407,8 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         e = _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes, check_version(version),
                                 posterior_models)
         return _with_prearm(e)
-    if stack == "px4" and loop == "altitude" and not clamp:
-        assert hover_thrust is not None
-        c = _px4_z_inside(c, model, hover_thrust, posterior_models, out_notes)
+    if not clamp:  # the stack's ranges are constraints of the design (issue 37)
+        c = _inside_ranges(c, model, stack, loop, hover_thrust, posterior_models, out_notes)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
     if stack == "ardupilot":
         e = replace(e, version=check_version(version))
@@ -417,51 +416,71 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     return _with_reboot_note(e)
 
 
-def _px4_z_inside(c: Controller, model: LoopModel, hover: float, posterior: Sequence[LoopModel],
-                  notes: list[str]) -> Controller:
-    """PX4 altitude with ``MPC_Z_P`` and ``MPC_Z_VEL_P_ACC`` as constraints of the design: ``c`` when its values are
-    in range; else the PD with ``MPC_Z_P`` at the bound and the ``MPC_Z_VEL_P_ACC`` (in its range) of least IAE
-    whose loop, with PX4's minimum ``MPC_Z_VEL_I_ACC``, keeps Ms at most ``c``'s own worst over the nominal model
-    and the posterior's 95 % set (``c`` is robust there); the cost in IAE is said in ``notes``."""
+def _gain_pair(stack: str, loop: str, hover: float | None) -> tuple[str, str, float]:
+    """(the ratio parameter Kp / Kd, the gain parameter, gain per unit Kd) of a stack's cascade mapping."""
+    if stack == "px4" and loop == "altitude":
+        assert hover is not None
+        return "MPC_Z_P", "MPC_Z_VEL_P_ACC", STANDARD_GRAVITY / hover
+    if stack == "px4":
+        return f"MC_{loop.upper()}_P", f"MC_{loop.upper()}RATE_P", 1.0
+    ax = _AXIS_AP[loop]
+    return f"ATC_ANG_{ax}_P", f"ATC_RAT_{ax}_P", 1.0
+
+
+def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover: float | None,
+                   posterior: Sequence[LoopModel], notes: list[str]) -> Controller:
+    """The stack's ranges as constraints of the design (PX4 ``MPC_Z_P``/``MPC_Z_VEL_P_ACC``, ``MC_*_P``/
+    ``MC_*RATE_P``; ArduPilot ``ATC_ANG_*_P``/``ATC_RAT_*_P``): ``c`` when its values are in range; else the PD
+    with the ratio Kp / Kd at its nearest bound and the gain (in its range) of least IAE whose loop, with the
+    stack's minimum integrals, keeps Ms at most ``c``'s own worst over the nominal model and the posterior's
+    95 % set (up to 40 draws); the cost in IAE is said in ``notes``. None found: ``c`` (the refusal follows)."""
     from .closed_loop import criterion, step_response
 
-    rz, rv = param("px4", "MPC_Z_P"), param("px4", "MPC_Z_VEL_P_ACC")
-    pz = c.Kp / c.Kd
-    if rz.contains(pz) and rv.contains(c.Kd * STANDARD_GRAVITY / hover):
+    ratio_name, gain_name, per_kd = _gain_pair(stack, loop, hover)
+    rz, rv = param(stack, ratio_name), param(stack, gain_name)
+    ratio = c.Kp / c.Kd
+    if rz.contains(ratio) and rv.contains(c.Kd * per_kd):
         return c
-    iv = param("px4", "MPC_Z_VEL_I_ACC").minimum
+    base = _cascade(c, loop, stack, hover)
+    base.update({n: param(stack, n).minimum for n in base if n in _STRUCTURAL})
     models = [model, *posterior[:: max(1, len(posterior) // 40)]]
 
-    def loop_of(pz_: float, pv: float) -> Controller:
-        return _loop_controller({"MPC_Z_P": pz_, "MPC_Z_VEL_P_ACC": pv, "MPC_Z_VEL_I_ACC": iv}, c, "altitude", "px4",
-                                hover)
+    def loop_of(r: float, v: float) -> Controller:
+        return _loop_controller({**base, ratio_name: r, gain_name: v}, c, loop, stack, hover)
 
     def iae(ctrl: Controller) -> float:
         t, y, _ = step_response([model], ctrl, 20.0)
         return float(criterion(t, y)[0])
 
-    limit = float(np.max(loop_margins(loop_of(pz, c.Kd * STANDARD_GRAVITY / hover), models).Ms))
-    limit = max(limit, float(np.max(loop_margins(c, models).Ms)))
-    pz_in = rz.clamp(pz)
+    limit = max(float(np.max(loop_margins(c, models).Ms)),
+                float(np.max(loop_margins(loop_of(ratio, c.Kd * per_kd), models).Ms)))
+    if not math.isfinite(limit):
+        return c  # c itself is unstable on some model: no Ms to hold (the refusal follows)
+    r_in = rz.clamp(ratio)
     best: tuple[float, float] | None = None
-    for pv in np.geomspace(rv.minimum, rv.maximum, 48):
-        lm = loop_margins(loop_of(pz_in, float(pv)), models)
-        if bool(np.all(lm.stable)) and float(np.max(lm.Ms)) <= limit:
-            j = iae(loop_of(pz_in, float(pv)))
+    least: tuple[float, float] | None = None  # (gain, worst Ms): when none holds the limit
+    for v in np.geomspace(rv.minimum, rv.maximum, 48):
+        lm = loop_margins(loop_of(r_in, float(v)), models)
+        worst = float(np.max(lm.Ms)) if bool(np.all(lm.stable)) else math.inf
+        if least is None or worst < least[1]:
+            least = (float(v), worst)
+        if worst <= limit:
+            j = iae(loop_of(r_in, float(v)))
             if best is None or j < best[1]:
-                best = (float(pv), j)
+                best = (float(v), j)
+    held = f"the least IAE with Ms <= {limit:.3g}"
     if best is None:
-        raise InputError(f"cannot export to px4: no MPC_Z_VEL_P_ACC in {rv.minimum:g}-{rv.maximum:g} keeps Ms <= "
-                         f"{limit:.3g} with MPC_Z_P at its bound {pz_in:g} (the design wants {pz:.4g}); --clamp "
-                         "exports the design clamped, with its margins")
-    pv, j = best
-    j0 = iae(loop_of(pz, c.Kd * STANDARD_GRAVITY / hover))
-    notes.append(f"MPC_Z_P {pz:.4g} is outside PX4's range {rz.minimum:g}-{rz.maximum:g}: designed inside it "
-                 f"(MPC_Z_P {pz_in:g}, MPC_Z_VEL_P_ACC {pv:.4g} of {rv.minimum:g}-{rv.maximum:g}, the least IAE with Ms "
-                 f"<= {limit:.3g} over the nominal model and {len(models) - 1} posterior draws); its cost: IAE "
-                 f"{j:.4g} s against {j0:.4g} s unconstrained ({100 * (j / j0 - 1):+.0f} %)")
-    return Controller(pz_in * pv * hover / STANDARD_GRAVITY, 0.0, pv * hover / STANDARD_GRAVITY, c.Tf, c.rate_hz,
-                      c.rate_filter)
+        if least is None or not math.isfinite(least[1]):
+            return c
+        best = (least[0], iae(loop_of(r_in, least[0])))
+        held = f"none holds Ms <= {limit:.3g}: the least worst Ms, {least[1]:.3g}"
+    v, j = best
+    j0 = iae(loop_of(ratio, c.Kd * per_kd))
+    notes.append(f"{ratio_name} {ratio:.4g} / {gain_name} {c.Kd * per_kd:.4g} outside the stack's ranges: designed "
+                 f"inside them ({ratio_name} {r_in:g}, {gain_name} {v:.4g} of {rv.minimum:g}-{rv.maximum:g}, {held} "
+                 f"over the nominal model and {len(models) - 1} posterior draws); its cost: IAE {j:.4g} s against "
+                 f"{j0:.4g} s unconstrained ({100 * (j / j0 - 1):+.0f} %)")
+    return replace(c, Kp=r_in * v / per_kd, Ki=0.0, Kd=v / per_kd)
 
 
 def _hear_export(c: Controller, model: LoopModel, loop: str, design: str, notes: list[str]) -> StackExport:

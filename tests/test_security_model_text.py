@@ -297,3 +297,37 @@ def test_a_hostile_model_read_back_from_results_and_batch_records_is_refused(dec
     assert not marker.exists()
     code, out, _ = run_cli(capsys, *argv)  # and a legitimate record is kept
     assert code == 0 and "skipped-uptodate" in out
+
+
+def _json_mcap(path: Path, schema: str, message: bytes) -> None:
+    """An MCAP of two JSON-encoded topics (a relay command and an output), one with the given schema and
+    message text (written with the ``mcap`` library, not mrftcli's writer)."""
+    from mcap.writer import Writer
+
+    plain = json.dumps({"type": "object", "properties": {"data": {"type": "number"}}})
+    with open(path, "wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        ids = {}
+        for topic, text in (("/cmd", plain), ("/out", schema)):
+            sid = writer.register_schema(name=topic.strip("/"), encoding="jsonschema", data=text.encode())
+            ids[topic] = writer.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        for i in range(50):
+            t = i * 10_000_000
+            writer.add_message(ids["/cmd"], log_time=t, data=json.dumps({"data": float(i % 2)}).encode(), publish_time=t)
+            writer.add_message(ids["/out"], log_time=t, data=message if i == 25 else b'{"data": 0.5}',
+                               publish_time=t)
+        writer.finish()
+
+
+@pytest.mark.parametrize("deep", ["schema", "message"])
+def test_json_nested_100000_deep_in_an_mcap_is_a_one_line_error(tmp_path, capsys, deep):
+    plain = json.dumps({"type": "object", "properties": {"data": {"type": "number"}}})
+    log = tmp_path / "deep.mcap"
+    _json_mcap(log, _deep_json() if deep == "schema" else plain,
+               _deep_json().encode() if deep == "message" else b'{"data": 0.5}')
+    for argv in (("topics", str(log), "--fields"), ("analyze", str(log), "--tp", "0.0422", "--command-topic", "/cmd:data",
+                                        "--output-topic", "/out:data")):
+        code, out, err = run_cli(capsys, *argv)
+        assert "Traceback" not in err and "internal error" not in err, err
+        assert code == 0 or (err.startswith("error:") and err.strip().count("\n") == 0), err

@@ -246,7 +246,7 @@ class McapFollower:
         decoded = self._decoded.get(ch.id)
         if sample is None:
             return list(next(iter(decoded))) if decoded else None
-        node = json.loads(sample)
+        node = _json_message(sample, f"{self.path}: {topic}")
         for key in path.split("."):
             if not isinstance(node, dict) or key not in node:
                 raise LogReadError(f"{self.path}: {topic}: no field {path!r}")
@@ -282,12 +282,21 @@ class McapFollower:
     def _decode(self, ch: McapChannel, leaves: list[str]) -> dict[str, np.ndarray]:
         """The new messages' values of ``leaves`` (JSON, or CDR / ROS 1 in one vectorised pass)."""
         if ch.encoding == "json":
-            return {k: np.array([_json_leaf(json.loads(d), k) for d in ch.datas], float) for k in leaves}
+            where = f"{self.path}: {ch.topic}"
+            return {k: np.array([_json_leaf(_json_message(d, where), k) for d in ch.datas], float) for k in leaves}
         lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
         starts = (np.cumsum(lengths) - lengths).astype(np.int64)
         buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
         return cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, list(leaves),
                            ros1=ch.encoding == "ros1")
+
+
+def _json_message(data: bytes, where: str) -> object:
+    """One JSON message; LogReadError when it is not JSON or nested too deep for the parser."""
+    try:
+        return json.loads(data)
+    except (ValueError, RecursionError):
+        raise LogReadError(f"{where}: a message is not valid JSON (or nested too deep)") from None
 
 
 def _json_leaf(node: object, path: str) -> float:

@@ -35,7 +35,8 @@ from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import LogReadError
+from ..errors import InputError, LogReadError
+from ..jsonable import load_json_text
 from .atomic import atomic_path
 from .logtypes import TopicData, TopicInfo
 from . import cdr
@@ -425,7 +426,11 @@ class McapSource(LogSource):
     def _fields(self, ch: McapChannel) -> list[str]:
         if ch.encoding == "json":
             if ch.schema_data and ch.schema_encoding == "jsonschema":
-                return _json_schema_leaves(json.loads(ch.schema_data), "")
+                try:  # depth-checked: a schema nested 100,000 deep would exhaust the parser's recursion
+                    schema = load_json_text(bytes(ch.schema_data).decode("utf-8", "replace"), ch.topic)
+                except InputError as err:
+                    raise LogReadError(f"{self.path}: JSON schema of {err}") from None
+                return _json_schema_leaves(schema, "") if isinstance(schema, dict) else []
             return []
         return numeric_leaves(self._typestore(ch), ch.schema_name)
 
@@ -447,7 +452,7 @@ class McapSource(LogSource):
         s = int(starts[0])
         try:
             node = json.loads(buf[s:s + int(lengths[0])].tobytes())
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: nested too deep for the parser
             raise LogReadError(f"{self.path}: {ch.topic}: message 0 is not valid JSON") from None
         for key in path.split("."):
             if not isinstance(node, dict) or key not in node:
@@ -704,8 +709,11 @@ def _message_fields(arr: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, np.nd
 # -- JSON messages -------------------------------------------------------------------------------
 def _json_schema_leaves(schema: dict[str, Any], prefix: str) -> list[str]:
     out: list[str] = []
-    for name, sub in (schema.get("properties") or {}).items():
+    properties = schema.get("properties")
+    for name, sub in (properties.items() if isinstance(properties, dict) else ()):
         path = f"{prefix}{name}"
+        if not isinstance(sub, dict):
+            continue
         if sub.get("type") == "object":
             out.extend(_json_schema_leaves(sub, path + "."))
         elif sub.get("type") in ("number", "integer", "boolean"):
@@ -724,7 +732,7 @@ def _json_values(path: Path, topic: str, buf: np.ndarray, starts: np.ndarray, le
         s = int(starts[i])
         try:
             msg = json.loads(raw[s:s + int(lengths[i])])
-        except ValueError:
+        except (ValueError, RecursionError):  # RecursionError: nested too deep for the parser
             raise LogReadError(f"{path}: {topic}: message {i} is not valid JSON") from None
         for f, keys in parts.items():
             node = msg

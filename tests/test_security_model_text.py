@@ -331,3 +331,16 @@ def test_json_nested_100000_deep_in_an_mcap_is_a_one_line_error(tmp_path, capsys
         code, out, err = run_cli(capsys, *argv)
         assert "Traceback" not in err and "internal error" not in err, err
         assert code == 0 or (err.startswith("error:") and err.strip().count("\n") == 0), err
+
+
+def test_a_manifold_whose_metadata_is_nested_100000_deep_is_refused(tmp_path):
+    from mrftcli.mrft.ufm import load_manifold
+
+    path = tmp_path / "m.npz"
+    grid = np.zeros(3)
+    np.savez(path, metadata=np.array(_deep_json()), tp=grid, td=grid, theta=grid, amplitude=grid)
+    with pytest.raises(InputError, match="nested 100000 deep"):
+        load_manifold(path)
+    np.savez(path, metadata=np.array("[1, 2]"), tp=grid, td=grid, theta=grid, amplitude=grid)
+    with pytest.raises(InputError, match="not a mrft-ident manifold"):
+        load_manifold(path)

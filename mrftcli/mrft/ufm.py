@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike
 
 from .._version import __version__
 from ..errors import InputError
+from ..jsonable import load_json_text
 from ..io.atomic import atomic_path, write_text_atomic
 from ..progress import Progress, report
 from ..validate import check_beta
@@ -238,12 +239,12 @@ def load_manifold(path: str | Path | Traversable) -> Manifold:
         fh_ctx = open(path, "rb") if isinstance(path, (str, Path)) else path.open("rb")
         with fh_ctx as fh:
             with np.load(fh, allow_pickle=False) as data:
-                meta = json.loads(str(data["metadata"]))
+                meta = load_json_text(str(data["metadata"]), f"manifold file {path}: metadata")
                 tp, td = np.array(data["tp"]), np.array(data["td"])
                 theta, amp = np.array(data["theta"]), np.array(data["amplitude"])
     except (OSError, KeyError, ValueError) as err:
         raise InputError(f"cannot read manifold file {path}: {err}") from err
-    if meta.get("format") != "mrft-ident-ufm" or int(meta.get("format_version", -1)) != FORMAT_VERSION:
+    if not isinstance(meta, dict) or meta.get("format") != "mrft-ident-ufm" or int(meta.get("format_version", -1)) != FORMAT_VERSION:
         raise InputError(f"{path} is not a mrft-ident manifold of format version {FORMAT_VERSION}")
     return Manifold(float(meta["beta"]), tp, td, theta, amp, meta)
 

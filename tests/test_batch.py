@@ -349,6 +349,7 @@ def fake_analyze(monkeypatch):
     mod = types.ModuleType("mrftcli.analyze")
     mod.analyze_path = _fake_analyze_path
     mod.AnalyzeOptions = AnalyzeOptions
+    mod.refuse_rejected_tp = lambda result, accept=False: result  # a stand-in analysis has no verdict on Tp
     monkeypatch.setitem(sys.modules, "mrftcli.analyze", mod)
     return mod
 

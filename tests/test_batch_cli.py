@@ -86,6 +86,7 @@ def stand_in(monkeypatch):
     mod = types.ModuleType("mrftcli.analyze")
     mod.analyze_path = _stand_in
     mod.AnalyzeOptions = AnalyzeOptions
+    mod.refuse_rejected_tp = lambda result, accept=False: result  # a stand-in analysis has no verdict on Tp
     monkeypatch.setitem(sys.modules, "mrftcli.analyze", mod)
 
 
@@ -192,7 +193,9 @@ def test_mat_logs_found_and_identified_rows_first(tmp_path: Path) -> None:
     (tmp_path / "fleet").mkdir()
     for name in ("dnn_altitude.mat", "design1_altitude.mcap"):
         shutil.copy(samples / name, tmp_path / "fleet" / name)
-    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0499", "--out", str(tmp_path / "out"),
+    config = tmp_path / "fleet.toml"  # each log's own Tp (a wrong one is refused: issue 40 item 6)
+    config.write_text('[defaults]\ntp = 0.0422\n\n[[logs]]\nmatch = "dnn_altitude.mat"\ntp = 0.0499\n')
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--config", str(config), "--out", str(tmp_path / "out"),
                                  "--jobs", "1", "--no-report", "-q"])
     assert r.exit_code == 0, r.output
     lines = r.stdout.splitlines()

@@ -428,6 +428,8 @@ def _finite(log: LogSource, sig: Signal, role: str, where: str) -> Signal:
 #: called stale: a flat stretch (saturation, a pause) repeats in long runs, a quantised signal now and then
 #: (real KSTAR recordings: 8 % of the samples in short runs; a sensor at half the log's rate: 50 %)
 _STALE_RUN, _STALE_SHARE = 3, 0.25
+#: samples a stale output is judged on (the first 2^20: 87 min at 200 Hz); the rest only masked
+_STALE_WINDOW = 1 << 20
 
 
 def stale_samples(values: np.ndarray) -> np.ndarray | None:
@@ -441,19 +443,23 @@ def stale_samples(values: np.ndarray) -> np.ndarray | None:
     y = np.asarray(values, dtype=np.float64)
     if len(y) < 100:
         return None
-    steps = np.abs(np.diff(y))
+    head = y[:_STALE_WINDOW]  # judged on the first stretch: a 10 M-sample log's output stays within its memory
+    steps = np.abs(np.diff(head))
     steps = steps[steps > 0]
-    if len(steps) < 50 or np.median(steps) < 3 * steps.min():
+    if len(steps) < 50 or np.median(steps) < 3 * steps.min() or _held(head).mean() < _STALE_SHARE:
         return None
-    same = np.r_[False, y[1:] == y[:-1]]
-    edges = np.diff(np.r_[0, same.astype(np.int8), 0])
-    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    short = np.zeros(len(y) + 1, dtype=np.int64)
-    keep = ends - starts <= _STALE_RUN
-    np.add.at(short, starts[keep], 1)
-    np.add.at(short, ends[keep], -1)
-    held = np.cumsum(short[:-1]) > 0
+    held = _held(y)
     return held if held.mean() >= _STALE_SHARE else None
+
+
+def _held(y: np.ndarray) -> np.ndarray:
+    """The samples repeating their predecessor in runs of at most :data:`_STALE_RUN`."""
+    same = np.r_[False, y[1:] == y[:-1]]
+    edges = np.diff(np.r_[np.int8(0), same.astype(np.int8), np.int8(0)])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    keep = ends - starts <= _STALE_RUN
+    short = np.bincount(starts[keep], minlength=len(y) + 1) - np.bincount(ends[keep], minlength=len(y) + 1)
+    return np.cumsum(short[:-1]) > 0
 
 
 def interleaved_delay(t: np.ndarray, values: np.ndarray) -> tuple[float, float]:
@@ -491,7 +497,7 @@ def _stale_mask(sig: Signal) -> tuple[np.ndarray, str] | None:
     dt = float(np.median(np.diff(sig.t))) if len(sig.t) > 1 else float("nan")
     if len(sig.t) < 100 or not dt > 0:
         return None
-    delay, se = interleaved_delay(sig.t, sig.values)
+    delay, se = interleaved_delay(sig.t[:_STALE_WINDOW], sig.values[:_STALE_WINDOW])
     if abs(delay) < 0.5 * dt or abs(delay) < 5 * se:
         return None
     bad = np.zeros(len(sig.t), dtype=bool)

@@ -208,7 +208,7 @@ def check_flight_size(duration_s: float, rate_hz: float) -> None:
     ticks = duration_s * rate_hz
     if not math.isfinite(ticks) or ticks > MAX_SIM_TICKS:
         raise InputError(f"the flight would be {duration_s:.4g} s at {rate_hz:g} Hz, {ticks:.3g} controller ticks, "
-                         f"more than the {MAX_SIM_TICKS:.0e} simulated at once; give shorter tests (DURATION) or a "
+                         f"more than the {MAX_SIM_TICKS:.0e} simulated at once; give shorter tests (DURATION), --hover and --hold, or a "
                          "lower --controller-rate")
 
 

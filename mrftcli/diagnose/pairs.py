@@ -432,6 +432,24 @@ def _improving(effects: list[EffectFinding]) -> tuple[list[EffectFinding], list[
     return effects, said
 
 
+def _first_earns_place(first: CandidateFit, second: PairFit, cand_rows: list[CandidateFit],
+                       fits: dict) -> tuple[CandidateFit, PairFit | None, list[str]]:
+    """Leave-one-out on a pair (issue 39): the second effect earned its place against the first alone
+    (its row is significant); the first must earn its place against the second alone, by the same
+    rules (delta BIC >= 10 and confirmed on the held-out cycles). When it does not, the second alone
+    is reported (a drag and a rate limit both bend the waveform: the pair was once named on every
+    drag flight of a simulator written elsewhere)."""
+    alone = next((r for r in cand_rows if r.name == second.name and r.significant and r.name in fits), None)
+    if alone is None or alone.bic is None:
+        return first, second, []
+    loo = replace(second, held_out_before=alone.held_out_after, delta_bic=_bic(alone) - _bic(second))
+    if significant(loo):
+        return first, second, []
+    return alone, None, [f"{first.name} not reported beside {second.name}: {second.name} alone explains the "
+                         f"cycles as well (delta BIC {loo.delta_bic:.1f} for adding {first.name}; held-out NRMSE "
+                         f"{_nrmse(alone.held_out_after)} -> {_nrmse(second.held_out_after)})"]
+
+
 def _nrmse(held: HeldOut | None) -> str:
     return "n/a" if held is None or held.nrmse is None else f"{held.nrmse:.3g}"
 
@@ -466,10 +484,13 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, T
         rivals = sorted((r for r in cand_rows if r.name in fits and r.name != first.name
                          and (r.delta_bic or -1.0) >= BIC_THRESHOLD), key=lambda r: -_bic_gain(r))
         first, second = pairs.rivals(first, second, rivals, cand_rows)
+    loo: list[str] = []
     if second is not None:
         first, second = pairs.swap(first, second, deterministic, cand_rows)
+        first, second, loo = _first_earns_place(first, second, cand_rows, fits)
     effects, final = _findings(first, second, pairs)
     effects, warnings = _ties(effects, first, second, cand_rows, pairs.rows, fits)
+    warnings = loo + warnings
     effects, dropped = _improving(effects)
     warnings += dropped + _unconfirmed(cand_rows, {e.name for e in effects} | {d.name for d in deterministic})
     return EffectSelection(effects=effects, pair_rows=pairs.rows, final=final, warnings=warnings)

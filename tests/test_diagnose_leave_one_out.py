@@ -7,7 +7,7 @@ from mrftcli.diagnose.rows import CandidateFit, HeldOut, PairFit
 
 
 def _held(nrmse: float, chi2: float) -> HeldOut:
-    return HeldOut(kind="deterministic", nrmse=nrmse, nrmse_timed=nrmse, feature_chi2=chi2)
+    return HeldOut(kind="waveform", nrmse=nrmse, nrmse_timed=nrmse, feature_chi2=chi2)
 
 
 def _rows(pair_bic: float, pair_chi2: float, pair_nrmse: float):

@@ -265,3 +265,22 @@ def _walk(obj, key: str = ""):
     elif isinstance(obj, list):
         for v in obj:
             yield from _walk(v, key)
+
+
+def test_a_report_never_replaces_a_page_or_figure_it_did_not_write(tmp_path: Path) -> None:
+    """The report's writers (every page and figure goes through them) take the same rule: someone's file under a
+    name the report uses is refused, the report's own earlier page replaced."""
+    from mrftcli.errors import InputError
+    from mrftcli.report._common import html_page, new_figure, save_figure, write_page
+
+    (tmp_path / "index.html").write_text("my notes, not a page")
+    (tmp_path / "fit.png").write_text("not an image")
+    before = _snapshot(tmp_path)
+    with pytest.raises(InputError, match="index.html: exists and is not an HTML page"):
+        write_page(tmp_path / "index.html", html_page("t", "<p>x</p>"))
+    with pytest.raises(InputError, match="fit.png: exists and is not a figure"):
+        save_figure(new_figure()[0], tmp_path / "fit.png")
+    assert _snapshot(tmp_path) == before
+    write_page(tmp_path / "own.html", html_page("t", "<p>1</p>"))
+    write_page(tmp_path / "own.html", html_page("t", "<p>2</p>"))
+    assert "<p>2</p>" in (tmp_path / "own.html").read_text()

@@ -27,7 +27,7 @@ from pathlib import Path
 from ..errors import InputError
 
 __all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path", "atomic_directory", "check_output_path",
-           "looks_like_json", "is_empty"]
+           "looks_like_json", "looks_like_page", "looks_like_figure", "is_empty"]
 
 
 def is_empty(path: Path) -> bool:
@@ -42,6 +42,20 @@ def looks_like_json(path: Path) -> bool:
     with open(path, "rb") as fh:
         head = fh.read(256).lstrip()
     return head[:1] in (b"{", b"[")
+
+
+def looks_like_page(path: Path) -> bool:
+    """An HTML page (what a report writes as its pages)."""
+    with open(path, "rb") as fh:
+        head = fh.read(512).lstrip().lower()
+    return head.startswith((b"<!doctype html", b"<html"))
+
+
+def looks_like_figure(path: Path) -> bool:
+    """A PNG, SVG or PDF file (what a report writes as its figures)."""
+    with open(path, "rb") as fh:
+        head = fh.read(256)
+    return head.startswith((b"\x89PNG", b"%PDF", b"<?xml", b"<svg"))
 
 
 def check_output_path(path: str | Path, option: str, *, folder: bool = False,

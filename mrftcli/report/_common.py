@@ -12,7 +12,8 @@ matplotlib.use("Agg")  # never needs a display; set before pyplot is imported
 
 import matplotlib.pyplot as plt  # noqa: E402
 
-from ..io.atomic import atomic_path, write_text_atomic  # noqa: E402
+from ..io.atomic import (atomic_path, check_output_path, looks_like_figure, looks_like_page,  # noqa: E402
+                         write_text_atomic)
 
 __all__ = ["plt", "new_figure", "save_figure", "savefig_atomic", "write_page", "html_page", "html_table", "esc",
            "ensure_dir"]
@@ -55,11 +56,13 @@ def new_figure(nrows: int = 1, ncols: int = 1, *, width: float = 10.0, height: f
 def save_figure(fig, path: str | Path, dpi: int = 110) -> Path:
     """Save as PNG with a tight layout (unless the figure has its own) and close the figure (reports never keep figures open)."""
     path = Path(path)
-    with plt.rc_context(_STYLE):
-        if fig.get_layout_engine() is None:  # a figure laid out as constrained keeps its own layout
-            fig.tight_layout()
-        savefig_atomic(fig, path, dpi=dpi)
-    plt.close(fig)
+    try:
+        with plt.rc_context(_STYLE):
+            if fig.get_layout_engine() is None:  # a figure laid out as constrained keeps its own layout
+                fig.tight_layout()
+            savefig_atomic(fig, path, dpi=dpi)
+    finally:
+        plt.close(fig)  # also when the path is refused
     return path
 
 
@@ -67,13 +70,16 @@ def savefig_atomic(fig, path: str | Path, *, dpi: int = 110) -> Path:
     """``fig.savefig`` into a temporary file renamed onto ``path`` (:mod:`mrftcli.io.atomic`): a run
     killed mid-report never leaves a cut PNG; the format is the path's suffix (PNG without one)."""
     path = Path(path)
+    check_output_path(path, "--report", ours=looks_like_figure, what="a figure")  # never someone's file (issue 35)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".").lower() or "png")
     return path
 
 
 def write_page(path: str | Path, page: str) -> Path:
-    """Write an HTML page (:func:`html_page`) atomically: a reader never sees half a page."""
+    """Write an HTML page (:func:`html_page`) atomically: a reader never sees half a page; an existing file
+    that is not a page (or a link) is not replaced (:func:`mrftcli.io.atomic.check_output_path`)."""
+    check_output_path(path, "--report", ours=looks_like_page, what="an HTML page")
     return write_text_atomic(path, page)
 
 

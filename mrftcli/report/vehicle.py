@@ -11,13 +11,12 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..io.atomic import write_text_atomic
 from ..progress import Progress, report
 from ..analyze import AnalysisResult
 from ..analyze.cascade import CascadeAnalysis
 from ..tune.design import TuneResult
 from ..vehicle import VehicleLoop, VehicleResult
-from ._common import ensure_dir, esc, html_page, html_table
+from ._common import ensure_dir, esc, html_page, html_table, write_page
 from .analysis import write_analysis_report
 from .tune import write_tune_report
 from .wording import gain_unit, output_unit
@@ -98,7 +97,7 @@ def _cascade_page(entry: VehicleLoop, folder: Path) -> Path:
     if a.warnings:
         body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in a.warnings) + "</ul>")
     index = ensure_dir(folder) / "index.html"
-    write_text_atomic(index, html_page(f"MRFT cascade: {Path(a.path).name} ({entry.loop})", "\n".join(body)))
+    write_page(index, html_page(f"MRFT cascade: {Path(a.path).name} ({entry.loop})", "\n".join(body)))
     return index
 
 
@@ -124,5 +123,5 @@ def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: P
             _cascade_page(entry, out / name)
     report(progress, len(names), len(names), "index.html")
     index = out / "index.html"
-    write_text_atomic(index, html_page(f"MRFT vehicle: {Path(result.path).name}", _index_body(result)))
+    write_page(index, html_page(f"MRFT vehicle: {Path(result.path).name}", _index_body(result)))
     return index

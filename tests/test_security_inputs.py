@@ -284,3 +284,23 @@ def test_a_report_never_replaces_a_page_or_figure_it_did_not_write(tmp_path: Pat
     write_page(tmp_path / "own.html", html_page("t", "<p>1</p>"))
     write_page(tmp_path / "own.html", html_page("t", "<p>2</p>"))
     assert "<p>2</p>" in (tmp_path / "own.html").read_text()
+
+
+def test_batch_never_replaces_a_record_or_summary_it_did_not_write(tmp_path: Path) -> None:
+    """batch's writers: someone's file where a record or summary goes is reported unwritten (batch keeps going,
+    exit 8), never replaced."""
+    from mrftcli.batch import run as batch_run
+
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "f.json").write_text("my notes")
+    (tmp_path / "summary.csv").write_text("date,flight\n1,2\n")
+    before = _snapshot(tmp_path)
+    with pytest.raises(OSError, match="not a JSON record"):
+        batch_run._write_json_atomic(tmp_path / "logs" / "f.json", {"a": 1})
+    unwritten: list[str] = []
+    rows = [{"path": "x.mcap", "loop": "altitude", "status": "failed"}]
+    _df, outputs, _notes = batch_run._write_summary(rows, tmp_path, False, unwritten)
+    assert "csv" not in outputs and any("summary.csv" in u and "not a batch summary" in u for u in unwritten)
+    assert (tmp_path / "summary.csv").read_text() == "date,flight\n1,2\n"
+    assert {k: v for k, v in _snapshot(tmp_path).items() if k != "summary.parquet"} == before
+    assert batch_run._write_summary(rows, tmp_path, False, [])[1]["parquet"].exists()  # its own file replaced

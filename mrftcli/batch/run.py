@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 import pandas as pd
 
 from .. import __version__
-from ..io.atomic import atomic_path, write_text_atomic
+from ..io.atomic import atomic_path, check_output_path, looks_like_json, write_text_atomic
 from ..vehicle.loops import absent_topics, loops_in_log  # one implementation: batch --loop auto and vehicle
 from .inputs import AUTO_LOOP, BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
 from .process import model_key
@@ -493,7 +493,26 @@ def _to_json_text(obj: Any) -> str:
 
 def _write_json_atomic(path: Path, obj: Any) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
+    refused = _unreplaceable(path, looks_like_json, "a JSON record")  # never someone's file (issue 35)
+    if refused is not None:
+        raise refused
     write_text_atomic(path, _to_json_text(obj) + "\n")
+
+
+def _is_summary(path: Path) -> bool:
+    """A summary batch wrote: a parquet file, or a CSV whose header starts with the summary's columns."""
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+    return head.startswith(b"PAR1") or head.startswith(b"path,loop,")
+
+
+def _unreplaceable(path: Path, ours: Callable[[Path], bool], what: str) -> OSError | None:
+    """Why an output may not be replaced (someone's file, a link), as the OSError batch reports, or None."""
+    try:
+        check_output_path(path, "--out", ours=ours, what=what)
+    except InputError as err:
+        return OSError(17, str(err).split(": ", 1)[-1])
+    return None
 
 
 def _check_out_dir(out: Path) -> None:
@@ -709,6 +728,10 @@ def _write_summary(rows: list[dict[str, Any]], out: Path, report: bool,
         csv_df[col] = csv_df[col].map(lambda t: t.isoformat() if pd.notna(t) else "")
     for key, write in (("csv", lambda p: csv_df.to_csv(p, index=False)),
                        ("parquet", lambda p: df.to_parquet(p, index=False, engine="pyarrow"))):
+        refused = _unreplaceable(outputs[key], _is_summary, "a batch summary")
+        if refused is not None:
+            unwritten.append(_unwritten(outputs.pop(key), refused))
+            continue
         try:
             with atomic_path(outputs[key]) as tmp:
                 write(tmp)

@@ -31,6 +31,8 @@ def polynomials(family: str, p: dict[str, float]) -> tuple[list[float], list[flo
         return [K], [1.0, 0.0]
     if family == "foipdt":
         return [K], [p["T"], 1.0, 0.0]
+    if family == "eq2":  # the paper's eq. (2): K Td / (s (Tp s + 1)(Td s + 1))
+        return [K * p["Td"]], list(np.polymul(np.polymul([p["Tp"], 1.0], [p["Td"], 1.0]), [1.0, 0.0]))
     raise ValueError(family)
 
 
@@ -48,8 +50,14 @@ class Window:
 
 
 def simulate(family: str, params: dict[str, float], windows: list[Window], rate_hz: float, noise_std: float,
-             seed: int = 0, oversample: int = 1, lead: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t [s], command, output) sampled at ``rate_hz``; ``noise_std`` [output units] on the output."""
+             seed: int = 0, oversample: int = 1, lead: float = 2.0,
+             start: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t [s], command, output) sampled at ``rate_hz``; ``noise_std`` [output units] on the output.
+
+    ``start``: the error [output units] a window's relay holds +h until (None: 5 noise std); an
+    integrating plant under an MRFT needs a clear excursion, or its lagging output locks the relay up.
+    """
+    start_e = 5 * noise_std if start is None else start
     rng = np.random.default_rng(seed)
     num, den = polynomials(family, params)
     A, B, C, _ = signal.tf2ss(num, den)
@@ -91,7 +99,7 @@ def simulate(family: str, params: dict[str, float], windows: list[Window], rate_
                     # hold +h until the error is clearly negative (5 noise std), so that the first
                     # switch is not decided on the noise (a plain MRFT can lock up there)
                     s = 1.0
-                    if e < -5 * noise_std - 1e-12:
+                    if e < -start_e - 1e-12:
                         s, ext, started = -1.0, e, True
                 elif w.kind == "mrft":
                     s, ext = relay_step(s, ext, e, w.beta)

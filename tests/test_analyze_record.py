@@ -41,7 +41,7 @@ def px4_10hz() -> AnalysisResult:
 
 def test_to_json_is_the_cli_json_with_the_schema_version_first(design1: AnalysisResult) -> None:
     d = design1.to_json()
-    assert list(d)[0] == "schema_version" and d["schema_version"] == SCHEMA_VERSION == 2
+    assert list(d)[0] == "schema_version" and d["schema_version"] == SCHEMA_VERSION == 3
     assert {k: v for k, v in d.items() if k != "schema_version"}.keys() == design1.to_dict().keys()
     assert _json_text({k: v for k, v in d.items() if k != "schema_version"}) == _json_text(design1.to_dict())
 

@@ -22,8 +22,9 @@ from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
-from .estimate import (WaveformStage, consensus, identifiability, point_estimate, waveform_refinement,
+from .estimate import (WaveformStage, beta_used, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
+from .held_out import held_out_eq2
 from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
 from .residual import MISMATCH_WORDS, residual_verdict
@@ -102,6 +103,8 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     n = len(screening.usable)
     n_combinations = int(min(opts.max_combinations, max(50, 4000 // n)))
     combos = combinations(Tp, list(point.cycles), cons.Td_point, n_combinations, rng)
+    # each test predicted from the others (point solves, no draws: rng untouched, the estimates unchanged)
+    held = held_out_eq2(Tp, screening.usable, [beta_used(t, screening.ts_ctrl) for t in screening.usable])
     bounds = identifiability(Tp, screening, point, cons, constraints, rng, flight)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
@@ -119,7 +122,7 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
         rejection_reasons={t.index: screening.reasons[t.index] for t in rejected}, method=wave.method,
         parameters_mrft=mrft_params, refinement=wave.refinement, notes=tuple(notes),
         controller_rate_hz=analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]),
-        log_info=LogInfo.from_flight(flight), tp_check=tp_check,
+        log_info=LogInfo.from_flight(flight), tp_check=tp_check, held_out=held,
     ))
 
 

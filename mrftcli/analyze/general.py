@@ -35,6 +35,7 @@ from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
 from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
+from .held_out import HeldOut
 from .screen import log_start
 from .static_gain import StaticGain, is_self_regulating, static_gain
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
@@ -44,8 +45,9 @@ __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze
            "general_analysis",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
-#: version of :meth:`GeneralAnalysis.to_json`
-GENERAL_SCHEMA_VERSION = 1
+#: version of :meth:`GeneralAnalysis.to_json`; 2 gave ``tests[i].held_out`` the shared record's sigma and z
+#: keys (null here: :class:`~mrftcli.analyze.held_out.HeldOut`); version 1 records still read
+GENERAL_SCHEMA_VERSION = 2
 #: harmonics measured on each cycle (odd: a square wave's even harmonics vanish at 50 % duty)
 HARMONICS = (1, 3, 5)
 #: validity failures that only say the output is noisy (kept, weighted by their scatter) or that
@@ -72,32 +74,6 @@ class RelayOptions:
     kind: str | None = None
     beta: float | None = None
     eps: float | None = None
-
-
-@dataclass(frozen=True)
-class HeldOut:
-    """A test's cycle predicted by the model identified from the other tests.
-
-    Attributes
-    ----------
-    frequency_hz, amplitude : float or None
-        Predicted frequency [Hz] and amplitude [output units]; None when the other tests do not
-        determine the model (``note`` says why).
-    note : str
-        Why there is no prediction, or ``""``.
-    """
-
-    frequency_hz: float | None
-    amplitude: float | None
-    note: str = ""
-
-    def to_json(self) -> dict[str, Any]:
-        return {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "note": self.note}
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> HeldOut:
-        f, a = data.get("frequency_hz"), data.get("amplitude")
-        return cls(None if f is None else float(f), None if a is None else float(a), str(data.get("note", "")))
 
 
 @dataclass(frozen=True)
@@ -245,7 +221,7 @@ class GeneralAnalysis:
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> GeneralAnalysis:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        data = check_schema_version(data, "analysis JSON", GENERAL_SCHEMA_VERSION)
+        data = check_schema_version(data, "analysis JSON", range(1, GENERAL_SCHEMA_VERSION + 1))
         try:
             ident, sg = data.get("identification"), data.get("static_gain")
             return cls(str(data["path"]), str(data["loop"]), float(data["t0"]),

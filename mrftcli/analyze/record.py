@@ -27,15 +27,17 @@ from ..mrft.identify import IdentificationResult, ParameterEstimate
 from ..mrft.model import LoopModel
 from ..mrft.refine import Refinement
 from ..segment import MrftTest
+from .held_out import HeldOut
 from .mrfttest_json import json_float, json_opt_float, mrft_test_from_json
 
 __all__ = ["AnalysisResult", "LogInfo", "TpCheck", "TP_VERDICTS", "SCHEMA_VERSION", "K_UNIT",
            "analysis_controller_rate", "command_rate_of_result", "measured_noise_std"]
 
 #: Version of the JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md). 2 added ``noise``
-#: (the measured sensor noise) and ``tp_check`` (the recording's verdict on the given Tp); version 1
-#: records are read as before (no noise, no verdict).
-SCHEMA_VERSION = 2
+#: (the measured sensor noise) and ``tp_check`` (the recording's verdict on the given Tp); 3 added
+#: ``tests[i].held_out`` (:class:`~mrftcli.analyze.held_out.HeldOut`, the families' record); version 1
+#: and 2 records are read as before (no noise, no verdict; no held-out prediction: ``held_out`` None).
+SCHEMA_VERSION = 3
 
 #: What the recording says about the given Tp: ``consistent`` (the waveform accepts it), ``rejected``
 #: (it fits another Tp clearly better), ``accepted`` (rejected, kept by the user's ``--accept-tp``),
@@ -200,6 +202,12 @@ class AnalysisResult:
         The ``input`` section's account of the log (None: taken from ``flight``).
     recorded : Mapping or None
         The JSON object a record was read from (:meth:`from_json`); None for a fresh analysis.
+    tp_check : TpCheck or None
+        The recording's verdict on the given Tp; None when the waveform refinement did not run.
+    held_out : tuple of HeldOut or None
+        Per test (in ``tests``' order), its cycle predicted by eq. (2) identified from the other tests
+        (:func:`~mrftcli.analyze.held_out.held_out_eq2`); empty, or None per test, in a record that
+        does not hold them (read from a JSON before version 3).
     """
 
     schema_version: ClassVar[int] = SCHEMA_VERSION
@@ -229,6 +237,16 @@ class AnalysisResult:
     log_info: LogInfo | None = None
     recorded: Mapping[str, Any] | None = field(default=None, repr=False)
     tp_check: TpCheck | None = None
+    held_out: tuple[HeldOut | None, ...] = ()
+
+    def held_out_of(self, k: int) -> HeldOut | None:
+        """The held-out prediction of ``tests[k]`` (None where the record has none)."""
+        return self.held_out[k] if k < len(self.held_out) else None
+
+    def _test_rows(self, cycles: bool) -> list[_JSONDict]:
+        return [{**self._with_rel(t.to_dict(cycles=cycles)),
+                 "held_out": None if (ho := self.held_out_of(k)) is None else ho.to_json()}
+                for k, t in enumerate(self.tests)]
 
     @property
     def estimate_method(self) -> str:
@@ -334,7 +352,7 @@ class AnalysisResult:
         constraints and their residuals), ``warnings``, ``input`` (docs/records.md).
         """
         if self.recorded is not None:
-            return _recorded_dict(self.recorded, cycles)
+            return _recorded_dict(self.recorded, cycles, self)
         if self.identification is None:
             raise InputError("an analysis without its identification record cannot be written as JSON")
         return {
@@ -342,7 +360,7 @@ class AnalysisResult:
             **self._estimates(),
             "model": {"Tp": self.model.Tp, "Td": self.model.Td, "tau": self.model.tau, "K": self.model.K},
             "combinations": self.combination_stats(),
-            "tests": [self._with_rel(t.to_dict(cycles=cycles)) for t in self.tests],
+            "tests": self._test_rows(cycles),
             "rejected_tests": [{**self._with_rel(t.to_dict(cycles=False)),
                                 "reason": self.rejection_reasons.get(t.index, "")} for t in self.rejected],
             "identification": self._identification(self.identification),
@@ -421,6 +439,8 @@ def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisRe
         controller_rate_hz=_recorded_rate(data, info), log_info=info,
         recorded=copy.deepcopy(dict(data)),
         tp_check=TpCheck.from_dict(data["tp_check"]) if isinstance(data.get("tp_check"), Mapping) else None,
+        held_out=tuple(HeldOut.from_json(t["held_out"]) if isinstance(t.get("held_out"), Mapping) else None
+                       for t in data.get("tests") or ()),
     )
 
 
@@ -466,10 +486,13 @@ def analysis_controller_rate(declared_hz: float | None, test_rates_hz: Sequence[
     return round(float(np.median(rates)), 1) if rates else None
 
 
-def _recorded_dict(recorded: Mapping[str, Any], cycles: bool) -> _JSONDict:
+def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisResult) -> _JSONDict:
+    """The JSON a record was read from, in this version's layout (an older one's tests get ``held_out`` null)."""
     out = {k: copy.deepcopy(v) for k, v in recorded.items() if k != "schema_version"}
-    if not cycles:
-        out["tests"] = [{k: v for k, v in t.items() if k != "per_cycle"} for t in out.get("tests", [])]
+    if "tests" in out:
+        out["tests"] = [{**({k: v for k, v in t.items() if k != "per_cycle"} if not cycles else t),
+                         "held_out": None if (ho := result.held_out_of(i)) is None else ho.to_json()}
+                        for i, t in enumerate(out["tests"])]
     return out
 
 

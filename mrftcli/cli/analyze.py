@@ -6,6 +6,7 @@ import math
 
 import click
 
+from ..analyze.held_out import held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from .model_options import (baseline_option, build_model, format_general, parse_baseline, parse_windows,
                             relay_options, structure_options, window_option)
@@ -71,12 +72,18 @@ def format_table(result) -> str:
         lines.append(read_as)
     header = [("test", ""), ("from", "[s]"), ("to", "[s]"), ("beta", "nominal"), ("beta", "effective"),
               ("relay h", "[command]"), ("frequency", "[Hz]"), ("amplitude", f"[{unit}]"), ("stable/total", "cycles")]
+    held = [result.held_out_of(k) for k in range(len(result.tests))]
+    predicted = any(ho is not None and ho.frequency_hz is not None for ho in held)
+    if predicted:  # else the notes below say why nothing is predicted
+        header += [("held-out f", "[Hz] ± std (error/std)"), ("held-out amplitude", f"[{unit}] ± std (error/std)")]
     rows = []
-    for t in result.tests:
+    for k, t in enumerate(result.tests):
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
         rows.append([str(t.index + 1), f"{t.t_start - t0:.1f}", f"{t.t_end - t0:.1f}", nom, f"{t.beta_effective:+.3f}",
-                     _num(t.h), _num(t.frequency_hz_mean), _num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}"])
-    lines += _table(header, rows, ">>>>>>>>>")
+                     _num(t.h), _num(t.frequency_hz_mean), _num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}",
+                     *(held_out_cells(held[k]) if predicted else ())])
+    lines += _table(header, rows, ">" * len(header))
+    lines += held_out_notes(held)
     for t in result.rejected:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
         why = result.rejection_reasons.get(t.index) or f"{t.n_stable} stable cycles"

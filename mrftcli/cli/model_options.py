@@ -304,6 +304,7 @@ def format_combination(ident: LtiIdentification) -> list[str]:
 
 def format_general(result: GeneralAnalysis) -> str:
     """The terminal summary of a process-plant analysis."""
+    from ..analyze.held_out import held_out_cells, held_out_notes
     from ..analyze.screen import describe_t0
 
     ident = result.identification
@@ -318,10 +319,8 @@ def format_general(result: GeneralAnalysis) -> str:
             "held-out amplitude", "stable/total")
     rows = [head]
     for k, t in enumerate(result.tests):
-        ho = t.held_out
         rows.append((str(k + 1), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.describe_relay(),
-                     _num(t.frequency_hz), _num(t.amplitude, 3),
-                     _num(ho.frequency_hz) if ho else "-", _num(ho.amplitude, 3) if ho else "-",
+                     _num(t.frequency_hz), _num(t.amplitude, 3), *held_out_cells(t.held_out),
                      f"{t.n_stable}/{t.n_cycles}"))
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.rjust(w) if k in (0, 1, 2, 4, 5, 6, 7) else c.ljust(w)
@@ -339,10 +338,6 @@ def format_general(result: GeneralAnalysis) -> str:
             model = "--model-file FILE" if hasattr(ident.model, "transfer_function") else f"--model {ident.model.family}"
             lines.append(f"next test: 'mrft-ident plan {result.path} {model}' (with this command's topic options) "
                          f"ranks the relay tests that would determine {', '.join(ident.undetermined)}")
-    by_note: dict[str, list[str]] = {}
-    for k, t in enumerate(result.tests):
-        if t.held_out is not None and t.held_out.note:
-            by_note.setdefault(t.held_out.note, []).append(str(k + 1))
-    lines += [f"held-out test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
+    lines += held_out_notes([t.held_out for t in result.tests])
     lines += [f"note: {n}" for n in result.notes if not n.startswith("assumed")]
     return "\n".join(lines)

@@ -82,11 +82,8 @@ def _process_estimate_line(update: ProcessEstimateUpdate) -> str:
 def _held_out_line(test: TestSummary) -> str:
     """A test's cycle as predicted from the other tests, beside the measured one."""
     ho = test.held_out
-    if ho is None or ho.frequency_hz is None or ho.amplitude is None:
-        return f"\nheld-out test {test.index + 1}: {ho.note if ho is not None else 'none'}"
-    return (f"\nheld-out test {test.index + 1}: f {ho.frequency_hz:.4f} Hz (measured {test.frequency_hz:.4f}), "
-            f"amplitude {ho.amplitude:.4g} {_PROCESS_UNIT} (measured {test.amplitude:.4g})"
-            + (f"; {ho.note}" if ho.note else ""))
+    return (f"\nheld-out test {test.index + 1}: "
+            + ("none" if ho is None else ho.describe(test.frequency_hz, test.amplitude, _PROCESS_UNIT)))
 
 
 def _end_line(update: WatchEnd) -> str:

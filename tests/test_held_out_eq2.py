@@ -1,0 +1,167 @@
+"""Held-out predictions for eq. (2) (``analyze`` without ``--model``, issue 36): each test's cycle
+predicted by the model identified from the other tests, against an independent oracle.
+
+The oracle is written here from the series definition (it imports nothing of mrftcli): the periodic
+output of eq. (2) under a square wave of frequency w is the sum over odd harmonics of
+``(4 h / (pi k)) |W(j k w)| sin(k w t + arg W(j k w))``, and the MRFT's cycle is the w at which the
+output at the switch from -h to +h is ``-beta`` times its maximum (checks.md section 2). It is first
+checked against the exact figures of checks.md section 1. The flights are simulated by
+tests/process_sim.py (an exact ZOH loop with the checks.md MRFT rule, sharing no code with mrftcli).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import optimize
+
+from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
+from mrftcli.analyze.estimate import beta_used
+from mrftcli.analyze.held_out import NOTHING_HELD_OUT, HeldOut, held_out_eq2
+from mrftcli.cli.analyze import format_table
+from mrftcli.io import ReadOptions, read_flight
+from mrftcli.jsonable import to_jsonable
+
+sys.path.insert(0, str(Path(__file__).parent))
+from process_sim import Window, simulate, write_csv  # noqa: E402
+
+#: checks.md section 1: Tp 0.1 s, Td 1/1.42 s, tau 0.06 s, K Td = 1
+PLANT = {"Tp": 0.1, "Td": 1 / 1.42, "tau": 0.06, "K": 1.42}
+
+
+def _output(w: float, p: dict[str, float], n: int, grid: int) -> np.ndarray:
+    """One period of the output under a unit square wave (+1 on the first half), on ``grid`` points."""
+    k = np.arange(1, 2 * n, 2)
+    s = 1j * k * w
+    g = p["K"] * p["Td"] * np.exp(-p["tau"] * s) / (s * (p["Tp"] * s + 1) * (p["Td"] * s + 1))
+    th = np.linspace(0, 2 * np.pi, grid, endpoint=False)
+    return (4 / np.pi) * (np.sin(np.outer(th, k) + np.angle(g)) * (np.abs(g) / k)).sum(axis=1)
+
+
+def exact_cycle(beta: float, p: dict[str, float]) -> tuple[float, float]:
+    """The MRFT cycle of eq. (2) at ``beta`` (h = 1): frequency [Hz] and amplitude (module docstring)."""
+    def crossing(lw: float) -> float:
+        y = _output(math.exp(lw), p, 400, 1024)
+        return float(y[0] + beta * y.max())
+
+    # the describing function's frequency brackets the root
+    w0 = optimize.brentq(lambda w: math.atan(p["Tp"] * w) + math.atan(p["Td"] * w) + p["tau"] * w
+                         - (math.pi / 2 - math.asin(beta)), 1e-3, 1e4)
+    w = math.exp(optimize.brentq(crossing, math.log(w0) - 0.5, math.log(w0) + 0.5, xtol=1e-12))
+    return w / (2 * math.pi), float(_output(w, p, 4000, 4096).max())
+
+
+def test_the_oracle_gives_the_exact_figures_of_checks_md() -> None:
+    f, a = exact_cycle(-0.4, PLANT)
+    assert f == pytest.approx(0.70564, rel=5e-5) and a == pytest.approx(0.078530, rel=5e-5)
+    f, a = exact_cycle(-0.7, PLANT)
+    assert f == pytest.approx(1.01884, rel=5e-5) and a == pytest.approx(0.035602, rel=5e-5)
+
+
+def _flight(tmp_path: Path, betas: tuple[float, ...], seed: int = 0):
+    """One log of MRFT tests at ``betas`` (h = 1, 500 Hz, noise 2e-4), each from rest (an integrating
+    plant keeps its offset between tests, which can lock an MRFT up at its start)."""
+    parts, off = [], 0.0
+    for k, beta in enumerate(betas):
+        t, u, y = simulate("eq2", PLANT, [Window("mrft", 1.0, -1.0, beta=beta, duration=14.0)], 500.0, 2e-4,
+                           seed=seed + k, start=0.01)
+        parts.append((t + off, u, y))
+        off += t[-1] + 0.002
+    t, u, y = (np.concatenate(z) for z in zip(*parts))
+    path = tmp_path / "eq2.csv"
+    write_csv(str(path), t, u, y)
+    return read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
+
+
+@pytest.fixture(scope="module")
+def three(tmp_path_factory: pytest.TempPathFactory) -> AnalysisResult:
+    flight = _flight(tmp_path_factory.mktemp("ho3"), (-0.4, -0.7, -0.55))
+    return analyze_flight(flight, PLANT["Tp"], options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
+
+
+def test_each_held_out_cycle_is_the_plants_exact_cycle_within_the_stated_sigma(three: AnalysisResult) -> None:
+    assert len(three.tests) == 3 and len(three.held_out) == 3
+    for test, ho in zip(three.tests, three.held_out):
+        assert ho is not None and ho.frequency_hz is not None and ho.amplitude is not None, ho
+        assert ho.frequency_sigma_hz is not None and ho.amplitude_sigma is not None
+        f, a = exact_cycle(beta_used(test, 0.0), PLANT)  # the plant's cycle at the level the relay switched
+        assert abs(ho.frequency_hz - f) < 3 * ho.frequency_sigma_hz, (ho, f)
+        assert abs(ho.amplitude - a) < 3 * ho.amplitude_sigma, (ho, a)
+        # the stated sigma is an interval, not a blanket: within 1 % of the plant's cycle
+        assert ho.frequency_sigma_hz < 0.01 * f and ho.amplitude_sigma < 0.02 * a
+        assert ho.frequency_z is not None and abs(ho.frequency_z) < 3
+        assert ho.frequency_z == pytest.approx((test.frequency_hz_mean - ho.frequency_hz) / ho.frequency_sigma_hz)
+
+
+def test_a_wrong_plant_misses_its_held_out_cycle(three: AnalysisResult) -> None:
+    """The check can fail: the tests of one plant predicted from another's (Td doubled) miss by many sigma."""
+    wrong = dict(PLANT, Td=2 * PLANT["Td"])
+    f, _ = exact_cycle(beta_used(three.tests[2], 0.0), wrong)
+    ho = three.held_out[2]
+    assert ho is not None and ho.frequency_hz is not None and ho.frequency_sigma_hz is not None
+    assert abs(ho.frequency_hz - f) > 5 * ho.frequency_sigma_hz
+
+
+def test_json_and_table_hold_the_families_record(three: AnalysisResult) -> None:
+    d = to_jsonable(three.to_json())
+    assert d["schema_version"] == 3
+    for row, ho in zip(d["tests"], three.held_out):
+        assert ho is not None and row["held_out"] == to_jsonable(ho.to_json())
+        assert set(row["held_out"]) == set(HeldOut(None, None).to_json())  # the families' keys
+    back = AnalysisResult.from_json(d)
+    assert back.held_out == three.held_out and to_jsonable(back.to_json()) == d
+    text = format_table(three)
+    assert "held-out f" in text and f"{three.held_out[0].frequency_hz:.4f}" in text
+
+
+def test_a_version_2_record_reads_without_held_out(three: AnalysisResult) -> None:
+    d = to_jsonable(three.to_json())
+    old = {**d, "schema_version": 2, "tests": [{k: v for k, v in t.items() if k != "held_out"} for t in d["tests"]]}
+    back = AnalysisResult.from_json(old)
+    assert back.held_out == (None, None, None) and back.tau == three.tau
+    assert [t["held_out"] for t in to_jsonable(back.to_json())["tests"]] == [None] * 3
+    assert "held-out f" not in format_table(back)
+
+
+def test_two_tests_say_why_nothing_is_predicted_and_one_test_holds_nothing_out(tmp_path: Path) -> None:
+    flight = _flight(tmp_path, (-0.4, -0.7))
+    result = analyze_flight(flight, PLANT["Tp"], options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
+    assert all(ho is not None and ho.frequency_hz is None and "does not determine Td and tau" in ho.note
+               for ho in result.held_out)
+    text = format_table(result)
+    assert "held-out tests 1, 2: the other test alone does not determine Td and tau" in text
+    assert "held-out f" not in text
+    (only,) = held_out_eq2(PLANT["Tp"], result.tests[:1], [result.tests[0].beta_effective])
+    assert only.frequency_hz is None and only.note == NOTHING_HELD_OUT
+
+
+def test_the_families_read_a_version_1_held_out() -> None:
+    """GeneralAnalysis version 1 wrote ``held_out`` without the sigma and z keys: they read as None."""
+    ho = HeldOut.from_json({"frequency_hz": 0.5, "amplitude": 2.0, "note": "x"})
+    assert ho == HeldOut(0.5, 2.0, "x") and ho.frequency_sigma_hz is None and ho.amplitude_z is None
+    assert ho.describe(0.51, 2.1, "K") == "f 0.5000 Hz (measured 0.5100), amplitude 2 K (measured 2.1); x"
+
+
+def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> None:
+    """GeneralAnalysis schema 2 gave ``held_out`` the shared record's sigma and z keys (null for the families);
+    a version-1 JSON (without them) reads to the same analysis."""
+    from mrftcli.analyze.general import GeneralAnalysis, analyze_general
+    from mrftcli.mrft.families import family_model
+
+    windows = [Window("hysteresis", 1.5, -0.5, eps=e, duration=30.0) for e in (0.05, 0.3)]
+    t, u, y = simulate("fopdt", {"K": 2.0, "T": 1.0, "tau": 0.3}, windows, 100.0, 0.01, seed=1)
+    write_csv(str(tmp_path / "fopdt.csv"), t, u, y)
+    flight = read_flight(tmp_path / "fopdt.csv", ReadOptions(command_topic="u_relay", output_topic="y_output"),
+                         echo_warnings=False)
+    result = analyze_general(flight, family_model("fopdt"))
+    d = to_jsonable(result.to_json())
+    assert d["schema_version"] == 2 and all(set(r["held_out"]) == set(HeldOut(None, None).to_json())
+                                            for r in d["tests"])
+    v1 = {**d, "schema_version": 1,
+          "tests": [{**r, "held_out": {k: r["held_out"][k] for k in ("frequency_hz", "amplitude", "note")}}
+                    for r in d["tests"]]}
+    assert to_jsonable(GeneralAnalysis.from_json(v1).to_json()) == d

@@ -304,3 +304,13 @@ def test_batch_never_replaces_a_record_or_summary_it_did_not_write(tmp_path: Pat
     assert (tmp_path / "summary.csv").read_text() == "date,flight\n1,2\n"
     assert {k: v for k, v in _snapshot(tmp_path).items() if k != "summary.parquet"} == before
     assert batch_run._write_summary(rows, tmp_path, False, [])[1]["parquet"].exists()  # its own file replaced
+
+
+def test_report_folder_holding_someones_page_is_refused_before_the_work(tmp_path: Path, capsys) -> None:
+    (tmp_path / "rep").mkdir()
+    (tmp_path / "rep" / "index.html").write_text("my notes")
+    before = _snapshot(tmp_path)
+    code, _out, err = run_cli(capsys, "analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", "0.0422",
+                              "--report", str(tmp_path / "rep"))
+    _one_line_error(code, err, "index.html", "not an HTML page")
+    assert _snapshot(tmp_path) == before

@@ -159,11 +159,19 @@ def check_output_file(target: str | None, option: str = "--json", *, inputs: tup
 def check_output_dir(target: str | None, option: str = "--report") -> None:
     """Check an output folder before the work starts: created (with its parents) if missing, writable;
     never a symbolic link (:func:`mrftcli.io.atomic.check_output_path`)."""
-    from ..io.atomic import check_output_path
+    from ..io.atomic import check_output_path, looks_like_figure, looks_like_page
 
     if target is None:
         return
     check_output_path(target, option, folder=True)
+    if option == "--report" and Path(target).is_dir():
+        # before the work, what the report's writers would refuse after it: someone's page or figure there
+        kinds = {".html": (looks_like_page, "an HTML page"), ".png": (looks_like_figure, "a figure"),
+                 ".svg": (looks_like_figure, "a figure"), ".pdf": (looks_like_figure, "a figure")}
+        for path in sorted(Path(target).iterdir())[:1000]:
+            ours, what = kinds.get(path.suffix.lower(), (None, ""))
+            if ours is not None:
+                check_output_path(path, option, ours=ours, what=what)
     _writable_dir(Path(target), option, Path(target))
 
 

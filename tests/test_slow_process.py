@@ -148,3 +148,20 @@ def test_combination_from_information_closed_form():
     assert c is not None and c.name == "K/T1" and c.value == pytest.approx(0.02)
     assert c.ci95_low < 0.02 < c.ci95_high and c.ci95_high / c.ci95_low < 1.1
     assert determined_combination(["K", "T1"], z[:2], np.eye(2) * 1e-4, ["K", "T1"], {}) is None  # nothing seen
+
+
+def test_simulator_at_a_sample_every_5_s_and_the_controller_rate(capsys, tmp_path):
+    # item 2 on mrft-ident's own simulator (the oracle of simulate --model): a 15-min lag logged at 0.2 Hz,
+    # each logged sample a decision of the relay; --controller-rate at the log's rate puts each switch on
+    # its sample (mid-way between samples would make tau half a sample long)
+    out = tmp_path / "slow.mcap"
+    code, _, err = run_cli(capsys, "simulate", "--model", "fopdt", "--param", "K=2", "--param", "T=900",
+                           "--param", "tau=120", "--controller-rate", "0.2", "--test", "0:1", "--noise", "0.005",
+                           "--out", str(out))
+    assert code == 0, err
+    code, text, err = run_cli(capsys, "analyze", str(out), "--model", "fopdt", "--controller-rate", "0.2", "--json", "-")
+    assert code == 0, err
+    params = json.loads(text)["parameters"]
+    for name, true in (("K", 2.0), ("T", 900.0), ("tau", 120.0)):
+        assert params[name]["ci95_low"] <= true <= params[name]["ci95_high"], (name, params[name])
+    assert abs(params["tau"]["value"] - 120.0) < 2.5  # within half a sample

@@ -111,8 +111,13 @@ def main() -> None:
           "50-500 Hz, three tests of 10-14 s (beta -0.4, -0.7, -0.4 at twice the height), nothing re-flown or dropped",
           flush=True)
     t0 = time.perf_counter()
+    results = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        results = list(pool.map(_run, cases))
+        for r in pool.map(_run, cases):  # one line per flight as it lands (a long run shows its progress)
+            results.append(r)
+            print(f"  [{len(results)}/{len(cases)}] {r['effect']} {r['platform']} {r['rate']:.0f} Hz: found "
+                  f"{r.get('found')} unexplained {r.get('unexplained')} {r.get('error') or ''} "
+                  f"(CPU diagnose {r['cpu']:.1f} s, analyze {r['cpu_analyze']:.1f} s)", flush=True)
     report(args.sim, results, time.perf_counter() - t0)
 
 

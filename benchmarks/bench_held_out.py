@@ -1,0 +1,87 @@
+"""Benchmark: the CPU the eq. (2) held-out predictions add to ``analyze`` (issue 36).
+
+For every shipped sample log (its Tp and loop from its ``.truth.json``) and for a simulated
+10-minute, 200 Hz log of 20 tests (bench_analyze's: the held-out cost grows with the number of
+tests), in this process: ``analyze_flight`` as the CLI runs it (400 bootstrap draws, waveform
+refinement), which includes the held-out stage, and the held-out stage alone
+(:func:`mrftcli.analyze.held_out.held_out_eq2` on the same tests). "Before" is the analysis
+without that stage (the difference), "after" the analysis as it runs. CPU time (``process_time``),
+so the figures do not depend on what else runs on the machine.
+
+Run: ``python benchmarks/bench_held_out.py`` (about 2 minutes of CPU).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cpu(fn):
+    t0 = time.process_time()
+    out = fn()
+    return out, time.process_time() - t0
+
+
+def _measure(name: str, flight, Tp: float) -> tuple[float, float]:
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.analyze.estimate import beta_used
+    from mrftcli.analyze.held_out import held_out_eq2
+    from mrftcli.analyze.screen import low_rate_period
+
+    result, total = _cpu(lambda: analyze_flight(flight, Tp))
+    ts = low_rate_period(result.tests)
+    held, stage = _cpu(lambda: held_out_eq2(Tp, result.tests, [beta_used(t, ts) for t in result.tests]))
+    n_pred = sum(h.frequency_hz is not None for h in held)
+    print(f"{name:40s} {len(result.tests):3d} {n_pred:5d}  {total - stage:8.2f}  {total:8.2f}  {stage:8.3f}  "
+          f"{100 * stage / (total - stage):6.2f} %")
+    return total - stage, total
+
+
+def _twenty_tests(d: str):
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
+
+    model = LoopModel(0.0422, 2.669, 0.0464, 19.6)
+    tests = []
+    for i in range(20):
+        spec = plan_test(model, (-0.4, -0.7)[i % 2], 0.05, cycles=14)
+        tests.append(type(spec)(spec.beta, spec.h, 22.0))
+    fspec = FlightSpec(model=model, tests=tuple(tests), loop="altitude", switching="hear", seed=1, hover_s=10.0,
+                       hold_s=7.5)
+    path = Path(d) / "twenty_tests.mcap"
+    write_flight(simulate_flight(fspec), path, "mcap")
+    return read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False)
+
+
+def main() -> None:
+    from mrftcli.errors import MrftError
+    from mrftcli.io import ReadOptions, read_flight
+
+    print(f"{'log':40s} {'tests':>3s} {'pred.':>5s}  {'before s':>8s}  {'after s':>8s}  {'held-out':>8s}  {'added':>8s}")
+    rows = []
+    for truth in sorted((ROOT / "sample_logs").rglob("*.truth.json")):
+        log = truth.parent / truth.name[: -len(".truth.json")]
+        if not log.exists():
+            continue
+        spec = json.loads(truth.read_text())
+        try:
+            flight = read_flight(log, ReadOptions(loop=spec["loop"]), echo_warnings=False)
+            rows.append(_measure(str(log.relative_to(ROOT / "sample_logs")), flight, float(spec["Tp"])))
+        except MrftError as err:  # counted, not dropped silently
+            print(f"{log.name:40s} refused: {err}")
+    before, after = sum(r[0] for r in rows), sum(r[1] for r in rows)
+    print(f"sample logs ({len(rows)}): analyze CPU {before:.1f} s before, {after:.1f} s after: "
+          f"+{100 * (after - before) / before:.2f} %")
+    with tempfile.TemporaryDirectory() as d:
+        b20, a20 = _measure("simulated 10 min, 20 tests", _twenty_tests(d), 0.0422)
+    print(f"20-test log: analyze CPU {b20:.2f} s before, {a20:.2f} s after: +{100 * (a20 - b20) / b20:.1f} %")
+
+
+if __name__ == "__main__":
+    main()

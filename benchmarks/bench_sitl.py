@@ -251,7 +251,15 @@ def main() -> int:
     ap.add_argument("--speedup", type=float, default=1.0)
     ap.add_argument("--only", nargs="*", default=[], help="fly only these flights (names in FLIGHTS)")
     ap.add_argument("--no-refly", action="store_true", help="stop after the analysis")
+    ap.add_argument("--stack", choices=("ardupilot", "px4"), default="ardupilot",
+                    help="px4: the PX4 SIH campaign with the fork's MRFT (scripts/sitl/px4/px4_campaign.py)")
+    ap.add_argument("--px4", type=Path, default=Path("/work/sitl/px4"), help="PX4 tree (built or to build)")
     args = ap.parse_args()
+    if args.stack == "px4":
+        sys.path.insert(0, str(ROOT / "scripts" / "sitl" / "px4"))
+        from px4_campaign import run
+
+        return run(args.px4, args.logs, args.speedup, args.only, args.analyze_only, args.no_refly)
     if not args.analyze_only:
         if not (args.ap / "build/sitl/bin/arducopter").exists():
             subprocess.run([str(ROOT / "scripts/sitl/build_ardupilot.sh"), str(args.ap)], check=True)

@@ -42,11 +42,11 @@ PX4_VERSION = "PX4 main of 2024-08-21 (abdullaayyad96/PX4-Autopilot ae16556) + m
 #: SIH's quadrotor (src/modules/simulation/simulator_sih/sih_params.c defaults, airframe 10040)
 SIH_MODEL = {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_T_TAU": 0.05, "SIH_KDV": 1.0, "SIH_L_ROLL": 0.2,
              "SIH_IXX": 0.025}
-#: logged at every publication: the loop's output and command (the default logs the setpoint at 10 Hz)
-LOGGER_TOPICS = ["vehicle_local_position 0", "vehicle_local_position_setpoint 0", "vehicle_attitude 10",
-                 "vehicle_attitude_setpoint 10", "vehicle_status 100", "hover_thrust_estimate 0",
-                 "trajectory_setpoint 0", "actuator_motors 10", "vehicle_land_detected 100",
-                 "sensor_combined 10"]
+#: logged at every publication (125 Hz, mc_pos_control's rate): the loop's output and command (PX4's default
+#: logs the setpoint at 10 Hz); the rest slowly, to keep the ULogs small
+LOGGER_TOPICS = ["vehicle_local_position 0", "vehicle_local_position_setpoint 0", "trajectory_setpoint 0",
+                 "hover_thrust_estimate 100", "vehicle_attitude 50", "vehicle_status 200",
+                 "vehicle_land_detected 200"]
 INT32 = mavutil.mavlink.MAV_PARAM_TYPE_INT32
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
 
@@ -83,6 +83,9 @@ class Px4Sitl(Sitl):
         shutil.copytree(self.ap_dir / "build/px4_sitl_default/etc", self.workdir / "etc", symlinks=True)
         (self.workdir / "etc/logging").mkdir(exist_ok=True)
         (self.workdir / "etc/logging/logger_topics.txt").write_text("\n".join(LOGGER_TOPICS) + "\n")
+        # log while armed only (SITL's rcS defaults to from boot): the airframe script runs after the defaults
+        with open(self.workdir / "etc/init.d-posix/airframes/10040_sihsim_quadx", "a") as airframe:
+            airframe.write("\nparam set SDLOG_MODE 0\n")
         env = {**os.environ, "PX4_SYS_AUTOSTART": "10040", "PX4_SIM_MODEL": "sihsim_quadx",
                "PX4_SIM_SPEED_FACTOR": f"{self.speedup:g}"}
         out = open(self.workdir / "px4.out", "wb")  # noqa: SIM115 - lives as long as the process
@@ -210,7 +213,7 @@ class Px4Sitl(Sitl):
         self.wait(duration_s)
         self.set_param(p + "ENABLE", 0)
         t1 = self.boot_ms / 1000
-        self.wait(8)  # back in Hold between tests
+        self.wait(5)  # back in Hold between tests
         return {"beta": beta, "h": h, "duration_s": duration_s, "n_conf": n_conf, "no_switch_ms": no_switch_ms,
                 "start_s": round(t0, 2), "end_s": round(t1, 2)}
 

@@ -152,7 +152,15 @@ def test_fopdt_10k_every_clean_window_a_test_with_its_relay(fopdt_10k):
 
 def test_fopdt_10k_model_and_held_out(fopdt_10k):
     ident = fopdt_10k.identification
-    assert ident is not None and not ident.undetermined
+    assert ident is not None
+    # issue 38: FOPDT does not explain the shot within its scatter (chi2/dof ~11), so K and T, which trade
+    # along the tests' slope, are known within a factor ~1.5-2 only: not determined (within 1.25x), with
+    # K/T determined; the published describing-function fit's K sits inside K's interval
+    assert set(ident.undetermined) <= {"K", "T"} and ident.estimate("tau").determined
+    if ident.undetermined:
+        assert ident.combination is not None and ident.combination.name == "K/T"
+        k = ident.estimate("K")
+        assert k.ci95_low < 6.7e-9 < k.ci95_high
     # the published describing-function fit: |K| 6.7e-9 / 8.1e-9, T 24 / 32 ms, delay 4.2 / 3.8 ms;
     # ours (exact harmonics, complex means) sits near it: same delay, shorter T, smaller K
     assert 2e-9 < ident.estimate("K").value < 1e-8

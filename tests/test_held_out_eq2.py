@@ -165,3 +165,15 @@ def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> 
           "tests": [{**r, "held_out": {k: r["held_out"][k] for k in ("frequency_hz", "amplitude", "note")}}
                     for r in d["tests"]]}
     assert to_jsonable(GeneralAnalysis.from_json(v1).to_json()) == d
+
+
+def test_a_one_test_flight_says_nothing_is_held_out(tmp_path: Path) -> None:
+    """One test is a partial result (exit 6): its row says nothing is held out, in the JSON and the text."""
+    from mrftcli.cli.analyze import format_partial
+    from mrftcli.errors import InsufficientDataError
+
+    with pytest.raises(InsufficientDataError) as err:
+        analyze_flight(_flight(tmp_path, (-0.4,)), PLANT["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    (row,) = err.value.partial["tests"]
+    assert row["held_out"]["frequency_hz"] is None and row["held_out"]["note"] == NOTHING_HELD_OUT
+    assert f"held-out test 1: {NOTHING_HELD_OUT}" in format_partial(err.value)

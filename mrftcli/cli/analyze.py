@@ -6,7 +6,7 @@ import math
 
 import click
 
-from ..analyze.held_out import held_out_cells, held_out_notes
+from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from .model_options import (baseline_option, build_model, format_general, parse_baseline, parse_windows,
                             relay_options, structure_options, window_option)
@@ -148,6 +148,8 @@ def format_partial(err) -> str:
                      f"{t['beta_effective']:+.3f}", _num(tau["frequency_hz"]),
                      "-" if not span else f"{_num(span[0] * 1e3)} - {_num(span[1] * 1e3)}"])
     lines += _table(header, rows, ">>>>>>")
+    lines += held_out_notes([HeldOut.from_json(t["held_out"]) if t.get("held_out") else None
+                             for t in part.get("tests", [])])
     return "\n".join(lines)
 
 

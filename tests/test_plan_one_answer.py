@@ -62,8 +62,8 @@ def test_simulated_plan_never_silently_worse_than_the_conventional_pair(tmp_path
 
 
 def test_single_beta_log_and_its_exit_6_json_give_one_plan(tmp_path, capsys):
-    """One flown beta: analyze exits 6 with its partial (now with the noise and each test's phase); the plan
-    from that JSON equals the plan from the log."""
+    """One flown beta: analyze exits 6 with its partial (now with the measured noise); the plan from that JSON
+    equals the plan from the log (which goes through the same object)."""
     log = tmp_path / "one.mcap"
     code, _, err = run_cli(capsys, "simulate", "--tp", "0.0422", "--td", "2.669", "--tau", "0.0464", "--k", "19.6",
                            "--test", "-0.4", "--noise", "0.0003", "--out", str(log))

@@ -264,9 +264,8 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
 
 
 def partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -> dict[str, Any]:
-    """What one beta can say: tau(Td) over the assumed Td range, per test; with each test's mean phase of
-    its fundamental [rad] (``phase_h1``) and the measured sensor noise (``noise``), which ``plan`` uses
-    as it does from the log; ``held_out`` says why nothing is predicted (one test, or one beta)."""
+    """What one beta can say: tau(Td) over the assumed Td range, per test; with the measured sensor noise
+    (``noise``), which ``plan`` uses from the log and from this object alike; ``held_out`` says why nothing is predicted (one test, or one beta)."""
     from .held_out import held_out_eq2
     from .record import measured_noise_std
 
@@ -274,10 +273,7 @@ def partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -
     rows = []
     for t, held in zip(tests, held_out_eq2(Tp, tests, [t.beta for t in tests])):  # no solve: one beta
         d = t.to_dict(cycles=False)
-        ph = np.array([c.phase_h1 for c in t.stable], float)
-        ph = ph[np.isfinite(ph)]
-        d.update(t_start_rel=t.t_start - t0, t_end_rel=t.t_end - t0,
-                 phase_h1=float(ph.mean()) if ph.size >= 2 else None, held_out=held.to_json())
+        d.update(t_start_rel=t.t_start - t0, t_end_rel=t.t_end - t0, held_out=held.to_json())
         rows.append(d)
     slices: list[dict[str, Any]] = []
     out = {"assumed_Td_range_s": list(ASSUMED_TD_RANGE), "t0": t0, "tests": rows, "tau_for_assumed_Td": slices,

@@ -96,10 +96,8 @@ def _partial_tests(partial: Mapping[str, Any]) -> list[FlownTest]:
     flown = []
     for t in partial.get("tests") or []:
         try:
-            phase = t.get("phase_h1")
             flown.append(FlownTest(beta=float(t["beta"]), h=float(t["h"]), frequency_hz=float(t["frequency_hz"]),
-                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"]),
-                                   phase=float(phase) if isinstance(phase, (int, float)) else None))
+                                   amplitude=float(t["amplitude"]), n_cycles=int(t["cycles"])))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"a test lacks beta, h, frequency_hz, amplitude or cycles ({err})") from err
     return flown

@@ -33,8 +33,31 @@ def _export(version: str, out: Path) -> None:
         raise SystemExit(f"tune failed: {run.stderr.strip()}")
 
 
+def _instance(sitl_cls: type, instance: int) -> type:
+    """The harness's Sitl on SITL instance ``instance`` (``-I N``, MAVLink on tcp 5760 + 10 N), so it runs beside
+    another engineer's SITL on instance 0."""
+    import subprocess as sp
+
+    class Instance(sitl_cls):  # type: ignore[misc,valid-type]
+        def start(self):  # type: ignore[no-untyped-def]
+            real = sp.Popen
+
+            def popen(cmd, *a, **k):  # type: ignore[no-untyped-def]
+                return real([f"-I{instance}" if c == "-I0" else c for c in cmd], *a, **k)
+
+            sp.Popen = popen  # the harness's start() builds "-I0"; only this call is redirected
+            try:
+                return super().start()
+            finally:
+                sp.Popen = real
+
+    return Instance
+
+
 def main() -> int:
-    from sitl import Sitl, SitlError, load_params, read_param_file  # scripts/sitl (issue 41)
+    from sitl import Sitl as Sitl0, SitlError, load_params, read_param_file  # scripts/sitl (issue 41)
+
+    Sitl = _instance(Sitl0, 3)
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ap", type=Path, default=Path("/work/sitl/ardupilot"), help="the built ArduPilot tree")
@@ -47,7 +70,7 @@ def main() -> int:
     params = read_param_file(f46)
     print(f"export (4.6 names): {params}")
     ok = True
-    with Sitl(args.ap, work / "run", speedup=args.speedup) as sitl:
+    with Sitl(args.ap, work / "run", speedup=args.speedup, port=5790) as sitl:
         sitl.wait(5)
         missing = []
         for name in read_param_file(f47):
@@ -75,7 +98,10 @@ def main() -> int:
         refusals = sitl.arm()
         print(f"armed with the export (pre-arm refusals while the EKF settled: {sorted(set(refusals))})")
         sitl.takeoff(5.0)
-        alts = [sitl.altitude() for _ in range(40)]
+        alts = []
+        for _ in range(40):  # 20 simulated seconds, every 0.5 s
+            sitl.wait(0.5)
+            alts.append(sitl.altitude())
         spread = max(alts) - min(alts)
         print(f"hold 5 m: altitude {min(alts):.2f}-{max(alts):.2f} m (spread {spread:.2f} m)")
         ok &= spread < 1.0

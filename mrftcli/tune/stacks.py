@@ -30,9 +30,16 @@ PD on the loop's output onto its parameters and back (:func:`export_design`), an
   through a Gain(-1) block, i.e. PV_DOT = -(filtered rate); the rate is filtered by HEAR_FC's own
   2nd-order Butterworth (50 Hz at 200 Hz), which the design uses.
 
-Every exported value is checked against the stack's documented range
-(:mod:`mrftcli.tune.stack_params`): out of range it is refused, or with ``clamp`` set to the bound,
-and the margins of the loop the clamped values give (with the stack's filter) are reported.
+  HEAR_FC's outer loops (x, y, z) filter the velocity with their own Butterworth (rate/12, 16.7 Hz at 200 Hz,
+  :data:`HEAR_OUTER_CUTOFF_RATIO`); the z command is HEAR's acceleration [m/s^2] (converted x K, stated).
+
+The stacks' ranges are constraints of the design (:func:`_inside_ranges`, issue 37): values outside are
+replaced by the design inside them that keeps the PD's worst Ms, its cost stated; a value still outside
+is refused, or with ``clamp`` set to the bound, and the margins of the loop the written values give (with
+the stack's filter) are reported. ArduPilot's files use the names of ``version``
+(:mod:`mrftcli.tune.ardupilot_versions`) and every pre-arm rule on their values is checked. The design
+rate is the stack's (PX4 ``IMU_INTEG_RATE``, ArduPilot ``SCHED_LOOP_RATE``, HEAR's nodelets), never the
+log's; vehicle-wide rates are not written.
 """
 
 from __future__ import annotations

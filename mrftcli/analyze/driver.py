@@ -104,7 +104,8 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     n_combinations = int(min(opts.max_combinations, max(50, 4000 // n)))
     combos = combinations(Tp, list(point.cycles), cons.Td_point, n_combinations, rng)
     # each test predicted from the others (point solves, no draws: rng untouched, the estimates unchanged)
-    held = held_out_eq2(Tp, screening.usable, [beta_used(t, screening.ts_ctrl) for t in screening.usable])
+    held = held_out_eq2(Tp, screening.usable, [beta_used(t, screening.ts_ctrl) for t in screening.usable],
+                        cons.Td_point)
     bounds = identifiability(Tp, screening, point, cons, constraints, rng, flight)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)

@@ -5,13 +5,16 @@ One record (:class:`HeldOut`, ``tests[i].held_out`` in every analysis JSON) and 
 families' (``analyze --model``, :func:`mrftcli.analyze.general.held_out`) and eq. (2)'s
 (:func:`held_out_eq2`).
 
-eq. (2) (``analyze`` without ``--model``): the other tests' mean frequencies, effective betas and
-mean amplitudes are identified by the paper's UFM/UGM point solve (:func:`mrftcli.mrft.identify.identify`,
-no bootstrap), and the test's cycle is that model's exact limit cycle (LPRS closed form) under the
-test's own beta and relay height. The prediction's standard deviation is the other tests' standard
-errors of their means propagated linearly (two more point solves per beta among them); ``*_sigma`` is
-that and the test's own standard error in quadrature, the scale of ``measured - predicted``, and
-``*_z`` the error in those standard deviations.
+eq. (2) (``analyze`` without ``--model``): the other tests' mean frequencies, betas and mean
+amplitudes are identified by the paper's UFM/UGM point solve (their UFM slices weighted by their
+cycle counts, Td where they meet, K the mean of their UGM gains; no bootstrap), and the test's cycle
+is that model's exact limit cycle (LPRS closed form) under the test's own beta and relay height. The
+prediction's standard deviation is the other tests' standard errors of their means propagated
+linearly: one more point solve per beta among them (its tests' frequencies moved together), the
+amplitudes through K in closed form; ``*_sigma`` is that and the test's own standard error in
+quadrature, the scale of ``measured - predicted``, and ``*_z`` the error in those standard
+deviations. All the held-out point solves of a log are one vectorised call of
+:func:`mrftcli.mrft.consensus.consensus_solve` (a left-out test has weight 0).
 """
 
 from __future__ import annotations
@@ -24,8 +27,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdentificationError, InputError
+from ..mrft.consensus import consensus_solve
 from ..mrft.identify import TestMeasurement, identify
-from ..mrft.lprs import mrft_limit_cycle
+from ..mrft.lprs import mrft_limit_cycle, unit_cycle
 from ..mrft.model import LoopModel
 from ..segment.records import MrftTest
 from .screen import group_betas
@@ -146,56 +150,60 @@ def held_out_notes(held: Sequence[HeldOut | None]) -> list[str]:
 # ----------------------------------------------------------------------------------------------
 # eq. (2)
 # ----------------------------------------------------------------------------------------------
-def _measurement(test: MrftTest, beta: float) -> TestMeasurement:
-    return TestMeasurement(beta=beta, frequency_hz=test.frequency_hz_mean, amplitude=test.amplitude_mean, h=test.h)
-
-
 def _sem(x: Any) -> float:
     return float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else 0.0
 
 
-def _predict(Tp: float, others: Sequence[TestMeasurement], beta: float, h: float) -> tuple[float, float]:
-    """The eq. (2) model of ``others`` (point solve) and its exact cycle under ``beta``, ``h``: (f [Hz], a)."""
-    ident = identify(others, Tp, rate_hz=None)
-    if ident.K is None:
-        raise IdentificationError("no amplitude in the other tests")
-    model = LoopModel(Tp, ident.Td.mean, max(ident.tau.mean, 0.0), ident.K.mean)
-    lc = mrft_limit_cycle(model, beta, h)
+@dataclass(frozen=True)
+class _Sets:
+    """The point solves of every held-out fit in one vectorised call: row r leaves out test ``left[r]``
+    (weight 0) and moves the frequencies of the tests ``moved[r]`` (the others at one beta) by their
+    standard errors (empty: none, the prediction itself)."""
+
+    left: np.ndarray
+    moved: list[list[int]]
+    omegas: np.ndarray
+    weights: np.ndarray
+
+
+def _sets(tests: list[MrftTest], groups: list[list[int]], usable: list[int]) -> _Sets:
+    n = len(tests)
+    w0 = 2 * math.pi * np.array([t.frequency_hz_mean for t in tests])
+    se = 2 * math.pi * np.array([_sem(t.frequency_hz) for t in tests])
+    ncyc = np.array([float(t.n_stable) for t in tests])  # the paper's weights: the cycle counts
+    left: list[int] = []
+    moved: list[list[int]] = []
+    omegas, weights = [], []
+    for i in usable:
+        moves = [m for g in groups if (m := [j for j in g if j != i]) and np.any(se[m] > 0)]
+        for members in [[], *moves]:
+            w = w0.copy()
+            w[members] += se[members]
+            left.append(i)
+            moved.append(members)
+            omegas.append(w)
+            weights.append(np.where(np.arange(n) == i, 0.0, ncyc))
+    return _Sets(np.array(left, int), moved, np.array(omegas).reshape(-1, n), np.array(weights).reshape(-1, n))
+
+
+def _gains(Tp: float, Td: np.ndarray, sets: _Sets, amps: np.ndarray, hs: np.ndarray) -> np.ndarray:
+    """K of every test in every row (UGM, Lemmas 2 and 4: a = h K Td a_unit(Tp w, Td w) / w)."""
+    _, a_unit = unit_cycle(Tp * sets.omegas, Td[:, None] * sets.omegas, np.zeros_like(sets.omegas))
+    return np.asarray(amps[None, :] * sets.omegas / (hs[None, :] * Td[:, None] * a_unit))
+
+
+def _prediction(Tp: float, Td: float, tau: float, K: float, beta: float, h: float) -> tuple[float, float] | None:
+    if not (math.isfinite(Td) and math.isfinite(tau) and math.isfinite(K) and K > 0):
+        return None
+    try:
+        lc = mrft_limit_cycle(LoopModel(Tp, Td, max(tau, 0.0), K), beta, h)
+    except (InputError, IdentificationError, ValueError):
+        return None
     return float(lc.frequency_hz), float(lc.amplitude)
 
 
-def _spread(Tp: float, others: list[TestMeasurement], tests: list[MrftTest], beta: float, h: float,
-            centre: tuple[float, float]) -> tuple[float, float]:
-    """The prediction's std [Hz], [output units]: the other tests' standard errors propagated linearly.
-
-    The tests at one beta play one role in the fit (their derivatives are alike), so each beta group's
-    frequencies (then amplitudes) move together, each by its standard error, in one point solve: with
-    equal derivatives d, the shift is d * sum(se) and the group's variance d^2 * sum(se^2). Two solves
-    per beta group, not per test, keep a 20-test log's cost small.
-    """
-    var_f = var_a = 0.0
-    for group in group_betas(tests):
-        for which in ("frequency", "amplitude"):
-            se = np.array([_sem(tests[j].frequency_hz if which == "frequency" else tests[j].amplitude)
-                           for j in group])
-            if not np.any(se > 0):
-                continue
-            moved = list(others)
-            for j, e in zip(group, se):
-                m = others[j]
-                f, a = m.frequency_mean + (e if which == "frequency" else 0.0), m.amplitude_mean or 0.0
-                moved[j] = TestMeasurement(m.beta, f, a + (e if which == "amplitude" else 0.0), m.h)
-            try:
-                f, a = _predict(Tp, moved, beta, h)
-            except (IdentificationError, InputError):
-                continue  # the point solve fails one std away: that group's share is left out
-            scale = float(np.sum(se ** 2) / np.sum(se) ** 2)
-            var_f += (f - centre[0]) ** 2 * scale
-            var_a += (a - centre[1]) ** 2 * scale
-    return math.sqrt(var_f), math.sqrt(var_a)
-
-
-def held_out_eq2(Tp: float, tests: Sequence[MrftTest], betas: Sequence[float]) -> tuple[HeldOut, ...]:
+def held_out_eq2(Tp: float, tests: Sequence[MrftTest], betas: Sequence[float],
+                 Td_ref: float | None = None) -> tuple[HeldOut, ...]:
     """Each test's cycle predicted by eq. (2) identified from the other tests (module docstring).
 
     Parameters
@@ -206,6 +214,9 @@ def held_out_eq2(Tp: float, tests: Sequence[MrftTest], betas: Sequence[float]) -
         The usable tests.
     betas : sequence of float
         The beta each test is identified with (:func:`mrftcli.analyze.estimate.beta_used`).
+    Td_ref : float or None
+        Centre of the point solves' search [s] (0.1-10 times it), e.g. the estimate from all tests;
+        None: their UFM estimate (:func:`mrftcli.mrft.identify.identify`).
 
     Returns
     -------
@@ -215,19 +226,59 @@ def held_out_eq2(Tp: float, tests: Sequence[MrftTest], betas: Sequence[float]) -
     tests = list(tests)
     if len(tests) < 2:
         return tuple(HeldOut(None, None, NOTHING_HELD_OUT) for _ in tests)
-    meas = [_measurement(t, b) for t, b in zip(tests, betas)]
-    out = []
-    for i, (test, beta) in enumerate(zip(tests, betas)):
-        others = meas[:i] + meas[i + 1:]
-        if len(group_betas(tests[:i] + tests[i + 1:])) < 2:
-            out.append(HeldOut(None, None, _ONE_BETA if len(others) > 1 else _ONE_OTHER))
+    groups = group_betas(tests)
+    out: list[HeldOut | None] = [None] * len(tests)
+    usable = []
+    for i in range(len(tests)):
+        if sum(1 for g in groups if set(g) - {i}) < 2:
+            out[i] = HeldOut(None, None, _ONE_BETA if len(tests) > 2 else _ONE_OTHER)
+        else:
+            usable.append(i)
+    if usable:
+        for i, ho in zip(usable, _solve(Tp, tests, np.asarray(betas, float), groups, usable, Td_ref)):
+            out[i] = ho
+    return tuple(o for o in out if o is not None)
+
+
+def _solve(Tp: float, tests: list[MrftTest], betas: np.ndarray, groups: list[list[int]], usable: list[int],
+           Td_ref: float | None) -> list[HeldOut]:
+    """The held-out predictions of the ``usable`` tests: one vectorised UFM consensus for all their fits."""
+    if Td_ref is None:
+        Td_ref = identify([TestMeasurement(b, t.frequency_hz_mean) for t, b in zip(tests, betas)], Tp).Td.mean
+    sets = _sets(tests, groups, usable)
+    Td, tau = consensus_solve(Tp, np.broadcast_to(betas, sets.omegas.shape), sets.omegas, sets.weights, Td_ref)
+    amps = np.array([t.amplitude_mean for t in tests])
+    hs = np.array([t.h for t in tests])
+    K_each = _gains(Tp, Td, sets, amps, hs)
+    a_se = np.array([_sem(t.amplitude) for t in tests])
+    results = []
+    for i in usable:
+        rows = np.flatnonzero(sets.left == i)
+        others = sets.weights[rows[0]] > 0
+        base = rows[0]  # the first row of a test moves nothing
+        K = float(np.mean(K_each[base][others]))
+        centre = _prediction(Tp, float(Td[base]), float(tau[base]), K, float(betas[i]), tests[i].h)
+        if centre is None:
+            results.append(HeldOut(None, None, "the other tests give no eq. (2) model: their UFM slices do not "
+                                               f"meet within 0.1-10 x Td {Td_ref:.3g} s"))
             continue
-        try:
-            centre = _predict(Tp, others, beta, test.h)
-        except (IdentificationError, InputError) as err:
-            out.append(HeldOut(None, None, f"the other tests give no eq. (2) model: {err}"))
-            continue
-        spread = _spread(Tp, others, [*tests[:i], *tests[i + 1:]], beta, test.h, centre)
-        measured = (test.frequency_hz_mean, _sem(test.frequency_hz), test.amplitude_mean, _sem(test.amplitude))
-        out.append(HeldOut.against(*centre, measured, spread))
-    return tuple(out)
+        var_f = var_a = 0.0
+        for r in rows[1:]:
+            se = _freq_se(tests, sets.moved[r])
+            scale = float(np.sum(se ** 2) / np.sum(se) ** 2)
+            moved = _prediction(Tp, float(Td[r]), float(tau[r]), float(np.mean(K_each[r][others])),
+                                float(betas[i]), tests[i].h)
+            if moved is not None:  # else the point solve fails one std away: that group's share is left out
+                var_f += (moved[0] - centre[0]) ** 2 * scale
+                var_a += (moved[1] - centre[1]) ** 2 * scale
+        # the amplitudes move K only (K is the mean of the others' UGM gains): linear, no solve
+        dK = K_each[base][others] * a_se[others] / amps[others] / others.sum()
+        var_a += float(np.sum(dK ** 2)) * (centre[1] / K) ** 2
+        t = tests[i]
+        measured = (t.frequency_hz_mean, _sem(t.frequency_hz), t.amplitude_mean, _sem(t.amplitude))
+        results.append(HeldOut.against(*centre, measured, (math.sqrt(var_f), math.sqrt(var_a))))
+    return results
+
+
+def _freq_se(tests: list[MrftTest], group: list[int]) -> np.ndarray:
+    return np.array([_sem(tests[j].frequency_hz) for j in group])

@@ -121,10 +121,13 @@ def export(results: dict[str, dict], work: Path) -> dict[str, Path]:
         for p in (param, js):
             p.unlink(missing_ok=True)
         extra = ["--hover-thrust", f"{r['hover']:.4f}"] if loop == "altitude" else []
-        proc = run_cli("tune", str(r["log"]), "--tp", f"{r['tp']:.6f}", "--loop", loop, "--controller-rate", "400",
-                       "--export", "ardupilot", "--stack-version", "4.7", "--out", str(param), "--json", str(js),
-                       *extra)
-        print(f"  tune --export ardupilot ({loop}): exit {proc.returncode}")
+        cmd = ["tune", str(r["log"]), "--tp", f"{r['tp']:.6f}", "--loop", loop, "--controller-rate", "400",
+               "--export", "ardupilot", "--stack-version", "4.7", "--out", str(param), "--json", str(js), *extra]
+        proc = run_cli(*cmd)
+        print(f"  tune --export ardupilot ({loop}): exit {proc.returncode} {proc.stderr.strip()[:300]}")
+        if proc.returncode == 2 and "--clamp" in proc.stderr:
+            proc = run_cli(*cmd, "--clamp")  # what a user does next: the bound, with the margins that result
+            print(f"  tune --export ardupilot --clamp ({loop}): exit {proc.returncode}")
         print("    " + "\n    ".join(proc.stdout.strip().splitlines()[:14]))
         if param.exists():
             out[loop] = param
@@ -156,7 +159,7 @@ def refly(ap: Path, params: dict[str, Path], work: Path, speedup: float) -> None
         values.update(read_param_file(p))
     # a raw attitude step (no input shaping), as tune's prediction is of the loop itself
     shaping = {"ATC_RATE_FF_ENAB": 0, "ATC_INPUT_TC": 0}
-    with Sitl(ap, work / "refly", speedup, {"LOG_BITMASK": 17}) as sitl:
+    with Sitl(ap, work / "refly", speedup, {"LOG_BITMASK": 17, "LOG_FILE_RATEMAX": 0}) as sitl:
         sitl.wait(3)
         rows = load_params(sitl, values)
         changed = [r for r in rows if not r["unchanged"]]

@@ -11,6 +11,7 @@
 --
 -- Altitude: the relay acts on the throttle around hover (MOT_THST_HOVER at the start), through
 --   vehicle:set_target_rate_and_throttle with zero body rates (ArduPilot's attitude loops hold level);
+--   the centre is the throttle of GUIDED's hold averaged over the second before the test;
 --   y = the EKF's altitude above home [m].
 -- Roll / pitch: the relay acts on the axis's mixer input (the paper's inner-loop test: attitude error
 --   -> relay -> torque). Lua has no binding to the mixer or to the System ID mode's injection (which
@@ -19,7 +20,8 @@
 --   i.e. the mixer input, is then the rate target in rad/s) and commands the relay as that axis's
 --   body rate; the other axes keep ArduPilot's control, and a PD on the EKF altitude holds height
 --   through the throttle. The parameters are restored when the test ends. y = the EKF's roll or pitch [rad].
--- MRFT_DLY [ms] delays what is sent by a FIFO of script ticks (the +20 ms test), after the relay decides.
+-- MRFT_DLY [ms] delays what is sent (the +20 ms test), after the relay decides: a FIFO in simulated time sends
+-- the newest decision at least MRFT_DLY old at each tick (the log's Snt against Cmd shows the delay achieved).
 --
 -- Logged every tick as DataFlash message MRFT (mrft-ident's `ardupilot-mrft` layout):
 --   Ax axis (1 alt, 2 roll, 3 pitch), Cmd the relay's decision + bias [throttle or mixer units],
@@ -27,7 +29,7 @@
 --   Rel the relay sign (+1/-1), B beta, H relay height, Bias the bias, Dly the delay [ms].
 
 local TABLE_KEY = 41
-local PERIOD_MS = 5
+local PERIOD_MS = 2
 assert(param:add_table(TABLE_KEY, "MRFT_", 8), "MRFT: could not add the parameter table")
 local function add(idx, name, default)
   assert(param:add_param(TABLE_KEY, idx, name, default), "MRFT: could not add MRFT_" .. name)
@@ -50,6 +52,8 @@ local AXIS_PARAMS = {
 local OPEN_VALUES = { 0, 0, 0, 1, 0, 0 }
 
 local test = nil  -- the running test's state
+local hover_avg = nil  -- the throttle while hovering between tests, averaged over about 1 s
+local hover_us = 0
 
 local function altitude()
   local down = ahrs:get_relative_position_D_home()
@@ -76,16 +80,17 @@ local function set_params(names, values)
 end
 
 local function start(axis)
-  local hover = param:get("MOT_THST_HOVER")
+  -- the relay's centre: the throttle GUIDED's position hold used just before (MOT_THST_HOVER is the
+  -- learned value saved at disarm, not the live one)
+  local hover = hover_avg or param:get("MOT_THST_HOVER")
   local y = output(axis)
   if hover == nil or y == nil then return nil end
   local t = {
     axis = axis, beta = P_BETA:get(), h = P_H:get(), dly = P_DLY:get(), eth = P_ETH:get(),
-    t0 = millis():tofloat(), hover = hover, z0 = altitude(), fifo = {}, saved = nil,
+    t0 = millis():tofloat(), hover = hover, z0 = altitude(), fifo = {}, saved = nil, last_us = -1,
     sp = (axis == 1) and y or 0.0, relay = 1, e_ext = 0, first_half = true, started = false,
   }
   t.bias = (axis == 1) and hover or 0.0
-  t.ndelay = math.floor(t.dly / PERIOD_MS + 0.5)
   if AXIS_PARAMS[axis] then
     t.saved = {}
     for i, name in ipairs(AXIS_PARAMS[axis]) do t.saved[i] = param:get(name) end
@@ -123,12 +128,19 @@ local function relay_step(t, e)
 end
 
 local function tick(t)
+  -- SITL runs this thread beside the simulation: act once per new simulated instant
+  local now_us = micros():tofloat()
+  if now_us - t.last_us < 1000 then return true end
+  t.last_us = now_us
   local y = output(t.axis)
   if y == nil then return false end
   local cmd = t.bias + t.h * relay_step(t, t.sp - y)
-  table.insert(t.fifo, cmd)
-  local sent = cmd
-  if #t.fifo > t.ndelay then sent = table.remove(t.fifo, 1) else sent = t.bias end
+  -- the delay FIFO, in simulated time: send the newest decision at least MRFT_DLY old
+  table.insert(t.fifo, { now_us, cmd })
+  local limit = now_us - t.dly * 1000
+  while #t.fifo > 1 and t.fifo[2][1] <= limit do table.remove(t.fifo, 1) end
+  local sent = t.bias
+  if t.fifo[1][1] <= limit then sent = t.fifo[1][2] end
   if t.axis == 1 then
     vehicle:set_target_rate_and_throttle(0, 0, 0, sent)
   else
@@ -149,7 +161,15 @@ end
 local function update()
   local axis = math.floor(P_AXIS:get() + 0.5)
   if test == nil then
-    if axis >= 1 and axis <= 3 and arming:is_armed() and vehicle:get_mode() == GUIDED then
+    if arming:is_armed() and vehicle:get_mode() == GUIDED then
+      local thr, now = motors:get_throttle(), micros():tofloat()
+      local a = math.min(1.0, math.max(0.0, (now - hover_us) * 1e-6))
+      hover_avg = (hover_avg == nil) and thr or hover_avg + a * (thr - hover_avg)
+      hover_us = now
+    else
+      hover_avg = nil
+    end
+    if axis >= 1 and axis <= 3 and hover_avg ~= nil then
       test = start(axis)
     end
     return update, PERIOD_MS

@@ -33,8 +33,10 @@ HERE = Path(__file__).resolve().parent
 AXES = {"altitude": 1, "roll": 2, "pitch": 3}
 #: ArduPilot's SITL home (the autotest's CMAC site)
 HOME = "-35.363261,149.165230,584,353"
-#: parameters every campaign flight sets: scripting on, a small log (the MRFT message, 10 Hz ATT and CTUN)
-BASE_PARAMS = {"SCR_ENABLE": 1, "LOG_BITMASK": 18, "LOG_DISARMED": 0, "LOG_FILE_DSRMROT": 1}
+#: parameters every campaign flight sets: scripting on, a small log (the MRFT message; ATT, CTUN and
+#: the streaming messages, such as SITL's own SIM2 at 400 Hz, at most 10 Hz: LOG_FILE_RATEMAX)
+BASE_PARAMS = {"SCR_ENABLE": 1, "LOG_BITMASK": 18, "LOG_DISARMED": 0, "LOG_FILE_DSRMROT": 1,
+               "LOG_FILE_RATEMAX": 10}
 
 
 class SitlError(RuntimeError):
@@ -290,7 +292,7 @@ def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, fl
         sitl.wait(2)
         log = sitl.newest_log()
     return {"stack": "ArduPilot SITL", "version": version, "frame": "quad (SITL --model quad, copter.parm)",
-            "loop": axis, "relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 5,
+            "loop": axis, "relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 2,
             "loop_rate_hz": LOOP_HZ, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
             "tp_s": tp_of_filter(filt_hz), "tp_source": f"{filt_name} = {filt_hz:g} Hz first-order filter at "
             f"{LOOP_HZ:g} Hz (SITL's motors have no lag)",

@@ -441,6 +441,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
         written.append((name, title))
     T0 = _t0(result)
     from ..analyze import describe_t0
+    from ..analyze.held_out import held_out_cells, held_out_notes
 
     body = [
         f"<p class='muted'>{esc(result.path)} - loop <b>{esc(result.loop)}</b> - Tp = {result.Tp:g} s (known) - "
@@ -455,6 +456,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
         body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
     body += _estimate_notes(result)
     rows = []
+    held = {t.index: result.held_out_of(k) for k, t in enumerate(result.tests)}
     for t in list(result.tests) + list(result.rejected):
         rows.append([t.index + 1, f"{t.t_start - T0:.1f} - {t.t_end - T0:.1f}",
                      "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}",
@@ -463,10 +465,15 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
                      f"{t.frequency_hz_mean:.4f}" if t.n_stable else "-",
                      f"{t.amplitude_mean:.4g}" if t.n_stable else "-",
                      f"{t.n_stable} / {len(t.cycles)}", f"{t.rate_hz:.1f}",
-                     "used" if t in result.tests else "left out"])
+                     *held_out_cells(held.get(t.index)), "used" if t in result.tests else "left out"])
+    unit = output_unit(result.loop)
     body += ["<h2>Tests</h2>",
              html_table(["test", "t [s from log start]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
-                         f"amplitude [{output_unit(result.loop)}]", "stable / cycles", "rate [Hz]", ""], rows)]
+                         f"amplitude [{unit}]", "stable / cycles", "rate [Hz]",
+                         "held-out frequency [Hz] ± std (error/std)", f"held-out amplitude [{unit}] ± std (error/std)",
+                         ""], rows)]
+    body += [f"<p class='muted'>{esc(n)} (held out: each test predicted by eq. (2) from the other tests)</p>"
+             for n in held_out_notes(list(held.values()))]
     if result.warnings:
         body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in result.warnings)
                     + "</ul>")

@@ -125,7 +125,6 @@ def test_ardupilot_roll_designed_inside_the_ranges_without_clamp():
     m = LoopModel(0.0422, 1.301, 0.0297, 30.0)  # design1_roll's truth
     st = stack_setting("ardupilot", "roll", None, None, None)
     c = Controller(0.25, 0.0, 0.1, 0.0, st.rate_hz, st.rate_filter)  # Kp / Kd = 2.5 < 3
-    from mrftcli.tune.margins import loop_margins
 
     e = export_design("ardupilot", c, m, "roll", "x")
     assert e.params["ATC_ANG_RLL_P"] == pytest.approx(3.0) and not check_ranges("ardupilot", e.params)

@@ -197,10 +197,11 @@ _MAT = Layout(
 )
 
 # ArduCopter with mrft-ident's Lua relay (scripts/sitl/mrft_relay.lua): one DataFlash message MRFT per
-# script tick holding the relay's decision (bias + relay, before the delay FIFO), the EKF's output
-# (altitude [m] or roll/pitch [rad]) and beta. One axis per log: the loop is whatever the log's tests ran.
+# script tick holding the relay's decision (bias + relay, before the delay FIFO) and the EKF's output
+# (altitude [m] or roll/pitch [rad]); one MRFB message at each test's start holds its beta (a beta
+# logged every tick would cut the relay's runs at every sample). One axis per log.
 def _ardupilot_mrft() -> LoopTopics:
-    return LoopTopics("MRFT:Cmd", "MRFT:Out", "MRFT:SP", "MRFT:B")
+    return LoopTopics("MRFT:Cmd", "MRFT:Out", "MRFT:SP", "MRFB:B")
 
 
 _ARDUPILOT_MRFT = Layout(

@@ -26,7 +26,8 @@
 -- Logged every tick as DataFlash message MRFT (mrft-ident's `ardupilot-mrft` layout):
 --   Ax axis (1 alt, 2 roll, 3 pitch), Cmd the relay's decision + bias [throttle or mixer units],
 --   Snt what was sent after the delay FIFO, Out the loop output [m or rad], SP the setpoint,
---   Rel the relay sign (+1/-1), B beta, H relay height, Bias the bias, Dly the delay [ms].
+--   Rel the relay sign (+1/-1), B beta, H relay height, Bias the bias, Dly the delay [s];
+-- and once at each test's start as MRFB (Ax, B, H, Bias, Dly): the beta the reader takes.
 
 local TABLE_KEY = 41
 local PERIOD_MS = 2
@@ -96,6 +97,8 @@ local function start(axis)
     for i, name in ipairs(AXIS_PARAMS[axis]) do t.saved[i] = param:get(name) end
     set_params(AXIS_PARAMS[axis], OPEN_VALUES)
   end
+  -- one MRFB message per test, at its start: beta, h and the delay (the reader's beta topic)
+  logger:write("MRFB", "Ax,B,H,Bias,Dly", "Bffff", "----s", "-----", axis, t.beta, t.h, t.bias, t.dly * 0.001)
   gcs:send_text(6, string.format("MRFT: axis %d beta %.2f h %.3f delay %d ms", axis, t.beta, t.h, t.dly))
   return t
 end

@@ -38,8 +38,8 @@ __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "expor
 G = 9.80665
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust
 FLIGHTS = [
-    ("px4_altitude", "altitude", 0.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.6, 0.06)], 12.0),
-    ("px4_altitude_20ms", "altitude", 20.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.6, 0.06)], 12.0),
+    ("px4_altitude", "altitude", 0.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.55, 0.05), (-0.7, 0.06)], 10.0),
+    ("px4_altitude_20ms", "altitude", 20.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.55, 0.05), (-0.7, 0.06)], 10.0),
 ]
 
 

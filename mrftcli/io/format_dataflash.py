@@ -130,6 +130,14 @@ class DataflashSource(LogSource):
             self.warn(f"{name}: {int((~whole).sum())} message(s) cut off at the end of the file dropped")
             offsets = offsets[whole]
         raw = self._data[(offsets + 3)[:, None] + np.arange(size)]
+        if "TimeUS" in fmt.columns and len(raw) > 1:
+            # a message repeated byte for byte, time stamp included, is one message written twice (seen
+            # from Lua's logger:write in SITL): keep the first
+            again = np.r_[False, np.all(raw[1:] == raw[:-1], axis=1)]
+            if again.any():
+                self.warn(f"{name}: {int(again.sum())} message(s) repeated byte for byte (time stamp "
+                          "included) dropped")
+                raw = raw[~again]
         rec = np.ascontiguousarray(raw).view(dtype).ravel()
         cols: dict[str, np.ndarray] = {}
         for i, col in enumerate(fmt.columns):

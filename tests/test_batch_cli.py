@@ -204,3 +204,26 @@ def test_mat_logs_found_and_identified_rows_first(tmp_path: Path) -> None:
     assert lines[4:] == ["skipped design1_altitude.mcap: x, y (no MRFT test on them)"]
     truth = json.loads((samples / "dnn_altitude.mat.truth.json").read_text())
     assert abs(float(lines[3].split()[5]) - truth["Td"]) < 0.1 * truth["Td"]
+
+
+@pytest.mark.parametrize("case", ["bad config", "missing config", "no logs", "--vehicle with --loop", "bad --fail-on",
+                                  "a file in the way"])
+def test_a_refused_run_creates_no_output_folder(tmp_path: Path, case: str) -> None:
+    """Issue 35: every check comes before --out is created, so a refusal leaves nothing behind."""
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "a.csv").write_text("t,u,y\n0,0,0\n")
+    (tmp_path / "bad.toml").write_text("[defaults]\ntp = 0.04\nnot_a_setting = 1\n")
+    out = tmp_path / "new" / "out"
+    args = {"bad config": ["logs", "--config", "bad.toml"], "missing config": ["logs", "--config", "none.toml"],
+            "no logs": [str(tmp_path / "empty*"), "--tp", "0.04"],
+            "--vehicle with --loop": ["logs", "--tp", "0.04", "--vehicle", "--loop", "x"],
+            "bad --fail-on": ["logs", "--tp", "0.04", "--fail-on", "tau:lots"],
+            "a file in the way": ["logs", "--tp", "0.04"]}[case]
+    if case == "a file in the way":  # a file where a parent of --out would be
+        (tmp_path / "new").write_text("notes")
+        out = tmp_path / "new" / "sub" / "out"
+    p = mrft("batch", *args, "--out", str(out), "--jobs", "1", "--no-report", "-q", cwd=tmp_path)
+    assert p.returncode == 2, (case, p.stderr)
+    assert len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr, p.stderr
+    assert not (tmp_path / "new").exists() or (tmp_path / "new").is_file(), case
+

@@ -181,7 +181,9 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     from ..batch.run import BatchFailedError, BatchOptions, run_batch
     from .options import check_output_dir, check_output_file, dump_json, tqdm_progress
 
-    check_output_dir(out_dir, "--out")  # the shared rule: never a symbolic link (io.atomic.check_output_path)
+    # the shared rule (never a symbolic link, io.atomic.check_output_path), creating nothing: the config,
+    # the options and the logs are checked first, and run_batch creates the folder after them
+    check_output_dir(out_dir, "--out", create=False)
     check_output_file(json_target, "--json")
     model = _process_model(ctx, setting_opts)
     defaults: dict[str, Any] = {}

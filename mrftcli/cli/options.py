@@ -122,8 +122,19 @@ def controller_rate_option(dest: str = "controller_rate_hz", *, default: float |
     return decorate
 
 
-def _writable_dir(folder: Path, option: str, what: Path) -> None:
-    """Create ``folder`` (and its parents) if missing; InputError if that fails or it is not writable."""
+def _writable_dir(folder: Path, option: str, what: Path, *, create: bool = True) -> None:
+    """Create ``folder`` (and its parents) if missing; InputError if that fails or it is not writable.
+
+    ``create=False`` creates nothing: a missing folder's nearest existing parent must be a writable
+    folder (the caller creates it once every other check has passed)."""
+    if not create and not folder.exists():
+        parent = next((p for p in folder.absolute().parents if p.exists()), Path("/"))
+        if not parent.is_dir():
+            raise InputError(f"{option} {what}: {parent} exists and is not a folder; choose another path")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(f"{option} {what}: cannot create the folder {folder} ({parent} is not writable); "
+                             "choose a writable path")
+        return
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -156,9 +167,10 @@ def check_output_file(target: str | None, option: str = "--json", *, inputs: tup
     _writable_dir(path.parent if str(path.parent) else Path("."), option, path)
 
 
-def check_output_dir(target: str | None, option: str = "--report") -> None:
+def check_output_dir(target: str | None, option: str = "--report", *, create: bool = True) -> None:
     """Check an output folder before the work starts: created (with its parents) if missing, writable;
-    never a symbolic link (:func:`mrftcli.io.atomic.check_output_path`)."""
+    never a symbolic link (:func:`mrftcli.io.atomic.check_output_path`). ``create=False`` checks the
+    same and creates nothing (a command whose own checks come later creates it after them)."""
     from ..io.atomic import check_output_path, looks_like_figure, looks_like_page
 
     if target is None:
@@ -172,7 +184,7 @@ def check_output_dir(target: str | None, option: str = "--report") -> None:
             ours, what = kinds.get(path.suffix.lower(), (None, ""))
             if ours is not None:
                 check_output_path(path, option, ours=ours, what=what)
-    _writable_dir(Path(target), option, Path(target))
+    _writable_dir(Path(target), option, Path(target), create=create)
 
 
 class _BetaType(click.ParamType):

@@ -291,11 +291,38 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
             help="Log format (default: detected from the file)."))
 
     def decorate(func):
+        if format_flag != "--format" and not config_defaults:
+            func = _log_errors_naming(format_flag, func)
         for option in reversed(options):
             func = option(func)
         return func
 
     return decorate
+
+
+def _log_errors_naming(format_flag: str, func):
+    """``func`` whose log-reading errors name ``format_flag`` where the readers say ``--format``.
+
+    The readers (io/) word their refusals for the commands that call the option ``--format``; in a
+    command that calls it otherwise (tune: ``--log-format``, its ``--format`` being the deprecated
+    ``--export``) the same advice must name the option that exists. Only a
+    :class:`~mrftcli.errors.LogReadError` is reworded: the command's own messages name its options.
+    """
+    import functools
+    import re
+
+    from ..errors import LogReadError
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        try:
+            return func(*args, **kwargs)
+        except LogReadError as err:
+            err.args = tuple(re.sub(r"(?<![\w-])--format(?![\w-])", format_flag, a) if isinstance(a, str) else a
+                             for a in err.args)
+            raise
+
+    return wrapper
 
 
 @contextlib.contextmanager

@@ -38,19 +38,20 @@ from sitl import Sitl, fly_mrft, load_params, read_param_file  # noqa: E402
 from sitl_analysis import analyze_log, held_out  # noqa: E402
 from sitl_physics import implied_model  # noqa: E402
 
-#: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in throttle (altitude)
-#: or mixer (roll) units, chosen for a few cm / a few degrees of oscillation
+#: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s], start threshold); h in throttle
+#: (altitude) or mixer (roll) units, chosen for a few cm / a few degrees of oscillation; the start
+#: threshold (2 cm, 1 deg) kicks each test near its amplitude instead of growing it from noise
 FLIGHTS = [
-    ("altitude", "altitude", 0.0, [(-0.2, 0.06), (-0.4, 0.06), (-0.6, 0.08)], 18.0),
-    ("altitude_20ms", "altitude", 20.0, [(-0.2, 0.04), (-0.4, 0.04), (-0.6, 0.05)], 18.0),
-    ("roll", "roll", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 10.0),
-    ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 10.0),
+    ("altitude", "altitude", 0.0, [(-0.2, 0.06), (-0.4, 0.06), (-0.6, 0.08)], 18.0, 0.02),
+    ("altitude_20ms", "altitude", 20.0, [(-0.2, 0.04), (-0.4, 0.04), (-0.6, 0.05)], 18.0, 0.02),
+    ("roll", "roll", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 10.0, 0.0175),
+    ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 10.0, 0.0175),
 ]
 
 
 def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
     logs.mkdir(parents=True, exist_ok=True)
-    for name, loop, delay, tests, duration in FLIGHTS:
+    for name, loop, delay, tests, duration, eth in FLIGHTS:
         if only and name not in only:
             continue
         out = logs / f"{name}.BIN"
@@ -58,7 +59,7 @@ def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
             print(f"  {name}: {out} exists, not re-flown")
             continue
         t0 = time.monotonic()
-        info = fly_mrft(ap, Path(f"/tmp/mrft_sitl_{name}"), loop, tests, delay, duration, speedup)
+        info = fly_mrft(ap, Path(f"/tmp/mrft_sitl_{name}"), loop, tests, delay, duration, speedup, eth=eth)
         shutil.copy(info.pop("log"), out)
         Path(f"{out}.json").write_text(json.dumps(info, indent=2) + "\n")
         print(f"  {name}: flown in {time.monotonic() - t0:.0f} s wall, {out.stat().st_size / 1e6:.2f} MB")
@@ -66,7 +67,7 @@ def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
 
 def analyse(logs: Path) -> dict[str, dict]:
     results: dict[str, dict] = {}
-    for name, loop, delay, tests, _ in FLIGHTS:
+    for name, loop, delay, tests, _, _ in FLIGHTS:
         log = logs / f"{name}.BIN"
         if not log.exists():
             continue

@@ -204,10 +204,15 @@ class Sitl:
         self.set_mode("LAND")
         self.wait(90, lambda m: m.get_type() == "HEARTBEAT" and not self.mav.motors_armed())
 
-    def mrft(self, axis: str, beta: float, h: float, delay_ms: float, duration_s: float) -> dict[str, Any]:
-        """One relay test by the Lua script; returns what was asked and the script's messages."""
+    def mrft(self, axis: str, beta: float, h: float, delay_ms: float, duration_s: float,
+             eth: float = 0.0) -> dict[str, Any]:
+        """One relay test by the Lua script; returns what was asked and the script's messages.
+
+        ``eth``: the start threshold [output units]: the first half-cycle holds until the error passes
+        it on the other side (a kick that starts the cycle near its amplitude instead of from noise).
+        """
         for name, value in (("MRFT_BETA", beta), ("MRFT_H", h), ("MRFT_DLY", delay_ms),
-                            ("MRFT_DUR", duration_s)):
+                            ("MRFT_DUR", duration_s), ("MRFT_ETH", eth)):
             self.set_param(name, value)
         self.texts.clear()
         t0 = self.boot_ms / 1000
@@ -215,7 +220,7 @@ class Sitl:
         self.wait(duration_s + 5, lambda m: m.get_type() == "STATUSTEXT" and "MRFT: test ended" in m.text)
         ended = [t for t in self.texts if t.startswith("MRFT")]
         self.wait(6)  # back in GUIDED's hold between tests
-        return {"beta": beta, "h": h, "delay_ms": delay_ms, "duration_s": duration_s,
+        return {"beta": beta, "h": h, "delay_ms": delay_ms, "duration_s": duration_s, "start_threshold": eth,
                 "start_s": round(t0, 2), "script": ended}
 
     def newest_log(self) -> Path:
@@ -277,7 +282,7 @@ def tp_of_filter(cutoff_hz: float, rate_hz: float = LOOP_HZ) -> float:
 
 
 def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, float]], delay_ms: float,
-             duration_s: float, speedup: float, alt_m: float = 10.0) -> dict[str, Any]:
+             duration_s: float, speedup: float, alt_m: float = 10.0, eth: float = 0.0) -> dict[str, Any]:
     """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the log and how it was flown."""
     filt_name, filt_hz = TP_FILTER[axis]
     with Sitl(ap_dir, workdir, speedup, {filt_name: filt_hz}) as sitl:
@@ -287,7 +292,7 @@ def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, fl
         refusals = sitl.arm()
         sitl.takeoff(alt_m)
         hover = sitl.get_param("MOT_THST_HOVER")
-        runs = [sitl.mrft(axis, beta, h, delay_ms, duration_s) for beta, h in tests]
+        runs = [sitl.mrft(axis, beta, h, delay_ms, duration_s, eth) for beta, h in tests]
         sitl.land()
         sitl.wait(2)
         log = sitl.newest_log()

@@ -266,15 +266,19 @@ def test_vehicle_with_several_logs_uses_its_latest(results, tmp_path):
     assert any("several logs for v7 altitude" in n for n in cmp.notes)
 
 
-def test_batch_baseline_compares_at_the_end(results, tmp_path, repo_root):
-    """``batch --baseline``: the batch's results against a baseline folder, reports in --out, exit 9."""
+@pytest.mark.parametrize("option", ["--against", "--baseline"])
+def test_batch_against_compares_at_the_end(results, tmp_path, repo_root, capsys, option):
+    """``batch --against``: the batch's results against a baseline folder, reports in --out, exit 9.
+    ``--baseline``, its old name (now analyze --model's operating point Y0), still works with a note."""
     a = json.loads(Path(results["design1_altitude"]).read_text())
     base = _batch_folder(tmp_path / "base", [("design1_altitude_20ms.mcap", "v7", a)])
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as exc:
         main(["batch", str(repo_root / "sample_logs" / "design1_altitude_20ms.mcap"), "--tp", str(TP), "--jobs", "1",
-              "--out", str(out), "--no-report", "-q", "--baseline", base, "--fail-on", "tau:+5ms"])
+              "--out", str(out), "--no-report", "-q", option, base, "--fail-on", "tau:+5ms"])
     assert exc.value.code == EXIT_CHANGED
+    deprecated = "note: batch --baseline is deprecated and will be removed in the next release; use --against"
+    assert (deprecated in capsys.readouterr().err) == (option == "--baseline")
     assert ET.parse(out / "compare.xml").getroot().get("failures") == "1"
     record = json.loads((out / "compare.json").read_text())
     assert record["exit_code"] == 9 and record["fail_on"] == ["tau:+5ms"]
@@ -435,3 +439,13 @@ def test_plain_and_named_reference_tables_both_apply(results, tmp_path, capsys):
     assert got[("vehicle7", "Td")].tolerance == "Td:25%"
     assert cmp.missing == ()  # roll: no such loop in the logs, so [roll] does not apply (a note)
     assert code == 9 and "vehicle8 altitude tau" in err and "[roll] matches no roll loop" in " ".join(out.split())
+
+
+def test_batch_against_and_its_old_name_together_are_refused(tmp_path, repo_root, capsys):
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main(["batch", str(repo_root / "sample_logs" / "design1_altitude_20ms.mcap"), "--tp", str(TP), "--out", str(out),
+              "--against", str(tmp_path), "--baseline", str(tmp_path), "-q"])
+    assert exc.value.code == 2
+    assert "give --against only (batch's --baseline is its deprecated alias)" in capsys.readouterr().err
+    assert not out.exists()

@@ -9,6 +9,7 @@ from typing import Any
 import click
 from click.core import ParameterSource
 
+from ..errors import InputError
 from .model_options import build_model, structure_options
 from .analyze import accept_tp_option
 from .options import json_option, log_layout_options, quiet_option, tp_option
@@ -30,6 +31,19 @@ _SETTING_OPTIONS = {
     "min_cycles": "min_cycles",
     "accept_tp": "accept_tp",
 }
+
+
+def _resolve_against(against: str | None, alias: str | None) -> str | None:
+    """``--against``, or the deprecated ``--baseline`` it replaces (a note on stderr).
+
+    ``--baseline`` means a process's operating point Y0 in ``analyze --model``; one name, one meaning."""
+    if alias is None:
+        return against
+    if against is not None:
+        raise InputError("give --against only (batch's --baseline is its deprecated alias)")
+    click.echo("note: batch --baseline is deprecated and will be removed in the next release; use --against "
+               "(--baseline is the operating point Y0 in analyze --model)", err=True)
+    return alias
 
 
 def _fmt_ms(x: float) -> str:
@@ -159,17 +173,20 @@ def _print_loop_table(df, limit: int) -> None:
 @click.option("--force", is_flag=True, help="Recompute logs whose results are up to date.")
 @click.option("--no-report", is_flag=True, help="Skip the fleet report (HTML + PNG).")
 @json_option(what="fleet summary (counts, notes, outputs, one row per log and loop)")
-@click.option("--baseline", type=click.Path(exists=True), default=None,
+@click.option("--against", "baseline", metavar="PATH", type=click.Path(exists=True), default=None,
               help="At the end, compare the results against this baseline (a batch folder or reference .toml; matched "
                    "by log name) as `mrft-ident compare`: compare.json/.xml/.md in --out; exit 9 when a loop changed.")
+# the old name, kept for a release: --baseline elsewhere is a process's operating point Y0 (analyze --model)
+@click.option("--baseline", "baseline_alias", type=click.Path(exists=True), default=None, hidden=True,
+              help="Deprecated alias of --against.")
 @click.option("--fail-on", "fail_on", metavar="SPEC", default=None,
-              help="Tolerances for --baseline, as compare --fail-on (e.g. tau:+5ms,K:10%).")
+              help="Tolerances for --against, as compare --fail-on (e.g. tau:+5ms,K:10%).")
 @quiet_option()
 @click.pass_context
 def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, scheduler: str | None,
           scheduler_timeout: float, out_dir: str, config_file: str | None, diagnose: bool, force: bool,
           no_report: bool, json_target: str | None, quiet: bool, tune_kind: str | None, baseline: str | None,
-          fail_on: str | None, vehicle: bool, **setting_opts) -> None:
+          fail_on: str | None, vehicle: bool, baseline_alias: str | None, **setting_opts) -> None:
     """Analyse every flight log under PATH... (files, folders, globs) and summarise the fleet.
 
     Folders are searched recursively for .mcap, .bag, .ulg, .csv and .bin logs and ROS 2 bag folders.
@@ -185,6 +202,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     # the options and the logs are checked first, and run_batch creates the folder after them
     check_output_dir(out_dir, "--out", create=False)
     check_output_file(json_target, "--json")
+    baseline = _resolve_against(baseline, baseline_alias)
     model = _process_model(ctx, setting_opts)
     defaults: dict[str, Any] = {}
     explicit: dict[str, Any] = {}

@@ -97,7 +97,7 @@ def raise_for(result: Comparison) -> None:
 
 
 def compare_batch(baseline: str, out_dir: str, fail_on: str | None, *, table_err: bool = False) -> Comparison:
-    """``batch --baseline``: compare a finished batch's ``out_dir`` against ``baseline`` (matched by log).
+    """``batch --against``: compare a finished batch's ``out_dir`` against ``baseline`` (matched by log).
 
     Writes ``compare.json``, ``compare.xml`` (JUnit) and ``compare.md`` into ``out_dir`` and prints the
     table (to stderr with ``table_err``, when stdout carries JSON). The caller decides the exit code

@@ -227,7 +227,9 @@ def test_exit_6_prints_the_partial_result_in_text_mode(logs):
     code, stdout, stderr = _invoke("analyze", str(logs / "one.mcap"), "--tp", str(TP))
     assert code == 6 and "only one beta" in stderr
     assert "partial result" in stdout
-    row = stdout.strip().splitlines()[-1].split()
+    lines = stdout.strip().splitlines()
+    assert lines[-1].startswith("held-out test 1: the only test: nothing is held out")
+    row = lines[-2].split()
     lo, hi = float(row[-3]), float(row[-1])
     assert 0 < lo < 46.4 < hi  # tau over the assumed Td range brackets the truth
 

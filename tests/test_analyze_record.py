@@ -9,12 +9,11 @@ nothing but the log.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from mrftcli.io import ReadOptions
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, SCHEMA_VERSION, analysis_controller_rate, analyze_path
@@ -114,21 +113,21 @@ def test_the_10hz_px4_record_holds_the_50hz_controller(px4_10hz: AnalysisResult)
     assert back.controller_rate_hz == 50.0
 
 
-def _cli(*args: str) -> str:
-    proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True, cwd=ROOT,
-                          check=False)
-    assert proc.returncode == 0, proc.stderr
-    return proc.stdout
+def _cli(capsys: pytest.CaptureFixture[str], *args: str) -> str:
+    """The CLI in this process (tests/cli_helpers.py): a subprocess would only add its imports' CPU."""
+    code, out, err = run_cli(capsys, *args)
+    assert code == 0, err
+    return out
 
 
-def test_tune_designs_for_the_same_rate_from_the_log_and_from_its_result_json(tmp_path: Path) -> None:
+def test_tune_designs_for_the_same_rate_from_the_log_and_from_its_result_json(tmp_path: Path, capsys) -> None:
     """The issue's case: the 10 Hz PX4 log of a 50 Hz controller; RESULT.json used to give 10 Hz gains."""
     log = str(SAMPLES / "px4_altitude_10hz.ulg")
     result_json = tmp_path / "result.json"
-    _cli("analyze", log, "--tp", "0.0422", "--json", str(result_json))
+    _cli(capsys, "analyze", log, "--tp", "0.0422", "--json", str(result_json))
     common = ["--tp", "0.0422", "--loop", "altitude", "--design", "model-based", "--format", "json"]
-    from_log = json.loads(_cli("tune", log, *common))
-    from_json = json.loads(_cli("tune", str(result_json), *common))
+    from_log = json.loads(_cli(capsys, "tune", log, *common))
+    from_json = json.loads(_cli(capsys, "tune", str(result_json), *common))
     assert from_log["rate_hz"] == from_json["rate_hz"] == 50.0
     for gain in ("Kp", "Ki", "Kd", "Tf"):
         assert from_json[gain] == pytest.approx(from_log[gain], rel=1e-9), gain

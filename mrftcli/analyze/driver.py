@@ -189,8 +189,9 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
     raise TpRejectedError(
         f"the recording rejects Tp = {check.given:.4g} s: it fits Tp = {check.best:.4g} s "
         f"[{check.low:.4g}, {check.high:.4g}] (waveform residual {check.residual_ratio_best:.2f}x the sensor noise "
-        f"against {check.residual_ratio_given:.2f}x); rerun with --tp {check.best:.4g}, or pass --accept-tp to keep "
-        f"{check.given:.4g} s (Td, tau and K rest on it)", best=check.best, result=result)
+        f"against {check.residual_ratio_given:.2f}x); rerun with --tp {check.best:.4g}, or, if {check.given:.4g} s is "
+        f"the bench test's, a lag eq. (2) leaves out (a sensor filter) reads the same way: mrft-ident diagnose names "
+        f"it, and --accept-tp keeps {check.given:.4g} s", best=check.best, result=result)
 
 
 def analyze_path(path: str | Path, Tp: float, *, read: ReadOptions | None = None,

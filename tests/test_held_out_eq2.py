@@ -177,3 +177,14 @@ def test_a_one_test_flight_says_nothing_is_held_out(tmp_path: Path) -> None:
     (row,) = err.value.partial["tests"]
     assert row["held_out"]["frequency_hz"] is None and row["held_out"]["note"] == NOTHING_HELD_OUT
     assert f"held-out test 1: {NOTHING_HELD_OUT}" in format_partial(err.value)
+
+
+def test_held_out_notes_name_the_tests_by_the_tables_numbers():
+    # a test left out before the fit (0 stable cycles) keeps its number in the table: the notes of the
+    # tests used must name them by those numbers (2 and 3), not by their rank among the used tests
+    from mrftcli.analyze.held_out import HeldOut, held_out_notes
+
+    why = "the other test alone does not determine Td and tau"
+    held = [HeldOut(None, None, why), HeldOut(None, None, why)]
+    assert held_out_notes(held, [2, 3]) == [f"held-out tests 2, 3: {why}"]
+    assert held_out_notes(held) == [f"held-out tests 1, 2: {why}"]

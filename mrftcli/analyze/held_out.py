@@ -138,12 +138,14 @@ def held_out_cells(ho: HeldOut | None) -> tuple[str, str]:
             cell(ho.amplitude, ho.amplitude_sigma, ho.amplitude_z, 3))
 
 
-def held_out_notes(held: Sequence[HeldOut | None]) -> list[str]:
-    """One line per distinct note, naming the tests (1-based, in ``held``'s order) it applies to."""
+def held_out_notes(held: Sequence[HeldOut | None], numbers: Sequence[int] | None = None) -> list[str]:
+    """One line per distinct note, naming the tests it applies to: by ``numbers`` (the test numbers the
+    table shows, one per entry of ``held``) or, without them, 1-based in ``held``'s order."""
+    labels = [k + 1 for k in range(len(held))] if numbers is None else list(numbers)
     by_note: dict[str, list[str]] = {}
-    for k, ho in enumerate(held):
+    for label, ho in zip(labels, held):
         if ho is not None and ho.note:
-            by_note.setdefault(ho.note, []).append(str(k + 1))
+            by_note.setdefault(ho.note, []).append(str(label))
     return [f"held-out test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
 
 

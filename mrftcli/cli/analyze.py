@@ -83,7 +83,7 @@ def format_table(result) -> str:
                      _num(t.h), _num(t.frequency_hz_mean), _num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}",
                      *(held_out_cells(held[k]) if predicted else ())])
     lines += _table(header, rows, ">" * len(header))
-    lines += held_out_notes(held)
+    lines += held_out_notes(held, [t.index + 1 for t in result.tests])
     for t in result.rejected:
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
         why = result.rejection_reasons.get(t.index) or f"{t.n_stable} stable cycles"
@@ -149,7 +149,7 @@ def format_partial(err) -> str:
                      "-" if not span else f"{_num(span[0] * 1e3)} - {_num(span[1] * 1e3)}"])
     lines += _table(header, rows, ">>>>>>")
     lines += held_out_notes([HeldOut.from_json(t["held_out"]) if t.get("held_out") else None
-                             for t in part.get("tests", [])])
+                             for t in part.get("tests", [])], [t["index"] + 1 for t in part.get("tests", [])])
     return "\n".join(lines)
 
 

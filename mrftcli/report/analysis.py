@@ -473,7 +473,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
                          "held-out frequency [Hz] ± std (error/std)", f"held-out amplitude [{unit}] ± std (error/std)",
                          ""], rows)]
     body += [f"<p class='muted'>{esc(n)} (held out: each test predicted by eq. (2) from the other tests)</p>"
-             for n in held_out_notes(list(held.values()))]
+             for n in held_out_notes(list(held.values()), [i + 1 for i in held])]
     if result.warnings:
         body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in result.warnings)
                     + "</ul>")

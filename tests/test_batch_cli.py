@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from click.testing import CliRunner
+from cli_helpers import run_cli
 
 from mrftcli.cli.main import cli
 from test_batch import toy_analysis
@@ -208,8 +209,10 @@ def test_mat_logs_found_and_identified_rows_first(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("case", ["bad config", "missing config", "no logs", "--vehicle with --loop", "bad --fail-on",
                                   "a file in the way"])
-def test_a_refused_run_creates_no_output_folder(tmp_path: Path, case: str) -> None:
-    """Issue 35: every check comes before --out is created, so a refusal leaves nothing behind."""
+def test_a_refused_run_creates_no_output_folder(tmp_path: Path, capsys, monkeypatch, case: str) -> None:
+    """Issue 35: every check comes before --out is created, so a refusal leaves nothing behind. The CLI runs
+    in this process (cli_helpers.run_cli: the same main(), its exit code and stderr; no import CPU per case)."""
+    monkeypatch.chdir(tmp_path)
     (tmp_path / "logs").mkdir()
     (tmp_path / "logs" / "a.csv").write_text("t,u,y\n0,0,0\n")
     (tmp_path / "bad.toml").write_text("[defaults]\ntp = 0.04\nnot_a_setting = 1\n")
@@ -222,8 +225,8 @@ def test_a_refused_run_creates_no_output_folder(tmp_path: Path, case: str) -> No
     if case == "a file in the way":  # a file where a parent of --out would be
         (tmp_path / "new").write_text("notes")
         out = tmp_path / "new" / "sub" / "out"
-    p = mrft("batch", *args, "--out", str(out), "--jobs", "1", "--no-report", "-q", cwd=tmp_path)
-    assert p.returncode == 2, (case, p.stderr)
-    assert len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr, p.stderr
+    code, _, err = run_cli(capsys, "batch", *args, "--out", str(out), "--jobs", "1", "--no-report", "-q")
+    assert code == 2, (case, err)
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     assert not (tmp_path / "new").exists() or (tmp_path / "new").is_file(), case
 

@@ -41,13 +41,16 @@ def test_bad_log_exits_8_with_one_line_and_rows_written(tmp_path: Path) -> None:
     ([], 2, "no Tp given"),
     (["--tp", "0.04", "--jobs", "0"], 2, "--jobs"),
 ])
-def test_input_errors_are_one_line(tmp_path: Path, args: list[str], code: int, message: str) -> None:
+def test_input_errors_are_one_line(tmp_path: Path, capsys, monkeypatch, args: list[str], code: int,
+                                   message: str) -> None:
+    """Refused before any log is read: the CLI in this process (cli_helpers.run_cli, the same main())."""
+    monkeypatch.chdir(tmp_path)
     (tmp_path / "logs").mkdir()
     (tmp_path / "logs" / "a.mcap").write_bytes(b"x")
     (tmp_path / "cfg.toml").write_text("[defaults]\ntpp = 0.1\n")
-    p = mrft("batch", "logs", "--out", "out", *args, cwd=tmp_path)
-    assert p.returncode == code and "Traceback" not in p.stderr
-    assert message in p.stderr
+    got, _, err = run_cli(capsys, "batch", "logs", "--out", "out", *args)
+    assert got == code and "Traceback" not in err
+    assert message in err
 
 
 def test_unreachable_scheduler_exit_2(tmp_path: Path) -> None:

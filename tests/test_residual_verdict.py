@@ -37,9 +37,10 @@ def test_analyze_and_diagnose_agree_on_hear_x(tmp_path, capsys):
 
 
 def test_a_header_stamped_mismatch_is_a_mismatch_for_both(tmp_path, capsys):
-    """The same record with header stamps and a residual above the factor: 'mismatch', worded as analyze's."""
+    """A header-stamped log (the CSV of design1_altitude: a bag or MCAP holds the recorder's receive times) and
+    a residual above the factor: 'mismatch', worded as analyze's."""
     out = tmp_path / "a.json"
-    code, _, err = run_cli(capsys, "analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", "0.1", "--accept-tp",
+    code, _, err = run_cli(capsys, "analyze", str(SAMPLES / "design1_altitude.csv"), "--tp", "0.1", "--accept-tp",
                            "--json", str(out))
     assert code == 0, err
     data = json.loads(out.read_text())

@@ -315,6 +315,7 @@ class _FollowedSource(LogSource):
 
     format = "mcap"
     default_field = "data"
+    recorder_times = True
 
     def __init__(self, follower: McapFollower, path: Path) -> None:
         super().__init__(path)

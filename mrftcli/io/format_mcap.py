@@ -219,6 +219,7 @@ class McapSource(LogSource):
     """An MCAP file with ``cdr`` (ROS 2), ``ros1`` or ``json`` message encodings."""
 
     default_field = "data"
+    recorder_times = True
 
     def __init__(self, path: str | Path) -> None:
         super().__init__(path)

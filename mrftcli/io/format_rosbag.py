@@ -44,6 +44,7 @@ class RosbagSource(LogSource):
     """A ROS 1 ``.bag`` (``fmt="bag"``) or a ROS 2 bag directory / ``.db3`` / ``.mcap`` file."""
 
     default_field = "data"
+    recorder_times = True
 
     def __init__(self, path: str | Path, fmt: str) -> None:
         super().__init__(path)
@@ -208,6 +209,7 @@ class McapBagSource(LogSource):
     """
 
     default_field = "data"
+    recorder_times = True
 
     def __init__(self, path: str | Path, files: list[Path]) -> None:
         from .format_mcap import McapSource

@@ -67,7 +67,9 @@ class Layout:
         ``MRFT_{AXIS}_``-style prefix of the parameters holding beta, h and the enable switch
         (PX4: tests and their beta come from the logged parameter changes), None when not logged.
     timestamps : str
-        ``header`` (stamped at the source) or ``receive`` (bag receive time: jitter between topics).
+        ``header`` (stamped at the source) or ``receive`` (the stack's messages carry the recorder's
+        arrival time in every format it writes). Bags and MCAP are read as receive-stamped whatever
+        this says (their times are the recorder's: :attr:`mrftcli.io.source.LogSource.recorder_times`).
     low_rate_fix : str
         What to change in the stack's logger for high-rate logging (named in the low-rate warning).
     controller_rate_hz : float or None

@@ -157,6 +157,11 @@ class LogSource(ABC):
     echo_warnings: bool = True
     #: what a missing FIELD means for this format (ROS: ``data``)
     default_field: str | None = None
+    #: the times are the recorder's (a bag's record time, MCAP ``log_time``: when each message
+    #: arrived), not stamps set where the sample was made. The readers never read ``header.stamp``,
+    #: so this holds for header-less and header-carrying messages alike: such a log is
+    #: receive-stamped in every format (:func:`mrftcli.io.flight.read_flight`'s ``Timing``)
+    recorder_times: bool = False
     #: the unit the reader took the log's times to be in (:data:`mrftcli.io.clock.TIME_UNITS`)
     time_unit: str = "s"
     #: the format's times carry no unit, so ``--time-unit`` may say which (CSV, ``.mat``)

@@ -314,3 +314,24 @@ def test_report_folder_holding_someones_page_is_refused_before_the_work(tmp_path
                               "--report", str(tmp_path / "rep"))
     _one_line_error(code, err, "index.html", "not an HTML page")
     assert _snapshot(tmp_path) == before
+
+
+def test_one_jump_of_a_fresh_output_is_not_a_stale_sensor() -> None:
+    """Recordings joined end to end jump once; the jump's slope outweighs every other sample's in one
+    whole-log fit (which read a clean 500 Hz log as 'every second sample 1.99 ms older'). A sensor whose
+    odd samples are really 8 ms old still reads as such, with the jump in it."""
+    import numpy as np
+
+    from mrftcli.io.flight import interleaved_delay
+
+    dt = 0.002
+    t = np.arange(0, 30, dt)
+    rng = np.random.default_rng(3)
+    y = 0.05 * np.sin(2 * np.pi * 0.8 * t) + np.where(t > 14.0, 0.3, 0.0) + 2e-4 * rng.standard_normal(len(t))
+    delay, se = interleaved_delay(t, y)
+    assert abs(delay) < 0.5 * dt or abs(delay) < 5 * se, (delay, se)
+    stale = y.copy()
+    stale[5::2] = y[1:-4:2]  # every odd sample the measurement 4 samples (8 ms) older
+    delay, se = interleaved_delay(t, stale)
+    # (the slope's own noise attenuates the least-squares estimate a little: 6.9 ms here)
+    assert 2 * dt < delay < 4.5 * dt and delay > 5 * se, (delay, se)

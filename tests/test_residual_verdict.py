@@ -49,3 +49,19 @@ def test_a_header_stamped_mismatch_is_a_mismatch_for_both(tmp_path, capsys):
     assert MISMATCH_WORDS in err  # analyze says so too
     data["refinement"]["residual_ratio"] = 1.0
     assert residual_verdict(AnalysisResult.from_json(data)).verdict == "explained"
+
+
+def test_receive_stamps_without_jitter_leave_the_residual_testable(tmp_path, capsys):
+    """Receive stamps on the publisher's ticks (jitter under 1 us) hold no timing jitter: the residual's
+    'mismatch' stands; with 1 ms of jitter it is 'untestable' (the record's own stamps and jitter decide)."""
+    out = tmp_path / "a.json"
+    code, _, err = run_cli(capsys, "analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", "0.1", "--accept-tp",
+                           "--json", str(out))
+    assert code == 0, err
+    data = json.loads(out.read_text())
+    source = data["input"]["source"] if "input" in data and "source" in data["input"] else None
+    assert source is not None and source["timestamps"] == "receive" and source["timing_jitter_s"] < 1e-6, source
+    assert residual_verdict(AnalysisResult.from_json(data)).verdict == "mismatch"
+    assert MISMATCH_WORDS in err
+    source["timing_jitter_s"] = 1e-3
+    assert residual_verdict(AnalysisResult.from_json(data)).verdict == "untestable"

@@ -43,11 +43,25 @@ class ResidualVerdict:
     sentence: str
 
 
+#: receive stamps whose jitter is below this [s] carry no transport jitter: a recorder's clock on the
+#: publisher's ticks (a converter that wrote the source's times; float64 epoch seconds resolve 0.24 us),
+#: so the residual can tell dynamics there (real transports jitter by tens of us to ms)
+NO_JITTER_S = 1e-6
+
+
 def _receive_stamped(result: AnalysisResult) -> bool:
+    """Whether the residual may hold the transport's timing jitter: receive stamps that jitter."""
+    stamps: object
+    jitter: object
     if result.flight is not None:
-        return result.flight.timing.stamps == "receive"
-    source = result.log_info.source if result.log_info is not None else {}
-    return source.get("timestamps") == "receive"
+        timing = result.flight.timing
+        stamps, jitter = timing.stamps, timing.timing_jitter_s
+    else:
+        source = result.log_info.source if result.log_info is not None else {}
+        stamps, jitter = source.get("timestamps"), source.get("timing_jitter_s")
+    if stamps != "receive":
+        return False
+    return not (isinstance(jitter, (int, float)) and math.isfinite(jitter) and jitter < NO_JITTER_S)
 
 
 def _ratio(result: AnalysisResult) -> float | None:

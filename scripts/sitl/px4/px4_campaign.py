@@ -67,12 +67,13 @@ def _ulog_rate(log: Path, topic: str = "vehicle_local_position_setpoint") -> flo
 
 
 def _hover(log: Path) -> float:
-    """Hover thrust PX4 estimated during the flight (median of hover_thrust_estimate)."""
+    """Hover thrust PX4 estimated during the flight (median of the valid hover_thrust_estimate samples)."""
     from mrftcli.io import open_log
 
     with open_log(log, echo_warnings=False) as src:
-        _, d = src.read("hover_thrust_estimate", ["hover_thrust"])
-    return float(np.median(d["hover_thrust"]))
+        _, d = src.read("hover_thrust_estimate", ["hover_thrust", "valid"])
+    ok = (d["valid"] > 0) & np.isfinite(d["hover_thrust"])
+    return float(np.median(d["hover_thrust"][ok]))
 
 
 def fly_campaign(px4: Path, logs: Path, speedup: float, only: list[str]) -> None:

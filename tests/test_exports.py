@@ -190,10 +190,23 @@ def _ardupilot_z_worst(p: dict[str, float], model: LoopModel, rate: float, w: np
     return ms, gm
 
 
-#: every sample model to every stack that has its loop (ArduPilot altitude: AC_PosControl's z cascade)
-STACK_LOOPS = [(stack, loop, m, rate) for loop, m, rate in MODELS for stack in ("px4", "ardupilot", "hear")
-               if not (stack == "ardupilot" and loop not in ("roll", "pitch", "altitude"))
-               and not (stack == "px4" and loop not in ("roll", "pitch", "altitude"))]
+def _stack_loops() -> list[tuple[str, str, LoopModel, float]]:
+    """Every sample model to every stack that has its loop (ArduPilot altitude: AC_PosControl's z cascade),
+    each design problem once: a stack whose loop runs at its own rate whatever the log's (ArduPilot's 400 Hz,
+    PX4's attitude at IMU_INTEG_RATE, HEAR's) would design and export the same controller again."""
+    out, seen = [], set()
+    for loop, m, rate in MODELS:
+        for stack in ("px4", "ardupilot", "hear"):
+            if stack in ("ardupilot", "px4") and loop not in ("roll", "pitch", "altitude"):
+                continue
+            st = stack_setting(stack, loop, None, rate, None)
+            if (key := (stack, loop, m, st.rate_hz, st.rate_filter)) not in seen:
+                seen.add(key)
+                out.append((stack, loop, m, rate))
+    return out
+
+
+STACK_LOOPS = _stack_loops()
 
 
 @pytest.mark.parametrize("stack,loop,model,rate", STACK_LOOPS,

@@ -7,11 +7,10 @@ sidecars (the predicted output of the true model must leave the sensor noise as 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from mrftcli.errors import InputError
 from mrftcli.io import ReadOptions, read_flight
@@ -110,15 +109,14 @@ def _event(buf: bytes) -> dict:
     return ev
 
 
-def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_path):
+def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_path, capsys):
     from mcap.reader import make_reader
 
     log = repo_root / "sample_logs" / "design1_altitude.mcap"
     truth = json.loads((repo_root / "sample_logs" / "design1_altitude.mcap.truth.json").read_text())
     out = tmp_path / "fit.mcap"
-    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "analyze", str(log), "--tp", "0.0422",
-                          "--mcap-out", str(out)], capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
+    code, _, err = run_cli(capsys, "analyze", str(log), "--tp", "0.0422", "--mcap-out", str(out))  # in this process
+    assert code == 0, err
     with open(out, "rb") as fh:
         reader = make_reader(fh)
         msgs = {}
@@ -171,8 +169,8 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
     assert "mrft_ident.test.2" in meta and meta["mrft_ident"]["loop"] == "altitude"
 
 
-def test_mcap_out_path_is_checked_before_the_work(tmp_path):
-    run = subprocess.run([sys.executable, "-m", "mrftcli.cli", "analyze", "no-such-log.mcap", "--tp", "0.04",
-                          "--mcap-out", str(tmp_path / "missing" / "fit.mcap")], capture_output=True, text=True)
-    assert run.returncode == 2
-    assert run.stderr.count("\n") == 1 and "does not exist" in run.stderr
+def test_mcap_out_path_is_checked_before_the_work(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "analyze", "no-such-log.mcap", "--tp", "0.04",
+                           "--mcap-out", str(tmp_path / "missing" / "fit.mcap"))  # in this process
+    assert code == 2
+    assert err.count("\n") == 1 and "does not exist" in err

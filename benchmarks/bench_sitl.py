@@ -38,6 +38,8 @@ from sitl import Sitl, fly_mrft, load_params, read_param_file  # noqa: E402
 from sitl_analysis import analyze_log, held_out  # noqa: E402
 from sitl_physics import implied_model  # noqa: E402
 
+from mrftcli.errors import MrftError  # noqa: E402
+
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s], start threshold); h in throttle
 #: (altitude) or mixer (roll) units, chosen for a few cm / a few degrees of oscillation; the start
 #: threshold (2 cm, 1 deg) kicks each test near its amplitude instead of growing it from noise
@@ -73,7 +75,12 @@ def analyse(logs: Path) -> dict[str, dict]:
             continue
         side = json.loads(Path(f"{log}.json").read_text())
         tp = side["tp_s"]
-        res = analyze_log(log, tp, loop)
+        report_segments(log, loop, side)
+        try:
+            res = analyze_log(log, tp, loop)
+        except MrftError as err:  # the figure is the refusal (counted as a miss)
+            print(f"  {name:14s} analyze refused: {str(err)[:300]}")
+            continue
         held = held_out(log, tp, loop, res) if len(res.tests) >= 3 else []
         implied = implied_model(loop, side["hover_throttle"])
         results[name] = {"loop": loop, "delay": delay, "flown": len(tests), "found": len(res.tests),
@@ -89,6 +96,27 @@ def analyse(logs: Path) -> dict[str, dict]:
             print(f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
                   f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)")
     return results
+
+
+def report_segments(log: Path, loop: str, side: dict) -> None:
+    """What the segmenter finds in the log (before identification), and the delay the log shows added."""
+    from mrftcli.io import ReadOptions, open_log, read_flight
+    from mrftcli.segment import segment
+
+    tests = segment(read_flight(log, ReadOptions(loop=loop)))
+    flown = [(t["beta"], t["h"]) for t in side["tests"]]
+    print(f"  {log.name}: {len(tests)}/{len(flown)} tests located")
+    for t in tests:
+        print(f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  {len(t.cycles)} cycles, {t.n_stable} stable; "
+              f"{'; '.join(t.notes[:2])}")
+    with open_log(log, echo_warnings=False) as src:
+        tm, m = src.read("MRFT", ["Cmd", "Snt"])
+    t_cmd = tm[1:][np.diff(m["Cmd"]) != 0]
+    t_snt = tm[1:][np.diff(m["Snt"]) != 0]
+    lag = [float(t_snt[t_snt >= x][0] - x) for x in t_cmd if (t_snt >= x).any()]
+    dt = np.diff(tm)
+    print(f"      script ticks: median {np.median(dt) * 1e3:.2f} ms, 90th pct {np.percentile(dt, 90) * 1e3:.2f} ms; "
+          f"decision -> sent: {np.mean(lag) * 1e3:.2f} +- {np.std(lag) * 1e3:.2f} ms over {len(lag)} switches")
 
 
 def report_analysis(results: dict[str, dict]) -> None:
@@ -117,6 +145,9 @@ def export(results: dict[str, dict], work: Path) -> dict[str, Path]:
     work.mkdir(parents=True, exist_ok=True)
     out: dict[str, Path] = {}
     for loop in ("roll", "altitude"):
+        if loop not in results:
+            print(f"  tune --export ardupilot ({loop}): no identified model from the logs (analysis refused)")
+            continue
         r = results[loop]
         param, js = work / f"{loop}.param", work / f"{loop}_tune.json"
         for p in (param, js):

@@ -104,6 +104,10 @@ local function start(axis)
 end
 
 local function stop(t, why)
+  -- a last sample with the relay off (the command back at its centre) closes the test in the log
+  local y = output(t.axis) or t.sp
+  logger:write("MRFT", "Ax,Cmd,Snt,Out,SP,Rel,B,H,Bias,Dly", "Bffffbffff", "--------s-", "----------",
+    t.axis, t.bias, t.bias, y, t.sp, 0, t.beta, t.h, t.bias, t.dly * 0.001)
   if t.saved then set_params(AXIS_PARAMS[t.axis], t.saved) end
   vehicle:set_target_velocity_NED(Vector3f())
   P_AXIS:set(0)

@@ -244,19 +244,27 @@ def read_param_file(path: Path) -> dict[str, float]:
 
 def load_params(sitl: Sitl, params: dict[str, float]) -> list[dict[str, Any]]:
     """Set each parameter, then read every one back; rows say what came back and whether it changed."""
+    rejected = set()
     for name, value in params.items():
-        sitl.set_param(name, value)
+        try:
+            sitl.set_param(name, value)
+        except SitlError:  # the firmware has no such parameter: it does not answer
+            rejected.add(name)
     rows = []
     for name, value in params.items():
-        back = sitl.get_param(name)
+        back = math.nan if name in rejected else sitl.get_param(name)
         same = math.isclose(back, value, rel_tol=1e-5, abs_tol=1e-6)
         rows.append({"name": name, "written": value, "read_back": back, "unchanged": same})
     return rows
 
 
 def firmware_version(sitl: Sitl) -> str:
-    texts = [t for t in sitl.texts if t.startswith("ArduCopter")]
-    return texts[0] if texts else "ArduCopter (version text not seen)"
+    """The firmware's name and version (``THISFIRMWARE`` in ArduCopter/version.h of the build)."""
+    import re
+
+    text = (sitl.ap_dir / "ArduCopter" / "version.h").read_text()
+    match = re.search(r'#define THISFIRMWARE "([^"]+)"', text)
+    return match.group(1) if match else "ArduCopter (version.h not readable)"
 
 
 #: the main loop's rate (SCHED_LOOP_RATE, ArduCopter's default) [Hz]

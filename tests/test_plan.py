@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
 import subprocess
-import warnings
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from cli_helpers import run_main
 
 from mrftcli.analyze import AnalyzeOptions
 from mrftcli.cli.main import cli
@@ -277,20 +275,8 @@ def test_flown_tests_and_prior_of_an_analyze_result_json():
 # issue 26 item 3: from the CLI as the user meets it
 
 def _plan_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    """``mrft-ident plan ARGS`` through the CLI's main() in this process (a subprocess only adds its imports'
-    CPU); a warning that reaches the user is appended to stderr, as a terminal would show it."""
-    from mrftcli.cli.main import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings(record=True) as seen:
-        warnings.simplefilter("default")
-        try:
-            main(["plan", *args])
-            code = 0
-        except SystemExit as done:
-            code = int(done.code or 0)
-    shown = "".join(warnings.formatwarning(w.message, w.category, w.filename, w.lineno) for w in seen)
-    return subprocess.CompletedProcess(["plan", *args], code, out.getvalue(), err.getvalue() + shown)
+    """``mrft-ident plan ARGS`` through main() in this process (a subprocess only adds its imports' CPU)."""
+    return run_main("plan", *args)
 
 
 LIMITS = ["--tp", "0.0422", "--max-amplitude", "0.05", "--max-h", "0.2", "--time", "30", "--controller-rate", "200"]

@@ -1,4 +1,6 @@
-"""CLI of the engine: predict, identify, build-ufm (subprocess, so exit codes are the real ones)."""
+"""CLI of the engine: predict, identify, build-ufm. One test runs ``python -m mrftcli`` in a subprocess (the
+real process's exit code and output); the others run the same main() in this process (cli_helpers.run_main),
+which a subprocess would only add its imports' CPU to."""
 
 from __future__ import annotations
 
@@ -7,14 +9,12 @@ import subprocess
 import sys
 
 import pytest
-
-
-def run(*args):
-    return subprocess.run([sys.executable, "-m", "mrftcli", *args], capture_output=True, text=True, timeout=120)
+from cli_helpers import run_main as run
 
 
 def test_predict_json_paper_example():
-    p = run("predict", "--tp", "0.1", "--td", str(1 / 1.42), "--tau", "0.06", "--beta", "-0.4", "--json")
+    p = subprocess.run([sys.executable, "-m", "mrftcli", "predict", "--tp", "0.1", "--td", str(1 / 1.42),
+                        "--tau", "0.06", "--beta", "-0.4", "--json"], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     d = json.loads(p.stdout)
     assert d["frequency_hz"] == pytest.approx(0.70564, rel=5e-4)

@@ -203,7 +203,8 @@ class Px4Sitl(Sitl):
         self.set_param("MIS_TAKEOFF_ALT", alt_m)
         self.set_mode("TAKEOFF")
         refusals = self.arm()
-        msg = self.wait(60, lambda m: m.get_type() == "LOCAL_POSITION_NED" and -m.z > alt_m - 0.2)
+        # above home (the EKF's local origin can sit a metre off the ground)
+        msg = self.wait(60, lambda m: m.get_type() == "GLOBAL_POSITION_INT" and m.relative_alt > (alt_m - 0.3) * 1000)
         if msg is None:
             raise SitlError(f"take-off to {alt_m} m did not get there; {self.last_texts()}")
         self.wait(10, lambda m: m.get_type() == "HEARTBEAT" and self.mav.flightmode == "LOITER")

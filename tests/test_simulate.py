@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from dataclasses import replace
 
 import numpy as np
@@ -31,6 +29,7 @@ from mrftcli.sim.flight import (
     sidecar_path,
     simulate_flight,
 )
+from cli_helpers import run_main
 from relay_rule import relay_step
 
 DESIGN1_ALT = LoopModel(0.0422, 2.669, 0.0464, 19.6)
@@ -536,7 +535,8 @@ def test_sidecar_contents(tmp_path):
 
 
 def _run(*args):
-    return subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True, timeout=120)
+    """The CLI's main() in this process (cli_helpers.run_main): a subprocess only adds its imports' CPU."""
+    return run_main(*args)
 
 
 def test_cli_writes_log_and_sidecar(tmp_path):

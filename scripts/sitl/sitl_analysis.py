@@ -16,6 +16,7 @@ from pathlib import Path
 
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.general import mask_windows
+from mrftcli.errors import MrftError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
@@ -63,18 +64,25 @@ def analyze_log(path: str | Path, tp: float, loop: str, seed: int = 0) -> Analys
 
 
 def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed: int = 0,
-             refine: bool = True) -> list[HeldOut]:
+             refine: bool = True, misses: list[tuple[int, str]] | None = None) -> list[HeldOut]:
     """Each test of ``full`` predicted by the model of the other tests (needs three tests or more).
 
     ``refine=False``: the other tests' model from their frequencies and amplitudes alone (the paper's
-    MRFT estimate, faster), not the waveform refinement.
+    MRFT estimate, faster), not the waveform refinement. ``misses``: when given, a test whose other
+    tests the analysis refuses is recorded there as ``(index, reason)`` (a miss) instead of raising.
     """
     flight = read_flight(path, ReadOptions(loop=loop))
     tests = list(full.tests)
     out = []
     for i, test in enumerate(tests):
         others = [(t.t_start, t.t_end) for j, t in enumerate(tests) if j != i]
-        res = analyze_flight(mask_windows(flight, others), tp, options=_options(seed, refine))
+        try:
+            res = analyze_flight(mask_windows(flight, others), tp, options=_options(seed, refine))
+        except MrftError as err:
+            if misses is None:
+                raise
+            misses.append((i, str(err)))
+            continue
         model = LoopModel(tp, res.Td.mean, res.tau.mean, res.K.mean)
         cycle = mrft_limit_cycle(model, test.beta_nominal, test.h, test.rate_hz)
         out.append(HeldOut(i, test.beta_nominal, test.h, test.frequency_hz_mean, cycle.frequency_hz,

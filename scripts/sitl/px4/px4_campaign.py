@@ -31,6 +31,8 @@ sys.path.insert(0, str(HERE))
 
 from px4_sitl import SIH_MODEL, Px4Sitl, fly_mrft, load_params, read_qgc_params  # noqa: E402
 from sitl import SitlError  # noqa: E402
+
+from mrftcli.errors import MrftError  # noqa: E402
 from sitl_analysis import analyze_log, held_out  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
@@ -101,13 +103,20 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
             continue
         side = json.loads(Path(f"{log}.json").read_text())
         tp = side["tp_s"]
-        res = analyze_log(log, tp, loop)
+        try:
+            res = analyze_log(log, tp, loop)
+        except MrftError as err:  # a refusal is a result: every flown test counts as a miss
+            print(f"  {name:18s} REFUSED: {err}")
+            results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": 0, "held": [],
+                             "held_misses": [(i, str(err)) for i in range(len(side["tests"]))], "refused": str(err)}
+            continue
         # the MRFT estimate (refine=False): analyze refuses the waveform refinement on these logs (SIH noise)
-        held = held_out(log, tp, loop, res, refine=False) if len(res.tests) >= 3 else []
+        misses: list[tuple[int, str]] = []
+        held = held_out(log, tp, loop, res, refine=False, misses=misses) if len(res.tests) >= 3 else []
         implied = sih_implied(loop)
         results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": len(res.tests),
                          "Td": res.Td.mean, "tau": res.tau.mean, "K": res.K.mean, "tp": tp, "implied": implied,
-                         "held": held, "tests": res.tests, "log": log, "hover": _hover(log),
+                         "held": held, "held_misses": misses, "tests": res.tests, "log": log, "hover": _hover(log),
                          "rate_hz": _ulog_rate(log)}
         print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.mean:.3f} s  "
               f"tau {res.tau.mean * 1e3:.2f} ms  K {res.K.mean:.2f}   (SIH: Td {implied['Td']:.3f} s, "
@@ -118,16 +127,20 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
         for ho in held:
             print(f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
                   f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)")
+        for i, why in misses:
+            print(f"      held out beta {res.tests[i].beta_nominal:+.2f}: MISS (the other tests refused: {why[:160]})")
     return results
 
 
 def report(results: dict[str, dict[str, Any]]) -> None:
     errs = [abs(h.error) for r in results.values() for h in r["held"]]
+    errs += [math.inf for r in results.values() for _ in r["held_misses"]]  # a refusal counts as a miss
     print(f"tests found: {sum(r['found'] for r in results.values())}/{sum(r['flown'] for r in results.values())}")
     if errs:
-        print(f"held-out frequency error: max {max(errs) * 100:.2f} %, median {np.median(errs) * 100:.2f} %, "
+        print(f"held-out frequency error (a refusal: inf): max {max(errs) * 100:.2f} %, median "
+              f"{np.median(errs) * 100:.2f} %, "
               f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
-    if "px4_altitude" in results and "px4_altitude_20ms" in results:
+    if all(k in results and "tau" in results[k] for k in ("px4_altitude", "px4_altitude_20ms")):
         inc = results["px4_altitude_20ms"]["tau"] - results["px4_altitude"]["tau"]
         print(f"altitude: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
 

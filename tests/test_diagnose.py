@@ -3,14 +3,14 @@ concealed-effect logs (compared with their sidecars, which the tool never reads)
 
 from __future__ import annotations
 
+import contextlib
 import json
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
@@ -497,7 +497,10 @@ def test_report_refuses_a_result_without_figures(tmp_path):
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True, cwd=ROOT)
+    """The CLI's main() in this process, from the repository root (cli_helpers.run_main): a subprocess only
+    adds its imports' CPU."""
+    with contextlib.chdir(ROOT):
+        return run_main(*args)
 
 
 @pytest.mark.slow

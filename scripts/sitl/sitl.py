@@ -290,7 +290,8 @@ def tp_of_filter(cutoff_hz: float, rate_hz: float = LOOP_HZ) -> float:
 
 
 def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, float]], delay_ms: float,
-             duration_s: float, speedup: float, alt_m: float = 10.0, eth: float = 0.0) -> dict[str, Any]:
+             duration_s: float, speedup: float, alt_m: float = 10.0, eth: float = 0.0,
+             tick_ms: float = 1.0) -> dict[str, Any]:
     """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the log and how it was flown."""
     filt_name, filt_hz = TP_FILTER[axis]
     with Sitl(ap_dir, workdir, speedup, {filt_name: filt_hz}) as sitl:
@@ -300,12 +301,13 @@ def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, fl
         refusals = sitl.arm()
         sitl.takeoff(alt_m)
         hover = sitl.get_param("MOT_THST_HOVER")
+        sitl.set_param("MRFT_TICK", tick_ms)
         runs = [sitl.mrft(axis, beta, h, delay_ms, duration_s, eth) for beta, h in tests]
         sitl.land()
         sitl.wait(2)
         log = sitl.newest_log()
     return {"stack": "ArduPilot SITL", "version": version, "frame": "quad (SITL --model quad, copter.parm)",
-            "loop": axis, "relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 2,
+            "loop": axis, "relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 2, "script_min_tick_ms": tick_ms,
             "loop_rate_hz": LOOP_HZ, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
             "tp_s": tp_of_filter(filt_hz), "tp_source": f"{filt_name} = {filt_hz:g} Hz first-order filter at "
             f"{LOOP_HZ:g} Hz (SITL's motors have no lag)",

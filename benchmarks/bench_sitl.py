@@ -40,6 +40,8 @@ from sitl_physics import implied_model  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
 
+#: the built tree (upstream master of 2025-07-21, 4.7.0-dev) still has ArduPilot 4.6's parameter names
+STACK_VERSION = "4.6"
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s], start threshold); h in throttle
 #: (altitude) or mixer (roll) units, chosen for a few cm / a few degrees of oscillation; the start
 #: threshold (2 cm, 1 deg) kicks each test near its amplitude instead of growing it from noise
@@ -147,6 +149,8 @@ def export(results: dict[str, dict], work: Path) -> dict[str, Path]:
     for loop in ("roll", "altitude"):
         if loop not in results:
             print(f"  tune --export ardupilot ({loop}): no identified model from the logs (analysis refused)")
+            if loop == "altitude":
+                out.update(_implied_altitude_export(work))
             continue
         r = results[loop]
         param, js = work / f"{loop}.param", work / f"{loop}_tune.json"
@@ -154,7 +158,8 @@ def export(results: dict[str, dict], work: Path) -> dict[str, Path]:
             p.unlink(missing_ok=True)
         extra = ["--hover-thrust", f"{r['hover']:.4f}"] if loop == "altitude" else []
         cmd = ["tune", str(r["log"]), "--tp", f"{r['tp']:.6f}", "--loop", loop, "--controller-rate", "400",
-               "--export", "ardupilot", "--stack-version", "4.7", "--out", str(param), "--json", str(js), *extra]
+               "--export", "ardupilot", "--stack-version", STACK_VERSION, "--out", str(param), "--json", str(js),
+               *extra]
         proc = run_cli(*cmd)
         print(f"  tune --export ardupilot ({loop}): exit {proc.returncode} {proc.stderr.strip()[:300]}")
         if proc.returncode == 2 and "--clamp" in proc.stderr:
@@ -164,6 +169,20 @@ def export(results: dict[str, dict], work: Path) -> dict[str, Path]:
         if param.exists():
             out[loop] = param
     return out
+
+
+def _implied_altitude_export(work: Path) -> dict[str, Path]:
+    """The altitude export from SITL's implied model (Td, K at the measured hover; tau assumed 25 ms)."""
+    hover = 0.362  # the centre GUIDED's hold used before the altitude tests (sample_logs/sitl sidecars)
+    model = implied_model("altitude", hover)
+    param, js = work / "altitude.param", work / "altitude_tune.json"
+    proc = run_cli("tune", "--td", f"{model['Td']:.4f}", "--tau", "0.025", "--k", f"{model['K']:.3f}", "--tp",
+                   "0.033065", "--loop", "altitude", "--controller-rate", "400", "--hover-thrust", f"{hover}",
+                   "--export", "ardupilot", "--stack-version", STACK_VERSION, "--clamp", "--out", str(param),
+                   "--json", str(js))
+    print(f"  tune --export ardupilot (altitude, from SITL's implied model, tau assumed 25 ms, --clamp): "
+          f"exit {proc.returncode}")
+    return {"altitude": param} if param.exists() else {}
 
 
 def _predicted(js: Path) -> dict[str, float]:

@@ -11,8 +11,6 @@ the exact limit cycle of eq. (2) (LPRS, ``unit_cycle``).
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,6 +23,7 @@ from mrftcli.io.logtypes import Signal
 from mrftcli.mrft.describing import df_phase
 from mrftcli.mrft.lprs import unit_cycle
 from mrftcli.segment import ValidityCriterion, check_limit_cycle, cycle_fundamental, segment
+from cli_helpers import run_main
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -209,8 +208,7 @@ def test_wrong_loop_on_a_roll_log_exits_4_with_one_line():
     log = SAMPLES / "design2_roll.mcap"
     if not log.exists():
         pytest.skip("sample log missing")
-    proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", "analyze", str(log), "--tp", "0.0499",
-                           "--loop", "pitch", "--json", "-"], capture_output=True, text=True, timeout=120)
+    proc = run_main("analyze", str(log), "--tp", "0.0499", "--loop", "pitch", "--json", "-")  # main() in this process
     assert proc.returncode == 4, proc.stderr
     assert "Traceback" not in proc.stderr
     err = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
@@ -221,8 +219,7 @@ def test_wrong_loop_on_a_roll_log_exits_4_with_one_line():
     assert d["exit_code"] == 4 and d["tests"] == [] and len(d["rejected_tests"]) == 2
     for r in d["rejected_tests"]:
         assert r["reason"] and {"snr", "h1_fraction", "phase_coherence"} <= set(r["validity"])
-    ok = subprocess.run([sys.executable, "-m", "mrftcli.cli", "analyze", str(log), "--tp", "0.0499", "--loop", "roll",
-                         "--json", "-"], capture_output=True, text=True, timeout=120)
+    ok = run_main("analyze", str(log), "--tp", "0.0499", "--loop", "roll", "--json", "-")
     assert ok.returncode == 0, ok.stderr
     d = json.loads(ok.stdout)
     assert d["rejected_tests"] == [] and all(t["validity"]["ok"] for t in d["tests"])

@@ -11,12 +11,12 @@ sidecar the diagnosis never reads. Every flight is simulated once per module.
 from __future__ import annotations
 
 import dataclasses
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 import mrftcli
 
@@ -203,8 +203,7 @@ def test_gain_drift_is_seen_inside_a_test(results):
 
 def test_epoch_stamps_are_shown_from_the_log_start(logs):
     path, truth = logs["epoch"]
-    r = subprocess.run([sys.executable, "-m", "mrftcli.cli", "diagnose", str(path), "--tp", str(truth["Tp"])],
-                       capture_output=True, text=True, cwd=ROOT)
+    r = run_main("diagnose", str(path), "--tp", str(truth["Tp"]))  # main() in this process (cli_helpers)
     assert r.returncode == 0, r.stderr
     assert "1700000" not in r.stdout
     first = next(line for line in r.stdout.splitlines() if line.strip().startswith("1 "))
@@ -216,8 +215,7 @@ def test_one_beta_is_refused_as_analyze_does(logs):
     path, truth = logs["one_beta"]
     with pytest.raises(InsufficientDataError, match="only one beta"):
         diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
-    r = subprocess.run([sys.executable, "-m", "mrftcli.cli", "diagnose", str(path), "--tp", str(truth["Tp"])],
-                       capture_output=True, text=True, cwd=ROOT)
+    r = run_main("diagnose", str(path), "--tp", str(truth["Tp"]))  # main() in this process (cli_helpers)
     assert r.returncode == 6 and "only one beta" in r.stderr
 
 

@@ -10,11 +10,10 @@ that Tp was not checked rather than leave a tight wrong tau unqualified.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import run_main
 
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io import read_flight
@@ -32,9 +31,8 @@ def _truth(log: str) -> dict:
 def test_a_log_below_the_controller_rate_says_tp_is_not_checkable_cli() -> None:
     truth = _truth("px4_altitude_10hz.ulg")
     Tp = truth["Tp"] / 10
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(SAMPLES / "px4_altitude_10hz.ulg"),
-                           "--tp", f"{Tp:.6g}", "--loop", truth["loop"], "--json", "-"],
-                          capture_output=True, text=True, timeout=120)
+    proc = run_main("analyze", str(SAMPLES / "px4_altitude_10hz.ulg"), "--tp", f"{Tp:.6g}", "--loop", truth["loop"],
+                    "--json", "-")  # main() in this process (cli_helpers)
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
     tau = data["parameters"]["tau"]["mean"]

@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 
 import control
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 from mrftcli.analyze.general import GeneralAnalysis, TestSummary
 from mrftcli.errors import InputError
@@ -131,8 +130,7 @@ def _result_json(path, rate_hz: float = 20.0, std_T: float = 0.05) -> None:
 def test_cli_tune_process_result(tmp_path):
     src = tmp_path / "r.json"
     _result_json(src, std_T=0.0)  # no spread: the model-based design only (the robust one is tested above)
-    out = subprocess.run([sys.executable, "-m", "mrftcli", "tune", str(src), "--kind", "PI", "--json", "-"],
-                         capture_output=True, text=True, timeout=120)
+    out = run_main("tune", str(src), "--kind", "PI", "--json", "-")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     res = ProcessTuneResult.from_json(data)

@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 
 import pytest
+from cli_helpers import run_main
 
 sys.path.insert(0, os.path.dirname(__file__))
 from process_sim import Window, simulate, write_csv  # noqa: E402
@@ -62,9 +62,8 @@ def test_batch_model_refuses_eq2_extras():
 
 def test_cli_batch_model(tmp_path):
     logs = _fleet(tmp_path / "logs", names=("a.csv",))
-    out = subprocess.run([sys.executable, "-m", "mrftcli", "batch", str(logs), "--model", "fopdt", "--command-topic",
-                          "u_relay", "--output-topic", "y_output", "--out", str(tmp_path / "out"), "--jobs", "1",
-                          "--no-report", "-q"], capture_output=True, text=True, timeout=120)
+    out = run_main("batch", str(logs), "--model", "fopdt", "--command-topic", "u_relay", "--output-topic", "y_output",
+                   "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "-q")  # main() in this process
     assert out.returncode == 0, out.stderr
     assert "parameters (value ± std unit)" in out.stdout
     line = next(ln for ln in out.stdout.splitlines() if ln.startswith("a.csv"))

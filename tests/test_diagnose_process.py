@@ -9,11 +9,11 @@ second-order plant rounds the corners a first-order one has after each switch).
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import run_main
 
 sys.path.insert(0, str(Path(__file__).parent))
 from process_sim import Window, simulate, write_csv  # noqa: E402
@@ -90,9 +90,8 @@ def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
 
 def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
     out = tmp_path / "d.json"
-    run = subprocess.run([sys.executable, "-m", "mrftcli", "diagnose", str(sopdt_csv), "--command-topic", "u_relay",
-                          "--output-topic", "y_output", "--model", "fopdt", "--json", str(out)],
-                         capture_output=True, text=True, timeout=120)
+    run = run_main("diagnose", str(sopdt_csv), "--command-topic", "u_relay", "--output-topic", "y_output",
+                   "--model", "fopdt", "--json", str(out))  # main() in this process (cli_helpers)
     assert run.returncode == 0, run.stderr
     lines = run.stdout.splitlines()
     assert lines[0].startswith("unexplained by FOPDT: test ")

@@ -8,11 +8,10 @@ plant of eq. (2): the simulator is the oracle, and the analysis shares no code w
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from mrftcli.io import write_log
@@ -166,9 +165,8 @@ def test_stack_export_designs_with_the_stack_filter(result):
 
 def test_cli_vehicle(flight, tmp_path):
     out_json, gains = tmp_path / "vehicle.json", tmp_path / "gains.json"
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", "vehicle", str(flight), "--tp", str(TP), "-q",
-                           "--json", str(out_json), "--export", "generic", "--out", str(gains)],
-                          capture_output=True, text=True, timeout=120)
+    proc = run_main("vehicle", str(flight), "--tp", str(TP), "-q", "--json", str(out_json), "--export", "generic",
+                    "--out", str(gains))  # main() in this process (cli_helpers)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0].startswith("assumption: y identified with eq. (2)")

@@ -12,13 +12,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 from scipy.signal import cont2discrete
 
 from mrftcli.errors import InputError
@@ -252,9 +252,9 @@ INNER_CLI = ("--cascade", "y", "--inner-tp", "0.0422", "--inner-td", "1.301", "-
 def test_cli_cascade_writes_both_loops(tmp_path):
     gains = tmp_path / "gains.json"
     gains.write_text(json.dumps({"roll": {"Kp": 0.3, "Ki": 0.0, "Kd": 0.09, "Tf": 0.03, "rate_hz": 100.0}}))
-    res = subprocess.run([sys.executable, "-m", "mrftcli", "simulate", *INNER_CLI, "--inner-test", "-0.5::2",
-                          "--test", "-0.5::4", "--inner-gains", str(gains), "--out", "c.bag", "--json", "out.json"],
-                         capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    with contextlib.chdir(tmp_path):  # main() in this process (cli_helpers), relative paths as before
+        res = run_main("simulate", *INNER_CLI, "--inner-test", "-0.5::2", "--test", "-0.5::4", "--inner-gains",
+                       str(gains), "--out", "c.bag", "--json", "out.json")
     assert res.returncode == 0, res.stderr
     assert "assumption" not in res.stdout and "hear-ros layout" in res.stdout
     out = json.loads((tmp_path / "out.json").read_text())

@@ -26,7 +26,12 @@ def run_main(*argv: str) -> subprocess.CompletedProcess[str]:
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings(record=True) as seen:
+        # the filters of a plain ``python -m mrftcli`` (pytest's own would show, or hide, other warnings)
+        warnings.resetwarnings()
         warnings.simplefilter("default")
+        for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+            warnings.filterwarnings("ignore", category=category)
+        warnings.filterwarnings("default", category=DeprecationWarning, module="__main__")
         try:
             main(list(argv))
             code = 0

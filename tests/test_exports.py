@@ -349,8 +349,13 @@ def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
     assert stdout.startswith("# mrft-ident") and "ATC_RAT_RLL_P," in stdout  # the .param file on stdout
     code, _, err = _run(["--controller-rate", "300", "--export", "px4"], capsys)
     assert code == 2 and err.startswith("error:") and "IMU_INTEG_RATE" in err and len(err.splitlines()) == 1
+    # one output rule for every command (issue 35, io/atomic.check_output_path): a missing folder is created,
+    # as analyze --json always did
     code, _, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(tmp_path / "no" / "x.params")], capsys)
-    assert code == 2 and "--out" in err
+    assert code == 0 and (tmp_path / "no" / "x.params").read_text().startswith("# Onboard parameters"), err
+    (tmp_path / "link.params").symlink_to(out)
+    code, _, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(tmp_path / "link.params")], capsys)
+    assert code == 2 and "--out" in err and "symbolic link" in err and len(err.splitlines()) == 1
     code, _, err = _run(["--controller-rate", "200", "--export", "hear", "--gyro-cutoff", "30"], capsys)
     assert code == 2 and "--gyro-cutoff" in err
     code, stdout, err = _run(["--controller-rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)

@@ -8,9 +8,8 @@ added inside the firmware). Asserted is what the data show (docs/benchmarks/sitl
 ``px4-mrft`` layout is recognised and every flown test is found from the logged parameter changes
 with its beta and h; on the flight without added delay, Td's interval holds SIH's drag time constant
 (m / SIH_KDV = 1 s, from SIH's source: an oracle the log does not carry) and K is within 20 % of
-SIH's 4 T_MAX / m = 20 m/s^2; the flight with MRFT_DELAY = 20 ms is refused with one error (its
-low-beta tests' frequencies are inconsistent with eq. (2) under SIH's sensor noise), not answered
-with a wrong number. The held-out frequencies are NOT within 5 % on these logs (benchmark figures).
+SIH's 4 T_MAX / m = 20 m/s^2; MRFT_DELAY = 20 ms raises tau by 10-40 ms (27.7 ms: the +-2 ms target
+is missed on these noisy logs). The held-out frequencies are NOT within 5 % here (benchmark figures).
 """
 
 from __future__ import annotations
@@ -67,10 +66,15 @@ def test_no_delay_flight_finds_every_test_and_sih_physics() -> None:
     assert res.K.mean == pytest.approx(20.0, rel=0.2)  # SIH: 4 x SIH_T_MAX / SIH_MASS
 
 
-def test_delay_flight_is_refused_not_answered() -> None:
-    from mrftcli.errors import IdentificationError
-
-    side = json.loads((LOGS / "px4_altitude_20ms.ulg.json").read_text())
-    assert side["added_delay_ms"] == 20.0
-    with pytest.raises(IdentificationError, match="do not intersect"):
-        analyze_log(LOGS / "px4_altitude_20ms.ulg", side["tp_s"], side["loop"])
+def test_added_delay_shows_in_tau() -> None:
+    side0, res0 = _flight("px4_altitude")
+    side1, res1 = _flight("px4_altitude_20ms")
+    added = (side1["added_delay_ms"] - side0["added_delay_ms"]) / 1e3
+    assert added == pytest.approx(0.020)
+    # beta -0.2 under MRFT_DELAY 20 ms keeps too few stable cycles; the other three are found
+    assert [t.beta_nominal for t in res1.tests] == pytest.approx([-0.4, -0.55, -0.7], abs=1e-6)
+    # the delay is inside the loop (the effective betas stay near the nominal ones) ...
+    for t in res1.tests:
+        assert t.beta_effective == pytest.approx(t.beta_nominal, abs=0.05)
+    # ... and comes back in tau, but 27.7 ms, not 20 +- 2 ms, on these noisy logs (docs/benchmarks/sitl.md)
+    assert 0.010 <= res1.tau.mean - res0.tau.mean <= 0.040

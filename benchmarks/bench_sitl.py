@@ -40,6 +40,9 @@ from sitl_physics import implied_model  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
 
+#: the script acts at most every this many ms of simulated time: two of the Lua thread's 5.83 ms steps
+#: in SITL, so that its ticks are regular (docs/sitl.md)
+TICK_MS = 11.66
 #: the built tree (upstream master of 2025-07-21, 4.7.0-dev) still has ArduPilot 4.6's parameter names
 STACK_VERSION = "4.6"
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s], start threshold); h in throttle
@@ -63,7 +66,8 @@ def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
             print(f"  {name}: {out} exists, not re-flown")
             continue
         t0 = time.monotonic()
-        info = fly_mrft(ap, Path(f"/tmp/mrft_sitl_{name}"), loop, tests, delay, duration, speedup, eth=eth)
+        info = fly_mrft(ap, Path(f"/tmp/mrft_sitl_{name}"), loop, tests, delay, duration, speedup, eth=eth,
+                        tick_ms=TICK_MS)
         shutil.copy(info.pop("log"), out)
         Path(f"{out}.json").write_text(json.dumps(info, indent=2) + "\n")
         print(f"  {name}: flown in {time.monotonic() - t0:.0f} s wall, {out.stat().st_size / 1e6:.2f} MB")

@@ -69,7 +69,7 @@ def _one(path: Path) -> list[dict]:
     from mrftcli.errors import MrftError
     from mrftcli.tune.analysis import posterior_from_analysis
     from mrftcli.tune.design import DesignOptions, tune
-    from mrftcli.tune.stacks import check_exportable, export_design, stack_setting
+    from mrftcli.tune.stacks import ExportEvidence, check_exportable, export_design, stack_setting
 
     truth = json.loads((SAMPLES / (path.name + ".truth.json")).read_text())
     loop, Tp = truth["loop"], truth["Tp"]
@@ -102,15 +102,15 @@ def _one(path: Path) -> list[dict]:
             heights = [float(t.h) for t in a.tests]
             amps = [float(t.amplitude_mean) for t in a.tests]
             c = res.get(name, "PD").controller
+            evidence = ExportEvidence(tuple(heights), tuple(amps), posterior_models=tuple(draws))
             try:
-                e = export_design(stack, c, a.model, loop, name, hover_thrust=HOVER, heights=heights, amplitudes=amps,
-                                  version=version, posterior_models=draws)
+                e = export_design(stack, c, a.model, loop, name, hover_thrust=HOVER, version=version, evidence=evidence)
                 inside = any("designed inside" in n for n in e.notes)
                 row["outcome"] = ("designed inside the ranges" if inside else "in range" if not e.clamped
                                   else "minimum I set")
             except MrftError:
-                e = export_design(stack, c, a.model, loop, name, clamp=True, hover_thrust=HOVER, heights=heights,
-                                  amplitudes=amps, version=version, posterior_models=draws)
+                e = export_design(stack, c, a.model, loop, name, clamp=True, hover_thrust=HOVER, version=version,
+                                  evidence=evidence)
                 row["outcome"] = "clamped (refused without --clamp)"
             row.update(Ms=e.margins.Ms, GM=e.margins.gain_margin, rate=st.rate_hz,
                        clamped=[n for n, _, _ in e.clamped], prearm=list(e.prearm))

@@ -14,7 +14,7 @@ from mrftcli.mrft.model import LoopModel
 from mrftcli.tune.ardupilot_z import design_z_cascade, split_grid
 from mrftcli.tune.closed_loop import Controller, RateFilter
 from mrftcli.tune.stack_params import STACK_PARAMS, check_ranges, param
-from mrftcli.tune.stacks import check_exportable, export_design, stack_setting
+from mrftcli.tune.stacks import ExportEvidence, check_exportable, export_design, stack_setting
 
 #: tau 40 ms at 200 Hz: every split of the grid is whole ticks, so the simulation below needs no sub-steps
 MODEL = LoopModel(0.0422, 2.669, 0.040, 19.62)
@@ -231,7 +231,7 @@ def test_the_cascade_holds_over_the_posterior_draws():
     post = Posterior.from_spread(MODEL, 0.1, 0.004, 0.5, n=60, seed=3, source="test")
     draws = post.models(np.flatnonzero(post.in_set()))
     e = export_design("ardupilot", _pd(), MODEL, "altitude", "x", hover_thrust=0.5, version="4.6",
-                      posterior_models=draws)
+                      evidence=ExportEvidence(posterior_models=tuple(draws)))
     from mrftcli.tune.ardupilot_z import ZCascadeGains
 
     g = ZCascadeGains.from_params(e.params, RATE)

@@ -15,7 +15,7 @@ from mrftcli.mrft.model import LoopModel
 from mrftcli.tune.closed_loop import Controller, RateFilter
 from mrftcli.tune.design import DesignOptions, Posterior, tune
 from mrftcli.tune.stack_params import STACK_PARAMS, check_ranges, param
-from mrftcli.tune.stacks import StackExport, export_design, stack_setting
+from mrftcli.tune.stacks import ExportEvidence, StackExport, export_design, stack_setting
 from test_exports import HOVER, _loop_from_params, _ms_gm
 
 #: HEAR_FC BWFilt2_coeff::coeff_120Hz_2nd_butter_5hz as HEAR writes it: {a1, a2, b0, b1, b2}
@@ -64,7 +64,8 @@ def test_px4_altitude_designed_inside_the_ranges_without_clamp():
     c = res.get("robust", "PD").controller
     assert c.Kp / c.Kd > param("px4", "MPC_Z_P").maximum
     draws = post.models(np.flatnonzero(post.in_set()))
-    e = export_design("px4", c, ALT, "altitude", "robust PD", hover_thrust=HOVER, posterior_models=draws)
+    e = export_design("px4", c, ALT, "altitude", "robust PD", hover_thrust=HOVER,
+                      evidence=ExportEvidence(posterior_models=tuple(draws)))
     assert e.params["MPC_Z_P"] == pytest.approx(1.5) and not check_ranges("px4", e.params)
     assert any("its cost: IAE" in n for n in e.notes)
     w = np.geomspace(1e-3, 0.999, 3000) * math.pi * 100.0

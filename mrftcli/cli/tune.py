@@ -189,7 +189,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     """The table, or the chosen export (on stdout or --out), and every design as JSON with --json; returns the
     stack export (None: the table or the generic export)."""
     from ..tune.export import format_table, hear_json, px4_params
-    from ..tune.stacks import export_design
+    from ..tune.stacks import ExportEvidence, export_design
 
     name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
     chosen = res.get(name, kind)
@@ -206,10 +206,9 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
             data["export"]["px4"] = {"refused": str(err)}
     else:
         try:
+            evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes), tuple(_in_set(src)))
             stack_export = export_design(ex.stack, c, res.model, loop, f"{name} {kind}", clamp=ex.clamp,
-                                         hover_thrust=ex.hover_thrust, heights=src.heights,
-                                         amplitudes=src.amplitudes, notes=res.notes, version=ex.stack_version,
-                                         posterior_models=_in_set(src))
+                                         hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence)
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err

@@ -37,7 +37,7 @@ from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from .closed_loop import RateFilter
 from .design import DesignOptions, Posterior, TuneResult, tune
-from .stacks import StackExport, export_design
+from .stacks import ExportEvidence, StackExport, export_design
 
 __all__ = ["AxisModel", "AxisSource", "CutoffTrial", "JointCutoff", "JointExport", "joint_gyro_cutoff", "design_axes",
            "export_axes", "joint_cutoff_of_analyses", "JOINT_CUTOFFS_HZ",
@@ -358,8 +358,9 @@ def export_axes(stack: str, results: Sequence[TuneResult], design: str, sources:
     for res, src in zip(results, sources):
         d = res.get(design, "PD")
         try:
+            evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes))
             exports.append(export_design(stack, d.controller, res.model, res.loop, f"{design} PD", clamp=clamp,
-                                         heights=src.heights, amplitudes=src.amplitudes, notes=res.notes))
+                                         evidence=evidence))
         except InputError as err:
             raise InputError(f"{res.loop}: {err}") from err
     out = JointExport(stack, tuple(exports), cutoff)

@@ -58,7 +58,8 @@ from .closed_loop import Controller, RateFilter
 from .margins import Margins, loop_margins
 from .stack_params import check_ranges, param
 
-__all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "StackSetting", "StackExport", "stack_setting", "check_exportable", "export_design",
+__all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
+           "check_exportable", "export_design",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -376,14 +377,37 @@ def _check_units(loop: str, heights: Sequence[float], amplitudes: Sequence[float
     return why
 
 
+@dataclass(frozen=True)
+class ExportEvidence:
+    """What the analysis a design came from says, for its export (in-process, not written as JSON).
+
+    Attributes
+    ----------
+    heights : tuple of float
+        The relay heights flown [command units]: over 1, the command was not the stack's normalised one.
+    amplitudes : tuple of float
+        The tests' amplitudes [output units]: over 1 on roll or pitch, not radians.
+    notes : tuple of str
+        The analysis's notes, carried into the export's.
+    posterior_models : tuple of LoopModel
+        The posterior's 95 % set, which the range-constrained designs and ArduPilot's altitude cascade are
+        held on.
+    """
+
+    heights: tuple[float, ...] = ()
+    amplitudes: tuple[float, ...] = ()
+    notes: tuple[str, ...] = ()
+    posterior_models: tuple[LoopModel, ...] = ()
+
+
 def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design: str, *, clamp: bool = False,
-                  hover_thrust: float | None = None, heights: Sequence[float] = (),
-                  amplitudes: Sequence[float] = (), notes: Sequence[str] = (), version: str | None = None,
-                  posterior_models: Sequence[LoopModel] = ()) -> StackExport:
+                  hover_thrust: float | None = None, version: str | None = None,
+                  evidence: ExportEvidence = ExportEvidence()) -> StackExport:
     """``c`` (designed with the stack's rate and filter, :func:`stack_setting`) as ``stack`` loads it.
 
     ``version``: ArduPilot's (``--stack-version``; default the current stable release, named in the file);
-    ``posterior_models``: the posterior's 95 % set, which ArduPilot's altitude cascade is held on.
+    ``evidence``: the relay heights and amplitudes flown, the analysis's notes and the posterior's 95 % set
+    (:class:`ExportEvidence`).
 
     Raises
     ------
@@ -398,12 +422,12 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     if stack != "ardupilot" and version is not None:
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     if stack in ("px4", "ardupilot"):
-        why = _check_units(loop, heights, amplitudes)
+        why = _check_units(loop, evidence.heights, evidence.amplitudes)
         if c.Kd <= 0:
             why.append("the design has no derivative gain (the rate P would be 0)")
         if why:
             raise InputError(f"cannot export to {stack}: " + "; ".join(why))
-    out_notes = list(notes)
+    out_notes = list(evidence.notes)
     if stack == "hear":
         return _hear_export(c, model, loop, design, out_notes)
     if stack == "generic":
@@ -412,10 +436,10 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     if stack == "ardupilot" and loop == "altitude":
         assert hover_thrust is not None  # check_exportable asked for it
         e = _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes, check_version(version),
-                                posterior_models)
+                                evidence.posterior_models)
         return _with_prearm(e)
     if not clamp:  # the stack's ranges are constraints of the design (issue 37)
-        c = _inside_ranges(c, model, stack, loop, hover_thrust, posterior_models, out_notes)
+        c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
     if stack == "ardupilot":
         e = replace(e, version=check_version(version))

@@ -9,14 +9,15 @@ the refusal is recorded with the gains.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..segment import MrftTest
 from ..tune.analysis import ASSUMED_RATE_HZ, RATE_ASSUMED_NOTE, posterior_from_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
-from ..tune.stacks import StackSetting, check_exportable, export_design, stack_setting
+from ..tune.stacks import ExportEvidence, StackSetting, check_exportable, export_design, stack_setting
 from .record import LoopGains, VehicleLoop
 
 __all__ = ["StackOptions", "TuneOptions", "tune_loop", "joint_gyro_gains", "STACKS"]
@@ -61,6 +62,11 @@ class TuneOptions:
     ms_max: float = 1.6
     rate_hz: float | None = None
     stack: StackOptions | None = None
+
+
+def _evidence(tests: Sequence[MrftTest], notes: Sequence[str]) -> ExportEvidence:
+    """The relay heights and amplitudes flown and the analysis's notes, for an export's checks."""
+    return ExportEvidence(tuple(float(t.h) for t in tests), tuple(float(t.amplitude_mean) for t in tests), tuple(notes))
 
 
 def _setting(result: AnalysisResult, options: TuneOptions) -> tuple[StackSetting | None, str | None]:
@@ -114,8 +120,7 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     try:
         export = export_design(st.stack, gains.controller, res.model, result.loop, f"{design} {options.kind}",
                                clamp=st.clamp, hover_thrust=st.hover_thrust,
-                               heights=tuple(float(t.h) for t in result.tests),
-                               amplitudes=tuple(float(t.amplitude_mean) for t in result.tests), notes=res.notes)
+                               evidence=_evidence(result.tests, res.notes))
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
     return LoopGains(design, options.kind, res, export=export)
@@ -155,10 +160,7 @@ def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> 
         res = replace(res, notes=(joint.note(), *kept, *res.notes))
         try:
             export = export_design(st.stack, res.get(v.gains.design, "PD").controller, res.model, v.loop,
-                                   f"{v.gains.design} PD", clamp=st.clamp,
-                                   heights=tuple(float(t.h) for t in v.analysis.tests),
-                                   amplitudes=tuple(float(t.amplitude_mean) for t in v.analysis.tests),
-                                   notes=res.notes)
+                                   f"{v.gains.design} PD", clamp=st.clamp, evidence=_evidence(v.analysis.tests, res.notes))
         except InputError as err:
             out[v.loop] = replace(v, gains=LoopGains(v.gains.design, "PD", res, export_refused=str(err)))
             continue

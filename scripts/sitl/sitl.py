@@ -318,25 +318,41 @@ def _tests(text: str) -> list[tuple[float, float]]:
     return [(float(b), float(h)) for b, h in (item.split(":") for item in text.split(","))]
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+@dataclass(frozen=True)
+class FlyCommand:
+    """What differs between the stacks' ``fly`` commands (this script's and ``px4/px4_sitl.py``'s)."""
+
+    description: str
+    tree_option: str  #: the built tree's option, e.g. ``--ap``
+    tree_help: str
+    axes: tuple[str, ...]
+    h_help: str  #: what h is in this stack
+    delay_help: str
+    log_name: str  #: "DataFlash log", "ULog"
+    workdir: Path
+
+
+def fly_command(argv: list[str] | None, cmd: FlyCommand, fly: Any) -> int:
+    """The ``fly`` command of a stack's harness: take off, run MRFT tests on one loop, land, keep the log
+    and its JSON sidecar (``fly(tree, workdir, axis, tests, delay_ms, duration, speedup)`` -> the sidecar's
+    dict with the log's path under ``log``)."""
+    ap = argparse.ArgumentParser(description=cmd.description)
     sub = ap.add_subparsers(dest="cmd", required=True)
-    fly = sub.add_parser("fly", help="take off, run MRFT tests on one loop, land, keep the log")
-    fly.add_argument("--ap", type=Path, required=True, help="built ArduPilot tree")
-    fly.add_argument("--axis", choices=sorted(AXES), required=True)
-    fly.add_argument("--tests", required=True, help="beta:h,beta:h,... (h: throttle or mixer units)")
-    fly.add_argument("--delay-ms", type=float, default=0.0, help="relay output delay inside the script [ms]")
-    fly.add_argument("--duration", type=float, default=12.0, help="each test's length [s]")
-    fly.add_argument("--speedup", type=float, default=1.0)
-    fly.add_argument("--workdir", type=Path, default=Path("/tmp/mrft_sitl"))
-    fly.add_argument("--out", type=Path, required=True, help="where to copy the DataFlash log")
+    parser = sub.add_parser("fly", help=f"take off, run MRFT tests on one loop, land, keep the {cmd.log_name}")
+    parser.add_argument(cmd.tree_option, dest="tree", type=Path, required=True, help=cmd.tree_help)
+    parser.add_argument("--axis", choices=sorted(cmd.axes), required=True)
+    parser.add_argument("--tests", required=True, help=f"beta:h,beta:h,... (h: {cmd.h_help})")
+    parser.add_argument("--delay-ms", type=float, default=0.0, help=cmd.delay_help)
+    parser.add_argument("--duration", type=float, default=12.0, help="each test's length [s]")
+    parser.add_argument("--speedup", type=float, default=1.0)
+    parser.add_argument("--workdir", type=Path, default=cmd.workdir)
+    parser.add_argument("--out", type=Path, required=True, help=f"where to copy the {cmd.log_name}")
     args = ap.parse_args(argv)
     if args.out.exists():
         print(f"error: {args.out} exists; choose another --out", file=sys.stderr)
         return 2
     try:
-        info = fly_mrft(args.ap, args.workdir, args.axis, _tests(args.tests), args.delay_ms, args.duration,
-                        args.speedup)
+        info = fly(args.tree, args.workdir, args.axis, _tests(args.tests), args.delay_ms, args.duration, args.speedup)
     except SitlError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1
@@ -344,6 +360,12 @@ def main(argv: list[str] | None = None) -> int:
     Path(f"{args.out}.json").write_text(json.dumps(info, indent=2) + "\n")
     print(f"wrote {args.out} and {args.out}.json")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return fly_command(argv, FlyCommand(
+        __doc__.split("\n\n")[0], "--ap", "built ArduPilot tree", tuple(AXES), "throttle or mixer units",
+        "relay output delay inside the script [ms]", "DataFlash log", Path("/tmp/mrft_sitl")), fly_mrft)
 
 
 if __name__ == "__main__":

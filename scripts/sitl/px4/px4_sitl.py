@@ -15,8 +15,6 @@ Times are simulated seconds (``time_boot_ms``; lockstep makes them the log's clo
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 import shutil
@@ -31,7 +29,7 @@ from typing import Any
 from pymavlink import mavutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from sitl import Sitl, SitlError  # noqa: E402
+from sitl import FlyCommand, Sitl, SitlError, fly_command  # noqa: E402
 
 __all__ = ["Px4Sitl", "fly_mrft", "read_qgc_params", "load_params", "AXES", "PX4_VERSION", "SIH_MODEL"]
 
@@ -284,36 +282,10 @@ def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, f
             "log": str(log)}
 
 
-def _tests(text: str) -> list[tuple[float, float]]:
-    return [(float(b), float(h)) for b, h in (item.split(":") for item in text.split(","))]
-
-
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    fly = sub.add_parser("fly", help="take off, run MRFT tests on one loop, land, keep the ULog")
-    fly.add_argument("--px4", type=Path, required=True, help="built PX4 tree (build_px4.sh)")
-    fly.add_argument("--axis", choices=sorted(AXES), required=True)
-    fly.add_argument("--tests", required=True, help="beta:h,beta:h,... (h: normalised thrust)")
-    fly.add_argument("--delay-ms", type=float, default=0.0, help="relay output delay (MRFT_DELAY) [ms]")
-    fly.add_argument("--duration", type=float, default=12.0, help="each test's length [s]")
-    fly.add_argument("--speedup", type=float, default=1.0)
-    fly.add_argument("--workdir", type=Path, default=Path("/tmp/mrft_px4_sitl"))
-    fly.add_argument("--out", type=Path, required=True, help="where to copy the ULog")
-    args = ap.parse_args(argv)
-    if args.out.exists():
-        print(f"error: {args.out} exists; choose another --out", file=sys.stderr)
-        return 2
-    try:
-        info = fly_mrft(args.px4, args.workdir, args.axis, _tests(args.tests), args.delay_ms, args.duration,
-                        args.speedup)
-    except SitlError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
-    shutil.copy(info.pop("log"), args.out)
-    Path(f"{args.out}.json").write_text(json.dumps(info, indent=2) + "\n")
-    print(f"wrote {args.out} and {args.out}.json")
-    return 0
+    return fly_command(argv, FlyCommand(
+        __doc__.split("\n\n")[0], "--px4", "built PX4 tree (build_px4.sh)", tuple(AXES), "normalised thrust",
+        "relay output delay (MRFT_DELAY) [ms]", "ULog", Path("/tmp/mrft_px4_sitl")), fly_mrft)
 
 
 if __name__ == "__main__":

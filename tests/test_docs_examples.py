@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import run_main
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_logs"
 
@@ -81,15 +83,17 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.parametrize("where, command", COMMANDS, ids=[w for w, _ in COMMANDS])
-def test_documented_example_runs(where: str, command: str, workdir: Path) -> None:
+def test_documented_example_runs(where: str, command: str, workdir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     for pattern, reason in SKIP:
         if re.search(pattern, command):
             pytest.skip(reason)
     if "../shared/" in command and not (ROOT.parent / "shared").is_dir():
         pytest.skip("the real relay recordings (../shared/data) are not on this machine")
     args = shlex.split(command)[1:]
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", *args], capture_output=True, text=True, cwd=workdir,
-                          timeout=300)
+    # in this process (a separate interpreter per example cost ~1.5 CPU-s of imports each): main() as the
+    # console script calls it, in the examples' folder
+    monkeypatch.chdir(workdir)
+    proc = run_main(*args)
     assert proc.returncode == 0, f"{where}: {command}\n{proc.stderr}"
 
 

@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts" / "sitl"))
 
 from sitl import Sitl, fly_mrft, load_params, read_param_file  # noqa: E402
-from sitl_analysis import analyze_log, held_out  # noqa: E402
+from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 from sitl_physics import implied_model  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
@@ -95,12 +95,8 @@ def analyse(logs: Path) -> dict[str, dict]:
         print(f"  {name:14s} tests {len(res.tests)}/{len(tests)}  Td {res.Td.mean:.3f} s  "
               f"tau {res.tau.mean * 1e3:.2f} ms  K {res.K.mean:.2f}   (SITL's model: Td {implied['Td']:.3f} s, "
               f"K {implied['K']:.2f}, Tp {tp * 1e3:.2f} ms)")
-        for t in res.tests:
-            print(f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  f {t.frequency_hz_mean:.3f} Hz  "
-                  f"amplitude {t.amplitude_mean:.4g}  cycles {t.n_stable}")
-        for ho in held:
-            print(f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
-                  f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)")
+        for line in test_lines(res, held):
+            print(line)
     return results
 
 

@@ -23,7 +23,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from pymavlink import mavutil
 
@@ -68,6 +68,10 @@ class Sitl:
     mav: Any = None
     texts: list[str] = field(default_factory=list)
     boot_ms: int = 0
+    #: how long :meth:`wait` allows in wall time for a simulated span: ``seconds / speedup * wall_factor +
+    #: wall_slack_s`` [s]
+    wall_factor: ClassVar[float] = 4.0
+    wall_slack_s: ClassVar[float] = 30.0
 
     def start(self) -> Sitl:
         binary = self.ap_dir / "build/sitl/bin/arducopter"
@@ -129,7 +133,7 @@ class Sitl:
     def wait(self, seconds: float, until: Any = None) -> Any:
         """Run for ``seconds`` of simulated time, or until ``until(msg)`` is true (returns that message)."""
         end = self.boot_ms + seconds * 1000
-        wall = time.monotonic() + seconds / max(self.speedup, 1) * 4 + 30
+        wall = time.monotonic() + seconds / max(self.speedup, 1) * self.wall_factor + self.wall_slack_s
         while self.boot_ms < end:
             msg = self.recv()
             if msg is not None and until is not None and until(msg):

@@ -21,7 +21,7 @@ from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 
-__all__ = ["HeldOut", "analyze_log", "held_out"]
+__all__ = ["HeldOut", "analyze_log", "held_out", "test_lines"]
 
 
 @dataclass(frozen=True)
@@ -88,3 +88,12 @@ def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed:
         out.append(HeldOut(i, test.beta_nominal, test.h, test.frequency_hz_mean, cycle.frequency_hz,
                            (res.Td.mean, res.tau.mean, res.K.mean)))
     return out
+
+
+def test_lines(res: AnalysisResult, held: list[HeldOut]) -> list[str]:
+    """The campaign's lines under a log: each test found (beta, h, frequency [Hz], amplitude, stable cycles) and
+    each held-out test's measured and predicted frequency [Hz]."""
+    lines = [f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  f {t.frequency_hz_mean:.3f} Hz  "
+             f"amplitude {t.amplitude_mean:.4g}  cycles {t.n_stable}" for t in res.tests]
+    return lines + [f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
+                    f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)" for ho in held]

@@ -33,7 +33,7 @@ from px4_sitl import SIH_MODEL, Px4Sitl, fly_mrft, load_params, read_qgc_params 
 from sitl import SitlError  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
-from sitl_analysis import analyze_log, held_out  # noqa: E402
+from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
            "run"]
@@ -121,12 +121,8 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
         print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.mean:.3f} s  "
               f"tau {res.tau.mean * 1e3:.2f} ms  K {res.K.mean:.2f}   (SIH: Td {implied['Td']:.3f} s, "
               f"K {implied['K']:.2f}, Tp {tp * 1e3:.1f} ms; mc_pos_control at {results[name]['rate_hz']:.1f} Hz)")
-        for t in res.tests:
-            print(f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  f {t.frequency_hz_mean:.3f} Hz  "
-                  f"amplitude {t.amplitude_mean:.4g}  cycles {t.n_stable}")
-        for ho in held:
-            print(f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
-                  f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)")
+        for line in test_lines(res, held):
+            print(line)
         for i, why in misses:
             print(f"      held out beta {res.tests[i].beta_nominal:+.2f}: MISS (the other tests refused: {why[:160]})")
     return results

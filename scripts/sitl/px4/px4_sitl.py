@@ -24,7 +24,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from pymavlink import mavutil
 
@@ -71,6 +71,9 @@ class Px4Sitl(Sitl):
     """
 
     udp_port: int = 14550
+    #: :meth:`Sitl.wait` with room for a lockstep simulation slowed by a busy machine (10x wall)
+    wall_factor: ClassVar[float] = 10.0
+    wall_slack_s: ClassVar[float] = 60.0
 
     def start(self) -> Px4Sitl:
         binary = self.ap_dir / "build/px4_sitl_default/bin/px4"
@@ -118,18 +121,6 @@ class Px4Sitl(Sitl):
                                         0, 0, 0)
             self._last_hb = now
         return super().recv(min(timeout, 0.5))
-
-    def wait(self, seconds: float, until: Any = None) -> Any:
-        """As :meth:`Sitl.wait`, with room for a lockstep simulation slowed by a busy machine (10x wall)."""
-        end = self.boot_ms + seconds * 1000
-        wall = time.monotonic() + seconds / max(self.speedup, 1) * 10 + 60
-        while self.boot_ms < end:
-            msg = self.recv()
-            if msg is not None and until is not None and until(msg):
-                return msg
-            if time.monotonic() > wall:
-                raise SitlError(f"SITL made no progress for {seconds} simulated s")
-        return None
 
     # -- parameters (PX4: integers byte-wise) ------------------------------------------------------
     def _param_value(self, name: str, timeout: float) -> Any:

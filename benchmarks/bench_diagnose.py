@@ -217,16 +217,21 @@ def run_case(case: dict) -> dict:
            "true_values": {n: truth["effects"][n] for n in (effect or "").split("+") if n},
            "snr": mount_snr(flight) if effect == OUTSIDE else None}
     if res is not None:
-        out["found"] = [e.name for e in res.effects]
-        out["unexplained"] = res.unexplained is not None
-        out["where"] = res.unexplained.largest if res.unexplained is not None else None
-        # a mode found ringing (or ringing above the fitted harmonics): what a library flight must not show
-        out["resonance"] = (out["where"] or {}).get("feature") in ("ringing_after_switches", "residual_above_harmonics")
-        out["cycles_used"] = [t.cycles for t in res.tests]
-        out["values"] = {e.name: e.parameters.get(PARAM.get(e.name, ""), float("nan")) for e in res.effects}
-        out["nrmse"] = {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects}
-        out["dropped"] = [w for w in res.warnings if "not reported" in w]
+        out.update(diagnosis_row(res))
     return out
+
+
+def diagnosis_row(res) -> dict:
+    """What the benchmark scores of a diagnosis: effects found, unexplained and where, a resonance found,
+    cycles used, each effect's value and NRMSE before/after, effects dropped (also diagnose_sims/cases.py)."""
+    where = res.unexplained.largest if res.unexplained is not None else None
+    return {"found": [e.name for e in res.effects], "unexplained": res.unexplained is not None, "where": where,
+            # a mode found ringing (or ringing above the fitted harmonics): what a library flight must not show
+            "resonance": (where or {}).get("feature") in ("ringing_after_switches", "residual_above_harmonics"),
+            "cycles_used": [t.cycles for t in res.tests],
+            "values": {e.name: e.parameters.get(PARAM.get(e.name, ""), float("nan")) for e in res.effects},
+            "nrmse": {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects},
+            "dropped": [w for w in res.warnings if "not reported" in w]}
 
 
 def _halved(r: dict, name: str) -> bool:

@@ -141,14 +141,7 @@ def run_case(case: dict) -> dict:
             out["refused"] = isinstance(exc, MrftError)
         out["cpu"] = time.process_time() - t0
     if res is not None:
-        out["found"] = [e.name for e in res.effects]
-        out["unexplained"] = res.unexplained is not None
-        out["where"] = res.unexplained.largest if res.unexplained is not None else None
-        out["resonance"] = (out["where"] or {}).get("feature") in ("ringing_after_switches", "residual_above_harmonics")
-        out["cycles_used"] = [t.cycles for t in res.tests]
-        from bench_diagnose import PARAM  # noqa: PLC0415 - the parameter names, one home
+        from bench_diagnose import diagnosis_row  # noqa: PLC0415 - the scoring, one home
 
-        out["values"] = {e.name: e.parameters.get(PARAM.get(e.name, ""), float("nan")) for e in res.effects}
-        out["nrmse"] = {e.name: (e.fit_before.nrmse, e.fit_after.nrmse) for e in res.effects}
-        out["dropped"] = [w for w in res.warnings if "not reported" in w]
+        out.update(diagnosis_row(res))
     return out

@@ -151,9 +151,8 @@ class JSBSimVehicle:
         self.t += dt
 
 
-def _static(u: float) -> tuple[float, float]:
-    """Total thrust [N] at throttle ``u`` on the ground after the spin-up, and its 63 % rise time [s]
-    from the hover throttle (the step a bench test of the motors would make)."""
+def _grounded_f450():
+    """JSBSim's stock F450 on the ground with its motors running (the bench tests below start from it)."""
     import jsbsim
 
     with _quiet():
@@ -164,6 +163,14 @@ def _static(u: float) -> tuple[float, float]:
         fdm.load_ic("initGrnd", True)
         fdm.run_ic()
     fdm["propulsion/set-running"] = -1
+    return fdm
+
+
+def _static(u: float) -> tuple[float, float]:
+    """Total thrust [N] at throttle ``u`` on the ground after the spin-up, and its 63 % rise time [s]
+    from the hover throttle (the step a bench test of the motors would make)."""
+
+    fdm = _grounded_f450()
     thrust = []
     for _ in range(int(1.5 / DT)):
         fdm["fcs/throttle-cmd-norm"] = u
@@ -205,18 +212,10 @@ def hover_command(platform: str) -> float:
 def _motor(platform: str) -> tuple[float, float]:
     """(K [m/s^2 per unit of thrust / weight], Tp [s]): g, and the thrust's 63 % rise time after a 0.04
     throttle step about hover (the motor test a pilot runs before flying)."""
-    import jsbsim
     import numpy as np
 
     u0 = throttle_of(1.0)
-    with _quiet():
-        fdm = jsbsim.FGFDMExec(None)
-        fdm.set_debug_level(0)
-        fdm.load_model("F450")
-        fdm.set_dt(DT)
-        fdm.load_ic("initGrnd", True)
-        fdm.run_ic()
-    fdm["propulsion/set-running"] = -1
+    fdm = _grounded_f450()
     thrust = []
     for k in range(int(2.5 / DT)):
         fdm["fcs/throttle-cmd-norm"] = u0 - 0.02 if k < int(1.5 / DT) else u0 + 0.02

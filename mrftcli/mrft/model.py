@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
            "model_family", "model_from_json", "SampledPlantModel", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
-           "json_bounds"]
+           "json_bounds", "soiptd_model"]
 
 _INF = math.inf
 #: version of the JSON form of a model (``to_json`` / ``from_json``)
@@ -356,6 +356,28 @@ class LoopModel:
         """
         values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), _LOOP_PARAMETERS)
         return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=known, ranges=ranges)
+
+
+def soiptd_model(Tp: float) -> LoopModel:
+    """Eq. (2) to identify: Tp known (the bench test's propulsion time constant [s], the paper's set E).
+
+    Td, tau and K get placeholder values (1 s, 0 s, 1) that identification ignores, as the process
+    families' do (:func:`mrftcli.mrft.families.family_model`): this is the model object every use
+    case (analyze, identify, simulate, watch, plan, tune, diagnose) takes for eq. (2), so Tp travels
+    inside it.
+
+    Raises
+    ------
+    InputError
+        Tp not a positive time in seconds.
+
+    Examples
+    --------
+    >>> m = soiptd_model(0.0422)
+    >>> m.family, m.Tp, sorted(m.known)
+    ('soiptd', 0.0422, ['Tp'])
+    """
+    return LoopModel(Tp=float(Tp), Td=1.0, tau=0.0, K=1.0)
 
 
 def model_json(family: str, parameters: Iterable[Parameter]) -> dict[str, Any]:

@@ -358,8 +358,10 @@ class LoopModel:
         return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=known, ranges=ranges)
 
 
-def soiptd_model(Tp: float) -> LoopModel:
+def soiptd_model(Tp: float, K: float | None = None) -> LoopModel:
     """Eq. (2) to identify: Tp known (the bench test's propulsion time constant [s], the paper's set E).
+
+    ``K`` given: known too (the single-test amplitude route of :func:`mrftcli.mrft.identify.identify`).
 
     Td, tau and K get placeholder values (1 s, 0 s, 1) that identification ignores, as the process
     families' do (:func:`mrftcli.mrft.families.family_model`): this is the model object every use
@@ -377,7 +379,9 @@ def soiptd_model(Tp: float) -> LoopModel:
     >>> m.family, m.Tp, sorted(m.known)
     ('soiptd', 0.0422, ['Tp'])
     """
-    return LoopModel(Tp=float(Tp), Td=1.0, tau=0.0, K=1.0)
+    if K is None:
+        return LoopModel(Tp=float(Tp), Td=1.0, tau=0.0, K=1.0)
+    return LoopModel(Tp=float(Tp), Td=1.0, tau=0.0, K=float(K), known=frozenset({"Tp", "K"}))
 
 
 def model_json(family: str, parameters: Iterable[Parameter]) -> dict[str, Any]:

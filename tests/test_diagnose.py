@@ -49,7 +49,7 @@ def test_sampled_relay_without_noise_switches_on_ticks():
 
 
 def test_sampled_relay_follows_the_checks_rule():
-    # independent oracle: the checks.md rule transcribed in tests/relay_rule.py (not mrftcli.mrft.relay,
+    # independent oracle: the checks.md rule transcribed in tests/relay_rule.py (not mrftcli.mrft.relays,
     # which the sampled relay and the simulator both use) replayed on the noise-free ticks
     from relay_rule import relay_step
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
                               rk4_quadratic, rk4_rotor)
-from ..mrft.relay import MrftRelay
+from ..mrft.relays import MrftRelay
 
 __all__ = ["AugmentedPlant", "RelayRun", "SampledRelay", "run_relay", "periodic_cycle", "quasi_static_plant"]
 
@@ -174,7 +174,7 @@ def _hermite_extremum(e0: float, d0: float, e1: float, d1: float, h: float) -> f
 class SampledRelay:
     """The log's relay, as :func:`run_relay` runs it in sampled mode (see the module docstring).
 
-    The switch is decided at ticks on ``y + noise`` with one (nominal) beta by :class:`~mrftcli.mrft.relay.MrftRelay`,
+    The switch is decided at ticks on ``y + noise`` with one (nominal) beta by :class:`~mrftcli.mrft.relays.MrftRelay`,
     and the command sent reaches the plant after a Gauss-Markov, first-in-first-out delay (the same
     process as :func:`mrftcli.sim.flight.simulate_flight`'s, from :mod:`mrftcli.mrft.propagate`).
 

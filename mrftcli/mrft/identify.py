@@ -31,6 +31,7 @@ from ..errors import IdentificationError, InputError
 from ..validate import check_beta, check_time
 from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel
+from .parameter import ParameterEstimate
 from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
 from .ufm import ManifoldSet, load_manifolds
 
@@ -48,8 +49,10 @@ __all__ = [
 
 _TWO_PI = 2.0 * math.pi
 FloatArray = NDArray[np.float64]
-#: version of :meth:`IdentificationResult.to_json`
-IDENTIFICATION_SCHEMA_VERSION = 1
+#: version of :meth:`IdentificationResult.to_json`; 2 writes each parameter as the one record
+#: (:class:`~mrftcli.mrft.parameter.ParameterEstimate`: ``value``, ..., ``determined``, ``known``, ``method``);
+#: version 1's ``mean`` records are still read
+IDENTIFICATION_SCHEMA_VERSION = 2
 #: |d ln Omega / d ln Td| below which Td is reported as poorly identifiable
 _SENSITIVITY_WARN = 0.05
 
@@ -153,41 +156,6 @@ class TestMeasurement:
         return float(self._a.std(ddof=1)) if self._a.size > 1 else 0.0
 
 
-@dataclass(frozen=True)
-class ParameterEstimate:
-    """An identified parameter: point estimate and its spread.
-
-    ``mean`` is the point estimate from the mean frequencies; ``std`` and the 95 % interval come
-    from the propagated scatter (zero width when no scatter was given).
-    """
-
-    mean: float
-    std: float
-    ci95_low: float
-    ci95_high: float
-    unit: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"mean": self.mean, "std": self.std, "ci95_low": self.ci95_low, "ci95_high": self.ci95_high,
-                "unit": self.unit}
-
-    @classmethod
-    def from_dict(cls, name: str, data: Any) -> ParameterEstimate:
-        """The estimate of a :meth:`to_dict` dict (``name`` for the error message).
-
-        Raises
-        ------
-        InputError
-            Not an object with numeric mean, std, ci95_low, ci95_high and a string unit.
-        """
-        keys = ("mean", "std", "ci95_low", "ci95_high")
-        if not (isinstance(data, Mapping) and all(isinstance(data.get(k), (int, float)) for k in keys)
-                and isinstance(data.get("unit"), str)):
-            raise InputError(f"identification JSON: {name} needs numeric {', '.join(keys)} and a unit")
-        return cls(float(data["mean"]), float(data["std"]), float(data["ci95_low"]), float(data["ci95_high"]),
-                   data["unit"])
-
-
 @dataclass(frozen=True, eq=False)
 class IdentificationResult:
     """Outcome of :func:`identify`.
@@ -230,11 +198,10 @@ class IdentificationResult:
     draws: dict[str, FloatArray] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict: ``parameters.{Td,tau,K}.{mean,std,ci95_low,ci95_high,unit}`` etc."""
-        params = {"Td": self.Td.to_dict(), "tau": self.tau.to_dict(),
-                  "K": None if self.K is None else self.K.to_dict(),
-                  "Tp": {"mean": self.Tp, "std": 0.0, "ci95_low": self.Tp, "ci95_high": self.Tp, "unit": "s",
-                         "known": True}}
+        """JSON-ready dict: ``parameters.{Td,tau,K,Tp}`` (each the one parameter record) etc."""
+        params = {"Td": self.Td.to_json(method="mrft"), "tau": self.tau.to_json(method="mrft"),
+                  "K": None if self.K is None else self.K.to_json(method="mrft"),
+                  "Tp": ParameterEstimate.given(self.Tp, "s").to_json()}
         return {
             "parameters": params,
             "model": {"Tp": self.model.Tp, "Td": self.model.Td, "tau": self.model.tau,
@@ -262,19 +229,19 @@ class IdentificationResult:
         InputError
             Another schema version, or a field missing or of the wrong type (one-line message).
         """
-        data = check_schema_version(data, "identification JSON", IDENTIFICATION_SCHEMA_VERSION)
+        data = check_schema_version(data, "identification JSON", range(1, IDENTIFICATION_SCHEMA_VERSION + 1))
         params = data.get("parameters")
         if not isinstance(params, Mapping):
             raise InputError("identification JSON needs a 'parameters' object")
-        K = None if params.get("K") is None else ParameterEstimate.from_dict("K", params["K"])
+        K = None if params.get("K") is None else ParameterEstimate.from_json("K", params["K"])
         tests, warnings = data.get("tests"), data.get("warnings")
         if not (isinstance(tests, list) and all(isinstance(t, Mapping) for t in tests)
                 and isinstance(warnings, list) and all(isinstance(w, str) for w in warnings)):
             raise InputError("identification JSON needs 'tests' (objects) and 'warnings' (strings)")
-        return cls(Td=ParameterEstimate.from_dict("Td", params.get("Td")),
-                   tau=ParameterEstimate.from_dict("tau", params.get("tau")), K=K,
+        return cls(Td=ParameterEstimate.from_json("Td", params.get("Td")),
+                   tau=ParameterEstimate.from_json("tau", params.get("tau")), K=K,
                    model=LoopModel.from_json(data.get("model", {})),
-                   Tp=ParameterEstimate.from_dict("Tp", params.get("Tp")).mean,
+                   Tp=ParameterEstimate.from_json("Tp", params.get("Tp")).value,
                    residual=_optional_float("residual", data.get("residual")),
                    tests=tuple(dict(t) for t in tests), warnings=tuple(warnings),
                    method=str(data.get("method")), uncertainty=str(data.get("uncertainty")),

@@ -1,4 +1,5 @@
-"""The relay of a test: MRFT, ideal, with hysteresis; its levels and bias; its exact limit cycle.
+"""The relay of a test: MRFT, ideal, with hysteresis; its levels and bias; its exact limit cycle; its
+switching rule on sampled errors.
 
 A relay test's command is ``u = bias + h sign(.)`` between the two levels ``high = bias + h`` and
 ``low = bias - h``. What differs between relays is where they switch (e = r - y):
@@ -13,6 +14,11 @@ The exact limit cycle under any of them is the LPRS one of :func:`~mrftcli.mrft.
 with the switching level ``beta a_y + eps``. The bias moves the loop's operating point; the cycle
 is taken about it (a bias that is not balanced by the plant's operating point shows as unequal
 half periods, which the output states as an assumption).
+
+On sampled errors the relay decides with :class:`MrftRelay` (:meth:`RelayLaw.sampled`), the rule of
+checks.md section 2 (the HEAR flight stack's), with the hysteresis added to its switching level. The
+diagnosis' sampled relay (:func:`mrftcli.diagnose.limit_cycles.run_relay`) and the simulator both decide
+with it; the tests check it against an independent transcription of the rule (``tests/relay_rule.py``).
 """
 
 from __future__ import annotations
@@ -23,10 +29,11 @@ from typing import Any, Mapping
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
+from ..validate import check_beta
 from .lprs import LimitCycle, mrft_limit_cycle
 from .model import PlantModel
 
-__all__ = ["RelayLaw", "RELAY_KINDS", "RELAY_SCHEMA_VERSION"]
+__all__ = ["RelayLaw", "MrftRelay", "RELAY_KINDS", "RELAY_SCHEMA_VERSION"]
 
 #: the relay types
 RELAY_KINDS = ("mrft", "ideal", "hysteresis")
@@ -107,6 +114,10 @@ class RelayLaw:
         """
         return mrft_limit_cycle(model, self.beta, self.h, rate_hz, eps=self.eps)
 
+    def sampled(self, start_threshold: float = 0.0) -> MrftRelay:
+        """This relay's switching rule on sampled errors (a new :class:`MrftRelay`; it returns the sign)."""
+        return MrftRelay(self.beta, start_threshold, self.eps)
+
     def to_json(self) -> dict[str, Any]:
         return {"schema_version": RELAY_SCHEMA_VERSION, "kind": self.kind, "high": self.high, "low": self.low,
                 "h": self.h, "bias": self.bias, "beta": self.beta, "eps": self.eps, "source": self.source}
@@ -120,3 +131,54 @@ class RelayLaw:
                        float(data.get("eps", 0.0)), str(data.get("source", "inferred")))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"relay JSON: bad or missing field ({err})") from None
+
+
+class MrftRelay:
+    """The switching rule of checks.md section 2 on sampled errors (returns the relay sign).
+
+    e = r - y. While +h, track e_max since the last switch and switch to -h when e_max > 0 and
+    e <= -beta e_max - eps; while -h, track e_min and switch to +h when e_min < 0 and
+    e >= -beta e_min + eps. The tracked extremum restarts at the error of the switching sample. With
+    eps = 0 this is the MRFT (beta = 0: the ideal relay); with beta = 0 the hysteresis relay.
+
+    Start (:meth:`start`): the relay takes the sign of the first error (+ for e >= 0) and keeps it
+    until the error is beyond ``start_threshold`` on the other side; that sample is the first switch
+    and the rule above applies from there. With the vehicle at rest at the start, this keeps
+    switching from beginning at noise level (the plain rule can then lock up); 0 means the first
+    switch is at the first sample with the opposite sign.
+    """
+
+    def __init__(self, beta: float, start_threshold: float = 0.0, eps: float = 0.0) -> None:
+        check_beta(beta)
+        self.beta = float(beta)
+        self.start_threshold = float(start_threshold)
+        self.eps = float(eps)
+        self.relay = 1.0
+        self.e_ext = 0.0
+        self.first_half = True
+
+    def start(self, e: float) -> float:
+        self.relay = 1.0 if e >= 0 else -1.0
+        self.e_ext = e
+        self.first_half = True
+        return self.relay
+
+    def step(self, e: float) -> float:
+        if self.first_half:
+            if self.relay * e < -self.start_threshold:
+                self.relay = -self.relay
+                self.e_ext = e
+                self.first_half = False
+        elif self.relay > 0:
+            if e > self.e_ext:
+                self.e_ext = e
+            if self.e_ext > 0 and e <= -self.beta * self.e_ext - self.eps:
+                self.relay = -1.0
+                self.e_ext = e
+        else:
+            if e < self.e_ext:
+                self.e_ext = e
+            if self.e_ext < 0 and e >= -self.beta * self.e_ext + self.eps:
+                self.relay = 1.0
+                self.e_ext = e
+        return self.relay

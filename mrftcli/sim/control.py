@@ -1,7 +1,7 @@
 """The simulator's controllers and planning helpers: MRFT relays, the hold PID, describing function.
 
 Used by :mod:`mrftcli.sim.flight`, which re-exports the public names; :class:`MrftRelay` is
-:mod:`mrftcli.mrft.relay`'s, re-exported here.
+:mod:`mrftcli.mrft.relays`'s, re-exported here.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 from ..errors import InputError
 from ..mrft.describing import df_amplitude, df_frequency
 from ..mrft.model import LoopModel
-from ..mrft.relay import MrftRelay
+from ..mrft.relays import MrftRelay
 from ..validate import check_beta
 
 __all__ = [
@@ -162,7 +162,7 @@ def design_hold_pid(model: LoopModel, rate_hz: float = 200.0, phase_margin_deg: 
 
 
 # --------------------------------------------------------------------------------------------------
-# MRFT relays (the checks.md rule, MrftRelay, lives in mrftcli.mrft.relay: the diagnosis decides with it too)
+# MRFT relays (the checks.md rule, MrftRelay, lives in mrftcli.mrft.relays: the diagnosis decides with it too)
 
 
 class HearMrftRelay:

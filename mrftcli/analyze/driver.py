@@ -1,29 +1,39 @@
-"""The one-log use case: :func:`analyze_flight` chains the analysis's stages; :func:`analyze_path` reads the log first.
+"""The one-log use case: :func:`analyze_flight` identifies a model's unknown parameters from one log;
+:func:`analyze_path` reads the log first.
 
-Stages, each returning a frozen record: segment (:func:`mrftcli.segment.segment`) -> screen
-(:func:`~mrftcli.analyze.screen.screen`) -> point estimate -> consensus and bootstrap -> Table III
-combinations -> identifiability -> waveform refinement -> timing jitter
-(:mod:`mrftcli.analyze.estimate`); the method is described in :mod:`mrftcli.analyze`.
+One route for every model family, the strategy chosen by the model object:
+
+* eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`, Tp known; ``mrftcli.mrft.model.soiptd_model``):
+  segment (:func:`mrftcli.segment.segment`) -> screen (:func:`~mrftcli.analyze.screen.screen`) ->
+  point estimate through the unit manifolds (the family's cached accelerator) -> consensus and
+  bootstrap -> Table III combinations -> held out -> identifiability -> waveform refinement -> timing
+  jitter (:mod:`mrftcli.analyze.estimate`); the method is described in :mod:`mrftcli.analyze`;
+* every other family (the process plants, a declared transfer function): response points of every
+  stable cycle under any relay, a direct exact fit, each test held out
+  (:func:`mrftcli.analyze.general.analyze_family`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 
-from ..errors import LogReadError, TpRejectedError
+from ..errors import InputError, LogReadError, TpRejectedError
 from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
 from ..mrft.consensus import combinations
+from ..mrft.model import LoopModel, PlantModel, soiptd_model
 from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
 from .estimate import (WaveformStage, beta_used, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
+from .general import GeneralAnalysis, analyze_family, mask_windows
 from .held_out import held_out_eq2
 from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
@@ -42,24 +52,42 @@ def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | Non
                            "check the time column's unit (--time-unit for CSV and .mat logs)")
 
 
-def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | None = None) -> AnalysisResult:
-    """Segment the MRFT tests of a flight and identify Td, tau and K (see the module docstring).
+def _model(model: PlantModel | float) -> PlantModel:
+    """The model object; a bare Tp [s] (the old eq. (2) call, kept while issue 36 converts its callers) as
+    :func:`~mrftcli.mrft.model.soiptd_model`."""
+    if isinstance(model, (int, float)):
+        return soiptd_model(check_tp(model))
+    return model
+
+
+@overload
+def analyze_flight(flight: FlightLog, model: LoopModel | float, *,
+                   options: AnalyzeOptions | None = None) -> AnalysisResult: ...
+@overload
+def analyze_flight(flight: FlightLog, model: PlantModel, *,
+                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis: ...
+def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
+                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis:
+    """Segment the relay tests of a flight and identify the model's unknown parameters (module docstring).
 
     Parameters
     ----------
     flight : FlightLog
         Command and output (and optional beta/setpoint) of one loop.
-    Tp : float
-        Known propulsion time constant [s] (bench test).
+    model : PlantModel
+        The structure with its known parameters (set E) and ranges (set I): eq. (2) with Tp known
+        (``soiptd_model(Tp)``, Tp [s] from the bench test) identifies Td, tau and K through the
+        manifolds; any other family by its direct fit (:func:`mrftcli.analyze.general.analyze_family`).
     options : AnalyzeOptions, optional
         The analysis's knobs (stability and validity criteria, bootstrap draws, Table III cap, seed,
-        constraints, waveform refinement, controller rate); None: ``AnalyzeOptions()``. A log below
-        the controller's rate is identified as a sampled relay at the nominal beta
-        (:func:`mrftcli.analyze.screen.low_rate_period`).
+        constraints, waveform refinement, controller rate, the relay stated, the windows, a process
+        plant's operating point); None: ``AnalyzeOptions()``. A log below the controller's rate is
+        identified as a sampled relay at the nominal beta (:func:`mrftcli.analyze.screen.low_rate_period`).
 
     Returns
     -------
     AnalysisResult
+        For eq. (2); :class:`~mrftcli.analyze.general.GeneralAnalysis` for the other families.
 
     Raises
     ------
@@ -75,6 +103,9 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
         The measured cycles admit no plant of eq. (2) with this Tp. (Slices that do not cross but
         fit a plant without linear damping are not an error: Td is then bounded from below only,
         ``identification.method == "unbounded-Td"``.)
+    InputError
+        A Tp outside its physical range; a relay or an operating point stated for eq. (2) (it reads
+        its relay from the log and integrates); a bad window.
 
     Examples
     --------
@@ -84,29 +115,44 @@ def analyze_flight(flight: FlightLog, Tp: float, *, options: AnalyzeOptions | No
     >>> from mrftcli.io import ReadOptions, read_flight
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.mcap"
     >>> flight = read_flight(log, ReadOptions(loop="altitude"))
-    >>> result = analyze_flight(flight, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=100))
+    >>> result = analyze_flight(flight, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=100))
     >>> print(f"Td {result.Td.mean:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
     ...       f"tau {result.tau.mean * 1e3:.1f} ms")
     Td 2.66 s (2.65-2.67), tau 46.4 ms
     """
-    Tp = check_tp(Tp)
+    model = _model(model)
     opts = AnalyzeOptions() if options is None else options
+    # the family's strategy: eq. (2) through its manifolds, every other structure by its direct fit
+    if isinstance(model, LoopModel):
+        return _analyze_eq2(flight, model, opts)
+    return analyze_family(flight, model, opts)
+
+
+def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> AnalysisResult:
+    """Eq. (2)'s strategy: the stages of the module docstring at the model's known Tp."""
+    Tp = check_tp(model.Tp)
+    if opts.relay.stated or opts.baseline is not None:
+        raise InputError("a relay (--relay, --eps) and an operating point (--baseline) take a process model "
+                         "(--model fopdt, sopdt, ipdt or foipdt); eq. (2) reads beta from the log and integrates")
+    if model.known != frozenset({"Tp"}) or model.ranges:
+        raise InputError("eq. (2) is identified with Tp known and Td, tau, K free: give --tp only")
+    flight = mask_windows(flight, opts.windows)
     constraints = opts.constraints
     found = segment(flight, criterion=opts.criterion or StabilityCriterion(),
                     validity=opts.validity or ValidityCriterion(), controller_rate_hz=opts.controller_rate_hz)
-    screening = screen(flight, found, Tp, opts.min_stable_cycles)
+    screening = screen(flight, found, model, opts.min_stable_cycles)
     _check_clock(flight, max((1.0 / t.frequency_hz_mean for t in screening.usable), default=None), None)
     # one generator through the stages in this order: a seed gives the same draws
     rng = np.random.default_rng(opts.seed)
-    point = point_estimate(Tp, screening, constraints, opts.n_bootstrap, rng)
-    cons = consensus(Tp, point, constraints, screening.ts_ctrl, rng)
+    point = point_estimate(model, screening, constraints, opts.n_bootstrap, rng)
+    cons = consensus(model, point, constraints, screening.ts_ctrl, rng)
     n = len(screening.usable)
     n_combinations = int(min(opts.max_combinations, max(50, 4000 // n)))
     combos = combinations(Tp, list(point.cycles), cons.Td_point, n_combinations, rng)
     # each test predicted from the others (point solves, no draws: rng untouched, the estimates unchanged)
-    held = held_out_eq2(Tp, screening.usable, [beta_used(t, screening.ts_ctrl) for t in screening.usable],
+    held = held_out_eq2(model, screening.usable, [beta_used(t, screening.ts_ctrl) for t in screening.usable],
                         cons.Td_point)
-    bounds = identifiability(Tp, screening, point, cons, constraints, rng, flight)
+    bounds = identifiability(model, screening, point, cons, constraints, rng, flight)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
@@ -194,19 +240,28 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
         f"it, and --accept-tp keeps {check.given:.4g} s", best=check.best, result=result)
 
 
-def analyze_path(path: str | Path, Tp: float, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult:
+@overload
+def analyze_path(path: str | Path, model: LoopModel | float, *, read: ReadOptions | None = None,
+                 options: AnalyzeOptions | None = None) -> AnalysisResult: ...
+@overload
+def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
+                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis: ...
+
+
+def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptions | None = None,
+                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters
     ----------
     path : str or Path
         The flight log (any supported format).
-    Tp : float
-        Known propulsion time constant [s].
+    model : PlantModel
+        As in :func:`analyze_flight` (eq. (2): ``soiptd_model(Tp)``).
     read : ReadOptions, optional
         How to read the loop (loop, topics, scales, layout, controller rate, format, time unit; see
-        :func:`mrftcli.io.read_flight`); None: ``ReadOptions()``, the altitude loop.
+        :func:`mrftcli.io.read_flight`); None: ``ReadOptions()``, the altitude loop. A process model
+        is read on any time scale (``any_time_scale``: its clock is not checked against a vehicle's).
     options : AnalyzeOptions, optional
         As in :func:`analyze_flight`.
 
@@ -218,12 +273,15 @@ def analyze_path(path: str | Path, Tp: float, *, read: ReadOptions | None = None
     --------
     >>> from pathlib import Path
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.csv"
-    >>> result = analyze_path(log, Tp=0.0422, read=ReadOptions(loop="altitude"),
+    >>> result = analyze_path(log, soiptd_model(0.0422), read=ReadOptions(loop="altitude"),
     ...                       options=AnalyzeOptions(n_bootstrap=100))
     >>> [round(t.beta_nominal, 1) for t in result.tests], f"{result.K.mean:.1f}"
     ([-0.4, -0.7], '19.6')
     """
     from ..io import read_flight
 
+    model = _model(model)
+    if not isinstance(model, LoopModel):
+        read = dataclasses.replace(read or ReadOptions(), any_time_scale=True)
     flight = read_flight(path, read, echo_warnings=False)  # the reader's warnings come once, in the result's
-    return analyze_flight(flight, Tp, options=options)
+    return analyze_flight(flight, model, options=options)

@@ -200,9 +200,10 @@ class SendTimeWindows:
         return tuple(out)
 
 
-def point_estimate(Tp: float, screening: Screening, constraints: Sequence[str], n_bootstrap: int,
+def point_estimate(model: LoopModel, screening: Screening, constraints: Sequence[str], n_bootstrap: int,
                    rng: np.random.Generator) -> PointEstimate:
-    """The paper's identification of the usable tests (UFM slices at the tests' means, ``rate_hz=None``).
+    """The paper's identification of the usable tests (UFM slices at the tests' means, ``rate_hz=None``)
+    at ``model``'s known Tp.
 
     The slices may not cross because the plant has no linear damping (Td -> infinity: they run
     side by side and noise decides); the consensus then says whether the tests agree in that limit.
@@ -221,22 +222,24 @@ def point_estimate(Tp: float, screening: Screening, constraints: Sequence[str], 
     B = int(min(n_bootstrap, max(100, 4000 // len(usable))))
     limit = None
     try:
-        ident = identify(meas, Tp, rate_hz=None)
+        ident = identify(meas, model, rate_hz=None)
     except IdentificationError as exc:
         # a Td far beyond every test's time scale stands for the limit
         Td_ref = 1e4 / (_TWO_PI * min(t.frequency_hz_mean for t in usable))
-        ident, limit = unbounded_td_or_raise(exc, Tp, Td_ref, cycles, constraints, B, rng)
+        ident, limit = unbounded_td_or_raise(exc, model.Tp, Td_ref, cycles, constraints, B, rng)
     return PointEstimate(tuple(cycles), B, ident, limit)
 
 
-def consensus(Tp: float, point: PointEstimate, constraints: Sequence[str], ts_ctrl: float,
+def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str], ts_ctrl: float,
               rng: np.random.Generator) -> Consensus:
-    """The weighted estimate of the tests together (UFM slices + ``constraints``) and its bootstrap over cycles.
+    """The weighted estimate of the tests together (UFM slices + ``constraints``) at ``model``'s known Tp,
+    and its bootstrap over cycles.
 
     The weighted estimate on the data themselves (bootstrap row 0) is the point estimate; the
     paper's UFM-only estimate stays in ``identification`` for comparison. A low-rate log
     (``ts_ctrl`` > 0) has the sampled relay's lag Ts / 2 removed from every tau.
     """
+    Tp = model.Tp  # the known set E; below, ``model`` is the fit
     ident, limit, B = point.identification, point.limit, point.n_draws
     cycles = list(point.cycles)
     warnings = list(ident.warnings)
@@ -292,7 +295,7 @@ def _constraint_info(Tp: float, cycles: Sequence[StableCycles], boot: Bootstrap,
     return info
 
 
-def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons: Consensus,
+def identifiability(model: LoopModel, screening: Screening, point: PointEstimate, cons: Consensus,
                     constraints: Sequence[str], rng: np.random.Generator,
                     flight: FlightLog | None = None) -> Identifiability:
     """Td's upper end when the data do not close it, Td * Omega, and a low-rate log's switching lag.
@@ -304,8 +307,9 @@ def identifiability(Tp: float, screening: Screening, point: PointEstimate, cons:
     'mrft-ident plan').
 
     A low-rate log's switching lag and its folds' harmonic counts (from ``flight``'s output) are
-    drawn into the intervals (:func:`widen_for_orbits`).
+    drawn into the intervals (:func:`widen_for_orbits`). ``model``: eq. (2) with its known Tp.
     """
+    Tp = model.Tp
     usable, ts_ctrl = screening.usable, screening.ts_ctrl
     Td_est, tau_est, K_est = cons.Td, cons.tau, cons.K
     Td_hat = cons.Td_point

@@ -1,6 +1,7 @@
-"""One log, any plant structure and any relay: ``analyze --model NAME`` (beside the eq. (2) path).
+"""The process families' strategy of :func:`mrftcli.analyze.analyze_flight` (``analyze --model NAME``).
 
-Stages, each returning a frozen record:
+Any plant structure and any relay; eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`) takes the
+manifold strategy of :mod:`mrftcli.analyze.driver` instead. Stages, each returning a frozen record:
 
 1. windows (:func:`flight_windows`): the parts of the log to use (``--window``), each segmented on
    its own (:func:`mrftcli.segment.segment`);
@@ -36,11 +37,12 @@ from ..segment.relay_type import infer_relay
 from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .held_out import HeldOut
+from .options import AnalyzeOptions, RelayOptions
 from .screen import log_start
 from .static_gain import StaticGain, is_self_regulating, static_gain
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
-__all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_general", "response_points",
+__all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_family", "response_points",
            "chattering_cycles", "find_tests", "screen_test", "MeasuredTest", "measure_tests",
            "general_analysis",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
@@ -55,25 +57,6 @@ HARMONICS = (1, 3, 5)
 _NOISY = {"snr", "h1_fraction", "phase", "beta_mismatch"}
 #: floor of a harmonic point's standard errors (relative gain, phase [rad]): see identify_points
 _HARMONIC_SE = 0.03
-
-
-@dataclass(frozen=True)
-class RelayOptions:
-    """What the user states about the relay (None: inferred from the data).
-
-    Attributes
-    ----------
-    kind : str or None
-        ``"mrft"``, ``"ideal"`` or ``"hysteresis"``.
-    beta : float or None
-        MRFT beta.
-    eps : float or None
-        Hysteresis [output units].
-    """
-
-    kind: str | None = None
-    beta: float | None = None
-    eps: float | None = None
 
 
 @dataclass(frozen=True)
@@ -169,7 +152,7 @@ class TestSummary:
 
 @dataclass(frozen=True)
 class GeneralAnalysis:
-    """The outcome of :func:`analyze_general` (``analyze --model NAME``).
+    """The outcome of :func:`mrftcli.analyze.analyze_flight` for a process family (``analyze --model NAME``).
 
     Attributes
     ----------
@@ -441,7 +424,7 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
 
 @dataclass(frozen=True)
 class MeasuredTest:
-    """One test through screening, its relay and its response points (a stage of :func:`analyze_general`).
+    """One test through screening, its relay and its response points (a stage of :func:`analyze_family`).
 
     A usable test has ``summary``, ``points``, the test as used (``test``, its chattering cycles
     re-marked) and its per-cycle fits (``fits``); a rejected one has ``rejected`` (index, span [s],
@@ -456,7 +439,7 @@ class MeasuredTest:
 
 
 def find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> list[MrftTest]:
-    """The relay tests of each window, in the order :func:`analyze_general` numbers them (a window
+    """The relay tests of each window, in the order :func:`analyze_family` numbers them (a window
     without one is skipped; no window: the log's, or the :class:`SegmentationError`)."""
     found: list[MrftTest] = []
     for part in flight_windows(flight, windows):
@@ -502,28 +485,13 @@ def _no_usable_test(rejected: Sequence[tuple[int, float, float, str]]) -> Segmen
                                                          or "no relay switching found"))
 
 
-def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions = RelayOptions(),
-                    windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3,
-                    baseline: tuple[float | Signal, float] | None = None) -> GeneralAnalysis:
-    """Identify ``model``'s unknown parameters from the relay tests of a flight (module docstring).
+def analyze_family(flight: FlightLog, model: PlantModel, options: AnalyzeOptions) -> GeneralAnalysis:
+    """A process family's unknown parameters from the relay tests of a flight (module docstring).
 
-    Parameters
-    ----------
-    flight : FlightLog
-        Command and output of one loop.
-    model : PlantModel
-        The structure with its known parameters (set E) and ranges (set I).
-    relay : RelayOptions
-        What is stated about the relay (the rest is inferred per test).
-    windows : sequence of (float, float)
-        Parts of the log to use [s, log clock]; empty: all.
-    min_stable_cycles : int
-        Fewest stable cycles for a test to be used.
-    baseline : (float or Signal, float) or None
-        The operating point ``Y0`` [output units] (the output with the command at 0; or its logged
-        signal, e.g. the ambient temperature) and its standard deviation: the biased relays' mean
-        levels then measure the static gain
-        (:mod:`~mrftcli.analyze.static_gain`), one more constraint of the fit.
+    The strategy :func:`mrftcli.analyze.analyze_flight` runs for every model but eq. (2): it reads
+    ``options.relay`` (what is stated about the relay; the rest is inferred per test),
+    ``options.windows``, ``options.min_stable_cycles`` and ``options.baseline`` (the operating point:
+    a biased relay's mean levels then measure the static gain, one more constraint of the fit).
 
     Raises
     ------
@@ -532,13 +500,13 @@ def analyze_general(flight: FlightLog, model: PlantModel, *, relay: RelayOptions
     InputError
         ``baseline`` on an integrating plant, or under relays symmetric about the command's zero.
     """
-    return general_analysis(flight, model, measure_tests(flight, relay, windows, min_stable_cycles), windows,
-                            baseline)
+    measured = measure_tests(flight, options.relay, options.windows, options.min_stable_cycles)
+    return general_analysis(flight, model, measured, options.windows, options.baseline)
 
 
 def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
                   windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> list[MeasuredTest]:
-    """Stage 1 of :func:`analyze_general`: every relay test found, numbered in order, screened and measured."""
+    """Stage 1 of :func:`analyze_family`: every relay test found, numbered in order, screened and measured."""
     return [_measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
             for i, test in enumerate(find_tests(flight, windows))]
 
@@ -546,7 +514,7 @@ def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
 def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
                      windows: Sequence[tuple[float, float]] = (),
                      baseline: tuple[float | Signal, float] | None = None) -> GeneralAnalysis:
-    """Stage 2 of :func:`analyze_general`: ``model`` identified from the measured tests, each held out.
+    """Stage 2 of :func:`analyze_family`: ``model`` identified from the measured tests, each held out.
 
     Raises
     ------

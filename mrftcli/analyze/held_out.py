@@ -204,14 +204,14 @@ def _prediction(Tp: float, Td: float, tau: float, K: float, beta: float, h: floa
     return float(lc.frequency_hz), float(lc.amplitude)
 
 
-def held_out_eq2(Tp: float, tests: Sequence[MrftTest], betas: Sequence[float],
+def held_out_eq2(model: LoopModel, tests: Sequence[MrftTest], betas: Sequence[float],
                  Td_ref: float | None = None) -> tuple[HeldOut, ...]:
     """Each test's cycle predicted by eq. (2) identified from the other tests (module docstring).
 
     Parameters
     ----------
-    Tp : float
-        Known propulsion time constant [s].
+    model : LoopModel
+        Eq. (2) with its known Tp [s] (``soiptd_model(Tp)``).
     tests : sequence of MrftTest
         The usable tests.
     betas : sequence of float
@@ -237,16 +237,17 @@ def held_out_eq2(Tp: float, tests: Sequence[MrftTest], betas: Sequence[float],
         else:
             usable.append(i)
     if usable:
-        for i, ho in zip(usable, _solve(Tp, tests, np.asarray(betas, float), groups, usable, Td_ref)):
+        for i, ho in zip(usable, _solve(model, tests, np.asarray(betas, float), groups, usable, Td_ref)):
             out[i] = ho
     return tuple(o for o in out if o is not None)
 
 
-def _solve(Tp: float, tests: list[MrftTest], betas: np.ndarray, groups: list[list[int]], usable: list[int],
+def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: list[list[int]], usable: list[int],
            Td_ref: float | None) -> list[HeldOut]:
     """The held-out predictions of the ``usable`` tests: one vectorised UFM consensus for all their fits."""
+    Tp = model.Tp
     if Td_ref is None:
-        Td_ref = identify([TestMeasurement(b, t.frequency_hz_mean) for t, b in zip(tests, betas)], Tp).Td.mean
+        Td_ref = identify([TestMeasurement(b, t.frequency_hz_mean) for t, b in zip(tests, betas)], model).Td.mean
     sets = _sets(tests, groups, usable)
     Td, tau = consensus_solve(Tp, np.broadcast_to(betas, sets.omegas.shape), sets.omegas, sets.weights, Td_ref)
     amps = np.array([t.amplitude_mean for t in tests])

@@ -1,7 +1,8 @@
 """The knobs of one analysis (:func:`mrftcli.analyze.analyze_flight`) as one frozen, checked record.
 
 How a log is read is :class:`mrftcli.io.ReadOptions`; how its tests are screened and identified is
-:class:`AnalyzeOptions`. Every caller (``analyze``, ``tune``, ``batch``, ``watch``, ``diagnose``,
+:class:`AnalyzeOptions` (with the relay stated, :class:`RelayOptions`, and the windows of the log to
+use), for every model family. Every caller (``analyze``, ``tune``, ``batch``, ``watch``, ``diagnose``,
 ``plan``) builds one record instead of repeating a keyword list.
 """
 
@@ -11,11 +12,39 @@ from dataclasses import dataclass
 from numbers import Integral
 
 from ..errors import InputError
+from ..io.logtypes import Signal
 from ..mrft.consensus import CONSTRAINTS
 from ..segment import StabilityCriterion, ValidityCriterion
 from ..validate import check_positive
 
-__all__ = ["AnalyzeOptions"]
+__all__ = ["AnalyzeOptions", "RelayOptions"]
+
+#: the relays a process-plant analysis is told about (:func:`mrftcli.segment.relay_type.infer_relay`)
+RELAY_KINDS = ("mrft", "ideal", "hysteresis")
+
+
+@dataclass(frozen=True)
+class RelayOptions:
+    """What the user states about the relay (None: inferred from the data, per test).
+
+    Attributes
+    ----------
+    kind : str or None
+        ``"mrft"``, ``"ideal"`` or ``"hysteresis"``.
+    beta : float or None
+        MRFT beta.
+    eps : float or None
+        Hysteresis [output units].
+    """
+
+    kind: str | None = None
+    beta: float | None = None
+    eps: float | None = None
+
+    @property
+    def stated(self) -> bool:
+        """Whether anything is stated (eq. (2) reads its relay from the log and takes none)."""
+        return (self.kind, self.beta, self.eps) != (None, None, None)
 
 
 @dataclass(frozen=True)
@@ -49,6 +78,17 @@ class AnalyzeOptions:
     controller_rate_hz : float, optional
         Rate [Hz] the relay decides at, overriding the flight's ``timing.controller_rate_hz`` for the
         segmenter (a log sub-sampling its controller); None: the flight's.
+    relay : RelayOptions
+        What is stated about the relay (a process model's; eq. (2) reads beta from the log).
+    windows : tuple of (float, float)
+        Parts of the log to use [s, log clock]; empty: all of it.
+    baseline : (float or Signal, float) or None
+        A process model's operating point ``Y0`` [output units] (or its logged signal) and its std:
+        a biased relay's mean levels then measure the static gain
+        (:mod:`mrftcli.analyze.static_gain`).
+
+    The eq. (2) strategy reads every field but ``relay`` and ``baseline``; a process family's reads
+    ``min_stable_cycles``, ``relay``, ``windows`` and ``baseline``.
 
     Raises
     ------
@@ -75,6 +115,9 @@ class AnalyzeOptions:
     constraints: tuple[str, ...] = CONSTRAINTS
     refine_waveform: bool = True
     controller_rate_hz: float | None = None
+    relay: RelayOptions = RelayOptions()
+    windows: tuple[tuple[float, float], ...] = ()
+    baseline: tuple[float | Signal, float] | None = None
 
     def __post_init__(self) -> None:
         for name in ("min_stable_cycles", "n_bootstrap", "max_combinations"):
@@ -86,6 +129,9 @@ class AnalyzeOptions:
         if bad:
             raise InputError(f"unknown constraint(s) {bad}; choose from {list(CONSTRAINTS)}")
         object.__setattr__(self, "constraints", constraints)  # a list given: stored as the tuple
+        object.__setattr__(self, "windows", tuple((float(a), float(b)) for a, b in self.windows))
+        if self.relay.kind is not None and self.relay.kind not in RELAY_KINDS:
+            raise InputError(f"unknown relay {self.relay.kind!r}; choose from {list(RELAY_KINDS)}")
         if self.controller_rate_hz is not None:
             object.__setattr__(self, "controller_rate_hz",
                                check_positive("controller rate [Hz]", self.controller_rate_hz))

@@ -17,6 +17,7 @@ from ..errors import InsufficientDataError, SegmentationError
 from ..io.logtypes import FlightLog
 from ..mrft.consensus import SAME_BETA
 from ..mrft.identify import ufm_slice
+from ..mrft.model import LoopModel
 from ..segment import MrftTest
 
 __all__ = ["Screening", "screen", "screen_tests", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
@@ -59,7 +60,7 @@ def _rejected_rows(tests: Sequence[MrftTest], reasons: Mapping[int, str], t0: fl
              "reason": reasons[t.index]} for t in tests]
 
 
-def screen(flight: FlightLog, found: Sequence[MrftTest], Tp: float, min_stable_cycles: int) -> Screening:
+def screen(flight: FlightLog, found: Sequence[MrftTest], model: LoopModel, min_stable_cycles: int) -> Screening:
     """The usable tests of a flight (:func:`screen_tests`), with the warnings they raise.
 
     Parameters
@@ -68,8 +69,8 @@ def screen(flight: FlightLog, found: Sequence[MrftTest], Tp: float, min_stable_c
         The log (its path, loop, source and reader warnings go into the messages).
     found : sequence of MrftTest
         The tests the segmenter found.
-    Tp : float
-        The known propulsion time constant [s] (for the partial result of a single beta).
+    model : LoopModel
+        Eq. (2) with its known Tp [s] (for the partial result of a single beta).
     min_stable_cycles : int
         Fewest stable cycles for a test to be used.
 
@@ -98,7 +99,7 @@ def screen(flight: FlightLog, found: Sequence[MrftTest], Tp: float, min_stable_c
             f"{ASSUMED_TD_RANGE[0]:g}-{ASSUMED_TD_RANGE[1]:g} s"
             + (f" ({len(rejected)} other test(s) rejected: {'; '.join(reasons[t.index] for t in rejected)})"
                if rejected else ""),
-            partial={**partial_single_beta(Tp, usable, t0), "rejected_tests": _rejected_rows(rejected, reasons, t0)},
+            partial={**partial_single_beta(model, usable, t0), "rejected_tests": _rejected_rows(rejected, reasons, t0)},
         )
     ts_ctrl = low_rate_period(usable)
     for t in usable:
@@ -263,7 +264,7 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
             "noise/dropouts")
 
 
-def partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -> dict[str, Any]:
+def partial_single_beta(model: LoopModel, tests: Sequence[MrftTest], t0: float = 0.0) -> dict[str, Any]:
     """What one beta can say: tau(Td) over the assumed Td range, per test; with the measured sensor noise
     (``noise``), which ``plan`` uses from the log and from this object alike; ``held_out`` says why nothing is predicted (one test, or one beta)."""
     from .held_out import held_out_eq2
@@ -271,7 +272,7 @@ def partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -
 
     Td = np.geomspace(ASSUMED_TD_RANGE[0], ASSUMED_TD_RANGE[1], 9)
     rows = []
-    for t, held in zip(tests, held_out_eq2(Tp, tests, [t.beta for t in tests])):  # no solve: one beta
+    for t, held in zip(tests, held_out_eq2(model, tests, [t.beta for t in tests])):  # no solve: one beta
         d = t.to_dict(cycles=False)
         d.update(t_start_rel=t.t_start - t0, t_end_rel=t.t_end - t0, held_out=held.to_json())
         rows.append(d)
@@ -281,7 +282,7 @@ def partial_single_beta(Tp: float, tests: Sequence[MrftTest], t0: float = 0.0) -
                      "source": "median residual of the tests' stable cycle fits"}}
     for t in tests:
         try:
-            tau = ufm_slice(Tp, t.beta, t.frequency_hz_mean, Td)
+            tau = ufm_slice(model.Tp, t.beta, t.frequency_hz_mean, Td)
         except Exception:  # noqa: BLE001 - a partial result is best effort; never invent a number
             tau = np.full(Td.size, np.nan)
         fin = tau[np.isfinite(tau)]

@@ -218,8 +218,10 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
-    from ..analyze import AnalyzeOptions, analyze_flight, refuse_rejected_tp
+    from ..analyze import AnalysisResult, AnalyzeOptions, analyze_flight, log_start, refuse_rejected_tp
+    from ..analyze.options import RelayOptions
     from ..io import ReadOptions, read_flight
+    from ..validate import check_tp
 
     # a process model's operating point: a number, or a topic of the log
     baseline = parse_baseline(read_options.pop("baseline", None))
@@ -240,30 +242,36 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         from ..io.overlay import check_overlay_path
 
         check_overlay_path(mcap_out)
-    if model_name != "soiptd":
-        _analyze_process(log, model_name, params, ranges, windows, (relay_kind, eps, baseline or baseline_topic),
-                         min_cycles, json_target, (report_dir, mcap_out, paper_only, run_diagnose), read_options)
-        return
-    _check_soiptd(Tp, params, ranges, relay_kind, eps)
-    if baseline is not None or baseline_topic is not None:
-        raise click.UsageError("--baseline and --baseline-topic take a process model (--model fopdt or sopdt, or "
-                               "--model-file); eq. (2) integrates (no static gain)")
-    with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
-        flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False,  # its warnings: once, below
-                             progress=progress)
-    if windows:
-        from ..analyze.general import mask_windows
-        from ..analyze.screen import log_start
+    eq2 = model_name == "soiptd"
+    if eq2:
+        _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline is not None or baseline_topic is not None)
+        from ..mrft.model import soiptd_model
 
-        flight = mask_windows(flight, parse_windows(windows, log_start(flight)))
+        model = soiptd_model(check_tp(Tp))
+    else:
+        used = [n for n, v in (("--report", report_dir), ("--mcap-out", mcap_out), ("--paper-only", paper_only),
+                               ("--diagnose", run_diagnose)) if v]
+        if used:
+            raise click.UsageError(f"{', '.join(used)} work with --model soiptd only so far")
+        model = build_model(model_name, params, ranges)
+    with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
+        # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
+        flight = read_flight(log, ReadOptions(**read_options, any_time_scale=not eq2), echo_warnings=False,
+                             progress=progress)  # its warnings: once, below
+    if isinstance(baseline_topic, str):  # --baseline-topic: the operating point as logged
+        baseline = (_baseline_signal(log, baseline_topic, read_options), 0.0)
+    options = AnalyzeOptions(min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}),
+                             relay=RelayOptions(relay_kind, None, eps), windows=parse_windows(windows, log_start(flight)),
+                             baseline=baseline)
     weights = {"identify": 6.0, **({"diagnose": 25.0} if run_diagnose else {}), **({"report": 4.0} if report_dir else {})}
     # a bar (stderr, terminal only) when the run is long enough to wait for: a diagnosis or a report
     with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1 and not quiet) as progress:
         stage = _stages(progress, weights)
         stage("identify")(0, 1, "segmenting and identifying")
         try:
-            options = AnalyzeOptions(min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}))
-            result = refuse_rejected_tp(analyze_flight(flight, Tp, options=options), accept_tp)
+            result = analyze_flight(flight, model, options=options)
+            if isinstance(result, AnalysisResult):
+                result = refuse_rejected_tp(result, accept_tp)
         except TpRejectedError as err:
             if json_target and err.result is not None:  # the JSON says which: tp_check.verdict "rejected"
                 dump_json(err.result.to_json(), json_target)
@@ -309,7 +317,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
             data["diagnosis"] = diagnosis.to_dict()
         dump_json(data, json_target)
     if not to_stdout:
-        click.echo(format_table(result))
+        click.echo(format_table(result) if isinstance(result, AnalysisResult) else format_general(result))
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
     if mcap_out:
@@ -322,45 +330,16 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         click.echo(f"report: {index}", err=to_stdout)
 
 
-def _check_soiptd(Tp, params, ranges, relay_kind, eps) -> None:
+def _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline: bool) -> None:
     """eq. (2) needs --tp; the process-model options do not apply to it."""
     if Tp is None:
         raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
     if params or ranges or relay_kind or eps is not None:
         raise click.UsageError("--param, --range, --relay and --eps take a process model (--model fopdt, sopdt, "
                                "ipdt or foipdt); eq. (2) takes --tp and reads beta from the log.")
-
-
-def _analyze_process(log, model_name, params, ranges, windows, relay_baseline, min_cycles, json_target,
-                     soiptd_only, read_options) -> None:
-    """``analyze --model NAME`` for a process plant (:func:`mrftcli.analyze.general.analyze_general`)."""
-    from ..analyze.general import RelayOptions, analyze_general
-    from ..analyze.screen import log_start
-    from ..io import ReadOptions, read_flight
-
-    names = ("--report", "--mcap-out", "--paper-only", "--diagnose")
-    used = [n for n, v in zip(names, soiptd_only) if v]
-    if used:
-        raise click.UsageError(f"{', '.join(used)} work with --model soiptd only so far")
-    check_output_file(json_target, "--json")
-    model = build_model(model_name, params, ranges)
-    # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
-    flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
-    relay_kind, eps, baseline = relay_baseline
-    if isinstance(baseline, str):  # --baseline-topic: the operating point as logged
-        baseline = (_baseline_signal(log, baseline, read_options), 0.0)
-    relay = RelayOptions(relay_kind, None, eps)
-    try:
-        result = analyze_general(flight, model, relay=relay, windows=parse_windows(windows, log_start(flight)),
-                                 min_stable_cycles=min_cycles, baseline=baseline)
-    except MrftError:
-        _echo_warnings(flight.warnings)
-        raise
-    if json_target:
-        dump_json(result.to_json(), json_target)
-    if json_target != "-":
-        click.echo(format_general(result))
-    _echo_warnings(result.warnings)
+    if baseline:
+        raise click.UsageError("--baseline and --baseline-topic take a process model (--model fopdt or sopdt, or "
+                               "--model-file); eq. (2) integrates (no static gain)")
 
 
 def _baseline_signal(log, spec: str, read_options):

@@ -364,13 +364,16 @@ def _delta_estimate(point: float, std: float, unit: str) -> ParameterEstimate:
     return ParameterEstimate(point, std, point - 1.959964 * std, point + 1.959964 * std, unit)
 
 
-def _check_inputs(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None, K: float | None,
+def _check_inputs(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float | None,
                   n_draws: int, seed: int, spread: str) -> _Inputs:
     checked = tuple(tests)
     for t in checked:
         if not isinstance(t, TestMeasurement):
             raise InputError("tests must be TestMeasurement objects")
-    Tp = check_time("Tp", Tp)
+    if not isinstance(model, LoopModel) or "Tp" not in model.known:
+        raise InputError("identify takes eq. (2) with Tp known: soiptd_model(Tp) (Tp [s] from the bench test)")
+    Tp = check_time("Tp", model.Tp)
+    K = model.K if "K" in model.known else None
     if rate_hz is not None:
         rate_hz = float(rate_hz)
         if not math.isfinite(rate_hz) or rate_hz <= 0:
@@ -590,7 +593,7 @@ def _delta_method(inputs: _Inputs, m: _Measured, point: _Point, K_est: Parameter
 # ----------------------------------------------------------------------------------------------
 # the public entry point
 # ----------------------------------------------------------------------------------------------
-def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None = None, K: float | None = None,
+def identify(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float | None = None,
              n_draws: int = 2000, seed: int = 0, spread: str = "sem",
              manifolds: ManifoldSet | None = None) -> IdentificationResult:
     """Identify Td and tau (and K) of eq. (2) from MRFT tests at a known Tp.
@@ -599,9 +602,11 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
     ----------
     tests : iterable of TestMeasurement
         Two or more tests with different betas (one test suffices only for the amplitude route,
-        which needs ``K`` and an amplitude).
-    Tp : float
-        Propulsion time constant [s] from the bench test.
+        which needs K known and an amplitude).
+    model : LoopModel
+        Eq. (2) with its known set: Tp [s] from the bench test (``soiptd_model(Tp)``); with K known
+        too (``soiptd_model(Tp, K=...)``) a single test's amplitude gives Td and tau (the UGM route,
+        paper Section V-A), for comparison.
     rate_hz : float, optional
         Rate [Hz] of the relay that produced the tests when their betas are *nominal*.  A sampled
         relay switches on average half a sample after the continuous crossing, which looks like an
@@ -611,8 +616,6 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
         includes that quantisation (two tests).  When beta is the *effective* beta measured from
         the recorded output at the actual switch instants (as ``analyze`` does), the loop is exactly
         a continuous relay switching at that level: pass ``rate_hz=None``.
-    K : float, optional
-        Known gain: enables the single-test amplitude route (UGM, paper Section V-A) for comparison.
     n_draws : int
         Monte Carlo draws for the uncertainty of two-test identifications.
     seed : int
@@ -639,9 +642,10 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
     --------
     The paper's example: two tests at beta -0.4 and -0.7 (frequencies in Hz, amplitudes for h = 1):
 
+    >>> from mrftcli.mrft.model import soiptd_model
     >>> tests = [TestMeasurement(-0.4, 0.705643, amplitude=0.078530, h=1.0),
     ...          TestMeasurement(-0.7, 1.018843, amplitude=0.035602, h=1.0)]
-    >>> r = identify(tests, Tp=0.1)
+    >>> r = identify(tests, soiptd_model(0.1))
     >>> print(f"Td {r.Td.mean:.4f} s, tau {r.tau.mean * 1e3:.2f} ms, K {r.K.mean:.3f} ({r.method})")
     Td 0.7042 s, tau 60.00 ms, K 1.420 (intersection)
 
@@ -649,11 +653,11 @@ def identify(tests: Iterable[TestMeasurement], Tp: float, rate_hz: float | None 
 
     >>> noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058, 0.7056]),
     ...          TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189, 1.0190])]
-    >>> r = identify(noisy, Tp=0.1, n_draws=200)
+    >>> r = identify(noisy, soiptd_model(0.1), n_draws=200)
     >>> r.uncertainty, bool(r.Td.ci95_low < r.Td.mean < r.Td.ci95_high)
     ('monte-carlo', True)
     """
-    inputs = _check_inputs(tests, Tp, rate_hz, K, n_draws, seed, spread)
+    inputs = _check_inputs(tests, model, rate_hz, n_draws, seed, spread)
     ms = manifolds if manifolds is not None else load_manifolds()
     if len(inputs.tests) == 1:
         return _identify_amplitude(inputs)

@@ -40,7 +40,7 @@ def analyze_process_loop(path: str, loop: str, settings: Any, model: Any) -> dic
     model : PlantModel
         The structure with its known parameters (set E) and ranges (set I).
     """
-    from ..analyze.general import analyze_general
+    from ..analyze import AnalyzeOptions, analyze_flight
     from ..io import ReadOptions, read_flight
 
     read = ReadOptions(loop=loop, command_topic=settings.command_topic, output_topic=settings.output_topic,
@@ -50,7 +50,7 @@ def analyze_process_loop(path: str, loop: str, settings: Any, model: Any) -> dic
                        any_time_scale=True)  # a process plant: any time scale
     flight = read_flight(path, read, echo_warnings=False)
     min_cycles = 3 if settings.min_cycles is None else settings.min_cycles
-    result = analyze_general(flight, model, min_stable_cycles=min_cycles)
+    result = analyze_flight(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     data: dict[str, Any] = result.to_json()
     return data
 

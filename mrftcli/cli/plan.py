@@ -207,7 +207,7 @@ def _plan_process(source: str | None, opts: _ProcessOptions, *, max_amplitude: f
     """``plan LOG --model NAME``: the log analysed as ``analyze --model`` does, then the next relay tests ranked."""
     model_name, params, ranges, windows = opts.model_name, opts.params, opts.ranges, opts.windows
     relay_kind, eps = opts.relay_kind, opts.eps
-    from ..analyze.general import RelayOptions, analyze_general
+    from ..analyze import AnalyzeOptions, RelayOptions, analyze_flight
     from ..analyze.screen import log_start
     from ..io import ReadOptions, read_flight
     from ..plan.process import plan_process
@@ -236,8 +236,9 @@ def _plan_process(source: str | None, opts: _ProcessOptions, *, max_amplitude: f
     else:
         model = build_model(model_name, params, ranges)
         flight = read_flight(source, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
-        analysis = analyze_general(flight, model, relay=RelayOptions(relay_kind, None, eps),
-                                   windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
+        analysis = analyze_flight(flight, model, options=AnalyzeOptions(
+            min_stable_cycles=min_cycles, relay=RelayOptions(relay_kind, None, eps),
+            windows=parse_windows(windows, log_start(flight))))
     result = plan_process(analysis, max_amplitude=max_amplitude, max_h=max_h)
     if json_target:
         dump_json(result.to_json(), json_target)

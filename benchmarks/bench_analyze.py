@@ -12,6 +12,7 @@ Run: ``python benchmarks/bench_analyze.py`` (about 30 s including the simulation
 
 from __future__ import annotations
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
 import tempfile
 import time
@@ -41,11 +42,11 @@ def main() -> None:
         write_flight(flight, path, "mcap")
         print(f"log: {flight.t[-1] - flight.t[0]:.0f} s at 200 Hz, {flight.t.size} samples per topic, "
               f"{path.stat().st_size / 1e6:.1f} MB (simulated and written in {time.perf_counter() - t0:.1f} s)")
-        analyze_path(path, 0.0422, read=ReadOptions(loop="altitude"))  # warm-up: imports, manifold loading
+        analyze_path(path, soiptd_model(0.0422), read=ReadOptions(loop="altitude"))  # warm-up: imports, manifold loading
         runs = []
         for _ in range(3):
             t0 = time.perf_counter()
-            result = analyze_path(path, 0.0422, read=ReadOptions(loop="altitude"))
+            result = analyze_path(path, soiptd_model(0.0422), read=ReadOptions(loop="altitude"))
             runs.append(time.perf_counter() - t0)
         total = float(np.median(runs))
         from mrftcli.io import read_flight
@@ -73,7 +74,7 @@ def main() -> None:
     m = min(40, ii.size)
     t0 = time.perf_counter()
     for i, j in zip(ii[:m], jj[:m]):
-        identify([TestMeasurement(ba[i], 1 / pa[i]), TestMeasurement(bb[j], 1 / pb[j])], 0.0422)
+        identify([TestMeasurement(ba[i], 1 / pa[i]), TestMeasurement(bb[j], 1 / pb[j])], soiptd_model(0.0422))
     t_loop = (time.perf_counter() - t0) / m * ii.size
     t0 = time.perf_counter()
     betas = np.stack([ba[ii], bb[jj]], axis=1)

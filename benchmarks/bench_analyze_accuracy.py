@@ -35,6 +35,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_segment_support import flight_from_simulated  # noqa: E402
 
+from mrftcli.mrft.model import soiptd_model  # noqa: E402
 from mrftcli.analyze import AnalyzeOptions, analyze_flight  # noqa: E402
 from mrftcli.mrft.model import LoopModel  # noqa: E402
 from mrftcli.mrft.refine import fit_output_error, loop_model_plant, refinement_windows  # noqa: E402
@@ -114,10 +115,10 @@ def cost(n_repeats=5, seed=1):
     t_with, t_without = [], []
     for _ in range(n_repeats):
         t0 = time.perf_counter()
-        analyze_flight(fl, 0.0422, options=AnalyzeOptions(n_bootstrap=200, refine_waveform=False))
+        analyze_flight(fl, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=200, refine_waveform=False))
         t_without.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
-        r = analyze_flight(fl, 0.0422, options=AnalyzeOptions(n_bootstrap=200))
+        r = analyze_flight(fl, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=200))
         t_with.append(time.perf_counter() - t0)
     return float(np.median(t_with)), float(np.median(t_without)), r.refinement.fit.n_evaluations
 
@@ -135,7 +136,7 @@ def main() -> None:
         loop, model, rate, noise, betas = draw_plant(rng)
         try:
             fl = simulate(loop, model, rate, noise, betas, int(rng.integers(1 << 30)))
-            r = analyze_flight(fl, model.Tp, options=AnalyzeOptions(n_bootstrap=200))
+            r = analyze_flight(fl, soiptd_model(model.Tp), options=AnalyzeOptions(n_bootstrap=200))
         except Exception as exc:  # noqa: BLE001 - a refused flight is counted, not fatal
             print(f"  skipped ({type(exc).__name__}: {str(exc)[:90]})")
             continue

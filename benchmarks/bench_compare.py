@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_segment_support import flight_from_simulated  # noqa: E402
 
+from mrftcli.mrft.model import soiptd_model  # noqa: E402
 from mrftcli.analyze import analyze_flight  # noqa: E402
 from mrftcli.compare import CompareOptions, Side, compare_sides  # noqa: E402
 from mrftcli.compare.inputs import estimates_from_analysis  # noqa: E402
@@ -82,7 +83,7 @@ def fly(plant: dict, model: LoopModel, rng: np.random.Generator):
 def analyse(plant: dict, model: LoopModel, rng: np.random.Generator) -> dict | None:
     """The analysis JSON of one flight, or None when analyze refuses it."""
     try:
-        return to_jsonable(analyze_flight(fly(plant, model, rng), model.Tp).to_dict())
+        return to_jsonable(analyze_flight(fly(plant, model, rng), soiptd_model(model.Tp)).to_dict())
     except Exception as exc:  # noqa: BLE001 - a refused flight is counted, not fatal
         print(f"    refused ({type(exc).__name__}: {str(exc)[:80]})")
         return None

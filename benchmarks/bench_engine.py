@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.mrft.describing import describing_function_limit_cycle
 from mrftcli.mrft.identify import TestMeasurement, identify, intersection_draws
 from mrftcli.mrft.lprs import mrft_limit_cycle, unit_cycle, unit_cycle_scalar
@@ -48,12 +49,12 @@ def bench_speed(reps: int) -> None:
     f = {b: mrft_limit_cycle(PAPER, b).frequency_hz for b in (-0.4, -0.7)}
     tests = [TestMeasurement(b, f[b]) for b in f]
     load_manifolds()
-    t_id = _median_time(lambda: identify(tests, PAPER.Tp), reps)
+    t_id = _median_time(lambda: identify(tests, soiptd_model(PAPER.Tp)), reps)
     print(f"identify, two tests, point estimate: median {t_id * 1e3:.3f} ms wall, {_median_time.cpu * 1e3:.3f} ms CPU "
           f"(target <= 1 ms; paper 100 ms -> {0.1 / t_id:.0f}x faster)")
     rng = np.random.default_rng(0)
     noisy = [TestMeasurement(b, f[b] * (1 + 0.01 * rng.standard_normal(20))) for b in f]
-    t_mc = _median_time(lambda: identify(noisy, PAPER.Tp, n_draws=2000), max(3, reps // 100))
+    t_mc = _median_time(lambda: identify(noisy, soiptd_model(PAPER.Tp), n_draws=2000), max(3, reps // 100))
     print(f"identify, two tests + 2000-draw Monte Carlo uncertainty: median {t_mc * 1e3:.1f} ms")
     t_pred = _median_time(lambda: mrft_limit_cycle(PAPER, -0.4), max(5, reps // 20))
     print(f"mrft_limit_cycle (exact, closed form): median {t_pred * 1e3:.2f} ms")
@@ -146,7 +147,7 @@ def bench_sensitivity(n: int) -> None:
     Tds, taus = [], []
     for f_, a_ in zip(fd, ad):
         try:
-            r = identify([TestMeasurement(-0.7, f_, a_, 1.0)], PAPER.Tp, K=PAPER.K)
+            r = identify([TestMeasurement(-0.7, f_, a_, 1.0)], soiptd_model(PAPER.Tp, K=PAPER.K))
         except Exception:  # noqa: BLE001 - draws without a solution are counted
             continue
         Tds.append(r.Td.mean)
@@ -164,12 +165,12 @@ def bench_sampling() -> None:
     for rate in (100.0, 200.0, 500.0):
         lcs = {b: mrft_limit_cycle(PAPER, b, rate_hz=rate) for b in betas}
         tests = [TestMeasurement(b, lcs[b].frequency_hz) for b in betas]
-        naive = identify(tests, PAPER.Tp).tau.mean
-        corr = identify(tests, PAPER.Tp, rate_hz=rate).tau.mean
+        naive = identify(tests, soiptd_model(PAPER.Tp)).tau.mean
+        corr = identify(tests, soiptd_model(PAPER.Tp), rate_hz=rate).tau.mean
         taus = []
         for f1, f2 in itertools.product(lcs[-0.4].orbits_hz, lcs[-0.7].orbits_hz):
             try:
-                taus.append(identify([TestMeasurement(-0.4, f1), TestMeasurement(-0.7, f2)], PAPER.Tp,
+                taus.append(identify([TestMeasurement(-0.4, f1), TestMeasurement(-0.7, f2)], soiptd_model(PAPER.Tp),
                                      rate_hz=rate).tau.mean)
             except Exception:  # noqa: BLE001
                 pass

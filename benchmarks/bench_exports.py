@@ -28,6 +28,7 @@ cores for all logs).
 
 from __future__ import annotations
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
 import argparse
 import json
@@ -74,7 +75,7 @@ def _one(path: Path) -> list[dict]:
     truth = json.loads((SAMPLES / (path.name + ".truth.json")).read_text())
     loop, Tp = truth["loop"], truth["Tp"]
     try:
-        a = analyze_path(path, Tp, read=ReadOptions(loop=loop))
+        a = analyze_path(path, soiptd_model(Tp), read=ReadOptions(loop=loop))
     except MrftError as err:
         return [{"log": path.name, "stack": s, "outcome": f"refused (analysis: {err})"} for s in STACKS]
     post = posterior_from_analysis(a)

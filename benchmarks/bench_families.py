@@ -92,7 +92,8 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path,
                   baseline: bool = False) -> dict[str, object]:
     from process_sim import simulate, write_csv
 
-    from mrftcli.analyze.general import RelayOptions, analyze_general
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.analyze.general import RelayOptions
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
     from mrftcli.mrft.relays import RelayLaw
@@ -109,10 +110,10 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path,
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     relay_options = RelayOptions("mrft") if relay == "mrft" else RelayOptions()
     model = family_model(family)
-    row = _score(lambda: analyze_general(flight, model, relay=relay_options), model, params, len(windows))
+    row = _score(lambda: analyze_flight(flight, model, options=AnalyzeOptions(relay=relay_options)), model, params, len(windows))
     if baseline:
         with _free_line_fits():
-            base = _score(lambda: analyze_general(flight, model, relay=relay_options), model, params, len(windows))
+            base = _score(lambda: analyze_flight(flight, model, options=AnalyzeOptions(relay=relay_options)), model, params, len(windows))
         row.update({f"base_{k}": base[k] for k in ("within5", "covered", "held10")})
         row["base_worst"] = base.get("worst", math.nan)
         row["base_K_err"] = base.get("K_err", math.nan)

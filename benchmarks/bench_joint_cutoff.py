@@ -15,6 +15,7 @@ import json
 import time
 from pathlib import Path
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_path
 from mrftcli.io import ReadOptions
 from mrftcli.tune.analysis import model_from_result_json, posterior_from_analysis
@@ -36,7 +37,7 @@ def _line(label: str, results, cutoff: float) -> None:
 
 
 def main() -> None:
-    analyses = [analyze_path(SAMPLES / f"design1_{ax}.mcap", TP, read=ReadOptions(loop=ax), options=AnalyzeOptions())
+    analyses = [analyze_path(SAMPLES / f"design1_{ax}.mcap", soiptd_model(TP), read=ReadOptions(loop=ax), options=AnalyzeOptions())
                 for ax in ("roll", "pitch")]
     routes = {
         "log posterior": [AxisModel(a.loop, a.model, posterior_from_analysis(a)) for a in analyses],

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.io.stacks import StackLogSpec, StackTest, write_stack_log
@@ -75,7 +76,7 @@ for k in range(N):
         log = StackLogSpec("px4-mrft", "altitude", fl.truth["bias"], st, log_rate_hz=lr if lr < 50 else None)
         p = write_stack_log(out / f"f{lr}.ulg", log, fl.t, fl.command, fl.output_measured, fl.setpoint)
         try:
-            r = analyze_flight(read_flight(p, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422,
+            r = analyze_flight(read_flight(p, ReadOptions(loop="altitude"), echo_warnings=False), soiptd_model(0.0422),
                                options=AnalyzeOptions(n_bootstrap=200, seed=1, controller_rate_hz=50.0))
         except Exception as e:  # a failure counts as a miss
             fail[lr].append(type(e).__name__)

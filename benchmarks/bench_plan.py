@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from test_segment_support import flight_from_simulated  # noqa: E402
 
+from mrftcli.mrft.model import soiptd_model  # noqa: E402
 from mrftcli.analyze import AnalyzeOptions, analyze_flight  # noqa: E402
 from mrftcli.errors import MrftError  # noqa: E402
 from mrftcli.mrft.lprs import mrft_limit_cycle  # noqa: E402
@@ -98,7 +99,7 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
         def fly(test, first=first, common=common, m=m, k=k):
             # the MRFT estimate (what the plan models), not the waveform refinement after it
             try:
-                return analyze_flight(flight_from_simulated(simulate_flight(FlightSpec(tests=(first, test), **common))), m.Tp, options=AnalyzeOptions(n_bootstrap=200, refine_waveform=False))
+                return analyze_flight(flight_from_simulated(simulate_flight(FlightSpec(tests=(first, test), **common))), soiptd_model(m.Tp), options=AnalyzeOptions(n_bootstrap=200, refine_waveform=False))
             except MrftError as err:
                 print(f"plant {k}: beta {test.beta:+.2f} test unusable ({type(err).__name__})")
                 return None
@@ -245,7 +246,7 @@ def admissibility(n: int, seed: int) -> None:
                           loop=loop, rate_hz=rate, noise_std=noise, seed=int(rng.integers(1 << 30)),
                           hover_s=2.0, hold_s=2.0)
         try:
-            res = analyze_flight(flight_from_simulated(simulate_flight(spec)), m.Tp, options=AnalyzeOptions(n_bootstrap=50, refine_waveform=False))
+            res = analyze_flight(flight_from_simulated(simulate_flight(spec)), soiptd_model(m.Tp), options=AnalyzeOptions(n_bootstrap=50, refine_waveform=False))
             ok = any(abs(t.beta_effective - beta) < 0.1 for t in res.tests)
         except MrftError:
             ok = False

@@ -43,14 +43,14 @@ FAMILIES = ("fopdt", "sopdt", "ipdt", "foipdt")
 def _analyse(family, params, windows, rate, noise, seed, path):
     from process_sim import simulate, write_csv
 
-    from mrftcli.analyze.general import analyze_general
+    from mrftcli.analyze import analyze_flight
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import family_model
 
     t, u, y = simulate(family, params, windows, rate, noise, seed=seed)
     write_csv(str(path), t, u, y)
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
-    return analyze_general(flight, family_model(family))
+    return analyze_flight(flight, family_model(family))
 
 
 def _std(e) -> float:

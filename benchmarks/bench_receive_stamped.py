@@ -23,6 +23,7 @@ import time
 
 import numpy as np
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
@@ -82,7 +83,7 @@ for k in range(N):
     for name, (cmd, out) in SETTINGS.items():
         log = recorded_flight(fl, command=cmd, output=out, seed=stamp_seed)
         try:
-            r = analyze_flight(log, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=200, seed=1))
+            r = analyze_flight(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=200, seed=1))
         except Exception as e:  # a refusal or failure counts as a miss
             fail[name].append(type(e).__name__)
             row.append(f"{name}: {type(e).__name__}")

@@ -129,13 +129,13 @@ def score(ident, truth: dict[str, float]) -> dict[str, object]:
 
 
 def analyse(path: Path, family: str, baseline: tuple[float, float] | None):
-    from mrftcli.analyze.general import analyze_general
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import family_model
 
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output", any_time_scale=True),
                          echo_warnings=False)
-    return analyze_general(flight, family_model(family), baseline=baseline).identification
+    return analyze_flight(flight, family_model(family), options=AnalyzeOptions(baseline=baseline)).identification
 
 
 def one(family: str, relay: str, n_settings: int, rng: np.random.Generator, tmp: Path) -> list[dict[str, object]]:

@@ -21,6 +21,7 @@ import json
 import time
 from pathlib import Path
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
 from mrftcli.analyze import analyze_path
 from mrftcli.errors import MrftError
@@ -46,7 +47,7 @@ def outcome(log: Path, truth: dict, factor: float) -> tuple[str, float, str]:
     Tp = truth["Tp"] * factor
     t0 = time.process_time()
     try:
-        r = analyze_path(log, Tp, read=ReadOptions(loop=truth["loop"]))
+        r = analyze_path(log, soiptd_model(Tp), read=ReadOptions(loop=truth["loop"]))
     except MrftError as err:
         cpu = time.process_time() - t0
         return ("refused" if "Tp" in str(err) else "refused (not naming Tp)"), cpu, str(err)[:70]

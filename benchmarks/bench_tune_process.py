@@ -50,7 +50,7 @@ def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, floa
 def one(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, object]:
     from process_sim import simulate, write_csv
 
-    from mrftcli.analyze.general import analyze_general
+    from mrftcli.analyze import analyze_flight
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
@@ -69,7 +69,7 @@ def one(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, object]:
     out: dict[str, object] = {"family": family, "rate": rate}
     try:
         flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
-        res = analyze_general(flight, family_model(family))
+        res = analyze_flight(flight, family_model(family))
         assert res.identification is not None
         ident = res.identification
         opts = ProcessTuneOptions()

@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.jsonable import to_jsonable
 from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
@@ -40,7 +41,7 @@ def _check(result: AnalysisResult, Tp, Td, tau, K, td_tol=0.05):
 @pytest.fixture(scope="module")
 def design1():
     sf = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4, -0.7), seed=11)
-    return sf, analyze_flight(flight_from_simulated(sf), D1["Tp"])
+    return sf, analyze_flight(flight_from_simulated(sf), soiptd_model(D1["Tp"]))
 
 
 def test_design1_altitude(design1):
@@ -60,7 +61,7 @@ def test_attitude_loop_small_td():
     # roll of Design II (checks.md section 4) with IMU noise 0.2 deg; Td*Omega < 5 here
     p = dict(Tp=0.0499, Td=0.887, tau=0.0228, K=30.0)
     sf = simulate_paper_flight(p["Tp"], p["Td"], p["tau"], p["K"], (-0.5, -0.8), loop="roll", seed=5)
-    result = analyze_flight(flight_from_simulated(sf), p["Tp"])
+    result = analyze_flight(flight_from_simulated(sf), soiptd_model(p["Tp"]))
     _check(result, **p)
 
 
@@ -68,8 +69,8 @@ def test_delay_increment_of_20ms_is_found():
     """The paper's validation: 20 ms added to the altitude loop of Design I (found 19.6 ms)."""
     base = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4, -0.7), seed=21)
     added = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"] + 0.020, D1["K"], (-0.4, -0.7), seed=22)
-    r0 = analyze_flight(flight_from_simulated(base), D1["Tp"])
-    r1 = analyze_flight(flight_from_simulated(added), D1["Tp"])
+    r0 = analyze_flight(flight_from_simulated(base), soiptd_model(D1["Tp"]))
+    r1 = analyze_flight(flight_from_simulated(added), soiptd_model(D1["Tp"]))
     assert (r1.tau.mean - r0.tau.mean) * 1e3 == pytest.approx(20.0, abs=1.5)
 
 
@@ -77,7 +78,7 @@ def test_takeoff_landing_dropouts_and_glitches_around_tests():
     """Independent simulator: take-off and landing ramps, PD holds, then a damaged log."""
     Tp, Td, tau, K = 0.0499, 0.6, 0.035, 2.0
     sim = simulate_relay_flight(Tp, Td, tau, K, [(-0.4, 1.0, 16.0), (-0.7, 2.5, 10.0)], seed=7, takeoff_s=3.0)
-    clean = analyze_flight(to_flight(sim), Tp)
+    clean = analyze_flight(to_flight(sim), soiptd_model(Tp))
     _check(clean, Tp, Td, tau, K)
     rng = np.random.default_rng(8)
     keep = rng.random(sim.t.size) > 0.03
@@ -88,14 +89,14 @@ def test_takeoff_landing_dropouts_and_glitches_around_tests():
         i = int(np.searchsorted(flight.command.t, tg))
         c[i] = 1.0 - c[i]
     flight = replace(flight, command=Signal(flight.command.t, c))
-    damaged = analyze_flight(flight, Tp)
+    damaged = analyze_flight(flight, soiptd_model(Tp))
     _check(damaged, Tp, Td, tau, K)
 
 
 def test_single_beta_gives_partial_tau_curve():
     sf = simulate_paper_flight(D1["Tp"], D1["Td"], D1["tau"], D1["K"], (-0.4,), seed=3)
     with pytest.raises(InsufficientDataError, match="only one beta") as err:
-        analyze_flight(flight_from_simulated(sf), D1["Tp"])
+        analyze_flight(flight_from_simulated(sf), soiptd_model(D1["Tp"]))
     part = err.value.partial
     assert part["assumed_Td_range_s"] == [0.1, 10.0]
     curve = part["tau_for_assumed_Td"][0]
@@ -113,7 +114,7 @@ def test_too_few_stable_cycles_is_a_segmentation_error():
     short = FlightSpec(model=spec.model, tests=tuple(TestSpec(t.beta, t.h, 2.5) for t in spec.tests),
                        loop=spec.loop, switching=spec.switching, seed=4, hover_s=2.0, hold_s=2.0)
     with pytest.raises(SegmentationError, match="stable"):
-        analyze_flight(flight_from_simulated(simulate_flight(short)), D1["Tp"])
+        analyze_flight(flight_from_simulated(simulate_flight(short)), soiptd_model(D1["Tp"]))
 
 
 def test_to_dict_is_plain_json_with_the_documented_keys(design1):
@@ -132,7 +133,7 @@ def test_to_dict_is_plain_json_with_the_documented_keys(design1):
 
 def test_without_beta_topic_the_effective_beta_is_the_estimate(design1):
     sf, with_topic = design1
-    result = analyze_flight(flight_from_simulated(sf, with_beta=False), D1["Tp"])
+    result = analyze_flight(flight_from_simulated(sf, with_beta=False), soiptd_model(D1["Tp"]))
     assert all(t.beta_nominal is None for t in result.tests)
     assert [t.beta_effective for t in result.tests] == pytest.approx([t.beta_effective for t in with_topic.tests])
     assert result.tau.mean == pytest.approx(with_topic.tau.mean, abs=1e-9)
@@ -166,14 +167,14 @@ def test_weighted_constraints_are_reported_with_residuals(design1):
 
 def test_paper_only_estimate_is_the_ufm_intersection(design1):
     sf, weighted = design1
-    paper = analyze_flight(flight_from_simulated(sf), D1["Tp"], options=AnalyzeOptions(constraints=(), n_bootstrap=100, refine_waveform=False))
+    paper = analyze_flight(flight_from_simulated(sf), soiptd_model(D1["Tp"]), options=AnalyzeOptions(constraints=(), n_bootstrap=100, refine_waveform=False))
     assert paper.constraints == {}
     assert paper.model.tau == pytest.approx(paper.identification.model.tau, abs=1e-12)
     assert paper.model.Td == pytest.approx(paper.identification.model.Td, rel=1e-12)
     assert paper.identification.model.tau == pytest.approx(weighted.identification.model.tau, abs=1e-12)
     assert paper.to_dict(cycles=False)["identification"]["constraints"] == {"used": ["ufm"]}
     with pytest.raises(InputError, match="constraint"):
-        analyze_flight(flight_from_simulated(sf), D1["Tp"], options=AnalyzeOptions(constraints=("harmonics",)))
+        analyze_flight(flight_from_simulated(sf), soiptd_model(D1["Tp"]), options=AnalyzeOptions(constraints=("harmonics",)))
 
 
 def test_times_for_people_are_relative_to_the_log_start(design1):
@@ -185,7 +186,7 @@ def test_times_for_people_are_relative_to_the_log_start(design1):
     T0 = 1_700_000_000.0
     fl = replace(fl, **{name: Signal(getattr(fl, name).t + T0, getattr(fl, name).values)
                        for name in ("command", "output", "setpoint", "beta")})
-    result = analyze_flight(fl, D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    result = analyze_flight(fl, soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     first = min(float(getattr(fl, n).t[0]) for n in ("command", "output", "setpoint", "beta"))
     assert result.t0 == first
     d = result.to_dict(cycles=False)

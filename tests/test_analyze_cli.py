@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io.logtypes import TopicData
 from mrftcli.io import write_log
 from mrftcli.sim.flight import write_flight
@@ -209,7 +210,7 @@ def test_tp_outside_the_physical_range_is_refused_with_the_reason(logs, tp):
     from mrftcli.errors import InputError
 
     with pytest.raises(InputError, match="physical range"):
-        analyze_flight(None, float(tp))  # refused before the flight is looked at
+        analyze_flight(None, soiptd_model(float(tp)))  # refused before the flight is looked at
 
 
 def test_format_option_is_honoured_by_every_log_reading_command(logs):

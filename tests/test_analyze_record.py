@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_cli
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, SCHEMA_VERSION, analysis_controller_rate, analyze_path
 from mrftcli.errors import InputError
@@ -30,12 +31,12 @@ def _json_text(obj: object) -> str:
 
 @pytest.fixture(scope="module")
 def design1() -> AnalysisResult:
-    return analyze_path(SAMPLES / "design1_altitude.mcap", Tp=0.0422, read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=100))
+    return analyze_path(SAMPLES / "design1_altitude.mcap", soiptd_model(0.0422), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=100))
 
 
 @pytest.fixture(scope="module")
 def px4_10hz() -> AnalysisResult:
-    return analyze_path(SAMPLES / "px4_altitude_10hz.ulg", Tp=0.0422, read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=100))
+    return analyze_path(SAMPLES / "px4_altitude_10hz.ulg", soiptd_model(0.0422), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=100))
 
 
 def test_to_json_is_the_cli_json_with_the_schema_version_first(design1: AnalysisResult) -> None:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
 from mrftcli.analyze import AnalyzeOptions, analyze_path
 
@@ -27,7 +28,7 @@ def _log_of(sidecar: Path) -> Path:
 @pytest.mark.parametrize("sidecar", SIDECARS, ids=lambda p: p.name[: -len(".truth.json")])
 def test_sample_log_against_sidecar(sidecar):
     truth = json.loads(sidecar.read_text())
-    r = analyze_path(_log_of(sidecar), truth["Tp"], read=ReadOptions(loop=truth["loop"]), options=AnalyzeOptions(n_bootstrap=200))
+    r = analyze_path(_log_of(sidecar), soiptd_model(truth["Tp"]), read=ReadOptions(loop=truth["loop"]), options=AnalyzeOptions(n_bootstrap=200))
     assert len(r.tests) == len(truth["tests"])
     well_sampled = truth.get("log_rate_hz", truth["rate_hz"]) >= 100
     for t, tt in zip(r.tests, truth["tests"]):
@@ -59,5 +60,5 @@ def test_delay_increment_on_sample_logs(design):
     if not (base.exists() and added.exists()):
         pytest.skip("sample logs missing")
     tp = json.loads(Path(str(base) + ".truth.json").read_text())["Tp"]
-    d_tau = analyze_path(added, tp, read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.mean - analyze_path(base, tp, read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
+    d_tau = analyze_path(added, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.mean - analyze_path(base, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
     assert d_tau * 1e3 == pytest.approx(20.0, abs=1.5)

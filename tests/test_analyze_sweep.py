@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import analyze_flight
 from test_segment_support import flight_from_simulated, simulate_paper_flight
 
@@ -35,7 +36,7 @@ def test_thirty_random_plants(sweep_size):
     for k, loop, Tp, Td, tau, K in plants:
         betas = (-0.4, -0.7) if loop == "altitude" else (-0.5, -0.8)
         sf = simulate_paper_flight(Tp, Td, tau, K, betas, loop=loop, cycles=12.0, seed=k)
-        r = analyze_flight(flight_from_simulated(sf), Tp)
+        r = analyze_flight(flight_from_simulated(sf), soiptd_model(Tp))
         # no false rejection by the limit-cycle validity check
         assert not r.rejected and len(r.tests) == len(betas), (k, r.rejection_reasons)
         assert all(t.validity.ok for t in r.tests), (k, [t.validity.reasons for t in r.tests])

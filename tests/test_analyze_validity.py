@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.errors import InsufficientDataError, SegmentationError
 from mrftcli.io.logtypes import Signal
@@ -113,7 +114,7 @@ def test_pure_noise_output_is_rejected(roll):
     rng = np.random.default_rng(2)
     flight = _with_output(roll, rng.normal(0, _noise_std(roll), len(roll.output)))
     with pytest.raises(SegmentationError, match="does not follow them") as err:
-        analyze_flight(flight, ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(flight, soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     msg = str(err.value)
     assert "2 relay test(s)" in msg and "--loop/--output-topic" in msg and "\n" not in msg
     rej = err.value.rejected_tests
@@ -131,7 +132,7 @@ def test_unrelated_sinusoid_at_another_frequency_is_rejected(roll):
     f_other = 1.3 * f_relay[0]  # between the two tests' frequencies (f1 / f0 = 1.67), near neither
     y = np.deg2rad(5.0) * np.sin(2 * np.pi * f_other * t + 0.3) + rng.normal(0, _noise_std(roll), t.size)
     with pytest.raises(SegmentationError) as err:
-        analyze_flight(_with_output(roll, y), ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(_with_output(roll, y), soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     for r in err.value.rejected_tests:
         # within one cycle a sinusoid at 1.3x leaks into the fundamental, but its phase drifts
         assert "phase_coherence" in r["validity"]["failed"]
@@ -142,7 +143,7 @@ def test_output_of_a_different_flight_is_rejected(roll):
     other = simulate_paper_flight(0.0422, 1.6026, 0.0289, 25.0, (-0.3, -0.6), loop="roll", seed=9)
     y_other = np.interp(roll.output.t, other.t, other.output_measured)
     with pytest.raises(SegmentationError) as err:
-        analyze_flight(_with_output(roll, y_other), ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(_with_output(roll, y_other), soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     assert all(not r["validity"]["ok"] for r in err.value.rejected_tests)
 
 
@@ -153,7 +154,7 @@ def test_output_shifted_in_time_is_rejected(roll):
     t = roll.output.t
     shifted = _with_output(roll, roll.output.values, t + 0.25 * P0)
     with pytest.raises((SegmentationError, InsufficientDataError)):
-        analyze_flight(shifted, ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(shifted, soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     v = segment(shifted)[0].validity
     assert {"phase", "beta_mismatch"} & set(v.failed)
 
@@ -170,7 +171,7 @@ def test_opposite_loop_signs_between_tests_are_rejected(roll):
     seg = segment(flight)
     assert [s.loop_sign for s in seg] == [1, -1] and all(s.validity.ok for s in seg)
     with pytest.raises(SegmentationError, match="opposite signs"):
-        analyze_flight(flight, ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(flight, soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
 
 
 def test_one_wrong_test_leaves_a_partial_result(roll):
@@ -181,7 +182,7 @@ def test_one_wrong_test_leaves_a_partial_result(roll):
     w = (t >= tests[1].t_start - 0.5) & (t <= tests[1].t_end + 0.5)
     y[w] = np.random.default_rng(4).normal(0, _noise_std(roll), w.sum()) + np.median(y[w])
     with pytest.raises(InsufficientDataError, match="rejected") as err:
-        analyze_flight(_with_output(roll, y), ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(_with_output(roll, y), soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     part = err.value.partial
     assert len(part["tests"]) == 1 and len(part["rejected_tests"]) == 1
     assert "does not follow" in part["rejected_tests"][0]["reason"]
@@ -195,7 +196,7 @@ def test_low_snr_valid_flight_is_accepted_and_identified(roll):
     path the controller did not switch on): accepted, and the truth inside the reported interval."""
     t = roll.output.t
     y = roll.output.values + np.random.default_rng(6).normal(0, np.deg2rad(1.0), t.size)
-    r = analyze_flight(_with_output(roll, y), ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=200))
+    r = analyze_flight(_with_output(roll, y), soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=200))
     assert len(r.tests) == 2 and not r.rejected
     for t in r.tests:
         assert t.validity.ok and 6 < t.validity.snr < 15 and t.n_stable >= 8
@@ -238,7 +239,7 @@ def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
     y = fl.output.values.copy()
     w = (t >= tests[1].t_start - 0.5) & (t <= tests[1].t_end + 0.5)
     y[w] = np.random.default_rng(4).normal(0, np.deg2rad(0.2), w.sum()) + np.median(y[w])
-    r = analyze_flight(_with_output(fl, y), ROLL["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(_with_output(fl, y), soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     assert [x.index for x in r.tests] == [0, 2] and [x.index for x in r.rejected] == [1]
     assert abs(r.tau.mean - ROLL["tau"]) < 1e-3
     d = json.loads(json.dumps(to_jsonable(r.to_dict(cycles=False)), allow_nan=False))

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from test_segment_support import flight_from_simulated
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import analyze_flight, analyze_path
 from mrftcli.cli.main import main
 from mrftcli.compare import (EXIT_CHANGED, EXIT_INCOMPLETE, CompareOptions, Comparison, Estimate, LoopEstimates, Side,
@@ -39,14 +40,14 @@ def results(tmp_path_factory, repo_root) -> dict[str, str]:
     """Analysis JSON files: the sample log, its +20 ms twin, and a re-flight of the same plant."""
     out = tmp_path_factory.mktemp("compare")
     logs = repo_root / "sample_logs"
-    files = {name: _write(out / f"{name}.json", analyze_path(str(logs / f"{name}.mcap"), TP).to_dict())
+    files = {name: _write(out / f"{name}.json", analyze_path(str(logs / f"{name}.mcap"), soiptd_model(TP)).to_dict())
              for name in ("design1_altitude", "design1_altitude_20ms")}
     # The sample log's flight again with a fresh noise seed (the samples use seeds 1-8); seed 9 is one
     # draw, not chosen to pass: its z scores are +0.9 (Td), -0.3 (tau), -0.4 (K).
     tests = tuple(plan_test(TRUTH, b, 0.05, cycles=14.0) for b in (-0.4, -0.7))
     flight = simulate_flight(FlightSpec(model=TRUTH, tests=tests, loop="altitude", noise_std=0.0002, hover_s=3.0,
                                         hold_s=3.0, seed=9, start_time=1_700_000_000.0))
-    files["reflight"] = _write(out / "reflight.json", analyze_flight(flight_from_simulated(flight), TP).to_dict())
+    files["reflight"] = _write(out / "reflight.json", analyze_flight(flight_from_simulated(flight), soiptd_model(TP)).to_dict())
     return files
 
 

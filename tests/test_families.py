@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mrftcli.analyze.general import GeneralAnalysis, analyze_general
+from mrftcli.analyze import AnalyzeOptions, analyze_flight
+from mrftcli.analyze.general import GeneralAnalysis
 from mrftcli.errors import InputError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model
@@ -167,7 +168,7 @@ def test_analyze_general_biased_hysteresis_fopdt(tmp_path):
     windows.append(Window("hysteresis", 2.0, -1.0, eps=0.15, duration=30.0))
     path = _recording(tmp_path, "fopdt", params, windows)
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
-    result = analyze_general(flight, family_model("fopdt"))
+    result = analyze_flight(flight, family_model("fopdt"))
     assert len(result.tests) == 3
     for t, w in zip(result.tests, windows):
         assert t.relay.kind == "hysteresis"
@@ -189,7 +190,7 @@ def test_analyze_general_ideal_relay_ipdt_and_windows(tmp_path):
     windows = [Window("ideal", h, -h, duration=25.0) for h in (1.0, 2.0)]
     path = _recording(tmp_path, "ipdt", params, windows, rate_hz=50.0)
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
-    only_second = analyze_general(flight, family_model("ipdt"), windows=[(30.0, 55.0)])
+    only_second = analyze_flight(flight, family_model("ipdt"), options=AnalyzeOptions(windows=[(30.0, 55.0)]))
     assert len(only_second.tests) == 1 and only_second.tests[0].relay.h == pytest.approx(2.0)
     assert only_second.tests[0].relay.kind == "ideal"
     ident = only_second.identification
@@ -244,7 +245,7 @@ def test_analyze_general_chattering_ideal_relay_ipdt(tmp_path):
     windows = [Window("ideal", h, -h, duration=20.0, rest=2.0) for h in (1.0, 1.5)]
     path = _recording(tmp_path, "ipdt", params, windows, rate_hz=200.0, noise=0.004, seed=2)
     flight = read_flight(path, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
-    result = analyze_general(flight, family_model("ipdt"))
+    result = analyze_flight(flight, family_model("ipdt"))
     assert len(result.tests) == 2 and all(t.relay.kind == "ideal" for t in result.tests)
     assert any("chatters" in n for n in result.notes)
     ident = result.identification

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from scipy import optimize
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.estimate import beta_used
 from mrftcli.analyze.held_out import NOTHING_HELD_OUT, HeldOut, held_out_eq2
@@ -80,7 +81,7 @@ def _flight(tmp_path: Path, betas: tuple[float, ...], seed: int = 0):
 @pytest.fixture(scope="module")
 def three(tmp_path_factory: pytest.TempPathFactory) -> AnalysisResult:
     flight = _flight(tmp_path_factory.mktemp("ho3"), (-0.4, -0.7, -0.55))
-    return analyze_flight(flight, PLANT["Tp"], options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
+    return analyze_flight(flight, soiptd_model(PLANT["Tp"]), options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
 
 
 def test_each_held_out_cycle_is_the_plants_exact_cycle_within_the_stated_sigma(three: AnalysisResult) -> None:
@@ -129,7 +130,7 @@ def test_a_version_2_record_reads_without_held_out(three: AnalysisResult) -> Non
 
 def test_two_tests_say_why_nothing_is_predicted_and_one_test_holds_nothing_out(tmp_path: Path) -> None:
     flight = _flight(tmp_path, (-0.4, -0.7))
-    result = analyze_flight(flight, PLANT["Tp"], options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
+    result = analyze_flight(flight, soiptd_model(PLANT["Tp"]), options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
     assert all(ho is not None and ho.frequency_hz is None and "does not determine Td and tau" in ho.note
                for ho in result.held_out)
     text = format_table(result)
@@ -149,7 +150,8 @@ def test_the_families_read_a_version_1_held_out() -> None:
 def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> None:
     """GeneralAnalysis schema 2 gave ``held_out`` the shared record's sigma and z keys (null for the families);
     a version-1 JSON (without them) reads to the same analysis."""
-    from mrftcli.analyze.general import GeneralAnalysis, analyze_general
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.analyze.general import GeneralAnalysis
     from mrftcli.mrft.families import family_model
 
     windows = [Window("hysteresis", 1.5, -0.5, eps=e, duration=30.0) for e in (0.05, 0.3)]
@@ -157,7 +159,7 @@ def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> 
     write_csv(str(tmp_path / "fopdt.csv"), t, u, y)
     flight = read_flight(tmp_path / "fopdt.csv", ReadOptions(command_topic="u_relay", output_topic="y_output"),
                          echo_warnings=False)
-    result = analyze_general(flight, family_model("fopdt"))
+    result = analyze_flight(flight, family_model("fopdt"))
     d = to_jsonable(result.to_json())
     assert d["schema_version"] == 2 and all(set(r["held_out"]) == set(HeldOut(None, None).to_json())
                                             for r in d["tests"])
@@ -173,7 +175,7 @@ def test_a_one_test_flight_says_nothing_is_held_out(tmp_path: Path) -> None:
     from mrftcli.errors import InsufficientDataError
 
     with pytest.raises(InsufficientDataError) as err:
-        analyze_flight(_flight(tmp_path, (-0.4,)), PLANT["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+        analyze_flight(_flight(tmp_path, (-0.4,)), soiptd_model(PLANT["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     (row,) = err.value.partial["tests"]
     assert row["held_out"]["frequency_hz"] is None and row["held_out"]["note"] == NOTHING_HELD_OUT
     assert f"held-out test 1: {NOTHING_HELD_OUT}" in format_partial(err.value)

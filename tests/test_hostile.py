@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_hostile import run_one  # noqa: E402
 from make_hostile_corpus import build_corpus  # noqa: E402
 
+from mrftcli.mrft.model import soiptd_model  # noqa: E402
 from mrftcli.analyze import AnalyzeOptions  # noqa: E402
 from mrftcli.errors import InputError, LogReadError  # noqa: E402
 from mrftcli.io import read_flight  # noqa: E402
@@ -288,7 +289,7 @@ def test_a_period_no_vehicle_has_is_refused_as_a_clock_unit():
 
     g = replace(f, command=slow(f.command), output=slow(f.output), beta=slow(f.beta), setpoint=None)
     with pytest.raises(LogReadError, match="limit-cycle period of 129.5 s"):
-        analyze_flight(g, 0.0422, options=AnalyzeOptions(n_bootstrap=20))
+        analyze_flight(g, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=20))
 
 
 def test_a_large_csv_read_column_by_column_gives_the_same_flight(monkeypatch):

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.errors import IdentificationError, InputError
 from mrftcli.mrft.identify import IdentificationResult, TestMeasurement, identify, ufm_slice
 from mrftcli.mrft.lprs import mrft_limit_cycle
@@ -25,7 +26,7 @@ def _tests(model, betas, h=1.0, amplitude=True):
 
 
 def test_paper_example_round_trip_with_gain():
-    res = identify(_tests(PAPER, (-0.4, -0.7)), PAPER.Tp)
+    res = identify(_tests(PAPER, (-0.4, -0.7)), soiptd_model(PAPER.Tp))
     assert isinstance(res, IdentificationResult)
     assert res.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
     assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
@@ -36,7 +37,7 @@ def test_paper_example_round_trip_with_gain():
 
 def test_paper_figures_from_checks_md():
     # the rounded exact figures of checks.md section 1 identify the plant to the rounding's accuracy
-    res = identify([TestMeasurement(-0.4, 0.70564), TestMeasurement(-0.7, 1.01884)], 0.1)
+    res = identify([TestMeasurement(-0.4, 0.70564), TestMeasurement(-0.7, 1.01884)], soiptd_model(0.1))
     assert res.Td.mean == pytest.approx(1 / 1.42, rel=2e-3)
     assert res.tau.mean == pytest.approx(0.06, rel=2e-3)
     assert res.K is None
@@ -50,7 +51,7 @@ def test_round_trip_random_plants_dnn_mrft_range():
         m = LoopModel(rng.uniform(0.015, 0.3), rng.uniform(0.2, 2.0), rng.uniform(0.0005, 0.1), rng.uniform(0.2, 5))
         b1 = rng.uniform(-0.9, -0.5)
         b2 = rng.uniform(-0.4, -0.1)
-        res = identify(_tests(m, (b1, b2), h=rng.uniform(0.1, 2)), m.Tp)
+        res = identify(_tests(m, (b1, b2), h=rng.uniform(0.1, 2)), soiptd_model(m.Tp))
         for est, true in ((res.Td.mean, m.Td), (res.tau.mean, m.tau), (res.K.mean, m.K)):
             worst = max(worst, abs(est / true - 1))
     assert worst < 5e-3
@@ -60,7 +61,7 @@ def test_round_trip_random_plants_dnn_mrft_range():
 def test_flight_like_large_td_over_tau():
     # Design II altitude + 20 ms of Table III scaled: Td/tau near 100
     m = LoopModel(0.0499, 4.1755, 0.042, 1.0)
-    res = identify(_tests(m, (-0.4, -0.7)), m.Tp)
+    res = identify(_tests(m, (-0.4, -0.7)), soiptd_model(m.Tp))
     assert res.Td.mean == pytest.approx(m.Td, rel=1e-5)
     assert res.tau.mean == pytest.approx(m.tau, rel=1e-5)
 
@@ -68,14 +69,14 @@ def test_flight_like_large_td_over_tau():
 def test_effective_beta_between_shipped_slices_and_beyond():
     m = LoopModel(0.05, 1.3, 0.03)
     for betas in ((-0.63, -0.27), (-0.95, -0.05)):
-        res = identify(_tests(m, betas), m.Tp)
+        res = identify(_tests(m, betas), soiptd_model(m.Tp))
         assert res.Td.mean == pytest.approx(m.Td, rel=1e-6)
         assert res.tau.mean == pytest.approx(m.tau, rel=1e-6)
 
 
 def test_three_tests_least_squares_consistent_data_has_zero_residual():
     m = LoopModel(0.04, 0.9, 0.025)
-    res = identify(_tests(m, (-0.8, -0.5, -0.2), amplitude=False), m.Tp)
+    res = identify(_tests(m, (-0.8, -0.5, -0.2), amplitude=False), soiptd_model(m.Tp))
     assert res.method == "least-squares"
     assert res.Td.mean == pytest.approx(m.Td, rel=1e-5)
     assert res.tau.mean == pytest.approx(m.tau, rel=1e-5)
@@ -86,7 +87,7 @@ def test_three_tests_residual_measures_inconsistency():
     m = LoopModel(0.04, 0.9, 0.025)
     tests = _tests(m, (-0.8, -0.5, -0.2), amplitude=False)
     tests[1] = TestMeasurement(-0.5, tests[1].frequency_mean * 1.01)
-    res = identify(tests, m.Tp)
+    res = identify(tests, soiptd_model(m.Tp))
     assert 1e-3 < res.residual < 1e-2
 
 
@@ -95,8 +96,8 @@ def test_rate_correction_removes_half_sample_lag():
     rate = 200.0
     lagged = LoopModel(PAPER.Tp, PAPER.Td, PAPER.tau + 0.5 / rate)
     tests = _tests(lagged, (-0.4, -0.7), amplitude=False)
-    naive = identify(tests, PAPER.Tp)
-    corrected = identify(tests, PAPER.Tp, rate_hz=rate)
+    naive = identify(tests, soiptd_model(PAPER.Tp))
+    corrected = identify(tests, soiptd_model(PAPER.Tp), rate_hz=rate)
     assert naive.tau.mean == pytest.approx(PAPER.tau + 0.0025, rel=1e-6)
     assert corrected.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
     assert corrected.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
@@ -110,7 +111,7 @@ def test_uncertainty_from_per_cycle_scatter():
                         t.amplitude_mean * (1 + 0.01 * rng.standard_normal(30)), 1.0)
         for t in base
     ]
-    res = identify(tests, PAPER.Tp, n_draws=1500, seed=1)
+    res = identify(tests, soiptd_model(PAPER.Tp), n_draws=1500, seed=1)
     assert res.uncertainty == "monte-carlo"
     for est, true in ((res.Td, PAPER.Td), (res.tau, PAPER.tau), (res.K, PAPER.K)):
         assert est.std > 0
@@ -124,12 +125,12 @@ def test_uncertainty_from_per_cycle_scatter():
     for i in range(2):
         fp = f.copy()
         fp[i] *= 1 + 1e-6
-        r = identify([TestMeasurement(-0.4, fp[0]), TestMeasurement(-0.7, fp[1])], PAPER.Tp)
+        r = identify([TestMeasurement(-0.4, fp[0]), TestMeasurement(-0.7, fp[1])], soiptd_model(PAPER.Tp))
         J.append((r.Td.mean - res.Td.mean) / (fp[i] - f[i]))
     std_delta = math.sqrt(sum((j * s) ** 2 for j, s in zip(J, se)))
     assert res.Td.std == pytest.approx(std_delta, rel=0.15)
     # "cycle" spread is larger than the standard error by about sqrt(n)
-    res_c = identify(tests, PAPER.Tp, n_draws=1500, seed=1, spread="cycle")
+    res_c = identify(tests, soiptd_model(PAPER.Tp), n_draws=1500, seed=1, spread="cycle")
     assert res_c.Td.std > 3 * res.Td.std
 
 
@@ -137,7 +138,7 @@ def test_to_dict_is_json_ready():
     rng = np.random.default_rng(2)
     tests = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.002 * rng.standard_normal(10)), t.amplitude_mean, 1.0)
              for t in _tests(PAPER, (-0.4, -0.7))]
-    d = identify(tests, PAPER.Tp, n_draws=300).to_dict()
+    d = identify(tests, soiptd_model(PAPER.Tp), n_draws=300).to_dict()
     text = json.dumps(__import__("mrftcli.jsonable", fromlist=["to_jsonable"]).to_jsonable(d))
     back = json.loads(text)
     for name in ("Td", "tau", "K"):
@@ -149,15 +150,15 @@ def test_to_dict_is_json_ready():
 def test_td_poorly_identifiable_warning():
     # a very slow drag pole (Td * Omega in the hundreds): the frequencies barely depend on Td
     m = LoopModel(0.03, 60.0, 0.02)
-    res = identify(_tests(m, (-0.4, -0.7), amplitude=False), m.Tp)
+    res = identify(_tests(m, (-0.4, -0.7), amplitude=False), soiptd_model(m.Tp))
     assert any("poorly identifiable" in w for w in res.warnings)
-    ok = identify(_tests(PAPER, (-0.4, -0.7), amplitude=False), PAPER.Tp)
+    ok = identify(_tests(PAPER, (-0.4, -0.7), amplitude=False), soiptd_model(PAPER.Tp))
     assert not any("poorly identifiable" in w for w in ok.warnings)
 
 
 def test_amplitude_route_single_test():
     lc = mrft_limit_cycle(PAPER, -0.7)
-    res = identify([TestMeasurement(-0.7, lc.frequency_hz, lc.amplitude, 1.0)], PAPER.Tp, K=PAPER.K)
+    res = identify([TestMeasurement(-0.7, lc.frequency_hz, lc.amplitude, 1.0)], soiptd_model(PAPER.Tp, K=PAPER.K))
     assert res.method == "amplitude"
     assert res.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
     assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
@@ -178,17 +179,17 @@ def test_ufm_slice_passes_through_the_plant_and_masks_negative_delays():
 @pytest.mark.parametrize(
     "call, exc, match",
     [
-        (lambda: identify([TestMeasurement(-0.4, 0.7)], 0.1), InputError, "two tests"),
-        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.4, 0.8)], 0.1), InputError, "same beta"),
-        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)], -0.1), InputError, "Tp"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7)], soiptd_model(0.1)), InputError, "two tests"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.4, 0.8)], soiptd_model(0.1)), InputError, "same beta"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)], soiptd_model(-0.1)), InputError, "Tp"),
         (lambda: TestMeasurement(-1.5, 0.7), InputError, "beta"),
         (lambda: TestMeasurement(-0.4, -0.7), InputError, "frequency"),
         (lambda: TestMeasurement(-0.4, 0.7, amplitude=0.1), InputError, "relay height"),
-        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 0.5)], 0.1), IdentificationError,
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 0.5)], soiptd_model(0.1)), IdentificationError,
          "do not intersect"),
         # a frequency far too high for Tp = 0.3 s: no plant of eq. (2) can produce it
-        (lambda: identify([TestMeasurement(-0.4, 40.0), TestMeasurement(-0.7, 50.0)], 0.3), IdentificationError, "do not intersect|too fast"),
-        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)], 0.1, rate_hz=0), InputError, "rate"),
+        (lambda: identify([TestMeasurement(-0.4, 40.0), TestMeasurement(-0.7, 50.0)], soiptd_model(0.3)), IdentificationError, "do not intersect|too fast"),
+        (lambda: identify([TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)], soiptd_model(0.1), rate_hz=0), InputError, "rate"),
     ],
 )
 def test_errors(call, exc, match):
@@ -199,7 +200,7 @@ def test_errors(call, exc, match):
 def test_inputs_are_not_modified():
     f = np.array([0.70, 0.71, 0.705])
     before = f.copy()
-    identify([TestMeasurement(-0.4, f), TestMeasurement(-0.7, [1.01, 1.02, 1.03])], 0.1, n_draws=200)
+    identify([TestMeasurement(-0.4, f), TestMeasurement(-0.7, [1.01, 1.02, 1.03])], soiptd_model(0.1), n_draws=200)
     np.testing.assert_array_equal(f, before)
 
 
@@ -208,7 +209,7 @@ def test_three_tests_delta_method_uncertainty():
     rng = np.random.default_rng(8)
     tests = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.01 * rng.standard_normal(25)))
              for t in _tests(m, (-0.8, -0.5, -0.2), amplitude=False)]
-    res = identify(tests, m.Tp)
+    res = identify(tests, soiptd_model(m.Tp))
     assert res.uncertainty == "delta"
     for est, true in ((res.Td, m.Td), (res.tau, m.tau)):
         assert est.std > 0
@@ -219,7 +220,7 @@ def test_three_tests_delta_method_uncertainty():
 def test_rate_quantisation_uncertainty_reported():
     # nominal betas at 200 Hz: which sampled orbit each test ran on is unknown -> tau has a spread
     tests = [TestMeasurement(b, mrft_limit_cycle(PAPER, b, rate_hz=200.0).frequency_hz) for b in (-0.4, -0.7)]
-    res = identify(tests, PAPER.Tp, rate_hz=200.0, n_draws=500)
+    res = identify(tests, soiptd_model(PAPER.Tp), rate_hz=200.0, n_draws=500)
     assert res.uncertainty == "monte-carlo"
     assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
     assert 0.5e-3 < res.tau.std < 0.01
@@ -229,16 +230,16 @@ def test_rate_quantisation_uncertainty_reported():
 def test_bad_spread_and_test_objects():
     t = [TestMeasurement(-0.4, 0.7), TestMeasurement(-0.7, 1.0)]
     with pytest.raises(InputError, match="spread"):
-        identify(t, 0.1, spread="bogus")
+        identify(t, soiptd_model(0.1), spread="bogus")
     with pytest.raises(InputError, match="TestMeasurement"):
-        identify([(-0.4, 0.7), (-0.7, 1.0)], 0.1)
+        identify([(-0.4, 0.7), (-0.7, 1.0)], soiptd_model(0.1))
 
 
 def test_identification_json_round_trip():
     """to_json -> plain JSON -> from_json gives the same record (draws excepted), with and without K."""
     noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058], amplitude=[0.078, 0.0785], h=1.0),
              TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189])]
-    for res in (identify(noisy, Tp=0.1, n_draws=50), identify(_tests(PAPER, (-0.2, -0.4, -0.7), amplitude=False), 0.1)):
+    for res in (identify(noisy, soiptd_model(0.1), n_draws=50), identify(_tests(PAPER, (-0.2, -0.4, -0.7), amplitude=False), soiptd_model(0.1))):
         d = json.loads(json.dumps(res.to_json()))
         assert d["schema_version"] == 1 and d["model"]["family"] == "soiptd"
         back = IdentificationResult.from_json(d)
@@ -258,7 +259,7 @@ def test_identification_json_round_trip():
     ],
 )
 def test_identification_json_errors(change, message):
-    d = json.loads(json.dumps(identify(_tests(PAPER, (-0.4, -0.7)), PAPER.Tp).to_json()))
+    d = json.loads(json.dumps(identify(_tests(PAPER, (-0.4, -0.7)), soiptd_model(PAPER.Tp)).to_json()))
     change(d)
     with pytest.raises(InputError, match=message) as err:
         IdentificationResult.from_json(d)

@@ -119,13 +119,14 @@ def test_switching_level_json_round_trip_and_bad_version():
 
 @pytest.mark.skipif(not FILE_10K.is_file(), reason="needs ../shared/data/real_relay/ (read in place, never copied)")
 def test_kstar_large_hysteresis_windows_state_the_effective_relay():
-    from mrftcli.analyze.general import GeneralAnalysis, analyze_general
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.analyze.general import GeneralAnalysis
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import family_model
 
     flight = read_flight(FILE_10K, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     # README windows 6.0-6.9 s and 7.0-7.9 s: eps ~4e-6, close to the cycle's amplitude
-    result = analyze_general(flight, family_model("fopdt"), windows=[(5.95, 6.95), (6.95, 7.95)])
+    result = analyze_flight(flight, family_model("fopdt"), options=AnalyzeOptions(windows=[(5.95, 6.95), (6.95, 7.95)]))
     assert len(result.tests) == 2
     for t in result.tests:
         eff, sw = t.effective_relay, t.switching

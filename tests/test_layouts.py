@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io import LAYOUTS, ReadOptions, detect_layout, log_layout, open_log, read_flight
 from mrftcli.io.logtypes import TopicData
@@ -33,7 +34,7 @@ def analyses() -> dict:
     for name in STACK_LOGS:
         tr = truth(name)
         flight = read_flight(SAMPLES / name, ReadOptions(loop=tr["loop"]), echo_warnings=False)
-        out[name] = (flight, analyze_flight(flight, Tp=tr["Tp"], options=AnalyzeOptions(n_bootstrap=200, seed=1)), tr)
+        out[name] = (flight, analyze_flight(flight, soiptd_model(tr["Tp"]), options=AnalyzeOptions(n_bootstrap=200, seed=1)), tr)
     return out
 
 
@@ -172,8 +173,8 @@ def test_controller_rate_from_the_layout_and_the_option():
     assert fast.source_json()["controller_rate_hz"] == 100.0
     plain = read_flight(SAMPLES / "design1_altitude.mcap", echo_warnings=False)
     assert plain.timing.controller_rate_hz is None and "controller_rate_hz" not in plain.source_json()
-    tau50 = analyze_flight(read_flight(log, echo_warnings=False), 0.0422, options=AnalyzeOptions(n_bootstrap=50)).tau.mean
-    tau100 = analyze_flight(fast, 0.0422, options=AnalyzeOptions(n_bootstrap=50)).tau.mean
+    tau50 = analyze_flight(read_flight(log, echo_warnings=False), soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
+    tau100 = analyze_flight(fast, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
     assert tau100 - tau50 == pytest.approx(0.5 / 50.0 - 0.5 / 100.0, abs=2e-3)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.mrft.model import LoopModel
 from mrftcli.io.logtypes import Signal
 from mrftcli.segment import SegmentOptions, segment_arrays
@@ -200,7 +201,7 @@ def test_the_switching_lag_drawn_into_the_bootstrap_keeps_td_where_the_tests_put
     spec = StackLogSpec("px4-mrft", "altitude", flight.truth["bias"], tests, log_rate_hz=10)
     path = write_stack_log(tmp_path / "px4_10hz.ulg", spec, flight.t, flight.command, flight.output_measured,
                            flight.setpoint)
-    r = analyze_flight(read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False), Tp=0.0422,
+    r = analyze_flight(read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False), soiptd_model(0.0422),
                        options=AnalyzeOptions(n_bootstrap=100, seed=1))
     assert len(r.tests) == 2 and all(t.controller_rate_hz == pytest.approx(RATE) for t in r.tests)
     truth = {"Td": 1.6, "tau": 0.015, "K": 15.0}

@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 from cli_helpers import run_main
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions
 from mrftcli.cli.main import cli
 from mrftcli.errors import InputError, InsufficientDataError
@@ -191,7 +192,7 @@ def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
                                                             TestSpec(t.beta, t.h, t.duration_s)),
                                         rate_hz=200.0, noise_std=0.0005, seed=1000 + seed, hover_s=2.0, hold_s=2.0))
         try:
-            r = analyze_flight(flight_from_simulated(sf), model.Tp, options=AnalyzeOptions(n_bootstrap=10, refine_waveform=False))
+            r = analyze_flight(flight_from_simulated(sf), soiptd_model(model.Tp), options=AnalyzeOptions(n_bootstrap=10, refine_waveform=False))
         except InsufficientDataError:  # a test lost to noise now and then
             continue
         est.append((r.Td.mean, r.tau.mean))
@@ -261,7 +262,7 @@ def test_flown_tests_and_prior_of_an_analyze_result_json():
     from mrftcli.plan import flown_from_result, prior_range
 
     log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
-    data = json.loads(json.dumps(to_jsonable(analyze_path(log, 0.0422, options=AnalyzeOptions(n_bootstrap=20)).to_json())))
+    data = json.loads(json.dumps(to_jsonable(analyze_path(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=20)).to_json())))
     flown, params = flown_from_result(data)
     assert [(f.beta, f.h, f.frequency_hz, f.amplitude, f.n_cycles) for f in flown] == [
         (t["beta"], t["h"], t["frequency_hz"], t["amplitude"], t["cycles"]) for t in data["tests"]]

@@ -17,7 +17,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 from process_sim import Window, simulate, write_csv  # noqa: E402
 
-from mrftcli.analyze.general import analyze_general  # noqa: E402
+from mrftcli.analyze import analyze_flight  # noqa: E402
 from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
@@ -34,7 +34,7 @@ def _analyse(tmp_path: Path, name: str, windows: list[Window], noise: float, see
     t, u, y = simulate("fopdt", TRUTH, windows, 100.0, noise, seed=seed)
     path = tmp_path / name
     write_csv(str(path), t, u, y)
-    return path, analyze_general(read_flight(path, READ, echo_warnings=False), family_model("fopdt"))
+    return path, analyze_flight(read_flight(path, READ, echo_warnings=False), family_model("fopdt"))
 
 
 def _window(relay, duration: float) -> Window:
@@ -156,7 +156,7 @@ def test_a_model_already_at_its_floor_says_no_next_test_is_needed(tmp_path):
     t, u, y = simulate("ipdt", dict(K=1.5, tau=0.25), [Window("ideal", 1.0, -1.0, duration=15.0, rest=2.0)],
                        100.0, 0.003, seed=1)
     write_csv(str(tmp_path / "ipdt.csv"), t, u, y)
-    plan = plan_process(analyze_general(read_flight(tmp_path / "ipdt.csv", READ, echo_warnings=False),
+    plan = plan_process(analyze_flight(read_flight(tmp_path / "ipdt.csv", READ, echo_warnings=False),
                                         family_model("ipdt")))
     assert plan.undetermined == () and "a next test is not needed" in plan.why
     assert abs(plan.std_now["K"] / 1.5 - 0.005) < 0.001

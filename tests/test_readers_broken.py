@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.errors import LogReadError
 from mrftcli.io.logtypes import TopicData
 from mrftcli.io import ReadOptions, log_filename, open_log, read_flight, write_log
@@ -292,7 +293,7 @@ def test_batch_stamped_csv_rebuilds_the_times_and_tau_keeps_the_truth(repo_root,
     out = [lines[0]] + [f"{s:.9f}," + line.split(",", 1)[1] for s, line in zip(stamps, lines[1:])]
     batched = tmp_path / "batched.csv"
     batched.write_text("\n".join(out) + "\n")
-    res = analyze_path(batched, truth["Tp"])
+    res = analyze_path(batched, soiptd_model(truth["Tp"]))
     tau = truth["tau"]
     assert res.tau.ci95_low <= tau <= res.tau.ci95_high, (res.tau.mean, res.tau.ci95_low, res.tau.ci95_high)
     assert abs(res.tau.mean - tau) < 1.5e-3

@@ -128,13 +128,13 @@ def test_cli_ends_with_a_clear_message_without_nan_or_library_warnings(path, tp,
 # --- issue 22: the process-plant path (analyze --model fopdt) on the real recordings ---------------
 @pytest.fixture(scope="module")
 def fopdt_10k():
-    from mrftcli.analyze.general import analyze_general
+    from mrftcli.analyze import analyze_flight
     from mrftcli.mrft.families import family_model
 
     flight = read_flight(FILE_10K, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        return analyze_general(flight, family_model("fopdt"))
+        return analyze_flight(flight, family_model("fopdt"))
 
 
 def test_fopdt_10k_every_clean_window_a_test_with_its_relay(fopdt_10k):
@@ -179,12 +179,12 @@ def test_fopdt_10k_model_and_held_out(fopdt_10k):
 
 
 def test_fopdt_5k_ideal_relay_says_what_it_determines():
-    from mrftcli.analyze.general import analyze_general
+    from mrftcli.analyze import analyze_flight
     from mrftcli.cli.model_options import format_general
     from mrftcli.mrft.families import family_model
 
     flight = read_flight(FILE_5K, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
-    result = analyze_general(flight, family_model("fopdt"))
+    result = analyze_flight(flight, family_model("fopdt"))
     assert len(result.tests) >= 15
     assert sum(t.relay.kind == "ideal" for t in result.tests) >= 0.8 * len(result.tests)
     text = format_general(result)

@@ -7,6 +7,7 @@ simulator's true plant (mrftcli.sim, which shares no code with the segmenter or 
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.errors import InputError
@@ -88,7 +89,7 @@ def test_refined_on_rebuilt_send_times_reaches_the_noise_and_covers(flight):
     m, fl = flight
     log = recorded_flight(fl, command=ReceiveStamping(0.003), output=ReceiveStamping(0.0, 0.01), seed=2)
     assert log.timing.stamps == "receive"
-    r = analyze_flight(log, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=50))
+    r = analyze_flight(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50))
     assert r.method == "waveform", r.warnings
     assert r.refinement is not None and r.refinement.residual_ratio < 1.15
     assert any("receive-stamped command rebuilt" in n for n in r.notes)
@@ -103,7 +104,7 @@ def test_refined_on_rebuilt_send_times_reaches_the_noise_and_covers(flight):
 def test_dropped_commands_are_rebuilt_through_the_gaps_and_refined(flight):
     m, fl = flight
     log = recorded_flight(fl, command=ReceiveStamping(0.003, 0.02), output=ReceiveStamping(0.0, 0.01), seed=2)
-    r = analyze_flight(log, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=50))
+    r = analyze_flight(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50))
     assert r.method == "waveform", r.warnings
     assert any("receive-stamped command rebuilt" in n and "ticks without a message" in n for n in r.notes)
     assert not any("folded into tau's interval" in n for n in r.notes)
@@ -123,7 +124,7 @@ def test_an_output_on_another_clock_is_not_rebuilt_and_the_interval_stays_widene
 
     log = Path(__file__).parents[1] / "sample_logs" / "hear_x.bag"
     truth = json.loads(log.with_name(log.name + ".truth.json").read_text())
-    r = analyze_flight(read_flight(log, ReadOptions(loop="x"), echo_warnings=False), Tp=truth["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(read_flight(log, ReadOptions(loop="x"), echo_warnings=False), soiptd_model(truth["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     assert any("receive-stamped command rebuilt" in n for n in r.notes)
     assert any("90 Hz publisher is not on the controller's 200 Hz ticks" in n for n in r.notes)
     assert any("folded into tau's interval" in n for n in r.notes)

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.io.format_mcap import write_mcap
@@ -51,7 +52,7 @@ def results(written):
     out = {}
     for fmt, path in paths.items():
         flight = read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False)
-        out[fmt] = (flight, analyze_flight(flight, Tp=0.0422, options=AnalyzeOptions(n_bootstrap=50)))
+        out[fmt] = (flight, analyze_flight(flight, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)))
     return m, out
 
 

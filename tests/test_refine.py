@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.errors import IdentificationError, InputError
 from mrftcli.jsonable import to_jsonable
@@ -40,7 +41,7 @@ def test_sensor_noise_of_white_noise_on_a_smooth_signal():
 
 
 def test_clean_log_accepted_and_closer_than_mrft():
-    r = analyze_flight(_flight(), D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(_flight(), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     ref = r.refinement
     assert r.method == "waveform" and ref.accepted and not ref.reasons
     assert ref.residual_ratio <= RESIDUAL_FACTOR
@@ -56,7 +57,7 @@ def test_clean_log_accepted_and_closer_than_mrft():
     (Effects(sensor_lag=0.03), "residual"),
 ])
 def test_refused_with_the_reason_when_the_model_does_not_hold(effects, why):
-    r = analyze_flight(_flight(effects), D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(_flight(effects), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     ref = r.refinement
     assert r.method == "mrft" and not ref.accepted
     assert any(why in x for x in ref.reasons)
@@ -73,7 +74,7 @@ def test_interval_coverage_on_seeded_plants():
     hits, n = 0, 0
     for k in range(4):
         Td = float(np.exp(rng.uniform(np.log(0.5), np.log(3.0))))
-        r = analyze_flight(_flight(seed=100 + k, Td=Td, rate_hz=float(rng.choice([100.0, 250.0]))), D1["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+        r = analyze_flight(_flight(seed=100 + k, Td=Td, rate_hz=float(rng.choice([100.0, 250.0]))), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
         assert r.method == "waveform", r.refinement.reasons
         truth = {"Td": Td, "tau": D1["tau"], "K": D1["K"]}
         for name in ("Td", "tau", "K"):
@@ -91,7 +92,7 @@ def test_no_linear_damping_gives_a_one_sided_td_bound(tmp_path):
     from test_segment_support import simulate_paper_flight
 
     sf = simulate_paper_flight(D1["Tp"], 1e4, D1["tau"], D1["K"], (-0.4, -0.7), seed=7)
-    r = analyze_flight(flight_from_simulated(sf), D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(flight_from_simulated(sf), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     assert math.isfinite(r.Td.ci95_low) and not math.isfinite(r.Td.ci95_high)
     assert r.Td.ci95_low > 5.0  # the data do bound it from below
     assert any(w.startswith("Td > ") and "cannot bound it from above" in w for w in r.warnings)
@@ -105,7 +106,7 @@ def test_no_linear_damping_gives_a_one_sided_td_bound(tmp_path):
 
 
 def test_a_damped_plant_keeps_its_two_sided_interval():
-    r = analyze_flight(_flight(Td=0.8, seed=9), D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(_flight(Td=0.8, seed=9), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     assert math.isfinite(r.Td.ci95_high) and r.Td.ci95_low <= 0.8 <= r.Td.ci95_high
 
 
@@ -151,7 +152,7 @@ def test_refit_with_a_sensor_lag_recovers_it():
     from mrftcli.mrft.refine import refinement_windows, refit_with_effect
 
     lag = 0.03
-    r = analyze_flight(_flight(Effects(sensor_lag=lag)), D1["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+    r = analyze_flight(_flight(Effects(sensor_lag=lag)), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     assert not r.refinement.accepted  # eq. (2) alone does not hold (checked above)
     fl = r.flight
     ws = refinement_windows(r.tests, fl.command.t, fl.command.values, fl.output.t, fl.output.values)
@@ -167,7 +168,7 @@ def test_refit_with_an_input_bias_reads_it_from_the_offsets():
     from mrftcli.mrft.refine import refinement_windows, refit_with_effect
 
     d = 0.02  # command units, at the plant input
-    r = analyze_flight(_flight(Effects(input_bias=d)), D1["Tp"], options=AnalyzeOptions(n_bootstrap=50))
+    r = analyze_flight(_flight(Effects(input_bias=d)), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=50))
     fl = r.flight
     ws = refinement_windows(r.tests, fl.command.t, fl.command.values, fl.output.t, fl.output.values)
     fit = refit_with_effect(ws, r.model, "input_bias", loop_sign=r.tests[0].loop_sign)
@@ -184,11 +185,11 @@ def test_slices_that_do_not_intersect_give_the_one_sided_result():
     from test_segment_support import simulate_paper_flight
 
     sf = simulate_paper_flight(D1["Tp"], 1e4, D1["tau"], D1["K"], (-0.4, -0.7), seed=0)
-    r = analyze_flight(flight_from_simulated(sf), D1["Tp"], options=AnalyzeOptions(n_bootstrap=100))
+    r = analyze_flight(flight_from_simulated(sf), soiptd_model(D1["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     meas = [TestMeasurement(beta=t.beta_effective, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
                             h=t.h) for t in r.tests]
     with pytest.raises(IdentificationError, match="do not intersect"):
-        identify(meas, D1["Tp"], rate_hz=None)
+        identify(meas, soiptd_model(D1["Tp"]), rate_hz=None)
     assert r.identification.method == "unbounded-Td"
     m = r.parameters_mrft
     assert 5.0 < m["Td"].ci95_low and not math.isfinite(m["Td"].ci95_high)
@@ -199,4 +200,4 @@ def test_slices_that_do_not_intersect_give_the_one_sided_result():
     assert any(w.startswith("Td > ") for w in r.warnings)
     # a wrong Tp is still refused (exit 5): the limit does not fit those tests either
     with pytest.raises(IdentificationError):
-        analyze_flight(flight_from_simulated(sf), 0.01, options=AnalyzeOptions(n_bootstrap=50))
+        analyze_flight(flight_from_simulated(sf), soiptd_model(0.01), options=AnalyzeOptions(n_bootstrap=50))

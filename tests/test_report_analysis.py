@@ -10,6 +10,7 @@ import matplotlib
 import numpy as np
 import pytest
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io.logtypes import Signal
 from test_segment_support import flight_from_simulated, simulate_paper_flight
@@ -20,7 +21,7 @@ pytestmark = pytest.mark.usefixtures("mplcleanup")
 @pytest.fixture(scope="module")
 def result():
     sf = simulate_paper_flight(0.0499, 1.8345, 0.0498, 2.0, (-0.4, -0.7), seed=9)
-    return analyze_flight(flight_from_simulated(sf), 0.0499)
+    return analyze_flight(flight_from_simulated(sf), soiptd_model(0.0499))
 
 
 def test_computing_draws_nothing(result):
@@ -76,7 +77,7 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
     fl = flight_from_simulated(sf)
     fl = replace(fl, **{name: Signal(getattr(fl, name).t + 1_700_000_000.0, getattr(fl, name).values)
                         for name in ("command", "output", "setpoint", "beta")})
-    res = analyze_flight(fl, 0.0499, options=AnalyzeOptions(n_bootstrap=100))
+    res = analyze_flight(fl, soiptd_model(0.0499), options=AnalyzeOptions(n_bootstrap=100))
     duration = float(fl.command.t[-1] - fl.command.t[0])
     fig = plot_timeseries(res)
     fig.canvas.draw()

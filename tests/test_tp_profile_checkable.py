@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from cli_helpers import run_main
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
 from mrftcli.io import read_flight
 from mrftcli.io.flight import ReadOptions
@@ -45,7 +46,7 @@ def test_a_log_below_the_controller_rate_says_tp_is_not_checkable_cli() -> None:
 def test_a_waveform_eq2_fits_at_no_tp_says_tp_is_not_checkable() -> None:
     truth = _truth("hear_x.bag")
     flight = read_flight(SAMPLES / "hear_x.bag", ReadOptions(loop=truth["loop"]), echo_warnings=False)
-    result = analyze_flight(flight, truth["Tp"] / 3, options=AnalyzeOptions(n_bootstrap=50))
+    result = analyze_flight(flight, soiptd_model(truth["Tp"] / 3), options=AnalyzeOptions(n_bootstrap=50))
     assert abs(result.tau.mean - truth["tau"]) > 0.1 * truth["tau"]
     first = result.warnings[0]
     assert first.startswith("Tp is not checkable from this log (eq. (2) leaves the waveform residual at ")

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_main
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from mrftcli.io import write_log
 from mrftcli.io.logtypes import TopicData
@@ -142,7 +143,7 @@ def test_single_beta_loop_gets_a_planned_second_test(tmp_path):
 
     path = write_log(flown.topics, tmp_path / "one_beta.mcap")
     with pytest.raises(InsufficientDataError) as err:
-        analyze_flight(read_flight(path, ReadOptions(loop="roll")), TP)
+        analyze_flight(read_flight(path, ReadOptions(loop="roll")), soiptd_model(TP))
     miss = missing_from_error("roll", err.value, TP, str(path))
     assert miss.reason == "single-beta" and miss.plan is not None
     t = miss.plan.tests[0]  # the planner's recommendation, passed on as the hint

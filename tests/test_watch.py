@@ -14,6 +14,7 @@ import pytest
 
 from cli_helpers import LiveWriter, run_cli as _cli
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import analyze_path
 from mrftcli.errors import LogReadError
 from mrftcli.io import ReadOptions, read_flight
@@ -41,7 +42,7 @@ def test_mcap_tests_and_estimate_arrive_before_the_file_is_complete(repo_root, t
     assert live and abs(live[-1].tau - truth["tau"]) < 2e-3
     final = [u for u, _ in got if isinstance(u, EstimateUpdate) and u.final]
     assert len(final) == 1
-    ref = analyze_path(src, 0.0422)
+    ref = analyze_path(src, soiptd_model(0.0422))
     assert final[0].tau == pytest.approx(ref.tau.mean, rel=1e-9)
     assert final[0].Td == pytest.approx(ref.Td.mean, rel=1e-9)
     end = got[-1][0]

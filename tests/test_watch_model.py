@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from cli_helpers import LiveWriter, run_cli as _cli  # noqa: E402
 from process_sim import Window, simulate, write_csv  # noqa: E402
 
-from mrftcli.analyze.general import analyze_general  # noqa: E402
+from mrftcli.analyze import analyze_flight  # noqa: E402
 from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
@@ -54,7 +54,7 @@ def test_live_estimates_arrive_before_the_end_and_the_final_is_analyze_model(rec
     assert live and live[0][1] < len(w.data)  # an estimate while the file was still being written
     final = [u for u, _ in got if isinstance(u, ProcessEstimateUpdate) and u.final]
     assert len(final) == 1 and final[0].analysis is not None
-    ref = analyze_general(read_flight(recording, READ, echo_warnings=False), family_model("fopdt"))
+    ref = analyze_flight(read_flight(recording, READ, echo_warnings=False), family_model("fopdt"))
     assert final[0].analysis.to_json() == {**ref.to_json(), "path": final[0].analysis.path}
     last_live = {e.name: e.value for e in live[-1][0].estimates}
     for e in final[0].estimates:  # the last live fit used the same cycles, less a possible last one

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.general import mask_windows
 from mrftcli.errors import MrftError
@@ -60,7 +61,7 @@ def _options(seed: int, refine: bool = True) -> AnalyzeOptions:
 def analyze_log(path: str | Path, tp: float, loop: str, seed: int = 0) -> AnalysisResult:
     """``mrft-ident analyze LOG --tp TP --loop LOOP`` as a library call."""
     flight = read_flight(path, ReadOptions(loop=loop))
-    return analyze_flight(flight, tp, options=_options(seed))
+    return analyze_flight(flight, soiptd_model(tp), options=_options(seed))
 
 
 def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed: int = 0,
@@ -77,7 +78,7 @@ def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed:
     for i, test in enumerate(tests):
         others = [(t.t_start, t.t_end) for j, t in enumerate(tests) if j != i]
         try:
-            res = analyze_flight(mask_windows(flight, others), tp, options=_options(seed, refine))
+            res = analyze_flight(mask_windows(flight, others), soiptd_model(tp), options=_options(seed, refine))
         except MrftError as err:
             if misses is None:
                 raise

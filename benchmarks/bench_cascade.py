@@ -147,11 +147,12 @@ def _inner_read(spec, layout: str):
 
 def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:
     from mrftcli.analyze import analyze_path
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.analyze.cascade import CascadeOptions, analyze_cascade, inner_draws, inner_gains_of, inner_loop_of
     from mrftcli.io import read_flight
     from mrftcli.io.flight import ReadOptions
 
-    inner_result = analyze_path(bag, spec.inner.Tp, read=_inner_read(spec, layout))
+    inner_result = analyze_path(bag, soiptd_model(spec.inner.Tp), read=_inner_read(spec, layout))
     controller = inner_gains_of({spec.inner_loop: spec.gains.generic()}, spec.inner_loop)
     inner = inner_loop_of(inner_result, controller, spec.inner_loop)
     flight = read_flight(bag, ReadOptions(loop=spec.axis), echo_warnings=False)
@@ -179,10 +180,11 @@ def tune_cascade(analysis):
 
 def eq2_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:
     from mrftcli.analyze import analyze_path
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.io.flight import ReadOptions
     from mrftcli.tune.analysis import tune_analysis
 
-    result = analyze_path(bag, TP_GUESS, read=ReadOptions(loop=spec.axis))
+    result = analyze_path(bag, soiptd_model(TP_GUESS), read=ReadOptions(loop=spec.axis))
     out.eq2_Td, out.eq2_tau = result.Td.mean, result.tau.mean
     try:
         res = tune_analysis(result, kinds=("PD",), designs=("robust",))

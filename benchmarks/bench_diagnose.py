@@ -187,6 +187,7 @@ def mount_snr(flight) -> float:
 
 def run_case(case: dict) -> dict:
     from mrftcli.analyze import analyze_flight
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.diagnose.selection import diagnose
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight, write_log
@@ -198,7 +199,7 @@ def run_case(case: dict) -> dict:
         write_log(flight.topics, path, "mcap")
         t0 = time.process_time()
         try:
-            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
+            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]))
         except MrftError:
             pass
         cpu_analyze = time.process_time() - t0

@@ -53,13 +53,13 @@ UNSTABLE_RANGES = {"K": (1e-11, 1e-6), "Tu": (1e-3, 1.0), "T": (1e-4, 0.1), "tau
 
 
 def analyze(model):
-    from mrftcli.analyze.general import analyze_general
+    from mrftcli.analyze import analyze_flight
     from mrftcli.io import ReadOptions, read_flight
 
     flight = read_flight(FILE, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the identification's own warnings are not what is measured
-        return analyze_general(flight, model)
+        return analyze_flight(flight, model)
 
 
 def held_errors(result, baseline: bool = False) -> list[float]:
@@ -190,7 +190,8 @@ def simulated_held_out(n: int, seed: int) -> dict[str, list[float]]:
     from bench_families import FAMILIES, draw_plant, draw_windows
     from process_sim import simulate, write_csv
 
-    from mrftcli.analyze.general import RelayOptions, analyze_general
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.analyze.general import RelayOptions
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
@@ -215,8 +216,7 @@ def simulated_held_out(n: int, seed: int) -> dict[str, list[float]]:
                     try:
                         with warnings.catch_warnings():
                             warnings.simplefilter("ignore")
-                            res = analyze_general(flight, family_model(family),
-                                                  relay=RelayOptions("mrft") if relay == "mrft" else RelayOptions())
+                            res = analyze_flight(flight, family_model(family), options=AnalyzeOptions(relay=RelayOptions("mrft") if relay == "mrft" else RelayOptions()))
                     except MrftError:
                         out["inferred"].append(math.inf)  # a refusal is a miss either way
                         out["effective"].append(math.inf)

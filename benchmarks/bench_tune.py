@@ -83,7 +83,7 @@ def main() -> None:
     from test_segment_support import flight_from_simulated, simulate_paper_flight
 
     from mrftcli.analyze import analyze_flight
-    from mrftcli.mrft.model import LoopModel
+    from mrftcli.mrft.model import LoopModel, soiptd_model
     from mrftcli.tune import Posterior
 
     print(f"{'plant':<26} {'PMwst':>6} {'Mswst':>5} {'DM[ms]':>7} {'DMwst':>7} {'OSpred':>6} {'OSsim':>6} "
@@ -99,7 +99,7 @@ def main() -> None:
         betas = (-0.4, -0.7) if loop == "altitude" else (-0.5, -0.8)
         sf = simulate_paper_flight(Tp, Td, tau, K, betas, loop=loop, cycles=12.0, seed=1000 + k)
         try:
-            r = analyze_flight(flight_from_simulated(sf), Tp)
+            r = analyze_flight(flight_from_simulated(sf), soiptd_model(Tp))
         except Exception as err:  # noqa: BLE001 - a benchmark reports and goes on
             print(f"plant {k}: analysis failed: {err}")
             continue

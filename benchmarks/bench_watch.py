@@ -271,9 +271,9 @@ def _follow(log: str, model: str, fmt: str, seed: int) -> list:
 def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float, object]:
     """(read [s], read + analyse [s]) of the finished log whole: what re-running analyze per update costs."""
     from mrftcli.analyze import analyze_flight
-    from mrftcli.analyze.general import analyze_general
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import family_model
+    from mrftcli.mrft.model import soiptd_model
 
     read = ReadOptions(command_topic=CSV_TOPICS[0], output_topic=CSV_TOPICS[1]) if fmt == "csv" else ReadOptions()
     t0 = time.perf_counter()
@@ -282,9 +282,9 @@ def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float
     result = None
     try:
         if model == "fopdt":
-            result = analyze_general(flight, family_model("fopdt"))
+            result = analyze_flight(flight, family_model("fopdt"))
         else:
-            result = analyze_flight(flight, truth["Tp"])
+            result = analyze_flight(flight, soiptd_model(truth["Tp"]))
     except Exception:  # noqa: BLE001 - the baseline's cost is what matters
         pass
     return t1 - t0, time.perf_counter() - t0, result

@@ -81,8 +81,9 @@ def test_the_added_delay_is_in_the_log(name: str) -> None:
 @pytest.mark.parametrize("name", ["altitude_20ms", "roll_20ms"])
 def test_the_20ms_flights_identify_and_predict_each_held_out_frequency_within_5_percent(name: str) -> None:
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.mrft.model import soiptd_model
 
-    res = analyze_flight(_read(name), _side(name)["tp_s"], options=AnalyzeOptions(n_bootstrap=50, seed=1))
+    res = analyze_flight(_read(name), soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=50, seed=1))
     assert len(res.tests) == 3
     assert res.held_out is not None and len(res.held_out) == 3
     for test, held in zip(res.tests, res.held_out):
@@ -92,17 +93,19 @@ def test_the_20ms_flights_identify_and_predict_each_held_out_frequency_within_5_
 
 def test_analyze_refuses_the_flight_without_delay_at_the_filters_tp() -> None:
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.errors import IdentificationError
 
     name = "altitude"
     with pytest.raises(IdentificationError, match="negative delay"):
-        analyze_flight(_read(name), _side(name)["tp_s"], options=AnalyzeOptions(n_bootstrap=20))
+        analyze_flight(_read(name), soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=20))
 
 
 def _tau(name: str) -> float:
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.mrft.model import soiptd_model
 
-    return analyze_flight(_read(name), _side(name)["tp_s"], options=AnalyzeOptions(n_bootstrap=20, seed=1)).tau.mean
+    return analyze_flight(_read(name), soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=20, seed=1)).tau.mean
 
 
 def _realised_delay(name: str) -> float:

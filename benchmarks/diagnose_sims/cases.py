@@ -112,6 +112,7 @@ def mount_snr(rec, spec: LoopSpec) -> float:
 def run_case(case: dict) -> dict:
     """Fly, write MCAP, analyze and diagnose (CPU timed in this process), and what was found."""
     from mrftcli.analyze import analyze_flight
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.diagnose.selection import diagnose
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight, write_log
@@ -128,7 +129,7 @@ def run_case(case: dict) -> dict:
         write_log(flight_topics(rec, [b for b, _, _ in spec.tests]), path, "mcap")
         t0 = time.process_time()
         try:
-            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), Tp)
+            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp))
         except MrftError:
             pass
         out["cpu_analyze"] = time.process_time() - t0

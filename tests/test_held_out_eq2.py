@@ -136,7 +136,7 @@ def test_two_tests_say_why_nothing_is_predicted_and_one_test_holds_nothing_out(t
     text = format_table(result)
     assert "held-out tests 1, 2: the other test alone does not determine Td and tau" in text
     assert "held-out f" not in text
-    (only,) = held_out_eq2(PLANT["Tp"], result.tests[:1], [result.tests[0].beta_effective])
+    (only,) = held_out_eq2(soiptd_model(PLANT["Tp"]), result.tests[:1], [result.tests[0].beta_effective])
     assert only.frequency_hz is None and only.note == NOTHING_HELD_OUT
 
 

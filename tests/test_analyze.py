@@ -121,8 +121,9 @@ def test_to_dict_is_plain_json_with_the_documented_keys(design1):
     _, result = design1
     d = json.loads(json.dumps(to_jsonable(result.to_dict()), allow_nan=False))
     for name in ("Td", "tau", "K"):
-        assert {"mean", "std", "ci95_low", "ci95_high"} <= set(d["parameters"][name])
-    assert d["parameters"]["tau"]["mean"] == pytest.approx(result.tau.mean)
+        assert list(d["parameters"][name]) == ["value", "std", "ci95_low", "ci95_high", "unit", "determined",
+                                               "known", "method"]
+    assert d["parameters"]["tau"]["value"] == pytest.approx(result.tau.value)
     for t in d["tests"]:
         assert {"beta", "h", "frequency_hz", "amplitude", "cycles", "t_start", "t_end", "beta_nominal",
                 "beta_effective"} <= set(t)
@@ -212,7 +213,7 @@ def test_refinement_is_reported_beside_the_mrft_estimate(design1):
     assert result.method == "waveform" and result.refinement is not None and result.refinement.accepted
     d = result.to_dict(cycles=False)
     assert d["parameters"]["tau"]["method"] == "waveform"
-    assert d["parameters"]["tau"]["mean"] == result.refinement.tau.mean
+    assert d["parameters"]["tau"]["value"] == result.refinement.tau.value
     for key in ("parameters_mrft", "parameters_waveform"):
         assert all(d[key][n]["std"] > 0 for n in ("Td", "tau", "K"))
     assert d["refinement"]["accepted"] is True and d["refinement"]["reasons"] == []
@@ -220,4 +221,4 @@ def test_refinement_is_reported_beside_the_mrft_estimate(design1):
     for name in ("Td", "tau", "K"):
         wf, mr = d["parameters_waveform"][name], d["parameters_mrft"][name]
         assert wf["std"] < mr["std"]
-        assert abs(wf["mean"] - D1[name]) < 3 * wf["std"] + 1e-12, name
+        assert abs(wf["value"] - D1[name]) < 3 * wf["std"] + 1e-12, name

@@ -65,8 +65,8 @@ def test_json_to_stdout_and_report(logs, tmp_path):
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)  # stdout holds the JSON only
     for name in ("Td", "tau", "K"):
-        assert {"mean", "std"} <= set(data["parameters"][name])
-    assert abs(data["parameters"]["tau"]["mean"] - 0.0464) < 1e-3
+        assert {"value", "std"} <= set(data["parameters"][name])
+    assert abs(data["parameters"]["tau"]["value"] - 0.0464) < 1e-3
     assert [round(t["beta_nominal"], 3) for t in data["tests"]] == [-0.4, -0.7]
     for t in data["tests"]:
         assert {"beta", "h", "frequency_hz", "amplitude", "cycles", "t_start", "t_end"} <= set(t)

@@ -31,9 +31,9 @@ def test_identify_json():
     p = run("identify", "--tp", "0.1", "--test", "-0.4:0.70564:0.078530:1", "--test", "-0.7:1.01884:0.035602:1", "--json")
     assert p.returncode == 0, p.stderr
     d = json.loads(p.stdout)
-    assert d["parameters"]["Td"]["mean"] == pytest.approx(1 / 1.42, rel=3e-3)
-    assert d["parameters"]["tau"]["mean"] == pytest.approx(0.06, rel=3e-3)
-    assert d["parameters"]["K"]["mean"] == pytest.approx(1.42, rel=3e-3)
+    assert d["parameters"]["Td"]["value"] == pytest.approx(1 / 1.42, rel=3e-3)
+    assert d["parameters"]["tau"]["value"] == pytest.approx(0.06, rel=3e-3)
+    assert d["parameters"]["K"]["value"] == pytest.approx(1.42, rel=3e-3)
     for k in ("Td", "tau", "K"):
         assert "std" in d["parameters"][k]
 

@@ -110,7 +110,7 @@ def test_analyze_cli_with_time_unit_gives_the_seconds_file_numbers(corpus):
     truth = json.loads((ROOT / "sample_logs" / "design1_altitude.csv.truth.json").read_text())
     got = json.loads(proc.stdout)["parameters"]
     for name in ("Td", "tau", "K"):  # the clean file's own errors are below 15 %
-        assert abs(got[name]["mean"] / truth[name] - 1) < 0.2, (name, got[name]["mean"], truth[name])
+        assert abs(got[name]["value"] / truth[name] - 1) < 0.2, (name, got[name]["value"], truth[name])
 
 
 # -- watch: a file that does not exist yet, a file replaced by another recording ------------------

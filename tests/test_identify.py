@@ -142,7 +142,8 @@ def test_to_dict_is_json_ready():
     text = json.dumps(__import__("mrftcli.jsonable", fromlist=["to_jsonable"]).to_jsonable(d))
     back = json.loads(text)
     for name in ("Td", "tau", "K"):
-        assert {"mean", "std", "ci95_low", "ci95_high", "unit"} <= set(back["parameters"][name])
+        assert {"value", "std", "ci95_low", "ci95_high", "unit", "determined", "known", "method"} == set(
+            back["parameters"][name])
     assert back["parameters"]["tau"]["unit"] == "s"
     assert len(back["tests"]) == 2
 

@@ -268,7 +268,7 @@ def test_flown_tests_and_prior_of_an_analyze_result_json():
         (t["beta"], t["h"], t["frequency_hz"], t["amplitude"], t["cycles"]) for t in data["tests"]]
     td = data["parameters"]["Td"]
     assert prior_range(params["Td"], (0.2, 3.0)) == pytest.approx(
-        (max(td["mean"] - 2 * td["std"], td["mean"] / 10), td["mean"] + 2 * td["std"]))
+        (max(td["value"] - 2 * td["std"], td["value"] / 10), td["value"] + 2 * td["std"]))
     with pytest.raises(InputError, match="schema_version"):
         flown_from_result({**data, "schema_version": 99})
 

@@ -256,10 +256,10 @@ def test_stale_output_samples_are_named_and_left_out(tmp_path: Path, capsys, kin
 
 
 def _walk(obj, key: str = ""):
-    """(key, number) pairs of a JSON tree, depth first (the estimate's mean under its name)."""
+    """(key, number) pairs of a JSON tree, depth first (the estimate's value under its name)."""
     if isinstance(obj, dict):
-        if "mean" in obj and isinstance(obj["mean"], float):
-            yield key, obj["mean"]
+        if "value" in obj and isinstance(obj["value"], float):
+            yield key, obj["value"]
         for k, v in obj.items():
             yield from _walk(v, k)
     elif isinstance(obj, list):

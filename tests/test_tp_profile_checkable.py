@@ -36,7 +36,7 @@ def test_a_log_below_the_controller_rate_says_tp_is_not_checkable_cli() -> None:
                     "--json", "-")  # main() in this process (cli_helpers)
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
-    tau = data["parameters"]["tau"]["mean"]
+    tau = data["parameters"]["tau"]["value"]
     assert abs(tau - truth["tau"]) > 0.1 * truth["tau"]  # the wrong Tp did move tau: silence would be a lie
     first = data["warnings"][0]
     assert first.startswith("Tp is not checkable from this log (the command is logged below the controller's rate")

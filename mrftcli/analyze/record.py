@@ -13,6 +13,7 @@ Times are seconds; ``t_start``/``t_end`` are log times (epoch seconds in real lo
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -35,9 +36,12 @@ __all__ = ["AnalysisResult", "LogInfo", "TpCheck", "TP_VERDICTS", "SCHEMA_VERSIO
 
 #: Version of the JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md). 2 added ``noise``
 #: (the measured sensor noise) and ``tp_check`` (the recording's verdict on the given Tp); 3 added
-#: ``tests[i].held_out`` (:class:`~mrftcli.analyze.held_out.HeldOut`, the families' record); version 1
-#: and 2 records are read as before (no noise, no verdict; no held-out prediction: ``held_out`` None).
-SCHEMA_VERSION = 3
+#: ``tests[i].held_out`` (:class:`~mrftcli.analyze.held_out.HeldOut`, the families' record); 4 writes
+#: every parameter as the one record (:class:`~mrftcli.mrft.parameter.ParameterEstimate`: ``value``,
+#: ``std``, ``ci95_low``, ``ci95_high``, ``unit``, ``determined``, ``known``, ``method``) where 1-3 wrote
+#: ``mean``. Versions 1-3 are read as before (no noise, no verdict; no held-out prediction: ``held_out``
+#: None) and written back in version 4's layout.
+SCHEMA_VERSION = 4
 
 #: What the recording says about the given Tp: ``consistent`` (the waveform accepts it), ``rejected``
 #: (it fits another Tp clearly better), ``accepted`` (rejected, kept by the user's ``--accept-tp``),
@@ -161,7 +165,7 @@ class AnalysisResult:
         cycle of this relay: ``MrftTest.validity``), with the reason in ``rejection_reasons`` and
         ``warnings``.
     Td, tau, K : ParameterEstimate
-        Point estimate (``mean``) with bootstrap ``std`` and 95 % interval; Td, tau in seconds, K in
+        Point estimate (``value``) with bootstrap ``std`` and 95 % interval; Td, tau in seconds, K in
         output units / (command unit s^2) (K Td is the static gain from command to output rate).
     model : LoopModel
         The identified model (the point estimate).
@@ -296,29 +300,19 @@ class AnalysisResult:
         return out
 
     def _parameters(self) -> _JSONDict:
-        params: _JSONDict = {"Td": self.Td.to_dict(), "tau": self.tau.to_dict(), "K": self.K.to_dict(),
-                             "Tp": {"mean": self.Tp, "std": 0.0, "ci95_low": self.Tp, "ci95_high": self.Tp,
-                                    "unit": "s", "known": True}}
-        params["K"]["unit"] = K_UNIT
-        for name in ("Td", "tau", "K"):
-            params[name]["method"] = self.method
+        params = _group({"Td": self.Td, "tau": self.tau, "K": self.K}, self.method)
+        params["Tp"] = ParameterEstimate.given(self.Tp, "s").to_json()
         return params
 
     def _estimates(self) -> _JSONDict:
         """``parameters_mrft``, and with a refinement ``parameters_waveform`` and ``refinement``."""
 
-        def group(est: Mapping[str, ParameterEstimate]) -> _JSONDict:
-            out = {k: v.to_dict() for k, v in est.items()}
-            if "K" in out:
-                out["K"]["unit"] = K_UNIT
-            return out
-
         extra: _JSONDict = {}
         if self.parameters_mrft:
-            extra["parameters_mrft"] = group(self.parameters_mrft)
+            extra["parameters_mrft"] = _group(self.parameters_mrft, "mrft")
         if self.refinement is not None:
             ref = self.refinement
-            extra["parameters_waveform"] = group({"Td": ref.Td, "tau": ref.tau, "K": ref.K})
+            extra["parameters_waveform"] = _group({"Td": ref.Td, "tau": ref.tau, "K": ref.K}, "waveform")
             extra["refinement"] = {"method": "output error on the tests' windows (exact ZOH, fractional delay)",
                                    **ref.to_dict()}
         return extra
@@ -343,8 +337,8 @@ class AnalysisResult:
     def to_dict(self, cycles: bool = True) -> _JSONDict:
         """The JSON object of ``mrft-ident analyze --json`` without ``schema_version`` (:meth:`to_json`).
 
-        Keys: ``parameters`` (Td, tau, K, Tp; each ``mean``, ``std``, ``ci95_low``, ``ci95_high``,
-        ``unit``), ``combinations`` (Table III mean/std), ``tests`` (per test: ``beta`` (the
+        Keys: ``parameters`` (Td, tau, K, Tp; each the one parameter record: ``value``, ``std``,
+        ``ci95_low``, ``ci95_high``, ``unit``, ``determined``, ``known``, ``method``), ``combinations`` (Table III mean/std), ``tests`` (per test: ``beta`` (the
         effective beta used), ``beta_nominal``, ``beta_effective``, ``h``, ``frequency_hz``,
         ``amplitude``, ``cycles``, ``t_start``, ``t_end`` (absolute log times [s]), ``t_start_rel``,
         ``t_end_rel`` (seconds since the log's first sample, ``input.t0``), ... and per-cycle data),
@@ -410,14 +404,14 @@ class AnalysisResult:
 def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisResult:
     """:meth:`AnalysisResult.from_json` after the version check (KeyError etc. on bad input).
 
-    Required: ``parameters`` Td, tau, K (``mean``) and Tp; a hand-written result may leave out the
-    rest (no tests, the model from the parameters, an empty path and loop).
+    Required: ``parameters`` Td, tau, K (``value``; ``mean`` before version 4) and Tp; a hand-written
+    result may leave out the rest (no tests, the model from the parameters, an empty path and loop).
     """
     p = data["parameters"]
     inp = data.get("input") or {}
-    Tp = json_float(p["Tp"]["mean"])
-    Td, tau, K = _estimate(p["Td"]), _estimate(p["tau"]), _estimate(p["K"])
-    m = data.get("model") or {"Tp": Tp, "Td": Td.mean, "tau": tau.mean, "K": K.mean}
+    Tp = _estimate("Tp", p["Tp"]).value
+    Td, tau, K = _estimate("Td", p["Td"]), _estimate("tau", p["tau"]), _estimate("K", p["K"])
+    m = data.get("model") or {"Tp": Tp, "Td": Td.value, "tau": tau.value, "K": K.value}
     rejected_rows = data.get("rejected_tests") or ()
     info = LogInfo.from_dict(inp) if "command_samples" in inp else None
     constraints = (data.get("identification") or {}).get("constraints") or {}
@@ -434,7 +428,7 @@ def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisRe
         constraints={} if dict(constraints) == {"used": ["ufm"]} else dict(constraints),
         rejection_reasons={int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
         method=str(p["Td"].get("method", "mrft")),
-        parameters_mrft={k: _estimate(v) for k, v in (data.get("parameters_mrft") or {}).items()},
+        parameters_mrft={k: _estimate(k, v) for k, v in (data.get("parameters_mrft") or {}).items()},
         refinement=None, notes=tuple(str(n) for n in data.get("notes") or ()),
         controller_rate_hz=_recorded_rate(data, info), log_info=info,
         recorded=copy.deepcopy(dict(data)),
@@ -487,8 +481,16 @@ def analysis_controller_rate(declared_hz: float | None, test_rates_hz: Sequence[
 
 
 def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisResult) -> _JSONDict:
-    """The JSON a record was read from, in this version's layout (an older one's tests get ``held_out`` null)."""
+    """The JSON a record was read from, in this version's layout (an older one's tests get ``held_out`` null,
+    its parameters the one record's keys)."""
     out = {k: copy.deepcopy(v) for k, v in recorded.items() if k != "schema_version"}
+    for key, method in (("parameters", result.method), ("parameters_mrft", "mrft"),
+                        ("parameters_waveform", "waveform")):
+        if isinstance(out.get(key), Mapping):
+            group = {k: _estimate(k, v) for k, v in out[key].items()}
+            out[key] = _group({k: v for k, v in group.items() if k != "Tp"}, method)
+            if "Tp" in group:
+                out[key]["Tp"] = ParameterEstimate.given(group["Tp"].value, "s").to_json()
     if "tests" in out:
         out["tests"] = [{**({k: v for k, v in t.items() if k != "per_cycle"} if not cycles else t),
                          "held_out": None if (ho := result.held_out_of(i)) is None else ho.to_json()}
@@ -496,11 +498,16 @@ def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisRe
     return out
 
 
-def _estimate(d: Mapping[str, Any]) -> ParameterEstimate:
-    unit = str(d.get("unit", ""))
+def _estimate(name: str, d: Mapping[str, Any]) -> ParameterEstimate:
+    """One parameter of the JSON (this version's record, or ``mean`` before version 4)."""
+    est = ParameterEstimate.from_json(name, d)
     # the record keeps K's unit as identify gives it (""); the JSON spells it out (K_UNIT)
-    return ParameterEstimate(json_float(d["mean"]), json_float(d.get("std")), json_float(d.get("ci95_low")),
-                             json_float(d.get("ci95_high")), "" if unit == K_UNIT else unit)
+    return dataclasses.replace(est, unit="") if est.unit == K_UNIT else est
+
+
+def _group(estimates: Mapping[str, ParameterEstimate], method: str) -> _JSONDict:
+    """Parameters by name as JSON (K's unit spelt out), each with its method (``method`` where it has none)."""
+    return {k: v.to_json(unit=K_UNIT if k == "K" else None, method=v.method or method) for k, v in estimates.items()}
 
 
 def command_rate_of_result(data: Mapping[str, Any]) -> float | None:

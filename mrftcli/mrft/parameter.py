@@ -1,0 +1,152 @@
+"""One identified parameter and its JSON: :class:`ParameterEstimate`, the record every result writes.
+
+Every record that states a parameter (eq. (2)'s analysis, the families', the cascade's, a vehicle's
+loops, batch, watch lines, ``identify --json``) writes it as one JSON object (docs/records.md)::
+
+    {"value": 0.0464, "std": 1.8e-05, "ci95_low": 0.04637, "ci95_high": 0.04644, "unit": "s",
+     "determined": true, "known": false, "method": "waveform"}
+
+``value`` is the point estimate (the given value of a known parameter), ``std`` its standard deviation
+(null when not determined or not finite; read back as NaN), ``ci95_low``/``ci95_high`` its 95 % interval (null where
+open), ``determined`` whether the tests pin it down, ``known`` whether it was given (the paper's set
+E), ``method`` how the value was found (:data:`METHODS`). :meth:`ParameterEstimate.from_json` reads
+that shape and, for one release, the two it replaces (eq. (2)'s ``mean`` shape of analysis schema
+<= 3 and the families' ``one_sided`` shape).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import InputError
+
+__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS"]
+
+#: The keys of a parameter's JSON object, in their order.
+JSON_KEYS = ("value", "std", "ci95_low", "ci95_high", "unit", "determined", "known", "method")
+
+#: How a value was found: eq. (2)'s waveform refinement or MRFT consensus, a family's fit to the
+#: tests' harmonic response points, the cascade's fit to its limit cycles, or given (known).
+METHODS = ("waveform", "mrft", "response-points", "cascade-cycles", "given", "")
+
+
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """An identified (or given) parameter: its value, spread and 95 % interval.
+
+    Attributes
+    ----------
+    value : float
+        Point estimate [unit] (the given value for a known parameter).
+    std : float
+        Standard deviation [unit] (0 for a known parameter; NaN when not estimated).
+    ci95_low, ci95_high : float
+        95 % interval [unit]; NaN or infinite where the tests leave that side open (eq. (2)'s Td
+        bounded from below only); an end cut at a bound of the set I is that bound (``one_sided``).
+    unit : str
+        The unit of the value.
+    determined : bool
+        Pinned down by the tests; False: the value is one of many that fit (docs/records.md).
+    known : bool
+        In the set E (given, not identified).
+    method : str
+        How the value was found (:data:`METHODS`); ``""`` where the record writing it says.
+    name : str
+        The family's parameter name (``""`` where the record's key names it).
+    one_sided : str
+        ``""``, ``"low"`` or ``"high"``: the interval's end that is a range's bound (open side).
+    """
+
+    value: float
+    std: float
+    ci95_low: float
+    ci95_high: float
+    unit: str
+    determined: bool = True
+    known: bool = False
+    # labels, not the estimate: two records of the same figures compare equal whoever names them
+    method: str = field(default="", compare=False)
+    name: str = field(default="", compare=False)
+    one_sided: str = ""
+
+    @classmethod
+    def given(cls, value: float, unit: str, name: str = "") -> ParameterEstimate:
+        """A known parameter (set E): its value, no spread, method ``"given"``."""
+        return cls(float(value), 0.0, float(value), float(value), unit, True, True, "given", name)
+
+    @property
+    def mean(self) -> float:
+        """Deprecated alias of :attr:`value`, kept while callers migrate."""
+        return self.value
+
+    def to_json(self, *, unit: str | None = None, method: str | None = None) -> dict[str, Any]:
+        """The one JSON object (:data:`JSON_KEYS`); ``unit``/``method`` override the record's for the JSON.
+
+        Non-finite numbers are null; so is ``std`` of a parameter the tests do not determine (no
+        standard deviation worth the name).
+        """
+        def finite(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        return {"value": finite(self.value), "std": finite(self.std) if self.determined or self.known else None,
+                "ci95_low": finite(self.ci95_low), "ci95_high": finite(self.ci95_high),
+                "unit": self.unit if unit is None else unit, "determined": self.determined, "known": self.known,
+                "method": self.method if method is None else method}
+
+    @classmethod
+    def from_json(cls, name: str, data: Any, *, bounds: tuple[float, float] | None = None,
+                  open_value: float = math.nan) -> ParameterEstimate:
+        """The estimate of a :meth:`to_json` object (``name`` for messages and the record).
+
+        Also reads, for one release, eq. (2)'s former ``{mean, std, ci95_low, ci95_high, unit[, method,
+        known]}`` (``determined`` false where the interval is open above) and the families' former
+        ``{value, ..., one_sided}``. ``bounds`` (the parameter's range, set I) recovers ``one_sided``
+        where the JSON does not hold it; ``open_value`` is what a null interval end reads as (NaN in
+        eq. (2)'s records, -inf/+inf as the families' ``(-inf, inf)``).
+
+        Raises
+        ------
+        InputError
+            Not an object with a numeric value (or mean), or a unit that is not a string.
+        """
+        key = "value" if isinstance(data, Mapping) and "value" in data else "mean"
+        if not (isinstance(data, Mapping) and _is_number(data.get(key)) and isinstance(data.get("unit", ""), str)):
+            raise InputError(f"parameter JSON: {name!r} needs a numeric value (and a unit)")
+
+        def num(k: str, default: float) -> float:
+            v = data.get(k)
+            if v is None:
+                return default
+            if not _is_number(v):
+                raise InputError(f"parameter JSON: {name!r} {k} is not a number")
+            return float(v)
+
+        low, high = num("ci95_low", -open_value if open_value == math.inf else open_value), num("ci95_high", open_value)
+        known = bool(data.get("known", False))
+        if "determined" in data:
+            determined = bool(data["determined"])
+        else:  # eq. (2)'s former shape: not determined where the tests bound it from one side only
+            determined = known or not (math.isfinite(low) and data.get("ci95_high", 0.0) is None)
+        one_sided = str(data["one_sided"]) if "one_sided" in data else _one_sided(low, high, bounds, known)
+        return cls(float(data[key]), num("std", math.nan), low, high, str(data.get("unit", "")), determined, known,
+                   str(data.get("method", "")), name, one_sided)
+
+
+def _is_number(x: object) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool)
+
+
+def _one_sided(low: float, high: float, bounds: tuple[float, float] | None, known: bool) -> str:
+    """Which interval end sits on a range's bound (as the fit cut it there), from the range."""
+    if bounds is None or known:
+        return ""
+
+    def at(x: float, bound: float) -> bool:
+        return math.isfinite(bound) and math.isfinite(x) and abs(x - bound) <= 1e-9 * max(1.0, abs(bound))
+
+    if at(low, bounds[0]):
+        return "low"
+    return "high" if at(high, bounds[1]) else ""

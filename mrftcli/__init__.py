@@ -32,7 +32,7 @@ Predict the limit cycle of the paper's example plant, then identify it back from
 >>> round(cycles[-0.4].frequency_hz, 5), round(cycles[-0.7].frequency_hz, 5)
 (0.70565, 1.01885)
 >>> tests = [mrftcli.TestMeasurement(beta, c.frequency_hz) for beta, c in cycles.items()]
->>> result = mrftcli.identify(tests, Tp=0.1)
+>>> result = mrftcli.identify(tests, mrftcli.soiptd_model(0.1))  # eq. (2) with Tp known
 >>> print(f"Td {result.Td.mean:.4f} s, tau {result.tau.mean:.4f} s")
 Td 0.7042 s, tau 0.0600 s
 
@@ -40,7 +40,8 @@ Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, 
 
 >>> log = mrftcli.sample_log("design1_altitude.mcap")  # installed with the package
 >>> flight = mrftcli.read_flight(log, mrftcli.ReadOptions(loop="altitude"))
->>> analysis = mrftcli.analyze_flight(flight, Tp=0.0422, options=mrftcli.AnalyzeOptions(n_bootstrap=100))
+>>> analysis = mrftcli.analyze_flight(flight, mrftcli.soiptd_model(0.0422),
+...                                  options=mrftcli.AnalyzeOptions(n_bootstrap=100))
 >>> print(f"{len(analysis.tests)} tests: Td {analysis.Td.mean:.1f} s, tau {analysis.tau.mean * 1e3:.0f} ms, "
 ...       f"K {analysis.K.mean:.0f}")
 2 tests: Td 2.7 s, tau 46 ms, K 20
@@ -66,6 +67,7 @@ _LAZY = {
     "identify": ("mrftcli.mrft.identify", "identify"),
     "TestMeasurement": ("mrftcli.mrft.identify", "TestMeasurement"),
     "LoopModel": ("mrftcli.mrft.model", "LoopModel"),
+    "soiptd_model": ("mrftcli.mrft.model", "soiptd_model"),
     "sample_log": ("mrftcli.samples", "sample_log"),
 }
 

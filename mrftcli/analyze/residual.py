@@ -79,8 +79,9 @@ def residual_verdict(result: AnalysisResult) -> ResidualVerdict | None:
     --------
     >>> from pathlib import Path
     >>> from mrftcli.analyze import AnalyzeOptions, analyze_path
+    >>> from mrftcli.mrft.model import soiptd_model
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.mcap"
-    >>> residual_verdict(analyze_path(log, 0.0422, options=AnalyzeOptions(n_bootstrap=50))).verdict
+    >>> residual_verdict(analyze_path(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50))).verdict
     'explained'
     """
     ratio = _ratio(result)

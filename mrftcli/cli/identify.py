@@ -61,6 +61,7 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
     Example: mrft-ident identify --tp 0.1 --test -0.4:0.70564 --test -0.7:1.01884
     """
     from ..mrft.identify import identify as run
+    from ..mrft.model import soiptd_model
 
     if model_name != "soiptd":
         _identify_process(model_name, params, ranges, points, tests, json_target)
@@ -71,7 +72,7 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
 
     measured = [_parse_test(t) for t in tests]
     try:
-        result = run(measured, Tp, rate_hz=rate_hz)
+        result = run(measured, soiptd_model(Tp), rate_hz=rate_hz)
     except InputError as err:
         if len({t.beta for t in measured}) < 2:
             # tests given but too few to determine Td and tau: the documented exit code 6, not a bad option

@@ -23,6 +23,7 @@ from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
 from ..analyze.cascade import OUTER_COMMANDS, inner_gains_of
 from ..mrft.cascade import InnerController
+from ..mrft.model import LoopModel, soiptd_model
 from .gains import TuneOptions, joint_gyro_gains, tune_loop
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
 from .next_tests import missing_from_error, missing_topics
@@ -192,10 +193,11 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
         total = len(found.loops) + 1
         for i, loop in enumerate(found.loops):
             report(progress, i, total, f"{loop}: identifying and tuning")
+            model = soiptd_model(tps[loop])  # eq. (2) with the loop's Tp known
             if loop in OUTER_LOOPS:
-                identify_outer(source, loop, tps[loop], opts, inner_gains, acc)
+                identify_outer(source, loop, model, opts, inner_gains, acc)
             else:
-                identify_inner(source, loop, tps[loop], opts, acc)
+                identify_inner(source, loop, model, opts, acc)
     acc.loops.update(joint_gyro_gains(acc.loops, opts.tune))  # one gyro cutoff for roll and pitch (issue 25)
     if inner_gains is not None and not any(loop in acc.loops for loop in OUTER_LOOPS):
         acc.warnings.append("--inner-gains not used: the flight gives no model of x or y")
@@ -221,26 +223,28 @@ class _Accumulated:
         self.assumptions += [f"{entry.loop}: {n}" for n in stated]
 
 
-def identify_inner(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc: _Accumulated) -> None:
-    """An inner loop (altitude, roll, pitch): eq. (2) at the known Tp, tuned; or the tests it needs."""
-    flight = _read(source, loop, Tp, options, acc)
+def identify_inner(source: LogSource, loop: str, model: LoopModel, options: VehicleOptions,
+                   acc: _Accumulated) -> None:
+    """An inner loop (altitude, roll, pitch): eq. (2) at the model's known Tp, tuned; or the tests it needs."""
+    flight = _read(source, loop, model.Tp, options, acc)
     if flight is None:
         return
     try:
-        result = refuse_rejected_tp(analyze_flight(flight, Tp, options=options.analyze()), options.accept_tp)
+        result = refuse_rejected_tp(analyze_flight(flight, model, options=options.analyze()), options.accept_tp)
     except MrftError as err:
-        acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
+        acc.missing[loop] = missing_from_error(loop, err, model.Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
         return
     gains, stated, refused = _tuned(result, options)
     acc.add(VehicleLoop(loop, "inner", "eq2", result, gains), stated, refused)
 
 
-def identify_outer(source: LogSource, loop: str, Tp: float, options: VehicleOptions,
+def identify_outer(source: LogSource, loop: str, model: LoopModel, options: VehicleOptions,
                    inner_gains: Mapping[str, object] | None, acc: _Accumulated) -> None:
     """An outer loop (x, y): through the closed inner loop when the inner loop has a model from this flight
     and its gains in use are given, else eq. (2) (the first assumption says so and why, naming the
-    option); tuned; or the tests it needs."""
+    option); tuned; or the tests it needs. ``model``: eq. (2) with the loop's Tp known."""
+    Tp = model.Tp
     inner = INNER_OF[loop]
     flight = _read(source, loop, Tp, options, acc)
     if flight is None:
@@ -250,7 +254,7 @@ def identify_outer(source: LogSource, loop: str, Tp: float, options: VehicleOpti
         if controller is not None:
             analysis = cascade_outer(flight, acc.loops[inner], controller, options.outer())
         else:
-            result = refuse_rejected_tp(analyze_flight(flight, Tp, options=options.analyze()), options.accept_tp)
+            result = refuse_rejected_tp(analyze_flight(flight, model, options=options.analyze()), options.accept_tp)
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)

@@ -13,6 +13,7 @@ import dataclasses
 from typing import Any
 
 from ..errors import InputError, InsufficientDataError, MrftError, SegmentationError, TpRejectedError
+from ..mrft.model import soiptd_model
 from ..plan import FlightLimits, PlanOptions, PlanResult, Prior, flown_from_result, plan_tests
 from ..sim import default_noise_std
 from .loops import INNER_OF
@@ -55,7 +56,7 @@ def _single_beta_plan(loop: str, Tp: float, partial: dict[str, Any], rate_hz: fl
         noise = default_noise_std(loop)
         limits = FlightLimits(max_amplitude=max(f.amplitude for f in flown), max_h=max(f.h for f in flown),
                               time_s=PLAN_TIME_S, rate_hz=rate, noise_std=noise)
-        plan = plan_tests(Tp, _PRIOR, limits, flown=flown, options=PlanOptions(n_tests=1))
+        plan = plan_tests(soiptd_model(Tp), limits, prior=_PRIOR, flown=flown, options=PlanOptions(n_tests=1))
     except MrftError:
         return None  # the hint below names the plan command instead
     assumed = (f"the flown test's amplitude {limits.max_amplitude:.3g} and relay height {limits.max_h:.3g} as "

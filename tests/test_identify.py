@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -242,7 +243,7 @@ def test_identification_json_round_trip():
              TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189])]
     for res in (identify(noisy, soiptd_model(0.1), n_draws=50), identify(_tests(PAPER, (-0.2, -0.4, -0.7), amplitude=False), soiptd_model(0.1))):
         d = json.loads(json.dumps(res.to_json()))
-        assert d["schema_version"] == 1 and d["model"]["family"] == "soiptd"
+        assert d["schema_version"] == 2 and d["model"]["family"] == "soiptd"
         back = IdentificationResult.from_json(d)
         assert back.to_dict() == res.to_dict()
         assert back.model == res.model and back.n_draws == res.n_draws and back.draws == {}
@@ -251,9 +252,9 @@ def test_identification_json_round_trip():
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(this version reads 1\)"),
+        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(this version reads 1, 2\)"),
         (lambda d: d.pop("parameters"), "needs a 'parameters' object"),
-        (lambda d: d["parameters"]["Td"].pop("std"), "Td needs numeric mean, std, ci95_low, ci95_high and a unit"),
+        (lambda d: d["parameters"]["Td"].update(value="x"), "'Td' needs a numeric value"),
         (lambda d: d.update(warnings="none"), "needs 'tests' \\(objects\\) and 'warnings' \\(strings\\)"),
         (lambda d: d.update(residual="small"), "residual must be a number or null"),
         (lambda d: d["model"].update(schema_version=9), "model JSON: schema_version 9 is not supported"),
@@ -265,3 +266,25 @@ def test_identification_json_errors(change, message):
     with pytest.raises(InputError, match=message) as err:
         IdentificationResult.from_json(d)
     assert "\n" not in str(err.value)
+
+
+def test_identification_json_version_1_still_reads():
+    """A version-1 record (``mean`` per parameter; written by the code before issue 36's one parameter record,
+    tests/data/old_records/identification_v1.json) reads with the same figures and writes back as version 2."""
+    old = json.loads((Path(__file__).parent / "data" / "old_records" / "identification_v1.json").read_text())
+    back = IdentificationResult.from_json(old)
+    noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058], amplitude=[0.078, 0.0785], h=1.0),
+             TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189])]
+    now = identify(noisy, soiptd_model(0.1), n_draws=50)  # the same tests today: the same numbers
+    for name in ("Td", "tau", "K"):
+        was = old["parameters"][name]
+        est = getattr(back, name)
+        assert (est.value, est.std, est.ci95_low, est.ci95_high) == (was["mean"], was["std"], was["ci95_low"],
+                                                                     was["ci95_high"])
+        assert est == getattr(now, name), name
+    d = json.loads(json.dumps(back.to_json()))
+    assert d["schema_version"] == 2 and back.Tp == old["parameters"]["Tp"]["mean"]
+    assert d["parameters"]["Tp"] == {"value": 0.1, "std": 0.0, "ci95_low": 0.1, "ci95_high": 0.1, "unit": "s",
+                                     "determined": True, "known": True, "method": "given"}
+    assert list(d["parameters"]["Td"]) == ["value", "std", "ci95_low", "ci95_high", "unit", "determined", "known",
+                                           "method"]

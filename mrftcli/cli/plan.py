@@ -18,12 +18,12 @@ from .options import (check_output_file, dump_json, json_option, log_layout_opti
                       tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
-    from ..mrft.identify import ParameterEstimate
-    from ..plan import FlownTest, PlanResult
     from ..analyze.general import GeneralAnalysis
-    from ..plan.process_records import ProcessPlan
+    from ..mrft.identify import ParameterEstimate
+    from ..mrft.model import LoopModel, PlantModel
+    from ..plan import FlightLimits, FlownTest, PlanResult, Prior
 
-__all__ = ["plan", "format_plan", "format_process_plan"]
+__all__ = ["plan", "format_plan", "format_relay_plan"]
 
 
 def _json_rate(data: object) -> float | None:
@@ -49,9 +49,9 @@ def _from_analysis(data: object) -> tuple[list[FlownTest], dict[str, ParameterEs
     return (*flown_from_result(data), _json_rate(data), noise_from_result(data))
 
 
-def _from_log(path: Path, Tp: float, min_cycles: int, read_options: Mapping[str, Any]
+def _from_log(path: Path, model: LoopModel, min_cycles: int, read_options: Mapping[str, Any]
               ) -> tuple[Sequence[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
-    """As :func:`_from_analysis` for a log: analysed at Tp (as ``analyze``), its JSON planned from, so
+    """As :func:`_from_analysis` for a log: analysed with eq. (2)'s model (as ``analyze``), its JSON planned from, so
     ``plan --from LOG`` and ``plan --from`` its ``analyze --json`` give one plan. A log analyze cannot
     identify (a single beta, no plant) is planned from its segmented tests."""
     import json
@@ -66,7 +66,7 @@ def _from_log(path: Path, Tp: float, min_cycles: int, read_options: Mapping[str,
     flight = read_flight(path, ReadOptions(**read_options))
     data: dict[str, Any] | None = None
     try:
-        data = analyze_flight(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles)).to_json()
+        data = analyze_flight(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles)).to_json()
     except InsufficientDataError as err:  # one beta: the object analyze --json writes for exit 6
         data = {"error": str(err), "exit_code": err.exit_code, "partial": err.partial}
     except (IdentificationError, SegmentationError):
@@ -137,10 +137,11 @@ def _num(x: float, digits: int = 4) -> str:
     return f"{x:#.{digits}g}".rstrip(".") if math.isfinite(x) else "not determined"
 
 
-def format_process_plan(result: ProcessPlan, source: str) -> str:
+def format_relay_plan(result: PlanResult, source: str) -> str:
     """The readable plan of a process plant: assumptions, the current model (what is undetermined), the
     candidates ranked (frequency [Hz], amplitude [output units], std after per parameter [its unit])."""
     ident = result.identification
+    assert ident is not None  # a relay plan always carries its identification
     structure = getattr(ident.model, "transfer_function", ident.model.structure)
     lines = [f"assumption: {a}" for a in result.assumptions]
     chi = f", chi2/dof {ident.chi2_dof:.3g}" if ident.chi2_dof is not None else ""
@@ -148,31 +149,34 @@ def format_process_plan(result: ProcessPlan, source: str) -> str:
               f"({len(ident.points)} response points{chi})", *format_estimates(ident)]
     lines.append(f"not determined by the recorded tests: {', '.join(result.undetermined)}" if result.undetermined
                  else "every parameter is determined by the recorded tests; a next test narrows them")
-    names = list(result.std_now)
+    names = list(result.prior_std)
     units = {e.name: e.unit for e in ident.estimates}
     head = ["rank", "relay", "frequency [Hz]", "amplitude [output units]", "phase [deg]",
             *(f"std {n} [{units[n]}]" for n in names)]
-    def stds(values: Mapping[str, float], undetermined: Sequence[str]) -> list[str]:
-        return ["not determined" if n in undetermined else _num(values[n], 3) for n in names]
 
-    rows = [head, ["now", "(the recorded tests)", "", "", "", *stds(result.std_now, result.undetermined)]]
+    def stds(values: Mapping[str, float] | None, undetermined: Sequence[str]) -> list[str]:
+        return ["not determined" if n in undetermined else _num((values or {})[n], 3) for n in names]
+
+    rows = [head, ["now", "(the recorded tests)", "", "", "", *stds(result.prior_std, result.undetermined)]]
     for k, c in enumerate(result.candidates, 1):
-        rows.append([str(k), c.relay.describe()[len("relay: "):] + ("" if c.within_limit else " (over --max-amplitude)"),
-                     _num(c.frequency_hz), _num(c.amplitude, 3), f"{c.phase_deg:.0f}",
-                     *stds(c.std_after, c.undetermined_after)])
+        assert c.relay is not None and c.frequency_hz is not None and c.amplitude is not None
+        rows.append([str(k), c.relay.describe()[len("relay: "):] + ("" if c.admissible else " (over --max-amplitude)"),
+                     _num(c.frequency_hz[0]), _num(c.amplitude[0], 3), f"{c.phase_deg:.0f}",
+                     *stds(c.predicted_std, c.undetermined)])
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["", f"candidate next tests (exact limit cycle of this model at {result.rate_hz:g} Hz; std after "
                   "adding each to the recorded tests):"]
     lines += ["  ".join(c.ljust(w) if k == 1 else c.rjust(w) for k, (c, w) in enumerate(zip(r, widths))).rstrip()
               for r in rows]
     best = result.recommended
+    assert best.relay is not None
     lines += ["", f"recommended: {best.relay.describe()[len('relay: '):]}: {result.why}"]
     lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
 
 
-def _process_analysis_json(path: Path, model_name: str) -> GeneralAnalysis:
-    """The process analysis of an ``analyze --model NAME --json`` file, whose model must be ``model_name``'s."""
+def _recorded_json(path: Path) -> GeneralAnalysis:
+    """The process analysis of an ``analyze --model NAME --json`` file."""
     from ..analyze.general import GeneralAnalysis
 
     try:
@@ -180,70 +184,126 @@ def _process_analysis_json(path: Path, model_name: str) -> GeneralAnalysis:
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
     try:
-        analysis = GeneralAnalysis.from_json(data)
+        return GeneralAnalysis.from_json(data)
     except InputError as err:
         raise InputError(f"{path}: {err} (plan --model NAME reads an 'analyze --model NAME --json' result)") from None
-    family = analysis.identification.model.family if analysis.identification is not None else None
-    if family != model_name:
-        raise InputError(f"{path} holds a {family} analysis, not --model {model_name}: give --model {family}")
-    return analysis
 
 
 @dataclasses.dataclass(frozen=True)
-class _ProcessOptions:
-    """What ``plan --model NAME`` passes on: the structure (``--model``/``--param``/``--range``), the parts of
-    the log and the relay as stated (``--window``, ``--relay``, ``--eps`` [output units])."""
+class _Given:
+    """What the user gave ``plan`` (the command's options, passed on as one record)."""
 
+    source: str | None
     model_name: str
-    params: tuple[str, ...] = ()
-    ranges: tuple[str, ...] = ()
-    windows: tuple[str, ...] = ()
-    relay_kind: str | None = None
-    eps: float | None = None
+    params: tuple[str, ...]
+    ranges: tuple[str, ...]
+    windows: tuple[str, ...]
+    relay_kind: str | None
+    eps: float | None
+    Tp: float | None
+    ranges_prior: dict[str, tuple[float, float] | None]
+    max_amplitude: float | None
+    max_h: float | None
+    time_s: float | None
+    noise_std: float | None
+    min_cycles: int
+    read_options: dict[str, Any]
 
 
-def _plan_process(source: str | None, opts: _ProcessOptions, *, max_amplitude: float | None, max_h: float | None,
-                  min_cycles: int, json_target: str | None, read_options: dict[str, Any]) -> None:
-    """``plan LOG --model NAME``: the log analysed as ``analyze --model`` does, then the next relay tests ranked."""
-    model_name, params, ranges, windows = opts.model_name, opts.params, opts.ranges, opts.windows
-    relay_kind, eps = opts.relay_kind, opts.eps
+#: eq. (2)'s options (its prior, time and forecast) and their parameter names
+_EQ2_OPTIONS = {"tp": "Tp", "td_range": "td_range", "tau_range": "tau_range", "k_range": "k_range", "time": "time_s",
+                "noise": "noise_std", "tests": "n_tests", "simulate": "n_simulated"}
+
+
+def _check_given(given: _Given) -> None:
+    """The options of the model's family: eq. (2) plans from --tp, the limits and the prior; a process model
+    from the log of its recorded relay tests (click's usage errors name the option)."""
+    ctx = click.get_current_context()
+    if given.model_name == "soiptd":
+        if given.params or given.ranges or given.windows or given.relay_kind or given.eps is not None:
+            raise click.UsageError("--param, --range, --window, --relay and --eps take a process model (--model "
+                                   "fopdt, sopdt, ipdt, foipdt or --model-file); eq. (2) plans from --tp and the ranges")
+        if given.Tp is None:
+            raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
+        for name, value in (("--max-amplitude", given.max_amplitude), ("--max-h", given.max_h),
+                            ("--time", given.time_s)):
+            if value is None:
+                raise click.UsageError(f"Missing option '{name}'.")
+        return
+    eq2 = [f"--{n.replace('_', '-')}" for n, key in _EQ2_OPTIONS.items()
+           if (src := ctx.get_parameter_source(key)) is not None and src.name == "COMMANDLINE"]
+    if eq2:
+        raise click.UsageError(f"{', '.join(eq2)} plan eq. (2) tests; with --model {given.model_name} give the log of "
+                               "the recorded relay tests (and optionally --max-amplitude, --max-h)")
+    if given.source is None:
+        raise click.UsageError("plan --model NAME needs the log of the recorded relay tests: plan LOG --model NAME")
+    if given.source.lower().endswith(".json") and (given.params or given.ranges or given.windows
+                                                   or given.relay_kind or given.eps is not None):
+        raise click.UsageError("--param, --range, --window, --relay and --eps apply to a log; an analyze --json "
+                               "result was analysed with its own")
+
+
+def _recorded(model: PlantModel, given: _Given) -> GeneralAnalysis:
+    """A process plant's recorded relay tests, analysed as ``analyze --model`` does (or its JSON read back)."""
     from ..analyze import AnalyzeOptions, RelayOptions, analyze_flight
+    from ..analyze.general import GeneralAnalysis
     from ..analyze.screen import log_start
     from ..io import ReadOptions, read_flight
-    from ..plan.process import plan_process
 
-    ctx = click.get_current_context()
-    eq2 = [f"--{n.replace('_', '-')}" for n in ("tp", "td_range", "tau_range", "k_range", "time", "noise", "tests",
-                                                 "simulate")
-           if (src := ctx.get_parameter_source({"tp": "Tp", "time": "time_s", "noise": "noise_std",
-                                                "tests": "n_tests", "simulate": "n_simulated"}.get(n, n)))
-           is not None and src.name == "COMMANDLINE"]
-    if eq2:
-        raise click.UsageError(f"{', '.join(eq2)} plan eq. (2) tests; with --model {model_name} give the log of "
-                               "the recorded relay tests (and optionally --max-amplitude, --max-h)")
-    if source is None:
-        raise click.UsageError("plan --model NAME needs the log of the recorded relay tests: plan LOG --model NAME")
-    for name, value in (("--max-amplitude", max_amplitude), ("--max-h", max_h)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise InputError(f"{name} must be a positive number [{'output' if 'ampl' in name else 'command'} "
-                             f"units], got {value}")
-    check_output_file(json_target, "--json")
-    if source.lower().endswith(".json"):
-        if params or ranges or windows or relay_kind or eps is not None:
-            raise click.UsageError("--param, --range, --window, --relay and --eps apply to a log; an analyze --json "
-                                   "result was analysed with its own")
-        analysis = _process_analysis_json(Path(source), model_name)
-    else:
-        model = build_model(model_name, params, ranges)
-        flight = read_flight(source, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
-        analysis = analyze_flight(flight, model, options=AnalyzeOptions(
-            min_stable_cycles=min_cycles, relay=RelayOptions(relay_kind, None, eps),
-            windows=parse_windows(windows, log_start(flight))))
-    result = plan_process(analysis, max_amplitude=max_amplitude, max_h=max_h)
-    if json_target:
-        dump_json(result.to_json(), json_target)
-    if json_target != "-":
-        click.echo(format_process_plan(result, source))
+    assert given.source is not None
+    if given.source.lower().endswith(".json"):
+        return _recorded_json(Path(given.source))
+    flight = read_flight(given.source, ReadOptions(**given.read_options, any_time_scale=True), echo_warnings=False)
+    analysis = analyze_flight(flight, model, options=AnalyzeOptions(
+        min_stable_cycles=given.min_cycles, relay=RelayOptions(given.relay_kind, None, given.eps),
+        windows=tuple(parse_windows(given.windows, log_start(flight)))))
+    assert isinstance(analysis, GeneralAnalysis)  # a process family's analysis
+    return analysis
+
+
+def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, FlightLimits, Sequence[FlownTest], list[str]]:
+    """Eq. (2)'s prior, limits and flown tests (from --from LOG|JSON), and what was assumed (stated first)."""
+    from ..plan import FlightLimits, Prior, prior_range
+    from ..sim import default_noise_std
+
+    loop = given.read_options["loop"]
+    # one idea, one option: the controller rate the log is read at is the rate the plan is made for
+    rate_hz: float | None = given.read_options["controller_rate_hz"]
+    flown: Sequence[FlownTest] = []
+    estimates: dict[str, ParameterEstimate] = {}
+    measured_noise: float | None = None
+    log_rate: float | None = None
+    if given.source is not None:
+        path = Path(given.source)
+        if path.suffix.lower() == ".json":
+            flown, estimates, log_rate, measured_noise = _flown_from_json(path)
+        else:
+            flown, estimates, log_rate, measured_noise = _from_log(path, model, given.min_cycles, given.read_options)
+    assumed: list[str] = []
+    prior_ranges = {}
+    for name, default, unit, option in (("Td", (0.2, 3.0), "s", "--td-range"), ("tau", (0.01, 0.1), "s", "--tau-range"),
+                                        ("K", (0.5, 20.0), "output unit per command unit", "--k-range")):
+        given_range = given.ranges_prior[name]
+        # the analysis' intervals come from the flown tests' cycles, which the plan counts already (their
+        # information, and draws conditioned on them): narrowing the prior with them counts the tests twice
+        known = {} if flown else estimates
+        prior_ranges[name] = given_range if given_range is not None else prior_range(known.get(name), default)
+        if given_range is None and name not in known:
+            assumed.append(f"prior {name} {default[0]:g}-{default[1]:g} {unit} (the default; give {option})")
+    prior = Prior(Td=prior_ranges["Td"], tau=prior_ranges["tau"], K=prior_ranges["K"])
+    rate = rate_hz if rate_hz is not None else log_rate
+    if rate is None:
+        raise InputError("give --controller-rate HZ, the rate the controller runs at (the test's frequency and its samples "
+                         "per period depend on it; --from a log measures it)")
+    noise = given.noise_std if given.noise_std is not None else measured_noise
+    if noise is None:
+        noise = default_noise_std(loop)
+        assumed.append(f"sensor noise std {noise:.3g} [output units] (the {loop} loop's default, not measured; "
+                       "give --noise)")
+    assert given.max_amplitude is not None and given.max_h is not None and given.time_s is not None
+    limits = FlightLimits(max_amplitude=given.max_amplitude, max_h=given.max_h, time_s=given.time_s, rate_hz=rate,
+                          noise_std=noise)
+    return prior, limits, flown, assumed
 
 
 @click.command("plan")
@@ -308,71 +368,39 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
     """
     if log is not None and source is not None:
         raise click.UsageError("give the log as LOG or as --from LOG, not both")
-    source = source if log is None else log
-    if model_name != "soiptd":
-        _plan_process(source, _ProcessOptions(model_name, params, ranges, windows, relay_kind, eps),
-                      max_amplitude=max_amplitude, max_h=max_h, min_cycles=min_cycles, json_target=json_target,
-                      read_options=read_options)
-        return
-    if params or ranges or windows or relay_kind or eps is not None:
-        raise click.UsageError("--param, --range, --window, --relay and --eps take a process model (--model fopdt, "
-                               "sopdt, ipdt, foipdt or --model-file); eq. (2) plans from --tp and the ranges")
-    if Tp is None:
-        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
-    for name, value in (("--max-amplitude", max_amplitude), ("--max-h", max_h), ("--time", time_s)):
-        if value is None:
-            raise click.UsageError(f"Missing option '{name}'.")
-    assert Tp is not None and max_amplitude is not None and max_h is not None and time_s is not None
-    from ..plan import FlightLimits, PlanOptions, Prior, plan_tests, prior_range
-    from ..sim import default_noise_std
+    given = _Given(source if log is None else log, model_name, params, ranges, windows, relay_kind, eps, Tp,
+                   {"Td": td_range, "tau": tau_range, "K": k_range}, max_amplitude, max_h, time_s, noise_std,
+                   min_cycles, read_options)
+    _check_given(given)
+    from ..mrft.model import LoopModel, soiptd_model
+    from ..plan import PlanOptions, RelayLimits, plan_tests
 
+    # the one model object: eq. (2) with Tp known, or the process structure (its known values and ranges)
+    model = soiptd_model(Tp) if Tp is not None and model_name == "soiptd" else build_model(model_name, params, ranges)
+    eq2 = isinstance(model, LoopModel)
+    limits: FlightLimits | RelayLimits | None = None if eq2 else RelayLimits(max_amplitude, max_h)
     check_output_file(json_target, "--json")  # before the work, as analyze
-    loop = read_options["loop"]
-    # one idea, one option: the controller rate the log is read at is the rate the plan is made for
-    rate_hz: float | None = read_options["controller_rate_hz"]
-    flown: Sequence[FlownTest] = []
-    estimates: dict[str, ParameterEstimate] = {}
-    measured_noise: float | None = None
-    log_rate: float | None = None
-    if source is not None:
-        path = Path(source)
-        if path.suffix.lower() == ".json":
-            flown, estimates, log_rate, measured_noise = _flown_from_json(path)
-        else:
-            flown, estimates, log_rate, measured_noise = _from_log(path, Tp, min_cycles, read_options)
+    prior: Prior | None = None
+    flown: Sequence[FlownTest] = ()
+    recorded: GeneralAnalysis | None = None
     assumed: list[str] = []
-    prior_ranges = {}
-    for name, given, default, unit, option in (("Td", td_range, (0.2, 3.0), "s", "--td-range"),
-                                               ("tau", tau_range, (0.01, 0.1), "s", "--tau-range"),
-                                               ("K", k_range, (0.5, 20.0), "output unit per command unit",
-                                                "--k-range")):
-        # the analysis' intervals come from the flown tests' cycles, which the plan counts already (their
-        # information, and draws conditioned on them): narrowing the prior with them counts the tests twice
-        known = {} if flown else estimates
-        prior_ranges[name] = given if given is not None else prior_range(known.get(name), default)
-        if given is None and name not in known:
-            assumed.append(f"prior {name} {default[0]:g}-{default[1]:g} {unit} (the default; give {option})")
-    prior = Prior(Td=prior_ranges["Td"], tau=prior_ranges["tau"], K=prior_ranges["K"])
-    rate = rate_hz if rate_hz is not None else log_rate
-    if rate is None:
-        raise InputError("give --controller-rate HZ, the rate the controller runs at (the test's frequency and its samples "
-                         "per period depend on it; --from a log measures it)")
-    noise = noise_std if noise_std is not None else measured_noise
-    if noise is None:
-        noise = default_noise_std(loop)
-        assumed.append(f"sensor noise std {noise:.3g} [output units] (the {loop} loop's default, not measured; "
-                       "give --noise)")
-    limits = FlightLimits(max_amplitude=max_amplitude, max_h=max_h, time_s=time_s, rate_hz=rate, noise_std=noise)
+    if isinstance(model, LoopModel):
+        prior, limits, flown, assumed = _mrft_inputs(model, given)
+    else:
+        recorded = _recorded(model, given)
+    assert limits is not None
     try:
         with tqdm_progress("plan", unit="step", enabled=not quiet) as progress:
-            result = plan_tests(Tp, prior, limits, flown=flown, progress=progress,
+            result = plan_tests(model, limits, prior=prior, flown=flown, recorded=recorded, progress=progress,
                                 options=PlanOptions(n_tests=n_tests, n_simulated=n_simulated))
     except InputError as err:
         if not assumed:
             raise
         raise InputError(f"{err} (assumed: {'; '.join(assumed)})") from None
-    result = dataclasses.replace(result, assumptions=tuple(assumed))
+    if assumed:
+        result = dataclasses.replace(result, assumptions=tuple(assumed))
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":
-        click.echo(format_plan(result, output_unit(loop)))
+        click.echo(format_plan(result, output_unit(given.read_options["loop"])) if recorded is None
+                   else format_relay_plan(result, str(given.source)))

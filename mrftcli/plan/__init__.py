@@ -1,11 +1,15 @@
-"""Plan the next MRFT test(s): the beta, relay height and duration that pin (Td, tau, K) down best.
+"""Plan the next test(s) for a model object: the relay test that pins its unknown parameters down best.
 
-What is known enters as a :class:`Prior` (ranges for Td, tau and K) and, optionally, as tests
-already flown (:class:`FlownTest`, from a log or an ``analyze --json`` result). What the flight
-allows enters as :class:`FlightLimits` (largest output amplitude, largest relay height, time
-available, controller rate, sensor noise). :func:`plan_tests` returns the recommended test(s) with
-their predicted limit cycle and the predicted standard deviations of Td, tau and K after them
-(:class:`PlanResult`, versioned JSON). docs/plan.md has the method.
+:func:`plan_tests` takes the model object and picks the strategy of its kind. Eq. (2)
+(``soiptd_model(Tp)``): what is known enters as a :class:`Prior` (ranges for Td, tau and K) and,
+optionally, as tests already flown (:class:`FlownTest`, from a log or an ``analyze --json`` result);
+what the flight allows as :class:`FlightLimits` (largest output amplitude, largest relay height, time
+available, controller rate, sensor noise); it recommends the beta, relay height and duration of the
+next MRFT test(s) with their predicted limit cycle and the predicted standard deviations of Td, tau
+and K after them. A process plant (any other family): its recorded tests analysed
+(``analyze --model``) and :class:`RelayLimits`; it ranks the next relay tests by the parameters' std
+after each. Both return a :class:`PlanResult` (versioned JSON). docs/plan.md and
+docs/process-plants.md have the method.
 
 One module per stage:
 
@@ -14,21 +18,23 @@ One module per stage:
                :class:`TestPlan`, :class:`CandidateTest`, :class:`PlanResult`
 ``inputs``     flown tests from a log's segments or an ``analyze --json`` result; prior ranges
 ``noise``      the per-cycle noise model of a test's constraints; the admissibility lines
-``fisher``     Fisher information of a test on (Td, tau, ln K) and the posterior it leaves
-``draws``      plant draws from the prior, conditioned on the flown tests
-``search``     candidates on the beta grid and the greedy choice of the next test(s)
+``fisher``     Fisher information of a test (eq. (2): on (Td, tau, ln K); any family: of response points)
+``draws``      eq. (2)'s plant draws from the prior, conditioned on the flown tests' UFM slice
+``search``     candidates (the beta grid, or a process plant's relays) and the choice of the next test(s)
 ``forecast``   the predicted stds over the draws, and by simulated flights
-``driver``     :func:`plan_tests`, the driver over those stages
+``driver``     :func:`plan_tests`, the driver over those stages (one strategy per model kind)
 =============  ==================================================================================
 
 Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units.
 
 Examples
 --------
+>>> from mrftcli.mrft.model import soiptd_model
 >>> from mrftcli.plan import FlightLimits, PlanOptions, Prior, plan_tests
 >>> prior = Prior(Td=(0.3, 3.0), tau=(0.01, 0.08), K=(1.0, 10.0))
 >>> limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
->>> p = plan_tests(0.04, prior, limits, options=PlanOptions(n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8)))
+>>> p = plan_tests(soiptd_model(0.04), limits, prior=prior,
+...                options=PlanOptions(n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8)))
 >>> len(p.tests), all(-0.9 <= t.beta <= -0.1 for t in p.tests)
 (2, True)
 """
@@ -36,15 +42,18 @@ Examples
 from __future__ import annotations
 
 from .driver import DEFAULT_BETAS, TD_OMEGA_LIMIT, PlanOptions, plan_tests
-from .fisher import fisher_information, flown_information, planned_information
+from .fisher import fisher_information, flown_information, planned_information, point_information
 from .forecast import simulated_std
 from .inputs import flown_from_result, flown_from_segments, noise_from_result, prior_range
 from .noise import NOISE_MODEL, cycle_noise, switch_gap
-from .records import CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, TestPlan
+from .records import (CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, RelayLimits, TestPlan,
+                      relay_candidate)
+from .search import candidate_relays, rank
 
 __all__ = [
     "Prior",
     "FlightLimits",
+    "RelayLimits",
     "FlownTest",
     "flown_from_segments",
     "flown_from_result",
@@ -52,6 +61,7 @@ __all__ = [
     "prior_range",
     "TestPlan",
     "CandidateTest",
+    "relay_candidate",
     "Conventional",
     "PlanResult",
     "PlanOptions",
@@ -61,6 +71,9 @@ __all__ = [
     "fisher_information",
     "planned_information",
     "flown_information",
+    "point_information",
+    "candidate_relays",
+    "rank",
     "plan_tests",
     "simulated_std",
     "DEFAULT_BETAS",

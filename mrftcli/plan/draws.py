@@ -1,4 +1,5 @@
-"""Plant draws the design is averaged over: from the prior, or from what the flown tests leave."""
+"""Eq. (2)'s plant draws the design is averaged over: from the prior, or from what the flown tests leave
+(conditioned on their UFM slice: the eq. (2) strategy's own maths)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..mrft.lprs import unit_cycle
+from ..mrft.model import LoopModel
 from .noise import FLOOR_PHASE, cycle_noise
 from .records import FlownTest, Prior
 
@@ -17,9 +19,9 @@ __all__ = ["conditioned_draws"]
 _TWO_PI = 2.0 * math.pi
 
 
-def conditioned_draws(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int,
+def conditioned_draws(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n: int,
                       rng: np.random.Generator, rate_hz: float, noise_std: float) -> np.ndarray:
-    """``n`` plants (rows Td [s], tau [s], K) consistent with the flown tests.
+    """``n`` plants (rows Td [s], tau [s], K) of eq. (2) at ``model``'s known Tp, consistent with the flown tests.
 
     Td from the prior, tau from the first test's UFM slice (Lemma 3), K from its amplitude (UGM);
     with two betas flown, Td from the least squares of them all. When the flown tests carry their
@@ -36,13 +38,13 @@ def conditioned_draws(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: in
     if not flown:
         return prior.draws(n, rng)
     phased = [t for t in flown if t.phase is not None]
-    out = _on_the_slice(Tp, prior, flown, n, rng, 64 * n if phased else n)
+    out = _on_the_slice(model, prior, flown, n, rng, 64 * n if phased else n)
     if not phased or out.shape[0] <= n:
         return out
-    return _resample(Tp, out, phased, n, rng, rate_hz, noise_std)
+    return _resample(model, out, phased, n, rng, rate_hz, noise_std)
 
 
-def _on_the_slice(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int, rng: np.random.Generator,
+def _on_the_slice(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n: int, rng: np.random.Generator,
                   m: int) -> np.ndarray:
     """``m`` prior draws moved onto the first flown test's UFM slice and UGM (rows Td, tau, K)."""
     draws = prior.draws(m, rng)
@@ -53,9 +55,9 @@ def _on_the_slice(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int, r
         from ..mrft.identify import TestMeasurement, identify
 
         res = identify([TestMeasurement(beta=t.beta, frequency_hz=t.frequency_hz, amplitude=t.amplitude, h=t.h)
-                        for t in flown], Tp)
+                        for t in flown], model)
         Td = np.full(n, res.model.Td)
-    th, a_unit = unit_cycle(Tp * omega, Td * omega, f.beta)
+    th, a_unit = unit_cycle(model.Tp * omega, Td * omega, f.beta)
     tau = th / omega
     K = f.amplitude * omega / (f.h * Td * a_unit)
     ok = np.isfinite(tau) & (tau >= 0) & (K > 0)
@@ -68,14 +70,14 @@ def _on_the_slice(Tp: float, prior: Prior, flown: Sequence[FlownTest], n: int, r
     return out
 
 
-def _resample(Tp: float, out: np.ndarray, phased: Sequence[FlownTest], n: int, rng: np.random.Generator,
+def _resample(model: LoopModel, out: np.ndarray, phased: Sequence[FlownTest], n: int, rng: np.random.Generator,
               rate_hz: float, noise_std: float) -> np.ndarray:
     """``n`` of the plants ``out`` by systematic resampling, weighted by the measured phases' likelihood."""
     loglik = np.zeros(out.shape[0])
     for t in phased:
         assert t.phase is not None  # the caller passes the phased tests only
         w = _TWO_PI * t.frequency_hz
-        pred = -0.5 * math.pi - np.arctan(Tp * w) - np.arctan(out[:, 0] * w) - out[:, 1] * w
+        pred = -0.5 * math.pi - np.arctan(model.Tp * w) - np.arctan(out[:, 0] * w) - out[:, 1] * w
         # the noise model's per-cycle phase scatter at this test (slope of a triangle-like cycle)
         sd = cycle_noise(t.amplitude, w, 1.5 * t.amplitude * w, rate_hz, noise_std)["phase"]
         sd = math.sqrt(sd**2 / t.n_cycles + FLOOR_PHASE**2)

@@ -1,5 +1,9 @@
-"""``plan_tests``: the driver over the planner's stages (draws -> information of the flown tests ->
-candidates -> greedy search -> forecast -> notes).
+"""``plan_tests``: the one planner, taking the model object; a strategy per model kind.
+
+Eq. (2) (a :class:`~mrftcli.mrft.model.LoopModel`, Tp known): draws -> information of the flown tests ->
+candidates -> greedy search -> forecast -> notes. Any other family (a process plant, a declared
+model): the recorded tests' information -> candidate relays forecast with the identified model ->
+ranking -> why.
 
 Design: Fisher information ``I = sum_tests J^T W J`` plus the prior's (each range read as +/- 2
 standard deviations), the expected posterior covariance its inverse. It is averaged over a few draws
@@ -14,6 +18,14 @@ Forecast: the predicted stds are the median over the draws (the typical plant's)
 range over them: after one test, Td is often still uncertain by a factor of several, and the Td std
 grows about as Td^2, so the forecast for the actual plant lies in that range. They forecast the
 bootstrap std of ``analyze``'s MRFT estimate (``parameters_mrft``).
+
+A process plant (docs/process-plants.md, "Planning the next test"): the information of the recorded
+response points (widened by the fit's chi2/dof as the identification does), each candidate relay's
+exact limit cycle on the current model and the stds after adding its points
+(:func:`~mrftcli.plan.search.forecast_relays`), ranked by :func:`~mrftcli.plan.search.rank`. Why a test
+helps: one relay type puts every cycle at one phase of G, so one test gives one point of G (two
+figures) plus weak harmonics, and a three-parameter model trades K against T along them; a relay that
+moves the cycle to another phase (a hysteresis, or an MRFT beta) adds an independent point.
 """
 
 from __future__ import annotations
@@ -21,18 +33,28 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-import numpy as np
+import math
+import statistics
 
+import numpy as np
+from scipy import stats
+
+from ..analyze.general import GeneralAnalysis
 from ..errors import InputError
+from ..mrft.model import LoopModel, PlantModel
+from ..mrft.relays import RelayLaw
 from ..progress import Progress, report
 from ..validate import check_beta, check_time
 from .draws import conditioned_draws
-from .fisher import flown_information, posterior_covariance
+from .fisher import (flown_information, point_information, point_stds, posterior_covariance, undetermined_parameters,
+                     unknown_parameters)
 from .forecast import SimulatedForecast, simulated_forecast, std_median, std_range
 from .noise import MIN_SWITCH_GAP
-from .records import CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, TestPlan
-from .search import (Choice, DesignSpace, Information, admissible_betas, assess, choose_tests, conventional_information,
-                     design_space, recommended_test, with_first_round)
+from .records import (CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, RelayLimits, Stds,
+                      TestPlan)
+from .search import (Choice, DesignSpace, Information, admissible_betas, assess, candidate_relays, choose_tests,
+                     conventional_information, design_space, forecast_relays, rank, recommended_test, relay_noise,
+                     with_first_round)
 
 __all__ = ["PlanOptions", "plan_tests", "plan_notes", "DEFAULT_BETAS", "TD_OMEGA_LIMIT"]
 
@@ -70,24 +92,29 @@ class PlanOptions:
     seed: int = 0
 
 
-def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence[FlownTest] = (),
+def plan_tests(model: PlantModel, limits: FlightLimits | RelayLimits, *, prior: Prior | None = None,
+               flown: Sequence[FlownTest] = (), recorded: GeneralAnalysis | None = None,
                options: PlanOptions = PlanOptions(), progress: Progress | None = None) -> PlanResult:
-    """Recommend the next MRFT test(s) (docs/plan.md; the stages are this package's modules).
+    """Recommend the next test(s) for ``model`` (docs/plan.md, docs/process-plants.md; module docstring).
 
     Parameters
     ----------
-    Tp : float
-        Known propulsion time constant [s].
+    model : PlantModel
+        The model object: eq. (2) (``soiptd_model(Tp)``, Tp [s] known) plans MRFT tests from ``prior``
+        and ``flown``; any other family plans the next relay test from ``recorded``.
+    limits : FlightLimits or RelayLimits
+        Eq. (2): amplitude, relay height, time, rate and noise of the flight. A process plant: the
+        largest amplitude and the relay half-height (RelayLimits; both optional).
     prior : Prior
-        Ranges for Td, tau and K.
-    limits : FlightLimits
-        Amplitude, relay height, time, rate and noise of the flight.
+        Eq. (2): ranges for Td, tau and K.
     flown : sequence of FlownTest
-        Tests already flown (their information is counted, and the draws follow their UFM slice).
+        Eq. (2): tests already flown (their information is counted, and the draws follow their UFM slice).
+    recorded : GeneralAnalysis
+        A process plant: its recorded relay tests analysed (``analyze --model``), of ``model``'s family.
     options : PlanOptions
-        Number of tests, beta grid, draws, simulated flights and seed.
+        Eq. (2): number of tests, beta grid, draws, simulated flights and seed.
     progress : Progress, optional
-        Called as ``progress(done, total, "planning")`` per beta and test.
+        Eq. (2): called as ``progress(done, total, "planning")`` per beta and test.
 
     Returns
     -------
@@ -96,23 +123,38 @@ def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence
     Raises
     ------
     InputError
-        Bad arguments, or limits that admit no test (the message says which limit to relax).
+        Bad arguments, or limits that admit no test (the message says which limit to relax); a process
+        plant without an identified model, or every parameter known.
 
     Examples
     --------
+    >>> from mrftcli.mrft.model import soiptd_model
     >>> from mrftcli.plan import FlightLimits, PlanOptions, Prior, plan_tests
     >>> prior = Prior(Td=(0.3, 3.0), tau=(0.01, 0.08), K=(1.0, 10.0))
     >>> limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
-    >>> p = plan_tests(0.04, prior, limits, options=PlanOptions(n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8)))
-    >>> len(p.tests), all(-0.9 <= t.beta <= -0.1 for t in p.tests)
-    (2, True)
+    >>> p = plan_tests(soiptd_model(0.04), limits, prior=prior,
+    ...                options=PlanOptions(n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8)))
+    >>> len(p.tests), all(-0.9 <= t.beta <= -0.1 for t in p.tests), p.Tp
+    (2, True, 0.04)
     """
-    Tp = check_time("Tp", Tp)
+    if isinstance(model, LoopModel):
+        if not isinstance(limits, FlightLimits) or prior is None:
+            raise InputError("eq. (2) plans from a Prior and FlightLimits (amplitude, height, time, rate, noise)")
+        return _plan_mrft(model, prior, limits, flown, options, progress)
+    if not isinstance(limits, RelayLimits):
+        raise InputError(f"a {model.family} plan takes RelayLimits (the largest amplitude, the relay half-height)")
+    return _plan_relays(model, recorded, limits)
+
+
+def _plan_mrft(model: LoopModel, prior: Prior, limits: FlightLimits, flown: Sequence[FlownTest],
+               options: PlanOptions, progress: Progress | None) -> PlanResult:
+    """Eq. (2)'s strategy: the next MRFT test(s) over the prior's draws at ``model``'s known Tp."""
+    check_time("Tp", model.Tp)
     betas, n_tests = _resolve(options, flown)
     rng = np.random.default_rng(options.seed)
-    plants = conditioned_draws(Tp, prior, flown, max(int(options.n_draws), 1), rng, limits.rate_hz, limits.noise_std)
+    plants = conditioned_draws(model, prior, flown, max(int(options.n_draws), 1), rng, limits.rate_hz, limits.noise_std)
     total = len(betas) * (n_tests + 1)
-    space = design_space(Tp, plants, limits, limits.time_s / n_tests, betas,
+    space = design_space(model, plants, limits, limits.time_s / n_tests, betas,
                          lambda i: report(progress, i, total, "planning"))
     start = _flown_information(space, prior, flown)
     candidates = {b: assess(space, b) for b in betas}
@@ -149,13 +191,13 @@ def plan_tests(Tp: float, prior: Prior, limits: FlightLimits, *, flown: Sequence
         notes.append(sim.note + ("" if not any(sim.lost) else
                                  "; no admissible beta flew cleanly on every plant: this is the least-failing "
                                  "choice (allow a larger amplitude, or measure the sensor noise: --noise)"))
-    return PlanResult(Tp=Tp, tests=tests, predicted_std=post, predicted_std_data=std_median(choice.information.data,
+    return PlanResult(model=model.with_parameters(**centre), tests=tests, predicted_std=post, predicted_std_data=std_median(choice.information.data,
                                                                                               plants),
                       simulated_std=sim.std, simulated_std_range=sim.std_range, n_simulated=sim.n_used,
                       predicted_std_data_range=std_range(choice.information.data, plants),
                       prior_std=prior_std, conventional=conv,
                       candidates=tuple(with_first_round(candidates[b], choice.first_round) for b in betas),
-                      notes=tuple(notes), flown=tuple(flown), limits=limits)
+                      notes=tuple(notes), flown=tuple(flown), limits=limits, rate_hz=limits.rate_hz)
 
 
 def _worse_than_conventional(post: Mapping[str, float], conv: Conventional | None) -> str:
@@ -213,7 +255,7 @@ def _flown_information(space: DesignSpace, prior: Prior, flown: Sequence[FlownTe
     lim = space.limits
     start = Information(tuple(prior_info.copy() for _ in space.plants), tuple(np.zeros((3, 3)) for _ in space.plants))
     for f in flown:
-        start = start.plus([flown_information(space.Tp, p, f, lim.rate_hz, lim.noise_std) for p in space.plants])
+        start = start.plus([flown_information(space.model.Tp, p, f, lim.rate_hz, lim.noise_std) for p in space.plants])
     return start
 
 
@@ -309,9 +351,9 @@ def _simulate(space: DesignSpace, prior: Prior, flown: Sequence[FlownTest], test
     plants = space.plants
     lim = space.limits
     if n > len(plants):
-        plants = np.vstack([plants, conditioned_draws(space.Tp, prior, flown, n - len(plants), rng, lim.rate_hz,
+        plants = np.vstack([plants, conditioned_draws(space.model, prior, flown, n - len(plants), rng, lim.rate_hz,
                                                       lim.noise_std)])
-    return simulated_forecast(space.Tp, plants, flown, tests, lim, n, seed=options.seed, progress=progress)
+    return simulated_forecast(space.model, plants, flown, tests, lim, n, seed=options.seed, progress=progress)
 
 
 #: A parameter is poorly determined when its predicted std exceeds this share of its value (and half the
@@ -352,3 +394,90 @@ def plan_notes(tests: Sequence[TestPlan], lowest_f: float, post: dict[str, float
         notes.append(f"the relay height is at its limit ({limits.max_h:g}) for beta "
                      f"{', '.join(f'{t.beta:g}' for t in capped)}: the amplitude is below the allowed one")
     return notes
+
+
+# -- a process plant (any family but eq. (2)): the next relay test for the identified model --------------
+
+def _plan_relays(structure: PlantModel, recorded: GeneralAnalysis | None, limits: RelayLimits) -> PlanResult:
+    """The relay strategy: rank the next relay tests for the model ``recorded`` identified (module docstring).
+
+    Raises
+    ------
+    InputError
+        No identification, another family than ``structure``'s, every parameter known, or no candidate
+        relay with a limit cycle on the current model.
+    """
+    ident = None if recorded is None else recorded.identification
+    if recorded is None or ident is None or not recorded.tests:
+        raise InputError("no identified model to plan from: the log needs a usable relay test")
+    if ident.model.family != structure.family:
+        raise InputError(f"the recorded tests were analysed as {ident.model.family}, not {structure.family}: "
+                         f"give --model {ident.model.family}")
+    model, points = ident.model, ident.points
+    names = unknown_parameters(model)
+    if not names:
+        raise InputError("every parameter is known (--param): there is nothing for a next test to determine")
+    tests = recorded.tests
+    rate = statistics.median(t.rate_hz for t in tests)
+    w_ref = 2 * math.pi * statistics.median(t.frequency_hz for t in tests)
+    widen = max(1.0, ident.chi2_dof or 1.0)
+    F_now = point_information(model, points, names) / widen
+    std_now = point_stds(model, names, F_now, w_ref)
+    first = max(tests, key=lambda t: t.relay.h)
+    h = limits.max_h if limits.max_h is not None else first.relay.h
+    levels = (first.relay.bias + h, first.relay.bias - h)
+    a_rec = statistics.median(t.amplitude for t in tests) * h / first.relay.h
+    try:
+        a_ideal = RelayLaw("ideal", *levels).limit_cycle(model, rate).amplitude
+    except InputError:
+        a_ideal = a_rec
+    noise = {k: (se * math.sqrt(widen), a) for k, (se, a) in relay_noise(points, a_rec).items()}
+    out, skipped = forecast_relays(model, candidate_relays(levels, a_ideal), rate, F_now, noise, w_ref,
+                                   limits.max_amplitude)
+    if not out:
+        raise InputError(f"no candidate relay has a limit cycle on the current model: {'; '.join(skipped)}")
+    ranked = rank(model, out)
+    undetermined = undetermined_parameters(model, std_now, w_ref)
+    phases = sorted({round(math.degrees(p.phase)) for p in points if p.harmonic == 1})
+    n_cycles = int(statistics.median(t.n_stable for t in tests))
+    assumptions = (f"the next test runs about {n_cycles} stable cycles at levels {levels[0]:+.4g} / {levels[1]:+.4g} "
+                   "[command units] with the recorded tests' noise (their points' scatter, scaled by the "
+                   "amplitude)",)
+    notes = tuple(f"no limit cycle on the current model: {s}" for s in skipped)
+    dof = 2 * len(points) - len(names)
+    # beyond chance at 0.1 % (chi2 with the fit's degrees of freedom): a misfit the structure must answer for
+    if dof > 0 and widen > float(stats.chi2.ppf(0.999, dof)) / dof:
+        notes += (f"the recorded points disagree with {model.family} beyond their scatter (chi2/dof {widen:.3g}): the "
+                  "forecast widens their errors by it, and no next test fixes a structure that does not fit (compare "
+                  "another --model, and the held-out predictions of analyze --model)",)
+    if limits.max_amplitude is not None and not ranked[0].admissible:
+        notes += (f"no candidate stays within --max-amplitude {limits.max_amplitude:g}: the first is the least "
+                  "over it",)
+    return PlanResult(model=model, tests=(), predicted_std=dict(ranked[0].predicted_std or {}), predicted_std_data={},
+                      prior_std=std_now, conventional=None, candidates=tuple(ranked), notes=notes, limits=limits,
+                      assumptions=assumptions, rate_hz=float(rate), identification=ident, undetermined=undetermined,
+                      why=_why(ranked[0], std_now, undetermined, phases))
+
+
+def _why(best: CandidateTest, std_now: Stds, undetermined: Sequence[str], phases_now: Sequence[float]) -> str:
+    """One sentence: what the recommended relay test determines or narrows, and at which phase."""
+    after = best.predicted_std or {}
+    gains = {n: std_now[n] / s for n, s in after.items() if math.isfinite(s) and s > 0}
+    fixed = [n for n in undetermined if n not in best.undetermined]
+    f = best.frequency_hz[0] if best.frequency_hz is not None else math.nan
+    phase = f"its cycle at {f:.4g} Hz puts a response point at {best.phase_deg:.0f} deg"
+    listed = (", ".join(f"{p:.0f}" for p in phases_now) if len(phases_now) <= 3
+              else f"{min(phases_now):.0f} to {max(phases_now):.0f}")
+    where = f"where the recorded tests sit at {listed} deg"
+    if fixed:
+        return f"{phase}, {where}: it determines {', '.join(fixed)} (not determined by the recorded tests)."
+    if not gains:
+        return f"{phase}, {where}; no candidate determines {', '.join(undetermined)}."
+    if not undetermined and max(gains.values()) < 1.1:
+        return ("no candidate narrows any parameter by 10 % or more: the recorded tests already pin the model down "
+                "(to the identification's floor of 0.5 %, or their own scatter); a next test is not needed.")
+    best_name = max((n for n in gains if math.isfinite(gains[n])), key=lambda n: gains[n], default=None)
+    if best_name is None:
+        return f"{phase}, {where}: it narrows every parameter the recorded tests left undetermined."
+    return (f"{phase}, {where}: it narrows {best_name} the most (std {std_now[best_name]:.3g} -> "
+            f"{after[best_name]:.3g}).")

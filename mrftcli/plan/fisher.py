@@ -1,4 +1,5 @@
-"""Fisher information of a test on ``theta = (Td, tau, ln K)``, and what its inverse says.
+"""Fisher information of a test, and what its inverse says: eq. (2)'s on ``theta = (Td, tau, ln K)``
+through its UFM slice, and any family's from response points (:func:`point_information`).
 
 ``mrft-ident analyze`` identifies from three constraints per test (:mod:`mrftcli.analyze`): the
 test's UFM slice ``tau_i(Td) = theta_beta(Tp Omega, Td Omega) / Omega`` (paper Lemma 3, at the
@@ -7,19 +8,25 @@ amplitude through the UGM ``ln a = ln(h K Td a_unit / Omega)`` (Lemmas 2, 4). Ea
 row of the Jacobian J at the test's frequency, evaluated with the exact closed form
 (:func:`mrftcli.mrft.lprs.unit_cycle`); the expected posterior covariance is the inverse of
 ``sum_tests J^T W J`` (plus the prior's).
+
+Any other family (a process plant's ``plan --model NAME``) is planned on its response points
+``G(j k Omega)``: the information of (ln |G|, arg G) on the unknown parameters (ln p for a gain or a
+time constant, tau in seconds), each point weighted by its standard error.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..mrft.lprs import mrft_limit_cycle, unit_cycle
-from ..mrft.model import LoopModel
+from ..mrft.identify_lti import DETERMINED_LOG_WIDTH, ResponsePoint
+from ..mrft.model import LoopModel, PlantModel
 from .noise import FLOOR_BETA, FLOOR_LN_A, FLOOR_PHASE, LOST_CYCLES, cycle_noise
 from .records import FlownTest
 
@@ -32,6 +39,12 @@ __all__ = [
     "posterior_covariance",
     "posterior_stds",
     "design_cost",
+    "unknown_parameters",
+    "point_jacobian",
+    "point_information",
+    "point_stds",
+    "undetermined_parameters",
+    "is_log_parameter",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -178,3 +191,84 @@ def posterior_stds(cov: np.ndarray, plant: np.ndarray) -> np.ndarray:
 def design_cost(cov: np.ndarray, plant: np.ndarray) -> float:
     """The design criterion: var(ln Td) + var(ln tau) + var(ln K) (tau floored at 0.1 ms)."""
     return float(cov[0, 0] / plant[0] ** 2 + cov[1, 1] / max(plant[1], 1e-4) ** 2 + cov[2, 2])
+
+
+# -- any family: the information of response points ------------------------------------------------
+
+#: the identification's floor on a parameter's relative std (mrft/identify_lti.py, analyze/general.py)
+PARAM_FLOOR = 5e-3
+_STEP = 1e-5  # finite-difference step of the Jacobian (relative, or times tau's scale)
+
+FloatArray = NDArray[np.float64]
+
+
+def unknown_parameters(model: PlantModel) -> list[str]:
+    """The names of ``model``'s parameters a test can determine (not known)."""
+    return [n for n, p in model.parameters.items() if not p.known]
+
+
+def is_log_parameter(name: str, value: float) -> bool:
+    """A gain or time constant is varied as ln|p| (its std relative); the delay and a zero value in seconds."""
+    return name != "tau" and value != 0
+
+
+def point_jacobian(model: PlantModel, omega: float, names: Sequence[str]) -> FloatArray:
+    """(2, n) derivatives of (ln |G|, arg G) at ``omega`` [rad/s] w.r.t. the coordinates of ``names``."""
+    G0 = complex(model.frequency_response(np.array([omega]))[0])
+    J = np.zeros((2, len(names)))
+    for i, name in enumerate(names):
+        v = model.parameters[name].value
+        log = is_log_parameter(name, v)
+        step = _STEP * (abs(v) if log else max(abs(v), 1.0 / omega))
+        G1 = complex(model.with_parameters(**{name: v + step}).frequency_response(np.array([omega]))[0])
+        ratio = G1 / G0
+        scale = step / abs(v) if log else step
+        J[:, i] = [math.log(abs(ratio)) / scale, math.atan2(ratio.imag, ratio.real) / scale]
+    return J
+
+
+def point_information(model: PlantModel, points: Sequence[ResponsePoint], names: Sequence[str]) -> FloatArray:
+    """Fisher information of ``points`` on the coordinates of ``names`` (ln p, or tau [s])."""
+    F = np.zeros((len(names), len(names)))
+    for p in points:
+        J = point_jacobian(model, p.omega, names)
+        W = np.diag([1.0 / p.se_log_gain ** 2, 1.0 / p.se_phase ** 2])
+        F += J.T @ W @ J
+    return F
+
+
+def point_stds(model: PlantModel, names: Sequence[str], F: FloatArray, w_ref: float) -> dict[str, float]:
+    """Each parameter's std [its unit] from the information ``F`` (inf along a direction it does not see);
+    ``w_ref`` [rad/s] scales tau's floor."""
+    scale = np.sqrt(np.diag(F))
+    scale = np.where(scale > 0, scale, 1.0)
+    Fs = F / np.outer(scale, scale)  # scaled: the verdict must not depend on units
+    vals, vecs = np.linalg.eigh(Fs)
+    out = {}
+    for i, name in enumerate(names):
+        v = model.parameters[name].value
+        # a direction the points hardly see (eigenvalue below 1e-8 of the largest) has no std worth the name
+        flat = any(abs(vecs[i, k]) > 0.1 for k in range(len(vals)) if vals[k] < 1e-8 * vals[-1])
+        if flat or np.diag(F)[i] <= 0:
+            out[name] = math.inf
+            continue
+        cov = vecs @ np.diag(1.0 / np.maximum(vals, 1e-300)) @ vecs.T
+        s = math.sqrt(max(float(cov[i, i]), 0.0)) / scale[i]
+        if is_log_parameter(name, v):
+            out[name] = float(abs(v) * max(s, PARAM_FLOOR))
+        else:
+            out[name] = float(max(s, PARAM_FLOOR / w_ref if name == "tau" else 0.0))
+    return out
+
+
+def undetermined_parameters(model: PlantModel, stds: Mapping[str, float], w_ref: float) -> tuple[str, ...]:
+    """identify_lti's verdict: a 95 % interval wider than :data:`DETERMINED_LOG_WIDTH` (a factor 1.25 either
+    way), or (tau) than a radian at ``w_ref`` [rad/s]."""
+    out = []
+    for name, s in stds.items():
+        v = model.parameters[name].value
+        log = is_log_parameter(name, v)
+        wide = 2 * 1.959964 * (s / abs(v) if log else s * w_ref) >= (DETERMINED_LOG_WIDTH if log else 1.0)
+        if not math.isfinite(s) or wide:
+            out.append(name)
+    return tuple(out)

@@ -38,7 +38,7 @@ def std_range(infos: Sequence[np.ndarray], plants: np.ndarray) -> dict[str, tupl
     return {k: (float(lo), float(hi)) for k, lo, hi in zip(PARAMS, s[0], s[1])}
 
 
-def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
+def simulated_std(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
                   limits: FlightLimits, *, n_bootstrap: int = 100, seed: int = 0,
                   progress: Progress | None = None) -> np.ndarray:
     """Forecast by simulation: fly the flown and planned tests on each plant and measure analyze's std.
@@ -52,8 +52,8 @@ def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tes
 
     Parameters
     ----------
-    Tp : float
-        Propulsion time constant [s].
+    model : LoopModel
+        Eq. (2) with its known propulsion time constant Tp [s] (``soiptd_model(Tp)``); analysed as given.
     plants : ndarray, shape (n, 3)
         The plants to fly (Td, tau, K), e.g. draws from what the flown tests leave.
     flown, tests : sequences of FlownTest and TestPlan
@@ -73,11 +73,11 @@ def simulated_std(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tes
         std of Td [s], tau [s], K per plant; NaN where ``analyze`` could not use the simulated flight
         (it locked up on noise, or a test was lost).
     """
-    return simulated_flights(Tp, plants, flown, tests, limits, n_bootstrap=n_bootstrap, seed=seed,
+    return simulated_flights(model, plants, flown, tests, limits, n_bootstrap=n_bootstrap, seed=seed,
                              progress=progress)[0]
 
 
-def simulated_flights(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
+def simulated_flights(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
                       limits: FlightLimits, *, n_bootstrap: int = 100, seed: int = 0,
                       progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`simulated_std` and which planned test analyze lost on each plant.
@@ -101,15 +101,15 @@ def simulated_flights(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest],
     out = np.full((len(plants), 3), np.nan)
     lost = np.ones((len(plants), len(tests)), bool)
     for k, p in enumerate(plants):
-        model = LoopModel(Tp, float(p[0]), float(p[1]), float(p[2]))
+        plant = LoopModel(model.Tp, float(p[0]), float(p[1]), float(p[2]))
         try:
-            sf = simulate_flight(FlightSpec(model=model, tests=tuple(specs), rate_hz=limits.rate_hz,
+            sf = simulate_flight(FlightSpec(model=plant, tests=tuple(specs), rate_hz=limits.rate_hz,
                                             noise_std=limits.noise_std, seed=int(rng.integers(1 << 30)),
                                             hover_s=2.0, hold_s=2.0))
             flight = FlightLog(path="<simulated>", loop=sf.spec.loop, command=Signal(sf.t, sf.command),
                                output=Signal(sf.t, sf.output_measured), setpoint=Signal(sf.t, sf.setpoint))
             with np.errstate(all="ignore"):
-                res = analyze_flight(flight, Tp, options=AnalyzeOptions(
+                res = analyze_flight(flight, model, options=AnalyzeOptions(
                     n_bootstrap=n_bootstrap, refine_waveform=False, seed=int(rng.integers(1 << 30))))
             lost[k] = [not any(abs(m.beta_effective - t.beta) < 0.1 for m in res.tests) for t in tests]
             # a planned test analyze lost counts as no forecast (its std would be the flown tests')
@@ -144,11 +144,11 @@ class SimulatedForecast:
     lost: tuple[int, ...] = ()
 
 
-def simulated_forecast(Tp: float, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
+def simulated_forecast(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
                        limits: FlightLimits, n_simulated: int, *, seed: int,
                        progress: Progress | None = None) -> SimulatedForecast:
     """:func:`simulated_std` on the first ``n_simulated`` of ``plants``, summarised over the usable flights."""
-    s, lost = simulated_flights(Tp, plants[:n_simulated], flown, tests, limits, seed=seed, progress=progress)
+    s, lost = simulated_flights(model, plants[:n_simulated], flown, tests, limits, seed=seed, progress=progress)
     s = s[np.all(np.isfinite(s), axis=1)]
     n_sim = int(s.shape[0])
     std: dict[str, float] = {}

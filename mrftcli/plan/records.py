@@ -1,8 +1,10 @@
-"""The planner's records: what is known (:class:`Prior`, :class:`FlownTest`), what the flight allows
-(:class:`FlightLimits`), and what it recommends (:class:`TestPlan`, :class:`CandidateTest`,
-:class:`PlanResult`, the versioned JSON of ``mrft-ident plan --json``).
+"""The planner's records, for every model family: what is known (:class:`Prior`, :class:`FlownTest`; a
+process plant's recorded tests are its analysis), what the flight allows (:class:`FlightLimits`;
+:class:`RelayLimits` for a process plant), and what it recommends (:class:`TestPlan`,
+:class:`CandidateTest`, :class:`PlanResult`, the versioned JSON of ``mrft-ident plan --json``).
 
-Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units.
+Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units, phases in
+degrees, each parameter's standard deviation in its own unit.
 """
 
 from __future__ import annotations
@@ -14,13 +16,17 @@ from typing import Any
 
 import numpy as np
 
-from ..jsonable import check_schema_version
 from ..errors import InputError
+from ..jsonable import check_schema_version
+from ..mrft.identify_lti import LtiIdentification
+from ..mrft.model import LoopModel, PlantModel, soiptd_model
+from ..mrft.relays import RelayLaw
 from ..validate import check_beta, check_positive, check_time
 
 __all__ = [
     "Prior",
     "FlightLimits",
+    "RelayLimits",
     "FlownTest",
     "TestPlan",
     "CandidateTest",
@@ -32,8 +38,9 @@ __all__ = [
 
 #: The identified parameters, in the order of every (Td, tau, K) array of the planner.
 PARAMS = ("Td", "tau", "K")
-#: Version of :meth:`PlanResult.to_json`; :meth:`PlanResult.from_json` refuses any other.
-SCHEMA_VERSION = 1
+#: Version of :meth:`PlanResult.to_json` (2: one record for every family, the model object instead of ``Tp``;
+#: :meth:`PlanResult.from_json` still reads version 1, eq. (2)'s plan and a process plan, for one release).
+SCHEMA_VERSION = 2
 
 Stds = dict[str, float]
 StdRanges = dict[str, tuple[float, float]]
@@ -129,6 +136,34 @@ class FlightLimits:
 
 
 @dataclass(frozen=True)
+class RelayLimits:
+    """What a process plant's next relay test may do (``plan LOG --model NAME``).
+
+    Attributes
+    ----------
+    max_amplitude : float or None
+        Largest output amplitude allowed [output units]; a candidate over it is listed, never
+        recommended. None: no limit.
+    max_h : float or None
+        Relay half-height of the candidates [command units] about the recorded bias; None: the
+        recorded tests' largest.
+    """
+
+    max_amplitude: float | None = None
+    max_h: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.max_amplitude is not None:
+            check_positive("the largest amplitude (--max-amplitude)", self.max_amplitude)
+        if self.max_h is not None:
+            check_positive("the relay half-height (--max-h)", self.max_h)
+
+    def to_json(self) -> dict[str, float | None]:
+        """The ``limits`` object of a relay plan's JSON."""
+        return {"max_amplitude": self.max_amplitude, "max_h": self.max_h}
+
+
+@dataclass(frozen=True)
 class FlownTest:
     """A test already flown, as measured (from a log or an ``analyze --json`` result).
 
@@ -216,36 +251,48 @@ class TestPlan:
 
 @dataclass(frozen=True)
 class CandidateTest:
-    """One beta of the grid as a candidate for the first recommended test.
+    """One candidate next test: a beta of eq. (2)'s grid, or a relay for a process plant.
 
     Attributes
     ----------
-    beta : float
-        MRFT beta.
+    beta : float or None
+        MRFT beta (None: a relay candidate of another kind, see ``relay``).
     admissible : bool
-        Whether the limits admit it; ``reason`` says why not (or what to watch).
+        Whether the limits admit it (a relay candidate: its amplitude within ``--max-amplitude``);
+        ``reason`` says why not (or what to watch).
     reason : str
         Empty, or the limit it breaks / the risk it runs.
     h : float or None
-        The largest relay height within the amplitude and height limits [command units]; None when
-        some plant of the prior has no limit cycle at this beta (then so are the fields below).
+        Eq. (2): the largest relay height within the amplitude and height limits [command units]; a
+        relay candidate: its half-height. None when some plant of the prior has no limit cycle at
+        this beta (then so are the fields below).
     frequency_hz, amplitude : (float, float) or None
-        Range of the predicted frequency [Hz] and amplitude [output units] over the draws.
+        Range of the predicted frequency [Hz] and amplitude [output units] over the draws (a relay
+        candidate: the current model's exact cycle, both ends equal).
     n_cycles : int or None
-        Fewest predicted stable cycles over the draws.
+        Fewest predicted stable cycles over the draws (eq. (2)).
     samples_per_period : float or None
-        Controller samples in the shortest period.
+        Controller samples in the shortest period (eq. (2)).
     switch_gap : float or None
-        :func:`~mrftcli.plan.noise.switch_gap` for the typical plant [noise std].
+        :func:`~mrftcli.plan.noise.switch_gap` for the typical plant [noise std] (eq. (2)).
     early_switch : bool
-        The switch gap is under the admissible line: used only if no beta clears it.
+        The switch gap is under the admissible line: used only if no beta clears it (eq. (2)).
     predicted_std : dict or None
-        Td, tau [s], K: median std over the draws after this test (admissible candidates only).
+        Each unknown parameter's std [its unit] after this test: eq. (2), the median over the draws
+        (admissible candidates only); a relay candidate, the Fisher update of the recorded tests
+        (``inf``: still not determined).
     score : float or None
-        The design criterion, mean of var(ln Td) + var(ln tau) + var(ln K) over the draws.
+        Eq. (2)'s design criterion, mean of var(ln Td) + var(ln tau) + var(ln K) over the draws.
+    relay : RelayLaw or None
+        A relay candidate's law (kind, levels, beta or eps [output units]); None for eq. (2)'s grid.
+    gain, phase_deg : float or None
+        A relay candidate's response point: |G(j Omega)| [output units per command unit] and
+        arg G(j Omega) [deg] at its frequency.
+    undetermined : tuple of str
+        A relay candidate: the parameters still not determined after it.
     """
 
-    beta: float
+    beta: float | None
     admissible: bool
     reason: str
     h: float | None = None
@@ -257,23 +304,31 @@ class CandidateTest:
     early_switch: bool = False
     predicted_std: Stds | None = None
     score: float | None = None
+    relay: RelayLaw | None = None
+    gain: float | None = None
+    phase_deg: float | None = None
+    undetermined: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
-        """One of the plan's ``candidates`` (only the fields that apply)."""
+        """One of the plan's ``candidates`` (only the fields that apply; an undetermined std is null)."""
         if self.h is None or self.frequency_hz is None or self.amplitude is None:
             return {"beta": self.beta, "admissible": self.admissible, "reason": self.reason}
-        out: dict[str, Any] = {
-            "beta": self.beta, "h": self.h, "frequency_hz": list(self.frequency_hz),
-            "amplitude": list(self.amplitude), "n_cycles": self.n_cycles,
-            "samples_per_period": self.samples_per_period, "admissible": self.admissible, "reason": self.reason,
-            "switch_gap": self.switch_gap,
-        }
+        out: dict[str, Any] = {"beta": self.beta, "h": self.h, "frequency_hz": list(self.frequency_hz),
+                               "amplitude": list(self.amplitude)}
+        if self.relay is None:
+            out.update(n_cycles=self.n_cycles, samples_per_period=self.samples_per_period)
+        out.update(admissible=self.admissible, reason=self.reason)
+        if self.relay is None:
+            out["switch_gap"] = self.switch_gap
         if self.early_switch:
             out["early_switch"] = True
         if self.predicted_std is not None:
-            out["predicted_std"] = self.predicted_std
+            out["predicted_std"] = {k: _finite(v) for k, v in self.predicted_std.items()}
         if self.score is not None:
             out["score"] = self.score
+        if self.relay is not None:
+            out.update(relay=self.relay.to_json(), gain=self.gain, phase_deg=self.phase_deg,
+                       undetermined=list(self.undetermined))
         return out
 
     @classmethod
@@ -281,12 +336,41 @@ class CandidateTest:
         """The record of :meth:`to_json`'s object (``KeyError``/``TypeError`` on a bad one)."""
         rng = {k: (float(data[k][0]), float(data[k][1])) for k in ("frequency_hz", "amplitude") if k in data}
         std = data.get("predicted_std")
-        return cls(beta=float(data["beta"]), admissible=bool(data["admissible"]), reason=str(data["reason"]),
+        relay = data.get("relay")
+        return cls(beta=_opt_float(data.get("beta")), admissible=bool(data["admissible"]), reason=str(data["reason"]),
                    h=_opt_float(data.get("h")), frequency_hz=rng.get("frequency_hz"), amplitude=rng.get("amplitude"),
                    n_cycles=None if data.get("n_cycles") is None else int(data["n_cycles"]),
                    samples_per_period=_opt_float(data.get("samples_per_period")),
                    switch_gap=_opt_float(data.get("switch_gap")), early_switch=bool(data.get("early_switch", False)),
-                   predicted_std=None if std is None else _stds(std), score=_opt_float(data.get("score")))
+                   predicted_std=None if std is None else _stds(std), score=_opt_float(data.get("score")),
+                   relay=None if relay is None else RelayLaw.from_json(relay), gain=_opt_float(data.get("gain")),
+                   phase_deg=_opt_float(data.get("phase_deg")),
+                   undetermined=tuple(str(n) for n in data.get("undetermined", ())))
+
+    @classmethod
+    def from_relay_v1(cls, data: Mapping[str, Any]) -> CandidateTest:
+        """A candidate of a version-1 process plan (``plan --model NAME --json`` before issue 36)."""
+        relay = RelayLaw.from_json(data["relay"])
+        f, a = float(data["frequency_hz"]), float(data["amplitude"])
+        within = bool(data.get("within_limit", True))
+        return relay_candidate(relay, f, a, float(data["gain"]), float(data["phase_deg"]),
+                               _stds(data["std_after"]), tuple(str(n) for n in data.get("undetermined_after", [])),
+                               within)
+
+
+def relay_candidate(relay: RelayLaw, frequency_hz: float, amplitude: float, gain: float, phase_deg: float,
+                    std_after: Stds, undetermined: tuple[str, ...], within_limit: bool = True) -> CandidateTest:
+    """A process plant's candidate relay test predicted with the current model (frequency [Hz], amplitude
+    [output units], |G| and arg G [deg] at its frequency, each unknown parameter's std after it)."""
+    return CandidateTest(beta=relay.beta if relay.kind == "mrft" else None, admissible=within_limit,
+                         reason="" if within_limit else OVER_LIMIT, h=relay.h,
+                         frequency_hz=(frequency_hz, frequency_hz), amplitude=(amplitude, amplitude),
+                         predicted_std=std_after, relay=relay, gain=gain, phase_deg=phase_deg,
+                         undetermined=undetermined)
+
+
+#: The reason a relay candidate is not admissible.
+OVER_LIMIT = "amplitude over --max-amplitude"
 
 
 @dataclass(frozen=True)
@@ -313,49 +397,63 @@ class Conventional:
 
 @dataclass(frozen=True)
 class PlanResult:
-    """What :func:`~mrftcli.plan.plan_tests` recommends (``schema_version`` 1 as JSON).
+    """What :func:`~mrftcli.plan.plan_tests` recommends, for every family (``schema_version`` 2 as JSON).
+
+    Eq. (2) (``soiptd``) plans the next MRFT test(s) from a prior and the tests flown: ``tests`` holds
+    them with their forecast and ``candidates`` the beta grid. A process plant's plan ranks relay
+    tests for the model its recorded tests identified: ``candidates`` best first (the first is
+    :attr:`recommended`), ``tests`` empty, ``identification`` the current model.
 
     Attributes
     ----------
-    Tp : float
-        Known propulsion time constant [s].
+    model : PlantModel
+        The model planned for: eq. (2), ``soiptd`` with Tp known and Td, tau, K the draws' central
+        plant (the one the tests are predicted for); a process plant, the identified model.
     tests : tuple of TestPlan
-        The recommended next test(s), in flying order.
+        Eq. (2): the recommended next test(s), in flying order.
     predicted_std : dict
-        Td, tau [s], K: predicted standard deviation after the recommended tests, prior included
-        (the median over the draws: the typical plant's).
+        Each unknown parameter's predicted standard deviation after the recommended test(s) [its
+        unit], what is known before included (eq. (2): the median over the draws, the typical plant's).
     predicted_std_data : dict
-        The same from the tests alone (flown and recommended): the bootstrap std of ``analyze``'s
-        MRFT estimate (``parameters_mrft``; the waveform refinement, when accepted, is tighter).
+        Eq. (2): the same from the tests alone (flown and recommended): the bootstrap std of
+        ``analyze``'s MRFT estimate (``parameters_mrft``; the waveform refinement, when accepted, is tighter).
     prior_std : dict
-        The prior's standard deviations (range / 4).
+        The standard deviations before the next test: the prior's (eq. (2): range / 4), or those the
+        recorded tests leave (a process plant; ``inf``: not determined).
     conventional : Conventional or None
-        For comparison, the same figures for the conventional beta -0.4 / -0.7 (the one(s) of
-        them not yet flown), with the same h rule and durations.
+        Eq. (2), for comparison: the same figures for the conventional beta -0.4 / -0.7 (the one(s)
+        of them not yet flown), with the same h rule and durations.
     candidates : tuple of CandidateTest
-        Per beta on the grid (for the first recommended test): h, predicted frequency, amplitude,
-        cycles and stds, and whether the limits admit it.
+        Eq. (2): per beta on the grid (for the first recommended test). A process plant: the relay
+        tests ranked, the recommended one first.
     notes : tuple of str
         Parameters no admissible test pins down, and what would help.
     predicted_std_data_range : dict
-        Td, tau, K -> (low, high): the 10-90 % range of ``predicted_std_data`` over the draws (how
-        much the forecast depends on where in the remaining uncertainty the plant lies).
+        Eq. (2): Td, tau, K -> (low, high), the 10-90 % range of ``predicted_std_data`` over the draws.
     flown : tuple of FlownTest
-        The tests already flown that the plan counted.
-    limits : FlightLimits or None
+        Eq. (2): the tests already flown that the plan counted.
+    limits : FlightLimits, RelayLimits or None
         The limits planned within.
     simulated_std, simulated_std_range : dict
-        With ``n_simulated``: the median and the 10-90 % range over the simulated plants of the
+        Eq. (2) with ``n_simulated``: the median and the 10-90 % range over the simulated plants of the
         bootstrap std ``analyze`` measured on their simulated flights
         (:func:`~mrftcli.plan.forecast.simulated_std`); empty otherwise.
     n_simulated : int
         Simulated flights that ``analyze`` could use.
     assumptions : tuple of str
-        What the plan assumed rather than was given (a default sensor noise, a default prior range),
-        each naming the option that gives it; shown first.
+        What the plan assumed rather than was given (a default sensor noise, a default prior range,
+        the next relay test's cycles and noise), each naming the option that gives it; shown first.
+    rate_hz : float or None
+        The controller rate the tests are predicted at [Hz].
+    identification : LtiIdentification or None
+        A process plant: the current model from the recorded tests (as ``analyze --model`` identifies it).
+    undetermined : tuple of str
+        A process plant: the parameters the recorded tests do not pin down.
+    why : str
+        A process plant: one sentence, why the first candidate is recommended.
     """
 
-    Tp: float
+    model: PlantModel
     tests: tuple[TestPlan, ...]
     predicted_std: Stds
     predicted_std_data: Stds
@@ -365,54 +463,88 @@ class PlanResult:
     notes: tuple[str, ...] = ()
     predicted_std_data_range: StdRanges = field(default_factory=dict)
     flown: tuple[FlownTest, ...] = ()
-    limits: FlightLimits | None = field(default=None, repr=False)
+    limits: FlightLimits | RelayLimits | None = field(default=None, repr=False)
     simulated_std: Stds = field(default_factory=dict)
     simulated_std_range: StdRanges = field(default_factory=dict)
     n_simulated: int = 0
     assumptions: tuple[str, ...] = ()
+    rate_hz: float | None = None
+    identification: LtiIdentification | None = None
+    undetermined: tuple[str, ...] = ()
+    why: str = ""
+
+    @property
+    def Tp(self) -> float:
+        """Eq. (2)'s known propulsion time constant [s] (read from :attr:`model`)."""
+        if not isinstance(self.model, LoopModel):
+            raise TypeError(f"a {self.model.family} plan has no Tp")
+        return self.model.Tp
+
+    @property
+    def recommended(self) -> CandidateTest:
+        """A process plant's recommended relay test (the first candidate)."""
+        return self.candidates[0]
 
     def to_json(self) -> dict[str, Any]:
         """JSON object of ``mrft-ident plan --json`` (``schema_version`` first)."""
-        return {
+        out = {
             "schema_version": SCHEMA_VERSION,
             "assumptions": list(self.assumptions),
-            "Tp": self.Tp,
+            "model": self.model.to_json(),
+            "rate_hz": self.rate_hz,
             "tests": [t.to_json() for t in self.tests],
-            "predicted_std": self.predicted_std,
+            "predicted_std": {k: _finite(v) for k, v in self.predicted_std.items()},
             "predicted_std_tests_only": self.predicted_std_data,
             "predicted_std_tests_only_range": {k: list(v) for k, v in self.predicted_std_data_range.items()},
             "simulated_std": self.simulated_std,
             "simulated_std_range": {k: list(v) for k, v in self.simulated_std_range.items()},
             "n_simulated": self.n_simulated,
-            "prior_std": self.prior_std,
+            "prior_std": {k: _finite(v) for k, v in self.prior_std.items()},
             "conventional": None if self.conventional is None else self.conventional.to_json(),
             "candidates": [c.to_json() for c in self.candidates],
             "notes": list(self.notes),
             "flown_tests": [f.to_json() for f in self.flown],
             "limits": None if self.limits is None else self.limits.to_json(),
         }
+        if self.identification is not None:
+            out.update(identification=self.identification.to_json(), undetermined=list(self.undetermined),
+                       why=self.why, recommended=0)
+        return out
 
     @classmethod
     def from_json(cls, data: object) -> PlanResult:
-        """The plan of a :meth:`to_json` object (e.g. a ``plan --json`` file, parsed).
+        """The plan of a :meth:`to_json` object (e.g. a ``plan --json`` file, parsed); version 1 too (eq. (2)'s
+        plan and ``plan --model NAME``'s process plan), for one release.
 
         Raises
         ------
         InputError
             Not a JSON object, another ``schema_version``, or a missing or malformed field.
         """
-        data = check_schema_version(data, "plan --json result", SCHEMA_VERSION, fix="run plan again with this version")
+        data = check_schema_version(data, "plan --json result", (1, SCHEMA_VERSION),
+                                    fix="run plan again with this version")
         try:
+            if data["schema_version"] == 1:
+                return _process_v1(data) if data.get("kind") == "process" else cls._parse(data, v1=True)
             return cls._parse(data)
         except (KeyError, TypeError, ValueError, IndexError) as err:
             raise InputError(f"not a valid plan --json result ({type(err).__name__}: {err})") from err
 
     @classmethod
-    def _parse(cls, data: Mapping[str, Any]) -> PlanResult:
+    def _parse(cls, data: Mapping[str, Any], v1: bool = False) -> PlanResult:
         conv = data["conventional"]
-        lim = data["limits"]
+        ident = None if data.get("identification") is None else LtiIdentification.from_json(data["identification"])
+        limits = _limits(data["limits"])
+        if v1:  # eq. (2)'s plan before issue 36: Tp, no model, the rate in the limits
+            model: PlantModel = soiptd_model(float(data["Tp"]))
+        else:
+            model = ident.model if ident is not None else LoopModel.from_json(data["model"])
+        candidates = tuple(CandidateTest.from_json(c) for c in data["candidates"])
+        if ident is not None and not candidates:
+            raise InputError("not a valid plan --json result: a relay plan without a candidate")
+        rate = data.get("rate_hz", limits.rate_hz if isinstance(limits, FlightLimits) else None)
         return cls(
-            Tp=float(data["Tp"]),
+            model=model,
             tests=tuple(_test_plan(t) for t in data["tests"]),
             predicted_std=_stds(data["predicted_std"]),
             predicted_std_data=_stds(data["predicted_std_tests_only"]),
@@ -420,20 +552,52 @@ class PlanResult:
             conventional=None if conv is None else Conventional(
                 betas=tuple(float(b) for b in conv["betas"]), predicted_std=_stds(conv["predicted_std"]),
                 predicted_std_tests_only=_stds(conv["predicted_std_tests_only"])),
-            candidates=tuple(CandidateTest.from_json(c) for c in data["candidates"]),
+            candidates=candidates,
             notes=tuple(str(n) for n in data["notes"]),
             predicted_std_data_range=_ranges(data["predicted_std_tests_only_range"]),
             flown=tuple(FlownTest(beta=float(f["beta"]), h=float(f["h"]), frequency_hz=float(f["frequency_hz"]),
                                   amplitude=float(f["amplitude"]), n_cycles=int(f["n_cycles"]))
                         for f in data["flown_tests"]),
-            limits=None if lim is None else FlightLimits(**{k: float(lim[k]) for k in (
-                "max_amplitude", "max_h", "time_s", "rate_hz", "noise_std")}),
+            limits=limits,
             simulated_std=_stds(data["simulated_std"]),
             simulated_std_range=_ranges(data["simulated_std_range"]),
             n_simulated=int(data["n_simulated"]),
             # absent from plans written before issue 26 (nothing was stated then)
             assumptions=tuple(str(a) for a in data.get("assumptions", ())),
+            rate_hz=None if rate is None else float(rate),
+            identification=ident,
+            undetermined=tuple(str(n) for n in data.get("undetermined", ())),
+            why=str(data.get("why", "")),
         )
+
+
+def _process_v1(data: Mapping[str, Any]) -> PlanResult:
+    """A version-1 process plan (``plan --model NAME --json`` before issue 36: ``kind "process"``)."""
+    ident = LtiIdentification.from_json(data["identification"])
+    candidates = tuple(CandidateTest.from_relay_v1(c) for c in data["candidates"])
+    if not candidates:
+        raise InputError("not a valid plan --json result: a relay plan without a candidate")
+    first = candidates[0].predicted_std
+    return PlanResult(model=ident.model, tests=(), predicted_std=dict(first or {}), predicted_std_data={},
+                      prior_std=_stds(data["std_now"]), conventional=None, candidates=candidates,
+                      notes=tuple(str(n) for n in data.get("notes", [])),
+                      assumptions=tuple(str(a) for a in data.get("assumptions", [])),
+                      rate_hz=float(data["rate_hz"]), identification=ident,
+                      undetermined=tuple(str(n) for n in data.get("undetermined", [])), why=str(data["why"]))
+
+
+def _limits(data: Mapping[str, Any] | None) -> FlightLimits | RelayLimits | None:
+    """The ``limits`` object: eq. (2)'s flight limits, or a relay plan's (amplitude and half-height only)."""
+    if data is None:
+        return None
+    if "time_s" not in data:
+        return RelayLimits(_opt_float(data.get("max_amplitude")), _opt_float(data.get("max_h")))
+    return FlightLimits(**{k: float(data[k]) for k in ("max_amplitude", "max_h", "time_s", "rate_hz", "noise_std")})
+
+
+def _finite(x: float) -> float | None:
+    """JSON has no infinity: an undetermined parameter's std is null."""
+    return x if math.isfinite(x) else None
 
 
 def _opt_float(value: Any) -> float | None:
@@ -441,7 +605,8 @@ def _opt_float(value: Any) -> float | None:
 
 
 def _stds(data: Mapping[str, Any]) -> Stds:
-    return {str(k): float(v) for k, v in data.items()}
+    """{name: std} from JSON (null: not determined, infinity)."""
+    return {str(k): math.inf if v is None else float(v) for k, v in data.items()}
 
 
 def _ranges(data: Mapping[str, Any]) -> StdRanges:

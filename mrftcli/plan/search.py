@@ -1,6 +1,7 @@
-"""The search: each beta of the grid as a candidate test (its h, cycle and admissibility), and the
+"""The search: eq. (2)'s beta grid (each beta a candidate test: its h, cycle and admissibility, and the
 greedy choice of the next test(s) by the expected posterior covariance, guarded by the conventional
-beta.
+beta), and a process plant's candidate relays ranked (:func:`candidate_relays`, :func:`forecast_relay`,
+:func:`rank`).
 
 Candidates: h the largest that keeps the largest predicted amplitude over the draws within the
 limit, the duration the time available (split equally between the tests asked for). Admissible: at
@@ -8,23 +9,34 @@ least 8 controller samples per period and 3 stable cycles; the output moving 4 n
 at the zero crossing (:func:`mrftcli.sim.noise_margin`); the typical amplitude 10 noise std; and,
 when any beta allows it, the switch at least 16 noise std below the extremum
 (:func:`~mrftcli.plan.noise.switch_gap`).
+
+A process plant's candidates: the relays the user can run at the recorded levels (or ``max_h``): an
+ideal relay, a hysteresis at a few fractions of the ideal relay's amplitude, MRFTs at a few betas.
+Each is predicted with the current model's exact limit cycle (LPRS, sampled at the controller rate);
+the response points it yields (fundamental and the harmonics the recorded tests measured) get the
+recorded tests' own scatter scaled by the amplitude, and the parameters' std after adding them is the
+Gauss-Newton update. Ranked: within ``max_amplitude`` first, fewest parameters left undetermined,
+then the smallest product of the relative stds (D-optimality on ln p).
 """
 
 from __future__ import annotations
 
 import math
+import statistics
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..errors import InputError
+from ..mrft.identify_lti import ResponsePoint
 from ..mrft.lprs import mrft_limit_cycle
-from ..mrft.model import LoopModel
-from .fisher import (PredictedCycle, design_cost, planned_information, posterior_covariance, posterior_stds,
-                     predict_cycle)
+from ..mrft.model import LoopModel, PlantModel
+from ..mrft.relays import RelayLaw
+from .fisher import (FloatArray, PredictedCycle, design_cost, planned_information, point_jacobian, point_stds,
+                     posterior_covariance, posterior_stds, predict_cycle, undetermined_parameters, unknown_parameters)
 from .noise import LOST_CYCLES, MAX_EPS, MIN_CYCLES, MIN_NOISE_MARGIN, MIN_SWITCH_GAP, switch_gap
-from .records import PARAMS, CandidateTest, FlightLimits, FlownTest, TestPlan
+from .records import OVER_LIMIT, PARAMS, CandidateTest, FlightLimits, FlownTest, TestPlan, relay_candidate
 
 __all__ = [
     "DesignSpace",
@@ -38,6 +50,13 @@ __all__ = [
     "recommended_test",
     "with_first_round",
     "CONVENTIONAL_BETAS",
+    "candidate_relays",
+    "relay_noise",
+    "forecast_relay",
+    "forecast_relays",
+    "rank",
+    "EPS_FRACTIONS",
+    "CANDIDATE_BETAS",
 ]
 
 _TWO_PI = 2.0 * math.pi
@@ -53,8 +72,8 @@ class DesignSpace:
 
     Attributes
     ----------
-    Tp : float
-        Propulsion time constant [s].
+    model : LoopModel
+        Eq. (2), its known Tp [s] the plants share.
     plants : ndarray, shape (n, 3)
         The draws (Td [s], tau [s], K).
     limits : FlightLimits
@@ -65,7 +84,7 @@ class DesignSpace:
         Per beta, each draw's predicted cycle for h = 1 (None: no limit cycle).
     """
 
-    Tp: float
+    model: LoopModel
     plants: np.ndarray
     limits: FlightLimits
     duration_s: float
@@ -75,12 +94,12 @@ class DesignSpace:
         """Each draw's cycle at ``beta`` (from :attr:`cycles` when already predicted)."""
         if beta in self.cycles:
             return self.cycles[beta]
-        return tuple(predict_cycle(self.Tp, p, beta, self.limits.rate_hz) for p in self.plants)
+        return tuple(predict_cycle(self.model.Tp, p, beta, self.limits.rate_hz) for p in self.plants)
 
     def information(self, beta: float, h: float) -> list[np.ndarray]:
         """Each draw's Fisher information of the test (beta, h, :attr:`duration_s`)."""
         lim = self.limits
-        return [planned_information(self.Tp, p, beta, h, self.duration_s, lim.rate_hz, lim.noise_std, cycle=c)
+        return [planned_information(self.model.Tp, p, beta, h, self.duration_s, lim.rate_hz, lim.noise_std, cycle=c)
                 for p, c in zip(self.plants, self.predict(beta))]
 
 
@@ -116,14 +135,14 @@ class Choice:
     first_round: dict[float, tuple[dict[str, float], float]]
 
 
-def design_space(Tp: float, plants: np.ndarray, limits: FlightLimits, duration_s: float, betas: Sequence[float],
-                 on_beta: Callable[[int], None]) -> DesignSpace:
+def design_space(model: LoopModel, plants: np.ndarray, limits: FlightLimits, duration_s: float,
+                 betas: Sequence[float], on_beta: Callable[[int], None]) -> DesignSpace:
     """The draws' cycles at every beta of the grid (``on_beta(i)`` after the i-th, from 1)."""
     cycles: dict[float, Cycles] = {}
     for i, b in enumerate(betas):
-        cycles[b] = tuple(predict_cycle(Tp, p, b, limits.rate_hz) for p in plants)
+        cycles[b] = tuple(predict_cycle(model.Tp, p, b, limits.rate_hz) for p in plants)
         on_beta(i + 1)
-    return DesignSpace(Tp, plants, limits, duration_s, cycles)
+    return DesignSpace(model, plants, limits, duration_s, cycles)
 
 
 def assess(space: DesignSpace, beta: float) -> CandidateTest:
@@ -297,7 +316,7 @@ def recommended_test(space: DesignSpace, beta: float, candidate: CandidateTest) 
     """The recommended test, predicted with the sampled relay for the central plant of the draws
     (the geometric mean; the centre of the sampled relay's band when the sampled relay fails)."""
     assert candidate.h is not None and candidate.frequency_hz is not None and candidate.amplitude is not None
-    Tp, rate, duration = space.Tp, space.limits.rate_hz, space.duration_s
+    Tp, rate, duration = space.model.Tp, space.limits.rate_hz, space.duration_s
     centre = np.exp(np.mean(np.log(space.plants), axis=0))
     h = float(candidate.h)
     try:
@@ -318,7 +337,99 @@ def recommended_test(space: DesignSpace, beta: float, candidate: CandidateTest) 
 
 def with_first_round(candidate: CandidateTest, first: Mapping[float, tuple[dict[str, float], float]]) -> CandidateTest:
     """``candidate`` with its predicted std and score as the first test, when it was searched."""
-    if candidate.beta not in first:
+    if candidate.beta is None or candidate.beta not in first:
         return candidate
     std, score = first[candidate.beta]
     return replace(candidate, predicted_std=std, score=score)
+
+
+# -- a process plant: the candidate relays, forecast with the current model --------------------------
+
+#: hysteresis candidates, as fractions of the ideal relay's predicted amplitude
+EPS_FRACTIONS = (0.25, 0.5, 0.75)
+#: MRFT candidates' beta
+CANDIDATE_BETAS = (-0.5, -0.2, 0.2, 0.5)
+#: the identification's floors on the fundamentals' and harmonics' standard errors (mrft/identify_lti.py)
+_SE_FLOOR, _HARMONIC_SE = 5e-3, 0.03
+
+
+def candidate_relays(levels: tuple[float, float], ideal_amplitude: float) -> list[RelayLaw]:
+    """The relays the user can run: ideal, hysteresis at :data:`EPS_FRACTIONS` of ``ideal_amplitude``
+    [output units], MRFT at :data:`CANDIDATE_BETAS`; all at ``levels`` (high, low) [command units]."""
+    high, low = levels
+    relays = [RelayLaw("ideal", high, low, source="stated")]
+    relays += [RelayLaw("hysteresis", high, low, eps=float(f"{f * ideal_amplitude:.3g}"), source="stated")
+               for f in EPS_FRACTIONS]
+    relays += [RelayLaw("mrft", high, low, beta=b, source="stated") for b in CANDIDATE_BETAS]
+    return relays
+
+
+def relay_noise(points: Sequence[ResponsePoint], amplitude: float) -> dict[int, tuple[float, float]]:
+    """{k: (se, amplitude)}: per harmonic k, the recorded points' median standard error (ln gain and phase
+    [rad] pooled) and the recorded tests' amplitude [output units] it was measured at."""
+    out = {}
+    for k in sorted({p.harmonic for p in points}):
+        ses = [math.hypot(p.se_log_gain, p.se_phase) / math.sqrt(2) for p in points if p.harmonic == k]
+        out[k] = (statistics.median(ses), amplitude)
+    return out
+
+
+def forecast_relay(model: PlantModel, relay: RelayLaw, rate_hz: float, F_now: FloatArray,
+                   noise: Mapping[int, tuple[float, float]], w_ref: float) -> CandidateTest:
+    """The relay's limit cycle on ``model`` (exact LPRS at ``rate_hz`` [Hz]) and the stds after adding its
+    response points to the information ``F_now``.
+
+    A point's standard error is the recorded one at harmonic k scaled by the recorded amplitude over
+    the predicted one (the noise is the same sensor's; the signal scales with the cycle), floored as
+    the identification floors it.
+
+    Raises
+    ------
+    InputError
+        The model has no limit cycle under this relay.
+    """
+    lc = relay.limit_cycle(model, rate_hz)
+    names = unknown_parameters(model)
+    F = F_now.copy()
+    for k, (se, at_amplitude) in noise.items():
+        floor = _SE_FLOOR if k == 1 else _HARMONIC_SE
+        se_k = max(se * at_amplitude / max(lc.amplitude, 1e-300), floor)
+        J = point_jacobian(model, k * lc.omega, names)
+        F += J.T @ J / se_k ** 2
+    G = complex(model.frequency_response(np.array([lc.omega]))[0])
+    stds = point_stds(model, names, F, w_ref)
+    return relay_candidate(relay, lc.frequency_hz, lc.amplitude, abs(G), math.degrees(math.atan2(G.imag, G.real)),
+                           stds, undetermined_parameters(model, stds, w_ref))
+
+
+def forecast_relays(model: PlantModel, relays: Sequence[RelayLaw], rate_hz: float, F_now: FloatArray,
+                    noise: Mapping[int, tuple[float, float]], w_ref: float,
+                    max_amplitude: float | None) -> tuple[list[CandidateTest], list[str]]:
+    """Every relay forecast (:func:`forecast_relay`), marked over ``max_amplitude`` [output units]; and the
+    relays without a limit cycle on the model, described."""
+    out, skipped = [], []
+    for relay in relays:
+        try:
+            c = forecast_relay(model, relay, rate_hz, F_now, noise, w_ref)
+        except InputError:
+            skipped.append(relay.describe()[len("relay: "):])
+            continue
+        if max_amplitude is not None and c.amplitude is not None and c.amplitude[0] > max_amplitude:
+            c = replace(c, admissible=False, reason=OVER_LIMIT)
+        out.append(c)
+    return out, skipped
+
+
+def _score(model: PlantModel, c: CandidateTest) -> tuple[bool, int, float]:
+    """Sort key: within the limit first, then fewest undetermined, then sum of ln(relative std)."""
+    total = 0.0
+    for name, s in (c.predicted_std or {}).items():
+        v = model.parameters[name].value
+        total += math.log(s / abs(v)) if math.isfinite(s) and v != 0 else 50.0
+    return (not c.admissible, len(c.undetermined), total)
+
+
+def rank(model: PlantModel, candidates: Sequence[CandidateTest]) -> list[CandidateTest]:
+    """The relay candidates best first (:func:`_score`): the ones within the amplitude limit, fewest parameters
+    left undetermined, then the smallest product of relative stds."""
+    return sorted(candidates, key=lambda c: _score(model, c))

@@ -292,7 +292,7 @@ def test_cli_cascade_states_its_assumption_and_refuses_bad_input(tmp_path, capsy
 
 
 # ------------------------------------------------------------------------------------------------
-# simulate --model NAME: the process families of issue 22 (mrftcli.sim.process)
+# simulate --model NAME: the process families of issue 22 through the one driver (mrftcli.sim.flight)
 
 
 @pytest.mark.parametrize("family, params", [("sopdt", {"K": 1.5, "T1": 1.0, "T2": 0.3, "tau": 0.1234}),
@@ -301,11 +301,11 @@ def test_process_flight_matches_the_independent_process_sim(family, params):
     import process_sim
 
     from mrftcli.mrft.families import PROCESS_FAMILIES
-    from mrftcli.sim.process import ProcessSpec, plan_process_test, simulate_process
+    from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
     model = PROCESS_FAMILIES[family](**params)
-    test = plan_process_test(model, -0.3, 0.1, 100.0, cycles=5)
-    flight = simulate_process(ProcessSpec(model, (test,), rate_hz=100.0, hover_s=1.0, hold_s=5.0))
+    test = plan_test(model, -0.3, 0.1, 100.0, cycles=5)
+    flight = simulate_flight(FlightSpec(model, (test,), rate_hz=100.0, noise_std=0.0, hover_s=1.0, hold_s=5.0))
     n = int(round(test.duration * 100))
     window = process_sim.Window("mrft", test.h, -test.h, beta=-0.3, duration=test.duration)
     _, u, y = process_sim.simulate(family, params, [window], 100.0, 0.0, lead=1.0)
@@ -315,23 +315,44 @@ def test_process_flight_matches_the_independent_process_sim(family, params):
     assert abs(flight.output_true[-1]) < 0.02  # the hold brought it back
 
 
-def test_process_truth_round_trip_and_cli_errors(tmp_path, capsys):
-    from mrftcli.sim.process import ProcessTruth
+def test_an_effect_on_a_process_family_matches_the_independent_process_sim():
+    # the one driver's effects serve every family: FOPDT seen through a first-order sensor lag is, to the
+    # relay, the SOPDT of both lags; tests/process_sim.py flies that SOPDT (no code shared)
+    import process_sim
+
+    from mrftcli.mrft.families import PROCESS_FAMILIES
+    from mrftcli.sim.flight import Effects, FlightSpec, TestSpec, simulate_flight
+
+    test = TestSpec(-0.3, 0.5, 6.0)
+    flight = simulate_flight(FlightSpec(PROCESS_FAMILIES["fopdt"](K=1.5, T=1.0, tau=0.1234), (test,), rate_hz=100.0,
+                                        noise_std=0.0, hover_s=1.0, hold_s=2.0, effects=Effects(sensor_lag=0.3)))
+    window = process_sim.Window("mrft", 0.5, -0.5, beta=-0.3, duration=6.0)
+    _, u, y = process_sim.simulate("sopdt", {"K": 1.5, "T1": 1.0, "T2": 0.3, "tau": 0.1234}, [window], 100.0, 0.0,
+                                   lead=1.0)
+    np.testing.assert_allclose(flight.command[100:700], u[100:700], atol=1e-12)
+    np.testing.assert_allclose(flight.output_measured[:700], y[:700], atol=1e-9)
+    assert np.count_nonzero(np.diff(flight.command[100:700])) >= 6
+    assert flight.truth["effects_active"] == ["sensor_lag"] and flight.truth["family"] == "fopdt"
+
+
+def test_process_truth_and_cli_errors(tmp_path, capsys):
+    from mrftcli.mrft.model import model_from_json
 
     code, out = _main(capsys, "--model", "foipdt", "--param", "K=0.8", "--param", "T=0.5", "--param", "tau=0.15",
                       "--test", "-0.3::6", "--hover", "1", "--hold", "1", "--out", str(tmp_path / "p.mcap"))
     assert code == 0 and "model foipdt" in out.out and "1 % of --amplitude" in out.out
     data = json.loads((tmp_path / "p.mcap.truth.json").read_text())
-    truth = ProcessTruth.from_json(data)
-    assert truth.model.family == "foipdt" and truth.model.tau == 0.15 and truth.log_file == "p.mcap"
-    assert ProcessTruth.from_json(json.loads(json.dumps(truth.to_json()))) == truth
-    with pytest.raises(InputError, match="schema_version"):
-        ProcessTruth.from_json({**data, "schema_version": 2})
+    model = model_from_json(data["model"])
+    assert data["family"] == model.family == "foipdt" and model.tau == 0.15 and data["log_file"] == "p.mcap"
+    assert data["parameters"] == {"K": 0.8, "T": 0.5, "tau": 0.15} and "Tp" not in data
+    assert data["bias"] == 0.0 and data["setpoint"] == 0.0  # about its operating point
     for args, message in ((("--model", "ipdt", "--param", "K=1"), "needs --param tau=VALUE"),
                           (("--model", "ipdt", "--param", "K=1", "--param", "tau=0.1", "--param", "T=1"),
                            "--param T: --model ipdt has the parameters K, tau"),
                           (("--model", "fopdt", "--param", "K=1", "--param", "T=1", "--param", "tau=0.1", "--k", "2"),
                            "--k is not used with --model fopdt"),
+                          (("--model", "fopdt", "--param", "K=1", "--param", "T=1", "--param", "tau=0.1",
+                            "--effect", "quadratic_drag=1"), "quadratic_drag and thrust_rectification change eq. (2)"),
                           (("--param", "K=1", "--tp", "0.1", "--td", "1", "--tau", "0.1"), "--param needs --model")):
         code, out = _main(capsys, *args, "--test", "-0.3", "--out", str(tmp_path / "q.mcap"))
         assert code == 2 and message in out.err, out.err

@@ -21,8 +21,8 @@ from .options import controller_rate_option, dump_json, json_option, quiet_optio
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
 
-#: default planned amplitude for ``--test BETA`` without H: 5 cm (altitude) / 5 deg (roll, pitch)
-_DEFAULT_AMPLITUDE = {"altitude": 0.05, "roll": math.radians(5.0), "pitch": math.radians(5.0)}
+#: default planned amplitude for ``--test BETA`` without H (eq. (2)): 5 cm (altitude, x, y) / 5 deg (roll, pitch)
+_DEFAULT_AMPLITUDE = {"altitude": 0.05, "x": 0.05, "y": 0.05, "roll": math.radians(5.0), "pitch": math.radians(5.0)}
 
 
 def parse_test(text: str) -> tuple[float, float | None, float | None]:
@@ -308,8 +308,9 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
               "(with --cascade: the position's, 0.0002 m).")
 @click.option("--amplitude", type=float, default=None, help="Planned amplitude for tests without H [m or rad]; "
               "default 0.05 m / 5 deg (with --cascade: the outer tests', 0.1 m).")
-@click.option("--bias", type=float, default=None, help="Hover command; default 0.5 (altitude) / 0 (roll, pitch).")
-@click.option("--setpoint", type=float, default=None, help="Setpoint; default 1 m (altitude) / 0 rad.")
+@click.option("--bias", type=float, default=None, help="Hover command; default 0.5 (altitude) / 0 (roll, pitch; "
+              "a process --model: the command holding output 0).")
+@click.option("--setpoint", type=float, default=None, help="Setpoint; default 1 m (altitude) / 0 rad (eq. (2) only).")
 @click.option("--hover", "hover_s", type=float, default=5.0, show_default=True, help="Hover before the first test [s].")
 @click.option("--hold", "hold_s", type=float, default=4.0, show_default=True, help="Hold after each test [s].")
 @click.option(
@@ -327,7 +328,9 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
     multiple=True,
     metavar="NAME=VALUE",
     help="Add an effect: input_bias, gain_drift, sensor_lag, quadratic_drag, actuator_rate_limit, "
-    "delay_jitter (and delay_jitter_correlation, battery_voltage). See docs/simulator.md.",
+    "delay_jitter (and delay_jitter_correlation, battery_voltage), asymmetric_gain, actuator_saturation, dead_zone, "
+    "thrust_rectification, flex_mode_hz; every family but quadratic_drag and thrust_rectification (eq. (2)'s own). "
+    "See docs/simulator.md.",
 )
 @click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd", show_default=True,
               help="Plant structure: soiptd (eq. (2): --tp, --td, --tau, --k) or a process family (fopdt, sopdt, "
@@ -378,7 +381,8 @@ def simulate(
 
     With --cascade x|y: a cascaded flight, the outer position loop through the inner attitude loop
     (closed by a sampled PD), the inner loop's tests first; written in the HEAR layout (.bag) or the
-    reference layout. With --model fopdt|sopdt|ipdt|foipdt and --param NAME=VALUE: a process plant.
+    reference layout. With --model fopdt|sopdt|ipdt|foipdt and --param NAME=VALUE (or --model-file): a
+    process plant, the same flight about its operating point (output 0).
 
     Example: mrft-ident simulate --tp 0.0422 --td 2.669 --tau 0.0464 --k 19.6 --test -0.4 --test -0.7
     --out alt.mcap
@@ -394,53 +398,33 @@ def simulate(
         _given(ctx, ("model_name",), "is not used with --model-file (the file declares the structure)")
     if model_name != "soiptd" or model_file is not None:
         what = "--model-file" if model_file is not None else f"--model {model_name}"
-        _given(ctx, ("tp", "td", "tau", "k", "bias", "setpoint", "effects", "cascade", "inner_tp", "inner_td",
-                     "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise", "inner_amplitude",
-                     "commanded", "layout"), f"is not used with {what} (its parameters are --param)")
+        _given(ctx, ("tp", "td", "tau", "k", "setpoint", "cascade", "inner_tp", "inner_td", "inner_tau", "inner_k",
+                     "inner_gains", "inner_tests", "inner_noise", "inner_amplitude", "commanded", "layout"),
+               f"is not used with {what} (its parameters are --param)")
         _required(("--test", tests or None))
-        _simulate_process(ProcessOptions(model_name, tuple(params), loop, tuple(tests), rate, noise, amplitude,
-                                         (hover_s, hold_s), switching, seed, start_time, fmt, model_file),
-                          out, json_target)
-        return
-    _given(ctx, ("params",), "needs --model fopdt|sopdt|ipdt|foipdt (eq. (2) takes --tp, --td, --tau, --k)")
-    if cascade is not None:
-        _given(ctx, ("tp", "k", "loop", "bias", "setpoint", "effects"), "is not used with --cascade")
-        _required(("--td", td), ("--tau", tau))
-        rate_given = (ctx.get_parameter_source("controller_rate_hz") == ParameterSource.COMMANDLINE
-                      or ctx.meta.get("mrftcli.rate_alias.controller_rate_hz") is not None)
-        options = CascadeOptions(cascade, LoopModelInputs(inner_tp, inner_td, inner_tau, inner_k), inner_gains,
-                                 tuple(inner_tests), tuple(tests), td, tau, commanded, rate if rate_given else None,
-                                 (inner_noise, noise), (inner_amplitude, amplitude), (hover_s, hold_s), switching,
-                                 seed, start_time, layout, fmt)
-        _simulate_cascade(options, out, json_target)
-        return
-    _given(ctx, ("inner_tp", "inner_td", "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise",
-                 "inner_amplitude", "commanded", "layout"), "needs --cascade x|y")
-    _required(("--tp", tp), ("--td", td), ("--tau", tau), ("--test", tests or None))
-    from ..mrft.model import LoopModel
+        model = (_declared_model(model_file, tuple(params)) if model_file is not None
+                 else _process_model(model_name, tuple(params)))
+    else:
+        _given(ctx, ("params",), "needs --model fopdt|sopdt|ipdt|foipdt (eq. (2) takes --tp, --td, --tau, --k)")
+        if cascade is not None:
+            _given(ctx, ("tp", "k", "loop", "bias", "setpoint", "effects"), "is not used with --cascade")
+            _required(("--td", td), ("--tau", tau))
+            rate_given = (ctx.get_parameter_source("controller_rate_hz") == ParameterSource.COMMANDLINE
+                          or ctx.meta.get("mrftcli.rate_alias.controller_rate_hz") is not None)
+            options = CascadeOptions(cascade, LoopModelInputs(inner_tp, inner_td, inner_tau, inner_k), inner_gains,
+                                     tuple(inner_tests), tuple(tests), td, tau, commanded,
+                                     rate if rate_given else None, (inner_noise, noise), (inner_amplitude, amplitude),
+                                     (hover_s, hold_s), switching, seed, start_time, layout, fmt)
+            _simulate_cascade(options, out, json_target)
+            return
+        _given(ctx, ("inner_tp", "inner_td", "inner_tau", "inner_k", "inner_gains", "inner_tests", "inner_noise",
+                     "inner_amplitude", "commanded", "layout"), "needs --cascade x|y")
+        _required(("--tp", tp), ("--td", td), ("--tau", tau), ("--test", tests or None))
+        from ..mrft.model import LoopModel
 
-    _simulate_loop(LoopOptions(LoopModel(tp, td, tau, k), loop, tuple(tests), rate, noise, amplitude, bias, setpoint,
-                               (hover_s, hold_s), switching, seed, start_time, tuple(effects), fmt, quiet),
-                   out, json_target)
-
-
-@dataclass(frozen=True)
-class ProcessOptions:
-    """What ``simulate --model NAME`` (a process family) or ``--model-file FILE`` was asked for."""
-
-    family: str
-    params: tuple[str, ...]
-    loop: str
-    tests: tuple[str, ...]
-    rate_hz: float
-    noise: float | None
-    amplitude: float | None
-    hover_hold: tuple[float, float]
-    switching: str
-    seed: int
-    start_time: float
-    fmt: str | None
-    model_file: str | None = None
+        model = LoopModel(tp, td, tau, k)
+    _simulate_loop(LoopOptions(model, loop, tuple(tests), rate, noise, amplitude, bias, setpoint, (hover_s, hold_s),
+                               switching, seed, start_time, tuple(effects), fmt, quiet), out, json_target)
 
 
 def _declared_model(path: str, items: tuple[str, ...]) -> Any:
@@ -480,57 +464,9 @@ def _process_model(family: str, items: tuple[str, ...]):
     return cls(**values)
 
 
-def _simulate_process(opts: ProcessOptions, out: Path, json_target: str | None) -> None:
-    """``simulate --model NAME``: check, plan, fly, write, report."""
-    from ..io import FORMATS
-    from ..sim.flight import TestSpec
-    from ..sim.process import ProcessSpec, plan_process_test, simulate_process, write_process
-
-    model = (_declared_model(opts.model_file, opts.params) if opts.model_file is not None
-             else _process_model(opts.family, opts.params))
-    if opts.fmt is not None and opts.fmt not in FORMATS:
-        raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
-    fmt = _format_of(out, opts.fmt)
-    check_positive("--controller-rate (a frequency in Hz)", opts.rate_hz)
-    if out.parent and not out.parent.exists():
-        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
-    _check_log_target(out, fmt)
-    amplitude = 0.05 if opts.amplitude is None else check_positive("--amplitude", opts.amplitude)
-    noise = 0.01 * amplitude if opts.noise is None else opts.noise
-    specs = []
-    for text in opts.tests:
-        beta, h, duration = parse_test(text)
-        if h is None or duration is None:
-            planned = plan_process_test(model, beta, amplitude, opts.rate_hz)
-            h = planned.h if h is None else h
-            duration = planned.duration if duration is None else duration
-        specs.append(TestSpec(beta=beta, h=h, duration=duration))
-    spec = ProcessSpec(model, tuple(specs), opts.loop, opts.rate_hz, noise, opts.hover_hold[0], opts.hover_hold[1],
-                       opts.seed, opts.start_time, opts.switching)
-    flight = simulate_process(spec)
-    sidecar = write_process(flight, out, fmt)
-    truth = json.loads(sidecar.read_text())
-    for i, test in enumerate(truth["tests"], 1):
-        if test["aborted"]:
-            click.echo(f"warning: test {i} (beta {test['beta']}) was aborted at t = {test['t_end']:.2f} s: the "
-                       "error exceeded the safety limit; use a larger H, less --noise or --switching hear", err=True)
-    if json_target:
-        dump_json({"log": str(out), "format": fmt, "sidecar": str(sidecar), "truth": truth}, json_target)
-    if json_target == "-":
-        return
-    click.echo(f"wrote {out} ({fmt}, {flight.truth.duration:.1f} s at {opts.rate_hz:g} Hz) and {sidecar}")
-    values = ", ".join(f"{n} {p.value:g}{' ' + p.unit if p.unit == 's' else ''}" for n, p in model.parameters.items())
-    structure = model.transfer_function if model.family == "declared" else model.structure
-    click.echo(f"  model {model.family}: {structure}; {values}; noise {noise:g} [output units]"
-               f"{' (1 % of --amplitude)' if opts.noise is None else ''}")
-    for i, test in enumerate(truth["tests"], 1):
-        click.echo(f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g} [command], "
-                   f"{test['t_start']:.2f}-{test['t_end']:.2f} s")
-
-
 @dataclass(frozen=True)
 class LoopOptions:
-    """What ``simulate`` (one loop, eq. (2)) was asked for."""
+    """What ``simulate`` of one loop was asked for (``model``: eq. (2), a process family or a declared plant)."""
 
     model: Any
     loop: str
@@ -552,9 +488,11 @@ class LoopOptions:
 def _loop_spec(opts: LoopOptions, out: Path):
     """The checked :class:`FlightSpec` and the log format (every option checked before planning)."""
     from ..io import FORMATS
+    from ..mrft.model import LoopModel
     from ..sim.flight import Effects, FlightSpec, TestSpec, default_noise_std, noise_margin, plan_test
 
     model, rate = opts.model, opts.rate_hz
+    trimmed = isinstance(model, LoopModel)  # eq. (2): the loop's defaults; another family: 1 % of the amplitude
     if opts.fmt is not None and opts.fmt not in FORMATS:
         raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
     fmt = _format_of(out, opts.fmt)
@@ -563,7 +501,8 @@ def _loop_spec(opts: LoopOptions, out: Path):
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     _check_log_target(out, fmt)
     effect_values = dict(parse_effect(text) for text in opts.effects)  # every option checked before planning
-    amplitude = _DEFAULT_AMPLITUDE[opts.loop] if opts.amplitude is None else opts.amplitude
+    amplitude = ((_DEFAULT_AMPLITUDE[opts.loop] if trimmed else 0.05) if opts.amplitude is None
+                 else check_positive("--amplitude", opts.amplitude))
     specs = []
     for text in opts.tests:
         beta, h, duration = parse_test(text)
@@ -572,7 +511,8 @@ def _loop_spec(opts: LoopOptions, out: Path):
             h = planned.h if h is None else h
             duration = planned.duration if duration is None else duration
         specs.append(TestSpec(beta=beta, h=h, duration=duration))
-    noise_std = default_noise_std(opts.loop) if opts.noise is None else opts.noise
+    noise = opts.noise if opts.noise is not None or trimmed else 0.01 * amplitude
+    noise_std = default_noise_std(opts.loop) if noise is None else noise
     for i, test in enumerate(specs, 1):
         margin = noise_margin(model, test.beta, test.h, rate, noise_std)
         if margin < 4.0 and opts.switching == "checks":
@@ -582,7 +522,7 @@ def _loop_spec(opts: LoopOptions, out: Path):
                 "less --noise, or --switching hear",
                 err=True,
             )
-    spec = FlightSpec(model=model, tests=tuple(specs), loop=opts.loop, rate_hz=rate, noise_std=opts.noise,
+    spec = FlightSpec(model=model, tests=tuple(specs), loop=opts.loop, rate_hz=rate, noise_std=noise,
                       bias=opts.bias, setpoint=opts.setpoint, hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1],
                       effects=Effects(**effect_values), seed=opts.seed, start_time=opts.start_time,
                       switching=opts.switching)
@@ -613,11 +553,8 @@ def _simulate_loop(opts: LoopOptions, out: Path, json_target: str | None) -> Non
     if json_target == "-":
         return
     truth = flight.truth
-    m, loop = opts.model, opts.loop
     click.echo(f"wrote {out} ({fmt}, {truth['duration']:.1f} s at {opts.rate_hz:g} Hz) and {sidecar}")
-    unit = output_unit(loop)
-    click.echo(f"  model: Tp {m.Tp:g} s, Td {m.Td:g} s, tau {m.tau:g} s, K {m.K:g} {unit}/s² per command unit; "
-               f"loop {loop}, noise {truth['noise_std']:g} {unit}")
+    click.echo(_model_line(opts, truth["noise_std"]))
     for i, test in enumerate(truth["tests"], 1):
         click.echo(
             f"  test {i}: beta {test['beta']:+.3f}, h {test['h']:.4g} [command], "
@@ -625,3 +562,18 @@ def _simulate_loop(opts: LoopOptions, out: Path, json_target: str | None) -> Non
         )
     if truth["effects_active"]:
         click.echo("  effects: " + ", ".join(f"{n}={truth['effects'][n]:g}" for n in truth["effects_active"]))
+
+
+def _model_line(opts: LoopOptions, noise: float) -> str:
+    """The plant flown: eq. (2)'s parameters with units, or a family's structure and values."""
+    from ..mrft.model import LoopModel
+
+    m, loop = opts.model, opts.loop
+    unit = output_unit(loop)
+    if isinstance(m, LoopModel):
+        return (f"  model: Tp {m.Tp:g} s, Td {m.Td:g} s, tau {m.tau:g} s, K {m.K:g} {unit}/s² per command unit; "
+                f"loop {loop}, noise {noise:g} {unit}")
+    values = ", ".join(f"{n} {p.value:g}{' ' + p.unit if p.unit == 's' else ''}" for n, p in m.parameters.items())
+    structure = m.transfer_function if m.family == "declared" else m.structure
+    return (f"  model {m.family}: {structure}; {values}; noise {noise:g} [output units]"
+            f"{' (1 % of --amplitude)' if opts.noise is None else ''}")

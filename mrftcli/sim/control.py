@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..mrft.describing import df_amplitude, df_frequency
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, PlantModel
 from ..mrft.relays import MrftRelay
 from ..validate import check_beta
 
@@ -40,7 +40,7 @@ _DEG = math.pi / 180.0
 
 
 def _phase_with_hold(model: LoopModel, omega: float, rate_hz: float) -> float:
-    """arg G(j omega) [rad] plus the half-sample lag of the zero-order hold, unwrapped."""
+    """arg G(j omega) [rad] plus the half-sample lag of the zero-order hold, unwrapped (eq. (2) in closed form)."""
     return (
         -0.5 * math.pi
         - math.atan(model.Tp * omega)
@@ -50,7 +50,7 @@ def _phase_with_hold(model: LoopModel, omega: float, rate_hz: float) -> float:
 
 
 def _solve_phase(model: LoopModel, target: float, rate_hz: float) -> float:
-    """Frequency [rad/s] where the (monotone) phase with hold equals ``target`` [rad]."""
+    """Frequency [rad/s] where eq. (2)'s (monotone) phase with hold equals ``target`` [rad]."""
     lo, hi = 1e-6, 1.0
     while _phase_with_hold(model, hi, rate_hz) > target:
         hi *= 2.0
@@ -65,11 +65,29 @@ def _solve_phase(model: LoopModel, target: float, rate_hz: float) -> float:
     return 0.5 * (lo + hi)
 
 
-def df_prediction(model: LoopModel, beta: float, h: float, rate_hz: float = 200.0) -> tuple[float, float]:
-    """Describing-function estimate of the MRFT limit cycle, eq. (4)-(6) of the paper.
+def _phase_crossing(model: PlantModel, target: float, rate_hz: float, lead: float = 0.0) -> float:
+    """The lowest frequency [rad/s] where arg G(j omega), half a tick of hold and ``lead`` [rad] reach ``target``.
+
+    Eq. (2)'s phase is solved in closed form (:func:`_solve_phase`); any other family's is read off a
+    6000-point logarithmic grid up to 0.99 of the Nyquist frequency (its first point at or below the target).
+    """
+    if isinstance(model, LoopModel):
+        return _solve_phase(model, target - lead, rate_hz)
+    omega = np.geomspace(1e-4, 0.99 * math.pi * rate_hz, 6000)
+    phase = np.unwrap(np.angle(model.frequency_response(omega))) - 0.5 * omega / rate_hz + lead
+    below = np.flatnonzero(phase <= target)
+    if below.size == 0:
+        raise InputError("the plant's phase never reaches the one asked for below the Nyquist frequency; "
+                         "check the model parameters or use a smaller beta")
+    return float(omega[below[0]])
+
+
+def df_prediction(model: PlantModel, beta: float, h: float, rate_hz: float = 200.0) -> tuple[float, float]:
+    """Describing-function estimate of the MRFT limit cycle, eq. (4)-(6) of the paper, for any family.
 
     Solves arg G(j Omega) - Omega / (2 rate_hz) = -pi + asin(beta) (the half-sample lag models the
-    zero-order hold) and a = 4 h |G(j Omega)| / pi with :mod:`mrftcli.mrft.describing`. Approximate
+    zero-order hold; eq. (2) with :func:`mrftcli.mrft.describing.df_frequency`, other families on a
+    grid: :func:`_phase_crossing`) and a = 4 h |G(j Omega)| / pi. Approximate
     (first harmonic only); use :mod:`mrftcli.mrft.lprs` for exact figures. Used here only to plan h
     and test durations.
 
@@ -80,11 +98,14 @@ def df_prediction(model: LoopModel, beta: float, h: float, rate_hz: float = 200.
     amplitude : float
         Output amplitude [output units].
     """
-    omega = df_frequency(model, beta, extra_delay=0.5 / rate_hz)
-    return omega, df_amplitude(model, omega, h)
+    if isinstance(model, LoopModel):
+        omega = df_frequency(model, beta, extra_delay=0.5 / rate_hz)
+    else:
+        omega = _phase_crossing(model, -math.pi + math.asin(check_beta(beta)), rate_hz)
+    return omega, df_amplitude(model, omega, h)  # type: ignore[arg-type]  # |G| of any family
 
 
-def noise_margin(model: LoopModel, beta: float, h: float, rate_hz: float, noise_std: float) -> float:
+def noise_margin(model: PlantModel, beta: float, h: float, rate_hz: float, noise_std: float) -> float:
     """How far the output moves per tick near the error's zero crossing, in noise std.
 
     a Omega / (rate_hz noise_std) with the describing-function amplitude a and frequency Omega. The
@@ -129,14 +150,15 @@ class HoldPID:
     phase_margin_deg: float
 
 
-def design_hold_pid(model: LoopModel, rate_hz: float = 200.0, phase_margin_deg: float = 45.0) -> HoldPID:
+def design_hold_pid(model: PlantModel, rate_hz: float = 200.0, phase_margin_deg: float = 45.0) -> HoldPID:
     """Loop-shaping PID for G(s) with a given phase margin at a computed crossover.
 
     The controller shape is fixed relative to the crossover omega_c: derivative time 1.5 / omega_c
     with a filter at N = 10, integral time 6 / omega_c. Its phase at omega_c is then a constant lead;
     omega_c is where arg G(j omega) (with half a sample of hold delay) plus that lead equals
-    -180 deg + phase margin, and Kp puts |C G| = 1 there. The phase of G is monotone, so omega_c is
-    unique; the design holds over the whole DNN-MRFT range (T1 0.015-0.3 s, T2 0.2-2 s, tau up to
+    -180 deg + phase margin, and Kp puts |C G| = 1 there (:func:`_phase_crossing`: eq. (2)'s phase in
+    closed form, another family's first crossing on a grid). The phase of eq. (2) is monotone, so omega_c
+    is unique; the design holds over the whole DNN-MRFT range (T1 0.015-0.3 s, T2 0.2-2 s, tau up to
     0.1 s) and the paper's platforms (checked in the tests with the exact discrete closed loop).
     """
     a, n_filter, ti = 1.5, 10.0, 6.0
@@ -147,7 +169,7 @@ def design_hold_pid(model: LoopModel, rate_hz: float = 200.0, phase_margin_deg: 
         return 1.0 + 1.0 / (ti_ * s) + td * s / (tf * s + 1.0)
 
     lead = math.atan2(c_norm(1.0).imag, c_norm(1.0).real)  # scale-free: same at every omega_c
-    omega_c = _solve_phase(model, -math.pi + phase_margin_deg * _DEG - lead, rate_hz)
+    omega_c = _phase_crossing(model, -math.pi + phase_margin_deg * _DEG, rate_hz, lead)
     g = abs(complex(model.frequency_response(omega_c)))
     kp = 1.0 / (g * abs(c_norm(omega_c)))
     td = a / omega_c

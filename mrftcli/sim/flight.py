@@ -1,9 +1,11 @@
-"""Closed-loop MRFT flight simulator on the loop model of the paper, eq. (2).
+"""Closed-loop MRFT flight simulator on a model object: the paper's eq. (2), a process family, a declared plant.
 
 What is simulated
 -----------------
-The plant is G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) in the realisation of
-:meth:`mrftcli.mrft.model.LoopModel.state_space` (states: output y, rate y', propulsion state). A digital
+The plant is the model's delay-free realisation (:meth:`~mrftcli.mrft.model.PlantModel.realisation`,
+y = C x) behind its transport delay; for eq. (2), G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) with
+the states output y, rate y', propulsion state. Eq. (2) flies about the loop's trim (hover command,
+setpoint), the other families about their operating point, the origin (:mod:`mrftcli.sim.spec`). A digital
 controller runs at ``rate_hz``: at every tick t_k = k / rate_hz it samples the measured output
 (true output, optionally through an extra first-order sensor lag, plus Gaussian noise), computes a
 command and holds it until the next tick (zero-order hold). The command reaches the plant ``tau``
@@ -18,7 +20,7 @@ included, so a sagging battery also shifts the hover trim of the altitude loop (
 bias 0, so there it is a pure gain change).
 
 The flight: ``hover_s`` of hold, then for each :class:`TestSpec` an MRFT of ``duration`` seconds
-followed by ``hold_s`` of hold. During holds a PID designed from the model (:func:`design_hold_pid`)
+followed by ``hold_s`` of hold. During holds a PID designed on the model's frequency response (:func:`design_hold_pid`)
 keeps the setpoint; during tests the MRFT switching rule (checks.md section 2, docs/architecture.md;
 :class:`MrftRelay`) on the sampled noisy error produces command = bias +/- h. A test keeps the sign
 of its first error until the error is ``start_threshold`` beyond zero on the other side, and is
@@ -29,8 +31,8 @@ aborted (hold again) if the error exceeds ``abort_error``, as a flight stack's s
 Integration is exact for the linear plant: between events (command changes reaching the plant,
 rate-limiter kinks) the input is a polynomial of degree <= 2 in time and the state is propagated with
 the matrix exponential of an augmented system; fractional delays are handled exactly (no delay
-quantisation). Only quadratic drag needs a numerical integrator (classical RK4, at most T/20 per step,
-events still handled exactly).
+quantisation). Only eq. (2)'s own nonlinear effects (quadratic drag, thrust rectification) need a numerical
+integrator (classical RK4, at most T/20 per step, events still handled exactly).
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.logtypes import TopicData
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .control import (
     SWITCHING_RULES,
@@ -110,7 +112,7 @@ class SimulatedFlight:
 
 
 def plan_test(
-    model: LoopModel,
+    model: PlantModel,
     beta: float,
     amplitude: float,
     rate_hz: float = 200.0,
@@ -120,7 +122,7 @@ def plan_test(
     """A :class:`TestSpec` whose describing-function amplitude is ``amplitude`` [output units].
 
     The duration covers ``cycles`` predicted periods plus 2 s of transient, and at least
-    ``min_duration`` seconds.
+    ``min_duration`` seconds (:func:`df_prediction`, with half a tick of hold at ``rate_hz`` [Hz]).
     """
     if not amplitude > 0:
         raise InputError(f"the planned amplitude must be positive, got {amplitude!r}")
@@ -176,27 +178,29 @@ def _command_delays(spec: FlightSpec, settings: FlightSettings, jitter: np.ndarr
     phi = math.exp(-T / eff.delay_jitter_correlation)
     innov = eff.delay_jitter * math.sqrt(1.0 - phi * phi) * jitter
     innov[0] = eff.delay_jitter * jitter[0]  # stationary start
-    delays: np.ndarray = fifo_delays(gauss_markov(innov, phi), spec.model.tau, T)
+    delays: np.ndarray = fifo_delays(gauss_markov(innov, phi), spec.model.delay, T)
     return delays
 
 
 @dataclass(frozen=True)
 class PlantSetup:
-    """The linear part of the plant, in the realisation of :meth:`LoopModel.state_space`.
+    """The linear part of the plant, in the model's realisation (:meth:`PlantModel.realisation`).
 
     Attributes
     ----------
     A, B : ndarray
         State matrix and input vector (the sensor-lag and flex-mode states appended when on).
-    meas_index : int
-        The state the sensor measures (the output, or its lagged / flexed version).
+    C, C_meas : ndarray
+        The rows giving the true output and what the sensor measures (the output, or its lagged /
+        flexed version).
     x0 : ndarray
-        The trimmed hover at the setpoint.
+        The trimmed hover at the setpoint (the origin for a family other than eq. (2)).
     """
 
     A: np.ndarray
     B: np.ndarray
-    meas_index: int
+    C: np.ndarray
+    C_meas: np.ndarray
     x0: np.ndarray
 
     @property
@@ -206,35 +210,41 @@ class PlantSetup:
 
 
 def _plant(spec: FlightSpec, r: float) -> PlantSetup:
-    """The plant's state space with the sensor lag (one state) and the flex mode (two) appended."""
+    """The plant's state space with the sensor lag (one state) and the flex mode (two) appended.
+
+    The trimmed state has the output at the setpoint ``r``, at rest: eq. (2)'s realisation measures its
+    first (integrating) state, so that is ``r C``; the other families fly at r = 0 (checked by the spec).
+    """
     eff = spec.effects
-    A, B, _ = spec.model.state_space()
-    n = 3
+    ss = spec.model.realisation()
+    A, B, C = ss.A, ss.B, np.asarray(ss.C, dtype=float)
+    n = n0 = A.shape[0]
+    meas = C
     if eff.sensor_lag > 0:
         A = np.pad(A, ((0, 1), (0, 1)))
-        A[3, 0] = 1.0 / eff.sensor_lag
-        A[3, 3] = -1.0 / eff.sensor_lag
+        A[n, :n] = C / eff.sensor_lag
+        A[n, n] = -1.0 / eff.sensor_lag
         B = np.append(B, 0.0)
-        n = 4
-    meas_index = 3 if eff.sensor_lag > 0 else 0
+        n += 1
+        meas = np.eye(n)[n - 1]
     if eff.flex_mode_hz > 0:
         # a structural mode between the (possibly lagged) output and the sensor: two more states
         wn = 2.0 * math.pi * eff.flex_mode_hz
         A = np.pad(A, ((0, 2), (0, 2)))
         A[n, n + 1] = 1.0
-        A[n + 1, meas_index] = wn * wn
+        A[n + 1, :n] = wn * wn * np.pad(meas, (0, n - meas.size))
         A[n + 1, n] = -wn * wn
         A[n + 1, n + 1] = -2.0 * eff.flex_mode_damping * wn
         B = np.append(B, [0.0, 0.0])
-        meas_index = n
         n += 2
+        meas = np.eye(n)[n - 2]
     x = np.zeros(n)
-    x[0] = r
+    x[:n0] = r * C
     if eff.sensor_lag > 0:
-        x[3] = r
+        x[n0] = r  # the lag at rest on the output
     if eff.flex_mode_hz > 0:
-        x[meas_index] = r
-    return PlantSetup(A, B, meas_index, x)
+        x[n - 2] = r  # the mode too (its velocity 0)
+    return PlantSetup(A, B, np.pad(C, (0, n - n0)), np.pad(meas, (0, n - meas.size)), x)
 
 
 def _abort_limits(spec: FlightSpec, noise_std: float) -> list[float]:
@@ -334,8 +344,8 @@ def _drive(spec: FlightSpec, settings: FlightSettings) -> Drive:
     eff, T, bias = spec.effects, settings.T, settings.bias
     shaper = command_shaper(bias, eff.asymmetric_gain, eff.actuator_saturation, eff.dead_zone)
     u_init = bias - eff.input_bias  # the command that keeps the trimmed hover at t = 0
-    m_delay = int(math.floor(spec.model.tau / T + 1e-12))
-    frac = spec.model.tau - m_delay * T
+    m_delay = int(math.floor(spec.model.delay / T + 1e-12))
+    frac = spec.model.delay - m_delay * T
     if frac < 1e-12 * T:
         frac = 0.0
     return Drive(T, bias, eff.input_bias, eff.gain_drift, eff.actuator_rate_limit, shaper,
@@ -345,7 +355,7 @@ def _drive(spec: FlightSpec, settings: FlightSettings) -> Drive:
 @dataclass(frozen=True)
 class TickRecords:
     """Per controller tick: the command [command units], the true and measured output [output units]
-    and the true output rate [output units / s]."""
+    and eq. (2)'s true output rate [output units / s] (its second state; the quadratic drag's truth)."""
 
     command: np.ndarray
     y_true: np.ndarray
@@ -479,21 +489,22 @@ def _fly_fixed_delay(period_map: PeriodMap, plant: PlantSetup, drive: Drive,
                      on_tick: Callable[[int], None] | None) -> None:
     """The tick loop of the fast path (the hot loop: one affine map per period on plain floats)."""
     (p00, p01, p02, p03), (p10, p11, p12, p13), (p20, p21, p22, p23), (p30, p31, p32, p33) = period_map.P
+    c0, c1, c2, c3 = np.pad(plant.C, (0, 4 - plant.n)).tolist()
+    m0, m1, m2, m3 = np.pad(plant.C_meas, (0, 4 - plant.n)).tolist()
     a00, a01, a02, a03 = period_map.qa0
     a10, a11, a12, a13 = period_map.qa1
     b00, b01, b02, b03 = period_map.qb0
     b10, b11, b12, b13 = period_map.qb1
     x0, x1, x2, x3 = np.pad(plant.x0, (0, 4 - plant.n)).tolist()
-    lagged = plant.n == 4
     T, frac, gd, bias, ib, shaper = drive.T, drive.frac, drive.gain_drift, drive.bias, drive.input_bias, drive.shaper
     # hist = [u_{k-m-1}, ..., u_k]: u_{k-m-1} acts on [t_k, t_k + frac), u_{k-m} on [t_k + frac, t_{k+1})
     hist = deque([drive.u_plant] * (drive.m_delay + 2), maxlen=drive.m_delay + 2)
     command, y_true, y_meas, rate_true = ticks.command, ticks.y_true, ticks.y_meas, ticks.rate_true
     for k in range(command.size):
         tk = k * T
-        y_true[k] = x0
+        y_true[k] = c0 * x0 + c1 * x1 + c2 * x2 + c3 * x3
         rate_true[k] = x1
-        ym = (x3 if lagged else x0) + noise[k]
+        ym = m0 * x0 + m1 * x1 + m2 * x2 + m3 * x3 + noise[k]
         y_meas[k] = ym
         u = controller.step(k, ym)
         command[k] = u
@@ -521,6 +532,10 @@ def _piece_propagator(spec: FlightSpec, prop: LinearPropagator, drive: Drive,
     eff, model = spec.effects, spec.model
     gd, bias, ib = drive.gain_drift, drive.bias, drive.input_bias
     quadratic, rotor = eff.quadratic_drag > 0, eff.thrust_rectification > 0
+    if not (quadratic or rotor):
+        return lambda x, h, ts, a0, slope: prop.step(x, h, (1.0 + gd * ts) * a0 - bias + ib,
+                                                     (1.0 + gd * ts) * slope + gd * a0, 2.0 * gd * slope)
+    assert isinstance(model, LoopModel)  # eq. (2)'s own effects (checked by the spec)
     K, c_drag = model.K, eff.quadratic_drag
     inv_tp = 1.0 / model.Tp
     inv_ts = 1.0 / eff.sensor_lag if eff.sensor_lag > 0 else 0.0
@@ -537,8 +552,6 @@ def _piece_propagator(spec: FlightSpec, prop: LinearPropagator, drive: Drive,
         if rotor_plant is not None:
             out: np.ndarray = rk4_rotor(x, h, c0, c1, c2, rotor_plant)
             return out
-        if not quadratic:
-            return prop.step(x, h, c0, c1, c2)
         out = rk4_quadratic(x, h, c0, c1, c2, K, c_drag, inv_tp, inv_ts, rk4_step)
         return out
 
@@ -561,13 +574,14 @@ def _fly_events(spec: FlightSpec, plant: PlantSetup, prop: LinearPropagator, dri
         if linear and float(np.abs(plant.A).sum(axis=0).max()) * T <= 2.0 else None
     propagate = _piece_propagator(spec, prop, drive)
     x = plant.x0.copy()
+    rate_index = min(1, plant.n - 1)  # eq. (2)'s y' (a first-order family has no second state)
     act = target = drive.u_plant  # the actuator value a(t) now, and the delayed command reaching it
     pending: deque[tuple[float, float]] = deque()  # (application time from start, command)
     for k in range(ticks.command.size):
         tk = k * T
-        ticks.y_true[k] = x[0]
-        ticks.rate_true[k] = x[1]
-        ym = float(x[plant.meas_index]) + noise[k]
+        ticks.y_true[k] = float(plant.C @ x)
+        ticks.rate_true[k] = x[rate_index]
+        ym = float(plant.C_meas @ x) + noise[k]
         ticks.y_meas[k] = ym
         u = controller.step(k, ym)
         ticks.command[k] = u

@@ -1,6 +1,9 @@
 """What a simulated flight leaves behind: the ground-truth sidecar (``<log>.truth.json``) and the
 topics in the reference layout, written through :mod:`mrftcli.io`.
 
+The sidecar names eq. (2)'s parameters at its top level (``Tp``, ``Td``, ``tau``, ``K``); a flight of
+another family has its ``family``, its model JSON (``model``) and ``parameters`` there instead.
+
 docs/simulator.md describes the sidecar's fields.
 """
 
@@ -17,6 +20,7 @@ import numpy as np
 
 from ..io.atomic import atomic_directory, atomic_path, check_output_path, write_text_atomic
 from ..io.logtypes import TopicData
+from ..mrft.model import LoopModel, PlantModel
 from .control import HoldPID, noise_margin
 from .spec import FlightSettings, FlightSpec
 
@@ -56,10 +60,7 @@ def truth_record(spec: FlightSpec, settings: FlightSettings, pid: HoldPID, rate_
         "format": "mrft-ident simulation truth",
         "version": 1,
         "mrftcli_version": __version__,
-        "Tp": model.Tp,
-        "Td": model.Td,
-        "tau": model.tau,
-        "K": model.K,
+        **_model_truth(model),
         "loop": spec.loop,
         "rate_hz": spec.rate_hz,
         "noise_std": noise_std,
@@ -95,6 +96,14 @@ def truth_record(spec: FlightSpec, settings: FlightSettings, pid: HoldPID, rate_
     return truth
 
 
+def _model_truth(model: PlantModel) -> dict[str, Any]:
+    """The plant flown: eq. (2)'s four parameters, or another family's name, model JSON and parameters."""
+    if isinstance(model, LoopModel):
+        return {"Tp": model.Tp, "Td": model.Td, "tau": model.tau, "K": model.K}
+    return {"family": model.family, "model": model.to_json(),
+            "parameters": {name: p.value for name, p in model.parameters.items()}}
+
+
 def _test_truths(spec: FlightSpec, settings: FlightSettings, rate_true: np.ndarray, aborted: Sequence[int | None],
                  abort_limits: Sequence[float]) -> list[dict[str, Any]]:
     """The sidecar's ``tests``: each test's span, settings and, with the effects that change them,
@@ -115,9 +124,9 @@ def _test_truths(spec: FlightSpec, settings: FlightSettings, rate_true: np.ndarr
             "abort_error": limit,
             "noise_margin": noise_margin(model, test.beta, test.h, spec.rate_hz, settings.noise_std),
         }
-        if eff.gain_drift != 0:
+        if eff.gain_drift != 0 and "K" in model.parameters:
             t_mid = 0.5 * (k0 + k1) * T
-            entry["K_effective"] = model.K * (1.0 + eff.gain_drift * t_mid)
+            entry["K_effective"] = model.parameters["K"].value * (1.0 + eff.gain_drift * t_mid)
         if eff.quadratic_drag > 0:
             half = rate_true[(k0 + k1) // 2 : k1]
             v_amp = 0.5 * (half.max() - half.min()) if half.size else float("nan")

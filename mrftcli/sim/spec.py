@@ -1,6 +1,10 @@
 """What to fly: the simulator's specs (:class:`FlightSpec` of :class:`TestSpec` s and :class:`Effects`),
 the loop defaults, their validation and the flight's schedule (:class:`FlightSettings`).
 
+The plant is any model object (:class:`~mrftcli.mrft.model.PlantModel`): eq. (2) (``LoopModel``), a
+process family or a declared structure. Eq. (2) flies about the loop's trim (the hover command, the
+setpoint); the other families about their operating point, the origin (command ``bias`` holds output 0).
+
 Times in seconds, rates in Hz, outputs in output units (m or rad), commands in command units.
 """
 
@@ -13,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.logtypes import LOOPS
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_beta, check_rate
 from .control import SWITCHING_RULES
 
@@ -92,8 +96,8 @@ class Effects:
         [command units] (ESC dead band, stiction); beyond it the response starts from zero.
     thrust_rectification : float
         Hover thrust above the zero-thrust command [command units]: the propulsion lag Tp then acts
-        on the rotor speed and the thrust goes with its square (``mrftcli.sim.plant.rk4_rotor``);
-        0 means the linear propulsion of eq. (2).
+        on the rotor speed and the thrust goes with its square (``mrftcli.mrft.propagate.rk4_rotor``);
+        0 means the linear propulsion of eq. (2). Like ``quadratic_drag``, eq. (2)'s own (its states).
     flex_mode_hz : float
         Frequency [Hz] of a lightly damped structural mode between the vehicle and its sensor
         (frame flexibility: y_measured = w_n^2 / (s^2 + 2 zeta w_n s + w_n^2) y); 0 means none.
@@ -135,15 +139,15 @@ class TestSpec:
 
 @dataclass(frozen=True)
 class FlightSpec:
-    """Everything that defines one simulated flight."""
+    """Everything that defines one simulated flight (``model``: the plant with its true parameters)."""
 
-    model: LoopModel
+    model: PlantModel
     tests: tuple[TestSpec, ...]
     loop: str = "altitude"
     rate_hz: float = 200.0
     noise_std: float | None = None  # output units; None -> 0.5 mm (altitude) / 0.05 deg (roll, pitch)
-    bias: float | None = None  # hover command; None -> loop default
-    setpoint: float | None = None  # None -> loop default (1 m altitude, 0 rad attitude)
+    bias: float | None = None  # hover command; None -> loop default (eq. (2)), 0 (other families)
+    setpoint: float | None = None  # None -> loop default (1 m altitude, 0 rad attitude); 0 for other families
     hover_s: float = 5.0
     hold_s: float = 4.0
     effects: Effects = field(default_factory=Effects)
@@ -239,6 +243,9 @@ def _check_flight(spec: FlightSpec) -> None:
             raise InputError(f"{name} must be a non-negative time in seconds, got {value!r}")
     if spec.abort_error is not None and not spec.abort_error > 0:
         raise InputError(f"abort_error must be positive, got {spec.abort_error!r}")
+    if not isinstance(spec.model, LoopModel) and spec.setpoint not in (None, 0.0):
+        raise InputError(f"a {spec.model.family} plant flies about its operating point, output 0: "
+                         "leave the setpoint out")
 
 
 def _check_tests(spec: FlightSpec) -> None:
@@ -289,6 +296,9 @@ def _check_effects(spec: FlightSpec) -> None:
         )
     if (e.quadratic_drag > 0 or e.thrust_rectification > 0) and e.flex_mode_hz > 0:
         raise InputError("flex_mode_hz cannot be combined with quadratic_drag or thrust_rectification")
+    if (e.quadratic_drag > 0 or e.thrust_rectification > 0) and not isinstance(spec.model, LoopModel):
+        raise InputError("quadratic_drag and thrust_rectification change eq. (2)'s states; a "
+                         f"{spec.model.family} plant takes the other effects")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -327,6 +337,7 @@ def flight_settings(spec: FlightSpec) -> FlightSettings:
     """:func:`validate_spec`, then the defaults of the loop and the schedule: ``hover_s`` of hold,
     then each test followed by ``hold_s`` of hold, in whole controller ticks."""
     validate_spec(spec)
+    trimmed = isinstance(spec.model, LoopModel)  # eq. (2): the loop's trim; other families: the origin
     rate = spec.rate_hz
     k = int(round(spec.hover_s * rate))
     ranges = []
@@ -337,8 +348,8 @@ def flight_settings(spec: FlightSpec) -> FlightSettings:
     return FlightSettings(
         T=1.0 / rate,
         noise_std=default_noise_std(spec.loop) if spec.noise_std is None else float(spec.noise_std),
-        bias=default_bias(spec.loop) if spec.bias is None else float(spec.bias),
-        setpoint=default_setpoint(spec.loop) if spec.setpoint is None else float(spec.setpoint),
+        bias=float(spec.bias) if spec.bias is not None else default_bias(spec.loop) if trimmed else 0.0,
+        setpoint=float(spec.setpoint) if spec.setpoint is not None else default_setpoint(spec.loop) if trimmed else 0.0,
         n_ticks=k,
         ranges=tuple(ranges),
     )

@@ -1,4 +1,4 @@
-"""``diagnose --model NAME`` (mrftcli.diagnose.process_plant) on recordings of tests/process_sim.py.
+"""``diagnose --model NAME`` (mrftcli.diagnose.diagnose with a process family) on recordings of tests/process_sim.py.
 
 The oracle is the independent simulator: a FOPDT recorded under two hysteresis relays (one biased) is a
 FOPDT, so the check must call it consistent; a second-order plant recorded the same way and analysed
@@ -18,7 +18,7 @@ from cli_helpers import run_main
 sys.path.insert(0, str(Path(__file__).parent))
 from process_sim import Window, simulate, write_csv  # noqa: E402
 
-from mrftcli.diagnose.process_plant import ProcessDiagnosis, diagnose_process  # noqa: E402
+from mrftcli.diagnose import ProcessDiagnosis, diagnose  # noqa: E402
 from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
@@ -47,13 +47,14 @@ def sopdt_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def fopdt_diagnosis(fopdt_csv: Path) -> ProcessDiagnosis:
-    return diagnose_process(read_flight(fopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
+    return diagnose(read_flight(fopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
 
 
 def test_clean_fopdt_under_two_relays_is_consistent(fopdt_diagnosis):
     result = fopdt_diagnosis
     assert result.consistent and result.verdict == "consistent with FOPDT within the tests' scatter"
     assert not result.located and len(result.checks) == 2
+    assert not result.found and result.candidates  # the library was fitted and named nothing
     for check in result.checks:
         # each test's cycle predicted from the OTHER test's model: within 1 % and 3 sd
         assert check.frequency_error is not None and abs(check.frequency_error) < 0.01
@@ -63,11 +64,17 @@ def test_clean_fopdt_under_two_relays_is_consistent(fopdt_diagnosis):
         assert all(b.ratio < 3 for b in check.all_bands + check.held_out_bands)
 
 
-def test_second_order_plant_analysed_as_fopdt_is_located(sopdt_csv):
-    result = diagnose_process(read_flight(sopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
+def test_second_order_plant_analysed_as_fopdt_is_located_and_its_second_lag_named(sopdt_csv):
+    result = diagnose(read_flight(sopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
     assert not result.consistent
-    assert result.verdict.startswith("unexplained by FOPDT: test ")
-    assert "harmonics 2-3 (most at 3)" in result.verdict  # the FOPDT cycle's corners: the 3rd harmonic
+    # the library names the lag FOPDT leaves out: the simulator's lags are 0.7 s and 0.3 s, FOPDT's T
+    # takes one, the effect the other; each test predicted from the other at least halves its error
+    assert result.verdict.startswith("found: sensor_lag")
+    (lag,) = result.effects
+    fopdt_T = lag.refit["T"]  # FOPDT refitted with the lag taken out
+    assert sorted([lag.value, fopdt_T]) == pytest.approx([0.3, 0.7], rel=0.15)
+    assert lag.held_out_after < 0.5 * lag.held_out_before
+    assert "harmonics 2-3 (most at 3)" in result.located[0]  # the FOPDT cycle's corners: the 3rd harmonic
     for check in result.checks:
         bands = {b.band: b for b in check.all_bands}
         assert bands["2-3"].ratio > 3 and bands["2-3"].peak == 3
@@ -78,10 +85,15 @@ def test_second_order_plant_analysed_as_fopdt_is_located(sopdt_csv):
 def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
     result = fopdt_diagnosis
     data = json.loads(json.dumps(result.to_json()))
-    assert data["schema_version"] == 1 and data["consistent"] is True
+    assert data["schema_version"] == 2 and data["consistent"] is True
     assert data["checks"][0]["held_out"]["frequency_hz"] == pytest.approx(result.checks[0].held_out_frequency_hz)
+    assert {c["name"] for c in data["candidates"]} >= {"sensor_lag", "dead_zone", "delay_jitter"}
     back = ProcessDiagnosis.from_json(data)
     assert back.to_json() == result.to_json()
+    # version 1 (before issue 36: no effects fitted) is read for one release
+    old = {k: v for k, v in data.items() if k not in ("candidates", "found")}
+    v1 = ProcessDiagnosis.from_json({**old, "schema_version": 1})
+    assert v1.verdict == result.verdict and v1.candidates == () and v1.found == ()
     with pytest.raises(InputError, match="schema_version"):
         ProcessDiagnosis.from_json({**data, "schema_version": 99})
     with pytest.raises(InputError, match="process diagnosis JSON"):
@@ -94,7 +106,7 @@ def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
                    "--model", "fopdt", "--json", str(out))  # main() in this process (cli_helpers)
     assert run.returncode == 0, run.stderr
     lines = run.stdout.splitlines()
-    assert lines[0].startswith("unexplained by FOPDT: test ")
+    assert lines[0].startswith("found: sensor_lag (T_lag ")
     assert "frequency [Hz]" in lines[1] and "Traceback" not in run.stderr
     assert ProcessDiagnosis.from_json(json.loads(out.read_text())).verdict == lines[0]
 
@@ -114,7 +126,7 @@ def test_cli_diagnose_process_options_need_a_process_model(fopdt_csv):
 
 def test_one_test_is_not_held_out_and_says_so(fopdt_csv):
     flight = read_flight(fopdt_csv, READ, echo_warnings=False)
-    result = diagnose_process(flight, family_model("fopdt"), windows=[(0.0, 28.0)])
+    result = diagnose(flight, family_model("fopdt"), windows=[(0.0, 28.0)])
     (check,) = result.checks
     assert check.held_out_frequency_hz is None and check.frequency_z is None
     assert check.note == "no other test to hold it out against"

@@ -14,11 +14,12 @@ from .model_options import (build_model, format_general, parse_windows, relay_op
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
 
+from ..diagnose.records import DiagnosisResult
+
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
     from ..analyze.residual import ResidualVerdict
-    from ..diagnose.process_plant import ProcessDiagnosis
-    from ..diagnose.records import DiagnosisResult
+    from ..diagnose.checks import ProcessDiagnosis
     from ..io.logtypes import FlightLog
 
 
@@ -176,8 +177,10 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
 
     With --model fopdt|sopdt|ipdt|foipdt or --model-file FILE (a process plant), each test's mean
     cycle is checked against the exact limit cycle of the model identified from the other tests and
-    from all tests: frequency and amplitude against their scatter, the waveform residual by harmonic
-    against the noise; the first line is the verdict (docs/process-plants.md).
+    from all tests, and the same library of physics (sensor_lag, actuator_rate_limit, dead_zone,
+    actuator_saturation, asymmetric_gain, input_bias, gain_drift, bias_drift, delay_jitter) is fitted
+    on the model object; an effect is named only when it improves each test's prediction from the
+    other tests. The first line is the verdict (docs/process-plants.md).
 
     Exit codes: 0 ok (with or without a finding), 2 bad option, 3 unreadable log, 4 no relay test,
     6 only one beta tested (as analyze), 7 the diagnosis could not be carried out.
@@ -186,14 +189,16 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
     """
     from ..diagnose.selection import diagnose as run
     from ..io import ReadOptions, read_flight
+    from ..mrft.model import soiptd_model
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
     if model_name != "soiptd":
         _diagnose_process(log, model_name, (params, ranges, windows, relay_kind, eps), min_cycles, json_target,
-                          report_dir, read_options)
+                          (report_dir, quiet), read_options)
         return
     _check_soiptd(Tp, params or ranges or windows or relay_kind or eps is not None)
+    model = soiptd_model(Tp)
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         flight = read_flight(log, ReadOptions(**read_options), progress=progress)
     given: AnalysisResult | None = None
@@ -204,7 +209,8 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         # the diagnosis reuses an analysis made with the user's cycle count (its own default is analyze's, 3)
         given = analyze_given(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
-        result = run(flight, Tp, analysis=given, progress=progress)
+        result = run(flight, model, analysis=given, progress=progress)
+    assert isinstance(result, DiagnosisResult)  # eq. (2)'s strategy
     result, analysis = _with_analysis(result, flight, Tp, given)
     to_stdout = json_target == "-"
     if json_target:
@@ -252,27 +258,48 @@ def _check_soiptd(Tp: float | None, process_options: bool) -> None:
 
 
 def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...], min_cycles: int,
-                      json_target: str | None, report_dir: str | None, read_options: dict[str, Any]) -> None:
-    """``diagnose --model NAME``: a process plant's tests against its model
-    (:func:`mrftcli.diagnose.process_plant.diagnose_process`)."""
+                      json_target: str | None, report: tuple[str | None, bool], read_options: dict[str, Any]) -> None:
+    """``diagnose --model NAME``: the same driver (:func:`mrftcli.diagnose.selection.diagnose`) on a
+    process family's model object."""
     from ..analyze.general import RelayOptions
     from ..analyze.screen import log_start
-    from ..diagnose.process_plant import diagnose_process
+    from ..diagnose.checks import ProcessDiagnosis
+    from ..diagnose.selection import diagnose as run
     from ..io import ReadOptions, read_flight
 
     params, ranges, windows, relay_kind, eps = model_options
+    report_dir, quiet = report
     if report_dir:
         raise click.UsageError("--report works with --model soiptd only so far; --json FILE|- writes the diagnosis")
     model = build_model(model_name, params, ranges)
     flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
-    result = diagnose_process(flight, model, relay=RelayOptions(relay_kind, None, eps),
-                              windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
+    with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
+        result = run(flight, model, progress=progress, relay=RelayOptions(relay_kind, None, eps),
+                     windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
+    assert isinstance(result, ProcessDiagnosis)  # a process family's strategy
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":
         click.echo(format_process(result))
     for w in result.analysis.warnings:
         click.echo(f"warning: {w}", err=True)
+
+
+def _effect_rows(result: ProcessDiagnosis) -> list[str]:
+    """The library's candidates: parameter, delta BIC, held-out error without and with, found."""
+    if not result.candidates:
+        return []
+    lines = ["effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
+             "error: RMS over the tests of the relative error of the views the effect changes):",
+             f"  {'effect':<22} {'parameter [unit]':>34} {'delta BIC':>10} {'held-out error':>18}  views"]
+    named = {(e.name, e.with_) for e in result.effects}
+    for c in result.candidates:
+        label = c.name if not c.with_ else f"+ {c.name} (with {c.with_})"
+        par = f"{c.parameter} = {_g(c.value)} {c.unit}"
+        mark = "  <- found" if (c.name, c.with_) in named else ""
+        lines.append(f"  {label:<22} {par:>34} {_g(c.delta_bic, '.1f'):>10} {_g(c.held_out_before, '.3f'):>8} -> "
+                     f"{_g(c.held_out_after, '.3f'):<6}  {'+'.join(c.views)}{mark}")
+    return lines
 
 
 def _pct_z(err: float | None, z: float | None) -> str:
@@ -307,6 +334,7 @@ def format_process(result: ProcessDiagnosis) -> str:
         if c.note:
             by_note.setdefault(c.note, []).append(str(c.index + 1))
     lines += [f"test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
+    lines += _effect_rows(result)
     lines += [f"note: {n}" for n in result.notes]
     lines.append("")
     lines.append(format_general(result.analysis))

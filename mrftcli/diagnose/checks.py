@@ -1,8 +1,9 @@
-"""``diagnose --model NAME``: where a process-plant model and its recording disagree.
+"""Where a model and its recording disagree, test by test: the waveform checks of :func:`mrftcli.diagnose.diagnose`.
 
-Stages, each returning a frozen record:
+For every family but eq. (2) (whose cycles are compared feature by feature, :mod:`.candidates`), the
+driver (:func:`mrftcli.diagnose.selection.diagnose`) runs these stages after the analysis:
 
-1. the analysis (:func:`mrftcli.analyze.general.analyze_general`): the tests, their relays, the model
+1. the analysis (:func:`mrftcli.analyze.general.general_analysis`): the tests, their relays, the model
    identified from all tests and each test's held-out cycle (from the model of the other tests);
 2. the measured waveform (:func:`measured_waveform`): each test's stable cycles as harmonics of their
    period, averaged in the cycle's phase (the noise averages out), with the standard error of each
@@ -12,11 +13,10 @@ Stages, each returning a frozen record:
    frequency and amplitude errors against their scatter (the measurement's standard error and the
    held-out model's parameter spread), the waveform residual by harmonic band (fundamental, 2-3,
    higher) against the noise;
-4. the verdict (:func:`diagnose_process`): consistent, or unexplained with where the residual sits.
-
-No effect is named: an effect is named only when its refit improves the held-out cycles, and no refit
-of a process plant's effects (asymmetry, actuator limit, delay jitter) is built yet; even harmonics
-above the noise are pointed out as where an asymmetric response would show.
+4. the library of physics (:mod:`.effects`): each effect fitted and held out, named only when it
+   improves the held-out prediction;
+5. the verdict (:func:`verdict`): the effects found, or consistent, or unexplained with where the
+   residual sits.
 """
 
 from __future__ import annotations
@@ -29,8 +29,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2, norm
 
-from ..analyze.general import (GeneralAnalysis, RelayOptions, TestSummary, general_analysis, identify_points,
-                               measure_tests, response_points)
+from ..analyze.general import GeneralAnalysis, TestSummary, identify_points, response_points
 from ..analyze.smooth_cycle import CycleFit, cycle_fits
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog
@@ -40,12 +39,13 @@ from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
 from ..mrft.model import PlantModel
 from ..segment.records import MrftTest
+from .effects import EffectFit
 
-__all__ = ["ProcessDiagnosis", "TestCheck", "BandResidual", "MeasuredWaveform", "diagnose_process",
-           "measured_waveform", "check_test", "PROCESS_DIAGNOSIS_SCHEMA_VERSION", "Z_LIMIT"]
+__all__ = ["ProcessDiagnosis", "TestCheck", "BandResidual", "MeasuredWaveform", "measured_waveform", "check_test",
+           "locate", "misfit", "verdict", "PROCESS_DIAGNOSIS_SCHEMA_VERSION", "Z_LIMIT"]
 
 #: version of :meth:`ProcessDiagnosis.to_json`
-PROCESS_DIAGNOSIS_SCHEMA_VERSION = 1
+PROCESS_DIAGNOSIS_SCHEMA_VERSION = 2  # 2: the effects fitted (issue 36)
 #: a difference beyond this many standard deviations is a disagreement
 Z_LIMIT = 3.0
 #: the harmonic bands the residual is reported in (fundamental; 2-3: even 2 shows an asymmetry; higher)
@@ -237,6 +237,10 @@ class ProcessDiagnosis:
         Each disagreement, largest first, with units and sigma.
     notes : tuple of str
         What the reader needs to weigh the verdict (what is not checked).
+    candidates : tuple of EffectFit
+        Every effect of the library fitted and held out (alone, then on top of the first found).
+    found : tuple of str
+        The effects named, in order (each a ``candidates`` row with ``found``).
     """
 
     analysis: GeneralAnalysis
@@ -244,6 +248,17 @@ class ProcessDiagnosis:
     verdict: str
     located: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    candidates: tuple[EffectFit, ...] = ()
+    found: tuple[str, ...] = ()
+
+    @property
+    def effects(self) -> tuple[EffectFit, ...]:
+        """The rows of the effects named (the second one's row fitted on top of the first)."""
+        out: list[EffectFit] = []
+        for name in self.found:
+            prior = "+".join(f.name for f in out)
+            out += [c for c in self.candidates if c.name == name and c.with_ == prior][:1]
+        return tuple(out)
 
     @property
     def consistent(self) -> bool:
@@ -255,16 +270,20 @@ class ProcessDiagnosis:
         return {"schema_version": PROCESS_DIAGNOSIS_SCHEMA_VERSION, "kind": "process_diagnosis",
                 "verdict": self.verdict, "consistent": self.consistent, "z_limit": Z_LIMIT,
                 "checks": [c.to_json() for c in self.checks], "located": list(self.located),
-                "notes": list(self.notes), "analysis": self.analysis.to_json()}
+                "notes": list(self.notes), "found": list(self.found),
+                "candidates": [c.to_json() for c in self.candidates], "analysis": self.analysis.to_json()}
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> ProcessDiagnosis:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        data = check_schema_version(data, "process diagnosis JSON", PROCESS_DIAGNOSIS_SCHEMA_VERSION)
+        # version 1 (before issue 36) had no effects: read for one release
+        data = check_schema_version(data, "process diagnosis JSON", range(1, PROCESS_DIAGNOSIS_SCHEMA_VERSION + 1))
         try:
             return cls(GeneralAnalysis.from_json(data["analysis"]),
                        tuple(TestCheck.from_json(c) for c in data["checks"]), str(data["verdict"]),
-                       tuple(str(s) for s in data.get("located", [])), tuple(str(s) for s in data.get("notes", [])))
+                       tuple(str(s) for s in data.get("located", [])), tuple(str(s) for s in data.get("notes", [])),
+                       tuple(EffectFit.from_json(c) for c in data.get("candidates", [])),
+                       tuple(str(s) for s in data.get("found", [])))
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"process diagnosis JSON: bad or missing field ({err})") from None
 
@@ -470,7 +489,7 @@ def _family_name(model: PlantModel) -> str:
     return model.family.upper() if model.family != "declared" else "the declared model"
 
 
-def _locate(check: TestCheck) -> list[tuple[float, str]]:
+def locate(check: TestCheck) -> list[tuple[float, str]]:
     """(size in sigma, text) of each disagreement of one test."""
     out = []
     k = check.index + 1
@@ -487,7 +506,7 @@ def _locate(check: TestCheck) -> list[tuple[float, str]]:
         if b.ratio > Z_LIMIT:
             share = 100 * b.residual / check.amplitude if check.amplitude > 0 else math.nan
             even = (" (even harmonics: an asymmetric response or an output bias the relay's bias does not "
-                    "explain would put it here; not refitted)" if b.first <= 2 <= b.last and check.even_ratio > Z_LIMIT
+                    "explain would put it here)" if b.first <= 2 <= b.last and check.even_ratio > Z_LIMIT
                     else "")
             out.append((b.ratio, f"test {k}: waveform residual at {b.describe()} against the model of all tests: "
                                  f"{b.residual:.3g} [output units] RMS, {share:.1f} % of the amplitude, "
@@ -495,7 +514,7 @@ def _locate(check: TestCheck) -> list[tuple[float, str]]:
     return out
 
 
-def _misfit(ident: LtiIdentification | None) -> tuple[float, str] | None:
+def misfit(ident: LtiIdentification | None) -> tuple[float, str] | None:
     """(size in sigma, text) when the model of all tests misses the response points beyond their scatter."""
     if ident is None or ident.chi2_dof is None:
         return None
@@ -510,8 +529,15 @@ def _misfit(ident: LtiIdentification | None) -> tuple[float, str] | None:
                f"{dof} degrees of freedom (p {'< 1e-16' if p < 1e-16 else f'= {p:.2g}'}; 1 is within their scatter)")
 
 
-def _verdict(model: PlantModel, checks: Sequence[TestCheck], located: Sequence[str]) -> str:
+def verdict(model: PlantModel, checks: Sequence[TestCheck], located: Sequence[str],
+            effects: Sequence[EffectFit] = ()) -> str:
+    """The first line: the effects found (with the held-out error before and after), else consistent, else
+    unexplained with where the residual sits."""
     name = _family_name(model)
+    if effects:
+        return "found: " + "; ".join(
+            f"{e.name} ({e.parameter} {e.value:.4g} {e.unit}; held-out error {e.held_out_before:.3f} -> "
+            f"{e.held_out_after:.3f}, delta BIC {e.delta_bic:.0f})" for e in effects) + f" on top of {name}"
     if not located:
         held = sum(c.held_out_frequency_hz is not None for c in checks)
         if not held:
@@ -519,50 +545,4 @@ def _verdict(model: PlantModel, checks: Sequence[TestCheck], located: Sequence[s
                     "nothing is held out: a second relay test checks it)")
         return f"consistent with {name} within the tests' scatter"
     more = f" ({len(located) - 1} more below)" if len(located) > 1 else ""
-    return f"unexplained by {name}: {located[0]}{more}"
-
-
-def diagnose_process(flight: FlightLog, model: PlantModel, *, relay: RelayOptions = RelayOptions(),
-                     windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> ProcessDiagnosis:
-    """Analyse ``flight`` as ``analyze --model`` does and check each test against the model (module docstring).
-
-    Parameters
-    ----------
-    flight : FlightLog
-        Command and output of one loop.
-    model : PlantModel
-        The structure with its known parameters (set E) and ranges (set I).
-    relay : RelayOptions
-        What is stated about the relay.
-    windows : sequence of (float, float)
-        Parts of the log to use [s, log clock]; empty: all.
-    min_stable_cycles : int
-        Fewest stable cycles for a test to be used.
-
-    Raises
-    ------
-    SegmentationError
-        No usable relay test.
-    """
-    stage = measure_tests(flight, relay, windows, min_stable_cycles)  # segmented once, for both uses
-    analysis = general_analysis(flight, model, stage, windows)
-    by_index = {m.summary.index: m for m in stage if m.summary is not None}
-    measured, skipped = {}, []
-    for s in analysis.tests:
-        used = by_index[s.index]
-        assert used.test is not None  # a usable test carries the test as used
-        try:
-            measured[s.index] = measured_waveform(flight, used.test, used.fits)
-        except InputError as err:  # a test the analysis used but whose cycles are too short to fit here
-            skipped.append(f"not checked: {err}")
-    all_model = analysis.identification.model if analysis.identification is not None else None
-    checks = tuple(check_test(model, s, measured[s.index],
-                              [p for i, m in measured.items() if i != s.index for p in m.points], all_model)
-                   for s in analysis.tests if s.index in measured)
-    misfit = _misfit(analysis.identification)
-    # where the residual sits first (per test, largest first); the fit's overall misfit after it
-    ranked = sorted((item for c in checks for item in _locate(c)), key=lambda item: -item[0])
-    located = tuple(text for _, text in ranked) + ((misfit[1],) if misfit else ())
-    notes = (*skipped, "not checked: an actuator limit (a command or output flattening at a level) and delay "
-                       "jitter (switch-instant scatter); no effect is refitted, so none is named")
-    return ProcessDiagnosis(analysis, checks, _verdict(model, checks, located), located, notes)
+    return f"unexplained by {name} (no effect of the library improves the held-out tests): {located[0]}{more}"

@@ -40,16 +40,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
+from ..analyze.general import RelayOptions, general_analysis, measure_tests
 from ..errors import InputError, MrftError
 from ..io.logtypes import FlightLog
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, PlantModel, soiptd_model
 from ..progress import Progress, report
 from ..validate import check_time
 from .candidates import LinearFit, fit_linear, search_candidates
+from .checks import ProcessDiagnosis, check_test, locate as locate_checks, measured_waveform, misfit, verdict
+from .effects import select as select_effects_on, test_data
 from .fit import plant_params
 from .heldout import BIC_THRESHOLD, significant
 from .identification import EffectIdentification, Identification, ModelEstimate, analyze_model
@@ -65,7 +68,8 @@ from .screen import Screen, screen_log
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "EffectFinding", "BIC_THRESHOLD"]
+__all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "ProcessDiagnosis", "EffectFinding",
+           "BIC_THRESHOLD"]
 
 
 class _Stages:
@@ -124,37 +128,47 @@ def judge_jitter(screen: Screen, linear: LinearFit, final: FinalModel | None, sa
 
 def diagnose(
     flight: FlightLog,
-    Tp: float,
+    model: PlantModel | float,
     analysis: AnalysisResult | None = None,
     progress: Progress | None = None,
     *,
     candidates: tuple[str, ...] | None = None,
-) -> DiagnosisResult:
-    """Locate model mismatch in an MRFT flight log, name the missing physics, fit it, compare.
+    relay: RelayOptions = RelayOptions(),
+    windows: Sequence[tuple[float, float]] = (),
+    min_stable_cycles: int = 3,
+) -> DiagnosisResult | ProcessDiagnosis:
+    """Locate model mismatch in a relay-test log, name the missing physics, fit it, compare.
+
+    One driver for every family; the family chooses the strategy. Eq. (2) (a
+    :class:`~mrftcli.mrft.model.LoopModel`, ``soiptd_model(Tp)``: Tp read from the model) compares
+    the cycles feature by feature with eq. (2)'s periodic solutions (the stages of the module
+    docstring) and returns a :class:`DiagnosisResult`; every other family (``fopdt``, ``sopdt``,
+    ``ipdt``, ``foipdt``, a declared model) is checked test by test (:mod:`.checks`) and runs the
+    library of physics on the model object (:mod:`.effects`), returning a
+    :class:`~mrftcli.diagnose.checks.ProcessDiagnosis`.
 
     Parameters
     ----------
     flight : FlightLog
         The log's signals (:func:`mrftcli.io.read_flight` reads them).
-    Tp : float
-        Propulsion time constant [s] (known from a bench test, as for ``analyze``).
+    model : PlantModel
+        The model to diagnose against, with its known parameters (set E) and ranges (set I). A float
+        is read as eq. (2)'s Tp [s] (as ``analyze_flight`` still takes it, for one release).
     analysis : AnalysisResult, optional
-        An analysis of the same flight already computed (its segmentation is reused and its
-        identification is reported beside the diagnosis' own fits).
+        Eq. (2): an analysis of the same flight already computed (its segmentation is reused and
+        its identification is reported beside the diagnosis' own fits).
     progress : Progress, optional
-        Called as ``progress(done, total, stage)`` before each stage (segmenting, the linear fit,
-        each candidate, locating; ``total`` grows when a second effect is tried).
+        Called as ``progress(done, total, stage)`` before each stage.
     candidates : tuple of str, optional
-        Restrict the candidate library (JSON names); default all.
-
-    Returns
-    -------
-    DiagnosisResult
+        Eq. (2): restrict the candidate library (JSON names); default all.
+    relay, windows, min_stable_cycles
+        The other families: what is stated about the relay, the parts of the log to use [s, log
+        clock], the fewest stable cycles of a test (as ``analyze --model``).
 
     Raises
     ------
     InputError
-        Tp missing or not positive, unknown candidate name.
+        Tp not positive, unknown candidate name.
     SegmentationError, LogReadError
         From reading/segmenting the log.
     DiagnoseError
@@ -169,15 +183,59 @@ def diagnose(
     >>> import mrftcli
     >>> log = Path(mrftcli.__file__).parents[1] / "sample_logs" / "concealed" / "flight_02.mcap"
     >>> flight = mrftcli.read_flight(log, mrftcli.ReadOptions(loop="altitude"))
-    >>> diagnose(flight, Tp=-0.04)
+    >>> diagnose(flight, -0.04)
     Traceback (most recent call last):
     ...
     mrftcli.errors.InputError: Tp (the bench-measured propulsion time constant) must be a positive time in seconds, got -0.04
-    >>> result = diagnose(flight, Tp=0.0422)  # doctest: +SKIP
+    >>> result = diagnose(flight, soiptd_model(0.0422))  # doctest: +SKIP
     >>> [(e.name, round(e.parameters["T_lag"], 3)) for e in result.effects]  # doctest: +SKIP
     [('sensor_lag', 0.07)]
     """
-    Tp = check_time("Tp (the bench-measured propulsion time constant)", Tp)
+    if not isinstance(model, (LoopModel, PlantModel)):
+        model = soiptd_model(check_time("Tp (the bench-measured propulsion time constant)", model))
+    if not isinstance(model, LoopModel):
+        return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress)
+    return _diagnose_soiptd(flight, model.Tp, analysis, progress, candidates)
+
+
+def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
+                     windows: Sequence[tuple[float, float]], min_stable_cycles: int,
+                     progress: Progress | None) -> ProcessDiagnosis:
+    """Every family but eq. (2): the analysis, the checks per test, the library of physics, the verdict."""
+    say = _Stages(progress, 3)
+    say("analysing the tests")
+    stage = measure_tests(flight, relay, windows, min_stable_cycles)  # segmented once, for both uses
+    analysis = general_analysis(flight, model, stage, windows)
+    by_index = {m.summary.index: m for m in stage if m.summary is not None}
+    measured, skipped = {}, []
+    for s in analysis.tests:
+        used = by_index[s.index]
+        assert used.test is not None  # a usable test carries the test as used
+        try:
+            measured[s.index] = measured_waveform(flight, used.test, used.fits)
+        except InputError as err:  # a test the analysis used but whose cycles are too short to fit here
+            skipped.append(f"not checked: {err}")
+    all_model = analysis.identification.model if analysis.identification is not None else None
+    checks = tuple(check_test(model, s, measured[s.index],
+                              [p for i, m in measured.items() if i != s.index for p in m.points], all_model)
+                   for s in analysis.tests if s.index in measured)
+    say("fitting the library of physics")
+    rows, found = select_effects_on(model, [test_data(flight, by_index[i]) for i in measured])
+    say("locating")
+    gap = misfit(analysis.identification)
+    # where the residual sits first (per test, largest first); the fit's overall misfit after it
+    ranked = sorted((item for c in checks for item in locate_checks(c)), key=lambda item: -item[0])
+    located = tuple(text for _, text in ranked) + ((gap[1],) if gap else ())
+    notes = (*skipped,) + (() if len(measured) > 1 else
+                           ("one test: nothing to hold out, so no effect is fitted (a second relay test checks them)",))
+    say.finish()
+    return ProcessDiagnosis(analysis, checks, verdict(model, checks, located, found), located, notes, tuple(rows),
+                            tuple(f.name for f in found))
+
+
+def _diagnose_soiptd(flight: FlightLog, Tp: float, analysis: AnalysisResult | None, progress: Progress | None,
+                     candidates: tuple[str, ...] | None) -> DiagnosisResult:
+    """Eq. (2)'s strategy (module docstring), Tp [s] from the model object."""
     names = [c.name for c in CANDIDATES] if candidates is None else list(candidates)
     for n in names:
         if n not in BY_NAME:

@@ -1,0 +1,572 @@
+"""diagnose's library of physics on the model object: every family, each effect judged held out.
+
+A relay test's stable cycle is periodic, so for any linear plant each output harmonic is the plant's
+response to the same harmonic of the plant's input: ``Y_k = G(j k Omega) W_k``. An effect the linear
+model leaves out changes what the plant receives (``W``) or what the sensor reports, and each effect
+of the library is written as what it does to one test (:class:`Action`):
+
+* ``gain``: the factor on the relay's square wave the plant receives (``(f(+h) - f(-h)) / 2h`` for a
+  static input nonlinearity ``f``: a dead zone ``1 - delta / h``, a saturation ``(min(h, U) + h) / 2h``,
+  a gain drifting between tests ``1 + g (t - t_mid)``);
+* ``ramp``: the time ``2 h / R`` a rate-limited actuator takes between the levels (the trapezoid is
+  the square wave through a box of that width: ``sinc(w D / 2) e^{-j w D / 2}`` on every harmonic);
+* ``lag``: a first-order lag ``1 / (T s + 1)`` on the output (a sensor lag, or a second lag of the
+  plant: the loop sees only their product, so the two are one candidate);
+* ``dc``: what the nonlinearity adds to the plant input's mean over a cycle [command units] (an
+  input bias, an asymmetric gain, a bias drifting between tests);
+* ``jitter``: a switch-instant jitter [s] (the cycles' period scatter).
+
+Three views of a test compare the model with the recording, each exactly for a linear plant:
+
+* the response points ``G(j k Omega) = Y_k / U_k`` (:func:`mrftcli.analyze.general.response_points`)
+  divided by the action's factor, fitted by the family's identification (:func:`identify_points`):
+  its chi^2, and the held-out cycle (frequency and amplitude of the model of the other tests, the
+  exact LPRS limit cycle with the effect added: the relay's levels scaled by ``gain``, the ramp's
+  half width added to the delay, the lag in the state space);
+* the mean balance: over a periodic cycle the output's mean is ``G(0)`` times the plant input's mean
+  (zero for an integrating plant), so ``mean(y) / G(0) - h (2 D - 1) - dc = 0`` with ``D`` the
+  high-time fraction, a relay's bias balanced by the operating point (the analysis's assumption);
+* the period scatter: a switch decided on noisy samples moves by the noise over the waveform's slope
+  and by the sample time; the period's variance is twice that, plus twice a jitter's.
+
+Each candidate's parameter is fitted on all tests (a grid, then refined) and on every set of all but
+one test; it is named only when its evidence is strong (delta BIC > :data:`BIC_THRESHOLD` over the
+three views) **and** each test predicted from the others with it is closer than without
+(:attr:`EffectFit.held_out_after` < :attr:`EffectFit.held_out_before`). The same code serves every
+family: it uses the model object's frequency response, realisation and identification only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from ..analyze.general import MeasuredTest, identify_points
+from ..errors import IdentificationError, InputError
+from ..io.logtypes import FlightLog
+from ..mrft.identify_lti import LtiIdentification, ResponsePoint
+from ..mrft.lprs import lti_limit_cycle
+from ..mrft.model import PlantModel
+from ..mrft.relays import RelayLaw
+
+__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "TestData", "test_data", "fit_effects", "select",
+           "BIC_THRESHOLD", "held_out_table"]
+
+#: evidence needed to name an effect (Kass-Raftery's "very strong", as eq. (2)'s diagnosis)
+BIC_THRESHOLD = 10.0
+#: a named effect's held-out error must fall below this fraction of the linear model's: a small gain on
+#: a few noisy tests is what a free parameter buys anyway
+HELD_OUT_GAIN = 0.9
+
+
+# ----------------------------------------------------------------------------------------------
+# one test as the library sees it
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TestData:
+    """What the library compares per test (measured from its stable cycles).
+
+    Attributes
+    ----------
+    index : int
+        The analysis's test number (0-based).
+    t_mid : float
+        The test's middle [s, log clock].
+    h : float
+        Half the relay's level difference [command units].
+    relay : RelayLaw
+        The relay a model's cycle is computed under (the effective one where there is one).
+    rate_hz : float
+        The relay's rate [Hz].
+    points : tuple of ResponsePoint
+        The test's response points.
+    frequency_hz, amplitude : float
+        The mean cycle's frequency [Hz] and amplitude (half its peak-to-peak) [output units].
+    duty, duty_se : float
+        High-time fraction D and its standard error [-].
+    mean, mean_se : float
+        The output's mean over the cycles (from the setpoint) and its standard error [output units].
+    period_var, period_dof : float, int
+        The periods' variance [s^2] and its degrees of freedom.
+    noise_var : float
+        The period variance the sensor noise and the sampled relay explain [s^2].
+    """
+
+    __test__ = False
+
+    index: int
+    t_mid: float
+    h: float
+    relay: RelayLaw
+    rate_hz: float
+    points: tuple[ResponsePoint, ...]
+    frequency_hz: float
+    amplitude: float
+    duty: float
+    duty_se: float
+    mean: float
+    mean_se: float
+    period_var: float
+    period_dof: int
+    noise_var: float
+
+
+def _noise_std(t: np.ndarray, y: np.ndarray, t0: float, P: float, Y: np.ndarray) -> float:
+    """The output's noise over one cycle: what its harmonics and a line leave [output units]."""
+    k = np.arange(1, Y.size + 1)
+    smooth = np.real(np.exp(1j * 2 * math.pi / P * np.outer(t - t0, k)) @ Y)
+    r = y - smooth
+    if r.size < 4:
+        return 0.0
+    r = r - np.polyval(np.polyfit(t - t0, r, 1), t - t0)
+    return float(np.std(r, ddof=2))
+
+
+def test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
+    """One usable test of :func:`mrftcli.analyze.general.measure_tests` as :class:`TestData`.
+
+    Raises
+    ------
+    InputError
+        Fewer than two fitted cycles.
+    """
+    s, test, fits = measured.summary, measured.test, measured.fits
+    if s is None or test is None or len(fits) < 2:
+        raise InputError("a test needs two fitted stable cycles")
+    t, y = flight.output.t, flight.output.values * test.loop_sign
+    if flight.setpoint is not None:  # the error's reference: the relay decides on setpoint - output
+        y = y - np.interp(t, flight.setpoint.t, flight.setpoint.values * test.loop_sign)
+    P = np.array([f.period for f in fits])
+    D = np.array([f.t_high / f.period for f in fits])
+    means, noise, slopes = [], [], []
+    for f in fits:
+        i0, i1 = np.searchsorted(t, [f.t_start, f.t_start + f.period])
+        means.append(float(np.mean(y[i0:i1])) if i1 > i0 else math.nan)
+        noise.append(_noise_std(t[i0:i1], y[i0:i1], f.t_start, f.period, f.harmonics))
+        k = np.arange(1, f.harmonics.size + 1)
+        slopes.append(abs(float(np.real(np.sum(1j * k * 2 * math.pi / f.period * f.harmonics)))))
+    n = len(fits)
+    Y = np.mean([f.harmonics[:min(g.harmonics.size for g in fits)] for f in fits], axis=0)
+    phase = np.linspace(0.0, 2 * math.pi, 1024, endpoint=False)
+    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, Y.size + 1))) @ Y)
+    m = np.array(means)
+    Ts = 1.0 / float(s.rate_hz)
+    slope = float(np.median(slopes))
+    sigma_n = float(np.median(noise))
+    switch_var = (sigma_n / slope) ** 2 if slope > 0 else math.inf
+    return TestData(s.index, 0.5 * (s.t_start + s.t_end), s.relay.h, s.predicting_relay, float(s.rate_hz),
+                    measured.points, 1.0 / float(P.mean()), float(0.5 * (wave.max() - wave.min())),
+                    float(D.mean()), float(D.std(ddof=1) / math.sqrt(n)), float(np.nanmean(m)),
+                    float(np.nanstd(m, ddof=1) / math.sqrt(n)), float(P.var(ddof=1)), n - 1,
+                    2.0 * (switch_var + Ts * Ts / 12.0))
+
+
+# ----------------------------------------------------------------------------------------------
+# the library
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Action:
+    """What an effect does to one test (module docstring). The defaults are no effect."""
+
+    gain: float = 1.0
+    ramp: float = 0.0
+    lag: float = 0.0
+    dc: float = 0.0
+    jitter: float = 0.0
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One candidate of the library.
+
+    Attributes
+    ----------
+    name : str
+        JSON name (as eq. (2)'s library where the physics is the same).
+    parameter, unit : str
+        Its parameter's symbol and unit (``command`` is the command's unit).
+    views : tuple of str
+        Which views it changes: ``"points"``, ``"balance"``, ``"scatter"``.
+    action : callable
+        ``action(test, value, t_ref) -> Action``.
+    grid : callable
+        ``grid(tests) -> array`` of values to profile over (its no-effect value first).
+    explanation : str
+        What it is, for the output.
+    """
+
+    name: str
+    parameter: str
+    unit: str
+    views: tuple[str, ...]
+    action: Callable[[TestData, float, float], Action]
+    grid: Callable[[Sequence[TestData]], np.ndarray]
+    explanation: str
+
+
+def _static(f: Callable[[float], float]) -> Callable[[TestData], Action]:
+    """A static input nonlinearity on the relay's deviation from its bias: the square wave's factor
+    and the added mean (module docstring)."""
+    def act(t: TestData) -> Action:
+        hi, lo = f(t.h), f(-t.h)
+        return Action(gain=(hi - lo) / (2 * t.h), dc=t.duty * hi + (1 - t.duty) * lo - t.h * (2 * t.duty - 1))
+    return act
+
+
+def _span(tests: Sequence[TestData]) -> float:
+    return max(max(t.t_mid for t in tests) - min(t.t_mid for t in tests), 1e-9)
+
+
+def _w(tests: Sequence[TestData]) -> float:
+    return 2 * math.pi * min(t.frequency_hz for t in tests)
+
+
+EFFECTS: tuple[Effect, ...] = (
+    Effect("sensor_lag", "T_lag", "s", ("points",), lambda t, v, _: Action(lag=v),
+           lambda ts: np.concatenate([[0.0], np.geomspace(0.02, 3.0, 14) / _w(ts)]),
+           "a first-order lag the linear model leaves out (a sensor lag, or a second lag of the plant: "
+           "the loop sees only their product)"),
+    Effect("actuator_rate_limit", "R", "command/s", ("points",),
+           lambda t, v, _: Action(ramp=2 * t.h / v if v > 0 else 0.0),
+           lambda ts: np.concatenate([[math.inf], 2 * max(t.h for t in ts) * _w(ts) / np.geomspace(0.02, 2.0, 14)]),
+           "the actuator slews at R between the levels (a lag ~ h / R: the frequency falls as h grows)"),
+    Effect("dead_zone", "delta", "command", ("points", "balance"),
+           lambda t, v, _: _static(lambda u: math.copysign(max(abs(u) - v, 0.0), u))(t),
+           lambda ts: np.linspace(0.0, 0.9, 15) * min(t.h for t in ts),
+           "a dead zone of delta on the plant input: each test's gain is 1 - delta / h"),
+    Effect("actuator_saturation", "U_max", "command", ("points", "balance"),
+           lambda t, v, _: _static(lambda u: min(u, v))(t),
+           lambda ts: np.concatenate([[max(t.h for t in ts)], np.linspace(0.98, 0.2, 14) * max(t.h for t in ts)]),
+           "the plant input saturates at U_max above the relay's bias: the tests whose level reaches it "
+           "receive less, and a lower mean"),
+    Effect("asymmetric_gain", "a", "-", ("balance",), lambda t, v, _: _static(lambda u: (1 + math.copysign(v, u)) * u)(t),
+           lambda ts: np.linspace(-0.5, 0.5, 21),
+           "the plant input is (1 + a) u above the relay's bias, (1 - a) u below: the mean input moves by a h"),
+    Effect("input_bias", "d", "command", ("balance",), lambda t, v, _: Action(dc=v),
+           lambda ts: np.linspace(-0.5, 0.5, 21) * max(t.h for t in ts),
+           "the plant receives the levels offset by d (asymmetric levels: the relay's bias is not the "
+           "operating point)"),
+    Effect("gain_drift", "g", "1/s", ("points", "balance"),
+           lambda t, v, tr: _static(lambda u: (1 + v * (t.t_mid - tr)) * u)(t),
+           lambda ts: np.linspace(-0.8, 0.8, 17) / _span(ts),
+           "the loop's gain drifts between the tests: K (1 + g (t - t_mid))"),
+    Effect("bias_drift", "b", "command/s", ("balance",), lambda t, v, tr: Action(dc=v * (t.t_mid - tr)),
+           lambda ts: np.linspace(-0.5, 0.5, 21) * max(t.h for t in ts) / _span(ts),
+           "the plant input's offset drifts between the tests: d = b (t - t_mid)"),
+    Effect("delay_jitter", "sigma", "s", ("scatter",), lambda t, v, _: Action(jitter=v),
+           lambda ts: np.concatenate([[0.0], np.geomspace(1e-3, 0.1, 14) / (2 * math.pi * max(t.frequency_hz
+                                                                                              for t in ts))]),
+           "the switch instants jitter by sigma (the cycles' period scatter beyond the noise's)"),
+)
+BY_NAME: dict[str, Effect] = {e.name: e for e in EFFECTS}
+
+
+def _combine(actions: Sequence[Action]) -> Action:
+    return Action(gain=float(np.prod([a.gain for a in actions])), ramp=sum(a.ramp for a in actions),
+                  lag=sum(a.lag for a in actions), dc=sum(a.dc for a in actions),
+                  jitter=math.sqrt(sum(a.jitter ** 2 for a in actions)))
+
+
+# ----------------------------------------------------------------------------------------------
+# the three views
+# ----------------------------------------------------------------------------------------------
+def _factor(p: ResponsePoint, a: Action) -> complex:
+    """The action's factor on the plant's response at the point's frequency."""
+    f = complex(a.gain)
+    if a.lag > 0:
+        f /= 1 + 1j * p.omega * a.lag
+    if a.ramp > 0:
+        x = 0.5 * p.omega * a.ramp
+        f *= (math.sin(x) / x if x > 0 else 1.0) * np.exp(-1j * x)
+    return f
+
+
+def _corrected(test: TestData, a: Action) -> list[ResponsePoint]:
+    out = []
+    for p in test.points:
+        f = _factor(p, a)
+        if not abs(f) > 0:
+            return []
+        out.append(dataclasses.replace(p, gain=p.gain / abs(f), phase=p.phase - float(np.angle(f))))
+    return out
+
+
+def _identify(model: PlantModel, tests: Sequence[TestData], actions: Sequence[Action]) -> LtiIdentification | None:
+    points = [p for t, a in zip(tests, actions) for p in _corrected(t, a)]
+    try:
+        return identify_points(model, points)
+    except (IdentificationError, InputError):
+        return None
+
+
+def _points_chi2(ident: LtiIdentification | None) -> float:
+    if ident is None:
+        return math.inf
+    dof = 2 * len(ident.points) - sum(not e.known for e in ident.estimates)
+    return 0.0 if ident.chi2_dof is None or dof < 1 else float(ident.chi2_dof) * dof
+
+
+def _static_gain(model: PlantModel) -> float:
+    """G(0) of the identified model [output / command]; inf for an integrating plant."""
+    g = complex(model.frequency_response(np.array([1e-9]))[0])
+    return abs(g) if abs(g) < 1e12 * abs(complex(model.frequency_response(np.array([1.0]))[0])) + 1e-300 else math.inf
+
+
+def _balance(test: TestData, a: Action, k0: float) -> tuple[float, float]:
+    """The mean balance's residual and its standard error [command units] (module docstring)."""
+    pred = test.h * (2 * test.duty - 1) + a.dc
+    r = (test.mean / k0 if math.isfinite(k0) and k0 > 0 else 0.0) - pred
+    se = math.hypot(test.mean_se / k0 if math.isfinite(k0) and k0 > 0 else 0.0, 2 * test.h * test.duty_se)
+    return r, max(se, 1e-3 * test.h)
+
+
+def _scatter(test: TestData, a: Action) -> float:
+    """ln(recorded / predicted period variance) [-]."""
+    pred = test.noise_var + 2 * a.jitter ** 2
+    return math.log(max(test.period_var, 1e-300) / pred) if pred > 0 and math.isfinite(pred) else 0.0
+
+
+def _deviance(test: TestData, a: Action) -> float:
+    """-2 ln of a sample variance's likelihood ratio against its prediction (chi^2 on its dof)."""
+    r = math.exp(_scatter(test, a))
+    return test.period_dof * (r - 1 - math.log(r))
+
+
+@dataclass(frozen=True)
+class _Fit:
+    chi2: float
+    ident: LtiIdentification | None
+
+
+def _chi2(model: PlantModel, tests: Sequence[TestData], actions: Sequence[Action], k0: float,
+          views: Sequence[str]) -> _Fit:
+    ident = _identify(model, tests, actions) if "points" in views else None
+    total = _points_chi2(ident) if "points" in views else 0.0
+    if "balance" in views:
+        total += sum((lambda r: (r[0] / r[1]) ** 2)(_balance(t, a, k0)) for t, a in zip(tests, actions))
+    if "scatter" in views:
+        total += sum(_deviance(t, a) for t, a in zip(tests, actions))
+    return _Fit(total, ident)
+
+
+# ----------------------------------------------------------------------------------------------
+# fitting and holding out
+# ----------------------------------------------------------------------------------------------
+def _actions(effects: Sequence[tuple[Effect, float]], tests: Sequence[TestData], t_ref: float) -> list[Action]:
+    return [_combine([e.action(t, v, t_ref) for e, v in effects]) for t in tests]
+
+
+def _views(effects: Sequence[Effect]) -> tuple[str, ...]:
+    return tuple(sorted({v for e in effects for v in e.views}))
+
+
+def _profile(model: PlantModel, tests: Sequence[TestData], fixed: Sequence[tuple[Effect, float]], effect: Effect,
+             k0: float, t_ref: float) -> tuple[float, float]:
+    """The effect's value that minimises chi^2 over ``tests`` (a grid, then refined) and that chi^2."""
+    views = _views([e for e, _ in fixed] + [effect])
+    grid = effect.grid(tests)
+
+    def cost(v: float) -> float:
+        return _chi2(model, tests, _actions([*fixed, (effect, v)], tests, t_ref), k0, views).chi2
+
+    costs = np.array([cost(float(v)) for v in grid])
+    i = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.inf)))
+    best, value = float(costs[i]), float(grid[i])
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    if i > 0 and math.isfinite(lo) and math.isfinite(hi) and lo != hi:
+        r = minimize_scalar(cost, bounds=(min(lo, hi), max(lo, hi)), method="bounded",
+                            options={"xatol": 1e-3 * abs(hi - lo)})
+        if r.success and float(r.fun) < best:
+            best, value = float(r.fun), float(r.x)
+    return value, best
+
+
+def _cycle(model: PlantModel, test: TestData, a: Action) -> tuple[float, float] | None:
+    """The (frequency [Hz], amplitude [output units]) of ``model`` with the action under the test's relay.
+
+    The continuous cycle with half a sample more delay (the centre of a sampled relay's band, as
+    :func:`mrftcli.mrft.lprs.mrft_limit_cycle` starts from); a ramp adds its half width to the delay
+    (the box filter's phase is exactly that); a lag extends the realisation.
+    """
+    ss = model.realisation()
+    A, B, C = np.asarray(ss.A, float), np.asarray(ss.B, float).ravel(), np.asarray(ss.C, float).ravel()
+    if a.lag > 0:
+        n = A.shape[0]
+        A = np.block([[A, np.zeros((n, 1))], [C[None, :] / a.lag, -np.ones((1, 1)) / a.lag]])
+        B, C = np.append(B, 0.0), np.append(np.zeros(n), 1.0)
+    relay = test.relay
+    tau = model.delay + 0.5 / test.rate_hz + 0.5 * a.ramp
+    h = relay.h * a.gain
+    if not h > 0 or model.parameters["K"].value <= 0:
+        return None
+    try:
+        lc = lti_limit_cycle(A, B, C, tau, relay.beta, h, None, eps=relay.eps)
+    except (InputError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+        return None
+    return lc.frequency_hz, lc.amplitude
+
+
+def _ac_error(test: TestData, cycle: tuple[float, float] | None) -> float:
+    """The held-out cycle's relative error: sqrt(frequency^2 + amplitude^2) [-]; 1 without a cycle."""
+    if cycle is None:
+        return 1.0
+    return math.hypot(test.frequency_hz / cycle[0] - 1.0, test.amplitude / cycle[1] - 1.0)
+
+
+def _held_out_errors(model: PlantModel, tests: Sequence[TestData], effects: Sequence[tuple[Effect, float]],
+                     free: Sequence[Effect], k0: float, t_ref: float, views: Sequence[str]) -> list[float]:
+    """Each test predicted from the others (the ``free`` effects refitted on them): its error over the
+    views (points: the cycle's relative error; balance: the residual over h; scatter: ln of the
+    variance ratio), RMS over the views."""
+    out = []
+    for i, test in enumerate(tests):
+        others = [t for j, t in enumerate(tests) if j != i]
+        fitted = [(e, v) for e, v in effects if e not in free]
+        for e in free:
+            v, _ = _profile(model, others, fitted, e, k0, t_ref) if others else (e.grid(tests)[0], 0.0)
+            fitted.append((e, v))
+        a_i = _actions(fitted, [test], t_ref)[0]
+        errs = []
+        if "points" in views:
+            ident = _identify(model, others, _actions(fitted, others, t_ref)) if others else None
+            errs.append(_ac_error(test, None if ident is None else _cycle(ident.model, test, a_i)))
+        if "balance" in views:
+            errs.append(_balance(test, a_i, k0)[0] / test.h)
+        if "scatter" in views:
+            errs.append(_scatter(test, a_i))
+        out.append(math.sqrt(sum(e * e for e in errs) / max(len(errs), 1)))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# the candidates' rows and the selection
+# ----------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class EffectFit:
+    """One candidate (or a second one on top of ``with_``) fitted and held out.
+
+    Attributes
+    ----------
+    name, parameter, unit : str
+        The effect and its parameter.
+    value : float
+        Fitted on all tests [unit].
+    delta_bic : float
+        BIC without it minus with it (one parameter more).
+    held_out_before, held_out_after : float
+        RMS over the tests of each test's error predicted from the others, without and with the
+        effect (refitted on the others) [-], over the views it changes.
+    per_test_before, per_test_after : tuple of float
+        The same per test.
+    views : tuple of str
+        The views it changes.
+    with_ : str
+        The effect already kept it was fitted on top of, or ``""``.
+    refit : mapping of str to float
+        The family's parameters identified from all tests' response points with the effect (and
+        ``with_``) taken out [their units]; empty when the effect leaves the points alone.
+    """
+
+    name: str
+    parameter: str
+    unit: str
+    value: float
+    delta_bic: float
+    held_out_before: float
+    held_out_after: float
+    per_test_before: tuple[float, ...]
+    per_test_after: tuple[float, ...]
+    views: tuple[str, ...]
+    with_: str = ""
+    refit: Mapping[str, float] = dataclasses.field(default_factory=dict)
+
+    @property
+    def found(self) -> bool:
+        """Strong evidence and a clearly better held-out prediction (by :data:`HELD_OUT_GAIN` at least)."""
+        return self.delta_bic > BIC_THRESHOLD and self.held_out_after < HELD_OUT_GAIN * self.held_out_before
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "parameter": self.parameter, "unit": self.unit, "value": _finite(self.value),
+                "delta_bic": _finite(self.delta_bic), "held_out_before": _finite(self.held_out_before),
+                "held_out_after": _finite(self.held_out_after),
+                "per_test_before": [_finite(x) for x in self.per_test_before],
+                "per_test_after": [_finite(x) for x in self.per_test_after], "views": list(self.views),
+                "with": self.with_, "found": self.found, "refit": {k: _finite(v) for k, v in self.refit.items()}}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> EffectFit:
+        def num(x: Any) -> float:
+            return math.nan if x is None else float(x)
+        return cls(str(d["name"]), str(d["parameter"]), str(d["unit"]), num(d["value"]), num(d["delta_bic"]),
+                   num(d["held_out_before"]), num(d["held_out_after"]),
+                   tuple(num(x) for x in d.get("per_test_before", [])),
+                   tuple(num(x) for x in d.get("per_test_after", [])), tuple(str(v) for v in d.get("views", [])),
+                   str(d.get("with", "")), {str(k): num(v) for k, v in d.get("refit", {}).items()})
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def _fit_one(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[Effect, float]], effect: Effect,
+             k0: float, t_ref: float, with_: str) -> EffectFit:
+    views = _views([effect])
+    base_views = _views([e for e, _ in kept] + [effect])
+    base = _chi2(model, tests, _actions(kept, tests, t_ref), k0, base_views).chi2
+    value, chi2 = _profile(model, tests, kept, effect, k0, t_ref)
+    n_obs = sum(2 * len(t.points) for t in tests) if "points" in base_views else 0
+    n_obs += len(tests) * (("balance" in base_views) + ("scatter" in base_views))
+    dbic = base - chi2 - math.log(max(n_obs, 2))
+    before = _held_out_errors(model, tests, kept, [], k0, t_ref, views)
+    after = _held_out_errors(model, tests, [*kept, (effect, value)], [effect], k0, t_ref, views)
+    rms = lambda xs: math.sqrt(sum(x * x for x in xs) / len(xs))  # noqa: E731
+    ident = _identify(model, tests, _actions([*kept, (effect, value)], tests, t_ref))
+    refit = {} if ident is None or "points" not in base_views else {e.name: e.value for e in ident.estimates}
+    return EffectFit(effect.name, effect.parameter, effect.unit, value, dbic, rms(before), rms(after),
+                     tuple(before), tuple(after), views, with_, refit)
+
+
+def fit_effects(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[Effect, float]] = (),
+                names: Sequence[str] | None = None) -> list[EffectFit]:
+    """Each candidate fitted (on top of ``kept``) and held out; ``names``: only those."""
+    k0 = _base_gain(model, tests)
+    t_ref = 0.5 * (min(t.t_mid for t in tests) + max(t.t_mid for t in tests))
+    with_ = "+".join(e.name for e, _ in kept)
+    return [_fit_one(model, tests, kept, e, k0, t_ref, with_) for e in EFFECTS
+            if (names is None or e.name in names) and e not in [k for k, _ in kept]]
+
+
+def _base_gain(model: PlantModel, tests: Sequence[TestData]) -> float:
+    ident = _identify(model, tests, [Action()] * len(tests))
+    return _static_gain(ident.model) if ident is not None else math.inf
+
+
+def select(model: PlantModel, tests: Sequence[TestData]) -> tuple[list[EffectFit], list[EffectFit]]:
+    """The candidates alone, then a second on top of the best one found (forward selection).
+
+    Returns
+    -------
+    (rows, found)
+        Every candidate's row (alone, then on top of the first) and the effects named, in order.
+    """
+    if len(tests) < 2:
+        return [], []
+    rows = fit_effects(model, tests)
+    found = sorted((r for r in rows if r.found), key=lambda r: -r.delta_bic)[:1]
+    if not found:
+        return rows, []
+    first = found[0]
+    second = fit_effects(model, tests, [(BY_NAME[first.name], first.value)])
+    rows += second
+    more = sorted((r for r in second if r.found), key=lambda r: -r.delta_bic)[:1]
+    return rows, found + more
+
+
+def held_out_table(fits: Sequence[EffectFit]) -> list[tuple[str, float, float]]:
+    """(name, before, after) of each effect named."""
+    return [(f.name, f.held_out_before, f.held_out_after) for f in fits]

@@ -102,7 +102,7 @@ class RelayRun:
 class _Propagator:
     """Exact x' = A x + B w with w(s) = c0 + c1 s on an interval of length h.
 
-    Wraps the project simulator's :class:`mrftcli.sim.plant.LinearPropagator` (exponential of the
+    Wraps the project simulator's :class:`mrftcli.mrft.propagate.LinearPropagator` (exponential of the
     augmented matrix): the full tick, used over and over, gets its matrices once and is stepped with
     unrolled scalar arithmetic (far faster than numpy for 3 or 4 states); any other length (a
     switch or a command arrival inside a tick) goes through the simulator's vector Taylor series.

@@ -3,7 +3,7 @@ between controller ticks and the jittered transport delay.
 
 The one home of the propagators that both the diagnosis (:mod:`mrftcli.diagnose.limit_cycles`, one
 test's limit cycle) and the simulator (:mod:`mrftcli.sim.flight`, whole flights) integrate with;
-:mod:`mrftcli.sim.plant` re-exports them. See docs/simulator.md, "Integration".
+the simulator imports them from here. See docs/simulator.md, "Integration".
 """
 
 from __future__ import annotations

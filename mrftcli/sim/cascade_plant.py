@@ -8,7 +8,7 @@ output's direction, p the propulsion state of eq. (2), y the position):
 driven by the inner command w(t): the command u_k of tick k held (zero-order hold) and delayed by
 the inner tau = m T + f. The position is measured tau_y late: y(t_k - tau_y). A control period
 splits at f and at the position's sampling offset; each piece is propagated exactly with the
-exponential of the augmented matrix [[A, B], [0, 0]] (:func:`mrftcli.sim.plant.taylor_expm`), so
+exponential of the augmented matrix [[A, B], [0, 0]] (:func:`mrftcli.mrft.propagate.taylor_expm`), so
 :class:`CascadePlant` holds a few constant affine maps, shared by the flight and by the discrete
 transfer functions below (the truth of ``bench_cascade``: what a designed outer controller actually
 achieves on the cascade the simulator flies).
@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from ..mrft.model import LoopModel
 from .cascade_spec import InnerGains
-from .plant import taylor_expm
+from ..mrft.propagate import taylor_expm
 
 __all__ = ["CascadePlant", "Segment", "cascade_plant", "controller_response", "inner_closed_loop",
            "outer_plant_response", "outer_phase_margin", "closed_loop_radius", "OuterMargin"]

@@ -60,8 +60,9 @@ from .control import (
     noise_margin,
     relay_sequence,
 )
-from .plant import (LinearPropagator, PeriodPropagator, RotorCoefficients, actuator_pieces, command_shaper,
-                    fifo_delays, gauss_markov, rk4_quadratic, rk4_rotor)
+from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
+                              rk4_quadratic, rk4_rotor)
+from .plant import PeriodPropagator, command_shaper
 from .sidecar import flight_topics, sidecar_path, truth_record, write_flight
 from .spec import (EFFECT_NAMES, Effects, FlightSettings, FlightSpec, TestSpec, default_bias, default_noise_std,
                    default_setpoint, flight_settings)

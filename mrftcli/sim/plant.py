@@ -2,8 +2,7 @@
 
 The exact propagators, the RK4 steps, the actuator between ticks and the jittered delay live in
 :mod:`mrftcli.mrft.propagate` (the diagnosis integrates with them too, and must not import the
-simulator, its tests' oracle); they are re-exported here for :mod:`mrftcli.sim.flight` and existing
-callers. See docs/simulator.md, "Integration".
+simulator, its tests' oracle). See docs/simulator.md, "Integration".
 """
 
 from __future__ import annotations
@@ -12,11 +11,9 @@ import math
 
 import numpy as np
 
-from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
-                              rk4_quadratic, rk4_rotor, taylor_expm)
+from ..mrft.propagate import taylor_expm
 
-__all__ = ["taylor_expm", "LinearPropagator", "PeriodPropagator", "rk4_quadratic", "RotorCoefficients", "rk4_rotor",
-           "command_shaper", "actuator_pieces", "gauss_markov", "fifo_delays"]
+__all__ = ["PeriodPropagator", "command_shaper"]
 
 
 # --------------------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ Baseline in the same process: the cost of what the incremental path avoids, one 
 and analysis (:func:`mrftcli.io.read_flight` + :func:`mrftcli.analyze.analyze_flight`) of the
 finished log, as a ratio to the median per-update latency.
 
-``--model fopdt``: a process plant instead (``watch --model fopdt``, :func:`mrftcli.watch.watch_model`).
+``--model fopdt``: a process plant instead (``watch --model fopdt``, :func:`mrftcli.watch.watch` with the family's model).
 The writer draws a random FOPDT plant (K 0.5-5, T 0.2-1 s, tau 0.1-0.4 T) and records three relay
 windows of about a dozen cycles each, as an engineer running relay autotuning would (an ideal relay, a
 biased relay with a small hysteresis, a symmetric relay with a larger one), simulated by ``tests/process_sim.py`` (independent of mrftcli), at 50, 100 or 200 Hz by
@@ -254,18 +254,19 @@ def _latencies(updates: list, disk: list[tuple[float, float]]) -> list[float]:
 
 
 def _follow(log: str, model: str, fmt: str, seed: int) -> list:
-    """The updates of watch (eq. (2)) or watch_model (``--model fopdt``) on the growing file."""
+    """The updates of watch with eq. (2) (Tp known) or ``--model fopdt`` on the growing file."""
     from mrftcli.io import ReadOptions
     from mrftcli.mrft.families import family_model
-    from mrftcli.watch import WatchOptions, watch, watch_model
+    from mrftcli.mrft.model import soiptd_model
+    from mrftcli.watch import WatchOptions, watch
 
     options = WatchOptions(idle=5.0, poll=0.01)
     if model == "fopdt":
         read = ReadOptions(command_topic=CSV_TOPICS[0], output_topic=CSV_TOPICS[1]) if fmt == "csv" else \
             ReadOptions(loop="altitude")
-        return list(watch_model(log, family_model("fopdt"), read=read, options=options))
+        return list(watch(log, family_model("fopdt"), read=read, options=options))
     Tp = _model(np.random.default_rng(seed)).Tp
-    return list(watch(log, Tp, read=ReadOptions(loop="altitude"), options=options))
+    return list(watch(log, soiptd_model(Tp), read=ReadOptions(loop="altitude"), options=options))
 
 
 def _baseline(log: str, model: str, fmt: str, truth: dict) -> tuple[float, float, object]:
@@ -298,13 +299,14 @@ def _final_error(updates: list, truth: dict, model: str, analysis: object = None
         return "no final estimate (" + "; ".join(str(u.error) for u in updates if u.kind == "end") + ")"
     if not truth:
         ref = {e.name: e.value for e in analysis.identification.estimates} if analysis is not None else {}
-        same = ref and all(_same(e.value, ref[e.name]) for e in final[0].estimates)
-        return ("final " + ", ".join(f"{e.name} {e.value:.4g} {e.unit}" for e in final[0].estimates)
+        same = ref and all(_same(e.value, ref[e.name]) for e in final[0].parameters)
+        return ("final " + ", ".join(f"{e.name} {e.value:.4g} {e.unit}" for e in final[0].parameters)
                 + ("; the same as analyze --model on the finished file" if same else "; NOT analyze --model's"))
     if model != "fopdt":
-        return f"final tau error {(final[0].tau - truth['tau']) * 1e3:+.2f} ms"
+        tau = next(e.value for e in final[0].parameters if e.name == "tau")
+        return f"final tau error {(tau - truth['tau']) * 1e3:+.2f} ms"
     parts = []
-    for e in final[0].estimates:
+    for e in final[0].parameters:
         inside = e.ci95_low <= truth[e.name] <= e.ci95_high
         parts.append(f"{e.name} {100 * (e.value / truth[e.name] - 1):+.1f} %{'' if inside else ' (outside its interval)'}")
     return "final " + ", ".join(parts)

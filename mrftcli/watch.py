@@ -1,9 +1,8 @@
-"""Follow a flight log while it is written: MRFT tests and the identification as cycles arrive.
+"""Follow a flight log while it is written: relay tests and the identification as cycles arrive.
 
-:func:`watch` (eq. (2)) and :func:`watch_model` (a process plant, ``--model NAME``) are generators of
-typed update records (:class:`TestUpdate`, :class:`EstimateUpdate`; :class:`ProcessTestUpdate`,
-:class:`ProcessEstimateUpdate`; :class:`Restart`, :class:`WatchEnd`); ``mrft-ident watch`` prints
-them. Neither prints itself.
+:func:`watch` is a generator of typed update records (:class:`TestUpdate`, :class:`EstimateUpdate`,
+:class:`Restart`, :class:`WatchEnd`), the same records for every model family; ``mrft-ident watch``
+prints them. It does not print itself.
 
 How the log is followed
 -----------------------
@@ -17,27 +16,29 @@ truncated or replaced by another recording is followed from its start again (:cl
 Incremental segmentation and identification
 -------------------------------------------
 Tests are found with :func:`mrftcli.segment.segment_arrays` on a window that starts after the last
-*closed* test (one followed by ``max(1 s, 3 periods)`` of command without relay switching; for a
-process plant 3 periods, whatever its time scale), so the cost of a poll does not grow with the flight. A test is reported (:class:`TestUpdate`) once it
-has ``min_cycles`` stable cycles that follow the relay (``MrftTest.valid``), and again at every new
-stable cycle. As soon as two betas are in, every update of a test is followed by the identification
-(:class:`EstimateUpdate`): the paper's point estimate from the tests' mean effective betas,
-frequencies and amplitudes (:func:`mrftcli.mrft.identify.identify`, about a millisecond). When the
-writer closes the file, the whole log goes through :func:`mrftcli.analyze.analyze_flight` (the
-weighted estimate with bootstrap uncertainty, exactly what ``mrft-ident analyze`` prints) and the last
-update has ``final=True``.
+*closed* test (one followed by ``max(quiet, 3 periods)`` of command without relay switching), so the
+cost of a poll does not grow with the flight. A test is reported (:class:`TestUpdate`) once the
+model's strategy accepts it and again at every new stable cycle; every new cycle is followed by the
+identification from the tests so far (:class:`EstimateUpdate`, each parameter one
+:class:`~mrftcli.mrft.parameter.ParameterEstimate`). When the writer closes the file, the whole log
+goes through :func:`mrftcli.analyze.analyze_flight` with the same model (exactly what ``mrft-ident
+analyze`` prints, each test's held-out prediction included) and the last estimate has ``final=True``.
 
-A process plant (:func:`watch_model`, ``watch --model NAME``)
---------------------------------------------------------------
-The same tracker finds the tests; each is screened as ``analyze --model`` screens it (stable cycles,
-an output that follows its relay, a chattering relay's cycles found again), its relay inferred or
-taken as stated (:func:`mrftcli.segment.relay_type.infer_relay`) and its cycles' frequency-response
-points measured (:func:`mrftcli.analyze.general.response_points`) once per new stable cycle. Every
-new cycle is followed by the fit of the model to all tests' points
-(:func:`mrftcli.analyze.general.identify_points`): a :class:`ProcessEstimateUpdate` that names the
-parameters the tests so far do not determine, and the test that would, instead of a number. When the
-writer closes the file the whole log goes through :func:`mrftcli.analyze.general.analyze_general`,
-exactly what ``mrft-ident analyze --model NAME`` prints (with each test's held-out prediction).
+The strategy is the model's family:
+
+* eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`, ``soiptd_model(Tp)``): a test with ``min_cycles``
+  stable cycles that follow the relay (``MrftTest.valid``); once two betas are in, the paper's point
+  estimate from the tests' mean effective betas, frequencies and amplitudes
+  (:func:`mrftcli.mrft.identify.identify` at the model's Tp, about a millisecond; no spread: its std
+  is null until the final analysis). A second without switching closes a test.
+* every other family (process plants, a declared transfer function): each test screened as
+  ``analyze --model`` screens it (stable cycles, an output that follows its relay, a chattering
+  relay's cycles found again), its relay inferred or taken as stated in ``options.relay``
+  (:func:`mrftcli.segment.relay_type.infer_relay`) and its cycles' frequency-response points measured
+  (:func:`mrftcli.analyze.general.response_points`) once per new stable cycle, then the model fitted to
+  all tests' points (:func:`mrftcli.analyze.general.identify_points`): the estimate names the
+  parameters the tests so far do not determine, and the test that would. Three periods without
+  switching close a test, whatever the plant's time scale.
 
 Every update carries ``t_cycle_end``, the log time of the newest cycle end it includes, and
 ``wall_time``, when it was produced (``time.time()``), so that a benchmark can measure the latency
@@ -49,32 +50,36 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Generator, Iterator, Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from numbers import Integral
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
 
 import numpy as np
 
-from .analyze.general import (GeneralAnalysis, RelayOptions, analyze_general, chattering_cycles, identify_points,
-                              response_points, screen_test)
-from .errors import InputError, InsufficientDataError, LogReadError, MrftError
+from .analyze import AnalysisResult, AnalyzeOptions, RelayOptions, analyze_flight
+from .analyze.general import GeneralAnalysis, chattering_cycles, identify_points, response_points, screen_test
+from .errors import InputError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
 from .jsonable import check_schema_version
 from .mrft.consensus import SAME_BETA
-from .mrft.identify_lti import LtiEstimate, ResponsePoint
-from .mrft.model import PlantModel
+from .mrft.identify import TestMeasurement, identify
+from .mrft.identify_lti import ResponsePoint
+from .mrft.model import LoopModel, PlantModel
+from .mrft.parameter import ParameterEstimate
 from .mrft.relays import RelayLaw
 from .segment import MrftTest, segment_arrays
 from .segment.relay_type import infer_relay
 from .validate import check_positive
 
-__all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "ProcessTestUpdate",
-           "ProcessEstimateUpdate", "Update", "watch", "watch_model", "WATCH_PROCESS_SCHEMA_VERSION"]
+__all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "Update", "watch",
+           "WATCH_SCHEMA_VERSION"]
 
-#: version of :meth:`ProcessTestUpdate.to_json` and :meth:`ProcessEstimateUpdate.to_json` (``watch --model --jsonl``)
-WATCH_PROCESS_SCHEMA_VERSION = 1
+#: version of every ``watch --jsonl`` line (:meth:`TestUpdate.to_json`, ...). 2: one record for every
+#: family (each parameter :class:`~mrftcli.mrft.parameter.ParameterEstimate`'s JSON); 1 was ``watch
+#: --model``'s lines, eq. (2)'s had none. Nothing reads the older lines back.
+WATCH_SCHEMA_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -92,11 +97,14 @@ class WatchOptions:
         Seconds between polls of the file [s].
     wait : float, optional
         Longest wait for the file to appear [s]; None waits until the generator is closed (Ctrl-C).
+    relay : RelayOptions
+        What is stated about a process plant's relay (the rest is inferred per test); eq. (2) reads
+        its relay from the log and takes none.
 
     Raises
     ------
     InputError
-        ``min_cycles`` below 1; ``idle``, ``poll`` or ``wait`` not a positive number.
+        ``min_cycles`` below 1; ``idle``, ``poll`` or ``wait`` not a positive number; an unknown relay.
 
     Examples
     --------
@@ -108,6 +116,7 @@ class WatchOptions:
     idle: float = 10.0
     poll: float = 0.02
     wait: float | None = None
+    relay: RelayOptions = RelayOptions()
 
     def __post_init__(self) -> None:
         if isinstance(self.min_cycles, bool) or not isinstance(self.min_cycles, Integral) or self.min_cycles < 1:
@@ -116,37 +125,50 @@ class WatchOptions:
         object.__setattr__(self, "poll", check_positive("poll", self.poll))
         if self.wait is not None:
             object.__setattr__(self, "wait", check_positive("wait", self.wait))
+        self.analysis()  # the relay checked now, not when the recording ends
+
+    def analysis(self) -> AnalyzeOptions:
+        """The final analysis's options: ``analyze``'s defaults, these stable cycles and relay."""
+        return AnalyzeOptions(min_stable_cycles=self.min_cycles, relay=self.relay)
 
 
 # --------------------------------------------------------------------------------------------------
-# update records
+# update records: one ``--jsonl`` line each, the same for every family
 # --------------------------------------------------------------------------------------------------
+
+
+def _floats(data: Mapping[str, Any], *names: str) -> list[float]:
+    return [float(data[n]) for n in names]
 
 
 @dataclass(frozen=True)
 class TestUpdate:
-    """A test with enough stable cycles, reported when it first qualifies and at every new cycle.
+    """A usable test, reported when it first qualifies and again at every new stable cycle.
 
     Attributes
     ----------
     number : int
         Test number in the log, 1-based.
-    t_start, t_cycle_end : float
-        The relay's first command sample and the end of the newest stable cycle [s, log time].
-    t_log_start : float
-        The log's first command sample [s, log time]: a terminal shows test times from it, as analyze does.
-    beta_nominal : float or None
-        Beta from the beta topic.
+    t_start, t_cycle_end, t_log_start : float
+        The relay's first command sample, the end of the newest stable cycle and the log's first command
+        sample [s, log time] (a terminal shows test times from the log's start, as analyze does).
     beta_effective : float
-        Mean switching level the relay achieved over the stable cycles.
+        The switching level the relay achieved, over the amplitude [-] (mean over the stable cycles).
     frequency_hz, amplitude : float
-        Limit-cycle frequency [Hz] and output amplitude [output units] (means over stable cycles).
+        Limit-cycle frequency [Hz] and output amplitude [output units] (means over the stable cycles).
     h : float
         Relay half-height [command units].
     stable_cycles, cycles : int
         Stable and all complete cycles so far.
     wall_time : float
         When the update was produced (``time.time()``) [s].
+    beta_nominal : float or None
+        Eq. (2)'s MRFT beta from the beta topic (None without one, and for a process plant).
+    relay : RelayLaw or None
+        A process plant's relay, inferred from the data or as stated (``relay.source``); None for
+        eq. (2), whose relay is the MRFT at ``beta_nominal`` with ``h``.
+    notes : tuple of str
+        How the test is used when not plainly (a noisy output, a chattering relay, an assumed bias).
     """
 
     __test__: ClassVar[bool] = False
@@ -154,7 +176,7 @@ class TestUpdate:
     number: int
     t_start: float
     t_cycle_end: float
-    beta_nominal: float | None
+    t_log_start: float
     beta_effective: float
     frequency_hz: float
     amplitude: float
@@ -162,52 +184,101 @@ class TestUpdate:
     stable_cycles: int
     cycles: int
     wall_time: float
-    t_log_start: float
+    beta_nominal: float | None = None
+    relay: RelayLaw | None = None
+    notes: tuple[str, ...] = ()
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, **asdict(self)}
+    def to_json(self) -> dict[str, Any]:
+        """One ``--jsonl`` line: ``kind``, ``schema_version``, the figures, ``relay`` (its JSON or null)."""
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "number": self.number,
+                "t_start": self.t_start, "t_cycle_end": self.t_cycle_end, "t_log_start": self.t_log_start,
+                "beta_nominal": self.beta_nominal, "beta_effective": self.beta_effective,
+                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "h": self.h,
+                "stable_cycles": self.stable_cycles, "cycles": self.cycles, "wall_time": self.wall_time,
+                "relay": None if self.relay is None else self.relay.to_json(), "notes": list(self.notes)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> TestUpdate:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        d = check_schema_version(data, "watch test update", WATCH_SCHEMA_VERSION)
+        try:
+            t_start, t_end, t_log, beta, f, a, h, wall = _floats(d, "t_start", "t_cycle_end", "t_log_start",
+                                                                 "beta_effective", "frequency_hz", "amplitude", "h",
+                                                                 "wall_time")
+            nominal, relay = d.get("beta_nominal"), d.get("relay")
+            return cls(int(d["number"]), t_start, t_end, t_log, beta, f, a, h, int(d["stable_cycles"]), int(d["cycles"]),
+                       wall, None if nominal is None else float(nominal),
+                       None if relay is None else RelayLaw.from_json(relay), tuple(str(n) for n in d.get("notes", [])))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"watch test update: bad or missing field ({err})") from None
 
 
 @dataclass(frozen=True)
 class EstimateUpdate:
-    """The identification from the tests so far (two betas or more).
+    """The model identified from the tests so far, or from the whole log (``final``).
 
     Attributes
     ----------
-    Td, tau : float
-        Drag time constant and delay [s].
-    K : float
-        Gain [output units / (command unit s^2)] (NaN without amplitudes).
+    family : str
+        The model's family (``soiptd`` for eq. (2), ``fopdt``, ... or ``declared``).
+    parameters : tuple of ParameterEstimate
+        Every parameter of the family in its order, each with its name, unit, std and 95 % interval
+        (known ones given; std null before the final update where the estimate has no spread, eq. (2)'s).
     tests : tuple of int
         Numbers of the tests used.
-    betas : tuple of float
-        Their effective betas.
     t_cycle_end : float
         Newest cycle end included [s, log time].
     final : bool
         True for the last update: the whole log through :func:`mrftcli.analyze.analyze_flight`.
-    std : dict
-        ``{"Td", "tau", "K"}`` -> bootstrap standard deviation (final update only; else empty).
-    warnings : tuple of str
-        The identification's warnings.
     wall_time : float
         When the update was produced (``time.time()``) [s].
+    undetermined : tuple of str
+        The parameters the tests so far do not pin down (their values are one of many that fit).
+    advice : str
+        What would determine them (empty when all are).
+    warnings : tuple of str
+        The identification's warnings.
+    analysis : AnalysisResult or GeneralAnalysis or None
+        The final update's analysis, exactly ``analyze --json``'s record for the family (held-out
+        predictions, notes); None before.
     """
 
     kind: ClassVar[str] = "estimate"
-    Td: float
-    tau: float
-    K: float
+    family: str
+    parameters: tuple[ParameterEstimate, ...]
     tests: tuple[int, ...]
-    betas: tuple[float, ...]
     t_cycle_end: float
     final: bool
     wall_time: float
-    std: dict[str, float] = field(default_factory=dict)
+    undetermined: tuple[str, ...] = ()
+    advice: str = ""
     warnings: tuple[str, ...] = ()
+    analysis: AnalysisResult | GeneralAnalysis | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, **asdict(self)}
+    def to_json(self) -> dict[str, Any]:
+        """One ``--jsonl`` line: ``parameters`` keyed by name, each the one parameter record."""
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "model": self.family,
+                "parameters": {e.name: e.to_json() for e in self.parameters}, "tests": list(self.tests),
+                "t_cycle_end": self.t_cycle_end, "final": self.final, "wall_time": self.wall_time,
+                "undetermined": list(self.undetermined), "advice": self.advice, "warnings": list(self.warnings),
+                "analysis": None if self.analysis is None else self.analysis.to_json()}
+
+    @classmethod
+    def from_json(cls, data: Any) -> EstimateUpdate:
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        d = check_schema_version(data, "watch estimate update", WATCH_SCHEMA_VERSION)
+        try:
+            params, family, analysis = d["parameters"], str(d["model"]), d.get("analysis")
+            if not isinstance(params, Mapping):
+                raise TypeError("'parameters' is not an object")
+            reader = AnalysisResult.from_json if family == LoopModel.family else GeneralAnalysis.from_json
+            return cls(family, tuple(ParameterEstimate.from_json(n, v) for n, v in params.items()),
+                       tuple(int(i) for i in d["tests"]), float(d["t_cycle_end"]), bool(d["final"]),
+                       float(d["wall_time"]), tuple(str(n) for n in d.get("undetermined", [])),
+                       str(d.get("advice", "")), tuple(str(w) for w in d.get("warnings", [])),
+                       None if analysis is None else reader(analysis))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"watch estimate update: bad or missing field ({err})") from None
 
 
 @dataclass(frozen=True)
@@ -224,8 +295,10 @@ class WatchEnd:
     error: str | None = None
     exit_code: int = 0
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, **asdict(self)}
+    def to_json(self) -> dict[str, Any]:
+        """One ``--jsonl`` line."""
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "reason": self.reason,
+                "tests": self.tests, "wall_time": self.wall_time, "error": self.error, "exit_code": self.exit_code}
 
 
 @dataclass(frozen=True)
@@ -245,144 +318,13 @@ class Restart:
     reason: str
     wall_time: float
 
-    def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, **asdict(self)}
-
-
-def _floats(data: Mapping[str, Any], *names: str) -> list[float]:
-    return [float(data[n]) for n in names]
-
-
-@dataclass(frozen=True)
-class ProcessTestUpdate:
-    """A relay test of a process plant (:func:`watch_model`), reported as :class:`TestUpdate` is.
-
-    Attributes
-    ----------
-    number : int
-        Test number in the log, 1-based.
-    t_start, t_cycle_end, t_log_start : float
-        The relay's first command sample, the end of the newest stable cycle and the log's first command
-        sample [s, log time].
-    relay : RelayLaw
-        The relay, inferred from the data or as stated (``relay.source``): kind, levels, bias, beta or eps.
-    beta_effective : float
-        The switching level measured, over the amplitude [-].
-    frequency_hz, amplitude : float
-        Limit-cycle frequency [Hz] and output amplitude [output units] (means over the stable cycles).
-    stable_cycles, cycles : int
-        Stable and all complete cycles so far.
-    wall_time : float
-        When the update was produced (``time.time()``) [s].
-    notes : tuple of str
-        How the test is used when not plainly (a noisy output, a chattering relay).
-    """
-
-    __test__: ClassVar[bool] = False
-    kind: ClassVar[str] = "test"
-    number: int
-    t_start: float
-    t_cycle_end: float
-    t_log_start: float
-    relay: RelayLaw
-    beta_effective: float
-    frequency_hz: float
-    amplitude: float
-    stable_cycles: int
-    cycles: int
-    wall_time: float
-    notes: tuple[str, ...] = ()
-
     def to_json(self) -> dict[str, Any]:
-        """One ``--jsonl`` line: ``kind``, ``schema_version``, the figures and ``relay`` (its JSON)."""
-        return {"kind": self.kind, "schema_version": WATCH_PROCESS_SCHEMA_VERSION, "number": self.number,
-                "t_start": self.t_start, "t_cycle_end": self.t_cycle_end, "t_log_start": self.t_log_start,
-                "relay": self.relay.to_json(), "beta_effective": self.beta_effective,
-                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "stable_cycles": self.stable_cycles,
-                "cycles": self.cycles, "wall_time": self.wall_time, "notes": list(self.notes)}
-
-    to_dict = to_json
-
-    @classmethod
-    def from_json(cls, data: Any) -> ProcessTestUpdate:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "watch test update", WATCH_PROCESS_SCHEMA_VERSION)
-        try:
-            t_start, t_end, t_log, beta, f, a, wall = _floats(d, "t_start", "t_cycle_end", "t_log_start",
-                                                              "beta_effective", "frequency_hz", "amplitude",
-                                                              "wall_time")
-            return cls(int(d["number"]), t_start, t_end, t_log, RelayLaw.from_json(d["relay"]), beta, f, a,
-                       int(d["stable_cycles"]), int(d["cycles"]), wall, tuple(str(n) for n in d.get("notes", [])))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"watch test update: bad or missing field ({err})") from None
+        """One ``--jsonl`` line."""
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "reason": self.reason,
+                "wall_time": self.wall_time}
 
 
-@dataclass(frozen=True)
-class ProcessEstimateUpdate:
-    """The process model identified from the tests so far (:func:`watch_model`).
-
-    Attributes
-    ----------
-    family : str
-        The model's family (``fopdt``, ... or ``declared``).
-    estimates : tuple of LtiEstimate
-        Every parameter of the family, with its unit, std and 95 % interval (known ones flagged).
-    tests : tuple of int
-        Numbers of the tests used.
-    t_cycle_end : float
-        Newest cycle end included [s, log time].
-    final : bool
-        True for the last update: the whole log through :func:`mrftcli.analyze.general.analyze_general`.
-    wall_time : float
-        When the update was produced (``time.time()``) [s].
-    undetermined : tuple of str
-        The parameters the tests so far do not pin down (their values are one of many that fit).
-    advice : str
-        What would determine them (empty when all are).
-    analysis : GeneralAnalysis or None
-        The final update's analysis, exactly ``analyze --model --json``'s record (held-out predictions,
-        notes); None before.
-    """
-
-    kind: ClassVar[str] = "estimate"
-    family: str
-    estimates: tuple[LtiEstimate, ...]
-    tests: tuple[int, ...]
-    t_cycle_end: float
-    final: bool
-    wall_time: float
-    undetermined: tuple[str, ...] = ()
-    advice: str = ""
-    analysis: GeneralAnalysis | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        """One ``--jsonl`` line: ``parameters`` keyed by name as in ``analyze --model --json``."""
-        return {"kind": self.kind, "schema_version": WATCH_PROCESS_SCHEMA_VERSION, "model": self.family,
-                "parameters": {e.name: e.to_json() for e in self.estimates}, "tests": list(self.tests),
-                "t_cycle_end": self.t_cycle_end, "final": self.final, "wall_time": self.wall_time,
-                "undetermined": list(self.undetermined), "advice": self.advice,
-                "analysis": None if self.analysis is None else self.analysis.to_json()}
-
-    to_dict = to_json
-
-    @classmethod
-    def from_json(cls, data: Any) -> ProcessEstimateUpdate:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "watch estimate update", WATCH_PROCESS_SCHEMA_VERSION)
-        try:
-            params = d["parameters"]
-            if not isinstance(params, Mapping):
-                raise TypeError("'parameters' is not an object")
-            analysis = d.get("analysis")
-            return cls(str(d["model"]), tuple(LtiEstimate.from_json(n, v) for n, v in params.items()),
-                       tuple(int(i) for i in d["tests"]), float(d["t_cycle_end"]), bool(d["final"]),
-                       float(d["wall_time"]), tuple(str(n) for n in d.get("undetermined", [])),
-                       str(d.get("advice", "")), None if analysis is None else GeneralAnalysis.from_json(analysis))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"watch estimate update: bad or missing field ({err})") from None
-
-
-Update = TestUpdate | EstimateUpdate | WatchEnd | Restart | ProcessTestUpdate | ProcessEstimateUpdate
+Update = TestUpdate | EstimateUpdate | WatchEnd | Restart
 
 
 # --------------------------------------------------------------------------------------------------
@@ -432,102 +374,93 @@ class _Tracker:
         return self.closed + open_tests
 
 
-def _usable(test: MrftTest, min_cycles: int) -> bool:
-    return test.n_stable >= min_cycles and test.valid and math.isfinite(test.beta_effective)
-
-
 def _newest_end(test: MrftTest) -> float:
     st = test.stable
     return float(st[-1].t_end) if st else float(test.t_start)
 
 
-def _estimate(tests: list[MrftTest], Tp: float, min_cycles: int) -> EstimateUpdate | None:
-    """The paper's point estimate from the usable tests, when they span two betas or more."""
-    from .mrft.identify import TestMeasurement, identify
-
-    use = [t for t in tests if _usable(t, min_cycles)]
-    betas = sorted(t.beta_effective for t in use)
-    if len(use) < 2 or betas[-1] - betas[0] < SAME_BETA:
-        return None
-    meas = [TestMeasurement(beta=t.beta_effective, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
-                            h=t.h) for t in use]
-    try:
-        res = identify(meas, Tp, rate_hz=None)
-    except MrftError:
-        return None
-    K = res.K.mean if res.K is not None else float("nan")
-    return EstimateUpdate(Td=float(res.model.Td), tau=float(res.model.tau), K=float(K),
-                          tests=tuple(t.index + 1 for t in use), betas=tuple(float(t.beta_effective) for t in use),
-                          t_cycle_end=max(_newest_end(t) for t in use), final=False, wall_time=time.time(),
-                          warnings=tuple(res.warnings))
-
-
-def _final(flight: FlightLog | None, Tp: float, min_cycles: int, reason: str, n_tests: int
-           ) -> Iterator[Update]:
-    from .analyze import AnalyzeOptions, analyze_flight
-
-    if flight is None:
-        yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error="no data in the log",
-                       exit_code=LogReadError.exit_code)
-        return
-    try:
-        res = analyze_flight(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
-    except (MrftError, InsufficientDataError) as err:
-        yield WatchEnd(reason=reason, tests=n_tests, wall_time=time.time(), error=str(err), exit_code=err.exit_code)
-        return
-    yield EstimateUpdate(
-        Td=res.Td.mean, tau=res.tau.mean, K=res.K.mean, tests=tuple(t.index + 1 for t in res.tests),
-        betas=tuple(float(t.beta_effective) for t in res.tests),
-        t_cycle_end=max(_newest_end(t) for t in res.tests), final=True, wall_time=time.time(),
-        std={"Td": res.Td.std, "tau": res.tau.std, "K": res.K.std}, warnings=tuple(res.warnings))
-    yield WatchEnd(reason=reason, tests=len(res.tests), wall_time=time.time())
-
-
 # --------------------------------------------------------------------------------------------------
-# what the loop asks of a model: which tests it uses, how it reports them, the estimate
+# the family's strategy: which tests it uses, how it reports them, the estimate so far, the final one
 # --------------------------------------------------------------------------------------------------
 
 
-class _Identifier(Protocol):
+class _Strategy(Protocol):
     #: the shortest quiet spell after a test that closes it [s] (:class:`_Tracker`)
     quiet_s: float
 
     def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
         """The test as the model uses it, or None (not usable yet)."""
 
-    def test_update(self, test: MrftTest, flight: FlightLog) -> Update:
+    def test_update(self, test: MrftTest, flight: FlightLog) -> TestUpdate:
         """The update reporting a usable test."""
 
-    def estimate(self, tests: list[MrftTest]) -> Update | None:
+    def estimate(self, tests: list[MrftTest]) -> EstimateUpdate | None:
         """The estimate from the usable tests, or None when they give none yet."""
 
-    def final(self, flight: FlightLog | None, reason: str, n_tests: int) -> Iterator[Update]:
-        """The whole log's analysis, then :class:`WatchEnd`."""
+    def final(self, res: Any) -> EstimateUpdate:
+        """The final update of the whole log's analysis (:func:`mrftcli.analyze.analyze_flight`'s record)."""
 
 
-class _PaperIdentifier:
-    """eq. (2) with Tp known: the paper's point estimate per update, :func:`analyze_flight` at the end."""
+def _test_update(test: MrftTest, flight: FlightLog, **extra: Any) -> TestUpdate:
+    return TestUpdate(number=test.index + 1, t_start=float(test.t_start), t_cycle_end=_newest_end(test),
+                      t_log_start=float(flight.command.t[0]), beta_effective=float(test.beta_effective),
+                      frequency_hz=float(test.frequency_hz_mean), amplitude=float(test.amplitude_mean),
+                      h=float(test.h), stable_cycles=test.n_stable, cycles=len(test.cycles), wall_time=time.time(),
+                      **extra)
+
+
+def _eq2_parameters(model: LoopModel, found: Mapping[str, ParameterEstimate | None], method: str,
+                    spread: bool) -> tuple[ParameterEstimate, ...]:
+    """eq. (2)'s parameters in the family's order and units: Tp given, Td, tau and K as found by ``method``
+    (NaN: K without amplitudes); without ``spread`` (the live point estimate) std and interval NaN."""
+    out = []
+    for name, p in model.parameters.items():
+        e = found.get(name)
+        if p.known:
+            out.append(ParameterEstimate.given(p.value, p.unit, name))
+        elif e is None:
+            out.append(ParameterEstimate(math.nan, math.nan, math.nan, math.nan, p.unit, False, method=method, name=name))
+        elif spread:
+            out.append(replace(e, value=float(e.value), unit=p.unit, method=e.method or method, name=name))
+        else:
+            out.append(ParameterEstimate(float(e.value), math.nan, math.nan, math.nan, p.unit, method=method, name=name))
+    return tuple(out)
+
+
+class _Eq2:
+    """eq. (2) with Tp known: the paper's point estimate per update (module docstring)."""
 
     quiet_s = 1.0  # a multirotor's loops cycle at about 0.3-3 Hz: a second without switching ends a test
 
-    def __init__(self, Tp: float, min_cycles: int) -> None:
-        self.Tp, self.min_cycles = Tp, min_cycles
+    def __init__(self, model: LoopModel, min_cycles: int) -> None:
+        self.model, self.min_cycles = model, min_cycles
 
     def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
-        return test if _usable(test, self.min_cycles) else None
+        ok = test.n_stable >= self.min_cycles and test.valid and math.isfinite(test.beta_effective)
+        return test if ok else None
 
-    def test_update(self, test: MrftTest, flight: FlightLog) -> Update:
-        return TestUpdate(number=test.index + 1, t_start=test.t_start, t_cycle_end=_newest_end(test),
-                          beta_nominal=test.beta_nominal, beta_effective=test.beta_effective,
-                          frequency_hz=test.frequency_hz_mean, amplitude=test.amplitude_mean, h=test.h,
-                          stable_cycles=test.n_stable, cycles=len(test.cycles), wall_time=time.time(),
-                          t_log_start=float(flight.command.t[0]))
+    def test_update(self, test: MrftTest, flight: FlightLog) -> TestUpdate:
+        return _test_update(test, flight, beta_nominal=test.beta_nominal)
 
-    def estimate(self, tests: list[MrftTest]) -> Update | None:
-        return _estimate(tests, self.Tp, self.min_cycles)
+    def estimate(self, tests: list[MrftTest]) -> EstimateUpdate | None:
+        betas = sorted(t.beta_effective for t in tests)
+        if len(tests) < 2 or betas[-1] - betas[0] < SAME_BETA:
+            return None
+        meas = [TestMeasurement(beta=t.beta_effective, frequency_hz=t.frequency_hz_mean, amplitude=t.amplitude_mean,
+                                h=t.h) for t in tests]
+        try:
+            res = identify(meas, self.model, rate_hz=None)
+        except MrftError:
+            return None
+        params = _eq2_parameters(self.model, {"Td": res.Td, "tau": res.tau, "K": res.K}, "mrft", spread=False)
+        return EstimateUpdate(self.model.family, params, tuple(t.index + 1 for t in tests),
+                              max(_newest_end(t) for t in tests), False, time.time(), warnings=tuple(res.warnings))
 
-    def final(self, flight: FlightLog | None, reason: str, n_tests: int) -> Iterator[Update]:
-        return _final(flight, self.Tp, self.min_cycles, reason, n_tests)
+    def final(self, res: AnalysisResult) -> EstimateUpdate:
+        params = _eq2_parameters(self.model, {"Td": res.Td, "tau": res.tau, "K": res.K}, res.method, spread=True)
+        return EstimateUpdate(self.model.family, params, tuple(t.index + 1 for t in res.tests),
+                              max(_newest_end(t) for t in res.tests), True, time.time(),
+                              warnings=tuple(res.warnings), analysis=res)
 
 
 @dataclass(frozen=True)
@@ -558,8 +491,8 @@ def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles:
     return _Measured(used, law, points, notes)
 
 
-class _ProcessIdentifier:
-    """A process plant: each test measured once per new stable cycle, the model fitted to all points."""
+class _Family:
+    """Any other family: each test measured once per new stable cycle, the model fitted to all points."""
 
     # a process plant's time scale is its own (a tokamak cycles in 25 ms, a furnace in minutes): three
     # periods without switching end a test (at 10 kHz, a fixed second kept the previous test in every
@@ -585,41 +518,32 @@ class _ProcessIdentifier:
         self._by_index[test.index] = replace(measured, test=used)
         return used
 
-    def test_update(self, test: MrftTest, flight: FlightLog) -> Update:
+    def test_update(self, test: MrftTest, flight: FlightLog) -> TestUpdate:
         m = self._by_index[test.index]
-        return ProcessTestUpdate(number=test.index + 1, t_start=test.t_start, t_cycle_end=_newest_end(test),
-                                 t_log_start=float(flight.command.t[0]), relay=m.relay,
-                                 beta_effective=float(test.beta_effective), frequency_hz=float(test.frequency_hz_mean),
-                                 amplitude=float(test.amplitude_mean), stable_cycles=test.n_stable,
-                                 cycles=len(test.cycles), wall_time=time.time(), notes=m.notes)
+        return _test_update(test, flight, relay=m.relay, notes=m.notes)
 
-    def estimate(self, tests: list[MrftTest]) -> Update | None:
+    def estimate(self, tests: list[MrftTest]) -> EstimateUpdate | None:
         points = [p for t in tests for p in self._by_index[t.index].points]
         try:
             fit = identify_points(self.model, points)
         except MrftError:
             return None
-        return ProcessEstimateUpdate(fit.model.family, fit.estimates, tuple(t.index + 1 for t in tests),
-                                     max(_newest_end(t) for t in tests), False, time.time(), fit.undetermined,
-                                     fit.advice)
+        return EstimateUpdate(fit.model.family, tuple(fit.estimates), tuple(t.index + 1 for t in tests),
+                              max(_newest_end(t) for t in tests), False, time.time(), fit.undetermined, fit.advice)
 
-    def final(self, flight: FlightLog | None, reason: str, n_tests: int) -> Iterator[Update]:
-        if flight is None:
-            yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error="no data in the log",
-                           exit_code=LogReadError.exit_code)
-            return
-        try:
-            res = analyze_general(flight, self.model, relay=self.relay, min_stable_cycles=self.min_cycles)
-        except MrftError as err:
-            yield WatchEnd(reason=reason, tests=n_tests, wall_time=time.time(), error=str(err),
-                           exit_code=err.exit_code)
-            return
+    def final(self, res: GeneralAnalysis) -> EstimateUpdate:
         fit = res.identification
-        assert fit is not None  # analyze_general raises when no test is usable
-        yield ProcessEstimateUpdate(fit.model.family, fit.estimates, tuple(t.index + 1 for t in res.tests),
-                                    max(t.t_end for t in res.tests), True, time.time(), fit.undetermined,
-                                    fit.advice, analysis=res)
-        yield WatchEnd(reason=reason, tests=len(res.tests), wall_time=time.time())
+        assert fit is not None  # analyze_flight raises when no test is usable
+        return EstimateUpdate(fit.model.family, tuple(fit.estimates), tuple(t.index + 1 for t in res.tests),
+                              max(t.t_end for t in res.tests), True, time.time(), fit.undetermined, fit.advice,
+                              analysis=res)
+
+
+def _strategy(model: PlantModel, options: WatchOptions) -> _Strategy:
+    """The family's strategy, built afresh at the start and at every restart."""
+    if isinstance(model, LoopModel):
+        return _Eq2(model, options.min_cycles)
+    return _Family(model, options.relay, options.min_cycles)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -627,30 +551,45 @@ class _ProcessIdentifier:
 # --------------------------------------------------------------------------------------------------
 
 
-def _updates(tests: list[MrftTest], flight: FlightLog, ident: _Identifier,
+def _updates(tests: list[MrftTest], flight: FlightLog, strategy: _Strategy,
              reported: dict[int, int]) -> Iterator[Update]:
     """Each usable test with a new stable cycle, then the estimate when any was new."""
-    used = [u for u in (ident.usable(t, flight) for t in tests) if u is not None]
+    used = [u for u in (strategy.usable(t, flight) for t in tests) if u is not None]
     changed = False
     for test in used:
         if reported.get(test.index) != test.n_stable:
             reported[test.index] = test.n_stable
             changed = True
-            yield ident.test_update(test, flight)
+            yield strategy.test_update(test, flight)
     if changed:
-        est = ident.estimate(used)
+        est = strategy.estimate(used)
         if est is not None:
             yield est
 
 
-def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, options: WatchOptions,
+def _final(flight: FlightLog | None, model: PlantModel, strategy: _Strategy, options: WatchOptions, reason: str,
+           n_tests: int) -> Iterator[Update]:
+    """The whole log through :func:`mrftcli.analyze.analyze_flight` (as ``analyze`` runs it), then :class:`WatchEnd`."""
+    if flight is None:
+        yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error="no data in the log",
+                       exit_code=LogReadError.exit_code)
+        return
+    try:
+        res = analyze_flight(flight, model, options=options.analysis())
+    except MrftError as err:
+        yield WatchEnd(reason=reason, tests=n_tests, wall_time=time.time(), error=str(err), exit_code=err.exit_code)
+        return
+    yield strategy.final(res)
+    yield WatchEnd(reason=reason, tests=len(res.tests), wall_time=time.time())
+
+
+def _follow(path: Path, model: PlantModel, read: ReadOptions, options: WatchOptions,
             sleep: Callable[[float], None], clock: Callable[[], float]) -> Generator[Update, None, None]:
-    """The loop of :func:`watch` and :func:`watch_model` (``make`` builds the model's identifier afresh
-    at the start and at every restart)."""
+    """The loop of :func:`watch`."""
     _wait_for(path, options.wait, options.poll, sleep, clock)
     follower = follow_log(path, read)
-    ident = make()
-    tracker = _Tracker(ident.quiet_s)
+    strategy = _strategy(model, options)
+    tracker = _Tracker(strategy.quiet_s)
     reported: dict[int, int] = {}  # test index -> stable cycles last reported
     flight = None
     last_growth = clock()
@@ -658,14 +597,14 @@ def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, opti
         snap = follower.poll()
         now = clock()
         if snap.restarted is not None:
-            ident, reported, flight = make(), {}, None
-            tracker = _Tracker(ident.quiet_s)
+            strategy, reported, flight = _strategy(model, options), {}, None
+            tracker = _Tracker(strategy.quiet_s)
             yield Restart(reason=snap.restarted, wall_time=time.time())
         if snap.grew:
             last_growth = now
         if snap.flight is not None:
             flight = snap.flight
-            yield from _updates(tracker.update(flight), flight, ident, reported)
+            yield from _updates(tracker.update(flight), flight, strategy, reported)
         if snap.closed or now - last_growth > options.idle:
             reason = "closed" if snap.closed else "idle"
             if flight is None and read.fmt is None:  # nothing read: say whether it is a log at all
@@ -674,15 +613,20 @@ def _follow(path: Path, make: Callable[[], _Identifier], read: ReadOptions, opti
                     yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error=not_a_log,
                                    exit_code=LogReadError.exit_code)
                     return
-            yield from ident.final(flight, reason, len(reported))
+            yield from _final(flight, model, strategy, options, reason, len(reported))
             return
         sleep(options.poll)
 
 
-def watch(path: str | Path, Tp: float, *, read: ReadOptions | None = None, options: WatchOptions | None = None,
-          sleep: Callable[[float], None] = time.sleep,
+def watch(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
+          options: WatchOptions | None = None, sleep: Callable[[float], None] = time.sleep,
           clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
-    """Follow ``path`` while it is written and yield updates of eq. (2) (see the module docstring).
+    """Follow ``path`` while it is written and yield the updates of ``model``'s identification.
+
+    The live counterpart of :func:`mrftcli.analyze.analyze_flight` (module docstring): each usable test
+    as a :class:`TestUpdate`, after each new cycle an :class:`EstimateUpdate` (naming the parameters the
+    tests so far do not determine), and when the writer closes the file the whole log's analysis
+    (``final``).
 
     Parameters
     ----------
@@ -690,79 +634,44 @@ def watch(path: str | Path, Tp: float, *, read: ReadOptions | None = None, optio
         An MCAP file, a ROS 2 bag directory with mcap storage, or any log :func:`mrftcli.io.read_flight`
         reads (CSV, ULog, ...). It may not exist yet: it is waited for (a ground station starts
         ``watch`` before the logger), until the generator is closed or for ``options.wait`` seconds.
-    Tp : float
-        Known propulsion time constant [s].
+    model : PlantModel
+        The structure with its known parameters (set E) and ranges (set I): eq. (2) with Tp known
+        (``mrftcli.mrft.model.soiptd_model(Tp)``, Tp [s] from the bench test), or e.g.
+        ``mrftcli.mrft.families.family_model("fopdt")``.
     read : ReadOptions, optional
         The loop and the log layout, as for :func:`mrftcli.io.read_flight` (``fmt`` None: detected; a
         missing file or a ``.mcap`` name is followed as MCAP); None: ``ReadOptions()``.
     options : WatchOptions, optional
-        Stable cycles per test, idle time, poll interval and the longest wait for the file; None:
-        ``WatchOptions()``.
+        Stable cycles per test, idle time, poll interval, the longest wait for the file and a process
+        plant's relay; None: ``WatchOptions()``.
     sleep, clock
         Injected for tests (default :func:`time.sleep`, :func:`time.monotonic`).
 
     Yields
     ------
     TestUpdate, EstimateUpdate, Restart or WatchEnd
-        The last one is a :class:`WatchEnd`; stop early by closing the generator (Ctrl-C in the CLI).
-        A :class:`Restart` when the file is truncated or replaced (a new recording): the tests so far
-        are forgotten.
+        The last one is a :class:`WatchEnd` (its ``error`` the final analysis's one-line message); stop
+        early by closing the generator (Ctrl-C in the CLI). A :class:`Restart` when the file is
+        truncated or replaced (a new recording): the tests so far are forgotten.
 
     Raises
     ------
+    InputError
+        A relay stated for eq. (2) (it reads its relay from the log).
     LogReadError
         The file did not appear within ``wait`` seconds, is not a log, or lacks a required topic once
         closed.
-    """
-    Tp = check_positive("Tp", Tp)
-    wopts = WatchOptions() if options is None else options
-    return _follow(Path(path), lambda: _PaperIdentifier(Tp, wopts.min_cycles), ReadOptions() if read is None else read,
-                   wopts, sleep, clock)
-
-
-def watch_model(path: str | Path, model: PlantModel, *, relay: RelayOptions | None = None,
-                read: ReadOptions | None = None, options: WatchOptions | None = None,
-                sleep: Callable[[float], None] = time.sleep,
-                clock: Callable[[], float] = time.monotonic) -> Generator[Update, None, None]:
-    """Follow ``path`` while it is written and yield updates of a process plant's identification.
-
-    The live counterpart of :func:`mrftcli.analyze.general.analyze_general` (``watch --model NAME``;
-    module docstring): each usable test as a :class:`ProcessTestUpdate` (its relay inferred or as
-    stated), after each new cycle a :class:`ProcessEstimateUpdate` (naming the parameters the tests so
-    far do not determine), and when the writer closes the file the whole log's analysis (``final``).
-
-    Parameters
-    ----------
-    path : str or Path
-        The log, as for :func:`watch`.
-    model : PlantModel
-        The structure with its known parameters (set E) and ranges (set I), e.g.
-        ``mrftcli.mrft.families.family_model("fopdt")``.
-    relay : RelayOptions, optional
-        What is stated about the relay (the rest is inferred per test); None: all inferred.
-    read, options, sleep, clock
-        As for :func:`watch`.
-
-    Yields
-    ------
-    ProcessTestUpdate, ProcessEstimateUpdate, Restart or WatchEnd
-        The last one is a :class:`WatchEnd` (its ``error`` the final analysis's one-line message).
-
-    Raises
-    ------
-    LogReadError
-        As for :func:`watch`.
 
     Examples
     --------
-    >>> from mrftcli.mrft.families import family_model
-    >>> updates = watch_model("plant.csv", family_model("fopdt"),
-    ...                       read=ReadOptions(command_topic="u_relay", output_topic="y_output"))
+    >>> from mrftcli.mrft.model import soiptd_model
+    >>> updates = watch("flight.mcap", soiptd_model(0.0422), read=ReadOptions(loop="altitude"))
     """
-    rel = RelayOptions() if relay is None else relay
-    wopts = WatchOptions() if options is None else options
-    return _follow(Path(path), lambda: _ProcessIdentifier(model, rel, wopts.min_cycles),
-                   ReadOptions() if read is None else read, wopts, sleep, clock)
+    opts = WatchOptions() if options is None else options
+    if isinstance(model, LoopModel) and opts.relay.stated:
+        raise InputError("a relay (--relay, --eps) takes a process model (--model fopdt, sopdt, ipdt or foipdt); "
+                         "eq. (2) reads beta from the log")
+    return _follow(Path(path), model, ReadOptions() if read is None else read, opts, sleep, clock)
 
 
 def _not_a_log(path: Path) -> str | None:

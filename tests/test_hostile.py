@@ -136,7 +136,7 @@ def test_watch_without_wait_keeps_waiting_until_the_file_appears(tmp_path):
             log.write_bytes((ROOT / "sample_logs" / "design1_altitude.csv").read_bytes())
 
     clock = iter(np.arange(1e6) * 0.02)
-    updates = list(watch(log, 0.0422, options=WatchOptions(idle=1.0), sleep=sleep, clock=lambda: float(next(clock))))
+    updates = list(watch(log, soiptd_model(0.0422), options=WatchOptions(idle=1.0), sleep=sleep, clock=lambda: float(next(clock))))
     assert updates[-1].reason == "idle" and updates[-1].tests == 2 and updates[-1].exit_code == 0
 
 
@@ -187,7 +187,7 @@ def test_watch_reports_a_restart_and_forgets_the_old_tests(tmp_path):
             log.write_bytes(short.read_bytes())  # smaller: a new recording
 
     clock = iter(np.arange(1e6) * 0.02)
-    updates = list(watch(log, 0.0422, options=WatchOptions(idle=0.5), sleep=sleep, clock=lambda: float(next(clock))))
+    updates = list(watch(log, soiptd_model(0.0422), options=WatchOptions(idle=0.5), sleep=sleep, clock=lambda: float(next(clock))))
     kinds = [type(u).__name__ for u in updates]
     assert "Restart" in kinds
     after = updates[kinds.index("Restart") + 1:]

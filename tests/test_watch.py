@@ -14,16 +14,20 @@ import pytest
 
 from cli_helpers import LiveWriter, run_cli as _cli
 
+from mrftcli.jsonable import to_jsonable
 from mrftcli.mrft.model import soiptd_model
+from mrftcli.mrft.parameter import JSON_KEYS
 from mrftcli.analyze import analyze_path
 from mrftcli.errors import LogReadError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, WatchOptions, watch
 
+EQ2 = soiptd_model(0.0422)
+
 
 def _follow(writer, **kw):
     out = []
-    for u in watch(writer.dst, 0.0422, options=WatchOptions(**kw), sleep=writer.sleep, clock=writer.clock):
+    for u in watch(writer.dst, EQ2, options=WatchOptions(**kw), sleep=writer.sleep, clock=writer.clock):
         out.append((u, min(writer.pos, len(writer.data))))
     return out
 
@@ -39,14 +43,23 @@ def test_mcap_tests_and_estimate_arrive_before_the_file_is_complete(repo_root, t
     assert tests[0][0].beta_nominal == pytest.approx(-0.4)
     assert {u.number for u, _ in tests} == {1, 2}
     live = [u for u, _ in got if isinstance(u, EstimateUpdate) and not u.final]
-    assert live and abs(live[-1].tau - truth["tau"]) < 2e-3
+    assert live and abs(_values(live[-1])["tau"] - truth["tau"]) < 2e-3
     final = [u for u, _ in got if isinstance(u, EstimateUpdate) and u.final]
     assert len(final) == 1
-    ref = analyze_path(src, soiptd_model(0.0422))
-    assert final[0].tau == pytest.approx(ref.tau.mean, rel=1e-9)
-    assert final[0].Td == pytest.approx(ref.Td.mean, rel=1e-9)
+    ref = analyze_path(src, EQ2)
+    assert final[0].analysis is not None and final[0].analysis.tests == ref.tests
+    got_final = {e.name: e for e in final[0].parameters}
+    for name in ("Td", "tau", "K"):  # the final update is analyze's estimate, its spread included
+        ours, theirs = got_final[name], getattr(ref, name)
+        assert (ours.value, ours.std, ours.ci95_low) == pytest.approx((theirs.value, theirs.std, theirs.ci95_low),
+                                                                       rel=1e-9), name
+    assert got_final["Tp"].known and got_final["Tp"].value == 0.0422
     end = got[-1][0]
     assert isinstance(end, WatchEnd) and end.reason == "closed" and end.exit_code == 0
+
+
+def _values(update):
+    return {e.name: e.value for e in update.parameters}
 
 
 def test_csv_stops_after_idle_and_survives_half_written_rows(repo_root, tmp_path):
@@ -61,7 +74,7 @@ def test_csv_stops_after_idle_and_survives_half_written_rows(repo_root, tmp_path
 def test_a_file_that_never_appears_is_a_one_line_error(tmp_path):
     clock = iter(range(1000))
     with pytest.raises(LogReadError, match="no such file"):
-        list(watch(tmp_path / "none.mcap", 0.04, options=WatchOptions(wait=3.0), sleep=lambda dt: None, clock=lambda: float(next(clock))))
+        list(watch(tmp_path / "none.mcap", soiptd_model(0.04), options=WatchOptions(wait=3.0), sleep=lambda dt: None, clock=lambda: float(next(clock))))
 
 
 def test_cli_jsonl_prints_one_object_per_update(repo_root, capsys):
@@ -72,6 +85,16 @@ def test_cli_jsonl_prints_one_object_per_update(repo_root, capsys):
     assert rows[-1] == {**rows[-1], "kind": "end", "reason": "closed"}
     assert [r["kind"] for r in rows[-2:]] == ["estimate", "end"] and rows[-2]["final"] is True
     assert err == ""
+    # one line shape for every family: schema 2, each parameter the one record, analyze --json's record at the end
+    assert {r["schema_version"] for r in rows} == {2}
+    final = rows[-2]
+    assert final["model"] == "soiptd" and list(final["parameters"]) == ["Tp", "Td", "tau", "K"]
+    assert all(list(p) == list(JSON_KEYS) for p in final["parameters"].values())
+    assert final["parameters"]["Tp"] == {**final["parameters"]["Tp"], "value": 0.0422, "known": True}
+    assert len(final["analysis"]["tests"]) == 2 and all("held_out" in t for t in final["analysis"]["tests"])
+    for row in rows[:-1]:  # each line reads back as its record
+        record = {"test": TestUpdate, "estimate": EstimateUpdate}[row["kind"]].from_json(row)
+        assert json.loads(json.dumps(to_jsonable(record.to_json()))) == row
 
 
 def test_ctrl_c_stops_cleanly_with_one_line(repo_root, tmp_path):

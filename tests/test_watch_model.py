@@ -1,8 +1,8 @@
-"""``watch --model NAME``: a process plant identified while its recording grows.
+"""``watch --model NAME``: a process plant identified while its recording grows (the one ``watch``, a family model).
 
 Oracle: relay tests simulated by tests/process_sim.py (independent of mrftcli: the plant from its
 transfer function's polynomials, stepped exactly), whose truth the final estimate must recover; and
-``analyze_general`` on the finished file, which the final update must equal.
+``analyze_flight`` on the finished file, which the final update must equal.
 """
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ from mrftcli.analyze import analyze_flight  # noqa: E402
 from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
-from mrftcli.watch import (ProcessEstimateUpdate, ProcessTestUpdate, WatchEnd, WatchOptions,  # noqa: E402
-                           watch_model)
+from mrftcli.watch import EstimateUpdate, TestUpdate, WatchEnd, WatchOptions, watch  # noqa: E402
 
 TRUTH = dict(K=2.0, T=0.5, tau=0.1)
 READ = ReadOptions(command_topic="u_relay", output_topic="y_output")
@@ -42,22 +41,22 @@ def recording(tmp_path_factory):
 
 def test_live_estimates_arrive_before_the_end_and_the_final_is_analyze_model(recording, tmp_path):
     w = LiveWriter(recording.read_bytes(), tmp_path / "live.csv", 9001)  # slices end in the middle of rows
-    got = [(u, w.pos) for u in watch_model(w.dst, family_model("fopdt"), read=READ,
+    got = [(u, w.pos) for u in watch(w.dst, family_model("fopdt"), read=READ,
                                            options=WatchOptions(idle=0.3, poll=0.1), sleep=w.sleep, clock=w.clock)]
-    tests = [u for u, _ in got if isinstance(u, ProcessTestUpdate)]
+    tests = [u for u, _ in got if isinstance(u, TestUpdate)]
     assert {u.number for u in tests} == {1, 2}
     first = tests[0]
     assert first.relay.kind == "hysteresis" and first.relay.source == "inferred"
     assert (first.relay.high, first.relay.low) == pytest.approx((1.5, -0.5))
     assert any("bias" in n for n in first.notes)  # the biased relay's assumption, stated on its line
-    live = [(u, pos) for u, pos in got if isinstance(u, ProcessEstimateUpdate) and not u.final]
+    live = [(u, pos) for u, pos in got if isinstance(u, EstimateUpdate) and not u.final]
     assert live and live[0][1] < len(w.data)  # an estimate while the file was still being written
-    final = [u for u, _ in got if isinstance(u, ProcessEstimateUpdate) and u.final]
+    final = [u for u, _ in got if isinstance(u, EstimateUpdate) and u.final]
     assert len(final) == 1 and final[0].analysis is not None
     ref = analyze_flight(read_flight(recording, READ, echo_warnings=False), family_model("fopdt"))
     assert final[0].analysis.to_json() == {**ref.to_json(), "path": final[0].analysis.path}
-    last_live = {e.name: e.value for e in live[-1][0].estimates}
-    for e in final[0].estimates:  # the last live fit used the same cycles, less a possible last one
+    last_live = {e.name: e.value for e in live[-1][0].parameters}
+    for e in final[0].parameters:  # the last live fit used the same cycles, less a possible last one
         assert last_live[e.name] == pytest.approx(e.value, rel=0.05)
     end = got[-1][0]
     assert isinstance(end, WatchEnd) and end.reason == "idle" and end.exit_code == 0
@@ -71,28 +70,43 @@ def test_one_test_names_what_it_cannot_determine_instead_of_a_number(recording, 
     data = recording.read_bytes()
     cut = tmp_path / "one.csv"
     cut.write_bytes(data[:data.index(b"\n", len(data) // 2) + 1])  # the first window and its rest
-    got = list(watch_model(cut, family_model("sopdt"), read=READ, options=WatchOptions(idle=0.2, poll=0.1),
+    got = list(watch(cut, family_model("sopdt"), read=READ, options=WatchOptions(idle=0.2, poll=0.1),
                            sleep=lambda dt: None, clock=iter(range(100)).__next__))
-    live = [u for u in got if isinstance(u, ProcessEstimateUpdate) and not u.final]
+    live = [u for u in got if isinstance(u, EstimateUpdate) and not u.final]
     assert live and live[-1].undetermined and "another phase" in live[-1].advice
-    shown, _, refusal = _line(live[-1], "m").partition("(tests")
+    shown, _, refusal = _line(live[-1], "m", {}).partition("(tests")
     assert "so far" in refusal and "nan" not in shown.lower()
     assert all(f"{name} " not in shown for name in live[-1].undetermined)
     assert "K " in shown  # what one test does determine is given
 
 
 def test_updates_round_trip_through_json_and_refuse_another_version(recording):
-    got = list(watch_model(recording, family_model("fopdt"), read=READ, options=WatchOptions(idle=0.1, poll=0.1),
+    got = list(watch(recording, family_model("fopdt"), read=READ, options=WatchOptions(idle=0.1, poll=0.1),
                            sleep=lambda dt: None, clock=iter(range(100)).__next__))
     for u in got:
-        if isinstance(u, (ProcessTestUpdate, ProcessEstimateUpdate)):
+        if isinstance(u, (TestUpdate, EstimateUpdate)):
             data = json.loads(json.dumps(u.to_json()))
             assert type(u).from_json(data).to_json() == u.to_json()
-    estimate = next(u for u in got if isinstance(u, ProcessEstimateUpdate))
+    estimate = next(u for u in got if isinstance(u, EstimateUpdate))
     with pytest.raises(InputError, match="schema_version"):
-        ProcessEstimateUpdate.from_json({**estimate.to_json(), "schema_version": 99})
+        EstimateUpdate.from_json({**estimate.to_json(), "schema_version": 99})
     with pytest.raises(InputError, match="watch test update"):
-        ProcessTestUpdate.from_json({"schema_version": 1, "number": 1})
+        TestUpdate.from_json({"schema_version": 2, "number": 1})
+
+
+def test_a_stated_relay_reaches_each_test_and_eq2_refuses_one(recording):
+    from mrftcli.analyze import RelayOptions
+    from mrftcli.mrft.model import soiptd_model
+
+    stated = WatchOptions(idle=0.1, poll=0.1, relay=RelayOptions("hysteresis", None, 0.04))
+    got = list(watch(recording, family_model("fopdt"), read=READ, options=stated, sleep=lambda dt: None,
+                     clock=iter(range(100)).__next__))
+    tests = [u for u in got if isinstance(u, TestUpdate)]
+    assert tests and all(u.relay.source == "stated" and u.relay.eps == 0.04 for u in tests)
+    with pytest.raises(InputError, match="process model"):
+        watch(recording, soiptd_model(0.0422), read=READ, options=stated)
+    with pytest.raises(InputError, match="unknown relay"):
+        WatchOptions(relay=RelayOptions("bang-bang"))
 
 
 def test_cli_model_options_refused_where_they_do_not_apply(capsys, recording):

@@ -52,7 +52,7 @@ def test_fisher_information_of_the_ufm_slice_matches_a_finite_difference_of_the_
 def test_predicted_cycle_is_the_exact_sampled_lprs():
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(model.Tp, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
+    p = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
     t = p.tests[0]
     lc = mrft_limit_cycle(model, t.beta, t.h, 200.0)
     assert t.frequency_hz == pytest.approx(lc.frequency_hz, rel=2e-3)
@@ -69,7 +69,7 @@ def test_predicted_cycle_matches_a_simulated_flight():
 
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    t = plan_tests(model.Tp, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,))).tests[0]
+    t = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,))).tests[0]
     sf = simulate_flight(FlightSpec(model=model, tests=(TestSpec(t.beta, t.h, t.duration_s),), rate_hz=200.0,
                                     noise_std=0.0005, seed=5, hover_s=2.0, hold_s=1.0))
     (found,) = segment(flight_from_simulated(sf))
@@ -87,14 +87,14 @@ def test_noise_model_grows_with_the_sensor_noise():
 def test_refuses_when_the_limits_admit_no_test():
     limits = FlightLimits(max_amplitude=1e-5, max_h=1.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     with pytest.raises(InputError, match="admit no MRFT test.*--max-amplitude"):
-        plan_tests(0.04, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,)))
+        plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,)))
 
 
 def test_flags_td_when_no_test_can_pin_it_down():
     # a slow drag (Td 3 s) on a fast loop: Td * Omega >> 5 for every beta
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     prior = Prior(Td=(2.5, 3.0), tau=(0.01, 0.012), K=(2.0, 2.1))
-    p = plan_tests(0.02, prior, limits, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
+    p = plan_tests(soiptd_model(0.02), limits, prior=prior, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
     assert any("Td cannot be pinned down" in n for n in p.notes)
 
 
@@ -103,7 +103,7 @@ def test_a_flown_test_is_counted_and_not_repeated():
     lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=lc.frequency_hz, amplitude=lc.amplitude, n_cycles=10)
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=15.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(model.Tp, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, flown=[flown], options=PlanOptions(n_draws=3, betas=(-0.4, -0.6, -0.8)))
+    p = plan_tests(soiptd_model(model.Tp), limits, prior=Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), flown=[flown], options=PlanOptions(n_draws=3, betas=(-0.4, -0.6, -0.8)))
     assert len(p.tests) == 1 and abs(p.tests[0].beta + 0.4) > 0.1  # one new slice, not the same again
     # the flown test plus the new one say more than the prior alone
     assert all(p.predicted_std[k] < p.prior_std[k] for k in ("Td", "tau", "K"))
@@ -151,9 +151,9 @@ def test_a_beta_whose_switch_noise_would_trigger_is_not_recommended():
     assert gap[-0.9] < 16 < gap[-0.5]
     quiet = FlightLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.00002)
     # without the noise the planner prefers -0.9 here (its slice crosses -0.4's more steeply) ...
-    assert plan_tests(model.Tp, _narrow_prior(), quiet, options=PlanOptions(n_tests=1, n_draws=2, betas=betas)).tests[0].beta == -0.9
+    assert plan_tests(soiptd_model(model.Tp), quiet, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=betas)).tests[0].beta == -0.9
     # ... with it, -0.9 is set aside, and the plan says why
-    p = plan_tests(model.Tp, _narrow_prior(), limits, options=PlanOptions(n_tests=1, n_draws=2, betas=betas))
+    p = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=betas))
     assert p.tests[0].beta == -0.5
     row = {c.beta: c for c in p.candidates}[-0.9]
     assert row.early_switch and "noise stds below the extremum" in row.reason
@@ -164,7 +164,7 @@ def test_a_beta_whose_switch_noise_would_trigger_is_not_recommended():
 
 def test_forecast_is_the_typical_draw_inside_its_range():
     limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(0.04, Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), limits, options=PlanOptions(n_tests=2, n_draws=6, betas=(-0.3, -0.6)))
+    p = plan_tests(soiptd_model(0.04), limits, prior=Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), options=PlanOptions(n_tests=2, n_draws=6, betas=(-0.3, -0.6)))
     for k in ("Td", "tau", "K"):
         lo, hi = p.predicted_std_data_range[k]
         assert 0 < lo <= p.predicted_std_data[k] <= hi
@@ -183,7 +183,7 @@ def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
     h1 = 0.03 / lc.amplitude
     flown = FlownTest(beta=-0.4, h=h1, frequency_hz=lc.frequency_hz, amplitude=0.03, n_cycles=11)
     limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(model.Tp, _narrow_prior(), limits, flown=[flown], options=PlanOptions(n_draws=2, n_simulated=3, betas=(-0.6, -0.8)))
+    p = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, n_simulated=3, betas=(-0.6, -0.8)))
     assert p.n_simulated >= 2 and p.to_json()["simulated_std"] == p.simulated_std
     t = p.tests[0]
     est = []
@@ -206,9 +206,9 @@ def test_simulated_forecast_says_when_the_flights_fail():
     # a noise far above the amplitude: analyze cannot use the simulated flights, and the plan says so
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
     limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    p = plan_tests(0.04, _narrow_prior(), limits, flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6,)))
+    p = plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6,)))
     s = simulated_std(
-        0.04, np.array([[0.8, 0.03, 2.0]]), [flown], p.tests,
+        soiptd_model(0.04), np.array([[0.8, 0.03, 2.0]]), [flown], p.tests,
         FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.5))
     assert np.isnan(s).all()
 
@@ -216,21 +216,34 @@ def test_simulated_forecast_says_when_the_flights_fail():
 def _plan_for_json() -> PlanResult:
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
     limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
-    return plan_tests(0.04, _narrow_prior(), limits, flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6, -0.9)))
+    return plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6, -0.9)))
 
 
 def test_plan_result_round_trips_through_json():
     p = _plan_for_json()
     data = json.loads(json.dumps(p.to_json()))  # through text, as a plan --json file
-    assert data["schema_version"] == 1
+    assert data["schema_version"] == 2
     back = PlanResult.from_json(data)
     assert back == p  # the flown test has no phase, the one field the JSON leaves out
     assert back.to_json() == p.to_json()
 
 
+def test_plan_result_reads_version_1():
+    # eq. (2)'s plan --json of schema 1 (before issue 36): Tp where the model object is now, the rate in the limits
+    p = _plan_for_json()
+    data = json.loads(json.dumps(p.to_json()))
+    v1 = {k: v for k, v in data.items() if k not in ("model", "rate_hz")} | {"schema_version": 1, "Tp": 0.04}
+    back = PlanResult.from_json(v1)
+    assert back.Tp == 0.04 and back.model.known == {"Tp"} and back.rate_hz == 200.0
+    assert (back.tests, back.candidates, back.predicted_std, back.flown) == (p.tests, p.candidates, p.predicted_std,
+                                                                             p.flown)
+    assert back.to_json()["schema_version"] == 2  # written back in the new layout
+
+
 def test_plan_result_json_keeps_the_cli_fields():
-    # the JSON of plan --json before the record was versioned, plus schema_version and (issue 26) assumptions
-    keys = ["schema_version", "assumptions", "Tp", "tests", "predicted_std", "predicted_std_tests_only",
+    # the JSON of plan --json before the record was versioned, plus schema_version, (issue 26) assumptions and
+    # (issue 36) the model object and the rate instead of Tp
+    keys = ["schema_version", "assumptions", "model", "rate_hz", "tests", "predicted_std", "predicted_std_tests_only",
             "predicted_std_tests_only_range", "simulated_std", "simulated_std_range", "n_simulated", "prior_std",
             "conventional", "candidates", "notes", "flown_tests", "limits"]
     data = _plan_for_json().to_json()
@@ -243,8 +256,9 @@ def test_plan_result_json_keeps_the_cli_fields():
 @pytest.mark.parametrize("data, needle", [
     ([1, 2], "expected a JSON object"),
     ({"Tp": 0.04}, "no schema_version"),
-    ({"schema_version": 2}, "schema_version 2 is not supported"),
+    ({"schema_version": 3}, "schema_version 3 is not supported"),
     ({"schema_version": 1, "Tp": 0.04}, "not a valid plan --json result"),
+    ({"schema_version": 2, "model": {}}, "not a valid plan --json result"),
 ])
 def test_plan_result_from_json_refuses_bad_input_in_one_line(data, needle):
     with pytest.raises(InputError, match=needle) as exc:

@@ -1,4 +1,4 @@
-"""``plan LOG --model NAME``: the next relay test for a process plant (mrftcli/plan/process.py).
+"""``plan LOG --model NAME``: the next relay test for a process plant (plan_tests' relay strategy).
 
 Oracles: the FOPDT's response in closed form (the Jacobian of ln|G| and arg G), and relay tests simulated
 by tests/process_sim.py (independent of mrftcli: the plant from its polynomials, stepped exactly): the
@@ -22,8 +22,7 @@ from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
 from mrftcli.mrft.identify_lti import ResponsePoint  # noqa: E402
-from mrftcli.plan.process import plan_process, point_information  # noqa: E402
-from mrftcli.plan.process_records import ProcessPlan  # noqa: E402
+from mrftcli.plan import PlanResult, RelayLimits, plan_tests, point_information  # noqa: E402
 
 TRUTH = dict(K=2.0, T=0.5, tau=0.1)
 READ = ReadOptions(command_topic="u_relay", output_topic="y_output")
@@ -35,6 +34,12 @@ def _analyse(tmp_path: Path, name: str, windows: list[Window], noise: float, see
     path = tmp_path / name
     write_csv(str(path), t, u, y)
     return path, analyze_flight(read_flight(path, READ, echo_warnings=False), family_model("fopdt"))
+
+
+def plan_process(analysis, max_amplitude=None, max_h=None) -> PlanResult:
+    """The plan of the recorded tests ``analysis``, as ``plan LOG --model NAME`` makes it."""
+    family = analysis.identification.model.family
+    return plan_tests(family_model(family), RelayLimits(max_amplitude, max_h), recorded=analysis)
 
 
 def _window(relay, duration: float) -> Window:
@@ -68,7 +73,7 @@ def test_recommended_relay_simulated_and_analysed_pins_k_and_t_down(first, tmp_p
     best = plan.recommended
     # the recommended relay moves the cycle to another phase of G than the ideal relay's -180 deg
     assert best.relay.kind != "ideal" and best.phase_deg > -160
-    assert best.std_after["K"] < 0.6 * plan.std_now["K"] and best.std_after["T"] < 0.6 * plan.std_now["T"]
+    assert best.predicted_std["K"] < 0.6 * plan.prior_std["K"] and best.predicted_std["T"] < 0.6 * plan.prior_std["T"]
     path, both = _analyse(tmp_path, "both.csv", [IDEAL, _window(best.relay, IDEAL.duration)], 0.02, 3)
     # the first test's cycle and its noise are the same in both recordings (same seed, same first window)
     assert len(both.tests) == 2
@@ -76,10 +81,10 @@ def test_recommended_relay_simulated_and_analysed_pins_k_and_t_down(first, tmp_p
         e = both.identification.estimate(name)
         assert e.determined and abs(e.value / TRUTH[name] - 1) < 0.10, (name, e)
         # the forecast's std against the one achieved: within a factor of 2
-        assert 0.5 < e.std / best.std_after[name] < 2.0, (name, e.std, best.std_after[name])
+        assert 0.5 < e.std / best.predicted_std[name] < 2.0, (name, e.std, best.predicted_std[name])
     # the ideal relay again (the same phase) narrows less than the recommended one
     again = next(c for c in plan.candidates if c.relay.kind == "ideal")
-    assert again.std_after["K"] > 1.5 * best.std_after["K"]
+    assert again.predicted_std["K"] > 1.5 * best.predicted_std["K"]
 
 
 def test_parameters_one_test_leaves_undetermined_are_determined_by_the_plan(tmp_path):
@@ -89,11 +94,11 @@ def test_parameters_one_test_leaves_undetermined_are_determined_by_the_plan(tmp_
     _, analysis = _analyse(tmp_path, "noisy.csv", [w1], 0.02, 3)
     plan = plan_process(analysis)
     assert set(plan.undetermined) == {"K", "T"}
-    assert plan.std_now["K"] > 0.1 * plan.identification.estimate("K").value
+    assert plan.prior_std["K"] > 0.1 * plan.identification.estimate("K").value
     best = plan.recommended
-    assert best.undetermined_after == () and "determines K, T" in plan.why
+    assert best.undetermined == () and "determines K, T" in plan.why
     again = next(c for c in plan.candidates if c.relay.kind == "ideal")  # more cycles at the same phase
-    assert again.std_after["K"] > 1.5 * best.std_after["K"]
+    assert again.predicted_std["K"] > 1.5 * best.predicted_std["K"]
     _, both = _analyse(tmp_path, "noisy2.csv", [w1, _window(best.relay, 8.0)], 0.02, 3)
     for name in ("K", "T", "tau"):
         e = both.identification.estimate(name)
@@ -104,16 +109,37 @@ def test_plan_record_round_trips_and_refuses_bad_input(first):
     _, analysis = first
     plan = plan_process(analysis, max_amplitude=0.4)
     data = json.loads(json.dumps(plan.to_json()))
-    back = ProcessPlan.from_json(data)
+    back = PlanResult.from_json(data)
     assert back.to_json() == data
-    assert back.recommended.within_limit and back.recommended.amplitude <= 0.4
-    assert any(not c.within_limit for c in back.candidates)
+    assert back.recommended.admissible and back.recommended.amplitude[0] <= 0.4
+    assert any(not c.admissible for c in back.candidates)
     with pytest.raises(InputError, match="schema_version"):
-        ProcessPlan.from_json({**data, "schema_version": 99})
-    with pytest.raises(InputError, match="candidate"):
-        ProcessPlan.from_json({**data, "candidates": [{"relay": {}}]})
+        PlanResult.from_json({**data, "schema_version": 99})
+    with pytest.raises(InputError, match="plan --json"):
+        PlanResult.from_json({**data, "candidates": [{"relay": {}}]})
     with pytest.raises(InputError):
-        ProcessPlan.from_json({**data, "candidates": []})
+        PlanResult.from_json({**data, "candidates": []})
+
+
+def test_plan_record_reads_a_version_1_process_plan(first):
+    # plan --model NAME --json of schema 1 (before issue 36: its own record, kind "process"), written out here in
+    # that layout from the plan's figures: read into the one PlanResult with the same candidates
+    _, analysis = first
+    plan = plan_process(analysis, max_amplitude=0.4)
+    nulls = lambda d: {k: v if np.isfinite(v) else None for k, v in d.items()}  # noqa: E731
+    v1 = {"schema_version": 1, "kind": "process", "model": "fopdt", "parameters": {},
+          "identification": plan.identification.to_json(), "rate_hz": plan.rate_hz, "std_now": nulls(plan.prior_std),
+          "undetermined": list(plan.undetermined),
+          "candidates": [{"relay": c.relay.to_json(), "frequency_hz": c.frequency_hz[0], "amplitude": c.amplitude[0],
+                          "gain": c.gain, "phase_deg": c.phase_deg, "std_after": nulls(c.predicted_std),
+                          "undetermined_after": list(c.undetermined), "within_limit": c.admissible}
+                         for c in plan.candidates],
+          "recommended": 0, "why": plan.why, "assumptions": list(plan.assumptions), "notes": list(plan.notes)}
+    back = PlanResult.from_json(json.loads(json.dumps(v1)))
+    assert back.candidates == plan.candidates and back.prior_std == plan.prior_std
+    assert back.predicted_std == plan.predicted_std and back.why == plan.why and back.model == plan.model
+    with pytest.raises(InputError, match="candidate"):
+        PlanResult.from_json({**v1, "candidates": []})
 
 
 def test_cli_plan_model_prints_the_ranked_candidates_and_the_json(first):
@@ -125,14 +151,14 @@ def test_cli_plan_model_prints_the_ranked_candidates_and_the_json(first):
     args = ["plan", str(path), "--model", "fopdt", "--command-topic", "u_relay", "--output-topic", "y_output"]
     res = CliRunner().invoke(cli, [*args, "--json", "-"])
     assert res.exit_code == 0, res.output
-    plan = ProcessPlan.from_json(json.loads(res.stdout))
+    plan = PlanResult.from_json(json.loads(res.stdout))
     assert plan.identification.model.family == "fopdt" and plan.recommended.relay.kind != "ideal"
     # the same plan from the analysis' JSON (analyze --model fopdt --json), without reading the log again
     saved = path.with_suffix(".json")
     saved.write_text(json.dumps(analysis.to_json()))
     again = CliRunner().invoke(cli, ["plan", str(saved), "--model", "fopdt", "--json", "-"])
     assert again.exit_code == 0, again.output
-    assert ProcessPlan.from_json(json.loads(again.stdout)).recommended == plan.recommended
+    assert PlanResult.from_json(json.loads(again.stdout)).recommended == plan.recommended
     wrong = CliRunner().invoke(cli, ["plan", str(saved), "--model", "sopdt"])
     assert isinstance(wrong.exception, InputError) and "give --model fopdt" in str(wrong.exception)
     text = CliRunner().invoke(cli, args).output.splitlines()
@@ -159,4 +185,4 @@ def test_a_model_already_at_its_floor_says_no_next_test_is_needed(tmp_path):
     plan = plan_process(analyze_flight(read_flight(tmp_path / "ipdt.csv", READ, echo_warnings=False),
                                         family_model("ipdt")))
     assert plan.undetermined == () and "a next test is not needed" in plan.why
-    assert abs(plan.std_now["K"] / 1.5 - 0.005) < 0.001
+    assert abs(plan.prior_std["K"] / 1.5 - 0.005) < 0.001

@@ -86,10 +86,10 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
             continue
         try:
             t0 = time.perf_counter()
-            p = plan_tests(m.Tp, prior, limits, flown=flown, options=PlanOptions(n_tests=1, seed=k, n_simulated=args_sim))
+            p = plan_tests(soiptd_model(m.Tp), limits, prior=prior, flown=flown, options=PlanOptions(n_tests=1, seed=k, n_simulated=args_sim))
             t_plan.append(time.perf_counter() - t0)
             rec = p.tests[0]
-            conv_h = [c.h for c in p.candidates if abs(c.beta + 0.7) < 1e-9]
+            conv_h = [c.h for c in p.candidates if c.beta is not None and abs(c.beta + 0.7) < 1e-9]
             conv_h = conv_h[0] if conv_h else rec.h
         except MrftError as err:  # the planner refused: the limits admit no test by its criteria
             refused += 1
@@ -116,7 +116,7 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
         o_td, o_tau = np.sqrt(np.diag(np.linalg.pinv(info)))[:2]
         rng_ = p.predicted_std_data_range
         # the simulation forecast at the true plant (another noise seed): its ceiling
-        s_true = simulated_std(m.Tp, np.array([truth]), flown, p.tests, limits, seed=k + 7919)[0]
+        s_true = simulated_std(soiptd_model(m.Tp), np.array([truth]), flown, p.tests, limits, seed=k + 7919)[0]
         sim = p.simulated_std or {"Td": np.nan, "tau": np.nan}
         srng = p.simulated_std_range or {"Td": (np.nan, np.nan), "tau": (np.nan, np.nan)}
         row = dict(k=k, tauA=ra.tau.std, tdA=ra.Td.std, tauB=rb.tau.std, tdB=rb.Td.std, ptau=pred["tau"],

@@ -14,6 +14,7 @@ import argparse
 import time
 
 import mrftcli.plan.driver as driver
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.plan import FlightLimits, PlanOptions, Prior, plan_tests
 
 
@@ -35,7 +36,7 @@ def main() -> None:
 
         driver._simulate = traced
         t0 = time.process_time()
-        p = plan_tests(0.0422, prior, limits, options=PlanOptions(n_simulated=n, seed=args.seed))
+        p = plan_tests(soiptd_model(0.0422), limits, prior=prior, options=PlanOptions(n_simulated=n, seed=args.seed))
         cpu = time.process_time() - t0
         driver._simulate = original
         conv = p.conventional

@@ -6,7 +6,7 @@ log-uniform in [0.5, 5]; time constants in [0.3, 3] s, SOPDT's second lag 0.1-0.
 1-3 % of the ideal relay's amplitude). The first recording is what an engineer runs first: one ideal
 relay test of about 14 cycles, relay height 1. Then:
 
-1. ``analyze_general`` + ``plan_process`` on it (what ``plan LOG --model NAME`` runs): the current stds,
+1. ``analyze_flight`` + ``plan_tests`` on it (what ``plan LOG --model NAME`` runs): the current stds,
    what is undetermined, the recommended relay and the stds it forecasts;
 2. the recommended relay is flown after the first test in tests/process_sim.py (no code shared with
    mrftcli; the same seed, so the first test is the same recording) and both are analysed together:
@@ -64,7 +64,8 @@ def one_draw(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, obje
     from mrftcli.errors import MrftError
     from mrftcli.mrft.families import PROCESS_FAMILIES
     from mrftcli.mrft.relays import RelayLaw
-    from mrftcli.plan.process import plan_process
+    from mrftcli.mrft.families import family_model
+    from mrftcli.plan import RelayLimits, plan_tests
 
     params = draw_plant(family, rng)
     ideal = RelayLaw("ideal", 1.0, -1.0).limit_cycle(PROCESS_FAMILIES[family](**params))
@@ -74,12 +75,13 @@ def one_draw(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, obje
     first = Window("ideal", 1.0, -1.0, duration=14 * ideal.period, rest=ideal.period)
     out: dict[str, object] = {"family": family, "params": params, "rate": rate, "noise_pct": 100 * noise / ideal.amplitude}
     try:
-        plan = plan_process(_analyse(family, params, [first], rate, noise, seed, tmp / "first.csv"))
+        plan = plan_tests(family_model(family), RelayLimits(),
+                          recorded=_analyse(family, params, [first], rate, noise, seed, tmp / "first.csv"))
     except MrftError as err:
         return {**out, "refused": f"first/plan: {str(err)[:90]}"}
     best = plan.recommended
     r = best.relay
-    dur = 14 * 2 * math.pi / max(2 * math.pi * best.frequency_hz, 1e-9)
+    dur = 14 * 2 * math.pi / max(2 * math.pi * best.frequency_hz[0], 1e-9)
     second = Window(r.kind, r.high, r.low, beta=r.beta, eps=r.eps, duration=dur, rest=ideal.period)
     again = Window("ideal", 1.0, -1.0, duration=first.duration, rest=ideal.period)
     try:
@@ -88,10 +90,10 @@ def one_draw(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, obje
     except MrftError as err:
         return {**out, "refused": f"second: {str(err)[:90]}", "relay": r.describe()}
     rows = {}
-    for name in plan.std_now:
+    for name in plan.prior_std:
         e, b = both.estimate(name), base.estimate(name)
-        rows[name] = {"now": plan.std_now[name], "undetermined_now": name in plan.undetermined,
-                      "predicted": best.std_after[name], "achieved": _std(e), "baseline": _std(b),
+        rows[name] = {"now": plan.prior_std[name], "undetermined_now": name in plan.undetermined,
+                      "predicted": best.predicted_std[name], "achieved": _std(e), "baseline": _std(b),
                       "err": e.value / params[name] - 1, "covered": e.ci95_low <= params[name] <= e.ci95_high}
     return {**out, "refused": "", "relay": r.describe()[len("relay: "):], "rows": rows}
 

@@ -31,7 +31,7 @@ from ..errors import InputError
 from ..io.atomic import write_text_atomic
 from ..io.logtypes import TopicData
 from .cascade import CascadeFlight
-from .sidecar import sidecar_path, write_log_atomic
+from .sidecar import quaternion_zyx, sidecar_path, write_log_atomic
 
 __all__ = ["CASCADE_LAYOUTS", "cascade_topics", "write_cascade"]
 
@@ -51,13 +51,6 @@ def _attitudes(flight: CascadeFlight) -> tuple[Array, Array]:
     sign, axis = _signs(flight)
     tested = sign * flight.attitude_measured
     return (tested, flight.other_attitude) if axis == "y" else (flight.other_attitude, tested)
-
-
-def _quaternion_zyx(roll: Array, pitch: Array) -> tuple[Array, Array, Array, Array]:
-    """Quaternion (x, y, z, w) of the ZYX Euler angles (yaw 0, pitch, roll)."""
-    cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
-    cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
-    return sr * cp, cr * sp, -sr * sp, cr * cp
 
 
 def _test_starts(flight: CascadeFlight, inner: bool) -> tuple[Array, Array]:
@@ -86,7 +79,7 @@ def _reference_topics(flight: CascadeFlight) -> list[TopicData]:
     pose["pose.position.z"] = np.ones(n)
     pose["pose.orientation.w"] = np.ones(n)
     topics.append(TopicData("/mocap/pose", "geometry_msgs/msg/PoseStamped", t.copy(), pose))
-    qx, qy, qz, qw = _quaternion_zyx(*_attitudes(flight))
+    qx, qy, qz, qw = quaternion_zyx(*_attitudes(flight))
     topics.append(TopicData("/imu/data", "sensor_msgs/msg/Imu", t.copy(),
                             {"orientation.x": qx, "orientation.y": qy, "orientation.z": qz, "orientation.w": qw}))
     return topics

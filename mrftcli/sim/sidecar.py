@@ -20,6 +20,7 @@ import numpy as np
 
 from ..io.atomic import atomic_directory, atomic_path, check_output_path, write_text_atomic
 from ..io.logtypes import TopicData
+from ..jsonable import to_jsonable
 from ..mrft.model import LoopModel, PlantModel
 from .control import HoldPID, noise_margin
 from .spec import FlightSettings, FlightSpec
@@ -27,8 +28,8 @@ from .spec import FlightSettings, FlightSpec
 if TYPE_CHECKING:
     from .flight import SimulatedFlight
 
-__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "write_log_atomic", "jsonable",
-           "check_log_target"]
+__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "write_log_atomic", "check_log_target",
+           "quaternion_zyx"]
 
 
 def truth_record(spec: FlightSpec, settings: FlightSettings, pid: HoldPID, rate_true: np.ndarray,
@@ -136,7 +137,7 @@ def _test_truths(spec: FlightSpec, settings: FlightSettings, rate_true: np.ndarr
     return tests
 
 
-def _quaternion_zyx(roll: np.ndarray, pitch: np.ndarray) -> tuple[np.ndarray, ...]:
+def quaternion_zyx(roll: np.ndarray, pitch: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Quaternion (x, y, z, w) of the ZYX Euler angles (yaw 0, pitch, roll)."""
     cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
     cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
@@ -187,7 +188,7 @@ def _output_topic(spec: FlightSpec, t: np.ndarray, y_meas: np.ndarray, other_noi
         roll, pitch = y_meas, other_noise
     else:
         roll, pitch = other_noise, y_meas
-    qx, qy, qz, qw = _quaternion_zyx(roll, pitch)
+    qx, qy, qz, qw = quaternion_zyx(roll, pitch)
     return TopicData(
         "/imu/data",
         "sensor_msgs/msg/Imu",
@@ -263,20 +264,5 @@ def write_flight(flight: SimulatedFlight, path: str | Path, fmt: str) -> Path:
     truth["log_format"] = fmt
     truth["log_file"] = Path(path).name
     side = sidecar_path(path)
-    write_text_atomic(side, json.dumps(jsonable(truth), indent=2, allow_nan=False) + "\n")
+    write_text_atomic(side, json.dumps(to_jsonable(truth), indent=2, allow_nan=False) + "\n")
     return side
-
-
-def jsonable(obj: Any) -> Any:
-    """numpy scalars/arrays -> plain JSON values; non-finite floats -> None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    return obj

@@ -292,6 +292,27 @@ def test_relay_on_a_scripted_sinusoid(beta):
     assert np.array_equal(relay[ok], expected[ok])
 
 
+@pytest.mark.parametrize("kind, beta, eps", [("hysteresis", 0.0, 0.3), ("ideal", 0.0, 0.0), ("mrft", -0.4, 0.0)])
+def test_relay_law_sampled_switches_at_its_closed_form_levels(kind, beta, eps):
+    """RelayLaw's sampled rule on e = sin(theta): down where sin = -(beta + eps) after the peak (the
+    amplitude is 1), up where sin = beta + eps after the trough; no code shared with the rule's module."""
+    from mrftcli.mrft.relays import RelayLaw
+
+    rule = RelayLaw(kind, 1.0, -1.0, beta=beta, eps=eps).sampled()
+    n = 4000
+    theta = 2 * math.pi * (np.arange(3 * n) / n) + 0.25
+    e = np.sin(theta)
+    relay = np.array([rule.start(v) if i == 0 else rule.step(v) for i, v in enumerate(e.tolist())])
+    level = beta + eps  # the switching level over the amplitude
+    down, up = math.pi + math.asin(level), 2 * math.pi + math.asin(level)
+    phase = np.mod(theta, 2 * math.pi)
+    expected = np.where(np.mod(phase - down, 2 * math.pi) < up - down, -1.0, 1.0)
+    dist = lambda x: np.abs(np.mod(phase - x + math.pi, 2 * math.pi) - math.pi)  # noqa: E731
+    near = np.minimum(dist(down), dist(up)) < 2 * (2 * math.pi / n)
+    ok = (theta > math.pi + 1.0) & ~near
+    assert ok.sum() > 2 * n and np.array_equal(relay[ok], expected[ok])
+
+
 def test_relay_start_threshold_keeps_the_first_sign():
     e = np.array([0.1, 0.05, -0.02, -0.04, -0.06, -0.2])
     assert relay_sequence(e, -0.5, start_threshold=0.05).tolist() == [1, 1, 1, 1, -1, -1]

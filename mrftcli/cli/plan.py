@@ -377,18 +377,18 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
 
     # the one model object: eq. (2) with Tp known, or the process structure (its known values and ranges)
     model = soiptd_model(Tp) if Tp is not None and model_name == "soiptd" else build_model(model_name, params, ranges)
-    eq2 = isinstance(model, LoopModel)
-    limits: FlightLimits | RelayLimits | None = None if eq2 else RelayLimits(max_amplitude, max_h)
+    relay_limits = None if isinstance(model, LoopModel) else RelayLimits(max_amplitude, max_h)
     check_output_file(json_target, "--json")  # before the work, as analyze
     prior: Prior | None = None
     flown: Sequence[FlownTest] = ()
     recorded: GeneralAnalysis | None = None
     assumed: list[str] = []
+    limits: FlightLimits | RelayLimits
     if isinstance(model, LoopModel):
         prior, limits, flown, assumed = _mrft_inputs(model, given)
     else:
-        recorded = _recorded(model, given)
-    assert limits is not None
+        assert relay_limits is not None
+        limits, recorded = relay_limits, _recorded(model, given)
     try:
         with tqdm_progress("plan", unit="step", enabled=not quiet) as progress:
             result = plan_tests(model, limits, prior=prior, flown=flown, recorded=recorded, progress=progress,

@@ -46,9 +46,7 @@ from .fisher import fisher_information, flown_information, planned_information, 
 from .forecast import simulated_std
 from .inputs import flown_from_result, flown_from_segments, noise_from_result, prior_range
 from .noise import NOISE_MODEL, cycle_noise, switch_gap
-from .records import (CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, RelayLimits, TestPlan,
-                      relay_candidate)
-from .search import candidate_relays, rank
+from .records import CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, RelayLimits, TestPlan
 
 __all__ = [
     "Prior",
@@ -61,7 +59,6 @@ __all__ = [
     "prior_range",
     "TestPlan",
     "CandidateTest",
-    "relay_candidate",
     "Conventional",
     "PlanResult",
     "PlanOptions",
@@ -72,8 +69,6 @@ __all__ = [
     "planned_information",
     "flown_information",
     "point_information",
-    "candidate_relays",
-    "rank",
     "plan_tests",
     "simulated_std",
     "DEFAULT_BETAS",

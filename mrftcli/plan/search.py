@@ -10,13 +10,8 @@ at the zero crossing (:func:`mrftcli.sim.noise_margin`); the typical amplitude 1
 when any beta allows it, the switch at least 16 noise std below the extremum
 (:func:`~mrftcli.plan.noise.switch_gap`).
 
-A process plant's candidates: the relays the user can run at the recorded levels (or ``max_h``): an
-ideal relay, a hysteresis at a few fractions of the ideal relay's amplitude, MRFTs at a few betas.
-Each is predicted with the current model's exact limit cycle (LPRS, sampled at the controller rate);
-the response points it yields (fundamental and the harmonics the recorded tests measured) get the
-recorded tests' own scatter scaled by the amplitude, and the parameters' std after adding them is the
-Gauss-Newton update. Ranked: within ``max_amplitude`` first, fewest parameters left undetermined,
-then the smallest product of the relative stds (D-optimality on ln p).
+A process plant's candidates: an ideal relay, hystereses and MRFTs at the recorded levels (or
+``max_h``), each forecast with the current model (:func:`forecast_relay`) and ranked (:func:`rank`).
 """
 
 from __future__ import annotations

@@ -374,7 +374,8 @@ def simulate(
     seed, start_time, effects, model_name, model_file, params, cascade, inner_tp, inner_td, inner_tau, inner_k, inner_gains, inner_tests,
     inner_noise, inner_amplitude, commanded, layout, fmt, out, json_target, quiet,
 ) -> None:
-    """Simulate a closed-loop MRFT flight on G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)).
+    """Simulate a closed-loop MRFT flight of a plant model: eq. (2) by default, G(s) = K Td e^(-tau s) /
+    (s (Tp s+1)(Td s+1)) with --tp, --td, --tau, --k.
 
     Writes OUT in the reference layout (/mrft/command, /mrft/beta, /mrft/setpoint, /mocap/pose or
     /imu/data, /battery) and the ground truth next to it as OUT.truth.json.

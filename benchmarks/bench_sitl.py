@@ -40,19 +40,22 @@ from sitl_physics import implied_model  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
 
-#: the script acts at most every this many ms of simulated time: two of the Lua thread's 5.83 ms steps
-#: in SITL, so that its ticks are regular (docs/sitl.md)
+#: with a tree built without the main-loop relay (a Lua-only run), the script acts at most every this many
+#: ms of simulated time: two of the Lua thread's 5.83 ms steps in SITL (docs/sitl.md)
 TICK_MS = 11.66
 #: the built tree (upstream master of 2025-07-21, 4.7.0-dev) still has ArduPilot 4.6's parameter names
 STACK_VERSION = "4.6"
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s], start threshold); h in throttle
-#: (altitude) or mixer (roll) units, chosen for a few cm / a few degrees of oscillation; the start
-#: threshold (2 cm, 1 deg) kicks each test near its amplitude instead of growing it from noise
+#: (altitude) or mixer (roll, pitch) units, chosen for a few cm / under a degree to a few degrees of
+#: oscillation; the start threshold (2 cm, 0.3 deg) kicks each test near its amplitude instead of growing
+#: it from noise. The relay runs in the main loop (the patched build): 400 Hz, the delay 8 whole ticks.
 FLIGHTS = [
-    ("altitude", "altitude", 0.0, [(-0.2, 0.06), (-0.4, 0.06), (-0.6, 0.08)], 18.0, 0.02),
-    ("altitude_20ms", "altitude", 20.0, [(-0.2, 0.04), (-0.4, 0.04), (-0.6, 0.05)], 18.0, 0.02),
-    ("roll", "roll", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 10.0, 0.0175),
-    ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 10.0, 0.0175),
+    ("altitude", "altitude", 0.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.6, 0.06)], 12.0, 0.02),
+    ("altitude_20ms", "altitude", 20.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.6, 0.06)], 12.0, 0.02),
+    ("roll", "roll", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 6.0, 0.005),
+    ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 6.0, 0.005),
+    ("pitch", "pitch", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 6.0, 0.005),
+    ("pitch_20ms", "pitch", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 6.0, 0.005),
 ]
 
 
@@ -87,17 +90,37 @@ def analyse(logs: Path) -> dict[str, dict]:
         except MrftError as err:  # the figure is the refusal (counted as a miss)
             print(f"  {name:14s} analyze refused: {str(err)[:300]}")
             continue
-        held = held_out(log, tp, loop, res) if len(res.tests) >= 3 else []
-        implied = implied_model(loop, side["hover_throttle"])
+        misses: list[tuple[int, str]] = []
+        held = held_out(log, tp, loop, res, misses=misses) if len(res.tests) >= 3 else []
+        hover = hover_of_log(log, side)
+        implied = implied_model(loop, hover)
         results[name] = {"loop": loop, "delay": delay, "flown": len(tests), "found": len(res.tests),
                          "Td": res.Td.mean, "tau": res.tau.mean, "K": res.K.mean, "tp": tp, "implied": implied,
-                         "held": held, "tests": res.tests, "log": log, "hover": side["hover_throttle"]}
-        print(f"  {name:14s} tests {len(res.tests)}/{len(tests)}  Td {res.Td.mean:.3f} s  "
-              f"tau {res.tau.mean * 1e3:.2f} ms  K {res.K.mean:.2f}   (SITL's model: Td {implied['Td']:.3f} s, "
-              f"K {implied['K']:.2f}, Tp {tp * 1e3:.2f} ms)")
+                         "held": held, "misses": misses, "tests": res.tests, "log": log, "hover": hover,
+                         "tau_ci": (res.tau.ci95_low, res.tau.ci95_high)}
+        print(f"  {name:14s} tests {len(res.tests)}/{len(tests)}  Td {res.Td.mean:.3f} s "
+              f"({res.Td.ci95_low:.3f}-{res.Td.ci95_high:.3f})  tau {res.tau.mean * 1e3:.2f} ms "
+              f"({res.tau.ci95_low * 1e3:.2f}-{res.tau.ci95_high * 1e3:.2f})  K {res.K.mean:.2f} "
+              f"({res.K.ci95_low:.2f}-{res.K.ci95_high:.2f})   (SITL's model at hover {hover:.4f}: "
+              f"Td {implied['Td']:.3f} s, K {implied['K']:.2f}; Tp {tp * 1e3:.2f} ms)")
         for line in test_lines(res, held):
             print(line)
+        for i, why in misses:
+            print(f"      held out test {i}: REFUSED (a miss): {why[:200]}")
     return results
+
+
+def hover_of_log(log: Path, side: dict) -> float:
+    """The hover throttle GUIDED used before the tests (the log's ``MRFB:Hov``, their mean), else the
+    sidecar's ``MOT_THST_HOVER`` (the value saved at the last disarm, not the live one)."""
+    from mrftcli.io import open_log
+
+    try:
+        with open_log(log, echo_warnings=False) as src:
+            _, m = src.read("MRFB", ["Hov"])
+        return float(np.mean(m["Hov"]))
+    except Exception:  # noqa: BLE001 - a log of the earlier script, without Hov
+        return float(side["hover_throttle"])
 
 
 def report_segments(log: Path, loop: str, side: dict) -> None:
@@ -121,18 +144,22 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
           f"decision -> sent: {np.mean(lag) * 1e3:.2f} +- {np.std(lag) * 1e3:.2f} ms over {len(lag)} switches")
 
 
-def report_analysis(results: dict[str, dict]) -> None:
+def report_analysis(results: dict[str, dict], logs: Path) -> None:
     errs = [abs(h.error) for r in results.values() for h in r["held"]]
+    refused = sum(len(r["misses"]) for r in results.values())
     found = sum(r["found"] for r in results.values())
-    flown = sum(r["flown"] for r in results.values())
-    print(f"tests found: {found}/{flown}")
-    if errs:
-        print(f"held-out frequency error: max {max(errs) * 100:.2f} %, median {np.median(errs) * 100:.2f} %, "
-              f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
-    for loop in ("altitude", "roll"):
+    flown = sum(len(tests) for name, _, _, tests, _, _ in FLIGHTS if (logs / f"{name}.BIN").exists())
+    print(f"tests found: {found}/{flown} (in the logs analysed; a refused log counts its tests as not found)")
+    if errs or refused:
+        within = sum(e <= 0.05 for e in errs)
+        print(f"held-out frequency within 5 %: {within}/{len(errs) + refused} (refusals are misses: {refused}); "
+              f"max error {max(errs, default=float('nan')) * 100:.2f} %, median {np.median(errs) * 100:.2f} %")
+    for loop in ("altitude", "roll", "pitch"):
         if loop in results and f"{loop}_20ms" in results:
             inc = results[f"{loop}_20ms"]["tau"] - results[loop]["tau"]
             print(f"{loop}: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
+        elif f"{loop}_20ms" in results or loop in results:
+            print(f"{loop}: +20 ms increment of tau not measured (one of the two flights refused or absent)")
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -321,7 +348,7 @@ def main() -> int:
         fly_campaign(args.ap, args.logs, args.speedup, args.only)
     print("2. analysis of the DataFlash logs")
     results = analyse(args.logs)
-    report_analysis(results)
+    report_analysis(results, args.logs)
     if args.analyze_only or args.no_refly:
         return 0
     print("3. tune --export ardupilot, load, re-fly")

@@ -109,7 +109,7 @@ def test_a_wrong_plant_misses_its_held_out_cycle(three: AnalysisResult) -> None:
 
 def test_json_and_table_hold_the_families_record(three: AnalysisResult) -> None:
     d = to_jsonable(three.to_json())
-    assert d["schema_version"] == 3
+    assert d["schema_version"] == 4
     for row, ho in zip(d["tests"], three.held_out):
         assert ho is not None and row["held_out"] == to_jsonable(ho.to_json())
         assert set(row["held_out"]) == set(HeldOut(None, None).to_json())  # the families' keys
@@ -161,7 +161,7 @@ def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> 
                          echo_warnings=False)
     result = analyze_flight(flight, family_model("fopdt"))
     d = to_jsonable(result.to_json())
-    assert d["schema_version"] == 2 and all(set(r["held_out"]) == set(HeldOut(None, None).to_json())
+    assert d["schema_version"] == 3 and all(set(r["held_out"]) == set(HeldOut(None, None).to_json())
                                             for r in d["tests"])
     v1 = {**d, "schema_version": 1,
           "tests": [{**r, "held_out": {k: r["held_out"][k] for k in ("frequency_hz", "amplitude", "note")}}

@@ -18,7 +18,8 @@ from cli_helpers import run_main
 from mrftcli.analyze.general import GeneralAnalysis, TestSummary
 from mrftcli.errors import InputError
 from mrftcli.mrft.families import FOPDT, IPDT
-from mrftcli.mrft.identify_lti import LtiEstimate, LtiIdentification
+from mrftcli.mrft.identify_lti import LtiIdentification
+from mrftcli.mrft.parameter import ParameterEstimate
 from mrftcli.mrft.relays import RelayLaw
 from mrftcli.tune.process import (ProcessTuneOptions, ProcessTuneResult, discrete_response, process_draws,
                                   tune_process)
@@ -100,10 +101,10 @@ def test_robust_design_holds_on_every_draw_and_round_trips():
         ProcessTuneOptions(ms_max=0.9)
 
 
-def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[LtiEstimate]:
-    return [LtiEstimate("K", "output / command", 2.0, 0.1, 1.8, 2.2),
-            LtiEstimate("T", "s", 1.0, std_T, 0.8, hi, determined=determined),
-            LtiEstimate("tau", "s", 0.3, 0.01, 0.28, 0.32)]
+def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[ParameterEstimate]:
+    return [ParameterEstimate(2.0, 0.1, 1.8, 2.2, "output / command", name="K"),
+            ParameterEstimate(1.0, std_T, 0.8, hi, "s", determined, name="T"),
+            ParameterEstimate(0.3, 0.01, 0.28, 0.32, "s", name="tau")]
 
 
 def test_draws_follow_the_intervals_and_refuse_an_open_one():
@@ -121,7 +122,7 @@ def _result_json(path, rate_hz: float = 20.0, std_T: float = 0.05) -> None:
     model = FOPDT(K=2.0, T=1.0, tau=0.3)
     relay = RelayLaw("ideal", 1.0, -1.0)
     test = TestSummary(0, 2.0, 20.0, relay, 0.83, 0.55, 14, 15, rate_hz, 0.0)
-    estimates = _estimates(std_T) if std_T else [LtiEstimate(e.name, e.unit, e.value, 0.0, e.value, e.value)
+    estimates = _estimates(std_T) if std_T else [ParameterEstimate(e.value, 0.0, e.value, e.value, e.unit, name=e.name)
                                                  for e in _estimates(0.0)]
     ident = LtiIdentification(model, tuple(estimates), (), None)
     path.write_text(json.dumps(GeneralAnalysis("p.csv", "level", 0.0, (), (test,), (), ident).to_json()))

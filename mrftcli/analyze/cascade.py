@@ -41,8 +41,9 @@ from .screen import log_start
 __all__ = ["CascadeOptions", "CascadeAnalysis", "analyze_cascade", "inner_loop_of", "inner_draws", "inner_gains_of",
            "screen_outer", "outer_levels", "CASCADE_ANALYSIS_SCHEMA_VERSION", "OUTER_COMMANDS"]
 
-#: version of :meth:`CascadeAnalysis.to_json`
-CASCADE_ANALYSIS_SCHEMA_VERSION = 1
+#: version of :meth:`CascadeAnalysis.to_json`; 2: each parameter the one record (ParameterEstimate, with
+#: ``method``); version 1 still reads and is written back in this layout
+CASCADE_ANALYSIS_SCHEMA_VERSION = 2
 #: what the outer relay commands -> K of the cascade (None: identified)
 OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "identify": None}
 
@@ -158,22 +159,31 @@ class CascadeAnalysis:
         InputError
             Not a cascade analysis of this version, or a missing part (one-line message).
         """
-        d = check_schema_version(data, "cascade analysis JSON", CASCADE_ANALYSIS_SCHEMA_VERSION)
+        d = check_schema_version(data, "cascade analysis JSON", range(1, CASCADE_ANALYSIS_SCHEMA_VERSION + 1))
         if d.get("kind") != "cascade" or "identification" not in d:
             raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
         inp = d.get("input") or {}
         try:
             rejected_rows = d.get("rejected_tests") or ()
-            return cls(str(inp.get("path", "")), str(inp.get("loop", "")),
-                       CascadeIdentification.from_json(d["identification"]),
+            ident = CascadeIdentification.from_json(d["identification"])
+            return cls(str(inp.get("path", "")), str(inp.get("loop", "")), ident,
                        tuple(mrft_test_from_json(t) for t in d.get("tests") or ()),
                        tuple(mrft_test_from_json(t) for t in rejected_rows),
                        {int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
                        float(inp.get("controller_rate_hz") or 0.0),
                        tuple(str(a) for a in d.get("assumptions") or ()),
-                       tuple(str(w) for w in d.get("warnings") or ()), float(inp.get("t0") or 0.0), dict(d))
+                       tuple(str(w) for w in d.get("warnings") or ()), float(inp.get("t0") or 0.0),
+                       _this_version(d, ident))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"cascade analysis JSON: bad tests ({type(err).__name__}: {err})") from err
+
+
+def _this_version(d: Mapping[str, Any], ident: CascadeIdentification) -> dict[str, Any]:
+    """The JSON a record was read from, in this version's layout (version 1's parameters as the one record)."""
+    if d.get("schema_version") == CASCADE_ANALYSIS_SCHEMA_VERSION:
+        return dict(d)
+    return {**d, "schema_version": CASCADE_ANALYSIS_SCHEMA_VERSION,
+            "parameters": {k: e.to_json() for k, e in ident.estimates.items()}, "identification": ident.to_json()}
 
 
 # ----------------------------------------------------------------------------------------------

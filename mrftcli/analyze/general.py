@@ -48,8 +48,9 @@ __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
 #: version of :meth:`GeneralAnalysis.to_json`; 2 gave ``tests[i].held_out`` the shared record's sigma and z
-#: keys (null here: :class:`~mrftcli.analyze.held_out.HeldOut`); version 1 records still read
-GENERAL_SCHEMA_VERSION = 2
+#: keys (null here: :class:`~mrftcli.analyze.held_out.HeldOut`); 3 writes each parameter as the one record
+#: (:class:`~mrftcli.mrft.parameter.ParameterEstimate`: ``method`` in place of ``one_sided``); versions 1-2 still read
+GENERAL_SCHEMA_VERSION = 3
 #: harmonics measured on each cycle (odd: a square wave's even harmonics vanish at 50 % duty)
 HARMONICS = (1, 3, 5)
 #: validity failures that only say the output is noisy (kept, weighted by their scatter) or that

@@ -16,7 +16,8 @@ from ..validate import check_parameter_value
 
 if TYPE_CHECKING:
     from ..analyze.general import GeneralAnalysis
-    from ..mrft.identify_lti import LtiEstimate, LtiIdentification
+    from ..mrft.identify_lti import LtiIdentification
+    from ..mrft.parameter import ParameterEstimate
 
 __all__ = ["MODEL_NAMES", "DECLARED", "model_option", "meta_model_options",
            "meta_model", "structure_options", "window_option", "relay_options", "parse_params",
@@ -281,7 +282,7 @@ def format_estimates(ident: LtiIdentification) -> list[str]:
     return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
 
 
-def _interval(e: LtiEstimate) -> str:
+def _interval(e: ParameterEstimate) -> str:
     if e.known:
         return ""
     if not e.determined and not math.isfinite(e.ci95_high):

@@ -8,6 +8,7 @@ logarithms. The inner model's uncertainty is propagated by solving again for dra
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -21,15 +22,18 @@ from ..jsonable import check_schema_version
 from ..validate import check_positive
 from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop, json_number
 from .identify import TestMeasurement
-from .identify_lti import LtiEstimate
+from .parameter import ParameterEstimate
 from .lprs import LimitCycle
 
 __all__ = ["CascadeIdentification", "CascadeTestFit", "identify_cascade", "CASCADE_ID_SCHEMA_VERSION"]
 
 FloatArray = NDArray[np.float64]
 _INF = math.inf
-#: version of :meth:`CascadeIdentification.to_json`
-CASCADE_ID_SCHEMA_VERSION = 1
+#: version of :meth:`CascadeIdentification.to_json`; 2: each parameter the one record
+#: (:class:`~mrftcli.mrft.parameter.ParameterEstimate`, with ``method``; version 1's ``one_sided`` records still read)
+CASCADE_ID_SCHEMA_VERSION = 2
+#: the method of the parameters this fit identifies (ParameterEstimate.method)
+_METHOD = "cascade-cycles"
 _Z95 = 1.959964
 #: floor of the standard errors of ln(frequency) and ln(amplitude) of a test (as identify_lti's)
 _SE_FLOOR = 5e-3
@@ -87,7 +91,7 @@ class CascadeIdentification:
     ----------
     model : CascadeModel
         The point estimate (with the nominal inner loop).
-    estimates : mapping of str to LtiEstimate
+    estimates : mapping of str to ParameterEstimate
         Td [s], tau [s], K with std and 95 % interval: the tests' scatter and the inner model's
         draws together (``std`` is their root sum of squares).
     tests : tuple of CascadeTestFit
@@ -101,7 +105,7 @@ class CascadeIdentification:
     """
 
     model: CascadeModel
-    estimates: Mapping[str, LtiEstimate]
+    estimates: Mapping[str, ParameterEstimate]
     tests: tuple[CascadeTestFit, ...]
     rate_hz: float
     inner_draws: int = 0
@@ -117,12 +121,12 @@ class CascadeIdentification:
     @classmethod
     def from_json(cls, data: Any) -> CascadeIdentification:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "cascade identification JSON", CASCADE_ID_SCHEMA_VERSION)
+        d = check_schema_version(data, "cascade identification JSON", range(1, CASCADE_ID_SCHEMA_VERSION + 1))
         params = d.get("parameters")
         if not isinstance(params, Mapping) or "model" not in d:
             raise InputError("cascade identification JSON needs 'model' and 'parameters'")
         model = CascadeModel.from_json(d["model"])
-        return cls(model, {k: LtiEstimate.from_json(k, v) for k, v in params.items()},
+        return cls(model, {str(k): _estimate_json(str(k), v) for k, v in params.items()},
                    tuple(CascadeTestFit.from_json(t) for t in d.get("tests") or ()),
                    json_number(d, "rate_hz", "cascade identification JSON"), int(d.get("inner_draws") or 0),
                    {str(k): float(v) for k, v in (d.get("inner_std") or {}).items()})
@@ -388,7 +392,7 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
     estimates = {name: _estimate(name, float(theta[i]), float(std[i]), problem.lower[i], problem.upper[i], omega)
                  for i, name in enumerate(problem.free)}
     if "K" not in problem.free:
-        estimates["K"] = LtiEstimate("K", CASCADE_PARAMETERS["K"][0], model.K, 0.0, model.K, model.K, known=True)
+        estimates["K"] = ParameterEstimate.given(model.K, CASCADE_PARAMETERS["K"][0], "K")
     inner_std = {name: (math.sqrt(var_inner[i]) * (1.0 if name == "tau" else float(getattr(model, name))))
                  for i, name in enumerate(problem.free)}
     fits = tuple(CascadeTestFit(t.beta, float(t.h or 1.0), t.frequency_mean, float(t.amplitude_mean or math.nan),
@@ -398,7 +402,16 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
     return CascadeIdentification(model, estimates, fits, problem.rate_hz, len(draws), inner_std)
 
 
-def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> LtiEstimate:
+def _estimate_json(name: str, data: Any) -> ParameterEstimate:
+    """One parameter of the JSON (a null end open: infinite; ``one_sided`` from the parameter's range)."""
+    bounds = CASCADE_PARAMETERS[name][2] if name in CASCADE_PARAMETERS else None
+    est = ParameterEstimate.from_json(name, data, bounds=bounds, open_value=math.inf)
+    if est.method:
+        return est
+    return dataclasses.replace(est, method="given" if est.known else _METHOD)  # version 1: no method
+
+
+def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> ParameterEstimate:
     """A parameter's estimate: Td and K on the log scale (``value`` is ln), tau on the linear scale, cut at the set I.
 
     Not determined (as in :mod:`mrftcli.mrft.identify_lti`): a 95 % interval wider than a factor of
@@ -408,8 +421,8 @@ def _estimate(name: str, value: float, std: float, low: float, high: float, omeg
     if name == "tau":
         lo, hi = value - _Z95 * std, value + _Z95 * std
         one_sided = "low" if lo < low else ""
-        return LtiEstimate(name, unit, value, std, max(lo, low), min(hi, high), one_sided=one_sided,
-                           determined=2 * _Z95 * std * omega < 1.0)
+        return ParameterEstimate(value, std, max(lo, low), min(hi, high), unit, 2 * _Z95 * std * omega < 1.0,
+                                 method=_METHOD, name=name, one_sided=one_sided)
     x = math.exp(value)
     lo, hi = math.exp(value - _Z95 * std), math.exp(value + _Z95 * std)
-    return LtiEstimate(name, unit, x, x * std, lo, hi, determined=2 * _Z95 * std < 2.0)
+    return ParameterEstimate(x, x * std, lo, hi, unit, 2 * _Z95 * std < 2.0, method=_METHOD, name=name)

@@ -52,12 +52,15 @@ from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel
 from .model import PlantModel, model_from_json
+from .parameter import ParameterEstimate
 
-__all__ = ["ResponsePoint", "LtiEstimate", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION",
+__all__ = ["ResponsePoint", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION",
            "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
 
 #: version of :meth:`LtiIdentification.to_json`
-LTI_SCHEMA_VERSION = 1
+LTI_SCHEMA_VERSION = 2
+#: the method every identified (not given) parameter of this fit records (ParameterEstimate.method)
+_METHOD = "response-points"
 _Z95 = 1.959964
 #: floors of the standard errors (relative gain, phase [rad]): a point measured from few cycles
 #: (or noise-free simulations) must not get an infinite weight, and the cycle-to-cycle scatter misses
@@ -128,63 +131,6 @@ class ResponsePoint:
 
 
 @dataclass(frozen=True)
-class LtiEstimate:
-    """One parameter of the identified model.
-
-    Attributes
-    ----------
-    name, unit : str
-        The family's parameter name and its unit.
-    value : float
-        Point estimate (the given value for a known parameter).
-    std : float
-        Standard deviation [unit] (0 for a known parameter).
-    ci95_low, ci95_high : float
-        95 % interval [unit]; an end cut at a bound of the set I is that bound (see ``one_sided``).
-    known : bool
-        In the set E (given, not identified).
-    determined : bool
-        Pinned down by the tests (see the module docstring); False: the value is one of many that fit.
-    one_sided : str
-        ``""``, ``"low"`` or ``"high"``: the interval's end that is the range's bound (open side).
-    """
-
-    name: str
-    unit: str
-    value: float
-    std: float
-    ci95_low: float
-    ci95_high: float
-    known: bool = False
-    determined: bool = True
-    one_sided: str = ""
-
-    def to_json(self) -> dict[str, Any]:
-        def finite(x: float) -> float | None:
-            return x if math.isfinite(x) else None
-
-        # an undetermined parameter has no standard deviation worth the name: null, not a number
-        std = self.std if self.determined or self.known else None
-        return {"value": self.value, "unit": self.unit, "std": std, "ci95_low": finite(self.ci95_low),
-                "ci95_high": finite(self.ci95_high), "known": self.known, "determined": self.determined,
-                "one_sided": self.one_sided}
-
-    @classmethod
-    def from_json(cls, name: str, data: Any) -> LtiEstimate:
-        if not (isinstance(data, Mapping) and isinstance(data.get("value"), (int, float))
-                and isinstance(data.get("unit"), str)):
-            raise InputError(f"identification JSON: parameter {name!r} needs a numeric value and a unit")
-
-        def num(key: str, default: float) -> float:
-            v = data.get(key)
-            return default if v is None else float(v)
-
-        return cls(name, str(data["unit"]), float(data["value"]), num("std", 0.0), num("ci95_low", -math.inf),
-                   num("ci95_high", math.inf), bool(data.get("known", False)), bool(data.get("determined", True)),
-                   str(data.get("one_sided", "")))
-
-
-@dataclass(frozen=True)
 class LtiIdentification:
     """Outcome of :func:`identify_lti`.
 
@@ -192,8 +138,9 @@ class LtiIdentification:
     ----------
     model : PlantModel
         The plant at the point estimate (known parameters and ranges kept).
-    estimates : tuple of LtiEstimate
-        Every parameter of the family, in its order.
+    estimates : tuple of ParameterEstimate
+        Every parameter of the family, in its order (``name`` set; method ``"response-points"``, or
+        ``"given"`` for a known one).
     points : tuple of ResponsePoint
         The points fitted.
     chi2_dof : float or None
@@ -208,14 +155,14 @@ class LtiIdentification:
     """
 
     model: PlantModel
-    estimates: tuple[LtiEstimate, ...]
+    estimates: tuple[ParameterEstimate, ...]
     points: tuple[ResponsePoint, ...]
     chi2_dof: float | None
     undetermined: tuple[str, ...] = ()
     advice: str = ""
     combination: DeterminedCombination | None = None
 
-    def estimate(self, name: str) -> LtiEstimate:
+    def estimate(self, name: str) -> ParameterEstimate:
         """The estimate of one parameter by name."""
         for e in self.estimates:
             if e.name == name:
@@ -232,8 +179,12 @@ class LtiIdentification:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> LtiIdentification:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        data = check_schema_version(data, "identification JSON", LTI_SCHEMA_VERSION)
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input.
+
+        Version 1 (the parameters with ``one_sided``, without ``method``) still reads; an interval end cut
+        at the range's bound is found again from the model's ranges (``one_sided``).
+        """
+        data = check_schema_version(data, "identification JSON", range(1, LTI_SCHEMA_VERSION + 1))
         model = model_from_json(data.get("model", {}))
         params = data.get("parameters")
         if not isinstance(params, Mapping):
@@ -248,9 +199,18 @@ class LtiIdentification:
                 raise InputError(f"identification JSON: bad point {p!r}") from err
         chi = data.get("chi2_dof")
         combo = data.get("determined_combination")
-        return cls(model, tuple(LtiEstimate.from_json(n, v) for n, v in params.items()), tuple(points),
+        return cls(model, tuple(_estimate_json(model, str(n), v) for n, v in params.items()), tuple(points),
                    None if chi is None else float(chi), tuple(str(n) for n in data.get("undetermined", [])),
                    str(data.get("advice", "")), None if combo is None else DeterminedCombination.from_json(combo))
+
+
+def _estimate_json(model: PlantModel, name: str, data: Any) -> ParameterEstimate:
+    """One parameter of the JSON: a null interval end is open (infinite); ``one_sided`` from the model's range."""
+    p = model.parameters.get(name)
+    est = ParameterEstimate.from_json(name, data, bounds=None if p is None else p.bounds, open_value=math.inf)
+    if est.method:
+        return est
+    return dataclasses.replace(est, method="given" if est.known else _METHOD)  # version 1: no method
 
 
 # ----------------------------------------------------------------------------------------------
@@ -835,7 +795,7 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
     estimates, undetermined = [], []
     for name, p in model.parameters.items():
         if p.known:
-            estimates.append(LtiEstimate(name, p.unit, p.value, 0.0, p.value, p.value, known=True))
+            estimates.append(ParameterEstimate.given(p.value, p.unit, name))
             continue
         i = problem.unknown.index(name)
         assert z is not None and lo is not None and hi is not None
@@ -857,8 +817,8 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
             determined = (b - a) * w_ref < 1.0  # within a radian of phase at the tests' frequency
         if flat and name in flat:  # no interval along a flat direction: the data say nothing there
             determined, ends, side = False, [p.bounds[0], p.bounds[1]], "low" if p.bounds[0] > -math.inf else ""
-        estimates.append(LtiEstimate(name, p.unit, p.value, float(std), float(ends[0]), float(ends[1]), False,
-                                     bool(determined), side))
+        estimates.append(ParameterEstimate(p.value, float(std), float(ends[0]), float(ends[1]), p.unit,
+                                           bool(determined), False, _METHOD, name, side))
         if not determined:
             undetermined.append(name)
     advice = ""

@@ -36,8 +36,10 @@ from ..tune.stacks import StackExport
 __all__ = ["VEHICLE_SCHEMA_VERSION", "ROLES", "ROUTES", "MISSING_REASONS", "LoopGains", "VehicleLoop",
            "MissingLoop", "VehicleResult"]
 
-#: Version of :meth:`VehicleResult.to_json`'s object.
-VEHICLE_SCHEMA_VERSION = 1
+#: Version of :meth:`VehicleResult.to_json`'s object; 2: its loops' records write every parameter as the one
+#: record (:class:`~mrftcli.mrft.parameter.ParameterEstimate`; analysis schema 4, cascade 2); version 1 still reads
+#: (its loops' older records through their own readers) and is written back as version 2
+VEHICLE_SCHEMA_VERSION = 2
 #: ``inner``: identified with eq. (2) at the known Tp; ``outer``: its plant holds a closed inner loop.
 ROLES = ("inner", "outer")
 #: The model a loop was identified with: ``eq2`` (eq. (2) at the known Tp) or ``cascade`` (the closed
@@ -175,7 +177,7 @@ class VehicleLoop:
             est = self.analysis.identification.estimates
             return {k: (float(est[k].value), float(est[k].std)) for k in ("Td", "tau", "K") if k in est}
         a = self.analysis
-        return {"Td": (a.Td.mean, a.Td.std), "tau": (a.tau.mean, a.tau.std), "K": (a.K.mean, a.K.std)}
+        return {"Td": (a.Td.value, a.Td.std), "tau": (a.tau.value, a.tau.std), "K": (a.K.value, a.K.std)}
 
     def to_json(self) -> dict[str, Any]:
         """The analysis JSON with ``role``, ``route``, ``route_notes`` and ``gains`` added."""
@@ -286,7 +288,7 @@ class VehicleResult:
             Not a JSON object, another ``schema_version``, an unknown loop name, or a malformed entry.
         """
         what = "vehicle record"
-        obj = check_schema_version(data, what, VEHICLE_SCHEMA_VERSION, fix="run 'mrft-ident vehicle' again")
+        obj = check_schema_version(data, what, range(1, VEHICLE_SCHEMA_VERSION + 1), fix="run 'mrft-ident vehicle' again")
         loops, missing = obj.get("loops"), obj.get("missing", {})
         if not isinstance(loops, Mapping) or not isinstance(missing, Mapping):
             raise InputError(f"{what}: 'loops' and 'missing' must be objects")

@@ -18,7 +18,10 @@ WAF_COMMIT=35eadbb64e2052099a853b571e507c33032b392c
 MAVLINK_COMMIT=4924617b8ddd9871506a01e16675a41464fdba49
 PYMAVLINK_COMMIT=aa033552599c981b3e916b42383de8a21754c9b4
 
-if [ -x "$DEST/build/sitl/bin/arducopter" ]; then echo "already built: $DEST/build/sitl/bin/arducopter"; exit 0; fi
+# Built, with this project's main-loop relay patch at its current version: nothing to do.
+BIN="$DEST/build/sitl/bin/arducopter"
+if [ -x "$BIN" ] && [ -e "$DEST/ArduCopter/MRFT_task.cpp" ] && \
+   [ -z "$(find "$HERE/ardupilot_patch" -newer "$BIN" -type f)" ]; then echo "already built: $BIN"; exit 0; fi
 
 # 1. System packages (Debian/Ubuntu): compiler, git, Python headers for the venv.
 if [ "${SKIP_APT:-0}" != 1 ] && command -v apt-get >/dev/null; then
@@ -61,8 +64,11 @@ submodule modules/waf https://github.com/ArduPilot/waf.git "$WAF_COMMIT" "${WAF_
 submodule modules/mavlink https://github.com/ArduPilot/mavlink.git "$MAVLINK_COMMIT" "${MAVLINK_MIRROR:-}"
 submodule modules/mavlink/pymavlink https://github.com/ArduPilot/pymavlink.git "$PYMAVLINK_COMMIT" "${PYMAVLINK_MIRROR:-}"
 
-# 3. SITL without CAN and littlefs (their submodules are not needed for a headless copter).
+# 3. SITL without CAN and littlefs (their submodules are not needed for a headless copter), and the
+#    MRFT relay as a main-loop task (ardupilot_patch/: three new files in ArduCopter/, two lines in
+#    Copter.cpp; docs/sitl.md says why).
 python3 "$HERE/patch_boards.py" Tools/ardupilotwaf/boards.py
+python3 "$HERE/ardupilot_patch/apply_patch.py" .
 # The build reads its version from git.
 if [ ! -e .git ]; then
   git init -q && git add -A >/dev/null && git -c user.email=sitl@localhost -c user.name=sitl commit -qm "snapshot" >/dev/null
@@ -74,6 +80,9 @@ if [ ! -x venv/bin/python ]; then
   venv/bin/pip install -q -r "$HERE/requirements-waf.txt"
 fi
 # 5. Configure and build (about 5 minutes on 2 cores with gcc 12).
-venv/bin/python ./waf configure --board sitl --disable-networking --no-submodule-update
+# (configure once: waf then rebuilds only what changed, e.g. the patch's two files)
+if [ ! -e build/c4che/sitl_cache.py ]; then
+  venv/bin/python ./waf configure --board sitl --disable-networking --no-submodule-update
+fi
 venv/bin/python ./waf copter -j"$(nproc)"
 ls -l build/sitl/bin/arducopter

@@ -23,15 +23,23 @@
 -- MRFT_DLY [ms] delays what is sent (the +20 ms test), after the relay decides: a FIFO in simulated time sends
 -- the newest decision at least MRFT_DLY old at each tick (the log's Snt against Cmd shows the delay achieved).
 --
+-- MRFT_MAIN 1: the relay runs in the vehicle's main loop instead (scripts/sitl/ardupilot_patch, applied
+-- by build_ardupilot.sh: a task after the flight mode, at the loop rate, in the simulation's lockstep;
+-- MRFT_DLY in whole ticks). This script then only prepares the test (the centre in MRFT_BIAS, the opened
+-- rate loop), raises MRFT_GO to the axis, keeps GUIDED's target fresh (the throttle centre, or the
+-- altitude PD for roll / pitch) and lowers MRFT_GO at the end; the firmware writes MRFT and confirms by
+-- MRFT_RUN = 1 (a firmware without the patch does not, and the test stops with a message saying so).
+--
 -- Logged every tick as DataFlash message MRFT (mrft-ident's `ardupilot-mrft` layout):
 --   Ax axis (1 alt, 2 roll, 3 pitch), Cmd the relay's decision + bias [throttle or mixer units],
 --   Snt what was sent after the delay FIFO, Out the loop output [m or rad], SP the setpoint,
 --   Rel the relay sign (+1/-1), B beta, H relay height, Bias the bias, Dly the delay [s];
--- and once at each test's start as MRFB (Ax, B, H, Bias, Dly): the beta the reader takes.
+-- and once at each test's start as MRFB (Ax, B, H, Bias, Dly, Hov: the hover throttle GUIDED used just before):
+-- the beta the reader takes.
 
 local TABLE_KEY = 41
 local PERIOD_MS = 2
-assert(param:add_table(TABLE_KEY, "MRFT_", 9), "MRFT: could not add the parameter table")
+assert(param:add_table(TABLE_KEY, "MRFT_", 13), "MRFT: could not add the parameter table")
 local function add(idx, name, default)
   assert(param:add_param(TABLE_KEY, idx, name, default), "MRFT: could not add MRFT_" .. name)
   return Parameter("MRFT_" .. name)
@@ -45,6 +53,10 @@ local P_ETH = add(6, "ETH", 0)
 local P_ZKP = add(7, "ZKP", 0.08)
 local P_ZKD = add(8, "ZKD", 0.08)
 local P_TICK = add(9, "TICK", 1)
+local P_GO = add(10, "GO", 0)
+local P_BIAS = add(11, "BIAS", 0)
+local P_RUN = add(12, "RUN", 0)
+local P_MAIN = add(13, "MAIN", 0)
 
 local GUIDED = 4
 local AXIS_PARAMS = {
@@ -91,6 +103,7 @@ local function start(axis)
     axis = axis, beta = P_BETA:get(), h = P_H:get(), dly = P_DLY:get(), eth = P_ETH:get(),
     t0 = millis():tofloat(), hover = hover, z0 = altitude(), fifo = {}, saved = nil, last_us = -1,
     sp = (axis == 1) and y or 0.0, relay = 1, e_ext = 0, first_half = true, started = false,
+    main = P_MAIN:get() >= 0.5,
   }
   t.bias = (axis == 1) and hover or 0.0
   if AXIS_PARAMS[axis] then
@@ -98,17 +111,26 @@ local function start(axis)
     for i, name in ipairs(AXIS_PARAMS[axis]) do t.saved[i] = param:get(name) end
     set_params(AXIS_PARAMS[axis], OPEN_VALUES)
   end
+  if t.main then
+    -- the firmware's task takes beta, h, the delay and the start threshold from MRFT_* when MRFT_GO rises
+    P_RUN:set(0); P_BIAS:set(t.bias); P_GO:set(axis)
+  end
   -- one MRFB message per test, at its start: beta, h and the delay (the reader's beta topic)
-  logger:write("MRFB", "Ax,B,H,Bias,Dly", "Bffff", "----s", "-----", axis, t.beta, t.h, t.bias, t.dly * 0.001)
+  logger:write("MRFB", "Ax,B,H,Bias,Dly,Hov", "Bfffff", "----s-", "------", axis, t.beta, t.h, t.bias, t.dly * 0.001,
+    t.hover)
   gcs:send_text(6, string.format("MRFT: axis %d beta %.2f h %.3f delay %d ms", axis, t.beta, t.h, t.dly))
   return t
 end
 
 local function stop(t, why)
   -- a last sample with the relay off (the command back at its centre) closes the test in the log
-  local y = output(t.axis) or t.sp
-  logger:write("MRFT", "Ax,Cmd,Snt,Out,SP,Rel,B,H,Bias,Dly", "Bffffbffff", "--------s-", "----------",
-    t.axis, t.bias, t.bias, y, t.sp, 0, t.beta, t.h, t.bias, t.dly * 0.001)
+  if t.main then
+    P_GO:set(0)  -- the firmware's task writes the closing sample
+  else
+    local y = output(t.axis) or t.sp
+    logger:write("MRFT", "Ax,Cmd,Snt,Out,SP,Rel,B,H,Bias,Dly", "Bffffbffff", "--------s-", "----------",
+      t.axis, t.bias, t.bias, y, t.sp, 0, t.beta, t.h, t.bias, t.dly * 0.001)
+  end
   if t.saved then set_params(AXIS_PARAMS[t.axis], t.saved) end
   vehicle:set_target_velocity_NED(Vector3f())
   P_AXIS:set(0)
@@ -133,6 +155,18 @@ local function relay_step(t, e)
     if t.e_ext < 0 and e >= -t.beta * t.e_ext then t.relay = 1; t.e_ext = e end
   end
   return t.relay
+end
+
+-- with the main-loop relay: keep GUIDED's angle-and-thrust target fresh (the task overrides the axis)
+local function hold(t)
+  if millis():tofloat() - t.t0 > 500 and P_RUN:get() < 0.5 then return false end
+  if t.axis == 1 then
+    vehicle:set_target_rate_and_throttle(0, 0, 0, t.bias)
+  else
+    local z = altitude() or t.z0
+    vehicle:set_target_rate_and_throttle(0, 0, 0, t.hover + P_ZKP:get() * (t.z0 - z) - P_ZKD:get() * climb_rate())
+  end
+  return true
 end
 
 local function tick(t)
@@ -188,7 +222,12 @@ local function update()
     stop(test, "disarmed or left GUIDED"); test = nil; return update, PERIOD_MS
   end
   if millis():tofloat() - test.t0 > P_DUR:get() * 1000 then stop(test, "duration"); test = nil; return update, PERIOD_MS end
-  if not tick(test) then stop(test, "no estimate"); test = nil end
+  if test.main then
+    if not hold(test) then
+      stop(test, "no main-loop relay in this firmware (MRFT_RUN stayed 0): build with scripts/sitl/build_ardupilot.sh")
+      test = nil
+    end
+  elseif not tick(test) then stop(test, "no estimate"); test = nil end
   return update, PERIOD_MS
 end
 

@@ -34,9 +34,10 @@ AXES = {"altitude": 1, "roll": 2, "pitch": 3}
 #: ArduPilot's SITL home (the autotest's CMAC site)
 HOME = "-35.363261,149.165230,584,353"
 #: parameters every campaign flight sets: scripting on, a small log (the MRFT message; ATT, CTUN and
-#: the streaming messages, such as SITL's own SIM2 at 400 Hz, at most 10 Hz: LOG_FILE_RATEMAX)
+#: the streaming messages, such as SITL's own SIM2 at 400 Hz, at most 1 Hz: LOG_FILE_RATEMAX; no EKF3
+#: streaming messages: EK3_LOG_LEVEL 3)
 BASE_PARAMS = {"SCR_ENABLE": 1, "LOG_BITMASK": 18, "LOG_DISARMED": 0, "LOG_FILE_DSRMROT": 1,
-               "LOG_FILE_RATEMAX": 10}
+               "LOG_FILE_RATEMAX": 1, "EK3_LOG_LEVEL": 3}
 
 
 class SitlError(RuntimeError):
@@ -293,11 +294,23 @@ def tp_of_filter(cutoff_hz: float, rate_hz: float = LOOP_HZ) -> float:
     return -dt / math.log(1.0 - alpha)
 
 
+def has_main_loop_relay(ap_dir: Path) -> bool:
+    """Whether the tree carries the main-loop relay (``ardupilot_patch/apply_patch.py``, run by the build)."""
+    return (ap_dir / "ArduCopter" / "MRFT_task.cpp").exists()
+
+
 def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, float]], delay_ms: float,
              duration_s: float, speedup: float, alt_m: float = 10.0, eth: float = 0.0,
-             tick_ms: float = 1.0) -> dict[str, Any]:
-    """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the log and how it was flown."""
+             tick_ms: float = 1.0, main_loop: bool | None = None) -> dict[str, Any]:
+    """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the log and how it was flown.
+
+    ``main_loop``: the relay as the firmware's main-loop task (the patched build; ``None``: when the tree
+    has it), else in the Lua script at most every ``tick_ms`` of simulated time.
+    """
     filt_name, filt_hz = TP_FILTER[axis]
+    main = has_main_loop_relay(ap_dir) if main_loop is None else main_loop
+    if main and delay_ms * LOOP_HZ / 1000 != round(delay_ms * LOOP_HZ / 1000):
+        raise SitlError(f"--delay-ms {delay_ms:g} is not a whole number of {1000 / LOOP_HZ:g} ms loop ticks")
     with Sitl(ap_dir, workdir, speedup, {filt_name: filt_hz}) as sitl:
         sitl.wait(3)
         version = firmware_version(sitl)
@@ -306,13 +319,16 @@ def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, fl
         sitl.takeoff(alt_m)
         hover = sitl.get_param("MOT_THST_HOVER")
         sitl.set_param("MRFT_TICK", tick_ms)
+        sitl.set_param("MRFT_MAIN", int(main))
         runs = [sitl.mrft(axis, beta, h, delay_ms, duration_s, eth) for beta, h in tests]
         sitl.land()
         sitl.wait(2)
         log = sitl.newest_log()
+    relay = ({"relay": "main-loop task (scripts/sitl/ardupilot_patch), started by scripts/sitl/mrft_relay.lua",
+              "relay_rate_hz": LOOP_HZ, "added_delay_ticks": round(delay_ms * LOOP_HZ / 1000)} if main else
+             {"relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 2, "script_min_tick_ms": tick_ms})
     return {"stack": "ArduPilot SITL", "version": version, "frame": "quad (SITL --model quad, copter.parm)",
-            "loop": axis, "relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 2, "script_min_tick_ms": tick_ms,
-            "loop_rate_hz": LOOP_HZ, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
+            "loop": axis, **relay, "loop_rate_hz": LOOP_HZ, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
             "tp_s": tp_of_filter(filt_hz), "tp_source": f"{filt_name} = {filt_hz:g} Hz first-order filter at "
             f"{LOOP_HZ:g} Hz (SITL's motors have no lag)",
             "tests": runs, "prearm_refusals_before_arming": sorted(set(refusals)), "log": str(log)}

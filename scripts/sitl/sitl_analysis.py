@@ -18,7 +18,7 @@ from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.general import mask_windows
 from mrftcli.errors import MrftError
-from mrftcli.io import ReadOptions, read_flight
+from mrftcli.io import FlightLog, ReadOptions, read_flight
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 
@@ -76,7 +76,7 @@ def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed:
     tests = list(full.tests)
     out = []
     for i, test in enumerate(tests):
-        others = [(t.t_start, t.t_end) for j, t in enumerate(tests) if j != i]
+        others = [(_marked_start(flight, t.t_start), t.t_end) for j, t in enumerate(tests) if j != i]
         try:
             res = analyze_flight(mask_windows(flight, others), soiptd_model(tp), options=_options(seed, refine))
         except MrftError as err:
@@ -89,6 +89,19 @@ def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed:
         out.append(HeldOut(i, test.beta_nominal, test.h, test.frequency_hz_mean, cycle.frequency_hz,
                            (res.Td.mean, res.tau.mean, res.K.mean)))
     return out
+
+
+def _marked_start(flight: FlightLog, t_start: float) -> float:
+    """A test's window opens at its beta marker (the last beta sample at or before its first cycle [s]).
+
+    The stacks log beta once at a test's start (``MRFB``, a parameter change), a little before the first
+    switch the segmenter dates the test from; a window cut at that switch would drop the marker, and the
+    masked flight would carry the previous test's beta into it (two kept tests read as one).
+    """
+    if flight.beta is None:
+        return t_start
+    before = flight.beta.t[flight.beta.t <= t_start]
+    return float(before[-1]) if before.size else t_start
 
 
 def test_lines(res: AnalysisResult, held: list[HeldOut]) -> list[str]:

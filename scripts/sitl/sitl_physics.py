@@ -15,10 +15,14 @@ the tree ``build_ardupilot.sh`` pins); docs/sitl.md derives each line.
   ``f = mdrag_coef * sqrt(rho * true_prop_area)``; at hover ``T_motor = m g / 4``, so the drag is
   ``4 f sqrt(m g / 4) v_z`` and Td = m / that. (The quadratic body drag ``areaCd`` and the inflow term
   are second order at the cycle's few cm/s.)
-* Roll/pitch: the mixer's quad-X factors are +-0.5, so a roll input u changes each motor's thrust by
-  0.5 u m g / (4 hover) at arm y = 0.35 sin 45 deg: torque 0.5 u y m g / hover. Damping: the momentum
-  drag of each motor's vertical speed p y, ``4 f y^2 sqrt(T_motor)`` [N m s], plus the frame's
-  ``gyro * radians(400) / refRotRate`` term.
+* The frame is a **plus**: ``--model quad`` is ``Frame("quad", 4, quad_plus_motors)`` (motors at 90, -90, 0
+  and 180 deg), and copter.parm flies it as one (``FRAME_CLASS 1``, ``FRAME_TYPE 0``). ArduPilot's
+  mixer (``AP_MotorsMatrix``) gives motor i the roll factor ``cos(angle_i + 90 deg)`` and the pitch factor
+  ``cos(angle_i)``, normalised to +-0.5: only the two motors on the axis's arm (0.35 m) act, each by
+  0.5 u m g / (4 hover), so the torque is 2 * 0.5 * 0.35 u m g / (4 hover). (Read as an X, four motors at
+  0.247 m, it would be sqrt(2) larger: the 25-28 % shortfall of the first campaign's roll K.)
+  Damping: the momentum drag of each motor's vertical speed p y, ``f y^2 sqrt(T_motor)`` [N m s] summed
+  over the motors, plus the frame's ``gyro * radians(400) / refRotRate`` term.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ N_MOTORS = 4
 MDRAG_COEF = 0.2
 REF_ROT_RATE = 120.0
 HOME_ALT_M = 584.0
+#: SITL's ``quad`` model: the plus frame's motor angles (``quad_plus_motors`` in SIM_Frame.cpp) [deg]
+MOTOR_ANGLES_DEG = (90.0, -90.0, 0.0, 180.0)
 
 
 def air_density(alt_amsl_m: float) -> float:
@@ -66,13 +72,23 @@ def implied_model(loop: str, hover: float, alt_amsl_m: float = HOME_ALT_M) -> di
         return {"K": G / hover, "Td": 1.0 / damping, "damping_per_s": damping}
     if loop not in ("roll", "pitch"):
         raise ValueError(f"loop must be altitude, roll or pitch, not {loop!r}")
-    arm = DIAGONAL_M * math.sin(math.radians(45.0))
+    torque_per_unit, damping_nms = 0.0, 0.0
+    factors = _mixer_factors(loop)
+    for angle, factor in zip(MOTOR_ANGLES_DEG, factors):
+        arm = DIAGONAL_M * abs(math.sin(math.radians(angle)) if loop == "roll" else math.cos(math.radians(angle)))
+        torque_per_unit += abs(factor) * arm * MASS_KG * G / (N_MOTORS * hover)
+        damping_nms += f * arm**2 * math.sqrt(t_motor)
     inertia = MASS_KG * 0.25 * (DIAGONAL_M * 0.5) ** 2
-    torque_per_unit = 0.5 * arm * MASS_KG * G / hover
-    damping = (N_MOTORS * f * arm**2 * math.sqrt(t_motor)) / inertia + math.radians(400.0) / REF_ROT_RATE
+    damping = damping_nms / inertia + math.radians(400.0) / REF_ROT_RATE
     return {"K": torque_per_unit / inertia, "Td": 1.0 / damping, "damping_per_s": damping}
 
 
+def _mixer_factors(loop: str) -> list[float]:
+    """ArduPilot's roll (``cos(angle + 90)``) or pitch (``cos(angle)``) factors, normalised to +-0.5."""
+    raw = [math.cos(math.radians(a + (90.0 if loop == "roll" else 0.0))) for a in MOTOR_ANGLES_DEG]
+    top = max(abs(r) for r in raw)
+    return [0.5 * r / top for r in raw]
+
 if __name__ == "__main__":
-    for name in ("altitude", "roll"):
-        print(name, implied_model(name, 0.39))
+    for name in ("altitude", "roll", "pitch"):
+        print(name, implied_model(name, 0.362))

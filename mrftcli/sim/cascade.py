@@ -29,12 +29,12 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..mrft.model import LoopModel
-from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, inner_closed_loop, outer_plant_response
+from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, outer_plant_response
 from .cascade_spec import CascadeSpec, CascadeTestTruth, CascadeTruth, InnerGains
 from .control import HearMrftRelay, MrftRelay, df_prediction, make_relay
 from .spec import TestSpec
 
-__all__ = ["CascadeFlight", "simulate_cascade", "outer_hold_gains", "approximate_outer_model", "inner_pd",
+__all__ = ["CascadeFlight", "simulate_cascade", "outer_hold_gains", "inner_pd",
            "command_gain", "outer_describing_function", "plan_outer_test"]
 
 Array = NDArray[np.float64]
@@ -125,24 +125,6 @@ def inner_pd(inner: LoopModel, rate_hz: float, phase_margin_deg: float = 40.0, d
     i = int(above[-1])
     kp = 1.0 / float(np.abs(g[i] * c[i]))
     return InnerGains(kp, 0.0, kp * td_c, tf, rate_hz)
-
-
-def _equivalent_lag(plant: CascadePlant, gains: InnerGains) -> float:
-    """The closed inner loop's equivalent lag [s]: pi/4 over the frequency where it lags 45 deg."""
-    omega = np.geomspace(0.05, 0.99 * math.pi / plant.T, 400)
-    phase = np.unwrap(np.angle(inner_closed_loop(plant, gains, omega)))
-    beyond = np.flatnonzero(phase < -math.pi / 4)
-    if beyond.size == 0:
-        return plant.T
-    return float(math.pi / 4 / omega[beyond[0]])
-
-
-def approximate_outer_model(inner: LoopModel, gains: InnerGains, Td: float, tau: float, K: float,
-                            g: float = 9.81) -> LoopModel:
-    """Eq. (2) standing in for the cascade when designing the position hold (never for truth):
-    Tp = the closed inner loop's equivalent lag, the outer Td, tau and K."""
-    plant = cascade_plant(inner, Td, tau, gains.rate_hz, g)
-    return LoopModel(_equivalent_lag(plant, gains), Td, tau, K)
 
 
 def outer_describing_function(plant: CascadePlant, gains: InnerGains, command_gain: float, beta: float,

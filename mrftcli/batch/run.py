@@ -193,13 +193,14 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                 return _skipped_entry(entry, loop, absent)
         from ..analyze import AnalyzeOptions, analyze_path, refuse_rejected_tp
         from ..io import ReadOptions
+        from ..mrft.model import soiptd_model
 
         # settings left unset (None) keep the options' defaults
         read = ReadOptions(loop=loop, command_topic=s.command_topic, output_topic=s.output_topic,
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
-        result = refuse_rejected_tp(analyze_path(task.path, s.tp, read=read, options=options), s.accept_tp)
+        result = refuse_rejected_tp(analyze_path(task.path, soiptd_model(s.tp), read=read, options=options), s.accept_tp)
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,

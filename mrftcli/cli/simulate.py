@@ -399,7 +399,8 @@ def simulate(
         _given(ctx, ("model_name",), "is not used with --model-file (the file declares the structure)")
     if model_name != "soiptd" or model_file is not None:
         what = "--model-file" if model_file is not None else f"--model {model_name}"
-        _given(ctx, ("tp", "td", "tau", "k", "setpoint", "cascade", "inner_tp", "inner_td", "inner_tau", "inner_k",
+        _given(ctx, ("setpoint",), f"is not used with {what} (the plant flies about its operating point, output 0)")
+        _given(ctx, ("tp", "td", "tau", "k", "cascade", "inner_tp", "inner_td", "inner_tau", "inner_k",
                      "inner_gains", "inner_tests", "inner_noise", "inner_amplitude", "commanded", "layout"),
                f"is not used with {what} (its parameters are --param)")
         _required(("--test", tests or None))

@@ -2,7 +2,7 @@
 
 Fresh recordings as bench_families draws them (every family, random parameters, 50-200 Hz, 1-3 %
 noise, 3-4 windows of a relay with hysteresis, as an engineer runs a process relay test): each is
-analysed (analyze_general), tuned (tune_process: model-based, and robust over 30 draws from the
+analysed (analyze_flight with the family model), tuned (the one tune driver: model-based, and robust over 30 draws from the
 record's intervals) and the exported PI (the default) is checked on the plant that was simulated:
 closed-loop stability (eigenvalues of the exact sampled loop) and the sensitivity peak Ms against the
 design limit 1.6. The robust design is compared with the model-based one in the same run (the ratio
@@ -32,7 +32,7 @@ MS_TOLERANCE = 1.05  # an Ms within 5 % of the limit on the true plant counts as
 def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, float]:
     """(stable, Ms, phase margin [deg]) of the PI on the true plant's exact sampled loop."""
     from mrftcli.tune.cascade import cascade_margins, closed_loop_matrix
-    from mrftcli.tune.process import discrete_response, discretise
+    from mrftcli.tune.grid import discrete_response, discretise
 
     sign = 1.0 if true_model.parameters["K"].value > 0 else -1.0
     ss = discretise(true_model, rate_hz)
@@ -55,7 +55,8 @@ def one(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, object]:
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
     from mrftcli.mrft.relays import RelayLaw
-    from mrftcli.tune.process import ProcessTuneOptions, process_draws, tune_process
+    from mrftcli.tune.design import DesignOptions, tune
+    from mrftcli.tune.grid import N_DRAWS, model_draws
 
     params = draw_plant(family, rng)
     true = PROCESS_FAMILIES[family](**params)
@@ -72,17 +73,16 @@ def one(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, object]:
         res = analyze_flight(flight, family_model(family))
         assert res.identification is not None
         ident = res.identification
-        opts = ProcessTuneOptions()
-        draws, _ = process_draws(ident.model, ident.estimates, opts.n_draws, opts.seed)
+        draws, _ = model_draws(ident.model, ident.estimates, N_DRAWS)
         rate_rec = res.tests[0].rate_hz
-        tuned = tune_process(ident.model, rate_rec, draws=draws, options=opts, kinds=("PI",))
+        tuned = tune(ident.model, rate_rec, posterior=draws, options=DesignOptions(kinds=("PI",)))
     except MrftError as err:
         out["refused"] = str(err)[:90]
         return out
     for name in ("model-based", "robust"):
         try:
             design = tuned.get(name, "PI")
-        except MrftError:
+        except KeyError:  # no design of that name (no draws: no robust one)
             continue
         out[name] = _on_truth(design.controller, true, rate_rec)
     return out

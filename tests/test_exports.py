@@ -323,6 +323,26 @@ def test_records_round_trip_and_refuse_other_versions():
         StackExport.from_json({**e.to_json(), "schema_version": 0})
 
 
+def test_tune_result_version_1_still_reads():
+    """A tune result written by the previous release (schema 1: eq. (2) only, the model as {Tp, Td, tau, K};
+    tests/data/old_records/tune_result_v1.json) reads with its figures, writes back as version 2, and holds
+    the gains this release designs for the same inputs."""
+    from pathlib import Path
+
+    old = json.loads((Path(__file__).parent / "data" / "old_records" / "tune_result_v1.json").read_text())
+    assert old["schema_version"] == 1
+    res = TuneResult.from_json(old)
+    assert res.model == LoopModel(0.0422, 1.301, 0.0297, 30.0) and res.posterior is not None
+    assert res.get("model-based", "PD").controller.Kp == old["designs"][1]["controller"]["Kp"]
+    new = res.to_json()
+    assert new["schema_version"] == 2 and new["model"]["family"] == "soiptd"
+    assert TuneResult.from_json(json.loads(json.dumps(new))).to_json() == new
+    m = LoopModel(0.0422, 1.301, 0.0297, 30.0)
+    again = tune(m, 250.0, posterior=Posterior.from_spread(m, 0.1, 0.002, 2.0, n=12), loop="roll",
+                 options=DesignOptions(kinds=("PD",), designs=("mrft-rule", "model-based")))
+    assert [d.controller for d in again.designs] == [d.controller for d in res.designs]
+
+
 # --- the CLI, as a user runs it -------------------------------------------------------------------
 
 def _run(args: list[str], capsys) -> tuple[int, str, str]:

@@ -1,4 +1,4 @@
-"""tune on process plants (mrftcli/tune/process.py, cli/process_tune.py).
+"""tune on process plants: the one driver (mrftcli/tune/design.py: tune) by the grid strategy (tune/grid.py).
 
 The oracle of the margins is python-control on the plant's pulse transfer function written here from
 its closed form (the modified z-transform of K e^{-tau s} / (T s + 1) and K e^{-tau s} / s under a
@@ -21,8 +21,8 @@ from mrftcli.mrft.families import FOPDT, IPDT
 from mrftcli.mrft.identify_lti import LtiIdentification
 from mrftcli.mrft.parameter import ParameterEstimate
 from mrftcli.mrft.relays import RelayLaw
-from mrftcli.tune.process import (ProcessTuneOptions, ProcessTuneResult, discrete_response, process_draws,
-                                  tune_process)
+from mrftcli.tune.design import DesignOptions, TuneResult, tune
+from mrftcli.tune.grid import discrete_response, model_draws
 
 
 def _fopdt_z(K: float, Tc: float, tau: float, T: float) -> control.TransferFunction:
@@ -52,11 +52,11 @@ def _controller_z(c, T: float) -> control.TransferFunction:
 def _check_against_control(design, G: control.TransferFunction, sign: float = 1.0) -> None:
     L = _controller_z(design.controller, G.dt) * G * sign
     gm, pm, sm, _, _, _ = control.stability_margins(L)
-    assert design.nominal.phase_margin_deg == pytest.approx(pm, abs=1.0)
-    assert design.nominal.gain_margin == pytest.approx(gm, rel=0.02)
-    assert design.nominal.Ms == pytest.approx(1.0 / sm, rel=0.01)
+    assert design.margins.phase_margin_deg == pytest.approx(pm, abs=1.0)
+    assert design.margins.gain_margin == pytest.approx(gm, rel=0.02)
+    assert design.margins.Ms == pytest.approx(1.0 / sm, rel=0.01)
     poles = control.feedback(L, 1).poles()
-    assert np.max(np.abs(poles)) < 1.0 and design.nominal.stable
+    assert np.max(np.abs(poles)) < 1.0 and design.margins.stable
 
 
 def test_fopdt_fractional_delay_margins_match_python_control():
@@ -64,17 +64,17 @@ def test_fopdt_fractional_delay_margins_match_python_control():
     w = np.geomspace(0.05, 60.0, 50)
     G = _fopdt_z(2.0, 1.0, 0.33, 0.05)
     assert np.allclose(discrete_response(model, 20.0, w), G(np.exp(1j * w * 0.05)), rtol=1e-9, atol=1e-12)
-    res = tune_process(model, 20.0, kinds=("PID",))
+    res = tune(model, 20.0, options=DesignOptions(kinds=("PID",)))
     (design,) = res.designs
     assert design.kind == "PID" and design.controller.Ki > 0 and design.controller.Kd > 0
     _check_against_control(design, G)
-    assert design.nominal.Ms <= 1.6 + 1e-9 and design.nominal.phase_margin_deg >= 45.0 - 1e-9
+    assert design.margins.Ms <= 1.6 + 1e-9 and design.margins.phase_margin_deg >= 45.0 - 1e-9
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered in subtract:RuntimeWarning")  # python-control's search
 def test_reverse_acting_integrating_plant_gets_pd_and_pi():
     model = IPDT(K=-0.5, tau=0.21)
-    res = tune_process(model, 50.0, kinds=("PD", "PI"))
+    res = tune(model, 50.0, options=DesignOptions(kinds=("PD", "PI")))
     assert res.reverse_acting and any("reverse acting" in n for n in res.notes)
     G = _ipdt_z(-0.5, 0.21, 0.02)
     for kind in ("PD", "PI"):
@@ -85,20 +85,24 @@ def test_reverse_acting_integrating_plant_gets_pd_and_pi():
 def test_robust_design_holds_on_every_draw_and_round_trips():
     model = FOPDT(K=2.0, T=1.0, tau=0.3)
     draws = [model.with_parameters(T=1.3, tau=0.36), model.with_parameters(K=2.4, T=0.8)]
-    res = tune_process(model, 20.0, draws=draws, kinds=("PI",))
+    res = tune(model, 20.0, posterior=draws, options=DesignOptions(kinds=("PI",)))
     robust = res.get("robust", "PI")
-    assert robust.worst is not None and robust.worst.Ms <= 1.6 + 1e-9 and robust.worst.stable
+    worst = robust.posterior["worst"]
+    assert worst["Ms"] <= 1.6 + 1e-9 and worst["stable"]
     for m, G in zip(draws, (_fopdt_z(2.0, 1.3, 0.36, 0.05), _fopdt_z(2.4, 0.8, 0.3, 0.05))):
         L = _controller_z(robust.controller, 0.05) * G
         assert 1.0 / control.stability_margins(L)[2] <= 1.6 * 1.01
-    back = ProcessTuneResult.from_json(json.loads(json.dumps(res.to_json())))
-    assert back.to_json() == res.to_json()
+    back = TuneResult.from_json(json.loads(json.dumps(res.to_json())))
+    assert back.to_json() == res.to_json() and back.model == model and back.get("robust", "PI").kind == "PI"
     with pytest.raises(InputError, match="schema_version"):
-        ProcessTuneResult.from_json({**res.to_json(), "schema_version": 99})
+        TuneResult.from_json({**res.to_json(), "schema_version": 99})
     with pytest.raises(InputError):
-        ProcessTuneResult.from_json({"schema_version": 1, "kind": "cascade"})
+        TuneResult.from_json({"schema_version": 2, "kind": "cascade"})
     with pytest.raises(InputError, match="ms-max"):
-        ProcessTuneOptions(ms_max=0.9)
+        DesignOptions(ms_max=0.9)
+    for bad in ({"objective": "itae"}, {"designs": ("mrft-rule",)}, {"effort_max": 2.0}):
+        with pytest.raises(InputError):  # eq. (2)'s options: refused on a process plant, never ignored
+            tune(model, 20.0, options=DesignOptions(**bad))
 
 
 def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[ParameterEstimate]:
@@ -109,13 +113,13 @@ def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[P
 
 def test_draws_follow_the_intervals_and_refuse_an_open_one():
     model = FOPDT(K=2.0, T=1.0, tau=0.3)
-    draws, notes = process_draws(model, _estimates(0.1), 400, seed=1)
+    draws, notes = model_draws(model, _estimates(0.1), 400, seed=1)
     T = np.array([m.parameters["T"].value for m in draws])
     assert np.std(np.log(T)) == pytest.approx(0.1, rel=0.15) and not notes
-    draws, notes = process_draws(model, _estimates(math.nan, determined=False), 50)
+    draws, notes = model_draws(model, _estimates(math.nan, determined=False), 50)
     assert notes and all(0.8 <= m.parameters["T"].value <= 1.2 for m in draws)
     with pytest.raises(InputError, match="analyze --param T=VALUE"):
-        process_draws(model, _estimates(math.nan, determined=False, hi=math.inf), 5)
+        model_draws(model, _estimates(math.nan, determined=False, hi=math.inf), 5)
 
 
 def _result_json(path, rate_hz: float = 20.0, std_T: float = 0.05) -> None:
@@ -134,7 +138,7 @@ def test_cli_tune_process_result(tmp_path):
     out = run_main("tune", str(src), "--kind", "PI", "--json", "-")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
-    res = ProcessTuneResult.from_json(data)
+    res = TuneResult.from_json(data["tune_result"])
     assert res.rate_hz == 20.0 and any("analysis' tests' rate" in n for n in res.notes)
     assert data["export"]["design"] == "model-based" and data["export"]["kind"] == "PI"
     assert any("no robust design" in n for n in res.notes)

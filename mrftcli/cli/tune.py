@@ -1,4 +1,10 @@
-"""``mrft-ident tune``: controller gains from the identified model, robust to its uncertainty."""
+"""``mrft-ident tune``: controller gains from the identified model, robust to its uncertainty.
+
+One path for every family: the source (a LOG, an analyze RESULT.json, the parameters given) becomes a
+model object with its uncertainty (:class:`_TuneSource`), the one driver
+(:func:`mrftcli.tune.design.tune`) designs for it by its family's strategy, and the table, the JSON and
+the export are written from the one :class:`~mrftcli.tune.design.TuneResult`.
+"""
 
 from __future__ import annotations
 
@@ -16,17 +22,18 @@ from ..jsonable import load_json_text
 from ..validate import TP_MISSING, check_spread, check_time
 
 if TYPE_CHECKING:
-    from ..mrft.model import LoopModel
+    from ..mrft.model import PlantModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
-from .model_options import meta_model_options
-from .process_tune import ProcessTuneRequest, process_tune_asked, run_process_tune
+from .model_options import meta_model, meta_model_options
 from .cascade_options import is_cascade_result, run_cascade_tune
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
 _FORMAT_ALIAS = {"table": None, "json": "generic", "hear": "hear", "px4": "px4"}
+#: the flight stacks ``--export`` knows besides generic: UAV autopilots, not process controllers
+_UAV_STACKS = ("hear", "px4", "ardupilot")
 
 
 @dataclass(frozen=True)
@@ -70,8 +77,8 @@ class _TuneSource:
     source records (None: unknown), the tests' relay heights and output amplitudes (for the PX4 mapping),
     notes."""
 
-    model: LoopModel
-    posterior: Posterior | None
+    model: PlantModel
+    posterior: Posterior | tuple[PlantModel, ...] | None
     loop: str | None
     rate_hz: float | None = None
     heights: tuple[float, ...] = ()
@@ -133,13 +140,6 @@ def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
     return stack_setting(ex.stack, loop, rate_given, rate_source, ex.gyro_cutoff_hz)
 
 
-def _refuse_process_result(data: Any, path: Path) -> None:
-    """An ``analyze --model NAME`` (process plant) result: one line naming what tune supports (issue 22)."""
-    if isinstance(data, dict) and isinstance(data.get("model"), str) and data["model"] != "soiptd":
-        raise InputError(f"it holds a {data['model']} model (analyze --model {data['model']}); tune designs for "
-                         "--model soiptd (eq. (2)) only so far: its parameters and intervals are in that file")
-
-
 def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`.
 
@@ -149,9 +149,7 @@ def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
     from ..tune.analysis import model_from_result_json
 
     try:
-        data = load_json_text(path.read_text(), str(path))
-        _refuse_process_result(data, path)
-        result = AnalysisResult.from_json(data)
+        result = AnalysisResult.from_json(load_json_text(path.read_text(), str(path)))
         model, post, note = model_from_result_json(result, Tp)
     except (ValueError, OSError) as err:
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
@@ -184,6 +182,70 @@ def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, A
                        tuple(float(t.h) for t in result.tests), tuple(float(t.amplitude_mean) for t in result.tests))
 
 
+def _read_json(path: str) -> Any:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return load_json_text(fh.read(), path)
+    except (OSError, ValueError):  # InputError too: the caller's own reader then says why
+        return None
+
+
+def _family_asked(ctx: click.Context, source: str | None) -> bool:
+    """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given, or SOURCE an
+    ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
+    if meta_model(ctx) is not None:
+        return True
+    if source is None or not str(source).lower().endswith(".json"):
+        return False
+    data = _read_json(source)
+    return isinstance(data, dict) and isinstance(data.get("model"), str) and data["model"] != "soiptd" \
+        and "identification" in data
+
+
+def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
+    """A family's model with its draws (none without a spread), from ``analyze --model NAME``'s RESULT.json or
+    from ``--model``/``--param``; ``rate_hz`` the tests' controller rate when they share one."""
+    from ..tune.grid import N_DRAWS, model_draws
+
+    if source is None:
+        model = meta_model(ctx)
+        missing = [p.name for p in model.parameters.values() if not p.known]
+        if missing:
+            raise InputError(f"give every parameter of {model.family} with --param NAME=VALUE: missing "
+                             f"{', '.join(missing)} (or tune an analyze --model {model.family} RESULT.json)")
+        return _TuneSource(model, None, "")
+    if meta_model(ctx) is not None:
+        raise InputError("give a RESULT.json or --model with --param, not both (the file holds its model)")
+    from ..analyze.general import GeneralAnalysis
+
+    data = _read_json(source) if str(source).lower().endswith(".json") else None
+    if data is None:
+        raise InputError(f"{source}: tune on a process plant takes the RESULT.json of analyze LOG --model NAME "
+                         "--json RESULT.json (or --model NAME with every --param)")
+    analysis = GeneralAnalysis.from_json(data)
+    ident = analysis.identification
+    if ident is None:
+        raise InputError(f"{source}: the analysis identified no model (no usable test): nothing to tune")
+    rates = sorted({round(t.rate_hz, 6) for t in analysis.tests})
+    draws, notes = model_draws(ident.model, list(ident.estimates), N_DRAWS)
+    return _TuneSource(ident.model, tuple(draws), analysis.loop, rates[0] if len(rates) == 1 else None,
+                       notes=notes)
+
+
+def _refuse_for_family(unsupported: dict[str, Any], ex: _ExportOptions, design: str | None) -> None:
+    """The options a process family's design does not take: a one-line error, never ignored."""
+    used = [name for name, value in unsupported.items() if value]
+    if used:
+        raise click.UsageError(f"{', '.join(used)}: not for a process plant (tune designs PI/PID/PD on it with "
+                               "--controller-rate, --ms-max, --design, --kind, --json, --export generic)")
+    if ex.stack in _UAV_STACKS:
+        raise InputError(f"--export {ex.stack}: {ex.stack} is a UAV flight stack, not a process controller; "
+                         "a process plant's gains export as --export generic")
+    if design == "mrft-rule":
+        raise InputError("--design mrft-rule is the DNN-MRFT rule for eq. (2) loops; a process plant has "
+                         "model-based and robust designs")
+
+
 def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, design: str | None,
                    kind: str, json_target: str | None, ex: _ExportOptions) -> StackExport | None:
     """The table, or the chosen export (on stdout or --out), and every design as JSON with --json; returns the
@@ -191,19 +253,28 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     from ..tune.export import format_table, hear_json, px4_params
     from ..tune.stacks import ExportEvidence, export_design
 
+    from ..mrft.model import LoopModel
+
     name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
-    chosen = res.get(name, kind)
+    eq2 = isinstance(res.model, LoopModel)
+    try:
+        chosen = res.get(name, kind)
+    except KeyError:
+        have = ", ".join(f"{d.name} {d.kind}" for d in res.designs)
+        raise InputError(f"no {name} {kind} design for this plant (have: {have})") from None
     c = chosen.controller
     data = res.to_dict()
-    data["export"] = {"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)}
+    data["export"] = ({"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)} if eq2 else
+                      {"design": name, "kind": kind, "generic": c.to_dict(), "reverse_acting": res.reverse_acting})
     # the versioned record a later process reads back with TuneResult.from_json (the keys above are the report)
     data["tune_result"] = res.to_json()
     stack_export, refused = None, None
     if ex.stack in (None, "generic"):
-        try:
-            data["export"]["px4"] = px4_params(c, loop, list(src.heights), list(src.amplitudes))
-        except InputError as err:
-            data["export"]["px4"] = {"refused": str(err)}
+        if eq2:
+            try:
+                data["export"]["px4"] = px4_params(c, loop, list(src.heights), list(src.amplitudes))
+            except InputError as err:
+                data["export"]["px4"] = {"refused": str(err)}
     else:
         try:
             evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes), tuple(_in_set(src)))
@@ -226,8 +297,10 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     if stack_export is None:  # generic: the controller as JSON
         from ..tune.export import generic_file
 
-        text = json.dumps(generic_file(c, name, kind, loop), indent=2) + "\n"
-        summary = [f"export generic ({name} {kind}, {loop})"]
+        text = json.dumps(generic_file(c, name, kind, loop) if eq2 else
+                          {"design": name, "kind": kind, "reverse_acting": res.reverse_acting, **c.to_dict()},
+                          indent=2) + "\n"
+        summary = [f"export generic ({name} {kind}, {loop})" if eq2 else f"export generic ({name} {kind})"]
     else:
         text, summary = stack_export.file_text(), stack_summary(stack_export)
     if ex.out:
@@ -361,46 +434,93 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     if stack_version is not None and ex.stack != "ardupilot":
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()
-    if len(sources) < 2 and process_tune_asked(ctx, sources[0] if sources else None):  # tune/process.py
-        run_process_tune(ctx, ProcessTuneRequest(
-            sources[0] if sources else None, read_options.get("controller_rate_hz"), json_target, ms_max, design,
-            kind, ex.stack, out, {"--tp": Tp, "--td/--tau/--k": any(v is not None for v in (td, tau, K)),
-                                  "--report": report_dir, "--effort-max": effort_max, "--hover-thrust": hover_thrust,
-                                  "--gyro-cutoff": gyro_cutoff, "--clamp": clamp, "--objective itae": objective != "iae"}))
+    source = sources[0] if sources else None
+    family = len(sources) < 2 and _family_asked(ctx, source)
+    if family:  # another family than eq. (2): its kinds and designs, its export
+        if ctx.get_parameter_source("kind") is not click.core.ParameterSource.COMMANDLINE:
+            kind = "PI"  # tune's default PD is eq. (2)'s: a process plant's is PI
+        _refuse_for_family({"--tp": Tp, "--td/--tau/--k": any(v is not None for v in (td, tau, K)),
+                            "--report": report_dir, "--effort-max": effort_max, "--hover-thrust": hover_thrust,
+                            "--gyro-cutoff": gyro_cutoff, "--clamp": clamp, "--objective itae": objective != "iae"},
+                           ex, design)
+    elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, cutoff_hz, objective, ms_max, effort_max,
+                       (td, tau, K), json_target, report_dir, quiet, read_options):
         return
+    check_outputs(json_target, report_dir)
+    check_out(out)
+    if out and ex.stack is None:
+        raise InputError("--out needs --export generic" + ("" if family else "|px4|ardupilot|hear"))
+    if ex.stack is not None and not out and json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
+    rate_given: float | None = read_options.get("controller_rate_hz")
+    setting = None
+    if family:
+        src = _family_source(ctx, source)
+        loop = src.loop or ""
+        options = DesignOptions(ms_max=ms_max)
+    else:
+        src, loop = _eq2_source(source, Tp, (td, tau, K, td_std, tau_std, k_std), ex, kind, min_cycles,
+                                read_options, quiet)
+        setting = _stack_setting(ex, loop, rate_given, src.rate_hz)
+        options = DesignOptions(objective=objective, ms_max=ms_max, effort_max=effort_max,
+                                rate_filter=setting.rate_filter if setting is not None else None)
+    rate, rate_notes = _design_rate(rate_given, setting, src, family and source is not None)
+    with tqdm_progress("tune", unit="design", enabled=not quiet and not family) as progress:
+        res = run_tune(src.model, rate, posterior=src.posterior, options=options, loop=loop, progress=progress)
+    notes = rate_notes + src.notes + (setting.notes if setting is not None else ())
+    if notes:
+        res = dataclasses.replace(res, notes=notes + res.notes)
+        # the table shows its notes itself, a stack's export in its summary
+        if not family and (ex.stack == "generic" or (json_target == "-" and ex.stack is None)):
+            for n in notes:
+                click.echo(f"note: {n}", err=True)
+    stack_export = _write_outputs(res, src, rate, loop, design, kind, json_target, ex)
+    if report_dir:
+        from ..report.tune import write_tune_report
+
+        click.echo(f"report: {write_tune_report(res, report_dir, stack_export)}",
+                   err=ex.stack is not None or json_target == "-")
+
+
+def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions, kind: str, design: str | None,
+                  cutoff_auto: bool, cutoff_hz: float | None, objective: str, ms_max: float,
+                  effort_max: float | None, given: tuple[float | None, ...], json_target: str | None,
+                  report_dir: str | None, quiet: bool, read_options: dict[str, Any]) -> bool:
+    """Eq. (2)'s joint roll and pitch export and a cascade RESULT.json (True: done); the checks before one loop's."""
     if kind == "PI":
         raise InputError("--kind PI is for process plants (analyze --model NAME's result); eq. (2) loops take PD or PID")
     if len(sources) == 2:
-        unsupported = {"--td/--tau/--k": any(v is not None for v in (td, tau, K)), "--report": report_dir,
-                       "--effort-max": effort_max, "--hover-thrust": hover_thrust, "--loop": read_options["loop"],
+        unsupported = {"--td/--tau/--k": any(v is not None for v in given), "--report": report_dir,
+                       "--effort-max": effort_max, "--hover-thrust": ex.hover_thrust, "--loop": read_options["loop"],
                        "--design mrft-rule": design == "mrft-rule"}
-        given = [k for k, v in unsupported.items() if v]
-        if given:
-            raise InputError(f"{', '.join(given)} cannot be used with two results (the joint roll and pitch export)")
+        used = [k for k, v in unsupported.items() if v]
+        if used:
+            raise InputError(f"{', '.join(used)} cannot be used with two results (the joint roll and pitch export)")
         from .tune_axes import AxesRequest, tune_axes
 
-        tune_axes(AxesRequest(sources, Tp, ex.stack, out, clamp, cutoff_auto or cutoff_hz is None, cutoff_hz,
+        tune_axes(AxesRequest(sources, Tp, ex.stack, ex.out, ex.clamp, cutoff_auto or cutoff_hz is None, cutoff_hz,
                               read_options.get("controller_rate_hz"), objective, ms_max, design or "robust", kind,
                               json_target, quiet))
-        return
+        return True
     if cutoff_auto:
         raise InputError("--gyro-cutoff auto designs one cutoff from the roll and the pitch loop: give ROLL.json "
                          "PITCH.json (or --gyro-cutoff HZ)")
     source = sources[0] if sources else None
     if source is not None and str(source).lower().endswith(".json") and is_cascade_result(source):
         # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
-        run_cascade_tune(source, json_target=json_target, ms_max=ms_max, design=design, export=ex.stack, out=out,
+        run_cascade_tune(source, json_target=json_target, ms_max=ms_max, design=design, export=ex.stack, out=ex.out,
                          unsupported={"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
                                       "--design mrft-rule": design == "mrft-rule"})
-        return
+        return True
     if Tp is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
-    check_outputs(json_target, report_dir)
-    check_out(out)
-    if out and ex.stack is None:
-        raise InputError("--out needs --export generic|px4|ardupilot|hear")
-    if ex.stack is not None and not out and json_target == "-":
-        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
+    return False
+
+
+def _eq2_source(source: str | None, Tp: float, given: tuple[Any, ...], ex: _ExportOptions, kind: str,
+                min_cycles: int, read_options: dict[str, Any], quiet: bool) -> tuple[_TuneSource, str]:
+    """Eq. (2)'s model and posterior from a LOG, a RESULT.json or --td/--tau/--k (with their stds), and the loop."""
+    td, tau, K, *stds = given
     if source is not None and any(v is not None for v in (td, tau, K)):
         raise InputError("give either SOURCE (a log or RESULT.json) or --td/--tau/--k, not both")
     is_result = source is not None and str(source).lower().endswith(".json") and Path(source).is_file()
@@ -411,37 +531,35 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     if loop is not None:
         _check_stack(ex, loop, kind)  # before the work starts
     if source is None:
-        src = _from_spread(Tp, td, tau, K, (td_std, tau_std, k_std))
+        src = _from_spread(Tp, td, tau, K, (stds[0], stds[1], stds[2]))
     elif is_result:
         src = from_result_json(Path(source), Tp, loop)
     else:
         src = _from_log(source, Tp, min_cycles, read_options, quiet)
     loop = loop or src.loop
+    assert loop is not None  # from_result_json refuses a file without its loop
     _check_stack(ex, loop, kind)
-    # --controller-rate (the shared option; --rate its deprecated alias): the rate the gains are for
-    rate_hz: float | None = read_options.get("controller_rate_hz")
-    setting = _stack_setting(ex, loop, rate_hz, src.rate_hz)
-    rate = setting.rate_hz if setting is not None else rate_hz or src.rate_hz
+    return src, loop
+
+
+def _design_rate(rate_given: float | None, setting: StackSetting | None, src: _TuneSource,
+                 from_result: bool) -> tuple[float, tuple[str, ...]]:
+    """The controller rate [Hz] the gains are designed for (--controller-rate, the stack's, the source's) and,
+    for a process family, the note saying which."""
+    if setting is not None:
+        return setting.rate_hz, ()
+    rate = rate_given or src.rate_hz
     if rate is None:
         raise InputError("give --controller-rate HZ, the rate the controller runs at: the gains are designed for "
-                         "the sampled loop and the source records no rate")
-    with tqdm_progress("tune", unit="design", enabled=not quiet) as progress:
-        options = DesignOptions(objective=objective, ms_max=ms_max, effort_max=effort_max,
-                                rate_filter=setting.rate_filter if setting is not None else None)
-        res = run_tune(src.model, rate, posterior=src.posterior, options=options, loop=loop, progress=progress)
-    notes = src.notes + (setting.notes if setting is not None else ())
-    if notes:
-        res = dataclasses.replace(res, notes=notes + res.notes)
-        # the table shows its notes itself, a stack's export in its summary
-        if ex.stack == "generic" or (json_target == "-" and ex.stack is None):
-            for n in notes:
-                click.echo(f"note: {n}", err=True)
-    stack_export = _write_outputs(res, src, rate, loop, design, kind, json_target, ex)
-    if report_dir:
-        from ..report.tune import write_tune_report
+                         "the sampled loop and " + ("the tests' rates differ" if from_result else
+                                                     "the source records no rate"))
+    from ..mrft.model import LoopModel
 
-        click.echo(f"report: {write_tune_report(res, report_dir, stack_export)}",
-                   err=ex.stack is not None or json_target == "-")
+    if isinstance(src.model, LoopModel):
+        return rate, ()
+    if rate_given is not None:
+        return rate, (f"controller rate {rate_given:g} Hz: --controller-rate",)
+    return rate, (f"controller rate {rate:g} Hz: the analysis' tests' rate",)
 
 
 def _loop_required(command: click.Command) -> None:

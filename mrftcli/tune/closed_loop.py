@@ -155,8 +155,8 @@ class Controller:
 
     @property
     def kind(self) -> str:
-        """``"PD"`` or ``"PID"``."""
-        return "PID" if self.Ki > 0 else "PD"
+        """``"PD"``, ``"PI"`` (integral action, no derivative: the process families') or ``"PID"``."""
+        return ("PI" if self.Kd == 0 else "PID") if self.Ki > 0 else "PD"
 
     def scaled(self, g: float) -> "Controller":
         """The same controller with Kp, Ki, Kd multiplied by ``g`` (Tf kept)."""

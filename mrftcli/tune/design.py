@@ -38,7 +38,7 @@ from scipy.optimize import minimize
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, PlantModel, model_from_json
 from ..progress import Progress, report
 from ..validate import check_positive
 from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, RateFilter, StepMetrics, as_discrete,
@@ -85,7 +85,7 @@ def _number(data: dict[str, Any], key: str, what: str) -> float:
 
 
 def _check_version(data: Any, what: str) -> dict[str, Any]:
-    return dict(check_schema_version(data, what, TUNE_SCHEMA_VERSION))
+    return dict(check_schema_version(data, what, _READS))
 
 
 def _controller_json(c: Controller) -> dict[str, Any]:
@@ -109,15 +109,19 @@ def _controller_from(data: Any, what: str) -> Controller:
     Kp, Ki, Kd, Tf, rate = (_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
     return Controller(Kp, Ki, Kd, Tf, rate, _rate_filter_from(data.get("rate_filter"), what))
 
-__all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS",
+__all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
 
 #: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it).
-TUNE_SCHEMA_VERSION = 1
+TUNE_SCHEMA_VERSION = 2
+#: The versions :meth:`TuneResult.from_json` reads: 1 (eq. (2) only, the model as {Tp, Td, tau, K}) for one release.
+_READS = (1, 2)
 
 OBJECTIVES = ("iae", "itae")
 DESIGNS = ("mrft-rule", "model-based", "robust")
 KINDS = ("PD", "PID")
+#: Every controller kind a family designs (eq. (2): :data:`KINDS`; a PI on the process families).
+ALL_KINDS = ("PD", "PI", "PID")
 #: Derivative filter: Tf = Td_c / FILTER_N.
 FILTER_N = 10.0
 #: The MRFT rule's PID integral time Ti = TI_RATIO * Td_c (the optimised PIDs choose their own).
@@ -233,6 +237,9 @@ class Design:
         ``SETTLING_BAND`` from then on, NaN if not within the horizon).
     horizon_s : float
         Horizon of the criterion and of the step figures [s].
+    criterion_definition : str
+        What ``criterion`` is of, when the design says (the other families': ``"load step"`` or
+        ``"setpoint step"``); empty: eq. (2)'s setpoint step (+ a PID's load step).
     """
 
     name: str
@@ -246,6 +253,7 @@ class Design:
     constraints: dict = field(default_factory=dict)
     load: dict = field(default_factory=dict)
     horizon_s: float = math.nan
+    criterion_definition: str = ""
 
     @property
     def kind(self) -> str:
@@ -255,7 +263,8 @@ class Design:
         return {"design": self.name, "kind": self.kind, **self.controller.to_dict(),
                 "objective": self.objective, "criterion": self.criterion,
                 "criterion_expected": self.criterion_expected, "noise_gain": self.controller.noise_gain(),
-                "criterion_definition": ("setpoint step + load step" if self.load else "setpoint step"),
+                "criterion_definition": self.criterion_definition or ("setpoint step + load step" if self.load
+                                                                      else "setpoint step"),
                 "horizon_s": self.horizon_s, "margins": self.margins.to_dict(), "step": self.step.to_dict(),
                 "load_step": self.load or None, "posterior": self.posterior, "constraints": self.constraints}
 
@@ -266,7 +275,7 @@ class Design:
                 "criterion_expected": _encode(self.criterion_expected), "margins": self.margins.to_json(),
                 "step": _encode(self.step.to_dict()), "posterior": _encode(self.posterior),
                 "constraints": _encode(self.constraints), "load": _encode(self.load),
-                "horizon_s": _encode(self.horizon_s)}
+                "horizon_s": _encode(self.horizon_s), "criterion_definition": self.criterion_definition}
 
     @classmethod
     def from_json(cls, data: Any) -> "Design":
@@ -287,14 +296,21 @@ class Design:
                    _number(data, "criterion", what), _number(data, "criterion_expected", what),
                    Margins.from_json(data.get("margins")),
                    StepMetrics(*(_number(step, k, what) for k in fields)),
-                   extras["posterior"], extras["constraints"], extras["load"], _number(data, "horizon_s", what))
+                   extras["posterior"], extras["constraints"], extras["load"], _number(data, "horizon_s", what),
+                   str(data.get("criterion_definition") or ""))
 
 
 @dataclass(frozen=True)
 class TuneResult:
-    """Everything ``mrft-ident tune`` found: the model, its posterior and every design."""
+    """Everything ``mrft-ident tune`` found: the model, its posterior and every design.
 
-    model: LoopModel
+    One record for every family. Eq. (2) (``model`` a :class:`~mrftcli.mrft.model.LoopModel`) has a
+    ``posterior`` of (Td, tau, K) draws and the MRFT rule's ``rule_cycle``; another family's result
+    has no posterior (its designs carry the worst figures over their draws), ``rule_cycle`` holds its
+    ``ultimate_period_s`` [s], and ``reverse_acting`` says the gains act on -e (a negative plant gain).
+    """
+
+    model: PlantModel
     posterior: Posterior | None
     rate_hz: float
     loop: str
@@ -306,6 +322,7 @@ class TuneResult:
     designs: tuple[Design, ...]
     notes: tuple[str, ...] = ()
     rate_filter: RateFilter | None = None
+    reverse_acting: bool = False
 
     def get(self, name: str, kind: str) -> Design:
         for d in self.designs:
@@ -325,8 +342,7 @@ class TuneResult:
         True
         """
         m, post = self.model, self.posterior
-        return {"schema_version": TUNE_SCHEMA_VERSION,
-                "model": {"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K},
+        return {"schema_version": TUNE_SCHEMA_VERSION, "model": m.to_json(), "reverse_acting": self.reverse_acting,
                 "posterior": (None if post is None else
                               {"Td": _encode(post.Td), "tau": _encode(post.tau), "K": _encode(post.K),
                                "source": post.source}),
@@ -351,10 +367,14 @@ class TuneResult:
         md, pd = data.get("model"), data.get("posterior")
         if not isinstance(md, dict):
             raise InputError(f"{what}: 'model' must be an object")
-        Tp, Td, tau, K = (_number(md, k, what) for k in ("Tp", "Td", "tau", "K"))
-        model = LoopModel(Tp, Td, tau, K)
+        if data["schema_version"] == 1:  # eq. (2) only: the model as {Tp, Td, tau, K}
+            model: PlantModel = LoopModel(*(_number(md, k, what) for k in ("Tp", "Td", "tau", "K")))
+        else:
+            model = model_from_json(md)
         post = None
         if pd is not None:
+            if not isinstance(model, LoopModel):
+                raise InputError(f"{what}: a posterior of (Td, tau, K) draws belongs to an eq. (2) model only")
             if not isinstance(pd, dict) or not all(isinstance(pd.get(k), list) for k in ("Td", "tau", "K")):
                 raise InputError(f"{what}: 'posterior' must hold the lists Td, tau and K")
             try:
@@ -368,13 +388,16 @@ class TuneResult:
         return cls(model, post, _number(data, "rate_hz", what), str(data.get("loop", "")),
                    str(data.get("objective", "")), _number(data, "ms_max", what), _number(data, "effort_max", what),
                    _number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
-                   tuple(str(n) for n in notes), _rate_filter_from(data.get("rate_filter"), what))
+                   tuple(str(n) for n in notes), _rate_filter_from(data.get("rate_filter"), what),
+                   data.get("reverse_acting") is True)
 
     def to_dict(self) -> dict:
         m = self.model
+        family = {} if isinstance(m, LoopModel) else {"reverse_acting": self.reverse_acting}
         return {
-            "model": {"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K,
-                      "form": "G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"},
+            "model": ({"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K,
+                       "form": "G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"} if isinstance(m, LoopModel)
+                      else m.to_json()), **family,
             "loop": self.loop, "rate_hz": self.rate_hz, "objective": self.objective, "ms_max": self.ms_max,
             "effort_max": self.effort_max, "horizon_s": self.horizon_s, "mrft_rule_cycle": self.rule_cycle,
             "posterior": ({"source": self.posterior.source, "n_draws": self.posterior.n,
@@ -598,27 +621,33 @@ class DesignOptions:
     Attributes
     ----------
     objective : {"iae", "itae"}
-        Criterion of the unit setpoint step over ``6 T0`` (T0: the MRFT period at beta = -0.7).
+        Criterion of the unit setpoint step over ``6 T0`` (T0: the MRFT period at beta = -0.7); the
+        other families' designs take the IAE only.
     ms_max : float
         Limit on the sensitivity peak Ms [-] (> 1).
     effort_max : float, optional
         Limit on the controller's noise gain [command units / output unit] (> 0); None: the MRFT
-        rule's.
-    designs : tuple of str
-        Which of :data:`DESIGNS` to make (the robust one needs a posterior).
-    kinds : tuple of str
-        Which of :data:`KINDS` to make.
+        rule's (eq. (2) only).
+    designs : tuple of str, optional
+        Which of :data:`DESIGNS` to make (the robust one needs a posterior); None: the family's
+        (eq. (2): all three; the other families: model-based and robust).
+    kinds : tuple of str, optional
+        Which of :data:`KINDS` to make; None: the family's (eq. (2): PD and PID; the other families:
+        PI and PID, and PD on an integrating plant).
     rate_filter : RateFilter, optional
         The flight stack's filter on the measured rate (``tune --export``): every design, the MRFT
-        rule's included, runs its derivative through it instead of Tf = Td_c / FILTER_N.
+        rule's included, runs its derivative through it instead of Tf = Td_c / FILTER_N (eq. (2) only).
+    pm_min_deg : float
+        Least phase margin of the other families' designs [deg] (eq. (2)'s hold Ms only).
     """
 
     objective: str = "iae"
     ms_max: float = 1.6
     effort_max: float | None = None
-    designs: Sequence[str] = DESIGNS
-    kinds: Sequence[str] = KINDS
+    designs: Sequence[str] | None = None
+    kinds: Sequence[str] | None = None
     rate_filter: RateFilter | None = None
+    pm_min_deg: float = 45.0
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
@@ -627,42 +656,60 @@ class DesignOptions:
             raise InputError(f"--ms-max must be a number above 1, got {self.ms_max!r}")
         if self.effort_max is not None:
             check_positive("--effort-max", self.effort_max)
-        bad = [d for d in self.designs if d not in DESIGNS]
+        if not (math.isfinite(self.pm_min_deg) and 0.0 <= self.pm_min_deg < 90.0):
+            raise InputError(f"the least phase margin must be in [0, 90) deg, got {self.pm_min_deg!r}")
+        bad = [d for d in self.designs or () if d not in DESIGNS]
         if bad:
             raise InputError(f"unknown design(s) {bad}; choose from {', '.join(DESIGNS)}")
-        bad = [k for k in self.kinds if k not in KINDS]
+        bad = [k for k in self.kinds or () if k not in ALL_KINDS]
         if bad:
-            raise InputError(f"unknown controller kind(s) {bad}; choose from {', '.join(KINDS)}")
-        object.__setattr__(self, "designs", tuple(self.designs))
-        object.__setattr__(self, "kinds", tuple(self.kinds))
+            raise InputError(f"unknown controller kind(s) {bad}; choose from {', '.join(ALL_KINDS)}")
+        for name in ("designs", "kinds"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, tuple(getattr(self, name)))
 
 
-def tune(model: LoopModel, rate_hz: float, *, posterior: Posterior | None = None,
+def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[PlantModel] | None = None,
          options: DesignOptions = DesignOptions(), loop: str = "", progress: Progress | None = None) -> TuneResult:
-    """Design PD and PID controllers for ``model`` at ``rate_hz`` (see the module docstring).
+    """The one tune driver: controllers for ``model`` at ``rate_hz``, by the strategy of its family.
+
+    Eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`): the MRFT rule, model-based and robust PD and PID
+    (the module docstring). Any other family or a declared model: PI/PID (PD on integrating plants)
+    by a grid on the exact sampled loop (:func:`mrftcli.tune.grid.tune_grid`).
 
     Parameters
     ----------
-    model : LoopModel
+    model : PlantModel
         The identified model (point estimate).
     rate_hz : float
         Controller rate [Hz].
-    posterior : Posterior, optional
-        Parameter draws; without it the robust design is left out (it would equal the model-based one).
+    posterior : Posterior or sequence of PlantModel, optional
+        Eq. (2): the parameters' draws (:class:`Posterior`); another family: the drawn models
+        (:func:`mrftcli.tune.grid.model_draws`). Without it the robust design is left out.
     options : DesignOptions
         The objective, the Ms and noise-gain limits, the designs and kinds, the stack's rate filter.
     loop : str
         The loop's name, recorded in the result.
     progress : Progress, optional
-        Called as ``progress(done, total, stage)`` per design.
+        Called as ``progress(done, total, stage)`` per design (eq. (2)).
 
     Returns
     -------
     TuneResult
     """
+    if not isinstance(model, LoopModel):
+        from .grid import tune_grid  # the other families' strategy (it builds this module's records)
+
+        if isinstance(posterior, Posterior):
+            raise InputError(f"a {model.family} model's robust design takes drawn models, not eq. (2)'s posterior")
+        return tune_grid(model, rate_hz, tuple(posterior or ()), options, loop)
+    if posterior is not None and not isinstance(posterior, Posterior):
+        raise InputError("eq. (2)'s robust design takes a Posterior of (Td, tau, K) draws")
     rate_hz = check_positive("the controller rate [Hz]", rate_hz)
-    objective, ms_max, kinds, rate_filter = options.objective, options.ms_max, options.kinds, options.rate_filter
-    designs = options.designs
+    objective, ms_max, rate_filter = options.objective, options.ms_max, options.rate_filter
+    kinds, designs = options.kinds or KINDS, options.designs or DESIGNS
+    if "PI" in kinds:
+        raise InputError("--kind PI is for process plants (analyze --model NAME's result); eq. (2) loops take PD or PID")
     notes = []
     if posterior is None or posterior.n < 2:
         designs = tuple(d for d in designs if d != "robust")

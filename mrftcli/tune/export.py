@@ -119,8 +119,12 @@ def px4_params(c: Controller, loop: str, relay_heights: Sequence[float] = (),
 
 
 def format_table(result: "TuneResult") -> str:
-    """The terminal table of a :class:`~mrftcli.tune.design.TuneResult`."""
+    """The terminal table of a :class:`~mrftcli.tune.design.TuneResult` (any family)."""
+    from ..mrft.model import LoopModel
+
     m = result.model
+    if not isinstance(m, LoopModel):
+        return _family_table(result)
     lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
              f"objective {result.objective.upper()}  Ms <= {result.ms_max:g}  noise gain <= {result.effort_max:.4g}"]
     lines.append(f"{'design':<12}{'kind':<5}{'Kp':>10}{'Ki':>10}{'Kd':>10}{'Tf [ms]':>8}{'GM':>7}{'PM[deg]':>8}"
@@ -148,4 +152,32 @@ def format_table(result: "TuneResult") -> str:
                      f"of a load step at the plant input (size: its PD's Kp). PID load recovery (2 %): {rec}")
     for n in result.notes:
         lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+def _g(x: float | None, digits: int = 4) -> str:
+    return f"{x:.{digits}g}" if x is not None and math.isfinite(x) else "-"
+
+
+def _family_table(res: "TuneResult") -> str:
+    """The table of a family other than eq. (2) (:mod:`mrftcli.tune.grid`'s designs: no step figures)."""
+    m = res.model
+    params = "  ".join(f"{p.name} {p.value:.4g} {p.unit}" for p in m.parameters.values())
+    tu = res.rule_cycle.get("ultimate_period_s", math.nan)
+    lines = [f"{m.family}: G(s) = {getattr(m, 'transfer_function', m.structure)}; {params}",
+             f"ultimate period of the sampled loop {tu * 1e3:.4g} ms; rate {res.rate_hz:g} Hz",
+             "gains: Kp [command per output unit], Ki [command per output unit s], Kd [command s per output unit], "
+             "Tf [s]; IAE [output unit s]"]
+    lines += [f"note: {n}" for n in res.notes if n]
+    head = ("design", "kind", "Kp", "Ki", "Kd", "Tf", "PM [deg]", "GM", "Ms", "crossover [Hz]",
+            "worst PM [deg]", "worst Ms", "IAE", "criterion")
+    rows = [head]
+    for d in res.designs:
+        c, n, w = d.controller, d.margins, d.posterior.get("worst")
+        rows.append((d.name, d.kind, _g(c.Kp), _g(c.Ki), _g(c.Kd), _g(c.Tf, 3), _g(n.phase_margin_deg, 3),
+                     _g(n.gain_margin, 3), _g(n.Ms, 3), _g(n.w_gc / (2 * math.pi), 3),
+                     "-" if w is None else _g(w["phase_margin_deg"], 3), "-" if w is None else _g(w["Ms"], 3),
+                     _g(d.criterion, 3), d.criterion_definition))
+    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
+    lines += ["  ".join(c.ljust(wd) for c, wd in zip(r, widths)).rstrip() for r in rows]
     return "\n".join(lines)

@@ -1,11 +1,13 @@
-"""Robust PI/PID/PD gains for a process plant: ``tune RESULT.json`` of ``analyze --model NAME``.
+"""The tune strategy of the families other than eq. (2): PI/PID/PD by a grid on the exact sampled loop.
 
-The plant is any :class:`~mrftcli.mrft.model.PlantModel` (the FOPDT/SOPDT/IPDT/FOIPDT families, a
-declared structure): its delay-free realisation ``realisation()`` and its delay ``tau`` give the exact
-zero-order-hold equivalent at the controller rate (:func:`discretise`: tau = d T + eps, the input
-held over a tick reaches the plant eps late, the modified z-transform), so the margins are those of
-the sampled loop with no approximation. The loop, its margins and its stability are computed as for
-the cascade's outer loop (:func:`mrftcli.tune.cascade.closed_loop_matrix`,
+:func:`mrftcli.tune.design.tune` (the one tune driver) designs here for any
+:class:`~mrftcli.mrft.model.PlantModel` that is not eq. (2)'s :class:`~mrftcli.mrft.model.LoopModel`
+(the FOPDT/SOPDT/IPDT/FOIPDT families, a declared structure) and returns the one
+:class:`~mrftcli.tune.design.TuneResult` record. The plant's delay-free realisation ``realisation()``
+and its delay ``tau`` give the exact zero-order-hold equivalent at the controller rate
+(:func:`discretise`: tau = d T + eps, the input held over a tick reaches the plant eps late, the
+modified z-transform), so the margins are those of the sampled loop with no approximation. The
+loop's figures are computed as for the cascade's outer loop (:func:`mrftcli.tune.cascade.closed_loop_matrix`,
 :func:`~mrftcli.tune.cascade.cascade_margins`: one implementation of each), with the controller of
 :class:`~mrftcli.tune.closed_loop.Controller` (parallel PID, derivative on the measurement through
 Tf = Td_c / ``FILTER_N``, backward differences).
@@ -18,6 +20,11 @@ step at the plant input for a PI/PID (the disturbance a process loop rejects; As
 criterion), of a unit setpoint step for a PD (offered on integrating plants only: on a
 self-regulating plant a PD leaves a steady error).
 
+What the record holds for these designs: the nominal margins (gain and phase margin, Ms, the first
+gain crossover as ``w_gc``, stability; the delay margin and the phase crossover are not computed: NaN),
+the worst of each figure over the nominal model and the draws in ``posterior["worst"]``, no step
+figures (NaN), the criterion and its definition; the ultimate period in ``rule_cycle``.
+
 A plant whose gain is negative (reverse acting) is designed on -G: the controller's gains are
 positive and act on -e (``reverse_acting`` in the record).
 """
@@ -25,28 +32,29 @@ positive and act on -e (``reverse_acting`` in the record).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..jsonable import check_schema_version
 from ..mrft.cascade import DiscreteStateSpace
 from ..mrft.matexp import phi_gamma_small
-from ..mrft.model import PlantModel, model_from_json
-from .cascade import CascadeMargins, cascade_margins, closed_loop_matrix
-from .closed_loop import Controller
-from .design import FILTER_N
+from ..mrft.model import PlantModel
+from .cascade import cascade_margins, closed_loop_matrix
+from .closed_loop import Controller, StepMetrics
+from .design import FILTER_N, Design, DesignOptions, TuneResult
+from .margins import Margins
 
-__all__ = ["ProcessDesign", "ProcessTuneResult", "ProcessTuneOptions", "discretise", "discrete_response",
-           "process_draws", "tune_process", "PROCESS_KINDS", "PROCESS_TUNE_SCHEMA_VERSION"]
+__all__ = ["discretise", "discrete_response", "model_draws", "tune_grid", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
-#: version of :meth:`ProcessTuneResult.to_json`
-PROCESS_TUNE_SCHEMA_VERSION = 1
 #: the controllers designed (PD on integrating plants only)
-PROCESS_KINDS = ("PI", "PID", "PD")
+GRID_KINDS = ("PI", "PID", "PD")
+#: the designs made (robust with draws only)
+GRID_DESIGNS = ("model-based", "robust")
+#: draws of the robust design from an identification's intervals (:func:`model_draws`)
+N_DRAWS = 30
 _TI_GRID = np.geomspace(0.1, 10.0, 14)  # integral times Ti, in ultimate periods Tu
 _TDC_GRID = np.geomspace(0.02, 0.5, 8)  # derivative times Td_c, in Tu
 _PID_TDC_GRID = np.geomspace(0.03, 0.3, 5)
@@ -139,158 +147,9 @@ def _response_at(h: _HeldDelay, z: NDArray[np.complex128]) -> NDArray[np.complex
 
 
 # ----------------------------------------------------------------------------------------------
-# records
-# ----------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ProcessTuneOptions:
-    """The design's limits.
-
-    Attributes
-    ----------
-    ms_max : float
-        Sensitivity peak limit on every model [-] (> 1).
-    pm_min_deg : float
-        Least phase margin on every model [deg].
-    n_draws : int
-        Draws of the robust design (0: model-based only).
-    seed : int
-        Seed of the draws.
-    """
-
-    ms_max: float = 1.6
-    pm_min_deg: float = 45.0
-    n_draws: int = 30
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.ms_max) and self.ms_max > 1.0):
-            raise InputError(f"--ms-max must be a number above 1, got {self.ms_max!r}")
-        if not (math.isfinite(self.pm_min_deg) and 0.0 <= self.pm_min_deg < 90.0):
-            raise InputError(f"the least phase margin must be in [0, 90) deg, got {self.pm_min_deg!r}")
-        if self.n_draws < 0:
-            raise InputError(f"the number of draws must be >= 0, got {self.n_draws}")
-
-
-@dataclass(frozen=True)
-class ProcessDesign:
-    """One controller: its gains, nominal margins, the worst over the draws, its criterion.
-
-    Attributes
-    ----------
-    name : str
-        ``"model-based"`` or ``"robust"``.
-    kind : str
-        ``"PI"``, ``"PID"`` or ``"PD"``.
-    controller : Controller
-        Kp [command / output unit], Ki [command / (output unit s)], Kd [command s / output unit], Tf [s].
-    nominal : CascadeMargins
-        Margins on the nominal model.
-    worst : CascadeMargins or None
-        The worst of each figure over the nominal model and the draws (None without draws).
-    iae : float
-        The criterion on the nominal model [output unit s] (``criterion`` says which).
-    criterion : str
-        ``"load step"`` (unit step at the plant input) or ``"setpoint step"``.
-    """
-
-    name: str
-    kind: str
-    controller: Controller
-    nominal: CascadeMargins
-    worst: CascadeMargins | None
-    iae: float
-    criterion: str
-
-    def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": self.kind, "generic": self.controller.to_dict(),
-                "nominal": self.nominal.to_json(), "worst": None if self.worst is None else self.worst.to_json(),
-                "iae": self.iae if math.isfinite(self.iae) else None, "criterion": self.criterion}
-
-    @classmethod
-    def from_json(cls, d: Any) -> ProcessDesign:
-        if not isinstance(d, Mapping) or not isinstance(d.get("generic"), Mapping):
-            raise InputError("process tune JSON: each design needs 'generic' gains")
-        g = d["generic"]
-        try:
-            c = Controller(float(g["Kp"]), float(g["Ki"]), float(g["Kd"]), float(g["Tf"]), float(g["rate_hz"]))
-            worst = d.get("worst")
-            iae = d.get("iae")
-            return cls(str(d["name"]), str(d["kind"]), c, CascadeMargins.from_json(d.get("nominal")),
-                       None if worst is None else CascadeMargins.from_json(worst),
-                       math.inf if iae is None else float(iae), str(d.get("criterion", "")))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"process tune JSON: bad design ({type(err).__name__}: {err})") from None
-
-
-@dataclass(frozen=True)
-class ProcessTuneResult:
-    """The designs of :func:`tune_process` (``tune RESULT.json`` of a process analysis).
-
-    Attributes
-    ----------
-    loop : str
-        The loop (the analysis' name for it).
-    rate_hz : float
-        The controller rate [Hz].
-    model : PlantModel
-        The nominal plant.
-    designs : tuple of ProcessDesign
-    options : ProcessTuneOptions
-    reverse_acting : bool
-        The plant's gain is negative: the gains act on -e.
-    ultimate_period_s : float
-        Tu of the nominal sampled loop [s] (the grids' scale).
-    notes : tuple of str
-        What the designs rest on.
-    """
-
-    loop: str
-    rate_hz: float
-    model: PlantModel
-    designs: tuple[ProcessDesign, ...]
-    options: ProcessTuneOptions
-    reverse_acting: bool
-    ultimate_period_s: float
-    notes: tuple[str, ...] = field(default=())
-
-    def get(self, name: str, kind: str) -> ProcessDesign:
-        """The design ``name`` of ``kind``; InputError naming the ones there are."""
-        for d in self.designs:
-            if d.name == name and d.kind == kind:
-                return d
-        have = ", ".join(f"{d.name} {d.kind}" for d in self.designs)
-        raise InputError(f"no {name} {kind} design for this plant (have: {have})")
-
-    def to_json(self) -> dict[str, Any]:
-        """``{"schema_version", "kind": "process", "loop", "rate_hz", "model", "designs", ...}``."""
-        o = self.options
-        return {"schema_version": PROCESS_TUNE_SCHEMA_VERSION, "kind": "process", "loop": self.loop,
-                "rate_hz": self.rate_hz, "model": self.model.to_json(), "designs": [d.to_json() for d in self.designs],
-                "ms_max": o.ms_max, "pm_min_deg": o.pm_min_deg, "n_draws": o.n_draws, "seed": o.seed,
-                "reverse_acting": self.reverse_acting, "ultimate_period_s": self.ultimate_period_s,
-                "notes": list(self.notes)}
-
-    @classmethod
-    def from_json(cls, data: Any) -> ProcessTuneResult:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "process tune JSON", PROCESS_TUNE_SCHEMA_VERSION)
-        if d.get("kind") != "process" or not isinstance(d.get("designs"), list):
-            raise InputError("not a process tune JSON (needs kind 'process' and 'designs')")
-        try:
-            options = ProcessTuneOptions(float(d["ms_max"]), float(d["pm_min_deg"]), int(d["n_draws"]),
-                                         int(d.get("seed", 0)))
-            return cls(str(d.get("loop", "")), float(d["rate_hz"]), model_from_json(d["model"]),
-                       tuple(ProcessDesign.from_json(x) for x in d["designs"]), options,
-                       bool(d.get("reverse_acting")), float(d["ultimate_period_s"]),
-                       tuple(str(n) for n in d.get("notes") or ()))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"process tune JSON: {type(err).__name__}: {err}") from None
-
-
-# ----------------------------------------------------------------------------------------------
 # the draws
 # ----------------------------------------------------------------------------------------------
-def process_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int = 0) -> tuple[list[PlantModel], tuple[str, ...]]:
+def model_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int = 0) -> tuple[list[PlantModel], tuple[str, ...]]:
     """``n`` plants over the identification's uncertainty, and notes on how they were drawn.
 
     A positive parameter is drawn log-normal with its std (relative spread std / value), one that may
@@ -445,7 +304,7 @@ def _stable_all(c: Controller, p: _Plants, index: Sequence[int] | None = None) -
     return stable
 
 
-def _ok(c: Controller, p: _Plants, o: ProcessTuneOptions) -> bool:
+def _ok(c: Controller, p: _Plants, o: DesignOptions) -> bool:
     """The constraints on every model: the frequency figures first, stability (Nyquist) only if they hold."""
     L = c.feedback_response(p.omega)[None, :] * p.Gd
     if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
@@ -456,7 +315,7 @@ def _ok(c: Controller, p: _Plants, o: ProcessTuneOptions) -> bool:
     return bool(np.all(_stable_all(c, p)))
 
 
-def _largest_gain(make: Callable[[float], Controller], ku: float, p: _Plants, o: ProcessTuneOptions) -> Controller | None:
+def _largest_gain(make: Callable[[float], Controller], ku: float, p: _Plants, o: DesignOptions) -> Controller | None:
     """The largest Kp in [1e-4, 10] x the ultimate gain meeting the constraints.
 
     A coarse scan from the top finds the largest feasible grid gain (on an integrating plant a PI is
@@ -494,14 +353,14 @@ def _candidates(kind: str, tu: float, rate_hz: float) -> list[Callable[[float], 
     return [maker(float(ti) * tu, float(td) * tu) for ti in _TI_GRID for td in _PID_TDC_GRID if ti >= 2.0 * td]
 
 
-def _margins(c: Controller, p: _Plants, count: int) -> list[CascadeMargins]:
-    """The reported figures of the first ``count`` models on the fine grid."""
+def _margins(c: Controller, p: _Plants, count: int) -> list[tuple[float, float, float, float, bool]]:
+    """(phase margin [deg], gain margin, Ms, first crossover [Hz], stable) of the first ``count`` models on the fine grid."""
     stable = _stable_all(c, p, range(count))
-    return [CascadeMargins(pm, gm, ms, wc, bool(ok))
-            for ok, (pm, gm, ms, wc) in zip(stable, cascade_margins(c, p.fine[:count], p.fine_omega))]
+    return [(pm, gm, ms, wc, bool(ok)) for ok, (pm, gm, ms, wc) in zip(stable, cascade_margins(c, p.fine[:count],
+                                                                                                 p.fine_omega))]
 
 
-def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: ProcessTuneOptions) -> ProcessDesign | None:
+def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: DesignOptions) -> Design | None:
     load = kind != "PD"
     horizon = (_LOAD_PERIODS if load else _STEP_PERIODS) * tu
     best: tuple[float, Controller] | None = None
@@ -515,13 +374,18 @@ def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: ProcessTu
     if best is None:
         return None
     J, c = best
-    nominal = _margins(c, p, 1)[0]
-    worst = None
+    pm, gm, ms, fc, stable = _margins(c, p, 1)[0]
+    nominal = Margins(gm, pm, math.nan, ms, 2 * math.pi * fc, math.nan, stable)
+    posterior: dict[str, Any] = {}
     if len(p.all) > 1:
         m = _margins(c, p, len(p.all))
-        worst = CascadeMargins(min(x.phase_margin_deg for x in m), min(x.gain_margin for x in m),
-                               max(x.Ms for x in m), min(x.crossover_hz for x in m), all(x.stable for x in m))
-    return ProcessDesign(name, kind, c, nominal, worst, J, "load step" if load else "setpoint step")
+        posterior = {"worst": {"phase_margin_deg": min(x[0] for x in m), "gain_margin": min(x[1] for x in m),
+                               "Ms": max(x[2] for x in m), "crossover_hz": min(x[3] for x in m),
+                               "stable": all(x[4] for x in m)},
+                     "n_draws": len(p.all) - 1, "worst_of": "the nominal model and every draw"}
+    constraints = {"ms_max": o.ms_max, "pm_min_deg": o.pm_min_deg, "feasible": True}
+    return Design(name, c, "iae", J, math.nan, nominal, StepMetrics(*[math.nan] * 6), posterior, constraints, {},
+                  horizon, "load step" if load else "setpoint step")
 
 
 def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, w_low: float) -> _Plants:
@@ -540,10 +404,26 @@ def _integrating(model: PlantModel) -> bool:
     return bool(np.any(np.abs(np.linalg.eigvals(A)) < 1e-12))
 
 
-def tune_process(model: PlantModel, rate_hz: float, *, draws: Sequence[PlantModel] = (), loop: str = "",
-                 options: ProcessTuneOptions = ProcessTuneOptions(),
-                 kinds: Sequence[str] | None = None) -> ProcessTuneResult:
+def _check(options: DesignOptions) -> None:
+    """Options of eq. (2)'s designs that a family's grid design does not take: refused, never ignored."""
+    if options.objective != "iae":
+        raise InputError(f"--objective {options.objective}: the process families' designs minimise the IAE "
+                         "(of a load step for a PI/PID)")
+    if options.effort_max is not None or options.rate_filter is not None:
+        raise InputError("a noise-gain limit (--effort-max) and a stack's rate filter are for eq. (2) loops")
+    if "mrft-rule" in (options.designs or ()):
+        raise InputError("the mrft-rule design is the DNN-MRFT rule for eq. (2) loops; a process plant has "
+                         "model-based and robust designs")
+    bad = [k for k in options.kinds or () if k not in GRID_KINDS]
+    if bad:
+        raise InputError(f"unknown controller kind(s) {bad}; choose from {', '.join(GRID_KINDS)}")
+
+
+def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], options: DesignOptions,
+              loop: str = "") -> TuneResult:
     """Model-based (and, with ``draws``, robust) PI/PID (and PD on integrating plants) gains (module docstring).
+
+    Called by :func:`mrftcli.tune.design.tune` for a model that is not eq. (2)'s.
 
     Parameters
     ----------
@@ -552,29 +432,31 @@ def tune_process(model: PlantModel, rate_hz: float, *, draws: Sequence[PlantMode
     rate_hz : float
         The controller rate [Hz].
     draws : sequence of PlantModel
-        Models the robust design holds its constraints on (:func:`process_draws`); fewer than 2: none.
+        Models the robust design holds its constraints on (:func:`model_draws`); fewer than 2: none.
+    options : DesignOptions
+        ``ms_max``, ``pm_min_deg``, the ``designs`` and the ``kinds`` (None: PI and PID, and PD on an
+        integrating plant); the objective is the IAE.
     loop : str
         The loop's name (for the record).
-    options : ProcessTuneOptions
-        The limits.
-    kinds : sequence of str, optional
-        The controllers to design (default: PI and PID, and PD on an integrating plant).
 
     Raises
     ------
     InputError
-        A bad rate, a plant with feedthrough, or no controller of any kind meets the constraints.
+        A bad rate, a plant with feedthrough, an option of eq. (2)'s designs, or no controller of any
+        kind meets the constraints.
     """
+    _check(options)
     discretise(model, rate_hz)  # checks the rate and the plant before the work
     integrating = _integrating(model)
-    kinds = tuple(kinds) if kinds is not None else (("PI", "PID", "PD") if integrating else ("PI", "PID"))
+    kinds = tuple(options.kinds) if options.kinds is not None else (GRID_KINDS if integrating else ("PI", "PID"))
     sign = _sign(model)
     wu = _ultimate(model, rate_hz, sign)
     tu = 2 * math.pi / wu
     ku = 1.0 / max(float(np.abs(discrete_response(model, rate_hz, np.array([wu])))[0]), 1e-300)
     w_low = min(1e-3 * wu, 0.1 * rate_hz)
-    sets = [("model-based", _plants([model], rate_hz, sign, w_low))]
-    if len(draws) >= 2:
+    names = options.designs or GRID_DESIGNS
+    sets = [("model-based", _plants([model], rate_hz, sign, w_low))] if "model-based" in names else []
+    if len(draws) >= 2 and "robust" in names:
         sets.append(("robust", _plants([model, *draws], rate_hz, sign, w_low)))
     designs = [d for kind in kinds for name, p in sets if (d := _design(name, kind, p, ku, tu, options)) is not None]
     if not designs:
@@ -593,4 +475,5 @@ def tune_process(model: PlantModel, rate_hz: float, *, draws: Sequence[PlantMode
         notes.append("the plant's gain is negative: reverse acting, the controller acts on -e (gains shown positive)")
     if not integrating and "PD" not in kinds:
         notes.append("no PD: the plant is self-regulating, a PD would leave a steady error")
-    return ProcessTuneResult(loop, rate_hz, model, tuple(designs), options, sign < 0, tu, tuple(notes))
+    return TuneResult(model, None, rate_hz, loop, "iae", options.ms_max, math.inf, _LOAD_PERIODS * tu,
+                      {"ultimate_period_s": tu}, tuple(designs), tuple(notes), reverse_acting=sign < 0)

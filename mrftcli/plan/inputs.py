@@ -104,7 +104,7 @@ def _partial_tests(partial: Mapping[str, Any]) -> list[FlownTest]:
 
 
 def prior_range(estimate: ParameterEstimate | None, default: tuple[float, float]) -> tuple[float, float]:
-    """A prior range from an identified parameter: mean +/- 2 std, its low end kept above mean / 10
+    """A prior range from an identified parameter: value +/- 2 std, its low end kept above value / 10
     (a range must stay positive); ``default`` without a usable estimate (none, or a std that is not
     a positive number).
 
@@ -116,7 +116,7 @@ def prior_range(estimate: ParameterEstimate | None, default: tuple[float, float]
     >>> prior_range(None, (0.2, 3.0))
     (0.2, 3.0)
     """
-    if estimate is not None and math.isfinite(estimate.std) and estimate.std > 0 and estimate.mean > 0:
-        m, s = float(estimate.mean), float(estimate.std)
+    if estimate is not None and math.isfinite(estimate.std) and estimate.std > 0 and estimate.value > 0:
+        m, s = float(estimate.value), float(estimate.std)
         return (max(m - 2 * s, m / 10), m + 2 * s)
     return default

@@ -25,18 +25,8 @@ One module per stage:
 ``driver``     :func:`plan_tests`, the driver over those stages (one strategy per model kind)
 =============  ==================================================================================
 
-Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units.
-
-Examples
---------
->>> from mrftcli.mrft.model import soiptd_model
->>> from mrftcli.plan import FlightLimits, PlanOptions, Prior, plan_tests
->>> prior = Prior(Td=(0.3, 3.0), tau=(0.01, 0.08), K=(1.0, 10.0))
->>> limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
->>> p = plan_tests(soiptd_model(0.04), limits, prior=prior,
-...                options=PlanOptions(n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8)))
->>> len(p.tests), all(-0.9 <= t.beta <= -0.1 for t in p.tests)
-(2, True)
+Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units. The example
+is :func:`plan_tests`'.
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ def main() -> None:
     routes = {
         "log posterior": [AxisModel(a.loop, a.model, posterior_from_analysis(a)) for a in analyses],
         "RESULT.json": [AxisModel(a.loop, *model_from_result_json(AnalysisResult.from_json(
-            json.loads(json.dumps(a.to_json()))), TP)[:2]) for a in analyses],
+            json.loads(json.dumps(a.to_json()))), soiptd_model(TP))[:2]) for a in analyses],
     }
     for name, axes in routes.items():
         t = time.process_time()

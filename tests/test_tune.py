@@ -262,16 +262,17 @@ def test_pid_design_optimises_integral_action_within_the_limits():
 
 
 def test_result_json_posterior_says_the_correlation_is_lost():
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.tune.analysis import NO_CORRELATION_NOTE, model_from_result_json
 
     data = {"parameters": {"Td": {"mean": 1.3, "std": 0.1}, "tau": {"mean": 0.03, "std": 0.002},
                            "K": {"mean": 30.0, "std": 1.0}, "Tp": {"mean": 0.0422}}}
-    model, post, note = model_from_result_json(data, 0.0422)
+    model, post, note = model_from_result_json(data, soiptd_model(0.0422))
     assert note == NO_CORRELATION_NOTE and "correlation" in note
     assert model.Td == 1.3 and post.n == 200
     assert abs(np.corrcoef(post.Td, post.tau)[0, 1]) < 0.2
     with pytest.raises(InputError, match="Tp"):
-        model_from_result_json(data, 0.05)
+        model_from_result_json(data, soiptd_model(0.05))
 
 
 # --- long delays (issue 30): margins against an independent frequency response, stability, responses ---

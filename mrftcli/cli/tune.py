@@ -22,7 +22,7 @@ from ..jsonable import load_json_text
 from ..validate import TP_MISSING, check_spread, check_time
 
 if TYPE_CHECKING:
-    from ..mrft.model import PlantModel
+    from ..mrft.model import LoopModel, PlantModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
 from .model_options import meta_model, meta_model_options
@@ -86,14 +86,13 @@ class _TuneSource:
     notes: tuple[str, ...] = ()
 
 
-def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None,
+def _from_spread(known: LoopModel, td: float | None, tau: float | None, K: float | None,
                  stds: tuple[float, float, float]) -> _TuneSource:
     """The model given with --td/--tau/--k, with a posterior when a std is given.
 
     Every parameter is required: the gains scale as 1/K, so an assumed K = 1 would print gains off by
     the factor the true K differs from 1 (issue 26).
     """
-    from ..mrft.model import LoopModel
     from ..tune.design import Posterior
 
     if td is None and tau is None and K is None:
@@ -107,7 +106,7 @@ def _from_spread(Tp: float, td: float | None, tau: float | None, K: float | None
     check_time("--tau", tau)
     if not math.isfinite(K) or K == 0:
         raise InputError(f"--k must be a finite, non-zero gain, got {K}")
-    model = LoopModel(Tp, td, tau, K)
+    model = known.with_parameters(Td=td, tau=tau, K=K)
     for name, std, value in zip(("--td-std", "--tau-std", "--k-std"), stds, (td, tau, K)):
         check_spread(name, std, value)
     posterior = None
@@ -140,8 +139,9 @@ def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
     return stack_setting(ex.stack, loop, rate_given, rate_source, ex.gyro_cutoff_hz)
 
 
-def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
-    """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`.
+def from_result_json(path: Path, known: LoopModel, loop: str | None) -> _TuneSource:
+    """An ``analyze --json`` file, read by :meth:`~mrftcli.analyze.AnalysisResult.from_json`; ``known``: eq. (2)
+    with the bench test's Tp (``soiptd_model(--tp)``), which the file's must equal.
 
     Without ``loop`` (no --loop) the loop is the one the file was analysed for.
     """
@@ -150,7 +150,7 @@ def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
 
     try:
         result = AnalysisResult.from_json(load_json_text(path.read_text(), str(path)))
-        model, post, note = model_from_result_json(result, Tp)
+        model, post, note = model_from_result_json(result, known)
     except (ValueError, OSError) as err:
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
     except InputError as err:
@@ -165,7 +165,7 @@ def from_result_json(path: Path, Tp: float, loop: str | None) -> _TuneSource:
                        tuple(float(t.amplitude_mean) for t in result.tests), (note,))
 
 
-def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, Any],
+def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict[str, Any],
               quiet: bool = False) -> _TuneSource:
     """A flight log, analysed as ``analyze`` would (its warnings printed)."""
     from ..analyze import AnalyzeOptions, analyze_path
@@ -175,7 +175,7 @@ def _from_log(source: str, Tp: float, min_cycles: int, read_options: dict[str, A
     with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
         progress(0, 1, "analysing the log")
         read = ReadOptions(**{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
-        result = analyze_path(source, Tp, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles))
+        result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     return _TuneSource(result.model, posterior_from_analysis(result), result.loop, result.controller_rate_hz,
@@ -423,6 +423,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
 
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --export px4 --out roll.params
     """
+    from ..mrft.model import soiptd_model
     from ..tune.design import DesignOptions
     from ..tune.design import tune as run_tune
 
@@ -459,7 +460,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:
-        src, loop = _eq2_source(source, Tp, (td, tau, K, td_std, tau_std, k_std), ex, kind, min_cycles,
+        src, loop = _eq2_source(source, soiptd_model(Tp), (td, tau, K, td_std, tau_std, k_std), ex, kind, min_cycles,
                                 read_options, quiet)
         setting = _stack_setting(ex, loop, rate_given, src.rate_hz)
         options = DesignOptions(objective=objective, ms_max=ms_max, effort_max=effort_max,
@@ -496,9 +497,11 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
         used = [k for k, v in unsupported.items() if v]
         if used:
             raise InputError(f"{', '.join(used)} cannot be used with two results (the joint roll and pitch export)")
+        from ..mrft.model import soiptd_model
         from .tune_axes import AxesRequest, tune_axes
 
-        tune_axes(AxesRequest(sources, Tp, ex.stack, ex.out, ex.clamp, cutoff_auto or cutoff_hz is None, cutoff_hz,
+        tune_axes(AxesRequest(sources, None if Tp is None else soiptd_model(Tp), ex.stack, ex.out, ex.clamp,
+                              cutoff_auto or cutoff_hz is None, cutoff_hz,
                               read_options.get("controller_rate_hz"), objective, ms_max, design or "robust", kind,
                               json_target, quiet))
         return True
@@ -517,7 +520,7 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
     return False
 
 
-def _eq2_source(source: str | None, Tp: float, given: tuple[Any, ...], ex: _ExportOptions, kind: str,
+def _eq2_source(source: str | None, known: LoopModel, given: tuple[Any, ...], ex: _ExportOptions, kind: str,
                 min_cycles: int, read_options: dict[str, Any], quiet: bool) -> tuple[_TuneSource, str]:
     """Eq. (2)'s model and posterior from a LOG, a RESULT.json or --td/--tau/--k (with their stds), and the loop."""
     td, tau, K, *stds = given
@@ -531,11 +534,11 @@ def _eq2_source(source: str | None, Tp: float, given: tuple[Any, ...], ex: _Expo
     if loop is not None:
         _check_stack(ex, loop, kind)  # before the work starts
     if source is None:
-        src = _from_spread(Tp, td, tau, K, (stds[0], stds[1], stds[2]))
+        src = _from_spread(known, td, tau, K, (stds[0], stds[1], stds[2]))
     elif is_result:
-        src = from_result_json(Path(source), Tp, loop)
+        src = from_result_json(Path(source), known, loop)
     else:
-        src = _from_log(source, Tp, min_cycles, read_options, quiet)
+        src = _from_log(source, known, min_cycles, read_options, quiet)
     loop = loop or src.loop
     assert loop is not None  # from_result_json refuses a file without its loop
     _check_stack(ex, loop, kind)

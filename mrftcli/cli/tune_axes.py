@@ -10,12 +10,16 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from ..errors import InputError
 from ..validate import TP_MISSING
 from .options import dump_json, tqdm_progress
+
+if TYPE_CHECKING:
+    from ..mrft.model import LoopModel
 
 __all__ = ["AxesRequest", "tune_axes"]
 
@@ -28,8 +32,8 @@ class AxesRequest:
     ----------
     sources : tuple of str
         The two analyze RESULT.json files.
-    Tp : float or None
-        Propulsion time constant [s] (--tp), the same for both axes.
+    model : LoopModel or None
+        Eq. (2) with the bench test's Tp known (``soiptd_model(--tp)``), the same for both axes (None: no --tp).
     stack : str or None
         ``--export``.
     out : str or None
@@ -51,7 +55,7 @@ class AxesRequest:
     """
 
     sources: tuple[str, ...]
-    Tp: float | None
+    model: LoopModel | None
     stack: str | None
     out: str | None
     clamp: bool
@@ -70,7 +74,7 @@ def _check_request(req: AxesRequest) -> str:
     """The stack, after the checks that need no file (one-line errors)."""
     from .tune import check_out, check_outputs
 
-    if req.Tp is None:
+    if req.model is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
     if req.stack not in ("px4", "ardupilot"):
         raise InputError("two results are designed together only with --export px4|ardupilot (their one gyro "
@@ -94,8 +98,8 @@ def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
     from ..tune.joint import AxisModel, AxisSource
     from .tune import from_result_json
 
-    assert req.Tp is not None
-    srcs = [(path, from_result_json(Path(path), req.Tp, None)) for path in req.sources]
+    assert req.model is not None
+    srcs = [(path, from_result_json(Path(path), req.model, None)) for path in req.sources]
     (pa, a), (pb, b) = srcs
     if a.loop == b.loop:
         raise InputError(f"{pa} and {pb} are both for the {a.loop} loop: give one roll and one pitch result")

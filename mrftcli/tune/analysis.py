@@ -67,7 +67,7 @@ def posterior_from_analysis(result: AnalysisResult, n: int = 400, seed: int = 0)
         rng = np.random.default_rng(seed)
         cov = np.asarray(ref.fit.covariance, float)
         p = rng.multivariate_normal(np.asarray(ref.fit.p, float), cov, size=n, method="eigh")
-        sign = -1.0 if result.K.mean * ref.fit.p[2] < 0 else 1.0  # the fit's K carries the loop sign
+        sign = -1.0 if result.K.value * ref.fit.p[2] < 0 else 1.0  # the fit's K carries the loop sign
         return Posterior(result.Tp, np.exp(p[:, 0]), np.maximum(p[:, 1], 0.0), sign * p[:, 2],
                          source="waveform refinement: normal draws from its Gauss-Newton covariance of "
                                 "(ln Td, tau, K), correlation kept")
@@ -77,11 +77,12 @@ def posterior_from_analysis(result: AnalysisResult, n: int = 400, seed: int = 0)
     return Posterior(result.Tp, Td, tau, K, source="analyze bootstrap over stable cycles (joint draws)")
 
 
-def model_from_result_json(data: Mapping[str, Any] | AnalysisResult, Tp: float, n: int = 200,
+def model_from_result_json(data: Mapping[str, Any] | AnalysisResult, known: LoopModel, n: int = 200,
                            seed: int = 0) -> tuple[LoopModel, Posterior, str]:
     """(model, posterior, note) from an ``analyze --json`` object, read by :meth:`AnalysisResult.from_json`.
 
-    The model is the reported estimate (``parameters`` Td, tau, K); the posterior is independent
+    ``known`` is eq. (2) with the bench test's Tp (``soiptd_model(Tp)``): the result must have been
+    identified with it. The model is the reported estimate (``parameters`` Td, tau, K); the posterior is independent
     log-normal draws from the reported std (:data:`NO_CORRELATION_NOTE`, returned as the note to
     show). A std the JSON leaves out (null: not determined) counts as 0.
 
@@ -91,11 +92,12 @@ def model_from_result_json(data: Mapping[str, Any] | AnalysisResult, Tp: float, 
         Not an analyze result, or analysed with another Tp.
     """
     result = data if isinstance(data, AnalysisResult) else AnalysisResult.from_json(data)
+    Tp = known.Tp
     if abs(result.Tp - Tp) > 1e-9 * Tp:
         raise InputError(f"--tp {Tp} differs from the Tp {result.Tp} the RESULT.json was identified with")
-    est = {k: (e.mean, e.std if np.isfinite(e.std) else 0.0)
+    est = {k: (e.value, e.std if np.isfinite(e.std) else 0.0)
            for k, e in (("Td", result.Td), ("tau", result.tau), ("K", result.K))}
-    model = LoopModel(Tp, est["Td"][0], est["tau"][0], est["K"][0])
+    model = known.with_parameters(Td=est["Td"][0], tau=est["tau"][0], K=est["K"][0])
     post = Posterior.from_spread(model, est["Td"][1], est["tau"][1], est["K"][1], n=n, seed=seed,
                                  source="RESULT.json: independent log-normal draws from the reported std")
     return model, post, NO_CORRELATION_NOTE

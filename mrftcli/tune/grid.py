@@ -154,7 +154,7 @@ def model_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int =
 
     A positive parameter is drawn log-normal with its std (relative spread std / value), one that may
     be zero or negative normal, each kept within its bounds; an undetermined one uniformly over its
-    95 % interval. ``estimates`` are :class:`~mrftcli.mrft.identify_lti.LtiEstimate` records.
+    95 % interval. ``estimates`` are :class:`~mrftcli.mrft.parameter.ParameterEstimate` records.
 
     Raises
     ------

@@ -134,3 +134,9 @@ def test_cli_text_prints_each_test_at_its_own_start_from_the_log_start(repo_root
     for i, x in enumerate(truth["tests"], start=1):
         assert starts[i] == pytest.approx(x["t_start"] - t0, abs=0.1)
     assert starts[1] > 1.0  # not 0.0: the first test does not start at the log's first sample
+    # the lines every family prints: the model first, the final with its spread, each test held out
+    lines = out.splitlines()
+    assert lines[0].startswith("model soiptd: G(s) = K Td e^{-tau s}") and lines[0].endswith("amplitudes in m")
+    final = next(line for line in lines if line.startswith("final"))
+    assert "Tp 0.0422 s (known)" in final and "m/s² per command unit" in final and final.count("±") == 3
+    assert sum(line.startswith("held-out test") for line in lines) == 2

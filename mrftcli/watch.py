@@ -271,8 +271,10 @@ class EstimateUpdate:
             params, family, analysis = d["parameters"], str(d["model"]), d.get("analysis")
             if not isinstance(params, Mapping):
                 raise TypeError("'parameters' is not an object")
-            reader = AnalysisResult.from_json if family == LoopModel.family else GeneralAnalysis.from_json
-            return cls(family, tuple(ParameterEstimate.from_json(n, v) for n, v in params.items()),
+            eq2 = family == LoopModel.family  # eq. (2)'s open interval end reads as NaN, a family's as infinite
+            reader = AnalysisResult.from_json if eq2 else GeneralAnalysis.from_json
+            return cls(family, tuple(ParameterEstimate.from_json(n, v, open_value=math.nan if eq2 else math.inf)
+                                     for n, v in params.items()),
                        tuple(int(i) for i in d["tests"]), float(d["t_cycle_end"]), bool(d["final"]),
                        float(d["wall_time"]), tuple(str(n) for n in d.get("undetermined", [])),
                        str(d.get("advice", "")), tuple(str(w) for w in d.get("warnings", [])),

@@ -335,6 +335,26 @@ def test_an_effect_on_a_process_family_matches_the_independent_process_sim():
     assert flight.truth["effects_active"] == ["sensor_lag"] and flight.truth["family"] == "fopdt"
 
 
+def test_a_hysteresis_relay_on_a_process_family_matches_the_independent_process_sim():
+    # TestSpec.eps: the simulator flies RelayLaw's hysteresis relay (as the KSTAR recordings' relay)
+    import process_sim
+
+    from mrftcli.mrft.families import PROCESS_FAMILIES
+    from mrftcli.sim.flight import FlightSpec, TestSpec, simulate_flight
+
+    params = {"K": 1.5, "T1": 1.0, "T2": 0.3, "tau": 0.1234}
+    flight = simulate_flight(FlightSpec(PROCESS_FAMILIES["sopdt"](**params), (TestSpec(0.0, 0.5, 8.0, eps=0.05),),
+                                        rate_hz=100.0, noise_std=0.0, hover_s=1.0, hold_s=2.0))
+    window = process_sim.Window("hysteresis", 0.5, -0.5, eps=0.05, duration=8.0)
+    _, u, y = process_sim.simulate("sopdt", params, [window], 100.0, 0.0, lead=1.0)
+    np.testing.assert_allclose(flight.command[100:900], u[100:900], atol=1e-12)
+    np.testing.assert_allclose(flight.output_true[:900], y[:900], atol=1e-9)
+    assert np.count_nonzero(np.diff(flight.command[100:900])) >= 6 and flight.truth["tests"][0]["eps"] == 0.05
+    with pytest.raises(InputError, match="hysteresis eps"):
+        simulate_flight(FlightSpec(PROCESS_FAMILIES["sopdt"](**params), (TestSpec(0.0, 0.5, 8.0, eps=0.05),),
+                                   switching="hear"))
+
+
 def test_process_truth_and_cli_errors(tmp_path, capsys):
     from mrftcli.mrft.model import model_from_json
 

@@ -167,6 +167,8 @@ class CascadeSpec:
         if not (self.inner_tests or self.outer_tests):
             raise InputError("give at least one MRFT test (inner or outer)")
         tests = (*self.inner_tests, *self.outer_tests)
+        if any(t.eps != 0 for t in tests):
+            raise InputError("a cascaded flight flies MRFT tests: leave the hysteresis eps at 0")
         check_flight_size(self.hover_s + sum(t.duration + self.hold_s for t in tests), self.gains.rate_hz)
 
     @property

@@ -246,10 +246,11 @@ def make_relay(
     start_threshold: float = 0.0,
     confirm_samples: int = 5,
     no_switch_ticks: float = 4.0,
+    eps: float = 0.0,
 ) -> MrftRelay | HearMrftRelay:
-    """The relay object of a switching rule (``checks`` or ``hear``)."""
+    """The relay object of a switching rule (``checks``: with the hysteresis ``eps`` [output units], or ``hear``)."""
     if switching == "checks":
-        return MrftRelay(beta, start_threshold)
+        return MrftRelay(beta, start_threshold, eps)
     if switching == "hear":
         return HearMrftRelay(beta, confirm_samples, no_switch_ticks)
     raise InputError(f"unknown switching rule {switching!r}; use one of {', '.join(SWITCHING_RULES)}")

@@ -277,7 +277,7 @@ class _Controller:
         self.b_d = pid.Kd / (pid.Tf + T)
         start_threshold = 10.0 * settings.noise_std if spec.start_threshold is None else float(spec.start_threshold)
         self.relays = [make_relay(t.beta, spec.switching, start_threshold, spec.confirm_samples,
-                                  spec.no_switch_delay * spec.rate_hz) for t in spec.tests]
+                                  spec.no_switch_delay * spec.rate_hz, t.eps) for t in spec.tests]
 
     def step(self, k: int, ym: float) -> float:
         """The command of tick ``k`` for the measured output ``ym`` [command units]."""

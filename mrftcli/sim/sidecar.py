@@ -125,6 +125,8 @@ def _test_truths(spec: FlightSpec, settings: FlightSettings, rate_true: np.ndarr
             "abort_error": limit,
             "noise_margin": noise_margin(model, test.beta, test.h, spec.rate_hz, settings.noise_std),
         }
+        if test.eps > 0:
+            entry["eps"] = test.eps
         if eff.gain_drift != 0 and "K" in model.parameters:
             t_mid = 0.5 * (k0 + k1) * T
             entry["K_effective"] = model.parameters["K"].value * (1.0 + eff.gain_drift * t_mid)

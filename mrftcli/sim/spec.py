@@ -128,13 +128,19 @@ class Effects:
 
 @dataclass(frozen=True)
 class TestSpec:
-    """One MRFT test: beta in (-1, 1), relay height h [command units], duration of the relay [s]."""
+    """One relay test: beta in (-1, 1), relay height h [command units], duration of the relay [s].
+
+    ``eps`` [output units] adds a hysteresis to the switching level (``checks`` rule only): beta 0 and
+    eps > 0 is the hysteresis relay (:class:`~mrftcli.mrft.relays.RelayLaw` ``hysteresis``), beta 0 and
+    eps 0 the ideal relay, eps 0 the MRFT.
+    """
 
     __test__ = False  # not a pytest test class, although its name starts with "Test"
 
     beta: float
     h: float
     duration: float = 12.0
+    eps: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -257,6 +263,9 @@ def _check_tests(spec: FlightSpec) -> None:
             raise InputError(f"test {i}: the relay height h must be positive, got {test.h!r}")
         if not (math.isfinite(test.duration) and test.duration * spec.rate_hz >= 2):
             raise InputError(f"test {i}: the duration must cover at least two controller periods, got {test.duration!r} s")
+        if not (math.isfinite(test.eps) and test.eps >= 0) or (test.eps > 0 and spec.switching != "checks"):
+            raise InputError(f"test {i}: the hysteresis eps must be >= 0 [output units] (and the checks switching "
+                             f"rule), got {test.eps!r}")
     check_flight_size(spec.hover_s + sum(t.duration + spec.hold_s for t in spec.tests), spec.rate_hz)
 
 

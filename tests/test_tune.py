@@ -458,6 +458,6 @@ def test_design_options_are_checked_on_creation():
 
     assert DesignOptions(designs=["robust"], kinds=["PD"]).designs == ("robust",)
     for bad in ({"objective": "ise"}, {"ms_max": 1.0}, {"ms_max": float("nan")}, {"effort_max": 0.0},
-                {"designs": ("lqr",)}, {"kinds": ("PI",)}):
+                {"designs": ("lqr",)}, {"kinds": ("P",)}, {"pm_min_deg": 95.0}):
         with pytest.raises(InputError):
             DesignOptions(**bad)

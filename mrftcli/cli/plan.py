@@ -390,7 +390,8 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
         assert relay_limits is not None
         limits, recorded = relay_limits, _recorded(model, given)
     try:
-        with tqdm_progress("plan", unit="step", enabled=not quiet) as progress:
+        # a relay plan takes well under a second: no bar to flash
+        with tqdm_progress("plan", unit="step", enabled=not quiet and recorded is None) as progress:
             result = plan_tests(model, limits, prior=prior, flown=flown, recorded=recorded, progress=progress,
                                 options=PlanOptions(n_tests=n_tests, n_simulated=n_simulated))
     except InputError as err:

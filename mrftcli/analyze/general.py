@@ -43,7 +43,7 @@ from .static_gain import StaticGain, is_self_regulating, static_gain
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
 __all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_family", "response_points",
-           "chattering_cycles", "find_tests", "screen_test", "MeasuredTest", "measure_tests",
+           "chattering_cycles", "find_tests", "screen_test", "MeasuredTest", "measure_test", "measure_tests",
            "general_analysis",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
 
@@ -452,8 +452,9 @@ def find_tests(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> lis
     return found
 
 
-def _measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_stable_cycles: int) -> MeasuredTest:
-    """Screen one test; a usable one gets its relay (as inferred and effective) and its response points."""
+def measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_stable_cycles: int) -> MeasuredTest:
+    """Screen one test; a usable one gets its relay (as inferred and effective) and its response points
+    (:func:`measure_tests` per test; ``watch`` per new stable cycle)."""
     chattered = chattering_cycles(test, min_stable_cycles)
     test = chattered or test
     reason, notes = screen_test(test, min_stable_cycles)
@@ -508,7 +509,7 @@ def analyze_family(flight: FlightLog, model: PlantModel, options: AnalyzeOptions
 def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
                   windows: Sequence[tuple[float, float]] = (), min_stable_cycles: int = 3) -> list[MeasuredTest]:
     """Stage 1 of :func:`analyze_family`: every relay test found, numbered in order, screened and measured."""
-    return [_measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
+    return [measure_test(flight, dataclasses.replace(test, index=i), relay, min_stable_cycles)
             for i, test in enumerate(find_tests(flight, windows))]
 
 

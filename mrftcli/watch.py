@@ -31,14 +31,13 @@ The strategy is the model's family:
   estimate from the tests' mean effective betas, frequencies and amplitudes
   (:func:`mrftcli.mrft.identify.identify` at the model's Tp, about a millisecond; no spread: its std
   is null until the final analysis). A second without switching closes a test.
-* every other family (process plants, a declared transfer function): each test screened as
-  ``analyze --model`` screens it (stable cycles, an output that follows its relay, a chattering
-  relay's cycles found again), its relay inferred or taken as stated in ``options.relay``
-  (:func:`mrftcli.segment.relay_type.infer_relay`) and its cycles' frequency-response points measured
-  (:func:`mrftcli.analyze.general.response_points`) once per new stable cycle, then the model fitted to
-  all tests' points (:func:`mrftcli.analyze.general.identify_points`): the estimate names the
-  parameters the tests so far do not determine, and the test that would. Three periods without
-  switching close a test, whatever the plant's time scale.
+* every other family (process plants, a declared transfer function): each test screened, its relay
+  inferred or taken as stated in ``options.relay`` and its cycles' frequency-response points measured
+  as ``analyze --model`` does (:func:`mrftcli.analyze.general.measure_test`: stable cycles, an output
+  that follows its relay, a chattering relay's cycles found again) once per new stable cycle, then
+  the model fitted to all tests' points (:func:`mrftcli.analyze.general.identify_points`): the
+  estimate names the parameters the tests so far do not determine, and the test that would. Three
+  periods without switching close a test, whatever the plant's time scale.
 
 Every update carries ``t_cycle_end``, the log time of the newest cycle end it includes, and
 ``wall_time``, when it was produced (``time.time()``), so that a benchmark can measure the latency
@@ -58,19 +57,17 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from .analyze import AnalysisResult, AnalyzeOptions, RelayOptions, analyze_flight
-from .analyze.general import GeneralAnalysis, chattering_cycles, identify_points, response_points, screen_test
+from .analyze.general import GeneralAnalysis, MeasuredTest, identify_points, measure_test
 from .errors import InputError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
 from .jsonable import check_schema_version
 from .mrft.consensus import SAME_BETA
 from .mrft.identify import TestMeasurement, identify
-from .mrft.identify_lti import ResponsePoint
 from .mrft.model import LoopModel, PlantModel
 from .mrft.parameter import ParameterEstimate
 from .mrft.relays import RelayLaw
 from .segment import MrftTest, segment_arrays
-from .segment.relay_type import infer_relay
 from .validate import check_positive
 
 __all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart", "Update", "watch",
@@ -465,34 +462,6 @@ class _Eq2:
                               warnings=tuple(res.warnings), analysis=res)
 
 
-@dataclass(frozen=True)
-class _Measured:
-    """One usable test of a process plant: as used, its relay and its frequency-response points."""
-
-    test: MrftTest
-    relay: RelayLaw
-    points: tuple[ResponsePoint, ...]
-    notes: tuple[str, ...]
-
-
-def _measure(test: MrftTest, flight: FlightLog, relay: RelayOptions, min_cycles: int) -> _Measured | None:
-    """The test screened, its relay and points as ``analyze --model`` takes them; None: not usable (yet)."""
-    chattered = chattering_cycles(test, min_cycles)
-    used = chattered or test
-    reason, notes = screen_test(used, min_cycles)  # the rule analyze --model screens with
-    if reason:
-        return None
-    points = response_points(flight, used)
-    if not any(p.harmonic == 1 for p in points):  # no cycle long enough for its fundamental
-        return None
-    if chattered is not None:
-        notes += ("the relay chatters at its switches: its cycles are used with the logged command's harmonics",)
-    law = infer_relay(used, relay.kind, relay.beta, relay.eps)
-    if abs(law.bias) > 1e-9 * law.h:  # analyze --model states the same assumption in its first lines
-        notes += ("assumed: the relay's bias is balanced by the loop's operating point",)
-    return _Measured(used, law, points, notes)
-
-
 class _Family:
     """Any other family: each test measured once per new stable cycle, the model fitted to all points."""
 
@@ -505,24 +474,29 @@ class _Family:
         self.model, self.relay, self.min_cycles = model, relay, min_cycles
         # per test (by its start): the stable cycles it was last measured with, and the measurement; one
         # entry per test, so a test of thousands of cycles holds one copy of them, not one per cycle
-        self._seen: dict[float, tuple[tuple[int, float], _Measured | None]] = {}
-        self._by_index: dict[int, _Measured] = {}
+        self._seen: dict[float, tuple[tuple[int, float], MeasuredTest]] = {}
+        self._by_index: dict[int, MeasuredTest] = {}
 
     def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
         stable = (test.n_stable, _newest_end(test))
         seen = self._seen.get(test.t_start)
         if seen is None or seen[0] != stable:  # the open test is measured again only when a cycle is added
-            seen = self._seen[test.t_start] = (stable, _measure(test, flight, self.relay, self.min_cycles))
+            # screened, its relay inferred (or as stated) and its points measured as analyze --model does
+            seen = self._seen[test.t_start] = (stable, measure_test(flight, test, self.relay, self.min_cycles))
         measured = seen[1]
-        if measured is None:
+        if measured.test is None:
             return None
         used = replace(measured.test, index=test.index)
         self._by_index[test.index] = replace(measured, test=used)
         return used
 
     def test_update(self, test: MrftTest, flight: FlightLog) -> TestUpdate:
-        m = self._by_index[test.index]
-        return _test_update(test, flight, relay=m.relay, notes=m.notes)
+        summary = self._by_index[test.index].summary
+        assert summary is not None  # usable
+        relay, notes = summary.relay, summary.notes
+        if abs(relay.bias) > 1e-9 * relay.h:  # analyze --model states the same assumption in its first lines
+            notes += ("assumed: the relay's bias is balanced by the loop's operating point",)
+        return _test_update(test, flight, relay=relay, notes=notes)
 
     def estimate(self, tests: list[MrftTest]) -> EstimateUpdate | None:
         points = [p for t in tests for p in self._by_index[t.index].points]

@@ -33,7 +33,7 @@ Predict the limit cycle of the paper's example plant, then identify it back from
 (0.70565, 1.01885)
 >>> tests = [mrftcli.TestMeasurement(beta, c.frequency_hz) for beta, c in cycles.items()]
 >>> result = mrftcli.identify(tests, mrftcli.soiptd_model(0.1))  # eq. (2) with Tp known
->>> print(f"Td {result.Td.mean:.4f} s, tau {result.tau.mean:.4f} s")
+>>> print(f"Td {result.Td.value:.4f} s, tau {result.tau.value:.4f} s")
 Td 0.7042 s, tau 0.0600 s
 
 Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, tau 46.4 ms, K 19.62):
@@ -42,8 +42,8 @@ Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, 
 >>> flight = mrftcli.read_flight(log, mrftcli.ReadOptions(loop="altitude"))
 >>> analysis = mrftcli.analyze_flight(flight, mrftcli.soiptd_model(0.0422),
 ...                                  options=mrftcli.AnalyzeOptions(n_bootstrap=100))
->>> print(f"{len(analysis.tests)} tests: Td {analysis.Td.mean:.1f} s, tau {analysis.tau.mean * 1e3:.0f} ms, "
-...       f"K {analysis.K.mean:.0f}")
+>>> print(f"{len(analysis.tests)} tests: Td {analysis.Td.value:.1f} s, tau {analysis.tau.value * 1e3:.0f} ms, "
+...       f"K {analysis.K.value:.0f}")
 2 tests: Td 2.7 s, tau 46 ms, K 20
 >>> diagnosis = mrftcli.diagnose_flight(flight, 0.0422, analysis=analysis)  # doctest: +SKIP
 """

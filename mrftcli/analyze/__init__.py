@@ -13,7 +13,7 @@ How the figures are obtained
   achieved, measured from the output at the switch instants). Identification uses the effective
   beta with ``rate_hz=None``: at the actual switch instants the sampled, noisy relay *is* a
   continuous relay switching at that level, so no sampling correction applies.
-* **Point estimate** (``parameters.*.mean``): the paper's method at its core - each test's UFM
+* **Point estimate** (``parameters.*.value``): the paper's method at its core - each test's UFM
   slice at the known Tp scaled to real units (Lemma 3, exact LPRS, the test's mean effective beta
   and mean frequency) - with two more measured constraints per test in one weighted least squares
   (*Beyond the paper*, :mod:`mrftcli.mrft.consensus`; ``constraints=()`` leaves them out): the

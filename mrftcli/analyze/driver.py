@@ -116,8 +116,8 @@ def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.mcap"
     >>> flight = read_flight(log, ReadOptions(loop="altitude"))
     >>> result = analyze_flight(flight, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=100))
-    >>> print(f"Td {result.Td.mean:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
-    ...       f"tau {result.tau.mean * 1e3:.1f} ms")
+    >>> print(f"Td {result.Td.value:.2f} s ({result.Td.ci95_low:.2f}-{result.Td.ci95_high:.2f}), "
+    ...       f"tau {result.tau.value * 1e3:.1f} ms")
     Td 2.66 s (2.65-2.67), tau 46.4 ms
     """
     model = _model(model)
@@ -156,7 +156,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
-    _check_clock(flight, None, tau_est.mean)
+    _check_clock(flight, None, tau_est.value)
     tp_warning, tp_check = _tp_check(flight, screening, wave, Tp, opts.refine_waveform)
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
@@ -275,7 +275,7 @@ def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptio
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.csv"
     >>> result = analyze_path(log, soiptd_model(0.0422), read=ReadOptions(loop="altitude"),
     ...                       options=AnalyzeOptions(n_bootstrap=100))
-    >>> [round(t.beta_nominal, 1) for t in result.tests], f"{result.K.mean:.1f}"
+    >>> [round(t.beta_nominal, 1) for t in result.tests], f"{result.K.value:.1f}"
     ([-0.4, -0.7], '19.6')
     """
     from ..io import read_flight

@@ -245,7 +245,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
     warnings = list(ident.warnings)
     model = ident.model
     Td_hat, tau_hat = model.Td, model.tau
-    K_hat = ident.K.mean if ident.K is not None else float("nan")
+    K_hat = ident.K.value if ident.K is not None else float("nan")
     if limit is None:
         boot = bootstrap(Tp, cycles, Td_hat, constraints, B, rng)
         Td_d, tau_d, K_d = boot.Td, boot.tau, boot.K
@@ -290,7 +290,7 @@ def _constraint_info(Tp: float, cycles: Sequence[StableCycles], boot: Bootstrap,
     info = constraint_report(Tp, cycles, Td, tau, boot.betas[0], boot.omegas[0], boot.phases[0], boot.ln_amp[0],
                              boot.weights or {}, constraints)
     info["paper_estimate"] = {"Td": ident.model.Td, "tau": ident.model.tau,
-                              "K": ident.K.mean if ident.K is not None else None,
+                              "K": ident.K.value if ident.K is not None else None,
                               "method": "UFM slices only (identify)"}
     return info
 
@@ -434,7 +434,7 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
     if refine_waveform and screening.ts_ctrl:
         return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (),
                              ("the waveform refinement was not run: the command is logged below the controller's rate",))
-    if not (refine_waveform and np.isfinite(cons.K.mean)):
+    if not (refine_waveform and np.isfinite(cons.K.value)):
         return WaveformStage(None, "mrft", model, Td_est, tau_est, K_est, (), ())
     windows, send_notes, send_times = _refinement_windows(flight, usable)
     if not windows:
@@ -486,7 +486,7 @@ def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog,
         return tau_est, None
     std = float(np.hypot(tau_est.std, jitter))
     widen = 1.96 * std - 1.96 * tau_est.std
-    return ParameterEstimate(tau_est.mean, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s"), text
+    return ParameterEstimate(tau_est.value, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s"), text
 
 
 def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,
@@ -507,7 +507,7 @@ def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,
     K = bootstrap_estimate(float(limit.K[0]), limit.K[1:], float(limit.K[0]), "")
     Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s", determined=False)
     ident = IdentificationResult(
-        Td=Td, tau=tau, K=K, model=LoopModel(Tp, limit.Td_limit, max(tau.mean, 0.0), K.mean), Tp=Tp,
+        Td=Td, tau=tau, K=K, model=LoopModel(Tp, limit.Td_limit, max(tau.value, 0.0), K.value), Tp=Tp,
         residual=None, tests=(), method="unbounded-Td", uncertainty="bootstrap", n_draws=B,
         warnings=(f"the UFM slices do not intersect: identified in the limit Td -> infinity, which the tests "
                   f"fit (chi2 {limit.chi2:.1f} for {limit.dof} degrees of freedom)",))
@@ -600,7 +600,7 @@ def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constrain
         if not np.isfinite(est.std):
             out.append(est)
             continue
-        out.append(bootstrap_estimate(est.mean, pooled[:, j], float(centre[j]), est.unit))
+        out.append(bootstrap_estimate(est.value, pooled[:, j], float(centre[j]), est.unit))
     return tuple(out)
 
 

@@ -247,7 +247,7 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
     """The held-out predictions of the ``usable`` tests: one vectorised UFM consensus for all their fits."""
     Tp = model.Tp
     if Td_ref is None:
-        Td_ref = identify([TestMeasurement(b, t.frequency_hz_mean) for t, b in zip(tests, betas)], model).Td.mean
+        Td_ref = identify([TestMeasurement(b, t.frequency_hz_mean) for t, b in zip(tests, betas)], model).Td.value
     sets = _sets(tests, groups, usable)
     Td, tau = consensus_solve(Tp, np.broadcast_to(betas, sets.omegas.shape), sets.omegas, sets.weights, Td_ref)
     amps = np.array([t.amplitude_mean for t in tests])

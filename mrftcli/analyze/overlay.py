@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from ..errors import InputError
+from ..mrft.parameter import ParameterEstimate
 from .record import AnalysisResult
 
 __all__ = ["analysis_overlay"]
@@ -37,9 +38,8 @@ def analysis_overlay(result: AnalysisResult) -> dict[str, Any]:
                          rms_residual=preds[t.index].rms if t.index in preds else float("nan"))
              for t in result.tests]
     fits = [OverlayFit(number=i + 1, t=p.t, output=p.y + p.residual, predicted=p.y) for i, p in preds.items()]
-    params = {name: {"mean": est.mean, "std": est.std, "ci95_low": est.ci95_low, "ci95_high": est.ci95_high}
-              for name, est in (("Td", result.Td), ("tau", result.tau), ("K", result.K))}
-    params = {"Tp": {"mean": result.Tp, "std": 0.0, "ci95_low": result.Tp, "ci95_high": result.Tp}, **params}
+    params = {name: est.to_json() for name, est in (("Tp", ParameterEstimate.given(result.Tp, "s")), ("Td", result.Td),
+                                                    ("tau", result.tau), ("K", result.K))}
     meta = {"log": str(result.path), "loop": result.loop, "mrft_ident_version": __version__,
             "time_base": "the original log's time [s] (MCAP log_time = seconds * 1e9)"}
     return {"tests": tests, "fits": fits, "parameters": params, "metadata": meta,

@@ -68,7 +68,7 @@ def _param(result: AnalysisResult | None, name: str, stat: str) -> float:
     if result is None:
         return math.nan
     est = {"Td": result.Td, "tau": result.tau, "K": result.K}[name]
-    return float(est.mean if stat == "mean" else est.std)
+    return float(est.value if stat == "mean" else est.std)
 
 
 def _tests_figures(result: AnalysisResult | None) -> tuple[int | None, int | None, str]:

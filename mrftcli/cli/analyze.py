@@ -34,15 +34,15 @@ def _num(x: float | None, digits: int = 4) -> str:
 
 def _est_row(name: str, unit: str, est, scale: float) -> list[str]:
     """One parameter: estimate, std and 95 % interval (one-sided when the data bound it from below only)."""
-    if est is None or not math.isfinite(est.mean):
+    if est is None or not math.isfinite(est.value):
         return [name, unit, "-", "", ""]
     if not math.isfinite(est.std):
-        return [name, unit, _num(est.mean * scale), "", ""]
+        return [name, unit, _num(est.value * scale), "", ""]
     if not math.isfinite(est.ci95_high):
         interval = f"> {_num(est.ci95_low * scale)} (not bounded from above)"
     else:
         interval = f"{_num(est.ci95_low * scale)} - {_num(est.ci95_high * scale)}"
-    return [name, unit, _num(est.mean * scale), _num(est.std * scale, 2), interval]
+    return [name, unit, _num(est.value * scale), _num(est.std * scale, 2), interval]
 
 
 def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> list[str]:

@@ -34,7 +34,7 @@ def _parse_test(text: str) -> TestMeasurement:
 def _fmt(est: ParameterEstimate | None, scale: float = 1.0, unit: str = "") -> str:
     if est is None:
         return "-"
-    s = f"{est.mean * scale:.5g}{unit}"
+    s = f"{est.value * scale:.5g}{unit}"
     if est.std > 0:
         s += f" ± {est.std * scale:.2g}  [{est.ci95_low * scale:.4g}, {est.ci95_high * scale:.4g}]"
     return s

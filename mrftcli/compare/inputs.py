@@ -73,7 +73,7 @@ def _number(x: object) -> float | None:
 
 def _estimate(p: ParameterEstimate) -> Estimate:
     """The analysis' estimate as compared: NaN (JSON null) is None; a missing upper bound is open."""
-    mean, low, high = (x if math.isfinite(x) else None for x in (p.mean, p.ci95_low, p.ci95_high))
+    mean, low, high = (x if math.isfinite(x) else None for x in (p.value, p.ci95_low, p.ci95_high))
     if high is None and low is not None:
         high = math.inf  # Td bounded below only: the tests cannot close its interval
     std = p.std if math.isfinite(p.std) else None

@@ -324,7 +324,7 @@ class Identification:
 
 def analyze_model(analysis: AnalysisResult) -> AnalyzeModel:
     """analyze's model of a log: its point estimates (the finite ones), how it got them, its tests."""
-    means = {"Td": analysis.Td.mean, "tau": analysis.tau.mean, "K": analysis.K.mean}
+    means = {"Td": analysis.Td.value, "tau": analysis.tau.value, "K": analysis.K.value}
     plant = {k: float(v) for k, v in means.items() if v is not None and math.isfinite(float(v))}
     if "K" in plant:
         plant["K"] = abs(plant["K"])  # the loop's sign is the layout's, not the plant's

@@ -201,7 +201,7 @@ def _parameter_values(parameters: Mapping[str, Mapping[str, float | None]],
     params: dict[str, float | None] = {}
     for n in names:
         p = parameters[n]
-        params[n] = _finite(p.get("mean"))
+        params[n] = _finite(p.get("value"))
         for k in ("std", "ci95_low", "ci95_high"):
             params[f"{n}_{k}"] = _finite(p.get(k))
     return params
@@ -221,8 +221,8 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
     fits : sequence of OverlayFit
         The prediction over each test.
     parameters : mapping
-        ``name -> {"mean", "std", "ci95_low", "ci95_high"}`` for Tp, Td, tau, K (seconds; K in output
-        units / (command unit s^2)).
+        ``name -> {"value", "std", "ci95_low", "ci95_high", ...}`` (the one parameter record's JSON) for Tp,
+        Td, tau, K (seconds; K in output units / (command unit s^2)).
     metadata : mapping, optional
         Extra strings for the ``mrft_ident`` metadata record (log path, loop, version).
     analysis_json : mapping, optional
@@ -239,8 +239,8 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
     names = [n for n in ("Tp", "Td", "tau", "K") if n in parameters]
     param_props = {}
     for n in names:
-        for k in ("mean", "std", "ci95_low", "ci95_high"):
-            param_props[f"{n}_{k}" if k != "mean" else n] = "number|null"
+        for k in ("value", "std", "ci95_low", "ci95_high"):
+            param_props[f"{n}_{k}" if k != "value" else n] = "number|null"
     # (log_time, channel, payload), merged in time order
     rows = _fit_rows(fits) + _test_rows(tests)
     events = _event_rows(tests)

@@ -646,7 +646,7 @@ def identify(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float 
     >>> tests = [TestMeasurement(-0.4, 0.705643, amplitude=0.078530, h=1.0),
     ...          TestMeasurement(-0.7, 1.018843, amplitude=0.035602, h=1.0)]
     >>> r = identify(tests, soiptd_model(0.1))
-    >>> print(f"Td {r.Td.mean:.4f} s, tau {r.tau.mean * 1e3:.2f} ms, K {r.K.mean:.3f} ({r.method})")
+    >>> print(f"Td {r.Td.value:.4f} s, tau {r.tau.value * 1e3:.2f} ms, K {r.K.value:.3f} ({r.method})")
     Td 0.7042 s, tau 60.00 ms, K 1.420 (intersection)
 
     Per-cycle frequencies give an uncertainty (Monte Carlo over their standard errors):
@@ -654,7 +654,7 @@ def identify(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float 
     >>> noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058, 0.7056]),
     ...          TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189, 1.0190])]
     >>> r = identify(noisy, soiptd_model(0.1), n_draws=200)
-    >>> r.uncertainty, bool(r.Td.ci95_low < r.Td.mean < r.Td.ci95_high)
+    >>> r.uncertainty, bool(r.Td.ci95_low < r.Td.value < r.Td.ci95_high)
     ('monte-carlo', True)
     """
     inputs = _check_inputs(tests, model, rate_hz, n_draws, seed, spread)
@@ -670,7 +670,7 @@ def identify(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float 
     if est.Td.std > 0.3 * point.Td:
         warns.append(f"Td is poorly determined by these tests: std {est.Td.std:.3g} s is "
                      f"{100 * est.Td.std / point.Td:.0f} % of the estimate")
-    model = LoopModel(inputs.Tp, point.Td, point.tau, est.K.mean if est.K is not None else 1.0)
+    model = LoopModel(inputs.Tp, point.Td, point.tau, est.K.value if est.K is not None else 1.0)
     return IdentificationResult(Td=est.Td, tau=est.tau, K=est.K, model=model, Tp=inputs.Tp,
                                 residual=point.residual, tests=per_test, warnings=tuple(warns), method=point.method,
                                 uncertainty=est.method, rate_hz=inputs.rate_hz, n_draws=est.n_draws, draws=est.draws)

@@ -437,8 +437,8 @@ def _gaussian(mean: float, std: float, unit: str) -> ParameterEstimate:
 
 
 def _outside(name: str, value: float, est: ParameterEstimate, factor: float, scale: float, unit: str) -> str | None:
-    lo = est.mean - factor * (est.mean - est.ci95_low) if np.isfinite(est.ci95_low) else -np.inf
-    hi = est.mean + factor * (est.ci95_high - est.mean) if est.ci95_high is not None and np.isfinite(est.ci95_high) \
+    lo = est.value - factor * (est.value - est.ci95_low) if np.isfinite(est.ci95_low) else -np.inf
+    hi = est.value + factor * (est.ci95_high - est.value) if est.ci95_high is not None and np.isfinite(est.ci95_high) \
         else np.inf
     if lo <= value <= hi:
         return None
@@ -497,7 +497,7 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
         reasons.append(f"the waveform residual is {ratio:.2f}x the sensor noise (accepted up to "
                        f"{residual_factor:g}x): the recording holds dynamics eq. (2) leaves out")
     for name, scale, unit in (("Td", 1.0, " s"), ("tau", 1e3, " ms"), ("K", 1.0, "")):
-        why = _outside(name, est[name].mean, mrft[name], interval_factor, scale, unit)
+        why = _outside(name, est[name].value, mrft[name], interval_factor, scale, unit)
         if why:
             reasons.append(why)
     model = LoopModel(start.Tp, Td, max(tau, 0.0), K if K != 0 else start.K)

@@ -320,8 +320,8 @@ def plot_spread(result):
                        flierprops={"marker": ".", "markersize": 2, "alpha": 0.4})
             ax.set_xticks(range(1, len(names) + 1))
             ax.set_xticklabels(names, fontsize=8)
-        if math.isfinite(est.mean):
-            ax.axhline(est.mean * scale, color="k", lw=1.2, label=f"estimate {est.mean * scale:.4g}")
+        if math.isfinite(est.value):
+            ax.axhline(est.value * scale, color="k", lw=1.2, label=f"estimate {est.value * scale:.4g}")
         if math.isfinite(est.ci95_low) and not math.isfinite(est.ci95_high):  # one-sided bound
             ax.axhspan(est.ci95_low * scale, ax.get_ylim()[1], color="gold", alpha=0.3,
                        label=f"95 %: > {est.ci95_low * scale:.4g} (not bounded above)")
@@ -385,7 +385,7 @@ def _estimate_row(e: ParameterEstimate, label: str, s: float, u: str) -> list[st
     hi = e.ci95_high
     ci = (f"> {f(e.ci95_low)} (not bounded above)" if hi is None or not math.isfinite(hi)
           else f"{f(e.ci95_low)} - {f(hi)}")
-    return [label, f(e.mean), f(e.std), ci, u]
+    return [label, f(e.value), f(e.std), ci, u]
 
 
 def _estimate_notes(result: AnalysisResult) -> list[str]:

@@ -142,7 +142,7 @@ def _ellipse(ax: Axes, result: AnalysisResult, draws: np.ndarray) -> None:
     circle = np.column_stack([np.cos(a), np.sin(a)]) * np.sqrt(np.maximum(vals, 0.0) * _CHI2_2_95)
     ring = mean + circle @ vecs.T
     ax.plot(ring[:, 0], ring[:, 1], color="C0", lw=1.2, label="95 % ellipse")
-    ax.plot([result.Td.mean], [result.tau.mean * 1e3], "k+", ms=10, label="estimate")
+    ax.plot([result.Td.value], [result.tau.value * 1e3], "k+", ms=10, label="estimate")
     rho = cov[0, 1] / math.sqrt(cov[0, 0] * cov[1, 1]) if cov[0, 0] > 0 and cov[1, 1] > 0 else float("nan")
     ax.set_title(f"Td-tau correlation rho = {rho:+.2f}", fontsize=9)
     ax.legend(fontsize=7, loc="best")

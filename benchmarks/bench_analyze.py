@@ -59,8 +59,8 @@ def main() -> None:
         segment(fl)
         t_seg = time.perf_counter() - t0
     n_cyc = sum(t.n_stable for t in result.tests)
-    print(f"tests found {len(result.tests)}, stable cycles {n_cyc}; tau {result.tau.mean * 1e3:.2f} ms "
-          f"(true 46.40), Td {result.Td.mean:.3f} s (true 2.669), K {result.K.mean:.3f} (true 19.6)")
+    print(f"tests found {len(result.tests)}, stable cycles {n_cyc}; tau {result.tau.value * 1e3:.2f} ms "
+          f"(true 46.40), Td {result.Td.value:.3f} s (true 2.669), K {result.K.value:.3f} (true 19.6)")
     print(f"analyze end to end (median of 3): {total:.2f} s  [read {t_read:.2f} s, segment {t_seg:.2f} s, "
           f"identification + uncertainty {total - t_read - t_seg:.2f} s]   target <= 3 s")
 

@@ -149,12 +149,12 @@ def main() -> None:
         cover = [r.Td.ci95_low <= model.Td <= (r.Td.ci95_high if math.isfinite(r.Td.ci95_high) else np.inf),
                  r.tau.ci95_low <= model.tau <= r.tau.ci95_high, r.K.ci95_low <= model.K <= r.K.ci95_high]
         td_omega = model.Td * 2 * math.pi * max(t.frequency_hz_mean for t in r.tests)
-        rows.append(dict(analyze=err(r.Td.mean, r.tau.mean, r.K.mean), mrft=err(m["Td"].mean, m["tau"].mean, m["K"].mean),
+        rows.append(dict(analyze=err(r.Td.value, r.tau.value, r.K.value), mrft=err(m["Td"].value, m["tau"].value, m["K"].value),
                          base=err(*b), crb=(100 * c[0], 1e3 * c[1], 100 * c[2] / model.K), cover=cover,
                          method=r.method, ratio=r.refinement.residual_ratio if r.refinement else float("nan"),
                          # per-plant error in bound units (ln Td, so that the Td bound's coordinate is used)
-                         z=(math.log(r.Td.mean / model.Td) / c[0], (r.tau.mean - model.tau) / c[1],
-                            (r.K.mean - model.K) / c[2]), td_omega=td_omega))
+                         z=(math.log(r.Td.value / model.Td) / c[0], (r.tau.value - model.tau) / c[1],
+                            (r.K.value - model.K) / c[2]), td_omega=td_omega))
         e = rows[-1]
         print(f"  {loop:8s} {rate:5.0f} Hz {len(betas)} tests Td {model.Td:5.2f} (Td Omega {td_omega:5.1f}) tau "
               f"{model.tau * 1e3:5.1f} ms  {r.method:8s} ratio {e['ratio']:.3f}  error/bound Td {e['z'][0]:+.2f} "

@@ -185,7 +185,7 @@ def eq2_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:
     from mrftcli.tune.analysis import tune_analysis
 
     result = analyze_path(bag, soiptd_model(TP_GUESS), read=ReadOptions(loop=spec.axis))
-    out.eq2_Td, out.eq2_tau = result.Td.mean, result.tau.mean
+    out.eq2_Td, out.eq2_tau = result.Td.value, result.tau.value
     try:
         res = tune_analysis(result, kinds=("PD",), designs=("robust",))
         out.eq2_pm, out.eq2_wc = _margin(spec, res.get("robust", "PD").controller)

@@ -150,8 +150,8 @@ def bench_sensitivity(n: int) -> None:
             r = identify([TestMeasurement(-0.7, f_, a_, 1.0)], soiptd_model(PAPER.Tp, K=PAPER.K))
         except Exception:  # noqa: BLE001 - draws without a solution are counted
             continue
-        Tds.append(r.Td.mean)
-        taus.append(r.tau.mean)
+        Tds.append(r.Td.value)
+        taus.append(r.tau.value)
     Tds, taus = np.array(Tds), np.array(taus)
     print(f"amplitude route, beta -0.7 alone ({len(Tds)}/{m} draws solvable): Td mean {Tds.mean():.3f} s "
           f"(std {Tds.std(ddof=1):.3f}, median {np.median(Tds):.3f}), tau mean {taus.mean():.4f} s "
@@ -165,13 +165,13 @@ def bench_sampling() -> None:
     for rate in (100.0, 200.0, 500.0):
         lcs = {b: mrft_limit_cycle(PAPER, b, rate_hz=rate) for b in betas}
         tests = [TestMeasurement(b, lcs[b].frequency_hz) for b in betas]
-        naive = identify(tests, soiptd_model(PAPER.Tp)).tau.mean
-        corr = identify(tests, soiptd_model(PAPER.Tp), rate_hz=rate).tau.mean
+        naive = identify(tests, soiptd_model(PAPER.Tp)).tau.value
+        corr = identify(tests, soiptd_model(PAPER.Tp), rate_hz=rate).tau.value
         taus = []
         for f1, f2 in itertools.product(lcs[-0.4].orbits_hz, lcs[-0.7].orbits_hz):
             try:
                 taus.append(identify([TestMeasurement(-0.4, f1), TestMeasurement(-0.7, f2)], soiptd_model(PAPER.Tp),
-                                     rate_hz=rate).tau.mean)
+                                     rate_hz=rate).tau.value)
             except Exception:  # noqa: BLE001
                 pass
         n_orb = "/".join(str(len(lcs[b].orbits_hz)) for b in betas)

@@ -37,7 +37,7 @@ def _measure(name: str, flight, Tp: float) -> tuple[float, float]:
     result, total = _cpu(lambda: analyze_flight(flight, soiptd_model(Tp)))
     ts = low_rate_period(result.tests)
     # the driver centres the solves on the MRFT consensus's Td: the record's MRFT estimate stands for it
-    Td_ref = result.parameters_mrft["Td"].mean if "Td" in result.parameters_mrft else result.Td.mean
+    Td_ref = result.parameters_mrft["Td"].value if "Td" in result.parameters_mrft else result.Td.value
     held, stage = _cpu(lambda: held_out_eq2(soiptd_model(Tp), result.tests, [beta_used(t, ts) for t in result.tests], Td_ref))
     n_pred = sum(h.frequency_hz is not None for h in held)
     print(f"{name:40s} {len(result.tests):3d} {n_pred:5d}  {total - stage:8.2f}  {total:8.2f}  {stage:8.3f}  "

@@ -90,9 +90,9 @@ for k in range(N):
             ok = bool(est.ci95_low <= truth <= est.ci95_high)
             hit[lr][name] += ok
             width[lr][name].append((est.ci95_high - est.ci95_low) / truth)
-        row.append(f"{lr} Hz: tau {r.tau.mean * 1e3:.1f} [{r.tau.ci95_low * 1e3:.1f}, {r.tau.ci95_high * 1e3:.1f}] "
-                   f"Td {r.Td.mean:.3f} [{r.Td.ci95_low:.3f}, {r.Td.ci95_high:.3f}] K {r.K.mean:.2f} "
-                   f"[{r.K.ci95_low:.2f}, {r.K.ci95_high:.2f}] (error/std {(r.K.mean - m.K) / r.K.std:+.1f}) ({r.method}, {len(r.tests)} tests, {'/'.join(spc)} "
+        row.append(f"{lr} Hz: tau {r.tau.value * 1e3:.1f} [{r.tau.ci95_low * 1e3:.1f}, {r.tau.ci95_high * 1e3:.1f}] "
+                   f"Td {r.Td.value:.3f} [{r.Td.ci95_low:.3f}, {r.Td.ci95_high:.3f}] K {r.K.value:.2f} "
+                   f"[{r.K.ci95_low:.2f}, {r.K.ci95_high:.2f}] (error/std {(r.K.value - m.K) / r.K.std:+.1f}) ({r.method}, {len(r.tests)} tests, {'/'.join(spc)} "
                    "samples per cycle) |")
     print(k, *row, flush=True)
 

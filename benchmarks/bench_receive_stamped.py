@@ -93,11 +93,11 @@ for k in range(N):
         inside = []
         for p in PARS:
             est, truth = getattr(r, p), getattr(m, p)
-            err[name][p].append(error(p, est.mean, truth))
+            err[name][p].append(error(p, est.value, truth))
             ok = bool(est.ci95_low <= truth <= est.ci95_high)
             hit[name][p] += ok
             inside.append("" if ok else f"!{p}")
-        row.append(f"{name}: {error('tau', r.tau.mean, m.tau):+.2f}{'w' if r.method == 'waveform' else 'm'}"
+        row.append(f"{name}: {error('tau', r.tau.value, m.tau):+.2f}{'w' if r.method == 'waveform' else 'm'}"
                    f"{''.join(inside)}")
     print(k, " ".join(row), f"({time.perf_counter() - start:.0f} s)", flush=True)
 

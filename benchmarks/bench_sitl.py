@@ -95,12 +95,12 @@ def analyse(logs: Path) -> dict[str, dict]:
         hover = hover_of_log(log, side)
         implied = implied_model(loop, hover)
         results[name] = {"loop": loop, "delay": delay, "flown": len(tests), "found": len(res.tests),
-                         "Td": res.Td.mean, "tau": res.tau.mean, "K": res.K.mean, "tp": tp, "implied": implied,
+                         "Td": res.Td.value, "tau": res.tau.value, "K": res.K.value, "tp": tp, "implied": implied,
                          "held": held, "misses": misses, "tests": res.tests, "log": log, "hover": hover,
                          "tau_ci": (res.tau.ci95_low, res.tau.ci95_high)}
-        print(f"  {name:14s} tests {len(res.tests)}/{len(tests)}  Td {res.Td.mean:.3f} s "
-              f"({res.Td.ci95_low:.3f}-{res.Td.ci95_high:.3f})  tau {res.tau.mean * 1e3:.2f} ms "
-              f"({res.tau.ci95_low * 1e3:.2f}-{res.tau.ci95_high * 1e3:.2f})  K {res.K.mean:.2f} "
+        print(f"  {name:14s} tests {len(res.tests)}/{len(tests)}  Td {res.Td.value:.3f} s "
+              f"({res.Td.ci95_low:.3f}-{res.Td.ci95_high:.3f})  tau {res.tau.value * 1e3:.2f} ms "
+              f"({res.tau.ci95_low * 1e3:.2f}-{res.tau.ci95_high * 1e3:.2f})  K {res.K.value:.2f} "
               f"({res.K.ci95_low:.2f}-{res.K.ci95_high:.2f})   (SITL's model at hover {hover:.4f}: "
               f"Td {implied['Td']:.3f} s, K {implied['K']:.2f}; Tp {tp * 1e3:.2f} ms)")
         for line in test_lines(res, held):

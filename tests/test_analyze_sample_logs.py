@@ -41,16 +41,16 @@ def test_sample_log_against_sidecar(sidecar):
         assert t.h == pytest.approx(tt["h"], rel=1e-6)
         assert tt["t_start"] - 0.01 <= t.t_start and t.t_end <= tt["t_end"] + 0.01
     if well_sampled:  # low-rate logs: their interval is checked below
-        assert abs(r.tau.mean - truth["tau"]) <= 1e-3
+        assert abs(r.tau.value - truth["tau"]) <= 1e-3
     mrft = r.parameters_mrft  # the MRFT estimate's (bootstrap) interval holds the truth on every log
     assert mrft["tau"].ci95_low <= truth["tau"] <= mrft["tau"].ci95_high
     if r.method == "waveform":  # the refined one's Gauss-Newton std is honest (z within 3 on each log)
         for name in ("tau", "K", "Td"):
-            assert abs(getattr(r, name).mean - truth[name]) <= 3 * getattr(r, name).std, name
-    assert r.K.mean == pytest.approx(truth["K"], rel=0.03)
+            assert abs(getattr(r, name).value - truth[name]) <= 3 * getattr(r, name).std, name
+    assert r.K.value == pytest.approx(truth["K"], rel=0.03)
     td_omega = max(r.model.Td * 2 * np.pi * t.frequency_hz_mean for t in r.tests)
     if td_omega <= 5:
-        assert r.Td.mean == pytest.approx(truth["Td"], rel=0.05)
+        assert r.Td.value == pytest.approx(truth["Td"], rel=0.05)
     assert mrft["Td"].ci95_low <= truth["Td"] <= mrft["Td"].ci95_high
 
 
@@ -60,5 +60,5 @@ def test_delay_increment_on_sample_logs(design):
     if not (base.exists() and added.exists()):
         pytest.skip("sample logs missing")
     tp = json.loads(Path(str(base) + ".truth.json").read_text())["Tp"]
-    d_tau = analyze_path(added, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.mean - analyze_path(base, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
+    d_tau = analyze_path(added, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.value - analyze_path(base, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.value
     assert d_tau * 1e3 == pytest.approx(20.0, abs=1.5)

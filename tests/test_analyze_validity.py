@@ -201,7 +201,7 @@ def test_low_snr_valid_flight_is_accepted_and_identified(roll):
     for t in r.tests:
         assert t.validity.ok and 6 < t.validity.snr < 15 and t.n_stable >= 8
     assert r.tau.ci95_low <= ROLL["tau"] <= r.tau.ci95_high
-    assert abs(r.tau.mean - ROLL["tau"]) < 3e-3
+    assert abs(r.tau.value - ROLL["tau"]) < 3e-3
 
 
 @pytest.mark.skipif(not SAMPLES.is_dir(), reason="no sample_logs/")
@@ -241,7 +241,7 @@ def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
     y[w] = np.random.default_rng(4).normal(0, np.deg2rad(0.2), w.sum()) + np.median(y[w])
     r = analyze_flight(_with_output(fl, y), soiptd_model(ROLL["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
     assert [x.index for x in r.tests] == [0, 2] and [x.index for x in r.rejected] == [1]
-    assert abs(r.tau.mean - ROLL["tau"]) < 1e-3
+    assert abs(r.tau.value - ROLL["tau"]) < 1e-3
     d = json.loads(json.dumps(to_jsonable(r.to_dict(cycles=False)), allow_nan=False))
     rej = d["rejected_tests"][0]
     assert rej["reason"].startswith("the output does not follow this relay")

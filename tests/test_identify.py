@@ -29,9 +29,9 @@ def _tests(model, betas, h=1.0, amplitude=True):
 def test_paper_example_round_trip_with_gain():
     res = identify(_tests(PAPER, (-0.4, -0.7)), soiptd_model(PAPER.Tp))
     assert isinstance(res, IdentificationResult)
-    assert res.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
-    assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
-    assert res.K.mean == pytest.approx(PAPER.K, rel=1e-6)
+    assert res.Td.value == pytest.approx(PAPER.Td, rel=1e-6)
+    assert res.tau.value == pytest.approx(PAPER.tau, rel=1e-6)
+    assert res.K.value == pytest.approx(PAPER.K, rel=1e-6)
     assert res.method == "intersection"
     assert res.model.Td == pytest.approx(PAPER.Td, rel=1e-6)
 
@@ -39,8 +39,8 @@ def test_paper_example_round_trip_with_gain():
 def test_paper_figures_from_checks_md():
     # the rounded exact figures of checks.md section 1 identify the plant to the rounding's accuracy
     res = identify([TestMeasurement(-0.4, 0.70564), TestMeasurement(-0.7, 1.01884)], soiptd_model(0.1))
-    assert res.Td.mean == pytest.approx(1 / 1.42, rel=2e-3)
-    assert res.tau.mean == pytest.approx(0.06, rel=2e-3)
+    assert res.Td.value == pytest.approx(1 / 1.42, rel=2e-3)
+    assert res.tau.value == pytest.approx(0.06, rel=2e-3)
     assert res.K is None
 
 
@@ -53,7 +53,7 @@ def test_round_trip_random_plants_dnn_mrft_range():
         b1 = rng.uniform(-0.9, -0.5)
         b2 = rng.uniform(-0.4, -0.1)
         res = identify(_tests(m, (b1, b2), h=rng.uniform(0.1, 2)), soiptd_model(m.Tp))
-        for est, true in ((res.Td.mean, m.Td), (res.tau.mean, m.tau), (res.K.mean, m.K)):
+        for est, true in ((res.Td.value, m.Td), (res.tau.value, m.tau), (res.K.value, m.K)):
             worst = max(worst, abs(est / true - 1))
     assert worst < 5e-3
     assert worst < 1e-6  # in fact limited only by the root finder
@@ -63,24 +63,24 @@ def test_flight_like_large_td_over_tau():
     # Design II altitude + 20 ms of Table III scaled: Td/tau near 100
     m = LoopModel(0.0499, 4.1755, 0.042, 1.0)
     res = identify(_tests(m, (-0.4, -0.7)), soiptd_model(m.Tp))
-    assert res.Td.mean == pytest.approx(m.Td, rel=1e-5)
-    assert res.tau.mean == pytest.approx(m.tau, rel=1e-5)
+    assert res.Td.value == pytest.approx(m.Td, rel=1e-5)
+    assert res.tau.value == pytest.approx(m.tau, rel=1e-5)
 
 
 def test_effective_beta_between_shipped_slices_and_beyond():
     m = LoopModel(0.05, 1.3, 0.03)
     for betas in ((-0.63, -0.27), (-0.95, -0.05)):
         res = identify(_tests(m, betas), soiptd_model(m.Tp))
-        assert res.Td.mean == pytest.approx(m.Td, rel=1e-6)
-        assert res.tau.mean == pytest.approx(m.tau, rel=1e-6)
+        assert res.Td.value == pytest.approx(m.Td, rel=1e-6)
+        assert res.tau.value == pytest.approx(m.tau, rel=1e-6)
 
 
 def test_three_tests_least_squares_consistent_data_has_zero_residual():
     m = LoopModel(0.04, 0.9, 0.025)
     res = identify(_tests(m, (-0.8, -0.5, -0.2), amplitude=False), soiptd_model(m.Tp))
     assert res.method == "least-squares"
-    assert res.Td.mean == pytest.approx(m.Td, rel=1e-5)
-    assert res.tau.mean == pytest.approx(m.tau, rel=1e-5)
+    assert res.Td.value == pytest.approx(m.Td, rel=1e-5)
+    assert res.tau.value == pytest.approx(m.tau, rel=1e-5)
     assert res.residual < 1e-7
 
 
@@ -99,9 +99,9 @@ def test_rate_correction_removes_half_sample_lag():
     tests = _tests(lagged, (-0.4, -0.7), amplitude=False)
     naive = identify(tests, soiptd_model(PAPER.Tp))
     corrected = identify(tests, soiptd_model(PAPER.Tp), rate_hz=rate)
-    assert naive.tau.mean == pytest.approx(PAPER.tau + 0.0025, rel=1e-6)
-    assert corrected.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
-    assert corrected.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
+    assert naive.tau.value == pytest.approx(PAPER.tau + 0.0025, rel=1e-6)
+    assert corrected.tau.value == pytest.approx(PAPER.tau, rel=1e-6)
+    assert corrected.Td.value == pytest.approx(PAPER.Td, rel=1e-6)
 
 
 def test_uncertainty_from_per_cycle_scatter():
@@ -116,9 +116,9 @@ def test_uncertainty_from_per_cycle_scatter():
     assert res.uncertainty == "monte-carlo"
     for est, true in ((res.Td, PAPER.Td), (res.tau, PAPER.tau), (res.K, PAPER.K)):
         assert est.std > 0
-        assert est.ci95_low < est.mean < est.ci95_high
+        assert est.ci95_low < est.value < est.ci95_high
         # the truth lies within 4 standard deviations of the estimate
-        assert abs(est.mean - true) < 4 * est.std
+        assert abs(est.value - true) < 4 * est.std
     # delta-method cross-check of the Monte Carlo spread of Td: finite differences of the solver
     f = np.array([t.frequency_mean for t in tests])
     se = np.array([t.frequency_sem for t in tests])
@@ -127,7 +127,7 @@ def test_uncertainty_from_per_cycle_scatter():
         fp = f.copy()
         fp[i] *= 1 + 1e-6
         r = identify([TestMeasurement(-0.4, fp[0]), TestMeasurement(-0.7, fp[1])], soiptd_model(PAPER.Tp))
-        J.append((r.Td.mean - res.Td.mean) / (fp[i] - f[i]))
+        J.append((r.Td.value - res.Td.value) / (fp[i] - f[i]))
     std_delta = math.sqrt(sum((j * s) ** 2 for j, s in zip(J, se)))
     assert res.Td.std == pytest.approx(std_delta, rel=0.15)
     # "cycle" spread is larger than the standard error by about sqrt(n)
@@ -162,8 +162,8 @@ def test_amplitude_route_single_test():
     lc = mrft_limit_cycle(PAPER, -0.7)
     res = identify([TestMeasurement(-0.7, lc.frequency_hz, lc.amplitude, 1.0)], soiptd_model(PAPER.Tp, K=PAPER.K))
     assert res.method == "amplitude"
-    assert res.Td.mean == pytest.approx(PAPER.Td, rel=1e-6)
-    assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
+    assert res.Td.value == pytest.approx(PAPER.Td, rel=1e-6)
+    assert res.tau.value == pytest.approx(PAPER.tau, rel=1e-6)
 
 
 def test_ufm_slice_passes_through_the_plant_and_masks_negative_delays():
@@ -215,8 +215,8 @@ def test_three_tests_delta_method_uncertainty():
     assert res.uncertainty == "delta"
     for est, true in ((res.Td, m.Td), (res.tau, m.tau)):
         assert est.std > 0
-        assert est.ci95_low < est.mean < est.ci95_high
-        assert abs(est.mean - true) < 4 * est.std
+        assert est.ci95_low < est.value < est.ci95_high
+        assert abs(est.value - true) < 4 * est.std
 
 
 def test_rate_quantisation_uncertainty_reported():
@@ -224,7 +224,7 @@ def test_rate_quantisation_uncertainty_reported():
     tests = [TestMeasurement(b, mrft_limit_cycle(PAPER, b, rate_hz=200.0).frequency_hz) for b in (-0.4, -0.7)]
     res = identify(tests, soiptd_model(PAPER.Tp), rate_hz=200.0, n_draws=500)
     assert res.uncertainty == "monte-carlo"
-    assert res.tau.mean == pytest.approx(PAPER.tau, rel=1e-6)
+    assert res.tau.value == pytest.approx(PAPER.tau, rel=1e-6)
     assert 0.5e-3 < res.tau.std < 0.01
     assert res.tau.ci95_low < PAPER.tau < res.tau.ci95_high
 

@@ -173,8 +173,8 @@ def test_controller_rate_from_the_layout_and_the_option():
     assert fast.source_json()["controller_rate_hz"] == 100.0
     plain = read_flight(SAMPLES / "design1_altitude.mcap", echo_warnings=False)
     assert plain.timing.controller_rate_hz is None and "controller_rate_hz" not in plain.source_json()
-    tau50 = analyze_flight(read_flight(log, echo_warnings=False), soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
-    tau100 = analyze_flight(fast, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)).tau.mean
+    tau50 = analyze_flight(read_flight(log, echo_warnings=False), soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)).tau.value
+    tau100 = analyze_flight(fast, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50)).tau.value
     assert tau100 - tau50 == pytest.approx(0.5 / 50.0 - 0.5 / 100.0, abs=2e-3)
 
 

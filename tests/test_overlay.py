@@ -162,7 +162,7 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
     media, data = attachments["analysis.json"]
     assert media == "application/json"
     back = AnalysisResult.from_json(json.loads(data))
-    assert back.tau.mean == pytest.approx(msgs["/mrft_ident/parameters"][0][1]["tau"], rel=1e-9)
+    assert back.tau.value == pytest.approx(msgs["/mrft_ident/parameters"][0][1]["tau"], rel=1e-9)
     assert [round(x["beta_nominal"], 3) for x in tests[::4]] == [-0.4, -0.7]
     params = msgs["/mrft_ident/parameters"][0][1]
     assert params["tau"] == pytest.approx(truth["tau"], abs=1e-3)

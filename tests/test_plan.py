@@ -195,7 +195,7 @@ def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
             r = analyze_flight(flight_from_simulated(sf), soiptd_model(model.Tp), options=AnalyzeOptions(n_bootstrap=10, refine_waveform=False))
         except InsufficientDataError:  # a test lost to noise now and then
             continue
-        est.append((r.Td.mean, r.tau.mean))
+        est.append((r.Td.value, r.tau.value))
     assert len(est) >= 9
     spread = np.std(est, axis=0, ddof=1)
     assert 1 / 2.5 < p.simulated_std["Td"] / spread[0] < 2.5

@@ -77,4 +77,4 @@ def test_both_formats_rebuild_refine_and_agree_within_their_std(results):
     bag, mcap = out["bag"][1], out["mcap"][1]
     for name in ("Td", "tau", "K"):
         a, b = getattr(bag, name), getattr(mcap, name)
-        assert abs(a.mean - b.mean) <= 0.1 * min(a.std, b.std), name
+        assert abs(a.value - b.value) <= 0.1 * min(a.std, b.std), name

@@ -61,7 +61,7 @@ def test_write_report(result, tmp_path):
         data = (tmp_path / "out" / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     assert len(re.findall(r"src='([^']+\.png)'", html)) == 6
-    assert f"{result.tau.mean * 1e3:.4g}" in html and f"{result.Td.mean:.4g}" in html
+    assert f"{result.tau.value * 1e3:.4g}" in html and f"{result.Td.value:.4g}" in html
     # K has its unit; the amplitude the unit the CLI prints; one sentence says which uncertainty to use
     assert "<td>m/s² per command unit</td>" in html and "amplitude [m]" in html
     assert "Uncertainty: use the ± std and 95 % interval above" in html

@@ -105,7 +105,7 @@ def _tau(name: str) -> float:
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
     from mrftcli.mrft.model import soiptd_model
 
-    return analyze_flight(_read(name), soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=20, seed=1)).tau.mean
+    return analyze_flight(_read(name), soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=20, seed=1)).tau.value
 
 
 def _realised_delay(name: str) -> float:

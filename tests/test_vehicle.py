@@ -75,9 +75,9 @@ def test_roll_and_y_identified_and_tuned_from_one_flight(result):
     assert (y.role, y.route) == ("outer", "eq2") and len(y.analysis.tests) == 2
     for entry, truth in ((roll, ROLL), (y, Y)):  # the flown plants (the simulator's truth) within 2 %
         a = entry.analysis
-        assert a.Td.mean == pytest.approx(truth.Td, rel=0.02)
-        assert a.tau.mean == pytest.approx(truth.tau, rel=0.02)
-        assert a.K.mean == pytest.approx(truth.K, rel=0.02)
+        assert a.Td.value == pytest.approx(truth.Td, rel=0.02)
+        assert a.tau.value == pytest.approx(truth.tau, rel=0.02)
+        assert a.K.value == pytest.approx(truth.K, rel=0.02)
     for entry in result.loops.values():
         assert entry.gains is not None and entry.gains.design == "robust"
         c = entry.gains.controller

@@ -84,10 +84,10 @@ def held_out(path: str | Path, tp: float, loop: str, full: AnalysisResult, seed:
                 raise
             misses.append((i, str(err)))
             continue
-        model = LoopModel(tp, res.Td.mean, res.tau.mean, res.K.mean)
+        model = LoopModel(tp, res.Td.value, res.tau.value, res.K.value)
         cycle = mrft_limit_cycle(model, test.beta_nominal, test.h, test.rate_hz)
         out.append(HeldOut(i, test.beta_nominal, test.h, test.frequency_hz_mean, cycle.frequency_hz,
-                           (res.Td.mean, res.tau.mean, res.K.mean)))
+                           (res.Td.value, res.tau.value, res.K.value)))
     return out
 
 

@@ -115,11 +115,11 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
         held = held_out(log, tp, loop, res, refine=False, misses=misses) if len(res.tests) >= 3 else []
         implied = sih_implied(loop)
         results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": len(res.tests),
-                         "Td": res.Td.mean, "tau": res.tau.mean, "K": res.K.mean, "tp": tp, "implied": implied,
+                         "Td": res.Td.value, "tau": res.tau.value, "K": res.K.value, "tp": tp, "implied": implied,
                          "held": held, "held_misses": misses, "tests": res.tests, "log": log, "hover": _hover(log),
                          "rate_hz": _ulog_rate(log)}
-        print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.mean:.3f} s  "
-              f"tau {res.tau.mean * 1e3:.2f} ms  K {res.K.mean:.2f}   (SIH: Td {implied['Td']:.3f} s, "
+        print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.value:.3f} s  "
+              f"tau {res.tau.value * 1e3:.2f} ms  K {res.K.value:.2f}   (SIH: Td {implied['Td']:.3f} s, "
               f"K {implied['K']:.2f}, Tp {tp * 1e3:.1f} ms; mc_pos_control at {results[name]['rate_hz']:.1f} Hz)")
         for line in test_lines(res, held):
             print(line)

@@ -482,7 +482,9 @@ class PlanResult:
 
     @property
     def recommended(self) -> CandidateTest:
-        """A process plant's recommended relay test (the first candidate)."""
+        """A process plant's recommended relay test (the first candidate; eq. (2)'s are :attr:`tests`)."""
+        if self.identification is None:
+            raise TypeError("an eq. (2) plan's recommended tests are its tests, its candidates the beta grid")
         return self.candidates[0]
 
     def to_json(self) -> dict[str, Any]:

@@ -228,16 +228,25 @@ def test_plan_result_round_trips_through_json():
     assert back.to_json() == p.to_json()
 
 
-def test_plan_result_reads_version_1():
-    # eq. (2)'s plan --json of schema 1 (before issue 36): Tp where the model object is now, the rate in the limits
-    p = _plan_for_json()
-    data = json.loads(json.dumps(p.to_json()))
-    v1 = {k: v for k, v in data.items() if k not in ("model", "rate_hz")} | {"schema_version": 1, "Tp": 0.04}
-    back = PlanResult.from_json(v1)
-    assert back.Tp == 0.04 and back.model.known == {"Tp"} and back.rate_hz == 200.0
-    assert (back.tests, back.candidates, back.predicted_std, back.flown) == (p.tests, p.candidates, p.predicted_std,
-                                                                             p.flown)
-    assert back.to_json()["schema_version"] == 2  # written back in the new layout
+def test_plan_json_of_version_1_reads_and_today_plans_the_same():
+    """tests/data/old_records/plan_v1.json, written by mrft-ident before issue 36 (schema 1, Tp where the model
+    object is now): ``plan --tp 0.0422 --max-amplitude 0.05 --max-h 0.2 --time 30 --controller-rate 200
+    --noise 0.0002 --k-range 2 8 --simulate 0 --json``. It reads with its figures, and the same plan made
+    today recommends the same tests with the same forecast (the old code is the oracle)."""
+    from pathlib import Path
+
+    data = json.loads((Path(__file__).parent / "data" / "old_records" / "plan_v1.json").read_text())
+    old = PlanResult.from_json(data)
+    assert data["schema_version"] == 1 and old.Tp == 0.0422 and old.rate_hz == 200.0
+    assert [(t.beta, t.h, t.frequency_hz) for t in old.tests] == [(t["beta"], t["h"], t["frequency_hz"])
+                                                                 for t in data["tests"]]
+    assert old.to_json()["schema_version"] == 2  # written back in the new layout
+    limits = FlightLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
+    new = plan_tests(soiptd_model(0.0422), limits, prior=Prior(K=(2.0, 8.0)), options=PlanOptions(n_simulated=0))
+    assert (new.tests, new.candidates, new.conventional, new.notes) == (old.tests, old.candidates, old.conventional,
+                                                                        old.notes)
+    assert (new.predicted_std, new.predicted_std_data, new.prior_std) == (old.predicted_std, old.predicted_std_data,
+                                                                          old.prior_std)
 
 
 def test_plan_result_json_keeps_the_cli_fields():

@@ -122,24 +122,20 @@ def test_plan_record_round_trips_and_refuses_bad_input(first):
 
 
 def test_plan_record_reads_a_version_1_process_plan(first):
-    # plan --model NAME --json of schema 1 (before issue 36: its own record, kind "process"), written out here in
-    # that layout from the plan's figures: read into the one PlanResult with the same candidates
+    """tests/data/old_records/plan_process_v1.json: ``plan LOG --model fopdt --json`` of this recording (the
+    ``first`` fixture's, written the same way) by mrft-ident before issue 36 (schema 1, ``kind "process"``, its
+    own record). It reads into the one PlanResult, and today's plan of the recording is the same."""
+    data = json.loads((Path(__file__).parent / "data" / "old_records" / "plan_process_v1.json").read_text())
+    old = PlanResult.from_json(data)
+    assert data["schema_version"] == 1 and old.model.family == "fopdt" and old.recommended.relay.kind == "mrft"
+    assert [c.predicted_std for c in old.candidates] == [
+        {k: np.inf if v is None else v for k, v in c["std_after"].items()} for c in data["candidates"]]
     _, analysis = first
-    plan = plan_process(analysis, max_amplitude=0.4)
-    nulls = lambda d: {k: v if np.isfinite(v) else None for k, v in d.items()}  # noqa: E731
-    v1 = {"schema_version": 1, "kind": "process", "model": "fopdt", "parameters": {},
-          "identification": plan.identification.to_json(), "rate_hz": plan.rate_hz, "std_now": nulls(plan.prior_std),
-          "undetermined": list(plan.undetermined),
-          "candidates": [{"relay": c.relay.to_json(), "frequency_hz": c.frequency_hz[0], "amplitude": c.amplitude[0],
-                          "gain": c.gain, "phase_deg": c.phase_deg, "std_after": nulls(c.predicted_std),
-                          "undetermined_after": list(c.undetermined), "within_limit": c.admissible}
-                         for c in plan.candidates],
-          "recommended": 0, "why": plan.why, "assumptions": list(plan.assumptions), "notes": list(plan.notes)}
-    back = PlanResult.from_json(json.loads(json.dumps(v1)))
-    assert back.candidates == plan.candidates and back.prior_std == plan.prior_std
-    assert back.predicted_std == plan.predicted_std and back.why == plan.why and back.model == plan.model
+    new = plan_process(analysis)
+    assert (new.candidates, new.prior_std, new.undetermined, new.why) == (old.candidates, old.prior_std,
+                                                                          old.undetermined, old.why)
     with pytest.raises(InputError, match="candidate"):
-        PlanResult.from_json({**v1, "candidates": []})
+        PlanResult.from_json({**data, "candidates": []})
 
 
 def test_cli_plan_model_prints_the_ranked_candidates_and_the_json(first):

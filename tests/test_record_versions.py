@@ -170,3 +170,36 @@ def test_eq2_former_open_interval_reads_as_not_determined() -> None:
     est = ParameterEstimate.from_json("Td", {"mean": 5.0, "std": 1.0, "ci95_low": 2.0, "ci95_high": None,
                                              "unit": "s", "method": "mrft"})
     assert not est.determined and math.isnan(est.ci95_high) and est.to_json()["std"] is None
+
+
+@pytest.mark.parametrize("version", [1, 2, 3])
+def test_compare_reads_each_earlier_analysis_version(version: int, tmp_path: Path) -> None:
+    """``compare`` of an old RESULT.json against the same record written today: nothing moved."""
+    from mrftcli.compare import compare
+
+    old = OLD / f"analysis_v{version}.json"
+    new = tmp_path / "new.json"
+    new.write_text(json.dumps(_written(AnalysisResult.from_json(_old(old.name)))))
+    cmp = compare(str(old), str(new))
+    assert [(c.parameter, c.change, c.verdict) for c in cmp.changes] == [
+        ("Td", 0.0, "unchanged"), ("tau", 0.0, "unchanged"), ("K", 0.0, "unchanged")]
+    assert cmp.exit_code == 0 and not cmp.missing
+
+
+def test_compare_of_the_version_3_record_and_todays_analysis_of_its_log(tmp_path: Path) -> None:
+    """The baseline's RESULT.json (version 3) against today's analysis of the same log with the same
+    settings: the issue's bound, every parameter within 0.1 of its std (the record changed, not the numbers)."""
+    from mrftcli.analyze import analyze_path
+    from mrftcli.compare import compare
+    from mrftcli.io import ReadOptions
+    from mrftcli.mrft.model import soiptd_model
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
+    now = analyze_path(log, soiptd_model(0.0422), read=ReadOptions(loop="altitude"))
+    new = tmp_path / "new.json"
+    new.write_text(json.dumps(_written(now)))
+    old = _old("analysis_v3.json")
+    cmp = compare(str(OLD / "analysis_v3.json"), str(new))
+    assert cmp.exit_code == 0
+    for c in cmp.changes:
+        assert c.change is not None and abs(c.change) <= 0.1 * old["parameters"][c.parameter]["std"], c

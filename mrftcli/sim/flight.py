@@ -185,23 +185,21 @@ def _command_delays(spec: FlightSpec, settings: FlightSettings, jitter: np.ndarr
 
 @dataclass(frozen=True)
 class PlantSetup:
-    """The linear part of the plant, in the model's realisation (:meth:`PlantModel.realisation`).
+    """The linear part of the plant, in the model's realisation with the output as its first state.
 
     Attributes
     ----------
     A, B : ndarray
         State matrix and input vector (the sensor-lag and flex-mode states appended when on).
-    C, C_meas : ndarray
-        The rows giving the true output and what the sensor measures (the output, or its lagged /
-        flexed version).
+    meas_index : int
+        The state the sensor measures (the output, or its lagged / flexed version).
     x0 : ndarray
         The trimmed hover at the setpoint (the origin for a family other than eq. (2)).
     """
 
     A: np.ndarray
     B: np.ndarray
-    C: np.ndarray
-    C_meas: np.ndarray
+    meas_index: int
     x0: np.ndarray
 
     @property
@@ -210,42 +208,55 @@ class PlantSetup:
         return int(self.A.shape[0])
 
 
+def output_first(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) in coordinates whose first state is the output y = C x (eq. (2)'s realisation already is).
+
+    z = S x with S's first row C and the others unit rows (all but the largest entry of C's), so the
+    tick loops read y as z[0] whatever the family's realisation.
+    """
+    if C[0] == 1.0 and not C[1:].any():
+        return A, B
+    j = int(np.argmax(np.abs(C)))
+    S = np.eye(C.size)[[j] + [i for i in range(C.size) if i != j]]
+    S[0] = C
+    return S @ A @ np.linalg.inv(S), S @ B
+
+
 def _plant(spec: FlightSpec, r: float) -> PlantSetup:
     """The plant's state space with the sensor lag (one state) and the flex mode (two) appended.
 
-    The trimmed state has the output at the setpoint ``r``, at rest: eq. (2)'s realisation measures its
-    first (integrating) state, so that is ``r C``; the other families fly at r = 0 (checked by the spec).
+    The trimmed state has the output at the setpoint ``r``, at rest (eq. (2)'s output is integrating;
+    the other families fly at r = 0, checked by the spec).
     """
     eff = spec.effects
     ss = spec.model.realisation()
-    A, B, C = ss.A, ss.B, np.asarray(ss.C, dtype=float)
+    A, B = output_first(ss.A, ss.B, np.asarray(ss.C, dtype=float))
     n = n0 = A.shape[0]
-    meas = C
     if eff.sensor_lag > 0:
         A = np.pad(A, ((0, 1), (0, 1)))
-        A[n, :n] = C / eff.sensor_lag
+        A[n, 0] = 1.0 / eff.sensor_lag
         A[n, n] = -1.0 / eff.sensor_lag
         B = np.append(B, 0.0)
         n += 1
-        meas = np.eye(n)[n - 1]
+    meas_index = n0 if eff.sensor_lag > 0 else 0
     if eff.flex_mode_hz > 0:
         # a structural mode between the (possibly lagged) output and the sensor: two more states
         wn = 2.0 * math.pi * eff.flex_mode_hz
         A = np.pad(A, ((0, 2), (0, 2)))
         A[n, n + 1] = 1.0
-        A[n + 1, :n] = wn * wn * np.pad(meas, (0, n - meas.size))
+        A[n + 1, meas_index] = wn * wn
         A[n + 1, n] = -wn * wn
         A[n + 1, n + 1] = -2.0 * eff.flex_mode_damping * wn
         B = np.append(B, [0.0, 0.0])
+        meas_index = n
         n += 2
-        meas = np.eye(n)[n - 2]
     x = np.zeros(n)
-    x[:n0] = r * C
+    x[0] = r
     if eff.sensor_lag > 0:
-        x[n0] = r  # the lag at rest on the output
+        x[n0] = r
     if eff.flex_mode_hz > 0:
-        x[n - 2] = r  # the mode too (its velocity 0)
-    return PlantSetup(A, B, np.pad(C, (0, n - n0)), np.pad(meas, (0, n - meas.size)), x)
+        x[meas_index] = r
+    return PlantSetup(A, B, meas_index, x)
 
 
 def _abort_limits(spec: FlightSpec, noise_std: float) -> list[float]:
@@ -456,6 +467,7 @@ class PeriodMap:
     """One whole period of the linear plant as an affine map on 4 states (padded with zeros):
     ``x+ = P x + qa0 c0a + qa1 c1a + qb0 c0b + qb1 c1b``, ``(c0, c1)`` the input's value and slope on
     [0, frac) and [frac, T). Plain floats: numpy's per-call overhead would dominate for 3-4 states.
+    The output is the first of the 4, the measured state (when not the output) the last (:func:`_slots`).
     """
 
     P: list[list[float]]
@@ -475,14 +487,23 @@ def _period_map(prop: LinearPropagator, drive: Drive, plant: PlantSetup) -> Peri
     else:
         Pb, Eb0, Eb1, _ = prop.fixed(T)
         P, qa0, qa1 = Pb, np.zeros(n), np.zeros(n)
-    pad = 4 - n
+    slots = _slots(plant)
 
     def vec(v: np.ndarray) -> list[float]:
-        out: list[float] = np.pad(v, (0, pad)).tolist()
-        return out
+        out = np.zeros(4)
+        out[slots] = v
+        return [float(value) for value in out]
 
-    P4: list[list[float]] = np.pad(P, ((0, pad), (0, pad))).tolist()
-    return PeriodMap(P4, vec(qa0), vec(qa1), vec(Eb0), vec(Eb1))
+    P4 = np.zeros((4, 4))
+    P4[np.ix_(slots, slots)] = P
+    return PeriodMap(P4.tolist(), vec(qa0), vec(qa1), vec(Eb0), vec(Eb1))
+
+
+def _slots(plant: PlantSetup) -> list[int]:
+    """Where the fast path keeps each of the plant's (at most 4) states: the output first, a measured
+    state that is not the output last, the others in order between (eq. (2): 0, 1, 2 and its lag 3)."""
+    free = iter(i for i in range(4) if i != 0 and not (plant.meas_index and i == 3))
+    return [0 if i == 0 else 3 if plant.meas_index and i == plant.meas_index else next(free) for i in range(plant.n)]
 
 
 def _fly_fixed_delay(period_map: PeriodMap, plant: PlantSetup, drive: Drive,
@@ -490,22 +511,23 @@ def _fly_fixed_delay(period_map: PeriodMap, plant: PlantSetup, drive: Drive,
                      on_tick: Callable[[int], None] | None) -> None:
     """The tick loop of the fast path (the hot loop: one affine map per period on plain floats)."""
     (p00, p01, p02, p03), (p10, p11, p12, p13), (p20, p21, p22, p23), (p30, p31, p32, p33) = period_map.P
-    c0, c1, c2, c3 = np.pad(plant.C, (0, 4 - plant.n)).tolist()
-    m0, m1, m2, m3 = np.pad(plant.C_meas, (0, 4 - plant.n)).tolist()
     a00, a01, a02, a03 = period_map.qa0
     a10, a11, a12, a13 = period_map.qa1
     b00, b01, b02, b03 = period_map.qb0
     b10, b11, b12, b13 = period_map.qb1
-    x0, x1, x2, x3 = np.pad(plant.x0, (0, 4 - plant.n)).tolist()
+    x4 = np.zeros(4)
+    x4[_slots(plant)] = plant.x0
+    x0, x1, x2, x3 = x4.tolist()
+    lagged = plant.meas_index > 0  # the measured state is the 4th (:func:`_slots`)
     T, frac, gd, bias, ib, shaper = drive.T, drive.frac, drive.gain_drift, drive.bias, drive.input_bias, drive.shaper
     # hist = [u_{k-m-1}, ..., u_k]: u_{k-m-1} acts on [t_k, t_k + frac), u_{k-m} on [t_k + frac, t_{k+1})
     hist = deque([drive.u_plant] * (drive.m_delay + 2), maxlen=drive.m_delay + 2)
     command, y_true, y_meas, rate_true = ticks.command, ticks.y_true, ticks.y_meas, ticks.rate_true
     for k in range(command.size):
         tk = k * T
-        y_true[k] = c0 * x0 + c1 * x1 + c2 * x2 + c3 * x3
+        y_true[k] = x0
         rate_true[k] = x1
-        ym = m0 * x0 + m1 * x1 + m2 * x2 + m3 * x3 + noise[k]
+        ym = (x3 if lagged else x0) + noise[k]
         y_meas[k] = ym
         u = controller.step(k, ym)
         command[k] = u
@@ -580,9 +602,9 @@ def _fly_events(spec: FlightSpec, plant: PlantSetup, prop: LinearPropagator, dri
     pending: deque[tuple[float, float]] = deque()  # (application time from start, command)
     for k in range(ticks.command.size):
         tk = k * T
-        ticks.y_true[k] = float(plant.C @ x)
+        ticks.y_true[k] = x[0]
         ticks.rate_true[k] = x[rate_index]
-        ym = float(plant.C_meas @ x) + noise[k]
+        ym = float(x[plant.meas_index]) + noise[k]
         ticks.y_meas[k] = ym
         u = controller.step(k, ym)
         ticks.command[k] = u

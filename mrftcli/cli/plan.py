@@ -80,13 +80,17 @@ def _from_log(path: Path, model: LoopModel, min_cycles: int, read_options: Mappi
     return flown, {}, float(found[0].rate_hz), noise
 
 
-def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
-    """:func:`_from_analysis` of an ``analyze --json`` result file."""
-
+def _analysis_json(path: Path) -> Any:
+    """The parsed ``analyze --json`` result file of either family (one line naming the file when unreadable)."""
     try:
-        data = load_json_text(path.read_text(), str(path))
+        return load_json_text(path.read_text(), str(path))
     except (OSError, UnicodeDecodeError) as err:
         raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
+
+
+def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
+    """:func:`_from_analysis` of an ``analyze --json`` result file."""
+    data = _analysis_json(path)  # its errors name the file already
     try:
         return _from_analysis(data)
     except InputError as err:
@@ -179,10 +183,7 @@ def _recorded_json(path: Path) -> GeneralAnalysis:
     """The process analysis of an ``analyze --model NAME --json`` file."""
     from ..analyze.general import GeneralAnalysis
 
-    try:
-        data = load_json_text(path.read_text(), str(path))
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
+    data = _analysis_json(path)
     try:
         return GeneralAnalysis.from_json(data)
     except InputError as err:

@@ -339,3 +339,12 @@ def test_a_recommendation_its_simulation_loses_is_not_made():
     assert ok.returncode == 0, ok.stderr
     data = json.loads(ok.stdout)
     assert data["n_simulated"] >= 7  # at most one of the 8 simulated flights lost
+
+
+def test_eq2_is_planned_with_tp_known_and_the_rest_free():
+    # K known too would leave analyze (the simulated forecast) and the draws at odds with the plan: refused
+    limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
+    with pytest.raises(InputError, match="soiptd_model"):
+        plan_tests(soiptd_model(0.04, K=2.0), limits, prior=_narrow_prior())
+    with pytest.raises(InputError, match="Prior"):
+        plan_tests(soiptd_model(0.04), limits)

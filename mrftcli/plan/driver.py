@@ -150,6 +150,8 @@ def _plan_mrft(model: LoopModel, prior: Prior, limits: FlightLimits, flown: Sequ
                options: PlanOptions, progress: Progress | None) -> PlanResult:
     """Eq. (2)'s strategy: the next MRFT test(s) over the prior's draws at ``model``'s known Tp."""
     check_time("Tp", model.Tp)
+    if model.known != frozenset({"Tp"}) or model.ranges:  # what the draws, the search and analyze identify
+        raise InputError("eq. (2) is planned with Tp known and Td, tau, K free: give soiptd_model(Tp)")
     betas, n_tests = _resolve(options, flown)
     rng = np.random.default_rng(options.seed)
     plants = conditioned_draws(model, prior, flown, max(int(options.n_draws), 1), rng, limits.rate_hz, limits.noise_std)

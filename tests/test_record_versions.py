@@ -203,3 +203,18 @@ def test_compare_of_the_version_3_record_and_todays_analysis_of_its_log(tmp_path
     assert cmp.exit_code == 0
     for c in cmp.changes:
         assert c.change is not None and abs(c.change) <= 0.1 * old["parameters"][c.parameter]["std"], c
+
+
+def test_a_batch_summary_row_reads_a_record_stored_by_the_previous_version(tmp_path: Path) -> None:
+    """A batch folder written before the upgrade keeps its logs/*.json (an up-to-date log is not analysed
+    again): the summary reads their version-3 analyses with the same figures."""
+    from mrftcli.batch.summary import summary_rows
+
+    old = _old("analysis_v3.json")
+    record = {"path": "sample_logs/design1_altitude.mcap", "settings": {"tp": 0.0422}, "log_mtime": 0.0,
+              "loops": [{"loop": "altitude", "status": "ok", "result": old}]}
+    (row,) = summary_rows(record, tmp_path / "logs" / "design1_altitude.json", skipped=True)
+    assert row["status"] == "skipped-uptodate" and row["n_tests"] == len(old["tests"])
+    for name in ("Td", "tau", "K"):
+        assert (row[f"{name}_mean"], row[f"{name}_std"]) == (old["parameters"][name]["mean"],
+                                                              old["parameters"][name]["std"]), name

@@ -171,11 +171,12 @@ def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> No
 def tune_cascade(analysis):
     """The cascade route's recommended robust PD: what ``tune RESULT.json`` designs on a cascade analysis
     (30 draws of the outer Td, tau over their intervals)."""
-    from mrftcli.tune.cascade import outer_draws, tune_cascade as design
+    from mrftcli.tune.cascade import N_DRAWS, outer_draws
+    from mrftcli.tune.design import tune
 
-    draws = outer_draws(analysis.model, analysis.identification.estimates, 30)
-    res = design(analysis.model, analysis.controller_rate_hz, draws=draws, loop=analysis.loop)
-    return res.get("robust").controller
+    draws = outer_draws(analysis.model, analysis.identification.estimates, N_DRAWS)
+    res = tune(analysis.model, analysis.controller_rate_hz, posterior=draws, loop=analysis.loop)
+    return res.get("robust", "PD").controller
 
 
 def eq2_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:

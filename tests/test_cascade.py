@@ -12,6 +12,7 @@ import json
 import subprocess
 import sys
 from typing import Any
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -220,17 +221,19 @@ def test_inner_gains_forms_and_errors() -> None:
 
 def test_tune_on_the_cascade_keeps_its_margins() -> None:
     """The robust PD holds its phase margin on every draw; the closed loop of the independent form is stable."""
-    from mrftcli.tune.cascade import CascadeTuneResult, closed_loop_matrix, tune_cascade
+    from mrftcli.tune.cascade import closed_loop_matrix, tune_cascade
+    from mrftcli.tune.design import TuneResult
 
     m = _cascade()
     draws = [m.with_parameters(Td=0.7, tau=0.04), m.with_parameters(Td=0.9, tau=0.028)]
-    res = tune_cascade(m, RATE, draws=draws, loop="y", horizon_s=6.0)
-    robust = res.get("robust")
-    assert robust.worst is not None and robust.worst.phase_margin_deg >= 45.0 - 1e-6 and robust.worst.stable
+    res = tune_cascade(m, RATE, draws, loop="y", horizon_s=6.0)
+    robust = res.get("robust", "PD")
+    worst = robust.posterior["worst"]
+    assert worst["phase_margin_deg"] >= 45.0 - 1e-6 and worst["stable"]
     for model in [m, *draws]:
         A, _, _ = closed_loop_matrix(model.discrete_realisation(RATE), robust.controller)
         assert np.max(np.abs(np.linalg.eigvals(A))) < 1.0
-    assert CascadeTuneResult.from_json(json.loads(json.dumps(res.to_json()))).to_json() == json.loads(
+    assert TuneResult.from_json(json.loads(json.dumps(res.to_json()))).to_json() == json.loads(
         json.dumps(res.to_json()))
 
 
@@ -298,15 +301,33 @@ def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
     assert dict(back.model.inner.std)["Td"] == pytest.approx(0.01)
     res = CliRunner().invoke(cli, ["tune", str(out), "--export", "generic"])
     assert res.exit_code == 0, res.output
-    assert json.loads(res.output)["Kp"] > 0
+    assert json.loads(res.stdout)["Kp"] > 0 and "export generic (robust PD, y)" in res.stderr
+
+
+def test_cascade_tune_version_1_still_reads() -> None:
+    """A cascade's tune JSON of the previous release (its own record, kind "cascade", schema 1: vehicle records
+    hold it; tests/data/old_records/cascade_tune_v1.json, tune y.json of the shipped HEAR cascade) reads into
+    the one TuneResult with its gains and figures, and writes back as version 2."""
+    from mrftcli.tune.design import TuneResult
+
+    old = json.loads((Path(__file__).parent / "data" / "old_records" / "cascade_tune_v1.json").read_text())
+    res = TuneResult.from_json(old)
+    for d, o in zip(res.designs, old["designs"]):
+        assert d.kind == "PD" and d.controller.to_dict() == {**o["generic"], "form": d.controller.to_dict()["form"]}
+        assert (d.margins.phase_margin_deg, d.margins.Ms, d.criterion) == (
+            o["nominal"]["phase_margin_deg"], o["nominal"]["Ms"], o["iae"])
+    assert res.get("robust", "PD").posterior["worst"]["Ms"] == old["designs"][1]["worst"]["Ms"]
+    new = json.loads(json.dumps(res.to_json()))
+    assert new["schema_version"] == 2 and new["model"]["family"] == "cascade"
+    assert TuneResult.from_json(new).to_json() == new
 
 
 def test_records_refuse_other_versions() -> None:
     """Every record's from_json: a one-line InputError on another schema_version or a wrong shape."""
     from mrftcli.analyze.cascade import CascadeAnalysis
-    from mrftcli.tune.cascade import CascadeTuneResult
+    from mrftcli.tune.design import TuneResult
 
-    for cls in (InnerLoop, CascadeIdentification, CascadeAnalysis, CascadeTuneResult):
+    for cls in (InnerLoop, CascadeIdentification, CascadeAnalysis, TuneResult):
         for bad in ({"schema_version": 99}, [], {"schema_version": 1}):
             with pytest.raises(InputError) as err:
                 cls.from_json(bad)

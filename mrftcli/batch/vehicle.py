@@ -17,7 +17,7 @@ from typing import Any
 from ..errors import InputError
 from ..jsonable import to_jsonable
 from ..tune.analysis import summary_figures
-from ..tune.design import TuneResult
+from ..mrft.model import LoopModel
 from ..vehicle import MissingLoop, VehicleLoop, VehicleOptions, VehicleResult, identify_vehicle
 from ..vehicle.gains import TuneOptions
 from .inputs import AUTO_LOOP
@@ -45,7 +45,7 @@ def _ok_entry(entry: VehicleLoop) -> dict[str, Any]:
     g = entry.gains
     if g is None:
         tune: dict[str, Any] = {"tune_error": "not tuned (see the vehicle record's warnings)"}
-    elif isinstance(g.tune, TuneResult):
+    elif isinstance(g.tune.model, LoopModel):  # eq. (2): its figures as batch --tune's
         tune = summary_figures(g.tune, g.kind)
     else:  # an outer loop tuned on the cascade: its gains and nominal margins (no step figures there)
         c = g.controller

@@ -6,7 +6,6 @@ hands over (:func:`run_cascade`). The maths is :mod:`mrftcli.analyze.cascade`.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
@@ -17,8 +16,7 @@ from ..errors import InputError, MrftError
 from ..jsonable import load_json_text
 from .options import check_output_file, dump_json
 
-__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade", "format_cascade",
-           "is_cascade_result", "run_cascade_tune", "format_cascade_tune"]
+__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade", "format_cascade"]
 
 _KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
 
@@ -177,68 +175,3 @@ def format_cascade(analysis: Any) -> str:
 # ----------------------------------------------------------------------------------------------
 # tune RESULT.json of a cascade analysis
 # ----------------------------------------------------------------------------------------------
-def is_cascade_result(path: str) -> bool:
-    """Is ``path`` an ``analyze --inner-model --json`` result (kind ``"cascade"``)? False when unreadable
-    (the caller's own reader then says why)."""
-    try:
-        with open(path, encoding="utf-8") as fh:
-            data = load_json_text(fh.read(), path)
-    except (OSError, ValueError):  # InputError too: the caller's own reader then says why
-        return False
-    return isinstance(data, dict) and data.get("kind") == "cascade"
-
-
-def run_cascade_tune(path: str, *, json_target: str | None, ms_max: float, design: str | None,
-                     export: str | None, out: str | None, unsupported: Mapping[str, Any]) -> None:
-    """``tune RESULT.json`` of a cascade: model-based and robust outer PD on the exact sampled cascade."""
-    from ..analyze.cascade import CascadeAnalysis
-    from ..tune.cascade import outer_draws, tune_cascade
-
-    used = [name for name, value in unsupported.items() if value]
-    if used:
-        raise click.UsageError(f"{', '.join(used)}: not for a cascade analysis (its Tp is the inner analysis'; tune "
-                               "designs a PD on the cascade with --export generic, --json, --design, --ms-max)")
-    if export not in (None, "generic"):
-        raise click.UsageError(f"--export {export} does not work on a cascade analysis yet (use --export generic)")
-    check_output_file(json_target, "--json")
-    analysis = CascadeAnalysis.from_json(_read_json(path, "RESULT.json"))
-    model = analysis.model
-    draws = outer_draws(model, analysis.identification.estimates, 30)
-    res = tune_cascade(model, analysis.controller_rate_hz, draws=draws, loop=analysis.loop, ms_max=ms_max)
-    name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
-    chosen = res.get(name)
-    data = {**res.to_json(), "export": {"design": name, "kind": "PD", "generic": chosen.controller.to_dict()}}
-    if json_target:
-        dump_json(data, json_target)
-    if export == "generic":
-        text = json.dumps({"design": name, "kind": "PD", **chosen.controller.to_dict()}, indent=2) + "\n"
-        if out:
-            from ..io.atomic import write_text_atomic
-
-            write_text_atomic(out, text)
-            click.echo(f"export generic ({name} PD, {res.loop}) written: {out}", err=json_target == "-")
-        else:
-            click.echo(text, nl=False)
-        return
-    if json_target != "-":
-        click.echo(format_cascade_tune(res))
-
-
-def format_cascade_tune(res: Any) -> str:
-    """The terminal table of a :class:`~mrftcli.tune.cascade.CascadeTuneResult`."""
-    from ..io.logtypes import output_unit
-
-    y = output_unit(res.loop)
-    m = res.model
-    lines = [f"loop {res.loop} on the cascade: Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}  through "
-             f"{m.inner.loop or 'the inner loop'}; rate {res.rate_hz:g} Hz",
-             f"gains: Kp [command per {y}], Kd [command s per {y}], Tf [ms]"]
-    lines += [f"note: {n}" for n in res.notes]
-    lines.append(f"{'design':<12}{'Kp':>10}{'Kd':>10}{'Tf[ms]':>8}{'PM[deg]':>9}{'GM':>7}{'Ms':>6}{'fc[Hz]':>8}"
-                 f"{'IAE[' + y + ' s]':>12}  {'worst of draws: PM':>18}{'Ms':>6}")
-    for d in res.designs:
-        c, n, w = d.controller, d.nominal, d.worst
-        lines.append(f"{d.name:<12}{c.Kp:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}{n.phase_margin_deg:>9.1f}"
-                     f"{n.gain_margin:>7.2f}{n.Ms:>6.2f}{n.crossover_hz:>8.3f}{d.iae:>12.4g}  "
-                     + (f"{w.phase_margin_deg:>18.1f}{w.Ms:>6.2f}" if w is not None else f"{'-':>18}{'-':>6}"))
-    return "\n".join(lines)

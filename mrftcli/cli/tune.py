@@ -26,7 +26,6 @@ if TYPE_CHECKING:
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
 from .model_options import meta_model, meta_model_options
-from .cascade_options import is_cascade_result, run_cascade_tune
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
@@ -190,6 +189,29 @@ def _read_json(path: str) -> Any:
         return None
 
 
+def _is_cascade(source: str | None) -> bool:
+    """Is SOURCE an ``analyze --inner-model --json`` result (kind ``"cascade"``)?"""
+    if source is None or not str(source).lower().endswith(".json"):
+        return False
+    data = _read_json(source)
+    return isinstance(data, dict) and data.get("kind") == "cascade"
+
+
+def _cascade_source(source: str) -> _TuneSource:
+    """An outer loop's cascade (analyze --inner-model's RESULT.json) with its draws over the outer estimate and
+    the inner loop; the rate its outer controller ran at."""
+    from ..analyze.cascade import CascadeAnalysis
+    from ..tune.cascade import N_DRAWS, outer_draws
+
+    data = _read_json(source)
+    if data is None:
+        raise InputError(f"{source}: not a readable analyze --inner-model RESULT.json")
+    analysis = CascadeAnalysis.from_json(data)
+    model = analysis.model
+    return _TuneSource(model, tuple(outer_draws(model, analysis.identification.estimates, N_DRAWS)), analysis.loop,
+                       analysis.controller_rate_hz)
+
+
 def _family_asked(ctx: click.Context, source: str | None) -> bool:
     """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given, or SOURCE an
     ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
@@ -295,12 +317,10 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
                        f"Kd {c.Kd:.5g}  Tf {c.Tf:.5g} s  rate {rate:g} Hz")
         return None
     if stack_export is None:  # generic: the controller as JSON
-        from ..tune.export import generic_file
+        from ..tune.export import generic_export
 
-        text = json.dumps(generic_file(c, name, kind, loop) if eq2 else
-                          {"design": name, "kind": kind, "reverse_acting": res.reverse_acting, **c.to_dict()},
-                          indent=2) + "\n"
-        summary = [f"export generic ({name} {kind}, {loop})" if eq2 else f"export generic ({name} {kind})"]
+        text = json.dumps(generic_export(res, name, kind), indent=2) + "\n"
+        summary = [f"export generic ({name} {kind}, {loop})" if loop else f"export generic ({name} {kind})"]
     else:
         text, summary = stack_export.file_text(), stack_summary(stack_export)
     if ex.out:
@@ -436,8 +456,18 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()
     source = sources[0] if sources else None
-    family = len(sources) < 2 and _family_asked(ctx, source)
-    if family:  # another family than eq. (2): its kinds and designs, its export
+    cascade = len(sources) == 1 and _is_cascade(source)
+    family = cascade or (len(sources) < 2 and _family_asked(ctx, source))
+    if cascade:  # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
+        used = [name for name, value in {"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
+                                         "--design mrft-rule": design == "mrft-rule",
+                                         "--controller-rate": read_options.get("controller_rate_hz")}.items() if value]
+        if used:
+            raise click.UsageError(f"{', '.join(used)}: not for a cascade analysis (its Tp is the inner analysis'; "
+                                   "tune designs a PD on the cascade with --export generic, --json, --design, --ms-max)")
+        if ex.stack not in (None, "generic"):
+            raise click.UsageError(f"--export {ex.stack} does not work on a cascade analysis yet (use --export generic)")
+    elif family:  # another family than eq. (2): its kinds and designs, its export
         if ctx.get_parameter_source("kind") is not click.core.ParameterSource.COMMANDLINE:
             kind = "PI"  # tune's default PD is eq. (2)'s: a process plant's is PI
         _refuse_for_family({"--tp": Tp, "--td/--tau/--k": any(v is not None for v in (td, tau, K)),
@@ -456,7 +486,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     rate_given: float | None = read_options.get("controller_rate_hz")
     setting = None
     if family:
-        src = _family_source(ctx, source)
+        src = _cascade_source(str(source)) if cascade else _family_source(ctx, source)
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:
@@ -466,6 +496,8 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         options = DesignOptions(objective=objective, ms_max=ms_max, effort_max=effort_max,
                                 rate_filter=setting.rate_filter if setting is not None else None)
     rate, rate_notes = _design_rate(rate_given, setting, src, family and source is not None)
+    if cascade:
+        rate_notes = ()  # the outer controller's rate, as analysed
     with tqdm_progress("tune", unit="design", enabled=not quiet and not family) as progress:
         res = run_tune(src.model, rate, posterior=src.posterior, options=options, loop=loop, progress=progress)
     notes = rate_notes + src.notes + (setting.notes if setting is not None else ())
@@ -487,7 +519,7 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
                   cutoff_auto: bool, cutoff_hz: float | None, objective: str, ms_max: float,
                   effort_max: float | None, given: tuple[float | None, ...], json_target: str | None,
                   report_dir: str | None, quiet: bool, read_options: dict[str, Any]) -> bool:
-    """Eq. (2)'s joint roll and pitch export and a cascade RESULT.json (True: done); the checks before one loop's."""
+    """Eq. (2)'s joint roll and pitch export (True: done); the checks before one loop's."""
     if kind == "PI":
         raise InputError("--kind PI is for process plants (analyze --model NAME's result); eq. (2) loops take PD or PID")
     if len(sources) == 2:
@@ -508,13 +540,6 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
     if cutoff_auto:
         raise InputError("--gyro-cutoff auto designs one cutoff from the roll and the pitch loop: give ROLL.json "
                          "PITCH.json (or --gyro-cutoff HZ)")
-    source = sources[0] if sources else None
-    if source is not None and str(source).lower().endswith(".json") and is_cascade_result(source):
-        # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
-        run_cascade_tune(source, json_target=json_target, ms_max=ms_max, design=design, export=ex.stack, out=ex.out,
-                         unsupported={"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
-                                      "--design mrft-rule": design == "mrft-rule"})
-        return True
     if Tp is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
     return False

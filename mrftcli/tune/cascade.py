@@ -17,169 +17,72 @@ one with the least IAE of a unit setpoint step on the nominal model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..errors import InputError
-from ..jsonable import check_schema_version
 from ..mrft.cascade import CascadeModel, DiscreteStateSpace
-from .closed_loop import Controller
-from .design import FILTER_N
+from .closed_loop import Controller, StepMetrics
+from .design import FILTER_N, Design, DesignOptions, TuneResult
+from .margins import Margins
 
-__all__ = ["CascadeMargins", "CascadeDesign", "CascadeTuneResult", "tune_cascade", "cascade_margins",
-           "closed_loop_matrix", "outer_draws", "CASCADE_TUNE_SCHEMA_VERSION"]
+__all__ = ["tune_cascade", "cascade_margins", "closed_loop_matrix", "outer_draws", "cascade_result_v1", "N_DRAWS"]
 
-#: version of :meth:`CascadeTuneResult.to_json`
-CASCADE_TUNE_SCHEMA_VERSION = 1
+#: draws of the robust design over the outer estimate and the inner loop (:func:`outer_draws`)
+N_DRAWS = 30
 _TDC_GRID = np.geomspace(0.02, 5.0, 18)  # derivative times Td_c [s] searched
 
 
-@dataclass(frozen=True)
-class CascadeMargins:
-    """Margins of the sampled outer loop on one model.
+def cascade_result_v1(data: Mapping[str, Any]) -> TuneResult:
+    """A cascade's tune JSON of the previous release (``kind "cascade"``, schema 1: its own design records),
+    read into the one :class:`~mrftcli.tune.design.TuneResult` (read for one release: vehicle records hold it).
 
-    Attributes
-    ----------
-    phase_margin_deg : float
-        The least phase margin over the gain crossovers [deg] (inf: no crossover).
-    gain_margin : float
-        The least gain margin over the phase crossovers [-] (inf: none).
-    Ms : float
-        Sensitivity peak max |1 / (1 + L)| [-].
-    crossover_hz : float
-        The first gain crossover [Hz].
-    stable : bool
-        The closed loop's spectral radius is below 1.
+    Raises
+    ------
+    InputError
+        A missing or malformed field (one line).
     """
+    if not isinstance(data.get("designs"), list):
+        raise InputError("not a cascade tune JSON (needs kind 'cascade' and 'designs')")
 
-    phase_margin_deg: float
-    gain_margin: float
-    Ms: float
-    crossover_hz: float
-    stable: bool
+    def num(v: Any) -> float:
+        return math.inf if v is None else float(v)
 
-    def to_json(self) -> dict[str, Any]:
-        def finite(x: float) -> float | None:
-            return x if math.isfinite(x) else None
-
-        return {"phase_margin_deg": finite(self.phase_margin_deg), "gain_margin": finite(self.gain_margin),
-                "Ms": finite(self.Ms), "crossover_hz": finite(self.crossover_hz), "stable": self.stable}
-
-    @classmethod
-    def from_json(cls, d: Any) -> CascadeMargins:
-        if not isinstance(d, Mapping):
+    def figures(m: Any) -> tuple[float, float, float, float, bool]:
+        if not isinstance(m, Mapping):
             raise InputError("cascade tune JSON: margins must be an object")
+        return (num(m.get("phase_margin_deg")), num(m.get("gain_margin")), num(m.get("Ms")),
+                num(m.get("crossover_hz")), bool(m.get("stable")))
 
-        def num(k: str) -> float:
-            v = d.get(k)
-            return math.inf if v is None else float(v)
-
-        return cls(num("phase_margin_deg"), num("gain_margin"), num("Ms"), num("crossover_hz"), bool(d.get("stable")))
-
-
-@dataclass(frozen=True)
-class CascadeDesign:
-    """One outer-loop design: the controller, its nominal margins and the worst over the draws.
-
-    Attributes
-    ----------
-    name : str
-        ``"model-based"`` (the nominal model) or ``"robust"`` (every draw).
-    controller : Controller
-        The PD (generic form: Kp [command / output unit], Kd [command s / output unit], Tf [s], rate).
-    nominal : CascadeMargins
-        On the nominal model.
-    worst : CascadeMargins or None
-        The worst of each figure over the draws (None without draws).
-    iae : float
-        IAE of a unit setpoint step on the nominal model [output unit s].
-    """
-
-    name: str
-    controller: Controller
-    nominal: CascadeMargins
-    worst: CascadeMargins | None
-    iae: float
-
-    def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "kind": "PD", "generic": self.controller.to_dict(),
-                "nominal": self.nominal.to_json(), "worst": None if self.worst is None else self.worst.to_json(),
-                "iae": self.iae if math.isfinite(self.iae) else None}
-
-    @classmethod
-    def from_json(cls, d: Any) -> CascadeDesign:
-        if not isinstance(d, Mapping) or not isinstance(d.get("generic"), Mapping):
-            raise InputError("cascade tune JSON: each design needs 'generic' gains")
-        g = d["generic"]
-        try:
+    try:
+        ms_max, pm_min = float(data["ms_max"]), float(data["pm_min_deg"])
+        designs = []
+        for d in data["designs"]:
+            g = d["generic"]
             c = Controller(float(g["Kp"]), float(g["Ki"]), float(g["Kd"]), float(g["Tf"]), float(g["rate_hz"]))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"cascade tune JSON: bad generic gains ({err})") from err
-        worst = d.get("worst")
-        iae = d.get("iae")
-        return cls(str(d.get("name", "")), c, CascadeMargins.from_json(d.get("nominal")),
-                   None if worst is None else CascadeMargins.from_json(worst), math.inf if iae is None else float(iae))
+            worst = None if d.get("worst") is None else figures(d["worst"])
+            designs.append(_record(str(d.get("name", "")), c, figures(d.get("nominal")), worst,
+                                   num(d.get("iae")), math.nan, ms_max, pm_min, int(data.get("n_draws") or 0)))
+        return TuneResult(CascadeModel.from_json(data["model"]), None, float(data["rate_hz"]), str(data.get("loop", "")),
+                          "iae", ms_max, math.inf, math.nan, {}, tuple(designs), tuple(str(n) for n in data.get("notes") or ()))
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f"cascade tune JSON: {type(err).__name__}: {err}") from None
 
 
-@dataclass(frozen=True)
-class CascadeTuneResult:
-    """Outer-loop designs on the cascade (``tune RESULT.json`` of a cascade analysis).
-
-    Attributes
-    ----------
-    loop : str
-        The outer loop.
-    rate_hz : float
-        The controller rate [Hz].
-    model : CascadeModel
-        The nominal cascade.
-    designs : tuple of CascadeDesign
-        ``model-based`` and (with draws) ``robust``.
-    ms_max, pm_min_deg : float
-        The constraints [-], [deg].
-    n_draws : int
-        Draws of the robust design.
-    notes : tuple of str
-        What the designs rest on.
-    """
-
-    loop: str
-    rate_hz: float
-    model: CascadeModel
-    designs: tuple[CascadeDesign, ...]
-    ms_max: float
-    pm_min_deg: float
-    n_draws: int = 0
-    notes: tuple[str, ...] = field(default=())
-
-    def get(self, name: str) -> CascadeDesign:
-        """The design called ``name``."""
-        for d in self.designs:
-            if d.name == name:
-                return d
-        raise InputError(f"no {name!r} design (have: {', '.join(d.name for d in self.designs)})")
-
-    def to_json(self) -> dict[str, Any]:
-        """``{"schema_version", "kind": "cascade", "loop", "rate_hz", "model", "designs", "ms_max", "pm_min_deg", ...}``."""
-        return {"schema_version": CASCADE_TUNE_SCHEMA_VERSION, "kind": "cascade", "loop": self.loop,
-                "rate_hz": self.rate_hz, "model": self.model.to_json(), "designs": [d.to_json() for d in self.designs],
-                "ms_max": self.ms_max, "pm_min_deg": self.pm_min_deg, "n_draws": self.n_draws,
-                "notes": list(self.notes)}
-
-    @classmethod
-    def from_json(cls, data: Any) -> CascadeTuneResult:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "cascade tune JSON", CASCADE_TUNE_SCHEMA_VERSION)
-        if d.get("kind") != "cascade" or not isinstance(d.get("designs"), list):
-            raise InputError("not a cascade tune JSON (needs kind 'cascade' and 'designs')")
-        try:
-            return cls(str(d.get("loop", "")), float(d["rate_hz"]), CascadeModel.from_json(d["model"]),
-                       tuple(CascadeDesign.from_json(x) for x in d["designs"]), float(d["ms_max"]),
-                       float(d["pm_min_deg"]), int(d.get("n_draws") or 0), tuple(str(n) for n in d.get("notes") or ()))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"cascade tune JSON: {type(err).__name__}: {err}") from err
+def _record(name: str, c: Controller, nominal: tuple[float, float, float, float, bool],
+            worst: tuple[float, float, float, float, bool] | None, iae: float, horizon_s: float, ms_max: float,
+            pm_min: float, n_draws: int) -> Design:
+    """One PD as the one :class:`~mrftcli.tune.design.Design` record: the nominal figures as its margins (no
+    delay margin or phase crossover here: NaN), the worst over the draws in ``posterior``, no step figures."""
+    pm, gm, ms, fc, stable = nominal
+    post: dict[str, Any] = {}
+    if worst is not None:
+        post = {"worst": dict(zip(("phase_margin_deg", "gain_margin", "Ms", "crossover_hz", "stable"), worst)),
+                "n_draws": n_draws, "worst_of": "the nominal model and every draw"}
+    return Design(name, c, "iae", iae, math.nan, Margins(gm, pm, math.nan, ms, 2 * math.pi * fc, math.nan, stable),
+                  StepMetrics(*[math.nan] * 6), post, {"ms_max": ms_max, "pm_min_deg": pm_min, "feasible": True}, {},
+                  horizon_s, "setpoint step")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -247,9 +150,11 @@ def _stable(ss: DiscreteStateSpace, c: Controller) -> bool:
     return bool(np.max(np.abs(np.linalg.eigvals(A))) < 1.0 - 1e-9)
 
 
-def _margins(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: np.ndarray, omega: np.ndarray) -> list[CascadeMargins]:
+def _margins(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: np.ndarray,
+             omega: np.ndarray) -> list[tuple[float, float, float, float, bool]]:
+    """(phase margin [deg], gain margin, Ms, first crossover [Hz], stable) per plant."""
     figures = cascade_margins(c, Gd, omega)
-    return [CascadeMargins(pm, gm, ms, wc, _stable(ss, c)) for ss, (pm, gm, ms, wc) in zip(plants, figures)]
+    return [(pm, gm, ms, wc, _stable(ss, c)) for ss, (pm, gm, ms, wc) in zip(plants, figures)]
 
 
 def _ok(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: np.ndarray, omega: np.ndarray, ms_max: float,
@@ -261,9 +166,9 @@ def _ok(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: np.ndarray, ome
     return all(_stable(ss, c) for ss in plants)
 
 
-def _worst(m: Sequence[CascadeMargins]) -> CascadeMargins:
-    return CascadeMargins(min(x.phase_margin_deg for x in m), min(x.gain_margin for x in m), max(x.Ms for x in m),
-                          min(x.crossover_hz for x in m), all(x.stable for x in m))
+def _worst(m: Sequence[tuple[float, float, float, float, bool]]) -> tuple[float, float, float, float, bool]:
+    return (min(x[0] for x in m), min(x[1] for x in m), max(x[2] for x in m), min(x[3] for x in m),
+            all(x[4] for x in m))
 
 
 def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float) -> float:
@@ -303,7 +208,7 @@ def _largest_gain(tdc: float, rate_hz: float, plants: Sequence[DiscreteStateSpac
 
 
 def _design(name: str, nominal: DiscreteStateSpace, plants: Sequence[DiscreteStateSpace], rate_hz: float,
-            ms_max: float, pm_min: float, horizon_s: float) -> CascadeDesign:
+            ms_max: float, pm_min: float, horizon_s: float) -> Design:
     omega = _grid(rate_hz)
     Gd = np.array([p.frequency_response(omega) for p in plants])
     best: tuple[float, Controller] | None = None
@@ -321,7 +226,7 @@ def _design(name: str, nominal: DiscreteStateSpace, plants: Sequence[DiscreteSta
     Gn = nominal.frequency_response(omega)[None, :]
     nominal_m = _margins(c, [nominal], Gn, omega)[0]
     worst = _worst(_margins(c, plants, Gd, omega)) if len(plants) > 1 else None
-    return CascadeDesign(name, c, nominal_m, worst, J)
+    return _record(name, c, nominal_m, worst, J, horizon_s, ms_max, pm_min, len(plants) - 1)
 
 
 def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed: int = 0) -> list[CascadeModel]:
@@ -347,9 +252,12 @@ def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed:
     return out
 
 
-def tune_cascade(model: CascadeModel, rate_hz: float, *, draws: Sequence[CascadeModel] = (), loop: str = "",
-                 ms_max: float = 1.6, pm_min_deg: float = 45.0, horizon_s: float | None = None) -> CascadeTuneResult:
+def tune_cascade(model: CascadeModel, rate_hz: float, draws: Sequence[CascadeModel] = (), *,
+                 options: DesignOptions = DesignOptions(), loop: str = "", horizon_s: float | None = None) -> TuneResult:
     """Outer-loop PD gains on the cascade (the module docstring): model-based, and robust over ``draws``.
+
+    The cascade's strategy of the one tune driver (:func:`mrftcli.tune.design.tune` calls it for a
+    :class:`~mrftcli.mrft.cascade.CascadeModel`).
 
     Parameters
     ----------
@@ -358,21 +266,24 @@ def tune_cascade(model: CascadeModel, rate_hz: float, *, draws: Sequence[Cascade
     rate_hz : float
         The outer controller's rate [Hz] (the inner controller's or a whole divisor of it).
     draws : sequence of CascadeModel
-        Models the robust design must hold its margins on (:func:`outer_draws`); empty: no robust design.
-    ms_max : float
-        Limit on the sensitivity peak [-].
-    pm_min_deg : float
-        Least phase margin [deg].
+        Models the robust design must hold its margins on (:func:`outer_draws`); fewer than 2: no robust design.
+    options : DesignOptions
+        ``ms_max`` [-] and ``pm_min_deg`` [deg]; a PD, its IAE (the other settings are eq. (2)'s: refused).
+    loop : str
+        The outer loop's name.
     horizon_s : float, optional
         The step's horizon [s] for the IAE (default: 6 periods of the loop's MRFT cycle at beta -0.7).
 
     Raises
     ------
     InputError
-        No PD meets the constraints, or bad limits.
+        No PD meets the constraints, or an option of eq. (2)'s designs.
     """
-    if not (math.isfinite(ms_max) and ms_max > 1.0):
-        raise InputError(f"--ms-max must be a number above 1, got {ms_max!r}")
+    if (options.objective != "iae" or options.effort_max is not None or options.rate_filter is not None
+            or "mrft-rule" in (options.designs or ()) or any(k != "PD" for k in options.kinds or ())):
+        raise InputError("a cascade's outer loop is designed as a PD of least IAE (model-based, robust): "
+                         "--objective, --effort-max, the mrft-rule design and --kind PID are for eq. (2) loops")
+    ms_max, pm_min_deg = options.ms_max, options.pm_min_deg
     nominal = model.discrete_realisation(rate_hz)
     if horizon_s is None:
         horizon_s = 6.0 / model.sampled_limit_cycle(-0.7, 1.0, rate_hz).frequency_hz
@@ -385,4 +296,4 @@ def tune_cascade(model: CascadeModel, rate_hz: float, *, draws: Sequence[Cascade
         inner = "and of the inner plant over its std" if model.inner.std else "the inner model at its estimate"
         notes.append(f"robust: the constraints held on the nominal model and {len(draws)} draws of the outer Td, tau "
                      f"(and K) over their intervals, {inner}")
-    return CascadeTuneResult(loop, rate_hz, model, tuple(designs), ms_max, pm_min_deg, len(draws), tuple(notes))
+    return TuneResult(model, None, rate_hz, loop, "iae", ms_max, math.inf, horizon_s, {}, tuple(designs), tuple(notes))

@@ -38,6 +38,7 @@ from scipy.optimize import minimize
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
+from ..mrft.cascade import CascadeModel
 from ..mrft.model import LoopModel, PlantModel, model_from_json
 from ..progress import Progress, report
 from ..validate import check_positive
@@ -364,6 +365,10 @@ class TuneResult:
         """
         what = "tune result"
         data = _check_version(data, what)
+        if data["schema_version"] == 1 and data.get("kind") == "cascade":  # the cascade's own record until now
+            from .cascade import cascade_result_v1
+
+            return cascade_result_v1(data)
         md, pd = data.get("model"), data.get("posterior")
         if not isinstance(md, dict):
             raise InputError(f"{what}: 'model' must be an object")
@@ -674,8 +679,10 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
     """The one tune driver: controllers for ``model`` at ``rate_hz``, by the strategy of its family.
 
     Eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`): the MRFT rule, model-based and robust PD and PID
-    (the module docstring). Any other family or a declared model: PI/PID (PD on integrating plants)
-    by a grid on the exact sampled loop (:func:`mrftcli.tune.grid.tune_grid`).
+    (the module docstring). An outer loop through its closed inner loop
+    (:class:`~mrftcli.mrft.cascade.CascadeModel`): a PD on the exact sampled cascade
+    (:func:`mrftcli.tune.cascade.tune_cascade`). Any other family or a declared model: PI/PID (PD on
+    integrating plants) by a grid on the exact sampled loop (:func:`mrftcli.tune.grid.tune_grid`).
 
     Parameters
     ----------
@@ -685,7 +692,8 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
         Controller rate [Hz].
     posterior : Posterior or sequence of PlantModel, optional
         Eq. (2): the parameters' draws (:class:`Posterior`); another family: the drawn models
-        (:func:`mrftcli.tune.grid.model_draws`). Without it the robust design is left out.
+        (:func:`mrftcli.tune.grid.model_draws`, :func:`mrftcli.tune.cascade.outer_draws`). Without it the
+        robust design is left out.
     options : DesignOptions
         The objective, the Ms and noise-gain limits, the designs and kinds, the stack's rate filter.
     loop : str
@@ -698,10 +706,14 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
     TuneResult
     """
     if not isinstance(model, LoopModel):
-        from .grid import tune_grid  # the other families' strategy (it builds this module's records)
-
         if isinstance(posterior, Posterior):
             raise InputError(f"a {model.family} model's robust design takes drawn models, not eq. (2)'s posterior")
+        if isinstance(model, CascadeModel):
+            from .cascade import tune_cascade  # the cascade's strategy (it builds this module's records)
+
+            return tune_cascade(model, rate_hz, tuple(posterior or ()), options=options, loop=loop)
+        from .grid import tune_grid  # the other families' strategy
+
         return tune_grid(model, rate_hz, tuple(posterior or ()), options, loop)
     if posterior is not None and not isinstance(posterior, Posterior):
         raise InputError("eq. (2)'s robust design takes a Posterior of (Td, tau, K) draws")

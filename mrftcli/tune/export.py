@@ -33,7 +33,7 @@ from .closed_loop import Controller
 if TYPE_CHECKING:
     from .design import TuneResult
 
-__all__ = ["generic", "generic_file", "generic_units", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
+__all__ = ["generic", "generic_file", "generic_export", "generic_units", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
 
 FORMATS = ("json", "table", "hear", "px4")
 #: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
@@ -62,6 +62,21 @@ def generic_units(loop: str) -> dict[str, str]:
 def generic_file(c: Controller, design: str, kind: str, loop: str) -> dict[str, Any]:
     """The generic export as written (``tune --export generic``): the controller with its units in the file."""
     return {"design": design, "kind": kind, "loop": loop, **c.to_dict(), "units": generic_units(loop)}
+
+
+def generic_export(result: "TuneResult", design: str, kind: str) -> dict[str, Any]:
+    """``tune --export generic``'s file for any family: eq. (2)'s with its loop and units
+    (:func:`generic_file`); a cascade's outer PD; another family's with ``reverse_acting`` (the gains act
+    on -e)."""
+    from ..mrft.cascade import CascadeModel
+    from ..mrft.model import LoopModel
+
+    c = result.get(design, kind).controller
+    if isinstance(result.model, LoopModel):
+        return generic_file(c, design, kind, result.loop)
+    if isinstance(result.model, CascadeModel):
+        return {"design": design, "kind": kind, **c.to_dict()}
+    return {"design": design, "kind": kind, "reverse_acting": result.reverse_acting, **c.to_dict()}
 
 
 def hear_json(c: Controller, loop: str) -> dict[str, Any]:
@@ -122,7 +137,11 @@ def format_table(result: "TuneResult") -> str:
     """The terminal table of a :class:`~mrftcli.tune.design.TuneResult` (any family)."""
     from ..mrft.model import LoopModel
 
+    from ..mrft.cascade import CascadeModel
+
     m = result.model
+    if isinstance(m, CascadeModel):
+        return _cascade_table(result)
     if not isinstance(m, LoopModel):
         return _family_table(result)
     lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
@@ -180,4 +199,22 @@ def _family_table(res: "TuneResult") -> str:
                      _g(d.criterion, 3), d.criterion_definition))
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.ljust(wd) for c, wd in zip(r, widths)).rstrip() for r in rows]
+    return "\n".join(lines)
+
+
+def _cascade_table(res: "TuneResult") -> str:
+    """The table of an outer loop's PD on the cascade (:mod:`mrftcli.tune.cascade`)."""
+    y = output_unit(res.loop)
+    m = res.model
+    lines = [f"loop {res.loop} on the cascade: Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}  through "
+             f"{m.inner.loop or 'the inner loop'}; rate {res.rate_hz:g} Hz",
+             f"gains: Kp [command per {y}], Kd [command s per {y}], Tf [ms]"]
+    lines += [f"note: {n}" for n in res.notes]
+    lines.append(f"{'design':<12}{'Kp':>10}{'Kd':>10}{'Tf[ms]':>8}{'PM[deg]':>9}{'GM':>7}{'Ms':>6}{'fc[Hz]':>8}"
+                 f"{'IAE[' + y + ' s]':>12}  {'worst of draws: PM':>18}{'Ms':>6}")
+    for d in res.designs:
+        c, n, w = d.controller, d.margins, d.posterior.get("worst")
+        lines.append(f"{d.name:<12}{c.Kp:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}{n.phase_margin_deg:>9.1f}"
+                     f"{n.gain_margin:>7.2f}{n.Ms:>6.2f}{n.w_gc / (2 * math.pi):>8.3f}{d.criterion:>12.4g}  "
+                     + (f"{w['phase_margin_deg']:>18.1f}{w['Ms']:>6.2f}" if w is not None else f"{'-':>18}{'-':>6}"))
     return "\n".join(lines)

@@ -17,7 +17,8 @@ from ..analyze import AnalysisResult
 from ..analyze.cascade import CascadeAnalysis, CascadeOptions, analyze_cascade, inner_draws, inner_loop_of
 from ..io import FlightLog
 from ..mrft.cascade import InnerController, InnerLoop
-from ..tune.cascade import CascadeTuneResult, outer_draws, tune_cascade
+from ..tune.cascade import outer_draws
+from ..tune.design import DesignOptions, TuneResult, tune
 from .record import LoopGains, VehicleLoop
 
 __all__ = ["OuterOptions", "cascade_outer", "tune_outer", "OUTER_DRAWS"]
@@ -92,13 +93,13 @@ def tune_outer(analysis: CascadeAnalysis, inner: VehicleLoop, options: OuterOpti
     Raises
     ------
     MrftError
-        No PD meets the constraints (tune_cascade's error).
+        No PD meets the constraints (the cascade strategy's error: mrftcli.tune.cascade.tune_cascade).
     """
     closed, said = _new_inner(analysis, inner)
     model = dataclasses.replace(analysis.model, inner=closed)
     draws = outer_draws(model, analysis.identification.estimates, OUTER_DRAWS)
-    res: CascadeTuneResult = tune_cascade(model, analysis.controller_rate_hz, draws=draws, loop=analysis.loop,
-                                          ms_max=options.ms_max)
+    res: TuneResult = tune(model, analysis.controller_rate_hz, posterior=draws, loop=analysis.loop,
+                           options=DesignOptions(ms_max=options.ms_max))
     res = dataclasses.replace(res, notes=(said, *res.notes))
     design = "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
     refused = None

@@ -18,6 +18,7 @@ which ignores the keys the vehicle adds), so a tool that reads ``analyze --json`
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,7 +30,6 @@ from ..io.logtypes import LOOPS, output_unit
 from ..jsonable import check_schema_version
 from ..plan import PlanResult
 from ..tune.closed_loop import Controller
-from ..tune.cascade import CascadeTuneResult
 from ..tune.design import TuneResult
 from ..tune.stacks import StackExport
 
@@ -75,9 +75,9 @@ class LoopGains:
         ``robust`` (when the identification gave a posterior) or ``model-based``.
     kind : str
         ``PD`` or ``PID``.
-    tune : TuneResult or CascadeTuneResult
-        Every design with its margins: eq. (2)'s (:func:`mrftcli.tune.design.tune`), or an outer loop's
-        on the exact sampled cascade (:func:`mrftcli.tune.cascade.tune_cascade`).
+    tune : TuneResult
+        Every design with its margins (:func:`mrftcli.tune.design.tune`): eq. (2)'s, or an outer loop's
+        on the exact sampled cascade.
     export : StackExport or None
         The design as the ``--export`` stack loads it (checked against its ranges).
     export_refused : str or None
@@ -86,30 +86,25 @@ class LoopGains:
 
     design: str
     kind: str
-    tune: TuneResult | CascadeTuneResult
+    tune: TuneResult
     export: StackExport | None = None
     export_refused: str | None = None
 
     @property
     def controller(self) -> Controller:
         """The recommended controller (gains per the loop's output unit, Tf [s], rate [Hz])."""
-        if isinstance(self.tune, CascadeTuneResult):
-            return self.tune.get(self.design).controller
         return self.tune.get(self.design, self.kind).controller
 
     @property
     def phase_margin_deg(self) -> float:
         """The recommended design's nominal phase margin [deg]."""
-        if isinstance(self.tune, CascadeTuneResult):
-            return self.tune.get(self.design).nominal.phase_margin_deg
         return self.tune.get(self.design, self.kind).margins.phase_margin_deg
 
     @property
     def delay_margin_ms(self) -> float | None:
         """The recommended design's nominal delay margin [ms] (None on a cascade: not computed there)."""
-        if isinstance(self.tune, CascadeTuneResult):
-            return None
-        return self.tune.get(self.design, self.kind).margins.delay_margin_s * 1e3
+        dm = self.tune.get(self.design, self.kind).margins.delay_margin_s
+        return dm * 1e3 if math.isfinite(dm) else None
 
     def to_json(self) -> dict[str, Any]:
         """``design``, ``kind``, ``generic`` (tune's generic export), ``units``, the margins, ``export``
@@ -128,9 +123,7 @@ class LoopGains:
         what = "vehicle gains"
         if not isinstance(data, Mapping):
             raise InputError(f"{what}: expected a JSON object")
-        raw = data.get("tune_result")
-        cascade = isinstance(raw, Mapping) and raw.get("kind") == "cascade"
-        tune = CascadeTuneResult.from_json(raw) if cascade else TuneResult.from_json(raw)
+        tune = TuneResult.from_json(data.get("tune_result"))
         design, kind = str(data.get("design")), str(data.get("kind"))
         export, refused = data.get("export"), data.get("export_refused")
         if not (refused is None or isinstance(refused, str)):

@@ -218,3 +218,25 @@ def test_a_batch_summary_row_reads_a_record_stored_by_the_previous_version(tmp_p
     for name in ("Td", "tau", "K"):
         assert (row[f"{name}_mean"], row[f"{name}_std"]) == (old["parameters"][name]["mean"],
                                                               old["parameters"][name]["std"]), name
+
+
+@pytest.mark.parametrize(("t_range", "side"), [((0.98, 3.0), "low"), ((0.2, 1.02), "high")])
+def test_an_interval_cut_at_a_range_bound_is_one_sided_again_when_read(t_range: tuple[float, float],
+                                                                       side: str) -> None:
+    """The JSON has no ``one_sided``: reading finds it again from the model's range (set I). Exact FOPDT
+    response points (K 2, T 1 s, tau 0.3 s; 5 % standard errors) with T's range cutting its interval."""
+    import numpy as np
+
+    from mrftcli.mrft.families import family_model
+    from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
+
+    true = family_model("fopdt").with_parameters(K=2.0, T=1.0, tau=0.3)
+    points = []
+    for i, w in enumerate((0.8, 1.5, 2.4, 4.0)):
+        g = complex(true.frequency_response(np.array([w]))[0])
+        points.append(ResponsePoint(w, abs(g), float(np.angle(g)), 0.05, 0.05, i, 1))
+    ident = identify_lti(family_model("fopdt", ranges={"T": t_range}), points)
+    assert ident.estimate("T").one_sided == side and ident.estimate("K").one_sided == ""
+    back = LtiIdentification.from_json(json.loads(json.dumps(to_jsonable(ident.to_json()))))
+    assert back.estimates == ident.estimates
+    assert [e.one_sided for e in back.estimates] == [e.one_sided for e in ident.estimates]

@@ -145,7 +145,8 @@ def _one_sided(low: float, high: float, bounds: tuple[float, float] | None, know
         return ""
 
     def at(x: float, bound: float) -> bool:
-        return math.isfinite(bound) and math.isfinite(x) and abs(x - bound) <= 1e-9 * max(1.0, abs(bound))
+        # the fit wrote the bound itself (exp(ln bound) on the log scale: within rounding)
+        return math.isfinite(bound) and math.isfinite(x) and abs(x - bound) <= 1e-9 * max(abs(bound), abs(x))
 
     if at(low, bounds[0]):
         return "low"

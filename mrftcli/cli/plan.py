@@ -347,9 +347,9 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
          time_s: float | None,
          noise_std: float | None, n_tests: int | None, n_simulated: int, min_cycles: int, json_target: str | None,
          quiet: bool, **read_options: Any) -> None:
-    """Recommend the next MRFT test(s): beta, relay height h and duration that pin Td, tau and K down best.
+    """Recommend the next test(s) for the model: eq. (2)'s MRFT beta, h and duration, or a process plant's relay.
 
-    The prior (ranges, and a first test from --from) and the flight's limits give each candidate
+    Eq. (2) (--tp): the prior (ranges, and a first test from --from) and the flight's limits give each candidate
     test (beta in -0.9..-0.1, the largest h within --max-amplitude and --max-h, the time available)
     its predicted limit cycle (exact LPRS at the controller rate) and the expected standard
     deviations of Td, tau and K after it (Fisher information of the frequency, phase and amplitude

@@ -300,7 +300,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     else:
         try:
             evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes), tuple(_in_set(src)))
-            stack_export = export_design(ex.stack, c, res.model, loop, f"{name} {kind}", clamp=ex.clamp,
+            stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
                                          hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence)
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
@@ -336,11 +336,14 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
 
 
 def _in_set(src: _TuneSource) -> list[Any]:
-    """The posterior's 95 % set's models (empty without a posterior)."""
-    post = src.posterior
-    if post is None:
-        return []
+    """The posterior's 95 % set's models (empty without eq. (2)'s posterior)."""
     import numpy as np
+
+    from ..tune.design import Posterior
+
+    post = src.posterior
+    if not isinstance(post, Posterior):
+        return []
 
     return list(post.models(np.flatnonzero(post.in_set())))
 

@@ -95,6 +95,8 @@ def _check_request(req: AxesRequest) -> str:
 
 def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
     """The two axes (roll first) with their sources, and the rate both records share."""
+    from ..mrft.model import LoopModel
+    from ..tune.design import Posterior
     from ..tune.joint import AxisModel, AxisSource
     from .tune import from_result_json
 
@@ -112,7 +114,8 @@ def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
         raise InputError(f"{pa} records {a.rate_hz} Hz and {pb} {b.rate_hz} Hz: one rate loop runs both axes; "
                          "analyse logs of one controller rate or give --controller-rate HZ")
     srcs.sort(key=lambda ps: ps[1].loop != "roll")
-    axes = [AxisModel(str(s.loop), s.model, s.posterior) for _, s in srcs if s.posterior is not None]
+    axes = [AxisModel(str(s.loop), s.model, s.posterior) for _, s in srcs  # eq. (2)'s, as from_result_json reads
+            if isinstance(s.model, LoopModel) and isinstance(s.posterior, Posterior)]
     return axes, [(AxisSource(s.heights, s.amplitudes), s.notes) for _, s in srcs], a.rate_hz
 
 

@@ -38,8 +38,8 @@ def plot_bode(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
     from ..tune.margins import margin_grid, plant_response
 
     # the margins' grid: fine enough at high frequency for the delay's phase to unwrap at any delay
-    w = margin_grid(result.rate_hz, int(result.model.tau * result.rate_hz))
-    Gd = plant_response([result.model], result.rate_hz, w)[0]
+    w = margin_grid(result.rate_hz, int(result.loop_model.tau * result.rate_hz))
+    Gd = plant_response([result.loop_model], result.rate_hz, w)[0]
     fig, (a1, a2) = new_figure(2, 1, width=9.0, height=6.5, sharex=True)
     for d in result.designs:
         if d.kind != kind:
@@ -63,7 +63,7 @@ def plot_bode(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
     a1.set_ylabel("|L| [dB]")
     a2.set_ylabel("arg L [deg]")
     a2.set_xlabel("frequency [rad/s] (up to Nyquist)")
-    a1.set_title(f"{kind} loops on the identified model, {result.rate_hz:g} Hz, exact delay {result.model.tau * 1e3:.1f} ms")
+    a1.set_title(f"{kind} loops on the identified model, {result.rate_hz:g} Hz, exact delay {result.loop_model.tau * 1e3:.1f} ms")
     a1.legend(loc="lower left")
     a2.set_ylim(-360, 0)
     return save_figure(fig, path)
@@ -162,8 +162,9 @@ def write_tune_report(result: "TuneResult", out_dir: str | Path, export: "StackE
 
     ``export``: the stack export written with ``--export`` (shown after the recommended design)."""
     out = ensure_dir(out_dir)
-    body = [f"<p>Model Tp {result.model.Tp:g} s, Td {result.model.Td:.4g} s, tau {result.model.tau * 1e3:.4g} ms, "
-            f"K {result.model.K:.4g} {gain_unit(result.loop)}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
+    m = result.loop_model
+    body = [f"<p>Model Tp {m.Tp:g} s, Td {m.Td:.4g} s, tau {m.tau * 1e3:.4g} ms, "
+            f"K {m.K:.4g} {gain_unit(result.loop)}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
             f"{result.ms_max:g}.</p>"]
     if result.rate_filter is not None:  # an export's design: Tf is replaced by the stack's filter
         f = result.rate_filter

@@ -325,6 +325,20 @@ class TuneResult:
     rate_filter: RateFilter | None = None
     reverse_acting: bool = False
 
+    @property
+    def loop_model(self) -> LoopModel:
+        """The eq. (2) model the result was designed for (a stack's export, the report's figures need one).
+
+        Raises
+        ------
+        InputError
+            Another family's result (one line).
+        """
+        if not isinstance(self.model, LoopModel):
+            raise InputError(f"a {self.model.family} model's gains export as --export generic only (the stack "
+                             "exports and the report are for eq. (2) loops)")
+        return self.model
+
     def get(self, name: str, kind: str) -> Design:
         for d in self.designs:
             if d.name == name and d.kind == kind:
@@ -373,7 +387,8 @@ class TuneResult:
         if not isinstance(md, dict):
             raise InputError(f"{what}: 'model' must be an object")
         if data["schema_version"] == 1:  # eq. (2) only: the model as {Tp, Td, tau, K}
-            model: PlantModel = LoopModel(*(_number(md, k, what) for k in ("Tp", "Td", "tau", "K")))
+            Tp, Td, tau, K = (_number(md, k, what) for k in ("Tp", "Td", "tau", "K"))
+            model: PlantModel = LoopModel(Tp, Td, tau, K)
         else:
             model = model_from_json(md)
         post = None
@@ -711,7 +726,8 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
         if isinstance(model, CascadeModel):
             from .cascade import tune_cascade  # the cascade's strategy (it builds this module's records)
 
-            return tune_cascade(model, rate_hz, tuple(posterior or ()), options=options, loop=loop)
+            draws = tuple(d for d in posterior or () if isinstance(d, CascadeModel))
+            return tune_cascade(model, rate_hz, draws, options=options, loop=loop)
         from .grid import tune_grid  # the other families' strategy
 
         return tune_grid(model, rate_hz, tuple(posterior or ()), options, loop)

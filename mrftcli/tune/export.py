@@ -204,8 +204,11 @@ def _family_table(res: "TuneResult") -> str:
 
 def _cascade_table(res: "TuneResult") -> str:
     """The table of an outer loop's PD on the cascade (:mod:`mrftcli.tune.cascade`)."""
+    from ..mrft.cascade import CascadeModel
+
     y = output_unit(res.loop)
     m = res.model
+    assert isinstance(m, CascadeModel)  # format_table's dispatch
     lines = [f"loop {res.loop} on the cascade: Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}  through "
              f"{m.inner.loop or 'the inner loop'}; rate {res.rate_hz:g} Hz",
              f"gains: Kp [command per {y}], Kd [command s per {y}], Tf [ms]"]

@@ -359,7 +359,7 @@ def export_axes(stack: str, results: Sequence[TuneResult], design: str, sources:
         d = res.get(design, "PD")
         try:
             evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes))
-            exports.append(export_design(stack, d.controller, res.model, res.loop, f"{design} PD", clamp=clamp,
+            exports.append(export_design(stack, d.controller, res.loop_model, res.loop, f"{design} PD", clamp=clamp,
                                          evidence=evidence))
         except InputError as err:
             raise InputError(f"{res.loop}: {err}") from err

@@ -118,7 +118,7 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     if st is None or refused is not None:
         return gains
     try:
-        export = export_design(st.stack, gains.controller, res.model, result.loop, f"{design} {options.kind}",
+        export = export_design(st.stack, gains.controller, res.loop_model, result.loop, f"{design} {options.kind}",
                                clamp=st.clamp, hover_thrust=st.hover_thrust,
                                evidence=_evidence(result.tests, res.notes))
     except InputError as err:
@@ -159,7 +159,7 @@ def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> 
         kept = tuple(n for n in v.gains.tune.notes if not n.startswith(name))  # the default cutoff's note
         res = replace(res, notes=(joint.note(), *kept, *res.notes))
         try:
-            export = export_design(st.stack, res.get(v.gains.design, "PD").controller, res.model, v.loop,
+            export = export_design(st.stack, res.get(v.gains.design, "PD").controller, res.loop_model, v.loop,
                                    f"{v.gains.design} PD", clamp=st.clamp, evidence=_evidence(v.analysis.tests, res.notes))
         except InputError as err:
             out[v.loop] = replace(v, gains=LoopGains(v.gains.design, "PD", res, export_refused=str(err)))

@@ -16,14 +16,13 @@ import json
 import math
 import re
 from collections.abc import Collection, Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .errors import InputError
 
-__all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_json_file", "load_toml_text", "load_yaml_text",
+__all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_toml_text", "load_yaml_text",
            "MAX_JSON_DEPTH", "MAX_YAML_NODES", "json_depth"]
 
 
@@ -77,16 +76,6 @@ def load_json_text(text: str, what: str) -> Any:
         raise InputError(f"{what}: JSON nested too deep to read") from None
     except ValueError as err:
         raise InputError(f"{what}: not valid JSON ({str(err).splitlines()[0]})") from None
-
-
-def load_json_file(path: str | Path, what: str | None = None) -> Any:
-    """The parsed JSON file at ``path`` (:func:`load_json_text`); InputError when it cannot be read."""
-    what = what or str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{what}: cannot read it ({getattr(err, 'strerror', None) or err})") from None
-    return load_json_text(text, what)
 
 
 def load_toml_text(text: str, what: str) -> Any:

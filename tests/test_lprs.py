@@ -3,24 +3,19 @@
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mrftcli.errors import InputError
 from mrftcli.mrft.describing import describing_function_limit_cycle, df_frequency, df_phase
-from mrftcli.mrft.lprs import (
-    lprs_first_order,
-    lprs_integrator,
-    lprs_series,
-    lprs_soiptd,
-    lprs_state_space,
-    lti_limit_cycle,
-    mrft_limit_cycle,
-    unit_cycle,
-    unit_cycle_scalar,
-)
+from mrftcli.mrft.lprs import lti_limit_cycle, mrft_limit_cycle, unit_cycle, unit_cycle_scalar
 from mrftcli.mrft.model import LoopModel
+
+sys.path.insert(0, str(Path(__file__).parent))
+from boiko_lprs import lprs_first_order, lprs_integrator, lprs_series, lprs_soiptd, lprs_state_space  # noqa: E402
 
 # checks.md section 1: theta/u = 0.14 e^{-0.06 s}/(s (0.1 s+1)(0.7042 s+1)); unit-gain form K Td = 1
 PAPER = LoopModel(Tp=0.1, Td=1 / 1.42, tau=0.06, K=1.42)

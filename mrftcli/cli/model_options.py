@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 
 __all__ = ["MODEL_NAMES", "DECLARED", "model_option", "meta_model_options",
            "meta_model", "structure_options", "window_option", "relay_options", "parse_params",
-           "parse_ranges", "parse_windows", "build_model", "refuse_model", "format_general", "format_estimates"]
+           "parse_ranges", "parse_windows", "build_model", "format_general", "format_estimates"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -255,14 +255,6 @@ def _declared(params: Sequence[str], ranges: Sequence[str]) -> Any:
     rng = {n: (lo, hi) for n, lo, hi in model.ranges if n not in extra_known}
     return declared_model(model.transfer_function, {**known, **extra_known}, {**rng, **extra_ranges},
                           dict(model.units))
-
-
-def refuse_model(model_name: str, command: str) -> None:
-    """A command that cannot take a process model yet says so instead of ignoring ``--model``."""
-    if model_name != "soiptd":
-        what = "--model-file" if model_name == DECLARED else f"--model {model_name}"
-        raise InputError(f"{command} supports only --model soiptd (eq. (2)) so far; "
-                         f"analyze, identify and predict take {what}")
 
 
 def _num(x: float | None, digits: int = 4) -> str:

@@ -27,7 +27,7 @@ from ..errors import LogReadError
 
 __all__ = ["MAX_CHUNK_BYTES", "ChunkHeader", "OversizeChunkError", "chunk_header", "check_declared", "decompress_chunk",
            "walk_records", "RecordWalk", "OP_SCHEMA", "OP_CHANNEL", "OP_MESSAGE", "OP_CHUNK", "OP_FOOTER",
-           "OP_DATA_END", "MESSAGE_HEADER_BYTES"]
+           "MESSAGE_HEADER_BYTES"]
 
 #: The largest uncompressed chunk read [bytes]. Recorders write chunks of 0.75-4 MiB (rosbag2's
 #: default is 768 KiB, the ``mcap`` CLI's 4 MiB); a chunk grows past that only to hold one larger
@@ -41,7 +41,6 @@ OP_CHANNEL: Final = 0x04
 OP_MESSAGE: Final = 0x05
 OP_CHUNK: Final = 0x06
 OP_FOOTER: Final = 0x02
-OP_DATA_END: Final = 0x0F
 #: channel_id (2), sequence (4), log_time (8), publish_time (8) [bytes]
 MESSAGE_HEADER_BYTES: Final = 2 + 4 + 8 + 8
 # the fixed fields of the records a chunk may hold [bytes]: a shorter one is damage

@@ -21,8 +21,7 @@ if TYPE_CHECKING:
 #: a JSON Schema node
 JsonSchema = dict[str, Any]
 
-__all__ = ["typestore_for", "typestore_from_text", "check_type_graph", "numeric_leaves", "json_schema", "json_messages",
-           "ros1_name"]
+__all__ = ["typestore_for", "typestore_from_text", "check_type_graph", "numeric_leaves", "json_schema", "json_messages"]
 
 _INTS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "byte", "char"}
 
@@ -89,11 +88,6 @@ def check_type_graph(ts: Typestore, msgtype: str) -> None:
         done.add(name)
 
     visit(msgtype, ())
-
-
-def ros1_name(msgtype: str) -> str:
-    """``std_msgs/msg/Float64`` -> ``std_msgs/Float64``."""
-    return msgtype.replace("/msg/", "/")
 
 
 def numeric_leaves(ts: Typestore, msgtype: str, prefix: str = "") -> list[str]:

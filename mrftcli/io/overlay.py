@@ -50,13 +50,10 @@ from ..errors import InputError
 from .atomic import atomic_path
 
 __all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS",
-           "FOXGLOVE_EVENT_SCHEMA", "ANALYSIS_ATTACHMENT", "foxglove_event_schema"]
+           "ANALYSIS_ATTACHMENT", "foxglove_event_schema"]
 
 #: the topics :func:`write_overlay` writes
 OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters", "/mrft_ident/events")
-
-#: Foxglove recognises an event channel by this exact schema name only
-FOXGLOVE_EVENT_SCHEMA = "foxglove.Event"
 
 #: the name of the analysis JSON attached to the results MCAP
 ANALYSIS_ATTACHMENT = "analysis.json"

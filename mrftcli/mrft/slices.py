@@ -69,10 +69,6 @@ class _Curve:
         theta, _ = unit_cycle_scalar(self.Tp * w, Td * w, self.beta, self.warm)
         return theta / w
 
-    def amp_unit(self, Td: float) -> float:
-        w = self.omega
-        return unit_cycle_scalar(self.Tp * w, Td * w, self.beta)[1]
-
 
 def _td_range(ms: ManifoldSet, omegas: Sequence[float]) -> tuple[float, float]:
     """Range of Td [s] covered by the manifold grid for every test."""

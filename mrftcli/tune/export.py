@@ -33,16 +33,11 @@ from .closed_loop import Controller
 if TYPE_CHECKING:
     from .design import TuneResult
 
-__all__ = ["generic", "generic_file", "generic_export", "generic_units", "hear_json", "px4_params", "px4_conditions", "format_table", "FORMATS", "HEAR_PID_ID"]
+__all__ = ["generic_file", "generic_export", "generic_units", "hear_json", "px4_params", "px4_conditions", "format_table",
+           "HEAR_PID_ID"]
 
-FORMATS = ("json", "table", "hear", "px4")
 #: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
 HEAR_PID_ID = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4, "yaw": 5}
-
-
-def generic(c: Controller) -> dict[str, Any]:
-    """Kp, Ki, Kd, Tf [s] and rate_hz of a controller (parallel form, derivative on the measurement)."""
-    return c.to_dict()
 
 
 def generic_units(loop: str) -> dict[str, str]:

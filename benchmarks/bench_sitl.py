@@ -136,12 +136,30 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
               f"{'; '.join(t.notes[:2])}")
     with open_log(log, echo_warnings=False) as src:
         tm, m = src.read("MRFT", ["Cmd", "Snt"])
-    t_cmd = tm[1:][np.diff(m["Cmd"]) != 0]
-    t_snt = tm[1:][np.diff(m["Snt"]) != 0]
-    lag = [float(t_snt[t_snt >= x][0] - x) for x in t_cmd if (t_snt >= x).any()]
     dt = np.diff(tm)
-    print(f"      script ticks: median {np.median(dt) * 1e3:.2f} ms, 90th pct {np.percentile(dt, 90) * 1e3:.2f} ms; "
-          f"decision -> sent: {np.mean(lag) * 1e3:.2f} +- {np.std(lag) * 1e3:.2f} ms over {len(lag)} switches")
+    print(f"      relay ticks: median {np.median(dt) * 1e3:.3f} ms, 90th pct {np.percentile(dt, 90) * 1e3:.3f} ms; "
+          f"delay realised: {realised_delay(tm, m['Cmd'], m['Snt'])}")
+
+
+def realised_delay(t: np.ndarray, cmd: np.ndarray, sent: np.ndarray, gap_s: float = 0.1) -> str:
+    """The delay the log shows between the decision (``Cmd``) and what was sent (``Snt``).
+
+    The main-loop relay sends each decision a whole number n of ticks later: the n for which
+    ``Snt[k] == Cmd[k - n]`` at every sample of every test (tests split at gaps over ``gap_s``; each
+    test's closing sample, at the centre, left out), and its length in the log's time [ms]. A relay
+    that is not tick-exact (the Lua script) gets the switch-to-switch lag instead, mean +- std.
+    """
+    cuts = np.r_[0, np.nonzero(np.diff(t) > gap_s)[0] + 1, t.size]
+    runs = [(a, b - 1) for a, b in zip(cuts[:-1], cuts[1:]) if b - 1 - a > 40]
+    for n in range(0, 40):
+        if all(np.array_equal(sent[a + n:b], cmd[a:b - n]) for a, b in runs):
+            spans = np.concatenate([t[a + n:b] - t[a:b - n] for a, b in runs])
+            return (f"{n} ticks exactly (every sample), {np.mean(spans) * 1e3:.3f} ms mean "
+                    f"({np.min(spans) * 1e3:.3f}-{np.max(spans) * 1e3:.3f} ms)")
+    t_cmd = t[1:][np.diff(cmd) != 0]
+    t_snt = t[1:][np.diff(sent) != 0]
+    lag = [float(t_snt[t_snt >= x][0] - x) for x in t_cmd if (t_snt >= x).any()]
+    return f"not tick-exact: switch to switch {np.mean(lag) * 1e3:.2f} +- {np.std(lag) * 1e3:.2f} ms over {len(lag)}"
 
 
 def report_analysis(results: dict[str, dict], logs: Path) -> None:

@@ -146,8 +146,8 @@ def _side(name: str, **params: Estimate) -> Side:
 
 def test_combined_interval_uses_the_facing_sides_of_asymmetric_intervals():
     z = critical_z(0.95)
-    base = Estimate(mean=1.0, low=1.0 - 0.3 * z, high=1.0 + 0.4 * z)  # sigma below 0.3, above 0.4
-    new = Estimate(mean=2.0, low=2.0 - 0.3 * z, high=2.0 + 0.1 * z)   # sigma below 0.3, above 0.1
+    base = Estimate(value=1.0, low=1.0 - 0.3 * z, high=1.0 + 0.4 * z)  # sigma below 0.3, above 0.4
+    new = Estimate(value=2.0, low=2.0 - 0.3 * z, high=2.0 + 0.1 * z)   # sigma below 0.3, above 0.1
     c = compare_sides(_side("b", Td=base), _side("n", Td=new)).changes[0]
     # d = +1: it may really be lower by the new side's lower and the base's upper sigma
     assert c.change == pytest.approx(1.0)
@@ -158,16 +158,16 @@ def test_combined_interval_uses_the_facing_sides_of_asymmetric_intervals():
 
 
 def test_std_only_estimates_and_confidence():
-    base, new = Estimate(mean=0.0, std=1.0), Estimate(mean=2.5, std=1.0)  # z = 2.5 / sqrt(2) = 1.77
+    base, new = Estimate(value=0.0, std=1.0), Estimate(value=2.5, std=1.0)  # z = 2.5 / sqrt(2) = 1.77
     assert compare_sides(_side("b", K=base), _side("n", K=new)).changes[0].verdict == "unchanged"
     loose = CompareOptions(confidence=0.9)  # z_c = 1.645
     assert compare_sides(_side("b", K=base), _side("n", K=new), loose).changes[0].verdict == "changed"
 
 
 def test_bonferroni_widens_each_parameter_test():
-    est = {"Td": (Estimate(mean=0.0, std=1.0), Estimate(mean=3.0, std=1.0)),  # z 2.12: > 1.96, < 2.39
-           "tau": (Estimate(mean=0.0, std=1.0), Estimate(mean=0.0, std=1.0)),
-           "K": (Estimate(mean=0.0, std=1.0), Estimate(mean=0.0, std=1.0))}
+    est = {"Td": (Estimate(value=0.0, std=1.0), Estimate(value=3.0, std=1.0)),  # z 2.12: > 1.96, < 2.39
+           "tau": (Estimate(value=0.0, std=1.0), Estimate(value=0.0, std=1.0)),
+           "K": (Estimate(value=0.0, std=1.0), Estimate(value=0.0, std=1.0))}
     b = _side("b", **{k: v[0] for k, v in est.items()})
     n = _side("n", **{k: v[1] for k, v in est.items()})
     assert _by_param(compare_sides(b, n))["Td"].significant
@@ -176,12 +176,12 @@ def test_bonferroni_widens_each_parameter_test():
 
 
 def test_open_td_is_undetermined_never_a_change():
-    base = Estimate(mean=2.0, low=1.9, high=2.1)
-    open_new = Estimate(mean=40.0, low=5.0, high=math.inf)  # Td > 5 s: no upper bound
+    base = Estimate(value=2.0, low=1.9, high=2.1)
+    open_new = Estimate(value=40.0, low=5.0, high=math.inf)  # Td > 5 s: no upper bound
     c = compare_sides(_side("b", Td=base), _side("n", Td=open_new)).changes[0]
     assert c.verdict == "undetermined" and c.change is None and not c.significant
     assert "new bounded below only (> 5)" in c.note
-    cmp = compare_sides(_side("b", Td=base), _side("n", Td=Estimate(mean=None)))
+    cmp = compare_sides(_side("b", Td=base), _side("n", Td=Estimate(value=None)))
     assert cmp.changes[0].note == "no new estimate" and cmp.exit_code == 0
 
 
@@ -325,7 +325,7 @@ def test_junit_xml_is_read_by_a_standard_parser(results, tmp_path, capsys):
 
 
 def test_junit_marks_undetermined_skipped_and_missing_as_error():
-    base = _side("b", Td=Estimate(mean=2.0, low=1.9, high=2.1))
+    base = _side("b", Td=Estimate(value=2.0, low=1.9, high=2.1))
     base = Side(path="b", kind="analysis", loops=(*base.loops, LoopEstimates(
         loop="roll", name=None, source="b", parameters={"Td": Estimate(0.1, 0.09, 0.11)})))
     new = Side(path="n", kind="analysis", loops=(

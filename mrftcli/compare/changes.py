@@ -79,10 +79,10 @@ def side_sigmas(e: Estimate) -> tuple[float, float]:
     From the interval's half-widths when it has one (asymmetric intervals keep their shape), else the
     std on both sides.
     """
-    assert e.mean is not None  # determined estimates only
+    assert e.value is not None  # determined estimates only
     if e.low is not None and e.high is not None:
         z = critical_z(e.interval_confidence)
-        return max(e.mean - e.low, 0.0) / z, max(e.high - e.mean, 0.0) / z
+        return max(e.value - e.low, 0.0) / z, max(e.high - e.value, 0.0) / z
     std = e.std or 0.0
     return std, std
 
@@ -91,7 +91,7 @@ def _undetermined_note(base: Estimate, new: Estimate) -> str:
     def why(e: Estimate, side: str) -> str | None:
         if e.determined:
             return None
-        if e.mean is None or not math.isfinite(e.mean):
+        if e.value is None or not math.isfinite(e.value):
             return f"no {side} estimate"
         if e.low is not None and math.isfinite(e.low):
             return f"{side} bounded below only (> {e.low:.4g})"
@@ -123,16 +123,16 @@ def compare_estimates(base: Estimate, new: Estimate, *, z_crit: float, tolerance
     """Test one parameter's change (module docstring) with the critical value ``z_crit``."""
     if not (base.determined and new.determined):
         return _UNDETERMINED
-    assert base.mean is not None and new.mean is not None
+    assert base.value is not None and new.value is not None
     b_below, b_above = side_sigmas(base)
     n_below, n_above = side_sigmas(new)
-    d = new.mean - base.mean
+    d = new.value - base.value
     sigma_down, sigma_up = math.hypot(n_below, b_above), math.hypot(n_above, b_below)
     low, high = d - z_crit * sigma_down, d + z_crit * sigma_up
     towards_zero = sigma_down if d > 0 else sigma_up
     z = d / towards_zero if towards_zero > 0 else (0.0 if d == 0 else math.copysign(math.inf, d))
     significant = low > 0.0 or high < 0.0
-    beyond = tolerance is not None and tolerance.exceeded_by(d, base.mean)
+    beyond = tolerance is not None and tolerance.exceeded_by(d, base.value)
     if not significant:
         verdict = "unchanged"
     elif beyond or (tolerance is None and fail_without_tolerance):
@@ -161,7 +161,7 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
     params = [p for p in PARAMETERS if p in b.parameters or p in n.parameters]
     if skip_absent:  # a reference states only the parameters it checks
         params = [p for p in params if p in b.parameters and p in n.parameters]
-    missing = Estimate(mean=None)
+    missing = Estimate(value=None)
     pairs = {p: (b.parameters.get(p, missing), n.parameters.get(p, missing)) for p in params}
     tested = sum(1 for be, ne in pairs.values() if be.determined and ne.determined)
     alpha = 1.0 - options.confidence
@@ -173,7 +173,7 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
         tol = _tolerance_for(n.loop, p, options.fail_on, (b, n))
         t = compare_estimates(be, ne, z_crit=z_crit, tolerance=tol, fail_without_tolerance=fail_without_tolerance)
         note = _undetermined_note(be, ne) if t.verdict == "undetermined" else ""
-        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=be.mean, new=ne.mean, change=t.change,
+        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=be.value, new=ne.value, change=t.change,
                                    low=t.low, high=t.high, z=t.z, significant=t.significant,
                                    tolerance=tol.text if tol is not None else None, beyond_tolerance=t.beyond,
                                    verdict=t.verdict, note=note))

@@ -77,7 +77,7 @@ def _estimate(p: ParameterEstimate) -> Estimate:
     if high is None and low is not None:
         high = math.inf  # Td bounded below only: the tests cannot close its interval
     std = p.std if math.isfinite(p.std) else None
-    return Estimate(mean=mean, low=low, high=high, std=std)
+    return Estimate(value=mean, low=low, high=high, std=std)
 
 
 def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str | None = None) -> LoopEstimates:
@@ -86,7 +86,8 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
     Parameters
     ----------
     result : Mapping
-        The analysis JSON (Td, tau, K with ``mean``, ``std``, ``ci95_low``, ``ci95_high`` [SI units]).
+        The analysis JSON (Td, tau, K: the parameter record, ``value``, ``std``, ``ci95_low``, ``ci95_high``
+        [SI units]; ``mean`` before analysis schema 4).
     source : str
         Where it was read (for messages).
     name : str or None
@@ -190,7 +191,7 @@ def _reference_estimate(value: object, where: str) -> tuple[Estimate, str | None
         mean, std, tol = _number(value), 0.0, None
     if mean is None or not math.isfinite(mean) or std is None or not std >= 0.0 or not math.isfinite(std):
         raise InputError(f"{where}: give a finite value (and std >= 0), e.g. {{ value = 0.0464, tol = \"+5ms\" }}")
-    return Estimate(mean=mean, low=None, high=None, std=std), tol
+    return Estimate(value=mean, low=None, high=None, std=std), tol
 
 
 def _reference_loop(table: Mapping[str, Any], loop: str, name: str | None, source: str) -> LoopEstimates:

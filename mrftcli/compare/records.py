@@ -62,7 +62,7 @@ class Estimate:
 
     Parameters
     ----------
-    mean : float or None
+    value : float or None
         Point estimate [SI units]; None when the side gives none.
     low, high : float or None
         The side's interval at ``interval_confidence`` [SI units]; None (or infinite) when open, as an
@@ -73,7 +73,7 @@ class Estimate:
         Confidence of ``low``-``high`` (0.95 for ``analyze`` results).
     """
 
-    mean: float | None
+    value: float | None
     low: float | None = None
     high: float | None = None
     std: float | None = None
@@ -82,7 +82,7 @@ class Estimate:
     @property
     def determined(self) -> bool:
         """True when the estimate and both sides of its uncertainty are finite."""
-        if not _finite(self.mean):
+        if not _finite(self.value):
             return False
         if _finite(self.low) and _finite(self.high):
             return True
@@ -91,7 +91,7 @@ class Estimate:
     @classmethod
     def exact(cls, value: float) -> Estimate:
         """A value without uncertainty (a reference figure)."""
-        return cls(mean=value, low=value, high=value, std=0.0)
+        return cls(value=value, low=value, high=value, std=0.0)
 
 
 @dataclass(frozen=True)

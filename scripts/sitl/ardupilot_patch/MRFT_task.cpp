@@ -8,7 +8,9 @@
 //     controller adds to its target at the next tick (the script opens the axis's rate PID to a unit
 //     feed-forward, so the mixer input is the filtered injection).
 // The outputs reach the motors at the next tick's motors_output: one tick, the same in every flight.
-// Logged every tick as MRFT (the ardupilot-mrft layout of mrft-ident).
+// Logged every tick as MRFT (the ardupilot-mrft layout of mrft-ident); in SITL also the simulator's
+// truth of the same output (Tru: the altitude above home [m], roll or pitch [rad]), so that what the EKF
+// adds to the loop can be read from the log (NaN on a vehicle).
 
 #include "MRFT_task.h"
 
@@ -18,6 +20,9 @@
 #include <AP_Motors/AP_Motors_Class.h>
 #include <AP_Scheduler/AP_Scheduler.h>
 #include <AC_AttitudeControl/AC_AttitudeControl.h>
+#if CONFIG_HAL_BOARD == HAL_BOARD_SITL
+#include <SITL/SITL.h>
+#endif
 
 MrftTask mrft_task;
 
@@ -92,11 +97,26 @@ void MrftTask::finish()
     p_run->set(0);
 }
 
+// the simulator's state of the relay's output (SITL builds), else NaN
+static float truth(int axis)
+{
+#if CONFIG_HAL_BOARD == HAL_BOARD_SITL
+    const SITL::SIM *sim = AP::sitl();
+    if (sim != nullptr) {
+        if (axis == 1) {
+            return float(sim->state.altitude - sim->state.home.alt * 0.01);
+        }
+        return radians(float((axis == 2) ? sim->state.rollDeg : sim->state.pitchDeg));
+    }
+#endif
+    return NAN;
+}
+
 void MrftTask::write_log(float cmd, float sent, float y, int8_t rel) const
 {
-    AP::logger().Write("MRFT", "TimeUS,Ax,Cmd,Snt,Out,SP,Rel,B,H,Bias,Dly", "s---------s", "F---------0",
-                       "QBffffbffff", AP_HAL::micros64(), uint8_t(axis), cmd, sent, y, sp, rel, beta, h, bias,
-                       dly_s);
+    AP::logger().Write("MRFT", "TimeUS,Ax,Cmd,Snt,Out,SP,Rel,B,H,Bias,Dly,Tru", "s---------s-", "F---------0-",
+                       "QBffffbfffff", AP_HAL::micros64(), uint8_t(axis), cmd, sent, y, sp, rel, beta, h, bias,
+                       dly_s, truth(axis));
 }
 
 void MrftTask::update()

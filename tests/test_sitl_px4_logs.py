@@ -18,6 +18,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).parents[1]
@@ -78,3 +79,57 @@ def test_added_delay_shows_in_tau() -> None:
         assert t.beta_effective == pytest.approx(t.beta_nominal, abs=0.05)
     # ... and comes back in tau, but 27.7 ms, not 20 +- 2 ms, on these noisy logs (docs/benchmarks/sitl.md)
     assert 0.010 <= res1.tau.value - res0.tau.value <= 0.040
+
+
+def _px4_logger_interval(t: np.ndarray, interval_s: float) -> np.ndarray:
+    """Indices PX4's logger keeps of a topic published at ``t`` with a logging interval
+    (uORB ``SubscriptionInterval``: a message at least ``interval`` after the last update, which moves
+    on by ``interval``, kept within one interval of now): the logger's rule, written from its source."""
+    keep, last = [], -np.inf
+    for i, now in enumerate(np.round(t * 1e6)):
+        if now - last >= interval_s * 1e6:
+            keep.append(i)
+            last = min(max(last + interval_s * 1e6, now - interval_s * 1e6), now)
+    return np.array(keep)
+
+
+def _thrust(z_thrust: np.ndarray) -> dict[str, np.ndarray]:
+    zero = np.zeros(z_thrust.size)
+    return {"thrust[0]": zero, "thrust[1]": zero, "thrust[2]": z_thrust, "z": zero - 5.0}
+
+
+def test_the_relay_rate_is_read_from_the_log(tmp_path: Path) -> None:
+    """mc_pos_control publishes one setpoint a cycle: 125 Hz in this SITL (the fork's v1.11 ran it at
+    50 Hz, the layout's fallback): read from the command logged at every publication, and from the
+    same command sub-sampled to 10 Hz by PX4's logger rule (intervals of 96 and 104 ms, multiples of 8)."""
+    from mrftcli.io import read_flight
+    from mrftcli.io.flight import ReadOptions
+    from mrftcli.io.format_ulog import write_ulog
+    from mrftcli.io.logtypes import TopicData
+
+    full = read_flight(LOGS / "px4_altitude.ulg", ReadOptions(loop="altitude"), echo_warnings=False)
+    assert full.timing.controller_rate_hz == pytest.approx(125.0, rel=1e-6)
+    assert full.source["controller_rate"].startswith("125 Hz from the log")
+    c, y = full.command, full.output
+    k = _px4_logger_interval(c.t, 0.1)
+    j = _px4_logger_interval(y.t, 0.1)
+    topics = [TopicData("vehicle_local_position_setpoint", "px4", c.t[k],
+                        _thrust(-c.values[k])),
+              TopicData("vehicle_local_position", "px4", y.t[j], {"z": -y.values[j]})]
+    path = tmp_path / "px4_10hz.ulg"
+    write_ulog(topics, path)
+    low = read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False)
+    assert low.timing.controller_rate_hz == pytest.approx(125.0, rel=1e-3)
+    assert "multiples of 8 ms" in low.source["controller_rate"]
+    assert not any("assumed" in w for w in low.warnings)
+    # every interval the same multiple of the tick (a 10 Hz log of 50 Hz): the fallback, said
+    even = tmp_path / "px4_even.ulg"
+    t = c.t[0] + 0.1 * np.arange(400)
+    write_ulog([TopicData("vehicle_local_position_setpoint", "px4", t, _thrust(-np.interp(t, c.t, c.values))),
+                TopicData("vehicle_local_position", "px4", t, {"z": -np.interp(t, y.t, y.values)})], even)
+    assumed = read_flight(even, ReadOptions(loop="altitude"), echo_warnings=False)
+    assert assumed.timing.controller_rate_hz == 50.0
+    assert assumed.source["controller_rate"].startswith("50 Hz assumed")
+    assert sum("controller rate 50 Hz assumed" in w and "--controller-rate" in w for w in assumed.warnings) == 1
+    given = read_flight(even, ReadOptions(loop="altitude", controller_rate_hz=125.0), echo_warnings=False)
+    assert given.timing.controller_rate_hz == 125.0 and "controller_rate" not in given.source

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,7 +26,7 @@ from .clock import check_rate, check_time_unit
 from .layouts import LAYOUTS, Layout, LayoutMatch, LoopTopics, detect_layout, get_layout
 from .logtypes import LOOPS, FlightLog, Signal
 from .source import LogSource, TopicSpec, parse_spec
-from .timing import Timing, median_rate_hz, receive_jitter_s
+from .timing import Timing, logged_tick_s, median_rate_hz, receive_jitter_s
 
 __all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "ABSURD_MAGNITUDE", "read_loop", "log_layout", "role_specs"]
 
@@ -228,6 +229,9 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
         source["command_scale"] = roles.command_scale
     optional["beta"] = _finite_beta(log, optional["beta"], source.get("beta", ""))
     timing = _timing(log, match.layout, opts, command, output)  # the stamps as logged, before _finite
+    if opts.controller_rate_hz is None and match.layout.rate_from_log:
+        rate, source["controller_rate"] = _rate_from_log(log, match.layout, command)
+        timing = dataclasses.replace(timing, controller_rate_hz=rate)
     command = _finite(log, _bounded(log, command, "command", source["command"]), "command", source["command"])
     output = _finite(log, _bounded(log, output, "output", source["output"]), "output", source["output"])
     output = _fresh(log, output, source["output"])
@@ -376,6 +380,31 @@ def _timing(log: LogSource, lay: Layout, opts: ReadOptions, command: Signal, out
         jitter = max(receive_jitter_s(command.t), receive_jitter_s(output.t))
         return Timing(controller_rate_hz=rate, stamps="receive", timing_jitter_s=jitter)
     return Timing(controller_rate_hz=rate)
+
+
+def _rate_from_log(log: LogSource, lay: Layout, command: Signal) -> tuple[float, str]:
+    """The relay's rate [Hz] as the log shows it (``Layout.rate_from_log``), and how it was found
+    (``"125 Hz from the log: ..."``, ``input.source.controller_rate``).
+
+    The command's own rate when it is logged at every publication (the relay publishes it once a
+    decision), else the tick its sub-sampled stamps are multiples of; when neither shows, the layout's
+    rate, said as an assumption in a warning (and in ``input.source``).
+    """
+    rate = median_rate_hz(command.t)
+    if rate is not None and rate >= _LOW_RATE_HZ:
+        rate = float(f"{rate:.6g}")  # 125 Hz, not 125.00000000007 (the float stamps' rounding)
+        return rate, f"{rate:.6g} Hz from the log: the command's rate (one message per controller cycle)"
+    tick = logged_tick_s(command.t)
+    if tick is not None:
+        return 1.0 / tick, (f"{1.0 / tick:.6g} Hz from the log: the sub-sampled command's intervals are "
+                            f"multiples of {tick * 1e3:.4g} ms")
+    assumed = f"{lay.controller_rate_hz or 0:g} Hz assumed"
+    log.warn(f"controller rate {assumed}: the command is logged at {rate or 0:.3g} Hz and its intervals do not "
+             f"show the controller's tick; {lay.rate_assumption}. Give --controller-rate (Hz) if yours differs "
+             "(a command logged at every publication shows it)")
+    if lay.controller_rate_hz is None:
+        raise InputError("the controller's rate is not in the log: give --controller-rate (Hz)")
+    return lay.controller_rate_hz, f"{assumed}: {lay.rate_assumption}"
 
 
 def _finite_beta(log: LogSource, beta: Signal | None, where: str) -> Signal | None:

@@ -75,7 +75,15 @@ class Layout:
     controller_rate_hz : float or None
         The rate [Hz] at which the stack's MRFT relay decides, when the logger may record the command
         more slowly (the segmenter then places each switch among the controller ticks between two logged
-        samples); None: the command is logged at the controller's rate.
+        samples); None: the command is logged at the controller's rate. With ``rate_from_log`` it is
+        only the fallback for a log that does not show the rate, and is then stated as an assumption.
+    rate_from_log : bool
+        The relay decides once per published command (PX4: ``mc_pos_control`` publishes one
+        ``vehicle_local_position_setpoint`` a cycle), so the log shows the controller's rate: the
+        command's own rate when it is logged at every publication, else the tick its sub-sampled stamps
+        are multiples of (:func:`mrftcli.io.timing.logged_tick_s`).
+    rate_assumption : str
+        Why ``controller_rate_hz`` is the fallback (said in the warning and in ``input.source``).
     """
 
     name: str
@@ -87,6 +95,8 @@ class Layout:
     timestamps: str = "header"
     low_rate_fix: str = "record the command and the output at the controller's rate"
     controller_rate_hz: float | None = None
+    rate_from_log: bool = False
+    rate_assumption: str = ""
 
 
 def _reference(output: str) -> LoopTopics:
@@ -125,9 +135,14 @@ _PX4 = Layout(
     parameters="MRFT_{axis}_",
     low_rate_fix="set SDLOG_PROFILE to high rate (or list vehicle_local_position and "
                  "vehicle_local_position_setpoint at 0 ms in etc/logging/logger_topics.txt)",
-    # mc_pos_control runs on vehicle_local_position, at most 50 Hz in the MRFT patch; the default
-    # logger keeps these topics at 10 Hz (--controller-rate overrides)
+    # mc_pos_control decides once per vehicle_local_position it gets and publishes one setpoint a cycle:
+    # 50 Hz in the fork's PX4 v1.11 (set_interval_us(20_ms)), EKF2's output rate from PX4 1.12 on
+    # (125 Hz in SIH). Read from the log; 50 Hz only when the log cannot show it (a 10 Hz log whose
+    # intervals are all one multiple of the tick), stated as an assumption (--controller-rate overrides)
     controller_rate_hz=50.0,
+    rate_from_log=True,
+    rate_assumption="the fork's PX4 v1.11 runs mc_pos_control at 50 Hz (set_interval_us(20_ms)); PX4 1.12 "
+                    "and later run it at EKF2's output rate (vehicle_local_position's, e.g. 100-250 Hz)",
 )
 
 # HEAR flight controller, ROS 1 (geometry_msgs/Point has no header: receive time).

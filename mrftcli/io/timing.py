@@ -21,7 +21,7 @@ from ..jsonable import check_schema_version
 from ..errors import InputError
 
 __all__ = ["Timing", "TIMING_SCHEMA_VERSION", "median_rate_hz", "mean_rate_hz", "receive_jitter_s",
-           "controller_rate_hz"]
+           "controller_rate_hz", "logged_tick_s"]
 
 #: version of :meth:`Timing.to_json`
 TIMING_SCHEMA_VERSION = 1
@@ -62,6 +62,55 @@ def median_rate_hz(t: npt.ArrayLike) -> float | None:
     if dt.size == 0:
         return None
     return float(1.0 / np.median(dt))
+
+
+def logged_tick_s(t: npt.ArrayLike, min_share: float = 0.05) -> float | None:
+    """The controller's period [s] that a sub-sampled signal's stamps are whole multiples of.
+
+    A logger that keeps one message every ``T`` from a topic published every controller tick ``Ts``
+    (PX4's logger: the first message at least ``T`` after the last one kept, the lag carried over)
+    logs intervals of ``n Ts`` and ``(n + 1) Ts`` when ``Ts`` does not divide ``T`` (10 Hz from a
+    125 Hz controller: 96 and 104 ms): the step between the distinct intervals is the tick. When every
+    interval is the same multiple, the tick is not in the stamps (None).
+
+    Parameters
+    ----------
+    t : array_like
+        Sample times [s], increasing, stamped where the message was published.
+    min_share : float
+        The least share of the intervals a distinct interval needs (rarer ones: dropped messages).
+
+    Returns
+    -------
+    float or None
+        The tick [s] (rounded to 1 us); None when the intervals do not show one.
+
+    Examples
+    --------
+    >>> round(1 / logged_tick_s(np.cumsum([0.096, 0.104] * 20)), 6)
+    125.0
+    >>> logged_tick_s(np.arange(40) * 0.1) is None
+    True
+    """
+    times = np.asarray(t, dtype=np.float64)
+    if times.size < 20:
+        return None
+    d = np.sort(np.diff(times))
+    d = d[d > 0]
+    if d.size < 19:
+        return None
+    med = float(np.median(d))
+    tol = max(20e-6, 0.005 * med)  # the publisher's scheduling jitter
+    cuts = np.flatnonzero(np.diff(d) > tol) + 1
+    groups = [g for g in np.split(d, cuts) if g.size >= min_share * d.size]
+    if len(groups) < 2:
+        return None
+    centres = np.array([float(np.median(g)) for g in groups])
+    tick = float(np.min(np.diff(centres)))
+    multiples = centres / tick
+    if tick < 10 * tol or tick > med / 1.5 or np.max(np.abs(multiples - np.round(multiples))) > 0.1:
+        return None
+    return round(tick, 6)
 
 
 def mean_rate_hz(t: npt.ArrayLike) -> float | None:

@@ -213,8 +213,9 @@ _MAT = Layout(
     low_rate_fix="log the controller output and the output at the controller's rate",
 )
 
-# ArduCopter with mrft-ident's Lua relay (scripts/sitl/mrft_relay.lua): one DataFlash message MRFT per
-# script tick holding the relay's decision (bias + relay, before the delay FIFO) and the EKF's output
+# ArduCopter with mrft-ident's relay (a main-loop task, scripts/sitl/ardupilot_patch, started by
+# scripts/sitl/mrft_relay.lua): one DataFlash message MRFT per main-loop tick (or per script tick without
+# the patch) holding the relay's decision (bias + relay, before the delay line) and the EKF's output
 # (altitude [m] or roll/pitch [rad]); one MRFB message at each test's start holds its beta (a beta
 # logged every tick would cut the relay's runs at every sample). One axis per log.
 def _ardupilot_mrft() -> LoopTopics:
@@ -223,11 +224,12 @@ def _ardupilot_mrft() -> LoopTopics:
 
 _ARDUPILOT_MRFT = Layout(
     name="ardupilot-mrft",
-    title="ArduCopter with mrft-ident's Lua MRFT relay (DataFlash message MRFT)",
+    title="ArduCopter with mrft-ident's MRFT relay (DataFlash message MRFT)",
     loops={loop: _ardupilot_mrft() for loop in ("altitude", "roll", "pitch")},
     signature=("MRFT",),
     formats=("dataflash",),
-    low_rate_fix="the script logs every tick; raise its rate with PERIOD_MS in mrft_relay.lua",
+    low_rate_fix="the relay logs every tick: build with scripts/sitl/build_ardupilot.sh (the main-loop relay, "
+                 "400 Hz) instead of the script-run relay",
 )
 
 #: every layout by name (``--layout NAME``)

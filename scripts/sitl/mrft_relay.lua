@@ -4,7 +4,7 @@
 -- Modified Relay Feedback Test on that loop for MRFT_DUR seconds, then hands the vehicle back to
 -- GUIDED's velocity hold and sets MRFT_AXIS back to 0.
 --
--- The rule (mrft-ident's MrftRelay, docs/method.md): e = r - y. While +h, track e_max since the last
+-- The rule (mrftcli/mrft/relays.py, docs/method.md): e = r - y. While +h, track e_max since the last
 -- switch and switch to -h when e_max > 0 and e <= -beta e_max; while -h, track e_min and switch to +h
 -- when e_min < 0 and e >= -beta e_min. The first half-cycle keeps the sign of the first error until
 -- the error passes MRFT_ETH on the other side.
@@ -137,7 +137,7 @@ local function stop(t, why)
   gcs:send_text(6, "MRFT: test ended (" .. why .. ")")
 end
 
--- the switching rule (mrftcli/mrft/relay.py MrftRelay.step)
+-- the switching rule (mrftcli/mrft/relays.py, RelayLaw.sampled)
 local function relay_step(t, e)
   if not t.started then
     t.relay = (e >= 0) and 1 or -1

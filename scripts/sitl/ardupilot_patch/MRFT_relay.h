@@ -6,7 +6,7 @@
 
 namespace mrft {
 
-// The rule of mrftcli/mrft/relay.py (MrftRelay.step): e = r - y; while +h, track e_max since the last
+// The rule of mrftcli/mrft/relays.py (RelayLaw.sampled): e = r - y; while +h, track e_max since the last
 // switch and switch to -h when e_max > 0 and e <= -beta e_max; symmetrically while -h. The first
 // half-cycle keeps the first error's sign until the error passes eth on the other side.
 struct Relay {

@@ -1,4 +1,4 @@
-"""batch --model NAME: each log analysed as a process plant (mrftcli/batch/process.py).
+"""batch --model NAME: each log analysed as a process plant (mrftcli/batch/run.py: the one analysis route, the model object chosen per task).
 
 The logs are relay tests simulated by tests/process_sim.py (independent of mrftcli); the truth is
 the simulated plant's parameters.

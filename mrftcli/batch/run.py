@@ -44,7 +44,6 @@ from .. import __version__
 from ..io.atomic import atomic_path, check_output_path, looks_like_json, write_text_atomic
 from ..vehicle.loops import absent_topics, loops_in_log  # one implementation: batch --loop auto and vehicle
 from .inputs import AUTO_LOOP, BatchConfig, LogSettings, discover_logs, log_mtime, resolve_settings, result_path
-from .process import model_key
 from .summary import (
     STATUS_FAILED,
     STATUS_INSUFFICIENT,
@@ -68,8 +67,9 @@ if TYPE_CHECKING:
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
            "BatchOptions", "run_batch", "failed_entry", "log_record"]
 
-#: Record format version: bump when the record layout changes, so old results are recomputed.
-_RECORD_VERSION = 1
+#: Record format version: bump when the record layout changes, so old results are recomputed. 2: the
+#: analyses in it write every parameter as the one record (issue 36), so a rerun leaves no folder of two shapes.
+_RECORD_VERSION = 2
 
 
 class BatchFailedError(MrftError):
@@ -81,7 +81,7 @@ class BatchFailedError(MrftError):
 def settings_hash(settings: LogSettings, diagnose: bool, tune: str | None = None, vehicle: bool = False,
                   model: str = "") -> str:
     """A short hash of everything that changes a log's result (settings, --diagnose, --tune, --vehicle, the
-    process model's JSON ``model`` (:func:`mrftcli.batch.process.model_key`), tool version).
+    process model's JSON ``model``, tool version).
 
     The vehicle name is left out: it only labels the summary row, so renaming does not recompute.
     """
@@ -115,8 +115,8 @@ class LogTask:
     tune: str | None = None
     #: Identify and tune the whole vehicle (mrftcli.vehicle): the record holds its vehicle record.
     vehicle: bool = False
-    #: A process model (PlantModel, ``--model NAME``/``--model-file``): each loop analysed with it
-    #: (:mod:`mrftcli.batch.process`); None: eq. (2).
+    #: A process model (PlantModel, ``--model NAME``/``--model-file``): each loop analysed with it;
+    #: None: eq. (2).
     model: Any = None
 
 
@@ -176,14 +176,14 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     entry: dict[str, Any] = {"loop": loop, "status": STATUS_OK, "error": None, "error_type": None,
                              "exit_code": 0, "result": None, "diagnosis": None}
     try:
-        if task.model is not None:
-            from .process import analyze_process_loop
+        from ..analyze import AnalyzeOptions, analyze_path, refuse_rejected_tp
+        from ..io import ReadOptions
+        from ..mrft.model import soiptd_model
 
-            entry["result"] = analyze_process_loop(task.path, loop, s, task.model)
-            return entry
-        if s.tp is None:
+        model = task.model if task.model is not None or s.tp is None else soiptd_model(s.tp)
+        if model is None:
             raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
-        if s.command_topic is None and s.output_topic is None:
+        if task.model is None and s.command_topic is None and s.output_topic is None:
             # a fleet of mixed loops: a log that does not record this loop is skipped, not failed
             try:
                 absent = absent_topics(task.path, loop, s.layout)
@@ -191,16 +191,15 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                 absent = ()
             if absent:
                 return _skipped_entry(entry, loop, absent)
-        from ..analyze import AnalyzeOptions, analyze_path, refuse_rejected_tp
-        from ..io import ReadOptions
-        from ..mrft.model import soiptd_model
-
         # settings left unset (None) keep the options' defaults
         read = ReadOptions(loop=loop, command_topic=s.command_topic, output_topic=s.output_topic,
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
-        result = refuse_rejected_tp(analyze_path(task.path, soiptd_model(s.tp), read=read, options=options), s.accept_tp)
+        if task.model is not None:  # a process plant (batch --model): its analysis record, nothing more
+            entry["result"] = analyze_path(task.path, model, read=read, options=options).to_json()
+            return entry
+        result = refuse_rejected_tp(analyze_path(task.path, model, read=read, options=options), s.accept_tp)
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,
@@ -560,7 +559,7 @@ class BatchOptions:
         controller kind).
     model : PlantModel, optional
         A process model (``--model NAME``, ``--model-file``): each loop is analysed with it
-        (:mod:`mrftcli.batch.process`, no Tp needed); its record is the process analysis and the
+        (no Tp needed); its record is the process analysis and the
         summary adds the model and its parameters with units. Not with ``diagnose``, ``tune``, ``vehicle``.
 
     Raises
@@ -676,7 +675,7 @@ def _task(log: Path, base: Mapping[str, Any], config: BatchConfig | None, explic
         mtime = log_mtime(log)
     except OSError:  # vanished or unreadable since discovery: the worker reports it as that log's failure
         mtime = math.inf
-    key = "" if model is None else model_key(model)
+    key = "" if model is None else json.dumps(model.to_json(), sort_keys=True)  # another model, another result
     return LogTask(str(log), settings, diagnose, settings_hash(settings, diagnose, tune, vehicle, key), mtime, tune,
                    vehicle, model)
 

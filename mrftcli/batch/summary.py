@@ -19,7 +19,6 @@ import pandas as pd
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
-from .process import PROCESS_COLUMNS, process_columns
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
            "SUMMARY_COLUMNS",
@@ -148,6 +147,52 @@ def _is_process(entry: Mapping[str, Any]) -> bool:
     """A loop analysed with ``batch --model`` (its result is a process analysis: ``model`` names a family)."""
     result = entry.get("result")
     return isinstance(result, Mapping) and isinstance(result.get("model"), str) and result.get("model") != "soiptd"
+
+
+#: The columns a process row adds after SUMMARY_COLUMNS (then ``p_NAME``, ``p_NAME_std``, ``p_NAME_unit``
+#: per parameter of the family, in its order).
+PROCESS_COLUMNS = ["model", "parameters"]
+
+
+def _g(x: float, digits: int = 4) -> str:
+    return f"{x:.{digits}g}" if math.isfinite(x) else "-"
+
+
+def process_columns(result: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The summary columns of a process analysis JSON (``batch --model``; None: a loop without a result).
+
+    ``parameters`` reads e.g. ``"K 1.985 ± 0.084 output / command; T 0.9755 ± 0.043 s; tau 0.3265 ± 0.0015 s"``
+    (``known`` for a given parameter, ``not determined`` for one the tests leave open); ``tau_mean`` and
+    ``tau_std`` [s] fill eq. (2)'s columns too (the delay is ``tau`` in seconds in every family, so the
+    fleet's tau outlier flags apply).
+    """
+    from ..analyze.general import GeneralAnalysis
+
+    if result is None:
+        return {}
+    try:
+        analysis = GeneralAnalysis.from_json(result)
+    except InputError:
+        return {}
+    ident = analysis.identification
+    out: dict[str, Any] = {"model": result.get("model"), "n_tests": len(analysis.tests),
+                           "n_cycles": sum(t.n_stable for t in analysis.tests),
+                           "betas": ";".join(t.relay.kind for t in analysis.tests)}
+    if ident is None:
+        return out
+    text = []
+    for e in ident.estimates:
+        spread = "known" if e.known else (f"± {_g(e.std, 2)}" if e.determined else "not determined")
+        text.append(f"{e.name} {_g(e.value)} {spread} {e.unit}")
+        out[f"p_{e.name}"] = e.value
+        out[f"p_{e.name}_std"] = e.std if e.determined and not e.known else math.nan
+        out[f"p_{e.name}_unit"] = e.unit
+    out["parameters"] = "; ".join(text)
+    tau = next((e for e in ident.estimates if e.name == "tau"), None)
+    if tau is not None:
+        out["tau_mean"] = tau.value
+        out["tau_std"] = tau.std if tau.determined and not tau.known else math.nan
+    return out
 
 
 def _process_frame(rows: list[dict[str, Any]], index: pd.Index) -> pd.DataFrame:

@@ -139,6 +139,40 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
     dt = np.diff(tm)
     print(f"      relay ticks: median {np.median(dt) * 1e3:.3f} ms, 90th pct {np.percentile(dt, 90) * 1e3:.3f} ms; "
           f"delay realised: {realised_delay(tm, m['Cmd'], m['Snt'])}")
+    for line in ekf_against_truth(log):
+        print(line)
+
+
+def ekf_against_truth(log: Path) -> list[str]:
+    """Per test: the EKF's output (``MRFT:Out``) against SITL's own (``MRFT:Tru``) at the relay's frequency.
+
+    The fundamental at the test's frequency (from its up-switches after the first 2 s) is fitted to both by
+    least squares (with an offset and a drift); their ratio gives the EKF's gain and lag there [ms].
+    """
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        try:
+            t, m = src.read("MRFT", ["Out", "Tru", "Rel"])
+        except Exception:  # noqa: BLE001 - a log without Tru (the script-run relay)
+            return []
+    lines = []
+    cuts = np.r_[0, np.nonzero(np.diff(t) > 0.1)[0] + 1, t.size]
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        tt, rel = t[a:b - 1], m["Rel"][a:b - 1]
+        up = tt[1:][np.diff(rel) > 0]
+        up = up[up > tt[0] + 2.0]
+        if up.size < 3:
+            continue
+        f = (up.size - 1) / (up[-1] - up[0])
+        sel = (tt >= up[0]) & (tt <= up[-1])
+        basis = np.c_[np.sin(2 * np.pi * f * tt[sel]), np.cos(2 * np.pi * f * tt[sel]), np.ones(sel.sum()),
+                      tt[sel] - tt[sel].mean()]
+        c_out, c_tru = (np.linalg.lstsq(basis, m[k][a:b - 1][sel], rcond=None)[0] for k in ("Out", "Tru"))
+        r = complex(c_out[1], c_out[0]) / complex(c_tru[1], c_tru[0])
+        lines.append(f"      EKF against SITL's truth at {f:.3f} Hz: gain {abs(r):.3f}, lag "
+                     f"{-np.angle(r) / (2 * np.pi * f) * 1e3:+.2f} ms")
+    return lines
 
 
 def realised_delay(t: np.ndarray, cmd: np.ndarray, sent: np.ndarray, gap_s: float = 0.1) -> str:
@@ -350,6 +384,9 @@ def main() -> int:
     ap.add_argument("--speedup", type=float, default=1.0)
     ap.add_argument("--only", nargs="*", default=[], help="fly only these flights (names in FLIGHTS)")
     ap.add_argument("--no-refly", action="store_true", help="stop after the analysis")
+    ap.add_argument("--logs-only", action="store_true",
+                    help="only what the logs show without identification: tests located, ticks, the delay "
+                         "realised, the EKF against SITL's truth")
     ap.add_argument("--stack", choices=("ardupilot", "px4"), default="ardupilot",
                     help="px4: the PX4 SIH campaign with the fork's MRFT (scripts/sitl/px4/px4_campaign.py)")
     ap.add_argument("--px4", type=Path, default=Path("/work/sitl/px4"), help="PX4 tree (built or to build)")
@@ -359,6 +396,12 @@ def main() -> int:
         from px4_campaign import run
 
         return run(args.px4, args.logs, args.speedup, args.only, args.analyze_only, args.no_refly)
+    if args.logs_only:
+        for name, loop, _, _, _, _ in FLIGHTS:
+            log = args.logs / f"{name}.BIN"
+            if log.exists():
+                report_segments(log, loop, json.loads(Path(f"{log}.json").read_text()))
+        return 0
     if not args.analyze_only:
         if not (args.ap / "build/sitl/bin/arducopter").exists():
             subprocess.run([str(ROOT / "scripts/sitl/build_ardupilot.sh"), str(args.ap)], check=True)

@@ -59,8 +59,8 @@ from ..mrft.lprs import lti_limit_cycle
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 
-__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "TestData", "test_data", "fit_effects", "select",
-           "BIC_THRESHOLD", "held_out_table"]
+__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "Selection", "TestData", "test_data", "fit_effects", "select",
+           "BIC_THRESHOLD"]
 
 #: evidence needed to name an effect (Kass-Raftery's "very strong", as eq. (2)'s diagnosis)
 BIC_THRESHOLD = 10.0
@@ -107,6 +107,8 @@ class TestData:
         The periods' variance [s^2] and its degrees of freedom.
     noise_var : float
         The period variance the sensor noise and the sampled relay explain [s^2].
+    precision : float
+        The mean cycle's relative standard error, frequency and amplitude together [-].
     delay_gain : float
         dP / dtau of the model's cycle under this test's relay [-]: a switch reaching the plant late
         by d lengthens the period by about half of it times d (set by :func:`fit_effects`).
@@ -129,6 +131,7 @@ class TestData:
     period_var: float
     period_dof: int
     noise_var: float
+    precision: float = 0.0
     delay_gain: float = 2.0
 
 
@@ -175,11 +178,15 @@ def test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
     slope = float(np.median(slopes))
     sigma_n = float(np.median(noise))
     switch_var = (sigma_n / slope) ** 2 if slope > 0 else math.inf
+    amps = [0.5 * float(np.ptp(np.real(np.exp(1j * np.outer(phase, np.arange(1, f.harmonics.size + 1)))
+                                       @ f.harmonics))) for f in fits]
+    amplitude = float(0.5 * (wave.max() - wave.min()))
+    precision = math.hypot(float(P.std(ddof=1) / P.mean()), float(np.std(amps, ddof=1)) / amplitude) / math.sqrt(n)
     return TestData(s.index, 0.5 * (s.t_start + s.t_end), s.relay.h, s.predicting_relay, float(s.rate_hz),
-                    measured.points, 1.0 / float(P.mean()), float(0.5 * (wave.max() - wave.min())),
+                    measured.points, 1.0 / float(P.mean()), amplitude,
                     float(D.mean()), float(D.std(ddof=1) / math.sqrt(n)), float(np.nanmean(m)),
                     float(np.nanstd(m, ddof=1) / math.sqrt(n)), float(P.var(ddof=1)), n - 1,
-                    2.0 * (switch_var + Ts * Ts / 12.0))
+                    2.0 * (switch_var + Ts * Ts / 12.0), precision)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -493,6 +500,9 @@ class EffectFit:
         The views it changes.
     with_ : str
         The effect already kept it was fitted on top of, or ``""``.
+    floor : float
+        The smallest value told from the recording's own limits (a jitter: half the slowest relay's
+        tick, below which the tick's quantisation makes the same scatter) [unit].
     refit : mapping of str to float
         The family's parameters identified from all tests' response points with the effect (and
         ``with_``) taken out [their units]; empty when the effect leaves the points alone.
@@ -509,6 +519,7 @@ class EffectFit:
     per_test_after: tuple[float, ...]
     views: tuple[str, ...]
     with_: str = ""
+    floor: float = 0.0
     refit: Mapping[str, float] = dataclasses.field(default_factory=dict)
 
     @property
@@ -516,7 +527,8 @@ class EffectFit:
         """Strong evidence and a clearly better held-out prediction (by :data:`HELD_OUT_GAIN` at least;
         :data:`HELD_OUT_GAIN_SECOND` on top of a first effect)."""
         gain = HELD_OUT_GAIN_SECOND if self.with_ else HELD_OUT_GAIN
-        return self.delta_bic > BIC_THRESHOLD and self.held_out_after < gain * self.held_out_before
+        return (self.delta_bic > BIC_THRESHOLD and self.held_out_after < gain * self.held_out_before
+                and abs(self.value) >= self.floor)
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "parameter": self.parameter, "unit": self.unit, "value": _finite(self.value),
@@ -524,7 +536,7 @@ class EffectFit:
                 "held_out_after": _finite(self.held_out_after),
                 "per_test_before": [_finite(x) for x in self.per_test_before],
                 "per_test_after": [_finite(x) for x in self.per_test_after], "views": list(self.views),
-                "with": self.with_, "found": self.found, "refit": {k: _finite(v) for k, v in self.refit.items()}}
+                "with": self.with_, "found": self.found, "floor": self.floor, "refit": {k: _finite(v) for k, v in self.refit.items()}}
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> EffectFit:
@@ -534,7 +546,8 @@ class EffectFit:
                    num(d["held_out_before"]), num(d["held_out_after"]),
                    tuple(num(x) for x in d.get("per_test_before", [])),
                    tuple(num(x) for x in d.get("per_test_after", [])), tuple(str(v) for v in d.get("views", [])),
-                   str(d.get("with", "")), {str(k): num(v) for k, v in d.get("refit", {}).items()})
+                   str(d.get("with", "")), float(d.get("floor", 0.0)),
+                   {str(k): num(v) for k, v in d.get("refit", {}).items()})
 
 
 def _finite(x: float) -> float | None:
@@ -555,20 +568,36 @@ def _fit_one(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[
     rms = lambda xs: math.sqrt(sum(x * x for x in xs) / len(xs))  # noqa: E731
     ident = _identify(model, tests, _actions([*kept, (effect, value)], tests, t_ref))
     refit = {} if ident is None or "points" not in base_views else {e.name: e.value for e in ident.estimates}
+    floor = max(0.5 / t.rate_hz for t in tests) if effect.name == "delay_jitter" else 0.0
     return EffectFit(effect.name, effect.parameter, effect.unit, value, dbic, rms(before), rms(after),
-                     tuple(before), tuple(after), views, with_, refit)
+                     tuple(before), tuple(after), views, with_, floor, refit)
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    tests: list[TestData]  # with their delay gains
+    k0: float  # G(0) of the model of all tests [output / command]
+    t_ref: float  # the tests' middle [s, log clock]
+
+
+def _prepare(model: PlantModel, tests: Sequence[TestData]) -> _Prepared:
+    base = _identify(model, tests, [Action()] * len(tests))
+    k0 = _static_gain(base.model) if base is not None else math.inf
+    if base is not None:
+        tests = [dataclasses.replace(t, delay_gain=_delay_gain(base.model, t)) for t in tests]
+    return _Prepared(list(tests), k0, 0.5 * (min(t.t_mid for t in tests) + max(t.t_mid for t in tests)))
 
 
 def fit_effects(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[Effect, float]] = (),
                 names: Sequence[str] | None = None) -> list[EffectFit]:
     """Each candidate fitted (on top of ``kept``) and held out; ``names``: only those."""
-    base = _identify(model, tests, [Action()] * len(tests))
-    k0 = _static_gain(base.model) if base is not None else math.inf
-    if base is not None:
-        tests = [dataclasses.replace(t, delay_gain=_delay_gain(base.model, t)) for t in tests]
-    t_ref = 0.5 * (min(t.t_mid for t in tests) + max(t.t_mid for t in tests))
+    return _rows(model, _prepare(model, tests), kept, names)
+
+
+def _rows(model: PlantModel, prep: _Prepared, kept: Sequence[tuple[Effect, float]],
+          names: Sequence[str] | None = None) -> list[EffectFit]:
     with_ = "+".join(e.name for e, _ in kept)
-    return [_fit_one(model, tests, kept, e, k0, t_ref, with_) for e in EFFECTS
+    return [_fit_one(model, prep.tests, kept, e, prep.k0, prep.t_ref, with_) for e in EFFECTS
             if (names is None or e.name in names) and e not in [k for k, _ in kept]]
 
 
@@ -582,27 +611,43 @@ def _delay_gain(model: PlantModel, test: TestData) -> float:
     return float((1 / hi[0] - 1 / lo[0]) / (model.delay + step - max(model.delay - step, 0.0)))
 
 
-def select(model: PlantModel, tests: Sequence[TestData]) -> tuple[list[EffectFit], list[EffectFit]]:
-    """The candidates alone, then a second on top of the best one found (forward selection).
+@dataclass(frozen=True)
+class Selection:
+    """The library's outcome on one recording (:func:`select`).
 
-    Returns
-    -------
-    (rows, found)
-        Every candidate's row (alone, then on top of the first) and the effects named, in order.
+    Attributes
+    ----------
+    rows : list of EffectFit
+        Every candidate alone, then on top of the first one found.
+    found : list of EffectFit
+        The effects named, in order.
+    cycle_error_left : float
+        RMS over the tests of each test's cycle (frequency, amplitude) predicted from the others with
+        the effects named, relative [-].
+    cycle_precision : float
+        RMS over the tests of the cycles' own relative standard error (frequency, amplitude) [-]: what
+        the recording's scatter explains of the error left.
     """
+
+    rows: list[EffectFit]
+    found: list[EffectFit]
+    cycle_error_left: float
+    cycle_precision: float
+
+
+def select(model: PlantModel, tests: Sequence[TestData]) -> Selection:
+    """The candidates alone, then a second on top of the best one found (forward selection), and the
+    held-out cycle error the effects found leave."""
+    precision = math.sqrt(sum(t.precision ** 2 for t in tests) / max(len(tests), 1))
     if len(tests) < 2:
-        return [], []
-    rows = fit_effects(model, tests)
+        return Selection([], [], math.nan, precision)
+    prep = _prepare(model, tests)
+    rows = _rows(model, prep, [])
     found = sorted((r for r in rows if r.found), key=lambda r: -r.delta_bic)[:1]
-    if not found:
-        return rows, []
-    first = found[0]
-    second = fit_effects(model, tests, [(BY_NAME[first.name], first.value)])
-    rows += second
-    more = sorted((r for r in second if r.found), key=lambda r: -r.delta_bic)[:1]
-    return rows, found + more
-
-
-def held_out_table(fits: Sequence[EffectFit]) -> list[tuple[str, float, float]]:
-    """(name, before, after) of each effect named."""
-    return [(f.name, f.held_out_before, f.held_out_after) for f in fits]
+    if found:
+        second = _rows(model, prep, [(BY_NAME[found[0].name], found[0].value)])
+        rows += second
+        found += sorted((r for r in second if r.found), key=lambda r: -r.delta_bic)[:1]
+    kept = [(BY_NAME[f.name], f.value) for f in found]
+    left = _held_out_errors(model, prep.tests, kept, [], prep.k0, prep.t_ref, ("points",))
+    return Selection(rows, found, math.sqrt(sum(x * x for x in left) / len(left)), precision)

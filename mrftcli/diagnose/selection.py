@@ -220,7 +220,7 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                               [p for i, m in measured.items() if i != s.index for p in m.points], all_model)
                    for s in analysis.tests if s.index in measured)
     say("fitting the library of physics")
-    rows, found = select_effects_on(model, [test_data(flight, by_index[i]) for i in measured])
+    chosen = select_effects_on(model, [test_data(flight, by_index[i]) for i in measured])
     say("locating")
     gap = misfit(analysis.identification)
     # where the residual sits first (per test, largest first); the fit's overall misfit after it
@@ -229,8 +229,14 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
     notes = (*skipped,) + (() if len(measured) > 1 else
                            ("one test: nothing to hold out, so no effect is fitted (a second relay test checks them)",))
     say.finish()
-    return ProcessDiagnosis(analysis, checks, verdict(model, checks, located, found), located, notes, tuple(rows),
-                            tuple(f.name for f in found))
+    first = verdict(model, checks, located, chosen.found)
+    if chosen.found and located and chosen.cycle_error_left > 3 * chosen.cycle_precision:
+        # named, but not the whole story: each test's cycle from the others still misses beyond its scatter
+        first += (f"; unexplained beyond it: each test's cycle predicted from the others misses by "
+                  f"{100 * chosen.cycle_error_left:.0f} % (RMS; the cycles' own scatter: "
+                  f"{100 * chosen.cycle_precision:.1f} %); the linear model's disagreements are below")
+    return ProcessDiagnosis(analysis, checks, first, located, notes, tuple(chosen.rows),
+                            tuple(f.name for f in chosen.found))
 
 
 def _diagnose_soiptd(flight: FlightLog, Tp: float, analysis: AnalysisResult | None, progress: Progress | None,

@@ -77,8 +77,9 @@ class _R:
         return self._d
 
 
-def _stand_in(path, Tp, *, read, options):
+def _stand_in(path, model, *, read, options):
     # Echo the settings back as "parameters" so the test sees what reached the analysis.
+    Tp = model.Tp
     return _R(toy_analysis(Tp, 0.05, read.output_scale or 1.0, Tp, ((-0.4, 8),), std=(0.0, 0.001, 0.0),
                            command_topic=read.command_topic))
 

@@ -27,7 +27,8 @@ from .closed_loop import Controller, StepMetrics
 from .design import FILTER_N, Design, DesignOptions, TuneResult
 from .margins import Margins
 
-__all__ = ["tune_cascade", "cascade_margins", "closed_loop_matrix", "outer_draws", "cascade_result_v1", "N_DRAWS"]
+__all__ = ["tune_cascade", "cascade_margins", "closed_loop_matrix", "step_outputs", "design_record", "worst_of",
+           "outer_draws", "cascade_result_v1", "N_DRAWS"]
 
 #: draws of the robust design over the outer estimate and the inner loop (:func:`outer_draws`)
 N_DRAWS = 30
@@ -62,7 +63,7 @@ def cascade_result_v1(data: Mapping[str, Any]) -> TuneResult:
             g = d["generic"]
             c = Controller(float(g["Kp"]), float(g["Ki"]), float(g["Kd"]), float(g["Tf"]), float(g["rate_hz"]))
             worst = None if d.get("worst") is None else figures(d["worst"])
-            designs.append(_record(str(d.get("name", "")), c, figures(d.get("nominal")), worst,
+            designs.append(design_record(str(d.get("name", "")), c, figures(d.get("nominal")), worst,
                                    num(d.get("iae")), math.nan, ms_max, pm_min, int(data.get("n_draws") or 0)))
         return TuneResult(CascadeModel.from_json(data["model"]), None, float(data["rate_hz"]), str(data.get("loop", "")),
                           "iae", ms_max, math.inf, math.nan, {}, tuple(designs), tuple(str(n) for n in data.get("notes") or ()))
@@ -70,11 +71,15 @@ def cascade_result_v1(data: Mapping[str, Any]) -> TuneResult:
         raise InputError(f"cascade tune JSON: {type(err).__name__}: {err}") from None
 
 
-def _record(name: str, c: Controller, nominal: tuple[float, float, float, float, bool],
-            worst: tuple[float, float, float, float, bool] | None, iae: float, horizon_s: float, ms_max: float,
-            pm_min: float, n_draws: int) -> Design:
-    """One PD as the one :class:`~mrftcli.tune.design.Design` record: the nominal figures as its margins (no
-    delay margin or phase crossover here: NaN), the worst over the draws in ``posterior``, no step figures."""
+def design_record(name: str, c: Controller, nominal: tuple[float, float, float, float, bool],
+                  worst: tuple[float, float, float, float, bool] | None, iae: float, horizon_s: float, ms_max: float,
+                  pm_min: float, n_draws: int, definition: str = "setpoint step") -> Design:
+    """A grid design (the cascade's, the process families') as the one :class:`~mrftcli.tune.design.Design`.
+
+    ``nominal`` and ``worst`` are (phase margin [deg], gain margin, Ms, first crossover [Hz], stable): the
+    nominal figures become the margins (no delay margin or phase crossover here: NaN), the worst over the
+    nominal model and the draws ``posterior["worst"]``; no step figures (NaN); ``iae`` [output unit s] of
+    the ``definition`` step."""
     pm, gm, ms, fc, stable = nominal
     post: dict[str, Any] = {}
     if worst is not None:
@@ -82,7 +87,7 @@ def _record(name: str, c: Controller, nominal: tuple[float, float, float, float,
                 "n_draws": n_draws, "worst_of": "the nominal model and every draw"}
     return Design(name, c, "iae", iae, math.nan, Margins(gm, pm, math.nan, ms, 2 * math.pi * fc, math.nan, stable),
                   StepMetrics(*[math.nan] * 6), post, {"ms_max": ms_max, "pm_min_deg": pm_min, "feasible": True}, {},
-                  horizon_s, "setpoint step")
+                  horizon_s, definition)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -166,7 +171,8 @@ def _ok(c: Controller, plants: Sequence[DiscreteStateSpace], Gd: np.ndarray, ome
     return all(_stable(ss, c) for ss in plants)
 
 
-def _worst(m: Sequence[tuple[float, float, float, float, bool]]) -> tuple[float, float, float, float, bool]:
+def worst_of(m: Sequence[tuple[float, float, float, float, bool]]) -> tuple[float, float, float, float, bool]:
+    """The worst of each figure (phase margin, gain margin, Ms, first crossover [Hz], stable) over models."""
     return (min(x[0] for x in m), min(x[1] for x in m), max(x[2] for x in m), min(x[3] for x in m),
             all(x[4] for x in m))
 
@@ -174,19 +180,24 @@ def _worst(m: Sequence[tuple[float, float, float, float, bool]]) -> tuple[float,
 def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float) -> float:
     """IAE of a unit setpoint step of the sampled loop [output unit s] (exact: z_k = sum_{j<k} A^j B, by doubling)."""
     A, B, Cy = closed_loop_matrix(ss, c)
-    count = max(2, int(horizon_s * c.rate_hz))
-    S = np.empty((count, A.shape[0]))
-    S[0] = 0.0
+    with np.errstate(all="ignore"):
+        total = float(np.sum(np.abs(1.0 - step_outputs(A, B, Cy, max(2, int(horizon_s * c.rate_hz)))))) * c.Ts
+    return total if math.isfinite(total) else math.inf
+
+
+def step_outputs(A: np.ndarray, B: np.ndarray, Cy: np.ndarray, count: int) -> np.ndarray:
+    """The outputs Cy z_k of z_{k+1} = A z_k + B, z_0 = 0, over ``count`` ticks (exact: z_k = sum_{j<k} A^j B,
+    by doubling)."""
+    S = np.zeros((count, A.shape[0]))
     step, have = A.copy(), 1  # step = A^have
     with np.errstate(all="ignore"):
         while have < count:
             take = min(have, count - have)
-            s_have = A @ S[have - 1] + B
-            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + s_have
+            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + (A @ S[have - 1] + B)
             have += take
             step = step @ step
-        total = float(np.sum(np.abs(1.0 - S @ Cy))) * c.Ts
-    return total if math.isfinite(total) else math.inf
+        out: np.ndarray = S @ Cy
+    return out
 
 
 def _largest_gain(tdc: float, rate_hz: float, plants: Sequence[DiscreteStateSpace], Gd: np.ndarray,
@@ -225,8 +236,8 @@ def _design(name: str, nominal: DiscreteStateSpace, plants: Sequence[DiscreteSta
     J, c = best
     Gn = nominal.frequency_response(omega)[None, :]
     nominal_m = _margins(c, [nominal], Gn, omega)[0]
-    worst = _worst(_margins(c, plants, Gd, omega)) if len(plants) > 1 else None
-    return _record(name, c, nominal_m, worst, J, horizon_s, ms_max, pm_min, len(plants) - 1)
+    worst = worst_of(_margins(c, plants, Gd, omega)) if len(plants) > 1 else None
+    return design_record(name, c, nominal_m, worst, J, horizon_s, ms_max, pm_min, len(plants) - 1)
 
 
 def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed: int = 0) -> list[CascadeModel]:

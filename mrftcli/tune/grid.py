@@ -42,10 +42,9 @@ from ..errors import InputError
 from ..mrft.cascade import DiscreteStateSpace
 from ..mrft.matexp import phi_gamma_small
 from ..mrft.model import PlantModel
-from .cascade import cascade_margins, closed_loop_matrix
-from .closed_loop import Controller, StepMetrics
+from .cascade import cascade_margins, closed_loop_matrix, design_record, step_outputs, worst_of
+from .closed_loop import Controller
 from .design import FILTER_N, Design, DesignOptions, TuneResult
-from .margins import Margins
 
 __all__ = ["discretise", "discrete_response", "model_draws", "tune_grid", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
@@ -236,22 +235,8 @@ def _scaled(ss: DiscreteStateSpace, sign: float) -> DiscreteStateSpace:
     return DiscreteStateSpace(ss.Phi, ss.Gamma, sign * ss.C, ss.rate_hz)
 
 
-def _responses(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
-    """The outputs Cy z_k of z_{k+1} = A z_k + B, z_0 = 0, over ``count`` ticks (exact, by doubling)."""
-    S = np.zeros((count, A.shape[0]))
-    step, have = A.copy(), 1  # step = A^have; S[k] = sum_{j<k} A^j B
-    with np.errstate(all="ignore"):
-        while have < count:
-            take = min(have, count - have)
-            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + (A @ S[have - 1] + B)
-            have += take
-            step = step @ step
-    out: FloatArray = S @ Cy
-    return out
-
-
 def _stepped(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
-    """As :func:`_responses`, tick by tick with A sparse (a long delay's shift chain is mostly zeros)."""
+    """As :func:`~mrftcli.tune.cascade.step_outputs`, tick by tick with A sparse (a long delay's shift chain is mostly zeros)."""
     from scipy.sparse import csr_matrix
 
     As = csr_matrix(A)
@@ -271,7 +256,7 @@ def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) ->
         B = np.zeros(A.shape[0])
         B[:ss.order] = ss.Gamma
     count = max(2, int(horizon_s * c.rate_hz))
-    y = _responses(A, B, Cy, count) if A.shape[0] <= _DENSE_ORDER else _stepped(A, B, Cy, count)
+    y = step_outputs(A, B, Cy, count) if A.shape[0] <= _DENSE_ORDER else _stepped(A, B, Cy, count)
     total = float(np.sum(np.abs(y if load else 1.0 - y))) * c.Ts
     return total if math.isfinite(total) else math.inf
 
@@ -374,18 +359,9 @@ def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: DesignOpt
     if best is None:
         return None
     J, c = best
-    pm, gm, ms, fc, stable = _margins(c, p, 1)[0]
-    nominal = Margins(gm, pm, math.nan, ms, 2 * math.pi * fc, math.nan, stable)
-    posterior: dict[str, Any] = {}
-    if len(p.all) > 1:
-        m = _margins(c, p, len(p.all))
-        posterior = {"worst": {"phase_margin_deg": min(x[0] for x in m), "gain_margin": min(x[1] for x in m),
-                               "Ms": max(x[2] for x in m), "crossover_hz": min(x[3] for x in m),
-                               "stable": all(x[4] for x in m)},
-                     "n_draws": len(p.all) - 1, "worst_of": "the nominal model and every draw"}
-    constraints = {"ms_max": o.ms_max, "pm_min_deg": o.pm_min_deg, "feasible": True}
-    return Design(name, c, "iae", J, math.nan, nominal, StepMetrics(*[math.nan] * 6), posterior, constraints, {},
-                  horizon, "load step" if load else "setpoint step")
+    worst = worst_of(_margins(c, p, len(p.all))) if len(p.all) > 1 else None
+    return design_record(name, c, _margins(c, p, 1)[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
+                         "load step" if load else "setpoint step")
 
 
 def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, w_low: float) -> _Plants:

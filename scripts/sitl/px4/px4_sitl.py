@@ -40,12 +40,15 @@ PX4_VERSION = "PX4 main of 2024-08-21 (abdullaayyad96/PX4-Autopilot ae16556) + m
 #: SIH's quadrotor (src/modules/simulation/simulator_sih/sih_params.c defaults, airframe 10040)
 SIH_MODEL = {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_T_TAU": 0.05, "SIH_KDV": 1.0, "SIH_L_ROLL": 0.2,
              "SIH_IXX": 0.025}
-#: the command (the setpoint's thrust) at every publication, 125 Hz, mc_pos_control's rate; the output
-#: every other one (62.5 Hz: 35-50 samples a cycle); PX4's default logs both at 10 Hz. The rest slowly,
-#: to keep the ULogs small
-LOGGER_TOPICS = ["vehicle_local_position 16", "vehicle_local_position_setpoint 0", "trajectory_setpoint 0",
-                 "hover_thrust_estimate 100", "vehicle_attitude 50", "vehicle_status 200",
-                 "vehicle_land_detected 200"]
+#: the command (the setpoint's thrust: the relays' decision) at every publication, 125 Hz, mc_pos_control's
+#: rate; what reached the attitude setpoint (the decision after MRFT_DELAY) too, so the log shows the delay
+#: realised; the output every other one (62.5 Hz: 35-50 samples a cycle); PX4's default logs these at
+#: 10 Hz. SIH's true position beside EKF2's (the steps' figures without the estimate's noise). The rest
+#: slowly, to keep the ULogs small
+LOGGER_TOPICS = ["vehicle_local_position 16", "vehicle_local_position_setpoint 0", "vehicle_attitude_setpoint 0",
+                 "trajectory_setpoint 0", "vehicle_local_position_groundtruth 16", "hover_thrust_estimate 100",
+                 "vehicle_attitude 50",
+                 "vehicle_status 200", "vehicle_land_detected 200"]
 INT32 = mavutil.mavlink.MAV_PARAM_TYPE_INT32
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..progress import Progress, report
 from ..analyze import AnalysisResult
 from ..analyze.cascade import CascadeAnalysis
-from ..tune.design import TuneResult
+from ..mrft.model import LoopModel
 from ..vehicle import VehicleLoop, VehicleResult
 from ._common import ensure_dir, esc, html_page, html_table, write_page
 from .analysis import write_analysis_report
@@ -114,7 +114,7 @@ def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: P
         report(progress, i, len(names), f"report: {name}")
         entry = result.loops[name]
         links = [("../index.html", "The vehicle")]
-        if entry.gains is not None and isinstance(entry.gains.tune, TuneResult):
+        if entry.gains is not None and isinstance(entry.gains.tune.model, LoopModel):  # eq. (2)'s page; a cascade's below
             write_tune_report(entry.gains.tune, out / name / "gains")
             links.append(("gains/index.html", f"Gains of the {name} loop"))
         if isinstance(entry.analysis, AnalysisResult):

@@ -39,11 +39,24 @@ __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "expor
            "run"]
 
 G = 9.80665
-#: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust
+#: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust.
+#: The first pair at h 0.05 (the relay's switching drowned in EKF2's noise at low |beta|); the second at
+#: h 0.15 (where the fixes were developed); the third, fresh, at h 0.25 (the published figures); x at h 0.08
+_BETAS = (-0.2, -0.4, -0.6, -0.75)
 FLIGHTS = [
     ("px4_altitude", "altitude", 0.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.55, 0.05), (-0.7, 0.06)], 10.0),
     ("px4_altitude_20ms", "altitude", 20.0, [(-0.2, 0.05), (-0.4, 0.05), (-0.55, 0.05), (-0.7, 0.06)], 10.0),
+    ("px4_altitude_h15", "altitude", 0.0, [(b, 0.15) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
+    ("px4_altitude_h15_20ms", "altitude", 20.0, [(b, 0.15) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
+    ("px4_altitude_h25", "altitude", 0.0, [(b, 0.25) for b in _BETAS], 12.0),
+    ("px4_altitude_h25_20ms", "altitude", 20.0, [(b, 0.25) for b in _BETAS], 12.0),
+    ("px4_x", "x", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
 ]
+#: (without, with MRFT_DELAY) flight pairs for the delay increment
+PAIRS = [("px4_altitude", "px4_altitude_20ms"), ("px4_altitude_h15", "px4_altitude_h15_20ms"),
+         ("px4_altitude_h25", "px4_altitude_h25_20ms")]
+#: the flight whose export is loaded and flown
+EXPORT_FROM = "px4_altitude_h25"
 
 
 def sih_implied(loop: str, model: dict[str, float] = SIH_MODEL) -> dict[str, float]:
@@ -77,6 +90,26 @@ def _hover(log: Path) -> float:
         _, d = src.read("hover_thrust_estimate", ["hover_thrust", "valid"])
     ok = (d["valid"] > 0) & np.isfinite(d["hover_thrust"])
     return float(np.median(d["hover_thrust"][ok]))
+
+
+def realised_delay(log: Path, h: float) -> str:
+    """The delay between the relays' decision (the logged setpoint's thrust) and what reached the attitude
+    setpoint (``vehicle_attitude_setpoint``'s collective thrust), switch by switch [ms]; "" when not logged."""
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        if not any(t.name == "vehicle_attitude_setpoint" for t in src.topics()):
+            return ""
+        td, d = src.read("vehicle_local_position_setpoint", ["thrust[2]"])
+        ta, a = src.read("vehicle_attitude_setpoint", ["thrust_body[2]"])
+    jump_d = np.flatnonzero(np.abs(np.diff(d["thrust[2]"])) > h) + 1
+    jump_a = np.flatnonzero(np.abs(np.diff(a["thrust_body[2]"])) > h) + 1
+    t_a = ta[jump_a]
+    lags = [float(t_a[t_a >= t][0] - t) for t in td[jump_d] if (t_a >= t).any() and t_a[t_a >= t][0] - t < 0.2]
+    if not lags:
+        return "no switch found in vehicle_attitude_setpoint"
+    return (f"{np.median(lags) * 1e3:.1f} ms median ({np.min(lags) * 1e3:.1f}-{np.max(lags) * 1e3:.1f}) over "
+            f"{len(lags)} switches")
 
 
 def fly_campaign(px4: Path, logs: Path, speedup: float, only: list[str]) -> None:
@@ -121,6 +154,9 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
         print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.value:.3f} s  "
               f"tau {res.tau.value * 1e3:.2f} ms  K {res.K.value:.2f}   (SIH: Td {implied['Td']:.3f} s, "
               f"K {implied['K']:.2f}, Tp {tp * 1e3:.1f} ms; mc_pos_control at {results[name]['rate_hz']:.1f} Hz)")
+        delay = realised_delay(log, 0.5 * min(t["h"] for t in side["tests"]))
+        if delay:
+            print(f"      decision -> attitude setpoint (MRFT_DELAY {side['added_delay_ms']:g} ms): {delay}")
         for line in test_lines(res, held):
             print(line)
         for i, why in misses:
@@ -136,9 +172,12 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         print(f"held-out frequency error (a refusal: inf): max {max(errs) * 100:.2f} %, median "
               f"{np.median(errs) * 100:.2f} %, "
               f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
-    if all(k in results and "tau" in results[k] for k in ("px4_altitude", "px4_altitude_20ms")):
-        inc = results["px4_altitude_20ms"]["tau"] - results["px4_altitude"]["tau"]
-        print(f"altitude: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
+    for a, b in PAIRS:
+        if all(k in results and "tau" in results[k] for k in (a, b)):
+            inc = results[b]["tau"] - results[a]["tau"]
+            print(f"{a}: +{results[b]['delay']:g} ms (MRFT_DELAY) increment of tau = {inc * 1e3:.2f} ms (error "
+                  f"{inc * 1e3 - results[b]['delay']:+.2f} ms against the parameter, {inc * 1e3 - 24:+.2f} ms against "
+                  "the 24 ms realised: 3 ticks of 8 ms, the first output at least 20 ms old)")
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -151,7 +190,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
 def export(results: dict[str, dict[str, Any]], work: Path) -> Path | None:
     """``tune --export px4`` for the altitude loop, as the current code writes it (no --clamp)."""
     work.mkdir(parents=True, exist_ok=True)
-    r = results["px4_altitude"]
+    r = results[EXPORT_FROM]
     params, js = work / "altitude.params", work / "altitude_tune.json"
     for p in (params, js):
         p.unlink(missing_ok=True)
@@ -195,8 +234,10 @@ def _offboard_hold(sitl: Px4Sitl, x: float, y: float, z: float, seconds: float) 
         sitl.wait(0.05)
 
 
-def refly(px4: Path, params_file: Path, work: Path, speedup: float, step_m: float = 1.0) -> dict[str, Any]:
-    """Load the export, read it back, arm, take off, fly an altitude step in OFFBOARD; the ULog."""
+def refly(px4: Path, params_file: Path, work: Path, speedup: float, step_m: float = 1.0, repeats: int = 4,
+          dwell_s: float = 10.0) -> dict[str, Any]:
+    """Load the export, read it back, arm, take off, fly ``repeats`` altitude steps up by ``step_m`` and
+    back in OFFBOARD (``dwell_s`` each); the ULog and the up-steps' times [s]."""
     params = read_qgc_params(params_file)
     with Px4Sitl(px4, work / "refly", speedup) as sitl:
         rows = load_params(sitl, params)
@@ -217,18 +258,26 @@ def refly(px4: Path, params_file: Path, work: Path, speedup: float, step_m: floa
         _offboard_hold(sitl, x, y, z, 8.0)
         if sitl.mav.flightmode != "OFFBOARD":
             raise SitlError(f"OFFBOARD not entered (in {sitl.mav.flightmode}); {sitl.last_texts()}")
-        t_step = sitl.boot_ms / 1000
-        _offboard_hold(sitl, x, y, z - step_m, 12.0)
+        for _ in range(repeats):  # up (the prediction's linear step) and back down (PX4's 1 m/s descent limit)
+            _offboard_hold(sitl, x, y, z - step_m, dwell_s)
+            _offboard_hold(sitl, x, y, z, dwell_s)
         sitl.set_mode("LOITER")
         sitl.land()
         sitl.wait(2)
     log = sitl.newest_log()
     shutil.copy(log, work / "refly.ulg")
-    return {"rows": rows, "armed": True, "t_step": t_step, "z0": z, "step_m": step_m, "log": work / "refly.ulg"}
+    return {"rows": rows, "armed": True, "z0": z, "step_m": step_m, "dwell_s": dwell_s, "log": work / "refly.ulg"}
+
+
+def _mean_response(t: np.ndarray, alt: np.ndarray, starts: list[float], dwell: float) -> tuple[np.ndarray, np.ndarray]:
+    """The up-steps' responses on one time grid from each step [s], averaged (the noise down by sqrt(n))."""
+    grid = np.arange(0.0, dwell - 0.05, 0.008)
+    return grid, np.mean([np.interp(t0 + grid, t, alt) for t0 in starts], axis=0)
 
 
 def evaluate_refly(flown: dict[str, Any], pred: dict[str, float]) -> dict[str, float]:
-    """The flown altitude step's overshoot and settling (2 %) against the prediction."""
+    """The flown up-steps' overshoot and settling (2 %), averaged over the repeats (EKF2's altitude, which
+    PX4 controls, and SIH's true one), against the prediction."""
     from bench_sitl import step_stats
 
     from mrftcli.io import open_log
@@ -236,21 +285,28 @@ def evaluate_refly(flown: dict[str, Any], pred: dict[str, float]) -> dict[str, f
     with open_log(flown["log"], echo_warnings=False) as src:
         ts, sp = src.read("trajectory_setpoint", ["position[2]"])
         tz, pos = src.read("vehicle_local_position", ["z"])
+        tg, gt = src.read("vehicle_local_position_groundtruth", ["z"])
     zsp = sp["position[2]"]
-    z0 = flown["z0"]
-    moved = np.nonzero(np.isfinite(zsp) & (zsp < z0 - 0.5 * flown["step_m"]))[0]
-    t_step = float(ts[moved[0]])
-    alt = -pos["z"]
-    before = (tz > t_step - 3) & (tz < t_step)
-    base = float(np.mean(alt[before]))
-    hover = (tz > t_step - 6) & (tz < t_step)
-    win = (tz >= t_step) & (tz < t_step + 11)
-    got = step_stats(tz[win], alt[win], t_step, base, base + flown["step_m"])
-    print(f"  hover (6 s before the step): altitude std {np.std(alt[hover]) * 100:.2f} cm, "
-          f"peak-to-peak {np.ptp(alt[hover]) * 100:.2f} cm")
-    print(f"  altitude step +{flown['step_m']:g} m (OFFBOARD position setpoint, unshaped): overshoot "
-          f"{got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.2f} s; predicted "
-          f"{pred['overshoot_pct']:.1f} %, {pred['settling_s']:.2f} s")
+    z0, step = flown["z0"], flown["step_m"]
+    up = np.isfinite(zsp) & (zsp < z0 - 0.5 * step)
+    starts = [float(ts[i]) for i in np.flatnonzero(np.diff(up.astype(int)) == 1) + 1]
+    alt, true_alt = -pos["z"], -gt["z"]
+    before = (tz > starts[0] - 3) & (tz < starts[0])
+    print(f"  hover (3 s before the first step): altitude std {np.std(alt[before]) * 100:.2f} cm (EKF2), "
+          f"{np.std(true_alt[(tg > starts[0] - 3) & (tg < starts[0])]) * 100:.2f} cm (SIH's truth)")
+    got: dict[str, float] = {}
+    for label, t, a in (("EKF2", tz, alt), ("truth", tg, true_alt)):
+        base = float(np.mean([np.mean(a[(t > s - 2) & (t < s)]) for s in starts]))
+        grid, mean = _mean_response(t, a, starts, flown["dwell_s"])
+        m = step_stats(grid, mean, 0.0, base, base + step)
+        got[f"{label}_overshoot_pct"], got[f"{label}_settling_s"] = m["overshoot_pct"], m["settling_s"]
+        single = [step_stats(grid, np.interp(s + grid, t, a), 0.0, base, base + step)["overshoot_pct"]
+                  for s in starts]
+        print(f"  altitude step +{step:g} m x{len(starts)} ({label}; OFFBOARD position setpoint, unshaped): mean "
+              f"response overshoot {m['overshoot_pct']:.1f} %, settling (2 %) {m['settling_s']:.2f} s (single steps' "
+              f"overshoot {', '.join(f'{o:.1f}' for o in single)} %); predicted {pred['overshoot_pct']:.1f} %, "
+              f"{pred['settling_s']:.2f} s")
+    got["overshoot_pct"], got["settling_s"] = got["truth_overshoot_pct"], got["truth_settling_s"]
     return got
 
 
@@ -264,7 +320,7 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     print("2. analysis of the ULogs")
     results = analyse(logs)
     report(results)
-    if analyze_only or no_refly or "px4_altitude" not in results:
+    if analyze_only or no_refly or EXPORT_FROM not in results:
         return 0
     print("3. tune --export px4, load, re-fly")
     params_file = export(results, logs / "export")
@@ -274,7 +330,7 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     flown = refly(px4, params_file, logs / "export", speedup)
     if flown.get("armed"):
         values = {k: v for k, (v, _) in read_qgc_params(params_file).items()}
-        r = results["px4_altitude"]
+        r = results[EXPORT_FROM]
         pred = predicted_step(r, values, r["hover"])
         got = evaluate_refly(flown, pred)
         for key in ("overshoot_pct", "settling_s"):

@@ -327,11 +327,25 @@ def fly_mrft(ap_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, fl
     relay = ({"relay": "main-loop task (scripts/sitl/ardupilot_patch), started by scripts/sitl/mrft_relay.lua",
               "relay_rate_hz": LOOP_HZ, "added_delay_ticks": round(delay_ms * LOOP_HZ / 1000)} if main else
              {"relay": "scripts/sitl/mrft_relay.lua", "script_period_ms": 2, "script_min_tick_ms": tick_ms})
-    return {"stack": "ArduPilot SITL", "version": version, "frame": "quad (SITL --model quad, copter.parm)",
-            "loop": axis, **relay, "loop_rate_hz": LOOP_HZ, "speedup": speedup, "hover_throttle": hover, "added_delay_ms": delay_ms,
+    return {"stack": "ArduPilot SITL", "version": version,
+            "frame": "quad (SITL --model quad: the plus frame quad_plus_motors; copter.parm FRAME_TYPE 0, plus)",
+            "loop": axis, **relay, "loop_rate_hz": LOOP_HZ, "speedup": speedup,
+            "hover_throttle": logged_hover(log), "MOT_THST_HOVER_saved": hover, "added_delay_ms": delay_ms,
             "tp_s": tp_of_filter(filt_hz), "tp_source": f"{filt_name} = {filt_hz:g} Hz first-order filter at "
             f"{LOOP_HZ:g} Hz (SITL's motors have no lag)",
             "tests": runs, "prearm_refusals_before_arming": sorted(set(refusals)), "log": str(log)}
+
+
+def logged_hover(log: Path) -> float | None:
+    """The hover throttle GUIDED used before the tests (the mean of the log's ``MRFB:Hov``), or None."""
+    from mrftcli.io import open_log
+
+    try:
+        with open_log(log, echo_warnings=False) as src:
+            _, m = src.read("MRFB", ["Hov"])
+    except Exception:  # noqa: BLE001 - a log without the field: the sidecar says None
+        return None
+    return round(float(sum(m["Hov"]) / len(m["Hov"])), 5)
 
 
 def _tests(text: str) -> list[tuple[float, float]]:

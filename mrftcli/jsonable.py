@@ -23,7 +23,7 @@ import numpy as np
 from .errors import InputError
 
 __all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_toml_text", "load_yaml_text",
-           "MAX_JSON_DEPTH", "MAX_YAML_NODES", "json_depth"]
+           "MAX_JSON_DEPTH", "MAX_YAML_NODES"]
 
 
 #: deepest nesting of objects and arrays a JSON (or TOML) file the tool reads may have; the records

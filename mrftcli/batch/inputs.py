@@ -23,17 +23,8 @@ from ..io.layouts import LAYOUT_NAMES
 from ..io.logtypes import LOOPS
 from ..validate import check_tp
 
-__all__ = [
-    "SUPPORTED_SUFFIXES",
-    "LogSettings",
-    "ConfigEntry",
-    "BatchConfig",
-    "load_config",
-    "resolve_settings",
-    "discover_logs",
-    "log_mtime",
-    "result_path",
-]
+__all__ = ["LogSettings", "ConfigEntry", "BatchConfig", "load_config", "resolve_settings", "discover_logs", "log_mtime",
+           "result_path"]
 
 #: File suffixes (lower case) picked up when a folder or a glob is searched. A folder that holds a
 #: ``metadata.yaml`` is a ROS 2 bag and counts as one log (it is not searched further).

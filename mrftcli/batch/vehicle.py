@@ -24,7 +24,7 @@ from .inputs import AUTO_LOOP
 from .run import LogTask, failed_entry, log_record
 from .summary import STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_NO_TESTS, STATUS_NO_TOPICS, STATUS_OK, TUNE_COLUMNS
 
-__all__ = ["vehicle_one", "vehicle_options"]
+__all__ = ["vehicle_one"]
 
 #: The summary status of a missing loop's reason (a loop without tests is skipped only when the log
 #: holds another loop's model, as ``--loop auto`` does).

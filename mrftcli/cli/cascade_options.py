@@ -16,7 +16,7 @@ from ..errors import InputError, MrftError
 from ..jsonable import load_json_text
 from .options import check_output_file, dump_json
 
-__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade", "format_cascade"]
+__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade"]
 
 _KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
 

@@ -14,7 +14,7 @@ from .options import check_output_file, dump_json, json_option
 if TYPE_CHECKING:
     from ..compare import Comparison
 
-__all__ = ["compare", "write_reports", "raise_for", "compare_batch"]
+__all__ = ["compare", "raise_for", "compare_batch"]
 
 
 def _write(target: str, text: str) -> None:

@@ -19,9 +19,8 @@ if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
-__all__ = ["MODEL_NAMES", "DECLARED", "model_option", "meta_model_options",
-           "meta_model", "structure_options", "window_option", "relay_options", "parse_params",
-           "parse_ranges", "parse_windows", "build_model", "format_general", "format_estimates"]
+__all__ = ["MODEL_NAMES", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
+           "parse_params", "parse_windows", "build_model", "format_general", "format_estimates"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")

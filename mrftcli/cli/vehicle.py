@@ -20,7 +20,7 @@ from .options import (check_output_dir, check_output_file, dump_json, json_optio
 if TYPE_CHECKING:
     from ..vehicle import VehicleResult
 
-__all__ = ["vehicle", "format_vehicle"]
+__all__ = ["vehicle"]
 
 #: The shared log options that apply to a whole flight (the topic and scale options are one loop's).
 _FLIGHT_OPTIONS = ("fmt", "layout", "controller_rate_hz", "time_unit", "rate")

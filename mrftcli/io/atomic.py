@@ -27,7 +27,7 @@ from pathlib import Path
 from ..errors import InputError
 
 __all__ = ["write_text_atomic", "write_bytes_atomic", "atomic_path", "atomic_directory", "check_output_path",
-           "looks_like_json", "looks_like_page", "looks_like_figure", "is_empty"]
+           "looks_like_json", "looks_like_page", "looks_like_figure"]
 
 
 def is_empty(path: Path) -> bool:

@@ -34,7 +34,7 @@ from .atomic import atomic_path
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
 
-__all__ = ["CsvSource", "write_csv", "TIME_COLUMNS", "LARGE_CSV_BYTES"]
+__all__ = ["CsvSource", "write_csv", "LARGE_CSV_BYTES"]
 
 #: a CSV larger than this [bytes] is parsed column by column, only the columns a command uses
 #: (:class:`_LazyColumns`); smaller ones are parsed whole, as one cut mid-row must be

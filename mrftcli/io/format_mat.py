@@ -18,7 +18,7 @@ from .logtypes import TopicData, TopicInfo
 from .source import LogSource, closest, one_line
 from .timing import mean_rate_hz
 
-__all__ = ["MatSource", "write_mat", "MAT_MAGIC", "MAT73_MAGIC"]
+__all__ = ["MatSource", "write_mat"]
 
 MAT_MAGIC = b"MATLAB 5.0 MAT-file"
 MAT73_MAGIC = b"MATLAB 7.3 MAT-file"

@@ -36,7 +36,7 @@ from .logtypes import TopicData, TopicInfo
 from .source import Field, LogSource, one_line
 from .timing import mean_rate_hz
 
-__all__ = ["UlogSource", "write_ulog", "ulog_name", "ULOG_MAGIC", "check_format_sizes"]
+__all__ = ["UlogSource", "write_ulog", "check_format_sizes"]
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 

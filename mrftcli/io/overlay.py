@@ -49,8 +49,7 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS",
-           "ANALYSIS_ATTACHMENT", "foxglove_event_schema"]
+__all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS", "ANALYSIS_ATTACHMENT"]
 
 #: the topics :func:`write_overlay` writes
 OVERLAY_TOPICS = ("/mrft_ident/fit", "/mrft_ident/tests", "/mrft_ident/parameters", "/mrft_ident/events")

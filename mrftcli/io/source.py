@@ -20,7 +20,7 @@ from ..errors import LogReadError
 from ..progress import Progress
 from .logtypes import Signal, TopicInfo
 
-__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "check_times", "spread_batches", "batch_interval", "Field"]
+__all__ = ["one_line", "LogSource", "TopicSpec", "parse_spec", "closest", "check_times", "spread_batches", "Field"]
 
 
 @dataclass(frozen=True)

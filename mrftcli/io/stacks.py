@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import InputError
 from .logtypes import TopicData
 
-__all__ = ["StackTest", "StackLogSpec", "write_stack_log", "STACK_FORMATS"]
+__all__ = ["StackTest", "StackLogSpec", "write_stack_log"]
 
 #: layout -> the format its logs are written in
 STACK_FORMATS = {"px4-mrft": "ulog", "hear-ros": "bag", "mat": "mat", "mat-v73": "mat"}

@@ -11,7 +11,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["expm_small", "phi_gamma_small"]
+__all__ = ["phi_gamma_small"]
 
 FloatArray = NDArray[np.float64]
 

@@ -26,8 +26,7 @@ from ..errors import IdentificationError
 from .lprs import unit_cycle, unit_cycle_scalar
 from .ufm import ManifoldSet, load_manifolds
 
-__all__ = ["tau_curve", "intersection", "least_squares", "log_freq_residuals", "frequency_sensitivity",
-           "intersection_draws"]
+__all__ = ["tau_curve", "intersection", "least_squares", "frequency_sensitivity", "intersection_draws"]
 
 _TWO_PI = 2.0 * math.pi
 FloatArray = NDArray[np.float64]

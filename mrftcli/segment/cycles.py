@@ -21,7 +21,7 @@ from ..mrft.harmonics import HarmonicFit, fit_harmonics
 from .records import RelayCycle
 
 __all__ = ["CycleFundamental", "cycle_extrema", "cycle_fundamental", "measure_cycles", "harmonics_for",
-           "samples_between", "MIN_SAMPLES_PER_CYCLE", "ON_BOUND"]
+           "samples_between", "ON_BOUND"]
 
 #: harmonics of the per-cycle fits (truncation error near 5e-4 of the amplitude)
 _HARMONICS = 8

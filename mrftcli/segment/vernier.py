@@ -33,7 +33,7 @@ from ..mrft.harmonics import harmonic_basis
 from .records import RelayCycle
 
 __all__ = ["TickSwitches", "switch_ticks", "refine_by_waveform", "FoldedWaveform", "fold_waveform", "fold_harmonics",
-           "fold_amplitudes", "measure_folded", "MIN_LOGGED_PER_CYCLE"]
+           "fold_amplitudes", "measure_folded"]
 
 FloatArray = NDArray[np.float64]
 

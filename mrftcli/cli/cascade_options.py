@@ -170,8 +170,3 @@ def format_cascade(analysis: Any) -> str:
         interval = f"{show(e.ci95_low)} - {show(e.ci95_high)}" + ("" if e.determined else " (not determined)")
         lines.append(f"{name:<10}{u:<30}{show(e.value):>10}{show(e.std, 2):>10}  {interval}")
     return "\n".join(lines)
-
-
-# ----------------------------------------------------------------------------------------------
-# tune RESULT.json of a cascade analysis
-# ----------------------------------------------------------------------------------------------

@@ -152,15 +152,15 @@ def test_roll_and_pitch_gain_is_the_plus_frames(name: str) -> None:
         pytest.skip(f"no {name} log")
     res = _analysis(name)
     assert len(res.tests) == 3
-    assert res.K.mean == pytest.approx(_implied(name)["K"], rel=0.05)
+    assert res.K.value == pytest.approx(_implied(name)["K"], rel=0.05)
     # read as an X frame (four motors at 0.247 m) K would be sqrt(2) larger: that is excluded
-    assert res.K.mean < _implied(name)["K"] * 1.2
+    assert res.K.value < _implied(name)["K"] * 1.2
 
 
 def test_roll_tau_increment_is_the_20ms_added() -> None:
     if not (LOGS / "roll_20ms.BIN").exists():
         pytest.skip("no SITL roll logs")
-    increment = _analysis("roll_20ms").tau.mean - _analysis("roll").tau.mean
+    increment = _analysis("roll_20ms").tau.value - _analysis("roll").tau.value
     assert increment == pytest.approx(0.020, abs=0.003)
 
 
@@ -169,5 +169,5 @@ def test_the_20ms_altitude_flight_identifies_with_sitls_gain() -> None:
         pytest.skip("no SITL altitude log")
     res = _analysis("altitude_20ms")
     assert len(res.tests) == 3
-    assert res.K.mean == pytest.approx(_implied("altitude_20ms")["K"], rel=0.05)
-    assert res.tau.mean > 0.010  # the 20 ms added is in the loop (SITL's own lag is a few ms)
+    assert res.K.value == pytest.approx(_implied("altitude_20ms")["K"], rel=0.05)
+    assert res.tau.value > 0.010  # the 20 ms added is in the loop (SITL's own lag is a few ms)

@@ -487,7 +487,9 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     s = fit.std
     Td = math.exp(lnTd)
     # Td's interval is symmetric in ln Td (the fitted coordinate); std by the delta method
-    Td_est = ParameterEstimate(Td, Td * float(s[0]), Td * math.exp(-_Z95 * s[0]), Td * math.exp(_Z95 * s[0]), "s")
+    # (a fit that leaves ln Td free has a huge std: the interval saturates instead of math.exp overflowing)
+    half = min(_Z95 * float(s[0]), 700.0)
+    Td_est = ParameterEstimate(Td, Td * float(s[0]), Td * math.exp(-half), Td * math.exp(half), "s")
     est = {"Td": Td_est, "tau": _gaussian(tau, s[1], "s"), "K": _gaussian(K, s[2], "")}
     ratio = fit.residual_rms / noise_std if noise_std > 0 else float("inf")
     reasons = []

@@ -289,7 +289,8 @@ def refly(ap: Path, params: dict[str, Path], work: Path, speedup: float) -> None
         values.update(read_param_file(p))
     # a raw attitude step (no input shaping), as tune's prediction is of the loop itself
     shaping = {"ATC_RATE_FF_ENAB": 0, "ATC_INPUT_TC": 0}
-    with Sitl(ap, work / "refly", speedup, {"LOG_BITMASK": 17, "LOG_FILE_RATEMAX": 0}) as sitl:
+    # ATTITUDE_FAST, CTUN and NTUN (PSCD: the position controller's shaped target, 10 Hz), every sample
+    with Sitl(ap, work / "refly", speedup, {"LOG_BITMASK": 49, "LOG_FILE_RATEMAX": 0}) as sitl:
         sitl.wait(3)
         rows = load_params(sitl, values)
         changed = [r for r in rows if not r["unchanged"]]
@@ -345,16 +346,44 @@ def evaluate_refly(log: Path, work: Path, times: dict[str, float]) -> None:
     print(f"  roll step 0 -> 10 deg (raw: ATC_RATE_FF_ENAB 0, ATC_INPUT_TC 0): overshoot "
           f"{got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.3f} s; tune predicted "
           f"{pred.get('overshoot_pct', float('nan')):.1f} %, {pred.get('settling_s') or float('nan'):.3f} s")
-    d0 = float(np.median(ctun["DAlt"][(tc > times["altitude"] - 3) & (tc < times["altitude"] - 0.5)]))
-    t_step = float(tc[(tc > times["altitude"] - 0.5) & (ctun["DAlt"] > d0 + 0.02)][0])
-    base = float(np.mean(ctun["Alt"][(tc > t_step - 3) & (tc < t_step)]))
-    win = (tc >= t_step) & (tc < t_step + 11)
-    got = step_stats(tc[win], ctun["Alt"][win], t_step, base, base + 2.0)
-    pred = _predicted(work / "altitude_tune.json")
-    print(f"  altitude step +2 m (ArduPilot shapes the target with its speed and acceleration limits): "
-          f"overshoot {got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.2f} s; tune predicted "
-          f"for an unshaped step {pred.get('overshoot_pct', float('nan')):.1f} %, "
-          f"{pred.get('settling_s') or float('nan'):.2f} s")
+    evaluate_altitude_step(log, work, times["altitude"])
+
+
+def evaluate_altitude_step(log: Path, work: Path, t_cmd: float) -> None:
+    """The flown +2 m step against the exported cascade on the identified model following ArduPilot's own
+    shaped target and feed-forward (``PSCD`` at 10 Hz; ``scripts/sitl/ardupilot_z_step.py``).
+
+    ``t_cmd``: when the step was commanded [s since boot].
+    """
+    from ardupilot_z_step import cascade_follow
+
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        tp, psc = src.read("PSCD", ["DPD", "DVD", "DAD", "PD"])
+    des, z = -psc["DPD"], -psc["PD"]
+    d0 = float(np.median(des[(tp > t_cmd - 3) & (tp < t_cmd - 0.5)]))
+    t_step = float(tp[(tp > t_cmd - 0.5) & (des > d0 + 0.02)][0]) - 0.1  # the last sample before the target moves
+    base = float(np.mean(z[(tp > t_step - 3) & (tp <= t_step)]))
+    win = (tp >= t_step) & (tp < t_step + 11)
+    got = step_stats(tp[win], z[win], t_step, base, base + 2.0)
+    js = json.loads((work / "altitude_tune.json").read_text())
+    model, params = js["model"], read_param_file(work / "altitude.param")
+    rate = 400.0
+    grid = np.arange(t_step - 2.0, t_step + 11.0, 1.0 / rate)
+    path = [np.interp(grid, tp, -psc[k]) for k in ("DPD", "DVD", "DAD")]
+    pred_z = cascade_follow(params, model["Td"], model["tau"], model["K"], rate, grid, *path)
+    pred = step_stats(grid, pred_z, t_step, float(path[0][0]), float(path[0][0]) + 2.0)
+    target = step_stats(grid, path[0], t_step, float(path[0][0]), float(path[0][0]) + 2.0)
+    print(f"  altitude step +2 m, ArduPilot's shaped target itself: overshoot {target['overshoot_pct']:.1f} %, "
+          f"settling (2 %) {target['settling_s']:.2f} s")
+    print(f"  altitude step +2 m flown: overshoot {got['overshoot_pct']:.1f} %, settling (2 %) {got['settling_s']:.2f} s; "
+          f"the exported cascade on the identified model (Td {model['Td']:.3f} s, tau {model['tau'] * 1e3:.2f} ms, "
+          f"K {model['K']:.2f}) following that target: {pred['overshoot_pct']:.1f} %, {pred['settling_s']:.2f} s "
+          f"(settling {(got['settling_s'] / pred['settling_s'] - 1) * 100:+.0f} %)")
+    unshaped = _predicted(work / "altitude_tune.json")
+    print(f"  (tune's own step figure is of the robust PD on an unshaped step: {unshaped.get('overshoot_pct', float('nan')):.1f} %, "
+          f"{unshaped.get('settling_s') or float('nan'):.2f} s)")
 
 
 def _attitude_step(sitl: Sitl, roll_deg: float) -> float:
@@ -384,6 +413,8 @@ def main() -> int:
     ap.add_argument("--speedup", type=float, default=1.0)
     ap.add_argument("--only", nargs="*", default=[], help="fly only these flights (names in FLIGHTS)")
     ap.add_argument("--no-refly", action="store_true", help="stop after the analysis")
+    ap.add_argument("--refly-only", action="store_true",
+                    help="load and re-fly the .param files already exported in LOGS/export (no flights, no analysis)")
     ap.add_argument("--logs-only", action="store_true",
                     help="only what the logs show without identification: tests located, ticks, the delay "
                          "realised, the EKF against SITL's truth")
@@ -396,6 +427,12 @@ def main() -> int:
         from px4_campaign import run
 
         return run(args.px4, args.logs, args.speedup, args.only, args.analyze_only, args.no_refly)
+    if args.refly_only:
+        export_dir = args.logs / "export"
+        params = {p.stem: p for p in sorted(export_dir.glob("*.param"))}
+        print(f"3. load and re-fly {', '.join(sorted(params))} from {export_dir}")
+        refly(args.ap, params, export_dir, args.speedup)
+        return 0
     if args.logs_only:
         for name, loop, _, _, _, _ in FLIGHTS:
             log = args.logs / f"{name}.BIN"

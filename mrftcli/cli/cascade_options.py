@@ -6,7 +6,6 @@ hands over (:func:`run_cascade`). The maths is :mod:`mrftcli.analyze.cascade`.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
@@ -14,7 +13,7 @@ import click
 
 from ..errors import InputError, MrftError
 from ..jsonable import load_json_text
-from .options import check_output_file, dump_json
+from .options import check_output_file, dump_json, num
 
 __all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade"]
 
@@ -134,10 +133,6 @@ def run_cascade(log: str, request: CascadeRequest, read_options: dict[str, Any],
         click.echo(f"warning: {w}", err=True)
 
 
-def _fmt(x: float, digits: int = 4) -> str:
-    return f"{x:#.{digits}g}".rstrip(".") if math.isfinite(x) else "-"
-
-
 def format_cascade(analysis: Any) -> str:
     """The terminal summary of a :class:`~mrftcli.analyze.cascade.CascadeAnalysis`: assumptions, tests, parameters."""
     from ..io.logtypes import output_unit
@@ -152,17 +147,17 @@ def format_cascade(analysis: Any) -> str:
     lines.append(f"{'':>4}  {'[s]':>6}  {'[s]':>6}  {'':>6}  {'':>6}  {'[Hz]':>9}  {'[Hz]':>9}  {'[Hz]':>15}  "
                  f"{'[' + unit + ']':>9}  {'[' + unit + ']':>9}")
     for t, fit in zip(analysis.tests, ident.tests):
-        band = f"{_fmt(fit.band_hz[0])}-{_fmt(fit.band_hz[1])}"
+        band = f"{num(fit.band_hz[0])}-{num(fit.band_hz[1])}"
         lines.append(f"{t.index + 1:>4}  {t.t_start - analysis.t0:>6.1f}  {t.t_end - analysis.t0:>6.1f}  "
-                     f"{fit.beta:>+6.3f}  {_fmt(fit.h, 3):>6}  {_fmt(fit.frequency_hz):>9}  {_fmt(fit.predicted_hz):>9}  "
-                     f"{band:>15}  {_fmt(fit.amplitude):>9}  {_fmt(fit.predicted_amplitude):>9}")
+                     f"{fit.beta:>+6.3f}  {num(fit.h, 3):>6}  {num(fit.frequency_hz):>9}  {num(fit.predicted_hz):>9}  "
+                     f"{band:>15}  {num(fit.amplitude):>9}  {num(fit.predicted_amplitude):>9}")
     lines.append(f"{'parameter':<10}{'unit':<30}{'estimate':>10}{'std':>10}  95 % interval")
     for name, e in ident.estimates.items():
         # tau in ms, as analyze shows it (the record keeps seconds)
         f, u = (1e3, "ms") if name == "tau" and e.unit == "s" else (1.0, e.unit)
 
         def show(x: float, digits: int = 4, f: float = f) -> str:
-            return _fmt(x * f, digits)
+            return num(x * f, digits)
 
         if e.known:
             lines.append(f"{name:<10}{u:<30}{show(e.value):>10}{'':>10}  known (--outer-command)")

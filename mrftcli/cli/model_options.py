@@ -13,6 +13,7 @@ import click
 
 from ..errors import InputError
 from ..validate import check_parameter_value
+from .options import num
 
 if TYPE_CHECKING:
     from ..analyze.general import GeneralAnalysis
@@ -256,17 +257,11 @@ def _declared(params: Sequence[str], ranges: Sequence[str]) -> Any:
                           dict(model.units))
 
 
-def _num(x: float | None, digits: int = 4) -> str:
-    if x is None or not math.isfinite(x):
-        return "-"
-    return f"{x:#.{digits}g}".rstrip(".")
-
-
 def format_estimates(ident: LtiIdentification) -> list[str]:
     """The parameter table: estimate, std, 95 % interval (one-sided at a range's bound), and the verdict."""
     rows = [("parameter", "unit", "estimate", "± std", "95 % interval", "")]
     for e in ident.estimates:
-        rows.append((e.name, e.unit, _num(e.value), "" if e.known else (_num(e.std, 2) if e.determined else "-"),
+        rows.append((e.name, e.unit, num(e.value), "" if e.known else (num(e.std, 2) if e.determined else "-"),
                      _interval(e),
                      "known" if e.known else ("" if e.determined else "NOT DETERMINED")))
     widths = [max(len(r[k]) for r in rows) for k in range(6)]
@@ -277,12 +272,12 @@ def _interval(e: ParameterEstimate) -> str:
     if e.known:
         return ""
     if not e.determined and not math.isfinite(e.ci95_high):
-        return f"anywhere above {_num(e.ci95_low)}" if math.isfinite(e.ci95_low) else "anywhere"
+        return f"anywhere above {num(e.ci95_low)}" if math.isfinite(e.ci95_low) else "anywhere"
     if e.one_sided == "low":
-        return f"< {_num(e.ci95_high)} (open below: the range's bound {_num(e.ci95_low)})"
+        return f"< {num(e.ci95_high)} (open below: the range's bound {num(e.ci95_low)})"
     if e.one_sided == "high" or not math.isfinite(e.ci95_high):
-        return f"> {_num(e.ci95_low)} (open above)"
-    return f"{_num(e.ci95_low)} - {_num(e.ci95_high)}"
+        return f"> {num(e.ci95_low)} (open above)"
+    return f"{num(e.ci95_low)} - {num(e.ci95_high)}"
 
 
 def format_combination(ident: LtiIdentification) -> list[str]:
@@ -290,7 +285,7 @@ def format_combination(ident: LtiIdentification) -> list[str]:
     c = ident.combination
     if c is None:
         return []
-    return [f"determined: {c.name} = {_num(c.value)} {c.unit} (95 % {_num(c.ci95_low)} - {_num(c.ci95_high)}); "
+    return [f"determined: {c.name} = {num(c.value)} {c.unit} (95 % {num(c.ci95_low)} - {num(c.ci95_high)}); "
             f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
 
 
@@ -312,7 +307,7 @@ def format_general(result: GeneralAnalysis) -> str:
     rows = [head]
     for k, t in enumerate(result.tests):
         rows.append((str(k + 1), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.describe_relay(),
-                     _num(t.frequency_hz), _num(t.amplitude, 3), *held_out_cells(t.held_out),
+                     num(t.frequency_hz), num(t.amplitude, 3), *held_out_cells(t.held_out),
                      f"{t.n_stable}/{t.n_cycles}"))
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.rjust(w) if k in (0, 1, 2, 4, 5, 6, 7) else c.ljust(w)

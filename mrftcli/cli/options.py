@@ -21,7 +21,7 @@ from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP", "min_cycles_option"]
+           "HZ", "SHARED_HELP", "min_cycles_option", "num"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -39,6 +39,18 @@ SHARED_HELP: dict[str, str] = {
 
 #: A rate in Hz: positive, at most the 100 kHz the readers accept (every ``--controller-rate``; 1e300 hung predict).
 HZ = click.FloatRange(0, MAX_RATE_HZ, min_open=True)
+
+
+def num(x: float | None, digits: int = 4) -> str:
+    """``digits`` significant digits, trailing zeros kept, so a column reads alike (0.1800 beside 0.05839);
+    ``-`` for None or a non-finite value.
+
+    >>> num(0.18), num(0.058391), num(float("nan")), num(1234567.0, 3)
+    ('0.1800', '0.05839', '-', '1.23e+06')
+    """
+    if x is None or not math.isfinite(x):
+        return "-"
+    return f"{x:#.{digits}g}".rstrip(".")
 
 
 def dump_json(obj: Any, target: str | None) -> None:

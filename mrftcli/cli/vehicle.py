@@ -15,7 +15,7 @@ from ..jsonable import load_json_text
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, quiet_option, tp_option, tqdm_progress)
+                      min_cycles_option, num, quiet_option, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..vehicle import VehicleResult
@@ -39,10 +39,6 @@ def _flight_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return func
 
 
-def _num(x: float, digits: int = 4) -> str:
-    return "-" if not math.isfinite(x) else f"{x:#.{digits}g}".rstrip(".")
-
-
 def _loop_rows(result: VehicleResult) -> list[list[str]]:
     rows = []
     for name, entry in result.loops.items():
@@ -51,12 +47,12 @@ def _loop_rows(result: VehicleResult) -> list[list[str]]:
         pm = g.phase_margin_deg if g is not None else math.nan
         k_unit = gain_unit(name) if isinstance(entry.analysis, AnalysisResult) else \
             entry.analysis.identification.estimates["K"].unit
-        rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), _num(est["Td"][0]),
-                     _num(est["tau"][0] * 1e3), f"{_num(est['K'][0])} {k_unit}",
+        rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), num(est["Td"][0]),
+                     num(est["tau"][0] * 1e3), f"{num(est['K'][0])} {k_unit}",
                      g.design if g is not None else "not tuned",
-                     "-" if c is None else f"{_num(c.Kp)} cmd/{output_unit(name)}",
-                     "-" if c is None else f"{_num(c.Kd)} cmd s/{output_unit(name)}",
-                     "-" if c is None else f"{c.rate_hz:g}", _num(pm, 3)])
+                     "-" if c is None else f"{num(c.Kp)} cmd/{output_unit(name)}",
+                     "-" if c is None else f"{num(c.Kd)} cmd s/{output_unit(name)}",
+                     "-" if c is None else f"{c.rate_hz:g}", num(pm, 3)])
     return rows
 
 

@@ -444,6 +444,10 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     delay margins, Ms and the step response of the sampled loop (overshoot, rise, settling), nominal
     and over the identification's posterior (median, worst of the 95 % set).
 
+    The same command for every model: an `analyze --model NAME` RESULT.json (or --model NAME with every
+    --param) gets PI/PID (PD on integrating plants) on its exact sampled loop, an `analyze --inner-model`
+    RESULT.json an outer PD on the cascade; one TuneResult record in --json.
+
     Example: mrft-ident tune flight.mcap --tp 0.0422 --loop roll --export px4 --out roll.params
     """
     from ..mrft.model import soiptd_model

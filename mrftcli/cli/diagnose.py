@@ -286,19 +286,27 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
 
 
 def _effect_rows(result: ProcessDiagnosis) -> list[str]:
-    """The library's candidates: parameter, delta BIC, held-out error without and with, found."""
+    """The library's candidates: parameter, delta BIC, held-out error without and with, found; then the
+    model refitted with each effect named."""
     if not result.candidates:
         return []
-    lines = ["effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
-             "error: RMS over the tests of the relative error of the views the effect changes):",
-             f"  {'effect':<22} {'parameter [unit]':>34} {'delta BIC':>10} {'held-out error':>18}  views"]
     named = {(e.name, e.with_) for e in result.effects}
-    for c in result.candidates:
-        label = c.name if not c.with_ else f"+ {c.name} (with {c.with_})"
-        par = f"{c.parameter} = {_g(c.value)} {c.unit}"
-        mark = "  <- found" if (c.name, c.with_) in named else ""
-        lines.append(f"  {label:<22} {par:>34} {_g(c.delta_bic, '.1f'):>10} {_g(c.held_out_before, '.3f'):>8} -> "
-                     f"{_g(c.held_out_after, '.3f'):<6}  {'+'.join(c.views)}{mark}")
+    rows = [(c.name if not c.with_ else f"+ {c.name} (with {c.with_})", f"{c.parameter} = {_g(c.value)} {c.unit}",
+             _g(c.delta_bic, ".1f"), f"{_g(c.held_out_before, '.3f')} -> {_g(c.held_out_after, '.3f')}",
+             "+".join(c.views) + ("  <- found" if (c.name, c.with_) in named else "")) for c in result.candidates]
+    head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "views")
+    widths = [max(len(r[k]) for r in [head, *rows]) for k in range(len(head))]
+    lines = ["effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
+             "error: RMS over the tests of each test's relative error from the others (cycle: frequency and "
+             "amplitude; balance: the mean input's residual over h; scatter: ln of the period variance's ratio)):"]
+    lines += ["  " + "  ".join(cell.ljust(w) if k in (0, 4) else cell.rjust(w) for k, (cell, w)
+                               in enumerate(zip(r, widths))).rstrip() for r in [head, *rows]]
+    for e in result.effects:
+        if e.refit:
+            unit = {est.name: est.unit for est in result.analysis.identification.estimates} \
+                if result.analysis.identification is not None else {}
+            lines.append(f"refit with {e.name}{' and ' + e.with_ if e.with_ else ''} (all tests): " + "  ".join(
+                f"{k} {_g(v)} {unit.get(k, '')}".rstrip() for k, v in e.refit.items()))
     return lines
 
 

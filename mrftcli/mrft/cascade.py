@@ -50,8 +50,8 @@ from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..validate import check_beta, check_positive
 from .matexp import phi_gamma_small
-from .model import Parameter, PlantModel, StateSpace, json_parameter_values, model_from_json, model_json, \
-    model_json_parameters
+from .model import Parameter, PlantModel, StateSpace, check_parameter_names, json_parameter_values, model_from_json, \
+    model_json, model_json_parameters, spec_parameters
 
 __all__ = ["InnerController", "InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
            "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "json_number", "SwitchedOrbit"]
@@ -415,18 +415,12 @@ class CascadeModel:
             raise InputError(f"tau must be a non-negative time in seconds, got {self.tau!r}")
         if not math.isfinite(self.K) or self.K <= 0:
             raise InputError(f"K must be a positive gain, got {self.K!r}")
-        unknown = set(self.known).union(r[0] for r in self.ranges) - set(CASCADE_PARAMETERS)
-        if unknown:
-            raise InputError(f"unknown parameter(s) {sorted(unknown)} of {self.family}; "
-                             f"it has {list(CASCADE_PARAMETERS)}")
+        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), CASCADE_PARAMETERS, self.family)
 
     @property
     def parameters(self) -> dict[str, Parameter]:
         """Td, tau and K of the outer loop (the inner loop's are its own plant's)."""
-        ranges = {name: (lo, hi) for name, lo, hi in self.ranges}
-        return {name: Parameter(name, unit, float(getattr(self, name)), name in self.known,
-                                ranges.get(name, bounds), description)
-                for name, (unit, description, bounds) in CASCADE_PARAMETERS.items()}
+        return spec_parameters(self, CASCADE_PARAMETERS)
 
     @property
     def delay(self) -> float:
@@ -435,9 +429,7 @@ class CascadeModel:
 
     def with_parameters(self, **values: float) -> CascadeModel:
         """A copy with some of Td, tau, K replaced (validated as in the constructor)."""
-        bad = set(values) - set(CASCADE_PARAMETERS)
-        if bad:
-            raise InputError(f"unknown parameter(s) {sorted(bad)} of {self.family}; it has {list(CASCADE_PARAMETERS)}")
+        check_parameter_names(values, CASCADE_PARAMETERS, self.family)
         new = {name: float(values.get(name, getattr(self, name))) for name in CASCADE_PARAMETERS}
         return CascadeModel(self.inner, new["Td"], new["tau"], new["K"], known=self.known, ranges=self.ranges)
 

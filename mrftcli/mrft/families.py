@@ -30,7 +30,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
-from .model import Parameter, StateSpace, UnitNormalisation, json_parameter_values, model_json, model_json_parameters
+from .model import (Parameter, StateSpace, UnitNormalisation, check_parameter_names, json_parameter_values, model_json,
+                    model_json_parameters, spec_parameters)
 
 __all__ = ["FOPDT", "SOPDT", "IPDT", "FOIPDT", "PROCESS_FAMILIES", "family_model"]
 
@@ -64,17 +65,12 @@ class _Family:
                     raise InputError(f"tau must be a non-negative time in seconds, got {value!r}")
             elif not math.isfinite(value) or value <= 0:
                 raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
-        unknown = set(self.known).union(r[0] for r in self.ranges) - set(self._spec)
-        if unknown:
-            raise InputError(f"unknown parameter(s) {sorted(unknown)} of {self.family}; it has {list(self._spec)}")
+        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), self._spec, self.family)
 
     @property
     def parameters(self) -> dict[str, Parameter]:
         """The named parameters as :class:`~mrftcli.mrft.model.Parameter` records."""
-        ranges = {name: (lo, hi) for name, lo, hi in self.ranges}
-        return {name: Parameter(name, unit, float(getattr(self, name)), name in self.known,
-                                ranges.get(name, bounds), description)
-                for name, (unit, description, bounds) in self._spec.items()}
+        return spec_parameters(self, self._spec)
 
     @property
     def delay(self) -> float:
@@ -83,9 +79,7 @@ class _Family:
 
     def with_parameters(self, **values: float) -> Any:
         """A copy with some parameters replaced (validated as in the constructor)."""
-        bad = set(values) - set(self._spec)
-        if bad:
-            raise InputError(f"unknown parameter(s) {sorted(bad)} of {self.family}; it has {list(self._spec)}")
+        check_parameter_names(values, self._spec, self.family)
         return dataclasses.replace(self, **{k: float(v) for k, v in values.items()})  # type: ignore[type-var]
 
     @property

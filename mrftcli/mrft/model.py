@@ -42,7 +42,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
            "model_family", "model_from_json", "SampledPlantModel", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
-           "json_bounds", "soiptd_model"]
+           "json_bounds", "soiptd_model", "ParameterSpec", "check_parameter_names", "spec_parameters"]
 
 _INF = math.inf
 #: version of the JSON form of a model (``to_json`` / ``from_json``)
@@ -195,6 +195,26 @@ class SampledPlantModel(Protocol):
         ...
 
 
+#: a structure's parameters by name: (unit, description, physical bounds)
+ParameterSpec = Mapping[str, tuple[str, str, tuple[float, float]]]
+
+
+def check_parameter_names(names: Iterable[str], spec: ParameterSpec, family: str) -> None:
+    """InputError naming any of ``names`` that is not a parameter of the structure ``spec``."""
+    bad = set(names) - set(spec)
+    if bad:
+        raise InputError(f"unknown parameter(s) {sorted(bad)} of {family}; it has {list(spec)}")
+
+
+def spec_parameters(model: Any, spec: ParameterSpec) -> dict[str, Parameter]:
+    """The :class:`Parameter` records of a model whose parameters are its attributes named in ``spec``
+    (its ``known`` set and ``ranges``, the set I, where given; else the physical bounds)."""
+    ranges = {name: (lo, hi) for name, lo, hi in model.ranges}
+    return {name: Parameter(name, unit, float(getattr(model, name)), name in model.known,
+                            ranges.get(name, bounds), description)
+            for name, (unit, description, bounds) in spec.items()}
+
+
 #: eq. (2)'s parameters: unit, description, physical bounds
 _LOOP_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
     "Tp": ("s", "propulsion time constant", (0.0, _INF)),
@@ -267,19 +287,13 @@ class LoopModel:
                                  "give it in seconds")
         if not np.isfinite(self.K) or self.K == 0:
             raise InputError(f"K must be finite and non-zero, got {self.K!r}")
-        unknown = set(self.known).union(r[0] for r in self.ranges) - set(_LOOP_PARAMETERS)
-        if unknown:
-            raise InputError(f"unknown parameter(s) {sorted(unknown)} of {self.family}; "
-                             f"it has {list(_LOOP_PARAMETERS)}")
+        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), _LOOP_PARAMETERS, self.family)
 
     # -- the PlantModel protocol ------------------------------------------------------------------
     @property
     def parameters(self) -> dict[str, Parameter]:
         """Tp, Td, tau and K as :class:`Parameter` records (bounds: the set I where given)."""
-        ranges = {name: (lo, hi) for name, lo, hi in self.ranges}
-        return {name: Parameter(name, unit, float(getattr(self, name)), name in self.known,
-                                ranges.get(name, bounds), description)
-                for name, (unit, description, bounds) in _LOOP_PARAMETERS.items()}
+        return spec_parameters(self, _LOOP_PARAMETERS)
 
     @property
     def delay(self) -> float:
@@ -288,9 +302,7 @@ class LoopModel:
 
     def with_parameters(self, **values: float) -> LoopModel:
         """A copy with some of Tp, Td, tau, K replaced (validated as in the constructor)."""
-        bad = set(values) - set(_LOOP_PARAMETERS)
-        if bad:
-            raise InputError(f"unknown parameter(s) {sorted(bad)} of {self.family}; it has {list(_LOOP_PARAMETERS)}")
+        check_parameter_names(values, _LOOP_PARAMETERS, self.family)
         new = {name: float(values.get(name, getattr(self, name))) for name in _LOOP_PARAMETERS}
         return LoopModel(new["Tp"], new["Td"], new["tau"], new["K"], known=self.known, ranges=self.ranges)
 

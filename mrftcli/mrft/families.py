@@ -39,20 +39,25 @@ _INF = math.inf
 _TIME = ("s", (0.0, _INF))
 
 
+@dataclass(frozen=True)
 class _Family:
     """What the four families share: parameters, validation, JSON (subclasses are frozen dataclasses).
 
-    A subclass declares :attr:`_spec` (name -> unit, description, physical bounds; K and tau always
-    present), the number of integrators :attr:`_integrators`, and :meth:`_transfer` (numerator gain and
-    denominator time constants of the delay-free part).
+    A subclass declares its parameters as fields, :attr:`_spec` (name -> unit, description, physical
+    bounds; K and tau always present), the number of integrators :attr:`_integrators`, and
+    :meth:`_transfer` (numerator gain and denominator time constants of the delay-free part). ``known``
+    (the set E) and ``ranges`` (the set I) are keyword-only.
     """
 
     family: ClassVar[str]
     structure: ClassVar[str]
     _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]]
     _integrators: ClassVar[int]
-    known: frozenset[str]
-    ranges: tuple[tuple[str, float, float], ...]
+    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False, kw_only=True)
+    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False, kw_only=True)
+
+    def __post_init__(self) -> None:
+        self._check()
 
     def _check(self) -> None:
         for name, (unit, _, _) in self._spec.items():
@@ -80,7 +85,8 @@ class _Family:
     def with_parameters(self, **values: float) -> Any:
         """A copy with some parameters replaced (validated as in the constructor)."""
         check_parameter_names(values, self._spec, self.family)
-        return dataclasses.replace(self, **{k: float(v) for k, v in values.items()})  # type: ignore[type-var]
+        new: dict[str, Any] = {k: float(v) for k, v in values.items()}
+        return dataclasses.replace(self, **new)
 
     @property
     def lags(self) -> tuple[str, ...]:
@@ -153,7 +159,7 @@ class _Family:
     def from_json(cls, data: Mapping[str, Any]) -> Any:
         """The model of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
         values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), cls._spec)
-        return cls(**values, known=known, ranges=ranges)  # type: ignore[call-arg]
+        return cls(**values, known=known, ranges=ranges)
 
 
 _K = ("output / command", "static gain", (-_INF, _INF))
@@ -183,12 +189,6 @@ class FOPDT(_Family):
     K: float
     T: float
     tau: float
-    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
-    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._check()
-
 
 @dataclass(frozen=True)
 class SOPDT(_Family):
@@ -214,12 +214,6 @@ class SOPDT(_Family):
     T1: float
     T2: float
     tau: float
-    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
-    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._check()
-
 
 @dataclass(frozen=True)
 class IPDT(_Family):
@@ -238,12 +232,6 @@ class IPDT(_Family):
 
     K: float
     tau: float
-    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
-    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._check()
-
 
 @dataclass(frozen=True)
 class FOIPDT(_Family):
@@ -265,12 +253,6 @@ class FOIPDT(_Family):
     K: float
     T: float
     tau: float
-    known: frozenset[str] = field(default=frozenset(), repr=False, compare=False)
-    ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        self._check()
-
 
 #: the process families by name (registered in :data:`mrftcli.mrft.model.MODEL_FAMILIES`)
 PROCESS_FAMILIES: dict[str, type[_Family]] = {c.family: c for c in (FOPDT, SOPDT, IPDT, FOIPDT)}
@@ -306,5 +288,5 @@ def family_model(family: str, known: Mapping[str, float] | None = None,
     for name, (lo, hi) in ranges.items():
         if not lo < hi:
             raise InputError(f"range of {name}: low {lo:g} must be below high {hi:g}")
-    return cls(**values, known=frozenset(known),  # type: ignore[call-arg]
+    return cls(**values, known=frozenset(known),
                ranges=tuple((n, float(lo), float(hi)) for n, (lo, hi) in ranges.items()))

@@ -196,6 +196,9 @@ def test_compare_of_the_version_3_record_and_todays_analysis_of_its_log(tmp_path
 
     log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
     now = analyze_path(log, soiptd_model(0.0422), read=ReadOptions(loop="altitude"))
+    # each estimate says how it was found, as its JSON does
+    assert {now.Td.method, now.tau.method, now.K.method} == {now.method} == {"waveform"}
+    assert {e.method for e in now.parameters_mrft.values()} == {"mrft"}
     new = tmp_path / "new.json"
     new.write_text(json.dumps(_written(now)))
     old = _old("analysis_v3.json")

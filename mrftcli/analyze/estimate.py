@@ -275,7 +275,8 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
     tau_est = bootstrap_estimate(tau_hat, tau_d[1:], tau_d[0], "s")
     K_est = bootstrap_estimate(K_hat, K_d[1:], K_d[0], "")
     if limit is not None:
-        Td_est = ParameterEstimate(Td_hat, float("nan"), limit[1].Td_low, float("nan"), "s", determined=False)
+        Td_est = ParameterEstimate(Td_hat, float("nan"), limit[1].Td_low, float("nan"), "s", determined=False,
+                                   method="mrft")
     n_fail = int((~np.isfinite(Td_d[1:])).sum())
     if n_fail > 0.05 * B:
         warnings.append(f"{n_fail} of {B} bootstrap draws found no intersection of the UFM slices within "
@@ -318,7 +319,7 @@ def identifiability(model: LoopModel, screening: Screening, point: PointEstimate
     td_omega = max(Td_hat * _TWO_PI * t.frequency_hz_mean for t in usable)
     td_open = point.limit is not None or (bool(constraints) and upper_bound_open(Tp, cons.boot, Td_hat))
     if td_open:
-        Td_est = ParameterEstimate(Td_est.value, Td_est.std, Td_est.ci95_low, float("nan"), "s", determined=False)
+        Td_est = replace(Td_est, ci95_high=float("nan"), determined=False)
         low = f"Td > {Td_est.ci95_low:.3g} s" if np.isfinite(Td_est.ci95_low) else "Td"
         warnings.append(f"{low}: these tests cannot bound it from above (a plant without "
                         "linear damping fits them as well); tau and K are determined")
@@ -456,8 +457,7 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
         # the waveform does not close it either: keep the one-sided statement, with the
         # consensus's profile lower bound (the Gauss-Newton interval of ln Td is a local
         # linearisation, meaningless where the cost is flat in Td: it gave 1e-5 s)
-        Td_est = ParameterEstimate(Td_est.value, Td_est.std, mrft_params["Td"].ci95_low, float("nan"), "s",
-                                   determined=False)
+        Td_est = replace(Td_est, ci95_low=mrft_params["Td"].ci95_low, ci95_high=float("nan"), determined=False)
     return WaveformStage(refinement, "waveform", refinement.model, Td_est, tau_est, K_est, (), send_notes,
                          send_times)
 
@@ -486,7 +486,7 @@ def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog,
         return tau_est, None
     std = float(np.hypot(tau_est.std, jitter))
     widen = 1.96 * std - 1.96 * tau_est.std
-    return ParameterEstimate(tau_est.value, std, tau_est.ci95_low - widen, tau_est.ci95_high + widen, "s"), text
+    return replace(tau_est, std=std, ci95_low=tau_est.ci95_low - widen, ci95_high=tau_est.ci95_high + widen), text
 
 
 def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,
@@ -505,7 +505,7 @@ def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,
         raise exc
     tau = bootstrap_estimate(float(limit.tau[0]), limit.tau[1:], float(limit.tau[0]), "s")
     K = bootstrap_estimate(float(limit.K[0]), limit.K[1:], float(limit.K[0]), "")
-    Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s", determined=False)
+    Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s", determined=False, method="mrft")
     ident = IdentificationResult(
         Td=Td, tau=tau, K=K, model=LoopModel(Tp, limit.Td_limit, max(tau.value, 0.0), K.value), Tp=Tp,
         residual=None, tests=(), method="unbounded-Td", uncertainty="bootstrap", n_draws=B,

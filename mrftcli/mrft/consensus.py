@@ -473,10 +473,11 @@ def bootstrap_estimate(point: float, draws: np.ndarray, centre: float, unit: str
     v = np.asarray(draws, float)
     v = v[np.isfinite(v)]
     if v.size < 10 or not np.isfinite(centre):
-        return ParameterEstimate(float(point), float("nan"), float("nan"), float("nan"), unit)
+        return ParameterEstimate(float(point), float("nan"), float("nan"), float("nan"), unit, method="mrft")
     lo, hi = np.percentile(v, [2.5, 97.5])
     shift = point - centre
-    return ParameterEstimate(float(point), float(v.std(ddof=1)), float(lo + shift), float(hi + shift), unit)
+    return ParameterEstimate(float(point), float(v.std(ddof=1)), float(lo + shift), float(hi + shift), unit,
+                             method="mrft")
 
 
 def combinations(Tp: float, tests: Sequence[StableCycles], Td_ref: float, max_combinations: int,

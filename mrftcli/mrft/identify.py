@@ -199,8 +199,7 @@ class IdentificationResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``parameters.{Td,tau,K,Tp}`` (each the one parameter record) etc."""
-        params = {"Td": self.Td.to_json(method="mrft"), "tau": self.tau.to_json(method="mrft"),
-                  "K": None if self.K is None else self.K.to_json(method="mrft"),
+        params = {"Td": self.Td.to_json(), "tau": self.tau.to_json(), "K": None if self.K is None else self.K.to_json(),
                   "Tp": ParameterEstimate.given(self.Tp, "s").to_json()}
         return {
             "parameters": params,
@@ -355,13 +354,13 @@ class _Spread:
 def _estimate(values: FloatArray, point: float, unit: str) -> ParameterEstimate:
     v = values[np.isfinite(values)]
     if v.size < 2:
-        return ParameterEstimate(point, 0.0, point, point, unit)
+        return ParameterEstimate(point, 0.0, point, point, unit, method="mrft")
     lo, hi = np.percentile(v, [2.5, 97.5])
-    return ParameterEstimate(point, float(v.std(ddof=1)), float(lo), float(hi), unit)
+    return ParameterEstimate(point, float(v.std(ddof=1)), float(lo), float(hi), unit, method="mrft")
 
 
 def _delta_estimate(point: float, std: float, unit: str) -> ParameterEstimate:
-    return ParameterEstimate(point, std, point - 1.959964 * std, point + 1.959964 * std, unit)
+    return ParameterEstimate(point, std, point - 1.959964 * std, point + 1.959964 * std, unit, method="mrft")
 
 
 def _check_inputs(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float | None,
@@ -725,7 +724,7 @@ def _identify_amplitude(inputs: _Inputs) -> IdentificationResult:
     model = LoopModel(Tp, Td_hat, max(tau_eff - lag, 0.0), K)
     per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": a_mean, "h": test.h,
             "tp_norm": Tp * w0, "td_norm": Td_hat * w0, "theta": tau_eff * w0},)
-    return IdentificationResult(Td=Td_est, tau=tau_est, K=ParameterEstimate(K, 0.0, K, K, ""), model=model, Tp=Tp,
+    return IdentificationResult(Td=Td_est, tau=tau_est, K=ParameterEstimate.given(K, ""), model=model, Tp=Tp,
                                 residual=None, tests=per, warnings=tuple(warns), method="amplitude",
                                 uncertainty=unc, rate_hz=inputs.rate_hz, n_draws=inputs.n_draws if draws else 0,
                                 draws=draws)

@@ -433,7 +433,8 @@ class Refinement:
 
 
 def _gaussian(mean: float, std: float, unit: str) -> ParameterEstimate:
-    return ParameterEstimate(float(mean), float(std), float(mean - _Z95 * std), float(mean + _Z95 * std), unit)
+    return ParameterEstimate(float(mean), float(std), float(mean - _Z95 * std), float(mean + _Z95 * std), unit,
+                             method="waveform")
 
 
 def _outside(name: str, value: float, est: ParameterEstimate, factor: float, scale: float, unit: str) -> str | None:
@@ -489,7 +490,7 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     # Td's interval is symmetric in ln Td (the fitted coordinate); std by the delta method
     # (a fit that leaves ln Td free has a huge std: the interval saturates instead of math.exp overflowing)
     half = min(_Z95 * float(s[0]), 700.0)
-    Td_est = ParameterEstimate(Td, Td * float(s[0]), Td * math.exp(-half), Td * math.exp(half), "s")
+    Td_est = ParameterEstimate(Td, Td * float(s[0]), Td * math.exp(-half), Td * math.exp(half), "s", method="waveform")
     est = {"Td": Td_est, "tau": _gaussian(tau, s[1], "s"), "K": _gaussian(K, s[2], "")}
     ratio = fit.residual_rms / noise_std if noise_std > 0 else float("inf")
     reasons = []

@@ -194,10 +194,10 @@ def export(results: dict[str, dict[str, Any]], work: Path) -> Path | None:
     params, js = work / "altitude.params", work / "altitude_tune.json"
     for p in (params, js):
         p.unlink(missing_ok=True)
-    proc = _cli("tune", str(r["log"]), "--tp", f"{r['tp']:.6f}", "--loop", "altitude", "--controller-rate",
-                f"{r['rate_hz']:.1f}", "--export", "px4", "--hover-thrust", f"{r['hover']:.4f}", "--out", str(params),
-                "--json", str(js))
-    print(f"  tune --export px4 (altitude, --hover-thrust {r['hover']:.4f}, --controller-rate {r['rate_hz']:.1f}): "
+    # no --controller-rate: the rate is read from the log (mc_pos_control's setpoint at every publication)
+    proc = _cli("tune", str(r["log"]), "--tp", f"{r['tp']:.6f}", "--loop", "altitude", "--export", "px4",
+                "--hover-thrust", f"{r['hover']:.4f}", "--out", str(params), "--json", str(js))
+    print(f"  tune --export px4 (altitude, --hover-thrust {r['hover']:.4f}, no --clamp, the rate from the log): "
           f"exit {proc.returncode} {proc.stderr.strip()[:300]}")
     print("    " + "\n    ".join(proc.stdout.strip().splitlines()[:16]))
     return params if params.exists() else None

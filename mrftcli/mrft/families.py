@@ -255,7 +255,7 @@ class FOIPDT(_Family):
     tau: float
 
 #: the process families by name (registered in :data:`mrftcli.mrft.model.MODEL_FAMILIES`)
-PROCESS_FAMILIES: dict[str, type[_Family]] = {c.family: c for c in (FOPDT, SOPDT, IPDT, FOIPDT)}
+PROCESS_FAMILIES: dict[str, type[Any]] = {c.family: c for c in (FOPDT, SOPDT, IPDT, FOIPDT)}
 
 
 def family_model(family: str, known: Mapping[str, float] | None = None,

@@ -97,12 +97,13 @@ def flight_log(flight):
 def run_lookalikes() -> None:
     """Each look-alike flight diagnosed with the whole library: both effects named and nothing else."""
     from mrftcli.diagnose.selection import diagnose
+    from mrftcli.mrft.model import soiptd_model
 
     ok = 0
     for pair in LOOKALIKE_FLIGHTS:
         flight = fly_lookalike(pair)
         t0 = time.process_time()
-        res = diagnose(flight_log(flight), flight.truth["Tp"])
+        res = diagnose(flight_log(flight), soiptd_model(flight.truth["Tp"]))
         found = sorted(e.name for e in res.effects)
         ok += found == sorted(pair.split("+"))
         print(f"{pair:<42} found {found} ({time.process_time() - t0:.1f} s CPU)", flush=True)
@@ -205,7 +206,7 @@ def run_case(case: dict) -> dict:
         cpu_analyze = time.process_time() - t0
         t0 = time.process_time()
         try:
-            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
+            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]))
             err, refused = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, err = None, f"{type(exc).__name__}: {exc}"

@@ -45,7 +45,7 @@ Analyse a shipped sample log (a simulated Design I altitude flight: Td 2.669 s, 
 >>> print(f"{len(analysis.tests)} tests: Td {analysis.Td.value:.1f} s, tau {analysis.tau.value * 1e3:.0f} ms, "
 ...       f"K {analysis.K.value:.0f}")
 2 tests: Td 2.7 s, tau 46 ms, K 20
->>> diagnosis = mrftcli.diagnose_flight(flight, 0.0422, analysis=analysis)  # doctest: +SKIP
+>>> diagnosis = mrftcli.diagnose_flight(flight, mrftcli.soiptd_model(0.0422), analysis=analysis)  # doctest: +SKIP
 """
 
 from __future__ import annotations

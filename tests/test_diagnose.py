@@ -141,9 +141,10 @@ def diagnoses():
     def get(path):
         if path not in cache:
             from mrftcli.diagnose.selection import diagnose
+            from mrftcli.mrft.model import soiptd_model
             from mrftcli.io import ReadOptions, read_flight
 
-            cache[path] = diagnose(read_flight(path, ReadOptions(loop="altitude")), _truth(path)["Tp"])
+            cache[path] = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(_truth(path)["Tp"]))
         return cache[path]
 
     return get
@@ -223,6 +224,7 @@ def test_two_concealed_effects_are_both_found(tmp_path):
     import importlib.util
 
     from mrftcli.diagnose.selection import diagnose
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.io import ReadOptions, read_flight, write_log
 
     spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "make_concealed_logs.py")
@@ -231,7 +233,7 @@ def test_two_concealed_effects_are_both_found(tmp_path):
     flight = gen.make_case("input_bias+sensor_lag", "design1", 5)
     truth = flight.truth["effects"]
     write_log(flight.topics, tmp_path / "two.mcap", "mcap")
-    res = diagnose(read_flight(tmp_path / "two.mcap", ReadOptions(loop="altitude")), flight.truth["Tp"],
+    res = diagnose(read_flight(tmp_path / "two.mcap", ReadOptions(loop="altitude")), soiptd_model(flight.truth["Tp"]),
                    candidates=("input_bias", "sensor_lag", "asymmetric_gain", "actuator_rate_limit"))
     assert [e.name for e in res.effects] == ["input_bias", "sensor_lag"]
     for e in res.effects:
@@ -278,11 +280,12 @@ def test_look_alike_pairs_are_told_apart(pair):
     # saturation) and the runner-up (a sensor lag imitates a slew with quadratic drag; the slew, second
     # alone, pairs with the drag)
     from mrftcli.diagnose.selection import diagnose
+    from mrftcli.mrft.model import soiptd_model
 
     bench = _bench()
     flight = bench.fly_lookalike(pair)
     truth = flight.truth["effects"]
-    res = diagnose(bench.flight_log(flight), flight.truth["Tp"], candidates=(*pair.split("+"), *LOOKALIKE_RIVALS[pair]))
+    res = diagnose(bench.flight_log(flight), soiptd_model(flight.truth["Tp"]), candidates=(*pair.split("+"), *LOOKALIKE_RIVALS[pair]))
     assert sorted(e.name for e in res.effects) == sorted(pair.split("+")), res.summary
     for e in res.effects:
         par = {**PARAM, "asymmetric_gain": "a", "actuator_saturation": "U_max", "thrust_rectification": "F"}[e.name]
@@ -302,6 +305,7 @@ def test_a_log_no_linear_plant_fits_is_diagnosed_not_refused(tmp_path, monkeypat
 
     import mrftcli.analyze
     from mrftcli.diagnose.selection import diagnose
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.errors import IdentificationError
     from mrftcli.io import ReadOptions, read_flight, write_log
 
@@ -317,7 +321,7 @@ def test_a_log_no_linear_plant_fits_is_diagnosed_not_refused(tmp_path, monkeypat
         raise IdentificationError(f"{log.path}: no plant of eq. (2) produces these tests' frequencies")
 
     monkeypatch.setattr(mrftcli.analyze, "analyze_flight", refuse)
-    res = diagnose(log, flight.truth["Tp"])
+    res = diagnose(log, soiptd_model(flight.truth["Tp"]))
     assert any("analyze refuses this log" in w for w in res.warnings)
     found = {e.name: e for e in res.effects}
     assert "actuator_rate_limit" in found, res.summary
@@ -580,6 +584,7 @@ def test_models_the_tests_cannot_rank_are_named(tmp_path):
     import importlib.util
 
     from mrftcli.diagnose.selection import diagnose
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.io import ReadOptions, read_flight, write_log
 
     spec = importlib.util.spec_from_file_location("gen", ROOT / "scripts" / "make_concealed_logs.py")
@@ -589,7 +594,7 @@ def test_models_the_tests_cannot_rank_are_named(tmp_path):
                            cycles=8.801354717530746, rate_hz=250.0, noise_std=0.00048256267041108664,
                            amplitude=0.0955844207641889)
     write_log(flight.topics, tmp_path / "tie.mcap", "mcap")
-    res = diagnose(read_flight(tmp_path / "tie.mcap", ReadOptions(loop="altitude")), flight.truth["Tp"])
+    res = diagnose(read_flight(tmp_path / "tie.mcap", ReadOptions(loop="altitude")), soiptd_model(flight.truth["Tp"]))
     named = {"+".join(sorted(e.name for e in res.effects))}
     ties = res.effects[0].evidence.indistinguishable_from or []
     named |= {"+".join(sorted(t.split("+"))) for t in ties}

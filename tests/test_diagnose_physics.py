@@ -24,6 +24,7 @@ from mrftcli.diagnose.fit import cycle_plant
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.diagnose.periodic import CyclePlant, periodic_solution
 from mrftcli.diagnose.selection import diagnose
+from mrftcli.mrft.model import soiptd_model
 from mrftcli.errors import InsufficientDataError, SegmentationError
 from mrftcli.io import ReadOptions, read_flight, write_log
 from mrftcli.io.logtypes import Signal
@@ -149,7 +150,7 @@ def results(logs):
     def get(name):
         if name not in cache:
             path, truth = logs[name]
-            cache[name] = (diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"]), truth)
+            cache[name] = (diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"])), truth)
         return cache[name]
 
     return get
@@ -214,7 +215,7 @@ def test_epoch_stamps_are_shown_from_the_log_start(logs):
 def test_one_beta_is_refused_as_analyze_does(logs):
     path, truth = logs["one_beta"]
     with pytest.raises(InsufficientDataError, match="only one beta"):
-        diagnose(read_flight(path, ReadOptions(loop="altitude")), truth["Tp"])
+        diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]))
     r = run_main("diagnose", str(path), "--tp", str(truth["Tp"]))  # main() in this process (cli_helpers)
     assert r.returncode == 6 and "only one beta" in r.stderr
 
@@ -230,7 +231,7 @@ def test_a_test_that_saturates_at_the_larger_relay_height_is_diagnosed_not_refus
     fl = read_flight(path, ReadOptions(loop="altitude"))
     with pytest.raises(InsufficientDataError, match="only one beta"):
         mrftcli.analyze_flight(fl, truth["Tp"])
-    res = diagnose(fl, truth["Tp"])
+    res = diagnose(fl, soiptd_model(truth["Tp"]))
     assert [e.name for e in res.effects] == ["actuator_saturation"], res.summary
     assert res.effects[0].parameters["U_max"] == pytest.approx(limit, rel=0.1)
     assert any("analyze refuses this log" in w for w in res.warnings)

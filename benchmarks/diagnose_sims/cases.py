@@ -135,7 +135,7 @@ def run_case(case: dict) -> dict:
         out["cpu_analyze"] = time.process_time() - t0
         t0 = time.process_time()
         try:
-            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), Tp)
+            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp))
             out["error"], out["refused"] = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, out["error"] = None, f"{type(exc).__name__}: {exc}"

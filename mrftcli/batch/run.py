@@ -236,11 +236,12 @@ def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
     recorded but leaves the analysis ok."""
     try:
         from ..diagnose.selection import diagnose
+        from ..mrft.model import soiptd_model
 
         if analysis.flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
             raise InputError("the diagnosis needs the analysis's flight signals and Tp")
         return {"status": STATUS_OK, "error": None,
-                **diagnose(analysis.flight, task.settings.tp, analysis=analysis).to_dict()}
+                **diagnose(analysis.flight, soiptd_model(task.settings.tp), analysis=analysis).to_dict()}
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)
         return {"status": STATUS_FAILED, "error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}",

@@ -59,7 +59,7 @@ from ..mrft.lprs import lti_limit_cycle
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 
-__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "Selection", "TestData", "test_data", "fit_effects", "select",
+__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "Selection", "TestData", "as_test_data", "fit_effects", "select",
            "BIC_THRESHOLD"]
 
 #: evidence needed to name an effect (Kass-Raftery's "very strong", as eq. (2)'s diagnosis)
@@ -146,7 +146,7 @@ def _noise_std(t: np.ndarray, y: np.ndarray, t0: float, P: float, Y: np.ndarray)
     return float(np.std(r, ddof=2))
 
 
-def test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
+def as_test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
     """One usable test of :func:`mrftcli.analyze.general.measure_tests` as :class:`TestData`.
 
     Raises
@@ -565,12 +565,15 @@ def _fit_one(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[
     dbic = base - chi2 - math.log(max(n_obs, 2))
     before = _held_out_errors(model, tests, kept, [], k0, t_ref, views)
     after = _held_out_errors(model, tests, [*kept, (effect, value)], [effect], k0, t_ref, views)
-    rms = lambda xs: math.sqrt(sum(x * x for x in xs) / len(xs))  # noqa: E731
     ident = _identify(model, tests, _actions([*kept, (effect, value)], tests, t_ref))
     refit = {} if ident is None or "points" not in base_views else {e.name: e.value for e in ident.estimates}
     floor = max(0.5 / t.rate_hz for t in tests) if effect.name == "delay_jitter" else 0.0
-    return EffectFit(effect.name, effect.parameter, effect.unit, value, dbic, rms(before), rms(after),
+    return EffectFit(effect.name, effect.parameter, effect.unit, value, dbic, _rms(before), _rms(after),
                      tuple(before), tuple(after), views, with_, floor, refit)
+
+
+def _rms(xs: Sequence[float]) -> float:
+    return math.sqrt(sum(x * x for x in xs) / len(xs))
 
 
 @dataclass(frozen=True)
@@ -650,4 +653,4 @@ def select(model: PlantModel, tests: Sequence[TestData]) -> Selection:
         found += sorted((r for r in second if r.found), key=lambda r: -r.delta_bic)[:1]
     kept = [(BY_NAME[f.name], f.value) for f in found]
     left = _held_out_errors(model, prep.tests, kept, [], prep.k0, prep.t_ref, ("points",))
-    return Selection(rows, found, math.sqrt(sum(x * x for x in left) / len(left)), precision)
+    return Selection(rows, found, _rms(left), precision)

@@ -52,7 +52,7 @@ from ..progress import Progress, report
 from ..validate import check_time
 from .candidates import LinearFit, fit_linear, search_candidates
 from .checks import ProcessDiagnosis, check_test, locate as locate_checks, measured_waveform, misfit, verdict
-from .effects import select as select_effects_on, test_data
+from .effects import select as select_effects_on, as_test_data
 from .fit import plant_params
 from .heldout import BIC_THRESHOLD, significant
 from .identification import EffectIdentification, Identification, ModelEstimate, analyze_model
@@ -220,7 +220,7 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                               [p for i, m in measured.items() if i != s.index for p in m.points], all_model)
                    for s in analysis.tests if s.index in measured)
     say("fitting the library of physics")
-    chosen = select_effects_on(model, [test_data(flight, by_index[i]) for i in measured])
+    chosen = select_effects_on(model, [as_test_data(flight, by_index[i]) for i in measured])
     say("locating")
     gap = misfit(analysis.identification)
     # where the residual sits first (per test, largest first); the fit's overall misfit after it

@@ -75,7 +75,8 @@ __all__ = ["WatchOptions", "TestUpdate", "EstimateUpdate", "WatchEnd", "Restart"
 
 #: version of every ``watch --jsonl`` line (:meth:`TestUpdate.to_json`, ...). 2: one record for every
 #: family (each parameter :class:`~mrftcli.mrft.parameter.ParameterEstimate`'s JSON); 1 was ``watch
-#: --model``'s lines, eq. (2)'s had none. Nothing reads the older lines back.
+#: --model``'s lines (still read for one release: the process plant's test and estimate updates), eq.
+#: (2)'s had none (not read back).
 WATCH_SCHEMA_VERSION = 2
 
 
@@ -196,16 +197,19 @@ class TestUpdate:
 
     @classmethod
     def from_json(cls, data: Any) -> TestUpdate:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "watch test update", WATCH_SCHEMA_VERSION)
+        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input.
+
+        A version-1 line (``watch --model``'s, without ``h``) reads with ``h`` its relay's half swing.
+        """
+        d = check_schema_version(data, "watch test update", range(1, WATCH_SCHEMA_VERSION + 1))
         try:
-            t_start, t_end, t_log, beta, f, a, h, wall = _floats(d, "t_start", "t_cycle_end", "t_log_start",
-                                                                 "beta_effective", "frequency_hz", "amplitude", "h",
-                                                                 "wall_time")
+            t_start, t_end, t_log, beta, f, a, wall = _floats(d, "t_start", "t_cycle_end", "t_log_start",
+                                                              "beta_effective", "frequency_hz", "amplitude", "wall_time")
             nominal, relay = d.get("beta_nominal"), d.get("relay")
+            law = None if relay is None else RelayLaw.from_json(relay)
+            h = float(d["h"]) if "h" in d or law is None else (law.high - law.low) / 2
             return cls(int(d["number"]), t_start, t_end, t_log, beta, f, a, h, int(d["stable_cycles"]), int(d["cycles"]),
-                       wall, None if nominal is None else float(nominal),
-                       None if relay is None else RelayLaw.from_json(relay), tuple(str(n) for n in d.get("notes", [])))
+                       wall, None if nominal is None else float(nominal), law, tuple(str(n) for n in d.get("notes", [])))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"watch test update: bad or missing field ({err})") from None
 
@@ -263,7 +267,7 @@ class EstimateUpdate:
     @classmethod
     def from_json(cls, data: Any) -> EstimateUpdate:
         """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "watch estimate update", WATCH_SCHEMA_VERSION)
+        d = check_schema_version(data, "watch estimate update", range(1, WATCH_SCHEMA_VERSION + 1))
         try:
             params, family, analysis = d["parameters"], str(d["model"]), d.get("analysis")
             if not isinstance(params, Mapping):

@@ -243,3 +243,30 @@ def test_an_interval_cut_at_a_range_bound_is_one_sided_again_when_read(t_range: 
     back = LtiIdentification.from_json(json.loads(json.dumps(to_jsonable(ident.to_json()))))
     assert back.estimates == ident.estimates
     assert [e.one_sided for e in back.estimates] == [e.one_sided for e in ident.estimates]
+
+
+def test_watch_model_lines_of_version_1_read_into_todays_updates() -> None:
+    """``watch plant.csv --model fopdt --jsonl`` before the one record (tests/data/old_records/watch_v1.jsonl:
+    the simulated FOPDT K 2, T 1 s, tau 0.3 s, two relay tests): its test and estimate lines read with their
+    figures (a test's h, not in version 1, is its relay's half swing) and write as version 2."""
+    from mrftcli.watch import EstimateUpdate, TestUpdate
+
+    lines = [json.loads(line) for line in (OLD / "watch_v1.jsonl").read_text().splitlines()]
+    tests = [d for d in lines if d["kind"] == "test"]
+    estimates = [d for d in lines if d["kind"] == "estimate"]
+    assert len(tests) == 2 and len(estimates) == 2 and all(d["schema_version"] == 1 for d in tests + estimates)
+    for d in tests:
+        t = TestUpdate.from_json(d)
+        assert (t.number, t.frequency_hz, t.amplitude, t.stable_cycles) == (d["number"], d["frequency_hz"],
+                                                                            d["amplitude"], d["stable_cycles"])
+        assert t.relay is not None and t.h == (d["relay"]["high"] - d["relay"]["low"]) / 2
+        assert t.to_json()["schema_version"] == 2
+    for d in estimates:
+        e = EstimateUpdate.from_json(d)
+        new = json.loads(json.dumps(to_jsonable(e.to_json())))
+        assert new["schema_version"] == 2 and _one_shape(new) == []
+        for name, was in d["parameters"].items():
+            _same_figures(new["parameters"][name], was, name)
+        # the final update carries the whole analysis, its record of version 2 read and written as 3
+        assert (e.analysis is not None and new["analysis"]["schema_version"] == 3) == d["final"]
+    assert [d["final"] for d in estimates] == [False, True]

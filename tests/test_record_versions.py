@@ -10,6 +10,8 @@ Every file under ``tests/data/old_records/`` was written by mrft-ident before th
 - ``cascade_v1.json``: ``analyze sample_logs/hear_cascade_y.bag --loop y --inner-model roll.json
   --inner-gains sample_logs/hear_cascade_y.gains.json --json``
 - ``vehicle_v1.json``: ``vehicle sample_logs/hear_cascade_y.bag --tp 0.0422 --inner-gains ... --json``
+- ``watch_v1.jsonl``: ``watch fopdt.csv --model fopdt --jsonl`` (``simulate --model fopdt --param K=2 --param T=1.0
+  --param tau=0.3 --test -0.3 --test -0.6``)
 
 The oracle is the old file itself: every figure it holds comes back unchanged under the new keys.
 """

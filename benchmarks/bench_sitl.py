@@ -131,9 +131,11 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
     tests = segment(read_flight(log, ReadOptions(loop=loop)))
     flown = [(t["beta"], t["h"]) for t in side["tests"]]
     print(f"  {log.name}: {len(tests)}/{len(flown)} tests located")
+    implied = implied_model(loop, hover_of_log(log, side))
     for t in tests:
         print(f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  {len(t.cycles)} cycles, {t.n_stable} stable; "
-              f"{'; '.join(t.notes[:2])}")
+              f"f {t.frequency_hz_mean:.3f} Hz; tau that SITL's Td {implied['Td']:.3f} s and K {implied['K']:.2f} "
+              f"need for it: {tau_for_frequency(t, side['tp_s'], implied) * 1e3:.2f} ms {'; '.join(t.notes[:2])}")
     with open_log(log, echo_warnings=False) as src:
         tm, m = src.read("MRFT", ["Cmd", "Snt"])
     dt = np.diff(tm)
@@ -141,6 +143,25 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
           f"delay realised: {realised_delay(tm, m['Cmd'], m['Snt'])}")
     for line in ekf_against_truth(log):
         print(line)
+
+
+def tau_for_frequency(test, tp: float, implied: dict[str, float]) -> float:
+    """The delay [s] with which eq. (2) at SITL's own Td and K (and the known Tp) limit-cycles at the test's
+    measured frequency under its beta, h and sampling; NaN when no delay in 0-0.2 s does (the loop has
+    less lag than Tp and SITL's Td and K already give)."""
+    from scipy.optimize import brentq
+
+    from mrftcli.mrft.lprs import mrft_limit_cycle
+    from mrftcli.mrft.model import LoopModel
+
+    def miss(tau: float) -> float:
+        model = LoopModel(tp, implied["Td"], tau, implied["K"])
+        return mrft_limit_cycle(model, test.beta_nominal, test.h, test.rate_hz).frequency_hz - test.frequency_hz_mean
+
+    try:
+        return float(brentq(miss, 0.0, 0.2))
+    except ValueError:
+        return float("nan")
 
 
 def ekf_against_truth(log: Path) -> list[str]:
@@ -381,6 +402,12 @@ def evaluate_altitude_step(log: Path, work: Path, t_cmd: float) -> None:
           f"the exported cascade on the identified model (Td {model['Td']:.3f} s, tau {model['tau'] * 1e3:.2f} ms, "
           f"K {model['K']:.2f}) following that target: {pred['overshoot_pct']:.1f} %, {pred['settling_s']:.2f} s "
           f"(settling {(got['settling_s'] / pred['settling_s'] - 1) * 100:+.0f} %)")
+    # the tracking error during the step (the shaped target does most of the step: this is the loop's part)
+    z_pred = np.interp(tp[win], grid, pred_z)
+    err_flown, err_pred = z[win] - (des[win] - d0 + base), z_pred - np.interp(tp[win], grid, path[0])
+    print(f"  altitude step: tracking error, flown max {np.max(np.abs(err_flown)) * 100:.1f} cm, rms "
+          f"{np.sqrt(np.mean(err_flown ** 2)) * 100:.1f} cm; predicted max {np.max(np.abs(err_pred)) * 100:.1f} cm, "
+          f"rms {np.sqrt(np.mean(err_pred ** 2)) * 100:.1f} cm")
     unshaped = _predicted(work / "altitude_tune.json")
     print(f"  (tune's own step figure is of the robust PD on an unshaped step: {unshaped.get('overshoot_pct', float('nan')):.1f} %, "
           f"{unshaped.get('settling_s') or float('nan'):.2f} s)")

@@ -58,6 +58,16 @@ class ParameterEstimate:
         The family's parameter name (``""`` where the record's key names it).
     one_sided : str
         ``""``, ``"low"`` or ``"high"``: the interval's end that is a range's bound (open side).
+
+    Examples
+    --------
+    >>> tau = ParameterEstimate(0.0464, 1.8e-05, 0.04637, 0.04644, "s", method="waveform")
+    >>> tau.to_json()
+    {'value': 0.0464, 'std': 1.8e-05, 'ci95_low': 0.04637, 'ci95_high': 0.04644, 'unit': 's', 'determined': True, 'known': False, 'method': 'waveform'}
+    >>> old = {"mean": 2.0, "std": 0.4, "ci95_low": 1.4, "ci95_high": None, "unit": "s", "method": "mrft"}
+    >>> Td = ParameterEstimate.from_json("Td", old)  # eq. (2)'s record before analysis schema 4
+    >>> Td.value, Td.determined, Td.to_json()["std"]  # bounded from below only: not determined
+    (2.0, False, None)
     """
 
     value: float

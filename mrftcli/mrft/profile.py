@@ -165,7 +165,9 @@ def profile_tp(windows: Sequence[CommandWindow], start: LoopModel, *, loop_sign:
                              options={"xatol": 0.01, "maxiter": 12})
     best = min(_ordered(fits, list(fits)), key=lambda t: fits[t][0])
     half = _half_width({t: fits[t] for t in _ordered(fits, list(fits))}, best, n)
-    ratio = {t: math.sqrt(v / n) / noise for t, (v, _) in fits.items()}
+    # a noise-free output (a simulator's truth) has no floor: any residual is infinitely above it
+    ratio = {t: (math.sqrt(v / n) / noise if noise > 0 else (math.inf if v > 0 else 0.0))
+             for t, (v, _) in fits.items()}
     given = start.Tp
     return TpProfile(given=given, best=best, low=best * math.exp(-half), high=best * math.exp(half),
                      residual_ratio_given=ratio[min(fits, key=lambda t: abs(math.log(t / given)))],

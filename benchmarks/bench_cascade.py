@@ -146,9 +146,9 @@ def _inner_read(spec, layout: str):
 
 
 def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> None:
-    from mrftcli.analyze import analyze_path
+    from mrftcli.analyze import AnalyzeOptions, CascadeOptions, analyze_flight, analyze_path
     from mrftcli.mrft.model import soiptd_model
-    from mrftcli.analyze.cascade import CascadeOptions, analyze_cascade, inner_draws, inner_gains_of, inner_loop_of
+    from mrftcli.analyze.cascade import cascade_model, inner_draws, inner_gains_of, inner_loop_of
     from mrftcli.io import read_flight
     from mrftcli.io.flight import ReadOptions
 
@@ -156,8 +156,8 @@ def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> No
     controller = inner_gains_of({spec.inner_loop: spec.gains.generic()}, spec.inner_loop)
     inner = inner_loop_of(inner_result, controller, spec.inner_loop)
     flight = read_flight(bag, ReadOptions(loop=spec.axis), echo_warnings=False)
-    analysis = analyze_cascade(flight, inner, options=CascadeOptions(commanded=spec.commanded),
-                               draws=inner_draws(inner_result, inner, 30))
+    analysis = analyze_flight(flight, cascade_model(inner, spec.commanded), options=AnalyzeOptions(
+        cascade=CascadeOptions(draws=tuple(inner_draws(inner_result, inner, 30)))))
     est = analysis.identification.estimates
     out.cascade_Td, out.cascade_tau = est["Td"].value, est["tau"].value
     out.cascade_td_covers = est["Td"].ci95_low <= spec.Td <= est["Td"].ci95_high

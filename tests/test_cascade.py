@@ -354,7 +354,8 @@ def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
     Oracle: the cascade simulator (:mod:`mrftcli.sim.cascade`, a per-tick integration sharing no
     code with :mod:`mrftcli.mrft.cascade`) and its true tau.
     """
-    from mrftcli.analyze.cascade import CascadeOptions, _measurement, analyze_cascade
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.analyze.cascade import _measurement, cascade_model
     from mrftcli.io import read_flight
     from mrftcli.io.flight import ReadOptions
     from mrftcli.sim.cascade import simulate_cascade
@@ -374,7 +375,7 @@ def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
     flight = read_flight(log, ReadOptions(loop="y"), echo_warnings=False)
     assert flight.timing.stamps == "receive"
     loop = InnerLoop(inner, gains, "roll")
-    analysis = analyze_cascade(flight, loop, options=CascadeOptions(commanded="attitude"))
+    analysis = analyze_flight(flight, cascade_model(loop, "attitude"))
     est = analysis.identification.estimates["tau"]
     before = identify_cascade(loop, [_measurement(t) for t in analysis.tests], RATE, K=G).estimates["tau"]
     assert abs(est.value - tau) < 3e-3 and est.ci95_low <= tau <= est.ci95_high

@@ -28,17 +28,18 @@ import numpy as np
 from ..errors import InputError, SegmentationError
 from ..io.logtypes import FlightLog
 from ..jsonable import check_schema_version
-from ..mrft.cascade import G, InnerController, InnerLoop
+from ..mrft.cascade import G, CascadeModel, InnerController, InnerLoop
 from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
 from ..mrft.identify import TestMeasurement
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
 from .mrfttest_json import mrft_test_from_json
+from .options import AnalyzeOptions, CascadeOptions
 from .record import AnalysisResult, analysis_controller_rate
 from .screen import log_start
 
-__all__ = ["CascadeOptions", "CascadeAnalysis", "analyze_cascade", "inner_loop_of", "inner_draws", "inner_gains_of",
+__all__ = ["CascadeAnalysis", "analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "inner_gains_of",
            "screen_outer", "outer_levels", "CASCADE_ANALYSIS_SCHEMA_VERSION", "OUTER_COMMANDS"]
 
 #: version of :meth:`CascadeAnalysis.to_json`; 2: each parameter the one record (ParameterEstimate, with
@@ -46,47 +47,6 @@ __all__ = ["CascadeOptions", "CascadeAnalysis", "analyze_cascade", "inner_loop_o
 CASCADE_ANALYSIS_SCHEMA_VERSION = 2
 #: what the outer relay commands -> K of the cascade (None: identified)
 OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "identify": None}
-
-
-@dataclass(frozen=True)
-class CascadeOptions:
-    """How the outer loop is analysed.
-
-    Attributes
-    ----------
-    commanded : {"acceleration", "attitude", "identify"}
-        What the outer relay commands: an acceleration [m/s^2] (K = 1), an attitude [rad]
-        (K = g = 9.81), or identify K (two betas needed).
-    min_stable_cycles : int
-        Fewest stable cycles for a test to be used.
-    n_draws : int
-        Draws of the inner loop propagated through the solve (0: the inner model taken as exact).
-    seed : int
-        Seed of the draws.
-    Td_bounds, tau_bounds : (float, float)
-        The set I of the outer Td [s] and tau [s].
-    inner_source, gains_source : str
-        Where the inner model and the inner gains came from, as the assumptions state it (the options
-        of ``analyze``; ``vehicle`` names its own sources).
-    """
-
-    commanded: str = "acceleration"
-    min_stable_cycles: int = 3
-    n_draws: int = 30
-    seed: int = 0
-    Td_bounds: tuple[float, float] = (0.05, 50.0)
-    tau_bounds: tuple[float, float] = (0.0, 0.5)
-    inner_source: str = "--inner-model"
-    gains_source: str = "--inner-gains"
-
-    def __post_init__(self) -> None:
-        if self.commanded not in OUTER_COMMANDS:
-            raise InputError(f"--outer-command must be one of {', '.join(OUTER_COMMANDS)}, got {self.commanded!r}")
-
-    @property
-    def K(self) -> float | None:
-        """The known K (None: identified)."""
-        return OUTER_COMMANDS[self.commanded]
 
 
 @dataclass(frozen=True, eq=False)
@@ -321,22 +281,43 @@ def outer_levels(tests: Sequence[MrftTest], rate_hz: float) -> list[tuple[float,
 # ----------------------------------------------------------------------------------------------
 # the driver
 # ----------------------------------------------------------------------------------------------
-def analyze_cascade(flight: FlightLog, inner: InnerLoop, *, options: CascadeOptions = CascadeOptions(),
-                    draws: Sequence[InnerLoop] = (), assumptions: Sequence[str] = ()) -> CascadeAnalysis:
-    """The outer loop of ``flight`` identified through ``inner`` (the module docstring's stages).
+def cascade_model(inner: InnerLoop, commanded: str = "acceleration") -> CascadeModel:
+    """The cascade to identify: ``inner`` closed, K known from what the outer relay commands (set E).
+
+    ``commanded`` is ``"acceleration"`` (K = 1), ``"attitude"`` (K = g) or ``"identify"`` (K unknown);
+    Td and tau get placeholders that identification ignores; their set I is :data:`TD_BOUNDS`,
+    :data:`TAU_BOUNDS` unless the model's ``ranges`` narrow them.
+
+    Raises
+    ------
+    InputError
+        An unknown ``commanded`` (naming ``--outer-command``).
+    """
+    if commanded not in OUTER_COMMANDS:
+        raise InputError(f"--outer-command must be one of {', '.join(OUTER_COMMANDS)}, got {commanded!r}")
+    K = OUTER_COMMANDS[commanded]
+    return CascadeModel(inner, 1.0, 0.0, 1.0 if K is None else K,
+                        known=frozenset() if K is None else frozenset({"K"}))
+
+
+#: the outer Td [s] and tau [s] searched (the set I when the model's ``ranges`` do not narrow it)
+TD_BOUNDS, TAU_BOUNDS = (0.05, 50.0), (0.0, 0.5)
+
+
+def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOptions) -> CascadeAnalysis:
+    """The outer loop of ``flight`` identified through ``model.inner`` (the module docstring's stages): the
+    cascade family's strategy of :func:`mrftcli.analyze.analyze_flight`.
 
     Parameters
     ----------
     flight : FlightLog
         The outer loop's signals (command: the outer relay's output; output: the position [m]).
-    inner : InnerLoop
-        The inner loop's model and controller (:func:`inner_loop_of`).
-    options : CascadeOptions
-        K, the screening and the draws.
-    draws : sequence of InnerLoop
-        Draws of the inner loop (:func:`inner_draws`); empty: the inner model taken as exact.
-    assumptions : sequence of str
-        Extra assumptions to state (the caller's), before the ones this function adds.
+    model : CascadeModel
+        The inner loop's model and controller (:func:`inner_loop_of`) and the outer set E (K known or
+        not: :func:`cascade_model`) and set I (``ranges`` of Td, tau).
+    options : AnalyzeOptions
+        ``min_stable_cycles`` and ``cascade``: the inner loop's draws (:func:`inner_draws`; empty: the
+        inner model taken as exact), the caller's assumptions (stated first) and the sources' wording.
 
     Raises
     ------
@@ -347,6 +328,8 @@ def analyze_cascade(flight: FlightLog, inner: InnerLoop, *, options: CascadeOpti
     InputError
         The outer rate does not divide the inner controller's rate.
     """
+    c, inner = options.cascade, model.inner
+    bounds = {name: (lo, hi) for name, lo, hi in model.ranges}
     t0 = log_start(flight)
     found = segment(flight, controller_rate_hz=flight.timing.controller_rate_hz)
     screened = screen_outer(found, options.min_stable_cycles)
@@ -359,10 +342,11 @@ def analyze_cascade(flight: FlightLog, inner: InnerLoop, *, options: CascadeOpti
         raise InputError("the outer loop's controller rate is unknown: give --controller-rate HZ")
     rate = _snap_rate(rate, inner.controller.rate_hz)
     jitter = float(flight.timing.timing_jitter_s or 0.0) if flight.timing.stamps == "receive" else 0.0
-    ident = identify_cascade(inner, [_measurement(t) for t in screened.usable], rate, K=options.K,
-                             Td_bounds=options.Td_bounds, tau_bounds=options.tau_bounds, inner_draws=draws,
+    ident = identify_cascade(inner, [_measurement(t) for t in screened.usable], rate,
+                             K=model.K if "K" in model.known else None, Td_bounds=bounds.get("Td", TD_BOUNDS),
+                             tau_bounds=bounds.get("tau", TAU_BOUNDS), inner_draws=c.draws,
                              switch_levels=outer_levels(screened.usable, rate), tau_timing_std=jitter)
-    stated = list(assumptions) + _assumptions(options, inner, rate, ident)
+    stated = list(c.assumptions) + _assumptions(model, c, rate, ident)
     if jitter >= 1e-4:
         stated.append(f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded into "
                       "tau's interval")
@@ -386,10 +370,15 @@ def _snap_rate(rate: float, inner_rate: float) -> float:
                      "rate must equal it or divide it (check --inner-gains rate_hz and --controller-rate)")
 
 
-def _assumptions(options: CascadeOptions, inner: InnerLoop, rate: float, ident: CascadeIdentification) -> list[str]:
-    what = {"acceleration": "the outer relay commands an acceleration [m/s^2]: K = 1 (--outer-command)",
-            "attitude": f"the outer relay commands an attitude [rad]: K = g = {G} m/s^2 per rad (--outer-command)",
-            "identify": "K identified from the tests (--outer-command identify)"}[options.commanded]
+def _assumptions(model: CascadeModel, options: CascadeOptions, rate: float,
+                 ident: CascadeIdentification) -> list[str]:
+    if "K" not in model.known:
+        what = "K identified from the tests (--outer-command identify)"
+    elif model.K == G:
+        what = f"the outer relay commands an attitude [rad]: K = g = {G} m/s^2 per rad (--outer-command)"
+    else:
+        what = f"the outer relay commands an acceleration [m/s^2]: K = {model.K:g} (--outer-command)"
+    inner = model.inner
     c = inner.controller
     p = inner.plant.parameters
     plant = ", ".join(f"{n} {q.value:.4g}{' ' + q.unit if q.unit == 's' else ''}" for n, q in p.items())

@@ -8,6 +8,8 @@ One route for every model family, the strategy chosen by the model object:
   point estimate through the unit manifolds (the family's cached accelerator) -> consensus and
   bootstrap -> Table III combinations -> held out -> identifiability -> waveform refinement -> timing
   jitter (:mod:`mrftcli.analyze.estimate`); the method is described in :mod:`mrftcli.analyze`;
+* an outer loop through its closed inner loop (:class:`~mrftcli.mrft.cascade.CascadeModel`): the
+  exact sampled cascade's orbits (:func:`mrftcli.analyze.cascade.analyze_cascade`);
 * every other family (the process plants, a declared transfer function): response points of every
   stable cycle under any relay, a direct exact fit, each test held out
   (:func:`mrftcli.analyze.general.analyze_family`).
@@ -25,12 +27,14 @@ from ..errors import InputError, LogReadError, TpRejectedError
 from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
+from ..mrft.cascade import CascadeModel
 from ..mrft.consensus import combinations
 from ..mrft.model import LoopModel, PlantModel, soiptd_model
 from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
+from .cascade import CascadeAnalysis, analyze_cascade
 from .estimate import (WaveformStage, beta_used, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
 from .general import GeneralAnalysis, analyze_family, mask_windows
@@ -64,10 +68,13 @@ def _model(model: PlantModel | float) -> PlantModel:
 def analyze_flight(flight: FlightLog, model: LoopModel | float, *,
                    options: AnalyzeOptions | None = None) -> AnalysisResult: ...
 @overload
+def analyze_flight(flight: FlightLog, model: CascadeModel, *,
+                   options: AnalyzeOptions | None = None) -> CascadeAnalysis: ...
+@overload
 def analyze_flight(flight: FlightLog, model: PlantModel, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis: ...
+                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis: ...
 def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis:
+                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis:
     """Segment the relay tests of a flight and identify the model's unknown parameters (module docstring).
 
     Parameters
@@ -77,7 +84,8 @@ def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
     model : PlantModel
         The structure with its known parameters (set E) and ranges (set I): eq. (2) with Tp known
         (``soiptd_model(Tp)``, Tp [s] from the bench test) identifies Td, tau and K through the
-        manifolds; any other family by its direct fit (:func:`mrftcli.analyze.general.analyze_family`).
+        manifolds; a cascade (:func:`mrftcli.analyze.cascade.cascade_model`) through its closed inner
+        loop; any other family by its direct fit (:func:`mrftcli.analyze.general.analyze_family`).
     options : AnalyzeOptions, optional
         The analysis's knobs (stability and validity criteria, bootstrap draws, Table III cap, seed,
         constraints, waveform refinement, controller rate, the relay stated, the windows, a process
@@ -87,7 +95,8 @@ def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
     Returns
     -------
     AnalysisResult
-        For eq. (2); :class:`~mrftcli.analyze.general.GeneralAnalysis` for the other families.
+        For eq. (2); :class:`~mrftcli.analyze.cascade.CascadeAnalysis` for a cascade;
+        :class:`~mrftcli.analyze.general.GeneralAnalysis` for the other families.
 
     Raises
     ------
@@ -125,6 +134,8 @@ def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
     # the family's strategy: eq. (2) through its manifolds, every other structure by its direct fit
     if isinstance(model, LoopModel):
         return _analyze_eq2(flight, model, opts)
+    if isinstance(model, CascadeModel):
+        return analyze_cascade(flight, model, opts)
     return analyze_family(flight, model, opts)
 
 
@@ -244,12 +255,15 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
 def analyze_path(path: str | Path, model: LoopModel | float, *, read: ReadOptions | None = None,
                  options: AnalyzeOptions | None = None) -> AnalysisResult: ...
 @overload
+def analyze_path(path: str | Path, model: CascadeModel, *, read: ReadOptions | None = None,
+                 options: AnalyzeOptions | None = None) -> CascadeAnalysis: ...
+@overload
 def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis: ...
+                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis: ...
 
 
 def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis:
+                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters
@@ -281,7 +295,7 @@ def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptio
     from ..io import read_flight
 
     model = _model(model)
-    if not isinstance(model, LoopModel):
+    if not isinstance(model, (LoopModel, CascadeModel)):  # a process plant: not a vehicle loop's clock
         read = dataclasses.replace(read or ReadOptions(), any_time_scale=True)
     flight = read_flight(path, read, echo_warnings=False)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, model, options=options)

@@ -13,11 +13,12 @@ from numbers import Integral
 
 from ..errors import InputError
 from ..io.logtypes import Signal
+from ..mrft.cascade import InnerLoop
 from ..mrft.consensus import CONSTRAINTS
 from ..segment import StabilityCriterion, ValidityCriterion
 from ..validate import check_positive
 
-__all__ = ["AnalyzeOptions", "RelayOptions"]
+__all__ = ["AnalyzeOptions", "RelayOptions", "CascadeOptions"]
 
 #: the relays a process-plant analysis is told about (:func:`mrftcli.segment.relay_type.infer_relay`)
 RELAY_KINDS = ("mrft", "ideal", "hysteresis")
@@ -45,6 +46,28 @@ class RelayOptions:
     def stated(self) -> bool:
         """Whether anything is stated (eq. (2) reads its relay from the log and takes none)."""
         return (self.kind, self.beta, self.eps) != (None, None, None)
+
+
+@dataclass(frozen=True)
+class CascadeOptions:
+    """What a cascade's analysis (an outer loop through its closed inner loop) takes beside its model.
+
+    Attributes
+    ----------
+    draws : tuple of InnerLoop
+        Draws of the inner loop over its analysis' uncertainty
+        (:func:`mrftcli.analyze.cascade.inner_draws`); empty: the inner model taken as exact.
+    assumptions : tuple of str
+        The caller's assumptions to state first.
+    inner_source, gains_source : str
+        Where the inner model and the inner gains came from, as the assumptions say it (the options of
+        ``analyze``; ``vehicle`` names its own sources).
+    """
+
+    draws: tuple[InnerLoop, ...] = ()
+    assumptions: tuple[str, ...] = ()
+    inner_source: str = "--inner-model"
+    gains_source: str = "--inner-gains"
 
 
 @dataclass(frozen=True)
@@ -86,9 +109,12 @@ class AnalyzeOptions:
         A process model's operating point ``Y0`` [output units] (or its logged signal) and its std:
         a biased relay's mean levels then measure the static gain
         (:mod:`mrftcli.analyze.static_gain`).
+    cascade : CascadeOptions
+        A cascade model's inner-loop draws and the wording of its sources.
 
     The eq. (2) strategy reads every field but ``relay`` and ``baseline``; a process family's reads
-    ``min_stable_cycles``, ``relay``, ``windows`` and ``baseline``.
+    ``min_stable_cycles``, ``relay``, ``windows`` and ``baseline``; a cascade's ``min_stable_cycles`` and
+    ``cascade``.
 
     Raises
     ------
@@ -118,6 +144,7 @@ class AnalyzeOptions:
     relay: RelayOptions = RelayOptions()
     windows: tuple[tuple[float, float], ...] = ()
     baseline: tuple[float | Signal, float] | None = None
+    cascade: CascadeOptions = CascadeOptions()
 
     def __post_init__(self) -> None:
         for name in ("min_stable_cycles", "n_bootstrap", "max_combinations"):

@@ -105,7 +105,8 @@ def _check(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -
 def run_cascade(log: str, request: CascadeRequest, read_options: dict[str, Any], *, min_cycles: int,
                 json_target: str | None, unsupported: Mapping[str, Any]) -> None:
     """``analyze`` through the inner loop: read, identify, print (assumptions first), ``--json``."""
-    from ..analyze.cascade import CascadeOptions, analyze_cascade, inner_draws, inner_gains_of, inner_loop_of
+    from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
+    from ..analyze.cascade import cascade_model, inner_draws, inner_gains_of, inner_loop_of
     from ..analyze.record import AnalysisResult
     from ..io import ReadOptions, read_flight
 
@@ -114,13 +115,13 @@ def run_cascade(log: str, request: CascadeRequest, read_options: dict[str, Any],
     result = AnalysisResult.from_json(_read_json(request.inner_model or "", "--inner-model"))
     controller = inner_gains_of(_read_json(request.inner_gains or "", "--inner-gains"), inner_name)
     inner = inner_loop_of(result, controller, inner_name)
-    options = CascadeOptions(commanded=request.outer_command, min_stable_cycles=min_cycles,
-                             n_draws=request.inner_draws)
+    model = cascade_model(inner, request.outer_command)
+    options = AnalyzeOptions(min_stable_cycles=min_cycles, cascade=CascadeOptions(
+        draws=tuple(inner_draws(result, inner, request.inner_draws)),
+        assumptions=(f"inner model from {request.inner_model}",)))
     flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
     try:
-        analysis = analyze_cascade(flight, inner, options=options,
-                                   draws=inner_draws(result, inner, options.n_draws, options.seed),
-                                   assumptions=(f"inner model from {request.inner_model}",))
+        analysis = analyze_flight(flight, model, options=options)
     except MrftError:
         for w in flight.warnings:
             click.echo(f"warning: {w}", err=True)

@@ -14,7 +14,8 @@ import dataclasses
 import math
 
 from ..analyze import AnalysisResult
-from ..analyze.cascade import CascadeAnalysis, CascadeOptions, analyze_cascade, inner_draws, inner_loop_of
+from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
+from ..analyze.cascade import CascadeAnalysis, cascade_model, inner_draws, inner_loop_of
 from ..io import FlightLog
 from ..mrft.cascade import InnerController, InnerLoop
 from ..tune.cascade import outer_draws
@@ -63,13 +64,12 @@ def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: InnerContro
     """
     assert isinstance(inner.analysis, AnalysisResult)  # an inner loop is identified with eq. (2)
     loop = inner_loop_of(inner.analysis, controller, inner.loop)
-    copts = CascadeOptions(commanded=options.commanded, min_stable_cycles=options.min_stable_cycles,
-                           n_draws=options.inner_draws,
+    copts = CascadeOptions(draws=tuple(inner_draws(inner.analysis, loop, options.inner_draws)),
+                           assumptions=(f"inner model: the {inner.loop} loop identified in this flight",),
                            inner_source=f"identified from the {inner.loop} tests of this flight",
                            gains_source="--inner-gains")
-    return analyze_cascade(flight, loop, options=copts,
-                           draws=inner_draws(inner.analysis, loop, copts.n_draws, copts.seed),
-                           assumptions=(f"inner model: the {inner.loop} loop identified in this flight",))
+    return analyze_flight(flight, cascade_model(loop, options.commanded),
+                          options=AnalyzeOptions(min_stable_cycles=options.min_stable_cycles, cascade=copts))
 
 
 def _new_inner(analysis: CascadeAnalysis, inner: VehicleLoop) -> tuple[InnerLoop, str]:

@@ -248,7 +248,7 @@ def test_a_sensor_mount_mode_rings_above_the_fitted_harmonics_at_its_frequency(t
     path, truth = _flight(None if mode_hz is None else "flex_mode_hz", mode_hz or 0.0, seed=12, cycles=(10, 10, 10),
                           h3=2.0, noise_std=0.0003, tmp=tmp_path)
     fl = read_flight(path, ReadOptions(loop="altitude"))
-    screen = screen_log(fl, truth["Tp"], None, lambda *a, **k: None)
+    screen = screen_log(fl, soiptd_model(truth["Tp"]), None, lambda *a, **k: None)
     found = resonance_mismatch(fl, screen.tests, "linear")
     if mode_hz is None:
         assert found is None, found
@@ -310,8 +310,8 @@ def test_a_mount_rings_after_the_switches_at_its_frequency_and_damping(tmp_path,
                           h3=2.0, noise_std=0.0007, tmp=tmp_path)
     fl = read_flight(path, ReadOptions(loop="altitude"))
     say = lambda *a, **k: None  # noqa: E731
-    screen = screen_log(fl, truth["Tp"], None, say)
-    linear = fit_linear(screen, truth["Tp"], str(path), say)
+    screen = screen_log(fl, soiptd_model(truth["Tp"]), None, say)
+    linear = fit_linear(screen, soiptd_model(truth["Tp"]), str(path), say)
     lin = plant_params(linear.model, linear.fit)
     plant = LoopModel(truth["Tp"], lin["Td"], lin["tau"], abs(lin["K"]))
     fit = fit_ringing([switch_harmonics(fl, t, plant) for t in screen.tests])

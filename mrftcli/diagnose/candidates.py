@@ -18,6 +18,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from ..errors import DiagnoseError
+from ..mrft.model import LoopModel
 from .fit import (CandidateModel, Fit, candidate_starts, effect_value, fit_base, fit_model, plant_params, residuals,
                   theta_bounds)
 from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significant
@@ -74,15 +75,16 @@ class LinearFit:
     rejected: bool
 
 
-def fit_linear(screen: Screen, Tp: float, path: str, say: Callable[[str], None]) -> LinearFit:
-    """Stage 2: the linear model's fit, its noise-only period scatter and whether it is rejected.
+def fit_linear(screen: Screen, loop_model: LoopModel, path: str, say: Callable[[str], None]) -> LinearFit:
+    """Stage 2: the linear model's fit, its noise-only period scatter and whether it is rejected
+    (``loop_model``: eq. (2) with its known Tp [s]).
 
     Raises
     ------
     DiagnoseError
         The linear model reproduces no limit cycle close to the recorded ones.
     """
-    tests = screen.tests
+    tests, Tp = screen.tests, loop_model.Tp
     say("fitting the linear model")
     model = CandidateModel(None, tests, Tp)
     lo, hi = theta_bounds(None, tests)
@@ -181,9 +183,10 @@ def _probe_order(cands: list[Candidate], screen: Screen, linear: LinearFit, Tp: 
             for cand in cands}
 
 
-def search_candidates(screen: Screen, linear: LinearFit, names: list[str], Tp: float,
+def search_candidates(screen: Screen, linear: LinearFit, names: list[str], loop_model: LoopModel,
                       say: Callable[[str], None]) -> CandidateSearch:
     """Stage 3: each deterministic candidate of ``names`` fitted alone (when the linear model is rejected)."""
+    Tp = loop_model.Tp
     rows: list[CandidateFit] = []
     fits: dict[str, tuple[CandidateModel, Fit]] = {}
     order = [c for c in CANDIDATES if c.name in names and not c.stochastic]

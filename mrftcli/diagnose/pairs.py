@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..mrft.model import LoopModel
 from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, jacobian, probe_gain
 from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_value, fit_model, plant_params,
                   residuals, theta_bounds)
@@ -454,7 +455,7 @@ def _nrmse(held: HeldOut | None) -> str:
     return "n/a" if held is None or held.nrmse is None else f"{held.nrmse:.3g}"
 
 
-def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, Tp: float,
+def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, loop_model: LoopModel,
                    say: Callable[..., None]) -> EffectSelection:
     """Stage 4: the first effect (the significant candidate with the largest delta BIC) and a second one
     on top of it by forward selection, kept on the same evidence and held-out rules.
@@ -470,7 +471,7 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, T
         return EffectSelection(effects=[], pair_rows=[], final=None, warnings=_unconfirmed(cand_rows, set()))
     first = deterministic[0]
     say(f"testing a second effect on top of {first.name}", more=1)
-    pairs = _Pairs(screen, linear, fits, Tp)
+    pairs = _Pairs(screen, linear, fits, loop_model.Tp)
     searched = not explains_held_out(first.held_out_after, screen.tests)
     if searched:
         for row in cand_rows:

@@ -17,6 +17,7 @@ from ..analyze import log_start
 from ..errors import DiagnoseError, IdentificationError, InsufficientDataError
 from ..io.logtypes import FlightLog
 from ..segment.records import MrftTest
+from ..mrft.model import LoopModel
 from .features import summarize_features
 from .fit import MIN_CYCLES, DiagnosedTest, feature_sigma, prepare_tests, segments_of
 
@@ -62,7 +63,7 @@ class Screen:
     warnings: list[str]
 
 
-def _analysis_of(flight: FlightLog, Tp: float) -> tuple[AnalysisResult | None, str | None]:
+def _analysis_of(flight: FlightLog, model: LoopModel) -> tuple[AnalysisResult | None, str | None]:
     """The tests analyze would use, refused for the same reasons (an output that does not follow
     the relay: the --loop / --output-topic hint), so the two commands agree on what a
     log supports; the identification's bootstrap and refinement are not needed here. Returns the
@@ -76,7 +77,7 @@ def _analysis_of(flight: FlightLog, Tp: float) -> tuple[AnalysisResult | None, s
         pywarnings.simplefilter("ignore", RuntimeWarning)
         try:
             options = AnalyzeOptions(n_bootstrap=1, max_combinations=10, refine_waveform=False)
-            return analyze_flight(flight, Tp, options=options), None
+            return analyze_flight(flight, model, options=options), None
         except IdentificationError as exc:
             # analyze must refuse, but that is the strongest sign of missing physics there is, so the
             # diagnosis fits the cycles itself
@@ -138,9 +139,10 @@ def lost_height_pair(flown: list[MrftTest], kept: set[int]) -> str | None:
             "the relay height (a dead zone) cannot be told from the linear model's gain; fly it again to test for one")
 
 
-def screen_log(flight: FlightLog, Tp: float, analysis: AnalysisResult | None,
+def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | None,
                say: Callable[[str], None]) -> Screen:
-    """Stage 1: the tests, their cycles and features (``analysis`` reused when given).
+    """Stage 1: the tests, their cycles and features (``analysis`` reused when given; ``model``: eq. (2)
+    with Tp known, as analyze takes it).
 
     Raises
     ------
@@ -150,7 +152,7 @@ def screen_log(flight: FlightLog, Tp: float, analysis: AnalysisResult | None,
     say("segmenting")
     refused_by_linear = None  # analyze's IdentificationError, when the diagnosis goes on without it
     if analysis is None:
-        analysis, refused_by_linear = _analysis_of(flight, Tp)
+        analysis, refused_by_linear = _analysis_of(flight, model)
     segs = segments_of(flight, analysis)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)

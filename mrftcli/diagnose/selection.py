@@ -195,7 +195,7 @@ def diagnose(
         model = soiptd_model(check_time("Tp (the bench-measured propulsion time constant)", model))
     if not isinstance(model, LoopModel):
         return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress)
-    return _diagnose_soiptd(flight, model.Tp, analysis, progress, candidates)
+    return _diagnose_soiptd(flight, model, analysis, progress, candidates)
 
 
 def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
@@ -239,19 +239,20 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                             tuple(f.name for f in chosen.found))
 
 
-def _diagnose_soiptd(flight: FlightLog, Tp: float, analysis: AnalysisResult | None, progress: Progress | None,
+def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | None, progress: Progress | None,
                      candidates: tuple[str, ...] | None) -> DiagnosisResult:
-    """Eq. (2)'s strategy (module docstring), Tp [s] from the model object."""
+    """Eq. (2)'s strategy (module docstring), Tp [s] read from the model object."""
+    Tp = model.Tp
     names = [c.name for c in CANDIDATES] if candidates is None else list(candidates)
     for n in names:
         if n not in BY_NAME:
             raise InputError(f"unknown candidate effect {n!r}; choose from {', '.join(BY_NAME)}")
     # done, total: segmenting, linear fit, noise scatter, candidates, locating
     say = _Stages(progress, 4 + len(names))
-    screen = screen_log(flight, Tp, analysis, say)
-    linear = fit_linear(screen, Tp, str(flight.path), say)
-    search = search_candidates(screen, linear, names, Tp, say)
-    chosen = select_effects(screen, linear, search, Tp, say)
+    screen = screen_log(flight, model, analysis, say)
+    linear = fit_linear(screen, model, str(flight.path), say)
+    search = search_candidates(screen, linear, names, model, say)
+    chosen = select_effects(screen, linear, search, model, say)
     cand_rows, effects = list(search.rows), list(chosen.effects)
     if "delay_jitter" in names:
         jitter = judge_jitter(screen, linear, chosen.final, say)

@@ -113,7 +113,7 @@ def wrong_numbers(entry: dict, result: dict) -> str:
         return "exit 0 on a file that must be refused"
     bad = []
     for name, tol in TOLERANCE.items():
-        got = (result.get("parameters") or {}).get(name, {}).get("mean")
+        got = (result.get("parameters") or {}).get(name, {}).get("value")
         if got is None or not abs(got / truth[name] - 1.0) <= tol:
             bad.append(f"{name} {got} (truth {truth[name]})")
     return ", ".join(bad)

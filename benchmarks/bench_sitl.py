@@ -235,6 +235,39 @@ def report_analysis(results: dict[str, dict], logs: Path) -> None:
             print(f"{loop}: +20 ms increment of tau not measured (one of the two flights refused or absent)")
 
 
+def truth_analysis(logs: Path) -> None:
+    """``analyze`` of the altitude pair with SITL's own altitude (``MRFT:Tru``) as the output: the loop
+    without the EKF, to tell what of the altitude figures is the estimator's. ``--accept-tp``: SITL's truth
+    has no noise floor, so its waveform cannot check Tp."""
+    taus = {}
+    for name in ("altitude", "altitude_20ms"):
+        log = logs / f"{name}.BIN"
+        if not log.exists():
+            continue
+        tp = json.loads(Path(f"{log}.json").read_text())["tp_s"]
+        js = logs / f"{name}_truth.json"
+        js.unlink(missing_ok=True)
+        proc = run_cli("analyze", str(log), "--tp", f"{tp:.6f}", "--loop", "altitude", "--output-topic", "MRFT:Tru",
+                       "--accept-tp", "-q", "--json", str(js))
+        if not js.exists():
+            print(f"  {name} with SITL's truth as the output: refused (exit {proc.returncode}): "
+                  f"{proc.stderr.strip().splitlines()[-1][:300] if proc.stderr.strip() else ''}")
+            continue
+        d = json.loads(js.read_text())
+        par, kept = d["parameters"], len(d["tests"])
+        taus[name] = par["tau"]["value"]
+
+        def f(v: float | None, scale: float = 1.0) -> str:
+            return "unbounded" if v is None else f"{v * scale:.3g}"
+
+        print(f"  {name} with SITL's truth as the output: {kept} tests used; Td {f(par['Td']['value'])} s "
+              f"({f(par['Td']['ci95_low'])}-{f(par['Td']['ci95_high'])}), tau {f(par['tau']['value'], 1e3)} ms "
+              f"({f(par['tau']['ci95_low'], 1e3)}-{f(par['tau']['ci95_high'], 1e3)}), K {f(par['K']['value'])}")
+    if len(taus) == 2:
+        inc = taus["altitude_20ms"] - taus["altitude"]
+        print(f"  altitude with SITL's truth: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
+
+
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     proc = subprocess.run([sys.executable, "-m", "mrftcli.cli", *args], capture_output=True, text=True)
     if proc.returncode not in (0, 6):
@@ -440,6 +473,8 @@ def main() -> int:
     ap.add_argument("--speedup", type=float, default=1.0)
     ap.add_argument("--only", nargs="*", default=[], help="fly only these flights (names in FLIGHTS)")
     ap.add_argument("--no-refly", action="store_true", help="stop after the analysis")
+    ap.add_argument("--truth", action="store_true",
+                    help="also analyse the altitude pair with SITL's own altitude (MRFT:Tru) as the output")
     ap.add_argument("--refly-only", action="store_true",
                     help="load and re-fly the .param files already exported in LOGS/export (no flights, no analysis)")
     ap.add_argument("--logs-only", action="store_true",
@@ -465,6 +500,8 @@ def main() -> int:
             log = args.logs / f"{name}.BIN"
             if log.exists():
                 report_segments(log, loop, json.loads(Path(f"{log}.json").read_text()))
+        if args.truth:
+            truth_analysis(args.logs)
         return 0
     if not args.analyze_only:
         if not (args.ap / "build/sitl/bin/arducopter").exists():
@@ -474,6 +511,8 @@ def main() -> int:
     print("2. analysis of the DataFlash logs")
     results = analyse(args.logs)
     report_analysis(results, args.logs)
+    if args.truth:
+        truth_analysis(args.logs)
     if args.analyze_only or args.no_refly:
         return 0
     print("3. tune --export ardupilot, load, re-fly")

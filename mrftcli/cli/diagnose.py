@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from ..analyze.residual import ResidualVerdict
     from ..diagnose.checks import ProcessDiagnosis
     from ..io.logtypes import FlightLog
+    from ..mrft.model import LoopModel
 
 
 def _g(x: float | None, fmt: str = ".4g") -> str:
@@ -207,11 +208,11 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         from ..analyze import analyze_flight as analyze_given
 
         # the diagnosis reuses an analysis made with the user's cycle count (its own default is analyze's, 3)
-        given = analyze_given(flight, Tp, options=AnalyzeOptions(min_stable_cycles=min_cycles))
+        given = analyze_given(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
         result = run(flight, model, analysis=given, progress=progress)
     assert isinstance(result, DiagnosisResult)  # eq. (2)'s strategy
-    result, analysis = _with_analysis(result, flight, Tp, given)
+    result, analysis = _with_analysis(result, flight, model, given)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_dict(), json_target)
@@ -228,7 +229,7 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         click.echo(f"report: {index}", err=to_stdout)
 
 
-def _with_analysis(result: DiagnosisResult, flight: FlightLog, Tp: float,
+def _with_analysis(result: DiagnosisResult, flight: FlightLog, model: LoopModel,
                    given: AnalysisResult | None) -> tuple[DiagnosisResult, AnalysisResult | None]:
     """The diagnosis with analyze's model of the same log (about 1 s; the one the user was given
     with --min-cycles) and the recommendation made again with it, for the terminal and the JSON alike;
@@ -241,7 +242,7 @@ def _with_analysis(result: DiagnosisResult, flight: FlightLog, Tp: float,
     from ..errors import MrftError
 
     try:
-        analysis = given or analyze_flight(flight, Tp)
+        analysis = given or analyze_flight(flight, model)
     except MrftError:
         return result, None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
     return (replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects))),

@@ -171,3 +171,20 @@ def test_the_20ms_altitude_flight_identifies_with_sitls_gain() -> None:
     assert len(res.tests) == 3
     assert res.K.value == pytest.approx(_implied("altitude_20ms")["K"], rel=0.05)
     assert res.tau.value > 0.010  # the 20 ms added is in the loop (SITL's own lag is a few ms)
+
+
+def test_with_sitls_own_altitude_the_20ms_flight_finds_the_frames_damping() -> None:
+    """The EKF's altitude is what bends the altitude figures: with SITL's truth (``MRFT:Tru``) as the output
+    the +20 ms flight's Td is the frame's momentum-drag value (4.14 s) and tau holds the 20 ms added."""
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.model import soiptd_model
+
+    name = "altitude_20ms"
+    if not (LOGS / f"{name}.BIN").exists():
+        pytest.skip("no SITL altitude log")
+    flight = read_flight(LOGS / f"{name}.BIN", ReadOptions(loop="altitude", output_topic="MRFT:Tru"))
+    res = analyze_flight(flight, soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=20, seed=1))
+    assert res.Td.value == pytest.approx(_implied(name)["Td"], rel=0.2)
+    assert 0.015 < res.tau.value < 0.022
+    assert abs(res.Td.value / _analysis(name).Td.value - 1) > 0.1  # the EKF's altitude gives another Td

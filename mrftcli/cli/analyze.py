@@ -13,7 +13,7 @@ from .model_options import (baseline_option, build_model, format_general, parse_
 from ..report.wording import output_unit, uncertainty_sentence
 from .cascade_options import cascade_options, pop_cascade_options, run_cascade
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
+                      min_cycles_option, num, quiet_option, read_progress, tp_option, tqdm_progress)
 
 
 
@@ -25,24 +25,17 @@ def accept_tp_option(f):
                              "that is exit 5, naming the better Tp); the JSON's tp_check says 'accepted'.")(f)
 
 
-def _num(x: float | None, digits: int = 4) -> str:
-    """``digits`` significant digits, trailing zeros kept, so a column reads alike (0.1800 beside 0.05839)."""
-    if x is None or not math.isfinite(x):
-        return "-"
-    return f"{x:#.{digits}g}".rstrip(".")
-
-
 def _est_row(name: str, unit: str, est, scale: float) -> list[str]:
     """One parameter: estimate, std and 95 % interval (one-sided when the data bound it from below only)."""
     if est is None or not math.isfinite(est.value):
         return [name, unit, "-", "", ""]
     if not math.isfinite(est.std):
-        return [name, unit, _num(est.value * scale), "", ""]
+        return [name, unit, num(est.value * scale), "", ""]
     if not math.isfinite(est.ci95_high):
-        interval = f"> {_num(est.ci95_low * scale)} (not bounded from above)"
+        interval = f"> {num(est.ci95_low * scale)} (not bounded from above)"
     else:
-        interval = f"{_num(est.ci95_low * scale)} - {_num(est.ci95_high * scale)}"
-    return [name, unit, _num(est.value * scale), _num(est.std * scale, 2), interval]
+        interval = f"{num(est.ci95_low * scale)} - {num(est.ci95_high * scale)}"
+    return [name, unit, num(est.value * scale), num(est.std * scale, 2), interval]
 
 
 def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> list[str]:
@@ -80,7 +73,7 @@ def format_table(result) -> str:
     for k, t in enumerate(result.tests):
         nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
         rows.append([str(t.index + 1), f"{t.t_start - t0:.1f}", f"{t.t_end - t0:.1f}", nom, f"{t.beta_effective:+.3f}",
-                     _num(t.h), _num(t.frequency_hz_mean), _num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}",
+                     num(t.h), num(t.frequency_hz_mean), num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}",
                      *(held_out_cells(held[k]) if predicted else ())])
     lines += _table(header, rows, ">" * len(header))
     lines += held_out_notes(held, [t.index + 1 for t in result.tests])
@@ -103,8 +96,8 @@ def format_table(result) -> str:
     c = result.combination_stats()
     if c["n"] and c["Td"]["mean"] is not None:
         lines.append(
-            f"spread over {c['n']} combinations of stable cycles: Td {_num(c['Td']['mean'])} ± {_num(c['Td']['std'] or 0, 2)} s, "
-            f"tau {_num(c['tau']['mean'] * 1e3)} ± {_num((c['tau']['std'] or 0) * 1e3, 2)} ms"
+            f"spread over {c['n']} combinations of stable cycles: Td {num(c['Td']['mean'])} ± {num(c['Td']['std'] or 0, 2)} s, "
+            f"tau {num(c['tau']['mean'] * 1e3)} ± {num((c['tau']['std'] or 0) * 1e3, 2)} ms"
         )
     mrft_interval = any("MRFT interval" in note for note in result.notes)
     if (c["n"] and c["Td"]["mean"] is not None) or mrft_interval:
@@ -147,8 +140,8 @@ def format_partial(err) -> str:
     for t, tau in zip(part.get("tests", []), part.get("tau_for_assumed_Td", [])):
         span = tau.get("tau_range_s")
         rows.append([str(t["index"] + 1), f"{t['t_start_rel']:.1f}", f"{t['t_end_rel']:.1f}",
-                     f"{t['beta_effective']:+.3f}", _num(tau["frequency_hz"]),
-                     "-" if not span else f"{_num(span[0] * 1e3)} - {_num(span[1] * 1e3)}"])
+                     f"{t['beta_effective']:+.3f}", num(tau["frequency_hz"]),
+                     "-" if not span else f"{num(span[0] * 1e3)} - {num(span[1] * 1e3)}"])
     lines += _table(header, rows, ">>>>>>")
     lines += held_out_notes([HeldOut.from_json(t["held_out"]) if t.get("held_out") else None
                              for t in part.get("tests", [])], [t["index"] + 1 for t in part.get("tests", [])])

@@ -8,7 +8,6 @@ logarithms. The inner model's uncertainty is propagated by solving again for dra
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -405,10 +404,7 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
 def _estimate_json(name: str, data: Any) -> ParameterEstimate:
     """One parameter of the JSON (a null end open: infinite; ``one_sided`` from the parameter's range)."""
     bounds = CASCADE_PARAMETERS[name][2] if name in CASCADE_PARAMETERS else None
-    est = ParameterEstimate.from_json(name, data, bounds=bounds, open_value=math.inf)
-    if est.method:
-        return est
-    return dataclasses.replace(est, method="given" if est.known else _METHOD)  # version 1: no method
+    return ParameterEstimate.from_json(name, data, bounds=bounds, open_value=math.inf, method=_METHOD)
 
 
 def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> ParameterEstimate:

@@ -207,10 +207,8 @@ class LtiIdentification:
 def _estimate_json(model: PlantModel, name: str, data: Any) -> ParameterEstimate:
     """One parameter of the JSON: a null interval end is open (infinite); ``one_sided`` from the model's range."""
     p = model.parameters.get(name)
-    est = ParameterEstimate.from_json(name, data, bounds=None if p is None else p.bounds, open_value=math.inf)
-    if est.method:
-        return est
-    return dataclasses.replace(est, method="given" if est.known else _METHOD)  # version 1: no method
+    return ParameterEstimate.from_json(name, data, bounds=None if p is None else p.bounds, open_value=math.inf,
+                                       method=_METHOD)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -108,14 +108,15 @@ class ParameterEstimate:
 
     @classmethod
     def from_json(cls, name: str, data: Any, *, bounds: tuple[float, float] | None = None,
-                  open_value: float = math.nan) -> ParameterEstimate:
+                  open_value: float = math.nan, method: str = "") -> ParameterEstimate:
         """The estimate of a :meth:`to_json` object (``name`` for messages and the record).
 
         Also reads, for one release, eq. (2)'s former ``{mean, std, ci95_low, ci95_high, unit[, method,
         known]}`` (``determined`` false where the interval is open above) and the families' former
         ``{value, ..., one_sided}``. ``bounds`` (the parameter's range, set I) recovers ``one_sided``
         where the JSON does not hold it; ``open_value`` is what a null interval end reads as (NaN in
-        eq. (2)'s records, -inf/+inf as the families' ``(-inf, inf)``).
+        eq. (2)'s records, -inf/+inf as the families' ``(-inf, inf)``); ``method`` is the method of an
+        identified parameter whose JSON does not say (the families' former layout; a known one's is ``"given"``).
 
         Raises
         ------
@@ -142,7 +143,7 @@ class ParameterEstimate:
             determined = known or not (math.isfinite(low) and data.get("ci95_high", 0.0) is None)
         one_sided = str(data["one_sided"]) if "one_sided" in data else _one_sided(low, high, bounds, known)
         return cls(float(data[key]), num("std", math.nan), low, high, str(data.get("unit", "")), determined, known,
-                   str(data.get("method", "")), name, one_sided)
+                   str(data["method"]) if "method" in data else ("given" if known else method), name, one_sided)
 
 
 def _is_number(x: object) -> bool:

@@ -94,6 +94,7 @@ def run_flight(seed: int, folder: Path) -> Outcome:
 
     from mrftcli.sim.cascade import simulate_cascade
     from mrftcli.sim.cascade_write import write_cascade
+    from mrftcli.mrft.model import soiptd_model
     from mrftcli.vehicle import VehicleOptions, identify_vehicle
 
     spec = draw_spec(np.random.default_rng(seed), seed)
@@ -102,7 +103,7 @@ def run_flight(seed: int, folder: Path) -> Outcome:
     write_cascade(simulate_cascade(spec), bag, "hear-ros")
     t0 = time.process_time()
     try:
-        res = identify_vehicle(bag, spec.inner.Tp, inner_gains={spec.inner_loop: spec.gains.generic()},
+        res = identify_vehicle(bag, soiptd_model(spec.inner.Tp), inner_gains={spec.inner_loop: spec.gains.generic()},
                                options=VehicleOptions(outer_command=spec.commanded))
         _score(spec, res, out)
     except Exception as err:  # noqa: BLE001 - a refusal is a miss

@@ -20,7 +20,7 @@ from mrftcli.io.logtypes import TopicData
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim import FlightSpec, TestSpec, simulate_flight
 from mrftcli.vehicle import (VEHICLE_ORDER, StackOptions, TuneOptions, VehicleOptions, VehicleResult, identify_vehicle,
-                             loops_in_log, tp_per_loop)
+                             loops_in_log, models_per_loop)
 from mrftcli.vehicle.next_tests import NOT_FOLLOWING, missing_from_error
 
 TP = 0.0422
@@ -64,7 +64,7 @@ def flight(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def result(flight):
-    return identify_vehicle(flight, TP, options=VehicleOptions(n_bootstrap=100))
+    return identify_vehicle(flight, soiptd_model(TP), options=VehicleOptions(n_bootstrap=100))
 
 
 def test_roll_and_y_identified_and_tuned_from_one_flight(result):
@@ -121,10 +121,12 @@ def test_record_refuses_bad_input_in_one_line(result, change, message):
     assert message in str(err.value) and "\n" not in str(err.value)
 
 
-def test_tp_per_loop():
-    assert tp_per_loop(0.05) == dict.fromkeys(VEHICLE_ORDER, 0.05)
+def test_models_per_loop():
+    assert models_per_loop(soiptd_model(0.05)) == dict.fromkeys(VEHICLE_ORDER, soiptd_model(0.05))
     with pytest.raises(InputError, match="no Tp for the x, y loop"):
-        tp_per_loop({"altitude": 0.04, "roll": 0.03, "pitch": 0.03})
+        models_per_loop({loop: soiptd_model(0.04) for loop in ("altitude", "roll", "pitch")})
+    with pytest.raises(InputError, match="physical range"):
+        models_per_loop(soiptd_model(42.2))  # 42.2 ms given in seconds
 
 
 def test_shared_command_tests_of_another_loop_mean_no_tests():
@@ -230,7 +232,8 @@ def test_outer_loop_through_the_closed_inner_loop(cascaded):
     """With the inner gains flown, y is identified on the cascade (Td within 10 % of the simulator's, its
     interval covering tau) and tuned on the cascade closed by the roll loop's new gains."""
     path, gains = cascaded
-    res = identify_vehicle(path, TP, inner_gains=gains, options=VehicleOptions(n_bootstrap=100, inner_draws=5))
+    res = identify_vehicle(path, soiptd_model(TP), inner_gains=gains,
+                           options=VehicleOptions(n_bootstrap=100, inner_draws=5))
     y = res.loops["y"]
     assert (y.role, y.route) == ("outer", "cascade")
     est = y.analysis.identification.estimates

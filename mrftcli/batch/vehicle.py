@@ -17,7 +17,7 @@ from typing import Any
 from ..errors import InputError
 from ..jsonable import to_jsonable
 from ..tune.analysis import summary_figures
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, soiptd_model
 from ..vehicle import MissingLoop, VehicleLoop, VehicleOptions, VehicleResult, identify_vehicle
 from ..vehicle.gains import TuneOptions
 from .inputs import AUTO_LOOP
@@ -81,7 +81,7 @@ def vehicle_one(task: LogTask) -> dict[str, Any]:
         try:
             if task.settings.tp is None:
                 raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
-            result = identify_vehicle(task.path, task.settings.tp, options=vehicle_options(task))
+            result = identify_vehicle(task.path, soiptd_model(task.settings.tp), options=vehicle_options(task))
             loops, vehicle = _entries(result), result.to_json()
         except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
             loops = [failed_entry(AUTO_LOOP, err)]  # the log's loops are unknown: its row says 'auto' as --loop

@@ -186,6 +186,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
 
     Example: mrft-ident vehicle flight.bag --tp 0.0422 --json vehicle.json --report out/
     """
+    from ..mrft.model import soiptd_model
     from ..vehicle import StackOptions, TuneOptions, VehicleOptions, identify_vehicle
 
     check_output_file(json_target, "--json")
@@ -203,7 +204,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
                              min_stable_cycles=min_cycles, outer_command=outer_command, inner_draws=inner_draws,
                              accept_tp=accept_tp, tune=TuneOptions(kind=kind, objective=objective, ms_max=ms_max, stack=stack))
     with tqdm_progress("vehicle", unit="loop", enabled=not quiet) as progress:
-        result = identify_vehicle(log, Tp, inner_gains=gains, options=options, progress=progress)
+        result = identify_vehicle(log, soiptd_model(Tp), inner_gains=gains, options=options, progress=progress)
         index = None
         if report_dir:
             from ..report.vehicle import write_vehicle_report

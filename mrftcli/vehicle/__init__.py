@@ -18,12 +18,12 @@ each loop as ``tune`` does, and names the tests the loops without a model need
 
 from __future__ import annotations
 
-from .driver import EQ2_OUTER_ASSUMPTION, VehicleOptions, identify_vehicle, tp_per_loop
+from .driver import EQ2_OUTER_ASSUMPTION, VehicleOptions, identify_vehicle, models_per_loop
 from .gains import STACKS, StackOptions, TuneOptions, tune_loop
 from .loops import INNER_LOOPS, INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, absent_topics, loops_in_log
 from .record import (MISSING_REASONS, ROLES, ROUTES, VEHICLE_SCHEMA_VERSION, LoopGains, MissingLoop, VehicleLoop,
                      VehicleResult)
 
-__all__ = ["identify_vehicle", "VehicleOptions", "tp_per_loop", "EQ2_OUTER_ASSUMPTION", "VehicleResult", "TuneOptions", "StackOptions", "STACKS", "tune_loop",
+__all__ = ["identify_vehicle", "VehicleOptions", "models_per_loop", "EQ2_OUTER_ASSUMPTION", "VehicleResult", "TuneOptions", "StackOptions", "STACKS", "tune_loop",
            "VehicleLoop", "LoopGains", "MissingLoop", "VEHICLE_SCHEMA_VERSION", "ROLES", "ROUTES", "MISSING_REASONS",
            "INNER_LOOPS", "OUTER_LOOPS", "INNER_OF", "VEHICLE_ORDER", "loops_in_log", "absent_topics"]

@@ -23,14 +23,14 @@ from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
 from ..analyze.cascade import OUTER_COMMANDS, inner_gains_of
 from ..mrft.cascade import InnerController
-from ..mrft.model import LoopModel, soiptd_model
+from ..mrft.model import LoopModel
 from .gains import TuneOptions, joint_gyro_gains, tune_loop
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
 from .next_tests import missing_from_error, missing_topics
 from .outer import OuterOptions, cascade_outer, tune_outer
 from .record import LoopGains, MissingLoop, VehicleLoop, VehicleResult
 
-__all__ = ["VehicleOptions", "identify_vehicle", "tp_per_loop", "find_loops", "identify_inner", "identify_outer",
+__all__ = ["VehicleOptions", "identify_vehicle", "models_per_loop", "find_loops", "identify_inner", "identify_outer",
            "EQ2_OUTER_ASSUMPTION"]
 
 #: The assumption stated when an outer loop is identified with eq. (2) (``{loops}``, ``{tp}``, ``{inner}`` and
@@ -105,23 +105,28 @@ class VehicleOptions:
                             stack=None if self.tune.stack is None else self.tune.stack.stack)
 
 
-def tp_per_loop(Tp: float | Mapping[str, float]) -> dict[str, float]:
-    """Tp [s] for every loop: one value for all, or a mapping (every loop of :data:`VEHICLE_ORDER`).
+def models_per_loop(model: LoopModel | Mapping[str, LoopModel]) -> dict[str, LoopModel]:
+    """Eq. (2) with its known Tp for every loop: one model for all, or a mapping (every loop of
+    :data:`VEHICLE_ORDER`), each Tp checked within its physical range.
 
     Raises
     ------
     InputError
         A Tp outside its physical range, or a mapping that leaves a loop out or names an unknown one.
     """
-    if isinstance(Tp, Mapping):
-        unknown = sorted(set(Tp) - set(VEHICLE_ORDER))
+    if isinstance(model, Mapping):
+        unknown = sorted(set(model) - set(VEHICLE_ORDER))
         if unknown:
             raise InputError(f"Tp given for unknown loop(s) {', '.join(unknown)}; loops are {', '.join(VEHICLE_ORDER)}")
-        missing = [loop for loop in VEHICLE_ORDER if loop not in Tp]
+        missing = [loop for loop in VEHICLE_ORDER if loop not in model]
         if missing:
             raise InputError(f"no Tp for the {', '.join(missing)} loop(s): give one Tp for all, or one per loop")
-        return {loop: check_tp(Tp[loop]) for loop in VEHICLE_ORDER}
-    return dict.fromkeys(VEHICLE_ORDER, check_tp(Tp))
+        models = {loop: model[loop] for loop in VEHICLE_ORDER}
+    else:
+        models = dict.fromkeys(VEHICLE_ORDER, model)
+    for m in models.values():
+        check_tp(m.Tp)
+    return models
 
 
 @dataclass(frozen=True)
@@ -156,16 +161,18 @@ def _read(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc:
         return None
 
 
-def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner_gains: Mapping[str, object] | None = None,
-                     options: VehicleOptions | None = None, progress: Progress | None = None) -> VehicleResult:
+def identify_vehicle(path: str | Path, model: LoopModel | Mapping[str, LoopModel], *,
+                     inner_gains: Mapping[str, object] | None = None, options: VehicleOptions | None = None,
+                     progress: Progress | None = None) -> VehicleResult:
     """Identify and tune every loop one flight holds tests of; say which tests the others need.
 
     Parameters
     ----------
     path : str or Path
         The flight log (any format and layout ``analyze`` reads).
-    Tp : float or Mapping[str, float]
-        Known propulsion time constant [s], one for every loop or one per loop (:func:`tp_per_loop`).
+    model : LoopModel or Mapping[str, LoopModel]
+        Eq. (2) with its known propulsion time constant Tp [s] (``soiptd_model(Tp)``), one for every
+        loop or one per loop (:func:`models_per_loop`).
     inner_gains : Mapping[str, object], optional
         The inner loops' gains in use during the flight (``--inner-gains GAINS.json``); without them
         the outer loops are identified with eq. (2) and the result's first assumption says so.
@@ -184,7 +191,8 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
         A bad Tp or option; a log that cannot be opened raises the reader's error.
     """
     opts = options or VehicleOptions()
-    tps = tp_per_loop(Tp)
+    models = models_per_loop(model)
+    tps = {loop: m.Tp for loop, m in models.items()}
     log = str(path)
     with open_log(log, opts.fmt, echo_warnings=False, time_unit=opts.time_unit) as source:
         found = find_loops(source, opts, tps)
@@ -193,11 +201,10 @@ def identify_vehicle(path: str | Path, Tp: float | Mapping[str, float], *, inner
         total = len(found.loops) + 1
         for i, loop in enumerate(found.loops):
             report(progress, i, total, f"{loop}: identifying and tuning")
-            model = soiptd_model(tps[loop])  # eq. (2) with the loop's Tp known
             if loop in OUTER_LOOPS:
-                identify_outer(source, loop, model, opts, inner_gains, acc)
+                identify_outer(source, loop, models[loop], opts, inner_gains, acc)
             else:
-                identify_inner(source, loop, model, opts, acc)
+                identify_inner(source, loop, models[loop], opts, acc)
     acc.loops.update(joint_gyro_gains(acc.loops, opts.tune))  # one gyro cutoff for roll and pitch (issue 25)
     if inner_gains is not None and not any(loop in acc.loops for loop in OUTER_LOOPS):
         acc.warnings.append("--inner-gains not used: the flight gives no model of x or y")

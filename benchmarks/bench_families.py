@@ -12,7 +12,7 @@ them, of one relay type:
 * ``biased``: asymmetric levels (bias 20-50 % of h) with a hysteresis of 5-30 %.
 
 The simulator (tests/process_sim.py) shares no code with mrftcli. Each recording is written as a CSV
-and analysed with ``analyze_general`` (what ``analyze --model NAME`` runs). Scored per recording:
+and analysed with ``analyze_flight`` with the family model (what ``analyze --model NAME`` runs). Scored per recording:
 every parameter within 5 % of the truth; every 95 % interval covering the truth; held-out frequency
 within 10 % on every test. A recording the tool refuses (no usable test, an undetermined parameter)
 counts as a miss. Also timed: :func:`identify_lti` on the recordings' response points, by its route
@@ -121,7 +121,7 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path,
 
 
 def _score(analyse, model, params: dict[str, float], n_windows: int) -> dict[str, object]:
-    """One recording's scores (module docstring) from ``analyse()``, an ``analyze_general`` call of ``model``."""
+    """One recording's scores (module docstring) from ``analyse()``, an ``analyze_flight`` with the family model call of ``model``."""
     from mrftcli.errors import MrftError
 
     try:
@@ -144,7 +144,7 @@ def _score(analyse, model, params: dict[str, float], n_windows: int) -> dict[str
 
 @contextlib.contextmanager
 def _free_line_fits():
-    """``analyze_general`` with the per-cycle fit before issue 22's fix: each cycle's own free line plus
+    """``analyze_flight`` with the family model with the per-cycle fit before issue 22's fix: each cycle's own free line plus
     harmonics (the baseline; it hands the harmonics left out back to those fitted through the line)."""
     from mrftcli.analyze import general
     from mrftcli.analyze.smooth_cycle import CycleFit

@@ -16,7 +16,7 @@ two logged samples. The relay is
 
 The simulator (tests/thermal_sim.py: tf2ss, exact event-to-event propagation, the delay exact)
 shares no code with mrftcli. Each recording is written as a CSV, read as ``analyze --model`` reads it
-(any time scale) and analysed with :func:`~mrftcli.analyze.general.analyze_general`. Scored per
+(any time scale) and analysed with :func:`~mrftcli.analyze.analyze_flight` (a family model). Scored per
 parameter: a determined one (95 % interval within a factor 1.25 either way) within 5 % of the truth,
 and the same among those whose interval is within +-10 %; an undetermined one named (``determined``
 False), with the determined combination the tool names; 95 % coverage of every parameter's interval; **false determined**: a parameter called

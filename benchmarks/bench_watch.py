@@ -21,7 +21,7 @@ run, noise 1 % of the amplitude; it writes them in real time as an MCAP (``--for
 on ``/mrft/command``, the output on ``/mocap/pose`` z) or as a CSV with a process recording's three
 columns (``--format csv``: time, u_relay, y_output; a row per sample, flushed every few ms). The
 baseline is the finished log read and analysed whole as ``analyze --model fopdt`` does
-(``read_flight`` + ``analyze_general``).
+(``read_flight`` + ``analyze_flight`` with the family model).
 
 ``--replay CSV``: a real recording (the KSTAR files of ../shared/data/real_relay/) written again in
 real time at its own rate (10 kHz), followed with ``watch --model fopdt``; no truth, so the final is

@@ -162,7 +162,7 @@ def _recording(tmp_path, family, params, windows, rate_hz=100.0, noise=0.01, see
     return path
 
 
-def test_analyze_general_biased_hysteresis_fopdt(tmp_path):
+def test_analyze_family_biased_hysteresis_fopdt(tmp_path):
     params = dict(K=2.0, T=1.0, tau=0.3)
     windows = [Window("hysteresis", 1.5, -0.5, eps=e, duration=30.0) for e in (0.05, 0.3)]
     windows.append(Window("hysteresis", 2.0, -1.0, eps=0.15, duration=30.0))
@@ -185,7 +185,7 @@ def test_analyze_general_biased_hysteresis_fopdt(tmp_path):
     assert back.to_json() == result.to_json()
 
 
-def test_analyze_general_ideal_relay_ipdt_and_windows(tmp_path):
+def test_analyze_family_ideal_relay_ipdt_and_windows(tmp_path):
     params = dict(K=0.5, tau=0.4)
     windows = [Window("ideal", h, -h, duration=25.0) for h in (1.0, 2.0)]
     path = _recording(tmp_path, "ipdt", params, windows, rate_hz=50.0)
@@ -237,7 +237,7 @@ def test_cli_identify_and_predict_process_model(capsys):
     assert code == 2 and "needs every parameter" in err
 
 
-def test_analyze_general_chattering_ideal_relay_ipdt(tmp_path):
+def test_analyze_family_chattering_ideal_relay_ipdt(tmp_path):
     # 200 Hz and noise 2 % of the amplitude: the output moves 0.0025 a sample near the crossing, less
     # than the noise, so the ideal relay switches on the noise at every crossing (the segmenter flags
     # every cycle); the cycles are still used, from the logged command's own harmonics

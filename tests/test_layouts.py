@@ -97,7 +97,7 @@ def test_detection_of_the_stacks_without_sample_logs():
     assert detect_layout(["/control_system_output", "/providers/z"], "bag").layout.name == "hear-2020"
     assert detect_layout(["/mavros/local_position/pose", "/mavros/imu/data"], "bag").layout.name == "mavros"
     assert detect_layout(["vehicle_local_position_setpoint"], "bag") is None  # PX4 writes ULog only
-    assert set(LAYOUTS["px4-mrft"].loops) == {"altitude", "x", "y"}
+    assert set(LAYOUTS["px4-mrft"].loops) == {"altitude", "x", "y", "roll"}  # roll: scripts/sitl/px4/mrft_roll.patch
 
 
 def test_named_layout_and_explicit_topics_override(tmp_path):
@@ -106,9 +106,9 @@ def test_named_layout_and_explicit_topics_override(tmp_path):
     assert flight.source["layout"] == "hear-ros (--layout)"
     own = read_flight(SAMPLES / name, ReadOptions(loop="x", command_topic="/fh_des:x", output_topic="/opti/pos:x", layout="reference"), echo_warnings=False)
     np.testing.assert_array_equal(own.output.values, flight.output.values)
-    from mrftcli.errors import InputError
+    from mrftcli.errors import LogReadError
 
-    with pytest.raises(InputError, match="no roll loop"):
+    with pytest.raises(LogReadError, match="vehicle_torque_setpoint"):  # an altitude log has no roll relay
         read_flight(SAMPLES / "px4_altitude_50hz.ulg", ReadOptions(loop="roll"), echo_warnings=False)
 
 

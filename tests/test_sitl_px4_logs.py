@@ -30,6 +30,10 @@ sys.path.insert(0, str(ROOT / "scripts" / "sitl" / "px4"))
 from px4_campaign import realised_delay  # noqa: E402
 from sitl_analysis import analyze_log, held_out  # noqa: E402
 
+from mrftcli.io import read_flight  # noqa: E402
+from mrftcli.io.flight import ReadOptions  # noqa: E402
+from mrftcli.segment.segmenter import segment  # noqa: E402
+
 SIDECARS = sorted(LOGS.glob("px4_*.ulg.json"))
 pytestmark = pytest.mark.skipif(not SIDECARS, reason="no PX4 SITL sample logs")
 _CACHE: dict[str, object] = {}
@@ -161,3 +165,43 @@ def test_the_relay_rate_is_read_from_the_log(tmp_path: Path) -> None:
     assert sum("controller rate 50 Hz assumed" in w and "--controller-rate" in w for w in assumed.warnings) == 1
     given = read_flight(even, ReadOptions(loop="altitude", controller_rate_hz=125.0), echo_warnings=False)
     assert given.timing.controller_rate_hz == 125.0 and "controller_rate" not in given.source
+
+
+def test_roll_relay_in_the_rate_controller_is_found_and_refused_at_sihs_tp() -> None:
+    """mrft_roll.patch: the fork's relay on the roll angle as mc_rate_control's roll torque. Every test is
+    found from MRFT_R_ENABLE's windows, with its beta; identification at SIH's motor lag (Tp = SIH_T_TAU)
+    is refused with one error: the frequencies imply a negative delay (docs/benchmarks/sitl.md#px4)."""
+    from mrftcli.errors import IdentificationError
+
+    side = json.loads((LOGS / "px4_roll.ulg.json").read_text())
+    flight = read_flight(LOGS / "px4_roll.ulg", ReadOptions(loop="roll"), echo_warnings=False)
+    assert flight.source["command"] == "vehicle_torque_setpoint:xyz[0]"
+    assert flight.timing.controller_rate_hz == pytest.approx(250.0, rel=1e-3)  # the rate controller's
+    tests = segment(flight)
+    assert [t.beta_nominal for t in tests] == pytest.approx([t["beta"] for t in side["tests"]], abs=1e-6)
+    assert all(t.h == pytest.approx(0.05, rel=0.02) and t.n_stable >= 10 for t in tests)
+    assert [t.frequency_hz_mean for t in tests] == sorted(t.frequency_hz_mean for t in tests)
+    with pytest.raises(IdentificationError, match="negative delay"):
+        analyze_log(LOGS / "px4_roll.ulg", side["tp_s"], "roll")
+
+
+def test_a_relay_hidden_by_the_controllers_own_output_is_looked_for_in_the_logged_windows() -> None:
+    """Between tests the command is the loop's own controller (a rate controller's torque on gyro noise, and
+    the take-off's): noise larger than the relay's steps sets the whole log's jump threshold above them.
+    The windows PX4 logs (MRFT_R_ENABLE) are searched then: the same three tests come back."""
+    import dataclasses
+
+    from mrftcli.io.logtypes import Signal
+
+    flight = read_flight(LOGS / "px4_roll.ulg", ReadOptions(loop="roll"), echo_warnings=False)
+    c, y = flight.command, flight.output
+    rng = np.random.default_rng(3)
+    t_pre = c.t[0] - 30.0 + np.arange(7500) / 250.0  # 30 s of a noisy controller before the tests
+    noisy = Signal(np.r_[t_pre, c.t], np.r_[rng.normal(0.0, 0.3, t_pre.size), c.values])
+    out = Signal(np.r_[t_pre, y.t], np.r_[np.zeros(t_pre.size), y.values])
+    hidden = dataclasses.replace(flight, command=noisy, output=out)
+    from mrftcli.segment.segmenter import SegmentOptions, segment_arrays
+
+    assert not segment_arrays(noisy, out, beta=flight.beta, options=SegmentOptions(controller_rate_hz=250.0))
+    found = segment(hidden)
+    assert [t.beta_nominal for t in found] == pytest.approx([t.beta_nominal for t in segment(flight)])

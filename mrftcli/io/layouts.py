@@ -129,6 +129,9 @@ _PX4 = Layout(
                         "vehicle_local_position_setpoint:x"),
         "y": LoopTopics("vehicle_local_position_setpoint:thrust[1]", "vehicle_local_position:y",
                         "vehicle_local_position_setpoint:y"),
+        # mrft-ident's roll relay in mc_rate_control (scripts/sitl/px4/mrft_roll.patch; the fork has none):
+        # the relay is the roll torque setpoint, the output the attitude's roll (setpoint: level)
+        "roll": LoopTopics("vehicle_torque_setpoint:xyz[0]", "vehicle_attitude:q"),
     },
     signature=("vehicle_local_position_setpoint",),
     formats=("ulog",),

@@ -583,6 +583,14 @@ def segment(
         beta = flight.beta if flight.beta is not None and len(flight.beta) else None
         setpoint = flight.setpoint if flight.setpoint is not None and len(flight.setpoint) else None
         tests = segment_arrays(flight.command, flight.output, beta=beta, setpoint=setpoint, options=options)
+        windows = _logged_windows(flight)
+        if not tests and windows:
+            # between a stack's logged tests (PX4: MRFT_<AXIS>_ENABLE) the command is the loop's own controller,
+            # whose output (a rate controller's torque on gyro noise) can change as much per sample as the
+            # relay's switches: a threshold set on the whole log hides them, so look inside the windows
+            tests = segment_arrays(_inside(flight.command, windows), _inside(flight.output, windows),
+                                   beta=None if beta is None else _inside(beta, windows),
+                                   setpoint=None if setpoint is None else _inside(setpoint, windows), options=options)
         _LAST.keep(flight, options, tests)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"
@@ -592,6 +600,24 @@ def segment(
             "--command-topic"
         )
     return list(tests)
+
+
+def _logged_windows(flight: FlightLog) -> list[tuple[float, float]]:
+    """The tests' windows [s] the log states (``source["test_windows"]``: a stack's enable parameter), each
+    widened by 0.25 s; empty when it states none."""
+    out = []
+    for w in flight.source.get("test_windows") or ():
+        a, b = float(w[0]), (float(w[1]) if w[1] is not None else np.inf)
+        out.append((a - 0.25, b + 0.25))
+    return out
+
+
+def _inside(sig: Signal, windows: list[tuple[float, float]]) -> Signal:
+    """The samples of ``sig`` inside any of ``windows`` [s]."""
+    keep = np.zeros(sig.t.size, dtype=bool)
+    for a, b in windows:
+        keep |= (sig.t >= a) & (sig.t <= b)
+    return Signal(sig.t[keep], sig.values[keep])
 
 
 class _LastSegmentation:

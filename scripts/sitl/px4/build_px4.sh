@@ -78,6 +78,12 @@ if [ "${NO_MRFT:-0}" != 1 ] && [ ! -e src/lib/MRFT/.mrft_port_applied ]; then
   git apply --whitespace=nowarn "$HERE/mrft_port.patch"
   touch src/lib/MRFT/.mrft_port_applied
 fi
+# The roll MRFT (mrft-ident's: the fork has none on the rate loop): MRFT_R_* in mc_rate_control, the fork's
+# relay on the roll angle as the roll torque setpoint (mrft_roll.patch; applied once, after the port).
+if [ "${NO_MRFT:-0}" != 1 ] && [ ! -e src/lib/MRFT/.mrft_roll_applied ]; then
+  git apply --whitespace=nowarn "$HERE/mrft_roll.patch"
+  touch src/lib/MRFT/.mrft_roll_applied
+fi
 
 if [ ! -x venv/bin/python ]; then
   python3 -m venv venv

@@ -144,8 +144,8 @@ def test_diagnose_flag_is_wired(logs, tmp_path, monkeypatch):
         def to_dict(self):
             return {"summary": self.summary}
 
-    def fake(flight, Tp, analysis=None, progress=None):
-        seen.update(Tp=Tp, n_tests=len(analysis.tests))
+    def fake(flight, model, analysis=None, progress=None):
+        seen.update(Tp=model.Tp, n_tests=len(analysis.tests))  # eq. (2)'s model object
         if progress:
             progress(1, 2, "fitting")  # the library's one protocol: (done, total, stage)
         return _Fake()

@@ -293,7 +293,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         if run_diagnose:
             from ..diagnose.selection import diagnose as run_diagnosis
 
-            diagnosis = run_diagnosis(result.flight, Tp, analysis=result, progress=stage("diagnose"))
+            diagnosis = run_diagnosis(result.flight, model, analysis=result, progress=stage("diagnose"))
         index = None
         if report_dir:
             from ..report.analysis import write_analysis_report

@@ -51,6 +51,7 @@ FLIGHTS = [
     ("px4_altitude_h25", "altitude", 0.0, [(b, 0.25) for b in _BETAS], 12.0),
     ("px4_altitude_h25_20ms", "altitude", 20.0, [(b, 0.25) for b in _BETAS], 12.0),
     ("px4_x", "x", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
+    ("px4_roll", "roll", 0.0, [(b, 0.05) for b in (-0.3, -0.5, -0.7)], 10.0),  # mrft_roll.patch
 ]
 #: (without, with MRFT_DELAY) flight pairs for the delay increment
 PAIRS = [("px4_altitude", "px4_altitude_20ms"), ("px4_altitude_h15", "px4_altitude_h15_20ms"),
@@ -67,8 +68,10 @@ def sih_implied(loop: str, model: dict[str, float] = SIH_MODEL) -> dict[str, flo
     setpoint (THR_MDL_FAC 0: linear), so a unit of thrust accelerates ``4 T_MAX / MASS`` and the drag's
     time constant is ``MASS / KDV``. x and y add the attitude loop's lag, which eq. (2) does not hold.
     """
+    if loop == "roll":  # the angular damper -SIH_KDW w; K rests on the allocator's normalisation (not derived)
+        return {"K": math.nan, "Td": model["SIH_IXX"] / model.get("SIH_KDW", 0.025), "Tp": model["SIH_T_TAU"]}
     if loop not in ("altitude", "x", "y"):
-        raise ValueError(f"loop must be altitude, x or y, not {loop!r}")
+        raise ValueError(f"loop must be altitude, x, y or roll, not {loop!r}")
     return {"K": 4 * model["SIH_T_MAX"] / model["SIH_MASS"], "Td": model["SIH_MASS"] / model["SIH_KDV"],
             "Tp": model["SIH_T_TAU"]}
 

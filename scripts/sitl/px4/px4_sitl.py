@@ -39,7 +39,7 @@ AXES = {"altitude": "Z", "x": "X", "y": "Y", "roll": "R"}
 PX4_VERSION = "PX4 main of 2024-08-21 (abdullaayyad96/PX4-Autopilot ae16556) + mrft_port.patch"
 #: SIH's quadrotor (src/modules/simulation/simulator_sih/sih_params.c defaults, airframe 10040)
 SIH_MODEL = {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_T_TAU": 0.05, "SIH_KDV": 1.0, "SIH_L_ROLL": 0.2,
-             "SIH_IXX": 0.025}
+             "SIH_IXX": 0.025, "SIH_KDW": 0.025}
 #: the command (the setpoint's thrust: the relays' decision) at every publication, 125 Hz, mc_pos_control's
 #: rate; what reached the attitude setpoint (the decision after MRFT_DELAY) too, so the log shows the delay
 #: realised; the output every other one (62.5 Hz: 35-50 samples a cycle); PX4's default logs these at

@@ -68,7 +68,8 @@ submodule modules/mavlink/pymavlink https://github.com/ArduPilot/pymavlink.git "
 #    MRFT relay as a main-loop task (ardupilot_patch/: three new files in ArduCopter/, two lines in
 #    Copter.cpp; docs/sitl.md says why).
 python3 "$HERE/patch_boards.py" Tools/ardupilotwaf/boards.py
-python3 "$HERE/ardupilot_patch/apply_patch.py" .
+python3 "$HERE/ardupilot_patch/apply_patch.py" . || \
+  echo "warning: building without the main-loop relay; the Lua script then runs the relay itself (MRFT_MAIN 0)"
 # The build reads its version from git.
 if [ ! -e .git ]; then
   git init -q && git add -A >/dev/null && git -c user.email=sitl@localhost -c user.name=sitl commit -qm "snapshot" >/dev/null

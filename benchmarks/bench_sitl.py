@@ -243,8 +243,13 @@ def truth_analysis(logs: Path) -> None:
     """``analyze`` of the altitude pair with SITL's own altitude (``MRFT:Tru``) as the output: the loop
     without the EKF, to tell what of the altitude figures is the estimator's. ``--accept-tp``: SITL's truth
     has no noise floor, so its waveform cannot check Tp."""
+    for base in ("altitude", "altitude_h15"):
+        _truth_pair(logs, base)
+
+
+def _truth_pair(logs: Path, base: str) -> None:
     taus = {}
-    for name in ("altitude", "altitude_20ms"):
+    for name in (base, f"{base}_20ms"):
         log = logs / f"{name}.BIN"
         if not log.exists():
             continue
@@ -268,8 +273,8 @@ def truth_analysis(logs: Path) -> None:
               f"({f(par['Td']['ci95_low'])}-{f(par['Td']['ci95_high'])}), tau {f(par['tau']['value'], 1e3)} ms "
               f"({f(par['tau']['ci95_low'], 1e3)}-{f(par['tau']['ci95_high'], 1e3)}), K {f(par['K']['value'])}")
     if len(taus) == 2:
-        inc = taus["altitude_20ms"] - taus["altitude"]
-        print(f"  altitude with SITL's truth: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
+        inc = taus[f"{base}_20ms"] - taus[base]
+        print(f"  {base} with SITL's truth: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:

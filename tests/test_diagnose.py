@@ -547,14 +547,15 @@ def test_log_without_relay_test_is_a_clear_error(tmp_path):
     from mrftcli.diagnose.selection import diagnose
     from mrftcli.errors import MrftError
     from mrftcli.io.logtypes import FlightLog, Signal
+    from mrftcli.mrft.model import soiptd_model
 
     t = np.arange(0, 30, 0.005)
     flight = FlightLog(path="hover", loop="altitude", command=Signal(t, 0.5 + 0.01 * np.sin(t)),
                        output=Signal(t, 1.0 + 0.001 * np.sin(3 * t)))
     with pytest.raises(MrftError):
-        diagnose(flight, 0.04)
+        diagnose(flight, soiptd_model(0.04))
     with pytest.raises(MrftError, match="Tp"):
-        diagnose(flight, -1.0)
+        diagnose(flight, soiptd_model(-1.0))
 
 
 @pytest.mark.slow

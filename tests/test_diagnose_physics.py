@@ -264,7 +264,7 @@ def test_an_output_that_does_not_follow_the_relay_gets_analyze_message(logs):
     rng = np.random.default_rng(0)
     noise = dataclasses.replace(fl, output=Signal(fl.output.t, 0.0005 * rng.standard_normal(fl.output.t.size)))
     with pytest.raises(SegmentationError, match="--loop/--output-topic"):
-        diagnose(noise, truth["Tp"])
+        diagnose(noise, soiptd_model(truth["Tp"]))
 
 
 def test_band_excess_is_calibrated_on_noise_and_finds_a_mode_in_every_test():

@@ -47,9 +47,8 @@ import numpy as np
 from ..analyze.general import RelayOptions, general_analysis, measure_tests
 from ..errors import InputError, MrftError
 from ..io.logtypes import FlightLog
-from ..mrft.model import LoopModel, PlantModel, soiptd_model
+from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
-from ..validate import check_time
 from .candidates import LinearFit, fit_linear, search_candidates
 from .checks import ProcessDiagnosis, check_test, locate as locate_checks, measured_waveform, misfit, verdict
 from .effects import select as select_effects_on, as_test_data
@@ -128,7 +127,7 @@ def judge_jitter(screen: Screen, linear: LinearFit, final: FinalModel | None, sa
 
 def diagnose(
     flight: FlightLog,
-    model: PlantModel | float,
+    model: PlantModel,
     analysis: AnalysisResult | None = None,
     progress: Progress | None = None,
     *,
@@ -152,8 +151,7 @@ def diagnose(
     flight : FlightLog
         The log's signals (:func:`mrftcli.io.read_flight` reads them).
     model : PlantModel
-        The model to diagnose against, with its known parameters (set E) and ranges (set I). A float
-        is read as eq. (2)'s Tp [s] (as ``analyze_flight`` still takes it, for one release).
+        The model to diagnose against, with its known parameters (set E) and ranges (set I).
     analysis : AnalysisResult, optional
         Eq. (2): an analysis of the same flight already computed (its segmentation is reused and
         its identification is reported beside the diagnosis' own fits).
@@ -168,7 +166,7 @@ def diagnose(
     Raises
     ------
     InputError
-        Tp not positive, unknown candidate name.
+        An unknown candidate name.
     SegmentationError, LogReadError
         From reading/segmenting the log.
     DiagnoseError
@@ -177,22 +175,16 @@ def diagnose(
     Examples
     --------
     A shipped log whose altitude sensor lags by 70 ms (a filter the linear model leaves out); the
-    diagnosis takes about 20 s of CPU, so it is not run here, but the refusal of a bad Tp is:
+    diagnosis takes about 20 s of CPU, so it is not run here:
 
     >>> from pathlib import Path
     >>> import mrftcli
     >>> log = Path(mrftcli.__file__).parents[1] / "sample_logs" / "concealed" / "flight_02.mcap"
     >>> flight = mrftcli.read_flight(log, mrftcli.ReadOptions(loop="altitude"))
-    >>> diagnose(flight, -0.04)
-    Traceback (most recent call last):
-    ...
-    mrftcli.errors.InputError: Tp (the bench-measured propulsion time constant) must be a positive time in seconds, got -0.04
     >>> result = diagnose(flight, soiptd_model(0.0422))  # doctest: +SKIP
     >>> [(e.name, round(e.parameters["T_lag"], 3)) for e in result.effects]  # doctest: +SKIP
     [('sensor_lag', 0.07)]
     """
-    if not isinstance(model, (LoopModel, PlantModel)):
-        model = soiptd_model(check_time("Tp (the bench-measured propulsion time constant)", model))
     if not isinstance(model, LoopModel):
         return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress)
     return _diagnose_soiptd(flight, model, analysis, progress, candidates)

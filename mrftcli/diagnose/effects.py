@@ -436,7 +436,8 @@ def _cycle(model: PlantModel, test: TestData, a: Action) -> tuple[float, float] 
     relay = test.relay
     tau = model.delay + 0.5 / test.rate_hz + 0.5 * a.ramp - ramp_lag
     h = relay.h * a.gain
-    if not h > 0 or model.parameters["K"].value <= 0:
+    gain = model.parameters.get("K")  # a declared structure may hold its gain in the expression
+    if not h > 0 or (gain is not None and gain.value <= 0):
         return None
     try:
         lc = lti_limit_cycle(A, B, C, tau, relay.beta, h, None, eps=relay.eps)
@@ -608,6 +609,8 @@ def _rows(model: PlantModel, prep: _Prepared, kept: Sequence[tuple[Effect, float
 def _delay_gain(model: PlantModel, test: TestData) -> float:
     """dP / dtau of the model's cycle under the test's relay [-] (central difference; 2 without a cycle)."""
     step = 0.02 / (2 * math.pi * test.frequency_hz)
+    if "tau" not in model.parameters:  # a declared structure without a delay: its cycle's gain is not needed
+        return 2.0
     lo = _cycle(model.with_parameters(tau=max(model.delay - step, 0.0)), test, Action())
     hi = _cycle(model.with_parameters(tau=model.delay + step), test, Action())
     if lo is None or hi is None:

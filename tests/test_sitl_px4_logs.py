@@ -205,3 +205,16 @@ def test_a_relay_hidden_by_the_controllers_own_output_is_looked_for_in_the_logge
     assert not segment_arrays(noisy, out, beta=flight.beta, options=SegmentOptions(controller_rate_hz=250.0))
     found = segment(hidden)
     assert [t.beta_nominal for t in found] == pytest.approx([t.beta_nominal for t in segment(flight)])
+
+
+def test_held_out_masks_keep_each_tests_parameter_marker() -> None:
+    """A PX4 test's beta is the MRFT_Z_BETA in force when MRFT_Z_ENABLE went to 1, logged before its first
+    switch: each other test's window opens at that marker, so the masked log keeps the tests apart (a window
+    cut at the first switch merged neighbours of different beta: 3 of 7 refused on these logs)."""
+    for name, n in (("px4_altitude", 4), ("px4_altitude_20ms", 3)):
+        side, res = _flight(name)
+        misses: list[tuple[int, str]] = []
+        held = held_out(LOGS / f"{name}.ulg", side["tp_s"], side["loop"], res, refine=False, misses=misses)
+        assert not misses and len(held) == n
+        for ho in held:  # each from a model of the others, all of them distinct tests
+            assert ho.beta == pytest.approx(res.tests[ho.index].beta_nominal)

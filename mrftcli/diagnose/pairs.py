@@ -21,11 +21,12 @@ from ..mrft.model import LoopModel
 from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, jacobian, probe_gain
 from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_value, fit_model, plant_params,
                   residuals, theta_bounds)
-from .heldout import BIC_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
+from .heldout import BIC_THRESHOLD, HOLDOUT_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Candidate
 from .identification import EffectIdentification
 from .records import CandidateFit, EffectFinding, Evidence, FinalModel, HeldOut, PairFit
 from .screen import Screen
+from .testout import left_out_chi2
 
 __all__ = ["PAIR_PROBE_MIN", "RIVAL_ANCHORS", "TIE_BIC", "EffectSelection", "select_effects", "effect_finding",
            "harmonics_before_after", "pair_starts", "pair_candidate", "pair_probe"]
@@ -451,6 +452,37 @@ def _first_earns_place(first: CandidateFit, second: PairFit, cand_rows: list[Can
                          f"{_nrmse(alone.held_out_after)} -> {_nrmse(second.held_out_after)})"]
 
 
+def _pair_predicts_tests(first: CandidateFit, second: PairFit, cand_rows: list[CandidateFit], pairs: _Pairs,
+                         said: list[str]) -> tuple[CandidateFit, PairFit | None, list[str]]:
+    """Leave one test out on a pair (issue 39, :mod:`.testout`): the pair must predict each test from
+    the others better than each of its effects alone (fitted alone and significant) by
+    :data:`HOLDOUT_THRESHOLD` in chi^2; otherwise the single effect that predicts them best is
+    reported alone, with a warning. The held-out cycles are the odd cycles of the tests fitted, so a
+    second effect that only absorbs how the tests differ passes them; a left-out test does not."""
+    sc = pairs.screen
+    mp, fp = pairs.joint(second)
+    chi2_pair = left_out_chi2(mp, fp, sc.tests, sc.recs_fit, sc.recs_all)
+    if chi2_pair is None:
+        return first, second, said
+    singles = []
+    for row in (first, next((r for r in cand_rows if r.name == second.name), None)):
+        if row is None or not row.significant or row.name not in pairs.fits:
+            continue
+        m, f = pairs.fits[row.name]
+        chi2 = left_out_chi2(m, f, sc.tests, sc.recs_fit, sc.recs_all)
+        if chi2 is not None:
+            singles.append((chi2, row))
+    worse = [(c, r) for c, r in singles if chi2_pair > c - HOLDOUT_THRESHOLD]
+    if not worse:
+        return first, second, said
+    chi2_best, best = min(singles, key=lambda x: x[0])
+    other = second.name if best.name == first.name else first.name
+    return best, None, said + [
+        f"{other} not reported beside {best.name}: the pair does not predict each test from the others better "
+        f"than {best.name} alone (left-out tests' feature chi^2 {chi2_pair:.0f} with both, {chi2_best:.0f} with "
+        f"{best.name} alone)"]
+
+
 def _nrmse(held: HeldOut | None) -> str:
     return "n/a" if held is None or held.nrmse is None else f"{held.nrmse:.3g}"
 
@@ -489,6 +521,8 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, l
     if second is not None:
         first, second = pairs.swap(first, second, deterministic, cand_rows)
         first, second, loo = _first_earns_place(first, second, cand_rows, fits)
+    if second is not None:
+        first, second, loo = _pair_predicts_tests(first, second, cand_rows, pairs, loo)
     effects, final = _findings(first, second, pairs)
     effects, warnings = _ties(effects, first, second, cand_rows, pairs.rows, fits)
     warnings = loo + warnings

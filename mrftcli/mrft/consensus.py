@@ -54,7 +54,6 @@ __all__ = [
     "ExtraConstraints",
     "Bootstrap",
     "phase_tau",
-    "tau_curves",
     "consensus_objective",
     "consensus_solve",
     "constraint_weights",
@@ -149,13 +148,6 @@ class Bootstrap:
     phases: np.ndarray
     ln_amp: np.ndarray
     weights: dict[str, np.ndarray] | None
-
-
-def tau_curves(Tp: float, betas: np.ndarray, omegas: np.ndarray, Td: np.ndarray) -> np.ndarray:
-    """tau_i(Td) [s], the UFM slices in real units, for arrays (M, n) of betas and omegas and Td (M,)."""
-    th, _ = unit_cycle(Tp * omegas, Td[:, None] * omegas, betas)
-    tau: np.ndarray = th / omegas
-    return tau
 
 
 def phase_tau(Tp: float, omegas: np.ndarray | float, phases: np.ndarray | float,

@@ -460,7 +460,9 @@ def initial_base(tests: list[DiagnosedTest], Tp: float, extra_phase: Callable | 
     ``extra_phase(W, test)`` adds a candidate's own phase [rad] (e.g. -atan(W T_lag)).
     """
     W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
-    B = np.array([np.mean(t.beta) for t in tests])
+    # an effective beta measured beyond +-1 (a relay that switched late on a noisy or lagging output)
+    # has no describing-function phase: the edge's (was a NaN and a RuntimeWarning on the terminal)
+    B = np.clip([np.mean(t.beta) for t in tests], -1.0, 1.0)
     fs = np.array([t.rate_hz for t in tests])
     extra = np.zeros(len(tests)) if extra_phase is None else np.array([extra_phase(w, t) for w, t in zip(W, tests)])
 
@@ -484,7 +486,7 @@ def initial_base(tests: list[DiagnosedTest], Tp: float, extra_phase: Callable | 
 def tau_on_valley(tests: list[DiagnosedTest], Tp: float, Td: float) -> float:
     """tau [s] that satisfies the describing-function phase condition best for a given Td (closed form)."""
     W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
-    B = np.array([np.mean(t.beta) for t in tests])
+    B = np.clip([np.mean(t.beta) for t in tests], -1.0, 1.0)  # as initial_base
     fs = np.array([t.rate_hz for t in tests])
     # -pi/2 - atan(W Tp) - atan(W Td) - W (tau + 1/(2 fs)) = -pi + asin(B), linear in tau
     rhs = np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * 0.5 / fs - np.arcsin(B)

@@ -129,8 +129,6 @@ FILTER_N = 10.0
 TI_RATIO = 4.0
 #: The DNN-MRFT rule's beta and its stored optimised coefficients (checks.md section 5).
 RULE_BETA, RULE_C1, RULE_C3 = -0.7, 0.4249, 0.3391
-#: chi-square(3) 95 % quantile: the 95 % set of the posterior in (ln Td, ln tau, ln K).
-_CHI2_3_95 = 7.814727903251178
 #: Horizon of the step criterion, in MRFT periods T0 at RULE_BETA.
 _HORIZON_PERIODS = 6.0
 #: A PID's horizon (setpoint and load steps), in T0: the integral action settles more slowly.

@@ -17,7 +17,7 @@ its one-loop case), so the nominal figure is always one of the draws' figures:
   e^{-j omega j T} and leaves |L| alone, so the tick in which the phase margin runs out is known in
   closed form and the fraction of a tick is bisected on the loop rediscretised with that delay.
 
-The python-control models (:func:`plant_system`, :func:`loop_system`) are kept as the tests' check.
+The python-control model of the plant (:func:`plant_system`) is kept as the tests' check.
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, discrete_plant, plants_of_parameters
 
-__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "controller_system", "loop_system", "margins", "loop_margins",
-           "frequency_grid", "margin_grid", "plant_response", "sensitivity_peak"]
+__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins",
+           "frequency_grid", "margin_grid", "plant_response"]
 
 
 @dataclass(frozen=True)
@@ -146,26 +146,6 @@ def plant_system(model: LoopModel, rate_hz: float):
     return control.ss(A, B, Cm, np.zeros((1, 1)), 1.0 / rate_hz)
 
 
-def controller_system(controller: Controller):
-    """C_fb(z) = Kp + Ki T z / (z - 1) + Kd (z - 1) / ((Tf + T) z - Tf) as a python-control transfer function."""
-    import control
-
-    T = controller.Ts
-    c = control.tf([controller.Kp], [1.0], T)
-    if controller.Ki > 0:
-        c = c + control.tf([controller.Ki * T, 0.0], [1.0, -1.0], T)
-    if controller.Kd > 0:
-        c = c + control.tf([controller.Kd, -controller.Kd], [controller.Tf + T, -controller.Tf], T)
-    return c
-
-
-def loop_system(model: LoopModel, controller: Controller):
-    """L = C_fb Gd (python-control state space, discrete)."""
-    import control
-
-    return control.series(control.ss(controller_system(controller)), plant_system(model, controller.rate_hz))
-
-
 def frequency_grid(rate_hz: float, n: int = 600) -> np.ndarray:
     """Log-spaced frequencies [rad/s] from 1e-3 of Nyquist up to just below Nyquist."""
     w_nyq = math.pi * rate_hz
@@ -195,12 +175,6 @@ def plant_response(models: Sequence[LoopModel | DiscretePlant], rate_hz: float, 
     if not plants:
         return np.empty((0, np.size(omega)), complex)
     return PlantStack.of(plants).transfer(np.exp(1j * np.asarray(omega, float) / rate_hz))
-
-
-def sensitivity_peak(controller: Controller, Gd: np.ndarray, omega: np.ndarray) -> np.ndarray:
-    """max over the grid of |1 / (1 + C_fb Gd)| for each row of ``Gd`` (shape (M, W)) -> (M,)."""
-    L = controller.feedback_response(omega)[None, :] * Gd
-    return np.max(1.0 / np.abs(1.0 + L), axis=-1)
 
 
 @dataclass(frozen=True, eq=False)

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["StackParam", "STACK_PARAMS", "param", "check_ranges", "RangeViolation", "PX4_GYRO_RATES_HZ", "STACKS"]
+__all__ = ["StackParam", "STACK_PARAMS", "param", "check_ranges", "RangeViolation", "STACKS"]
 
 STACKS = ("px4", "ardupilot", "hear")
 
@@ -53,9 +53,6 @@ _IMU = f"{_PX4} src/modules/sensors/vehicle_imu/imu_parameters.yaml @d709b046 (e
 #: AC_PosControl.cpp after the 4.7 rename (_POSZ_ -> _D_POS_, _VELZ_ -> _D_VEL_, _ACCZ_ -> _D_ACC_ in m, s).
 _AP_PSC47 = ("ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_PosControl.cpp (@Range of _D_POS_/_D_VEL_/_D_ACC_ "
              "and convert_parameters 'Added: Nov-2024 for 4.7'; a stored upstream copy after the rename)")
-
-#: PX4's ``IMU_GYRO_RATEMAX`` choices [Hz]: the rate controller's loop rate (imu_gyro_parameters.yaml).
-PX4_GYRO_RATES_HZ = (100.0, 250.0, 400.0, 800.0, 1000.0, 2000.0)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from mrftcli.io import read_flight
 from mrftcli.io.flight import ReadOptions
 from mrftcli.mrft.model import LoopModel
 from mrftcli.sim.cascade import command_gain, inner_pd, plan_outer_test, simulate_cascade
-from mrftcli.sim.cascade_plant import (cascade_plant, closed_loop_radius, controller_response, inner_closed_loop,
+from mrftcli.sim.cascade_plant import (cascade_plant, closed_loop_radius, controller_response,
                                        outer_phase_margin, outer_plant_response)
 from mrftcli.sim.cascade_spec import CascadeSpec, CascadeTruth, InnerGains
 from mrftcli.sim.cascade_write import write_cascade
@@ -46,18 +46,6 @@ def _spec(**kw) -> CascadeSpec:
                 outer_tests=(plan_outer_test(plant, gains, 1.0, -0.6, 0.1, cycles=6),), hover_s=1.0, hold_s=2.0)
     base.update(kw)
     return CascadeSpec(**base)
-
-
-def test_inner_closed_loop_low_frequency_closed_form():
-    gains = InnerGains(Kp=0.4, Ki=0.0, Kd=0.12, Tf=0.02, rate_hz=RATE)
-    plant = cascade_plant(ROLL, 2.0, 0.03, RATE, 9.81)
-    w = np.array([1e-4])
-    T = complex(inner_closed_loop(plant, gains, w)[0])
-    assert abs(T - 1.0) < 1e-3
-    ramp_error = (1.0 - T) / (1j * w[0])
-    expected = (1.0 + ROLL.K * ROLL.Td * gains.Kd) / (ROLL.K * ROLL.Td * gains.Kp)
-    assert ramp_error.real == pytest.approx(expected, rel=1e-3)
-    assert abs(ramp_error.imag) < 1e-3 * expected
 
 
 def _independent_flight(spec: CascadeSpec, n_ticks: int, ranges, kinds, hold: InnerGains):

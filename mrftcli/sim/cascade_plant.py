@@ -30,8 +30,8 @@ from ..mrft.model import LoopModel
 from .cascade_spec import InnerGains
 from ..mrft.propagate import taylor_expm
 
-__all__ = ["CascadePlant", "Segment", "cascade_plant", "controller_response", "inner_closed_loop",
-           "outer_plant_response", "outer_phase_margin", "closed_loop_radius", "OuterMargin"]
+__all__ = ["CascadePlant", "Segment", "cascade_plant", "controller_response", "outer_plant_response",
+           "outer_phase_margin", "closed_loop_radius", "OuterMargin"]
 
 Array = NDArray[np.float64]
 CArray = NDArray[np.complex128]
@@ -172,14 +172,6 @@ def _plant_responses(plant: CascadePlant, omega: Array) -> tuple[CArray, CArray]
         xs = Ms @ x + Sa * zi ** (-plant.m_in - 1) + Sb * zi ** (-plant.m_in)
         p_y[i] = xs[3] * zi ** (-plant.n_y)
     return p_alpha, p_y
-
-
-def inner_closed_loop(plant: CascadePlant, gains: InnerGains, omega: Array) -> CArray:
-    """T_inner(e^{j omega T}): attitude setpoint -> attitude at the ticks, the PD closing the loop."""
-    ce, d = controller_response(gains, omega)
-    p_alpha, _ = _plant_responses(plant, omega)
-    out: CArray = ce * p_alpha / (1.0 + (ce + d) * p_alpha)
-    return out
 
 
 def outer_plant_response(plant: CascadePlant, gains: InnerGains, command_gain: float, omega: Array) -> CArray:

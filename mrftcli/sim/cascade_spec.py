@@ -186,11 +186,6 @@ class CascadeSpec:
         """The controller rate [Hz]."""
         return self.gains.rate_hz
 
-    @property
-    def command_unit(self) -> str:
-        """The outer command's unit: ``rad`` or ``m/s^2``."""
-        return "rad" if self.commanded == "attitude" else "m/s^2"
-
     def noise(self) -> tuple[float, float]:
         """(attitude [rad], position [m]) noise std with the defaults filled in."""
         att = 0.05 * _DEG if self.attitude_noise_std is None else float(self.attitude_noise_std)

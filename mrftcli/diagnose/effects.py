@@ -59,7 +59,7 @@ from ..mrft.lprs import lti_limit_cycle
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 
-__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "Selection", "TestData", "as_test_data", "fit_effects", "select",
+__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "Selection", "TestData", "as_test_data", "select",
            "BIC_THRESHOLD"]
 
 #: evidence needed to name an effect (Kass-Raftery's "very strong", as eq. (2)'s diagnosis)
@@ -111,7 +111,7 @@ class TestData:
         The mean cycle's relative standard error, frequency and amplitude together [-].
     delay_gain : float
         dP / dtau of the model's cycle under this test's relay [-]: a switch reaching the plant late
-        by d lengthens the period by about half of it times d (set by :func:`fit_effects`).
+        by d lengthens the period by about half of it times d (set by :func:`select`).
     """
 
     __test__ = False
@@ -593,17 +593,10 @@ def _prepare(model: PlantModel, tests: Sequence[TestData]) -> _Prepared:
     return _Prepared(list(tests), k0, 0.5 * (min(t.t_mid for t in tests) + max(t.t_mid for t in tests)))
 
 
-def fit_effects(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[Effect, float]] = (),
-                names: Sequence[str] | None = None) -> list[EffectFit]:
-    """Each candidate fitted (on top of ``kept``) and held out; ``names``: only those."""
-    return _rows(model, _prepare(model, tests), kept, names)
-
-
-def _rows(model: PlantModel, prep: _Prepared, kept: Sequence[tuple[Effect, float]],
-          names: Sequence[str] | None = None) -> list[EffectFit]:
+def _rows(model: PlantModel, prep: _Prepared, kept: Sequence[tuple[Effect, float]]) -> list[EffectFit]:
     with_ = "+".join(e.name for e, _ in kept)
     return [_fit_one(model, prep.tests, kept, e, prep.k0, prep.t_ref, with_) for e in EFFECTS
-            if (names is None or e.name in names) and e not in [k for k, _ in kept]]
+            if e not in [k for k, _ in kept]]
 
 
 def _delay_gain(model: PlantModel, test: TestData) -> float:

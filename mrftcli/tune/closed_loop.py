@@ -37,7 +37,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plant_transfer", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses", "outputs",
+__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses", "outputs",
            "step_metrics", "criterion", "simulate_step", "spectral_radius", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
@@ -506,12 +506,20 @@ class PlantStack:
         return PlantStack(self.Phi[index], self.Gamma[index], self.C[index], self.d[index], self.triangular)
 
     def transfer(self, z: np.ndarray, delayed: bool = True) -> np.ndarray:
-        """Gd(z) of each plant at the points ``z`` (W,) or (M, W): shape (M, W) (:func:`plant_transfer`)."""
+        """The plant's z-transfer function at the points ``z`` (W,) or (M, W), for each plant: shape (M, W).
+
+        Gd(z) = C (z I - Phi)^{-1} (Gamma_b + Gamma_a z^{-1}) z^{-d} (``delayed``: from the command u_k),
+        or C (z I - Phi)^{-1} (Gamma_a + Gamma_b) (not ``delayed``: a constant input over each whole
+        period, the load disturbance of :func:`responses`). The delay is the phase term z^{-d} and the
+        fractional part of the delay is in Gamma_a, Gamma_b (:func:`discrete_plant`), so the cost does not
+        depend on d. Phi is upper triangular (eq. (2)'s state matrix is), so (z I - Phi)^{-1} is a back
+        substitution. ``z``: points of the z-plane (e^{j omega T} for a frequency response, omega in rad/s).
+        """
         return self.transfers(z)[0 if delayed else 1]
 
     def transfers(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Gd, Gl) at ``z``: the delayed transfer from the command and the undelayed one of a constant
-        input over each period (:func:`plant_transfer`), sharing the solves; each (M, W)."""
+        input over each period (:meth:`transfer`), sharing the solves; each (M, W)."""
         z = np.atleast_2d(np.asarray(z, complex))  # (1, W) or (M, W)
         xa, xb = self._resolvent(z, self.Gamma[:, 0]), self._resolvent(z, self.Gamma[:, 1])
         # z^-d as exp(-d log z): one logarithm per point, not one per point and plant
@@ -530,25 +538,6 @@ class PlantStack:
         x1 = (b[:, 1, None] + Phi[:, 1, 2, None] * x2) / (z - Phi[:, 1, 1, None])
         x0 = (b[:, 0, None] + Phi[:, 0, 1, None] * x1 + Phi[:, 0, 2, None] * x2) / (z - Phi[:, 0, 0, None])
         return C[:, 0, None] * x0 + C[:, 1, None] * x1 + C[:, 2, None] * x2
-
-
-def plant_transfer(plants: Sequence[DiscretePlant], z: np.ndarray, delayed: bool = True) -> np.ndarray:
-    """The plant's z-transfer function at the points ``z``, for each plant: shape (M, W).
-
-    Gd(z) = C (z I - Phi)^{-1} (Gamma_b + Gamma_a z^{-1}) z^{-d} (``delayed``: from the command u_k),
-    or C (z I - Phi)^{-1} (Gamma_a + Gamma_b) (not ``delayed``: a constant input over each whole
-    period, the load disturbance of :func:`responses`). The delay is the phase term z^{-d} and the
-    fractional part of the delay is in Gamma_a, Gamma_b (:func:`discrete_plant`), so the cost does not
-    depend on d. Phi is upper triangular (eq. (2)'s state matrix is), so (z I - Phi)^{-1} is a back
-    substitution.
-
-    Parameters
-    ----------
-    plants : sequence of DiscretePlant
-    z : complex array (W,) or (M, W)
-        Points of the z-plane (e^{j omega T} for a frequency response, omega in rad/s).
-    """
-    return PlantStack.of(plants).transfer(z, delayed)
 
 
 #: How :func:`responses` computes the steps by default: ``"z-transform"`` (inverted from the closed

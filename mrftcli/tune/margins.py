@@ -1,7 +1,7 @@
 """Frequency-domain figures of the sampled loop: gain, phase and delay margins, sensitivity peak Ms.
 
 The loop is L(z) = C_fb(z) Gd(z) (broken at the plant input), with Gd the exact zero-order-hold
-equivalent of the plant and its delay (:func:`mrftcli.tune.closed_loop.plant_transfer`: the delay is
+equivalent of the plant and its delay (:meth:`mrftcli.tune.closed_loop.PlantStack.transfer`: the delay is
 the phase term z^{-d} and its fractional part is in the hold, no Pade approximant, no delay states)
 and C_fb the controller from -y to u. One computation, :func:`loop_margins`, gives every figure for
 any number of loops at once, the nominal model and the posterior's draws alike (:func:`margins` is
@@ -168,7 +168,7 @@ def margin_grid(rate_hz: float, d_max: int) -> np.ndarray:
 def plant_response(models: Sequence[LoopModel | DiscretePlant], rate_hz: float, omega: np.ndarray) -> np.ndarray:
     """Gd(e^{j omega T}) of each model (LoopModel or DiscretePlant), shape (M, len(omega)), omega in rad/s.
 
-    :func:`mrftcli.tune.closed_loop.plant_transfer` on the unit circle (the same system as
+    :meth:`mrftcli.tune.closed_loop.PlantStack.transfer` on the unit circle (the same system as
     :func:`plant_system`, whose python-control frequency response the tests compare it with).
     """
     plants = as_discrete(models, rate_hz)

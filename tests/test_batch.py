@@ -394,11 +394,11 @@ class _FakeDiagnosis:
                             for n in self.effects], "located": []}
 
 
-def _fake_diagnose(flight, Tp, analysis=None, progress=None):
+def _fake_diagnose(flight, model, analysis=None, progress=None):
     from mrftcli.errors import DiagnoseError
 
-    # the analysis' signals and the log's Tp are passed on, so the log is not read twice
-    assert analysis is not None and flight is analysis.flight and Tp == 0.1
+    # the analysis' signals and the log's Tp (in eq. (2)'s model object) are passed on, so the log is not read twice
+    assert analysis is not None and flight is analysis.flight and model.Tp == 0.1
     name = Path(flight.path).name
     if name.startswith("nodiag"):
         raise DiagnoseError("no test with 6 stable cycles")

@@ -36,7 +36,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import pandas as pd
 
@@ -63,6 +63,7 @@ from ..validate import check_positive
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
+    from ..diagnose.records import DiagnosisResult
 
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
            "BatchOptions", "run_batch", "failed_entry", "log_record"]
@@ -240,8 +241,9 @@ def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
 
         if analysis.flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
             raise InputError("the diagnosis needs the analysis's flight signals and Tp")
-        return {"status": STATUS_OK, "error": None,
-                **diagnose(analysis.flight, soiptd_model(task.settings.tp), analysis=analysis).to_dict()}
+        # eq. (2)'s model gets eq. (2)'s diagnosis
+        result = cast("DiagnosisResult", diagnose(analysis.flight, soiptd_model(task.settings.tp), analysis=analysis))
+        return {"status": STATUS_OK, "error": None, **result.to_dict()}
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)
         return {"status": STATUS_FAILED, "error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}",

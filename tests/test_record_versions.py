@@ -164,7 +164,7 @@ def test_a_version_1_vehicle_record_mixed_four_shapes_and_writes_back_with_one()
 def test_the_one_record_reads_back_what_it_wrote(data: dict[str, Any]) -> None:
     est = ParameterEstimate.from_json("x", data)
     assert json.loads(json.dumps(to_jsonable(est.to_json()))) == data
-    assert est.name == "x" and est.mean == est.value  # the deprecated alias, while callers migrate
+    assert est.name == "x"
 
 
 def test_eq2_former_open_interval_reads_as_not_determined() -> None:

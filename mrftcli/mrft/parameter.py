@@ -87,11 +87,6 @@ class ParameterEstimate:
         """A known parameter (set E): its value, no spread, method ``"given"``."""
         return cls(float(value), 0.0, float(value), float(value), unit, True, True, "given", name)
 
-    @property
-    def mean(self) -> float:
-        """Deprecated alias of :attr:`value`, kept while callers migrate."""
-        return self.value
-
     def to_json(self, *, unit: str | None = None, method: str | None = None) -> dict[str, Any]:
         """The one JSON object (:data:`JSON_KEYS`); ``unit``/``method`` override the record's for the JSON.
 

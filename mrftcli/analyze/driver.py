@@ -29,7 +29,7 @@ from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
 from ..mrft.cascade import CascadeModel
 from ..mrft.consensus import combinations
-from ..mrft.model import LoopModel, PlantModel, soiptd_model
+from ..mrft.model import LoopModel, PlantModel
 from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
@@ -56,16 +56,8 @@ def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | Non
                            "check the time column's unit (--time-unit for CSV and .mat logs)")
 
 
-def _model(model: PlantModel | float) -> PlantModel:
-    """The model object; a bare Tp [s] (the old eq. (2) call, kept while issue 36 converts its callers) as
-    :func:`~mrftcli.mrft.model.soiptd_model`."""
-    if isinstance(model, (int, float)):
-        return soiptd_model(check_tp(model))
-    return model
-
-
 @overload
-def analyze_flight(flight: FlightLog, model: LoopModel | float, *,
+def analyze_flight(flight: FlightLog, model: LoopModel, *,
                    options: AnalyzeOptions | None = None) -> AnalysisResult: ...
 @overload
 def analyze_flight(flight: FlightLog, model: CascadeModel, *,
@@ -73,7 +65,7 @@ def analyze_flight(flight: FlightLog, model: CascadeModel, *,
 @overload
 def analyze_flight(flight: FlightLog, model: PlantModel, *,
                    options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis: ...
-def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
+def analyze_flight(flight: FlightLog, model: PlantModel, *,
                    options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis:
     """Segment the relay tests of a flight and identify the model's unknown parameters (module docstring).
 
@@ -122,6 +114,7 @@ def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
 
     >>> from pathlib import Path
     >>> from mrftcli.io import ReadOptions, read_flight
+    >>> from mrftcli.mrft.model import soiptd_model
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.mcap"
     >>> flight = read_flight(log, ReadOptions(loop="altitude"))
     >>> result = analyze_flight(flight, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=100))
@@ -129,7 +122,6 @@ def analyze_flight(flight: FlightLog, model: PlantModel | float, *,
     ...       f"tau {result.tau.value * 1e3:.1f} ms")
     Td 2.66 s (2.65-2.67), tau 46.4 ms
     """
-    model = _model(model)
     opts = AnalyzeOptions() if options is None else options
     # the family's strategy: eq. (2) through its manifolds, every other structure by its direct fit
     if isinstance(model, LoopModel):
@@ -252,7 +244,7 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
 
 
 @overload
-def analyze_path(path: str | Path, model: LoopModel | float, *, read: ReadOptions | None = None,
+def analyze_path(path: str | Path, model: LoopModel, *, read: ReadOptions | None = None,
                  options: AnalyzeOptions | None = None) -> AnalysisResult: ...
 @overload
 def analyze_path(path: str | Path, model: CascadeModel, *, read: ReadOptions | None = None,
@@ -262,7 +254,7 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
                  options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis: ...
 
 
-def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptions | None = None,
+def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
                  options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
@@ -286,6 +278,7 @@ def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptio
     Examples
     --------
     >>> from pathlib import Path
+    >>> from mrftcli.mrft.model import soiptd_model
     >>> log = Path(__file__).parents[2] / "sample_logs" / "design1_altitude.csv"
     >>> result = analyze_path(log, soiptd_model(0.0422), read=ReadOptions(loop="altitude"),
     ...                       options=AnalyzeOptions(n_bootstrap=100))
@@ -294,7 +287,6 @@ def analyze_path(path: str | Path, model: PlantModel | float, *, read: ReadOptio
     """
     from ..io import read_flight
 
-    model = _model(model)
     if not isinstance(model, (LoopModel, CascadeModel)):  # a process plant: not a vehicle loop's clock
         read = dataclasses.replace(read or ReadOptions(), any_time_scale=True)
     flight = read_flight(path, read, echo_warnings=False)  # the reader's warnings come once, in the result's

@@ -230,7 +230,7 @@ def test_a_test_that_saturates_at_the_larger_relay_height_is_diagnosed_not_refus
                           tmp=tmp_path)
     fl = read_flight(path, ReadOptions(loop="altitude"))
     with pytest.raises(InsufficientDataError, match="only one beta"):
-        mrftcli.analyze_flight(fl, truth["Tp"])
+        mrftcli.analyze_flight(fl, soiptd_model(truth["Tp"]))
     res = diagnose(fl, soiptd_model(truth["Tp"]))
     assert [e.name for e in res.effects] == ["actuator_saturation"], res.summary
     assert res.effects[0].parameters["U_max"] == pytest.approx(limit, rel=0.1)

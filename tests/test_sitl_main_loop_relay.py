@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from relay_rule import relay_step
+from relay_rule import relay_signs
 
 PATCH = Path(__file__).parents[1] / "scripts" / "sitl" / "ardupilot_patch"
 CXX = shutil.which("g++") or shutil.which("c++") or shutil.which("clang++")
@@ -54,18 +54,6 @@ def _run(exe: Path, errors: np.ndarray, beta: float, eth: float, ticks: int) -> 
     return [float(x) for x in out[0::2]], [float(x) for x in out[1::2]]
 
 
-def _oracle_signs(errors: np.ndarray, beta: float, eth: float) -> list[float]:
-    s = 1.0 if errors[0] >= 0 else -1.0
-    signs, ext, started = [s], float(errors[0]), False
-    for e in errors[1:]:
-        if not started:
-            if s * e < -eth:
-                s, ext, started = -s, float(e), True
-        else:
-            s, ext = relay_step(s, ext, float(e), beta)
-        signs.append(s)
-    return signs
-
 
 @pytest.mark.parametrize("beta,eth,ticks,seed", [(-0.2, 0.0, 0, 1), (-0.5, 0.05, 8, 2), (-0.8, 0.0, 127, 3),
                                                  (0.3, 0.02, 3, 4)])
@@ -76,7 +64,7 @@ def test_main_loop_relay_matches_rule(driver: Path, beta: float, eth: float, tic
     errors = (np.sin(2 * np.pi * 1.3 * t) * (1 + 0.3 * np.sin(0.7 * t)) +
               0.1 * rng.standard_normal(t.size)).astype(np.float32).astype(float)
     signs, delayed = _run(driver, errors, beta, eth, ticks)
-    oracle = _oracle_signs(errors, beta, eth)
+    oracle = relay_signs(errors, beta, eth)
     assert signs == oracle
     assert sum(a != b for a, b in zip(oracle, oracle[1:])) >= 6  # the sequence does switch
     # the delay line: value i comes back at call i + ticks; before that, the idle value

@@ -79,7 +79,7 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
             raise InsufficientDataError(str(err)) from None
         raise
     if json_target:
-        dump_json(result.to_dict(), json_target)
+        dump_json(result.to_json(), json_target)
     if json_target == "-":
         return
     click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {Tp:g} s (known)  [{result.method}]")

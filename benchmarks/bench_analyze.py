@@ -21,20 +21,28 @@ from pathlib import Path
 import numpy as np
 
 
-def main() -> None:
-    from mrftcli.analyze import analyze_path
-    from mrftcli.mrft.consensus import consensus_solve
-    from mrftcli.mrft.identify import TestMeasurement, identify
+def ten_minute_spec():
+    """The 10-minute, 200 Hz altitude flight of 20 tests (Design I, betas -0.4/-0.7 alternating, 22 s each)
+    this benchmark analyses; ``bench_held_out`` times its held-out stage on the same flight."""
     from mrftcli.mrft.model import LoopModel
-    from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
+    from mrftcli.sim.flight import FlightSpec, plan_test
 
     model = LoopModel(0.0422, 2.669, 0.0464, 19.6)
     tests = []
     for i in range(20):
         spec = plan_test(model, (-0.4, -0.7)[i % 2], 0.05, cycles=14)
         tests.append(type(spec)(spec.beta, spec.h, 22.0))
-    fspec = FlightSpec(model=model, tests=tuple(tests), loop="altitude", switching="hear", seed=1, hover_s=10.0,
-                       hold_s=7.5)
+    return FlightSpec(model=model, tests=tuple(tests), loop="altitude", switching="hear", seed=1, hover_s=10.0,
+                      hold_s=7.5)
+
+
+def main() -> None:
+    from mrftcli.analyze import analyze_path
+    from mrftcli.mrft.consensus import consensus_solve
+    from mrftcli.mrft.identify import TestMeasurement, identify
+    from mrftcli.sim.flight import simulate_flight, write_flight
+
+    fspec = ten_minute_spec()
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "ten_minutes.mcap"
         t0 = time.perf_counter()

@@ -46,17 +46,11 @@ def _measure(name: str, flight, Tp: float) -> tuple[float, float]:
 
 
 def _twenty_tests(d: str):
+    from bench_analyze import ten_minute_spec  # the same flight bench_analyze times
     from mrftcli.io import ReadOptions, read_flight
-    from mrftcli.mrft.model import LoopModel
-    from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight, write_flight
+    from mrftcli.sim.flight import simulate_flight, write_flight
 
-    model = LoopModel(0.0422, 2.669, 0.0464, 19.6)
-    tests = []
-    for i in range(20):
-        spec = plan_test(model, (-0.4, -0.7)[i % 2], 0.05, cycles=14)
-        tests.append(type(spec)(spec.beta, spec.h, 22.0))
-    fspec = FlightSpec(model=model, tests=tuple(tests), loop="altitude", switching="hear", seed=1, hover_s=10.0,
-                       hold_s=7.5)
+    fspec = ten_minute_spec()
     path = Path(d) / "twenty_tests.mcap"
     write_flight(simulate_flight(fspec), path, "mcap")
     return read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False)

@@ -93,7 +93,7 @@ def one_recording(family: str, relay: str, rng: np.random.Generator, tmp: Path,
     from process_sim import simulate, write_csv
 
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
-    from mrftcli.analyze.general import RelayOptions
+    from mrftcli.analyze.options import RelayOptions
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model
     from mrftcli.mrft.relays import RelayLaw

@@ -191,7 +191,7 @@ def simulated_held_out(n: int, seed: int) -> dict[str, list[float]]:
     from process_sim import simulate, write_csv
 
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
-    from mrftcli.analyze.general import RelayOptions
+    from mrftcli.analyze.options import RelayOptions
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import PROCESS_FAMILIES, family_model

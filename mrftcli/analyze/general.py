@@ -42,7 +42,7 @@ from .screen import log_start
 from .static_gain import StaticGain, is_self_regulating, static_gain
 from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
 
-__all__ = ["GeneralAnalysis", "TestSummary", "HeldOut", "RelayOptions", "analyze_family", "response_points",
+__all__ = ["GeneralAnalysis", "TestSummary", "analyze_family", "response_points",
            "chattering_cycles", "find_tests", "screen_test", "MeasuredTest", "measure_test", "measure_tests",
            "general_analysis",
            "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]

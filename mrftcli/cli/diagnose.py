@@ -262,7 +262,7 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
                       json_target: str | None, report: tuple[str | None, bool], read_options: dict[str, Any]) -> None:
     """``diagnose --model NAME``: the same driver (:func:`mrftcli.diagnose.selection.diagnose`) on a
     process family's model object."""
-    from ..analyze.general import RelayOptions
+    from ..analyze.options import RelayOptions
     from ..analyze.screen import log_start
     from ..diagnose.checks import ProcessDiagnosis
     from ..diagnose.selection import diagnose as run

@@ -44,7 +44,8 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..analyze.general import RelayOptions, general_analysis, measure_tests
+from ..analyze.general import general_analysis, measure_tests
+from ..analyze.options import RelayOptions
 from ..errors import InputError, MrftError
 from ..io.logtypes import FlightLog
 from ..mrft.model import LoopModel, PlantModel

@@ -8,8 +8,8 @@ import click
 
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
-from .model_options import (baseline_option, build_model, format_general, parse_baseline, parse_windows,
-                            relay_options, structure_options, window_option)
+from .model_options import (baseline_option, build_model, check_soiptd_options, format_general, parse_baseline,
+                            parse_windows, relay_options, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
 from .cascade_options import cascade_options, pop_cascade_options, run_cascade
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
@@ -327,11 +327,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
 def _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline: bool) -> None:
     """eq. (2) needs --tp; the process-model options do not apply to it."""
-    if Tp is None:
-        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
-    if params or ranges or relay_kind or eps is not None:
-        raise click.UsageError("--param, --range, --relay and --eps take a process model (--model fopdt, sopdt, "
-                               "ipdt or foipdt); eq. (2) takes --tp and reads beta from the log.")
+    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--relay": bool(relay_kind),
+                              "--eps": eps is not None}, "takes --tp and reads beta from the log")
     if baseline:
         raise click.UsageError("--baseline and --baseline-topic take a process model (--model fopdt or sopdt, or "
                                "--model-file); eq. (2) integrates (no static gain)")

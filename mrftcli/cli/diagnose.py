@@ -9,7 +9,7 @@ import click
 
 from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit
-from .model_options import (build_model, format_general, parse_windows, relay_options, structure_options,
+from .model_options import (build_model, check_soiptd_options, format_general, parse_windows, relay_options, structure_options,
                             window_option)
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
@@ -198,7 +198,8 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         _diagnose_process(log, model_name, (params, ranges, windows, relay_kind, eps), min_cycles, json_target,
                           (report_dir, quiet), read_options)
         return
-    _check_soiptd(Tp, params or ranges or windows or relay_kind or eps is not None)
+    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--window": bool(windows),
+                              "--relay": bool(relay_kind), "--eps": eps is not None}, "takes --tp and reads beta from the log")
     model = soiptd_model(Tp)
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         flight = read_flight(log, ReadOptions(**read_options), progress=progress)
@@ -247,15 +248,6 @@ def _with_analysis(result: DiagnosisResult, flight: FlightLog, model: LoopModel,
         return result, None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
     return (replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects))),
             analysis)
-
-
-def _check_soiptd(Tp: float | None, process_options: bool) -> None:
-    """eq. (2) needs --tp; the process-model options do not apply to it."""
-    if Tp is None:
-        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
-    if process_options:
-        raise click.UsageError("--param, --range, --window, --relay and --eps work with a process model "
-                               "(--model fopdt, sopdt, ipdt, foipdt or --model-file) in diagnose so far")
 
 
 def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...], min_cycles: int,

@@ -7,7 +7,7 @@ terminal table of a process-plant analysis (:class:`~mrftcli.analyze.general.Gen
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import click
 
@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
-__all__ = ["MODEL_NAMES", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
+__all__ = ["MODEL_NAMES", "check_soiptd_options", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_windows", "build_model", "format_general", "format_estimates"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
@@ -225,6 +225,22 @@ def parse_windows(items: Sequence[str], t0: float) -> list[tuple[float, float]]:
             raise InputError(f"--window {item!r}: the end must be after the start")
         out.append((t0 + lo, t0 + hi))
     return out
+
+
+def check_soiptd_options(Tp: float | None, process_options: Mapping[str, bool], eq2_takes: str) -> None:
+    """Eq. (2) (``--model soiptd``) needs ``--tp``, and the options of a process model do not apply to it.
+
+    ``process_options`` maps each such option's name to whether it was given; ``eq2_takes`` ends the
+    refusal with what eq. (2) takes instead (e.g. ``"takes --tp and reads beta from the log"``).
+    """
+    if Tp is None:
+        raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
+    used = [name for name, given in process_options.items() if given]
+    if used:
+        names = ", ".join(used[:-1]) + (" and " if len(used) > 1 else "") + used[-1]
+        verb = "take" if len(used) > 1 else "takes"
+        raise click.UsageError(f"{names} {verb} a process model (--model fopdt, sopdt, ipdt, foipdt or --model-file); "
+                               f"eq. (2) {eq2_takes}")
 
 
 def build_model(model_name: str, params: Sequence[str], ranges: Sequence[str]) -> Any:

@@ -13,7 +13,8 @@ import click
 from ..errors import InputError
 from ..jsonable import load_json_text
 from ..report.wording import output_unit
-from .model_options import build_model, format_estimates, parse_windows, relay_options, structure_options, window_option
+from .model_options import (build_model, check_soiptd_options, format_estimates, parse_windows, relay_options,
+                            structure_options, window_option)
 from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
                       tp_option, tqdm_progress)
 
@@ -221,11 +222,9 @@ def _check_given(given: _Given) -> None:
     from the log of its recorded relay tests (click's usage errors name the option)."""
     ctx = click.get_current_context()
     if given.model_name == "soiptd":
-        if given.params or given.ranges or given.windows or given.relay_kind or given.eps is not None:
-            raise click.UsageError("--param, --range, --window, --relay and --eps take a process model (--model "
-                                   "fopdt, sopdt, ipdt, foipdt or --model-file); eq. (2) plans from --tp and the ranges")
-        if given.Tp is None:
-            raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
+        check_soiptd_options(given.Tp, {"--param": bool(given.params), "--range": bool(given.ranges),
+                                        "--window": bool(given.windows), "--relay": bool(given.relay_kind),
+                                        "--eps": given.eps is not None}, "plans from --tp and the ranges")
         for name, value in (("--max-amplitude", given.max_amplitude), ("--max-h", given.max_h),
                             ("--time", given.time_s)):
             if value is None:

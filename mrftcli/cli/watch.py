@@ -11,7 +11,7 @@ import click
 
 from ..jsonable import to_jsonable
 from ..report.wording import gain_unit, output_unit
-from .model_options import build_model, relay_options, structure_options
+from .model_options import build_model, check_soiptd_options, relay_options, structure_options
 from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
@@ -118,11 +118,8 @@ def _check_model_options(model_name: str, Tp: float | None, params: tuple[str, .
                          relay_kind: str | None, eps: float | None) -> None:
     """eq. (2) needs --tp; a process model's options do not apply to it (and --tp not to a process model)."""
     if model_name == "soiptd":
-        if Tp is None:
-            raise click.UsageError("Missing option '--tp' (the known propulsion time constant of --model soiptd).")
-        if params or ranges or relay_kind or eps is not None:
-            raise click.UsageError("--param, --range, --relay and --eps take a process model (--model fopdt, sopdt, "
-                                   "ipdt or foipdt); eq. (2) takes --tp and reads beta from the log.")
+        check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--relay": bool(relay_kind),
+                                  "--eps": eps is not None}, "takes --tp and reads beta from the log")
     elif Tp is not None:
         raise click.UsageError("--tp is eq. (2)'s (--model soiptd); a process model's known parameters are "
                                "--param NAME=VALUE")

@@ -215,7 +215,7 @@ def run_case(case: dict[str, object]) -> dict[str, object]:
     effects = result.effects
     return {**case, "found": [e.name for e in effects], "error": "", "cpu": time.process_time() - t0,
             "values": [e.value for e in effects], "before": [e.held_out_before for e in effects],
-            "after": [e.held_out_after for e in effects], "verdict": result.verdict}
+            "after": [e.held_out_after for e in effects], "verdict": result.summary}
 
 
 def _truth(case: dict[str, object]) -> float:

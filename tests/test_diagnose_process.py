@@ -18,7 +18,7 @@ from cli_helpers import run_main
 sys.path.insert(0, str(Path(__file__).parent))
 from process_sim import Window, simulate, write_csv  # noqa: E402
 
-from mrftcli.diagnose import ProcessDiagnosis, diagnose  # noqa: E402
+from mrftcli.diagnose import DiagnosisResult, diagnose  # noqa: E402
 from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
@@ -46,13 +46,13 @@ def sopdt_csv(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def fopdt_diagnosis(fopdt_csv: Path) -> ProcessDiagnosis:
+def fopdt_diagnosis(fopdt_csv: Path) -> DiagnosisResult:
     return diagnose(read_flight(fopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
 
 
 def test_clean_fopdt_under_two_relays_is_consistent(fopdt_diagnosis):
     result = fopdt_diagnosis
-    assert result.consistent and result.verdict == "consistent with FOPDT within the tests' scatter"
+    assert result.consistent and result.summary == "consistent with FOPDT within the tests' scatter"
     assert not result.located and len(result.checks) == 2
     assert not result.found and result.candidates  # the library was fitted and named nothing
     for check in result.checks:
@@ -69,7 +69,7 @@ def test_second_order_plant_analysed_as_fopdt_is_located_and_its_second_lag_name
     assert not result.consistent
     # the library names the lag FOPDT leaves out: the simulator's lags are 0.7 s and 0.3 s, FOPDT's T
     # takes one, the effect the other; each test predicted from the other at least halves its error
-    assert result.verdict.startswith("found: sensor_lag")
+    assert result.summary.startswith("found: sensor_lag")
     (lag,) = result.effects
     fopdt_T = lag.refit["T"]  # FOPDT refitted with the lag taken out
     assert sorted([lag.value, fopdt_T]) == pytest.approx([0.3, 0.7], rel=0.15)
@@ -85,19 +85,17 @@ def test_second_order_plant_analysed_as_fopdt_is_located_and_its_second_lag_name
 def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
     result = fopdt_diagnosis
     data = json.loads(json.dumps(result.to_json()))
-    assert data["schema_version"] == 2 and data["consistent"] is True
+    assert data["schema_version"] == 2 and data["consistent"] is True  # the one diagnosis record (issue 36)
     assert data["checks"][0]["held_out"]["frequency_hz"] == pytest.approx(result.checks[0].held_out_frequency_hz)
     assert {c["name"] for c in data["candidates"]} >= {"sensor_lag", "dead_zone", "delay_jitter"}
-    back = ProcessDiagnosis.from_json(data)
+    assert data["kind"] == "diagnosis" and data["family"] == "fopdt" and data["summary"] == result.summary
+    back = DiagnosisResult.from_json(data)
     assert back.to_json() == result.to_json()
-    # version 1 (before issue 36: no effects fitted) is read for one release
-    old = {k: v for k, v in data.items() if k not in ("candidates", "found")}
-    v1 = ProcessDiagnosis.from_json({**old, "schema_version": 1})
-    assert v1.verdict == result.verdict and v1.candidates == () and v1.found == ()
     with pytest.raises(InputError, match="schema_version"):
-        ProcessDiagnosis.from_json({**data, "schema_version": 99})
-    with pytest.raises(InputError, match="process diagnosis JSON"):
-        ProcessDiagnosis.from_json({"schema_version": 1, "verdict": "x"})
+        DiagnosisResult.from_json({**data, "schema_version": 99})
+    with pytest.raises(InputError, match="'checks'"):
+        DiagnosisResult.from_json({"schema_version": 2, "family": "fopdt", "summary": "x", "candidates": [],
+                                   "second_effect_candidates": [], "analysis": data["analysis"]})
 
 
 def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
@@ -108,7 +106,7 @@ def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
     lines = run.stdout.splitlines()
     assert lines[0].startswith("found: sensor_lag (T_lag ")
     assert "frequency [Hz]" in lines[1] and "Traceback" not in run.stderr
-    assert ProcessDiagnosis.from_json(json.loads(out.read_text())).verdict == lines[0]
+    assert DiagnosisResult.from_json(json.loads(out.read_text())).summary == lines[0]
 
 
 def test_cli_diagnose_process_options_need_a_process_model(fopdt_csv):
@@ -130,7 +128,7 @@ def test_one_test_is_not_held_out_and_says_so(fopdt_csv):
     (check,) = result.checks
     assert check.held_out_frequency_hz is None and check.frequency_z is None
     assert check.note == "no other test to hold it out against"
-    assert result.verdict.startswith("consistent with FOPDT within the noise, on one test only")
+    assert result.summary.startswith("consistent with FOPDT within the noise, on one test only")
 
 
 @pytest.mark.parametrize("effect, value", [("dead_zone", 0.4), ("input_bias", -0.25)])
@@ -148,7 +146,7 @@ def test_an_effect_on_an_integrating_plant_is_named_and_held_out_better(effect, 
                        1.6, seed=5)
     result = diagnose(FlightLog(path="ipdt.sim", loop="altitude", command=Signal(t, u), output=Signal(t, y)),
                       family_model("ipdt"))
-    assert result.found[:1] == (effect,), result.verdict
+    assert result.found[:1] == (effect,), result.summary
     (first, *_) = result.effects
     assert first.value == pytest.approx(value, rel=0.1)
     assert first.held_out_after < 0.5 * first.held_out_before

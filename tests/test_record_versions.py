@@ -272,3 +272,69 @@ def test_watch_model_lines_of_version_1_read_into_todays_updates() -> None:
         # the final update carries the whole analysis, its record of version 2 read and written as 3
         assert (e.analysis is not None and new["analysis"]["schema_version"] == 3) == d["final"]
     assert [d["final"] for d in estimates] == [False, True]
+
+
+# ----------------------------------------------------------------------------------------------
+# the one diagnosis record (issue 36): eq. (2)'s diagnosis (version 1) and the families' process_diagnosis
+# (versions 1 and 2), written by commit 8c336ae:
+# - ``diagnosis_v1.json``: ``diagnose sample_logs/concealed/flight_02.mcap --loop altitude --tp 0.0422 --json``
+#   (no schema_version: the CLI wrote the layout of version 1 without it)
+# - ``process_diagnosis_v2.json``: ``diagnose kstar_signals21801_biased_relay.csv --command-topic u_relay
+#   --output-topic y_output --model fopdt --json`` (../shared/data/real_relay)
+
+
+def _diagnosis_written(record: Any) -> dict[str, Any]:
+    out: dict[str, Any] = json.loads(json.dumps(to_jsonable(record.to_json())))
+    return out
+
+
+@pytest.mark.parametrize("versioned", [False, True])
+def test_an_eq2_diagnosis_of_version_1_reads_with_its_figures_and_writes_as_2(versioned: bool) -> None:
+    """The CLI's file (no schema_version) and the record's ``to_json`` of then (``schema_version`` 1)."""
+    from mrftcli.diagnose.records import DiagnosisResult
+
+    old = _old("diagnosis_v1.json")
+    assert "schema_version" not in old
+    result = DiagnosisResult.from_json({"schema_version": 1, **old} if versioned else old)
+    new = _diagnosis_written(result)
+    assert new["schema_version"] == 2 and new["kind"] == "diagnosis" and new["family"] == "soiptd"
+    assert result.found == ("sensor_lag",) and new["found"] == ["sensor_lag"]
+    # every key of version 1 comes back with the same content; the new keys are the families' (empty here)
+    assert {k: new[k] for k in old} == old
+    assert (new["checks"], new["notes"], new["analysis"], new["consistent"]) == ([], [], None, None)
+    assert DiagnosisResult.from_json(new) == result
+
+
+def test_a_process_diagnosis_of_version_2_reads_with_its_figures_and_writes_as_2() -> None:
+    """KSTAR 21801 as FOPDT: its input bias found, the rows of every candidate (alone, then on top of it)."""
+    from mrftcli.diagnose.records import DiagnosisResult
+
+    old = _old("process_diagnosis_v2.json")
+    assert old["schema_version"] == 2 and old["kind"] == "process_diagnosis"
+    result = DiagnosisResult.from_json(old)
+    new = _diagnosis_written(result)
+    assert new["schema_version"] == 2 and new["family"] == "fopdt" and new["summary"] == old["verdict"]
+    assert new["found"] == old["found"] == ["input_bias"]
+    # the rows: the alone ones in candidates, those on top of the first in second_effect_candidates, unchanged
+    assert new["candidates"] + new["second_effect_candidates"] == old["candidates"]
+    assert all(not c["with"] for c in new["candidates"]) and all(c["with"] for c in new["second_effect_candidates"])
+    assert [e["name"] for e in new["effects"]] == ["input_bias"] and new["effects"][0] == old["candidates"][5]
+    for key in ("checks", "located", "notes", "consistent", "z_limit", "analysis"):
+        assert new[key] == old[key], key
+    assert DiagnosisResult.from_json(new).to_json() == result.to_json()
+
+
+def test_a_process_diagnosis_of_version_1_reads() -> None:
+    """Version 1 (before the library of physics: no candidates, no found) is version 2 without those keys;
+    no file of it was kept, so it is the version 2 file with them removed."""
+    from mrftcli.diagnose.records import DiagnosisResult
+    from mrftcli.errors import InputError
+
+    old = {k: v for k, v in _old("process_diagnosis_v2.json").items() if k not in ("candidates", "found")}
+    result = DiagnosisResult.from_json({**old, "schema_version": 1})
+    assert result.summary == old["verdict"] and result.candidates == [] and result.found == ()
+    assert len(result.checks) == len(old["checks"])
+    with pytest.raises(InputError, match="process diagnosis JSON"):
+        DiagnosisResult.from_json({"schema_version": 1, "kind": "process_diagnosis", "verdict": "x"})
+    with pytest.raises(InputError, match="schema_version 3"):
+        DiagnosisResult.from_json({**old, "schema_version": 3})

@@ -36,7 +36,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
@@ -63,7 +63,6 @@ from ..validate import check_positive
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
-    from ..diagnose.records import DiagnosisResult
 
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
            "BatchOptions", "run_batch", "failed_entry", "log_record"]
@@ -242,7 +241,7 @@ def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
         if analysis.flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
             raise InputError("the diagnosis needs the analysis's flight signals and Tp")
         # eq. (2)'s model gets eq. (2)'s diagnosis
-        result = cast("DiagnosisResult", diagnose(analysis.flight, soiptd_model(task.settings.tp), analysis=analysis))
+        result = diagnose(analysis.flight, soiptd_model(task.settings.tp), analysis=analysis)
         return {"status": STATUS_OK, "error": None, **result.to_dict()}
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)

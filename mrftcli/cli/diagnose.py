@@ -19,7 +19,6 @@ from ..diagnose.records import DiagnosisResult
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
     from ..analyze.residual import ResidualVerdict
-    from ..diagnose.checks import ProcessDiagnosis
     from ..io.logtypes import FlightLog
     from ..mrft.model import LoopModel
 
@@ -39,6 +38,7 @@ def _model_lines(result: DiagnosisResult) -> list[str]:
     (issue 26: one model per log across commands, or the reason in the output)."""
     k_unit = gain_unit(result.loop)
     ident = result.identification
+    assert ident is not None  # eq. (2)'s strategy fills it
     lin = ident.linear
     spans = ", ".join(f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}" for t in result.tests)
     lines = [f"linear model fitted to the stable cycles diagnose uses ({spans} s): Td {_g(lin.Td)} s  "
@@ -62,6 +62,7 @@ def _effect_lines(result: DiagnosisResult) -> list[str]:
     """Each effect found with its refits, the recommended one marked as the estimate to take, with units."""
     k_unit = gain_unit(result.loop)
     ident = result.identification
+    assert ident is not None  # eq. (2)'s strategy fills it
     chosen = ident.recommended.source if ident.recommended is not None else None
     lines = []
     for e in result.effects:
@@ -212,11 +213,10 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         given = analyze_given(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
         result = run(flight, model, analysis=given, progress=progress)
-    assert isinstance(result, DiagnosisResult)  # eq. (2)'s strategy
     result, analysis = _with_analysis(result, flight, model, given)
     to_stdout = json_target == "-"
     if json_target:
-        dump_json(result.to_dict(), json_target)
+        dump_json(result.to_json(), json_target)
     if not to_stdout:
         from ..analyze.residual import residual_verdict
 
@@ -246,6 +246,7 @@ def _with_analysis(result: DiagnosisResult, flight: FlightLog, model: LoopModel,
         analysis = given or analyze_flight(flight, model)
     except MrftError:
         return result, None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
+    assert result.identification is not None  # eq. (2)'s strategy fills it
     return (replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects))),
             analysis)
 
@@ -256,7 +257,6 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
     process family's model object."""
     from ..analyze.options import RelayOptions
     from ..analyze.screen import log_start
-    from ..diagnose.checks import ProcessDiagnosis
     from ..diagnose.selection import diagnose as run
     from ..io import ReadOptions, read_flight
 
@@ -269,24 +269,24 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
         result = run(flight, model, progress=progress, relay=RelayOptions(relay_kind, None, eps),
                      windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
-    assert isinstance(result, ProcessDiagnosis)  # a process family's strategy
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":
         click.echo(format_process(result))
-    for w in result.analysis.warnings:
+    for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
 
 
-def _effect_rows(result: ProcessDiagnosis) -> list[str]:
+def _effect_rows(result: DiagnosisResult) -> list[str]:
     """The library's candidates: parameter, delta BIC, held-out error without and with, found; then the
     model refitted with each effect named."""
     if not result.candidates:
         return []
     named = {(e.name, e.with_) for e in result.effects}
+    fits = [*result.candidates, *result.second_effect_candidates]
     rows = [(c.name if not c.with_ else f"+ {c.name} (with {c.with_})", f"{c.parameter} = {_g(c.value)} {c.unit}",
              _g(c.delta_bic, ".1f"), f"{_g(c.held_out_before, '.3f')} -> {_g(c.held_out_after, '.3f')}",
-             "+".join(c.views) + ("  <- found" if (c.name, c.with_) in named else "")) for c in result.candidates]
+             "+".join(c.views) + ("  <- found" if (c.name, c.with_) in named else "")) for c in fits]
     head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "views")
     widths = [max(len(r[k]) for r in [head, *rows]) for k in range(len(head))]
     lines = ["effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
@@ -296,8 +296,8 @@ def _effect_rows(result: ProcessDiagnosis) -> list[str]:
                                in enumerate(zip(r, widths))).rstrip() for r in [head, *rows]]
     for e in result.effects:
         if e.refit:
-            unit = {est.name: est.unit for est in result.analysis.identification.estimates} \
-                if result.analysis.identification is not None else {}
+            ident = result.analysis.identification if result.analysis is not None else None
+            unit = {est.name: est.unit for est in ident.estimates} if ident is not None else {}
             lines.append(f"refit with {e.name}{' and ' + e.with_ if e.with_ else ''} (all tests): " + "  ".join(
                 f"{k} {_g(v)} {unit.get(k, '')}".rstrip() for k, v in e.refit.items()))
     return lines
@@ -307,10 +307,10 @@ def _pct_z(err: float | None, z: float | None) -> str:
     return "-" if err is None else f"{100 * err:+.1f} %" + ("" if z is None else f" ({z:+.1f} sd)")
 
 
-def format_process(result: ProcessDiagnosis) -> str:
+def format_process(result: DiagnosisResult) -> str:
     """The terminal summary of a process-plant diagnosis: the verdict first, the checks, then the analysis."""
-    t0 = result.analysis.t0
-    lines = [result.verdict]
+    t0 = result.t0
+    lines = [result.summary]
     head = ("test", "from-to [s]", "frequency [Hz]", "held-out f [Hz]", "error (z)", "amplitude", "held-out amplitude",
             "error (z)", "residual/noise: fund.", "2-3", "higher")
     rows = [head]
@@ -337,6 +337,6 @@ def format_process(result: ProcessDiagnosis) -> str:
     lines += [f"test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
     lines += _effect_rows(result)
     lines += [f"note: {n}" for n in result.notes]
-    lines.append("")
-    lines.append(format_general(result.analysis))
+    if result.analysis is not None:
+        lines += ["", format_general(result.analysis)]
     return "\n".join(lines)

@@ -29,11 +29,10 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2, norm
 
-from ..analyze.general import GeneralAnalysis, TestSummary, identify_points, response_points
+from ..analyze.general import TestSummary, identify_points, response_points
 from ..analyze.smooth_cycle import CycleFit, cycle_fits
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog
-from ..jsonable import check_schema_version
 from ..mrft.harmonics import fit_harmonics
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
@@ -41,11 +40,9 @@ from ..mrft.model import PlantModel
 from ..segment.records import MrftTest
 from .effects import EffectFit
 
-__all__ = ["ProcessDiagnosis", "TestCheck", "BandResidual", "MeasuredWaveform", "measured_waveform", "check_test",
-           "locate", "misfit", "verdict", "PROCESS_DIAGNOSIS_SCHEMA_VERSION", "Z_LIMIT"]
+__all__ = ["TestCheck", "BandResidual", "MeasuredWaveform", "measured_waveform", "check_test",
+           "locate", "misfit", "verdict", "Z_LIMIT"]
 
-#: version of :meth:`ProcessDiagnosis.to_json`
-PROCESS_DIAGNOSIS_SCHEMA_VERSION = 2  # 2: the effects fitted (issue 36)
 #: a difference beyond this many standard deviations is a disagreement
 Z_LIMIT = 3.0
 #: the harmonic bands the residual is reported in (fundamental; 2-3: even 2 shows an asymmetry; higher)
@@ -219,73 +216,6 @@ class TestCheck:
                    tuple(BandResidual.from_json(b) for b in ho["bands"]),
                    tuple(BandResidual.from_json(b) for b in al["bands"]),
                    math.inf if even is None else float(even), str(d.get("note", "")))
-
-
-@dataclass(frozen=True)
-class ProcessDiagnosis:
-    """The outcome of :func:`diagnose_process` (``diagnose --model NAME --json``).
-
-    Attributes
-    ----------
-    analysis : GeneralAnalysis
-        ``analyze --model``'s record of the same log.
-    checks : tuple of TestCheck
-        One per test used.
-    verdict : str
-        The first line: ``consistent with FOPDT within the tests' scatter`` or ``unexplained: ...``.
-    located : tuple of str
-        Each disagreement, largest first, with units and sigma.
-    notes : tuple of str
-        What the reader needs to weigh the verdict (what is not checked).
-    candidates : tuple of EffectFit
-        Every effect of the library fitted and held out (alone, then on top of the first found).
-    found : tuple of str
-        The effects named, in order (each a ``candidates`` row with ``found``).
-    """
-
-    analysis: GeneralAnalysis
-    checks: tuple[TestCheck, ...]
-    verdict: str
-    located: tuple[str, ...] = ()
-    notes: tuple[str, ...] = ()
-    candidates: tuple[EffectFit, ...] = ()
-    found: tuple[str, ...] = ()
-
-    @property
-    def effects(self) -> tuple[EffectFit, ...]:
-        """The rows of the effects named (the second one's row fitted on top of the first)."""
-        out: list[EffectFit] = []
-        for name in self.found:
-            prior = "+".join(f.name for f in out)
-            out += [c for c in self.candidates if c.name == name and c.with_ == prior][:1]
-        return tuple(out)
-
-    @property
-    def consistent(self) -> bool:
-        """No test disagrees with the model beyond :data:`Z_LIMIT`."""
-        return not any(c.disagrees for c in self.checks)
-
-    def to_json(self) -> dict[str, Any]:
-        """``schema_version``, ``verdict``, ``consistent``, ``checks``, ``located``, ``analysis``."""
-        return {"schema_version": PROCESS_DIAGNOSIS_SCHEMA_VERSION, "kind": "process_diagnosis",
-                "verdict": self.verdict, "consistent": self.consistent, "z_limit": Z_LIMIT,
-                "checks": [c.to_json() for c in self.checks], "located": list(self.located),
-                "notes": list(self.notes), "found": list(self.found),
-                "candidates": [c.to_json() for c in self.candidates], "analysis": self.analysis.to_json()}
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> ProcessDiagnosis:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        # version 1 (before issue 36) had no effects: read for one release
-        data = check_schema_version(data, "process diagnosis JSON", range(1, PROCESS_DIAGNOSIS_SCHEMA_VERSION + 1))
-        try:
-            return cls(GeneralAnalysis.from_json(data["analysis"]),
-                       tuple(TestCheck.from_json(c) for c in data["checks"]), str(data["verdict"]),
-                       tuple(str(s) for s in data.get("located", [])), tuple(str(s) for s in data.get("notes", [])),
-                       tuple(EffectFit.from_json(c) for c in data.get("candidates", [])),
-                       tuple(str(s) for s in data.get("found", [])))
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
-            raise InputError(f"process diagnosis JSON: bad or missing field ({err})") from None
 
 
 def _finite(x: float) -> float | None:

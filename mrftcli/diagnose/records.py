@@ -11,7 +11,7 @@ inside it live in :mod:`mrftcli.diagnose.rows` (re-exported here), the plant's e
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -22,15 +22,18 @@ from .rows import (CandidateFit, Disagreement, Evidence, HeldOut, PairFit, TestR
                    expect_object)
 
 if TYPE_CHECKING:
+    from ..analyze.general import GeneralAnalysis
     from ..io.logtypes import FlightLog
+    from .checks import TestCheck
     from .fit import CandidateModel, DiagnosedTest, Fit
 
-__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement",
+__all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HELD_OUT_DEFINITION_TESTS", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement",
            "TestRow", "Unexplained", "Identification", "EffectIdentification", "EffectFinding", "FinalModel", "CycleErrors", "DiagnosisFigures",
            "DiagnosisResult"]
 
-#: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away)
-SCHEMA_VERSION = 1
+#: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away). 2: one
+#: record for every family (issue 36): eq. (2)'s diagnosis (1) and the families' ``process_diagnosis`` (1, 2)
+SCHEMA_VERSION = 2
 
 #: how the held-out NRMSE figures are defined (the JSON's ``nrmse_definition``)
 NRMSE_DEFINITION = (
@@ -198,125 +201,226 @@ class DiagnosisFigures:
         return None
 
 
+#: how the families' held-out error is defined (the JSON's ``held_out_definition`` for a family other than eq. (2))
+HELD_OUT_DEFINITION_TESTS = (
+                "RMS over the tests of each test's relative error predicted from the model of the other tests, "
+                "over the views the effect changes (cycle: frequency and amplitude; balance: the mean input's "
+                "residual over h; scatter: ln of the period variance's ratio)"
+)
+
+Row = Any  # a candidate row: eq. (2)'s CandidateFit / PairFit, or the families' EffectFit
+
+
 @dataclass(frozen=True)
 class DiagnosisResult:
-    """What :func:`diagnose` found.
+    """What :func:`diagnose` found, for every family (one record; issue 36).
+
+    The family's strategy fills its own parts: eq. (2) (``family`` ``"soiptd"``) compares the cycles
+    feature by feature (``identification``, ``tests``, ``unexplained``, ``noise_std``, ``t0``, rows
+    :class:`CandidateFit` / :class:`PairFit` / :class:`EffectFinding` / :class:`Disagreement`); every
+    other family checks each test held out (``checks``, ``analysis``, ``notes``, rows
+    :class:`~mrftcli.diagnose.effects.EffectFit`, ``located`` as sentences). The parts of the other
+    strategy are empty (None in the JSON).
 
     Attributes
     ----------
     path, loop : str
         The log and loop.
-    Tp : float
-        The propulsion time constant used [s].
-    effects : list of EffectFinding
-        Effects the evidence supports (empty when the linear model explains the log).
-    candidates : list of CandidateFit
-        Every candidate's evidence and held-out scores (including the rejected ones).
-    second_effect_candidates : list of PairFit
-        When an effect was found: every other candidate fitted together with it (``with``), with its
-        evidence and held-out scores against that effect's model (a second effect is reported when it
-        passes the same rules). When the first effect already explains the held-out cycles, a
-        candidate whose probe (``probe_delta_chi2``) is too small is listed with ``delta_bic`` None
-        and a ``status``.
-    located : list of Disagreement
-        Where the base model disagrees with the recording, largest first.
-    identification : Identification
-        The linear fit, per found effect the refit that accounts for it (and on the recorded waveform
-        where the refinement models it), analyze's model of the log when known, and the one estimate
-        to take (``recommended``).
-    tests : list of TestRow
-        Per test: beta (nominal, effective up/down), h, bias, cycles used, times.
-    noise_std : float
-        Sensor noise estimated from the residual of the cycle projections [output units].
+    family : str
+        The model's family (``"soiptd"``: eq. (2)).
     summary : str
-        One sentence.
+        The first line: the effects found (with the held-out error before and after), consistent,
+        or unexplained with where the residual sits.
+    Tp : float or None
+        Eq. (2): the propulsion time constant used [s].
+    effects : list
+        The effects the evidence supports, in order (empty when the linear model explains the log):
+        eq. (2)'s :class:`EffectFinding`, the families' ``EffectFit`` rows.
+    candidates : list
+        Every candidate alone with its evidence and held-out scores (including the rejected ones).
+    second_effect_candidates : list
+        When an effect was found: every other candidate fitted together with it (``with``), against
+        that effect's model (a second effect is reported when it passes the same rules). Eq. (2): when
+        the first effect already explains the held-out cycles, a candidate whose probe
+        (``probe_delta_chi2``) is too small is listed with ``delta_bic`` None and a ``status``.
+    located : list
+        Where the base model disagrees with the recording, largest first (eq. (2):
+        :class:`Disagreement`; the families: sentences with units and sigma).
+    identification : Identification or None
+        Eq. (2): the linear fit, per found effect the refit that accounts for it (and on the recorded
+        waveform where the refinement models it), analyze's model of the log when known, and the one
+        estimate to take (``recommended``). The families: their ``analysis`` holds the identification.
+    tests : list of TestRow
+        Eq. (2): per test beta (nominal, effective up/down), h, bias, cycles used, times.
+    noise_std : float or None
+        Eq. (2): sensor noise estimated from the residual of the cycle projections [output units].
+    warnings, notes : list of str
+        What the reader needs to weigh the result (the families' notes: what is not checked).
     unexplained : Unexplained or None
-        The mismatch that no candidate (or pair) explains, when the linear model is rejected on the
-        fitting and the held-out cycles and the model finally chosen still is on the held-out ones
-        (chi^2 p-value below ``UNEXPLAINED_P``): ``what``, ``after`` (the model it remains after),
-        ``held_out_feature_chi2`` / ``held_out_features`` / ``p_value``, ``held_out_nrmse_raw``,
-        ``tests`` (numbered from 1), ``largest`` (test, feature, z), ``segments`` (times from the log
-        start, cycles from 1, worse half-cycle), ``harmonics`` (relative G(jk Omega) errors),
-        ``worse_half``, ``best_candidate``. None otherwise; ``effects`` keeps the named findings only.
+        Eq. (2): the mismatch that no candidate (or pair) explains, when the linear model is rejected on
+        the fitting and the held-out cycles and the model finally chosen still is on the held-out ones
+        (chi^2 p-value below ``UNEXPLAINED_P``): ``what``, ``after``, ``held_out_feature_chi2`` /
+        ``held_out_features`` / ``p_value``, ``held_out_nrmse_raw``, ``tests`` (numbered from 1),
+        ``largest``, ``segments``, ``harmonics``, ``worse_half``, ``best_candidate``. (The families say
+        it in ``summary``: "unexplained ... beyond it".)
     t0 : float
-        Log start [s] (the first sample of any series); ``*_rel`` times in ``tests`` and ``located``
-        are from it, as ``analyze`` shows them (absolute ``t_start``/``t_end`` are log times).
+        Log start [s]; ``*_rel`` times in ``tests`` and ``located`` are from it.
+    checks : list of TestCheck
+        The families: each test against the model of the other tests and of all tests.
+    analysis : GeneralAnalysis or None
+        The families: ``analyze --model``'s record of the same log.
     figures : DiagnosisFigures or None
-        What :mod:`mrftcli.report.diagnosis` draws (the tests, models and fits; not JSON): None on a
-        result read back with :meth:`from_json`.
+        Eq. (2): what :mod:`mrftcli.report.diagnosis` draws (not JSON): None on a result read back.
     schema_version : int
         The version of :meth:`to_json`'s layout (:data:`SCHEMA_VERSION`).
     """
 
     path: str
     loop: str
-    Tp: float
-    effects: list[EffectFinding]
-    candidates: list[CandidateFit]
-    located: list[Disagreement]
-    identification: Identification
-    tests: list[TestRow]
-    noise_std: float
     summary: str
+    family: str = "soiptd"
+    Tp: float | None = None
+    effects: list[Row] = field(default_factory=list)
+    candidates: list[Row] = field(default_factory=list)
+    located: list[Any] = field(default_factory=list)
+    identification: Identification | None = None
+    tests: list[TestRow] = field(default_factory=list)
+    noise_std: float | None = None
     warnings: list[str] = field(default_factory=list)
-    second_effect_candidates: list[PairFit] = field(default_factory=list)
+    second_effect_candidates: list[Row] = field(default_factory=list)
     unexplained: Unexplained | None = None
     t0: float = 0.0
+    notes: list[str] = field(default_factory=list)
+    checks: list[TestCheck] = field(default_factory=list)
+    analysis: GeneralAnalysis | None = field(default=None, compare=False)
     figures: DiagnosisFigures | None = field(default=None, repr=False, compare=False)
     schema_version: int = SCHEMA_VERSION
 
+    @property
+    def soiptd(self) -> bool:
+        """Eq. (2)'s strategy (cycle features) rather than the families' (tests held out)."""
+        return self.family == "soiptd"
+
+    @property
+    def found(self) -> tuple[str, ...]:
+        """The names of the effects found, in order."""
+        return tuple(e.name for e in self.effects)
+
+    @property
+    def consistent(self) -> bool | None:
+        """The families: no test disagrees with the model beyond ``Z_LIMIT`` (None for eq. (2))."""
+        return None if self.soiptd else not any(c.disagrees for c in self.checks)
+
     def to_dict(self) -> dict[str, Any]:
-        """The ``--json`` output (and the batch record's ``diagnosis``)."""
+        """The ``--json`` output without its version (the batch record's ``diagnosis``)."""
+        from .checks import Z_LIMIT
+
+        feature = self.soiptd
         return {
+            "kind": "diagnosis",
+            "family": self.family,
             "path": self.path,
             "loop": self.loop,
             "Tp": self.Tp,
             "summary": self.summary,
-            "effects": [e.to_dict() for e in self.effects],
-            "located": [d.to_dict() for d in self.located],
-            "identification": self.identification.to_json(),
-            "candidates": [c.to_dict() for c in self.candidates],
-            "second_effect_candidates": [c.to_dict() for c in self.second_effect_candidates],
+            "found": list(self.found),
+            "effects": [e.to_dict() if feature else e.to_json() for e in self.effects],
+            "located": [d.to_dict() if feature else d for d in self.located],
+            "identification": None if self.identification is None else self.identification.to_json(),
+            "candidates": [c.to_dict() if feature else c.to_json() for c in self.candidates],
+            "second_effect_candidates": [c.to_dict() if feature else c.to_json() for c in self.second_effect_candidates],
             "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
             "t0": self.t0,
             "tests": [t.to_dict() for t in self.tests],
             "noise_std": self.noise_std,
-            "nrmse_definition": NRMSE_DEFINITION,
+            "nrmse_definition": NRMSE_DEFINITION if feature else HELD_OUT_DEFINITION_TESTS,
             "warnings": self.warnings,
+            "notes": self.notes,
+            "consistent": self.consistent,
+            "z_limit": None if feature else Z_LIMIT,
+            "checks": [c.to_json() for c in self.checks],
+            "analysis": None if self.analysis is None else self.analysis.to_json(),
         }
 
     def to_json(self) -> dict[str, Any]:
-        """:meth:`to_dict` with the ``schema_version`` (what :meth:`from_json` reads)."""
+        """:meth:`to_dict` with the ``schema_version`` (what ``diagnose --json`` writes and :meth:`from_json` reads)."""
         return {"schema_version": self.schema_version, **self.to_dict()}
 
     @classmethod
-    def from_json(cls, data: dict[str, Any]) -> DiagnosisResult:
-        """The result of a :meth:`to_json` dict (without its figures).
+    def from_json(cls, data: Any) -> DiagnosisResult:
+        """The result of a :meth:`to_json` dict (without its figures), of this version or an earlier one.
+
+        Read for one release: version 1 of eq. (2)'s diagnosis (``diagnose --json`` before issue 36
+        wrote it without ``schema_version``, as the batch records still hold it), and the families'
+        ``process_diagnosis`` of versions 1 (no effects) and 2.
 
         Raises
         ------
         InputError
-            Not a diagnosis of this schema version, or a key missing or of the wrong kind.
+            Not a diagnosis of a version this one reads, or a key missing or of the wrong kind.
         """
-        check_schema_version(data, "diagnosis", SCHEMA_VERSION, fix="rerun mrft-ident diagnose")
+        if isinstance(data, dict) and data.get("kind") == "process_diagnosis":
+            return _from_process_json(data)
+        data = check_schema_version(data, "diagnosis", (1, SCHEMA_VERSION), missing=1,
+                                    fix="rerun mrft-ident diagnose")
         try:
-            unexplained = data["unexplained"]
+            if data.get("family", "soiptd") != "soiptd":
+                return _from_family_json(data)
+            unexplained, ident = data["unexplained"], data["identification"]
             return cls(
                 path=str(data["path"]), loop=str(data["loop"]), Tp=float(data["Tp"]),
                 effects=[EffectFinding.from_dict(e) for e in expect_list(data["effects"], "effects")],
                 candidates=[CandidateFit.from_dict(c) for c in expect_list(data["candidates"], "candidates")],
                 located=[Disagreement.from_dict(d) for d in expect_list(data["located"], "located")],
-                identification=Identification.from_json(data["identification"], str(data["loop"])),
+                identification=Identification.from_json(ident, str(data["loop"])),
                 tests=[TestRow.from_dict(t) for t in expect_list(data["tests"], "tests")], noise_std=float(data["noise_std"]),
                 summary=str(data["summary"]), warnings=[str(w) for w in expect_list(data["warnings"], "warnings")],
                 second_effect_candidates=[PairFit.from_dict(c) for c in expect_list(data["second_effect_candidates"],
                                                                                "second_effect_candidates")],
                 unexplained=None if unexplained is None else Unexplained.from_dict(unexplained),
-                t0=float(data["t0"]),
+                t0=float(data["t0"]), notes=[str(n) for n in expect_list(data.get("notes", []), "notes")],
             )
         except InputError:
             raise  # a row's own one-line message
         except KeyError as err:
             raise InputError(f"the diagnosis has no {err.args[0]!r}; rerun mrft-ident diagnose") from None
-        except (TypeError, ValueError) as err:
+        except (TypeError, ValueError, AttributeError) as err:
             raise InputError(f"the diagnosis JSON is malformed ({err})".replace("\n", " ")) from None
+
+
+def _family_result(data: Mapping[str, Any], summary: str, rows: list[Any]) -> DiagnosisResult:
+    """The families' record from the JSON keys both their layouts share (``rows``: every EffectFit, in order)."""
+    from ..analyze.general import GeneralAnalysis
+    from .checks import TestCheck
+    from .effects import EffectFit
+
+    fits = [EffectFit.from_json(c) for c in rows]
+    analysis = GeneralAnalysis.from_json(data["analysis"])
+    found = [str(s) for s in data.get("found", [])]
+    effects: list[EffectFit] = []
+    for name in found:  # each named effect's row: alone, then on top of those before it
+        prior = "+".join(f.name for f in effects)
+        effects += [c for c in fits if c.name == name and c.with_ == prior][:1]
+    return DiagnosisResult(
+        path=str(data.get("path", analysis.path)), loop=str(data.get("loop", analysis.loop)), summary=summary,
+        family=str(data.get("family", data["analysis"].get("model", "declared"))), effects=effects,
+        candidates=[c for c in fits if not c.with_], second_effect_candidates=[c for c in fits if c.with_],
+        located=[str(s) for s in data.get("located", [])], warnings=[str(w) for w in data.get("warnings", [])],
+        notes=[str(s) for s in data.get("notes", [])], t0=float(data.get("t0", analysis.t0)),
+        checks=[TestCheck.from_json(c) for c in data["checks"]], analysis=analysis)
+
+
+def _from_family_json(data: Mapping[str, Any]) -> DiagnosisResult:
+    """A family's diagnosis of this version (the caller maps its errors to one line)."""
+    return _family_result(data, str(data["summary"]),
+                          [*expect_list(data["candidates"], "candidates"),
+                           *expect_list(data["second_effect_candidates"], "second_effect_candidates")])
+
+
+def _from_process_json(data: Mapping[str, Any]) -> DiagnosisResult:
+    """The families' ``process_diagnosis`` of versions 1 (no effects) and 2, before the one record (issue 36)."""
+    data = check_schema_version(data, "process diagnosis JSON", (1, 2))
+    try:
+        return _family_result(data, str(data["verdict"]), list(data.get("candidates", [])))
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise InputError(f"process diagnosis JSON: bad or missing field ({err})") from None

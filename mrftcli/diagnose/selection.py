@@ -51,7 +51,7 @@ from ..io.logtypes import FlightLog
 from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .candidates import LinearFit, fit_linear, search_candidates
-from .checks import ProcessDiagnosis, check_test, locate as locate_checks, measured_waveform, misfit, verdict
+from .checks import check_test, locate as locate_checks, measured_waveform, misfit, verdict
 from .effects import select as select_effects_on, as_test_data
 from .fit import plant_params
 from .heldout import BIC_THRESHOLD, significant
@@ -68,7 +68,7 @@ from .screen import Screen, screen_log
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "ProcessDiagnosis", "EffectFinding",
+__all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "EffectFinding",
            "BIC_THRESHOLD"]
 
 
@@ -136,16 +136,16 @@ def diagnose(
     relay: RelayOptions = RelayOptions(),
     windows: Sequence[tuple[float, float]] = (),
     min_stable_cycles: int = 3,
-) -> DiagnosisResult | ProcessDiagnosis:
+) -> DiagnosisResult:
     """Locate model mismatch in a relay-test log, name the missing physics, fit it, compare.
 
     One driver for every family; the family chooses the strategy. Eq. (2) (a
     :class:`~mrftcli.mrft.model.LoopModel`, ``soiptd_model(Tp)``: Tp read from the model) compares
     the cycles feature by feature with eq. (2)'s periodic solutions (the stages of the module
-    docstring) and returns a :class:`DiagnosisResult`; every other family (``fopdt``, ``sopdt``,
-    ``ipdt``, ``foipdt``, a declared model) is checked test by test (:mod:`.checks`) and runs the
-    library of physics on the model object (:mod:`.effects`), returning a
-    :class:`~mrftcli.diagnose.checks.ProcessDiagnosis`.
+    docstring); every other family (``fopdt``, ``sopdt``, ``ipdt``, ``foipdt``, a declared model) is
+    checked test by test (:mod:`.checks`) and runs the library of physics on the model object
+    (:mod:`.effects`). Both return the one :class:`DiagnosisResult` (its ``family`` says which parts
+    are filled).
 
     Parameters
     ----------
@@ -193,7 +193,7 @@ def diagnose(
 
 def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                      windows: Sequence[tuple[float, float]], min_stable_cycles: int,
-                     progress: Progress | None) -> ProcessDiagnosis:
+                     progress: Progress | None) -> DiagnosisResult:
     """Every family but eq. (2): the analysis, the checks per test, the library of physics, the verdict."""
     say = _Stages(progress, 3)
     say("analysing the tests")
@@ -228,8 +228,11 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
         first += (f"; unexplained beyond it: each test's cycle predicted from the others misses by "
                   f"{100 * chosen.cycle_error_left:.0f} % (RMS; the cycles' own scatter: "
                   f"{100 * chosen.cycle_precision:.1f} %); the linear model's disagreements are below")
-    return ProcessDiagnosis(analysis, checks, first, located, notes, tuple(chosen.rows),
-                            tuple(f.name for f in chosen.found))
+    return DiagnosisResult(
+        path=str(flight.path), loop=flight.loop, summary=first, family=model.family, effects=list(chosen.found),
+        candidates=[r for r in chosen.rows if not r.with_], second_effect_candidates=[r for r in chosen.rows if r.with_],
+        located=list(located), warnings=list(analysis.warnings), notes=list(notes), t0=analysis.t0,
+        checks=list(checks), analysis=analysis)
 
 
 def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | None, progress: Progress | None,
@@ -263,7 +266,7 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
                                cycle_errors=located.cycle_errors, harmonics=located.harmonics)
     say.finish()
     return DiagnosisResult(
-        path=str(flight.path), loop=flight.loop, Tp=float(Tp), effects=effects,
+        path=str(flight.path), loop=flight.loop, Tp=float(Tp), effects=effects, family="soiptd",
         # the parameters' units spelt in the loop's unit, as the terminal prints them (issue 26)
         candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in cand_rows],
         located=items, identification=_identification(flight, Tp, screen, linear, effects, analysis, warnings),

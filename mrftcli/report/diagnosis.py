@@ -293,8 +293,10 @@ def _effect_sections(result: DiagnosisResult) -> list[str]:
 
 def _identification_section(result: DiagnosisResult) -> list[str]:
     """Every estimate of the plant, the one to take marked, and why analyze's differs."""
-    body = []
+    body: list[str] = []
     ident = result.identification
+    if ident is None:  # a family's diagnosis: its analysis holds the identification (refused by write_diagnosis_report)
+        return body
     body.append("<h2>Identification</h2>")
     rec = ident.recommended
     body.append(html_table(["model", "Td [s]", "tau [ms]", f"K [{esc(gain_unit(result.loop))}]", ""],

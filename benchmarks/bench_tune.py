@@ -103,7 +103,7 @@ def main() -> None:
         except Exception as err:  # noqa: BLE001 - a benchmark reports and goes on
             print(f"plant {k}: analysis failed: {err}")
             continue
-        post = Posterior(Tp, r.bootstrap["Td"], r.bootstrap["tau"], r.bootstrap["K"], source="bootstrap")
+        post = Posterior(r.model, r.bootstrap["Td"], r.bootstrap["tau"], r.bootstrap["K"], source="bootstrap")
         _check(f"plant {k} {loop} Td {Td:.2f} tau {tau * 1e3:.0f}ms", r.model, post, 200.0, rows_rand)
     for label, rows in (("Table III platforms", rows_t3), (f"random plants (seed {args.seed})", rows_rand)):
         if not rows:

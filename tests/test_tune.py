@@ -173,7 +173,8 @@ def test_hear_export_fields():
 def test_posterior_95_set_holds_95_percent_of_gaussian_draws():
     rng = np.random.default_rng(5)
     n = 4000
-    p = Posterior(0.04, np.exp(rng.normal(0, 0.3, n)), np.exp(rng.normal(-3.5, 0.1, n)), np.full(n, 2.0))
+    p = Posterior(LoopModel(0.04, 1.0, 0.03, 2.0), np.exp(rng.normal(0, 0.3, n)), np.exp(rng.normal(-3.5, 0.1, n)),
+                  np.full(n, 2.0))
     assert p.in_set().mean() == pytest.approx(0.95, abs=0.015)
 
 

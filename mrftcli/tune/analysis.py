@@ -68,13 +68,13 @@ def posterior_from_analysis(result: AnalysisResult, n: int = 400, seed: int = 0)
         cov = np.asarray(ref.fit.covariance, float)
         p = rng.multivariate_normal(np.asarray(ref.fit.p, float), cov, size=n, method="eigh")
         sign = -1.0 if result.K.value * ref.fit.p[2] < 0 else 1.0  # the fit's K carries the loop sign
-        return Posterior(result.Tp, np.exp(p[:, 0]), np.maximum(p[:, 1], 0.0), sign * p[:, 2],
+        return Posterior(result.model, np.exp(p[:, 0]), np.maximum(p[:, 1], 0.0), sign * p[:, 2],
                          source="waveform refinement: normal draws from its Gauss-Newton covariance of "
                                 "(ln Td, tau, K), correlation kept")
     b = result.bootstrap
     # row 0 of the bootstrap is the estimate on the data themselves, the draws follow
     Td, tau, K = (np.asarray(b.get(k, []), float)[1:] for k in ("Td", "tau", "K"))
-    return Posterior(result.Tp, Td, tau, K, source="analyze bootstrap over stable cycles (joint draws)")
+    return Posterior(result.model, Td, tau, K, source="analyze bootstrap over stable cycles (joint draws)")
 
 
 def model_from_result_json(data: Mapping[str, Any] | AnalysisResult, known: LoopModel, n: int = 200,

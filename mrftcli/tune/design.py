@@ -139,19 +139,19 @@ _OPT_DRAWS = 30
 
 @dataclass(frozen=True)
 class Posterior:
-    """Draws of the identified parameters (Tp known).
+    """Draws of eq. (2)'s identified parameters; Tp (known) travels inside ``model``.
 
     Attributes
     ----------
-    Tp : float
-        Propulsion time constant [s].
+    model : LoopModel
+        The eq. (2) model the draws are of (its Tp is every draw's; its Td, tau, K the point estimate).
     Td, tau, K : numpy.ndarray
         Joint draws [s, s, -] (the identification's bootstrap, or drawn from a stated spread).
     source : str
         Where the draws come from (for the report).
     """
 
-    Tp: float
+    model: LoopModel
     Td: np.ndarray
     tau: np.ndarray
     K: np.ndarray
@@ -170,7 +170,8 @@ class Posterior:
 
     def models(self, index=None) -> list[LoopModel]:
         idx = range(self.n) if index is None else index
-        return [LoopModel(self.Tp, float(self.Td[i]), float(self.tau[i]), float(self.K[i])) for i in idx]
+        Tp = self.model.Tp
+        return [LoopModel(Tp, float(self.Td[i]), float(self.tau[i]), float(self.K[i])) for i in idx]
 
     def in_set(self) -> np.ndarray:
         """Mask of the draws in the 95 % set: Mahalanobis distance in (ln Td, ln tau, ln |K|) within chi2(3, 0.95).
@@ -205,7 +206,7 @@ class Posterior:
             s2 = math.log(1.0 + (std / abs(mean)) ** 2)
             return np.sign(mean) * abs(mean) * np.exp(rng.normal(-0.5 * s2, math.sqrt(s2), n))
 
-        return cls(model.Tp, draw(model.Td, Td_std), draw(model.tau, tau_std), draw(model.K, K_std),
+        return cls(model, draw(model.Td, Td_std), draw(model.tau, tau_std), draw(model.K, K_std),
                    source or "log-normal draws from means and standard deviations (no correlation)")
 
 
@@ -399,7 +400,7 @@ class TuneResult:
                 draws = [np.asarray(_decode(pd[k]), float) for k in ("Td", "tau", "K")]
             except (TypeError, ValueError) as err:
                 raise InputError(f"{what}: malformed posterior draws ({err})") from err
-            post = Posterior(model.Tp, draws[0], draws[1], draws[2], str(pd.get("source", "")))
+            post = Posterior(model, draws[0], draws[1], draws[2], str(pd.get("source", "")))
         designs, notes, cycle = data.get("designs"), data.get("notes", []), data.get("rule_cycle")
         if not isinstance(designs, list) or not isinstance(notes, list) or not isinstance(cycle, dict):
             raise InputError(f"{what}: 'designs' and 'notes' must be lists, 'rule_cycle' an object")

@@ -15,12 +15,11 @@ import numpy as np
 import pytest
 
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, RelayOptions, analyze_flight, analyze_path
-from mrftcli.analyze.general import GeneralAnalysis
 from mrftcli.errors import InputError, InsufficientDataError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.families import family_model
 from mrftcli.mrft.identify import TestMeasurement, identify
-from mrftcli.mrft.model import soiptd_model
+from mrftcli.mrft.model import LoopModel, soiptd_model
 
 sys.path.insert(0, str(Path(__file__).parent))
 from process_sim import Window, simulate, write_csv  # noqa: E402
@@ -53,7 +52,7 @@ def eq2_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_eq2_through_the_model_object_finds_the_plant(eq2_log: Path) -> None:
     result = analyze_path(eq2_log, soiptd_model(PLANT["Tp"]), read=READ,
                           options=AnalyzeOptions(n_bootstrap=50, refine_waveform=False))
-    assert isinstance(result, AnalysisResult) and result.Tp == PLANT["Tp"]
+    assert isinstance(result, AnalysisResult) and result.kind == "soiptd" and result.Tp == PLANT["Tp"]
     assert result.model.Td == pytest.approx(PLANT["Td"], rel=0.05)
     assert result.model.tau == pytest.approx(PLANT["tau"], abs=2e-3)
 
@@ -82,7 +81,7 @@ def test_a_family_model_takes_the_direct_fit_with_the_relay_stated(tmp_path: Pat
                "fopdt.csv")
     result = analyze_path(log, family_model("fopdt"), read=READ,
                           options=AnalyzeOptions(relay=RelayOptions("mrft")))
-    assert isinstance(result, GeneralAnalysis) and len(result.tests) == 2
+    assert result.kind == "family" and len(result.tests) == 2
     assert all(t.relay.kind == "mrft" for t in result.tests)
     assert result.identification is not None
     values = {e.name: e.value for e in result.identification.estimates}
@@ -104,4 +103,6 @@ def test_identify_takes_tp_and_k_inside_the_model() -> None:
     one = identify(tests[1:], soiptd_model(0.1, K=PLANT["K"]))
     assert one.model.Td == pytest.approx(PLANT["Td"], rel=1e-2) and one.model.tau == pytest.approx(0.06, abs=1e-3)
     with pytest.raises(InputError, match="Tp known"):
+        identify(tests, LoopModel(0.1, 1.0, 0.0, known=frozenset()))
+    with pytest.raises(InputError, match="fopdt model is identified from ResponsePoint"):
         identify(tests, family_model("fopdt"))  # type: ignore[arg-type]

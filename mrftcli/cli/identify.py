@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -61,28 +61,55 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
     Example: mrft-ident identify --tp 0.1 --test -0.4:0.70564 --test -0.7:1.01884
     """
     from ..mrft.identify import identify as run
-    from ..mrft.model import soiptd_model
+    from ..mrft.identify import strategy_of
 
-    if model_name != "soiptd":
-        _identify_process(model_name, params, ranges, points, tests, json_target)
-        return
-    if Tp is None or not tests or points or params or ranges:
-        raise click.UsageError("--model soiptd takes --tp and two or more --test BETA:FREQ_HZ[:AMPLITUDE:H] "
-                               "(--point, --param and --range are for process models)")
-
-    measured = [_parse_test(t) for t in tests]
+    model = _model(Tp, model_name, params, ranges, tests, points)
+    # the family's strategy names what it identifies from: eq. (2) MRFT tests, the process families response points
+    if strategy_of(model)[0] == "tests":
+        data: list[Any] = [_parse_test(t) for t in tests]
+        options = {"rate_hz": rate_hz}
+    else:
+        data, options = [_parse_point(p) for p in points], {}
     try:
-        result = run(measured, soiptd_model(Tp), rate_hz=rate_hz)
+        result = run(data, model, **options)
     except InputError as err:
-        if len({t.beta for t in measured}) < 2:
+        if tests and len({t.beta for t in data}) < 2:
             # tests given but too few to determine Td and tau: the documented exit code 6, not a bad option
             raise InsufficientDataError(str(err)) from None
         raise
     if json_target:
         dump_json(result.to_json(), json_target)
-    if json_target == "-":
+    if json_target != "-":
+        _echo(result, len(data))
+
+
+def _model(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...],
+           tests: tuple[str, ...], points: tuple[str, ...]) -> Any:
+    """The model to identify (eq. (2) at --tp, or a process family), its data options checked."""
+    from ..mrft.model import soiptd_model
+
+    if model_name == "soiptd":
+        if Tp is None or not tests or points or params or ranges:
+            raise click.UsageError("--model soiptd takes --tp and two or more --test BETA:FREQ_HZ[:AMPLITUDE:H] "
+                                   "(--point, --param and --range are for process models)")
+        return soiptd_model(Tp)
+    if tests or not points:
+        raise click.UsageError(f"--model {model_name} identifies from --point FREQ_HZ:GAIN:PHASE_DEG "
+                               "(measured on a log by analyze --model); --test is for --model soiptd")
+    return build_model(model_name, params, ranges)
+
+
+def _echo(result: Any, n_data: int) -> None:
+    """The identification as text: eq. (2)'s estimates and tests, or the family's parameter table."""
+    from ..mrft.identify import IdentificationResult
+
+    if not isinstance(result, IdentificationResult):
+        click.echo(f"model {result.model.family}: G(s) = {result.model.structure}  [direct fit to {n_data} point(s)]")
+        click.echo("\n".join(format_estimates(result)))
+        if result.advice:
+            click.echo(f"not determined: {result.advice}")
         return
-    click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {Tp:g} s (known)  [{result.method}]")
+    click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {result.Tp:g} s (known)  [{result.method}]")
     click.echo(f"{'Td':<4} {_fmt(result.Td, 1.0, ' s')}")
     click.echo(f"{'tau':<4} {_fmt(result.tau, 1e3, ' ms')}")
     click.echo(f"{'K':<4} {_fmt(result.K)}")
@@ -113,23 +140,3 @@ def _parse_point(text: str) -> ResponsePoint:
         raise InputError(f"--point {text!r}: every field must be a number") from None
     se_rel, se_deg = (nums[3], nums[4]) if len(nums) == 5 else (0.01, 0.6)
     return ResponsePoint(2 * math.pi * nums[0], nums[1], math.radians(nums[2]), se_rel, math.radians(se_deg))
-
-
-def _identify_process(model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], points: tuple[str, ...],
-                      tests: tuple[str, ...], json_target: str | None) -> None:
-    """``identify --model NAME --point ...``."""
-    from ..mrft.identify_lti import identify_lti
-
-    if tests or not points:
-        raise click.UsageError(f"--model {model_name} identifies from --point FREQ_HZ:GAIN:PHASE_DEG "
-                               "(measured on a log by analyze --model); --test is for --model soiptd")
-    model = build_model(model_name, params, ranges)
-    result = identify_lti(model, [_parse_point(p) for p in points])
-    if json_target:
-        dump_json(result.to_json(), json_target)
-    if json_target == "-":
-        return
-    click.echo(f"model {model.family}: G(s) = {model.structure}  [direct fit to {len(points)} point(s)]")
-    click.echo("\n".join(format_estimates(result)))
-    if result.advice:
-        click.echo(f"not determined: {result.advice}")

@@ -32,7 +32,7 @@ and the sampled MRFT rule (``checks.md`` section 2) checked sample by sample, as
 orbits and its centre are returned in a :class:`~mrftcli.mrft.lprs.LimitCycle`, so
 :func:`~mrftcli.mrft.lprs.mrft_limit_cycle` (``rate_hz`` given) takes a :class:`CascadeModel`.
 
-:func:`mrftcli.mrft.cascade_identify.identify_cascade` finds Td and tau (and K when not known) from the outer tests' mean
+:func:`mrftcli.mrft.identify.identify` (the strategy :func:`mrftcli.mrft.cascade_identify.fit_cascade_cycles`) finds Td and tau (and K when not known) from the outer tests' mean
 frequencies and amplitudes through that exact cycle; the inner model's uncertainty enters as draws
 of the inner loop, each solved again.
 """
@@ -400,6 +400,8 @@ class CascadeModel:
 
     family: ClassVar[str] = "cascade"
     structure: ClassVar[str] = "K T_inner(s) Td e^{-tau s} / (s (Td s + 1))"
+    #: the family's strategy in :func:`mrftcli.mrft.identify.identify`: the exact sampled cycle of the cascade
+    identification: ClassVar[str] = "cascade-cycles"
 
     inner: InnerLoop
     Td: float

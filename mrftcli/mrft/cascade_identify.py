@@ -1,4 +1,5 @@
-"""Identification of an outer loop through its closed inner loop (the cascade of :mod:`mrftcli.mrft.cascade`).
+"""Identification of an outer loop through its closed inner loop (the cascade of :mod:`mrftcli.mrft.cascade`):
+the ``"cascade-cycles"`` strategy of :func:`mrftcli.mrft.identify.identify`.
 
 Td and tau (and K when it is not known) are found from the outer MRFT tests' mean frequencies and
 amplitudes through the exact sampled limit cycle of the whole cascade
@@ -24,7 +25,8 @@ from .identify import TestMeasurement
 from .parameter import ParameterEstimate
 from .lprs import LimitCycle
 
-__all__ = ["CascadeIdentification", "CascadeTestFit", "identify_cascade", "CASCADE_ID_SCHEMA_VERSION"]
+__all__ = ["CascadeIdentification", "CascadeTestFit", "fit_cascade_cycles", "CASCADE_ID_SCHEMA_VERSION", "TD_BOUNDS",
+           "TAU_BOUNDS"]
 
 FloatArray = NDArray[np.float64]
 _INF = math.inf
@@ -38,6 +40,8 @@ _Z95 = 1.959964
 _SE_FLOOR = 5e-3
 #: floor of the standard error of a test's switch level over its amplitude [-] (about 0.7 ms of tau at 2 rad/s)
 _SE_LEVEL_FLOOR = 1e-3
+#: the outer Td [s] and tau [s] searched (the set I when the model's ``ranges`` do not narrow it)
+TD_BOUNDS, TAU_BOUNDS = (0.05, 50.0), (0.0, 0.5)
 
 
 @dataclass(frozen=True)
@@ -84,7 +88,7 @@ class CascadeTestFit:
 
 @dataclass(frozen=True)
 class CascadeIdentification:
-    """The outer loop identified through its inner loop (:func:`identify_cascade`).
+    """The outer loop identified through its inner loop (:func:`fit_cascade_cycles`).
 
     Attributes
     ----------
@@ -273,12 +277,12 @@ def _weights(tests: Sequence[TestMeasurement], cycles: Sequence[LimitCycle]) -> 
     return np.array(se_f), np.array(se_a)
 
 
-def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz: float, *, K: float | None = 1.0,
-                     Td_bounds: tuple[float, float] = (0.05, 50.0), tau_bounds: tuple[float, float] = (0.0, 0.5),
-                     inner_draws: Sequence[InnerLoop] = (),
-                     switch_levels: Sequence[tuple[float, float]] | None = None,
-                     tau_timing_std: float = 0.0) -> CascadeIdentification:
-    """Td and tau (and K when ``K`` is None) of the outer loop from its MRFT tests, through the exact cycle.
+def fit_cascade_cycles(tests: Sequence[TestMeasurement], model: CascadeModel, rate_hz: float, *,
+                       inner_draws: Sequence[InnerLoop] = (),
+                       switch_levels: Sequence[tuple[float, float]] | None = None,
+                       tau_timing_std: float = 0.0) -> CascadeIdentification:
+    """The cascade's strategy (:func:`mrftcli.mrft.identify.identify` of a :class:`CascadeModel`): Td and
+    tau (and K when not known) of the outer loop from its MRFT tests, through the exact cycle.
 
     Each test's mean frequency and amplitude are matched, in logarithms and weighted by their
     standard errors, to the centre of the exact sampled cycle of the cascade
@@ -289,17 +293,16 @@ def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz
 
     Parameters
     ----------
-    inner : InnerLoop
-        The inner loop's identified plant (nominal) and its controller during the outer tests.
     tests : sequence of TestMeasurement
         The outer tests: nominal beta, per-cycle frequencies [Hz], amplitudes [output units], h.
+    model : CascadeModel
+        The cascade: its inner loop (the identified plant, nominal, and its controller during the
+        outer tests); K known (the set E: 1 for a commanded acceleration, :data:`G` for a commanded
+        attitude [rad]) or not (two tests at different beta, with amplitudes, are then needed); the
+        ranges of Td [s] and tau [s] (the set I; default :data:`TD_BOUNDS`, :data:`TAU_BOUNDS`).
+        The values of Td, tau (and of an unknown K) are ignored.
     rate_hz : float
         The outer relay's rate [Hz] (the inner controller's or a whole divisor of it).
-    K : float or None
-        The known gain (1 for a commanded acceleration, :data:`G` for a commanded attitude [rad]);
-        None to identify it (two tests at different beta, with amplitudes, are then needed).
-    Td_bounds, tau_bounds : (float, float)
-        The set I of Td [s] and tau [s].
     inner_draws : sequence of InnerLoop
         Draws of the inner loop (its model's uncertainty); empty: the inner model taken as exact.
     switch_levels : sequence of (float, float), optional
@@ -323,6 +326,10 @@ def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz
     InputError
         Bad bounds or rates.
     """
+    inner = model.inner
+    K = model.K if "K" in model.known else None
+    ranges = {name: (lo, hi) for name, lo, hi in model.ranges}
+    Td_bounds, tau_bounds = ranges.get("Td", TD_BOUNDS), ranges.get("tau", TAU_BOUNDS)
     tests = tuple(tests)
     check_positive("rate_hz", rate_hz)
     if not tests:
@@ -422,3 +429,12 @@ def _estimate(name: str, value: float, std: float, low: float, high: float, omeg
     x = math.exp(value)
     lo, hi = math.exp(value - _Z95 * std), math.exp(value + _Z95 * std)
     return ParameterEstimate(x, x * std, lo, hi, unit, 2 * _Z95 * std < 2.0, method=_METHOD, name=name)
+
+
+def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz: float, *, K: float | None = 1.0,
+                     Td_bounds: tuple[float, float] = TD_BOUNDS, tau_bounds: tuple[float, float] = TAU_BOUNDS,
+                     **options: Any) -> CascadeIdentification:
+    """Transition form of :func:`fit_cascade_cycles` (callers move to :func:`mrftcli.mrft.identify.identify`)."""
+    model = CascadeModel(inner, 1.0, 0.0, G if K is None else K, known=frozenset() if K is None else frozenset({"K"}),
+                         ranges=(("Td", *Td_bounds), ("tau", *tau_bounds)))
+    return fit_cascade_cycles(tests, model, rate_hz, **options)

@@ -51,6 +51,8 @@ class _Family:
 
     family: ClassVar[str]
     structure: ClassVar[str]
+    #: the families' strategy in :func:`mrftcli.mrft.identify.identify`: a direct fit to response points
+    identification: ClassVar[str] = "response-points"
     _spec: ClassVar[dict[str, tuple[str, str, tuple[float, float]]]]
     _integrators: ClassVar[int]
     known: frozenset[str] = field(default=frozenset(), repr=False, compare=False, kw_only=True)

@@ -1,7 +1,17 @@
-"""Identify Td, tau (and K) of eq. (2) from measured MRFT limit cycles via the UFM / UGM.
+"""Identification: the one entry point :func:`identify`, and eq. (2)'s strategy (the unit manifolds).
 
-Each test i (beta_i, measured Omega_i) constrains the plant to one curve: scaling the UFM slice at
-the known ``tp = Tp Omega_i`` back to real units (Lemma 3),
+Every model family is identified through :func:`identify` (``identify(data, model, **options)``);
+the family names its strategy (its class's ``identification``, :data:`STRATEGIES`):
+
+* ``"unit-manifolds"`` (eq. (2), :class:`~mrftcli.mrft.model.LoopModel`, Tp known): from MRFT tests'
+  means (:class:`TestMeasurement`), through the UFM/UGM, below;
+* ``"response-points"`` (the process families and a declared structure): a direct fit to the tests'
+  frequency-response points (:func:`mrftcli.mrft.identify_lti.fit_response_points`);
+* ``"cascade-cycles"`` (an outer loop through its inner loop): the tests' means matched to the exact
+  sampled cycle of the cascade (:func:`mrftcli.mrft.cascade_identify.fit_cascade_cycles`).
+
+Eq. (2)'s strategy: each test i (beta_i, measured Omega_i) constrains the plant to one curve:
+scaling the UFM slice at the known ``tp = Tp Omega_i`` back to real units (Lemma 3),
 
     tau_i(Td) = theta_{beta_i}(Tp Omega_i, Td Omega_i) / Omega_i .
 
@@ -9,7 +19,9 @@ Two tests give (Td, tau) at the intersection of their curves (paper Section IV, 
 more a weighted least-squares fit in log-frequency.  The shipped manifolds only *bracket* the
 solution; it is then polished with the exact closed form of :mod:`mrftcli.mrft.lprs`, so grid
 interpolation never limits the accuracy.  K follows from the amplitudes through the UGM (Lemmas 2
-and 4): ``a_i = h_i K Td a_unit(Tp Omega_i, Td Omega_i) / Omega_i``.
+and 4): ``a_i = h_i K Td a_unit(Tp Omega_i, Td Omega_i) / Omega_i``.  The same strategy over a log's
+cycles (a consensus of all the tests' constraints, a bootstrap over cycles) is
+:mod:`mrftcli.mrft.consensus`; its waveform refinement :mod:`mrftcli.mrft.refine`.
 
 Uncertainty: the per-cycle scatter of each test's frequency (and amplitude) gives the standard
 error of its mean; it is propagated by a vectorised Monte Carlo (two tests) or the delta method
@@ -18,9 +30,11 @@ error of its mean; it is propagated by a vectorised Monte Carlo (two tests) or t
 
 from __future__ import annotations
 
+import importlib
+import inspect
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,17 +43,26 @@ from scipy import optimize
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
 from ..validate import check_beta, check_time
+from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
-from .model import LoopModel
+from .model import LoopModel, PlantModel
 from .parameter import ParameterEstimate
 from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
 from .ufm import ManifoldSet, load_manifolds
 
+if TYPE_CHECKING:
+    from .cascade import CascadeModel
+    from .cascade_identify import CascadeIdentification
+
 __all__ = [
     "TestMeasurement",
+    "ResponsePoint",
     "ParameterEstimate",
     "IdentificationResult",
     "identify",
+    "STRATEGIES",
+    "strategy_of",
+    "unit_manifolds",
     "gain_disagreement",
     "GAIN_FLOOR",
     "ufm_slice",
@@ -590,12 +613,126 @@ def _delta_method(inputs: _Inputs, m: _Measured, point: _Point, K_est: Parameter
 
 
 # ----------------------------------------------------------------------------------------------
-# the public entry point
+# the one entry point
 # ----------------------------------------------------------------------------------------------
-def identify(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float | None = None,
-             n_draws: int = 2000, seed: int = 0, spread: str = "sem",
-             manifolds: ManifoldSet | None = None) -> IdentificationResult:
-    """Identify Td and tau (and K) of eq. (2) from MRFT tests at a known Tp.
+#: the identification strategies by the name a model class declares in its ``identification``:
+#: (what the strategy takes, "tests" (:class:`TestMeasurement`) or "points" (:class:`ResponsePoint`),
+#: the module and function that solve)
+STRATEGIES: dict[str, tuple[str, str, str]] = {
+    "unit-manifolds": ("tests", __name__, "unit_manifolds"),
+    "response-points": ("points", "mrftcli.mrft.identify_lti", "fit_response_points"),
+    "cascade-cycles": ("tests", "mrftcli.mrft.cascade_identify", "fit_cascade_cycles"),
+}
+
+
+@overload
+def identify(data: Iterable[TestMeasurement], model: LoopModel, **options: Any) -> IdentificationResult: ...
+@overload
+def identify(data: Iterable[TestMeasurement], model: CascadeModel, **options: Any) -> CascadeIdentification: ...
+@overload
+def identify(data: Sequence[ResponsePoint], model: PlantModel, **options: Any) -> LtiIdentification: ...
+def identify(data: Iterable[Any], model: PlantModel, **options: Any) -> Any:
+    """Identify the unknown parameters of ``model`` (any family) from its relay tests' measurements.
+
+    The model carries what is known (the set E, e.g. eq. (2)'s Tp from a bench test:
+    ``soiptd_model(Tp)``) and the ranges of the rest (the set I); its family names the strategy
+    (:data:`STRATEGIES`), and with it what ``data`` must be.
+
+    Parameters
+    ----------
+    data : iterable of TestMeasurement or of ResponsePoint
+        Eq. (2) and the cascade: the MRFT tests as measured (:class:`TestMeasurement`); the process
+        families and a declared structure: the frequency-response points of the tests' cycles
+        (:class:`~mrftcli.mrft.identify_lti.ResponsePoint`, measured by
+        :func:`mrftcli.analyze.general.response_points`).
+    model : PlantModel
+        The structure to identify, with its known parameters and ranges.
+    **options
+        The strategy's own options: eq. (2)'s ``rate_hz``, ``n_draws``, ``seed``, ``spread``,
+        ``manifolds`` (:func:`unit_manifolds`); the cascade's ``rate_hz``, ``inner_draws``,
+        ``switch_levels``, ``tau_timing_std``
+        (:func:`~mrftcli.mrft.cascade_identify.fit_cascade_cycles`); none for the response points.
+
+    Returns
+    -------
+    IdentificationResult, LtiIdentification or CascadeIdentification
+        The family's record (each with ``model``, the point estimate, and per-parameter
+        :class:`~mrftcli.mrft.parameter.ParameterEstimate` records).
+
+    Raises
+    ------
+    InputError
+        ``data`` of the wrong kind for the family, an option the strategy does not take, bad input.
+    IdentificationError
+        No plant of the structure explains the measurements.
+
+    Examples
+    --------
+    Eq. (2), the paper's example: two tests at beta -0.4 and -0.7 (frequencies in Hz, amplitudes for h = 1):
+
+    >>> from mrftcli.mrft.model import soiptd_model
+    >>> tests = [TestMeasurement(-0.4, 0.705643, amplitude=0.078530, h=1.0),
+    ...          TestMeasurement(-0.7, 1.018843, amplitude=0.035602, h=1.0)]
+    >>> r = identify(tests, soiptd_model(0.1))
+    >>> print(f"Td {r.Td.value:.4f} s, tau {r.tau.value * 1e3:.2f} ms, K {r.K.value:.3f} ({r.method})")
+    Td 0.7042 s, tau 60.00 ms, K 1.420 (intersection)
+
+    Per-cycle frequencies give an uncertainty (Monte Carlo over their standard errors):
+
+    >>> noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058, 0.7056]),
+    ...          TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189, 1.0190])]
+    >>> r = identify(noisy, soiptd_model(0.1), n_draws=200)
+    >>> r.uncertainty, bool(r.Td.ci95_low < r.Td.value < r.Td.ci95_high)
+    ('monte-carlo', True)
+
+    A process family from its response points (two exact points of 2 e^{-0.1 s}/(0.5 s + 1)):
+
+    >>> from mrftcli.mrft.families import FOPDT, family_model
+    >>> from mrftcli.mrft.identify_lti import ResponsePoint
+    >>> G = FOPDT(K=2.0, T=0.5, tau=0.1).frequency_response(np.array([5.0, 15.0]))
+    >>> pts = [ResponsePoint(w, abs(g), float(np.angle(g)), 0.01, 0.01) for w, g in zip([5.0, 15.0], G)]
+    >>> fit = identify(pts, family_model("fopdt"))
+    >>> [round(fit.estimate(n).value, 4) for n in ("K", "T", "tau")]
+    [2.0, 0.5, 0.1]
+    """
+    kind, module, name = strategy_of(model)
+    data = tuple(data)
+    expected = TestMeasurement if kind == "tests" else ResponsePoint
+    if not all(isinstance(d, expected) for d in data):
+        given = sorted({type(d).__name__ for d in data if not isinstance(d, expected)})
+        what = "MRFT tests as measured" if kind == "tests" else "the tests' frequency-response points"
+        raise InputError(f"a {model.family} model is identified from {expected.__name__} records ({what}), "
+                         f"got {', '.join(given)}")
+    solve = getattr(importlib.import_module(module), name)
+    takes = list(inspect.signature(solve).parameters)[2:]
+    other = sorted(set(options) - set(takes))
+    if other:
+        raise InputError(f"identify: {', '.join(other)} not an option of the {model.family} model's strategy "
+                         f"{name} (it takes {', '.join(takes) or 'none'})")
+    return solve(data, model, **options)
+
+
+def strategy_of(model: Any) -> tuple[str, str, str]:
+    """The identification strategy of ``model``'s family (:data:`STRATEGIES`): (data kind, module, function).
+
+    Raises
+    ------
+    InputError
+        Not a plant model.
+    """
+    if not isinstance(model, PlantModel):
+        raise InputError(f"identify takes a plant model (soiptd_model(Tp), family_model(...), ...), got "
+                         f"{type(model).__name__}")
+    return STRATEGIES[getattr(model, "identification", "response-points")]
+
+
+# ----------------------------------------------------------------------------------------------
+# eq. (2)'s strategy, "unit-manifolds"
+# ----------------------------------------------------------------------------------------------
+def unit_manifolds(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float | None = None,
+                   n_draws: int = 2000, seed: int = 0, spread: str = "sem",
+                   manifolds: ManifoldSet | None = None) -> IdentificationResult:
+    """Eq. (2)'s strategy (:func:`identify` of a :class:`LoopModel`): Td and tau (and K) from MRFT tests at a known Tp.
 
     Parameters
     ----------
@@ -637,24 +774,6 @@ def identify(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float 
     IdentificationError
         The measured frequencies admit no plant of eq. (2) in the manifold range.
 
-    Examples
-    --------
-    The paper's example: two tests at beta -0.4 and -0.7 (frequencies in Hz, amplitudes for h = 1):
-
-    >>> from mrftcli.mrft.model import soiptd_model
-    >>> tests = [TestMeasurement(-0.4, 0.705643, amplitude=0.078530, h=1.0),
-    ...          TestMeasurement(-0.7, 1.018843, amplitude=0.035602, h=1.0)]
-    >>> r = identify(tests, soiptd_model(0.1))
-    >>> print(f"Td {r.Td.value:.4f} s, tau {r.tau.value * 1e3:.2f} ms, K {r.K.value:.3f} ({r.method})")
-    Td 0.7042 s, tau 60.00 ms, K 1.420 (intersection)
-
-    Per-cycle frequencies give an uncertainty (Monte Carlo over their standard errors):
-
-    >>> noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058, 0.7056]),
-    ...          TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189, 1.0190])]
-    >>> r = identify(noisy, soiptd_model(0.1), n_draws=200)
-    >>> r.uncertainty, bool(r.Td.ci95_low < r.Td.value < r.Td.ci95_high)
-    ('monte-carlo', True)
     """
     inputs = _check_inputs(tests, model, rate_hz, n_draws, seed, spread)
     ms = manifolds if manifolds is not None else load_manifolds()

@@ -1,4 +1,6 @@
-"""A plant of any structure from the frequency-response points of its relay tests (a direct exact solve).
+"""A plant of any structure from the frequency-response points of its relay tests (a direct exact solve):
+the ``"response-points"`` strategy of :func:`mrftcli.mrft.identify.identify` (the process families, a
+declared structure).
 
 A relay test's stable limit cycle is periodic, so each harmonic k of the output is the plant's
 response to the same harmonic of the relay's square wave: ``G(j k Omega) = Y_k / U_k`` exactly, for
@@ -54,7 +56,7 @@ from .lti_kernel import LagChainKernel
 from .model import PlantModel, model_from_json
 from .parameter import ParameterEstimate
 
-__all__ = ["ResponsePoint", "LtiIdentification", "identify_lti", "LTI_SCHEMA_VERSION",
+__all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
            "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
 
 #: version of :meth:`LtiIdentification.to_json`
@@ -132,7 +134,7 @@ class ResponsePoint:
 
 @dataclass(frozen=True)
 class LtiIdentification:
-    """Outcome of :func:`identify_lti`.
+    """Outcome of :func:`fit_response_points` (:func:`mrftcli.mrft.identify.identify` of a process family).
 
     Attributes
     ----------
@@ -463,16 +465,17 @@ def _axes(problem: _Problem) -> list[FloatArray]:
     return axes
 
 
-def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdentification:
-    """Identify the unknown parameters of ``model`` from measured frequency-response points.
+def fit_response_points(points: Sequence[ResponsePoint], model: PlantModel) -> LtiIdentification:
+    """The response-point families' strategy (:func:`mrftcli.mrft.identify.identify` of a process family or
+    a declared structure): the unknown parameters of ``model`` from measured frequency-response points.
 
     Parameters
     ----------
+    points : sequence of ResponsePoint
+        G(j omega) measured on the relay tests' limit cycles.
     model : PlantModel
         The structure, with its known parameters (set E, at their values) and ranges (set I). The
         values of the unknown parameters are ignored except for the sign of K.
-    points : sequence of ResponsePoint
-        G(j omega) measured on the relay tests' limit cycles.
 
     Returns
     -------
@@ -482,18 +485,6 @@ def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdent
     ------
     IdentificationError
         No point, or no admissible parameters.
-
-    Examples
-    --------
-    Two exact points of 2 e^{-0.1 s}/(0.5 s + 1) give it back:
-
-    >>> from mrftcli.mrft.families import FOPDT
-    >>> true = FOPDT(K=2.0, T=0.5, tau=0.1)
-    >>> G = true.frequency_response(np.array([5.0, 15.0]))
-    >>> pts = [ResponsePoint(w, abs(g), float(np.angle(g)), 0.01, 0.01) for w, g in zip([5.0, 15.0], G)]
-    >>> fit = identify_lti(FOPDT(K=1.0, T=1.0, tau=0.0), pts)
-    >>> [round(fit.estimate(n).value, 4) for n in ("K", "T", "tau")]
-    [2.0, 0.5, 0.1]
     """
     if not points:
         raise IdentificationError("no frequency-response points to identify from (no stable relay test)")
@@ -826,3 +817,8 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
                   "distinct frequencies: state known values (set E), or add a relay test at another phase "
                   "(an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")
     return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice)
+
+
+def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdentification:
+    """Transition name of :func:`fit_response_points` (callers move to :func:`mrftcli.mrft.identify.identify`)."""
+    return fit_response_points(points, model)

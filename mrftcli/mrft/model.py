@@ -266,6 +266,8 @@ class LoopModel:
 
     family: ClassVar[str] = "soiptd"
     structure: ClassVar[str] = "K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"
+    #: the family's strategy in :func:`mrftcli.mrft.identify.identify`: the tests' means through the unit manifolds
+    identification: ClassVar[str] = "unit-manifolds"
 
     Tp: float
     Td: float

@@ -187,6 +187,8 @@ class DeclaredModel:
 
     family: ClassVar[str] = "declared"
     structure: ClassVar[str] = "declared in a model file"
+    #: its strategy in :func:`mrftcli.mrft.identify.identify`: a direct fit to response points
+    identification: ClassVar[str] = "response-points"
     #: identify_lti searches the unknown shape parameters over their ranges (set I), not a time grid
     grid_from_ranges: ClassVar[bool] = True
 

@@ -15,7 +15,8 @@ The simulator (tests/process_sim.py) shares no code with mrftcli. Each recording
 and analysed with ``analyze_flight`` with the family model (what ``analyze --model NAME`` runs). Scored per recording:
 every parameter within 5 % of the truth; every 95 % interval covering the truth; held-out frequency
 within 10 % on every test. A recording the tool refuses (no usable test, an undetermined parameter)
-counts as a miss. Also timed: :func:`identify_lti` on the recordings' response points, by its route
+counts as a miss. Also timed: the response-point fit (:func:`~mrftcli.mrft.identify_lti.fit_response_points`, the
+families' strategy of :func:`~mrftcli.mrft.identify.identify`) on the recordings' response points, by its route
 for the built-in families (the closed-form residuals and Jacobian of ``mrft/lti_kernel.py``) and,
 in the same process, alternating per recording, by the general route (a response grid and
 forward-difference Jacobian, what any other structure with a grid gets) and the library route
@@ -179,7 +180,7 @@ def main() -> None:
     ap.add_argument("--baseline", action="store_true",
                     help="also analyse each recording with the per-cycle free line (before issue 22's fix)")
     args = ap.parse_args()
-    from mrftcli.mrft.identify_lti import identify_lti
+    from mrftcli.mrft.identify_lti import fit_response_points
 
     rng = np.random.default_rng(args.seed)
     print(f"{args.n} fresh recordings per family and relay (seed {args.seed})")
@@ -215,7 +216,7 @@ def main() -> None:
     if args.baseline:
         print(f"  free line (baseline, same recordings): within 5 % {totals['base_within5']}/{n}, "
               f"95 % intervals cover {totals['base_covered']}/{n}, held-out within 10 % {totals['base_held10']}/{n}")
-    times = _time_calls(identify_lti, timing_cases)
+    times = _time_calls(fit_response_points, timing_cases)
     _print_timing(times)
 
 
@@ -231,13 +232,13 @@ def _print_baseline(rows: list[dict[str, object]], n: int, totals: dict[str, int
           f"{base['held10']:>10}/{n:<2}   median K error {100 * k_now:+.2f} % (free line {100 * k_base:+.2f} %)")
 
 
-#: the routes timed, each as identify_lti with a set of its fast paths switched off (same process)
+#: the routes timed, each as the response-point fit with a set of its fast paths switched off (same process)
 ROUTES = ("closed form", "general", "library")
 
 
 def _print_timing(times: dict[str, dict[str, list[float]]]) -> None:
     now = times["closed form"]
-    print("identify_lti per call (median over the recordings' response points; best of 5 calls each, the routes "
+    print("response-point fit per call (median over the recordings' response points; best of 5 calls each, the routes "
           "interleaved): " + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms" for f, v in now.items()))
     labels = {"general": "the general route (the same code without the families' closed form: a response grid, "
                          "forward-difference Jacobian)",
@@ -247,7 +248,7 @@ def _print_timing(times: dict[str, dict[str, list[float]]]) -> None:
                                          for f, v in times[route].items()))
 
 
-def _time_calls(identify_lti, cases) -> dict[str, dict[str, list[float]]]:
+def _time_calls(fit, cases) -> dict[str, dict[str, list[float]]]:
     """Per route and family, each recording's best of 5 calls [s]; the routes alternate per recording,
     so a shared machine's load falls on all of them alike."""
     per_route: dict[str, dict[str, list[float]]] = {r: {} for r in ROUTES}
@@ -257,7 +258,7 @@ def _time_calls(identify_lti, cases) -> dict[str, dict[str, list[float]]]:
                 best = math.inf
                 for _ in range(5):
                     t0 = time.perf_counter()
-                    identify_lti(model, points)
+                    fit(points, model)
                     best = min(best, time.perf_counter() - t0)
             per_route[route].setdefault(model.family, []).append(best)
     return per_route
@@ -265,7 +266,7 @@ def _time_calls(identify_lti, cases) -> dict[str, dict[str, list[float]]]:
 
 @contextlib.contextmanager
 def _route(route: str):
-    """identify_lti with its fast paths switched off down to ``route``: "general" without the families'
+    """The response-point fit with its fast paths switched off down to ``route``: "general" without the families'
     closed-form kernel (mrft/lti_kernel.py), "library" also without the response grid and the hand-written
     Levenberg-Marquardt (a model object per grid point, scipy's least_squares: the first implementation)."""
     from mrftcli.mrft import families

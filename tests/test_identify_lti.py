@@ -2,7 +2,7 @@
 
 Oracles: the families' complex frequency response (``frequency_response``: K e^{-tau s} / den,
 evaluated in complex arithmetic, no shared formula with the kernel's real log-gain and arctan sums);
-central differences of the residuals for the Jacobian; the general route of identify_lti (a
+central differences of the residuals for the Jacobian; the general route of identify's response-point fit (a
 response grid and forward differences, the kernel switched off) for the minimum and its
 uncertainty; exact points of a known plant for the answer itself.
 """
@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model
-from mrftcli.mrft.identify_lti import ResponsePoint, identify_lti
+from mrftcli.mrft.identify import identify
+from mrftcli.mrft.identify_lti import ResponsePoint
 from mrftcli.mrft.lti_kernel import LagChainKernel
 
 #: plants and the structures they are fitted with: every family, a negative gain, known parameters
@@ -41,7 +42,7 @@ def _points(true, noise, seed):
 
 
 class _Arrays:
-    """The points as the kernel takes them (what identify_lti's private _Data holds)."""
+    """The points as the kernel takes them (what the response-point fit's private _Data holds)."""
 
     def __init__(self, points):
         self.omega = np.array([p.omega for p in points])
@@ -98,11 +99,11 @@ def test_kernel_only_for_lag_chains_on_a_log_scale():
 
 
 @pytest.mark.parametrize(("true", "structure"), CASES, ids=IDS)
-def test_identify_lti_same_minimum_and_uncertainty_as_the_general_route(true, structure, monkeypatch):
+def test_response_fit_same_minimum_and_uncertainty_as_the_general_route(true, structure, monkeypatch):
     points = _points(true, 0.01, seed=3)
-    fast = identify_lti(structure, points)
+    fast = identify(points, structure)
     monkeypatch.setattr(LagChainKernel, "of", classmethod(lambda cls, *args: None))
-    general = identify_lti(structure, points)
+    general = identify(points, structure)
     for a, b in zip(fast.estimates, general.estimates):
         assert a.value == pytest.approx(b.value, rel=1e-6, abs=1e-9), a.name
         assert a.std == pytest.approx(b.std, rel=1e-4, abs=1e-12), a.name
@@ -111,9 +112,9 @@ def test_identify_lti_same_minimum_and_uncertainty_as_the_general_route(true, st
 
 
 @pytest.mark.parametrize(("true", "structure"), CASES, ids=IDS)
-def test_identify_lti_exact_points_give_the_plant_back(true, structure):
+def test_response_fit_exact_points_give_the_plant_back(true, structure):
     # with a time constant known the grid has one axis fewer (SOPDT's known T2 was an IndexError)
-    fit = identify_lti(structure, _points(true, 0.0, seed=0))
+    fit = identify(_points(true, 0.0, seed=0), structure)
     for e in fit.estimates:
         assert e.value == pytest.approx(true.parameters[e.name].value, rel=1e-6), e
         assert e.determined

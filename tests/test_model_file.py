@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from mrftcli.errors import IdentificationError, InputError
-from mrftcli.mrft.identify_lti import ResponsePoint, identify_lti
+from mrftcli.mrft.identify import identify
+from mrftcli.mrft.identify_lti import ResponsePoint
 from mrftcli.mrft.model import model_from_json
 from mrftcli.mrft.model_file import DeclaredModel, declared_model, load_model_file, parse_model_spec
 
@@ -95,12 +96,12 @@ def test_identify_declared_from_exact_points_and_too_many_unknowns():
     G = 2.0 * np.exp(-0.1j * w) / (0.5j * w + 1) ** 2  # by hand, not through the model
     pts = [ResponsePoint(x, abs(g), float(np.angle(g)), 0.01, 0.01, i) for i, (x, g) in enumerate(zip(w, G))]
     model = declared_model(DOUBLE_LAG, {}, {"K": (0.1, 10), "T": (0.01, 10), "tau": (0.0, 1.0)})
-    fit = identify_lti(model, pts)
+    fit = identify(pts, model)
     for name, value in {"K": 2.0, "T": 0.5, "tau": 0.1}.items():
         assert fit.estimate(name).value == pytest.approx(value, rel=1e-4)
     assert true.frequency_response(w) == pytest.approx(G)
     with pytest.raises(IdentificationError, match="3 unknowns"):
-        identify_lti(model, pts[:1])
+        identify(pts[:1], model)
 
 
 def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):

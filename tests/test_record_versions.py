@@ -233,14 +233,15 @@ def test_an_interval_cut_at_a_range_bound_is_one_sided_again_when_read(t_range: 
     import numpy as np
 
     from mrftcli.mrft.families import family_model
-    from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
+    from mrftcli.mrft.identify import identify
+    from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint
 
     true = family_model("fopdt").with_parameters(K=2.0, T=1.0, tau=0.3)
     points = []
     for i, w in enumerate((0.8, 1.5, 2.4, 4.0)):
         g = complex(true.frequency_response(np.array([w]))[0])
         points.append(ResponsePoint(w, abs(g), float(np.angle(g)), 0.05, 0.05, i, 1))
-    ident = identify_lti(family_model("fopdt", ranges={"T": t_range}), points)
+    ident = identify(points, family_model("fopdt", ranges={"T": t_range}))
     assert ident.estimate("T").one_sided == side and ident.estimate("K").one_sided == ""
     back = LtiIdentification.from_json(json.loads(json.dumps(to_jsonable(ident.to_json()))))
     assert back.estimates == ident.estimates

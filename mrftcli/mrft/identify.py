@@ -30,6 +30,7 @@ error of its mean; it is propagated by a vectorised Monte Carlo (two tests) or t
 
 from __future__ import annotations
 
+import functools
 import importlib
 import inspect
 import math
@@ -703,13 +704,19 @@ def identify(data: Iterable[Any], model: PlantModel, **options: Any) -> Any:
         what = "MRFT tests as measured" if kind == "tests" else "the tests' frequency-response points"
         raise InputError(f"a {model.family} model is identified from {expected.__name__} records ({what}), "
                          f"got {', '.join(given)}")
-    solve = getattr(importlib.import_module(module), name)
-    takes = list(inspect.signature(solve).parameters)[2:]
+    solve, takes = _strategy_function(module, name)
     other = sorted(set(options) - set(takes))
     if other:
         raise InputError(f"identify: {', '.join(other)} not an option of the {model.family} model's strategy "
                          f"{name} (it takes {', '.join(takes) or 'none'})")
     return solve(data, model, **options)
+
+
+@functools.lru_cache(maxsize=None)
+def _strategy_function(module: str, name: str) -> tuple[Any, tuple[str, ...]]:
+    """The strategy's function and the names of its options (its parameters after data and model)."""
+    solve = getattr(importlib.import_module(module), name)
+    return solve, tuple(inspect.signature(solve).parameters)[2:]
 
 
 def strategy_of(model: Any) -> tuple[str, str, str]:

@@ -171,7 +171,7 @@ def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> No
 def tune_cascade(analysis):
     """The cascade route's recommended robust PD: what ``tune RESULT.json`` designs on a cascade analysis
     (30 draws of the outer Td, tau over their intervals)."""
-    from mrftcli.tune.cascade import N_DRAWS, outer_draws
+    from mrftcli.tune.grid import N_DRAWS, outer_draws
     from mrftcli.tune.design import tune
 
     draws = outer_draws(analysis.model, analysis.identification.estimates, N_DRAWS)

@@ -31,8 +31,7 @@ MS_TOLERANCE = 1.05  # an Ms within 5 % of the limit on the true plant counts as
 
 def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, float]:
     """(stable, Ms, phase margin [deg]) of the PI on the true plant's exact sampled loop."""
-    from mrftcli.tune.cascade import cascade_margins, closed_loop_matrix
-    from mrftcli.tune.grid import discrete_response, discretise
+    from mrftcli.tune.grid import closed_loop_matrix, discrete_response, discretise, sampled_margins
 
     sign = 1.0 if true_model.parameters["K"].value > 0 else -1.0
     ss = discretise(true_model, rate_hz)
@@ -43,7 +42,7 @@ def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, floa
     stable = bool(np.max(np.abs(np.linalg.eigvals(A))) < 1.0)
     omega = np.geomspace(1e-4, 0.999 * np.pi * rate_hz, 4000)
     Gd = sign * discrete_response(true_model, rate_hz, omega)[None, :]
-    pm, _, ms, _ = cascade_margins(controller, Gd, omega)[0]
+    pm, _, ms, _ = sampled_margins(controller, Gd, omega)[0]
     return stable, ms, pm
 
 

@@ -221,12 +221,12 @@ def test_inner_gains_forms_and_errors() -> None:
 
 def test_tune_on_the_cascade_keeps_its_margins() -> None:
     """The robust PD holds its phase margin on every draw; the closed loop of the independent form is stable."""
-    from mrftcli.tune.cascade import closed_loop_matrix, tune_cascade
-    from mrftcli.tune.design import TuneResult
+    from mrftcli.tune.design import TuneResult, tune
+    from mrftcli.tune.grid import closed_loop_matrix
 
     m = _cascade()
     draws = [m.with_parameters(Td=0.7, tau=0.04), m.with_parameters(Td=0.9, tau=0.028)]
-    res = tune_cascade(m, RATE, draws, loop="y", horizon_s=6.0)
+    res = tune(m, RATE, posterior=draws, loop="y")
     robust = res.get("robust", "PD")
     worst = robust.posterior["worst"]
     assert worst["phase_margin_deg"] >= 45.0 - 1e-6 and worst["stable"]

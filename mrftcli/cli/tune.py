@@ -201,7 +201,7 @@ def _cascade_source(source: str) -> _TuneSource:
     """An outer loop's cascade (analyze --inner-model's RESULT.json) with its draws over the outer estimate and
     the inner loop; the rate its outer controller ran at."""
     from ..analyze.cascade import CascadeAnalysis
-    from ..tune.cascade import N_DRAWS, outer_draws
+    from ..tune.grid import N_DRAWS, outer_draws
 
     data = _read_json(source)
     if data is None:

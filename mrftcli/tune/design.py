@@ -38,7 +38,6 @@ from scipy.optimize import minimize
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
-from ..mrft.cascade import CascadeModel
 from ..mrft.model import LoopModel, PlantModel, model_from_json
 from ..progress import Progress, report
 from ..validate import check_positive
@@ -379,7 +378,7 @@ class TuneResult:
         what = "tune result"
         data = _check_version(data, what)
         if data["schema_version"] == 1 and data.get("kind") == "cascade":  # the cascade's own record until now
-            from .cascade import cascade_result_v1
+            from .grid import cascade_result_v1
 
             return cascade_result_v1(data)
         md, pd = data.get("model"), data.get("posterior")
@@ -694,9 +693,9 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
 
     Eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`): the MRFT rule, model-based and robust PD and PID
     (the module docstring). An outer loop through its closed inner loop
-    (:class:`~mrftcli.mrft.cascade.CascadeModel`): a PD on the exact sampled cascade
-    (:func:`mrftcli.tune.cascade.tune_cascade`). Any other family or a declared model: PI/PID (PD on
-    integrating plants) by a grid on the exact sampled loop (:func:`mrftcli.tune.grid.tune_grid`).
+    (:class:`~mrftcli.mrft.cascade.CascadeModel`): a PD on the exact sampled cascade; any other family or
+    a declared model: PI/PID (PD on integrating plants); both by the one grid search on the exact sampled
+    loop, the model kind's strategy (:func:`mrftcli.tune.grid.tune_grid`).
 
     Parameters
     ----------
@@ -706,7 +705,7 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
         Controller rate [Hz].
     posterior : Posterior or sequence of PlantModel, optional
         Eq. (2): the parameters' draws (:class:`Posterior`); another family: the drawn models
-        (:func:`mrftcli.tune.grid.model_draws`, :func:`mrftcli.tune.cascade.outer_draws`). Without it the
+        (:func:`mrftcli.tune.grid.model_draws`, :func:`mrftcli.tune.grid.outer_draws`). Without it the
         robust design is left out.
     options : DesignOptions
         The objective, the Ms and noise-gain limits, the designs and kinds, the stack's rate filter.
@@ -722,12 +721,7 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
     if not isinstance(model, LoopModel):
         if isinstance(posterior, Posterior):
             raise InputError(f"a {model.family} model's robust design takes drawn models, not eq. (2)'s posterior")
-        if isinstance(model, CascadeModel):
-            from .cascade import tune_cascade  # the cascade's strategy (it builds this module's records)
-
-            draws = tuple(d for d in posterior or () if isinstance(d, CascadeModel))
-            return tune_cascade(model, rate_hz, draws, options=options, loop=loop)
-        from .grid import tune_grid  # the other families' strategy
+        from .grid import tune_grid  # the grid search of the families and the cascade (it builds this module's records)
 
         return tune_grid(model, rate_hz, tuple(posterior or ()), options, loop)
     if posterior is not None and not isinstance(posterior, Posterior):

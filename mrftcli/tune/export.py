@@ -198,7 +198,7 @@ def _family_table(res: "TuneResult") -> str:
 
 
 def _cascade_table(res: "TuneResult") -> str:
-    """The table of an outer loop's PD on the cascade (:mod:`mrftcli.tune.cascade`)."""
+    """The table of an outer loop's PD on the cascade (:mod:`mrftcli.tune.grid`, the cascade strategy)."""
     from ..mrft.cascade import CascadeModel
 
     y = output_unit(res.loop)

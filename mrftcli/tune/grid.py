@@ -1,29 +1,36 @@
-"""The tune strategy of the families other than eq. (2): PI/PID/PD by a grid on the exact sampled loop.
+"""The one gain search of every model but eq. (2): the process families and the cascade's outer loop.
 
 :func:`mrftcli.tune.design.tune` (the one tune driver) designs here for any
 :class:`~mrftcli.mrft.model.PlantModel` that is not eq. (2)'s :class:`~mrftcli.mrft.model.LoopModel`
-(the FOPDT/SOPDT/IPDT/FOIPDT families, a declared structure) and returns the one
-:class:`~mrftcli.tune.design.TuneResult` record. The plant's delay-free realisation ``realisation()``
-and its delay ``tau`` give the exact zero-order-hold equivalent at the controller rate
-(:func:`discretise`: tau = d T + eps, the input held over a tick reaches the plant eps late, the
-modified z-transform), so the margins are those of the sampled loop with no approximation. The
-loop's figures are computed as for the cascade's outer loop (:func:`mrftcli.tune.cascade.closed_loop_matrix`,
-:func:`~mrftcli.tune.cascade.cascade_margins`: one implementation of each), with the controller of
-:class:`~mrftcli.tune.closed_loop.Controller` (parallel PID, derivative on the measurement through
-Tf = Td_c / ``FILTER_N``, backward differences).
+and returns the one :class:`~mrftcli.tune.design.TuneResult` record. What a model kind brings is a
+:class:`_Strategy` (its plants, candidate controllers and gain scan); the search is the same:
 
-The design, for each kind: on a grid of integral times Ti (PI, PID) and derivative times Td_c (PD,
-PID), scaled by the nominal plant's ultimate period Tu, the largest Kp that keeps every model (the
-nominal one for ``model-based``; the nominal and the draws for ``robust``) stable with Ms <= ``ms_max``
-and a phase margin >= ``pm_min_deg``; of those, the least IAE on the nominal model: of a unit load
-step at the plant input for a PI/PID (the disturbance a process loop rejects; Astrom-Hagglund's
-criterion), of a unit setpoint step for a PD (offered on integrating plants only: on a
-self-regulating plant a PD leaves a steady error).
+* the plant is the exact zero-order-hold equivalent at the controller rate, so the margins are those
+  of the sampled loop with no approximation. A family (FOPDT/SOPDT/IPDT/FOIPDT, a declared structure):
+  its delay-free realisation ``realisation()`` and its delay ``tau`` (:func:`discretise`: tau = d T + eps,
+  the input held over a tick reaches the plant eps late, the modified z-transform). The cascade
+  (:class:`~mrftcli.mrft.cascade.CascadeModel`): its exact discrete realisation at the controller rate
+  (:meth:`~mrftcli.mrft.cascade.CascadeModel.discrete_realisation`: the sampled inner loop with its
+  controller, the translational dynamics, both delays);
+* the controller is :class:`~mrftcli.tune.closed_loop.Controller` (parallel PID, derivative on the
+  measurement through Tf = Td_c / ``FILTER_N``, backward differences); the loop's figures are
+  :func:`closed_loop_matrix` and :func:`sampled_margins` (one implementation of each);
+* for each kind, on a grid of integral times Ti (PI, PID) and derivative times Td_c (PD, PID), the
+  largest Kp that keeps every model (the nominal one for ``model-based``; the nominal and the draws for
+  ``robust``) stable with Ms <= ``ms_max`` and a phase margin >= ``pm_min_deg``; of those, the least IAE
+  on the nominal model: of a unit load step at the plant input for a PI/PID (the disturbance a process
+  loop rejects; Astrom-Hagglund's criterion), of a unit setpoint step for a PD.
+
+The families' grid is scaled by the nominal plant's ultimate period Tu (PD offered on integrating plants
+only: on a self-regulating plant a PD leaves a steady error); their stability is the Nyquist criterion
+just outside the unit circle, their figures on a finer grid. The cascade's outer loop (the outer plant
+has an integrator) is a PD with Td_c on a grid in seconds, its stability the closed loop's spectral
+radius, its IAE that of a unit setpoint step.
 
 What the record holds for these designs: the nominal margins (gain and phase margin, Ms, the first
 gain crossover as ``w_gc``, stability; the delay margin and the phase crossover are not computed: NaN),
 the worst of each figure over the nominal model and the draws in ``posterior["worst"]``, no step
-figures (NaN), the criterion and its definition; the ultimate period in ``rule_cycle``.
+figures (NaN), the criterion and its definition; a family's ultimate period in ``rule_cycle``.
 
 A plant whose gain is negative (reverse acting) is designed on -G: the controller's gains are
 positive and act on -e (``reverse_acting`` in the record).
@@ -33,27 +40,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..mrft.cascade import DiscreteStateSpace
+from ..mrft.cascade import CascadeModel, DiscreteStateSpace
 from ..mrft.matexp import phi_gamma_small
 from ..mrft.model import PlantModel
-from .cascade import cascade_margins, closed_loop_matrix, design_record, step_outputs, worst_of
-from .closed_loop import Controller
+from .closed_loop import Controller, StepMetrics
 from .design import FILTER_N, Design, DesignOptions, TuneResult
+from .margins import Margins
 
-__all__ = ["discretise", "discrete_response", "model_draws", "tune_grid", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
+__all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "closed_loop_matrix",
+           "sampled_margins", "step_outputs", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
 #: the controllers designed (PD on integrating plants only)
 GRID_KINDS = ("PI", "PID", "PD")
 #: the designs made (robust with draws only)
 GRID_DESIGNS = ("model-based", "robust")
-#: draws of the robust design from an identification's intervals (:func:`model_draws`)
+#: draws of the robust design from an identification's intervals (:func:`model_draws`, :func:`outer_draws`)
 N_DRAWS = 30
+_CASCADE_TDC_GRID = np.geomspace(0.02, 5.0, 18)  # the cascade's derivative times Td_c [s]
+_CASCADE_GAINS = (1e3, 1e-4)  # the cascade's scan of Kp: the bisection between them when the lower one holds
 _TI_GRID = np.geomspace(0.1, 10.0, 14)  # integral times Ti, in ultimate periods Tu
 _TDC_GRID = np.geomspace(0.02, 0.5, 8)  # derivative times Td_c, in Tu
 _PID_TDC_GRID = np.geomspace(0.03, 0.3, 5)
@@ -190,14 +200,150 @@ def model_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int =
     return out, tuple(notes)
 
 
+def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed: int = 0) -> list[CascadeModel]:
+    """``n`` cascades over the identification's std (Td, K log-normal, tau normal >= 0) and the inner loop's.
+
+    The inner loop is drawn over its own std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`: the inner
+    analysis' uncertainty) when it carries one.
+    """
+    rng = np.random.default_rng(seed)
+    out = []
+
+    def std(name: str) -> float:
+        e = estimates.get(name)
+        s = float(getattr(e, "std", 0.0)) if e is not None and not getattr(e, "known", False) else 0.0
+        return s if math.isfinite(s) else 0.0
+
+    for _ in range(n):
+        inner = model.inner.draw(rng) if model.inner.std else model.inner
+        out.append(model.with_inner(inner).with_parameters(
+            Td=model.Td * math.exp(rng.normal(0.0, std("Td") / model.Td)),
+            tau=max(0.0, model.tau + rng.normal(0.0, std("tau"))),
+            K=model.K * math.exp(rng.normal(0.0, std("K") / model.K))))
+    return out
+
+
 # ----------------------------------------------------------------------------------------------
-# the design
+# the sampled loop and its figures
 # ----------------------------------------------------------------------------------------------
+def closed_loop_matrix(ss: DiscreteStateSpace, c: Controller) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(A, B, Cy): z_{k+1} = A z_k + B r, y_k = Cy z_k, for the PD/PID ``c`` on the plant ``ss``.
+
+    State z = [x (plant), I_{k-1}, D_{k-1}, y_{k-1}], the controller of
+    :class:`~mrftcli.tune.closed_loop.Controller` (derivative on the measurement, backward differences).
+    """
+    n = ss.order
+    N = n + 3
+    iI, iD, iy = n, n + 1, n + 2
+    T = c.Ts
+    cy = np.zeros(N)
+    cy[:n] = ss.C
+    cI = -c.Ki * T * cy
+    if c.Ki > 0:
+        cI[iI] += 1.0
+    cD = -c.Kd / (c.Tf + T) * cy
+    cD[iD] += c.Tf / (c.Tf + T)
+    cD[iy] += c.Kd / (c.Tf + T)
+    cu = -c.Kp * cy + cI + cD
+    A = np.zeros((N, N))
+    B = np.zeros(N)
+    A[:n, :n] = ss.Phi
+    A[:n] += np.outer(ss.Gamma, cu)
+    B[:n] = ss.Gamma * (c.Kp + c.Ki * T)
+    A[iI], B[iI] = cI, c.Ki * T
+    A[iD] = cD
+    A[iy] = cy
+    return A, B, cy
+
+
+def sampled_margins(c: Controller, Gd: NDArray[np.complex128],
+                    omega: FloatArray) -> list[tuple[float, float, float, float]]:
+    """(phase margin [deg], gain margin, Ms, crossover [Hz]) per row of ``Gd`` (G_d(e^{j omega T}) on ``omega``).
+
+    On the grid: the gain crossovers are where |L| falls through 1 (the least phase margin of them),
+    the phase crossovers where the unwrapped phase passes an odd multiple of -180 deg.
+    """
+    L = c.feedback_response(omega)[None, :] * Gd
+    mag = np.abs(L)
+    ms = np.max(1.0 / np.abs(1.0 + L), axis=1)
+    cross = (mag[:, :-1] >= 1.0) & (mag[:, 1:] < 1.0)
+    pm_at = 180.0 + np.degrees(np.angle(L))  # arg L in (-180, 180]: the margin in (0, 360]
+    pm_at = np.where(pm_at > 180.0, pm_at - 360.0, pm_at)  # a lead past 180 deg is a lag: (-180, 180]
+    pm_at = np.minimum(pm_at[:, :-1], pm_at[:, 1:])  # the grid points either side of the crossover: the lesser
+    pm = np.min(np.where(cross, pm_at, np.inf), axis=1)
+    turns = np.floor((np.unwrap(np.angle(L), axis=1) + math.pi) / (2 * math.pi))
+    phase_cross = np.diff(turns, axis=1) != 0
+    gm = np.min(np.where(phase_cross, 1.0 / np.maximum(mag[:, :-1], 1e-300), np.inf), axis=1)
+    first = np.argmax(cross, axis=1)
+    wc = np.where(cross.any(axis=1), omega[first] / (2 * math.pi), np.nan)
+    return [(float(a), float(b), float(m), float(w)) for a, b, m, w in zip(pm, gm, ms, wc)]
+
+
+def step_outputs(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
+    """The outputs Cy z_k of z_{k+1} = A z_k + B, z_0 = 0, over ``count`` ticks (exact: z_k = sum_{j<k} A^j B,
+    by doubling)."""
+    S = np.zeros((count, A.shape[0]))
+    step, have = A.copy(), 1  # step = A^have
+    with np.errstate(all="ignore"):
+        while have < count:
+            take = min(have, count - have)
+            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + (A @ S[have - 1] + B)
+            have += take
+            step = step @ step
+        out: FloatArray = S @ Cy
+    return out
+
+
+def _stepped(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
+    """As :func:`step_outputs`, tick by tick with A sparse (a long delay's shift chain is mostly zeros)."""
+    from scipy.sparse import csr_matrix
+
+    As = csr_matrix(A)
+    z = np.zeros(A.shape[0])
+    y = np.empty(count)
+    with np.errstate(all="ignore"):
+        for k in range(count):
+            y[k] = Cy @ z
+            z = As @ z + B
+    return y
+
+
+def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) -> float:
+    """IAE [output unit s] of a unit load step at the plant input (``load``) or of a unit setpoint step."""
+    A, B, Cy = closed_loop_matrix(ss, c)
+    if load:
+        B = np.zeros(A.shape[0])
+        B[:ss.order] = ss.Gamma
+    count = max(2, int(horizon_s * c.rate_hz))
+    y = step_outputs(A, B, Cy, count) if A.shape[0] <= _DENSE_ORDER else _stepped(A, B, Cy, count)
+    with np.errstate(all="ignore"):
+        total = float(np.sum(np.abs(y if load else 1.0 - y))) * c.Ts
+    return total if math.isfinite(total) else math.inf
+
+
+def _stability_contour(d_max: int) -> NDArray[np.complex128]:
+    """The upper half of the circle |z| = 1 + ``_CONTOUR_MARGIN``, from z real > 1 to z real < -1, dense
+    near z = 1 (where an integrator's pole sits just inside) and enough points for the delay's turns."""
+    theta = np.concatenate([[0.0], np.geomspace(1e-9, 1e-2, 300, endpoint=False),
+                            np.linspace(1e-2, math.pi, max(1500, 12 * (d_max + 4)))])
+    contour: NDArray[np.complex128] = np.asarray((1.0 + _CONTOUR_MARGIN) * np.exp(1j * theta), dtype=np.complex128)
+    return contour
+
+
+@dataclass(frozen=True)
+class _Nyquist:
+    """G_d of every model on the stability contour (:func:`_stability_contour`) and each plant's poles outside it."""
+
+    contour: NDArray[np.complex128]
+    on_contour: NDArray[np.complex128]
+    unstable: NDArray[np.int64]
+
+
 @dataclass(frozen=True)
 class _Plants:
     """The nominal discrete plant and every model the constraints hold on, with their responses on the
-    search's grid ``omega`` and on the reported figures' finer grid ``fine_omega`` [rad/s]; G_d on the
-    stability contour (:func:`_stability_contour`) and each plant's poles outside it (``unstable``)."""
+    search's grid ``omega`` and on the reported figures' grid ``fine_omega`` [rad/s]; ``nyquist`` None:
+    stability is the closed loop's spectral radius (the cascade's)."""
 
     nominal: DiscreteStateSpace
     all: tuple[DiscreteStateSpace, ...]
@@ -205,11 +351,225 @@ class _Plants:
     omega: FloatArray
     fine: NDArray[np.complex128]
     fine_omega: FloatArray
-    contour: NDArray[np.complex128]
-    on_contour: NDArray[np.complex128]
-    unstable: NDArray[np.int64]
+    nyquist: _Nyquist | None = None
+
+    def stable(self, c: Controller, count: int | None = None) -> NDArray[np.bool_]:
+        """Is each closed loop (of the first ``count`` models) stable?
+
+        The Nyquist criterion on the contour just outside the unit circle: 1 + L(z) has as many zeros as
+        poles (L strictly proper), so the closed-loop poles outside the contour number P - W: P the
+        plant's poles outside it, W the winding of 1 + L(z) about 0 as z goes round the contour once
+        (twice the half turn: the coefficients are real). Stable: W = P. The controller's integrator
+        (z = 1) and the delay's poles (z = 0) lie inside. Exact, and linear in the delay where the
+        eigenvalues of the delay-augmented loop cost its cube; it is run on gains that already passed
+        the Ms check, so 1 + L stays away from 0 and the sampled phase follows it. Without ``nyquist``:
+        the eigenvalues of :func:`closed_loop_matrix`.
+        """
+        rows = slice(count)
+        if self.nyquist is None:
+            return np.array([np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(ss, c)[0]))) < 1.0 - 1e-9
+                             for ss in self.all[rows]], dtype=bool)
+        z = self.nyquist.contour
+        C = c.Kp + c.Ki * c.Ts * z / (z - 1.0) + c.Kd * c.derivative_response(z)
+        F = 1.0 + C[None, :] * self.nyquist.on_contour[rows]
+        turns = np.diff(np.unwrap(np.angle(F), axis=1)[:, [0, -1]], axis=1)[:, 0] / math.pi
+        stable: NDArray[np.bool_] = np.round(turns).astype(np.int64) == self.nyquist.unstable[rows]
+        return stable
+
+    def ok(self, c: Controller, o: DesignOptions) -> bool:
+        """The constraints on every model: the frequency figures first, stability only if they hold."""
+        L = c.feedback_response(self.omega)[None, :] * self.Gd
+        if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
+            return False
+        if not all(pm >= o.pm_min_deg for pm, _, _, _ in sampled_margins(c, self.Gd, self.omega)):
+            return False
+        return bool(np.all(self.stable(c)))
+
+    def margins(self, c: Controller, count: int) -> list[tuple[float, float, float, float, bool]]:
+        """(phase margin [deg], gain margin, Ms, first crossover [Hz], stable) of the first ``count`` models."""
+        stable = self.stable(c, count)
+        return [(pm, gm, ms, wc, bool(ok)) for ok, (pm, gm, ms, wc)
+                in zip(stable, sampled_margins(c, self.fine[:count], self.fine_omega))]
 
 
+# ----------------------------------------------------------------------------------------------
+# the records
+# ----------------------------------------------------------------------------------------------
+def design_record(name: str, c: Controller, nominal: tuple[float, float, float, float, bool],
+                  worst: tuple[float, float, float, float, bool] | None, iae: float, horizon_s: float, ms_max: float,
+                  pm_min: float, n_draws: int, definition: str = "setpoint step") -> Design:
+    """A grid design as the one :class:`~mrftcli.tune.design.Design`.
+
+    ``nominal`` and ``worst`` are (phase margin [deg], gain margin, Ms, first crossover [Hz], stable): the
+    nominal figures become the margins (no delay margin or phase crossover here: NaN), the worst over the
+    nominal model and the draws ``posterior["worst"]``; no step figures (NaN); ``iae`` [output unit s] of
+    the ``definition`` step."""
+    pm, gm, ms, fc, stable = nominal
+    post: dict[str, Any] = {}
+    if worst is not None:
+        post = {"worst": dict(zip(("phase_margin_deg", "gain_margin", "Ms", "crossover_hz", "stable"), worst)),
+                "n_draws": n_draws, "worst_of": "the nominal model and every draw"}
+    return Design(name, c, "iae", iae, math.nan, Margins(gm, pm, math.nan, ms, 2 * math.pi * fc, math.nan, stable),
+                  StepMetrics(*[math.nan] * 6), post, {"ms_max": ms_max, "pm_min_deg": pm_min, "feasible": True}, {},
+                  horizon_s, definition)
+
+
+def _worst(m: Sequence[tuple[float, float, float, float, bool]]) -> tuple[float, float, float, float, bool]:
+    """The worst of each figure (phase margin, gain margin, Ms, first crossover [Hz], stable) over models."""
+    return (min(x[0] for x in m), min(x[1] for x in m), max(x[2] for x in m), min(x[3] for x in m),
+            all(x[4] for x in m))
+
+
+def cascade_result_v1(data: Mapping[str, Any]) -> TuneResult:
+    """A cascade's tune JSON of the previous release (``kind "cascade"``, schema 1: its own design records),
+    read into the one :class:`~mrftcli.tune.design.TuneResult` (read for one release: vehicle records hold it).
+
+    Raises
+    ------
+    InputError
+        A missing or malformed field (one line).
+    """
+    if not isinstance(data.get("designs"), list):
+        raise InputError("not a cascade tune JSON (needs kind 'cascade' and 'designs')")
+
+    def num(v: Any) -> float:
+        return math.inf if v is None else float(v)
+
+    def figures(m: Any) -> tuple[float, float, float, float, bool]:
+        if not isinstance(m, Mapping):
+            raise InputError("cascade tune JSON: margins must be an object")
+        return (num(m.get("phase_margin_deg")), num(m.get("gain_margin")), num(m.get("Ms")),
+                num(m.get("crossover_hz")), bool(m.get("stable")))
+
+    try:
+        ms_max, pm_min = float(data["ms_max"]), float(data["pm_min_deg"])
+        designs = []
+        for d in data["designs"]:
+            g = d["generic"]
+            c = Controller(float(g["Kp"]), float(g["Ki"]), float(g["Kd"]), float(g["Tf"]), float(g["rate_hz"]))
+            worst = None if d.get("worst") is None else figures(d["worst"])
+            designs.append(design_record(str(d.get("name", "")), c, figures(d.get("nominal")), worst,
+                                         num(d.get("iae")), math.nan, ms_max, pm_min, int(data.get("n_draws") or 0)))
+        return TuneResult(CascadeModel.from_json(data["model"]), None, float(data["rate_hz"]), str(data.get("loop", "")),
+                          "iae", ms_max, math.inf, math.nan, {}, tuple(designs), tuple(str(n) for n in data.get("notes") or ()))
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f"cascade tune JSON: {type(err).__name__}: {err}") from None
+
+
+# ----------------------------------------------------------------------------------------------
+# the one search
+# ----------------------------------------------------------------------------------------------
+Maker = Callable[[float], Controller]
+
+
+def _maker(ti: float | None, tdc: float, rate_hz: float) -> Maker:
+    """Kp -> the controller with integral time ``ti`` (None: no integral) and derivative time ``tdc`` [s]."""
+    def make(kp: float) -> Controller:
+        return Controller(kp, 0.0 if ti is None else kp / ti, kp * tdc, tdc / FILTER_N, rate_hz)
+    return make
+
+
+def _largest_gain(make: Maker, gains: FloatArray, p: _Plants, o: DesignOptions) -> Controller | None:
+    """The largest Kp meeting the constraints: a scan down ``gains`` finds the largest feasible one (on an
+    integrating plant a PI is infeasible at low gains too: the feasible gains are an interval), then a
+    bisection in log Kp between it and the one above."""
+    for i, kp in enumerate(gains):
+        if p.ok(make(float(kp)), o):
+            break
+    else:
+        return None
+    if i == 0:
+        return make(float(gains[0]))
+    lo, hi = float(gains[i]), float(gains[i - 1])
+    while hi / lo > 1.02:
+        mid = math.sqrt(lo * hi)
+        if p.ok(make(mid), o):
+            lo = mid
+        else:
+            hi = mid
+    return make(lo)
+
+
+@dataclass(frozen=True)
+class _Strategy:
+    """What a model kind brings to the one search: its plants (``plants(models)``), its controllers per kind
+    (``candidates(kind)``), the Kp scanned (``gains``), each kind's horizon [s] and what it refuses."""
+
+    plants: Callable[[Sequence[PlantModel]], _Plants]
+    candidates: Callable[[str], list[Maker]]
+    gains: FloatArray
+    horizons: Mapping[str, float]
+
+
+def _design(name: str, kind: str, p: _Plants, st: _Strategy, o: DesignOptions) -> Design | None:
+    """The least-IAE controller of ``kind`` over the strategy's candidates, each at its largest feasible gain."""
+    load = kind != "PD"
+    horizon = st.horizons[kind]
+    best: tuple[float, Controller] | None = None
+    for make in st.candidates(kind):
+        c = _largest_gain(make, st.gains, p, o)
+        if c is None:
+            continue
+        J = _iae(p.nominal, c, horizon, load)
+        if best is None or J < best[0]:
+            best = (J, c)
+    if best is None:
+        return None
+    J, c = best
+    worst = _worst(p.margins(c, len(p.all))) if len(p.all) > 1 else None
+    return design_record(name, c, p.margins(c, 1)[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
+                         "load step" if load else "setpoint step")
+
+
+def _search(model: PlantModel, draws: Sequence[PlantModel], kinds: Sequence[str], st: _Strategy,
+            o: DesignOptions) -> list[Design | None]:
+    """The model-based designs (and the robust ones, with two draws or more) of every kind (None: no
+    controller of that kind meets the constraints)."""
+    names = o.designs or GRID_DESIGNS
+    sets = [("model-based", st.plants([model]))] if "model-based" in names else []
+    if len(draws) >= 2 and "robust" in names:
+        sets.append(("robust", st.plants([model, *draws])))
+    return [_design(name, kind, p, st, o) for kind in kinds for name, p in sets]
+
+
+def _family_plants(rate_hz: float, sign: float, w_low: float) -> Callable[[Sequence[PlantModel]], _Plants]:
+    def plants(models: Sequence[PlantModel]) -> _Plants:
+        ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
+        grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
+        Gd, fine = (np.array([sign * discrete_response(m, rate_hz, w) for m in models]) for w in grids)
+        held = [_held_delay(m, rate_hz) for m in models]
+        contour = _stability_contour(max(h.d for h in held))
+        on_contour = np.array([sign * _response_at(h, contour) for h in held])
+        unstable = np.array([int(np.sum(np.abs(np.linalg.eigvals(h.Phi)) > 1.0 + _CONTOUR_MARGIN)) for h in held])
+        return _Plants(ss[0], ss, Gd, grids[0], fine, grids[1], _Nyquist(contour, on_contour, unstable))
+    return plants
+
+
+def _cascade_plants(rate_hz: float) -> Callable[[Sequence[PlantModel]], _Plants]:
+    omega = np.geomspace(1e-2, 0.999 * math.pi * rate_hz, 600)
+
+    def plants(models: Sequence[PlantModel]) -> _Plants:
+        ss = tuple(m.discrete_realisation(rate_hz) for m in models if isinstance(m, CascadeModel))
+        Gd = np.array([s.frequency_response(omega) for s in ss])
+        return _Plants(ss[0], ss, Gd, omega, Gd, omega)
+    return plants
+
+
+def _family_candidates(tu: float, rate_hz: float) -> Callable[[str], list[Maker]]:
+    """Controller makers over the kind's grid of (Ti, Td_c), in ultimate periods ``tu`` [s]."""
+    def candidates(kind: str) -> list[Maker]:
+        if kind == "PI":
+            return [_maker(float(ti) * tu, 0.0, rate_hz) for ti in _TI_GRID]
+        if kind == "PD":
+            return [_maker(None, float(td) * tu, rate_hz) for td in _TDC_GRID]
+        return [_maker(float(ti) * tu, float(td) * tu, rate_hz) for ti in _TI_GRID for td in _PID_TDC_GRID
+                if ti >= 2.0 * td]
+    return candidates
+
+
+# ----------------------------------------------------------------------------------------------
+# the strategies
+# ----------------------------------------------------------------------------------------------
 def _sign(model: PlantModel) -> float:
     """+1 or -1: the sign of the plant's gain (K when the structure has one, else its low-frequency response)."""
     params = model.parameters
@@ -235,153 +595,19 @@ def _scaled(ss: DiscreteStateSpace, sign: float) -> DiscreteStateSpace:
     return DiscreteStateSpace(ss.Phi, ss.Gamma, sign * ss.C, ss.rate_hz)
 
 
-def _stepped(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
-    """As :func:`~mrftcli.tune.cascade.step_outputs`, tick by tick with A sparse (a long delay's shift chain is mostly zeros)."""
-    from scipy.sparse import csr_matrix
-
-    As = csr_matrix(A)
-    z = np.zeros(A.shape[0])
-    y = np.empty(count)
-    with np.errstate(all="ignore"):
-        for k in range(count):
-            y[k] = Cy @ z
-            z = As @ z + B
-    return y
-
-
-def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) -> float:
-    """IAE [output unit s] of a unit load step at the plant input (``load``) or of a unit setpoint step."""
-    A, B, Cy = closed_loop_matrix(ss, c)
-    if load:
-        B = np.zeros(A.shape[0])
-        B[:ss.order] = ss.Gamma
-    count = max(2, int(horizon_s * c.rate_hz))
-    y = step_outputs(A, B, Cy, count) if A.shape[0] <= _DENSE_ORDER else _stepped(A, B, Cy, count)
-    total = float(np.sum(np.abs(y if load else 1.0 - y))) * c.Ts
-    return total if math.isfinite(total) else math.inf
-
-
-def _stability_contour(d_max: int) -> NDArray[np.complex128]:
-    """The upper half of the circle |z| = 1 + ``_CONTOUR_MARGIN``, from z real > 1 to z real < -1, dense
-    near z = 1 (where an integrator's pole sits just inside) and enough points for the delay's turns."""
-    theta = np.concatenate([[0.0], np.geomspace(1e-9, 1e-2, 300, endpoint=False),
-                            np.linspace(1e-2, math.pi, max(1500, 12 * (d_max + 4)))])
-    contour: NDArray[np.complex128] = np.asarray((1.0 + _CONTOUR_MARGIN) * np.exp(1j * theta), dtype=np.complex128)
-    return contour
-
-
-def _stable_all(c: Controller, p: _Plants, index: Sequence[int] | None = None) -> NDArray[np.bool_]:
-    """Is each closed loop stable? The Nyquist criterion on the contour just outside the unit circle.
-
-    1 + L(z) has as many zeros as poles (L strictly proper), so the closed-loop poles outside the
-    contour number P - W: P the plant's poles outside it, W the winding of 1 + L(z) about 0 as z goes
-    round the contour once (twice the half turn: the coefficients are real). Stable: W = P. The
-    controller's integrator (z = 1) and the delay's poles (z = 0) lie inside. Exact, and linear in the
-    delay where the eigenvalues of the delay-augmented loop cost its cube; it is run on gains that
-    already passed the Ms check, so 1 + L stays away from 0 and the sampled phase follows it.
-    """
-    rows = slice(None) if index is None else list(index)
-    z = p.contour
-    C = c.Kp + c.Ki * c.Ts * z / (z - 1.0) + c.Kd * c.derivative_response(z)
-    F = 1.0 + C[None, :] * p.on_contour[rows]
-    turns = np.diff(np.unwrap(np.angle(F), axis=1)[:, [0, -1]], axis=1)[:, 0] / math.pi
-    stable: NDArray[np.bool_] = np.round(turns).astype(np.int64) == p.unstable[rows]
-    return stable
-
-
-def _ok(c: Controller, p: _Plants, o: DesignOptions) -> bool:
-    """The constraints on every model: the frequency figures first, stability (Nyquist) only if they hold."""
-    L = c.feedback_response(p.omega)[None, :] * p.Gd
-    if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
-        return False
-    figures = cascade_margins(c, p.Gd, p.omega)
-    if not all(pm >= o.pm_min_deg for pm, _, _, _ in figures):
-        return False
-    return bool(np.all(_stable_all(c, p)))
-
-
-def _largest_gain(make: Callable[[float], Controller], ku: float, p: _Plants, o: DesignOptions) -> Controller | None:
-    """The largest Kp in [1e-4, 10] x the ultimate gain meeting the constraints.
-
-    A coarse scan from the top finds the largest feasible grid gain (on an integrating plant a PI is
-    infeasible at low gains too: the feasible gains are an interval), then a bisection in log Kp.
-    """
-    grid = np.geomspace(1e-4 * ku, 10.0 * ku, 21)[::-1]
-    for i, kp in enumerate(grid):
-        if _ok(make(float(kp)), p, o):
-            break
-    else:
-        return None
-    if i == 0:
-        return make(float(grid[0]))
-    lo, hi = float(grid[i]), float(grid[i - 1])
-    while hi / lo > 1.02:
-        mid = math.sqrt(lo * hi)
-        if _ok(make(mid), p, o):
-            lo = mid
-        else:
-            hi = mid
-    return make(lo)
-
-
-def _candidates(kind: str, tu: float, rate_hz: float) -> list[Callable[[float], Controller]]:
-    """Controller makers ``Kp -> Controller`` over the kind's grid of (Ti, Td_c)."""
-    def maker(ti: float | None, tdc: float) -> Callable[[float], Controller]:
-        def make(kp: float) -> Controller:
-            return Controller(kp, 0.0 if ti is None else kp / ti, kp * tdc, tdc / FILTER_N, rate_hz)
-        return make
-
-    if kind == "PI":
-        return [maker(float(ti) * tu, 0.0) for ti in _TI_GRID]
-    if kind == "PD":
-        return [maker(None, float(td) * tu) for td in _TDC_GRID]
-    return [maker(float(ti) * tu, float(td) * tu) for ti in _TI_GRID for td in _PID_TDC_GRID if ti >= 2.0 * td]
-
-
-def _margins(c: Controller, p: _Plants, count: int) -> list[tuple[float, float, float, float, bool]]:
-    """(phase margin [deg], gain margin, Ms, first crossover [Hz], stable) of the first ``count`` models on the fine grid."""
-    stable = _stable_all(c, p, range(count))
-    return [(pm, gm, ms, wc, bool(ok)) for ok, (pm, gm, ms, wc) in zip(stable, cascade_margins(c, p.fine[:count],
-                                                                                                 p.fine_omega))]
-
-
-def _design(name: str, kind: str, p: _Plants, ku: float, tu: float, o: DesignOptions) -> Design | None:
-    load = kind != "PD"
-    horizon = (_LOAD_PERIODS if load else _STEP_PERIODS) * tu
-    best: tuple[float, Controller] | None = None
-    for make in _candidates(kind, tu, p.nominal.rate_hz):
-        c = _largest_gain(make, ku, p, o)
-        if c is None:
-            continue
-        J = _iae(p.nominal, c, horizon, load)
-        if best is None or J < best[0]:
-            best = (J, c)
-    if best is None:
-        return None
-    J, c = best
-    worst = worst_of(_margins(c, p, len(p.all))) if len(p.all) > 1 else None
-    return design_record(name, c, _margins(c, p, 1)[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
-                         "load step" if load else "setpoint step")
-
-
-def _plants(models: Sequence[PlantModel], rate_hz: float, sign: float, w_low: float) -> _Plants:
-    ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
-    grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
-    Gd, fine = (np.array([sign * discrete_response(m, rate_hz, w) for m in models]) for w in grids)
-    held = [_held_delay(m, rate_hz) for m in models]
-    contour = _stability_contour(max(h.d for h in held))
-    on_contour = np.array([sign * _response_at(h, contour) for h in held])
-    unstable = np.array([int(np.sum(np.abs(np.linalg.eigvals(h.Phi)) > 1.0 + _CONTOUR_MARGIN)) for h in held])
-    return _Plants(ss[0], ss, Gd, grids[0], fine, grids[1], contour, on_contour, unstable)
-
-
 def _integrating(model: PlantModel) -> bool:
     A = np.asarray(model.realisation().A, float)
     return bool(np.any(np.abs(np.linalg.eigvals(A)) < 1e-12))
 
 
-def _check(options: DesignOptions) -> None:
-    """Options of eq. (2)'s designs that a family's grid design does not take: refused, never ignored."""
+def _check(options: DesignOptions, cascade: bool) -> None:
+    """Options of eq. (2)'s designs that the grid search does not take: refused, never ignored."""
+    if cascade:
+        if (options.objective != "iae" or options.effort_max is not None or options.rate_filter is not None
+                or "mrft-rule" in (options.designs or ()) or any(k != "PD" for k in options.kinds or ())):
+            raise InputError("a cascade's outer loop is designed as a PD of least IAE (model-based, robust): "
+                             "--objective, --effort-max, the mrft-rule design and --kind PID are for eq. (2) loops")
+        return
     if options.objective != "iae":
         raise InputError(f"--objective {options.objective}: the process families' designs minimise the IAE "
                          "(of a load step for a PI/PID)")
@@ -395,9 +621,31 @@ def _check(options: DesignOptions) -> None:
         raise InputError(f"unknown controller kind(s) {bad}; choose from {', '.join(GRID_KINDS)}")
 
 
+def _tune_cascade(model: CascadeModel, rate_hz: float, draws: Sequence[PlantModel], o: DesignOptions,
+                  loop: str) -> TuneResult:
+    """The cascade's outer PD (module docstring); every design must exist (the vehicle exports both)."""
+    horizon = 6.0 / model.sampled_limit_cycle(-0.7, 1.0, rate_hz).frequency_hz
+    st = _Strategy(_cascade_plants(rate_hz), lambda kind: [_maker(None, float(t), rate_hz) for t in _CASCADE_TDC_GRID],
+                   np.array(_CASCADE_GAINS), {"PD": horizon})
+    draws = [d for d in draws if isinstance(d, CascadeModel)]
+    designs = _search(model, draws, ("PD",), st, o)
+    if not all(designs):
+        raise InputError(f"no PD keeps Ms <= {o.ms_max:g} and a phase margin >= {o.pm_min_deg:g} deg on the cascade "
+                         "(relax --ms-max, or check the identified model)")
+    notes = [f"PD (derivative on the measurement, Tf = Kd / (Kp {FILTER_N:g})) on the exact sampled cascade at "
+             f"{rate_hz:g} Hz: Ms <= {o.ms_max:g}, phase margin >= {o.pm_min_deg:g} deg; least IAE of a unit step"]
+    if len(draws) >= 2:
+        inner = "and of the inner plant over its std" if model.inner.std else "the inner model at its estimate"
+        notes.append(f"robust: the constraints held on the nominal model and {len(draws)} draws of the outer Td, tau "
+                     f"(and K) over their intervals, {inner}")
+    return TuneResult(model, None, rate_hz, loop, "iae", o.ms_max, math.inf, horizon, {},
+                      tuple(d for d in designs if d is not None), tuple(notes))
+
+
 def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], options: DesignOptions,
               loop: str = "") -> TuneResult:
-    """Model-based (and, with ``draws``, robust) PI/PID (and PD on integrating plants) gains (module docstring).
+    """Model-based (and, with ``draws``, robust) gains by the one grid search (module docstring): PI/PID (and PD
+    on integrating plants) for a family, an outer PD for a :class:`~mrftcli.mrft.cascade.CascadeModel`.
 
     Called by :func:`mrftcli.tune.design.tune` for a model that is not eq. (2)'s.
 
@@ -406,12 +654,13 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     model : PlantModel
         The nominal plant.
     rate_hz : float
-        The controller rate [Hz].
+        The controller rate [Hz] (the cascade's outer one: the inner controller's or a whole divisor of it).
     draws : sequence of PlantModel
-        Models the robust design holds its constraints on (:func:`model_draws`); fewer than 2: none.
+        Models the robust design holds its constraints on (:func:`model_draws`, :func:`outer_draws`);
+        fewer than 2: none.
     options : DesignOptions
         ``ms_max``, ``pm_min_deg``, the ``designs`` and the ``kinds`` (None: PI and PID, and PD on an
-        integrating plant); the objective is the IAE.
+        integrating plant; the cascade: PD); the objective is the IAE.
     loop : str
         The loop's name (for the record).
 
@@ -419,9 +668,11 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     ------
     InputError
         A bad rate, a plant with feedthrough, an option of eq. (2)'s designs, or no controller of any
-        kind meets the constraints.
+        kind meets the constraints (the cascade: no PD for one of its designs).
     """
-    _check(options)
+    _check(options, isinstance(model, CascadeModel))
+    if isinstance(model, CascadeModel):
+        return _tune_cascade(model, rate_hz, draws, options, loop)
     discretise(model, rate_hz)  # checks the rate and the plant before the work
     integrating = _integrating(model)
     kinds = tuple(options.kinds) if options.kinds is not None else (GRID_KINDS if integrating else ("PI", "PID"))
@@ -429,12 +680,10 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     wu = _ultimate(model, rate_hz, sign)
     tu = 2 * math.pi / wu
     ku = 1.0 / max(float(np.abs(discrete_response(model, rate_hz, np.array([wu])))[0]), 1e-300)
-    w_low = min(1e-3 * wu, 0.1 * rate_hz)
-    names = options.designs or GRID_DESIGNS
-    sets = [("model-based", _plants([model], rate_hz, sign, w_low))] if "model-based" in names else []
-    if len(draws) >= 2 and "robust" in names:
-        sets.append(("robust", _plants([model, *draws], rate_hz, sign, w_low)))
-    designs = [d for kind in kinds for name, p in sets if (d := _design(name, kind, p, ku, tu, options)) is not None]
+    st = _Strategy(_family_plants(rate_hz, sign, min(1e-3 * wu, 0.1 * rate_hz)), _family_candidates(tu, rate_hz),
+                   np.geomspace(1e-4 * ku, 10.0 * ku, 21)[::-1],
+                   {"PI": _LOAD_PERIODS * tu, "PID": _LOAD_PERIODS * tu, "PD": _STEP_PERIODS * tu})
+    designs = [d for d in _search(model, draws, kinds, st, options) if d is not None]
     if not designs:
         raise InputError(f"no {'/'.join(kinds)} keeps Ms <= {options.ms_max:g} and a phase margin >= "
                          f"{options.pm_min_deg:g} deg on this plant at {rate_hz:g} Hz (relax --ms-max, or check "

@@ -5,7 +5,7 @@ controller that flew it during the outer tests (``--inner-gains``); the outer lo
 through the exact sampled cascade (:func:`mrftcli.analyze.cascade.analyze_cascade`, the inner model's
 uncertainty carried by draws). The outer PD is then designed on the cascade closed by the inner
 loop's *new* gains, the ones tuned in the same run (robust over the outer estimate's draws,
-:func:`mrftcli.tune.cascade.tune_cascade`): the vehicle is flown with both sets loaded.
+:func:`mrftcli.tune.design.tune`): the vehicle is flown with both sets loaded.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
 from ..analyze.cascade import CascadeAnalysis, cascade_model, inner_draws, inner_loop_of
 from ..io import FlightLog
 from ..mrft.cascade import InnerController, InnerLoop
-from ..tune.cascade import outer_draws
+from ..tune.grid import outer_draws
 from ..tune.design import DesignOptions, TuneResult, tune
 from .record import LoopGains, VehicleLoop
 
@@ -93,7 +93,7 @@ def tune_outer(analysis: CascadeAnalysis, inner: VehicleLoop, options: OuterOpti
     Raises
     ------
     MrftError
-        No PD meets the constraints (the cascade strategy's error: mrftcli.tune.cascade.tune_cascade).
+        No PD meets the constraints (the cascade strategy's error: mrftcli.tune.grid.tune_grid).
     """
     closed, said = _new_inner(analysis, inner)
     model = dataclasses.replace(analysis.model, inner=closed)

@@ -192,9 +192,7 @@ class IdentificationResult:
     K : ParameterEstimate or None
         Gain (None without amplitudes).
     model : LoopModel
-        The point estimate (K = 1 when unknown).
-    Tp : float
-        The known propulsion time constant [s].
+        The point estimate (K = 1 when unknown), with the known Tp [s] (:attr:`Tp`).
     residual : float or None
         Three or more tests: weighted RMS of the log-frequency residuals (relative frequency error).
     tests : tuple of dict
@@ -211,7 +209,6 @@ class IdentificationResult:
     tau: ParameterEstimate
     K: ParameterEstimate | None
     model: LoopModel
-    Tp: float
     residual: float | None
     tests: tuple[dict[str, Any], ...]
     warnings: tuple[str, ...]
@@ -220,6 +217,11 @@ class IdentificationResult:
     rate_hz: float | None = None
     n_draws: int = 0
     draws: dict[str, FloatArray] = field(default_factory=dict, repr=False)
+
+    @property
+    def Tp(self) -> float:
+        """The known propulsion time constant [s] (the model's)."""
+        return self.model.Tp
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``parameters.{Td,tau,K,Tp}`` (each the one parameter record) etc."""
@@ -264,7 +266,6 @@ class IdentificationResult:
         return cls(Td=ParameterEstimate.from_json("Td", params.get("Td")),
                    tau=ParameterEstimate.from_json("tau", params.get("tau")), K=K,
                    model=LoopModel.from_json(data.get("model", {})),
-                   Tp=ParameterEstimate.from_json("Tp", params.get("Tp")).value,
                    residual=_optional_float("residual", data.get("residual")),
                    tests=tuple(dict(t) for t in tests), warnings=tuple(warnings),
                    method=str(data.get("method")), uncertainty=str(data.get("uncertainty")),
@@ -796,7 +797,7 @@ def unit_manifolds(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: 
         warns.append(f"Td is poorly determined by these tests: std {est.Td.std:.3g} s is "
                      f"{100 * est.Td.std / point.Td:.0f} % of the estimate")
     model = LoopModel(inputs.Tp, point.Td, point.tau, est.K.value if est.K is not None else 1.0)
-    return IdentificationResult(Td=est.Td, tau=est.tau, K=est.K, model=model, Tp=inputs.Tp,
+    return IdentificationResult(Td=est.Td, tau=est.tau, K=est.K, model=model,
                                 residual=point.residual, tests=per_test, warnings=tuple(warns), method=point.method,
                                 uncertainty=est.method, rate_hz=inputs.rate_hz, n_draws=est.n_draws, draws=est.draws)
 
@@ -850,7 +851,7 @@ def _identify_amplitude(inputs: _Inputs) -> IdentificationResult:
     model = LoopModel(Tp, Td_hat, max(tau_eff - lag, 0.0), K)
     per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": a_mean, "h": test.h,
             "tp_norm": Tp * w0, "td_norm": Td_hat * w0, "theta": tau_eff * w0},)
-    return IdentificationResult(Td=Td_est, tau=tau_est, K=ParameterEstimate.given(K, ""), model=model, Tp=Tp,
+    return IdentificationResult(Td=Td_est, tau=tau_est, K=ParameterEstimate.given(K, ""), model=model,
                                 residual=None, tests=per, warnings=tuple(warns), method="amplitude",
                                 uncertainty=unc, rate_hz=inputs.rate_hz, n_draws=inputs.n_draws if draws else 0,
                                 draws=draws)

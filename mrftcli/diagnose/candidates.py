@@ -23,7 +23,7 @@ from .fit import (CandidateModel, Fit, candidate_starts, effect_value, fit_base,
                   theta_bounds)
 from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significant
 from .jitter import scatter_reference, scatter_z
-from .physics import CANDIDATES, Candidate
+from .physics import CANDIDATES, Effect
 from .records import CandidateFit, HeldOut
 from .screen import Screen
 
@@ -119,13 +119,13 @@ class CandidateSearch:
         ``delta_bic`` None and a ``status`` saying why it was not fitted; ``significant`` on each.
     fits : dict
         name -> (model, fit) of each candidate fitted.
-    order : list of Candidate
+    order : list of Effect
         The deterministic candidates in the order they were fitted (by their probe).
     """
 
     rows: list[CandidateFit]
     fits: dict[str, tuple[CandidateModel, Fit]]
-    order: list[Candidate]
+    order: list[Effect]
 
 
 def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndarray, hi: np.ndarray,
@@ -147,7 +147,7 @@ def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndar
     return [pf.theta for pf in prof[:2] if pf.chi2 <= 1.5 * prof[0].chi2 + BIC_THRESHOLD]
 
 
-def _fit_candidate(cand: Candidate, screen: Screen, linear: LinearFit, Tp: float,
+def _fit_candidate(cand: Effect, screen: Screen, linear: LinearFit, Tp: float,
                    probe: float | None) -> tuple[CandidateFit, CandidateModel | None, Fit | None]:
     """One candidate fitted alone: its row, and its model and fit (None when the fit failed)."""
     tests, recs_fit = screen.tests, screen.recs_fit
@@ -173,7 +173,7 @@ def _fit_candidate(cand: Candidate, screen: Screen, linear: LinearFit, Tp: float
     return row, model, best
 
 
-def _probe_order(cands: list[Candidate], screen: Screen, linear: LinearFit, Tp: float) -> dict[str, float]:
+def _probe_order(cands: list[Effect], screen: Screen, linear: LinearFit, Tp: float) -> dict[str, float]:
     """Each candidate's probe: at its starting values with Td and tau corrected by one Gauss-Newton
     step on the linear model's Jacobian (3 limit cycles per start instead of a fit)."""
     J_b = jacobian(linear.model, linear.fit.theta, screen.recs_fit)

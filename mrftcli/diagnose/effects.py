@@ -1,9 +1,11 @@
-"""diagnose's library of physics on the model object: every family, each effect judged held out.
+"""The families' strategy of the library of physics (:mod:`.physics`): every family but eq. (2), each
+effect judged held out, on the model object.
 
 A relay test's stable cycle is periodic, so for any linear plant each output harmonic is the plant's
 response to the same harmonic of the plant's input: ``Y_k = G(j k Omega) W_k``. An effect the linear
 model leaves out changes what the plant receives (``W``) or what the sensor reports, and each effect
-of the library is written as what it does to one test (:class:`Action`):
+of the library is written as what it does to one test (:class:`~mrftcli.diagnose.physics.Action`,
+the effect's :class:`~mrftcli.diagnose.physics.OnTests`):
 
 * ``gain``: the factor on the relay's square wave the plant receives (``(f(+h) - f(-h)) / 2h`` for a
   static input nonlinearity ``f``: a dead zone ``1 - delta / h``, a saturation ``(min(h, U) + h) / 2h``,
@@ -46,7 +48,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -58,12 +60,10 @@ from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import lti_limit_cycle
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
+from .physics import BIC_THRESHOLD, BY_NAME, EFFECTS, Action, Effect, OnTests
 
-__all__ = ["Action", "Effect", "EFFECTS", "EffectFit", "Selection", "TestData", "as_test_data", "select",
-           "BIC_THRESHOLD"]
+__all__ = ["EffectFit", "Selection", "TestData", "as_test_data", "select"]
 
-#: evidence needed to name an effect (Kass-Raftery's "very strong", as eq. (2)'s diagnosis)
-BIC_THRESHOLD = 10.0
 #: a named effect's held-out error must fall below this fraction of the linear model's: a small gain on
 #: a few noisy tests is what a free parameter buys anyway
 HELD_OUT_GAIN = 0.9
@@ -189,104 +189,10 @@ def as_test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
                     2.0 * (switch_var + Ts * Ts / 12.0), precision)
 
 
-# ----------------------------------------------------------------------------------------------
-# the library
-# ----------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Action:
-    """What an effect does to one test (module docstring). The defaults are no effect."""
-
-    gain: float = 1.0
-    ramp: float = 0.0
-    lag: float = 0.0
-    dc: float = 0.0
-    jitter: float = 0.0
-
-
-@dataclass(frozen=True)
-class Effect:
-    """One candidate of the library.
-
-    Attributes
-    ----------
-    name : str
-        JSON name (as eq. (2)'s library where the physics is the same).
-    parameter, unit : str
-        Its parameter's symbol and unit (``command`` is the command's unit).
-    views : tuple of str
-        Which views it changes: ``"points"``, ``"balance"``, ``"scatter"``.
-    action : callable
-        ``action(test, value, t_ref) -> Action``.
-    grid : callable
-        ``grid(tests) -> array`` of values to profile over (its no-effect value first).
-    explanation : str
-        What it is, for the output.
-    """
-
-    name: str
-    parameter: str
-    unit: str
-    views: tuple[str, ...]
-    action: Callable[[TestData, float, float], Action]
-    grid: Callable[[Sequence[TestData]], np.ndarray]
-    explanation: str
-
-
-def _static(f: Callable[[float], float]) -> Callable[[TestData], Action]:
-    """A static input nonlinearity on the relay's deviation from its bias: the square wave's factor
-    and the added mean (module docstring)."""
-    def act(t: TestData) -> Action:
-        hi, lo = f(t.h), f(-t.h)
-        return Action(gain=(hi - lo) / (2 * t.h), dc=t.duty * hi + (1 - t.duty) * lo - t.h * (2 * t.duty - 1))
-    return act
-
-
-def _span(tests: Sequence[TestData]) -> float:
-    return max(max(t.t_mid for t in tests) - min(t.t_mid for t in tests), 1e-9)
-
-
-def _w(tests: Sequence[TestData]) -> float:
-    return 2 * math.pi * min(t.frequency_hz for t in tests)
-
-
-EFFECTS: tuple[Effect, ...] = (
-    Effect("sensor_lag", "T_lag", "s", ("points",), lambda t, v, _: Action(lag=v),
-           lambda ts: np.concatenate([[0.0], np.geomspace(0.02, 3.0, 14) / _w(ts)]),
-           "a first-order lag the linear model leaves out (a sensor lag, or a second lag of the plant: "
-           "the loop sees only their product)"),
-    Effect("actuator_rate_limit", "R", "command/s", ("points",),
-           lambda t, v, _: Action(ramp=2 * t.h / v if v > 0 else 0.0),
-           lambda ts: np.concatenate([[math.inf], 2 * max(t.h for t in ts) * _w(ts) / np.geomspace(0.02, 2.0, 14)]),
-           "the actuator slews at R between the levels (a lag ~ h / R: the frequency falls as h grows)"),
-    Effect("dead_zone", "delta", "command", ("points", "balance"),
-           lambda t, v, _: _static(lambda u: math.copysign(max(abs(u) - v, 0.0), u))(t),
-           lambda ts: np.linspace(0.0, 0.9, 15) * min(t.h for t in ts),
-           "a dead zone of delta on the plant input: each test's gain is 1 - delta / h"),
-    Effect("actuator_saturation", "U_max", "command", ("points", "balance"),
-           lambda t, v, _: _static(lambda u: min(u, v))(t),
-           lambda ts: np.concatenate([[max(t.h for t in ts)], np.linspace(0.98, 0.2, 14) * max(t.h for t in ts)]),
-           "the plant input saturates at U_max above the relay's bias: the tests whose level reaches it "
-           "receive less, and a lower mean"),
-    Effect("asymmetric_gain", "a", "-", ("balance",), lambda t, v, _: _static(lambda u: (1 + v * math.copysign(1.0, u)) * u)(t),
-           lambda ts: np.linspace(-0.5, 0.5, 21),
-           "the plant input is (1 + a) u above the relay's bias, (1 - a) u below: the mean input moves by a h"),
-    Effect("input_bias", "d", "command", ("balance",), lambda t, v, _: Action(dc=v),
-           lambda ts: np.linspace(-0.5, 0.5, 21) * max(t.h for t in ts),
-           "the plant receives the levels offset by d (asymmetric levels: the relay's bias is not the "
-           "operating point)"),
-    Effect("gain_drift", "g", "1/s", ("points", "balance"),
-           lambda t, v, tr: _static(lambda u: (1 + v * (t.t_mid - tr)) * u)(t),
-           lambda ts: np.linspace(-0.8, 0.8, 17) / _span(ts),
-           "the loop's gain drifts between the tests: K (1 + g (t - t_mid))"),
-    Effect("bias_drift", "b", "command/s", ("balance",), lambda t, v, tr: Action(dc=v * (t.t_mid - tr)),
-           lambda ts: np.linspace(-0.5, 0.5, 21) * max(t.h for t in ts) / _span(ts),
-           "the plant input's offset drifts between the tests: d = b (t - t_mid)"),
-    Effect("delay_jitter", "sigma", "s", ("points", "scatter"), lambda t, v, _: Action(jitter=v),
-           lambda ts: np.concatenate([[0.0], np.geomspace(1e-3, 0.1, 14) / (2 * math.pi * max(t.frequency_hz
-                                                                                              for t in ts))]),
-           "the switch instants jitter by sigma (the cycles' period scatter beyond the noise's)"),
-)
-BY_NAME: dict[str, Effect] = {e.name: e for e in EFFECTS}
+def _on(effect: Effect) -> OnTests:
+    """The effect's strategy on the tests (every effect of :data:`EFFECTS` has one)."""
+    assert effect.on_tests is not None, effect.name
+    return effect.on_tests
 
 
 def _combine(actions: Sequence[Action]) -> Action:
@@ -388,18 +294,18 @@ def _chi2(model: PlantModel, tests: Sequence[TestData], actions: Sequence[Action
 # fitting and holding out
 # ----------------------------------------------------------------------------------------------
 def _actions(effects: Sequence[tuple[Effect, float]], tests: Sequence[TestData], t_ref: float) -> list[Action]:
-    return [_combine([e.action(t, v, t_ref) for e, v in effects]) for t in tests]
+    return [_combine([_on(e).action(t, v, t_ref) for e, v in effects]) for t in tests]
 
 
 def _views(effects: Sequence[Effect]) -> tuple[str, ...]:
-    return tuple(sorted({v for e in effects for v in e.views}))
+    return tuple(sorted({v for e in effects for v in _on(e).views}))
 
 
 def _profile(model: PlantModel, tests: Sequence[TestData], fixed: Sequence[tuple[Effect, float]], effect: Effect,
              k0: float, t_ref: float) -> tuple[float, float]:
     """The effect's value that minimises chi^2 over ``tests`` (a grid, then refined) and that chi^2."""
     views = _views([e for e, _ in fixed] + [effect])
-    grid = effect.grid(tests)
+    grid = _on(effect).grid(tests)
 
     def cost(v: float) -> float:
         return _chi2(model, tests, _actions([*fixed, (effect, v)], tests, t_ref), k0, views).chi2
@@ -463,7 +369,7 @@ def _held_out_errors(model: PlantModel, tests: Sequence[TestData], effects: Sequ
         others = [t for j, t in enumerate(tests) if j != i]
         fitted = [(e, v) for e, v in effects if e not in free]
         for e in free:
-            v, _ = _profile(model, others, fitted, e, k0, t_ref) if others else (e.grid(tests)[0], 0.0)
+            v, _ = _profile(model, others, fitted, e, k0, t_ref) if others else (_on(e).grid(tests)[0], 0.0)
             fitted.append((e, v))
         a_i = _actions(fitted, [test], t_ref)[0]
         errs = []
@@ -570,7 +476,8 @@ def _fit_one(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[
     ident = _identify(model, tests, _actions([*kept, (effect, value)], tests, t_ref))
     refit = {} if ident is None or "points" not in base_views else {e.name: e.value for e in ident.estimates}
     floor = max(0.5 / t.rate_hz for t in tests) if effect.name == "delay_jitter" else 0.0
-    return EffectFit(effect.name, effect.parameter, effect.unit, value, dbic, _rms(before), _rms(after),
+    unit = "-" if effect.unit == "1" else effect.unit  # a ratio, as the terminal spells it
+    return EffectFit(effect.name, effect.parameter, unit, value, dbic, _rms(before), _rms(after),
                      tuple(before), tuple(after), views, with_, floor, refit)
 
 

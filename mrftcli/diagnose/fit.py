@@ -24,7 +24,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, relay_harmonics, summarize_features
-from .physics import Candidate, df_quadratic_drag
+from .physics import Effect, df_quadratic_drag
 from .scatter import scatter_sample
 from .limit_cycles import AugmentedPlant, quasi_static_plant
 from .periodic import CyclePlant, PeriodicSolution, periodic_solution
@@ -193,7 +193,7 @@ class CandidateModel:
     parameter per other deterministic effect, in the order given].
     """
 
-    def __init__(self, cand: Candidate | tuple | None, tests: list[DiagnosedTest], Tp: float) -> None:
+    def __init__(self, cand: Effect | tuple | None, tests: list[DiagnosedTest], Tp: float) -> None:
         cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
         self.cands = tuple(c for c in cands if not c.stochastic)
         self.cand = cands[0] if cands else None
@@ -521,7 +521,7 @@ def fit_base(model: CandidateModel, tests: list[DiagnosedTest], Tp: float, lo: n
     return best
 
 
-def theta_bounds(cand: Candidate | tuple | None, tests: list[DiagnosedTest]) -> tuple[np.ndarray, np.ndarray]:
+def theta_bounds(cand: Effect | tuple | None, tests: list[DiagnosedTest]) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of theta (layout of :class:`CandidateModel`) for the base model, one candidate or a combination."""
     cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
     lo = [math.log(0.02), 0.0]
@@ -550,7 +550,7 @@ def theta_bounds(cand: Candidate | tuple | None, tests: list[DiagnosedTest]) -> 
     return np.array(lo), np.array(hi)
 
 
-def candidate_starts(cand: Candidate, base: Fit, tests: list[DiagnosedTest], recs: list, Tp: float) -> list[np.ndarray]:
+def candidate_starts(cand: Effect, base: Fit, tests: list[DiagnosedTest], recs: list, Tp: float) -> list[np.ndarray]:
     th = base.theta
     hs = np.mean([t.h for t in tests])
     if cand.name == "input_bias":
@@ -621,7 +621,7 @@ def param_std(fit: Fit, j: int | None) -> float:
     return float(math.sqrt(v)) if v >= 0 else float("nan")
 
 
-def effect_value(cand: Candidate, model: CandidateModel, fit: Fit, p: dict) -> tuple[float, float]:
+def effect_value(cand: Effect, model: CandidateModel, fit: Fit, p: dict) -> tuple[float, float]:
     """The effect's parameter in its own units and its standard error, from a fit of ``model``."""
     hs = model.hs
     j = model.extra_index(cand.name)

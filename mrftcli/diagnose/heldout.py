@@ -19,13 +19,12 @@ from scipy.stats import chi2 as chi2_dist
 
 from .features import FEATURE_NAMES, cycle_scatter
 from .fit import CandidateModel, DiagnosedTest, Fit, PredictedCycle, feature_mask
+from .physics import BIC_THRESHOLD
 from .records import CandidateFit, HeldOut, PairFit
 
-__all__ = ["BIC_THRESHOLD", "HOLDOUT_THRESHOLD", "held_out_score", "waveform_errors", "harmonic_errors", "held_out_p",
+__all__ = ["HOLDOUT_THRESHOLD", "held_out_score", "waveform_errors", "harmonic_errors", "held_out_p",
            "explains_held_out", "significant"]
 
-#: delta BIC above which an effect counts as found (Kass & Raftery: > 10 is very strong evidence)
-BIC_THRESHOLD = 10.0
 #: held-out confirmation: the candidate must lower the held-out features' chi^2 by at least this much
 #: (2 ln of the likelihood ratio on cycles it was not fitted on; the same "very strong" level)
 HOLDOUT_THRESHOLD = 10.0

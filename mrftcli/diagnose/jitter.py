@@ -14,7 +14,7 @@ import numpy as np
 from .fit import CandidateModel, DiagnosedTest, Fit
 from .heldout import BIC_THRESHOLD
 from .limit_cycles import AugmentedPlant, periodic_cycle
-from .physics import Candidate
+from .physics import Effect
 from .records import CandidateFit, HeldOut
 from .scatter import ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error, refit_sigma
 
@@ -89,7 +89,7 @@ def scatter_z(tests: list[DiagnosedTest], scatter: list[dict], sel: str, v_pred:
     return np.array(out)
 
 
-def jitter_candidate(cand: Candidate, tests: list[DiagnosedTest], scatter: list[dict],
+def jitter_candidate(cand: Effect, tests: list[DiagnosedTest], scatter: list[dict],
                      scatter_z: Callable[[str, Sequence[float]], np.ndarray], base: Fit, n_all: int) -> CandidateFit:
     """Fit the delay-jitter std to the recorded period scatter (:func:`mrftcli.diagnose.scatter.fit_jitter`)."""
     v0 = np.array([sc["v0"] for sc in scatter])

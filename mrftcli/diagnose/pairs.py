@@ -22,7 +22,7 @@ from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, jacobian, prob
 from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_value, fit_model, plant_params,
                   residuals, theta_bounds)
 from .heldout import BIC_THRESHOLD, HOLDOUT_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
-from .physics import BY_NAME, Candidate
+from .physics import BY_NAME, Effect
 from .identification import EffectIdentification
 from .records import CandidateFit, EffectFinding, Evidence, FinalModel, HeldOut, PairFit
 from .screen import Screen
@@ -107,7 +107,7 @@ _NULL = {"input_bias": 0.0, "gain_drift": 0.0, "asymmetric_gain": 0.0}
 _PROFILED = ("sensor_lag", "actuator_rate_limit")
 
 
-def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Candidate, c2: Candidate, fits: dict, base: Fit,
+def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Effect, c2: Effect, fits: dict, base: Fit,
                  tests: list[DiagnosedTest], recs_fit: list, Tp: float, hi: np.ndarray) -> list[np.ndarray]:
     """Starts of the pair (c1 fitted already, c2 added): c1's fit with c2 at its null value (the
     nested model: the pair can only do better than c1 alone), at each of c2's own starts (their Td and
@@ -202,7 +202,7 @@ def pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests
     return row, model, best
 
 
-def pair_probe(first: CandidateFit, cand: Candidate, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
+def pair_probe(first: CandidateFit, cand: Effect, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
                 recs_fit: list, Tp: float) -> float | None:
     """:func:`_probe_gain` of the pair (the first effect fitted, ``cand`` added) against the first
     alone (its Jacobian ``J1``), from the pair's starts other than the nested null one; None when the
@@ -270,12 +270,12 @@ class _Pairs:
         """The joint model and fit of a pair row."""
         return next((m, f) for r, m, f in self._joint if r is row)
 
-    def probe(self, anchor: CandidateFit, cand: Candidate, J: np.ndarray) -> float | None:
+    def probe(self, anchor: CandidateFit, cand: Effect, J: np.ndarray) -> float | None:
         """:func:`pair_probe` of ``cand`` beside ``anchor`` (its fit's Jacobian ``J``)."""
         sc = self.screen
         return pair_probe(anchor, cand, self.fits, J, self.linear.fit, sc.tests, sc.recs_fit, self.Tp)
 
-    def probed(self, first: CandidateFit, order: list[Candidate]) -> None:
+    def probed(self, first: CandidateFit, order: list[Effect]) -> None:
         """The first explains the held-out cycles to the noise level, yet a second effect can still be
         plain on the fitting cycles (thrust rectification beside an asymmetric gain or a saturation:
         delta BIC 40-65): every other candidate is probed, and only those whose probe clears

@@ -52,14 +52,14 @@ from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .candidates import LinearFit, fit_linear, search_candidates
 from .checks import check_test, locate as locate_checks, measured_waveform, misfit, verdict
-from .effects import select as select_effects_on, as_test_data
+from .effects import as_test_data, select as select_effects_on
 from .fit import plant_params
-from .heldout import BIC_THRESHOLD, significant
+from .heldout import significant
 from .identification import EffectIdentification, Identification, ModelEstimate, analyze_model
 from .jitter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
-from .physics import BY_NAME, CANDIDATES, unit_in_loop
+from .physics import BIC_THRESHOLD, BY_NAME, CANDIDATES, unit_in_loop
 from .resonance import resonance_mismatch
 from .records import (CandidateFit, DiagnosisFigures, DiagnosisResult, Disagreement, EffectFinding, FinalModel,
                       TestRow, Unexplained)
@@ -240,9 +240,10 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
     """Eq. (2)'s strategy (module docstring), Tp [s] read from the model object."""
     Tp = model.Tp
     names = [c.name for c in CANDIDATES] if candidates is None else list(candidates)
+    library = [c.name for c in CANDIDATES]  # eq. (2)'s part of the library
     for n in names:
-        if n not in BY_NAME:
-            raise InputError(f"unknown candidate effect {n!r}; choose from {', '.join(BY_NAME)}")
+        if n not in library:
+            raise InputError(f"unknown candidate effect {n!r}; choose from {', '.join(library)}")
     # done, total: segmenting, linear fit, noise scatter, candidates, locating
     say = _Stages(progress, 4 + len(names))
     screen = screen_log(flight, model, analysis, say)

@@ -37,7 +37,7 @@ from mrftcli.analyze import AnalyzeOptions, analyze_flight  # noqa: E402
 from mrftcli.errors import MrftError  # noqa: E402
 from mrftcli.mrft.lprs import mrft_limit_cycle  # noqa: E402
 from mrftcli.mrft.model import LoopModel  # noqa: E402
-from mrftcli.plan import (FlightLimits, PlanOptions, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
+from mrftcli.plan import (PlanLimits, PlanOptions, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
                           planned_information, simulated_std)
 from mrftcli.segment import segment  # noqa: E402
 from mrftcli.sim import FlightSpec, TestSpec, default_noise_std, simulate_flight  # noqa: E402
@@ -74,7 +74,7 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
         noise = min(noise, _max_noise(m, -0.4, h1, rate))  # a first test that does not lock up
         first = TestSpec(-0.4, float(h1), 12.0)
         t2 = float(rng.uniform(8.0, 20.0))
-        limits = FlightLimits(max_amplitude=amax, max_h=10.0 * h1, time_s=t2, rate_hz=rate, noise_std=noise)
+        limits = PlanLimits(max_amplitude=amax, max_h=10.0 * h1, time_s=t2, rate_hz=rate, noise_std=noise)
         common = dict(model=m, loop=loop, rate_hz=rate, noise_std=noise, seed=int(rng.integers(1 << 30)),
                       hover_s=2.0, hold_s=2.0)
         try:

@@ -15,7 +15,7 @@ import time
 
 import mrftcli.plan.driver as driver
 from mrftcli.mrft.model import soiptd_model
-from mrftcli.plan import FlightLimits, PlanOptions, Prior, plan_tests
+from mrftcli.plan import PlanLimits, PlanOptions, Prior, plan_tests
 
 
 def main() -> None:
@@ -23,7 +23,7 @@ def main() -> None:
     ap.add_argument("--simulate", default="8,64", help="simulated plants, comma-separated")
     ap.add_argument("--seed", type=int, default=0, help="the plan's seed (draws and simulated flights)")
     args = ap.parse_args()
-    limits = FlightLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
+    limits = PlanLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
     prior = Prior(Td=(0.2, 3.0), tau=(0.01, 0.1), K=(2.0, 8.0))
     original = driver._simulate
     for n in (int(x) for x in args.simulate.split(",")):

@@ -65,7 +65,7 @@ def one_draw(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, obje
     from mrftcli.mrft.families import PROCESS_FAMILIES
     from mrftcli.mrft.relays import RelayLaw
     from mrftcli.mrft.families import family_model
-    from mrftcli.plan import RelayLimits, plan_tests
+    from mrftcli.plan import PlanLimits, plan_tests
 
     params = draw_plant(family, rng)
     ideal = RelayLaw("ideal", 1.0, -1.0).limit_cycle(PROCESS_FAMILIES[family](**params))
@@ -75,7 +75,7 @@ def one_draw(family: str, rng: np.random.Generator, tmp: Path) -> dict[str, obje
     first = Window("ideal", 1.0, -1.0, duration=14 * ideal.period, rest=ideal.period)
     out: dict[str, object] = {"family": family, "params": params, "rate": rate, "noise_pct": 100 * noise / ideal.amplitude}
     try:
-        plan = plan_tests(family_model(family), RelayLimits(),
+        plan = plan_tests(family_model(family), PlanLimits(),
                           recorded=_analyse(family, params, [first], rate, noise, seed, tmp / "first.csv"))
     except MrftError as err:
         return {**out, "refused": f"first/plan: {str(err)[:90]}"}

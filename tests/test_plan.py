@@ -17,7 +17,7 @@ from mrftcli.cli.main import cli
 from mrftcli.errors import InputError, InsufficientDataError
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
-from mrftcli.plan import (FlightLimits, FlownTest, PlanOptions, PlanResult, Prior, cycle_noise, fisher_information,
+from mrftcli.plan import (PlanLimits, FlownTest, PlanOptions, PlanResult, Prior, cycle_noise, fisher_information,
                           plan_tests, simulated_std)
 
 
@@ -51,7 +51,7 @@ def test_fisher_information_of_the_ufm_slice_matches_a_finite_difference_of_the_
 
 def test_predicted_cycle_is_the_exact_sampled_lprs():
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
-    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     p = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
     t = p.tests[0]
     lc = mrft_limit_cycle(model, t.beta, t.h, 200.0)
@@ -68,7 +68,7 @@ def test_predicted_cycle_matches_a_simulated_flight():
     from test_segment_support import flight_from_simulated
 
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
-    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.05, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
     t = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,))).tests[0]
     sf = simulate_flight(FlightSpec(model=model, tests=(TestSpec(t.beta, t.h, t.duration_s),), rate_hz=200.0,
                                     noise_std=0.0005, seed=5, hover_s=2.0, hold_s=1.0))
@@ -85,14 +85,14 @@ def test_noise_model_grows_with_the_sensor_noise():
 
 
 def test_refuses_when_the_limits_admit_no_test():
-    limits = FlightLimits(max_amplitude=1e-5, max_h=1.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=1e-5, max_h=1.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     with pytest.raises(InputError, match="admit no MRFT test.*--max-amplitude"):
         plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.5,)))
 
 
 def test_flags_td_when_no_test_can_pin_it_down():
     # a slow drag (Td 3 s) on a fast loop: Td * Omega >> 5 for every beta
-    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     prior = Prior(Td=(2.5, 3.0), tau=(0.01, 0.012), K=(2.0, 2.1))
     p = plan_tests(soiptd_model(0.02), limits, prior=prior, options=PlanOptions(n_tests=1, n_draws=2, betas=(-0.3, -0.6)))
     assert any("Td cannot be pinned down" in n for n in p.notes)
@@ -102,7 +102,7 @@ def test_a_flown_test_is_counted_and_not_repeated():
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
     lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=lc.frequency_hz, amplitude=lc.amplitude, n_cycles=10)
-    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=15.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.05, max_h=10.0, time_s=15.0, rate_hz=200.0, noise_std=0.0005)
     p = plan_tests(soiptd_model(model.Tp), limits, prior=Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), flown=[flown], options=PlanOptions(n_draws=3, betas=(-0.4, -0.6, -0.8)))
     assert len(p.tests) == 1 and abs(p.tests[0].beta + 0.4) > 0.1  # one new slice, not the same again
     # the flown test plus the new one say more than the prior alone
@@ -145,11 +145,11 @@ def test_a_beta_whose_switch_noise_would_trigger_is_not_recommended():
     # beta -0.9 switches once the error is 10 % below its extremum: with the exact amplitude a of the
     # capped test, (1 + beta) a / noise is computed here from the LPRS, independently of the planner
     model = LoopModel(0.04, 0.8, 0.03, 2.0)
-    limits = FlightLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0002)
+    limits = PlanLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0002)
     betas = (-0.5, -0.9)
     gap = {b: (1 + b) * 0.02 / 0.0002 for b in betas}  # h is set so the amplitude is the limit
     assert gap[-0.9] < 16 < gap[-0.5]
-    quiet = FlightLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.00002)
+    quiet = PlanLimits(max_amplitude=0.02, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.00002)
     # without the noise the planner prefers -0.9 here (its slice crosses -0.4's more steeply) ...
     assert plan_tests(soiptd_model(model.Tp), quiet, prior=_narrow_prior(), options=PlanOptions(n_tests=1, n_draws=2, betas=betas)).tests[0].beta == -0.9
     # ... with it, -0.9 is set aside, and the plan says why
@@ -163,7 +163,7 @@ def test_a_beta_whose_switch_noise_would_trigger_is_not_recommended():
 
 
 def test_forecast_is_the_typical_draw_inside_its_range():
-    limits = FlightLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.05, max_h=10.0, time_s=20.0, rate_hz=200.0, noise_std=0.0005)
     p = plan_tests(soiptd_model(0.04), limits, prior=Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)), options=PlanOptions(n_tests=2, n_draws=6, betas=(-0.3, -0.6)))
     for k in ("Td", "tau", "K"):
         lo, hi = p.predicted_std_data_range[k]
@@ -182,7 +182,7 @@ def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
     lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
     h1 = 0.03 / lc.amplitude
     flown = FlownTest(beta=-0.4, h=h1, frequency_hz=lc.frequency_hz, amplitude=0.03, n_cycles=11)
-    limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
     p = plan_tests(soiptd_model(model.Tp), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, n_simulated=3, betas=(-0.6, -0.8)))
     assert p.n_simulated >= 2 and p.to_json()["simulated_std"] == p.simulated_std
     t = p.tests[0]
@@ -205,17 +205,17 @@ def test_simulated_forecast_matches_the_scatter_of_repeat_flights():
 def test_simulated_forecast_says_when_the_flights_fail():
     # a noise far above the amplitude: analyze cannot use the simulated flights, and the plan says so
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
-    limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
     p = plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6,)))
     s = simulated_std(
         soiptd_model(0.04), np.array([[0.8, 0.03, 2.0]]), [flown], p.tests,
-        FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.5))
+        PlanLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.5))
     assert np.isnan(s).all()
 
 
 def _plan_for_json() -> PlanResult:
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
-    limits = FlightLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
     return plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6, -0.9)))
 
 
@@ -241,7 +241,7 @@ def test_plan_json_of_version_1_reads_and_today_plans_the_same():
     assert [(t.beta, t.h, t.frequency_hz) for t in old.tests] == [(t["beta"], t["h"], t["frequency_hz"])
                                                                  for t in data["tests"]]
     assert old.to_json()["schema_version"] == 2  # written back in the new layout
-    limits = FlightLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
+    limits = PlanLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
     new = plan_tests(soiptd_model(0.0422), limits, prior=Prior(K=(2.0, 8.0)), options=PlanOptions(n_simulated=0))
     assert (new.tests, new.candidates, new.conventional, new.notes) == (old.tests, old.candidates, old.conventional,
                                                                         old.notes)
@@ -343,7 +343,7 @@ def test_a_recommendation_its_simulation_loses_is_not_made():
 
 def test_eq2_is_planned_with_tp_known_and_the_rest_free():
     # K known too would leave analyze (the simulated forecast) and the draws at odds with the plan: refused
-    limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
+    limits = PlanLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
     with pytest.raises(InputError, match="soiptd_model"):
         plan_tests(soiptd_model(0.04, K=2.0), limits, prior=_narrow_prior())
     with pytest.raises(InputError, match="Prior"):

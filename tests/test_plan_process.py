@@ -22,7 +22,7 @@ from mrftcli.errors import InputError  # noqa: E402
 from mrftcli.io import ReadOptions, read_flight  # noqa: E402
 from mrftcli.mrft.families import family_model  # noqa: E402
 from mrftcli.mrft.identify_lti import ResponsePoint  # noqa: E402
-from mrftcli.plan import PlanResult, RelayLimits, plan_tests, point_information  # noqa: E402
+from mrftcli.plan import PlanResult, PlanLimits, plan_tests, point_information  # noqa: E402
 
 TRUTH = dict(K=2.0, T=0.5, tau=0.1)
 READ = ReadOptions(command_topic="u_relay", output_topic="y_output")
@@ -39,7 +39,7 @@ def _analyse(tmp_path: Path, name: str, windows: list[Window], noise: float, see
 def plan_process(analysis, max_amplitude=None, max_h=None) -> PlanResult:
     """The plan of the recorded tests ``analysis``, as ``plan LOG --model NAME`` makes it."""
     family = analysis.identification.model.family
-    return plan_tests(family_model(family), RelayLimits(max_amplitude, max_h), recorded=analysis)
+    return plan_tests(family_model(family), PlanLimits(max_amplitude, max_h), recorded=analysis)
 
 
 def _window(relay, duration: float) -> Window:

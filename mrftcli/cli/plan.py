@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from ..analyze.general import GeneralAnalysis
     from ..mrft.identify import ParameterEstimate
     from ..mrft.model import LoopModel, PlantModel
-    from ..plan import FlightLimits, FlownTest, PlanResult, Prior
+    from ..plan import FlownTest, PlanLimits, PlanResult, Prior
 
 __all__ = ["plan", "format_plan", "format_relay_plan"]
 
@@ -261,9 +261,9 @@ def _recorded(model: PlantModel, given: _Given) -> GeneralAnalysis:
     return analysis
 
 
-def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, FlightLimits, Sequence[FlownTest], list[str]]:
+def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, PlanLimits, Sequence[FlownTest], list[str]]:
     """Eq. (2)'s prior, limits and flown tests (from --from LOG|JSON), and what was assumed (stated first)."""
-    from ..plan import FlightLimits, Prior, prior_range
+    from ..plan import PlanLimits, Prior, prior_range
     from ..sim import default_noise_std
 
     loop = given.read_options["loop"]
@@ -301,7 +301,7 @@ def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, FlightLimits, 
         assumed.append(f"sensor noise std {noise:.3g} [output units] (the {loop} loop's default, not measured; "
                        "give --noise)")
     assert given.max_amplitude is not None and given.max_h is not None and given.time_s is not None
-    limits = FlightLimits(max_amplitude=given.max_amplitude, max_h=given.max_h, time_s=given.time_s, rate_hz=rate,
+    limits = PlanLimits(max_amplitude=given.max_amplitude, max_h=given.max_h, time_s=given.time_s, rate_hz=rate,
                           noise_std=noise)
     return prior, limits, flown, assumed
 
@@ -373,17 +373,17 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
                    min_cycles, read_options)
     _check_given(given)
     from ..mrft.model import LoopModel, soiptd_model
-    from ..plan import PlanOptions, RelayLimits, plan_tests
+    from ..plan import PlanLimits, PlanOptions, plan_tests
 
     # the one model object: eq. (2) with Tp known, or the process structure (its known values and ranges)
     model = soiptd_model(Tp) if Tp is not None and model_name == "soiptd" else build_model(model_name, params, ranges)
-    relay_limits = None if isinstance(model, LoopModel) else RelayLimits(max_amplitude, max_h)
+    relay_limits = None if isinstance(model, LoopModel) else PlanLimits(max_amplitude, max_h)
     check_output_file(json_target, "--json")  # before the work, as analyze
     prior: Prior | None = None
     flown: Sequence[FlownTest] = ()
     recorded: GeneralAnalysis | None = None
     assumed: list[str] = []
-    limits: FlightLimits | RelayLimits
+    limits: PlanLimits
     if isinstance(model, LoopModel):
         prior, limits, flown, assumed = _mrft_inputs(model, given)
     else:

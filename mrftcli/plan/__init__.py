@@ -3,18 +3,18 @@
 :func:`plan_tests` takes the model object and picks the strategy of its kind. Eq. (2)
 (``soiptd_model(Tp)``): what is known enters as a :class:`Prior` (ranges for Td, tau and K) and,
 optionally, as tests already flown (:class:`FlownTest`, from a log or an ``analyze --json`` result);
-what the flight allows as :class:`FlightLimits` (largest output amplitude, largest relay height, time
+what the flight allows as :class:`PlanLimits` (largest output amplitude, largest relay height, time
 available, controller rate, sensor noise); it recommends the beta, relay height and duration of the
 next MRFT test(s) with their predicted limit cycle and the predicted standard deviations of Td, tau
 and K after them. A process plant (any other family): its recorded tests analysed
-(``analyze --model``) and :class:`RelayLimits`; it ranks the next relay tests by the parameters' std
+(``analyze --model``) and :class:`PlanLimits` (amplitude, half-height); it ranks the next relay tests by the parameters' std
 after each. Both return a :class:`PlanResult` (versioned JSON). docs/plan.md and
 docs/process-plants.md have the method.
 
 One module per stage:
 
 =============  ==================================================================================
-``records``    the records: :class:`Prior`, :class:`FlightLimits`, :class:`FlownTest`,
+``records``    the records: :class:`Prior`, :class:`PlanLimits`, :class:`FlownTest`,
                :class:`TestPlan`, :class:`CandidateTest`, :class:`PlanResult`
 ``inputs``     flown tests from a log's segments or an ``analyze --json`` result; prior ranges
 ``noise``      the per-cycle noise model of a test's constraints; the admissibility lines
@@ -36,12 +36,11 @@ from .fisher import fisher_information, flown_information, planned_information, 
 from .forecast import simulated_std
 from .inputs import flown_from_result, flown_from_segments, noise_from_result, prior_range
 from .noise import NOISE_MODEL, cycle_noise, switch_gap
-from .records import CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, RelayLimits, TestPlan
+from .records import CandidateTest, Conventional, FlownTest, PlanLimits, PlanResult, Prior, TestPlan
 
 __all__ = [
     "Prior",
-    "FlightLimits",
-    "RelayLimits",
+    "PlanLimits",
     "FlownTest",
     "flown_from_segments",
     "flown_from_result",

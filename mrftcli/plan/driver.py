@@ -50,7 +50,7 @@ from .fisher import (flown_information, point_information, point_stds, posterior
                      unknown_parameters)
 from .forecast import SimulatedForecast, simulated_forecast, std_median, std_range
 from .noise import MIN_SWITCH_GAP
-from .records import (CandidateTest, Conventional, FlightLimits, FlownTest, PlanResult, Prior, RelayLimits, Stds,
+from .records import (CandidateTest, Conventional, FlownTest, PlanLimits, PlanResult, Prior, Stds,
                       TestPlan)
 from .search import (Choice, DesignSpace, Information, admissible_betas, assess, candidate_relays, choose_tests,
                      conventional_information, design_space, forecast_relays, rank, recommended_test, relay_noise,
@@ -92,7 +92,7 @@ class PlanOptions:
     seed: int = 0
 
 
-def plan_tests(model: PlantModel, limits: FlightLimits | RelayLimits, *, prior: Prior | None = None,
+def plan_tests(model: PlantModel, limits: PlanLimits, *, prior: Prior | None = None,
                flown: Sequence[FlownTest] = (), recorded: GeneralAnalysis | None = None,
                options: PlanOptions = PlanOptions(), progress: Progress | None = None) -> PlanResult:
     """Recommend the next test(s) for ``model`` (docs/plan.md, docs/process-plants.md; module docstring).
@@ -102,9 +102,9 @@ def plan_tests(model: PlantModel, limits: FlightLimits | RelayLimits, *, prior: 
     model : PlantModel
         The model object: eq. (2) (``soiptd_model(Tp)``, Tp [s] known) plans MRFT tests from ``prior``
         and ``flown``; any other family plans the next relay test from ``recorded``.
-    limits : FlightLimits or RelayLimits
+    limits : PlanLimits
         Eq. (2): amplitude, relay height, time, rate and noise of the flight. A process plant: the
-        largest amplitude and the relay half-height (RelayLimits; both optional).
+        largest amplitude and the relay half-height (both optional).
     prior : Prior
         Eq. (2): ranges for Td, tau and K.
     flown : sequence of FlownTest
@@ -129,24 +129,26 @@ def plan_tests(model: PlantModel, limits: FlightLimits | RelayLimits, *, prior: 
     Examples
     --------
     >>> from mrftcli.mrft.model import soiptd_model
-    >>> from mrftcli.plan import FlightLimits, PlanOptions, Prior, plan_tests
+    >>> from mrftcli.plan import PlanLimits, PlanOptions, Prior, plan_tests
     >>> prior = Prior(Td=(0.3, 3.0), tau=(0.01, 0.08), K=(1.0, 10.0))
-    >>> limits = FlightLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
+    >>> limits = PlanLimits(max_amplitude=0.05, max_h=2.0, time_s=30.0, rate_hz=200.0, noise_std=0.0005)
     >>> p = plan_tests(soiptd_model(0.04), limits, prior=prior,
     ...                options=PlanOptions(n_tests=2, n_draws=3, betas=(-0.2, -0.5, -0.8)))
     >>> len(p.tests), all(-0.9 <= t.beta <= -0.1 for t in p.tests), p.Tp
     (2, True, 0.04)
     """
     if isinstance(model, LoopModel):
-        if not isinstance(limits, FlightLimits) or prior is None:
-            raise InputError("eq. (2) plans from a Prior and FlightLimits (amplitude, height, time, rate, noise)")
+        if not limits.flight or prior is None:
+            raise InputError("eq. (2) plans from a Prior and a flight's PlanLimits (amplitude, height, time, rate, "
+                             "noise)")
         return _plan_mrft(model, prior, limits, flown, options, progress)
-    if not isinstance(limits, RelayLimits):
-        raise InputError(f"a {model.family} plan takes RelayLimits (the largest amplitude, the relay half-height)")
+    if limits.flight:
+        raise InputError(f"a {model.family} plan takes the largest amplitude and the relay half-height (the time, "
+                         "rate and noise are the recorded tests')")
     return _plan_relays(model, recorded, limits)
 
 
-def _plan_mrft(model: LoopModel, prior: Prior, limits: FlightLimits, flown: Sequence[FlownTest],
+def _plan_mrft(model: LoopModel, prior: Prior, limits: PlanLimits, flown: Sequence[FlownTest],
                options: PlanOptions, progress: Progress | None) -> PlanResult:
     """Eq. (2)'s strategy: the next MRFT test(s) over the prior's draws at ``model``'s known Tp."""
     check_time("Tp", model.Tp)
@@ -364,7 +366,7 @@ POORLY_DETERMINED = 0.1
 
 
 def plan_notes(tests: Sequence[TestPlan], lowest_f: float, post: dict[str, float], prior_std: dict[str, float],
-               limits: FlightLimits, *, centre: Mapping[str, float] | None = None,
+               limits: PlanLimits, *, centre: Mapping[str, float] | None = None,
                post_data: Mapping[str, float] | None = None) -> list[str]:
     """Which parameters no admissible test pins down, and what would help.
 
@@ -391,16 +393,17 @@ def plan_notes(tests: Sequence[TestPlan], lowest_f: float, post: dict[str, float
         notes.append("tau stays poorly determined: allow a larger amplitude (--max-amplitude) or more time (--time)")
     if loose["K"] and post["K"] > 0.5 * prior_std["K"]:
         notes.append("K stays poorly determined: allow a larger amplitude or relay height")
-    capped = [t for t in tests if t.h >= limits.max_h * (1 - 1e-9)]
+    max_h = limits.bounds()[1]
+    capped = [t for t in tests if t.h >= max_h * (1 - 1e-9)]
     if capped:
-        notes.append(f"the relay height is at its limit ({limits.max_h:g}) for beta "
+        notes.append(f"the relay height is at its limit ({max_h:g}) for beta "
                      f"{', '.join(f'{t.beta:g}' for t in capped)}: the amplitude is below the allowed one")
     return notes
 
 
 # -- a process plant (any family but eq. (2)): the next relay test for the identified model --------------
 
-def _plan_relays(structure: PlantModel, recorded: GeneralAnalysis | None, limits: RelayLimits) -> PlanResult:
+def _plan_relays(structure: PlantModel, recorded: GeneralAnalysis | None, limits: PlanLimits) -> PlanResult:
     """The relay strategy: rank the next relay tests for the model ``recorded`` identified (module docstring).
 
     Raises

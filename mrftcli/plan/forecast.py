@@ -11,7 +11,7 @@ from ..mrft.model import LoopModel
 from ..progress import Progress, report
 from .fisher import posterior_covariance, posterior_stds
 from .noise import LOST_CYCLES
-from .records import PARAMS, FlightLimits, FlownTest, TestPlan
+from .records import PARAMS, FlownTest, PlanLimits, TestPlan
 
 __all__ = ["std_median", "std_range", "simulated_std", "simulated_flights", "SimulatedForecast",
            "simulated_forecast"]
@@ -39,7 +39,7 @@ def std_range(infos: Sequence[np.ndarray], plants: np.ndarray) -> dict[str, tupl
 
 
 def simulated_std(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
-                  limits: FlightLimits, *, n_bootstrap: int = 100, seed: int = 0,
+                  limits: PlanLimits, *, n_bootstrap: int = 100, seed: int = 0,
                   progress: Progress | None = None) -> np.ndarray:
     """Forecast by simulation: fly the flown and planned tests on each plant and measure analyze's std.
 
@@ -58,7 +58,7 @@ def simulated_std(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTes
         The plants to fly (Td, tau, K), e.g. draws from what the flown tests leave.
     flown, tests : sequences of FlownTest and TestPlan
         The tests flown so far and the planned ones, in flying order.
-    limits : FlightLimits
+    limits : PlanLimits
         Controller rate and sensor noise of the flight.
     n_bootstrap : int
         Bootstrap draws per analysis.
@@ -78,7 +78,7 @@ def simulated_std(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTes
 
 
 def simulated_flights(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
-                      limits: FlightLimits, *, n_bootstrap: int = 100, seed: int = 0,
+                      limits: PlanLimits, *, n_bootstrap: int = 100, seed: int = 0,
                       progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
     """:func:`simulated_std` and which planned test analyze lost on each plant.
 
@@ -145,7 +145,7 @@ class SimulatedForecast:
 
 
 def simulated_forecast(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
-                       limits: FlightLimits, n_simulated: int, *, seed: int,
+                       limits: PlanLimits, n_simulated: int, *, seed: int,
                        progress: Progress | None = None) -> SimulatedForecast:
     """:func:`simulated_std` on the first ``n_simulated`` of ``plants``, summarised over the usable flights."""
     s, lost = simulated_flights(model, plants[:n_simulated], flown, tests, limits, seed=seed, progress=progress)

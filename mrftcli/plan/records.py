@@ -1,6 +1,5 @@
 """The planner's records, for every model family: what is known (:class:`Prior`, :class:`FlownTest`; a
-process plant's recorded tests are its analysis), what the flight allows (:class:`FlightLimits`;
-:class:`RelayLimits` for a process plant), and what it recommends (:class:`TestPlan`,
+process plant's recorded tests are its analysis), what the next test may do (:class:`PlanLimits`), and what it recommends (:class:`TestPlan`,
 :class:`CandidateTest`, :class:`PlanResult`, the versioned JSON of ``mrft-ident plan --json``).
 
 Units: times in seconds, frequencies in Hz, amplitudes in output units, h in command units, phases in
@@ -25,8 +24,7 @@ from ..validate import check_beta, check_positive, check_time
 
 __all__ = [
     "Prior",
-    "FlightLimits",
-    "RelayLimits",
+    "PlanLimits",
     "FlownTest",
     "TestPlan",
     "CandidateTest",
@@ -99,68 +97,72 @@ class Prior:
 
 
 @dataclass(frozen=True)
-class FlightLimits:
-    """What the flight allows.
+class PlanLimits:
+    """What the next test may do, for every model family.
 
-    Attributes
-    ----------
-    max_amplitude : float
-        Largest output amplitude allowed [output units] (e.g. 0.05 m, 5 deg in rad).
-    max_h : float
-        Largest relay height the motors give [command units].
-    time_s : float
-        Relay time available for the next test(s) together [s].
-    rate_hz : float
-        Controller (relay) rate [Hz].
-    noise_std : float
-        Sensor noise standard deviation of the output [output units].
-    """
-
-    max_amplitude: float
-    max_h: float
-    time_s: float
-    rate_hz: float
-    noise_std: float
-
-    def __post_init__(self) -> None:
-        check_positive("the largest amplitude (--max-amplitude)", self.max_amplitude)
-        check_positive("the largest relay height (--max-h)", self.max_h)
-        check_time("the time available (--time)", self.time_s)
-        check_positive("the controller rate (--controller-rate)", self.rate_hz)
-        check_positive("the sensor noise (--noise)", self.noise_std)
-
-    def to_json(self) -> dict[str, float]:
-        """The ``limits`` object of the plan's JSON."""
-        return {"max_amplitude": self.max_amplitude, "max_h": self.max_h, "time_s": self.time_s,
-                "rate_hz": self.rate_hz, "noise_std": self.noise_std}
-
-
-@dataclass(frozen=True)
-class RelayLimits:
-    """What a process plant's next relay test may do (``plan LOG --model NAME``).
+    Eq. (2)'s flight gives all five; a process plant's relay test (``plan LOG --model NAME``) the
+    amplitude and the half-height, each optional (its rate and noise are the recorded tests').
 
     Attributes
     ----------
     max_amplitude : float or None
-        Largest output amplitude allowed [output units]; a candidate over it is listed, never
-        recommended. None: no limit.
+        Largest output amplitude allowed [output units] (e.g. 0.05 m, 5 deg in rad). A process plant's
+        candidate over it is listed, never recommended; None: no limit.
     max_h : float or None
-        Relay half-height of the candidates [command units] about the recorded bias; None: the
-        recorded tests' largest.
+        Largest relay height the motors give [command units]; a process plant's candidates' half-height
+        about the recorded bias (None: the recorded tests' largest).
+    time_s : float
+        Relay time available for the next test(s) together [s] (eq. (2); NaN: not given).
+    rate_hz : float
+        Controller (relay) rate [Hz] (eq. (2); NaN: not given).
+    noise_std : float
+        Sensor noise standard deviation of the output [output units] (eq. (2); NaN: not given).
     """
 
     max_amplitude: float | None = None
     max_h: float | None = None
+    time_s: float = math.nan
+    rate_hz: float = math.nan
+    noise_std: float = math.nan
 
     def __post_init__(self) -> None:
         if self.max_amplitude is not None:
             check_positive("the largest amplitude (--max-amplitude)", self.max_amplitude)
         if self.max_h is not None:
-            check_positive("the relay half-height (--max-h)", self.max_h)
+            check_positive("the largest relay height (--max-h)" if self.flight else "the relay half-height (--max-h)",
+                           self.max_h)
+        if self.flight:
+            if self.max_amplitude is None or self.max_h is None:
+                raise InputError("an MRFT flight's limits need the largest amplitude (--max-amplitude) and relay "
+                                 "height (--max-h)")
+            check_time("the time available (--time)", self.time_s)
+            check_positive("the controller rate (--controller-rate)", self.rate_hz)
+            check_positive("the sensor noise (--noise)", self.noise_std)
+
+    @property
+    def flight(self) -> bool:
+        """Whether these are an MRFT flight's limits (eq. (2)): the time, rate or noise given."""
+        return not (math.isnan(self.time_s) and math.isnan(self.rate_hz) and math.isnan(self.noise_std))
+
+    def bounds(self) -> tuple[float, float]:
+        """(largest amplitude [output units], largest relay height [command units]) of an MRFT flight."""
+        if self.max_amplitude is None or self.max_h is None:
+            raise InputError("an MRFT flight's limits need --max-amplitude and --max-h")
+        return self.max_amplitude, self.max_h
 
     def to_json(self) -> dict[str, float | None]:
-        """The ``limits`` object of a relay plan's JSON."""
-        return {"max_amplitude": self.max_amplitude, "max_h": self.max_h}
+        """The ``limits`` object of the plan's JSON (a relay plan's: the amplitude and the half-height)."""
+        out = {"max_amplitude": self.max_amplitude, "max_h": self.max_h}
+        if self.flight:
+            out.update(time_s=self.time_s, rate_hz=self.rate_hz, noise_std=self.noise_std)
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> PlanLimits:
+        """The ``limits`` object of :meth:`to_json`."""
+        if "time_s" not in data:
+            return cls(_opt_float(data.get("max_amplitude")), _opt_float(data.get("max_h")))
+        return cls(**{k: float(data[k]) for k in ("max_amplitude", "max_h", "time_s", "rate_hz", "noise_std")})
 
 
 @dataclass(frozen=True)
@@ -432,7 +434,7 @@ class PlanResult:
         Eq. (2): Td, tau, K -> (low, high), the 10-90 % range of ``predicted_std_data`` over the draws.
     flown : tuple of FlownTest
         Eq. (2): the tests already flown that the plan counted.
-    limits : FlightLimits, RelayLimits or None
+    limits : PlanLimits or None
         The limits planned within.
     simulated_std, simulated_std_range : dict
         Eq. (2) with ``n_simulated``: the median and the 10-90 % range over the simulated plants of the
@@ -463,7 +465,7 @@ class PlanResult:
     notes: tuple[str, ...] = ()
     predicted_std_data_range: StdRanges = field(default_factory=dict)
     flown: tuple[FlownTest, ...] = ()
-    limits: FlightLimits | RelayLimits | None = field(default=None, repr=False)
+    limits: PlanLimits | None = field(default=None, repr=False)
     simulated_std: Stds = field(default_factory=dict)
     simulated_std_range: StdRanges = field(default_factory=dict)
     n_simulated: int = 0
@@ -536,7 +538,7 @@ class PlanResult:
     def _parse(cls, data: Mapping[str, Any], v1: bool = False) -> PlanResult:
         conv = data["conventional"]
         ident = None if data.get("identification") is None else LtiIdentification.from_json(data["identification"])
-        limits = _limits(data["limits"])
+        limits = None if data["limits"] is None else PlanLimits.from_json(data["limits"])
         if v1:  # eq. (2)'s plan before issue 36: Tp, no model, the rate in the limits
             model: PlantModel = soiptd_model(float(data["Tp"]))
         else:
@@ -544,7 +546,7 @@ class PlanResult:
         candidates = tuple(CandidateTest.from_json(c) for c in data["candidates"])
         if ident is not None and not candidates:
             raise InputError("not a valid plan --json result: a relay plan without a candidate")
-        rate = data.get("rate_hz", limits.rate_hz if isinstance(limits, FlightLimits) else None)
+        rate = data.get("rate_hz", limits.rate_hz if limits is not None and limits.flight else None)
         return cls(
             model=model,
             tests=tuple(_test_plan(t) for t in data["tests"]),
@@ -586,15 +588,6 @@ def _process_v1(data: Mapping[str, Any]) -> PlanResult:
                       assumptions=tuple(str(a) for a in data.get("assumptions", [])),
                       rate_hz=float(data["rate_hz"]), identification=ident,
                       undetermined=tuple(str(n) for n in data.get("undetermined", [])), why=str(data["why"]))
-
-
-def _limits(data: Mapping[str, Any] | None) -> FlightLimits | RelayLimits | None:
-    """The ``limits`` object: eq. (2)'s flight limits, or a relay plan's (amplitude and half-height only)."""
-    if data is None:
-        return None
-    if "time_s" not in data:
-        return RelayLimits(_opt_float(data.get("max_amplitude")), _opt_float(data.get("max_h")))
-    return FlightLimits(**{k: float(data[k]) for k in ("max_amplitude", "max_h", "time_s", "rate_hz", "noise_std")})
 
 
 def _finite(x: float) -> float | None:

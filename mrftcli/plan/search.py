@@ -31,7 +31,7 @@ from ..mrft.relays import RelayLaw
 from .fisher import (FloatArray, PredictedCycle, design_cost, planned_information, point_jacobian, point_stds,
                      posterior_covariance, posterior_stds, predict_cycle, undetermined_parameters, unknown_parameters)
 from .noise import LOST_CYCLES, MAX_EPS, MIN_CYCLES, MIN_NOISE_MARGIN, MIN_SWITCH_GAP, switch_gap
-from .records import OVER_LIMIT, PARAMS, CandidateTest, FlightLimits, FlownTest, TestPlan, relay_candidate
+from .records import OVER_LIMIT, PARAMS, CandidateTest, FlownTest, PlanLimits, TestPlan, relay_candidate
 
 __all__ = [
     "DesignSpace",
@@ -71,7 +71,7 @@ class DesignSpace:
         Eq. (2), its known Tp [s] the plants share.
     plants : ndarray, shape (n, 3)
         The draws (Td [s], tau [s], K).
-    limits : FlightLimits
+    limits : PlanLimits
         The flight's limits.
     duration_s : float
         Relay time of each next test [s].
@@ -81,7 +81,7 @@ class DesignSpace:
 
     model: LoopModel
     plants: np.ndarray
-    limits: FlightLimits
+    limits: PlanLimits
     duration_s: float
     cycles: Mapping[float, Cycles]
 
@@ -130,7 +130,7 @@ class Choice:
     first_round: dict[float, tuple[dict[str, float], float]]
 
 
-def design_space(model: LoopModel, plants: np.ndarray, limits: FlightLimits, duration_s: float,
+def design_space(model: LoopModel, plants: np.ndarray, limits: PlanLimits, duration_s: float,
                  betas: Sequence[float], on_beta: Callable[[int], None]) -> DesignSpace:
     """The draws' cycles at every beta of the grid (``on_beta(i)`` after the i-th, from 1)."""
     cycles: dict[float, Cycles] = {}
@@ -148,7 +148,8 @@ def assess(space: DesignSpace, beta: float) -> CandidateTest:
     known = [c for c in cs if c is not None]
     lim = space.limits
     rate, noise_std = lim.rate_hz, lim.noise_std
-    h = min(lim.max_h, lim.max_amplitude / max(c.amp1 for c in known))
+    max_amplitude, max_h = lim.bounds()
+    h = min(max_h, max_amplitude / max(c.amp1 for c in known))
     periods = np.array([_TWO_PI / c.omega for c in known])
     n_cyc = np.floor(space.duration_s / periods) - LOST_CYCLES
     amps = np.array([h * c.amp1 for c in known])
@@ -173,7 +174,7 @@ def assess(space: DesignSpace, beta: float) -> CandidateTest:
 
 
 def _refusal(samples_per_period: float, n_cycles: float, max_motion: float, eps: float, typical: float,
-             duration_s: float, lim: FlightLimits) -> str:
+             duration_s: float, lim: PlanLimits) -> str:
     """Why the limits refuse a candidate ("" when they do not)."""
     if samples_per_period < 8:
         return f"fewer than 8 controller samples per period at {lim.rate_hz:g} Hz"

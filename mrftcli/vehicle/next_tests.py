@@ -14,7 +14,7 @@ from typing import Any
 
 from ..errors import InputError, InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from ..mrft.model import soiptd_model
-from ..plan import FlightLimits, PlanOptions, PlanResult, Prior, flown_from_result, plan_tests
+from ..plan import PlanLimits, PlanOptions, PlanResult, Prior, flown_from_result, plan_tests
 from ..sim import default_noise_std
 from .loops import INNER_OF
 from .record import MissingLoop
@@ -54,7 +54,7 @@ def _single_beta_plan(loop: str, Tp: float, partial: dict[str, Any], rate_hz: fl
         if not flown or not rate:
             return None
         noise = default_noise_std(loop)
-        limits = FlightLimits(max_amplitude=max(f.amplitude for f in flown), max_h=max(f.h for f in flown),
+        limits = PlanLimits(max_amplitude=max(f.amplitude for f in flown), max_h=max(f.h for f in flown),
                               time_s=PLAN_TIME_S, rate_hz=rate, noise_std=noise)
         plan = plan_tests(soiptd_model(Tp), limits, prior=_PRIOR, flown=flown, options=PlanOptions(n_tests=1))
     except MrftError:

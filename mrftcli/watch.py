@@ -57,7 +57,8 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 
 from .analyze import AnalysisResult, AnalyzeOptions, RelayOptions, analyze_flight
-from .analyze.general import GeneralAnalysis, MeasuredTest, identify_points, measure_test
+from .analyze.general import MeasuredTest, identify_points, measure_test
+from .analyze.record import Eq2Analysis, GeneralAnalysis
 from .errors import InputError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
@@ -239,7 +240,7 @@ class EstimateUpdate:
         What would determine them (empty when all are).
     warnings : tuple of str
         The identification's warnings.
-    analysis : AnalysisResult or GeneralAnalysis or None
+    analysis : AnalysisResult or None
         The final update's analysis, exactly ``analyze --json``'s record for the family (held-out
         predictions, notes); None before.
     """
@@ -254,7 +255,7 @@ class EstimateUpdate:
     undetermined: tuple[str, ...] = ()
     advice: str = ""
     warnings: tuple[str, ...] = ()
-    analysis: AnalysisResult | GeneralAnalysis | None = None
+    analysis: AnalysisResult[Any, Any, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """One ``--jsonl`` line: ``parameters`` keyed by name, each the one parameter record."""
@@ -273,7 +274,7 @@ class EstimateUpdate:
             if not isinstance(params, Mapping):
                 raise TypeError("'parameters' is not an object")
             eq2 = family == LoopModel.family  # eq. (2)'s open interval end reads as NaN, a family's as infinite
-            reader = AnalysisResult.from_json if eq2 else GeneralAnalysis.from_json
+            reader = AnalysisResult.from_json
             return cls(family, tuple(ParameterEstimate.from_json(n, v, open_value=math.nan if eq2 else math.inf)
                                      for n, v in params.items()),
                        tuple(int(i) for i in d["tests"]), float(d["t_cycle_end"]), bool(d["final"]),
@@ -459,7 +460,7 @@ class _Eq2:
         return EstimateUpdate(self.model.family, params, tuple(t.index + 1 for t in tests),
                               max(_newest_end(t) for t in tests), False, time.time(), warnings=tuple(res.warnings))
 
-    def final(self, res: AnalysisResult) -> EstimateUpdate:
+    def final(self, res: Eq2Analysis) -> EstimateUpdate:
         params = _eq2_parameters(self.model, {"Td": res.Td, "tau": res.tau, "K": res.K}, res.method, spread=True)
         return EstimateUpdate(self.model.family, params, tuple(t.index + 1 for t in res.tests),
                               max(_newest_end(t) for t in res.tests), True, time.time(),

@@ -294,7 +294,7 @@ def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
     data = json.loads(out.read_text())
     assert data["kind"] == "cascade" and model_from_json(data["model"]).family == "cascade"
     assert data["parameters"]["Td"]["ci95_low"] <= 0.8 <= data["parameters"]["Td"]["ci95_high"]
-    from mrftcli.analyze.cascade import CascadeAnalysis
+    from mrftcli.analyze.record import CascadeAnalysis
 
     back = CascadeAnalysis.from_json(data)
     assert back.to_json() == data and back.model == model_from_json(data["model"])
@@ -324,7 +324,7 @@ def test_cascade_tune_version_1_still_reads() -> None:
 
 def test_records_refuse_other_versions() -> None:
     """Every record's from_json: a one-line InputError on another schema_version or a wrong shape."""
-    from mrftcli.analyze.cascade import CascadeAnalysis
+    from mrftcli.analyze.record import CascadeAnalysis
     from mrftcli.tune.design import TuneResult
 
     for cls in (InnerLoop, CascadeIdentification, CascadeAnalysis, TuneResult):

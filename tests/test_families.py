@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
-from mrftcli.analyze.general import GeneralAnalysis
+from mrftcli.analyze.record import GeneralAnalysis
 from mrftcli.errors import InputError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model

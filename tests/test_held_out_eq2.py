@@ -151,7 +151,7 @@ def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> 
     """GeneralAnalysis schema 2 gave ``held_out`` the shared record's sigma and z keys (null for the families);
     a version-1 JSON (without them) reads to the same analysis."""
     from mrftcli.analyze import analyze_flight
-    from mrftcli.analyze.general import GeneralAnalysis
+    from mrftcli.analyze.record import GeneralAnalysis
     from mrftcli.mrft.families import family_model
 
     windows = [Window("hysteresis", 1.5, -0.5, eps=e, duration=30.0) for e in (0.05, 0.3)]

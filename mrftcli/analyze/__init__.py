@@ -3,8 +3,8 @@
 :func:`analyze_flight` takes a :class:`~mrftcli.io.logtypes.FlightLog`, the model object (eq. (2):
 ``mrftcli.mrft.model.soiptd_model(Tp)``; a process family: ``mrftcli.mrft.families.family_model``) and an
 :class:`AnalyzeOptions`; :func:`analyze_path` reads the log first (with a :class:`mrftcli.io.ReadOptions`).
-Both are pure (no printing, no files written) and return an :class:`AnalysisResult` for eq. (2) (the
-figures below), a :class:`~mrftcli.analyze.general.GeneralAnalysis` for the other families.
+Both are pure (no printing, no files written) and return the one :class:`AnalysisResult` of every
+family (its ``kind``: ``"soiptd"`` for eq. (2), the figures below; ``"family"``; ``"cascade"``).
 
 How the figures are obtained
 ----------------------------
@@ -41,11 +41,12 @@ from ..mrft.consensus import CONSTRAINTS
 from .driver import analyze_flight, analyze_path, refuse_rejected_tp
 from .options import AnalyzeOptions, CascadeOptions, RelayOptions
 from .overlay import analysis_overlay
-from .record import (SCHEMA_VERSION, AnalysisResult, LogInfo, TpCheck, analysis_controller_rate, command_rate_of_result,
-                     measured_noise_std)
+from .record import (SCHEMA_VERSION, AnalysisResult, CascadeAnalysis, Eq2Analysis, GeneralAnalysis, LogInfo, TestSummary,
+                     TpCheck, analysis_controller_rate, command_rate_of_result, measured_noise_std)
 from .screen import ASSUMED_TD_RANGE, describe_t0, log_start
 
-__all__ = ["AnalyzeOptions", "CascadeOptions", "RelayOptions", "AnalysisResult", "LogInfo", "SCHEMA_VERSION", "analyze_flight", "analyze_path", "analysis_overlay",
+__all__ = ["AnalyzeOptions", "CascadeOptions", "RelayOptions", "AnalysisResult", "Eq2Analysis", "GeneralAnalysis",
+           "CascadeAnalysis", "TestSummary", "LogInfo", "SCHEMA_VERSION", "analyze_flight", "analyze_path", "analysis_overlay",
            "refuse_rejected_tp", "TpCheck", "measured_noise_std",
            "analysis_controller_rate", "command_rate_of_result", "log_start", "describe_t0", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]

@@ -13,137 +13,36 @@ Stages, each returning a frozen record:
 4. identification (:func:`mrftcli.mrft.cascade_identify.identify_cascade`) through the exact sampled
    orbits of the cascade.
 
-The result, :class:`CascadeAnalysis`, is versioned JSON (``analyze --json``) with the cascade model
-(family ``"cascade"``, read back by :func:`mrftcli.mrft.model.model_from_json`).
+The result is the one analysis record (:class:`~mrftcli.analyze.record.AnalysisResult`, kind
+``"cascade"``), versioned JSON (``analyze --json``) with the cascade model (family ``"cascade"``, read
+back by :func:`mrftcli.mrft.model.model_from_json`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..errors import InputError, SegmentationError
 from ..io.logtypes import FlightLog
-from ..jsonable import check_schema_version
 from ..mrft.cascade import G, CascadeModel, InnerController, InnerLoop
 from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
 from ..mrft.identify import TestMeasurement
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
-from .mrfttest_json import mrft_test_from_json
 from .options import AnalyzeOptions, CascadeOptions
-from .record import AnalysisResult, analysis_controller_rate
+from .record import AnalysisResult, CascadeAnalysis, Eq2Analysis, analysis_controller_rate
 from .screen import log_start
 
-__all__ = ["CascadeAnalysis", "analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "inner_gains_of",
-           "screen_outer", "outer_levels", "CASCADE_ANALYSIS_SCHEMA_VERSION", "OUTER_COMMANDS"]
+__all__ = ["analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "inner_gains_of", "screen_outer",
+           "outer_levels", "OUTER_COMMANDS"]
 
-#: version of :meth:`CascadeAnalysis.to_json`; 2: each parameter the one record (ParameterEstimate, with
-#: ``method``); version 1 still reads and is written back in this layout
-CASCADE_ANALYSIS_SCHEMA_VERSION = 2
 #: what the outer relay commands -> K of the cascade (None: identified)
 OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "identify": None}
-
-
-@dataclass(frozen=True, eq=False)
-class CascadeAnalysis:
-    """An outer loop identified through its closed inner loop.
-
-    Attributes
-    ----------
-    path, loop : str
-        The log and the outer loop (``"x"``, ``"y"``).
-    identification : CascadeIdentification
-        The cascade model (``identification.model``), its parameters with intervals, each test's fit.
-    tests, rejected : tuple of MrftTest
-        The outer tests used and those left out (``rejection_reasons`` says why).
-    rejection_reasons : mapping of int to str
-        ``MrftTest.index`` -> why it was left out.
-    controller_rate_hz : float
-        The outer relay's rate [Hz].
-    assumptions : tuple of str
-        What the numbers rest on (K, the inner model and gains): printed first, kept in the JSON.
-    warnings : tuple of str
-        What the user should act on.
-    t0 : float
-        The log's first sample time [s].
-    recorded : mapping or None
-        The JSON a record was read from (None for a fresh analysis).
-    """
-
-    path: str
-    loop: str
-    identification: CascadeIdentification
-    tests: tuple[MrftTest, ...]
-    rejected: tuple[MrftTest, ...] = ()
-    rejection_reasons: Mapping[int, str] = field(default_factory=dict)
-    controller_rate_hz: float = 0.0
-    assumptions: tuple[str, ...] = ()
-    warnings: tuple[str, ...] = ()
-    t0: float = 0.0
-    recorded: Mapping[str, Any] | None = field(default=None, repr=False)
-
-    @property
-    def model(self) -> Any:
-        """The identified :class:`~mrftcli.mrft.cascade.CascadeModel`."""
-        return self.identification.model
-
-    def to_json(self) -> dict[str, Any]:
-        """``{"schema_version", "kind": "cascade", "input", "assumptions", "model", "parameters", "identification",
-        "tests", "rejected_tests", "warnings"}`` (docs/cascade.md); a record read by :meth:`from_json` writes
-        back the object it was read from (the rejected tests' cycles are not in it)."""
-        if self.recorded is not None:
-            return dict(self.recorded)
-        ident = self.identification
-        return {"schema_version": CASCADE_ANALYSIS_SCHEMA_VERSION, "kind": "cascade",
-                "input": {"path": self.path, "loop": self.loop, "t0": self.t0,
-                          "controller_rate_hz": self.controller_rate_hz},
-                "assumptions": list(self.assumptions), "model": ident.model.to_json(),
-                "parameters": {k: e.to_json() for k, e in ident.estimates.items()},
-                "identification": ident.to_json(),
-                "tests": [t.to_dict(cycles=True) for t in self.tests],
-                "rejected_tests": [{**t.to_dict(cycles=False), "reason": self.rejection_reasons.get(t.index, "")}
-                                   for t in self.rejected],
-                "warnings": list(self.warnings)}
-
-    @classmethod
-    def from_json(cls, data: Any) -> CascadeAnalysis:
-        """The record of a :meth:`to_json` dict.
-
-        Raises
-        ------
-        InputError
-            Not a cascade analysis of this version, or a missing part (one-line message).
-        """
-        d = check_schema_version(data, "cascade analysis JSON", range(1, CASCADE_ANALYSIS_SCHEMA_VERSION + 1))
-        if d.get("kind") != "cascade" or "identification" not in d:
-            raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
-        inp = d.get("input") or {}
-        try:
-            rejected_rows = d.get("rejected_tests") or ()
-            ident = CascadeIdentification.from_json(d["identification"])
-            return cls(str(inp.get("path", "")), str(inp.get("loop", "")), ident,
-                       tuple(mrft_test_from_json(t) for t in d.get("tests") or ()),
-                       tuple(mrft_test_from_json(t) for t in rejected_rows),
-                       {int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
-                       float(inp.get("controller_rate_hz") or 0.0),
-                       tuple(str(a) for a in d.get("assumptions") or ()),
-                       tuple(str(w) for w in d.get("warnings") or ()), float(inp.get("t0") or 0.0),
-                       _this_version(d, ident))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"cascade analysis JSON: bad tests ({type(err).__name__}: {err})") from err
-
-
-def _this_version(d: Mapping[str, Any], ident: CascadeIdentification) -> dict[str, Any]:
-    """The JSON a record was read from, in this version's layout (version 1's parameters as the one record)."""
-    if d.get("schema_version") == CASCADE_ANALYSIS_SCHEMA_VERSION:
-        return dict(d)
-    return {**d, "schema_version": CASCADE_ANALYSIS_SCHEMA_VERSION,
-            "parameters": {k: e.to_json() for k, e in ident.estimates.items()}, "identification": ident.to_json()}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -185,7 +84,7 @@ def inner_gains_of(data: Any, inner_name: str) -> InnerController:
     return InnerController.from_json(data[inner_name], what)
 
 
-def inner_loop_of(result: AnalysisResult, controller: InnerController, inner_name: str) -> InnerLoop:
+def inner_loop_of(result: Eq2Analysis, controller: InnerController, inner_name: str) -> InnerLoop:
     """The inner loop of an inner analysis (its eq. (2) point estimate) and its controller.
 
     Raises
@@ -201,7 +100,7 @@ def inner_loop_of(result: AnalysisResult, controller: InnerController, inner_nam
     return InnerLoop(result.model, controller, inner_name, std)
 
 
-def inner_draws(result: AnalysisResult, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
+def inner_draws(result: Eq2Analysis, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
     """``n`` draws of the inner loop over its std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`; Tp known).
 
     Td and K are drawn log-normal, tau normal (kept >= 0), independently: the analysis JSON keeps
@@ -353,8 +252,9 @@ def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOpti
     warnings = [f"test {t.index + 1} left out: {screened.reasons[t.index]}" for t in screened.rejected]
     warnings += _fit_warnings(ident)
     warnings += list(flight.warnings)
-    return CascadeAnalysis(flight.path, flight.loop, ident, screened.usable, screened.rejected, screened.reasons,
-                           rate, tuple(stated), tuple(warnings), t0)
+    return AnalysisResult(flight.path, flight.loop, ident.model, screened.usable, ident, dict(ident.estimates),
+                          rejected=screened.rejected, rejection_reasons=screened.reasons, warnings=tuple(warnings),
+                          t0=t0, flight=flight, controller_rate_hz=rate, assumptions=tuple(stated))
 
 
 def _snap_rate(rate: float, inner_rate: float) -> float:

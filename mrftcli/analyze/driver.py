@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 
@@ -34,13 +34,13 @@ from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
-from .cascade import CascadeAnalysis, analyze_cascade
+from .cascade import analyze_cascade
 from .estimate import (WaveformStage, beta_used, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
-from .general import GeneralAnalysis, analyze_family, mask_windows
+from .general import analyze_family, mask_windows
 from .held_out import held_out_eq2
 from .options import AnalyzeOptions
-from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
+from .record import AnalysisResult, CascadeAnalysis, Eq2Analysis, LogInfo, TpCheck, analysis_controller_rate
 from .residual import MISMATCH_WORDS, residual_verdict
 from .screen import Screening, screen
 
@@ -58,15 +58,15 @@ def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | Non
 
 @overload
 def analyze_flight(flight: FlightLog, model: LoopModel, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult: ...
+                   options: AnalyzeOptions | None = None) -> Eq2Analysis: ...
 @overload
 def analyze_flight(flight: FlightLog, model: CascadeModel, *,
                    options: AnalyzeOptions | None = None) -> CascadeAnalysis: ...
 @overload
 def analyze_flight(flight: FlightLog, model: PlantModel, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis: ...
+                   options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]: ...
 def analyze_flight(flight: FlightLog, model: PlantModel, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis:
+                   options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]:
     """Segment the relay tests of a flight and identify the model's unknown parameters (module docstring).
 
     Parameters
@@ -87,8 +87,8 @@ def analyze_flight(flight: FlightLog, model: PlantModel, *,
     Returns
     -------
     AnalysisResult
-        For eq. (2); :class:`~mrftcli.analyze.cascade.CascadeAnalysis` for a cascade;
-        :class:`~mrftcli.analyze.general.GeneralAnalysis` for the other families.
+        The one analysis record; its ``kind`` says which strategy made it (``"soiptd"``, ``"cascade"``,
+        ``"family"``).
 
     Raises
     ------
@@ -131,7 +131,7 @@ def analyze_flight(flight: FlightLog, model: PlantModel, *,
     return analyze_family(flight, model, opts)
 
 
-def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> AnalysisResult:
+def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> Eq2Analysis:
     """Eq. (2)'s strategy: the stages of the module docstring at the model's known Tp."""
     Tp = check_tp(model.Tp)
     if opts.relay.stated or opts.baseline is not None:
@@ -165,8 +165,8 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
     usable, rejected = screening.usable, screening.rejected
     return _residual_worded(AnalysisResult(
-        path=str(flight.path), loop=flight.loop, Tp=Tp, tests=usable, rejected=rejected,
-        Td=wave.Td, tau=tau_est, K=wave.K, model=wave.model, identification=point.identification,
+        path=str(flight.path), loop=flight.loop, model=wave.model, tests=usable, rejected=rejected,
+        parameters={"Td": wave.Td, "tau": tau_est, "K": wave.K}, identification=point.identification,
         combinations=combos, bootstrap=dict(cons.draws), warnings=tuple(dict.fromkeys(warnings)), flight=flight,
         t0=screening.t0, constraints=cons.constraints,
         rejection_reasons={t.index: screening.reasons[t.index] for t in rejected}, method=wave.method,
@@ -176,7 +176,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     ))
 
 
-def _residual_worded(result: AnalysisResult) -> AnalysisResult:
+def _residual_worded(result: Eq2Analysis) -> Eq2Analysis:
     """The warnings worded by the one residual verdict (:func:`mrftcli.analyze.residual.residual_verdict`):
     with receive-time stamps the waveform residual cannot say the recording holds dynamics eq. (2)
     leaves out (diagnose, which reads the same verdict, decides on the cycles' features)."""
@@ -216,7 +216,7 @@ def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: 
                                        profile.residual_ratio_given, profile.residual_ratio_best)
 
 
-def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> AnalysisResult:
+def refuse_rejected_tp(result: AnalysisResult[Any, Any, Any], accept: bool = False) -> AnalysisResult[Any, Any, Any]:
     """The analysis, unless the recording rejects its Tp (``result.tp_check.verdict == "rejected"``).
 
     A wrong Tp moves Td, tau and K within tight, wrong intervals, so a Tp the recording rejects is a
@@ -245,17 +245,17 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
 
 @overload
 def analyze_path(path: str | Path, model: LoopModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult: ...
+                 options: AnalyzeOptions | None = None) -> Eq2Analysis: ...
 @overload
 def analyze_path(path: str | Path, model: CascadeModel, *, read: ReadOptions | None = None,
                  options: AnalyzeOptions | None = None) -> CascadeAnalysis: ...
 @overload
 def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis: ...
+                 options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]: ...
 
 
 def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult | GeneralAnalysis | CascadeAnalysis:
+                 options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters

@@ -20,11 +20,10 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
 from ..mrft.identify_lti import (STATIC_HARMONIC, LtiIdentification, ResponsePoint, identify_lti,
@@ -38,19 +37,15 @@ from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .held_out import HeldOut
 from .options import AnalyzeOptions, RelayOptions
+from .record import AnalysisResult, GeneralAnalysis, TestSummary
 from .screen import log_start
 from .static_gain import StaticGain, is_self_regulating, static_gain
-from .smooth_cycle import CycleFit, SwitchingLevel, cycle_fits, effective_relay, switching_level
+from .smooth_cycle import CycleFit, cycle_fits, effective_relay, switching_level
 
-__all__ = ["GeneralAnalysis", "TestSummary", "analyze_family", "response_points",
-           "chattering_cycles", "find_tests", "screen_test", "MeasuredTest", "measure_test", "measure_tests",
-           "general_analysis",
-           "flight_windows", "mask_windows", "held_out", "identify_points", "GENERAL_SCHEMA_VERSION"]
+__all__ = ["analyze_family", "response_points", "chattering_cycles", "find_tests", "screen_test", "MeasuredTest",
+           "measure_test", "measure_tests", "general_analysis", "flight_windows", "mask_windows", "held_out",
+           "identify_points"]
 
-#: version of :meth:`GeneralAnalysis.to_json`; 2 gave ``tests[i].held_out`` the shared record's sigma and z
-#: keys (null here: :class:`~mrftcli.analyze.held_out.HeldOut`); 3 writes each parameter as the one record
-#: (:class:`~mrftcli.mrft.parameter.ParameterEstimate`: ``method`` in place of ``one_sided``); versions 1-2 still read
-GENERAL_SCHEMA_VERSION = 3
 #: harmonics measured on each cycle (odd: a square wave's even harmonics vanish at 50 % duty)
 HARMONICS = (1, 3, 5)
 #: validity failures that only say the output is noisy (kept, weighted by their scatter) or that
@@ -58,166 +53,6 @@ HARMONICS = (1, 3, 5)
 _NOISY = {"snr", "h1_fraction", "phase", "beta_mismatch"}
 #: floor of a harmonic point's standard errors (relative gain, phase [rad]): see identify_points
 _HARMONIC_SE = 0.03
-
-
-@dataclass(frozen=True)
-class TestSummary:
-    """One relay test as measured, with its relay and its held-out prediction.
-
-    Attributes
-    ----------
-    index : int
-        Test number (0-based, in time order over the windows).
-    t_start, t_end : float
-        Its span [s, log clock].
-    relay : RelayLaw
-        Its relay.
-    frequency_hz, amplitude : float
-        Mean over the stable cycles [Hz], [output units].
-    n_stable, n_cycles : int
-        Stable and all cycles.
-    rate_hz : float
-        The relay's (controller's) rate [Hz].
-    beta_effective : float
-        The switching level measured, over the amplitude [-].
-    notes : tuple of str
-        E.g. why a noisy test was kept.
-    held_out : HeldOut or None
-        The prediction from the other tests.
-    switching : SwitchingLevel or None
-        The smooth waveform's level at the switches and its amplitude
-        (:func:`~mrftcli.analyze.smooth_cycle.switching_level`).
-    effective_relay : RelayLaw or None
-        ``relay`` at that level (``source "effective"``): what the held-out prediction uses; None for
-        an ideal relay or without a measured level.
-    """
-
-    __test__ = False
-
-    index: int
-    t_start: float
-    t_end: float
-    relay: RelayLaw
-    frequency_hz: float
-    amplitude: float
-    n_stable: int
-    n_cycles: int
-    rate_hz: float
-    beta_effective: float
-    notes: tuple[str, ...] = ()
-    held_out: HeldOut | None = None
-    switching: SwitchingLevel | None = None
-    effective_relay: RelayLaw | None = None
-
-    @property
-    def predicting_relay(self) -> RelayLaw:
-        """The relay a model's limit cycle is computed under: the effective one where there is one."""
-        return self.effective_relay or self.relay
-
-    def describe_relay(self) -> str:
-        """The relay without its ``relay: `` prefix, with the effective level where there is one.
-
-        E.g. ``hysteresis eps 3.76e-06 (effective, on the cycle's smooth waveform: 3.48e-06), levels
-        +1200 / -720, bias +240``.
-        """
-        text = self.relay.describe()[len("relay: "):]
-        eff = self.effective_relay
-        if eff is None:
-            return text
-        value = f"{eff.eps:.3g}" if eff.kind == "hysteresis" else f"{eff.beta:+.3g}"
-        head, sep, rest = text.partition(", levels")
-        return f"{head} (effective, on the cycle's smooth waveform: {value}){sep}{rest}"
-
-    def to_json(self) -> dict[str, Any]:
-        return {"index": self.index, "t_start": self.t_start, "t_end": self.t_end, "relay": self.relay.to_json(),
-                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "n_stable": self.n_stable,
-                "n_cycles": self.n_cycles, "rate_hz": self.rate_hz,
-                "beta_effective": self.beta_effective, "notes": list(self.notes),
-                "held_out": None if self.held_out is None else self.held_out.to_json(),
-                "switching": None if self.switching is None else self.switching.to_json(),
-                "effective_relay": None if self.effective_relay is None else self.effective_relay.to_json()}
-
-    @classmethod
-    def from_json(cls, d: Mapping[str, Any]) -> TestSummary:
-        try:
-            ho, sw, eff = d.get("held_out"), d.get("switching"), d.get("effective_relay")
-            return cls(int(d["index"]), float(d["t_start"]), float(d["t_end"]), RelayLaw.from_json(d["relay"]),
-                       float(d["frequency_hz"]), float(d["amplitude"]), int(d["n_stable"]), int(d["n_cycles"]),
-                       float(d["rate_hz"]), float(d["beta_effective"]), tuple(str(n) for n in d.get("notes", [])),
-                       None if ho is None else HeldOut.from_json(ho),
-                       None if sw is None else SwitchingLevel.from_json(sw),
-                       None if eff is None else RelayLaw.from_json(eff))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"analysis JSON: bad test entry ({err})") from None
-
-
-@dataclass(frozen=True)
-class GeneralAnalysis:
-    """The outcome of :func:`mrftcli.analyze.analyze_flight` for a process family (``analyze --model NAME``).
-
-    Attributes
-    ----------
-    path, loop : str
-        The log and loop.
-    t0 : float
-        The log start [s]; the tables show times from it.
-    windows : tuple of (float, float)
-        The parts of the log used [s, log clock]; empty: all of it.
-    tests : tuple of TestSummary
-        The tests used.
-    rejected : tuple of (int, float, float, str)
-        Tests left out: index, span [s], reason.
-    identification : LtiIdentification or None
-        The model; None when no test was usable.
-    notes : tuple of str
-        Assumptions and facts a reader needs (the bias assumption, noisy tests).
-    warnings : tuple of str
-        The reader's warnings.
-    static_gain : StaticGain or None
-        K measured from a biased relay's mean levels and the given operating point (``--baseline``),
-        one more constraint of the fit.
-    """
-
-    path: str
-    loop: str
-    t0: float
-    windows: tuple[tuple[float, float], ...]
-    tests: tuple[TestSummary, ...]
-    rejected: tuple[tuple[int, float, float, str], ...]
-    identification: LtiIdentification | None
-    notes: tuple[str, ...] = ()
-    warnings: tuple[str, ...] = ()
-    static_gain: StaticGain | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        """The ``--json`` output: ``schema_version``, ``model`` (family, ``parameters`` by name), ``tests``."""
-        ident = self.identification
-        return {"schema_version": GENERAL_SCHEMA_VERSION, "path": self.path, "loop": self.loop, "t0": self.t0,
-                "windows": [list(w) for w in self.windows],
-                "model": None if ident is None else ident.model.family,
-                "parameters": {} if ident is None else {e.name: e.to_json() for e in ident.estimates},
-                "identification": None if ident is None else ident.to_json(),
-                "tests": [t.to_json() for t in self.tests],
-                "rejected_tests": [{"index": i, "t_start": a, "t_end": b, "reason": r} for i, a, b, r in self.rejected],
-                "notes": list(self.notes), "warnings": list(self.warnings),
-                "static_gain": None if self.static_gain is None else self.static_gain.to_json()}
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> GeneralAnalysis:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        data = check_schema_version(data, "analysis JSON", range(1, GENERAL_SCHEMA_VERSION + 1))
-        try:
-            ident, sg = data.get("identification"), data.get("static_gain")
-            return cls(str(data["path"]), str(data["loop"]), float(data["t0"]),
-                       tuple((float(a), float(b)) for a, b in data.get("windows", [])),
-                       tuple(TestSummary.from_json(t) for t in data["tests"]),
-                       tuple((int(r["index"]), float(r["t_start"]), float(r["t_end"]), str(r["reason"]))
-                             for r in data.get("rejected_tests", [])),
-                       None if ident is None else LtiIdentification.from_json(ident),
-                       tuple(str(n) for n in data.get("notes", [])), tuple(str(w) for w in data.get("warnings", [])),
-                       None if sg is None else StaticGain.from_json(sg))
-        except (KeyError, TypeError, ValueError) as err:
-            raise InputError(f"analysis JSON: bad or missing field ({err})") from None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -546,8 +381,10 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
                      "K = (mean output - Y0) / mean command")
     with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index]))
                       for t in tests)
-    return GeneralAnalysis(flight.path, flight.loop, t0, tuple(windows), with_held, tuple(rejected), ident,
-                           tuple(notes), tuple(flight.warnings), sg)
+    return AnalysisResult(flight.path, flight.loop, ident.model, with_held, ident, {e.name: e for e in ident.estimates},
+                          warnings=tuple(flight.warnings), notes=tuple(notes), t0=t0, flight=flight,
+                          segments=tuple(m.test for m in measured if m.summary is not None and m.test is not None),
+                          windows=tuple(windows), static_gain=sg, rejected_spans=tuple(rejected))
 
 
 def _static_gain(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],

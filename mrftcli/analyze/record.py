@@ -1,10 +1,13 @@
 """The analysis record: :class:`AnalysisResult`, what ``analyze --json`` writes and every reader reads back.
 
-:meth:`AnalysisResult.to_json` gives the JSON object (``schema_version`` first, then the layout
-documented in ``docs/records.md``); :meth:`AnalysisResult.from_json` validates a JSON object and
-rebuilds the typed record from it (without the :class:`~mrftcli.io.logtypes.FlightLog`, which the
-JSON does not hold). Readers of a RESULT.json (``tune``, ``plan``, ``batch``, ``report``) go through
-:meth:`~AnalysisResult.from_json` only, so they read one set of typed fields, not keys by hand.
+One record for every model family: the model object chose the strategy (eq. (2) through its
+manifolds, a process family's response points, an outer loop through its closed inner loop) and
+the record holds what that strategy found. :meth:`AnalysisResult.to_json` gives the JSON object
+(``schema_version`` first, then the strategy's layout documented in ``docs/records.md``);
+:meth:`AnalysisResult.from_json` validates a JSON object of any of them and rebuilds the typed record
+(without the :class:`~mrftcli.io.logtypes.FlightLog`, which the JSON does not hold). Readers of a
+RESULT.json (``tune``, ``plan``, ``batch``, ``report``) go through :meth:`~AnalysisResult.from_json`
+only, so they read one set of typed fields, not keys by hand.
 
 Times are seconds; ``t_start``/``t_end`` are log times (epoch seconds in real logs) and
 ``*_rel`` the same as seconds since the log's first sample (``t0``).
@@ -17,24 +20,31 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..io.logtypes import FlightLog
+from ..jsonable import check_schema_version
+from ..mrft.cascade import CascadeModel
+from ..mrft.cascade_identify import CascadeIdentification
 from ..mrft.identify import IdentificationResult, ParameterEstimate
-from ..mrft.model import LoopModel
+from ..mrft.identify_lti import LtiIdentification
+from ..mrft.model import LoopModel, PlantModel
 from ..mrft.refine import Refinement
+from ..mrft.relays import RelayLaw
 from ..segment import MrftTest
 from .held_out import HeldOut
 from .mrfttest_json import json_float, json_opt_float, mrft_test_from_json
+from .smooth_cycle import SwitchingLevel
+from .static_gain import StaticGain
 
-__all__ = ["AnalysisResult", "LogInfo", "TpCheck", "TP_VERDICTS", "SCHEMA_VERSION", "K_UNIT",
+__all__ = ["AnalysisResult", "Eq2Analysis", "GeneralAnalysis", "CascadeAnalysis", "TestSummary", "LogInfo", "TpCheck",
+           "TP_VERDICTS", "SCHEMA_VERSION", "FAMILY_SCHEMA_VERSION", "CASCADE_SCHEMA_VERSION", "K_UNIT",
            "analysis_controller_rate", "command_rate_of_result", "measured_noise_std"]
 
-#: Version of the JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md). 2 added ``noise``
+#: Version of eq. (2)'s JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md). 2 added ``noise``
 #: (the measured sensor noise) and ``tp_check`` (the recording's verdict on the given Tp); 3 added
 #: ``tests[i].held_out`` (:class:`~mrftcli.analyze.held_out.HeldOut`, the families' record); 4 writes
 #: every parameter as the one record (:class:`~mrftcli.mrft.parameter.ParameterEstimate`: ``value``,
@@ -42,6 +52,13 @@ __all__ = ["AnalysisResult", "LogInfo", "TpCheck", "TP_VERDICTS", "SCHEMA_VERSIO
 #: ``mean``. Versions 1-3 are read as before (no noise, no verdict; no held-out prediction: ``held_out``
 #: None) and written back in version 4's layout.
 SCHEMA_VERSION = 4
+#: Version of a process family's layout; 2 gave ``tests[i].held_out`` the shared record's sigma and z keys
+#: (null here: :class:`~mrftcli.analyze.held_out.HeldOut`); 3 writes each parameter as the one record
+#: (``method`` in place of ``one_sided``); versions 1-2 still read
+FAMILY_SCHEMA_VERSION = 3
+#: Version of the cascade's layout; 2: each parameter the one record (with ``method``); version 1 still
+#: reads and is written back in this layout
+CASCADE_SCHEMA_VERSION = 2
 
 #: What the recording says about the given Tp: ``consistent`` (the waveform accepts it), ``rejected``
 #: (it fits another Tp clearly better), ``accepted`` (rejected, kept by the user's ``--accept-tp``),
@@ -148,116 +165,272 @@ class LogInfo:
                    reader_warnings=tuple(str(w) for w in d.get("reader_warnings") or ()))
 
 
+@dataclass(frozen=True)
+class TestSummary:
+    """One relay test of a process family as measured, with its relay and its held-out prediction.
+
+    Attributes
+    ----------
+    index : int
+        Test number (0-based, in time order over the windows).
+    t_start, t_end : float
+        Its span [s, log clock].
+    relay : RelayLaw
+        Its relay.
+    frequency_hz, amplitude : float
+        Mean over the stable cycles [Hz], [output units].
+    n_stable, n_cycles : int
+        Stable and all cycles.
+    rate_hz : float
+        The relay's (controller's) rate [Hz].
+    beta_effective : float
+        The switching level measured, over the amplitude [-].
+    notes : tuple of str
+        E.g. why a noisy test was kept.
+    held_out : HeldOut or None
+        The prediction from the other tests.
+    switching : SwitchingLevel or None
+        The smooth waveform's level at the switches and its amplitude
+        (:func:`~mrftcli.analyze.smooth_cycle.switching_level`).
+    effective_relay : RelayLaw or None
+        ``relay`` at that level (``source "effective"``): what the held-out prediction uses; None for
+        an ideal relay or without a measured level.
+    """
+
+    __test__ = False
+
+    index: int
+    t_start: float
+    t_end: float
+    relay: RelayLaw
+    frequency_hz: float
+    amplitude: float
+    n_stable: int
+    n_cycles: int
+    rate_hz: float
+    beta_effective: float
+    notes: tuple[str, ...] = ()
+    held_out: HeldOut | None = None
+    switching: SwitchingLevel | None = None
+    effective_relay: RelayLaw | None = None
+
+    @property
+    def bias(self) -> float:
+        """The relay's bias [command units] (the level the plant is in equilibrium at, for a prediction)."""
+        return self.relay.bias
+
+    @property
+    def predicting_relay(self) -> RelayLaw:
+        """The relay a model's limit cycle is computed under: the effective one where there is one."""
+        return self.effective_relay or self.relay
+
+    def describe_relay(self) -> str:
+        """The relay without its ``relay: `` prefix, with the effective level where there is one.
+
+        E.g. ``hysteresis eps 3.76e-06 (effective, on the cycle's smooth waveform: 3.48e-06), levels
+        +1200 / -720, bias +240``.
+        """
+        text = self.relay.describe()[len("relay: "):]
+        eff = self.effective_relay
+        if eff is None:
+            return text
+        value = f"{eff.eps:.3g}" if eff.kind == "hysteresis" else f"{eff.beta:+.3g}"
+        head, sep, rest = text.partition(", levels")
+        return f"{head} (effective, on the cycle's smooth waveform: {value}){sep}{rest}"
+
+    def to_json(self) -> _JSONDict:
+        return {"index": self.index, "t_start": self.t_start, "t_end": self.t_end, "relay": self.relay.to_json(),
+                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "n_stable": self.n_stable,
+                "n_cycles": self.n_cycles, "rate_hz": self.rate_hz,
+                "beta_effective": self.beta_effective, "notes": list(self.notes),
+                "held_out": None if self.held_out is None else self.held_out.to_json(),
+                "switching": None if self.switching is None else self.switching.to_json(),
+                "effective_relay": None if self.effective_relay is None else self.effective_relay.to_json()}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> TestSummary:
+        try:
+            ho, sw, eff = d.get("held_out"), d.get("switching"), d.get("effective_relay")
+            return cls(int(d["index"]), float(d["t_start"]), float(d["t_end"]), RelayLaw.from_json(d["relay"]),
+                       float(d["frequency_hz"]), float(d["amplitude"]), int(d["n_stable"]), int(d["n_cycles"]),
+                       float(d["rate_hz"]), float(d["beta_effective"]), tuple(str(n) for n in d.get("notes", [])),
+                       None if ho is None else HeldOut.from_json(ho),
+                       None if sw is None else SwitchingLevel.from_json(sw),
+                       None if eff is None else RelayLaw.from_json(eff))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"analysis JSON: bad test entry ({err})") from None
+
+
+M = TypeVar("M")
+T = TypeVar("T")
+I = TypeVar("I")  # noqa: E741
+
+
 @dataclass(frozen=True, eq=False)
-class AnalysisResult:
-    """Everything ``mrft-ident analyze`` found in one log, for one loop.
+class AnalysisResult(Generic[M, T, I]):
+    """Everything ``mrft-ident analyze`` found in one log, for one loop: the one analysis record of every family.
+
+    The model object chose the strategy (:func:`mrftcli.analyze.analyze_flight`) and the record says
+    which it was (:attr:`kind`): ``"soiptd"`` (eq. (2) through its manifolds), ``"family"`` (a process
+    family's response points) or ``"cascade"`` (an outer loop through its closed inner loop). What only
+    one strategy finds sits in that strategy's fields below (empty for the others); the JSON
+    (:meth:`to_json`) is the strategy's layout, each with its own version (:data:`SCHEMA_VERSION`,
+    :data:`FAMILY_SCHEMA_VERSION`, :data:`CASCADE_SCHEMA_VERSION`; docs/records.md), and
+    :meth:`from_json` reads any of them. The type parameters are the model, test and identification
+    records of the strategy (:data:`Eq2Analysis`, :data:`GeneralAnalysis`, :data:`CascadeAnalysis`).
 
     Attributes
     ----------
     path, loop : str
         The log and the loop analysed.
-    Tp : float
-        The known propulsion time constant [s].
-    tests : tuple of MrftTest
-        The tests used for identification (with their per-cycle data).
-    rejected : tuple of MrftTest
-        Tests found in the command but left out (too few stable cycles, or the output is not a limit
-        cycle of this relay: ``MrftTest.validity``), with the reason in ``rejection_reasons`` and
-        ``warnings``.
-    Td, tau, K : ParameterEstimate
-        Point estimate (``value``) with bootstrap ``std`` and 95 % interval; Td, tau in seconds, K in
-        output units / (command unit s^2) (K Td is the static gain from command to output rate).
-    model : LoopModel
+    model : LoopModel, PlantModel or CascadeModel
         The identified model (the point estimate).
-    identification : IdentificationResult or None
-        The point identification from :func:`mrftcli.mrft.identify.identify`; None in a record
-        read from JSON (the JSON keeps its summary only).
-    combinations : dict
-        Per-combination estimates (paper Table III): ``n`` and ``Td``/``tau``/``K`` arrays [s].
-    bootstrap : dict
-        Bootstrap draws ``Td``/``tau``/``K`` (arrays).
-    warnings : tuple of str
-        Identifiability and data-quality warnings (times in them are seconds from ``t0``).
-    flight : FlightLog or None
-        The signals analysed (for plots; not serialised, None in a record read from JSON).
-    t0 : float
-        The log's first sample time [s] (epoch seconds in real logs): everything a person reads
-        (table, plots, warnings) shows times relative to it; the JSON keeps the absolute times too.
-    constraints : dict
-        The extra weighted constraints of the point estimate beyond the UFM slices and their
-        residuals (see :func:`mrftcli.analyze.analyze_flight`); empty when none were used.
+    tests : tuple of MrftTest (eq. (2), cascade) or TestSummary (process family)
+        The tests used for identification (eq. (2) and the cascade: with their per-cycle data).
+    identification : IdentificationResult or None, LtiIdentification or CascadeIdentification
+        The identification record: eq. (2)'s point identification from
+        :func:`mrftcli.mrft.identify.identify` (None in a record read from JSON: the JSON keeps its
+        summary only), the family's fit, or the cascade's.
+    parameters : mapping of str to ParameterEstimate
+        The estimates by name (eq. (2): Td, tau, K; Td, tau in seconds, K in output units / (command
+        unit s^2), K Td the static gain from command to output rate), with std and 95 % interval.
+    rejected : tuple of MrftTest
+        Tests found but left out (eq. (2), cascade), with the reason in ``rejection_reasons``.
     rejection_reasons : dict
         ``MrftTest.index`` of each rejected test -> why it was left out (one sentence).
+    warnings : tuple of str
+        Identifiability and data-quality warnings (times in them are seconds from ``t0``).
+    notes : tuple of str
+        Information that needs no action (e.g. Td*Omega > 5 on an altitude loop, where it is usual).
+    t0 : float
+        The log's first sample time [s] (epoch seconds in real logs): everything a person reads
+        shows times relative to it; the JSON keeps the absolute times too.
+    flight : FlightLog or None
+        The signals analysed (for plots; not serialised, None in a record read from JSON).
+    controller_rate_hz : float or None
+        The rate the loop's controller runs at [Hz] (:func:`analysis_controller_rate`): what ``tune``
+        designs for.
+    recorded : Mapping or None
+        The JSON object an eq. (2) or cascade record was read from (:meth:`from_json`); None for a
+        fresh analysis.
+    held_out : tuple of HeldOut or None
+        Eq. (2): per test, its cycle predicted by eq. (2) identified from the other tests
+        (:func:`~mrftcli.analyze.held_out.held_out_eq2`; a family's are in its tests:
+        :meth:`held_out_of` reads both).
+    segments : tuple of MrftTest
+        A process family's usable tests as segmented (a fresh analysis only: for the report's plots
+        and the overlay; the JSON holds ``tests``).
+    combinations, bootstrap : dict
+        Eq. (2): per-combination estimates (paper Table III: ``n`` and ``Td``/``tau``/``K`` arrays) and
+        the bootstrap draws.
+    constraints : dict
+        Eq. (2): the extra weighted constraints of the point estimate beyond the UFM slices and their
+        residuals; empty when none were used.
     method : {"waveform", "mrft"}
-        Which estimate ``Td``, ``tau``, ``K`` and ``model`` hold: the output-error refinement on the
+        Eq. (2): which estimate ``parameters`` and ``model`` hold: the output-error refinement on the
         waveform (:func:`mrftcli.mrft.refine.refine`, when the data accept it) or the MRFT consensus.
     parameters_mrft : dict
-        ``"Td"``, ``"tau"``, ``"K"`` -> the MRFT estimate (bootstrap std and interval), whichever is used.
+        Eq. (2): ``"Td"``, ``"tau"``, ``"K"`` -> the MRFT estimate, whichever is used.
     refinement : Refinement or None
-        The waveform refinement (estimate, std, acceptance and reasons); None when not run (and in
-        a record read from JSON).
-    notes : tuple of str
-        Information that needs no action (e.g. Td*Omega > 5 on an altitude loop, where it is usual);
-        ``warnings`` hold what the user should act on.
-    controller_rate_hz : float or None
-        The rate the loop's controller runs at [Hz] (:func:`analysis_controller_rate`):
-        what ``tune`` designs for, whether given the log or this record's JSON.
+        Eq. (2): the waveform refinement; None when not run (and in a record read from JSON).
     log_info : LogInfo or None
         The ``input`` section's account of the log (None: taken from ``flight``).
-    recorded : Mapping or None
-        The JSON object a record was read from (:meth:`from_json`); None for a fresh analysis.
     tp_check : TpCheck or None
-        The recording's verdict on the given Tp; None when the waveform refinement did not run.
-    held_out : tuple of HeldOut or None
-        Per test (in ``tests``' order), its cycle predicted by eq. (2) identified from the other tests
-        (:func:`~mrftcli.analyze.held_out.held_out_eq2`); empty, or None per test, in a record that
-        does not hold them (read from a JSON before version 3).
+        Eq. (2): the recording's verdict on the given Tp; None when the waveform refinement did not run.
+    windows : tuple of (float, float)
+        A process family: the parts of the log used [s, log clock]; empty: all of it.
+    static_gain : StaticGain or None
+        A process family: K measured from a biased relay's mean levels and the given operating point.
+    rejected_spans : tuple of (int, float, float, str)
+        A process family's tests left out: index, span [s], reason.
+    assumptions : tuple of str
+        The cascade: what the numbers rest on (K, the inner model and gains), printed first.
     """
-
-    schema_version: ClassVar[int] = SCHEMA_VERSION
 
     path: str
     loop: str
-    Tp: float
-    tests: tuple[MrftTest, ...]
-    rejected: tuple[MrftTest, ...]
-    Td: ParameterEstimate
-    tau: ParameterEstimate
-    K: ParameterEstimate
-    model: LoopModel
-    identification: IdentificationResult | None
-    combinations: Mapping[str, Any]
-    bootstrap: Mapping[str, Any]
-    warnings: tuple[str, ...]
-    flight: FlightLog | None = field(default=None, repr=False)
-    t0: float = 0.0
-    constraints: Mapping[str, Any] = field(default_factory=dict)
+    model: M
+    tests: tuple[T, ...]
+    identification: I
+    parameters: Mapping[str, ParameterEstimate]
+    rejected: tuple[MrftTest, ...] = ()
     rejection_reasons: Mapping[int, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    t0: float = 0.0
+    flight: FlightLog | None = field(default=None, repr=False)
+    controller_rate_hz: float | None = None
+    recorded: Mapping[str, Any] | None = field(default=None, repr=False)
+    held_out: tuple[HeldOut | None, ...] = ()
+    segments: tuple[MrftTest, ...] = field(default=(), repr=False)
+    # eq. (2)'s
+    combinations: Mapping[str, Any] = field(default_factory=dict)
+    bootstrap: Mapping[str, Any] = field(default_factory=dict)
+    constraints: Mapping[str, Any] = field(default_factory=dict)
     method: str = "mrft"
     parameters_mrft: Mapping[str, ParameterEstimate] = field(default_factory=dict)
     refinement: Refinement | None = None
-    notes: tuple[str, ...] = ()
-    controller_rate_hz: float | None = None
     log_info: LogInfo | None = None
-    recorded: Mapping[str, Any] | None = field(default=None, repr=False)
     tp_check: TpCheck | None = None
-    held_out: tuple[HeldOut | None, ...] = ()
+    # a process family's
+    windows: tuple[tuple[float, float], ...] = ()
+    static_gain: StaticGain | None = None
+    rejected_spans: tuple[tuple[int, float, float, str], ...] = ()
+    # the cascade's
+    assumptions: tuple[str, ...] = ()
+
+    @property
+    def kind(self) -> str:
+        """Which strategy made the record: ``"soiptd"`` (eq. (2)), ``"cascade"`` or ``"family"``."""
+        return _kind_of(self.model)
+
+    def _eq2(self, name: str) -> ParameterEstimate:
+        try:
+            return self.parameters[name]
+        except KeyError:
+            raise InputError(f"a {self.kind} analysis has no {name}: this needs an analysis of eq. (2) "
+                             "(--model soiptd)") from None
+
+    @property
+    def Td(self) -> ParameterEstimate:
+        """Eq. (2)'s (and the cascade's) drag time constant [s] (InputError for a process family)."""
+        return self._eq2("Td")
+
+    @property
+    def tau(self) -> ParameterEstimate:
+        """Eq. (2)'s (and the cascade's) delay [s]."""
+        return self._eq2("tau")
+
+    @property
+    def K(self) -> ParameterEstimate:
+        """Eq. (2)'s (and the cascade's) gain."""
+        return self._eq2("K")
+
+    @property
+    def Tp(self) -> float:
+        """Eq. (2)'s known propulsion time constant [s]."""
+        if not isinstance(self.model, LoopModel):
+            raise InputError(f"a {self.kind} analysis has no Tp: this needs an analysis of eq. (2) (--model soiptd)")
+        return float(self.model.Tp)
 
     def held_out_of(self, k: int) -> HeldOut | None:
         """The held-out prediction of ``tests[k]`` (None where the record has none)."""
-        return self.held_out[k] if k < len(self.held_out) else None
+        if k < len(self.held_out):
+            return self.held_out[k]
+        ho = getattr(self.tests[k], "held_out", None) if k < len(self.tests) else None
+        return ho if isinstance(ho, HeldOut) else None
 
-    def _test_rows(self, cycles: bool) -> list[_JSONDict]:
-        return [{**self._with_rel(t.to_dict(cycles=cycles)),
-                 "held_out": None if (ho := self.held_out_of(k)) is None else ho.to_json()}
-                for k, t in enumerate(self.tests)]
+    def rejected_rows(self) -> list[tuple[int, float, float, str]]:
+        """Every test left out: index, span [s, log clock] and why, whichever strategy made the record."""
+        return list(self.rejected_spans) + [(t.index, t.t_start, t.t_end, self.rejection_reasons.get(t.index, ""))
+                                            for t in self.rejected]
 
     @property
     def estimate_method(self) -> str:
-        """How the MRFT point estimate was found: identify's method, or the weighted least squares with its constraints."""
+        """How eq. (2)'s MRFT point estimate was found: identify's method, or the weighted least squares with its constraints."""
         if self.constraints:
             return "weighted least squares: UFM slices + " + " + ".join(self.constraints.get("used", ["ufm"])[1:])
-        if self.identification is not None:
+        if isinstance(self.identification, IdentificationResult):
             return self.identification.method
         return str((self.recorded or {}).get("identification", {}).get("method", ""))
 
@@ -279,130 +452,154 @@ class AnalysisResult:
                          "unit": "s" if name != "K" else ""}
         return out
 
-    def _ident_tests(self, rows: list[_JSONDict]) -> list[_JSONDict]:
-        # identify() saw each test's means only; give the cycle counts and standard errors behind them
-        out = []
-        for row, t in zip(rows, self.tests):
-            row = dict(row)
-            f = t.frequency_hz
-            row["n_cycles"] = int(f.size)
-            row["frequency_sem_hz"] = float(f.std(ddof=1) / math.sqrt(f.size)) if f.size > 1 else None
-            out.append(row)
-        return out
-
-    def _with_rel(self, d: _JSONDict) -> _JSONDict:
-        # absolute times stay (the issue's keys); relative ones next to them for people and plots
-        out = {}
-        for k, v in d.items():
-            out[k] = v
-            if k in ("t_start", "t_end"):
-                out[k + "_rel"] = self.rel(v)
-        return out
-
-    def _parameters(self) -> _JSONDict:
-        params = _group({"Td": self.Td, "tau": self.tau, "K": self.K}, self.method)
-        params["Tp"] = ParameterEstimate.given(self.Tp, "s").to_json()
-        return params
-
-    def _estimates(self) -> _JSONDict:
-        """``parameters_mrft``, and with a refinement ``parameters_waveform`` and ``refinement``."""
-
-        extra: _JSONDict = {}
-        if self.parameters_mrft:
-            extra["parameters_mrft"] = _group(self.parameters_mrft, "mrft")
-        if self.refinement is not None:
-            ref = self.refinement
-            extra["parameters_waveform"] = _group({"Td": ref.Td, "tau": ref.tau, "K": ref.K}, "waveform")
-            extra["refinement"] = {"method": "output error on the tests' windows (exact ZOH, fractional delay)",
-                                   **ref.to_dict()}
-        return extra
-
-    def _identification(self, ident: IdentificationResult) -> _JSONDict:
-        d = ident.to_dict()
-        return {"method": self.estimate_method,
-                "residual": d["residual"],
-                "tests": self._ident_tests(d["tests"]), "beta_used": "effective",
-                "rate_correction": None,
-                "constraints": dict(self.constraints) or {"used": ["ufm"]}}
-
-    def _input(self) -> _JSONDict:
-        inp: _JSONDict = {"path": self.path, "loop": self.loop, "Tp": self.Tp, "t0": self.t0}
-        info = self.log_info
-        if info is None and self.flight is not None:
-            info = LogInfo.from_flight(self.flight)
-        if info is not None:
-            inp.update(info.to_dict())
-        return inp
-
     def to_dict(self, cycles: bool = True) -> _JSONDict:
-        """The JSON object of ``mrft-ident analyze --json`` without ``schema_version`` (:meth:`to_json`).
-
-        Keys: ``parameters`` (Td, tau, K, Tp; each the one parameter record: ``value``, ``std``,
-        ``ci95_low``, ``ci95_high``, ``unit``, ``determined``, ``known``, ``method``), ``combinations`` (Table III mean/std), ``tests`` (per test: ``beta`` (the
-        effective beta used), ``beta_nominal``, ``beta_effective``, ``h``, ``frequency_hz``,
-        ``amplitude``, ``cycles``, ``t_start``, ``t_end`` (absolute log times [s]), ``t_start_rel``,
-        ``t_end_rel`` (seconds since the log's first sample, ``input.t0``), ... and per-cycle data),
-        ``rejected_tests``, ``model``, ``identification`` (method, per-test sensitivities, the extra
-        constraints and their residuals), ``warnings``, ``input`` (docs/records.md).
-        """
-        if self.recorded is not None:
-            return _recorded_dict(self.recorded, cycles, self)
-        if self.identification is None:
-            raise InputError("an analysis without its identification record cannot be written as JSON")
-        return {
-            "parameters": self._parameters(),
-            **self._estimates(),
-            "model": {"Tp": self.model.Tp, "Td": self.model.Td, "tau": self.model.tau, "K": self.model.K},
-            "combinations": self.combination_stats(),
-            "tests": self._test_rows(cycles),
-            "rejected_tests": [{**self._with_rel(t.to_dict(cycles=False)),
-                                "reason": self.rejection_reasons.get(t.index, "")} for t in self.rejected],
-            "identification": self._identification(self.identification),
-            "uncertainty": {"method": "bootstrap over stable cycles",
-                            "draws": int(np.isfinite(np.asarray(self.bootstrap.get("Td", []), float)).sum())},
-            "noise": {"std": measured_noise_std(self.tests), "unit": "output units",
-                      "source": "median residual of the used tests' stable cycle fits"},
-            "tp_check": self.tp_check.to_dict() if self.tp_check is not None else None,
-            "warnings": list(self.warnings),
-            "notes": list(self.notes),
-            "input": self._input(),
-        }
+        """The JSON object of ``mrft-ident analyze --json`` without ``schema_version`` (:meth:`to_json`)."""
+        return {k: v for k, v in self.to_json(cycles).items() if k != "schema_version"}
 
     def to_json(self, cycles: bool = True) -> _JSONDict:
-        """The versioned JSON object (``schema_version``, then :meth:`to_dict`'s keys; docs/records.md).
+        """The versioned JSON object of the strategy's layout (docs/records.md), ``schema_version`` first.
 
-        Values may still be numpy scalars or NaN: :func:`mrftcli.jsonable.to_jsonable` makes them
-        plain JSON (NaN -> null) as every writer does. A record read by :meth:`from_json` writes
-        back the object it was read from.
+        Eq. (2): ``parameters`` (Td, tau, K, Tp; each the one parameter record: ``value``, ``std``,
+        ``ci95_low``, ``ci95_high``, ``unit``, ``determined``, ``known``, ``method``), ``combinations``
+        (Table III mean/std), ``tests`` (per test: ``beta`` (the effective beta used), ``beta_nominal``,
+        ``beta_effective``, ``h``, ``frequency_hz``, ``amplitude``, ``cycles``, ``t_start``, ``t_end``
+        (absolute log times [s]), ``t_start_rel``, ``t_end_rel``, ``held_out``, ... and per-cycle data
+        unless ``cycles`` is False), ``rejected_tests``, ``model``, ``identification``, ``warnings``,
+        ``input``. A process family: ``model`` (the family), ``parameters`` by name, ``identification``,
+        ``tests`` (each with its relay and held-out prediction), ``windows``, ``static_gain``. The
+        cascade: ``kind``, ``input``, ``assumptions``, ``model``, ``parameters``, ``identification``,
+        ``tests``, ``rejected_tests``. Values may still be numpy scalars or NaN:
+        :func:`mrftcli.jsonable.to_jsonable` makes them plain JSON (NaN -> null) as every writer does.
+        An eq. (2) or cascade record read by :meth:`from_json` writes back the object it was read from.
         """
-        return {"schema_version": SCHEMA_VERSION, **self.to_dict(cycles=cycles)}
+        if self.kind == "cascade":
+            return _cascade_json(self)
+        if self.kind == "family":
+            return _family_json(self)
+        return {"schema_version": SCHEMA_VERSION, **_eq2_json(self, cycles)}
 
     @classmethod
-    def from_json(cls, data: object) -> AnalysisResult:
-        """The typed record of an ``analyze --json`` object (any ``schema_version`` up to this one).
+    def from_json(cls, data: object) -> AnalysisResult[Any, Any, Any]:
+        """The typed record of an ``analyze --json`` object of any strategy (any ``schema_version`` up to its own).
 
-        The tests are rebuilt with their cycles (rejected tests, written without cycles, have none);
-        the draws behind the bootstrap and Table III, the identification record and the refinement
-        fit are not in the JSON (``identification`` and ``refinement`` are None, ``bootstrap`` and
-        ``combinations`` empty; their JSON summaries stay in ``recorded``). A JSON object without
-        ``schema_version`` is read as version 1 (written before the key existed).
+        Eq. (2): the tests are rebuilt with their cycles (rejected tests, written without cycles, have
+        none); the draws behind the bootstrap and Table III, the identification record and the
+        refinement fit are not in the JSON (``identification`` and ``refinement`` are None,
+        ``bootstrap`` and ``combinations`` empty; their JSON summaries stay in ``recorded``). A JSON
+        object without ``schema_version`` is read as eq. (2)'s version 1 (written before the key existed).
 
         Raises
         ------
         InputError
             Not an analyze result, or a ``schema_version`` newer than this version reads.
         """
+        if isinstance(data, Mapping) and data.get("kind") == "cascade":
+            return _cascade_from_json(data)
+        if isinstance(data, Mapping) and (isinstance(data.get("model"), str) or ("path" in data and "input" not in data)):
+            return _family_from_json(data)
         data = check_schema_version(data, "analyze RESULT.json", range(1, SCHEMA_VERSION + 1), missing=1,
                                     fix="update mrft-ident")
         try:
-            return _from_json(cls, data)
+            return _eq2_from_json(data)
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"not an analyze RESULT.json ({type(err).__name__}: {err}); "
                              "needs parameters.Td/tau/K, model, tests and input") from err
 
 
-def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisResult:
-    """:meth:`AnalysisResult.from_json` after the version check (KeyError etc. on bad input).
+#: eq. (2)'s analysis (the manifold strategy)
+Eq2Analysis = AnalysisResult[LoopModel, MrftTest, IdentificationResult | None]
+#: a process family's analysis (the response-point strategy)
+GeneralAnalysis = AnalysisResult[PlantModel, TestSummary, LtiIdentification]
+#: an outer loop's analysis through its closed inner loop
+CascadeAnalysis = AnalysisResult[CascadeModel, MrftTest, CascadeIdentification]
+
+
+def _kind_of(model: object) -> str:
+    if isinstance(model, LoopModel):
+        return "soiptd"
+    return "cascade" if isinstance(model, CascadeModel) else "family"
+
+
+# ----------------------------------------------------------------------------------------------
+# eq. (2)'s layout
+# ----------------------------------------------------------------------------------------------
+def _eq2_json(r: AnalysisResult[Any, Any, Any], cycles: bool) -> _JSONDict:
+    if r.recorded is not None:
+        return _recorded_dict(r.recorded, cycles, r)
+    if not isinstance(r.identification, IdentificationResult):
+        raise InputError("an analysis without its identification record cannot be written as JSON")
+    m = r.model
+    params = _group({k: r.parameters[k] for k in ("Td", "tau", "K")}, r.method)
+    params["Tp"] = ParameterEstimate.given(r.Tp, "s").to_json()
+    return {
+        "parameters": params,
+        **_estimates(r),
+        "model": {"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K},
+        "combinations": r.combination_stats(),
+        "tests": [{**_with_rel(r, t.to_dict(cycles=cycles)),
+                   "held_out": None if (ho := r.held_out_of(k)) is None else ho.to_json()}
+                  for k, t in enumerate(r.tests)],
+        "rejected_tests": [{**_with_rel(r, t.to_dict(cycles=False)),
+                            "reason": r.rejection_reasons.get(t.index, "")} for t in r.rejected],
+        "identification": _identification(r, r.identification),
+        "uncertainty": {"method": "bootstrap over stable cycles",
+                        "draws": int(np.isfinite(np.asarray(r.bootstrap.get("Td", []), float)).sum())},
+        "noise": {"std": measured_noise_std(r.tests), "unit": "output units",
+                  "source": "median residual of the used tests' stable cycle fits"},
+        "tp_check": r.tp_check.to_dict() if r.tp_check is not None else None,
+        "warnings": list(r.warnings),
+        "notes": list(r.notes),
+        "input": _input(r),
+    }
+
+
+def _with_rel(r: AnalysisResult[Any, Any, Any], d: _JSONDict) -> _JSONDict:
+    # absolute times stay (the issue's keys); relative ones next to them for people and plots
+    out = {}
+    for k, v in d.items():
+        out[k] = v
+        if k in ("t_start", "t_end"):
+            out[k + "_rel"] = r.rel(v)
+    return out
+
+
+def _estimates(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+    """``parameters_mrft``, and with a refinement ``parameters_waveform`` and ``refinement``."""
+    extra: _JSONDict = {}
+    if r.parameters_mrft:
+        extra["parameters_mrft"] = _group(r.parameters_mrft, "mrft")
+    if r.refinement is not None:
+        ref = r.refinement
+        extra["parameters_waveform"] = _group({"Td": ref.Td, "tau": ref.tau, "K": ref.K}, "waveform")
+        extra["refinement"] = {"method": "output error on the tests' windows (exact ZOH, fractional delay)",
+                               **ref.to_dict()}
+    return extra
+
+
+def _identification(r: AnalysisResult[Any, Any, Any], ident: IdentificationResult) -> _JSONDict:
+    d = ident.to_dict()
+    rows = []
+    # identify() saw each test's means only; give the cycle counts and standard errors behind them
+    for row, t in zip(d["tests"], r.tests):
+        f = t.frequency_hz
+        rows.append({**row, "n_cycles": int(f.size),
+                     "frequency_sem_hz": float(f.std(ddof=1) / math.sqrt(f.size)) if f.size > 1 else None})
+    return {"method": r.estimate_method, "residual": d["residual"], "tests": rows, "beta_used": "effective",
+            "rate_correction": None, "constraints": dict(r.constraints) or {"used": ["ufm"]}}
+
+
+def _input(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+    inp: _JSONDict = {"path": r.path, "loop": r.loop, "Tp": r.Tp, "t0": r.t0}
+    info = r.log_info
+    if info is None and r.flight is not None:
+        info = LogInfo.from_flight(r.flight)
+    if info is not None:
+        inp.update(info.to_dict())
+    return inp
+
+
+def _eq2_from_json(data: Mapping[str, Any]) -> Eq2Analysis:
+    """Eq. (2)'s record after the version check (KeyError etc. on bad input).
 
     Required: ``parameters`` Td, tau, K (``value``; ``mean`` before version 4) and Tp; a hand-written
     result may leave out the rest (no tests, the model from the parameters, an empty path and loop).
@@ -415,27 +612,102 @@ def _from_json(cls: type[AnalysisResult], data: Mapping[str, Any]) -> AnalysisRe
     rejected_rows = data.get("rejected_tests") or ()
     info = LogInfo.from_dict(inp) if "command_samples" in inp else None
     constraints = (data.get("identification") or {}).get("constraints") or {}
-    return cls(
-        path=str(inp.get("path", "")), loop=str(inp.get("loop", "")), Tp=Tp,
-        tests=tuple(mrft_test_from_json(t) for t in data.get("tests") or ()),
-        rejected=tuple(mrft_test_from_json(t) for t in rejected_rows),
-        Td=Td, tau=tau, K=K,
+    return AnalysisResult(
+        path=str(inp.get("path", "")), loop=str(inp.get("loop", "")),
         model=LoopModel(json_float(m["Tp"]), json_float(m["Td"]), json_float(m["tau"]), json_float(m["K"])),
-        identification=None, combinations={}, bootstrap={},
-        warnings=tuple(str(w) for w in data.get("warnings") or ()), flight=None,
+        tests=tuple(mrft_test_from_json(t) for t in data.get("tests") or ()), identification=None,
+        parameters={"Td": Td, "tau": tau, "K": K},
+        rejected=tuple(mrft_test_from_json(t) for t in rejected_rows),
+        warnings=tuple(str(w) for w in data.get("warnings") or ()),
         t0=json_float(inp.get("t0") or 0.0),
         # the JSON writes {"used": ["ufm"]} when no constraint was used; the record holds {} then
         constraints={} if dict(constraints) == {"used": ["ufm"]} else dict(constraints),
         rejection_reasons={int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
         method=str(p["Td"].get("method", "mrft")),
         parameters_mrft={k: _estimate(k, v) for k, v in (data.get("parameters_mrft") or {}).items()},
-        refinement=None, notes=tuple(str(n) for n in data.get("notes") or ()),
+        notes=tuple(str(n) for n in data.get("notes") or ()),
         controller_rate_hz=_recorded_rate(data, info), log_info=info,
         recorded=copy.deepcopy(dict(data)),
         tp_check=TpCheck.from_dict(data["tp_check"]) if isinstance(data.get("tp_check"), Mapping) else None,
         held_out=tuple(HeldOut.from_json(t["held_out"]) if isinstance(t.get("held_out"), Mapping) else None
                        for t in data.get("tests") or ()),
     )
+
+
+# ----------------------------------------------------------------------------------------------
+# a process family's layout
+# ----------------------------------------------------------------------------------------------
+def _family_json(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+    """``schema_version``, ``model`` (the family), ``parameters`` by name, ``identification``, ``tests``."""
+    ident = r.identification
+    return {"schema_version": FAMILY_SCHEMA_VERSION, "path": r.path, "loop": r.loop, "t0": r.t0,
+            "windows": [list(w) for w in r.windows], "model": ident.model.family,
+            "parameters": {e.name: e.to_json() for e in ident.estimates}, "identification": ident.to_json(),
+            "tests": [t.to_json() for t in r.tests],
+            "rejected_tests": [{"index": i, "t_start": a, "t_end": b, "reason": w} for i, a, b, w in r.rejected_spans],
+            "notes": list(r.notes), "warnings": list(r.warnings),
+            "static_gain": None if r.static_gain is None else r.static_gain.to_json()}
+
+
+def _family_from_json(data: Mapping[str, Any]) -> GeneralAnalysis:
+    data = check_schema_version(data, "analysis JSON", range(1, FAMILY_SCHEMA_VERSION + 1))
+    try:
+        sg = data.get("static_gain")
+        ident = LtiIdentification.from_json(data["identification"])
+        return AnalysisResult(
+            str(data["path"]), str(data["loop"]), ident.model, tuple(TestSummary.from_json(t) for t in data["tests"]),
+            ident, {e.name: e for e in ident.estimates}, t0=float(data["t0"]),
+            windows=tuple((float(a), float(b)) for a, b in data.get("windows", [])),
+            rejected_spans=tuple((int(r["index"]), float(r["t_start"]), float(r["t_end"]), str(r["reason"]))
+                                 for r in data.get("rejected_tests", [])),
+            notes=tuple(str(n) for n in data.get("notes", [])), warnings=tuple(str(w) for w in data.get("warnings", [])),
+            static_gain=None if sg is None else StaticGain.from_json(sg))
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise InputError(f"analysis JSON: bad or missing field ({err})") from None
+
+
+# ----------------------------------------------------------------------------------------------
+# the cascade's layout
+# ----------------------------------------------------------------------------------------------
+def _cascade_json(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+    """``{"schema_version", "kind": "cascade", "input", "assumptions", "model", "parameters", "identification",
+    "tests", "rejected_tests", "warnings"}`` (docs/cascade.md)."""
+    if r.recorded is not None:
+        return dict(r.recorded)
+    ident = r.identification
+    return {"schema_version": CASCADE_SCHEMA_VERSION, "kind": "cascade",
+            "input": {"path": r.path, "loop": r.loop, "t0": r.t0, "controller_rate_hz": r.controller_rate_hz or 0.0},
+            "assumptions": list(r.assumptions), "model": ident.model.to_json(),
+            "parameters": {k: e.to_json() for k, e in ident.estimates.items()},
+            "identification": ident.to_json(),
+            "tests": [t.to_dict(cycles=True) for t in r.tests],
+            "rejected_tests": [{**t.to_dict(cycles=False), "reason": r.rejection_reasons.get(t.index, "")}
+                               for t in r.rejected],
+            "warnings": list(r.warnings)}
+
+
+def _cascade_from_json(data: Any) -> CascadeAnalysis:
+    d = check_schema_version(data, "cascade analysis JSON", range(1, CASCADE_SCHEMA_VERSION + 1))
+    if d.get("kind") != "cascade" or "identification" not in d:
+        raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
+    inp = d.get("input") or {}
+    try:
+        rejected_rows = d.get("rejected_tests") or ()
+        ident = CascadeIdentification.from_json(d["identification"])
+        recorded = dict(d) if d.get("schema_version") == CASCADE_SCHEMA_VERSION else \
+            {**d, "schema_version": CASCADE_SCHEMA_VERSION,  # version 1's parameters as the one record
+             "parameters": {k: e.to_json() for k, e in ident.estimates.items()}, "identification": ident.to_json()}
+        return AnalysisResult(
+            str(inp.get("path", "")), str(inp.get("loop", "")), ident.model,
+            tuple(mrft_test_from_json(t) for t in d.get("tests") or ()), ident, dict(ident.estimates),
+            rejected=tuple(mrft_test_from_json(t) for t in rejected_rows),
+            rejection_reasons={int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
+            controller_rate_hz=float(inp.get("controller_rate_hz") or 0.0),
+            assumptions=tuple(str(a) for a in d.get("assumptions") or ()),
+            warnings=tuple(str(w) for w in d.get("warnings") or ()), t0=float(inp.get("t0") or 0.0),
+            recorded=recorded)
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputError(f"cascade analysis JSON: bad tests ({type(err).__name__}: {err})") from err
 
 
 def _recorded_rate(data: Mapping[str, Any], info: LogInfo | None) -> float | None:
@@ -480,7 +752,7 @@ def analysis_controller_rate(declared_hz: float | None, test_rates_hz: Sequence[
     return round(float(np.median(rates)), 1) if rates else None
 
 
-def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisResult) -> _JSONDict:
+def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisResult[Any, Any, Any]) -> _JSONDict:
     """The JSON a record was read from, in this version's layout (an older one's tests get ``held_out`` null,
     its parameters the one record's keys)."""
     out = {k: copy.deepcopy(v) for k, v in recorded.items() if k != "schema_version"}

@@ -166,13 +166,15 @@ def process_columns(result: Mapping[str, Any] | None) -> dict[str, Any]:
     ``tau_std`` [s] fill eq. (2)'s columns too (the delay is ``tau`` in seconds in every family, so the
     fleet's tau outlier flags apply).
     """
-    from ..analyze.general import GeneralAnalysis
+    from ..analyze.record import GeneralAnalysis
 
     if result is None:
         return {}
     try:
         analysis = GeneralAnalysis.from_json(result)
     except InputError:
+        return {}
+    if analysis.kind != "family":
         return {}
     ident = analysis.identification
     out: dict[str, Any] = {"model": result.get("model"), "n_tests": len(analysis.tests),

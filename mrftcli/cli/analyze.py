@@ -213,7 +213,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
-    from ..analyze import AnalysisResult, AnalyzeOptions, analyze_flight, log_start, refuse_rejected_tp
+    from ..analyze import AnalyzeOptions, analyze_flight, log_start, refuse_rejected_tp
     from ..analyze.options import RelayOptions
     from ..io import ReadOptions, read_flight
     from ..validate import check_tp
@@ -264,9 +264,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         stage = _stages(progress, weights)
         stage("identify")(0, 1, "segmenting and identifying")
         try:
-            result = analyze_flight(flight, model, options=options)
-            if isinstance(result, AnalysisResult):
-                result = refuse_rejected_tp(result, accept_tp)
+            result = refuse_rejected_tp(analyze_flight(flight, model, options=options), accept_tp)
         except TpRejectedError as err:
             if json_target and err.result is not None:  # the JSON says which: tp_check.verdict "rejected"
                 dump_json(err.result.to_json(), json_target)
@@ -312,7 +310,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
             data["diagnosis"] = diagnosis.to_dict()
         dump_json(data, json_target)
     if not to_stdout:
-        click.echo(format_table(result) if isinstance(result, AnalysisResult) else format_general(result))
+        click.echo(format_table(result) if result.kind == "soiptd" else format_general(result))
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
     if mcap_out:

@@ -16,7 +16,7 @@ from ..validate import check_parameter_value
 from .options import num
 
 if TYPE_CHECKING:
-    from ..analyze.general import GeneralAnalysis
+    from ..analyze.record import GeneralAnalysis
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
@@ -328,7 +328,7 @@ def format_general(result: GeneralAnalysis) -> str:
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.rjust(w) if k in (0, 1, 2, 4, 5, 6, 7) else c.ljust(w)
                         for k, (c, w) in enumerate(zip(r, widths))).rstrip() for r in rows]
-    for i, a, b, why in result.rejected:
+    for i, a, b, why in result.rejected_rows():
         lines.append(f"left out: {a - t0:.2f}-{b - t0:.2f} s: {why}")
     if ident is not None:
         chi = f", chi2/dof {ident.chi2_dof:.3g}" if ident.chi2_dof is not None else ""

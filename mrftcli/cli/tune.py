@@ -200,7 +200,7 @@ def _is_cascade(source: str | None) -> bool:
 def _cascade_source(source: str) -> _TuneSource:
     """An outer loop's cascade (analyze --inner-model's RESULT.json) with its draws over the outer estimate and
     the inner loop; the rate its outer controller ran at."""
-    from ..analyze.cascade import CascadeAnalysis
+    from ..analyze.record import CascadeAnalysis
     from ..tune.grid import N_DRAWS, outer_draws
 
     data = _read_json(source)
@@ -238,7 +238,7 @@ def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
         return _TuneSource(model, None, "")
     if meta_model(ctx) is not None:
         raise InputError("give a RESULT.json or --model with --param, not both (the file holds its model)")
-    from ..analyze.general import GeneralAnalysis
+    from ..analyze.record import GeneralAnalysis
 
     data = _read_json(source) if str(source).lower().endswith(".json") else None
     if data is None:

@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from ..analyze import AnalysisResult
 from ..errors import InputError, SegmentationError, TpRejectedError
 from ..jsonable import load_json_text
 from ..io.logtypes import gain_unit, output_unit
@@ -45,8 +44,7 @@ def _loop_rows(result: VehicleResult) -> list[list[str]]:
         g, est = entry.gains, entry.estimates
         c = g.controller if g is not None else None
         pm = g.phase_margin_deg if g is not None else math.nan
-        k_unit = gain_unit(name) if isinstance(entry.analysis, AnalysisResult) else \
-            entry.analysis.identification.estimates["K"].unit
+        k_unit = gain_unit(name) if entry.analysis.kind == "soiptd" else entry.analysis.parameters["K"].unit
         rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), num(est["Td"][0]),
                      num(est["tau"][0] * 1e3), f"{num(est['K'][0])} {k_unit}",
                      g.design if g is not None else "not tuned",

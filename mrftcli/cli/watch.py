@@ -16,7 +16,7 @@ from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
-    from ..analyze.general import GeneralAnalysis
+    from ..analyze.record import GeneralAnalysis
     from ..mrft.model import PlantModel
     from ..mrft.parameter import ParameterEstimate
     from ..watch import EstimateUpdate, TestUpdate, Update, WatchEnd
@@ -79,13 +79,9 @@ def _estimate_line(update: EstimateUpdate, unit: str, units: dict[str, str]) -> 
 
 def _held_out_lines(analysis: AnalysisResult | GeneralAnalysis, unit: str) -> str:
     """Each test's cycle as predicted from the other tests, beside the measured one."""
-    from ..analyze import AnalysisResult
-
-    if isinstance(analysis, AnalysisResult):
-        rows = [(t.index + 1, analysis.held_out_of(k), t.frequency_hz_mean, t.amplitude_mean)
-                for k, t in enumerate(analysis.tests)]
-    else:
-        rows = [(t.index + 1, t.held_out, t.frequency_hz, t.amplitude) for t in analysis.tests]
+    eq2 = analysis.kind == "soiptd"
+    rows = [(t.index + 1, analysis.held_out_of(k), t.frequency_hz_mean if eq2 else t.frequency_hz,
+             t.amplitude_mean if eq2 else t.amplitude) for k, t in enumerate(analysis.tests)]
     return "".join(f"\nheld-out test {n}: " + ("none" if ho is None else ho.describe(f, a, unit))
                    for n, ho, f, a in rows)
 

@@ -39,7 +39,7 @@ import statistics
 import numpy as np
 from scipy import stats
 
-from ..analyze.general import GeneralAnalysis
+from ..analyze.record import GeneralAnalysis
 from ..errors import InputError
 from ..mrft.model import LoopModel, PlantModel
 from ..mrft.relays import RelayLaw

@@ -12,8 +12,6 @@ import math
 from pathlib import Path
 
 from ..progress import Progress, report
-from ..analyze import AnalysisResult
-from ..analyze.cascade import CascadeAnalysis
 from ..mrft.model import LoopModel
 from ..vehicle import VehicleLoop, VehicleResult
 from ._common import ensure_dir, esc, html_page, html_table, write_page
@@ -37,8 +35,7 @@ def _loop_rows(result: VehicleResult) -> list[list[str]]:
                  f"{g.design} {g.kind}: Kp {_num(g.controller.Kp)} cmd/{y}, Ki {_num(g.controller.Ki)} cmd/({y} s), "
                  f"Kd {_num(g.controller.Kd)} cmd s/{y}, Tf {_num(g.controller.Tf * 1e3)} ms at {g.controller.rate_hz:g} Hz")
         pm = "-" if g is None else f"{g.phase_margin_deg:.1f}"
-        k_unit = gain_unit(name) if isinstance(entry.analysis, AnalysisResult) else \
-            entry.analysis.identification.estimates["K"].unit
+        k_unit = gain_unit(name) if entry.analysis.kind == "soiptd" else entry.analysis.parameters["K"].unit
         rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), _num(est["Td"][0]),
                      _num(est["tau"][0] * 1e3), f"{_num(est['K'][0])} {k_unit}", gains, pm])
     return rows
@@ -73,9 +70,9 @@ def _index_body(result: VehicleResult) -> str:
 
 def _cascade_page(entry: VehicleLoop, folder: Path) -> Path:
     """An outer loop identified through its closed inner loop: its assumptions, parameters, tests, gains."""
-    assert isinstance(entry.analysis, CascadeAnalysis)  # only called for the cascade route
     a = entry.analysis
-    est = a.identification.estimates
+    assert a.kind == "cascade"  # only called for the cascade route
+    est = a.parameters
     body = [f"<p><a href='../index.html'>The vehicle</a> - the {esc(entry.loop)} loop through the closed "
             f"{esc(a.model.inner.loop or 'inner')} loop: G(s) = K T<sub>inner</sub>(s) Td e<sup>-tau s</sup> / "
             "(s (Td s + 1))</p>",
@@ -117,7 +114,7 @@ def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: P
         if entry.gains is not None and isinstance(entry.gains.tune.model, LoopModel):  # eq. (2)'s page; a cascade's below
             write_tune_report(entry.gains.tune, out / name / "gains")
             links.append(("gains/index.html", f"Gains of the {name} loop"))
-        if isinstance(entry.analysis, AnalysisResult):
+        if entry.analysis.kind == "soiptd":
             write_analysis_report(entry.analysis, out / name, links=links)
         else:
             _cascade_page(entry, out / name)

@@ -142,20 +142,20 @@ def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> 
     pair = [loops.get(loop) for loop in ("roll", "pitch")]
     if st is None or st.stack not in GYRO_FILTER_PARAM or st.gyro_cutoff_hz is not None or options.kind != "PD":
         return {}
-    entries = [v for v in pair if v is not None and v.route == "eq2" and isinstance(v.analysis, AnalysisResult)
+    entries = [v for v in pair if v is not None and v.route == "eq2" and v.analysis.kind == "soiptd"
                and v.gains is not None and v.gains.export is not None and isinstance(v.gains.tune, TuneResult)]
     rates = {v.gains.tune.rate_hz for v in entries if v.gains is not None}
     if len(entries) != 2 or len(rates) != 1:
         return {}
     name = GYRO_FILTER_PARAM[st.stack]
     try:
-        joint = joint_cutoff_of_analyses([v.analysis for v in entries if isinstance(v.analysis, AnalysisResult)],
+        joint = joint_cutoff_of_analyses([v.analysis for v in entries],
                                          st.stack, rates.pop(), objective=options.objective, ms_max=options.ms_max)
     except InputError:  # no cutoff suits both: the loops keep the stated default (their notes say so)
         return {}
     out = {}
     for v, res in zip(entries, joint.results):
-        assert v.gains is not None and isinstance(v.analysis, AnalysisResult)
+        assert v.gains is not None
         kept = tuple(n for n in v.gains.tune.notes if not n.startswith(name))  # the default cutoff's note
         res = replace(res, notes=(joint.note(), *kept, *res.notes))
         try:

@@ -13,9 +13,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from ..analyze import AnalysisResult
 from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
-from ..analyze.cascade import CascadeAnalysis, cascade_model, inner_draws, inner_loop_of
+from ..analyze.cascade import cascade_model, inner_draws, inner_loop_of
+from ..analyze.record import CascadeAnalysis
 from ..io import FlightLog
 from ..mrft.cascade import InnerController, InnerLoop
 from ..tune.grid import outer_draws
@@ -62,7 +62,7 @@ def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: InnerContro
     MrftError
         No usable outer test, or the tests do not determine the unknowns (analyze_cascade's errors).
     """
-    assert isinstance(inner.analysis, AnalysisResult)  # an inner loop is identified with eq. (2)
+    assert inner.analysis.kind == "soiptd"  # an inner loop is identified with eq. (2)
     loop = inner_loop_of(inner.analysis, controller, inner.loop)
     copts = CascadeOptions(draws=tuple(inner_draws(inner.analysis, loop, options.inner_draws)),
                            assumptions=(f"inner model: the {inner.loop} loop identified in this flight",),
@@ -98,6 +98,7 @@ def tune_outer(analysis: CascadeAnalysis, inner: VehicleLoop, options: OuterOpti
     closed, said = _new_inner(analysis, inner)
     model = dataclasses.replace(analysis.model, inner=closed)
     draws = outer_draws(model, analysis.identification.estimates, OUTER_DRAWS)
+    assert analysis.controller_rate_hz is not None  # a cascade's analysis has its outer rate
     res: TuneResult = tune(model, analysis.controller_rate_hz, posterior=draws, loop=analysis.loop,
                            options=DesignOptions(ms_max=options.ms_max))
     res = dataclasses.replace(res, notes=(said, *res.notes))

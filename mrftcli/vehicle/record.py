@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..analyze import AnalysisResult
-from ..analyze.cascade import CascadeAnalysis
 from ..errors import InputError
 from ..io.logtypes import LOOPS, output_unit
 from ..jsonable import check_schema_version
@@ -159,18 +158,15 @@ class VehicleLoop:
     loop: str
     role: str
     route: str
-    analysis: AnalysisResult | CascadeAnalysis
+    analysis: AnalysisResult[Any, Any, Any]
     gains: LoopGains | None
     route_notes: tuple[str, ...] = ()
 
     @property
     def estimates(self) -> dict[str, tuple[float, float]]:
         """Td [s], tau [s] and K: (estimate, std) whatever the route."""
-        if isinstance(self.analysis, CascadeAnalysis):
-            est = self.analysis.identification.estimates
-            return {k: (float(est[k].value), float(est[k].std)) for k in ("Td", "tau", "K") if k in est}
-        a = self.analysis
-        return {"Td": (a.Td.value, a.Td.std), "tau": (a.tau.value, a.tau.std), "K": (a.K.value, a.K.std)}
+        est = self.analysis.parameters
+        return {k: (float(est[k].value), float(est[k].std)) for k in ("Td", "tau", "K") if k in est}
 
     def to_json(self) -> dict[str, Any]:
         """The analysis JSON with ``role``, ``route``, ``route_notes`` and ``gains`` added."""
@@ -185,10 +181,8 @@ class VehicleLoop:
         if not isinstance(data, Mapping):
             raise InputError(f"{what}: expected a JSON object")
         gains = data.get("gains")
-        analysis: AnalysisResult | CascadeAnalysis
         try:
-            analysis = (CascadeAnalysis.from_json(data) if data.get("kind") == "cascade"
-                        else AnalysisResult.from_json(data))
+            analysis = AnalysisResult.from_json(data)
         except InputError as err:
             raise InputError(f"{what}: {err}") from None
         return cls(loop, _choice(data, "role", ROLES, what), _choice(data, "route", ROUTES, what), analysis,

@@ -225,7 +225,8 @@ def predicted_step(result: dict[str, Any], params: dict[str, float], hover: floa
     model = LoopModel(result["tp"], result["Td"], result["tau"], result["K"])
     t, y, u = step_response([model], ctrl, t_end)
     m = step_metrics(t, y[0], u[0])
-    return {"overshoot_pct": m.overshoot_pct, "settling_s": m.settling_s, "rise_s": m.rise_s}
+    return {"overshoot_pct": m.overshoot_pct, "settling_s": m.settling_s, "rise_s": m.rise_s,
+            "t": t, "y": y[0]}
 
 
 def _offboard_hold(sitl: Px4Sitl, x: float, y: float, z: float, seconds: float) -> None:
@@ -286,6 +287,12 @@ def _normalised_steps(t: np.ndarray, alt: np.ndarray, starts: list[float], dwell
     return grid, runs
 
 
+def _settling(grid: np.ndarray, y: np.ndarray, band: float) -> float:
+    """The last time [s] a normalised response is outside ``1 +- band``."""
+    outside = np.flatnonzero(np.abs(y - 1.0) > band)
+    return float(grid[outside[-1]]) if outside.size else 0.0
+
+
 def _figures(grid: np.ndarray, y: np.ndarray) -> dict[str, float]:
     """Overshoot [%], 2 % settling [s] and 10-90 % rise [s] of a normalised response."""
     outside = np.flatnonzero(np.abs(y - 1.0) > 0.02)
@@ -314,7 +321,11 @@ def evaluate_refly(flown: dict[str, Any], pred: dict[str, float]) -> dict[str, f
         ts, sp = src.read("trajectory_setpoint", ["position[2]"])
         tz, pos = src.read("vehicle_local_position", ["z", "vz"])
     zsp = sp["position[2]"]
-    z0, step = flown["z0"], flown["step_m"]
+    step = flown["step_m"]
+    if "z0" not in flown:  # a log flown before: the level is the setpoint just before the first step up
+        first = int(np.flatnonzero(np.isfinite(zsp[1:]) & (np.diff(zsp) < -0.5 * step))[0])
+        flown = {**flown, "z0": float(zsp[first])}
+    z0 = flown["z0"]
     up = np.isfinite(zsp) & (zsp < z0 - 0.5 * step)
     starts = [float(ts[i]) for i in np.flatnonzero(np.diff(up.astype(int)) == 1) + 1]
     alt = -pos["z"]
@@ -334,6 +345,18 @@ def evaluate_refly(flown: dict[str, Any], pred: dict[str, float]) -> dict[str, f
           f"{pred['settling_s']:.2f} s")
     print("    single steps: " + "; ".join(f"{e['overshoot_pct']:.1f} %, {e['rise_s']:.2f} s, {e['settling_s']:.2f} s"
                                          for e in each))
+    # The band PX4 holds: EKF2's altitude in the hover before the steps, +-2 std; settling into it,
+    # flown and predicted (tune's loop has no estimator, so its response is measured against the same band)
+    band = 2 * float(np.std(alt[hover])) / step
+    got["band"] = band
+    got["settling_band_s"] = _settling(grid, np.mean(runs, axis=0), band)
+    singles = [_settling(grid, r, band) for r in runs]
+    got["settling_band_single_s"] = singles
+    if "y" in pred:
+        got["predicted_settling_band_s"] = _settling(pred["t"], pred["y"], band)
+        print(f"  settling into the band PX4 holds in hover (EKF2's altitude +-2 std = +-{band * step * 100:.1f} cm, "
+              f"{band * 100:.1f} % of the step): mean response {got['settling_band_s']:.2f} s, single steps "
+              f"{', '.join(f'{v:.2f}' for v in singles)} s; predicted {got['predicted_settling_band_s']:.2f} s")
     return got
 
 
@@ -347,6 +370,10 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     print("2. analysis of the ULogs")
     results = analyse(logs)
     report(results)
+    done = logs / "export" / "refly.ulg"
+    if (analyze_only or no_refly) and EXPORT_FROM in results and done.exists():
+        print(f"3. the re-flight already flown ({done}), evaluated again")
+        _compare_step(results, logs / "export" / "altitude.params", {"log": done, "step_m": 1.0, "dwell_s": 10.0})
     if analyze_only or no_refly or EXPORT_FROM not in results:
         return 0
     print("3. tune --export px4, load, re-fly")
@@ -356,11 +383,17 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
         return 1
     flown = refly(px4, params_file, logs / "export", speedup)
     if flown.get("armed"):
-        values = {k: v for k, (v, _) in read_qgc_params(params_file).items()}
-        r = results[EXPORT_FROM]
-        pred = predicted_step(r, values, r["hover"])
-        got = evaluate_refly(flown, pred)
-        for key in ("overshoot_pct", "rise_s", "settling_s"):
-            if math.isfinite(pred[key]) and pred[key] > 0:
-                print(f"    {key}: flown / predicted = {got[key] / pred[key]:.2f}")
+        _compare_step(results, params_file, flown)
     return 0
+
+
+def _compare_step(results: dict[str, dict[str, Any]], params_file: Path, flown: dict[str, Any]) -> None:
+    """The flown altitude steps against the prediction of the exported gains on the identified model."""
+    values = {k: v for k, (v, _) in read_qgc_params(params_file).items()}
+    r = results[EXPORT_FROM]
+    pred = predicted_step(r, values, r["hover"])
+    got = evaluate_refly(flown, pred)
+    pred["settling_band_s"] = got.get("predicted_settling_band_s", math.nan)
+    for key in ("overshoot_pct", "rise_s", "settling_s", "settling_band_s"):
+        if math.isfinite(pred[key]) and pred[key] > 0:
+            print(f"    {key}: flown / predicted = {got[key] / pred[key]:.2f}")

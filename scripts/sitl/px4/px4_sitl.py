@@ -35,7 +35,7 @@ __all__ = ["Px4Sitl", "fly_mrft", "read_qgc_params", "load_params", "AXES", "PX4
 
 HERE = Path(__file__).resolve().parent
 #: loop -> the fork's parameter letter
-AXES = {"altitude": "Z", "x": "X", "y": "Y", "roll": "R"}
+AXES = {"altitude": "Z", "x": "X", "y": "Y", "roll": "R", "pitch": "P"}
 PX4_VERSION = "PX4 main of 2024-08-21 (abdullaayyad96/PX4-Autopilot ae16556) + mrft_port.patch"
 #: SIH's quadrotor (src/modules/simulation/simulator_sih/sih_params.c defaults, airframe 10040)
 SIH_MODEL = {"SIH_MASS": 1.0, "SIH_T_MAX": 5.0, "SIH_T_TAU": 0.05, "SIH_KDV": 1.0, "SIH_L_ROLL": 0.2,
@@ -50,8 +50,11 @@ LOGGER_TOPICS = ["vehicle_local_position 16", "vehicle_local_position_setpoint 0
                  "vehicle_attitude 50",
                  "vehicle_status 200", "vehicle_land_detected 200"]
 #: a roll flight's command (the roll torque setpoint the relay replaces, mrft_roll.patch) and output (the
-#: attitude), at every publication
-ROLL_TOPICS = ["vehicle_torque_setpoint 0", "vehicle_attitude 0"]
+#: attitude), at every publication; beside them each stage of the path between (what SIH reads, the motor
+#: commands; SIH's true rates and attitude; the gyro's rates PX4 filters), to measure each stage's lag
+ROLL_TOPICS = ["vehicle_torque_setpoint 0", "vehicle_attitude 0", "actuator_outputs_sim 0",
+               "vehicle_angular_velocity 0", "vehicle_angular_velocity_groundtruth 0",
+               "vehicle_attitude_groundtruth 0"]
 INT32 = mavutil.mavlink.MAV_PARAM_TYPE_INT32
 REAL32 = mavutil.mavlink.MAV_PARAM_TYPE_REAL32
 
@@ -110,8 +113,8 @@ class Px4Sitl(Sitl):
 
     def topics(self) -> list[str]:
         """The logger's topics: :data:`LOGGER_TOPICS`, and :data:`ROLL_TOPICS` instead where they overlap
-        when ``roll`` is among the parameters' axes (an MRFT_R_* parameter set)."""
-        extra = ROLL_TOPICS if any(k.startswith("MRFT_R_") for k in self.params) else []
+        when roll or pitch is among the parameters' axes (an MRFT_R_* or MRFT_P_* parameter set)."""
+        extra = ROLL_TOPICS if any(k.startswith(("MRFT_R_", "MRFT_P_")) for k in self.params) else []
         names = {e.split()[0] for e in extra}
         return [e for e in LOGGER_TOPICS if e.split()[0] not in names] + extra
 
@@ -269,7 +272,8 @@ def load_params(sitl: Px4Sitl, params: dict[str, tuple[float, int]]) -> list[dic
 def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, float]], delay_ms: float,
              duration_s: float, speedup: float = 1.0, alt_m: float = 5.0) -> dict[str, Any]:
     """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the ULog and how it was flown."""
-    params = {"MRFT_DELAY": delay_ms} if axis != "roll" else {"MRFT_R_ENABLE": 0}
+    rate_loop = axis in ("roll", "pitch")
+    params = {f"MRFT_{AXES[axis]}_ENABLE": 0} if rate_loop else {"MRFT_DELAY": delay_ms}
     with Px4Sitl(px4_dir, workdir, speedup, params) as sitl:
         refusals = sitl.takeoff(alt_m)
         hover = sitl.get_param("MPC_THR_HOVER")
@@ -279,8 +283,8 @@ def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, f
         texts = list(sitl.texts)
     log = sitl.newest_log()
     return {"stack": "PX4 SITL (SIH)", "version": PX4_VERSION, "frame": "sihsim_quadx (airframe 10040)",
-            "loop": axis, "relay": ("the fork's MRFT_Block in mc_rate_control on the roll angle, as the roll torque "
-                                    "setpoint (scripts/sitl/px4/mrft_roll.patch)" if axis == "roll" else
+            "loop": axis, "relay": (f"the fork's MRFT_Block in mc_rate_control on the {axis} angle, as the {axis} "
+                                    "torque setpoint (scripts/sitl/px4/mrft_roll.patch)" if rate_loop else
                                     "the fork's MRFT_Block in mc_pos_control (scripts/sitl/px4/mrft_port.patch)"),
             "speedup": speedup, "hover_thrust_param": hover, "added_delay_ms": delay_ms,
             "tp_s": SIH_MODEL["SIH_T_TAU"], "tp_source": "SIH_T_TAU: SIH's first-order rotor thrust lag",

@@ -15,7 +15,7 @@ sampled at the ticks:
 * the inner plant (any :class:`~mrftcli.mrft.model.PlantModel`, usually eq. (2)) with its delay on
   its command (tau_i = d_i T + eps_i: the command of tick k - d_i - 1 acts for the first eps_i of a
   period, that of tick k - d_i for the rest);
-* the inner controller in tune's generic form (:class:`InnerController`: parallel PID, derivative on
+* the inner controller in tune's generic form (:class:`~mrftcli.mrft.controller.Controller`: parallel PID, derivative on
   the measurement through a first-order filter Tf, backward differences, at ``rate_hz``)::
 
       e_k = r_k - phi_k,  I_k = I_{k-1} + Ki T e_k,  D_k = (Tf D_{k-1} - Kd (phi_k - phi_{k-1})) / (Tf + T)
@@ -49,11 +49,12 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..validate import check_beta, check_positive
+from .controller import Controller
 from .matexp import phi_gamma_small
-from .model import Parameter, PlantModel, StateSpace, check_parameter_names, json_parameter_values, model_from_json, \
-    model_json, model_json_parameters, spec_parameters
+from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parameter_values, model_from_json, model_json, \
+    model_json_parameters
 
-__all__ = ["InnerController", "InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
+__all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
            "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "json_number", "SwitchedOrbit"]
 
 if TYPE_CHECKING:
@@ -88,70 +89,6 @@ def json_number(data: Mapping[str, Any], key: str, what: str) -> float:
 
 
 @dataclass(frozen=True)
-class InnerController:
-    """The inner loop's controller in tune's generic form (``tune --export generic``).
-
-    Parallel PID, derivative on the measurement through a first-order filter, backward
-    differences, at ``rate_hz`` (:class:`mrftcli.tune.closed_loop.Controller`).
-
-    Attributes
-    ----------
-    Kp : float
-        Proportional gain [command units / inner output unit].
-    Ki : float
-        Integral gain [command units / (inner output unit s)]; 0 for a PD.
-    Kd : float
-        Derivative gain [command units s / inner output unit].
-    Tf : float
-        Derivative filter time constant [s] (>= 0).
-    rate_hz : float
-        Controller rate [Hz].
-
-    Examples
-    --------
-    >>> InnerController.from_json({"Kp": 2.0, "Ki": 0, "Kd": 0.3, "Tf": 0.01, "rate_hz": 200, "form": "parallel"})
-    InnerController(Kp=2.0, Ki=0.0, Kd=0.3, Tf=0.01, rate_hz=200.0)
-    """
-
-    Kp: float
-    Ki: float
-    Kd: float
-    Tf: float
-    rate_hz: float
-
-    def __post_init__(self) -> None:
-        for name in ("Kp", "Ki", "Kd", "Tf"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"inner controller {name} must be a finite number >= 0, got {v!r}")
-        check_positive("the inner controller's rate_hz", self.rate_hz)
-        if self.Kp == 0 and self.Ki == 0 and self.Kd == 0:
-            raise InputError("inner controller gains are all zero: the inner loop is not closed")
-
-    @property
-    def Ts(self) -> float:
-        """Sample period [s]."""
-        return 1.0 / self.rate_hz
-
-    def to_json(self) -> dict[str, Any]:
-        """``{"Kp", "Ki", "Kd", "Tf", "rate_hz"}`` (tune's generic form)."""
-        return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz}
-
-    @classmethod
-    def from_json(cls, data: Any, what: str = "inner gains") -> InnerController:
-        """The controller of a generic-form dict (extra keys such as ``form`` are ignored).
-
-        Raises
-        ------
-        InputError
-            Not an object, a gain missing or not a number.
-        """
-        if not isinstance(data, Mapping):
-            raise InputError(f"{what} must be an object with Kp, Ki, Kd, Tf, rate_hz, got {type(data).__name__}")
-        return cls(*(json_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz")))
-
-
-@dataclass(frozen=True)
 class InnerLoop:
     """The inner loop an outer loop goes through: its identified plant and the controller flying it.
 
@@ -160,8 +97,8 @@ class InnerLoop:
     plant : PlantModel
         The inner loop's plant (usually eq. (2), :class:`~mrftcli.mrft.model.LoopModel`), from its
         command [command units] to its output [rad for attitude]; its delay acts on the command.
-    controller : InnerController
-        The inner controller in use during the outer tests.
+    controller : Controller
+        The inner controller in use during the outer tests (its gains not all zero: the loop is closed).
     loop : str
         Its name (``"roll"``, ``"pitch"``), for messages; may be empty.
     std : tuple of (str, float)
@@ -170,9 +107,14 @@ class InnerLoop:
     """
 
     plant: PlantModel
-    controller: InnerController
+    controller: Controller
     loop: str = ""
     std: tuple[tuple[str, float], ...] = field(default=(), compare=False)
+
+    def __post_init__(self) -> None:
+        c = self.controller
+        if c.Kp == 0 and c.Ki == 0 and c.Kd == 0:
+            raise InputError("inner controller gains are all zero: the inner loop is not closed")
 
     def draw(self, rng: np.random.Generator) -> InnerLoop:
         """One draw of the inner loop over :attr:`std`: times and gains log-normal, the delay normal (kept >= 0)."""
@@ -223,7 +165,7 @@ class InnerLoop:
         unknown = set(std) - set(plant.parameters)
         if unknown:
             raise InputError(f"inner loop JSON: 'std' names {sorted(unknown)}, not parameters of the plant")
-        return cls(plant, InnerController.from_json(d["gains"]), str(d.get("loop", "")),
+        return cls(plant, Controller.from_json(d["gains"], "inner gains"), str(d.get("loop", "")),
                    tuple((str(k), float(v)) for k, v in std.items()))
 
 
@@ -306,7 +248,7 @@ class _Affine:
         return row, 0.0
 
 
-def _cascade_discrete(plant: StateSpace, delay_i: float, c: InnerController, K: float, Td: float,
+def _cascade_discrete(plant: StateSpace, delay_i: float, c: Controller, K: float, Td: float,
                       tau: float) -> DiscreteStateSpace:
     """The exact discrete realisation at the inner controller's rate (the module docstring's equations).
 
@@ -365,7 +307,7 @@ def _cascade_discrete(plant: StateSpace, delay_i: float, c: InnerController, K: 
 # the model object
 # ----------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class CascadeModel:
+class CascadeModel(SpecModel):
     """G_outer(s) = K T_inner(s) Td e^{-tau s} / (s (Td s + 1)): an outer loop through its closed inner loop.
 
     Implements :class:`~mrftcli.mrft.model.PlantModel` (family ``"cascade"``); the exact object is
@@ -390,7 +332,7 @@ class CascadeModel:
     Examples
     --------
     >>> from mrftcli.mrft.model import LoopModel
-    >>> inner = InnerLoop(LoopModel(Tp=0.03, Td=0.3, tau=0.01, K=50.0), InnerController(0.4, 0.0, 0.05, 0.005, 200.0))
+    >>> inner = InnerLoop(LoopModel(Tp=0.03, Td=0.3, tau=0.01, K=50.0), Controller(0.4, 0.0, 0.05, 0.005, 200.0))
     >>> m = CascadeModel(inner, Td=1.5, tau=0.05, K=G)
     >>> m.family, [p.name for p in m.parameters.values()], m.parameters["K"].known
     ('cascade', ['Td', 'tau', 'K'], True)
@@ -410,30 +352,12 @@ class CascadeModel:
     known: frozenset[str] = field(default=frozenset({"K"}), repr=False, compare=False)
     ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
 
+    _spec: ClassVar[ParameterSpec] = CASCADE_PARAMETERS
+
     def __post_init__(self) -> None:
-        if not math.isfinite(self.Td) or self.Td <= 0:
-            raise InputError(f"Td must be a positive time in seconds, got {self.Td!r}")
-        if not math.isfinite(self.tau) or self.tau < 0:
-            raise InputError(f"tau must be a non-negative time in seconds, got {self.tau!r}")
-        if not math.isfinite(self.K) or self.K <= 0:
+        self._check()
+        if self.K < 0:
             raise InputError(f"K must be a positive gain, got {self.K!r}")
-        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), CASCADE_PARAMETERS, self.family)
-
-    @property
-    def parameters(self) -> dict[str, Parameter]:
-        """Td, tau and K of the outer loop (the inner loop's are its own plant's)."""
-        return spec_parameters(self, CASCADE_PARAMETERS)
-
-    @property
-    def delay(self) -> float:
-        """The outer transport delay tau [s]."""
-        return self.tau
-
-    def with_parameters(self, **values: float) -> CascadeModel:
-        """A copy with some of Td, tau, K replaced (validated as in the constructor)."""
-        check_parameter_names(values, CASCADE_PARAMETERS, self.family)
-        new = {name: float(values.get(name, getattr(self, name))) for name in CASCADE_PARAMETERS}
-        return CascadeModel(self.inner, new["Td"], new["tau"], new["K"], known=self.known, ranges=self.ranges)
 
     def with_inner(self, inner: InnerLoop) -> CascadeModel:
         """The same outer loop through another inner loop (a draw of the inner model)."""

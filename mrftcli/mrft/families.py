@@ -21,7 +21,6 @@ parameter is known (the paper's set E is empty) and the ranges (set I) are the p
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
@@ -30,8 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError
-from .model import (Parameter, StateSpace, UnitNormalisation, check_parameter_names, json_parameter_values, model_json,
-                    model_json_parameters, spec_parameters)
+from .model import SpecModel, StateSpace, UnitNormalisation
 
 __all__ = ["FOPDT", "SOPDT", "IPDT", "FOIPDT", "PROCESS_FAMILIES", "family_model"]
 
@@ -40,13 +38,13 @@ _TIME = ("s", (0.0, _INF))
 
 
 @dataclass(frozen=True)
-class _Family:
-    """What the four families share: parameters, validation, JSON (subclasses are frozen dataclasses).
+class _Family(SpecModel):
+    """What the four families share: a chain of lags behind integrators (subclasses are frozen dataclasses).
 
     A subclass declares its parameters as fields, :attr:`_spec` (name -> unit, description, physical
-    bounds; K and tau always present), the number of integrators :attr:`_integrators`, and
-    :meth:`_transfer` (numerator gain and denominator time constants of the delay-free part). ``known``
-    (the set E) and ``ranges`` (the set I) are keyword-only.
+    bounds; K and tau always present) and the number of integrators :attr:`_integrators`; parameters,
+    validation and JSON are :class:`~mrftcli.mrft.model.SpecModel`'s. ``known`` (the set E) and
+    ``ranges`` (the set I) are keyword-only.
     """
 
     family: ClassVar[str]
@@ -57,38 +55,6 @@ class _Family:
     _integrators: ClassVar[int]
     known: frozenset[str] = field(default=frozenset(), repr=False, compare=False, kw_only=True)
     ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False, kw_only=True)
-
-    def __post_init__(self) -> None:
-        self._check()
-
-    def _check(self) -> None:
-        for name, (unit, _, _) in self._spec.items():
-            value = float(getattr(self, name))
-            if name == "K":
-                if not math.isfinite(value) or value == 0:
-                    raise InputError(f"K must be finite and non-zero, got {value!r}")
-            elif name == "tau":
-                if not math.isfinite(value) or value < 0:
-                    raise InputError(f"tau must be a non-negative time in seconds, got {value!r}")
-            elif not math.isfinite(value) or value <= 0:
-                raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
-        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), self._spec, self.family)
-
-    @property
-    def parameters(self) -> dict[str, Parameter]:
-        """The named parameters as :class:`~mrftcli.mrft.model.Parameter` records."""
-        return spec_parameters(self, self._spec)
-
-    @property
-    def delay(self) -> float:
-        """The transport delay tau [s]."""
-        return float(getattr(self, "tau"))
-
-    def with_parameters(self, **values: float) -> Any:
-        """A copy with some parameters replaced (validated as in the constructor)."""
-        check_parameter_names(values, self._spec, self.family)
-        new: dict[str, Any] = {k: float(v) for k, v in values.items()}
-        return dataclasses.replace(self, **new)
 
     @property
     def lags(self) -> tuple[str, ...]:
@@ -152,16 +118,6 @@ class _Family:
         coords = {f"{n.lower()}_n": float(getattr(self, n)) * omega for n in self._spec if n not in ("K", "tau")}
         return UnitNormalisation(omega=omega, coordinates=coords, theta=self.delay * omega,
                                  amplitude_scale=float(getattr(self, "K")) / omega ** self._integrators)
-
-    def to_json(self) -> dict[str, Any]:
-        """``{"schema_version", "family", "parameters": {name: {"value", "unit", "known", "bounds"}}}``."""
-        return model_json(self.family, self.parameters.values())
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> Any:
-        """The model of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), cls._spec)
-        return cls(**values, known=known, ranges=ranges)
 
 
 _K = ("output / command", "static gain", (-_INF, _INF))

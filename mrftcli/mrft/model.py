@@ -27,8 +27,9 @@ callers that take a :class:`PlantModel` need no change.
 from __future__ import annotations
 
 import math
+import dataclasses
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Iterable, Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Iterable, Mapping, Protocol, Self, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,7 +43,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
            "model_family", "model_from_json", "SampledPlantModel", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
-           "json_bounds", "soiptd_model", "ParameterSpec", "check_parameter_names", "spec_parameters"]
+           "json_bounds", "soiptd_model", "ParameterSpec", "SpecModel", "check_parameter_names", "spec_parameters"]
 
 _INF = math.inf
 #: version of the JSON form of a model (``to_json`` / ``from_json``)
@@ -215,6 +216,76 @@ def spec_parameters(model: Any, spec: ParameterSpec) -> dict[str, Parameter]:
             for name, (unit, description, bounds) in spec.items()}
 
 
+class SpecModel:
+    """What the structures with named parameters share (eq. (2), the process families, the cascade).
+
+    A subclass is a frozen dataclass whose parameters are its fields named in :attr:`_spec` (name ->
+    unit, description, physical bounds; ``K`` and ``tau`` always among them), with the fields
+    ``known`` (the set E) and ``ranges`` (the set I). It gets the :class:`PlantModel` protocol's
+    :attr:`parameters`, :attr:`delay`, :meth:`with_parameters` and JSON, and the checks of its values
+    (:meth:`_check`, called by its ``__post_init__``).
+    """
+
+    family: ClassVar[str]
+    _spec: ClassVar[ParameterSpec]
+    known: frozenset[str]
+    ranges: tuple[tuple[str, float, float], ...]
+
+    def __post_init__(self) -> None:
+        self._check()
+
+    def _check(self) -> None:
+        """InputError naming a value out of its domain (times positive, tau >= 0, K finite and non-zero;
+        every time at most a week, :data:`~mrftcli.validate.MAX_TIME_S`) or an unknown name in E or I."""
+        for name, (unit, _, _) in self._spec.items():
+            value = float(getattr(self, name))
+            if name == "K":
+                if not math.isfinite(value) or value == 0:
+                    raise InputError(f"K must be finite and non-zero, got {value!r}")
+            elif name == "tau":
+                if not math.isfinite(value) or value < 0:
+                    raise InputError(f"tau must be a non-negative time in seconds, got {value!r}")
+            elif unit == "s" and (not math.isfinite(value) or value <= 0):
+                raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
+        for name, (unit, _, _) in self._spec.items():  # the shared bound of every time (a week): 1e300 broke the root finders
+            if unit == "s" and float(getattr(self, name)) > MAX_TIME_S:
+                raise InputError(f"{name} = {float(getattr(self, name)):g} s is longer than a week ({MAX_TIME_S:g} s); "
+                                 "give it in seconds")
+        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), self._spec, self.family)
+
+    @property
+    def parameters(self) -> dict[str, Parameter]:
+        """The named parameters as :class:`Parameter` records (bounds: the set I where given)."""
+        return spec_parameters(self, self._spec)
+
+    @property
+    def delay(self) -> float:
+        """The transport delay tau [s]."""
+        return float(getattr(self, "tau"))
+
+    def with_parameters(self, **values: float) -> Self:
+        """A copy with some parameters replaced (validated as in the constructor)."""
+        check_parameter_names(values, self._spec, self.family)
+        return dataclasses.replace(self, **{k: float(v) for k, v in values.items()})  # type: ignore[type-var]
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "family", "parameters": {name: {"value", "unit", "known", "bounds"}}}``
+        (infinite bounds written as null: JSON has no infinity)."""
+        return model_json(self.family, self.parameters.values())
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Self:
+        """The model of a :meth:`to_json` dict.
+
+        Raises
+        ------
+        InputError
+            Not a dict of this schema version and family, or a parameter missing or out of range.
+        """
+        values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), cls._spec)
+        return cls(**values, known=known, ranges=ranges)  # type: ignore[call-arg]
+
+
 #: eq. (2)'s parameters: unit, description, physical bounds
 _LOOP_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
     "Tp": ("s", "propulsion time constant", (0.0, _INF)),
@@ -225,7 +296,7 @@ _LOOP_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
 
 
 @dataclass(frozen=True)
-class LoopModel:
+class LoopModel(SpecModel):
     """Parameters of G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1)) (paper eq. (2)).
 
     Attributes
@@ -253,6 +324,11 @@ class LoopModel:
     [('Tp', 's', True), ('Td', 's', False), ('tau', 's', False)]
     >>> G.with_parameters(tau=0.07).tau
     0.07
+    >>> d = G.to_json()
+    >>> d["family"], d["parameters"]["tau"]
+    ('soiptd', {'value': 0.06, 'unit': 's', 'known': False, 'bounds': [0.0, None]})
+    >>> LoopModel.from_json(d) == G
+    True
     >>> n = G.unit_normalisation(4.4337)
     >>> round(n.coordinates["td_n"], 4), round(n.theta, 4)
     (3.1222, 0.266)
@@ -268,6 +344,7 @@ class LoopModel:
     structure: ClassVar[str] = "K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"
     #: the family's strategy in :func:`mrftcli.mrft.identify.identify`: the tests' means through the unit manifolds
     identification: ClassVar[str] = "unit-manifolds"
+    _spec: ClassVar[ParameterSpec] = _LOOP_PARAMETERS
 
     Tp: float
     Td: float
@@ -276,38 +353,7 @@ class LoopModel:
     known: frozenset[str] = field(default=frozenset({"Tp"}), repr=False, compare=False)
     ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
 
-    def __post_init__(self) -> None:
-        for name in ("Tp", "Td"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise InputError(f"{name} must be a positive time in seconds, got {value!r}")
-        if not np.isfinite(self.tau) or self.tau < 0:
-            raise InputError(f"tau must be a non-negative time in seconds, got {self.tau!r}")
-        for name in ("Tp", "Td", "tau"):  # the shared bound of every time (a week): 1e300 broke the root finders
-            if getattr(self, name) > MAX_TIME_S:
-                raise InputError(f"{name} = {getattr(self, name):g} s is longer than a week ({MAX_TIME_S:g} s); "
-                                 "give it in seconds")
-        if not np.isfinite(self.K) or self.K == 0:
-            raise InputError(f"K must be finite and non-zero, got {self.K!r}")
-        check_parameter_names(set(self.known).union(r[0] for r in self.ranges), _LOOP_PARAMETERS, self.family)
-
-    # -- the PlantModel protocol ------------------------------------------------------------------
-    @property
-    def parameters(self) -> dict[str, Parameter]:
-        """Tp, Td, tau and K as :class:`Parameter` records (bounds: the set I where given)."""
-        return spec_parameters(self, _LOOP_PARAMETERS)
-
-    @property
-    def delay(self) -> float:
-        """The transport delay tau [s]."""
-        return self.tau
-
-    def with_parameters(self, **values: float) -> LoopModel:
-        """A copy with some of Tp, Td, tau, K replaced (validated as in the constructor)."""
-        check_parameter_names(values, _LOOP_PARAMETERS, self.family)
-        new = {name: float(values.get(name, getattr(self, name))) for name in _LOOP_PARAMETERS}
-        return LoopModel(new["Tp"], new["Td"], new["tau"], new["K"], known=self.known, ranges=self.ranges)
-
+    # -- the PlantModel protocol (parameters, delay, with_parameters and the JSON: SpecModel's) --------
     def realisation(self) -> StateSpace:
         """Delay-free realisation with states [y, y', propulsion output] (see :meth:`state_space`)."""
         A, B, C = self.state_space()
@@ -342,34 +388,6 @@ class LoopModel:
         """Lemmas 1-4: ``tp_n = Tp omega``, ``td_n = Td omega``, ``theta = tau omega``, scale ``K Td / omega``."""
         return UnitNormalisation(omega=omega, coordinates={"tp_n": self.Tp * omega, "td_n": self.Td * omega},
                                  theta=self.tau * omega, amplitude_scale=self.K * self.Td / omega)
-
-    # -- JSON ---------------------------------------------------------------------------------------
-    def to_json(self) -> dict[str, Any]:
-        """``{"schema_version", "family", "parameters": {name: {"value", "unit", "known", "bounds"}}}``.
-
-        Infinite bounds are written as null (JSON has no infinity).
-
-        Examples
-        --------
-        >>> d = LoopModel(0.1, 0.7042, 0.06, 1.42).to_json()
-        >>> d["family"], d["parameters"]["tau"]
-        ('soiptd', {'value': 0.06, 'unit': 's', 'known': False, 'bounds': [0.0, None]})
-        >>> LoopModel.from_json(d) == LoopModel(0.1, 0.7042, 0.06, 1.42)
-        True
-        """
-        return model_json(self.family, self.parameters.values())
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> LoopModel:
-        """The model of a :meth:`to_json` dict.
-
-        Raises
-        ------
-        InputError
-            Not a dict of this schema version and family, or a parameter missing or out of range.
-        """
-        values, known, ranges = json_parameter_values(model_json_parameters(data, cls.family), _LOOP_PARAMETERS)
-        return cls(values["Tp"], values["Td"], values["tau"], values["K"], known=known, ranges=ranges)
 
 
 def soiptd_model(Tp: float, K: float | None = None) -> LoopModel:

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..errors import IdentificationError, InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
-from ..mrft.identify_lti import (STATIC_HARMONIC, LtiIdentification, ResponsePoint, identify_lti,
+from ..mrft.identify import identify
+from ..mrft.identify_lti import (STATIC_HARMONIC, LtiIdentification, ResponsePoint,
                                  static_gain_point)
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
@@ -221,7 +222,7 @@ def identify_points(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiId
     floored = [p if p.harmonic == 1 else dataclasses.replace(p, se_log_gain=max(p.se_log_gain, _HARMONIC_SE),
                                                              se_phase=max(p.se_phase, _HARMONIC_SE))
                for p in points]
-    return identify_lti(model, floored)
+    return identify(floored, model)
 
 
 def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoint]) -> HeldOut:

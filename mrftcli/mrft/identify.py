@@ -728,10 +728,13 @@ def strategy_of(model: Any) -> tuple[str, str, str]:
     InputError
         Not a plant model.
     """
-    if not isinstance(model, PlantModel):
-        raise InputError(f"identify takes a plant model (soiptd_model(Tp), family_model(...), ...), got "
-                         f"{type(model).__name__}")
-    return STRATEGIES[getattr(model, "identification", "response-points")]
+    name = getattr(model, "identification", None)  # the built-in families name theirs
+    if name is None:  # any other structure: a response-point fit, if it is a plant model
+        if not isinstance(model, PlantModel):
+            raise InputError(f"identify takes a plant model (soiptd_model(Tp), family_model(...), ...), got "
+                             f"{type(model).__name__}")
+        name = "response-points"
+    return STRATEGIES[name]
 
 
 # ----------------------------------------------------------------------------------------------

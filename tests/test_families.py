@@ -21,7 +21,8 @@ from mrftcli.analyze.record import GeneralAnalysis
 from mrftcli.errors import InputError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model
-from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint, identify_lti
+from mrftcli.mrft.identify import identify
+from mrftcli.mrft.identify_lti import LtiIdentification, ResponsePoint
 from mrftcli.mrft.model import MODEL_FAMILIES, model_from_json
 from mrftcli.mrft.relays import RelayLaw
 
@@ -115,8 +116,8 @@ def _points(model, omegas, noise=0.0, seed=0):
 
 
 @pytest.mark.parametrize("true", MODELS, ids=lambda m: m.family)
-def test_identify_lti_recovers_each_family(true):
-    fit = identify_lti(family_model(true.family), _points(true, [1.0, 2.5, 6.0, 14.0], noise=0.005, seed=3))
+def test_identify_recovers_each_family(true):
+    fit = identify(_points(true, [1.0, 2.5, 6.0, 14.0], noise=0.005, seed=3), family_model(true.family))
     for e in fit.estimates:
         value = true.parameters[e.name].value
         assert e.value == pytest.approx(value, rel=0.05), e
@@ -126,25 +127,25 @@ def test_identify_lti_recovers_each_family(true):
 
 
 @pytest.mark.parametrize("true", MODELS, ids=lambda m: m.family)
-def test_identify_lti_intervals_cover_the_truth(true):
+def test_identify_intervals_cover_the_truth(true):
     # 40 noisy draws of the points: the 95 % intervals cover the truth about 95 % of the time
     covered = []
     for seed in range(40):
-        fit = identify_lti(family_model(true.family), _points(true, [1.0, 2.5, 6.0, 14.0], noise=0.02, seed=seed))
+        fit = identify(_points(true, [1.0, 2.5, 6.0, 14.0], noise=0.02, seed=seed), family_model(true.family))
         covered += [e.ci95_low <= true.parameters[e.name].value <= e.ci95_high for e in fit.estimates]
     assert 0.85 <= np.mean(covered) <= 1.0
 
 
-def test_identify_lti_known_parameter_range_and_undetermined():
+def test_identify_known_parameter_range_and_undetermined():
     true = FOPDT(K=2.0, T=0.5, tau=0.1)
     one_point = _points(true, [5.0])
-    fit = identify_lti(family_model("fopdt"), one_point)  # 3 unknowns, 2 figures
+    fit = identify(one_point, family_model("fopdt"))  # 3 unknowns, 2 figures
     assert fit.undetermined and "not determined" in fit.advice
-    known = identify_lti(family_model("fopdt", known={"tau": 0.1}), one_point)  # the set E closes it
+    known = identify(one_point, family_model("fopdt", known={"tau": 0.1}))  # the set E closes it
     assert not known.undetermined
     assert known.estimate("T").value == pytest.approx(0.5, rel=1e-6)
     assert known.estimate("tau").known and known.estimate("tau").std == 0
-    bounded = identify_lti(family_model("fopdt", ranges={"T": (0.6, 2.0)}), _points(true, [2.0, 5.0, 12.0]))
+    bounded = identify(_points(true, [2.0, 5.0, 12.0]), family_model("fopdt", ranges={"T": (0.6, 2.0)}))
     assert bounded.estimate("T").value >= 0.6 - 1e-9  # the set I holds
 
 

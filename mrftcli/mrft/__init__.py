@@ -1,11 +1,14 @@
-"""The MRFT maths: the paper's model, the exact limit cycle (LPRS), the describing function, the
-UFM/UGM, identification from measured tests and the consensus of a log's tests.
+"""The MRFT maths: the model object, the exact limit cycle (LPRS), the describing function, the
+UFM/UGM, identification and the consensus of a log's tests.
 
-Modules: :mod:`~mrftcli.mrft.model` (the model object; eq. (2)), :mod:`~mrftcli.mrft.lprs` (exact limit cycles),
+Modules: :mod:`~mrftcli.mrft.model` (the model object; eq. (2)), :mod:`~mrftcli.mrft.families`
+(the process families), :mod:`~mrftcli.mrft.lprs` (exact limit cycles),
 :mod:`~mrftcli.mrft.describing` (harmonic balance, eqs. (4)-(7)), :mod:`~mrftcli.mrft.ufm`
-(manifolds), :mod:`~mrftcli.mrft.identify` (Td, tau, K from test means),
-:mod:`~mrftcli.mrft.slices` (the tests' UFM slices and where they meet) and
-:mod:`~mrftcli.mrft.consensus` (weighted constraints and bootstrap over a log's cycles).
+(manifolds), :mod:`~mrftcli.mrft.identify` (the one entry point ``identify(data, model)``; each
+family names its strategy: eq. (2)'s unit manifolds there, with :mod:`~mrftcli.mrft.slices` (the
+tests' UFM slices and where they meet) and :mod:`~mrftcli.mrft.consensus` (weighted constraints and
+bootstrap over a log's cycles); the families' response-point fit
+:mod:`~mrftcli.mrft.identify_lti`; the cascade's :mod:`~mrftcli.mrft.cascade_identify`).
 """
 
 from .describing import describing_function_limit_cycle

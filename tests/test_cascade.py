@@ -19,7 +19,8 @@ import pytest
 from scipy.linalg import expm
 
 from mrftcli.errors import IdentificationError, InputError
-from mrftcli.mrft.cascade import G, CascadeModel, DiscreteStateSpace, InnerController, InnerLoop, discrete_limit_cycle
+from mrftcli.mrft.cascade import G, CascadeModel, DiscreteStateSpace, InnerLoop, discrete_limit_cycle
+from mrftcli.mrft.controller import Controller
 from mrftcli.mrft.cascade_identify import CascadeIdentification, identify_cascade
 from mrftcli.mrft.identify import TestMeasurement
 from mrftcli.mrft.lprs import mrft_limit_cycle
@@ -27,7 +28,7 @@ from mrftcli.mrft.model import MODEL_FAMILIES, LoopModel, model_from_json
 
 RATE = 100.0
 INNER = LoopModel(Tp=0.04, Td=0.5, tau=0.0125, K=40.0)
-GAINS = InnerController(Kp=0.6, Ki=0.0, Kd=0.12, Tf=0.02, rate_hz=RATE)
+GAINS = Controller(Kp=0.6, Ki=0.0, Kd=0.12, Tf=0.02, rate_hz=RATE)
 
 
 def _cascade(Td: float = 0.8, tau: float = 0.0335, K: float = 1.0) -> CascadeModel:
@@ -35,7 +36,7 @@ def _cascade(Td: float = 0.8, tau: float = 0.0335, K: float = 1.0) -> CascadeMod
 
 
 def _simulate(beta: float, h: float, Td: float, tau: float, K: float, t_end: float, every: int = 1,
-              sub: int = 20, gains: InnerController = GAINS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              sub: int = 20, gains: Controller = GAINS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-tick loop: outer relay (every ``every`` ticks) -> inner PD -> eq. (2) with its delay -> p'' = K phi - p'/Td.
 
     Exact between sub-steps (delays are whole sub-steps here); returns tick times, measured y, relay u.
@@ -110,7 +111,7 @@ def test_cycle_matches_an_independent_simulation(flown) -> None:
 
 def test_cycle_with_an_inner_pid() -> None:
     """The inner controller's integral path: a PID flown by the independent simulation, the same orbits."""
-    pid = InnerController(Kp=0.6, Ki=0.3, Kd=0.12, Tf=0.02, rate_hz=RATE)
+    pid = Controller(Kp=0.6, Ki=0.3, Kd=0.12, Tf=0.02, rate_hz=RATE)
     f, a = _cycles(*_simulate(-0.3, 1.0, 0.8, 0.0335, 1.0, 15.0, gains=pid), last=1)
     lc = CascadeModel(InnerLoop(INNER, pid), Td=0.8, tau=0.0335, K=1.0).sampled_limit_cycle(-0.3, 1.0, RATE)
     k = int(np.argmin(np.abs(np.array(lc.orbits_hz) - f[-1])))
@@ -166,7 +167,7 @@ def test_model_protocol_and_json_round_trip() -> None:
         model_from_json(bad)
     assert "\n" not in str(err.value)
     with pytest.raises(InputError, match="Kp"):
-        InnerController.from_json({"Ki": 0, "Kd": 0, "Tf": 0, "rate_hz": 100})
+        Controller.from_json({"Ki": 0, "Kd": 0, "Tf": 0, "rate_hz": 100})
 
 
 def test_frequency_response_low_frequency_limit() -> None:
@@ -364,7 +365,7 @@ def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
     from mrftcli.sim.spec import TestSpec
 
     inner = LoopModel(Tp=0.064, Td=2.33, tau=0.0338, K=24.8)
-    gains = InnerController(0.2558, 0.0, 0.1081, 0.04225, RATE)
+    gains = Controller(0.2558, 0.0, 0.1081, 0.04225, RATE)
     tau = 0.0351
     spec = CascadeSpec(inner=inner, gains=InnerGains(gains.Kp, gains.Ki, gains.Kd, gains.Tf, RATE), Td=1.42, tau=tau,
                        axis="y", commanded="attitude",

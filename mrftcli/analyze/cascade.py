@@ -28,7 +28,8 @@ import numpy as np
 
 from ..errors import InputError, SegmentationError
 from ..io.logtypes import FlightLog
-from ..mrft.cascade import G, CascadeModel, InnerController, InnerLoop
+from ..mrft.cascade import G, CascadeModel, InnerLoop
+from ..mrft.controller import Controller
 from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
 from ..mrft.identify import TestMeasurement
 from ..segment import segment
@@ -48,7 +49,7 @@ OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "
 # ----------------------------------------------------------------------------------------------
 # stage 1: the inner loop
 # ----------------------------------------------------------------------------------------------
-def inner_gains_of(data: Any, inner_name: str) -> InnerController:
+def inner_gains_of(data: Any, inner_name: str) -> Controller:
     """The inner loop's controller from a gains file's JSON.
 
     Accepted: ``{"roll": {"Kp", "Ki", "Kd", "Tf", "rate_hz"}, ...}`` (a map of loop names); the
@@ -64,27 +65,27 @@ def inner_gains_of(data: Any, inner_name: str) -> InnerController:
         raise InputError(f"--inner-gains: expected a JSON object, got {type(data).__name__}")
     what = f"--inner-gains ({inner_name})"
     if "Kp" in data:  # tune --export generic: one controller
-        return InnerController.from_json(data, what)
+        return Controller.from_json(data, what)
     export = data.get("export")
     if isinstance(export, Mapping) and "generic" in export:  # tune --json
         loop = data.get("loop")
         if loop and loop != inner_name:
             raise InputError(f"--inner-gains holds gains of the {loop} loop; the outer loop goes through {inner_name}")
-        return InnerController.from_json(export["generic"], what)
+        return Controller.from_json(export["generic"], what)
     loops = data.get("loops")
     if isinstance(loops, Mapping):  # a vehicle record
         entry = loops.get(inner_name)
         gains = entry.get("gains") if isinstance(entry, Mapping) else None
         if isinstance(gains, Mapping) and "generic" in gains:
-            return InnerController.from_json(gains["generic"], what)
+            return Controller.from_json(gains["generic"], what)
     if inner_name not in data:
         raise InputError(f"--inner-gains has no gains for the {inner_name} loop (found: "
                          f"{', '.join(map(str, data)) or 'nothing'}); give {{\"{inner_name}\": {{\"Kp\": ..., \"Ki\": ..., "
                          "\"Kd\": ..., \"Tf\": ..., \"rate_hz\": ...}}")
-    return InnerController.from_json(data[inner_name], what)
+    return Controller.from_json(data[inner_name], what)
 
 
-def inner_loop_of(result: Eq2Analysis, controller: InnerController, inner_name: str) -> InnerLoop:
+def inner_loop_of(result: Eq2Analysis, controller: Controller, inner_name: str) -> InnerLoop:
     """The inner loop of an inner analysis (its eq. (2) point estimate) and its controller.
 
     Raises
@@ -305,4 +306,3 @@ def _fit_warnings(ident: CascadeIdentification) -> list[str]:
             out.append(f"{name} is not determined by these tests (95 % interval {e.ci95_low:.4g}-{e.ci95_high:.4g} "
                        f"{e.unit}): add a test at another beta")
     return out
-

@@ -88,13 +88,6 @@ def _check_version(data: Any, what: str) -> dict[str, Any]:
     return dict(check_schema_version(data, what, _READS))
 
 
-def _controller_json(c: Controller) -> dict[str, Any]:
-    out: dict[str, Any] = {"Kp": c.Kp, "Ki": c.Ki, "Kd": c.Kd, "Tf": c.Tf, "rate_hz": c.rate_hz}
-    if c.rate_filter is not None:
-        out["rate_filter"] = {"cutoff_hz": c.rate_filter.cutoff_hz, "parameter": c.rate_filter.parameter}
-    return out
-
-
 def _rate_filter_from(data: Any, what: str) -> RateFilter | None:
     if data is None:
         return None
@@ -102,12 +95,6 @@ def _rate_filter_from(data: Any, what: str) -> RateFilter | None:
         raise InputError(f"{what}: 'rate_filter' must be an object or null")
     return RateFilter(_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
 
-
-def _controller_from(data: Any, what: str) -> Controller:
-    if not isinstance(data, dict):
-        raise InputError(f"{what}: 'controller' must be an object")
-    Kp, Ki, Kd, Tf, rate = (_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
-    return Controller(Kp, Ki, Kd, Tf, rate, _rate_filter_from(data.get("rate_filter"), what))
 
 __all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
@@ -269,7 +256,7 @@ class Design:
 
     def to_json(self) -> dict[str, Any]:
         """The versioned JSON object (:data:`TUNE_SCHEMA_VERSION`); non-finite figures as "inf"/"nan"."""
-        return {"schema_version": TUNE_SCHEMA_VERSION, "name": self.name, "controller": _controller_json(self.controller),
+        return {"schema_version": TUNE_SCHEMA_VERSION, "name": self.name, "controller": self.controller.to_json(),
                 "objective": self.objective, "criterion": _encode(self.criterion),
                 "criterion_expected": _encode(self.criterion_expected), "margins": self.margins.to_json(),
                 "step": _encode(self.step.to_dict()), "posterior": _encode(self.posterior),
@@ -291,7 +278,7 @@ class Design:
         extras = {k: _decode(data.get(k, {})) for k in ("posterior", "constraints", "load")}
         if not all(isinstance(v, dict) for v in extras.values()):
             raise InputError(f"{what}: 'posterior', 'constraints' and 'load' must be objects")
-        return cls(name, _controller_from(data.get("controller"), what), objective,
+        return cls(name, Controller.from_json(data.get("controller"), f"{what}'s controller"), objective,
                    _number(data, "criterion", what), _number(data, "criterion_expected", what),
                    Margins.from_json(data.get("margins")),
                    StepMetrics(*(_number(step, k, what) for k in fields)),

@@ -22,7 +22,7 @@ from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
 from ..analyze.cascade import OUTER_COMMANDS, inner_gains_of
-from ..mrft.cascade import InnerController
+from ..mrft.controller import Controller
 from ..mrft.model import LoopModel
 from .gains import TuneOptions, joint_gyro_gains, tune_loop
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
@@ -283,7 +283,7 @@ def identify_outer(source: LogSource, loop: str, model: LoopModel, options: Vehi
 
 
 def _inner_controller(inner: str, inner_gains: Mapping[str, object] | None,
-                      acc: _Accumulated) -> tuple[InnerController | None, str]:
+                      acc: _Accumulated) -> tuple[Controller | None, str]:
     """The controller that flew ``inner`` (from ``--inner-gains``), or (None, why the cascade cannot be used)."""
     if inner_gains is None:
         return None, ("the inner gains in use during the flight are not given (--inner-gains GAINS.json identifies "

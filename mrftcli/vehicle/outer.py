@@ -17,7 +17,8 @@ from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
 from ..analyze.cascade import cascade_model, inner_draws, inner_loop_of
 from ..analyze.record import CascadeAnalysis
 from ..io import FlightLog
-from ..mrft.cascade import InnerController, InnerLoop
+from ..mrft.cascade import InnerLoop
+from ..mrft.controller import Controller
 from ..tune.grid import outer_draws
 from ..tune.design import DesignOptions, TuneResult, tune
 from .record import LoopGains, VehicleLoop
@@ -53,7 +54,7 @@ class OuterOptions:
     stack: str | None = None
 
 
-def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: InnerController,
+def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: Controller,
                   options: OuterOptions) -> CascadeAnalysis:
     """The outer loop of ``flight`` through ``inner`` closed by ``controller`` (the gains flown).
 
@@ -79,7 +80,7 @@ def _new_inner(analysis: CascadeAnalysis, inner: VehicleLoop) -> tuple[InnerLoop
     g = inner.gains
     if g is not None and math.isclose(g.controller.rate_hz, flown.controller.rate_hz, rel_tol=0.01):
         c = g.controller
-        new = InnerController(c.Kp, c.Ki, c.Kd, c.Tf, flown.controller.rate_hz)
+        new = Controller(c.Kp, c.Ki, c.Kd, c.Tf, flown.controller.rate_hz)
         return (InnerLoop(flown.plant, new, flown.loop),
                 f"outer gains designed for the {inner.loop} loop closed by its new gains tuned here (Kp {c.Kp:.4g}, "
                 f"Kd {c.Kd:.4g}): load both")

@@ -56,8 +56,44 @@ def test_batch_fopdt_rows_hold_the_parameters_with_units(tmp_path):
 
 
 def test_batch_model_refuses_eq2_extras():
-    with pytest.raises(InputError, match="--diagnose, --tune: not with --model"):
+    with pytest.raises(InputError, match="--tune: not with --model"):
         BatchOptions(diagnose=True, tune="PD", model=family_model("ipdt"))
+    assert BatchOptions(diagnose=True, model=family_model("ipdt")).diagnose  # --diagnose takes every family
+
+
+def test_batch_model_diagnose_names_the_lag_a_fopdt_leaves_out(tmp_path):
+    """``batch --model fopdt --diagnose`` on a FOPDT and a second-order plant (tests/process_sim.py, no mrftcli),
+    each under two hysteresis relays: the FOPDT's diagnosis finds nothing, the second-order plant's names the
+    lag FOPDT leaves out (the simulator's lags 0.7 s and 0.3 s: FOPDT's T takes one, the effect the other)."""
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    windows = [Window("hysteresis", 1.0, -1.0, eps=0.05, duration=25.0),
+               Window("hysteresis", 1.5, -0.5, eps=0.3, duration=25.0)]
+    for name, family, truth in (("clean.csv", "fopdt", dict(K=2.0, T=1.0, tau=0.3)),
+                                ("lag.csv", "sopdt", dict(K=2.0, T1=0.7, T2=0.3, tau=0.15))):
+        t, u, y = simulate(family, truth, windows, 100.0, 0.01, seed=1)
+        write_csv(str(folder / name), t, u, y)
+    summary = tmp_path / "summary.json"
+    out = run_main("batch", str(folder), "--model", "fopdt", "--diagnose", "--command-topic", "u_relay",
+                   "--output-topic", "y_output", "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "-q",
+                   "--json", str(summary))  # main() in this process
+    assert out.returncode == 0, out.stderr
+    table = {ln.split()[0]: ln for ln in out.stdout.splitlines() if ln.endswith(")") or ".csv" in ln}
+    assert "findings: sensor_lag" in table["lag.csv"] and "findings" not in table["clean.csv"]
+    rows = {os.path.basename(str(r["path"])): r for r in json.loads(summary.read_text())["rows"]}
+    assert rows["clean.csv"]["status"] == "ok" and rows["clean.csv"]["findings"] == ""
+    assert rows["lag.csv"]["status"] == "ok" and rows["lag.csv"]["findings"] == "sensor_lag"
+    record = json.loads((tmp_path / "out" / str(rows["lag.csv"]["result_json"])).read_text())
+    diagnosis = record["loops"][0]["diagnosis"]
+    assert diagnosis["status"] == "ok" and diagnosis["family"] == "fopdt" and diagnosis["found"] == ["sensor_lag"]
+    (lag,) = diagnosis["effects"]
+    assert sorted([lag["value"], lag["refit"]["T"]]) == pytest.approx([0.3, 0.7], rel=0.15)
+    # the record read back through the one diagnosis record, as diagnose --json's
+    from mrftcli.diagnose import DiagnosisResult
+
+    back = DiagnosisResult.from_json({"schema_version": 2, **{k: v for k, v in diagnosis.items()
+                                                               if k not in ("status", "error")}})
+    assert back.found == ("sensor_lag",) and not back.consistent
 
 
 def test_cli_batch_model(tmp_path):

@@ -196,9 +196,8 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
-        if task.model is not None:  # a process plant (batch --model): its analysis record, nothing more
-            entry["result"] = analyze_path(task.path, model, read=read, options=options).to_json()
-            return entry
+        if task.model is not None:  # a process plant (batch --model): its analysis record (and its diagnosis)
+            return _process_loop(task, entry, model, read, options)
         result = refuse_rejected_tp(analyze_path(task.path, model, read=read, options=options), s.accept_tp)
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
@@ -212,7 +211,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
         return failed_entry(loop, err)
     if task.diagnose:
-        entry["diagnosis"] = _diagnose_loop(task, result)
+        entry["diagnosis"] = _diagnose_loop(task, result.flight, result)
     if task.tune:
         entry["tune"] = _tune_loop(result, task.tune)
     return entry
@@ -231,17 +230,37 @@ def _tune_loop(analysis: AnalysisResult, kind: str) -> dict[str, Any]:
         return {"tune_error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}"}
 
 
-def _diagnose_loop(task: LogTask, analysis: AnalysisResult) -> dict[str, Any]:
-    """Run the diagnosis on an analysed loop (reusing its signals and segmentation); its failure is
-    recorded but leaves the analysis ok."""
+def _process_loop(task: LogTask, entry: dict[str, Any], model: Any, read: Any, options: Any) -> dict[str, Any]:
+    """A loop of ``batch --model``: the process analysis (as :func:`mrftcli.analyze.analyze_path` reads and runs
+    it) and, with ``--diagnose``, the family's diagnosis of the same signals."""
+    import dataclasses
+
+    from ..analyze import analyze_flight
+    from ..io import read_flight
+
+    # a process plant: not a vehicle loop's clock (as analyze_path reads it)
+    flight = read_flight(task.path, dataclasses.replace(read, any_time_scale=True), echo_warnings=False)
+    entry["result"] = analyze_flight(flight, model, options=options).to_json()
+    if task.diagnose:
+        entry["diagnosis"] = _diagnose_loop(task, flight, None, options.min_stable_cycles)
+    return entry
+
+
+def _diagnose_loop(task: LogTask, flight: Any, analysis: AnalysisResult | None, min_stable_cycles: int = 3,
+                   ) -> dict[str, Any]:
+    """Run the diagnosis (:func:`mrftcli.diagnose.diagnose`, which takes every family) on an analysed loop,
+    reusing eq. (2)'s analysis (its signals and segmentation); its failure is recorded but leaves the
+    analysis ok. The record is ``diagnose --json``'s without its version (DiagnosisResult.to_dict)."""
     try:
         from ..diagnose.selection import diagnose
         from ..mrft.model import soiptd_model
 
-        if analysis.flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
-            raise InputError("the diagnosis needs the analysis's flight signals and Tp")
-        # eq. (2)'s model gets eq. (2)'s diagnosis
-        result = diagnose(analysis.flight, soiptd_model(task.settings.tp), analysis=analysis)
+        if task.model is None:  # eq. (2): the model of the log's Tp
+            if flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
+                raise InputError("the diagnosis needs the analysis's flight signals and Tp")
+            result = diagnose(flight, soiptd_model(task.settings.tp), analysis=analysis)
+        else:
+            result = diagnose(flight, task.model, min_stable_cycles=min_stable_cycles)
         return {"status": STATUS_OK, "error": None, **result.to_dict()}
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)
@@ -562,12 +581,13 @@ class BatchOptions:
     model : PlantModel, optional
         A process model (``--model NAME``, ``--model-file``): each loop is analysed with it
         (no Tp needed); its record is the process analysis and the
-        summary adds the model and its parameters with units. Not with ``diagnose``, ``tune``, ``vehicle``.
+        summary adds the model and its parameters with units; ``diagnose`` runs the family's diagnosis. Not with
+        ``tune``, ``vehicle``.
 
     Raises
     ------
     InputError
-        ``jobs`` below 1, a non-positive scheduler timeout, a model with diagnose, tune or vehicle.
+        ``jobs`` below 1, a non-positive scheduler timeout, a model with tune or vehicle.
 
     Examples
     --------
@@ -587,11 +607,10 @@ class BatchOptions:
 
     def __post_init__(self) -> None:
         if self.model is not None:
-            used = [n for n, v in (("--diagnose", self.diagnose), ("--tune", self.tune), ("--vehicle", self.vehicle))
-                    if v]
+            used = [n for n, v in (("--tune", self.tune), ("--vehicle", self.vehicle)) if v]
             if used:
-                raise InputError(f"{', '.join(used)}: not with --model (batch --model analyses each log's process "
-                                 "model; diagnose, tune and vehicle work on eq. (2) loops)")
+                raise InputError(f"{', '.join(used)}: not with --model (batch --model analyses and diagnoses each "
+                                 "log's process model; tune and vehicle work on eq. (2) loops)")
         if self.jobs is not None and self.jobs < 1:
             raise InputError(f"--jobs must be at least 1, got {self.jobs}")
         object.__setattr__(self, "scheduler_timeout_s",

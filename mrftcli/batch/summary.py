@@ -54,13 +54,15 @@ _OUTLIER_COLUMNS = ("tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", 
 
 
 def _analysis(entry: Mapping[str, Any]) -> AnalysisResult | None:
-    """The typed analysis of an ok loop entry (None: not ok, or a result this version cannot read)."""
+    """The typed eq. (2) analysis of an ok loop entry (None: not ok, another family, or a result this version
+    cannot read)."""
     if entry.get("status") != STATUS_OK or entry.get("result") is None:
         return None
     try:
-        return AnalysisResult.from_json(entry["result"])
+        result = AnalysisResult.from_json(entry["result"])
     except InputError:
         return None
+    return result if result.kind == "soiptd" else None  # a process row's columns are process_columns'
 
 
 def _param(result: AnalysisResult | None, name: str, stat: str) -> float:

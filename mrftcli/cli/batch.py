@@ -82,23 +82,6 @@ def _short_name(path: Any) -> str:
     return name if len(name) <= 36 else "..." + name[-33:]
 
 
-def _print_process_table(df, limit: int = 50) -> None:
-    """The process rows: log, loop, status, model and its parameters with units (value ± std unit)."""
-    shown = _shown_rows(df, limit)
-    header = f"{'log':<36} {'loop':<9} {'status':<16} {'model':<8} parameters (value ± std unit) / note"
-    click.echo(header)
-    click.echo("-" * len(header))
-    for _, r in shown.iterrows():
-        name = _short_name(r["path"])
-        text = r["parameters"] if isinstance(r["parameters"], str) else ""
-        if r["result_status"] != "ok" and isinstance(r["error"], str):
-            text = r["error"]
-        if r["outlier"]:
-            text = f"OUTLIER {r['outlier_reason']} {text}".strip()
-        model = r["model"] if isinstance(r["model"], str) else ""
-        click.echo(f"{name:<36} {r['loop']:<9} {r['status']:<16} {model:<8} {text}".rstrip())
-
-
 #: Statuses of a loop a log does not hold: listed after the table, one line per log.
 _ABSENT = ("skipped-no-tests", "skipped-no-topics")
 
@@ -119,30 +102,34 @@ def _print_table(df, limit: int = 50) -> None:
     """The identified (and failed) rows first; then each log's loops it does not hold, on one line."""
     df, absent = _split_absent(df)
     df = df.sort_values("result_status", key=lambda s: s != "ok", kind="stable")  # identified rows first
-    if "parameters" in df:
-        _print_process_table(df, limit)
-    else:
-        _print_loop_table(df, limit)
+    _print_rows(df, limit)
     for line in absent:
         click.echo(line)
 
 
-def _print_loop_table(df, limit: int) -> None:
+def _print_rows(df, limit: int) -> None:
+    """log, loop, status, then eq. (2)'s tau, Td, K (with their std) or a process row's model and parameters
+    with units (value ± std unit); the note: a failed row's error, an outlier's reason, the diagnosis' findings."""
+    process = "parameters" in df
     shown = _shown_rows(df, limit)
-    header = f"{'log':<36} {'loop':<9} {'status':<16} {'tau ms':>8} {'+/-':>6} {'Td s':>8} {'+/-':>7} {'K':>8}  note"
+    figures = (f"{'model':<8} parameters (value ± std unit) / note" if process else
+               f"{'tau ms':>8} {'+/-':>6} {'Td s':>8} {'+/-':>7} {'K':>8}  note")
+    header = f"{'log':<36} {'loop':<9} {'status':<16} {figures}"
     click.echo(header)
     click.echo("-" * len(header))
     for _, r in shown.iterrows():
-        name = _short_name(r["path"])
-        note = r["error"] if r["result_status"] != "ok" and isinstance(r["error"], str) else ""
+        failed = r["result_status"] != "ok" and isinstance(r["error"], str)
+        note = r["error"] if failed else (r["parameters"] if process and isinstance(r["parameters"], str) else "")
         if r["outlier"]:
             note = f"OUTLIER {r['outlier_reason']} {note}".strip()
         if isinstance(r["findings"], str) and r["findings"]:
             note = f"{note} findings: {r['findings']}".strip()
-        click.echo(
-            f"{name:<36} {r['loop']:<9} {r['status']:<16} {_fmt_ms(r['tau_mean']):>8} {_fmt_ms(r['tau_std']):>6} "
-            f"{_fmt(r['Td_mean']):>8} {_fmt(r['Td_std']):>7} {_fmt(r['K_mean']):>8}  {note}".rstrip()
-        )
+        if process:
+            cells = f"{r['model'] if isinstance(r['model'], str) else '':<8} {note}"
+        else:
+            cells = (f"{_fmt_ms(r['tau_mean']):>8} {_fmt_ms(r['tau_std']):>6} {_fmt(r['Td_mean']):>8} "
+                     f"{_fmt(r['Td_std']):>7} {_fmt(r['K_mean']):>8}  {note}")
+        click.echo(f"{_short_name(r['path']):<36} {r['loop']:<9} {r['status']:<16} {cells}".rstrip())
 
 
 @click.command("batch")

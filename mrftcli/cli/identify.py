@@ -65,7 +65,7 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
 
     model = _model(Tp, model_name, params, ranges, tests, points)
     # the family's strategy names what it identifies from: eq. (2) MRFT tests, the process families response points
-    if strategy_of(model)[0] == "tests":
+    if strategy_of(model).data == "tests":
         data: list[Any] = [_parse_test(t) for t in tests]
         options = {"rate_hz": rate_hz}
     else:

@@ -61,6 +61,7 @@ __all__ = [
     "ParameterEstimate",
     "IdentificationResult",
     "identify",
+    "Strategy",
     "STRATEGIES",
     "strategy_of",
     "unit_manifolds",
@@ -617,14 +618,23 @@ def _delta_method(inputs: _Inputs, m: _Measured, point: _Point, K_est: Parameter
 # ----------------------------------------------------------------------------------------------
 # the one entry point
 # ----------------------------------------------------------------------------------------------
-#: the identification strategies by the name a model class declares in its ``identification``:
-#: (what the strategy takes, "tests" (:class:`TestMeasurement`) or "points" (:class:`ResponsePoint`),
-#: the module and function that solve)
-STRATEGIES: dict[str, tuple[str, str, str]] = {
-    "unit-manifolds": ("tests", __name__, "unit_manifolds"),
-    "response-points": ("points", "mrftcli.mrft.identify_lti", "fit_response_points"),
-    "cascade-cycles": ("tests", "mrftcli.mrft.cascade_identify", "fit_cascade_cycles"),
-}
+@dataclass(frozen=True)
+class Strategy:
+    """How a family is identified: from what (``data``: ``"tests"``, :class:`TestMeasurement`, or
+    ``"points"``, :class:`ResponsePoint`) and by which function (``module``, ``function``: called as
+    ``function(data, model, **options)``)."""
+
+    name: str
+    data: str
+    module: str
+    function: str
+
+
+#: the identification strategies by the name a model class declares in its ``identification``
+STRATEGIES: dict[str, Strategy] = {s.name: s for s in (
+    Strategy("unit-manifolds", "tests", __name__, "unit_manifolds"),
+    Strategy("response-points", "points", "mrftcli.mrft.identify_lti", "fit_response_points"),
+    Strategy("cascade-cycles", "tests", "mrftcli.mrft.cascade_identify", "fit_cascade_cycles"))}
 
 
 @overload
@@ -697,19 +707,19 @@ def identify(data: Iterable[Any], model: PlantModel, **options: Any) -> Any:
     >>> [round(fit.estimate(n).value, 4) for n in ("K", "T", "tau")]
     [2.0, 0.5, 0.1]
     """
-    kind, module, name = strategy_of(model)
+    strategy = strategy_of(model)
     data = tuple(data)
-    expected = TestMeasurement if kind == "tests" else ResponsePoint
+    expected = TestMeasurement if strategy.data == "tests" else ResponsePoint
     if not all(isinstance(d, expected) for d in data):
         given = sorted({type(d).__name__ for d in data if not isinstance(d, expected)})
-        what = "MRFT tests as measured" if kind == "tests" else "the tests' frequency-response points"
+        what = "MRFT tests as measured" if strategy.data == "tests" else "the tests' frequency-response points"
         raise InputError(f"a {model.family} model is identified from {expected.__name__} records ({what}), "
                          f"got {', '.join(given)}")
-    solve, takes = _strategy_function(module, name)
+    solve, takes = _strategy_function(strategy.module, strategy.function)
     other = sorted(set(options) - set(takes))
     if other:
         raise InputError(f"identify: {', '.join(other)} not an option of the {model.family} model's strategy "
-                         f"{name} (it takes {', '.join(takes) or 'none'})")
+                         f"{strategy.function} (it takes {', '.join(takes) or 'none'})")
     return solve(data, model, **options)
 
 
@@ -720,8 +730,8 @@ def _strategy_function(module: str, name: str) -> tuple[Any, tuple[str, ...]]:
     return solve, tuple(inspect.signature(solve).parameters)[2:]
 
 
-def strategy_of(model: Any) -> tuple[str, str, str]:
-    """The identification strategy of ``model``'s family (:data:`STRATEGIES`): (data kind, module, function).
+def strategy_of(model: Any) -> Strategy:
+    """The identification strategy of ``model``'s family (:data:`STRATEGIES`).
 
     Raises
     ------

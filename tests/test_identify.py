@@ -288,3 +288,30 @@ def test_identification_json_version_1_still_reads():
                                      "determined": True, "known": True, "method": "given"}
     assert list(d["parameters"]["Td"]) == ["value", "std", "ci95_low", "ci95_high", "unit", "determined", "known",
                                            "method"]
+
+
+def test_one_identify_for_every_family_each_by_its_strategy():
+    """identify(data, model): the model's family picks the strategy and with it the data it takes; a process
+    family's exact response points give its plant back (the closed form G(j w) as the oracle)."""
+    from mrftcli.mrft.families import FOPDT, family_model
+    from mrftcli.mrft.identify import ResponsePoint, strategy_of
+
+    assert [strategy_of(m).name for m in (soiptd_model(0.1), family_model("sopdt"))] == \
+        ["unit-manifolds", "response-points"]
+    true = FOPDT(K=2.0, T=0.5, tau=0.1)
+    w = np.array([2.0, 6.0, 15.0])
+    points = [ResponsePoint(wi, abs(g), float(np.angle(g)), 0.01, 0.01, i) for i, (wi, g)
+              in enumerate(zip(w, true.frequency_response(w)))]
+    fit = identify(points, family_model("fopdt"))
+    assert [fit.estimate(n).value for n in ("K", "T", "tau")] == pytest.approx([2.0, 0.5, 0.1], rel=1e-6)
+    eq2 = identify(_tests(PAPER, (-0.4, -0.7)), soiptd_model(PAPER.Tp))
+    assert (eq2.Td.value, eq2.tau.value, eq2.Tp) == (pytest.approx(PAPER.Td, rel=1e-4), pytest.approx(0.06, abs=1e-5),
+                                                     PAPER.Tp)
+    with pytest.raises(InputError, match="fopdt model is identified from ResponsePoint"):
+        identify(_tests(PAPER, (-0.4, -0.7)), family_model("fopdt"))
+    with pytest.raises(InputError, match="soiptd model is identified from TestMeasurement"):
+        identify(points, soiptd_model(0.1))
+    with pytest.raises(InputError, match="rate_hz not an option"):
+        identify(points, family_model("fopdt"), rate_hz=100.0)
+    with pytest.raises(InputError, match="plant model"):
+        identify(points, "fopdt")

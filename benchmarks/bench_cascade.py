@@ -153,7 +153,7 @@ def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> No
     from mrftcli.io.flight import ReadOptions
 
     inner_result = analyze_path(bag, soiptd_model(spec.inner.Tp), read=_inner_read(spec, layout))
-    controller = inner_gains_of({spec.inner_loop: spec.gains.generic()}, spec.inner_loop)
+    controller = inner_gains_of({spec.inner_loop: spec.gains.to_json()}, spec.inner_loop)
     inner = inner_loop_of(inner_result, controller, spec.inner_loop)
     flight = read_flight(bag, ReadOptions(loop=spec.axis), echo_warnings=False)
     analysis = analyze_flight(flight, cascade_model(inner, spec.commanded), options=AnalyzeOptions(

@@ -103,7 +103,7 @@ def run_flight(seed: int, folder: Path) -> Outcome:
     write_cascade(simulate_cascade(spec), bag, "hear-ros")
     t0 = time.process_time()
     try:
-        res = identify_vehicle(bag, soiptd_model(spec.inner.Tp), inner_gains={spec.inner_loop: spec.gains.generic()},
+        res = identify_vehicle(bag, soiptd_model(spec.inner.Tp), inner_gains={spec.inner_loop: spec.gains.to_json()},
                                options=VehicleOptions(outer_command=spec.commanded))
         _score(spec, res, out)
     except Exception as err:  # noqa: BLE001 - a refusal is a miss

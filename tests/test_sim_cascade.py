@@ -191,7 +191,7 @@ def test_truth_round_trip_and_errors():
     data = json.loads(json.dumps(flight.truth.to_json()))
     back = CascadeTruth.from_json(data)
     assert back == flight.truth
-    assert data["inner_gains"]["roll"] == flight.spec.gains.generic()
+    assert data["inner_gains"]["roll"] == flight.spec.gains.to_json()
     assert [t.loop for t in back.tests] == ["roll", "y"]
     with pytest.raises(InputError, match="schema_version"):
         CascadeTruth.from_json({**data, "schema_version": 99})
@@ -200,7 +200,7 @@ def test_truth_round_trip_and_errors():
     with pytest.raises(InputError, match="missing"):
         CascadeTruth.from_json(bad)
     with pytest.raises(InputError, match="Kd"):
-        InnerGains.from_generic({"Kp": 1.0, "Ki": 0.0, "Tf": 0.01, "rate_hz": 200.0})
+        InnerGains.from_json({"Kp": 1.0, "Ki": 0.0, "Tf": 0.01, "rate_hz": 200.0})
 
 
 @pytest.mark.parametrize("axis", ["y", "x"])

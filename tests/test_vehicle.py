@@ -225,7 +225,7 @@ def cascaded(tmp_path_factory):
                        hold_s=2.0)
     path = tmp_path_factory.mktemp("cascade") / "cascade_y.bag"
     write_cascade(simulate_cascade(spec), path, "hear-ros")
-    return path, {"roll": gains.generic()}
+    return path, {"roll": gains.to_json()}
 
 
 def test_outer_loop_through_the_closed_inner_loop(cascaded):

@@ -154,7 +154,7 @@ def _inner_gains(path: Path, inner_loop: str, axis: str):
         held = ", ".join(sorted(data)) if isinstance(data, dict) else "no object"
         raise InputError(f"--inner-gains {path}: no {inner_loop!r} gains (the inner loop of --cascade {axis}); "
                          f"it holds: {held or 'nothing'}")
-    return InnerGains.from_generic(data[inner_loop], f"--inner-gains {path} ({inner_loop})")
+    return InnerGains.from_json(data[inner_loop], f"--inner-gains {path} ({inner_loop})")
 
 
 def _cascade_tests(texts: tuple[str, ...], plan):

@@ -1,7 +1,7 @@
 """What a cascaded flight is (:class:`CascadeSpec`) and what it leaves as truth (:class:`CascadeTruth`).
 
 An outer loop (x or y position) runs through the inner attitude loop (pitch or roll), closed by a
-sampled PD (:class:`InnerGains`, tune's generic form). The truth record is the sidecar of a cascaded
+sampled PD (:class:`InnerGains`: the one PID record, tune's generic form). The truth record is the sidecar of a cascaded
 log (``<log>.truth.json``), versioned: tests and benchmarks read it through
 :meth:`CascadeTruth.from_json`.
 
@@ -24,6 +24,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..jsonable import check_schema_version
+from ..mrft.controller import Controller
 from ..mrft.model import LoopModel
 from .control import SWITCHING_RULES
 from .spec import TestSpec, check_flight_size
@@ -50,51 +51,9 @@ def _number(data: Mapping[str, Any], key: str, what: str) -> float:
     return float(value)
 
 
-@dataclass(frozen=True)
-class InnerGains:
-    """The inner loop's sampled PID in tune's generic form (``tune --export generic``).
-
-    C = Kp + Ki T z / (z - 1) on the error, derivative Kd on the measurement through a first-order
-    filter, backward differences: D_k = (Tf D_{k-1} - Kd (y_k - y_{k-1})) / (Tf + T), T = 1 / rate_hz.
-
-    Attributes
-    ----------
-    Kp : float
-        Proportional gain [command units / rad].
-    Ki : float
-        Integral gain [command units / (rad s)]; 0 for the PD flight stacks fly on attitude.
-    Kd : float
-        Derivative gain [command units / (rad / s)].
-    Tf : float
-        Derivative filter time constant [s].
-    rate_hz : float
-        Controller rate [Hz] (the inner and the outer loop tick together).
-    """
-
-    Kp: float
-    Ki: float
-    Kd: float
-    Tf: float
-    rate_hz: float
-
-    def __post_init__(self) -> None:
-        for name in ("Kp", "Ki", "Kd", "Tf"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise InputError(f"inner gain {name} must be a finite number >= 0, got {value!r}")
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise InputError(f"the inner controller rate must be a positive frequency in Hz, got {self.rate_hz!r}")
-
-    def generic(self) -> dict[str, float]:
-        """``{"Kp", "Ki", "Kd", "Tf", "rate_hz"}``: what GAINS.json holds for the inner loop."""
-        return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz}
-
-    @classmethod
-    def from_generic(cls, data: Any, what: str = "inner gains") -> InnerGains:
-        """The gains of a generic-form mapping; InputError naming the missing or bad key."""
-        if not isinstance(data, Mapping):
-            raise InputError(f"{what}: expected an object with Kp, Ki, Kd, Tf, rate_hz")
-        return cls(*(_number(data, key, what) for key in ("Kp", "Ki", "Kd", "Tf", "rate_hz")))
+#: The inner loop's sampled PD/PID: the one PID record (:class:`~mrftcli.mrft.controller.Controller`, tune's
+#: generic form; ``to_json``/``from_json`` are GAINS.json's inner-loop entry).
+InnerGains = Controller
 
 
 @dataclass(frozen=True)
@@ -298,8 +257,8 @@ class CascadeTruth:
             "outer": {"loop": self.axis, "K": self.K, "Td": self.Td, "tau": self.tau, "g": self.g,
                       "commanded": self.commanded, "command_unit": unit, "noise_std": self.position_noise_std,
                       "tests": [t.to_json() for t in self.tests_of(self.axis)]},
-            "inner_gains": {self.inner_loop: self.gains.generic()},
-            "outer_hold": self.outer_hold.generic(),
+            "inner_gains": {self.inner_loop: self.gains.to_json()},
+            "outer_hold": self.outer_hold.to_json(),
             "switching": self.switching,
             "seed": self.seed,
             "start_time": self.start_time,
@@ -331,8 +290,8 @@ class CascadeTruth:
                 g=_number(outer, "g", what),
                 inner=LoopModel(_number(d, "Tp", what), _number(d, "Td", what), _number(d, "tau", what),
                                 _number(d, "K", what)),
-                gains=InnerGains.from_generic(d["inner_gains"][inner_loop], f"{what} inner_gains"),
-                outer_hold=InnerGains.from_generic(d["outer_hold"], f"{what} outer_hold"),
+                gains=InnerGains.from_json(d["inner_gains"][inner_loop], f"{what} inner_gains"),
+                outer_hold=InnerGains.from_json(d["outer_hold"], f"{what} outer_hold"),
                 attitude_noise_std=_number(d, "noise_std", what), position_noise_std=_number(outer, "noise_std", what),
                 switching=str(d["switching"]), seed=int(d["seed"]), start_time=_number(d, "start_time", what),
                 duration=_number(d, "duration", what), tests=tests, layout=str(d.get("layout", "")),

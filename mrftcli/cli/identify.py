@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -11,24 +12,35 @@ from .model_options import build_model, format_estimates, structure_options
 from .options import controller_rate_option, dump_json, json_option, tp_option
 
 if TYPE_CHECKING:
-    from ..mrft.identify import ParameterEstimate, TestMeasurement
-    from ..mrft.identify_lti import ResponsePoint
+    from ..mrft.identify import ParameterEstimate, ResponsePoint, TestMeasurement
+
+
+def _fields(option: str, text: str, counts: tuple[int, int], expected: str) -> list[float]:
+    """The colon-separated numbers of one ``--test``/``--point`` (``counts``: the two lengths it may have)."""
+    parts = text.split(":")
+    if len(parts) not in counts:
+        raise InputError(f"{option} {text!r}: expected {expected}")
+    try:
+        return [float(p) for p in parts]
+    except ValueError:
+        raise InputError(f"{option} {text!r}: every field must be a number") from None
 
 
 def _parse_test(text: str) -> TestMeasurement:
     """BETA:FREQ_HZ[:AMPLITUDE:H] -> TestMeasurement."""
     from ..mrft.identify import TestMeasurement
 
-    parts = text.split(":")
-    if len(parts) not in (2, 4):
-        raise InputError(f"--test {text!r}: expected BETA:FREQ_HZ or BETA:FREQ_HZ:AMPLITUDE:H")
-    try:
-        nums = [float(p) for p in parts]
-    except ValueError as err:
-        raise InputError(f"--test {text!r}: every field must be a number") from err
-    if len(nums) == 2:
-        return TestMeasurement(nums[0], nums[1])
-    return TestMeasurement(nums[0], nums[1], amplitude=nums[2], h=nums[3])
+    nums = _fields("--test", text, (2, 4), "BETA:FREQ_HZ or BETA:FREQ_HZ:AMPLITUDE:H")
+    return TestMeasurement(*nums[:2], *([] if len(nums) == 2 else [nums[2], nums[3]]))
+
+
+def _parse_point(text: str) -> ResponsePoint:
+    """FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG] -> ResponsePoint."""
+    from ..mrft.identify import ResponsePoint
+
+    nums = _fields("--point", text, (3, 5), "FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG]")
+    se_rel, se_deg = (nums[3], nums[4]) if len(nums) == 5 else (0.01, 0.6)
+    return ResponsePoint(2 * math.pi * nums[0], nums[1], math.radians(nums[2]), se_rel, math.radians(se_deg))
 
 
 def _fmt(est: ParameterEstimate | None, scale: float = 1.0, unit: str = "") -> str:
@@ -123,20 +135,3 @@ def _echo(result: Any, n_data: int) -> None:
         click.echo(line)
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
-
-
-def _parse_point(text: str) -> ResponsePoint:
-    """FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG] -> ResponsePoint."""
-    import math
-
-    from ..mrft.identify_lti import ResponsePoint
-
-    parts = text.split(":")
-    if len(parts) not in (3, 5):
-        raise InputError(f"--point {text!r}: expected FREQ_HZ:GAIN:PHASE_DEG[:SE_REL:SE_DEG]")
-    try:
-        nums = [float(p) for p in parts]
-    except ValueError:
-        raise InputError(f"--point {text!r}: every field must be a number") from None
-    se_rel, se_deg = (nums[3], nums[4]) if len(nums) == 5 else (0.01, 0.6)
-    return ResponsePoint(2 * math.pi * nums[0], nums[1], math.radians(nums[2]), se_rel, math.radians(se_deg))

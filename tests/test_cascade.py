@@ -21,8 +21,8 @@ from scipy.linalg import expm
 from mrftcli.errors import IdentificationError, InputError
 from mrftcli.mrft.cascade import G, CascadeModel, DiscreteStateSpace, InnerLoop, discrete_limit_cycle
 from mrftcli.mrft.controller import Controller
-from mrftcli.mrft.cascade_identify import CascadeIdentification, identify_cascade
-from mrftcli.mrft.identify import TestMeasurement
+from mrftcli.mrft.cascade_identify import CascadeIdentification
+from mrftcli.mrft.identify import TestMeasurement, identify
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import MODEL_FAMILIES, LoopModel, model_from_json
 
@@ -184,7 +184,7 @@ def _tests(flown) -> list[TestMeasurement]:
 
 
 def test_identification_recovers_the_outer_loop(flown) -> None:
-    res = identify_cascade(InnerLoop(INNER, GAINS, "roll"), _tests(flown), RATE, K=1.0)
+    res = identify(_tests(flown), CascadeModel(InnerLoop(INNER, GAINS, "roll"), 1.0, 0.0, K=1.0), rate_hz=RATE)
     td, tau = res.estimates["Td"], res.estimates["tau"]
     assert td.value == pytest.approx(0.8, rel=0.03) and td.ci95_low <= 0.8 <= td.ci95_high
     # the loop locks onto one orbit of the sampled band: tau is known to about half a tick (5 ms at 100 Hz)
@@ -195,15 +195,15 @@ def test_identification_recovers_the_outer_loop(flown) -> None:
 
 def test_identification_of_K_and_the_inner_draws(flown) -> None:
     inner = InnerLoop(INNER, GAINS, "roll")
-    free = identify_cascade(inner, _tests(flown), RATE, K=None)
+    free = identify(_tests(flown), CascadeModel(inner, 1.0, 0.0, known=frozenset()), rate_hz=RATE)  # K unknown
     assert free.estimates["K"].value == pytest.approx(1.0, rel=0.05) and not free.estimates["K"].known
     draws = [InnerLoop(INNER.with_parameters(Td=INNER.Td * s, tau=INNER.tau + 0.002 * (s - 1) * 5), GAINS)
              for s in (0.9, 1.1, 0.95, 1.05)]
-    wide = identify_cascade(inner, _tests(flown), RATE, K=1.0, inner_draws=draws)
-    exact = identify_cascade(inner, _tests(flown), RATE, K=1.0)
+    wide = identify(_tests(flown), CascadeModel(inner, 1.0, 0.0), rate_hz=RATE, inner_draws=draws)
+    exact = identify(_tests(flown), CascadeModel(inner, 1.0, 0.0), rate_hz=RATE)
     assert wide.inner_draws == 4 and wide.estimates["Td"].std > exact.estimates["Td"].std
     with pytest.raises(IdentificationError, match="two different beta"):
-        identify_cascade(inner, _tests(flown)[:1], RATE, K=None)
+        identify(_tests(flown)[:1], CascadeModel(inner, 1.0, 0.0, known=frozenset()), rate_hz=RATE)
 
 
 def test_inner_gains_forms_and_errors() -> None:
@@ -378,7 +378,7 @@ def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
     loop = InnerLoop(inner, gains, "roll")
     analysis = analyze_flight(flight, cascade_model(loop, "attitude"))
     est = analysis.identification.estimates["tau"]
-    before = identify_cascade(loop, [_measurement(t) for t in analysis.tests], RATE, K=G).estimates["tau"]
+    before = identify([_measurement(t) for t in analysis.tests], CascadeModel(loop, 1.0, 0.0, K=G), rate_hz=RATE).estimates["tau"]
     assert abs(est.value - tau) < 3e-3 and est.ci95_low <= tau <= est.ci95_high
     assert abs(est.value - tau) < abs(before.value - tau) - 2e-3
     assert any("receive-time stamps" in a for a in analysis.assumptions)

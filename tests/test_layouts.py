@@ -97,7 +97,8 @@ def test_detection_of_the_stacks_without_sample_logs():
     assert detect_layout(["/control_system_output", "/providers/z"], "bag").layout.name == "hear-2020"
     assert detect_layout(["/mavros/local_position/pose", "/mavros/imu/data"], "bag").layout.name == "mavros"
     assert detect_layout(["vehicle_local_position_setpoint"], "bag") is None  # PX4 writes ULog only
-    assert set(LAYOUTS["px4-mrft"].loops) == {"altitude", "x", "y", "roll"}  # roll: scripts/sitl/px4/mrft_roll.patch
+    # roll, pitch: scripts/sitl/px4/mrft_roll.patch
+    assert set(LAYOUTS["px4-mrft"].loops) == {"altitude", "x", "y", "roll", "pitch"}
 
 
 def test_named_layout_and_explicit_topics_override(tmp_path):

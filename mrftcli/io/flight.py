@@ -40,7 +40,7 @@ DEFAULT_TOPICS = {
 }
 
 #: PX4 MRFT axis of each loop (parameters MRFT_<AXIS>_BETA, _H, _ENABLE)
-_PX4_AXIS = {"x": "X", "y": "Y", "altitude": "Z", "roll": "R"}
+_PX4_AXIS = {"x": "X", "y": "Y", "altitude": "Z", "roll": "R", "pitch": "P"}
 #: a command or output sample beyond this magnitude is corrupt (its square overflows float64 in fits)
 ABSURD_MAGNITUDE = 1e100
 #: below this command rate [Hz] an MRFT cycle of 1-2 Hz has fewer than ~10 samples

@@ -130,8 +130,9 @@ _PX4 = Layout(
         "y": LoopTopics("vehicle_local_position_setpoint:thrust[1]", "vehicle_local_position:y",
                         "vehicle_local_position_setpoint:y"),
         # mrft-ident's roll relay in mc_rate_control (scripts/sitl/px4/mrft_roll.patch; the fork has none):
-        # the relay is the roll torque setpoint, the output the attitude's roll (setpoint: level)
+        # the relay is the roll (pitch) torque setpoint, the output the attitude's roll (pitch) (setpoint: level)
         "roll": LoopTopics("vehicle_torque_setpoint:xyz[0]", "vehicle_attitude:q"),
+        "pitch": LoopTopics("vehicle_torque_setpoint:xyz[1]", "vehicle_attitude:q"),
     },
     signature=("vehicle_local_position_setpoint",),
     formats=("ulog",),

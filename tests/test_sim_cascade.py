@@ -268,7 +268,7 @@ def test_cli_cascade_states_its_assumption_and_refuses_bad_input(tmp_path, capsy
     gains = tmp_path / "gains.json"
     gains.write_text(json.dumps({"pitch": {"Kp": 0.3, "Ki": 0.0, "Kd": 0.09, "Tf": 0.03, "rate_hz": 100.0}}))
     bag = str(tmp_path / "e.bag")
-    for extra, message in ((("--inner-gains", str(gains), "--out", bag), "no 'roll' gains"),
+    for extra, message in ((("--inner-gains", str(gains), "--out", bag), "no gains for the roll loop"),
                            (("--k", "2", "--out", bag), "--k is not used with --cascade"),
                            (("--out", str(tmp_path / "e.mcap"), "--layout", "hear-ros"), "ROS 1 bag"),
                            (("--out", bag, "--inner-tp", "-1"), "Tp must be a positive")):

@@ -73,6 +73,23 @@ def dump_json(obj: Any, target: str | None) -> None:
         raise InputError(f"--json {target}: cannot write ({err.strerror or err}); choose a writable path") from None
 
 
+def read_json_file(path: str | Path, option: str) -> Any:
+    """A JSON input file (an analysis, GAINS.json, ...) parsed with the depth limit of
+    :func:`mrftcli.jsonable.load_json_text`; a one-line InputError naming ``option`` and the file when
+    it cannot be read or is not JSON."""
+    from ..jsonable import load_json_text
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return load_json_text(fh.read(), f"{option} {path}")
+    except OSError as err:
+        raise InputError(f"{option} {path}: cannot read it ({err.strerror or err})") from err
+    except InputError:
+        raise
+    except ValueError as err:  # not JSON, or not UTF-8 text
+        raise InputError(f"{option} {path}: not JSON ({err})") from err
+
+
 def json_option(dest: str = "json_target", *, what: str = "result"):
     """``--json FILE|-``: the one JSON output option of every command.
 

@@ -12,12 +12,12 @@ import click
 from click.core import ParameterSource
 
 from ..errors import InputError
-from ..jsonable import load_json_text
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
 from .model_options import MODEL_NAMES, parse_params
-from .options import controller_rate_option, dump_json, json_option, quiet_option, tp_option, tqdm_progress
+from .options import (controller_rate_option, dump_json, json_option, quiet_option, read_json_file, tp_option,
+                      tqdm_progress)
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
 
@@ -138,25 +138,6 @@ class CascadeOptions:
     fmt: str | None
 
 
-def _inner_gains(path: Path, inner_loop: str, axis: str):
-    """The inner loop's gains from GAINS.json (tune's generic form, keyed by loop name)."""
-    from ..sim.cascade_spec import InnerGains
-
-    try:
-        data = load_json_text(path.read_text(), f"--inner-gains {path}")
-    except OSError as err:
-        raise InputError(f"--inner-gains {path}: cannot read it ({err.strerror})") from None
-    except InputError:
-        raise
-    except ValueError:
-        raise InputError(f"--inner-gains {path}: not JSON; expected {{\"{inner_loop}\": {{\"Kp\": ..}}}}") from None
-    if not isinstance(data, dict) or inner_loop not in data:
-        held = ", ".join(sorted(data)) if isinstance(data, dict) else "no object"
-        raise InputError(f"--inner-gains {path}: no {inner_loop!r} gains (the inner loop of --cascade {axis}); "
-                         f"it holds: {held or 'nothing'}")
-    return InnerGains.from_json(data[inner_loop], f"--inner-gains {path} ({inner_loop})")
-
-
 def _cascade_tests(texts: tuple[str, ...], plan):
     """The tests of one loop, H and DURATION planned by ``plan(beta)`` (the describing function) where not given."""
     from ..sim.flight import TestSpec
@@ -192,6 +173,7 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     from ..mrft.model import LoopModel
     from ..sim.cascade import command_gain, inner_pd, plan_outer_test, simulate_cascade
     from ..sim.cascade_plant import cascade_plant
+    from ..analyze.cascade import inner_gains_of
     from ..sim.cascade_spec import CASCADE_AXES, STANDARD_GRAVITY, CascadeSpec
     from ..sim.flight import plan_test
     from ..sim.cascade_write import write_cascade
@@ -209,7 +191,8 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     inner = LoopModel(i.Tp, i.Td, i.tau, i.K)
     assumptions = []
     if opts.gains_path is not None:
-        gains = _inner_gains(opts.gains_path, inner_loop, opts.axis)
+        # GAINS.json as analyze and vehicle read it (a map of loops, tune --export generic or --json, a vehicle record)
+        gains = inner_gains_of(read_json_file(opts.gains_path, "--inner-gains"), inner_loop)
         if opts.rate_hz is not None and abs(gains.rate_hz - opts.rate_hz) > 1e-9 * opts.rate_hz:
             raise InputError(f"--inner-gains rate_hz {gains.rate_hz:g} Hz differs from --controller-rate "
                              f"{opts.rate_hz:g} Hz; the inner and outer loops tick together")

@@ -10,11 +10,10 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError, SegmentationError, TpRejectedError
-from ..jsonable import load_json_text
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, num, quiet_option, tp_option, tqdm_progress)
+                      min_cycles_option, num, quiet_option, read_json_file, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..vehicle import VehicleResult
@@ -83,11 +82,7 @@ def _inner_gains(path: str | None) -> dict[str, Any] | None:
     """GAINS.json: a loop name -> the generic gains ``tune`` exports (read only when given)."""
     if path is None:
         return None
-    try:
-        with open(path, encoding="utf-8") as fh:
-            data = load_json_text(fh.read(), f"--inner-gains {path}")
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(f"--inner-gains {path}: not a readable JSON file ({err})") from None
+    data = read_json_file(path, "--inner-gains")
     if not isinstance(data, dict):
         raise InputError(f"--inner-gains {path}: expected an object mapping a loop to its gains, "
                          "e.g. {\"roll\": {\"Kp\": .., \"Ki\": .., \"Kd\": .., \"Tf\": .., \"rate_hz\": ..}}")

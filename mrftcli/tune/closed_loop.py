@@ -11,10 +11,11 @@ first-order filter, discretised by backward differences (stable for any Tf >= 0)
 
 Two independent routes give the same sampled loop:
 
-* :func:`discrete_plant` and :func:`closed_loop_matrices`: the exact zero-order-hold equivalent of
+* :func:`discrete_plant` and :func:`closed_loop_matrix`: the exact zero-order-hold equivalent of
   the plant with a fractional delay (tau = d T + eps: the command of tick k - d - 1 acts for the first
-  eps of each period, that of tick k - d for the rest), closed with the controller into one state
-  matrix z_{k+1} = A z_k + B r; :func:`step_response` iterates it, vectorised over models.
+  eps of each period, that of tick k - d for the rest; :class:`DiscretePlant`, every family's held
+  delay), its command buffer as states (:func:`augmented`), closed with the controller into one state
+  matrix z_{k+1} = A z_k + B r; :func:`responses` (``method="state"``) iterates it.
 * :func:`simulate_step`: an event-driven time-domain simulation of the continuous plant (matrix
   exponentials between the instants at which a held command reaches the plant), with the controller
   of :class:`Controller` stepping at every tick. It is the check of the first route
@@ -34,12 +35,13 @@ import numpy as np
 from scipy.linalg import expm
 
 from ..errors import InputError
+from ..mrft.cascade import DiscreteStateSpace
 from ..mrft.controller import Controller, RateFilter
 from ..mrft.model import LoopModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "closed_loop_matrices", "step_response", "responses", "outputs",
-           "step_metrics", "criterion", "simulate_step", "spectral_radius", "SETTLING_BAND"]
+__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
+           "responses", "outputs", "step_metrics", "criterion", "simulate_step", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
 SETTLING_BAND = 0.02
@@ -89,7 +91,8 @@ def _zoh_integrals(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, 
 
 @dataclass(frozen=True, eq=False)
 class DiscretePlant:
-    """x_{k+1} = Phi x_k + Gamma[0] u_{k-d-1} + Gamma[1] u_{k-d},  y_k = C x_k (see :func:`discrete_plant`)."""
+    """x_{k+1} = Phi x_k + Gamma[0] u_{k-d-1} + Gamma[1] u_{k-d},  y_k = C x_k: the held delay tau = d T + eps
+    of any plant (eq. (2)'s: :func:`discrete_plant`; the other families': :func:`mrftcli.tune.grid.discretise`)."""
 
     Phi: np.ndarray
     Gamma: np.ndarray
@@ -220,106 +223,73 @@ def as_discrete(models, rate_hz: float) -> list[DiscretePlant]:
     return out
 
 
-def closed_loop_matrices(models: Sequence[LoopModel | DiscretePlant], controller: Controller,
-                         d_max: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Closed-loop state matrices for one controller on each of ``models``.
+def augmented(p: DiscretePlant) -> DiscreteStateSpace:
+    """The held-delay plant ``p`` with its command buffer as states: X_k = [x_k, u_{k-1}, ..., u_{k-d-1}]
+    (the delay part of the state, so the closed loop's eigenvalues decide stability); the command u_k
+    enters the buffer's first slot (state n)."""
+    n, d = p.Phi.shape[0], p.d
+    N = n + d + 1
+    Ad = np.zeros((N, N))
+    Bd = np.zeros(N)
+    Ad[:n, :n] = p.Phi
+    Ad[:n, n + d] = p.Gamma[0]  # u_{k-d-1}
+    if d == 0:
+        Bd[:n] = p.Gamma[1]  # u_k itself
+    else:
+        Ad[:n, n + d - 1] = p.Gamma[1]  # u_{k-d}
+    Bd[n] = 1.0  # the buffer: u_k becomes u_{(k+1)-1}
+    for j in range(1, d + 1):
+        Ad[n + j, n + j - 1] = 1.0
+    Cd = np.zeros(N)
+    Cd[:n] = p.C
+    return DiscreteStateSpace(Ad, Bd, Cd, p.rate_hz)
 
-    ``models``: LoopModel or DiscretePlant items (the latter saves the discretisation when one set
-    of plants is closed with many controllers).
 
-    State z_k = [x_k (3), u_{k-1}, ..., u_{k-1-D} (D + 1), I_{k-1}, D_{k-1}, y_{k-1}] with D = d_max
-    (the largest delay in samples; shorter delays leave the extra buffer slots unused).
+def closed_loop_matrix(ss: DiscreteStateSpace, c: Controller) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, Cy): z_{k+1} = A z_k + B r, y_k = Cy z_k, for the PD/PID ``c`` on the plant ``ss``.
 
-    Returns
-    -------
-    A : (M, n, n); B : (M, n); Cy : (M, n); Cu : (M, n); Du : (M,)
-        z_{k+1} = A z_k + B r,  y_k = Cy z_k,  u_k = Cu z_k + Du r.
+    State z = [x (plant), I_{k-1}, D_{k-1}, y_{k-1}], the controller of :class:`Controller` (derivative on
+    the measurement, backward differences; a PD has no integrator state: no spurious eigenvalue at 1).
+    On a delay-augmented plant (:func:`augmented`) the command u_k = (row, entry) of the buffer's first
+    slot in (A, B).
     """
-    if controller.rate_filter is not None:
-        raise InputError("the state matrices model the first-order derivative filter only: a stack's rate "
-                         "filter goes through method='z-transform' (the default)")
-    models = list(models)
-    plants = as_discrete(models, controller.rate_hz)
-    D = max(p.d for p in plants) if d_max is None else int(d_max)
-    if any(p.d > D for p in plants):
-        raise InputError("d_max is smaller than a model's delay in samples")
-    nb = D + 1
-    n = 3 + nb + 3
-    iI, iD, iy = 3 + nb, 4 + nb, 5 + nb
-    Kp, Ki, Kd, Tf, T = controller.Kp, controller.Ki, controller.Kd, controller.Tf, controller.Ts
-    M = len(models)
-    A = np.zeros((M, n, n))
-    B = np.zeros((M, n))
-    Cy = np.zeros((M, n))
-    Cu = np.zeros((M, n))
-    Du = np.zeros(M)
-    for m, (Phi, Gam, C, d) in enumerate(plants):
-        cy = np.zeros(n)
-        cy[:3] = C
-        # I_k = I_{k-1} + Ki T (r - y_k); D_k = (Tf D_{k-1} - Kd (y_k - y_{k-1})) / (Tf + T)
-        cI = -Ki * T * cy
-        cI[iI] += 1.0 if Ki > 0 else 0.0  # a PD has no integrator state (no spurious eigenvalue at 1)
-        dI = Ki * T
-        cD = -Kd / (Tf + T) * cy
-        cD[iD] += Tf / (Tf + T)
-        cD[iy] += Kd / (Tf + T)
-        cu = -Kp * cy + cI + cD
-        du = Kp + dI
-        # plant: x_{k+1} = Phi x_k + Gamma_a u_{k-d-1} + Gamma_b u_{k-d}
-        A[m, :3, :3] = Phi
-        A[m, :3, 3 + d] += Gam[0]
-        if d == 0:
-            A[m, :3, :] += np.outer(Gam[1], cu)
-            B[m, :3] += Gam[1] * du
-        else:
-            A[m, :3, 3 + d - 1] += Gam[1]
-        # the command buffer shifts by one; u_k enters at the front
-        A[m, 3, :] = cu
-        B[m, 3] = du
-        for j in range(1, nb):
-            A[m, 3 + j, 3 + j - 1] = 1.0
-        A[m, iI, :] = cI
-        B[m, iI] = dI
-        A[m, iD, :] = cD
-        A[m, iy, :] = cy
-        Cy[m] = cy
-        Cu[m] = cu
-        Du[m] = du
-    return A, B, Cy, Cu, Du
+    n = ss.order
+    N = n + 3
+    iI, iD, iy = n, n + 1, n + 2
+    T = c.Ts
+    cy = np.zeros(N)
+    cy[:n] = ss.C
+    cI = -c.Ki * T * cy
+    if c.Ki > 0:
+        cI[iI] += 1.0
+    cD = -c.Kd / (c.Tf + T) * cy
+    cD[iD] += c.Tf / (c.Tf + T)
+    cD[iy] += c.Kd / (c.Tf + T)
+    cu = -c.Kp * cy + cI + cD
+    A = np.zeros((N, N))
+    B = np.zeros(N)
+    A[:n, :n] = ss.Phi
+    A[:n] += np.outer(ss.Gamma, cu)
+    B[:n] = ss.Gamma * (c.Kp + c.Ki * T)
+    A[iI], B[iI] = cI, c.Ki * T
+    A[iD] = cD
+    A[iy] = cy
+    return A, B, cy
 
 
-def spectral_radius(A: np.ndarray) -> np.ndarray:
-    """Largest |eigenvalue| of each (n, n) matrix of A (stable sampled loop: < 1)."""
-    return np.max(np.abs(np.linalg.eigvals(A)), axis=-1)
-
-
-#: Ticks per block of :func:`_iterate` (powers of A computed once, then one product per block).
-_BLOCK = 32
-
-
-def _iterate(A: np.ndarray, Bin: np.ndarray, N: int) -> np.ndarray:
-    """States z_0 = 0, z_{k+1} = A z_k + Bin of M loops with q constant inputs: shape (N, M, n, q).
-
-    In blocks of ``_BLOCK`` ticks, z_{k+j} = A^j z_k + S_j with S_j = sum_{i<j} A^i Bin, so a block is
-    one batched product instead of ``_BLOCK`` Python-level steps (about 10x fewer interpreter round
-    trips for the few-state loops here; the same values to rounding).
-    """
-    M, n, q = Bin.shape
-    m = max(1, min(_BLOCK, N - 1))
-    with np.errstate(over="ignore", invalid="ignore"):
-        P = np.empty((m, M, n, n))  # A^1 .. A^m
-        S = np.empty((m, M, n, q))  # S_1 .. S_m
-        P[0], S[0] = A, Bin
-        for j in range(1, m):
-            P[j] = P[j - 1] @ A
-            S[j] = A @ S[j - 1] + Bin
-        Z = np.zeros((N, M, n, q))
-        k = 0
-        while k < N - 1:
-            j = min(m, N - 1 - k)
-            Z[k + 1:k + 1 + j] = P[:j] @ Z[k][None] + S[:j]
-            k += j
-    return Z
+def step_outputs(A: np.ndarray, B: np.ndarray, Cy: np.ndarray, count: int) -> np.ndarray:
+    """The outputs Cy z_k of z_{k+1} = A z_k + B, z_0 = 0, over ``count`` ticks (exact: z_k = sum_{j<k} A^j B,
+    by doubling)."""
+    S = np.zeros((count, A.shape[0]))
+    step, have = A.copy(), 1  # step = A^have
+    with np.errstate(all="ignore"):
+        while have < count:
+            take = min(have, count - have)
+            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + (A @ S[have - 1] + B)
+            have += take
+            step = step @ step
+        out: np.ndarray = S @ Cy
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -498,23 +468,24 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float, 
 
 
 def _state_responses(plants: Sequence[DiscretePlant], controller: Controller, N: int, load: float) -> Steps:
-    """Setpoint and load steps by iterating the closed-loop state matrices (:func:`closed_loop_matrices`)."""
-    A, B, Cy, Cu, Du = closed_loop_matrices(plants, controller)
-    M, n = B.shape
-    cols = [B]
-    if load:
-        Bd = np.zeros((M, n))
-        for i, p in enumerate(plants):
-            Bd[i, :3] = load * (p.Gamma[0] + p.Gamma[1])  # a constant input over a whole period
-        cols.append(Bd)
-    Z = _iterate(A, np.stack(cols, axis=-1), N)
-    with np.errstate(over="ignore", invalid="ignore"):
-        y = np.einsum("kmnq,mn->qmk", Z, Cy)
-        u = np.einsum("kmnq,mn->qmk", Z, Cu)
-    u[0] += Du[:, None]
-    if load:
-        return y[0], u[0], y[1], u[1]
-    return y[0], u[0], None, None
+    """Setpoint and load steps by iterating the closed-loop state matrices (:func:`closed_loop_matrix` on
+    :func:`augmented`): the check route of the z-transform's."""
+    if controller.rate_filter is not None:
+        raise InputError("the state matrices model the first-order derivative filter only: a stack's rate "
+                         "filter goes through method='z-transform' (the default)")
+    rows: list[list[np.ndarray]] = [[], [], [], []]
+    for p in plants:
+        n = p.Phi.shape[0]
+        A, B, Cy = closed_loop_matrix(augmented(p), controller)
+        Cu, Du = A[n], B[n]  # the command: the buffer's first slot
+        Bl = np.zeros_like(B)
+        Bl[:n] = load * (p.Gamma[0] + p.Gamma[1])  # a constant input over a whole period
+        rows[0].append(step_outputs(A, B, Cy, N))
+        rows[1].append(step_outputs(A, B, Cu, N) + Du)
+        rows[2].append(step_outputs(A, Bl, Cy, N))
+        rows[3].append(step_outputs(A, Bl, Cu, N))
+    y, u, yl, ul = (np.array(r) for r in rows)
+    return (y, u, yl, ul) if load else (y, u, None, None)
 
 
 def responses(models: Sequence[LoopModel | DiscretePlant], controller: Controller, t_end: float, load: float = 0.0,

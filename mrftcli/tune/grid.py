@@ -49,7 +49,7 @@ from ..errors import InputError
 from ..mrft.cascade import CascadeModel, DiscreteStateSpace
 from ..mrft.matexp import phi_gamma_small
 from ..mrft.model import PlantModel
-from .closed_loop import Controller, StepMetrics
+from .closed_loop import Controller, DiscretePlant, StepMetrics, augmented, closed_loop_matrix, step_outputs
 from .design import FILTER_N, Design, DesignOptions, TuneResult
 from .margins import Margins
 
@@ -81,18 +81,7 @@ FloatArray = NDArray[np.float64]
 # ----------------------------------------------------------------------------------------------
 # the exact discrete plant
 # ----------------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class _HeldDelay:
-    """x_{k+1} = Phi x_k + G_old u_{k-d-1} + G_new u_{k-d}, y_k = C x_k: the plant at one rate with tau = d T + eps."""
-
-    Phi: FloatArray
-    G_old: FloatArray
-    G_new: FloatArray
-    C: FloatArray
-    d: int
-
-
-def _held_delay(model: PlantModel, rate_hz: float) -> _HeldDelay:
+def _held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
     """The modified z-transform of the realisation: over a tick the plant sees u_{k-d-1} for eps seconds, then u_{k-d}."""
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
@@ -106,7 +95,7 @@ def _held_delay(model: PlantModel, rate_hz: float) -> _HeldDelay:
     eps = max(model.delay - d * T, 0.0)
     Phi, _ = phi_gamma_small(A, B, T)
     rest, G_new = phi_gamma_small(A, B, T - eps)
-    return _HeldDelay(Phi, rest @ phi_gamma_small(A, B, eps)[1], G_new, C, d)
+    return DiscretePlant(Phi, np.stack([rest @ phi_gamma_small(A, B, eps)[1], G_new]), C, d, rate_hz)
 
 
 def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
@@ -121,23 +110,7 @@ def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
     InputError
         A plant with direct feedthrough (D != 0: not a relay-test plant), or a bad rate.
     """
-    h = _held_delay(model, rate_hz)
-    n, d = h.Phi.shape[0], h.d
-    N = n + d + 1
-    Ad = np.zeros((N, N))
-    Bd = np.zeros(N)
-    Ad[:n, :n] = h.Phi
-    Ad[:n, n + d] = h.G_old  # u_{k-d-1}
-    if d == 0:
-        Bd[:n] = h.G_new  # u_k itself
-    else:
-        Ad[:n, n + d - 1] = h.G_new  # u_{k-d}
-    Bd[n] = 1.0  # the buffer: u_k becomes u_{(k+1)-1}
-    for j in range(1, d + 1):
-        Ad[n + j, n + j - 1] = 1.0
-    Cd = np.zeros(N)
-    Cd[:n] = h.C
-    return DiscreteStateSpace(Ad, Bd, Cd, rate_hz)
+    return augmented(_held_delay(model, rate_hz))
 
 
 def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[np.complex128]:
@@ -147,10 +120,10 @@ def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[
     return _response_at(_held_delay(model, rate_hz), np.exp(1j * w / rate_hz)).reshape(np.shape(omega))
 
 
-def _response_at(h: _HeldDelay, z: NDArray[np.complex128]) -> NDArray[np.complex128]:
+def _response_at(h: DiscretePlant, z: NDArray[np.complex128]) -> NDArray[np.complex128]:
     """G_d(z) at any points z (the unit circle, or the stability contour just outside it)."""
     M = z[:, None, None] * np.eye(h.Phi.shape[0])[None] - h.Phi[None]
-    rhs = (h.G_new[None, :] + h.G_old[None, :] / z[:, None])[..., None]
+    rhs = (h.Gamma[1][None, :] + h.Gamma[0][None, :] / z[:, None])[..., None]
     out: NDArray[np.complex128] = (np.linalg.solve(M, rhs)[..., 0] @ h.C) * z ** (-h.d)
     return out
 
@@ -226,36 +199,6 @@ def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed:
 # ----------------------------------------------------------------------------------------------
 # the sampled loop and its figures
 # ----------------------------------------------------------------------------------------------
-def closed_loop_matrix(ss: DiscreteStateSpace, c: Controller) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(A, B, Cy): z_{k+1} = A z_k + B r, y_k = Cy z_k, for the PD/PID ``c`` on the plant ``ss``.
-
-    State z = [x (plant), I_{k-1}, D_{k-1}, y_{k-1}], the controller of
-    :class:`~mrftcli.tune.closed_loop.Controller` (derivative on the measurement, backward differences).
-    """
-    n = ss.order
-    N = n + 3
-    iI, iD, iy = n, n + 1, n + 2
-    T = c.Ts
-    cy = np.zeros(N)
-    cy[:n] = ss.C
-    cI = -c.Ki * T * cy
-    if c.Ki > 0:
-        cI[iI] += 1.0
-    cD = -c.Kd / (c.Tf + T) * cy
-    cD[iD] += c.Tf / (c.Tf + T)
-    cD[iy] += c.Kd / (c.Tf + T)
-    cu = -c.Kp * cy + cI + cD
-    A = np.zeros((N, N))
-    B = np.zeros(N)
-    A[:n, :n] = ss.Phi
-    A[:n] += np.outer(ss.Gamma, cu)
-    B[:n] = ss.Gamma * (c.Kp + c.Ki * T)
-    A[iI], B[iI] = cI, c.Ki * T
-    A[iD] = cD
-    A[iy] = cy
-    return A, B, cy
-
-
 def sampled_margins(c: Controller, Gd: NDArray[np.complex128],
                     omega: FloatArray) -> list[tuple[float, float, float, float]]:
     """(phase margin [deg], gain margin, Ms, crossover [Hz]) per row of ``Gd`` (G_d(e^{j omega T}) on ``omega``).
@@ -277,21 +220,6 @@ def sampled_margins(c: Controller, Gd: NDArray[np.complex128],
     first = np.argmax(cross, axis=1)
     wc = np.where(cross.any(axis=1), omega[first] / (2 * math.pi), np.nan)
     return [(float(a), float(b), float(m), float(w)) for a, b, m, w in zip(pm, gm, ms, wc)]
-
-
-def step_outputs(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
-    """The outputs Cy z_k of z_{k+1} = A z_k + B, z_0 = 0, over ``count`` ticks (exact: z_k = sum_{j<k} A^j B,
-    by doubling)."""
-    S = np.zeros((count, A.shape[0]))
-    step, have = A.copy(), 1  # step = A^have
-    with np.errstate(all="ignore"):
-        while have < count:
-            take = min(have, count - have)
-            S[have:have + take] = np.einsum("ij,nj->ni", step, S[:take]) + (A @ S[have - 1] + B)
-            have += take
-            step = step @ step
-        out: FloatArray = S @ Cy
-    return out
 
 
 def _stepped(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:

@@ -413,6 +413,17 @@ class AnalysisResult(Generic[M, T, I]):
             raise InputError(f"a {self.kind} analysis has no Tp: this needs an analysis of eq. (2) (--model soiptd)")
         return float(self.model.Tp)
 
+    @property
+    def segmented(self) -> tuple[MrftTest, ...]:
+        """The usable tests as segmented, with their cycles (eq. (2), cascade: ``tests``; a process family:
+        ``segments``, in a fresh analysis only): what the report's plots and the overlay draw."""
+        return self.segments if self.kind == "family" else tuple(self.tests)  # type: ignore[arg-type]
+
+    def parameters_json(self) -> _JSONDict:
+        """Every parameter as the one record's JSON by name, the known ones too (eq. (2): Tp first)."""
+        given = {"Tp": ParameterEstimate.given(self.Tp, "s")} if self.kind == "soiptd" else {}
+        return {name: est.to_json() for name, est in {**given, **self.parameters}.items()}
+
     def held_out_of(self, k: int) -> HeldOut | None:
         """The held-out prediction of ``tests[k]`` (None where the record has none)."""
         if k < len(self.held_out):

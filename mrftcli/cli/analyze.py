@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any, cast
 
 import click
 
@@ -11,7 +12,7 @@ from ..errors import InsufficientDataError, MrftError, SegmentationError, TpReje
 from .model_options import (baseline_option, build_model, check_soiptd_options, format_general, parse_baseline,
                             parse_windows, relay_options, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
-from .cascade_options import cascade_options, pop_cascade_options, run_cascade
+from .cascade_options import cascade_options, cascade_setup, format_cascade, pop_cascade_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, num, quiet_option, read_progress, tp_option, tqdm_progress)
 
@@ -213,10 +214,9 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
-    from ..analyze import AnalyzeOptions, analyze_flight, log_start, refuse_rejected_tp
+    from ..analyze import AnalyzeOptions, log_start
     from ..analyze.options import RelayOptions
     from ..io import ReadOptions, read_flight
-    from ..validate import check_tp
 
     # a process model's operating point: a number, or a topic of the log
     baseline = parse_baseline(read_options.pop("baseline", None))
@@ -224,11 +224,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     if baseline is not None and baseline_topic is not None:
         raise click.UsageError("give the operating point once: --baseline Y0[:STD] or --baseline-topic TOPIC[:FIELD]")
     cascade = pop_cascade_options(read_options)  # --inner-model: the outer loop through its inner loop
-    if cascade.requested:
-        run_cascade(log, cascade, read_options, min_cycles=min_cycles, json_target=json_target,
-                    unsupported={"--report": report_dir, "--mcap-out": mcap_out, "--paper-only": paper_only,
-                                 "--diagnose": run_diagnose, "--window": windows, "--model": model_name != "soiptd"})
-        return
+    model, cascade_opts = _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diagnose, windows,
+                                 cascade, read_options, baseline is not None or baseline_topic is not None)
     to_stdout = json_target == "-"
     # every output is checked before the work starts, all in the same way (parents created)
     check_output_file(json_target, "--json")
@@ -237,61 +234,30 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         from ..io.overlay import check_overlay_path
 
         check_overlay_path(mcap_out)
-    eq2 = model_name == "soiptd"
-    if eq2:
-        _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline is not None or baseline_topic is not None)
-        from ..mrft.model import soiptd_model
-
-        model = soiptd_model(check_tp(Tp))
-    else:
-        used = [n for n, v in (("--report", report_dir), ("--mcap-out", mcap_out), ("--paper-only", paper_only),
-                               ("--diagnose", run_diagnose)) if v]
-        if used:
-            raise click.UsageError(f"{', '.join(used)} work with --model soiptd only so far")
-        model = build_model(model_name, params, ranges)
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
-        flight = read_flight(log, ReadOptions(**read_options, any_time_scale=not eq2), echo_warnings=False,
-                             progress=progress)  # its warnings: once, below
+        flight = read_flight(log, ReadOptions(**read_options, any_time_scale=model.family not in ("soiptd", "cascade")),
+                             echo_warnings=False, progress=progress)  # its warnings: once, below
     if isinstance(baseline_topic, str):  # --baseline-topic: the operating point as logged
         baseline = (_baseline_signal(log, baseline_topic, read_options), 0.0)
     options = AnalyzeOptions(min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}),
                              relay=RelayOptions(relay_kind, None, eps), windows=parse_windows(windows, log_start(flight)),
-                             baseline=baseline)
+                             baseline=baseline, **({"cascade": cascade_opts} if cascade_opts is not None else {}))
     weights = {"identify": 6.0, **({"diagnose": 25.0} if run_diagnose else {}), **({"report": 4.0} if report_dir else {})}
     # a bar (stderr, terminal only) when the run is long enough to wait for: a diagnosis or a report
     with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1 and not quiet) as progress:
         stage = _stages(progress, weights)
         stage("identify")(0, 1, "segmenting and identifying")
-        try:
-            result = refuse_rejected_tp(analyze_flight(flight, model, options=options), accept_tp)
-        except TpRejectedError as err:
-            if json_target and err.result is not None:  # the JSON says which: tp_check.verdict "rejected"
-                dump_json(err.result.to_json(), json_target)
-            _echo_warnings(flight.warnings)
-            raise
-        except InsufficientDataError as err:
-            if json_target:
-                dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
-            if not to_stdout and err.partial:
-                click.echo(format_partial(err))
-            _echo_warnings(flight.warnings)
-            raise
-        except SegmentationError as err:
-            # tests found but none usable: the JSON still says what was found and why each was rejected
-            if json_target and err.rejected_tests is not None:
-                dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [],
-                           "rejected_tests": err.rejected_tests}, json_target)
-            _echo_warnings(flight.warnings)
-            raise
-        except MrftError:
-            _echo_warnings(flight.warnings)
-            raise
+        result = _identify(flight, model, options, accept_tp, json_target, to_stdout)
         diagnosis = None
         if run_diagnose:
             from ..diagnose.selection import diagnose as run_diagnosis
 
-            diagnosis = run_diagnosis(result.flight, model, analysis=result, progress=stage("diagnose"))
+            if result.kind == "soiptd":
+                diagnosis = run_diagnosis(flight, model, analysis=result, progress=stage("diagnose"))
+            else:
+                diagnosis = run_diagnosis(flight, model, progress=stage("diagnose"), relay=options.relay,
+                                          windows=options.windows, min_stable_cycles=min_cycles)
         index = None
         if report_dir:
             from ..report.analysis import write_analysis_report
@@ -310,7 +276,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
             data["diagnosis"] = diagnosis.to_dict()
         dump_json(data, json_target)
     if not to_stdout:
-        click.echo(format_table(result) if result.kind == "soiptd" else format_general(result))
+        formats = {"soiptd": format_table, "family": format_general, "cascade": format_cascade}
+        click.echo(formats[result.kind](result))
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
     if mcap_out:
@@ -321,6 +288,68 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     _echo_warnings(result.warnings)
     if index is not None:
         click.echo(f"report: {index}", err=to_stdout)
+
+
+#: why --paper-only has no meaning beyond eq. (2) (the paper's method is eq. (2)'s UFM slices)
+_NO_PAPER_ONLY = {
+    "family": "the paper's method is eq. (2)'s UFM slices; a {family} model is fitted directly to its cycles' "
+              "response points, which have no paper-only subset: leave --paper-only out",
+    "cascade": "the paper's method is eq. (2)'s UFM slices; the cascade is fitted to the exact sampled orbits "
+               "through the inner loop, which have no paper-only subset: leave --paper-only out",
+}
+
+
+def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diagnose, windows, cascade, read_options,
+           baseline: bool):
+    """The model object to identify (and the cascade's options): eq. (2), a process family or the cascade;
+    one-line errors naming the options that do not apply to it."""
+    from ..mrft.model import soiptd_model
+    from ..validate import check_tp
+
+    if cascade.requested:
+        model, options = cascade_setup(cascade, str(read_options.get("loop")),
+                                       {"--diagnose": run_diagnose, "--window": windows,
+                                        "--model": model_name != "soiptd"})
+    elif model_name == "soiptd":
+        _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline)
+        return soiptd_model(check_tp(Tp)), None
+    else:
+        model, options = build_model(model_name, params, ranges), None
+    if paper_only:
+        raise click.UsageError("--paper-only: " + _NO_PAPER_ONLY["cascade" if cascade.requested else "family"]
+                               .format(family=model.family))
+    return model, options
+
+
+def _identify(flight, model, options, accept_tp: bool, json_target, to_stdout: bool):
+    """:func:`~mrftcli.analyze.analyze_flight` (a Tp the recording rejects refused unless ``accept_tp``); on a
+    refusal the JSON says what was found and the reader's warnings are shown, then the error propagates."""
+    from ..analyze import analyze_flight, refuse_rejected_tp
+
+    try:
+        return refuse_rejected_tp(analyze_flight(flight, model, options=options), accept_tp)
+    except TpRejectedError as err:
+        if json_target and err.result is not None:  # the JSON says which: tp_check.verdict "rejected"
+            dump_json(cast(Any, err.result).to_json(), json_target)
+        _echo_warnings(flight.warnings)
+        raise
+    except InsufficientDataError as err:
+        if json_target:
+            dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
+        if not to_stdout and err.partial:
+            click.echo(format_partial(err))
+        _echo_warnings(flight.warnings)
+        raise
+    except SegmentationError as err:
+        # tests found but none usable: the JSON still says what was found and why each was rejected
+        if json_target and err.rejected_tests is not None:
+            dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [],
+                       "rejected_tests": err.rejected_tests}, json_target)
+        _echo_warnings(flight.warnings)
+        raise
+    except MrftError:
+        _echo_warnings(flight.warnings)
+        raise
 
 
 def _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline: bool) -> None:

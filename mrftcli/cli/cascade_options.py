@@ -1,7 +1,7 @@
 """``analyze LOG --loop x|y --inner-model RESULT.json --inner-gains GAINS.json``: an outer loop through its inner loop.
 
-The options and their handling; ``cli/analyze.py`` only pops them (:func:`pop_cascade_options`) and
-hands over (:func:`run_cascade`). The maths is :mod:`mrftcli.analyze.cascade`.
+The options and their handling; ``cli/analyze.py`` pops them (:func:`pop_cascade_options`), builds the
+cascade (:func:`cascade_setup`) and runs the one analyze route. The maths is :mod:`mrftcli.analyze.cascade`.
 """
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ from typing import Any, Callable, Mapping
 
 import click
 
-from ..errors import InputError, MrftError
+from ..errors import InputError
 from ..jsonable import load_json_text
-from .options import check_output_file, dump_json, num
+from .options import num
 
-__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "run_cascade"]
+__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "cascade_setup", "format_cascade"]
 
 _KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
 
@@ -102,36 +102,23 @@ def _check(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -
     return inner
 
 
-def run_cascade(log: str, request: CascadeRequest, read_options: dict[str, Any], *, min_cycles: int,
-                json_target: str | None, unsupported: Mapping[str, Any]) -> None:
-    """``analyze`` through the inner loop: read, identify, print (assumptions first), ``--json``."""
-    from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
+def cascade_setup(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -> tuple[Any, Any]:
+    """The cascade to identify and its analysis options, from the inner analysis and the gains flown.
+
+    ``analyze`` then runs the one route (:func:`mrftcli.analyze.analyze_flight`) and writes its outputs
+    as for every model. One-line errors naming the option on a missing or unreadable file.
+    """
+    from ..analyze import CascadeOptions
     from ..analyze.cascade import cascade_model, inner_draws, inner_gains_of, inner_loop_of
     from ..analyze.record import AnalysisResult
-    from ..io import ReadOptions, read_flight
 
-    inner_name = _check(request, str(read_options.get("loop")), unsupported)
-    check_output_file(json_target, "--json")
+    inner_name = _check(request, loop, unsupported)
     result = AnalysisResult.from_json(_read_json(request.inner_model or "", "--inner-model"))
     controller = inner_gains_of(_read_json(request.inner_gains or "", "--inner-gains"), inner_name)
     inner = inner_loop_of(result, controller, inner_name)
-    model = cascade_model(inner, request.outer_command)
-    options = AnalyzeOptions(min_stable_cycles=min_cycles, cascade=CascadeOptions(
+    return cascade_model(inner, request.outer_command), CascadeOptions(
         draws=tuple(inner_draws(result, inner, request.inner_draws)),
-        assumptions=(f"inner model from {request.inner_model}",)))
-    flight = read_flight(log, ReadOptions(**read_options), echo_warnings=False)
-    try:
-        analysis = analyze_flight(flight, model, options=options)
-    except MrftError:
-        for w in flight.warnings:
-            click.echo(f"warning: {w}", err=True)
-        raise
-    if json_target:
-        dump_json(analysis.to_json(), json_target)
-    if json_target != "-":
-        click.echo(format_cascade(analysis))
-    for w in analysis.warnings:
-        click.echo(f"warning: {w}", err=True)
+        assumptions=(f"inner model from {request.inner_model}",))
 
 
 def format_cascade(analysis: Any) -> str:

@@ -26,8 +26,9 @@ Topics
     beta, h, frequency, amplitude and fit residual as strings, so Foxglove marks the tests on its
     timeline. This channel is protobuf; the others JSON.
 ``/mrft_ident/parameters``
-    The identified Tp, Td, tau [s] and K with standard deviations and 95 % intervals, at the first and
-    the last output sample (so a plot draws them as lines across the log).
+    The identified parameters (eq. (2): Tp, Td, tau [s] and K; any other family's by name) with
+    standard deviations and 95 % intervals, at the first and the last output sample (so a plot draws
+    them as lines across the log).
 
 Metadata records (``mrft_ident``, ``mrft_ident.test.N``) repeat the parameters and the tests as
 strings for tools that list metadata (``mcap info``, Foxglove's metadata panel). The analysis itself
@@ -217,8 +218,9 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
     fits : sequence of OverlayFit
         The prediction over each test.
     parameters : mapping
-        ``name -> {"value", "std", "ci95_low", "ci95_high", ...}`` (the one parameter record's JSON) for Tp,
-        Td, tau, K (seconds; K in output units / (command unit s^2)).
+        ``name -> {"value", "std", "ci95_low", "ci95_high", ...}`` (the one parameter record's JSON) of each
+        of the model's parameters, in their units (eq. (2): Tp, Td, tau [s], K in output units / (command
+        unit s^2)).
     metadata : mapping, optional
         Extra strings for the ``mrft_ident`` metadata record (log path, loop, version).
     analysis_json : mapping, optional
@@ -232,7 +234,7 @@ def write_overlay(path: str | Path, *, tests: Sequence[OverlayTest], fits: Seque
     from mcap.writer import CompressionType, Writer
 
     path = Path(path)
-    names = [n for n in ("Tp", "Td", "tau", "K") if n in parameters]
+    names = list(parameters)  # every family's parameters by name (eq. (2): Tp, Td, tau, K)
     param_props = {}
     for n in names:
         for k in ("value", "std", "ci95_low", "ci95_high"):

@@ -1,7 +1,9 @@
-"""The ``analyze --report DIR`` page: index.html and PNG figures of an AnalysisResult.
+"""The ``analyze --report DIR`` page: index.html and PNG figures of an AnalysisResult, of every family.
 
 Figures (each function takes a finished :class:`~mrftcli.analyze.AnalysisResult` and returns a
-matplotlib Figure; :func:`write_analysis_report` saves them):
+matplotlib Figure; :func:`write_analysis_report` saves them). Every analysis gets 1, 4, 5 and 6 (the
+tests drawn are :attr:`~mrftcli.analyze.AnalysisResult.segmented`; a process family's Bode plot
+carries its measured response points); 2 and 3 are eq. (2)'s (its manifolds and its Table III):
 
 1. :func:`plot_timeseries` - command and output over the log, tests shaded, stable cycles marked,
    plus a zoom on a few stable cycles of each test (switch instants, fitted extrema, the switching
@@ -30,6 +32,7 @@ import numpy as np
 from matplotlib.ticker import ScalarFormatter
 
 from ..errors import InputError
+from ..analyze.held_out import held_out_cells
 from ..progress import Progress, report
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure, write_page
 from .model_figures import plot_fit, plot_uncertainty
@@ -54,6 +57,9 @@ _UNITS = {"altitude": ("m", 1.0, "altitude"), "x": ("m", 1.0, "x"), "y": ("m", 1
 
 
 def _units(result):
+    """(unit, scale, axis name) of the output as drawn: a vehicle loop's, or a process plant's own units."""
+    if result.kind == "family":
+        return "output units", 1.0, "output"
     return _UNITS.get(result.loop, ("output units", 1.0, "output"))
 
 
@@ -65,7 +71,7 @@ def _group_colours(result) -> dict:
     """test index -> colour: one colour per beta (tests repeated at the same beta share it)."""
     keys: list[float] = []
     out = {}
-    for t in list(result.tests) + list(result.rejected):
+    for t in list(result.segmented) + list(result.rejected):
         key = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
         if not np.isfinite(key):
             out[t.index] = "0.6"
@@ -110,11 +116,12 @@ def _time_label(result) -> str:
 
 def _mark_tests(ax_c: Axes, ax_y: Axes, result: AnalysisResult, colours: dict[int, Any], T0: float) -> None:
     """Each test shaded, its stable cycles as bars, its label; a beta legend when there are many."""
-    tests = list(result.tests) + list(result.rejected)
+    used_tests = result.segmented
+    tests = list(used_tests) + list(result.rejected)
     many = len(tests) > 4  # long labels would overlap: numbers on the plot, betas in a legend
     seen: set[Any] = set()
     for t in tests:
-        used = t in result.tests
+        used = t in used_tests
         col = colours[t.index] if used else "0.6"
         for ax in (ax_c, ax_y):
             ax.axvspan(t.t_start - T0, t.t_end - T0, color=col, alpha=0.10, lw=0)
@@ -134,9 +141,10 @@ def _mark_tests(ax_c: Axes, ax_y: Axes, result: AnalysisResult, colours: dict[in
 def _output_limits(ax_y: Axes, result: AnalysisResult, ty: np.ndarray, y: np.ndarray, scale: float, T0: float) -> None:
     """Output limits from the tests and the transient after each (the hold controller's return to the
     setpoint); take-off and landing would squash the oscillations otherwise."""
-    amp = max(t.amplitude_mean for t in result.tests) * scale
-    after = {t.index: max(3.0, 3.0 / t.frequency_hz_mean) if t.n_stable else 3.0 for t in result.tests}
-    inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0 + after[t.index]) for t in result.tests]
+    tests = result.segmented
+    amp = max(t.amplitude_mean for t in tests) * scale
+    after = {t.index: max(3.0, 3.0 / t.frequency_hz_mean) if t.n_stable else 3.0 for t in tests}
+    inside = [(ty >= t.t_start - T0) & (ty <= t.t_end - T0 + after[t.index]) for t in tests]
     lo = min(np.min(y[m]) for m in inside if m.any())
     hi = max(np.max(y[m]) for m in inside if m.any())
     pad = 0.6 * amp
@@ -183,7 +191,8 @@ def plot_timeseries(result: AnalysisResult) -> Figure:
     if fl is None:
         raise InputError("the analysis carries no flight signals to plot")
     T0 = _t0(result)  # every time axis is seconds from the log start (logs carry epoch times)
-    n_zoom = min(len(result.tests), 4)
+    segmented = result.segmented
+    n_zoom = min(len(segmented), 4)
     fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)), layout="constrained")
     # command and output share the time axis and sit close; the zooms get their own row below
     outer = fig.add_gridspec(2 if n_zoom else 1, 1, height_ratios=[2.3, 1.2][: 2 if n_zoom else 1])
@@ -199,14 +208,14 @@ def plot_timeseries(result: AnalysisResult) -> Figure:
     ax_c.set_ylabel("command [cmd units]")
     ax_y.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
     ax_y.set_xlabel(_time_label(result))
-    ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - MRFT tests (shaded) and stable cycles (bars)",
+    ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - relay tests (shaded) and stable cycles (bars)",
                    pad=16)
-    if result.tests:
+    if segmented:
         _output_limits(ax_y, result, ty, y, scale, T0)
     plt.setp(ax_c.get_xticklabels(), visible=False)
     if n_zoom:
         zooms = outer[1].subgridspec(1, n_zoom)
-        for k, t in enumerate(result.tests[:n_zoom]):
+        for k, t in enumerate(segmented[:n_zoom]):
             _zoom(fig.add_subplot(zooms[0, k]), t, ty, y, colours[t.index], result, rel, T0, k == 0)
     return fig
 
@@ -338,7 +347,7 @@ def plot_spread(result):
 
 def plot_cycles(result):
     """Per test: each cycle's period and amplitude with the stable-cycle tolerance bands."""
-    tests = (list(result.tests) + list(result.rejected))[:6]  # the first six; the HTML table lists all
+    tests = (list(result.segmented) + list(result.rejected))[:6]  # the first six; the HTML table lists all
     unit, scale, _ = _units(result)
     colours = _group_colours(result)
     fig, axes = new_figure(2, max(len(tests), 1), width=min(3.6 * max(len(tests), 1), 14), height=5.0,
@@ -419,44 +428,63 @@ def _estimate_notes(result: AnalysisResult) -> list[str]:
     return body
 
 
-def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = (),
-                          progress: Progress | None = None) -> Path:
-    """Write index.html and the PNG figures for one analysis; returns the index path.
+#: the figures of every analysis, and eq. (2)'s own (file, function, title)
+_FIGURES = (("timeseries.png", plot_timeseries, "Flight and detected relay tests"),
+            ("manifolds.png", plot_manifolds, "Manifold intersection (paper Fig. 5)"),
+            ("spread.png", plot_spread, "Parameter spread"),
+            ("cycles.png", plot_cycles, "Cycles and the stable-cycle criterion"),
+            ("fit.png", plot_fit, "Model output over the measured output, and the residual"),
+            ("uncertainty.png", plot_uncertainty, "Bode plot of the identified plant with its 95 % band"))
+_EQ2_ONLY = ("manifolds.png", "spread.png")
 
-    ``links`` are (relative href, title) pairs of pages written beside it (e.g. the diagnosis).
-    ``progress(done, total, stage)`` is called before each figure (units: figures).
-    """
-    out = ensure_dir(out_dir)
-    figures = (("timeseries.png", plot_timeseries, "Flight and detected MRFT tests"),
-               ("manifolds.png", plot_manifolds, "Manifold intersection (paper Fig. 5)"),
-               ("spread.png", plot_spread, "Parameter spread"),
-               ("cycles.png", plot_cycles, "Cycles and the stable-cycle criterion"),
-               ("fit.png", plot_fit, "Model output over the measured output, and the residual"),
-               ("uncertainty.png", plot_uncertainty, "Bode plot of the identified plant with its 95 % band; "
-                                                     "Td-tau correlation"))
-    written = []
-    for i, (name, fn, title) in enumerate(figures):
-        report(progress, i, len(figures), name)
-        save_figure(fn(result), out / name)
-        written.append((name, title))
-    T0 = _t0(result)
+
+def _header(result: AnalysisResult, T0: float) -> str:
+    """The page's first line: the log, the loop, the model and the time base."""
     from ..analyze import describe_t0
-    from ..analyze.held_out import held_out_cells, held_out_notes
 
-    body = [
-        f"<p class='muted'>{esc(result.path)} - loop <b>{esc(result.loop)}</b> - Tp = {result.Tp:g} s (known) - "
-        f"model G(s) = K Td e<sup>-tau s</sup> / (s (Tp s+1)(Td s+1)) - times are seconds from the log start "
-        f"({esc(describe_t0(T0))})</p>",
-        "<h2>Parameters</h2>",
-        html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
-                   [_estimate_row(result.Td, "Td", 1.0, "s"), _estimate_row(result.tau, "tau", 1e3, "ms"),
-                    _estimate_row(result.K, "K", 1.0, gain_unit(result.loop))]),
-    ]
-    if links:
-        body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
-    body += _estimate_notes(result)
+    when = f"times are seconds from the log start ({esc(describe_t0(T0))})"
+    if result.kind == "soiptd":
+        model = (f"Tp = {result.Tp:g} s (known) - model G(s) = K Td e<sup>-tau s</sup> / (s (Tp s+1)(Td s+1))")
+    elif result.kind == "cascade":
+        model = f"through the closed inner loop: G(s) = {esc(result.model.structure)}"
+    else:
+        m = result.model
+        model = f"model {esc(m.family)}: G(s) = {esc(getattr(m, 'transfer_function', m.structure))}"
+    return f"<p class='muted'>{esc(result.path)} - loop <b>{esc(result.loop)}</b> - {model} - {when}</p>"
+
+
+def _parameter_rows(result: AnalysisResult) -> list[list[str]]:
+    """Eq. (2)'s Td [s], tau [ms], K; any other family's parameters by name in their units (known ones said so)."""
+    if result.kind == "soiptd":
+        return [_estimate_row(result.Td, "Td", 1.0, "s"), _estimate_row(result.tau, "tau", 1e3, "ms"),
+                _estimate_row(result.K, "K", 1.0, gain_unit(result.loop))]
     rows = []
+    for name, e in result.parameters.items():
+        s, u = (1e3, "ms") if e.unit == "s" and name == "tau" else (1.0, e.unit)
+        row = _estimate_row(e, name, s, u)
+        if e.known:
+            row[2:4] = ["", "known"]
+        elif not e.determined:
+            row[3] += " (not determined)"
+        rows.append(row)
+    return rows
+
+
+def _test_rows(result: AnalysisResult, T0: float) -> tuple[list[str], list[list[Any]]]:
+    """The tests table (header, rows): a process family's relays and held-out predictions; eq. (2)'s and the
+    cascade's betas and cycles."""
+    unit = "output units" if result.kind == "family" else output_unit(result.loop)
+    held_head = ["held-out frequency [Hz] ± std (error/std)", f"held-out amplitude [{unit}] ± std (error/std)"]
+    if result.kind == "family":
+        rows: list[list[Any]] = [[t.index + 1, f"{t.t_start - T0:.1f} - {t.t_end - T0:.1f}", t.describe_relay(),
+                                  f"{t.frequency_hz:.4f}", f"{t.amplitude:.4g}", f"{t.n_stable} / {t.n_cycles}",
+                                  f"{t.rate_hz:.1f}", *held_out_cells(t.held_out), "used"] for t in result.tests]
+        rows += [[i + 1, f"{a - T0:.1f} - {b - T0:.1f}", "", "-", "-", "", "", "-", "-", f"left out: {why}"]
+                 for i, a, b, why in result.rejected_spans]
+        return (["test", "t [s from log start]", "relay", "frequency [Hz]", f"amplitude [{unit}]", "stable / cycles",
+                 "rate [Hz]", *held_head, ""], rows)
     held = {t.index: result.held_out_of(k) for k, t in enumerate(result.tests)}
+    rows = []
     for t in list(result.tests) + list(result.rejected):
         rows.append([t.index + 1, f"{t.t_start - T0:.1f} - {t.t_end - T0:.1f}",
                      "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}",
@@ -466,21 +494,59 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
                      f"{t.amplitude_mean:.4g}" if t.n_stable else "-",
                      f"{t.n_stable} / {len(t.cycles)}", f"{t.rate_hz:.1f}",
                      *held_out_cells(held.get(t.index)), "used" if t in result.tests else "left out"])
-    unit = output_unit(result.loop)
-    body += ["<h2>Tests</h2>",
-             html_table(["test", "t [s from log start]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
-                         f"amplitude [{unit}]", "stable / cycles", "rate [Hz]",
-                         "held-out frequency [Hz] ± std (error/std)", f"held-out amplitude [{unit}] ± std (error/std)",
-                         ""], rows)]
-    body += [f"<p class='muted'>{esc(n)} (held out: each test predicted by eq. (2) from the other tests)</p>"
-             for n in held_out_notes(list(held.values()), [i + 1 for i in held])]
+    return (["test", "t [s from log start]", "beta nominal", "beta effective", "h", "bias", "frequency [Hz]",
+             f"amplitude [{unit}]", "stable / cycles", "rate [Hz]", *held_head, ""], rows)
+
+
+def _notes(result: AnalysisResult) -> list[str]:
+    """Eq. (2)'s estimate notes; the cascade's assumptions and any other family's notes and advice."""
+    if result.kind == "soiptd":
+        return _estimate_notes(result)
+    body = [f"<p class='muted'>Assumption: {esc(a)}</p>" for a in result.assumptions]
+    body += [f"<p class='muted'>Note: {esc(n)}</p>" for n in result.notes]
+    advice = getattr(result.identification, "advice", "")
+    if advice:
+        body.append(f"<p class='warn'>Not determined: {esc(advice)}</p>")
+    return body
+
+
+def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = (),
+                          progress: Progress | None = None) -> Path:
+    """Write index.html and the PNG figures for one analysis of any family; returns the index path.
+
+    ``links`` are (relative href, title) pairs of pages written beside it (e.g. the diagnosis).
+    ``progress(done, total, stage)`` is called before each figure (units: figures).
+    """
+    out = ensure_dir(out_dir)
+    figures = [f for f in _FIGURES if result.kind == "soiptd" or f[0] not in _EQ2_ONLY]
+    written = []
+    for i, (name, fn, title) in enumerate(figures):
+        report(progress, i, len(figures), name)
+        save_figure(fn(result), out / name)
+        written.append((name, title))
+    T0 = _t0(result)
+    from ..analyze.held_out import held_out_notes
+
+    body = [_header(result, T0), "<h2>Parameters</h2>",
+            html_table(["parameter", "estimate", "std", "95 % interval", "unit"], _parameter_rows(result))]
+    if links:
+        body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
+    body += _notes(result)
+    header, rows = _test_rows(result, T0)
+    body += ["<h2>Tests</h2>", html_table(header, rows)]
+    held = [result.held_out_of(k) for k in range(len(result.tests))]
+    model = "eq. (2)" if result.kind == "soiptd" else f"the {result.model.family} model"
+    body += [f"<p class='muted'>{esc(n)} (held out: each test predicted by {esc(model)} from the other tests)</p>"
+             for n in held_out_notes(held, [t.index + 1 for t in result.tests])]
     if result.warnings:
         body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in result.warnings)
                     + "</ul>")
     for name, title in written:
         body.append(f"<h2>{esc(title)}</h2><img src='{esc(name)}' alt='{esc(title)}'>")
-    body.append("<p class='muted'>The effective beta is the switching level the relay actually achieved, "
-                "measured from the output at the switch instants; identification uses it (see docs/usage-analyze.md).</p>")
+    if result.kind == "soiptd":
+        body.append("<p class='muted'>The effective beta is the switching level the relay actually achieved, "
+                    "measured from the output at the switch instants; identification uses it (see "
+                    "docs/usage-analyze.md).</p>")
     index = out / "index.html"
     write_page(index, html_page(f"MRFT analysis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
     report(progress, len(figures), len(figures), "index.html")

@@ -3,7 +3,8 @@
 * :func:`plot_fit` - per test, the model's output (driven by the recorded relay command) over the
   measured output, and the residual below it with the sensor noise level.
 * :func:`plot_uncertainty` - the Bode plot of the identified plant with its 95 % band, the tests'
-  frequencies marked, and the Td-tau correlation: the posterior draws with their 95 % ellipse.
+  frequencies marked, and eq. (2)'s Td-tau correlation: the posterior draws with their 95 % ellipse
+  (a process family: its measured response points with their standard errors on the Bode plot).
 
 The posterior is the one the analysis keeps: the waveform refinement's Gauss-Newton covariance when the
 values are the refinement's (``AnalysisResult.refinement``), else the bootstrap draws
@@ -61,7 +62,7 @@ def posterior_draws(result: AnalysisResult) -> tuple[np.ndarray, str]:
 def _unit(result: AnalysisResult) -> str:
     from .wording import output_unit
 
-    return output_unit(result.loop)
+    return "output units" if result.kind == "family" else output_unit(result.loop)
 
 
 def plot_fit(result: AnalysisResult) -> Figure:
@@ -69,14 +70,18 @@ def plot_fit(result: AnalysisResult) -> Figure:
     from ..mrft.waveform import predict_tests
 
     flight = result.flight
-    tests = list(result.tests)[:4]
+    tests = list(result.segmented)[:4]
     fig, axes = new_figure(2, max(len(tests), 1), width=min(4.2 * max(len(tests), 1), 14), height=5.2,
                            squeeze=False, sharex="col", gridspec_kw={"height_ratios": [2, 1]})
-    if flight is None or not tests:
-        axes[0, 0].text(0.5, 0.5, "no flight signals in this result", ha="center", transform=axes[0, 0].transAxes)
+    try:
+        if flight is None or not tests:
+            raise InputError("no flight signals in this result")
+        preds = predict_tests(result.model, tests, flight.command.t, flight.command.values, flight.output.t,
+                              flight.output.values)
+    except InputError as err:  # e.g. the cascade: its sampled inner loop has no continuous realisation
+        axes[0, 0].text(0.05, 0.5, f"no prediction: {err}", ha="left", wrap=True, fontsize=8,
+                        transform=axes[0, 0].transAxes)
         return fig
-    preds = predict_tests(result.model, tests, flight.command.t, flight.command.values, flight.output.t,
-                          flight.output.values)
     unit = _unit(result)
     noise = result.refinement.noise_std if result.refinement is not None else float("nan")
     for k, t in enumerate(tests):
@@ -148,18 +153,35 @@ def _ellipse(ax: Axes, result: AnalysisResult, draws: np.ndarray) -> None:
     ax.legend(fontsize=7, loc="best")
 
 
+def _points(ax_m: Axes, ax_p: Axes, result: AnalysisResult, omega: np.ndarray, ph0: np.ndarray) -> None:
+    """A process family's measured response points (each harmonic of each test, 95 % error bars) on the Bode axes."""
+    points = [p for p in getattr(result.identification, "points", ()) if p.harmonic > 0]
+    if not points:
+        return
+    w = np.array([p.omega for p in points])
+    mag = 20 * np.log10([p.gain for p in points])
+    se_db = 20 / math.log(10) * np.array([p.se_log_gain for p in points])
+    ph = np.degrees([p.phase for p in points])
+    # the measured phase on the drawn curve's branch (the model's phase at the same frequency)
+    ph = ph - 360.0 * np.round((ph - np.interp(w, omega, ph0)) / 360.0)
+    se_ph = np.degrees([p.se_phase for p in points])
+    ax_m.errorbar(w, mag, yerr=1.96 * se_db, fmt="o", color="k", ms=3, capsize=2, label="measured points (95 %)")
+    ax_p.errorbar(w, ph, yerr=1.96 * se_ph, fmt="o", color="k", ms=3, capsize=2)
+
+
 def plot_uncertainty(result: AnalysisResult) -> Figure:
     """Bode plot of the identified plant with its 95 % band (tests' frequencies marked) and the Td-tau ellipse."""
-    draws, source = posterior_draws(result)
-    freqs = [2 * math.pi * t.frequency_hz_mean for t in result.tests if math.isfinite(t.frequency_hz_mean)]
+    eq2 = result.kind == "soiptd"
+    draws, source = posterior_draws(result) if eq2 else (np.empty((0, 3)), "none kept")
+    freqs = [2 * math.pi * t.frequency_hz_mean for t in result.segmented if math.isfinite(t.frequency_hz_mean)]
     centre = float(np.median(freqs)) if freqs else 10.0
     omega = np.logspace(math.log10(centre / 30), math.log10(centre * 10), 300)
     mag0, ph0, m_lo, m_hi, p_lo, p_hi = _bode_band(result, draws, omega)
     at = [int(np.argmin(np.abs(omega - w))) for w in freqs]  # the band where the tests measured the plant
     width = (f"; 95 % band at the tests' frequencies: {max(m_hi[at] - m_lo[at]):.2g} dB, "
              f"{max(p_hi[at] - p_lo[at]):.2g} deg wide" if at else "")
-    fig, axes = new_figure(1, 3, width=14, height=4.4)
-    ax_m, ax_p, ax_e = axes
+    fig, axes = new_figure(1, 3 if eq2 else 2, width=14 if eq2 else 10, height=4.4)
+    ax_m, ax_p = axes[:2]
     for ax, nom, lo, hi, lab in ((ax_m, mag0, m_lo, m_hi, f"|G| [dB re 1 {_unit(result)} per command unit]"),
                                  (ax_p, ph0, p_lo, p_hi, "phase [deg]")):
         ax.fill_between(omega, lo, hi, color="C0", alpha=0.25, lw=0, label="95 % band")
@@ -170,8 +192,12 @@ def plot_uncertainty(result: AnalysisResult) -> Figure:
         ax.set_xscale("log")
         ax.set_xlabel("omega [rad/s]")
         ax.set_ylabel(lab)
+    _points(ax_m, ax_p, result, omega, ph0)
     ax_m.legend(fontsize=7, loc="lower left")
-    _ellipse(ax_e, result, draws)
-    fig.suptitle(f"Identified plant G(s) with its uncertainty (posterior: {source}, "
-                 f"{draws.shape[0]} draws{width})", fontsize=10)
+    if eq2:
+        _ellipse(axes[2], result, draws)
+    fig.suptitle(f"Identified plant G(s) with its uncertainty (posterior: {source}, {draws.shape[0]} draws{width})"
+                 if eq2 else f"Identified plant G(s) ({result.model.family})"
+                 + (" and the response points it was fitted to" if result.kind == "family" else ""),
+                 fontsize=10)
     return fig

@@ -22,7 +22,7 @@ from ..jsonable import check_schema_version
 from ..validate import check_positive
 from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop, json_number
 from .identify import TestMeasurement
-from .parameter import ParameterEstimate
+from .parameter import Z95, ParameterEstimate
 from .lprs import LimitCycle
 
 __all__ = ["CascadeIdentification", "CascadeTestFit", "fit_cascade_cycles", "CASCADE_ID_SCHEMA_VERSION", "TD_BOUNDS",
@@ -35,7 +35,6 @@ _INF = math.inf
 CASCADE_ID_SCHEMA_VERSION = 2
 #: the method of the parameters this fit identifies (ParameterEstimate.method)
 _METHOD = "cascade-cycles"
-_Z95 = 1.959964
 #: floor of the standard errors of ln(frequency) and ln(amplitude) of a test (as identify_lti's)
 _SE_FLOOR = 5e-3
 #: floor of the standard error of a test's switch level over its amplitude [-] (about 0.7 ms of tau at 2 rad/s)
@@ -422,13 +421,13 @@ def _estimate(name: str, value: float, std: float, low: float, high: float, omeg
     """
     unit = CASCADE_PARAMETERS[name][0]
     if name == "tau":
-        lo, hi = value - _Z95 * std, value + _Z95 * std
+        lo, hi = value - Z95 * std, value + Z95 * std
         one_sided = "low" if lo < low else ""
-        return ParameterEstimate(value, std, max(lo, low), min(hi, high), unit, 2 * _Z95 * std * omega < 1.0,
+        return ParameterEstimate(value, std, max(lo, low), min(hi, high), unit, 2 * Z95 * std * omega < 1.0,
                                  method=_METHOD, name=name, one_sided=one_sided)
     x = math.exp(value)
-    lo, hi = math.exp(value - _Z95 * std), math.exp(value + _Z95 * std)
-    return ParameterEstimate(x, x * std, lo, hi, unit, 2 * _Z95 * std < 2.0, method=_METHOD, name=name)
+    lo, hi = math.exp(value - Z95 * std), math.exp(value + Z95 * std)
+    return ParameterEstimate(x, x * std, lo, hi, unit, 2 * Z95 * std < 2.0, method=_METHOD, name=name)
 
 
 def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz: float, *, K: float | None = 1.0,

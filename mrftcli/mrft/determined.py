@@ -25,10 +25,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
+from .parameter import Z95
 
 __all__ = ["DeterminedCombination", "determined_combination"]
 
-_Z95 = 1.959964
 #: a combination is determined when its 95 % interval is within this factor (log width 2: e^2)
 _LOG_WIDTH = 2.0
 
@@ -127,7 +127,7 @@ def _best_direction(F: NDArray[np.float64], sel: list[int]) -> tuple[float, NDAr
     rounded = np.round(2 * e) / 2
     var_exact = _variance(S, e)
     var_round = _variance(S, rounded) if np.any(rounded != 0) else math.inf
-    if var_round <= 4 * var_exact or 2 * _Z95 * math.sqrt(var_round) < 0.5 * _LOG_WIDTH:
+    if var_round <= 4 * var_exact or 2 * Z95 * math.sqrt(var_round) < 0.5 * _LOG_WIDTH:
         # halves, as written by hand, where they cost at most a factor 2 in the std or stay within a factor e
         e, var = rounded, var_round
     else:
@@ -185,8 +185,8 @@ def determined_combination(names: Sequence[str], z: NDArray[np.float64], F: NDAr
                 continue
             c0 = float(sum(ei * z[i] for i, ei in zip(sub, found[1].tolist())))
             c_region = [float(sum(ei * zr[i] for i, ei in zip(sub, found[1].tolist()))) for zr in region]
-            a = min([c0 - _Z95 * found[0], *c_region])
-            b = max([c0 + _Z95 * found[0], *c_region])
+            a = min([c0 - Z95 * found[0], *c_region])
+            b = max([c0 + Z95 * found[0], *c_region])
             if b - a < log_width and (best is None or b - a < best[3] - best[4]):
                 best = (found[0], list(sub), found[1], b, a)
         if best is not None:

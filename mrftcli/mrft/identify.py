@@ -47,7 +47,7 @@ from ..validate import check_beta, check_time
 from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel, PlantModel
-from .parameter import ParameterEstimate
+from .parameter import Z95, ParameterEstimate
 from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
 from .ufm import ManifoldSet, load_manifolds
 
@@ -386,7 +386,7 @@ def _estimate(values: FloatArray, point: float, unit: str) -> ParameterEstimate:
 
 
 def _delta_estimate(point: float, std: float, unit: str) -> ParameterEstimate:
-    return ParameterEstimate(point, std, point - 1.959964 * std, point + 1.959964 * std, unit, method="mrft")
+    return ParameterEstimate(point, std, point - Z95 * std, point + Z95 * std, unit, method="mrft")
 
 
 def _check_inputs(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: float | None,

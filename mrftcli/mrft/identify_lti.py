@@ -52,9 +52,9 @@ from scipy.linalg import lapack
 from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
-from .lti_kernel import LagChainKernel
+from .lti_kernel import LagChainKernel, wrap as _wrap
 from .model import PlantModel, model_from_json
-from .parameter import ParameterEstimate
+from .parameter import Z95, ParameterEstimate
 
 __all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
            "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
@@ -63,7 +63,6 @@ __all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCH
 LTI_SCHEMA_VERSION = 2
 #: the method every identified (not given) parameter of this fit records (ParameterEstimate.method)
 _METHOD = "response-points"
-_Z95 = 1.959964
 #: floors of the standard errors (relative gain, phase [rad]): a point measured from few cycles
 #: (or noise-free simulations) must not get an infinite weight, and the cycle-to-cycle scatter misses
 #: the few tenths of a percent a sampled relay's jitter leaves in the mean (bench_families: 0.2 %
@@ -261,10 +260,6 @@ def _clip(x: FloatArray, lo: Any, hi: Any) -> FloatArray:
     return out
 
 
-def _wrap(x: FloatArray, low: float = -math.pi) -> FloatArray:
-    """x modulo 2 pi into [low, low + 2 pi)."""
-    wrapped: FloatArray = np.mod(x - low, 2 * math.pi) + low
-    return wrapped
 
 
 class _Problem:
@@ -730,7 +725,7 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
     for i, name in enumerate(problem.unknown):
         if name in flat:
             continue
-        half = _Z95 * max(math.sqrt(max(cov[i, i], 0.0)), 1e-9 * (1 + abs(z[i])))
+        half = Z95 * max(math.sqrt(max(cov[i, i], 0.0)), 1e-9 * (1 + abs(z[i])))
         slope = cov[:, i] / cov[i, i] if cov[i, i] > 0 else np.eye(z.size)[i]
         ends = []
         for sign in (-1.0, 1.0):
@@ -790,7 +785,7 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         assert z is not None and lo is not None and hi is not None
         s = float(math.sqrt(max(cov[i, i], 0.0)))
         s = max(s, _PARAM_FLOOR / w_ref if name == "tau" else (_PARAM_FLOOR if name in problem.log_scaled else 0.0))
-        a, b = z[i] - _Z95 * s, z[i] + _Z95 * s
+        a, b = z[i] - Z95 * s, z[i] + Z95 * s
         if profiled and i in profiled:  # the profile's ends where they reach further (never narrower)
             a, b = min(a, profiled[i][0]), max(b, profiled[i][1])
         side = "low" if a <= lo[i] else ("high" if b >= hi[i] else "")

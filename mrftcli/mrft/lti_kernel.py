@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from .model import Parameter
 
-__all__ = ["LagChain", "LagChainKernel", "WeightedPoints"]
+__all__ = ["LagChain", "LagChainKernel", "WeightedPoints", "wrap"]
 
 FloatArray = NDArray[np.float64]
 
@@ -63,9 +63,9 @@ class WeightedPoints(Protocol):
     def w_phase(self) -> FloatArray: ...
 
 
-def _wrap(x: FloatArray) -> FloatArray:
-    """x modulo 2 pi into [-pi, pi) (as identify_lti's residuals)."""
-    wrapped: FloatArray = np.mod(x + math.pi, 2 * math.pi) - math.pi
+def wrap(x: FloatArray, low: float = -math.pi) -> FloatArray:
+    """x modulo 2 pi into [low, low + 2 pi) (the phase residuals of the kernel and of the response-point fit)."""
+    wrapped: FloatArray = np.mod(x - low, 2 * math.pi) + low
     return wrapped
 
 
@@ -170,7 +170,7 @@ class LagChainKernel:
             q = 1.0 / (1.0 + x2)
             J[:m, i] = (q - 1.0) * self.weights[:m]  # d ln|G| / d ln T = -x^2 / (1 + x^2)
             J[m:, i] = -x * q * self.weights[m:]  # d arg G / d ln T = -x / (1 + x^2)
-        r: FloatArray = np.concatenate([gain, _wrap(phase)]) * self.weights
+        r: FloatArray = np.concatenate([gain, wrap(phase)]) * self.weights
         return r, J
 
     def lag_grid(self, values: FloatArray, index: NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:

@@ -23,7 +23,10 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS"]
+__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95"]
+
+#: the 95 % point of the normal distribution (a normal interval is value +- Z95 std)
+Z95 = 1.959964
 
 #: The keys of a parameter's JSON object, in their order.
 JSON_KEYS = ("value", "std", "ci95_low", "ci95_high", "unit", "determined", "known", "method")

@@ -12,7 +12,7 @@ from click.core import ParameterSource
 from ..errors import InputError
 from .model_options import build_model, structure_options
 from .analyze import accept_tp_option
-from .options import json_option, log_layout_options, quiet_option, tp_option
+from .options import json_option, log_layout_options, min_cycles_option, quiet_option, tp_option
 
 __all__ = ["batch"]
 
@@ -147,8 +147,7 @@ def _print_rows(df, limit: int) -> None:
               help="Per-log settings (TOML, or YAML for .yaml/.yml) matched by glob; see docs/batch.md.")
 @tp_option("tp", required=False, help="Propulsion time constant Tp [s] (overrides the config).")
 @log_layout_options(config_defaults=True)
-@click.option("--min-cycles", type=click.IntRange(2, None), default=None,
-              help="Fewest stable cycles for a test to be used (default: analyze's, 3).")
+@min_cycles_option(default=None, detail=" (default: analyze's, 3)")
 @accept_tp_option
 @click.option("--diagnose", is_flag=True, help="Also run the model-mismatch diagnosis on each loop.")
 @click.option("--tune", "tune_kind", flag_value="PD", default=None,

@@ -11,25 +11,33 @@ from typing import Any, Callable, Mapping
 
 import click
 
-from ..errors import InputError
-from ..jsonable import load_json_text
-from .options import num
+from .options import num, read_json_file
 
-__all__ = ["cascade_options", "CascadeRequest", "pop_cascade_options", "cascade_setup", "format_cascade"]
+__all__ = ["cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup", "format_cascade"]
 
 _KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
 
 
+def outer_options(needs: str, commands: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--outer-command`` and ``--inner-draws`` of an outer loop identified through its inner loop, as
+    ``analyze`` (with ``--inner-model``) and ``vehicle`` (with ``--inner-gains``) spell them."""
+    def decorate(f: Callable[..., Any]) -> Callable[..., Any]:
+        f = click.option("--inner-draws", "inner_draws", type=click.IntRange(0, 1000), default=30, show_default=True,
+                         metavar="N",
+                         help=f"With {needs}: draws of the inner model solved to carry its uncertainty into "
+                              "the outer estimate (0: take it as exact).")(f)
+        return click.option("--outer-command", "outer_command",
+                            type=click.Choice(["acceleration", "attitude", "identify"]), default="acceleration",
+                            show_default=True,
+                            help=f"With {needs}: what the outer {commands}, an acceleration [m/s^2] (K = 1) or an "
+                                 "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the "
+                                 "output.")(f)
+    return decorate
+
+
 def cascade_options(f: Callable[..., Any]) -> Callable[..., Any]:
     """The click options of the cascade route (``--inner-model``, ``--inner-gains``, ``--outer-command``, ``--inner-draws``)."""
-    f = click.option("--inner-draws", "inner_draws", type=click.IntRange(0, 1000), default=30, show_default=True,
-                     metavar="N",
-                     help="With --inner-model: draws of the inner model solved to carry its uncertainty into "
-                          "the outer estimate (0: take it as exact).")(f)
-    f = click.option("--outer-command", "outer_command", type=click.Choice(["acceleration", "attitude", "identify"]),
-                     default="acceleration", show_default=True,
-                     help="With --inner-model: what the outer relay commands, an acceleration [m/s^2] (K = 1) or an "
-                          "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the output.")(f)
+    f = outer_options("--inner-model", "relay commands")(f)
     f = click.option("--inner-gains", "inner_gains", metavar="GAINS.json", type=click.Path(dir_okay=False),
                      help="With --inner-model: the inner controller flown during the outer tests, "
                           '{"roll": {"Kp", "Ki", "Kd", "Tf", "rate_hz"}} (roll for y, pitch for x); tune '
@@ -72,18 +80,6 @@ def pop_cascade_options(options: dict[str, Any]) -> CascadeRequest:
                           int(values["inner_draws"] if values["inner_draws"] is not None else 30))
 
 
-def _read_json(path: str, option: str) -> Any:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return load_json_text(fh.read(), f"{option} {path}")
-    except OSError as err:
-        raise InputError(f"{option} {path}: cannot read it ({err.strerror or err})") from err
-    except InputError:
-        raise
-    except ValueError as err:
-        raise InputError(f"{option} {path}: not JSON ({err})") from err
-
-
 def _check(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -> str:
     """The inner loop's name; one-line errors naming the option otherwise."""
     from ..mrft.cascade import INNER_LOOP_OF
@@ -113,8 +109,8 @@ def cascade_setup(request: CascadeRequest, loop: str, unsupported: Mapping[str, 
     from ..analyze.record import AnalysisResult
 
     inner_name = _check(request, loop, unsupported)
-    result = AnalysisResult.from_json(_read_json(request.inner_model or "", "--inner-model"))
-    controller = inner_gains_of(_read_json(request.inner_gains or "", "--inner-gains"), inner_name)
+    result = AnalysisResult.from_json(read_json_file(request.inner_model or "", "--inner-model"))
+    controller = inner_gains_of(read_json_file(request.inner_gains or "", "--inner-gains"), inner_name)
     inner = inner_loop_of(result, controller, inner_name)
     return cascade_model(inner, request.outer_command), CascadeOptions(
         draws=tuple(inner_draws(result, inner, request.inner_draws)),

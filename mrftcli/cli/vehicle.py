@@ -12,6 +12,7 @@ import click
 from ..errors import InputError, SegmentationError, TpRejectedError
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
+from .cascade_options import outer_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, num, quiet_option, read_json_file, tp_option, tqdm_progress)
 
@@ -136,13 +137,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
                    "\"Tf\", \"rate_hz\"}} (roll for y, pitch for x; tune --export generic or a vehicle record "
                    "is read too): x and y are identified through the closed inner loop. Without them: eq. (2), "
                    "as the first line says.")
-@click.option("--outer-command", "outer_command", type=click.Choice(["acceleration", "attitude", "identify"]),
-              default="acceleration", show_default=True,
-              help="With --inner-gains: what the outer relays command, an acceleration [m/s^2] (K = 1) or an "
-                   "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the output.")
-@click.option("--inner-draws", "inner_draws", type=click.IntRange(0, 1000), default=30, show_default=True,
-              metavar="N", help="With --inner-gains: draws of the inner model solved to carry its uncertainty into "
-                                "the outer estimate (0: take it as exact).")
+@outer_options("--inner-gains", "relays command")
 @_flight_options
 @min_cycles_option()
 @accept_tp_option

@@ -141,3 +141,13 @@ def test_one_record_reads_every_layout_and_says_its_kind(fopdt_log: Path) -> Non
 
     with pytest.raises(InputError, match="no Td"):
         _ = back.Td
+
+
+def test_a_family_analysis_takes_diagnose_too(fopdt_log: Path, tmp_path: Path) -> None:
+    out = tmp_path / "d.json"
+    proc = run_main("analyze", str(fopdt_log), *TOPICS, "--model", "fopdt", "--diagnose", "--report",
+                    str(tmp_path / "report"), "--json", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    assert data["model"] == "fopdt" and data["diagnosis"]["family"] == "fopdt"
+    assert f"diagnosis: {data['diagnosis']['summary']}" in proc.stdout

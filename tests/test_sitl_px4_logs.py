@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / "scripts" / "sitl"))
 
 sys.path.insert(0, str(ROOT / "scripts" / "sitl" / "px4"))
 
-from px4_campaign import realised_delay  # noqa: E402
+from px4_campaign import bench_tp, realised_delay, sih_implied  # noqa: E402
 from sitl_analysis import analyze_log, held_out  # noqa: E402
 
 from mrftcli.io import read_flight  # noqa: E402
@@ -62,7 +62,7 @@ def test_layout_and_test_windows_from_the_parameter_changes(name: str) -> None:
     assert len(flight.source["test_windows"]) == len(side["tests"])
 
 
-@pytest.mark.parametrize("name", ["px4_altitude", "px4_altitude_h25", "px4_altitude_h25_20ms", "px4_x"])
+@pytest.mark.parametrize("name", ["px4_altitude", "px4_altitude_h25", "px4_altitude_h25_20ms", "px4_x", "px4_y"])
 def test_every_flown_test_is_found_with_its_beta_and_h(name: str) -> None:
     side, res = _flight(name)
     flown = [(t["beta"], t["h"]) for t in side["tests"]]
@@ -218,3 +218,48 @@ def test_held_out_masks_keep_each_tests_parameter_marker() -> None:
         assert not misses and len(held) == n
         for ho in held:  # each from a model of the others, all of them distinct tests
             assert ho.beta == pytest.approx(res.tests[ho.index].beta_nominal)
+
+
+def test_a_bench_test_on_sih_measures_the_motor_lag_of_its_step() -> None:
+    """sih.cpp steps each motor u += dt / SIH_T_TAU (u_sp - u) once per 4 ms step: a step response sampled
+    at SIH's steps is an exponential of 47.97 ms (not 50), from the first step that reads the command."""
+    dt, tau = 0.004, 0.05
+    u, resp = 0.0, []
+    for _ in range(200):  # the recursion itself, as sih.cpp runs it
+        u += dt / tau * (1.0 - u)
+        resp.append(u)
+    k = np.arange(1, 201)
+    slope = np.polyfit(k * dt, np.log(1.0 - np.array(resp)), 1)[0]
+    assert -1.0 / slope == pytest.approx(bench_tp(), rel=1e-9)
+    assert bench_tp() == pytest.approx(0.04797, abs=1e-5)
+
+
+def test_pitch_is_refused_on_ekf2s_attitude_and_identified_on_sihs_at_the_bench_tp() -> None:
+    """mrft_roll.patch's pitch relay (MRFT_P_*), h 0.1-0.3 of torque. On EKF2's attitude (the relay's) eq. (2)
+    is refused at SIH_T_TAU: EKF2 integrates the gyro by trapezoids and leads SIH's attitude (stepped with
+    the previous step's rate) by half a 4 ms step, which leaves the loop 1-2 ms ahead of eq. (2). On SIH's
+    own attitude (logged) at the bench Tp the tests give SIH's constants: Td = SIH_IYY / SIH_KDW = 1 s,
+    K = SIH_L_PITCH SIH_T_MAX 2 sqrt(2) / SIH_IYY = 113.1 rad/s^2, and a delay within 1 ms of 0 (sih.cpp's
+    update order: +0.2 to +0.9 ms at these frequencies); each test's frequency from the others within 5 %."""
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.errors import IdentificationError
+    from mrftcli.mrft.model import soiptd_model
+
+    log = LOGS / "px4_pitch_h.ulg"
+    side = json.loads((LOGS / "px4_pitch_h.ulg.json").read_text())
+    with pytest.raises(IdentificationError, match="negative delay"):
+        analyze_log(log, side["tp_s"], "pitch")
+    flight = read_flight(log, ReadOptions(loop="pitch", output_topic="vehicle_attitude_groundtruth:q"),
+                         echo_warnings=False)
+    assert flight.source["command"] == "vehicle_torque_setpoint:xyz[1]"
+    res = analyze_flight(flight, soiptd_model(bench_tp()), options=AnalyzeOptions(n_bootstrap=20, seed=1,
+                                                                                  refine_waveform=False))
+    assert [t.beta_nominal for t in res.tests] == pytest.approx([t["beta"] for t in side["tests"]], abs=1e-6)
+    sih = sih_implied("pitch")
+    assert res.Td.value == pytest.approx(sih["Td"], rel=0.05)
+    assert res.K.value == pytest.approx(sih["K"], rel=0.02)
+    assert abs(res.tau.value) <= 0.001
+    for k, test in enumerate(res.tests):
+        ho = res.held_out_of(k)
+        assert ho is not None and ho.frequency_hz is not None
+        assert abs(ho.frequency_hz / test.frequency_hz_mean - 1.0) <= 0.05

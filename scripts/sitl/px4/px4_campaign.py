@@ -52,7 +52,20 @@ FLIGHTS = [
     ("px4_altitude_h25_20ms", "altitude", 20.0, [(b, 0.25) for b in _BETAS], 12.0),
     ("px4_x", "x", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
     ("px4_roll", "roll", 0.0, [(b, 0.05) for b in (-0.3, -0.5, -0.7)], 10.0),  # mrft_roll.patch
+    # the rate loops again with each stage of the path logged, at relay heights that keep the cycles well
+    # above EKF2's attitude noise at every beta (roll amplitudes 5.7-12 deg); and y as x
+    ("px4_roll_h", "roll", 0.0, [(-0.3, 0.1), (-0.5, 0.2), (-0.7, 0.3)], 10.0),
+    ("px4_pitch_h", "pitch", 0.0, [(-0.3, 0.1), (-0.5, 0.2), (-0.7, 0.3)], 10.0),
+    ("px4_y", "y", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
 ]
+#: SIH's step [s]: 1 / min(IMU_GYRO_RATEMAX 800, IMU_INTEG_RATE 250) (sih.cpp ``lockstep_loop``)
+SIH_DT = 0.004
+#: SIH's own attitude (ground truth), beside EKF2's, for the rate loops
+TRUTH_ATTITUDE = "vehicle_attitude_groundtruth:q"
+#: the allocator's torque normalisation: SIH's motor combination (-u0 + u1 + u2 - u3) per unit of roll
+#: torque setpoint, 2 sqrt(2) for airframe 10040's rotors at (+-1, +-1) (measured: actuator_outputs_sim /
+#: vehicle_torque_setpoint = 2.83 in px4_roll_h)
+ALLOCATOR_TORQUE = 2 * math.sqrt(2)
 #: (without, with MRFT_DELAY) flight pairs for the delay increment
 PAIRS = [("px4_altitude", "px4_altitude_20ms"), ("px4_altitude_h15", "px4_altitude_h15_20ms"),
          ("px4_altitude_h25", "px4_altitude_h25_20ms")]
@@ -68,12 +81,28 @@ def sih_implied(loop: str, model: dict[str, float] = SIH_MODEL) -> dict[str, flo
     setpoint (THR_MDL_FAC 0: linear), so a unit of thrust accelerates ``4 T_MAX / MASS`` and the drag's
     time constant is ``MASS / KDV``. x and y add the attitude loop's lag, which eq. (2) does not hold.
     """
-    if loop == "roll":  # the angular damper -SIH_KDW w; K rests on the allocator's normalisation (not derived)
-        return {"K": math.nan, "Td": model["SIH_IXX"] / model.get("SIH_KDW", 0.025), "Tp": model["SIH_T_TAU"]}
+    if loop in ("roll", "pitch"):  # damper -SIH_KDW w; torque L T_MAX (motors); pitch = roll in airframe 10040
+        return {"K": model["SIH_L_ROLL"] * model["SIH_T_MAX"] * ALLOCATOR_TORQUE / model["SIH_IXX"],
+                "Td": model["SIH_IXX"] / model.get("SIH_KDW", 0.025), "Tp": model["SIH_T_TAU"]}
     if loop not in ("altitude", "x", "y"):
-        raise ValueError(f"loop must be altitude, x, y or roll, not {loop!r}")
+        raise ValueError(f"loop must be altitude, x, y, roll or pitch, not {loop!r}")
     return {"K": 4 * model["SIH_T_MAX"] / model["SIH_MASS"], "Td": model["SIH_MASS"] / model["SIH_KDV"],
             "Tp": model["SIH_T_TAU"]}
+
+
+def bench_tp(model: dict[str, float] = SIH_MODEL, dt: float = SIH_DT) -> float:
+    """The motor lag [s] a bench test on SIH would measure.
+
+    ``sih.cpp`` (``read_motors``) steps each motor ``u += dt / SIH_T_TAU (u_sp - u)`` once per step, from
+    the step that first reads the command: a command step's response is ``1 - (1 - dt / T_TAU)^k`` at
+    ``t = k dt``, an exponential of time constant ``-dt / ln(1 - dt / T_TAU)``, with no dead time.
+
+    Examples
+    --------
+    >>> round(bench_tp() * 1e3, 2)
+    47.97
+    """
+    return -dt / math.log(1.0 - dt / model["SIH_T_TAU"])
 
 
 def _ulog_rate(log: Path, topic: str = "vehicle_local_position_setpoint") -> float:
@@ -145,6 +174,8 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
             print(f"  {name:18s} REFUSED: {err}")
             results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": 0, "held": [],
                              "held_misses": [(i, str(err)) for i in range(len(side["tests"]))], "refused": str(err)}
+            if loop in ("roll", "pitch"):
+                results[name]["truth"] = rate_loop_truth(log, loop)
             continue
         # the MRFT estimate (refine=False): analyze refuses the waveform refinement on these logs (SIH noise)
         misses: list[tuple[int, str]] = []
@@ -167,6 +198,46 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
     return results
 
 
+def rate_loop_truth(log: Path, loop: str) -> dict[str, Any]:
+    """A roll / pitch flight on SIH's own attitude at the bench Tp (:func:`bench_tp`), and where the lag of
+    its path goes (``rate_path.py``) when the stages are logged; printed, and returned."""
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.model import soiptd_model
+    from rate_path import stage_lags
+
+    tp, implied = bench_tp(), sih_implied(loop)
+    out: dict[str, Any] = {"tp": tp}
+    try:
+        flight = read_flight(log, ReadOptions(loop=loop, output_topic=TRUTH_ATTITUDE))
+        res = analyze_flight(flight, soiptd_model(tp), options=AnalyzeOptions(n_bootstrap=50, seed=0,
+                                                                              refine_waveform=False))
+    except MrftError as err:
+        print(f"      on SIH's attitude at the bench Tp {tp * 1e3:.2f} ms: REFUSED: {err}")
+        return {**out, "refused": str(err)}
+    held = [(t.frequency_hz_mean, h.frequency_hz) for k, t in enumerate(res.tests)
+            if (h := res.held_out_of(k)) is not None and h.frequency_hz]
+    errs = [p / m - 1.0 for m, p in held]
+    out.update(Td=res.Td.value, tau=res.tau.value, K=res.K.value, held=errs, found=len(res.tests))
+    print(f"      on SIH's attitude ({TRUTH_ATTITUDE}) at the bench Tp {tp * 1e3:.2f} ms (sih.cpp's motor step): "
+          f"Td {res.Td.value:.3f} s  tau {res.tau.value * 1e3:.2f} ms  K {res.K.value:.1f}   (SIH: Td "
+          f"{implied['Td']:.3f} s, K {implied['K']:.1f}); analyze's held-out frequencies "
+          + ", ".join(f"{e * 100:+.2f} %" for e in errs))
+    try:
+        rows = stage_lags(log, loop, implied["Tp"], implied["Td"])
+    except KeyError:  # a flight without the stages logged
+        return out
+    for row in rows:
+        lag = row["lag_ms"]
+        print(f"      beta {row['beta']:+.2f} at {row['f_hz']:.2f} Hz, lag beyond eq. (2) at Tp 50 ms, Td 1 s [ms]: "
+              f"allocator {lag['c->m']:+.2f}, SIH's motors and body {lag['m->p_true']:+.2f}, SIH's attitude "
+              f"{lag['p_true->phi_true']:+.2f} (the path to SIH's attitude {lag['c->m'] + lag['m->p_true'] + lag['p_true->phi_true']:+.2f}; "
+              f"sih.cpp's update order: {row['sih_discrete_ms']:+.2f}), EKF2's against SIH's {lag['phi_true->phi_ekf']:+.2f}; "
+              f"the relay's path {lag['c->phi_ekf']:+.2f}")
+    out["stages"] = rows
+    return out
+
+
 def report(results: dict[str, dict[str, Any]]) -> None:
     errs = [abs(h.error) for r in results.values() for h in r["held"]]
     errs += [math.inf for r in results.values() for _ in r["held_misses"]]  # a refusal counts as a miss
@@ -175,6 +246,12 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         print(f"held-out frequency error (a refusal: inf): max {max(errs) * 100:.2f} %, median "
               f"{np.median(errs) * 100:.2f} %, "
               f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
+    truth = [e for r in results.values() for e in r.get("truth", {}).get("held", [])]
+    refused = [k for k, r in results.items() if "refused" in r.get("truth", {})]
+    if truth or refused:
+        print(f"roll / pitch on SIH's attitude at the bench Tp {bench_tp() * 1e3:.2f} ms: held out within 5 %: "
+              f"{sum(abs(e) <= 0.05 for e in truth)}/{len(truth)} (max {max(map(abs, truth), default=0) * 100:.2f} %)"
+              + (f"; refused: {', '.join(refused)}" if refused else ""))
     for a, b in PAIRS:
         if all(k in results and "tau" in results[k] for k in (a, b)):
             inc = results[b]["tau"] - results[a]["tau"]

@@ -16,9 +16,11 @@ The Python API a notebook needs is here (imported lazily, so ``mrft-ident --help
 :func:`diagnose_flight` where the identified model and the recording disagree
                        (:func:`mrftcli.diagnose.diagnose`; the name ``diagnose`` is the subpackage's)
 :func:`predict`        the exact MRFT limit cycle of a model (:func:`mrftcli.mrft.lprs.mrft_limit_cycle`)
-:func:`identify`       Td, tau (and K) from measured tests (:func:`mrftcli.mrft.identify.identify`)
-:class:`TestMeasurement`  one measured test for :func:`identify`
+:func:`identify`       any family's unknown parameters from its tests (:func:`mrftcli.mrft.identify.identify`)
+:class:`TestMeasurement`  one measured MRFT test for :func:`identify` (eq. (2), the cascade)
+:class:`ResponsePoint`  one measured point of G(j omega) for :func:`identify` (the process families)
 :class:`LoopModel`     the paper's model, eq. (2)
+:func:`family_model`   a process family to identify (known parameters, ranges)
 :func:`sample_log`     a sample log installed with the package (for the examples)
 =====================  ==========================================================================
 
@@ -66,6 +68,8 @@ _LAZY = {
     "predict": ("mrftcli.mrft.lprs", "mrft_limit_cycle"),
     "identify": ("mrftcli.mrft.identify", "identify"),
     "TestMeasurement": ("mrftcli.mrft.identify", "TestMeasurement"),
+    "ResponsePoint": ("mrftcli.mrft.identify", "ResponsePoint"),
+    "family_model": ("mrftcli.mrft.families", "family_model"),
     "LoopModel": ("mrftcli.mrft.model", "LoopModel"),
     "soiptd_model": ("mrftcli.mrft.model", "soiptd_model"),
     "sample_log": ("mrftcli.samples", "sample_log"),
@@ -77,7 +81,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load on f
     from .analyze import AnalyzeOptions, analyze_flight, analyze_path
     from .diagnose import diagnose as diagnose_flight
     from .io import ReadOptions, read_flight
-    from .mrft.identify import TestMeasurement, identify
+    from .mrft.families import family_model
+    from .mrft.identify import ResponsePoint, TestMeasurement, identify
     from .mrft.lprs import mrft_limit_cycle as predict
     from .mrft.model import LoopModel
     from .samples import sample_log

@@ -109,6 +109,14 @@ class ResponsePoint:
         a biased relay's mean levels, :data:`STATIC_HARMONIC`), placed at a frequency far below the
         tests' where every self-regulating plant's response is its static gain, its phase carrying
         no figure.
+
+    Examples
+    --------
+    The fundamental of a test at 1 Hz where the plant's gain is 0.5 and its phase -120 deg:
+
+    >>> p = ResponsePoint(2 * math.pi, 0.5, math.radians(-120), se_log_gain=0.01, se_phase=0.01)
+    >>> round(p.to_json()["frequency_hz"], 6), p.harmonic
+    (1.0, 1)
     """
 
     omega: float

@@ -511,10 +511,11 @@ def _notes(result: AnalysisResult) -> list[str]:
 
 
 def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str, str]] = (),
-                          progress: Progress | None = None) -> Path:
+                          progress: Progress | None = None, extra: Sequence[str] = ()) -> Path:
     """Write index.html and the PNG figures for one analysis of any family; returns the index path.
 
-    ``links`` are (relative href, title) pairs of pages written beside it (e.g. the diagnosis).
+    ``links`` are (relative href, title) pairs of pages written beside it (e.g. the diagnosis);
+    ``extra`` HTML blocks placed after the notes (e.g. the vehicle's gains of a cascade).
     ``progress(done, total, stage)`` is called before each figure (units: figures).
     """
     out = ensure_dir(out_dir)
@@ -531,7 +532,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
             html_table(["parameter", "estimate", "std", "95 % interval", "unit"], _parameter_rows(result))]
     if links:
         body.insert(1, "<p>" + " - ".join(f"<a href='{esc(href)}'>{esc(title)}</a>" for href, title in links) + "</p>")
-    body += _notes(result)
+    body += [*_notes(result), *extra]
     header, rows = _test_rows(result, T0)
     body += ["<h2>Tests</h2>", html_table(header, rows)]
     held = [result.held_out_of(k) for k in range(len(result.tests))]

@@ -68,34 +68,14 @@ def _index_body(result: VehicleResult) -> str:
     return "\n".join(body)
 
 
-def _cascade_page(entry: VehicleLoop, folder: Path) -> Path:
-    """An outer loop identified through its closed inner loop: its assumptions, parameters, tests, gains."""
-    a = entry.analysis
-    assert a.kind == "cascade"  # only called for the cascade route
-    est = a.parameters
-    body = [f"<p><a href='../index.html'>The vehicle</a> - the {esc(entry.loop)} loop through the closed "
-            f"{esc(a.model.inner.loop or 'inner')} loop: G(s) = K T<sub>inner</sub>(s) Td e<sup>-tau s</sup> / "
-            "(s (Td s + 1))</p>",
-            "<h2>Assumptions</h2><ul>" + "".join(f"<li>{esc(x)}</li>" for x in a.assumptions) + "</ul>",
-            "<h2>Parameters</h2>",
-            html_table(["parameter", "estimate", "std", "95 % interval", "unit"],
-                       [[k, f"{e.value:.4g}", "known" if e.known else f"{e.std:.2g}",
-                         "" if e.known else f"{e.ci95_low:.4g} - {e.ci95_high:.4g}", e.unit] for k, e in est.items()]),
-            "<h2>Tests</h2>",
-            html_table(["test", "beta nominal", "h", "frequency [Hz]", "amplitude [m]", "stable / cycles"],
-                       [[t.index + 1, "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}", f"{t.h:.4g}",
-                         f"{t.frequency_hz_mean:.4f}", f"{t.amplitude_mean:.4g}", f"{t.n_stable} / {len(t.cycles)}"]
-                        for t in a.tests])]
-    if entry.gains is not None:
-        c = entry.gains.controller
-        body.append(f"<h2>Gains</h2><p>{esc(entry.gains.design)} PD on the exact sampled cascade: Kp {c.Kp:.4g}, "
-                    f"Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz; phase margin "
-                    f"{entry.gains.phase_margin_deg:.1f} deg</p>")
-    if a.warnings:
-        body.append("<h2>Warnings</h2><ul>" + "".join(f"<li class='warn'>{esc(w)}</li>" for w in a.warnings) + "</ul>")
-    index = ensure_dir(folder) / "index.html"
-    write_page(index, html_page(f"MRFT cascade: {Path(a.path).name} ({entry.loop})", "\n".join(body)))
-    return index
+def _gains_paragraph(entry: VehicleLoop) -> list[str]:
+    """A cascade's outer gains (its page is the analysis page; eq. (2)'s gains have a page of their own)."""
+    if entry.gains is None or entry.analysis.kind != "cascade":
+        return []
+    c = entry.gains.controller
+    return [f"<h2>Gains</h2><p>{esc(entry.gains.design)} PD on the exact sampled cascade: Kp {c.Kp:.4g}, "
+            f"Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz; phase margin "
+            f"{entry.gains.phase_margin_deg:.1f} deg</p>"]
 
 
 def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: Progress | None = None) -> Path:
@@ -114,10 +94,7 @@ def write_vehicle_report(result: VehicleResult, out_dir: str | Path, progress: P
         if entry.gains is not None and isinstance(entry.gains.tune.model, LoopModel):  # eq. (2)'s page; a cascade's below
             write_tune_report(entry.gains.tune, out / name / "gains")
             links.append(("gains/index.html", f"Gains of the {name} loop"))
-        if entry.analysis.kind == "soiptd":
-            write_analysis_report(entry.analysis, out / name, links=links)
-        else:
-            _cascade_page(entry, out / name)
+        write_analysis_report(entry.analysis, out / name, links=links, extra=_gains_paragraph(entry))
     report(progress, len(names), len(names), "index.html")
     index = out / "index.html"
     write_page(index, html_page(f"MRFT vehicle: {Path(result.path).name}", _index_body(result)))

@@ -394,7 +394,7 @@ class _FakeDiagnosis:
                             for n in self.effects], "located": []}
 
 
-def _fake_diagnose(flight, model, analysis=None, progress=None):
+def _fake_diagnose(flight, model, analysis=None, progress=None, **options):
     from mrftcli.errors import DiagnoseError
 
     # the analysis' signals and the log's Tp (in eq. (2)'s model object) are passed on, so the log is not read twice

@@ -196,9 +196,9 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
-        if task.model is not None:  # a process plant (batch --model): its analysis record (and its diagnosis)
-            return _process_loop(task, entry, model, read, options)
-        result = refuse_rejected_tp(analyze_path(task.path, model, read=read, options=options), s.accept_tp)
+        result = analyze_path(task.path, model, read=read, options=options)  # the one route, every model
+        if task.model is None:  # eq. (2): a Tp the recording rejects fails the loop unless --accept-tp
+            result = refuse_rejected_tp(result, s.accept_tp)
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,
@@ -211,7 +211,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
         return failed_entry(loop, err)
     if task.diagnose:
-        entry["diagnosis"] = _diagnose_loop(task, result.flight, result)
+        entry["diagnosis"] = _diagnose_loop(task, result, options.min_stable_cycles)
     if task.tune:
         entry["tune"] = _tune_loop(result, task.tune)
     return entry
@@ -230,37 +230,20 @@ def _tune_loop(analysis: AnalysisResult, kind: str) -> dict[str, Any]:
         return {"tune_error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}"}
 
 
-def _process_loop(task: LogTask, entry: dict[str, Any], model: Any, read: Any, options: Any) -> dict[str, Any]:
-    """A loop of ``batch --model``: the process analysis (as :func:`mrftcli.analyze.analyze_path` reads and runs
-    it) and, with ``--diagnose``, the family's diagnosis of the same signals."""
-    import dataclasses
-
-    from ..analyze import analyze_flight
-    from ..io import read_flight
-
-    # a process plant: not a vehicle loop's clock (as analyze_path reads it)
-    flight = read_flight(task.path, dataclasses.replace(read, any_time_scale=True), echo_warnings=False)
-    entry["result"] = analyze_flight(flight, model, options=options).to_json()
-    if task.diagnose:
-        entry["diagnosis"] = _diagnose_loop(task, flight, None, options.min_stable_cycles)
-    return entry
-
-
-def _diagnose_loop(task: LogTask, flight: Any, analysis: AnalysisResult | None, min_stable_cycles: int = 3,
-                   ) -> dict[str, Any]:
-    """Run the diagnosis (:func:`mrftcli.diagnose.diagnose`, which takes every family) on an analysed loop,
-    reusing eq. (2)'s analysis (its signals and segmentation); its failure is recorded but leaves the
+def _diagnose_loop(task: LogTask, analysis: AnalysisResult, min_stable_cycles: int = 3) -> dict[str, Any]:
+    """Run the diagnosis (:func:`mrftcli.diagnose.selection.diagnose`, which takes every family) on an
+    analysed loop, reusing its signals (and eq. (2)'s segmentation); its failure is recorded but leaves the
     analysis ok. The record is ``diagnose --json``'s without its version (DiagnosisResult.to_dict)."""
     try:
         from ..diagnose.selection import diagnose
         from ..mrft.model import soiptd_model
 
-        if task.model is None:  # eq. (2): the model of the log's Tp
-            if flight is None or task.settings.tp is None:  # a fresh analysis has both (Tp was checked)
-                raise InputError("the diagnosis needs the analysis's flight signals and Tp")
-            result = diagnose(flight, soiptd_model(task.settings.tp), analysis=analysis)
-        else:
-            result = diagnose(flight, task.model, min_stable_cycles=min_stable_cycles)
+        tp = task.settings.tp
+        if analysis.flight is None or (task.model is None and tp is None):  # a fresh analysis has both
+            raise InputError("the diagnosis needs the analysis's flight signals and Tp")
+        model = task.model if task.model is not None else soiptd_model(float(tp))  # type: ignore[arg-type]
+        result = diagnose(analysis.flight, model, analysis=analysis if task.model is None else None,
+                          min_stable_cycles=min_stable_cycles)
         return {"status": STATUS_OK, "error": None, **result.to_dict()}
     except Exception as err:  # noqa: BLE001
         known = isinstance(err, MrftError)

@@ -67,21 +67,15 @@ def _unit(result: AnalysisResult) -> str:
 
 def plot_fit(result: AnalysisResult) -> Figure:
     """Per test (up to four): measured and model output [output units] and their residual against time [s]."""
-    from ..mrft.waveform import predict_tests
+    from ..analyze.overlay import test_predictions
 
-    flight = result.flight
     tests = list(result.segmented)[:4]
     fig, axes = new_figure(2, max(len(tests), 1), width=min(4.2 * max(len(tests), 1), 14), height=5.2,
                            squeeze=False, sharex="col", gridspec_kw={"height_ratios": [2, 1]})
-    try:
-        if flight is None or not tests:
-            raise InputError("no flight signals in this result")
-        preds = predict_tests(result.model, tests, flight.command.t, flight.command.values, flight.output.t,
-                              flight.output.values)
-    except InputError as err:  # e.g. the cascade: its sampled inner loop has no continuous realisation
-        axes[0, 0].text(0.05, 0.5, f"no prediction: {err}", ha="left", wrap=True, fontsize=8,
-                        transform=axes[0, 0].transAxes)
+    if result.flight is None or not tests:
+        axes[0, 0].text(0.5, 0.5, "no flight signals in this result", ha="center", transform=axes[0, 0].transAxes)
         return fig
+    preds = test_predictions(result)
     unit = _unit(result)
     noise = result.refinement.noise_std if result.refinement is not None else float("nan")
     for k, t in enumerate(tests):

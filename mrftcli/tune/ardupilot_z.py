@@ -57,7 +57,7 @@ import numpy as np
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, PlantStack, RateFilter, plants_of_parameters
-from .margins import Margins, margin_grid
+from .margins import Margins, margin_grid, sensitivity_peaks
 from .stack_params import param
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
@@ -305,26 +305,10 @@ def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Seque
     for i, xi, v in zip(rows, x, Lx):
         if v.real < 0 and abs(math.log(1.0 / abs(v))) < abs(math.log(gm[i])):
             gm[i], wpc[i] = 1.0 / abs(v), math.exp(xi)
-    Ms = _sensitivity_peaks(at, L, lw)
+    Ms = sensitivity_peaks(at, L, lw, 30)
     out = tuple(Margins(float(gm[i]), float(pm[i]), float(dm[i]), float(Ms[i]) if stable[i] else math.inf,
                         float(wgc[i]), float(wpc[i]), bool(stable[i])) for i in range(M))
     return ZCascadeFigures(out, tuple(splits))
-
-
-def _sensitivity_peaks(at: Callable[[np.ndarray, np.ndarray], np.ndarray], L: np.ndarray,
-                       lw: np.ndarray) -> np.ndarray:
-    """max |1 / (1 + L)| per row: the grid's peak refined by golden section between its neighbours."""
-    dist = np.abs(1.0 + L)
-    k = np.argmin(dist, axis=-1)
-    rows = np.arange(L.shape[0])
-    a, b = lw[np.maximum(k - 1, 0)], lw[np.minimum(k + 1, lw.size - 1)]
-    phi = (math.sqrt(5.0) - 1.0) / 2.0
-    for _ in range(30):
-        c, d = b - phi * (b - a), a + phi * (b - a)
-        left = np.abs(1.0 + at(rows, c)) < np.abs(1.0 + at(rows, d))
-        a, b = np.where(left, a, c), np.where(left, d, b)
-    best = np.minimum(dist[rows, k], np.abs(1.0 + at(rows, 0.5 * (a + b))))
-    return np.asarray(1.0 / best, float)
 
 
 @dataclass(frozen=True)

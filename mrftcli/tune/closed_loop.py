@@ -37,10 +37,11 @@ from scipy.linalg import expm
 from ..errors import InputError
 from ..mrft.cascade import DiscreteStateSpace
 from ..mrft.controller import Controller, RateFilter
-from ..mrft.model import LoopModel
+from ..mrft.matexp import phi_gamma_small
+from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
+__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "held_delay", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
            "responses", "outputs", "step_metrics", "criterion", "simulate_step", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
@@ -136,7 +137,7 @@ def discrete_plants(models, rate_hz: float) -> list[DiscretePlant]:
     Eq. (2)'s state matrix is triangular with the eigenvalues 0, -1/Td, -1/Tp and known
     eigenvectors, so e^{A t} = V e^{Lambda t} V^-1 and int_0^t e^{A s} ds B = V diag(t phi1(lambda t))
     V^-1 B in closed form (phi1(z) = (e^z - 1) / z). A model whose 1/Td is within 1 % of 1/Tp (the
-    modal form loses accuracy as they meet) goes through :func:`scipy.linalg.expm` instead. The
+    modal form loses accuracy as they meet) goes through matrix exponentials instead (:func:`held_delay`). The
     closed form is also what keeps ``tune`` fast: a 4 x 4 expm costs 0.04-3 ms depending on BLAS
     threading, and the posterior needs hundreds.
     """
@@ -191,22 +192,26 @@ def plants_of_parameters(Tp: np.ndarray, Td: np.ndarray, tau: np.ndarray, K: np.
         if modal[i]:
             out.append(DiscretePlant(Phi[i], np.stack([Gamma_a[i], Gamma_b[i]]), C, int(d[i]), float(rate_hz)))
         else:
-            out.append(_discrete_plant_expm(LoopModel(float(Tp[i]), float(Td[i]), float(tau[i]), float(K[i])), rate_hz))
+            out.append(held_delay(LoopModel(float(Tp[i]), float(Td[i]), float(tau[i]), float(K[i])), rate_hz))
     return out
 
 
-def _discrete_plant_expm(model: LoopModel, rate_hz: float) -> DiscretePlant:
-    """:func:`discrete_plant` by matrix exponentials (any Tp, Td; the modal form's fallback and check)."""
+def held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
+    """The modified z-transform of any plant's realisation (:class:`DiscretePlant`): over a tick the plant sees
+    u_{k-d-1} for eps seconds, then u_{k-d} (by matrix exponentials; eq. (2)'s closed form: :func:`discrete_plants`)."""
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
+    ss = model.realisation()
+    if abs(ss.D) > 0:
+        raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
+                         "tune designs for strictly proper plants")
+    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
     T = 1.0 / rate_hz
-    A, B, C = model.state_space()
-    d = int(math.floor(model.tau / T + 1e-12))
-    eps = max(model.tau - d * T, 0.0)
-    Phi, _ = _zoh_integrals(A, B, T)
-    E1, G_eps = _zoh_integrals(A, B, eps)
-    E2, G_rest = _zoh_integrals(A, B, T - eps)
-    Gamma_a = E2 @ G_eps
-    Gamma_b = G_rest
-    return DiscretePlant(Phi, np.stack([Gamma_a, Gamma_b]), C, d, float(rate_hz))
+    d = int(math.floor(model.delay / T + 1e-12))
+    eps = max(model.delay - d * T, 0.0)
+    Phi, _ = phi_gamma_small(A, B, T)
+    rest, G_new = phi_gamma_small(A, B, T - eps)
+    return DiscretePlant(Phi, np.stack([rest @ phi_gamma_small(A, B, eps)[1], G_new]), C, d, rate_hz)
 
 
 def as_discrete(models, rate_hz: float) -> list[DiscretePlant]:

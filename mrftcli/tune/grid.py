@@ -47,9 +47,9 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..mrft.cascade import CascadeModel, DiscreteStateSpace
-from ..mrft.matexp import phi_gamma_small
 from ..mrft.model import PlantModel
-from .closed_loop import Controller, DiscretePlant, StepMetrics, augmented, closed_loop_matrix, step_outputs
+from .closed_loop import (Controller, DiscretePlant, StepMetrics, augmented, closed_loop_matrix, held_delay,
+                          step_outputs)
 from .design import FILTER_N, Design, DesignOptions, TuneResult
 from .margins import Margins
 
@@ -81,23 +81,6 @@ FloatArray = NDArray[np.float64]
 # ----------------------------------------------------------------------------------------------
 # the exact discrete plant
 # ----------------------------------------------------------------------------------------------
-def _held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
-    """The modified z-transform of the realisation: over a tick the plant sees u_{k-d-1} for eps seconds, then u_{k-d}."""
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
-    ss = model.realisation()
-    if abs(ss.D) > 0:
-        raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
-                         "tune designs for strictly proper plants")
-    A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
-    T = 1.0 / rate_hz
-    d = int(math.floor(model.delay / T + 1e-12))
-    eps = max(model.delay - d * T, 0.0)
-    Phi, _ = phi_gamma_small(A, B, T)
-    rest, G_new = phi_gamma_small(A, B, T - eps)
-    return DiscretePlant(Phi, np.stack([rest @ phi_gamma_small(A, B, eps)[1], G_new]), C, d, rate_hz)
-
-
 def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
     """The exact ZOH equivalent of ``model`` with its delay at ``rate_hz`` [Hz].
 
@@ -110,14 +93,14 @@ def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
     InputError
         A plant with direct feedthrough (D != 0: not a relay-test plant), or a bad rate.
     """
-    return augmented(_held_delay(model, rate_hz))
+    return augmented(held_delay(model, rate_hz))
 
 
 def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[np.complex128]:
     """G_d(e^{j omega T}) of :func:`discretise` [output / command], ``omega`` in rad/s, without the delay
     buffer's states: C (zI - Phi)^-1 (G_new + G_old / z) z^-d (fast on long delays)."""
     w = np.atleast_1d(np.asarray(omega, float))
-    return _response_at(_held_delay(model, rate_hz), np.exp(1j * w / rate_hz)).reshape(np.shape(omega))
+    return _response_at(held_delay(model, rate_hz), np.exp(1j * w / rate_hz)).reshape(np.shape(omega))
 
 
 def _response_at(h: DiscretePlant, z: NDArray[np.complex128]) -> NDArray[np.complex128]:
@@ -465,7 +448,7 @@ def _family_plants(rate_hz: float, sign: float, w_low: float) -> Callable[[Seque
         ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
         grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
         Gd, fine = (np.array([sign * discrete_response(m, rate_hz, w) for m in models]) for w in grids)
-        held = [_held_delay(m, rate_hz) for m in models]
+        held = [held_delay(m, rate_hz) for m in models]
         contour = _stability_contour(max(h.d for h in held))
         on_contour = np.array([sign * _response_at(h, contour) for h in held])
         unstable = np.array([int(np.sum(np.abs(np.linalg.eigvals(h.Phi)) > 1.0 + _CONTOUR_MARGIN)) for h in held])

@@ -32,9 +32,9 @@ import numpy as np
 from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
-from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, discrete_plant, plants_of_parameters
+from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plant, plants_of_parameters
 
-__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins",
+__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "sensitivity_peaks",
            "frequency_grid", "margin_grid", "plant_response"]
 
 
@@ -123,27 +123,12 @@ _MARGIN_FIELDS = ("gain_margin", "phase_margin_deg", "delay_margin_s", "Ms", "w_
 def plant_system(model: LoopModel, rate_hz: float):
     """Gd as a discrete python-control state space (input u_k, output y_k, time step 1/rate_hz).
 
-    States: the plant's three, then the commands still in flight u_{k-1} ... u_{k-d-1}.
+    States: the plant's three, then the commands still in flight u_{k-1} ... u_{k-d-1} (:func:`augmented`).
     """
     import control
 
-    Phi, Gam, C, d = discrete_plant(model, rate_hz)
-    nb = d + 1
-    n = 3 + nb
-    A = np.zeros((n, n))
-    B = np.zeros((n, 1))
-    A[:3, :3] = Phi
-    A[:3, 3 + d] += Gam[0]
-    if d == 0:
-        B[:3, 0] += Gam[1]
-    else:
-        A[:3, 3 + d - 1] += Gam[1]
-    B[3, 0] = 1.0
-    for j in range(1, nb):
-        A[3 + j, 3 + j - 1] = 1.0
-    Cm = np.zeros((1, n))
-    Cm[0, :3] = C
-    return control.ss(A, B, Cm, np.zeros((1, 1)), 1.0 / rate_hz)
+    ss = augmented(discrete_plant(model, rate_hz))
+    return control.ss(ss.Phi, ss.Gamma[:, None], ss.C[None, :], np.zeros((1, 1)), 1.0 / rate_hz)
 
 
 def frequency_grid(rate_hz: float, n: int = 600) -> np.ndarray:
@@ -316,7 +301,7 @@ def loop_margins(controller: Controller, models: Sequence[LoopModel],
     stable = _nyquist_stable(controller, L)
     pm, wgc, cand = _phase_margins(loop, L, lw, M)
     gm, wpc = _gain_margins(loop, L, lw, M)
-    Ms = _sensitivity_peaks(loop, L, lw)
+    Ms = sensitivity_peaks(lambda rows, x: loop.at(rows, x, stack), L, lw)
     dm = _delay_margins(loop, models, cand, stable, M)
     Ms = np.where(stable, Ms, np.inf)
     return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
@@ -350,15 +335,16 @@ def _gain_margins(loop: _Loop, L: np.ndarray, lw: np.ndarray, M: int):
     return np.where(has, gm_all[pick], np.inf), np.where(has, np.exp(x[pick]), np.nan)
 
 
-def _sensitivity_peaks(loop: _Loop, L: np.ndarray, lw: np.ndarray) -> np.ndarray:
-    """max |1 / (1 + L)|: the grid's peak refined between its neighbours by golden section."""
+def sensitivity_peaks(at: Callable[[np.ndarray, np.ndarray], np.ndarray], L: np.ndarray, lw: np.ndarray,
+                      n: int = 40) -> np.ndarray:
+    """max |1 / (1 + L)| per row of ``L`` (on the log frequencies ``lw``): the grid's peak refined between its
+    neighbours by golden section (``n`` steps) on ``at(rows, log w)``, the loop's exact response."""
     dist = np.abs(1.0 + L)
     k = np.argmin(dist, axis=-1)
     rows = np.arange(L.shape[0])
     lo, hi = lw[np.maximum(k - 1, 0)], lw[np.minimum(k + 1, lw.size - 1)]
-    stack = loop.stack
-    x = _golden_min(lambda x: np.abs(1.0 + loop.at(rows, x, stack)), lo, hi)
-    return 1.0 / np.minimum(dist[rows, k], np.abs(1.0 + loop.at(rows, x, stack)))
+    x = _golden_min(lambda x: np.abs(1.0 + at(rows, x)), lo, hi, n)
+    return np.asarray(1.0 / np.minimum(dist[rows, k], np.abs(1.0 + at(rows, x))), float)
 
 
 def _delay_margins(loop: _Loop, models: Sequence[LoopModel], cand, stable: np.ndarray, M: int) -> np.ndarray:

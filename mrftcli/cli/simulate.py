@@ -72,16 +72,22 @@ def parse_effect(text: str) -> tuple[str, float]:
 
 
 def _check_log_target(out: Path, fmt: str) -> None:
-    """``--out`` is this tool's to replace (:func:`mrftcli.sim.sidecar.check_log_target`), before the work."""
+    """``--out``'s folder exists and the log is this tool's to replace (:func:`mrftcli.sim.sidecar.check_log_target`),
+    before the work."""
     from ..sim.sidecar import check_log_target
 
+    if out.parent and not out.parent.exists():
+        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     check_log_target(out, fmt)
 
 
 def _format_of(path: Path, fmt: str | None) -> str:
+    """``--format`` checked, else the format of the log's name."""
     from ..io import FORMATS, format_from_name
 
     if fmt is not None:
+        if fmt not in FORMATS:
+            raise InputError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
         return fmt
     guessed = format_from_name(path)
     if guessed is None:
@@ -138,8 +144,9 @@ class CascadeOptions:
     fmt: str | None
 
 
-def _cascade_tests(texts: tuple[str, ...], plan):
-    """The tests of one loop, H and DURATION planned by ``plan(beta)`` (the describing function) where not given."""
+def _tests(texts: tuple[str, ...], plan):
+    """The ``--test`` (``--inner-test``) specs of one loop, H and DURATION planned by ``plan(beta)`` (the describing
+    function) where not given."""
     from ..sim.flight import TestSpec
 
     specs = []
@@ -161,10 +168,6 @@ def _cascade_layout(opts: CascadeOptions, out: Path) -> tuple[str, str]:
             raise InputError(f"--out {out.name}: the HEAR layout is a ROS 1 bag; name the log *.bag "
                              "(or use --layout reference)")
         return layout, "bag"
-    from ..io import FORMATS
-
-    if opts.fmt is not None and opts.fmt not in FORMATS:
-        raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
     return layout, _format_of(out, opts.fmt)
 
 
@@ -183,8 +186,6 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     if not (opts.inner_tests or opts.outer_tests):
         raise click.UsageError("--cascade needs at least one --inner-test or --test")
     layout, fmt = _cascade_layout(opts, out)
-    if out.parent and not out.parent.exists():
-        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     _check_log_target(out, fmt)
     inner_loop = CASCADE_AXES[opts.axis]
     assert i.Tp is not None and i.Td is not None and i.tau is not None and i.K is not None  # _required above
@@ -210,9 +211,9 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     amp_in = math.radians(5.0) if opts.amplitude[0] is None else opts.amplitude[0]
     amp_out = 0.1 if opts.amplitude[1] is None else opts.amplitude[1]
     spec = CascadeSpec(inner=inner, gains=gains, Td=opts.Td, tau=opts.tau, axis=opts.axis, commanded=opts.commanded,
-                       inner_tests=_cascade_tests(opts.inner_tests,
+                       inner_tests=_tests(opts.inner_tests,
                                                   lambda b: plan_test(inner, b, amp_in, rate_hz=gains.rate_hz)),
-                       outer_tests=_cascade_tests(opts.outer_tests,
+                       outer_tests=_tests(opts.outer_tests,
                                                   lambda b: plan_outer_test(plant, gains, conv, b, amp_out)),
                        attitude_noise_std=opts.noise[0], position_noise_std=opts.noise[1],
                        hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1], seed=opts.seed,
@@ -472,30 +473,18 @@ class LoopOptions:
 
 def _loop_spec(opts: LoopOptions, out: Path):
     """The checked :class:`FlightSpec` and the log format (every option checked before planning)."""
-    from ..io import FORMATS
     from ..mrft.model import LoopModel
-    from ..sim.flight import Effects, FlightSpec, TestSpec, default_noise_std, noise_margin, plan_test
+    from ..sim.flight import Effects, FlightSpec, default_noise_std, noise_margin, plan_test
 
     model, rate = opts.model, opts.rate_hz
     trimmed = isinstance(model, LoopModel)  # eq. (2): the loop's defaults; another family: 1 % of the amplitude
-    if opts.fmt is not None and opts.fmt not in FORMATS:
-        raise InputError(f"unknown --format {opts.fmt!r}; choose one of {', '.join(FORMATS)}")
     fmt = _format_of(out, opts.fmt)
     check_positive("--controller-rate (a frequency in Hz)", rate)
-    if out.parent and not out.parent.exists():
-        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     _check_log_target(out, fmt)
     effect_values = dict(parse_effect(text) for text in opts.effects)  # every option checked before planning
     amplitude = ((_DEFAULT_AMPLITUDE[opts.loop] if trimmed else 0.05) if opts.amplitude is None
                  else check_positive("--amplitude", opts.amplitude))
-    specs = []
-    for text in opts.tests:
-        beta, h, duration = parse_test(text)
-        if h is None or duration is None:
-            planned = plan_test(model, beta, amplitude, rate_hz=rate)
-            h = planned.h if h is None else h
-            duration = planned.duration if duration is None else duration
-        specs.append(TestSpec(beta=beta, h=h, duration=duration))
+    specs = _tests(opts.tests, lambda beta: plan_test(model, beta, amplitude, rate_hz=rate))
     noise = opts.noise if opts.noise is not None or trimmed else 0.01 * amplitude
     noise_std = default_noise_std(opts.loop) if noise is None else noise
     for i, test in enumerate(specs, 1):

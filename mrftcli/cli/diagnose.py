@@ -204,16 +204,10 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
     model = soiptd_model(Tp)
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         flight = read_flight(log, ReadOptions(**read_options), progress=progress)
-    given: AnalysisResult | None = None
-    if min_cycles != 3:
-        from ..analyze import AnalyzeOptions
-        from ..analyze import analyze_flight as analyze_given
-
-        # the diagnosis reuses an analysis made with the user's cycle count (its own default is analyze's, 3)
-        given = analyze_given(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles))
+    analysis = _analysis(flight, model, min_cycles)
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
-        result = run(flight, model, analysis=given, progress=progress)
-    result, analysis = _with_analysis(result, flight, model, given)
+        result = run(flight, model, analysis=analysis, progress=progress)
+    result = _with_analysis(result, analysis)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_json(), json_target)
@@ -230,25 +224,33 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         click.echo(f"report: {index}", err=to_stdout)
 
 
-def _with_analysis(result: DiagnosisResult, flight: FlightLog, model: LoopModel,
-                   given: AnalysisResult | None) -> tuple[DiagnosisResult, AnalysisResult | None]:
-    """The diagnosis with analyze's model of the same log (about 1 s; the one the user was given
-    with --min-cycles) and the recommendation made again with it, for the terminal and the JSON alike;
-    and that analysis (None when analyze refuses the log)."""
-    from dataclasses import replace
-
-    from ..analyze import analyze_flight
-    from ..diagnose.identification import with_analysis
-    from ..diagnose.selection import deterministic
+def _analysis(flight: FlightLog, model: LoopModel, min_cycles: int) -> AnalysisResult | None:
+    """analyze's record of the log, made once: the diagnosis reuses its segmentation (issue 39) and reports
+    its model beside its own fits. With ``--min-cycles`` analyze's refusal is the command's (the user's
+    cycle count); with the default None when analyze refuses (the diagnosis then fits the cycles itself)."""
+    from ..analyze import AnalyzeOptions, analyze_flight
     from ..errors import MrftError
 
+    if min_cycles != 3:
+        return analyze_flight(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles))
     try:
-        analysis = given or analyze_flight(flight, model)
+        return analyze_flight(flight, model)
     except MrftError:
-        return result, None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
+        return None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
+
+
+def _with_analysis(result: DiagnosisResult, analysis: AnalysisResult | None) -> DiagnosisResult:
+    """The diagnosis with analyze's model of the same log and the recommendation made again with it, for
+    the terminal and the JSON alike (as it was without ``analysis``: analyze refused the log)."""
+    from dataclasses import replace
+
+    from ..diagnose.identification import with_analysis
+    from ..diagnose.selection import deterministic
+
+    if analysis is None:
+        return result
     assert result.identification is not None  # eq. (2)'s strategy fills it
-    return (replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects))),
-            analysis)
+    return replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects)))
 
 
 def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...], min_cycles: int,

@@ -10,7 +10,7 @@ Stages, each returning a frozen record:
    not apply to the cascade);
 3. the measurements (:func:`outer_levels`): each test's frequencies and amplitudes, and its output
    at the relay's switches (which places the fractional delay between ticks, and needs no beta);
-4. identification (:func:`mrftcli.mrft.cascade_identify.identify_cascade`) through the exact sampled
+4. identification (:func:`mrftcli.mrft.identify.identify`, the cascade's strategy) through the exact sampled
    orbits of the cascade.
 
 The result is the one analysis record (:class:`~mrftcli.analyze.record.AnalysisResult`, kind
@@ -30,8 +30,8 @@ from ..errors import InputError, SegmentationError
 from ..io.logtypes import FlightLog
 from ..mrft.cascade import G, CascadeModel, InnerLoop
 from ..mrft.controller import Controller
-from ..mrft.cascade_identify import CascadeIdentification, identify_cascade
-from ..mrft.identify import TestMeasurement
+from ..mrft.cascade_identify import CascadeIdentification
+from ..mrft.identify import TestMeasurement, identify
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
@@ -185,8 +185,8 @@ def cascade_model(inner: InnerLoop, commanded: str = "acceleration") -> CascadeM
     """The cascade to identify: ``inner`` closed, K known from what the outer relay commands (set E).
 
     ``commanded`` is ``"acceleration"`` (K = 1), ``"attitude"`` (K = g) or ``"identify"`` (K unknown);
-    Td and tau get placeholders that identification ignores; their set I is :data:`TD_BOUNDS`,
-    :data:`TAU_BOUNDS` unless the model's ``ranges`` narrow them.
+    Td and tau get placeholders that identification ignores; their set I is
+    :data:`~mrftcli.mrft.cascade_identify.TD_BOUNDS`, :data:`~mrftcli.mrft.cascade_identify.TAU_BOUNDS` unless the model's ``ranges`` narrow them.
 
     Raises
     ------
@@ -198,10 +198,6 @@ def cascade_model(inner: InnerLoop, commanded: str = "acceleration") -> CascadeM
     K = OUTER_COMMANDS[commanded]
     return CascadeModel(inner, 1.0, 0.0, 1.0 if K is None else K,
                         known=frozenset() if K is None else frozenset({"K"}))
-
-
-#: the outer Td [s] and tau [s] searched (the set I when the model's ``ranges`` do not narrow it)
-TD_BOUNDS, TAU_BOUNDS = (0.05, 50.0), (0.0, 0.5)
 
 
 def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOptions) -> CascadeAnalysis:
@@ -229,7 +225,6 @@ def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOpti
         The outer rate does not divide the inner controller's rate.
     """
     c, inner = options.cascade, model.inner
-    bounds = {name: (lo, hi) for name, lo, hi in model.ranges}
     t0 = log_start(flight)
     found = segment(flight, controller_rate_hz=flight.timing.controller_rate_hz)
     screened = screen_outer(found, options.min_stable_cycles)
@@ -242,10 +237,8 @@ def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOpti
         raise InputError("the outer loop's controller rate is unknown: give --controller-rate HZ")
     rate = _snap_rate(rate, inner.controller.rate_hz)
     jitter = float(flight.timing.timing_jitter_s or 0.0) if flight.timing.stamps == "receive" else 0.0
-    ident = identify_cascade(inner, [_measurement(t) for t in screened.usable], rate,
-                             K=model.K if "K" in model.known else None, Td_bounds=bounds.get("Td", TD_BOUNDS),
-                             tau_bounds=bounds.get("tau", TAU_BOUNDS), inner_draws=c.draws,
-                             switch_levels=outer_levels(screened.usable, rate), tau_timing_std=jitter)
+    ident = identify([_measurement(t) for t in screened.usable], model, rate_hz=rate, inner_draws=c.draws,
+                     switch_levels=outer_levels(screened.usable, rate), tau_timing_std=jitter)
     stated = list(c.assumptions) + _assumptions(model, c, rate, ident)
     if jitter >= 1e-4:
         stated.append(f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded into "
@@ -306,3 +299,4 @@ def _fit_warnings(ident: CascadeIdentification) -> list[str]:
             out.append(f"{name} is not determined by these tests (95 % interval {e.ci95_low:.4g}-{e.ci95_high:.4g} "
                        f"{e.unit}): add a test at another beta")
     return out
+

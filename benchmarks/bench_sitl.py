@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts" / "sitl"))
 
 from sitl import Sitl, fly_mrft, load_params, read_param_file  # noqa: E402
-from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
+from sitl_analysis import analyze_log, held_out, matched_betas, tau_needed, test_lines  # noqa: E402
 from sitl_physics import implied_model  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
@@ -45,6 +45,8 @@ from mrftcli.errors import MrftError  # noqa: E402
 TICK_MS = 11.66
 #: the built tree (upstream master of 2025-07-21, 4.7.0-dev) still has ArduPilot 4.6's parameter names
 STACK_VERSION = "4.6"
+#: the tests of a flight whose betas are solved at fly time for the previous plain flight's frequencies
+MATCHED: list[tuple[float, float]] = []
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s], start threshold); h in throttle
 #: (altitude) or mixer (roll, pitch) units, chosen for a few cm / under a degree to a few degrees of
 #: oscillation; the start threshold (2 cm, 0.3 deg) kicks each test near its amplitude instead of growing
@@ -60,6 +62,12 @@ FLIGHTS = [
     ("roll_20ms", "roll", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 6.0, 0.005),
     ("pitch", "pitch", 0.0, [(-0.2, 0.02), (-0.4, 0.02), (-0.6, 0.03)], 6.0, 0.005),
     ("pitch_20ms", "pitch", 20.0, [(-0.2, 0.01), (-0.4, 0.01), (-0.6, 0.015)], 6.0, 0.005),
+    # the +20 ms increment at matched frequencies: EKF3's altitude leads SITL's by a phase that depends on the
+    # frequency (docs/benchmarks/sitl.md), so the delayed flight's betas are solved (``matched_betas``) for the
+    # plain flight's measured frequencies; the plain betas are low so that the delayed ones stay under |0.6|
+    # (at -0.65 and -0.81 with 20 ms the relay never saw its error turn and the vehicle climbed away)
+    ("altitude_mf", "altitude", 0.0, [(-0.2, 0.05), (-0.25, 0.05), (-0.3, 0.05)], 12.0, 0.02),
+    ("altitude_mf_20ms", "altitude", 20.0, MATCHED, 12.0, 0.02),
 ]
 
 
@@ -72,11 +80,17 @@ def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
         if out.exists():
             print(f"  {name}: {out} exists, not re-flown")
             continue
+        extra_side: dict[str, str] = {}
+        if tests is MATCHED:
+            tests = matched_betas(logs / "altitude.BIN", logs / "altitude_mf.BIN", delay * 1e-3)
+            print(f"  {name}: betas solved for altitude_mf's frequencies: {tests}")
+            extra_side = {"betas_matched_to": "altitude_mf's measured frequencies (altitude's identified model "
+                                              "with the delay added: bench_sitl.py, sitl_analysis.matched_betas)"}
         t0 = time.monotonic()
         info = fly_mrft(ap, Path(f"/tmp/mrft_sitl_{name}"), loop, tests, delay, duration, speedup, eth=eth,
                         tick_ms=TICK_MS)
         shutil.copy(info.pop("log"), out)
-        Path(f"{out}.json").write_text(json.dumps(info, indent=2) + "\n")
+        Path(f"{out}.json").write_text(json.dumps({**info, **extra_side}, indent=2) + "\n")
         print(f"  {name}: flown in {time.monotonic() - t0:.0f} s wall, {out.stat().st_size / 1e6:.2f} MB")
 
 
@@ -98,11 +112,11 @@ def analyse(logs: Path) -> dict[str, dict]:
         held = held_out(log, tp, loop, res, misses=misses) if len(res.tests) >= 3 else []
         hover = hover_of_log(log, side)
         implied = implied_model(loop, hover)
-        results[name] = {"loop": loop, "delay": delay, "flown": len(tests), "found": len(res.tests),
+        results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": len(res.tests),
                          "Td": res.Td.value, "tau": res.tau.value, "K": res.K.value, "tp": tp, "implied": implied,
                          "held": held, "misses": misses, "tests": res.tests, "log": log, "hover": hover,
                          "tau_ci": (res.tau.ci95_low, res.tau.ci95_high)}
-        print(f"  {name:14s} tests {len(res.tests)}/{len(tests)}  Td {res.Td.value:.3f} s "
+        print(f"  {name:14s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.value:.3f} s "
               f"({res.Td.ci95_low:.3f}-{res.Td.ci95_high:.3f})  tau {res.tau.value * 1e3:.2f} ms "
               f"({res.tau.ci95_low * 1e3:.2f}-{res.tau.ci95_high * 1e3:.2f})  K {res.K.value:.2f} "
               f"({res.K.ci95_low:.2f}-{res.K.ci95_high:.2f})   (SITL's model at hover {hover:.4f}: "
@@ -139,7 +153,7 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
     for t in tests:
         print(f"      beta {t.beta_nominal:+.2f}  h {t.h:.4f}  {len(t.cycles)} cycles, {t.n_stable} stable; "
               f"f {t.frequency_hz_mean:.3f} Hz; tau that SITL's Td {implied['Td']:.3f} s and K {implied['K']:.2f} "
-              f"need for it: {tau_for_frequency(t, side['tp_s'], implied) * 1e3:.2f} ms {'; '.join(t.notes[:2])}")
+              f"need for it: {tau_needed(t, side['tp_s'], implied['Td'], implied['K']) * 1e3:.2f} ms {'; '.join(t.notes[:2])}")
     with open_log(log, echo_warnings=False) as src:
         tm, m = src.read("MRFT", ["Cmd", "Snt"])
     dt = np.diff(tm)
@@ -149,30 +163,42 @@ def report_segments(log: Path, loop: str, side: dict) -> None:
         print(line)
 
 
-def tau_for_frequency(test, tp: float, implied: dict[str, float]) -> float:
-    """The delay [s] with which eq. (2) at SITL's own Td and K (and the known Tp) limit-cycles at the test's
-    measured frequency under its beta, h and sampling; NaN when no delay in 0-0.2 s does (the loop has
-    less lag than Tp and SITL's Td and K already give)."""
-    from scipy.optimize import brentq
+def matched_increment(logs: Path, reference: str = "altitude", plain: str = "altitude_mf",
+                      delayed: str = "altitude_mf_20ms") -> None:
+    """The +20 ms increment at matched frequencies: per pair of tests at (nearly) one frequency, the delay the
+    reference flight's identified model needs for the delayed test less the delay it needs for the plain one.
+    At one frequency the EKF's phase is (nearly) the same in both and the reference model's errors cancel to
+    first order; the EKF's lead at each test (against SITL's truth) is printed beside it."""
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.segment import segment
 
-    from mrftcli.mrft.lprs import mrft_limit_cycle
-    from mrftcli.mrft.model import LoopModel
-
-    def miss(tau: float) -> float:
-        model = LoopModel(tp, implied["Td"], tau, implied["K"])
-        return mrft_limit_cycle(model, test.beta_nominal, test.h, test.rate_hz).frequency_hz - test.frequency_hz_mean
-
-    try:
-        return float(brentq(miss, 0.0, 0.2))
-    except ValueError:
-        return float("nan")
+    paths = [logs / f"{n}.BIN" for n in (reference, plain, delayed)]
+    if not all(p.exists() for p in paths):
+        return
+    tp = json.loads(Path(f"{paths[0]}.json").read_text())["tp_s"]
+    ref = analyze_log(paths[0], tp, "altitude")
+    pairs = [segment(read_flight(p, ReadOptions(loop="altitude"))) for p in paths[1:]]
+    leads = [ekf_against_truth(p) for p in paths[1:]]
+    print(f"  matched-frequency pairs ({plain} / {delayed}), delays at {reference}'s model (Td {ref.Td.value:.3f} s, "
+          f"K {ref.K.value:.2f}):")
+    incs = []
+    for i, (a, b) in enumerate(zip(*pairs)):
+        ta, tb = (tau_needed(t, tp, ref.Td.value, ref.K.value) for t in (a, b))
+        incs.append(tb - ta)
+        print(f"    beta {a.beta_nominal:+.2f} {a.frequency_hz_mean:.3f} Hz / beta {b.beta_nominal:+.3f} "
+              f"{b.frequency_hz_mean:.3f} Hz: tau {ta * 1e3:+.2f} / {tb * 1e3:+.2f} ms, increment {(tb - ta) * 1e3:.2f} ms"
+              f"{(' |' + leads[0][i].split(':', 1)[1] + ' /' + leads[1][i].split(':', 1)[1]) if i < min(map(len, leads)) else ''}")
+    if incs:
+        print(f"altitude: +20 ms increment at matched frequencies = {np.mean(incs) * 1e3:.2f} ms (mean of {len(incs)} "
+              f"pairs, {min(incs) * 1e3:.2f} to {max(incs) * 1e3:.2f}; error {np.mean(incs) * 1e3 - 20:+.2f} ms)")
 
 
 def ekf_against_truth(log: Path) -> list[str]:
     """Per test: the EKF's output (``MRFT:Out``) against SITL's own (``MRFT:Tru``) at the relay's frequency.
 
     The fundamental at the test's frequency (from its up-switches after the first 2 s) is fitted to both by
-    least squares (with an offset and a drift); their ratio gives the EKF's gain and lag there [ms].
+    least squares (with an offset and a drift); their ratio gives the EKF's gain and phase lead there [ms]
+    (positive: the EKF's altitude is ahead of SITL's).
     """
     from mrftcli.io import open_log
 
@@ -194,9 +220,11 @@ def ekf_against_truth(log: Path) -> list[str]:
         basis = np.c_[np.sin(2 * np.pi * f * tt[sel]), np.cos(2 * np.pi * f * tt[sel]), np.ones(sel.sum()),
                       tt[sel] - tt[sel].mean()]
         c_out, c_tru = (np.linalg.lstsq(basis, m[k][a:b - 1][sel], rcond=None)[0] for k in ("Out", "Tru"))
-        r = complex(c_out[1], c_out[0]) / complex(c_tru[1], c_tru[0])
-        lines.append(f"      EKF against SITL's truth at {f:.3f} Hz: gain {abs(r):.3f}, lag "
-                     f"{-np.angle(r) / (2 * np.pi * f) * 1e3:+.2f} ms")
+        # phasors of sin / cos coefficients: Y = c_sin + j c_cos (an earlier version swapped them, which
+        # conjugates the ratio: its "lag" was this lead)
+        r = complex(c_out[0], c_out[1]) / complex(c_tru[0], c_tru[1])
+        lines.append(f"      EKF against SITL's truth at {f:.3f} Hz: gain {abs(r):.3f}, the EKF leads by "
+                     f"{np.angle(r) / (2 * np.pi * f) * 1e3:+.2f} ms")
     return lines
 
 
@@ -225,7 +253,8 @@ def report_analysis(results: dict[str, dict], logs: Path) -> None:
     errs = [abs(h.error) for r in results.values() for h in r["held"]]
     refused = sum(len(r["misses"]) for r in results.values())
     found = sum(r["found"] for r in results.values())
-    flown = sum(len(tests) for name, _, _, tests, _, _ in FLIGHTS if (logs / f"{name}.BIN").exists())
+    flown = sum(len(json.loads((logs / f"{name}.BIN.json").read_text())["tests"]) for name, *_ in FLIGHTS
+                if (logs / f"{name}.BIN").exists())
     print(f"tests found: {found}/{flown} (in the logs analysed; a refused log counts its tests as not found)")
     if errs or refused:
         within = sum(e <= 0.05 for e in errs)
@@ -275,6 +304,73 @@ def _truth_pair(logs: Path, base: str) -> None:
     if len(taus) == 2:
         inc = taus[f"{base}_20ms"] - taus[base]
         print(f"  {base} with SITL's truth: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
+
+
+def chain_check(results: dict[str, dict], logs: Path) -> None:
+    """Roll and pitch against ArduPilot's own path (``scripts/sitl/ardupilot_chain.py``): eq. (2) with Tp the
+    filter's lag and tau the chain's delay, at SITL's K and Td.
+
+    Per test: the measured transfer from the relay's output (``MRFT:Snt``) to SITL's angle (``MRFT:Tru``) at
+    the test's frequency against the chain's (gain ratio, phase lead [ms]); where the measured frequency lies
+    among the held-out model's admissible sampled-relay orbits; then the chain flown in closed loop from
+    five start conditions (three start thresholds, two noise seeds) and eq. (2)'s held-out errors on its
+    frequencies: what the 400 Hz relay alone does to the figure, with no term outside eq. (2).
+    """
+    from ardupilot_chain import chain_delay_s, chain_response, simulate_mrft
+    from sitl_analysis import held_out_frequencies, orbit_band
+
+    from mrftcli.io import open_log
+
+    delay = chain_delay_s(20.0, 400.0)
+    print(f"  ArduPilot's roll/pitch path (FAST_TASK order, FLTT filter, held output): eq. (2) + {delay * 1e3:.3f} ms "
+          "at every frequency")
+    band_hits, band_n, sim_errs = 0, 0, []
+    for name, r in results.items():
+        if r["loop"] not in ("roll", "pitch"):
+            continue
+        side = json.loads(Path(f"{r['log']}.json").read_text())
+        implied, ticks = r["implied"], int(side.get("added_delay_ticks", 0))
+        with open_log(r["log"], echo_warnings=False) as src:
+            t, m = src.read("MRFT", ["Snt", "Tru"])
+        for test in r["tests"]:
+            f = test.frequency_hz_mean
+            w = (t >= test.t_start + 1.5) & (t <= test.t_end)  # past the start kick
+            g = _fundamental_ratio(t[w], m["Snt"][w], m["Tru"][w], f)
+            c = chain_response(np.array([f]), implied["K"], implied["Td"], 20.0, 400.0)[0]  # Snt: after the delay line
+            print(f"  {name:11s} beta {test.beta_nominal:+.2f} {f:.3f} Hz: measured / chain: gain {abs(g / c):.3f}, "
+                  f"lead {np.angle(g / c) / (2 * np.pi * f) * 1e3:+.2f} ms")
+        for ho in r["held"]:
+            lo, hi, nearest = orbit_band(r["tp"], ho, 400.0)
+            band_n += 1
+            band_hits += abs(nearest) <= 0.05
+            print(f"  {name:11s} held out beta {ho.beta:+.2f}: {ho.error * 100:+.1f} % from the centre; the model's "
+                  f"admissible orbits {lo:.3f}-{hi:.3f} Hz ({(lo / ho.measured_hz - 1) * 100:+.1f} to "
+                  f"{(hi / ho.measured_hz - 1) * 100:+.1f} %), nearest {nearest * 100:+.1f} %")
+        tests = [(tt.beta_nominal, tt.h) for tt in r["tests"]]
+        for eth, noise, seed in ((0.003, 0.0, 0), (0.005, 0.0, 0), (0.008, 0.0, 0), (0.005, 5e-5, 1), (0.005, 5e-5, 2)):
+            freqs = [simulate_mrft(implied["K"], implied["Td"], beta, h, delay_ticks=ticks, eth=eth, noise=noise,
+                                   seed=seed) for beta, h in tests]
+            errs = held_out_frequencies(r["tp"], 400.0, tests, freqs)
+            sim_errs += errs
+            print(f"  {name:11s} chain (start {eth * 1e3:.0f} mrad, noise {noise * 1e3:.2f} mrad): "
+                  + ", ".join(f"{fr:.3f} Hz" for fr in freqs) + "; held out "
+                  + ", ".join(f"{e * 100:+.1f} %" for e in errs))
+    if band_n:
+        print(f"held out, roll and pitch: the measured frequency within 5 % of an admissible orbit of the held-out "
+              f"model: {band_hits}/{band_n}")
+    if sim_errs:
+        within = sum(abs(e) <= 0.05 for e in sim_errs)
+        print(f"held out on the chain's own frequencies (eq. (2) exact, only the 400 Hz relay): {within}/{len(sim_errs)} "
+              f"within 5 %, max {max(abs(e) for e in sim_errs) * 100:.1f} %")
+
+
+def _fundamental_ratio(t: np.ndarray, u: np.ndarray, y: np.ndarray, f: float) -> complex:
+    """y's fundamental over u's at f [Hz] (least squares with an offset and a drift)."""
+    sel = np.ones(t.size, dtype=bool)
+    w = 2 * np.pi * f
+    basis = np.c_[np.sin(w * t[sel]), np.cos(w * t[sel]), np.ones(sel.sum()), t[sel] - t[sel].mean()]
+    cu, cy = (np.linalg.lstsq(basis, v[sel], rcond=None)[0] for v in (u, y))
+    return complex(cy[0], cy[1]) / complex(cu[0], cu[1])
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:

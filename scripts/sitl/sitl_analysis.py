@@ -11,8 +11,12 @@ under the sampled relay at the log's rate; the error is relative to the frequenc
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
@@ -22,7 +26,8 @@ from mrftcli.io import FlightLog, ReadOptions, read_flight
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 
-__all__ = ["HeldOut", "analyze_log", "held_out", "test_lines"]
+__all__ = ["HeldOut", "analyze_log", "held_out", "test_lines", "orbit_band", "held_out_frequencies",
+           "tau_needed", "matched_betas"]
 
 
 @dataclass(frozen=True)
@@ -111,3 +116,74 @@ def test_lines(res: AnalysisResult, held: list[HeldOut]) -> list[str]:
              f"amplitude {t.amplitude_mean:.4g}  cycles {t.n_stable}" for t in res.tests]
     return lines + [f"      held out beta {ho.beta:+.2f}: measured {ho.measured_hz:.3f} Hz, predicted "
                     f"{ho.predicted_hz:.3f} Hz ({ho.error * 100:+.2f} %)" for ho in held]
+
+
+def orbit_band(tp: float, ho: HeldOut, rate_hz: float) -> tuple[float, float, float]:
+    """The held-out model's admissible sampled-relay orbits for the held-out test (``mrft_limit_cycle``'s
+    ``orbits_hz``: every symmetric periodic orbit the MRFT at ``rate_hz`` can lock onto, of which the centre
+    is the prediction): (lowest [Hz], highest [Hz], the error of the orbit nearest the measured frequency)."""
+    cycle = mrft_limit_cycle(LoopModel(tp, *ho.model), ho.beta, ho.h, rate_hz)
+    orbits = sorted(cycle.orbits_hz) or [cycle.frequency_hz]
+    nearest = min(orbits, key=lambda f: abs(f - ho.measured_hz))
+    return orbits[0], orbits[-1], nearest / ho.measured_hz - 1.0
+
+
+def held_out_frequencies(tp: float, rate_hz: float, tests: list[tuple[float, float]],
+                         freqs: list[float]) -> list[float]:
+    """Each test's frequency predicted from the others' frequencies alone (eq. (2)'s Td and tau fitted to
+    them by least squares at the sampled relay's centre; K does not move a relay's frequency): the relative
+    errors, predicted / measured - 1. For frequencies that carry no amplitudes (a simulation's)."""
+    from scipy.optimize import least_squares
+
+    def centre(p: np.ndarray, beta: float, h: float) -> float:
+        return mrft_limit_cycle(LoopModel(tp, float(p[0]), float(p[1]), 1.0), beta, h, rate_hz).frequency_hz
+
+    errors = []
+    for i, (beta, h) in enumerate(tests):
+        others = [(b, hh, f) for j, ((b, hh), f) in enumerate(zip(tests, freqs)) if j != i]
+        def residuals(p: np.ndarray, others: list[tuple[float, float, float]] = others) -> list[float]:
+            return [math.log(centre(p, b, hh) / f) for b, hh, f in others]
+
+        fit = least_squares(residuals, [0.5, 0.003], bounds=([0.02, 0.0], [100.0, 0.5]), x_scale=[0.1, 0.001])
+        errors.append(centre(fit.x, beta, h) / freqs[i] - 1.0)
+    return errors
+
+
+def tau_needed(test, tp: float, Td: float, K: float) -> float:
+    """The delay [s] with which eq. (2) (Td, K and the known Tp) limit-cycles at the test's measured frequency
+    under its beta, h and sampling; below 0 (a loop with less lag than Tp and Td give) by linear extrapolation
+    of the frequency from tau 0 and 1 ms (eq. (2) holds tau >= 0)."""
+    from scipy.optimize import brentq
+
+    from mrftcli.mrft.lprs import mrft_limit_cycle
+    from mrftcli.mrft.model import LoopModel
+
+    def miss(tau: float) -> float:
+        model = LoopModel(tp, Td, tau, K)
+        return mrft_limit_cycle(model, test.beta_nominal, test.h, test.rate_hz).frequency_hz - test.frequency_hz_mean
+
+    m0 = miss(0.0)
+    if m0 < 0:  # the loop is faster than eq. (2) with no delay allows
+        return float(m0 / (m0 - miss(1e-3)) * 1e-3)
+    return float(brentq(miss, 0.0, 0.2))
+
+
+def matched_betas(reference: Path, plain: Path, delay_s: float) -> list[tuple[float, float]]:
+    """Betas (with each test's h) for which the reference flight's identified model, with ``delay_s`` added,
+    limit-cycles at the plain flight's measured frequencies: the delayed flight of a matched-frequency pair."""
+    from scipy.optimize import brentq
+
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.lprs import mrft_limit_cycle
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.segment import segment
+
+    tp = json.loads(Path(f"{reference}.json").read_text())["tp_s"]
+    ref = analyze_log(reference, tp, "altitude")
+    model = LoopModel(tp, ref.Td.value, ref.tau.value + delay_s, ref.K.value)
+    out = []
+    for t in segment(read_flight(plain, ReadOptions(loop="altitude"))):
+        beta = brentq(lambda b, t=t: mrft_limit_cycle(model, b, t.h, t.rate_hz).frequency_hz - t.frequency_hz_mean,
+                      -0.95, -0.01)
+        out.append((round(float(beta), 3), round(float(t.h), 3)))
+    return out

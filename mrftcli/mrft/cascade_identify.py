@@ -428,12 +428,3 @@ def _estimate(name: str, value: float, std: float, low: float, high: float, omeg
     x = math.exp(value)
     lo, hi = math.exp(value - Z95 * std), math.exp(value + Z95 * std)
     return ParameterEstimate(x, x * std, lo, hi, unit, 2 * Z95 * std < 2.0, method=_METHOD, name=name)
-
-
-def identify_cascade(inner: InnerLoop, tests: Sequence[TestMeasurement], rate_hz: float, *, K: float | None = 1.0,
-                     Td_bounds: tuple[float, float] = TD_BOUNDS, tau_bounds: tuple[float, float] = TAU_BOUNDS,
-                     **options: Any) -> CascadeIdentification:
-    """Transition form of :func:`fit_cascade_cycles` (callers move to :func:`mrftcli.mrft.identify.identify`)."""
-    model = CascadeModel(inner, 1.0, 0.0, G if K is None else K, known=frozenset() if K is None else frozenset({"K"}),
-                         ranges=(("Td", *Td_bounds), ("tau", *tau_bounds)))
-    return fit_cascade_cycles(tests, model, rate_hz, **options)

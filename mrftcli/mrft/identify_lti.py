@@ -820,8 +820,3 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
                   "distinct frequencies: state known values (set E), or add a relay test at another phase "
                   "(an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")
     return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice)
-
-
-def identify_lti(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiIdentification:
-    """Transition name of :func:`fit_response_points` (callers move to :func:`mrftcli.mrft.identify.identify`)."""
-    return fit_response_points(points, model)

@@ -80,3 +80,20 @@ def test_asking_a_filtered_follower_for_a_dropped_topic_is_an_error(camera_bag):
         f.values("/camera/image/compressed", ["data"])
     t, v = f.values("/mrft/command", ["data"])
     assert t.size > 100 and np.isfinite(v["data"]).all()
+
+
+@pytest.mark.parametrize("name", ["design1_altitude.mcap", "design1_altitude.json.mcap"])
+def test_a_followed_log_decodes_as_the_reader_does(name):
+    """The follower decodes each channel (CDR and JSON) through the MCAP reader's own decoding
+    (io/format_mcap.channel_values): the finished log followed gives the flight the reader gives."""
+    from pathlib import Path
+
+    log = Path(__file__).parents[1] / "sample_logs" / name
+    whole = read_flight(log, ReadOptions(loop="altitude"), echo_warnings=False)
+    follower = follow_log(log, ReadOptions(loop="altitude"))
+    snap = follower.poll()
+    assert snap.flight is not None
+    for role in ("command", "output", "setpoint"):
+        ours, theirs = getattr(snap.flight, role), getattr(whole, role)
+        np.testing.assert_array_equal(ours.t, theirs.t)
+        np.testing.assert_array_equal(ours.values, theirs.values)

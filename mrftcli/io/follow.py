@@ -20,7 +20,6 @@ The same topic logic as for a finished log applies (:func:`mrftcli.io.flight.rea
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Collection
 from dataclasses import dataclass, replace
@@ -30,9 +29,9 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from ..errors import InputError, LogReadError
-from . import cdr
 from .flight import DEFAULT_TOPICS, ReadOptions, read_loop, role_specs
-from .format_mcap import MCAP_MAGIC, McapChannel, McapRecords, channel_typestore
+from .format_mcap import (MCAP_MAGIC, McapChannel, McapRecords, channel_leaves, channel_typestore, channel_values,
+                          json_leaves)
 from .layouts import get_layout
 from .logtypes import FlightLog, TopicInfo
 from .source import LogSource, parse_spec
@@ -233,27 +232,12 @@ class McapFollower:
         if ch is None:
             return None
         path = field_path or "data"
-        if ch.encoding == "json":
-            return self._json_leaves(ch, topic, path)
-        ts = self._typestore(ch)  # its errors name the path and topic already
-        try:
-            return cdr.leaf_paths(ts, ch.schema_name, path)
-        except LogReadError as err:
-            raise LogReadError(f"{self.path}: {topic}: {err}") from None
-
-    def _json_leaves(self, ch: McapChannel, topic: str, path: str) -> list[str] | None:
-        sample = ch.datas[0] if ch.datas else None
-        decoded = self._decoded.get(ch.id)
-        if sample is None:
+        if ch.encoding != "json":
+            return channel_leaves(self.path, ch, self._typestore, path)
+        if not ch.datas:  # its messages decoded already (their leaves), or none yet
+            decoded = self._decoded.get(ch.id)
             return list(next(iter(decoded))) if decoded else None
-        node = _json_message(sample, f"{self.path}: {topic}")
-        for key in path.split("."):
-            if not isinstance(node, dict) or key not in node:
-                raise LogReadError(f"{self.path}: {topic}: no field {path!r}")
-            node = node[key]
-        if isinstance(node, dict) and sorted(node) == ["w", "x", "y", "z"]:
-            return [f"{path}.{c}" for c in "xyzw"]
-        return [path]
+        return json_leaves(self.path, topic, ch.datas[0], path)
 
     def values(self, topic: str, leaves: list[str]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Times [s] and values of ``leaves`` of ``topic`` so far (new messages decoded once)."""
@@ -280,29 +264,11 @@ class McapFollower:
         return t_parts[0], {k: v_parts[k][0] for k in leaves}
 
     def _decode(self, ch: McapChannel, leaves: list[str]) -> dict[str, np.ndarray]:
-        """The new messages' values of ``leaves`` (JSON, or CDR / ROS 1 in one vectorised pass)."""
-        if ch.encoding == "json":
-            where = f"{self.path}: {ch.topic}"
-            return {k: np.array([_json_leaf(_json_message(d, where), k) for d in ch.datas], float) for k in leaves}
+        """The new messages' values of ``leaves``, decoded as the MCAP reader decodes them."""
         lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
         starts = (np.cumsum(lengths) - lengths).astype(np.int64)
         buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
-        return cdr.extract(self._typestore(ch), ch.schema_name, buf, starts, lengths, list(leaves),
-                           ros1=ch.encoding == "ros1")
-
-
-def _json_message(data: bytes, where: str) -> object:
-    """One JSON message; LogReadError when it is not JSON or nested too deep for the parser."""
-    try:
-        return json.loads(data)
-    except (ValueError, RecursionError):
-        raise LogReadError(f"{where}: a message is not valid JSON (or nested too deep)") from None
-
-
-def _json_leaf(node: object, path: str) -> float:
-    for key in path.split("."):
-        node = node.get(key) if isinstance(node, dict) else None
-    return float(node) if isinstance(node, (int, float)) else float("nan")
+        return channel_values(self.path, ch, self._typestore, buf, starts, lengths, list(leaves))
 
 
 class _NotYet(LogReadError):

@@ -20,7 +20,8 @@ The writer side (:func:`serialize_many`) uses the same walk on a template messag
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -32,7 +33,7 @@ if TYPE_CHECKING:
     from rosbags.interfaces.typing import BaseDesc, FieldDesc, NameDesc
     from rosbags.typesys.store import Typestore
 
-__all__ = ["extract", "leaf_paths", "serialize_many", "default_message", "CdrLayoutError", "struct_fields"]
+__all__ = ["extract", "packed", "naming", "leaf_paths", "serialize_many", "default_message", "CdrLayoutError", "struct_fields"]
 
 _SIZE = {
     "bool": 1, "byte": 1, "char": 1, "int8": 1, "uint8": 1,
@@ -176,6 +177,22 @@ class _Walk:
                 total += size
             return total
         return None
+
+
+def packed(datas: Sequence[bytes | memoryview]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Messages' bytes end to end, as :func:`extract` takes them: (buffer, each one's start, its length)."""
+    lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+    starts = (np.cumsum(lengths) - lengths).astype(np.int64)
+    return np.frombuffer(b"".join(datas), dtype=np.uint8), starts, lengths
+
+
+@contextmanager
+def naming(path: object, topic: str) -> Iterator[None]:
+    """A :class:`~mrftcli.errors.LogReadError` raised inside re-raised with the log and the topic in front."""
+    try:
+        yield
+    except LogReadError as err:
+        raise LogReadError(f"{path}: {topic}: {err}") from None
 
 
 def _message_bounds(starts: np.ndarray, lengths: np.ndarray, ros1: bool,

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from ..errors import InputError, LogReadError
+from . import cdr
 from .flight import DEFAULT_TOPICS, ReadOptions, read_loop, role_specs
 from .format_mcap import (MCAP_MAGIC, McapChannel, McapRecords, channel_leaves, channel_typestore, channel_values,
                           json_leaves)
@@ -265,10 +266,7 @@ class McapFollower:
 
     def _decode(self, ch: McapChannel, leaves: list[str]) -> dict[str, np.ndarray]:
         """The new messages' values of ``leaves``, decoded as the MCAP reader decodes them."""
-        lengths = np.fromiter(map(len, ch.datas), dtype=np.int64, count=len(ch.datas))
-        starts = (np.cumsum(lengths) - lengths).astype(np.int64)
-        buf = np.frombuffer(b"".join(ch.datas), dtype=np.uint8)
-        return channel_values(self.path, ch, self._typestore, buf, starts, lengths, list(leaves))
+        return channel_values(self.path, ch, self._typestore, *cdr.packed(ch.datas), list(leaves))
 
 
 class _NotYet(LogReadError):

@@ -489,10 +489,7 @@ class McapSource(LogSource):
         for cid in cids:
             ch = records.channels.get(cid)
             times, datas = (ch.times, ch.datas) if ch is not None else ([], [])
-            lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
-            starts = (np.cumsum(lengths) - lengths).astype(np.int64)
-            buf = np.frombuffer(b"".join(datas), dtype=np.uint8)
-            out[cid] = (np.asarray(times, dtype=np.int64), buf, starts, lengths)
+            out[cid] = (np.asarray(times, dtype=np.int64), *cdr.packed(datas))
         return out
 
     def _chunks(self, cids: list[int]) -> list[ChunkIndex]:
@@ -715,10 +712,8 @@ def channel_leaves(path: str | Path, ch: McapChannel, typestore: Callable[[McapC
                    field: str) -> list[str]:
     """The numeric leaves ``topic:field`` stands for in a CDR or ROS 1 channel (four for a quaternion)."""
     ts = typestore(ch)  # its errors name the path and topic already
-    try:
+    with cdr.naming(path, ch.topic):
         return cdr.leaf_paths(ts, ch.schema_name, field)
-    except LogReadError as err:
-        raise LogReadError(f"{path}: {ch.topic}: {err}") from None
 
 
 def channel_values(path: str | Path, ch: McapChannel, typestore: Callable[[McapChannel], Typestore],
@@ -731,10 +726,8 @@ def channel_values(path: str | Path, ch: McapChannel, typestore: Callable[[McapC
     if ch.encoding not in ("cdr", "ros1"):
         raise LogReadError(f"{path}: {ch.topic}: unsupported message encoding {ch.encoding!r}")
     ts = typestore(ch)  # its errors name the path and topic already
-    try:
+    with cdr.naming(path, ch.topic):
         return cdr.extract(ts, ch.schema_name, buf, starts, lengths, fields, ros1=ch.encoding == "ros1")
-    except LogReadError as err:
-        raise LogReadError(f"{path}: {ch.topic}: {err}") from None
 
 
 def _json_values(path: Path, topic: str, buf: np.ndarray, starts: np.ndarray, lengths: np.ndarray,

@@ -158,11 +158,9 @@ class RosbagSource(LogSource):
 
     def leaves(self, topic: str, field: str | None) -> list[str]:
         conn = self._conn(topic)
-        try:
+        with cdr.naming(self.path, topic):
             return cdr.leaf_paths(self._typestore(conn), conn.msgtype,
-                                   field if field is not None else self.default_field)
-        except LogReadError as err:
-            raise LogReadError(f"{self.path}: {topic}: {err}") from None
+                                  field if field is not None else self.default_field)
 
     def prefetch(self, topics: list[str]) -> None:
         """Collect the raw messages of all wanted topics in one pass over the bag."""
@@ -187,14 +185,8 @@ class RosbagSource(LogSource):
         if topic not in self._raw:
             self._raw.update(self._collect([conn]))
         stamps, datas = self._raw[topic]
-        lengths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
-        starts = (np.cumsum(lengths) - lengths).astype(np.int64)
-        buf = np.frombuffer(b"".join(bytes(d) for d in datas), dtype=np.uint8)
-        try:
-            vals = cdr.extract(self._typestore(conn), conn.msgtype, buf, starts, lengths, fields,
-                                ros1=self._ros1)
-        except LogReadError as err:
-            raise LogReadError(f"{self.path}: {topic}: {err}") from None
+        with cdr.naming(self.path, topic):
+            vals = cdr.extract(self._typestore(conn), conn.msgtype, *cdr.packed(datas), fields, ros1=self._ros1)
         return np.asarray(stamps, dtype=np.int64) / 1e9, vals
 
 

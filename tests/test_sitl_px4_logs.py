@@ -263,3 +263,31 @@ def test_pitch_is_refused_on_ekf2s_attitude_and_identified_on_sihs_at_the_bench_
         ho = res.held_out_of(k)
         assert ho is not None and ho.frequency_hz is not None
         assert abs(ho.frequency_hz / test.frequency_hz_mean - 1.0) <= 0.05
+
+
+def test_the_rate_relays_delay_is_exact_and_comes_back_in_tau_on_sihs_attitude() -> None:
+    """MRFT_DELAY on mc_rate_control's relays (mrft_roll.patch): 20 ms is 5 ticks of the 4 ms rate loop, so
+    the torque follows the logged decision (debug_vect) by 20.0 ms at every switch. On SIH's attitude at the
+    bench Tp, tau rises from the plain flight's by that within 2 ms (20.2 ms measured); on EKF2's attitude
+    the delayed flight is identified (the added delay outweighs EKF2's lead) with SIH's Td and K."""
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.mrft.model import soiptd_model
+
+    log = LOGS / "px4_pitch_h_20ms.ulg"
+    side = json.loads((LOGS / "px4_pitch_h_20ms.ulg.json").read_text())
+    assert side["added_delay_ms"] == 20.0 and side["decision_topic"] == "debug_vect:y"
+    delay = realised_delay(log, 0.05, ("debug_vect", "y"), ("vehicle_torque_setpoint", "xyz[1]"))
+    assert delay.startswith("20.0 ms median")
+    opts = AnalyzeOptions(n_bootstrap=20, seed=1, refine_waveform=False)
+    taus = []
+    for name, command in (("px4_pitch_h", None), ("px4_pitch_h_20ms", "debug_vect:y")):
+        flight = read_flight(LOGS / f"{name}.ulg", ReadOptions(loop="pitch", command_topic=command,
+                                                               output_topic="vehicle_attitude_groundtruth:q"),
+                             echo_warnings=False)
+        taus.append(analyze_flight(flight, soiptd_model(bench_tp()), options=opts).tau.value)
+    assert taus[1] - taus[0] == pytest.approx(0.020, abs=0.002)
+    ekf = analyze_flight(read_flight(log, ReadOptions(loop="pitch", command_topic="debug_vect:y"),
+                                     echo_warnings=False), soiptd_model(side["tp_s"]), options=opts)
+    sih = sih_implied("pitch")
+    assert ekf.Td.value == pytest.approx(sih["Td"], rel=0.05)
+    assert ekf.K.value == pytest.approx(sih["K"], rel=0.02)

@@ -79,13 +79,16 @@ if [ "${NO_MRFT:-0}" != 1 ] && [ ! -e src/lib/MRFT/.mrft_port_applied ]; then
   touch src/lib/MRFT/.mrft_port_applied
 fi
 # The roll and pitch MRFT (mrft-ident's: the fork has none on the rate loop): MRFT_R_* and MRFT_P_* in
-# mc_rate_control, the fork's relay on the roll (pitch) angle as the roll (pitch) torque setpoint
-# (mrft_roll.patch; applied once, after the port). A tree patched by the roll-only version (marker
-# .mrft_roll_applied) gets mc_rate_control back from its snapshot first.
-if [ "${NO_MRFT:-0}" != 1 ] && [ ! -e src/lib/MRFT/.mrft_rate_applied ]; then
-  [ ! -e src/lib/MRFT/.mrft_roll_applied ] || git checkout -q HEAD -- src/modules/mc_rate_control
+# mc_rate_control, the fork's relay on the roll (pitch) angle as the roll (pitch) torque setpoint, its
+# output held MRFT_DELAY ms, its decision logged in debug_vect (mrft_roll.patch; applied once, after the
+# port). A tree patched by an earlier version (markers .mrft_roll_applied, .mrft_rate_applied) gets
+# mc_rate_control back from its snapshot first.
+if [ "${NO_MRFT:-0}" != 1 ] && [ ! -e src/lib/MRFT/.mrft_rate_delay_applied ]; then
+  if [ -e src/lib/MRFT/.mrft_roll_applied ] || [ -e src/lib/MRFT/.mrft_rate_applied ]; then
+    git checkout -q HEAD -- src/modules/mc_rate_control
+  fi
   git apply --whitespace=nowarn "$HERE/mrft_roll.patch"
-  touch src/lib/MRFT/.mrft_rate_applied
+  touch src/lib/MRFT/.mrft_rate_delay_applied
 fi
 
 if [ ! -x venv/bin/python ]; then

@@ -56,6 +56,8 @@ FLIGHTS = [
     # above EKF2's attitude noise at every beta (roll amplitudes 5.7-12 deg); and y as x
     ("px4_roll_h", "roll", 0.0, [(-0.3, 0.1), (-0.5, 0.2), (-0.7, 0.3)], 10.0),
     ("px4_pitch_h", "pitch", 0.0, [(-0.3, 0.1), (-0.5, 0.2), (-0.7, 0.3)], 10.0),
+    ("px4_roll_h_20ms", "roll", 20.0, [(-0.3, 0.1), (-0.5, 0.2), (-0.7, 0.3)], 10.0),
+    ("px4_pitch_h_20ms", "pitch", 20.0, [(-0.3, 0.1), (-0.5, 0.2), (-0.7, 0.3)], 10.0),
     ("px4_y", "y", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
 ]
 #: SIH's step [s]: 1 / min(IMU_GYRO_RATEMAX 800, IMU_INTEG_RATE 250) (sih.cpp ``lockstep_loop``)
@@ -69,6 +71,9 @@ ALLOCATOR_TORQUE = 2 * math.sqrt(2)
 #: (without, with MRFT_DELAY) flight pairs for the delay increment
 PAIRS = [("px4_altitude", "px4_altitude_20ms"), ("px4_altitude_h15", "px4_altitude_h15_20ms"),
          ("px4_altitude_h25", "px4_altitude_h25_20ms")]
+#: the same for the rate loops (MRFT_DELAY on mc_rate_control's relays: 20 ms = 5 ticks of 4 ms, exact), on
+#: SIH's own attitude at the bench Tp
+RATE_PAIRS = [("px4_roll_h", "px4_roll_h_20ms"), ("px4_pitch_h", "px4_pitch_h_20ms")]
 #: the flight whose export is loaded and flown
 EXPORT_FROM = "px4_altitude_h25"
 
@@ -124,18 +129,20 @@ def _hover(log: Path) -> float:
     return float(np.median(d["hover_thrust"][ok]))
 
 
-def realised_delay(log: Path, h: float) -> str:
-    """The delay between the relays' decision (the logged setpoint's thrust) and what reached the attitude
-    setpoint (``vehicle_attitude_setpoint``'s collective thrust), switch by switch [ms]; "" when not logged."""
+def realised_delay(log: Path, h: float, decision: tuple[str, str] = ("vehicle_local_position_setpoint", "thrust[2]"),
+                   applied: tuple[str, str] = ("vehicle_attitude_setpoint", "thrust_body[2]")) -> str:
+    """The delay between the relays' decision (by default the logged setpoint's thrust) and what reached the
+    controller below (the attitude setpoint's collective thrust), switch by switch [ms]; "" when not logged.
+    The rate relays: ``("debug_vect", "x" | "y")`` and ``("vehicle_torque_setpoint", "xyz[0]" | "xyz[1]")``."""
     from mrftcli.io import open_log
 
     with open_log(log, echo_warnings=False) as src:
-        if not any(t.name == "vehicle_attitude_setpoint" for t in src.topics()):
+        if not any(t.name == applied[0] for t in src.topics()):
             return ""
-        td, d = src.read("vehicle_local_position_setpoint", ["thrust[2]"])
-        ta, a = src.read("vehicle_attitude_setpoint", ["thrust_body[2]"])
-    jump_d = np.flatnonzero(np.abs(np.diff(d["thrust[2]"])) > h) + 1
-    jump_a = np.flatnonzero(np.abs(np.diff(a["thrust_body[2]"])) > h) + 1
+        td, d = src.read(decision[0], [decision[1]])
+        ta, a = src.read(applied[0], [applied[1]])
+    jump_d = np.flatnonzero(np.abs(np.diff(d[decision[1]])) > h) + 1
+    jump_a = np.flatnonzero(np.abs(np.diff(a[applied[1]])) > h) + 1
     t_a = ta[jump_a]
     lags = [float(t_a[t_a >= t][0] - t) for t in td[jump_d] if (t_a >= t).any() and t_a[t_a >= t][0] - t < 0.2]
     if not lags:
@@ -168,14 +175,15 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
             continue
         side = json.loads(Path(f"{log}.json").read_text())
         tp = side["tp_s"]
+        if loop in ("roll", "pitch"):
+            results[name] = analyse_rate(name, log, side, delay)
+            continue
         try:
             res = analyze_log(log, tp, loop)
         except MrftError as err:  # a refusal is a result: every flown test counts as a miss
             print(f"  {name:18s} REFUSED: {err}")
             results[name] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": 0, "held": [],
                              "held_misses": [(i, str(err)) for i in range(len(side["tests"]))], "refused": str(err)}
-            if loop in ("roll", "pitch"):
-                results[name]["truth"] = rate_loop_truth(log, loop)
             continue
         # the MRFT estimate (refine=False): analyze refuses the waveform refinement on these logs (SIH noise)
         misses: list[tuple[int, str]] = []
@@ -198,31 +206,65 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
     return results
 
 
-def rate_loop_truth(log: Path, loop: str) -> dict[str, Any]:
-    """A roll / pitch flight on SIH's own attitude at the bench Tp (:func:`bench_tp`), and where the lag of
-    its path goes (``rate_path.py``) when the stages are logged; printed, and returned."""
+def _rate_fit(log: Path, loop: str, tp: float, output_topic: str | None, command_topic: str | None
+              ) -> tuple[Any, list[float]]:
+    """eq. (2) at ``tp`` on a roll / pitch flight (the MRFT estimate) and analyze's own held-out errors."""
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.model import soiptd_model
-    from rate_path import stage_lags
 
-    tp, implied = bench_tp(), sih_implied(loop)
-    out: dict[str, Any] = {"tp": tp}
-    try:
-        flight = read_flight(log, ReadOptions(loop=loop, output_topic=TRUTH_ATTITUDE))
-        res = analyze_flight(flight, soiptd_model(tp), options=AnalyzeOptions(n_bootstrap=50, seed=0,
-                                                                              refine_waveform=False))
-    except MrftError as err:
-        print(f"      on SIH's attitude at the bench Tp {tp * 1e3:.2f} ms: REFUSED: {err}")
-        return {**out, "refused": str(err)}
+    flight = read_flight(log, ReadOptions(loop=loop, output_topic=output_topic, command_topic=command_topic),
+                         echo_warnings=False)
+    res = analyze_flight(flight, soiptd_model(tp), options=AnalyzeOptions(n_bootstrap=50, seed=0,
+                                                                          refine_waveform=False))
     held = [(t.frequency_hz_mean, h.frequency_hz) for k, t in enumerate(res.tests)
             if (h := res.held_out_of(k)) is not None and h.frequency_hz]
-    errs = [p / m - 1.0 for m, p in held]
-    out.update(Td=res.Td.value, tau=res.tau.value, K=res.K.value, held=errs, found=len(res.tests))
+    return res, [p / m - 1.0 for m, p in held]
+
+
+def analyse_rate(name: str, log: Path, side: dict[str, Any], delay: float) -> dict[str, Any]:
+    """A roll / pitch flight: on EKF2's attitude (the relay's) at SIH_T_TAU, and on SIH's own attitude at
+    the bench Tp (:func:`bench_tp`), the command the relays' decision before MRFT_DELAY where logged
+    (``decision_topic``; without it, the torque: the same when no delay is added); where the lag of its
+    path goes (``rate_path.py``) when the stages are logged. Printed, and returned."""
+    from rate_path import stage_lags
+
+    loop, command = side["loop"], side.get("decision_topic")
+    implied = sih_implied(loop)
+    if command:
+        axis = "0" if loop == "roll" else "1"
+        topic, field = command.split(":")
+        realised = realised_delay(log, 0.5 * min(t["h"] for t in side["tests"]), (topic, field),
+                                  ("vehicle_torque_setpoint", f"xyz[{axis}]"))
+        print(f"      decision ({command}) -> torque setpoint (MRFT_DELAY {side['added_delay_ms']:g} ms): {realised}")
+    out: dict[str, Any] = {"loop": loop, "delay": delay, "flown": len(side["tests"]), "found": 0, "held": [],
+                           "held_misses": []}
+    try:
+        res, errs = _rate_fit(log, loop, side["tp_s"], None, command)
+        out.update(found=len(res.tests), tau=res.tau.value, held_rate=errs)
+        print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.value:.3f} s  tau "
+              f"{res.tau.value * 1e3:.2f} ms  K {res.K.value:.1f} on EKF2's attitude at Tp {side['tp_s'] * 1e3:g} ms; "
+              "held out " + ", ".join(f"{e * 100:+.2f} %" for e in errs))
+    except MrftError as err:  # every flown test a miss
+        print(f"  {name:18s} REFUSED on EKF2's attitude at Tp {side['tp_s'] * 1e3:g} ms: {err}")
+        out.update(refused=str(err), held_misses=[(i, str(err)) for i in range(len(side["tests"]))])
+    tp = bench_tp()
+    truth: dict[str, Any] = {"tp": tp}
+    out["truth"] = truth
+    try:
+        res, errs = _rate_fit(log, loop, tp, TRUTH_ATTITUDE, command)
+    except MrftError as err:
+        print(f"      on SIH's attitude at the bench Tp {tp * 1e3:.2f} ms: REFUSED: {err}")
+        truth["refused"] = str(err)
+        return out
+    truth.update(Td=res.Td.value, tau=res.tau.value, K=res.K.value, held=errs, found=len(res.tests))
     print(f"      on SIH's attitude ({TRUTH_ATTITUDE}) at the bench Tp {tp * 1e3:.2f} ms (sih.cpp's motor step): "
-          f"Td {res.Td.value:.3f} s  tau {res.tau.value * 1e3:.2f} ms  K {res.K.value:.1f}   (SIH: Td "
-          f"{implied['Td']:.3f} s, K {implied['K']:.1f}); analyze's held-out frequencies "
-          + ", ".join(f"{e * 100:+.2f} %" for e in errs))
+          f"tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.value:.3f} s  tau {res.tau.value * 1e3:.2f} ms  "
+          f"K {res.K.value:.1f}   (SIH: Td {implied['Td']:.3f} s, K {implied['K']:.1f}); analyze's held-out "
+          "frequencies " + ", ".join(f"{e * 100:+.2f} %" for e in errs)
+          + (f"; command {command}" if command else ""))
+    if delay:  # the stages are of the relay's own loop; with a delay the torque is not the decision
+        return out
     try:
         rows = stage_lags(log, loop, implied["Tp"], implied["Td"])
     except KeyError:  # a flight without the stages logged
@@ -234,12 +276,13 @@ def rate_loop_truth(log: Path, loop: str) -> dict[str, Any]:
               f"{lag['p_true->phi_true']:+.2f} (the path to SIH's attitude {lag['c->m'] + lag['m->p_true'] + lag['p_true->phi_true']:+.2f}; "
               f"sih.cpp's update order: {row['sih_discrete_ms']:+.2f}), EKF2's against SIH's {lag['phi_true->phi_ekf']:+.2f}; "
               f"the relay's path {lag['c->phi_ekf']:+.2f}")
-    out["stages"] = rows
+    truth["stages"] = rows
     return out
 
 
 def report(results: dict[str, dict[str, Any]]) -> None:
     errs = [abs(h.error) for r in results.values() for h in r["held"]]
+    errs += [abs(e) for r in results.values() for e in r.get("held_rate", [])]  # the rate loops' (analyze's)
     errs += [math.inf for r in results.values() for _ in r["held_misses"]]  # a refusal counts as a miss
     print(f"tests found: {sum(r['found'] for r in results.values())}/{sum(r['flown'] for r in results.values())}")
     if errs:
@@ -252,6 +295,14 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         print(f"roll / pitch on SIH's attitude at the bench Tp {bench_tp() * 1e3:.2f} ms: held out within 5 %: "
               f"{sum(abs(e) <= 0.05 for e in truth)}/{len(truth)} (max {max(map(abs, truth), default=0) * 100:.2f} %)"
               + (f"; refused: {', '.join(refused)}" if refused else ""))
+    for a, b in RATE_PAIRS:
+        if all(k in results and "tau" in results[k].get("truth", {}) for k in (a, b)):
+            inc = (results[b]["truth"]["tau"] - results[a]["truth"]["tau"]) * 1e3
+            print(f"{a}: +{results[b]['delay']:g} ms (MRFT_DELAY, 5 ticks of 4 ms) increment of tau on SIH's attitude "
+                  f"= {inc:.2f} ms ({inc - results[b]['delay']:+.2f} ms)")
+        if all(k in results and "tau" in results[k] for k in (a, b)):
+            inc = (results[b]["tau"] - results[a]["tau"]) * 1e3
+            print(f"{a}: the same on EKF2's attitude = {inc:.2f} ms")
     for a, b in PAIRS:
         if all(k in results and "tau" in results[k] for k in (a, b)):
             inc = results[b]["tau"] - results[a]["tau"]

@@ -50,9 +50,10 @@ LOGGER_TOPICS = ["vehicle_local_position 16", "vehicle_local_position_setpoint 0
                  "vehicle_attitude 50",
                  "vehicle_status 200", "vehicle_land_detected 200"]
 #: a roll flight's command (the roll torque setpoint the relay replaces, mrft_roll.patch) and output (the
-#: attitude), at every publication; beside them each stage of the path between (what SIH reads, the motor
-#: commands; SIH's true rates and attitude; the gyro's rates PX4 filters), to measure each stage's lag
-ROLL_TOPICS = ["vehicle_torque_setpoint 0", "vehicle_attitude 0", "actuator_outputs_sim 0",
+#: attitude), at every publication, and the relays' decision before MRFT_DELAY (debug_vect); beside them
+#: each stage of the path between (what SIH reads, the motor commands; SIH's true rates and attitude; the
+#: gyro's rates PX4 filters), to measure each stage's lag
+ROLL_TOPICS = ["vehicle_torque_setpoint 0", "vehicle_attitude 0", "actuator_outputs_sim 0", "debug_vect 0",
                "vehicle_angular_velocity 0", "vehicle_angular_velocity_groundtruth 0",
                "vehicle_attitude_groundtruth 0"]
 INT32 = mavutil.mavlink.MAV_PARAM_TYPE_INT32
@@ -273,7 +274,7 @@ def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, f
              duration_s: float, speedup: float = 1.0, alt_m: float = 5.0) -> dict[str, Any]:
     """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the ULog and how it was flown."""
     rate_loop = axis in ("roll", "pitch")
-    params = {f"MRFT_{AXES[axis]}_ENABLE": 0} if rate_loop else {"MRFT_DELAY": delay_ms}
+    params = {f"MRFT_{AXES[axis]}_ENABLE": 0, "MRFT_DELAY": delay_ms} if rate_loop else {"MRFT_DELAY": delay_ms}
     with Px4Sitl(px4_dir, workdir, speedup, params) as sitl:
         refusals = sitl.takeoff(alt_m)
         hover = sitl.get_param("MPC_THR_HOVER")
@@ -289,6 +290,8 @@ def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, f
             "speedup": speedup, "hover_thrust_param": hover, "added_delay_ms": delay_ms,
             "tp_s": SIH_MODEL["SIH_T_TAU"], "tp_source": "SIH_T_TAU: SIH's first-order rotor thrust lag",
             "sih_model": SIH_MODEL, "logger_topics": sitl.topics(), "tests": runs,
+            # the rate relays' decision before MRFT_DELAY (debug_vect x: roll, y: pitch; mrft_roll.patch)
+            **({"decision_topic": f"debug_vect:{'x' if axis == 'roll' else 'y'}"} if rate_loop else {}),
             "prearm_refusals_before_arming": sorted(set(refusals)), "status_texts_tail": texts[-6:],
             "log": str(log)}
 

@@ -5,7 +5,7 @@ block; ``tune --export`` designs with the rate and filter each stack really runs
 it loads, checked against its ranges (:mod:`mrftcli.tune.stacks`).
 
 * **generic**: Kp, Ki, Kd (parallel form), Tf [s] (first-order derivative filter), rate [Hz], with the
-  derivative on the measurement (:class:`mrftcli.tune.closed_loop.Controller`).
+  derivative on the measurement (:class:`mrftcli.mrft.controller.Controller`).
 * **HEAR** (the HEAR flight stack's ``PID_parameters`` JSON: ``id``, ``kp``, ``ki``, ``kd``, ``kdd``,
   ``anti_windup``, ``en_pv_derivation``, ``dt``): ``en_pv_derivation = 1`` makes the D term act on the
   process variable's derivative (derivative on the measurement); HEAR has no derivative-filter field,

@@ -12,7 +12,7 @@ and returns the one :class:`~mrftcli.tune.design.TuneResult` record. What a mode
   (:class:`~mrftcli.mrft.cascade.CascadeModel`): its exact discrete realisation at the controller rate
   (:meth:`~mrftcli.mrft.cascade.CascadeModel.discrete_realisation`: the sampled inner loop with its
   controller, the translational dynamics, both delays);
-* the controller is :class:`~mrftcli.tune.closed_loop.Controller` (parallel PID, derivative on the
+* the controller is :class:`~mrftcli.mrft.controller.Controller` (parallel PID, derivative on the
   measurement through Tf = Td_c / ``FILTER_N``, backward differences); the loop's figures are
   :func:`closed_loop_matrix` and :func:`sampled_margins` (one implementation of each);
 * for each kind, on a grid of integral times Ti (PI, PID) and derivative times Td_c (PD, PID), the

@@ -26,8 +26,7 @@ from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..mrft.controller import Controller
 from ..mrft.model import LoopModel
-from .control import SWITCHING_RULES
-from .spec import TestSpec, check_flight_size
+from .spec import TestSpec, check_flight_size, check_hover_hold, check_switching
 
 __all__ = ["InnerGains", "CascadeSpec", "CascadeTestTruth", "CascadeTruth", "CASCADE_AXES", "COMMANDED",
            "STANDARD_GRAVITY", "CASCADE_TRUTH_SCHEMA"]
@@ -117,12 +116,8 @@ class CascadeSpec:
             raise InputError(f"the outer Td must be a positive time in seconds, got {self.Td!r}")
         if not (math.isfinite(self.tau) and self.tau >= 0):
             raise InputError(f"the outer tau must be a non-negative time in seconds, got {self.tau!r}")
-        if self.switching not in SWITCHING_RULES:
-            raise InputError(f"unknown switching rule {self.switching!r}; use one of {', '.join(SWITCHING_RULES)}")
-        for name in ("hover_s", "hold_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise InputError(f"{name} must be a non-negative time in seconds, got {value!r}")
+        check_switching(self.switching)
+        check_hover_hold(self)
         if not (self.inner_tests or self.outer_tests):
             raise InputError("give at least one MRFT test (inner or outer)")
         tests = (*self.inner_tests, *self.outer_tests)

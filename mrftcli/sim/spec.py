@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +24,8 @@ from .control import SWITCHING_RULES
 
 __all__ = [
     "check_flight_size",
+    "check_hover_hold",
+    "check_switching",
     "MAX_SIM_TICKS",
     "Effects",
     "TestSpec",
@@ -243,10 +246,7 @@ def _check_flight(spec: FlightSpec) -> None:
         raise InputError(f"the controller rate must be a positive frequency in Hz, got {spec.rate_hz!r}")
     if spec.noise_std is not None and not (math.isfinite(spec.noise_std) and spec.noise_std >= 0):
         raise InputError(f"the noise std must be >= 0, got {spec.noise_std!r}")
-    for name in ("hover_s", "hold_s"):
-        value = getattr(spec, name)
-        if not (math.isfinite(value) and value >= 0):
-            raise InputError(f"{name} must be a non-negative time in seconds, got {value!r}")
+    check_hover_hold(spec)
     if spec.abort_error is not None and not spec.abort_error > 0:
         raise InputError(f"abort_error must be positive, got {spec.abort_error!r}")
     if not isinstance(spec.model, LoopModel) and spec.setpoint not in (None, 0.0):
@@ -269,9 +269,22 @@ def _check_tests(spec: FlightSpec) -> None:
     check_flight_size(spec.hover_s + sum(t.duration + spec.hold_s for t in spec.tests), spec.rate_hz)
 
 
+def check_hover_hold(spec: Any) -> None:
+    """``spec.hover_s`` and ``spec.hold_s`` (a flight's or a cascade's) are times >= 0 s; one-line InputError."""
+    for name in ("hover_s", "hold_s"):
+        value = getattr(spec, name)
+        if not (math.isfinite(value) and value >= 0):
+            raise InputError(f"{name} must be a non-negative time in seconds, got {value!r}")
+
+
+def check_switching(switching: str) -> None:
+    """An MRFT switching rule this simulator flies (:data:`~mrftcli.sim.control.SWITCHING_RULES`)."""
+    if switching not in SWITCHING_RULES:
+        raise InputError(f"unknown switching rule {switching!r}; use one of {', '.join(SWITCHING_RULES)}")
+
+
 def _check_switching(spec: FlightSpec) -> None:
-    if spec.switching not in SWITCHING_RULES:
-        raise InputError(f"unknown switching rule {spec.switching!r}; use one of {', '.join(SWITCHING_RULES)}")
+    check_switching(spec.switching)
     if spec.start_threshold is not None and not (math.isfinite(spec.start_threshold) and spec.start_threshold >= 0):
         raise InputError(f"start_threshold must be >= 0, got {spec.start_threshold!r}")
     if not (math.isfinite(spec.no_switch_delay) and spec.no_switch_delay >= 0):

@@ -156,3 +156,24 @@ def test_a_family_analysis_takes_diagnose_too(fopdt_log: Path, tmp_path: Path) -
     data = json.loads(out.read_text())
     assert data["model"] == "fopdt" and data["diagnosis"]["family"] == "fopdt"
     assert f"diagnosis: {data['diagnosis']['summary']}" in proc.stdout
+
+
+def test_a_familys_bode_band_holds_the_flown_plant(fopdt_log: Path) -> None:
+    """The report's 95 % band (tune's draws over the estimates) holds the plant that flew the log at the tests'
+    frequencies, in magnitude and in phase."""
+    from mrftcli.analyze import AnalyzeOptions, RelayOptions, analyze_path
+    from mrftcli.io import ReadOptions
+    from mrftcli.mrft.families import family_model
+    from mrftcli.report.model_figures import _bode_band, _drawn_models
+
+    result = analyze_path(fopdt_log, family_model("fopdt"), read=ReadOptions(command_topic="u_relay",
+                                                                             output_topic="y_output"),
+                          options=AnalyzeOptions(relay=RelayOptions("mrft")))
+    omega = np.array(sorted(2 * np.pi * t.frequency_hz for t in result.tests))
+    models, _ = _drawn_models(result, np.empty((0, 3)))
+    assert len(models) >= 100
+    _, ph0, m_lo, m_hi, p_lo, p_hi = _bode_band(result, models, omega)
+    g = family_model("fopdt").with_parameters(**FOPDT).frequency_response(omega)
+    mag, ph = 20 * np.log10(np.abs(g)), np.degrees(np.unwrap(np.angle(g)))
+    ph -= 360.0 * np.round((ph[0] - ph0[0]) / 360.0)
+    assert np.all((m_lo <= mag) & (mag <= m_hi)) and np.all((p_lo <= ph) & (ph <= p_hi))

@@ -14,7 +14,7 @@ values are the refinement's (``AnalysisResult.refinement``), else the bootstrap 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -102,20 +102,36 @@ def plot_fit(result: AnalysisResult) -> Figure:
     return fig
 
 
-def _bode_band(result: AnalysisResult, draws: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Nominal magnitude [dB] and phase [deg] of the identified plant and the draws' 2.5-97.5 % band."""
+def _drawn_models(result: AnalysisResult, draws: np.ndarray) -> tuple[list[Any], str]:
+    """The plants the band is drawn over and their source: eq. (2)'s posterior draws (Td, tau, K); a
+    family's or the cascade's draws over its estimates' intervals (tune's, :mod:`mrftcli.tune.grid`)."""
+    if result.kind == "soiptd":
+        out = []
+        for td, tau, k in draws:
+            try:
+                out.append(result.model.with_parameters(Td=float(td), tau=float(tau), K=float(k)))
+            except InputError:  # a draw outside the model's valid set
+                continue
+        return out, ""
+    from ..tune.grid import model_draws, outer_draws
+
+    try:
+        if result.kind == "cascade":
+            return outer_draws(result.model, result.parameters, _N_DRAWS), "the estimates' std and the inner model's"
+        return model_draws(result.model, list(result.parameters.values()), _N_DRAWS)[0], "the estimates' intervals"
+    except InputError:  # an undetermined parameter with an open interval: no band
+        return [], ""
+
+
+def _bode_band(result: AnalysisResult, models: list[Any], omega: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Nominal magnitude [dB] and phase [deg] of the identified plant and the drawn plants' 2.5-97.5 % band."""
     g0 = result.model.frequency_response(omega)
     mag0, ph0 = 20 * np.log10(np.abs(g0)), np.degrees(np.unwrap(np.angle(g0)))
-    if draws.shape[0] < 10:
-        return mag0, ph0, mag0, mag0, ph0, ph0
     mags: list[np.ndarray]
     phs: list[np.ndarray]
     mags, phs = [], []
-    for td, tau, k in draws:
-        try:
-            g = result.model.with_parameters(Td=float(td), tau=float(tau), K=float(k)).frequency_response(omega)
-        except InputError:  # a draw outside the model's valid set (or a family without Td/tau/K)
-            continue
+    for model in models:
+        g = model.frequency_response(omega)
         mags.append(20 * np.log10(np.abs(g)))
         ph = np.degrees(np.unwrap(np.angle(g)))
         phs.append(ph - 360.0 * np.round((ph[0] - ph0[0]) / 360.0))  # the same branch as the nominal
@@ -170,7 +186,8 @@ def plot_uncertainty(result: AnalysisResult) -> Figure:
     freqs = [2 * math.pi * t.frequency_hz_mean for t in result.segmented if math.isfinite(t.frequency_hz_mean)]
     centre = float(np.median(freqs)) if freqs else 10.0
     omega = np.logspace(math.log10(centre / 30), math.log10(centre * 10), 300)
-    mag0, ph0, m_lo, m_hi, p_lo, p_hi = _bode_band(result, draws, omega)
+    models, drawn = _drawn_models(result, draws)
+    mag0, ph0, m_lo, m_hi, p_lo, p_hi = _bode_band(result, models, omega)
     at = [int(np.argmin(np.abs(omega - w))) for w in freqs]  # the band where the tests measured the plant
     width = (f"; 95 % band at the tests' frequencies: {max(m_hi[at] - m_lo[at]):.2g} dB, "
              f"{max(p_hi[at] - p_lo[at]):.2g} deg wide" if at else "")
@@ -190,8 +207,12 @@ def plot_uncertainty(result: AnalysisResult) -> Figure:
     ax_m.legend(fontsize=7, loc="lower left")
     if eq2:
         _ellipse(axes[2], result, draws)
-    fig.suptitle(f"Identified plant G(s) with its uncertainty (posterior: {source}, {draws.shape[0]} draws{width})"
-                 if eq2 else f"Identified plant G(s) ({result.model.family})"
-                 + (" and the response points it was fitted to" if result.kind == "family" else ""),
-                 fontsize=10)
+    if eq2:
+        title = f"Identified plant G(s) with its uncertainty (posterior: {source}, {draws.shape[0]} draws{width})"
+    else:
+        band = (f"95 % band over {len(models)} draws of {drawn}\n{width.lstrip('; ')}" if models
+                else "no band (an undetermined parameter's interval is open)\n")
+        title = (f"Identified plant G(s) ({result.model.family}): {band}"
+                 + ("; dots: the response points it was fitted to" if result.kind == "family" else ""))
+    fig.suptitle(title, fontsize=10)
     return fig

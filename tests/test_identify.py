@@ -311,7 +311,13 @@ def test_one_identify_for_every_family_each_by_its_strategy():
         identify(_tests(PAPER, (-0.4, -0.7)), family_model("fopdt"))
     with pytest.raises(InputError, match="soiptd model is identified from TestMeasurement"):
         identify(points, soiptd_model(0.1))
-    with pytest.raises(InputError, match="rate_hz not an option"):
+    with pytest.raises(InputError, match="fit_response_points takes no options, not rate_hz"):
         identify(points, family_model("fopdt"), rate_hz=100.0)
+    from mrftcli.mrft.cascade import CascadeModel, InnerLoop
+    from mrftcli.mrft.controller import Controller
+
+    cascade = CascadeModel(InnerLoop(PAPER, Controller(0.4, 0.0, 0.05, 0.005, 200.0)), 1.0, 0.0)
+    with pytest.raises(InputError, match="fit_cascade_cycles needs rate_hz"):
+        identify(_tests(PAPER, (-0.4, -0.7)), cascade)
     with pytest.raises(InputError, match="plant model"):
         identify(points, "fopdt")

@@ -715,19 +715,23 @@ def identify(data: Iterable[Any], model: PlantModel, **options: Any) -> Any:
         what = "MRFT tests as measured" if strategy.data == "tests" else "the tests' frequency-response points"
         raise InputError(f"a {model.family} model is identified from {expected.__name__} records ({what}), "
                          f"got {', '.join(given)}")
-    solve, takes = _strategy_function(strategy.module, strategy.function)
-    other = sorted(set(options) - set(takes))
-    if other:
-        raise InputError(f"identify: {', '.join(other)} not an option of the {model.family} model's strategy "
-                         f"{strategy.function} (it takes {', '.join(takes) or 'none'})")
+    solve, takes, needs = _strategy_function(strategy.module, strategy.function)
+    other, missing = sorted(set(options) - set(takes)), [n for n in needs if n not in options]
+    if other or missing:
+        raise InputError(f"identify: the {model.family} model's strategy {strategy.function} "
+                         + (f"needs {', '.join(missing)}" if missing else
+                            f"takes {', '.join(takes) or 'no options'}, not {', '.join(other)}"))
     return solve(data, model, **options)
 
 
 @functools.lru_cache(maxsize=None)
-def _strategy_function(module: str, name: str) -> tuple[Any, tuple[str, ...]]:
-    """The strategy's function and the names of its options (its parameters after data and model)."""
+def _strategy_function(module: str, name: str) -> tuple[Any, tuple[str, ...], tuple[str, ...]]:
+    """The strategy's function, the names of its options (its parameters after data and model) and of
+    those it needs (no default)."""
     solve = getattr(importlib.import_module(module), name)
-    return solve, tuple(inspect.signature(solve).parameters)[2:]
+    options = list(inspect.signature(solve).parameters.values())[2:]
+    return (solve, tuple(p.name for p in options),
+            tuple(p.name for p in options if p.default is inspect.Parameter.empty))
 
 
 def strategy_of(model: Any) -> Strategy:

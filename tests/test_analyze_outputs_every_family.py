@@ -156,6 +156,7 @@ def test_a_family_analysis_takes_diagnose_too(fopdt_log: Path, tmp_path: Path) -
     data = json.loads(out.read_text())
     assert data["model"] == "fopdt" and data["diagnosis"]["family"] == "fopdt"
     assert f"diagnosis: {data['diagnosis']['summary']}" in proc.stdout
+    assert "Model-mismatch diagnosis" in (tmp_path / "report" / "index.html").read_text()
 
 
 def test_a_familys_bode_band_holds_the_flown_plant(fopdt_log: Path) -> None:

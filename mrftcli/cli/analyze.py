@@ -262,14 +262,18 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         if report_dir:
             from ..report.analysis import write_analysis_report
 
-            links = []
-            if diagnosis is not None and diagnosis.figures is not None:  # a family's diagnosis draws none yet
+            links, extra = [], []
+            if diagnosis is not None and diagnosis.figures is not None:
                 from ..report.diagnosis import write_diagnosis_report
 
                 stage("report")(0, 1, "diagnosis page")
                 page = write_diagnosis_report(diagnosis, report_dir)
                 links.append((page.name, "Model-mismatch diagnosis"))
-            index = write_analysis_report(result, report_dir, links=links, progress=stage("report"))
+            elif diagnosis is not None:  # a family's diagnosis draws no figures yet: its verdict on the page
+                from ..report._common import esc
+
+                extra.append(f"<h2>Model-mismatch diagnosis</h2><p>{esc(diagnosis.summary)}</p>")
+            index = write_analysis_report(result, report_dir, links=links, progress=stage("report"), extra=extra)
     if json_target:
         data = result.to_json()
         if diagnosis is not None:

@@ -38,7 +38,7 @@ from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
 from ..mrft.model import PlantModel
 from ..segment.records import MrftTest
-from .effects import EffectFit
+from .effects import EffectFit, peak_amplitude
 
 __all__ = ["TestCheck", "BandResidual", "MeasuredWaveform", "measured_waveform", "check_test",
            "locate", "misfit", "verdict", "Z_LIMIT"]
@@ -257,13 +257,6 @@ class MeasuredWaveform:
     points: tuple[ResponsePoint, ...]
 
 
-def _peak_amplitude(Y: np.ndarray, n: int = 2048) -> float:
-    """Half the peak-to-peak of the waveform with harmonics ``Y`` [output units]."""
-    phase = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
-    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, Y.size + 1))) @ Y)
-    return float(0.5 * (wave.max() - wave.min()))
-
-
 def measured_waveform(flight: FlightLog, test: MrftTest, fits: Sequence[CycleFit] | None = None) -> MeasuredWaveform:
     """The test's mean cycle and scatter (module docstring, stage 2).
 
@@ -283,9 +276,9 @@ def measured_waveform(flight: FlightLog, test: MrftTest, fits: Sequence[CycleFit
     # 1 / mean period, as the analysis's table (a mean of 1 / P is biased up by the periods' scatter)
     periods = np.array([f.period for f in fits])
     freq = 1.0 / float(periods.mean())
-    amps = np.array([_peak_amplitude(y) for y in Y])
+    amps = np.array([peak_amplitude(y) for y in Y])
     return MeasuredWaveform(mean, se, freq, freq ** 2 * float(periods.std(ddof=1)) / math.sqrt(n),
-                            _peak_amplitude(mean), float(amps.std(ddof=1) / math.sqrt(n)),
+                            peak_amplitude(mean), float(amps.std(ddof=1) / math.sqrt(n)),
                             response_points(flight, test, fits=fits))
 
 
@@ -390,7 +383,7 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
     all_lc = None if all_model is None else _cycle(all_model, summary)
     if all_lc is not None:
         base = dataclasses.replace(base, all_frequency_hz=all_lc.frequency_hz,
-                                   all_amplitude=_peak_amplitude(_cycle_harmonics(all_lc, n_h)),
+                                   all_amplitude=peak_amplitude(_cycle_harmonics(all_lc, n_h)),
                                    all_bands=_bands(measured, _cycle_harmonics(all_lc, n_h), summary.rate_hz))
     if not others:
         return dataclasses.replace(base, note="no other test to hold it out against")
@@ -406,7 +399,7 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
     note = (f"{', '.join(held.undetermined)} not determined by the other tests: their spread is not in "
             "the held-out sigma" if held.undetermined else "")
     return dataclasses.replace(
-        base, held_out_frequency_hz=lc.frequency_hz, held_out_amplitude=_peak_amplitude(wave),
+        base, held_out_frequency_hz=lc.frequency_hz, held_out_amplitude=peak_amplitude(wave),
         held_out_frequency_sigma_hz=math.hypot(measured.frequency_se_hz, sf),
         held_out_amplitude_sigma=math.hypot(measured.amplitude_se, sa),
         held_out_bands=_bands(measured, wave, summary.rate_hz), note=note)

@@ -62,7 +62,7 @@ from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 from .physics import BIC_THRESHOLD, BY_NAME, EFFECTS, Action, Effect, OnTests
 
-__all__ = ["EffectFit", "Selection", "TestData", "as_test_data", "select"]
+__all__ = ["EffectFit", "Selection", "TestData", "as_test_data", "peak_amplitude", "select"]
 
 #: a named effect's held-out error must fall below this fraction of the linear model's: a small gain on
 #: a few noisy tests is what a free parameter buys anyway
@@ -135,6 +135,14 @@ class TestData:
     delay_gain: float = 2.0
 
 
+def peak_amplitude(Y: np.ndarray, n: int = 2048) -> float:
+    """Half the peak-to-peak of the waveform with harmonics ``Y`` (k = 1.., phase sampled at ``n``
+    points of the cycle) [output units]."""
+    phase = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
+    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, Y.size + 1))) @ Y)
+    return float(0.5 * (wave.max() - wave.min()))
+
+
 def _noise_std(t: np.ndarray, y: np.ndarray, t0: float, P: float, Y: np.ndarray) -> float:
     """The output's noise over one cycle: what its harmonics and a line leave [output units]."""
     k = np.arange(1, Y.size + 1)
@@ -171,16 +179,13 @@ def as_test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
         slopes.append(abs(float(np.real(np.sum(1j * k * 2 * math.pi / f.period * f.harmonics)))))
     n = len(fits)
     Y = np.mean([f.harmonics[:min(g.harmonics.size for g in fits)] for f in fits], axis=0)
-    phase = np.linspace(0.0, 2 * math.pi, 1024, endpoint=False)
-    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, Y.size + 1))) @ Y)
     m = np.array(means)
     Ts = 1.0 / float(s.rate_hz)
     slope = float(np.median(slopes))
     sigma_n = float(np.median(noise))
     switch_var = (sigma_n / slope) ** 2 if slope > 0 else math.inf
-    amps = [0.5 * float(np.ptp(np.real(np.exp(1j * np.outer(phase, np.arange(1, f.harmonics.size + 1)))
-                                       @ f.harmonics))) for f in fits]
-    amplitude = float(0.5 * (wave.max() - wave.min()))
+    amps = [peak_amplitude(f.harmonics, 1024) for f in fits]
+    amplitude = peak_amplitude(Y, 1024)
     precision = math.hypot(float(P.std(ddof=1) / P.mean()), float(np.std(amps, ddof=1)) / amplitude) / math.sqrt(n)
     return TestData(s.index, 0.5 * (s.t_start + s.t_end), s.relay.h, s.predicting_relay, float(s.rate_hz),
                     measured.points, 1.0 / float(P.mean()), amplitude,

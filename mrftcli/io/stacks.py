@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import InputError
 from .logtypes import TopicData
 
-__all__ = ["StackTest", "StackLogSpec", "write_stack_log"]
+__all__ = ["StackTest", "StackLogSpec", "write_stack_log", "hear_receive_times"]
 
 #: layout -> the format its logs are written in
 STACK_FORMATS = {"px4-mrft": "ulog", "hear-ros": "bag", "mat": "mat", "mat-v73": "mat"}
@@ -141,6 +141,15 @@ def _px4(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, setp
     return _Px4Log(topics, params, changes, messages)
 
 
+def hear_receive_times(stamps: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """When HEAR's ROS 1 bag receives messages sent at ``stamps`` [s]: 1 ms plus a half-normal 2 ms late
+    (transport and scheduling), increasing per topic (1 us apart at least), as a header-less Point is stamped."""
+    late = np.abs(rng.normal(0.0, 0.002, stamps.size)) + 0.001
+    ramp = np.arange(stamps.size) * 1e-6
+    stamped: np.ndarray = np.maximum.accumulate(stamps + late - ramp) + ramp
+    return stamped
+
+
 def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, setpoint: np.ndarray,
           log_rate_hz: float | None, rng: np.random.Generator) -> list[TopicData]:
     """HEAR ROS 1: Points without header, stamped at receive time (a few ms of jitter)."""
@@ -154,13 +163,6 @@ def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, set
     t_cam = np.arange(t[0], t[-1], 1.0 / 90.0)
     kc = np.clip(np.searchsorted(t, t_cam, side="right") - 1, 0, t.size - 1)
 
-    def received(stamps: np.ndarray) -> np.ndarray:
-        late = np.abs(rng.normal(0.0, 0.002, stamps.size)) + 0.001  # transport + scheduling delay
-        # a bag's receive times of one topic increase (1 us apart at least)
-        ramp = np.arange(stamps.size) * 1e-6
-        stamped: np.ndarray = np.maximum.accumulate(stamps + late - ramp) + ramp
-        return stamped
-
     def point(values: np.ndarray, n: int) -> dict[str, np.ndarray]:
         out = {c: np.zeros(n) for c in "xyz"}
         out[comp] = values
@@ -171,9 +173,9 @@ def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, set
     else:
         cmd_topic, out_topic, ref_topic = "/angle_u", "/opti/ori", "/angle_ref"
     return [
-        TopicData(cmd_topic, "geometry_msgs/msg/Point", received(t[k]), point(command[k], k.size)),
-        TopicData(out_topic, "geometry_msgs/msg/Point", received(t[kc]), point(output[kc], kc.size)),
-        TopicData(ref_topic, "geometry_msgs/msg/Point", received(t[k][::10]), point(setpoint[k][::10], k[::10].size)),
+        TopicData(cmd_topic, "geometry_msgs/msg/Point", hear_receive_times(t[k], rng), point(command[k], k.size)),
+        TopicData(out_topic, "geometry_msgs/msg/Point", hear_receive_times(t[kc], rng), point(output[kc], kc.size)),
+        TopicData(ref_topic, "geometry_msgs/msg/Point", hear_receive_times(t[k][::10], rng), point(setpoint[k][::10], k[::10].size)),
     ]
 
 

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..io.atomic import write_text_atomic
 from ..io.logtypes import TopicData
+from ..io.stacks import hear_receive_times
 from .cascade import CascadeFlight
 from .sidecar import quaternion_zyx, sidecar_path, write_log_atomic
 
@@ -90,12 +91,6 @@ def _hear_topics(flight: CascadeFlight, rng: np.random.Generator) -> list[TopicD
     t, n = flight.t, flight.t.size
     point = "geometry_msgs/msg/Point"
 
-    def received(stamps: Array) -> Array:
-        late = np.abs(rng.normal(0.0, 0.002, stamps.size)) + 0.001  # transport + scheduling delay
-        ramp = np.arange(stamps.size) * 1e-6  # a bag's receive times of one topic increase
-        out: Array = np.maximum.accumulate(stamps + late - ramp) + ramp
-        return out
-
     def xyz(**values: Array) -> dict[str, Array]:
         fields = {c: np.zeros(n) for c in "xyz"}
         fields.update(values)
@@ -108,12 +103,12 @@ def _hear_topics(flight: CascadeFlight, rng: np.random.Generator) -> list[TopicD
     pos = xyz(z=np.ones(n), **{axis: flight.position_measured})
     ref = np.arange(0, n, 10)
     return [
-        TopicData("/fh_des", point, received(t), xyz(z=np.full(n, 9.81), **{axis: flight.outer_command})),
-        TopicData("/angle_u", point, received(t), xyz(**{angle_axis: inner})),
-        TopicData("/opti/pos", point, received(t), pos),
-        TopicData("/opti/ori", point, received(t), xyz(x=roll, y=pitch)),
-        TopicData("/waypoint_reference/pos", point, received(t[ref]), {c: np.zeros(ref.size) for c in "xyz"}),
-        TopicData("/angle_ref", point, received(t[ref]), {c: (inner_ref[ref] if c == angle_axis else np.zeros(ref.size))
+        TopicData("/fh_des", point, hear_receive_times(t, rng), xyz(z=np.full(n, 9.81), **{axis: flight.outer_command})),
+        TopicData("/angle_u", point, hear_receive_times(t, rng), xyz(**{angle_axis: inner})),
+        TopicData("/opti/pos", point, hear_receive_times(t, rng), pos),
+        TopicData("/opti/ori", point, hear_receive_times(t, rng), xyz(x=roll, y=pitch)),
+        TopicData("/waypoint_reference/pos", point, hear_receive_times(t[ref], rng), {c: np.zeros(ref.size) for c in "xyz"}),
+        TopicData("/angle_ref", point, hear_receive_times(t[ref], rng), {c: (inner_ref[ref] if c == angle_axis else np.zeros(ref.size))
                                                           for c in "xyz"}),
     ]
 

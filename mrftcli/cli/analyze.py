@@ -263,7 +263,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
             from ..report.analysis import write_analysis_report
 
             links, extra = [], []
-            if diagnosis is not None and diagnosis.figures is not None:
+            if diagnosis is not None and result.kind == "soiptd":
                 from ..report.diagnosis import write_diagnosis_report
 
                 stage("report")(0, 1, "diagnosis page")

@@ -32,7 +32,7 @@ from ..io.atomic import write_text_atomic
 from ..io.logtypes import TopicData
 from ..io.stacks import hear_receive_times
 from .cascade import CascadeFlight
-from .sidecar import quaternion_zyx, sidecar_path, write_log_atomic
+from .sidecar import imu_topic, sidecar_path, write_log_atomic
 
 __all__ = ["CASCADE_LAYOUTS", "cascade_topics", "write_cascade"]
 
@@ -80,9 +80,7 @@ def _reference_topics(flight: CascadeFlight) -> list[TopicData]:
     pose["pose.position.z"] = np.ones(n)
     pose["pose.orientation.w"] = np.ones(n)
     topics.append(TopicData("/mocap/pose", "geometry_msgs/msg/PoseStamped", t.copy(), pose))
-    qx, qy, qz, qw = quaternion_zyx(*_attitudes(flight))
-    topics.append(TopicData("/imu/data", "sensor_msgs/msg/Imu", t.copy(),
-                            {"orientation.x": qx, "orientation.y": qy, "orientation.z": qz, "orientation.w": qw}))
+    topics.append(imu_topic(t, *_attitudes(flight)))
     return topics
 
 

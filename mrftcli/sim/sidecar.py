@@ -28,7 +28,7 @@ from .spec import FlightSettings, FlightSpec
 if TYPE_CHECKING:
     from .flight import SimulatedFlight
 
-__all__ = ["truth_record", "flight_topics", "sidecar_path", "write_flight", "write_log_atomic", "check_log_target",
+__all__ = ["truth_record", "flight_topics", "imu_topic", "sidecar_path", "write_flight", "write_log_atomic", "check_log_target",
            "quaternion_zyx"]
 
 
@@ -186,17 +186,14 @@ def _output_topic(spec: FlightSpec, t: np.ndarray, y_meas: np.ndarray, other_noi
             t.copy(),
             {f"pose.position.{axis}": y_meas.copy(), "pose.orientation.w": np.ones(t.size)},
         )
-    if spec.loop == "roll":
-        roll, pitch = y_meas, other_noise
-    else:
-        roll, pitch = other_noise, y_meas
+    return imu_topic(t, *((y_meas, other_noise) if spec.loop == "roll" else (other_noise, y_meas)))
+
+
+def imu_topic(t: np.ndarray, roll: np.ndarray, pitch: np.ndarray) -> TopicData:
+    """``/imu/data`` of the reference layout: the attitude [rad] as a quaternion (yaw 0), stamped at ``t`` [s]."""
     qx, qy, qz, qw = quaternion_zyx(roll, pitch)
-    return TopicData(
-        "/imu/data",
-        "sensor_msgs/msg/Imu",
-        t.copy(),
-        {"orientation.x": qx, "orientation.y": qy, "orientation.z": qz, "orientation.w": qw},
-    )
+    return TopicData("/imu/data", "sensor_msgs/msg/Imu", t.copy(),
+                     {"orientation.x": qx, "orientation.y": qy, "orientation.z": qz, "orientation.w": qw})
 
 
 def sidecar_path(log_path: str | Path) -> Path:

@@ -236,10 +236,7 @@ class ZCascadeFigures:
 
     def worst(self) -> Margins:
         """Smallest GM, PM and delay margin, largest Ms (its row's crossovers), stable only if every row is."""
-        rows = self.per_row
-        w = max(rows, key=lambda m: m.Ms)
-        return Margins(min(m.gain_margin for m in rows), min(m.phase_margin_deg for m in rows),
-                       min(m.delay_margin_s for m in rows), w.Ms, w.w_gc, w.w_pc, all(m.stable for m in rows))
+        return _worst(self.per_row)
 
     def worst_split(self) -> DelaySplit:
         """The split of the largest Ms (rows cycle through the splits per model)."""
@@ -367,7 +364,11 @@ def robust_models(models: Sequence[LoopModel]) -> tuple[LoopModel, ...]:
 
 def robust_figures(g: ZCascadeGains, models: Sequence[LoopModel]) -> Margins:
     """The worst margins of ``g`` over ``models``, each over its own splits of tau."""
-    rows = [cascade_figures(g, [m], split_grid(m.tau)).worst() for m in models]
+    return _worst([cascade_figures(g, [m], split_grid(m.tau)).worst() for m in models])
+
+
+def _worst(rows: Sequence[Margins]) -> Margins:
+    """Smallest GM, PM and delay margin, largest Ms (its row's crossovers), stable only if every row is."""
     w = max(rows, key=lambda m: m.Ms)
     return Margins(min(m.gain_margin for m in rows), min(m.phase_margin_deg for m in rows),
                    min(m.delay_margin_s for m in rows), w.Ms, w.w_gc, w.w_pc, all(m.stable for m in rows))

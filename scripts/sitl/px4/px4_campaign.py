@@ -222,6 +222,13 @@ def _rate_fit(log: Path, loop: str, tp: float, output_topic: str | None, command
     return res, [p / m - 1.0 for m, p in held]
 
 
+def _logged_topics(log: Path) -> set[str]:
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        return {t.name for t in src.topics()}
+
+
 def analyse_rate(name: str, log: Path, side: dict[str, Any], delay: float) -> dict[str, Any]:
     """A roll / pitch flight: on EKF2's attitude (the relay's) at SIH_T_TAU, and on SIH's own attitude at
     the bench Tp (:func:`bench_tp`), the command the relays' decision before MRFT_DELAY where logged
@@ -250,6 +257,9 @@ def analyse_rate(name: str, log: Path, side: dict[str, Any], delay: float) -> di
         out.update(refused=str(err), held_misses=[(i, str(err)) for i in range(len(side["tests"]))])
     tp = bench_tp()
     truth: dict[str, Any] = {"tp": tp}
+    if TRUTH_ATTITUDE.split(":")[0] not in _logged_topics(log):
+        print(f"      SIH's attitude not logged (a flight before {TRUTH_ATTITUDE.split(':')[0]} was)")
+        return out
     out["truth"] = truth
     try:
         res, errs = _rate_fit(log, loop, tp, TRUTH_ATTITUDE, command)

@@ -158,7 +158,9 @@ def _tolerance_for(loop: str, param: str, fail_on: tuple[Tolerance, ...],
 
 def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options: CompareOptions,
                   fail_without_tolerance: bool, skip_absent: bool) -> list[ParameterChange]:
-    params = [p for p in PARAMETERS if p in b.parameters or p in n.parameters]
+    # eq. (2)'s in their order, then a process family's others in the order the sides name them
+    params = [p for p in dict.fromkeys((*PARAMETERS, *b.parameters, *n.parameters))
+              if p in b.parameters or p in n.parameters]
     if skip_absent:  # a reference states only the parameters it checks
         params = [p for p in params if p in b.parameters and p in n.parameters]
     missing = Estimate(value=None)
@@ -251,7 +253,8 @@ def _match(base: Side, new: Side) -> tuple[list[_Row], list[str]]:
 
 
 def _missing(name: str | None, loop: str, b: LoopEstimates | None, n: LoopEstimates | None) -> MissingResult | None:
-    """The loop cannot be compared because it is on one side only (absent, or failed, on the other)."""
+    """The loop cannot be compared: it is on one side only (absent, or failed, on the other), or the two
+    sides identified different model families."""
     if b is None or n is None or not b.usable or not n.usable:
         side = "baseline" if b is None or not b.usable else "new"
         other = n if side == "baseline" else b
@@ -259,6 +262,10 @@ def _missing(name: str | None, loop: str, b: LoopEstimates | None, n: LoopEstima
         reason = (gone.error or "").strip() if gone is not None else f"no {side} result for this loop"
         assert other is not None
         return MissingResult(name=name, loop=loop, side=side, reason=reason or f"no {side} result for this loop")
+    if b.model is not None and n.model is not None and b.model != n.model:  # a K of fopdt is not eq. (2)'s
+        return MissingResult(name=name, loop=loop, side="both",
+                             reason=f"the analyses identified different models ({b.model}, {n.model}): their "
+                                    "parameters are not comparable; analyse both with the same --model")
     return None
 
 

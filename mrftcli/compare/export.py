@@ -18,7 +18,8 @@ __all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "forma
            "TABLE_WIDTH"]
 
 #: Parameter -> (display unit, factor from SI) for reports; the records stay in SI.
-DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3), "K": ("", 1.0)}
+DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3), "K": ("", 1.0),
+                                                "T": ("s", 1.0), "T1": ("s", 1.0), "T2": ("s", 1.0)}
 
 
 def _scale(param: str) -> tuple[str, float]:

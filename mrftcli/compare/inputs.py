@@ -87,7 +87,8 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
     ----------
     result : Mapping
         The analysis JSON (Td, tau, K: the parameter record, ``value``, ``std``, ``ci95_low``, ``ci95_high``
-        [SI units]; ``mean`` before analysis schema 4).
+        [SI units]; ``mean`` before analysis schema 4); a process family's record gives its unknown
+        parameters by name (``K``, ``T``, ``tau``...).
     source : str
         Where it was read (for messages).
     name : str or None
@@ -102,8 +103,14 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
         analysis = AnalysisResult.from_json(result)
     except InputError as err:
         raise InputError(f"{source}: {err}") from None
+    if analysis.kind == "family":  # a process family: its parameters by name, the given (known) ones left out
+        estimates = {n: _estimate(p) for n, p in analysis.parameters.items() if not p.known}
+        return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates,
+                             model=analysis.model.family)
     estimates = {"Td": _estimate(analysis.Td), "tau": _estimate(analysis.tau), "K": _estimate(analysis.K)}
-    return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates, tp=analysis.Tp)
+    # a cascade's outer Td, tau, K are compared with eq. (2)'s of the same loop as before (model not checked)
+    return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates, tp=analysis.Tp,
+                         model=None if analysis.kind == "cascade" else "soiptd")
 
 
 def _batch_name(record: Mapping[str, Any], by: str) -> str:

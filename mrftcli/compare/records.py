@@ -149,13 +149,16 @@ class LoopEstimates:
     source : str
         Where it was read (a file).
     parameters : Mapping[str, Estimate]
-        ``Td``, ``tau``, ``K`` (those the side states).
+        ``Td``, ``tau``, ``K`` (those the side states); a process family's own names (``T``, ``T1``...).
     tp : float or None
         The propulsion time constant the analysis assumed [s].
     error : str or None
         Why this loop is unusable (a failed or insufficient analysis); None when usable.
     tolerances : tuple of Tolerance
         Tolerances that come with it (a reference file's ``tol``).
+    model : str or None
+        The model family the analysis identified (``soiptd``: eq. (2); ``fopdt``...); None for a
+        reference file, which states values only.
     absent : bool
         The log does not hold this loop at all (a batch row skipped for want of its topics or of any
         test on it): not a result, and not a failure either.
@@ -169,6 +172,7 @@ class LoopEstimates:
     error: str | None = None
     tolerances: tuple[Tolerance, ...] = ()
     absent: bool = False
+    model: str | None = None
 
     @property
     def usable(self) -> bool:

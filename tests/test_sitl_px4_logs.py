@@ -291,3 +291,21 @@ def test_the_rate_relays_delay_is_exact_and_comes_back_in_tau_on_sihs_attitude()
     sih = sih_implied("pitch")
     assert ekf.Td.value == pytest.approx(sih["Td"], rel=0.05)
     assert ekf.K.value == pytest.approx(sih["K"], rel=0.02)
+
+
+def test_attitude_step_helpers_against_closed_forms() -> None:
+    """px4_rate_step: the attitude setpoint's quaternion reads back as the angle sent (ZYX Euler), and a
+    step's figures of a first-order response are tau ln 9 (10-90 % rise) and tau ln 50 (2 % settling)."""
+    from px4_rate_step import _angle, _quat, _step_figures
+
+    for roll, pitch in ((0.17, 0.0), (0.0, -0.17), (0.1, 0.2)):
+        q = dict(zip([f"q[{i}]" for i in range(4)], (np.array([v]) for v in _quat(roll, pitch, 1.2))))
+        assert _angle(q, "roll")[0] == pytest.approx(roll, abs=1e-9)
+        assert _angle(q, "pitch")[0] == pytest.approx(pitch, abs=1e-9)
+    tau, t0 = 0.1, 5.0
+    t = np.arange(0.0, 10.0, 0.001)
+    y = np.where(t < t0, 0.3, 0.3 + 2.0 * (1.0 - np.exp(-(t - t0) / tau)))
+    fig = _step_figures(t, y, t0, dwell=2.0)
+    assert fig["rise_s"] == pytest.approx(tau * np.log(9.0), abs=0.005)
+    assert fig["settling_s"] == pytest.approx(tau * np.log(50.0), abs=0.005)
+    assert fig["overshoot_pct"] == pytest.approx(0.0, abs=1e-3)  # the level: the mean of the last 0.5 s

@@ -509,12 +509,14 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     results = analyse(logs)
     report(results)
     done = logs / "export" / "refly.ulg"
-    if "px4_pitch_h" in results and not no_refly:  # the pitch export and step (px4_rate_step.py)
+    for loop in ("pitch", "roll"):  # the rate loops' export and step (px4_rate_step.py)
+        if f"px4_{loop}_h" not in results or no_refly:
+            continue
         from px4_rate_step import run_rate_step
 
-        print("3b. tune --export px4 for pitch (SIH's attitude, the bench Tp), and a pitch step" +
+        print(f"3b. tune --export px4 for {loop} (SIH's attitude, the bench Tp), and a {loop} step" +
               (" (flown before: evaluated again)" if analyze_only else ""))
-        run_rate_step(px4, logs, bench_tp(), TRUTH_ATTITUDE, fly=not analyze_only)
+        run_rate_step(px4, logs, bench_tp(), TRUTH_ATTITUDE, fly=not analyze_only, loop=loop, flight=f"px4_{loop}_h")
     if (analyze_only or no_refly) and EXPORT_FROM in results and done.exists():
         print(f"3. the re-flight already flown ({done}), evaluated again")
         _compare_step(results, logs / "export" / "altitude.params", {"log": done, "step_m": 1.0, "dwell_s": 10.0})

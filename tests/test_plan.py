@@ -348,3 +348,20 @@ def test_eq2_is_planned_with_tp_known_and_the_rest_free():
         plan_tests(soiptd_model(0.04, K=2.0), limits, prior=_narrow_prior())
     with pytest.raises(InputError, match="Prior"):
         plan_tests(soiptd_model(0.04), limits)
+
+
+def test_plan_limits_one_record_for_a_flight_and_a_relay_test():
+    # eq. (2)'s flight needs all five (amplitude and height included); a relay test's two are optional
+    flight = PlanLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
+    assert flight.flight and flight.bounds() == (0.05, 0.2)
+    assert list(flight.to_json()) == ["max_amplitude", "max_h", "time_s", "rate_hz", "noise_std"]
+    assert PlanLimits.from_json(json.loads(json.dumps(flight.to_json()))) == flight
+    relay = PlanLimits(max_amplitude=None, max_h=2.0)
+    assert not relay.flight and relay.to_json() == {"max_amplitude": None, "max_h": 2.0}
+    assert PlanLimits.from_json(relay.to_json()) == relay
+    with pytest.raises(InputError, match="--max-amplitude"):
+        PlanLimits(max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=0.0002)
+    with pytest.raises(InputError, match="--noise"):
+        PlanLimits(max_amplitude=0.05, max_h=0.2, time_s=30.0, rate_hz=200.0, noise_std=-1.0)
+    with pytest.raises(InputError, match="Prior and a flight"):
+        plan_tests(soiptd_model(0.04), relay, prior=Prior(Td=(0.3, 2.0), tau=(0.01, 0.06), K=(1.0, 4.0)))

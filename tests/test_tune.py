@@ -462,3 +462,18 @@ def test_design_options_are_checked_on_creation():
                 {"designs": ("lqr",)}, {"kinds": ("P",)}, {"pm_min_deg": 95.0}):
         with pytest.raises(InputError):
             DesignOptions(**bad)
+
+
+def test_controller_json_is_the_generic_form_and_reads_back():
+    # the one PID record: tune's designs, a cascade's inner loop and GAINS.json share its JSON
+    from mrftcli.mrft.controller import Controller as C, RateFilter
+
+    c = C(2.0, 0.5, 0.3, 0.01, 200.0)
+    assert c.to_json() == {"Kp": 2.0, "Ki": 0.5, "Kd": 0.3, "Tf": 0.01, "rate_hz": 200.0}
+    assert C.from_json({**c.to_json(), "form": "parallel"}) == c
+    f = C(2.0, 0.0, 0.3, 0.0, 250.0, RateFilter(40.0, "IMU_GYRO_CUTOFF"))
+    assert C.from_json(json.loads(json.dumps(f.to_json()))) == f
+    with pytest.raises(InputError, match="'Kd'"):
+        C.from_json({"Kp": 1.0, "Ki": 0.0, "Tf": 0.01, "rate_hz": 200.0}, "inner gains")
+    with pytest.raises(InputError, match="must be an object"):
+        C.from_json([1, 2], "inner gains")

@@ -236,6 +236,13 @@ def test_tune_on_the_cascade_keeps_its_margins() -> None:
         assert np.max(np.abs(np.linalg.eigvals(A))) < 1.0
     assert TuneResult.from_json(json.loads(json.dumps(res.to_json()))).to_json() == json.loads(
         json.dumps(res.to_json()))
+    # the cascade is a strategy of the one grid search: the designs asked for, eq. (2)'s options refused
+    from mrftcli.tune.design import DesignOptions
+
+    only = tune(m, RATE, posterior=draws, loop="y", options=DesignOptions(designs=("model-based",)))
+    assert [d.name for d in only.designs] == ["model-based"] and only.designs[0] == res.get("model-based", "PD")
+    with pytest.raises(InputError, match="cascade's outer loop"):
+        tune(m, RATE, options=DesignOptions(kinds=("PID",)))
 
 
 def test_cli_option_errors(tmp_path) -> None:

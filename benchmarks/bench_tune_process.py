@@ -31,7 +31,8 @@ MS_TOLERANCE = 1.05  # an Ms within 5 % of the limit on the true plant counts as
 
 def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, float]:
     """(stable, Ms, phase margin [deg]) of the PI on the true plant's exact sampled loop."""
-    from mrftcli.tune.grid import closed_loop_matrix, discrete_response, discretise, sampled_margins
+    from mrftcli.tune.closed_loop import closed_loop_matrix
+    from mrftcli.tune.grid import discrete_response, discretise, sampled_margins
 
     sign = 1.0 if true_model.parameters["K"].value > 0 else -1.0
     ss = discretise(true_model, rate_hz)

@@ -223,7 +223,7 @@ def test_inner_gains_forms_and_errors() -> None:
 def test_tune_on_the_cascade_keeps_its_margins() -> None:
     """The robust PD holds its phase margin on every draw; the closed loop of the independent form is stable."""
     from mrftcli.tune.design import TuneResult, tune
-    from mrftcli.tune.grid import closed_loop_matrix
+    from mrftcli.tune.closed_loop import closed_loop_matrix
 
     m = _cascade()
     draws = [m.with_parameters(Td=0.7, tau=0.04), m.with_parameters(Td=0.9, tau=0.028)]

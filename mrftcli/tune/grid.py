@@ -14,7 +14,7 @@ and returns the one :class:`~mrftcli.tune.design.TuneResult` record. What a mode
   controller, the translational dynamics, both delays);
 * the controller is :class:`~mrftcli.mrft.controller.Controller` (parallel PID, derivative on the
   measurement through Tf = Td_c / ``FILTER_N``, backward differences); the loop's figures are
-  :func:`closed_loop_matrix` and :func:`sampled_margins` (one implementation of each);
+  :func:`~mrftcli.tune.closed_loop.closed_loop_matrix` and :func:`sampled_margins` (one implementation of each);
 * for each kind, on a grid of integral times Ti (PI, PID) and derivative times Td_c (PD, PID), the
   largest Kp that keeps every model (the nominal one for ``model-based``; the nominal and the draws for
   ``robust``) stable with Ms <= ``ms_max`` and a phase margin >= ``pm_min_deg``; of those, the least IAE
@@ -53,8 +53,8 @@ from .closed_loop import (Controller, DiscretePlant, StepMetrics, augmented, clo
 from .design import FILTER_N, Design, DesignOptions, TuneResult
 from .margins import Margins
 
-__all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "closed_loop_matrix",
-           "sampled_margins", "step_outputs", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
+__all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "sampled_margins",
+           "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
 #: the controllers designed (PD on integrating plants only)
 GRID_KINDS = ("PI", "PID", "PD")

@@ -31,7 +31,7 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from .cascade_plant import CascadePlant, cascade_plant, closed_loop_radius, outer_plant_response
 from .cascade_spec import CascadeSpec, CascadeTestTruth, CascadeTruth, InnerGains
-from .control import HearMrftRelay, MrftRelay, df_prediction, make_relay
+from .control import HearMrftRelay, MrftRelay, RelayTests, df_prediction, make_relay
 from .spec import TestSpec
 
 __all__ = ["CascadeFlight", "simulate_cascade", "outer_hold_gains", "inner_pd",
@@ -235,31 +235,17 @@ class _CascadeController:
         self.conv = command_gain(spec.commanded, spec.g)
         self.schedule = schedule
         self.tests = (*spec.inner_tests, *spec.outer_tests)
-        self.mode = np.full(schedule.n_ticks, -1, dtype=np.int64)
-        for j, (k0, k1) in enumerate(schedule.ranges):
-            self.mode[k0:k1] = j
-        self.aborted: list[int | None] = [None] * len(self.tests)
-        self.start_error = [0.0] * len(self.tests)
         thresholds = {"inner": 10.0 * noise[0], "outer": 10.0 * noise[1]}
-        self.relays: list[MrftRelay | HearMrftRelay] = [
+        relays: list[MrftRelay | HearMrftRelay] = [
             make_relay(t.beta, spec.switching, thresholds[kind], 5, 0.02 * spec.rate_hz)
             for t, kind in zip(self.tests, schedule.kinds)]
+        # a flight stack's safety net, counted from where each test started (the vehicle may have drifted
+        # during the previous test and first travel back): the hold takes over for the rest of the test
+        self.running = RelayTests(self.tests, relays, schedule.ranges, schedule.limits, schedule.n_ticks,
+                                  from_start=True)
+        self.aborted, self.mode = self.running.aborted, self.running.mode
         self.d_in = self.i_in = self.d_out = self.i_out = 0.0
         self.a_prev = self.y_prev = 0.0
-
-    def _relay(self, j: int, k: int, e: float) -> float:
-        if k == self.schedule.ranges[j][0]:
-            # a test that starts away from the setpoint (the vehicle drifted during the previous test) may
-            # first travel back: the safety net is counted from where it started
-            self.start_error[j] = abs(e)
-        if abs(e) > self.schedule.limits[j] + self.start_error[j]:
-            # a flight stack's safety net: the hold takes over for the rest of the test
-            self.aborted[j] = k
-            self.mode[k:self.schedule.ranges[j][1]] = -1
-            return math.nan
-        relay = self.relays[j]
-        s = relay.start(e) if k == self.schedule.ranges[j][0] else relay.step(e)
-        return s * self.tests[j].h
 
     def step(self, k: int, alpha_m: float, y_m: float) -> tuple[float, float, float]:
         """(u, c, alpha_ref) of tick ``k`` for the measured attitude [rad] and position [m]."""
@@ -269,7 +255,7 @@ class _CascadeController:
         e_o = -y_m
         self.d_out = (hold.Tf * self.d_out - hold.Kd * (y_m - self.y_prev)) / (hold.Tf + T)
         self.y_prev = y_m
-        c = self._relay(j, k, e_o) if kind == "outer" else math.nan
+        c = self.running.command(j, k, e_o) if kind == "outer" else math.nan
         if math.isnan(c):
             if kind == "hold" or self.mode[k] < 0:
                 self.i_out += hold.Ki * T * e_o  # the integrators are frozen during tests
@@ -277,7 +263,7 @@ class _CascadeController:
         alpha_ref = self.conv * c
         self.d_in = (inner.Tf * self.d_in - inner.Kd * (alpha_m - self.a_prev)) / (inner.Tf + T)
         self.a_prev = alpha_m
-        u = self._relay(j, k, -alpha_m) if kind == "inner" else math.nan
+        u = self.running.command(j, k, -alpha_m) if kind == "inner" else math.nan
         if kind == "inner" and not math.isnan(u):
             return u, c, 0.0
         e_i = alpha_ref - alpha_m

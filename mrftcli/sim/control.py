@@ -7,7 +7,9 @@ Used by :mod:`mrftcli.sim.flight`, which re-exports the public names; :class:`Mr
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +24,7 @@ __all__ = [
     "MrftRelay",
     "HearMrftRelay",
     "make_relay",
+    "RelayTests",
     "relay_sequence",
     "HoldPID",
     "design_hold_pid",
@@ -254,6 +257,41 @@ def make_relay(
     if switching == "hear":
         return HearMrftRelay(beta, confirm_samples, no_switch_ticks)
     raise InputError(f"unknown switching rule {switching!r}; use one of {', '.join(SWITCHING_RULES)}")
+
+
+class RelayTests:
+    """A flight's MRFT tests tick by tick, for the flight's and the cascade's controllers: which test runs
+    at each tick (``mode``: its index, -1 for the hold), its relay, and a flight stack's safety net.
+
+    A test whose error exceeds its limit is aborted (``aborted[j]``: the tick) and the hold takes over for
+    the rest of it. With ``from_start`` the limit counts from the error at the test's first tick (a
+    cascade's test may start away from the setpoint, the vehicle having drifted during the one before,
+    and first travel back).
+    """
+
+    def __init__(self, tests: Sequence[Any], relays: Sequence[MrftRelay | HearMrftRelay],
+                 ranges: Sequence[tuple[int, int]], limits: Sequence[float], n_ticks: int,
+                 from_start: bool = False) -> None:
+        self.tests, self.relays, self.ranges, self.limits = tests, relays, ranges, limits
+        self.mode = np.full(n_ticks, -1, dtype=np.int64)
+        for j, (k0, k1) in enumerate(ranges):
+            self.mode[k0:k1] = j
+        self.aborted: list[int | None] = [None] * len(tests)
+        self.start_error = [0.0] * len(tests)
+        self.from_start = from_start
+
+    def command(self, j: int, k: int, e: float) -> float:
+        """Test ``j``'s relay output +-h at tick ``k`` for the error ``e``, or NaN when the safety net aborts it."""
+        k0, k1 = self.ranges[j]
+        if self.from_start and k == k0:
+            self.start_error[j] = abs(e)
+        if abs(e) > self.limits[j] + self.start_error[j]:
+            self.aborted[j] = k
+            self.mode[k:k1] = -1
+            return math.nan
+        relay = self.relays[j]
+        s = relay.start(e) if k == k0 else relay.step(e)
+        return s * self.tests[j].h
 
 
 def relay_sequence(e: np.ndarray, beta: float, switching: str = "checks", **options) -> np.ndarray:

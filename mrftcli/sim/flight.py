@@ -54,6 +54,7 @@ from .control import (
     HearMrftRelay,
     HoldPID,
     MrftRelay,
+    RelayTests,
     design_hold_pid,
     df_prediction,
     make_relay,
@@ -269,49 +270,37 @@ def _abort_limits(spec: FlightSpec, noise_std: float) -> list[float]:
 
 class _Controller:
     """The flight's controller, tick by tick: the hold PID between tests (and after a safety abort),
-    the MRFT relay during them (checks.md section 2, or HEAR's)."""
+    the MRFT relay during them (checks.md section 2, or HEAR's; :class:`~mrftcli.sim.control.RelayTests`)."""
 
     def __init__(self, spec: FlightSpec, settings: FlightSettings, pid: HoldPID, abort_limits: Sequence[float]):
         T = settings.T
-        self.tests = spec.tests
-        self.ranges = settings.ranges
-        self.abort_limits = abort_limits
         self.r, self.bias, self.T, self.pid = settings.setpoint, settings.bias, T, pid
-        self.mode = np.full(settings.n_ticks, -1, dtype=np.int64)  # test index per tick, -1: hold
-        for j, (k0, k1) in enumerate(settings.ranges):
-            self.mode[k0:k1] = j
-        self.aborted: list[int | None] = [None] * len(spec.tests)
         self.integ = -spec.effects.input_bias  # the log starts in trimmed hover: the integrator holds the trim error
         self.dterm = 0.0
         self.y_prev = settings.setpoint
         self.a_d = pid.Tf / (pid.Tf + T)
         self.b_d = pid.Kd / (pid.Tf + T)
         start_threshold = 10.0 * settings.noise_std if spec.start_threshold is None else float(spec.start_threshold)
-        self.relays = [make_relay(t.beta, spec.switching, start_threshold, spec.confirm_samples,
-                                  spec.no_switch_delay * spec.rate_hz, t.eps) for t in spec.tests]
+        relays = [make_relay(t.beta, spec.switching, start_threshold, spec.confirm_samples,
+                             spec.no_switch_delay * spec.rate_hz, t.eps) for t in spec.tests]
+        # a real flight stack's safety abort (e.g. the relay got stuck after a noise-triggered switch and the
+        # output runs away): the hold controller takes over for the rest of the test
+        self.running = RelayTests(spec.tests, relays, settings.ranges, abort_limits, settings.n_ticks)
+        self.aborted = self.running.aborted
 
     def step(self, k: int, ym: float) -> float:
         """The command of tick ``k`` for the measured output ``ym`` [command units]."""
         e = self.r - ym
-        j = self.mode[k]
-        if j >= 0 and abs(e) > self.abort_limits[j]:
-            # safety abort of a real flight stack (e.g. the relay got stuck after a noise-triggered
-            # switch and the output runs away): the hold controller takes over for the rest of the test
-            self.aborted[j] = k
-            self.mode[k : self.ranges[j][1]] = -1
-            j = -1
-        if j < 0:
+        j = int(self.running.mode[k])
+        relay = self.running.command(j, k, e) if j >= 0 else math.nan  # +-h; NaN: no test, or just aborted
+        if math.isnan(relay):
             # PID hold (derivative on the measurement; the integrator is frozen during tests)
             self.dterm = self.a_d * self.dterm - self.b_d * (ym - self.y_prev)
             self.integ += self.pid.Ki * self.T * e
             u = self.bias + self.pid.Kp * e + self.integ + self.dterm
         else:
             # MRFT, checks.md section 2: extremum of the sampled error since the last switch
-            if k == self.ranges[j][0]:
-                relay = self.relays[j].start(e)
-            else:
-                relay = self.relays[j].step(e)
-            u = self.bias + relay * self.tests[j].h
+            u = self.bias + relay
             self.dterm = self.a_d * self.dterm - self.b_d * (ym - self.y_prev)  # keep the filter current: no kick on return
         self.y_prev = ym
         return u

@@ -1,6 +1,6 @@
 """What the results MCAP of an analysis shows (``analyze --mcap-out``); :mod:`mrftcli.io.overlay` writes it.
 
-:func:`test_predictions` is the identified model's output over each test, driven by the recorded
+:func:`analysis_predictions` is the identified model's output over each test, driven by the recorded
 command, which the overlay and the report's fit figure both draw.
 """
 
@@ -13,13 +13,13 @@ import numpy as np
 from ..errors import InputError
 from .record import AnalysisResult
 
-__all__ = ["analysis_overlay", "test_predictions"]
+__all__ = ["analysis_overlay", "analysis_predictions"]
 
 #: command before each test that drives its first outputs [s] (covers any delay up to 1 s)
 _HISTORY = 1.0
 
 
-def test_predictions(result: AnalysisResult[Any, Any, Any]) -> dict[int, Any]:
+def analysis_predictions(result: AnalysisResult[Any, Any, Any]) -> dict[int, Any]:
     """The identified model's output over each of the record's tests (:attr:`AnalysisResult.segmented`),
     driven by the recorded command: ``MrftTest.index`` -> :class:`~mrftcli.mrft.waveform.PredictedOutput`.
 
@@ -93,7 +93,7 @@ def analysis_overlay(result: AnalysisResult[Any, Any, Any]) -> dict[str, Any]:
     if result.flight is None:
         raise InputError("the analysis carries no flight signals to overlay")
     segmented = result.segmented
-    preds = test_predictions(result)
+    preds = analysis_predictions(result)
     tests = [OverlayTest(number=t.index + 1, t_start=t.t_start, t_end=t.t_end, beta=t.beta_effective,
                          beta_nominal=t.beta_nominal, h=t.h, bias=t.bias, frequency_hz=t.frequency_hz_mean,
                          amplitude=t.amplitude_mean, cycles=t.n_stable,

@@ -67,7 +67,7 @@ def _unit(result: AnalysisResult) -> str:
 
 def plot_fit(result: AnalysisResult) -> Figure:
     """Per test (up to four): measured and model output [output units] and their residual against time [s]."""
-    from ..analyze.overlay import test_predictions
+    from ..analyze.overlay import analysis_predictions
 
     tests = list(result.segmented)[:4]
     fig, axes = new_figure(2, max(len(tests), 1), width=min(4.2 * max(len(tests), 1), 14), height=5.2,
@@ -75,7 +75,7 @@ def plot_fit(result: AnalysisResult) -> Figure:
     if result.flight is None or not tests:
         axes[0, 0].text(0.5, 0.5, "no flight signals in this result", ha="center", transform=axes[0, 0].transAxes)
         return fig
-    preds = test_predictions(result)
+    preds = analysis_predictions(result)
     unit = _unit(result)
     noise = result.refinement.noise_std if result.refinement is not None else float("nan")
     for k, t in enumerate(tests):

@@ -522,13 +522,14 @@ def _inner_discrete(inner: InnerLoop) -> DiscreteStateSpace:
 # ----------------------------------------------------------------------------------------------
 def _first_guess_half_period(response: Any, beta: float, rate_hz: float) -> float:
     """Half period [ticks] where arg G = asin(beta) - pi (a start for the exact search, not the answer)."""
+    from .describing import df_crossing  # here: describing imports the model module, which registers this one
+
     w = np.geomspace(1e-2, math.pi * rate_hz * 0.99, 600)
-    phase = np.unwrap(np.angle(response(w))) - math.asin(beta) + math.pi
-    k = np.nonzero((phase[:-1] > 0) & (phase[1:] <= 0))[0]
-    if not k.size:
+    w0 = df_crossing(w, response(w), beta)
+    if w0 is None:
         raise InputError("the cascade has no MRFT phase crossing below the Nyquist frequency: check the inner "
                          "gains (an unstable or unclosed inner loop?)")
-    return float(math.pi * rate_hz / w[k[0]])
+    return float(math.pi * rate_hz / w0)
 
 
 @dataclass(frozen=True)

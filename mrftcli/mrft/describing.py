@@ -32,7 +32,7 @@ from scipy import optimize
 from ..validate import check_beta, check_positive
 from .model import LoopModel
 
-__all__ = ["df_phase", "df_frequency", "df_amplitude", "describing_function_limit_cycle"]
+__all__ = ["df_phase", "df_frequency", "df_crossing", "df_amplitude", "describing_function_limit_cycle"]
 
 
 def df_phase(beta: ArrayLike) -> np.ndarray:
@@ -87,6 +87,15 @@ def df_frequency(model: LoopModel, beta: float, extra_delay: float = 0.0) -> flo
         if lo < 1e-12:
             return float("nan")
     return float(optimize.brentq(lag, lo, hi, xtol=1e-14, rtol=1e-14))
+
+
+def df_crossing(omega: np.ndarray, response: np.ndarray, beta: float) -> float | None:
+    """The first of the increasing frequencies ``omega`` [rad/s] where the unwrapped arg G (``response``,
+    G(j omega) there) falls through the phase condition -pi + asin(beta): any structure's describing-function
+    frequency on a grid (a start for the exact cycle), or None where it does not cross."""
+    phase = np.unwrap(np.angle(response)) - math.asin(beta) + math.pi
+    k = np.nonzero((phase[:-1] > 0) & (phase[1:] <= 0))[0]
+    return float(omega[k[0]]) if k.size else None
 
 
 def df_amplitude(model: LoopModel, omega: float, h: float = 1.0) -> float:

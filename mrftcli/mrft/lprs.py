@@ -39,7 +39,7 @@ from scipy import linalg, optimize
 
 from ..errors import InputError
 from ..validate import check_beta, check_positive
-from .describing import df_frequency
+from .describing import df_crossing, df_frequency
 from .matexp import phi_gamma_small
 from .model import LoopModel, PlantModel, SampledPlantModel
 
@@ -672,9 +672,7 @@ def _df_hint(A: FloatArray, B: FloatArray, C: FloatArray, tau: float, beta: floa
     w = w_ref * np.logspace(-4, 4, 161)
     n = A.shape[0]
     G = np.array([C @ np.linalg.solve(1j * wk * np.eye(n) - A, B) for wk in w]) * np.exp(-1j * w * tau)
-    phase = np.unwrap(np.angle(G)) - math.asin(beta) + math.pi
-    k = np.nonzero((phase[:-1] > 0) & (phase[1:] <= 0))[0]
-    return float(w[k[0]]) if k.size else None
+    return df_crossing(w, G, beta)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -59,6 +59,11 @@ def test_family_bad_values_and_names():
         family_model("fopdt", known={"Td": 1.0})
     with pytest.raises(InputError, match="schema_version"):
         model_from_json({**FOPDT(1.0, 1.0, 0.1).to_json(), "schema_version": 99})
+    # the checks every named-parameter model shares (SpecModel): a time over a week is a unit slip, as for eq. (2)
+    with pytest.raises(InputError, match="T1 = 1e\\+06 s is longer than a week"):
+        SOPDT(K=1.0, T1=1e6, T2=1.0, tau=0.0)
+    with pytest.raises(InputError, match="tau = 1e\\+06 s is longer than a week"):
+        FOPDT(K=1.0, T=1.0, tau=0.1).with_parameters(tau=1e6)
 
 
 def test_ipdt_ideal_relay_cycle_closed_form():

@@ -1,14 +1,9 @@
 """Identification: the one entry point :func:`identify`, and eq. (2)'s strategy (the unit manifolds).
 
 Every model family is identified through :func:`identify` (``identify(data, model, **options)``);
-the family names its strategy (its class's ``identification``, :data:`STRATEGIES`):
-
-* ``"unit-manifolds"`` (eq. (2), :class:`~mrftcli.mrft.model.LoopModel`, Tp known): from MRFT tests'
-  means (:class:`TestMeasurement`), through the UFM/UGM, below;
-* ``"response-points"`` (the process families and a declared structure): a direct fit to the tests'
-  frequency-response points (:func:`mrftcli.mrft.identify_lti.fit_response_points`);
-* ``"cascade-cycles"`` (an outer loop through its inner loop): the tests' means matched to the exact
-  sampled cycle of the cascade (:func:`mrftcli.mrft.cascade_identify.fit_cascade_cycles`).
+the family names its strategy (its class's ``identification``, :data:`STRATEGIES`): eq. (2)'s
+``"unit-manifolds"`` (below), the process families' ``"response-points"``
+(:mod:`~mrftcli.mrft.identify_lti`), the cascade's ``"cascade-cycles"`` (:mod:`~mrftcli.mrft.cascade_identify`).
 
 Eq. (2)'s strategy: each test i (beta_i, measured Omega_i) constrains the plant to one curve:
 scaling the UFM slice at the known ``tp = Tp Omega_i`` back to real units (Lemma 3),

@@ -101,12 +101,16 @@ def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
 def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
     out = tmp_path / "d.json"
     run = run_main("diagnose", str(sopdt_csv), "--command-topic", "u_relay", "--output-topic", "y_output",
-                   "--model", "fopdt", "--json", str(out))  # main() in this process (cli_helpers)
+                   "--model", "fopdt", "--json", str(out), "--report", str(tmp_path / "rep"))  # main() in this process
     assert run.returncode == 0, run.stderr
     lines = run.stdout.splitlines()
     assert lines[0].startswith("found: sensor_lag (T_lag ")
     assert "frequency [Hz]" in lines[1] and "Traceback" not in run.stderr
     assert DiagnosisResult.from_json(json.loads(out.read_text())).summary == lines[0]
+    # the one record's page, every family: the verdict, each test held out, the library's evidence
+    page = (tmp_path / "rep" / "diagnosis.html").read_text()
+    assert lines[0].split(" (")[0] in page and "Each test against the model of the other tests" in page
+    assert (tmp_path / "rep" / "diagnosis_evidence.png").stat().st_size > 0
 
 
 def test_cli_diagnose_process_options_need_a_process_model(fopdt_csv):

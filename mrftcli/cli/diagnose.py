@@ -264,8 +264,6 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
 
     params, ranges, windows, relay_kind, eps = model_options
     report_dir, quiet = report
-    if report_dir:
-        raise click.UsageError("--report works with --model soiptd only so far; --json FILE|- writes the diagnosis")
     model = build_model(model_name, params, ranges)
     flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
@@ -277,6 +275,10 @@ def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...],
         click.echo(format_process(result))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
+    if report_dir:
+        from ..report.diagnosis import write_diagnosis_report
+
+        click.echo(f"report: {write_diagnosis_report(result, report_dir)}", err=json_target == "-")
 
 
 def _effect_rows(result: DiagnosisResult) -> list[str]:

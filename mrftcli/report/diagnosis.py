@@ -1,4 +1,7 @@
-"""The ``diagnose --report DIR`` page (also written by ``analyze --diagnose --report DIR``).
+"""The ``diagnose --report DIR`` page (also written by ``analyze --diagnose --report DIR``), every family.
+
+Eq. (2)'s page draws the figures below; a family's (:func:`_family_report`) holds its checks per test, where
+the residual sits and the library's rows, with :func:`plot_evidence`.
 
 Figures (each returns a matplotlib Figure; :func:`write_diagnosis_report` saves them):
 
@@ -164,12 +167,29 @@ def plot_harmonics(result):
 
 
 def plot_evidence(result):
-    """delta BIC per candidate (threshold line) and held-out NRMSE before/after."""
+    """delta BIC per candidate (threshold line) and held-out error before/after (every family)."""
+    if not result.soiptd:  # the families' rows: their held-out error is each test's from the others
+        rows = [c for c in result.candidates if np.isfinite(c.delta_bic)]
+        return _evidence_figure([c.name for c in rows], [c.delta_bic for c in rows], set(result.found),
+                                [c.held_out_before for c in rows], [c.held_out_after for c in rows],
+                                "each test predicted from the others:\nrelative error [%] (cycle, balance, scatter)",
+                                "Confirmation on the tests held out")
     rows = [c for c in result.candidates if c.delta_bic is not None]
-    names = [c.name for c in rows]
-    fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
-    db = np.array([c.delta_bic for c in rows], float)
     found = {e.name for e in result.effects if e.evidence.compared_with == "linear"}
+    # the raw NRMSE (recording's own cycle-to-cycle scatter kept): the scatter-subtracted figure is 0
+    # whenever a model is within the scatter, which shows nothing on a bar chart
+    return _evidence_figure([c.name for c in rows], [c.delta_bic for c in rows], found,
+                            [_nan(_raw_error(c.held_out_before)) for c in rows],
+                            [_nan(_raw_error(c.held_out_after)) for c in rows],
+                            "waveform error on held-out cycles [%]\n(delay jitter: error of the period scatter)",
+                            "Confirmation on held-out (odd) cycles")
+
+
+def _evidence_figure(names, dbic, found, before, after, xlabel: str, title: str):
+    """The evidence chart: delta BIC per candidate, the found ones coloured, and the held-out error
+    without and with each [fractions, drawn in %]."""
+    fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
+    db = np.array(dbic, float)
     cols = [_AUG_C if n in found else "#999999" for n in names]
     y = np.arange(len(names))
     ax.barh(y, db, color=cols)
@@ -180,15 +200,11 @@ def plot_evidence(result):
     ax.set_xlabel("how much better the effect explains the fitted cycles\n(drop in BIC; negative: worse)")
     ax.set_title("Evidence for each candidate effect")
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3))
-    # the raw NRMSE (recording's own cycle-to-cycle scatter kept): the scatter-subtracted figure is 0
-    # whenever a model is within the scatter, which shows nothing on a bar chart
-    b = 100 * np.array([_nan(_raw_error(c.held_out_before)) for c in rows], float)
-    a = 100 * np.array([_nan(_raw_error(c.held_out_after)) for c in rows], float)
-    ax2.barh(y + 0.2, b, 0.4, color=_BASE_C, label="linear model")
-    ax2.barh(y - 0.2, a, 0.4, color=_AUG_C, label="with the candidate")
+    ax2.barh(y + 0.2, 100 * np.array(before, float), 0.4, color=_BASE_C, label="linear model")
+    ax2.barh(y - 0.2, 100 * np.array(after, float), 0.4, color=_AUG_C, label="with the candidate")
     ax2.set_yticks(y, [n.replace("_", " ") for n in names])
-    ax2.set_xlabel("waveform error on held-out cycles [%]\n(delay jitter: error of the period scatter)")
-    ax2.set_title("Confirmation on held-out (odd) cycles")
+    ax2.set_xlabel(xlabel)
+    ax2.set_title(title)
     ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2)
     return fig
 
@@ -234,6 +250,8 @@ def _param_rows(e, loop: str) -> list[tuple]:
 def write_diagnosis_report(result: DiagnosisResult, out_dir: str | Path) -> Path:
     """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none)."""
     out = ensure_dir(out_dir)
+    if not result.soiptd:
+        return _family_report(result, out)
     fitted = any(c.delta_bic is not None for c in result.candidates)
     figs = {
         "diagnosis_located.png": plot_located(result),
@@ -256,6 +274,35 @@ def write_diagnosis_report(result: DiagnosisResult, out_dir: str | Path) -> Path
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
     page = out / "diagnosis.html"
     write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    if not (out / "index.html").exists():
+        write_page(out / "index.html", page.read_text())
+    return page
+
+
+def _family_report(result: DiagnosisResult, out: Path) -> Path:
+    """A family's page (every family but eq. (2)): the verdict, each test against the model of the other
+    tests, where the residual sits, the library's evidence and rows, the notes."""
+    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>", "<h2>Each test against the model of the other tests</h2>",
+            html_table(["test", "from-to [s]", "frequency [Hz]", "held out [Hz]", "amplitude", "held out",
+                        "residual / noise: fundamental, 2-3, higher"],
+                       [(c.index + 1, f"{c.t_start - result.t0:.2f}-{c.t_end - result.t0:.2f}", _f(c.frequency_hz),
+                         _f(c.held_out_frequency_hz), _f(c.amplitude), _f(c.held_out_amplitude),
+                         ", ".join(f"{b.ratio:.1f}" for b in c.all_bands)) for c in result.checks])]
+    body += ["<h2>Where the model disagrees</h2>",
+             "".join(f"<p>{esc(text)}</p>" for text in result.located) or "<p>Nowhere beyond 3 sigma.</p>"]
+    rows = [*result.candidates, *result.second_effect_candidates]
+    if any(np.isfinite(c.delta_bic) for c in result.candidates):
+        save_figure(plot_evidence(result), out / "diagnosis_evidence.png")
+        body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
+    if rows:
+        body.append("<div class='left2'>" + html_table(
+            ["candidate", "with", "parameter", "drop in BIC", "held-out error before", "after", "found"],
+            [(c.name.replace("_", " "), c.with_.replace("_", " ") or "-", f"{c.parameter} = {_f(c.value)} {c.unit}",
+              _f(c.delta_bic), _pct(c.held_out_before), _pct(c.held_out_after),
+                "yes" if c in result.effects else "no") for c in rows]) + "</div>")
+    body += [f"<p class='muted'>{esc(n)}</p>" for n in [*result.notes, result.to_dict()["nrmse_definition"]]]
+    page = out / "diagnosis.html"
+    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.family.upper()})", "\n".join(body)))
     if not (out / "index.html").exists():
         write_page(out / "index.html", page.read_text())
     return page

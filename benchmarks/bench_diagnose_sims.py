@@ -85,7 +85,7 @@ def report(sim: str, results: list[dict], wall: float) -> None:
     print(f"  observable mount unexplained {_pct(len(ok), len(obs))} (>= 80 %)")
     print(f"  parameter within 25 %       {_pct(tot['within'], tot['right'])} of the named (truth approximate)")
     if cpu.size:
-        print(f"  diagnose / analyze CPU      per log median {np.median(ratio):.2f}x, worst {ratio.max():.2f}x "
+        print(f"  diagnose (reusing analyze's record) / analyze CPU per log median {np.median(ratio):.2f}x, worst {ratio.max():.2f}x "
               f"(<= 1.5x median); medians {np.median(cpu):.2f} s / {np.median(cpu_a):.2f} s; wall {wall:.0f} s")
 
 

@@ -110,7 +110,8 @@ def mount_snr(rec, spec: LoopSpec) -> float:
 
 
 def run_case(case: dict) -> dict:
-    """Fly, write MCAP, analyze and diagnose (CPU timed in this process), and what was found."""
+    """Fly, write MCAP, analyze and diagnose reusing the analysis as the CLI does (CPU of each timed in this
+    process), and what was found."""
     from mrftcli.analyze import analyze_flight
     from mrftcli.mrft.model import soiptd_model
     from mrftcli.diagnose.selection import diagnose
@@ -128,14 +129,16 @@ def run_case(case: dict) -> dict:
         path = Path(tmp) / "flight.mcap"
         write_log(flight_topics(rec, [b for b, _, _ in spec.tests]), path, "mcap")
         t0 = time.process_time()
+        analysis = None
         try:
-            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp))
+            analysis = analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp))
         except MrftError:
             pass
         out["cpu_analyze"] = time.process_time() - t0
         t0 = time.process_time()
         try:
-            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp))
+            # as `mrft-ident diagnose` runs it: analyze's record reused (its segmentation; issue 39)
+            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp), analysis=analysis)
             out["error"], out["refused"] = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, out["error"] = None, f"{type(exc).__name__}: {exc}"

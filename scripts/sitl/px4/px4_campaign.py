@@ -508,7 +508,7 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     print("2. analysis of the ULogs")
     results = analyse(logs)
     report(results)
-    done = logs / "export" / "refly.ulg"
+    done = sorted((logs / "export").glob("refly*.ulg"))  # each re-flight of the export kept
     for loop in ("pitch", "roll"):  # the rate loops' export and step (px4_rate_step.py)
         if f"px4_{loop}_h" not in results or no_refly:
             continue
@@ -517,9 +517,9 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
         print(f"3b. tune --export px4 for {loop} (SIH's attitude, the bench Tp), and a {loop} step" +
               (" (flown before: evaluated again)" if analyze_only else ""))
         run_rate_step(px4, logs, bench_tp(), TRUTH_ATTITUDE, fly=not analyze_only, loop=loop, flight=f"px4_{loop}_h")
-    if (analyze_only or no_refly) and EXPORT_FROM in results and done.exists():
-        print(f"3. the re-flight already flown ({done}), evaluated again")
-        _compare_step(results, logs / "export" / "altitude.params", {"log": done, "step_m": 1.0, "dwell_s": 10.0})
+    for flown in done if (analyze_only or no_refly) and EXPORT_FROM in results else []:
+        print(f"3. the re-flight already flown ({flown}), evaluated again")
+        _compare_step(results, logs / "export" / "altitude.params", {"log": flown, "step_m": 1.0, "dwell_s": 10.0})
     if analyze_only or no_refly or EXPORT_FROM not in results:
         return 0
     print("3. tune --export px4, load, re-fly")

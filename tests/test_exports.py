@@ -324,7 +324,7 @@ def test_records_round_trip_and_refuse_other_versions():
 
 def test_tune_result_version_1_still_reads():
     """A tune result written by the previous release (schema 1: eq. (2) only, the model as {Tp, Td, tau, K};
-    tests/data/old_records/tune_result_v1.json) reads with its figures, writes back as version 2, and holds
+    tests/data/old_records/tune_result_v1.json) reads with its figures, writes back as version 3, and holds
     the gains this release designs for the same inputs."""
     from pathlib import Path
 
@@ -334,12 +334,42 @@ def test_tune_result_version_1_still_reads():
     assert res.model == LoopModel(0.0422, 1.301, 0.0297, 30.0) and res.posterior is not None
     assert res.get("model-based", "PD").controller.Kp == old["designs"][1]["controller"]["Kp"]
     new = res.to_json()
-    assert new["schema_version"] == 2 and new["model"]["family"] == "soiptd"
+    assert new["schema_version"] == 3 and new["model"]["family"] == "soiptd"
     assert TuneResult.from_json(json.loads(json.dumps(new))).to_json() == new
     m = LoopModel(0.0422, 1.301, 0.0297, 30.0)
     again = tune(m, 250.0, posterior=Posterior.from_spread(m, 0.1, 0.002, 2.0, n=12), loop="roll",
                  options=DesignOptions(kinds=("PD",), designs=("mrft-rule", "model-based")))
     assert [d.controller for d in again.designs] == [d.controller for d in res.designs]
+
+
+@pytest.mark.parametrize("name, family", [("tune_cli_v2", "soiptd"), ("tune_cli_v2_fopdt", "fopdt"),
+                                           ("tune_cli_v2_cascade", "cascade")])
+def test_tune_json_of_version_2_reads_with_its_figures(name, family):
+    """``tune --json`` files written by commit 8c336ae (a report whose ``tune_result`` held the version 2
+    record; tests/data/old_records/): ``tune --td 1.3 --tau 0.03 --k 30 --tp 0.0422 --loop roll
+    --controller-rate 200 --design model-based --kind PD``, ``tune --model fopdt --param K=2 --param T=1
+    --param tau=0.3 --controller-rate 20`` and ``tune y.json --export generic`` (a cascade analysis of
+    sample_logs/hear_cascade_y.bag). The oracle is the file's report keys, written by the old code beside
+    the record: every design's gains, margins and step figures come back, and the result writes as version 3."""
+    from pathlib import Path
+
+    old = json.loads((Path(__file__).parent / "data" / "old_records" / f"{name}.json").read_text())
+    assert old["tune_result"]["schema_version"] == 2 and "schema_version" not in old
+    res = TuneResult.from_json(old)
+    assert res.model.family == family and res.loop == old["loop"] and res.rate_hz == old["rate_hz"]
+    assert len(res.designs) == len(old["designs"])
+    for d, o in zip(res.designs, old["designs"]):
+        assert (d.name, d.kind) == (o["design"], o["kind"])
+        assert [d.controller.Kp, d.controller.Ki, d.controller.Kd, d.controller.Tf] == [o[k] for k in ("Kp", "Ki", "Kd", "Tf")]
+        for new_value, old_value in ((d.margins.Ms, o["margins"]["Ms"]), (d.criterion, o["criterion"]),
+                                     (d.margins.delay_margin_s * 1e3, o["margins"]["delay_margin_ms"]),
+                                     *((v, o["step"][k]) for k, v in d.step.to_dict().items())):
+            # the old report wrote a figure that does not exist (NaN) as null
+            assert math.isnan(new_value) if old_value is None else new_value == pytest.approx(old_value, rel=1e-12)
+    chosen = res.get(old["export"]["design"], old["export"]["kind"]).controller
+    assert chosen.Kp == old["export"]["generic"]["Kp"]
+    new = json.loads(json.dumps(res.to_json()))
+    assert new["schema_version"] == 3 and TuneResult.from_json(new).to_json() == new
 
 
 # --- the CLI, as a user runs it -------------------------------------------------------------------
@@ -386,7 +416,8 @@ def test_cli_json_holds_the_versioned_record(tmp_path, capsys):
                          "--json", str(tmp_path / "t.json")], capsys)
     assert code == 0, err
     data = json.loads((tmp_path / "t.json").read_text())
-    res = TuneResult.from_json(data["tune_result"])
+    assert data["schema_version"] == 3 and "tune_result" not in data  # the record itself, the export beside it
+    res = TuneResult.from_json(data)
     assert res.rate_filter == RateFilter(40.0, "IMU_GYRO_CUTOFF") and res.rate_hz == 250.0
     e = StackExport.from_json(data["export"]["stack"])
     assert e.params["MC_ROLLRATE_P"] == pytest.approx(res.get("model-based", "PD").controller.Kd)

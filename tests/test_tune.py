@@ -191,8 +191,8 @@ def test_cli_manual_model_px4_and_errors(tmp_path):
     px4 = {row[2]: float(row[3]) for row in rows}
     data = json.loads((tmp_path / "t.json").read_text())
     mb = [d for d in data["designs"] if d["design"] == "model-based" and d["kind"] == "PD"][0]
-    assert px4["MC_ROLL_P"] == pytest.approx(mb["Kp"] / mb["Kd"])
-    assert data["export"]["stack"]["params"]["MC_ROLLRATE_P"] == pytest.approx(mb["Kd"])
+    assert px4["MC_ROLL_P"] == pytest.approx(mb["controller"]["Kp"] / mb["controller"]["Kd"])
+    assert data["export"]["stack"]["params"]["MC_ROLLRATE_P"] == pytest.approx(mb["controller"]["Kd"])
     assert mb["margins"]["Ms"] <= 1.6 * 1.001
     from mrftcli.cli.main import main
 

@@ -139,7 +139,7 @@ def test_cli_tune_process_result(tmp_path):
     out = run_main("tune", str(src), "--kind", "PI", "--json", "-")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
-    res = TuneResult.from_json(data["tune_result"])
+    res = TuneResult.from_json(data)
     assert res.rate_hz == 20.0 and any("analysis' tests' rate" in n for n in res.notes)
     assert data["export"]["design"] == "model-based" and data["export"]["kind"] == "PI"
     assert any("no robust design" in n for n in res.notes)

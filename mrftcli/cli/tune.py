@@ -285,11 +285,10 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
         have = ", ".join(f"{d.name} {d.kind}" for d in res.designs)
         raise InputError(f"no {name} {kind} design for this plant (have: {have})") from None
     c = chosen.controller
-    data = res.to_dict()
-    data["export"] = ({"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)} if eq2 else
-                      {"design": name, "kind": kind, "generic": c.to_dict(), "reverse_acting": res.reverse_acting})
-    # the versioned record a later process reads back with TuneResult.from_json (the keys above are the report)
-    data["tune_result"] = res.to_json()
+    # the one versioned record (TuneResult.from_json reads it back), with the chosen design's export beside it
+    data = {**res.to_json(), "export": (
+        {"design": name, "kind": kind, "generic": c.to_dict(), "hear": hear_json(c, loop)} if eq2 else
+        {"design": name, "kind": kind, "generic": c.to_dict(), "reverse_acting": res.reverse_acting})}
     stack_export, refused = None, None
     if ex.stack in (None, "generic"):
         if eq2:
@@ -428,7 +427,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
               help="Design exported (default: robust, else model-based).")
 @click.option("--kind", type=click.Choice(["PD", "PI", "PID"]), default="PD", show_default=True,
               help="Controller exported (PI: process plants only, their default).")
-@json_option(what="designs (Kp, Ki, Kd, Tf, rate, figures), the export record and the tune_result record")
+@json_option(what="the tune record (model, every design with its gains and figures) and the chosen export")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()

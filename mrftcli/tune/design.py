@@ -99,10 +99,13 @@ def _rate_filter_from(data: Any, what: str) -> RateFilter | None:
 __all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
 
-#: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it).
-TUNE_SCHEMA_VERSION = 2
-#: The versions :meth:`TuneResult.from_json` reads: 1 (eq. (2) only, the model as {Tp, Td, tau, K}) for one release.
-_READS = (1, 2)
+#: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it); 3: ``tune --json`` writes
+#: this record itself (until then a report holding it as ``tune_result``), each design names its
+#: ``design`` (was ``name``) and its ``kind``.
+TUNE_SCHEMA_VERSION = 3
+#: The versions :meth:`TuneResult.from_json` reads for one release: 1 (eq. (2) only, the model as
+#: {Tp, Td, tau, K}) and 2 (also inside the ``tune --json`` report of that release, as ``tune_result``).
+_READS = (1, 2, 3)
 
 OBJECTIVES = ("iae", "itae")
 DESIGNS = ("mrft-rule", "model-based", "robust")
@@ -245,18 +248,10 @@ class Design:
     def kind(self) -> str:
         return self.controller.kind
 
-    def to_dict(self) -> dict:
-        return {"design": self.name, "kind": self.kind, **self.controller.to_dict(),
-                "objective": self.objective, "criterion": self.criterion,
-                "criterion_expected": self.criterion_expected, "noise_gain": self.controller.noise_gain(),
-                "criterion_definition": self.criterion_definition or ("setpoint step + load step" if self.load
-                                                                      else "setpoint step"),
-                "horizon_s": self.horizon_s, "margins": self.margins.to_dict(), "step": self.step.to_dict(),
-                "load_step": self.load or None, "posterior": self.posterior, "constraints": self.constraints}
-
     def to_json(self) -> dict[str, Any]:
         """The versioned JSON object (:data:`TUNE_SCHEMA_VERSION`); non-finite figures as "inf"/"nan"."""
-        return {"schema_version": TUNE_SCHEMA_VERSION, "name": self.name, "controller": self.controller.to_json(),
+        return {"schema_version": TUNE_SCHEMA_VERSION, "design": self.name, "kind": self.kind,
+                "controller": self.controller.to_json(),
                 "objective": self.objective, "criterion": _encode(self.criterion),
                 "criterion_expected": _encode(self.criterion_expected), "margins": self.margins.to_json(),
                 "step": _encode(self.step.to_dict()), "posterior": _encode(self.posterior),
@@ -265,20 +260,24 @@ class Design:
 
     @classmethod
     def from_json(cls, data: Any) -> "Design":
-        """The record of :meth:`to_json`; InputError (one line) on another version or a malformed field."""
+        """The record of :meth:`to_json` (version 3; 1 and 2 named the design ``name`` and had no ``kind``);
+        InputError (one line) on another version or a malformed field."""
         what = "tune design"
         data = _check_version(data, what)
         step = data.get("step")
         if not isinstance(step, dict):
             raise InputError(f"{what}: 'step' must be an object")
         fields = ("overshoot_pct", "rise_s", "settling_s", "iae", "itae", "peak_u")
-        name, objective = data.get("name"), data.get("objective")
+        name, objective = data.get("design" if data["schema_version"] >= 3 else "name"), data.get("objective")
         if name not in DESIGNS or objective not in OBJECTIVES:
             raise InputError(f"{what}: unknown design {name!r} or objective {objective!r}")
         extras = {k: _decode(data.get(k, {})) for k in ("posterior", "constraints", "load")}
         if not all(isinstance(v, dict) for v in extras.values()):
             raise InputError(f"{what}: 'posterior', 'constraints' and 'load' must be objects")
-        return cls(name, Controller.from_json(data.get("controller"), f"{what}'s controller"), objective,
+        controller = Controller.from_json(data.get("controller"), f"{what}'s controller")
+        if data["schema_version"] >= 3 and data.get("kind") != controller.kind:
+            raise InputError(f"{what}: 'kind' {data.get('kind')!r} is not its controller's ({controller.kind})")
+        return cls(name, controller, objective,
                    _number(data, "criterion", what), _number(data, "criterion_expected", what),
                    Margins.from_json(data.get("margins")),
                    StepMetrics(*(_number(step, k, what) for k in fields)),
@@ -363,6 +362,8 @@ class TuneResult:
             Not a JSON object, another ``schema_version``, or a missing or malformed field.
         """
         what = "tune result"
+        if isinstance(data, dict) and "schema_version" not in data and isinstance(data.get("tune_result"), dict):
+            data = data["tune_result"]  # the tune --json report of version 2: the record is its tune_result
         data = _check_version(data, what)
         if data["schema_version"] == 1 and data.get("kind") == "cascade":  # the cascade's own record until now
             from .grid import cascade_result_v1
@@ -395,22 +396,6 @@ class TuneResult:
                    _number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
                    tuple(str(n) for n in notes), _rate_filter_from(data.get("rate_filter"), what),
                    data.get("reverse_acting") is True)
-
-    def to_dict(self) -> dict:
-        m = self.model
-        family = {} if isinstance(m, LoopModel) else {"reverse_acting": self.reverse_acting}
-        return {
-            "model": ({"Tp": m.Tp, "Td": m.Td, "tau": m.tau, "K": m.K,
-                       "form": "G(s) = K Td e^{-tau s} / (s (Tp s + 1)(Td s + 1))"} if isinstance(m, LoopModel)
-                      else m.to_json()), **family,
-            "loop": self.loop, "rate_hz": self.rate_hz, "objective": self.objective, "ms_max": self.ms_max,
-            "effort_max": self.effort_max, "horizon_s": self.horizon_s, "mrft_rule_cycle": self.rule_cycle,
-            "posterior": ({"source": self.posterior.source, "n_draws": self.posterior.n,
-                           "n_in_95_set": int(self.posterior.in_set().sum())} if self.posterior else None),
-            "designs": [d.to_dict() for d in self.designs],
-            "notes": list(self.notes),
-            **({"rate_filter": self.rate_filter.to_dict()} if self.rate_filter is not None else {}),
-        }
 
 
 def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None,

@@ -527,7 +527,9 @@ def evaluate_altitude_step(log: Path, work: Path, t_cmd: float) -> None:
     win = (tp >= t_step) & (tp < t_step + 11)
     got = step_stats(tp[win], z[win], t_step, base, base + 2.0)
     js = json.loads((work / "altitude_tune.json").read_text())
-    model, params = js["model"], read_param_file(work / "altitude.param")
+    # the tune record's model (schema 3): each parameter's value
+    model = {k: p["value"] for k, p in js["model"]["parameters"].items()}
+    params = read_param_file(work / "altitude.param")
     rate = 400.0
     grid = np.arange(t_step - 2.0, t_step + 11.0, 1.0 / rate)
     path = [np.interp(grid, tp, -psc[k]) for k in ("DPD", "DVD", "DAD")]

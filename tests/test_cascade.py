@@ -315,8 +315,8 @@ def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
 def test_cascade_tune_version_1_still_reads() -> None:
     """A cascade's tune JSON of the previous release (its own record, kind "cascade", schema 1: vehicle records
     hold it; tests/data/old_records/cascade_tune_v1.json, tune y.json of the shipped HEAR cascade) reads into
-    the one TuneResult with its gains and figures, and writes back as version 2."""
-    from mrftcli.tune.design import TuneResult
+    the one TuneResult with its gains and figures, and writes back as the current version."""
+    from mrftcli.tune.design import TUNE_SCHEMA_VERSION, TuneResult
 
     old = json.loads((Path(__file__).parent / "data" / "old_records" / "cascade_tune_v1.json").read_text())
     res = TuneResult.from_json(old)
@@ -326,7 +326,7 @@ def test_cascade_tune_version_1_still_reads() -> None:
             o["nominal"]["phase_margin_deg"], o["nominal"]["Ms"], o["iae"])
     assert res.get("robust", "PD").posterior["worst"]["Ms"] == old["designs"][1]["worst"]["Ms"]
     new = json.loads(json.dumps(res.to_json()))
-    assert new["schema_version"] == 2 and new["model"]["family"] == "cascade"
+    assert new["schema_version"] == TUNE_SCHEMA_VERSION and new["model"]["family"] == "cascade"
     assert TuneResult.from_json(new).to_json() == new
 
 

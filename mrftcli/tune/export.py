@@ -132,13 +132,9 @@ def format_table(result: "TuneResult") -> str:
     """The terminal table of a :class:`~mrftcli.tune.design.TuneResult` (any family)."""
     from ..mrft.model import LoopModel
 
-    from ..mrft.cascade import CascadeModel
-
     m = result.model
-    if isinstance(m, CascadeModel):
-        return _cascade_table(result)
     if not isinstance(m, LoopModel):
-        return _family_table(result)
+        return _grid_table(result)
     lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
              f"objective {result.objective.upper()}  Ms <= {result.ms_max:g}  noise gain <= {result.effort_max:.4g}"]
     lines.append(f"{'design':<12}{'kind':<5}{'Kp':>10}{'Ki':>10}{'Kd':>10}{'Tf [ms]':>8}{'GM':>7}{'PM[deg]':>8}"
@@ -173,46 +169,35 @@ def _g(x: float | None, digits: int = 4) -> str:
     return f"{x:.{digits}g}" if x is not None and math.isfinite(x) else "-"
 
 
-def _family_table(res: "TuneResult") -> str:
-    """The table of a family other than eq. (2) (:mod:`mrftcli.tune.grid`'s designs: no step figures)."""
+def _grid_table(res: "TuneResult") -> str:
+    """The table of :mod:`mrftcli.tune.grid`'s designs (a process family's, or an outer loop's PD on the
+    cascade): the model's lines, the notes, then every design's gains, nominal margins and the worst over
+    the draws (no step figures)."""
+    from ..mrft.cascade import CascadeModel
+
     m = res.model
-    params = "  ".join(f"{p.name} {p.value:.4g} {p.unit}" for p in m.parameters.values())
-    tu = res.rule_cycle.get("ultimate_period_s", math.nan)
-    lines = [f"{m.family}: G(s) = {getattr(m, 'transfer_function', m.structure)}; {params}",
-             f"ultimate period of the sampled loop {tu * 1e3:.4g} ms; rate {res.rate_hz:g} Hz",
-             "gains: Kp [command per output unit], Ki [command per output unit s], Kd [command s per output unit], "
-             "Tf [s]; IAE [output unit s]"]
+    if isinstance(m, CascadeModel):
+        y = output_unit(res.loop)
+        lines = [f"loop {res.loop} on the cascade: Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}  through "
+                 f"{m.inner.loop or 'the inner loop'}; rate {res.rate_hz:g} Hz"]
+    else:
+        y = "output unit"
+        params = "  ".join(f"{p.name} {p.value:.4g} {p.unit}" for p in m.parameters.values())
+        tu = res.rule_cycle.get("ultimate_period_s", math.nan)
+        lines = [f"{m.family}: G(s) = {getattr(m, 'transfer_function', m.structure)}; {params}",
+                 f"ultimate period of the sampled loop {tu * 1e3:.4g} ms; rate {res.rate_hz:g} Hz"]
+    lines.append(f"gains: Kp [command per {y}], Ki [command per {y} s], Kd [command s per {y}]; "
+                 f"IAE [{y} s]")
     lines += [f"note: {n}" for n in res.notes if n]
-    head = ("design", "kind", "Kp", "Ki", "Kd", "Tf", "PM [deg]", "GM", "Ms", "crossover [Hz]",
+    head = ("design", "kind", "Kp", "Ki", "Kd", "Tf [ms]", "PM [deg]", "GM", "Ms", "crossover [Hz]",
             "worst PM [deg]", "worst Ms", "IAE", "criterion")
     rows = [head]
     for d in res.designs:
         c, n, w = d.controller, d.margins, d.posterior.get("worst")
-        rows.append((d.name, d.kind, _g(c.Kp), _g(c.Ki), _g(c.Kd), _g(c.Tf, 3), _g(n.phase_margin_deg, 3),
+        rows.append((d.name, d.kind, _g(c.Kp), _g(c.Ki), _g(c.Kd), _g(c.Tf * 1e3), _g(n.phase_margin_deg, 3),
                      _g(n.gain_margin, 3), _g(n.Ms, 3), _g(n.w_gc / (2 * math.pi), 3),
                      "-" if w is None else _g(w["phase_margin_deg"], 3), "-" if w is None else _g(w["Ms"], 3),
                      _g(d.criterion, 3), d.criterion_definition))
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.ljust(wd) for c, wd in zip(r, widths)).rstrip() for r in rows]
-    return "\n".join(lines)
-
-
-def _cascade_table(res: "TuneResult") -> str:
-    """The table of an outer loop's PD on the cascade (:mod:`mrftcli.tune.grid`, the cascade strategy)."""
-    from ..mrft.cascade import CascadeModel
-
-    y = output_unit(res.loop)
-    m = res.model
-    assert isinstance(m, CascadeModel)  # format_table's dispatch
-    lines = [f"loop {res.loop} on the cascade: Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}  through "
-             f"{m.inner.loop or 'the inner loop'}; rate {res.rate_hz:g} Hz",
-             f"gains: Kp [command per {y}], Kd [command s per {y}], Tf [ms]"]
-    lines += [f"note: {n}" for n in res.notes]
-    lines.append(f"{'design':<12}{'Kp':>10}{'Kd':>10}{'Tf[ms]':>8}{'PM[deg]':>9}{'GM':>7}{'Ms':>6}{'fc[Hz]':>8}"
-                 f"{'IAE[' + y + ' s]':>12}  {'worst of draws: PM':>18}{'Ms':>6}")
-    for d in res.designs:
-        c, n, w = d.controller, d.margins, d.posterior.get("worst")
-        lines.append(f"{d.name:<12}{c.Kp:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}{n.phase_margin_deg:>9.1f}"
-                     f"{n.gain_margin:>7.2f}{n.Ms:>6.2f}{n.w_gc / (2 * math.pi):>8.3f}{d.criterion:>12.4g}  "
-                     + (f"{w['phase_margin_deg']:>18.1f}{w['Ms']:>6.2f}" if w is not None else f"{'-':>18}{'-':>6}"))
     return "\n".join(lines)

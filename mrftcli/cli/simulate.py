@@ -235,6 +235,13 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     _echo_cascade(flight, out, sidecar, layout, fmt, assumptions)
 
 
+def _warn_lock_up(i: int, beta: float, margin: float, remedy: str) -> None:
+    """The lock-up warning of test ``i`` when its noise margin (docs/simulator.md) is under 4."""
+    if margin < 4.0:
+        click.echo(f"warning: test {i} (beta {beta}): the output moves only {margin:.1f} noise std per tick near the "
+                   f"zero crossing (< 4); the MRFT relay may lock up. Use {remedy}, or --switching hear", err=True)
+
+
 def _warn_noise_margins(spec, plant, conv: float) -> None:
     """The one-loop path's lock-up warning for each test (docs/simulator.md: margin a Omega / (rate std) < 4)."""
     from ..sim.cascade import outer_describing_function
@@ -247,10 +254,7 @@ def _warn_noise_margins(spec, plant, conv: float) -> None:
         else:
             omega, gain = outer_describing_function(plant, spec.gains, conv, test.beta)
             margin = 4.0 * test.h * gain / math.pi * omega / (spec.rate_hz * pos) if pos > 0 else math.inf
-        if margin < 4.0:
-            click.echo(f"warning: test {i} (beta {test.beta}): the output moves only {margin:.1f} noise std per tick "
-                       "near the zero crossing (< 4); the MRFT relay may lock up. Use a larger H or amplitude, less "
-                       "noise, or --switching hear", err=True)
+        _warn_lock_up(i, test.beta, margin, "a larger H or amplitude, less noise")
 
 
 def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assumptions: list[str]) -> None:
@@ -489,13 +493,8 @@ def _loop_spec(opts: LoopOptions, out: Path):
     noise_std = default_noise_std(opts.loop) if noise is None else noise
     for i, test in enumerate(specs, 1):
         margin = noise_margin(model, test.beta, test.h, rate, noise_std)
-        if margin < 4.0 and opts.switching == "checks":
-            click.echo(
-                f"warning: test {i} (beta {test.beta}): the output moves only {margin:.1f} noise std per tick "
-                "near the zero crossing (< 4); the MRFT relay may lock up. Use a larger H or --amplitude, "
-                "less --noise, or --switching hear",
-                err=True,
-            )
+        if opts.switching == "checks":
+            _warn_lock_up(i, test.beta, margin, "a larger H or --amplitude, less --noise")
     spec = FlightSpec(model=model, tests=tuple(specs), loop=opts.loop, rate_hz=rate, noise_std=noise,
                       bias=opts.bias, setpoint=opts.setpoint, hover_s=opts.hover_hold[0], hold_s=opts.hover_hold[1],
                       effects=Effects(**effect_values), seed=opts.seed, start_time=opts.start_time,

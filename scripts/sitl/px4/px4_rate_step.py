@@ -155,19 +155,17 @@ def run_rate_step(px4: Path, logs: Path, tp: float, output_topic: str, fly: bool
                   flight: str = "px4_pitch_h") -> dict[str, Any] | None:
     """Export ``loop`` from ``logs/flight.ulg``, and fly its steps (``fly``) or evaluate those flown before."""
     log, work = logs / f"{flight}.ulg", logs / "export"
-    if not log.exists():
+    steps = work / f"{loop}_steps.ulg"
+    if not log.exists() or not (fly or steps.exists()):  # nothing to fly or evaluate: write nothing
         return None
     params, pred = export_rate(log, loop, tp, work, output_topic)
     if params is None:
         return None
     print(f"    exported design ({pred['design']}): step overshoot {pred['overshoot_pct']:.2f} %, rise "
           f"{pred['rise_s']:.3f} s, 2 % settling {pred['settling_s']:.3f} s, Ms {pred['Ms']:.2f}")
-    steps = work / f"{loop}_steps.ulg"
     flown: dict[str, Any] = {"log": steps, "dwell_s": 2.0, "step_deg": 10.0}
     if fly:
         flown = fly_attitude_steps(px4, params, work, loop)
         bad = [r for r in flown["rows"] if not r["unchanged"]]
         print(f"    parameters rejected or changed on read-back: {len(bad)} of {len(flown['rows'])}")
-    elif not steps.exists():
-        return None
     return evaluate_attitude_steps(flown, loop, pred)

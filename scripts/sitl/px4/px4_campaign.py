@@ -510,7 +510,8 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     report(results)
     done = sorted((logs / "export").glob("refly*.ulg"))  # each re-flight of the export kept
     for loop in ("pitch", "roll"):  # the rate loops' export and step (px4_rate_step.py)
-        if f"px4_{loop}_h" not in results or no_refly:
+        if f"px4_{loop}_h" not in results or no_refly or (analyze_only and not
+                                                          (logs / "export" / f"{loop}_steps.ulg").exists()):
             continue
         from px4_rate_step import run_rate_step
 

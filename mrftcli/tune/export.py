@@ -33,8 +33,8 @@ from .closed_loop import Controller
 if TYPE_CHECKING:
     from .design import TuneResult
 
-__all__ = ["generic_file", "generic_export", "generic_units", "hear_json", "px4_params", "px4_conditions", "format_table",
-           "HEAR_PID_ID"]
+__all__ = ["generic_file", "generic_export", "generic_units", "hear_json", "px4_params", "px4_conditions", "unit_reasons",
+           "format_table", "HEAR_PID_ID"]
 
 #: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
 HEAR_PID_ID = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4, "yaw": 5}
@@ -103,10 +103,19 @@ def px4_conditions(c: Controller, loop: str, relay_heights: Sequence[float] = ()
     if c.Ki > 0:
         why.append("the design has integral action: PX4's rate-loop I acts on the measured rate, so a PID on the "
                    "angle error does not map exactly (use the PD design)")
-    if any(h > 1.0 for h in relay_heights):
-        why.append(f"the MRFT relay height ({max(relay_heights):.3g}) exceeds 1: the command was not PX4's "
-                   "normalised torque setpoint")
-    if any(a > 1.0 for a in amplitudes):
+    return why + unit_reasons(loop, relay_heights, amplitudes)
+
+
+def unit_reasons(loop: str, heights: Sequence[float], amplitudes: Sequence[float]) -> list[str]:
+    """Reasons the log's units are not a flight stack's (normalised command, radians); empty: they are.
+
+    ``heights`` [command units] are the relay heights flown (over 1: not the stack's normalised command),
+    ``amplitudes`` [output units] the tests' amplitudes (over 1 on roll or pitch: not radians)."""
+    why = []
+    if any(h > 1.0 for h in heights):
+        why.append(f"the MRFT relay height ({max(heights):.3g}) exceeds 1: the command was not the stack's "
+                   "normalised torque/thrust setpoint")
+    if loop in ("roll", "pitch") and any(a > 1.0 for a in amplitudes):
         why.append(f"the oscillation amplitude ({max(amplitudes):.3g}) is not an angle in radians (degrees? "
                    "use --output-scale 0.0174533)")
     return why
@@ -114,15 +123,17 @@ def px4_conditions(c: Controller, loop: str, relay_heights: Sequence[float] = ()
 
 def px4_params(c: Controller, loop: str, relay_heights: Sequence[float] = (),
                amplitudes: Sequence[float] = ()) -> dict[str, Any]:
-    """PX4 parameters ``MC_<AXIS>_P`` = Kp / Kd and ``MC_<AXIS>RATE_P`` = Kd, or InputError with the reasons."""
+    """PX4 parameters ``MC_<AXIS>_P`` = Kp / Kd and ``MC_<AXIS>RATE_P`` = Kd (the export's mapping,
+    :func:`mrftcli.tune.stacks.cascade_params`) with the design's own filter as ``IMU_GYRO_CUTOFF``, or
+    InputError with the reasons."""
+    from .stacks import cascade_params
+
     why = px4_conditions(c, loop, relay_heights, amplitudes)
     if why:
         raise InputError("cannot export to PX4: " + "; ".join(why))
     if c.Kd <= 0:
         raise InputError("cannot export to PX4: the design has no derivative gain (MC_*RATE_P would be 0)")
-    axis = loop.upper()
-    return {f"MC_{axis}_P": c.Kp / c.Kd, f"MC_{axis}RATE_P": c.Kd, f"MC_{axis}RATE_I": 0.0,
-            f"MC_{axis}RATE_D": 0.0, f"MC_{axis}RATE_K": 1.0, f"MC_{axis}RATE_FF": 0.0,
+    return {**cascade_params(c, loop, "px4", None),
             "IMU_GYRO_CUTOFF": 1.0 / (2.0 * math.pi * c.Tf) if c.Tf > 0 else None,
             "rate_hz": c.rate_hz,
             "conditions": "command = PX4 normalised torque setpoint, output in rad; attitude and rate loops at rate_hz"}

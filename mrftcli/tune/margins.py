@@ -66,17 +66,6 @@ class Margins:
     w_pc: float
     stable: bool
 
-    @property
-    def gain_margin_db(self) -> float:
-        """Gain margin [dB]."""
-        return 20.0 * math.log10(self.gain_margin) if self.gain_margin > 0 else -math.inf
-
-    def to_dict(self) -> dict[str, Any]:
-        """The figures as the ``tune --json`` output shows them (delay margin in ms)."""
-        return {"gain_margin": self.gain_margin, "gain_margin_db": self.gain_margin_db,
-                "phase_margin_deg": self.phase_margin_deg, "delay_margin_ms": self.delay_margin_s * 1e3,
-                "Ms": self.Ms, "w_gc_rad_s": self.w_gc, "w_pc_rad_s": self.w_pc, "stable": self.stable}
-
     def to_json(self) -> dict[str, Any]:
         """The versioned JSON object (:data:`MARGINS_SCHEMA_VERSION`): the fields in their units, a
         non-finite figure (no crossing: inf; unstable: Ms inf) as the string "inf", "-inf" or "nan".

@@ -55,11 +55,12 @@ from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, RateFilter
+from .export import unit_reasons
 from .margins import Margins, loop_margins
 from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
-           "check_exportable", "export_design",
+           "check_exportable", "export_design", "cascade_params",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -328,8 +329,9 @@ def _hear_object(e: StackExport) -> dict[str, Any]:
                             f"HEAR_FC's 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz (designed with it)")}
 
 
-def _cascade(c: Controller, loop: str, stack: str, hover_thrust: float | None) -> dict[str, float]:
-    """The stack's parameters for the PD ``c`` (unclamped)."""
+def cascade_params(c: Controller, loop: str, stack: str, hover_thrust: float | None) -> dict[str, float]:
+    """The stack's (``px4`` or ``ardupilot``) parameters for the PD ``c`` on ``loop`` (unclamped; the gyro
+    cutoff [Hz] the design's rate filter's, 0 without one)."""
     rate_filter = c.rate_filter
     if stack == "px4" and loop == "altitude":
         assert hover_thrust is not None  # check_exportable asked for it
@@ -363,18 +365,6 @@ def _loop_controller(p: dict[str, float], c: Controller, loop: str, stack: str,
         ax = _AXIS_AP[loop]
         pa, pr, ir = p[f"ATC_ANG_{ax}_P"], p[f"ATC_RAT_{ax}_P"], p[f"ATC_RAT_{ax}_I"]
     return Controller(pr * pa + ir, ir * pa, pr, c.Tf, c.rate_hz, c.rate_filter)
-
-
-def _check_units(loop: str, heights: Sequence[float], amplitudes: Sequence[float]) -> list[str]:
-    """Reasons the log's units are not the stack's (normalised command, radians)."""
-    why = []
-    if any(h > 1.0 for h in heights):
-        why.append(f"the MRFT relay height ({max(heights):.3g}) exceeds 1: the command was not the stack's "
-                   "normalised torque/thrust setpoint")
-    if loop in ("roll", "pitch") and any(a > 1.0 for a in amplitudes):
-        why.append(f"the oscillation amplitude ({max(amplitudes):.3g}) is not an angle in radians (degrees? "
-                   "use --output-scale 0.0174533)")
-    return why
 
 
 @dataclass(frozen=True)
@@ -422,7 +412,7 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     if stack != "ardupilot" and version is not None:
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     if stack in ("px4", "ardupilot"):
-        why = _check_units(loop, evidence.heights, evidence.amplitudes)
+        why = unit_reasons(loop, evidence.heights, evidence.amplitudes)
         if c.Kd <= 0:
             why.append("the design has no derivative gain (the rate P would be 0)")
         if why:
@@ -472,7 +462,7 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
     ratio = c.Kp / c.Kd
     if rz.contains(ratio) and rv.contains(c.Kd * per_kd):
         return c
-    base = _cascade(c, loop, stack, hover)
+    base = cascade_params(c, loop, stack, hover)
     base.update({n: param(stack, n).minimum for n in base if n in _STRUCTURAL})
     models = [model, *posterior[:: max(1, len(posterior) // 40)]]
 
@@ -567,7 +557,7 @@ def _with_prearm(e: StackExport) -> StackExport:
 def _cascade_export(stack: str, c: Controller, model: LoopModel, loop: str, design: str, clamp: bool,
                     hover_thrust: float | None, out_notes: list[str]) -> StackExport:
     """PX4 (attitude, altitude) and ArduPilot attitude: the cascade mapping, its ranges, its margins."""
-    params = _cascade(c, loop, stack, hover_thrust)
+    params = cascade_params(c, loop, stack, hover_thrust)
     bad = check_ranges(stack, params)
     gains = [v for v in bad if v.param.name not in _STRUCTURAL]
     clamped_params = {**params, **{v.param.name: v.clamped for v in bad}}

@@ -92,6 +92,19 @@ class RateFilter:
         out: np.ndarray = (b[0] + b[1] * zi + b[2] * zi * zi) / (a[0] + a[1] * zi + a[2] * zi * zi)
         return out
 
+    def to_json(self) -> dict[str, Any]:
+        """``{"cutoff_hz", "parameter"}``: what a controller's and a tune result's ``rate_filter`` hold."""
+        return {"cutoff_hz": self.cutoff_hz, "parameter": self.parameter}
+
+    @classmethod
+    def from_json(cls, data: Any, what: str = "rate filter") -> RateFilter | None:
+        """The filter of :meth:`to_json`, None for null; InputError (one line naming ``what``) otherwise."""
+        if data is None:
+            return None
+        if not isinstance(data, Mapping):
+            raise InputError(f"{what}: 'rate_filter' must be an object or null")
+        return cls(_json_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
+
     def to_dict(self) -> dict[str, Any]:
         return {"type": "2nd-order Butterworth (bilinear, prewarped) on the measured rate",
                 "cutoff_hz": self.cutoff_hz, "parameter": self.parameter}
@@ -189,7 +202,7 @@ class Controller:
         there is one): what a tune record, a cascade's inner loop and GAINS.json hold."""
         out: dict[str, Any] = {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz}
         if self.rate_filter is not None:
-            out["rate_filter"] = {"cutoff_hz": self.rate_filter.cutoff_hz, "parameter": self.rate_filter.parameter}
+            out["rate_filter"] = self.rate_filter.to_json()
         return out
 
     @classmethod
@@ -208,12 +221,9 @@ class Controller:
         """
         if not isinstance(data, Mapping):
             raise InputError(f"{what} must be an object with Kp, Ki, Kd, Tf, rate_hz, got {type(data).__name__}")
-        rf = data.get("rate_filter")
-        if rf is not None and not isinstance(rf, Mapping):
-            raise InputError(f"{what}: 'rate_filter' must be an object or null")
+        rf = RateFilter.from_json(data.get("rate_filter"), what)
         Kp, Ki, Kd, Tf, rate = (_json_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
-        return cls(Kp, Ki, Kd, Tf, rate,
-                   None if rf is None else RateFilter(_json_number(rf, "cutoff_hz", what), str(rf.get("parameter", ""))))
+        return cls(Kp, Ki, Kd, Tf, rate, rf)
 
     def to_dict(self) -> dict[str, Any]:
         """Kp, Ki, Kd, Tf [s], rate_hz and the form (and the stack's rate filter when there is one)."""

@@ -88,14 +88,6 @@ def _check_version(data: Any, what: str) -> dict[str, Any]:
     return dict(check_schema_version(data, what, _READS))
 
 
-def _rate_filter_from(data: Any, what: str) -> RateFilter | None:
-    if data is None:
-        return None
-    if not isinstance(data, dict):
-        raise InputError(f"{what}: 'rate_filter' must be an object or null")
-    return RateFilter(_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
-
-
 __all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
            "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
 
@@ -349,8 +341,7 @@ class TuneResult:
                 "effort_max": _encode(self.effort_max), "horizon_s": _encode(self.horizon_s),
                 "rule_cycle": _encode(self.rule_cycle), "designs": [d.to_json() for d in self.designs],
                 "notes": list(self.notes),
-                "rate_filter": (None if self.rate_filter is None else
-                                {"cutoff_hz": self.rate_filter.cutoff_hz, "parameter": self.rate_filter.parameter})}
+                "rate_filter": None if self.rate_filter is None else self.rate_filter.to_json()}
 
     @classmethod
     def from_json(cls, data: Any) -> "TuneResult":
@@ -394,7 +385,7 @@ class TuneResult:
         return cls(model, post, _number(data, "rate_hz", what), str(data.get("loop", "")),
                    str(data.get("objective", "")), _number(data, "ms_max", what), _number(data, "effort_max", what),
                    _number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
-                   tuple(str(n) for n in notes), _rate_filter_from(data.get("rate_filter"), what),
+                   tuple(str(n) for n in notes), RateFilter.from_json(data.get("rate_filter"), what),
                    data.get("reverse_acting") is True)
 
 

@@ -51,7 +51,25 @@ def export_rate(log: Path, loop: str, tp: float, work: Path, output_topic: str) 
     record = json.loads(js.read_text())
     kind = record["export"]["design"]
     design = next(d for d in record["designs"] if d["design"] == kind)  # the first: the setpoint step
-    return params, {"design": kind, **design["step"], "Ms": design["margins"]["Ms"]}
+    return params, {"design": kind, **design["step"], "Ms": design["margins"]["Ms"],
+                    "response": _predicted_response(record)}
+
+
+def _predicted_response(record: dict[str, Any], t_end: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """The exported design's unit setpoint step on the identified model (tune's sampled loop, the stack's
+    rate filter): the curve behind tune's step figures, to measure it against any band."""
+    from mrftcli.mrft.controller import Controller, RateFilter
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.tune.closed_loop import step_response
+
+    g, m = record["export"]["generic"], record["model"]
+    if "parameters" in m:  # the model record (schema 1): each parameter's value
+        m = {k: v["value"] for k, v in m["parameters"].items()}
+    filt = g.get("rate_filter")
+    ctrl = Controller(Kp=g["Kp"], Ki=g["Ki"], Kd=g["Kd"], Tf=g["Tf"], rate_hz=g["rate_hz"],
+                      rate_filter=RateFilter(filt["cutoff_hz"], filt.get("parameter", "")) if filt else None)
+    t, y, _ = step_response([LoopModel(m["Tp"], m["Td"], m["tau"], m["K"])], ctrl, t_end)
+    return t, y[0]
 
 
 def _quat(roll: float, pitch: float, yaw: float) -> list[float]:
@@ -110,14 +128,14 @@ def _angle(q: dict[str, np.ndarray], loop: str) -> np.ndarray:
     return np.arcsin(np.clip(2 * (q0 * q2 - q3 * q1), -1, 1))
 
 
-def _step_figures(t: np.ndarray, y: np.ndarray, t0: float, dwell: float) -> dict[str, float]:
-    """Overshoot [%], 10-90 % rise [s] and 2 % settling [s] of one step at ``t0``, normalised from the
-    mean of the 0.3 s before it to the mean of its last 0.5 s."""
+def _step_figures(t: np.ndarray, y: np.ndarray, t0: float, dwell: float, band: float = 0.02) -> dict[str, float]:
+    """Overshoot [%], 10-90 % rise [s] and settling [s] into ``1 +- band`` (2 %) of one step at ``t0``,
+    normalised from the mean of the 0.3 s before it to the mean of its last 0.5 s."""
     grid = np.arange(0.0, dwell - 0.02, 0.004)
     a = np.interp(t0 + grid, t, y)
     base = float(np.mean(y[(t > t0 - 0.3) & (t < t0)]))
     r = (a - base) / (float(np.mean(a[grid > dwell - 0.5])) - base)
-    outside = np.flatnonzero(np.abs(r - 1.0) > 0.02)
+    outside = np.flatnonzero(np.abs(r - 1.0) > band)
     return {"overshoot_pct": max(0.0, float(np.max(r)) - 1.0) * 100,
             "rise_s": float(grid[np.argmax(r >= 0.9)] - grid[np.argmax(r >= 0.1)]),
             "settling_s": float(grid[outside[-1]]) if outside.size else 0.0}
@@ -148,6 +166,18 @@ def evaluate_attitude_steps(flown: dict[str, Any], loop: str, pred: dict[str, An
               f"(ratios {med['rise_s'] / pred['rise_s']:.2f}, {med['settling_s'] / pred['settling_s']:.2f})")
         print("    single steps: " + "; ".join(f"{e['overshoot_pct']:.1f} %, {e['rise_s']:.3f} s, "
                                              f"{e['settling_s']:.3f} s" for e in each))
+        # the band the attitude holds at level before the steps (+-2 std), as the altitude's (px4_campaign)
+        hold = (t > starts[0] - 2.5) & (t < starts[0] - 0.1)
+        band = 2 * float(np.std(y[hold])) / math.radians(flown["step_deg"])
+        singles = [_step_figures(t, y, t0, flown["dwell_s"], band)["settling_s"] for t0 in starts]
+        if "response" in pred:
+            tp_, yp = pred["response"]
+            outside = np.flatnonzero(np.abs(yp - 1.0) > band)
+            predicted = float(tp_[outside[-1]]) if outside.size else 0.0
+            out[name]["band"] = {"band": band, "settling_s": float(np.median(singles)), "predicted_s": predicted}
+            print(f"    into the band the attitude holds at level (+-2 std = +-{math.degrees(band * math.radians(flown['step_deg'])):.2f} "
+                  f"deg, {band * 100:.1f} % of the step): median {np.median(singles):.3f} s (single steps "
+                  f"{', '.join(f'{v:.3f}' for v in singles)}); predicted {predicted:.3f} s")
     return out
 
 

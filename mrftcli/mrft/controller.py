@@ -24,10 +24,10 @@ import numpy as np
 from ..errors import InputError
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter"]
+__all__ = ["Controller", "RateFilter", "json_number"]
 
 
-def _json_number(data: Mapping[str, Any], key: str, what: str) -> float:
+def json_number(data: Mapping[str, Any], key: str, what: str) -> float:
     """``data[key]`` as a float (a JSON number, or the strings "inf"/"nan" of a tune record); InputError naming it."""
     value = data.get(key)
     if isinstance(value, str) and value in ("inf", "-inf", "nan"):
@@ -103,7 +103,7 @@ class RateFilter:
             return None
         if not isinstance(data, Mapping):
             raise InputError(f"{what}: 'rate_filter' must be an object or null")
-        return cls(_json_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
+        return cls(json_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
 
     def to_dict(self) -> dict[str, Any]:
         return {"type": "2nd-order Butterworth (bilinear, prewarped) on the measured rate",
@@ -222,7 +222,7 @@ class Controller:
         if not isinstance(data, Mapping):
             raise InputError(f"{what} must be an object with Kp, Ki, Kd, Tf, rate_hz, got {type(data).__name__}")
         rf = RateFilter.from_json(data.get("rate_filter"), what)
-        Kp, Ki, Kd, Tf, rate = (_json_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
+        Kp, Ki, Kd, Tf, rate = (json_number(data, k, what) for k in ("Kp", "Ki", "Kd", "Tf", "rate_hz"))
         return cls(Kp, Ki, Kd, Tf, rate, rf)
 
     def to_dict(self) -> dict[str, Any]:

@@ -38,6 +38,7 @@ from scipy.optimize import minimize
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
+from ..mrft.controller import json_number
 from ..mrft.model import LoopModel, PlantModel, model_from_json
 from ..progress import Progress, report
 from ..validate import check_positive
@@ -71,17 +72,6 @@ def _decode(obj: Any) -> Any:
     if isinstance(obj, str) and obj in ("inf", "-inf", "nan"):
         return float(obj)
     return obj
-
-
-def _number(data: dict[str, Any], key: str, what: str) -> float:
-    """``data[key]`` as a float (``_encode``'s strings allowed), or InputError naming the field."""
-    try:
-        v = data[key]
-        if isinstance(v, bool):
-            raise TypeError("a boolean")
-        return float(v)
-    except (KeyError, TypeError, ValueError) as err:
-        raise InputError(f"{what}: missing or malformed '{key}' ({err})") from err
 
 
 def _check_version(data: Any, what: str) -> dict[str, Any]:
@@ -270,10 +260,10 @@ class Design:
         if data["schema_version"] >= 3 and data.get("kind") != controller.kind:
             raise InputError(f"{what}: 'kind' {data.get('kind')!r} is not its controller's ({controller.kind})")
         return cls(name, controller, objective,
-                   _number(data, "criterion", what), _number(data, "criterion_expected", what),
+                   json_number(data, "criterion", what), json_number(data, "criterion_expected", what),
                    Margins.from_json(data.get("margins")),
-                   StepMetrics(*(_number(step, k, what) for k in fields)),
-                   extras["posterior"], extras["constraints"], extras["load"], _number(data, "horizon_s", what),
+                   StepMetrics(*(json_number(step, k, what) for k in fields)),
+                   extras["posterior"], extras["constraints"], extras["load"], json_number(data, "horizon_s", what),
                    str(data.get("criterion_definition") or ""))
 
 
@@ -364,7 +354,7 @@ class TuneResult:
         if not isinstance(md, dict):
             raise InputError(f"{what}: 'model' must be an object")
         if data["schema_version"] == 1:  # eq. (2) only: the model as {Tp, Td, tau, K}
-            Tp, Td, tau, K = (_number(md, k, what) for k in ("Tp", "Td", "tau", "K"))
+            Tp, Td, tau, K = (json_number(md, k, what) for k in ("Tp", "Td", "tau", "K"))
             model: PlantModel = LoopModel(Tp, Td, tau, K)
         else:
             model = model_from_json(md)
@@ -382,9 +372,9 @@ class TuneResult:
         designs, notes, cycle = data.get("designs"), data.get("notes", []), data.get("rule_cycle")
         if not isinstance(designs, list) or not isinstance(notes, list) or not isinstance(cycle, dict):
             raise InputError(f"{what}: 'designs' and 'notes' must be lists, 'rule_cycle' an object")
-        return cls(model, post, _number(data, "rate_hz", what), str(data.get("loop", "")),
-                   str(data.get("objective", "")), _number(data, "ms_max", what), _number(data, "effort_max", what),
-                   _number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
+        return cls(model, post, json_number(data, "rate_hz", what), str(data.get("loop", "")),
+                   str(data.get("objective", "")), json_number(data, "ms_max", what), json_number(data, "effort_max", what),
+                   json_number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
                    tuple(str(n) for n in notes), RateFilter.from_json(data.get("rate_filter"), what),
                    data.get("reverse_acting") is True)
 

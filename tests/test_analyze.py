@@ -180,7 +180,7 @@ def test_paper_only_estimate_is_the_ufm_intersection(design1):
 
 def test_times_for_people_are_relative_to_the_log_start(design1):
     """Epoch-stamped logs: table and warnings in seconds from the start, JSON keeps both."""
-    from mrftcli.cli.analyze import format_table
+    from mrftcli.cli.analyze import format_analysis
 
     sf, ref = design1
     fl = flight_from_simulated(sf)
@@ -196,7 +196,7 @@ def test_times_for_people_are_relative_to_the_log_start(design1):
         assert t["t_start"] > T0  # absolute, as the issue asks
         assert t["t_start_rel"] == pytest.approx(t["t_start"] - first, abs=1e-6)
         assert t["t_start_rel"] == pytest.approx(tr.t_start - float(ref.flight.command.t[0]), abs=1e-6)
-    table = format_table(result)
+    table = format_analysis(result)
     assert "17000000" not in table and "2023-11-14 22:13:20" in table
     t1 = result.tests[0]
     row = next(line.split() for line in table.splitlines() if line.split()[:1] == [str(t1.index + 1)])

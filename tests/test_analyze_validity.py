@@ -229,7 +229,7 @@ def test_wrong_loop_on_a_roll_log_exits_4_with_one_line():
 def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
     """Three tests, the output of the middle one replaced by noise: two remain and identify the plant."""
     from mrftcli.jsonable import to_jsonable
-    from mrftcli.cli.analyze import format_table
+    from mrftcli.cli.analyze import format_analysis
 
     sf = simulate_paper_flight(ROLL["Tp"], ROLL["Td"], ROLL["tau"], ROLL["K"], (-0.3, -0.5, -0.8), loop="roll",
                                seed=5)
@@ -247,6 +247,6 @@ def test_rejected_test_is_listed_with_its_reason_and_the_rest_identified():
     assert rej["reason"].startswith("the output does not follow this relay")
     assert {"snr", "h1_fraction"} <= set(rej["validity"]["failed"])
     assert all(x["validity"]["ok"] for x in d["tests"])
-    table = format_table(r)
+    table = format_analysis(r)
     assert "left out: the output does not follow this relay" in table
     assert any("left out" in w_ and "0.5" in w_ for w_ in r.warnings)

@@ -23,7 +23,7 @@ from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.estimate import beta_used
 from mrftcli.analyze.held_out import NOTHING_HELD_OUT, HeldOut, held_out_eq2
-from mrftcli.cli.analyze import format_table
+from mrftcli.cli.analyze import format_analysis
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.jsonable import to_jsonable
 
@@ -115,7 +115,7 @@ def test_json_and_table_hold_the_families_record(three: AnalysisResult) -> None:
         assert set(row["held_out"]) == set(HeldOut(None, None).to_json())  # the families' keys
     back = AnalysisResult.from_json(d)
     assert back.held_out == three.held_out and to_jsonable(back.to_json()) == d
-    text = format_table(three)
+    text = format_analysis(three)
     assert "held-out f" in text and f"{three.held_out[0].frequency_hz:.4f}" in text
 
 
@@ -125,7 +125,7 @@ def test_a_version_2_record_reads_without_held_out(three: AnalysisResult) -> Non
     back = AnalysisResult.from_json(old)
     assert back.held_out == (None, None, None) and back.tau == three.tau
     assert [t["held_out"] for t in to_jsonable(back.to_json())["tests"]] == [None] * 3
-    assert "held-out f" not in format_table(back)
+    assert "held-out f" not in format_analysis(back)
 
 
 def test_two_tests_say_why_nothing_is_predicted_and_one_test_holds_nothing_out(tmp_path: Path) -> None:
@@ -133,7 +133,7 @@ def test_two_tests_say_why_nothing_is_predicted_and_one_test_holds_nothing_out(t
     result = analyze_flight(flight, soiptd_model(PLANT["Tp"]), options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
     assert all(ho is not None and ho.frequency_hz is None and "does not determine Td and tau" in ho.note
                for ho in result.held_out)
-    text = format_table(result)
+    text = format_analysis(result)
     assert "held-out tests 1, 2: the other test alone does not determine Td and tau" in text
     assert "held-out f" not in text
     (only,) = held_out_eq2(soiptd_model(PLANT["Tp"]), result.tests[:1], [result.tests[0].beta_effective])

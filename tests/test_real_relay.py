@@ -180,14 +180,14 @@ def test_fopdt_10k_model_and_held_out(fopdt_10k):
 
 def test_fopdt_5k_ideal_relay_says_what_it_determines():
     from mrftcli.analyze import analyze_flight
-    from mrftcli.cli.model_options import format_general
+    from mrftcli.cli.analyze import format_analysis
     from mrftcli.mrft.families import family_model
 
     flight = read_flight(FILE_5K, ReadOptions(command_topic="u_relay", output_topic="y_output"), echo_warnings=False)
     result = analyze_flight(flight, family_model("fopdt"))
     assert len(result.tests) >= 15
     assert sum(t.relay.kind == "ideal" for t in result.tests) >= 0.8 * len(result.tests)
-    text = format_general(result)
+    text = format_analysis(result)
     assert "nan" not in text.lower()
     ident = result.identification
     assert ident is not None

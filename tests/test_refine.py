@@ -86,7 +86,7 @@ def test_interval_coverage_on_seeded_plants():
 
 def test_no_linear_damping_gives_a_one_sided_td_bound(tmp_path):
     """Issue 12 item 8: a double integrator with motor lag and delay (Td -> infinity)."""
-    from mrftcli.cli.analyze import format_table
+    from mrftcli.cli.analyze import format_analysis
     from mrftcli.report.analysis import write_analysis_report
 
     from test_segment_support import simulate_paper_flight
@@ -98,7 +98,7 @@ def test_no_linear_damping_gives_a_one_sided_td_bound(tmp_path):
     assert any(w.startswith("Td > ") and "cannot bound it from above" in w for w in r.warnings)
     d = json.loads(json.dumps(to_jsonable(r.to_dict(cycles=False))))
     assert d["parameters"]["Td"]["ci95_high"] is None and d["parameters"]["Td"]["ci95_low"] > 5.0
-    assert "not bounded from above" in format_table(r)
+    assert "not bounded from above" in format_analysis(r)
     write_analysis_report(r, tmp_path)
     assert "not bounded above" in (tmp_path / "index.html").read_text()
     # tau and K are still determined

@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any, cast
 
 import click
 
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
-from .model_options import (baseline_option, build_model, check_soiptd_options, format_general, parse_baseline,
-                            parse_windows, relay_options, structure_options, window_option)
+from .model_options import (baseline_option, build_model, check_soiptd_options, format_combination, parameter_lines,
+                            parse_baseline, parse_windows, relay_options, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
-from .cascade_options import cascade_options, cascade_setup, format_cascade, pop_cascade_options
+from .cascade_options import cascade_options, cascade_setup, pop_cascade_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, num, quiet_option, read_progress, tp_option, tqdm_progress)
 
@@ -24,19 +23,6 @@ def accept_tp_option(f):
     return click.option("--accept-tp", "accept_tp", is_flag=True, default=False,
                         help="Keep the given --tp even when the recording fits another Tp clearly better (by default "
                              "that is exit 5, naming the better Tp); the JSON's tp_check says 'accepted'.")(f)
-
-
-def _est_row(name: str, unit: str, est, scale: float) -> list[str]:
-    """One parameter: estimate, std and 95 % interval (one-sided when the data bound it from below only)."""
-    if est is None or not math.isfinite(est.value):
-        return [name, unit, "-", "", ""]
-    if not math.isfinite(est.std):
-        return [name, unit, num(est.value * scale), "", ""]
-    if not math.isfinite(est.ci95_high):
-        interval = f"> {num(est.ci95_low * scale)} (not bounded from above)"
-    else:
-        interval = f"{num(est.ci95_low * scale)} - {num(est.ci95_high * scale)}"
-    return [name, unit, num(est.value * scale), num(est.std * scale, 2), interval]
 
 
 def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> list[str]:
@@ -52,48 +38,144 @@ def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> 
     return [line([h[0] for h in header]), line([h[1] for h in header])] + [line(r) for r in rows]
 
 
-def format_table(result) -> str:
-    """The compact terminal summary of an :class:`~mrftcli.analyze.AnalysisResult`."""
+def format_analysis(result) -> str:
+    """The terminal summary of any :class:`~mrftcli.analyze.AnalysisResult` (eq. (2), a family, the cascade).
+
+    One layout for every kind: the log, the model and what the numbers rest on (first lines), the tests
+    (the kind's own columns, then each test's held-out prediction where there is one), the tests left
+    out, the parameters with their units, std and 95 % interval, and the kind's closing lines.
+    """
+    lines = [result.path, *_head(result)]
+    header, align, rows = _test_columns(result)
+    held = [result.held_out_of(k) for k in range(len(result.tests))]
+    if any(ho is not None and (ho.frequency_hz is not None or ho.amplitude is not None) for ho in held):
+        unit = _unit(result)  # else the notes below say why nothing is predicted
+        header += [("held-out f", "[Hz] ± std (error/std)"), ("held-out amplitude", f"[{unit}] ± std (error/std)")]
+        align += ">>"
+        rows = [r + list(held_out_cells(ho)) for r, ho in zip(rows, held)]
+    lines += _table(header, rows, align)
+    lines += _left_out(result)
+    lines += held_out_notes(held, _numbers(result))
+    lines.append(_parameters_line(result))
+    lines += parameter_lines(list(result.parameters.items()), _display(result))
+    lines += _tail(result)
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def _unit(result) -> str:
+    """The output's unit: the loop's for a vehicle loop, "output" for a process plant's."""
+    return "output" if result.kind == "family" else output_unit(result.loop)
+
+
+def _numbers(result) -> list[int]:
+    """The test numbers the table shows (a family's count its used tests, the others' every test found)."""
+    return [k + 1 if result.kind == "family" else t.index + 1 for k, t in enumerate(result.tests)]
+
+
+def _head(result) -> list[str]:
+    """The model line and what the numbers rest on: the signals read (eq. (2)), the assumptions."""
     from ..analyze import describe_t0
 
-    t0 = result.t0
-    unit = output_unit(result.loop)
-    lines = [f"{result.path}",
-             f"loop {result.loop}, Tp {result.Tp:g} s (known); times in seconds from the log start"
-             + (f" ({describe_t0(t0)})" if t0 else "")]
-    read_as = _read_as(result)
-    if read_as:
-        lines.append(read_as)
-    header = [("test", ""), ("from", "[s]"), ("to", "[s]"), ("beta", "nominal"), ("beta", "effective"),
-              ("relay h", "[command]"), ("frequency", "[Hz]"), ("amplitude", f"[{unit}]"), ("stable/total", "cycles")]
-    held = [result.held_out_of(k) for k in range(len(result.tests))]
-    predicted = any(ho is not None and ho.frequency_hz is not None for ho in held)
-    if predicted:  # else the notes below say why nothing is predicted
-        header += [("held-out f", "[Hz] ± std (error/std)"), ("held-out amplitude", f"[{unit}] ± std (error/std)")]
-    rows = []
-    for k, t in enumerate(result.tests):
-        nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
-        rows.append([str(t.index + 1), f"{t.t_start - t0:.1f}", f"{t.t_end - t0:.1f}", nom, f"{t.beta_effective:+.3f}",
-                     num(t.h), num(t.frequency_hz_mean), num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}",
-                     *(held_out_cells(held[k]) if predicted else ())])
-    lines += _table(header, rows, ">" * len(header))
-    lines += held_out_notes(held, [t.index + 1 for t in result.tests])
-    for t in result.rejected:
-        nom = f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-"
-        why = result.rejection_reasons.get(t.index) or f"{t.n_stable} stable cycles"
-        if len(why) > 80 and ":" in why:  # the figures are in the warning below the table
+    since = "times in seconds from the log start" + (f" ({describe_t0(result.t0)})" if result.t0 else "")
+    if result.kind == "soiptd":
+        read_as = _read_as(result)
+        return [f"loop {result.loop}, Tp {result.Tp:g} s (known); {since}", *([read_as] if read_as else [])]
+    if result.kind == "cascade":
+        return [f"loop {result.loop} through the closed inner loop (cascade model "
+                f"{result.identification.model.structure}); {since}",
+                *(f"assumption: {a}" for a in result.assumptions)]
+    model = result.model
+    return [f"model {model.family}: G(s) = {getattr(model, 'transfer_function', model.structure)}; {since}",
+            *(f"note: {n}" for n in result.notes if n.startswith("assumed"))]
+
+
+def _test_columns(result) -> tuple[list[tuple[str, str]], str, list[list[str]]]:
+    """The kind's columns of the test table: header (name, unit), alignment and one row per test."""
+    t0, unit, numbers = result.t0, _unit(result), _numbers(result)
+    span = [("test", ""), ("from", "[s]"), ("to", "[s]")]
+    if result.kind == "family":
+        rows = [[str(n), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.describe_relay(), num(t.frequency_hz),
+                 num(t.amplitude, 3), f"{t.n_stable}/{t.n_cycles}"] for n, t in zip(numbers, result.tests)]
+        return (span + [("relay", ""), ("frequency", "[Hz]"), ("amplitude", f"[{unit}]"), ("stable/total", "cycles")],
+                ">>><>>>", rows)
+    if result.kind == "cascade":
+        rows = []
+        for n, t, fit in zip(numbers, result.tests, result.identification.tests):
+            rows.append([str(n), f"{t.t_start - t0:.1f}", f"{t.t_end - t0:.1f}", f"{fit.beta:+.3f}", num(fit.h, 3),
+                         num(fit.frequency_hz), num(fit.predicted_hz), f"{num(fit.band_hz[0])}-{num(fit.band_hz[1])}",
+                         num(fit.amplitude), num(fit.predicted_amplitude)])
+        return (span + [("beta", ""), ("relay h", "[command]"), ("frequency", "[Hz]"), ("predicted", "[Hz]"),
+                        ("sampled band", "[Hz]"), ("amplitude", f"[{unit}]"), ("predicted", f"[{unit}]")],
+                ">" * 10, rows)
+    rows = [[str(n), f"{t.t_start - t0:.1f}", f"{t.t_end - t0:.1f}",
+             f"{t.beta_nominal:+.3f}" if t.beta_nominal is not None else "-", f"{t.beta_effective:+.3f}", num(t.h),
+             num(t.frequency_hz_mean), num(t.amplitude_mean), f"{t.n_stable}/{len(t.cycles)}"]
+            for n, t in zip(numbers, result.tests)]
+    return (span + [("beta", "nominal"), ("beta", "effective"), ("relay h", "[command]"), ("frequency", "[Hz]"),
+                    ("amplitude", f"[{unit}]"), ("stable/total", "cycles")], ">" * 9, rows)
+
+
+def _left_out(result) -> list[str]:
+    """One line per test found and left out: its span, beta where it has one, and why."""
+    digits = 2 if result.kind == "family" else 1
+    betas = {t.index: t.beta_nominal for t in result.rejected}
+    lines = []
+    for i, a, b, why in result.rejected_rows():
+        nom = betas.get(i)
+        if i in betas:
+            why = why or f"{next(t.n_stable for t in result.rejected if t.index == i)} stable cycles"
+        if len(why) > 80 and ":" in why and result.kind != "family":  # the figures are in the warning below
             why = why[: why.index(":")] + "; see the warning"
-        lines.append(f"test {t.index + 1} ({t.t_start - t0:.1f}-{t.t_end - t0:.1f} s, beta {nom}) left out: {why}")
+        label = "" if result.kind == "family" else f"test {i + 1} "
+        beta = f", beta {nom:+.3f}" if nom is not None else (", beta -" if i in betas else "")
+        lines.append(f"{label}({a - result.t0:.{digits}f}-{b - result.t0:.{digits}f} s{beta}) left out: {why}")
+    return lines
+
+
+def _parameters_line(result) -> str:
+    """Where the parameters come from."""
+    if result.kind == "family":
+        ident = result.identification
+        chi = f", chi2/dof {ident.chi2_dof:.3g}" if ident.chi2_dof is not None else ""
+        return f"parameters (direct fit to {len(ident.points)} frequency-response points of the cycles{chi}):"
+    if result.kind == "cascade":
+        return "parameters (the outer loop through the closed inner loop, its draws in the intervals):"
     ref = result.refinement
     if ref is None or not ref.accepted:
         used = "the MRFT estimate" + (" (waveform refinement refused: see the warning)" if ref is not None else "")
     else:
         used = f"the waveform refinement, residual {ref.residual_ratio:.2f}x the sensor noise"
-    lines.append(f"parameters, from {used}:")
-    params = [_est_row("Td", "s", result.Td, 1.0), _est_row("tau", "ms", result.tau, 1e3),
-              _est_row("K", f"{unit}/s² per command unit", result.K, 1.0)]
-    lines += ["  " + line for line in _table([("parameter", ""), ("unit", ""), ("estimate", ""), ("± std", ""),
-                                              ("95 % interval", "")], params, "<<>><")[::1] if line.strip()]
+    return f"parameters, from {used}:"
+
+
+def _display(result):
+    """How a parameter is shown: tau in ms for a vehicle loop (eq. (2), the cascade), as its tests are read;
+    eq. (2)'s K per command unit."""
+    def display(name: str, e) -> tuple[float, str]:
+        if name == "tau" and e.unit == "s" and result.kind != "family":
+            return 1e3, "ms"
+        if name == "K" and result.kind == "soiptd":
+            return 1.0, f"{output_unit(result.loop)}/s² per command unit"
+        return 1.0, e.unit
+    return display
+
+
+def _tail(result) -> list[str]:
+    """The kind's closing lines: eq. (2)'s spread over combinations and which uncertainty to use, a family's
+    undetermined parameters and the next test; then the notes."""
+    if result.kind == "cascade":
+        return [f"note: {n}" for n in result.notes]
+    if result.kind == "family":
+        ident, lines = result.identification, []
+        if ident.advice:
+            lines.append(f"not determined: {ident.advice}")
+        lines += format_combination(ident)
+        if ident.undetermined:
+            model = "--model-file FILE" if hasattr(ident.model, "transfer_function") else f"--model {ident.model.family}"
+            lines.append(f"next test: 'mrft-ident plan {result.path} {model}' (with this command's topic options) "
+                         f"ranks the relay tests that would determine {', '.join(ident.undetermined)}")
+        return lines + [f"note: {n}" for n in result.notes if not n.startswith("assumed")]
+    lines = []
     c = result.combination_stats()
     if c["n"] and c["Td"]["mean"] is not None:
         lines.append(
@@ -102,11 +184,9 @@ def format_table(result) -> str:
         )
     mrft_interval = any("MRFT interval" in note for note in result.notes)
     if (c["n"] and c["Td"]["mean"] is not None) or mrft_interval:
+        ref = result.refinement
         lines.append(uncertainty_sentence(ref is not None and ref.accepted, mrft_interval))
-    for note in result.notes:
-        lines.append(f"note: {note}")
-    return "\n".join(line.rstrip() for line in lines)
-
+    return lines + [f"note: {note}" for note in result.notes]
 
 
 def _read_as(result) -> str:
@@ -280,8 +360,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
             data["diagnosis"] = diagnosis.to_dict()
         dump_json(data, json_target)
     if not to_stdout:
-        formats = {"soiptd": format_table, "family": format_general, "cascade": format_cascade}
-        click.echo(formats[result.kind](result))
+        click.echo(format_analysis(result))
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
     if mcap_out:

@@ -11,9 +11,9 @@ from typing import Any, Callable, Mapping
 
 import click
 
-from .options import num, read_json_file
+from .options import read_json_file
 
-__all__ = ["cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup", "format_cascade"]
+__all__ = ["cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup"]
 
 _KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
 
@@ -115,37 +115,3 @@ def cascade_setup(request: CascadeRequest, loop: str, unsupported: Mapping[str, 
     return cascade_model(inner, request.outer_command), CascadeOptions(
         draws=tuple(inner_draws(result, inner, request.inner_draws)),
         assumptions=(f"inner model from {request.inner_model}",))
-
-
-def format_cascade(analysis: Any) -> str:
-    """The terminal summary of a :class:`~mrftcli.analyze.cascade.CascadeAnalysis`: assumptions, tests, parameters."""
-    from ..io.logtypes import output_unit
-
-    ident = analysis.identification
-    unit = output_unit(analysis.loop)
-    lines = [f"{analysis.path}", f"loop {analysis.loop} through the closed inner loop (cascade model "
-                                 f"{ident.model.structure}); times in seconds from the log start"]
-    lines += [f"assumption: {a}" for a in analysis.assumptions]
-    lines.append(f"{'test':>4}  {'from':>6}  {'to':>6}  {'beta':>6}  {'h':>6}  {'frequency':>9}  {'predicted':>9}  "
-                 f"{'sampled band':>15}  {'amplitude':>9}  {'predicted':>9}")
-    lines.append(f"{'':>4}  {'[s]':>6}  {'[s]':>6}  {'':>6}  {'':>6}  {'[Hz]':>9}  {'[Hz]':>9}  {'[Hz]':>15}  "
-                 f"{'[' + unit + ']':>9}  {'[' + unit + ']':>9}")
-    for t, fit in zip(analysis.tests, ident.tests):
-        band = f"{num(fit.band_hz[0])}-{num(fit.band_hz[1])}"
-        lines.append(f"{t.index + 1:>4}  {t.t_start - analysis.t0:>6.1f}  {t.t_end - analysis.t0:>6.1f}  "
-                     f"{fit.beta:>+6.3f}  {num(fit.h, 3):>6}  {num(fit.frequency_hz):>9}  {num(fit.predicted_hz):>9}  "
-                     f"{band:>15}  {num(fit.amplitude):>9}  {num(fit.predicted_amplitude):>9}")
-    lines.append(f"{'parameter':<10}{'unit':<30}{'estimate':>10}{'std':>10}  95 % interval")
-    for name, e in ident.estimates.items():
-        # tau in ms, as analyze shows it (the record keeps seconds)
-        f, u = (1e3, "ms") if name == "tau" and e.unit == "s" else (1.0, e.unit)
-
-        def show(x: float, digits: int = 4, f: float = f) -> str:
-            return num(x * f, digits)
-
-        if e.known:
-            lines.append(f"{name:<10}{u:<30}{show(e.value):>10}{'':>10}  known (--outer-command)")
-            continue
-        interval = f"{show(e.ci95_low)} - {show(e.ci95_high)}" + ("" if e.determined else " (not determined)")
-        lines.append(f"{name:<10}{u:<30}{show(e.value):>10}{show(e.std, 2):>10}  {interval}")
-    return "\n".join(lines)

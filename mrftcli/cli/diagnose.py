@@ -9,7 +9,7 @@ import click
 
 from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit
-from .model_options import (build_model, check_soiptd_options, format_general, parse_windows, relay_options, structure_options,
+from .model_options import (build_model, check_soiptd_options, parse_windows, relay_options, structure_options,
                             window_option)
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
@@ -342,5 +342,7 @@ def format_process(result: DiagnosisResult) -> str:
     lines += _effect_rows(result)
     lines += [f"note: {n}" for n in result.notes]
     if result.analysis is not None:
-        lines += ["", format_general(result.analysis)]
+        from .analyze import format_analysis
+
+        lines += ["", format_analysis(result.analysis)]
     return "\n".join(lines)

@@ -1,7 +1,7 @@
 """``--model``, ``--param``, ``--range``, ``--window``, ``--relay``, ``--eps``: the plant structure and relay options.
 
 Shared by the commands that take or produce a model (``analyze``, ``identify``, ``predict``), and the
-terminal table of a process-plant analysis (:class:`~mrftcli.analyze.general.GeneralAnalysis`).
+one terminal table of parameters (:func:`parameter_lines`).
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ from ..validate import check_parameter_value
 from .options import num
 
 if TYPE_CHECKING:
-    from ..analyze.record import GeneralAnalysis
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
 __all__ = ["MODEL_NAMES", "check_soiptd_options", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
-           "parse_params", "parse_windows", "build_model", "format_general", "format_estimates"]
+           "parse_params", "parse_windows", "build_model", "format_estimates", "parameter_lines",
+           "format_combination"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -274,26 +274,46 @@ def _declared(params: Sequence[str], ranges: Sequence[str]) -> Any:
 
 
 def format_estimates(ident: LtiIdentification) -> list[str]:
-    """The parameter table: estimate, std, 95 % interval (one-sided at a range's bound), and the verdict."""
+    """The parameter table of a family's fit (:func:`parameter_lines`)."""
+    return parameter_lines([(e.name, e) for e in ident.estimates])
+
+
+def parameter_lines(estimates: Sequence[tuple[str, ParameterEstimate]],
+                    display: Callable[[str, ParameterEstimate], tuple[float, str]] | None = None) -> list[str]:
+    """The one parameter table of every record: unit, estimate, std, 95 % interval (one-sided where the data or a
+    range bound it) and the verdict (known, NOT DETERMINED).
+
+    ``display(name, estimate)`` gives the scale and unit a parameter is shown in (e.g. tau in ms); by
+    default the record's own.
+    """
     rows = [("parameter", "unit", "estimate", "± std", "95 % interval", "")]
-    for e in ident.estimates:
-        rows.append((e.name, e.unit, num(e.value), "" if e.known else (num(e.std, 2) if e.determined else "-"),
-                     _interval(e),
+    for name, e in estimates:
+        scale, unit = display(name, e) if display is not None else (1.0, e.unit)
+        if not math.isfinite(e.value):
+            rows.append((name, unit, "-", "", "", ""))
+            continue
+        std = "" if e.known else (num(e.std * scale, 2) if e.determined and math.isfinite(e.std) else "-")
+        rows.append((name, unit, num(e.value * scale), std, _interval(e, scale),
                      "known" if e.known else ("" if e.determined else "NOT DETERMINED")))
     widths = [max(len(r[k]) for r in rows) for k in range(6)]
-    return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+    return ["  " + "  ".join(c.rjust(w) if k in (2, 3) else c.ljust(w) for k, (c, w) in enumerate(zip(r, widths))).rstrip()
+            for r in rows]
 
 
-def _interval(e: ParameterEstimate) -> str:
+def _interval(e: ParameterEstimate, scale: float = 1.0) -> str:
+    """The 95 % interval, saying which end is open (the data's, or a range's bound)."""
+    lo, hi = e.ci95_low * scale, e.ci95_high * scale
     if e.known:
         return ""
-    if not e.determined and not math.isfinite(e.ci95_high):
-        return f"anywhere above {num(e.ci95_low)}" if math.isfinite(e.ci95_low) else "anywhere"
+    if not math.isfinite(hi):  # open above; below, the data's bound or only the range's
+        if e.one_sided == "low" or not math.isfinite(lo):
+            return f"anywhere above {num(lo)}" if math.isfinite(lo) else "anywhere"
+        return f"> {num(lo)} (not bounded from above)"
     if e.one_sided == "low":
-        return f"< {num(e.ci95_high)} (open below: the range's bound {num(e.ci95_low)})"
-    if e.one_sided == "high" or not math.isfinite(e.ci95_high):
-        return f"> {num(e.ci95_low)} (open above)"
-    return f"{num(e.ci95_low)} - {num(e.ci95_high)}"
+        return f"< {num(hi)} (open below: the range's bound {num(lo)})"
+    if e.one_sided == "high":
+        return f"> {num(lo)} (open above)"
+    return f"{num(lo)} - {num(hi)}"
 
 
 def format_combination(ident: LtiIdentification) -> list[str]:
@@ -303,44 +323,3 @@ def format_combination(ident: LtiIdentification) -> list[str]:
         return []
     return [f"determined: {c.name} = {num(c.value)} {c.unit} (95 % {num(c.ci95_low)} - {num(c.ci95_high)}); "
             f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
-
-
-def format_general(result: GeneralAnalysis) -> str:
-    """The terminal summary of a process-plant analysis."""
-    from ..analyze.held_out import held_out_cells, held_out_notes
-    from ..analyze.screen import describe_t0
-
-    ident = result.identification
-    t0 = result.t0
-    lines = [result.path]
-    if ident is not None:
-        structure = getattr(ident.model, "transfer_function", ident.model.structure)
-        lines.append(f"model {ident.model.family}: G(s) = {structure}; "
-                     f"times in seconds from the log start ({describe_t0(t0)})")
-    lines += [f"note: {n}" for n in result.notes if n.startswith("assumed")]
-    head = ("test", "from [s]", "to [s]", "relay", "frequency [Hz]", "amplitude", "held-out f [Hz]",
-            "held-out amplitude", "stable/total")
-    rows = [head]
-    for k, t in enumerate(result.tests):
-        rows.append((str(k + 1), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.describe_relay(),
-                     num(t.frequency_hz), num(t.amplitude, 3), *held_out_cells(t.held_out),
-                     f"{t.n_stable}/{t.n_cycles}"))
-    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
-    lines += ["  ".join(c.rjust(w) if k in (0, 1, 2, 4, 5, 6, 7) else c.ljust(w)
-                        for k, (c, w) in enumerate(zip(r, widths))).rstrip() for r in rows]
-    for i, a, b, why in result.rejected_rows():
-        lines.append(f"left out: {a - t0:.2f}-{b - t0:.2f} s: {why}")
-    if ident is not None:
-        chi = f", chi2/dof {ident.chi2_dof:.3g}" if ident.chi2_dof is not None else ""
-        lines.append(f"parameters (direct fit to {len(ident.points)} frequency-response points of the cycles{chi}):")
-        lines += format_estimates(ident)
-        if ident.advice:
-            lines.append(f"not determined: {ident.advice}")
-        lines += format_combination(ident)
-        if ident.undetermined:
-            model = "--model-file FILE" if hasattr(ident.model, "transfer_function") else f"--model {ident.model.family}"
-            lines.append(f"next test: 'mrft-ident plan {result.path} {model}' (with this command's topic options) "
-                         f"ranks the relay tests that would determine {', '.join(ident.undetermined)}")
-    lines += held_out_notes([t.held_out for t in result.tests])
-    lines += [f"note: {n}" for n in result.notes if not n.startswith("assumed")]
-    return "\n".join(lines)

@@ -199,14 +199,17 @@ def run_case(case: dict) -> dict:
         path = Path(tmp) / "flight.mcap"
         write_log(flight.topics, path, "mcap")
         t0 = time.process_time()
+        analysis = None
         try:
-            analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]))
+            analysis = analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]))
         except MrftError:
             pass
         cpu_analyze = time.process_time() - t0
         t0 = time.process_time()
         try:
-            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]))
+            # as `mrft-ident diagnose` runs it: analyze's record reused (its segmentation; issue 39)
+            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(truth["Tp"]),
+                           analysis=analysis)
             err, refused = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, err = None, f"{type(exc).__name__}: {exc}"

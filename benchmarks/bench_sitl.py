@@ -260,7 +260,7 @@ def report_analysis(results: dict[str, dict], logs: Path) -> None:
         within = sum(e <= 0.05 for e in errs)
         print(f"held-out frequency within 5 %: {within}/{len(errs) + refused} (refusals are misses: {refused}); "
               f"max error {max(errs, default=float('nan')) * 100:.2f} %, median {np.median(errs) * 100:.2f} %")
-    for loop in ("altitude", "altitude_h15", "roll", "pitch"):
+    for loop in ("altitude", "altitude_h15", "altitude_mf", "roll", "pitch"):
         if loop in results and f"{loop}_20ms" in results:
             inc = results[f"{loop}_20ms"]["tau"] - results[loop]["tau"]
             print(f"{loop}: +20 ms increment of tau = {inc * 1e3:.2f} ms (error {inc * 1e3 - 20:+.2f} ms)")
@@ -307,7 +307,7 @@ def _truth_pair(logs: Path, base: str) -> None:
 
 
 def chain_check(results: dict[str, dict], logs: Path) -> None:
-    """Roll and pitch against ArduPilot's own path (``scripts/sitl/ardupilot_chain.py``): eq. (2) with Tp the
+    """The flights against ArduPilot's own path (``scripts/sitl/ardupilot_chain.py``): eq. (2) with Tp the
     filter's lag and tau the chain's delay, at SITL's K and Td.
 
     Per test: the measured transfer from the relay's output (``MRFT:Snt``) to SITL's angle (``MRFT:Tru``) at
@@ -322,23 +322,24 @@ def chain_check(results: dict[str, dict], logs: Path) -> None:
     from mrftcli.io import open_log
 
     delay = chain_delay_s(20.0, 400.0)
-    print(f"  ArduPilot's roll/pitch path (FAST_TASK order, FLTT filter, held output): eq. (2) + {delay * 1e3:.3f} ms "
-          "at every frequency")
+    print(f"  ArduPilot's path (FAST_TASK order, FLTT or PILOT_THR_FILT filter, held output): eq. (2) + "
+          f"{delay * 1e3:.3f} ms (20 Hz) / {chain_delay_s(5.0, 400.0) * 1e3:.3f} ms (5 Hz) at every frequency")
     band_hits, band_n, sim_errs = 0, 0, []
     for name, r in results.items():
-        if r["loop"] not in ("roll", "pitch"):
-            continue
         side = json.loads(Path(f"{r['log']}.json").read_text())
         implied, ticks = r["implied"], int(side.get("added_delay_ticks", 0))
+        cutoff = 5.0 if r["loop"] == "altitude" else 20.0  # PILOT_THR_FILT, ATC_RAT_*_FLTT
         with open_log(r["log"], echo_warnings=False) as src:
             t, m = src.read("MRFT", ["Snt", "Tru"])
         for test in r["tests"]:
             f = test.frequency_hz_mean
             w = (t >= test.t_start + 1.5) & (t <= test.t_end)  # past the start kick
             g = _fundamental_ratio(t[w], m["Snt"][w], m["Tru"][w], f)
-            c = chain_response(np.array([f]), implied["K"], implied["Td"], 20.0, 400.0)[0]  # Snt: after the delay line
-            print(f"  {name:11s} beta {test.beta_nominal:+.2f} {f:.3f} Hz: measured / chain: gain {abs(g / c):.3f}, "
-                  f"lead {np.angle(g / c) / (2 * np.pi * f) * 1e3:+.2f} ms")
+            c = chain_response(np.array([f]), implied["K"], implied["Td"], cutoff, 400.0)[0]  # Snt: after the delay line
+            print(f"  {name:11s} beta {test.beta_nominal:+.2f} {f:.3f} Hz: SITL's output / chain: gain {abs(g / c):.3f}, "
+                  f"lead {np.degrees(np.angle(g / c)):+.2f} deg = {np.angle(g / c) / (2 * np.pi * f) * 1e3:+.2f} ms")
+        if r["loop"] not in ("roll", "pitch"):
+            continue
         for ho in r["held"]:
             lo, hi, nearest = orbit_band(r["tp"], ho, 400.0)
             band_n += 1
@@ -482,6 +483,22 @@ def refly(ap: Path, params: dict[str, Path], work: Path, speedup: float) -> None
     evaluate_refly(work / "refly.BIN", work, times)
 
 
+def refly_times(log: Path) -> dict[str, float]:
+    """When the re-flight's steps were commanded [s since boot], from its own log: the roll step where
+    ``ATT.DesRoll`` first passes 1 deg, the altitude step just before ``PSCD``'s target first leaves its
+    level (7-9 s after the roll step) by 2 cm (``evaluate_altitude_step`` pins both to the log's targets)."""
+    from mrftcli.io import open_log
+
+    with open_log(log, echo_warnings=False) as src:
+        tp, psc = src.read("PSCD", ["DPD"])
+        ta, att = src.read("ATT", ["DesRoll"])
+    t_roll = float(ta[att["DesRoll"] > 1.0][0])
+    des = -psc["DPD"]
+    level = float(np.median(des[(tp > t_roll + 7) & (tp < t_roll + 9)]))
+    t_alt = float(tp[(tp > t_roll + 7) & (des > level + 0.02)][0])
+    return {"roll": t_roll, "altitude": t_alt + 0.3}
+
+
 def evaluate_refly(log: Path, work: Path, times: dict[str, float]) -> None:
     """Hover steadiness and the two steps' overshoot and settling against tune's prediction.
 
@@ -584,6 +601,8 @@ def main() -> int:
                     help="also analyse the altitude pair with SITL's own altitude (MRFT:Tru) as the output")
     ap.add_argument("--refly-only", action="store_true",
                     help="load and re-fly the .param files already exported in LOGS/export (no flights, no analysis)")
+    ap.add_argument("--evaluate-only", action="store_true",
+                    help="evaluate the re-flight already flown (LOGS/export/refly.BIN) against tune's prediction")
     ap.add_argument("--logs-only", action="store_true",
                     help="only what the logs show without identification: tests located, ticks, the delay "
                          "realised, the EKF against SITL's truth")
@@ -596,6 +615,10 @@ def main() -> int:
         from px4_campaign import run
 
         return run(args.px4, args.logs, args.speedup, args.only, args.analyze_only, args.no_refly)
+    if args.evaluate_only:
+        export_dir = args.logs / "export"
+        evaluate_refly(export_dir / "refly.BIN", export_dir, refly_times(export_dir / "refly.BIN"))
+        return 0
     if args.refly_only:
         export_dir = args.logs / "export"
         params = {p.stem: p for p in sorted(export_dir.glob("*.param"))}
@@ -618,6 +641,8 @@ def main() -> int:
     print("2. analysis of the DataFlash logs")
     results = analyse(args.logs)
     report_analysis(results, args.logs)
+    matched_increment(args.logs)
+    chain_check(results, args.logs)
     if args.truth:
         truth_analysis(args.logs)
     if args.analyze_only or args.no_refly:

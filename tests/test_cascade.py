@@ -297,7 +297,7 @@ def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
                                    str(gfile), "--inner-draws", "0", "--json", str(out)])
     assert res.exit_code == 0, res.output
     assert res.output.splitlines()[2].startswith("assumption:") and "K = 1" in res.output
-    tau_row = next(line.split() for line in res.output.splitlines() if line.startswith("tau "))
+    tau_row = next(line.split() for line in res.output.splitlines() if line.strip().startswith("tau "))
     assert tau_row[1] == "ms" and 0.5 * 33.5 < float(tau_row[2]) < 1.5 * 33.5  # in ms as analyze shows it (issue 40)
     data = json.loads(out.read_text())
     assert data["kind"] == "cascade" and model_from_json(data["model"]).family == "cascade"

@@ -1,4 +1,4 @@
-"""``mrft-ident predict``: the exact MRFT limit cycle of a model of eq. (2)."""
+"""``mrft-ident predict``: the exact limit cycle of a model (eq. (2) or a process family) under a relay."""
 
 from __future__ import annotations
 
@@ -23,70 +23,60 @@ from .options import BETA, controller_rate_option, dump_json, json_option, tp_op
 def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float,
             Td: float | None, tau: float | None, K: float, beta: float, h: float, rate_hz: float | None,
             json_target: str | None) -> None:
-    """Predict the MRFT limit cycle (frequency in Hz, amplitude) of G(s) = K Td e^{-tau s}/(s(Tp s+1)(Td s+1)).
+    """Predict the relay's limit cycle (frequency in Hz, amplitude) of a model: by default eq. (2),
+    G(s) = K Td e^{-tau s}/(s(Tp s+1)(Td s+1)) from --tp, --td, --tau, --k; a process family from --model and --param.
 
     Exact (LPRS) for the continuous relay. With --controller-rate, the centre of the band of limit cycles of the
-    sampled relay and every admissible sampled orbit. The describing-function estimate is shown for
+    sampled relay and every admissible sampled orbit. For eq. (2) the describing-function estimate is shown for
     comparison.
     """
     from ..mrft.describing import describing_function_limit_cycle
-    from ..mrft.lprs import mrft_limit_cycle
     from ..mrft.model import LoopModel
+    from ..mrft.relays import RelayLaw
+    from ..validate import check_positive
 
-    if model_name != "soiptd":
-        _predict_process(model_name, params, ranges, eps, beta, h, rate_hz, json_target)
-        return
-    if Tp is None or Td is None or tau is None or params or ranges or eps:
-        raise click.UsageError("--model soiptd takes --tp, --td and --tau (--param, --range and --eps are for "
-                               "process models)")
-
-    model = LoopModel(Tp, Td, tau, K)
-    lc = mrft_limit_cycle(model, beta, h, rate_hz)
-    df_f, df_a = describing_function_limit_cycle(model, beta, h)
-    out = lc.to_dict()
-    out.update({"model": {"Tp": Tp, "Td": Td, "tau": tau, "K": K},
-                "describing_function": {"frequency_hz": df_f, "amplitude": df_a}})
+    model = _model(Tp, model_name, params, ranges, eps, Td, tau, K)
+    kind = "mrft" if beta != 0 else ("hysteresis" if eps else "ideal")
+    h = check_positive("h", h)
+    relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
+    lc = relay.limit_cycle(model, rate_hz)
+    out = {**lc.to_dict(), "model": model.to_json(), "relay": relay.to_json()}
+    rows = [("model", f"{model.family}: G(s) = {model.structure};  "
+                      + "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())),
+            ("relay", relay.describe()[len("relay: "):] + (f", rate {rate_hz:g} Hz" if rate_hz else " (continuous relay)")),
+            ("frequency", f"{lc.frequency_hz:.6g} Hz  ({lc.omega:.6g} rad/s, period {lc.period:.6g} s)"),
+            ("amplitude", f"{lc.amplitude:.6g} [output units]"),
+            ("tau*Omega", f"{lc.delay_phase:.6g} rad")]
+    if rate_hz:
+        orbits = ", ".join(f"{f:.5g}" for f in lc.orbits_hz) or "none (quasi-periodic)"
+        rows.append(("sampled orbits", f"{orbits} Hz"))
+    if isinstance(model, LoopModel) and not eps:  # eq. (2)'s closed-form approximation, for comparison
+        df_f, df_a = describing_function_limit_cycle(model, beta, h)
+        out["describing_function"] = {"frequency_hz": df_f, "amplitude": df_a}
+        rows.append(("DF estimate", f"{df_f:.6g} Hz, amplitude {df_a:.6g} [output units]  (approximate, for comparison)"))
     if json_target:
         dump_json(out, json_target)
     if json_target == "-":
         return
-    rows = [
-        ("model", f"Tp={Tp:g} s  Td={Td:g} s  tau={tau:g} s  K={K:g} [output units/s² per command unit]"),
-        ("MRFT", f"beta={beta:g}  h={h:g} [command units]" + (f"  rate={rate_hz:g} Hz" if rate_hz else "  (continuous relay)")),
-        ("frequency", f"{lc.frequency_hz:.6g} Hz  ({lc.omega:.6g} rad/s, period {lc.period:.6g} s)"),
-        ("amplitude", f"{lc.amplitude:.6g} [output units]"),
-        ("tau*Omega", f"{lc.delay_phase:.6g} rad"),
-    ]
-    if rate_hz:
-        orbits = ", ".join(f"{f:.5g}" for f in lc.orbits_hz) or "none (quasi-periodic)"
-        rows.append(("sampled orbits", f"{orbits} Hz"))
-    rows.append(("DF estimate", f"{df_f:.6g} Hz, amplitude {df_a:.6g} [output units]  (approximate, for comparison)"))
     width = max(len(r[0]) for r in rows)
     for name, value in rows:
         click.echo(f"{name:<{width}}  {value}")
 
 
-def _predict_process(model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float, beta: float,
-                     h: float, rate_hz: float | None, json_target: str | None) -> None:
-    """``predict --model NAME --param K=.. --param tau=.. ...``: the exact cycle under an MRFT or a hysteresis relay."""
+def _model(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...], eps: float,
+           Td: float | None, tau: float | None, K: float):
+    """The model to predict, every parameter given: eq. (2) from --tp/--td/--tau/--k, a family from --param."""
     from ..errors import InputError
-    from ..mrft.relays import RelayLaw
+    from ..mrft.model import LoopModel
 
+    if model_name == "soiptd":
+        if Tp is None or Td is None or tau is None or params or ranges:
+            raise click.UsageError("--model soiptd takes --tp, --td and --tau (--param and --range are for "
+                                   "process models)")
+        return LoopModel(Tp, Td, tau, K)
     model = build_model(model_name, params, ranges)
     missing = [p.name for p in model.parameters.values() if not p.known]
     if missing:
         raise InputError(f"predict --model {model_name} needs every parameter: add --param "
                          + " ".join(f"{n}=VALUE" for n in missing))
-    kind = "mrft" if beta != 0 else ("hysteresis" if eps else "ideal")
-    relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
-    lc = relay.limit_cycle(model, rate_hz)
-    out = {**lc.to_dict(), "model": model.to_json(), "relay": relay.to_json()}
-    if json_target:
-        dump_json(out, json_target)
-    if json_target == "-":
-        return
-    values = "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())
-    click.echo(f"model      {model.family}: G(s) = {model.structure};  {values}")
-    click.echo(f"{relay.describe()}" + (f", rate {rate_hz:g} Hz" if rate_hz else " (continuous relay)"))
-    click.echo(f"frequency  {lc.frequency_hz:.6g} Hz  ({lc.omega:.6g} rad/s, period {lc.period:.6g} s)")
-    click.echo(f"amplitude  {lc.amplitude:.6g} [output units]")
+    return model

@@ -58,7 +58,6 @@ import numpy as np
 
 from .analyze import AnalysisResult, AnalyzeOptions, RelayOptions, analyze_flight
 from .analyze.general import MeasuredTest, identify_points, measure_test
-from .analyze.record import Eq2Analysis, GeneralAnalysis
 from .errors import InputError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
@@ -255,7 +254,7 @@ class EstimateUpdate:
     undetermined: tuple[str, ...] = ()
     advice: str = ""
     warnings: tuple[str, ...] = ()
-    analysis: AnalysisResult[Any, Any, Any] | None = None
+    analysis: AnalysisResult | None = None
 
     def to_json(self) -> dict[str, Any]:
         """One ``--jsonl`` line: ``parameters`` keyed by name, each the one parameter record."""
@@ -460,7 +459,7 @@ class _Eq2:
         return EstimateUpdate(self.model.family, params, tuple(t.index + 1 for t in tests),
                               max(_newest_end(t) for t in tests), False, time.time(), warnings=tuple(res.warnings))
 
-    def final(self, res: Eq2Analysis) -> EstimateUpdate:
+    def final(self, res: AnalysisResult) -> EstimateUpdate:
         params = _eq2_parameters(self.model, {"Td": res.Td, "tau": res.tau, "K": res.K}, res.method, spread=True)
         return EstimateUpdate(self.model.family, params, tuple(t.index + 1 for t in res.tests),
                               max(_newest_end(t) for t in res.tests), True, time.time(),
@@ -512,7 +511,7 @@ class _Family:
         return EstimateUpdate(fit.model.family, tuple(fit.estimates), tuple(t.index + 1 for t in tests),
                               max(_newest_end(t) for t in tests), False, time.time(), fit.undetermined, fit.advice)
 
-    def final(self, res: GeneralAnalysis) -> EstimateUpdate:
+    def final(self, res: AnalysisResult) -> EstimateUpdate:
         fit = res.identification
         assert fit is not None  # analyze_flight raises when no test is usable
         return EstimateUpdate(fit.model.family, tuple(fit.estimates), tuple(t.index + 1 for t in res.tests),

@@ -302,9 +302,9 @@ def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:
     data = json.loads(out.read_text())
     assert data["kind"] == "cascade" and model_from_json(data["model"]).family == "cascade"
     assert data["parameters"]["Td"]["ci95_low"] <= 0.8 <= data["parameters"]["Td"]["ci95_high"]
-    from mrftcli.analyze.record import CascadeAnalysis
+    from mrftcli.analyze.record import AnalysisResult
 
-    back = CascadeAnalysis.from_json(data)
+    back = AnalysisResult.from_json(data)
     assert back.to_json() == data and back.model == model_from_json(data["model"])
     assert dict(back.model.inner.std)["Td"] == pytest.approx(0.01)
     res = CliRunner().invoke(cli, ["tune", str(out), "--export", "generic"])
@@ -332,10 +332,10 @@ def test_cascade_tune_version_1_still_reads() -> None:
 
 def test_records_refuse_other_versions() -> None:
     """Every record's from_json: a one-line InputError on another schema_version or a wrong shape."""
-    from mrftcli.analyze.record import CascadeAnalysis
+    from mrftcli.analyze.record import AnalysisResult
     from mrftcli.tune.design import TuneResult
 
-    for cls in (InnerLoop, CascadeIdentification, CascadeAnalysis, TuneResult):
+    for cls in (InnerLoop, CascadeIdentification, AnalysisResult, TuneResult):
         for bad in ({"schema_version": 99}, [], {"schema_version": 1}):
             with pytest.raises(InputError) as err:
                 cls.from_json(bad)

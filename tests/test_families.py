@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from mrftcli.analyze import AnalyzeOptions, analyze_flight
-from mrftcli.analyze.record import GeneralAnalysis
+from mrftcli.analyze.record import AnalysisResult
 from mrftcli.errors import InputError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.families import FOIPDT, FOPDT, IPDT, SOPDT, family_model
@@ -187,7 +187,7 @@ def test_analyze_family_biased_hysteresis_fopdt(tmp_path):
     for name, value in params.items():
         assert ident.estimate(name).value == pytest.approx(value, rel=0.05)
     assert any("bias" in n for n in result.notes)
-    back = GeneralAnalysis.from_json(json.loads(json.dumps(result.to_json())))
+    back = AnalysisResult.from_json(json.loads(json.dumps(result.to_json())))
     assert back.to_json() == result.to_json()
 
 

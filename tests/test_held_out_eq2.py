@@ -141,17 +141,17 @@ def test_two_tests_say_why_nothing_is_predicted_and_one_test_holds_nothing_out(t
 
 
 def test_the_families_read_a_version_1_held_out() -> None:
-    """GeneralAnalysis version 1 wrote ``held_out`` without the sigma and z keys: they read as None."""
+    """A family's analysis record version 1 wrote ``held_out`` without the sigma and z keys: they read as None."""
     ho = HeldOut.from_json({"frequency_hz": 0.5, "amplitude": 2.0, "note": "x"})
     assert ho == HeldOut(0.5, 2.0, "x") and ho.frequency_sigma_hz is None and ho.amplitude_z is None
     assert ho.describe(0.51, 2.1, "K") == "f 0.5000 Hz (measured 0.5100), amplitude 2 K (measured 2.1); x"
 
 
 def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> None:
-    """GeneralAnalysis schema 2 gave ``held_out`` the shared record's sigma and z keys (null for the families);
+    """A family's analysis record schema 2 gave ``held_out`` the shared record's sigma and z keys (null for the families);
     a version-1 JSON (without them) reads to the same analysis."""
     from mrftcli.analyze import analyze_flight
-    from mrftcli.analyze.record import GeneralAnalysis
+    from mrftcli.analyze.record import AnalysisResult
     from mrftcli.mrft.families import family_model
 
     windows = [Window("hysteresis", 1.5, -0.5, eps=e, duration=30.0) for e in (0.05, 0.3)]
@@ -166,7 +166,7 @@ def test_a_version_1_family_analysis_reads_with_its_held_out(tmp_path: Path) -> 
     v1 = {**d, "schema_version": 1,
           "tests": [{**r, "held_out": {k: r["held_out"][k] for k in ("frequency_hz", "amplitude", "note")}}
                     for r in d["tests"]]}
-    assert to_jsonable(GeneralAnalysis.from_json(v1).to_json()) == d
+    assert to_jsonable(AnalysisResult.from_json(v1).to_json()) == d
 
 
 def test_a_one_test_flight_says_nothing_is_held_out(tmp_path: Path) -> None:

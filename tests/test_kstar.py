@@ -120,7 +120,7 @@ def test_switching_level_json_round_trip_and_bad_version():
 @pytest.mark.skipif(not FILE_10K.is_file(), reason="needs ../shared/data/real_relay/ (read in place, never copied)")
 def test_kstar_large_hysteresis_windows_state_the_effective_relay():
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
-    from mrftcli.analyze.record import GeneralAnalysis
+    from mrftcli.analyze.record import AnalysisResult
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.families import family_model
 
@@ -142,4 +142,4 @@ def test_kstar_large_hysteresis_windows_state_the_effective_relay():
     data = json.loads(json.dumps(result.to_json()))
     assert "NaN" not in json.dumps(data)
     assert data["tests"][0]["effective_relay"]["eps"] == result.tests[0].effective_relay.eps
-    assert GeneralAnalysis.from_json(data).to_json() == result.to_json()
+    assert AnalysisResult.from_json(data).to_json() == result.to_json()

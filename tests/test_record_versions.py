@@ -26,8 +26,6 @@ from typing import Any, Iterator
 import pytest
 
 from mrftcli.analyze import AnalysisResult
-from mrftcli.analyze.cascade import CascadeAnalysis
-from mrftcli.analyze.general import GeneralAnalysis
 from mrftcli.jsonable import to_jsonable
 from mrftcli.mrft.parameter import JSON_KEYS, ParameterEstimate
 from mrftcli.vehicle.record import VehicleResult
@@ -103,7 +101,7 @@ def test_an_analysis_of_each_earlier_version_reads_with_its_figures_and_writes_a
 def test_a_version_2_process_analysis_reads_with_its_figures_and_verdicts_and_writes_as_3() -> None:
     old = _old("general_v2.json")
     assert old["schema_version"] == 2 and old["identification"]["schema_version"] == 1
-    back = GeneralAnalysis.from_json(old)
+    back = AnalysisResult.from_json(old)
     assert back.identification is not None
     new = _written(back)
     assert new["schema_version"] == 3 and new["identification"]["schema_version"] == 2 and _one_shape(new) == []
@@ -115,13 +113,13 @@ def test_a_version_2_process_analysis_reads_with_its_figures_and_verdicts_and_wr
         # the interval's open side comes back from the model's ranges
         assert back.identification.estimate(name).one_sided == was["one_sided"], name
     assert [n for n, p in new["parameters"].items() if not p["determined"]] == ["T1"]
-    assert GeneralAnalysis.from_json(new).identification == back.identification
+    assert AnalysisResult.from_json(new).identification == back.identification
 
 
 def test_a_version_1_cascade_analysis_reads_and_writes_back_as_2() -> None:
     old = _old("cascade_v1.json")
     assert old["schema_version"] == 1 and "one_sided" in old["parameters"]["tau"]
-    back = CascadeAnalysis.from_json(old)
+    back = AnalysisResult.from_json(old)
     new = _written(back)
     assert new["schema_version"] == 2 and new["identification"]["schema_version"] == 2 and _one_shape(new) == []
     for name, was in old["parameters"].items():
@@ -131,7 +129,7 @@ def test_a_version_1_cascade_analysis_reads_and_writes_back_as_2() -> None:
         assert new["parameters"][name]["method"] == ("given" if was["known"] else "cascade-cycles")
     assert {k: v for k, v in new.items() if k not in ("schema_version", "parameters", "identification")} \
         == {k: v for k, v in old.items() if k not in ("schema_version", "parameters", "identification")}
-    assert _written(CascadeAnalysis.from_json(new)) == new
+    assert _written(AnalysisResult.from_json(new)) == new
 
 
 def test_a_version_1_vehicle_record_mixed_four_shapes_and_writes_back_with_one() -> None:

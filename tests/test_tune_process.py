@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_main
 
-from mrftcli.analyze.record import GeneralAnalysis, TestSummary
+from mrftcli.analyze.record import AnalysisResult, TestSummary
 from mrftcli.errors import InputError
 from mrftcli.mrft.families import FOPDT, IPDT
 from mrftcli.mrft.identify_lti import LtiIdentification
@@ -129,7 +129,7 @@ def _result_json(path, rate_hz: float = 20.0, std_T: float = 0.05) -> None:
     estimates = _estimates(std_T) if std_T else [ParameterEstimate(e.value, 0.0, e.value, e.value, e.unit, name=e.name)
                                                  for e in _estimates(0.0)]
     ident = LtiIdentification(model, tuple(estimates), (), None)
-    path.write_text(json.dumps(GeneralAnalysis("p.csv", "level", model, (test,), ident,
+    path.write_text(json.dumps(AnalysisResult("p.csv", "level", model, (test,), ident,
                                                {e.name: e for e in estimates}).to_json()))
 
 

@@ -41,12 +41,12 @@ from ..mrft.consensus import CONSTRAINTS
 from .driver import analyze_flight, analyze_path, refuse_rejected_tp
 from .options import AnalyzeOptions, CascadeOptions, RelayOptions
 from .overlay import analysis_overlay
-from .record import (SCHEMA_VERSION, AnalysisResult, CascadeAnalysis, Eq2Analysis, GeneralAnalysis, LogInfo, TestSummary,
+from .record import (SCHEMA_VERSION, AnalysisResult, LogInfo, TestSummary,
                      TpCheck, analysis_controller_rate, command_rate_of_result, measured_noise_std)
 from .screen import ASSUMED_TD_RANGE, describe_t0, log_start
 
-__all__ = ["AnalyzeOptions", "CascadeOptions", "RelayOptions", "AnalysisResult", "Eq2Analysis", "GeneralAnalysis",
-           "CascadeAnalysis", "TestSummary", "LogInfo", "SCHEMA_VERSION", "analyze_flight", "analyze_path", "analysis_overlay",
+__all__ = ["AnalyzeOptions", "CascadeOptions", "RelayOptions", "AnalysisResult",
+           "TestSummary", "LogInfo", "SCHEMA_VERSION", "analyze_flight", "analyze_path", "analysis_overlay",
            "refuse_rejected_tp", "TpCheck", "measured_noise_std",
            "analysis_controller_rate", "command_rate_of_result", "log_start", "describe_t0", "CONSTRAINTS",
            "ASSUMED_TD_RANGE"]

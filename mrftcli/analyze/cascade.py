@@ -36,7 +36,7 @@ from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
 from .options import AnalyzeOptions, CascadeOptions
-from .record import AnalysisResult, CascadeAnalysis, Eq2Analysis, analysis_controller_rate
+from .record import AnalysisResult, analysis_controller_rate
 from .screen import log_start
 
 __all__ = ["analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "inner_gains_of", "screen_outer",
@@ -85,7 +85,7 @@ def inner_gains_of(data: Any, inner_name: str) -> Controller:
     return Controller.from_json(data[inner_name], what)
 
 
-def inner_loop_of(result: Eq2Analysis, controller: Controller, inner_name: str) -> InnerLoop:
+def inner_loop_of(result: AnalysisResult, controller: Controller, inner_name: str) -> InnerLoop:
     """The inner loop of an inner analysis (its eq. (2) point estimate) and its controller.
 
     Raises
@@ -101,7 +101,7 @@ def inner_loop_of(result: Eq2Analysis, controller: Controller, inner_name: str) 
     return InnerLoop(result.model, controller, inner_name, std)
 
 
-def inner_draws(result: Eq2Analysis, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
+def inner_draws(result: AnalysisResult, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
     """``n`` draws of the inner loop over its std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`; Tp known).
 
     Td and K are drawn log-normal, tau normal (kept >= 0), independently: the analysis JSON keeps
@@ -200,7 +200,7 @@ def cascade_model(inner: InnerLoop, commanded: str = "acceleration") -> CascadeM
                         known=frozenset() if K is None else frozenset({"K"}))
 
 
-def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOptions) -> CascadeAnalysis:
+def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOptions) -> AnalysisResult:
     """The outer loop of ``flight`` identified through ``model.inner`` (the module docstring's stages): the
     cascade family's strategy of :func:`mrftcli.analyze.analyze_flight`.
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, overload
 
 import numpy as np
 
@@ -40,7 +39,7 @@ from .estimate import (WaveformStage, beta_used, consensus, identifiability, poi
 from .general import analyze_family, mask_windows
 from .held_out import held_out_eq2
 from .options import AnalyzeOptions
-from .record import AnalysisResult, CascadeAnalysis, Eq2Analysis, LogInfo, TpCheck, analysis_controller_rate
+from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
 from .residual import MISMATCH_WORDS, residual_verdict
 from .screen import Screening, screen
 
@@ -56,17 +55,8 @@ def _check_clock(flight: FlightLog, period_s: float | None, delay_s: float | Non
                            "check the time column's unit (--time-unit for CSV and .mat logs)")
 
 
-@overload
-def analyze_flight(flight: FlightLog, model: LoopModel, *,
-                   options: AnalyzeOptions | None = None) -> Eq2Analysis: ...
-@overload
-def analyze_flight(flight: FlightLog, model: CascadeModel, *,
-                   options: AnalyzeOptions | None = None) -> CascadeAnalysis: ...
-@overload
 def analyze_flight(flight: FlightLog, model: PlantModel, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]: ...
-def analyze_flight(flight: FlightLog, model: PlantModel, *,
-                   options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]:
+                   options: AnalyzeOptions | None = None) -> AnalysisResult:
     """Segment the relay tests of a flight and identify the model's unknown parameters (module docstring).
 
     Parameters
@@ -131,7 +121,7 @@ def analyze_flight(flight: FlightLog, model: PlantModel, *,
     return analyze_family(flight, model, opts)
 
 
-def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> Eq2Analysis:
+def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> AnalysisResult:
     """Eq. (2)'s strategy: the stages of the module docstring at the model's known Tp."""
     Tp = check_tp(model.Tp)
     if opts.relay.stated or opts.baseline is not None:
@@ -176,7 +166,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> E
     ))
 
 
-def _residual_worded(result: Eq2Analysis) -> Eq2Analysis:
+def _residual_worded(result: AnalysisResult) -> AnalysisResult:
     """The warnings worded by the one residual verdict (:func:`mrftcli.analyze.residual.residual_verdict`):
     with receive-time stamps the waveform residual cannot say the recording holds dynamics eq. (2)
     leaves out (diagnose, which reads the same verdict, decides on the cycles' features)."""
@@ -216,7 +206,7 @@ def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: 
                                        profile.residual_ratio_given, profile.residual_ratio_best)
 
 
-def refuse_rejected_tp(result: AnalysisResult[Any, Any, Any], accept: bool = False) -> AnalysisResult[Any, Any, Any]:
+def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> AnalysisResult:
     """The analysis, unless the recording rejects its Tp (``result.tp_check.verdict == "rejected"``).
 
     A wrong Tp moves Td, tau and K within tight, wrong intervals, so a Tp the recording rejects is a
@@ -243,19 +233,8 @@ def refuse_rejected_tp(result: AnalysisResult[Any, Any, Any], accept: bool = Fal
         f"it, and --accept-tp keeps {check.given:.4g} s", best=check.best, result=result)
 
 
-@overload
-def analyze_path(path: str | Path, model: LoopModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> Eq2Analysis: ...
-@overload
-def analyze_path(path: str | Path, model: CascadeModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> CascadeAnalysis: ...
-@overload
 def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]: ...
-
-
-def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult[Any, Any, Any]:
+                 options: AnalyzeOptions | None = None) -> AnalysisResult:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters

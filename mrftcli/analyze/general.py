@@ -38,7 +38,7 @@ from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .held_out import HeldOut
 from .options import AnalyzeOptions, RelayOptions
-from .record import AnalysisResult, GeneralAnalysis, TestSummary
+from .record import AnalysisResult, TestSummary
 from .screen import log_start
 from .static_gain import StaticGain, is_self_regulating, static_gain
 from .smooth_cycle import CycleFit, cycle_fits, effective_relay, switching_level
@@ -323,7 +323,7 @@ def _no_usable_test(rejected: Sequence[tuple[int, float, float, str]]) -> Segmen
                                                          or "no relay switching found"))
 
 
-def analyze_family(flight: FlightLog, model: PlantModel, options: AnalyzeOptions) -> GeneralAnalysis:
+def analyze_family(flight: FlightLog, model: PlantModel, options: AnalyzeOptions) -> AnalysisResult:
     """A process family's unknown parameters from the relay tests of a flight (module docstring).
 
     The strategy :func:`mrftcli.analyze.analyze_flight` runs for every model but eq. (2): it reads
@@ -351,7 +351,7 @@ def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
 
 def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
                      windows: Sequence[tuple[float, float]] = (),
-                     baseline: tuple[float | Signal, float] | None = None) -> GeneralAnalysis:
+                     baseline: tuple[float | Signal, float] | None = None) -> AnalysisResult:
     """Stage 2 of :func:`analyze_family`: ``model`` identified from the measured tests, each held out.
 
     Raises

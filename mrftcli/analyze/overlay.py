@@ -19,7 +19,7 @@ __all__ = ["analysis_overlay", "analysis_predictions"]
 _HISTORY = 1.0
 
 
-def analysis_predictions(result: AnalysisResult[Any, Any, Any]) -> dict[int, Any]:
+def analysis_predictions(result: AnalysisResult) -> dict[int, Any]:
     """The identified model's output over each of the record's tests (:attr:`AnalysisResult.segmented`),
     driven by the recorded command: ``MrftTest.index`` -> :class:`~mrftcli.mrft.waveform.PredictedOutput`.
 
@@ -43,7 +43,7 @@ def analysis_predictions(result: AnalysisResult[Any, Any, Any]) -> dict[int, Any
     return predict_tests(result.model, result.segmented, *signals, history=_HISTORY)
 
 
-def _predict_sampled(result: AnalysisResult[Any, Any, Any], tc: np.ndarray, u: np.ndarray, ty: np.ndarray,
+def _predict_sampled(result: AnalysisResult, tc: np.ndarray, u: np.ndarray, ty: np.ndarray,
                      y: np.ndarray) -> dict[int, Any]:
     """The cascade's output over each test: x_{k+1} = Phi x_k + Gamma (u_k - bias + offset), y_k = C x_k on the
     logged command's ticks, the tick outputs interpolated to the output times; the initial state and
@@ -75,7 +75,7 @@ def _predict_sampled(result: AnalysisResult[Any, Any, Any], tc: np.ndarray, u: n
     return out
 
 
-def analysis_overlay(result: AnalysisResult[Any, Any, Any]) -> dict[str, Any]:
+def analysis_overlay(result: AnalysisResult) -> dict[str, Any]:
     """What the results MCAP of an analysis shows, as the keyword arguments of
     :func:`mrftcli.io.overlay.write_overlay`: its tests (:attr:`AnalysisResult.segmented`), the
     identified model's prediction over each test (:func:`mrftcli.mrft.waveform.predict_tests`, driven

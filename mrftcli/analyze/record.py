@@ -20,7 +20,7 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from ..mrft.cascade import CascadeModel
 from ..mrft.cascade_identify import CascadeIdentification
 from ..mrft.identify import IdentificationResult, ParameterEstimate
 from ..mrft.identify_lti import LtiIdentification
-from ..mrft.model import LoopModel, PlantModel
+from ..mrft.model import LoopModel
 from ..mrft.refine import Refinement
 from ..mrft.relays import RelayLaw
 from ..segment import MrftTest
@@ -40,7 +40,7 @@ from .mrfttest_json import json_float, json_opt_float, mrft_test_from_json
 from .smooth_cycle import SwitchingLevel
 from .static_gain import StaticGain
 
-__all__ = ["AnalysisResult", "Eq2Analysis", "GeneralAnalysis", "CascadeAnalysis", "TestSummary", "LogInfo", "TpCheck",
+__all__ = ["AnalysisResult", "TestSummary", "LogInfo", "TpCheck",
            "TP_VERDICTS", "SCHEMA_VERSION", "FAMILY_SCHEMA_VERSION", "CASCADE_SCHEMA_VERSION", "K_UNIT",
            "analysis_controller_rate", "command_rate_of_result", "measured_noise_std"]
 
@@ -261,13 +261,8 @@ class TestSummary:
             raise InputError(f"analysis JSON: bad test entry ({err})") from None
 
 
-M = TypeVar("M")
-T = TypeVar("T")
-I = TypeVar("I")  # noqa: E741
-
-
 @dataclass(frozen=True, eq=False)
-class AnalysisResult(Generic[M, T, I]):
+class AnalysisResult:
     """Everything ``mrft-ident analyze`` found in one log, for one loop: the one analysis record of every family.
 
     The model object chose the strategy (:func:`mrftcli.analyze.analyze_flight`) and the record says
@@ -276,8 +271,9 @@ class AnalysisResult(Generic[M, T, I]):
     one strategy finds sits in that strategy's fields below (empty for the others); the JSON
     (:meth:`to_json`) is the strategy's layout, each with its own version (:data:`SCHEMA_VERSION`,
     :data:`FAMILY_SCHEMA_VERSION`, :data:`CASCADE_SCHEMA_VERSION`; docs/records.md), and
-    :meth:`from_json` reads any of them. The type parameters are the model, test and identification
-    records of the strategy (:data:`Eq2Analysis`, :data:`GeneralAnalysis`, :data:`CascadeAnalysis`).
+    :meth:`from_json` reads any of them. The model, test and identification records are the strategy's
+    (eq. (2): LoopModel, MrftTest, IdentificationResult; a family: PlantModel, TestSummary,
+    LtiIdentification; the cascade: CascadeModel, MrftTest, CascadeIdentification).
 
     Attributes
     ----------
@@ -349,9 +345,9 @@ class AnalysisResult(Generic[M, T, I]):
 
     path: str
     loop: str
-    model: M
-    tests: tuple[T, ...]
-    identification: I
+    model: Any
+    tests: tuple[Any, ...]
+    identification: Any
     parameters: Mapping[str, ParameterEstimate]
     rejected: tuple[MrftTest, ...] = ()
     rejection_reasons: Mapping[int, str] = field(default_factory=dict)
@@ -417,7 +413,7 @@ class AnalysisResult(Generic[M, T, I]):
     def segmented(self) -> tuple[MrftTest, ...]:
         """The usable tests as segmented, with their cycles (eq. (2), cascade: ``tests``; a process family:
         ``segments``, in a fresh analysis only): what the report's plots and the overlay draw."""
-        return self.segments if self.kind == "family" else tuple(self.tests)  # type: ignore[arg-type]
+        return self.segments if self.kind == "family" else tuple(self.tests)
 
     def parameters_json(self) -> _JSONDict:
         """Every parameter as the one record's JSON by name, the known ones too (eq. (2): Tp first)."""
@@ -490,7 +486,7 @@ class AnalysisResult(Generic[M, T, I]):
         return {"schema_version": SCHEMA_VERSION, **_eq2_json(self, cycles)}
 
     @classmethod
-    def from_json(cls, data: object) -> AnalysisResult[Any, Any, Any]:
+    def from_json(cls, data: object) -> AnalysisResult:
         """The typed record of an ``analyze --json`` object of any strategy (any ``schema_version`` up to its own).
 
         Eq. (2): the tests are rebuilt with their cycles (rejected tests, written without cycles, have
@@ -517,14 +513,6 @@ class AnalysisResult(Generic[M, T, I]):
                              "needs parameters.Td/tau/K, model, tests and input") from err
 
 
-#: eq. (2)'s analysis (the manifold strategy)
-Eq2Analysis = AnalysisResult[LoopModel, MrftTest, IdentificationResult | None]
-#: a process family's analysis (the response-point strategy)
-GeneralAnalysis = AnalysisResult[PlantModel, TestSummary, LtiIdentification]
-#: an outer loop's analysis through its closed inner loop
-CascadeAnalysis = AnalysisResult[CascadeModel, MrftTest, CascadeIdentification]
-
-
 def _kind_of(model: object) -> str:
     if isinstance(model, LoopModel):
         return "soiptd"
@@ -534,7 +522,7 @@ def _kind_of(model: object) -> str:
 # ----------------------------------------------------------------------------------------------
 # eq. (2)'s layout
 # ----------------------------------------------------------------------------------------------
-def _eq2_json(r: AnalysisResult[Any, Any, Any], cycles: bool) -> _JSONDict:
+def _eq2_json(r: AnalysisResult, cycles: bool) -> _JSONDict:
     if r.recorded is not None:
         return _recorded_dict(r.recorded, cycles, r)
     if not isinstance(r.identification, IdentificationResult):
@@ -564,7 +552,7 @@ def _eq2_json(r: AnalysisResult[Any, Any, Any], cycles: bool) -> _JSONDict:
     }
 
 
-def _with_rel(r: AnalysisResult[Any, Any, Any], d: _JSONDict) -> _JSONDict:
+def _with_rel(r: AnalysisResult, d: _JSONDict) -> _JSONDict:
     # absolute times stay (the issue's keys); relative ones next to them for people and plots
     out = {}
     for k, v in d.items():
@@ -574,7 +562,7 @@ def _with_rel(r: AnalysisResult[Any, Any, Any], d: _JSONDict) -> _JSONDict:
     return out
 
 
-def _estimates(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+def _estimates(r: AnalysisResult) -> _JSONDict:
     """``parameters_mrft``, and with a refinement ``parameters_waveform`` and ``refinement``."""
     extra: _JSONDict = {}
     if r.parameters_mrft:
@@ -587,7 +575,7 @@ def _estimates(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
     return extra
 
 
-def _identification(r: AnalysisResult[Any, Any, Any], ident: IdentificationResult) -> _JSONDict:
+def _identification(r: AnalysisResult, ident: IdentificationResult) -> _JSONDict:
     d = ident.to_dict()
     rows = []
     # identify() saw each test's means only; give the cycle counts and standard errors behind them
@@ -599,7 +587,7 @@ def _identification(r: AnalysisResult[Any, Any, Any], ident: IdentificationResul
             "rate_correction": None, "constraints": dict(r.constraints) or {"used": ["ufm"]}}
 
 
-def _input(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+def _input(r: AnalysisResult) -> _JSONDict:
     inp: _JSONDict = {"path": r.path, "loop": r.loop, "Tp": r.Tp, "t0": r.t0}
     info = r.log_info
     if info is None and r.flight is not None:
@@ -609,7 +597,7 @@ def _input(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
     return inp
 
 
-def _eq2_from_json(data: Mapping[str, Any]) -> Eq2Analysis:
+def _eq2_from_json(data: Mapping[str, Any]) -> AnalysisResult:
     """Eq. (2)'s record after the version check (KeyError etc. on bad input).
 
     Required: ``parameters`` Td, tau, K (``value``; ``mean`` before version 4) and Tp; a hand-written
@@ -648,7 +636,7 @@ def _eq2_from_json(data: Mapping[str, Any]) -> Eq2Analysis:
 # ----------------------------------------------------------------------------------------------
 # a process family's layout
 # ----------------------------------------------------------------------------------------------
-def _family_json(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+def _family_json(r: AnalysisResult) -> _JSONDict:
     """``schema_version``, ``model`` (the family), ``parameters`` by name, ``identification``, ``tests``."""
     ident = r.identification
     return {"schema_version": FAMILY_SCHEMA_VERSION, "path": r.path, "loop": r.loop, "t0": r.t0,
@@ -660,7 +648,7 @@ def _family_json(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
             "static_gain": None if r.static_gain is None else r.static_gain.to_json()}
 
 
-def _family_from_json(data: Mapping[str, Any]) -> GeneralAnalysis:
+def _family_from_json(data: Mapping[str, Any]) -> AnalysisResult:
     data = check_schema_version(data, "analysis JSON", range(1, FAMILY_SCHEMA_VERSION + 1))
     try:
         sg = data.get("static_gain")
@@ -680,7 +668,7 @@ def _family_from_json(data: Mapping[str, Any]) -> GeneralAnalysis:
 # ----------------------------------------------------------------------------------------------
 # the cascade's layout
 # ----------------------------------------------------------------------------------------------
-def _cascade_json(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+def _cascade_json(r: AnalysisResult) -> _JSONDict:
     """``{"schema_version", "kind": "cascade", "input", "assumptions", "model", "parameters", "identification",
     "tests", "rejected_tests", "warnings"}`` (docs/cascade.md)."""
     if r.recorded is not None:
@@ -697,7 +685,7 @@ def _cascade_json(r: AnalysisResult[Any, Any, Any]) -> _JSONDict:
             "warnings": list(r.warnings)}
 
 
-def _cascade_from_json(data: Any) -> CascadeAnalysis:
+def _cascade_from_json(data: Any) -> AnalysisResult:
     d = check_schema_version(data, "cascade analysis JSON", range(1, CASCADE_SCHEMA_VERSION + 1))
     if d.get("kind") != "cascade" or "identification" not in d:
         raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
@@ -763,7 +751,7 @@ def analysis_controller_rate(declared_hz: float | None, test_rates_hz: Sequence[
     return round(float(np.median(rates)), 1) if rates else None
 
 
-def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisResult[Any, Any, Any]) -> _JSONDict:
+def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisResult) -> _JSONDict:
     """The JSON a record was read from, in this version's layout (an older one's tests get ``held_out`` null,
     its parameters the one record's keys)."""
     out = {k: copy.deepcopy(v) for k, v in recorded.items() if k != "schema_version"}

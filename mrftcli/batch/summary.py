@@ -168,12 +168,12 @@ def process_columns(result: Mapping[str, Any] | None) -> dict[str, Any]:
     ``tau_std`` [s] fill eq. (2)'s columns too (the delay is ``tau`` in seconds in every family, so the
     fleet's tau outlier flags apply).
     """
-    from ..analyze.record import GeneralAnalysis
+    from ..analyze.record import AnalysisResult
 
     if result is None:
         return {}
     try:
-        analysis = GeneralAnalysis.from_json(result)
+        analysis = AnalysisResult.from_json(result)
     except InputError:
         return {}
     if analysis.kind != "family":

@@ -19,7 +19,7 @@ from .options import (check_output_file, dump_json, json_option, log_layout_opti
                       tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
-    from ..analyze.record import GeneralAnalysis
+    from ..analyze.record import AnalysisResult
     from ..mrft.identify import ParameterEstimate
     from ..mrft.model import LoopModel, PlantModel
     from ..plan import FlownTest, PlanLimits, PlanResult, Prior
@@ -180,13 +180,13 @@ def format_relay_plan(result: PlanResult, source: str) -> str:
     return "\n".join(lines)
 
 
-def _recorded_json(path: Path) -> GeneralAnalysis:
+def _recorded_json(path: Path) -> AnalysisResult:
     """The process analysis of an ``analyze --model NAME --json`` file."""
-    from ..analyze.record import GeneralAnalysis
+    from ..analyze.record import AnalysisResult
 
     data = _analysis_json(path)
     try:
-        return GeneralAnalysis.from_json(data)
+        return AnalysisResult.from_json(data)
     except InputError as err:
         raise InputError(f"{path}: {err} (plan --model NAME reads an 'analyze --model NAME --json' result)") from None
 
@@ -243,7 +243,7 @@ def _check_given(given: _Given) -> None:
                                "result was analysed with its own")
 
 
-def _recorded(model: PlantModel, given: _Given) -> GeneralAnalysis:
+def _recorded(model: PlantModel, given: _Given) -> AnalysisResult:
     """A process plant's recorded relay tests, analysed as ``analyze --model`` does (or its JSON read back)."""
     from ..analyze import AnalyzeOptions, RelayOptions, analyze_flight
     from ..analyze.screen import log_start
@@ -380,7 +380,7 @@ def plan(log: str | None, model_name: str, params: tuple[str, ...], ranges: tupl
     check_output_file(json_target, "--json")  # before the work, as analyze
     prior: Prior | None = None
     flown: Sequence[FlownTest] = ()
-    recorded: GeneralAnalysis | None = None
+    recorded: AnalysisResult | None = None
     assumed: list[str] = []
     limits: PlanLimits
     if isinstance(model, LoopModel):

@@ -200,13 +200,13 @@ def _is_cascade(source: str | None) -> bool:
 def _cascade_source(source: str) -> _TuneSource:
     """An outer loop's cascade (analyze --inner-model's RESULT.json) with its draws over the outer estimate and
     the inner loop; the rate its outer controller ran at."""
-    from ..analyze.record import CascadeAnalysis
+    from ..analyze.record import AnalysisResult
     from ..tune.grid import N_DRAWS, outer_draws
 
     data = _read_json(source)
     if data is None:
         raise InputError(f"{source}: not a readable analyze --inner-model RESULT.json")
-    analysis = CascadeAnalysis.from_json(data)
+    analysis = AnalysisResult.from_json(data)
     model = analysis.model
     return _TuneSource(model, tuple(outer_draws(model, analysis.identification.estimates, N_DRAWS)), analysis.loop,
                        analysis.controller_rate_hz)
@@ -238,13 +238,13 @@ def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
         return _TuneSource(model, None, "")
     if meta_model(ctx) is not None:
         raise InputError("give a RESULT.json or --model with --param, not both (the file holds its model)")
-    from ..analyze.record import GeneralAnalysis
+    from ..analyze.record import AnalysisResult
 
     data = _read_json(source) if str(source).lower().endswith(".json") else None
     if data is None:
         raise InputError(f"{source}: tune on a process plant takes the RESULT.json of analyze LOG --model NAME "
                          "--json RESULT.json (or --model NAME with every --param)")
-    analysis = GeneralAnalysis.from_json(data)
+    analysis = AnalysisResult.from_json(data)
     ident = analysis.identification
     if ident is None:
         raise InputError(f"{source}: the analysis identified no model (no usable test): nothing to tune")

@@ -16,7 +16,6 @@ from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
-    from ..analyze.record import GeneralAnalysis
     from ..mrft.model import PlantModel
     from ..mrft.parameter import ParameterEstimate
     from ..watch import EstimateUpdate, TestUpdate, Update, WatchEnd
@@ -77,7 +76,7 @@ def _estimate_line(update: EstimateUpdate, unit: str, units: dict[str, str]) -> 
     return text
 
 
-def _held_out_lines(analysis: AnalysisResult | GeneralAnalysis, unit: str) -> str:
+def _held_out_lines(analysis: AnalysisResult, unit: str) -> str:
     """Each test's cycle as predicted from the other tests, beside the measured one."""
     eq2 = analysis.kind == "soiptd"
     rows = [(t.index + 1, analysis.held_out_of(k), t.frequency_hz_mean if eq2 else t.frequency_hz,

@@ -17,7 +17,7 @@ from ..errors import InputError
 from ..io.logtypes import gain_unit, output_unit
 
 if TYPE_CHECKING:
-    from ..analyze import Eq2Analysis
+    from ..analyze import AnalysisResult
 
 __all__ = ["ModelEstimate", "EffectIdentification", "AnalyzeModel", "Recommendation", "Identification",
            "analyze_model", "with_analysis", "DIFFERS_BECAUSE"]
@@ -322,7 +322,7 @@ class Identification:
                    recommended=None if rec is None else Recommendation.from_json(rec))
 
 
-def analyze_model(analysis: Eq2Analysis) -> AnalyzeModel:
+def analyze_model(analysis: AnalysisResult) -> AnalyzeModel:
     """analyze's model of a log: its point estimates (the finite ones), how it got them, its tests."""
     means = {"Td": analysis.Td.value, "tau": analysis.tau.value, "K": analysis.K.value}
     plant = {k: float(v) for k, v in means.items() if v is not None and math.isfinite(float(v))}
@@ -334,7 +334,7 @@ def analyze_model(analysis: Eq2Analysis) -> AnalyzeModel:
                         differs_because=DIFFERS_BECAUSE)
 
 
-def with_analysis(identification: Identification, analysis: Eq2Analysis, effects: list[str]) -> Identification:
+def with_analysis(identification: Identification, analysis: AnalysisResult, effects: list[str]) -> Identification:
     """``identification`` with analyze's model of the same log (computed after the diagnosis, as the CLI
     does), its recommendation made again for the deterministic ``effects`` found."""
     return replace(identification, analyze=analyze_model(analysis)).recommend(effects)

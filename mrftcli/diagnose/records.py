@@ -22,7 +22,7 @@ from .rows import (CandidateFit, Disagreement, Evidence, HeldOut, PairFit, TestR
                    expect_object)
 
 if TYPE_CHECKING:
-    from ..analyze.general import GeneralAnalysis
+    from ..analyze.record import AnalysisResult
     from ..io.logtypes import FlightLog
     from .checks import TestCheck
     from .fit import CandidateModel, DiagnosedTest, Fit
@@ -267,7 +267,7 @@ class DiagnosisResult:
         Log start [s]; ``*_rel`` times in ``tests`` and ``located`` are from it.
     checks : list of TestCheck
         The families: each test against the model of the other tests and of all tests.
-    analysis : GeneralAnalysis or None
+    analysis : AnalysisResult or None
         The families: ``analyze --model``'s record of the same log.
     figures : DiagnosisFigures or None
         Eq. (2): what :mod:`mrftcli.report.diagnosis` draws (not JSON): None on a result read back.
@@ -292,7 +292,7 @@ class DiagnosisResult:
     t0: float = 0.0
     notes: list[str] = field(default_factory=list)
     checks: list[TestCheck] = field(default_factory=list)
-    analysis: GeneralAnalysis | None = field(default=None, compare=False)
+    analysis: AnalysisResult | None = field(default=None, compare=False)
     figures: DiagnosisFigures | None = field(default=None, repr=False, compare=False)
     schema_version: int = SCHEMA_VERSION
 
@@ -390,12 +390,12 @@ class DiagnosisResult:
 
 def _family_result(data: Mapping[str, Any], summary: str, rows: list[Any]) -> DiagnosisResult:
     """The families' record from the JSON keys both their layouts share (``rows``: every EffectFit, in order)."""
-    from ..analyze.general import GeneralAnalysis
+    from ..analyze.record import AnalysisResult
     from .checks import TestCheck
     from .effects import EffectFit
 
     fits = [EffectFit.from_json(c) for c in rows]
-    analysis = GeneralAnalysis.from_json(data["analysis"])
+    analysis = AnalysisResult.from_json(data["analysis"])
     found = [str(s) for s in data.get("found", [])]
     effects: list[EffectFit] = []
     for name in found:  # each named effect's row: alone, then on top of those before it

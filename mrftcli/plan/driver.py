@@ -39,7 +39,7 @@ import statistics
 import numpy as np
 from scipy import stats
 
-from ..analyze.record import GeneralAnalysis
+from ..analyze.record import AnalysisResult
 from ..errors import InputError
 from ..mrft.model import LoopModel, PlantModel
 from ..mrft.relays import RelayLaw
@@ -93,7 +93,7 @@ class PlanOptions:
 
 
 def plan_tests(model: PlantModel, limits: PlanLimits, *, prior: Prior | None = None,
-               flown: Sequence[FlownTest] = (), recorded: GeneralAnalysis | None = None,
+               flown: Sequence[FlownTest] = (), recorded: AnalysisResult | None = None,
                options: PlanOptions = PlanOptions(), progress: Progress | None = None) -> PlanResult:
     """Recommend the next test(s) for ``model`` (docs/plan.md, docs/process-plants.md; module docstring).
 
@@ -109,7 +109,7 @@ def plan_tests(model: PlantModel, limits: PlanLimits, *, prior: Prior | None = N
         Eq. (2): ranges for Td, tau and K.
     flown : sequence of FlownTest
         Eq. (2): tests already flown (their information is counted, and the draws follow their UFM slice).
-    recorded : GeneralAnalysis
+    recorded : AnalysisResult
         A process plant: its recorded relay tests analysed (``analyze --model``), of ``model``'s family.
     options : PlanOptions
         Eq. (2): number of tests, beta grid, draws, simulated flights and seed.
@@ -403,7 +403,7 @@ def plan_notes(tests: Sequence[TestPlan], lowest_f: float, post: dict[str, float
 
 # -- a process plant (any family but eq. (2)): the next relay test for the identified model --------------
 
-def _plan_relays(structure: PlantModel, recorded: GeneralAnalysis | None, limits: PlanLimits) -> PlanResult:
+def _plan_relays(structure: PlantModel, recorded: AnalysisResult | None, limits: PlanLimits) -> PlanResult:
     """The relay strategy: rank the next relay tests for the model ``recorded`` identified (module docstring).
 
     Raises

@@ -30,7 +30,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
-from ..analyze import Eq2Analysis
+from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..mrft.model import LoopModel
@@ -368,7 +368,7 @@ def export_axes(stack: str, results: Sequence[TuneResult], design: str, sources:
     return out
 
 
-def joint_cutoff_of_analyses(analyses: Sequence[Eq2Analysis], stack: str, rate_hz: float, *,
+def joint_cutoff_of_analyses(analyses: Sequence[AnalysisResult], stack: str, rate_hz: float, *,
                              objective: str = "iae", ms_max: float = 1.6) -> JointCutoff:
     """:func:`joint_gyro_cutoff` of a roll and a pitch analysis (their posteriors as ``tune LOG`` draws them).
 

@@ -15,7 +15,7 @@ import math
 
 from ..analyze import AnalyzeOptions, CascadeOptions, analyze_flight
 from ..analyze.cascade import cascade_model, inner_draws, inner_loop_of
-from ..analyze.record import CascadeAnalysis
+from ..analyze.record import AnalysisResult
 from ..io import FlightLog
 from ..mrft.cascade import InnerLoop
 from ..mrft.controller import Controller
@@ -55,7 +55,7 @@ class OuterOptions:
 
 
 def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: Controller,
-                  options: OuterOptions) -> CascadeAnalysis:
+                  options: OuterOptions) -> AnalysisResult:
     """The outer loop of ``flight`` through ``inner`` closed by ``controller`` (the gains flown).
 
     Raises
@@ -73,7 +73,7 @@ def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: Controller,
                           options=AnalyzeOptions(min_stable_cycles=options.min_stable_cycles, cascade=copts))
 
 
-def _new_inner(analysis: CascadeAnalysis, inner: VehicleLoop) -> tuple[InnerLoop, str]:
+def _new_inner(analysis: AnalysisResult, inner: VehicleLoop) -> tuple[InnerLoop, str]:
     """The inner loop the outer gains are designed for: closed by its new gains when they run at the
     flight's inner rate, else as flown; and the sentence that says which."""
     flown = analysis.model.inner
@@ -88,7 +88,7 @@ def _new_inner(analysis: CascadeAnalysis, inner: VehicleLoop) -> tuple[InnerLoop
                    "were not tuned): keep its gains in use")
 
 
-def tune_outer(analysis: CascadeAnalysis, inner: VehicleLoop, options: OuterOptions) -> LoopGains:
+def tune_outer(analysis: AnalysisResult, inner: VehicleLoop, options: OuterOptions) -> LoopGains:
     """The outer PD on the cascade (module docstring): robust over the outer estimate's draws.
 
     Raises

@@ -147,7 +147,7 @@ class VehicleLoop:
         ``inner`` or ``outer`` (:data:`ROLES`).
     route : str
         The model identified (:data:`ROUTES`).
-    analysis : AnalysisResult or CascadeAnalysis
+    analysis : AnalysisResult
         Tests, parameters with their uncertainty, the model (eq. (2), or the cascade for an outer loop).
     gains : LoopGains or None
         The tuned gains; None when tuning failed (the vehicle's warnings say why).
@@ -158,7 +158,7 @@ class VehicleLoop:
     loop: str
     role: str
     route: str
-    analysis: AnalysisResult[Any, Any, Any]
+    analysis: AnalysisResult
     gains: LoopGains | None
     route_notes: tuple[str, ...] = ()
 

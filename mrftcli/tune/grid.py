@@ -188,6 +188,11 @@ def sampled_margins(c: Controller, Gd: NDArray[np.complex128],
 
     On the grid: the gain crossovers are where |L| falls through 1 (the least phase margin of them),
     the phase crossovers where the unwrapped phase passes an odd multiple of -180 deg.
+
+    Not :func:`mrftcli.tune.margins.loop_margins` (eq. (2)'s, refined to the crossing, the gain margin
+    the crossing closest to 1): the grid search's constraints are these figures, so that one would move
+    the families' gains (a fopdt PI's PM 52.36 here, 52.42 refined; eq. (2)'s PID GM 0.08 here, from
+    the low-frequency crossing, 1.32 there).
     """
     L = c.feedback_response(omega)[None, :] * Gd
     mag = np.abs(L)

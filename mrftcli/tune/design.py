@@ -209,8 +209,8 @@ class Design:
     horizon_s : float
         Horizon of the criterion and of the step figures [s].
     criterion_definition : str
-        What ``criterion`` is of, when the design says (the other families': ``"load step"`` or
-        ``"setpoint step"``); empty: eq. (2)'s setpoint step (+ a PID's load step).
+        What ``criterion`` is of: ``"setpoint step"``, ``"load step"`` (the process families' PI/PID) or
+        ``"setpoint step + load step"`` (eq. (2)'s PID).
     """
 
     name: str
@@ -264,7 +264,8 @@ class Design:
                    Margins.from_json(data.get("margins")),
                    StepMetrics(*(json_number(step, k, what) for k in fields)),
                    extras["posterior"], extras["constraints"], extras["load"], json_number(data, "horizon_s", what),
-                   str(data.get("criterion_definition") or ""))
+                   str(data.get("criterion_definition")  # versions 1-2 left eq. (2)'s empty
+                       or ("setpoint step + load step" if extras["load"] else "setpoint step")))
 
 
 @dataclass(frozen=True)
@@ -809,4 +810,5 @@ def _figures(name: str, c: Controller, load: float, horizon: float, st: _Setting
     if name == "robust" and post:
         cons["feasible"] = bool(post["worst"]["Ms"] <= ms_max * (1 + 1e-3)
                                 and cons["noise_gain"] <= effort_max * (1 + 1e-9))
-    return Design(name, c, objective, J, expected, mg, step, post, cons, load_fig, horizon)
+    return Design(name, c, objective, J, expected, mg, step, post, cons, load_fig, horizon,
+                  "setpoint step + load step" if load_fig else "setpoint step")

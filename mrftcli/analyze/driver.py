@@ -150,7 +150,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.value)
-    tp_warning, tp_check = _tp_check(flight, screening, wave, Tp, opts.refine_waveform)
+    tp_warning, tp_check = _tp_check(flight, screening, wave, model, opts.refine_waveform)
     warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
     usable, rejected = screening.usable, screening.rejected
@@ -178,9 +178,9 @@ def _residual_worded(result: AnalysisResult) -> AnalysisResult:
     return dataclasses.replace(result, warnings=tuple(w.replace(MISMATCH_WORDS, why) for w in result.warnings))
 
 
-def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: float,
+def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, model: LoopModel,
               refine: bool) -> tuple[tuple[str, ...], TpCheck | None]:
-    """What the waveform says about the given Tp [s] (issue 26): a wrong Tp otherwise yields a tight,
+    """What the waveform says about ``model``'s given Tp [s] (issue 26): a wrong Tp otherwise yields a tight,
     wrong tau. The warning, first of all (the recording fits another Tp, or this log cannot check Tp:
     the command logged below the controller's rate; eq. (2) holding at no Tp), and the verdict
     (:class:`TpCheck`; None when the waveform refinement did not run).
@@ -188,7 +188,7 @@ def _tp_check(flight: FlightLog, screening: Screening, wave: WaveformStage, Tp: 
     Profiles the output-error fit over Tp (:func:`mrftcli.mrft.profile.profile_tp`, about 1 s of CPU),
     only when the refinement ran and its residual exceeded the acceptance factor.
     """
-    ref = wave.refinement
+    ref, Tp = wave.refinement, model.Tp
     if not screening.usable:
         return (), None
     if ref is None:

@@ -226,7 +226,7 @@ def point_estimate(model: LoopModel, screening: Screening, constraints: Sequence
     except IdentificationError as exc:
         # a Td far beyond every test's time scale stands for the limit
         Td_ref = 1e4 / (_TWO_PI * min(t.frequency_hz_mean for t in usable))
-        ident, limit = unbounded_td_or_raise(exc, model.Tp, Td_ref, cycles, constraints, B, rng)
+        ident, limit = unbounded_td_or_raise(exc, model, Td_ref, cycles, constraints, B, rng)
     return PointEstimate(tuple(cycles), B, ident, limit)
 
 
@@ -239,7 +239,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
     paper's UFM-only estimate stays in ``identification`` for comparison. A low-rate log
     (``ts_ctrl`` > 0) has the sampled relay's lag Ts / 2 removed from every tau.
     """
-    Tp = model.Tp  # the known set E; below, ``model`` is the fit
+    known, Tp = model, model.Tp  # the known set E; below, ``model`` is the fit
     ident, limit, B = point.identification, point.limit, point.n_draws
     cycles = list(point.cycles)
     warnings = list(ident.warnings)
@@ -256,7 +256,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
     if constraints and np.isfinite(Td_d[0]):
         Td_hat, tau_hat, K_hat = float(Td_d[0]), float(tau_d[0]), float(K_d[0])
         model = LoopModel(Tp, Td_hat, max(tau_hat, 0.0), K_hat if np.isfinite(K_hat) else model.K)
-        constraint_info = _constraint_info(Tp, cycles, boot, ident, Td_hat, tau_hat, constraints)
+        constraint_info = _constraint_info(known, cycles, boot, ident, Td_hat, tau_hat, constraints)
         pv = constraint_info["p_value"]
         if pv is not None and pv < 1e-3:
             warnings.append(
@@ -285,10 +285,11 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
                      constraint_info, tuple(warnings))
 
 
-def _constraint_info(Tp: float, cycles: Sequence[StableCycles], boot: Bootstrap, ident: IdentificationResult,
+def _constraint_info(model: LoopModel, cycles: Sequence[StableCycles], boot: Bootstrap, ident: IdentificationResult,
                      Td: float, tau: float, constraints: Sequence[str]) -> dict[str, Any]:
-    """The constraints' residuals at the estimate, with the paper's UFM-only estimate beside them."""
-    info = constraint_report(Tp, cycles, Td, tau, boot.betas[0], boot.omegas[0], boot.phases[0], boot.ln_amp[0],
+    """The constraints' residuals at the estimate (``model``: eq. (2) with its known Tp), with the paper's
+    UFM-only estimate beside them."""
+    info = constraint_report(model.Tp, cycles, Td, tau, boot.betas[0], boot.omegas[0], boot.phases[0], boot.ln_amp[0],
                              boot.weights or {}, constraints)
     info["paper_estimate"] = {"Td": ident.model.Td, "tau": ident.model.tau,
                               "K": ident.K.value if ident.K is not None else None,
@@ -332,7 +333,7 @@ def identifiability(model: LoopModel, screening: Screening, point: PointEstimate
             notes.append(text)
     if ts_ctrl and point.limit is None:
         shapes = [fold_amplitude_ratios(flight, t) for t in usable] if flight is not None else None
-        Td_est, tau_est, K_est = widen_for_orbits(Tp, list(point.cycles), Td_hat, constraints, ts_ctrl,
+        Td_est, tau_est, K_est = widen_for_orbits(model, list(point.cycles), Td_hat, constraints, ts_ctrl,
                                                   (Td_est, tau_est, K_est), rng, point.n_draws, shapes)
         rate = min(t.rate_hz for t in usable)
         notes.append(f"command logged at {rate:.0f} Hz below the {1 / ts_ctrl:.0f} Hz controller: identified as "
@@ -489,16 +490,17 @@ def widen_for_jitter(tau_est: ParameterEstimate, flight: FlightLog,
     return replace(tau_est, std=std, ci95_low=tau_est.ci95_low - widen, ci95_high=tau_est.ci95_high + widen), text
 
 
-def unbounded_td_or_raise(exc: IdentificationError, Tp: float, Td_ref: float,
+def unbounded_td_or_raise(exc: IdentificationError, model: LoopModel, Td_ref: float,
                           cycles: list[StableCycles], constraints: Sequence[str], B: int,
                            rng: np.random.Generator) -> tuple[IdentificationResult, tuple[Bootstrap, UnboundedTd]]:
     """The Td -> infinity result when the tests fit a plant without linear damping, else ``exc``.
 
     Returns the identification record of the limit (method ``"unbounded-Td"``) and the bootstrap
-    with :func:`mrftcli.mrft.consensus.unbounded_td`'s result.
+    with :func:`mrftcli.mrft.consensus.unbounded_td`'s result. ``model``: eq. (2) with its known Tp.
     """
     if not constraints:
         raise exc
+    Tp = model.Tp
     boot = bootstrap(Tp, cycles, Td_ref, constraints, B, rng)
     limit = unbounded_td(Tp, boot)
     if limit is None or not limit.tau[0] >= 0:  # a finite Td fits better, or no plant of eq. (2) does
@@ -552,7 +554,7 @@ def fold_amplitude_ratios(flight: FlightLog, test: MrftTest) -> np.ndarray:
     return amps / amps[0] if amps.size and amps[0] > 0 else np.ones(1)
 
 
-def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constraints: Sequence[str],
+def widen_for_orbits(model: LoopModel, cycles: list[StableCycles], Td: float, constraints: Sequence[str],
                      ts_ctrl: float, estimates: tuple[ParameterEstimate, ...], rng: np.random.Generator,
                      n_draws: int = 200, shapes: Sequence[np.ndarray] | None = None
                      ) -> tuple[ParameterEstimate, ...]:
@@ -575,8 +577,9 @@ def widen_for_orbits(Tp: float, cycles: list[StableCycles], Td: float, constrain
     one measured (:func:`fold_amplitude_ratios`); each group draws one per test (stratified as the
     lags), so the amplitude's dependence on that choice, common to the test's cycles, is in the
     interval (K read 1-3 % long from a 3-cycle fold with one harmonic, outside its interval).
+    ``model``: eq. (2) with its known Tp.
     """
-    n = len(cycles)
+    Tp, n = model.Tp, len(cycles)
     groups = int(min(max(n_draws // 8, 1), 25))
     per = max(n_draws // groups, 1)
     base = bootstrap(Tp, cycles, Td, constraints, 0, rng)

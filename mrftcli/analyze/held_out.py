@@ -194,11 +194,12 @@ def _gains(Tp: float, Td: np.ndarray, sets: _Sets, amps: np.ndarray, hs: np.ndar
     return np.asarray(amps[None, :] * sets.omegas / (hs[None, :] * Td[:, None] * a_unit))
 
 
-def _prediction(Tp: float, Td: float, tau: float, K: float, beta: float, h: float) -> tuple[float, float] | None:
+def _prediction(model: LoopModel, Td: float, tau: float, K: float, beta: float, h: float) -> tuple[float, float] | None:
+    """The cycle [Hz], [output units] of ``model`` (eq. (2), its known Tp) at Td, tau, K; None where there is none."""
     if not (math.isfinite(Td) and math.isfinite(tau) and math.isfinite(K) and K > 0):
         return None
     try:
-        lc = mrft_limit_cycle(LoopModel(Tp, Td, max(tau, 0.0), K), beta, h)
+        lc = mrft_limit_cycle(model.with_parameters(Td=Td, tau=max(tau, 0.0), K=K), beta, h)
     except (InputError, IdentificationError, ValueError):
         return None
     return float(lc.frequency_hz), float(lc.amplitude)
@@ -260,7 +261,7 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
         others = sets.weights[rows[0]] > 0
         base = rows[0]  # the first row of a test moves nothing
         K = float(np.mean(K_each[base][others]))
-        centre = _prediction(Tp, float(Td[base]), float(tau[base]), K, float(betas[i]), tests[i].h)
+        centre = _prediction(model, float(Td[base]), float(tau[base]), K, float(betas[i]), tests[i].h)
         if centre is None:
             results.append(HeldOut(None, None, "the other tests give no eq. (2) model: their UFM slices do not "
                                                f"meet within 0.1-10 x Td {Td_ref:.3g} s"))
@@ -269,7 +270,7 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
         for r in rows[1:]:
             se = _freq_se(tests, sets.moved[r])
             scale = float(np.sum(se ** 2) / np.sum(se) ** 2)
-            moved = _prediction(Tp, float(Td[r]), float(tau[r]), float(np.mean(K_each[r][others])),
+            moved = _prediction(model, float(Td[r]), float(tau[r]), float(np.mean(K_each[r][others])),
                                 float(betas[i]), tests[i].h)
             if moved is not None:  # else the point solve fails one std away: that group's share is left out
                 var_f += (moved[0] - centre[0]) ** 2 * scale

@@ -454,13 +454,13 @@ def _header(result: AnalysisResult, T0: float) -> str:
 
 
 def _parameter_rows(result: AnalysisResult) -> list[list[str]]:
-    """Eq. (2)'s Td [s], tau [ms], K; any other family's parameters by name in their units (known ones said so)."""
-    if result.kind == "soiptd":
-        return [_estimate_row(result.Td, "Td", 1.0, "s"), _estimate_row(result.tau, "tau", 1e3, "ms"),
-                _estimate_row(result.K, "K", 1.0, gain_unit(result.loop))]
+    """Every family's parameters by name in their units (tau in ms; eq. (2)'s K in the loop's gain unit), known
+    ones said so."""
     rows = []
     for name, e in result.parameters.items():
         s, u = (1e3, "ms") if e.unit == "s" and name == "tau" else (1.0, e.unit)
+        if name == "K" and result.kind == "soiptd":
+            u = gain_unit(result.loop)
         row = _estimate_row(e, name, s, u)
         if e.known:
             row[2:4] = ["", "known"]

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..io.logtypes import FlightLog
+from ..io.logtypes import FlightLog, output_unit
 from ..jsonable import check_schema_version
 from ..mrft.cascade import CascadeModel
 from ..mrft.cascade_identify import CascadeIdentification
@@ -408,6 +408,11 @@ class AnalysisResult:
         if not isinstance(self.model, LoopModel):
             raise InputError(f"a {self.kind} analysis has no Tp: this needs an analysis of eq. (2) (--model soiptd)")
         return float(self.model.Tp)
+
+    @property
+    def output_unit(self) -> str:
+        """The output's unit as people read it: the vehicle loop's (m, rad), a process plant's "output units"."""
+        return "output units" if self.kind == "family" else output_unit(self.loop)
 
     @property
     def segmented(self) -> tuple[MrftTest, ...]:

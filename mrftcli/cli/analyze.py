@@ -49,7 +49,7 @@ def format_analysis(result) -> str:
     header, align, rows = _test_columns(result)
     held = [result.held_out_of(k) for k in range(len(result.tests))]
     if any(ho is not None and (ho.frequency_hz is not None or ho.amplitude is not None) for ho in held):
-        unit = _unit(result)  # else the notes below say why nothing is predicted
+        unit = result.output_unit  # else the notes below say why nothing is predicted
         header += [("held-out f", "[Hz] ± std (error/std)"), ("held-out amplitude", f"[{unit}] ± std (error/std)")]
         align += ">>"
         rows = [r + list(held_out_cells(ho)) for r, ho in zip(rows, held)]
@@ -60,11 +60,6 @@ def format_analysis(result) -> str:
     lines += parameter_lines(list(result.parameters.items()), _display(result))
     lines += _tail(result)
     return "\n".join(line.rstrip() for line in lines)
-
-
-def _unit(result) -> str:
-    """The output's unit: the loop's for a vehicle loop, "output" for a process plant's."""
-    return "output" if result.kind == "family" else output_unit(result.loop)
 
 
 def _numbers(result) -> list[int]:
@@ -91,7 +86,7 @@ def _head(result) -> list[str]:
 
 def _test_columns(result) -> tuple[list[tuple[str, str]], str, list[list[str]]]:
     """The kind's columns of the test table: header (name, unit), alignment and one row per test."""
-    t0, unit, numbers = result.t0, _unit(result), _numbers(result)
+    t0, unit, numbers = result.t0, result.output_unit, _numbers(result)
     span = [("test", ""), ("from", "[s]"), ("to", "[s]")]
     if result.kind == "family":
         rows = [[str(n), f"{t.t_start - t0:.2f}", f"{t.t_end - t0:.2f}", t.describe_relay(), num(t.frequency_hz),

@@ -36,7 +36,7 @@ from ..analyze.held_out import held_out_cells
 from ..progress import Progress, report
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, plt, save_figure, write_page
 from .model_figures import plot_fit, plot_uncertainty
-from .wording import gain_unit, output_unit, uncertainty_sentence
+from .wording import gain_unit, uncertainty_sentence
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -473,7 +473,7 @@ def _parameter_rows(result: AnalysisResult) -> list[list[str]]:
 def _test_rows(result: AnalysisResult, T0: float) -> tuple[list[str], list[list[Any]]]:
     """The tests table (header, rows): a process family's relays and held-out predictions; eq. (2)'s and the
     cascade's betas and cycles."""
-    unit = "output units" if result.kind == "family" else output_unit(result.loop)
+    unit = result.output_unit
     held_head = ["held-out frequency [Hz] ± std (error/std)", f"held-out amplitude [{unit}] ± std (error/std)"]
     if result.kind == "family":
         rows: list[list[Any]] = [[t.index + 1, f"{t.t_start - T0:.1f} - {t.t_end - T0:.1f}", t.describe_relay(),

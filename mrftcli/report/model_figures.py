@@ -59,12 +59,6 @@ def posterior_draws(result: AnalysisResult) -> tuple[np.ndarray, str]:
     return draws[np.all(np.isfinite(draws), axis=1)], "bootstrap"
 
 
-def _unit(result: AnalysisResult) -> str:
-    from .wording import output_unit
-
-    return "output units" if result.kind == "family" else output_unit(result.loop)
-
-
 def plot_fit(result: AnalysisResult) -> Figure:
     """Per test (up to four): measured and model output [output units] and their residual against time [s]."""
     from ..analyze.overlay import analysis_predictions
@@ -76,7 +70,7 @@ def plot_fit(result: AnalysisResult) -> Figure:
         axes[0, 0].text(0.5, 0.5, "no flight signals in this result", ha="center", transform=axes[0, 0].transAxes)
         return fig
     preds = analysis_predictions(result)
-    unit = _unit(result)
+    unit = result.output_unit
     noise = result.refinement.noise_std if result.refinement is not None else float("nan")
     for k, t in enumerate(tests):
         p = preds.get(t.index)
@@ -193,7 +187,7 @@ def plot_uncertainty(result: AnalysisResult) -> Figure:
              f"{max(p_hi[at] - p_lo[at]):.2g} deg wide" if at else "")
     fig, axes = new_figure(1, 3 if eq2 else 2, width=14 if eq2 else 10, height=4.4)
     ax_m, ax_p = axes[:2]
-    for ax, nom, lo, hi, lab in ((ax_m, mag0, m_lo, m_hi, f"|G| [dB re 1 {_unit(result)} per command unit]"),
+    for ax, nom, lo, hi, lab in ((ax_m, mag0, m_lo, m_hi, f"|G| [dB re 1 {result.output_unit} per command unit]"),
                                  (ax_p, ph0, p_lo, p_hi, "phase [deg]")):
         ax.fill_between(omega, lo, hi, color="C0", alpha=0.25, lw=0, label="95 % band")
         ax.plot(omega, nom, color="C0", lw=1.2, label="identified")

@@ -111,20 +111,16 @@ def _test_columns(result) -> tuple[list[tuple[str, str]], str, list[list[str]]]:
 
 
 def _left_out(result) -> list[str]:
-    """One line per test found and left out: its span, beta where it has one, and why."""
-    digits = 2 if result.kind == "family" else 1
-    betas = {t.index: t.beta_nominal for t in result.rejected}
-    lines = []
-    for i, a, b, why in result.rejected_rows():
-        nom = betas.get(i)
-        if i in betas:
-            why = why or f"{next(t.n_stable for t in result.rejected if t.index == i)} stable cycles"
-        if len(why) > 80 and ":" in why and result.kind != "family":  # the figures are in the warning below
+    """One line per test found and left out: its span, its beta where it has one, and why."""
+    t0 = result.t0
+    rows = [(f"({a - t0:.2f}-{b - t0:.2f} s)", why) for _, a, b, why in result.rejected_spans]
+    for t in result.rejected:
+        nom = "-" if t.beta_nominal is None else f"{t.beta_nominal:+.3f}"
+        why = result.rejection_reasons.get(t.index) or f"{t.n_stable} stable cycles"
+        if len(why) > 80 and ":" in why:  # the figures are in the warning below the table
             why = why[: why.index(":")] + "; see the warning"
-        label = "" if result.kind == "family" else f"test {i + 1} "
-        beta = f", beta {nom:+.3f}" if nom is not None else (", beta -" if i in betas else "")
-        lines.append(f"{label}({a - result.t0:.{digits}f}-{b - result.t0:.{digits}f} s{beta}) left out: {why}")
-    return lines
+        rows.append((f"test {t.index + 1} ({t.t_start - t0:.1f}-{t.t_end - t0:.1f} s, beta {nom})", why))
+    return [f"{label} left out: {why}" for label, why in rows]
 
 
 def _parameters_line(result) -> str:

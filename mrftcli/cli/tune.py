@@ -254,12 +254,17 @@ def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
                        notes=notes)
 
 
+def _refuse_unused(options: dict[str, Any], why: str, error: type[Exception] = click.UsageError) -> None:
+    """The options given (true values) that this route does not take: one line naming them, then ``why``."""
+    used = [name for name, value in options.items() if value]
+    if used:
+        raise error(f"{', '.join(used)}{why}")
+
+
 def _refuse_for_family(unsupported: dict[str, Any], ex: _ExportOptions, design: str | None) -> None:
     """The options a process family's design does not take: a one-line error, never ignored."""
-    used = [name for name, value in unsupported.items() if value]
-    if used:
-        raise click.UsageError(f"{', '.join(used)}: not for a process plant (tune designs PI/PID/PD on it with "
-                               "--controller-rate, --ms-max, --design, --kind, --json, --export generic)")
+    _refuse_unused(unsupported, ": not for a process plant (tune designs PI/PID/PD on it with --controller-rate, "
+                   "--ms-max, --design, --kind, --json, --export generic)")
     if ex.stack in _UAV_STACKS:
         raise InputError(f"--export {ex.stack}: {ex.stack} is a UAV flight stack, not a process controller; "
                          "a process plant's gains export as --export generic")
@@ -465,12 +470,11 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     cascade = len(sources) == 1 and _is_cascade(source)
     family = cascade or (len(sources) < 2 and _family_asked(ctx, source))
     if cascade:  # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
-        used = [name for name, value in {"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
-                                         "--design mrft-rule": design == "mrft-rule",
-                                         "--controller-rate": read_options.get("controller_rate_hz")}.items() if value]
-        if used:
-            raise click.UsageError(f"{', '.join(used)}: not for a cascade analysis (its Tp is the inner analysis'; "
-                                   "tune designs a PD on the cascade with --export generic, --json, --design, --ms-max)")
+        _refuse_unused({"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
+                        "--design mrft-rule": design == "mrft-rule",
+                        "--controller-rate": read_options.get("controller_rate_hz")},
+                       ": not for a cascade analysis (its Tp is the inner analysis'; tune designs a PD on the cascade "
+                       "with --export generic, --json, --design, --ms-max)")
         if ex.stack not in (None, "generic"):
             raise click.UsageError(f"--export {ex.stack} does not work on a cascade analysis yet (use --export generic)")
     elif family:  # another family than eq. (2): its kinds and designs, its export
@@ -532,9 +536,7 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
         unsupported = {"--td/--tau/--k": any(v is not None for v in given), "--report": report_dir,
                        "--effort-max": effort_max, "--hover-thrust": ex.hover_thrust, "--loop": read_options["loop"],
                        "--design mrft-rule": design == "mrft-rule"}
-        used = [k for k, v in unsupported.items() if v]
-        if used:
-            raise InputError(f"{', '.join(used)} cannot be used with two results (the joint roll and pitch export)")
+        _refuse_unused(unsupported, " cannot be used with two results (the joint roll and pitch export)", InputError)
         from ..mrft.model import soiptd_model
         from .tune_axes import AxesRequest, tune_axes
 

@@ -197,21 +197,6 @@ def _is_cascade(source: str | None) -> bool:
     return isinstance(data, dict) and data.get("kind") == "cascade"
 
 
-def _cascade_source(source: str) -> _TuneSource:
-    """An outer loop's cascade (analyze --inner-model's RESULT.json) with its draws over the outer estimate and
-    the inner loop; the rate its outer controller ran at."""
-    from ..analyze.record import AnalysisResult
-    from ..tune.grid import N_DRAWS, outer_draws
-
-    data = _read_json(source)
-    if data is None:
-        raise InputError(f"{source}: not a readable analyze --inner-model RESULT.json")
-    analysis = AnalysisResult.from_json(data)
-    model = analysis.model
-    return _TuneSource(model, tuple(outer_draws(model, analysis.identification.estimates, N_DRAWS)), analysis.loop,
-                       analysis.controller_rate_hz)
-
-
 def _family_asked(ctx: click.Context, source: str | None) -> bool:
     """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given, or SOURCE an
     ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
@@ -225,9 +210,12 @@ def _family_asked(ctx: click.Context, source: str | None) -> bool:
 
 
 def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
-    """A family's model with its draws (none without a spread), from ``analyze --model NAME``'s RESULT.json or
-    from ``--model``/``--param``; ``rate_hz`` the tests' controller rate when they share one."""
-    from ..tune.grid import N_DRAWS, model_draws
+    """A family's model with its draws (none without a spread), from ``--model``/``--param`` or an analyze
+    RESULT.json: ``analyze --model NAME``'s (``rate_hz`` the tests' controller rate when they share one) or
+    an outer loop's cascade (``analyze --inner-model``'s: draws over the outer estimate and the inner loop,
+    the rate its outer controller ran at)."""
+    from ..mrft.cascade import CascadeModel
+    from ..tune.grid import N_DRAWS, model_draws, outer_draws
 
     if source is None:
         model = meta_model(ctx)
@@ -248,6 +236,9 @@ def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
     ident = analysis.identification
     if ident is None:
         raise InputError(f"{source}: the analysis identified no model (no usable test): nothing to tune")
+    if isinstance(analysis.model, CascadeModel):
+        return _TuneSource(analysis.model, tuple(outer_draws(analysis.model, ident.estimates, N_DRAWS)),
+                           analysis.loop, analysis.controller_rate_hz)
     rates = sorted({round(t.rate_hz, 6) for t in analysis.tests})
     draws, notes = model_draws(ident.model, list(ident.estimates), N_DRAWS)
     return _TuneSource(ident.model, tuple(draws), analysis.loop, rates[0] if len(rates) == 1 else None,
@@ -496,7 +487,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     rate_given: float | None = read_options.get("controller_rate_hz")
     setting = None
     if family:
-        src = _cascade_source(str(source)) if cascade else _family_source(ctx, source)
+        src = _family_source(ctx, source)
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:

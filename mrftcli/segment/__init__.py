@@ -10,8 +10,11 @@ chained by :func:`segment` / :func:`segment_arrays` (:mod:`.segmenter`; its sett
    it. A relay test is a maximal chain of flat runs whose levels alternate between two values
    (``bias + h`` and ``bias - h``). A short run between two runs of the same level (a false switch,
    a glitch) is absorbed and the cycle that holds it is marked ``glitch``; a change of level, a change
-   of h, a stretch of normal flight (PID hold, take-off, landing) or a new value on the beta topic ends
-   the chain.
+   of h, a stretch of normal flight (PID hold, take-off, landing), a new value on the beta topic or
+   absent data (an interval of 10 median sample intervals or more: a log masked to some tests' windows,
+   a recorder stopped) ends the chain; no run spans absent data, whatever the levels either side. A
+   test's nominal beta is the beta marker in force over its cycles (the last published up to its end:
+   its own, or an earlier test's when none came since).
 2. **Switch instants.** The first sample at the new level. Timestamps inside a test are first put
    back on the controller's sample grid when they fit one (receive-time jitter removed, dropped
    messages kept as gaps; :func:`regularise_times`, :mod:`.runs`). A switch after one or two missing command

@@ -72,6 +72,7 @@ def find_relay_runs(
     max_glitch_samples: int = 3,
     min_runs: int = 6,
     breaks: np.ndarray | None = None,
+    gaps: np.ndarray | None = None,
 ) -> list[list[RelayRun]]:
     """Split the command into chains of flat runs alternating between two levels.
 
@@ -90,6 +91,9 @@ def find_relay_runs(
         Shortest chain reported (runs, i.e. half-periods).
     breaks : numpy.ndarray, optional
         Sample indices where a chain must end (e.g. a new value on the beta topic).
+    gaps : numpy.ndarray, optional
+        Sample indices with data absent just before them (a masked or lost stretch of the log): no run
+        spans one and no chain continues across one, whatever the levels on either side.
 
     Returns
     -------
@@ -99,9 +103,10 @@ def find_relay_runs(
     c = np.asarray(command, dtype=float)
     if c.size < 2 * min_run_samples:
         return []
-    runs = _flat_runs(c, jump_sigmas, min_run_samples)
+    holes = np.asarray(gaps if gaps is not None else [], dtype=int)
+    runs = _flat_runs(c, jump_sigmas, min_run_samples, holes)
     joiner = _Joiner(c, runs.threshold, np.asarray(breaks if breaks is not None else [], dtype=int),
-                     min_run_samples, max_glitch_samples)
+                     min_run_samples, max_glitch_samples, holes)
     chains: list[list[RelayRun]] = []
     chain: list[RelayRun] = []
     for i in runs.candidates:
@@ -135,8 +140,10 @@ class _FlatRuns:
     threshold: float
 
 
-def _flat_runs(c: NDArray[np.float64], jump_sigmas: float, min_run_samples: int) -> _FlatRuns:
-    """Cut the command at its jumps and keep the flat pieces (step 1 of :func:`find_relay_runs`)."""
+def _flat_runs(c: NDArray[np.float64], jump_sigmas: float, min_run_samples: int,
+               gaps: NDArray[np.intp]) -> _FlatRuns:
+    """Cut the command at its jumps and at its ``gaps`` (sample indices after absent data) and keep the
+    flat pieces (step 1 of :func:`find_relay_runs`)."""
     n = c.size
     d = np.diff(c)
     scale = float(max(np.max(c), -np.min(c))) if n else 1.0  # max |c| without a copy of |c|
@@ -151,6 +158,11 @@ def _flat_runs(c: NDArray[np.float64], jump_sigmas: float, min_run_samples: int)
     small = big & (d <= local)
     del local
     cut = np.flatnonzero(big & ~small) + 1
+    holes = gaps[(gaps > 0) & (gaps < n)]
+    if holes.size:
+        # the levels on either side of absent data are not one run, even when equal (two tests masked
+        # to their windows, each ending and starting at the same relay level)
+        cut = np.union1d(cut, holes)
     starts = np.concatenate(([0], cut))
     stops = np.concatenate((cut, [n]))
     lengths = stops - starts
@@ -159,6 +171,8 @@ def _flat_runs(c: NDArray[np.float64], jump_sigmas: float, min_run_samples: int)
     rng = np.maximum.reduceat(c, starts) - np.minimum.reduceat(c, starts)
     # Jump magnitude on each side of each run; a flat run's spread is small beside them.
     jumps = np.abs(np.diff(levels))
+    if holes.size:
+        jumps[np.isin(starts[1:], holes)] = np.inf  # no jump measured across absent data: an edge of the data
     left = np.concatenate(([np.inf], jumps))
     right = np.concatenate((jumps, [np.inf]))
     # a run that absorbed small steps must be flat on the moving bias's scale (a continuous command
@@ -178,14 +192,22 @@ class _Joiner:
     breaks: NDArray[np.intp]
     min_run_samples: int
     max_glitch_samples: int
+    gaps: NDArray[np.intp]
 
     def action(self, chain: list[RelayRun], run: RelayRun) -> tuple[str, int]:
         """``"merge"`` (a false switch inside the last run), ``"append"`` (the next half-period),
         ``"restart-pair"`` (a new chain of the last run and this one) or ``"restart"``; and the gap
         [samples] before ``run`` (shortened to the glitch limit where the relay chatters)."""
         last = chain[-1]
+        if np.any((self.gaps > last.start) & (self.gaps <= run.start)):
+            return "restart", run.start - last.stop  # absent data ends the test: never joins two
         gap = run.start - last.stop
-        crosses_break = bool(np.any((self.breaks > last.start + self.min_run_samples) & (self.breaks <= run.start)))
+        # a marker up to min_run_samples samples into a run opens the test at that run (a stack logs it a
+        # little after the switch that starts the test); into the chain's first relay run (after the hold
+        # level) it is the chain's own, published as the relay started
+        m = self.min_run_samples
+        reach = run.start + (m if len(chain) >= 2 else 0)
+        crosses_break = bool(np.any((self.breaks > last.start + m) & (self.breaks <= reach)))
         step = abs(run.level - last.level)
         ref_jump = abs(last.level - chain[-2].level) if len(chain) >= 2 else step
         tol = 0.1 * max(ref_jump, self.threshold)

@@ -30,6 +30,11 @@ __all__ = ["segment", "segment_arrays", "SegmentOptions", "MAX_CYCLES"]
 MAX_CYCLES = 5000
 #: a switch after at most this many missing command samples is interpolated, after more it is a gap
 _MAX_INTERP_SAMPLES = 2
+#: an interval between command samples this many times the median one or longer is absent data (a log
+#: masked to some tests' windows, a recorder stopped): it ends a test. A relay's cycle holds 6 samples at
+#: least (two runs of 3), so such a gap can hide a whole cycle of the fastest test; shorter losses are
+#: a switch's missing samples (``interp`` or ``gap`` at that switch, the test goes on)
+_GAP_INTERVALS = 10.0
 #: a command logged below this rate [Hz] is a logger's sub-sampling of a faster controller (PX4's
 #: default 10 Hz logger over its 50 Hz position controller): its switch instants are only bracketed
 LOW_RATE_HZ = 25.0
@@ -414,12 +419,15 @@ def _mark_stable(cycles: list[RelayCycle], dt: float, criterion: StabilityCriter
     return final, info
 
 
-def _nominal_beta(beta_t: ArrayLike | None, beta_v: ArrayLike | None, after: float, until: float) -> float | None:
-    """The last beta published in (``after``, ``until``] [s] (None without a beta topic or message)."""
+def _nominal_beta(beta_t: ArrayLike | None, beta_v: ArrayLike | None, until: float) -> float | None:
+    """The beta marker in force over a test: the last published at or before ``until`` [s], its last switch
+    (None without a beta topic or message). A new marker ends a test (:func:`find_relay_runs`' breaks),
+    so this is the test's own, published as it starts, or the one in force since an earlier test (a test
+    cut in two by absent data keeps it)."""
     if beta_t is None or beta_v is None or not len(np.asarray(beta_t)):
         return None
     bt = np.asarray(beta_t, float)
-    sel = np.flatnonzero((bt > after) & (bt <= until))
+    sel = np.flatnonzero(bt <= until)
     return float(np.asarray(beta_v, float)[sel[-1]]) if sel.size else None
 
 
@@ -502,9 +510,9 @@ def segment_arrays(
     rate_all = median_rate_hz(t_cmd)
     # below the controller's rate a fast test's half-period is 2 logged samples (a 2.5 Hz cycle at 10 Hz)
     sub = bool(controller_rate_hz and rate_all and rate_all < LOW_RATE_HZ and controller_rate_hz > 1.5 * rate_all)
-    chains = find_relay_runs(cmd, breaks=breaks, min_runs=min_runs, min_run_samples=2 if sub else 3)
+    chains = find_relay_runs(cmd, breaks=breaks, gaps=_data_gaps(t_cmd, rate_all), min_runs=min_runs,
+                             min_run_samples=2 if sub else 3)
     tests: list[MrftTest] = []
-    prev_end = -np.inf
     for found in chains:
         chain, cut = _first_cycles(found, t_cmd)
         clock = _test_clock(chain, t_cmd, rate_all, controller_rate_hz)
@@ -512,7 +520,7 @@ def segment_arrays(
         t_b = float(sw.t[-1])
         win = _output_window(t_y, y, t_sp, sp, float(sw.t[0]), t_b, clock.dt)
         sign = _loop_sign(win.t, win.y, clock.t, cmd, sw.bias, sw.t, sw.up, clock.dt)
-        beta_nom = _nominal_beta(beta_t, beta_v, prev_end, t_b)
+        beta_nom = _nominal_beta(beta_t, beta_v, t_b)
         final, info = _measured_cycles(sw, win, sign, clock, criterion, beta_nom)
         be = np.array([c.beta_effective for c in final if c.stable])
         be = be[np.isfinite(be)]
@@ -531,8 +539,15 @@ def segment_arrays(
                 validity=check_limit_cycle(final, beta_eff, beta_nom, options.validity),
             )
         )
-        prev_end = t_b
     return tests
+
+
+def _data_gaps(t: FloatArray, rate_hz: float | None) -> NDArray[np.intp]:
+    """Indices of the command samples after absent data: an interval of :data:`_GAP_INTERVALS` median
+    intervals or more before them (``rate_hz``: the command's median rate [Hz]; None: no gaps)."""
+    if not rate_hz or t.size < 2:
+        return np.zeros(0, dtype=np.intp)
+    return np.flatnonzero(np.diff(t) >= _GAP_INTERVALS / rate_hz) + 1
 
 
 def segment(

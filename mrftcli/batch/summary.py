@@ -54,15 +54,14 @@ _OUTLIER_COLUMNS = ("tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", 
 
 
 def _analysis(entry: Mapping[str, Any]) -> AnalysisResult | None:
-    """The typed eq. (2) analysis of an ok loop entry (None: not ok, another family, or a result this version
-    cannot read)."""
+    """The typed analysis of an ok loop entry, read once for every family (None: not ok, or a result this
+    version cannot read)."""
     if entry.get("status") != STATUS_OK or entry.get("result") is None:
         return None
     try:
-        result = AnalysisResult.from_json(entry["result"])
+        return AnalysisResult.from_json(entry["result"])
     except InputError:
         return None
-    return result if result.kind == "soiptd" else None  # a process row's columns are process_columns'
 
 
 def _param(result: AnalysisResult | None, name: str, stat: str) -> float:
@@ -108,7 +107,8 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
     vehicle = settings.get("vehicle") or path.parent.name
     mtime = record.get("log_mtime")
     for entry in record.get("loops", []):
-        result = _analysis(entry)
+        analysis = _analysis(entry)
+        result = analysis if analysis is not None and analysis.kind == "soiptd" else None  # eq. (2)'s columns
         n_tests, n_cycles, betas = _tests_figures(result)
         diag = entry.get("diagnosis") or {}
         effects = diag.get("effects") or []
@@ -139,8 +139,7 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             "result_json": json_path.relative_to(json_path.parent.parent).as_posix() if json_path is not None else None,
             "settings_hash": record.get("settings_hash"),
             **({k: (entry.get("tune") or {}).get(k) for k in TUNE_COLUMNS} if "tune" in entry else {}),
-            **(process_columns(entry.get("result") if entry.get("status") == STATUS_OK else None)
-               if _is_process(entry) else {}),
+            **(process_columns(analysis) if _is_process(entry) else {}),
         })
     return rows
 
@@ -160,26 +159,18 @@ def _g(x: float, digits: int = 4) -> str:
     return f"{x:.{digits}g}" if math.isfinite(x) else "-"
 
 
-def process_columns(result: Mapping[str, Any] | None) -> dict[str, Any]:
-    """The summary columns of a process analysis JSON (``batch --model``; None: a loop without a result).
+def process_columns(analysis: AnalysisResult | None) -> dict[str, Any]:
+    """The summary columns of a process analysis (``batch --model``; None: a loop without a result).
 
     ``parameters`` reads e.g. ``"K 1.985 ± 0.084 output / command; T 0.9755 ± 0.043 s; tau 0.3265 ± 0.0015 s"``
     (``known`` for a given parameter, ``not determined`` for one the tests leave open); ``tau_mean`` and
     ``tau_std`` [s] fill eq. (2)'s columns too (the delay is ``tau`` in seconds in every family, so the
     fleet's tau outlier flags apply).
     """
-    from ..analyze.record import AnalysisResult
-
-    if result is None:
-        return {}
-    try:
-        analysis = AnalysisResult.from_json(result)
-    except InputError:
-        return {}
-    if analysis.kind != "family":
+    if analysis is None or analysis.kind != "family":
         return {}
     ident = analysis.identification
-    out: dict[str, Any] = {"model": result.get("model"), "n_tests": len(analysis.tests),
+    out: dict[str, Any] = {"model": analysis.model.family, "n_tests": len(analysis.tests),
                            "n_cycles": sum(t.n_stable for t in analysis.tests),
                            "betas": ";".join(t.relay.kind for t in analysis.tests)}
     if ident is None:

@@ -238,10 +238,11 @@ def _diagnose_loop(task: LogTask, analysis: AnalysisResult, min_stable_cycles: i
         from ..diagnose.selection import diagnose
         from ..mrft.model import soiptd_model
 
-        tp = task.settings.tp
-        if analysis.flight is None or (task.model is None and tp is None):  # a fresh analysis has both
+        model = task.model
+        if model is None and task.settings.tp is not None:  # eq. (2): the model of the log's Tp
+            model = soiptd_model(task.settings.tp)
+        if analysis.flight is None or model is None:  # a fresh analysis has both (Tp was checked)
             raise InputError("the diagnosis needs the analysis's flight signals and Tp")
-        model = task.model if task.model is not None else soiptd_model(float(tp))  # type: ignore[arg-type]
         result = diagnose(analysis.flight, model, analysis=analysis if task.model is None else None,
                           min_stable_cycles=min_stable_cycles)
         return {"status": STATUS_OK, "error": None, **result.to_dict()}

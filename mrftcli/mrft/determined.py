@@ -3,14 +3,15 @@
 One relay setting puts its response points at one frequency and its odd harmonics. Where the slope
 of the plant's response there is all they see, some parameters trade off: on a slow SOPDT well
 above its corner ``|G| ~ K / (omega T1)``, so K and T1 move together and only ``K/T1`` (with the
-phase: T2 and tau) is pinned down. :func:`~mrftcli.mrft.identify_lti.identify_lti` names the
+phase: T2 and tau) is pinned down. :func:`~mrftcli.mrft.identify_lti.fit_response_points` (the families' strategy of ``identify``) names the
 parameters the fit does not determine (the Jacobian's rank and each interval's width); this module
 finds the product of their powers that the points **do** determine: the direction, in the
 log-parameters, of the largest information left once the determined parameters are profiled out
 (the Schur complement of the Fisher information ``J^T J``, so their uncertainty is included). The
 exponents are rounded to halves where that costs little precision or keeps the 95 % interval within a
 factor e (``K/T1`` rather than ``K^1 T1^-0.93``); the combination is reported only if its 95 % interval is within a factor of e^2
-(the verdict :func:`identify_lti` applies to a single parameter).
+(a single parameter is called determined only within a factor 1.25,
+:data:`~mrftcli.mrft.identify_lti.DETERMINED_LOG_WIDTH`).
 """
 
 from __future__ import annotations

@@ -101,7 +101,7 @@ def _marked_start(flight: FlightLog, t_start: float) -> float:
 
     The stacks log beta once at a test's start (``MRFB``, a parameter change), a little before the first
     switch the segmenter dates the test from; a window cut at that switch would drop the marker, and the
-    masked flight would carry the previous test's beta into it (two kept tests read as one).
+    masked flight would carry the previous kept test's beta, the marker in force there, into it.
     """
     if flight.beta is None:
         return t_start

@@ -189,6 +189,8 @@ def _read_as(result) -> str:
              + (f" x{src['command_scale']:g}" if src.get("command_scale", 1.0) != 1.0 else "")
              + f", output {src.get('output', '?')}"
              + (f" x{src['output_scale']:g}" if src.get("output_scale", 1.0) != 1.0 else "")]
+    if src.get("command_choice"):  # the layout's command chosen from the log (PX4's MRFT_DELAY: the decision)
+        parts.append(f"command {src['command_choice']}")
     if src.get("controller_rate"):  # the relay's rate, read from the log or assumed (and why)
         parts.append(f"controller rate {src['controller_rate']}")
     signs = [t.loop_sign for t in result.tests]

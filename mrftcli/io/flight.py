@@ -206,7 +206,7 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     ``FlightLog.path`` is ``log.path``.
     """
     match = log_layout(log, opts.layout)
-    roles = role_specs(match.layout, opts)
+    roles, decision = _decision_command(log, match.layout, opts, role_specs(match.layout, opts))
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
                                                 roles.battery) if s])
     cmd = _get_required(log, roles.command)
@@ -218,6 +218,8 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     if conversion is not None:
         source["output_conversion"] = conversion
     source["command"] = _where(cmd.spec.topic, cmd.leaves[0])
+    if decision is not None:
+        source["command_choice"] = decision
     source["output"] = str(out.spec) if conversion is not None else _where(out.spec.topic, out.leaves[0])
     command = _command_signal(log, cmd, roles.command_scale)
     optional = _optional_signals(log, opts, roles, source)
@@ -268,6 +270,43 @@ def _read(log: LogSource, topic: str, field: str | None) -> _Read:
 def _where(topic: str, leaf: str) -> str:
     """``topic:leaf`` for FlightLog.source (CSV leaves are whole column names already)."""
     return leaf if leaf.startswith(topic) else f"{topic}:{leaf}"
+
+
+def _decision_command(log: LogSource, lay: Layout, opts: ReadOptions, roles: RoleSpecs) -> tuple[RoleSpecs, str | None]:
+    """``roles`` with the relay's decision as the command when the log says the stack holds the layout's
+    command after it (:attr:`Layout.delay_parameter` > 0 at the start or in a change, and the loop has a
+    :attr:`LoopTopics.decision`), and why (``source["command_choice"]``, analyze's first lines).
+
+    The held command hides the delay from tau (PX4's rate relays with ``MRFT_DELAY`` 20 ms: the torque read
+    tau 0.1 ms and |beta| 0.14-0.46 for 0.3-0.7; the decision 20.2 ms). ``--command-topic`` is used as given.
+
+    Raises
+    ------
+    LogReadError
+        The delay is set and the decision is not logged (one line naming ``--command-topic``).
+    """
+    lt = lay.loops.get(opts.loop)
+    name = lay.delay_parameter
+    if opts.command_topic is not None or lt is None or lt.decision is None or name is None:
+        return roles, None
+    initial, changes = log.parameters()
+    values = ([initial[name]] if name in initial else []) + [v for _, k, v in changes if k == name]
+    delay = max(values, default=0.0)
+    if not delay > 0:
+        return roles, None
+    spec = parse_spec(lt.decision)
+    topic = log.resolve_topic(spec.topic)
+    try:
+        if topic is None:
+            raise log.missing_topic(spec.topic)
+        log.leaves(topic, spec.field)
+    except LogReadError:
+        raise LogReadError(f"{log.path}: {name} is {delay:g} ms in the log's parameters, so {lt.command} is the relay's "
+                           f"output held {delay:g} ms after its decision, and the decision ({lt.decision}) is not in the "
+                           "log: name the relay's decision with --command-topic TOPIC:FIELD") from None
+    why = (f"{lt.decision}, the relay's decision: the log's {name} {delay:g} ms holds {lt.command} that long after "
+           "it, so the delay is inside the identified loop (--command-topic overrides)")
+    return dataclasses.replace(roles, command=lt.decision), why
 
 
 def _output_signal(log: LogSource, out: _Read, loop: str, scale: float) -> tuple[Signal, str | None]:

@@ -37,6 +37,10 @@ class LoopTopics:
         Factor from the logged output (and setpoint) to the loop's output (``-1``: NED z -> altitude).
     command_scale : float
         Factor from the logged command to the loop's command (``-1``: PX4's upward-negative thrust).
+    decision : str or None
+        Where the relay's decision is logged when the stack can delay ``command`` after it
+        (:attr:`Layout.delay_parameter` > 0): then the decision is the command (the delay belongs inside
+        the identified loop); None: ``command`` is the decision.
     """
 
     command: str
@@ -45,6 +49,7 @@ class LoopTopics:
     beta: str | None = None
     output_scale: float = 1.0
     command_scale: float = 1.0
+    decision: str | None = None
 
 
 @dataclass(frozen=True)
@@ -84,6 +89,9 @@ class Layout:
         are multiples of (:func:`mrftcli.io.timing.logged_tick_s`).
     rate_assumption : str
         Why ``controller_rate_hz`` is the fallback (said in the warning and in ``input.source``).
+    delay_parameter : str or None
+        The logged parameter [ms] by which the stack holds the relay's output before it acts (PX4's
+        ``MRFT_DELAY``); above 0, a loop with a :attr:`LoopTopics.decision` reads the decision.
     """
 
     name: str
@@ -97,6 +105,7 @@ class Layout:
     controller_rate_hz: float | None = None
     rate_from_log: bool = False
     rate_assumption: str = ""
+    delay_parameter: str | None = None
 
 
 def _reference(output: str) -> LoopTopics:
@@ -130,9 +139,10 @@ _PX4 = Layout(
         "y": LoopTopics("vehicle_local_position_setpoint:thrust[1]", "vehicle_local_position:y",
                         "vehicle_local_position_setpoint:y"),
         # mrft-ident's roll relay in mc_rate_control (scripts/sitl/px4/mrft_roll.patch; the fork has none):
-        # the relay is the roll (pitch) torque setpoint, the output the attitude's roll (pitch) (setpoint: level)
-        "roll": LoopTopics("vehicle_torque_setpoint:xyz[0]", "vehicle_attitude:q"),
-        "pitch": LoopTopics("vehicle_torque_setpoint:xyz[1]", "vehicle_attitude:q"),
+        # the relay is the roll (pitch) torque setpoint, the output the attitude's roll (pitch) (setpoint: level);
+        # with MRFT_DELAY > 0 the torque is the decision held that long, and the decision is in debug_vect
+        "roll": LoopTopics("vehicle_torque_setpoint:xyz[0]", "vehicle_attitude:q", decision="debug_vect:x"),
+        "pitch": LoopTopics("vehicle_torque_setpoint:xyz[1]", "vehicle_attitude:q", decision="debug_vect:y"),
     },
     signature=("vehicle_local_position_setpoint",),
     formats=("ulog",),
@@ -147,6 +157,9 @@ _PX4 = Layout(
     rate_from_log=True,
     rate_assumption="the fork's PX4 v1.11 runs mc_pos_control at 50 Hz (set_interval_us(20_ms)); PX4 1.12 "
                     "and later run it at EKF2's output rate (vehicle_local_position's, e.g. 100-250 Hz)",
+    # the port's MRFT_DELAY [ms]: the position relays log their decision (thrust, before the delay), the
+    # rate relays of mrft_roll.patch their delayed torque (the decision in debug_vect)
+    delay_parameter="MRFT_DELAY",
 )
 
 # HEAR flight controller, ROS 1 (geometry_msgs/Point has no header: receive time).

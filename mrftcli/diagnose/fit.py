@@ -200,7 +200,7 @@ class CandidateModel:
         self.names = tuple(c.name for c in self.cands)
         self.tests = tests
         self.Tp = Tp
-        # last (theta, (period [s], residual slope)) found, per evaluation key
+        # last (theta, (period [s], residual slope, nonlinear fixed point)) found, per evaluation key
         self.warm: dict[int, tuple[np.ndarray, tuple]] = {}
         self.name = "+".join(c.name for c in cands) if cands else "base"
         self.hs = float(np.mean([t.h for t in tests]))
@@ -279,7 +279,7 @@ class CandidateModel:
         p = self.unpack(theta)
         plant, g = self.plant(p, test, t_ref)
         k = test_i if key is None else key
-        cold = (float(np.mean(test.tab.period)), None)
+        cold = (float(np.mean(test.tab.period)), None, None)
         cp = cycle_plant(plant, test.h)
         sol = None
         # the last period found is the start when it was found close by (inside a fit); from a distant
@@ -289,10 +289,11 @@ class CandidateModel:
         guesses = [cold]
         if k in self.warm and np.max(np.abs(self.warm[k][0] - theta)) <= WARM_RADIUS:
             guesses.insert(0, self.warm[k][1])
-        for guess, slope in guesses:
+        for guess, slope, state in guesses:
             with np.errstate(all="ignore"):
                 try:
-                    sol = periodic_solution(cp, test.beta[0], test.beta[1], guess, slope_guess=slope)
+                    sol = periodic_solution(cp, test.beta[0], test.beta[1], guess, slope_guess=slope,
+                                            state_guess=state)
                 except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
                     sol = None
             if sol is not None and np.all(np.isfinite(sol.Y)):
@@ -300,7 +301,7 @@ class CandidateModel:
             sol = None
         if sol is None:
             return None
-        self.warm[k] = (np.array(theta, float), (sol.period, sol.slope or None))
+        self.warm[k] = (np.array(theta, float), (sol.period, sol.slope or None, sol.state))
         cyc = model_cycle(sol, test.h)
         if not np.isfinite(cyc.amplitude[0]) or cyc.amplitude[0] <= 0:
             return None

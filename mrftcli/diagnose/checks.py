@@ -10,9 +10,9 @@ driver (:func:`mrftcli.diagnose.selection.diagnose`) runs these stages after the
    harmonic from the cycle-to-cycle scatter;
 3. the check per test (:func:`check_test`): the exact limit cycle (LPRS, sampled at the controller's
    rate) of the model from the OTHER tests and of the model from all tests under the test's relay;
-   frequency and amplitude errors against their scatter (the measurement's standard error and the
-   held-out model's parameter spread), the waveform residual by harmonic band (fundamental, 2-3,
-   higher) against the noise;
+   frequency and amplitude errors against their scatter (the measurement's standard error, the
+   held-out model's parameter spread and the sampled relay's band of orbits), the waveform residual
+   by harmonic band (fundamental, 2-3, higher) against the noise;
 4. the library of physics (:mod:`.effects`): each effect fitted and held out, named only when it
    improves the held-out prediction;
 5. the verdict (:func:`verdict`): the effects found, or consistent, or unexplained with where the
@@ -70,7 +70,8 @@ class BandResidual:
         RMS over the band of |measured - model| per harmonic [output units].
     noise : float
         RMS over the band of the harmonics' standard error [output units] (the cycles' scatter over
-        sqrt(n), floored at 3 % of the harmonic and at the sampled relay's timing, see ``_bands``).
+        sqrt(n), floored at 3 % of the harmonic and at the sampled relay's timing, with the model's
+        spread over the sampled relay's orbits, see ``_bands`` and ``_orbit_spread``).
     peak : int
         The harmonic of the band furthest above its noise.
     """
@@ -290,7 +291,30 @@ def _cycle_harmonics(lc: LimitCycle, n_h: int) -> np.ndarray:
     return harmonics
 
 
-def _bands(measured: MeasuredWaveform, model: np.ndarray, rate_hz: float) -> tuple[BandResidual, ...]:
+def _orbit_spread(model: PlantModel, lc: LimitCycle, measured: MeasuredWaveform, rate_hz: float) -> np.ndarray:
+    """Each harmonic's spread [output units] over the sampled relay's band of orbits (:func:`_band_std`).
+
+    On an orbit of frequency w the plant answers the relay's harmonic U_k with G(j k w) U_k, and the
+    relay's harmonics (in the cycle's phase) do not move with w, so across a band of width dw the
+    harmonic moves by |Y_k| |ln G(j k w_hi) - ln G(j k w_lo)|; uniform over the band: that over sqrt(12).
+    """
+    n = measured.harmonics.size
+    width = _band_std(lc, rate_hz)[0] * math.sqrt(12.0)
+    if width <= 0:
+        return np.zeros(n)
+    k = np.arange(1, n + 1)
+    w = 2 * math.pi * np.array([lc.frequency_hz - 0.5 * width, lc.frequency_hz + 0.5 * width])
+    try:
+        G = np.asarray(model.frequency_response(np.outer(k, w).ravel()), complex).reshape(n, 2)
+    except (ValueError, ArithmeticError):
+        return np.zeros(n)
+    with np.errstate(all="ignore"):
+        step = np.abs(np.log(G[:, 1] / G[:, 0]))  # the log's imaginary part: the phase step (small: no wrap)
+    return np.where(np.isfinite(step), np.abs(measured.harmonics) * step / math.sqrt(12.0), 0.0)
+
+
+def _bands(measured: MeasuredWaveform, model: np.ndarray, rate_hz: float,
+           spread: np.ndarray | None = None) -> tuple[BandResidual, ...]:
     """The residual |measured - model| per band against the noise (module docstring, stage 3).
 
     A harmonic's noise is its standard error, floored at 3 % of the harmonic and at the sampled
@@ -303,7 +327,8 @@ def _bands(measured: MeasuredWaveform, model: np.ndarray, rate_hz: float) -> tup
     Y = measured.harmonics[:n]
     res = np.abs(Y - model[:n])
     timing = abs(Y[0]) * measured.frequency_hz / rate_hz
-    sigma = np.sqrt(measured.se[:n] ** 2 + (_HARMONIC_FLOOR * np.abs(Y)) ** 2 + timing ** 2)
+    orbits = np.zeros(n) if spread is None else spread[:n]
+    sigma = np.sqrt(measured.se[:n] ** 2 + (_HARMONIC_FLOOR * np.abs(Y)) ** 2 + timing ** 2 + orbits ** 2)
     out = []
     for name, lo, hi in BANDS:
         hi = min(hi, n)
@@ -328,12 +353,48 @@ def _even_ratio(measured: MeasuredWaveform) -> float:
 # ----------------------------------------------------------------------------------------------
 # the check of one test
 # ----------------------------------------------------------------------------------------------
-def _cycle(model: PlantModel, summary: TestSummary) -> LimitCycle | None:
-    """The model's limit cycle under the test's (effective) relay at its rate, or None."""
+def _cycle(model: PlantModel, summary: TestSummary, n_h: int) -> LimitCycle | None:
+    """The model's limit cycle under the test's (effective) relay at its rate, or None.
+
+    An effective MRFT's beta is the switching level over the *smooth* waveform's amplitude (its first
+    ``n_h`` harmonics, :func:`mrftcli.analyze.smooth_cycle.switching_level`), while the model's relay
+    switches at beta times its cycle's true extremum. Where the waveform has a kink at its peak (a
+    first-order plant's output turns as the delayed input switches), eight harmonics round the peak
+    off by several per cent, and the effective beta read that way is too large by as much (-0.216 for
+    a relay of -0.2 on a clean simulated FOPDT at 500 Hz: its cycle predicted 1.1 % fast). So the
+    model's beta is the effective one times the model's own smooth-to-true amplitude ratio (one
+    fixed-point step: the ratio moves little with beta), the level measured alike on both sides.
+    """
+    relay = summary.predicting_relay
     try:
-        return summary.predicting_relay.limit_cycle(model, summary.rate_hz)
+        lc = relay.limit_cycle(model, summary.rate_hz)
+        if relay.kind != "mrft" or not lc.amplitude > 0:
+            return lc
+        ratio = peak_amplitude(_cycle_harmonics(lc, n_h)) / lc.amplitude
+        beta = float(np.clip(relay.beta * ratio, -0.99, 0.99))
+        return dataclasses.replace(relay, beta=beta).limit_cycle(model, summary.rate_hz)
     except (InputError, IdentificationError, ValueError, ArithmeticError):
         return None
+
+
+def _band_std(lc: LimitCycle, rate_hz: float) -> tuple[float, float]:
+    """The sampled relay's own spread of the predicted frequency [Hz] and amplitude [output units].
+
+    A relay deciding on samples locks onto one of several periodic orbits (a whole number of samples
+    per half period, :func:`mrftcli.mrft.lprs.sampled_limit_cycle`); which one depends on the loop's
+    history, so the model predicts the band of them, not its centre. The measured mean period is a
+    mean of whole-sample periods (patterns may mix neighbouring orbits): its range is the band's,
+    widened by one sample. Taken as uniform over that range, its standard deviation is the width over
+    sqrt(12) (on a clean FOPDT at 20 Hz, 20-32 samples a cycle, the orbits are 5-10 % apart: the
+    centre alone called the loop's own orbit 5 sigma off).
+    """
+    if lc.rate_hz is None:
+        return 0.0, 0.0
+    freqs = (*lc.orbits_hz, lc.frequency_hz)
+    amps = (*lc.orbits_amplitude, lc.amplitude)
+    # one sample of period more: f^2 Ts in frequency
+    width_f = max(freqs) - min(freqs) + lc.frequency_hz ** 2 / rate_hz
+    return width_f / math.sqrt(12.0), (max(amps) - min(amps)) / math.sqrt(12.0)
 
 
 def _spread(ident: LtiIdentification, summary: TestSummary) -> tuple[float, float]:
@@ -380,29 +441,32 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
     base = TestCheck(summary.index, summary.t_start, summary.t_end, measured.frequency_hz, measured.frequency_se_hz,
                      measured.amplitude, measured.amplitude_se, None, None, None, None, None, None,
                      even_ratio=_even_ratio(measured))
-    all_lc = None if all_model is None else _cycle(all_model, summary)
-    if all_lc is not None:
+    all_lc = None if all_model is None else _cycle(all_model, summary, n_h)
+    if all_model is not None and all_lc is not None:
         base = dataclasses.replace(base, all_frequency_hz=all_lc.frequency_hz,
                                    all_amplitude=peak_amplitude(_cycle_harmonics(all_lc, n_h)),
-                                   all_bands=_bands(measured, _cycle_harmonics(all_lc, n_h), summary.rate_hz))
+                                   all_bands=_bands(measured, _cycle_harmonics(all_lc, n_h), summary.rate_hz,
+                                                    _orbit_spread(all_model, all_lc, measured, summary.rate_hz)))
     if not others:
         return dataclasses.replace(base, note="no other test to hold it out against")
     try:
         held = identify_points(model, others)
     except IdentificationError as err:
         return dataclasses.replace(base, note=f"the other tests give no model: {err}")
-    lc = _cycle(held.model, summary)
+    lc = _cycle(held.model, summary, n_h)
     if lc is None:
         return dataclasses.replace(base, note="the other tests' model has no limit cycle under this relay")
     wave = _cycle_harmonics(lc, n_h)
     sf, sa = _spread(held, summary)
+    bf, ba = _band_std(lc, summary.rate_hz)
     note = (f"{', '.join(held.undetermined)} not determined by the other tests: their spread is not in "
             "the held-out sigma" if held.undetermined else "")
     return dataclasses.replace(
         base, held_out_frequency_hz=lc.frequency_hz, held_out_amplitude=peak_amplitude(wave),
-        held_out_frequency_sigma_hz=math.hypot(measured.frequency_se_hz, sf),
-        held_out_amplitude_sigma=math.hypot(measured.amplitude_se, sa),
-        held_out_bands=_bands(measured, wave, summary.rate_hz), note=note)
+        held_out_frequency_sigma_hz=math.sqrt(measured.frequency_se_hz ** 2 + sf ** 2 + bf ** 2),
+        held_out_amplitude_sigma=math.sqrt(measured.amplitude_se ** 2 + sa ** 2 + ba ** 2),
+        held_out_bands=_bands(measured, wave, summary.rate_hz, _orbit_spread(held.model, lc, measured, summary.rate_hz)),
+        note=note)
 
 
 # ----------------------------------------------------------------------------------------------

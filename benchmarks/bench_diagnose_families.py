@@ -20,6 +20,13 @@ bias_drift             an input offset drifting by +-(0.3-0.5) of the smallest h
 delay_jitter           each switch reaches the plant after tau + N(0, sigma), sigma 1-2 % of the period
 =====================  ==========================================================================
 
+Clean controls come two ways: ``clean``, drawn as above (three hysteresis relays, 14 cycles each, at
+least 40 ticks a cycle), and ``clean_mrft``, drawn as users fly: two or three MRFT tests (beta -0.1 to
+-0.5; -0.3 to -0.6 on an integrating plant) of 6-10 cycles each at relay height 1, 20-200 ticks a cycle,
+noise 0.5-2 % of the amplitude, flown by tests/process_sim.py (an exact zero-order-hold loop, the MRFT
+rule of checks.md section 2, no mrftcli code). A clean recording is kept clean only when the verdict is
+"consistent" (no effect named and nothing located as unexplained).
+
 The simulator is written here (``simulate``) and shares no code with mrftcli: the plant from its
 transfer function's polynomials (``scipy.signal.tf2ss``), stepped exactly (zero-order hold) on a grid
 ten times finer than the controller; the relay decides at the controller's ticks on the noisy output.
@@ -51,6 +58,7 @@ from scipy import linalg, signal
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # process_sim (clean_mrft)
 
 FAMILIES = ("fopdt", "sopdt", "ipdt", "foipdt")
 EFFECTS = ("sensor_lag", "actuator_rate_limit", "dead_zone", "actuator_saturation", "asymmetric_gain", "input_bias",
@@ -164,6 +172,8 @@ def draw_case(kind: str, seed: int) -> dict[str, object]:
     rng = np.random.default_rng(seed)
     family = FAMILIES[int(rng.integers(len(FAMILIES)))]
     p = draw_plant(family, rng)
+    if kind == "clean_mrft":
+        return _draw_users_clean(family, p, rng)
     from mrftcli.mrft.families import family_model
     from mrftcli.mrft.lprs import mrft_limit_cycle
 
@@ -195,6 +205,36 @@ def draw_case(kind: str, seed: int) -> dict[str, object]:
                 period=period, sim_seed=int(rng.integers(1 << 31)))
 
 
+def _draw_users_clean(family: str, p: dict[str, float], rng: np.random.Generator) -> dict[str, object]:
+    """A clean recording as users fly it (module docstring: ``clean_mrft``)."""
+    from mrftcli.mrft.families import family_model
+    from mrftcli.mrft.lprs import mrft_limit_cycle
+
+    lc = mrft_limit_cycle(family_model(family).with_parameters(**p), 0.0, 1.0)
+    integrating = family in ("ipdt", "foipdt")
+    n = int(rng.integers(2, 4))
+    betas = [float(b) for b in rng.choice([-0.6, -0.5, -0.4, -0.3] if integrating else [-0.5, -0.4, -0.3, -0.2, -0.1],
+                                          n, replace=False)]
+    cycles = [float(rng.uniform(6.0, 10.0)) for _ in betas]
+    ticks = float(np.exp(rng.uniform(math.log(20.0), math.log(200.0))))
+    return dict(kind="clean_mrft", family=family, params=p, value=0.0, betas=betas, cycles=cycles,
+                rate=ticks / lc.period, noise=float(rng.uniform(0.005, 0.02)) * lc.amplitude, period=lc.period,
+                amp=lc.amplitude, sim_seed=int(rng.integers(1 << 31)))
+
+
+def _fly_users_clean(case: dict[str, object]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, command, output) of a ``clean_mrft`` case, flown by tests/process_sim.py."""
+    from process_sim import Window
+    from process_sim import simulate as process_simulate
+
+    P = float(case["period"])
+    windows = [Window("mrft", 1.0, -1.0, beta=b, duration=c * P, rest=3 * P)
+               for b, c in zip(case["betas"], case["cycles"])]
+    # an integrating plant under an MRFT needs a clear first excursion (process_sim's start)
+    return process_simulate(str(case["family"]), case["params"], windows, float(case["rate"]), float(case["noise"]),
+                            seed=int(case["sim_seed"]), lead=2 * P, start=0.1 * float(case["amp"]))
+
+
 def run_case(case: dict[str, object]) -> dict[str, object]:
     """Simulate and diagnose one case; the diagnosis's answer and CPU."""
     from mrftcli.diagnose import diagnose
@@ -204,8 +244,11 @@ def run_case(case: dict[str, object]) -> dict[str, object]:
 
     kind = str(case["kind"])
     effect = "none" if kind == "clean" else kind
-    t, u, y = simulate(str(case["family"]), case["params"], effect, float(case["value"]), case["relays"],
-                       float(case["rate"]), float(case["noise"]), float(case["period"]), int(case["sim_seed"]))
+    if kind == "clean_mrft":
+        t, u, y = _fly_users_clean(case)
+    else:
+        t, u, y = simulate(str(case["family"]), case["params"], effect, float(case["value"]), case["relays"],
+                           float(case["rate"]), float(case["noise"]), float(case["period"]), int(case["sim_seed"]))
     flight = FlightLog(path=f"{kind}.sim", loop="altitude", command=Signal(t, u), output=Signal(t, y))
     t0 = time.process_time()
     try:
@@ -225,8 +268,8 @@ def _truth(case: dict[str, object]) -> float:
 
 def score(rows: list[dict[str, object]]) -> None:
     """The table and the targets."""
-    lib = [r for r in rows if r["kind"] != "clean"]
-    clean = [r for r in rows if r["kind"] == "clean"]
+    lib = [r for r in rows if not str(r["kind"]).startswith("clean")]
+    clean = [r for r in rows if str(r["kind"]).startswith("clean")]
     print(f"{'effect':<22} {'n':>3} {'named':>6} {'param 25%':>10} {'halved':>7}  found instead / refused")
     named_right = param_ok = halved = spurious = named_any = 0
     for kind in EFFECTS:
@@ -249,10 +292,14 @@ def score(rows: list[dict[str, object]]) -> None:
         halved += len(half)
         named_any += sum(bool(r["found"]) for r in rs)
         spurious += sum(bool(r["found"]) and len(r["found"]) > 1 for r in rs)
-    kept = [r for r in clean if r["found"] == []]
-    print(f"{'clean':<22} {len(clean):>3} {len(kept):>3}/{len(clean):<2} (kept clean)  false: "
-          + "; ".join(("refused" if r["found"] is None else ",".join(r["found"])) + f" ({r['family']})"
-                      for r in clean if r not in kept))
+    # kept clean: nothing named and nothing located (the verdict "consistent"), as a user reads it
+    kept = [r for r in clean if r["found"] == [] and str(r.get("verdict", "")).startswith("consistent")]
+    for kind in ("clean", "clean_mrft"):
+        rs = [r for r in clean if r["kind"] == kind]
+        if rs:
+            ok = [r for r in rs if r in kept]
+            print(f"{kind:<22} {len(rs):>3} {len(ok):>3}/{len(rs):<2} (kept clean)  false: "
+                  + "; ".join(_false_clean(r) for r in rs if r not in ok))
     n = len(lib)
     pct = lambda a, b: f"{100 * a / b:.0f} %" if b else "-"  # noqa: E731
     print(f"right effect named: {named_right}/{n} = {pct(named_right, n)} (target >= 90 %)")
@@ -265,17 +312,31 @@ def score(rows: list[dict[str, object]]) -> None:
     print(f"CPU per recording (diagnose): median {cpu[len(cpu) // 2]:.1f} s, max {cpu[-1]:.1f} s")
 
 
+def _false_clean(r: dict[str, object]) -> str:
+    """Why a clean recording was not kept clean: refused, the effects named, or the verdict's start."""
+    if r["found"] is None:
+        why = "refused"
+    elif r["found"]:
+        why = ",".join(r["found"])
+    else:  # the first place located: "unexplained by X (...): <where>"
+        why = str(r.get("verdict", "")).partition("): ")[2][:90]
+    return f"{why} ({r['family']}, {float(r['rate']) * float(r['period']):.0f} ticks/cycle)"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--per-effect", type=int, default=2)
     ap.add_argument("--clean", type=int, default=4)
+    ap.add_argument("--clean-mrft", type=int, default=None,
+                    help="clean recordings flown as users fly them (MRFT, few cycles; default: --clean)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--seed", type=int, default=None, help="master seed (default: fresh)")
     ap.add_argument("--only", default="", help="comma-separated kinds (effects or clean)")
     args = ap.parse_args()
     master = args.seed if args.seed is not None else int(np.random.SeedSequence().entropy % (1 << 32))
     rng = np.random.default_rng(master)
-    kinds = [k for k in EFFECTS for _ in range(args.per_effect)] + ["clean"] * args.clean
+    n_users = args.clean if args.clean_mrft is None else args.clean_mrft
+    kinds = [k for k in EFFECTS for _ in range(args.per_effect)] + ["clean"] * args.clean + ["clean_mrft"] * n_users
     seeds = [int(rng.integers(1 << 31)) for _ in kinds]
     only = set(filter(None, args.only.split(",")))
     cases = [draw_case(k, s) for k, s in zip(kinds, seeds) if not only or k in only]

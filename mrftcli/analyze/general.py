@@ -41,7 +41,7 @@ from .options import AnalyzeOptions, RelayOptions
 from .record import AnalysisResult, TestSummary
 from .screen import log_start
 from .static_gain import StaticGain, is_self_regulating, static_gain
-from .smooth_cycle import CycleFit, cycle_fits, effective_relay, switching_level
+from .smooth_cycle import CycleFit, cycle_fits, effective_relay, predicted_cycle, switching_level
 
 __all__ = ["analyze_family", "response_points", "chattering_cycles", "find_tests", "screen_test", "MeasuredTest",
            "measure_test", "measure_tests", "general_analysis", "flight_windows", "mask_windows", "held_out",
@@ -225,11 +225,14 @@ def identify_points(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiId
     return identify(floored, model)
 
 
-def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoint]) -> HeldOut:
+def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoint],
+             n_h: int | None = None) -> HeldOut:
     """The test's cycle from the model identified on ``points`` (the other tests'), under its relay.
 
     The relay is the effective one where there is one (:attr:`TestSummary.predicting_relay`): the
-    level the smooth waveform had at the switches, which is what a noise-free model must reproduce.
+    level the smooth waveform had at the switches, which is what a noise-free model must reproduce;
+    an MRFT's level is read over the model's own ``n_h``-harmonic amplitude as it was over the test's
+    (:func:`~mrftcli.analyze.smooth_cycle.predicted_cycle`; ``n_h`` None: its true amplitude).
     """
     if not any(p.harmonic != STATIC_HARMONIC for p in points):  # the static gain alone is no test
         return HeldOut(None, None, "no other test")
@@ -242,7 +245,7 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
     note = f"{', '.join(fit.undetermined)} poorly determined by the other tests" if fit.undetermined else ""
     relay = test.predicting_relay
     try:
-        lc = relay.limit_cycle(fit.model, test.rate_hz)
+        lc = predicted_cycle(relay, fit.model, test.rate_hz, n_h)
     except InputError:
         # the model's noise-free cycle never reaches the level (its gain is too low at the recorded
         # frequency): predict at the level relative to the amplitude measured instead (and say so)
@@ -251,7 +254,7 @@ def held_out(model: PlantModel, test: TestSummary, points: Sequence[ResponsePoin
             return HeldOut(None, None, "the model has no limit cycle under this relay")
         mrft = RelayLaw("mrft", relay.high, relay.low, beta=beta)
         try:
-            lc = mrft.limit_cycle(fit.model, test.rate_hz)
+            lc = predicted_cycle(mrft, fit.model, test.rate_hz, n_h)
         except InputError:
             return HeldOut(None, None, "the model has no limit cycle under this relay")
         note = "; ".join(filter(None, [note, f"the noise-free loop does not reach eps {relay.eps:.3g}: "
@@ -380,7 +383,11 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
         notes.append("the biased relay's mean levels would determine K: give the operating point with --baseline Y0 "
                      "(the output with the command at 0, e.g. the ambient temperature) or --baseline-topic TOPIC: "
                      "K = (mean output - Y0) / mean command")
-    with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index]))
+    # the smooth waveform's harmonics per test (as switching_level read the effective relay over)
+    n_hs = {m.summary.index: min(f.harmonics.size for f in m.fits) for m in measured
+            if m.summary is not None and m.fits}
+    with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index],
+                                                               n_hs.get(t.index)))
                       for t in tests)
     return AnalysisResult(flight.path, flight.loop, ident.model, with_held, ident, {e.name: e for e in ident.estimates},
                           warnings=tuple(flight.warnings), notes=tuple(notes), t0=t0, flight=flight,

@@ -30,15 +30,14 @@ import numpy as np
 from scipy.stats import chi2, norm
 
 from ..analyze.general import TestSummary, identify_points, response_points
-from ..analyze.smooth_cycle import CycleFit, cycle_fits
+from ..analyze.smooth_cycle import CycleFit, cycle_fits, cycle_harmonics, peak_amplitude, predicted_cycle
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog
-from ..mrft.harmonics import fit_harmonics
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
 from ..mrft.model import PlantModel
 from ..segment.records import MrftTest
-from .effects import EffectFit, peak_amplitude
+from .effects import EffectFit
 
 __all__ = ["TestCheck", "BandResidual", "MeasuredWaveform", "measured_waveform", "check_test",
            "locate", "misfit", "verdict", "Z_LIMIT"]
@@ -283,14 +282,6 @@ def measured_waveform(flight: FlightLog, test: MrftTest, fits: Sequence[CycleFit
                             response_points(flight, test, fits=fits))
 
 
-def _cycle_harmonics(lc: LimitCycle, n_h: int) -> np.ndarray:
-    """Y_k, k = 1..n_h, of a model's limit cycle (phase from its ``-h -> +h`` switch) [output units]."""
-    t, y = np.asarray(lc.t, float), np.asarray(lc.y, float)
-    n_h = max(1, min(n_h, (t.size - 2) // 4))
-    harmonics: np.ndarray = fit_harmonics(t, y, lc.period, n_h).harmonics
-    return harmonics
-
-
 def _orbit_spread(model: PlantModel, lc: LimitCycle, measured: MeasuredWaveform, rate_hz: float) -> np.ndarray:
     """Each harmonic's spread [output units] over the sampled relay's band of orbits (:func:`_band_std`).
 
@@ -356,23 +347,11 @@ def _even_ratio(measured: MeasuredWaveform) -> float:
 def _cycle(model: PlantModel, summary: TestSummary, n_h: int) -> LimitCycle | None:
     """The model's limit cycle under the test's (effective) relay at its rate, or None.
 
-    An effective MRFT's beta is the switching level over the *smooth* waveform's amplitude (its first
-    ``n_h`` harmonics, :func:`mrftcli.analyze.smooth_cycle.switching_level`), while the model's relay
-    switches at beta times its cycle's true extremum. Where the waveform has a kink at its peak (a
-    first-order plant's output turns as the delayed input switches), eight harmonics round the peak
-    off by several per cent, and the effective beta read that way is too large by as much (-0.216 for
-    a relay of -0.2 on a clean simulated FOPDT at 500 Hz: its cycle predicted 1.1 % fast). So the
-    model's beta is the effective one times the model's own smooth-to-true amplitude ratio (one
-    fixed-point step: the ratio moves little with beta), the level measured alike on both sides.
+    The relay's MRFT level is read over the model's smooth (``n_h``-harmonic) amplitude, as the
+    effective relay's was over the recording's (:func:`mrftcli.analyze.smooth_cycle.predicted_cycle`).
     """
-    relay = summary.predicting_relay
     try:
-        lc = relay.limit_cycle(model, summary.rate_hz)
-        if relay.kind != "mrft" or not lc.amplitude > 0:
-            return lc
-        ratio = peak_amplitude(_cycle_harmonics(lc, n_h)) / lc.amplitude
-        beta = float(np.clip(relay.beta * ratio, -0.99, 0.99))
-        return dataclasses.replace(relay, beta=beta).limit_cycle(model, summary.rate_hz)
+        return predicted_cycle(summary.predicting_relay, model, summary.rate_hz, n_h)
     except (InputError, IdentificationError, ValueError, ArithmeticError):
         return None
 
@@ -444,8 +423,8 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
     all_lc = None if all_model is None else _cycle(all_model, summary, n_h)
     if all_model is not None and all_lc is not None:
         base = dataclasses.replace(base, all_frequency_hz=all_lc.frequency_hz,
-                                   all_amplitude=peak_amplitude(_cycle_harmonics(all_lc, n_h)),
-                                   all_bands=_bands(measured, _cycle_harmonics(all_lc, n_h), summary.rate_hz,
+                                   all_amplitude=peak_amplitude(cycle_harmonics(all_lc, n_h)),
+                                   all_bands=_bands(measured, cycle_harmonics(all_lc, n_h), summary.rate_hz,
                                                     _orbit_spread(all_model, all_lc, measured, summary.rate_hz)))
     if not others:
         return dataclasses.replace(base, note="no other test to hold it out against")
@@ -456,7 +435,7 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
     lc = _cycle(held.model, summary, n_h)
     if lc is None:
         return dataclasses.replace(base, note="the other tests' model has no limit cycle under this relay")
-    wave = _cycle_harmonics(lc, n_h)
+    wave = cycle_harmonics(lc, n_h)
     sf, sa = _spread(held, summary)
     bf, ba = _band_std(lc, summary.rate_hz)
     note = (f"{', '.join(held.undetermined)} not determined by the other tests: their spread is not in "

@@ -54,6 +54,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..analyze.general import MeasuredTest, identify_points
+from ..analyze.smooth_cycle import peak_amplitude
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
@@ -133,14 +134,6 @@ class TestData:
     noise_var: float
     precision: float = 0.0
     delay_gain: float = 2.0
-
-
-def peak_amplitude(Y: np.ndarray, n: int = 2048) -> float:
-    """Half the peak-to-peak of the waveform with harmonics ``Y`` (k = 1.., phase sampled at ``n``
-    points of the cycle) [output units]."""
-    phase = np.linspace(0.0, 2 * math.pi, n, endpoint=False)
-    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, Y.size + 1))) @ Y)
-    return float(0.5 * (wave.max() - wave.min()))
 
 
 def _noise_std(t: np.ndarray, y: np.ndarray, t0: float, P: float, Y: np.ndarray) -> float:

@@ -40,12 +40,16 @@ def _sidecar(log: Path) -> dict | None:
 def _ci_selection(logs: list[Path]) -> list[Path]:
     """A varied few: the first log of each (folder, flight stack, format) and each kind of broken file.
 
-    Every clean log is also analysed one by one in test_analyze_sample_logs.py; batch's own job here is
-    the machinery (config matching, processes, rows, report) and "no internal error" on every kind.
+    Every clean log is also analysed one by one in test_analyze_sample_logs.py (the SITL logs in
+    test_sitl_logs.py and test_sitl_px4_logs.py); batch's own job here is the machinery (config matching,
+    processes, rows, report) and "no internal error" on every kind. In the top folder a name's prefix is
+    its writer; in a subfolder (concealed/, sitl/) the prefix is a flight or a loop, so there the format
+    alone tells the writers apart (one DataFlash and one ULog from SITL).
     """
     seen, chosen = set(), []
     for log in sorted(logs):
-        stack = log.name.split("_")[0]  # design1, design2, px4, hear, flight: the writers differ
+        # design1, design2, px4, hear, dnn: the writers differ
+        stack = log.name.split("_")[0].split(".")[0] if log.parent == SAMPLE else ""
         kind = (log.parent, stack if stack != "design2" else "design1", "".join(log.suffixes[-2:]) if log.is_file()
                 else "folder", _sidecar(log) is None)
         if kind not in seen:

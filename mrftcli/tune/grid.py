@@ -194,7 +194,11 @@ def sampled_margins(c: Controller, Gd: NDArray[np.complex128],
     the families' gains (a fopdt PI's PM 52.36 here, 52.42 refined; eq. (2)'s PID GM 0.08 here, from
     the low-frequency crossing, 1.32 there).
     """
-    L = c.feedback_response(omega)[None, :] * Gd
+    return loop_figures(c.feedback_response(omega)[None, :] * Gd, omega)
+
+
+def loop_figures(L: NDArray[np.complex128], omega: FloatArray) -> list[tuple[float, float, float, float]]:
+    """:func:`sampled_margins` of the sampled loop ``L`` itself (a row per model, on ``omega`` [rad/s])."""
     mag = np.abs(L)
     ms = np.max(1.0 / np.abs(1.0 + L), axis=1)
     cross = (mag[:, :-1] >= 1.0) & (mag[:, 1:] < 1.0)
@@ -297,7 +301,7 @@ class _Plants:
         L = c.feedback_response(self.omega)[None, :] * self.Gd
         if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
             return False
-        if not all(pm >= o.pm_min_deg for pm, _, _, _ in sampled_margins(c, self.Gd, self.omega)):
+        if not all(pm >= o.pm_min_deg for pm, _, _, _ in loop_figures(L, self.omega)):  # the same L, not rebuilt
             return False
         return bool(np.all(self.stable(c)))
 
@@ -432,8 +436,9 @@ def _design(name: str, kind: str, p: _Plants, st: _Strategy, o: DesignOptions) -
     if best is None:
         return None
     J, c = best
-    worst = _worst(p.margins(c, len(p.all))) if len(p.all) > 1 else None
-    return design_record(name, c, p.margins(c, 1)[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
+    rows = p.margins(c, len(p.all))  # row 0 the nominal: each row's figures are its own
+    worst = _worst(rows) if len(rows) > 1 else None
+    return design_record(name, c, rows[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
                          "load step" if load else "setpoint step")
 
 

@@ -422,9 +422,9 @@ def check_test(model: PlantModel, summary: TestSummary, measured: MeasuredWavefo
                      even_ratio=_even_ratio(measured))
     all_lc = None if all_model is None else _cycle(all_model, summary, n_h)
     if all_model is not None and all_lc is not None:
-        base = dataclasses.replace(base, all_frequency_hz=all_lc.frequency_hz,
-                                   all_amplitude=peak_amplitude(cycle_harmonics(all_lc, n_h)),
-                                   all_bands=_bands(measured, cycle_harmonics(all_lc, n_h), summary.rate_hz,
+        all_wave = cycle_harmonics(all_lc, n_h)
+        base = dataclasses.replace(base, all_frequency_hz=all_lc.frequency_hz, all_amplitude=peak_amplitude(all_wave),
+                                   all_bands=_bands(measured, all_wave, summary.rate_hz,
                                                     _orbit_spread(all_model, all_lc, measured, summary.rate_hz)))
     if not others:
         return dataclasses.replace(base, note="no other test to hold it out against")

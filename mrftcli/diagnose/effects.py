@@ -528,7 +528,7 @@ class Selection:
         The effects named, in order.
     cycle_error_left : float
         RMS over the tests of each test's cycle (frequency, amplitude) predicted from the others with
-        the effects named, relative [-].
+        the effects named, relative [-] (NaN when none was named: nothing reads it then).
     cycle_precision : float
         RMS over the tests of the cycles' own relative standard error (frequency, amplitude) [-]: what
         the recording's scatter explains of the error left.
@@ -553,6 +553,8 @@ def select(model: PlantModel, tests: Sequence[TestData]) -> Selection:
         second = _rows(model, prep, [(BY_NAME[found[0].name], found[0].value)])
         rows += second
         found += sorted((r for r in second if r.found), key=lambda r: -r.delta_bic)[:1]
+    if not found:  # what the effects found leave is read only when they found something
+        return Selection(rows, found, math.nan, precision)
     kept = [(BY_NAME[f.name], f.value) for f in found]
     left = _held_out_errors(model, prep.tests, kept, [], prep.k0, prep.t_ref, ("points",))
     return Selection(rows, found, _rms(left), precision)

@@ -189,6 +189,21 @@ def test_rate_is_a_deprecated_alias():
     assert both.exit_code == 2
 
 
+def test_predict_refuses_options_its_model_or_relay_does_not_take():
+    """--eps on an MRFT and eq. (2)'s --tp/--td/--tau beside a family's --param: one line naming the option,
+    exit 2 (they were read as a hysteresis relay's advice to use a --relay option predict has not, and ignored)."""
+    runner = CliRunner()
+    eps = runner.invoke(cli, [*PREDICT, "--eps", "0.1"])
+    assert eps.exit_code == 2 and "--eps" in eps.stderr and "--relay" not in eps.stderr
+    family = ["predict", "--model", "fopdt", "--param", "K=1", "--param", "T=1", "--param", "tau=0.1", "--beta", "-0.3"]
+    assert runner.invoke(cli, family).exit_code == 0
+    mixed = runner.invoke(cli, [*family, "--tau", "0.2"])
+    assert mixed.exit_code == 2 and "--tau is for --model soiptd" in mixed.stderr
+    height = runner.invoke(cli, [*PREDICT, "--h", "-1"])  # an InputError: main() prints its one line, exit 2
+    assert height.exit_code != 0 and "--h must be a positive number" in str(height.exception)
+    assert "Traceback" not in eps.stderr + mixed.stderr
+
+
 def test_identify_with_one_beta_exits_6():
     from mrftcli.cli.main import main
 

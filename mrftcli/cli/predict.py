@@ -36,14 +36,18 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     from ..validate import check_positive
 
     model = _model(Tp, model_name, params, ranges, eps, Td, tau, K)
+    if eps and beta != 0:
+        raise click.UsageError("--eps is the hysteresis of a relay with --beta 0; an MRFT (--beta B) has none: "
+                               "leave --eps out, or give --beta 0")
     kind = "mrft" if beta != 0 else ("hysteresis" if eps else "ideal")
-    h = check_positive("h", h)
+    h = check_positive("--h", h)
     relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
     lc = relay.limit_cycle(model, rate_hz)
     out = {**lc.to_dict(), "model": model.to_json(), "relay": relay.to_json()}
     rows = [("model", f"{model.family}: G(s) = {model.structure};  "
                       + "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())),
-            ("relay", relay.describe()[len("relay: "):] + (f", rate {rate_hz:g} Hz" if rate_hz else " (continuous relay)")),
+            ("relay", relay.describe()[len("relay: "):] + " [command units]"
+                      + (f", rate {rate_hz:g} Hz" if rate_hz else " (continuous relay)")),
             ("frequency", f"{lc.frequency_hz:.6g} Hz  ({lc.omega:.6g} rad/s, period {lc.period:.6g} s)"),
             ("amplitude", f"{lc.amplitude:.6g} [output units]"),
             ("tau*Omega", f"{lc.delay_phase:.6g} rad")]
@@ -74,6 +78,10 @@ def _model(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: t
             raise click.UsageError("--model soiptd takes --tp, --td and --tau (--param and --range are for "
                                    "process models)")
         return LoopModel(Tp, Td, tau, K)
+    given = [name for name, value in (("--tp", Tp), ("--td", Td), ("--tau", tau)) if value is not None]
+    if given:
+        raise click.UsageError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for --model soiptd; "
+                               f"--model {model_name} takes its parameters as --param NAME=VALUE")
     model = build_model(model_name, params, ranges)
     missing = [p.name for p in model.parameters.values() if not p.known]
     if missing:

@@ -437,12 +437,12 @@ def _rate_from_log(log: LogSource, lay: Layout, command: Signal) -> tuple[float,
     if tick is not None:
         return 1.0 / tick, (f"{1.0 / tick:.6g} Hz from the log: the sub-sampled command's intervals are "
                             f"multiples of {tick * 1e3:.4g} ms")
-    assumed = f"{lay.controller_rate_hz or 0:g} Hz assumed"
+    if lay.controller_rate_hz is None:  # before the warning: no "0 Hz assumed" line above the error
+        raise InputError("the controller's rate is not in the log: give --controller-rate (Hz)")
+    assumed = f"{lay.controller_rate_hz:g} Hz assumed"
     log.warn(f"controller rate {assumed}: the command is logged at {rate or 0:.3g} Hz and its intervals do not "
              f"show the controller's tick; {lay.rate_assumption}. Give --controller-rate (Hz) if yours differs "
              "(a command logged at every publication shows it)")
-    if lay.controller_rate_hz is None:
-        raise InputError("the controller's rate is not in the log: give --controller-rate (Hz)")
     return lay.controller_rate_hz, f"{assumed}: {lay.rate_assumption}"
 
 

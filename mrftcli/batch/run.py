@@ -63,6 +63,7 @@ from ..validate import check_positive
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
+    from ..mrft.model import PlantModel
 
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
            "BatchOptions", "run_batch", "failed_entry", "log_record"]
@@ -211,7 +212,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
     except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
         return failed_entry(loop, err)
     if task.diagnose:
-        entry["diagnosis"] = _diagnose_loop(task, result, options.min_stable_cycles)
+        entry["diagnosis"] = _diagnose_loop(task, result, model, options.min_stable_cycles)
     if task.tune:
         entry["tune"] = _tune_loop(result, task.tune)
     return entry
@@ -230,19 +231,17 @@ def _tune_loop(analysis: AnalysisResult, kind: str) -> dict[str, Any]:
         return {"tune_error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}"}
 
 
-def _diagnose_loop(task: LogTask, analysis: AnalysisResult, min_stable_cycles: int = 3) -> dict[str, Any]:
+def _diagnose_loop(task: LogTask, analysis: AnalysisResult, model: PlantModel,
+                   min_stable_cycles: int = 3) -> dict[str, Any]:
     """Run the diagnosis (:func:`mrftcli.diagnose.selection.diagnose`, which takes every family) on an
-    analysed loop, reusing its signals (and eq. (2)'s segmentation); its failure is recorded but leaves the
-    analysis ok. The record is ``diagnose --json``'s without its version (DiagnosisResult.to_dict)."""
+    analysed loop with the model it was analysed with, reusing its signals (and eq. (2)'s segmentation);
+    its failure is recorded but leaves the analysis ok. The record is ``diagnose --json``'s without its
+    version (DiagnosisResult.to_dict)."""
     try:
         from ..diagnose.selection import diagnose
-        from ..mrft.model import soiptd_model
 
-        model = task.model
-        if model is None and task.settings.tp is not None:  # eq. (2): the model of the log's Tp
-            model = soiptd_model(task.settings.tp)
-        if analysis.flight is None or model is None:  # a fresh analysis has both (Tp was checked)
-            raise InputError("the diagnosis needs the analysis's flight signals and Tp")
+        if analysis.flight is None:  # a fresh analysis has it
+            raise InputError("the diagnosis needs the analysis's flight signals")
         result = diagnose(analysis.flight, model, analysis=analysis if task.model is None else None,
                           min_stable_cycles=min_stable_cycles)
         return {"status": STATUS_OK, "error": None, **result.to_dict()}

@@ -154,3 +154,27 @@ def test_an_effect_on_an_integrating_plant_is_named_and_held_out_better(effect, 
     (first, *_) = result.effects
     assert first.value == pytest.approx(value, rel=0.1)
     assert first.held_out_after < 0.5 * first.held_out_before
+
+
+def test_the_diagnosis_checks_the_analysis_analyze_prints_with_its_baseline():
+    """``analyze --model --baseline Y0 --diagnose``: the diagnosis' analysis is the one analyze prints (the
+    operating point's static-gain constraint included), not a second one without it. Oracle: the analysis
+    itself, run with and without the baseline on a biased-relay FOPDT flown by tests/process_sim.py."""
+    from mrftcli.analyze.general import general_analysis, measure_tests
+    from mrftcli.io.logtypes import FlightLog, Signal
+
+    windows = [Window("hysteresis", 1.5, -0.5, eps=0.05, duration=15, rest=3),
+               Window("hysteresis", 2.0, -1.0, eps=0.1, duration=15, rest=3)]
+    t, u, y = simulate("fopdt", dict(K=2.0, T=1.0, tau=0.3), windows, 100.0, 0.003, seed=3)
+    flight = FlightLog(path="biased.sim", loop="altitude", command=Signal(t, u), output=Signal(t, y))
+    model = family_model("fopdt")
+    with_y0 = general_analysis(flight, model, measure_tests(flight), (), (0.0, 0.01))
+    without = general_analysis(flight, model, measure_tests(flight))
+    result = diagnose(flight, model, baseline=(0.0, 0.01))
+    assert result.analysis is not None and result.analysis.identification is not None
+
+    def k(a):
+        return next(e for e in a.identification.estimates if e.name == "K")
+
+    assert (k(result.analysis).value, k(result.analysis).std) == (k(with_y0).value, k(with_y0).std)
+    assert (k(with_y0).value, k(with_y0).std) != (k(without).value, k(without).std)  # the baseline is seen

@@ -330,7 +330,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
                 diagnosis = run_diagnosis(flight, model, analysis=result, progress=stage("diagnose"))
             else:
                 diagnosis = run_diagnosis(flight, model, progress=stage("diagnose"), relay=options.relay,
-                                          windows=options.windows, min_stable_cycles=min_cycles)
+                                          windows=options.windows, min_stable_cycles=min_cycles,
+                                          baseline=options.baseline)
         index = None
         if report_dir:
             from ..report.analysis import write_analysis_report

@@ -47,7 +47,7 @@ import numpy as np
 from ..analyze.general import general_analysis, measure_tests
 from ..analyze.options import RelayOptions
 from ..errors import InputError, MrftError
-from ..io.logtypes import FlightLog
+from ..io.logtypes import FlightLog, Signal
 from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .candidates import LinearFit, fit_linear, search_candidates
@@ -136,6 +136,7 @@ def diagnose(
     relay: RelayOptions = RelayOptions(),
     windows: Sequence[tuple[float, float]] = (),
     min_stable_cycles: int = 3,
+    baseline: tuple[float | Signal, float] | None = None,
 ) -> DiagnosisResult:
     """Locate model mismatch in a relay-test log, name the missing physics, fit it, compare.
 
@@ -160,9 +161,10 @@ def diagnose(
         Called as ``progress(done, total, stage)`` before each stage.
     candidates : tuple of str, optional
         Eq. (2): restrict the candidate library (JSON names); default all.
-    relay, windows, min_stable_cycles
+    relay, windows, min_stable_cycles, baseline
         The other families: what is stated about the relay, the parts of the log to use [s, log
-        clock], the fewest stable cycles of a test (as ``analyze --model``).
+        clock], the fewest stable cycles of a test, the operating point (``AnalyzeOptions.baseline``:
+        the same analysis as ``analyze --model`` with those options).
 
     Raises
     ------
@@ -187,18 +189,18 @@ def diagnose(
     [('sensor_lag', 0.07)]
     """
     if not isinstance(model, LoopModel):
-        return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress)
+        return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress, baseline)
     return _diagnose_soiptd(flight, model, analysis, progress, candidates)
 
 
 def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                      windows: Sequence[tuple[float, float]], min_stable_cycles: int,
-                     progress: Progress | None) -> DiagnosisResult:
+                     progress: Progress | None, baseline: tuple[float | Signal, float] | None = None) -> DiagnosisResult:
     """Every family but eq. (2): the analysis, the checks per test, the library of physics, the verdict."""
     say = _Stages(progress, 3)
     say("analysing the tests")
     stage = measure_tests(flight, relay, windows, min_stable_cycles)  # segmented once, for both uses
-    analysis = general_analysis(flight, model, stage, windows)
+    analysis = general_analysis(flight, model, stage, windows, baseline)
     by_index = {m.summary.index: m for m in stage if m.summary is not None}
     measured, skipped = {}, []
     for s in analysis.tests:

@@ -476,7 +476,7 @@ def test_terminal_states_a_mode_found_ringing_with_its_frequency_and_p_value():
     # TypeError on the None before)
     from mrftcli.cli.diagnose import format_summary
     from mrftcli.diagnose.resonance import ringing_answer
-    from mrftcli.diagnose.ringing import RingingFit
+    from mrftcli.diagnose.resonance import RingingFit
 
     fit = RingingFit(frequency_hz=12.06, damping=0.05, amplitude=0.98, chi2_drop=149.3, template_chi2=154.4,
                      dispersion=1.0, trials=358, p_value=8.6e-32, tests=[0, 1, 2], rms=1.4e-4)

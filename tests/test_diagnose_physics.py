@@ -302,7 +302,7 @@ def test_a_mount_rings_after_the_switches_at_its_frequency_and_damping(tmp_path,
     from mrftcli.diagnose.candidates import fit_linear
     from mrftcli.diagnose.fit import plant_params
     from mrftcli.diagnose.resonance import resonance_mismatch
-    from mrftcli.diagnose.ringing import RINGING_P, fit_ringing, switch_harmonics
+    from mrftcli.diagnose.resonance import RINGING_P, fit_ringing, switch_harmonics
     from mrftcli.diagnose.screen import screen_log
     from mrftcli.mrft.model import LoopModel
 
@@ -331,7 +331,7 @@ def test_ringing_fit_is_calibrated_on_noise_and_finds_a_planted_mode():
     # (drawn here): the Bonferroni p-value falls below alpha no more often than alpha; a 13 Hz mode of
     # damping 0.035 planted with its resonance H(jw) = w_n^2 / (w_n^2 - w^2 + 2j zeta w_n w) (written
     # here) is found at its frequency and damping
-    from mrftcli.diagnose.ringing import SwitchHarmonics, fit_ringing
+    from mrftcli.diagnose.resonance import SwitchHarmonics, fit_ringing
     from mrftcli.mrft.model import LoopModel
 
     rng = np.random.default_rng(8)

@@ -18,8 +18,7 @@ within 10 % on every test. A recording the tool refuses (no usable test, an unde
 counts as a miss. Also timed: the response-point fit (:func:`~mrftcli.mrft.identify_lti.fit_response_points`, the
 families' strategy of :func:`~mrftcli.mrft.identify.identify`) on the recordings' response points, by its route
 for the built-in families (the closed-form residuals and Jacobian of ``mrft/lti_kernel.py``) and,
-in the same process, alternating per recording, by the general route (a response grid and
-forward-difference Jacobian, what any other structure with a grid gets) and the library route
+in the same process, alternating per recording, by the general route every other structure takes
 (a model object per grid point, ``scipy.optimize.least_squares``).
 
 With ``--baseline`` each recording is analysed a second time, in the same process, with the per-cycle
@@ -233,16 +232,14 @@ def _print_baseline(rows: list[dict[str, object]], n: int, totals: dict[str, int
 
 
 #: the routes timed, each as the response-point fit with a set of its fast paths switched off (same process)
-ROUTES = ("closed form", "general", "library")
+ROUTES = ("closed form", "library")
 
 
 def _print_timing(times: dict[str, dict[str, list[float]]]) -> None:
     now = times["closed form"]
     print("response-point fit per call (median over the recordings' response points; best of 5 calls each, the routes "
           "interleaved): " + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms" for f, v in now.items()))
-    labels = {"general": "the general route (the same code without the families' closed form: a response grid, "
-                         "forward-difference Jacobian)",
-              "library": "the library route (a model object per grid point, scipy least_squares)"}
+    labels = {"library": "the library route (a model object per grid point, scipy least_squares)"}
     for route, label in labels.items():
         print(f"  {label}: " + ", ".join(f"{f} {1e3 * np.median(v):.2f} ms ({np.median(v) / np.median(now[f]):.1f}x)"
                                          for f, v in times[route].items()))
@@ -266,22 +263,18 @@ def _time_calls(fit, cases) -> dict[str, dict[str, list[float]]]:
 
 @contextlib.contextmanager
 def _route(route: str):
-    """The response-point fit with its fast paths switched off down to ``route``: "general" without the families'
-    closed-form kernel (mrft/lti_kernel.py), "library" also without the response grid and the hand-written
-    Levenberg-Marquardt (a model object per grid point, scipy's least_squares: the first implementation)."""
-    from mrftcli.mrft import families
+    """The response-point fit with its fast path switched off for ``route`` "library": without the families'
+    closed-form kernel (mrft/lti_kernel.py) and the hand-written Levenberg-Marquardt (a model object per grid
+    point, scipy's least_squares: the first implementation, and what a declared structure takes)."""
     from mrftcli.mrft.lti_kernel import LagChainKernel
 
-    of, grid = LagChainKernel.__dict__["of"], families._Family.frequency_response_grid
+    of = LagChainKernel.__dict__["of"]
     try:
         if route != "closed form":
             LagChainKernel.of = classmethod(lambda cls, *a, **k: None)  # type: ignore[method-assign]
-        if route == "library":
-            del families._Family.frequency_response_grid
         yield
     finally:
         LagChainKernel.of = of  # type: ignore[method-assign]
-        families._Family.frequency_response_grid = grid  # type: ignore[method-assign]
 
 
 if __name__ == "__main__":

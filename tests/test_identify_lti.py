@@ -3,7 +3,7 @@
 Oracles: the families' complex frequency response (``frequency_response``: K e^{-tau s} / den,
 evaluated in complex arithmetic, no shared formula with the kernel's real log-gain and arctan sums);
 central differences of the residuals for the Jacobian; the general route of identify's response-point fit (a
-response grid and forward differences, the kernel switched off) for the minimum and its
+model object per grid point and scipy's least_squares, the kernel switched off) for the minimum and its
 uncertainty; exact points of a known plant for the answer itself.
 """
 

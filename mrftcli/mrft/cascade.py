@@ -55,7 +55,7 @@ from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parame
     model_json_parameters
 
 __all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
-           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "json_number", "SwitchedOrbit"]
+           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit"]
 
 if TYPE_CHECKING:
     from .lprs import LimitCycle
@@ -80,14 +80,6 @@ CASCADE_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
 # ----------------------------------------------------------------------------------------------
 # the inner loop
 # ----------------------------------------------------------------------------------------------
-def json_number(data: Mapping[str, Any], key: str, what: str) -> float:
-    """``data[key]`` as a finite float; :class:`~mrftcli.errors.InputError` naming ``what`` otherwise."""
-    value = data.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"{what}: {key!r} must be a number, got {value!r}")
-    return float(value)
-
-
 @dataclass(frozen=True)
 class InnerLoop:
     """The inner loop an outer loop goes through: its identified plant and the controller flying it.

@@ -20,7 +20,8 @@ from scipy import optimize
 from ..errors import IdentificationError, InputError
 from ..jsonable import check_schema_version
 from ..validate import check_positive
-from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop, json_number
+from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop
+from .controller import json_number
 from .identify import TestMeasurement
 from .parameter import Z95, ParameterEstimate
 from .lprs import LimitCycle
@@ -79,10 +80,11 @@ class CascadeTestFit:
             raise InputError("cascade identification JSON: each test must be an object")
         amp = data.get("amplitude")
         band = data.get("band_hz") or [math.nan, math.nan]
-        return cls(json_number(data, "beta", "cascade test"), json_number(data, "h", "cascade test"),
-                   json_number(data, "frequency_hz", "cascade test"), math.nan if amp is None else float(amp),
-                   json_number(data, "predicted_hz", "cascade test"), json_number(data, "predicted_amplitude", "cascade test"),
-                   (float(band[0]), float(band[1])))
+        def num(key: str) -> float:
+            return json_number(data, key, "cascade test", finite=True)
+
+        return cls(num("beta"), num("h"), num("frequency_hz"), math.nan if amp is None else float(amp),
+                   num("predicted_hz"), num("predicted_amplitude"), (float(band[0]), float(band[1])))
 
 
 @dataclass(frozen=True)
@@ -130,7 +132,7 @@ class CascadeIdentification:
         model = CascadeModel.from_json(d["model"])
         return cls(model, {str(k): _estimate_json(str(k), v) for k, v in params.items()},
                    tuple(CascadeTestFit.from_json(t) for t in d.get("tests") or ()),
-                   json_number(d, "rate_hz", "cascade identification JSON"), int(d.get("inner_draws") or 0),
+                   json_number(d, "rate_hz", "cascade identification JSON", finite=True), int(d.get("inner_draws") or 0),
                    {str(k): float(v) for k, v in (d.get("inner_std") or {}).items()})
 
 

@@ -27,12 +27,13 @@ from ..validate import check_positive
 __all__ = ["Controller", "RateFilter", "json_number"]
 
 
-def json_number(data: Mapping[str, Any], key: str, what: str) -> float:
-    """``data[key]`` as a float (a JSON number, or the strings "inf"/"nan" of a tune record); InputError naming it."""
+def json_number(data: Mapping[str, Any], key: str, what: str, finite: bool = False) -> float:
+    """``data[key]`` as a float (a JSON number, or the strings "inf"/"nan" of a tune record; ``finite``: a
+    finite number only); InputError naming it."""
     value = data.get(key)
-    if isinstance(value, str) and value in ("inf", "-inf", "nan"):
+    if isinstance(value, str) and value in ("inf", "-inf", "nan") and not finite:
         return float(value)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (finite and not math.isfinite(value)):
         raise InputError(f"{what}: {key!r} must be a number, got {value!r}")
     return float(value)
 

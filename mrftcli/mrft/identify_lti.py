@@ -17,11 +17,10 @@ grid point is refined together with ``tau`` and ``K``. Speed (the issue asks < 1
 built-in families; bench_families prints it): where hand-written code beat the library, it says so.
 The built-in families' log-gain, phase and Jacobian are real closed forms
 (:class:`~mrftcli.mrft.lti_kernel.LagChainKernel`), so the grid and every step need no complex
-response and no forward differences; another structure with a response grid gets one numpy
-expression over the grid (``frequency_response_grid``) and forward differences. The refinement is
-a short Levenberg-Marquardt (:func:`_levenberg_marquardt`) instead of ``scipy.optimize.least_squares``,
-whose set-up cost more than the few steps needed from the grid's start (a declared structure keeps
-``least_squares``), and its 2-4 unknown systems go to LAPACK directly. No table is cached: the
+response and no forward differences (any other structure, e.g. a declared one, gets a model object
+per grid point and ``scipy.optimize.least_squares``). The families' refinement is a short
+Levenberg-Marquardt (:func:`_levenberg_marquardt`) instead of ``least_squares``, whose set-up cost
+more than the few steps needed from the grid's start, and its 2-4 unknown systems go to LAPACK directly. No table is cached: the
 direct solve is under a millisecond from the first call. The covariance is the Gauss-Newton one,
 inflated by the reduced chi-square when the points disagree beyond their standard errors; 95 %
 intervals are formed on the log scale for positive parameters and cut at a bound of the set I (then
@@ -358,10 +357,10 @@ class _Problem:
 
 def _start(problem: _Problem) -> dict[str, float]:
     """The best point of the log grid over the time constants (K and tau profiled out)."""
-    if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
+    if problem.kernel is not None:
         return _start_grid(problem)
     best: tuple[float, dict[str, float]] = (math.inf, {})
-    symmetric = problem.model.family == "sopdt"
+    symmetric = problem.model.family == "sopdt" and len(problem.shape) == 2
     for combo in itertools.product(*_axes(problem)):
         if symmetric and combo[0] < combo[1]:
             continue  # two interchangeable lags (SOPDT): search T1 >= T2 only
@@ -380,17 +379,16 @@ def _start(problem: _Problem) -> dict[str, float]:
 
 
 def _start_grid(problem: _Problem) -> dict[str, float]:
-    """:func:`_start` with every grid point at once (:func:`_grid_misfit`; the same profile as
-    :meth:`_Problem.profile`, vectorised over the grid: a loop over model objects cost 2-90 ms)."""
+    """:func:`_start` of the built-in families with every grid point at once (the kernel's
+    :meth:`~mrftcli.mrft.lti_kernel.LagChainKernel.lag_grid` on the unit grid of :func:`_axes` about
+    1/omega; the same profile as :meth:`_Problem.profile`, vectorised over the grid: a loop over model
+    objects cost 2-90 ms)."""
     d = problem.data
     n = len(problem.shape)
-    if getattr(problem.model, "grid_from_ranges", False):
-        axis, index = np.zeros(0), np.zeros((0, n), np.intp)
-        combos = np.array(list(itertools.product(*_axes(problem))), dtype=float) if n else np.zeros((1, 0))
-    else:  # the built-in families: the unit grid of _axes about 1/omega
-        unit, index = _unit_grid(n, n > 1 and problem.model.family == "sopdt")
-        axis = unit / d.w_median
-        combos = axis[index]
+    assert problem.kernel is not None
+    unit, index = _unit_grid(n, n > 1 and problem.model.family == "sopdt")
+    axis = unit / d.w_median
+    combos = axis[index]
     if any(problem.bounds[name] != (0.0, math.inf) for name in problem.shape):
         keep = np.ones(len(combos), bool)
         for k, name in enumerate(problem.shape):
@@ -398,7 +396,8 @@ def _start_grid(problem: _Problem) -> dict[str, float]:
         combos, index = combos[keep], index[keep]
     if not len(combos) and problem.unknown:
         raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
-    gain, phase = _grid_misfit(problem, combos, axis, index)
+    # the model's ln|G| and arg G (any branch) minus the points', K at its sign and tau at 0 (or known)
+    gain, phase = problem.kernel.lag_grid(axis, index)
     if "K" in problem.unknown:  # ln|K|: the weighted mean log-gain misfit
         wg = d.w_gain ** 2
         K = _clip(problem.k_sign * np.exp(-(gain @ wg) / wg.sum()), *problem.bounds["K"])
@@ -421,23 +420,6 @@ def _start_grid(problem: _Problem) -> dict[str, float]:
     if "tau" in problem.unknown:
         out["tau"] = float(tau[i])
     return out
-
-
-def _grid_misfit(problem: _Problem, combos: FloatArray, axis: FloatArray,
-                 index: NDArray[np.intp]) -> tuple[FloatArray, FloatArray]:
-    """The model's ln|G| and arg G (any branch) minus the points' for each grid row of time constants
-    (``combos``; for the families also as indices into ``axis``), with K at its sign (or its known
-    value) and tau at 0 (or its known value): shape (rows, points) [-], [rad]."""
-    d = problem.data
-    if problem.kernel is not None:
-        return problem.kernel.lag_grid(axis, index)
-    params = problem.model.parameters
-    values: dict[str, Any] = dict(problem.given)
-    values.update({n: combos[:, k] for k, n in enumerate(problem.shape)})
-    values["K"] = problem.k_sign * abs(params["K"].value) if "K" not in problem.unknown else problem.k_sign
-    values["tau"] = params["tau"].value if "tau" not in problem.unknown else 0.0
-    G = problem.model.frequency_response_grid(d.omega, values)  # type: ignore[attr-defined]
-    return np.log(np.abs(G)) - d.log_gain, np.angle(G) - d.phase
 
 
 @functools.lru_cache(maxsize=8)
@@ -504,7 +486,7 @@ def fit_response_points(points: Sequence[ResponsePoint], model: PlantModel) -> L
     z0 = problem.z_of(start)
     lo, hi = problem.z_bounds()
     z0 = _interior(z0, lo, hi)
-    if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
+    if problem.kernel is not None:
         z, r, J = _off_ridge(problem, *_levenberg_marquardt(problem, z0, lo, hi), lo, hi)
     else:
         sol = optimize.least_squares(problem.residuals, z0, bounds=(lo, hi), x_scale="jac", method="trf")
@@ -517,7 +499,7 @@ def fit_response_points(points: Sequence[ResponsePoint], model: PlantModel) -> L
     cov = _pinv_psd(J.T @ J) * inflate
     flat = _null_parameters(problem, J)
     profiled, region = None, [z]
-    if problem.kernel is not None or hasattr(problem.model, "frequency_response_grid"):
+    if problem.kernel is not None:
         profiled = _profile_ends(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, cov, flat, region)
     out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, flat, profiled)
     if len(out.undetermined) >= 2:
@@ -602,19 +584,6 @@ def _pinv_psd(A: FloatArray) -> FloatArray:
     return out
 
 
-def _residuals_batch(problem: _Problem, Z: FloatArray) -> FloatArray:
-    """:meth:`_Problem.residuals` of several parameter vectors (rows of ``Z``) in one numpy expression."""
-    d = problem.data
-    values: dict[str, Any] = dict(problem.given)
-    rows = [problem.values(z) for z in Z]
-    values.update({n: np.array([v[n] for v in rows]) for n in problem.unknown})
-    G = problem.model.frequency_response_grid(d.omega, values)  # type: ignore[attr-defined]
-    r_gain = (np.log(np.abs(G)) - d.log_gain) * d.w_gain
-    r_phase = _wrap(np.angle(G) - d.phase) * d.w_phase
-    out: FloatArray = np.concatenate([r_gain, r_phase], axis=1)
-    return out
-
-
 def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray,
                          fixed: int | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
     """The weighted least-squares fit from the grid's start: (z, residuals, Jacobian) at the solution.
@@ -622,29 +591,19 @@ def _levenberg_marquardt(problem: _Problem, z: FloatArray, lo: FloatArray, hi: F
     Hand-written where ``scipy.optimize.least_squares`` (trf) was 90 % of a call: from the grid's start
     it needs 3-6 steps, but its set-up, bound handling and numerical Jacobian cost 1-2 ms; here a step
     is a 2-4 unknown linear solve (bounds by projection: the set I's edges). The residuals and the
-    Jacobian are the built-in families' closed forms (:class:`~mrftcli.mrft.lti_kernel.LagChainKernel`)
-    or, for another structure with a response grid, :func:`_residuals_batch` and its forward
-    differences. Same minimum (the tests compare). ``fixed``: the index of an unknown held at its
-    value in ``z`` (its Jacobian column zeroed: the profile of :func:`_profile_ends`).
+    Jacobian are the built-in families' closed forms (:class:`~mrftcli.mrft.lti_kernel.LagChainKernel`).
+    Same minimum as ``least_squares`` (the tests compare). ``fixed``: the index of an unknown held at
+    its value in ``z`` (its Jacobian column zeroed: the profile of :func:`_profile_ends`).
     """
     kernel = problem.kernel
+    assert kernel is not None
+    evaluate = kernel.evaluate
 
-    def evaluate(z: FloatArray) -> tuple[FloatArray, FloatArray | None]:
-        """Residuals and, from the closed form, the Jacobian (None: forward differences when needed)."""
-        return kernel.evaluate(z) if kernel is not None else (_residuals_batch(problem, z[None, :])[0], None)
-
-    def jacobian(z: FloatArray, r: FloatArray, J: FloatArray | None) -> FloatArray:
-        if J is not None and fixed is not None:
+    def jacobian(z: FloatArray, r: FloatArray, J: FloatArray) -> FloatArray:
+        if fixed is not None:
             J = J.copy()
             J[:, fixed] = 0.0
-        if J is not None:
-            return J
-        h = 1e-7 * np.maximum(1.0, np.abs(z))
-        h = np.where(z + h > hi, -h, h)  # stay inside the range at its upper edge
-        J_fd: FloatArray = ((_residuals_batch(problem, z + np.diag(h)) - r) / h[:, None]).T
-        if fixed is not None:
-            J_fd[:, fixed] = 0.0
-        return J_fd
+        return J
 
     def largest(x: NDArray[np.floating[Any]]) -> float:  # max |x| of a 2-4 vector (np.max's overhead was a tenth of a step)
         return float(max(map(abs, x.tolist())))
@@ -729,6 +688,8 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
     profile), the cost rises by ``delta`` exactly for a linear fit; a rise within 0.5-2 ``delta``
     keeps the linear end. Only a flatter or a steeper (curved) rise is profiled.
     """
+    kernel = problem.kernel
+    assert kernel is not None
     out = {}
     for i, name in enumerate(problem.unknown):
         if name in flat:
@@ -740,7 +701,7 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
             bound = lo[i] if sign < 0 else hi[i]
             probe = z + sign * half * slope
             if np.all(probe >= lo) and np.all(probe <= hi):
-                rise = float(np.sum(_cost_residuals(problem, probe) ** 2)) - cost0
+                rise = float(np.sum(kernel.residuals(probe) ** 2)) - cost0
                 if 0.5 * delta <= rise <= 2.0 * delta:  # linear enough: the linear end stands
                     ends.append(z[i] + sign * half)
                     continue
@@ -766,13 +727,6 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
                 prev_x, prev_rise, start = x, rise, zf.copy()
             ends.append(z[i] + sign * 16 * half if end is None else end)
         out[i] = (ends[0], ends[1])
-    return out
-
-
-def _cost_residuals(problem: _Problem, z: FloatArray) -> FloatArray:
-    """The weighted residuals at ``z`` by the fit's own route (closed form, or the response grid)."""
-    out: FloatArray = (problem.kernel.residuals(z) if problem.kernel is not None
-                       else _residuals_batch(problem, z[None, :])[0])
     return out
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from mrftcli.diagnose.scatter import (ScatterSetting, expected_period_variance, fit_jitter, pooled_scatter_error,
                                       refit_sigma, scatter_sample)
-from mrftcli.diagnose.jitter import variance_deviance_z
+from mrftcli.diagnose.scatter import variance_deviance_z
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.mrft.model import LoopModel
 from mrftcli.segment import segment

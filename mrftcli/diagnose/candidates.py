@@ -22,7 +22,7 @@ from ..mrft.model import LoopModel
 from .fit import (CandidateModel, Fit, candidate_starts, effect_value, fit_base, fit_model, plant_params, residuals,
                   theta_bounds)
 from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significant
-from .jitter import scatter_reference, scatter_z
+from .scatter import scatter_reference, scatter_z
 from .physics import CANDIDATES, Effect
 from .records import CandidateFit, HeldOut
 from .screen import Screen

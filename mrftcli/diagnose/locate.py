@@ -17,7 +17,7 @@ from scipy.stats import chi2 as chi2_dist
 from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
-from .jitter import scatter_z
+from .scatter import scatter_z
 from .records import CandidateFit, CycleErrors, Disagreement, EffectFinding, FinalModel, HeldOut, Unexplained
 
 __all__ = ["UNEXPLAINED_P", "FEATURE_TEXT", "Located", "locate", "unexplained_mismatch"]
@@ -176,7 +176,7 @@ def locate(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, recs_all
     recs_all : list of (FeatureSummary, ndarray)
         Per test, the features over all its stable cycles and their standard errors.
     scatter : list of dict
-        Per test, the noise-only period scatter (:func:`mrftcli.diagnose.jitter.scatter_reference`).
+        Per test, the noise-only period scatter (:func:`mrftcli.diagnose.scatter.scatter_reference`).
     """
     items: list[Disagreement] = []
     ia = FEATURE_NAMES.index("log_amplitude")

@@ -56,7 +56,7 @@ from .effects import as_test_data, select as select_effects_on
 from .fit import plant_params
 from .heldout import significant
 from .identification import EffectIdentification, Identification, ModelEstimate, analyze_model
-from .jitter import jitter_candidate, scatter_reference, scatter_z
+from .scatter import jitter_candidate, scatter_reference, scatter_z
 from .locate import locate, unexplained_mismatch
 from .pairs import effect_finding, select_effects
 from .physics import BIC_THRESHOLD, BY_NAME, CANDIDATES, unit_in_loop

@@ -79,6 +79,15 @@ class ModelEstimate:
         """Td, tau [s] and K, those fitted."""
         return {k: v for k, v in (("Td", self.Td), ("tau", self.tau), ("K", self.K)) if v is not None}
 
+    @classmethod
+    def of_plant(cls, plant: dict[str, Any]) -> ModelEstimate:
+        """The cycles estimate of a plant's ``{"Td", "tau", "K"}`` [s, s, gain] (those given and not None)."""
+        unknown = set(plant) - {"Td", "tau", "K"}
+        if unknown:
+            raise InputError(f"a plant estimate holds Td, tau and K only, got {sorted(unknown)}")
+        Td, tau, K = (None if plant.get(k) is None else float(plant[k]) for k in ("Td", "tau", "K"))
+        return cls(Td=Td, tau=tau, K=K)
+
 
 def _number(value: Any, key: str) -> float | None:
     if value is None:
@@ -138,14 +147,7 @@ class EffectIdentification:
     @classmethod
     def of(cls, linear: dict[str, float], with_effect: dict[str, float], model: str | None = None) -> EffectIdentification:
         """The record of two fits' plant parameters (``{"tau", "K", "Td"}`` [s, s, gain], those fitted)."""
-        def estimate(p: dict[str, float]) -> ModelEstimate:
-            unknown = set(p) - {"Td", "tau", "K"}
-            if unknown:
-                raise InputError(f"a plant estimate holds Td, tau and K only, got {sorted(unknown)}")
-            Td, tau, K = (None if p.get(k) is None else float(p[k]) for k in ("Td", "tau", "K"))
-            return ModelEstimate(Td=Td, tau=tau, K=K)
-
-        return cls(linear=estimate(linear), with_effect=estimate(with_effect), model=model)
+        return cls(linear=ModelEstimate.of_plant(linear), with_effect=ModelEstimate.of_plant(with_effect), model=model)
 
 
 @dataclass(frozen=True)
@@ -171,8 +173,7 @@ class AnalyzeModel:
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object: Td, tau, K, then how analyze got them and why they differ."""
-        out: dict[str, Any] = {k: getattr(self.estimate, k) for k in ("Td", "tau", "K")
-                               if getattr(self.estimate, k) is not None}
+        out: dict[str, Any] = self.estimate.plant()
         if self.method is not None:
             out.update(method=self.method, tests=self.tests, differs_because=self.differs_because)
         return out
@@ -282,8 +283,7 @@ class Identification:
             rec = Recommendation("linear", self.linear, "the linear model explains the log (its fit to the cycles; "
                                  "analyze's estimate of the same log is the one to take when it is at hand)")
         # the recommendation states the plant (Td, tau, K); the entry it names keeps the rest
-        plant = rec.estimate
-        return replace(self, recommended=replace(rec, estimate=ModelEstimate(Td=plant.Td, tau=plant.tau, K=plant.K)))
+        return replace(self, recommended=replace(rec, estimate=ModelEstimate.of_plant(rec.estimate.plant())))
 
     def to_json(self) -> dict[str, Any]:
         """The JSON's ``identification`` object."""
@@ -328,8 +328,7 @@ def analyze_model(analysis: AnalysisResult) -> AnalyzeModel:
     plant = {k: float(v) for k, v in means.items() if v is not None and math.isfinite(float(v))}
     if "K" in plant:
         plant["K"] = abs(plant["K"])  # the loop's sign is the layout's, not the plant's
-    estimate = ModelEstimate(Td=plant.get("Td"), tau=plant.get("tau"), K=plant.get("K"))
-    return AnalyzeModel(estimate=estimate, method="waveform" if analysis.method == "waveform" else "mrft",
+    return AnalyzeModel(estimate=ModelEstimate.of_plant(plant), method="waveform" if analysis.method == "waveform" else "mrft",
                         tests=[[t.t_start - analysis.t0, t.t_end - analysis.t0] for t in analysis.tests],
                         differs_because=DIFFERS_BECAUSE)
 

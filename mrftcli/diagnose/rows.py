@@ -33,20 +33,23 @@ def expect_list(value: Any, key: str) -> list[Any]:
 
 
 class _FieldsRow:
-    """A row whose JSON item is every field, in order (``_KEY`` names it in messages)."""
+    """A row whose JSON item is every field, in order (``_KEY`` names it in messages; the ``_OPTIONAL``
+    fields only when set)."""
 
     _KEY: ClassVar[str]
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON item."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]  # a dataclass mixin
+        return {f.name: getattr(self, f.name) for f in fields(self)  # type: ignore[arg-type]  # a dataclass mixin
+                if not (f.name in self._OPTIONAL and getattr(self, f.name) is None)}
 
     @classmethod
     def from_dict(cls, data: Any) -> Any:
         """The row of a :meth:`to_dict` item (exactly its keys)."""
         data = expect_object(data, cls._KEY)
         names = [f.name for f in fields(cls)]  # type: ignore[arg-type]  # a dataclass mixin
-        if set(data) != set(names):
+        if not set(names) - cls._OPTIONAL <= set(data) <= set(names):
             raise InputError(f"the diagnosis' {cls._KEY} item has keys {sorted(data)}, not {names}")
         return cls(**data)
 
@@ -120,10 +123,6 @@ class HeldOut:
         return cls(kind=kind, **{k: data.get(k) for k in _HELD_OUT_KEYS[kind]})
 
 
-def _held_out_or_none(value: Any) -> HeldOut | None:
-    return None if value is None else HeldOut.from_dict(value)
-
-
 #: the keys of a candidate row's JSON, per layout (in this order)
 _CANDIDATE_KEYS = {
     "fitted": ("name", "parameter", "value", "std", "unit", "chi2", "bic", "delta_bic", "held_out_before",
@@ -158,7 +157,7 @@ def _from_layout_item(cls: Any, data: dict[str, Any], layout: str, keys: tuple[s
     values = {k: data.get((rename or {}).get(k, k)) for k in keys}
     for k in ("held_out_before", "held_out_after"):
         if k in values:
-            values[k] = _held_out_or_none(values[k])
+            values[k] = None if values[k] is None else HeldOut.from_dict(values[k])
     return cls(layout=layout, **values)
 
 
@@ -318,7 +317,7 @@ class PairFit:
 
 
 @dataclass(frozen=True)
-class Evidence:
+class Evidence(_FieldsRow):
     """Why an effect is reported.
 
     Attributes
@@ -345,20 +344,8 @@ class Evidence:
     bic_base: float
     indistinguishable_from: list[str] | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        out = {"delta_bic": self.delta_bic, "bic": self.bic, "n_features": self.n_features,
-               "threshold": self.threshold, "compared_with": self.compared_with, "bic_base": self.bic_base}
-        if self.indistinguishable_from is not None:
-            out["indistinguishable_from"] = self.indistinguishable_from
-        return out
-
-    @classmethod
-    def from_dict(cls, data: Any) -> Evidence:
-        data = expect_object(data, "evidence")
-        ties = data.get("indistinguishable_from")
-        return cls(delta_bic=float(data["delta_bic"]), bic=float(data["bic"]), n_features=int(data["n_features"]),
-                   threshold=float(data["threshold"]), compared_with=str(data["compared_with"]),
-                   bic_base=float(data["bic_base"]), indistinguishable_from=None if ties is None else list(ties))
+    _KEY: ClassVar[str] = "evidence"
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"indistinguishable_from"})
 
 
 #: the keys of a located disagreement's JSON, per kind (in this order; the optional ones only when set)

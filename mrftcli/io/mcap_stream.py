@@ -18,6 +18,7 @@ hostile or damaged ones, so the three steps a reader needs are written here with
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 from typing import Final
 
@@ -114,7 +115,8 @@ def decompress_chunk(header: ChunkHeader, packed: bytes | memoryview, where: str
     where : str
         Names the chunk in messages (``"<file>: chunk at byte N"``).
     partial : bool
-        The records are cut off: return what decompresses from them (at most the declared size).
+        The records are cut off: return what decompresses from them (at most the declared size);
+        otherwise all of them must be there and match the chunk's CRC.
     limit : int
         The largest declared size accepted [bytes] (:data:`MAX_CHUNK_BYTES`).
 
@@ -123,8 +125,10 @@ def decompress_chunk(header: ChunkHeader, packed: bytes | memoryview, where: str
     OversizeChunkError
         The declared size is over ``limit``, or the data decompress to more than declared.
     ValueError, zstandard.ZstdError, RuntimeError
-        Damaged compressed data, or an unknown compression.
+        Damaged or cut-off compressed data, a CRC mismatch, or an unknown compression.
     """
+    if not partial and len(packed) < header.records_length:
+        raise ValueError("chunk cut off by the end of the file")
     check_declared(header, where, limit=limit)
     declared = header.uncompressed_size
     if header.compression == "":
@@ -141,6 +145,8 @@ def decompress_chunk(header: ChunkHeader, packed: bytes | memoryview, where: str
     if len(out) > declared:
         raise OversizeChunkError(f"{where} decompresses to more than the {_mib(declared)} it declares: "
                                  "refused (a damaged file or a decompression bomb)")
+    if not partial and header.uncompressed_crc and zlib.crc32(out) != header.uncompressed_crc:
+        raise ValueError("CRC mismatch")
     return out
 
 

@@ -20,11 +20,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import partial
 from typing import Any
 
 from ..errors import InputError
 from ..jsonable import check_schema_version
-from ..mrft.controller import Controller
+from ..mrft.controller import Controller, json_number
 from ..mrft.model import LoopModel
 from .spec import TestSpec, check_flight_size, check_hover_hold, check_switching
 
@@ -41,13 +42,8 @@ STANDARD_GRAVITY = 9.81
 CASCADE_TRUTH_SCHEMA = 1
 
 _DEG = math.pi / 180.0
-
-
-def _number(data: Mapping[str, Any], key: str, what: str) -> float:
-    value = data.get(key)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"{what}: {key!r} must be a finite number, got {value!r}")
-    return float(value)
+#: a sidecar's number: finite, else InputError naming it (:func:`~mrftcli.mrft.controller.json_number`)
+_number = partial(json_number, finite=True)
 
 
 #: The inner loop's sampled PD/PID: the one PID record (:class:`~mrftcli.mrft.controller.Controller`, tune's

@@ -21,18 +21,16 @@ else (a 90 Hz camera would add its sample-and-hold latency to the outer tau).
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..io.atomic import write_text_atomic
 from ..io.logtypes import TopicData
 from ..io.stacks import hear_receive_times
 from .cascade import CascadeFlight
-from .sidecar import imu_topic, sidecar_path, write_log_atomic
+from .sidecar import imu_topic, write_log_atomic, write_sidecar
 
 __all__ = ["CASCADE_LAYOUTS", "cascade_topics", "write_cascade"]
 
@@ -142,6 +140,4 @@ def write_cascade(flight: CascadeFlight, path: str | Path, layout: str = "hear-r
         raise InputError(f"cannot tell the log format from {path.name!r}; pass a format")
     write_log_atomic(cascade_topics(flight, layout, seed=flight.spec.seed + 1), path, fmt)
     truth = dataclasses.replace(flight.truth, layout=layout, log_format=fmt, log_file=path.name)
-    side = sidecar_path(path)
-    write_text_atomic(side, json.dumps(truth.to_json(), indent=2, allow_nan=False) + "\n")
-    return side
+    return write_sidecar(path, truth.to_json())

@@ -28,7 +28,7 @@ from .spec import FlightSettings, FlightSpec
 if TYPE_CHECKING:
     from .flight import SimulatedFlight
 
-__all__ = ["truth_record", "flight_topics", "imu_topic", "sidecar_path", "write_flight", "write_log_atomic", "check_log_target",
+__all__ = ["truth_record", "flight_topics", "imu_topic", "sidecar_path", "write_flight", "write_log_atomic", "write_sidecar", "check_log_target",
            "quaternion_zyx"]
 
 
@@ -255,13 +255,15 @@ def write_log_atomic(topics: list[TopicData], path: str | Path, fmt: str) -> Pat
     return Path(path)
 
 
+def write_sidecar(log_path: str | Path, truth: dict[str, Any]) -> Path:
+    """Write ``truth`` (plain JSON values) as the log's sidecar (:func:`sidecar_path`), atomically; return its path."""
+    side = sidecar_path(log_path)
+    write_text_atomic(side, json.dumps(truth, indent=2, allow_nan=False) + "\n")
+    return side
+
+
 def write_flight(flight: SimulatedFlight, path: str | Path, fmt: str) -> Path:
     """Write ``flight`` as a log in format ``fmt`` (atomically: :func:`write_log_atomic`) plus its
     sidecar; return the sidecar path."""
     write_log_atomic(flight.topics, path, fmt)
-    truth = dict(flight.truth)
-    truth["log_format"] = fmt
-    truth["log_file"] = Path(path).name
-    side = sidecar_path(path)
-    write_text_atomic(side, json.dumps(to_jsonable(truth), indent=2, allow_nan=False) + "\n")
-    return side
+    return write_sidecar(path, to_jsonable({**flight.truth, "log_format": fmt, "log_file": Path(path).name}))

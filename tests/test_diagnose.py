@@ -16,7 +16,7 @@ from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
 from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, Disagreement, EffectFinding,
                                      Evidence, HeldOut, PairFit, TestRow, Unexplained)
-from mrftcli.diagnose.identification import AnalyzeModel, EffectIdentification, Identification, ModelEstimate
+from mrftcli.diagnose.records import AnalyzeModel, EffectIdentification, Identification, ModelEstimate
 from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -189,39 +189,45 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
 
     Example: mrft-ident diagnose flight.mcap --tp 0.0422 --json - --report out/
     """
+    from ..analyze.options import RelayOptions
+    from ..analyze.screen import log_start
     from ..diagnose.selection import diagnose as run
     from ..io import ReadOptions, read_flight
     from ..mrft.model import soiptd_model
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
-    if model_name != "soiptd":
-        _diagnose_process(log, model_name, (params, ranges, windows, relay_kind, eps), min_cycles, json_target,
-                          (report_dir, quiet), read_options)
-        return
-    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--window": bool(windows),
-                              "--relay": bool(relay_kind), "--eps": eps is not None}, "takes --tp and reads beta from the log")
-    model = soiptd_model(Tp)
-    with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
-        flight = read_flight(log, ReadOptions(**read_options), progress=progress)
-    analysis = _analysis(flight, model, min_cycles)
+    analysis = None
+    if model_name == "soiptd":
+        check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--window": bool(windows),
+                                  "--relay": bool(relay_kind), "--eps": eps is not None}, "takes --tp and reads beta from the log")
+        model = soiptd_model(Tp)
+        with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
+            flight = read_flight(log, ReadOptions(**read_options), progress=progress)
+        analysis = _analysis(flight, model, min_cycles)
+        options: dict[str, Any] = {"analysis": analysis}
+    else:  # a process family's model object, through the same driver
+        model = build_model(model_name, params, ranges)
+        flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
+        options = {"relay": RelayOptions(relay_kind, None, eps), "windows": parse_windows(windows, log_start(flight)),
+                   "min_stable_cycles": min_cycles}
     with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
-        result = run(flight, model, analysis=analysis, progress=progress)
-    result = _with_analysis(result, analysis)
+        result = _with_analysis(run(flight, model, progress=progress, **options), analysis)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_json(), json_target)
-    if not to_stdout:
+    if not to_stdout and result.soiptd:
         from ..analyze.residual import residual_verdict
 
         click.echo(format_summary(result, residual_verdict(analysis) if analysis is not None else None))
+    elif not to_stdout:
+        click.echo(format_process(result))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     if report_dir:
         from ..report.diagnosis import write_diagnosis_report
 
-        index = write_diagnosis_report(result, report_dir)
-        click.echo(f"report: {index}", err=to_stdout)
+        click.echo(f"report: {write_diagnosis_report(result, report_dir)}", err=to_stdout)
 
 
 def _analysis(flight: FlightLog, model: LoopModel, min_cycles: int) -> AnalysisResult | None:
@@ -244,41 +250,13 @@ def _with_analysis(result: DiagnosisResult, analysis: AnalysisResult | None) -> 
     the terminal and the JSON alike (as it was without ``analysis``: analyze refused the log)."""
     from dataclasses import replace
 
-    from ..diagnose.identification import with_analysis
+    from ..diagnose.records import with_analysis
     from ..diagnose.selection import deterministic
 
     if analysis is None:
         return result
     assert result.identification is not None  # eq. (2)'s strategy fills it
     return replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects)))
-
-
-def _diagnose_process(log: str, model_name: str, model_options: tuple[Any, ...], min_cycles: int,
-                      json_target: str | None, report: tuple[str | None, bool], read_options: dict[str, Any]) -> None:
-    """``diagnose --model NAME``: the same driver (:func:`mrftcli.diagnose.selection.diagnose`) on a
-    process family's model object."""
-    from ..analyze.options import RelayOptions
-    from ..analyze.screen import log_start
-    from ..diagnose.selection import diagnose as run
-    from ..io import ReadOptions, read_flight
-
-    params, ranges, windows, relay_kind, eps = model_options
-    report_dir, quiet = report
-    model = build_model(model_name, params, ranges)
-    flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
-    with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
-        result = run(flight, model, progress=progress, relay=RelayOptions(relay_kind, None, eps),
-                     windows=parse_windows(windows, log_start(flight)), min_stable_cycles=min_cycles)
-    if json_target:
-        dump_json(result.to_json(), json_target)
-    if json_target != "-":
-        click.echo(format_process(result))
-    for w in result.warnings:
-        click.echo(f"warning: {w}", err=True)
-    if report_dir:
-        from ..report.diagnosis import write_diagnosis_report
-
-        click.echo(f"report: {write_diagnosis_report(result, report_dir)}", err=json_target == "-")
 
 
 def _effect_rows(result: DiagnosisResult) -> list[str]:

@@ -23,8 +23,7 @@ from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_v
                   residuals, theta_bounds)
 from .heldout import BIC_THRESHOLD, HOLDOUT_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Effect
-from .identification import EffectIdentification
-from .records import CandidateFit, EffectFinding, Evidence, FinalModel, HeldOut, PairFit
+from .records import CandidateFit, EffectFinding, EffectIdentification, Evidence, FinalModel, HeldOut, PairFit
 from .screen import Screen
 from .testout import left_out_chi2
 

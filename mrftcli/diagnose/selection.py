@@ -51,18 +51,16 @@ from ..io.logtypes import FlightLog, Signal
 from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .candidates import LinearFit, fit_linear, search_candidates
-from .checks import check_test, locate as locate_checks, measured_waveform, misfit, verdict
-from .effects import as_test_data, select as select_effects_on
 from .fit import plant_params
 from .heldout import significant
-from .identification import EffectIdentification, Identification, ModelEstimate, analyze_model
 from .scatter import jitter_candidate, scatter_reference, scatter_z
-from .locate import locate, unexplained_mismatch
+from .locate import (Z_LIMIT, check_test, locate, measured_waveform, misfit, test_disagreements,
+                     unexplained_mismatch, verdict)
 from .pairs import effect_finding, select_effects
-from .physics import BIC_THRESHOLD, BY_NAME, CANDIDATES, unit_in_loop
+from .physics import BIC_THRESHOLD, BY_NAME, CANDIDATES, as_test_data, select as select_effects_on, unit_in_loop
 from .resonance import resonance_mismatch
-from .records import (CandidateFit, DiagnosisFigures, DiagnosisResult, Disagreement, EffectFinding, FinalModel,
-                      TestRow, Unexplained)
+from .records import (CandidateFit, DiagnosisFigures, DiagnosisResult, Disagreement, EffectFinding, EffectIdentification,
+                      FinalModel, Identification, ModelEstimate, TestRow, Unexplained, analyze_model)
 from .screen import Screen, screen_log
 
 if TYPE_CHECKING:
@@ -219,13 +217,13 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
     say("locating")
     gap = misfit(analysis.identification)
     # where the residual sits first (per test, largest first); the fit's overall misfit after it
-    ranked = sorted((item for c in checks for item in locate_checks(c)), key=lambda item: -item[0])
+    ranked = sorted((item for c in checks for item in test_disagreements(c)), key=lambda item: -item[0])
     located = tuple(text for _, text in ranked) + ((gap[1],) if gap else ())
     notes = (*skipped,) + (() if len(measured) > 1 else
                            ("one test: nothing to hold out, so no effect is fitted (a second relay test checks them)",))
     say.finish()
     first = verdict(model, checks, located, chosen.found)
-    if chosen.found and located and chosen.cycle_error_left > 3 * chosen.cycle_precision:
+    if chosen.found and located and chosen.cycle_error_left > Z_LIMIT * chosen.cycle_precision:
         # named, but not the whole story: each test's cycle from the others still misses beyond its scatter
         first += (f"; unexplained beyond it: each test's cycle predicted from the others misses by "
                   f"{100 * chosen.cycle_error_left:.0f} % (RMS; the cycles' own scatter: "

@@ -12,6 +12,7 @@ import click
 from click.core import ParameterSource
 
 from ..errors import InputError
+from ..io import writable_format
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
@@ -79,22 +80,6 @@ def _check_log_target(out: Path, fmt: str) -> None:
     if out.parent and not out.parent.exists():
         raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     check_log_target(out, fmt)
-
-
-def _format_of(path: Path, fmt: str | None) -> str:
-    """``--format`` checked, else the format of the log's name."""
-    from ..io import FORMATS, format_from_name
-
-    if fmt is not None:
-        if fmt not in FORMATS:
-            raise InputError(f"unknown --format {fmt!r}; choose one of {', '.join(FORMATS)}")
-        return fmt
-    guessed = format_from_name(path)
-    if guessed is None:
-        raise InputError(
-            f"cannot tell the log format from {path.name!r}; pass --format (one of {', '.join(FORMATS)})"
-        )
-    return guessed
 
 
 def _given(ctx: click.Context, names: tuple[str, ...], why: str) -> None:
@@ -168,7 +153,7 @@ def _cascade_layout(opts: CascadeOptions, out: Path) -> tuple[str, str]:
             raise InputError(f"--out {out.name}: the HEAR layout is a ROS 1 bag; name the log *.bag "
                              "(or use --layout reference)")
         return layout, "bag"
-    return layout, _format_of(out, opts.fmt)
+    return layout, writable_format(out, opts.fmt, "--format")
 
 
 def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) -> None:
@@ -482,7 +467,7 @@ def _loop_spec(opts: LoopOptions, out: Path):
 
     model, rate = opts.model, opts.rate_hz
     trimmed = isinstance(model, LoopModel)  # eq. (2): the loop's defaults; another family: 1 % of the amplitude
-    fmt = _format_of(out, opts.fmt)
+    fmt = writable_format(out, opts.fmt, "--format")
     check_positive("--controller-rate (a frequency in Hz)", rate)
     _check_log_target(out, fmt)
     effect_values = dict(parse_effect(text) for text in opts.effects)  # every option checked before planning

@@ -33,6 +33,7 @@ from .timing import Timing, controller_rate_hz, median_rate_hz
 __all__ = [
     "open_log", "read_flight", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format", "format_from_name",
+    "writable_format",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal", "Timing", "ReadOptions", "read_loop",
     "median_rate_hz", "controller_rate_hz", "TIME_UNITS",
     "LAYOUTS", "LAYOUT_NAMES", "Layout", "LayoutMatch", "detect_layout", "get_layout", "log_layout",
@@ -84,6 +85,19 @@ def format_from_name(path: str | Path) -> str | None:
     if path.name.lower().endswith(".json.mcap"):
         return "mcap-json"
     return {".mcap": "mcap", ".bag": "bag", ".ulg": "ulog", ".csv": "csv"}.get(path.suffix.lower())
+
+
+def writable_format(path: str | Path, fmt: str | None, option: str = "fmt=") -> str:
+    """``fmt`` checked against :data:`FORMATS`, else the format of ``path``'s name (:func:`format_from_name`);
+    a one-line InputError naming ``option`` when the name does not tell."""
+    if fmt is None:
+        fmt = format_from_name(path)
+        if fmt is None:
+            raise InputError(f"cannot tell the log format from {Path(path).name!r}; pass {option} (one of "
+                             f"{', '.join(FORMATS)})")
+    if fmt not in FORMATS:
+        raise InputError(f"unknown log format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    return fmt
 
 
 def detect_format(path: str | Path) -> str:
@@ -238,13 +252,7 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
         The written path.
     """
     path = Path(path)
-    if fmt is None:
-        fmt = format_from_name(path)
-        if fmt is None:
-            raise InputError(f"cannot tell the log format from {path.name!r}; pass fmt= one of "
-                             f"{', '.join(FORMATS)}")
-    if fmt not in FORMATS:
-        raise InputError(f"unknown log format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    fmt = writable_format(path, fmt)
     for td in topics:
         t = np.asarray(td.t, dtype=np.float64)
         if len(t) > 1 and (np.diff(t) < 0).any():

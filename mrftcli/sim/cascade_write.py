@@ -130,14 +130,12 @@ def write_cascade(flight: CascadeFlight, path: str | Path, layout: str = "hear-r
     fmt : str, optional
         The log format (default: ``bag`` for hear-ros, else from the file name).
     """
-    from ..io import format_from_name
+    from ..io import writable_format
 
     path = Path(path)
     if layout not in CASCADE_LAYOUTS:
         raise InputError(f"a cascaded flight is written in the {' or '.join(CASCADE_LAYOUTS)} layout, not {layout!r}")
-    fmt = fmt or CASCADE_LAYOUTS[layout] or format_from_name(path)
-    if fmt is None:
-        raise InputError(f"cannot tell the log format from {path.name!r}; pass a format")
+    fmt = writable_format(path, fmt or CASCADE_LAYOUTS[layout])
     write_log_atomic(cascade_topics(flight, layout, seed=flight.spec.seed + 1), path, fmt)
     truth = dataclasses.replace(flight.truth, layout=layout, log_format=fmt, log_file=path.name)
     return write_sidecar(path, truth.to_json())

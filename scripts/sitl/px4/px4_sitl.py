@@ -271,10 +271,13 @@ def load_params(sitl: Px4Sitl, params: dict[str, tuple[float, int]]) -> list[dic
 
 
 def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, float]], delay_ms: float,
-             duration_s: float, speedup: float = 1.0, alt_m: float = 5.0) -> dict[str, Any]:
-    """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the ULog and how it was flown."""
+             duration_s: float, speedup: float = 1.0, alt_m: float = 5.0,
+             extra: dict[str, float] | None = None) -> dict[str, Any]:
+    """Take off, run ``tests`` ((beta, h) pairs) on ``axis``, land; the ULog and how it was flown. ``extra``:
+    more parameters set after boot (recorded in the sidecar's ``params_set``)."""
     rate_loop = axis in ("roll", "pitch")
     params = {f"MRFT_{AXES[axis]}_ENABLE": 0, "MRFT_DELAY": delay_ms} if rate_loop else {"MRFT_DELAY": delay_ms}
+    params.update(extra or {})
     with Px4Sitl(px4_dir, workdir, speedup, params) as sitl:
         refusals = sitl.takeoff(alt_m)
         hover = sitl.get_param("MPC_THR_HOVER")
@@ -293,7 +296,7 @@ def fly_mrft(px4_dir: Path, workdir: Path, axis: str, tests: list[tuple[float, f
             # the rate relays' decision before MRFT_DELAY (debug_vect x: roll, y: pitch; mrft_roll.patch)
             **({"decision_topic": f"debug_vect:{'x' if axis == 'roll' else 'y'}"} if rate_loop else {}),
             "prearm_refusals_before_arming": sorted(set(refusals)), "status_texts_tail": texts[-6:],
-            "log": str(log)}
+            **({"params_set": extra} if extra else {}), "log": str(log)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -107,20 +107,100 @@ class PeriodicSolution:
         return self.Y[0].real + np.real(np.exp(1j * np.outer(np.asarray(t, float), k * w)) @ self.Y[1:n + 1])
 
 
-def _input_series(pl: CyclePlant, P: float, H: float, k: np.ndarray, a: float, b: float) -> np.ndarray | None:
-    """Fourier coefficients c_k (k >= 1, two-sided convention) of the plant input before the delay."""
-    w = 2.0 * np.pi / P
-    jkw = 1j * k * w
-    jump = a - b
-    if pl.rate_limit > 0:
-        d = jump / pl.rate_limit
-        if d < min(H, P - H):
+class _InputSeries:
+    """Fourier coefficients c_k (k >= 1, two-sided convention) of the plant input before the delay, at
+    one period P [s] and levels ``a``, ``b``; :meth:`at` gives them for a high time H [s]. What does not
+    depend on H is computed once (a fixed point on the high-time fraction asks for many H at one P;
+    the arithmetic, and so every bit, is the one of a single evaluation)."""
+
+    def __init__(self, pl: CyclePlant, P: float, k: np.ndarray, a: float, b: float) -> None:
+        self.P, self.rate = P, pl.rate_limit
+        w = 2.0 * np.pi / P
+        jkw = 1j * k * w
+        self.neg_jkw = -jkw
+        jump = a - b
+        self.jump = jump
+        if self.rate > 0:
+            self.d = jump / self.rate
+            e = np.exp(-jkw * self.d)
             # kinks of the trapezoid: w'' = R (delta(t) - delta(t - d) - delta(t - H) + delta(t - H - d))
-            e = np.exp(-jkw * d)
-            s = pl.rate_limit * (1.0 - e) * (1.0 - np.exp(-jkw * H))
-            return s / (P * jkw * jkw)
-        return None  # the ramp never reaches the level (a triangle wave): not a regular cycle
-    return jump * (1.0 - np.exp(-jkw * H)) / (P * jkw)
+            self.head = self.rate * (1.0 - e)
+            self.den = P * jkw * jkw
+        else:
+            self.den = P * jkw
+
+    def at(self, H: float) -> np.ndarray | None:
+        """c_k at high time H [s]; None when a ramp never reaches the level (a triangle wave: not a
+        regular cycle)."""
+        if self.rate > 0:
+            if self.d < min(H, self.P - H):
+                return self.head * (1.0 - np.exp(self.neg_jkw * H)) / self.den
+            return None
+        return self.jump * (1.0 - np.exp(self.neg_jkw * H)) / self.den
+
+
+class _Force:
+    """The propulsion's periodic output (force [command units]) at one period P [s] as a function of
+    the high-time fraction (:meth:`at`); what does not depend on the fraction is computed once (the
+    fixed point of :meth:`_Series._nonlinear` asks for many fractions at one period; the arithmetic,
+    and so every bit, is the one of a single evaluation).
+
+    Linear propulsion: p = w / (Tp s + 1). Thrust rectification: the rotor speed (relative to hover)
+    lags the speed the command asks for, sqrt(1 + w / F), and the thrust is F (speed^2 - 1).
+    """
+
+    def __init__(self, pl: CyclePlant, P: float, s: np.ndarray, a: float, b: float) -> None:
+        self.pl, self.P, self.a, self.b = pl, P, a, b
+        self.lag = pl.Tp * s + 1.0
+        F = pl.hover_thrust
+        self.ok = not F > 0 or 1.0 + b / F > 0
+        if not self.ok:
+            return
+        if F > 0:
+            self.ra, self.rb = ra, rb = math.sqrt(1.0 + a / F), math.sqrt(1.0 + b / F)
+            self.series = _InputSeries(replace_levels(pl, ra, rb), P, _K, ra, rb)
+            self.kw = None
+            if pl.rate_limit > 0:
+                # the speed target under a slewed command is the square root of the ramp: the ramp
+                # between the speed levels plus a bump over each ramp, added by Gauss-Legendre quadrature
+                d = (a - b) / pl.rate_limit
+                x = 0.5 * d * (_GL_X + 1.0)
+                wq = 0.5 * d * _GL_W / P
+                frac_r = x / d
+                up = np.sqrt(1.0 + (b + (a - b) * frac_r) / F) - (rb + (ra - rb) * frac_r)
+                dn = np.sqrt(1.0 + (a - (a - b) * frac_r) / F) - (ra - (ra - rb) * frac_r)
+                w = 2.0 * np.pi / P
+                ph = np.exp(-1j * np.outer(_K * w, x))
+                self.kw, self.bump_up, self.bump_dn = _K * w, ph @ (wq * up), ph @ (wq * dn)
+                self.bump_mean = float(wq @ (up + dn))
+        else:
+            self.series = _InputSeries(pl, P, _K, a, b)
+
+    def at(self, frac: float):
+        """Its harmonics (k >= 1, two-sided, before the delay), its mean, the mean's derivative in
+        ``frac`` and the plant input's harmonics, or None."""
+        if not self.ok:
+            return None
+        pl, P, a, b = self.pl, self.P, self.a, self.b
+        F = pl.hover_thrust
+        if F > 0:
+            ra, rb = self.ra, self.rb
+            H = frac * P
+            c = self.series.at(H)
+            if c is None:
+                return None
+            mean_sp = frac * ra + (1.0 - frac) * rb
+            if self.kw is not None:
+                c = c + self.bump_up + np.exp(-1j * self.kw * H) * self.bump_dn
+                mean_sp += self.bump_mean
+            Wk = c / self.lag
+            om = mean_sp + np.fft.irfft(np.concatenate([[0.0], Wk, np.zeros(_M // 2 - N_SERIES)]) * _M, _M)
+            T = np.fft.rfft(F * (om * om - 1.0)) / _M
+            return T[1:N_SERIES + 1], T[0].real, 2.0 * F * mean_sp * (ra - rb), 2.0 * c
+        c = self.series.at(frac * P)
+        if c is None:
+            return None
+        return c / self.lag, frac * a + (1.0 - frac) * b, a - b, 2.0 * c
 
 
 class _Series:
@@ -141,7 +221,7 @@ class _Series:
                 self.ok = False
                 return
             frac = -b / (a - b)  # the integrator: the input's mean vanishes
-            c = _input_series(pl, P, frac * P, k, a, b)
+            c = _InputSeries(pl, P, k, a, b).at(frac * P)
             if c is None:
                 self.ok = False
                 return
@@ -158,48 +238,6 @@ class _Series:
         self.H = frac * P
         self.w = w
         self.k = k
-
-    @staticmethod
-    def _force(pl, P, s, frac, a, b):
-        """The propulsion's periodic output (force [command units]) at high-time fraction ``frac``.
-
-        Returns its harmonics (k >= 1, two-sided, before the delay), its mean, the mean's derivative
-        in ``frac`` and the plant input's harmonics, or None. Linear propulsion: p = w / (Tp s + 1).
-        Thrust rectification: the rotor speed (relative to hover) lags the speed the command asks
-        for, sqrt(1 + w / F), and the thrust is F (speed^2 - 1).
-        """
-        k = _K
-        F = pl.hover_thrust
-        if F > 0:
-            if not (1.0 + b / F > 0):
-                return None
-            ra, rb = math.sqrt(1.0 + a / F), math.sqrt(1.0 + b / F)
-            H = frac * P
-            c = _input_series(replace_levels(pl, ra, rb), P, H, k, ra, rb)
-            if c is None:
-                return None
-            mean_sp = frac * ra + (1.0 - frac) * rb
-            if pl.rate_limit > 0:
-                # the speed target under a slewed command is the square root of the ramp: the ramp
-                # between the speed levels plus a bump over each ramp, added by Gauss-Legendre quadrature
-                d = (a - b) / pl.rate_limit
-                x = 0.5 * d * (_GL_X + 1.0)
-                wq = 0.5 * d * _GL_W / P
-                frac_r = x / d
-                up = np.sqrt(1.0 + (b + (a - b) * frac_r) / F) - (rb + (ra - rb) * frac_r)
-                dn = np.sqrt(1.0 + (a - (a - b) * frac_r) / F) - (ra - (ra - rb) * frac_r)
-                w = 2.0 * np.pi / P
-                ph = np.exp(-1j * np.outer(k * w, x))
-                c = c + ph @ (wq * up) + np.exp(-1j * k * w * H) * (ph @ (wq * dn))
-                mean_sp += float(wq @ (up + dn))
-            Wk = c / (pl.Tp * s + 1.0)
-            om = mean_sp + np.fft.irfft(np.concatenate([[0.0], Wk, np.zeros(_M // 2 - N_SERIES)]) * _M, _M)
-            T = np.fft.rfft(F * (om * om - 1.0)) / _M
-            return T[1:N_SERIES + 1], T[0].real, 2.0 * F * mean_sp * (ra - rb), 2.0 * c
-        c = _input_series(pl, P, frac * P, k, a, b)
-        if c is None:
-            return None
-        return c / (pl.Tp * s + 1.0), frac * a + (1.0 - frac) * b, a - b, 2.0 * c
 
     @staticmethod
     def _nonlinear(pl, P, s, lag, a, b, warm=None):
@@ -237,10 +275,11 @@ class _Series:
             frac, r_hat, lin = start
         pad = np.zeros(_M // 2 - N_SERIES)
         converged, last_step = False, math.inf
+        force = _Force(pl, P, s, a, b)  # what does not depend on the fraction, once
         for _ in range(40):
             if not (0.0 < frac < 1.0):
                 return None, frac, None, False, None
-            got = _Series._force(pl, P, s, frac, a, b)
+            got = force.at(frac)
             if got is None:
                 return None, frac, None, False, None
             Fk, F0, dF0, U = got

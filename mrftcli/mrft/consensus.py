@@ -122,6 +122,13 @@ class ExtraConstraints:
     ln_amp: np.ndarray
     w_gain: np.ndarray
 
+    @classmethod
+    def of(cls, phases: np.ndarray, ln_amp: np.ndarray, cw: dict[str, np.ndarray]) -> ExtraConstraints:
+        """The constraints of test means (``phases`` [rad], NaN where unknown, and ``ln_amp``: (M, n)) with
+        the weights ``cw`` of :func:`constraint_weights`."""
+        return cls(np.nan_to_num(phases), np.where(np.isfinite(phases), np.asarray(cw["w_phase"], float)[None, :], 0.0),
+                   ln_amp, np.broadcast_to(np.asarray(cw["w_gain"], float), ln_amp.shape))
+
 
 @dataclass(frozen=True, eq=False)
 class Bootstrap:
@@ -434,6 +441,7 @@ def bootstrap(Tp: float, tests: Sequence[StableCycles], Td_ref: float, constrain
         aa[:, i] = t.amplitude[idx].mean(axis=1)
         pp[:, i] = _nanmean_rows(t.phase[idx])
     bb[1:] += BETA_SYSTEMATIC * rng.standard_normal((B, n))
+    ln_amp = np.log(aa / hs[None, :])
     extra = None
     cw = None
     if constraints:
@@ -442,9 +450,7 @@ def bootstrap(Tp: float, tests: Sequence[StableCycles], Td_ref: float, constrain
         cw = constraint_weights(Tp, tests, Td_ref, constraints)
         pp[1:] += PHASE_SYSTEMATIC * rng.standard_normal((B, n))
         weights = np.broadcast_to(cw["w_ufm"], bb.shape)
-        wp = np.where(np.isfinite(pp), cw["w_phase"][None, :], 0.0)
-        extra = ExtraConstraints(phases=np.nan_to_num(pp), w_phase=wp, ln_amp=np.log(aa / hs[None, :]),
-                                 w_gain=np.broadcast_to(cw["w_gain"], aa.shape))
+        extra = ExtraConstraints.of(pp, ln_amp, cw)
     else:
         weights = np.broadcast_to(ncyc, bb.shape)
     Td_d, tau_d = consensus_solve(Tp, bb, ww, weights, Td_ref, extra=extra)
@@ -452,8 +458,7 @@ def bootstrap(Tp: float, tests: Sequence[StableCycles], Td_ref: float, constrain
     ok = np.isfinite(Td_d)
     if ok.any():
         K_d[ok] = ugm_gain(Tp, Td_d[ok], ww[ok], aa[ok], np.broadcast_to(hs, aa[ok].shape))
-    return Bootstrap(Td=Td_d, tau=tau_d, K=K_d, betas=bb, omegas=ww, phases=pp, ln_amp=np.log(aa / hs[None, :]),
-                     weights=cw)
+    return Bootstrap(Td=Td_d, tau=tau_d, K=K_d, betas=bb, omegas=ww, phases=pp, ln_amp=ln_amp, weights=cw)
 
 
 def bootstrap_estimate(point: float, draws: np.ndarray, centre: float, unit: str) -> ParameterEstimate:
@@ -513,9 +518,7 @@ def upper_bound_open(Tp: float, boot: Bootstrap, Td: float, delta_chi2: float = 
     cw = boot.weights
     if cw is None or not math.isfinite(Td) or Td <= 0:
         return False
-    ph = boot.phases[:1]
-    extra = ExtraConstraints(phases=np.nan_to_num(ph), w_phase=np.where(np.isfinite(ph), cw["w_phase"][None, :], 0.0),
-                             ln_amp=boot.ln_amp[:1], w_gain=np.asarray(cw["w_gain"], float)[None, :])
+    extra = ExtraConstraints.of(boot.phases[:1], boot.ln_amp[:1], cw)
     x = np.log(np.array([Td, Td * 1e4]))
     J = np.array([consensus_objective(Tp, boot.betas[:1], boot.omegas[:1], np.asarray(cw["w_ufm"], float)[None, :],
                                       x[i:i + 1], extra)[0][0] for i in range(2)])
@@ -586,9 +589,8 @@ def unbounded_td(Tp: float, boot: Bootstrap, delta_chi2: float = 3.84, p_min: fl
         return None
     M, n = boot.betas.shape
     w_ufm = np.broadcast_to(np.asarray(cw["w_ufm"], float), (M, n))
-    wp = np.where(np.isfinite(boot.phases), np.asarray(cw["w_phase"], float)[None, :], 0.0)
-    w_gain = np.broadcast_to(np.asarray(cw["w_gain"], float), (M, n))
-    extra = ExtraConstraints(phases=np.nan_to_num(boot.phases), w_phase=wp, ln_amp=boot.ln_amp, w_gain=w_gain)
+    extra = ExtraConstraints.of(boot.phases, boot.ln_amp, cw)
+    wp, w_gain = extra.w_phase, extra.w_gain
     w0 = boot.omegas[0]
     Td_limit = 1e4 / float(np.min(w0))
     # profile of the data (row 0) from Td Omega = 0.1 at the fastest test up to the limit

@@ -179,8 +179,11 @@ class Controller:
 
     def feedback_response(self, omega: np.ndarray) -> np.ndarray:
         """C_fb(e^{j omega T}): the controller from -y to u (the loop is L = C_fb Gd), omega in rad/s."""
+        return self.feedback_at(np.exp(1j * np.asarray(omega, float) * self.Ts))
+
+    def feedback_at(self, z: np.ndarray) -> np.ndarray:
+        """C_fb(z) at points ``z`` of the z-plane (the unit circle, or tune's contours and inversion circle)."""
         T = self.Ts
-        z = np.exp(1j * np.asarray(omega, float) * T)
         if self.rate_filter is not None:
             return self.Kp + self.Ki * T * z / (z - 1.0) + self.Kd * self.derivative_response(z)
         return (self.Kp + self.Ki * T * z / (z - 1.0) + self.Kd * (z - 1.0) / ((self.Tf + T) * z - self.Tf))
@@ -229,9 +232,7 @@ class Controller:
     def to_dict(self) -> dict[str, Any]:
         """Kp, Ki, Kd, Tf [s], rate_hz and the form (and the stack's rate filter when there is one)."""
         if self.rate_filter is not None:
-            return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz,
-                    "rate_filter": self.rate_filter.to_dict(),
+            return {**self.to_json(), "rate_filter": self.rate_filter.to_dict(),
                     "form": "parallel; derivative on measurement through the stack's rate filter; backward "
                             "differences"}
-        return {"Kp": self.Kp, "Ki": self.Ki, "Kd": self.Kd, "Tf": self.Tf, "rate_hz": self.rate_hz,
-                "form": "parallel; derivative on measurement, first-order filter Tf; backward differences"}
+        return {**self.to_json(), "form": "parallel; derivative on measurement, first-order filter Tf; backward differences"}

@@ -390,7 +390,12 @@ def predict_output(model: PlantModel, t_command: ArrayLike, command: ArrayLike, 
     """
     if fit_initial and output is None:
         raise InputError("fitting the initial state needs the recorded output")
-    window = CommandWindow.from_arrays(t_command, command, t_output, output, bias)
+    return _predict(model, CommandWindow.from_arrays(t_command, command, t_output, output, bias), fit_initial, x0)
+
+
+def _predict(model: PlantModel, window: CommandWindow, fit_initial: bool = True,
+             x0: ArrayLike | None = None) -> PredictedOutput:
+    """:func:`predict_output` over a gridded window."""
     to, yrec = window.t_output, window.output
     ss = model.realisation()
     basis = response_basis(ss.A, ss.B, ss.C, model.delay, window)
@@ -443,16 +448,9 @@ def predict_tests(model: PlantModel, tests: Sequence[TestSpan], t_command: Array
     dict
         ``MrftTest.index`` -> the prediction over that test (initial state and trim fitted per test).
     """
-    tc = np.asarray(t_command, float)
-    u = np.asarray(command, float)
-    ty = np.asarray(t_output, float)
-    y = np.asarray(output, float)
     out = {}
     for test in tests:
-        a = int(np.searchsorted(tc, test.t_start - history - 1e-9, side="left"))
-        b = min(int(np.searchsorted(tc, test.t_end, side="left")) + 1, tc.size)
-        ya, yb = np.searchsorted(ty, [test.t_start, test.t_end], side="left")
-        if b - a < 2 or yb - ya < 8:
-            continue
-        out[test.index] = predict_output(model, tc[a:b], u[a:b], ty[ya:yb], bias=test.bias, output=y[ya:yb])
+        w = CommandWindow.between(test.t_start, test.t_end, t_command, command, t_output, output, test.bias, history)
+        if w is not None:
+            out[test.index] = _predict(model, w)
     return out

@@ -55,7 +55,8 @@ from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parame
     model_json_parameters
 
 __all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
-           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit"]
+           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit", "delayed_discrete",
+           "orbits"]
 
 if TYPE_CHECKING:
     from .lprs import LimitCycle
@@ -136,7 +137,7 @@ class InnerLoop:
         c_ref = ctrl.Kp + ctrl.Ki * T * z / (z - 1.0)
         c_fb = c_ref + ctrl.Kd * (z - 1.0) / ((ctrl.Tf + T) * z - ctrl.Tf)
         out: NDArray[np.complex128] = c_ref * self.plant.frequency_response(w) / (
-            1.0 + c_fb * _inner_discrete(self).frequency_response(w))
+            1.0 + c_fb * delayed_discrete(self.plant.realisation(), self.plant.delay, ctrl.rate_hz).frequency_response(w))
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -459,7 +460,7 @@ class CascadeModel(SpecModel):
             raise InputError(f"half period must be at least 2 ticks, got {half_period!r}")
         n0 = int(math.floor(half_period))
         # beta is not used by the orbits' samples (only by their admissibility, not read here)
-        orb = _orbits(self.discrete_realisation(rate_hz), 0.0, h, n0, n0 + 1)
+        orb = orbits(self.discrete_realisation(rate_hz), 0.0, h, n0, n0 + 1)
         amp = orb.amplitude
         level = np.array([orb.samples[i, orb.N[i]] / amp[i] for i in range(2)])
         frac = half_period - n0
@@ -484,11 +485,12 @@ class SwitchedOrbit:
     switch_level: float
 
 
-def _inner_discrete(inner: InnerLoop) -> DiscreteStateSpace:
-    """The inner plant alone, from its held command to its sampled output (exact, with its delay)."""
-    ss = inner.plant.realisation()
-    T = inner.controller.Ts
-    d, eps = _whole_and_fraction(inner.plant.delay, T)
+def delayed_discrete(ss: StateSpace, delay: float, rate_hz: float) -> DiscreteStateSpace:
+    """A continuous plant ``ss`` with its input delay [s], from its command held over a tick at ``rate_hz``
+    [Hz] to its sampled output: exact (zero-order hold, the delay's fraction of a tick split off; the
+    inner plant of a cascade, the plant of a sampled relay, :func:`mrftcli.mrft.lprs.sampled_limit_cycle`)."""
+    T = 1.0 / rate_hz
+    d, eps = _whole_and_fraction(delay, T)
     Phi, Ga, Gb = _split_interval(ss.A, ss.B, T, eps)
     n = ss.order
     # state [x, u_{k-1} .. u_{k-d-1}]: the command buffer carries the delay
@@ -506,7 +508,7 @@ def _inner_discrete(inner: InnerLoop) -> DiscreteStateSpace:
         Ad[n + j, n + j - 1] = 1.0
     C = np.zeros(N)
     C[:n] = ss.C
-    return DiscreteStateSpace(Ad, Bd, C, inner.controller.rate_hz)
+    return DiscreteStateSpace(Ad, Bd, C, rate_hz)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -568,8 +570,10 @@ def _powers(ss: DiscreteStateSpace, count: int) -> tuple[FloatArray, FloatArray]
     return CP, S
 
 
-def _orbits(ss: DiscreteStateSpace, beta: float, h: float, n_lo: int, n_hi: int) -> _Orbits:
-    """Orbits x_N = -x_0 of the relay +h over ticks 0..N-1 for N in [n_lo, n_hi], in closed form."""
+def orbits(ss: DiscreteStateSpace, beta: float, h: float, n_lo: int, n_hi: int, eps: float = 0.0) -> _Orbits:
+    """Orbits x_N = -x_0 of the relay +h over ticks 0..N-1 for N in [n_lo, n_hi], in closed form; each
+    ``valid`` where the sampled MRFT rule (``checks.md`` section 2, level ``beta e_max + eps``, ``eps``
+    a hysteresis [output units]) first switches at its sample N."""
     CP, S = _powers(ss, n_hi + 1)
     CS = S @ ss.C
     Ns = np.arange(n_lo, n_hi + 1)
@@ -582,7 +586,7 @@ def _orbits(ss: DiscreteStateSpace, beta: float, h: float, n_lo: int, n_hi: int)
     inside = k[None, :] <= Ns[:, None]
     e = np.where(inside, -Y, -_INF)
     e_max = np.maximum.accumulate(e, axis=1)
-    margin = e + beta * e_max
+    margin = e + beta * e_max + eps
     switched = inside & (e_max > 0) & (margin <= 0)
     switched[:, 0] = False
     first = np.where(switched.any(axis=1), np.argmax(switched, axis=1), -1)
@@ -662,7 +666,7 @@ def discrete_limit_cycle(ss: DiscreteStateSpace, beta: float, h: float, response
         width = 0.08 * n0 + 4
     for _ in range(6):
         lo, hi = max(2, int(n0 - width)), int(n0 + width) + 1
-        orb = _orbits(ss, beta, h, lo, hi)
+        orb = orbits(ss, beta, h, lo, hi)
         n_first, n_last = _root(orb.N, orb.at_end), _root(orb.N, orb.before_end)
         if n_first is not None and n_last is not None and orb.valid.any():
             break

@@ -31,17 +31,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import linalg, optimize
+from scipy import optimize
 
 from ..errors import InputError
 from ..validate import check_beta, check_positive
 from .describing import df_crossing, df_frequency
 from .matexp import phi_gamma_small
-from .model import LoopModel, PlantModel, SampledPlantModel
+from .cascade import delayed_discrete, orbits
+from .model import LoopModel, PlantModel, SampledPlantModel, StateSpace
 
 __all__ = [
     "LimitCycle",
@@ -489,16 +490,6 @@ def _closed_form_cycle(model: LoopModel, beta: float, h: float, n_points: int) -
 # ----------------------------------------------------------------------------------------------
 # general state space (integrators allowed)
 # ----------------------------------------------------------------------------------------------
-def _phi_gamma(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """Phi = e^{A t} and Gamma = int_0^t e^{A s} ds B from one expm of the augmented matrix."""
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A * t
-    M[:n, n] = B * t
-    E = linalg.expm(M)
-    return E[:n, :n], E[:n, n]
-
-
 class _StateSpaceCycle:
     """Periodic solution of x' = A x + B u for the square wave of half period P (h = 1).
 
@@ -531,13 +522,6 @@ class _StateSpaceCycle:
         dy4 = np.concatenate([s * dys[:-1] for s in sgn] + [[dys[0]]])
         self.ys, self.y4 = ys, y4
         self.spline = CubicHermiteSpline(t4, y4, dy4)
-
-    def state(self, t: float) -> tuple[np.ndarray, float]:
-        k = math.floor(t / self.P)
-        s = t - k * self.P
-        sign = 1.0 if k % 2 == 0 else -1.0
-        Phi, Gam = _phi_gamma(self.A, self.B, s)
-        return sign * (Phi @ self.x0 + Gam), sign
 
     def y(self, t: ArrayLike) -> FloatArray:
         """The delay-free output y0 at times ``t`` (periodic, h = 1)."""
@@ -678,62 +662,20 @@ def _df_hint(A: FloatArray, B: FloatArray, C: FloatArray, tau: float, beta: floa
 # ----------------------------------------------------------------------------------------------
 # sampled relay
 # ----------------------------------------------------------------------------------------------
-def _sampled_matrices(A: FloatArray, B: FloatArray, Ts: float,
-                      tau: float) -> tuple[FloatArray, FloatArray, FloatArray, int]:
-    """Exact ZOH discretisation with a fractional input delay (modified z-transform).
-
-    tau = d Ts + eps with 0 <= eps < Ts.  Over [t_k, t_k+1) the plant sees u_{k-d-1} for eps seconds,
-    then u_{k-d}:  x_{k+1} = Phi x_k + G1 u_{k-d-1} + G2 u_{k-d}.
-    """
-    d = int(math.floor(tau / Ts + 1e-12))
-    eps = tau - d * Ts
-    if eps < 0:
-        eps = 0.0
-    Phi, _ = _phi_gamma(A, B, Ts)
-    _, Ge = _phi_gamma(A, B, eps)  # first part of the interval (old input)
-    Pr, Gr = _phi_gamma(A, B, Ts - eps)  # remaining part (new input)
-    G1 = Pr @ Ge
-    G2 = Gr
-    return Phi, G1, G2, d
-
-
-def _discrete_orbit(Phi: FloatArray, G1: FloatArray, G2: FloatArray, d: int, C: FloatArray, N: int,
-                    h: float) -> FloatArray:
-    """Sampled output y_0..y_N of the symmetric periodic orbit with half period N samples.
-
-    The relay holds +h on samples 0..N-1 and -h on N..2N-1; the plant sees it through the exact
-    discretisation with delay (d whole samples + fraction).  Antisymmetry x_N = -x_0 gives
-    (I + Phi^N) x_0 = -(forced response over one half period).
-    """
-    n = Phi.shape[0]
-
-    def u_at(j: int) -> float:
-        return h if (j % (2 * N)) < N else -h
-
-    x: NDArray[np.floating[Any]] = np.zeros(n)
-    PhiN = np.eye(n)
-    for k in range(N):
-        x = Phi @ x + G1 * u_at(k - d - 1) + G2 * u_at(k - d)
-        PhiN = Phi @ PhiN
-    x0 = -np.linalg.solve(np.eye(n) + PhiN, x)
-    ys = np.empty(N + 1)
-    x = x0
-    for k in range(N + 1):
-        ys[k] = C @ x
-        x = Phi @ x + G1 * u_at(k - d - 1) + G2 * u_at(k - d)
-    return ys
-
-
-def _orbit_is_valid(ys: np.ndarray, beta: float, eps: float = 0.0) -> bool:
-    """Does the sampled MRFT rule (checks.md section 2, level ``beta e_max + eps``) switch exactly at sample N?"""
-    e = -ys
-    e_max = e[0]
-    N = ys.size - 1
-    for k in range(1, N + 1):
-        e_max = max(e_max, e[k])
-        if e_max > 0 and e[k] <= -beta * e_max - eps:
-            return k == N
-    return False
+def _band(valid: NDArray[np.bool_], i0: int, i1: int) -> NDArray[np.bool_]:
+    """The admissible orbits of the first window ``valid[i0:i1 + 1]`` and, beyond it, those that continue
+    its admissible edge without a gap (what a search widening one orbit at a time finds)."""
+    band = np.zeros_like(valid)
+    band[i0:i1 + 1] = valid[i0:i1 + 1]
+    j = i0 - 1
+    while j >= 0 and valid[j] and band[j + 1]:
+        band[j] = True
+        j -= 1
+    j = i1 + 1
+    while j < valid.size and valid[j] and band[j - 1]:
+        band[j] = True
+        j += 1
+    return band
 
 
 def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, beta: float, h: float,
@@ -748,8 +690,10 @@ def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, be
 
     * ``orbits_hz`` / ``orbits_amplitude``: every admissible orbit, found exactly -- for each
       candidate N the symmetric periodic orbit of the exactly discretised loop (zero-order hold, the
-      fractional part of the delay handled by splitting the sample interval) is solved in closed
-      form and the MRFT rule of checks.md section 2 is checked sample by sample;
+      fractional part of the delay handled by splitting the sample interval:
+      :func:`~mrftcli.mrft.cascade.delayed_discrete`) is solved in closed form and the MRFT rule of
+      checks.md section 2 is checked sample by sample (:func:`~mrftcli.mrft.cascade.orbits`, as for a
+      cascade);
     * ``frequency_hz`` / ``amplitude``: the centre of that band, the exact continuous cycle with the
       mean switching lag of half a sample added to the delay (the switch comes uniformly 0..Ts after
       the continuous crossing when the phase of the sample grid is random).  ``docs/method.md``
@@ -768,30 +712,21 @@ def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, be
     if P / Ts < 4:
         raise InputError(f"rate {rate_hz} Hz is too slow for a limit cycle near {cont.frequency_hz:.3g} Hz "
                          "(fewer than 8 samples per period)")
-    Phi, G1, G2, d = _sampled_matrices(A, B, Ts, tau)
+    ss = delayed_discrete(StateSpace(A, B, C), tau, rate_hz)
     n_mid = P / Ts
-    found: dict[int, float] = {}
-
-    def check(N: int) -> bool:
-        ys = _discrete_orbit(Phi, G1, G2, d, C, N, h)
-        if _orbit_is_valid(ys, beta, eps):
-            found[N] = float(np.max(np.abs(ys)))
-            return True
-        return False
-
-    lo_n, hi_n = max(2, int(math.floor(n_mid)) - 6), int(math.ceil(n_mid)) + 6
-    for N in range(lo_n, hi_n + 1):
-        check(N)
-    # widen the window while its edges are still admissible (wide bands at high rates)
-    while found and min(found) == lo_n and lo_n > 2:
-        lo_n -= 1
-        check(lo_n)
-    while found and max(found) == hi_n:
-        hi_n += 1
-        check(hi_n)
-    Ns = sorted(found, reverse=True)  # increasing frequency
-    freqs = [rate_hz / (2 * N) for N in Ns]
-    amps = [found[N] for N in Ns]
+    first, last = max(2, int(math.floor(n_mid)) - 6), int(math.ceil(n_mid)) + 6
+    lo_n, hi_n = first, last
+    while True:  # widen the window while the band runs on past its edges (wide bands at high rates)
+        orb = orbits(ss, beta, h, lo_n, hi_n, eps)
+        band = _band(orb.valid, first - lo_n, last - lo_n)
+        if band[0] and lo_n > 2:
+            lo_n = max(2, lo_n - 8)
+        elif band[-1]:
+            hi_n += 8
+        else:
+            break
+    freqs = [rate_hz / (2 * int(N)) for N in orb.N[band][::-1]]  # increasing frequency
+    amps = [float(a) for a in orb.amplitude[band][::-1]]
     return LimitCycle(omega=cont.omega, frequency_hz=cont.frequency_hz, period=cont.period,
                       amplitude=cont.amplitude, beta=beta, h=h, rate_hz=rate_hz, t=cont.t, y=cont.y,
                       delay_phase=tau * cont.omega, method="sampled-mean", orbits_hz=tuple(freqs),

@@ -149,12 +149,9 @@ class LagChainKernel:
         """The weighted residuals at ``z``."""
         return self.evaluate(z)[0]
 
-    def jacobian(self, z: FloatArray) -> FloatArray:
-        """d residuals / d z at ``z``: shape (2 points, unknowns)."""
-        return self.evaluate(z)[1]
-
     def evaluate(self, z: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """The weighted residuals at ``z`` and their Jacobian, in one pass (they share each lag's T omega)."""
+        """The weighted residuals at ``z`` and their Jacobian d residuals / d z (shape (2 points, unknowns)), in
+        one pass (they share each lag's T omega)."""
         zs = z.tolist()
         m = self.omega.size
         gain, phase, J = self.gain0, self.phase0, self.constant.copy()

@@ -5,7 +5,7 @@ Stages, each returning a frozen record:
 1. the inner loop (:func:`inner_loop_of`): the inner analysis' eq. (2) model and the controller
    flying it (the gains file's entry for the inner loop: roll for y, pitch for x), and draws of it
    over the inner analysis' uncertainty (:func:`inner_draws`);
-2. screen (:func:`screen_outer`): the outer tests found in the log, those with too few stable
+2. screen (:func:`mrftcli.analyze.screen.screen_tests`, ``eq2=False``): the outer tests found in the log, those with too few stable
    cycles or whose output does not follow the relay left out (the eq. (2)-specific phase checks do
    not apply to the cascade);
 3. the measurements (:func:`outer_levels`): each test's frequencies and amplitudes, and its output
@@ -21,7 +21,6 @@ back by :func:`mrftcli.mrft.model.model_from_json`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -37,10 +36,10 @@ from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
 from .options import AnalyzeOptions, CascadeOptions
 from .record import AnalysisResult, analysis_controller_rate
-from .screen import log_start
+from .screen import log_start, screen_tests
 
-__all__ = ["analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "inner_gains_of", "screen_outer",
-           "outer_levels", "OUTER_COMMANDS"]
+__all__ = ["analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "inner_gains_of", "outer_levels",
+           "OUTER_COMMANDS"]
 
 #: what the outer relay commands -> K of the cascade (None: identified)
 OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "identify": None}
@@ -119,29 +118,6 @@ def inner_draws(result: AnalysisResult, inner: InnerLoop, n: int, seed: int = 0)
 # ----------------------------------------------------------------------------------------------
 # stage 2: the outer tests
 # ----------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Screened:
-    usable: tuple[MrftTest, ...]
-    rejected: tuple[MrftTest, ...]
-    reasons: Mapping[int, str]
-
-
-def screen_outer(found: Sequence[MrftTest], min_stable_cycles: int) -> _Screened:
-    """The outer tests to use: enough stable cycles and an output that follows the relay.
-
-    The phase and beta checks of ``MrftTest.validity`` compare with eq. (2) and do not apply here.
-    """
-    reasons: dict[int, str] = {}
-    for t in found:
-        v = t.validity
-        if v is not None and not v.follows_relay:
-            reasons[t.index] = "the output does not follow this relay: " + "; ".join(v.reasons)
-        elif t.n_stable < min_stable_cycles:
-            reasons[t.index] = f"{t.n_stable} stable cycles (need {min_stable_cycles})"
-    usable = tuple(t for t in found if t.index not in reasons)
-    return _Screened(usable, tuple(t for t in found if t.index in reasons), reasons)
-
-
 def _measurement(t: MrftTest) -> TestMeasurement:
     """The test's per-cycle frequencies and amplitudes at its nominal beta.
 
@@ -227,27 +203,29 @@ def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOpti
     c, inner = options.cascade, model.inner
     t0 = log_start(flight)
     found = segment(flight, controller_rate_hz=flight.timing.controller_rate_hz)
-    screened = screen_outer(found, options.min_stable_cycles)
-    if not screened.usable:
-        why = "; ".join(f"test {i + 1}: {r}" for i, r in screened.reasons.items())
+    reasons = screen_tests(found, options.min_stable_cycles, eq2=False)
+    usable = tuple(t for t in found if t.index not in reasons)
+    rejected = tuple(t for t in found if t.index in reasons)
+    if not usable:
+        why = "; ".join(f"test {i + 1}: {r}" for i, r in reasons.items())
         raise SegmentationError(f"{flight.path}: no usable {flight.loop} relay test for the cascade"
                                 + (f" ({why})" if why else " (no relay switching found on the command)"))
-    rate = analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in screened.usable])
+    rate = analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable])
     if rate is None:
         raise InputError("the outer loop's controller rate is unknown: give --controller-rate HZ")
     rate = _snap_rate(rate, inner.controller.rate_hz)
     jitter = float(flight.timing.timing_jitter_s or 0.0) if flight.timing.stamps == "receive" else 0.0
-    ident = identify([_measurement(t) for t in screened.usable], model, rate_hz=rate, inner_draws=c.draws,
-                     switch_levels=outer_levels(screened.usable, rate), tau_timing_std=jitter)
+    ident = identify([_measurement(t) for t in usable], model, rate_hz=rate, inner_draws=c.draws,
+                     switch_levels=outer_levels(usable, rate), tau_timing_std=jitter)
     stated = list(c.assumptions) + _assumptions(model, c, rate, ident)
     if jitter >= 1e-4:
         stated.append(f"receive-time stamps: {jitter * 1e3:.1f} ms of timing jitter between topics is folded into "
                       "tau's interval")
-    warnings = [f"test {t.index + 1} left out: {screened.reasons[t.index]}" for t in screened.rejected]
+    warnings = [f"test {t.index + 1} left out: {reasons[t.index]}" for t in rejected]
     warnings += _fit_warnings(ident)
     warnings += list(flight.warnings)
-    return AnalysisResult(flight.path, flight.loop, ident.model, screened.usable, ident, dict(ident.estimates),
-                          rejected=screened.rejected, rejection_reasons=screened.reasons, warnings=tuple(warnings),
+    return AnalysisResult(flight.path, flight.loop, ident.model, usable, ident, dict(ident.estimates),
+                          rejected=rejected, rejection_reasons=reasons, warnings=tuple(warnings),
                           t0=t0, flight=flight, controller_rate_hz=rate, assumptions=tuple(stated))
 
 

@@ -181,24 +181,28 @@ def describe_tests(tests: Sequence[MrftTest], t0: float = 0.0) -> str:
     return "; ".join(parts)
 
 
-def screen_tests(found: Sequence[MrftTest], min_stable_cycles: int) -> dict[int, str]:
+def screen_tests(found: Sequence[MrftTest], min_stable_cycles: int, *, eq2: bool = True) -> dict[int, str]:
     """Which tests cannot be used, and why: {MrftTest.index: reason}.
 
     In order: an output with no oscillation at the relay frequency (SNR or variance share of
-    ``MrftTest.validity``, robust even on start-up cycles); too few stable cycles; any other failed
-    validity criterion (phase, beta); then the loop-gain sign, which must be the same in every test
-    of one log (one plant, one sign): the tests of the minority sign are rejected, and all of them
-    when the signs split evenly (nothing tells which is right).
+    ``MrftTest.validity``, robust even on start-up cycles); too few stable cycles; then, for eq. (2)
+    (``eq2``), any other failed validity criterion (phase, beta) and the loop-gain sign, which must
+    be the same in every test of one log (one plant, one sign): the tests of the minority sign are
+    rejected, and all of them when the signs split evenly (nothing tells which is right). The
+    cascade's outer tests (``eq2=False``) take the first two checks only: the phase and beta checks
+    compare with eq. (2).
     """
     reasons: dict[int, str] = {}
     for t in found:
         v = t.validity
         if v is not None and not v.follows_relay:
             reasons[t.index] = "the output does not follow this relay: " + "; ".join(v.reasons)
-        elif t.n_stable < min_stable_cycles or not np.isfinite(t.beta_effective):
+        elif t.n_stable < min_stable_cycles or (eq2 and not np.isfinite(t.beta_effective)):
             reasons[t.index] = f"{t.n_stable} stable cycles (need {min_stable_cycles})"
-        elif v is not None and not v.ok:
+        elif eq2 and v is not None and not v.ok:
             reasons[t.index] = "not an MRFT limit cycle of this output: " + "; ".join(v.reasons)
+    if not eq2:
+        return reasons
     kept = [t for t in found if t.index not in reasons]
     signs = np.array([t.loop_sign for t in kept])
     if signs.size and np.unique(signs).size > 1:

@@ -66,7 +66,7 @@ if TYPE_CHECKING:
     from ..mrft.model import PlantModel
 
 __all__ = ["BatchFailedError", "absent_topics", "loops_in_log", "LogTask", "BatchResult", "settings_hash", "analyze_one", "connect_scheduler",
-           "BatchOptions", "run_batch", "failed_entry", "log_record"]
+           "BatchOptions", "run_batch", "failed_entry", "log_record", "caught_warnings"]
 
 #: Record format version: bump when the record layout changes, so old results are recomputed. 2: the
 #: analyses in it write every parameter as the one record (issue 36), so a rerun leaves no folder of two shapes.
@@ -130,14 +130,18 @@ def _one_line(err: BaseException) -> str:
     return text or type(err).__name__
 
 
+def _error_text(err: BaseException) -> str:
+    """The error in one line; an unexpected one (not an :class:`MrftError`) with its class name first."""
+    return _one_line(err) if isinstance(err, MrftError) else f"{type(err).__name__}: {_one_line(err)}"
+
+
 def failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
     """A loop's row in a log's record when its analysis raised ``err`` (the message and the exit code's status)."""
-    known = isinstance(err, MrftError)
     return {
         "loop": loop,
         "status": STATUS_FAILED,
-        "error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}",
-        "error_type": type(err).__name__ if known else "internal",
+        "error": _error_text(err),
+        "error_type": type(err).__name__ if isinstance(err, MrftError) else "internal",
         "exit_code": getattr(err, "exit_code", 1),
         "result": None,
         "diagnosis": None,
@@ -227,8 +231,7 @@ def _tune_loop(analysis: AnalysisResult, kind: str) -> dict[str, Any]:
         res = tune_analysis(analysis, kinds=(kind,), designs=("model-based", "robust"))
         return summary_figures(res, kind)
     except Exception as err:  # noqa: BLE001
-        known = isinstance(err, MrftError)
-        return {"tune_error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}"}
+        return {"tune_error": _error_text(err)}
 
 
 def _diagnose_loop(task: LogTask, analysis: AnalysisResult, model: PlantModel,
@@ -246,9 +249,7 @@ def _diagnose_loop(task: LogTask, analysis: AnalysisResult, model: PlantModel,
                           min_stable_cycles=min_stable_cycles)
         return {"status": STATUS_OK, "error": None, **result.to_dict()}
     except Exception as err:  # noqa: BLE001
-        known = isinstance(err, MrftError)
-        return {"status": STATUS_FAILED, "error": _one_line(err) if known else f"{type(err).__name__}: {_one_line(err)}",
-                "effects": []}
+        return {"status": STATUS_FAILED, "error": _error_text(err), "effects": []}
 
 
 def analyze_one(task: LogTask) -> dict[str, Any]:
@@ -273,17 +274,22 @@ def analyze_one(task: LogTask) -> dict[str, Any]:
     auto = AUTO_LOOP in task.settings.loops
     chosen = _auto_loops(task) if auto else task.settings.loops
     for loop in chosen:
-        # Python warnings raised by the numerics go into the record instead of interleaving on the
-        # terminal from many processes.
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            entry = _analyze_loop(task, loop)
-        entry["python_warnings"] = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
+        entry, caught = caught_warnings(_analyze_loop, task, loop)
+        entry["python_warnings"] = caught
         loops.append(entry)
     if auto:
         _untested_skipped(loops)
     # Plain JSON values (NaN -> None) made here, in the worker, so the parent only writes them.
     return to_jsonable(log_record(task, loops, time.perf_counter() - t0))
+
+
+def caught_warnings(work: Callable[..., Any], *args: Any) -> tuple[Any, list[str]]:
+    """``work(*args)`` and the distinct Python warnings the numerics raised in it: kept in the record
+    instead of interleaving on the terminal from many processes."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        out = work(*args)
+    return out, sorted({f"{w.category.__name__}: {w.message}" for w in caught})
 
 
 def log_record(task: LogTask, loops: list[dict[str, Any]], elapsed: float) -> dict[str, Any]:

@@ -11,7 +11,6 @@ next in its ``error``, or failed. It never raises: a log that cannot be read fai
 from __future__ import annotations
 
 import time
-import warnings
 from typing import Any
 
 from ..errors import InputError
@@ -21,7 +20,7 @@ from ..mrft.model import LoopModel, soiptd_model
 from ..vehicle import MissingLoop, VehicleLoop, VehicleOptions, VehicleResult, identify_vehicle
 from ..vehicle.gains import TuneOptions
 from .inputs import AUTO_LOOP
-from .run import LogTask, failed_entry, log_record
+from .run import LogTask, caught_warnings, failed_entry, log_record
 from .summary import STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_NO_TESTS, STATUS_NO_TOPICS, STATUS_OK, TUNE_COLUMNS
 
 __all__ = ["vehicle_one"]
@@ -72,20 +71,21 @@ def _entries(result: VehicleResult) -> list[dict[str, Any]]:
     return loops
 
 
+def _vehicle_loops(task: LogTask) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """The record's loops and the vehicle record (None when the log failed as a whole)."""
+    try:
+        if task.settings.tp is None:
+            raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
+        result = identify_vehicle(task.path, soiptd_model(task.settings.tp), options=vehicle_options(task))
+        return _entries(result), result.to_json()
+    except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
+        return [failed_entry(AUTO_LOOP, err)], None  # the log's loops are unknown: its row says 'auto' as --loop
+
+
 def vehicle_one(task: LogTask) -> dict[str, Any]:
     """The batch record of one log identified as a vehicle (module docstring); never raises."""
     t0 = time.perf_counter()
-    vehicle: dict[str, Any] | None = None
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")  # kept in the record, not interleaved on the terminal
-        try:
-            if task.settings.tp is None:
-                raise InputError("no Tp for this log: pass --tp or set tp in a config entry matching it")
-            result = identify_vehicle(task.path, soiptd_model(task.settings.tp), options=vehicle_options(task))
-            loops, vehicle = _entries(result), result.to_json()
-        except Exception as err:  # noqa: BLE001 - one bad log must never stop the batch
-            loops = [failed_entry(AUTO_LOOP, err)]  # the log's loops are unknown: its row says 'auto' as --loop
-    found = sorted({f"{w.category.__name__}: {w.message}" for w in caught})
+    (loops, vehicle), found = caught_warnings(_vehicle_loops, task)
     for entry in loops:
         entry["python_warnings"] = found
     record = log_record(task, loops, time.perf_counter() - t0)

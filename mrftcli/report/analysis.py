@@ -69,20 +69,13 @@ def _colour(i: int) -> str:
 
 def _group_colours(result) -> dict:
     """test index -> colour: one colour per beta (tests repeated at the same beta share it)."""
-    keys: list[float] = []
-    out = {}
-    for t in list(result.segmented) + list(result.rejected):
-        key = t.beta_nominal if t.beta_nominal is not None else t.beta_effective
-        if not np.isfinite(key):
-            out[t.index] = "0.6"
-            continue
-        for g, k in enumerate(keys):
-            if abs(k - key) < 0.05:
-                out[t.index] = _colour(g)
-                break
-        else:
-            keys.append(key)
-            out[t.index] = _colour(len(keys) - 1)
+    from ..analyze.screen import group_betas
+
+    tests = list(result.segmented) + list(result.rejected)
+    out = {t.index: "0.6" for t in tests}
+    finite = [t for t in tests if np.isfinite(t.beta_nominal if t.beta_nominal is not None else t.beta_effective)]
+    for g, members in enumerate(group_betas(finite)):
+        out.update({finite[i].index: _colour(g) for i in members})
     return out
 
 
@@ -108,10 +101,6 @@ def _t0(result) -> float:
     """The log start [s] (AnalysisResult.t0; 0 for results made without it)."""
     t0 = result.t0
     return float(t0) if t0 is not None and math.isfinite(t0) else 0.0
-
-
-def _time_label(result) -> str:
-    return "time from log start [s]"
 
 
 def _mark_tests(ax_c: Axes, ax_y: Axes, result: AnalysisResult, colours: dict[int, Any], T0: float) -> None:
@@ -207,7 +196,7 @@ def plot_timeseries(result: AnalysisResult) -> Figure:
     _mark_tests(ax_c, ax_y, result, colours, T0)
     ax_c.set_ylabel("command [cmd units]")
     ax_y.set_ylabel(f"{name} {'- setpoint ' if rel else ''}[{unit}]")
-    ax_y.set_xlabel(_time_label(result))
+    ax_y.set_xlabel("time from log start [s]")
     ax_c.set_title(f"{Path(result.path).name}: {result.loop} loop - relay tests (shaded) and stable cycles (bars)",
                    pad=16)
     if segmented:

@@ -231,8 +231,11 @@ class _Accumulated:
 
 
 def identify_inner(source: LogSource, loop: str, model: LoopModel, options: VehicleOptions,
-                   acc: _Accumulated) -> None:
-    """An inner loop (altitude, roll, pitch): eq. (2) at the model's known Tp, tuned; or the tests it needs."""
+                   acc: _Accumulated, said: str = "") -> None:
+    """An inner loop (altitude, roll, pitch): eq. (2) at the model's known Tp, tuned; or the tests it needs.
+
+    ``said``: an outer loop identified with eq. (2) instead (:func:`identify_outer`), the assumption that
+    says so and why, stated first."""
     flight = _read(source, loop, model.Tp, options, acc)
     if flight is None:
         return
@@ -242,8 +245,11 @@ def identify_inner(source: LogSource, loop: str, model: LoopModel, options: Vehi
         acc.missing[loop] = missing_from_error(loop, err, model.Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
         return
+    if said:
+        acc.first.append(said)
     gains, stated, refused = _tuned(result, options)
-    acc.add(VehicleLoop(loop, "inner", "eq2", result, gains), stated, refused)
+    acc.add(VehicleLoop(loop, "outer" if said else "inner", "eq2", result, gains, (said,) if said else ()), stated,
+            refused)
 
 
 def identify_outer(source: LogSource, loop: str, model: LoopModel, options: VehicleOptions,
@@ -253,33 +259,28 @@ def identify_outer(source: LogSource, loop: str, model: LoopModel, options: Vehi
     option); tuned; or the tests it needs. ``model``: eq. (2) with the loop's Tp known."""
     Tp = model.Tp
     inner = INNER_OF[loop]
+    controller, why_not = _inner_controller(inner, inner_gains, acc)
+    if controller is None:
+        said = EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{Tp:g}", inner=inner, why=why_not)
+        identify_inner(source, loop, model, options, acc, said)
+        return
     flight = _read(source, loop, Tp, options, acc)
     if flight is None:
         return
-    controller, why_not = _inner_controller(inner, inner_gains, acc)
     try:
-        if controller is not None:
-            analysis = cascade_outer(flight, acc.loops[inner], controller, options.outer())
-        else:
-            result = refuse_rejected_tp(analyze_flight(flight, model, options=options.analyze()), options.accept_tp)
+        analysis = cascade_outer(flight, acc.loops[inner], controller, options.outer())
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
         return
-    if controller is not None:
-        acc.first += [f"{loop}: {a}" for a in analysis.assumptions]
-        try:
-            gains: LoopGains | None = tune_outer(analysis, acc.loops[inner], options.outer())
-            refused: tuple[str, ...] = ()
-        except MrftError as err:
-            gains, refused = None, (f"not tuned: {' '.join(str(err).split())}",)
-        notes = (f"identified through the closed {inner} loop",) + (() if gains is None else gains.tune.notes[:1])
-        acc.add(VehicleLoop(loop, "outer", "cascade", analysis, gains, notes), (), refused)
-        return
-    said = EQ2_OUTER_ASSUMPTION.format(loops=loop, tp=f"{Tp:g}", inner=inner, why=why_not)
-    acc.first.append(said)
-    gains, stated, refused = _tuned(result, options)
-    acc.add(VehicleLoop(loop, "outer", "eq2", result, gains, (said,)), stated, refused)
+    acc.first += [f"{loop}: {a}" for a in analysis.assumptions]
+    try:
+        gains: LoopGains | None = tune_outer(analysis, acc.loops[inner], options.outer())
+        refused: tuple[str, ...] = ()
+    except MrftError as err:
+        gains, refused = None, (f"not tuned: {' '.join(str(err).split())}",)
+    notes = (f"identified through the closed {inner} loop",) + (() if gains is None else gains.tune.notes[:1])
+    acc.add(VehicleLoop(loop, "outer", "cascade", analysis, gains, notes), (), refused)
 
 
 def _inner_controller(inner: str, inner_gains: Mapping[str, object] | None,

@@ -207,14 +207,12 @@ class FeatureSummary:
     """Feature vector of one test over a set of cycles, with standard errors.
 
     ``values`` and ``sigma`` follow :data:`FEATURE_NAMES`; ``t_mean`` is the mean cycle time [s]
-    (trend reference), ``period_scatter`` the cycle-to-cycle std (the segmenter already dropped outlier cycles) of the period [s] and
-    ``n`` the number of cycles.
+    (trend reference) and ``n`` the number of cycles.
     """
 
     values: np.ndarray
     sigma: np.ndarray
     t_mean: float
-    period_scatter: float
     n: int
 
 
@@ -272,7 +270,6 @@ def summarize_features(tab: CycleTable) -> FeatureSummary:
         values=values,
         sigma=sigma,
         t_mean=float(tm.mean()) if n else float("nan"),
-        period_scatter=float(np.std(tab.period, ddof=1)) if n > 2 else 0.0,
         n=n,
     )
 

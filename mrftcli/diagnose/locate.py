@@ -35,14 +35,12 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2 as chi2_dist, norm
 
-from ..analyze.general import TestSummary, identify_points, response_points
-from ..analyze.smooth_cycle import CycleFit, cycle_fits, cycle_harmonics, peak_amplitude, predicted_cycle
+from ..analyze.general import MeasuredTest, TestSummary, identify_points
+from ..analyze.smooth_cycle import cycle_harmonics, peak_amplitude, predicted_cycle
 from ..errors import IdentificationError, InputError
-from ..io.logtypes import FlightLog
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
 from ..mrft.model import PlantModel
-from ..segment.records import MrftTest
 from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
@@ -514,17 +512,19 @@ class MeasuredWaveform:
     points: tuple[ResponsePoint, ...]
 
 
-def measured_waveform(flight: FlightLog, test: MrftTest, fits: Sequence[CycleFit] | None = None) -> MeasuredWaveform:
-    """The test's mean cycle and scatter (module docstring, stage 2).
+def measured_waveform(used: MeasuredTest) -> MeasuredWaveform:
+    """The mean cycle and scatter of a test the analysis used (module docstring, stage 2), from its cycle
+    fits; its response points are the analysis' own.
 
     Raises
     ------
     InputError
         Fewer than two cycles long enough to fit.
     """
-    fits = cycle_fits(flight, test) if fits is None else fits
+    fits = used.fits
     if len(fits) < 2:
-        raise InputError(f"test {test.index + 1}: fewer than two stable cycles long enough to fit a waveform")
+        assert used.test is not None  # a usable test carries the test as used
+        raise InputError(f"test {used.test.index + 1}: fewer than two stable cycles long enough to fit a waveform")
     n_h = min(f.harmonics.size for f in fits)
     Y = np.array([f.harmonics[:n_h] for f in fits])
     n = len(fits)
@@ -535,8 +535,7 @@ def measured_waveform(flight: FlightLog, test: MrftTest, fits: Sequence[CycleFit
     freq = 1.0 / float(periods.mean())
     amps = np.array([peak_amplitude(y) for y in Y])
     return MeasuredWaveform(mean, se, freq, freq ** 2 * float(periods.std(ddof=1)) / math.sqrt(n),
-                            peak_amplitude(mean), float(amps.std(ddof=1) / math.sqrt(n)),
-                            response_points(flight, test, fits=fits))
+                            peak_amplitude(mean), float(amps.std(ddof=1) / math.sqrt(n)), used.points)
 
 
 def _orbit_spread(model: PlantModel, lc: LimitCycle, measured: MeasuredWaveform, rate_hz: float) -> np.ndarray:

@@ -689,8 +689,10 @@ class DiagnosisResult:
         data = check_schema_version(data, "diagnosis", (1, SCHEMA_VERSION), missing=1,
                                     fix="rerun mrft-ident diagnose")
         try:
-            if data.get("family", "soiptd") != "soiptd":
-                return _from_family_json(data)
+            if data.get("family", "soiptd") != "soiptd":  # a family's diagnosis of this version
+                return _family_result(data, str(data["summary"]),
+                                      [*expect_list(data["candidates"], "candidates"),
+                                       *expect_list(data["second_effect_candidates"], "second_effect_candidates")])
             unexplained, ident = data["unexplained"], data["identification"]
             return cls(
                 path=str(data["path"]), loop=str(data["loop"]), Tp=float(data["Tp"]),
@@ -733,13 +735,6 @@ def _family_result(data: Mapping[str, Any], summary: str, rows: list[Any]) -> Di
         located=[str(s) for s in data.get("located", [])], warnings=[str(w) for w in data.get("warnings", [])],
         notes=[str(s) for s in data.get("notes", [])], t0=float(data.get("t0", analysis.t0)),
         checks=[TestCheck.from_json(c) for c in data["checks"]], analysis=analysis)
-
-
-def _from_family_json(data: Mapping[str, Any]) -> DiagnosisResult:
-    """A family's diagnosis of this version (the caller maps its errors to one line)."""
-    return _family_result(data, str(data["summary"]),
-                          [*expect_list(data["candidates"], "candidates"),
-                           *expect_list(data["second_effect_candidates"], "second_effect_candidates")])
 
 
 def _from_process_json(data: Mapping[str, Any]) -> DiagnosisResult:

@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Generator, Iterator, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from numbers import Integral
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -299,9 +299,8 @@ class WatchEnd:
     exit_code: int = 0
 
     def to_json(self) -> dict[str, Any]:
-        """One ``--jsonl`` line."""
-        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "reason": self.reason,
-                "tests": self.tests, "wall_time": self.wall_time, "error": self.error, "exit_code": self.exit_code}
+        """One ``--jsonl`` line: ``kind``, ``schema_version``, then the fields in their order."""
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, **asdict(self)}
 
 
 @dataclass(frozen=True)
@@ -321,10 +320,7 @@ class Restart:
     reason: str
     wall_time: float
 
-    def to_json(self) -> dict[str, Any]:
-        """One ``--jsonl`` line."""
-        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "reason": self.reason,
-                "wall_time": self.wall_time}
+    to_json = WatchEnd.to_json
 
 
 Update = TestUpdate | EstimateUpdate | WatchEnd | Restart

@@ -146,11 +146,8 @@ class LogInfo:
                    reader_warnings=tuple(flight.warnings))
 
     def to_dict(self) -> _JSONDict:
-        """The keys of the JSON's ``input`` section, in its order."""
-        return {"source": self.source, "command_samples": self.command_samples,
-                "output_samples": self.output_samples, "t_first": self.t_first, "t_last": self.t_last,
-                "beta_topic": self.beta_topic, "setpoint_topic": self.setpoint_topic,
-                "reader_warnings": list(self.reader_warnings)}
+        """The keys of the JSON's ``input`` section, in its order (the fields')."""
+        return {**dataclasses.asdict(self), "reader_warnings": list(self.reader_warnings)}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> LogInfo:
@@ -613,20 +610,17 @@ def _eq2_from_json(data: Mapping[str, Any]) -> AnalysisResult:
     Tp = _estimate("Tp", p["Tp"]).value
     Td, tau, K = _estimate("Td", p["Td"]), _estimate("tau", p["tau"]), _estimate("K", p["K"])
     m = data.get("model") or {"Tp": Tp, "Td": Td.value, "tau": tau.value, "K": K.value}
-    rejected_rows = data.get("rejected_tests") or ()
     info = LogInfo.from_dict(inp) if "command_samples" in inp else None
     constraints = (data.get("identification") or {}).get("constraints") or {}
     return AnalysisResult(
         path=str(inp.get("path", "")), loop=str(inp.get("loop", "")),
         model=LoopModel(json_float(m["Tp"]), json_float(m["Td"]), json_float(m["tau"]), json_float(m["K"])),
         tests=tuple(mrft_test_from_json(t) for t in data.get("tests") or ()), identification=None,
-        parameters={"Td": Td, "tau": tau, "K": K},
-        rejected=tuple(mrft_test_from_json(t) for t in rejected_rows),
+        parameters={"Td": Td, "tau": tau, "K": K}, **_rejected(data),
         warnings=tuple(str(w) for w in data.get("warnings") or ()),
         t0=json_float(inp.get("t0") or 0.0),
         # the JSON writes {"used": ["ufm"]} when no constraint was used; the record holds {} then
         constraints={} if dict(constraints) == {"used": ["ufm"]} else dict(constraints),
-        rejection_reasons={int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
         method=str(p["Td"].get("method", "mrft")),
         parameters_mrft={k: _estimate(k, v) for k, v in (data.get("parameters_mrft") or {}).items()},
         notes=tuple(str(n) for n in data.get("notes") or ()),
@@ -696,22 +690,26 @@ def _cascade_from_json(data: Any) -> AnalysisResult:
         raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
     inp = d.get("input") or {}
     try:
-        rejected_rows = d.get("rejected_tests") or ()
         ident = CascadeIdentification.from_json(d["identification"])
         recorded = dict(d) if d.get("schema_version") == CASCADE_SCHEMA_VERSION else \
             {**d, "schema_version": CASCADE_SCHEMA_VERSION,  # version 1's parameters as the one record
              "parameters": {k: e.to_json() for k, e in ident.estimates.items()}, "identification": ident.to_json()}
         return AnalysisResult(
             str(inp.get("path", "")), str(inp.get("loop", "")), ident.model,
-            tuple(mrft_test_from_json(t) for t in d.get("tests") or ()), ident, dict(ident.estimates),
-            rejected=tuple(mrft_test_from_json(t) for t in rejected_rows),
-            rejection_reasons={int(t["index"]): str(t.get("reason", "")) for t in rejected_rows},
+            tuple(mrft_test_from_json(t) for t in d.get("tests") or ()), ident, dict(ident.estimates), **_rejected(d),
             controller_rate_hz=float(inp.get("controller_rate_hz") or 0.0),
             assumptions=tuple(str(a) for a in d.get("assumptions") or ()),
             warnings=tuple(str(w) for w in d.get("warnings") or ()), t0=float(inp.get("t0") or 0.0),
             recorded=recorded)
     except (KeyError, TypeError, ValueError) as err:
         raise InputError(f"cascade analysis JSON: bad tests ({type(err).__name__}: {err})") from err
+
+
+def _rejected(data: Mapping[str, Any]) -> dict[str, Any]:
+    """``rejected`` (the tests, without their cycles) and ``rejection_reasons`` of eq. (2)'s or the cascade's JSON."""
+    rows = data.get("rejected_tests") or ()
+    return {"rejected": tuple(mrft_test_from_json(t) for t in rows),
+            "rejection_reasons": {int(t["index"]): str(t.get("reason", "")) for t in rows}}
 
 
 def _recorded_rate(data: Mapping[str, Any], info: LogInfo | None) -> float | None:

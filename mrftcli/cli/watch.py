@@ -135,10 +135,8 @@ def _check_model_options(model_name: str, Tp: float | None, params: tuple[str, .
               help="Longest wait for LOG to appear (default: until Ctrl-C).")
 @click.option("--jsonl", is_flag=True, help="Print one JSON object per update (for a ground-station script).")
 def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...],
-          relay_kind: str | None, eps: float | None, loop: str, command_topic: str | None, output_topic: str | None,
-          beta_topic: str | None, setpoint_topic: str | None, output_scale: float | None, command_scale: float | None,
-          layout: str | None, controller_rate_hz: float | None, fmt: str | None, time_unit: str | None,
-          min_cycles: int, idle: float, poll: float, wait: float | None, jsonl: bool) -> None:
+          relay_kind: str | None, eps: float | None, min_cycles: int, idle: float, poll: float, wait: float | None,
+          jsonl: bool, **read_options: Any) -> None:
     """Follow LOG while it is being written and print each relay test and the identification as cycles arrive.
 
     LOG is an MCAP file, a ROS 2 bag directory with mcap storage, a CSV or a ULog that a recorder is
@@ -169,21 +167,21 @@ def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], 
     from ..watch import WatchOptions, watch as follow
 
     _check_model_options(model_name, Tp, params, ranges, relay_kind, eps)
-    if layout not in (None, "reference") or command_scale is not None or controller_rate_hz is not None:
+    layout = read_options["layout"]
+    if layout not in (None, "reference") or read_options["command_scale"] is not None \
+            or read_options["controller_rate_hz"] is not None:
         # the incremental readers follow the reference topics; the other layouts are read whole
         raise InputError(f"watch follows logs in the reference layout only (--layout {layout or 'reference'}, "
                                "--command-scale or --controller-rate given); run 'mrft-ident analyze' with the same "
                                "options on the finished log")
-    read = ReadOptions(loop=loop, command_topic=command_topic, output_topic=output_topic, beta_topic=beta_topic,
-                       setpoint_topic=setpoint_topic, output_scale=output_scale, fmt=fmt, time_unit=time_unit,
-                       any_time_scale=model_name != "soiptd")
+    read = ReadOptions(**{**read_options, "layout": None}, any_time_scale=model_name != "soiptd")  # found from the topics
     model = soiptd_model(Tp) if Tp is not None else build_model(model_name, params, ranges)
     options = WatchOptions(min_cycles=min_cycles, idle=idle, poll=poll, wait=wait,
                            relay=RelayOptions(relay_kind, None, eps))
     if not Path(log).exists():
         limit = f"for up to {wait:g} s" if wait is not None else "until Ctrl-C"
         click.echo(f"waiting for {log} to appear ({limit})", err=True)
-    unit, units = _units(model, loop)
+    unit, units = _units(model, read.loop)
     if not jsonl:
         click.echo(_model_header(model, unit))
     _print(follow(log, model, read=read, options=options), log, unit, units, jsonl)

@@ -59,17 +59,6 @@ def _resolve_export(fmt: str | None, export: str | None) -> str | None:
     return new
 
 
-def check_out(out: str | None) -> None:
-    """``--out FILE`` checked before the work (the shared rule, :func:`.options.check_output_file`)."""
-    check_output_file(out, "--out")
-
-
-def check_outputs(json_target: str | None, report_dir: str | None) -> None:
-    """Output paths are checked before the work starts (one-line error, exit 2)."""
-    check_output_file(json_target, "--json")
-    check_output_dir(report_dir, "--report")
-
-
 @dataclass(frozen=True)
 class _TuneSource:
     """What the designs start from: the model, its posterior, the loop and the controller rate [Hz] the
@@ -181,35 +170,27 @@ def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict
                        tuple(float(t.h) for t in result.tests), tuple(float(t.amplitude_mean) for t in result.tests))
 
 
-def _read_json(path: str) -> Any:
+def _source_json(source: str | None) -> Any:
+    """SOURCE parsed once when it is a ``.json`` file (None: not one, or unreadable: its own reader then says why)."""
+    if source is None or not str(source).lower().endswith(".json"):
+        return None
     try:
-        with open(path, encoding="utf-8") as fh:
-            return load_json_text(fh.read(), path)
+        with open(source, encoding="utf-8") as fh:
+            return load_json_text(fh.read(), source)
     except (OSError, ValueError):  # InputError too: the caller's own reader then says why
         return None
 
 
-def _is_cascade(source: str | None) -> bool:
-    """Is SOURCE an ``analyze --inner-model --json`` result (kind ``"cascade"``)?"""
-    if source is None or not str(source).lower().endswith(".json"):
-        return False
-    data = _read_json(source)
-    return isinstance(data, dict) and data.get("kind") == "cascade"
-
-
-def _family_asked(ctx: click.Context, source: str | None) -> bool:
-    """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given, or SOURCE an
-    ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
+def _family_asked(ctx: click.Context, data: Any) -> bool:
+    """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given, or SOURCE (``data``,
+    parsed) an ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
     if meta_model(ctx) is not None:
         return True
-    if source is None or not str(source).lower().endswith(".json"):
-        return False
-    data = _read_json(source)
     return isinstance(data, dict) and isinstance(data.get("model"), str) and data["model"] != "soiptd" \
         and "identification" in data
 
 
-def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
+def _family_source(ctx: click.Context, source: str | None, data: Any) -> _TuneSource:
     """A family's model with its draws (none without a spread), from ``--model``/``--param`` or an analyze
     RESULT.json: ``analyze --model NAME``'s (``rate_hz`` the tests' controller rate when they share one) or
     an outer loop's cascade (``analyze --inner-model``'s: draws over the outer estimate and the inner loop,
@@ -228,7 +209,6 @@ def _family_source(ctx: click.Context, source: str | None) -> _TuneSource:
         raise InputError("give a RESULT.json or --model with --param, not both (the file holds its model)")
     from ..analyze.record import AnalysisResult
 
-    data = _read_json(source) if str(source).lower().endswith(".json") else None
     if data is None:
         raise InputError(f"{source}: tune on a process plant takes the RESULT.json of analyze LOG --model NAME "
                          "--json RESULT.json (or --model NAME with every --param)")
@@ -458,8 +438,9 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()
     source = sources[0] if sources else None
-    cascade = len(sources) == 1 and _is_cascade(source)
-    family = cascade or (len(sources) < 2 and _family_asked(ctx, source))
+    data = _source_json(source) if len(sources) == 1 else None  # SOURCE parsed once
+    cascade = isinstance(data, dict) and data.get("kind") == "cascade"  # analyze --inner-model's result
+    family = cascade or (len(sources) < 2 and _family_asked(ctx, data))
     if cascade:  # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
         _refuse_unused({"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
                         "--design mrft-rule": design == "mrft-rule",
@@ -478,8 +459,9 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, cutoff_hz, objective, ms_max, effort_max,
                        (td, tau, K), json_target, report_dir, quiet, read_options):
         return
-    check_outputs(json_target, report_dir)
-    check_out(out)
+    check_output_file(json_target, "--json")  # output paths checked before the work starts
+    check_output_dir(report_dir, "--report")
+    check_output_file(out, "--out")
     if out and ex.stack is None:
         raise InputError("--out needs --export generic" + ("" if family else "|px4|ardupilot|hear"))
     if ex.stack is not None and not out and json_target == "-":
@@ -487,7 +469,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     rate_given: float | None = read_options.get("controller_rate_hz")
     setting = None
     if family:
-        src = _family_source(ctx, source)
+        src = _family_source(ctx, source, data)
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:

@@ -16,7 +16,7 @@ import click
 
 from ..errors import InputError
 from ..validate import TP_MISSING
-from .options import dump_json, tqdm_progress
+from .options import check_output_file, dump_json, tqdm_progress
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
@@ -72,8 +72,6 @@ class AxesRequest:
 
 def _check_request(req: AxesRequest) -> str:
     """The stack, after the checks that need no file (one-line errors)."""
-    from .tune import check_out, check_outputs
-
     if req.model is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
     if req.stack not in ("px4", "ardupilot"):
@@ -86,8 +84,8 @@ def _check_request(req: AxesRequest) -> str:
         if not (s.lower().endswith(".json") and Path(s).is_file()):
             raise InputError(f"{s}: with two sources give analyze RESULT.json files (analyze each log with "
                              "--json FILE first)")
-    check_outputs(req.json_target, None)
-    check_out(req.out)
+    check_output_file(req.json_target, "--json")
+    check_output_file(req.out, "--out")
     if not req.out and req.json_target == "-":
         raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
     return req.stack

@@ -57,8 +57,8 @@ import numpy as np
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, PlantStack, RateFilter, plants_of_parameters
-from .margins import Margins, margin_grid, sensitivity_peaks
-from .stack_params import param
+from .margins import Margins, margin_grid, nyquist_stable, sensitivity_peaks
+from .ardupilot_versions import z_bounds
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
            "cascade_figures", "design_z_cascade", "split_assumption", "THROTTLE_CUTOFF_HZ", "ACCZ_P_CANDIDATES",
@@ -211,20 +211,43 @@ def _paths_of(rows: Sequence[tuple[LoopModel, DelaySplit]], rate_hz: float) -> _
 
 def cascade_loop(g: ZCascadeGains, paths: _Paths, z: np.ndarray) -> np.ndarray:
     """L at the points ``z`` ((1, W) for all rows, or (R, 1) with ``paths`` taken to R rows): shape (rows, W)."""
-    return _loop_of(g, (paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z)), z)
+    parts = _Parts(z, g.rate_hz, paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z), cached=False)
+    return np.asarray(_loop_of(g, parts), complex)
 
 
-def _loop_of(g: ZCascadeGains, plant: tuple[np.ndarray, np.ndarray, np.ndarray], z: np.ndarray) -> np.ndarray:
-    """L from the plant's three responses (G_a, G_v, G_z) at ``z`` (the search keeps them across gains)."""
-    r = g.rate_hz
-    T = 1.0 / r
-    Ga, Gv, Gz = plant
-    integ = T * z / (z - 1.0)
-    Cv = _first_order(g.vel_flte_hz, r, z) * (g.vel_p + g.vel_i * integ)
-    Ca = _first_order(g.acc_flte_hz, r, z) * (g.acc_p + g.acc_i * integ)
-    Facc = RateFilter(g.accel_filter_hz).response(z, r)
-    inner = Facc * Ga + _first_order(g.acc_fltt_hz, r, z) * Cv * (Gv + g.pos_p * Gz)
-    return np.asarray(0.1 * _first_order(THROTTLE_CUTOFF_HZ, r, z) * Ca * inner, complex)
+class _Parts:
+    """The loop's factors at ``z``: the plant's three responses (G_a, G_v, G_z) and the filters, by
+    ``part(key, value)`` (``cached``: kept across gains, the search's)."""
+
+    def __init__(self, z: np.ndarray, rate_hz: float, Ga: np.ndarray, Gv: np.ndarray, Gz: np.ndarray,
+                 cached: bool = True) -> None:
+        self.z, self.rate_hz, self.Ga, self.Gv, self.Gz, self.cached = z, rate_hz, Ga, Gv, Gz, cached
+        self._cache: dict[tuple[str, float], np.ndarray] = {}
+
+    def part(self, key: str, value: float) -> np.ndarray:
+        """``pz``: G_v + P_z G_z; ``ins``: INS_ACCEL_FILTER times G_a; ``f``: a first-order filter at ``value`` Hz."""
+        k = (key, value)
+        if k in self._cache:
+            return self._cache[k]
+        r, z = self.rate_hz, self.z
+        if key == "pz":
+            out = self.Gv + value * self.Gz
+        elif key == "ins":
+            out = RateFilter(value).response(z, r) * self.Ga
+        else:
+            out = _first_order(value, r, z)
+        if self.cached:
+            self._cache[k] = out
+        return out
+
+
+def _loop_of(g: ZCascadeGains, parts: _Parts) -> np.ndarray:
+    """L from the loop's factors (:class:`_Parts`, the search keeps them across gains)."""
+    integ = (1.0 / parts.rate_hz) * parts.z / (parts.z - 1.0)
+    Cv = parts.part("f", g.vel_flte_hz) * (g.vel_p + g.vel_i * integ)
+    Ca = parts.part("f", g.acc_flte_hz) * (g.acc_p + g.acc_i * integ)
+    inner = parts.part("ins", g.accel_filter_hz) + parts.part("f", g.acc_fltt_hz) * Cv * parts.part("pz", g.pos_p)
+    return 0.1 * parts.part("f", THROTTLE_CUTOFF_HZ) * Ca * inner
 
 
 @dataclass(frozen=True)
@@ -282,8 +305,7 @@ def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Seque
     def at(rows: np.ndarray, x: np.ndarray) -> np.ndarray:
         return cascade_loop(g, paths.take(rows), np.exp(1j * np.exp(x) * T)[:, None])[:, 0]
 
-    ph = np.unwrap(np.angle(1.0 + L), axis=-1)
-    stable = np.rint((2.0 * (ph[:, -1] - ph[:, 0]) - g.integrators * math.pi) / (2.0 * math.pi)) == 0
+    stable = nyquist_stable(g.integrators, L)
     # phase margins: every gain crossover; the one of smallest |PM| reported, all of positive PM for the delay margin
     rows, k = _crossings(np.log(np.abs(L)))
     x = _bisect(lambda y: np.log(np.abs(at(rows, y))), lw[k], lw[k + 1])
@@ -383,7 +405,7 @@ def _gains(pz: float, pv: float, pa: float, ai: float, rate_hz: float) -> ZCasca
 class _Check:
     """Whether gains hold: every (model, split) row's loop stable with its grid Ms at most the target (the
     search's test; the reported figures are :func:`cascade_figures`'s, refined). The plant's and the fixed
-    filters' responses are kept; the loop is :func:`_loop_of`'s, factored for the search's gains."""
+    filters' responses are kept (:class:`_Parts`); the loop is :func:`_loop_of`'s."""
 
     def __init__(self, models: Sequence[LoopModel], rate_hz: float, ms_target: float) -> None:
         # the nominal model (first) over the full grid of splits, the draws over a coarser one (n = 2: 19)
@@ -396,34 +418,14 @@ class _Check:
                        np.geomspace(1e-6 * math.pi * rate_hz, 0.05 * math.pi * rate_hz, 300))
         z = np.exp(1j * w / rate_hz)[None, :]
         paths = _paths_of(rows, rate_hz)
-        Ga, self.Gv, self.Gz = paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z)
-        self.z, self.ms_target, self.rate_hz = z, ms_target, rate_hz
-        self._acc_fb = Ga  # times INS_ACCEL_FILTER's response, per gains (cached by cutoff)
-        self._cache: dict[tuple[str, float], np.ndarray] = {}
-
-    def _part(self, key: str, value: float) -> np.ndarray:
-        k = (key, value)
-        if k not in self._cache:
-            r, z = self.rate_hz, self.z
-            if key == "pz":
-                self._cache[k] = self.Gv + value * self.Gz
-            elif key == "ins":
-                self._cache[k] = RateFilter(value).response(z, r) * self._acc_fb
-            else:  # a first-order filter at ``value`` Hz
-                self._cache[k] = _first_order(value, r, z)
-        return self._cache[k]
+        self.parts = _Parts(z, rate_hz, paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z))
+        self.ms_target, self.rate_hz = ms_target, rate_hz
 
     def holds(self, g: ZCascadeGains) -> bool:
-        integ = (1.0 / self.rate_hz) * self.z / (self.z - 1.0)
-        Cv = self._part("f", g.vel_flte_hz) * (g.vel_p + g.vel_i * integ)
-        Ca = self._part("f", g.acc_flte_hz) * (g.acc_p + g.acc_i * integ)
-        inner = self._part("ins", g.accel_filter_hz) + self._part("f", g.acc_fltt_hz) * Cv * self._part("pz", g.pos_p)
-        L = 0.1 * self._part("f", THROTTLE_CUTOFF_HZ) * Ca * inner
+        L = _loop_of(g, self.parts)
         if np.max(1.0 / np.abs(1.0 + L)) > self.ms_target:
             return False
-        ph = np.unwrap(np.angle(1.0 + L), axis=-1)
-        winding = np.rint((2.0 * (ph[:, -1] - ph[:, 0]) - g.integrators * math.pi) / (2.0 * math.pi))
-        return bool(np.all(winding == 0))
+        return bool(np.all(nyquist_stable(g.integrators, L)))
 
 
 def _largest_g(pz: float, v_full: float, pa: float, ai: float, check: _Check, g_range: tuple[float, float]) -> float:
@@ -461,11 +463,6 @@ def check_units(model: LoopModel, hover_thrust: float) -> None:
 
 
 _Bounds = dict[str, tuple[float, float]]
-
-
-def _default_bounds() -> _Bounds:
-    return {n: (param("ardupilot", n).minimum, param("ardupilot", n).maximum)
-            for n in ("PSC_POSZ_P", "PSC_VELZ_P", "PSC_VELZ_I", "PSC_ACCZ_P", "PSC_ACCZ_I")}
 
 
 def _search(pz: float, kd: float, K: float, ratio: float, check: _Check,
@@ -512,7 +509,7 @@ def design_z_cascade(pd: Controller, model: LoopModel, *, clamp: bool = False, m
     """
     from .margins import margins as pd_margins
 
-    b = bounds or _default_bounds()
+    b = bounds or z_bounds("4.6")
     rate = pd.rate_hz
     every = (model, *models)
     ms_target = max(pd_margins(m, pd).Ms for m in every)

@@ -449,10 +449,7 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float, 
     z = sp.z
     T = controller.Ts
     Cr = controller.Kp + controller.Ki * T * z / (z - 1.0)
-    if controller.rate_filter is None:  # the expression as before (same rounding, same designs)
-        Cfb = Cr + controller.Kd * (z - 1.0) / ((controller.Tf + T) * z - controller.Tf)
-    else:
-        Cfb = Cr + controller.Kd * controller.derivative_response(z)
+    Cfb = controller.feedback_at(z)  # Cr + Kd D(z), C_fb's one expression
     R = z / (z - 1.0)
     F = 1.0 + Cfb * sp.Gd
     S = 1.0 / F

@@ -33,7 +33,7 @@ from .closed_loop import Controller
 if TYPE_CHECKING:
     from .design import TuneResult
 
-__all__ = ["generic_file", "generic_export", "generic_units", "hear_json", "px4_params", "px4_conditions", "unit_reasons",
+__all__ = ["generic_file", "generic_export", "generic_units", "hear_json", "hear_params", "px4_params", "px4_conditions", "unit_reasons",
            "format_table", "HEAR_PID_ID"]
 
 #: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
@@ -74,6 +74,12 @@ def generic_export(result: "TuneResult", design: str, kind: str) -> dict[str, An
     return {"design": design, "kind": kind, "reverse_acting": result.reverse_acting, **c.to_dict()}
 
 
+def hear_params(c: Controller, loop: str, scale: float = 1.0) -> dict[str, float]:
+    """The fields of HEAR's ``PID_param`` message for ``c`` on ``loop`` (the gains times ``scale``: a unit change)."""
+    return {"id": float(HEAR_PID_ID.get(loop, -1)), "kp": scale * c.Kp, "ki": scale * c.Ki, "kd": scale * c.Kd,
+            "kdd": 0.0, "anti_windup": 0.0, "en_pv_derivation": 1.0, "dt": c.Ts}
+
+
 def hear_json(c: Controller, loop: str) -> dict[str, Any]:
     """The HEAR ``PID_parameters`` JSON object of ``c`` for ``loop``.
 
@@ -82,8 +88,7 @@ def hear_json(c: Controller, loop: str) -> dict[str, Any]:
     >>> hear_json(Controller(2.0, 0.5, 0.3, 0.01, 200.0), "roll")["id"]
     3
     """
-    return {"id": HEAR_PID_ID.get(loop, -1), "kp": c.Kp, "ki": c.Ki, "kd": c.Kd, "kdd": 0.0, "anti_windup": 0.0,
-            "en_pv_derivation": 1, "dt": c.Ts,
+    return {**hear_params(c, loop), "id": HEAR_PID_ID.get(loop, -1), "en_pv_derivation": 1,
             "note": "HEAR computes u += kd * PV_DOT: feed PV_DOT with the NEGATED output rate (HEAR_FC's Gain(-1) "
                     f"block), filtered by a first-order lag of {c.Tf * 1e3:.1f} ms as designed (HEAR_FC's own filter is "
                     "a 2nd-order Butterworth at 50 Hz: tune --export hear designs with it); anti_windup 0 = off"}

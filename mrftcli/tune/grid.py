@@ -290,8 +290,7 @@ class _Plants:
             return np.array([np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(ss, c)[0]))) < 1.0 - 1e-9
                              for ss in self.all[rows]], dtype=bool)
         z = self.nyquist.contour
-        C = c.Kp + c.Ki * c.Ts * z / (z - 1.0) + c.Kd * c.derivative_response(z)
-        F = 1.0 + C[None, :] * self.nyquist.on_contour[rows]
+        F = 1.0 + c.feedback_at(z)[None, :] * self.nyquist.on_contour[rows]
         turns = np.diff(np.unwrap(np.angle(F), axis=1)[:, [0, -1]], axis=1)[:, 0] / math.pi
         stable: NDArray[np.bool_] = np.round(turns).astype(np.int64) == self.nyquist.unstable[rows]
         return stable
@@ -455,10 +454,10 @@ def _search(model: PlantModel, draws: Sequence[PlantModel], kinds: Sequence[str]
 
 def _family_plants(rate_hz: float, sign: float, w_low: float) -> Callable[[Sequence[PlantModel]], _Plants]:
     def plants(models: Sequence[PlantModel]) -> _Plants:
-        ss = tuple(_scaled(discretise(m, rate_hz), sign) for m in models)
+        held = [held_delay(m, rate_hz) for m in models]  # each model's held delay once
+        ss = tuple(_scaled(augmented(h), sign) for h in held)
         grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
-        Gd, fine = (np.array([sign * discrete_response(m, rate_hz, w) for m in models]) for w in grids)
-        held = [held_delay(m, rate_hz) for m in models]
+        Gd, fine = (np.array([sign * _response_at(h, np.exp(1j * w / rate_hz)) for h in held]) for w in grids)
         contour = _stability_contour(max(h.d for h in held))
         on_contour = np.array([sign * _response_at(h, contour) for h in held])
         unstable = np.array([int(np.sum(np.abs(np.linalg.eigvals(h.Phi)) > 1.0 + _CONTOUR_MARGIN)) for h in held])

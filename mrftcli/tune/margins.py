@@ -35,7 +35,7 @@ from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plant, plants_of_parameters
 
 __all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "sensitivity_peaks",
-           "frequency_grid", "margin_grid", "plant_response"]
+           "frequency_grid", "margin_grid", "plant_response", "nyquist_stable"]
 
 
 @dataclass(frozen=True)
@@ -247,14 +247,14 @@ def _crossings(sign_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rows, k
 
 
-def _nyquist_stable(controller: Controller, L: np.ndarray) -> np.ndarray:
-    """Nyquist criterion on the unit circle (open loop: poles inside, m integrators at z = 1 indented).
+def nyquist_stable(m: int, L: np.ndarray) -> np.ndarray:
+    """Nyquist criterion on the unit circle (open loop: poles inside, ``m`` integrators at z = 1 indented), per
+    row of the loop ``L`` on :func:`margin_grid`-like frequencies up to Nyquist.
 
     Going round the circle from z = 1+ to 1- and round z = 1 outside, the winding of 1 + L about 0 is
     (2 Delta arg_{(0, pi)} (1 + L) - m pi) / 2 pi (L is real on the real axis and conjugate-symmetric;
     the arc about z = 1, where L ~ c / (z - 1)^m, turns it by -m pi). Stable: no winding.
     """
-    m = 1 + (controller.Ki > 0)  # the plant's integrator, and the controller's
     ph = np.unwrap(np.angle(1.0 + L), axis=-1)
     winding = (2.0 * (ph[:, -1] - ph[:, 0]) - m * math.pi) / (2.0 * math.pi)
     return np.rint(winding) == 0
@@ -287,7 +287,7 @@ def loop_margins(controller: Controller, models: Sequence[LoopModel],
     lw = np.log(w)
     L = controller.feedback_response(w)[None, :] * stack.transfer(np.exp(1j * w / controller.rate_hz))
     loop = _Loop(controller, stack)
-    stable = _nyquist_stable(controller, L)
+    stable = nyquist_stable(1 + (controller.Ki > 0), L)  # the plant's integrator, and the controller's
     pm, wgc, cand = _phase_margins(loop, L, lw, M)
     gm, wpc = _gain_margins(loop, L, lw, M)
     Ms = sensitivity_peaks(lambda rows, x: loop.at(rows, x, stack), L, lw)

@@ -353,17 +353,14 @@ def _loop_controller(p: dict[str, float], c: Controller, loop: str, stack: str,
     """The controller from -y to u that the stack's values ``p`` give (the loop's C_fb: the margins depend on
     nothing else). A rate-loop integral I_r on (P_a e - y') adds I_r to the proportional gain on y and
     I_r P_a as integral gain (so is it for PX4's velocity loop, scaled by h / g)."""
+    ratio, gain, integral = _names(stack, loop)
     if stack == "px4" and loop == "altitude":
         assert hover_thrust is not None
         s = hover_thrust / STANDARD_GRAVITY
-        pz, pv, iv = p["MPC_Z_P"], p["MPC_Z_VEL_P_ACC"], p["MPC_Z_VEL_I_ACC"]
+        pz, pv, iv = p[ratio], p[gain], p[integral]
         return Controller(s * (pv * pz + iv), s * iv * pz, s * pv, c.Tf, c.rate_hz, c.rate_filter)
-    if stack == "px4":
-        ax = loop.upper()
-        pa, pr, ir = p[f"MC_{ax}_P"], p[f"MC_{ax}RATE_P"] * p[f"MC_{ax}RATE_K"], p[f"MC_{ax}RATE_I"]
-    else:
-        ax = _AXIS_AP[loop]
-        pa, pr, ir = p[f"ATC_ANG_{ax}_P"], p[f"ATC_RAT_{ax}_P"], p[f"ATC_RAT_{ax}_I"]
+    # PX4's rate P acts times its MC_*RATE_K (ArduPilot has none)
+    pa, pr, ir = p[ratio], p[gain] * p.get(f"MC_{loop.upper()}RATE_K", 1.0), p[integral]
     return Controller(pr * pa + ir, ir * pa, pr, c.Tf, c.rate_hz, c.rate_filter)
 
 
@@ -437,15 +434,23 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     return _with_reboot_note(e)
 
 
+def _names(stack: str, loop: str) -> tuple[str, str, str]:
+    """The stack's cascade parameters for ``loop``: (the ratio Kp / Kd, the rate (velocity) loop's P, its I)."""
+    if stack == "px4" and loop == "altitude":
+        return "MPC_Z_P", "MPC_Z_VEL_P_ACC", "MPC_Z_VEL_I_ACC"
+    if stack == "px4":
+        return f"MC_{loop.upper()}_P", f"MC_{loop.upper()}RATE_P", f"MC_{loop.upper()}RATE_I"
+    ax = _AXIS_AP[loop]
+    return f"ATC_ANG_{ax}_P", f"ATC_RAT_{ax}_P", f"ATC_RAT_{ax}_I"
+
+
 def _gain_pair(stack: str, loop: str, hover: float | None) -> tuple[str, str, float]:
     """(the ratio parameter Kp / Kd, the gain parameter, gain per unit Kd) of a stack's cascade mapping."""
+    ratio, gain, _ = _names(stack, loop)
     if stack == "px4" and loop == "altitude":
         assert hover is not None
-        return "MPC_Z_P", "MPC_Z_VEL_P_ACC", STANDARD_GRAVITY / hover
-    if stack == "px4":
-        return f"MC_{loop.upper()}_P", f"MC_{loop.upper()}RATE_P", 1.0
-    ax = _AXIS_AP[loop]
-    return f"ATC_ANG_{ax}_P", f"ATC_RAT_{ax}_P", 1.0
+        return ratio, gain, STANDARD_GRAVITY / hover
+    return ratio, gain, 1.0
 
 
 def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover: float | None,
@@ -506,7 +511,7 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
 
 def _hear_export(c: Controller, model: LoopModel, loop: str, design: str, notes: list[str]) -> StackExport:
     """HEAR's PID message; the z command in HEAR's units (an acceleration, m/s^2) or converted, stated."""
-    from .export import HEAR_PID_ID
+    from .export import hear_params
 
     scale, assumptions = 1.0, ()  # type: tuple[float, tuple[str, ...]]
     if loop == "altitude":
@@ -524,9 +529,7 @@ def _hear_export(c: Controller, model: LoopModel, loop: str, design: str, notes:
             raise InputError(f"cannot export the altitude loop to hear: K {K:.4g} per command unit is neither HEAR's "
                              "acceleration command (K ~ 1 m/s^2 per m/s^2) nor a thrust it can convert (K > 2): check "
                              "the log's command and altitude units")
-    params = {"id": float(HEAR_PID_ID.get(loop, -1)), "kp": scale * c.Kp, "ki": scale * c.Ki, "kd": scale * c.Kd,
-              "kdd": 0.0, "anti_windup": 0.0, "en_pv_derivation": 1.0, "dt": c.Ts}
-    return StackExport("hear", loop, design, params, (), loop_margins(c, [model])[0], tuple(notes), assumptions)
+    return StackExport("hear", loop, design, hear_params(c, loop, scale), (), loop_margins(c, [model])[0], tuple(notes), assumptions)
 
 
 def _with_reboot_note(e: StackExport) -> StackExport:

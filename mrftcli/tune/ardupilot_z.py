@@ -247,7 +247,8 @@ def _loop_of(g: ZCascadeGains, parts: _Parts) -> np.ndarray:
     Cv = parts.part("f", g.vel_flte_hz) * (g.vel_p + g.vel_i * integ)
     Ca = parts.part("f", g.acc_flte_hz) * (g.acc_p + g.acc_i * integ)
     inner = parts.part("ins", g.accel_filter_hz) + parts.part("f", g.acc_fltt_hz) * Cv * parts.part("pz", g.pos_p)
-    return 0.1 * parts.part("f", THROTTLE_CUTOFF_HZ) * Ca * inner
+    L: np.ndarray = 0.1 * parts.part("f", THROTTLE_CUTOFF_HZ) * Ca * inner
+    return L
 
 
 @dataclass(frozen=True)

@@ -326,11 +326,9 @@ class Identification:
 
     def to_json(self) -> dict[str, Any]:
         """The JSON's ``identification`` object."""
-        out: dict[str, Any] = {"linear": self.linear.to_json()}
-        out.update({f"with_{k}": v.to_json() for k, v in self.refits.items()})
-        out.update({f"waveform_with_{k}": v.to_json() for k, v in self.waveform.items()})
+        out: dict[str, Any] = {k: v.to_json() for k, v in self.entries().items()}
         if self.analyze is not None:
-            out["analyze"] = self.analyze.to_json()
+            out["analyze"] = self.analyze.to_json()  # with how analyze got it
         if self.recommended is not None:
             out["recommended"] = self.recommended.to_json()
         out["units"] = {"Td": "s", "tau": "s", "K": gain_unit(self.loop), "Tp": "s",

@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["to_jsonable", "check_schema_version", "load_json_text", "load_toml_text", "load_yaml_text",
+__all__ = ["to_jsonable", "check_schema_version", "json_float", "json_opt_float", "load_json_text", "load_toml_text", "load_yaml_text",
            "MAX_JSON_DEPTH", "MAX_YAML_NODES"]
 
 
@@ -183,6 +183,20 @@ def to_jsonable(obj: Any) -> Any:
     if isinstance(obj, np.bool_):
         return bool(obj)
     return obj
+
+
+def json_float(x: object, what: str = "a number") -> float:
+    """A JSON number as a float (null, which the writers make of NaN: NaN); TypeError on anything else."""
+    if x is None:
+        return float("nan")
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        raise TypeError(f"expected {what}, got {x!r}")
+    return float(x)
+
+
+def json_opt_float(x: object) -> float | None:
+    """A JSON number or null as a float or None (TypeError on anything else)."""
+    return None if x is None else json_float(x, "a number or null")
 
 
 def check_schema_version(data: Any, what: str, supported: int | Collection[int], *, missing: int | None = None,

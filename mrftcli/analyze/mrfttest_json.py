@@ -11,28 +11,15 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
 
+from ..jsonable import json_float, json_opt_float
 from ..segment import MrftTest, StabilityCriterion, ValidityCriterion
 from ..segment.records import RelayCycle
 from ..segment.validity import LimitCycleCheck
 
-__all__ = ["mrft_test_from_json", "json_float", "json_opt_float"]
+__all__ = ["mrft_test_from_json"]
 
 #: Keys of a test's ``criterion`` object that are measured on the test, not settings of the criterion.
 _MEASURED = ("period_median", "period_tolerance", "amplitude_median", "amplitude_tolerance")
-
-
-def json_float(x: object) -> float:
-    """A JSON number as a float (null, which the writers make of NaN: NaN); TypeError on anything else."""
-    if x is None:
-        return float("nan")
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise TypeError(f"expected a number, got {x!r}")
-    return float(x)
-
-
-def json_opt_float(x: object) -> float | None:
-    """A JSON number or null as a float or None."""
-    return None if x is None else json_float(x)
 
 
 def _cycle(d: Mapping[str, Any]) -> RelayCycle:

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.logtypes import FlightLog, output_unit
-from ..jsonable import check_schema_version
+from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.cascade import CascadeModel
 from ..mrft.cascade_identify import CascadeIdentification
 from ..mrft.identify import IdentificationResult, ParameterEstimate
@@ -36,7 +36,7 @@ from ..mrft.refine import Refinement
 from ..mrft.relays import RelayLaw
 from ..segment import MrftTest
 from .held_out import HeldOut
-from .mrfttest_json import json_float, json_opt_float, mrft_test_from_json
+from .mrfttest_json import mrft_test_from_json
 from .smooth_cycle import SwitchingLevel
 from .static_gain import StaticGain
 

@@ -16,21 +16,11 @@ from .options import json_option, log_layout_options, min_cycles_option, quiet_o
 
 __all__ = ["batch"]
 
-#: CLI option name -> LogSettings field (the options a config file can also set).
-_SETTING_OPTIONS = {
-    "tp": "tp",
-    "loop": "loops",
-    "command_topic": "command_topic",
-    "output_topic": "output_topic",
-    "beta_topic": "beta_topic",
-    "setpoint_topic": "setpoint_topic",
-    "output_scale": "output_scale",
-    "command_scale": "command_scale",
-    "layout": "layout",
-    "controller_rate_hz": "controller_rate_hz",
-    "min_cycles": "min_cycles",
-    "accept_tp": "accept_tp",
-}
+#: CLI option name -> LogSettings field (the options a config file can also set): the same names, but --loop's
+#: field is ``loops``.
+_SETTING_OPTIONS = {opt: "loops" if opt == "loop" else opt for opt in (
+    "tp", "loop", "command_topic", "output_topic", "beta_topic", "setpoint_topic", "output_scale", "command_scale",
+    "layout", "controller_rate_hz", "min_cycles", "accept_tp")}
 
 
 def _resolve_against(against: str | None, alias: str | None) -> str | None:

@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..jsonable import check_schema_version
+from ..jsonable import check_schema_version, json_opt_float
 from ..errors import InputError, MrftError
 
 __all__ = ["SCHEMA_VERSION", "PARAMETERS", "Estimate", "LoopEstimates", "Tolerance", "ParameterChange",
@@ -356,14 +356,6 @@ def _opt_str(x: object) -> str | None:
     return None if x is None else str(x)
 
 
-def _opt_float(x: object) -> float | None:
-    if x is None:
-        return None
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        raise TypeError(f"expected a number or null, got {x!r}")
-    return float(x)
-
-
 def _change_to_json(c: ParameterChange) -> dict[str, Any]:
     return {
         "name": c.name, "loop": c.loop, "parameter": c.parameter,
@@ -378,7 +370,7 @@ def _change_from_json(d: Mapping[str, Any]) -> ParameterChange:
     verdict = str(d["verdict"])
     if verdict not in VERDICTS:
         raise ValueError(f"unknown verdict {verdict!r}")
-    floats = {k: _opt_float(d[k]) for k in _CHANGE_FLOATS}
+    floats = {k: json_opt_float(d[k]) for k in _CHANGE_FLOATS}
     return ParameterChange(name=_opt_str(d["name"]), loop=str(d["loop"]), parameter=str(d["parameter"]),
                            baseline=floats["baseline"], new=floats["new"], change=floats["change"],
                            low=floats["low"], high=floats["high"], z=floats["z"],

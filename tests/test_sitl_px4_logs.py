@@ -382,3 +382,20 @@ def test_px4s_attitude_gains_in_the_generic_form_from_the_ulogs_parameters() -> 
     assert (c.Kp, c.Ki, c.Kd) == pytest.approx((1.175, 1.3, 0.15), rel=1e-6)
     assert c.Tf == pytest.approx(1 / (2 * np.pi * 40.0)) and c.rate_hz == 250.0
     assert "MC_PITCHRATE_D 0.003" in left
+
+
+def test_the_forks_relay_lands_on_an_orbit_the_sampled_predictor_admits() -> None:
+    """The fork's MRFT_Block (peak confirmation 5 samples, 20 ms guard) run tick by tick at 125 Hz on the fresh
+    flight's eq. (2) (exact zero-order-hold steps, no noise) settles on the same orbit as the plain sampled MRFT,
+    one of the admissible orbits ``mrft_limit_cycle`` lists (an independent simulation against the predictor), within
+    3 % of their centre: the relay law is not what the held-out misses miss by."""
+    from px4_campaign import relay_law_orbits
+
+    side, res = _flight("px4_altitude_h25")
+    rows = relay_law_orbits({"tp": side["tp_s"], "Td": res.Td.value, "tau": res.tau.value, "K": res.K.value,
+                             "rate_hz": 125.0, "tests": res.tests})
+    assert len(rows) == 4
+    for r in rows:
+        assert r["fork"] == pytest.approx(r["plain"], rel=1e-9)
+        assert min(abs(f / r["fork"] - 1) for f in r["orbits"]) < 1e-6
+        assert abs(r["fork"] / r["centre"] - 1) < 0.03

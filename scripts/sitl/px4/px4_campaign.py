@@ -36,7 +36,7 @@ from mrftcli.errors import MrftError  # noqa: E402
 from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
-           "run", "counted_errors", "held_out_jitter", "analyse_cascades", "px4_inner_gains"]
+           "run", "counted_errors", "held_out_jitter", "analyse_cascades", "px4_inner_gains", "relay_law_orbits"]
 
 G = 9.80665
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust.
@@ -424,6 +424,14 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         print(f"roll / pitch on SIH's attitude at the bench Tp {bench_tp() * 1e3:.2f} ms: held out within 5 %: "
               f"{sum(abs(e) <= 0.05 for e in truth)}/{len(truth)} (max {max(map(abs, truth), default=0) * 100:.2f} %)"
               + (f"; refused: {', '.join(refused)}" if refused else ""))
+    if EXPORT_FROM in results and "tests" in results[EXPORT_FROM]:
+        rows = relay_law_orbits(results[EXPORT_FROM])
+        print(f"the fork's relay (N_CONF 5, 20 ms guard) and the plain sampled MRFT tick by tick on {EXPORT_FROM}'s "
+              "eq. (2), no noise: " + "; ".join(
+                  f"beta {r['beta']:+.2f}: {r['fork']:.4f} / {r['plain']:.4f} Hz (centre {r['centre']:.4f}, "
+                  f"{(r['fork'] / r['centre'] - 1) * 100:+.2f} %; nearest orbit "
+                  f"{min(r['orbits'], key=lambda f, r=r: abs(f - r['fork'])) if r['orbits'] else math.nan:.4f})"
+                  for r in rows))
     for a, b in RATE_PAIRS:
         if all(k in results and "tau" in results[k].get("truth", {}) for k in (a, b)):
             inc = (results[b]["truth"]["tau"] - results[a]["truth"]["tau"]) * 1e3
@@ -463,9 +471,52 @@ def _report_misses(results: dict[str, dict[str, Any]]) -> None:
     hits = [results[k]["jitter"][h.index] for k, r in results.items() for h in r["held"] if abs(h.error) <= 0.05]
     if rows:
         print(f"  those {len(rows)}: within 2.5 std of analyze's stated held-out uncertainty "
-              f"{sum(z <= 2.5 for z in zs)}/{len(rows)} (max |z| {max(zs, default=math.nan):.1f}); median cycle-to-cycle "
+              f"{sum(z <= 2.5 for z in zs)}/{len(rows)} (max |z| {max(zs, default=math.nan):.2f}); median cycle-to-cycle "
               f"frequency spread {np.median([j['spread'] for j in rows]) * 100:.1f} % against "
               f"{np.median([j['spread'] for j in hits]) * 100:.1f} % for the {len(hits)} within 5 %")
+
+
+def relay_law_orbits(result: dict[str, Any], seconds: float = 30.0, sub: int = 16) -> list[dict[str, Any]]:
+    """The fork's relay (``MRFT_Block``: peak confirmation over ``MRFT_*_N_CONF`` 5 samples, a 20 ms no-switch
+    guard; ``mrftcli.sim.control.HearMrftRelay``) and the plain sampled MRFT, each run tick by tick at the log's
+    rate on the identified eq. (2) (exact zero-order-hold steps ``sub`` times a tick, the delay in whole steps,
+    no noise), against the admissible sampled orbits ``mrft_limit_cycle`` predicts at each flown beta and h:
+    the frequency each relay settles to [Hz] (the second half of ``seconds``), the predicted centre and orbits."""
+    from scipy.signal import cont2discrete, tf2ss
+
+    from mrftcli.mrft.lprs import mrft_limit_cycle
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.mrft.relays import MrftRelay
+    from mrftcli.sim.control import HearMrftRelay
+
+    tp, Td, tau, K, rate = result["tp"], result["Td"], result["tau"], result["K"], result["rate_hz"]
+    A, B, C, _ = tf2ss([K], np.polymul([1.0, 0.0], np.polymul([tp, 1.0], [Td, 1.0])))
+    dt = 1.0 / rate / sub
+    Ad, Bd, Cd, _, _ = cont2discrete((A, B, C, np.zeros((1, 1))), dt)
+
+    def settle(relay: Any, h: float) -> float:
+        x, line = np.zeros((A.shape[0], 1)), [0.0] * (int(round(tau / dt)) + 1)
+        u = last = relay.start(1e-3)
+        ups = []
+        for k in range(int(seconds * rate)):
+            u = relay.step(-float((Cd @ x)[0, 0]))
+            if u > last:
+                ups.append(k / rate)
+            last = u
+            for _ in range(sub):
+                line.append(h * u)
+                x = Ad @ x + Bd * line.pop(0)
+        t = np.array(ups)
+        t = t[t > seconds / 2]
+        return float(1.0 / np.mean(np.diff(t))) if t.size > 2 else math.nan
+
+    rows = []
+    for t in result["tests"]:
+        cycle = mrft_limit_cycle(LoopModel(tp, Td, tau, K), t.beta_nominal, t.h, rate)
+        rows.append({"beta": t.beta_nominal, "fork": settle(HearMrftRelay(t.beta_nominal, 5, 0.02 * rate), t.h),
+                     "plain": settle(MrftRelay(t.beta_nominal), t.h), "centre": cycle.frequency_hz,
+                     "orbits": sorted(cycle.orbits_hz)})
+    return rows
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:

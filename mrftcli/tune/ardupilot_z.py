@@ -57,7 +57,7 @@ import numpy as np
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, PlantStack, RateFilter, plants_of_parameters
-from .margins import Margins, margin_grid, nyquist_stable, sensitivity_peaks
+from .margins import Margins, gain_margins, margin_grid, nyquist_stable, phase_margins, sensitivity_peaks
 from .ardupilot_versions import z_bounds
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
@@ -280,12 +280,6 @@ def _bisect(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarra
     return np.asarray(0.5 * (lo + hi), float)
 
 
-def _crossings(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    s = np.sign(v)
-    rows, k = np.nonzero(s[:, :-1] * s[:, 1:] < 0)
-    return rows, k
-
-
 def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Sequence[DelaySplit]) -> ZCascadeFigures:
     """GM, PM, delay margin, Ms and stability of the cascade on every (model, split).
 
@@ -307,24 +301,14 @@ def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Seque
         return cascade_loop(g, paths.take(rows), np.exp(1j * np.exp(x) * T)[:, None])[:, 0]
 
     stable = nyquist_stable(g.integrators, L)
-    # phase margins: every gain crossover; the one of smallest |PM| reported, all of positive PM for the delay margin
-    rows, k = _crossings(np.log(np.abs(L)))
-    x = _bisect(lambda y: np.log(np.abs(at(rows, y))), lw[k], lw[k + 1])
-    pm_all = np.remainder(np.degrees(np.angle(at(rows, x))), 360.0) - 180.0
-    pm, wgc, dm = np.full(M, np.inf), np.full(M, np.nan), np.where(stable, np.inf, 0.0)
-    for i, xi, p in zip(rows, x, pm_all):
-        if abs(p) < abs(pm[i]):
-            pm[i], wgc[i] = p, math.exp(xi)
+    # the crossings bisected, their frequencies by math.exp (the figures as this design has always reported them)
+    exp = np.vectorize(math.exp, otypes=[float])
+    pm, wgc, (rows, x, pm_all) = phase_margins(at, L, lw, M, _bisect, exp)
+    gm, wpc = gain_margins(at, L, lw, M, _bisect, exp)
+    dm = np.where(stable, np.inf, 0.0)
+    for i, xi, p in zip(rows, x, pm_all):  # PM / w_gc at each gain crossover of positive margin
         if p > 0 and stable[i]:
             dm[i] = min(dm[i], math.radians(p) / math.exp(xi))
-    # gain margins: crossings of the negative real axis, the one closest to 1 (in log)
-    rows, k = _crossings(L.imag)
-    x = _bisect(lambda y: at(rows, y).imag, lw[k], lw[k + 1])
-    Lx = at(rows, x)
-    gm, wpc = np.full(M, np.inf), np.full(M, np.nan)
-    for i, xi, v in zip(rows, x, Lx):
-        if v.real < 0 and abs(math.log(1.0 / abs(v))) < abs(math.log(gm[i])):
-            gm[i], wpc[i] = 1.0 / abs(v), math.exp(xi)
     Ms = sensitivity_peaks(at, L, lw, 30)
     out = tuple(Margins(float(gm[i]), float(pm[i]), float(dm[i]), float(Ms[i]) if stable[i] else math.inf,
                         float(wgc[i]), float(wpc[i]), bool(stable[i])) for i in range(M))

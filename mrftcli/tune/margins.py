@@ -35,7 +35,8 @@ from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plant, plants_of_parameters
 
 __all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "sensitivity_peaks",
-           "frequency_grid", "margin_grid", "plant_response", "nyquist_stable"]
+           "frequency_grid", "margin_grid", "plant_response", "nyquist_stable",
+           "phase_margins", "gain_margins"]
 
 
 @dataclass(frozen=True)
@@ -288,40 +289,50 @@ def loop_margins(controller: Controller, models: Sequence[LoopModel],
     L = controller.feedback_response(w)[None, :] * stack.transfer(np.exp(1j * w / controller.rate_hz))
     loop = _Loop(controller, stack)
     stable = nyquist_stable(1 + (controller.Ki > 0), L)  # the plant's integrator, and the controller's
-    pm, wgc, cand = _phase_margins(loop, L, lw, M)
-    gm, wpc = _gain_margins(loop, L, lw, M)
+    pm, wgc, cand = phase_margins(loop.at, L, lw, M)
+    gm, wpc = gain_margins(loop.at, L, lw, M)
     Ms = sensitivity_peaks(lambda rows, x: loop.at(rows, x, stack), L, lw)
     dm = _delay_margins(loop, models, cand, stable, M)
     Ms = np.where(stable, Ms, np.inf)
     return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
 
 
-def _phase_margins(loop: _Loop, L: np.ndarray, lw: np.ndarray, M: int):
-    """Phase margin [deg] of smallest magnitude per loop and its crossover; all the crossovers found."""
+def _refine(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return _root(f, lo, hi, _ROOT_STEPS)
+
+
+At = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def phase_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, exp=np.exp):
+    """Phase margin [deg] of smallest magnitude per row of ``L`` (on the log frequencies ``lw``) and its crossover
+    [rad/s]; all the crossovers found (rows, log w, PM [deg]). Each crossing of |L| = 1 is refined by ``root`` on
+    ``at(rows, log w)``, the loop's exact response (ArduPilot z's cascade bisects, its frequencies by ``exp``)."""
     rows, k = _crossings(np.log(np.abs(L)))
-    x = _root(lambda x: np.log(np.abs(loop.at(rows, x))), lw[k], lw[k + 1], _ROOT_STEPS)
-    pm_all = np.remainder(np.degrees(np.angle(loop.at(rows, x))), 360.0) - 180.0
+    x = root(lambda x: np.log(np.abs(at(rows, x))), lw[k], lw[k + 1])
+    pm_all = np.remainder(np.degrees(np.angle(at(rows, x))), 360.0) - 180.0
     pick = _first_per_row(rows, np.abs(pm_all), M)
     has = pick >= 0
     pm = np.where(has, pm_all[pick], np.inf)
-    wgc = np.where(has, np.exp(x[pick]), np.nan)
+    wgc = np.where(has, exp(x[pick]), np.nan)
     return pm, wgc, (rows, x, pm_all)
 
 
-def _gain_margins(loop: _Loop, L: np.ndarray, lw: np.ndarray, M: int):
-    """Gain margin closest to 1 (in log) over the crossings of the negative real axis, and its frequency."""
+def gain_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, exp=np.exp):
+    """Gain margin closest to 1 (in log) over the crossings of the negative real axis, and its frequency
+    [rad/s] (``root`` and ``exp`` as :func:`phase_margins`)."""
     rows, k = _crossings(L.imag)
     near = (L.real[rows, k] < 0) | (L.real[rows, k + 1] < 0)
     rows, k = rows[near], k[near]
-    x = _root(lambda x: loop.at(rows, x).imag, lw[k], lw[k + 1], _ROOT_STEPS)
-    Lx = loop.at(rows, x)
+    x = root(lambda x: at(rows, x).imag, lw[k], lw[k + 1])
+    Lx = at(rows, x)
     neg = Lx.real <= 0
     rows, x = rows[neg], x[neg]
     with np.errstate(divide="ignore"):
         gm_all = 1.0 / np.abs(Lx[neg])
         pick = _first_per_row(rows, np.abs(np.log(gm_all)), M)
     has = pick >= 0
-    return np.where(has, gm_all[pick], np.inf), np.where(has, np.exp(x[pick]), np.nan)
+    return np.where(has, gm_all[pick], np.inf), np.where(has, exp(x[pick]), np.nan)
 
 
 def sensitivity_peaks(at: Callable[[np.ndarray, np.ndarray], np.ndarray], L: np.ndarray, lw: np.ndarray,

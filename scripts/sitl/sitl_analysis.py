@@ -27,7 +27,8 @@ from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 
 __all__ = ["HeldOut", "analyze_log", "held_out", "test_lines", "orbit_band", "held_out_frequencies",
-           "tau_needed", "matched_betas"]
+           "tau_needed", "matched_betas", "band_centre_hz", "half_period_ticks", "extrapolation_range",
+           "joint_delays"]
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,63 @@ def held_out_frequencies(tp: float, rate_hz: float, tests: list[tuple[float, flo
         fit = least_squares(residuals, [0.5, 0.003], bounds=([0.02, 0.0], [100.0, 0.5]), x_scale=[0.1, 0.001])
         errors.append(centre(fit.x, beta, h) / freqs[i] - 1.0)
     return errors
+
+
+def band_centre_hz(tp: float, Td: float, tau: float, beta: float, h: float, rate_hz: float) -> float:
+    """The sampled relay's band centre [Hz]: eq. (2)'s continuous cycle with half a tick more delay, the value
+    ``mrft_limit_cycle(..., rate_hz).frequency_hz`` returns, without solving the orbits (K moves no frequency)."""
+    return mrft_limit_cycle(LoopModel(tp, Td, tau + 0.5 / rate_hz, 1.0), beta, h).frequency_hz
+
+
+def _fit_delays(tp: float, rate_hz: float, groups: list[list[tuple[float, float, float]]]) -> np.ndarray:
+    """Td and one delay per group of tests (beta, h, frequency [Hz]) fitted to their frequencies at the band
+    centre (least squares on log frequency): [Td, tau_1, tau_2, ...] [s]."""
+    from scipy.optimize import least_squares
+
+    def residuals(p: np.ndarray) -> list[float]:
+        return [math.log(band_centre_hz(tp, float(p[0]), float(p[1 + g]), b, h, rate_hz) / f)
+                for g, tests in enumerate(groups) for b, h, f in tests]
+
+    n = len(groups)
+    return least_squares(residuals, [0.5] + [0.003] * n, bounds=([0.02] + [0.0] * n, [100.0] + [0.5] * n),
+                         x_scale=[0.1] + [0.001] * n).x
+
+
+def extrapolation_range(tp: float, rate_hz: float, tests: list[tuple[float, float]], freqs: list[float], i: int,
+                        step: float = 0.02) -> tuple[float, float]:
+    """How far test ``i``'s held-out prediction moves when the other tests' measured frequencies move by
+    ``step`` (relative) each way, every sign combination: (lowest, highest) relative error against its own
+    measured frequency. Td and tau fitted to the moved frequencies alone at the band centre (as
+    :func:`held_out_frequencies`): the amplification of a frequency offset by the model's extrapolation."""
+    others = [j for j in range(len(tests)) if j != i]
+    errs = []
+    for signs in np.array(np.meshgrid(*[[-1.0, 1.0]] * len(others))).T.reshape(-1, len(others)):
+        moved = [(tests[j][0], tests[j][1], freqs[j] * (1.0 + s * step)) for j, s in zip(others, signs)]
+        Td, tau = _fit_delays(tp, rate_hz, [moved])
+        errs.append(band_centre_hz(tp, Td, tau, tests[i][0], tests[i][1], rate_hz) / freqs[i] - 1.0)
+    return min(errs), max(errs)
+
+
+def joint_delays(tp: float, rate_hz: float, plain: list[tuple[float, float, float]],
+                 delayed: list[tuple[float, float, float]]) -> tuple[float, float, float]:
+    """Two flights of one plant identified together from their frequencies: one Td, a delay each.
+
+    ``plain`` and ``delayed``: each test's (beta, h, measured frequency [Hz]). Returns (Td [s], tau of the
+    plain flight [s], tau of the delayed one [s]); their difference is the added delay the pair measures,
+    with the plain flight's Td no longer free to trade against its tau.
+    """
+    Td, tau_a, tau_b = _fit_delays(tp, rate_hz, [plain, delayed])
+    return float(Td), float(tau_a), float(tau_b)
+
+
+def half_period_ticks(t: np.ndarray, relay: np.ndarray, t_start: float, t_end: float, rate_hz: float,
+                      skip: int = 4) -> np.ndarray:
+    """The relay's half periods [ticks] between ``t_start`` and ``t_end`` [s] (its output's sign changes, the
+    first ``skip`` left out as the start kick's): a test locked onto one sampled-relay orbit repeats one
+    value; one that hops among the admissible orbits spreads over several."""
+    sel = (t >= t_start) & (t <= t_end)
+    sw = np.flatnonzero(np.diff(np.sign(relay[sel]))) + 1
+    return np.rint(np.diff(t[sel][sw[skip:]]) * rate_hz).astype(int)
 
 
 def tau_needed(test, tp: float, Td: float, K: float) -> float:

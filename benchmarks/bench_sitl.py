@@ -371,18 +371,16 @@ def held_out_cause(results: dict[str, dict]) -> None:
     Per test: (relay) its half periods in ticks, against the band of orbits SITL's own model admits; (model)
     the error of SITL's own eq. (2) at the band centre (Td and K from SITL's sources, tau ArduPilot's path
     plus the EKF's lag measured on the log, Out against Tru); (prediction) the held-out error, and how far it
-    moves when the other tests' frequencies move 2 % each way. Then each +20 ms pair identified together
-    (one Td, a delay each) from its frequencies.
+    moves when the other tests' frequencies move 2 % each way.
     """
     from ardupilot_chain import chain_delay_s
-    from sitl_analysis import band_centre_hz, extrapolation_range, half_period_ticks, joint_delays
+    from sitl_analysis import band_centre_hz, extrapolation_range, half_period_ticks
 
     from mrftcli.io import open_log
     from mrftcli.mrft.lprs import mrft_limit_cycle
     from mrftcli.mrft.model import LoopModel
 
     own_errs, hopping, n = [], 0, 0
-    freqs_of: dict[str, list[tuple[float, float, float]]] = {}
     for name, r in results.items():
         if r["loop"] not in ("roll", "pitch"):
             continue
@@ -391,7 +389,6 @@ def held_out_cause(results: dict[str, dict]) -> None:
             t, m = src.read("MRFT", ["Rel", "Out", "Tru"])
         tests = [(tt.beta_nominal, tt.h) for tt in r["tests"]]
         freqs = [tt.frequency_hz_mean for tt in r["tests"]]
-        freqs_of[name] = [(b, h, f) for (b, h), f in zip(tests, freqs)]
         held = {ho.index: ho for ho in r["held"]}
         for i, tt in enumerate(r["tests"]):
             f = tt.frequency_hz_mean
@@ -415,11 +412,23 @@ def held_out_cause(results: dict[str, dict]) -> None:
         within = sum(abs(e) <= 0.05 for e in own_errs)
         print(f"roll and pitch: tests whose half period hops over 3 or more tick counts: {hopping}/{n}; SITL's own "
               f"eq. (2) at the band centre within 5 %: {within}/{n} (max {max(map(abs, own_errs)) * 100:.1f} %)")
-    for loop in ("roll", "pitch"):
-        if loop in freqs_of and f"{loop}_20ms" in freqs_of:
-            Td, ta, tb = joint_delays(results[loop]["tp"], 400.0, freqs_of[loop], freqs_of[f"{loop}_20ms"])
-            print(f"{loop}: +20 ms increment, the pair identified together from its frequencies (one Td {Td:.3f} s): "
-                  f"{(tb - ta) * 1e3:.2f} ms (tau {ta * 1e3:.2f} / {tb * 1e3:.2f} ms; error {(tb - ta) * 1e3 - 20:+.2f} ms)")
+
+
+def joint_increments(results: dict[str, dict]) -> None:
+    """The +20 ms increment of each pair identified together: one plant (one Td), a delay each, fitted to the
+    six tests' frequencies at the sampled relay's band centre (``sitl_analysis.joint_delays``). Separately,
+    each flight's Td trades against its tau (Td Omega 10-60: Td barely moves the frequencies)."""
+    from sitl_analysis import joint_delays
+
+    for base in ("altitude", "altitude_h15", "altitude_mf", "roll", "pitch"):
+        if base not in results or f"{base}_20ms" not in results:
+            continue
+        plain, delayed = ([(t.beta_nominal, t.h, t.frequency_hz_mean) for t in results[n]["tests"]]
+                          for n in (base, f"{base}_20ms"))
+        Td, ta, tb = joint_delays(results[base]["tp"], 400.0, plain, delayed)
+        print(f"{base}: +20 ms increment, the pair identified together from its frequencies (one Td {Td:.3f} s): "
+              f"{(tb - ta) * 1e3:.2f} ms (tau {ta * 1e3:.2f} / {tb * 1e3:.2f} ms; error {(tb - ta) * 1e3 - 20:+.2f} ms)"
+              + ("; the plain flight's tau at its bound 0" if ta < 1e-4 else ""))
 
 
 def _fundamental_ratio(t: np.ndarray, u: np.ndarray, y: np.ndarray, f: float) -> complex:
@@ -701,6 +710,7 @@ def main() -> int:
     matched_increment(args.logs)
     chain_check(results, args.logs)
     held_out_cause(results)
+    joint_increments(results)
     if args.truth:
         truth_analysis(args.logs)
     if args.analyze_only or args.no_refly:

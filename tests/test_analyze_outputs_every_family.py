@@ -165,7 +165,7 @@ def test_a_familys_bode_band_holds_the_flown_plant(fopdt_log: Path) -> None:
     from mrftcli.analyze import AnalyzeOptions, RelayOptions, analyze_path
     from mrftcli.io import ReadOptions
     from mrftcli.mrft.families import family_model
-    from mrftcli.report.model_figures import _bode_band, _drawn_models
+    from mrftcli.report.analysis import _bode_band, _drawn_models
 
     result = analyze_path(fopdt_log, family_model("fopdt"), read=ReadOptions(command_topic="u_relay",
                                                                              output_topic="y_output"),

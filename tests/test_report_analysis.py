@@ -94,7 +94,7 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
 
 def test_model_output_leaves_the_simulated_sensor_noise_as_residual(result):
     """Oracle: the simulator's noise std (0.5 mm); the identified model's residual is that noise."""
-    from mrftcli.report.model_figures import plot_fit
+    from mrftcli.report.analysis import plot_fit
 
     fig = plot_fit(result)
     n = len(result.tests)
@@ -109,7 +109,7 @@ def test_bode_is_the_closed_form_and_the_ellipse_holds_95_percent(result):
     holds about 95 % of the posterior draws it summarises."""
     from matplotlib.path import Path as MplPath
 
-    from mrftcli.report.model_figures import plot_uncertainty, posterior_draws
+    from mrftcli.report.analysis import plot_uncertainty, posterior_draws
 
     draws, _ = posterior_draws(result)
     assert draws.shape[0] >= 100

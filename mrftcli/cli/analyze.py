@@ -8,8 +8,8 @@ import click
 
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
-from .model_options import (baseline_option, build_model, check_soiptd_options, format_combination, parameter_lines,
-                            parse_baseline, parse_windows, relay_options, structure_options, window_option)
+from .model_options import (baseline_option, build_model, format_combination, parameter_lines, parse_baseline,
+                            parse_windows, relay_options, soiptd_or_process, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
 from .cascade_options import cascade_options, cascade_setup, pop_cascade_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
@@ -380,16 +380,16 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
            baseline: bool):
     """The model object to identify (and the cascade's options): eq. (2), a process family or the cascade;
     one-line errors naming the options that do not apply to it."""
-    from ..mrft.model import soiptd_model
-    from ..validate import check_tp
-
     if cascade.requested:
         model, options = cascade_setup(cascade, str(read_options.get("loop")),
                                        {"--diagnose": run_diagnose, "--window": windows,
                                         "--model": model_name != "soiptd"})
     elif model_name == "soiptd":
-        _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline)
-        return soiptd_model(check_tp(Tp)), None
+        model = soiptd_or_process(Tp, model_name, params, ranges, relay_kind, eps)
+        if baseline:
+            raise click.UsageError("--baseline and --baseline-topic take a process model (--model fopdt or sopdt, "
+                                   "or --model-file); eq. (2) integrates (no static gain)")
+        return model, None
     else:
         model, options = build_model(model_name, params, ranges), None
     if paper_only:
@@ -427,15 +427,6 @@ def _identify(flight, model, options, accept_tp: bool, json_target, to_stdout: b
     except MrftError:
         _echo_warnings(flight.warnings)
         raise
-
-
-def _check_soiptd(Tp, params, ranges, relay_kind, eps, baseline: bool) -> None:
-    """eq. (2) needs --tp; the process-model options do not apply to it."""
-    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--relay": bool(relay_kind),
-                              "--eps": eps is not None}, "takes --tp and reads beta from the log")
-    if baseline:
-        raise click.UsageError("--baseline and --baseline-topic take a process model (--model fopdt or sopdt, or "
-                               "--model-file); eq. (2) integrates (no static gain)")
 
 
 def _baseline_signal(log, spec: str, read_options):

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
-__all__ = ["MODEL_NAMES", "check_soiptd_options", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
+__all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_windows", "build_model", "format_estimates", "parameter_lines",
            "format_combination"]
 
@@ -241,6 +241,21 @@ def check_soiptd_options(Tp: float | None, process_options: Mapping[str, bool], 
         verb = "take" if len(used) > 1 else "takes"
         raise click.UsageError(f"{names} {verb} a process model (--model fopdt, sopdt, ipdt, foipdt or --model-file); "
                                f"eq. (2) {eq2_takes}")
+
+
+def soiptd_or_process(Tp: float | None, model_name: str, params: Sequence[str], ranges: Sequence[str],
+                      relay_kind: str | None, eps: float | None) -> Any:
+    """The model of ``--model``: eq. (2) at ``--tp`` (``--param``, ``--range``, ``--relay``, ``--eps`` refused:
+    :func:`check_soiptd_options`), or the process model (:func:`build_model`)."""
+    if model_name != "soiptd":
+        return build_model(model_name, params, ranges)
+    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--relay": bool(relay_kind),
+                              "--eps": eps is not None}, "takes --tp and reads beta from the log")
+    from ..mrft.model import soiptd_model
+    from ..validate import check_tp
+
+    assert Tp is not None  # refused above
+    return soiptd_model(check_tp(Tp))
 
 
 def build_model(model_name: str, params: Sequence[str], ranges: Sequence[str]) -> Any:

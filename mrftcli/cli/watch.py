@@ -11,7 +11,7 @@ import click
 
 from ..jsonable import to_jsonable
 from ..report.wording import gain_unit, output_unit
-from .model_options import build_model, check_soiptd_options, relay_options, structure_options
+from .model_options import relay_options, soiptd_or_process, structure_options
 from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
@@ -109,17 +109,6 @@ def _model_header(model: PlantModel, unit: str) -> str:
     return f"model {model.family}: G(s) = {structure}; times in seconds from the log start; amplitudes in {unit}"
 
 
-def _check_model_options(model_name: str, Tp: float | None, params: tuple[str, ...], ranges: tuple[str, ...],
-                         relay_kind: str | None, eps: float | None) -> None:
-    """eq. (2) needs --tp; a process model's options do not apply to it (and --tp not to a process model)."""
-    if model_name == "soiptd":
-        check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--relay": bool(relay_kind),
-                                  "--eps": eps is not None}, "takes --tp and reads beta from the log")
-    elif Tp is not None:
-        raise click.UsageError("--tp is eq. (2)'s (--model soiptd); a process model's known parameters are "
-                               "--param NAME=VALUE")
-
-
 @click.command("watch")
 @click.argument("log", type=click.Path())
 @tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required by --model soiptd.")
@@ -163,10 +152,12 @@ def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], 
     from ..analyze import RelayOptions
     from ..errors import InputError
     from ..io import ReadOptions
-    from ..mrft.model import soiptd_model
     from ..watch import WatchOptions, watch as follow
 
-    _check_model_options(model_name, Tp, params, ranges, relay_kind, eps)
+    if model_name != "soiptd" and Tp is not None:
+        raise click.UsageError("--tp is eq. (2)'s (--model soiptd); a process model's known parameters are "
+                               "--param NAME=VALUE")
+    model = soiptd_or_process(Tp, model_name, params, ranges, relay_kind, eps)
     layout = read_options["layout"]
     if layout not in (None, "reference") or read_options["command_scale"] is not None \
             or read_options["controller_rate_hz"] is not None:
@@ -175,7 +166,6 @@ def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], 
                                "--command-scale or --controller-rate given); run 'mrft-ident analyze' with the same "
                                "options on the finished log")
     read = ReadOptions(**{**read_options, "layout": None}, any_time_scale=model_name != "soiptd")  # found from the topics
-    model = soiptd_model(Tp) if Tp is not None else build_model(model_name, params, ranges)
     options = WatchOptions(min_cycles=min_cycles, idle=idle, poll=poll, wait=wait,
                            relay=RelayOptions(relay_kind, None, eps))
     if not Path(log).exists():

@@ -14,24 +14,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
-from ..analyze.options import AnalyzeOptions
+from ..analyze.options import AnalyzeOptions, CascadeOptions
 from ..errors import InputError, LogReadError, MrftError
 from ..io import FlightLog, LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
 from ..validate import check_tp
-from ..analyze.cascade import OUTER_COMMANDS, inner_gains_of
+from ..analyze.cascade import OUTER_COMMANDS, cascade_model, inner_draws, inner_gains_of, inner_loop_of
 from ..mrft.controller import Controller
 from ..mrft.model import LoopModel
-from .gains import TuneOptions, joint_gyro_gains, tune_loop
+from .gains import TuneOptions, joint_gyro_gains, tune_loop, tune_outer
 from .loops import INNER_OF, OUTER_LOOPS, VEHICLE_ORDER, layout_absent
 from .next_tests import missing_from_error, missing_topics
-from .outer import OuterOptions, cascade_outer, tune_outer
 from .record import LoopGains, MissingLoop, VehicleLoop, VehicleResult
 
 __all__ = ["VehicleOptions", "identify_vehicle", "models_per_loop", "find_loops", "identify_inner", "identify_outer",
-           "EQ2_OUTER_ASSUMPTION"]
+           "cascade_outer", "EQ2_OUTER_ASSUMPTION"]
 
 #: The assumption stated when an outer loop is identified with eq. (2) (``{loops}``, ``{tp}``, ``{inner}`` and
 #: ``{why}`` the cascade could not be used filled in).
@@ -98,11 +97,6 @@ class VehicleOptions:
         """How each loop's tests are screened and identified."""
         return AnalyzeOptions(min_stable_cycles=self.min_stable_cycles, n_bootstrap=self.n_bootstrap)
 
-    def outer(self) -> OuterOptions:
-        """How an outer loop is identified through the cascade and tuned on it."""
-        return OuterOptions(commanded=self.outer_command, inner_draws=self.inner_draws,
-                            min_stable_cycles=self.min_stable_cycles, ms_max=self.tune.ms_max,
-                            stack=None if self.tune.stack is None else self.tune.stack.stack)
 
 
 def models_per_loop(model: LoopModel | Mapping[str, LoopModel]) -> dict[str, LoopModel]:
@@ -268,19 +262,40 @@ def identify_outer(source: LogSource, loop: str, model: LoopModel, options: Vehi
     if flight is None:
         return
     try:
-        analysis = cascade_outer(flight, acc.loops[inner], controller, options.outer())
+        analysis = cascade_outer(flight, acc.loops[inner], controller, options)
     except MrftError as err:
         acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path), options.controller_rate_hz,
                                                options.plan)
         return
     acc.first += [f"{loop}: {a}" for a in analysis.assumptions]
     try:
-        gains: LoopGains | None = tune_outer(analysis, acc.loops[inner], options.outer())
+        gains: LoopGains | None = tune_outer(analysis, acc.loops[inner], options.tune)
         refused: tuple[str, ...] = ()
     except MrftError as err:
         gains, refused = None, (f"not tuned: {' '.join(str(err).split())}",)
     notes = (f"identified through the closed {inner} loop",) + (() if gains is None else gains.tune.notes[:1])
     acc.add(VehicleLoop(loop, "outer", "cascade", analysis, gains, notes), (), refused)
+
+
+def cascade_outer(flight: FlightLog, inner: VehicleLoop, controller: Controller,
+                  options: VehicleOptions) -> AnalysisResult:
+    """The outer loop of ``flight`` through ``inner`` closed by ``controller`` (the gains flown): the inner
+    loop identified in the same flight, its uncertainty carried by ``options.inner_draws`` draws, K as
+    ``options.outer_command`` says (:func:`mrftcli.analyze.cascade.analyze_cascade`).
+
+    Raises
+    ------
+    MrftError
+        No usable outer test, or the tests do not determine the unknowns (analyze_cascade's errors).
+    """
+    assert inner.analysis.kind == "soiptd"  # an inner loop is identified with eq. (2)
+    loop = inner_loop_of(inner.analysis, controller, inner.loop)
+    copts = CascadeOptions(draws=tuple(inner_draws(inner.analysis, loop, options.inner_draws)),
+                           assumptions=(f"inner model: the {inner.loop} loop identified in this flight",),
+                           inner_source=f"identified from the {inner.loop} tests of this flight",
+                           gains_source="--inner-gains")
+    return analyze_flight(flight, cascade_model(loop, options.outer_command),
+                          options=AnalyzeOptions(min_stable_cycles=options.min_stable_cycles, cascade=copts))
 
 
 def _inner_controller(inner: str, inner_gains: Mapping[str, object] | None,

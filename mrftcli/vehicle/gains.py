@@ -5,23 +5,35 @@ Without a stack the designs run at the controller rate the analysis records (as 
 rate filter (:func:`mrftcli.tune.stacks.stack_setting`) and exported as it loads it
 (:func:`mrftcli.tune.stacks.export_design`); a loop the stack cannot take is tuned without it and
 the refusal is recorded with the gains.
+
+An outer loop (x, y) identified through its closed inner loop is tuned on the cascade (:func:`tune_outer`):
+the outer PD is designed on the cascade closed by the inner loop's *new* gains, the ones tuned in the
+same run (robust over the outer estimate's draws, :func:`mrftcli.tune.design.tune`): the vehicle is
+flown with both sets loaded.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..mrft.cascade import InnerLoop
+from ..mrft.controller import Controller
 from ..segment import MrftTest
 from ..tune.analysis import ASSUMED_RATE_HZ, RATE_ASSUMED_NOTE, posterior_from_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
+from ..tune.grid import outer_draws
 from ..tune.stacks import ExportEvidence, StackSetting, check_exportable, export_design, stack_setting
 from .record import LoopGains, VehicleLoop
 
-__all__ = ["StackOptions", "TuneOptions", "tune_loop", "joint_gyro_gains", "STACKS"]
+__all__ = ["StackOptions", "TuneOptions", "tune_loop", "tune_outer", "joint_gyro_gains", "STACKS", "OUTER_DRAWS"]
 
+#: Draws of the outer estimate the robust outer design holds its margins on (as ``tune`` on a cascade).
+OUTER_DRAWS = 30
 #: What ``--export`` takes: ``generic`` (tune's generic JSON, the GAINS.json ``--inner-gains`` reads)
 #: and the stacks with their own rate and filter.
 STACKS = ("generic", "hear", "px4", "ardupilot")
@@ -109,10 +121,8 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
                loop=result.loop)
     notes = (*(() if rate else (RATE_ASSUMED_NOTE,)), *(setting.notes if setting is not None else ()))
     if notes:
-        from dataclasses import replace
-
-        res = replace(res, notes=(*notes, *res.notes))
-    design = "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
+        res = dataclasses.replace(res, notes=(*notes, *res.notes))
+    design = _recommended(res)
     gains = LoopGains(design, options.kind, res, export_refused=refused)
     st = options.stack
     if st is None or refused is not None:
@@ -124,6 +134,50 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
     return LoopGains(design, options.kind, res, export=export)
+
+
+def _recommended(res: TuneResult) -> str:
+    """The design recommended: ``robust`` when the identification gave a posterior, else ``model-based``."""
+    return "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
+
+
+def _new_inner(analysis: AnalysisResult, inner: VehicleLoop) -> tuple[InnerLoop, str]:
+    """The inner loop the outer gains are designed for: closed by its new gains when they run at the
+    flight's inner rate, else as flown; and the sentence that says which."""
+    flown = analysis.model.inner
+    g = inner.gains
+    if g is not None and math.isclose(g.controller.rate_hz, flown.controller.rate_hz, rel_tol=0.01):
+        c = g.controller
+        new = Controller(c.Kp, c.Ki, c.Kd, c.Tf, flown.controller.rate_hz)
+        return (InnerLoop(flown.plant, new, flown.loop),
+                f"outer gains designed for the {inner.loop} loop closed by its new gains tuned here (Kp {c.Kp:.4g}, "
+                f"Kd {c.Kd:.4g}): load both")
+    return flown, (f"outer gains designed for the {inner.loop} loop as flown (its new gains run at another rate or "
+                   "were not tuned): keep its gains in use")
+
+
+def tune_outer(analysis: AnalysisResult, inner: VehicleLoop, options: TuneOptions) -> LoopGains:
+    """The outer PD on the cascade (module docstring): robust over the outer estimate's draws, within
+    ``options.ms_max``; a stack export (``options.stack``) is refused: the generic gains only.
+
+    Raises
+    ------
+    MrftError
+        No PD meets the constraints (the cascade strategy's error: mrftcli.tune.grid.tune_grid).
+    """
+    closed, said = _new_inner(analysis, inner)
+    model = dataclasses.replace(analysis.model, inner=closed)
+    draws = outer_draws(model, analysis.identification.estimates, OUTER_DRAWS)
+    assert analysis.controller_rate_hz is not None  # a cascade's analysis has its outer rate
+    res: TuneResult = tune(model, analysis.controller_rate_hz, posterior=draws, loop=analysis.loop,
+                           options=DesignOptions(ms_max=options.ms_max))
+    res = dataclasses.replace(res, notes=(said, *res.notes))
+    refused = None
+    stack = None if options.stack is None else options.stack.stack
+    if stack not in (None, "generic"):
+        refused = (f"the {analysis.loop} loop is designed on the cascade at the flight's rate, without "
+                   f"{stack}'s rate filter: export its generic gains (--export generic)")
+    return LoopGains(_recommended(res), "PD", res, export_refused=refused)
 
 
 def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> dict[str, VehicleLoop]:

@@ -326,78 +326,31 @@ class _Problem:
         r_phase = _wrap(np.angle(G) - d.phase) * d.w_phase
         return np.concatenate([r_gain, r_phase])
 
-    def profile(self, shape_values: Mapping[str, float]) -> tuple[float, dict[str, float]]:
-        """Cost and (K, tau) in closed form for fixed time constants (the separable solve)."""
-        d = self.data
-        base = dict(shape_values)
-        params = self.model.parameters
-        probe = {**base, "K": self.k_sign * abs(params["K"].value) if "K" not in self.unknown else self.k_sign,
-                 "tau": params["tau"].value if "tau" not in self.unknown else 0.0}
-        G = self.model.with_parameters(**probe).frequency_response(d.omega)
-        out = dict(base)
-        if "K" in self.unknown:
-            wg = d.w_gain ** 2
-            lnk = float(np.sum(wg * (d.log_gain - np.log(np.abs(G)))) / np.sum(wg))
-            lo, hi = self.bounds["K"]
-            out["K"] = float(np.clip(self.k_sign * math.exp(lnk), lo, hi))
-        if "tau" in self.unknown:
-            # the delay's phase: on its principal branch at the limit cycles' own frequencies (a relay
-            # cycle is near -pi), then the harmonics' (several turns at k Omega) unwrapped near that delay
-            lag = _wrap(np.angle(G) - d.phase, -0.5 * math.pi)
-            wp = d.w_phase ** 2
-            base_pts = d.base
-            tau = float(np.sum((wp * d.omega * lag)[base_pts]) / np.sum((wp * d.omega ** 2)[base_pts]))
-            lag = d.omega * tau + _wrap(lag - d.omega * tau)
-            tau = float(np.sum(wp * d.omega * lag) / np.sum(wp * d.omega ** 2))
-            lo, hi = self.bounds["tau"]
-            out["tau"] = float(np.clip(tau, max(lo, 0.0), hi))
-        r = self.residuals(self.z_of(out))
-        return float(r @ r), out
-
 
 def _start(problem: _Problem) -> dict[str, float]:
-    """The best point of the log grid over the time constants (K and tau profiled out)."""
-    if problem.kernel is not None:
-        return _start_grid(problem)
-    best: tuple[float, dict[str, float]] = (math.inf, {})
-    symmetric = problem.model.family == "sopdt" and len(problem.shape) == 2
-    for combo in itertools.product(*_axes(problem)):
-        if symmetric and combo[0] < combo[1]:
-            continue  # two interchangeable lags (SOPDT): search T1 >= T2 only
-        shape = dict(zip(problem.shape, combo))
-        if any(not problem.bounds[n][0] <= v <= problem.bounds[n][1] for n, v in shape.items()):
-            continue
-        try:
-            cost, values = problem.profile(shape)
-        except InputError:
-            continue
-        if cost < best[0]:
-            best = (cost, values)
-    if not best[1] and problem.unknown:
-        raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
-    return best[1]
-
-
-def _start_grid(problem: _Problem) -> dict[str, float]:
-    """:func:`_start` of the built-in families with every grid point at once (the kernel's
-    :meth:`~mrftcli.mrft.lti_kernel.LagChainKernel.lag_grid` on the unit grid of :func:`_axes` about
-    1/omega; the same profile as :meth:`_Problem.profile`, vectorised over the grid: a loop over model
-    objects cost 2-90 ms)."""
+    """The best point of the log grid over the time constants (:func:`_axes`), K and tau profiled out in
+    closed form at every grid point at once (for fixed time constants ``tau`` enters the phase and
+    ``ln K`` the log-gain linearly). The built-in families' misfits come from the kernel
+    (:meth:`~mrftcli.mrft.lti_kernel.LagChainKernel.lag_grid`), any other structure's from a model
+    object per grid point (:func:`_grid_misfit`)."""
     d = problem.data
     n = len(problem.shape)
-    assert problem.kernel is not None
-    unit, index = _unit_grid(n, n > 1 and problem.model.family == "sopdt")
-    axis = unit / d.w_median
-    combos = axis[index]
+    sopdt = n > 1 and problem.model.family == "sopdt"  # two interchangeable lags: T1 >= T2 only
+    if problem.kernel is not None:  # the built-in families: the unit grid of _axes about 1/omega
+        unit, index = _unit_grid(n, sopdt)
+        axis = unit / d.w_median
+        combos = axis[index]
+    else:
+        combos = np.array(list(itertools.product(*_axes(problem))), dtype=float) if n else np.zeros((1, 0))
+        combos = combos[combos[:, 0] >= combos[:, 1]] if sopdt else combos
+        axis, index = np.zeros(0), np.zeros((len(combos), 0), np.intp)
     if any(problem.bounds[name] != (0.0, math.inf) for name in problem.shape):
         keep = np.ones(len(combos), bool)
         for k, name in enumerate(problem.shape):
             keep &= (combos[:, k] >= problem.bounds[name][0]) & (combos[:, k] <= problem.bounds[name][1])
         combos, index = combos[keep], index[keep]
-    if not len(combos) and problem.unknown:
-        raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
     # the model's ln|G| and arg G (any branch) minus the points', K at its sign and tau at 0 (or known)
-    gain, phase = problem.kernel.lag_grid(axis, index)
+    gain, phase = problem.kernel.lag_grid(axis, index) if problem.kernel is not None else _grid_misfit(problem, combos)
     if "K" in problem.unknown:  # ln|K|: the weighted mean log-gain misfit
         wg = d.w_gain ** 2
         K = _clip(problem.k_sign * np.exp(-(gain @ wg) / wg.sum()), *problem.bounds["K"])
@@ -413,6 +366,9 @@ def _start_grid(problem: _Problem) -> dict[str, float]:
         tau = _clip(lag @ wp_omega / (wp_omega @ d.omega), max(lo, 0.0), hi)
         phase = phase - d.omega * tau[:, None]
     cost = gain ** 2 @ d.w_gain ** 2 + _wrap_grid(phase) ** 2 @ d.w_phase ** 2
+    cost = np.where(np.isfinite(cost), cost, np.inf)  # a grid point out of the structure's domain
+    if not np.isfinite(cost).any() and problem.unknown:
+        raise IdentificationError("no admissible parameter values on the search grid: widen the ranges (set I)")
     i = int(np.argmin(cost))
     out = {name: float(combos[i, k]) for k, name in enumerate(problem.shape)}
     if "K" in problem.unknown:
@@ -420,6 +376,24 @@ def _start_grid(problem: _Problem) -> dict[str, float]:
     if "tau" in problem.unknown:
         out["tau"] = float(tau[i])
     return out
+
+
+def _grid_misfit(problem: _Problem, combos: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """ln|G| and arg G minus the points' for each grid row of time constants (``combos``), a model object
+    each, with K at its sign (or its known value) and tau at 0 (or its known value): shape (rows, points)
+    [-], [rad]; NaN for a row out of the structure's domain."""
+    d = problem.data
+    params = problem.model.parameters
+    probe = {"K": problem.k_sign * abs(params["K"].value) if "K" not in problem.unknown else problem.k_sign,
+             "tau": params["tau"].value if "tau" not in problem.unknown else 0.0}
+    G = np.full((len(combos), d.omega.size), np.nan, dtype=complex)
+    for row, combo in enumerate(combos):
+        try:
+            G[row] = problem.model.with_parameters(**dict(zip(problem.shape, combo)), **probe).frequency_response(d.omega)
+        except InputError:
+            continue
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log(np.abs(G)) - d.log_gain, np.angle(G) - d.phase
 
 
 @functools.lru_cache(maxsize=8)

@@ -36,8 +36,6 @@ __all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "Se
 _TWO_PI = 2.0 * math.pi
 #: Td * Omega above which Td is called poorly identifiable (the issue's accuracy boundary).
 TD_OMEGA_LIMIT = 5.0
-#: The three estimates, in the order Td [s], tau [s], K [output units / (command unit s^2)].
-Estimates = tuple[ParameterEstimate, ParameterEstimate, ParameterEstimate]
 
 
 @dataclass(frozen=True, eq=False)

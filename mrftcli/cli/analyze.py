@@ -8,10 +8,10 @@ import click
 
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
-from .model_options import (baseline_option, build_model, format_combination, parameter_lines, parse_baseline,
-                            parse_windows, relay_options, soiptd_or_process, structure_options, window_option)
+from .model_options import (baseline_option, build_model, cascade_options, cascade_setup, format_combination,
+                            parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
+                            soiptd_or_process, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
-from .cascade_options import cascade_options, cascade_setup, pop_cascade_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, num, quiet_option, read_progress, tp_option, tqdm_progress)
 
@@ -380,7 +380,7 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
            baseline: bool):
     """The model object to identify (and the cascade's options): eq. (2), a process family or the cascade;
     one-line errors naming the options that do not apply to it."""
-    if cascade.requested:
+    if cascade is not None:
         model, options = cascade_setup(cascade, str(read_options.get("loop")),
                                        {"--diagnose": run_diagnose, "--window": windows,
                                         "--model": model_name != "soiptd"})
@@ -393,7 +393,7 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
     else:
         model, options = build_model(model_name, params, ranges), None
     if paper_only:
-        raise click.UsageError("--paper-only: " + _NO_PAPER_ONLY["cascade" if cascade.requested else "family"]
+        raise click.UsageError("--paper-only: " + _NO_PAPER_ONLY["cascade" if cascade is not None else "family"]
                                .format(family=model.family))
     return model, options
 

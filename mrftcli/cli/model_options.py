@@ -2,6 +2,10 @@
 
 Shared by the commands that take or produce a model (``analyze``, ``identify``, ``predict``), and the
 one terminal table of parameters (:func:`parameter_lines`).
+
+The cascade's (``analyze LOG --loop x|y --inner-model RESULT.json --inner-gains GAINS.json``: an outer
+loop through its inner loop): ``cli/analyze.py`` pops them (:func:`pop_cascade_options`), builds the
+cascade (:func:`cascade_setup`) and runs the one analyze route; the maths is :mod:`mrftcli.analyze.cascade`.
 """
 
 from __future__ import annotations
@@ -13,7 +17,7 @@ import click
 
 from ..errors import InputError
 from ..validate import check_parameter_value
-from .options import num
+from .options import num, read_json_file
 
 if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
@@ -21,7 +25,7 @@ if TYPE_CHECKING:
 
 __all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_windows", "build_model", "format_estimates", "parameter_lines",
-           "format_combination"]
+           "format_combination", "cascade_options", "outer_options", "pop_cascade_options", "cascade_setup"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -338,3 +342,81 @@ def format_combination(ident: LtiIdentification) -> list[str]:
         return []
     return [f"determined: {c.name} = {num(c.value)} {c.unit} (95 % {num(c.ci95_low)} - {num(c.ci95_high)}); "
             f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
+
+
+_KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
+
+
+def outer_options(needs: str, commands: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--outer-command`` and ``--inner-draws`` of an outer loop identified through its inner loop, as
+    ``analyze`` (with ``--inner-model``) and ``vehicle`` (with ``--inner-gains``) spell them."""
+    def decorate(f: Callable[..., Any]) -> Callable[..., Any]:
+        f = click.option("--inner-draws", "inner_draws", type=click.IntRange(0, 1000), default=30, show_default=True,
+                         metavar="N",
+                         help=f"With {needs}: draws of the inner model solved to carry its uncertainty into "
+                              "the outer estimate (0: take it as exact).")(f)
+        return click.option("--outer-command", "outer_command",
+                            type=click.Choice(["acceleration", "attitude", "identify"]), default="acceleration",
+                            show_default=True,
+                            help=f"With {needs}: what the outer {commands}, an acceleration [m/s^2] (K = 1) or an "
+                                 "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the "
+                                 "output.")(f)
+    return decorate
+
+
+def cascade_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """The click options of the cascade route (``--inner-model``, ``--inner-gains``, ``--outer-command``, ``--inner-draws``)."""
+    f = outer_options("--inner-model", "relay commands")(f)
+    f = click.option("--inner-gains", "inner_gains", metavar="GAINS.json", type=click.Path(dir_okay=False),
+                     help="With --inner-model: the inner controller flown during the outer tests, "
+                          '{"roll": {"Kp", "Ki", "Kd", "Tf", "rate_hz"}} (roll for y, pitch for x); tune '
+                          "--export generic or tune --json output is read too. See docs/cascade.md.")(f)
+    f = click.option("--inner-model", "inner_model", metavar="RESULT.json", type=click.Path(dir_okay=False),
+                     help="Analyse --loop x|y through the closed inner loop: the inner (roll for y, pitch for x) "
+                          "loop's analyze --json result. See docs/cascade.md.")(f)
+    return f
+
+
+def pop_cascade_options(options: dict[str, Any]) -> dict[str, Any] | None:
+    """Take the cascade options out of a command's keyword arguments (the rest are the reader's): ``inner_model``
+    and ``inner_gains`` (paths), ``outer_command`` and ``inner_draws``; None when neither file was given
+    (the cascade route not asked for)."""
+    request = {k: options.pop(k, None) for k in _KEYS}
+    return request if request["inner_model"] is not None or request["inner_gains"] is not None else None
+
+
+def _check(request: Mapping[str, Any], loop: str, unsupported: Mapping[str, Any]) -> str:
+    """The inner loop's name; one-line errors naming the option otherwise."""
+    from ..mrft.cascade import INNER_LOOP_OF
+
+    if loop not in INNER_LOOP_OF:
+        raise click.UsageError(f"--inner-model and --inner-gains take an outer loop: --loop x or y (got --loop {loop})")
+    inner = INNER_LOOP_OF[loop]
+    if request["inner_model"] is None:
+        raise click.UsageError(f"--inner-gains needs --inner-model RESULT.json: the {inner} loop's analyze --json result")
+    if request["inner_gains"] is None:
+        raise click.UsageError(f"--inner-model needs --inner-gains GAINS.json: the gains the {inner} loop flew during "
+                               f"the {loop} tests")
+    used = [name for name, value in unsupported.items() if value]
+    if used:
+        raise click.UsageError(f"{', '.join(used)}: not with --inner-model (the cascade) yet")
+    return inner
+
+
+def cascade_setup(request: Mapping[str, Any], loop: str, unsupported: Mapping[str, Any]) -> tuple[Any, Any]:
+    """The cascade to identify and its analysis options, from the inner analysis and the gains flown.
+
+    ``analyze`` then runs the one route (:func:`mrftcli.analyze.analyze_flight`) and writes its outputs
+    as for every model. One-line errors naming the option on a missing or unreadable file.
+    """
+    from ..analyze import CascadeOptions
+    from ..analyze.cascade import cascade_model, inner_draws, inner_gains_of, inner_loop_of
+    from ..analyze.record import AnalysisResult
+
+    inner_name = _check(request, loop, unsupported)
+    result = AnalysisResult.from_json(read_json_file(request["inner_model"], "--inner-model"))
+    controller = inner_gains_of(read_json_file(request["inner_gains"], "--inner-gains"), inner_name)
+    inner = inner_loop_of(result, controller, inner_name)
+    return cascade_model(inner, request["outer_command"]), CascadeOptions(
+        draws=tuple(inner_draws(result, inner, request["inner_draws"])),
+        assumptions=(f"inner model from {request['inner_model']}",))

@@ -12,7 +12,7 @@ import click
 from ..errors import InputError, SegmentationError, TpRejectedError
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
-from .cascade_options import outer_options
+from .model_options import outer_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
                       min_cycles_option, num, quiet_option, read_json_file, tp_option, tqdm_progress)
 

@@ -36,7 +36,7 @@ from mrftcli.errors import MrftError  # noqa: E402
 from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
-           "run", "counted_errors", "held_out_jitter", "analyse_cascades", "px4_inner_gains", "relay_law_orbits"]
+           "run", "counted_errors", "held_out_jitter", "analyse_cascades", "px4_inner_gains", "relay_law_orbits", "estimate_error"]
 
 G = 9.80665
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust.
@@ -212,11 +212,16 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
         for i, why in misses:
             print(f"      held out beta {res.tests[i].beta_nominal:+.2f}: MISS (the other tests refused: {why[:160]})")
         results[name]["jitter"] = held_out_jitter(res)
+        for row, err in zip(results[name]["jitter"], estimate_error(log, loop, res.tests)):
+            row["ekf"] = err
         for row in results[name]["jitter"]:
             print(f"      beta {row['beta']:+.2f}: cycle-to-cycle frequency spread {row['spread'] * 100:.1f} % over "
                   f"{row['n']} cycles (standard error of the mean {row['sem'] * 100:.1f} %); analyze's own held-out "
                   + (f"{row['error'] * 100:+.1f} %, {row['z']:+.1f} of its stated std" if row["z"] is not None
-                     else "none"))
+                     else "none")
+                  + (f"; EKF2's {loop} against SIH's at this frequency: lag {row['ekf']['lag_ms']:+.1f} ms, gain "
+                     f"{row['ekf']['gain']:.3f}, their difference in the cycle's band {row['ekf']['band'] * 100:.0f} % of "
+                     "the amplitude" if "ekf" in row else ""))
     analyse_cascades(results)
     return results
 
@@ -293,6 +298,35 @@ def analyse_cascades(results: dict[str, dict[str, Any]]) -> None:
               f"Ki {gains.Ki:.4g}, Kd {gains.Kd:.4g}, Tf {gains.Tf * 1e3:.1f} ms at {gains.rate_hz:g} Hz; {left}): tests "
               f"{len(full.tests)}/{r['flown']}  Td {full.Td.value:.3f} s  tau {full.tau.value * 1e3:.1f} ms  K {full.K.value:.2f} "
               f"(g / hover {G / r['hover']:.2f}); held out " + ", ".join(f"{e * 100:+.2f} %" for e in errs))
+
+
+def estimate_error(log: Path, loop: str, tests: Any) -> list[dict[str, float]]:
+    """EKF2's position (what the relay switches on) against SIH's own (``vehicle_local_position_groundtruth``) over
+    each test: at the test's frequency, EKF2's lag [ms] (negative: a lead) and gain over SIH's (the fundamentals'
+    ratio); and the difference's standard deviation once its slow part (a one-period moving average) is removed, over
+    the test's amplitude [-]. Empty when SIH's is not logged."""
+    from mrftcli.io import open_log
+
+    ax = {"altitude": "z", "x": "x", "y": "y"}[loop]
+    with open_log(log, echo_warnings=False) as src:
+        if "vehicle_local_position_groundtruth" not in {t.name for t in src.topics()}:
+            return []
+        te, e = src.read("vehicle_local_position", [ax])
+        tg, g = src.read("vehicle_local_position_groundtruth", [ax])
+    truth = np.interp(te, tg, g[ax])
+    out = []
+    for t in tests:
+        sel = (te > t.t_start) & (te < t.t_end)
+        w = 2 * math.pi * t.frequency_hz_mean
+        basis = np.c_[np.sin(w * te[sel]), np.cos(w * te[sel]), np.ones(sel.sum()), te[sel] - te[sel].mean()]
+        ce, ct = (np.linalg.lstsq(basis, v[sel], rcond=None)[0] for v in (e[ax], truth))
+        ratio = complex(ce[0], ce[1]) / complex(ct[0], ct[1])
+        n = max(1, int(round(2 * math.pi / w / float(np.median(np.diff(te[sel]))))))
+        d = e[ax][sel] - truth[sel]
+        band = (d - np.convolve(d, np.ones(n) / n, mode="same"))[n:-n]
+        out.append({"lag_ms": float(np.angle(ratio)) / w * 1e3 * -1.0, "gain": abs(ratio),
+                    "band": float(np.std(band)) / t.amplitude_mean if band.size else math.nan})
+    return out
 
 
 def held_out_jitter(res: Any) -> list[dict[str, Any]]:

@@ -298,16 +298,30 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
         summary = [f"export generic ({name} {kind}, {loop})" if loop else f"export generic ({name} {kind})"]
     else:
         text, summary = stack_export.file_text(), stack_summary(stack_export)
-    if ex.out:
+    write_export(text, summary, ex.out, json_target)
+    return stack_export
+
+
+def write_export(text: str, summary: list[str], out: str | None, json_target: str | None) -> None:
+    """The export to ``out`` (atomically; the summary on stdout, or on stderr when ``--json -`` has stdout) or to
+    stdout (the summary on stderr)."""
+    if out:
         from ..io.atomic import write_text_atomic
 
-        write_text_atomic(ex.out, text)  # the usual permissions, never a half-written file
-        summary.append(f"written: {ex.out}")
+        write_text_atomic(out, text)  # the usual permissions, never a half-written file
+        summary.append(f"written: {out}")
         click.echo("\n".join(summary), err=json_target == "-")
     else:
         click.echo(text, nl=False)
         click.echo("\n".join(summary), err=True)
-    return stack_export
+
+
+def check_export_paths(json_target: str | None, out: str | None, exporting: bool) -> None:
+    """``--json`` and ``--out`` checked before the work; an export and ``--json -`` cannot share stdout."""
+    check_output_file(json_target, "--json")
+    check_output_file(out, "--out")
+    if exporting and not out and json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
 
 
 def _in_set(src: _TuneSource) -> list[Any]:
@@ -461,11 +475,9 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
         return
     check_output_file(json_target, "--json")  # output paths checked before the work starts
     check_output_dir(report_dir, "--report")
-    check_output_file(out, "--out")
+    check_export_paths(json_target, out, ex.stack is not None)
     if out and ex.stack is None:
         raise InputError("--out needs --export generic" + ("" if family else "|px4|ardupilot|hear"))
-    if ex.stack is not None and not out and json_target == "-":
-        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
     rate_given: float | None = read_options.get("controller_rate_hz")
     setting = None
     if family:

@@ -16,7 +16,7 @@ import click
 
 from ..errors import InputError
 from ..validate import TP_MISSING
-from .options import check_output_file, dump_json, tqdm_progress
+from .options import dump_json, tqdm_progress
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
@@ -72,6 +72,8 @@ class AxesRequest:
 
 def _check_request(req: AxesRequest) -> str:
     """The stack, after the checks that need no file (one-line errors)."""
+    from .tune import check_export_paths
+
     if req.model is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
     if req.stack not in ("px4", "ardupilot"):
@@ -84,10 +86,7 @@ def _check_request(req: AxesRequest) -> str:
         if not (s.lower().endswith(".json") and Path(s).is_file()):
             raise InputError(f"{s}: with two sources give analyze RESULT.json files (analyze each log with "
                              "--json FILE first)")
-    check_output_file(req.json_target, "--json")
-    check_output_file(req.out, "--out")
-    if not req.out and req.json_target == "-":
-        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
+    check_export_paths(req.json_target, req.out, True)
     return req.stack
 
 
@@ -122,7 +121,7 @@ def tune_axes(req: AxesRequest) -> None:
     from ..tune.closed_loop import RateFilter
     from ..tune.joint import GYRO_FILTER_PARAM, design_axes, export_axes, joint_gyro_cutoff
     from ..tune.stacks import stack_setting
-    from .tune import stack_summary
+    from .tune import stack_summary, write_export
 
     stack = _check_request(req)
     axes, extra, rate_source = _axes(req)
@@ -151,13 +150,4 @@ def tune_axes(req: AxesRequest) -> None:
     for e in export.exports:
         summary += stack_summary(e, console=False)
     summary += export.console_lines()
-    text = export.file_text()
-    if req.out:
-        from ..io.atomic import write_text_atomic
-
-        write_text_atomic(req.out, text)
-        summary.append(f"written: {req.out}")
-        click.echo("\n".join(summary), err=req.json_target == "-")
-    else:
-        click.echo(text, nl=False)
-        click.echo("\n".join(summary), err=True)
+    write_export(export.file_text(), summary, req.out, req.json_target)

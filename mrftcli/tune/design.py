@@ -496,9 +496,8 @@ def _feasible_start(ev: _Evaluator, start: Controller) -> Controller:
         for g in np.geomspace(1.0, 0.01, 60):
             Td_c = Td0 * f
             Kp = start.Kp * g
-            Ki = Kp / (Ti_ratio * Td_c) if Ti_ratio else 0.0
-            c = (Controller(Kp, Ki, Kp * Td_c, Td_c / FILTER_N, ev.rate_hz) if ev.rate_filter is None
-                 else Controller(Kp, Ki, Kp * Td_c, 0.0, ev.rate_hz, ev.rate_filter))
+            c = _controller("PID" if Ti_ratio else "PD", Kp, Td_c, ev.rate_hz, Ti_ratio * Td_c if Ti_ratio else None,
+                            ev.rate_filter)
             if ev.violation(c) == 0.0:
                 J = ev.criterion(c)
                 if J < best_J:

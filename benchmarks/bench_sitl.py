@@ -368,12 +368,14 @@ def chain_check(results: dict[str, dict], logs: Path) -> None:
 def held_out_cause(results: dict[str, dict]) -> None:
     """Why the roll and pitch tests at beta -0.2 are not held out within 5 %: model, relay or prediction.
 
-    Per test: (relay) its half periods in ticks, against the band of orbits SITL's own model admits; (model)
+    Per test: (relay) its half periods in ticks, beside the chain's (``ardupilot_chain``: locked onto one orbit;
+    with ArduPilot's integer PWM, 390 us per unit, and noise of the EKF's size, 9e-5 rad: hopping) and the band
+    of orbits SITL's own model admits; (model)
     the error of SITL's own eq. (2) at the band centre (Td and K from SITL's sources, tau ArduPilot's path
     plus the EKF's lag measured on the log, Out against Tru); (prediction) the held-out error, and how far it
     moves when the other tests' frequencies move 2 % each way.
     """
-    from ardupilot_chain import chain_delay_s
+    from ardupilot_chain import chain_delay_s, half_periods
     from sitl_analysis import band_centre_hz, extrapolation_range, half_period_ticks
 
     from mrftcli.io import open_log
@@ -404,8 +406,11 @@ def held_out_cause(results: dict[str, dict]) -> None:
             n += 1
             hopping += int(hp.max() - hp.min() >= 2)
             ho = f"{held[i].error * 100:+.1f} %" if i in held else "refused"
+            chain = [half_periods(r["implied"]["K"], r["implied"]["Td"], tt.beta_nominal, tt.h, delay_ticks=ticks,
+                                  **extra) for extra in ({}, {"pwm_us": 390.0, "noise": 9e-5})]
             print(f"  {name:11s} beta {tt.beta_nominal:+.2f}: half periods {hp.min()}-{hp.max()} ticks (most often "
-                  f"{np.bincount(hp).argmax()}), SITL's model admits {min(admits)}-{max(admits)}; SITL's own eq. (2) "
+                  f"{np.bincount(hp).argmax()}; the chain {chain[0].min()}-{chain[0].max()}, with integer PWM and "
+                  f"the EKF's noise {chain[1].min()}-{chain[1].max()}), SITL's model admits {min(admits)}-{max(admits)}; SITL's own eq. (2) "
                   f"(EKF lag {ekf_lag * 1e3:.2f} ms) at the centre {err * 100:+.1f} %; held out {ho}, the others "
                   f"moved 2 %: {lo * 100:+.1f} to {hi * 100:+.1f} %")
     if n:

@@ -80,3 +80,16 @@ def test_start_kick_alone_moves_the_plain_roll_tests_by_more_than_5_percent() ->
     f1 = simulate_mrft(K, TD, -0.6, 0.03, eth=0.005)
     f2 = simulate_mrft(K, TD, -0.6, 0.03, eth=0.003)
     assert abs(f1 / f2 - 1.0) > 0.05
+
+
+@pytest.mark.parametrize(("beta", "h"), [(-0.2, 0.02), (-0.6, 0.03)])
+def test_integer_pwm_and_the_ekfs_noise_make_the_chain_hop_among_orbits(beta: float, h: float) -> None:
+    """What the chain lacks and SITL has at every tick: ArduPilot sends the motors integer microseconds
+    (``output_to_pwm`` returns an int16_t; a relay of 0.02 moves each roll motor by about 8 us) and the EKF's
+    roll differs from SITL's by ~1e-4 rad. The chain alone locks onto one orbit (one half period); with them
+    it hops over several, as every SITL roll and pitch test does (tests/test_sitl_logs.py)."""
+    from ardupilot_chain import half_periods
+
+    assert len(set(half_periods(K, TD, beta, h).tolist())) == 1
+    hopping = half_periods(K, TD, beta, h, pwm_us=390.0, noise=9e-5)
+    assert hopping.max() - hopping.min() >= 2

@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-__all__ = ["chain_delay_s", "chain_response", "simulate_mrft"]
+__all__ = ["chain_delay_s", "chain_response", "simulate_mrft", "half_periods"]
 
 
 def _alpha(cutoff_hz: float, dt: float) -> float:
@@ -107,9 +107,34 @@ class _Relay:
         return self.sign
 
 
+def _fly(K: float, Td: float, beta: float, h: float, cutoff_hz: float, rate_hz: float, delay_ticks: int, eth: float,
+         noise: float, seed: int, duration_s: float, pwm_us: float, pwm_base_us: float) -> np.ndarray:
+    """The relay's output at every tick of the chain flown in closed loop (see :func:`simulate_mrft`)."""
+    dt = 1.0 / rate_hz
+    a = _alpha(cutoff_hz, dt)
+    A, B = _zoh_plant(K, Td, dt)
+    rng = np.random.default_rng(seed)
+    relay = _Relay(beta, eth)
+    x, filtered = np.zeros(2), 0.0
+    pending = [0.0] * (delay_ticks + 1)  # the delay line, then the tick to the rate controller
+    n = int(round(duration_s / dt))
+    sent = np.empty(n)
+    for k in range(n):
+        y = x[0] + (noise * rng.standard_normal() if noise else 0.0)
+        sent[k] = h * relay.step(-y)
+        pending.append(sent[k])
+        filtered += a * (pending.pop(0) - filtered)
+        u = filtered
+        if pwm_us:  # AP_MotorsMulticopter::output_to_pwm: int16_t of the float, the axis's two motors
+            u = (int(pwm_base_us + pwm_us * filtered) - int(pwm_base_us - pwm_us * filtered)) / (2.0 * pwm_us)
+        x = A @ x + B * u
+    return sent
+
+
 def simulate_mrft(K: float, Td: float, beta: float, h: float, cutoff_hz: float = 20.0, rate_hz: float = 400.0,
                   delay_ticks: int = 0, eth: float = 0.005, noise: float = 0.0, seed: int = 0,
-                  duration_s: float = 6.0, settle_s: float = 2.0) -> float:
+                  duration_s: float = 6.0, settle_s: float = 2.0, pwm_us: float = 0.0,
+                  pwm_base_us: float = 1460.3) -> float:
     """The MRFT flown on the chain in closed loop; its frequency [Hz] after ``settle_s``.
 
     Parameters
@@ -130,30 +155,37 @@ def simulate_mrft(K: float, Td: float, beta: float, h: float, cutoff_hz: float =
         Seed of the noise.
     duration_s, settle_s : float
         The test's length and the start of the part measured [s].
+    pwm_us : float
+        0: the mixer's output reaches the plant as a real number. Else the PWM [us] one unit of the axis's
+        command moves each of its two motors by: ArduPilot sends integer microseconds
+        (``AP_MotorsMulticopter::output_to_pwm`` returns an ``int16_t``, SITL reads ``uint16_t`` servos), so the
+        torque is the difference of the two truncated PWMs (about 390 us per unit at SITL's hover).
+    pwm_base_us : float
+        The two motors' PWM without the axis's command [us] (hover throttle through the mixer).
 
     Returns
     -------
     float
         Up-switches counted over the measured part, per second [Hz].
     """
-    dt = 1.0 / rate_hz
-    a = _alpha(cutoff_hz, dt)
-    A, B = _zoh_plant(K, Td, dt)
-    rng = np.random.default_rng(seed)
-    relay = _Relay(beta, eth)
-    x, filtered = np.zeros(2), 0.0
-    pending = [0.0] * (delay_ticks + 1)  # the delay line, then the tick to the rate controller
-    n = int(round(duration_s / dt))
-    sent = np.empty(n)
-    for k in range(n):
-        y = x[0] + (noise * rng.standard_normal() if noise else 0.0)
-        sent[k] = h * relay.step(-y)
-        pending.append(sent[k])
-        filtered += a * (pending.pop(0) - filtered)
-        x = A @ x + B * filtered
-    t = np.arange(n) * dt
+    sent = _fly(K, Td, beta, h, cutoff_hz, rate_hz, delay_ticks, eth, noise, seed, duration_s, pwm_us, pwm_base_us)
+    t = np.arange(sent.size) / rate_hz
     up = t[1:][np.diff(sent) > 0]
     up = up[up > settle_s]
     if up.size < 3:
         return float("nan")
     return float((up.size - 1) / (up[-1] - up[0]))
+
+
+def half_periods(K: float, Td: float, beta: float, h: float, settle_s: float = 1.0, **kw: float) -> np.ndarray:
+    """The relay's half periods [ticks] after ``settle_s`` of the chain flown as :func:`simulate_mrft` (same
+    keywords): one value when the loop locks onto one sampled-relay orbit, several when it hops."""
+    rate_hz = float(kw.get("rate_hz", 400.0))
+    args = {"cutoff_hz": 20.0, "rate_hz": 400.0, "delay_ticks": 0, "eth": 0.005, "noise": 0.0, "seed": 0,
+            "duration_s": 6.0, "pwm_us": 0.0, "pwm_base_us": 1460.3}
+    args.update(kw)
+    sent = _fly(K, Td, beta, h, args["cutoff_hz"], args["rate_hz"], int(args["delay_ticks"]), args["eth"],
+                args["noise"], int(args["seed"]), args["duration_s"], args["pwm_us"], args["pwm_base_us"])
+    sw = np.flatnonzero(np.diff(np.sign(sent))) + 1
+    sw = sw[sw >= settle_s * rate_hz]
+    return np.diff(sw)

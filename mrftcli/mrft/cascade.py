@@ -50,13 +50,13 @@ from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..validate import check_beta, check_positive
 from .controller import Controller
-from .matexp import phi_gamma_small
+from .propagate import phi_gamma
 from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parameter_values, model_from_json, model_json, \
     model_json_parameters
 
 __all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
            "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit", "delayed_discrete",
-           "orbits"]
+           "orbits", "split_interval", "whole_and_fraction"]
 
 if TYPE_CHECKING:
     from .lprs import LimitCycle
@@ -210,17 +210,17 @@ class DiscreteStateSpace:
         return out.reshape(np.shape(omega))
 
 
-def _split_interval(A: FloatArray, B: FloatArray, t: float, eps: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+def split_interval(A: FloatArray, B: FloatArray, t: float, eps: float) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(e^{A t}, old-input and new-input vectors) over [0, t) with the held input changing at ``eps``."""
-    E, _ = phi_gamma_small(A, B, t)
+    E, _ = phi_gamma(A, B, t)
     if t <= eps:
-        return E, phi_gamma_small(A, B, t)[1], np.zeros_like(B)
-    _, G_old = phi_gamma_small(A, B, eps)
-    E_rest, G_new = phi_gamma_small(A, B, t - eps)
+        return E, phi_gamma(A, B, t)[1], np.zeros_like(B)
+    _, G_old = phi_gamma(A, B, eps)
+    E_rest, G_new = phi_gamma(A, B, t - eps)
     return E, E_rest @ G_old, G_new
 
 
-def _whole_and_fraction(delay: float, T: float) -> tuple[int, float]:
+def whole_and_fraction(delay: float, T: float) -> tuple[int, float]:
     """delay = d T + eps with 0 <= eps < T."""
     d = int(math.floor(delay / T + 1e-12))
     return d, max(delay - d * T, 0.0)
@@ -258,10 +258,10 @@ def _cascade_discrete(plant: StateSpace, delay_i: float, c: Controller, K: float
     A[ni + 1, ni + 1] = -1.0 / Td
     B = np.zeros(n_x)
     B[:ni] = plant.B
-    d_i, eps_i = _whole_and_fraction(delay_i, T)
-    d_o, eps_o = _whole_and_fraction(tau, T)
-    Phi, Ga, Gb = _split_interval(A, B, T, eps_i)
-    Pz, Gaz, Gbz = _split_interval(A, B, T - eps_o, eps_i)
+    d_i, eps_i = whole_and_fraction(delay_i, T)
+    d_o, eps_o = whole_and_fraction(tau, T)
+    Phi, Ga, Gb = split_interval(A, B, T, eps_i)
+    Pz, Gaz, Gbz = split_interval(A, B, T - eps_o, eps_i)
     ib = n_x
     iI, iD, iy = ib + d_i + 1, ib + d_i + 2, ib + d_i + 3
     iz = iy + 1
@@ -490,8 +490,8 @@ def delayed_discrete(ss: StateSpace, delay: float, rate_hz: float) -> DiscreteSt
     [Hz] to its sampled output: exact (zero-order hold, the delay's fraction of a tick split off; the
     inner plant of a cascade, the plant of a sampled relay, :func:`mrftcli.mrft.lprs.sampled_limit_cycle`)."""
     T = 1.0 / rate_hz
-    d, eps = _whole_and_fraction(delay, T)
-    Phi, Ga, Gb = _split_interval(ss.A, ss.B, T, eps)
+    d, eps = whole_and_fraction(delay, T)
+    Phi, Ga, Gb = split_interval(ss.A, ss.B, T, eps)
     n = ss.order
     # state [x, u_{k-1} .. u_{k-d-1}]: the command buffer carries the delay
     N = n + d + 1

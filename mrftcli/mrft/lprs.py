@@ -40,7 +40,7 @@ from scipy import optimize
 from ..errors import InputError
 from ..validate import check_beta, check_positive
 from .describing import df_crossing, df_frequency
-from .matexp import phi_gamma_small
+from .propagate import phi_gamma
 from .cascade import delayed_discrete, orbits
 from .model import LoopModel, PlantModel, SampledPlantModel, StateSpace
 
@@ -503,10 +503,10 @@ class _StateSpaceCycle:
         from scipy.interpolate import CubicHermiteSpline
 
         self.A, self.B, self.C, self.P = A, B, C, P
-        Phi, Gam = phi_gamma_small(A, B, P)
+        Phi, Gam = phi_gamma(A, B, P)
         # symmetric periodic state at the -h -> +h switch: x(P) = -x(0)  =>  (I + Phi) x0 = -Gamma
         self.x0 = -np.linalg.solve(np.eye(A.shape[0]) + Phi, Gam)
-        Pd, Gd = phi_gamma_small(A, B, P / n)
+        Pd, Gd = phi_gamma(A, B, P / n)
         xs = np.empty((n + 1, A.shape[0]))
         xs[0] = self.x0
         for k in range(n):

@@ -18,7 +18,7 @@ from scipy.signal import lfilter
 
 from ..errors import InputError
 
-__all__ = ["taylor_expm", "LinearPropagator", "rk4_quadratic", "RotorCoefficients", "rk4_rotor",
+__all__ = ["taylor_expm", "phi_gamma", "LinearPropagator", "rk4_quadratic", "RotorCoefficients", "rk4_rotor",
            "actuator_pieces", "gauss_markov",
            "fifo_delays"]
 
@@ -53,6 +53,18 @@ def taylor_expm(M: np.ndarray) -> np.ndarray:
     for _ in range(squarings):
         E = E @ E
     return E
+
+
+def phi_gamma(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(e^{A t}, int_0^t e^{A s} ds B) of x' = A x + B u with u held over [0, t) [s]: one
+    :func:`taylor_expm` of the augmented matrix [[A t, B t], [0, 0]] (the zero-order hold's pieces; the
+    limit-cycle searches call it hundreds of times, where scipy's expm cost ~10 ms in its dispatch)."""
+    n = A.shape[0]
+    M = np.zeros((n + 1, n + 1))
+    M[:n, :n] = A * t
+    M[:n, n] = B * t
+    E = taylor_expm(M)
+    return E[:n, :n], E[:n, n]
 
 
 class LinearPropagator:

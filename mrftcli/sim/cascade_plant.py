@@ -8,7 +8,7 @@ output's direction, p the propulsion state of eq. (2), y the position):
 driven by the inner command w(t): the command u_k of tick k held (zero-order hold) and delayed by
 the inner tau = m T + f. The position is measured tau_y late: y(t_k - tau_y). A control period
 splits at f and at the position's sampling offset; each piece is propagated exactly with the
-exponential of the augmented matrix [[A, B], [0, 0]] (:func:`mrftcli.mrft.propagate.taylor_expm`), so
+exponential of the augmented matrix [[A, B], [0, 0]] (:func:`mrftcli.mrft.propagate.phi_gamma`), so
 :class:`CascadePlant` holds a few constant affine maps, shared by the flight and by the discrete
 transfer functions below (the truth of ``bench_cascade``: what a designed outer controller actually
 achieves on the cascade the simulator flies).
@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from ..mrft.model import LoopModel
 from .cascade_spec import InnerGains
-from ..mrft.propagate import taylor_expm
+from ..mrft.propagate import phi_gamma
 
 __all__ = ["CascadePlant", "Segment", "cascade_plant", "controller_response", "outer_plant_response",
            "outer_phase_margin", "closed_loop_radius", "OuterMargin"]
@@ -93,16 +93,6 @@ class CascadePlant:
         return M, Ga, Gb, Ms, Sa, Sb
 
 
-def _piece(A: Array, B: Array, h: float) -> tuple[Array, Array]:
-    """e^{A h} and int_0^h e^{A s} ds B (exact: the augmented matrix's exponential)."""
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A * h
-    M[:n, n] = B * h
-    E = taylor_expm(M)
-    return E[:n, :n], E[:n, n]
-
-
 def cascade_plant(inner: LoopModel, Td: float, tau: float, rate_hz: float, g: float) -> CascadePlant:
     """The cascade's five-state plant and its exact per-period pieces.
 
@@ -139,7 +129,7 @@ def cascade_plant(inner: LoopModel, Td: float, tau: float, rate_hz: float, g: fl
     cuts = sorted({0.0, f_in, s_y, T})
     segments = []
     for a, b in zip(cuts[:-1], cuts[1:]):
-        Phi, Gamma = _piece(A, B, b - a)
+        Phi, Gamma = phi_gamma(A, B, b - a)
         segments.append(Segment(Phi, Gamma, newer=a >= f_in, sample_y_before=a == s_y))
     return CascadePlant(A, B, T, m_in, f_in, n_y, s_y, tuple(segments))
 

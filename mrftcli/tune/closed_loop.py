@@ -32,12 +32,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.linalg import expm
 
 from ..errors import InputError
-from ..mrft.cascade import DiscreteStateSpace
+from ..mrft.cascade import DiscreteStateSpace, split_interval, whole_and_fraction
 from ..mrft.controller import Controller, RateFilter
-from ..mrft.matexp import phi_gamma_small
+from ..mrft.propagate import phi_gamma
 from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_positive
 
@@ -78,16 +77,6 @@ class StepMetrics:
     def to_dict(self) -> dict:
         return {"overshoot_pct": self.overshoot_pct, "rise_s": self.rise_s, "settling_s": self.settling_s,
                 "iae": self.iae, "itae": self.itae, "peak_u": self.peak_u}
-
-
-def _zoh_integrals(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-    """(e^{A t}, int_0^t e^{A s} ds B) from one matrix exponential of the augmented system."""
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A
-    M[:n, n] = B
-    E = expm(M * t)
-    return E[:n, :n], E[:n, n]
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,12 +195,9 @@ def held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
         raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
                          "tune designs for strictly proper plants")
     A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
-    T = 1.0 / rate_hz
-    d = int(math.floor(model.delay / T + 1e-12))
-    eps = max(model.delay - d * T, 0.0)
-    Phi, _ = phi_gamma_small(A, B, T)
-    rest, G_new = phi_gamma_small(A, B, T - eps)
-    return DiscretePlant(Phi, np.stack([rest @ phi_gamma_small(A, B, eps)[1], G_new]), C, d, rate_hz)
+    d, eps = whole_and_fraction(model.delay, 1.0 / rate_hz)
+    Phi, G_old, G_new = split_interval(A, B, 1.0 / rate_hz, eps)  # cascade.delayed_discrete's pieces
+    return DiscretePlant(Phi, np.stack([G_old, G_new]), C, d, rate_hz)
 
 
 def as_discrete(models, rate_hz: float) -> list[DiscretePlant]:
@@ -636,7 +622,7 @@ def simulate_step(model: LoopModel, controller: Controller, t_end: float, subste
             return x
         key = round(h, 15)
         if key not in cache:
-            cache[key] = _zoh_integrals(A, Bv, h)
+            cache[key] = phi_gamma(A, Bv, h)
         E, G = cache[key]
         return E @ x + G * (w + load)
 

@@ -16,8 +16,6 @@ from .records import FlownTest, Prior
 
 __all__ = ["conditioned_draws"]
 
-_TWO_PI = 2.0 * math.pi
-
 
 def conditioned_draws(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n: int,
                       rng: np.random.Generator, rate_hz: float, noise_std: float) -> np.ndarray:
@@ -49,7 +47,7 @@ def _on_the_slice(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n:
     """``m`` prior draws moved onto the first flown test's UFM slice and UGM (rows Td, tau, K)."""
     draws = prior.draws(m, rng)
     f = flown[0]
-    omega = _TWO_PI * f.frequency_hz
+    omega = math.tau * f.frequency_hz
     Td = draws[:, 0]
     if len({round(t.beta, 2) for t in flown}) >= 2:
         from ..mrft.identify import TestMeasurement, identify
@@ -76,7 +74,7 @@ def _resample(model: LoopModel, out: np.ndarray, phased: Sequence[FlownTest], n:
     loglik = np.zeros(out.shape[0])
     for t in phased:
         assert t.phase is not None  # the caller passes the phased tests only
-        w = _TWO_PI * t.frequency_hz
+        w = math.tau * t.frequency_hz
         pred = -0.5 * math.pi - np.arctan(model.Tp * w) - np.arctan(out[:, 0] * w) - out[:, 1] * w
         # the noise model's per-cycle phase scatter at this test (slope of a triangle-like cycle)
         sd = cycle_noise(t.amplitude, w, 1.5 * t.amplitude * w, rate_hz, noise_std)["phase"]

@@ -47,8 +47,6 @@ __all__ = [
     "is_log_parameter",
 ]
 
-_TWO_PI = 2.0 * math.pi
-
 
 def _slice_derivatives(Tp: float, Td: float, omega: float, beta: float) -> tuple[float, float]:
     """d tau_i / d Td [-] of the UFM slice at Omega, and d tau / d beta [s] (central differences)."""
@@ -159,14 +157,14 @@ def planned_information(Tp: float, plant: Sequence[float], beta: float, h: float
     if c is None:
         return np.zeros((3, 3))
     a = h * c.amp1
-    n_c = max(math.floor(duration_s * c.omega / _TWO_PI) - LOST_CYCLES, 1)
+    n_c = max(math.floor(duration_s * c.omega / math.tau) - LOST_CYCLES, 1)
     noise = cycle_noise(a, c.omega, h * c.slope1, rate_hz, noise_std)
     return fisher_information(Tp, Td, K, beta, c.omega, a, n_c, noise)
 
 
 def flown_information(Tp: float, plant: Sequence[float], f: FlownTest, rate_hz: float, noise_std: float) -> np.ndarray:
     """Fisher information on ``(Td, tau, ln K)`` of a flown test (as measured) for one plant (3 x 3)."""
-    omega = _TWO_PI * f.frequency_hz
+    omega = math.tau * f.frequency_hz
     slope = f.amplitude * omega * 1.5  # a triangle-like cycle; used only for the jitter term
     noise = cycle_noise(f.amplitude, omega, slope, rate_hz, noise_std)
     return fisher_information(Tp, plant[0], plant[2], f.beta, omega, f.amplitude, f.n_cycles, noise)

@@ -28,7 +28,6 @@ __all__ = [
     "MIN_SWITCH_GAP",
 ]
 
-_TWO_PI = 2.0 * math.pi
 #: Per-cycle noise model (see :func:`cycle_noise`): coefficients of (eps, sampling, switch jitter)
 #: for the UFM slice, the fundamental's phase and ln(amplitude). Fitted on simulated flights by
 #: ``benchmarks/bench_plan.py --calibrate`` (docs/benchmarks/plan.md).
@@ -86,7 +85,7 @@ def cycle_noise(amplitude: float, omega: float, switch_slope: float, rate_hz: fl
     eps = noise_std / amplitude
     Ts = 1.0 / rate_hz
     jit = noise_std / max(switch_slope, 1e-300)
-    n_per_cycle = rate_hz * _TWO_PI / omega
+    n_per_cycle = rate_hz * math.tau / omega
 
     def comb(c: tuple[float, float, float], x: tuple[float, float, float]) -> float:
         return math.sqrt(sum((ci * xi) ** 2 for ci, xi in zip(c, x)))

@@ -54,7 +54,6 @@ __all__ = [
     "CANDIDATE_BETAS",
 ]
 
-_TWO_PI = 2.0 * math.pi
 #: The conventional MRFT betas a plan is compared with (the paper's recipe).
 CONVENTIONAL_BETAS = (-0.4, -0.7)
 
@@ -150,7 +149,7 @@ def assess(space: DesignSpace, beta: float) -> CandidateTest:
     rate, noise_std = lim.rate_hz, lim.noise_std
     max_amplitude, max_h = lim.bounds()
     h = min(max_h, max_amplitude / max(c.amp1 for c in known))
-    periods = np.array([_TWO_PI / c.omega for c in known])
+    periods = np.array([math.tau / c.omega for c in known])
     n_cyc = np.floor(space.duration_s / periods) - LOST_CYCLES
     amps = np.array([h * c.amp1 for c in known])
     motion = amps * np.array([c.omega for c in known]) / (rate * noise_std)  # noise stds per tick at the switch
@@ -322,7 +321,7 @@ def recommended_test(space: DesignSpace, beta: float, candidate: CandidateTest) 
         c = predict_cycle(Tp, centre, beta, rate)
         if c is None:
             raise
-        f, a, orbits = c.omega / _TWO_PI, h * c.amp1, ()
+        f, a, orbits = c.omega / math.tau, h * c.amp1, ()
     cs = space.predict(beta)
     tdw = np.array([p[0] * c.omega for p, c in zip(space.plants, cs) if c is not None])
     n_c = max(int(math.floor(duration * f)) - LOST_CYCLES, 0)

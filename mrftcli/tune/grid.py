@@ -495,10 +495,8 @@ def _sign(model: PlantModel) -> float:
     params = model.parameters
     if "K" in params:
         return 1.0 if params["K"].value > 0 else -1.0
-    A = np.asarray(model.realisation().A, float)
-    integrators = int(np.sum(np.abs(np.linalg.eigvals(A)) < 1e-12))
     w = 1e-6
-    g = complex(np.asarray(model.frequency_response(np.array([w])))[0]) * (1j * w) ** integrators
+    g = complex(np.asarray(model.frequency_response(np.array([w])))[0]) * (1j * w) ** _integrators(model)
     return 1.0 if g.real > 0 else -1.0
 
 
@@ -515,9 +513,9 @@ def _scaled(ss: DiscreteStateSpace, sign: float) -> DiscreteStateSpace:
     return DiscreteStateSpace(ss.Phi, ss.Gamma, sign * ss.C, ss.rate_hz)
 
 
-def _integrating(model: PlantModel) -> bool:
-    A = np.asarray(model.realisation().A, float)
-    return bool(np.any(np.abs(np.linalg.eigvals(A)) < 1e-12))
+def _integrators(model: PlantModel) -> int:
+    """The plant's poles at s = 0."""
+    return int(np.sum(np.abs(np.linalg.eigvals(np.asarray(model.realisation().A, float))) < 1e-12))
 
 
 def _check(options: DesignOptions, cascade: bool) -> None:
@@ -594,7 +592,7 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     if isinstance(model, CascadeModel):
         return _tune_cascade(model, rate_hz, draws, options, loop)
     discretise(model, rate_hz)  # checks the rate and the plant before the work
-    integrating = _integrating(model)
+    integrating = _integrators(model) > 0
     kinds = tuple(options.kinds) if options.kinds is not None else (GRID_KINDS if integrating else ("PI", "PID"))
     sign = _sign(model)
     wu = _ultimate(model, rate_hz, sign)

@@ -13,7 +13,7 @@ from .model_options import (baseline_option, build_model, cascade_options, casca
                             soiptd_or_process, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, num, quiet_option, read_progress, tp_option, tqdm_progress)
+                      min_cycles_option, num, quiet_option, read_progress, text_table, tp_option, tqdm_progress)
 
 
 
@@ -27,15 +27,7 @@ def accept_tp_option(f):
 
 def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> list[str]:
     """Columns as wide as their widest cell; two header lines (name, unit); no trailing spaces."""
-    widths = [max(len(h[0]), len(h[1]), *(len(r[k]) for r in rows if k < len(r))) for k, h in enumerate(header)]
-
-    def line(cells):
-        out = []
-        for k, cell in enumerate(cells):
-            out.append(cell.ljust(widths[k]) if align[k] == "<" else cell.rjust(widths[k]))
-        return "  ".join(out).rstrip()
-
-    return [line([h[0] for h in header]), line([h[1] for h in header])] + [line(r) for r in rows]
+    return text_table([[h[0] for h in header], [h[1] for h in header], *rows], align)
 
 
 def format_analysis(result) -> str:

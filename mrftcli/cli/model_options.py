@@ -17,7 +17,7 @@ import click
 
 from ..errors import InputError
 from ..validate import check_parameter_value
-from .options import num, read_json_file
+from .options import num, read_json_file, text_table
 
 if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
@@ -314,9 +314,7 @@ def parameter_lines(estimates: Sequence[tuple[str, ParameterEstimate]],
         std = "" if e.known else (num(e.std * scale, 2) if e.determined and math.isfinite(e.std) else "-")
         rows.append((name, unit, num(e.value * scale), std, _interval(e, scale),
                      "known" if e.known else ("" if e.determined else "NOT DETERMINED")))
-    widths = [max(len(r[k]) for r in rows) for k in range(6)]
-    return ["  " + "  ".join(c.rjust(w) if k in (2, 3) else c.ljust(w) for k, (c, w) in enumerate(zip(r, widths))).rstrip()
-            for r in rows]
+    return text_table(rows, align="<<>>", indent="  ")
 
 
 def _interval(e: ParameterEstimate, scale: float = 1.0) -> str:

@@ -8,7 +8,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +21,7 @@ from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP", "min_cycles_option", "num"]
+           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -51,6 +51,19 @@ def num(x: float | None, digits: int = 4) -> str:
     if x is None or not math.isfinite(x):
         return "-"
     return f"{x:#.{digits}g}".rstrip(".")
+
+
+def text_table(rows: Sequence[Sequence[str]], align: str = "", indent: str = "") -> list[str]:
+    """The lines of a terminal table (the header rows first): each column as wide as its widest cell,
+    right-aligned where ``align`` has ``>`` at its index (else left), two spaces between columns, no
+    trailing spaces.
+
+    >>> text_table([("name", "value"), ("tau", "46.4")], align="<>")
+    ['name  value', 'tau    46.4']
+    """
+    widths = [max(len(r[k]) for r in rows if k < len(r)) for k in range(max(len(r) for r in rows))]
+    return [(indent + "  ".join(c.rjust(w) if align[k:k + 1] == ">" else c.ljust(w)
+                                for k, (c, w) in enumerate(zip(r, widths)))).rstrip() for r in rows]
 
 
 def dump_json(obj: Any, target: str | None) -> None:

@@ -14,7 +14,7 @@ from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
 from .model_options import outer_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, num, quiet_option, read_json_file, tp_option, tqdm_progress)
+                      min_cycles_option, num, quiet_option, read_json_file, text_table, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..vehicle import VehicleResult
@@ -61,8 +61,7 @@ def format_vehicle(result: VehicleResult) -> str:
     header = ["loop", "role", "model", "tests", "Td [s]", "tau [ms]", "K", "design", "Kp", "Kd", "rate [Hz]",
               "PM [deg]"]
     rows = _loop_rows(result)
-    widths = [max(len(h), *(len(r[k]) for r in rows)) if rows else len(h) for k, h in enumerate(header)]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in [header, *rows]]
+    lines += text_table([header, *rows])
     if not rows:
         lines.append("(no loop identified)")
     for name, entry in result.loops.items():

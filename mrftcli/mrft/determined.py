@@ -11,7 +11,7 @@ log-parameters, of the largest information left once the determined parameters a
 exponents are rounded to halves where that costs little precision or keeps the 95 % interval within a
 factor e (``K/T1`` rather than ``K^1 T1^-0.93``); the combination is reported only if its 95 % interval is within a factor of e^2
 (a single parameter is called determined only within a factor 1.25,
-:data:`~mrftcli.mrft.identify_lti.DETERMINED_LOG_WIDTH`).
+:data:`~mrftcli.mrft.parameter.DETERMINED_LOG_WIDTH`).
 """
 
 from __future__ import annotations

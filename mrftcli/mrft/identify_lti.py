@@ -53,7 +53,7 @@ from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel, wrap as _wrap
 from .model import PlantModel, model_from_json
-from .parameter import Z95, ParameterEstimate
+from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, is_determined
 
 __all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
            "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
@@ -75,10 +75,6 @@ _PARAM_FLOOR = 5e-3
 _GRID = np.geomspace(1e-2, 1e2, 33)
 #: 95 % point of the chi-square distribution with one degree of freedom (the profile's rise)
 _CHI2_95 = 3.841458820694124
-#: a positive parameter is determined when its 95 % interval is within this log width: a factor
-#: 1.25 either way. Issue 38: a factor e^2 called K 10.2 [7.2, 14.5] determined where one relay
-#: setting saw only K/T1 (the truth 32); a user acts on a parameter pinned to +-25 %, not to 2x.
-DETERMINED_LOG_WIDTH = 2 * math.log(1.25)
 #: :attr:`ResponsePoint.harmonic` of a static-gain point
 STATIC_HARMONIC = 0
 #: a static-gain point's frequency, relative to the lowest test frequency
@@ -730,11 +726,10 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
             sign = problem.k_sign if name == "K" else 1.0
             ends = sorted([sign * math.exp(a), sign * math.exp(b)])
             std = abs(p.value) * s
-            determined = bool(b - a < DETERMINED_LOG_WIDTH)
         else:
             ends = [a, b]
             std = s
-            determined = (b - a) * w_ref < 1.0  # within a radian of phase at the tests' frequency
+        determined = is_determined(a, b, name in problem.log_scaled, w_ref)
         if flat and name in flat:  # no interval along a flat direction: the data say nothing there
             determined, ends, side = False, [p.bounds[0], p.bounds[1]], "low" if p.bounds[0] > -math.inf else ""
         estimates.append(ParameterEstimate(p.value, float(std), float(ends[0]), float(ends[1]), p.unit,

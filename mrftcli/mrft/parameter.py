@@ -23,10 +23,24 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95"]
+__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined"]
 
 #: the 95 % point of the normal distribution (a normal interval is value +- Z95 std)
 Z95 = 1.959964
+
+#: a positive parameter is determined when its 95 % interval is within this log width: a factor
+#: 1.25 either way. Issue 38: a factor e^2 called K 10.2 [7.2, 14.5] determined where one relay
+#: setting saw only K/T1 (the truth 32); a user acts on a parameter pinned to +-25 %, not to 2x.
+DETERMINED_LOG_WIDTH = 2 * math.log(1.25)
+
+
+def is_determined(low: float, high: float, log_scale: bool, omega: float) -> bool:
+    """The one rule for "determined" (the families' fit and the cascade's): the 95 % interval as
+    reported, [low, high] (in ln of the value for a log-scaled parameter), narrower than a factor 1.25
+    either way (:data:`DETERMINED_LOG_WIDTH`), or for a delay [s] than a radian of phase at the tests'
+    frequency ``omega`` [rad/s]."""
+    return bool(high - low < DETERMINED_LOG_WIDTH) if log_scale else bool((high - low) * omega < 1.0)
+
 
 #: The keys of a parameter's JSON object, in their order.
 JSON_KEYS = ("value", "std", "ci95_low", "ci95_high", "unit", "determined", "known", "method")

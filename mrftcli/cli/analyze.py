@@ -397,26 +397,18 @@ def _identify(flight, model, options, accept_tp: bool, json_target, to_stdout: b
 
     try:
         return refuse_rejected_tp(analyze_flight(flight, model, options=options), accept_tp)
-    except TpRejectedError as err:
-        if json_target and err.result is not None:  # the JSON says which: tp_check.verdict "rejected"
-            dump_json(cast(Any, err.result).to_json(), json_target)
-        _echo_warnings(flight.warnings)
-        raise
-    except InsufficientDataError as err:
-        if json_target:
-            dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
-        if not to_stdout and err.partial:
-            click.echo(format_partial(err))
-        _echo_warnings(flight.warnings)
-        raise
-    except SegmentationError as err:
-        # tests found but none usable: the JSON still says what was found and why each was rejected
-        if json_target and err.rejected_tests is not None:
+    except MrftError as err:
+        if isinstance(err, TpRejectedError) and json_target and err.result is not None:
+            dump_json(cast(Any, err.result).to_json(), json_target)  # the JSON says which: tp_check.verdict "rejected"
+        elif isinstance(err, InsufficientDataError):
+            if json_target:
+                dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
+            if not to_stdout and err.partial:
+                click.echo(format_partial(err))
+        elif isinstance(err, SegmentationError) and json_target and err.rejected_tests is not None:
+            # tests found but none usable: the JSON still says what was found and why each was rejected
             dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [],
                        "rejected_tests": err.rejected_tests}, json_target)
-        _echo_warnings(flight.warnings)
-        raise
-    except MrftError:
         _echo_warnings(flight.warnings)
         raise
 

@@ -16,7 +16,7 @@ from mrftcli.diagnose.features import N_HARM, cycle_table, relay_harmonics
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, SampledRelay, periodic_cycle, run_relay
 from mrftcli.diagnose.records import (SCHEMA_VERSION, CandidateFit, DiagnosisResult, Disagreement, EffectFinding,
                                      Evidence, HeldOut, PairFit, TestRow, Unexplained)
-from mrftcli.diagnose.records import AnalyzeModel, EffectIdentification, Identification, ModelEstimate
+from mrftcli.diagnose.records import EffectIdentification, Identification, ModelEstimate
 from mrftcli.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -364,8 +364,8 @@ def _small_result() -> DiagnosisResult:
                                refits={"sensor_lag": ModelEstimate(Td=2.6, tau=0.045, K=12.5, Tp=0.0422)},
                                waveform={"sensor_lag": ModelEstimate("waveform", Td=2.65, tau=0.046, K=12.4, Tp=0.0422,
                                                                      value=0.069, value_std=0.001, residual_rms=5e-4)},
-                               analyze=AnalyzeModel(ModelEstimate(Td=2.5, tau=0.047, K=12.2), "waveform",
-                                                    [[1.5, 18.5]], "another choice of data"),
+                               analyze=ModelEstimate("analyze", Td=2.5, tau=0.047, K=12.2, method="waveform",
+                                                     tests=[[1.5, 18.5]], differs_because="another choice of data"),
                            ).recommend(["sensor_lag"]),
                            tests=[TestRow(index=0, beta_nominal=None, beta_effective_up=-0.41, beta_effective_down=-0.39,
                                           h=0.1, bias=0.5, rate_hz=200.0, t_start=3.0, t_end=20.0, t_start_rel=1.5,
@@ -401,7 +401,7 @@ def test_identification_json_round_trip_and_one_recommended_estimate():
     pair = replace(ident, refits={**ident.refits, "input_bias+sensor_lag": ModelEstimate(Td=2.7, tau=0.044, K=12.6)})
     assert pair.recommend(["input_bias", "sensor_lag"]).recommended.source == "with_input_bias+sensor_lag"
     assert ident.recommend([]).recommended.source == "analyze"
-    assert replace(ident, analyze=None).recommend([]).recommended.estimate.plant() == ident.linear.plant()
+    assert replace(ident, analyze=None).recommend([]).recommended.plant() == ident.linear.plant()
 
 
 def test_effect_identification_is_a_typed_record_with_the_json_layout_of_before():

@@ -47,11 +47,10 @@ def _model_lines(result: DiagnosisResult) -> list[str]:
     if a is None or a.method is None:
         return lines
     how = "waveform refinement" if a.method == "waveform" else "MRFT estimate"
-    a_spans = ", ".join(f"{t0:.1f}-{t1:.1f}" for t0, t1 in a.tests)
-    est = a.estimate
+    a_spans = ", ".join(f"{t0:.1f}-{t1:.1f}" for t0, t1 in a.tests or [])
     rec = ident.recommended
-    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): Td {_g(est.Td)} s  "
-                 f"tau {_g(None if est.tau is None else 1e3 * est.tau)} ms  K {_g(est.K)} {k_unit}: "
+    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): Td {_g(a.Td)} s  "
+                 f"tau {_g(None if a.tau is None else 1e3 * a.tau)} ms  K {_g(a.K)} {k_unit}: "
                  + ("the model to use" if rec is not None and rec.source == "analyze" else
                     "it leaves out the effect found below: take the estimate marked there")
                  + f"; {a.differs_because}")

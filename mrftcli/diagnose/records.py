@@ -38,7 +38,7 @@ if TYPE_CHECKING:
 
 __all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HELD_OUT_DEFINITION_TESTS", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement",
            "TestRow", "Unexplained", "Identification", "EffectIdentification", "ModelEstimate",
-           "AnalyzeModel", "Recommendation", "analyze_model", "with_analysis", "DIFFERS_BECAUSE", "EffectFinding", "FinalModel", "CycleErrors", "DiagnosisFigures",
+           "analyze_model", "with_analysis", "DIFFERS_BECAUSE", "EffectFinding", "FinalModel", "CycleErrors", "DiagnosisFigures",
            "DiagnosisResult"]
 
 #: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away). 2: one
@@ -69,7 +69,11 @@ DIFFERS_BECAUSE = ("diagnose refits the linear model to the cycles it compares t
 _KEYS = {
     "cycles": ("tau", "K", "Td", "Tp"),
     "waveform": ("Td", "tau", "K", "Tp", "value", "value_std", "residual_rms"),
+    "analyze": ("Td", "tau", "K", "method", "tests", "differs_because"),
+    "recommended": ("source", "Td", "tau", "K", "why"),
 }
+#: the keys that hold words (the others numbers, but an analyze entry's ``tests``)
+_WORDS = ("method", "differs_because", "source", "why")
 
 
 @dataclass(frozen=True)
@@ -79,8 +83,10 @@ class ModelEstimate:
     Attributes
     ----------
     kind : str
-        ``"cycles"`` (fitted to the stable cycles' features) or ``"waveform"`` (the output-error refit
-        on the recorded waveform, with the effect's parameter ``value``).
+        ``"cycles"`` (fitted to the stable cycles' features), ``"waveform"`` (the output-error refit
+        on the recorded waveform, with the effect's parameter ``value``), ``"analyze"`` (analyze's
+        model of the same log: its point estimates, the finite ones) or ``"recommended"`` (the one
+        estimate the diagnosis recommends: :meth:`Identification.recommend`).
     Td, tau : float or None
         [s] (None: not fitted).
     K : float or None
@@ -91,6 +97,12 @@ class ModelEstimate:
         The effect's parameter and its standard error (a waveform refit; the effect's unit).
     residual_rms : float or None
         The waveform refit's residual RMS [output units].
+    method, tests, differs_because : str, list of list of float, str or None
+        analyze's: ``"waveform"`` (the waveform refinement) or ``"mrft"`` (the MRFT estimate), its tests'
+        spans [s] from the log start, and why the diagnosis' linear model is not this one.
+    source, why : str or None
+        The recommended's: the identification entry it is (``"linear"``, ``"with_<effect>"``,
+        ``"waveform_with_<effect>"`` or ``"analyze"``), and why that one.
     """
 
     kind: str = "cycles"
@@ -101,6 +113,11 @@ class ModelEstimate:
     value: float | None = None
     value_std: float | None = None
     residual_rms: float | None = None
+    method: str | None = None
+    tests: list[list[float]] | None = None
+    differs_because: str | None = None
+    source: str | None = None
+    why: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object (the kind's keys that are set, in order)."""
@@ -112,7 +129,16 @@ class ModelEstimate:
         if not isinstance(data, dict) or not set(data) <= set(_KEYS[kind]):
             raise InputError(f"a diagnosis' identification entry must be an object of {', '.join(_KEYS[kind])}; "
                              f"got {data!r:.80}")
-        return cls(kind=kind, **{k: _number(v, k) for k, v in data.items()})
+        if kind == "recommended" and not {"source", "why"} <= set(data):
+            raise InputError(f"the diagnosis' recommended estimate needs 'source' and 'why', got {data!r:.80}")
+        tests = data.get("tests")
+        if tests is not None and not (isinstance(tests, list) and all(isinstance(t, list) and len(t) == 2 for t in tests)):
+            raise InputError("the diagnosis' identification 'analyze' tests must be a list of [start, end] spans")
+        values: dict[str, Any] = {k: (None if v is None else str(v)) if k in _WORDS else _number(v, k)
+                                  for k, v in data.items() if k != "tests"}
+        if tests is not None:
+            values["tests"] = [[float(a), float(b)] for a, b in tests]
+        return cls(kind=kind, **values)
 
     def plant(self) -> dict[str, float]:
         """Td, tau [s] and K, those fitted."""
@@ -190,79 +216,6 @@ class EffectIdentification:
 
 
 @dataclass(frozen=True)
-class AnalyzeModel:
-    """``analyze``'s model of the same log, and why the diagnosis' linear fit differs from it.
-
-    Attributes
-    ----------
-    estimate : ModelEstimate
-        Its Td, tau [s] and K (the point estimates, the finite ones).
-    method : str or None
-        ``"waveform"`` (the waveform refinement) or ``"mrft"`` (the MRFT estimate); None when unknown.
-    tests : list of list of float
-        Its tests' spans [s] from the log start.
-    differs_because : str or None
-        Why the diagnosis' linear model is not this one (None: not said).
-    """
-
-    estimate: ModelEstimate
-    method: str | None = None
-    tests: list[list[float]] = field(default_factory=list)
-    differs_because: str | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        """The JSON object: Td, tau, K, then how analyze got them and why they differ."""
-        out: dict[str, Any] = self.estimate.plant()
-        if self.method is not None:
-            out.update(method=self.method, tests=self.tests, differs_because=self.differs_because)
-        return out
-
-    @classmethod
-    def from_json(cls, data: Any) -> AnalyzeModel:
-        """The model of a :meth:`to_json` object."""
-        if not isinstance(data, dict):
-            raise InputError(f"the diagnosis' identification 'analyze' must be an object, got {data!r:.60}")
-        plant = {k: data[k] for k in ("Td", "tau", "K") if k in data}
-        tests = data.get("tests", [])
-        if not isinstance(tests, list) or not all(isinstance(t, list) and len(t) == 2 for t in tests):
-            raise InputError("the diagnosis' identification 'analyze' tests must be a list of [start, end] spans")
-        return cls(estimate=ModelEstimate.from_json(plant), method=data.get("method"),
-                   tests=[[float(a), float(b)] for a, b in tests], differs_because=data.get("differs_because"))
-
-
-@dataclass(frozen=True)
-class Recommendation:
-    """The one estimate of Td, tau and K the diagnosis recommends.
-
-    Attributes
-    ----------
-    source : str
-        The identification entry it is (``"linear"``, ``"with_<effect>"``, ``"waveform_with_<effect>"``
-        or ``"analyze"``).
-    estimate : ModelEstimate
-        Its Td, tau [s] and K.
-    why : str
-        Why that one.
-    """
-
-    source: str
-    estimate: ModelEstimate
-    why: str
-
-    def to_json(self) -> dict[str, Any]:
-        """The JSON object: source, Td, tau, K, why."""
-        return {"source": self.source, **self.estimate.plant(), "why": self.why}
-
-    @classmethod
-    def from_json(cls, data: Any) -> Recommendation:
-        """The recommendation of a :meth:`to_json` object."""
-        if not isinstance(data, dict) or not {"source", "why"} <= set(data):
-            raise InputError(f"the diagnosis' recommended estimate needs 'source' and 'why', got {data!r:.80}")
-        return cls(source=str(data["source"]), why=str(data["why"]),
-                   estimate=ModelEstimate.from_json({k: data[k] for k in ("Td", "tau", "K") if k in data}))
-
-
-@dataclass(frozen=True)
 class Identification:
     """The plant's parameters from every fit a diagnosis made, and which to take.
 
@@ -276,25 +229,25 @@ class Identification:
         Per model found (``"input_bias"``, ``"input_bias+sensor_lag"``), eq. (2) refitted with it.
     waveform : dict of str to ModelEstimate
         Per effect the output-error refinement models, the refit on the recorded waveform.
-    analyze : AnalyzeModel or None
-        analyze's model of the same log, when known.
-    recommended : Recommendation
-        The estimate to take (:meth:`recommend`).
+    analyze : ModelEstimate or None
+        analyze's model of the same log (kind ``"analyze"``), when known.
+    recommended : ModelEstimate or None
+        The estimate to take (kind ``"recommended"``: :meth:`recommend`).
     """
 
     loop: str
     linear: ModelEstimate
     refits: dict[str, ModelEstimate] = field(default_factory=dict)
     waveform: dict[str, ModelEstimate] = field(default_factory=dict)
-    analyze: AnalyzeModel | None = None
-    recommended: Recommendation | None = None
+    analyze: ModelEstimate | None = None
+    recommended: ModelEstimate | None = None
 
     def entries(self) -> dict[str, ModelEstimate]:
         """Every estimate by its JSON key (``linear``, ``with_*``, ``waveform_with_*``, ``analyze``)."""
         out = {"linear": self.linear, **{f"with_{k}": v for k, v in self.refits.items()},
                **{f"waveform_with_{k}": v for k, v in self.waveform.items()}}
         if self.analyze is not None:
-            out["analyze"] = self.analyze.estimate
+            out["analyze"] = self.analyze
         return out
 
     def recommend(self, effects: list[str]) -> Identification:
@@ -308,27 +261,25 @@ class Identification:
         if effects:
             label = "+".join(effects)
             if len(effects) == 1 and effects[0] in self.waveform:
-                rec = Recommendation(f"waveform_with_{label}", self.waveform[label],
-                                     f"refit with {label} on the recorded waveform (every sample, as analyze's "
-                                     "refinement; the cycle refit is what the selection compared)")
+                source, est, why = (f"waveform_with_{label}", self.waveform[label],
+                                    f"refit with {label} on the recorded waveform (every sample, as analyze's "
+                                    "refinement; the cycle refit is what the selection compared)")
             else:
                 key = label if label in self.refits else effects[-1]
-                rec = Recommendation(f"with_{key}", self.refits[key],
-                                     f"refit to the cycles with {key}: the linear model leaves it out")
+                source, est, why = (f"with_{key}", self.refits[key],
+                                    f"refit to the cycles with {key}: the linear model leaves it out")
         elif self.analyze is not None:
-            rec = Recommendation("analyze", self.analyze.estimate,
-                                 "the linear model explains the log: analyze's estimate of it")
+            source, est, why = ("analyze", self.analyze, "the linear model explains the log: analyze's estimate of it")
         else:
-            rec = Recommendation("linear", self.linear, "the linear model explains the log (its fit to the cycles; "
-                                 "analyze's estimate of the same log is the one to take when it is at hand)")
+            source, est, why = ("linear", self.linear, "the linear model explains the log (its fit to the cycles; "
+                                "analyze's estimate of the same log is the one to take when it is at hand)")
         # the recommendation states the plant (Td, tau, K); the entry it names keeps the rest
-        return replace(self, recommended=replace(rec, estimate=ModelEstimate.of_plant(rec.estimate.plant())))
+        plant = ModelEstimate.of_plant(est.plant())
+        return replace(self, recommended=replace(plant, kind="recommended", source=source, why=why))
 
     def to_json(self) -> dict[str, Any]:
         """The JSON's ``identification`` object."""
         out: dict[str, Any] = {k: v.to_json() for k, v in self.entries().items()}
-        if self.analyze is not None:
-            out["analyze"] = self.analyze.to_json()  # with how analyze got it
         if self.recommended is not None:
             out["recommended"] = self.recommended.to_json()
         out["units"] = {"Td": "s", "tau": "s", "K": gain_unit(self.loop), "Tp": "s",
@@ -355,19 +306,19 @@ class Identification:
         analyze = data.get("analyze")
         rec = data.get("recommended")
         return cls(loop=loop, linear=ModelEstimate.from_json(data["linear"]), refits=refits, waveform=waveform,
-                   analyze=None if analyze is None else AnalyzeModel.from_json(analyze),
-                   recommended=None if rec is None else Recommendation.from_json(rec))
+                   analyze=None if analyze is None else ModelEstimate.from_json(analyze, "analyze"),
+                   recommended=None if rec is None else ModelEstimate.from_json(rec, "recommended"))
 
 
-def analyze_model(analysis: AnalysisResult) -> AnalyzeModel:
+def analyze_model(analysis: AnalysisResult) -> ModelEstimate:
     """analyze's model of a log: its point estimates (the finite ones), how it got them, its tests."""
     means = {"Td": analysis.Td.value, "tau": analysis.tau.value, "K": analysis.K.value}
     plant = {k: float(v) for k, v in means.items() if v is not None and math.isfinite(float(v))}
     if "K" in plant:
         plant["K"] = abs(plant["K"])  # the loop's sign is the layout's, not the plant's
-    return AnalyzeModel(estimate=ModelEstimate.of_plant(plant), method="waveform" if analysis.method == "waveform" else "mrft",
-                        tests=[[t.t_start - analysis.t0, t.t_end - analysis.t0] for t in analysis.tests],
-                        differs_because=DIFFERS_BECAUSE)
+    return replace(ModelEstimate.of_plant(plant), kind="analyze", method="waveform" if analysis.method == "waveform" else "mrft",
+                   tests=[[t.t_start - analysis.t0, t.t_end - analysis.t0] for t in analysis.tests],
+                   differs_because=DIFFERS_BECAUSE)
 
 
 def with_analysis(identification: Identification, analysis: AnalysisResult, effects: list[str]) -> Identification:

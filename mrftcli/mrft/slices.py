@@ -147,23 +147,27 @@ def intersection(Tp: float, betas: Sequence[float], omegas: Sequence[float], ms:
     return Td_hat, c1.tau(Td_hat), warns
 
 
+def _frequency_gap(Tp: float, tau: float, beta: float, warm: list[float] | None = None) -> Callable[[float, float], float]:
+    """F(ln Omega, Td) = theta(Tp Omega, Td Omega) - tau Omega of one test: zero at the model's frequency."""
+    def F(lw: float, Td: float) -> float:
+        ww = math.exp(lw)
+        return unit_cycle_scalar(Tp * ww, Td * ww, beta, warm)[0] - tau * ww
+
+    return F
+
+
 def log_freq_residuals(Tp: float, Td: float, tau: float, betas: Sequence[float], omegas: Sequence[float],
                        eps: float = 1e-5) -> FloatArray:
     """First-order log-frequency residuals ln(Omega_model / Omega_measured) of each test.
 
-    F_i(Omega) = theta(Tp Omega, Td Omega) - tau Omega vanishes at the model's frequency, so
+    F_i(Omega) (:func:`_frequency_gap`) vanishes at the model's frequency, so
     ln Omega_model - ln Omega_i ~= -F_i(Omega_i) / (dF_i / d ln Omega).
     """
     r = np.empty(len(betas))
     for i, (b, w) in enumerate(zip(betas, omegas)):
-        def F(lw: float, b: float = b) -> float:
-            ww = math.exp(lw)
-            return unit_cycle_scalar(Tp * ww, Td * ww, b)[0] - tau * ww
-
-        lw = math.log(w)
-        f0 = F(lw)
-        dF = (F(lw + eps) - F(lw - eps)) / (2 * eps)
-        r[i] = -f0 / dF if dF != 0 else np.inf
+        F, lw = _frequency_gap(Tp, tau, b), math.log(w)
+        dF = (F(lw + eps, Td) - F(lw - eps, Td)) / (2 * eps)
+        r[i] = -F(lw, Td) / dF if dF != 0 else np.inf
     return r
 
 
@@ -171,19 +175,14 @@ def frequency_sensitivity(Tp: float, Td: float, tau: float, beta: float, omega: 
                           eps: float = 1e-6) -> tuple[float, float]:
     """d ln Omega / d ln Td and d ln Omega / d tau [1/s] at the model point (implicit function).
 
-    F(ln Omega, ln Td) = theta(Tp Omega, Td Omega) - tau Omega; dlnOmega/dlnTd = -F_lnTd / F_lnOmega,
+    F(ln Omega, ln Td) (:func:`_frequency_gap`); dlnOmega/dlnTd = -F_lnTd / F_lnOmega,
     dlnOmega/dtau = Omega / F_lnOmega.  Central differences; the shared warm start keeps each
     evaluation to two or three Newton steps.
     """
-    warm: list[float] = []
-
-    def F(lw: float, lTd: float) -> float:
-        ww = math.exp(lw)
-        return unit_cycle_scalar(Tp * ww, math.exp(lTd) * ww, beta, warm)[0] - tau * ww
-
+    F = _frequency_gap(Tp, tau, beta, [])
     lw, lTd = math.log(omega), math.log(Td)
-    dF_dlw = (F(lw + eps, lTd) - F(lw - eps, lTd)) / (2 * eps)
-    dF_dlTd = (F(lw, lTd + eps) - F(lw, lTd - eps)) / (2 * eps)
+    dF_dlw = (F(lw + eps, math.exp(lTd)) - F(lw - eps, math.exp(lTd))) / (2 * eps)
+    dF_dlTd = (F(lw, math.exp(lTd + eps)) - F(lw, math.exp(lTd - eps))) / (2 * eps)
     return -dF_dlTd / dF_dlw, omega / dF_dlw
 
 

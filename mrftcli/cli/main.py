@@ -117,25 +117,20 @@ def main(argv: list[str] | None = None) -> None:
         click.echo("note: first run: matplotlib is building its font cache (once, 10-40 s)", err=True)
     try:
         cli.main(args=args, prog_name="mrft-ident", standalone_mode=False)
-    except click.exceptions.Abort:  # Ctrl-C: worded as watch words it
+    except (click.exceptions.Abort, KeyboardInterrupt):  # Ctrl-C: worded as watch words it
         click.echo(f"interrupted: stopped {_command(args)} (Ctrl-C)", err=True)
         sys.exit(130)
-    except click.UsageError as err:
-        # One line, naming the problem and where help is, instead of click's three-line usage block.
-        where = f" (see '{err.ctx.command_path} --help')" if err.ctx is not None else ""
-        click.echo(f"error: {err.format_message()}{where}", err=True)
-        sys.exit(err.exit_code)
     except click.ClickException as err:
-        click.echo(f"error: {err.format_message()}", err=True)
+        # One line, naming the problem and where help is, instead of click's three-line usage block.
+        ctx = err.ctx if isinstance(err, click.UsageError) else None
+        where = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+        click.echo(f"error: {err.format_message()}{where}", err=True)
         sys.exit(err.exit_code)
     except MrftError as err:
         if debug:
             raise
         click.echo(f"error: {err}", err=True)
         sys.exit(err.exit_code)
-    except KeyboardInterrupt:
-        click.echo(f"interrupted: stopped {_command(args)} (Ctrl-C)", err=True)
-        sys.exit(130)
     except OSError as err:
         # A path the user gave cannot be written or read (permissions, missing folder, full disk).
         if debug:

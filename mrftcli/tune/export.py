@@ -13,7 +13,7 @@ it loads, checked against its ranges (:mod:`mrftcli.tune.stacks`).
 * **PX4** attitude (roll, pitch): the angle P / rate PID cascade, with the rate loop's I and D at zero,
   u = P_rate (P_att (r - y) - y') = P_rate P_att e - P_rate y', is exactly a PD on the angle with the
   derivative on the measurement: ``MC_ROLL_P = Kp / Kd``, ``MC_ROLLRATE_P = Kd`` (likewise PITCH).
-  It holds when (:func:`px4_conditions`): the design is a PD (a rate-loop I acts on y' and so on the
+  It holds when (:func:`px4_params` checks it): the design is a PD (a rate-loop I acts on y' and so on the
   measurement, which a parallel PID on the error is not); the loop is roll or pitch; the MRFT command
   was PX4's normalised torque setpoint (|u| <= 1, so each test's relay height h <= 1) and the output
   in radians (rate in rad/s); MC_*RATE_K = 1, MC_*RATE_FF = 0; both loops run at the design rate;
@@ -33,7 +33,7 @@ from .closed_loop import Controller
 if TYPE_CHECKING:
     from .design import TuneResult
 
-__all__ = ["generic_file", "generic_export", "generic_units", "hear_json", "hear_params", "px4_params", "px4_conditions", "unit_reasons",
+__all__ = ["generic_export", "generic_units", "hear_json", "hear_params", "px4_params", "unit_reasons",
            "format_table", "HEAR_PID_ID"]
 
 #: HEAR's PID_ID enum (PID_X, PID_Y, PID_Z, PID_ROLL, PID_PITCH, PID_YAW, PID_YAW_RATE).
@@ -54,21 +54,16 @@ def generic_units(loop: str) -> dict[str, str]:
             "output": y}
 
 
-def generic_file(c: Controller, design: str, kind: str, loop: str) -> dict[str, Any]:
-    """The generic export as written (``tune --export generic``): the controller with its units in the file."""
-    return {"design": design, "kind": kind, "loop": loop, **c.to_dict(), "units": generic_units(loop)}
-
-
 def generic_export(result: "TuneResult", design: str, kind: str) -> dict[str, Any]:
-    """``tune --export generic``'s file for any family: eq. (2)'s with its loop and units
-    (:func:`generic_file`); a cascade's outer PD; another family's with ``reverse_acting`` (the gains act
+    """``tune --export generic``'s file for any family: eq. (2)'s with its loop and the units of its numbers
+    (:func:`generic_units`); a cascade's outer PD; another family's with ``reverse_acting`` (the gains act
     on -e)."""
     from ..mrft.cascade import CascadeModel
     from ..mrft.model import LoopModel
 
     c = result.get(design, kind).controller
     if isinstance(result.model, LoopModel):
-        return generic_file(c, design, kind, result.loop)
+        return {"design": design, "kind": kind, "loop": result.loop, **c.to_dict(), "units": generic_units(result.loop)}
     if isinstance(result.model, CascadeModel):
         return {"design": design, "kind": kind, **c.to_dict()}
     return {"design": design, "kind": kind, "reverse_acting": result.reverse_acting, **c.to_dict()}
@@ -94,23 +89,6 @@ def hear_json(c: Controller, loop: str) -> dict[str, Any]:
                     "a 2nd-order Butterworth at 50 Hz: tune --export hear designs with it); anti_windup 0 = off"}
 
 
-def px4_conditions(c: Controller, loop: str, relay_heights: Sequence[float] = (),
-                   amplitudes: Sequence[float] = ()) -> list[str]:
-    """Reasons the PX4 cascade mapping does not hold (empty list: it holds).
-
-    ``relay_heights`` and ``amplitudes`` are the MRFT tests' h [command units] and output amplitudes
-    (when known): PX4's torque setpoint is normalised to [-1, 1], and an attitude in radians of an
-    MRFT test stays well below 1 rad.
-    """
-    why = []
-    if loop not in ("roll", "pitch"):
-        why.append(f"PX4's {loop} loop is not an angle-P / rate-PID cascade on the command tested (only roll and pitch map)")
-    if c.Ki > 0:
-        why.append("the design has integral action: PX4's rate-loop I acts on the measured rate, so a PID on the "
-                   "angle error does not map exactly (use the PD design)")
-    return why + unit_reasons(loop, relay_heights, amplitudes)
-
-
 def unit_reasons(loop: str, heights: Sequence[float], amplitudes: Sequence[float]) -> list[str]:
     """Reasons the log's units are not a flight stack's (normalised command, radians); empty: they are.
 
@@ -130,10 +108,21 @@ def px4_params(c: Controller, loop: str, relay_heights: Sequence[float] = (),
                amplitudes: Sequence[float] = ()) -> dict[str, Any]:
     """PX4 parameters ``MC_<AXIS>_P`` = Kp / Kd and ``MC_<AXIS>RATE_P`` = Kd (the export's mapping,
     :func:`mrftcli.tune.stacks.cascade_params`) with the design's own filter as ``IMU_GYRO_CUTOFF``, or
-    InputError with the reasons."""
+    InputError with the reasons the mapping does not hold.
+
+    ``relay_heights`` and ``amplitudes`` are the MRFT tests' h [command units] and output amplitudes
+    (when known): PX4's torque setpoint is normalised to [-1, 1], and an attitude in radians of an
+    MRFT test stays well below 1 rad.
+    """
     from .stacks import cascade_params
 
-    why = px4_conditions(c, loop, relay_heights, amplitudes)
+    why = []
+    if loop not in ("roll", "pitch"):
+        why.append(f"PX4's {loop} loop is not an angle-P / rate-PID cascade on the command tested (only roll and pitch map)")
+    if c.Ki > 0:
+        why.append("the design has integral action: PX4's rate-loop I acts on the measured rate, so a PID on the "
+                   "angle error does not map exactly (use the PD design)")
+    why += unit_reasons(loop, relay_heights, amplitudes)
     if why:
         raise InputError("cannot export to PX4: " + "; ".join(why))
     if c.Kd <= 0:
@@ -157,9 +146,6 @@ def format_table(result: "TuneResult") -> str:
                  f"{'DM[ms]':>8}{'Ms':>6}{'OS[%]':>7}{'rise[s]':>8}{'set[s]':>7}{'J':>8}"
                  f"  {'worst of 95 %: PM':>17}{'Ms':>6}{'OS[%]':>7}")
 
-    def f(x: float | None, fmt: str) -> str:
-        return format(x, fmt) if x is not None and math.isfinite(x) else "-"
-
     y = output_unit(result.loop)
     lines.insert(1, f"gains: Kp [command per {y}], Ki [command per {y} s], Kd [command s per {y}]; "
                     f"K [{gain_unit(result.loop)}]")
@@ -168,12 +154,12 @@ def format_table(result: "TuneResult") -> str:
         w = d.posterior.get("worst", {}) if d.posterior else {}
 
         lines.append(f"{d.name:<12}{d.kind:<5}{c.Kp:>10.4g}{c.Ki:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}"
-                     f"{f(g.gain_margin, '.2f'):>7}{f(g.phase_margin_deg, '.1f'):>8}{f(g.delay_margin_s * 1e3, '.1f'):>8}"
-                     f"{f(g.Ms, '.2f'):>6}{f(s.overshoot_pct, '.1f'):>7}{f(s.rise_s, '.3f'):>8}{f(s.settling_s, '.2f'):>7}"
-                     f"{f(d.criterion, '.4g'):>8}  {f(w.get('phase_margin_deg'), '.1f'):>17}{f(w.get('Ms'), '.2f'):>6}"
-                     f"{f(w.get('overshoot_pct'), '.1f'):>7}")
+                     f"{_fmt(g.gain_margin, '.2f'):>7}{_fmt(g.phase_margin_deg, '.1f'):>8}{_fmt(g.delay_margin_s * 1e3, '.1f'):>8}"
+                     f"{_fmt(g.Ms, '.2f'):>6}{_fmt(s.overshoot_pct, '.1f'):>7}{_fmt(s.rise_s, '.3f'):>8}{_fmt(s.settling_s, '.2f'):>7}"
+                     f"{_fmt(d.criterion, '.4g'):>8}  {_fmt(w.get('phase_margin_deg'), '.1f'):>17}{_fmt(w.get('Ms'), '.2f'):>6}"
+                     f"{_fmt(w.get('overshoot_pct'), '.1f'):>7}")
     if any(d.load for d in result.designs):
-        rec = ", ".join(f"{d.name} {f(d.load.get('recovery_s'), '.2f')} s" for d in result.designs if d.load)
+        rec = ", ".join(f"{d.name} {_fmt(d.load.get('recovery_s'), '.2f')} s" for d in result.designs if d.load)
         lines.append(f"J: {result.objective.upper()} of a unit setpoint step; a PID's adds the {result.objective.upper()} "
                      f"of a load step at the plant input (size: its PD's Kp). PID load recovery (2 %): {rec}")
     for n in result.notes:
@@ -181,8 +167,9 @@ def format_table(result: "TuneResult") -> str:
     return "\n".join(lines)
 
 
-def _g(x: float | None, digits: int = 4) -> str:
-    return f"{x:.{digits}g}" if x is not None and math.isfinite(x) else "-"
+def _fmt(x: float | None, fmt: str = ".4g") -> str:
+    """``x`` formatted by ``fmt``; "-" when it is None or not finite."""
+    return format(x, fmt) if x is not None and math.isfinite(x) else "-"
 
 
 def _grid_table(res: "TuneResult") -> str:
@@ -210,10 +197,10 @@ def _grid_table(res: "TuneResult") -> str:
     rows = [head]
     for d in res.designs:
         c, n, w = d.controller, d.margins, d.posterior.get("worst")
-        rows.append((d.name, d.kind, _g(c.Kp), _g(c.Ki), _g(c.Kd), _g(c.Tf * 1e3), _g(n.phase_margin_deg, 3),
-                     _g(n.gain_margin, 3), _g(n.Ms, 3), _g(n.w_gc / (2 * math.pi), 3),
-                     "-" if w is None else _g(w["phase_margin_deg"], 3), "-" if w is None else _g(w["Ms"], 3),
-                     _g(d.criterion, 3), d.criterion_definition))
+        rows.append((d.name, d.kind, _fmt(c.Kp), _fmt(c.Ki), _fmt(c.Kd), _fmt(c.Tf * 1e3), _fmt(n.phase_margin_deg, '.3g'),
+                     _fmt(n.gain_margin, '.3g'), _fmt(n.Ms, '.3g'), _fmt(n.w_gc / (2 * math.pi), '.3g'),
+                     "-" if w is None else _fmt(w["phase_margin_deg"], '.3g'), "-" if w is None else _fmt(w["Ms"], '.3g'),
+                     _fmt(d.criterion, '.3g'), d.criterion_definition))
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.ljust(wd) for c, wd in zip(r, widths)).rstrip() for r in rows]
     return "\n".join(lines)

@@ -429,11 +429,6 @@ class AnalysisResult:
         ho = getattr(self.tests[k], "held_out", None) if k < len(self.tests) else None
         return ho if isinstance(ho, HeldOut) else None
 
-    def rejected_rows(self) -> list[tuple[int, float, float, str]]:
-        """Every test left out: index, span [s, log clock] and why, whichever strategy made the record."""
-        return list(self.rejected_spans) + [(t.index, t.t_start, t.t_end, self.rejection_reasons.get(t.index, ""))
-                                            for t in self.rejected]
-
     @property
     def estimate_method(self) -> str:
         """How eq. (2)'s MRFT point estimate was found: identify's method, or the weighted least squares with its constraints."""

@@ -556,21 +556,14 @@ def _deviance(test: TestData, a: Action) -> float:
     return r * r / (2.0 / max(test.period_dof, 1) + SCATTER_MODEL_LN ** 2)
 
 
-@dataclass(frozen=True)
-class _Fit:
-    chi2: float
-    ident: LtiIdentification | None
-
-
 def _chi2(model: PlantModel, tests: Sequence[TestData], actions: Sequence[Action], k0: float,
-          views: Sequence[str]) -> _Fit:
-    ident = _identify(model, tests, actions) if "points" in views else None
-    total = _points_chi2(ident) if "points" in views else 0.0
+          views: Sequence[str]) -> float:
+    total = _points_chi2(_identify(model, tests, actions)) if "points" in views else 0.0
     if "balance" in views:
         total += sum((lambda r: (r[0] / r[1]) ** 2)(_balance(t, a, k0)) for t, a in zip(tests, actions))
     if "scatter" in views:
         total += sum(_deviance(t, a) for t, a in zip(tests, actions))
-    return _Fit(total, ident)
+    return total
 
 
 # ----------------------------------------------------------------------------------------------
@@ -591,7 +584,7 @@ def _profile(model: PlantModel, tests: Sequence[TestData], fixed: Sequence[tuple
     grid = _on(effect).grid(tests)
 
     def cost(v: float) -> float:
-        return _chi2(model, tests, _actions([*fixed, (effect, v)], tests, t_ref), k0, views).chi2
+        return _chi2(model, tests, _actions([*fixed, (effect, v)], tests, t_ref), k0, views)
 
     costs = np.array([cost(float(v)) for v in grid])
     i = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.inf)))
@@ -750,7 +743,7 @@ def _fit_one(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[
              k0: float, t_ref: float, with_: str) -> EffectFit:
     views = _views([effect])
     base_views = _views([e for e, _ in kept] + [effect])
-    base = _chi2(model, tests, _actions(kept, tests, t_ref), k0, base_views).chi2
+    base = _chi2(model, tests, _actions(kept, tests, t_ref), k0, base_views)
     value, chi2 = _profile(model, tests, kept, effect, k0, t_ref)
     n_obs = sum(2 * len(t.points) for t in tests) if "points" in base_views else 0
     n_obs += len(tests) * (("balance" in base_views) + ("scatter" in base_views))

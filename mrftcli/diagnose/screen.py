@@ -95,8 +95,7 @@ def _comparable(tests: list[MrftTest]) -> bool:
     """Whether the flown tests differ in beta or in relay height (by more than 10 %)."""
     from ..analyze.screen import group_betas
 
-    hs = sorted(abs(t.h) for t in tests)
-    return len(group_betas(tests)) > 1 or (len(hs) > 1 and hs[-1] > HEIGHT_RATIO * hs[0])
+    return len(group_betas(tests)) > 1 or bool(_height_pairs(tests))  # one beta: its heights differ
 
 
 def _height_pairs(tests: list[MrftTest]) -> list[list[MrftTest]]:

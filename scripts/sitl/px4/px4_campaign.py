@@ -63,6 +63,10 @@ FLIGHTS = [
     # tune's generic form on the angle exactly (but the gyro filter), the cascade model's inner controller
     ("px4_x_pd", "x", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
     ("px4_y_pd", "y", 0.0, [(b, 0.08) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
+    # x and y at twice the relay height (PX4's default gains): if the misses are the small cycles' irregular
+    # switching on EKF2's estimate (as the altitude's were at h 0.05-0.15), their cycles spread less here
+    ("px4_x_h16", "x", 0.0, [(b, 0.16) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
+    ("px4_y_h16", "y", 0.0, [(b, 0.16) for b in (-0.3, -0.45, -0.6, -0.75)], 12.0),
 ]
 #: parameters set after boot for a flight (the rest fly PX4's defaults for airframe 10040)
 _PD_ATTITUDE = {"MC_ROLLRATE_D": 0.0, "MC_ROLLRATE_I": 0.0, "MC_PITCHRATE_D": 0.0, "MC_PITCHRATE_I": 0.0}
@@ -227,7 +231,8 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
 
 
 #: the lateral loops and the attitude loop each goes through (x: pitch, y: roll), flown without a delay
-CASCADES = (("px4_x", "px4_pitch_h"), ("px4_y", "px4_roll_h"), ("px4_x_pd", "px4_pitch_h"), ("px4_y_pd", "px4_roll_h"))
+CASCADES = (("px4_x", "px4_pitch_h"), ("px4_y", "px4_roll_h"), ("px4_x_pd", "px4_pitch_h"), ("px4_y_pd", "px4_roll_h"),
+            ("px4_x_h16", "px4_pitch_h"), ("px4_y_h16", "px4_roll_h"))
 
 
 def px4_inner_gains(log: Path, axis: str) -> tuple[Any, str]:

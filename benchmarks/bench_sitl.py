@@ -419,18 +419,25 @@ def held_out_cause(results: dict[str, dict]) -> None:
               f"eq. (2) at the band centre within 5 %: {within}/{n} (max {max(map(abs, own_errs)) * 100:.1f} %)")
 
 
-def joint_increments(results: dict[str, dict]) -> None:
+def joint_increments(logs: Path) -> None:
     """The +20 ms increment of each pair identified together: one plant (one Td), a delay each, fitted to the
     six tests' frequencies at the sampled relay's band centre (``sitl_analysis.joint_delays``). Separately,
-    each flight's Td trades against its tau (Td Omega 10-60: Td barely moves the frequencies)."""
+    each flight's Td trades against its tau (Td Omega 10-60: Td barely moves the frequencies). Frequencies
+    alone, so a flight ``analyze`` refuses (a negative delay) still takes part."""
     from sitl_analysis import joint_delays
 
-    for base in ("altitude", "altitude_h15", "altitude_mf", "roll", "pitch"):
-        if base not in results or f"{base}_20ms" not in results:
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.segment import segment
+
+    for base, loop in (("altitude", "altitude"), ("altitude_h15", "altitude"), ("altitude_mf", "altitude"),
+                       ("roll", "roll"), ("pitch", "pitch")):
+        paths = [logs / f"{n}.BIN" for n in (base, f"{base}_20ms")]
+        if not all(p.exists() for p in paths):
             continue
-        plain, delayed = ([(t.beta_nominal, t.h, t.frequency_hz_mean) for t in results[n]["tests"]]
-                          for n in (base, f"{base}_20ms"))
-        Td, ta, tb = joint_delays(results[base]["tp"], 400.0, plain, delayed)
+        plain, delayed = ([(t.beta_nominal, t.h, t.frequency_hz_mean) for t in segment(read_flight(p, ReadOptions(
+            loop=loop)))] for p in paths)
+        tp = json.loads(Path(f"{paths[0]}.json").read_text())["tp_s"]
+        Td, ta, tb = joint_delays(tp, 400.0, plain, delayed)
         print(f"{base}: +20 ms increment, the pair identified together from its frequencies (one Td {Td:.3f} s): "
               f"{(tb - ta) * 1e3:.2f} ms (tau {ta * 1e3:.2f} / {tb * 1e3:.2f} ms; error {(tb - ta) * 1e3 - 20:+.2f} ms)"
               + ("; the plain flight's tau at its bound 0" if ta < 1e-4 else ""))
@@ -715,7 +722,7 @@ def main() -> int:
     matched_increment(args.logs)
     chain_check(results, args.logs)
     held_out_cause(results)
-    joint_increments(results)
+    joint_increments(args.logs)
     if args.truth:
         truth_analysis(args.logs)
     if args.analyze_only or args.no_refly:

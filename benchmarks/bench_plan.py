@@ -38,7 +38,7 @@ from mrftcli.errors import MrftError  # noqa: E402
 from mrftcli.mrft.lprs import mrft_limit_cycle  # noqa: E402
 from mrftcli.mrft.model import LoopModel  # noqa: E402
 from mrftcli.plan import (PlanLimits, PlanOptions, Prior, flown_from_segments, flown_information, plan_tests,  # noqa: E402
-                          planned_information, simulated_std)
+                          planned_information, simulated_flights)
 from mrftcli.segment import segment  # noqa: E402
 from mrftcli.sim import FlightSpec, TestSpec, default_noise_std, simulate_flight  # noqa: E402
 
@@ -116,7 +116,7 @@ def run(n: int, seed: int, args_sim: int = 8) -> None:
         o_td, o_tau = np.sqrt(np.diag(np.linalg.pinv(info)))[:2]
         rng_ = p.predicted_std_data_range
         # the simulation forecast at the true plant (another noise seed): its ceiling
-        s_true = simulated_std(soiptd_model(m.Tp), np.array([truth]), flown, p.tests, limits, seed=k + 7919)[0]
+        s_true = simulated_flights(soiptd_model(m.Tp), np.array([truth]), flown, p.tests, limits, seed=k + 7919)[0][0]
         sim = p.simulated_std or {"Td": np.nan, "tau": np.nan}
         srng = p.simulated_std_range or {"Td": (np.nan, np.nan), "tau": (np.nan, np.nan)}
         row = dict(k=k, tauA=ra.tau.std, tdA=ra.Td.std, tauB=rb.tau.std, tdB=rb.Td.std, ptau=pred["tau"],

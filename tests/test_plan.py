@@ -18,7 +18,7 @@ from mrftcli.errors import InputError, InsufficientDataError
 from mrftcli.mrft.lprs import mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 from mrftcli.plan import (PlanLimits, FlownTest, PlanOptions, PlanResult, Prior, cycle_noise, fisher_information,
-                          plan_tests, simulated_std)
+                          plan_tests, simulated_flights)
 
 
 def _narrow_prior(Td=0.8, tau=0.03, K=2.0) -> Prior:
@@ -207,7 +207,7 @@ def test_simulated_forecast_says_when_the_flights_fail():
     flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=2.0, amplitude=0.03, n_cycles=8)
     limits = PlanLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.0005)
     p = plan_tests(soiptd_model(0.04), limits, prior=_narrow_prior(), flown=[flown], options=PlanOptions(n_draws=2, betas=(-0.6,)))
-    s = simulated_std(
+    s, _ = simulated_flights(
         soiptd_model(0.04), np.array([[0.8, 0.03, 2.0]]), [flown], p.tests,
         PlanLimits(max_amplitude=0.04, max_h=10.0, time_s=10.0, rate_hz=200.0, noise_std=0.5))
     assert np.isnan(s).all()

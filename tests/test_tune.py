@@ -362,11 +362,11 @@ def test_stability_and_delay_margin_agree_with_the_closed_loop_eigenvalues():
     # loops, short and long delays; the delay margin against the eigenvalues at +-0.1 % of it
     from dataclasses import replace
 
-    from mrftcli.tune.closed_loop import augmented, closed_loop_matrix, discrete_plant
+    from mrftcli.tune.closed_loop import augmented, closed_loop_matrix, discrete_plants
     from mrftcli.tune.margins import loop_margins
 
     def rho(m, c, extra=0.0):
-        A, *_ = closed_loop_matrix(augmented(discrete_plant(replace(m, tau=m.tau + extra), c.rate_hz)), c)
+        A, *_ = closed_loop_matrix(augmented(discrete_plants([replace(m, tau=m.tau + extra)], c.rate_hz)[0]), c)
         return np.max(np.abs(np.linalg.eigvals(A)))
 
     rng = np.random.default_rng(11)

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from .driver import DEFAULT_BETAS, TD_OMEGA_LIMIT, PlanOptions, plan_tests
 from .fisher import fisher_information, flown_information, planned_information, point_information
-from .forecast import simulated_std
+from .forecast import simulated_flights
 from .inputs import flown_from_result, flown_from_segments, noise_from_result, prior_range
 from .noise import NOISE_MODEL, cycle_noise, switch_gap
 from .records import CandidateTest, Conventional, FlownTest, PlanLimits, PlanResult, Prior, TestPlan
@@ -59,7 +59,7 @@ __all__ = [
     "flown_information",
     "point_information",
     "plan_tests",
-    "simulated_std",
+    "simulated_flights",
     "DEFAULT_BETAS",
     "TD_OMEGA_LIMIT",
 ]

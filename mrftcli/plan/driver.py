@@ -79,7 +79,7 @@ class PlanOptions:
         Plant draws from the prior the design is averaged over.
     n_simulated : int
         When > 0, the recommended tests are also flown in simulation on this many of the draws
-        (:func:`~mrftcli.plan.forecast.simulated_std`, about 0.1 s each): ``PlanResult.simulated_std``
+        (:func:`~mrftcli.plan.forecast.simulated_flights`, about 0.1 s each): ``PlanResult.simulated_std``
         and its range.
     seed : int
         Seed of the draws.

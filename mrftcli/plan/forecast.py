@@ -13,7 +13,7 @@ from .fisher import posterior_covariance, posterior_stds
 from .noise import LOST_CYCLES
 from .records import PARAMS, FlownTest, PlanLimits, TestPlan
 
-__all__ = ["std_median", "std_range", "simulated_std", "simulated_flights", "SimulatedForecast",
+__all__ = ["std_median", "std_range", "simulated_flights", "SimulatedForecast",
            "simulated_forecast"]
 
 
@@ -38,9 +38,9 @@ def std_range(infos: Sequence[np.ndarray], plants: np.ndarray) -> dict[str, tupl
     return {k: (float(lo), float(hi)) for k, lo, hi in zip(PARAMS, s[0], s[1])}
 
 
-def simulated_std(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
-                  limits: PlanLimits, *, n_bootstrap: int = 100, seed: int = 0,
-                  progress: Progress | None = None) -> np.ndarray:
+def simulated_flights(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
+                      limits: PlanLimits, *, n_bootstrap: int = 100, seed: int = 0,
+                      progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Forecast by simulation: fly the flown and planned tests on each plant and measure analyze's std.
 
     For each plant (rows Td [s], tau [s], K) the project's simulator (:func:`mrftcli.sim.simulate_flight`,
@@ -69,23 +69,9 @@ def simulated_std(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTes
 
     Returns
     -------
-    ndarray, shape (n, 3)
+    std : ndarray, shape (n, 3)
         std of Td [s], tau [s], K per plant; NaN where ``analyze`` could not use the simulated flight
         (it locked up on noise, or a test was lost).
-    """
-    return simulated_flights(model, plants, flown, tests, limits, n_bootstrap=n_bootstrap, seed=seed,
-                             progress=progress)[0]
-
-
-def simulated_flights(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
-                      limits: PlanLimits, *, n_bootstrap: int = 100, seed: int = 0,
-                      progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`simulated_std` and which planned test analyze lost on each plant.
-
-    Returns
-    -------
-    std : ndarray, shape (n, 3)
-        As :func:`simulated_std`.
     lost : ndarray of bool, shape (n, len(tests))
         True where the planned test was not among the tests analyze used (every test of a flight
         analyze refused as a whole).
@@ -147,7 +133,7 @@ class SimulatedForecast:
 def simulated_forecast(model: LoopModel, plants: np.ndarray, flown: Sequence[FlownTest], tests: Sequence[TestPlan],
                        limits: PlanLimits, n_simulated: int, *, seed: int,
                        progress: Progress | None = None) -> SimulatedForecast:
-    """:func:`simulated_std` on the first ``n_simulated`` of ``plants``, summarised over the usable flights."""
+    """:func:`simulated_flights` on the first ``n_simulated`` of ``plants``, summarised over the usable flights."""
     s, lost = simulated_flights(model, plants[:n_simulated], flown, tests, limits, seed=seed, progress=progress)
     s = s[np.all(np.isfinite(s), axis=1)]
     n_sim = int(s.shape[0])

@@ -439,7 +439,7 @@ class PlanResult:
     simulated_std, simulated_std_range : dict
         Eq. (2) with ``n_simulated``: the median and the 10-90 % range over the simulated plants of the
         bootstrap std ``analyze`` measured on their simulated flights
-        (:func:`~mrftcli.plan.forecast.simulated_std`); empty otherwise.
+        (:func:`~mrftcli.plan.forecast.simulated_flights`); empty otherwise.
     n_simulated : int
         Simulated flights that ``analyze`` could use.
     assumptions : tuple of str

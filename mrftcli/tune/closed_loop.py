@@ -11,7 +11,7 @@ first-order filter, discretised by backward differences (stable for any Tf >= 0)
 
 Two independent routes give the same sampled loop:
 
-* :func:`discrete_plant` and :func:`closed_loop_matrix`: the exact zero-order-hold equivalent of
+* :func:`discrete_plants` and :func:`closed_loop_matrix`: the exact zero-order-hold equivalent of
   the plant with a fractional delay (tau = d T + eps: the command of tick k - d - 1 acts for the first
   eps of each period, that of tick k - d for the rest; :class:`DiscretePlant`, every family's held
   delay), its command buffer as states (:func:`augmented`), closed with the controller into one state
@@ -40,7 +40,7 @@ from ..mrft.propagate import phi_gamma
 from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plant", "discrete_plants", "as_discrete", "held_delay", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
+__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plants", "as_discrete", "held_delay", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
            "responses", "outputs", "step_metrics", "criterion", "simulate_step", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
@@ -82,7 +82,7 @@ class StepMetrics:
 @dataclass(frozen=True, eq=False)
 class DiscretePlant:
     """x_{k+1} = Phi x_k + Gamma[0] u_{k-d-1} + Gamma[1] u_{k-d},  y_k = C x_k: the held delay tau = d T + eps
-    of any plant (eq. (2)'s: :func:`discrete_plant`; the other families': :func:`mrftcli.tune.grid.discretise`)."""
+    of any plant (eq. (2)'s: :func:`discrete_plants`; the other families': :func:`mrftcli.tune.grid.discretise`)."""
 
     Phi: np.ndarray
     Gamma: np.ndarray
@@ -92,20 +92,6 @@ class DiscretePlant:
 
     def __iter__(self) -> Iterator[Any]:
         return iter((self.Phi, self.Gamma, self.C, self.d))
-
-
-def discrete_plant(model: LoopModel, rate_hz: float) -> DiscretePlant:
-    """Exact zero-order-hold equivalent of the plant with its delay.
-
-    x_{k+1} = Phi x_k + Gamma_a u_{k-d-1} + Gamma_b u_{k-d},  y_k = C x_k, with tau = d T + eps,
-    0 <= eps < T.
-
-    Returns
-    -------
-    DiscretePlant
-        Phi (3, 3), Gamma (2, 3) (rows Gamma_a, Gamma_b), C (3,), d; unpacks as (Phi, Gamma, C, d).
-    """
-    return discrete_plants([model], rate_hz)[0]
 
 
 #: Relative separation of 1/Tp and 1/Td below which a plant is discretised by matrix exponential
@@ -121,7 +107,9 @@ def _phi1(z: np.ndarray) -> np.ndarray:
 
 
 def discrete_plants(models, rate_hz: float) -> list[DiscretePlant]:
-    """:func:`discrete_plant` of many models at once (the posterior's draws), vectorised.
+    """Exact zero-order-hold equivalents of eq. (2)'s plants with their delays (:class:`DiscretePlant`), vectorised
+    over the models (one, or the posterior's draws): x_{k+1} = Phi x_k + Gamma_a u_{k-d-1} + Gamma_b u_{k-d},
+    y_k = C x_k, with tau = d T + eps, 0 <= eps < T; Phi (3, 3), Gamma (2, 3), C (3,), d.
 
     Eq. (2)'s state matrix is triangular with the eigenvalues 0, -1/Td, -1/Tp and known
     eigenvectors, so e^{A t} = V e^{Lambda t} V^-1 and int_0^t e^{A s} ds B = V diag(t phi1(lambda t))
@@ -316,7 +304,7 @@ class PlantStack:
         Gd(z) = C (z I - Phi)^{-1} (Gamma_b + Gamma_a z^{-1}) z^{-d} (``delayed``: from the command u_k),
         or C (z I - Phi)^{-1} (Gamma_a + Gamma_b) (not ``delayed``: a constant input over each whole
         period, the load disturbance of :func:`responses`). The delay is the phase term z^{-d} and the
-        fractional part of the delay is in Gamma_a, Gamma_b (:func:`discrete_plant`), so the cost does not
+        fractional part of the delay is in Gamma_a, Gamma_b (:func:`discrete_plants`), so the cost does not
         depend on d. Phi is upper triangular (eq. (2)'s state matrix is), so (z I - Phi)^{-1} is a back
         substitution. ``z``: points of the z-plane (e^{j omega T} for a frequency response, omega in rad/s).
         """

@@ -32,7 +32,7 @@ import numpy as np
 from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
-from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plant, plants_of_parameters
+from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plants, plants_of_parameters
 
 __all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "sensitivity_peaks",
            "frequency_grid", "margin_grid", "plant_response", "nyquist_stable",
@@ -117,7 +117,7 @@ def plant_system(model: LoopModel, rate_hz: float):
     """
     import control
 
-    ss = augmented(discrete_plant(model, rate_hz))
+    ss = augmented(discrete_plants([model], rate_hz)[0])
     return control.ss(ss.Phi, ss.Gamma[:, None], ss.C[None, :], np.zeros((1, 1)), 1.0 / rate_hz)
 
 

@@ -27,8 +27,8 @@ analyze`` prints, each test's held-out prediction included) and the last estimat
 The strategy is the model's family:
 
 * eq. (2) (:class:`~mrftcli.mrft.model.LoopModel`, ``soiptd_model(Tp)``): a test with ``min_cycles``
-  stable cycles that follow the relay (``MrftTest.valid``); once two betas are in, the paper's point
-  estimate from the tests' mean effective betas, frequencies and amplitudes
+  stable cycles that follow the relay (analyze's screening, :func:`mrftcli.analyze.screen.screen_tests`);
+  once two betas are in, the paper's point estimate from the tests' mean effective betas, frequencies and amplitudes
   (:func:`mrftcli.mrft.identify.identify` at the model's Tp, about a millisecond; no spread: its std
   is null until the final analysis). A second without switching closes a test.
 * every other family (process plants, a declared transfer function): each test screened, its relay
@@ -58,6 +58,7 @@ import numpy as np
 
 from .analyze import AnalysisResult, AnalyzeOptions, RelayOptions, analyze_flight
 from .analyze.general import MeasuredTest, identify_points, measure_test
+from .analyze.screen import screen_tests
 from .errors import InputError, LogReadError, MrftError
 from .io import FlightLog, ReadOptions, Signal
 from .io.follow import follow_log
@@ -435,8 +436,7 @@ class _Eq2:
         self.model, self.min_cycles = model, min_cycles
 
     def usable(self, test: MrftTest, flight: FlightLog) -> MrftTest | None:
-        ok = test.n_stable >= self.min_cycles and test.valid and math.isfinite(test.beta_effective)
-        return test if ok else None
+        return None if screen_tests([test], self.min_cycles) else test  # analyze's screening of one test
 
     def test_update(self, test: MrftTest, flight: FlightLog) -> TestUpdate:
         return _test_update(test, flight, beta_nominal=test.beta_nominal)

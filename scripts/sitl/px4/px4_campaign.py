@@ -220,7 +220,8 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
             row["ekf"] = err
         for row in results[name]["jitter"]:
             print(f"      beta {row['beta']:+.2f}: cycle-to-cycle frequency spread {row['spread'] * 100:.1f} % over "
-                  f"{row['n']} cycles (standard error of the mean {row['sem'] * 100:.1f} %); analyze's own held-out "
+                  f"{row['n']} cycles (standard error of the mean {row['sem'] * 100:.1f} %); lag beyond eq. (2) at SIH's "
+                  f"Tp and Td {row['lag_ms']:+.1f} ms; analyze's own held-out "
                   + (f"{row['error'] * 100:+.1f} %, {row['z']:+.1f} of its stated std" if row["z"] is not None
                      else "none")
                   + (f"; EKF2's {loop} against SIH's at this frequency: lag {row['ekf']['lag_ms']:+.1f} ms, gain "
@@ -347,8 +348,20 @@ def held_out_jitter(res: Any) -> list[dict[str, Any]]:
         ok = ho is not None and ho.frequency_hz
         rows.append({"beta": t.beta_nominal, "n": int(f.size), "spread": spread, "sem": spread / math.sqrt(f.size),
                      "error": ho.frequency_hz / t.frequency_hz_mean - 1.0 if ok else None,
-                     "z": ho.frequency_z if ok else None})
+                     "z": ho.frequency_z if ok else None, "lag_ms": _lag_beyond_sih(t, res.loop)})
     return rows
+
+
+def _lag_beyond_sih(test: Any, loop: str) -> float:
+    """The loop's lag [ms] beyond eq. (2) at SIH's own Tp (the bench Tp), Td and no delay, at the test's
+    frequency: from the phase of its cycles' fundamental (``RelayCycle.phase_h1``, the tool's measurement)."""
+    phases = np.array([c.phase_h1 for c in test.stable], float)
+    if not np.isfinite(phases).any():
+        return math.nan
+    w = 2 * math.pi * test.frequency_hz_mean
+    sih = sih_implied(loop)
+    eq2 = -math.pi / 2 - math.atan(w * bench_tp()) - math.atan(w * sih["Td"])
+    return float((eq2 - np.nanmean(phases)) / w * 1e3)
 
 
 def _rate_fit(log: Path, loop: str, tp: float, output_topic: str | None, command_topic: str | None

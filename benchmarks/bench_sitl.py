@@ -373,16 +373,16 @@ def held_out_cause(results: dict[str, dict]) -> None:
     of orbits SITL's own model admits; (model)
     the error of SITL's own eq. (2) at the band centre (Td and K from SITL's sources, tau ArduPilot's path
     plus the EKF's lag measured on the log, Out against Tru); (prediction) the held-out error, and how far it
-    moves when the other tests' frequencies move 2 % each way.
+    moves when the other tests' frequencies move 2 % each way, and with Td given (SITL's), tau fitted.
     """
     from ardupilot_chain import chain_delay_s, half_periods
-    from sitl_analysis import band_centre_hz, extrapolation_range, half_period_ticks
+    from sitl_analysis import band_centre_hz, extrapolation_range, half_period_ticks, held_out_known_td
 
     from mrftcli.io import open_log
     from mrftcli.mrft.lprs import mrft_limit_cycle
     from mrftcli.mrft.model import LoopModel
 
-    own_errs, hopping, n = [], 0, 0
+    own_errs, known_errs, hopping, n = [], [], 0, 0
     for name, r in results.items():
         if r["loop"] not in ("roll", "pitch"):
             continue
@@ -392,6 +392,8 @@ def held_out_cause(results: dict[str, dict]) -> None:
         tests = [(tt.beta_nominal, tt.h) for tt in r["tests"]]
         freqs = [tt.frequency_hz_mean for tt in r["tests"]]
         held = {ho.index: ho for ho in r["held"]}
+        known_td = held_out_known_td(r["tp"], 400.0, tests, freqs, r["implied"]["Td"])
+        known_errs += known_td
         for i, tt in enumerate(r["tests"]):
             f = tt.frequency_hz_mean
             w = (t >= tt.t_start + 1.5) & (t <= tt.t_end)
@@ -412,11 +414,14 @@ def held_out_cause(results: dict[str, dict]) -> None:
                   f"{np.bincount(hp).argmax()}; the chain {chain[0].min()}-{chain[0].max()}, with integer PWM and "
                   f"the EKF's noise {chain[1].min()}-{chain[1].max()}), SITL's model admits {min(admits)}-{max(admits)}; SITL's own eq. (2) "
                   f"(EKF lag {ekf_lag * 1e3:.2f} ms) at the centre {err * 100:+.1f} %; held out {ho}, the others "
-                  f"moved 2 %: {lo * 100:+.1f} to {hi * 100:+.1f} %")
+                  f"moved 2 %: {lo * 100:+.1f} to {hi * 100:+.1f} %; held out with SITL's Td given "
+                  f"{known_td[i] * 100:+.1f} %")
     if n:
         within = sum(abs(e) <= 0.05 for e in own_errs)
         print(f"roll and pitch: tests whose half period hops over 3 or more tick counts: {hopping}/{n}; SITL's own "
-              f"eq. (2) at the band centre within 5 %: {within}/{n} (max {max(map(abs, own_errs)) * 100:.1f} %)")
+              f"eq. (2) at the band centre within 5 %: {within}/{n} (max {max(map(abs, own_errs)) * 100:.1f} %); "
+              f"held out with SITL's Td given (tau fitted to the other tests): "
+              f"{sum(abs(e) <= 0.05 for e in known_errs)}/{n} within 5 % (max {max(map(abs, known_errs)) * 100:.1f} %)")
 
 
 def joint_increments(logs: Path) -> None:

@@ -28,7 +28,7 @@ from mrftcli.mrft.model import LoopModel
 
 __all__ = ["HeldOut", "analyze_log", "held_out", "test_lines", "orbit_band", "held_out_frequencies",
            "tau_needed", "matched_betas", "band_centre_hz", "half_period_ticks", "extrapolation_range",
-           "joint_delays"]
+           "joint_delays", "held_out_known_td"]
 
 
 @dataclass(frozen=True)
@@ -183,6 +183,22 @@ def extrapolation_range(tp: float, rate_hz: float, tests: list[tuple[float, floa
         Td, tau = _fit_delays(tp, rate_hz, [moved])
         errs.append(band_centre_hz(tp, Td, tau, tests[i][0], tests[i][1], rate_hz) / freqs[i] - 1.0)
     return min(errs), max(errs)
+
+
+def held_out_known_td(tp: float, rate_hz: float, tests: list[tuple[float, float]], freqs: list[float],
+                      Td: float) -> list[float]:
+    """Each test's frequency predicted from the others' with Td given (only tau fitted to them, at the band
+    centre): the relative errors, predicted / measured - 1. Against :func:`held_out_frequencies`, what is
+    left when Td need not be extrapolated from the other tests."""
+    from scipy.optimize import least_squares
+
+    errors = []
+    for i, (beta, h) in enumerate(tests):
+        others = [(b, hh, f) for j, ((b, hh), f) in enumerate(zip(tests, freqs)) if j != i]
+        fit = least_squares(lambda p, o=others: [math.log(band_centre_hz(tp, Td, float(p[0]), b, hh, rate_hz) / f)
+                                                 for b, hh, f in o], [0.003], bounds=([0.0], [0.5]))
+        errors.append(band_centre_hz(tp, Td, float(fit.x[0]), beta, h, rate_hz) / freqs[i] - 1.0)
+    return errors
 
 
 def joint_delays(tp: float, rate_hz: float, plain: list[tuple[float, float, float]],

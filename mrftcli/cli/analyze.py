@@ -12,8 +12,9 @@ from .model_options import (baseline_option, build_model, cascade_options, casca
                             parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
                             soiptd_or_process, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
-from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, num, quiet_option, read_progress, text_table, tp_option, tqdm_progress)
+from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
+                      log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
+                      tp_option, tqdm_progress)
 
 
 
@@ -354,7 +355,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         from ..io.overlay import write_overlay
 
         click.echo(f"mcap: {write_overlay(mcap_out, **analysis_overlay(result))}", err=to_stdout)
-    _echo_warnings(result.warnings)
+    echo_warnings(result.warnings)
     if index is not None:
         click.echo(f"report: {index}", err=to_stdout)
 
@@ -409,7 +410,7 @@ def _identify(flight, model, options, accept_tp: bool, json_target, to_stdout: b
             # tests found but none usable: the JSON still says what was found and why each was rejected
             dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [],
                        "rejected_tests": err.rejected_tests}, json_target)
-        _echo_warnings(flight.warnings)
+        echo_warnings(flight.warnings)
         raise
 
 
@@ -429,8 +430,3 @@ def _baseline_signal(log, spec: str, read_options):
         t, leaves, values = src.values(topic, ts.field)
     scale = read_options.get("output_scale") or 1.0  # the output's units
     return Signal(np.asarray(t, float), scale * np.asarray(values[leaves[0]], float))
-
-
-def _echo_warnings(warnings) -> None:
-    for w in warnings:
-        click.echo(f"warning: {w}", err=True)

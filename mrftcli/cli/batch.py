@@ -172,7 +172,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
     """
     from ..batch.inputs import load_config
     from ..batch.run import BatchFailedError, BatchOptions, run_batch
-    from .options import check_output_dir, check_output_file, dump_json, tqdm_progress
+    from .options import check_output_dir, check_output_file, dump_json, echo_warnings, tqdm_progress
 
     # the shared rule (never a symbolic link, io.atomic.check_output_path), creating nothing: the config,
     # the options and the logs are checked first, and run_batch creates the folder after them
@@ -219,8 +219,7 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
                    "rows": rows.to_dict(orient="records")}, json_target)
     if json_target != "-":
         _print_table(df)
-    for note in result.notes:
-        click.echo(f"warning: {note}", err=True)
+    echo_warnings(result.notes)
     comparison = None
     if baseline:
         from .compare import compare_batch, raise_for

@@ -21,7 +21,7 @@ from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table"]
+           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -64,6 +64,12 @@ def text_table(rows: Sequence[Sequence[str]], align: str = "", indent: str = "")
     widths = [max(len(r[k]) for r in rows if k < len(r)) for k in range(max(len(r) for r in rows))]
     return [(indent + "  ".join(c.rjust(w) if align[k:k + 1] == ">" else c.ljust(w)
                                 for k, (c, w) in enumerate(zip(r, widths)))).rstrip() for r in rows]
+
+
+def echo_warnings(warnings: Sequence[str]) -> None:
+    """Each warning as one ``warning: ...`` line on stderr (stdout may carry the JSON)."""
+    for w in warnings:
+        click.echo(f"warning: {w}", err=True)
 
 
 def dump_json(obj: Any, target: str | None) -> None:

@@ -13,8 +13,9 @@ from ..errors import InputError, SegmentationError, TpRejectedError
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
 from .model_options import outer_options
-from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, num, quiet_option, read_json_file, text_table, tp_option, tqdm_progress)
+from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
+                      log_layout_options, min_cycles_option, num, quiet_option, read_json_file, text_table,
+                      tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..vehicle import VehicleResult
@@ -202,8 +203,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
     to_stdout = json_target == "-"
     if not to_stdout:
         click.echo(format_vehicle(result), err=export is not None and not out)
-    for w in result.warnings:
-        click.echo(f"warning: {w}", err=True)
+    echo_warnings(result.warnings)
     wrong_tp = [m.message for m in result.missing.values() if m.reason == "wrong-tp"]
     if wrong_tp:  # as analyze: the given Tp is wrong for this flight (the table and the JSON are written)
         raise TpRejectedError(f"{log}: {wrong_tp[0]}", best=math.nan)

@@ -132,10 +132,22 @@ def test_plan_record_reads_a_version_1_process_plan(first):
         {k: np.inf if v is None else v for k, v in c["std_after"].items()} for c in data["candidates"]]
     _, analysis = first
     new = plan_process(analysis)
-    assert (new.candidates, new.prior_std, new.undetermined, new.why) == (old.candidates, old.prior_std,
-                                                                          old.undetermined, old.why)
+    assert (new.prior_std, new.undetermined, new.why) == (old.prior_std, old.undetermined, old.why)
+    # the same candidates to rounding (one matrix exponential since issue 36: the predicted stds, numerical
+    # derivatives of the limit cycle, move by 1e-10 relative)
+    assert _leaves([c.to_json() for c in new.candidates]) == pytest.approx(_leaves([c.to_json() for c in old.candidates]),
+                                                                           rel=1e-9)
     with pytest.raises(InputError, match="candidate"):
         PlanResult.from_json({**data, "candidates": []})
+
+
+def _leaves(x):
+    """The leaves of a JSON value in order (strings and flags as they are)."""
+    if isinstance(x, dict):
+        return [leaf for k in sorted(x) for leaf in [k, *_leaves(x[k])]]
+    if isinstance(x, list):
+        return [leaf for v in x for leaf in _leaves(v)]
+    return [x]
 
 
 def test_cli_plan_model_prints_the_ranked_candidates_and_the_json(first):

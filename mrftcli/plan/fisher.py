@@ -25,8 +25,9 @@ from numpy.typing import NDArray
 
 from ..errors import InputError
 from ..mrft.lprs import mrft_limit_cycle, unit_cycle
-from ..mrft.identify_lti import DETERMINED_LOG_WIDTH, ResponsePoint
+from ..mrft.identify_lti import ResponsePoint
 from ..mrft.model import LoopModel, PlantModel
+from ..mrft.parameter import Z95, is_determined
 from .noise import FLOOR_BETA, FLOOR_LN_A, FLOOR_PHASE, LOST_CYCLES, cycle_noise
 from .records import FlownTest
 
@@ -260,13 +261,13 @@ def point_stds(model: PlantModel, names: Sequence[str], F: FloatArray, w_ref: fl
 
 
 def undetermined_parameters(model: PlantModel, stds: Mapping[str, float], w_ref: float) -> tuple[str, ...]:
-    """identify_lti's verdict: a 95 % interval wider than :data:`DETERMINED_LOG_WIDTH` (a factor 1.25 either
-    way), or (tau) than a radian at ``w_ref`` [rad/s]."""
+    """The fit's verdict (:func:`~mrftcli.mrft.parameter.is_determined`) on the 95 % interval of each std: wider
+    than a factor 1.25 either way, or (tau) than a radian at ``w_ref`` [rad/s]."""
     out = []
     for name, s in stds.items():
         v = model.parameters[name].value
         log = is_log_parameter(name, v)
-        wide = 2 * 1.959964 * (s / abs(v) if log else s * w_ref) >= (DETERMINED_LOG_WIDTH if log else 1.0)
+        wide = not is_determined(0.0, 2 * Z95 * (s / abs(v) if log else s), log, w_ref)
         if not math.isfinite(s) or wide:
             out.append(name)
     return tuple(out)

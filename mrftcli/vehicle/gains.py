@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..mrft.cascade import InnerLoop
 from ..mrft.controller import Controller
 from ..segment import MrftTest
-from ..tune.analysis import ASSUMED_RATE_HZ, RATE_ASSUMED_NOTE, posterior_from_analysis
+from ..tune.analysis import tune_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
 from ..tune.grid import outer_draws
 from ..tune.stacks import ExportEvidence, StackSetting, check_exportable, export_design, stack_setting
@@ -114,14 +114,14 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
         No design could be made (the tune's own error).
     """
     setting, refused = _setting(result, options)
-    rate = setting.rate_hz if setting is not None else options.rate_hz or result.controller_rate_hz
-    settings = DesignOptions(objective=options.objective, ms_max=options.ms_max, designs=("model-based", "robust"),
-                             kinds=(options.kind,), rate_filter=setting.rate_filter if setting is not None else None)
-    res = tune(result.model, rate or ASSUMED_RATE_HZ, posterior=posterior_from_analysis(result), options=settings,
-               loop=result.loop)
-    notes = (*(() if rate else (RATE_ASSUMED_NOTE,)), *(setting.notes if setting is not None else ()))
-    if notes:
-        res = dataclasses.replace(res, notes=(*notes, *res.notes))
+    # as tune LOG does (the analysis's rate, or the assumed one stated); a stack's own rate and filter where it takes
+    # the loop
+    res = tune_analysis(result, kinds=(options.kind,), designs=("model-based", "robust"),
+                        rate_hz=setting.rate_hz if setting is not None else options.rate_hz,
+                        objective=options.objective, ms_max=options.ms_max,
+                        rate_filter=setting.rate_filter if setting is not None else None)
+    if setting is not None and setting.notes:
+        res = dataclasses.replace(res, notes=(*setting.notes, *res.notes))
     design = _recommended(res)
     gains = LoopGains(design, options.kind, res, export_refused=refused)
     st = options.stack

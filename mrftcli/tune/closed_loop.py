@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -75,8 +75,7 @@ class StepMetrics:
     peak_u: float
 
     def to_dict(self) -> dict:
-        return {"overshoot_pct": self.overshoot_pct, "rise_s": self.rise_s, "settling_s": self.settling_s,
-                "iae": self.iae, "itae": self.itae, "peak_u": self.peak_u}
+        return asdict(self)
 
 
 @dataclass(frozen=True, eq=False)

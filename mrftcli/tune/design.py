@@ -29,7 +29,7 @@ nominal step figures and the same figures over the posterior (median over all dr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from collections.abc import Sequence
 from typing import Any
 
@@ -249,7 +249,6 @@ class Design:
         step = data.get("step")
         if not isinstance(step, dict):
             raise InputError(f"{what}: 'step' must be an object")
-        fields = ("overshoot_pct", "rise_s", "settling_s", "iae", "itae", "peak_u")
         name, objective = data.get("design" if data["schema_version"] >= 3 else "name"), data.get("objective")
         if name not in DESIGNS or objective not in OBJECTIVES:
             raise InputError(f"{what}: unknown design {name!r} or objective {objective!r}")
@@ -262,7 +261,7 @@ class Design:
         return cls(name, controller, objective,
                    json_number(data, "criterion", what), json_number(data, "criterion_expected", what),
                    Margins.from_json(data.get("margins")),
-                   StepMetrics(*(json_number(step, k, what) for k in fields)),
+                   StepMetrics(*(json_number(step, f.name, what) for f in fields(StepMetrics))),
                    extras["posterior"], extras["constraints"], extras["load"], json_number(data, "horizon_s", what),
                    str(data.get("criterion_definition")  # versions 1-2 left eq. (2)'s empty
                        or ("setpoint step + load step" if extras["load"] else "setpoint step")))

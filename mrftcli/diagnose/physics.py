@@ -94,7 +94,7 @@ Z_LIMIT = 3.0
 
 @dataclass(frozen=True)
 class Action:
-    """What an effect does to one test, the families' strategy (:mod:`mrftcli.diagnose.effects`'s
+    """What an effect does to one test, the families' strategy (the module
     docstring). The defaults are no effect.
 
     Attributes
@@ -120,7 +120,7 @@ class Action:
 
 @dataclass(frozen=True)
 class OnTests:
-    """An effect as the families' strategy fits it (:mod:`mrftcli.diagnose.effects`).
+    """An effect as the families' strategy fits it (this module's second part).
 
     Attributes
     ----------
@@ -173,7 +173,7 @@ class Effect:
 
 def _static(f: Callable[[float], float]) -> Callable[[TestData], Action]:
     """A static input nonlinearity on the relay's deviation from its bias: the square wave's factor
-    and the added mean (:mod:`mrftcli.diagnose.effects`'s docstring)."""
+    and the added mean (the module docstring)."""
     def act(t: TestData) -> Action:
         hi, lo = f(t.h), f(-t.h)
         return Action(gain=(hi - lo) / (2 * t.h), dc=t.duty * hi + (1 - t.duty) * lo - t.h * (2 * t.duty - 1))

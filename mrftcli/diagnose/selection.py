@@ -142,8 +142,8 @@ def diagnose(
     :class:`~mrftcli.mrft.model.LoopModel`, ``soiptd_model(Tp)``: Tp read from the model) compares
     the cycles feature by feature with eq. (2)'s periodic solutions (the stages of the module
     docstring); every other family (``fopdt``, ``sopdt``, ``ipdt``, ``foipdt``, a declared model) is
-    checked test by test (:mod:`.checks`) and runs the library of physics on the model object
-    (:mod:`.effects`). Both return the one :class:`DiagnosisResult` (its ``family`` says which parts
+    checked test by test (:mod:`.locate`) and runs the library of physics on the model object
+    (:mod:`.physics`). Both return the one :class:`DiagnosisResult` (its ``family`` says which parts
     are filled).
 
     Parameters

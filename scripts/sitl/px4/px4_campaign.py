@@ -216,8 +216,8 @@ def analyse(logs: Path) -> dict[str, dict[str, Any]]:
         for i, why in misses:
             print(f"      held out beta {res.tests[i].beta_nominal:+.2f}: MISS (the other tests refused: {why[:160]})")
         results[name]["jitter"] = held_out_jitter(res)
-        for row, err in zip(results[name]["jitter"], estimate_error(log, loop, res.tests)):
-            row["ekf"] = err
+        for row, ekf in zip(results[name]["jitter"], estimate_error(log, loop, res.tests)):
+            row["ekf"] = ekf
         for row in results[name]["jitter"]:
             print(f"      beta {row['beta']:+.2f}: cycle-to-cycle frequency spread {row['spread'] * 100:.1f} % over "
                   f"{row['n']} cycles (standard error of the mean {row['sem'] * 100:.1f} %); lag beyond eq. (2) at SIH's "
@@ -482,8 +482,7 @@ def report(results: dict[str, dict[str, Any]]) -> None:
               "eq. (2), no noise: " + "; ".join(
                   f"beta {r['beta']:+.2f}: {r['fork']:.4f} / {r['plain']:.4f} Hz (centre {r['centre']:.4f}, "
                   f"{(r['fork'] / r['centre'] - 1) * 100:+.2f} %; nearest orbit "
-                  f"{min(r['orbits'], key=lambda f, r=r: abs(f - r['fork'])) if r['orbits'] else math.nan:.4f})"
-                  for r in rows))
+                  f"{_nearest(r['orbits'], r['fork']):.4f})" for r in rows))
     for a, b in RATE_PAIRS:
         if all(k in results and "tau" in results[k].get("truth", {}) for k in (a, b)):
             inc = (results[b]["truth"]["tau"] - results[a]["truth"]["tau"]) * 1e3
@@ -526,6 +525,11 @@ def _report_misses(results: dict[str, dict[str, Any]]) -> None:
               f"{sum(z <= 2.5 for z in zs)}/{len(rows)} (max |z| {max(zs, default=math.nan):.2f}); median cycle-to-cycle "
               f"frequency spread {np.median([j['spread'] for j in rows]) * 100:.1f} % against "
               f"{np.median([j['spread'] for j in hits]) * 100:.1f} % for the {len(hits)} within 5 %")
+
+
+def _nearest(values: list[float], x: float) -> float:
+    """The value nearest ``x`` (NaN for none)."""
+    return min(values, key=lambda v: abs(v - x)) if values else math.nan
 
 
 def relay_law_orbits(result: dict[str, Any], seconds: float = 30.0, sub: int = 16) -> list[dict[str, Any]]:

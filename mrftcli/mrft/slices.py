@@ -56,6 +56,19 @@ def tau_curve(Tp: float, beta: float, omega: ArrayLike, Td: ArrayLike, exact: bo
 # ----------------------------------------------------------------------------------------------
 # point solvers (scalar, exact)
 # ----------------------------------------------------------------------------------------------
+class _Curve:
+    """Exact scalar tau_i(Td) for one test, with warm-started Newton iterations."""
+
+    def __init__(self, Tp: float, beta: float, omega: float) -> None:
+        self.Tp, self.beta, self.omega = Tp, beta, omega
+        self.warm: list[float] = []
+
+    def tau(self, Td: float) -> float:
+        w = self.omega
+        theta, _ = unit_cycle_scalar(self.Tp * w, Td * w, self.beta, self.warm)
+        return theta / w
+
+
 def _td_range(ms: ManifoldSet, omegas: Sequence[float]) -> tuple[float, float]:
     """Range of Td [s] covered by the manifold grid for every test."""
     lo = max(ms.td_n[0] / w for w in omegas)
@@ -104,19 +117,22 @@ def intersection(Tp: float, betas: Sequence[float], omegas: Sequence[float], ms:
     k = int(phys[0]) if phys.size else int(idx[0])
     if phys.size > 1:
         warns.append(f"the slices intersect {phys.size} times; the smallest Td was taken")
+    c1, c2 = _Curve(Tp, betas[0], omegas[0]), _Curve(Tp, betas[1], omegas[1])
     x_lo, x_hi = math.log(Td[k]), math.log(Td[k + 1])
 
-    def d(x: FloatArray) -> FloatArray:
-        gap: FloatArray = tau_curve(Tp, betas[0], omegas[0], np.exp(x)) - tau_curve(Tp, betas[1], omegas[1], np.exp(x))
-        return gap
+    def d(x: float) -> float:
+        t = math.exp(x)
+        return c1.tau(t) - c2.tau(t)
 
-    f_lo, f_hi = float(d(np.array([x_lo]))[0]), float(d(np.array([x_hi]))[0])
-    if f_lo == 0 or f_hi == 0:
-        x = x_lo if f_lo == 0 else x_hi
+    f_lo, f_hi = d(x_lo), d(x_hi)
+    if f_lo == 0:
+        x = x_lo
+    elif f_hi == 0:
+        x = x_hi
     elif f_lo * f_hi > 0:
         # interpolation error moved the crossing (nearly parallel curves): scan the exact curves
         xs = np.linspace(math.log(Td[0]), math.log(Td[-1]), 4 * Td.size)
-        ds = d(xs)
+        ds = (tau_curve(Tp, betas[0], omegas[0], np.exp(xs)) - tau_curve(Tp, betas[1], omegas[1], np.exp(xs)))
         ch = np.nonzero((np.sign(ds[:-1]) * np.sign(ds[1:]) <= 0)
                         & (tau_curve(Tp, betas[0], omegas[0], np.exp(xs[:-1])) >= -1e-12))[0]
         if ch.size == 0:
@@ -124,11 +140,11 @@ def intersection(Tp: float, betas: Sequence[float], omegas: Sequence[float], ms:
                 "the UFM slices of the tests only touch (nearly parallel curves): Td and tau cannot be "
                 "separated with these betas; use betas further apart"
             )
-        x = float(_illinois(d, xs[ch[:1]], xs[ch[:1] + 1], 100)[0])
-    else:  # the same root finder as the Monte Carlo draws' (intersection_draws)
-        x = float(_illinois(d, np.array([x_lo]), np.array([x_hi]), 100)[0])
+        x = optimize.brentq(d, xs[ch[0]], xs[ch[0] + 1], xtol=1e-11, rtol=1e-12)
+    else:
+        x = optimize.brentq(d, x_lo, x_hi, xtol=1e-11, rtol=1e-12)
     Td_hat = math.exp(x)
-    return Td_hat, float(tau_curve(Tp, betas[0], omegas[0], Td_hat)), warns
+    return Td_hat, c1.tau(Td_hat), warns
 
 
 def _frequency_gap(Tp: float, tau: float, beta: float, warm: list[float] | None = None) -> Callable[[float, float], float]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -245,10 +245,7 @@ class TestPlan:
 
     def to_json(self) -> dict[str, Any]:
         """One of the plan's ``tests``."""
-        return {"beta": self.beta, "h": self.h, "duration_s": self.duration_s, "frequency_hz": self.frequency_hz,
-                "amplitude": self.amplitude, "frequency_range_hz": list(self.frequency_range_hz),
-                "amplitude_range": list(self.amplitude_range), "orbits_hz": list(self.orbits_hz),
-                "n_cycles": self.n_cycles, "td_omega": list(self.td_omega)}
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}
 
 
 @dataclass(frozen=True)
@@ -393,8 +390,7 @@ class Conventional:
 
     def to_json(self) -> dict[str, Any]:
         """The plan's ``conventional`` object."""
-        return {"betas": list(self.betas), "predicted_std": self.predicted_std,
-                "predicted_std_tests_only": self.predicted_std_tests_only}
+        return {**asdict(self), "betas": list(self.betas)}
 
 
 @dataclass(frozen=True)
@@ -609,9 +605,8 @@ def _ranges(data: Mapping[str, Any]) -> StdRanges:
 
 
 def _test_plan(data: Mapping[str, Any]) -> TestPlan:
-    fr, ar, tw = data["frequency_range_hz"], data["amplitude_range"], data["td_omega"]
-    return TestPlan(beta=float(data["beta"]), h=float(data["h"]), duration_s=float(data["duration_s"]),
-                    frequency_hz=float(data["frequency_hz"]), amplitude=float(data["amplitude"]),
-                    frequency_range_hz=(float(fr[0]), float(fr[1])), amplitude_range=(float(ar[0]), float(ar[1])),
-                    orbits_hz=tuple(float(f) for f in data["orbits_hz"]), n_cycles=int(data["n_cycles"]),
-                    td_omega=(float(tw[0]), float(tw[1])))
+    """The record of :meth:`TestPlan.to_json` (its lists as tuples of floats, ``n_cycles`` an int)."""
+    def value(name: str, v: Any) -> Any:
+        return tuple(float(x) for x in v) if isinstance(v, list) else int(v) if name == "n_cycles" else float(v)
+
+    return TestPlan(**{f.name: value(f.name, data[f.name]) for f in fields(TestPlan)})

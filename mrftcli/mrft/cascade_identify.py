@@ -23,7 +23,7 @@ from ..validate import check_positive
 from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop
 from .controller import json_number
 from .identify import TestMeasurement
-from .parameter import Z95, ParameterEstimate, is_determined
+from .parameter import ParameterEstimate, fitted_estimate
 from .lprs import LimitCycle
 
 __all__ = ["CascadeIdentification", "CascadeTestFit", "fit_cascade_cycles", "CASCADE_ID_SCHEMA_VERSION", "TD_BOUNDS",
@@ -416,19 +416,9 @@ def _estimate_json(name: str, data: Any) -> ParameterEstimate:
 
 
 def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> ParameterEstimate:
-    """A parameter's estimate: Td and K on the log scale (``value`` is ln), tau on the linear scale, cut at the set I.
-
-    Determined by the families' rule (:func:`~mrftcli.mrft.parameter.is_determined`): a 95 % interval
-    within a factor of 1.25 either way, or for tau within a radian of phase at the tests' median
-    frequency ``omega`` [rad/s].
-    """
-    unit = CASCADE_PARAMETERS[name][0]
-    lo, hi = value - Z95 * std, value + Z95 * std
-    if name == "tau":
-        one_sided = "low" if lo < low else ""
-        lo, hi = max(lo, low), min(hi, high)
-        return ParameterEstimate(value, std, lo, hi, unit, is_determined(lo, hi, False, omega),
-                                 method=_METHOD, name=name, one_sided=one_sided)
-    x = math.exp(value)
-    return ParameterEstimate(x, x * std, math.exp(lo), math.exp(hi), unit, is_determined(lo, hi, True, omega),
-                             method=_METHOD, name=name)
+    """A parameter's estimate (:func:`~mrftcli.mrft.parameter.fitted_estimate`, as the families'): Td and K on the
+    log scale (``value`` is ln), tau on the linear scale, cut at the set I; determined within a factor of 1.25
+    either way, or for tau within a radian of phase at the tests' median frequency ``omega`` [rad/s]."""
+    log_scale = name != "tau"
+    return fitted_estimate(name, math.exp(value) if log_scale else value, value, std, (low, high),
+                           CASCADE_PARAMETERS[name][0], log_scale, omega, _METHOD)

@@ -53,7 +53,7 @@ from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel, wrap as _wrap
 from .model import PlantModel, model_from_json
-from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, is_determined
+from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate
 
 __all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
            "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
@@ -717,23 +717,13 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         assert z is not None and lo is not None and hi is not None
         s = float(math.sqrt(max(cov[i, i], 0.0)))
         s = max(s, _PARAM_FLOOR / w_ref if name == "tau" else (_PARAM_FLOOR if name in problem.log_scaled else 0.0))
-        a, b = z[i] - Z95 * s, z[i] + Z95 * s
-        if profiled and i in profiled:  # the profile's ends where they reach further (never narrower)
-            a, b = min(a, profiled[i][0]), max(b, profiled[i][1])
-        side = "low" if a <= lo[i] else ("high" if b >= hi[i] else "")
-        a, b = max(a, lo[i]), min(b, hi[i])
-        if name in problem.log_scaled:
-            sign = problem.k_sign if name == "K" else 1.0
-            ends = sorted([sign * math.exp(a), sign * math.exp(b)])
-            std = abs(p.value) * s
-        else:
-            ends = [a, b]
-            std = s
-        determined = is_determined(a, b, name in problem.log_scaled, w_ref)
+        est = fitted_estimate(name, p.value, float(z[i]), s, (float(lo[i]), float(hi[i])), p.unit,
+                              name in problem.log_scaled, w_ref, _METHOD, profiled.get(i) if profiled else None)
         if flat and name in flat:  # no interval along a flat direction: the data say nothing there
-            determined, ends, side = False, [p.bounds[0], p.bounds[1]], "low" if p.bounds[0] > -math.inf else ""
-        estimates.append(ParameterEstimate(p.value, float(std), float(ends[0]), float(ends[1]), p.unit,
-                                           bool(determined), False, _METHOD, name, side))
+            est = dataclasses.replace(est, ci95_low=p.bounds[0], ci95_high=p.bounds[1], determined=False,
+                                      one_sided="low" if p.bounds[0] > -math.inf else "")
+        estimates.append(est)
+        determined = est.determined
         if not determined:
             undetermined.append(name)
     advice = ""

@@ -23,7 +23,7 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined"]
+__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined", "fitted_estimate"]
 
 #: the 95 % point of the normal distribution (a normal interval is value +- Z95 std)
 Z95 = 1.959964
@@ -40,6 +40,24 @@ def is_determined(low: float, high: float, log_scale: bool, omega: float) -> boo
     either way (:data:`DETERMINED_LOG_WIDTH`), or for a delay [s] than a radian of phase at the tests'
     frequency ``omega`` [rad/s]."""
     return bool(high - low < DETERMINED_LOG_WIDTH) if log_scale else bool((high - low) * omega < 1.0)
+
+
+def fitted_estimate(name: str, value: float, z: float, s: float, bounds: tuple[float, float], unit: str,
+                    log_scale: bool, omega: float, method: str,
+                    reach: tuple[float, float] | None = None) -> ParameterEstimate:
+    """An identified parameter from a fit (the families' and the cascade's): the 95 % interval
+    ``z -+ Z95 s`` in the fit's coordinate ``z`` (ln |value| for a log-scaled parameter, else the value
+    [unit]), reaching at least to ``reach`` (a profile likelihood's ends), cut at ``bounds`` (the set I
+    in ``z``; the end cut is ``one_sided``); std ``|value| s`` (log-scaled) or ``s``; :func:`is_determined`."""
+    a, b = z - Z95 * s, z + Z95 * s
+    if reach is not None:  # the profile's ends where they reach further (never narrower)
+        a, b = min(a, reach[0]), max(b, reach[1])
+    side = "low" if a <= bounds[0] else ("high" if b >= bounds[1] else "")
+    a, b = max(a, bounds[0]), min(b, bounds[1])
+    sign = math.copysign(1.0, value)
+    ends = sorted([sign * math.exp(a), sign * math.exp(b)]) if log_scale else [a, b]
+    return ParameterEstimate(value, float(abs(value) * s if log_scale else s), float(ends[0]), float(ends[1]), unit,
+                             is_determined(a, b, log_scale, omega), False, method, name, side)
 
 
 #: The keys of a parameter's JSON object, in their order.

@@ -23,7 +23,7 @@ from ..validate import check_positive
 from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop
 from .controller import json_number
 from .identify import TestMeasurement
-from .parameter import ParameterEstimate, fitted_estimate
+from .parameter import ParameterEstimate, fitted_estimate, fitted_from_json
 from .lprs import LimitCycle
 
 __all__ = ["CascadeIdentification", "CascadeTestFit", "fit_cascade_cycles", "CASCADE_ID_SCHEMA_VERSION", "TD_BOUNDS",
@@ -130,7 +130,7 @@ class CascadeIdentification:
         if not isinstance(params, Mapping) or "model" not in d:
             raise InputError("cascade identification JSON needs 'model' and 'parameters'")
         model = CascadeModel.from_json(d["model"])
-        return cls(model, {str(k): _estimate_json(str(k), v) for k, v in params.items()},
+        return cls(model, fitted_from_json(params, {n: v[2] for n, v in CASCADE_PARAMETERS.items()}, _METHOD),
                    tuple(CascadeTestFit.from_json(t) for t in d.get("tests") or ()),
                    json_number(d, "rate_hz", "cascade identification JSON", finite=True), int(d.get("inner_draws") or 0),
                    {str(k): float(v) for k, v in (d.get("inner_std") or {}).items()})
@@ -407,12 +407,6 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
                                 (min(lc.orbits_hz, default=math.nan), max(lc.orbits_hz, default=math.nan)))
                  for t, lc in zip(problem.tests, problem.cycles(model)))
     return CascadeIdentification(model, estimates, fits, problem.rate_hz, len(draws), inner_std)
-
-
-def _estimate_json(name: str, data: Any) -> ParameterEstimate:
-    """One parameter of the JSON (a null end open: infinite; ``one_sided`` from the parameter's range)."""
-    bounds = CASCADE_PARAMETERS[name][2] if name in CASCADE_PARAMETERS else None
-    return ParameterEstimate.from_json(name, data, bounds=bounds, open_value=math.inf, method=_METHOD)
 
 
 def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> ParameterEstimate:

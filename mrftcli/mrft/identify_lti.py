@@ -53,7 +53,7 @@ from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel, wrap as _wrap
 from .model import PlantModel, model_from_json
-from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate
+from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate, fitted_from_json
 
 __all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
            "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
@@ -203,16 +203,10 @@ class LtiIdentification:
                 raise InputError(f"identification JSON: bad point {p!r}") from err
         chi = data.get("chi2_dof")
         combo = data.get("determined_combination")
-        return cls(model, tuple(_estimate_json(model, str(n), v) for n, v in params.items()), tuple(points),
+        bounds = {n: p.bounds for n, p in model.parameters.items()}
+        return cls(model, tuple(fitted_from_json(params, bounds, _METHOD).values()), tuple(points),
                    None if chi is None else float(chi), tuple(str(n) for n in data.get("undetermined", [])),
                    str(data.get("advice", "")), None if combo is None else DeterminedCombination.from_json(combo))
-
-
-def _estimate_json(model: PlantModel, name: str, data: Any) -> ParameterEstimate:
-    """One parameter of the JSON: a null interval end is open (infinite); ``one_sided`` from the model's range."""
-    p = model.parameters.get(name)
-    return ParameterEstimate.from_json(name, data, bounds=None if p is None else p.bounds, open_value=math.inf,
-                                       method=_METHOD)
 
 
 # ----------------------------------------------------------------------------------------------

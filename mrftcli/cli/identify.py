@@ -31,7 +31,10 @@ def _parse_test(text: str) -> TestMeasurement:
     from ..mrft.identify import TestMeasurement
 
     nums = _fields("--test", text, (2, 4), "BETA:FREQ_HZ or BETA:FREQ_HZ:AMPLITUDE:H")
-    return TestMeasurement(*nums[:2], *([] if len(nums) == 2 else [nums[2], nums[3]]))
+    try:
+        return TestMeasurement(*nums[:2], *([] if len(nums) == 2 else [nums[2], nums[3]]))
+    except InputError as err:  # name the --test, as simulate's does
+        raise InputError(f"--test {text!r}: {err}") from None
 
 
 def _parse_point(text: str) -> ResponsePoint:

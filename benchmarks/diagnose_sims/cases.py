@@ -135,6 +135,7 @@ def run_case(case: dict) -> dict:
         except MrftError:
             pass
         out["cpu_analyze"] = time.process_time() - t0
+        out["analysed"] = analysis is not None  # analyze refused (one beta usable): its CPU is a refusal's
         t0 = time.process_time()
         try:
             # as `mrft-ident diagnose` runs it: analyze's record reused (its segmentation; issue 39)

@@ -88,11 +88,6 @@ class Estimate:
             return True
         return self.low is None and self.high is None and _finite(self.std)
 
-    @classmethod
-    def exact(cls, value: float) -> Estimate:
-        """A value without uncertainty (a reference figure)."""
-        return cls(value=value, low=value, high=value, std=0.0)
-
 
 @dataclass(frozen=True)
 class Tolerance:

@@ -6,6 +6,9 @@ check); each case here failed before its fix. The docs' own examples are run by 
 
 from __future__ import annotations
 
+from pathlib import Path
+
+import numpy as np
 import pytest
 
 from cli_helpers import run_main
@@ -23,3 +26,35 @@ def test_identify_bad_test_names_the_option(argv: list[str], option: str) -> Non
     assert len(lines) == 1 and lines[0].startswith("error: ")
     assert option in lines[0]
     assert "Traceback" not in done.stderr
+
+
+def _no_relay_csv(path: Path) -> Path:
+    """A log whose command never switches: the analysis fails (exit 4) once it has read the log."""
+    t = np.arange(0.0, 20.0, 0.01)
+    rows = "\n".join(f"{a:.2f},0.5,{b:.5f}" for a, b in zip(t, 0.01 * np.sin(7 * t)))
+    path.write_text("time,u_relay,y_output\n" + rows + "\n")
+    return path
+
+
+@pytest.mark.parametrize("option", ["--json", "--mcap-out"])
+def test_unwritable_output_refused_before_the_work(tmp_path: Path, option: str) -> None:
+    """An output folder the tool cannot write in (/proc: no file can be created there, even by root, whom
+    os.access calls it writable) is refused before the log is analysed (exit 2, naming the option), not
+    after it, and not as a temporary file's name."""
+    log = _no_relay_csv(tmp_path / "flat.csv")
+    done = run_main("analyze", str(log), "--tp", "0.0422", "--command-topic", "u_relay", "--output-topic", "y_output",
+                    option, "/proc/out.file")
+    assert done.returncode == 2, done.stderr
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"error: {option} /proc/out.file")
+
+
+def test_mcap_out_creates_its_folder_as_json_does(tmp_path: Path) -> None:
+    """--mcap-out into a folder not yet there: created, as --json's and --report's are (one rule for outputs)."""
+    from mrftcli.samples import sample_log
+
+    target = tmp_path / "new" / "fit.mcap"
+    done = run_main("analyze", str(sample_log("design1_altitude.mcap")), "--tp", "0.0422", "-q",
+                    "--mcap-out", str(target))
+    assert done.returncode == 0, done.stderr
+    assert target.read_bytes()[:5] == b"\x89MCAP"

@@ -170,7 +170,8 @@ def test_analyze_mcap_out_reads_back_and_fits_within_the_noise(repo_root, tmp_pa
 
 
 def test_mcap_out_path_is_checked_before_the_work(tmp_path, capsys):
-    code, _, err = run_cli(capsys, "analyze", "no-such-log.mcap", "--tp", "0.04",
-                           "--mcap-out", str(tmp_path / "missing" / "fit.mcap"))  # in this process
+    (tmp_path / "notes.txt").write_text("a file, not a folder")
+    code, _, err = run_cli(capsys, "analyze", "no-such-log.mcap", "--tp", "0.04",  # in this process
+                           "--mcap-out", str(tmp_path / "notes.txt" / "fit.mcap"))  # a missing folder is created
     assert code == 2
-    assert err.count("\n") == 1 and "does not exist" in err
+    assert err.count("\n") == 1 and err.startswith("error: --mcap-out") and "is not a folder" in err

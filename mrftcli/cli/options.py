@@ -7,6 +7,7 @@ import json
 import math
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -192,6 +193,12 @@ def _writable_dir(folder: Path, option: str, what: Path, *, create: bool = True)
                          "choose a writable path") from None
     if not os.access(folder, os.W_OK | os.X_OK):
         raise InputError(f"{option} {what}: the folder {folder} is not writable; choose a writable path")
+    try:  # os.access reads the mode bits (root passes them all, /proc included): create a file to know
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        raise InputError(f"{option} {what}: cannot write in the folder {folder} ({err.strerror or err}); "
+                         "choose a writable path") from None
 
 
 def check_output_file(target: str | None, option: str = "--json", *, inputs: tuple[str, ...] = ()) -> None:

@@ -98,7 +98,6 @@ class VehicleOptions:
         return AnalyzeOptions(min_stable_cycles=self.min_stable_cycles, n_bootstrap=self.n_bootstrap)
 
 
-
 def models_per_loop(model: LoopModel | Mapping[str, LoopModel]) -> dict[str, LoopModel]:
     """Eq. (2) with its known Tp for every loop: one model for all, or a mapping (every loop of
     :data:`VEHICLE_ORDER`), each Tp checked within its physical range.

@@ -13,6 +13,8 @@ import pytest
 
 from cli_helpers import run_main
 
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
+
 
 @pytest.mark.parametrize("argv, option", [
     (["identify", "--tp", "0.1", "--test", "1.2:0.7", "--test", "-0.7:1.0"], "--test '1.2:0.7'"),
@@ -58,3 +60,22 @@ def test_mcap_out_creates_its_folder_as_json_does(tmp_path: Path) -> None:
                     "--mcap-out", str(target))
     assert done.returncode == 0, done.stderr
     assert target.read_bytes()[:5] == b"\x89MCAP"
+
+
+@pytest.mark.parametrize("log, loop", [("design1_roll.mcap", None), ("design1_altitude.mcap", "roll")])
+def test_wrong_loop_names_the_fix(log: str, loop: str | None) -> None:
+    """A roll log read as the default altitude loop (or the other way round): the layout's output topic is
+    missing, and the one line says to give --loop (or --output-topic), not only which topics exist."""
+    done = run_main("analyze", str(SAMPLES / log), "--tp", "0.0422", *(["--loop", loop] if loop else []))
+    assert done.returncode == 3
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ")
+    assert "--loop" in lines[0] and "--output-topic" in lines[0]
+
+
+def test_given_topic_missing_is_not_blamed_on_the_loop() -> None:
+    """An --output-topic the user gave and the log lacks: the error names it (no --loop advice)."""
+    from mrftcli.samples import sample_log
+
+    done = run_main("analyze", str(sample_log("design1_altitude.mcap")), "--tp", "0.0422", "--output-topic", "/nope")
+    assert done.returncode == 3 and "'/nope'" in done.stderr and "--loop" not in done.stderr

@@ -348,7 +348,7 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
     """
     opts = ReadOptions() if options is None else options  # checked on creation, before the log is opened
     with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit, progress=progress) as log:
-        flight = read_loop(log, opts)
+        flight = read_loop(log, opts, loop_hint=True)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))
 

@@ -194,7 +194,7 @@ def role_specs(lay: Layout, opts: ReadOptions) -> RoleSpecs:
         output_scale=output_scale, command_scale=command_scale)
 
 
-def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
+def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> FlightLog:
     """The signals of one loop from an open :class:`LogSource` (what :func:`mrftcli.io.read_flight` does
     after opening), the stages in order.
 
@@ -203,7 +203,8 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     and of a file that is still being written (:mod:`mrftcli.io.follow`). Errors are
     :func:`mrftcli.io.read_flight`'s; ``opts.fmt`` and ``opts.time_unit`` are not used (the log is open);
     the reader's warnings are added to ``log.warnings`` (and copied into ``FlightLog.warnings``);
-    ``FlightLog.path`` is ``log.path``.
+    ``FlightLog.path`` is ``log.path``. ``loop_hint``: the layout's output missing (no ``--output-topic``)
+    says to give ``--loop`` or ``--output-topic`` (a one-loop command; ``vehicle`` reads every loop).
     """
     match = log_layout(log, opts.layout)
     roles, decision = _decision_command(log, match.layout, opts, role_specs(match.layout, opts))
@@ -212,7 +213,14 @@ def read_loop(log: LogSource, opts: ReadOptions) -> FlightLog:
     cmd = _get_required(log, roles.command)
     if not opts.any_time_scale:  # eq. (2)'s vehicle loops: a rate no flight stack logs is a wrong unit
         check_rate(cmd.t, f"{log.path}: the command {cmd.spec}", log.time_unit, log.time_unit_settable)
-    out = _get_required(log, roles.output)
+    try:
+        out = _get_required(log, roles.output)
+    except LogReadError as err:
+        if opts.output_topic is not None or not loop_hint:  # the user's own topic: the message names it
+            raise
+        # the layout's topic for this loop: the usual slip is a log of another loop (--loop defaults to altitude)
+        raise LogReadError(f"{err} (the {opts.loop} loop's output in the {match.layout.name} layout: for another "
+                           "loop give --loop, for another topic --output-topic)") from None
     source: dict[str, Any] = {"format": log.format, "layout": match.describe()}
     output, conversion = _output_signal(log, out, opts.loop, roles.output_scale)
     if conversion is not None:

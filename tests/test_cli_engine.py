@@ -21,6 +21,30 @@ def test_predict_json_paper_example():
     assert d["amplitude"] == pytest.approx(0.078530 / 1.42, rel=1e-3)  # K = 1 here: K Td = 1/1.42
 
 
+@pytest.mark.parametrize("args", [
+    ("--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "-0.4", "--controller-rate", "200"),
+    ("--model", "fopdt", "--param", "K=2", "--param", "T=0.5", "--param", "tau=0.1", "--beta", "0", "--eps", "0.1"),
+])
+def test_predict_json_is_a_versioned_record(args):
+    # predict --json is Prediction's record: schema_version 1, read back by from_json and written again unchanged
+    from mrftcli.errors import InputError
+    from mrftcli.jsonable import to_jsonable
+    from mrftcli.mrft.relays import PREDICTION_SCHEMA_VERSION, Prediction
+
+    p = run("predict", *args, "--json")
+    assert p.returncode == 0, p.stderr
+    d = json.loads(p.stdout)
+    assert d["schema_version"] == PREDICTION_SCHEMA_VERSION == 1
+    back = Prediction.from_json(d)
+    assert back.cycle.frequency_hz == d["frequency_hz"] and back.cycle.t.size == 0
+    assert (back.describing_function is None) == ("describing_function" not in d)
+    assert to_jsonable(back.to_json()) == d
+    for bad in ({**d, "schema_version": 2}, {k: v for k, v in d.items() if k != "schema_version"},
+                {**d, "period": "x"}, {k: v for k, v in d.items() if k != "relay"}):
+        with pytest.raises(InputError, match="predict JSON"):
+            Prediction.from_json(bad)
+
+
 def test_predict_table_and_sampled():
     p = run("predict", "--tp", "0.1", "--td", "0.7", "--tau", "0.06", "--beta", "-0.7", "--controller-rate", "200")
     assert p.returncode == 0, p.stderr

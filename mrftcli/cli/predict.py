@@ -32,7 +32,7 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     """
     from ..mrft.describing import describing_function_limit_cycle
     from ..mrft.model import LoopModel
-    from ..mrft.relays import RelayLaw
+    from ..mrft.relays import Prediction, RelayLaw
     from ..validate import check_positive
 
     model = _model(Tp, model_name, params, ranges, eps, Td, tau, K)
@@ -43,7 +43,6 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     h = check_positive("--h", h)
     relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
     lc = relay.limit_cycle(model, rate_hz)
-    out = {**lc.to_dict(), "model": model.to_json(), "relay": relay.to_json()}
     rows = [("model", f"{model.family}: G(s) = {model.structure};  "
                       + "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())),
             ("relay", relay.describe()[len("relay: "):] + " [command units]"
@@ -54,12 +53,12 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     if rate_hz:
         orbits = ", ".join(f"{f:.5g}" for f in lc.orbits_hz) or "none (quasi-periodic)"
         rows.append(("sampled orbits", f"{orbits} Hz"))
+    df = None
     if isinstance(model, LoopModel) and not eps:  # eq. (2)'s closed-form approximation, for comparison
-        df_f, df_a = describing_function_limit_cycle(model, beta, h)
-        out["describing_function"] = {"frequency_hz": df_f, "amplitude": df_a}
+        df = df_f, df_a = describing_function_limit_cycle(model, beta, h)
         rows.append(("DF estimate", f"{df_f:.6g} Hz, amplitude {df_a:.6g} [output units]  (approximate, for comparison)"))
     if json_target:
-        dump_json(out, json_target)
+        dump_json(Prediction(lc, model, relay, df).to_json(), json_target)
     if json_target == "-":
         return
     width = max(len(r[0]) for r in rows)

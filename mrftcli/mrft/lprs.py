@@ -31,13 +31,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
 from ..errors import InputError
+from ..jsonable import json_float, json_opt_float
 from ..validate import check_beta, check_positive
 from .describing import df_crossing, df_frequency
 from .propagate import phi_gamma
@@ -127,6 +128,17 @@ class LimitCycle:
             "orbits_hz": list(self.orbits_hz),
             "orbits_amplitude": list(self.orbits_amplitude),
         }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> LimitCycle:
+        """The cycle of a :meth:`to_dict` summary, without its waveform (``t``, ``y`` empty); KeyError or
+        TypeError on a missing or non-numeric field."""
+        empty = np.zeros(0)
+        return cls(json_float(data["omega"]), json_float(data["frequency_hz"]), json_float(data["period"]),
+                   json_float(data["amplitude"]), json_float(data["beta"]), json_float(data["h"]),
+                   json_opt_float(data["rate_hz"]), empty, empty, json_float(data["delay_phase"]),
+                   str(data["method"]), tuple(json_float(f) for f in data["orbits_hz"]),
+                   tuple(json_float(a) for a in data["orbits_amplitude"]))
 
 
 # ----------------------------------------------------------------------------------------------

@@ -31,14 +31,16 @@ from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..validate import check_beta
 from .lprs import LimitCycle, mrft_limit_cycle
-from .model import PlantModel
+from .model import PlantModel, model_from_json
 
-__all__ = ["RelayLaw", "MrftRelay", "RELAY_KINDS", "RELAY_SCHEMA_VERSION"]
+__all__ = ["RelayLaw", "MrftRelay", "Prediction", "RELAY_KINDS", "RELAY_SCHEMA_VERSION", "PREDICTION_SCHEMA_VERSION"]
 
 #: the relay types
 RELAY_KINDS = ("mrft", "ideal", "hysteresis")
 #: version of :meth:`RelayLaw.to_json`
 RELAY_SCHEMA_VERSION = 1
+#: version of :meth:`Prediction.to_json`
+PREDICTION_SCHEMA_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -131,6 +133,49 @@ class RelayLaw:
                        float(data.get("eps", 0.0)), str(data.get("source", "inferred")))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"relay JSON: bad or missing field ({err})") from None
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """A model's limit cycle under a relay (``predict``'s record).
+
+    Attributes
+    ----------
+    cycle : LimitCycle
+        The exact (or sampled-relay) limit cycle; read back from JSON without its waveform.
+    model : PlantModel
+        The model, every parameter given.
+    relay : RelayLaw
+        The relay.
+    describing_function : tuple of float or None
+        Eq. (2)'s describing-function estimate (frequency [Hz], amplitude [output units]), for
+        comparison; None when not computed (a process family, or a relay with hysteresis).
+    """
+
+    cycle: LimitCycle
+    model: PlantModel
+    relay: RelayLaw
+    describing_function: tuple[float, float] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """``schema_version``, the cycle's summary (:meth:`LimitCycle.to_dict`), ``model``, ``relay`` and,
+        when computed, ``describing_function`` (``frequency_hz``, ``amplitude``)."""
+        out = {"schema_version": PREDICTION_SCHEMA_VERSION, **self.cycle.to_dict(),
+               "model": self.model.to_json(), "relay": self.relay.to_json()}
+        if self.describing_function is not None:
+            out["describing_function"] = dict(zip(("frequency_hz", "amplitude"), self.describing_function))
+        return out
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> Prediction:
+        """The prediction of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
+        data = check_schema_version(data, "predict JSON", PREDICTION_SCHEMA_VERSION)
+        try:
+            df = data.get("describing_function")
+            return cls(LimitCycle.from_dict(data), model_from_json(data["model"]), RelayLaw.from_json(data["relay"]),
+                       None if df is None else (float(df["frequency_hz"]), float(df["amplitude"])))
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"predict JSON: bad or missing field ({err})") from None
 
 
 class MrftRelay:

@@ -79,3 +79,17 @@ def test_given_topic_missing_is_not_blamed_on_the_loop() -> None:
 
     done = run_main("analyze", str(sample_log("design1_altitude.mcap")), "--tp", "0.0422", "--output-topic", "/nope")
     assert done.returncode == 3 and "'/nope'" in done.stderr and "--loop" not in done.stderr
+
+
+def test_help_has_no_doubled_words() -> None:
+    """Every command's --help reads cleanly (a 'Holds the the tune record' slipped through)."""
+    import re
+
+    top = run_main("--help").stdout
+    names = re.findall(r"^  ([a-z][\w-]+)  ", top.split("Commands:")[1], flags=re.M)
+    assert len(names) >= 13
+    for name in names:
+        done = run_main(name, "--help")
+        assert done.returncode == 0
+        doubled = re.findall(r"\b(\w+)\s+\1\b", " ".join(done.stdout.split()))
+        assert not [w for w in doubled if not w.isdigit()], (name, doubled)

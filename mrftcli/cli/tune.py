@@ -9,7 +9,6 @@ the export are written from the one :class:`~mrftcli.tune.design.TuneResult`.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -294,7 +293,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     if stack_export is None:  # generic: the controller as JSON
         from ..tune.export import generic_export
 
-        text = json.dumps(generic_export(res, name, kind), indent=2) + "\n"
+        text = generic_export(res, name, kind)
         summary = [f"export generic ({name} {kind}, {loop})" if loop else f"export generic ({name} {kind})"]
     else:
         text, summary = stack_export.file_text(), stack_summary(stack_export)

@@ -93,3 +93,17 @@ def test_help_has_no_doubled_words() -> None:
         assert done.returncode == 0
         doubled = re.findall(r"\b(\w+)\s+\1\b", " ".join(done.stdout.split()))
         assert not [w for w in doubled if not w.isdigit()], (name, doubled)
+
+
+def test_json_that_is_not_an_analysis_names_file_and_option(tmp_path: Path) -> None:
+    """A JSON file that is not an analysis, given where one is read: one line naming the option (or the
+    file) once, without 'not an analyze RESULT.json (not an analyze RESULT.json (...'."""
+    other = tmp_path / "other.json"
+    other.write_text('{"foo": 1}\n')
+    done = run_main("tune", str(other), "--tp", "0.0422", "--loop", "roll")
+    assert done.returncode == 2
+    assert done.stderr.count("not an analyze RESULT.json") == 1 and done.stderr.startswith(f"error: {other}:")
+    done = run_main("analyze", str(SAMPLES / "hear_cascade_y.bag"), "--loop", "y", "--inner-model", str(other),
+                    "--inner-gains", str(SAMPLES / "hear_cascade_y.gains.json"))
+    assert done.returncode == 2
+    assert done.stderr.startswith(f"error: --inner-model {other}: not an analyze RESULT.json")

@@ -412,7 +412,11 @@ def cascade_setup(request: Mapping[str, Any], loop: str, unsupported: Mapping[st
     from ..analyze.record import AnalysisResult
 
     inner_name = _check(request, loop, unsupported)
-    result = AnalysisResult.from_json(read_json_file(request["inner_model"], "--inner-model"))
+    data = read_json_file(request["inner_model"], "--inner-model")
+    try:
+        result = AnalysisResult.from_json(data)
+    except InputError as err:  # the record's one line, with the option and file it came from
+        raise InputError(f"--inner-model {request['inner_model']}: {err}") from None
     controller = inner_gains_of(read_json_file(request["inner_gains"], "--inner-gains"), inner_name)
     inner = inner_loop_of(result, controller, inner_name)
     return cascade_model(inner, request["outer_command"]), CascadeOptions(

@@ -138,10 +138,10 @@ def from_result_json(path: Path, known: LoopModel, loop: str | None) -> _TuneSou
     try:
         result = AnalysisResult.from_json(load_json_text(path.read_text(), str(path)))
         model, post, note = model_from_result_json(result, known)
+    except InputError as err:  # before ValueError, its base: the record's own one line, named once
+        raise InputError(str(err) if str(err).startswith(str(path)) else f"{path}: {err}") from err
     except (ValueError, OSError) as err:
         raise InputError(f"{path}: not an analyze RESULT.json ({err})") from err
-    except InputError as err:
-        raise InputError(f"{path}: {err}") from err
     if loop is not None and result.loop and result.loop != loop:
         raise InputError(f"--loop {loop} but {path} was analysed for the {result.loop} loop")
     if not (loop or result.loop):
@@ -416,7 +416,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
               help="Design exported (default: robust, else model-based).")
 @click.option("--kind", type=click.Choice(["PD", "PI", "PID"]), default="PD", show_default=True,
               help="Controller exported (PI: process plants only, their default).")
-@json_option(what="the tune record (model, every design with its gains and figures) and the chosen export")
+@json_option(what="tune record (model, every design with its gains and figures) and the chosen export")
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()

@@ -281,9 +281,9 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
               "(with --cascade: the position's, 0.0002 m).")
 @click.option("--amplitude", type=float, default=None, help="Planned amplitude for tests without H [m or rad]; "
               "default 0.05 m / 5 deg (with --cascade: the outer tests', 0.1 m).")
-@click.option("--bias", type=float, default=None, help="Hover command; default 0.5 (altitude) / 0 (roll, pitch; "
+@click.option("--bias", type=float, default=None, help="Hover command [command units]; default 0.5 (altitude) / 0 (roll, pitch; "
               "a process --model: the command holding output 0).")
-@click.option("--setpoint", type=float, default=None, help="Setpoint; default 1 m (altitude) / 0 rad (eq. (2) only).")
+@click.option("--setpoint", type=float, default=None, help="Setpoint [m or rad]; default 1 m (altitude) / 0 rad (eq. (2) only).")
 @click.option("--hover", "hover_s", type=float, default=5.0, show_default=True, help="Hover before the first test [s].")
 @click.option("--hold", "hold_s", type=float, default=4.0, show_default=True, help="Hold after each test [s].")
 @click.option(

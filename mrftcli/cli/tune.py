@@ -387,7 +387,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
               "with --td (required: the gains scale as 1/K).")
 @click.option("--td-std", type=float, default=0.0, help="Std of Td [s] for the robust design (with --td).")
 @click.option("--tau-std", type=float, default=0.0, help="Std of tau [s] for the robust design (with --td).")
-@click.option("--k-std", type=float, default=0.0, help="Std of K for the robust design (with --td).")
+@click.option("--k-std", type=float, default=0.0, help="Std of K [--k's unit] for the robust design (with --td).")
 @click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
               help="Criterion of a unit setpoint step.")
 @click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms [-].")

@@ -413,15 +413,16 @@ def _unconfirmed(cand_rows: list[CandidateFit], found: set[str]) -> list[str]:
 
 
 def _improving(effects: list[EffectFinding]) -> tuple[list[EffectFinding], list[str]]:
-    """The findings whose refit lowers the held-out NRMSE they report, and a warning for the others
-    (a sensor lag once went 0.011 -> 0.013 and was reported, issue 27). A pair is judged as a whole
+    """The findings whose refit does not raise the held-out NRMSE they report beyond chance
+    (:meth:`~mrftcli.diagnose.rows.HeldOut.worse_beyond_chance`; a sensor lag once went 0.011 -> 0.013 and
+    was reported, issue 27), and a warning for the others. A pair is judged as a whole
     against the linear model (a rate limit alone may not help where the rate limit with the drag
     does), after its second effect against the first alone."""
     said: list[str] = []
 
     def rises(before: HeldOut, after: HeldOut, what: str) -> bool:
         b, a = before.nrmse, after.nrmse
-        if b is None or a is None or a <= b:
+        if b is None or a is None or not after.worse_beyond_chance(before):
             return False
         said.append(f"{what} not reported: the refit does not improve the held-out cycles (NRMSE {b:.3g} -> {a:.3g})")
         return True

@@ -104,6 +104,23 @@ def test_generic_export_carries_its_units_in_the_file(tmp_path):
     assert data["units"]["rate_hz"] == "Hz" and data["loop"] == "roll" and data["Kp"] > 0
 
 
+def test_tune_report_shows_the_generic_file_tune_writes(tmp_path):
+    """tune --report's recommended design shows its generic export as tune --export generic writes it (the loop and
+    the units included: the page showed the controller without them)."""
+    from mrftcli.cli.main import main
+    from mrftcli.report._common import esc
+
+    out, report = tmp_path / "g.json", tmp_path / "report"
+    try:
+        main(["tune", "--tp", "0.0499", "--td", "0.887", "--tau", "0.0228", "--k", "20", "--loop", "roll",
+              "--controller-rate", "200", "--export", "generic", "--out", str(out), "--report", str(report), "-q"])
+    except SystemExit as e:
+        assert not e.code
+    text = out.read_text()
+    assert '"units"' in text and '"loop": "roll"' in text
+    assert f"<pre>{esc(text)}</pre>" in (report / "index.html").read_text()
+
+
 def test_ardupilot_roll_export_passes_every_prearm_rule_on_its_values():
     """AC_AttitudeControl::pre_arm_checks (ANG P > 0; rate P, I > 0 with FF 0; D >= 0) and the ACRO_BAL check
     (angle P at least ACRO_BAL_*, whose documented maximum is 3), each with its source line."""

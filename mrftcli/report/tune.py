@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -10,7 +9,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
-from ..jsonable import to_jsonable
 from ._common import ensure_dir, esc, html_page, html_table, new_figure, save_figure, write_page
 from .wording import gain_unit, output_unit
 
@@ -122,13 +120,15 @@ def _flag(d: Design, ms_max: float) -> str:
 
 def _recommended_section(result: TuneResult, name: str, kind: str) -> str:
     """The design tune exports by default and its generic export (the controller as JSON)."""
+    from ..tune.export import generic_export
+
     try:
         d = result.get(name, kind)
     except (KeyError, ValueError, InputError):
         return "<p>No robust or model-based design to recommend.</p>"
     c = d.controller
     y = output_unit(result.loop)
-    export = json.dumps({"design": name, "kind": kind, **to_jsonable(c.to_dict())}, indent=2)
+    export = generic_export(result, name, kind)  # the file tune --export generic writes, as written
     return (f"<h2>Recommended: {esc(name)} {esc(kind)}</h2>"
             f"<p>The design <code>tune</code> exports without <code>--design</code>/<code>--kind</code>: "
             f"Kp {c.Kp:.5g} cmd/{y}, Ki {c.Ki:.5g} cmd/({y} s), Kd {c.Kd:.5g} cmd s/{y}, Tf {c.Tf * 1e3:.4g} ms "

@@ -54,19 +54,23 @@ def generic_units(loop: str) -> dict[str, str]:
             "output": y}
 
 
-def generic_export(result: "TuneResult", design: str, kind: str) -> dict[str, Any]:
-    """``tune --export generic``'s file for any family: eq. (2)'s with its loop and the units of its numbers
-    (:func:`generic_units`); a cascade's outer PD; another family's with ``reverse_acting`` (the gains act
-    on -e)."""
+def generic_export(result: "TuneResult", design: str, kind: str) -> str:
+    """``tune --export generic``'s file (JSON text) for any family, as written and as ``tune --report`` shows it:
+    eq. (2)'s with its loop and the units of its numbers (:func:`generic_units`); a cascade's outer PD; another
+    family's with ``reverse_acting`` (the gains act on -e)."""
+    import json
+
     from ..mrft.cascade import CascadeModel
     from ..mrft.model import LoopModel
 
     c = result.get(design, kind).controller
     if isinstance(result.model, LoopModel):
-        return {"design": design, "kind": kind, "loop": result.loop, **c.to_dict(), "units": generic_units(result.loop)}
-    if isinstance(result.model, CascadeModel):
-        return {"design": design, "kind": kind, **c.to_dict()}
-    return {"design": design, "kind": kind, "reverse_acting": result.reverse_acting, **c.to_dict()}
+        data = {"design": design, "kind": kind, "loop": result.loop, **c.to_dict(), "units": generic_units(result.loop)}
+    elif isinstance(result.model, CascadeModel):
+        data = {"design": design, "kind": kind, **c.to_dict()}
+    else:
+        data = {"design": design, "kind": kind, "reverse_acting": result.reverse_acting, **c.to_dict()}
+    return json.dumps(data, indent=2) + "\n"
 
 
 def hear_params(c: Controller, loop: str, scale: float = 1.0) -> dict[str, float]:

@@ -11,8 +11,8 @@ from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit
 from .model_options import (build_model, check_soiptd_options, parse_windows, relay_options, structure_options,
                             window_option)
-from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options,
-                      min_cycles_option, quiet_option, read_progress, tp_option, tqdm_progress)
+from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option, log_layout_options,
+                      min_cycles_option, quiet_option, read_progress, text_table, tp_option, tqdm_progress)
 
 from ..diagnose.records import DiagnosisResult
 
@@ -221,8 +221,7 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         click.echo(format_summary(result, residual_verdict(analysis) if analysis is not None else None))
     elif not to_stdout:
         click.echo(format_process(result))
-    for w in result.warnings:
-        click.echo(f"warning: {w}", err=True)
+    echo_warnings(result.warnings)
     if report_dir:
         from ..report.diagnosis import write_diagnosis_report
 
@@ -269,12 +268,10 @@ def _effect_rows(result: DiagnosisResult) -> list[str]:
              _g(c.delta_bic, ".1f"), f"{_g(c.held_out_before, '.3f')} -> {_g(c.held_out_after, '.3f')}",
              "+".join(c.views) + ("  <- found" if (c.name, c.with_) in named else "")) for c in fits]
     head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "views")
-    widths = [max(len(r[k]) for r in [head, *rows]) for k in range(len(head))]
     lines = ["effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
              "error: RMS over the tests of each test's relative error from the others (cycle: frequency and "
              "amplitude; balance: the mean input's residual over h; scatter: ln of the period variance's ratio)):"]
-    lines += ["  " + "  ".join(cell.ljust(w) if k in (0, 4) else cell.rjust(w) for k, (cell, w)
-                               in enumerate(zip(r, widths))).rstrip() for r in [head, *rows]]
+    lines += text_table([head, *rows], align="<>>><", indent="  ")
     for e in result.effects:
         if e.refit:
             ident = result.analysis.identification if result.analysis is not None else None
@@ -302,8 +299,7 @@ def format_process(result: DiagnosisResult) -> str:
                      _pct_z(c.frequency_error, c.frequency_z), f"{c.amplitude:.3g} ± {c.amplitude_se:.2g}",
                      _g(c.held_out_amplitude, ".3g"), _pct_z(c.amplitude_error, c.amplitude_z),
                      bands.get("fundamental", "-"), bands.get("2-3", "-"), bands.get("higher", "-")))
-    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
-    lines += ["  ".join(cell.rjust(w) for cell, w in zip(r, widths)).rstrip() for r in rows]
+    lines += text_table(rows, align=">" * len(head))
     lines.append("(amplitudes in output units; held out: the model of the other tests; z = difference / its sd "
                  "(the measurement's and the held-out model's); residual/noise: the mean cycle against the model "
                  "of all tests, per harmonic band)")

@@ -9,7 +9,7 @@ import click
 
 from ..errors import InputError, InsufficientDataError
 from .model_options import build_model, format_estimates, structure_options
-from .options import controller_rate_option, dump_json, json_option, tp_option
+from .options import controller_rate_option, dump_json, echo_warnings, json_option, tp_option
 
 if TYPE_CHECKING:
     from ..mrft.identify import ParameterEstimate, ResponsePoint, TestMeasurement
@@ -136,5 +136,4 @@ def _echo(result: Any, n_data: int) -> None:
         if t.get("K") is not None:
             line += f"  K {t['K']:.4g}"
         click.echo(line)
-    for w in result.warnings:
-        click.echo(f"warning: {w}", err=True)
+    echo_warnings(result.warnings)

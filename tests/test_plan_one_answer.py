@@ -36,6 +36,11 @@ def test_plan_from_a_log_equals_plan_from_its_analysis_json(tmp_path, capsys):
     data = plans["json"][0]
     assert data["limits"]["noise_std"] == pytest.approx(noise)  # the measured noise, not the 0.5 mm default
     assert not any("sensor noise" in a for a in data["assumptions"])
+    # one controller rate for a log: plan's is the one tune designs for (analyze's, its tests' 199.995 Hz
+    # median to 0.1 Hz); plan took the tests' upper median unrounded before
+    code, stdout, err = run_cli(capsys, "tune", str(analysis), "--tp", "0.0422", "--json", "-", "--quiet")
+    assert code == 0, err
+    assert data["limits"]["rate_hz"] == json.loads(stdout)["rate_hz"] == 200.0
 
 
 def test_no_poorly_determined_note_beside_a_small_std(capsys):

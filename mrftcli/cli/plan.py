@@ -28,17 +28,18 @@ __all__ = ["plan", "format_plan", "format_relay_plan"]
 
 
 def _json_rate(data: object) -> float | None:
-    """The controller rate [Hz] an ``analyze --json`` result records (declared, else its tests'), or None."""
+    """The controller rate [Hz] an ``analyze --json`` result records (declared, else its tests'), or None: analyze's
+    one definition (:func:`~mrftcli.analyze.analysis_controller_rate`), so ``plan`` and ``tune`` agree on a log."""
+    from ..analyze import analysis_controller_rate
+
     if not isinstance(data, dict):
         return None
     declared = ((data.get("input") or {}).get("source") or {}).get("controller_rate_hz")
     partial = data.get("partial")
     # a single-beta log's exit-6 object: its partial's tests
     tests = data.get("tests") or (partial.get("tests") if isinstance(partial, dict) else None) or ()
-    rates = sorted(float(t["rate_hz"]) for t in tests if isinstance(t, dict) and t.get("rate_hz"))
-    if declared:
-        return float(declared)
-    return rates[len(rates) // 2] if rates else None
+    rates = [float(t["rate_hz"]) for t in tests if isinstance(t, dict) and t.get("rate_hz")]
+    return analysis_controller_rate(float(declared) if declared else None, rates)
 
 
 def _from_analysis(data: object) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
@@ -57,7 +58,7 @@ def _from_log(path: Path, model: LoopModel, min_cycles: int, read_options: Mappi
     identify (a single beta, no plant) is planned from its segmented tests."""
     import json
 
-    from ..analyze import AnalyzeOptions, analyze_flight
+    from ..analyze import AnalyzeOptions, analysis_controller_rate, analyze_flight
     from ..errors import IdentificationError, InsufficientDataError, SegmentationError
     from ..io import ReadOptions, read_flight
     from ..jsonable import to_jsonable
@@ -74,11 +75,11 @@ def _from_log(path: Path, model: LoopModel, min_cycles: int, read_options: Mappi
         pass  # planned from what the segmenter measured, below
     if data is not None:
         return _from_analysis(json.loads(json.dumps(to_jsonable(data))))
-    found = segment(flight)
-    flown, noise = flown_from_segments([t for t in found if t.n_stable >= min_cycles])
+    usable = [t for t in segment(flight) if t.n_stable >= min_cycles]
+    flown, noise = flown_from_segments(usable)
     if not flown:
         raise SegmentationError(f"{path}: no MRFT test with {max(min_cycles, 3)} or more stable cycles to plan from")
-    return flown, {}, float(found[0].rate_hz), noise
+    return flown, {}, analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]), noise
 
 
 def _analysis_json(path: Path) -> Any:

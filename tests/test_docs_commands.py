@@ -107,3 +107,17 @@ def test_json_that_is_not_an_analysis_names_file_and_option(tmp_path: Path) -> N
                     "--inner-gains", str(SAMPLES / "hear_cascade_y.gains.json"))
     assert done.returncode == 2
     assert done.stderr.startswith(f"error: --inner-model {other}: not an analyze RESULT.json")
+
+
+@pytest.mark.parametrize("relay, fix", [([], "--relay hysteresis"), (["--relay", "ideal"], "--relay hysteresis"),
+                                        (["--relay", "hysteresis", "--eps", "-1"], "non-negative")])
+def test_eps_without_a_hysteresis_relay_is_refused(tmp_path: Path, relay: list[str], fix: str) -> None:
+    """--eps is the hysteresis of --relay hysteresis: given without it, it was silently ignored; negative, it
+    was called 'not below the output amplitude'. One line naming the fix (exit 2), before the analysis."""
+    log = _no_relay_csv(tmp_path / "flat.csv")
+    args = relay if "--eps" in relay else [*relay, "--eps", "0.01"]
+    done = run_main("analyze", str(log), "--model", "fopdt", "--command-topic", "u_relay", "--output-topic",
+                    "y_output", *args)
+    assert done.returncode == 2, done.stderr
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: --eps") and fix in lines[0]

@@ -8,6 +8,7 @@ use), for every model family. Every caller (``analyze``, ``tune``, ``batch``, ``
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from numbers import Integral
 
@@ -35,12 +36,20 @@ class RelayOptions:
     beta : float or None
         MRFT beta.
     eps : float or None
-        Hysteresis [output units].
+        Hysteresis [output units], >= 0; only with ``kind`` ``"hysteresis"`` (InputError otherwise).
     """
 
     kind: str | None = None
     beta: float | None = None
     eps: float | None = None
+
+    def __post_init__(self) -> None:
+        # eps is only read with a stated hysteresis relay (segment/relay_type): anywhere else it would be ignored
+        if self.eps is not None and self.kind != "hysteresis":
+            raise InputError(f"--eps {self.eps:g} is a hysteresis relay's: give --relay hysteresis with it, "
+                             "or leave --eps out to infer the relay")
+        if self.eps is not None and not (math.isfinite(self.eps) and self.eps >= 0):
+            raise InputError(f"--eps must be a non-negative number [output units], got {self.eps:g}")
 
     @property
     def stated(self) -> bool:

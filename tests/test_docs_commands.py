@@ -121,3 +121,12 @@ def test_eps_without_a_hysteresis_relay_is_refused(tmp_path: Path, relay: list[s
     assert done.returncode == 2, done.stderr
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: --eps") and fix in lines[0]
+
+
+def test_simulate_cascade_bad_inner_test_names_inner_test(tmp_path: Path) -> None:
+    """A cascade's --inner-test out of range names --inner-test (it said --test, the outer loop's option)."""
+    done = run_main("simulate", "--cascade", "y", "--inner-tp", "0.0422", "--inner-td", "1.301", "--inner-tau", "0.0297",
+                    "--inner-k", "30", "--inner-test", "-0.4", "--inner-test", "1.7", "--td", "2", "--tau", "0.03",
+                    "--test", "-0.4", "--out", str(tmp_path / "c.bag"))
+    assert done.returncode == 2
+    assert done.stderr.startswith("error: --inner-test '1.7': beta must lie in the open interval (-1, 1)")

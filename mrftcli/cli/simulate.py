@@ -26,11 +26,11 @@ __all__ = ["simulate", "parse_test", "parse_effect"]
 _DEFAULT_AMPLITUDE = {"altitude": 0.05, "x": 0.05, "y": 0.05, "roll": math.radians(5.0), "pitch": math.radians(5.0)}
 
 
-def parse_test(text: str) -> tuple[float, float | None, float | None]:
-    """``BETA[:H[:DURATION]]`` -> (beta, h or None, duration or None); raises InputError."""
+def parse_test(text: str, option: str = "--test") -> tuple[float, float | None, float | None]:
+    """``BETA[:H[:DURATION]]`` -> (beta, h or None, duration or None); raises InputError naming ``option``."""
     parts = text.split(":")
     if not 1 <= len(parts) <= 3 or any(p.strip() == "" for p in parts[:1]):
-        raise InputError(f"--test {text!r}: expected BETA[:H[:DURATION]], e.g. -0.4 or -0.4:0.05:15")
+        raise InputError(f"{option} {text!r}: expected BETA[:H[:DURATION]], e.g. -0.4 or -0.4:0.05:15")
     values: list[float | None] = []
     for name, part in zip(("BETA", "H", "DURATION"), parts):
         if part.strip() == "":
@@ -39,7 +39,7 @@ def parse_test(text: str) -> tuple[float, float | None, float | None]:
         try:
             values.append(float(part))
         except ValueError:
-            raise InputError(f"--test {text!r}: {name} {part!r} is not a number") from None
+            raise InputError(f"{option} {text!r}: {name} {part!r} is not a number") from None
     values += [None] * (3 - len(values))
     first, h, duration = values
     assert first is not None  # BETA was checked non-empty above
@@ -48,7 +48,7 @@ def parse_test(text: str) -> tuple[float, float | None, float | None]:
         h = None if h is None else check_positive("the relay height H", h)
         duration = None if duration is None else check_time("DURATION", duration)
     except InputError as err:
-        raise InputError(f"--test {text!r}: {err}") from None
+        raise InputError(f"{option} {text!r}: {err}") from None
     return beta, h, duration
 
 
@@ -129,14 +129,14 @@ class CascadeOptions:
     fmt: str | None
 
 
-def _tests(texts: tuple[str, ...], plan):
+def _tests(texts: tuple[str, ...], plan, option: str = "--test"):
     """The ``--test`` (``--inner-test``) specs of one loop, H and DURATION planned by ``plan(beta)`` (the describing
     function) where not given."""
     from ..sim.flight import TestSpec
 
     specs = []
     for text in texts:
-        beta, h, duration = parse_test(text)
+        beta, h, duration = parse_test(text, option)
         if h is None or duration is None:
             planned = plan(beta)
             h = planned.h if h is None else h
@@ -197,7 +197,8 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     amp_out = 0.1 if opts.amplitude[1] is None else opts.amplitude[1]
     spec = CascadeSpec(inner=inner, gains=gains, Td=opts.Td, tau=opts.tau, axis=opts.axis, commanded=opts.commanded,
                        inner_tests=_tests(opts.inner_tests,
-                                                  lambda b: plan_test(inner, b, amp_in, rate_hz=gains.rate_hz)),
+                                                  lambda b: plan_test(inner, b, amp_in, rate_hz=gains.rate_hz),
+                                                  "--inner-test"),
                        outer_tests=_tests(opts.outer_tests,
                                                   lambda b: plan_outer_test(plant, gains, conv, b, amp_out)),
                        attitude_noise_std=opts.noise[0], position_noise_std=opts.noise[1],

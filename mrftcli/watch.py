@@ -544,10 +544,13 @@ def _updates(tests: list[MrftTest], flight: FlightLog, strategy: _Strategy,
 
 
 def _final(flight: FlightLog | None, model: PlantModel, strategy: _Strategy, options: WatchOptions, reason: str,
-           n_tests: int) -> Iterator[Update]:
+           n_tests: int, path: str | Path) -> Iterator[Update]:
     """The whole log through :func:`mrftcli.analyze.analyze_flight` (as ``analyze`` runs it), then :class:`WatchEnd`."""
     if flight is None:
-        yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error="no data in the log",
+        yield WatchEnd(reason=reason, tests=0, wall_time=time.time(),
+                       error=f"{path}: no data in the log: the loop's command and output never appeared before the "
+                             f"recording stopped ('mrft-ident topics {path}' lists what it holds; --command-topic, "
+                             "--output-topic name others)",
                        exit_code=LogReadError.exit_code)
         return
     try:
@@ -589,7 +592,7 @@ def _follow(path: Path, model: PlantModel, read: ReadOptions, options: WatchOpti
                     yield WatchEnd(reason=reason, tests=0, wall_time=time.time(), error=not_a_log,
                                    exit_code=LogReadError.exit_code)
                     return
-            yield from _final(flight, model, strategy, options, reason, len(reported))
+            yield from _final(flight, model, strategy, options, reason, len(reported), path)
             return
         sleep(options.poll)
 

@@ -130,3 +130,14 @@ def test_simulate_cascade_bad_inner_test_names_inner_test(tmp_path: Path) -> Non
                     "--test", "-0.4", "--out", str(tmp_path / "c.bag"))
     assert done.returncode == 2
     assert done.stderr.startswith("error: --inner-test '1.7': beta must lie in the open interval (-1, 1)")
+
+
+def test_watch_of_a_log_with_no_messages_names_it_and_the_fix(tmp_path: Path) -> None:
+    """watch on a recording that stops before any message (an MCAP cut after its header) said only
+    'error: no data in the log': the line names the file and what to check."""
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes((SAMPLES / "design1_altitude.mcap").read_bytes()[:300])
+    done = run_main("watch", str(cut), "--tp", "0.0422", "--idle", "0.3", "--poll", "0.05")
+    assert done.returncode == 3
+    error = [ln for ln in done.stderr.splitlines() if ln.startswith("error:")]
+    assert len(error) == 1 and str(cut) in error[0] and "mrft-ident topics" in error[0]

@@ -35,6 +35,7 @@ sys.path.insert(0, str(HERE))
 
 from bench_diagnose import _pct, single_rows  # noqa: E402 - the table of bench_diagnose, one home
 from diagnose_sims.cases import EFFECTS, MOUNT, draw_case, run_case  # noqa: E402
+from diagnose_sims.inherent import inherent_reading  # noqa: E402 - RotorPy's own rectification, a second reading
 
 #: the oracle SNR above which a mount's ringing counts as observable (matched-filter z >= 5)
 OBSERVABLE_SNR = 25.0
@@ -94,6 +95,7 @@ def report(sim: str, results: list[dict], wall: float) -> None:
             print(f"    on the {int(done.sum())} logs analyze identified: per log median {np.median(ratio[done]):.2f}x, "
                   f"worst {ratio[done].max():.2f}x; on the {int((~done).sum())} it refused: diagnose's CPU median "
                   f"{np.median(cpu[~done]) if (~done).any() else float('nan'):.2f} s")
+    inherent_reading(sim, results)
 
 
 def main() -> None:

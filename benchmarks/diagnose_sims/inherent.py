@@ -23,12 +23,10 @@ __all__ = ["INHERENT", "inherent_reading"]
 INHERENT: dict[str, dict[str, float]] = {"rotorpy": {"thrust_rectification": 1.0}, "jsbsim": {}}
 
 
-def _pct(k: int, n: int) -> str:
-    return f"{k}/{n} = {100 * k / max(n, 1):.0f} %"
-
-
 def inherent_reading(sim: str, results: list[dict]) -> None:
     """Print the clean and spurious-second figures with the simulator's own physics counted as present."""
+    from bench_diagnose import _pct  # noqa: PLC0415 - the benchmark's percentage, one home (benchmarks/ on the path)
+
     own = INHERENT.get(sim, {})
     if not own:
         return

@@ -472,9 +472,8 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, cutoff_hz, objective, ms_max, effort_max,
                        (td, tau, K), json_target, report_dir, quiet, read_options):
         return
-    check_output_file(json_target, "--json")  # output paths checked before the work starts
+    check_export_paths(json_target, out, ex.stack is not None)  # output paths checked before the work starts
     check_output_dir(report_dir, "--report")
-    check_export_paths(json_target, out, ex.stack is not None)
     if out and ex.stack is None:
         raise InputError("--out needs --export generic" + ("" if family else "|px4|ardupilot|hear"))
     rate_given: float | None = read_options.get("controller_rate_hz")

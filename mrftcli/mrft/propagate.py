@@ -14,7 +14,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..errors import InputError
 
@@ -329,6 +328,8 @@ def gauss_markov(innovations: np.ndarray, phi: float) -> np.ndarray:
     >>> gauss_markov(np.array([1.0, 0.0, 2.0]), 0.5).tolist()
     [1.0, 0.5, 2.25]
     """
+    from scipy.signal import lfilter  # here, not at the top: importing mrftcli.mrft must not load scipy.signal
+
     out: np.ndarray = lfilter([1.0], [1.0, -phi], np.asarray(innovations, dtype=float))
     return out
 

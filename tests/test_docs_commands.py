@@ -141,3 +141,14 @@ def test_watch_of_a_log_with_no_messages_names_it_and_the_fix(tmp_path: Path) ->
     assert done.returncode == 3
     error = [ln for ln in done.stderr.splitlines() if ln.startswith("error:")]
     assert len(error) == 1 and str(cut) in error[0] and "mrft-ident topics" in error[0]
+
+
+def test_csv_of_another_layout_names_command_topic(tmp_path: Path) -> None:
+    """A process plant's CSV read without --command-topic (the first try of a new user): the layout's command
+    column is missing, and the line says to name the log's own with --command-topic and --output-topic."""
+    log = _no_relay_csv(tmp_path / "plant.csv")
+    done = run_main("analyze", str(log), "--model", "fopdt")
+    assert done.returncode == 3
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "'/mrft/command'" in lines[0]
+    assert "--command-topic" in lines[0] and "--output-topic" in lines[0]

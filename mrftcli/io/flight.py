@@ -210,7 +210,13 @@ def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> 
     roles, decision = _decision_command(log, match.layout, opts, role_specs(match.layout, opts))
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
                                                 roles.battery) if s])
-    cmd = _get_required(log, roles.command)
+    try:
+        cmd = _get_required(log, roles.command)
+    except LogReadError as err:
+        if opts.command_topic is not None or not loop_hint:  # the user's own topic: the message names it
+            raise
+        raise LogReadError(f"{err} (the {match.layout.name} layout's command for the {opts.loop} loop: name the "
+                           "log's own with --command-topic, and its output with --output-topic)") from None
     if not opts.any_time_scale:  # eq. (2)'s vehicle loops: a rate no flight stack logs is a wrong unit
         check_rate(cmd.t, f"{log.path}: the command {cmd.spec}", log.time_unit, log.time_unit_settable)
     try:

@@ -40,7 +40,7 @@ of the inner loop, each solved again.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, ClassVar, Mapping
 
 import numpy as np
@@ -135,7 +135,8 @@ class InnerLoop:
         T = ctrl.Ts
         z = np.exp(1j * w * T)
         c_ref = ctrl.Kp + ctrl.Ki * T * z / (z - 1.0)
-        c_fb = c_ref + ctrl.Kd * (z - 1.0) / ((ctrl.Tf + T) * z - ctrl.Tf)
+        # Tf's first-order filter, as the discrete realisation below has it (a stack's rate filter is not modelled)
+        c_fb = replace(ctrl, rate_filter=None).feedback_at(z)
         out: NDArray[np.complex128] = c_ref * self.plant.frequency_response(w) / (
             1.0 + c_fb * delayed_discrete(self.plant.realisation(), self.plant.delay, ctrl.rate_hz).frequency_response(w))
         return out
@@ -212,9 +213,9 @@ class DiscreteStateSpace:
 
 def split_interval(A: FloatArray, B: FloatArray, t: float, eps: float) -> tuple[FloatArray, FloatArray, FloatArray]:
     """(e^{A t}, old-input and new-input vectors) over [0, t) with the held input changing at ``eps``."""
-    E, _ = phi_gamma(A, B, t)
+    E, G = phi_gamma(A, B, t)
     if t <= eps:
-        return E, phi_gamma(A, B, t)[1], np.zeros_like(B)
+        return E, G, np.zeros_like(B)
     _, G_old = phi_gamma(A, B, eps)
     E_rest, G_new = phi_gamma(A, B, t - eps)
     return E, E_rest @ G_old, G_new

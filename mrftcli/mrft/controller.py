@@ -34,7 +34,7 @@ def json_number(data: Mapping[str, Any], key: str, what: str, finite: bool = Fal
     if isinstance(value, str) and value in ("inf", "-inf", "nan") and not finite:
         return float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (finite and not math.isfinite(value)):
-        raise InputError(f"{what}: {key!r} must be a number, got {value!r}")
+        raise InputError(f"{what}: {key!r} must be a {'finite ' if finite else ''}number, got {value!r}")
     return float(value)
 
 

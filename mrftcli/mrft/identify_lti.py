@@ -56,7 +56,7 @@ from .model import PlantModel, model_from_json
 from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate, fitted_from_json
 
 __all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
-           "STATIC_HARMONIC", "static_gain_point", "DETERMINED_LOG_WIDTH"]
+           "STATIC_HARMONIC", "static_gain_point"]
 
 #: version of :meth:`LtiIdentification.to_json`
 LTI_SCHEMA_VERSION = 2

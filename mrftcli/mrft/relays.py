@@ -174,6 +174,8 @@ class Prediction:
             df = data.get("describing_function")
             return cls(LimitCycle.from_dict(data), model_from_json(data["model"]), RelayLaw.from_json(data["relay"]),
                        None if df is None else (float(df["frequency_hz"]), float(df["amplitude"])))
+        except InputError as err:  # already names the field: one prefix, not "bad or missing field (...)"
+            raise InputError(f"predict JSON: {err}") from None
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"predict JSON: bad or missing field ({err})") from None
 

@@ -124,6 +124,12 @@ def test_cli_diagnose_process_options_need_a_process_model(fopdt_csv):
     res = runner.invoke(cli, ["diagnose", str(fopdt_csv), "--command-topic", "u_relay", "--output-topic",
                               "y_output"])
     assert res.exit_code == 2 and "--tp" in res.output
+    # --tp with a process model is refused (as in analyze and watch), never silently ignored
+    res = runner.invoke(cli, ["diagnose", str(fopdt_csv), "--model", "fopdt", "--tp", "0.04", "--command-topic",
+                              "u_relay", "--output-topic", "y_output"])
+    assert res.exit_code == 2 and "--tp is eq. (2)'s" in res.output and "--param" in res.output
+    res = runner.invoke(cli, ["diagnose", str(fopdt_csv), "--tp", "0.05", "--window", "0:10"])  # eq. (2): no --window
+    assert res.exit_code == 2 and "--window takes a process model" in res.output
 
 
 def test_one_test_is_not_held_out_and_says_so(fopdt_csv):

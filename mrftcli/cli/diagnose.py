@@ -9,8 +9,7 @@ import click
 
 from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit
-from .model_options import (build_model, check_soiptd_options, parse_windows, relay_options, structure_options,
-                            window_option)
+from .model_options import (parse_windows, relay_options, soiptd_or_process, structure_options, window_option)
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, text_table, tp_option, tqdm_progress)
 
@@ -192,21 +191,17 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
     from ..analyze.screen import log_start
     from ..diagnose.selection import diagnose as run
     from ..io import ReadOptions, read_flight
-    from ..mrft.model import soiptd_model
 
     check_output_file(json_target, "--json")  # before the work, as analyze
     check_output_dir(report_dir, "--report")
     analysis = None
+    model = soiptd_or_process(Tp, model_name, params, ranges, relay_kind, eps, {"--window": bool(windows)})
     if model_name == "soiptd":
-        check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--window": bool(windows),
-                                  "--relay": bool(relay_kind), "--eps": eps is not None}, "takes --tp and reads beta from the log")
-        model = soiptd_model(Tp)
         with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
             flight = read_flight(log, ReadOptions(**read_options), progress=progress)
         analysis = _analysis(flight, model, min_cycles)
         options: dict[str, Any] = {"analysis": analysis}
     else:  # a process family's model object, through the same driver
-        model = build_model(model_name, params, ranges)
         flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
         options = {"relay": RelayOptions(relay_kind, None, eps), "windows": parse_windows(windows, log_start(flight)),
                    "min_stable_cycles": min_cycles}

@@ -248,13 +248,18 @@ def check_soiptd_options(Tp: float | None, process_options: Mapping[str, bool], 
 
 
 def soiptd_or_process(Tp: float | None, model_name: str, params: Sequence[str], ranges: Sequence[str],
-                      relay_kind: str | None, eps: float | None) -> Any:
-    """The model of ``--model``: eq. (2) at ``--tp`` (``--param``, ``--range``, ``--relay``, ``--eps`` refused:
-    :func:`check_soiptd_options`), or the process model (:func:`build_model`)."""
+                      relay_kind: str | None, eps: float | None, refused: Mapping[str, bool] | None = None) -> Any:
+    """The model of ``--model``: eq. (2) at ``--tp`` (``--param``, ``--range``, ``--relay``, ``--eps`` and the
+    command's own ``refused`` options, e.g. diagnose's ``--window``, refused: :func:`check_soiptd_options`), or
+    the process model (:func:`build_model`; ``--tp`` refused, never silently ignored)."""
     if model_name != "soiptd":
+        if Tp is not None:
+            raise click.UsageError("--tp is eq. (2)'s (--model soiptd); a process model's known parameters are "
+                                   "--param NAME=VALUE")
         return build_model(model_name, params, ranges)
-    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), "--relay": bool(relay_kind),
-                              "--eps": eps is not None}, "takes --tp and reads beta from the log")
+    check_soiptd_options(Tp, {"--param": bool(params), "--range": bool(ranges), **(refused or {}),
+                              "--relay": bool(relay_kind), "--eps": eps is not None},
+                         "takes --tp and reads beta from the log")
     from ..mrft.model import soiptd_model
     from ..validate import check_tp
 

@@ -154,9 +154,6 @@ def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], 
     from ..io import ReadOptions
     from ..watch import WatchOptions, watch as follow
 
-    if model_name != "soiptd" and Tp is not None:
-        raise click.UsageError("--tp is eq. (2)'s (--model soiptd); a process model's known parameters are "
-                               "--param NAME=VALUE")
     model = soiptd_or_process(Tp, model_name, params, ranges, relay_kind, eps)
     layout = read_options["layout"]
     if layout not in (None, "reference") or read_options["command_scale"] is not None \

@@ -31,8 +31,9 @@ MS_TOLERANCE = 1.05  # an Ms within 5 % of the limit on the true plant counts as
 
 def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, float]:
     """(stable, Ms, phase margin [deg]) of the PI on the true plant's exact sampled loop."""
-    from mrftcli.tune.closed_loop import closed_loop_matrix
-    from mrftcli.tune.grid import discrete_response, discretise, sampled_margins
+    from mrftcli.tune.closed_loop import DiscretePlant, PlantStack, closed_loop_matrix, held_delay
+    from mrftcli.tune.grid import discretise
+    from mrftcli.tune.margins import stack_margins
 
     sign = 1.0 if true_model.parameters["K"].value > 0 else -1.0
     ss = discretise(true_model, rate_hz)
@@ -41,9 +42,11 @@ def _on_truth(controller, true_model, rate_hz: float) -> tuple[bool, float, floa
     ss = DiscreteStateSpace(ss.Phi, ss.Gamma, sign * ss.C, rate_hz)
     A = closed_loop_matrix(ss, controller)[0]
     stable = bool(np.max(np.abs(np.linalg.eigvals(A))) < 1.0)
-    omega = np.geomspace(1e-4, 0.999 * np.pi * rate_hz, 4000)
-    Gd = sign * discrete_response(true_model, rate_hz, omega)[None, :]
-    pm, _, ms, _ = sampled_margins(controller, Gd, omega)[0]
+    h = held_delay(true_model, rate_hz)
+    integrators = int(np.sum(np.abs(np.linalg.eigvals(h.Phi) - 1.0) < 1e-9))
+    m = stack_margins(controller, PlantStack.of([DiscretePlant(h.Phi, h.Gamma, sign * h.C, h.d, rate_hz)]),
+                      integrators=integrators)[0]
+    ms, pm = m.Ms, m.phase_margin_deg
     return stable, ms, pm
 
 

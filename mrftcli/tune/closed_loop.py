@@ -276,8 +276,8 @@ class PlantStack:
 
     Attributes
     ----------
-    Phi : (M, 3, 3); Gamma : (M, 2, 3) (rows Gamma_a, Gamma_b); C : (M, 3); d : (M,) delay [ticks]
-        As in :class:`DiscretePlant`.
+    Phi : (M, n, n); Gamma : (M, 2, n) (rows Gamma_a, Gamma_b); C : (M, n); d : (M,) delay [ticks]
+        As in :class:`DiscretePlant` (eq. (2)'s n = 3, another family's its realisation's order).
     """
 
     Phi: np.ndarray
@@ -291,7 +291,7 @@ class PlantStack:
         """Stack ``plants`` (a non-empty sequence)."""
         Phi = np.stack([p.Phi for p in plants])
         return cls(Phi, np.stack([p.Gamma for p in plants]), np.stack([p.C for p in plants]),
-                   np.array([p.d for p in plants], int), not np.any(np.tril(Phi, -1) != 0.0))
+                   np.array([p.d for p in plants], int), Phi.shape[-1] == 3 and not np.any(np.tril(Phi, -1) != 0.0))
 
     def take(self, index: np.ndarray) -> "PlantStack":
         """The plants at ``index`` (repeats allowed)."""
@@ -304,8 +304,8 @@ class PlantStack:
         or C (z I - Phi)^{-1} (Gamma_a + Gamma_b) (not ``delayed``: a constant input over each whole
         period, the load disturbance of :func:`responses`). The delay is the phase term z^{-d} and the
         fractional part of the delay is in Gamma_a, Gamma_b (:func:`discrete_plants`), so the cost does not
-        depend on d. Phi is upper triangular (eq. (2)'s state matrix is), so (z I - Phi)^{-1} is a back
-        substitution. ``z``: points of the z-plane (e^{j omega T} for a frequency response, omega in rad/s).
+        depend on d. Eq. (2)'s Phi is upper triangular, so (z I - Phi)^{-1} is a back substitution (another
+        plant's: a solve). ``z``: points of the z-plane (e^{j omega T} for a frequency response, omega in rad/s).
         """
         return self.transfers(z)[0 if delayed else 1]
 
@@ -319,12 +319,13 @@ class PlantStack:
         return (xb + xa / z) * delay, xa + xb
 
     def _resolvent(self, z: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """C (z I - Phi)^{-1} b for each plant (b: (M, 3)) at the points z (1 or M, W)."""
+        """C (z I - Phi)^{-1} b for each plant (b: (M, n)) at the points z (1 or M, W)."""
         Phi, C = self.Phi, self.C
         if not self.triangular:  # not the triangular form of eq. (2): a general solve
+            n = Phi.shape[-1]
             zz = np.broadcast_to(z, (Phi.shape[0], z.shape[-1]))
-            rhs = np.broadcast_to(b[:, None, :, None], zz.shape + (3, 1))
-            x = np.linalg.solve(zz[..., None, None] * np.eye(3) - Phi[:, None], rhs)[..., 0]
+            rhs = np.broadcast_to(b[:, None, :, None], zz.shape + (n, 1))
+            x = np.linalg.solve(zz[..., None, None] * np.eye(n) - Phi[:, None], rhs)[..., 0]
             return np.einsum("mwi,mi->mw", x, C)
         x2 = b[:, 2, None] / (z - Phi[:, 2, 2, None])
         x1 = (b[:, 1, None] + Phi[:, 1, 2, None] * x2) / (z - Phi[:, 1, 1, None])

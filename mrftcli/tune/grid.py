@@ -14,7 +14,9 @@ and returns the one :class:`~mrftcli.tune.design.TuneResult` record. What a mode
   controller, the translational dynamics, both delays);
 * the controller is :class:`~mrftcli.mrft.controller.Controller` (parallel PID, derivative on the
   measurement through Tf = Td_c / ``FILTER_N``, backward differences); the loop's figures are
-  :func:`~mrftcli.tune.closed_loop.closed_loop_matrix` and :func:`sampled_margins` (one implementation of each);
+  :func:`~mrftcli.tune.closed_loop.closed_loop_matrix` and eq. (2)'s margins
+  (:func:`~mrftcli.tune.margins.stack_margins`: the crossings refined on the exact response, stability the
+  Nyquist criterion with the plant's integrators and unstable poles counted), one implementation of each;
 * for each kind, on a grid of integral times Ti (PI, PID) and derivative times Td_c (PD, PID), the
   largest Kp that keeps every model (the nominal one for ``model-based``; the nominal and the draws for
   ``robust``) stable with Ms <= ``ms_max`` and a phase margin >= ``pm_min_deg``; of those, the least IAE
@@ -22,13 +24,11 @@ and returns the one :class:`~mrftcli.tune.design.TuneResult` record. What a mode
   loop rejects; Astrom-Hagglund's criterion), of a unit setpoint step for a PD.
 
 The families' grid is scaled by the nominal plant's ultimate period Tu (PD offered on integrating plants
-only: on a self-regulating plant a PD leaves a steady error); their stability is the Nyquist criterion
-just outside the unit circle, their figures on a finer grid. The cascade's outer loop (the outer plant
-has an integrator) is a PD with Td_c on a grid in seconds, its stability the closed loop's spectral
-radius, its IAE that of a unit setpoint step.
+only: on a self-regulating plant a PD leaves a steady error). The cascade's outer loop (the outer plant
+has an integrator) is a PD with Td_c on a grid in seconds, its IAE that of a unit setpoint step.
 
-What the record holds for these designs: the nominal margins (gain and phase margin, Ms, the first
-gain crossover as ``w_gc``, stability; the delay margin and the phase crossover are not computed: NaN),
+What the record holds for these designs: the nominal margins (gain and phase margin, Ms, the crossover of
+the phase margin as ``w_gc``, stability; the delay margin and the phase crossover are not recorded: NaN),
 the worst of each figure over the nominal model and the draws in ``posterior["worst"]``, no step
 figures (NaN), the criterion and its definition; a family's ultimate period in ``rule_cycle``.
 
@@ -48,13 +48,12 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..mrft.cascade import CascadeModel, DiscreteStateSpace
 from ..mrft.model import PlantModel
-from .closed_loop import (Controller, DiscretePlant, StepMetrics, augmented, closed_loop_matrix, held_delay,
+from .closed_loop import (Controller, DiscretePlant, PlantStack, StepMetrics, augmented, closed_loop_matrix, held_delay,
                           step_outputs)
 from .design import FILTER_N, Design, DesignOptions, TuneResult
-from .margins import Margins
+from .margins import LoopMargins, Margins, margin_grid, stack_margins
 
-__all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "sampled_margins",
-           "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
+__all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
 #: the controllers designed (PD on integrating plants only)
 GRID_KINDS = ("PI", "PID", "PD")
@@ -69,10 +68,8 @@ _TDC_GRID = np.geomspace(0.02, 0.5, 8)  # derivative times Td_c, in Tu
 _PID_TDC_GRID = np.geomspace(0.03, 0.3, 5)
 _LOAD_PERIODS = 20.0  # horizon of the load step, in Tu (integral action is slow)
 _STEP_PERIODS = 8.0  # horizon of a PD's setpoint step, in Tu
-#: frequency points of the search's constraint checks and of the reported margins (log-spaced)
-_SEARCH_POINTS, _FIGURE_POINTS = 400, 3000
-#: the stability contour's radius above 1: closed-loop poles within it of the unit circle count as stable
-_CONTOUR_MARGIN = 1e-6
+#: a pole of the discrete plant within this of z = 1 is an integrator's, beyond 1 + this outside the unit circle
+_POLE_TOL = 1e-9
 #: delay-augmented loops above this order are stepped as sparse matrices (the doubling's products cost N^3)
 _DENSE_ORDER = 64
 FloatArray = NDArray[np.float64]
@@ -100,15 +97,8 @@ def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[
     """G_d(e^{j omega T}) of :func:`discretise` [output / command], ``omega`` in rad/s, without the delay
     buffer's states: C (zI - Phi)^-1 (G_new + G_old / z) z^-d (fast on long delays)."""
     w = np.atleast_1d(np.asarray(omega, float))
-    return _response_at(held_delay(model, rate_hz), np.exp(1j * w / rate_hz)).reshape(np.shape(omega))
-
-
-def _response_at(h: DiscretePlant, z: NDArray[np.complex128]) -> NDArray[np.complex128]:
-    """G_d(z) at any points z (the unit circle, or the stability contour just outside it)."""
-    M = z[:, None, None] * np.eye(h.Phi.shape[0])[None] - h.Phi[None]
-    rhs = (h.Gamma[1][None, :] + h.Gamma[0][None, :] / z[:, None])[..., None]
-    out: NDArray[np.complex128] = (np.linalg.solve(M, rhs)[..., 0] @ h.C) * z ** (-h.d)
-    return out
+    out: NDArray[np.complex128] = PlantStack.of([held_delay(model, rate_hz)]).transfer(np.exp(1j * w / rate_hz))[0]
+    return out.reshape(np.shape(omega))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -182,38 +172,6 @@ def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed:
 # ----------------------------------------------------------------------------------------------
 # the sampled loop and its figures
 # ----------------------------------------------------------------------------------------------
-def sampled_margins(c: Controller, Gd: NDArray[np.complex128],
-                    omega: FloatArray) -> list[tuple[float, float, float, float]]:
-    """(phase margin [deg], gain margin, Ms, crossover [Hz]) per row of ``Gd`` (G_d(e^{j omega T}) on ``omega``).
-
-    On the grid: the gain crossovers are where |L| falls through 1 (the least phase margin of them),
-    the phase crossovers where the unwrapped phase passes an odd multiple of -180 deg.
-
-    Not :func:`mrftcli.tune.margins.loop_margins` (eq. (2)'s, refined to the crossing, the gain margin
-    the crossing closest to 1): the grid search's constraints are these figures, so that one would move
-    the families' gains (a fopdt PI's PM 52.36 here, 52.42 refined; eq. (2)'s PID GM 0.08 here, from
-    the low-frequency crossing, 1.32 there).
-    """
-    return loop_figures(c.feedback_response(omega)[None, :] * Gd, omega)
-
-
-def loop_figures(L: NDArray[np.complex128], omega: FloatArray) -> list[tuple[float, float, float, float]]:
-    """:func:`sampled_margins` of the sampled loop ``L`` itself (a row per model, on ``omega`` [rad/s])."""
-    mag = np.abs(L)
-    ms = np.max(1.0 / np.abs(1.0 + L), axis=1)
-    cross = (mag[:, :-1] >= 1.0) & (mag[:, 1:] < 1.0)
-    pm_at = 180.0 + np.degrees(np.angle(L))  # arg L in (-180, 180]: the margin in (0, 360]
-    pm_at = np.where(pm_at > 180.0, pm_at - 360.0, pm_at)  # a lead past 180 deg is a lag: (-180, 180]
-    pm_at = np.minimum(pm_at[:, :-1], pm_at[:, 1:])  # the grid points either side of the crossover: the lesser
-    pm = np.min(np.where(cross, pm_at, np.inf), axis=1)
-    turns = np.floor((np.unwrap(np.angle(L), axis=1) + math.pi) / (2 * math.pi))
-    phase_cross = np.diff(turns, axis=1) != 0
-    gm = np.min(np.where(phase_cross, 1.0 / np.maximum(mag[:, :-1], 1e-300), np.inf), axis=1)
-    first = np.argmax(cross, axis=1)
-    wc = np.where(cross.any(axis=1), omega[first] / (2 * math.pi), np.nan)
-    return [(float(a), float(b), float(m), float(w)) for a, b, m, w in zip(pm, gm, ms, wc)]
-
-
 def _stepped(A: FloatArray, B: FloatArray, Cy: FloatArray, count: int) -> FloatArray:
     """As :func:`step_outputs`, tick by tick with A sparse (a long delay's shift chain is mostly zeros)."""
     from scipy.sparse import csr_matrix
@@ -241,74 +199,47 @@ def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) ->
     return total if math.isfinite(total) else math.inf
 
 
-def _stability_contour(d_max: int) -> NDArray[np.complex128]:
-    """The upper half of the circle |z| = 1 + ``_CONTOUR_MARGIN``, from z real > 1 to z real < -1, dense
-    near z = 1 (where an integrator's pole sits just inside) and enough points for the delay's turns."""
-    theta = np.concatenate([[0.0], np.geomspace(1e-9, 1e-2, 300, endpoint=False),
-                            np.linspace(1e-2, math.pi, max(1500, 12 * (d_max + 4)))])
-    contour: NDArray[np.complex128] = np.asarray((1.0 + _CONTOUR_MARGIN) * np.exp(1j * theta), dtype=np.complex128)
-    return contour
-
-
-@dataclass(frozen=True)
-class _Nyquist:
-    """G_d of every model on the stability contour (:func:`_stability_contour`) and each plant's poles outside it."""
-
-    contour: NDArray[np.complex128]
-    on_contour: NDArray[np.complex128]
-    unstable: NDArray[np.int64]
-
-
 @dataclass(frozen=True)
 class _Plants:
-    """The nominal discrete plant and every model the constraints hold on, with their responses on the
-    search's grid ``omega`` and on the reported figures' grid ``fine_omega`` [rad/s]; ``nyquist`` None:
-    stability is the closed loop's spectral radius (the cascade's)."""
+    """The nominal discrete plant and every model the constraints hold on (``all``: the IAE's state spaces), and
+    the same plants (the gain's sign applied) for :func:`~mrftcli.tune.margins.stack_margins`: ``stack``, each
+    plant's poles at z = 1 (``integrators``) and outside the unit circle (``unstable``), and their transfer on
+    :func:`~mrftcli.tune.margins.margin_grid` (``response``: the same for every controller tried)."""
 
     nominal: DiscreteStateSpace
     all: tuple[DiscreteStateSpace, ...]
-    Gd: NDArray[np.complex128]
-    omega: FloatArray
-    fine: NDArray[np.complex128]
-    fine_omega: FloatArray
-    nyquist: _Nyquist | None = None
+    stack: PlantStack
+    integrators: NDArray[np.int64]
+    unstable: NDArray[np.int64]
+    response: NDArray[np.complex128]
 
-    def stable(self, c: Controller, count: int | None = None) -> NDArray[np.bool_]:
-        """Is each closed loop (of the first ``count`` models) stable?
+    @classmethod
+    def of(cls, plants: Sequence[DiscretePlant], sign: float = 1.0,
+           ss: Sequence[DiscreteStateSpace] | None = None) -> "_Plants":
+        """The plants ``plants`` (held delays at one rate; the gain's ``sign`` applied); ``ss`` their state spaces
+        (None: :func:`~mrftcli.tune.closed_loop.augmented`)."""
+        held = [DiscretePlant(h.Phi, h.Gamma, sign * h.C, h.d, h.rate_hz) for h in plants]
+        ss = tuple(ss) if ss is not None else tuple(augmented(h) for h in held)
+        stack = PlantStack.of(held)
+        poles = [np.linalg.eigvals(h.Phi) for h in held]
+        at_one = np.array([int(np.sum(np.abs(p - 1.0) < _POLE_TOL)) for p in poles])
+        outside = np.array([int(np.sum((np.abs(p) > 1.0 + _POLE_TOL) & (np.abs(p - 1.0) >= _POLE_TOL))) for p in poles])
+        rate = held[0].rate_hz
+        w = margin_grid(rate, int(stack.d.max()))
+        return cls(ss[0], ss, stack, at_one, outside, stack.transfer(np.exp(1j * w / rate)))
 
-        The Nyquist criterion on the contour just outside the unit circle: 1 + L(z) has as many zeros as
-        poles (L strictly proper), so the closed-loop poles outside the contour number P - W: P the
-        plant's poles outside it, W the winding of 1 + L(z) about 0 as z goes round the contour once
-        (twice the half turn: the coefficients are real). Stable: W = P. The controller's integrator
-        (z = 1) and the delay's poles (z = 0) lie inside. Exact, and linear in the delay where the
-        eigenvalues of the delay-augmented loop cost its cube; it is run on gains that already passed
-        the Ms check, so 1 + L stays away from 0 and the sampled phase follows it. Without ``nyquist``:
-        the eigenvalues of :func:`closed_loop_matrix`.
-        """
-        rows = slice(count)
-        if self.nyquist is None:
-            return np.array([np.max(np.abs(np.linalg.eigvals(closed_loop_matrix(ss, c)[0]))) < 1.0 - 1e-9
-                             for ss in self.all[rows]], dtype=bool)
-        z = self.nyquist.contour
-        F = 1.0 + c.feedback_at(z)[None, :] * self.nyquist.on_contour[rows]
-        turns = np.diff(np.unwrap(np.angle(F), axis=1)[:, [0, -1]], axis=1)[:, 0] / math.pi
-        stable: NDArray[np.bool_] = np.round(turns).astype(np.int64) == self.nyquist.unstable[rows]
-        return stable
+    def margins(self, c: Controller, search: bool = False) -> LoopMargins:
+        """:func:`~mrftcli.tune.margins.stack_margins` of ``c`` on every model (``search``: the constraints only)."""
+        return stack_margins(c, self.stack, (), self.integrators, self.unstable, self.response, search)
 
     def ok(self, c: Controller, o: DesignOptions) -> bool:
-        """The constraints on every model: the frequency figures first, stability only if they hold."""
-        L = c.feedback_response(self.omega)[None, :] * self.Gd
-        if float(np.max(1.0 / np.abs(1.0 + L))) > o.ms_max:  # the cheap figure first: most gains tried fail it
+        """The constraints on every model: stable, Ms <= ``ms_max``, phase margin >= ``pm_min_deg``."""
+        w = margin_grid(c.rate_hz, int(self.stack.d.max()))
+        # the cheap figure first (most gains tried fail it): Ms on the grid, which the refined Ms is at least
+        if float(np.max(1.0 / np.abs(1.0 + c.feedback_response(w)[None, :] * self.response))) > o.ms_max:
             return False
-        if not all(pm >= o.pm_min_deg for pm, _, _, _ in loop_figures(L, self.omega)):  # the same L, not rebuilt
-            return False
-        return bool(np.all(self.stable(c)))
-
-    def margins(self, c: Controller, count: int) -> list[tuple[float, float, float, float, bool]]:
-        """(phase margin [deg], gain margin, Ms, first crossover [Hz], stable) of the first ``count`` models."""
-        stable = self.stable(c, count)
-        return [(pm, gm, ms, wc, bool(ok)) for ok, (pm, gm, ms, wc)
-                in zip(stable, sampled_margins(c, self.fine[:count], self.fine_omega))]
+        m = self.margins(c, search=True)
+        return bool(np.all(m.stable) and np.all(m.Ms <= o.ms_max) and np.all(m.phase_margin_deg >= o.pm_min_deg))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -435,7 +366,9 @@ def _design(name: str, kind: str, p: _Plants, st: _Strategy, o: DesignOptions) -
     if best is None:
         return None
     J, c = best
-    rows = p.margins(c, len(p.all))  # row 0 the nominal: each row's figures are its own
+    m = p.margins(c)  # row 0 the nominal: each row's figures are its own
+    rows = [(float(m.phase_margin_deg[i]), float(m.gain_margin[i]), float(m.Ms[i]), float(m.w_gc[i]) / (2 * math.pi),
+             bool(m.stable[i])) for i in range(len(m))]
     worst = _worst(rows) if len(rows) > 1 else None
     return design_record(name, c, rows[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
                          "load step" if load else "setpoint step")
@@ -452,26 +385,25 @@ def _search(model: PlantModel, draws: Sequence[PlantModel], kinds: Sequence[str]
     return [_design(name, kind, p, st, o) for kind in kinds for name, p in sets]
 
 
-def _family_plants(rate_hz: float, sign: float, w_low: float) -> Callable[[Sequence[PlantModel]], _Plants]:
+def _family_plants(rate_hz: float, sign: float) -> Callable[[Sequence[PlantModel]], _Plants]:
     def plants(models: Sequence[PlantModel]) -> _Plants:
-        held = [held_delay(m, rate_hz) for m in models]  # each model's held delay once
-        ss = tuple(_scaled(augmented(h), sign) for h in held)
-        grids = [np.geomspace(w_low, 0.999 * math.pi * rate_hz, n) for n in (_SEARCH_POINTS, _FIGURE_POINTS)]
-        Gd, fine = (np.array([sign * _response_at(h, np.exp(1j * w / rate_hz)) for h in held]) for w in grids)
-        contour = _stability_contour(max(h.d for h in held))
-        on_contour = np.array([sign * _response_at(h, contour) for h in held])
-        unstable = np.array([int(np.sum(np.abs(np.linalg.eigvals(h.Phi)) > 1.0 + _CONTOUR_MARGIN)) for h in held])
-        return _Plants(ss[0], ss, Gd, grids[0], fine, grids[1], _Nyquist(contour, on_contour, unstable))
+        return _Plants.of([held_delay(m, rate_hz) for m in models], sign)  # each model's held delay once
     return plants
 
 
 def _cascade_plants(rate_hz: float) -> Callable[[Sequence[PlantModel]], _Plants]:
-    omega = np.geomspace(1e-2, 0.999 * math.pi * rate_hz, 600)
-
     def plants(models: Sequence[PlantModel]) -> _Plants:
-        ss = tuple(m.discrete_realisation(rate_hz) for m in models if isinstance(m, CascadeModel))
-        Gd = np.array([s.frequency_response(omega) for s in ss])
-        return _Plants(ss[0], ss, Gd, omega, Gd, omega)
+        # the exact sampled cascade (its delays are states): a held delay of no whole tick, all of the input new,
+        # padded with states at rest to the largest order of the draws (one stack; the transfer is the same)
+        ss = [m.discrete_realisation(rate_hz) for m in models if isinstance(m, CascadeModel)]
+        n = max(s.Phi.shape[0] for s in ss)
+
+        def held(s: DiscreteStateSpace) -> DiscretePlant:
+            Phi, Gamma, C = np.zeros((n, n)), np.zeros((2, n)), np.zeros(n)
+            k = s.Phi.shape[0]
+            Phi[:k, :k], Gamma[1, :k], C[:k] = s.Phi, s.Gamma, s.C
+            return DiscretePlant(Phi, Gamma, C, 0, rate_hz)
+        return _Plants.of([held(s) for s in ss], ss=ss)
     return plants
 
 
@@ -507,10 +439,6 @@ def _ultimate(model: PlantModel, rate_hz: float, sign: float) -> float:
     phase -= 2 * math.pi * round(float(phase[0]) / (2 * math.pi))  # start in (-pi, pi]
     below = np.nonzero(phase <= -math.pi)[0]
     return float(omega[below[0]]) if below.size else float(omega[-1])
-
-
-def _scaled(ss: DiscreteStateSpace, sign: float) -> DiscreteStateSpace:
-    return DiscreteStateSpace(ss.Phi, ss.Gamma, sign * ss.C, ss.rate_hz)
 
 
 def _integrators(model: PlantModel) -> int:
@@ -598,7 +526,7 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     wu = _ultimate(model, rate_hz, sign)
     tu = 2 * math.pi / wu
     ku = 1.0 / max(float(np.abs(discrete_response(model, rate_hz, np.array([wu])))[0]), 1e-300)
-    st = _Strategy(_family_plants(rate_hz, sign, min(1e-3 * wu, 0.1 * rate_hz)), _family_candidates(tu, rate_hz),
+    st = _Strategy(_family_plants(rate_hz, sign), _family_candidates(tu, rate_hz),
                    np.geomspace(1e-4 * ku, 10.0 * ku, 21)[::-1],
                    {"PI": _LOAD_PERIODS * tu, "PID": _LOAD_PERIODS * tu, "PD": _STEP_PERIODS * tu})
     designs = [d for d in _search(model, draws, kinds, st, options) if d is not None]

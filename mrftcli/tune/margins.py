@@ -34,7 +34,8 @@ from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plants, plants_of_parameters
 
-__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "sensitivity_peaks",
+__all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "stack_margins",
+           "sensitivity_peaks",
            "frequency_grid", "margin_grid", "plant_response", "nyquist_stable",
            "phase_margins", "gain_margins"]
 
@@ -248,17 +249,20 @@ def _crossings(sign_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rows, k
 
 
-def nyquist_stable(m: int, L: np.ndarray) -> np.ndarray:
-    """Nyquist criterion on the unit circle (open loop: poles inside, ``m`` integrators at z = 1 indented), per
-    row of the loop ``L`` on :func:`margin_grid`-like frequencies up to Nyquist.
+def nyquist_stable(m: Any, L: np.ndarray, unstable: Any = 0) -> np.ndarray:
+    """Nyquist criterion on the unit circle (open loop: ``m`` integrators at z = 1 indented, ``unstable`` poles
+    outside the circle, the others inside; each a number or one per row), per row of the loop ``L`` on
+    :func:`margin_grid`-like frequencies up to Nyquist.
 
     Going round the circle from z = 1+ to 1- and round z = 1 outside, the winding of 1 + L about 0 is
     (2 Delta arg_{(0, pi)} (1 + L) - m pi) / 2 pi (L is real on the real axis and conjugate-symmetric;
-    the arc about z = 1, where L ~ c / (z - 1)^m, turns it by -m pi). Stable: no winding.
+    the arc about z = 1, where L ~ c / (z - 1)^m, turns it by -m pi). 1 + L has as many zeros as poles
+    (L strictly proper), so the closed-loop poles outside number ``unstable`` minus the winding. Stable:
+    the winding is ``unstable`` (none for every plant but a declared unstable one).
     """
     ph = np.unwrap(np.angle(1.0 + L), axis=-1)
     winding = (2.0 * (ph[:, -1] - ph[:, 0]) - m * math.pi) / (2.0 * math.pi)
-    return np.rint(winding) == 0
+    return np.asarray(np.rint(winding) == unstable)
 
 
 def loop_margins(controller: Controller, models: Sequence[LoopModel],
@@ -282,17 +286,34 @@ def loop_margins(controller: Controller, models: Sequence[LoopModel],
     """
     models = list(models)
     plants = as_discrete(plants if plants is not None else models, controller.rate_hz)
-    M = len(plants)
-    stack = PlantStack.of(plants)
+    return stack_margins(controller, PlantStack.of(plants), models)
+
+
+def stack_margins(controller: Controller, stack: PlantStack, models: Sequence[LoopModel] = (), integrators: Any = 1,
+                  unstable: Any = 0, response: np.ndarray | None = None, search: bool = False) -> LoopMargins:
+    """:func:`loop_margins` of the loops on the discrete plants ``stack`` of any family (eq. (2)'s or another's).
+
+    ``integrators`` and ``unstable``: the plants' poles at z = 1 and outside the unit circle (a number, or one per
+    plant: :func:`nyquist_stable`); eq. (2)'s plant has one integrator. ``models``: eq. (2)'s models of the plants,
+    for the delay margin (empty: NaN, another family's). ``response``: the plants' transfer on :func:`margin_grid`
+    (a search that tries many controllers on the same plants computes it once). ``search``: a search's
+    constraints only (stability, the phase margin, Ms on the grid; no gain margin: inf).
+    """
+    M = int(stack.d.size)
     w = margin_grid(controller.rate_hz, int(stack.d.max()))
     lw = np.log(w)
-    L = controller.feedback_response(w)[None, :] * stack.transfer(np.exp(1j * w / controller.rate_hz))
+    if response is None:
+        response = stack.transfer(np.exp(1j * w / controller.rate_hz))
+    L = controller.feedback_response(w)[None, :] * response
     loop = _Loop(controller, stack)
-    stable = nyquist_stable(1 + (controller.Ki > 0), L)  # the plant's integrator, and the controller's
+    stable = nyquist_stable(integrators + (controller.Ki > 0), L, unstable)  # the plant's integrators and the controller's
     pm, wgc, cand = phase_margins(loop.at, L, lw, M)
+    if search:
+        inf = np.full(M, np.inf)
+        return LoopMargins(inf, pm, inf, np.where(stable, np.max(1.0 / np.abs(1.0 + L), axis=-1), np.inf), wgc, inf, stable)
     gm, wpc = gain_margins(loop.at, L, lw, M)
     Ms = sensitivity_peaks(lambda rows, x: loop.at(rows, x, stack), L, lw)
-    dm = _delay_margins(loop, models, cand, stable, M)
+    dm = _delay_margins(loop, models, cand, stable, M) if models else np.full(M, np.nan)
     Ms = np.where(stable, Ms, np.inf)
     return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
 
@@ -312,6 +333,8 @@ def phase_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, e
     x = root(lambda x: np.log(np.abs(at(rows, x))), lw[k], lw[k + 1])
     pm_all = np.remainder(np.degrees(np.angle(at(rows, x))), 360.0) - 180.0
     pick = _first_per_row(rows, np.abs(pm_all), M)
+    if not rows.size:  # no loop crosses |L| = 1 (a low gain of a search)
+        return np.full(M, np.inf), np.full(M, np.nan), (rows, x, pm_all)
     has = pick >= 0
     pm = np.where(has, pm_all[pick], np.inf)
     wgc = np.where(has, exp(x[pick]), np.nan)
@@ -331,6 +354,8 @@ def gain_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, ex
     with np.errstate(divide="ignore"):
         gm_all = 1.0 / np.abs(Lx[neg])
         pick = _first_per_row(rows, np.abs(np.log(gm_all)), M)
+    if not rows.size:  # no loop crosses the negative real axis
+        return np.full(M, np.inf), np.full(M, np.nan)
     has = pick >= 0
     return np.where(has, gm_all[pick], np.inf), np.where(has, exp(x[pick]), np.nan)
 

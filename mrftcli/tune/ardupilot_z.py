@@ -211,17 +211,16 @@ def _paths_of(rows: Sequence[tuple[LoopModel, DelaySplit]], rate_hz: float) -> _
 
 def cascade_loop(g: ZCascadeGains, paths: _Paths, z: np.ndarray) -> np.ndarray:
     """L at the points ``z`` ((1, W) for all rows, or (R, 1) with ``paths`` taken to R rows): shape (rows, W)."""
-    parts = _Parts(z, g.rate_hz, paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z), cached=False)
+    parts = _Parts(z, g.rate_hz, paths.acc.transfer(z), paths.vel.transfer(z), paths.alt.transfer(z))
     return np.asarray(_loop_of(g, parts), complex)
 
 
 class _Parts:
     """The loop's factors at ``z``: the plant's three responses (G_a, G_v, G_z) and the filters, by
-    ``part(key, value)`` (``cached``: kept across gains, the search's)."""
+    ``part(key, value)`` (kept across gains: the search's cache)."""
 
-    def __init__(self, z: np.ndarray, rate_hz: float, Ga: np.ndarray, Gv: np.ndarray, Gz: np.ndarray,
-                 cached: bool = True) -> None:
-        self.z, self.rate_hz, self.Ga, self.Gv, self.Gz, self.cached = z, rate_hz, Ga, Gv, Gz, cached
+    def __init__(self, z: np.ndarray, rate_hz: float, Ga: np.ndarray, Gv: np.ndarray, Gz: np.ndarray) -> None:
+        self.z, self.rate_hz, self.Ga, self.Gv, self.Gz = z, rate_hz, Ga, Gv, Gz
         self._cache: dict[tuple[str, float], np.ndarray] = {}
 
     def part(self, key: str, value: float) -> np.ndarray:
@@ -236,8 +235,7 @@ class _Parts:
             out = RateFilter(value).response(z, r) * self.Ga
         else:
             out = _first_order(value, r, z)
-        if self.cached:
-            self._cache[k] = out
+        self._cache[k] = out
         return out
 
 

@@ -360,7 +360,7 @@ def _loop_controller(p: dict[str, float], c: Controller, loop: str, stack: str,
         pz, pv, iv = p[ratio], p[gain], p[integral]
         return Controller(s * (pv * pz + iv), s * iv * pz, s * pv, c.Tf, c.rate_hz, c.rate_filter)
     # PX4's rate P acts times its MC_*RATE_K (ArduPilot has none)
-    pa, pr, ir = p[ratio], p[gain] * p.get(f"MC_{loop.upper()}RATE_K", 1.0), p[integral]
+    pa, pr, ir = p[ratio], p[gain] * (p[f"MC_{loop.upper()}RATE_K"] if stack == "px4" else 1.0), p[integral]
     return Controller(pr * pa + ir, ir * pa, pr, c.Tf, c.rate_hz, c.rate_filter)
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["to_jsonable", "check_schema_version", "json_float", "json_opt_float", "load_json_text", "load_toml_text", "load_yaml_text",
+__all__ = ["to_jsonable", "check_schema_version", "json_float", "json_opt_float", "finite_or_none", "load_json_text", "load_toml_text", "load_yaml_text",
            "MAX_JSON_DEPTH", "MAX_YAML_NODES"]
 
 
@@ -197,6 +197,11 @@ def json_float(x: object, what: str = "a number") -> float:
 def json_opt_float(x: object) -> float | None:
     """A JSON number or null as a float or None (TypeError on anything else)."""
     return None if x is None else json_float(x, "a number or null")
+
+
+def finite_or_none(x: float | None) -> float | None:
+    """``x`` as a float, or None when it is None or not finite (JSON has no inf or NaN: an undetermined std is null)."""
+    return float(x) if x is not None and math.isfinite(x) else None
 
 
 def check_schema_version(data: Any, what: str, supported: int | Collection[int], *, missing: int | None = None,

@@ -44,7 +44,8 @@ from ..mrft.model import PlantModel
 from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
-from .physics import Z_LIMIT, finite_or_none
+from ..jsonable import finite_or_none
+from .physics import Z_LIMIT
 from .records import CandidateFit, CycleErrors, Disagreement, EffectFinding, FinalModel, HeldOut, Unexplained
 from .scatter import scatter_z
 

@@ -77,13 +77,14 @@ from ..analyze.general import MeasuredTest, identify_points
 from ..analyze.smooth_cycle import peak_amplitude
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog, output_unit
+from ..jsonable import finite_or_none
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import lti_limit_cycle
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 
 __all__ = ["Effect", "Action", "OnTests", "LIBRARY", "CANDIDATES", "EFFECTS", "BY_NAME", "BIC_THRESHOLD", "Z_LIMIT",
-           "unit_in_loop", "finite_or_none", "EffectFit", "Selection", "TestData", "as_test_data", "peak_amplitude",
+           "unit_in_loop", "EffectFit", "Selection", "TestData", "as_test_data", "peak_amplitude",
            "select"]
 
 #: evidence needed to name an effect, every family: delta BIC above it ("very strong" on Kass-Raftery's scale)
@@ -732,11 +733,6 @@ class EffectFit:
                    tuple(num(x) for x in d.get("per_test_after", [])), tuple(str(v) for v in d.get("views", [])),
                    str(d.get("with", "")), float(d.get("floor", 0.0)),
                    {str(k): num(v) for k, v in d.get("refit", {}).items()})
-
-
-def finite_or_none(x: float) -> float | None:
-    """``x``, or None when it is not finite (JSON has no inf or NaN)."""
-    return x if math.isfinite(x) else None
 
 
 def _fit_one(model: PlantModel, tests: Sequence[TestData], kept: Sequence[tuple[Effect, float]], effect: Effect,

@@ -39,7 +39,6 @@ when the caller passes it.
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +47,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..jsonable import finite_or_none
 from .atomic import atomic_path
 
 __all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS", "ANALYSIS_ATTACHMENT"]
@@ -130,10 +130,6 @@ def _json_bytes(data: Mapping[str, object]) -> bytes:
     return json.dumps(to_jsonable(data), allow_nan=False).encode()
 
 
-def _finite(x: float | None) -> float | None:
-    return float(x) if x is not None and math.isfinite(float(x)) else None
-
-
 def _ns(t: float) -> int:
     return max(int(round(float(t) * 1e9)), 0)
 
@@ -153,8 +149,8 @@ def _fit_rows(fits: Sequence[OverlayFit]) -> list[tuple[int, int, bytes]]:
         out = np.asarray(fit.output, float)
         pred = np.asarray(fit.predicted, float)
         for ti, yo, yp in zip(t.tolist(), out.tolist(), pred.tolist()):
-            msg = {"output": _finite(yo), "predicted": _finite(yp),
-                   "residual": _finite(yo - yp), "test": int(fit.number)}
+            msg = {"output": finite_or_none(yo), "predicted": finite_or_none(yp),
+                   "residual": finite_or_none(yo - yp), "test": int(fit.number)}
             rows.append((_ns(ti), 0, json.dumps(msg, separators=(",", ":")).encode()))
     return rows
 
@@ -163,10 +159,10 @@ def _test_rows(tests: Sequence[OverlayTest]) -> list[tuple[int, int, bytes]]:
     """Four Test messages (channel 1) per test: a square pulse, 0 then 1 at its start, 1 then 0 at its end."""
     rows: list[tuple[int, int, bytes]] = []
     for test in tests:
-        base = {"test": test.number, "beta": _finite(test.beta), "beta_nominal": _finite(test.beta_nominal),
-                "h": float(test.h), "bias": float(test.bias), "frequency_hz": _finite(test.frequency_hz),
-                "amplitude": _finite(test.amplitude), "cycles": int(test.cycles), "t_start": float(test.t_start),
-                "t_end": float(test.t_end), "rms_residual": _finite(test.rms_residual)}
+        base = {"test": test.number, "beta": finite_or_none(test.beta), "beta_nominal": finite_or_none(test.beta_nominal),
+                "h": float(test.h), "bias": float(test.bias), "frequency_hz": finite_or_none(test.frequency_hz),
+                "amplitude": finite_or_none(test.amplitude), "cycles": int(test.cycles), "t_start": float(test.t_start),
+                "t_end": float(test.t_end), "rms_residual": finite_or_none(test.rms_residual)}
         for when, active in ((test.t_start, 0), (test.t_start, 1), (test.t_end, 1), (test.t_end, 0)):
             rows.append((_ns(when), 1, json.dumps({**base, "active": active}).encode()))
     return rows
@@ -198,9 +194,9 @@ def _parameter_values(parameters: Mapping[str, Mapping[str, float | None]],
     params: dict[str, float | None] = {}
     for n in names:
         p = parameters[n]
-        params[n] = _finite(p.get("value"))
+        params[n] = finite_or_none(p.get("value"))
         for k in ("std", "ci95_low", "ci95_high"):
-            params[f"{n}_{k}"] = _finite(p.get(k))
+            params[f"{n}_{k}"] = finite_or_none(p.get(k))
     return params
 
 

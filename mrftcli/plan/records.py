@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..jsonable import check_schema_version
+from ..jsonable import check_schema_version, finite_or_none
 from ..mrft.identify_lti import LtiIdentification
 from ..mrft.model import LoopModel, PlantModel, soiptd_model
 from ..mrft.relays import RelayLaw
@@ -322,7 +322,7 @@ class CandidateTest:
         if self.early_switch:
             out["early_switch"] = True
         if self.predicted_std is not None:
-            out["predicted_std"] = {k: _finite(v) for k, v in self.predicted_std.items()}
+            out["predicted_std"] = {k: finite_or_none(v) for k, v in self.predicted_std.items()}
         if self.score is not None:
             out["score"] = self.score
         if self.relay is not None:
@@ -493,13 +493,13 @@ class PlanResult:
             "model": self.model.to_json(),
             "rate_hz": self.rate_hz,
             "tests": [t.to_json() for t in self.tests],
-            "predicted_std": {k: _finite(v) for k, v in self.predicted_std.items()},
+            "predicted_std": {k: finite_or_none(v) for k, v in self.predicted_std.items()},
             "predicted_std_tests_only": self.predicted_std_data,
             "predicted_std_tests_only_range": {k: list(v) for k, v in self.predicted_std_data_range.items()},
             "simulated_std": self.simulated_std,
             "simulated_std_range": {k: list(v) for k, v in self.simulated_std_range.items()},
             "n_simulated": self.n_simulated,
-            "prior_std": {k: _finite(v) for k, v in self.prior_std.items()},
+            "prior_std": {k: finite_or_none(v) for k, v in self.prior_std.items()},
             "conventional": None if self.conventional is None else self.conventional.to_json(),
             "candidates": [c.to_json() for c in self.candidates],
             "notes": list(self.notes),
@@ -584,11 +584,6 @@ def _process_v1(data: Mapping[str, Any]) -> PlanResult:
                       assumptions=tuple(str(a) for a in data.get("assumptions", [])),
                       rate_hz=float(data["rate_hz"]), identification=ident,
                       undetermined=tuple(str(n) for n in data.get("undetermined", [])), why=str(data["why"]))
-
-
-def _finite(x: float) -> float | None:
-    """JSON has no infinity: an undetermined parameter's std is null."""
-    return x if math.isfinite(x) else None
 
 
 def _opt_float(value: Any) -> float | None:

@@ -322,9 +322,9 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
 
             if result.kind == "soiptd":
                 diagnosis = run_diagnosis(flight, model, analysis=result, progress=stage("diagnose"))
-            else:
-                diagnosis = run_diagnosis(flight, model, progress=stage("diagnose"), relay=options.relay,
-                                          windows=options.windows, min_stable_cycles=min_cycles,
+            else:  # the analysis made above, with the same options, instead of a second one
+                diagnosis = run_diagnosis(flight, model, analysis=result, progress=stage("diagnose"),
+                                          relay=options.relay, windows=options.windows, min_stable_cycles=min_cycles,
                                           baseline=options.baseline)
         index = None
         if report_dir:

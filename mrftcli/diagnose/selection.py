@@ -153,8 +153,10 @@ def diagnose(
     model : PlantModel
         The model to diagnose against, with its known parameters (set E) and ranges (set I).
     analysis : AnalysisResult, optional
-        Eq. (2): an analysis of the same flight already computed (its segmentation is reused and
-        its identification is reported beside the diagnosis' own fits).
+        An analysis of the same flight already computed. Eq. (2): its segmentation is reused and its
+        identification is reported beside the diagnosis' own fits; the other families: ``analyze
+        --model``'s record made with the same ``relay``, ``windows``, ``min_stable_cycles`` and
+        ``baseline``, used instead of identifying again.
     progress : Progress, optional
         Called as ``progress(done, total, stage)`` before each stage.
     candidates : tuple of str, optional
@@ -187,18 +189,20 @@ def diagnose(
     [('sensor_lag', 0.07)]
     """
     if not isinstance(model, LoopModel):
-        return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress, baseline)
+        return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress, baseline, analysis)
     return _diagnose_soiptd(flight, model, analysis, progress, candidates)
 
 
 def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                      windows: Sequence[tuple[float, float]], min_stable_cycles: int,
-                     progress: Progress | None, baseline: tuple[float | Signal, float] | None = None) -> DiagnosisResult:
+                     progress: Progress | None, baseline: tuple[float | Signal, float] | None = None,
+                     analysis: AnalysisResult | None = None) -> DiagnosisResult:
     """Every family but eq. (2): the analysis, the checks per test, the library of physics, the verdict."""
     say = _Stages(progress, 3)
     say("analysing the tests")
     stage = measure_tests(flight, relay, windows, min_stable_cycles)  # segmented once, for both uses
-    analysis = general_analysis(flight, model, stage, windows, baseline)
+    if analysis is None:  # else analyze's, made from the same measured tests
+        analysis = general_analysis(flight, model, stage, windows, baseline)
     by_index = {m.summary.index: m for m in stage if m.summary is not None}
     measured, skipped = {}, []
     for s in analysis.tests:

@@ -152,3 +152,15 @@ def test_csv_of_another_layout_names_command_topic(tmp_path: Path) -> None:
     lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "'/mrft/command'" in lines[0]
     assert "--command-topic" in lines[0] and "--output-topic" in lines[0]
+
+
+@pytest.mark.parametrize("argv", [["predict", "--tp", "0.1", "--td", "0.7042", "--tau", "0.06", "--beta", "-0.4"],
+                                  ["identify", "--tp", "0.1", "--test", "-0.4:0.70564", "--test", "-0.7:1.01884"],
+                                  ["topics", str(SAMPLES / "design1_altitude.csv")]])
+def test_json_into_a_new_folder_as_every_command(tmp_path: Path, argv: list[str]) -> None:
+    """predict, identify and topics --json into a folder not yet there: created, as analyze's, tune's, plan's...
+    (they said 'cannot write (No such file or directory)')."""
+    target = tmp_path / "new" / "out.json"
+    done = run_main(*argv, "--json", str(target))
+    assert done.returncode == 0, done.stderr
+    assert target.read_text().lstrip().startswith("{")

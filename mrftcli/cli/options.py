@@ -79,14 +79,15 @@ def dump_json(obj: Any, target: str | None) -> None:
     A file is written atomically (:func:`mrftcli.io.atomic.write_text_atomic`): a reader never sees
     half of it, and a failed write leaves the old file as it was (InputError naming the path).
     """
-    from ..io.atomic import check_output_path, looks_like_json, write_text_atomic
+    from ..io.atomic import write_text_atomic
 
     text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False)
     if target in (None, "-"):
         click.echo(text)
         return
-    # again at the write, for a command that did not check first: never through a link, never over a non-JSON file
-    check_output_path(target, "--json", ours=looks_like_json, what="a JSON document")
+    # again at the write, for a command that did not check first (predict, identify, topics): never through a
+    # link, never over a non-JSON file, its folder created as every command's is
+    check_output_file(target, "--json")
     try:
         write_text_atomic(target, text + "\n")
     except OSError as err:

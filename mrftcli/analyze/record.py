@@ -31,7 +31,7 @@ from ..mrft.cascade import CascadeModel
 from ..mrft.cascade_identify import CascadeIdentification
 from ..mrft.identify import IdentificationResult, ParameterEstimate
 from ..mrft.identify_lti import LtiIdentification
-from ..mrft.model import LoopModel
+from ..mrft.model import K_UNIT, LoopModel
 from ..mrft.refine import Refinement
 from ..mrft.relays import RelayLaw
 from ..segment import MrftTest
@@ -41,7 +41,7 @@ from .smooth_cycle import SwitchingLevel
 from .static_gain import StaticGain
 
 __all__ = ["AnalysisResult", "TestSummary", "LogInfo", "TpCheck",
-           "TP_VERDICTS", "SCHEMA_VERSION", "FAMILY_SCHEMA_VERSION", "CASCADE_SCHEMA_VERSION", "K_UNIT",
+           "TP_VERDICTS", "SCHEMA_VERSION", "FAMILY_SCHEMA_VERSION", "CASCADE_SCHEMA_VERSION",
            "analysis_controller_rate", "command_rate_of_result", "measured_noise_std"]
 
 #: Version of eq. (2)'s JSON layout of :meth:`AnalysisResult.to_json` (docs/records.md). 2 added ``noise``
@@ -103,8 +103,8 @@ def measured_noise_std(tests: Sequence[MrftTest]) -> float | None:
     cycles' fits (None when none was measured). What ``plan`` plans with, from a log or its JSON."""
     noise = [c.noise_std for t in tests for c in t.stable if np.isfinite(c.noise_std)]
     return float(np.median(noise)) if noise else None
-#: K's unit as the JSON states it.
-K_UNIT = "output units / (command unit s^2)"
+#: K's unit as the JSON stated it before it took the model's spelling (:data:`~mrftcli.mrft.model.K_UNIT`)
+_OLD_K_UNIT = "output units / (command unit s^2)"
 _JSONDict = dict[str, Any]
 
 
@@ -771,7 +771,7 @@ def _estimate(name: str, d: Mapping[str, Any]) -> ParameterEstimate:
     """One parameter of the JSON (this version's record, or ``mean`` before version 4)."""
     est = ParameterEstimate.from_json(name, d)
     # the record keeps K's unit as identify gives it (""); the JSON spells it out (K_UNIT)
-    return dataclasses.replace(est, unit="") if est.unit == K_UNIT else est
+    return dataclasses.replace(est, unit="") if est.unit in (K_UNIT, _OLD_K_UNIT) else est
 
 
 def _group(estimates: Mapping[str, ParameterEstimate], method: str) -> _JSONDict:

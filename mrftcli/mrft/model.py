@@ -43,7 +43,8 @@ if TYPE_CHECKING:
 
 __all__ = ["Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
            "model_family", "model_from_json", "SampledPlantModel", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
-           "json_bounds", "soiptd_model", "ParameterSpec", "SpecModel", "check_parameter_names", "spec_parameters"]
+           "json_bounds", "soiptd_model", "ParameterSpec", "SpecModel", "check_parameter_names", "spec_parameters",
+           "K_UNIT"]
 
 _INF = math.inf
 #: version of the JSON form of a model (``to_json`` / ``from_json``)
@@ -286,12 +287,14 @@ class SpecModel:
         return cls(**values, known=known, ranges=ranges)  # type: ignore[call-arg]
 
 
+#: eq. (2)'s K unit, the one spelling of every record (the model's, analyze's parameters, watch's lines)
+K_UNIT = "output / (command s^2)"
 #: eq. (2)'s parameters: unit, description, physical bounds
 _LOOP_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
     "Tp": ("s", "propulsion time constant", (0.0, _INF)),
     "Td": ("s", "drag (aerodynamic) time constant", (0.0, _INF)),
     "tau": ("s", "transport delay", (0.0, _INF)),
-    "K": ("output / (command s^2)", "gain; K Td is the static gain from command to output rate", (-_INF, _INF)),
+    "K": (K_UNIT, "gain; K Td is the static gain from command to output rate", (-_INF, _INF)),
 }
 
 

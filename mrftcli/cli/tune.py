@@ -247,12 +247,13 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
                    kind: str, json_target: str | None, ex: _ExportOptions) -> StackExport | None:
     """The table, or the chosen export (on stdout or --out), and every design as JSON with --json; returns the
     stack export (None: the table or the generic export)."""
+    from ..tune.analysis import recommended_design_name
     from ..tune.export import format_table, hear_json, px4_params
     from ..tune.stacks import ExportEvidence, export_design
 
     from ..mrft.model import LoopModel
 
-    name = design or ("robust" if any(d.name == "robust" for d in res.designs) else "model-based")
+    name = design or recommended_design_name(res)
     eq2 = isinstance(res.model, LoopModel)
     try:
         chosen = res.get(name, kind)

@@ -102,10 +102,10 @@ _PM_MIN_DEG = 30.0
 def recommended_design(result: TuneResult) -> tuple[str, str]:
     """The design and kind ``tune`` exports when no ``--design``/``--kind`` is given: robust (else
     model-based), PD (else the first kind designed)."""
-    names = {d.name for d in result.designs}
+    from ..tune.analysis import recommended_design_name
+
     kinds = [d.kind for d in result.designs]
-    name = "robust" if "robust" in names else "model-based"
-    return name, "PD" if "PD" in kinds else (kinds[0] if kinds else "PD")
+    return recommended_design_name(result), "PD" if "PD" in kinds else (kinds[0] if kinds else "PD")
 
 
 def _flag(d: Design, ms_max: float) -> str:

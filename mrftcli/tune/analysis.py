@@ -30,7 +30,7 @@ from ..mrft.model import LoopModel
 from .design import DesignOptions, Posterior, TuneResult, tune
 
 __all__ = ["posterior_from_analysis", "model_from_result_json", "tune_analysis",
-           "summary_figures", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES", "ASSUMED_RATE_HZ",
+           "summary_figures", "recommended_design_name", "NO_CORRELATION_NOTE", "SUMMARY_FIGURES", "ASSUMED_RATE_HZ",
            "RATE_ASSUMED_NOTE"]
 
 #: Controller rate [Hz] :func:`tune_analysis` assumes when neither the caller nor the analysis gives one.
@@ -121,6 +121,13 @@ def tune_analysis(result: AnalysisResult, *, kinds=("PD",), rate_hz: float | Non
     return res
 
 
+def recommended_design_name(res: TuneResult, kind: str | None = None) -> str:
+    """The design recommended when none is asked for (tune's export, its report, vehicle, the summary figures):
+    ``robust`` when the identification gave a posterior (a robust design of ``kind``; of any kind when None),
+    else ``model-based``."""
+    return "robust" if any(d.name == "robust" and kind in (None, d.kind) for d in res.designs) else "model-based"
+
+
 def summary_figures(res: TuneResult, kind: str = "PD") -> dict[str, Any]:
     """One design's gains and figures as flat ``tune_*`` values (:data:`SUMMARY_FIGURES`).
 
@@ -128,8 +135,7 @@ def summary_figures(res: TuneResult, kind: str = "PD") -> dict[str, Any]:
     CLI's export). Margins: nominal phase margin [deg], worst over the posterior's 95 % set, exact
     delay margin [ms], Ms (nominal and worst); step: overshoot [%] and 2 % settling time [s].
     """
-    names = [d.name for d in res.designs if d.kind == kind]
-    name = "robust" if "robust" in names else "model-based"
+    name = recommended_design_name(res, kind)
     d = res.get(name, kind)
     c, w = d.controller, (d.posterior.get("worst", {}) if d.posterior else {})
     return {"tune_design": name, "tune_kind": kind, "tune_Kp": c.Kp, "tune_Ki": c.Ki, "tune_Kd": c.Kd,

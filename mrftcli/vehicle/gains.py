@@ -24,7 +24,7 @@ from ..errors import InputError
 from ..mrft.cascade import InnerLoop
 from ..mrft.controller import Controller
 from ..segment import MrftTest
-from ..tune.analysis import tune_analysis
+from ..tune.analysis import recommended_design_name, tune_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
 from ..tune.grid import outer_draws
 from ..tune.stacks import ExportEvidence, StackSetting, check_exportable, export_design, stack_setting
@@ -122,7 +122,7 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
                         rate_filter=setting.rate_filter if setting is not None else None)
     if setting is not None and setting.notes:
         res = dataclasses.replace(res, notes=(*setting.notes, *res.notes))
-    design = _recommended(res)
+    design = recommended_design_name(res)
     gains = LoopGains(design, options.kind, res, export_refused=refused)
     st = options.stack
     if st is None or refused is not None:
@@ -134,11 +134,6 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
     return LoopGains(design, options.kind, res, export=export)
-
-
-def _recommended(res: TuneResult) -> str:
-    """The design recommended: ``robust`` when the identification gave a posterior, else ``model-based``."""
-    return "robust" if any(d.name == "robust" for d in res.designs) else "model-based"
 
 
 def _new_inner(analysis: AnalysisResult, inner: VehicleLoop) -> tuple[InnerLoop, str]:
@@ -177,7 +172,7 @@ def tune_outer(analysis: AnalysisResult, inner: VehicleLoop, options: TuneOption
     if stack not in (None, "generic"):
         refused = (f"the {analysis.loop} loop is designed on the cascade at the flight's rate, without "
                    f"{stack}'s rate filter: export its generic gains (--export generic)")
-    return LoopGains(_recommended(res), "PD", res, export_refused=refused)
+    return LoopGains(recommended_design_name(res), "PD", res, export_refused=refused)
 
 
 def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> dict[str, VehicleLoop]:

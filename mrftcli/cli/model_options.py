@@ -11,6 +11,7 @@ cascade (:func:`cascade_setup`) and runs the one analyze route; the maths is :mo
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import click
@@ -25,7 +26,7 @@ if TYPE_CHECKING:
 
 __all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_windows", "build_model", "format_estimates", "parameter_lines",
-           "format_combination", "cascade_options", "outer_options", "pop_cascade_options", "cascade_setup"]
+           "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -347,7 +348,24 @@ def format_combination(ident: LtiIdentification) -> list[str]:
             f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
 
 
-_KEYS = ("inner_model", "inner_gains", "outer_command", "inner_draws")
+@dataclass(frozen=True)
+class CascadeRequest:
+    """The cascade options as given (:func:`pop_cascade_options`).
+
+    Attributes
+    ----------
+    inner_model, inner_gains : str or None
+        The paths of the inner analysis and of the gains file (None: not given).
+    outer_command : str
+        ``"acceleration"``, ``"attitude"`` or ``"identify"``.
+    inner_draws : int
+        Draws of the inner model.
+    """
+
+    inner_model: str | None
+    inner_gains: str | None
+    outer_command: str
+    inner_draws: int
 
 
 def outer_options(needs: str, commands: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -380,24 +398,24 @@ def cascade_options(f: Callable[..., Any]) -> Callable[..., Any]:
     return f
 
 
-def pop_cascade_options(options: dict[str, Any]) -> dict[str, Any] | None:
+def pop_cascade_options(options: dict[str, Any]) -> CascadeRequest | None:
     """Take the cascade options out of a command's keyword arguments (the rest are the reader's): ``inner_model``
     and ``inner_gains`` (paths), ``outer_command`` and ``inner_draws``; None when neither file was given
     (the cascade route not asked for)."""
-    request = {k: options.pop(k, None) for k in _KEYS}
-    return request if request["inner_model"] is not None or request["inner_gains"] is not None else None
+    request = CascadeRequest(**{f.name: options.pop(f.name, None) for f in fields(CascadeRequest)})
+    return request if request.inner_model is not None or request.inner_gains is not None else None
 
 
-def _check(request: Mapping[str, Any], loop: str, unsupported: Mapping[str, Any]) -> str:
+def _check(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -> str:
     """The inner loop's name; one-line errors naming the option otherwise."""
     from ..mrft.cascade import INNER_LOOP_OF
 
     if loop not in INNER_LOOP_OF:
         raise click.UsageError(f"--inner-model and --inner-gains take an outer loop: --loop x or y (got --loop {loop})")
     inner = INNER_LOOP_OF[loop]
-    if request["inner_model"] is None:
+    if request.inner_model is None:
         raise click.UsageError(f"--inner-gains needs --inner-model RESULT.json: the {inner} loop's analyze --json result")
-    if request["inner_gains"] is None:
+    if request.inner_gains is None:
         raise click.UsageError(f"--inner-model needs --inner-gains GAINS.json: the gains the {inner} loop flew during "
                                f"the {loop} tests")
     used = [name for name, value in unsupported.items() if value]
@@ -406,7 +424,7 @@ def _check(request: Mapping[str, Any], loop: str, unsupported: Mapping[str, Any]
     return inner
 
 
-def cascade_setup(request: Mapping[str, Any], loop: str, unsupported: Mapping[str, Any]) -> tuple[Any, Any]:
+def cascade_setup(request: CascadeRequest, loop: str, unsupported: Mapping[str, Any]) -> tuple[Any, Any]:
     """The cascade to identify and its analysis options, from the inner analysis and the gains flown.
 
     ``analyze`` then runs the one route (:func:`mrftcli.analyze.analyze_flight`) and writes its outputs
@@ -417,13 +435,14 @@ def cascade_setup(request: Mapping[str, Any], loop: str, unsupported: Mapping[st
     from ..analyze.record import AnalysisResult
 
     inner_name = _check(request, loop, unsupported)
-    data = read_json_file(request["inner_model"], "--inner-model")
+    assert request.inner_model is not None and request.inner_gains is not None  # refused by _check
+    data = read_json_file(request.inner_model, "--inner-model")
     try:
         result = AnalysisResult.from_json(data)
     except InputError as err:  # the record's one line, with the option and file it came from
-        raise InputError(f"--inner-model {request['inner_model']}: {err}") from None
-    controller = inner_gains_of(read_json_file(request["inner_gains"], "--inner-gains"), inner_name)
+        raise InputError(f"--inner-model {request.inner_model}: {err}") from None
+    controller = inner_gains_of(read_json_file(request.inner_gains, "--inner-gains"), inner_name)
     inner = inner_loop_of(result, controller, inner_name)
-    return cascade_model(inner, request["outer_command"]), CascadeOptions(
-        draws=tuple(inner_draws(result, inner, request["inner_draws"])),
-        assumptions=(f"inner model from {request['inner_model']}",))
+    return cascade_model(inner, request.outer_command), CascadeOptions(
+        draws=tuple(inner_draws(result, inner, request.inner_draws)),
+        assumptions=(f"inner model from {request.inner_model}",))

@@ -213,6 +213,13 @@ def test_tp_outside_the_physical_range_is_refused_with_the_reason(logs, tp):
         analyze_flight(None, soiptd_model(float(tp)))  # refused before the flight is looked at
 
 
+def test_tp_with_a_process_model_is_refused_not_ignored(logs):
+    # review B5: --tp is eq. (2)'s; a process model's known parameters are --param (as diagnose and watch)
+    code, stdout, stderr = _invoke("analyze", str(logs / "two.mcap"), "--model", "fopdt", "--tp", "0.04")
+    assert code == 2 and stdout == "" and "--tp is eq. (2)'s" in stderr and "--param" in stderr
+    assert len(stderr.strip().splitlines()) == 1
+
+
 def test_format_option_is_honoured_by_every_log_reading_command(logs):
     # item 10: the "pass --format" advice works in analyze and diagnose
     for command in ("analyze", "diagnose", "plan", "watch", "tune"):

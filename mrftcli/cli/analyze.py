@@ -8,7 +8,7 @@ import click
 
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
-from .model_options import (baseline_option, build_model, cascade_options, cascade_setup, format_combination,
+from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination,
                             parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
                             soiptd_or_process, structure_options, window_option)
 from ..report.wording import output_unit, uncertainty_sentence
@@ -385,7 +385,7 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
                                    "or --model-file); eq. (2) integrates (no static gain)")
         return model, None
     else:
-        model, options = build_model(model_name, params, ranges), None
+        model, options = soiptd_or_process(Tp, model_name, params, ranges, relay_kind, eps), None  # --tp refused
     if paper_only:
         raise click.UsageError("--paper-only: " + _NO_PAPER_ONLY["cascade" if cascade is not None else "family"]
                                .format(family=model.family))

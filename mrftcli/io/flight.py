@@ -210,23 +210,15 @@ def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> 
     roles, decision = _decision_command(log, match.layout, opts, role_specs(match.layout, opts))
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
                                                 roles.battery) if s])
-    try:
-        cmd = _get_required(log, roles.command)
-    except LogReadError as err:
-        if opts.command_topic is not None or not loop_hint:  # the user's own topic: the message names it
-            raise
-        raise LogReadError(f"{err} (the {match.layout.name} layout's command for the {opts.loop} loop: name the "
-                           "log's own with --command-topic, and its output with --output-topic)") from None
+    hint = loop_hint and opts.command_topic is None  # the user's own topic: the reader's message names it
+    cmd = _get_layout_role(log, roles.command, hint, f"the {match.layout.name} layout's command for the {opts.loop} "
+                           "loop: name the log's own with --command-topic, and its output with --output-topic")
     if not opts.any_time_scale:  # eq. (2)'s vehicle loops: a rate no flight stack logs is a wrong unit
         check_rate(cmd.t, f"{log.path}: the command {cmd.spec}", log.time_unit, log.time_unit_settable)
-    try:
-        out = _get_required(log, roles.output)
-    except LogReadError as err:
-        if opts.output_topic is not None or not loop_hint:  # the user's own topic: the message names it
-            raise
-        # the layout's topic for this loop: the usual slip is a log of another loop (--loop defaults to altitude)
-        raise LogReadError(f"{err} (the {opts.loop} loop's output in the {match.layout.name} layout: for another "
-                           "loop give --loop, for another topic --output-topic)") from None
+    # the layout's output for this loop: the usual slip is a log of another loop (--loop defaults to altitude)
+    out = _get_layout_role(log, roles.output, loop_hint and opts.output_topic is None,
+                           f"the {opts.loop} loop's output in the {match.layout.name} layout: for another loop give "
+                           "--loop, for another topic --output-topic")
     source: dict[str, Any] = {"format": log.format, "layout": match.describe()}
     output, conversion = _output_signal(log, out, opts.loop, roles.output_scale)
     if conversion is not None:
@@ -267,6 +259,17 @@ def _get_required(log: LogSource, spec: str) -> _Read:
     if topic is None:
         raise log.missing_topic(ts.topic)
     return _read(log, topic, ts.field)
+
+
+def _get_layout_role(log: LogSource, spec: str, hint: bool, fix: str) -> _Read:
+    """:func:`_get_required` for a role the layout named: when ``hint``, its error ends with ``fix``
+    (which option to give), in brackets."""
+    try:
+        return _get_required(log, spec)
+    except LogReadError as err:
+        if not hint:
+            raise
+        raise LogReadError(f"{err} ({fix})") from None
 
 
 def _get_optional(log: LogSource, spec: str) -> _Read | None:

@@ -42,40 +42,18 @@ _DEG = math.pi / 180.0
 # describing-function planning (approximate; only used to choose h and durations)
 
 
-def _phase_with_hold(model: LoopModel, omega: float, rate_hz: float) -> float:
-    """arg G(j omega) [rad] plus the half-sample lag of the zero-order hold, unwrapped (eq. (2) in closed form)."""
-    return (
-        -0.5 * math.pi
-        - math.atan(model.Tp * omega)
-        - math.atan(model.Td * omega)
-        - (model.tau + 0.5 / rate_hz) * omega
-    )
-
-
-def _solve_phase(model: LoopModel, target: float, rate_hz: float) -> float:
-    """Frequency [rad/s] where eq. (2)'s (monotone) phase with hold equals ``target`` [rad]."""
-    lo, hi = 1e-6, 1.0
-    while _phase_with_hold(model, hi, rate_hz) > target:
-        hi *= 2.0
-        if hi > 1e7:
-            raise InputError("no phase crossover found; check the model parameters")
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        if _phase_with_hold(model, mid, rate_hz) > target:
-            lo = mid
-        else:
-            hi = mid
-    return 0.5 * (lo + hi)
-
-
 def _phase_crossing(model: PlantModel, target: float, rate_hz: float, lead: float = 0.0) -> float:
     """The lowest frequency [rad/s] where arg G(j omega), half a tick of hold and ``lead`` [rad] reach ``target``.
 
-    Eq. (2)'s phase is solved in closed form (:func:`_solve_phase`); any other family's is read off a
-    6000-point logarithmic grid up to 0.99 of the Nyquist frequency (its first point at or below the target).
+    Eq. (2)'s phase is monotone: the MRFT phase condition of :func:`mrftcli.mrft.describing.df_frequency`
+    with sin(pi + target - lead) as its beta; any other family's is read off a 6000-point logarithmic grid
+    up to 0.99 of the Nyquist frequency (its first point at or below the target).
     """
     if isinstance(model, LoopModel):
-        return _solve_phase(model, target - lead, rate_hz)
+        omega_c = df_frequency(model, math.sin(math.pi + target - lead), extra_delay=0.5 / rate_hz)
+        if not math.isfinite(omega_c):
+            raise InputError("no phase crossover found; check the model parameters")
+        return omega_c
     omega = np.geomspace(1e-4, 0.99 * math.pi * rate_hz, 6000)
     phase = np.unwrap(np.angle(model.frequency_response(omega))) - 0.5 * omega / rate_hz + lead
     below = np.flatnonzero(phase <= target)
@@ -101,10 +79,7 @@ def df_prediction(model: PlantModel, beta: float, h: float, rate_hz: float = 200
     amplitude : float
         Output amplitude [output units].
     """
-    if isinstance(model, LoopModel):
-        omega = df_frequency(model, beta, extra_delay=0.5 / rate_hz)
-    else:
-        omega = _phase_crossing(model, -math.pi + math.asin(check_beta(beta)), rate_hz)
+    omega = _phase_crossing(model, -math.pi + math.asin(check_beta(beta)), rate_hz)
     return omega, df_amplitude(model, omega, h)  # type: ignore[arg-type]  # |G| of any family
 
 

@@ -9,7 +9,8 @@ eq. (2) (``analyze`` without ``--model``): the other tests' mean frequencies, be
 amplitudes are identified by the paper's UFM/UGM point solve (their UFM slices weighted by their
 cycle counts, Td where they meet, K the mean of their UGM gains; no bootstrap), and the test's cycle
 is that model's exact limit cycle (LPRS closed form) under the test's own beta and relay height. The
-prediction's standard deviation is the other tests' standard errors of their means propagated
+prediction's standard deviation is the other tests' standard errors of their means (:func:`mean_sem`:
+neighbouring cycles are correlated, so an effective sample size from their lag-1 autocorrelation) propagated
 linearly: one more point solve per beta among them (its tests' frequencies moved together), the
 amplitudes through K in closed form; ``*_sigma`` is that and the test's own standard error in
 quadrature, the scale of ``measured - predicted``, and ``*_z`` the error in those standard
@@ -34,7 +35,7 @@ from ..mrft.model import LoopModel
 from ..segment.records import MrftTest
 from .screen import group_betas
 
-__all__ = ["HeldOut", "held_out_eq2", "held_out_cells", "held_out_notes", "NOTHING_HELD_OUT"]
+__all__ = ["HeldOut", "held_out_eq2", "held_out_cells", "held_out_notes", "mean_sem", "NOTHING_HELD_OUT"]
 
 _ONE_OTHER = ("the other test alone does not determine Td and tau (eq. (2) needs two betas): a third test would "
               "check each test against the others")
@@ -152,8 +153,38 @@ def held_out_notes(held: Sequence[HeldOut | None], numbers: Sequence[int] | None
 # ----------------------------------------------------------------------------------------------
 # eq. (2)
 # ----------------------------------------------------------------------------------------------
-def _sem(x: Any) -> float:
-    return float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else 0.0
+def mean_sem(x: Any) -> float:
+    """Standard error of the mean of a test's per-cycle values, cycles taken as an AR(1) sequence.
+
+    A relay's successive cycles are not independent: a sampled relay hopping among its admissible
+    orbits, or a slow disturbance, makes neighbouring cycles alike (lag-1 autocorrelation 0.5-0.6 on
+    ArduPilot SITL's roll and pitch), and ``std / sqrt(n)`` is then about half the scatter of the mean.
+    The effective sample size ``n_eff = n (1 - r) / (1 + r)``, ``r`` the lag-1 autocorrelation (held at
+    0 or above: a negative estimate is mostly the small-sample bias, and at most ``(n - 2) / (n + 2)``,
+    ``n_eff`` >= 2), gives ``var(mean) = sum((x - mean)^2) / (n (n_eff - 1))``: the sample variance
+    corrected for the share of the spread the correlated mean takes with it. Independent cycles
+    (``r`` = 0) give ``std(ddof=1) / sqrt(n)``. Checked against an AR(1) sequence's closed-form
+    standard error (tests/test_held_out_eq2.py).
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        One test's per-cycle values in cycle order (frequencies [Hz], amplitudes [output units]).
+
+    Returns
+    -------
+    float
+        The standard error [x's units]; 0 for fewer than two values or no spread.
+    """
+    n = int(x.size)
+    if n < 2:
+        return 0.0
+    d = np.asarray(x, float) - float(np.mean(x))
+    c0 = float(d @ d)
+    if n < 3 or c0 <= 0.0:
+        return math.sqrt(c0 / (n * (n - 1)))
+    r = min(max(float(d[:-1] @ d[1:]) / c0, 0.0), (n - 2) / (n + 2))
+    return math.sqrt(c0 / (n * (n * (1.0 - r) / (1.0 + r) - 1.0)))
 
 
 @dataclass(frozen=True)
@@ -171,7 +202,7 @@ class _Sets:
 def _sets(tests: list[MrftTest], groups: list[list[int]], usable: list[int]) -> _Sets:
     n = len(tests)
     w0 = 2 * math.pi * np.array([t.frequency_hz_mean for t in tests])
-    se = 2 * math.pi * np.array([_sem(t.frequency_hz) for t in tests])
+    se = 2 * math.pi * np.array([mean_sem(t.frequency_hz) for t in tests])
     ncyc = np.array([float(t.n_stable) for t in tests])  # the paper's weights: the cycle counts
     left: list[int] = []
     moved: list[list[int]] = []
@@ -254,7 +285,7 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
     amps = np.array([t.amplitude_mean for t in tests])
     hs = np.array([t.h for t in tests])
     K_each = _gains(Tp, Td, sets, amps, hs)
-    a_se = np.array([_sem(t.amplitude) for t in tests])
+    a_se = np.array([mean_sem(t.amplitude) for t in tests])
     results = []
     for i in usable:
         rows = np.flatnonzero(sets.left == i)
@@ -279,10 +310,10 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
         dK = K_each[base][others] * a_se[others] / amps[others] / others.sum()
         var_a += float(np.sum(dK ** 2)) * (centre[1] / K) ** 2
         t = tests[i]
-        measured = (t.frequency_hz_mean, _sem(t.frequency_hz), t.amplitude_mean, _sem(t.amplitude))
+        measured = (t.frequency_hz_mean, mean_sem(t.frequency_hz), t.amplitude_mean, mean_sem(t.amplitude))
         results.append(HeldOut.against(*centre, measured, (math.sqrt(var_f), math.sqrt(var_a))))
     return results
 
 
 def _freq_se(tests: list[MrftTest], group: list[int]) -> np.ndarray:
-    return np.array([_sem(tests[j].frequency_hz) for j in group])
+    return np.array([mean_sem(tests[j].frequency_hz) for j in group])

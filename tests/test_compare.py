@@ -18,12 +18,13 @@ from test_segment_support import flight_from_simulated
 from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import analyze_flight, analyze_path
 from mrftcli.cli.main import main
-from mrftcli.compare import (EXIT_CHANGED, EXIT_INCOMPLETE, CompareOptions, Comparison, Estimate, LoopEstimates, Side,
+from mrftcli.compare import (EXIT_CHANGED, EXIT_INCOMPLETE, CompareOptions, Comparison, LoopEstimates, Side,
                              compare, compare_sides, critical_z, parse_fail_on, to_junit_xml, to_markdown)
 from mrftcli.compare.tolerance import parse_tolerance
 from mrftcli.errors import InputError
 from mrftcli.jsonable import to_jsonable
 from mrftcli.mrft.model import LoopModel
+from mrftcli.mrft.parameter import ParameterEstimate
 from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
 
 TP = 0.0422
@@ -139,7 +140,13 @@ def test_bad_fail_on_exits_2(results, capsys):
 # the statistics on hand-made estimates
 
 
-def _side(name: str, **params: Estimate) -> Side:
+def Estimate(value: float | None, low: float = math.nan, high: float = math.nan, std: float = math.nan
+             ) -> ParameterEstimate:
+    """A hand-made estimate as compare reads it: no value or no interval end is NaN."""
+    return ParameterEstimate(math.nan if value is None else value, std, low, high, "")
+
+
+def _side(name: str, **params: ParameterEstimate) -> Side:
     return Side(path=name, kind="analysis", loops=(LoopEstimates(loop="altitude", name=None, source=name,
                                                                   parameters=params),))
 

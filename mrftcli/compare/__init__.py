@@ -10,12 +10,12 @@ from __future__ import annotations
 from .changes import CompareOptions, compare_sides, critical_z
 from .export import format_table, to_junit_xml, to_markdown
 from .inputs import Side, read_side
-from .records import (EXIT_CHANGED, EXIT_INCOMPLETE, SCHEMA_VERSION, Comparison, Estimate, LoopEstimates,
+from .records import (EXIT_CHANGED, EXIT_INCOMPLETE, SCHEMA_VERSION, Comparison, LoopEstimates,
                       MissingResult, ParameterChange, Tolerance)
 from .tolerance import parse_fail_on
 
 __all__ = ["compare", "CompareOptions", "compare_sides", "critical_z", "format_table", "to_junit_xml", "to_markdown",
-           "Side", "read_side", "EXIT_CHANGED", "EXIT_INCOMPLETE", "SCHEMA_VERSION", "Comparison", "Estimate",
+           "Side", "read_side", "EXIT_CHANGED", "EXIT_INCOMPLETE", "SCHEMA_VERSION", "Comparison",
            "LoopEstimates", "MissingResult", "ParameterChange", "Tolerance", "parse_fail_on"]
 
 

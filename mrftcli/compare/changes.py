@@ -28,9 +28,12 @@ from statistics import NormalDist
 
 from ..errors import InputError
 from .inputs import Side
-from .records import PARAMETERS, Comparison, Estimate, LoopEstimates, MissingResult, ParameterChange, Tolerance
+from ..jsonable import finite_or_none
+from ..mrft.parameter import ParameterEstimate
+from .records import PARAMETERS, Comparison, LoopEstimates, MissingResult, ParameterChange, Tolerance
 
-__all__ = ["CompareOptions", "ChangeTest", "compare_sides", "compare_estimates", "critical_z", "side_sigmas", "CORRECTIONS"]
+__all__ = ["CompareOptions", "ChangeTest", "compare_sides", "compare_estimates", "critical_z", "side_sigmas",
+           "comparable", "CORRECTIONS"]
 
 #: Multiple-comparison corrections: none (per parameter) or Bonferroni over a loop's parameters.
 CORRECTIONS: tuple[str, ...] = ("none", "bonferroni")
@@ -73,28 +76,33 @@ def critical_z(confidence: float) -> float:
     return NormalDist().inv_cdf(0.5 + confidence / 2.0)
 
 
-def side_sigmas(e: Estimate) -> tuple[float, float]:
-    """(below, above) standard deviations of a determined estimate [SI units].
+def comparable(e: ParameterEstimate) -> bool:
+    """A finite estimate with both ends of its 95 % interval finite, or (a reference's) no interval and a finite
+    std: a change can be tested (an open end, as Td bounded from below only, cannot)."""
+    ends = [math.isfinite(e.ci95_low), math.isfinite(e.ci95_high)]
+    return math.isfinite(e.value) and (all(ends) or (not any(ends) and math.isfinite(e.std)))
 
-    From the interval's half-widths when it has one (asymmetric intervals keep their shape), else the
+
+def side_sigmas(e: ParameterEstimate) -> tuple[float, float]:
+    """(below, above) standard deviations of a :func:`comparable` estimate [SI units].
+
+    From the 95 % interval's half-widths when it has one (asymmetric intervals keep their shape), else the
     std on both sides.
     """
-    assert e.value is not None  # determined estimates only
-    if e.low is not None and e.high is not None:
-        z = critical_z(e.interval_confidence)
-        return max(e.value - e.low, 0.0) / z, max(e.high - e.value, 0.0) / z
-    std = e.std or 0.0
-    return std, std
+    if math.isfinite(e.ci95_low) and math.isfinite(e.ci95_high):
+        z = critical_z(0.95)
+        return max(e.value - e.ci95_low, 0.0) / z, max(e.ci95_high - e.value, 0.0) / z
+    return e.std, e.std
 
 
-def _undetermined_note(base: Estimate, new: Estimate) -> str:
-    def why(e: Estimate, side: str) -> str | None:
-        if e.determined:
+def _undetermined_note(base: ParameterEstimate, new: ParameterEstimate) -> str:
+    def why(e: ParameterEstimate, side: str) -> str | None:
+        if comparable(e):
             return None
-        if e.value is None or not math.isfinite(e.value):
+        if not math.isfinite(e.value):
             return f"no {side} estimate"
-        if e.low is not None and math.isfinite(e.low):
-            return f"{side} bounded below only (> {e.low:.4g})"
+        if math.isfinite(e.ci95_low):
+            return f"{side} bounded below only (> {e.ci95_low:.4g})"
         return f"{side} interval open"
 
     return "; ".join(w for w in (why(base, "baseline"), why(new, "new")) if w)
@@ -118,12 +126,11 @@ class ChangeTest:
 _UNDETERMINED = ChangeTest(None, None, None, None, False, False, "undetermined")
 
 
-def compare_estimates(base: Estimate, new: Estimate, *, z_crit: float, tolerance: Tolerance | None,
-                      fail_without_tolerance: bool) -> ChangeTest:
+def compare_estimates(base: ParameterEstimate, new: ParameterEstimate, *, z_crit: float,
+                      tolerance: Tolerance | None, fail_without_tolerance: bool) -> ChangeTest:
     """Test one parameter's change (module docstring) with the critical value ``z_crit``."""
-    if not (base.determined and new.determined):
+    if not (comparable(base) and comparable(new)):
         return _UNDETERMINED
-    assert base.value is not None and new.value is not None
     b_below, b_above = side_sigmas(base)
     n_below, n_above = side_sigmas(new)
     d = new.value - base.value
@@ -163,9 +170,9 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
               if p in b.parameters or p in n.parameters]
     if skip_absent:  # a reference states only the parameters it checks
         params = [p for p in params if p in b.parameters and p in n.parameters]
-    missing = Estimate(value=None)
+    missing = ParameterEstimate(math.nan, math.nan, math.nan, math.nan, "")
     pairs = {p: (b.parameters.get(p, missing), n.parameters.get(p, missing)) for p in params}
-    tested = sum(1 for be, ne in pairs.values() if be.determined and ne.determined)
+    tested = sum(1 for be, ne in pairs.values() if comparable(be) and comparable(ne))
     alpha = 1.0 - options.confidence
     if options.correction == "bonferroni" and tested > 1:
         alpha /= tested
@@ -175,7 +182,8 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
         tol = _tolerance_for(n.loop, p, options.fail_on, (b, n))
         t = compare_estimates(be, ne, z_crit=z_crit, tolerance=tol, fail_without_tolerance=fail_without_tolerance)
         note = _undetermined_note(be, ne) if t.verdict == "undetermined" else ""
-        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=be.value, new=ne.value, change=t.change,
+        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=finite_or_none(be.value),
+                                   new=finite_or_none(ne.value), change=t.change,
                                    low=t.low, high=t.high, z=t.z, significant=t.significant,
                                    tolerance=tol.text if tol is not None else None, beyond_tolerance=t.beyond,
                                    verdict=t.verdict, note=note))

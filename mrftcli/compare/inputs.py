@@ -35,8 +35,8 @@ from typing import Any
 from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..jsonable import load_json_text, load_toml_text
-from ..mrft.identify import ParameterEstimate
-from .records import PARAMETERS, Estimate, LoopEstimates, Tolerance
+from ..mrft.parameter import ParameterEstimate
+from .records import PARAMETERS, LoopEstimates, Tolerance
 from .tolerance import parse_amount
 
 __all__ = ["Side", "read_side", "estimates_from_analysis", "estimates_from_batch_record", "read_reference",
@@ -71,15 +71,6 @@ def _number(x: object) -> float | None:
     return float(x)
 
 
-def _estimate(p: ParameterEstimate) -> Estimate:
-    """The analysis' estimate as compared: NaN (JSON null) is None; a missing upper bound is open."""
-    mean, low, high = (x if math.isfinite(x) else None for x in (p.value, p.ci95_low, p.ci95_high))
-    if high is None and low is not None:
-        high = math.inf  # Td bounded below only: the tests cannot close its interval
-    std = p.std if math.isfinite(p.std) else None
-    return Estimate(value=mean, low=low, high=high, std=std)
-
-
 def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str | None = None) -> LoopEstimates:
     """The loop estimates of one ``analyze --json`` object, read through :meth:`AnalysisResult.from_json`.
 
@@ -104,10 +95,10 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
     except InputError as err:
         raise InputError(f"{source}: {err}") from None
     if analysis.kind == "family":  # a process family: its parameters by name, the given (known) ones left out
-        estimates = {n: _estimate(p) for n, p in analysis.parameters.items() if not p.known}
+        estimates = {n: p for n, p in analysis.parameters.items() if not p.known}
         return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates,
                              model=analysis.model.family)
-    estimates = {"Td": _estimate(analysis.Td), "tau": _estimate(analysis.tau), "K": _estimate(analysis.K)}
+    estimates = {"Td": analysis.Td, "tau": analysis.tau, "K": analysis.K}
     # a cascade's outer Td, tau, K are compared with eq. (2)'s of the same loop as before (model not checked)
     return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates, tp=analysis.Tp,
                          model=None if analysis.kind == "cascade" else "soiptd")
@@ -183,7 +174,7 @@ def _read_batch_folder(folder: Path, by: str) -> Side:
                 notes=tuple(dict.fromkeys(notes)))
 
 
-def _reference_estimate(value: object, where: str) -> tuple[Estimate, str | None]:
+def _reference_estimate(value: object, where: str) -> tuple[ParameterEstimate, str | None]:
     """A reference entry -> (estimate, tolerance text or None)."""
     if isinstance(value, Mapping):
         unknown = set(value) - _REFERENCE_KEYS
@@ -198,7 +189,7 @@ def _reference_estimate(value: object, where: str) -> tuple[Estimate, str | None
         mean, std, tol = _number(value), 0.0, None
     if mean is None or not math.isfinite(mean) or std is None or not std >= 0.0 or not math.isfinite(std):
         raise InputError(f"{where}: give a finite value (and std >= 0), e.g. {{ value = 0.0464, tol = \"+5ms\" }}")
-    return Estimate(value=mean, low=None, high=None, std=std), tol
+    return ParameterEstimate(mean, std, math.nan, math.nan, ""), tol  # no interval: the std is its spread
 
 
 def _reference_loop(table: Mapping[str, Any], loop: str, name: str | None, source: str) -> LoopEstimates:

@@ -11,15 +11,15 @@ renderers convert (tau in ms) for display only.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..jsonable import check_schema_version, json_opt_float
+from ..jsonable import check_schema_version, finite_or_none, json_opt_float
+from ..mrft.parameter import ParameterEstimate
 from ..errors import InputError, MrftError
 
-__all__ = ["SCHEMA_VERSION", "PARAMETERS", "Estimate", "LoopEstimates", "Tolerance", "ParameterChange",
+__all__ = ["SCHEMA_VERSION", "PARAMETERS", "LoopEstimates", "Tolerance", "ParameterChange",
            "MissingResult", "Comparison", "EXIT_CHANGED", "EXIT_INCOMPLETE", "VERDICTS", "LoopChangedError",
            "ResultMissingError"]
 
@@ -50,43 +50,6 @@ class ResultMissingError(MrftError):
 
 #: Per-parameter verdicts: ``changed`` fails the comparison; the others do not.
 VERDICTS: tuple[str, ...] = ("changed", "significant", "unchanged", "undetermined")
-
-
-def _finite(x: float | None) -> bool:
-    return x is not None and math.isfinite(x)
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """One parameter as one side states it.
-
-    Parameters
-    ----------
-    value : float or None
-        Point estimate [SI units]; None when the side gives none.
-    low, high : float or None
-        The side's interval at ``interval_confidence`` [SI units]; None (or infinite) when open, as an
-        upper bound of Td that the tests cannot close.
-    std : float or None
-        Standard deviation [SI units], used only where the interval is missing.
-    interval_confidence : float
-        Confidence of ``low``-``high`` (0.95 for ``analyze`` results).
-    """
-
-    value: float | None
-    low: float | None = None
-    high: float | None = None
-    std: float | None = None
-    interval_confidence: float = 0.95
-
-    @property
-    def determined(self) -> bool:
-        """True when the estimate and both sides of its uncertainty are finite."""
-        if not _finite(self.value):
-            return False
-        if _finite(self.low) and _finite(self.high):
-            return True
-        return self.low is None and self.high is None and _finite(self.std)
 
 
 @dataclass(frozen=True)
@@ -143,8 +106,9 @@ class LoopEstimates:
         which match the other side by loop alone.
     source : str
         Where it was read (a file).
-    parameters : Mapping[str, Estimate]
-        ``Td``, ``tau``, ``K`` (those the side states); a process family's own names (``T``, ``T1``...).
+    parameters : Mapping[str, ParameterEstimate]
+        ``Td``, ``tau``, ``K`` (those the side states); a process family's own names (``T``, ``T1``...): the
+        analysis's records (a null end read as NaN or infinite: open), a reference's value and std (interval NaN).
     tp : float or None
         The propulsion time constant the analysis assumed [s].
     error : str or None
@@ -162,7 +126,7 @@ class LoopEstimates:
     loop: str
     name: str | None
     source: str
-    parameters: Mapping[str, Estimate] = field(default_factory=dict)
+    parameters: Mapping[str, ParameterEstimate] = field(default_factory=dict)
     tp: float | None = None
     error: str | None = None
     tolerances: tuple[Tolerance, ...] = ()
@@ -343,10 +307,6 @@ class Comparison:
 _CHANGE_FLOATS = ("baseline", "new", "change", "low", "high", "z")
 
 
-def _json_float(x: float | None) -> float | None:
-    return x if _finite(x) else None
-
-
 def _opt_str(x: object) -> str | None:
     return None if x is None else str(x)
 
@@ -354,8 +314,8 @@ def _opt_str(x: object) -> str | None:
 def _change_to_json(c: ParameterChange) -> dict[str, Any]:
     return {
         "name": c.name, "loop": c.loop, "parameter": c.parameter,
-        **{k: _json_float(getattr(c, k)) for k in _CHANGE_FLOATS},
-        "relative": _json_float(c.relative),
+        **{k: finite_or_none(getattr(c, k)) for k in _CHANGE_FLOATS},
+        "relative": finite_or_none(c.relative),
         "significant": c.significant, "tolerance": c.tolerance, "beyond_tolerance": c.beyond_tolerance,
         "verdict": c.verdict, "note": c.note,
     }

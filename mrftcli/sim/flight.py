@@ -63,7 +63,7 @@ from .control import (
 )
 from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
                               rk4_quadratic, rk4_rotor)
-from .plant import PeriodPropagator, command_shaper
+from .plant import command_shaper
 from .sidecar import flight_topics, sidecar_path, truth_record, write_flight
 from .spec import (EFFECT_NAMES, Effects, FlightSettings, FlightSpec, TestSpec, default_bias, default_noise_std,
                    default_setpoint, flight_settings)
@@ -575,15 +575,8 @@ def _fly_events(spec: FlightSpec, plant: PlantSetup, prop: LinearPropagator, dri
                 on_tick: Callable[[int], None] | None) -> None:
     """The tick loop of the event path: the actuator's pieces between events (delayed commands
     arriving, rate-limiter kinks), each propagated exactly (or by RK4 for the nonlinear plants).
-
-    A linear plant advances whole periods by superposition (one matrix product per period) when
-    the series of :class:`PeriodPropagator` converges quickly; otherwise piece by piece.
     """
-    eff = spec.effects
-    T, frac, m_delay, gd, bias, ib = drive.T, drive.frac, drive.m_delay, drive.gain_drift, drive.bias, drive.input_bias
-    linear = eff.quadratic_drag == 0 and eff.thrust_rectification == 0
-    period = PeriodPropagator(plant.A, plant.B, T) \
-        if linear and float(np.abs(plant.A).sum(axis=0).max()) * T <= 2.0 else None
+    T, frac, m_delay = drive.T, drive.frac, drive.m_delay
     propagate = _piece_propagator(spec, prop, drive)
     x = plant.x0.copy()
     rate_index = min(1, plant.n - 1)  # eq. (2)'s y' (a first-order family has no second state)
@@ -604,13 +597,7 @@ def _fly_events(spec: FlightSpec, plant: PlantSetup, prop: LinearPropagator, dri
         else:
             pending.append((tk + delays[k], u))
         pieces, act, target = actuator_pieces(tk, (k + 1) * T, pending, act, target, drive.rate_limit)
-        if period is None:
-            for s, h, a, slope in pieces:
-                x = propagate(x, h, s, a, slope)
-        else:
-            x = period.advance(x, [
-                (s - tk, h, (1.0 + gd * s) * a - bias + ib, (1.0 + gd * s) * slope + gd * a, 2.0 * gd * slope)
-                for s, h, a, slope in pieces
-            ])
+        for s, h, a, slope in pieces:
+            x = propagate(x, h, s, a, slope)
         if on_tick is not None:
             on_tick(k)

@@ -1,4 +1,4 @@
-"""The simulator's plant: whole control periods by superposition and the static command shaper.
+"""The simulator's plant: the static command shaper.
 
 The exact propagators, the RK4 steps, the actuator between ticks and the jittered delay live in
 :mod:`mrftcli.mrft.propagate` (the diagnosis integrates with them too, and must not import the
@@ -9,65 +9,7 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from ..mrft.propagate import taylor_expm
-
-__all__ = ["PeriodPropagator", "command_shaper"]
-
-
-# --------------------------------------------------------------------------------------------------
-# whole periods by superposition
-
-
-class PeriodPropagator:
-    """One control period of the linear plant with an input made of polynomial segments.
-
-    x(T) = Phi(T) x(0) + sum over segments of the responses to the segment's input. A segment on
-    [o, o + L) with w = c0 + c1 s + c2 s^2 / 2 (s from o) is a step c0, a ramp c1 and a parabola c2
-    starting at o, minus the step/ramp/parabola that continue its end values from o + L, so only the
-    responses at T to inputs starting at o are needed:
-
-        Gamma_j(h) = int_0^h e^{A (h - s)} B s^j / j! ds = sum_k A^k B h^(k+j+1) / (k+j+1)!,
-
-    evaluated for all segment ends of the period in one matrix product (h <= T and ||A|| T <= 2,
-    checked by the caller, so the series converges to rounding in about 30 terms).
-    """
-
-    def __init__(self, A: np.ndarray, B: np.ndarray, T: float) -> None:
-        n = A.shape[0]
-        self.n = n
-        self.T = T
-        rho = float(np.abs(A).sum(axis=0).max()) * T
-        terms, err = 1, rho
-        while err > 1e-18 and terms < 80:
-            terms += 1
-            err *= rho / terms
-        m = terms + 3
-        G = np.zeros((m, 3 * n))  # powers h^1 .. h^m  ->  [Gamma_0 | Gamma_1 | Gamma_2]
-        v = B.astype(float).copy()
-        for k in range(terms):
-            for j in range(3):
-                G[k + j, j * n : (j + 1) * n] = v / math.factorial(k + j + 1)
-            v = A @ v
-        self._G = G
-        self._exponents = np.arange(1, m + 1)
-        self.Phi = taylor_expm(A * T)
-
-    def advance(self, x: np.ndarray, segments: list[tuple[float, float, float, float, float]]) -> np.ndarray:
-        """x at the end of the period; ``segments`` = (start offset, length, c0, c1, c2)."""
-        T = self.T
-        starts = np.array([T - seg[0] for seg in segments])
-        ends = np.array([T - seg[0] - seg[1] for seg in segments])
-        h = np.concatenate([starts, np.maximum(ends, 0.0)])
-        gam = (h[:, None] ** self._exponents) @ self._G  # (2 * segments, 3 n)
-        coef = np.empty((h.size, 3))
-        for i, (_, L, c0, c1, c2) in enumerate(segments):
-            coef[i] = (c0, c1, c2)
-            coef[len(segments) + i] = (-(c0 + c1 * L + 0.5 * c2 * L * L), -(c1 + c2 * L), -c2)
-        n = self.n
-        resp = (coef[:, 0:1] * gam[:, :n] + coef[:, 1:2] * gam[:, n : 2 * n] + coef[:, 2:3] * gam[:, 2 * n :]).sum(axis=0)
-        return self.Phi @ x + resp
+__all__ = ["command_shaper"]
 
 
 def command_shaper(bias: float, asymmetric_gain: float = 0.0, saturation: float = 0.0, dead_zone: float = 0.0):

@@ -379,34 +379,22 @@ def plot_cycles(result):
     return fig
 
 
-#: draws of the refinement's Gaussian posterior (a fixed seed: the same report for the same result)
+#: draws of the refinement's Gaussian posterior (and of a family's or the cascade's estimates)
 _N_DRAWS = 400
 #: chi-square quantile of 2 degrees of freedom at 95 %: the ellipse holding 95 % of a Gaussian pair
 _CHI2_2_95 = 5.991
 
 
 def posterior_draws(result: AnalysisResult) -> tuple[np.ndarray, str]:
-    """Draws of (Td [s], tau [s], K) from the posterior the analysis keeps, shape (n, 3), and its name.
-
-    The waveform refinement's covariance (in its (ln Td, tau, K) parametrisation) when the values are
-    the refinement's; else the bootstrap draws. Empty (0, 3) when the result carries neither (a record
-    read from JSON keeps no draws).
+    """Draws of (Td [s], tau [s], K), shape (n, 3), and their source: the posterior tune designs over
+    (:func:`mrftcli.tune.analysis.posterior_from_analysis`: the waveform refinement's covariance when the
+    values are the refinement's, else the bootstrap draws); empty (0, 3) when the result carries neither
+    (a record read from JSON keeps no draws).
     """
-    ref = result.refinement
-    if ref is not None and ref.accepted:
-        cov = np.asarray(ref.fit.covariance, float)[:3, :3]
-        p = np.asarray(ref.fit.p, float)[:3]
-        if cov.shape == (3, 3) and np.all(np.isfinite(cov)):
-            rng = np.random.default_rng(0)
-            z = rng.multivariate_normal(p, cov, size=_N_DRAWS, check_valid="ignore")
-            # the fit's K may be of the opposite sign (a reversed loop): its model holds the signed K
-            k_sign = math.copysign(1.0, ref.model.K) * math.copysign(1.0, p[2])
-            draws = np.column_stack([np.exp(z[:, 0]), np.maximum(z[:, 1], 0.0), k_sign * z[:, 2]])
-            return draws, "waveform refinement covariance"
-    boot = [np.asarray(result.bootstrap.get(k, []), float) for k in ("Td", "tau", "K")]
-    n = min(b.size for b in boot)
-    draws = np.column_stack([b[:n] for b in boot]) if n else np.empty((0, 3))
-    return draws[np.all(np.isfinite(draws), axis=1)], "bootstrap"
+    from ..tune.analysis import posterior_from_analysis
+
+    post = posterior_from_analysis(result, n=_N_DRAWS)  # a fixed seed: the same report for the same result
+    return np.column_stack([post.Td, post.tau, post.K]), post.source
 
 
 def plot_fit(result: AnalysisResult) -> Figure:

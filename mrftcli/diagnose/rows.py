@@ -2,10 +2,9 @@
 
 Each is a frozen dataclass whose ``to_dict`` is its JSON item inside
 :meth:`mrftcli.diagnose.records.DiagnosisResult.to_json` (which carries the ``schema_version``) and whose
-``from_dict`` reads it back, raising :class:`~mrftcli.errors.InputError` with a one-line message. Three
-shapes are shared: a row whose item is all its fields in order (:class:`_FieldsRow`), a row whose
-item is the keys of its layout (:func:`_layout_item`, :func:`_from_layout_item`) and the held-out
-scores inside them.
+``from_dict`` reads it back, raising :class:`~mrftcli.errors.InputError` with a one-line message. Two
+shapes are shared: a row whose item is the keys of its layout (:class:`_Row`; one layout: all its
+fields in order) and the held-out scores inside them.
 """
 
 from __future__ import annotations
@@ -34,26 +33,53 @@ def expect_list(value: Any, key: str) -> list[Any]:
     return value
 
 
-class _FieldsRow:
-    """A row whose JSON item is every field, in order (``_KEY`` names it in messages; the ``_OPTIONAL``
-    fields only when set)."""
+class _Row:
+    """A row whose JSON item is the keys of its layout, in order: ``_LAYOUTS[<the _BY field>]`` (None:
+    every field), the ``_OPTIONAL`` fields only when set, held-out scores as dicts, fields spelt
+    otherwise in the JSON in ``_RENAME`` (``with_`` -> ``with``); ``_KEY`` names it in messages."""
 
     _KEY: ClassVar[str]
+    _LAYOUTS: ClassVar[dict[str, tuple[str, ...]] | None] = None
+    _BY: ClassVar[str] = "layout"
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
+    _RENAME: ClassVar[dict[str, str]] = {}
+
+    @classmethod
+    def _keys(cls, layout: str | None) -> tuple[str, ...] | None:
+        if cls._LAYOUTS is None:
+            return tuple(f.name for f in fields(cls))  # type: ignore[arg-type]  # a dataclass mixin
+        return cls._LAYOUTS.get(str(layout))
+
+    @classmethod
+    def _layout_of(cls, data: dict[str, Any]) -> str | None:
+        """The layout of a JSON item (None: the class has one)."""
+        return None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON item."""
-        return {f.name: getattr(self, f.name) for f in fields(self)  # type: ignore[arg-type]  # a dataclass mixin
-                if not (f.name in self._OPTIONAL and getattr(self, f.name) is None)}
+        out = {}
+        for k in self._keys(getattr(self, self._BY, None)) or ():
+            v = getattr(self, k)
+            if not (v is None and k in self._OPTIONAL):
+                out[self._RENAME.get(k, k)] = v.to_dict() if isinstance(v, HeldOut) else v
+        return out
 
     @classmethod
     def from_dict(cls, data: Any) -> Any:
-        """The row of a :meth:`to_dict` item (exactly its keys)."""
+        """The row of a :meth:`to_dict` item (the keys of one layout; held-out scores read back)."""
         data = expect_object(data, cls._KEY)
-        names = [f.name for f in fields(cls)]  # type: ignore[arg-type]  # a dataclass mixin
-        if not set(names) - cls._OPTIONAL <= set(data) <= set(names):
-            raise InputError(f"the diagnosis' {cls._KEY} item has keys {sorted(data)}, not {names}")
-        return cls(**data)
+        layout = cls._layout_of(data)
+        spelt = {cls._RENAME.get(k, k): k for k in cls._keys(layout) or ()}
+        required = {s for s, k in spelt.items() if k not in cls._OPTIONAL}
+        if not spelt or not required <= set(data) <= set(spelt):
+            raise InputError(f"the diagnosis' {cls._KEY} item has unknown kind or keys {sorted(data)}")
+        values = {spelt[s]: v for s, v in data.items()}
+        for k in ("held_out_before", "held_out_after"):
+            if values.get(k) is not None:
+                values[k] = HeldOut.from_dict(values[k])
+        if cls._LAYOUTS is not None and cls._BY not in values:
+            values[cls._BY] = layout
+        return cls(**values)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -159,32 +185,8 @@ _CANDIDATE_KEYS = {
 }
 
 
-def _layout_item(record: Any, keys: tuple[str, ...], optional: frozenset[str] = frozenset({"compared_with"}),
-                 rename: dict[str, str] | None = None) -> dict[str, Any]:
-    """A row's JSON item: its layout's ``keys`` in order, held-out scores as dicts, the ``optional`` keys
-    only when set (the jitter's ``compared_with``: when it was judged against the effects found), the
-    fields ``rename``d (``with_`` -> ``with``)."""
-    out = {}
-    for k in keys:
-        v = getattr(record, k)
-        if v is None and k in optional:
-            continue
-        out[(rename or {}).get(k, k)] = v.to_dict() if isinstance(v, HeldOut) else v
-    return out
-
-
-def _from_layout_item(cls: Any, data: dict[str, Any], layout: str, keys: tuple[str, ...],
-                      rename: dict[str, str] | None = None) -> Any:
-    """The row of a :func:`_layout_item` (its held-out scores read back as :class:`HeldOut`)."""
-    values = {k: data.get((rename or {}).get(k, k)) for k in keys}
-    for k in ("held_out_before", "held_out_after"):
-        if k in values:
-            values[k] = None if values[k] is None else HeldOut.from_dict(values[k])
-    return cls(layout=layout, **values)
-
-
 @dataclass(frozen=True)
-class CandidateFit:
+class CandidateFit(_Row):
     """One candidate effect fitted alone against the linear model, or why it was not.
 
     Attributes
@@ -239,22 +241,17 @@ class CandidateFit:
     period_scatter: dict[str, Any] | None = None
     compared_with: str | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON item (``candidates`` of the result)."""
-        return _layout_item(self, _CANDIDATE_KEYS[self.layout])
+    _KEY: ClassVar[str] = "candidates"
+    _LAYOUTS: ClassVar[dict[str, tuple[str, ...]] | None] = _CANDIDATE_KEYS
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"compared_with"})
 
     @classmethod
-    def from_dict(cls, data: Any) -> CandidateFit:
-        """The row of a :meth:`to_dict` item."""
-        data = expect_object(data, "candidates")
+    def _layout_of(cls, data: dict[str, Any]) -> str | None:
         matches = [lay for lay, keys in _CANDIDATE_KEYS.items()
                    if set(data) - {"compared_with"} == set(keys) - {"compared_with"}]
         # a row that is not fitted has the same keys whether it is the jitter's or another candidate's
         jitter = data.get("name") == "delay_jitter"
-        layout = next((lay for lay in matches if lay.startswith("jitter") == jitter), matches[0] if matches else None)
-        if layout is None:
-            raise InputError(f"a diagnosis candidate has unknown keys {sorted(data)}")
-        return _from_layout_item(cls, data, layout, _CANDIDATE_KEYS[layout])  # type: ignore[no-any-return]
+        return next((lay for lay in matches if lay.startswith("jitter") == jitter), matches[0] if matches else None)
 
 
 #: the keys of a pair row's JSON, per layout (in this order)
@@ -264,12 +261,10 @@ _PAIR_KEYS = {
     "probed": ("name", "with_", "parameter", "unit", "values", "delta_bic", "probe_delta_chi2", "significant",
                "status"),
 }
-#: the pair row's fields spelt otherwise in its JSON item (``with`` is a Python keyword)
-_PAIR_RENAME = {"with_": "with"}
 
 
 @dataclass(frozen=True)
-class PairFit:
+class PairFit(_Row):
     """A second effect (``name``) fitted together with a first (``with_``: ``with`` in the JSON),
     scored against the first alone.
 
@@ -324,22 +319,17 @@ class PairFit:
         """Its standard error."""
         return self.stds.get(self.name)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON item (``second_effect_candidates`` of the result)."""
-        return _layout_item(self, _PAIR_KEYS[self.layout], rename=_PAIR_RENAME)
+    _KEY: ClassVar[str] = "second_effect_candidates"
+    _LAYOUTS: ClassVar[dict[str, tuple[str, ...]] | None] = _PAIR_KEYS
+    _RENAME: ClassVar[dict[str, str]] = {"with_": "with"}  # ``with`` is a Python keyword
 
     @classmethod
-    def from_dict(cls, data: Any) -> PairFit:
-        """The row of a :meth:`to_dict` item."""
-        data = expect_object(data, "second_effect_candidates")
-        layout = "probed" if "status" in data else "fitted"
-        if set(data) != {_PAIR_RENAME.get(k, k) for k in _PAIR_KEYS[layout]}:
-            raise InputError(f"a diagnosis pair has unknown keys {sorted(data)}")
-        return _from_layout_item(cls, data, layout, _PAIR_KEYS[layout], _PAIR_RENAME)  # type: ignore[no-any-return]
+    def _layout_of(cls, data: dict[str, Any]) -> str | None:
+        return "probed" if "status" in data else "fitted"
 
 
 @dataclass(frozen=True)
-class Evidence(_FieldsRow):
+class Evidence(_Row):
     """Why an effect is reported.
 
     Attributes
@@ -384,7 +374,7 @@ _DISAGREEMENT_OPTIONAL = frozenset({"relative", "unit", "half_periods_recorded",
 
 
 @dataclass(frozen=True)
-class Disagreement:
+class Disagreement(_Row):
     """Where a model and the recording disagree (:func:`mrftcli.diagnose.locate.locate`).
 
     Attributes
@@ -442,22 +432,18 @@ class Disagreement:
     t_start_rel: float | None = None
     t_end_rel: float | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON item (``located`` of the result)."""
-        return _layout_item(self, _DISAGREEMENT_KEYS[self.kind], _DISAGREEMENT_OPTIONAL)
+    _KEY: ClassVar[str] = "located"
+    _LAYOUTS: ClassVar[dict[str, tuple[str, ...]] | None] = _DISAGREEMENT_KEYS
+    _BY: ClassVar[str] = "kind"
+    _OPTIONAL: ClassVar[frozenset[str]] = _DISAGREEMENT_OPTIONAL
 
     @classmethod
-    def from_dict(cls, data: Any) -> Disagreement:
-        """The disagreement of a :meth:`to_dict` item."""
-        data = expect_object(data, "located")
-        keys = _DISAGREEMENT_KEYS.get(str(data.get("kind")))
-        if keys is None or not set(data) <= set(keys):
-            raise InputError(f"a located disagreement has unknown kind or keys {sorted(data)}")
-        return cls(**{k: data[k] for k in keys if k in data})
+    def _layout_of(cls, data: dict[str, Any]) -> str | None:
+        return str(data.get("kind"))
 
 
 @dataclass(frozen=True)
-class TestRow(_FieldsRow):
+class TestRow(_Row):
     """One test as the diagnosis used it (``tests`` of the result; the JSON keys are the fields, in order).
 
     Attributes
@@ -503,7 +489,7 @@ class TestRow(_FieldsRow):
 
 
 @dataclass(frozen=True)
-class Unexplained(_FieldsRow):
+class Unexplained(_Row):
     """The mismatch no candidate (or pair) explains (``unexplained`` of the result; JSON keys = fields).
 
     Attributes

@@ -49,7 +49,7 @@ ranges are the chosen version's (:func:`mrftcli.tune.ardupilot_versions.z_bounds
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -57,7 +57,8 @@ import numpy as np
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, PlantStack, RateFilter, plants_of_parameters
-from .margins import Margins, gain_margins, margin_grid, nyquist_stable, phase_margins, sensitivity_peaks
+from .margins import (Margins, gain_margins, largest_holding, margin_grid, nyquist_stable, phase_margins,
+                      sensitivity_peaks)
 from .ardupilot_versions import z_bounds
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
@@ -266,23 +267,11 @@ class ZCascadeFigures:
         return self.splits[i % len(self.splits)]
 
 
-def _bisect(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, n: int = 40) -> np.ndarray:
-    """A sign change of each f in [lo, hi] (vectorised)."""
-    f_lo = f(lo)
-    for _ in range(n):
-        mid = 0.5 * (lo + hi)
-        f_mid = f(mid)
-        same = np.sign(f_mid) == np.sign(f_lo)
-        lo, f_lo = np.where(same, mid, lo), np.where(same, f_mid, f_lo)
-        hi = np.where(same, hi, mid)
-    return np.asarray(0.5 * (lo + hi), float)
-
-
 def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Sequence[DelaySplit]) -> ZCascadeFigures:
     """GM, PM, delay margin, Ms and stability of the cascade on every (model, split).
 
     Stability is the Nyquist criterion on the unit circle (open loop: poles inside, :attr:`integrators` at
-    z = 1 indented); crossings are bracketed on :func:`mrftcli.tune.margins.margin_grid` and bisected; Ms is
+    z = 1 indented); crossings are bracketed on :func:`mrftcli.tune.margins.margin_grid` and refined as eq. (2)'s; Ms is
     the grid's peak refined by golden section; the delay margin is PM / w_gc at each gain crossover of positive
     margin (exact for an extra delay of whole ticks, the hold's fraction aside).
     """
@@ -299,10 +288,8 @@ def cascade_figures(g: ZCascadeGains, models: Sequence[LoopModel], splits: Seque
         return cascade_loop(g, paths.take(rows), np.exp(1j * np.exp(x) * T)[:, None])[:, 0]
 
     stable = nyquist_stable(g.integrators, L)
-    # the crossings bisected, their frequencies by math.exp (the figures as this design has always reported them)
-    exp = np.vectorize(math.exp, otypes=[float])
-    pm, wgc, (rows, x, pm_all) = phase_margins(at, L, lw, M, _bisect, exp)
-    gm, wpc = gain_margins(at, L, lw, M, _bisect, exp)
+    pm, wgc, (rows, x, pm_all) = phase_margins(at, L, lw, M)
+    gm, wpc = gain_margins(at, L, lw, M)
     dm = np.where(stable, np.inf, 0.0)
     for i, xi, p in zip(rows, x, pm_all):  # PM / w_gc at each gain crossover of positive margin
         if p > 0 and stable[i]:
@@ -414,24 +401,15 @@ class _Check:
 def _largest_g(pz: float, v_full: float, pa: float, ai: float, check: _Check, g_range: tuple[float, float]) -> float:
     """The largest g in ``g_range`` at which the cascade holds (0: none): scanned down from the top (the
     test is not monotone in g: a small g leaves the acceleration loop alone, whose Ms may exceed the target),
-    then bisected on log g between the first that holds and the one above it."""
-    def ok(g: float) -> bool:
-        return check.holds(_gains(pz, g * v_full, pa, ai, check.rate_hz))
-
+    then bisected on log g, :data:`_STEPS` times, between the first that holds and the one above it."""
     lo_g, hi_g = g_range
     if not (0.0 < lo_g <= hi_g):
         return 0.0
     scan = np.geomspace(hi_g, lo_g, _SCAN) if hi_g > lo_g else np.array([hi_g])
-    for i, g in enumerate(scan):
-        if ok(float(g)):
-            if i == 0:
-                return float(g)
-            lo, hi = math.log(g), math.log(scan[i - 1])
-            for _ in range(_STEPS):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (mid, hi) if ok(math.exp(mid)) else (lo, mid)
-            return math.exp(lo)
-    return 0.0
+    step = (hi_g / lo_g) ** (1.0 / (_SCAN - 1))  # a stop within (1/2^STEPS, 2/2^STEPS] of a scan step: STEPS halvings
+    g = largest_holding(lambda g: check.holds(_gains(pz, g * v_full, pa, ai, check.rate_hz)), scan,
+                        step ** (1.5 / 2 ** _STEPS))
+    return 0.0 if g is None else g
 
 
 def check_units(model: LoopModel, hover_thrust: float) -> None:

@@ -51,7 +51,7 @@ from ..mrft.model import PlantModel
 from .closed_loop import (Controller, DiscretePlant, PlantStack, StepMetrics, augmented, closed_loop_matrix, held_delay,
                           step_outputs)
 from .design import FILTER_N, Design, DesignOptions, TuneResult
-from .margins import LoopMargins, Margins, margin_grid, stack_margins
+from .margins import LoopMargins, Margins, largest_holding, margin_grid, stack_margins
 
 __all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
@@ -320,24 +320,11 @@ def _maker(ti: float | None, tdc: float, rate_hz: float) -> Maker:
 
 
 def _largest_gain(make: Maker, gains: FloatArray, p: _Plants, o: DesignOptions) -> Controller | None:
-    """The largest Kp meeting the constraints: a scan down ``gains`` finds the largest feasible one (on an
-    integrating plant a PI is infeasible at low gains too: the feasible gains are an interval), then a
-    bisection in log Kp between it and the one above."""
-    for i, kp in enumerate(gains):
-        if p.ok(make(float(kp)), o):
-            break
-    else:
-        return None
-    if i == 0:
-        return make(float(gains[0]))
-    lo, hi = float(gains[i]), float(gains[i - 1])
-    while hi / lo > 1.02:
-        mid = math.sqrt(lo * hi)
-        if p.ok(make(mid), o):
-            lo = mid
-        else:
-            hi = mid
-    return make(lo)
+    """The largest Kp meeting the constraints (:func:`~mrftcli.tune.margins.largest_holding`: a scan down ``gains``,
+    then a bisection in log Kp to 2 %; on an integrating plant a PI is infeasible at low gains too: the feasible
+    gains are an interval)."""
+    kp = largest_holding(lambda kp: p.ok(make(kp), o), gains, 1.02)
+    return None if kp is None else make(kp)
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, aug
 __all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "stack_margins",
            "sensitivity_peaks",
            "frequency_grid", "margin_grid", "plant_response", "nyquist_stable",
-           "phase_margins", "gain_margins"]
+           "phase_margins", "gain_margins", "largest_holding"]
 
 
 @dataclass(frozen=True)
@@ -208,6 +208,24 @@ def _root(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray,
     return np.where(den != 0.0, (lo * f_hi - hi * f_lo) / np.where(den != 0.0, den, 1.0), 0.5 * (lo + hi))
 
 
+def largest_holding(ok: Callable[[float], bool], scan: Sequence[float], ratio: float) -> float | None:
+    """The largest value at which ``ok`` holds (None: none of ``scan``): the first of ``scan`` (descending) that
+    holds (the test need not be monotone: a scan, not a bisection from the top), then bisected on its log
+    between it and the scan point above until they are within a factor ``ratio`` (> 1)."""
+    for i, v in enumerate(scan):
+        if ok(float(v)):
+            break
+    else:
+        return None
+    if i == 0:
+        return float(scan[0])
+    lo, hi = math.log(scan[i]), math.log(scan[i - 1])
+    while hi - lo > math.log(ratio):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(math.exp(mid)) else (lo, mid)
+    return math.exp(lo)
+
+
 def _golden_min(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, n: int = 40) -> np.ndarray:
     """The minimiser of each unimodal f on [lo, hi] by golden section (vectorised over the brackets)."""
     g = (math.sqrt(5.0) - 1.0) / 2.0
@@ -318,36 +336,32 @@ def stack_margins(controller: Controller, stack: PlantStack, models: Sequence[Lo
     return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
 
 
-def _refine(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    return _root(f, lo, hi, _ROOT_STEPS)
-
-
 At = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-def phase_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, exp=np.exp):
+def phase_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int):
     """Phase margin [deg] of smallest magnitude per row of ``L`` (on the log frequencies ``lw``) and its crossover
-    [rad/s]; all the crossovers found (rows, log w, PM [deg]). Each crossing of |L| = 1 is refined by ``root`` on
-    ``at(rows, log w)``, the loop's exact response (ArduPilot z's cascade bisects, its frequencies by ``exp``)."""
+    [rad/s]; all the crossovers found (rows, log w, PM [deg]). Each crossing of |L| = 1 is refined (:func:`_root`)
+    on ``at(rows, log w)``, the loop's exact response."""
     rows, k = _crossings(np.log(np.abs(L)))
-    x = root(lambda x: np.log(np.abs(at(rows, x))), lw[k], lw[k + 1])
+    x = _root(lambda x: np.log(np.abs(at(rows, x))), lw[k], lw[k + 1], _ROOT_STEPS)
     pm_all = np.remainder(np.degrees(np.angle(at(rows, x))), 360.0) - 180.0
     pick = _first_per_row(rows, np.abs(pm_all), M)
     if not rows.size:  # no loop crosses |L| = 1 (a low gain of a search)
         return np.full(M, np.inf), np.full(M, np.nan), (rows, x, pm_all)
     has = pick >= 0
     pm = np.where(has, pm_all[pick], np.inf)
-    wgc = np.where(has, exp(x[pick]), np.nan)
+    wgc = np.where(has, np.exp(x[pick]), np.nan)
     return pm, wgc, (rows, x, pm_all)
 
 
-def gain_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, exp=np.exp):
+def gain_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int):
     """Gain margin closest to 1 (in log) over the crossings of the negative real axis, and its frequency
-    [rad/s] (``root`` and ``exp`` as :func:`phase_margins`)."""
+    [rad/s] (refined as :func:`phase_margins`)."""
     rows, k = _crossings(L.imag)
     near = (L.real[rows, k] < 0) | (L.real[rows, k + 1] < 0)
     rows, k = rows[near], k[near]
-    x = root(lambda x: at(rows, x).imag, lw[k], lw[k + 1])
+    x = _root(lambda x: at(rows, x).imag, lw[k], lw[k + 1], _ROOT_STEPS)
     Lx = at(rows, x)
     neg = Lx.real <= 0
     rows, x = rows[neg], x[neg]
@@ -357,7 +371,7 @@ def gain_margins(at: At, L: np.ndarray, lw: np.ndarray, M: int, root=_refine, ex
     if not rows.size:  # no loop crosses the negative real axis
         return np.full(M, np.inf), np.full(M, np.nan)
     has = pick >= 0
-    return np.where(has, gm_all[pick], np.inf), np.where(has, exp(x[pick]), np.nan)
+    return np.where(has, gm_all[pick], np.inf), np.where(has, np.exp(x[pick]), np.nan)
 
 
 def sensitivity_peaks(at: Callable[[np.ndarray, np.ndarray], np.ndarray], L: np.ndarray, lw: np.ndarray,

@@ -208,7 +208,7 @@ def _root(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray,
     return np.where(den != 0.0, (lo * f_hi - hi * f_lo) / np.where(den != 0.0, den, 1.0), 0.5 * (lo + hi))
 
 
-def largest_holding(ok: Callable[[float], bool], scan: Sequence[float], ratio: float) -> float | None:
+def largest_holding(ok: Callable[[float], bool], scan: Sequence[float] | np.ndarray, ratio: float) -> float | None:
     """The largest value at which ``ok`` holds (None: none of ``scan``): the first of ``scan`` (descending) that
     holds (the test need not be monotone: a scan, not a bisection from the top), then bisected on its log
     between it and the scan point above until they are within a factor ``ratio`` (> 1)."""

@@ -112,8 +112,9 @@ def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
     # an option the chosen export does not use is an error, not silently ignored
     if ex.gyro_cutoff_hz is not None and not (ex.stack in ("px4", "ardupilot") and loop in ("roll", "pitch")):
         raise InputError("--gyro-cutoff is for --export px4|ardupilot on roll or pitch (the stack's gyro filter)")
-    if ex.hover_thrust is not None and not (ex.stack in ("px4", "ardupilot") and loop == "altitude"):
-        raise InputError("--hover-thrust is for --export px4|ardupilot on the altitude loop")
+    if ex.hover_thrust is not None and not (ex.stack in ("px4", "ardupilot") and loop == "altitude"
+                                            or ex.stack == "px4" and loop in ("x", "y")):
+        raise InputError("--hover-thrust is for --export px4|ardupilot on the altitude loop (and px4 on x, y)")
 
 
 def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
@@ -405,7 +406,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
                    "axes, docs/tune.md).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), required for "
-                   "the altitude exports.")
+                   "the altitude exports and PX4's x and y.")
 @click.option("--stack-version", "stack_version", type=click.Choice(["4.6", "4.7"]), default=None,
               help="ArduPilot release whose parameter names and scalings the file uses (4.7 renamed PSC_POSZ_/VELZ_/"
                    "ACCZ_ to PSC_D_POS_/D_VEL_/D_ACC_); default: the current stable release, 4.7, named in the file.")

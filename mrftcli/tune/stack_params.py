@@ -41,6 +41,9 @@ _RATE = f"{_PX4} src/modules/mc_rate_control/mc_rate_control_params.yaml @022711
 _ATT = f"{_PX4} src/modules/mc_att_control/mc_att_control_params.yaml @01486656"
 _GYRO = f"{_PX4} src/modules/sensors/vehicle_angular_velocity/imu_gyro_parameters.yaml @921345ae"
 _POS = f"{_PX4} src/modules/mc_pos_control/multicopter_position_control_gain_params.yaml @c426883b"
+#: x/y rows read in PX4 main of 2024-08-21 (abdullaayyad96/PX4-Autopilot ae16556, the PX4 SITL build of issue 42)
+_POS_XY = f"{_PX4} src/modules/mc_pos_control/multicopter_position_control_gain_params.c @ae16556"
+_POS_LP = f"{_PX4} src/modules/mc_pos_control/multicopter_position_control_params.c @ae16556"
 _AP_MULTI = "ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_AttitudeControl_Multi.cpp (@Range; read @29643d00 of a fork)"
 _AP_ATC = "ArduPilot/ardupilot libraries/AC_AttitudeControl/AC_AttitudeControl.cpp (@Range; commit not pinned)"
 _AP_INS = "ArduPilot/ardupilot libraries/AP_InertialSensor/AP_InertialSensor.cpp (@Range; commit not pinned)"
@@ -123,6 +126,11 @@ def _rows() -> tuple[StackParam, ...]:
         ("MPC_Z_VEL_P_ACC", 2.0, 15.0, "(m/s^2)/(m/s)", 4.0, _POS),
         ("MPC_Z_VEL_I_ACC", 0.2, 3.0, "(m/s^2)/m", 2.0, _POS),
         ("MPC_Z_VEL_D_ACC", 0.0, 2.0, "(m/s^2)/(m/s^2)", 0.0, _POS),
+        ("MPC_XY_P", 0.0, 2.0, "(m/s)/m", 0.95, _POS_XY),
+        ("MPC_XY_VEL_P_ACC", 1.2, 5.0, "(m/s^2)/(m/s)", 1.8, _POS_XY),
+        ("MPC_XY_VEL_I_ACC", 0.0, 60.0, "(m/s^2)/m", 0.4, _POS_XY),
+        ("MPC_XY_VEL_D_ACC", 0.1, 2.0, "(m/s^2)/(m/s^2)", 0.2, _POS_XY),
+        ("MPC_VELD_LP", 0.0, 50.0, "Hz", 5.0, _POS_LP),
     ]
     ap = [
         ("ATC_ANG_RLL_P", 3.0, 12.0, "(rad/s)/rad", math.nan, _AP_ATC, False),

@@ -16,6 +16,11 @@ PD on the loop's output onto its parameters and back (:func:`export_design`), an
   ``MPC_Z_VEL_P_ACC`` = Kd g / h. PX4 requires ``MPC_Z_VEL_I_ACC`` >= 0.2: the export sets that
   minimum and recomputes the margins with it (its integral adds (h/g) I_acc to the loop's
   proportional gain and (h/g) I_acc P_z as integral gain).
+* **PX4** x/y: ``MPC_XY_P`` feeding the horizontal velocity PID the same way, thrust_x = acceleration x hover
+  thrust / g (``PositionControl::_accelerationControl``: exact below the tilt limit), so ``MPC_XY_P`` = Kp / Kd and
+  ``MPC_XY_VEL_P_ACC`` = Kd g / h; but PX4 also feeds back the velocity's derivative, ``MPC_XY_VEL_D_ACC`` (>= 0.1)
+  times (v_k - v_{k-1}) / T through an alpha filter at ``MPC_VELD_LP`` (:class:`PX4VelocityPath`): the export
+  sets it at its minimum, designs the PD with it (:func:`_inside_ranges`) and reports the margins of that loop.
 * **ArduPilot** roll/pitch: ``ATC_ANG_RLL_P`` feeding the ``ATC_RAT_RLL_*`` PID (rad/s error ->
   motor output), the same mapping as PX4's; the gyro goes through ``INS_GYRO_FILTER`` (2nd-order
   Butterworth, ``LowPassFilter2p``). ``ATC_RAT_RLL_I`` >= 0.01 is documented: set at that minimum,
@@ -59,8 +64,8 @@ from .export import unit_reasons
 from .margins import Margins, loop_margins
 from .stack_params import check_ranges, param
 
-__all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
-           "check_exportable", "export_design", "cascade_params",
+__all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
+           "check_exportable", "export_design", "cascade_params", "px4_xy_controller",
            "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -80,8 +85,63 @@ _HEAR_OUTER = ("x", "y", "altitude")
 #: Version of :meth:`StackExport.to_json`'s object.
 EXPORT_SCHEMA_VERSION = 1
 #: Integral gains a PD leaves at 0 but the stack requires above a minimum: set to it (not a refusal).
-_STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RLL_I", "ATC_RAT_PIT_I"}
+_STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RLL_I", "ATC_RAT_PIT_I",
+               "MPC_XY_VEL_D_ACC"}
+#: PX4's horizontal loops (mc_pos_control: the velocity PID with the velocity's filtered derivative)
+_PX4_XY = ("x", "y")
 _AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
+
+
+@dataclass(frozen=True)
+class PX4VelocityPath(RateFilter):
+    """PX4's horizontal velocity loop on the rate: the velocity plus ``accel_s`` times its filtered derivative.
+
+    ``PositionControl::_velocityControl`` computes acc = P_v (v_sp - v) + I - D_v a with a the
+    ``MPC_VELD_LP`` alpha filter (``AlphaFilter``: a_k = a_(k-1) + alpha (x_k - a_(k-1)), alpha = T / (T +
+    1 / (2 pi f_c))) of (v_k - v_(k-1)) / T (``MulticopterPositionControl.cpp``, ``MPC_VEL_LP`` 0: v unfiltered).
+    On the rate v the derivative path is then P_v B(z) v with B(z) = 1 + (D_v / P_v) alpha (z - 1) /
+    (T (z - (1 - alpha))): a first-order section in the controller's rate-filter place, so that tune's margins,
+    step responses and its event simulation run PX4's loop. ``cutoff_hz`` is ``MPC_VELD_LP`` (0: alpha 1,
+    PX4's "disabled"); ``accel_s`` = D_v / P_v [s].
+
+    Examples
+    --------
+    >>> f = PX4VelocityPath(5.0, "MPC_VELD_LP", accel_s=0.1 / 1.5)
+    >>> round(float(abs(f.response(np.array([1.0 + 0j]), 125.0)[0])), 12)  # the velocity itself at DC
+    1.0
+    """
+
+    accel_s: float = 0.0
+
+    def active(self, rate_hz: float) -> bool:
+        return True
+
+    def _alpha(self, rate_hz: float) -> float:
+        if self.cutoff_hz == 0.0:
+            return 1.0
+        if self.cutoff_hz >= 0.5 * rate_hz:  # AlphaFilter::setCutoffFreq refuses it: PX4 keeps the old alpha
+            raise InputError(f"MPC_VELD_LP {self.cutoff_hz:g} Hz is at or above half the position controller's rate "
+                             f"({rate_hz:g} Hz): PX4 ignores it; give a cutoff below {0.5 * rate_hz:g} Hz")
+        T = 1.0 / rate_hz
+        return T / (T + 1.0 / (2.0 * math.pi * self.cutoff_hz))
+
+    def coefficients(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """(b, a) of B(z) in powers of z^-1 (b2 = a2 = 0: the biquad form of :class:`RateFilter`)."""
+        al, g = self._alpha(rate_hz), self.accel_s * rate_hz
+        return np.array([1.0 + g * al, -(1.0 - al) - g * al, 0.0]), np.array([1.0, -(1.0 - al), 0.0])
+
+    def response(self, z: np.ndarray, rate_hz: float) -> np.ndarray:
+        b, a = self.coefficients(rate_hz)
+        zi = 1.0 / np.asarray(z, complex)
+        out: np.ndarray = (b[0] + b[1] * zi) / (a[0] + a[1] * zi)
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {**super().to_json(), "accel_s": self.accel_s}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "PX4's velocity plus accel_s x its derivative through MPC_VELD_LP's alpha filter",
+                "cutoff_hz": self.cutoff_hz, "parameter": self.parameter, "accel_s": self.accel_s}
 
 
 def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | None = None) -> None:
@@ -94,10 +154,12 @@ def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | Non
     if stack == "ardupilot" and loop not in ("roll", "pitch", "altitude"):
         raise InputError(f"cannot export the {loop} loop to ArduPilot: only roll and pitch (the angle-P / rate-PID "
                          "cascade) and altitude (AC_PosControl's z cascade) map")
-    if stack == "px4" and loop not in ("roll", "pitch", "altitude"):
-        raise InputError(f"cannot export the {loop} loop to PX4: only roll, pitch and altitude map onto its cascades")
-    if stack == "px4" and loop == "altitude" and hover_thrust is None:
-        raise InputError("give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): PX4's vertical velocity loop "
+    if stack == "px4" and loop not in ("roll", "pitch", "altitude", *_PX4_XY):
+        raise InputError(f"cannot export the {loop} loop to PX4: only roll, pitch, altitude, x and y map onto its "
+                         "cascades")
+    if stack == "px4" and loop in ("altitude", *_PX4_XY) and hover_thrust is None:
+        raise InputError("give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): PX4's "
+                         f"{'vertical' if loop == 'altitude' else 'horizontal'} velocity loop "
                          "outputs acceleration, converted to thrust by hover thrust / g")
     if stack == "ardupilot" and loop == "altitude" and hover_thrust is None:
         raise InputError("give --hover-thrust X (MOT_THST_HOVER, throttle 0-1): ArduPilot adds it to the "
@@ -208,6 +270,13 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
             f"PX4 altitude: designed at {rate:g} Hz with the vertical velocity unfiltered (PX4 uses the EKF's "
             "estimate; its lag is not modelled)",))
+    if stack == "px4" and loop in _PX4_XY:
+        rate = rate_given or rate_source
+        if rate is None:
+            raise InputError("give --controller-rate HZ, the rate of PX4's position controller (the local position's rate)")
+        return StackSetting(stack, rate, RateFilter(0.0, "none"), (
+            f"PX4 {loop}: designed at {rate:g} Hz with the horizontal velocity unfiltered (MPC_VEL_LP 0 and "
+            "MPC_VEL_NF_FRQ 0, PX4's defaults, not written; PX4 uses the EKF's estimate, its lag is not modelled)",))
     name, default = ("IMU_GYRO_CUTOFF", param("px4", "IMU_GYRO_CUTOFF").default) if stack == "px4" else \
         ("INS_GYRO_FILTER", param("ardupilot", "INS_GYRO_FILTER").default)
     cutoff = default if gyro_cutoff_hz is None else gyro_cutoff_hz
@@ -337,6 +406,10 @@ def cascade_params(c: Controller, loop: str, stack: str, hover_thrust: float | N
         assert hover_thrust is not None  # check_exportable asked for it
         return {"MPC_Z_P": c.Kp / c.Kd, "MPC_Z_VEL_P_ACC": c.Kd * STANDARD_GRAVITY / hover_thrust,
                 "MPC_Z_VEL_I_ACC": 0.0, "MPC_Z_VEL_D_ACC": 0.0}
+    if stack == "px4" and loop in _PX4_XY:
+        assert hover_thrust is not None  # check_exportable asked for it
+        return {"MPC_XY_P": c.Kp / c.Kd, "MPC_XY_VEL_P_ACC": c.Kd * STANDARD_GRAVITY / hover_thrust,
+                "MPC_XY_VEL_I_ACC": 0.0, "MPC_XY_VEL_D_ACC": 0.0, "MPC_VELD_LP": param("px4", "MPC_VELD_LP").default}
     cutoff = rate_filter.cutoff_hz if rate_filter is not None else 0.0
     if stack == "px4":
         ax = loop.upper()
@@ -359,9 +432,22 @@ def _loop_controller(p: dict[str, float], c: Controller, loop: str, stack: str,
         s = hover_thrust / STANDARD_GRAVITY
         pz, pv, iv = p[ratio], p[gain], p[integral]
         return Controller(s * (pv * pz + iv), s * iv * pz, s * pv, c.Tf, c.rate_hz, c.rate_filter)
+    if stack == "px4" and loop in _PX4_XY:
+        assert hover_thrust is not None
+        return px4_xy_controller(p, c.rate_hz, hover_thrust)
     # PX4's rate P acts times its MC_*RATE_K (ArduPilot has none)
     pa, pr, ir = p[ratio], p[gain] * (p[f"MC_{loop.upper()}RATE_K"] if stack == "px4" else 1.0), p[integral]
     return Controller(pr * pa + ir, ir * pa, pr, c.Tf, c.rate_hz, c.rate_filter)
+
+
+def px4_xy_controller(p: dict[str, float], rate_hz: float, hover_thrust: float) -> Controller:
+    """The controller from -x (or -y) to the normalised thrust that PX4's ``MPC_XY_*`` values ``p`` (and
+    ``MPC_VELD_LP``) give at ``rate_hz`` [Hz] and ``hover_thrust``: as altitude's (Kp = (h/g) P_v P_xy + the
+    integral's I_v, Ki = (h/g) I_v P_xy, Kd = (h/g) P_v) with :class:`PX4VelocityPath` on the rate."""
+    s = hover_thrust / STANDARD_GRAVITY
+    pz, pv, iv = p["MPC_XY_P"], p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_I_ACC"]
+    path = PX4VelocityPath(p["MPC_VELD_LP"], "MPC_XY_VEL_D_ACC, MPC_VELD_LP", accel_s=p["MPC_XY_VEL_D_ACC"] / pv)
+    return Controller(s * (pv * pz + iv), s * iv * pz, s * pv, 0.0, rate_hz, path)
 
 
 @dataclass(frozen=True)
@@ -428,16 +514,33 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     if not clamp:  # the stack's ranges are constraints of the design (issue 37)
         c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
+    if stack == "px4" and loop in _PX4_XY:
+        e = replace(e, notes=(*e.notes, _written_step(e, model, c.rate_hz, hover_thrust)))
     if stack == "ardupilot":
         e = replace(e, version=check_version(version))
         return _with_prearm(e)
     return _with_reboot_note(e)
 
 
+def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float | None) -> str:
+    """The unit setpoint step of the loop PX4 runs with the values written (tune's sampled loop on the nominal
+    model): what a flown step is compared with."""
+    from .closed_loop import step_metrics, step_response
+
+    assert hover is not None
+    t, y, u = step_response([model], px4_xy_controller(e.params, rate_hz, hover), 20.0)
+    m = step_metrics(t, y[0], u[0])
+    return (f"the loop as written (MPC_XY_VEL_D_ACC through MPC_VELD_LP included), a unit position step on the "
+            f"nominal model: overshoot {m.overshoot_pct:.1f} %, rise (10-90 %) {m.rise_s:.3f} s, 2 % settling "
+            f"{m.settling_s:.3f} s")
+
+
 def _names(stack: str, loop: str) -> tuple[str, str, str]:
     """The stack's cascade parameters for ``loop``: (the ratio Kp / Kd, the rate (velocity) loop's P, its I)."""
     if stack == "px4" and loop == "altitude":
         return "MPC_Z_P", "MPC_Z_VEL_P_ACC", "MPC_Z_VEL_I_ACC"
+    if stack == "px4" and loop in _PX4_XY:
+        return "MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC"
     if stack == "px4":
         return f"MC_{loop.upper()}_P", f"MC_{loop.upper()}RATE_P", f"MC_{loop.upper()}RATE_I"
     ax = _AXIS_AP[loop]
@@ -447,7 +550,7 @@ def _names(stack: str, loop: str) -> tuple[str, str, str]:
 def _gain_pair(stack: str, loop: str, hover: float | None) -> tuple[str, str, float]:
     """(the ratio parameter Kp / Kd, the gain parameter, gain per unit Kd) of a stack's cascade mapping."""
     ratio, gain, _ = _names(stack, loop)
-    if stack == "px4" and loop == "altitude":
+    if stack == "px4" and loop in ("altitude", *_PX4_XY):
         assert hover is not None
         return ratio, gain, STANDARD_GRAVITY / hover
     return ratio, gain, 1.0
@@ -465,7 +568,9 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
     ratio_name, gain_name, per_kd = _gain_pair(stack, loop, hover)
     rz, rv = param(stack, ratio_name), param(stack, gain_name)
     ratio = c.Kp / c.Kd
-    if rz.contains(ratio) and rv.contains(c.Kd * per_kd):
+    # PX4 x/y: MPC_XY_VEL_D_ACC >= 0.1 is a term the PD lacks; the gain is designed with it even when in range
+    lacks = stack == "px4" and loop in _PX4_XY
+    if rz.contains(ratio) and rv.contains(c.Kd * per_kd) and not lacks:
         return c
     base = cascade_params(c, loop, stack, hover)
     base.update({n: param(stack, n).minimum for n in base if n in _STRUCTURAL})
@@ -502,10 +607,21 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
         held = f"none holds Ms <= {limit:.3g}: the least worst Ms, {least[1]:.3g}"
     v, j = best
     j0 = iae(loop_of(ratio, c.Kd * per_kd))
-    notes.append(f"{ratio_name} {ratio:.4g} / {gain_name} {c.Kd * per_kd:.4g} outside the stack's ranges: designed "
+    why = "outside the stack's ranges" if not (rz.contains(ratio) and rv.contains(c.Kd * per_kd)) else "in range"
+    if lacks:
+        d_min = param("px4", "MPC_XY_VEL_D_ACC").minimum
+        why += (f"; PX4 adds MPC_XY_VEL_D_ACC x the velocity's derivative through MPC_VELD_LP "
+                f"{base['MPC_VELD_LP']:g} Hz, at least {d_min:g}, which the PD lacks: set at {d_min:g}, the ranges")
+    if lacks:
+        j_pd = iae(c)
+        j0_said = (f"{j_pd:.4g} s for the PD as designed ({100 * (j / j_pd - 1):+.0f} %) and {j0:.4g} s for its "
+                   f"values with the minimum ({100 * (j / j0 - 1):+.0f} %)")
+    else:
+        j0_said = f"{j0:.4g} s unconstrained ({100 * (j / j0 - 1):+.0f} %)"
+    notes.append(f"{ratio_name} {ratio:.4g} / {gain_name} {c.Kd * per_kd:.4g} {why}: designed "
                  f"inside them ({ratio_name} {r_in:g}, {gain_name} {v:.4g} of {rv.minimum:g}-{rv.maximum:g}, {held} "
                  f"over the nominal model and {len(models) - 1} posterior draws); its cost: IAE {j:.4g} s against "
-                 f"{j0:.4g} s unconstrained ({100 * (j / j0 - 1):+.0f} %)")
+                 f"{j0_said}")
     return replace(c, Kp=r_in * v / per_kd, Ki=0.0, Kd=v / per_kd)
 
 

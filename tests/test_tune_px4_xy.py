@@ -1,0 +1,95 @@
+"""PX4's x/y export (issue 42): tune's loop with MPC_XY_VEL_D_ACC against PX4's position controller
+transcribed tick by tick (PositionControl::_positionControl/_velocityControl/_accelerationControl,
+MulticopterPositionControl's AlphaFilter on the velocity difference), on a plant discretised by scipy."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import cont2discrete
+
+from mrftcli.errors import InputError
+from mrftcli.mrft.model import LoopModel
+from mrftcli.tune.closed_loop import Controller, simulate_step, step_metrics, step_response
+from mrftcli.tune.stack_params import check_ranges
+from mrftcli.tune.stacks import check_exportable, export_design, px4_xy_controller
+
+G = 9.80665
+RATE = 125.0
+
+
+def _px4_step(model: LoopModel, p: dict[str, float], hover: float, seconds: float) -> np.ndarray:
+    """PX4's x loop after a unit position step, written from PX4's C++ (I after the output, as PX4 does)."""
+    T = 1.0 / RATE
+    a, b = 1.0 / model.Tp, 1.0 / model.Td  # eq. (2): x'' = -b x' + K Td b w, w' = a (u - w)
+    A = np.array([[0, 1, 0], [0, -b, model.K * b * model.Td], [0, 0, -a]], float)
+    Bc = np.array([[0.0], [0.0], [a]])
+    Ad, Bd, *_ = cont2discrete((A, Bc, np.eye(3), np.zeros((3, 1))), T, method="zoh")
+    d = int(round(model.tau / T))
+    assert abs(d * T - model.tau) < 1e-12  # the oracle holds whole ticks of delay
+    cut = p["MPC_VELD_LP"]
+    alpha = 1.0 if cut == 0 else T / (T + 1.0 / (2 * math.pi * cut))  # AlphaFilter::setCutoffFreq
+    s = np.zeros(3)
+    queue = [0.0] * d
+    x_prev = v_prev = acc_f = v_int = 0.0
+    out = []
+    for _ in range(int(seconds * RATE) + 1):
+        x = float(s[0])
+        out.append(x)
+        v = (x - x_prev) / T  # the velocity tune models: the position's backward difference
+        vel_sp = p["MPC_XY_P"] * (1.0 - x)
+        acc_f += alpha * ((v - v_prev) / T - acc_f)
+        err = vel_sp - v
+        acc = p["MPC_XY_VEL_P_ACC"] * err + v_int - p["MPC_XY_VEL_D_ACC"] * acc_f
+        thrust = acc * hover / G  # _accelerationControl: body_z x collective thrust, exact below the tilt limit
+        v_int += p["MPC_XY_VEL_I_ACC"] * err * T
+        queue.append(thrust)
+        s = Ad @ s + Bd[:, 0] * queue.pop(0)
+        x_prev, v_prev = x, v
+    return np.array(out)
+
+
+@pytest.mark.parametrize("cut, d_acc", [(5.0, 0.1), (5.0, 0.6), (0.0, 0.2)])
+def test_px4_xy_loop_is_px4s_position_controller(cut, d_acc):
+    model = LoopModel(0.05, 0.8, 0.12, 27.0)
+    p = {"MPC_XY_P": 1.6, "MPC_XY_VEL_P_ACC": 2.2, "MPC_XY_VEL_I_ACC": 0.0, "MPC_XY_VEL_D_ACC": d_acc,
+         "MPC_VELD_LP": cut}
+    ctrl = px4_xy_controller(p, RATE, 0.49)
+    t, y, _ = step_response([model], ctrl, 6.0)
+    oracle = _px4_step(model, p, 0.49, 6.0)
+    n = min(len(oracle), y.shape[1])
+    assert np.max(np.abs(y[0, :n] - oracle[:n])) < 1e-9
+    # the event simulation (tune's second route) runs the same section from its coefficients
+    _, ys, _, _ = simulate_step(model, ctrl, 6.0)
+    assert np.max(np.abs(ys[:n] - oracle[:n])) < 1e-9
+    if d_acc >= 0.6:  # the term matters: without it the step differs
+        plain = Controller(ctrl.Kp, 0.0, ctrl.Kd, 0.0, RATE, None)
+        assert np.max(np.abs(step_response([model], plain, 6.0)[1][0, :n] - oracle[:n])) > 1e-3
+
+
+def test_px4_xy_export_inside_ranges_with_the_derivative_at_its_minimum():
+    model = LoopModel(0.05, 0.6, 0.136, 27.4)
+    hover = 0.49
+    with pytest.raises(InputError, match="hover-thrust"):
+        check_exportable("px4", "x", "PD")
+    # a PD whose MPC_XY_P (2.5) is above PX4's 2, as tune's robust PD on px4_x_h16
+    c = Controller(0.1542 * 1.3, 0.0, 0.0614 * 1.0, 0.0, RATE, None)
+    e = export_design("px4", c, model, "y", "robust PD", hover_thrust=hover)
+    assert set(e.params) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}
+    assert check_ranges("px4", e.params) == []
+    assert e.params["MPC_XY_VEL_D_ACC"] == pytest.approx(0.1) and e.params["MPC_VELD_LP"] == 5.0
+    assert e.params["MPC_XY_P"] == pytest.approx(2.0)
+    assert math.isfinite(e.margins.Ms) and e.margins.Ms < 2.0
+    # the step tune states for the written values is the one PX4's controller flies on the model (oracle)
+    oracle = _px4_step(model, e.params, hover, 20.0)
+    m = step_metrics(np.arange(oracle.size) / RATE, oracle)
+    said = next(n for n in e.notes if n.startswith("the loop as written"))
+    assert f"overshoot {m.overshoot_pct:.1f} %" in said
+    assert any("MPC_XY_VEL_D_ACC" in n and "designed inside them" in n for n in e.notes)
+
+
+def test_px4_xy_export_refuses_a_pid():
+    with pytest.raises(InputError, match="PID"):
+        check_exportable("px4", "x", "PID", 0.5)

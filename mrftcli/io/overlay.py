@@ -39,16 +39,14 @@ when the caller passes it.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError
 from ..jsonable import finite_or_none
-from .atomic import atomic_path
+from .atomic import atomic_path, check_output_path
 
 __all__ = ["OverlayTest", "OverlayFit", "check_overlay_path", "write_overlay", "OVERLAY_TOPICS", "ANALYSIS_ATTACHMENT"]
 
@@ -96,19 +94,10 @@ class OverlayFit:
 
 
 def check_overlay_path(path: str | Path) -> Path:
-    """The output path if it can be written (checked before any work), else a one-line InputError."""
-    from .atomic import check_output_path
-
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"--mcap-out {path}: is a directory; give a file name such as fit.mcap")
-    check_output_path(path, "--mcap-out", ours=_is_mcap, what="an MCAP file")
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"--mcap-out {path}: the folder {parent} does not exist; create it first")
-    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise InputError(f"--mcap-out {path}: not writable; choose another path")
-    return path
+    """The output path if it replaces nothing but an MCAP file (:func:`mrftcli.io.atomic.check_output_path`),
+    else a one-line InputError; its folder and whether it can be written are the CLI's one output check
+    (:func:`mrftcli.cli.options.check_output_file`, before this)."""
+    return check_output_path(path, "--mcap-out", ours=_is_mcap, what="an MCAP file")
 
 
 def _is_mcap(path: Path) -> bool:

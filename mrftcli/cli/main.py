@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "plan": ("plan", "plan", "Recommend the next MRFT test(s) (beta, h, duration) from a prior or a first test."),
     "tune": ("tune", "tune", "PD/PID gains from the identified model (MRFT rule, model-based, robust) and exports."),
     "compare": ("compare", "compare", "Compare identified loops against a baseline: changes, significance, CI exit code."),
+    "delay": ("delay", "delay", "The delay a change added: two recordings of one loop identified together (one Td, K)."),
     "vehicle": ("vehicle", "vehicle", "Every loop of one flight: identify (inner loops first), tune, and the tests still to fly."),
 }
 

@@ -1,0 +1,442 @@
+"""The delay a change added to a loop: two recordings of one plant identified together (``mrft-ident delay``).
+
+A user changes something between two MRFT flights of one vehicle (a filter, a firmware's scheduling, a
+delay inserted on purpose) and asks how much delay it added. Analysed apart, each flight's Td trades
+against its tau (at Td Omega of 10-60 Td barely moves a relay's frequency), so the difference of two
+separate analyses carries both flights' Td-tau trade. Here both flights are one plant: eq. (2) with the
+known Tp, **one** Td and **one** K, and **a delay per flight**, fitted to every test's measured
+frequency (weighted least squares on log frequency). The delay added is ``tau_after - tau_before``.
+
+The frequency of a test is eq. (2)'s limit cycle under its nominal beta and relay height at the centre
+of the sampled relay's band of orbits (the continuous cycle with half a controller tick more delay, the
+centre :func:`mrftcli.mrft.lprs.mrft_limit_cycle` gives at the test's rate); a test without a logged
+beta is taken at its effective beta, continuously. K moves no frequency: with Td and the delays fixed,
+each test's amplitude gives K, and K is their mean.
+
+Each test's weight is its mean frequency's standard error from its stable cycles, taken as an AR(1)
+sequence (:func:`mrftcli.analyze.held_out.mean_sem`), at least the period's resolution (one tick).
+When the tests scatter about the joint fit more than those errors say (chi^2 above its degrees of
+freedom), every test's frequency is given a common model error on top of its own, sized so that chi^2
+matches (:func:`_fit_with_scatter`), and the intervals are Student's t on the degrees of freedom: a
+plant that is not quite eq. (2) (an estimator's lead, a relay locked off its band's centre) widens the
+interval, and no single steady test dominates the fit.
+
+Checked against the simulator flying a known added delay (tests/test_delay_increment.py) and used by
+benchmarks/bench_sitl.py for ArduPilot SITL's +20 ms flights (docs/benchmarks/sitl.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..analyze.held_out import mean_sem
+from ..analyze.screen import group_betas, screen_tests
+from ..errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
+from ..io import ReadOptions, read_flight
+from ..jsonable import check_schema_version, json_float
+from ..mrft.lprs import mrft_limit_cycle
+from ..mrft.model import K_UNIT, LoopModel
+from ..mrft.parameter import ParameterEstimate
+from ..progress import Progress
+from ..segment import MrftTest, segment
+from ..validate import check_tp
+
+__all__ = ["DELAY_SCHEMA_VERSION", "PairTest", "DelayIncrement", "identify_pair", "delay_increment"]
+
+#: Version of the ``delay --json`` record; bump when its layout changes.
+DELAY_SCHEMA_VERSION = 1
+
+_FLIGHTS = ("before", "after")
+_TAU_MAX = 0.5  # [s]: the delays' upper bound in the fit (eq. (2)'s multirotor range and more)
+
+
+@dataclass(frozen=True)
+class PairTest:
+    """One test of either flight, as the joint fit uses it.
+
+    Attributes
+    ----------
+    flight : {"before", "after"}
+        Which recording.
+    t_start : float
+        Start of the test [s, the log's clock].
+    beta, h : float
+        The beta the fit uses (nominal where logged, else effective) and the relay height [command units].
+    rate_hz : float
+        The relay's rate [Hz].
+    n_cycles : int
+        Stable cycles.
+    frequency_hz, frequency_se_hz : float
+        Measured limit-cycle frequency [Hz] and its standard error [Hz] (the fit's weight).
+    fitted_hz : float
+        The joint model's frequency for the test [Hz].
+    amplitude : float
+        Measured amplitude [output units].
+    K : float
+        The K this test's amplitude gives with the joint Td and its flight's delay [``K_UNIT``].
+    """
+
+    flight: str
+    t_start: float
+    beta: float
+    h: float
+    rate_hz: float
+    n_cycles: int
+    frequency_hz: float
+    frequency_se_hz: float
+    fitted_hz: float
+    amplitude: float
+    K: float
+
+    @property
+    def error(self) -> float:
+        """fitted / measured - 1 [-]."""
+        return self.fitted_hz / self.frequency_hz - 1.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {"flight": self.flight, "t_start": self.t_start, "beta": self.beta, "h": self.h,
+                "rate_hz": self.rate_hz, "n_cycles": self.n_cycles, "frequency_hz": self.frequency_hz,
+                "frequency_se_hz": self.frequency_se_hz, "fitted_hz": self.fitted_hz, "amplitude": self.amplitude,
+                "K": self.K}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> PairTest:
+        flight = str(data["flight"])
+        if flight not in _FLIGHTS:
+            raise InputError(f"delay JSON: a test's flight is {flight!r}, not one of {', '.join(_FLIGHTS)}")
+        def num(k: str) -> float:
+            return json_float(data[k], f"delay JSON test {k}")
+
+        return cls(flight, num("t_start"), num("beta"), num("h"), num("rate_hz"), int(data["n_cycles"]),
+                   num("frequency_hz"), num("frequency_se_hz"), num("fitted_hz"), num("amplitude"), num("K"))
+
+
+@dataclass(frozen=True)
+class DelayIncrement:
+    """Two recordings of one loop identified together: one Td and K, a delay each (``delay --json``).
+
+    Attributes
+    ----------
+    before, after : str
+        The recordings' paths.
+    loop : str
+        The loop.
+    Tp : float
+        The known Tp [s].
+    Td, K : ParameterEstimate
+        The plant's, shared by both flights [s], [``K_UNIT``].
+    tau_before, tau_after : ParameterEstimate
+        Each flight's delay [s].
+    increment : ParameterEstimate
+        ``tau_after - tau_before`` [s]: the delay the change added (negative: removed).
+    tests : tuple of PairTest
+        Every test used, before's first.
+    chi2 : float
+        Sum of the squared residuals over the cycles' errors alone, at the final fit's first pass [-].
+    dof : int
+        Tests less the three fitted parameters.
+    model_scatter : float
+        The relative error each test's frequency is given beyond its cycles' so that chi2 matches dof (0 when
+        the cycles' errors explain the scatter) [-].
+    notes : tuple of str
+        What qualifies the figures (a delay at its bound, an exactly determined fit, the model's scatter).
+    """
+
+    before: str
+    after: str
+    loop: str
+    Tp: float
+    Td: ParameterEstimate
+    K: ParameterEstimate
+    tau_before: ParameterEstimate
+    tau_after: ParameterEstimate
+    increment: ParameterEstimate
+    tests: tuple[PairTest, ...]
+    chi2: float
+    dof: int
+    model_scatter: float
+    notes: tuple[str, ...] = ()
+
+    #: What the figures rest on (first line of the text output and the JSON's ``method``).
+    METHOD = ("eq. (2) at the known Tp, one Td and K for both recordings and a delay each, fitted to every test's "
+              "frequency at the sampled relay's band centre (weighted by each mean's standard error)")
+
+    def parameters(self) -> dict[str, ParameterEstimate]:
+        """The figures by name, in display order."""
+        return {"Td": self.Td, "K": self.K, "tau_before": self.tau_before, "tau_after": self.tau_after,
+                "delay_added": self.increment}
+
+    def to_json(self) -> dict[str, Any]:
+        return {"schema_version": DELAY_SCHEMA_VERSION, "kind": "delay-increment", "before": self.before,
+                "after": self.after, "loop": self.loop, "Tp": self.Tp, "method": self.METHOD,
+                "parameters": {k: v.to_json() for k, v in self.parameters().items()},
+                "tests": [t.to_json() for t in self.tests], "chi2": self.chi2, "dof": self.dof,
+                "model_scatter": self.model_scatter, "notes": list(self.notes)}
+
+    @classmethod
+    def from_json(cls, data: Any) -> DelayIncrement:
+        """The record of a :meth:`to_json` object.
+
+        Raises
+        ------
+        InputError
+            Not this record, a newer schema, or a missing or malformed field (one line).
+        """
+        d = check_schema_version(data, "delay", DELAY_SCHEMA_VERSION)
+        try:
+            p = d["parameters"]
+            est = {k: ParameterEstimate.from_json(k, p[k]) for k in ("Td", "K", "tau_before", "tau_after",
+                                                                     "delay_added")}
+            return cls(str(d["before"]), str(d["after"]), str(d["loop"]), json_float(d["Tp"], "delay JSON Tp"),
+                       est["Td"], est["K"], est["tau_before"], est["tau_after"], est["delay_added"],
+                       tuple(PairTest.from_json(t) for t in d["tests"]), json_float(d["chi2"], "delay JSON chi2"),
+                       int(d["dof"]), json_float(d["model_scatter"], "delay JSON model_scatter"), tuple(str(n) for n in d["notes"]))
+        except (KeyError, TypeError) as err:
+            raise InputError(f"delay JSON: missing or malformed field {err}") from None
+
+
+# ----------------------------------------------------------------------------------------------
+def _beta_of(test: MrftTest) -> tuple[float, bool]:
+    """The beta the fit uses and whether it is the nominal one (then the sampled relay's band centre)."""
+    if test.beta_nominal is not None and math.isfinite(test.beta_nominal):
+        return float(test.beta_nominal), True
+    return float(test.beta_effective), False
+
+
+def _frequency_se(test: MrftTest) -> float:
+    """The test's mean frequency's standard error [Hz]: its cycles as an AR(1) sequence, at least the period's
+    resolution (one tick of the relay's rate, a uniform error on each of a period's two ends)."""
+    f = test.frequency_hz_mean
+    resolution = f * f / test.rate_hz / math.sqrt(6.0) / math.sqrt(max(test.n_stable, 1))
+    return max(mean_sem(test.frequency_hz), resolution)
+
+
+@dataclass(frozen=True)
+class _Rows:
+    flight: np.ndarray  # 0 before, 1 after
+    beta: np.ndarray
+    nominal: np.ndarray
+    h: np.ndarray
+    rate: np.ndarray
+    f: np.ndarray
+    se: np.ndarray
+    amp: np.ndarray
+
+
+def _rows(before: Sequence[MrftTest], after: Sequence[MrftTest]) -> _Rows:
+    tests = [*before, *after]
+    betas = [_beta_of(t) for t in tests]
+    return _Rows(np.array([0] * len(before) + [1] * len(after)), np.array([b for b, _ in betas]),
+                 np.array([n for _, n in betas]), np.array([t.h for t in tests]),
+                 np.array([t.rate_hz for t in tests]), np.array([t.frequency_hz_mean for t in tests]),
+                 np.array([_frequency_se(t) for t in tests]), np.array([t.amplitude_mean for t in tests]))
+
+
+def _cycle(Tp: float, Td: float, tau: float, rows: _Rows, i: int) -> tuple[float, float]:
+    """Eq. (2)'s cycle (K = 1) for row ``i``: frequency [Hz], amplitude [output units per unit K]."""
+    hold = 0.5 / rows.rate[i] if rows.nominal[i] else 0.0
+    lc = mrft_limit_cycle(LoopModel(Tp, Td, tau + hold, 1.0), float(rows.beta[i]), float(rows.h[i]))
+    return float(lc.frequency_hz), float(lc.amplitude)
+
+
+def _fit(Tp: float, rows: _Rows, var: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """[ln Td, tau_before, tau_after], their covariance and the log-frequency residuals, each test's residual
+    weighted by ``var`` (its relative variance)."""
+    from scipy.optimize import least_squares
+
+    sd = np.sqrt(var)
+
+    def log_misses(p: np.ndarray) -> np.ndarray:
+        Td = math.exp(p[0])
+        return np.array([math.log(_cycle(Tp, Td, float(p[1 + rows.flight[i]]), rows, i)[0] / rows.f[i])
+                         for i in range(rows.f.size)])
+
+    try:
+        fit = least_squares(lambda p: log_misses(p) / sd, [math.log(0.5), 0.005, 0.005],
+                            bounds=([math.log(0.01), 0.0, 0.0], [math.log(100.0), _TAU_MAX, _TAU_MAX]),
+                            x_scale=[0.1, 0.001, 0.001])
+    except (InputError, ValueError) as err:
+        raise IdentificationError(f"the joint fit of the two recordings failed: {err}") from None
+    jac = np.asarray(fit.jac, float)
+    try:
+        cov = np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        cov = np.full((3, 3), np.inf)
+    return np.asarray(fit.x, float), cov, np.asarray(fit.fun, float) * sd
+
+
+def _model_variance(misses: np.ndarray, var: np.ndarray, dof: int) -> float:
+    """The relative variance s^2 a test's frequency has about eq. (2) beyond its cycles' error: the s^2 >= 0 with
+    sum(miss^2 / (var + s^2)) = dof (0 when the cycles' errors explain the scatter, or dof is 0)."""
+    from scipy.optimize import brentq
+
+    def excess(s2: float) -> float:
+        return float(np.sum(misses ** 2 / (var + s2))) - dof
+
+    if dof <= 0 or excess(0.0) <= 0.0:
+        return 0.0
+    return float(brentq(excess, 0.0, float(np.sum(misses ** 2))))
+
+
+def _fit_with_scatter(Tp: float, rows: _Rows) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The fit, its covariance, chi^2 with the cycles' errors alone, and the model's relative variance s^2.
+
+    A plant that is not quite eq. (2) (an estimator's lead, a relay locked off its band's centre) scatters
+    the tests about any joint fit more than their cycles say; weighted by the cycles alone the fit would
+    then lean on the steadiest tests and state an interval that ignores the misfit. So each test's
+    variance is its own plus a common s^2 found so that chi^2 equals its degrees of freedom (a random
+    effect, as a meta-analysis treats studies that disagree), refitted until s^2 settles.
+    """
+    var0 = (rows.se / rows.f) ** 2
+    dof = rows.f.size - 3
+    s2 = 0.0
+    x, cov, misses = _fit(Tp, rows, var0)
+    chi2 = float(np.sum(misses ** 2 / var0))
+    for _ in range(6):
+        new = _model_variance(misses, var0, dof)
+        if abs(new - s2) <= 0.02 * max(new, 1e-12):
+            break
+        s2 = new
+        x, cov, misses = _fit(Tp, rows, var0 + s2)
+    return x, cov, chi2, s2
+
+
+def _estimate(value: float, std: float, q: float, unit: str, *, log: bool = False) -> ParameterEstimate:
+    determined = math.isfinite(std)
+    if log:  # Td: its interval on the log scale of the fit (std from the delta method)
+        return ParameterEstimate(value, value * std, value * math.exp(-q * std), value * math.exp(q * std), unit,
+                                 determined)
+    return ParameterEstimate(value, std, value - q * std, value + q * std, unit, determined)
+
+
+def identify_pair(before: Sequence[MrftTest], after: Sequence[MrftTest], Tp: float, *,
+                  names: tuple[str, str] = ("before", "after"), loop: str = "") -> DelayIncrement:
+    """Identify two flights of one plant together: one Td and K, a delay each (module docstring).
+
+    Parameters
+    ----------
+    before, after : sequence of MrftTest
+        The usable tests of each recording (at least one each; together two betas in one recording).
+    Tp : float
+        The known Tp [s].
+    names : tuple of str
+        The recordings' names (paths) for the record.
+    loop : str
+        The loop's name for the record.
+
+    Returns
+    -------
+    DelayIncrement
+
+    Raises
+    ------
+    InsufficientDataError
+        A recording without a test, or neither with two betas (Td is then not determined).
+    IdentificationError
+        The fit fails.
+    """
+    Tp = check_tp(Tp)
+    for tests, name in zip((before, after), names):
+        if not tests:
+            raise InsufficientDataError(f"{name}: no usable MRFT test; the delay needs at least one test in each "
+                                        "recording")
+    if max(len(group_betas(list(before))), len(group_betas(list(after)))) < 2:
+        raise InsufficientDataError(
+            "neither recording has two betas: Td (shared by both) needs two tests with different betas in one "
+            "of them (e.g. -0.4 and -0.7)")
+    rows = _rows(before, after)
+    x, cov, chi2, s2 = _fit_with_scatter(Tp, rows)
+    dof = rows.f.size - 3
+    q = _quantile(dof if s2 > 0.0 else 0)
+    Td, tau_b, tau_a = math.exp(x[0]), float(x[1]), float(x[2])
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
+    inc_std = math.sqrt(max(float(cov[1, 1] + cov[2, 2] - 2 * cov[1, 2]), 0.0))
+    cycles = [_cycle(Tp, Td, (tau_b, tau_a)[rows.flight[i]], rows, i) for i in range(rows.f.size)]
+    K_each = rows.amp / np.array([a for _, a in cycles])
+    K_std = float(np.std(K_each, ddof=1) / math.sqrt(K_each.size)) if K_each.size > 1 else math.nan
+    pairs = tuple(PairTest(_FLIGHTS[rows.flight[i]], t.t_start, float(rows.beta[i]), float(rows.h[i]),
+                           float(rows.rate[i]), t.n_stable, float(rows.f[i]), float(rows.se[i]), cycles[i][0],
+                           float(rows.amp[i]), float(K_each[i]))
+                  for i, t in enumerate([*before, *after]))
+    return DelayIncrement(
+        names[0], names[1], loop, Tp, _estimate(Td, float(std[0]), q, "s", log=True),
+        _estimate(float(np.mean(K_each)), K_std, q, K_UNIT), _estimate(tau_b, float(std[1]), q, "s"),
+        _estimate(tau_a, float(std[2]), q, "s"), _estimate(tau_a - tau_b, inc_std, q, "s"),
+        pairs, chi2, dof, math.sqrt(s2), _notes(tau_b, tau_a, dof, chi2, math.sqrt(s2)))
+
+
+def _quantile(dof: int) -> float:
+    """The two-sided 95 % quantile: normal, or Student's t on ``dof`` when the model's scatter was estimated."""
+    from scipy.stats import norm, t
+
+    return float(t.ppf(0.975, dof)) if dof > 0 else float(norm.ppf(0.975))
+
+
+def _notes(tau_b: float, tau_a: float, dof: int, chi2: float, scatter: float) -> tuple[str, ...]:
+    notes = []
+    for name, tau in (("before", tau_b), ("after", tau_a)):
+        if tau < 1e-5:
+            notes.append(f"the {name} recording's delay is at its bound 0: its loop has less lag than eq. (2) with "
+                         "no delay (an estimator's lead?); the delay added is measured from 0")
+    if dof == 0:
+        notes.append("three tests for three parameters: the fit is exact, and the interval is the tests' own "
+                     "scatter only (a fourth test would check the joint model)")
+    elif scatter > 0.0:
+        notes.append(f"the tests scatter about the joint model more than their cycles say (chi^2 {chi2:.3g} on {dof} "
+                     f"degrees of freedom): each test's frequency is given a further {scatter * 100:.2g} % of error (the "
+                     "model's scatter) and the intervals are Student's t")
+    return tuple(notes)
+
+
+def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> list[MrftTest]:
+    """The tests of one recording that ``analyze`` would use (its screening)."""
+    flight = read_flight(path, read)
+    found = segment(flight, controller_rate_hz=read.controller_rate_hz)
+    reasons = screen_tests(found, min_stable_cycles)
+    usable = [t for t in found if t.index not in reasons]
+    if not usable:
+        why = "; ".join(dict.fromkeys(reasons.values())) or "no relay switching found"
+        raise SegmentationError(f"{path}: no usable MRFT test for loop {flight.loop} ({len(found)} found: {why})")
+    return usable
+
+
+def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: ReadOptions | None = None,
+                    min_stable_cycles: int = 3, progress: Progress | None = None) -> DelayIncrement:
+    """The delay the change between two recordings of one loop added (:func:`identify_pair` on their tests).
+
+    Parameters
+    ----------
+    before, after : str or Path
+        The two recordings (any log format ``analyze`` reads); both read with ``read``.
+    Tp : float
+        The known Tp [s].
+    read : ReadOptions, optional
+        How to read the loop (the loop, topics, layout, rate); default: altitude, the layout recognised.
+    min_stable_cycles : int
+        Fewest stable cycles for a test to be used (``analyze``'s rule).
+    progress : Progress, optional
+        Called as ``progress(done, 3, stage)`` after each recording is read and after the fit.
+
+    Raises
+    ------
+    LogReadError, SegmentationError, InsufficientDataError, IdentificationError
+        One line each, naming the recording.
+    """
+    read = read or ReadOptions()
+    tests = []
+    for k, path in enumerate((before, after)):
+        if progress:
+            progress(k, 3, f"reading {Path(path).name}")
+        tests.append(_usable(path, read, min_stable_cycles))
+    if progress:
+        progress(2, 3, "fitting")
+    result = identify_pair(tests[0], tests[1], Tp, names=(str(before), str(after)), loop=read.loop)
+    if progress:
+        progress(3, 3, "done")
+    return result

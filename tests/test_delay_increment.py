@@ -1,0 +1,106 @@
+"""``mrft-ident delay``: the delay a change added, two recordings identified together (issue 41).
+
+Oracle: our closed-loop simulator (mrftcli/sim, which shares no code with the identification) flies one
+plant twice, the second time with a known delay added; the command must give it back within the issue's
+2 ms and within 3 of the standard deviation it states, and give back the plant's Td and K. Fresh seeds
+(11-13 and 111-113), not those the feature was developed on.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mrftcli.compare.delay import DelayIncrement, delay_increment, identify_pair
+from mrftcli.errors import InputError, InsufficientDataError
+from mrftcli.io import ReadOptions, read_flight
+from mrftcli.mrft.model import LoopModel
+from mrftcli.segment import segment
+from mrftcli.sim import FlightSpec, plan_test, simulate_flight, write_flight
+
+TP, TD, K = 0.03, 0.8, 25.0
+TAU = 0.010  # [s] the plant's own delay before the change
+BETAS = (-0.2, -0.45, -0.7)
+
+
+def _fly(folder: Path, name: str, tau: float, seed: int, betas: tuple[float, ...] = BETAS) -> Path:
+    model = LoopModel(TP, TD, tau, K)
+    tests = tuple(plan_test(model, b, 0.05, cycles=12.0) for b in betas)
+    flight = simulate_flight(FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=250.0, noise_std=0.0005,
+                                        hover_s=2.0, hold_s=2.0, seed=seed))
+    path = folder / f"{name}.mcap"
+    write_flight(flight, path, "mcap")
+    return path
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("delay")
+    return {"before": _fly(d, "before", TAU, 11), "after": _fly(d, "after", TAU + 0.020, 111),
+            "again": _fly(d, "again", TAU, 112), "one_beta": _fly(d, "one_beta", TAU, 113, (-0.45,)),
+            "one_beta_20": _fly(d, "one_beta_20", TAU + 0.020, 12, (-0.45,))}
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "mrftcli", "delay", *map(str, args)], capture_output=True, text=True)
+
+
+def test_the_20ms_added_in_the_simulator_is_given_back_through_the_cli(logs, tmp_path) -> None:
+    out = tmp_path / "delay.json"
+    proc = _run(logs["before"], logs["after"], "--tp", TP, "--loop", "altitude", "--json", out, "-q")
+    assert proc.returncode == 0, proc.stderr
+    assert "delay added:" in proc.stdout and "ms" in proc.stdout and proc.stderr == ""
+    result = DelayIncrement.from_json(json.loads(out.read_text()))
+    inc = result.increment
+    assert inc.unit == "s" and abs(inc.value - 0.020) < 0.002
+    assert abs(inc.value - 0.020) < 3 * inc.std and inc.ci95_low < 0.020 < inc.ci95_high + inc.std
+    assert inc.std < 0.002  # an interval, not a blanket
+    assert result.Td.value == pytest.approx(TD, rel=0.1) and result.K.value == pytest.approx(K, rel=0.05)
+    assert sum(t.flight == "before" for t in result.tests) == 3 and sum(t.flight == "after" for t in result.tests) == 3
+
+
+def test_no_change_gives_no_delay(logs) -> None:
+    """The same plant flown twice (two noise seeds): the delay added is 0 within its interval."""
+    result = delay_increment(logs["before"], logs["again"], TP)
+    assert abs(result.increment.value) < 0.002 and abs(result.increment.value) < 3 * result.increment.std
+
+
+def test_a_single_test_after_the_change_is_enough_when_before_has_two_betas(logs) -> None:
+    """Td is shared: one beta in the second recording gives its delay against the first's Td."""
+    result = delay_increment(logs["before"], logs["one_beta_20"], TP)
+    assert result.dof == 1 and abs(result.increment.value - 0.020) < 0.003
+
+
+def test_the_record_round_trips_and_a_newer_schema_is_refused(logs) -> None:
+    flights = [segment(read_flight(logs[k], ReadOptions())) for k in ("before", "after")]
+    result = identify_pair(*flights, TP, names=("a", "b"), loop="altitude")
+    data = json.loads(json.dumps(result.to_json()))
+    assert data["schema_version"] == 1 and data["parameters"]["delay_added"]["unit"] == "s"
+    assert DelayIncrement.from_json(data) == result
+    with pytest.raises(InputError, match="schema"):
+        DelayIncrement.from_json({**data, "schema_version": 99})
+    with pytest.raises(InputError):
+        DelayIncrement.from_json({k: v for k, v in data.items() if k != "tests"})
+
+
+def test_one_beta_in_each_recording_is_refused_naming_the_fix(logs) -> None:
+    with pytest.raises(InsufficientDataError, match="two betas"):
+        delay_increment(logs["one_beta"], logs["one_beta_20"], TP)
+    proc = _run(logs["one_beta"], logs["one_beta_20"], "--tp", TP)
+    assert proc.returncode == 6 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert "two betas" in proc.stderr
+
+
+@pytest.mark.parametrize("args, words", [
+    ((), "--tp"),  # missing
+    (("--tp", "-1"), "--tp"),
+    (("--tp", str(TP), "--json", "{before}"), "--json"),  # a report never over an input
+])
+def test_bad_input_is_one_line_and_exit_2(logs, args, words) -> None:
+    proc = _run(logs["before"], logs["after"], *(a.format(before=logs["before"]) for a in args))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert words in proc.stderr and "Traceback" not in proc.stderr

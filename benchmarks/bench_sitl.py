@@ -424,28 +424,43 @@ def held_out_cause(results: dict[str, dict]) -> None:
               f"{sum(abs(e) <= 0.05 for e in known_errs)}/{n} within 5 % (max {max(map(abs, known_errs)) * 100:.1f} %)")
 
 
-def joint_increments(logs: Path) -> None:
-    """The +20 ms increment of each pair identified together: one plant (one Td), a delay each, fitted to the
-    six tests' frequencies at the sampled relay's band centre (``sitl_analysis.joint_delays``). Separately,
-    each flight's Td trades against its tau (Td Omega 10-60: Td barely moves the frequencies). Frequencies
-    alone, so a flight ``analyze`` refuses (a negative delay) still takes part."""
-    from sitl_analysis import joint_delays
+PAIRS = (("altitude", "altitude"), ("altitude_h15", "altitude"), ("altitude_mf", "altitude"), ("roll", "roll"),
+         ("pitch", "pitch"))
 
-    from mrftcli.io import ReadOptions, read_flight
-    from mrftcli.segment import segment
 
-    for base, loop in (("altitude", "altitude"), ("altitude_h15", "altitude"), ("altitude_mf", "altitude"),
-                       ("roll", "roll"), ("pitch", "pitch")):
-        paths = [logs / f"{n}.BIN" for n in (base, f"{base}_20ms")]
+def delay_increments(logs: Path) -> None:
+    """The +20 ms increment of each pair as a user measures it: ``mrft-ident delay BEFORE AFTER --tp --loop
+    --json -`` (mrftcli/compare/delay.py: one plant, one Td and K, a delay each, fitted to the tests'
+    frequencies at the sampled relay's band centre, weighted by each mean's standard error and the model's
+    scatter). Separately, each flight's Td trades against its tau (Td Omega 10-60: Td barely moves the
+    frequencies). A flight ``analyze`` refuses (a negative delay) still takes part."""
+    from mrftcli.compare.delay import DelayIncrement
+
+    errors, covered, n = [], 0, 0
+    for base, loop in PAIRS:
+        paths = [logs / f"{name}.BIN" for name in (base, f"{base}_20ms")]
         if not all(p.exists() for p in paths):
             continue
-        plain, delayed = ([(t.beta_nominal, t.h, t.frequency_hz_mean) for t in segment(read_flight(p, ReadOptions(
-            loop=loop)))] for p in paths)
         tp = json.loads(Path(f"{paths[0]}.json").read_text())["tp_s"]
-        Td, ta, tb = joint_delays(tp, 400.0, plain, delayed)
-        print(f"{base}: +20 ms increment, the pair identified together from its frequencies (one Td {Td:.3f} s): "
-              f"{(tb - ta) * 1e3:.2f} ms (tau {ta * 1e3:.2f} / {tb * 1e3:.2f} ms; error {(tb - ta) * 1e3 - 20:+.2f} ms)"
-              + ("; the plain flight's tau at its bound 0" if ta < 1e-4 else ""))
+        proc = run_cli("delay", *map(str, paths), "--tp", str(tp), "--loop", loop, "--json", "-", "-q")
+        if proc.returncode != 0:
+            print(f"{base}: mrft-ident delay refused (exit {proc.returncode}): {proc.stderr.strip()}: a miss")
+            n += 1
+            continue
+        r = DelayIncrement.from_json(json.loads(proc.stdout))
+        inc = r.increment
+        n += 1
+        errors.append(inc.value - 0.020)
+        covered += int(inc.ci95_low <= 0.020 <= inc.ci95_high)
+        print(f"{base}: +20 ms increment, mrft-ident delay: {inc.value * 1e3:.2f} ms ± {inc.std * 1e3:.2f} ms (95 %: "
+              f"{inc.ci95_low * 1e3:.2f} to {inc.ci95_high * 1e3:.2f} ms; error {inc.value * 1e3 - 20:+.2f} ms); one Td "
+              f"{r.Td.value:.3f} s, K {r.K.value:.4g}, tau {r.tau_before.value * 1e3:.2f} / {r.tau_after.value * 1e3:.2f} "
+              f"ms; model scatter {r.model_scatter * 100:.2g} % (chi^2 {r.chi2:.3g} on {r.dof})"
+              + "".join(f"\n    note: {note}" for note in r.notes))
+    if n:
+        print(f"+20 ms by mrft-ident delay: {sum(abs(e) <= 0.002 for e in errors)}/{n} pairs within 2 ms "
+              f"(max error {max(map(abs, errors), default=math.nan) * 1e3:.2f} ms), 20 ms inside the stated 95 % "
+              f"interval in {covered}/{n}")
 
 
 def _fundamental_ratio(t: np.ndarray, u: np.ndarray, y: np.ndarray, f: float) -> complex:
@@ -686,6 +701,8 @@ def main() -> int:
                     help="load and re-fly the .param files already exported in LOGS/export (no flights, no analysis)")
     ap.add_argument("--evaluate-only", action="store_true",
                     help="evaluate the re-flight already flown (LOGS/export/refly.BIN) against tune's prediction")
+    ap.add_argument("--delay-only", action="store_true",
+                    help="only the +20 ms pairs through 'mrft-ident delay' (no SITL, no other analysis)")
     ap.add_argument("--logs-only", action="store_true",
                     help="only what the logs show without identification: tests located, ticks, the delay "
                          "realised, the EKF against SITL's truth")
@@ -708,6 +725,9 @@ def main() -> int:
         print(f"3. load and re-fly {', '.join(sorted(params))} from {export_dir}")
         refly(args.ap, params, export_dir, args.speedup)
         return 0
+    if args.delay_only:
+        delay_increments(args.logs)
+        return 0
     if args.logs_only:
         for name, loop, _, _, _, _ in FLIGHTS:
             log = args.logs / f"{name}.BIN"
@@ -727,7 +747,7 @@ def main() -> int:
     matched_increment(args.logs)
     chain_check(results, args.logs)
     held_out_cause(results)
-    joint_increments(args.logs)
+    delay_increments(args.logs)
     if args.truth:
         truth_analysis(args.logs)
     if args.analyze_only or args.no_refly:

@@ -308,17 +308,20 @@ def test_the_beta_02_test_is_an_extrapolation_that_2_percent_moves_by_over_10(na
     assert abs(sa.held_out_known_td(tp, 400.0, bh, freqs, _implied(name)["Td"])[0]) < 0.05
 
 
-@pytest.mark.parametrize("base", ["roll", "altitude", "altitude_mf"])
-def test_a_pair_identified_together_gives_the_20ms_added(base: str) -> None:
-    """One plant, two flights: one Td and a delay each, fitted to the six frequencies at the band centre.
-    Roll's Td is then its frame's; the altitude's stays bent by EKF3's lead (tests above), but being shared it
-    no longer trades against each flight's tau."""
-    from mrftcli.segment import segment
+@pytest.mark.parametrize("base, loop", [("roll", "roll"), ("altitude", "altitude"), ("altitude_mf", "altitude")])
+def test_a_pair_identified_together_gives_the_20ms_added(base: str, loop: str) -> None:
+    """``mrft-ident delay`` (mrftcli/compare/delay.py) on a committed pair: one plant, two flights, one Td and K and
+    a delay each. Roll's Td is then its frame's; the altitude's stays bent by EKF3's lead (tests above), but
+    being shared it no longer trades against each flight's tau, and the interval the command states holds
+    the 20 ms the firmware added."""
+    from mrftcli.compare.delay import delay_increment
+    from mrftcli.io import ReadOptions
 
     if not (LOGS / f"{base}_20ms.BIN").exists():
         pytest.skip(f"no {base} pair")
-    flights = [[(x.beta_nominal, x.h, x.frequency_hz_mean) for x in segment(_read(n))] for n in (base, f"{base}_20ms")]
-    Td, tau_a, tau_b = _sitl_analysis().joint_delays(_side(base)["tp_s"], 400.0, *flights)
-    assert tau_b - tau_a == pytest.approx(0.020, abs=0.002)
+    result = delay_increment(LOGS / f"{base}.BIN", LOGS / f"{base}_20ms.BIN", _side(base)["tp_s"],
+                             read=ReadOptions(loop=loop))
+    inc = result.increment
+    assert inc.value == pytest.approx(0.020, abs=0.002) and inc.ci95_low < 0.020 < inc.ci95_high
     if base == "roll":
-        assert Td == pytest.approx(_implied("roll")["Td"], rel=0.2)
+        assert result.Td.value == pytest.approx(_implied("roll")["Td"], rel=0.2)

@@ -28,7 +28,7 @@ from mrftcli.mrft.model import LoopModel
 
 __all__ = ["HeldOut", "analyze_log", "held_out", "test_lines", "orbit_band", "held_out_frequencies",
            "tau_needed", "matched_betas", "band_centre_hz", "half_period_ticks", "extrapolation_range",
-           "joint_delays", "held_out_known_td"]
+           "held_out_known_td"]
 
 
 @dataclass(frozen=True)
@@ -199,18 +199,6 @@ def held_out_known_td(tp: float, rate_hz: float, tests: list[tuple[float, float]
                                                  for b, hh, f in o], [0.003], bounds=([0.0], [0.5]))
         errors.append(band_centre_hz(tp, Td, float(fit.x[0]), beta, h, rate_hz) / freqs[i] - 1.0)
     return errors
-
-
-def joint_delays(tp: float, rate_hz: float, plain: list[tuple[float, float, float]],
-                 delayed: list[tuple[float, float, float]]) -> tuple[float, float, float]:
-    """Two flights of one plant identified together from their frequencies: one Td, a delay each.
-
-    ``plain`` and ``delayed``: each test's (beta, h, measured frequency [Hz]). Returns (Td [s], tau of the
-    plain flight [s], tau of the delayed one [s]); their difference is the added delay the pair measures,
-    with the plain flight's Td no longer free to trade against its tau.
-    """
-    Td, tau_a, tau_b = _fit_delays(tp, rate_hz, [plain, delayed])
-    return float(Td), float(tau_a), float(tau_b)
 
 
 def half_period_ticks(t: np.ndarray, relay: np.ndarray, t_start: float, t_end: float, rate_hz: float,

@@ -179,17 +179,16 @@ _HEAR = Layout(
     low_rate_fix="record /fh_des, /angle_u and /opti/* unthrottled (rosbag record -a)",
 )
 
+#: the loops in the order of the 2020 HEAR controller's and the MATLAB export's controller outputs
+#: (index i), with the name of each loop's output there
+OUTPUT_ORDER = (("x", "x"), ("y", "y"), ("altitude", "z"), ("roll", "roll"), ("pitch", "pitch"))
+
 # The older (2020) HEAR controller: every axis in one Float64MultiArray, outputs in /providers/*.
 _HEAR_2020 = Layout(
     name="hear-2020",
     title="HEAR controller of 2020, ROS 1 (/control_system_output multi-array, /providers/*)",
-    loops={
-        "x": LoopTopics("/control_system_output:data[0]", "/providers/x:x"),
-        "y": LoopTopics("/control_system_output:data[1]", "/providers/y:x"),
-        "altitude": LoopTopics("/control_system_output:data[2]", "/providers/z:x"),
-        "roll": LoopTopics("/control_system_output:data[3]", "/providers/roll:x"),
-        "pitch": LoopTopics("/control_system_output:data[4]", "/providers/pitch:x"),
-    },
+    loops={loop: LoopTopics(f"/control_system_output:data[{i}]", f"/providers/{name}:x")
+           for i, (loop, name) in enumerate(OUTPUT_ORDER)},
     signature=("/control_system_output",),
     formats=("bag", "ros2-sqlite3", "ros2-mcap", "mcap"),
     timestamps="receive",
@@ -217,15 +216,8 @@ _MAVROS = Layout(
 _MAT = Layout(
     name="mat",
     title="MATLAB .mat export (controller_output_<i> and <name>_t time vectors)",
-    loops={
-        "x": LoopTopics("controller_output_0", "x"),
-        "y": LoopTopics("controller_output_1", "y"),
-        "altitude": LoopTopics("controller_output_2", "z"),
-        "roll": LoopTopics("controller_output_3", "roll"),
-        "pitch": LoopTopics("controller_output_4", "pitch"),
-    },
-    signature=("controller_output_0", "controller_output_1", "controller_output_2",
-               "controller_output_3", "controller_output_4"),
+    loops={loop: LoopTopics(f"controller_output_{i}", name) for i, (loop, name) in enumerate(OUTPUT_ORDER)},
+    signature=tuple(f"controller_output_{i}" for i in range(len(OUTPUT_ORDER))),
     formats=("mat",),
     low_rate_fix="log the controller output and the output at the controller's rate",
 )

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .layouts import LAYOUTS
 from .logtypes import TopicData
 
 __all__ = ["StackTest", "StackLogSpec", "write_stack_log", "hear_receive_times"]
@@ -153,11 +154,11 @@ def hear_receive_times(stamps: np.ndarray, rng: np.random.Generator) -> np.ndarr
 def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, setpoint: np.ndarray,
           log_rate_hz: float | None, rng: np.random.Generator) -> list[TopicData]:
     """HEAR ROS 1: Points without header, stamped at receive time (a few ms of jitter)."""
-    names = {"x": ("fh", "x"), "y": ("fh", "y"), "altitude": ("fh", "z"), "roll": ("angle", "x"),
-             "pitch": ("angle", "y")}
-    if loop not in names:
+    if loop not in LAYOUTS["hear-ros"].loops:
         raise InputError(f"the HEAR layout has no loop {loop}")
-    kind, comp = names[loop]
+    roles = LAYOUTS["hear-ros"].loops[loop]  # the topics the reader's layout looks for: TOPIC:AXIS
+    (cmd_topic, comp), (out_topic, _), (ref_topic, _) = (
+        str(spec).split(":") for spec in (roles.command, roles.output, roles.setpoint))
     k = _decimate(t, log_rate_hz)
     # OptiTrack at ~90 Hz: the latest controller-tick sample at each camera frame
     t_cam = np.arange(t[0], t[-1], 1.0 / 90.0)
@@ -168,10 +169,6 @@ def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, set
         out[comp] = values
         return out
 
-    if kind == "fh":
-        cmd_topic, out_topic, ref_topic = "/fh_des", "/opti/pos", "/waypoint_reference/pos"
-    else:
-        cmd_topic, out_topic, ref_topic = "/angle_u", "/opti/ori", "/angle_ref"
     return [
         TopicData(cmd_topic, "geometry_msgs/msg/Point", hear_receive_times(t[k], rng), point(command[k], k.size)),
         TopicData(out_topic, "geometry_msgs/msg/Point", hear_receive_times(t[kc], rng), point(output[kc], kc.size)),
@@ -181,11 +178,10 @@ def _hear(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray, set
 
 def _mat(loop: str, t: np.ndarray, command: np.ndarray, output: np.ndarray,
          log_rate_hz: float | None) -> list[TopicData]:
-    index = {"x": 0, "y": 1, "altitude": 2, "roll": 3, "pitch": 4}[loop]
-    out_name = {"x": "x", "y": "y", "altitude": "z", "roll": "roll", "pitch": "pitch"}[loop]
+    topics = LAYOUTS["mat"].loops[loop]  # the names the reader's layout looks for
     k = _decimate(t, log_rate_hz)
-    return [TopicData(f"controller_output_{index}", "vector", t[k], {"data": command[k]}),
-            TopicData(out_name, "vector", t[k], {"data": output[k]})]
+    return [TopicData(topics.command, "vector", t[k], {"data": command[k]}),
+            TopicData(topics.output, "vector", t[k], {"data": output[k]})]
 
 
 def write_stack_log(path: str | Path, spec: StackLogSpec, t: np.ndarray, command: np.ndarray,

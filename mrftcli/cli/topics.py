@@ -6,7 +6,7 @@ import click
 
 from ..io import READ_FORMATS
 
-from .options import dump_json, json_option, quiet_option, read_progress
+from .options import dump_json, json_option, quiet_option, read_progress, text_table
 
 __all__ = ["topics"]
 
@@ -54,14 +54,12 @@ def topics(log: str, fmt: str | None, fields: bool, json_target: str | None, qui
         }, json_target)
     if json_target == "-":
         return
-    rows = [(i.name, i.msgtype, str(i.count), _rate(i.rate_hz)) for i in infos]
-    head = ("topic", "type", "count", "rate_hz")
-    widths = [max(len(r[k]) for r in [head, *rows]) for k in range(4)]
+    head, *lines = text_table([("topic", "type", "count", "rate_hz"),
+                               *((i.name, i.msgtype, str(i.count), _rate(i.rate_hz)) for i in infos)], align="<<>>")
     click.echo(f"{log} ({fmt_name}, {len(infos)} topics)")
     click.echo(f"layout: {layout}")
-    line = "  ".join(f"{{:<{widths[0]}}} {{:<{widths[1]}}} {{:>{widths[2]}}} {{:>{widths[3]}}}".split(" "))
-    click.echo(line.format(*head))
-    for info, row in zip(infos, rows):
-        click.echo(line.format(*row))
+    click.echo(head)
+    for info, line in zip(infos, lines):
+        click.echo(line)
         if fields and info.fields:
             click.echo("    fields: " + ", ".join(info.fields))

@@ -18,8 +18,9 @@ is the JSON's ``identification`` object (the layout of the result's ``schema_ver
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any, Iterator, Mapping
 
 import numpy as np
 
@@ -381,21 +382,28 @@ class EffectFinding:
         InputError
             A key is missing or of the wrong kind.
         """
-        if not isinstance(data, dict):
-            raise InputError(f"a diagnosis effect must be a JSON object, got {type(data).__name__}")
-        try:
+        data = expect_object(data, "effects")
+        with _reading("a diagnosis effect"):
             return cls(name=str(data["name"]), explanation=str(data["explanation"]),
                        augmentation=str(data["augmentation"]), parameters=expect_object(data["parameters"], "parameters"),
                        evidence=Evidence.from_dict(data["evidence"]), fit_before=HeldOut.from_dict(data["fit_before"]),
                        fit_after=HeldOut.from_dict(data["fit_after"]),
                        identification=EffectIdentification.from_json(data["identification"]),
                        harmonics=expect_object(data.get("harmonics", {}), "harmonics"))
-        except InputError:
-            raise
-        except KeyError as err:
-            raise InputError(f"a diagnosis effect has no {err.args[0]!r}") from None
-        except (TypeError, ValueError) as err:
-            raise InputError(f"a diagnosis effect is malformed ({err})".replace("\n", " ")) from None
+
+
+@contextmanager
+def _reading(what: str, fix: str = "") -> Iterator[None]:
+    """Read ``what`` of a JSON object: a missing key or a value of the wrong kind is an :class:`InputError`
+    in one line (``fix``: what to do, after the message); a row's own message passes through."""
+    try:
+        yield
+    except InputError:
+        raise
+    except KeyError as err:
+        raise InputError(f"{what} has no {err.args[0]!r}{fix}") from None
+    except (TypeError, ValueError, AttributeError) as err:
+        raise InputError(f"{what} is malformed ({err})".replace("\n", " ")) from None
 
 
 @dataclass(frozen=True)
@@ -637,7 +645,7 @@ class DiagnosisResult:
             return _from_process_json(data)
         data = check_schema_version(data, "diagnosis", (1, SCHEMA_VERSION), missing=1,
                                     fix="rerun mrft-ident diagnose")
-        try:
+        with _reading("the diagnosis", "; rerun mrft-ident diagnose"):
             if data.get("family", "soiptd") != "soiptd":  # a family's diagnosis of this version
                 return _family_result(data, str(data["summary"]),
                                       [*expect_list(data["candidates"], "candidates"),
@@ -656,12 +664,6 @@ class DiagnosisResult:
                 unexplained=None if unexplained is None else Unexplained.from_dict(unexplained),
                 t0=float(data["t0"]), notes=[str(n) for n in expect_list(data.get("notes", []), "notes")],
             )
-        except InputError:
-            raise  # a row's own one-line message
-        except KeyError as err:
-            raise InputError(f"the diagnosis has no {err.args[0]!r}; rerun mrft-ident diagnose") from None
-        except (TypeError, ValueError, AttributeError) as err:
-            raise InputError(f"the diagnosis JSON is malformed ({err})".replace("\n", " ")) from None
 
 
 def _family_result(data: Mapping[str, Any], summary: str, rows: list[Any]) -> DiagnosisResult:
@@ -689,7 +691,5 @@ def _family_result(data: Mapping[str, Any], summary: str, rows: list[Any]) -> Di
 def _from_process_json(data: Mapping[str, Any]) -> DiagnosisResult:
     """The families' ``process_diagnosis`` of versions 1 (no effects) and 2, before the one record (issue 36)."""
     data = check_schema_version(data, "process diagnosis JSON", (1, 2))
-    try:
+    with _reading("the process diagnosis JSON"):
         return _family_result(data, str(data["verdict"]), list(data.get("candidates", [])))
-    except (KeyError, TypeError, ValueError, AttributeError) as err:
-        raise InputError(f"process diagnosis JSON: bad or missing field ({err})") from None

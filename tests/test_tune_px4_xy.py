@@ -93,3 +93,28 @@ def test_px4_xy_export_inside_ranges_with_the_derivative_at_its_minimum():
 def test_px4_xy_export_refuses_a_pid():
     with pytest.raises(InputError, match="PID"):
         check_exportable("px4", "x", "PID", 0.5)
+
+
+def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
+    """``tune --export px4 --loop x`` on the fork's x MRFT as PX4 logged it (sample_logs/sitl/px4_x.ulg, 125 Hz
+    from the log): written without --clamp, every value inside PX4's ranges, read back as the file says."""
+    from pathlib import Path
+
+    from mrftcli.cli.main import main
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl" / "px4_x.ulg"
+    out = tmp_path / "x.params"
+    args = ["tune", str(log), "--tp", "0.05", "--loop", "x", "--export", "px4", "--out", str(out)]
+    with pytest.raises(SystemExit) as ex:
+        main(args)
+    assert ex.value.code == 2 and "--hover-thrust" in capsys.readouterr().err
+    try:
+        main([*args, "--hover-thrust", "0.49"])
+    except SystemExit as e:
+        assert not e.code
+    said = capsys.readouterr().out
+    assert "MPC_XY_VEL_D_ACC" in said and "125 Hz" in said
+    values = {ln.split("\t")[2]: float(ln.split("\t")[3]) for ln in out.read_text().splitlines()
+              if ln and not ln.startswith("#")}
+    assert set(values) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}
+    assert check_ranges("px4", values) == []

@@ -9,7 +9,9 @@ campaign's helpers are reused: ``sitl_analysis`` (tests found, held out).
 3. analyse each ULog as PX4 wrote it (``px4-mrft`` layout): tests found, held-out frequency, the
    +20 ms increment, Td / K beside what SIH's parameters imply;
 4. ``tune --export px4`` (altitude), load the ``.params`` over MAVLink, read back, arm, take off, fly an
-   altitude step in OFFBOARD (a true step of the position setpoint), compare with the prediction.
+   altitude step in OFFBOARD (a true step of the position setpoint), compare with the prediction; the same
+   for roll and pitch (``px4_rate_step.py``) and for x and y (``px4_xy_step.py``: PX4's velocity loop with
+   ``MPC_XY_VEL_D_ACC``).
 """
 
 from __future__ import annotations
@@ -772,6 +774,15 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
         print(f"3b. tune --export px4 for {loop} (SIH's attitude, the bench Tp), and a {loop} step" +
               (" (flown before: evaluated again)" if analyze_only else ""))
         run_rate_step(px4, logs, bench_tp(), TRUTH_ATTITUDE, fly=not analyze_only, loop=loop, flight=f"px4_{loop}_h")
+    for loop in ("x", "y"):  # the x/y export and its position steps (px4_xy_step.py)
+        flight = f"px4_{loop}_h16"
+        if flight not in results or no_refly or (analyze_only and not (logs / "export" / f"{loop}_steps.ulg").exists()):
+            continue
+        from px4_xy_step import run_xy_step
+
+        print(f"3c. tune --export px4 for {loop} (from {flight}), and {loop} steps" +
+              (" (flown before: evaluated again)" if analyze_only else ""))
+        run_xy_step(px4, logs, fly=not analyze_only, loop=loop, flight=flight, speedup=speedup)
     for flown in done if (analyze_only or no_refly) and EXPORT_FROM in results else []:
         print(f"3. the re-flight already flown ({flown}), evaluated again")
         _compare_step(results, logs / "export" / "altitude.params", {"log": flown, "step_m": 1.0, "dwell_s": 10.0})

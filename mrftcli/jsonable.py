@@ -43,8 +43,6 @@ def json_depth(text: str) -> int:
     >>> json_depth('{"a": [[1, "]]]"], {}]}')
     3
     """
-    import numpy as np
-
     codes = np.frombuffer(_JSON_STRING.sub('""', text).encode("utf-8", "replace"), dtype=np.uint8)
     if not codes.size:
         return 0
@@ -66,16 +64,27 @@ def load_json_text(text: str, what: str) -> Any:
     ...
     mrftcli.errors.InputError: demo: JSON nested 100000 deep, more than the 64 levels any file mrft-ident reads has; is it the right file?
     """
+    return _parsed(text, what, "JSON", json.loads)
+
+
+def _check_depth(text: str, what: str, kind: str) -> None:
+    """InputError when ``text`` nests deeper than :data:`MAX_JSON_DEPTH` (JSON, and TOML's arrays and inline
+    tables and YAML's flow collections, which use JSON's brackets): the parsers recurse."""
     depth = json_depth(text)
     if depth > MAX_JSON_DEPTH:
-        raise InputError(f"{what}: JSON nested {depth} deep, more than the {MAX_JSON_DEPTH} levels any file "
+        raise InputError(f"{what}: {kind} nested {depth} deep, more than the {MAX_JSON_DEPTH} levels any file "
                          "mrft-ident reads has; is it the right file?")
+
+
+def _parsed(text: str, what: str, kind: str, parse: Any) -> Any:
+    """``parse(text)`` after :func:`_check_depth`; its errors (ValueError, as tomllib's) as one-line InputErrors."""
+    _check_depth(text, what, kind)
     try:
-        return json.loads(text)
+        return parse(text)
     except RecursionError:
-        raise InputError(f"{what}: JSON nested too deep to read") from None
+        raise InputError(f"{what}: {kind} nested too deep to read") from None
     except ValueError as err:
-        raise InputError(f"{what}: not valid JSON ({str(err).splitlines()[0]})") from None
+        raise InputError(f"{what}: not valid {kind} ({str(err).splitlines()[0]})") from None
 
 
 def load_toml_text(text: str, what: str) -> Any:
@@ -83,14 +92,7 @@ def load_toml_text(text: str, what: str) -> Any:
     deeper than :data:`MAX_JSON_DEPTH` (``tomllib`` recurses on them)."""
     import tomllib
 
-    if json_depth(text) > MAX_JSON_DEPTH:  # TOML's arrays and inline tables use JSON's brackets
-        raise InputError(f"{what}: TOML nested more than {MAX_JSON_DEPTH} deep; is it the right file?")
-    try:
-        return tomllib.loads(text)
-    except RecursionError:
-        raise InputError(f"{what}: TOML nested too deep to read") from None
-    except (ValueError, tomllib.TOMLDecodeError) as err:
-        raise InputError(f"{what}: not valid TOML ({str(err).splitlines()[0]})") from None
+    return _parsed(text, what, "TOML", tomllib.loads)
 
 
 #: most values a YAML file may expand to, aliases counted at every use (a settings file holds hundreds;
@@ -115,8 +117,7 @@ def load_yaml_text(text: str, what: str) -> Any:
     """
     import yaml  # PyYAML, only needed for YAML configs
 
-    if json_depth(text) > MAX_JSON_DEPTH:  # flow collections use JSON's brackets; PyYAML's composer recurses
-        raise InputError(f"{what}: YAML nested more than {MAX_JSON_DEPTH} deep; is it the right file?")
+    _check_depth(text, what, "YAML")  # PyYAML's composer recurses
     # the pure-Python safe loader: libyaml's (CSafeLoader) crashes the process on deeply nested input
     loader = yaml.SafeLoader(text)
     try:

@@ -136,10 +136,6 @@ class WatchOptions:
 # --------------------------------------------------------------------------------------------------
 
 
-def _floats(data: Mapping[str, Any], *names: str) -> list[float]:
-    return [float(data[n]) for n in names]
-
-
 @dataclass(frozen=True)
 class TestUpdate:
     """A usable test, reported when it first qualifies and again at every new stable cycle.
@@ -204,8 +200,8 @@ class TestUpdate:
         """
         d = check_schema_version(data, "watch test update", range(1, WATCH_SCHEMA_VERSION + 1))
         try:
-            t_start, t_end, t_log, beta, f, a, wall = _floats(d, "t_start", "t_cycle_end", "t_log_start",
-                                                              "beta_effective", "frequency_hz", "amplitude", "wall_time")
+            t_start, t_end, t_log, beta, f, a, wall = (float(d[n]) for n in (
+                "t_start", "t_cycle_end", "t_log_start", "beta_effective", "frequency_hz", "amplitude", "wall_time"))
             nominal, relay = d.get("beta_nominal"), d.get("relay")
             law = None if relay is None else RelayLaw.from_json(relay)
             h = float(d["h"]) if "h" in d or law is None else (law.high - law.low) / 2

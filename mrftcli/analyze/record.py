@@ -84,9 +84,7 @@ class TpCheck:
     residual_ratio_best: float | None = None
 
     def to_dict(self) -> _JSONDict:
-        return {"verdict": self.verdict, "given": self.given, "best": self.best, "low": self.low, "high": self.high,
-                "residual_ratio_given": self.residual_ratio_given, "residual_ratio_best": self.residual_ratio_best,
-                "unit": "s"}
+        return {**dataclasses.asdict(self), "unit": "s"}  # the fields in their order
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> TpCheck:

@@ -102,12 +102,6 @@ def _output_relative(result):
     return t, y * scale, rel
 
 
-def _t0(result) -> float:
-    """The log start [s] (AnalysisResult.t0; 0 for results made without it)."""
-    t0 = result.t0
-    return float(t0) if t0 is not None and math.isfinite(t0) else 0.0
-
-
 def _mark_tests(ax_c: Axes, ax_y: Axes, result: AnalysisResult, colours: dict[int, Any], T0: float) -> None:
     """Each test shaded, its stable cycles as bars, its label; a beta legend when there are many."""
     used_tests = result.segmented
@@ -184,7 +178,7 @@ def plot_timeseries(result: AnalysisResult) -> Figure:
     fl = result.flight
     if fl is None:
         raise InputError("the analysis carries no flight signals to plot")
-    T0 = _t0(result)  # every time axis is seconds from the log start (logs carry epoch times)
+    T0 = result.t0  # every time axis is seconds from the log start (logs carry epoch times)
     segmented = result.segmented
     n_zoom = min(len(segmented), 4)
     fig = plt.figure(figsize=(11, 6.2 + (2.6 if n_zoom else 0)), layout="constrained")
@@ -690,7 +684,7 @@ def write_analysis_report(result, out_dir: str | Path, links: Sequence[tuple[str
         report(progress, i, len(figures), name)
         save_figure(fn(result), out / name)
         written.append((name, title))
-    T0 = _t0(result)
+    T0 = result.t0
     body = [_header(result, T0), "<h2>Parameters</h2>",
             html_table(["parameter", "estimate", "std", "95 % interval", "unit"], _parameter_rows(result))]
     if links:

@@ -10,7 +10,7 @@ import click
 from click.core import ParameterSource
 
 from ..errors import InputError
-from .model_options import build_model, structure_options
+from .model_options import process_model, structure_options
 from .analyze import accept_tp_option
 from .options import json_option, log_layout_options, min_cycles_option, quiet_option, tp_option
 
@@ -48,14 +48,11 @@ def _process_model(ctx: click.Context, setting_opts: dict[str, Any]) -> Any:
     """``--model``/``--model-file`` with ``--param``/``--range``: the process model (None: eq. (2)); the options
     are taken out of ``setting_opts``."""
     name, params, ranges = (setting_opts.pop(k) for k in ("model_name", "params", "ranges"))
-    if name == "soiptd":
-        if params or ranges:
-            raise click.UsageError("--param/--range are for a process model: give --model NAME or --model-file FILE")
-        return None
-    if setting_opts.get("tp") is not None and ctx.get_parameter_source("tp") is ParameterSource.COMMANDLINE:
+    if name != "soiptd" and setting_opts.get("tp") is not None \
+            and ctx.get_parameter_source("tp") is ParameterSource.COMMANDLINE:
         raise click.UsageError("--tp is eq. (2)'s propulsion time constant: with --model give the known parameters "
                                "with --param NAME=VALUE")
-    return build_model(name, params, ranges)
+    return process_model(name, params, ranges)
 
 
 def _shown_rows(df, limit: int):

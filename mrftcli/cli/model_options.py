@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
-__all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "meta_model_options", "meta_model", "structure_options", "window_option", "relay_options",
+__all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_windows", "build_model", "format_estimates", "parameter_lines",
            "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup"]
 
@@ -80,55 +80,21 @@ def model_option(f: Callable[..., Any]) -> Callable[..., Any]:
                         show_default=True, callback=_model_seen, help=_MODEL_HELP)(f)
 
 
-_META_MODEL = "mrftcli.meta_model"
-
-
-def _meta_seen(ctx: click.Context, param: click.Parameter, value: Any) -> None:
-    """Keep ``--model``/``--model-file``/``--param``/``--range`` in the context (see :func:`meta_model`)."""
-    store = ctx.meta.setdefault(_META_MODEL, {})
-    if param.name == "model_file" and value is not None:
-        ctx.meta[_META_KEY] = value
-    store[param.name] = value
-
-
-def meta_model_options(command: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """``--model``, ``--model-file``, ``--param``, ``--range`` that do not reach the command as arguments.
-
-    For a command whose own signature serves eq. (2) (``tune``): the process path reads them with
-    :func:`meta_model` (a small hook instead of a second set of keyword arguments).
-    """
-    def decorate(f: Callable[..., Any]) -> Callable[..., Any]:
-        f = click.option("--range", "ranges", multiple=True, metavar="NAME=LO:HI", expose_value=False,
-                         callback=_meta_seen, help="With --model: a parameter's admissible range (set I).")(f)
-        f = click.option("--param", "params", multiple=True, metavar="NAME=VALUE", expose_value=False,
-                         callback=_meta_seen, help=f"With --model: a parameter's value for {command} (repeatable; "
-                                                   "every parameter of the family is needed).")(f)
-        f = click.option("--model-file", "model_file", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-                         expose_value=False, callback=_meta_seen, help=_MODEL_FILE_HELP)(f)
-        return click.option("--model", "model_name", type=click.Choice(MODEL_NAMES), default="soiptd",
-                            show_default=True, expose_value=False, callback=_meta_seen, help=_MODEL_HELP)(f)
-    return decorate
-
-
-def meta_model(ctx: click.Context) -> Any:
-    """The process model given by :func:`meta_model_options` (None: eq. (2), none was asked for).
+def process_model(model_name: str, params: Sequence[str], ranges: Sequence[str]) -> Any:
+    """The process model of ``--model NAME``/``--model-file`` with ``--param``/``--range`` (None: eq. (2), none was
+    asked for), for the commands whose eq. (2) route takes no model options (``tune``, ``batch``).
 
     Raises
     ------
     InputError
-        Both ``--model NAME`` and ``--model-file``, or ``--param``/``--range`` without a process model.
+        ``--param``/``--range`` without a process model.
     """
-    store = ctx.meta.get(_META_MODEL, {})
-    name, path = store.get("model_name", "soiptd"), store.get("model_file")
-    params, ranges = tuple(store.get("params") or ()), tuple(store.get("ranges") or ())
-    if path is not None and name != "soiptd":
-        raise InputError("give --model NAME or --model-file FILE, not both")
-    if path is None and name == "soiptd":
+    if model_name == "soiptd":
         if params or ranges:
             raise InputError("--param/--range are for a process model: give --model NAME (fopdt, sopdt, ipdt, "
                              "foipdt) or --model-file FILE")
         return None
-    return build_model(DECLARED if path is not None else name, params, ranges)
+    return build_model(model_name, params, ranges)
 
 
 def structure_options(f: Callable[..., Any]) -> Callable[..., Any]:

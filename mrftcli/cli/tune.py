@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from ..mrft.model import LoopModel, PlantModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
-from .model_options import meta_model, meta_model_options
+from .model_options import process_model, structure_options
 from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
@@ -181,17 +181,17 @@ def _source_json(source: str | None) -> Any:
         return None
 
 
-def _family_asked(ctx: click.Context, data: Any) -> bool:
-    """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given, or SOURCE (``data``,
-    parsed) an ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
-    if meta_model(ctx) is not None:
+def _family_asked(given: PlantModel | None, data: Any) -> bool:
+    """Is this ``tune`` for a family other than eq. (2): ``--model NAME``/``--model-file`` given (``given``), or SOURCE
+    (``data``, parsed) an ``analyze --model NAME --json`` result (its ``model`` a family other than soiptd)?"""
+    if given is not None:
         return True
     return isinstance(data, dict) and isinstance(data.get("model"), str) and data["model"] != "soiptd" \
         and "identification" in data
 
 
-def _family_source(ctx: click.Context, source: str | None, data: Any) -> _TuneSource:
-    """A family's model with its draws (none without a spread), from ``--model``/``--param`` or an analyze
+def _family_source(given: PlantModel | None, source: str | None, data: Any) -> _TuneSource:
+    """A family's model with its draws (none without a spread), from ``--model``/``--param`` (``given``) or an analyze
     RESULT.json: ``analyze --model NAME``'s (``rate_hz`` the tests' controller rate when they share one) or
     an outer loop's cascade (``analyze --inner-model``'s: draws over the outer estimate and the inner loop,
     the rate its outer controller ran at)."""
@@ -199,13 +199,14 @@ def _family_source(ctx: click.Context, source: str | None, data: Any) -> _TuneSo
     from ..tune.grid import N_DRAWS, model_draws, outer_draws
 
     if source is None:
-        model = meta_model(ctx)
+        model = given
+        assert model is not None  # a family without a SOURCE: --model was given
         missing = [p.name for p in model.parameters.values() if not p.known]
         if missing:
             raise InputError(f"give every parameter of {model.family} with --param NAME=VALUE: missing "
                              f"{', '.join(missing)} (or tune an analyze --model {model.family} RESULT.json)")
         return _TuneSource(model, None, "")
-    if meta_model(ctx) is not None:
+    if given is not None:
         raise InputError("give a RESULT.json or --model with --param, not both (the file holds its model)")
     from ..analyze.record import AnalysisResult
 
@@ -378,7 +379,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
 
 
 @click.command("tune")
-@meta_model_options("tune")
+@structure_options
 @click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
 @tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required, except for a cascade RESULT.json (analyze --inner-model), which carries its inner loop's.")  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
 @log_layout_options(format_flag="--log-format")
@@ -422,7 +423,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
 @click.option("--report", "report_dir", metavar="DIR", type=click.Path(file_okay=False),
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()
-def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
+def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
          export, out, gyro_cutoff, hover_thrust, stack_version, clamp, fmt, design, kind, json_target, report_dir, quiet,
          **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
@@ -455,7 +456,8 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     source = sources[0] if sources else None
     data = _source_json(source) if len(sources) == 1 else None  # SOURCE parsed once
     cascade = isinstance(data, dict) and data.get("kind") == "cascade"  # analyze --inner-model's result
-    family = cascade or (len(sources) < 2 and _family_asked(ctx, data))
+    given = process_model(model_name, params, ranges)  # None: eq. (2)
+    family = cascade or (len(sources) < 2 and _family_asked(given, data))
     if cascade:  # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
         _refuse_unused({"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
                         "--design mrft-rule": design == "mrft-rule",
@@ -481,7 +483,7 @@ def tune(sources, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective,
     rate_given: float | None = read_options.get("controller_rate_hz")
     setting = None
     if family:
-        src = _family_source(ctx, source, data)
+        src = _family_source(given, source, data)
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:

@@ -44,7 +44,7 @@ from ..mrft.model import PlantModel
 from .features import FEATURE_NAMES
 from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
 from .heldout import harmonic_errors, held_out_p, waveform_errors
-from ..jsonable import finite_or_none
+from ..jsonable import finite_or_none, json_opt_float
 from .physics import Z_LIMIT
 from .records import CandidateFit, CycleErrors, Disagreement, EffectFinding, FinalModel, HeldOut, Unexplained
 from .scatter import scatter_z
@@ -471,15 +471,11 @@ class TestCheck:
         even = d.get("even_ratio")
         return cls(int(d["index"]), float(d["t_start"]), float(d["t_end"]), float(d["frequency_hz"]),
                    float(d["frequency_se_hz"]), float(d["amplitude"]), float(d["amplitude_se"]),
-                   _opt(ho["frequency_hz"]), _opt(ho["amplitude"]), _opt(ho["frequency_sigma_hz"]),
-                   _opt(ho["amplitude_sigma"]), _opt(al["frequency_hz"]), _opt(al["amplitude"]),
+                   json_opt_float(ho["frequency_hz"]), json_opt_float(ho["amplitude"]), json_opt_float(ho["frequency_sigma_hz"]),
+                   json_opt_float(ho["amplitude_sigma"]), json_opt_float(al["frequency_hz"]), json_opt_float(al["amplitude"]),
                    tuple(BandResidual.from_json(b) for b in ho["bands"]),
                    tuple(BandResidual.from_json(b) for b in al["bands"]),
                    math.inf if even is None else float(even), str(d.get("note", "")))
-
-
-def _opt(x: Any) -> float | None:
-    return None if x is None else float(x)
 
 
 # ----------------------------------------------------------------------------------------------

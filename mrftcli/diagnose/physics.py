@@ -68,23 +68,25 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..analyze.general import MeasuredTest, identify_points
-from ..analyze.smooth_cycle import peak_amplitude
 from ..errors import IdentificationError, InputError
 from ..io.logtypes import FlightLog, output_unit
-from ..jsonable import finite_or_none
+from ..jsonable import finite_or_none, json_float
 from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import lti_limit_cycle
 from ..mrft.model import PlantModel
 from ..mrft.relays import RelayLaw
 
+if TYPE_CHECKING:
+    from .locate import MeasuredWaveform
+
 __all__ = ["Effect", "Action", "OnTests", "LIBRARY", "CANDIDATES", "EFFECTS", "BY_NAME", "BIC_THRESHOLD", "Z_LIMIT",
-           "unit_in_loop", "EffectFit", "Selection", "TestData", "as_test_data", "peak_amplitude",
+           "unit_in_loop", "EffectFit", "Selection", "TestData", "as_test_data",
            "select"]
 
 #: evidence needed to name an effect, every family: delta BIC above it ("very strong" on Kass-Raftery's scale)
@@ -433,8 +435,9 @@ def _noise_std(t: np.ndarray, y: np.ndarray, t0: float, P: float, Y: np.ndarray)
     return float(np.std(r, ddof=2))
 
 
-def as_test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
-    """One usable test of :func:`mrftcli.analyze.general.measure_tests` as :class:`TestData`.
+def as_test_data(flight: FlightLog, measured: MeasuredTest, wave: MeasuredWaveform) -> TestData:
+    """One usable test of :func:`mrftcli.analyze.general.measure_tests` as :class:`TestData`, its mean
+    cycle ``wave`` (:func:`mrftcli.diagnose.locate.measured_waveform`) measured from the same fits.
 
     Raises
     ------
@@ -457,17 +460,14 @@ def as_test_data(flight: FlightLog, measured: MeasuredTest) -> TestData:
         k = np.arange(1, f.harmonics.size + 1)
         slopes.append(abs(float(np.real(np.sum(1j * k * 2 * math.pi / f.period * f.harmonics)))))
     n = len(fits)
-    Y = np.mean([f.harmonics[:min(g.harmonics.size for g in fits)] for f in fits], axis=0)
     m = np.array(means)
     Ts = 1.0 / float(s.rate_hz)
     slope = float(np.median(slopes))
     sigma_n = float(np.median(noise))
     switch_var = (sigma_n / slope) ** 2 if slope > 0 else math.inf
-    amps = [peak_amplitude(f.harmonics, 1024) for f in fits]
-    amplitude = peak_amplitude(Y, 1024)
-    precision = math.hypot(float(P.std(ddof=1) / P.mean()), float(np.std(amps, ddof=1)) / amplitude) / math.sqrt(n)
+    precision = math.hypot(wave.frequency_se_hz / wave.frequency_hz, wave.amplitude_se / wave.amplitude)
     return TestData(s.index, 0.5 * (s.t_start + s.t_end), s.relay.h, s.predicting_relay, float(s.rate_hz),
-                    measured.points, 1.0 / float(P.mean()), amplitude,
+                    wave.points, wave.frequency_hz, wave.amplitude,
                     float(D.mean()), float(D.std(ddof=1) / math.sqrt(n)), float(np.nanmean(m)),
                     float(np.nanstd(m, ddof=1) / math.sqrt(n)), float(P.var(ddof=1)), n - 1,
                     2.0 * (switch_var + Ts * Ts / 12.0), precision)
@@ -725,8 +725,7 @@ class EffectFit:
 
     @classmethod
     def from_json(cls, d: Mapping[str, Any]) -> EffectFit:
-        def num(x: Any) -> float:
-            return math.nan if x is None else float(x)
+        num = json_float  # null (a NaN written out): NaN
         return cls(str(d["name"]), str(d["parameter"]), str(d["unit"]), num(d["value"]), num(d["delta_bic"]),
                    num(d["held_out_before"]), num(d["held_out_after"]),
                    tuple(num(x) for x in d.get("per_test_before", [])),

@@ -215,7 +215,7 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
                               [p for i, m in measured.items() if i != s.index for p in m.points], all_model)
                    for s in analysis.tests if s.index in measured)
     say("fitting the library of physics")
-    chosen = select_effects_on(model, [as_test_data(flight, by_index[i]) for i in measured])
+    chosen = select_effects_on(model, [as_test_data(flight, by_index[i], w) for i, w in measured.items()])
     say("locating")
     gap = misfit(analysis.identification)
     # where the residual sits first (per test, largest first); the fit's overall misfit after it

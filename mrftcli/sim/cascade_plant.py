@@ -19,11 +19,13 @@ simulator is its oracle.
 
 from __future__ import annotations
 
+import cmath
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import optimize
 from numpy.typing import NDArray
 
 from ..mrft.model import LoopModel
@@ -269,7 +271,7 @@ def outer_phase_margin(plant: CascadePlant, inner: InnerGains, outer: InnerGains
     """The phase margin an outer controller has on the cascade: L = (Ce + D) G_outer on the unit circle.
 
     The loop is broken at the outer command (the controller's P, I and D paths all feed it), the
-    crossovers located on a log grid up to the Nyquist frequency and refined by bisection on |L| = 1.
+    crossovers located on a log grid up to the Nyquist frequency and refined on |L| = 1 (Brent's method).
     An unstable closed loop (spectral radius >= 1) has margin -inf.
     """
     radius = closed_loop_radius(plant, inner, outer, command_gain)
@@ -284,16 +286,9 @@ def outer_phase_margin(plant: CascadePlant, inner: InnerGains, outer: InnerGains
     mag = np.abs(loop(grid)) - 1.0
     margins: list[tuple[float, float]] = []
     for i in np.flatnonzero(np.sign(mag[:-1]) != np.sign(mag[1:])):
-        lo, hi = float(grid[i]), float(grid[i + 1])
-        for _ in range(50):
-            mid = math.sqrt(lo * hi)
-            if (abs(complex(loop(np.array([mid]))[0])) - 1.0) * mag[i] > 0:
-                lo = mid
-            else:
-                hi = mid
-        w = math.sqrt(lo * hi)
-        pm = 180.0 + math.degrees(math.atan2(complex(loop(np.array([w]))[0]).imag,
-                                             complex(loop(np.array([w]))[0]).real))
+        w = float(optimize.brentq(lambda x: abs(complex(loop(np.array([x]))[0])) - 1.0, grid[i], grid[i + 1],
+                                  xtol=1e-14, rtol=1e-14))
+        pm = 180.0 + math.degrees(cmath.phase(complex(loop(np.array([w]))[0])))
         margins.append(((pm + 180.0) % 360.0 - 180.0, w))
     if radius >= 1.0:
         return OuterMargin(-math.inf, margins[0][1] if margins else math.nan, False, radius)

@@ -118,3 +118,10 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
               if ln and not ln.startswith("#")}
     assert set(values) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}
     assert check_ranges("px4", values) == []
+
+
+def test_px4_xy_export_refuses_a_command_that_is_not_pxs_thrust():
+    """K far from g / hover (e.g. HEAR's x command, an acceleration: K ~ 1) is not PX4's thrust setpoint."""
+    c = Controller(0.2, 0.0, 0.08, 0.0, RATE, None)
+    with pytest.raises(InputError, match="not near g / MPC_THR_HOVER"):
+        export_design("px4", c, LoopModel(0.05, 2.0, 0.1, 0.98), "x", "robust PD", hover_thrust=0.5)

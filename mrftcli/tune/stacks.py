@@ -511,6 +511,8 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         e = _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes, check_version(version),
                                 evidence.posterior_models)
         return _with_prearm(e)
+    if stack == "px4" and loop in _PX4_XY:
+        _check_thrust_units(model, loop, hover_thrust)
     if not clamp:  # the stack's ranges are constraints of the design (issue 37)
         c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
@@ -520,6 +522,19 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         e = replace(e, version=check_version(version))
         return _with_prearm(e)
     return _with_reboot_note(e)
+
+
+def _check_thrust_units(model: LoopModel, loop: str, hover: float | None) -> None:
+    """InputError unless K is about g / hover: the command PX4's x (y) thrust setpoint component, normalised as
+    ``PositionControl`` makes it (thrust_x = acceleration x hover / g), the output in metres."""
+    from .ardupilot_z import UNIT_TOLERANCE
+
+    assert hover is not None
+    expected = STANDARD_GRAVITY / hover
+    if not (1.0 / UNIT_TOLERANCE <= model.K / expected <= UNIT_TOLERANCE):
+        raise InputError(f"cannot export the {loop} loop to px4: K {model.K:.4g} m/s^2 per command unit is not near "
+                         f"g / MPC_THR_HOVER = {expected:.4g} (--hover-thrust {hover:g}): the log's command is not PX4's "
+                         f"normalised thrust setpoint along {loop} or its position not in metres")
 
 
 def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float | None) -> str:

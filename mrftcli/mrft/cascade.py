@@ -227,21 +227,6 @@ def whole_and_fraction(delay: float, T: float) -> tuple[int, float]:
     return d, max(delay - d * T, 0.0)
 
 
-class _Affine:
-    """Row vectors over the closed-loop state plus the coefficient of the relay command r_k."""
-
-    def __init__(self, n: int) -> None:
-        self.n = n
-
-    def zero(self) -> tuple[FloatArray, float]:
-        return np.zeros(self.n), 0.0
-
-    def state(self, i: int) -> tuple[FloatArray, float]:
-        row = np.zeros(self.n)
-        row[i] = 1.0
-        return row, 0.0
-
-
 def _cascade_discrete(plant: StateSpace, delay_i: float, c: Controller, K: float, Td: float,
                       tau: float) -> DiscreteStateSpace:
     """The exact discrete realisation at the inner controller's rate (the module docstring's equations).
@@ -267,15 +252,15 @@ def _cascade_discrete(plant: StateSpace, delay_i: float, c: Controller, K: float
     iI, iD, iy = ib + d_i + 1, ib + d_i + 2, ib + d_i + 3
     iz = iy + 1
     n = iz + d_o + 1
-    rows = _Affine(n)
+    unit = np.eye(n)  # unit[i]: the row picking state i of X_k
     phi = np.zeros(n)
     phi[:ni] = plant.C
-    # the controller of tick k (row over X_k, coefficient of r_k)
-    I_row, I_r = (rows.state(iI)[0] - c.Ki * T * phi, c.Ki * T) if c.Ki > 0 else rows.zero()
-    D_row = (c.Tf * rows.state(iD)[0] - c.Kd * (phi - rows.state(iy)[0])) / (c.Tf + T)
+    # the controller of tick k: a row over X_k and the coefficient of the relay command r_k
+    I_row, I_r = (unit[iI] - c.Ki * T * phi, c.Ki * T) if c.Ki > 0 else (np.zeros(n), 0.0)
+    D_row = (c.Tf * unit[iD] - c.Kd * (phi - unit[iy])) / (c.Tf + T)
     c_row, c_r = -c.Kp * phi + I_row + D_row, c.Kp + I_r
-    old_row, old_r = rows.state(ib + d_i)
-    new_row, new_r = (c_row, c_r) if d_i == 0 else rows.state(ib + d_i - 1)
+    old_row, old_r = unit[ib + d_i], 0.0
+    new_row, new_r = (c_row, c_r) if d_i == 0 else (unit[ib + d_i - 1], 0.0)
     Ad = np.zeros((n, n))
     Bd = np.zeros(n)
     Ad[:n_x] = Phi @ np.eye(n_x, n) + np.outer(Ga, old_row) + np.outer(Gb, new_row)

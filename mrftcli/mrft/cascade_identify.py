@@ -396,7 +396,10 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
     timing = np.array([tau_timing_std ** 2 if name == "tau" else 0.0 for name in problem.free])
     std = np.sqrt(np.diag(cov) + var_inner + timing)
     omega = 2 * math.pi * float(np.median([t.frequency_mean for t in problem.tests]))
-    estimates = {name: _estimate(name, float(theta[i]), float(std[i]), problem.lower[i], problem.upper[i], omega)
+    # Td and K on the log scale (theta holds ln), tau linear; cut at the set I (as the families' fit)
+    estimates = {name: fitted_estimate(name, math.exp(float(theta[i])) if name != "tau" else float(theta[i]),
+                                       float(theta[i]), float(std[i]), (problem.lower[i], problem.upper[i]),
+                                       CASCADE_PARAMETERS[name][0], name != "tau", omega, _METHOD)
                  for i, name in enumerate(problem.free)}
     if "K" not in problem.free:
         estimates["K"] = ParameterEstimate.given(model.K, CASCADE_PARAMETERS["K"][0], "K")
@@ -408,11 +411,3 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
                  for t, lc in zip(problem.tests, problem.cycles(model)))
     return CascadeIdentification(model, estimates, fits, problem.rate_hz, len(draws), inner_std)
 
-
-def _estimate(name: str, value: float, std: float, low: float, high: float, omega: float) -> ParameterEstimate:
-    """A parameter's estimate (:func:`~mrftcli.mrft.parameter.fitted_estimate`, as the families'): Td and K on the
-    log scale (``value`` is ln), tau on the linear scale, cut at the set I; determined within a factor of 1.25
-    either way, or for tau within a radian of phase at the tests' median frequency ``omega`` [rad/s]."""
-    log_scale = name != "tau"
-    return fitted_estimate(name, math.exp(value) if log_scale else value, value, std, (low, high),
-                           CASCADE_PARAMETERS[name][0], log_scale, omega, _METHOD)

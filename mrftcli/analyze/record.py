@@ -606,12 +606,8 @@ def _eq2_from_json(data: Mapping[str, Any]) -> AnalysisResult:
     info = LogInfo.from_dict(inp) if "command_samples" in inp else None
     constraints = (data.get("identification") or {}).get("constraints") or {}
     return AnalysisResult(
-        path=str(inp.get("path", "")), loop=str(inp.get("loop", "")),
         model=LoopModel(json_float(m["Tp"]), json_float(m["Td"]), json_float(m["tau"]), json_float(m["K"])),
-        tests=tuple(mrft_test_from_json(t) for t in data.get("tests") or ()), identification=None,
-        parameters={"Td": Td, "tau": tau, "K": K}, **_rejected(data),
-        warnings=tuple(str(w) for w in data.get("warnings") or ()),
-        t0=json_float(inp.get("t0") or 0.0),
+        identification=None, parameters={"Td": Td, "tau": tau, "K": K}, **_logged(data),
         # the JSON writes {"used": ["ufm"]} when no constraint was used; the record holds {} then
         constraints={} if dict(constraints) == {"used": ["ufm"]} else dict(constraints),
         method=str(p["Td"].get("method", "mrft")),
@@ -681,28 +677,28 @@ def _cascade_from_json(data: Any) -> AnalysisResult:
     d = check_schema_version(data, "cascade analysis JSON", range(1, CASCADE_SCHEMA_VERSION + 1))
     if d.get("kind") != "cascade" or "identification" not in d:
         raise InputError("not a cascade analysis JSON (needs kind 'cascade' and 'identification')")
-    inp = d.get("input") or {}
     try:
         ident = CascadeIdentification.from_json(d["identification"])
         recorded = dict(d) if d.get("schema_version") == CASCADE_SCHEMA_VERSION else \
             {**d, "schema_version": CASCADE_SCHEMA_VERSION,  # version 1's parameters as the one record
              "parameters": {k: e.to_json() for k, e in ident.estimates.items()}, "identification": ident.to_json()}
         return AnalysisResult(
-            str(inp.get("path", "")), str(inp.get("loop", "")), ident.model,
-            tuple(mrft_test_from_json(t) for t in d.get("tests") or ()), ident, dict(ident.estimates), **_rejected(d),
-            controller_rate_hz=float(inp.get("controller_rate_hz") or 0.0),
-            assumptions=tuple(str(a) for a in d.get("assumptions") or ()),
-            warnings=tuple(str(w) for w in d.get("warnings") or ()), t0=float(inp.get("t0") or 0.0),
-            recorded=recorded)
+            model=ident.model, identification=ident, parameters=dict(ident.estimates), **_logged(d),
+            controller_rate_hz=float((d.get("input") or {}).get("controller_rate_hz") or 0.0),
+            assumptions=tuple(str(a) for a in d.get("assumptions") or ()), recorded=recorded)
     except (KeyError, TypeError, ValueError) as err:
         raise InputError(f"cascade analysis JSON: bad tests ({type(err).__name__}: {err})") from err
 
 
-def _rejected(data: Mapping[str, Any]) -> dict[str, Any]:
-    """``rejected`` (the tests, without their cycles) and ``rejection_reasons`` of eq. (2)'s or the cascade's JSON."""
-    rows = data.get("rejected_tests") or ()
-    return {"rejected": tuple(mrft_test_from_json(t) for t in rows),
-            "rejection_reasons": {int(t["index"]): str(t.get("reason", "")) for t in rows}}
+def _logged(data: Mapping[str, Any]) -> dict[str, Any]:
+    """What eq. (2)'s and the cascade's layouts hold alike: ``input``'s path, loop and t0, the tests, the rejected
+    tests (without their cycles) with their reasons, the warnings."""
+    inp, rows = data.get("input") or {}, data.get("rejected_tests") or ()
+    return {"path": str(inp.get("path", "")), "loop": str(inp.get("loop", "")), "t0": json_float(inp.get("t0") or 0.0),
+            "tests": tuple(mrft_test_from_json(t) for t in data.get("tests") or ()),
+            "rejected": tuple(mrft_test_from_json(t) for t in rows),
+            "rejection_reasons": {int(t["index"]): str(t.get("reason", "")) for t in rows},
+            "warnings": tuple(str(w) for w in data.get("warnings") or ())}
 
 
 def _recorded_rate(data: Mapping[str, Any], info: LogInfo | None) -> float | None:

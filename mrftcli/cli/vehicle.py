@@ -93,8 +93,6 @@ def _inner_gains(path: str | None) -> dict[str, Any] | None:
 def _export_text(result: VehicleResult, stack: str) -> str:
     """The ``--export`` file: one JSON object by loop (generic, hear) or one parameter file (px4, ardupilot)
     holding every exported loop's parameters."""
-    import dataclasses
-
     gains = {name: e.gains for name, e in result.loops.items() if e.gains is not None}
     if stack == "generic":
         return json.dumps({name: g.controller.to_dict() for name, g in gains.items()}, indent=2) + "\n"
@@ -103,17 +101,9 @@ def _export_text(result: VehicleResult, stack: str) -> str:
         raise InputError(f"no loop of this flight can be exported to {stack} (the reasons are in the table)")
     if stack == "hear":
         return json.dumps({name: json.loads(e.file_text()) for name, e in exports.items()}, indent=2) + "\n"
-    params: dict[str, float] = {}
-    for e in exports.values():
-        for key, value in e.params.items():
-            if key in params and params[key] != value:  # a setting two loops share (the gyro rate, its filter)
-                raise InputError(f"--export {stack}: {key} differs between the loops ({params[key]:g}, {value:g}); "
-                                 "export them one at a time with tune")
-            params[key] = value
-    first = next(iter(exports.values()))
-    merged = dataclasses.replace(first, loop=", ".join(exports), params=params,
-                                 assumptions=tuple(f"{n}: {a}" for n, e in exports.items() for a in e.assumptions))
-    return merged.file_text()
+    from ..tune.joint import merge_exports
+
+    return merge_exports(list(exports.values()), ", ".join(exports)).file_text()
 
 
 def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | None,

@@ -39,7 +39,7 @@ from .closed_loop import RateFilter
 from .design import DesignOptions, Posterior, TuneResult, tune
 from .stacks import ExportEvidence, StackExport, export_design
 
-__all__ = ["AxisModel", "AxisSource", "CutoffTrial", "JointCutoff", "JointExport", "joint_gyro_cutoff", "design_axes",
+__all__ = ["AxisModel", "AxisSource", "merge_exports", "CutoffTrial", "JointCutoff", "JointExport", "joint_gyro_cutoff", "design_axes",
            "export_axes", "joint_cutoff_of_analyses", "JOINT_CUTOFFS_HZ",
            "JOINT_MAX_LOSS", "JOINT_SCHEMA_VERSION", "GYRO_FILTER_PARAM"]
 
@@ -287,6 +287,26 @@ class AxisSource:
     amplitudes: tuple[float, ...] = ()
 
 
+def merge_exports(exports: Sequence[StackExport], loop: str) -> StackExport:
+    """Several loops' exports to one stack as the one file it loads, for ``loop`` (their names): every parameter
+    once, in their order, each loop's assumptions prefixed with its loop.
+
+    Raises
+    ------
+    InputError
+        A parameter the loops share (the gyro rate, its filter) with two values.
+    """
+    params: dict[str, float] = {}
+    for e in exports:
+        for n, v in e.params.items():
+            if n in params and params[n] != v:
+                raise InputError(f"{n} differs between the loops ({params[n]:g} and {v:g}): not one file; export "
+                                 "them one at a time with tune")
+            params[n] = v
+    return replace(exports[0], loop=loop, params=params,
+                   assumptions=tuple(f"{e.loop}: {a}" for e in exports for a in e.assumptions))
+
+
 @dataclass(frozen=True)
 class JointExport:
     """Both axes' exports with one gyro cutoff: one file for the stack.
@@ -306,17 +326,10 @@ class JointExport:
 
     def params(self) -> dict[str, float]:
         """Every parameter once, in the axes' order (the shared ones, equal by construction, once)."""
-        out: dict[str, float] = {}
-        for e in self.exports:
-            for n, v in e.params.items():
-                if n in out and out[n] != v:
-                    raise InputError(f"{n} differs between the axes ({out[n]:g} and {v:g}): not one file")
-                out[n] = v
-        return out
+        return self._merged().params
 
     def _merged(self) -> StackExport:
-        first = self.exports[0]
-        return replace(first, loop=" and ".join(e.loop for e in self.exports), params=self.params())
+        return merge_exports(self.exports, " and ".join(e.loop for e in self.exports))
 
     def file_text(self) -> str:
         """The one file the stack loads (PX4 ``.params``, ArduPilot ``.param``)."""

@@ -216,9 +216,7 @@ def switching_level(fits: Sequence[CycleFit]) -> SwitchingLevel | None:
         levels.append(0.5 * (down - up))
     n = min(f.harmonics.size for f in fits)
     Y = np.mean([f.harmonics[:n] for f in fits], axis=0)
-    phase = np.linspace(0.0, 2 * math.pi, _PHASES, endpoint=False)
-    wave = np.real(np.exp(1j * np.outer(phase, np.arange(1, n + 1))) @ Y)
-    return SwitchingLevel(float(np.mean(levels)), float(0.5 * (wave.max() - wave.min())), len(fits),
+    return SwitchingLevel(float(np.mean(levels)), peak_amplitude(Y, _PHASES), len(fits),
                           float(np.std(levels, ddof=1) / math.sqrt(len(levels))))
 
 

@@ -97,37 +97,7 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
         lines.append(f"{t.index + 1:>4} {span:>11} {nom:>8} {beff:>+9.3f} "
                      f"{t.h:>9.4g} {t.cycles:>6d}")
     lines += _model_lines(result)
-    lines.append("candidates (found = delta BIC > 10 and better on the held-out cycles; held-out error = RMS of\n"
-                 "the held-out cycles' misfit over their amplitude, without and with the effect):")
-    lines.append(f"  {'effect':<20} {'parameter [unit]':>38} {'delta BIC':>10} {'held-out error':>22}")
-    for c in result.candidates:
-        if c.delta_bic is None:
-            lines.append(f"  {c.name:<20} {'(' + str(c.status) + ')':>38}")
-            continue
-        par = f"{c.parameter} = {_g(c.value)} {_unit(c.name, result.loop)}"
-        b = c.held_out_before.nrmse_raw if c.held_out_before is not None else None
-        a = c.held_out_after.nrmse_raw if c.held_out_after is not None else None
-        mark = "  <- found" if any(e.name == c.name and e.evidence.compared_with == "linear"
-                                   for e in result.effects) else ""
-        lines.append(f"  {c.name:<20} {par:>38} {c.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
-    pairs = result.second_effect_candidates
-    if pairs:
-        anchors = list(dict.fromkeys(c.with_ for c in pairs))
-        lines.append(f"a second effect on top of {' or '.join(anchors)} (delta BIC against that model alone):")
-        probed = [c for c in pairs if c.delta_bic is None]
-        for pc in pairs:
-            if pc.delta_bic is None:
-                continue
-            label = pc.name if len(anchors) == 1 else f"{pc.name} (with {pc.with_})"
-            par = f"{pc.parameter} = {_g(pc.values.get(pc.name))} {_unit(pc.name, result.loop)}"
-            b = pc.held_out_before.nrmse_raw if pc.held_out_before is not None else None
-            a = pc.held_out_after.nrmse_raw if pc.held_out_after is not None else None
-            mark = "  <- found" if any(e.name == pc.name for e in result.effects) else ""
-            lines.append(f"  + {label:<18} {par:>38} {pc.delta_bic:>10.1f} {_g(b, '.3f'):>10} -> {_g(a, '.3f'):<8}{mark}")
-        if probed:
-            # the rows' status carries the threshold ("not fitted: its probe lowers chi^2 by less than N")
-            why = str(probed[0].status).replace("its probe", "each one's probe")
-            lines.append(f"  {why} beside {probed[0].with_}: " + ", ".join(c.name for c in probed))
+    lines += _candidate_lines(result)
     if result.effects:
         lines += _effect_lines(result)
     elif result.unexplained is None:
@@ -252,22 +222,39 @@ def _with_analysis(result: DiagnosisResult, analysis: AnalysisResult | None) -> 
     return replace(result, identification=with_analysis(result.identification, analysis, deterministic(result.effects)))
 
 
-def _effect_rows(result: DiagnosisResult) -> list[str]:
-    """The library's candidates: parameter, delta BIC, held-out error without and with, found; then the
-    model refitted with each effect named."""
-    if not result.candidates:
-        return []
-    named = {(e.name, e.with_) for e in result.effects}
+#: what "found" and the held-out error mean, per strategy (eq. (2): cycles held out; the families: tests)
+_FOUND_RULE = {
+    True: "candidates (found = delta BIC > 10 and better on the held-out cycles; held-out error = RMS of\nthe held-out "
+          "cycles' misfit over their amplitude, without and with the effect; delay jitter: its period-scatter error):",
+    False: "effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
+           "error: RMS over the tests of each test's relative error from the others (cycle: frequency and "
+           "amplitude; balance: the mean input's residual over h; scatter: ln of the period variance's ratio)):",
+}
+
+
+def _candidate_lines(result: DiagnosisResult) -> list[str]:
+    """Every family's library: each candidate alone, then on top of the first found (``+``), with its
+    parameter, delta BIC and held-out error without and with it, the found ones marked; those not
+    fitted grouped by why; then the families' plant refitted with each effect named."""
     fits = [*result.candidates, *result.second_effect_candidates]
-    rows = [(c.name if not c.with_ else f"+ {c.name} (with {c.with_})", f"{c.parameter} = {_g(c.value)} {c.unit}",
-             _g(c.delta_bic, ".1f"), f"{_g(c.held_out_before, '.3f')} -> {_g(c.held_out_after, '.3f')}",
-             "+".join(c.views) + ("  <- found" if (c.name, c.with_) in named else "")) for c in fits]
-    head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "views")
-    lines = ["effects (found = delta BIC > 10 and each test predicted from the others better with it; held-out "
-             "error: RMS over the tests of each test's relative error from the others (cycle: frequency and "
-             "amplitude; balance: the mean input's residual over h; scatter: ln of the period variance's ratio)):"]
-    lines += text_table([head, *rows], align="<>>><", indent="  ")
-    for e in result.effects:
+    if not fits:
+        return []
+    rows, skipped = [], {}  # type: tuple[list[tuple[str, ...]], dict[str, list[str]]]
+    for c in fits:
+        label = c.name if not c.with_ else f"+ {c.name} (with {c.with_})"
+        if c.delta_bic is None:  # eq. (2): not fitted, and why
+            why = str(c.status).replace("its probe", "each one's probe")  # said of the names listed after it
+            skipped.setdefault(f"{why}{' beside ' + c.with_ if c.with_ else ''}", []).append(c.name)
+            continue
+        b, a = c.held_out_errors
+        unit = "-" if c.unit in (None, "", "1") else c.unit
+        rows.append((label, f"{c.parameter} = {_g(c.value)} {unit}", _g(c.delta_bic, ".1f"),
+                     f"{_g(b, '.3f')} -> {_g(a, '.3f')}",
+                     ("" if result.soiptd else "+".join(c.views)) + ("  <- found" if result.named(c) else "")))
+    head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "" if result.soiptd else "views")
+    lines = [_FOUND_RULE[result.soiptd], *text_table([head, *rows], align="<>>><", indent="  ")]
+    lines += [f"  {why}: {', '.join(names)}" for why, names in skipped.items()]
+    for e in result.effects if not result.soiptd else []:
         if e.refit:
             ident = result.analysis.identification if result.analysis is not None else None
             unit = {est.name: est.unit for est in ident.estimates} if ident is not None else {}
@@ -307,7 +294,7 @@ def format_process(result: DiagnosisResult) -> str:
         if c.note:
             by_note.setdefault(c.note, []).append(str(c.index + 1))
     lines += [f"test{'s' if len(ix) > 1 else ''} {', '.join(ix)}: {note}" for note, ix in by_note.items()]
-    lines += _effect_rows(result)
+    lines += _candidate_lines(result)
     lines += [f"note: {n}" for n in result.notes]
     if result.analysis is not None:
         from .analyze import format_analysis

@@ -715,6 +715,11 @@ class EffectFit:
         return (self.delta_bic > BIC_THRESHOLD and self.held_out_after < gain * self.held_out_before
                 and abs(self.value) >= self.floor)
 
+    @property
+    def held_out_errors(self) -> tuple[float, float]:
+        """:attr:`held_out_before`, :attr:`held_out_after` (as eq. (2)'s rows show theirs)."""
+        return self.held_out_before, self.held_out_after
+
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "parameter": self.parameter, "unit": self.unit, "value": finite_or_none(self.value),
                 "delta_bic": finite_or_none(self.delta_bic), "held_out_before": finite_or_none(self.held_out_before),

@@ -595,6 +595,13 @@ class DiagnosisResult:
         """The families: no test disagrees with the model beyond ``Z_LIMIT`` (None for eq. (2))."""
         return None if self.soiptd else not any(c.disagrees for c in self.checks)
 
+    def named(self, row: Row) -> bool:
+        """Whether the candidate ``row`` (alone, or on top of its ``with_``) is an effect found."""
+        if not self.soiptd:
+            return any((e.name, e.with_) == (row.name, row.with_) for e in self.effects)
+        base = f"linear + {row.with_}" if row.with_ else "linear"
+        return any(e.name == row.name and e.evidence.compared_with == base for e in self.effects)
+
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` output without its version (the batch record's ``diagnosis``)."""
         feature = self.soiptd

@@ -171,6 +171,17 @@ class HeldOut:
         return cls(kind=kind, **{k: data.get(k) for k in _HELD_OUT_KEYS[kind]})
 
 
+class _Scored:
+    """A row scored held out (``held_out_before``, ``held_out_after``: :class:`HeldOut` or None)."""
+
+    @property
+    def held_out_errors(self) -> tuple[float | None, float | None]:
+        """The held-out error without and with the effect, as recorded (the jitter's: its period-scatter
+        error), what the terminal and the report show."""
+        held = (getattr(self, "held_out_before"), getattr(self, "held_out_after"))
+        return tuple(None if h is None else h.nrmse_raw if h.kind == "waveform" else h.nrmse for h in held)  # type: ignore[return-value]
+
+
 #: the keys of a candidate row's JSON, per layout (in this order)
 _CANDIDATE_KEYS = {
     "fitted": ("name", "parameter", "value", "std", "unit", "chi2", "bic", "delta_bic", "held_out_before",
@@ -186,7 +197,7 @@ _CANDIDATE_KEYS = {
 
 
 @dataclass(frozen=True)
-class CandidateFit(_Row):
+class CandidateFit(_Row, _Scored):
     """One candidate effect fitted alone against the linear model, or why it was not.
 
     Attributes
@@ -241,6 +252,11 @@ class CandidateFit(_Row):
     period_scatter: dict[str, Any] | None = None
     compared_with: str | None = None
 
+    @property
+    def with_(self) -> str:
+        """The first effect it is fitted on top of: none (``""``), a candidate alone."""
+        return ""
+
     _KEY: ClassVar[str] = "candidates"
     _LAYOUTS: ClassVar[dict[str, tuple[str, ...]] | None] = _CANDIDATE_KEYS
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"compared_with"})
@@ -264,7 +280,7 @@ _PAIR_KEYS = {
 
 
 @dataclass(frozen=True)
-class PairFit(_Row):
+class PairFit(_Row, _Scored):
     """A second effect (``name``) fitted together with a first (``with_``: ``with`` in the JSON),
     scored against the first alone.
 

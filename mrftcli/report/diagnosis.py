@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..diagnose.records import DiagnosisFigures, DiagnosisResult, HeldOut
+from ..diagnose.records import DiagnosisFigures, DiagnosisResult
 from ..errors import InputError
 from ..io.logtypes import gain_unit
 from ._common import TEST_COLOURS, ensure_dir, esc, html_page, html_table, new_figure, save_figure, write_page
@@ -168,31 +168,14 @@ def plot_harmonics(result):
 
 def plot_evidence(result):
     """delta BIC per candidate (threshold line) and held-out error before/after (every family)."""
-    if not result.soiptd:  # the families' rows: their held-out error is each test's from the others
-        rows = [c for c in result.candidates if np.isfinite(c.delta_bic)]
-        return _evidence_figure([c.name for c in rows], [c.delta_bic for c in rows], set(result.found),
-                                [c.held_out_before for c in rows], [c.held_out_after for c in rows],
-                                "each test predicted from the others:\nrelative error [%] (cycle, balance, scatter)",
-                                "Confirmation on the tests held out")
-    rows = [c for c in result.candidates if c.delta_bic is not None]
-    found = {e.name for e in result.effects if e.evidence.compared_with == "linear"}
-    # the raw NRMSE (recording's own cycle-to-cycle scatter kept): the scatter-subtracted figure is 0
-    # whenever a model is within the scatter, which shows nothing on a bar chart
-    return _evidence_figure([c.name for c in rows], [c.delta_bic for c in rows], found,
-                            [_nan(_raw_error(c.held_out_before)) for c in rows],
-                            [_nan(_raw_error(c.held_out_after)) for c in rows],
-                            "waveform error on held-out cycles [%]\n(delay jitter: error of the period scatter)",
-                            "Confirmation on held-out (odd) cycles")
-
-
-def _evidence_figure(names, dbic, found, before, after, xlabel: str, title: str):
-    """The evidence chart: delta BIC per candidate, the found ones coloured, and the held-out error
-    without and with each [fractions, drawn in %]."""
+    rows = [c for c in result.candidates if c.delta_bic is not None and np.isfinite(c.delta_bic)]
+    names = [c.name for c in rows]
+    # the raw error (eq. (2): the recording's own cycle-to-cycle scatter kept; the scatter-subtracted figure is 0
+    # whenever a model is within the scatter, which shows nothing on a bar chart)
+    before, after = ([_nan(c.held_out_errors[j]) for c in rows] for j in (0, 1))
     fig, (ax, ax2) = new_figure(1, 2, width=11, height=4.2)
-    db = np.array(dbic, float)
-    cols = [_AUG_C if n in found else "#999999" for n in names]
     y = np.arange(len(names))
-    ax.barh(y, db, color=cols)
+    ax.barh(y, np.array([c.delta_bic for c in rows], float), color=[_AUG_C if result.named(c) else "#999999" for c in rows])
     # linear up to +-10 (the threshold), logarithmic beyond: one large bar no longer flattens the rest
     ax.set_xscale("symlog", linthresh=10.0)
     ax.axvline(10.0, color="red", lw=1, ls="--", label="strong evidence starts here (10)")
@@ -203,21 +186,29 @@ def _evidence_figure(names, dbic, found, before, after, xlabel: str, title: str)
     ax2.barh(y + 0.2, 100 * np.array(before, float), 0.4, color=_BASE_C, label="linear model")
     ax2.barh(y - 0.2, 100 * np.array(after, float), 0.4, color=_AUG_C, label="with the candidate")
     ax2.set_yticks(y, [n.replace("_", " ") for n in names])
-    ax2.set_xlabel(xlabel)
-    ax2.set_title(title)
+    ax2.set_xlabel("waveform error on held-out cycles [%]\n(delay jitter: error of the period scatter)" if result.soiptd
+                   else "each test predicted from the others:\nrelative error [%] (cycle, balance, scatter)")
+    ax2.set_title("Confirmation on held-out (odd) cycles" if result.soiptd else "Confirmation on the tests held out")
     ax2.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.3), ncol=2)
     return fig
 
 
-def _raw_error(held: HeldOut | None) -> float | None:
-    """The held-out waveform error as recorded (the jitter's: its period-scatter error)."""
-    if held is None:
-        return None
-    return held.nrmse_raw if held.kind == "waveform" else held.nrmse
-
-
 def _nan(x: float | None) -> float:
     return np.nan if x is None else x
+
+
+def _rows_table(result: DiagnosisResult) -> list[str]:
+    """Every family's library: each candidate alone and on top of the first found, its parameter, drop in
+    BIC, held-out error without and with it, and whether it is found (or why it was not fitted)."""
+    rows = [*result.candidates, *result.second_effect_candidates]
+    if not rows:
+        return []
+    return ["<div class='left2'>" + html_table(
+        ["candidate", "with", "parameter", "drop in BIC", "held-out error before", "after", "found"],
+        [(c.name.replace("_", " "), c.with_.replace("_", " ") or "-",
+          f"{c.parameter} = {_f(c.value)} {c.unit}" if c.delta_bic is not None else c.status or "-",
+          _f(c.delta_bic), *(_pct(x) for x in c.held_out_errors), "yes" if result.named(c) else "no")
+         for c in rows]) + "</div>"]
 
 
 _NAMES = {"T_lag": ("sensor lag T_lag", 1e3, "ms"), "sigma": ("delay jitter std", 1e3, "ms"),
@@ -270,7 +261,7 @@ def write_diagnosis_report(result: DiagnosisResult, out_dir: str | Path) -> Path
         "<img src='diagnosis_evidence.png'>" if fitted else
         "<p>No candidate was fitted: the cycles do not reject the linear model, so there is nothing for a "
         "candidate effect to explain.</p>"))
-    body += _pairs_section(result)
+    body += _rows_table(result)
     body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
     page = out / "diagnosis.html"
     write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
@@ -290,16 +281,10 @@ def _family_report(result: DiagnosisResult, out: Path) -> Path:
                          ", ".join(f"{b.ratio:.1f}" for b in c.all_bands)) for c in result.checks])]
     body += ["<h2>Where the model disagrees</h2>",
              "".join(f"<p>{esc(text)}</p>" for text in result.located) or "<p>Nowhere beyond 3 sigma.</p>"]
-    rows = [*result.candidates, *result.second_effect_candidates]
     if any(np.isfinite(c.delta_bic) for c in result.candidates):
         save_figure(plot_evidence(result), out / "diagnosis_evidence.png")
         body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
-    if rows:
-        body.append("<div class='left2'>" + html_table(
-            ["candidate", "with", "parameter", "drop in BIC", "held-out error before", "after", "found"],
-            [(c.name.replace("_", " "), c.with_.replace("_", " ") or "-", f"{c.parameter} = {_f(c.value)} {c.unit}",
-              _f(c.delta_bic), _pct(c.held_out_before), _pct(c.held_out_after),
-                "yes" if c in result.effects else "no") for c in rows]) + "</div>")
+    body += _rows_table(result)
     body += [f"<p class='muted'>{esc(n)}</p>" for n in [*result.notes, result.to_dict()["nrmse_definition"]]]
     page = out / "diagnosis.html"
     write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.family.upper()})", "\n".join(body)))
@@ -377,24 +362,6 @@ def _located_table(result: DiagnosisResult) -> str:
         return "<p>Every feature is within 3 standard errors of the linear model's.</p>"
     return "<div class='left3'>" + html_table(["test", "time from the log start [s]", "what", "by how much"],
                                               loc_rows) + "</div>"
-
-
-def _pairs_section(result: DiagnosisResult) -> list[str]:
-    """The second effects tried on top of the first (their evidence and held-out errors)."""
-    body: list[str] = []
-    pairs = result.second_effect_candidates
-    if pairs:
-        anchors = list(dict.fromkeys(c.with_ for c in pairs))
-        body.append(f"<h3>A second effect on top of {esc(' or '.join(a.replace('_', ' ') for a in anchors))}</h3>")
-        body.append("<div class='left2'>" + html_table(
-            ["with", "candidate", "parameter", "evidence against the first effect's model (drop in BIC)",
-             "held-out error before", "after", "found"],
-            [(c.with_.replace("_", " "), c.name.replace("_", " "),
-              f"{c.parameter} = {_f(c.values.get(c.name))}" if c.delta_bic is not None else c.status or "-",
-              _f(c.delta_bic), _pct(c.held_out_before.nrmse_raw if c.held_out_before is not None else None),
-              _pct(c.held_out_after.nrmse_raw if c.held_out_after is not None else None),
-              "yes" if c.significant else "no") for c in pairs]) + "</div>")
-    return body
 
 
 def _pct(x) -> str:

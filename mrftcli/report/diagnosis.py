@@ -239,58 +239,51 @@ def _param_rows(e, loop: str) -> list[tuple]:
 
 
 def write_diagnosis_report(result: DiagnosisResult, out_dir: str | Path) -> Path:
-    """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none)."""
+    """Write ``diagnosis.html`` and its PNGs into ``out_dir`` (``index.html`` too if there is none): the
+    verdict, where the model disagrees (eq. (2): its figures; a family: each test against the model of
+    the other tests), the library's evidence and rows, the notes."""
     out = ensure_dir(out_dir)
-    if not result.soiptd:
-        return _family_report(result, out)
-    fitted = any(c.delta_bic is not None for c in result.candidates)
-    figs = {
-        "diagnosis_located.png": plot_located(result),
-        "diagnosis_overlay.png": plot_overlay(result),
-        "diagnosis_harmonics.png": plot_harmonics(result),
-    }
-    if fitted:  # candidates are fitted only when the linear model is rejected: no empty chart otherwise
-        figs["diagnosis_evidence.png"] = plot_evidence(result)
-    for name, fig in figs.items():
-        save_figure(fig, out / name)
-    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>", *_effect_sections(result), *_identification_section(result),
-            "<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>", _located_table(result)]
-    body.append("<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>")
-    body.append("<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>")
-    body.append("<h2>Evidence for each candidate</h2>" + (
-        "<img src='diagnosis_evidence.png'>" if fitted else
-        "<p>No candidate was fitted: the cycles do not reject the linear model, so there is nothing for a "
-        "candidate effect to explain.</p>"))
+    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>", *(_soiptd_sections(result, out) if result.soiptd else
+                                                              _family_sections(result))]
+    # candidates are fitted only when the model is rejected: no empty chart otherwise
+    if any(c.delta_bic is not None and np.isfinite(c.delta_bic) for c in result.candidates):
+        save_figure(plot_evidence(result), out / "diagnosis_evidence.png")
+        body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
+    elif result.soiptd:
+        body.append("<h2>Evidence for each candidate</h2><p>No candidate was fitted: the cycles do not reject the "
+                    "linear model, so there is nothing for a candidate effect to explain.</p>")
     body += _rows_table(result)
-    body.append(f"<p class='muted'>{esc(result.to_dict()['nrmse_definition'])}</p>")
+    body += [f"<p class='muted'>{esc(n)}</p>" for n in [*result.notes, result.to_dict()["nrmse_definition"]]]
     page = out / "diagnosis.html"
-    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop})", "\n".join(body)))
+    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.loop if result.soiptd else result.family.upper()})",
+                               "\n".join(body)))
     if not (out / "index.html").exists():
         write_page(out / "index.html", page.read_text())
     return page
 
 
-def _family_report(result: DiagnosisResult, out: Path) -> Path:
-    """A family's page (every family but eq. (2)): the verdict, each test against the model of the other
-    tests, where the residual sits, the library's evidence and rows, the notes."""
-    body = [_LEFT, f"<p><b>{esc(result.summary)}</b></p>", "<h2>Each test against the model of the other tests</h2>",
+def _soiptd_sections(result: DiagnosisResult, out: Path) -> list[str]:
+    """Eq. (2)'s page: the effects found, the identification, the located disagreements and the figures."""
+    figs = {"diagnosis_located.png": plot_located(result), "diagnosis_overlay.png": plot_overlay(result),
+            "diagnosis_harmonics.png": plot_harmonics(result)}
+    for name, fig in figs.items():
+        save_figure(fig, out / name)
+    return [*_effect_sections(result), *_identification_section(result),
+            "<h2>Where the linear model disagrees</h2><img src='diagnosis_located.png'>", _located_table(result),
+            "<h2>Recording vs models (held-out cycles)</h2><img src='diagnosis_overlay.png'>",
+            "<h2>Per-harmonic errors</h2><img src='diagnosis_harmonics.png'>"]
+
+
+def _family_sections(result: DiagnosisResult) -> list[str]:
+    """A family's page: each test against the model of the other tests, and where the residual sits."""
+    return ["<h2>Each test against the model of the other tests</h2>",
             html_table(["test", "from-to [s]", "frequency [Hz]", "held out [Hz]", "amplitude", "held out",
                         "residual / noise: fundamental, 2-3, higher"],
                        [(c.index + 1, f"{c.t_start - result.t0:.2f}-{c.t_end - result.t0:.2f}", _f(c.frequency_hz),
                          _f(c.held_out_frequency_hz), _f(c.amplitude), _f(c.held_out_amplitude),
-                         ", ".join(f"{b.ratio:.1f}" for b in c.all_bands)) for c in result.checks])]
-    body += ["<h2>Where the model disagrees</h2>",
-             "".join(f"<p>{esc(text)}</p>" for text in result.located) or "<p>Nowhere beyond 3 sigma.</p>"]
-    if any(np.isfinite(c.delta_bic) for c in result.candidates):
-        save_figure(plot_evidence(result), out / "diagnosis_evidence.png")
-        body.append("<h2>Evidence for each candidate</h2><img src='diagnosis_evidence.png'>")
-    body += _rows_table(result)
-    body += [f"<p class='muted'>{esc(n)}</p>" for n in [*result.notes, result.to_dict()["nrmse_definition"]]]
-    page = out / "diagnosis.html"
-    write_page(page, html_page(f"Diagnosis: {Path(result.path).name} ({result.family.upper()})", "\n".join(body)))
-    if not (out / "index.html").exists():
-        write_page(out / "index.html", page.read_text())
-    return page
+                         ", ".join(f"{b.ratio:.1f}" for b in c.all_bands)) for c in result.checks]),
+            "<h2>Where the model disagrees</h2>",
+            "".join(f"<p>{esc(text)}</p>" for text in result.located) or "<p>Nowhere beyond 3 sigma.</p>"]
 
 
 def _effect_sections(result: DiagnosisResult) -> list[str]:

@@ -168,7 +168,7 @@ def cycle_table(
         if m < 2 * N_HARM + 4:
             continue
         w = 2.0 * np.pi / period[i]
-        fit = fit_harmonics(tt, yy, period[i], N_HARM, trend="centred", angle="frequency_first")
+        fit = fit_harmonics(tt, yy, period[i], N_HARM, trend="centred")
         coef, r = fit.coef, fit.residual
         rss[i] = float(r @ r)
         trend[i] = coef[1]

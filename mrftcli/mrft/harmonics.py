@@ -20,22 +20,15 @@ from typing import Literal
 
 import numpy as np
 
-__all__ = ["Trend", "AngleProduct", "harmonic_basis", "HarmonicFit", "fit_harmonics"]
+__all__ = ["Trend", "harmonic_basis", "HarmonicFit", "fit_harmonics"]
 
 #: The trend column: ``"per_period"`` is x / P (its coefficient is the drift per period and the
 #: constant is the level at x = 0); ``"centred"`` is x - P / 2 in seconds (its coefficient is the
 #: drift per second and the constant is the level at mid-cycle).
 Trend = Literal["per_period", "centred"]
 
-#: How k Omega x is rounded: ``"harmonic_first"`` computes (x k) Omega, ``"frequency_first"``
-#: x (k Omega). Mathematically the same; the two differ by about one ulp. Both are kept so that the
-#: segmenter's and the diagnosis's results stay bit-identical to the releases before they shared this
-#: fit (issue 10); new callers use the default.
-AngleProduct = Literal["harmonic_first", "frequency_first"]
 
-
-def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period",
-                   angle: AngleProduct = "harmonic_first") -> np.ndarray:
+def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period") -> np.ndarray:
     """Design matrix ``[1, trend(x), cos(k Omega x) (k = 1..H), sin(k Omega x) (k = 1..H)]``.
 
     Parameters
@@ -46,8 +39,8 @@ def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Tre
         The cycle period P [s]; Omega = 2 pi / P.
     n_harmonics : int
         H, the highest harmonic.
-    trend, angle
-        See :data:`Trend` and :data:`AngleProduct`.
+    trend
+        See :data:`Trend`.
 
     Returns
     -------
@@ -62,7 +55,7 @@ def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Tre
     x = np.asarray(x, dtype=float)
     w = 2.0 * np.pi / period
     k = np.arange(1, n_harmonics + 1)
-    a = np.outer(x, k) * w if angle == "harmonic_first" else np.outer(x, k * w)
+    a = np.outer(x, k) * w
     col = x / period if trend == "per_period" else x - 0.5 * period
     return np.column_stack([np.ones(x.size), col, np.cos(a), np.sin(a)])
 
@@ -77,8 +70,8 @@ class HarmonicFit:
         P [s].
     n_harmonics : int
         H.
-    trend, angle : str
-        The basis conventions (:data:`Trend`, :data:`AngleProduct`).
+    trend : str
+        The trend column (:data:`Trend`).
     coef : numpy.ndarray
         ``[c, d, a_1..a_H, b_1..b_H]``: constant and trend coefficient [output units, output units
         per trend unit], cosine and sine coefficients [output units].
@@ -89,7 +82,6 @@ class HarmonicFit:
     period: float
     n_harmonics: int
     trend: Trend
-    angle: AngleProduct
     coef: np.ndarray
     residual: np.ndarray
 
@@ -102,12 +94,12 @@ class HarmonicFit:
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
         """The fitted output at times ``x`` from the origin [s] (periodic part plus trend)."""
         xq = np.atleast_1d(np.asarray(x, float))
-        y: np.ndarray = harmonic_basis(xq, self.period, self.n_harmonics, trend=self.trend, angle=self.angle) @ self.coef
+        y: np.ndarray = harmonic_basis(xq, self.period, self.n_harmonics, trend=self.trend) @ self.coef
         return y
 
 
-def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period",
-                  angle: AngleProduct = "harmonic_first") -> HarmonicFit:
+def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int, *,
+                  trend: Trend = "per_period") -> HarmonicFit:
     """Project samples of one cycle onto a line plus harmonics 1..H of 1 / ``period``.
 
     The caller picks the samples (the cycle, or a period-long window centred where the fit is used)
@@ -123,8 +115,8 @@ def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int,
         P [s].
     n_harmonics : int
         H.
-    trend, angle
-        See :data:`Trend` and :data:`AngleProduct`.
+    trend
+        See :data:`Trend`.
 
     Returns
     -------
@@ -140,7 +132,7 @@ def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int,
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
-    A = harmonic_basis(x, period, n_harmonics, trend=trend, angle=angle)
+    A = harmonic_basis(x, period, n_harmonics, trend=trend)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    return HarmonicFit(period=float(period), n_harmonics=int(n_harmonics), trend=trend, angle=angle, coef=coef,
+    return HarmonicFit(period=float(period), n_harmonics=int(n_harmonics), trend=trend, coef=coef,
                        residual=y - A @ coef)

@@ -24,7 +24,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from px4_campaign import _figures, _hover, _normalised_steps, _offboard_hold, _settling  # noqa: E402
+from px4_campaign import _figures, _hover, _normalised_steps, _offboard_hold, _settling, _velocity_bias  # noqa: E402
 from px4_sitl import Px4Sitl, load_params, read_qgc_params  # noqa: E402
 
 __all__ = ["export_xy", "predicted_xy_step", "fly_xy_steps", "evaluate_xy_steps", "run_xy_step"]
@@ -113,10 +113,11 @@ def evaluate_xy_steps(flown: dict[str, Any], loop: str, pred: dict[str, Any]) ->
         out: dict[str, Any] = {"steps": len(starts)}
         for name, topic in (("EKF2", "vehicle_local_position"), ("SIH", "vehicle_local_position_groundtruth")):
             try:
-                t, pos = src.read(topic, [loop])
+                t, pos = src.read(topic, [loop, f"v{loop}"])
             except Exception:  # noqa: BLE001 - a topic not logged: that row is left out
                 continue
             p = pos[loop]
+            out.setdefault("setpoint", {})[name] = _against_setpoint(t, p, pos[f"v{loop}"], starts, step, dwell, pred)
             grid, runs = _normalised_steps(t, p, starts, dwell)
             got = _figures(grid, np.mean(runs, axis=0))
             each = [_figures(grid, r) for r in runs]
@@ -135,7 +136,38 @@ def evaluate_xy_steps(flown: dict[str, Any], loop: str, pred: dict[str, Any]) ->
                                                  f"{e['settling_s']:.2f} s" for e in each))
             print(f"    into the band held in hover (+-2 std = +-{band * step * 100:.1f} cm): mean response "
                   f"{got['settling_band_s']:.2f} s, predicted {got['predicted_settling_band_s']:.2f} s")
+            _print_against_setpoint(name, loop, out["setpoint"][name], pred)
     return out
+
+
+def _against_setpoint(t: np.ndarray, p: np.ndarray, v: np.ndarray, starts: list[float], step: float, dwell: float,
+                      pred: dict[str, Any], window: float = 2.0) -> dict[str, Any]:
+    """Each up-step against the commanded step (from the level before it to the setpoint, not to the level it
+    held): 10-90 % rise of the setpoint step (median of the steps), the mean response's largest difference from
+    the prediction over the first ``window`` s [fraction of the step], where the predicted loop settles; and
+    what moves the held level afterwards: the estimate's velocity against the slope of its own position (median
+    |.| over 2 s windows, :func:`px4_campaign._velocity_bias`) and each step's level [m] off the setpoint at its end."""
+    grid = np.arange(0.0, dwell - 0.05, 0.008)
+    runs = []
+    for t0 in starts:
+        base = float(np.mean(p[(t > t0 - 2) & (t < t0)]))
+        runs.append((np.interp(t0 + grid, t, p) - base) / step)
+    rises = [float(grid[np.argmax(r >= 0.9)] - grid[np.argmax(r >= 0.1)]) for r in runs]
+    first = grid <= window
+    diff = float(np.max(np.abs(np.mean(runs, axis=0)[first] - np.interp(grid[first], pred["t"], pred["y"]))))
+    ends = [float(np.mean(r[grid > dwell - 3]) - 1.0) * step for r in runs]
+    bias = _velocity_bias(t, p, v, starts[0], starts[-1] + 2 * dwell)
+    return {"rise_s": float(np.median(rises)), "rises_s": rises, "max_diff_first": diff, "window_s": window,
+            "end_offsets_m": ends, "velocity_bias": bias}
+
+
+def _print_against_setpoint(name: str, loop: str, a: dict[str, Any], pred: dict[str, Any]) -> None:
+    print(f"  against the setpoint ({name}'s {loop}): rise 10-90 % of the commanded step, median "
+          f"{a['rise_s']:.2f} s (steps {', '.join(f'{r:.2f}' for r in a['rises_s'])}), predicted {pred['rise_s']:.2f} s "
+          f"(ratio {a['rise_s'] / pred['rise_s']:.2f}); mean response within {100 * a['max_diff_first']:.1f} % of the "
+          f"step of the predicted curve over the first {a['window_s']:g} s; then the level held wanders: "
+          f"{', '.join(f'{o * 100:+.0f}' for o in a['end_offsets_m'])} cm off the setpoint at the steps' ends, "
+          f"the estimate's v{loop} against the slope of its {loop} {a['velocity_bias']:.3f} m/s (median |.|, 2 s windows)")
 
 
 def run_xy_step(px4: Path, logs: Path, fly: bool, loop: str = "x", flight: str = "px4_x_h16",

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from cli_helpers import run_main
 
 from mrftcli.compare.delay import DelayIncrement, delay_increment, identify_pair
 from mrftcli.errors import InputError, InsufficientDataError
@@ -45,8 +46,8 @@ def logs(tmp_path_factory) -> dict[str, Path]:
             "one_beta_20": _fly(d, "one_beta_20", TAU + 0.020, 12, (-0.45,))}
 
 
-def _run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "mrftcli", "delay", *map(str, args)], capture_output=True, text=True)
+def _run(*args: object) -> subprocess.CompletedProcess[str]:
+    return run_main("delay", *map(str, args))
 
 
 def test_the_20ms_added_in_the_simulator_is_given_back_through_the_cli(logs, tmp_path) -> None:

@@ -36,7 +36,8 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     apart, each flight's Td trades against its tau and their difference carries both trades; together,
     Td is shared (docs/usage.md#delay, docs/method.md).
 
-    Exit code 0; 4 no usable test in a recording; 6 too few betas; 2 bad input.
+    Exit code 0; 2 bad input; 3 a recording cannot be read; 4 no usable test in a recording; 5 the fit fails;
+    6 neither recording has two betas.
     """
     from ..compare.delay import delay_increment
     from ..io import ReadOptions

@@ -13,7 +13,7 @@ from .model_options import (parse_windows, relay_options, soiptd_or_process, str
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, text_table, tp_option, tqdm_progress)
 
-from ..diagnose.records import DiagnosisResult
+from ..diagnose.records import DiagnosisResult, ModelEstimate
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
@@ -32,6 +32,11 @@ def _unit(name: str, loop: str) -> str:
     return "-" if unit in ("", "1", "-") else str(unit_in_loop(unit, loop))
 
 
+def _plant(est: ModelEstimate, k_unit: str) -> str:
+    """An estimate's Td [s], tau [ms] and K with its unit, for the terminal."""
+    return f"Td {_g(est.Td)} s  tau {_g(None if est.tau is None else 1e3 * est.tau)} ms  K {_g(est.K)} {k_unit}"
+
+
 def _model_lines(result: DiagnosisResult) -> list[str]:
     """The linear model with units, and analyze's model of the same log with the reason they differ
     (issue 26: one model per log across commands, or the reason in the output)."""
@@ -40,16 +45,14 @@ def _model_lines(result: DiagnosisResult) -> list[str]:
     assert ident is not None  # eq. (2)'s strategy fills it
     lin = ident.linear
     spans = ", ".join(f"{t.t_start_rel:.1f}-{t.t_end_rel:.1f}" for t in result.tests)
-    lines = [f"linear model fitted to the stable cycles diagnose uses ({spans} s): Td {_g(lin.Td)} s  "
-             f"tau {_g(None if lin.tau is None else 1e3 * lin.tau)} ms  K {_g(lin.K)} {k_unit}"]
+    lines = [f"linear model fitted to the stable cycles diagnose uses ({spans} s): {_plant(lin, k_unit)}"]
     a = ident.analyze
     if a is None or a.method is None:
         return lines
     how = "waveform refinement" if a.method == "waveform" else "MRFT estimate"
     a_spans = ", ".join(f"{t0:.1f}-{t1:.1f}" for t0, t1 in a.tests or [])
     rec = ident.recommended
-    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): Td {_g(a.Td)} s  "
-                 f"tau {_g(None if a.tau is None else 1e3 * a.tau)} ms  K {_g(a.K)} {k_unit}: "
+    lines.append(f"analyze's model of this log ({how}, tests {a_spans} s): {_plant(a, k_unit)}: "
                  + ("the model to use" if rec is not None and rec.source == "analyze" else
                     "it leaves out the effect found below: take the estimate marked there")
                  + f"; {a.differs_because}")
@@ -70,13 +73,12 @@ def _effect_lines(result: DiagnosisResult) -> list[str]:
         w = ident.refits.get(model)
         if w is None:
             continue
-        lines.append(f"  refit to the cycles with {model}: Td {_g(w.Td)} s  "
-                     f"tau {_g(None if w.tau is None else 1e3 * w.tau)} ms  K {_g(w.K)} {k_unit}"
+        lines.append(f"  refit to the cycles with {model}: {_plant(w, k_unit)}"
                      + ("  <- the estimate to use" if chosen == f"with_{model}" else ""))
         wf = ident.waveform.get(e.name)
         if wf is not None:
             lines.append(f"  refit to the recorded waveform: {cand.parameter} = {_g(wf.value)} {_unit(e.name, result.loop)}  "
-                         f"Td {_g(wf.Td)} s  tau {_g(None if wf.tau is None else 1e3 * wf.tau)} ms  K {_g(wf.K)} {k_unit}"
+                         f"{_plant(wf, k_unit)}"
                          + ("  <- the estimate to use (every sample, as analyze's refinement; the cycle refit is what "
                             "the selection compared)" if chosen == f"waveform_with_{e.name}" else ""))
     return lines

@@ -98,6 +98,11 @@ class Located:
     harmonics: list[dict[str, Any]]
 
 
+def _at(t: DiagnosedTest) -> dict[str, Any]:
+    """Where a disagreement of test ``t`` is: the test, its mean beta, relay height and span [s]."""
+    return {"test": t.index, "beta": float(np.mean(t.beta)), "h": t.h, "t_start": t.t_start, "t_end": t.t_end}
+
+
 def _feature_items(t: DiagnosedTest, values: np.ndarray, fm: np.ndarray, z: np.ndarray) -> list[Disagreement]:
     """The features of test ``t`` beyond :data:`Z_LIMIT` standard errors, recorded (``values``) against model (``fm``)."""
     ia = FEATURE_NAMES.index("log_amplitude")
@@ -106,20 +111,8 @@ def _feature_items(t: DiagnosedTest, values: np.ndarray, fm: np.ndarray, z: np.n
         if not feature_mask(t)[j] or abs(z[j]) < Z_LIMIT:
             continue
         rec, mod = float(values[j]), float(fm[j])
-        item: dict[str, Any] = {
-            "kind": "feature",
-            "test": t.index,
-            "beta": float(np.mean(t.beta)),
-            "h": t.h,
-            "t_start": t.t_start,
-            "t_end": t.t_end,
-            "feature": name,
-            "what": FEATURE_TEXT[name],
-            "recorded": rec,
-            "model": mod,
-            "difference": rec - mod,
-            "z": float(z[j]),
-        }
+        item: dict[str, Any] = {"kind": "feature", **_at(t), "feature": name, "what": FEATURE_TEXT[name],
+                                "recorded": rec, "model": mod, "difference": rec - mod, "z": float(z[j])}
         if name == "log_amplitude":
             item.update(recorded=math.exp(rec), model=math.exp(mod), difference=math.exp(rec) - math.exp(mod),
                         relative=math.exp(rec - mod) - 1.0)
@@ -146,7 +139,7 @@ def _scatter_item(t: DiagnosedTest, sc: dict[str, Any]) -> Disagreement | None:
     if not abs(zs) >= Z_LIMIT:
         return None
     s_rec = math.sqrt(t.scatter_var("all")[0])
-    return Disagreement("feature", t.index, float(np.mean(t.beta)), t.h, t.t_start, t.t_end, feature="period_scatter",
+    return Disagreement("feature", **_at(t), feature="period_scatter",
                         what=FEATURE_TEXT["period_scatter"], recorded=s_rec, model=sc["s0"],
                         difference=s_rec - sc["s0"], z=zs)
 
@@ -160,7 +153,7 @@ def _harmonic_item(t: DiagnosedTest, harm: dict[str, Any]) -> Disagreement | Non
     kmax = max(strong, key=lambda k: strong[k])
     if not strong[kmax] > 0.05:
         return None
-    return Disagreement("harmonic", t.index, float(np.mean(t.beta)), t.h, t.t_start, t.t_end, harmonic=int(kmax),
+    return Disagreement("harmonic", **_at(t), harmonic=int(kmax),
                         what=f"G(j{kmax}Omega) measured from harmonic {kmax} of output/command",
                         relative_error=harm[kmax], all=harm)
 
@@ -180,7 +173,7 @@ def _segment_items(tests: list[DiagnosedTest], cycle_errors: list[CycleErrors]) 
             hi_err = float(np.nanmean(ce.hi[rr]))
             lo_err = float(np.nanmean(ce.lo[rr]))
             out.append(Disagreement(
-                "segment", t.index, float(np.mean(t.beta)), t.h, float(ce.start[rr[0]]), float(ce.end[rr[-1]]),
+                "segment", **{**_at(t), "t_start": float(ce.start[rr[0]]), "t_end": float(ce.end[rr[-1]])},
                 cycles=[int(x) for x in rr],
                 nrmse=float(np.nanmean(ce.nrmse[rr])),
                 typical_nrmse=med,

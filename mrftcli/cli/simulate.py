@@ -97,21 +97,11 @@ def _required(*pairs: tuple[str, object]) -> None:
 
 
 @dataclass(frozen=True)
-class LoopModelInputs:
-    """--inner-tp, --inner-td, --inner-tau, --inner-k as given (None: missing)."""
-
-    Tp: float | None
-    Td: float | None
-    tau: float | None
-    K: float | None
-
-
-@dataclass(frozen=True)
 class CascadeOptions:
     """What ``simulate --cascade`` was asked for (pairs are (inner, outer) or (hover, hold))."""
 
     axis: str
-    inner: LoopModelInputs
+    inner: tuple[float, float, float, float]  # --inner-tp, --inner-td, --inner-tau, --inner-k
     gains_path: Path | None
     inner_tests: tuple[str, ...]
     outer_tests: tuple[str, ...]
@@ -166,15 +156,12 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     from ..sim.flight import plan_test
     from ..sim.cascade_write import write_cascade
 
-    i = opts.inner
-    _required(("--inner-tp", i.Tp), ("--inner-td", i.Td), ("--inner-tau", i.tau), ("--inner-k", i.K))
     if not (opts.inner_tests or opts.outer_tests):
         raise click.UsageError("--cascade needs at least one --inner-test or --test")
     layout, fmt = _cascade_layout(opts, out)
     _check_log_target(out, fmt)
     inner_loop = CASCADE_AXES[opts.axis]
-    assert i.Tp is not None and i.Td is not None and i.tau is not None and i.K is not None  # _required above
-    inner = LoopModel(i.Tp, i.Td, i.tau, i.K)
+    inner = LoopModel(*opts.inner)
     assumptions = []
     if opts.gains_path is not None:
         # GAINS.json as analyze and vehicle read it (a map of loops, tune --export generic or --json, a vehicle record)
@@ -387,7 +374,9 @@ def simulate(
             _required(("--td", td), ("--tau", tau))
             rate_given = (ctx.get_parameter_source("controller_rate_hz") == ParameterSource.COMMANDLINE
                           or ctx.meta.get("mrftcli.rate_alias.controller_rate_hz") is not None)
-            options = CascadeOptions(cascade, LoopModelInputs(inner_tp, inner_td, inner_tau, inner_k), inner_gains,
+            _required(("--inner-tp", inner_tp), ("--inner-td", inner_td), ("--inner-tau", inner_tau),
+                      ("--inner-k", inner_k))
+            options = CascadeOptions(cascade, (inner_tp, inner_td, inner_tau, inner_k), inner_gains,
                                      tuple(inner_tests), tuple(tests), td, tau, commanded,
                                      rate if rate_given else None, (inner_noise, noise), (inner_amplitude, amplitude),
                                      (hover_s, hold_s), switching, seed, start_time, layout, fmt)

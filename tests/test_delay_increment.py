@@ -105,3 +105,16 @@ def test_bad_input_is_one_line_and_exit_2(logs, args, words) -> None:
     proc = _run(logs["before"], logs["after"], *(a.format(before=logs["before"]) for a in args))
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert words in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_the_model_scatter_makes_chi2_its_degrees_of_freedom() -> None:
+    """The random effect (compare/delay._model_variance): s^2 with sum(miss^2 / (var + s^2)) = dof; 0 when the
+    cycles' errors explain the scatter. Closed form for equal errors: s^2 = sum(miss^2) / dof - var."""
+    import numpy as np
+
+    from mrftcli.compare.delay import _model_variance
+
+    misses, var = np.array([0.02, -0.01, 0.015, -0.02, 0.005]), np.full(5, 1e-5)
+    s2 = _model_variance(misses, var, 2)
+    assert s2 == pytest.approx(float(np.sum(misses ** 2)) / 2 - 1e-5, rel=1e-6)
+    assert _model_variance(misses * 1e-3, var, 2) == 0.0 and _model_variance(misses, var, 0) == 0.0

@@ -478,8 +478,8 @@ def test_terminal_states_a_mode_found_ringing_with_its_frequency_and_p_value():
     from mrftcli.diagnose.resonance import ringing_answer
     from mrftcli.diagnose.resonance import RingingFit
 
-    fit = RingingFit(frequency_hz=12.06, damping=0.05, amplitude=0.98, chi2_drop=149.3, template_chi2=154.4,
-                     dispersion=1.0, trials=358, p_value=8.6e-32, tests=[0, 1, 2], rms=1.4e-4)
+    fit = RingingFit(frequency_hz=12.06, damping=0.05, amplitude=0.98, chi2_drop=149.3, p_value=8.6e-32,
+                     tests=[0, 1, 2], rms=1.4e-4)
     answer = ringing_answer(fit, "linear")
     assert answer.tests == [1, 2, 3] and answer.largest["feature"] == "ringing_after_switches"
     text = format_summary(replace(_small_result(), effects=[], unexplained=answer))

@@ -282,7 +282,7 @@ def test_band_excess_is_calibrated_on_noise_and_finds_a_mode_in_every_test():
         for i, P in enumerate(periods):
             f = np.arange(8, 40) / P
             z2 = rng.chisquare(2, f.size) + planted * (np.abs(f - 11.0) < 0.6)
-            out.append(PeriodicResidual(i, float(z2.sum()), 2 * f.size, 0.0, 0.0, harmonics_hz=f, z2=z2))
+            out.append(PeriodicResidual(i, 0.0, harmonics_hz=f, z2=z2))
         return out
 
     ps = np.array([band_excess(rows()).p_value for _ in range(400)])

@@ -66,13 +66,8 @@ class PeriodicResidual:
     ----------
     test : int
         The test (from 0).
-    chi2, dof : float, int
-        The squared excess of the folded cycle's harmonics above N_HARM over a smooth cycle's bound,
-        in units of their noise variance, and its degrees of freedom (two per harmonic).
     rms : float
-        RMS of that excess [output units].
-    frequency_hz : float
-        Where the folded residual's power peaks [Hz] (the harmonic of the mean period above N_HARM).
+        RMS of the folded cycle's harmonics above N_HARM beyond a smooth cycle's bound [output units].
     harmonics_hz : ndarray
         The frequencies of the harmonics above N_HARM [Hz] (of the test's mean period).
     z2 : ndarray
@@ -81,10 +76,7 @@ class PeriodicResidual:
     """
 
     test: int
-    chi2: float
-    dof: int
     rms: float
-    frequency_hz: float
     harmonics_hz: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
     z2: np.ndarray = field(repr=False, compare=False, default_factory=lambda: np.zeros(0))
 
@@ -97,18 +89,14 @@ class BandExcess:
     ----------
     frequency_hz : float
         The band's centre [Hz].
-    chi2, dof : float, int
-        The squared excess summed over the harmonics of every test in the band, and its degrees of
-        freedom.
     p_value : float
-        Its chi^2 p-value, Bonferroni over the bands tried.
+        The chi^2 p-value of the squared excess summed over the harmonics of every test in the band
+        (two degrees of freedom a harmonic), Bonferroni over the bands tried.
     tests : list of int
         The tests (from 0) whose band excess is above its degrees of freedom.
     """
 
     frequency_hz: float
-    chi2: float
-    dof: int
     p_value: float
     tests: list[int]
 
@@ -181,16 +169,11 @@ class RingingFit:
     amplitude : float
         The template's amplitude fitted (1: the ringing the mode predicts; clipped to [0.5, 2]).
     chi2_drop : float
-        The residual's chi^2 drop when the ringing is subtracted, over the ``dispersion``.
-    template_chi2 : float
-        What the template alone weighs in chi^2 (the mode's SNR at this log's noise).
-    dispersion : float
-        The rest's chi^2 per degree of freedom (at least 1): a model that misses the high harmonics
-        broadly (an actuator effect) weighs a narrow peak less.
-    trials : int
-        The templates tried.
+        The residual's chi^2 drop when the ringing is subtracted, over the rest's chi^2 per degree of
+        freedom (at least 1: a model that misses the high harmonics broadly, an actuator effect,
+        weighs a narrow peak less).
     p_value : float
-        The drop's chi^2 (one degree of freedom) p-value, Bonferroni over the trials.
+        The drop's chi^2 (one degree of freedom) p-value, Bonferroni over the templates tried.
     tests : list of int
         The tests (from 0) whose residual the template lowers.
     rms : float
@@ -204,9 +187,6 @@ class RingingFit:
     damping: float
     amplitude: float
     chi2_drop: float
-    template_chi2: float
-    dispersion: float
-    trials: int
     p_value: float
     tests: list[int]
     rms: float
@@ -348,8 +328,7 @@ def fit_ringing(rows: list[SwitchHarmonics]) -> RingingFit | None:
              for r in rows]
     rms = float(alpha[i, j]) * math.sqrt(float(np.mean(np.concatenate(power))))
     return RingingFit(frequency_hz=float(f[i]), damping=float(DAMPINGS[j]), amplitude=float(alpha_hat[i, j]),
-                      chi2_drop=score, template_chi2=float(den[i, j]), dispersion=dispersion, trials=trials,
-                      p_value=p, tests=tests, rms=rms, at_lowest=bool(i <= 1))
+                      chi2_drop=score, p_value=p, tests=tests, rms=rms, at_lowest=bool(i <= 1))
 
 
 def periodic_residual(flight: FlightLog, test: DiagnosedTest) -> PeriodicResidual | None:
@@ -359,9 +338,8 @@ def periodic_residual(flight: FlightLog, test: DiagnosedTest) -> PeriodicResidua
     1/k^2 above its corner, so a cycle of the model has |Y_k| <= |Y_j| (j/k)^3 for k > j (j = 5, 7,
     the highest fitted); a sensor lag or the delay only lowers it. The folded mean cycle's harmonics
     above N_HARM are compared with that bound; the excess over it, in units of the noise's standard
-    error (the within-bin scatter of the cycles' residuals), is ``chi2`` over ``dof`` (two per
-    harmonic: noise alone stays below chi^2 with ``dof`` degrees of freedom). None with too few
-    samples a cycle.
+    error (the within-bin scatter of the cycles' residuals), squared, is ``z2`` (chi^2 with two degrees of
+    freedom a harmonic under noise alone). None with too few samples a cycle.
     """
     tab, above = test.tab, _above_fitted(flight, test)
     if above is None:
@@ -381,10 +359,8 @@ def periodic_residual(flight: FlightLog, test: DiagnosedTest) -> PeriodicResidua
     bound = np.maximum(Y[5] * (5.0 / k) ** 3, Y[N_HARM] * (N_HARM / k) ** 3)
     excess = np.clip(np.abs(c) - bound, 0.0, None)
     z2 = excess**2 / (0.5 * var_c)
-    f_k = k / float(np.mean(tab.period))
-    return PeriodicResidual(test=test.index, chi2=float(z2.sum()), dof=2 * int(k.size),
-                            rms=float(np.sqrt(np.sum(excess**2) / 2.0)), frequency_hz=float(f_k[int(np.argmax(z2))]),
-                            harmonics_hz=f_k, z2=z2)
+    return PeriodicResidual(test=test.index, rms=float(np.sqrt(np.sum(excess**2) / 2.0)),
+                            harmonics_hz=k / float(np.mean(tab.period)), z2=z2)
 
 
 def band_excess(rows: list[PeriodicResidual]) -> BandExcess | None:
@@ -410,8 +386,7 @@ def band_excess(rows: list[PeriodicResidual]) -> BandExcess | None:
     m = in_band[j]
     # the tests whose share of the band exceeds its degrees of freedom (they ring there)
     tests = sorted(int(t) for t in np.unique(owner[m]) if z2[m & (owner == t)].sum() > 2 * np.sum(m & (owner == t)))
-    return BandExcess(frequency_hz=float(np.average(f[m], weights=z2[m] + 1e-12)), chi2=float(chi2[j]),
-                      dof=int(dof[j]), p_value=float(p[j]), tests=tests)
+    return BandExcess(frequency_hz=float(np.average(f[m], weights=z2[m] + 1e-12)), p_value=float(p[j]), tests=tests)
 
 
 def resonance_mismatch(flight: FlightLog, tests: list[DiagnosedTest], after: str,

@@ -95,8 +95,6 @@ def plot_overlay(result, n_cycles: int = 3):
     tests = p.tests
     aug = p.augmented()
     s, unit = _scale(result)
-    fl = p.flight
-    ty = fl.output.t
     fig, axes = new_figure(1, len(tests), width=4.2 * len(tests), height=3.8, squeeze=False)
     for i, (test, ax) in enumerate(zip(tests, axes[0])):
         tab = test.tab
@@ -106,9 +104,6 @@ def plot_overlay(result, n_cycles: int = 3):
         mid = hold[len(hold) // 2]
         sel = [j for j in range(mid, min(mid + 2 * n_cycles, len(tab))) if test.hold[j]][:n_cycles]
         t0 = tab.start[sel[0]]
-        # raw samples over the window (relative to the setpoint used by the diagnosis)
-        lo, hi = tab.start[sel[0]], tab.end[sel[-1]]
-        m = (ty >= lo) & (ty < hi)
         for j in sel:
             tt = np.linspace(0.0, tab.period[j], 200, endpoint=False)
             rec = tab.waveform(j, tab.start[j] + tt)
@@ -125,7 +120,6 @@ def plot_overlay(result, n_cycles: int = 3):
                             label=f"with {aug.label}" if j == sel[0] else None)
             ax.axvline(tab.start[j] - t0, color="#999", lw=0.6)
             ax.axvline(tab.switch[j] - t0, color="#999", lw=0.6, ls=":")
-        del m
         ax.set_title(f"test {test.index + 1}: beta {np.mean(test.beta):+.2f}, h {test.h:.3g}\n"
                      f"held-out cycles from t = {t0 - result.t0:.1f} s", fontsize=10)
         ax.set_xlabel("time from the first shown -h -> +h switch [s]")

@@ -1,6 +1,6 @@
 """The ``diagnose --report DIR`` page (also written by ``analyze --diagnose --report DIR``), every family.
 
-Eq. (2)'s page draws the figures below; a family's (:func:`_family_report`) holds its checks per test, where
+Eq. (2)'s page draws the figures below; a family's (:func:`_family_sections`) holds its checks per test, where
 the residual sits and the library's rows, with :func:`plot_evidence`.
 
 Figures (each returns a matplotlib Figure; :func:`write_diagnosis_report` saves them):
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..diagnose.physics import LIBRARY, unit_in_loop
 from ..diagnose.records import DiagnosisFigures, DiagnosisResult
 from ..errors import InputError
 from ..io.logtypes import gain_unit
@@ -205,30 +206,29 @@ def _rows_table(result: DiagnosisResult) -> list[str]:
          for c in rows]) + "</div>"]
 
 
-_NAMES = {"T_lag": ("sensor lag T_lag", 1e3, "ms"), "sigma": ("delay jitter std", 1e3, "ms"),
-          "d": ("input bias d", 1.0, "command units"), "g": ("gain drift g", 1.0, "1/s"),
-          "c": ("quadratic drag c", 1.0, "1/output unit"), "R": ("actuator slew rate R", 1.0, "command units/s"),
-          "a": ("gain asymmetry a", 1.0, "-"), "U_max": ("saturation limit U_max", 1.0, "command units"),
-          "delta": ("dead band delta", 1.0, "command units"), "F": ("hover thrust F", 1.0, "command units")}
 _MODEL_NAMES = {"linear": "linear model", "analyze": "analyze (MRFT consensus)"}
 _LEFT = "<style>.left3 td:nth-child(n+3), .left2 td:nth-child(n+2) { text-align: left; }</style>"
 
 
 def _param_rows(e, loop: str) -> list[tuple]:
-    """(parameter, value, +- std, unit) for people: names in words, times in ms."""
+    """(parameter, value, +- std, unit) for people: the effect's name beside its parameter, times in ms."""
+    by_parameter = {x.parameter: x for x in LIBRARY}
+    plant = {"tau": ("delay tau", 1e3, "ms"), "Td": ("drag time constant Td", 1.0, "s"), "K": ("gain K", 1.0, gain_unit(loop))}
     out = []
     for key, v in e.parameters.items():
         if key == "unit" or key.endswith("_std") or not isinstance(v, (int, float)):
             continue
-        base = key[:-len("_alone")] if key.endswith("_alone") else key
-        label, scale, unit = _NAMES.get(base, (base, 1.0, e.parameters.get("unit", "")))
-        if key.endswith("_alone"):
-            label += " (fitted alone)"
-        if base in ("tau", "Td", "K"):
-            label, scale, unit = {"tau": ("delay tau", 1e3, "ms"), "Td": ("drag time constant Td", 1.0, "s"),
-                                  "K": ("gain K", 1.0, gain_unit(loop))}[base]
+        base = key.removesuffix("_alone")
+        effect = by_parameter.get(base)
+        if base in plant:
+            label, scale, unit = plant[base]
+        else:
+            unit = str(e.parameters.get("unit", "") if effect is None else unit_in_loop(effect.unit, loop))
+            label = base if effect is None else f"{effect.name.replace('_', ' ')} {base}"
+            scale, unit = (1e3, "ms") if unit == "s" else (1.0, "-" if unit == "1" else unit)
         std = e.parameters.get(f"{key}_std")
-        out.append((label, _f(scale * v), "-" if std is None else _f(scale * std), unit))
+        out.append((label + (" (fitted alone)" if key != base else ""), _f(scale * v),
+                    "-" if std is None else _f(scale * std), unit))
     return out
 
 

@@ -144,48 +144,29 @@ def json_messages(ts: Typestore, msgtype: str, t: np.ndarray, fields: dict[str, 
                   frame_id: str = "map") -> list[bytes]:
     """JSON text of ``len(t)`` messages (all fields present; unspecified ones zero, quaternion w one).
 
-    The message is rendered once with placeholders and the numbers are spliced in per message, which
-    is far quicker than building and dumping one dict per message.
+    One message dict (the type's defaults) is filled in place with each message's numbers and dumped.
     """
     template = _to_plain(cdr.default_message(ts, msgtype, frame_id))
-    values = {k: np.asarray(v, dtype=np.float64) for k, v in fields.items()}
-    ints: dict[str, np.ndarray] = {}
+    columns: dict[str, list[Any]] = {k: np.asarray(v, dtype=np.float64).tolist() for k, v in fields.items()}
     if cdr.struct_fields(ts, msgtype, "header.stamp.sec") is not None:
         ns = np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
-        ints["header.stamp.sec"] = ns // 1_000_000_000
-        ints["header.stamp.nanosec"] = ns % 1_000_000_000
-    order = list(values) + list(ints)
-    for k, path in enumerate(order):
+        columns["header.stamp.sec"] = (ns // 1_000_000_000).tolist()
+        columns["header.stamp.nanosec"] = (ns % 1_000_000_000).tolist()
+    slots = []
+    for path, column in columns.items():
         if cdr.leaf_paths(ts, msgtype, path) != [path]:
             raise ValueError(f"cannot write {path!r} of {msgtype}: not a numeric leaf")
+        *parents, key = path.split(".")
         node = template
-        keys = path.split(".")
-        for key in keys[:-1]:
-            node = node[key]
-        node[keys[-1]] = f"@@{k}@@"
-    text = json.dumps(template, separators=(",", ":"))
-    segments = text.split('"@@')
-    parts = [segments[0]]
-    slots = []
-    for seg in segments[1:]:
-        num, rest = seg.split('@@"', 1)
-        slots.append(int(num))
-        parts.append(rest)
-    columns: list[list[str]] = []
-    for k in slots:
-        path = order[k]
-        if path in ints:
-            columns.append([str(int(v)) for v in ints[path]])
-        else:
-            col = values[path]
-            if not np.isfinite(col).all():
-                raise ValueError(f"{path}: JSON cannot hold NaN/inf")
-            columns.append([repr(float(v)) for v in col])
+        for name in parents:
+            node = node[name]
+        slots.append((node, key, column))
+    for path in fields:
+        if not np.isfinite(np.asarray(fields[path], dtype=np.float64)).all():
+            raise ValueError(f"{path}: JSON cannot hold NaN/inf")
     out = []
     for i in range(len(t)):
-        pieces = [parts[0]]
-        for j, column in enumerate(columns):
-            pieces.append(column[i])
-            pieces.append(parts[j + 1])
-        out.append("".join(pieces).encode())
+        for node, key, column in slots:
+            node[key] = column[i]
+        out.append(json.dumps(template, separators=(",", ":")).encode())
     return out

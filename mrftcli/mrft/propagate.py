@@ -42,10 +42,10 @@ def taylor_expm(M: np.ndarray) -> np.ndarray:
     >>> bool(np.allclose(taylor_expm(np.array([[0.0, 1.0], [0.0, 0.0]])), [[1.0, 1.0], [0.0, 1.0]]))
     True
     """
-    norm = float(np.abs(M).sum(axis=0).max())
+    norm = float(np.abs(M).sum(axis=-2).max())  # a stack of matrices (..., n, n): one scaling for all
     squarings = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
     A = M / (2.0**squarings)
-    eye = np.eye(M.shape[0])
+    eye = np.eye(M.shape[-1])
     E = eye.copy()
     for k in range(18, 0, -1):  # 0.5^19 / 19! < 1e-22
         E = eye + (A @ E) / k

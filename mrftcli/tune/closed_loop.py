@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..mrft.cascade import DiscreteStateSpace, split_interval, whole_and_fraction
+from ..mrft.cascade import DiscreteStateSpace
 from ..mrft.controller import Controller, RateFilter
-from ..mrft.propagate import phi_gamma
+from ..mrft.propagate import phi_gamma, taylor_expm
 from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_positive
 
@@ -93,30 +93,11 @@ class DiscretePlant:
         return iter((self.Phi, self.Gamma, self.C, self.d))
 
 
-#: Relative separation of 1/Tp and 1/Td below which a plant is discretised by matrix exponential
-#: (its modal form is ill-conditioned there).
-_MODAL_SEPARATION = 1e-2
-
-
-def _phi1(z: np.ndarray) -> np.ndarray:
-    """(e^z - 1) / z, 1 at z = 0."""
-    z = np.asarray(z, float)
-    safe = np.where(z == 0.0, 1.0, z)
-    return np.where(z == 0.0, 1.0, np.expm1(safe) / safe)
-
-
 def discrete_plants(models, rate_hz: float) -> list[DiscretePlant]:
     """Exact zero-order-hold equivalents of eq. (2)'s plants with their delays (:class:`DiscretePlant`), vectorised
     over the models (one, or the posterior's draws): x_{k+1} = Phi x_k + Gamma_a u_{k-d-1} + Gamma_b u_{k-d},
-    y_k = C x_k, with tau = d T + eps, 0 <= eps < T; Phi (3, 3), Gamma (2, 3), C (3,), d.
-
-    Eq. (2)'s state matrix is triangular with the eigenvalues 0, -1/Td, -1/Tp and known
-    eigenvectors, so e^{A t} = V e^{Lambda t} V^-1 and int_0^t e^{A s} ds B = V diag(t phi1(lambda t))
-    V^-1 B in closed form (phi1(z) = (e^z - 1) / z). A model whose 1/Td is within 1 % of 1/Tp (the
-    modal form loses accuracy as they meet) goes through matrix exponentials instead (:func:`held_delay`). The
-    closed form is also what keeps ``tune`` fast: a 4 x 4 expm costs 0.04-3 ms depending on BLAS
-    threading, and the posterior needs hundreds.
-    """
+    y_k = C x_k, with tau = d T + eps, 0 <= eps < T; Phi (3, 3), Gamma (2, 3), C (3,), d
+    (:func:`plants_of_parameters`)."""
     models = list(models)
     if not models:
         return []
@@ -129,52 +110,41 @@ def discrete_plants(models, rate_hz: float) -> list[DiscretePlant]:
 def plants_of_parameters(Tp: np.ndarray, Td: np.ndarray, tau: np.ndarray, K: np.ndarray,
                          rate_hz: float) -> list[DiscretePlant]:
     """:func:`discrete_plants` of parameter arrays [s, s, s, -] (no LoopModel per draw: the delay margin
-    rediscretises the draws at many delays)."""
-    T = 1.0 / check_positive("the controller rate [Hz]", rate_hz)
-    Tp, Td, tau, K = np.broadcast_arrays(*(np.asarray(v, float) for v in (Tp, Td, tau, K)))
-    d = np.floor(tau / T + 1e-12).astype(int)
-    eps = np.maximum(tau - d * T, 0.0)
-    a, b = 1.0 / Tp, 1.0 / Td
-    M = Tp.size
-    lam = np.column_stack([np.zeros(M), -b, -a])  # (M, 3)
-    modal = np.abs(a - b) > _MODAL_SEPARATION * np.maximum(a, b)
-    diff = np.where(modal, a - b, 1.0)
-    V = np.zeros((M, 3, 3))
-    V[:, 0, 0] = 1.0
-    V[:, 0, 1], V[:, 1, 1] = 1.0, -b
-    V[:, 0, 2], V[:, 1, 2], V[:, 2, 2] = K / (a * diff), -K / diff, 1.0
-    # V is upper triangular: its inverse in closed form
-    Vi = np.zeros((M, 3, 3))
-    Vi[:, 0, 0] = 1.0
-    Vi[:, 0, 1] = 1.0 / b
-    Vi[:, 1, 1] = -1.0 / b
-    Vi[:, 2, 2] = 1.0
-    Vi[:, 1, 2] = V[:, 1, 2] / b  # -(1/v11) v12 with v11 = -b
-    Vi[:, 0, 2] = -(V[:, 0, 2] + Vi[:, 0, 1] * V[:, 1, 2])
-    VB = np.einsum("mij,mj->mi", Vi, np.column_stack([np.zeros(M), np.zeros(M), a]))  # V^-1 B
+    rediscretises the draws at many delays): :meth:`~mrftcli.mrft.model.LoopModel.state_space`'s realisation
+    held as every family's (:func:`_held`), all draws at once."""
+    check_positive("the controller rate [Hz]", rate_hz)
+    Tp, Td, tau, K = np.broadcast_arrays(*(np.asarray(v, float).ravel() for v in (Tp, Td, tau, K)))
+    A = np.zeros((Tp.size, 3, 3))
+    A[:, 0, 1], A[:, 1, 1], A[:, 1, 2], A[:, 2, 2] = 1.0, -1.0 / Td, K, -1.0 / Tp
+    B = np.zeros((Tp.size, 3))
+    B[:, 2] = 1.0 / Tp
+    return _held(A, B, np.array([1.0, 0.0, 0.0]), tau, rate_hz)
 
-    def E(t):  # e^{A t}, t (M,)
-        return np.einsum("mij,mj,mjk->mik", V, np.exp(lam * t[:, None]), Vi)
 
-    def G(t):  # int_0^t e^{A s} ds B
-        return np.einsum("mij,mj->mi", V, t[:, None] * _phi1(lam * t[:, None]) * VB)
+def _held(A: np.ndarray, B: np.ndarray, C: np.ndarray, delay: np.ndarray, rate_hz: float) -> list[DiscretePlant]:
+    """The held delays of M plants x' = A x + B u, y = C x (A (M, n, n), B (M, n), C (n,)) with delays ``delay``
+    [s] (M,) at ``rate_hz``: tau = d T + eps, the command of tick k - d - 1 acts over the first eps of the tick,
+    that of tick k - d over the rest (the modified z-transform). Each piece is the exponential of
+    [[A t, B t], [0, 0]] (:func:`~mrftcli.mrft.propagate.taylor_expm`, over the stack at once)."""
+    T = 1.0 / rate_hz
+    d = np.floor(delay / T + 1e-12).astype(int)  # as mrft.cascade.whole_and_fraction
+    eps = np.maximum(delay - d * T, 0.0)
+    M, n = B.shape
+    X = np.zeros((M, n + 1, n + 1))
+    X[:, :n, :n], X[:, :n, n] = A, B
 
-    Phi = E(np.full(M, T))
-    Gamma_a = np.einsum("mij,mj->mi", E(T - eps), G(eps))  # the old command acts over [0, eps), then the rest
-    Gamma_b = G(T - eps)
-    C = np.array([1.0, 0.0, 0.0])
-    out = []
-    for i in range(M):
-        if modal[i]:
-            out.append(DiscretePlant(Phi[i], np.stack([Gamma_a[i], Gamma_b[i]]), C, int(d[i]), float(rate_hz)))
-        else:
-            out.append(held_delay(LoopModel(float(Tp[i]), float(Td[i]), float(tau[i]), float(K[i])), rate_hz))
-    return out
+    def hold(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (e^{A t}, int_0^t e^{A s} ds B) per plant
+        E = taylor_expm(X * t[:, None, None])
+        return E[:, :n, :n], E[:, :n, n]
+
+    Phi, _ = hold(np.full(M, T))
+    E_rest, G_new = hold(T - eps)
+    G_old = np.einsum("mij,mj->mi", E_rest, hold(eps)[1])  # the old command over [0, eps), then the rest
+    return [DiscretePlant(Phi[i], np.stack([G_old[i], G_new[i]]), C, int(d[i]), float(rate_hz)) for i in range(M)]
 
 
 def held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
-    """The modified z-transform of any plant's realisation (:class:`DiscretePlant`): over a tick the plant sees
-    u_{k-d-1} for eps seconds, then u_{k-d} (by matrix exponentials; eq. (2)'s closed form: :func:`discrete_plants`)."""
+    """The modified z-transform of any plant's realisation (:class:`DiscretePlant`, :func:`_held`)."""
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise InputError(f"the controller rate must be a positive frequency in Hz, got {rate_hz!r}")
     ss = model.realisation()
@@ -182,9 +152,7 @@ def held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
         raise InputError("the plant has direct feedthrough (its transfer function is not strictly proper): "
                          "tune designs for strictly proper plants")
     A, B, C = (np.asarray(v, float) for v in (ss.A, ss.B, ss.C))
-    d, eps = whole_and_fraction(model.delay, 1.0 / rate_hz)
-    Phi, G_old, G_new = split_interval(A, B, 1.0 / rate_hz, eps)  # cascade.delayed_discrete's pieces
-    return DiscretePlant(Phi, np.stack([G_old, G_new]), C, d, rate_hz)
+    return _held(A[None], B[None], C, np.array([float(model.delay)]), rate_hz)[0]
 
 
 def as_discrete(models, rate_hz: float) -> list[DiscretePlant]:

@@ -44,7 +44,7 @@ from .mcap_stream import (MESSAGE_HEADER_BYTES, OP_CHANNEL, OP_CHUNK, OP_FOOTER,
                           walk_records)
 from .source import LogSource, one_line
 from .timing import mean_rate_hz
-from .msgtypes import json_messages, json_schema, numeric_leaves, typestore_for, typestore_from_text
+from .msgtypes import json_messages, json_schema, numeric_leaves, time_ordered, typestore_for, typestore_from_text
 
 if TYPE_CHECKING:
     from mcap.records import Channel, ChunkIndex, Schema
@@ -754,14 +754,8 @@ def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr")
     from mcap.writer import CompressionType, Writer
 
     ts = typestore_for(ros1=False)
-    per_topic = []
-    for td in topics:
-        t = np.asarray(td.t, dtype=np.float64)
-        if encoding == "cdr":
-            datas = cdr.serialize_many(ts, td.msgtype, t, td.fields)
-        else:
-            datas = json_messages(ts, td.msgtype, t, td.fields)
-        per_topic.append((td, np.round(t * 1e9).astype(np.int64), datas))
+    serialize = cdr.serialize_many if encoding == "cdr" else json_messages
+    messages = time_ordered(topics, lambda td: serialize(ts, td.msgtype, np.asarray(td.t, np.float64), td.fields))
     # a temporary file renamed when whole (io/atomic): a killed run never leaves a log that looks complete
     with atomic_path(path) as tmp, open(tmp, "wb") as stream:
         # 256 KiB chunks: a truncated file loses at most the chunk being written (salvage, see _scan)
@@ -769,7 +763,7 @@ def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr")
         writer.start(profile="ros2" if encoding == "cdr" else "", library="mrft-ident")
         schema_ids: dict[str, int] = {}
         channel_ids = []
-        for td, _, _ in per_topic:
+        for td in topics:
             if td.msgtype not in schema_ids:
                 if encoding == "cdr":
                     text = ts.generate_msgdef(td.msgtype, ros_version=2)[0]
@@ -779,15 +773,8 @@ def write_mcap(topics: list[TopicData], path: str | Path, encoding: str = "cdr")
                     schema_ids[td.msgtype] = writer.register_schema(td.msgtype, "jsonschema", schema)
             channel_ids.append(writer.register_channel(td.name, "cdr" if encoding == "cdr" else "json",
                                                        schema_ids[td.msgtype]))
-        # merge all topics in time order (stable: ties keep topic order)
-        which = np.concatenate([np.full(len(ns), k) for k, (_, ns, _) in enumerate(per_topic)]
-                               or [np.zeros(0, int)])
-        idx = np.concatenate([np.arange(len(ns)) for _, ns, _ in per_topic] or [np.zeros(0, int)])
-        stamps = np.concatenate([ns for _, ns, _ in per_topic] or [np.zeros(0, np.int64)])
-        seq = [0] * len(per_topic)
-        for k in np.lexsort((which, stamps)):
-            w, i = int(which[k]), int(idx[k])
-            writer.add_message(channel_id=channel_ids[w], log_time=int(stamps[k]),
-                               publish_time=int(stamps[k]), data=per_topic[w][2][i], sequence=seq[w])
+        seq = [0] * len(topics)
+        for w, ns, data in messages:
+            writer.add_message(channel_id=channel_ids[w], log_time=ns, publish_time=ns, data=data, sequence=seq[w])
             seq[w] += 1
         writer.finish()  # type: ignore[no-untyped-call]  # mcap's Writer.finish has no annotations

@@ -6,6 +6,7 @@ import json
 from dataclasses import fields as dataclass_fields
 from dataclasses import is_dataclass
 from functools import lru_cache
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -13,6 +14,7 @@ from rosbags.interfaces import Nodetype
 
 from ..errors import LogReadError
 from . import cdr
+from .logtypes import TopicData
 
 if TYPE_CHECKING:
     from rosbags.interfaces.typing import FieldDesc
@@ -21,7 +23,8 @@ if TYPE_CHECKING:
 #: a JSON Schema node
 JsonSchema = dict[str, Any]
 
-__all__ = ["typestore_for", "typestore_from_text", "check_type_graph", "numeric_leaves", "json_schema", "json_messages"]
+__all__ = ["typestore_for", "typestore_from_text", "check_type_graph", "numeric_leaves", "json_schema", "json_messages",
+           "time_ordered"]
 
 _INTS = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "byte", "char"}
 
@@ -170,3 +173,16 @@ def json_messages(ts: Typestore, msgtype: str, t: np.ndarray, fields: dict[str, 
             node[key] = column[i]
         out.append(json.dumps(template, separators=(",", ":")).encode())
     return out
+
+
+def time_ordered(topics: Sequence[TopicData], serialize: Callable[[TopicData], list[bytes]]
+                 ) -> list[tuple[int, int, bytes]]:
+    """Every message of ``topics`` as (topic index, time [ns], ``serialize(topic)``'s bytes), all serialised
+    before the first is written, in time order (stable: ties keep topic order): what the log writers write."""
+    stamps = [np.round(np.asarray(td.t, dtype=np.float64) * 1e9).astype(np.int64) for td in topics]
+    datas = [serialize(td) for td in topics]
+    which = np.concatenate([np.full(len(ns), k) for k, ns in enumerate(stamps)] or [np.zeros(0, int)])
+    idx = np.concatenate([np.arange(len(ns)) for ns in stamps] or [np.zeros(0, int)])
+    flat = np.concatenate(stamps or [np.zeros(0, np.int64)])
+    order = np.lexsort((which, flat))
+    return [(w, ns, datas[w][i]) for w, i, ns in zip(which[order].tolist(), idx[order].tolist(), flat[order].tolist())]

@@ -213,9 +213,7 @@ def _is_bag(path: Path) -> bool:
 
 def _simulated(path: Path) -> bool:
     """A log this tool simulated: its truth sidecar lies beside it (a ROS 2 bag: also its metadata.yaml)."""
-    if path.is_dir() and not (path / "metadata.yaml").is_file():
-        return False
-    return sidecar_path(path).is_file()
+    return _is_bag(path) and sidecar_path(path).is_file()
 
 
 def check_log_target(path: str | Path, fmt: str, option: str = "--out") -> Path:

@@ -16,7 +16,7 @@ from ..report.wording import output_unit
 from .model_options import (build_model, check_soiptd_options, format_estimates, parse_windows, relay_options,
                             structure_options, window_option)
 from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
-                      tp_option, tqdm_progress)
+                      text_table, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..analyze.record import AnalysisResult
@@ -169,11 +169,9 @@ def format_relay_plan(result: PlanResult, source: str) -> str:
         rows.append([str(k), c.relay.describe()[len("relay: "):] + ("" if c.admissible else " (over --max-amplitude)"),
                      _num(c.frequency_hz[0]), _num(c.amplitude[0], 3), f"{c.phase_deg:.0f}",
                      *stds(c.predicted_std, c.undetermined)])
-    widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["", f"candidate next tests (exact limit cycle of this model at {result.rate_hz:g} Hz; std after "
                   "adding each to the recorded tests):"]
-    lines += ["  ".join(c.ljust(w) if k == 1 else c.rjust(w) for k, (c, w) in enumerate(zip(r, widths))).rstrip()
-              for r in rows]
+    lines += text_table(rows, align="><" + ">" * (len(head) - 2))
     best = result.recommended
     assert best.relay is not None
     lines += ["", f"recommended: {best.relay.describe()[len('relay: '):]}: {result.why}"]

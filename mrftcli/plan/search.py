@@ -30,8 +30,9 @@ from ..mrft.model import LoopModel, PlantModel
 from ..mrft.relays import RelayLaw
 from .fisher import (FloatArray, PredictedCycle, design_cost, planned_information, point_jacobian, point_stds,
                      posterior_covariance, posterior_stds, predict_cycle, undetermined_parameters, unknown_parameters)
+from .forecast import std_median
 from .noise import LOST_CYCLES, MAX_EPS, MIN_CYCLES, MIN_NOISE_MARGIN, MIN_SWITCH_GAP, switch_gap
-from .records import OVER_LIMIT, PARAMS, CandidateTest, FlownTest, PlanLimits, TestPlan, relay_candidate
+from .records import OVER_LIMIT, CandidateTest, FlownTest, PlanLimits, TestPlan, relay_candidate
 
 __all__ = [
     "DesignSpace",
@@ -270,8 +271,7 @@ def choose_tests(space: DesignSpace, admissible: Sequence[float], infos: Mapping
             scores[b] = float(np.mean([design_cost(c, p) for c, p in zip(covs, plants)]))
             rms[b] = _rms_stds(covs, plants)
             if j == 0:
-                s = np.median([posterior_stds(c, p) for c, p in zip(covs, plants)], axis=0)
-                first[b] = (dict(zip(PARAMS, map(float, s))), scores[b])
+                first[b] = (std_median([A + I for A, I in zip(acc.total, infos[b])], plants), scores[b])
         pool = list(admissible)
         if conventional is not None and j < len(conventional):
             ref = _rms_stds([posterior_covariance(A + I) for A, I in zip(acc.total, conventional[j])], plants)
@@ -285,15 +285,10 @@ def choose_tests(space: DesignSpace, admissible: Sequence[float], infos: Mapping
         conv = start
         for inf in conventional:
             conv = conv.plus(inf)
-        if np.any(_median_stds(acc.total, plants)[:2] > _median_stds(conv.total, plants)[:2] * (1 + 1e-9)):
+        now, instead = std_median(acc.total, plants), std_median(conv.total, plants)
+        if any(now[k] > instead[k] * (1 + 1e-9) for k in ("Td", "tau")):
             return Choice(tuple(conventional_betas), conv, first)
     return Choice(tuple(chosen), acc, first)
-
-
-def _median_stds(total: Sequence[np.ndarray], plants: np.ndarray) -> np.ndarray:
-    """Median over the draws of (std Td, std tau, std K) the information ``total`` leaves (as reported)."""
-    out: np.ndarray = np.median([posterior_stds(posterior_covariance(A), p) for A, p in zip(total, plants)], axis=0)
-    return out
 
 
 def _rms_stds(covs: Sequence[np.ndarray], plants: np.ndarray) -> np.ndarray:

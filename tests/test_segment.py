@@ -280,8 +280,9 @@ def test_fundamental_harmonic_is_the_plant_frequency_response(noise, tol_phase, 
 # ----------------------------------------------------------------------------------------------- the shared harmonic fit
 
 
-def test_harmonic_fit_recovers_a_known_cycle_in_both_trend_conventions():
-    """A line plus harmonics 1, 3 and 5 is recovered exactly; the two trend columns describe one model."""
+def test_harmonic_fit_recovers_a_known_cycle():
+    """A line plus harmonics 1, 3 and 5 is recovered exactly: the level at x = 0, the drift per period (and
+    from them the level at mid-cycle and the drift per second, diagnose's features)."""
     from mrftcli.mrft.harmonics import fit_harmonics
 
     rng = np.random.default_rng(11)
@@ -292,18 +293,18 @@ def test_harmonic_fit_recovers_a_known_cycle_in_both_trend_conventions():
     y = c0 + slope * x + sum(np.real(v * np.exp(1j * k * 2 * np.pi * x / P)) for k, v in Y.items())
     expect = np.array([Y.get(k, 0.0) for k in range(1, 8)])
     per = fit_harmonics(x, y, P, 7)
-    cen = fit_harmonics(x, y, P, 7, trend="centred")
-    for fit in (per, cen):
-        np.testing.assert_allclose(fit.harmonics, expect, atol=1e-10)
-        assert np.max(np.abs(fit.residual)) < 1e-10
-        np.testing.assert_allclose(fit(np.array([0.1, 0.2]) * P), np.interp([0.1 * P, 0.2 * P], x, y), atol=1e-3)
+    np.testing.assert_allclose(per.harmonics, expect, atol=1e-10)
+    assert np.max(np.abs(per.residual)) < 1e-10
+    np.testing.assert_allclose(per(np.array([0.1, 0.2]) * P), np.interp([0.1 * P, 0.2 * P], x, y), atol=1e-3)
     assert per.coef[0] == pytest.approx(c0) and per.coef[1] == pytest.approx(slope * P)
-    assert cen.coef[0] == pytest.approx(c0 + slope * P / 2) and cen.coef[1] == pytest.approx(slope)
+    assert per.coef[0] + 0.5 * per.coef[1] == pytest.approx(c0 + slope * P / 2)
+    assert per.coef[1] / P == pytest.approx(slope)
 
 
 def test_harmonic_fit_is_bit_identical_to_the_projections_it_replaced():
-    """The segmenter's former inline fit (copied here) gives the very same bits; the diagnosis's, which
-    rounded the angle as x (k w) where the one fit takes (x k) w, the same to rounding (issue 36)."""
+    """The segmenter's former inline fit (copied here) gives the very same bits; the diagnosis's (its trend
+    x - P/2 in seconds, its angle x (k w)) the same model to rounding, its level and drift read from the
+    one fit's (issue 36)."""
     from mrftcli.mrft.harmonics import fit_harmonics
 
     rng = np.random.default_rng(12)
@@ -323,9 +324,10 @@ def test_harmonic_fit_is_bit_identical_to_the_projections_it_replaced():
     ph = np.outer(tt, k * w)
     X = np.column_stack([np.ones(tt.size), tt - 0.5 * P, np.cos(ph), np.sin(ph)])
     coef, *_ = np.linalg.lstsq(X, yy, rcond=None)
-    fit = fit_harmonics(tt, yy, P, H, trend="centred")
-    np.testing.assert_allclose(fit.coef, coef, rtol=1e-12, atol=1e-13)
-    np.testing.assert_allclose(fit.residual, yy - X @ coef, rtol=0, atol=1e-13)
+    fit = fit_harmonics(tt, yy, P, H)
+    level, drift = fit.coef[0] + 0.5 * fit.coef[1], fit.coef[1] / P
+    np.testing.assert_allclose([level, drift, *fit.coef[2:]], coef, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(fit.residual, yy - X @ coef, rtol=0, atol=1e-12)
 
 
 def test_segment_options_are_checked_on_creation():

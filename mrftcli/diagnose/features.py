@@ -168,15 +168,18 @@ def cycle_table(
         if m < 2 * N_HARM + 4:
             continue
         w = 2.0 * np.pi / period[i]
-        fit = fit_harmonics(tt, yy, period[i], N_HARM, trend="centred")
+        fit = fit_harmonics(tt, yy, period[i], N_HARM)
         coef, r = fit.coef, fit.residual
         rss[i] = float(r @ r)
-        trend[i] = coef[1]
-        Y[i, 0] = coef[0]
+        # the fit's constant is the level at the cycle's start and its trend the drift per period: the
+        # table holds the level at mid-cycle and the drift per second
+        trend[i] = coef[1] / period[i]
+        c0 = coef[0] + 0.5 * coef[1]
+        Y[i, 0] = c0
         Y[i, 1:] = fit.harmonics
         # noise-free periodic part on a fine grid
         tg = grid * period[i]
-        yg = coef[0] + np.real(np.exp(1j * np.outer(tg, k * w)) @ Y[i, 1:])
+        yg = c0 + np.real(np.exp(1j * np.outer(tg, k * w)) @ Y[i, 1:])
         ymax, ymin = yg.max(), yg.min()
         amp[i] = 0.5 * (ymax - ymin)
         cen[i] = 0.5 * (ymax + ymin)
@@ -188,8 +191,8 @@ def cycle_table(
         if hi_mask.any() and (~hi_mask).any():
             e_max = e[hi_mask].max()
             e_min = e[~hi_mask].min()
-            e_dn = -(coef[0] + np.real(np.exp(1j * k * w * high[i]) @ Y[i, 1:]))
-            e_up = -(coef[0] + np.real(np.sum(Y[i, 1:])))
+            e_dn = -(c0 + np.real(np.exp(1j * k * w * high[i]) @ Y[i, 1:]))
+            e_up = -(c0 + np.real(np.sum(Y[i, 1:])))
             if e_max > 0:
                 b_dn[i] = -e_dn / e_max
             if e_min < 0:

@@ -4,7 +4,7 @@ An MRFT limit cycle is periodic, so over one period P the output is a constant, 
 that is not exactly periodic: start-up, a sampled relay's jitter) and harmonics k = 1..H of
 Omega = 2 pi / P. A least-squares projection onto those 2 H + 2 functions removes the sensor noise
 (the residual *is* the noise whenever the output is a limit cycle of the relay) and gives the
-complex harmonics Y_k with y ~ c + d * trend(x) + sum_k Re(Y_k exp(j k Omega x)). The output of an
+complex harmonics Y_k with y ~ c + d x / P + sum_k Re(Y_k exp(j k Omega x)). The output of an
 MRFT loop has a discontinuous third derivative, so its harmonics decay like k^-4: H = 7 or 8 leaves
 a truncation error near 5e-4 of the amplitude.
 
@@ -16,20 +16,15 @@ per-cycle feature table).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
-__all__ = ["Trend", "harmonic_basis", "HarmonicFit", "fit_harmonics"]
-
-#: The trend column: ``"per_period"`` is x / P (its coefficient is the drift per period and the
-#: constant is the level at x = 0); ``"centred"`` is x - P / 2 in seconds (its coefficient is the
-#: drift per second and the constant is the level at mid-cycle).
-Trend = Literal["per_period", "centred"]
+__all__ = ["harmonic_basis", "HarmonicFit", "fit_harmonics"]
 
 
-def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Trend = "per_period") -> np.ndarray:
-    """Design matrix ``[1, trend(x), cos(k Omega x) (k = 1..H), sin(k Omega x) (k = 1..H)]``.
+def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int) -> np.ndarray:
+    """Design matrix ``[1, x / P, cos(k Omega x) (k = 1..H), sin(k Omega x) (k = 1..H)]``: the trend
+    column's coefficient is the drift per period, the constant the level at x = 0.
 
     Parameters
     ----------
@@ -39,8 +34,6 @@ def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Tre
         The cycle period P [s]; Omega = 2 pi / P.
     n_harmonics : int
         H, the highest harmonic.
-    trend
-        See :data:`Trend`.
 
     Returns
     -------
@@ -56,8 +49,7 @@ def harmonic_basis(x: np.ndarray, period: float, n_harmonics: int, *, trend: Tre
     w = 2.0 * np.pi / period
     k = np.arange(1, n_harmonics + 1)
     a = np.outer(x, k) * w
-    col = x / period if trend == "per_period" else x - 0.5 * period
-    return np.column_stack([np.ones(x.size), col, np.cos(a), np.sin(a)])
+    return np.column_stack([np.ones(x.size), x / period, np.cos(a), np.sin(a)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,18 +62,15 @@ class HarmonicFit:
         P [s].
     n_harmonics : int
         H.
-    trend : str
-        The trend column (:data:`Trend`).
     coef : numpy.ndarray
-        ``[c, d, a_1..a_H, b_1..b_H]``: constant and trend coefficient [output units, output units
-        per trend unit], cosine and sine coefficients [output units].
+        ``[c, d, a_1..a_H, b_1..b_H]``: the level at x = 0 and the drift per period [output units],
+        cosine and sine coefficients [output units].
     residual : numpy.ndarray
         Samples minus the fit [output units], one per sample fitted.
     """
 
     period: float
     n_harmonics: int
-    trend: Trend
     coef: np.ndarray
     residual: np.ndarray
 
@@ -94,12 +83,11 @@ class HarmonicFit:
     def __call__(self, x: np.ndarray | float) -> np.ndarray:
         """The fitted output at times ``x`` from the origin [s] (periodic part plus trend)."""
         xq = np.atleast_1d(np.asarray(x, float))
-        y: np.ndarray = harmonic_basis(xq, self.period, self.n_harmonics, trend=self.trend) @ self.coef
+        y: np.ndarray = harmonic_basis(xq, self.period, self.n_harmonics) @ self.coef
         return y
 
 
-def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int, *,
-                  trend: Trend = "per_period") -> HarmonicFit:
+def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int) -> HarmonicFit:
     """Project samples of one cycle onto a line plus harmonics 1..H of 1 / ``period``.
 
     The caller picks the samples (the cycle, or a period-long window centred where the fit is used)
@@ -115,8 +103,6 @@ def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int,
         P [s].
     n_harmonics : int
         H.
-    trend
-        See :data:`Trend`.
 
     Returns
     -------
@@ -132,7 +118,7 @@ def fit_harmonics(x: np.ndarray, y: np.ndarray, period: float, n_harmonics: int,
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
-    A = harmonic_basis(x, period, n_harmonics, trend=trend)
+    A = harmonic_basis(x, period, n_harmonics)
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    return HarmonicFit(period=float(period), n_harmonics=int(n_harmonics), trend=trend, coef=coef,
+    return HarmonicFit(period=float(period), n_harmonics=int(n_harmonics), coef=coef,
                        residual=y - A @ coef)

@@ -7,14 +7,17 @@ separate analyses carries both flights' Td-tau trade. Here both flights are one 
 known Tp, **one** Td and **one** K, and **a delay per flight**, fitted to every test's measured
 frequency (weighted least squares on log frequency). The delay added is ``tau_after - tau_before``.
 
-The frequency of a test is eq. (2)'s limit cycle under its nominal beta and relay height at the centre
-of the sampled relay's band of orbits (the continuous cycle with half a controller tick more delay, the
-centre :func:`mrftcli.mrft.lprs.mrft_limit_cycle` gives at the test's rate); a test without a logged
-beta is taken at its effective beta, continuously. K moves no frequency: with Td and the delays fixed,
+The frequency of a test is eq. (2)'s continuous limit cycle under the beta ``analyze`` identifies it
+with (the effective beta, measured at the relay's switches, which holds where a sampled relay actually
+switched) and its relay height; tau is then what ``analyze``'s tau is. A recording whose command is
+logged below the controller's rate (switch instants known to a logging period only) is taken, as
+``analyze`` takes it, at the nominal beta, at the centre of the sampled relay's band of orbits (the
+continuous cycle with half a controller tick more delay). K moves no frequency: with Td and the delays fixed,
 each test's amplitude gives K, and K is their mean.
 
 Each test's weight is its mean frequency's standard error from its stable cycles, taken as an AR(1)
-sequence (:func:`mrftcli.analyze.held_out.mean_sem`), at least the period's resolution (one tick).
+sequence (:func:`mrftcli.analyze.held_out.mean_sem`), at least the sampled relay's orbit quantisation
+(:func:`_frequency_se`: a test locked onto one orbit does not average its offset away).
 When the tests scatter about the joint fit more than those errors say (chi^2 above its degrees of
 freedom), every test's frequency is given a common model error on top of its own, sized so that chi^2
 matches (:func:`_fit_with_scatter`), and the intervals are Student's t on the degrees of freedom: a
@@ -36,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from ..analyze.held_out import mean_sem
-from ..analyze.screen import group_betas, screen_tests
+from ..analyze.estimate import beta_used
+from ..analyze.screen import group_betas, low_rate_period, screen_tests
 from ..errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
 from ..io import ReadOptions, read_flight
 from ..jsonable import check_schema_version, json_float
@@ -67,7 +71,7 @@ class PairTest:
     t_start : float
         Start of the test [s, the log's clock].
     beta, h : float
-        The beta the fit uses (nominal where logged, else effective) and the relay height [command units].
+        The beta the fit uses (the one ``analyze`` identifies the test with) and the relay height [command units].
     rate_hz : float
         The relay's rate [Hz].
     n_cycles : int
@@ -165,7 +169,7 @@ class DelayIncrement:
 
     #: What the figures rest on (first line of the text output and the JSON's ``method``).
     METHOD = ("eq. (2) at the known Tp, one Td and K for both recordings and a delay each, fitted to every test's "
-              "frequency at the sampled relay's band centre (weighted by each mean's standard error)")
+              "frequency under the beta analyze identifies it with (weighted by each mean's standard error)")
 
     def parameters(self) -> dict[str, ParameterEstimate]:
         """The figures by name, in display order."""
@@ -202,26 +206,25 @@ class DelayIncrement:
 
 
 # ----------------------------------------------------------------------------------------------
-def _beta_of(test: MrftTest) -> tuple[float, bool]:
-    """The beta the fit uses and whether it is the nominal one (then the sampled relay's band centre)."""
-    if test.beta_nominal is not None and math.isfinite(test.beta_nominal):
-        return float(test.beta_nominal), True
-    return float(test.beta_effective), False
-
-
 def _frequency_se(test: MrftTest) -> float:
-    """The test's mean frequency's standard error [Hz]: its cycles as an AR(1) sequence, at least the period's
-    resolution (one tick of the relay's rate, a uniform error on each of a period's two ends)."""
+    """The test's mean frequency's standard error [Hz]: its cycles as an AR(1) sequence (:func:`mean_sem`), and
+    at least the sampled relay's orbit quantisation.
+
+    A relay deciding at ``rate_hz`` switches on ticks, so its half period is a whole number N = rate / (2 f)
+    of them: a test that locks onto one of those orbits repeats its frequency cycle after cycle (a tiny
+    scatter) while sitting anywhere within half a tick per half period of the continuous cycle, an offset
+    its cycles cannot average away: uniform, relative std 1 / (N sqrt(12)), f^2 / (rate sqrt(3)) [Hz]. A
+    test hopping among orbits shows that spread in its cycles instead.
+    """
     f = test.frequency_hz_mean
-    resolution = f * f / test.rate_hz / math.sqrt(6.0) / math.sqrt(max(test.n_stable, 1))
-    return max(mean_sem(test.frequency_hz), resolution)
+    return max(mean_sem(test.frequency_hz), f * f / (test.rate_hz * math.sqrt(3.0)))
 
 
 @dataclass(frozen=True)
 class _Rows:
     flight: np.ndarray  # 0 before, 1 after
     beta: np.ndarray
-    nominal: np.ndarray
+    hold: np.ndarray  # [s] half the controller's period for a low-rate recording (the band centre), else 0
     h: np.ndarray
     rate: np.ndarray
     f: np.ndarray
@@ -230,18 +233,22 @@ class _Rows:
 
 
 def _rows(before: Sequence[MrftTest], after: Sequence[MrftTest]) -> _Rows:
+    """Each test's figures; the beta ``analyze`` identifies it with (:func:`mrftcli.analyze.estimate.beta_used`:
+    the effective one, measured at the switches, or the nominal one for a recording whose command is logged
+    below the controller's rate, which is then taken at the sampled relay's band centre)."""
     tests = [*before, *after]
-    betas = [_beta_of(t) for t in tests]
-    return _Rows(np.array([0] * len(before) + [1] * len(after)), np.array([b for b, _ in betas]),
-                 np.array([n for _, n in betas]), np.array([t.h for t in tests]),
+    ts = [low_rate_period(list(flight)) for flight in (before, after)]
+    ts_each = [ts[0]] * len(before) + [ts[1]] * len(after)
+    return _Rows(np.array([0] * len(before) + [1] * len(after)),
+                 np.array([beta_used(t, s) for t, s in zip(tests, ts_each)]), 0.5 * np.array(ts_each),
+                 np.array([t.h for t in tests]),
                  np.array([t.rate_hz for t in tests]), np.array([t.frequency_hz_mean for t in tests]),
                  np.array([_frequency_se(t) for t in tests]), np.array([t.amplitude_mean for t in tests]))
 
 
 def _cycle(Tp: float, Td: float, tau: float, rows: _Rows, i: int) -> tuple[float, float]:
     """Eq. (2)'s cycle (K = 1) for row ``i``: frequency [Hz], amplitude [output units per unit K]."""
-    hold = 0.5 / rows.rate[i] if rows.nominal[i] else 0.0
-    lc = mrft_limit_cycle(LoopModel(Tp, Td, tau + hold, 1.0), float(rows.beta[i]), float(rows.h[i]))
+    lc = mrft_limit_cycle(LoopModel(Tp, Td, tau + float(rows.hold[i]), 1.0), float(rows.beta[i]), float(rows.h[i]))
     return float(lc.frequency_hz), float(lc.amplitude)
 
 

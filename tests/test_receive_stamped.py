@@ -132,3 +132,23 @@ def test_an_output_on_another_clock_is_not_rebuilt_and_the_interval_stays_widene
     for name in ("tau", "K"):  # (Td's is the MRFT bootstrap's, not this stage's)
         est = getattr(r, name)
         assert est.ci95_low <= truth[name] <= est.ci95_high, name
+
+
+def test_times_already_on_the_grid_are_kept_and_reported_unchanged():
+    sent = _sent()
+    assert rebuild_send_times(sent).unchanged
+    late = rebuild_send_times(sent + np.random.default_rng(4).uniform(0.0, 0.003, sent.size))
+    assert late.rebuilt and not late.unchanged
+
+
+def test_no_rebuild_note_when_the_receive_stamps_are_on_the_grid():
+    """The shipped simulated log is receive-stamped on its 200 Hz grid: the rebuild changes nothing,
+    so the output says nothing of it (README command 1); the tests above keep the note where it did."""
+    from mrftcli import sample_log
+    from mrftcli.io import read_flight
+
+    log = read_flight(sample_log("design1_altitude.mcap"), ReadOptions(loop="altitude"), echo_warnings=False)
+    assert log.timing.stamps == "receive"
+    r = analyze_flight(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=50))
+    assert r.method == "waveform"
+    assert not any("receive-stamped" in n for n in r.notes), r.notes

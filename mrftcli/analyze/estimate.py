@@ -180,11 +180,12 @@ class SendTimeWindows:
 
     def notes(self) -> tuple[str, ...]:
         """What was rebuilt and how well the grid fits, one line per topic (the first test's figures
-        when every test was rebuilt, else the first reason it was not)."""
+        when every test was rebuilt, else the first reason it was not; none for a topic whose logged
+        times were on the grid in every test: nothing changed)."""
         out = []
         for topic, rec in (("command", self.command), ("output", self.output)):
             failed = [i for i, r in enumerate(rec) if not r.rebuilt]
-            if not rec:
+            if not rec or all(r.unchanged for r in rec):
                 continue
             if failed:
                 out.append(rec[failed[0]].describe(topic) + f" (in {len(failed)} of {len(rec)} tests)")

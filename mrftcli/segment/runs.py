@@ -375,6 +375,12 @@ class SendTimes:
     dropped: int
     reason: str = ""
 
+    @property
+    def unchanged(self) -> bool:
+        """Rebuilt with the logged times kept: they were on the grid already (stamped at the source),
+        so the rebuild has nothing to report."""
+        return self.rebuilt and self.lateness == 0.0 and not self.dropped
+
     def describe(self, topic: str) -> str:
         """One line for the output: what was rebuilt and how well the grid fits."""
         if not self.rebuilt:

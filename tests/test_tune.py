@@ -418,22 +418,23 @@ def test_nominal_margins_are_one_of_the_posteriors_figures():
 
 
 @pytest.mark.parametrize("ctrl", [PD, PID])
-def test_z_transform_route_matches_the_state_matrices(ctrl):
-    # the two routes of responses() on the posterior-like set of short delays (0 to 10 ticks), setpoint
-    # and load steps, outputs and commands; and outputs() is responses() without the commands
+def test_z_transform_route_matches_the_event_driven_simulation(ctrl):
+    # responses() on the posterior-like set of short delays (0 to 10 ticks), setpoint and load steps, outputs
+    # and commands, against simulate_step (the continuous plant event by event, sharing no discretisation);
+    # and outputs() is responses() without the commands
     from mrftcli.tune.closed_loop import outputs, responses
 
     rng = np.random.default_rng(4)
     models = [LoopModel(0.0422, float(np.exp(rng.normal(0.2, 0.3))), float(rng.uniform(0.0, 0.05)), 30.0)
               for _ in range(5)]
-    a = responses(models, ctrl, 4.0, load=0.2, method="state")
     b = responses(models, ctrl, 4.0, load=0.2)
-    for x, y in zip(a[1:], b[1:]):
-        assert np.max(np.abs(x - y)) < 1e-9
+    for i, m in enumerate(models):
+        _, ys, us, _ = simulate_step(m, ctrl, 4.0, substeps=1)
+        _, yls, uls, _ = simulate_step(m, ctrl, 4.0, substeps=1, setpoint=0.0, load=0.2)
+        for x, y in zip((ys, us, yls, uls), (b[1][i], b[2][i], b[3][i], b[4][i])):
+            assert np.max(np.abs(x - y)) < 1e-9
     t, y, yl = outputs(models, ctrl, 4.0, load=0.2)
     assert np.array_equal(y, b[1]) and np.array_equal(yl, b[3])
-    with pytest.raises(InputError, match="method"):
-        responses(models, ctrl, 1.0, method="euler")
 
 
 def test_margins_json_round_trip_and_errors():

@@ -15,7 +15,8 @@ Two independent routes give the same sampled loop:
   the plant with a fractional delay (tau = d T + eps: the command of tick k - d - 1 acts for the first
   eps of each period, that of tick k - d for the rest; :class:`DiscretePlant`, every family's held
   delay), its command buffer as states (:func:`augmented`), closed with the controller into one state
-  matrix z_{k+1} = A z_k + B r; :func:`responses` (``method="state"``) iterates it.
+  matrix z_{k+1} = A z_k + B r (the families' criterion iterates it); :func:`responses` inverts the same
+  loop's z-transform.
 * :func:`simulate_step`: an event-driven time-domain simulation of the continuous plant (matrix
   exponentials between the instants at which a held command reaches the plant), with the controller
   of :class:`Controller` stepping at every tick. It is the check of the first route
@@ -40,7 +41,7 @@ from ..mrft.propagate import phi_gamma, taylor_expm
 from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "METHODS", "StepMetrics", "discrete_plants", "as_discrete", "held_delay", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
+__all__ = ["Controller", "RateFilter", "DiscretePlant", "PlantStack", "PlantSpectrum", "plant_spectrum", "plants_of_parameters", "StepMetrics", "discrete_plants", "as_discrete", "held_delay", "augmented", "closed_loop_matrix", "step_outputs", "step_response",
            "responses", "outputs", "step_metrics", "criterion", "simulate_step", "SETTLING_BAND"]
 
 #: Settling band of :func:`step_metrics`: |y - 1| <= 2 % of the step from then on.
@@ -301,11 +302,6 @@ class PlantStack:
         return C[:, 0, None] * x0 + C[:, 1, None] * x1 + C[:, 2, None] * x2
 
 
-#: How :func:`responses` computes the steps by default: ``"z-transform"`` (inverted from the closed
-#: loop's z-transform; its cost does not depend on the delay) or ``"state"`` (iterating the closed-loop
-#: state matrices, d + 7 states, (d + 7)^2 per tick and loop: the check route). Both are exact; on the
-#: shipped sample logs' delays (6-16 ticks) the first is 3x faster and gives the same designs.
-METHODS = ("z-transform", "state")
 #: z-transform inversion: the responses are sampled on the circle |z| = rho with rho^N = this (a loop
 #: growing faster than this over the horizon has diverged, as :func:`criterion` counts it from 1e3) ...
 _SPECTRAL_GROWTH = 1e4
@@ -411,39 +407,16 @@ def _spectral_responses(sp: PlantSpectrum, controller: Controller, load: float, 
     return y, u, yl, ul
 
 
-def _state_responses(plants: Sequence[DiscretePlant], controller: Controller, N: int, load: float) -> Steps:
-    """Setpoint and load steps by iterating the closed-loop state matrices (:func:`closed_loop_matrix` on
-    :func:`augmented`): the check route of the z-transform's."""
-    if controller.rate_filter is not None:
-        raise InputError("the state matrices model the first-order derivative filter only: a stack's rate "
-                         "filter goes through method='z-transform' (the default)")
-    rows: list[list[np.ndarray]] = [[], [], [], []]
-    for p in plants:
-        n = p.Phi.shape[0]
-        A, B, Cy = closed_loop_matrix(augmented(p), controller)
-        Cu, Du = A[n], B[n]  # the command: the buffer's first slot
-        Bl = np.zeros_like(B)
-        Bl[:n] = load * (p.Gamma[0] + p.Gamma[1])  # a constant input over a whole period
-        rows[0].append(step_outputs(A, B, Cy, N))
-        rows[1].append(step_outputs(A, B, Cu, N) + Du)
-        rows[2].append(step_outputs(A, Bl, Cy, N))
-        rows[3].append(step_outputs(A, Bl, Cu, N))
-    y, u, yl, ul = (np.array(r) for r in rows)
-    return (y, u, yl, ul) if load else (y, u, None, None)
-
-
 def responses(models: Sequence[LoopModel | DiscretePlant], controller: Controller, t_end: float, load: float = 0.0,
-              spectrum: PlantSpectrum | None = None, method: str = "z-transform"
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+              spectrum: PlantSpectrum | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The sampled loop's unit setpoint step and, when ``load`` != 0, its load-disturbance step, from rest.
 
     The load disturbance is a step of ``load`` [command units] added to the plant input at t = 0
     (after the delay: a disturbance torque or thrust, not a command), with the setpoint at 0.
 
-    ``method`` (:data:`METHODS`): ``"z-transform"`` inverts the closed loop's z-transform on a circle
-    (cost independent of the delay, in chunks of loops; a loop that diverges faster than 1e4 over
-    the horizon is NaN); ``"state"`` iterates the closed-loop state matrices. Both are exact (the
-    first to ~1e-9). ``spectrum``: :func:`plant_spectrum` of the same ``models`` and ``t_end`` (saves
+    The closed loop's z-transform is inverted on a circle (exact to ~1e-9; the cost does not depend on the
+    delay; in chunks of loops; a loop that diverges faster than 1e4 over the horizon is NaN; checked against
+    :func:`simulate_step`). ``spectrum``: :func:`plant_spectrum` of the same ``models`` and ``t_end`` (saves
     recomputing it when many controllers are tried on one set of plants).
 
     Returns
@@ -451,13 +424,9 @@ def responses(models: Sequence[LoopModel | DiscretePlant], controller: Controlle
     t : (N,) tick times [s]; y, u : (M, N) output and command of the setpoint step;
     y_load, u_load : (M, N) output and command of the load step (None when ``load`` is 0).
     """
-    if method not in METHODS:
-        raise InputError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
     plants = as_discrete(models, controller.rate_hz)
     N = _ticks(t_end, controller.rate_hz)
     t = np.arange(N) / controller.rate_hz
-    if method == "state":
-        return (t, *_state_responses(plants, controller, N, load))
     if spectrum is not None and spectrum.n_ticks == N and spectrum.Gd.shape[0] == len(plants):
         return (t, *_spectral_responses(spectrum, controller, load))
     parts = [_spectral_responses(_spectrum(plants[i:i + _SPECTRAL_CHUNK], N), controller, load)

@@ -218,6 +218,11 @@ def test_inner_gains_forms_and_errors() -> None:
         inner_gains_of({"pitch": g}, "roll")
     with pytest.raises(InputError, match="holds gains of the pitch loop"):
         inner_gains_of({"loop": "pitch", "export": {"generic": g}}, "roll")
+    # a stack's rate filter the cascade would ignore is refused; one the stack bypasses (0, or >= rate / 2) is not
+    with pytest.raises(InputError, match=r"--inner-gains \(roll\): the cascade does not model a stack's rate filter"):
+        inner_gains_of({"roll": {**g, "rate_filter": {"cutoff_hz": 20.0, "parameter": "IMU_GYRO_CUTOFF"}}}, "roll")
+    for off in (0.0, 0.5 * GAINS.rate_hz):
+        assert inner_gains_of({"roll": {**g, "rate_filter": {"cutoff_hz": off}}}, "roll").rate_hz == GAINS.rate_hz
 
 
 def test_tune_on_the_cascade_keeps_its_margins() -> None:
@@ -269,6 +274,12 @@ def test_cli_option_errors(tmp_path) -> None:
     assert res.exit_code == 2 and "--loop x or y" in res.output
     res = run("--loop", "y", "--inner-model", str(inner), "--inner-gains", str(gains))
     assert isinstance(res.exception, InputError) and "no gains for the roll loop" in str(res.exception)
+    filtered = tmp_path / "filtered.json"
+    filtered.write_text(json.dumps({"roll": {**GAINS.to_json(), "rate_filter": {"cutoff_hz": 20.0}}}))
+    r = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(log), "--loop", "y", "--inner-model", str(inner),
+                        "--inner-gains", str(filtered)], capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "--inner-gains (roll)" in r.stderr and "rate filter" in r.stderr, r.stderr
 
 
 def test_cli_analyze_and_tune_a_cascaded_flight(tmp_path) -> None:

@@ -58,30 +58,43 @@ def inner_gains_of(data: Any, inner_name: str) -> Controller:
     Raises
     ------
     InputError
-        Not an object, or no gains for ``inner_name`` (the message names --inner-gains).
+        Not an object, no gains for ``inner_name``, or a stack's rate filter that runs at the gains'
+        rate (the cascade closes the inner loop with Tf's first-order filter only: the filter would be
+        a silent default; the message names --inner-gains).
     """
+    what = f"--inner-gains ({inner_name})"
+    c = Controller.from_json(_gains_entry(data, inner_name), what)
+    if c.rate_filter is not None and c.rate_filter.active(c.rate_hz):
+        f = c.rate_filter
+        raise InputError(f"{what}: the cascade does not model a stack's rate filter (rate_filter {f.parameter or 'cutoff'} "
+                         f"{f.cutoff_hz:g} Hz at {c.rate_hz:g} Hz; its inner derivative runs through Tf only): remove "
+                         "'rate_filter' and give Tf [s] for the derivative's filter, or a cutoff of 0 if it is off")
+    return c
+
+
+def _gains_entry(data: Any, inner_name: str) -> Any:
+    """The JSON of ``inner_name``'s controller in a gains file (:func:`inner_gains_of`'s forms)."""
     if not isinstance(data, Mapping):
         raise InputError(f"--inner-gains: expected a JSON object, got {type(data).__name__}")
-    what = f"--inner-gains ({inner_name})"
     if "Kp" in data:  # tune --export generic: one controller
-        return Controller.from_json(data, what)
+        return data
     export = data.get("export")
     if isinstance(export, Mapping) and "generic" in export:  # tune --json
         loop = data.get("loop")
         if loop and loop != inner_name:
             raise InputError(f"--inner-gains holds gains of the {loop} loop; the outer loop goes through {inner_name}")
-        return Controller.from_json(export["generic"], what)
+        return export["generic"]
     loops = data.get("loops")
     if isinstance(loops, Mapping):  # a vehicle record
         entry = loops.get(inner_name)
         gains = entry.get("gains") if isinstance(entry, Mapping) else None
         if isinstance(gains, Mapping) and "generic" in gains:
-            return Controller.from_json(gains["generic"], what)
+            return gains["generic"]
     if inner_name not in data:
         raise InputError(f"--inner-gains has no gains for the {inner_name} loop (found: "
                          f"{', '.join(map(str, data)) or 'nothing'}); give {{\"{inner_name}\": {{\"Kp\": ..., \"Ki\": ..., "
                          "\"Kd\": ..., \"Tf\": ..., \"rate_hz\": ...}}")
-    return Controller.from_json(data[inner_name], what)
+    return data[inner_name]
 
 
 def inner_loop_of(result: AnalysisResult, controller: Controller, inner_name: str) -> InnerLoop:

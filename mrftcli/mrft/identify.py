@@ -392,8 +392,8 @@ def _check_inputs(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: f
             raise InputError("tests must be TestMeasurement objects")
     if not isinstance(model, LoopModel) or "Tp" not in model.known:
         raise InputError("identify takes eq. (2) with Tp known: soiptd_model(Tp) (Tp [s] from the bench test)")
-    Tp = check_time("Tp", model.Tp)
-    K = model.K if "K" in model.known else None
+    # the model checked Tp (a positive time up to a week) and K (finite, non-zero) when it was made
+    Tp, K = float(model.Tp), (float(model.K) if "K" in model.known else None)
     if rate_hz is not None:
         rate_hz = float(rate_hz)
         if not math.isfinite(rate_hz) or rate_hz <= 0:
@@ -402,9 +402,7 @@ def _check_inputs(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: f
         raise InputError("spread must be 'sem' or 'cycle'")
     if int(n_draws) < 10:
         raise InputError(f"n_draws must be at least 10, got {n_draws}")
-    if K is not None and (not math.isfinite(float(K)) or float(K) == 0):
-        raise InputError(f"K must be finite and non-zero, got {K}")
-    return _Inputs(checked, Tp, rate_hz, None if K is None else float(K), int(n_draws), seed, spread)
+    return _Inputs(checked, Tp, rate_hz, K, int(n_draws), seed, spread)
 
 
 def _measure(inputs: _Inputs) -> _Measured:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
 from typing import Any
 
 import numpy as np
@@ -164,21 +164,22 @@ def _check_yaml_graph(root: Any, what: str) -> None:
         stack.extend((c, False) for c in children if id(c) not in size)
 
 
-def to_jsonable(obj: Any) -> Any:
+def to_jsonable(obj: Any, nonfinite: Callable[[float], Any] = lambda v: None) -> Any:
     """Convert numpy scalars/arrays, dataclasses' dicts and NaN into plain JSON values (NaN -> None).
 
     Dict keys become strings, tuples and arrays become lists, non-finite floats become None (JSON has
-    no NaN); anything else is returned unchanged.
+    no NaN; ``nonfinite=str``: the strings "inf", "-inf", "nan" of the tune records); anything else is
+    returned unchanged.
     """
     if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
+        return {str(k): to_jsonable(v, nonfinite) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
+        return [to_jsonable(v, nonfinite) for v in obj]
     if isinstance(obj, np.ndarray):
-        return [to_jsonable(v) for v in obj.tolist()]
+        return [to_jsonable(v, nonfinite) for v in obj.tolist()]
     if isinstance(obj, (np.floating, float)):
         value = float(obj)
-        return value if math.isfinite(value) else None
+        return value if math.isfinite(value) else nonfinite(value)
     if isinstance(obj, np.integer):
         return int(obj)
     if isinstance(obj, np.bool_):

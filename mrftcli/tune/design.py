@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize
 
-from ..jsonable import check_schema_version
+from ..jsonable import check_schema_version, to_jsonable
 from ..errors import InputError
 from ..mrft.controller import json_number
 from ..mrft.model import LoopModel, PlantModel, model_from_json
@@ -48,19 +48,8 @@ from .margins import LoopMargins, Margins, frequency_grid, loop_margins, plant_r
 
 
 def _encode(obj: Any) -> Any:
-    """JSON-able copy: numpy values to Python, a non-finite float to the string "inf", "-inf" or "nan"."""
-    if isinstance(obj, dict):
-        return {str(k): _encode(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, np.ndarray)):
-        return [_encode(v) for v in (obj.tolist() if isinstance(obj, np.ndarray) else obj)]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (float, np.floating)):
-        v = float(obj)
-        return v if math.isfinite(v) else str(v)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    return obj
+    """JSON-able copy (:func:`~mrftcli.jsonable.to_jsonable`), a non-finite float as the string "inf", "-inf" or "nan"."""
+    return to_jsonable(obj, nonfinite=str)
 
 
 def _decode(obj: Any) -> Any:

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ..jsonable import check_schema_version
+from ..jsonable import check_schema_version, to_jsonable
 from ..errors import InputError
 from ..mrft.model import LoopModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plants, plants_of_parameters
@@ -78,12 +78,9 @@ class Margins:
         >>> Margins.from_json(m.to_json()) == m
         True
         """
-        out: dict[str, Any] = {"schema_version": MARGINS_SCHEMA_VERSION}
-        for name in _MARGIN_FIELDS:
-            v = float(getattr(self, name))
-            out[name] = v if math.isfinite(v) else str(v)
-        out["stable"] = self.stable
-        return out
+        return {"schema_version": MARGINS_SCHEMA_VERSION,
+                **to_jsonable({name: float(getattr(self, name)) for name in _MARGIN_FIELDS}, nonfinite=str),
+                "stable": self.stable}
 
     @classmethod
     def from_json(cls, data: Any) -> "Margins":

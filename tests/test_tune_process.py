@@ -22,7 +22,8 @@ from mrftcli.mrft.identify_lti import LtiIdentification
 from mrftcli.mrft.parameter import ParameterEstimate
 from mrftcli.mrft.relays import RelayLaw
 from mrftcli.tune.design import DesignOptions, TuneResult, tune
-from mrftcli.tune.grid import discrete_response, model_draws
+from mrftcli.tune.grid import model_draws
+from mrftcli.tune.margins import plant_response
 
 
 def _fopdt_z(K: float, Tc: float, tau: float, T: float) -> control.TransferFunction:
@@ -65,7 +66,7 @@ def test_fopdt_fractional_delay_margins_match_python_control():
     model = FOPDT(K=2.0, T=1.0, tau=0.33)  # 6.6 ticks at 20 Hz: the fraction matters
     w = np.geomspace(0.05, 60.0, 50)
     G = _fopdt_z(2.0, 1.0, 0.33, 0.05)
-    assert np.allclose(discrete_response(model, 20.0, w), G(np.exp(1j * w * 0.05)), rtol=1e-9, atol=1e-12)
+    assert np.allclose(plant_response([model], 20.0, w)[0], G(np.exp(1j * w * 0.05)), rtol=1e-9, atol=1e-12)
     res = tune(model, 20.0, options=DesignOptions(kinds=("PID",)))
     (design,) = res.designs
     assert design.kind == "PID" and design.controller.Ki > 0 and design.controller.Kd > 0

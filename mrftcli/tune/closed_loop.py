@@ -157,9 +157,10 @@ def held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:
 
 
 def as_discrete(models, rate_hz: float) -> list[DiscretePlant]:
-    """LoopModel or DiscretePlant items -> DiscretePlants (the LoopModels discretised together)."""
-    models = list(models)
-    todo = [i for i, m in enumerate(models) if not isinstance(m, DiscretePlant)]
+    """PlantModel or DiscretePlant items -> DiscretePlants (eq. (2)'s LoopModels discretised together, another
+    family's model by :func:`held_delay`)."""
+    models = [m if isinstance(m, (LoopModel, DiscretePlant)) else held_delay(m, rate_hz) for m in models]
+    todo = [i for i, m in enumerate(models) if isinstance(m, LoopModel)]
     done = discrete_plants([models[i] for i in todo], rate_hz) if todo else []
     out = list(models)
     for i, p in zip(todo, done):

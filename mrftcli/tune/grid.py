@@ -51,9 +51,9 @@ from ..mrft.model import PlantModel
 from .closed_loop import (Controller, DiscretePlant, PlantStack, StepMetrics, augmented, closed_loop_matrix, held_delay,
                           step_outputs)
 from .design import FILTER_N, Design, DesignOptions, TuneResult
-from .margins import LoopMargins, Margins, largest_holding, margin_grid, stack_margins
+from .margins import LoopMargins, Margins, largest_holding, margin_grid, plant_response, stack_margins
 
-__all__ = ["discretise", "discrete_response", "model_draws", "outer_draws", "tune_grid", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
+__all__ = ["discretise", "model_draws", "outer_draws", "tune_grid", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
 
 #: the controllers designed (PD on integrating plants only)
 GRID_KINDS = ("PI", "PID", "PD")
@@ -91,14 +91,6 @@ def discretise(model: PlantModel, rate_hz: float) -> DiscreteStateSpace:
         A plant with direct feedthrough (D != 0: not a relay-test plant), or a bad rate.
     """
     return augmented(held_delay(model, rate_hz))
-
-
-def discrete_response(model: PlantModel, rate_hz: float, omega: Any) -> NDArray[np.complex128]:
-    """G_d(e^{j omega T}) of :func:`discretise` [output / command], ``omega`` in rad/s, without the delay
-    buffer's states: C (zI - Phi)^-1 (G_new + G_old / z) z^-d (fast on long delays)."""
-    w = np.atleast_1d(np.asarray(omega, float))
-    out: NDArray[np.complex128] = PlantStack.of([held_delay(model, rate_hz)]).transfer(np.exp(1j * w / rate_hz))[0]
-    return out.reshape(np.shape(omega))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -422,7 +414,7 @@ def _sign(model: PlantModel) -> float:
 def _ultimate(model: PlantModel, rate_hz: float, sign: float) -> float:
     """The ultimate angular frequency [rad/s] of the sampled loop: the first -180 deg crossing of G_d."""
     omega = np.geomspace(1e-6, 0.999 * math.pi, 4000) * rate_hz
-    phase = np.unwrap(np.angle(sign * discrete_response(model, rate_hz, omega)))
+    phase = np.unwrap(np.angle(sign * plant_response([model], rate_hz, omega)[0]))
     phase -= 2 * math.pi * round(float(phase[0]) / (2 * math.pi))  # start in (-pi, pi]
     below = np.nonzero(phase <= -math.pi)[0]
     return float(omega[below[0]]) if below.size else float(omega[-1])
@@ -512,7 +504,7 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     sign = _sign(model)
     wu = _ultimate(model, rate_hz, sign)
     tu = 2 * math.pi / wu
-    ku = 1.0 / max(float(np.abs(discrete_response(model, rate_hz, np.array([wu])))[0]), 1e-300)
+    ku = 1.0 / max(float(np.abs(plant_response([model], rate_hz, np.array([wu])))[0, 0]), 1e-300)
     st = _Strategy(_family_plants(rate_hz, sign), _family_candidates(tu, rate_hz),
                    np.geomspace(1e-4 * ku, 10.0 * ku, 21)[::-1],
                    {"PI": _LOAD_PERIODS * tu, "PID": _LOAD_PERIODS * tu, "PD": _STEP_PERIODS * tu})

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..jsonable import check_schema_version, to_jsonable
 from ..errors import InputError
-from ..mrft.model import LoopModel
+from ..mrft.model import LoopModel, PlantModel
 from .closed_loop import Controller, DiscretePlant, PlantStack, as_discrete, augmented, discrete_plants, plants_of_parameters
 
 __all__ = ["Margins", "MARGINS_SCHEMA_VERSION", "LoopMargins", "plant_system", "margins", "loop_margins", "stack_margins",
@@ -138,8 +138,8 @@ def margin_grid(rate_hz: float, d_max: int) -> np.ndarray:
     return np.append(w[w < w_nyq * (1 - 1e-9)], w_nyq * (1 - 1e-9))
 
 
-def plant_response(models: Sequence[LoopModel | DiscretePlant], rate_hz: float, omega: np.ndarray) -> np.ndarray:
-    """Gd(e^{j omega T}) of each model (LoopModel or DiscretePlant), shape (M, len(omega)), omega in rad/s.
+def plant_response(models: Sequence[PlantModel | DiscretePlant], rate_hz: float, omega: np.ndarray) -> np.ndarray:
+    """Gd(e^{j omega T}) of each model (any family's, or a DiscretePlant), shape (M, len(omega)), omega in rad/s.
 
     :meth:`mrftcli.tune.closed_loop.PlantStack.transfer` on the unit circle (the same system as
     :func:`plant_system`, whose python-control frequency response the tests compare it with).

@@ -201,8 +201,8 @@ class DelayIncrement:
                        est["Td"], est["K"], est["tau_before"], est["tau_after"], est["delay_added"],
                        tuple(PairTest.from_json(t) for t in d["tests"]), json_float(d["chi2"], "delay JSON chi2"),
                        int(d["dof"]), json_float(d["model_scatter"], "delay JSON model_scatter"), tuple(str(n) for n in d["notes"]))
-        except (KeyError, TypeError) as err:
-            raise InputError(f"delay JSON: missing or malformed field {err}") from None
+        except (KeyError, TypeError, ValueError) as err:
+            raise InputError(f"delay JSON: missing or malformed field ({err})") from None
 
 
 # ----------------------------------------------------------------------------------------------

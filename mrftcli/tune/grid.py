@@ -193,32 +193,28 @@ def _iae(ss: DiscreteStateSpace, c: Controller, horizon_s: float, load: bool) ->
 
 @dataclass(frozen=True)
 class _Plants:
-    """The nominal discrete plant and every model the constraints hold on (``all``: the IAE's state spaces), and
-    the same plants (the gain's sign applied) for :func:`~mrftcli.tune.margins.stack_margins`: ``stack``, each
+    """The nominal plant's state space (the IAE's) and every model the constraints hold on (the nominal one and
+    the draws, the gain's sign applied) for :func:`~mrftcli.tune.margins.stack_margins`: ``stack``, each
     plant's poles at z = 1 (``integrators``) and outside the unit circle (``unstable``), and their transfer on
     :func:`~mrftcli.tune.margins.margin_grid` (``response``: the same for every controller tried)."""
 
     nominal: DiscreteStateSpace
-    all: tuple[DiscreteStateSpace, ...]
     stack: PlantStack
     integrators: NDArray[np.int64]
     unstable: NDArray[np.int64]
     response: NDArray[np.complex128]
 
     @classmethod
-    def of(cls, plants: Sequence[DiscretePlant], sign: float = 1.0,
-           ss: Sequence[DiscreteStateSpace] | None = None) -> "_Plants":
-        """The plants ``plants`` (held delays at one rate; the gain's ``sign`` applied); ``ss`` their state spaces
-        (None: :func:`~mrftcli.tune.closed_loop.augmented`)."""
+    def of(cls, plants: Sequence[DiscretePlant], sign: float = 1.0) -> "_Plants":
+        """The plants ``plants`` (held delays at one rate, the nominal one first; the gain's ``sign`` applied)."""
         held = [DiscretePlant(h.Phi, h.Gamma, sign * h.C, h.d, h.rate_hz) for h in plants]
-        ss = tuple(ss) if ss is not None else tuple(augmented(h) for h in held)
         stack = PlantStack.of(held)
         poles = [np.linalg.eigvals(h.Phi) for h in held]
         at_one = np.array([int(np.sum(np.abs(p - 1.0) < _POLE_TOL)) for p in poles])
         outside = np.array([int(np.sum((np.abs(p) > 1.0 + _POLE_TOL) & (np.abs(p - 1.0) >= _POLE_TOL))) for p in poles])
         rate = held[0].rate_hz
         w = margin_grid(rate, int(stack.d.max()))
-        return cls(ss[0], ss, stack, at_one, outside, stack.transfer(np.exp(1j * w / rate)))
+        return cls(augmented(held[0]), stack, at_one, outside, stack.transfer(np.exp(1j * w / rate)))
 
     def margins(self, c: Controller, search: bool = False) -> LoopMargins:
         """:func:`~mrftcli.tune.margins.stack_margins` of ``c`` on every model (``search``: the constraints only)."""
@@ -349,7 +345,7 @@ def _design(name: str, kind: str, p: _Plants, st: _Strategy, o: DesignOptions) -
     rows = [(float(m.phase_margin_deg[i]), float(m.gain_margin[i]), float(m.Ms[i]), float(m.w_gc[i]) / (2 * math.pi),
              bool(m.stable[i])) for i in range(len(m))]
     worst = _worst(rows) if len(rows) > 1 else None
-    return design_record(name, c, rows[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.all) - 1,
+    return design_record(name, c, rows[0], worst, J, horizon, o.ms_max, o.pm_min_deg, len(p.stack.d) - 1,
                          "load step" if load else "setpoint step")
 
 
@@ -382,7 +378,7 @@ def _cascade_plants(rate_hz: float) -> Callable[[Sequence[PlantModel]], _Plants]
             k = s.Phi.shape[0]
             Phi[:k, :k], Gamma[1, :k], C[:k] = s.Phi, s.Gamma, s.C
             return DiscretePlant(Phi, Gamma, C, 0, rate_hz)
-        return _Plants.of([held(s) for s in ss], ss=ss)
+        return _Plants.of([held(s) for s in ss])
     return plants
 
 

@@ -118,3 +118,16 @@ def test_the_model_scatter_makes_chi2_its_degrees_of_freedom() -> None:
     s2 = _model_variance(misses, var, 2)
     assert s2 == pytest.approx(float(np.sum(misses ** 2)) / 2 - 1e-5, rel=1e-6)
     assert _model_variance(misses * 1e-3, var, 2) == 0.0 and _model_variance(misses, var, 0) == 0.0
+
+
+def test_a_flight_logged_at_10_and_at_50_hz_gives_its_own_delay_twice() -> None:
+    """The low-rate route (a command logged at 10 Hz below the 50 Hz controller: the nominal beta at the sampled
+    relay's band centre, as analyze takes it) and the high-rate route (the effective beta) on one simulated flight
+    (sample_logs/px4_altitude_{10,50}hz.ulg, seed 101; truth in their sidecars): the same tau, no delay added."""
+    logs = Path(__file__).resolve().parents[1] / "sample_logs"
+    truth = json.loads((logs / "px4_altitude_50hz.ulg.truth.json").read_text())
+    result = delay_increment(logs / "px4_altitude_10hz.ulg", logs / "px4_altitude_50hz.ulg", truth["Tp"])
+    for tau in (result.tau_before, result.tau_after):
+        assert tau.value == pytest.approx(truth["tau"], abs=0.002)
+    assert abs(result.increment.value) < 0.002 and result.increment.ci95_low < 0.0 < result.increment.ci95_high
+    assert result.Td.value == pytest.approx(truth["Td"], rel=0.05) and result.K.value == pytest.approx(truth["K"], rel=0.05)

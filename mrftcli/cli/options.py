@@ -21,7 +21,7 @@ from ..progress import Progress
 from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
-           "check_output_file", "check_output_dir", "json_option", "quiet_option", "controller_rate_option",
+           "check_output_file", "check_output_dir", "check_export_paths", "json_option", "quiet_option", "controller_rate_option",
            "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
@@ -221,6 +221,15 @@ def check_output_file(target: str | None, option: str = "--json", *, inputs: tup
     if path.exists() and not os.access(path, os.W_OK):
         raise InputError(f"{option} {target}: the file is not writable; choose another path")
     _writable_dir(path.parent if str(path.parent) else Path("."), option, path)
+
+
+def check_export_paths(json_target: str | None, out: str | None, exporting: bool) -> None:
+    """``--json`` and ``--out`` checked before the work (tune, vehicle); an export and ``--json -`` cannot share
+    stdout."""
+    check_output_file(json_target, "--json")
+    check_output_file(out, "--out")
+    if exporting and not out and json_target == "-":
+        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
 
 
 def check_output_dir(target: str | None, option: str = "--report", *, create: bool = True) -> None:

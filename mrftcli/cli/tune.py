@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
 from .model_options import process_model, structure_options
-from .options import (check_output_dir, check_output_file, dump_json, json_option, log_layout_options, min_cycles_option,
+from .options import (check_export_paths, check_output_dir, dump_json, json_option, log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
@@ -316,14 +316,6 @@ def write_export(text: str, summary: list[str], out: str | None, json_target: st
     else:
         click.echo(text, nl=False)
         click.echo("\n".join(summary), err=True)
-
-
-def check_export_paths(json_target: str | None, out: str | None, exporting: bool) -> None:
-    """``--json`` and ``--out`` checked before the work; an export and ``--json -`` cannot share stdout."""
-    check_output_file(json_target, "--json")
-    check_output_file(out, "--out")
-    if exporting and not out and json_target == "-":
-        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
 
 
 def _in_set(src: _TuneSource) -> list[Any]:

@@ -16,7 +16,7 @@ import click
 
 from ..errors import InputError
 from ..validate import TP_MISSING
-from .options import dump_json, tqdm_progress
+from .options import check_export_paths, dump_json, tqdm_progress
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
@@ -72,8 +72,6 @@ class AxesRequest:
 
 def _check_request(req: AxesRequest) -> str:
     """The stack, after the checks that need no file (one-line errors)."""
-    from .tune import check_export_paths
-
     if req.model is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
     if req.stack not in ("px4", "ardupilot"):

@@ -13,7 +13,7 @@ from ..errors import InputError, SegmentationError, TpRejectedError
 from ..io.logtypes import gain_unit, output_unit
 from .analyze import accept_tp_option
 from .model_options import outer_options
-from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
+from .options import (check_export_paths, check_output_dir, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_json_file, text_table,
                       tp_option, tqdm_progress)
 
@@ -167,13 +167,10 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
     from ..mrft.model import soiptd_model
     from ..vehicle import StackOptions, TuneOptions, VehicleOptions, identify_vehicle
 
-    check_output_file(json_target, "--json")
+    check_export_paths(json_target, out, export is not None)
     check_output_dir(report_dir, "--report")
-    check_output_file(out, "--out")
     if out and export is None:
         raise InputError("--out needs --export generic|px4|ardupilot|hear")
-    if export is not None and not out and json_target == "-":
-        raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
     _check_stack_options(export, kind, gyro_cutoff, hover_thrust)
     stack = None if export is None else StackOptions(export, gyro_cutoff, hover_thrust, clamp)
     gains = _inner_gains(inner_gains)

@@ -54,10 +54,14 @@ class Screening:
     warnings: tuple[str, ...]
 
 
+def _row(t: MrftTest, t0: float, **extra: Any) -> dict[str, Any]:
+    """A test's JSON row without its cycles, with its times from the log start and ``extra`` keys."""
+    return {**t.to_dict(cycles=False), "t_start_rel": t.t_start - t0, "t_end_rel": t.t_end - t0, **extra}
+
+
 def _rejected_rows(tests: Sequence[MrftTest], reasons: Mapping[int, str], t0: float) -> list[dict[str, Any]]:
-    """The JSON rows of rejected tests, with their times from the log start and the reason."""
-    return [{**t.to_dict(cycles=False), "t_start_rel": t.t_start - t0, "t_end_rel": t.t_end - t0,
-             "reason": reasons[t.index]} for t in tests]
+    """The JSON rows of rejected tests, with the reason."""
+    return [_row(t, t0, reason=reasons[t.index]) for t in tests]
 
 
 def screen(flight: FlightLog, found: Sequence[MrftTest], model: LoopModel, min_stable_cycles: int) -> Screening:
@@ -275,11 +279,8 @@ def partial_single_beta(model: LoopModel, tests: Sequence[MrftTest], t0: float =
     from .record import measured_noise_std
 
     Td = np.geomspace(ASSUMED_TD_RANGE[0], ASSUMED_TD_RANGE[1], 9)
-    rows = []
-    for t, held in zip(tests, held_out_eq2(model, tests, [t.beta for t in tests])):  # no solve: one beta
-        d = t.to_dict(cycles=False)
-        d.update(t_start_rel=t.t_start - t0, t_end_rel=t.t_end - t0, held_out=held.to_json())
-        rows.append(d)
+    rows = [_row(t, t0, held_out=held.to_json())  # no solve: one beta
+            for t, held in zip(tests, held_out_eq2(model, tests, [t.beta for t in tests]))]
     slices: list[dict[str, Any]] = []
     out = {"assumed_Td_range_s": list(ASSUMED_TD_RANGE), "t0": t0, "tests": rows, "tau_for_assumed_Td": slices,
            "noise": {"std": measured_noise_std(tests), "unit": "output units",

@@ -32,10 +32,9 @@ def format_value(param: str, value: float | None) -> str:
     >>> format_value("tau", 0.0464)
     '46.4 ms'
     """
-    if value is None or not math.isfinite(value):
-        return "-"
     unit, f = _scale(param)
-    return f"{value * f:.4g} {unit}".rstrip()
+    text = _number(value, f)
+    return text if text == "-" else f"{text} {unit}".rstrip()
 
 
 def format_change(c: ParameterChange, confidence: float) -> str:

@@ -207,6 +207,7 @@ def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> 
     says to give ``--loop`` or ``--output-topic`` (a one-loop command; ``vehicle`` reads every loop).
     """
     match = log_layout(log, opts.layout)
+    _check_logged_loop(log, match.layout, opts)
     roles, decision = _decision_command(log, match.layout, opts, role_specs(match.layout, opts))
     log.prefetch([parse_spec(s).topic for s in (roles.command, roles.output, roles.beta, roles.setpoint,
                                                 roles.battery) if s])
@@ -270,6 +271,25 @@ def _get_layout_role(log: LogSource, spec: str, hint: bool, fix: str) -> _Read:
         if not hint:
             raise
         raise LogReadError(f"{err} ({fix})") from None
+
+
+def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
+    """InputError when the log says its tests excite another loop than ``opts.loop``.
+
+    A one-axis layout (:attr:`Layout.loop_field`) maps every loop to the same topics, so without this a
+    roll log read as the default altitude loop would be identified with altitude's units. Skipped when
+    the user names the output topic (the topics are then theirs).
+    """
+    if lay.loop_field is None or opts.output_topic is not None:
+        return
+    read = _get_optional(log, lay.loop_field)
+    if read is None:
+        return
+    codes = {int(v) for v in np.concatenate([np.ravel(x) for x in read.values.values()]) if np.isfinite(v)}
+    logged = sorted({lay.loop_codes.get(c, f"code {c}") for c in codes})
+    if logged and opts.loop not in logged:
+        raise InputError(f"{log.path}: the log's tests excite the {' and '.join(logged)} loop ({lay.loop_field}), "
+                         f"not {opts.loop}: give --loop {logged[0]}")
 
 
 def _get_optional(log: LogSource, spec: str) -> _Read | None:

@@ -16,7 +16,7 @@ reported signs, never the identified Td and tau.
 from __future__ import annotations
 
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 __all__ = ["LoopTopics", "Layout", "LAYOUTS", "LAYOUT_NAMES", "detect_layout", "get_layout", "LayoutMatch"]
 
@@ -92,6 +92,11 @@ class Layout:
     delay_parameter : str or None
         The logged parameter [ms] by which the stack holds the relay's output before it acts (PX4's
         ``MRFT_DELAY``); above 0, a loop with a :attr:`LoopTopics.decision` reads the decision.
+    loop_field : str or None
+        ``TOPIC:FIELD`` where a one-axis log records which loop its tests excite (ArduPilot's
+        ``MRFB:Ax``), decoded by :attr:`loop_codes`; None when the log does not say.
+    loop_codes : Mapping[int, str]
+        The loop each value of :attr:`loop_field` stands for.
     """
 
     name: str
@@ -106,6 +111,8 @@ class Layout:
     rate_from_log: bool = False
     rate_assumption: str = ""
     delay_parameter: str | None = None
+    loop_field: str | None = None
+    loop_codes: Mapping[int, str] = field(default_factory=dict)
 
 
 def _reference(output: str) -> LoopTopics:
@@ -237,6 +244,8 @@ _ARDUPILOT_MRFT = Layout(
     loops={loop: _ardupilot_mrft() for loop in ("altitude", "roll", "pitch")},
     signature=("MRFT",),
     formats=("dataflash",),
+    loop_field="MRFB:Ax",  # scripts/sitl/mrft_relay.lua: 1 altitude, 2 roll, 3 pitch
+    loop_codes={1: "altitude", 2: "roll", 3: "pitch"},
     low_rate_fix="the relay logs every tick: build with scripts/sitl/build_ardupilot.sh (the main-loop relay, "
                  "400 Hz) instead of the script-run relay",
 )

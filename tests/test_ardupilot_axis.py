@@ -1,0 +1,35 @@
+"""The ardupilot-mrft layout holds one axis per log and says which (MRFB:Ax): reading it as another
+loop is refused, naming the loop the log holds, instead of identifying roll with altitude's units."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mrftcli.errors import InputError
+from mrftcli.io import ReadOptions, read_flight
+
+LOGS = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl"
+
+
+@pytest.mark.skipif(not (LOGS / "pitch.BIN").exists(), reason="ArduPilot SITL sample log not shipped")
+def test_a_pitch_log_read_as_altitude_is_refused_naming_pitch() -> None:
+    with pytest.raises(InputError, match=r"excite the pitch loop \(MRFB:Ax\), not altitude: give --loop pitch"):
+        read_flight(LOGS / "pitch.BIN", ReadOptions(loop="altitude"), echo_warnings=False)
+    flight = read_flight(LOGS / "pitch.BIN", ReadOptions(loop="pitch"), echo_warnings=False)
+    assert flight.loop == "pitch"
+    # the user's own output topic: the topics are theirs, the logged axis is not checked
+    assert read_flight(LOGS / "pitch.BIN", ReadOptions(loop="altitude", output_topic="MRFT:Out"),
+                       echo_warnings=False).loop == "altitude"
+
+
+@pytest.mark.skipif(not (LOGS / "roll.BIN").exists(), reason="ArduPilot SITL sample log not shipped")
+def test_cli_roll_log_without_loop_is_one_line_error() -> None:
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(LOGS / "roll.BIN"), "--tp", "0.00915"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode != 0
+    assert proc.stderr.strip().splitlines() == [
+        f"error: {LOGS / 'roll.BIN'}: the log's tests excite the roll loop (MRFB:Ax), not altitude: give --loop roll"]
+    assert "Traceback" not in proc.stderr

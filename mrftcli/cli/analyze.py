@@ -11,7 +11,7 @@ from ..errors import InsufficientDataError, MrftError, SegmentationError, TpReje
 from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination,
                             parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
                             soiptd_or_process, structure_options, window_option)
-from ..report.wording import output_unit, uncertainty_sentence
+from ..report.wording import gain_unit, uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
                       tp_option, tqdm_progress)
@@ -139,7 +139,7 @@ def _display(result):
         if name == "tau" and e.unit == "s" and result.kind != "family":
             return 1e3, "ms"
         if name == "K" and result.kind == "soiptd":
-            return 1.0, f"{output_unit(result.loop)}/s² per command unit"
+            return 1.0, gain_unit(result.loop)
         return 1.0, e.unit
     return display
 

@@ -11,12 +11,11 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError
-from ..jsonable import load_json_text
 from ..report.wording import output_unit
 from .model_options import (build_model, check_soiptd_options, format_estimates, parse_windows, relay_options,
                             structure_options, window_option)
 from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
-                      text_table, tp_option, tqdm_progress)
+                      read_json_file, text_table, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
     from ..analyze.record import AnalysisResult
@@ -82,17 +81,9 @@ def _from_log(path: Path, model: LoopModel, min_cycles: int, read_options: Mappi
     return flown, {}, analysis_controller_rate(flight.timing.controller_rate_hz, [t.rate_hz for t in usable]), noise
 
 
-def _analysis_json(path: Path) -> Any:
-    """The parsed ``analyze --json`` result file of either family (one line naming the file when unreadable)."""
-    try:
-        return load_json_text(path.read_text(), str(path))
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: not a readable analyze --json result ({err})") from err
-
-
 def _flown_from_json(path: Path) -> tuple[list[FlownTest], dict[str, ParameterEstimate], float | None, float | None]:
     """:func:`_from_analysis` of an ``analyze --json`` result file."""
-    data = _analysis_json(path)  # its errors name the file already
+    data = read_json_file(path, "--from")  # its errors name the file already
     try:
         return _from_analysis(data)
     except InputError as err:
@@ -183,7 +174,7 @@ def _recorded_json(path: Path) -> AnalysisResult:
     """The process analysis of an ``analyze --model NAME --json`` file."""
     from ..analyze.record import AnalysisResult
 
-    data = _analysis_json(path)
+    data = read_json_file(path, "--from")
     try:
         return AnalysisResult.from_json(data)
     except InputError as err:

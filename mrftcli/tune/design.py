@@ -68,7 +68,7 @@ def _check_version(data: Any, what: str) -> dict[str, Any]:
 
 
 __all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
-           "FILTER_N", "TI_RATIO", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
+           "FILTER_N", "TI_RATIO", "controller", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
 
 #: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it); 3: ``tune --json`` writes
 #: this record itself (until then a report holding it as ``tune_result``), each design names its
@@ -368,9 +368,9 @@ class TuneResult:
                    data.get("reverse_acting") is True)
 
 
-def _controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None,
+def controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None,
                 rate_filter: RateFilter | None = None) -> Controller:
-    """Parallel gains from (Kp, Td_c, Ti); a PID without Ti takes TI_RATIO x Td_c.
+    """Parallel gains from (Kp, Td_c, Ti) (a PI: ``"PID"`` with Td_c 0); a PID without Ti takes TI_RATIO x Td_c.
 
     The derivative filter is Tf = Td_c / FILTER_N, or the stack's ``rate_filter`` (then Tf = 0).
     """
@@ -398,7 +398,7 @@ def mrft_rule(model: LoopModel, rate_hz: float, kind: str = "PD",
     lc = mrft_limit_cycle(model, RULE_BETA, 1.0, rate_hz=rate_hz)
     T0, a0 = float(lc.period), float(lc.amplitude)
     Kp = RULE_C1 * 4.0 / (math.pi * a0)
-    return _controller(kind, Kp, RULE_C3 * T0, rate_hz, rate_filter=rate_filter), {"beta": RULE_BETA, "T0": T0, "a0": a0, "h": 1.0,
+    return controller(kind, Kp, RULE_C3 * T0, rate_hz, rate_filter=rate_filter), {"beta": RULE_BETA, "T0": T0, "a0": a0, "h": 1.0,
                                                            "c1": RULE_C1, "c3": RULE_C3}
 
 
@@ -450,7 +450,7 @@ class _Evaluator:
 
     def controller(self, p: np.ndarray) -> Controller:
         Ti = math.exp(p[2]) if p.size > 2 else None
-        return _controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz, Ti, self.rate_filter)
+        return controller(self.kind, math.exp(p[0]), math.exp(p[1]), self.rate_hz, Ti, self.rate_filter)
 
     def cost(self, p: np.ndarray) -> float:
         c = self.controller(p)
@@ -484,7 +484,7 @@ def _feasible_start(ev: _Evaluator, start: Controller) -> Controller:
         for g in np.geomspace(1.0, 0.01, 60):
             Td_c = Td0 * f
             Kp = start.Kp * g
-            c = _controller("PID" if Ti_ratio else "PD", Kp, Td_c, ev.rate_hz, Ti_ratio * Td_c if Ti_ratio else None,
+            c = controller("PID" if Ti_ratio else "PD", Kp, Td_c, ev.rate_hz, Ti_ratio * Td_c if Ti_ratio else None,
                             ev.rate_filter)
             if ev.violation(c) == 0.0:
                 J = ev.criterion(c)
@@ -502,7 +502,7 @@ def _pid_start(ev: _Evaluator, pd: Controller) -> Controller:
     slowest integral and start far from the optimum).
     """
     Td_c = pd.Kd / pd.Kp
-    cands = [_controller("PID", pd.Kp, Td_c, ev.rate_hz, r * Td_c, ev.rate_filter) for r in (2.0, 3.0, 4.0, 6.0, 8.0, 16.0)]
+    cands = [controller("PID", pd.Kp, Td_c, ev.rate_hz, r * Td_c, ev.rate_filter) for r in (2.0, 3.0, 4.0, 6.0, 8.0, 16.0)]
     return min(cands, key=lambda c: ev.cost(_params(c)))
 
 
@@ -752,7 +752,7 @@ def _design(name: str, kind: str, st: _Setting, found: dict[tuple[str, str], Con
     if name == "mrft-rule":
         if kind == "PD":
             return rule_pd, 0.0
-        return _controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz, rate_filter=st.rate_filter), rule_pd.Kp
+        return controller("PID", rule_pd.Kp, rule_pd.Kd / rule_pd.Kp, rate_hz, rate_filter=st.rate_filter), rule_pd.Kp
     ev = st.nominal_ev[kind] if name == "model-based" else st.robust_ev[kind]
     load = 0.0
     if kind == "PD":

@@ -50,7 +50,7 @@ from ..mrft.cascade import CascadeModel, DiscreteStateSpace
 from ..mrft.model import PlantModel
 from .closed_loop import (Controller, DiscretePlant, PlantStack, StepMetrics, augmented, closed_loop_matrix, held_delay,
                           step_outputs)
-from .design import FILTER_N, Design, DesignOptions, TuneResult
+from .design import FILTER_N, Design, DesignOptions, TuneResult, controller
 from .margins import LoopMargins, Margins, largest_holding, margin_grid, plant_response, stack_margins
 
 __all__ = ["discretise", "model_draws", "outer_draws", "tune_grid", "cascade_result_v1", "GRID_KINDS", "GRID_DESIGNS", "N_DRAWS"]
@@ -301,10 +301,9 @@ Maker = Callable[[float], Controller]
 
 
 def _maker(ti: float | None, tdc: float, rate_hz: float) -> Maker:
-    """Kp -> the controller with integral time ``ti`` (None: no integral) and derivative time ``tdc`` [s]."""
-    def make(kp: float) -> Controller:
-        return Controller(kp, 0.0 if ti is None else kp / ti, kp * tdc, tdc / FILTER_N, rate_hz)
-    return make
+    """Kp -> the controller with integral time ``ti`` (None: no integral) and derivative time ``tdc`` [s]
+    (:func:`~mrftcli.tune.design.controller`)."""
+    return lambda kp: controller("PD" if ti is None else "PID", kp, tdc, rate_hz, ti)
 
 
 def _largest_gain(make: Maker, gains: FloatArray, p: _Plants, o: DesignOptions) -> Controller | None:

@@ -183,8 +183,6 @@ def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> 
     the eq. (2) route at one rate; otherwise ``{}`` (the loops keep the stated default cutoff). The
     entries to replace, with the choice stated first in each loop's notes.
     """
-    from dataclasses import replace
-
     from ..tune.joint import GYRO_FILTER_PARAM, joint_cutoff_of_analyses
 
     st = options.stack
@@ -206,12 +204,12 @@ def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> 
     for v, res in zip(entries, joint.results):
         assert v.gains is not None
         kept = tuple(n for n in v.gains.tune.notes if not n.startswith(name))  # the default cutoff's note
-        res = replace(res, notes=(joint.note(), *kept, *res.notes))
+        res = dataclasses.replace(res, notes=(joint.note(), *kept, *res.notes))
         try:
             export = export_design(st.stack, res.get(v.gains.design, "PD").controller, res.loop_model, v.loop,
                                    f"{v.gains.design} PD", clamp=st.clamp, evidence=_evidence(v.analysis.tests, res.notes))
         except InputError as err:
-            out[v.loop] = replace(v, gains=LoopGains(v.gains.design, "PD", res, export_refused=str(err)))
+            out[v.loop] = dataclasses.replace(v, gains=LoopGains(v.gains.design, "PD", res, export_refused=str(err)))
             continue
-        out[v.loop] = replace(v, gains=LoopGains(v.gains.design, "PD", res, export=export))
+        out[v.loop] = dataclasses.replace(v, gains=LoopGains(v.gains.design, "PD", res, export=export))
     return out

@@ -14,13 +14,10 @@ x on pitch).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
+from ..io import LogSource, log_layout, open_log
+from ..io.layouts import Layout
 from ..io.logtypes import LOOPS
-
-if TYPE_CHECKING:
-    from ..io import LogSource
-    from ..io.layouts import Layout
 
 __all__ = ["INNER_LOOPS", "OUTER_LOOPS", "INNER_OF", "VEHICLE_ORDER", "loops_in_log", "absent_topics", "layout_absent"]
 
@@ -50,8 +47,6 @@ def loops_in_log(path: str | Path, layout: str | None = None) -> tuple[str, ...]
     tuple of str
         In the layout's order; empty when the layout records none of its loops.
     """
-    from ..io import log_layout, open_log
-
     with open_log(path) as source:
         lay = log_layout(source, layout).layout
         return tuple(loop for loop in lay.loops if not layout_absent(source, lay, loop))
@@ -64,8 +59,6 @@ def absent_topics(path: str | Path, loop: str, layout: str | None = None) -> tup
     the topics). A layout without the loop gives its name as the one absent topic. Empty: the loop's
     topics are there (whether its tests are is the analysis's question).
     """
-    from ..io import log_layout, open_log
-
     with open_log(path) as source:
         return layout_absent(source, log_layout(source, layout).layout, loop)
 

@@ -33,3 +33,15 @@ def test_cli_roll_log_without_loop_is_one_line_error() -> None:
     assert proc.stderr.strip().splitlines() == [
         f"error: {LOGS / 'roll.BIN'}: the log's tests excite the roll loop (MRFB:Ax), not altitude: give --loop roll"]
     assert "Traceback" not in proc.stderr
+
+
+@pytest.mark.skipif(not (LOGS / "pitch.BIN").exists(), reason="ArduPilot SITL sample log not shipped")
+def test_vehicle_identifies_only_the_logged_axis() -> None:
+    """``vehicle`` tries every loop: a pitch log used to be identified three times, as altitude (in m),
+    roll and pitch; now only pitch, and the other loops are reported as not recorded."""
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "vehicle", str(LOGS / "pitch.BIN"), "--tp", "0.00915"],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    rows = [line.split()[0] for line in proc.stdout.splitlines() if " inner " in line or " outer " in line]
+    assert rows == ["pitch"]
+    assert "altitude: no-topics" in proc.stdout and "roll: no-topics" in proc.stdout

@@ -42,6 +42,6 @@ def test_vehicle_identifies_only_the_logged_axis() -> None:
     proc = subprocess.run([sys.executable, "-m", "mrftcli", "vehicle", str(LOGS / "pitch.BIN"), "--tp", "0.00915"],
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr
-    rows = [line.split()[0] for line in proc.stdout.splitlines() if " inner " in line or " outer " in line]
+    rows = [line.split()[0] for line in proc.stdout.splitlines()[2:] if " inner " in line or " outer " in line]
     assert rows == ["pitch"]
     assert "altitude: no-topics" in proc.stdout and "roll: no-topics" in proc.stdout

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
@@ -166,8 +167,6 @@ def log_start(flight: FlightLog) -> float:
 def describe_t0(t0: float) -> str:
     """The log start for people: a UTC date when it looks like an epoch time, else seconds."""
     if 1e9 <= t0 <= 4e9:  # 2001 .. 2096: an epoch timestamp
-        from datetime import datetime, timezone
-
         return datetime.fromtimestamp(t0, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC"
     return f"{t0:.3f} s"
 

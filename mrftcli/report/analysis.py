@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from matplotlib.ticker import ScalarFormatter
+from matplotlib.ticker import LogLocator, MaxNLocator, ScalarFormatter
 
 from ..errors import InputError
 from ..analyze.held_out import held_out_cells, held_out_notes
@@ -275,8 +275,6 @@ def plot_manifolds(result):
                 label=f"UFM slices alone (paper): Td {paper['Td']:.3g} s, tau {paper['tau'] * 1e3:.4g} ms")
     ax.set_xscale("log")
     ax.set_xlim(lo_x, hi_x)
-    from matplotlib.ticker import LogLocator
-
     fmt = ScalarFormatter()
     fmt.set_scientific(False)
     ax.xaxis.set_major_formatter(fmt)
@@ -366,8 +364,6 @@ def plot_cycles(result):
                     ax.legend(fontsize=7, loc="lower right")
             else:
                 ax.set_xlabel("cycle")
-            from matplotlib.ticker import MaxNLocator
-
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle("Stable-cycle criterion: median +/- tolerance (MAD-based) per test", fontsize=10)
     return fig

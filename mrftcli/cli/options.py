@@ -223,11 +223,12 @@ def check_output_file(target: str | None, option: str = "--json", *, inputs: tup
     _writable_dir(path.parent if str(path.parent) else Path("."), option, path)
 
 
-def check_export_paths(json_target: str | None, out: str | None, exporting: bool) -> None:
-    """``--json`` and ``--out`` checked before the work (tune, vehicle); an export and ``--json -`` cannot share
-    stdout."""
-    check_output_file(json_target, "--json")
-    check_output_file(out, "--out")
+def check_export_paths(json_target: str | None, out: str | None, exporting: bool, *,
+                       inputs: tuple[str, ...] = ()) -> None:
+    """``--json`` and ``--out`` checked before the work (tune, vehicle), never onto one of ``inputs`` (the
+    logs or results read); an export and ``--json -`` cannot share stdout."""
+    check_output_file(json_target, "--json", inputs=inputs)
+    check_output_file(out, "--out", inputs=inputs)
     if exporting and not out and json_target == "-":
         raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
 

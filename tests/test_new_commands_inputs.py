@@ -1,0 +1,59 @@
+"""A user's slips with this stop's new commands (``delay``, ``tune --export px4 --loop x|y``) and the outputs
+they share with ``vehicle``: one line naming the problem and the fix, a non-zero exit, no traceback, inputs
+never written over. Found by running the docs' commands and their bad-input variants as a user would."""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+from pathlib import Path
+
+import pytest
+
+from cli_helpers import run_main
+
+SITL = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl"
+ROLL, ROLL_20 = SITL / "roll.BIN", SITL / "roll_20ms.BIN"
+
+
+def _one_error_line(done, code: int) -> str:
+    """The one ``error:`` line of a refused command (exit ``code``), no traceback, no library warning."""
+    assert done.returncode == code, (done.returncode, done.stderr)
+    lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), done.stderr
+    assert "Traceback" not in done.stderr and "Warning" not in done.stderr
+    return lines[0]
+
+
+def _md5(path: Path) -> str:
+    return hashlib.md5(path.read_bytes()).hexdigest()
+
+
+def test_vehicle_out_onto_its_log_is_refused(tmp_path: Path) -> None:
+    """vehicle --out LOG (or --json LOG) would write the export over the flight it reads: refused before the
+    work (exit 2, naming the option), the log unchanged."""
+    log = tmp_path / "x.ulg"
+    shutil.copy(SITL / "px4_x.ulg", log)
+    before = _md5(log)
+    for option in ("--out", "--json"):
+        done = run_main("vehicle", str(log), "--tp", "0.05", "--export", "px4", option, str(log), "-q")
+        line = _one_error_line(done, 2)
+        assert f"{option} {log}" in line and "input" in line
+    assert _md5(log) == before
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["missing.BIN", str(ROLL_20)], ["'BEFORE'", "missing.BIN", "does not exist"]),
+    ([str(ROLL)], ["Missing argument 'AFTER'"]),
+    ([str(ROLL), str(ROLL_20), "--json", "/proc/delay.json"], ["--json /proc/delay.json", "writable"]),
+    ([str(ROLL), str(ROLL_20), "--json", "{tmp}"], ["--json", "is a folder", "file name"]),
+    ([str(ROLL), str(ROLL_20), "--json", str(ROLL_20)], ["is an input", "another path"]),
+    ([str(ROLL), str(ROLL_20), "--min-cycles", "1"], ["--min-cycles"]),
+])
+def test_delay_bad_input_one_line(tmp_path: Path, argv: list[str], words: list[str]) -> None:
+    """delay's slips that need no fit: exit 2 before either log is analysed, one line naming the problem."""
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    done = run_main("delay", *argv, "--tp", "0.00915", "--loop", "roll", "-q")
+    line = _one_error_line(done, 2)
+    for w in words:
+        assert w in line, line

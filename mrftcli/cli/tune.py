@@ -465,7 +465,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
                             "--report": report_dir, "--effort-max": effort_max, "--hover-thrust": hover_thrust,
                             "--gyro-cutoff": gyro_cutoff, "--clamp": clamp, "--objective itae": objective != "iae"},
                            ex, design)
-    elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, cutoff_hz, objective, ms_max, effort_max,
+    elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, objective, ms_max, effort_max,
                        (td, tau, K), json_target, report_dir, quiet, read_options):
         return
     check_export_paths(json_target, out, ex.stack is not None)  # output paths checked before the work starts
@@ -505,7 +505,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
 
 
 def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions, kind: str, design: str | None,
-                  cutoff_auto: bool, cutoff_hz: float | None, objective: str, ms_max: float,
+                  cutoff_auto: bool, objective: str, ms_max: float,
                   effort_max: float | None, given: tuple[float | None, ...], json_target: str | None,
                   report_dir: str | None, quiet: bool, read_options: dict[str, Any]) -> bool:
     """Eq. (2)'s joint roll and pitch export (True: done); the checks before one loop's."""
@@ -519,8 +519,7 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
         from ..mrft.model import soiptd_model
         from .tune_axes import AxesRequest, tune_axes
 
-        tune_axes(AxesRequest(sources, None if Tp is None else soiptd_model(Tp), ex.stack, ex.out, ex.clamp,
-                              cutoff_auto or cutoff_hz is None, cutoff_hz,
+        tune_axes(AxesRequest(sources, None if Tp is None else soiptd_model(Tp), ex, cutoff_auto or ex.gyro_cutoff_hz is None,
                               read_options.get("controller_rate_hz"), objective, ms_max, design or "robust", kind,
                               json_target, quiet))
         return True

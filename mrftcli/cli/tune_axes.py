@@ -20,6 +20,7 @@ from .options import check_export_paths, dump_json, tqdm_progress
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
+    from .tune import _ExportOptions
 
 __all__ = ["AxesRequest", "tune_axes"]
 
@@ -34,15 +35,10 @@ class AxesRequest:
         The two analyze RESULT.json files.
     model : LoopModel or None
         Eq. (2) with the bench test's Tp known (``soiptd_model(--tp)``), the same for both axes (None: no --tp).
-    stack : str or None
-        ``--export``.
-    out : str or None
-        ``--out FILE``.
-    clamp : bool
+    ex : _ExportOptions
+        ``--export``, ``--out``, ``--gyro-cutoff HZ`` (``gyro_cutoff_hz``), ``--clamp``.
     auto : bool
-        Choose the cutoff from both axes (else ``cutoff_hz``).
-    cutoff_hz : float or None
-        ``--gyro-cutoff HZ``.
+        Choose the cutoff from both axes (else ``ex.gyro_cutoff_hz``).
     rate_hz : float or None
         ``--controller-rate``.
     objective : str
@@ -56,11 +52,8 @@ class AxesRequest:
 
     sources: tuple[str, ...]
     model: LoopModel | None
-    stack: str | None
-    out: str | None
-    clamp: bool
+    ex: _ExportOptions
     auto: bool
-    cutoff_hz: float | None
     rate_hz: float | None
     objective: str
     ms_max: float
@@ -74,18 +67,18 @@ def _check_request(req: AxesRequest) -> str:
     """The stack, after the checks that need no file (one-line errors)."""
     if req.model is None:
         raise click.UsageError(f"missing --tp: {TP_MISSING}")
-    if req.stack not in ("px4", "ardupilot"):
+    if req.ex.stack not in ("px4", "ardupilot"):
         raise InputError("two results are designed together only with --export px4|ardupilot (their one gyro "
                          "filter on all axes); tune each result alone otherwise")
     if req.kind != "PD":
-        raise InputError(f"cannot export a PID to {req.stack}: its rate-loop I acts on the measured rate; "
+        raise InputError(f"cannot export a PID to {req.ex.stack}: its rate-loop I acts on the measured rate; "
                          "export the PD (--kind PD)")
     for s in req.sources:
         if not (s.lower().endswith(".json") and Path(s).is_file()):
             raise InputError(f"{s}: with two sources give analyze RESULT.json files (analyze each log with "
                              "--json FILE first)")
-    check_export_paths(req.json_target, req.out, True)
-    return req.stack
+    check_export_paths(req.json_target, req.ex.out, True)
+    return req.ex.stack
 
 
 def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
@@ -124,7 +117,7 @@ def tune_axes(req: AxesRequest) -> None:
     stack = _check_request(req)
     axes, extra, rate_source = _axes(req)
     # the rate the stack runs (PX4: an IMU_GYRO_RATEMAX choice), stated; its cutoff note is replaced below
-    setting = stack_setting(stack, "roll", req.rate_hz, rate_source, req.cutoff_hz)
+    setting = stack_setting(stack, "roll", req.rate_hz, rate_source, req.ex.gyro_cutoff_hz)
     rate, name = setting.rate_hz, GYRO_FILTER_PARAM[stack]
     joint = None
     with tqdm_progress("tune", unit="cutoff", enabled=not req.quiet) as progress:
@@ -134,13 +127,13 @@ def tune_axes(req: AxesRequest) -> None:
                                       progress=progress)
             results, said = joint.results, joint.note()
         else:
-            assert req.cutoff_hz is not None
-            results = design_axes(axes, rate, RateFilter(req.cutoff_hz, name), objective=req.objective,
+            assert req.ex.gyro_cutoff_hz is not None
+            results = design_axes(axes, rate, RateFilter(req.ex.gyro_cutoff_hz, name), objective=req.objective,
                                   ms_max=req.ms_max)
-            said = f"{name} = {req.cutoff_hz:g} Hz (--gyro-cutoff) for roll and pitch: one filter on all axes"
+            said = f"{name} = {req.ex.gyro_cutoff_hz:g} Hz (--gyro-cutoff) for roll and pitch: one filter on all axes"
     results = tuple(dataclasses.replace(r, notes=(*notes, setting.notes[0], said, *r.notes))
                     for r, (_, notes) in zip(results, extra))
-    export = export_axes(stack, results, req.design, [src for src, _ in extra], clamp=req.clamp, cutoff=joint)
+    export = export_axes(stack, results, req.design, [src for src, _ in extra], clamp=req.ex.clamp, cutoff=joint)
     if req.json_target:
         dump_json({"export": {"joint": export.to_json()},
                    "tune_results": {r.loop: r.to_json() for r in results}}, req.json_target)
@@ -148,4 +141,4 @@ def tune_axes(req: AxesRequest) -> None:
     for e in export.exports:
         summary += stack_summary(e, console=False)
     summary += export.console_lines()
-    write_export(export.file_text(), summary, req.out, req.json_target)
+    write_export(export.file_text(), summary, req.ex.out, req.json_target)

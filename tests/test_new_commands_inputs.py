@@ -57,3 +57,28 @@ def test_delay_bad_input_one_line(tmp_path: Path, argv: list[str], words: list[s
     line = _one_error_line(done, 2)
     for w in words:
         assert w in line, line
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a Markdown heading: lower case, punctuation but '-' and '_' dropped, spaces '-'."""
+    import re
+
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_docs_named_in_help_and_messages_exist() -> None:
+    """Every ``docs/NAME.md[#anchor]`` the package names (help texts, errors, notes) is a page we ship, and
+    its anchor one of the page's headings (delay's help pointed at a '#delay' no heading makes)."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    named = {m for p in (root / "mrftcli").rglob("*.py")
+             for m in re.findall(r"docs/[\w/.-]+?\.md(?:#[\w-]+)?", p.read_text(encoding="utf-8"))}
+    assert named
+    for ref in sorted(named):
+        page, _, anchor = ref.partition("#")
+        assert (root / page).is_file(), ref
+        if anchor:
+            headings = [ln.lstrip("#") for ln in (root / page).read_text(encoding="utf-8").splitlines()
+                        if ln.startswith("#")]
+            assert anchor in {_slug(h) for h in headings}, ref

@@ -34,7 +34,7 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     Fly the same loop before and after the change (a filter, a firmware, a delay inserted on purpose), at
     two or more betas in one of the flights. Both recordings are read with the same options. Identified
     apart, each flight's Td trades against its tau and their difference carries both trades; together,
-    Td is shared (docs/usage.md#delay, docs/method.md).
+    Td is shared (docs/usage.md#how-much-delay-did-a-change-add-delay, docs/method.md).
 
     Exit code 0; 2 bad input; 3 a recording cannot be read; 4 no usable test in a recording; 5 the fit fails;
     6 neither recording has two betas.

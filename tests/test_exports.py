@@ -419,3 +419,25 @@ def test_cli_json_holds_the_versioned_record(tmp_path, capsys):
     assert res.rate_filter == RateFilter(40.0, "IMU_GYRO_CUTOFF") and res.rate_hz == 250.0
     e = StackExport.from_json(data["export"]["stack"])
     assert e.params["MC_ROLLRATE_P"] == pytest.approx(res.get("model-based", "PD").controller.Kd)
+
+
+def test_tune_export_never_written_over_its_sources(tmp_path: Path) -> None:
+    """tune SOURCE --export px4 --out SOURCE (one source, or ROLL.json PITCH.json) is refused before the work
+    (exit 2, one line naming --out and the input), the source unchanged."""
+    import shutil
+
+    from cli_helpers import run_main
+
+    log = tmp_path / "roll.BIN"
+    shutil.copy(Path(__file__).resolve().parents[1] / "sample_logs" / "sitl" / "roll.BIN", log)
+    roll, pitch = tmp_path / "roll.json", tmp_path / "pitch.json"
+    roll.write_text("{}")
+    pitch.write_text("{}")
+    before = log.read_bytes()
+    for argv in ([str(log), "--loop", "roll"], [str(roll), str(pitch)]):
+        target = argv[0]
+        done = run_main("tune", *argv, "--tp", "0.05", "--export", "px4", "--out", target, "-q")
+        lines = [ln for ln in done.stderr.splitlines() if ln.strip()]
+        assert done.returncode == 2 and len(lines) == 1, done.stderr
+        assert lines[0].startswith(f"error: --out {target}") and "input" in lines[0]
+    assert log.read_bytes() == before and roll.read_text() == "{}"

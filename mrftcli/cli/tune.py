@@ -468,7 +468,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
     elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, objective, ms_max, effort_max,
                        (td, tau, K), json_target, report_dir, quiet, read_options):
         return
-    check_export_paths(json_target, out, ex.stack is not None)  # output paths checked before the work starts
+    check_export_paths(json_target, out, ex.stack is not None, inputs=tuple(sources))  # before the work starts
     check_output_dir(report_dir, "--report")
     if out and ex.stack is None:
         raise InputError("--out needs --export generic" + ("" if family else "|px4|ardupilot|hear"))

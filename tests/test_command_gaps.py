@@ -134,3 +134,27 @@ def test_a_switch_in_a_gap_carries_one_tick_of_uncertainty_into_the_intervals(fl
     if at == "switch":
         _, held = _refit(log, tests, free=False)
         assert not held.tau.ci95_low <= m.tau <= held.tau.ci95_high
+
+
+def test_a_gap_after_the_test_adds_no_unknown_ticks_and_leaves_the_fit_as_it_is(flight):
+    """A log masked to its tests' windows (the held-out benchmark's): the first test's window takes its
+    command up to the first message after the test, seconds later across the gap. The ticks after the
+    last output move no output, so none is left free (each was a zero column of every least squares:
+    > 400 s on a masked SITL log), and the fit is the unmasked log's."""
+    from mrftcli.analyze.general import mask_windows
+
+    m, fl = flight
+    full = recorded_flight(fl)
+    tests = segment(full)
+    masked = mask_windows(full, [(t.t_start - 1.5, t.t_end) for t in tests])
+    fits = []
+    for log in (full, masked):
+        windows, r = _refit(log, tests[:1], free=True)
+        w = windows[0]
+        assert w.free.size == 0 and w.k[-1] < w.u.size
+        fits.append(r)
+    gap_ticks = CommandWindow.between(tests[0].t_start, tests[0].t_end, masked.command.t, masked.command.values,
+                                      masked.output.t, masked.output.values, history=0.1).u.size
+    assert gap_ticks > 300  # the masked window's grid does run across the gap
+    for name in ("Td", "tau", "K"):
+        assert getattr(fits[1], name).value == pytest.approx(getattr(fits[0], name).value, rel=1e-6), name

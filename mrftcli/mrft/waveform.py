@@ -219,6 +219,10 @@ class CommandWindow:
             raise InputError("output and t_output must have the same length")
         grid, ug, dt, free = _grid(tc, uc - bias, float(to[-1]) if to.size else float(tc[-1]))
         k = np.clip(np.searchsorted(grid, to + 1e-12, side="right") - 1, 0, grid.size - 1)
+        if to.size:
+            # a tick after the last output's moves no output: its unknown command is no nuisance (a gap
+            # after the test, a masked log's, gave thousands of zero columns to each fit's least squares)
+            free = free[free <= k[-1]]
         return cls(dt=dt, u=ug, k=k, s=to - grid[k], t_output=to, output=yrec, bias=float(bias), free=free)
 
 

@@ -82,3 +82,29 @@ def test_docs_named_in_help_and_messages_exist() -> None:
             headings = [ln.lstrip("#") for ln in (root / page).read_text(encoding="utf-8").splitlines()
                         if ln.startswith("#")]
             assert anchor in {_slug(h) for h in headings}, ref
+
+
+def test_docs_links_resolve() -> None:
+    """Every relative link of README.md, sample_logs/README.md and docs/ names a file we ship and, with an
+    anchor, one of its headings (GitHub's slug) or an ``<a id>`` (a ``{#id}`` heading suffix is not one on
+    GitHub: it showed as text and the link landed at the page's top)."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    pages = [root / "README.md", root / "sample_logs" / "README.md", *sorted((root / "docs").rglob("*.md"))]
+    broken = []
+    for md in pages:
+        for link in re.findall(r"\]\(([^)\s]+)\)", md.read_text(encoding="utf-8")):
+            if link.startswith(("http:", "https:", "mailto:")):
+                continue
+            page, _, anchor = link.partition("#")
+            target = (md.parent / page) if page else md
+            if not target.exists():
+                broken.append(f"{md.relative_to(root)}: {link}")
+            elif anchor and target.suffix == ".md":
+                text = target.read_text(encoding="utf-8")
+                ids = {_slug(ln.lstrip("#")) for ln in text.splitlines() if ln.startswith("#")}
+                ids |= set(re.findall(r"<a id=\"([\w-]+)\"", text))
+                if anchor not in ids:
+                    broken.append(f"{md.relative_to(root)}: {link}")
+    assert not broken, broken

@@ -108,3 +108,13 @@ def test_docs_links_resolve() -> None:
                 if anchor not in ids:
                     broken.append(f"{md.relative_to(root)}: {link}")
     assert not broken, broken
+
+
+@pytest.mark.parametrize("other, loop", [("pitch.BIN", "pitch"), ("altitude.BIN", "altitude")])
+def test_delay_two_loops_refused(other: str, loop: str) -> None:
+    """delay BEFORE AFTER where AFTER is another loop's recording (ArduPilot's MRFB:Ax says which): refused
+    with one line naming that log and its loop, not a delay between two loops (it gave 23 ms for roll vs
+    altitude)."""
+    done = run_main("delay", str(ROLL), str(SITL / other), "--tp", "0.00915", "--loop", "roll", "-q")
+    line = _one_error_line(done, 2)
+    assert other in line and f"{loop} loop" in line and f"--loop {loop}" in line

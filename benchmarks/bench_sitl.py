@@ -714,7 +714,7 @@ def main() -> int:
         sys.path.insert(0, str(ROOT / "scripts" / "sitl" / "px4"))
         from px4_campaign import run
 
-        return run(args.px4, args.logs, args.speedup, args.only, args.analyze_only, args.no_refly)
+        return run(args.px4, args.logs, args.speedup, args.only, args.analyze_only, args.no_refly, args.delay_only)
     if args.evaluate_only:
         export_dir = args.logs / "export"
         evaluate_refly(export_dir / "refly.BIN", export_dir, refly_times(export_dir / "refly.BIN"))

@@ -113,6 +113,27 @@ def test_added_delay_shows_in_tau() -> None:
     assert 0.010 <= res1.tau.value - res0.tau.value <= 0.040
 
 
+@pytest.mark.parametrize("before, loop, output, realised", [
+    ("px4_altitude_h25", "altitude", None, 0.024),
+    ("px4_pitch_h", "pitch", "vehicle_attitude_groundtruth:q", 0.020)])
+def test_mrft_ident_delay_gives_back_the_delay_px4_realised(before: str, loop: str, output: str | None,
+                                                             realised: float) -> None:
+    """``mrft-ident delay`` (compare/delay.py: one Td and K for both flights, a delay each) on the committed
+    PX4 pairs: the increment is the delay the log shows PX4 realised (altitude: 3 ticks of 8 ms, 24.0 ms;
+    pitch: 5 ticks of 4 ms, 20.0 ms, measured on SIH's attitude at the bench Tp) within 2 ms, inside the stated
+    95 % interval, with SIH's Td and K (m / SIH_KDV; pitch: SIH's torque constants) within 10 % / 5 %."""
+    from mrftcli.compare.delay import delay_increment
+
+    tp = bench_tp() if output else json.loads((LOGS / f"{before}.ulg.json").read_text())["tp_s"]
+    result = delay_increment(LOGS / f"{before}.ulg", LOGS / f"{before}_20ms.ulg", tp,
+                             read=ReadOptions(loop=loop, output_topic=output))
+    inc = result.increment
+    assert inc.value == pytest.approx(realised, abs=0.002) and inc.ci95_low < realised < inc.ci95_high
+    sih = sih_implied(loop)
+    assert result.Td.value == pytest.approx(sih["Td"], rel=0.10)
+    assert result.K.value == pytest.approx(sih["K"], rel=0.12 if loop == "altitude" else 0.05)
+
+
 def _px4_logger_interval(t: np.ndarray, interval_s: float) -> np.ndarray:
     """Indices PX4's logger keeps of a topic published at ``t`` with a logging interval
     (uORB ``SubscriptionInterval``: a message at least ``interval`` after the last update, which moves

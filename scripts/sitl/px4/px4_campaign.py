@@ -38,7 +38,8 @@ from mrftcli.errors import MrftError  # noqa: E402
 from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
-           "run", "counted_errors", "held_out_jitter", "analyse_cascades", "px4_inner_gains", "relay_law_orbits", "estimate_error"]
+           "run", "counted_errors", "held_out_jitter", "analyse_cascades", "px4_inner_gains", "relay_law_orbits", "estimate_error",
+           "delay_increments"]
 
 G = 9.80665
 #: (name, loop, added delay [ms], [(beta, h), ...], each test's length [s]); h in normalised thrust.
@@ -485,20 +486,6 @@ def report(results: dict[str, dict[str, Any]]) -> None:
                   f"beta {r['beta']:+.2f}: {r['fork']:.4f} / {r['plain']:.4f} Hz (centre {r['centre']:.4f}, "
                   f"{(r['fork'] / r['centre'] - 1) * 100:+.2f} %; nearest orbit "
                   f"{_nearest(r['orbits'], r['fork']):.4f})" for r in rows))
-    for a, b in RATE_PAIRS:
-        if all(k in results and "tau" in results[k].get("truth", {}) for k in (a, b)):
-            inc = (results[b]["truth"]["tau"] - results[a]["truth"]["tau"]) * 1e3
-            print(f"{a}: +{results[b]['delay']:g} ms (MRFT_DELAY, 5 ticks of 4 ms) increment of tau on SIH's attitude "
-                  f"= {inc:.2f} ms ({inc - results[b]['delay']:+.2f} ms)")
-        if all(k in results and "tau" in results[k] for k in (a, b)):
-            inc = (results[b]["tau"] - results[a]["tau"]) * 1e3
-            print(f"{a}: the same on EKF2's attitude = {inc:.2f} ms")
-    for a, b in PAIRS:
-        if all(k in results and "tau" in results[k] for k in (a, b)):
-            inc = results[b]["tau"] - results[a]["tau"]
-            print(f"{a}: +{results[b]['delay']:g} ms (MRFT_DELAY) increment of tau = {inc * 1e3:.2f} ms (error "
-                  f"{inc * 1e3 - results[b]['delay']:+.2f} ms against the parameter, {inc * 1e3 - 24:+.2f} ms against "
-                  "the 24 ms realised: 3 ticks of 8 ms, the first output at least 20 ms old)")
 
 
 def _report_misses(results: dict[str, dict[str, Any]]) -> None:
@@ -575,6 +562,77 @@ def relay_law_orbits(result: dict[str, Any], seconds: float = 30.0, sub: int = 1
                      "plain": settle(MrftRelay(t.beta_nominal), t.h), "centre": cycle.frequency_hz,
                      "orbits": sorted(cycle.orbits_hz)})
     return rows
+
+
+#: the delay each pair's after-flight realised [s]: mc_pos_control's ring (125 Hz) hands on the first output at
+#: least 20 ms old, 3 ticks of 8 ms (logged: 24.0 ms at every switch); mc_rate_control's 5 ticks of 4 ms (20.0 ms)
+REALISED_S = {"altitude": 0.024, "roll": 0.020, "pitch": 0.020}
+
+
+def _delay_cases(logs: Path) -> list[tuple[str, str, str, str, float, list[str], str]]:
+    """(label, before, after, loop, Tp [s], extra read options, the separately-fitted increment's key) of every PX4 pair whose
+    two ULogs are in ``logs``: altitude on EKF2's altitude at SIH_T_TAU, roll and pitch on SIH's attitude at the
+    bench Tp and on EKF2's attitude at SIH_T_TAU (both flights read with the same options: the command is the
+    torque setpoint, which the after-flight's relay decided 20 ms before)."""
+    cases = []
+    for before, after in PAIRS + RATE_PAIRS:
+        if not all((logs / f"{n}.ulg").exists() for n in (before, after)):
+            continue
+        side = json.loads((logs / f"{after}.ulg.json").read_text())
+        if side["loop"] in ("roll", "pitch"):
+            cases.append((f"{before} on SIH's attitude", before, after, side["loop"], bench_tp(),
+                          ["--output-topic", TRUTH_ATTITUDE], "truth"))
+        cases.append((before + (" on EKF2's attitude" if side["loop"] in ("roll", "pitch") else ""), before, after,
+                      side["loop"], side["tp_s"], [], "ekf"))
+    return cases
+
+
+def delay_increments(logs: Path, results: dict[str, dict[str, Any]] | None = None) -> None:
+    """The +20 ms increment of every pair as a user measures it: ``mrft-ident delay BEFORE AFTER --tp --loop
+    --json -`` (``mrftcli/compare/delay.py``: one plant, one Td and K, a delay each), against the delay PX4
+    realised, beside the two flights fitted separately (``results``, when given: their taus' difference)."""
+    from mrftcli.compare.delay import DelayIncrement
+
+    errors, covered, n = [], 0, 0
+    for label, before, after, loop, tp, extra, key in _delay_cases(logs):
+        realised = REALISED_S[loop]
+        n += 1
+        proc = _cli("delay", str(logs / f"{before}.ulg"), str(logs / f"{after}.ulg"), "--tp", f"{tp:.6f}",
+                    "--loop", loop, *extra, "--json", "-", "-q")
+        separate = _separate_increment(results or {}, before, after, key, realised)
+        if proc.returncode != 0:
+            print(f"  {label}: mrft-ident delay refused (exit {proc.returncode}): "
+                  f"{(proc.stderr.strip().splitlines() or [''])[-1]}: a miss" + separate)
+            continue
+        r = DelayIncrement.from_json(json.loads(proc.stdout))
+        inc = r.increment
+        errors.append(inc.value - realised)
+        covered += int(inc.ci95_low <= realised <= inc.ci95_high)
+        print(f"  {label} (Tp {tp * 1e3:.2f} ms): +20 ms by mrft-ident delay {inc.value * 1e3:.2f} ± "
+              f"{inc.std * 1e3:.2f} ms (95 %: {inc.ci95_low * 1e3:.2f} to {inc.ci95_high * 1e3:.2f}; "
+              f"{(inc.value - realised) * 1e3:+.2f} ms from the {realised * 1e3:.1f} ms realised); one Td "
+              f"{r.Td.value:.3f} s, K {r.K.value:.4g}, tau {r.tau_before.value * 1e3:.2f} / "
+              f"{r.tau_after.value * 1e3:.2f} ms; model scatter {r.model_scatter * 100:.2g} % (chi^2 {r.chi2:.3g} on "
+              f"{r.dof})" + separate + "".join(f"\n      note: {note}" for note in r.notes))
+    if n:
+        print(f"+20 ms by mrft-ident delay, every PX4 pair: {sum(abs(e) <= 0.002 for e in errors)}/{n} within 2 ms of "
+              f"the delay realised (max error {max(map(abs, errors), default=math.nan) * 1e3:.2f} ms; a refusal is a "
+              f"miss), the realised delay inside the stated 95 % interval in {covered}/{n}")
+
+
+def _separate_increment(results: dict[str, dict[str, Any]], before: str, after: str, key: str,
+                        realised: float) -> str:
+    """The two flights' separately fitted taus' difference [ms] and its error, as text (empty without results)."""
+    if not results:
+        return ""
+    got = [(results.get(k, {}).get("truth", {}) if key == "truth" else results.get(k, {})).get("tau")
+           for k in (before, after)]
+    if None in got:
+        return "; fitted separately: none (a flight refused)"
+    taus = [float(t) for t in got if t is not None]
+    inc = taus[1] - taus[0]
+    return (f"; fitted separately: {inc * 1e3:.2f} ms ({taus[0] * 1e3:.2f} -> {taus[1] * 1e3:.2f}; "
+            f"{(inc - realised) * 1e3:+.2f} ms)")
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -754,8 +812,13 @@ def evaluate_refly(flown: dict[str, Any], pred: dict[str, float]) -> dict[str, f
     return got
 
 
-def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bool, no_refly: bool) -> int:
-    """The whole PX4 campaign (``bench_sitl.py --stack px4``)."""
+def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bool, no_refly: bool,
+        delay_only: bool = False) -> int:
+    """The whole PX4 campaign (``bench_sitl.py --stack px4``); ``delay_only``: the +20 ms pairs through
+    ``mrft-ident delay`` only (no SITL, no other analysis)."""
+    if delay_only:
+        delay_increments(logs)
+        return 0
     if not analyze_only:
         if not (px4 / "build/px4_sitl_default/bin/px4").exists():
             subprocess.run([str(HERE / "build_px4.sh"), str(px4)], check=True)
@@ -764,6 +827,9 @@ def run(px4: Path, logs: Path, speedup: float, only: list[str], analyze_only: bo
     print("2. analysis of the ULogs")
     results = analyse(logs)
     report(results)
+    print("the +20 ms pairs through mrft-ident delay (one Td and K for both flights), beside the flights fitted "
+          "separately")
+    delay_increments(logs, results)
     done = sorted((logs / "export").glob("refly*.ulg"))  # each re-flight of the export kept
     for loop in ("pitch", "roll"):  # the rate loops' export and step (px4_rate_step.py)
         if f"px4_{loop}_h" not in results or no_refly or (analyze_only and not

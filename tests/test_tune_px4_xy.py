@@ -114,6 +114,7 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
         assert not e.code
     said = capsys.readouterr().out
     assert "MPC_XY_VEL_D_ACC" in said and "125 Hz" in said
+    assert "one MPC_XY_* set for x and y" in said  # PX4's x and y share the parameters: said, not left to find out
     values = {ln.split("\t")[2]: float(ln.split("\t")[3]) for ln in out.read_text().splitlines()
               if ln and not ln.startswith("#")}
     assert set(values) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}

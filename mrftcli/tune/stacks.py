@@ -276,7 +276,9 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
             raise InputError("give --controller-rate HZ, the rate of PX4's position controller (the local position's rate)")
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
             f"PX4 {loop}: designed at {rate:g} Hz with the horizontal velocity unfiltered (MPC_VEL_LP 0 and "
-            "MPC_VEL_NF_FRQ 0, PX4's defaults, not written; PX4 uses the EKF's estimate, its lag is not modelled)",))
+            "MPC_VEL_NF_FRQ 0, PX4's defaults, not written; PX4 uses the EKF's estimate, its lag is not modelled)",
+            f"PX4 has one MPC_XY_* set for x and y (PositionControl applies it to both axes): these values, designed "
+            f"on {loop}, set both loops; loading the other axis's export replaces them"))
     name, default = ("IMU_GYRO_CUTOFF", param("px4", "IMU_GYRO_CUTOFF").default) if stack == "px4" else \
         ("INS_GYRO_FILTER", param("ardupilot", "INS_GYRO_FILTER").default)
     cutoff = default if gyro_cutoff_hz is None else gyro_cutoff_hz

@@ -302,7 +302,8 @@ READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint
                 "command_scale", "layout", "controller_rate_hz", "fmt", "time_unit")
 
 
-def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--format"):
+def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--format",
+                       only: tuple[str, ...] | None = None):
     """The options that say how to read a loop from a log, shared by every command that reads one.
 
     ``--format``, ``--layout``, ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``,
@@ -312,7 +313,8 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
     ``config_defaults`` (batch) ``--loop`` defaults to None so that a per-log config file can fill it,
     and may be repeated; batch finds its logs by name and has no ``--format``. ``format_flag`` renames
     ``--format`` for a command whose ``--format`` already means something else (tune: ``--log-format``,
-    received as ``log_fmt``).
+    received as ``log_fmt``). ``only``: those of these options (by the names they are received under) that
+    apply to a whole flight (vehicle: ``fmt``, ``layout``, ``controller_rate_hz``, ``time_unit``).
     """
     from ..io import LAYOUT_NAMES, READ_FORMATS, TIME_UNITS
     from ..io.logtypes import LOOPS
@@ -326,40 +328,44 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
         loop = click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True,
                             help="Loop the log's MRFT tests excite.")
     options = [
-        loop,
-        click.option("--layout", type=click.Choice(LAYOUT_NAMES), default=None,
+        ("loop", loop),
+        ("layout", click.option("--layout", type=click.Choice(LAYOUT_NAMES), default=None,
                      help="Where the flight stack records the loop (default: recognised from the topics; "
-                          "see docs/log-layout.md)."),
-        click.option("--command-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Command the MRFT block sent (default: the layout's, /mrft/command)."),
-        click.option("--output-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Loop output (default: the layout's, e.g. /mocap/pose or /imu/data)."),
-        click.option("--beta-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Beta published at each test start (default: the layout's, /mrft/beta)."),
-        click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", default=None,
-                     help="Loop setpoint (default: the layout's, /mrft/setpoint)."),
-        click.option("--output-scale", type=float, default=None, callback=_scale,
-                     help="Factor applied to output and setpoint (default: the layout's, 1 or -1 for NED z; "
-                          "e.g. 0.0174533 for degrees)."),
-        click.option("--command-scale", type=float, default=None, callback=_scale,
-                     help="Factor applied to the command (default: the layout's, 1 or -1 for PX4's thrust)."),
-        controller_rate_option(detail="at which the relay decided, when the log records the command more "
-                                      "slowly (default: the layout's, 50 Hz for px4-mrft)."),
+                          "see docs/log-layout.md).")),
+        ("command_topic", click.option("--command-topic", metavar="TOPIC[:FIELD]", default=None,
+                                       help="Command the MRFT block sent (default: the layout's, /mrft/command).")),
+        ("output_topic", click.option("--output-topic", metavar="TOPIC[:FIELD]", default=None,
+                                      help="Loop output (default: the layout's, e.g. /mocap/pose or /imu/data).")),
+        ("beta_topic", click.option("--beta-topic", metavar="TOPIC[:FIELD]", default=None,
+                                    help="Beta published at each test start (default: the layout's, /mrft/beta).")),
+        ("setpoint_topic", click.option("--setpoint-topic", metavar="TOPIC[:FIELD]", default=None,
+                                        help="Loop setpoint (default: the layout's, /mrft/setpoint).")),
+        ("output_scale", click.option(
+            "--output-scale", type=float, default=None, callback=_scale,
+            help="Factor applied to output and setpoint (default: the layout's, 1 or -1 for NED z; e.g. 0.0174533 "
+                 "for degrees).")),
+        ("command_scale", click.option(
+            "--command-scale", type=float, default=None, callback=_scale,
+            help="Factor applied to the command (default: the layout's, 1 or -1 for PX4's thrust).")),
+        ("controller_rate_hz", controller_rate_option(detail="at which the relay decided, when the log records the "
+                                                             "command more slowly (default: the layout's, 50 Hz for "
+                                                             "px4-mrft).")),
     ]
     if not config_defaults:
-        options.append(click.option(
+        options.append(("time_unit", click.option(
             "--time-unit", type=click.Choice(list(TIME_UNITS)), default=None,
             help="Unit of a CSV's time column or a .mat file's time vectors (default: the column's name "
                  "says, else s); a log whose command rate is below 1 Hz or above 100 kHz is refused "
-                 "with the unit that fits."))
-        options.insert(0, click.option(
+                 "with the unit that fits.")))
+        options.insert(0, ("fmt", click.option(
             format_flag, "fmt" if format_flag == "--format" else "log_fmt", type=click.Choice(READ_FORMATS), default=None,
-            help="Log format (default: detected from the file)."))
+            help="Log format (default: detected from the file).")))
+    chosen = [option for name, option in options if only is None or name in only]
 
     def decorate(func):
         if format_flag != "--format" and not config_defaults:
             func = _log_errors_naming(format_flag, func)
-        for option in reversed(options):
+        for option in reversed(chosen):
             func = option(func)
         return func
 

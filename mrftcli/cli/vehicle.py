@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -21,23 +20,6 @@ if TYPE_CHECKING:
     from ..vehicle import VehicleResult
 
 __all__ = ["vehicle"]
-
-#: The shared log options that apply to a whole flight (the topic and scale options are one loop's).
-_FLIGHT_OPTIONS = ("fmt", "layout", "controller_rate_hz", "time_unit", "rate")
-
-
-def _flight_options(func: Callable[..., Any]) -> Callable[..., Any]:
-    """``--format``, ``--layout``, ``--controller-rate`` and ``--time-unit``: the shared options' own
-    definitions (:func:`~mrftcli.cli.options.log_layout_options`), so their wording is one everywhere."""
-
-    def probe() -> None:
-        """Collects the shared options."""
-
-    log_layout_options()(probe)
-    shared = [p for p in getattr(probe, "__click_params__", []) if p.name in _FLIGHT_OPTIONS]
-    func.__click_params__ = [*getattr(func, "__click_params__", []), *shared]  # type: ignore[attr-defined]
-    return func
-
 
 def _loop_rows(result: VehicleResult) -> list[list[str]]:
     rows = []
@@ -128,7 +110,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
                    "is read too): x and y are identified through the closed inner loop. Without them: eq. (2), "
                    "as the first line says.")
 @outer_options("--inner-gains", "relays command")
-@_flight_options
+@log_layout_options(only=("fmt", "layout", "controller_rate_hz", "time_unit"))  # a whole flight's
 @min_cycles_option()
 @accept_tp_option
 @click.option("--kind", type=click.Choice(["PD", "PID"]), default="PD", show_default=True,

@@ -234,3 +234,25 @@ def test_a_refused_run_creates_no_output_folder(tmp_path: Path, capsys, monkeypa
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     assert not (tmp_path / "new").exists() or (tmp_path / "new").is_file(), case
 
+
+
+def test_a_skipped_loop_says_nothing_of_giving_loop(tmp_path: Path) -> None:
+    """batch tries every loop itself: a CSV holding z alone has its x and y loops skipped with the columns
+    it lacks, without the one-loop commands' hint to give --loop (which analyze still prints)."""
+    import shutil
+
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    (tmp_path / "fleet").mkdir()
+    shutil.copy(samples / "design1_altitude.csv", tmp_path / "fleet" / "design1_altitude.csv")
+    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "auto",
+                                 "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "--json", "-", "-q"])
+    assert r.exit_code == 0, r.output
+    rows = {row["loop"]: row for row in json.loads(r.stdout)["rows"]}
+    assert rows["altitude"]["status"] == "ok"
+    for loop in ("x", "y"):
+        assert rows[loop]["status"] == "skipped-no-topics"
+        assert f"no column for /mocap/pose:pose.position.{loop}" in rows[loop]["error"]
+        assert "--loop" not in rows[loop]["error"], rows[loop]["error"]
+    single = CliRunner().invoke(cli, ["analyze", str(tmp_path / "fleet" / "design1_altitude.csv"), "--tp", "0.0422",
+                                      "--loop", "x"])
+    assert single.exit_code != 0 and "for another loop give --loop" in str(single.exception or single.output)

@@ -234,7 +234,7 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
 
 
 def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None) -> AnalysisResult:
+                 options: AnalyzeOptions | None = None, loop_hint: bool = True) -> AnalysisResult:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters
@@ -249,6 +249,8 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
         is read on any time scale (``any_time_scale``: its clock is not checked against a vehicle's).
     options : AnalyzeOptions, optional
         As in :func:`analyze_flight`.
+    loop_hint : bool
+        As in :func:`mrftcli.io.read_flight` (False: the caller tries every loop, ``batch``).
 
     Returns
     -------
@@ -268,5 +270,5 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
 
     if not isinstance(model, (LoopModel, CascadeModel)):  # a process plant: not a vehicle loop's clock
         read = dataclasses.replace(read or ReadOptions(), any_time_scale=True)
-    flight = read_flight(path, read, echo_warnings=False)  # the reader's warnings come once, in the result's
+    flight = read_flight(path, read, echo_warnings=False, loop_hint=loop_hint)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, model, options=options)

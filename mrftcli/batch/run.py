@@ -201,7 +201,8 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
-        result = analyze_path(task.path, model, read=read, options=options)  # the one route, every model
+        # batch tries every loop itself: a missing topic's error does not tell the user to give --loop
+        result = analyze_path(task.path, model, read=read, options=options, loop_hint=False)  # the one route
         if task.model is None:  # eq. (2): a Tp the recording rejects fails the loop unless --accept-tp
             result = refuse_rejected_tp(result, s.accept_tp)
         entry["result"] = result.to_json()

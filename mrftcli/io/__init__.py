@@ -287,7 +287,7 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
 
 # -- read_flight ---------------------------------------------------------------------------------
 def read_flight(path: str | Path, options: ReadOptions | None = None, *,
-                echo_warnings: bool = True, progress: Progress | None = None) -> FlightLog:
+                echo_warnings: bool = True, progress: Progress | None = None, loop_hint: bool = True) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
@@ -319,6 +319,9 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
     echo_warnings : bool
         Print the reader's warnings on stderr; False keeps them in ``FlightLog.warnings`` only, for a
         caller that shows them itself (``analyze``, ``watch``).
+    loop_hint : bool
+        A missing layout topic's error says which option to give (``--loop`` for another loop): a
+        one-loop command's; False for a caller that tries every loop itself (``batch``).
     progress : Progress, optional
         Told how far a long read is (:func:`open_log`); the CLI draws it as a bar.
 
@@ -348,7 +351,7 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
     """
     opts = ReadOptions() if options is None else options  # checked on creation, before the log is opened
     with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit, progress=progress) as log:
-        flight = read_loop(log, opts, loop_hint=True)
+        flight = read_loop(log, opts, loop_hint=loop_hint)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))
 

@@ -118,3 +118,25 @@ def test_delay_two_loops_refused(other: str, loop: str) -> None:
     done = run_main("delay", str(ROLL), str(SITL / other), "--tp", "0.00915", "--loop", "roll", "-q")
     line = _one_error_line(done, 2)
     assert other in line and f"{loop} loop" in line and f"--loop {loop}" in line
+
+
+def test_tune_out_never_replaces_a_file_it_did_not_write(tmp_path: Path) -> None:
+    """tune --out over someone's file (another flight's ULog, a ground station's own parameter file) is
+    refused before the work, the file unchanged; over its own earlier export it is replaced (before, a
+    ULog given as --out was overwritten by the parameter file)."""
+    flight = tmp_path / "flight.ulg"
+    shutil.copy(SITL / "px4_y.ulg", flight)
+    qgc = tmp_path / "qgc.params"
+    qgc.write_text("# Onboard parameters for Vehicle 1\n1\t1\tMPC_ROLL_P\t6.5\t9\n")
+    args = ["tune", "--tp", "0.05", "--td", "0.7", "--tau", "0.12", "--k", "27", "--loop", "roll", "--export", "px4",
+            "-q", "--out"]
+    for theirs in (flight, qgc):
+        before = _md5(theirs)
+        line = _one_error_line(run_main(*args, str(theirs)), 2)
+        assert f"--out {theirs}" in line and "not an export" in line
+        assert _md5(theirs) == before
+    ours = tmp_path / "roll.params"
+    for _ in range(2):  # written, then replaced
+        done = run_main(*args, str(ours))
+        assert done.returncode == 0, done.stderr
+    assert "mrft-ident tune" in ours.read_text()

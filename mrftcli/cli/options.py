@@ -226,9 +226,18 @@ def check_output_file(target: str | None, option: str = "--json", *, inputs: tup
 def check_export_paths(json_target: str | None, out: str | None, exporting: bool, *,
                        inputs: tuple[str, ...] = ()) -> None:
     """``--json`` and ``--out`` checked before the work (tune, vehicle), never onto one of ``inputs`` (the
-    logs or results read); an export and ``--json -`` cannot share stdout."""
+    logs or results read), ``--out`` never over a file that is not an export this tool wrote (a log, a
+    ground station's own parameter file); an export and ``--json -`` cannot share stdout."""
+    from ..io.atomic import check_output_path, looks_like_json
+
+    def ours(path: Path) -> bool:  # every export is JSON or names mrft-ident in its first comment lines
+        with open(path, "rb") as fh:
+            return looks_like_json(path) or b"mrft-ident" in fh.read(1024)
+
     check_output_file(json_target, "--json", inputs=inputs)
     check_output_file(out, "--out", inputs=inputs)
+    if out not in (None, "-"):
+        check_output_path(out, "--out", ours=ours, what="an export (a parameter file or JSON)")
     if exporting and not out and json_target == "-":
         raise InputError("--json - and the export would both go to stdout: give --out FILE (or --json FILE)")
 

@@ -246,3 +246,27 @@ def test_outer_loop_through_the_closed_inner_loop(cascaded):
     assert y.gains.phase_margin_deg >= 35
     back = VehicleResult.from_json(json.loads(json.dumps(res.to_json(), allow_nan=True)))
     assert back.loops["y"].route == "cascade" and back.loops["y"].gains.controller == y.gains.controller
+
+
+def test_outer_design_keeps_the_flown_inner_loop_when_the_new_gains_run_through_a_rate_filter() -> None:
+    """The cascade closes the inner loop through Tf only: new inner gains designed on a stack's rate filter
+    (HEAR_FC's Butterworth) are not the loop it would model, so the outer gains are designed for the inner loop
+    as flown and the sentence says why; without the filter the new gains close it."""
+    from types import SimpleNamespace
+
+    from mrftcli.mrft.cascade import InnerLoop
+    from mrftcli.mrft.controller import Controller, RateFilter
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.vehicle.gains import _new_inner
+
+    flown = InnerLoop(LoopModel(0.0422, 1.3, 0.03, 30.0), Controller(0.29, 0.0, 0.087, 0.03, 100.0), "roll")
+    analysis = SimpleNamespace(model=SimpleNamespace(inner=flown))
+
+    def inner(rate_filter: RateFilter | None) -> SimpleNamespace:
+        c = Controller(0.54, 0.0, 0.18, 0.0 if rate_filter else 0.01, 100.0, rate_filter)
+        return SimpleNamespace(loop="roll", gains=SimpleNamespace(controller=c))
+
+    closed, said = _new_inner(analysis, inner(RateFilter(30.0, "HEAR_FC rate filter")))
+    assert closed is flown and "rate filter, which the cascade does not model" in said
+    closed, said = _new_inner(analysis, inner(None))
+    assert closed.controller.Kp == 0.54 and "closed by its new gains" in said

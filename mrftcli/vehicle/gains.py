@@ -138,17 +138,22 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
 
 def _new_inner(analysis: AnalysisResult, inner: VehicleLoop) -> tuple[InnerLoop, str]:
     """The inner loop the outer gains are designed for: closed by its new gains when they run at the
-    flight's inner rate, else as flown; and the sentence that says which."""
+    flight's inner rate without a stack's rate filter (which the cascade does not model), else as flown;
+    and the sentence that says which."""
     flown = analysis.model.inner
     g = inner.gains
-    if g is not None and math.isclose(g.controller.rate_hz, flown.controller.rate_hz, rel_tol=0.01):
+    # the cascade closes the inner loop through Tf only: new gains on a stack's rate filter are not modelled
+    filtered = g is not None and g.controller.rate_filter is not None and g.controller.rate_filter.active(
+        flown.controller.rate_hz)
+    if g is not None and not filtered and math.isclose(g.controller.rate_hz, flown.controller.rate_hz, rel_tol=0.01):
         c = g.controller
         new = Controller(c.Kp, c.Ki, c.Kd, c.Tf, flown.controller.rate_hz)
         return (InnerLoop(flown.plant, new, flown.loop),
                 f"outer gains designed for the {inner.loop} loop closed by its new gains tuned here (Kp {c.Kp:.4g}, "
                 f"Kd {c.Kd:.4g}): load both")
-    return flown, (f"outer gains designed for the {inner.loop} loop as flown (its new gains run at another rate or "
-                   "were not tuned): keep its gains in use")
+    why = ("run through the stack's rate filter, which the cascade does not model" if filtered
+           else "run at another rate or were not tuned")
+    return flown, f"outer gains designed for the {inner.loop} loop as flown (its new gains {why}): keep its gains in use"
 
 
 def tune_outer(analysis: AnalysisResult, inner: VehicleLoop, options: TuneOptions) -> LoopGains:

@@ -140,3 +140,24 @@ def test_tune_out_never_replaces_a_file_it_did_not_write(tmp_path: Path) -> None
         done = run_main(*args, str(ours))
         assert done.returncode == 0, done.stderr
     assert "mrft-ident tune" in ours.read_text()
+
+
+def test_logged_beta_outside_the_relays_range_is_named(tmp_path: Path) -> None:
+    """A log whose beta topic holds +1.6 and +2.8 (a scaled or wrong topic; the relay flew -0.4 and -0.7): a
+    warning names the values outside (-1, 1) and --beta-topic, and the tests are read by their effective
+    beta, as with a NaN beta. Before, the analysis refused both tests as 'not the nominal +1.6' (exit 4)."""
+    import csv
+
+    rows = list(csv.reader((SITL.parent / "design1_altitude.csv").open()))
+    col = rows[0].index("/mrft/beta/data")
+    for r in rows[1:]:
+        if r[col]:
+            r[col] = f"{float(r[col]) * -4:g}"
+    log = tmp_path / "scaled_beta.csv"
+    with log.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    done = run_main("analyze", str(log), "--tp", "0.0422", "-q")
+    assert done.returncode == 0, done.stderr
+    warned = [ln for ln in done.stderr.splitlines() if "outside (-1, 1)" in ln]
+    assert len(warned) == 1 and "+1.6" in warned[0] and "--beta-topic" in warned[0]
+    assert "Traceback" not in done.stderr

@@ -484,19 +484,27 @@ def _rate_from_log(log: LogSource, lay: Layout, command: Signal) -> tuple[float,
 
 
 def _finite_beta(log: LogSource, beta: Signal | None, where: str) -> Signal | None:
-    """``beta`` without NaN / infinite values (a parameter set to NaN), said in a warning.
+    """``beta`` without NaN / infinite values (a parameter set to NaN) or values outside (-1, 1), said in a
+    warning.
 
-    A beta that is not a number says nothing about the test it was published for: that test is
-    read as one with no beta logged (its effective beta from the switching levels, as the
-    segmenter does for any test without a beta message), never with a NaN relay rule.
+    A beta that is not a number, or not a relay's (a scaled or another topic), says nothing about the test
+    it was published for: that test is read as one with no beta logged (its effective beta from the
+    switching levels, as the segmenter does for any test without a beta message), never with that rule.
     """
     if beta is None:
         return None
-    bad = ~np.isfinite(beta.values)
+    nan = ~np.isfinite(beta.values)
+    outside = ~nan & (np.abs(np.where(nan, 0.0, beta.values)) >= 1.0)
+    left_out = "left out: the tests they were published for are read as tests without a logged beta"
+    if nan.any():
+        log.warn(f"beta {where}: {int(nan.sum())} value(s) are NaN or infinite (the first at "
+                 f"{beta.t[nan][0]:.3f} s); {left_out}")
+    if outside.any():
+        log.warn(f"beta {where}: {int(outside.sum())} value(s) outside (-1, 1) (the first {beta.values[outside][0]:+g} "
+                 f"at {beta.t[outside][0]:.3f} s), not a relay's beta (check --beta-topic); {left_out}")
+    bad = nan | outside
     if not bad.any():
         return beta
-    log.warn(f"beta {where}: {int(bad.sum())} value(s) are NaN or infinite (the first at {beta.t[bad][0]:.3f} s); "
-             "left out: the tests they were published for are read as tests without a logged beta")
     return Signal(beta.t[~bad], beta.values[~bad]) if not bad.all() else None
 
 

@@ -161,3 +161,18 @@ def test_logged_beta_outside_the_relays_range_is_named(tmp_path: Path) -> None:
     warned = [ln for ln in done.stderr.splitlines() if "outside (-1, 1)" in ln]
     assert len(warned) == 1 and "+1.6" in warned[0] and "--beta-topic" in warned[0]
     assert "Traceback" not in done.stderr
+
+
+def test_delay_prints_what_usage_md_says() -> None:
+    """docs/usage.md's delay example prints the table it describes (units on each column and figure) and
+    the very 'delay added' line the page quotes (rerun the command and update the page if this moves)."""
+    done = run_main("delay", str(ROLL), str(ROLL_20), "--tp", "0.00915", "--loop", "roll", "-q")
+    assert done.returncode == 0, done.stderr
+    out = done.stdout.splitlines()
+    for name, unit in (("Td", "s"), ("K", "rad/s² per command unit"), ("tau_before", "ms"), ("tau_after", "ms"),
+                       ("delay_added", "ms")):
+        assert any(ln.split()[:1] == [name] and f" {unit} " in ln for ln in out), (name, unit)
+    assert any("[Hz]" in ln and "[%]" in ln for ln in out)
+    line = next(ln for ln in out if ln.startswith("delay added: "))
+    usage = (SITL.parents[1] / "docs" / "usage.md").read_text(encoding="utf-8")
+    assert f"`{line}`" in usage, line

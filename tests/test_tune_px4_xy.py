@@ -164,3 +164,30 @@ def test_the_flown_x_steps_follow_the_written_loops_prediction():
     got = _against_setpoint(t, pos["x"], pos["vx"], starts, side["step_m"], side["dwell_s"], pred)
     assert abs(got["rise_s"] / pred["rise_s"] - 1.0) <= 0.3
     assert got["max_diff_first"] <= 0.10
+
+
+def test_an_xy_integral_removes_a_forces_offset_which_the_pd_holds_at_its_closed_form(tmp_path):
+    """px4_xy_step.integral_effect (the benchmark's figures for MPC_XY_VEL_I_ACC > 0) on the committed x export's
+    values and model: a constant force w [m/s^2] at the plant's input leaves the PD (I 0) off by w / ((h/g)
+    P_v P_xy K) in steady state (the command -w / K balances it: the closed form); with PX4's
+    default I (0.4) the offset decays towards 0, and the setpoint step overshoots (the integral acts on P_xy e)."""
+    import json
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    sys.path[:0] = [str(root / "scripts" / "sitl"), str(root / "scripts" / "sitl" / "px4")]
+    from px4_xy_step import integral_effect
+
+    side = json.loads((root / "sample_logs" / "sitl" / "px4_x_steps.ulg.json").read_text())
+    p = side["params_written"]
+    params = tmp_path / "x.params"
+    params.write_text("".join(f"1\t1\t{k}\t{v!r}\t9\n" for k, v in p.items()))
+    record = {"model": side["model"], "export": {"generic": {"rate_hz": side["rate_hz"]}},
+              "hover": side["hover_thrust"]}
+    rows = integral_effect(record, params, integrals=(0.0, 0.4), wind=1.0)
+    pd, pid = rows
+    closed = 9.80665 / (side["hover_thrust"] * p["MPC_XY_VEL_P_ACC"] * p["MPC_XY_P"] * side["model"]["K"])
+    assert pd["wind_20s_m"] == pytest.approx(closed, rel=1e-3)
+    assert abs(pid["wind_20s_m"]) < 0.05 * closed < abs(pid["wind_5s_m"])
+    assert pid["overshoot_pct"] > pd["overshoot_pct"] + 5

@@ -170,6 +170,44 @@ def _print_against_setpoint(name: str, loop: str, a: dict[str, Any], pred: dict[
           f"the estimate's v{loop} against the slope of its {loop} {a['velocity_bias']:.3f} m/s (median |.|, 2 s windows)")
 
 
+def integral_effect(record: dict[str, Any], params_file: Path, integrals: tuple[float, ...] = (0.0, 0.1, 0.2, 0.4),
+                    wind: float = 1.0) -> list[dict[str, float]]:
+    """What ``MPC_XY_VEL_I_ACC`` > 0 would change in the loop written (the other values kept), on tune's model of
+    PX4's x/y loop: Ms (nominal; worst over up to 40 posterior draws), the position step, and a ``wind`` [m/s^2]
+    step of force (a load at the plant's input) held off after 5 and 20 s. PX4 integrates the velocity error,
+    so the integral removes a force's offset, not that of a biased velocity estimate (vel_sp = v either way)."""
+    from mrftcli.mrft.model import LoopModel
+    from mrftcli.tune.closed_loop import responses, step_metrics
+    from mrftcli.tune.margins import loop_margins
+    from mrftcli.tune.stacks import px4_xy_controller
+
+    m = record["model"]
+    if "parameters" in m:
+        m = {k: v["value"] for k, v in m["parameters"].items()}
+    post = record.get("posterior") or {"Td": [], "tau": [], "K": []}
+    every = max(1, len(post["Td"]) // 40)
+    models = [LoopModel(m["Tp"], m["Td"], m["tau"], m["K"])] + [
+        LoopModel(m["Tp"], td, tau, k) for td, tau, k in zip(post["Td"][::every], post["tau"][::every], post["K"][::every])]
+    values = {k: v for k, (v, _) in read_qgc_params(params_file).items()}
+    rows = []
+    for iv in integrals:
+        ctrl = px4_xy_controller({**values, "MPC_XY_VEL_I_ACC": iv}, record["export"]["generic"]["rate_hz"],
+                                 record["hover"])
+        ms = np.asarray(loop_margins(ctrl, models).Ms, float)
+        t, y, u, y_wind, _ = responses(models[:1], ctrl, 40.0, load=wind / m["K"])
+        f = step_metrics(t, y[0], u[0])
+        assert y_wind is not None
+        at = {s: float(y_wind[0][np.searchsorted(t, s)]) for s in (5.0, 20.0)}
+        rows.append({"I": iv, "Ms": float(ms[0]), "Ms_worst": float(ms.max()), "overshoot_pct": f.overshoot_pct,
+                     "settling_s": f.settling_s, "wind_peak_m": float(np.max(np.abs(y_wind[0]))),
+                     "wind_5s_m": at[5.0], "wind_20s_m": at[20.0]})
+        print(f"    MPC_XY_VEL_I_ACC {iv:g} (the rest as written): Ms {ms[0]:.3f} (worst over {len(models) - 1} draws "
+              f"{ms.max():.3f}); unit step overshoot {f.overshoot_pct:.1f} %, 2 % settling {f.settling_s:.2f} s; a "
+              f"{wind:g} m/s^2 wind step: peak {rows[-1]['wind_peak_m'] * 100:.1f} cm, after 5 s {at[5.0] * 100:.1f} cm, "
+              f"after 20 s {at[20.0] * 100:.1f} cm")
+    return rows
+
+
 def run_xy_step(px4: Path, logs: Path, fly: bool, loop: str = "x", flight: str = "px4_x_h16",
                 speedup: float = 1.0) -> dict[str, Any] | None:
     """Export ``loop`` from ``logs/flight.ulg`` and fly its steps (``fly``), or evaluate those flown before."""
@@ -184,6 +222,7 @@ def run_xy_step(px4: Path, logs: Path, fly: bool, loop: str = "x", flight: str =
     print(f"    the loop as written, a unit step on the identified model (Td {pred['model']['Td']:.3f} s, tau "
           f"{pred['model']['tau'] * 1e3:.1f} ms, K {pred['model']['K']:.2f}): overshoot {pred['overshoot_pct']:.1f} %, "
           f"rise {pred['rise_s']:.3f} s, 2 % settling {pred['settling_s']:.3f} s")
+    integral_effect(record, params)
     flown: dict[str, Any] = {"log": steps, "step_m": 1.0, "dwell_s": 8.0}
     if fly:
         flown = fly_xy_steps(px4, params, work, loop, speedup=speedup)

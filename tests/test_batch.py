@@ -321,7 +321,7 @@ class _FakeResult:
         return self._d
 
 
-def _fake_analyze_path(path, model, *, read, options):
+def _fake_analyze_path(path, model, *, read, options, loop_hint=True):
     """Takes the loop and three topics of ``read``; any other read setting fails as an unknown keyword did."""
     Tp = model.Tp  # eq. (2)'s model object (soiptd_model)
     unsupported = [f for f in ("setpoint_topic", "battery_topic", "output_scale", "layout", "command_scale",

@@ -77,7 +77,7 @@ class _R:
         return self._d
 
 
-def _stand_in(path, model, *, read, options):
+def _stand_in(path, model, *, read, options, loop_hint=True):
     # Echo the settings back as "parameters" so the test sees what reached the analysis.
     Tp = model.Tp
     return _R(toy_analysis(Tp, 0.05, read.output_scale or 1.0, Tp, ((-0.4, 8),), std=(0.0, 0.001, 0.0),
@@ -238,17 +238,21 @@ def test_a_refused_run_creates_no_output_folder(tmp_path: Path, capsys, monkeypa
 
 def test_a_skipped_loop_says_nothing_of_giving_loop(tmp_path: Path) -> None:
     """batch tries every loop itself: a CSV holding z alone has its x and y loops skipped with the columns
-    it lacks, without the one-loop commands' hint to give --loop (which analyze still prints)."""
+    it lacks, and a roll log its untested pitch loop with why, without the one-loop commands' hints to give
+    --loop (which analyze still prints)."""
     import shutil
 
     samples = Path(__file__).resolve().parents[1] / "sample_logs"
     (tmp_path / "fleet").mkdir()
-    shutil.copy(samples / "design1_altitude.csv", tmp_path / "fleet" / "design1_altitude.csv")
+    for name in ("design1_altitude.csv", "design1_roll.mcap"):
+        shutil.copy(samples / name, tmp_path / "fleet" / name)
     r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "auto",
                                  "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "--json", "-", "-q"])
     assert r.exit_code == 0, r.output
     rows = {row["loop"]: row for row in json.loads(r.stdout)["rows"]}
-    assert rows["altitude"]["status"] == "ok"
+    assert rows["altitude"]["status"] == "ok" and rows["roll"]["status"] == "ok"
+    assert rows["pitch"]["status"] == "skipped-no-tests" and "pitch does not follow them" in rows["pitch"]["error"]
+    assert "--loop" not in rows["pitch"]["error"], rows["pitch"]["error"]
     for loop in ("x", "y"):
         assert rows[loop]["status"] == "skipped-no-topics"
         assert f"no column for /mocap/pose:pose.position.{loop}" in rows[loop]["error"]

@@ -22,7 +22,7 @@ from ..mrft.model import LoopModel
 from ..segment import MrftTest
 
 __all__ = ["Screening", "screen", "screen_tests", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
-           "no_usable_message", "partial_single_beta", "low_rate_period", "ASSUMED_TD_RANGE"]
+           "no_usable_message", "WHICH_LOOP_HINT", "partial_single_beta", "low_rate_period", "ASSUMED_TD_RANGE"]
 
 #: Td range [s] assumed for the partial result of a single-beta log (multirotor drag time constants).
 ASSUMED_TD_RANGE = (0.1, 10.0)
@@ -239,6 +239,11 @@ def _median(values: Sequence[float]) -> float | None:
     return float(np.median(finite)) if finite else None
 
 
+#: how :func:`no_usable_message` ends when the output does not follow the relay: a one-loop command's
+#: question (``batch --loop auto``, which tried every loop, drops it)
+WHICH_LOOP_HINT = ": is --loop/--output-topic right?"
+
+
 def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Mapping[int, str], min_stable_cycles: int,
                        t0: float) -> str:
     """The one-line SegmentationError when no test survives :func:`screen_tests`."""
@@ -251,10 +256,10 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
         v = [t.validity for t in lost if t.validity is not None]
         amp, snr, frac = (_median([getattr(x, k) for x in v]) for k in ("amplitude", "snr", "h1_fraction"))
         if amp is None or snr is None or frac is None:  # no cycle could be measured: no figures to quote
-            return head + f"{out} does not follow them (no cycle of it could be measured): is --loop/--output-topic right?"
+            return head + f"{out} does not follow them (no cycle of it could be measured)" + WHICH_LOOP_HINT
         return (head + f"{out} does not follow them (output amplitude {_amp_text(amp, flight.loop)}, "
                 f"{snr:.2g}x the noise at the relay frequency; fraction of variance at the relay frequency "
-                f"{frac:.2f}): is --loop/--output-topic right?")
+                f"{frac:.2f})" + WHICH_LOOP_HINT)
     bad = [t for t in found if t.validity is not None and not t.validity.ok and t.index in reasons
            and "stable cycles" not in reasons[t.index]]
     if bad:

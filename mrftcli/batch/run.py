@@ -160,14 +160,16 @@ def _auto_loops(task: LogTask) -> tuple[str, ...]:
 def _untested_skipped(loops: list[dict[str, Any]]) -> None:
     """``--loop auto``: a loop without relay tests (or whose field the log's topic lacks: a CSV or ULog
     holding z alone) is skipped when another loop of the log was not (a log where every loop failed
-    keeps its failures)."""
+    keeps its failures). batch chose the loop, so the one-loop question whether --loop is right goes."""
+    from ..analyze.screen import WHICH_LOOP_HINT
+
     why = {"SegmentationError": (STATUS_NO_TESTS, "no MRFT test on the {} loop"),
            "InputError": (STATUS_NO_TOPICS, "no {} topics"), "LogReadError": (STATUS_NO_TOPICS, "no {} topics")}
     untested = [e for e in loops if e["status"] == STATUS_FAILED and e.get("error_type") in why]
     if len(untested) < len(loops):
         for e in untested:
             status, text = why[e["error_type"]]
-            e.update(status=status, error=f"skipped: {text.format(e['loop'])} ({e['error']})")
+            e.update(status=status, error=f"skipped: {text.format(e['loop'])} ({e['error'].removesuffix(WHICH_LOOP_HINT)})")
 
 
 def _skipped_entry(entry: dict[str, Any], loop: str, absent: tuple[str, ...]) -> dict[str, Any]:

@@ -40,7 +40,8 @@ _CACHE: dict[str, object] = {}
 
 
 def _names() -> list[str]:
-    return [p.name[: -len(".ulg.json")] for p in SIDECARS]
+    """The MRFT flights (a sidecar listing its tests); not the export's step flights (px4_x_steps)."""
+    return [p.name[: -len(".ulg.json")] for p in SIDECARS if "tests" in json.loads(p.read_text())]
 
 
 def _flight(name: str):

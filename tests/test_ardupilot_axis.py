@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mrftcli.errors import InputError
@@ -45,3 +46,24 @@ def test_vehicle_identifies_only_the_logged_axis() -> None:
     rows = [line.split()[0] for line in proc.stdout.splitlines()[2:] if " inner " in line or " outer " in line]
     assert rows == ["pitch"]
     assert "altitude: no-topics" in proc.stdout and "roll: no-topics" in proc.stdout
+
+
+class _TwoAxisLog:
+    """A stand-in for an open log whose MRFB:Ax says roll, then pitch (the script flew both axes)."""
+
+    path = Path("two_axes.BIN")
+
+    def resolve_topic(self, name: str) -> str | None:
+        return name if name == "MRFB" else None
+
+    def values(self, topic: str, field: str | None = None) -> tuple[np.ndarray, list[str], dict[str, np.ndarray]]:
+        return np.array([1.0, 20.0]), ["Ax"], {"Ax": np.array([2.0, 3.0])}
+
+
+def test_a_log_of_two_axes_is_refused_naming_both() -> None:
+    from mrftcli.io.flight import _check_logged_loop
+    from mrftcli.io.layouts import LAYOUTS
+
+    with pytest.raises(InputError, match=r"excite the pitch and roll loops \(MRFB:Ax\); the ardupilot-mrft layout "
+                                         r"reads one loop per log"):
+        _check_logged_loop(_TwoAxisLog(), LAYOUTS["ardupilot-mrft"], ReadOptions(loop="pitch"))  # type: ignore[arg-type]

@@ -278,17 +278,32 @@ def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
 
     A one-axis layout (:attr:`Layout.loop_field`) maps every loop to the same topics, so without this a
     roll log read as the default altitude loop would be identified with altitude's units. Skipped when
-    the user names the output topic (the topics are then theirs).
+    the user names the output topic (the topics are then theirs). A layout whose tests are started by a
+    parameter per loop (:attr:`Layout.parameters`: PX4's ``MRFT_<AXIS>_ENABLE``) says so too: a y log read
+    as the default altitude loop found no relay in altitude's command and named --command-topic.
     """
-    if lay.loop_field is None or opts.output_topic is not None:
+    if opts.output_topic is not None:
+        return
+    if lay.parameters is not None and opts.command_topic is None:
+        changes = log.parameters()[1]
+        enabled = {loop: f"{lay.parameters.format(axis=axis)}ENABLE" for loop, axis in _PX4_AXIS.items()
+                   if any(n == f"{lay.parameters.format(axis=axis)}ENABLE" and v >= 0.5 for _, n, v in changes)}
+        if enabled and opts.loop not in enabled:
+            first = sorted(enabled)[0]
+            raise InputError(f"{log.path}: the log's tests excite the {' and '.join(sorted(enabled))} loop "
+                             f"({', '.join(enabled[k] for k in sorted(enabled))}), not {opts.loop}: give --loop {first}")
+    if lay.loop_field is None:
         return
     read = _get_optional(log, lay.loop_field)
     if read is None:
         return
     codes = {int(v) for v in np.concatenate([np.ravel(x) for x in read.values.values()]) if np.isfinite(v)}
     logged = sorted({lay.loop_codes.get(c, f"code {c}") for c in codes})
+    if len(logged) > 1:  # every loop reads the same topics: the other axis's tests would pass as this one's
+        raise InputError(f"{log.path}: the log's tests excite the {' and '.join(logged)} loops ({lay.loop_field}); "
+                         f"the {lay.name} layout reads one loop per log: fly each axis into its own log")
     if logged and opts.loop not in logged:
-        raise InputError(f"{log.path}: the log's tests excite the {' and '.join(logged)} loop ({lay.loop_field}), "
+        raise InputError(f"{log.path}: the log's tests excite the {logged[0]} loop ({lay.loop_field}), "
                          f"not {opts.loop}: give --loop {logged[0]}")
 
 

@@ -489,6 +489,30 @@ def test_terminal_states_a_mode_found_ringing_with_its_frequency_and_p_value():
     assert "at or below 12.1 Hz" in low.what and "damping" not in low.what.split("(")[0]
 
 
+def test_a_jitter_found_on_top_of_another_effect_is_named_found():
+    # the delay jitter is judged on top of the first effect found (selection.judge_jitter): its row is
+    # a candidate's (no ``with_``) whose compared_with names that model, as its finding's does. The
+    # eq. (2) table's "found" column and the evidence chart read named(); they said "no" for it
+    from mrftcli.diagnose.pairs import effect_finding
+    from mrftcli.report.diagnosis import _rows_table
+
+    res = _small_result()
+    row = CandidateFit("delay_jitter", "jitter", parameter="sigma", unit="s", value=0.004, std=0.001, chi2=3.0,
+                       bic=10.0, delta_bic=25.0, held_out_before=HeldOut("scatter", nrmse=0.5, metric="m", cycles=3),
+                       held_out_after=HeldOut("scatter", nrmse=0.1, metric="m", cycles=3),
+                       compared_with="linear + sensor_lag", significant=True)
+    jitter = effect_finding(row, res.effects[0].identification, {}, row.compared_with, 35.0, 30)
+    alone = replace(row, compared_with=None)
+    found = replace(res, effects=[*res.effects, jitter], candidates=[*res.candidates, row])
+    assert found.named(row) and not found.named(alone)
+    assert found.named(res.candidates[0]) and not found.named(res.second_effect_candidates[0])
+    # the table's last column, row by row: sensor lag, dead zone, delay jitter, input bias on sensor lag
+    cells = _rows_table(found)[0].split("<tr>")[2:]
+    assert [c.rsplit("<td>", 1)[-1].split("<", 1)[0] for c in cells] == ["yes", "no", "yes", "no"]
+    # a jitter judged against the linear model only is not the one found on top of sensor_lag
+    assert not replace(res, candidates=[*res.candidates, alone]).named(alone)
+
+
 def test_report_refuses_a_result_without_figures(tmp_path):
     from mrftcli.report.diagnosis import write_diagnosis_report
 

@@ -599,7 +599,9 @@ class DiagnosisResult:
         """Whether the candidate ``row`` (alone, or on top of its ``with_``) is an effect found."""
         if not self.soiptd:
             return any((e.name, e.with_) == (row.name, row.with_) for e in self.effects)
-        base = f"linear + {row.with_}" if row.with_ else "linear"
+        # the delay jitter is a candidate row judged on top of the first effect found: its own
+        # ``compared_with`` names that model (``"linear + <effect>"``), its ``with_`` is empty
+        base = getattr(row, "compared_with", None) or (f"linear + {row.with_}" if row.with_ else "linear")
         return any(e.name == row.name and e.evidence.compared_with == base for e in self.effects)
 
     def to_dict(self) -> dict[str, Any]:

@@ -27,8 +27,8 @@ from .physics import CANDIDATES, Effect
 from .records import CandidateFit, HeldOut
 from .screen import Screen
 
-__all__ = ["PROFILE_NFEV", "REJECT_Z", "REJECT_P", "LinearFit", "fit_linear", "CandidateSearch", "search_candidates",
-           "jacobian", "probe_gain"]
+__all__ = ["PROFILE_NFEV", "REJECT_Z", "REJECT_P", "LinearFit", "fit_linear", "Starts", "CandidateSearch",
+           "search_candidates", "jacobian", "probe_gain"]
 
 #: function evaluations per profile point of a candidate's grid (Td and tau only)
 PROFILE_NFEV = 6
@@ -108,6 +108,23 @@ def fit_linear(screen: Screen, loop_model: LoopModel, path: str, say: Callable[[
                      rejected=rejected)
 
 
+class Starts:
+    """Each candidate's starting points on the linear fit (:func:`~mrftcli.diagnose.fit.candidate_starts`),
+    computed once per diagnosis: the probes, the single fits and every pair ask for them again with the
+    same linear fit (the profiled candidates' describing-function solves were 10-40 % of diagnose's
+    CPU on the RotorPy and JSBSim flights; issue 39)."""
+
+    def __init__(self, screen: Screen, linear: LinearFit, Tp: float) -> None:
+        self._args = (linear.fit, screen.tests, screen.recs_fit, Tp)
+        self._done: dict[str, list[np.ndarray]] = {}
+
+    def __call__(self, cand: Effect) -> list[np.ndarray]:
+        """The starts of ``cand`` (fresh copies: a caller may change them)."""
+        if cand.name not in self._done:
+            self._done[cand.name] = candidate_starts(cand, *self._args)
+        return [th.copy() for th in self._done[cand.name]]
+
+
 @dataclass(frozen=True)
 class CandidateSearch:
     """Every candidate fitted alone against the linear model (:func:`search_candidates`).
@@ -121,11 +138,14 @@ class CandidateSearch:
         name -> (model, fit) of each candidate fitted.
     order : list of Effect
         The deterministic candidates in the order they were fitted (by their probe).
+    starts : Starts
+        Each candidate's starts on the linear fit (the pairs' too).
     """
 
     rows: list[CandidateFit]
     fits: dict[str, tuple[CandidateModel, Fit]]
     order: list[Effect]
+    starts: Starts
 
 
 def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndarray, hi: np.ndarray,
@@ -147,14 +167,14 @@ def _profile_starts(model: CandidateModel, starts: list[np.ndarray], lo: np.ndar
     return [pf.theta for pf in prof[:2] if pf.chi2 <= 1.5 * prof[0].chi2 + BIC_THRESHOLD]
 
 
-def _fit_candidate(cand: Effect, screen: Screen, linear: LinearFit, Tp: float,
-                   probe: float | None) -> tuple[CandidateFit, CandidateModel | None, Fit | None]:
+def _fit_candidate(cand: Effect, screen: Screen, linear: LinearFit, Tp: float, probe: float | None,
+                   starts_of: Starts) -> tuple[CandidateFit, CandidateModel | None, Fit | None]:
     """One candidate fitted alone: its row, and its model and fit (None when the fit failed)."""
     tests, recs_fit = screen.tests, screen.recs_fit
     model = CandidateModel(cand, tests, Tp)
     lo, hi = theta_bounds(cand, tests)
     best = None
-    starts = candidate_starts(cand, linear.fit, tests, recs_fit, Tp)
+    starts = starts_of(cand)
     if len(starts) > 2:
         starts = _profile_starts(model, starts, lo, hi, recs_fit)
     for th in starts:
@@ -173,13 +193,13 @@ def _fit_candidate(cand: Effect, screen: Screen, linear: LinearFit, Tp: float,
     return row, model, best
 
 
-def _probe_order(cands: list[Effect], screen: Screen, linear: LinearFit, Tp: float) -> dict[str, float]:
+def _probe_order(cands: list[Effect], screen: Screen, linear: LinearFit, Tp: float,
+                 starts_of: Starts) -> dict[str, float]:
     """Each candidate's probe: at its starting values with Td and tau corrected by one Gauss-Newton
     step on the linear model's Jacobian (3 limit cycles per start instead of a fit)."""
     J_b = jacobian(linear.model, linear.fit.theta, screen.recs_fit)
-    return {cand.name: probe_gain(CandidateModel(cand, screen.tests, Tp),
-                                  candidate_starts(cand, linear.fit, screen.tests, screen.recs_fit, Tp),
-                                  linear.fit.chi2, J_b, screen.recs_fit)
+    return {cand.name: probe_gain(CandidateModel(cand, screen.tests, Tp), starts_of(cand), linear.fit.chi2, J_b,
+                                  screen.recs_fit)
             for cand in cands}
 
 
@@ -191,8 +211,9 @@ def search_candidates(screen: Screen, linear: LinearFit, names: list[str], loop_
     fits: dict[str, tuple[CandidateModel, Fit]] = {}
     order = [c for c in CANDIDATES if c.name in names and not c.stochastic]
     probes: dict[str, float] = {}
+    starts_of = Starts(screen, linear, Tp)
     if linear.rejected and order:
-        probes = _probe_order(order, screen, linear, Tp)
+        probes = _probe_order(order, screen, linear, Tp, starts_of)
         order.sort(key=lambda c: -probes[c.name])
     explained_by = None
     for cand in order:
@@ -209,7 +230,7 @@ def search_candidates(screen: Screen, linear: LinearFit, names: list[str], loop_
                                      probe_delta_chi2=probes.get(cand.name),
                                      status=f"not fitted: {explained_by} explains the cycles to the noise level"))
             continue
-        row, model, best = _fit_candidate(cand, screen, linear, Tp, probes.get(cand.name))
+        row, model, best = _fit_candidate(cand, screen, linear, Tp, probes.get(cand.name), starts_of)
         rows.append(row)
         if model is None or best is None:
             continue
@@ -222,7 +243,8 @@ def search_candidates(screen: Screen, linear: LinearFit, names: list[str], loop_
             say(f"fitting {cand.name}")  # judged after the deterministic selection, against the model chosen there
     library = {c.name: i for i, c in enumerate(CANDIDATES)}
     rows.sort(key=lambda r: library[r.name])  # the library's order in the output, whatever the fitting order
-    return CandidateSearch(rows=[replace(r, significant=significant(r)) for r in rows], fits=fits, order=order)
+    return CandidateSearch(rows=[replace(r, significant=significant(r)) for r in rows], fits=fits, order=order,
+                           starts=starts_of)
 
 
 def jacobian(model: CandidateModel, theta: np.ndarray, recs: list, step: float = 1e-3) -> np.ndarray:

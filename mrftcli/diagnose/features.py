@@ -28,7 +28,8 @@ import numpy as np
 
 from ..mrft.harmonics import fit_harmonics
 
-__all__ = ["N_HARM", "CycleTable", "cycle_table", "FeatureSummary", "summarize_features", "FEATURE_NAMES", "cycle_scatter"]
+__all__ = ["N_HARM", "CycleTable", "cycle_table", "FeatureSummary", "summarize_features", "cycle_features",
+           "FEATURE_NAMES", "cycle_scatter"]
 
 #: highest harmonic in the per-cycle projection
 N_HARM = 7
@@ -233,6 +234,26 @@ def _slope(t: np.ndarray, v: np.ndarray) -> tuple[float, float]:
     return b, float(np.sqrt(s2 / sxx))
 
 
+def _feature_columns(period: np.ndarray, balance: np.ndarray, amplitude: np.ndarray, centre: np.ndarray,
+                     Y: np.ndarray) -> np.ndarray:
+    """Per cycle (rows), the features but the two trends (:data:`FEATURE_NAMES` order)."""
+    Y1 = Y[:, 1]
+    r3 = Y[:, 3] / Y1
+    r5 = Y[:, 5] / Y1
+    r2 = Y[:, 2] / Y1
+    return np.column_stack([period, balance, np.log(amplitude), centre / amplitude, r3.real, r3.imag, r5.real, r5.imag,
+                            r2.real, r2.imag])
+
+
+def cycle_features(period: float, balance: float, amplitude: float, centre: float, Y: np.ndarray) -> np.ndarray:
+    """The feature values of one cycle (a model's periodic solution; the trends 0): those of
+    :func:`summarize_features` of a one-row table, bit for bit, without building it (half the CPU of
+    a model cycle's features; issue 39). ``Y``: its harmonics 0..N_HARM."""
+    one = _feature_columns(np.array([period]), np.array([balance]), np.array([amplitude]), np.array([centre]),
+                           Y[None, : N_HARM + 1])[0]
+    return np.concatenate([one, [0.0, 0.0]])
+
+
 def summarize_features(tab: CycleTable) -> FeatureSummary:
     """Means, trends and scatter of a test's cycles (see :data:`FEATURE_NAMES`).
 
@@ -241,24 +262,7 @@ def summarize_features(tab: CycleTable) -> FeatureSummary:
     of each feature. For a single cycle (a model's periodic solution) they are zero.
     """
     n = len(tab)
-    Y1 = tab.Y[:, 1]
-    r3 = tab.Y[:, 3] / Y1
-    r5 = tab.Y[:, 5] / Y1
-    r2 = tab.Y[:, 2] / Y1
-    cols = np.column_stack(
-        [
-            tab.period,
-            tab.balance,
-            np.log(tab.amplitude),
-            tab.centre / tab.amplitude,
-            r3.real,
-            r3.imag,
-            r5.real,
-            r5.imag,
-            r2.real,
-            r2.imag,
-        ]
-    )
+    cols = _feature_columns(tab.period, tab.balance, tab.amplitude, tab.centre, tab.Y)
     values = np.nanmean(cols, axis=0)
     if n > 1:
         sigma = np.nanstd(cols, axis=0, ddof=1) / np.sqrt(n)

@@ -23,18 +23,18 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.optimize import least_squares
 
-from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_table, relay_harmonics, summarize_features
+from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_features, cycle_table, relay_harmonics
 from .physics import Effect, df_quadratic_drag
 from .scatter import scatter_sample
 from .limit_cycles import AugmentedPlant, quasi_static_plant
-from .periodic import CyclePlant, PeriodicSolution, periodic_solution
+from .periodic import CyclePlant, PeriodicSolution, cycle_at_period, periodic_solution
 from ..io.logtypes import FlightLog
 from ..segment import MrftTest, segment
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "DiagnosedTest", "segments_of", "prepare_tests", "PredictedCycle",
+__all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "PERIOD_RTOL", "DiagnosedTest", "segments_of", "prepare_tests", "PredictedCycle",
            "CandidateModel", "cycle_plant", "model_cycle", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
            "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
 
@@ -43,6 +43,12 @@ _STEP = 1e-3
 _EPS_STEP = float(np.sqrt(np.finfo(float).eps))  # its step where the relative one vanishes (theta = 0)
 #: fewest stable cycles per test for a diagnosis
 MIN_CYCLES = 4
+#: the period's relative tolerance of each limit cycle: the features' floors are 1e-3 and a Jacobian
+#: column's cycle (one Newton step) is 1e-6 off, so 1e-8 is ample; 1e-10 took one series evaluation
+#: more per cycle (of four or five; issue 39)
+PERIOD_RTOL = 1e-8
+#: the relative step in the period of a Jacobian column's feature derivative (:meth:`CandidateModel._column`)
+_PERIOD_STEP = 1e-6
 #: a limit cycle is started from the last one found only when that was found within this distance of
 #: theta (largest component; theta's entries are O(1)): the steps inside one fit
 WARM_RADIUS = 0.1
@@ -182,8 +188,15 @@ class PredictedCycle:
     """A :class:`CandidateModel`'s limit cycle for one test (at K = 1 unless noted)."""
 
     features: np.ndarray  # FEATURE_NAMES order, log amplitude at K = 1
-    cycle: CycleTable  # the model's periodic cycle (one row), K = 1
+    solution: PeriodicSolution  # the cycle's series, K = 1
+    h: float  # the relay's height [command units]
     gain: float  # battery gain g at the test's reference time (1 unless gain drift)
+
+    @property
+    def cycle(self) -> CycleTable:
+        """The model's periodic cycle as a one-row table (K = 1): built when asked for (the fits read
+        only the features; issue 39)."""
+        return model_cycle(self.solution, self.h)
 
 
 class CandidateModel:
@@ -205,6 +218,15 @@ class CandidateModel:
         self.Tp = Tp
         # last (theta, (period [s], residual slope, nonlinear fixed point)) found, per evaluation key
         self.warm: dict[int, tuple[np.ndarray, tuple]] = {}
+        # the same, per test, whatever the key: the start of a key's first cycle near a point solved under
+        # another (a held-out score or a refit at a fit's own point; issue 39)
+        self._by_test: dict[int, tuple[np.ndarray, tuple]] = {}
+        # per test, the features' derivative in the period at the last point a Jacobian stepped from
+        self._slopes: dict[int, tuple[tuple, np.ndarray]] = {}
+        # every cycle solved, by (test, reference time, theta): the fits, their starts' scores, the
+        # held-out scores and the refits ask for the same points again (a fifth of the evaluations of a
+        # diagnosis; issue 39), and a point evaluated twice is one cycle, not two warm-started ones
+        self._solved: dict[tuple, tuple[PredictedCycle | None, tuple | None]] = {}
         self.name = "+".join(c.name for c in cands) if cands else "base"
         self.hs = float(np.mean([t.h for t in tests]))
         self.bias_mean = float(np.mean([t.bias for t in tests]))
@@ -247,25 +269,26 @@ class CandidateModel:
             p["extra"] = p["extras"][self.cand.name]
         return p
 
-    def _solve(self, cp: CyclePlant, test: DiagnosedTest, k: int, theta: np.ndarray,
-               newton: bool) -> PeriodicSolution | None:
+    def _solve(self, cp: CyclePlant, test_i: int, k: int, theta: np.ndarray) -> PeriodicSolution | None:
         """:meth:`evaluate`'s periodic solution (``k``: the key of its warm start)."""
-        cold = (float(np.mean(test.tab.period)), None, None)
+        test = self.tests[test_i]
+        # the recorded period, with the slope of the switching residual of the test's last cycle as the
+        # first step's (the slope changes slowly with theta; one series evaluation fewer of five)
+        last = self._by_test.get(test_i)
+        cold = (float(np.mean(test.tab.period)), None if last is None else last[1][1], None)
         # the last period found is the start when it was found close by (inside a fit); from a distant
         # theta it can lead the solver to another periodic solution of the relay's switching equations
         # (a pair fit's nested start once scored chi^2 9e4 instead of its 2e3), so the recorded period
         # is the start there, and the fallback when the close one fails
         guesses = [cold]
-        if k in self.warm and np.max(np.abs(self.warm[k][0] - theta)) <= WARM_RADIUS:
-            guesses.insert(0, self.warm[k][1])
-            if newton and guesses[0][1]:
-                sol = _periodic(cp, test, guesses[0], newton=True)
-                if sol is not None:
-                    return sol  # (a Newton step's cycle is no start: the solution it stepped from stays)
+        near = self._near(test_i, k, theta)
+        if near is not None:
+            guesses.insert(0, near[1])
         for guess in guesses:
             sol = _periodic(cp, test, guess)
             if sol is not None:
-                self.warm[k] = (np.array(theta, float), (sol.period, sol.slope or None, sol.state))
+                self.warm[k] = self._by_test[test_i] = (np.array(theta, float), (sol.period, sol.slope or None,
+                                                                                  sol.state))
                 return sol
         return None
 
@@ -300,19 +323,98 @@ class CandidateModel:
 
         The cycle is the exact periodic solution of :func:`mrftcli.diagnose.periodic.periodic_solution`
         (its Fourier series), started from the last period found for ``key`` (default: the test).
-        ``newton``: a finite-difference Jacobian's column (:func:`fit_model`): one Newton step on the
-        period from the last one found, when that was found close by, which stays the start.
+        ``newton``: a finite-difference Jacobian's column (:func:`fit_model`): the cycle at the period of
+        the last one solved close by, moved by one Newton step on the period (:meth:`_column`).
         """
+        # (the cycle depends on the reference time only through a gain drift, on the key not at all)
+        when = float(t_ref) if "gain_drift" in self.names else None
+        memo = None if newton else (test_i, when, np.asarray(theta, float).tobytes())
+        k = test_i if key is None else key
+        if memo is not None and memo in self._solved:
+            got, start = self._solved[memo]
+            if start is not None:  # the last point evaluated is the next one's start, as when solved
+                self.warm[k] = self._by_test[test_i] = start
+            return got
+        before = self.warm.get(k)
+        got = self._evaluate(theta, test_i, t_ref, k, newton)
+        if memo is not None:
+            after = self.warm.get(k)
+            self._solved[memo] = (got, after if after is not before else None)
+        return got
+
+    def _evaluate(self, theta: np.ndarray, test_i: int, t_ref: float, k: int,
+                  newton: bool) -> PredictedCycle | None:
+        """:meth:`evaluate` of a point not solved before (or a Newton column, which depends on its start;
+        ``k``: the key of the warm start)."""
         test = self.tests[test_i]
         p = self.unpack(theta)
         plant, g = self.plant(p, test, t_ref)
-        sol = self._solve(cycle_plant(plant, test.h), test, test_i if key is None else key, theta, newton)
-        if sol is None:
+        cp = cycle_plant(plant, test.h)
+        if newton:
+            col = self._column(cp, theta, test_i, t_ref, k, p, g)
+            if col is not None:
+                return col
+        sol = self._solve(cp, test_i, k, theta)
+        return None if sol is None else self._predicted(sol, test, p, g)
+
+    def _near(self, test_i: int, k: int, theta: np.ndarray) -> tuple[np.ndarray, tuple] | None:
+        """The last cycle solved for key ``k`` (or else for the test) when it was solved close to ``theta``."""
+        return next((w for w in (self.warm.get(k), self._by_test.get(test_i))
+                     if w is not None and np.max(np.abs(w[0] - theta)) <= WARM_RADIUS), None)
+
+    def _column(self, cp: CyclePlant, theta: np.ndarray, test_i: int, t_ref: float, k: int, p: dict,
+                g: float) -> PredictedCycle | None:
+        """A finite-difference Jacobian's column: the cycle of ``theta`` at the period P0 of the point it
+        steps from (solved just before, the start of key ``k``) and the period's Newton step dP = -f / f'
+        (f the switching residual there, f' its slope at P0), its features moved by dP times their
+        derivative in the period at that point. The error is of the order of the square of the step, as
+        a cycle solved at P0 + dP was (its period's error), at one series evaluation instead of two per
+        column and one per point (issue 39). None when no close point was solved with a slope."""
+        near = self._near(test_i, k, theta)
+        if near is None or not near[1][1]:
             return None
-        cyc = model_cycle(sol, test.h)
-        if not np.isfinite(cyc.amplitude[0]) or cyc.amplitude[0] <= 0:
+        P0, slope, state = near[1]
+        test = self.tests[test_i]
+        got = _at_period(cp, test, P0, state)
+        if got is None:
             return None
-        f = summarize_features(cyc).values.copy()
+        dP = -got[0] / slope
+        if not -0.5 * P0 < dP < P0:  # (the Newton step's bounds of periodic_solution)
+            return None
+        col = self._predicted(got[1], test, p, g)
+        slope_f = self._feature_slope(test_i, t_ref, near)
+        if col is None or slope_f is None:
+            return None
+        return PredictedCycle(features=col.features + slope_f * dP, solution=col.solution, h=col.h, gain=g)
+
+    def _feature_slope(self, test_i: int, t_ref: float, near: tuple[np.ndarray, tuple]) -> np.ndarray | None:
+        """d(features)/d(period) [1/s] of the cycle solved at ``near`` (its theta and period), at fixed theta:
+        one cycle a millionth of the period away; kept for the next columns of the same point."""
+        theta, (P0, _, state) = near
+        when = float(t_ref) if "gain_drift" in self.names else None
+        key = (test_i, when, theta.tobytes())
+        if test_i not in self._slopes or self._slopes[test_i][0] != key:
+            test = self.tests[test_i]
+            p = self.unpack(theta)
+            plant, g = self.plant(p, test, t_ref)
+            cp = cycle_plant(plant, test.h)
+            here = self._solved.get(key, (None, None))[0]  # the point's own cycle, when it was solved here
+            if here is None or here.features[0] != P0:
+                got = _at_period(cp, test, P0, state)
+                here = None if got is None else self._predicted(got[1], test, p, g)
+            got = _at_period(cp, test, P0 * (1.0 + _PERIOD_STEP), state)
+            there = None if got is None else self._predicted(got[1], test, p, g)
+            if here is None or there is None:
+                return None
+            self._slopes[test_i] = (key, (there.features - here.features) / (P0 * _PERIOD_STEP))
+        return self._slopes[test_i][1]
+
+    def _predicted(self, sol: PeriodicSolution, test: DiagnosedTest, p: dict, g: float) -> PredictedCycle | None:
+        """The features of a cycle (None when its amplitude is not positive)."""
+        amplitude, centre = _extent(sol)
+        if not np.isfinite(amplitude) or amplitude <= 0:
+            return None
+        f = cycle_features(sol.period, sol.high / sol.period - 0.5, amplitude, centre, sol.Y)
         f[np.isnan(f)] = 0.0
         # analytic trends of the quasi-static gain drift
         if "gain_drift" in p["extras"]:
@@ -323,7 +425,7 @@ class CandidateModel:
         else:
             f[FEATURE_NAMES.index("amplitude_trend")] = 0.0
             f[FEATURE_NAMES.index("balance_trend")] = 0.0
-        return PredictedCycle(features=f, cycle=cyc, gain=g)
+        return PredictedCycle(features=f, solution=sol, h=test.h, gain=g)
 
 
 def cycle_plant(plant: AugmentedPlant, h: float) -> CyclePlant:
@@ -338,14 +440,26 @@ def cycle_plant(plant: AugmentedPlant, h: float) -> CyclePlant:
                       quadratic_drag=plant.quadratic_drag, hover_thrust=plant.hover_thrust)
 
 
-def _periodic(cp: CyclePlant, test: DiagnosedTest, guess: tuple, newton: bool = False) -> PeriodicSolution | None:
+def _at_period(cp: CyclePlant, test: DiagnosedTest, P: float, state: tuple | None
+               ) -> tuple[float, PeriodicSolution] | None:
+    """:func:`~mrftcli.diagnose.periodic.cycle_at_period` at the test's effective betas, or None (none, or
+    not finite)."""
+    with np.errstate(all="ignore"):
+        try:
+            got = cycle_at_period(cp, P, test.beta[0], test.beta[1], state)
+        except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
+            return None
+    return got if got is not None and math.isfinite(got[0]) and np.all(np.isfinite(got[1].Y)) else None
+
+
+def _periodic(cp: CyclePlant, test: DiagnosedTest, guess: tuple) -> PeriodicSolution | None:
     """:func:`~mrftcli.diagnose.periodic.periodic_solution` of ``cp`` at the test's effective betas from
     ``guess`` (period [s], slope, fixed point), or None (none found, or not finite)."""
     period, slope, state = guess
     with np.errstate(all="ignore"):
         try:
-            sol = periodic_solution(cp, test.beta[0], test.beta[1], period, slope_guess=slope, state_guess=state,
-                                    newton=newton)
+            sol = periodic_solution(cp, test.beta[0], test.beta[1], period, rtol=PERIOD_RTOL, slope_guess=slope,
+                                    state_guess=state)
         except (FloatingPointError, ValueError, OverflowError, ZeroDivisionError):
             return None
     return sol if sol is not None and np.all(np.isfinite(sol.Y)) else None
@@ -356,16 +470,23 @@ def model_cycle(sol: PeriodicSolution, h: float) -> CycleTable:
     amplitude and centre of its harmonics 1..N_HARM)."""
     P, H = sol.period, sol.high
     Y = sol.Y[: N_HARM + 1].copy()
-    # the waveform on 400 points of the period (harmonics 1..N_HARM): an inverse real FFT, which is
-    # sol.waveform on that grid to rounding (1e-16) at a tenth of its CPU (issue 39)
-    X = np.zeros(201, complex)
-    X[1:N_HARM + 1] = Y[1:]
-    yg = Y[0].real + np.fft.irfft(X, 400) * 200.0
+    amplitude, centre = _extent(sol)
     one = lambda v: np.array([v], float)  # noqa: E731 - one-row columns
     return CycleTable(start=one(0.0), end=one(P), switch=one(H), period=one(P), high=one(H), balance=one(H / P - 0.5),
-                      amplitude=one(0.5 * (yg.max() - yg.min())), centre=one(0.5 * (yg.max() + yg.min())),
-                      Y=Y[None, :], U=relay_harmonics(h, one(H), one(P)), trend=one(0.0), beta_up=one(np.nan),
-                      beta_dn=one(np.nan), resid_ss=one(0.0), n_samples=np.array([400]))
+                      amplitude=one(amplitude), centre=one(centre), Y=Y[None, :], U=relay_harmonics(h, one(H), one(P)),
+                      trend=one(0.0), beta_up=one(np.nan), beta_dn=one(np.nan), resid_ss=one(0.0),
+                      n_samples=np.array([400]))
+
+
+def _extent(sol: PeriodicSolution) -> tuple[float, float]:
+    """The amplitude and centre of a cycle's harmonics 1..N_HARM [output units], from 400 points of the
+    period: an inverse real FFT, which is sol.waveform on that grid to rounding (1e-16) at a tenth of
+    its CPU (issue 39)."""
+    X = np.zeros(201, complex)
+    X[1:N_HARM + 1] = sol.Y[1:N_HARM + 1]
+    yg = sol.Y[0].real + np.fft.irfft(X, 400) * 200.0
+    hi, lo = yg.max(), yg.min()
+    return 0.5 * (hi - lo), 0.5 * (hi + lo)
 
 
 def feature_mask(test: DiagnosedTest) -> np.ndarray:
@@ -443,6 +564,7 @@ def fit_model(model: CandidateModel, theta0: np.ndarray, lo: np.ndarray, hi: np.
     # evaluated once more, is not always the point it scored (a pair fit once "ended" at delta BIC -1e5)
     best: list = [np.inf, None, None]  # chi^2, theta, (r, K, evals)
     last: list = [None, None]  # the last point evaluated and its residuals
+    calls = [0]  # least_squares' own evaluations
 
     def fun(x):
         th = expand(x)
@@ -458,10 +580,18 @@ def fit_model(model: CandidateModel, theta0: np.ndarray, lo: np.ndarray, hi: np.
         last[:] = [np.array(x), r]
         return r
 
+    def counted(x):
+        calls[0] += 1
+        return fun(x)
+
     def jac(x):
         """Forward differences as least_squares' '2-point' with ``diff_step`` (its steps, their sign
         at the bounds), each column's cycles one Newton step on the period from the point's own."""
         r0 = last[1] if last[0] is not None and np.array_equal(last[0], x) else fun(x)
+        if calls[0] >= max_nfev and not free.all():
+            # least_squares asks for the Jacobian of its last point before it stops at max_nfev: with
+            # parameters held, no covariance is taken from it, so it is never read (a profile's fit)
+            return np.zeros((r0.size, x.size))
         sign = np.where(x >= 0, 1.0, -1.0)
         h = _STEP * sign * np.abs(x)
         h = np.where((x + h) - x == 0, _EPS_STEP * sign * np.maximum(1.0, np.abs(x)), h)
@@ -480,7 +610,7 @@ def fit_model(model: CandidateModel, theta0: np.ndarray, lo: np.ndarray, hi: np.
 
     try:
         # chi^2 to 1e-5 relative is far finer than the evidence needs (thresholds of 10 in chi^2)
-        sol = least_squares(fun, theta0[free], jac=jac, bounds=(lo[free], hi[free]), max_nfev=max_nfev,
+        sol = least_squares(counted, theta0[free], jac=jac, bounds=(lo[free], hi[free]), max_nfev=max_nfev,
                             x_scale=1.0, ftol=1e-5, xtol=1e-6)
         theta = expand(sol.x)
         J = sol.jac if free.all() else None

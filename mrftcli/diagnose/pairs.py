@@ -18,9 +18,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..mrft.model import LoopModel
-from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, jacobian, probe_gain
-from .fit import (CandidateModel, DiagnosedTest, Fit, candidate_starts, effect_value, fit_model, plant_params,
-                  residuals, theta_bounds)
+from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, Starts, jacobian, probe_gain
+from .fit import (CandidateModel, DiagnosedTest, Fit, effect_value, fit_model, plant_params, residuals,
+                  theta_bounds)
 from .heldout import BIC_THRESHOLD, HOLDOUT_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Effect
 from .records import CandidateFit, EffectFinding, EffectIdentification, Evidence, FinalModel, HeldOut, PairFit
@@ -107,11 +107,11 @@ _PROFILED = ("sensor_lag", "actuator_rate_limit")
 
 
 def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Effect, c2: Effect, fits: dict, base: Fit,
-                 tests: list[DiagnosedTest], recs_fit: list, Tp: float, hi: np.ndarray) -> list[np.ndarray]:
+                starts2: list[np.ndarray], hi: np.ndarray) -> list[np.ndarray]:
     """Starts of the pair (c1 fitted already, c2 added): c1's fit with c2 at its null value (the
-    nested model: the pair can only do better than c1 alone), at each of c2's own starts (their Td and
-    tau moved from c1's fit by what c2's start moved them from the linear fit), and, when c2 was
-    fitted alone, its single fit's value."""
+    nested model: the pair can only do better than c1 alone), at each of c2's own starts ``starts2``
+    on the linear fit ``base`` (their Td and tau moved from c1's fit by what c2's start moved them from
+    the linear fit), and, when c2 was fitted alone, its single fit's value."""
     m1, f1 = fits[c1.name]
     j1, j2 = model.extra_index(c1.name), model.extra_index(c2.name)
     k1 = m1.extra_index(c1.name)
@@ -129,7 +129,7 @@ def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Effect, c2: Effect, f
     if j2 is not None:
         null = _NULL.get(c2.name, hi[j2] if c2.name == "actuator_saturation" else lo[j2])
         starts.append(assemble(f1.theta[:2], null))
-    for s2 in candidate_starts(c2, base, tests, recs_fit, Tp):
+    for s2 in starts2:
         head = f1.theta[:2].copy()
         if c2.replaces_drag:
             head = np.array([s2[0], f1.theta[1] + s2[1] - base.theta[1]])
@@ -144,7 +144,7 @@ def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Effect, c2: Effect, f
 
 
 def pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
-                   recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int
+                   recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int, starts_of: Starts
                    ) -> tuple[PairFit | None, CandidateModel | None, Fit | None]:
     """Fit the first effect (its row ``first``, fitted alone already) and ``other`` together; evidence
     and held-out scores against the first alone: the pair's row, model and fit (None, None, None when
@@ -162,7 +162,7 @@ def pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests
     lo, hi = theta_bounds((c1, c2), tests)
     scored = []
     j2 = model.extra_index(c2.name)
-    for i, th in enumerate(pair_starts(model, lo, c1, c2, fits, base, tests, recs_fit, Tp, hi)):
+    for i, th in enumerate(pair_starts(model, lo, c1, c2, fits, base, starts_of(c2), hi)):
         th = np.clip(th, lo + 1e-9, hi - 1e-9)
         if i > 0 and c2.name in _PROFILED and j2 is not None:
             # a lag or a slew trades off against the delay along a curved valley (as alone): each of
@@ -202,7 +202,7 @@ def pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests
 
 
 def pair_probe(first: CandidateFit, cand: Effect, fits: dict, J1: np.ndarray, base: Fit, tests: list[DiagnosedTest],
-                recs_fit: list, Tp: float) -> float | None:
+               recs_fit: list, Tp: float, starts_of: Starts) -> float | None:
     """:func:`_probe_gain` of the pair (the first effect fitted, ``cand`` added) against the first
     alone (its Jacobian ``J1``), from the pair's starts other than the nested null one; None when the
     two cannot be paired."""
@@ -211,7 +211,7 @@ def pair_probe(first: CandidateFit, cand: Effect, fits: dict, J1: np.ndarray, ba
         return None
     model = CandidateModel((c1, cand), tests, Tp)
     lo, hi = theta_bounds((c1, cand), tests)
-    starts = pair_starts(model, lo, c1, cand, fits, base, tests, recs_fit, Tp, hi)
+    starts = pair_starts(model, lo, c1, cand, fits, base, starts_of(cand), hi)
     if model.extra_index(cand.name) is not None:
         starts = starts[1:]  # the null start is the first alone: no gain
     return probe_gain(model, [np.clip(th, lo + 1e-9, hi - 1e-9) for th in starts], fits[c1.name][1].chi2, J1,
@@ -248,9 +248,8 @@ class EffectSelection:
 class _Pairs:
     """The pair fits of one diagnosis: their rows, in the order fitted, and each row's joint fit."""
 
-    def __init__(self, screen: Screen, linear: LinearFit, fits: dict[str, tuple[CandidateModel, Fit]],
-                 Tp: float) -> None:
-        self.screen, self.linear, self.fits, self.Tp = screen, linear, fits, Tp
+    def __init__(self, screen: Screen, linear: LinearFit, search: CandidateSearch, Tp: float) -> None:
+        self.screen, self.linear, self.fits, self.starts, self.Tp = screen, linear, search.fits, search.starts, Tp
         self.rows: list[PairFit] = []
         self._joint: list[tuple[PairFit, CandidateModel, Fit]] = []
 
@@ -258,7 +257,7 @@ class _Pairs:
         """Fit ``anchor``'s effect and ``other`` together; the row (also kept), or None."""
         sc, lin = self.screen, self.linear
         pr, model, fit = pair_candidate(anchor, other, self.fits, lin.fit, sc.tests, self.Tp, sc.recs_fit,
-                                        sc.recs_hold, lin.chi2_scatter, lin.n_all)
+                                        sc.recs_hold, lin.chi2_scatter, lin.n_all, self.starts)
         if pr is not None and model is not None and fit is not None:
             pr = replace(pr, significant=significant(pr))
             self.rows.append(pr)
@@ -272,7 +271,7 @@ class _Pairs:
     def probe(self, anchor: CandidateFit, cand: Effect, J: np.ndarray) -> float | None:
         """:func:`pair_probe` of ``cand`` beside ``anchor`` (its fit's Jacobian ``J``)."""
         sc = self.screen
-        return pair_probe(anchor, cand, self.fits, J, self.linear.fit, sc.tests, sc.recs_fit, self.Tp)
+        return pair_probe(anchor, cand, self.fits, J, self.linear.fit, sc.tests, sc.recs_fit, self.Tp, self.starts)
 
     def probed(self, first: CandidateFit, order: list[Effect]) -> None:
         """The first explains the held-out cycles to the noise level, yet a second effect can still be
@@ -503,7 +502,7 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, l
         return EffectSelection(effects=[], pair_rows=[], final=None, warnings=_unconfirmed(cand_rows, set()))
     first = deterministic[0]
     say(f"testing a second effect on top of {first.name}", more=1)
-    pairs = _Pairs(screen, linear, fits, loop_model.Tp)
+    pairs = _Pairs(screen, linear, search, loop_model.Tp)
     searched = not explains_held_out(first.held_out_after, screen.tests)
     if searched:
         for row in cand_rows:

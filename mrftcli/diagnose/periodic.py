@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-__all__ = ["CyclePlant", "PeriodicSolution", "periodic_solution", "N_SERIES"]
+__all__ = ["CyclePlant", "PeriodicSolution", "periodic_solution", "cycle_at_period", "N_SERIES"]
 
 #: harmonics kept in the series (the output's harmonics fall like 1/k^4: 160 leave ~1e-9 of it)
 N_SERIES = 160
@@ -117,6 +117,7 @@ class _InputSeries:
 
     def __init__(self, pl: CyclePlant, P: float, k: np.ndarray, a: float, b: float) -> None:
         self.P, self.rate = P, pl.rate_limit
+        self.phase: tuple[float, np.ndarray] | None = None  # the last H asked for and exp(-j k w H)
         w = 2.0 * np.pi / P
         jkw = 1j * k * w
         self.neg_jkw = -jkw
@@ -134,11 +135,11 @@ class _InputSeries:
     def at(self, H: float) -> np.ndarray | None:
         """c_k at high time H [s]; None when a ramp never reaches the level (a triangle wave: not a
         regular cycle)."""
-        if self.rate > 0:
-            if self.d < min(H, self.P - H):
-                return self.head * (1.0 - np.exp(self.neg_jkw * H)) / self.den
+        if self.rate > 0 and not self.d < min(H, self.P - H):
             return None
-        return self.jump * (1.0 - np.exp(self.neg_jkw * H)) / self.den
+        e = np.exp(self.neg_jkw * H)
+        self.phase = (H, e)  # the output at the switch to the low level reads it again (:meth:`_Series.at_high`)
+        return (self.head if self.rate > 0 else self.jump) * (1.0 - e) / self.den
 
 
 class _Force:
@@ -210,6 +211,7 @@ class _Series:
 
     def __init__(self, pl: CyclePlant, P: float, warm: list | None = None) -> None:
         self.ok = True
+        self.phase: tuple[float, np.ndarray] | None = None  # (H, exp(-j k w H)) when the input series had it
         k = _K
         w = 2.0 * np.pi / P
         s = _JK * w
@@ -223,10 +225,12 @@ class _Series:
                 self.ok = False
                 return
             frac = -b / (a - b)  # the integrator: the input's mean vanishes
-            c = _InputSeries(pl, P, k, a, b).at(frac * P)
+            inp = _InputSeries(pl, P, k, a, b)
+            c = inp.at(frac * P)
             if c is None:
                 self.ok = False
                 return
+            self.phase = inp.phase
             drag = 1.0 / pl.Td if np.isfinite(pl.Td) else 0.0
             G = pl.K / (s * (pl.Tp * s + 1.0) * (s + drag))
             Yk = 2.0 * G * c * lag
@@ -320,6 +324,13 @@ class _Series:
     def at(self, t: float) -> float:
         return float(np.real(np.exp(1j * self.k * self.w * t) @ self.Yk))
 
+    def at_high(self) -> float:
+        """The output at the switch to the low level, t = H: :meth:`at` with the input series' own
+        exp(-j k w H) conjugated (the same numbers: one complex exponential of the series fewer)."""
+        if self.phase is None or self.phase[0] != self.H:
+            return self.at(self.H)
+        return float(np.real(np.conj(self.phase[1]) @ self.Yk))
+
 
 def _refined(yg: np.ndarray, i: int, sign: float) -> float:
     """Extremum near grid index i (parabola through three points)."""
@@ -343,7 +354,7 @@ def _conditions(pl: CyclePlant, P: float, beta_up: float, beta_dn: float, warm: 
     hi, lo = yg[: iH + 1], yg[iH:]
     m1 = _refined(yg, int(np.argmin(hi)), -1.0)
     M2 = _refined(yg, iH + int(np.argmax(lo)), 1.0)
-    yH = ser.at(ser.H)
+    yH = ser.at_high()
     y0 = float(np.sum(ser.Yk.real))
     c = (-beta_dn * m1 - yH) / (1.0 + beta_dn)
     f = c * (1.0 + beta_up) + beta_up * M2 + y0
@@ -352,7 +363,7 @@ def _conditions(pl: CyclePlant, P: float, beta_up: float, beta_dn: float, warm: 
 
 def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_guess: float,
                       *, rtol: float = 1e-10, slope_guess: float | None = None,
-                      state_guess: tuple | None = None, newton: bool = False) -> PeriodicSolution | None:
+                      state_guess: tuple | None = None) -> PeriodicSolution | None:
     """The periodic MRFT cycle of ``pl`` near ``period_guess`` [s]; None when there is none.
 
     ``beta_up`` / ``beta_dn``: the relay's switching levels at the -h -> +h and +h -> -h switches
@@ -361,10 +372,7 @@ def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_gue
     residual at a nearby solution (``PeriodicSolution.slope``), which makes the first step Newton's.
     ``state_guess``: a nearby solution's nonlinear fixed point (``PeriodicSolution.state``), its start;
     each period tried starts from the last one's (the cycle found does not depend on the start, to
-    the fixed point's 1e-12 tolerance; it only takes fewer steps: issue 39's speed). ``newton``: the
-    cycle after one Newton step from ``period_guess`` with ``slope_guess`` (required), not iterated
-    to ``rtol``: a finite-difference Jacobian's column a step of 1e-3 away from the solution of
-    the guess (its period's error is of the order of the square of the step: issue 39's speed).
+    the fixed point's 1e-12 tolerance; it only takes fewer steps: issue 39's speed).
 
     Examples
     --------
@@ -392,9 +400,6 @@ def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_gue
     f0 = f(P0)
     if not np.isfinite(f0):
         return None
-    if newton and slope_guess:
-        P1 = P0 - f0 / slope_guess
-        return _solution(pl, P1, beta_up, beta_dn, warm, slope_guess) if 0.5 * P0 < P1 < 2.0 * P0 else None
     # secant steps from the guess (a warm start is within a fraction of a percent: 3-4 steps), keeping
     # the last sign change as a bracket for brentq if the secant wanders
     P1 = P0 * 1.001 if not slope_guess else P0 - f0 / slope_guess
@@ -445,6 +450,20 @@ def periodic_solution(pl: CyclePlant, beta_up: float, beta_dn: float, period_gue
         except ValueError:
             return None
     return _solution(pl, P, beta_up, beta_dn, warm, last_slope, last[1] if last[0] == P else None)
+
+
+def cycle_at_period(pl: CyclePlant, P: float, beta_up: float, beta_dn: float,
+                    state: tuple | None = None) -> tuple[float, PeriodicSolution] | None:
+    """The cycle of ``pl`` at the period P [s] whether or not P is its period: the residual of the
+    -h -> +h switching condition there [output units] (zero at a periodic solution) and the series
+    (``state``: a nearby solution's nonlinear fixed point, as in :func:`periodic_solution`); None when
+    there is none. A Jacobian column's cycle at its point's period (issue 39)."""
+    warm: list = [] if state is None else [state]
+    got = _conditions(pl, P, beta_up, beta_dn, warm)
+    if got is None:
+        return None
+    sol = _solution(pl, P, beta_up, beta_dn, warm, 0.0, got)
+    return None if sol is None else (float(got[0]), sol)
 
 
 def _solution(pl: CyclePlant, P: float, beta_up: float, beta_dn: float, warm: list, slope: float,

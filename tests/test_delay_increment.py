@@ -131,3 +131,24 @@ def test_a_flight_logged_at_10_and_at_50_hz_gives_its_own_delay_twice() -> None:
         assert tau.value == pytest.approx(truth["tau"], abs=0.002)
     assert abs(result.increment.value) < 0.002 and result.increment.ci95_low < 0.0 < result.increment.ci95_high
     assert result.Td.value == pytest.approx(truth["Td"], rel=0.05) and result.K.value == pytest.approx(truth["K"], rel=0.05)
+
+
+def test_the_quantisation_floor_is_the_relays_rate_not_the_loggers() -> None:
+    """A command logged at 10 Hz over a 50 Hz controller: the relay still switches on 50 Hz ticks, so a test's orbit
+    quantisation floor is f^2 / (50 sqrt 3), not f^2 / (10 sqrt 3) (5x). Same flight logged at both rates
+    (sample_logs/px4_altitude_{10,50}hz.ulg): each test's error and rate column are those of the 50 Hz log, and the
+    delay added is known to about 1 ms, not 3 (the logger's rate gave +-3.2 ms)."""
+    import math
+
+    logs = Path(__file__).resolve().parents[1] / "sample_logs"
+    truth = json.loads((logs / "px4_altitude_50hz.ulg.truth.json").read_text())
+    result = delay_increment(logs / "px4_altitude_10hz.ulg", logs / "px4_altitude_50hz.ulg", truth["Tp"])
+    assert all(t.rate_hz == pytest.approx(truth["rate_hz"]) for t in result.tests)
+    for t in result.tests:  # at least the floor of the relay's rate, and (a locked orbit) not 5x above it
+        floor = t.frequency_hz ** 2 / (truth["rate_hz"] * math.sqrt(3.0))
+        assert floor * (1 - 1e-5) <= t.frequency_se_hz
+    before = sorted((t for t in result.tests if t.flight == "before"), key=lambda t: t.beta)
+    after = sorted((t for t in result.tests if t.flight == "after"), key=lambda t: t.beta)
+    for b, a in zip(before, after):  # one flight: the same test's error at either logging rate
+        assert b.frequency_se_hz == pytest.approx(a.frequency_se_hz, rel=0.5)
+    assert result.increment.std < 0.0015

@@ -246,9 +246,10 @@ def _refuse_for_family(unsupported: dict[str, Any], ex: _ExportOptions, design: 
 
 
 def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, design: str | None,
-                   kind: str, json_target: str | None, ex: _ExportOptions) -> StackExport | None:
+                   kind: str, json_target: str | None, ex: _ExportOptions, quiet: bool = True) -> StackExport | None:
     """The table, or the chosen export (on stdout or --out), and every design as JSON with --json; returns the
-    stack export (None: the table or the generic export)."""
+    stack export (None: the table or the generic export). A stack's export designed inside its ranges takes
+    seconds: a bar says so unless ``quiet``."""
     from ..tune.analysis import recommended_design_name
     from ..tune.export import format_table, hear_json, px4_params
     from ..tune.stacks import ExportEvidence, export_design
@@ -277,8 +278,10 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
     else:
         try:
             evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes), tuple(_in_set(src)))
-            stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
-                                         hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence)
+            with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
+                progress(0, 1, f"the {ex.stack} export")
+                stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
+                                             hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence)
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err
@@ -496,7 +499,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         if not family and (ex.stack == "generic" or (json_target == "-" and ex.stack is None)):
             for n in notes:
                 click.echo(f"note: {n}", err=True)
-    stack_export = _write_outputs(res, src, rate, loop, design, kind, json_target, ex)
+    stack_export = _write_outputs(res, src, rate, loop, design, kind, json_target, ex, quiet)
     if report_dir:
         from ..report.tune import write_tune_report
 

@@ -414,3 +414,32 @@ def test_orbit_at_matches_the_exact_cycle() -> None:
     assert -0.3 - 1e-9 <= orbit.switch_level <= -0.3 + rise
     with pytest.raises(InputError, match="half period"):
         model.orbit_at(1.0, 1.0, RATE)
+
+
+def test_split_interval_and_whole_and_fraction_take_stacks():
+    # tune's held delays (tune.closed_loop._held) split every draw's tick at once: each plant of the
+    # stack as the scalar call makes it, and both against scipy's expm of the augmented matrix
+    from mrftcli.mrft.cascade import split_interval, whole_and_fraction
+
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(5, 3, 3))
+    B = rng.normal(size=(5, 3))
+    T = 0.01
+    delay = np.array([0.0, 0.004, 0.01, 0.0237, 0.05 - 1e-15])
+    d, eps = whole_and_fraction(delay, T)
+    assert d.tolist() == [whole_and_fraction(float(x), T)[0] for x in delay] == [0, 0, 1, 2, 5]
+    assert np.allclose(eps, [whole_and_fraction(float(x), T)[1] for x in delay], rtol=0, atol=1e-18)
+    Phi, G_old, G_new = split_interval(A, B, T, eps)
+    for i in range(5):
+        one = split_interval(A[i], B[i], T, float(eps[i]))
+        for got, want in zip((Phi[i], G_old[i], G_new[i]), one):
+            assert np.allclose(got, want, rtol=1e-13, atol=1e-16)
+        X = np.zeros((4, 4))
+        X[:3, :3], X[:3, 3] = A[i], B[i]
+        old = expm(X * (T - eps[i]))[:3, :3] @ expm(X * eps[i])[:3, 3]
+        assert np.allclose(Phi[i], expm(A[i] * T), rtol=1e-12)
+        assert np.allclose(G_old[i] + G_new[i], expm(X * T)[:3, 3], rtol=1e-12, atol=1e-16)
+        assert np.allclose(G_old[i], old, rtol=1e-12, atol=1e-16)
+    # an input changing at or after t: the old one over the whole tick, the new one never
+    _, late_old, late_new = split_interval(A, B, T, np.full(5, 2 * T))
+    assert np.allclose(late_old, G_old + G_new, rtol=1e-12, atol=1e-16) and not late_new.any()

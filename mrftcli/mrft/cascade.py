@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, ClassVar, Mapping
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -211,20 +211,38 @@ class DiscreteStateSpace:
         return out.reshape(np.shape(omega))
 
 
-def split_interval(A: FloatArray, B: FloatArray, t: float, eps: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(e^{A t}, old-input and new-input vectors) over [0, t) with the held input changing at ``eps``."""
+def split_interval(A: FloatArray, B: FloatArray, t: float,
+                   eps: float | FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(e^{A t}, old-input and new-input vectors) over [0, t) [s] with the held input changing at ``eps`` [s].
+
+    A stack of plants at once: ``A`` (M, n, n), ``B`` (M, n) and ``eps`` (M,) give (M, n, n), (M, n) and
+    (M, n) (:func:`~mrftcli.mrft.propagate.phi_gamma` over the stack).
+    """
     E, G = phi_gamma(A, B, t)
-    if t <= eps:
-        return E, G, np.zeros_like(B)
+    if np.ndim(eps) == 0:
+        if t <= eps:
+            return E, G, np.zeros_like(B)
+        _, G_old = phi_gamma(A, B, eps)
+        E_rest, G_new = phi_gamma(A, B, t - eps)
+        return E, E_rest @ G_old, G_new
+    eps = np.minimum(eps, t)  # an input changing at or after t: the old one over the whole interval
     _, G_old = phi_gamma(A, B, eps)
     E_rest, G_new = phi_gamma(A, B, t - eps)
-    return E, E_rest @ G_old, G_new
+    return E, np.einsum("...ij,...j->...i", E_rest, G_old), G_new
 
 
-def whole_and_fraction(delay: float, T: float) -> tuple[int, float]:
-    """delay = d T + eps with 0 <= eps < T."""
-    d = int(math.floor(delay / T + 1e-12))
-    return d, max(delay - d * T, 0.0)
+@overload
+def whole_and_fraction(delay: float, T: float) -> tuple[int, float]: ...
+@overload
+def whole_and_fraction(delay: FloatArray, T: float) -> tuple[NDArray[np.int_], FloatArray]: ...
+def whole_and_fraction(delay: float | FloatArray, T: float) -> tuple[Any, Any]:
+    """delay = d T + eps with 0 <= eps < T [s]; ``delay`` a scalar, or an array giving arrays of d and eps."""
+    if np.ndim(delay) == 0:
+        d = int(math.floor(float(delay) / T + 1e-12))
+        return d, max(float(delay) - d * T, 0.0)
+    delay = np.asarray(delay, float)
+    ds = np.floor(delay / T + 1e-12).astype(int)
+    return ds, np.maximum(delay - ds * T, 0.0)
 
 
 def _cascade_discrete(plant: StateSpace, delay_i: float, c: Controller, K: float, Td: float,

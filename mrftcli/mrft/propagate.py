@@ -54,16 +54,21 @@ def taylor_expm(M: np.ndarray) -> np.ndarray:
     return E
 
 
-def phi_gamma(A: np.ndarray, B: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+def phi_gamma(A: np.ndarray, B: np.ndarray, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(e^{A t}, int_0^t e^{A s} ds B) of x' = A x + B u with u held over [0, t) [s]: one
     :func:`taylor_expm` of the augmented matrix [[A t, B t], [0, 0]] (the zero-order hold's pieces; the
-    limit-cycle searches call it hundreds of times, where scipy's expm cost ~10 ms in its dispatch)."""
-    n = A.shape[0]
-    M = np.zeros((n + 1, n + 1))
-    M[:n, :n] = A * t
-    M[:n, n] = B * t
+    limit-cycle searches call it hundreds of times, where scipy's expm cost ~10 ms in its dispatch).
+
+    A stack of plants at once: ``A`` (..., n, n), ``B`` (..., n) and ``t`` a scalar or (...,) [s] give
+    (..., n, n) and (..., n), the whole stack in one :func:`taylor_expm` (one scaling for all).
+    """
+    n = A.shape[-1]
+    t = np.asarray(t, float)
+    M = np.zeros((*np.broadcast_shapes(A.shape[:-2], B.shape[:-1], t.shape), n + 1, n + 1))
+    M[..., :n, :n] = A * t[..., None, None]
+    M[..., :n, n] = B * t[..., None]
     E = taylor_expm(M)
-    return E[:n, :n], E[:n, n]
+    return E[..., :n, :n], E[..., :n, n]
 
 
 class LinearPropagator:

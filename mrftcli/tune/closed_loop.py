@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..mrft.cascade import DiscreteStateSpace
+from ..mrft.cascade import DiscreteStateSpace, split_interval, whole_and_fraction
 from ..mrft.controller import Controller, RateFilter
-from ..mrft.propagate import phi_gamma, taylor_expm
+from ..mrft.propagate import phi_gamma
 from ..mrft.model import LoopModel, PlantModel
 from ..validate import check_positive
 
@@ -124,24 +124,13 @@ def plants_of_parameters(Tp: np.ndarray, Td: np.ndarray, tau: np.ndarray, K: np.
 
 def _held(A: np.ndarray, B: np.ndarray, C: np.ndarray, delay: np.ndarray, rate_hz: float) -> list[DiscretePlant]:
     """The held delays of M plants x' = A x + B u, y = C x (A (M, n, n), B (M, n), C (n,)) with delays ``delay``
-    [s] (M,) at ``rate_hz``: tau = d T + eps, the command of tick k - d - 1 acts over the first eps of the tick,
-    that of tick k - d over the rest (the modified z-transform). Each piece is the exponential of
-    [[A t, B t], [0, 0]] (:func:`~mrftcli.mrft.propagate.taylor_expm`, over the stack at once)."""
+    [s] (M,) at ``rate_hz``: tau = d T + eps (:func:`~mrftcli.mrft.cascade.whole_and_fraction`), the command
+    of tick k - d - 1 acts over the first eps of the tick, that of tick k - d over the rest (the modified
+    z-transform: :func:`~mrftcli.mrft.cascade.split_interval`, over the stack at once)."""
     T = 1.0 / rate_hz
-    d = np.floor(delay / T + 1e-12).astype(int)  # as mrft.cascade.whole_and_fraction
-    eps = np.maximum(delay - d * T, 0.0)
-    M, n = B.shape
-    X = np.zeros((M, n + 1, n + 1))
-    X[:, :n, :n], X[:, :n, n] = A, B
-
-    def hold(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (e^{A t}, int_0^t e^{A s} ds B) per plant
-        E = taylor_expm(X * t[:, None, None])
-        return E[:, :n, :n], E[:, :n, n]
-
-    Phi, _ = hold(np.full(M, T))
-    E_rest, G_new = hold(T - eps)
-    G_old = np.einsum("mij,mj->mi", E_rest, hold(eps)[1])  # the old command over [0, eps), then the rest
-    return [DiscretePlant(Phi[i], np.stack([G_old[i], G_new[i]]), C, int(d[i]), float(rate_hz)) for i in range(M)]
+    d, eps = whole_and_fraction(np.asarray(delay, float), T)
+    Phi, G_old, G_new = split_interval(A, B, T, eps)
+    return [DiscretePlant(Phi[i], np.stack([G_old[i], G_new[i]]), C, int(d[i]), float(rate_hz)) for i in range(len(d))]
 
 
 def held_delay(model: PlantModel, rate_hz: float) -> DiscretePlant:

@@ -478,3 +478,23 @@ def test_controller_json_is_the_generic_form_and_reads_back():
         C.from_json({"Kp": 1.0, "Ki": 0.0, "Tf": 0.01, "rate_hz": 200.0}, "inner gains")
     with pytest.raises(InputError, match="must be an object"):
         C.from_json([1, 2], "inner gains")
+
+
+def test_largest_holding_stops_after_a_number_of_halvings_or_at_a_ratio():
+    # a threshold at 3.7 behind a descending scan: the bracket [2, 4] halved on its log; a stop at
+    # ratio r = 2^(1.5 / 2^8) is exactly 8 halvings (what ArduPilot z passed before it gave halvings)
+    from mrftcli.tune.margins import largest_holding
+
+    calls: list[float] = []
+
+    def ok(v: float) -> bool:
+        calls.append(v)
+        return v <= 3.7
+
+    scan = [8.0, 4.0, 2.0, 1.0]
+    g = largest_holding(ok, scan, halvings=8)
+    assert len(calls) == 3 + 8 and 3.7 / 2 ** (1 / 2**8) <= g <= 3.7
+    assert largest_holding(lambda v: v <= 3.7, scan, 2.0 ** (1.5 / 2**8)) == g
+    assert largest_holding(ok, scan, halvings=0) == 2.0 and largest_holding(ok, [9.0, 5.0], halvings=3) is None
+    with pytest.raises(ValueError, match="one of the two"):
+        largest_holding(ok, scan)

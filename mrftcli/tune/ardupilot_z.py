@@ -406,9 +406,8 @@ def _largest_g(pz: float, v_full: float, pa: float, ai: float, check: _Check, g_
     if not (0.0 < lo_g <= hi_g):
         return 0.0
     scan = np.geomspace(hi_g, lo_g, _SCAN) if hi_g > lo_g else np.array([hi_g])
-    step = (hi_g / lo_g) ** (1.0 / (_SCAN - 1))  # a stop within (1/2^STEPS, 2/2^STEPS] of a scan step: STEPS halvings
     g = largest_holding(lambda g: check.holds(_gains(pz, g * v_full, pa, ai, check.rate_hz)), scan,
-                        step ** (1.5 / 2 ** _STEPS))
+                        halvings=_STEPS)
     return 0.0 if g is None else g
 
 

@@ -205,10 +205,14 @@ def _root(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray,
     return np.where(den != 0.0, (lo * f_hi - hi * f_lo) / np.where(den != 0.0, den, 1.0), 0.5 * (lo + hi))
 
 
-def largest_holding(ok: Callable[[float], bool], scan: Sequence[float] | np.ndarray, ratio: float) -> float | None:
+def largest_holding(ok: Callable[[float], bool], scan: Sequence[float] | np.ndarray, ratio: float | None = None, *,
+                    halvings: int | None = None) -> float | None:
     """The largest value at which ``ok`` holds (None: none of ``scan``): the first of ``scan`` (descending) that
     holds (the test need not be monotone: a scan, not a bisection from the top), then bisected on its log
-    between it and the scan point above until they are within a factor ``ratio`` (> 1)."""
+    between it and the scan point above, until they are within a factor ``ratio`` (> 1) or ``halvings``
+    times (give one of the two)."""
+    if (ratio is None) == (halvings is None):
+        raise ValueError("largest_holding takes a ratio or a number of halvings, one of the two")
     for i, v in enumerate(scan):
         if ok(float(v)):
             break
@@ -217,7 +221,12 @@ def largest_holding(ok: Callable[[float], bool], scan: Sequence[float] | np.ndar
     if i == 0:
         return float(scan[0])
     lo, hi = math.log(scan[i]), math.log(scan[i - 1])
-    while hi - lo > math.log(ratio):
+    if halvings is not None:
+        for _ in range(halvings):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if ok(math.exp(mid)) else (lo, mid)
+        return math.exp(lo)
+    while hi - lo > math.log(ratio):  # type: ignore[arg-type]  # (ratio is given when halvings is not)
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if ok(math.exp(mid)) else (lo, mid)
     return math.exp(lo)

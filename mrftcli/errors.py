@@ -26,6 +26,7 @@ __all__ = [
     "MrftError",
     "InputError",
     "LogReadError",
+    "OtherLoopError",
     "SegmentationError",
     "IdentificationError",
     "TpRejectedError",
@@ -44,6 +45,11 @@ class InputError(MrftError, ValueError):
     """An argument is malformed or out of its valid range (e.g. beta outside (-1, 1))."""
 
     exit_code = 2
+
+
+class OtherLoopError(InputError):
+    """The log says its MRFT tests excite another loop than ``--loop`` (ArduPilot's ``MRFB:Ax``, PX4's
+    ``MRFT_<AXIS>_ENABLE``): for batch and vehicle, which try every loop, that loop has no tests."""
 
 
 class LogReadError(MrftError):

@@ -39,13 +39,14 @@ def test_cli_roll_log_without_loop_is_one_line_error() -> None:
 @pytest.mark.skipif(not (LOGS / "pitch.BIN").exists(), reason="ArduPilot SITL sample log not shipped")
 def test_vehicle_identifies_only_the_logged_axis() -> None:
     """``vehicle`` tries every loop: a pitch log used to be identified three times, as altitude (in m),
-    roll and pitch; now only pitch, and the other loops are reported as not recorded."""
+    roll and pitch; now only pitch, and the other loops are reported as without tests (the log's MRFB:Ax
+    names pitch: fly the others' tests, not 'record their topics')."""
     proc = subprocess.run([sys.executable, "-m", "mrftcli", "vehicle", str(LOGS / "pitch.BIN"), "--tp", "0.00915"],
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr
     rows = [line.split()[0] for line in proc.stdout.splitlines()[2:] if " inner " in line or " outer " in line]
     assert rows == ["pitch"]
-    assert "altitude: no-topics" in proc.stdout and "roll: no-topics" in proc.stdout
+    assert "altitude: no-tests" in proc.stdout and "roll: no-tests" in proc.stdout
 
 
 class _TwoAxisLog:

@@ -183,11 +183,13 @@ def test_delay_prints_what_usage_md_says() -> None:
     ("tune", "x", "y"),
     ("delay", "altitude", "x"),
 ])
-def test_px4_log_of_another_loop_names_the_loop(command: str, loop: str | None, logged: str) -> None:
+def test_px4_log_of_another_loop_names_the_loop(tmp_path: Path, command: str, loop: str | None, logged: str) -> None:
     """A PX4 ULog's MRFT_<AXIS>_ENABLE changes say which loop its tests excite: reading it as another loop is
     one line naming the loop and --loop (before: 'no MRFT relay test ... check --command-topic', exit 4)."""
     log = str(SITL / f"px4_{logged}.ulg")
-    argv = [command, log] + ([log] if command == "delay" else []) + ["--tp", "0.05", "-q"]
+    again = tmp_path / "again.ulg"  # delay's AFTER: another file (the same one twice is its own refusal)
+    shutil.copy(log, again)
+    argv = [command, log] + ([str(again)] if command == "delay" else []) + ["--tp", "0.05", "-q"]
     argv += ["--loop", loop] if loop else []
     argv += ["--export", "px4", "--hover-thrust", "0.49"] if command == "tune" else []
     line = _one_error_line(run_main(*argv), 2)

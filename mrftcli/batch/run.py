@@ -164,6 +164,7 @@ def _untested_skipped(loops: list[dict[str, Any]]) -> None:
     from ..analyze.screen import WHICH_LOOP_HINT
 
     why = {"SegmentationError": (STATUS_NO_TESTS, "no MRFT test on the {} loop"),
+           "OtherLoopError": (STATUS_NO_TESTS, "no MRFT test on the {} loop"),
            "InputError": (STATUS_NO_TOPICS, "no {} topics"), "LogReadError": (STATUS_NO_TOPICS, "no {} topics")}
     untested = [e for e in loops if e["status"] == STATUS_FAILED and e.get("error_type") in why]
     if len(untested) < len(loops):

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError, LogReadError
+from ..errors import InputError, LogReadError, OtherLoopError
 from ..validate import check_positive
 from .attitude import roll_pitch
 from .clock import check_rate, check_time_unit
@@ -290,7 +290,7 @@ def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
                    if any(n == f"{lay.parameters.format(axis=axis)}ENABLE" and v >= 0.5 for _, n, v in changes)}
         if enabled and opts.loop not in enabled:
             first = sorted(enabled)[0]
-            raise InputError(f"{log.path}: the log's tests excite the {' and '.join(sorted(enabled))} loop "
+            raise OtherLoopError(f"{log.path}: the log's tests excite the {' and '.join(sorted(enabled))} loop "
                              f"({', '.join(enabled[k] for k in sorted(enabled))}), not {opts.loop}: give --loop {first}")
     if lay.loop_field is None:
         return
@@ -303,7 +303,7 @@ def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
         raise InputError(f"{log.path}: the log's tests excite the {' and '.join(logged)} loops ({lay.loop_field}); "
                          f"the {lay.name} layout reads one loop per log: fly each axis into its own log")
     if logged and opts.loop not in logged:
-        raise InputError(f"{log.path}: the log's tests excite the {logged[0]} loop ({lay.loop_field}), "
+        raise OtherLoopError(f"{log.path}: the log's tests excite the {logged[0]} loop ({lay.loop_field}), "
                          f"not {opts.loop}: give --loop {logged[0]}")
 
 

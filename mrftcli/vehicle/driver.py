@@ -15,7 +15,7 @@ from pathlib import Path
 
 from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
 from ..analyze.options import AnalyzeOptions, CascadeOptions
-from ..errors import InputError, LogReadError, MrftError
+from ..errors import InputError, LogReadError, MrftError, OtherLoopError, SegmentationError
 from ..io import FlightLog, LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
@@ -149,6 +149,9 @@ def _read(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc:
     hold (a CSV or ULog with z alone) means the loop is not recorded, as ``batch --loop auto`` says."""
     try:
         return read_loop(source, options.read(loop))
+    except OtherLoopError as err:  # the log's tests are another loop's: this one has none (not "record it")
+        acc.missing[loop] = missing_from_error(loop, SegmentationError(str(err)), Tp, str(source.path))
+        return None
     except (InputError, LogReadError) as err:
         acc.missing[loop] = missing_topics(loop, (" ".join(str(err).split()),), Tp)
         return None

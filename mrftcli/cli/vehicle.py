@@ -98,7 +98,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
     if gyro_cutoff is not None and export not in ("px4", "ardupilot"):
         raise InputError("--gyro-cutoff is for --export px4|ardupilot (the stack's gyro filter on roll and pitch)")
     if hover_thrust is not None and export not in ("px4", "ardupilot"):
-        raise InputError("--hover-thrust is for --export px4|ardupilot (the altitude loop)")
+        raise InputError("--hover-thrust is for --export px4|ardupilot (the altitude loop; PX4's x and y)")
 
 
 @click.command("vehicle")
@@ -126,7 +126,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
               help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] (default: the stack's, stated).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), for the "
-                   "altitude export.")
+                   "altitude exports and PX4's x and y.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound instead of "
               "refusing (the margins are stated).")
 @json_option(what="vehicle record: loops.<name> (the analysis, gains.generic) and the missing loops")

@@ -16,8 +16,8 @@ import pytest
 
 from cli_helpers import run_main
 
-from mrftcli.compare.delay import DelayIncrement, delay_increment, identify_pair
-from mrftcli.errors import InputError, InsufficientDataError
+from mrftcli.compare.delay import DELAY_SCHEMA_VERSION, DelayIncrement, delay_increment, identify_pair
+from mrftcli.errors import InputError, InsufficientDataError, SegmentationError
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.model import LoopModel
 from mrftcli.segment import segment
@@ -28,9 +28,11 @@ TAU = 0.010  # [s] the plant's own delay before the change
 BETAS = (-0.2, -0.45, -0.7)
 
 
-def _fly(folder: Path, name: str, tau: float, seed: int, betas: tuple[float, ...] = BETAS) -> Path:
+def _fly(folder: Path, name: str, tau: float, seed: int, betas: tuple[float, ...] = BETAS, short: float | None = None) -> Path:
+    """One flight; ``short``: a last test at that beta lasting the 2 s transient only (too few stable cycles)."""
     model = LoopModel(TP, TD, tau, K)
     tests = tuple(plan_test(model, b, 0.05, cycles=12.0) for b in betas)
+    tests += () if short is None else (plan_test(model, short, 0.05, cycles=0.0, min_duration=0.0),)
     flight = simulate_flight(FlightSpec(model=model, tests=tests, loop="altitude", rate_hz=250.0, noise_std=0.0005,
                                         hover_s=2.0, hold_s=2.0, seed=seed))
     path = folder / f"{name}.mcap"
@@ -43,7 +45,8 @@ def logs(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("delay")
     return {"before": _fly(d, "before", TAU, 11), "after": _fly(d, "after", TAU + 0.020, 111),
             "again": _fly(d, "again", TAU, 112), "one_beta": _fly(d, "one_beta", TAU, 113, (-0.45,)),
-            "one_beta_20": _fly(d, "one_beta_20", TAU + 0.020, 12, (-0.45,))}
+            "one_beta_20": _fly(d, "one_beta_20", TAU + 0.020, 12, (-0.45,)),
+            "short": _fly(d, "short", TAU + 0.020, 13, (-0.2, -0.45), short=-0.7)}
 
 
 def _run(*args: object) -> subprocess.CompletedProcess[str]:
@@ -80,8 +83,12 @@ def test_the_record_round_trips_and_a_newer_schema_is_refused(logs) -> None:
     flights = [segment(read_flight(logs[k], ReadOptions())) for k in ("before", "after")]
     result = identify_pair(*flights, TP, names=("a", "b"), loop="altitude")
     data = json.loads(json.dumps(result.to_json()))
-    assert data["schema_version"] == 1 and data["parameters"]["delay_added"]["unit"] == "s"
+    assert data["schema_version"] == DELAY_SCHEMA_VERSION == 2 and data["parameters"]["delay_added"]["unit"] == "s"
     assert DelayIncrement.from_json(data) == result
+    # a version 1 record (no warnings, no controller rate) is still read
+    v1 = {k: v for k, v in data.items() if k not in ("warnings", "controller_rate_hz", "controller_rate_assumed")}
+    old = DelayIncrement.from_json({**v1, "schema_version": 1})
+    assert old.increment == result.increment and old.warnings == () and old.controller_rate_hz == (None, None)
     with pytest.raises(InputError, match="schema"):
         DelayIncrement.from_json({**data, "schema_version": 99})
     with pytest.raises(InputError):
@@ -152,3 +159,34 @@ def test_the_quantisation_floor_is_the_relays_rate_not_the_loggers() -> None:
     for b, a in zip(before, after):  # one flight: the same test's error at either logging rate
         assert b.frequency_se_hz == pytest.approx(a.frequency_se_hz, rel=0.5)
     assert result.increment.std < 0.0015
+
+
+def test_the_record_says_an_assumed_controller_rate_and_the_readers_warnings(tmp_path) -> None:
+    """The 10 Hz PX4 log's controller rate is the layout's assumption (50 Hz), which sets the half tick added to its
+    delay: the record and the text's header say so (and which recording), the 50 Hz log's rate is measured."""
+    logs = Path(__file__).resolve().parents[1] / "sample_logs"
+    out = tmp_path / "d.json"
+    proc = _run(logs / "px4_altitude_10hz.ulg", logs / "px4_altitude_50hz.ulg", "--tp", 0.0422, "--json", out, "-q")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    assert data["controller_rate_hz"] == {"before": 50.0, "after": 50.0}
+    assert data["controller_rate_assumed"] == {"before": True, "after": False}
+    assert any("px4_altitude_10hz.ulg: controller rate 50 Hz assumed" in w for w in data["warnings"])
+    assert not any("px4_altitude_50hz" in w for w in data["warnings"])
+    head = proc.stdout.splitlines()[:4]
+    assert any("px4_altitude_10hz.ulg" in line and "controller rate 50 Hz assumed" in line for line in head)
+    assert proc.stderr.count("controller rate 50 Hz assumed") == 1  # once, not at read time and again
+
+
+def test_a_test_left_out_is_said_as_analyze_says_it(logs) -> None:
+    """A 2 s test (2 stable cycles) is left out with analyze's line; the others are used."""
+    result = delay_increment(logs["before"], logs["short"], TP)
+    assert sum(t.flight == "after" for t in result.tests) == 2
+    left = [w for w in result.warnings if "left out" in w]
+    assert len(left) == 1 and str(logs["short"]) in left[0] and "stable cycles (need 3)" in left[0]
+
+
+def test_a_recording_without_a_usable_test_gets_analyzes_message(logs) -> None:
+    """The message of analyze (screen.no_usable_message): the tests found, their stable cycles, the fix."""
+    with pytest.raises(SegmentationError, match=r"none with 40 or more stable cycles .*record longer tests"):
+        delay_increment(logs["before"], logs["after"], TP, min_stable_cycles=40)

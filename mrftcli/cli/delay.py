@@ -8,7 +8,7 @@ import click
 
 from ..io.logtypes import gain_unit
 from .model_options import parameter_lines
-from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, num,
+from .options import (check_output_file, dump_json, echo_warnings, json_option, log_layout_options, min_cycles_option, num,
                       quiet_option, text_table, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
@@ -40,16 +40,30 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     6 neither recording has two betas.
     """
     from ..compare.delay import delay_increment
+    from ..errors import SegmentationError
     from ..io import ReadOptions
 
     check_output_file(json_target, inputs=(before, after))
     read = ReadOptions(**read_options)  # checked before either log is opened
     with tqdm_progress("delay", unit="step", enabled=not quiet, after_s=1.0) as progress:
-        result = delay_increment(before, after, Tp, read=read, min_stable_cycles=min_cycles, progress=progress)
+        try:
+            result = delay_increment(before, after, Tp, read=read, min_stable_cycles=min_cycles, progress=progress)
+        except SegmentationError as err:  # the refused recording's reader warnings (an assumed rate), then the error
+            echo_warnings(getattr(err, "warnings", ()))
+            raise
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":
         click.echo(format_delay(result))
+    echo_warnings(result.warnings)
+
+
+def _rate(rate_hz: float | None, assumed: bool) -> str:
+    """A recording's controller rate for its header line; an assumed one said as such (it sets the half tick
+    added to the delay of a command logged below it)."""
+    if rate_hz is None:
+        return ""
+    return f"; controller rate {rate_hz:g} Hz" + (" assumed (see the warning; --controller-rate sets it)" if assumed else "")
 
 
 def format_delay(result: DelayIncrement) -> str:
@@ -57,8 +71,9 @@ def format_delay(result: DelayIncrement) -> str:
     K_unit = gain_unit(result.loop)
     lines = [f"delay added between two recordings of loop {result.loop}, Tp {result.Tp:g} s (known)",
              f"method: {result.METHOD}",
-             f"  before: {result.before} ({sum(t.flight == 'before' for t in result.tests)} tests)",
-             f"  after:  {result.after} ({sum(t.flight == 'after' for t in result.tests)} tests)"]
+             *(f"  {flight + ':':7} {path} ({sum(t.flight == flight for t in result.tests)} tests{_rate(rate, assumed)})"
+               for flight, path, rate, assumed in zip(("before", "after"), (result.before, result.after),
+                                                      result.controller_rate_hz, result.controller_rate_assumed))]
     rows = [["flight", "beta", "h", "rate", "cycles", "f measured", "± se", "f fitted", "error", "K"],
             ["", "", "[command]", "[Hz]", "", "[Hz]", "[Hz]", "[Hz]", "[%]", f"[{K_unit}]"]]
     rows += [[t.flight, f"{t.beta:+.3f}", num(t.h), num(t.rate_hz), str(t.n_cycles), f"{t.frequency_hz:.4f}",

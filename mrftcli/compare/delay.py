@@ -30,6 +30,7 @@ benchmarks/bench_sitl.py for ArduPilot SITL's +20 ms flights (docs/benchmarks/si
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -40,7 +41,9 @@ import numpy as np
 
 from ..analyze.held_out import mean_sem
 from ..analyze.estimate import beta_used
-from ..analyze.screen import group_betas, low_rate_period, screen_tests
+from ..analyze.record import analysis_controller_rate
+from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable_message, screen_tests,
+                               span)
 from ..errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
 from ..io import ReadOptions, read_flight
 from ..jsonable import check_schema_version, json_float
@@ -54,7 +57,7 @@ from ..validate import check_tp
 __all__ = ["DELAY_SCHEMA_VERSION", "PairTest", "DelayIncrement", "identify_pair", "delay_increment"]
 
 #: Version of the ``delay --json`` record; bump when its layout changes.
-DELAY_SCHEMA_VERSION = 1
+DELAY_SCHEMA_VERSION = 2  # 2: warnings, controller_rate_hz, controller_rate_assumed (1 is still read)
 
 _FLIGHTS = ("before", "after")
 _TAU_MAX = 0.5  # [s]: the delays' upper bound in the fit (eq. (2)'s multirotor range and more)
@@ -150,6 +153,14 @@ class DelayIncrement:
         the cycles' errors explain the scatter) [-].
     notes : tuple of str
         What qualifies the figures (a delay at its bound, an exactly determined fit, the model's scatter).
+    warnings : tuple of str
+        Each recording's warnings as ``analyze`` gives them: the reader's (an assumed controller rate), the tests
+        left out and why, the tests' own notes (none in a schema 1 record).
+    controller_rate_hz : tuple of (float or None)
+        Each recording's controller rate [Hz] (before, after): the relay's decision rate, whose half tick is added
+        to the delay of a command logged below it (None: unknown, or a schema 1 record).
+    controller_rate_assumed : tuple of bool
+        Whether the layout assumed that rate (the log did not show it and ``--controller-rate`` was not given).
     """
 
     before: str
@@ -166,6 +177,9 @@ class DelayIncrement:
     dof: int
     model_scatter: float
     notes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    controller_rate_hz: tuple[float | None, float | None] = (None, None)
+    controller_rate_assumed: tuple[bool, bool] = (False, False)
 
     #: What the figures rest on (first line of the text output and the JSON's ``method``).
     METHOD = ("eq. (2) at the known Tp, one Td and K for both recordings and a delay each, fitted to every test's "
@@ -181,7 +195,9 @@ class DelayIncrement:
                 "after": self.after, "loop": self.loop, "Tp": self.Tp, "method": self.METHOD,
                 "parameters": {k: v.to_json() for k, v in self.parameters().items()},
                 "tests": [t.to_json() for t in self.tests], "chi2": self.chi2, "dof": self.dof,
-                "model_scatter": self.model_scatter, "notes": list(self.notes)}
+                "model_scatter": self.model_scatter, "notes": list(self.notes), "warnings": list(self.warnings),
+                "controller_rate_hz": dict(zip(_FLIGHTS, self.controller_rate_hz)),
+                "controller_rate_assumed": dict(zip(_FLIGHTS, self.controller_rate_assumed))}
 
     @classmethod
     def from_json(cls, data: Any) -> DelayIncrement:
@@ -192,17 +208,26 @@ class DelayIncrement:
         InputError
             Not this record, a newer schema, or a missing or malformed field (one line).
         """
-        d = check_schema_version(data, "delay", DELAY_SCHEMA_VERSION)
+        d = check_schema_version(data, "delay", (1, DELAY_SCHEMA_VERSION))
         try:
+            rates = d.get("controller_rate_hz") or {}
+            assumed = d.get("controller_rate_assumed") or {}
             p = d["parameters"]
             est = {k: ParameterEstimate.from_json(k, p[k]) for k in ("Td", "K", "tau_before", "tau_after",
                                                                      "delay_added")}
             return cls(str(d["before"]), str(d["after"]), str(d["loop"]), json_float(d["Tp"], "delay JSON Tp"),
                        est["Td"], est["K"], est["tau_before"], est["tau_after"], est["delay_added"],
                        tuple(PairTest.from_json(t) for t in d["tests"]), json_float(d["chi2"], "delay JSON chi2"),
-                       int(d["dof"]), json_float(d["model_scatter"], "delay JSON model_scatter"), tuple(str(n) for n in d["notes"]))
+                       int(d["dof"]), json_float(d["model_scatter"], "delay JSON model_scatter"), tuple(str(n) for n in d["notes"]),
+                       tuple(str(w) for w in d.get("warnings", ())),
+                       (_opt_rate(rates.get("before")), _opt_rate(rates.get("after"))),
+                       (bool(assumed.get("before", False)), bool(assumed.get("after", False))))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"delay JSON: missing or malformed field ({err})") from None
+
+
+def _opt_rate(value: Any) -> float | None:
+    return None if value is None else json_float(value, "delay JSON controller_rate_hz")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -407,16 +432,37 @@ def _notes(tau_b: float, tau_a: float, dof: int, chi2: float, scatter: float) ->
     return tuple(notes)
 
 
-def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> list[MrftTest]:
-    """The tests of one recording that ``analyze`` would use (its screening)."""
-    flight = read_flight(path, read)
+@dataclass(frozen=True)
+class _Recording:
+    """One recording's usable tests, its warnings and its controller's rate."""
+
+    tests: list[MrftTest]
+    warnings: tuple[str, ...]
+    controller_rate_hz: float | None
+    rate_assumed: bool
+
+
+def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Recording:
+    """The tests of one recording that ``analyze`` would use (its screening, :func:`screen_tests`), with the
+    warnings ``analyze`` gives it (the reader's, the tests left out and why, the tests' own notes) and the
+    controller's rate (and whether the layout assumed it: then it sets the half tick added to the delay)."""
+    flight = read_flight(path, read, echo_warnings=False)
     found = segment(flight, controller_rate_hz=read.controller_rate_hz)
     reasons = screen_tests(found, min_stable_cycles)
     usable = [t for t in found if t.index not in reasons]
+    t0 = log_start(flight)
     if not usable:
-        why = "; ".join(dict.fromkeys(reasons.values())) or "no relay switching found"
-        raise SegmentationError(f"{path}: no usable MRFT test for loop {flight.loop} ({len(found)} found: {why})")
-    return usable
+        err = SegmentationError(no_usable_message(flight, found, reasons, min_stable_cycles, t0))
+        setattr(err, "warnings", tuple(flight.warnings))  # noqa: B010 - shown by cli/delay.py before the error
+        raise err
+    left_out = [f"test at {span(t, t0)} left out: {reasons[t.index]}" for t in found if t.index in reasons]
+    notes = [f"test at {t.t_start - t0:.1f} s: {n}" for t in usable for n in t.notes]
+    rate = read.controller_rate_hz or analysis_controller_rate(flight.timing.controller_rate_hz,
+                                                               [t.rate_hz for t in usable])
+    source = flight.source.get("controller_rate", "") if isinstance(flight.source, dict) else ""
+    assumed = read.controller_rate_hz is None and " Hz assumed" in str(source)
+    warnings = tuple(dict.fromkeys([*flight.warnings, *(f"{flight.path}: {w}" for w in [*left_out, *notes])]))
+    return _Recording(usable, warnings, rate, assumed)
 
 
 def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: ReadOptions | None = None,
@@ -449,7 +495,10 @@ def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: R
         tests.append(_usable(path, read, min_stable_cycles))
     if progress:
         progress(2, 3, "fitting")
-    result = identify_pair(tests[0], tests[1], Tp, names=(str(before), str(after)), loop=read.loop)
+    result = identify_pair(tests[0].tests, tests[1].tests, Tp, names=(str(before), str(after)), loop=read.loop)
     if progress:
         progress(3, 3, "done")
-    return result
+    return dataclasses.replace(
+        result, warnings=(*tests[0].warnings, *tests[1].warnings),
+        controller_rate_hz=(tests[0].controller_rate_hz, tests[1].controller_rate_hz),
+        controller_rate_assumed=(tests[0].rate_assumed, tests[1].rate_assumed))

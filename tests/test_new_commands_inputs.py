@@ -194,3 +194,19 @@ def test_px4_log_of_another_loop_names_the_loop(tmp_path: Path, command: str, lo
     argv += ["--export", "px4", "--hover-thrust", "0.49"] if command == "tune" else []
     line = _one_error_line(run_main(*argv), 2)
     assert f"excite the {logged} loop" in line and f"give --loop {logged}" in line
+
+
+def test_tune_x_and_y_results_together_say_px4_shares_the_parameters(tmp_path: Path) -> None:
+    """tune X.json Y.json --export px4: the two-result route is roll and pitch's joint gyro cutoff; for x and y
+    the one line says PX4 has one MPC_XY_* set for both and to tune one alone."""
+    import json
+
+    x = tmp_path / "x.json"
+    done = run_main("analyze", str(SITL / "px4_x.ulg"), "--tp", "0.05", "--loop", "x", "-q", "--json", str(x))
+    assert done.returncode == 0, done.stderr
+    y = tmp_path / "y.json"
+    data = json.loads(x.read_text())
+    data["input"]["loop"] = "y"  # the same record as a y analysis: the loop is what the check reads
+    y.write_text(json.dumps(data))
+    line = _one_error_line(run_main("tune", str(x), str(y), "--tp", "0.05", "--export", "px4", "-q"), 2)
+    assert "x loop" in line and "one MPC_XY_* set" in line and "tune one of them alone" in line

@@ -95,7 +95,9 @@ def _axes(req: AxesRequest) -> tuple[list, list, float | None]:
         raise InputError(f"{pa} and {pb} are both for the {a.loop} loop: give one roll and one pitch result")
     for path, s in srcs:
         if s.loop not in ("roll", "pitch"):
-            raise InputError(f"{path} is for the {s.loop} loop: the joint gyro cutoff is for roll and pitch")
+            alone = ("PX4's x and y share one MPC_XY_* set: tune one of them alone, its export sets both"
+                     if s.loop in ("x", "y") else "tune it alone")
+            raise InputError(f"{path} is for the {s.loop} loop: the joint gyro cutoff is for roll and pitch; {alone}")
         if s.posterior is None:
             raise InputError(f"{path} has no spreads: the robust designs need the posterior")
     if req.rate_hz is None and a.rate_hz != b.rate_hz:

@@ -190,3 +190,20 @@ def test_a_recording_without_a_usable_test_gets_analyzes_message(logs) -> None:
     """The message of analyze (screen.no_usable_message): the tests found, their stable cycles, the fix."""
     with pytest.raises(SegmentationError, match=r"none with 40 or more stable cycles .*record longer tests"):
         delay_increment(logs["before"], logs["after"], TP, min_stable_cycles=40)
+
+
+def test_ks_interval_is_students_t_on_its_tests() -> None:
+    """K's error is the spread of its 3-6 per-test values (no frequency moves K): its 95 % interval is the mean
+    +- t(0.975, n - 1) standard errors of those values (closed form from the record's own per-test K), not the
+    frequency fit's 1.96 or its t on the fit's degrees of freedom."""
+    import numpy as np
+    from scipy.stats import t as student
+
+    logs = Path(__file__).resolve().parents[1] / "sample_logs"
+    truth = json.loads((logs / "px4_altitude_50hz.ulg.truth.json").read_text())
+    result = delay_increment(logs / "px4_altitude_10hz.ulg", logs / "px4_altitude_50hz.ulg", truth["Tp"])
+    each = np.array([t.K for t in result.tests])
+    se = float(np.std(each, ddof=1) / np.sqrt(each.size))
+    q = float(student.ppf(0.975, each.size - 1))
+    assert result.K.value == pytest.approx(float(each.mean()), rel=1e-12) and result.K.std == pytest.approx(se)
+    assert (result.K.ci95_low, result.K.ci95_high) == pytest.approx((each.mean() - q * se, each.mean() + q * se))

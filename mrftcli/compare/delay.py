@@ -13,7 +13,8 @@ switched) and its relay height; tau is then what ``analyze``'s tau is. A recordi
 logged below the controller's rate (switch instants known to a logging period only) is taken, as
 ``analyze`` takes it, at the nominal beta, at the centre of the sampled relay's band of orbits (the
 continuous cycle with half a controller tick more delay). K moves no frequency: with Td and the delays fixed,
-each test's amplitude gives K, and K is their mean.
+each test's amplitude gives K, and K is their mean, its standard error their spread over the root of their number
+and its interval Student's t on their number less one (Td's and the delays' errors are not in it).
 
 Each test's weight is its mean frequency's standard error from its stable cycles, taken as an AR(1)
 sequence (:func:`mrftcli.analyze.held_out.mean_sem`), at least the sampled relay's orbit quantisation
@@ -397,14 +398,16 @@ def identify_pair(before: Sequence[MrftTest], after: Sequence[MrftTest], Tp: flo
     inc_std = math.sqrt(max(float(cov[1, 1] + cov[2, 2] - 2 * cov[1, 2]), 0.0))
     cycles = [_cycle(Tp, Td, (tau_b, tau_a)[rows.flight[i]], rows, i) for i in range(rows.f.size)]
     K_each = rows.amp / np.array([a for _, a in cycles])
+    # K's error is its tests' spread alone (no frequency moves it): its interval is Student's t on their number less 1
     K_std = float(np.std(K_each, ddof=1) / math.sqrt(K_each.size)) if K_each.size > 1 else math.nan
+    q_K = _quantile(K_each.size - 1) if K_each.size > 1 else q
     pairs = tuple(PairTest(_FLIGHTS[rows.flight[i]], t.t_start, float(rows.beta[i]), float(rows.h[i]),
                            float(rows.rate[i]), t.n_stable, float(rows.f[i]), float(rows.se[i]), cycles[i][0],
                            float(rows.amp[i]), float(K_each[i]))
                   for i, t in enumerate([*before, *after]))
     return DelayIncrement(
         names[0], names[1], loop, Tp, _estimate(Td, float(std[0]), q, "s", log=True),
-        _estimate(float(np.mean(K_each)), K_std, q, K_UNIT), _estimate(tau_b, float(std[1]), q, "s"),
+        _estimate(float(np.mean(K_each)), K_std, q_K, K_UNIT), _estimate(tau_b, float(std[1]), q, "s"),
         _estimate(tau_a, float(std[2]), q, "s"), _estimate(tau_a - tau_b, inc_std, q, "s"),
         pairs, chi2, dof, math.sqrt(s2), _notes(tau_b, tau_a, dof, chi2, math.sqrt(s2)))
 

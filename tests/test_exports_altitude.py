@@ -40,6 +40,23 @@ def test_refusals_name_the_option_and_the_units():
         stack_setting("ardupilot", "altitude", 25.0, None, None)  # ArduPilot runs no loop below 50 Hz
 
 
+@pytest.mark.parametrize("stack,hover_param,command", [("ardupilot", "MOT_THST_HOVER", "ArduPilot's throttle"),
+                                                        ("px4", "MPC_THR_HOVER", "PX4's normalised thrust")])
+def test_both_stacks_altitude_exports_refuse_a_command_that_is_not_their_thrust(stack, hover_param, command):
+    # both write acceleration gains x hover / g (ArduPilot's z cascade, PX4's MPC_Z_VEL_P_ACC = Kd g / h): one
+    # rule, K within 2x of g / h. K 19.62: g / h is 19.61 at h 0.5, 49 at h 0.2 (2.5x)
+    from mrftcli.tune.stacks import UNIT_TOLERANCE, check_units
+
+    c, version = _pd(), {"version": "4.6"} if stack == "ardupilot" else {}
+    export_design(stack, c, MODEL, "altitude", "x", hover_thrust=0.5, **version)
+    edge = 9.80665 / (UNIT_TOLERANCE * MODEL.K)  # h 0.2499: g / h twice K
+    for hover in (0.2, 0.995 * edge):
+        with pytest.raises(InputError, match=f"not near g / {hover_param} .*not {command}") as err:
+            export_design(stack, c, MODEL, "altitude", "x", hover_thrust=hover, **version)
+        assert "\n" not in str(err.value) and "--hover-thrust" in str(err.value)
+    check_units(MODEL, 1.005 * edge, stack, "altitude", hover_param)  # just within 2x
+
+
 def test_the_design_rate_is_the_stacks_never_the_logs():
     """A 50 Hz log is designed at SCHED_LOOP_RATE's default 400 Hz (or the vehicle's, given), never advice to
     change the vehicle-wide rate; what the log's rate costs is said."""

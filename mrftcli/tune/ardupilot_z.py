@@ -63,7 +63,7 @@ from .ardupilot_versions import z_bounds
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
            "cascade_figures", "design_z_cascade", "split_assumption", "THROTTLE_CUTOFF_HZ", "ACCZ_P_CANDIDATES",
-           "UNIT_TOLERANCE", "check_units", "ACCZ_I_RATIOS", "robust_models"]
+           "ACCZ_I_RATIOS", "robust_models"]
 
 #: ``POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ`` [Hz] (AC_PosControl.h): the motors' first-order throttle filter in the z loop.
 THROTTLE_CUTOFF_HZ = 2.0
@@ -75,8 +75,6 @@ ACCZ_I_RATIOS = (0.1, 0.2, 0.5, 1.0, 2.0)
 _I_KEEP = 0.95
 #: VELZ_I written [(cm/s^2)/cm]: 4.6's documented minimum (4.7's is 0).
 _VELZ_I = 0.02
-#: K hover / g may differ from 1 by this factor before the command is refused as not ArduPilot's throttle.
-UNIT_TOLERANCE = 2.0
 #: Bisection steps on log g between two scan points (to 0.15 %).
 _STEPS = 8
 #: Points of the downward scan of g over its range.
@@ -409,17 +407,6 @@ def _largest_g(pz: float, v_full: float, pa: float, ai: float, check: _Check, g_
     g = largest_holding(lambda g: check.holds(_gains(pz, g * v_full, pa, ai, check.rate_hz)), scan,
                         halvings=_STEPS)
     return 0.0 if g is None else g
-
-
-def check_units(model: LoopModel, hover_thrust: float) -> None:
-    """InputError unless K is about g / hover (the command is ArduPilot's throttle 0-1, the output metres)."""
-    from .stacks import STANDARD_GRAVITY
-
-    expected = STANDARD_GRAVITY / hover_thrust
-    if not (1.0 / UNIT_TOLERANCE <= model.K / expected <= UNIT_TOLERANCE):
-        raise InputError(f"cannot export the altitude loop to ardupilot: K {model.K:.4g} m/s^2 per command unit is "
-                         f"not near g / MOT_THST_HOVER = {expected:.4g} (--hover-thrust {hover_thrust:g}): the log's "
-                         "command is not ArduPilot's throttle (0-1) or its altitude not in metres")
 
 
 _Bounds = dict[str, tuple[float, float]]

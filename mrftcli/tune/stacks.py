@@ -66,12 +66,14 @@ from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "export_design", "cascade_params", "px4_xy_controller",
-           "STANDARD_GRAVITY", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
+           "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
 EXPORTS = ("generic", "px4", "ardupilot", "hear")
 #: g [m/s^2] of PX4's thrust = acceleration x hover thrust / g.
 STANDARD_GRAVITY = 9.80665
+#: K hover / g may differ from 1 by this factor before the command is refused as not the stack's thrust (throttle).
+UNIT_TOLERANCE = 2.0
 #: HEAR_FC's rate filter: 2nd-order Butterworth at 50 Hz, run at 200 Hz (tracker issue 25, InnerSysNodelet.cpp).
 HEAR_FILTER_HZ, HEAR_RATE_HZ = 50.0, 200.0
 #: HEAR_FC's outer loops (x, y, z; oussamaabdulhay/HEAR_FC Flight_controller/HEAR_nodelet/OuterSysNodelet.cpp
@@ -513,8 +515,9 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         e = _ardupilot_altitude(c, model, design, clamp, hover_thrust, out_notes, check_version(version),
                                 evidence.posterior_models)
         return _with_prearm(e)
-    if stack == "px4" and loop in _PX4_XY:
-        _check_thrust_units(model, loop, hover_thrust)
+    if stack == "px4" and loop in (*_PX4_XY, "altitude"):  # the gains are accelerations x hover / g
+        assert hover_thrust is not None  # check_exportable asked for it
+        check_units(model, hover_thrust, stack, loop, "MPC_THR_HOVER")
     if not clamp:  # the stack's ranges are constraints of the design (issue 37)
         c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
@@ -526,17 +529,21 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     return _with_reboot_note(e)
 
 
-def _check_thrust_units(model: LoopModel, loop: str, hover: float | None) -> None:
-    """InputError unless K is about g / hover: the command PX4's x (y) thrust setpoint component, normalised as
-    ``PositionControl`` makes it (thrust_x = acceleration x hover / g), the output in metres."""
-    from .ardupilot_z import UNIT_TOLERANCE
-
-    assert hover is not None
+def check_units(model: LoopModel, hover: float, stack: str, loop: str, hover_param: str) -> None:
+    """InputError unless K [m/s^2 per command unit] is within :data:`UNIT_TOLERANCE` of g / ``hover``: the
+    exports that turn the PD into a stack's acceleration gains (thrust = acceleration x hover / g: ArduPilot's
+    z cascade, PX4's z and x/y velocity loops) hold only for a command that is the stack's normalised thrust
+    (ArduPilot's throttle 0-1; PX4's thrust setpoint, along x or y for those loops) and an output in metres.
+    ``hover_param`` names the stack's hover parameter (``--hover-thrust``)."""
     expected = STANDARD_GRAVITY / hover
-    if not (1.0 / UNIT_TOLERANCE <= model.K / expected <= UNIT_TOLERANCE):
-        raise InputError(f"cannot export the {loop} loop to px4: K {model.K:.4g} m/s^2 per command unit is not near "
-                         f"g / MPC_THR_HOVER = {expected:.4g} (--hover-thrust {hover:g}): the log's command is not PX4's "
-                         f"normalised thrust setpoint along {loop} or its position not in metres")
+    if 1.0 / UNIT_TOLERANCE <= model.K / expected <= UNIT_TOLERANCE:
+        return
+    command = "ArduPilot's throttle (0-1)" if stack == "ardupilot" else (
+        "PX4's normalised thrust setpoint" + (f" along {loop}" if loop in _PX4_XY else " (0-1)"))
+    output = "altitude" if loop == "altitude" else "position"
+    raise InputError(f"cannot export the {loop} loop to {stack}: K {model.K:.4g} m/s^2 per command unit is not near "
+                     f"g / {hover_param} = {expected:.4g} (--hover-thrust {hover:g}): the log's command is not "
+                     f"{command} or its {output} not in metres")
 
 
 def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float | None) -> str:
@@ -726,9 +733,9 @@ def _ardupilot_altitude(c: Controller, model: LoopModel, design: str, clamp: boo
     names, its values checked against that version's ranges, its margins the worst over the splits of tau of the
     nominal model and the posterior's extreme draws."""
     from .ardupilot_versions import ardupilot_names, z_bounds
-    from .ardupilot_z import THROTTLE_CUTOFF_HZ, check_units, design_z_cascade, robust_models, split_assumption
+    from .ardupilot_z import THROTTLE_CUTOFF_HZ, design_z_cascade, robust_models, split_assumption
 
-    check_units(model, hover_thrust)
+    check_units(model, hover_thrust, "ardupilot", "altitude", "MOT_THST_HOVER")
     draws = robust_models(posterior)
     z, clamped = design_z_cascade(c, model, clamp=clamp, models=draws, bounds=z_bounds(version))
     clamp_notes = [f"{n} set to {v:g} instead of {d:.4g}: the stack's bound (--clamp)" for n, d, v in clamped]

@@ -20,8 +20,10 @@ G = 9.80665
 RATE = 125.0
 
 
-def _px4_step(model: LoopModel, p: dict[str, float], hover: float, seconds: float) -> np.ndarray:
-    """PX4's x loop after a unit position step, written from PX4's C++ (I after the output, as PX4 does)."""
+def _px4_step(model: LoopModel, p: dict[str, float], hover: float, seconds: float, setpoint: float = 1.0,
+              load: float = 0.0) -> np.ndarray:
+    """PX4's x loop after a position step (``setpoint`` [m]), written from PX4's C++ (I after the output, as PX4
+    does); ``load`` [command units] added at the plant's input from t = 0 (a force: wind w is w / K)."""
     T = 1.0 / RATE
     a, b = 1.0 / model.Tp, 1.0 / model.Td  # eq. (2): x'' = -b x' + K Td b w, w' = a (u - w)
     A = np.array([[0, 1, 0], [0, -b, model.K * b * model.Td], [0, 0, -a]], float)
@@ -39,14 +41,14 @@ def _px4_step(model: LoopModel, p: dict[str, float], hover: float, seconds: floa
         x = float(s[0])
         out.append(x)
         v = (x - x_prev) / T  # the velocity tune models: the position's backward difference
-        vel_sp = p["MPC_XY_P"] * (1.0 - x)
+        vel_sp = p["MPC_XY_P"] * (setpoint - x)
         acc_f += alpha * ((v - v_prev) / T - acc_f)
         err = vel_sp - v
         acc = p["MPC_XY_VEL_P_ACC"] * err + v_int - p["MPC_XY_VEL_D_ACC"] * acc_f
         thrust = acc * hover / G  # _accelerationControl: body_z x collective thrust, exact below the tilt limit
         v_int += p["MPC_XY_VEL_I_ACC"] * err * T
         queue.append(thrust)
-        s = Ad @ s + Bd[:, 0] * queue.pop(0)
+        s = Ad @ s + Bd[:, 0] * (queue.pop(0) + load)
         x_prev, v_prev = x, v
     return np.array(out)
 
@@ -115,6 +117,8 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
     said = capsys.readouterr().out
     assert "MPC_XY_VEL_D_ACC" in said and "125 Hz" in said
     assert "one MPC_XY_* set for x and y" in said  # PX4's x and y share the parameters: said, not left to find out
+    # MPC_XY_VEL_I_ACC 0 by default: that wind is not corrected is said, with the offset and how to add it
+    assert "MPC_XY_VEL_I_ACC 0 (a PD): nothing corrects a steady force" in said and "--xy-integral I_ACC" in said
     values = {ln.split("\t")[2]: float(ln.split("\t")[3]) for ln in out.read_text().splitlines()
               if ln and not ln.startswith("#")}
     assert set(values) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}
@@ -191,3 +195,79 @@ def test_an_xy_integral_removes_a_forces_offset_which_the_pd_holds_at_its_closed
     assert pd["wind_20s_m"] == pytest.approx(closed, rel=1e-3)
     assert abs(pid["wind_20s_m"]) < 0.05 * closed < abs(pid["wind_5s_m"])
     assert pid["overshoot_pct"] > pd["overshoot_pct"] + 5
+
+
+def test_xy_integral_is_designed_with_written_and_its_wind_offset_and_step_stated():
+    """``xy_integral`` (tune --xy-integral): MPC_XY_VEL_I_ACC written and inside the loop searched and whose margins
+    are stated; ``predicted`` (and the notes) against PX4's controller transcribed tick by tick (the oracle above,
+    a force at the plant's input) and the PD's closed-form steady offset g w / (h P_v P_xy K)."""
+    from mrftcli.tune.margins import loop_margins
+    from mrftcli.tune.stacks import StackExport
+
+    model, hover = LoopModel(0.05, 0.6, 0.136, 27.4), 0.49  # tau 17 whole ticks at 125 Hz
+    c = Controller(0.1542 * 1.3, 0.0, 0.0614, 0.0, RATE, None)
+    pd = export_design("px4", c, model, "x", "robust PD", hover_thrust=hover)
+    pi = export_design("px4", c, model, "x", "robust PD", hover_thrust=hover, xy_integral=0.4)
+    assert pd.params["MPC_XY_VEL_I_ACC"] == 0.0 and pi.params["MPC_XY_VEL_I_ACC"] == 0.4
+    assert check_ranges("px4", pi.params) == []
+    # the stated margins are those of the loop with the integral written
+    ms = loop_margins(px4_xy_controller(pi.params, RATE, hover), [model]).Ms[0]
+    ms_without = loop_margins(px4_xy_controller({**pi.params, "MPC_XY_VEL_I_ACC": 0.0}, RATE, hover), [model]).Ms[0]
+    assert pi.margins.Ms == pytest.approx(ms, rel=1e-9) and abs(ms - ms_without) > 1e-3
+    assert any("MPC_XY_VEL_I_ACC 0.4 (--xy-integral), the ranges: designed inside them" in n for n in pi.notes)
+
+    w = 1.0  # m/s^2 of wind
+    for e in (pd, pi):
+        p = e.params
+        wind = np.abs(_px4_step(model, p, hover, 60.0, setpoint=0.0, load=w / model.K))
+        at = {s: wind[int(round(s * RATE))] for s in (5.0, 20.0)}
+        assert e.predicted["wind_offset_5s_m"] == pytest.approx(at[5.0], abs=1e-9)
+        assert e.predicted["wind_offset_20s_m"] == pytest.approx(at[20.0], abs=1e-9)
+        assert e.predicted["wind_peak_offset_m"] == pytest.approx(wind[: 40 * int(RATE) + 1].max(), abs=1e-9)
+        step = _px4_step(model, p, hover, 40.0)
+        m = step_metrics(np.arange(step.size) / RATE, step)
+        assert e.predicted["step_overshoot_pct"] == pytest.approx(m.overshoot_pct, abs=1e-6)
+        assert e.predicted["step_settling_s"] == pytest.approx(m.settling_s, abs=1e-6)
+        said = next(n for n in e.notes if n.startswith("the loop as written"))
+        assert f"overshoot {m.overshoot_pct:.1f} %" in said and f"2 % settling {m.settling_s:.3f} s" in said
+        closed = G * w / (hover * p["MPC_XY_VEL_P_ACC"] * p["MPC_XY_P"] * model.K)
+        if e is pd:  # held off for good, at the closed form
+            assert wind[-1] == pytest.approx(closed, rel=1e-4)
+            assert e.predicted["wind_steady_offset_m"] == pytest.approx(closed, rel=1e-12)
+            assert any(f"holds the vehicle {100 * closed:.1f} cm off for good" in n for n in e.notes)
+        else:  # corrected: the integral of the velocity error removes it
+            assert wind[-1] < 1e-3 * closed and e.predicted["wind_steady_offset_m"] == 0.0
+            assert any(f"{100 * at[20.0]:.1f} cm after 20 s, 0 in steady state (without it {100 * closed:.1f} cm"
+                       in n for n in e.notes)
+    assert pi.predicted["step_overshoot_pct"] > pd.predicted["step_overshoot_pct"] + 1  # the integral's price
+    # PX4 integrates P_xy e - v (no P_xy r kick): tune's PID Controller of the same loop overshoots much more
+    t, y, _ = step_response([model], px4_xy_controller(pi.params, RATE, hover), 40.0)
+    assert step_metrics(t, y[0]).overshoot_pct > pi.predicted["step_overshoot_pct"] + 3
+    back = StackExport.from_json(pi.to_json())
+    assert back.predicted == pytest.approx(pi.predicted) and back.params == pi.params
+
+
+def test_xy_integral_is_refused_outside_its_range_and_for_other_exports():
+    from mrftcli.tune.stacks import check_xy_integral
+
+    check_xy_integral("px4", "y", 0.0)
+    check_xy_integral("ardupilot", "altitude", None)
+    for stack, loop, value, why in (("px4", "x", 61.0, "outside MPC_XY_VEL_I_ACC's range 0-60"),
+                                    ("px4", "x", -0.1, "outside"), ("px4", "x", math.nan, "outside"),
+                                    ("px4", "altitude", 0.4, "x or y loop"), ("hear", "x", 0.4, "x or y loop"),
+                                    (None, "x", 0.0, "--export px4")):
+        with pytest.raises(InputError, match=why):
+            check_xy_integral(stack, loop, value)
+
+
+def test_cli_xy_integral_before_the_work(capsys):
+    """An --xy-integral the export does not take is one line, exit 2, before any analysis."""
+    from mrftcli.cli.main import main
+
+    base = ["tune", "--td", "0.6", "--tau", "0.136", "--k", "27.4", "--tp", "0.05", "--loop"]
+    for extra, why in ((["x", "--xy-integral", "0"], "--export px4"),
+                       (["roll", "--export", "px4", "--xy-integral", "0.4"], "x or y loop"),
+                       (["x", "--export", "px4", "--hover-thrust", "0.49", "--xy-integral", "75"], "range 0-60")):
+        with pytest.raises(SystemExit) as ex:
+            main([*base, *extra])
+        assert ex.value.code == 2 and why in capsys.readouterr().err

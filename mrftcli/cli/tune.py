@@ -44,6 +44,7 @@ class _ExportOptions:
     hover_thrust: float | None
     clamp: bool
     stack_version: str | None = None
+    xy_integral: float | None = None
 
 
 def _resolve_export(fmt: str | None, export: str | None) -> str | None:
@@ -115,6 +116,10 @@ def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
     if ex.hover_thrust is not None and not (ex.stack in ("px4", "ardupilot") and loop == "altitude"
                                             or ex.stack == "px4" and loop in ("x", "y")):
         raise InputError("--hover-thrust is for --export px4|ardupilot on the altitude loop (and px4 on x, y)")
+    if ex.xy_integral is not None:
+        from ..tune.stacks import check_xy_integral
+
+        check_xy_integral(ex.stack, loop, ex.xy_integral)
 
 
 def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
@@ -281,7 +286,8 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
             with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
                 progress(0, 1, f"the {ex.stack} export")
                 stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
-                                             hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence)
+                                             hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence,
+                                             xy_integral=ex.xy_integral)
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err
@@ -373,6 +379,21 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
     return out
 
 
+class _XYIntegralOption(click.Option):
+    """``--xy-integral``, whose help names MPC_XY_VEL_I_ACC's range from tune's stack table when help is shown (the
+    CLI does not import tune to start)."""
+
+    def get_help_record(self, ctx: click.Context) -> tuple[str, str] | None:
+        from ..tune.stack_params import param
+
+        row = param("px4", "MPC_XY_VEL_I_ACC")
+        self.help = (f"PX4 MPC_XY_VEL_I_ACC [{row.unit}, {row.minimum:g}-{row.maximum:g}; PX4's default {row.default:g}] "
+                     "for --export px4 on x or y: designed with (Ms search, margins) and written, the wind offset and "
+                     "step it gives stated. Default 0 (a PD: a steady wind is not corrected; the offset per m/s^2 is "
+                     "stated).")
+        return super().get_help_record(ctx)
+
+
 @click.command("tune")
 @structure_options
 @click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
@@ -403,6 +424,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), required for "
                    "the altitude exports and PX4's x and y.")
+@click.option("--xy-integral", "xy_integral", cls=_XYIntegralOption, type=float, metavar="I_ACC", default=None)
 @click.option("--stack-version", "stack_version", type=click.Choice(["4.6", "4.7"]), default=None,
               help="ArduPilot release whose parameter names and scalings the file uses (4.7 renamed PSC_POSZ_/VELZ_/"
                    "ACCZ_ to PSC_D_POS_/D_VEL_/D_ACC_); default: the current stable release, 4.7, named in the file.")
@@ -419,7 +441,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()
 def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
-         export, out, gyro_cutoff, hover_thrust, stack_version, clamp, fmt, design, kind, json_target, report_dir, quiet,
+         export, out, gyro_cutoff, hover_thrust, xy_integral, stack_version, clamp, fmt, design, kind, json_target, report_dir, quiet,
          **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
@@ -444,7 +466,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         raise InputError(f"{len(sources)} sources: give one SOURCE, or a roll and a pitch RESULT.json with "
                          "--export px4|ardupilot")
     cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
-    ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version)
+    ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version, xy_integral)
     if stack_version is not None and ex.stack != "ardupilot":
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()
@@ -456,7 +478,8 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
     if cascade:  # analyze --inner-model's result: outer gains on the cascade (its Tp is the inner analysis')
         _refuse_unused({"--report": report_dir, "--kind PID": kind != "PD", "--tp": Tp,
                         "--design mrft-rule": design == "mrft-rule",
-                        "--controller-rate": read_options.get("controller_rate_hz")},
+                        "--controller-rate": read_options.get("controller_rate_hz"),
+                        "--xy-integral": xy_integral is not None},
                        ": not for a cascade analysis (its Tp is the inner analysis'; tune designs a PD on the cascade "
                        "with --export generic, --json, --design, --ms-max)")
         if ex.stack not in (None, "generic"):
@@ -466,7 +489,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
             kind = "PI"  # tune's default PD is eq. (2)'s: a process plant's is PI
         _refuse_for_family({"--tp": Tp, "--td/--tau/--k": any(v is not None for v in (td, tau, K)),
                             "--report": report_dir, "--effort-max": effort_max, "--hover-thrust": hover_thrust,
-                            "--gyro-cutoff": gyro_cutoff, "--clamp": clamp, "--objective itae": objective != "iae"},
+                            "--xy-integral": xy_integral is not None, "--gyro-cutoff": gyro_cutoff, "--clamp": clamp, "--objective itae": objective != "iae"},
                            ex, design)
     elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, objective, ms_max, effort_max,
                        (td, tau, K), json_target, report_dir, quiet, read_options):
@@ -517,6 +540,7 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
     if len(sources) == 2:
         unsupported = {"--td/--tau/--k": any(v is not None for v in given), "--report": report_dir,
                        "--effort-max": effort_max, "--hover-thrust": ex.hover_thrust, "--loop": read_options["loop"],
+                       "--xy-integral": ex.xy_integral is not None,
                        "--design mrft-rule": design == "mrft-rule"}
         _refuse_unused(unsupported, " cannot be used with two results (the joint roll and pitch export)", InputError)
         from ..mrft.model import soiptd_model

@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -59,13 +59,14 @@ import numpy as np
 from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..mrft.model import LoopModel
+from ..mrft.controller import PX4VelocityPath
 from .closed_loop import Controller, RateFilter
 from .export import unit_reasons
 from .margins import Margins, loop_margins
 from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
-           "check_exportable", "export_design", "cascade_params", "px4_xy_controller",
+           "check_exportable", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
            "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -92,58 +93,6 @@ _STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RL
 #: PX4's horizontal loops (mc_pos_control: the velocity PID with the velocity's filtered derivative)
 _PX4_XY = ("x", "y")
 _AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
-
-
-@dataclass(frozen=True)
-class PX4VelocityPath(RateFilter):
-    """PX4's horizontal velocity loop on the rate: the velocity plus ``accel_s`` times its filtered derivative.
-
-    ``PositionControl::_velocityControl`` computes acc = P_v (v_sp - v) + I - D_v a with a the
-    ``MPC_VELD_LP`` alpha filter (``AlphaFilter``: a_k = a_(k-1) + alpha (x_k - a_(k-1)), alpha = T / (T +
-    1 / (2 pi f_c))) of (v_k - v_(k-1)) / T (``MulticopterPositionControl.cpp``, ``MPC_VEL_LP`` 0: v unfiltered).
-    On the rate v the derivative path is then P_v B(z) v with B(z) = 1 + (D_v / P_v) alpha (z - 1) /
-    (T (z - (1 - alpha))): a first-order section in the controller's rate-filter place, so that tune's margins,
-    step responses and its event simulation run PX4's loop. ``cutoff_hz`` is ``MPC_VELD_LP`` (0: alpha 1,
-    PX4's "disabled"); ``accel_s`` = D_v / P_v [s].
-
-    Examples
-    --------
-    >>> f = PX4VelocityPath(5.0, "MPC_VELD_LP", accel_s=0.1 / 1.5)
-    >>> round(float(abs(f.response(np.array([1.0 + 0j]), 125.0)[0])), 12)  # the velocity itself at DC
-    1.0
-    """
-
-    accel_s: float = 0.0
-
-    def active(self, rate_hz: float) -> bool:
-        return True
-
-    def _alpha(self, rate_hz: float) -> float:
-        if self.cutoff_hz == 0.0:
-            return 1.0
-        if self.cutoff_hz >= 0.5 * rate_hz:  # AlphaFilter::setCutoffFreq refuses it: PX4 keeps the old alpha
-            raise InputError(f"MPC_VELD_LP {self.cutoff_hz:g} Hz is at or above half the position controller's rate "
-                             f"({rate_hz:g} Hz): PX4 ignores it; give a cutoff below {0.5 * rate_hz:g} Hz")
-        T = 1.0 / rate_hz
-        return T / (T + 1.0 / (2.0 * math.pi * self.cutoff_hz))
-
-    def coefficients(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-        """(b, a) of B(z) in powers of z^-1 (b2 = a2 = 0: the biquad form of :class:`RateFilter`)."""
-        al, g = self._alpha(rate_hz), self.accel_s * rate_hz
-        return np.array([1.0 + g * al, -(1.0 - al) - g * al, 0.0]), np.array([1.0, -(1.0 - al), 0.0])
-
-    def response(self, z: np.ndarray, rate_hz: float) -> np.ndarray:
-        b, a = self.coefficients(rate_hz)
-        zi = 1.0 / np.asarray(z, complex)
-        out: np.ndarray = (b[0] + b[1] * zi) / (a[0] + a[1] * zi)
-        return out
-
-    def to_json(self) -> dict[str, Any]:
-        return {**super().to_json(), "accel_s": self.accel_s}
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"type": "PX4's velocity plus accel_s x its derivative through MPC_VELD_LP's alpha filter",
-                "cutoff_hz": self.cutoff_hz, "parameter": self.parameter, "accel_s": self.accel_s}
 
 
 def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | None = None) -> None:
@@ -317,6 +266,11 @@ class StackExport:
     prearm : tuple of dict
         The stack's pre-arm rules on the values written (:func:`mrftcli.tune.ardupilot_versions.prearm_checks`):
         ``rule``, ``value``, ``passed``, ``source``.
+    predicted : dict
+        PX4 x/y: the loop as written on the nominal model (:func:`_xy_prediction`): ``MPC_XY_VEL_I_ACC``, the unit
+        position step's ``step_overshoot_pct``, ``step_rise_s``, ``step_settling_s`` and, per 1 m/s^2 of steady
+        wind, ``wind_steady_offset_m``, ``wind_peak_offset_m``, ``wind_offset_5s_m``, ``wind_offset_20s_m``
+        (empty for the other exports).
     """
 
     stack: str
@@ -329,6 +283,7 @@ class StackExport:
     assumptions: tuple[str, ...] = ()
     version: str = ""
     prearm: tuple[dict[str, Any], ...] = ()
+    predicted: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """The versioned JSON object (:data:`EXPORT_SCHEMA_VERSION`)."""
@@ -336,7 +291,8 @@ class StackExport:
                 "design": self.design, "params": dict(self.params),
                 "clamped": [{"name": n, "designed": a, "exported": b} for n, a, b in self.clamped],
                 "margins": self.margins.to_json(), "notes": list(self.notes), "assumptions": list(self.assumptions),
-                "version": self.version, "prearm": [dict(r) for r in self.prearm]}
+                "version": self.version, "prearm": [dict(r) for r in self.prearm],
+                "predicted": dict(self.predicted)}
 
     @classmethod
     def from_json(cls, data: Any) -> "StackExport":
@@ -350,10 +306,11 @@ class StackExport:
             assumptions = tuple(str(n) for n in data.get("assumptions", []))
             version = str(data.get("version", ""))
             prearm = tuple(dict(r) for r in data.get("prearm", []))
+            predicted = {str(k): math.nan if v is None else float(v) for k, v in data.get("predicted", {}).items()}
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise InputError(f"stack export: missing or malformed field ({err})") from err
         return cls(*fields, params, clamped, Margins.from_json(data.get("margins")), notes, assumptions, version,
-                   prearm)
+                   prearm, predicted)
 
     def file_text(self) -> str:
         """What the stack loads: QGroundControl ``.params`` (PX4), ``.param`` (ArduPilot), JSON (HEAR)."""
@@ -402,9 +359,11 @@ def _hear_object(e: StackExport) -> dict[str, Any]:
                             f"HEAR_FC's 2nd-order Butterworth at {HEAR_FILTER_HZ:g} Hz (designed with it)")}
 
 
-def cascade_params(c: Controller, loop: str, stack: str, hover_thrust: float | None) -> dict[str, float]:
+def cascade_params(c: Controller, loop: str, stack: str, hover_thrust: float | None,
+                   xy_integral: float = 0.0) -> dict[str, float]:
     """The stack's (``px4`` or ``ardupilot``) parameters for the PD ``c`` on ``loop`` (unclamped; the gyro
-    cutoff [Hz] the design's rate filter's, 0 without one)."""
+    cutoff [Hz] the design's rate filter's, 0 without one); PX4 x/y's ``MPC_XY_VEL_I_ACC`` is ``xy_integral``
+    [(m/s^2)/m] (``--xy-integral``)."""
     rate_filter = c.rate_filter
     if stack == "px4" and loop == "altitude":
         assert hover_thrust is not None  # check_exportable asked for it
@@ -413,7 +372,8 @@ def cascade_params(c: Controller, loop: str, stack: str, hover_thrust: float | N
     if stack == "px4" and loop in _PX4_XY:
         assert hover_thrust is not None  # check_exportable asked for it
         return {"MPC_XY_P": c.Kp / c.Kd, "MPC_XY_VEL_P_ACC": c.Kd * STANDARD_GRAVITY / hover_thrust,
-                "MPC_XY_VEL_I_ACC": 0.0, "MPC_XY_VEL_D_ACC": 0.0, "MPC_VELD_LP": param("px4", "MPC_VELD_LP").default}
+                "MPC_XY_VEL_I_ACC": xy_integral, "MPC_XY_VEL_D_ACC": 0.0,
+                "MPC_VELD_LP": param("px4", "MPC_VELD_LP").default}
     cutoff = rate_filter.cutoff_hz if rate_filter is not None else 0.0
     if stack == "px4":
         ax = loop.upper()
@@ -479,12 +439,13 @@ class ExportEvidence:
 
 def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design: str, *, clamp: bool = False,
                   hover_thrust: float | None = None, version: str | None = None,
-                  evidence: ExportEvidence = ExportEvidence()) -> StackExport:
+                  evidence: ExportEvidence = ExportEvidence(), xy_integral: float | None = None) -> StackExport:
     """``c`` (designed with the stack's rate and filter, :func:`stack_setting`) as ``stack`` loads it.
 
     ``version``: ArduPilot's (``--stack-version``; default the current stable release, named in the file);
     ``evidence``: the relay heights and amplitudes flown, the analysis's notes and the posterior's 95 % set
-    (:class:`ExportEvidence`).
+    (:class:`ExportEvidence`); ``xy_integral``: PX4 x/y's ``MPC_XY_VEL_I_ACC`` [(m/s^2)/m] (None: 0, a PD, whose
+    steady wind offset is stated), designed with and written.
 
     Raises
     ------
@@ -496,6 +457,8 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
     from .ardupilot_versions import check_version
 
     check_exportable(stack, loop, c.kind, hover_thrust)
+    check_xy_integral(stack, loop, xy_integral)
+    iv = xy_integral or 0.0
     if stack != "ardupilot" and version is not None:
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     if stack in ("px4", "ardupilot"):
@@ -519,10 +482,10 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         assert hover_thrust is not None  # check_exportable asked for it
         check_units(model, hover_thrust, stack, loop, "MPC_THR_HOVER")
     if not clamp:  # the stack's ranges are constraints of the design (issue 37)
-        c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes)
-    e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes)
+        c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes, iv)
+    e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes, iv)
     if stack == "px4" and loop in _PX4_XY:
-        e = replace(e, notes=(*e.notes, _written_step(e, model, c.rate_hz, hover_thrust)))
+        e = _written_step(e, model, c.rate_hz, hover_thrust)
     if stack == "ardupilot":
         e = replace(e, version=check_version(version))
         return _with_prearm(e)
@@ -546,17 +509,105 @@ def check_units(model: LoopModel, hover: float, stack: str, loop: str, hover_par
                      f"{command} or its {output} not in metres")
 
 
-def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float | None) -> str:
-    """The unit setpoint step of the loop PX4 runs with the values written (tune's sampled loop on the nominal
-    model): what a flown step is compared with."""
-    from .closed_loop import step_metrics, step_response
+#: Horizon [s] of the x/y export's predicted step and wind (an integral's slow tail inside it).
+_XY_HORIZON_S = 40.0
 
+
+def _px4_xy_ticks(params: dict[str, float], model: LoopModel, rate_hz: float, hover: float,
+                  seconds: float) -> tuple[np.ndarray, np.ndarray]:
+    """PX4's x/y loop with the values ``params`` run tick by tick on the nominal ``model`` held as tune holds it
+    (:func:`mrftcli.tune.closed_loop.discrete_plants`): times [s] and the positions [m] (2, N) after a unit
+    position step and after a step of 1 m/s^2 of wind (a load of 1 / K at the plant's input).
+
+    ``PositionControl::_velocityControl`` integrates the velocity error P_xy e - v after the output, so its
+    integral carries no P_xy r kick: tune's :class:`Controller` (the integral on the error, :func:`px4_xy_controller`)
+    has the same loop from -y up to that one tick (its margins), but not PX4's setpoint step once
+    ``MPC_XY_VEL_I_ACC`` > 0; this runs PX4's law (linear: no tilt or velocity limit)."""
+    from .closed_loop import discrete_plants
+
+    Phi, G, C, d = discrete_plants([model], rate_hz)[0]
+    n, T = int(round(seconds * rate_hz)) + 1, 1.0 / rate_hz
+    alpha = PX4VelocityPath(params["MPC_VELD_LP"], "MPC_VELD_LP")._alpha(rate_hz)
+    pz, pv, iv, dv = (params[k] for k in ("MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC"))
+    r, load = np.array([1.0, 0.0]), np.array([0.0, 1.0 / model.K])
+    u = np.zeros((n + d + 1, 2))  # u[j + d + 1]: the command of tick j (0 before the first)
+    x, y_prev, v_prev, acc_f, integral = np.zeros((2, 3)), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2)
+    y = np.empty((2, n))
+    for k in range(n):
+        y[:, k] = x @ C
+        v = (y[:, k] - y_prev) / T
+        acc_f += alpha * ((v - v_prev) / T - acc_f)  # MPC_VELD_LP's AlphaFilter on the velocity's difference
+        err = pz * (r - y[:, k]) - v
+        u[k + d + 1] = (pv * err + integral - dv * acc_f) * hover / STANDARD_GRAVITY
+        integral += iv * err * T  # after the output, as PX4
+        x = x @ Phi.T + np.outer(u[k], G[0]) + np.outer(u[k + 1], G[1]) + np.outer(load, G[0] + G[1])
+        y_prev, v_prev = y[:, k], v
+    return np.arange(n) * T, y
+
+
+def _xy_prediction(params: dict[str, float], model: LoopModel, rate_hz: float, hover: float) -> dict[str, float]:
+    """The loop PX4 runs with the x/y values ``params`` on the nominal ``model`` (:func:`_px4_xy_ticks`): its unit
+    position step, and a step of 1 m/s^2 of wind, its offset [m]. The steady offset in closed form: 0 with
+    ``MPC_XY_VEL_I_ACC`` > 0 (it integrates the velocity error P_xy e - v, so it holds until e = 0), g / (h P_v
+    P_xy K) without (the PD holds (h/g) P_v P_xy e = w / K)."""
+    from .closed_loop import step_metrics
+
+    t, y = _px4_xy_ticks(params, model, rate_hz, hover, _XY_HORIZON_S)
+    m, wind = step_metrics(t, y[0]), np.abs(y[1])
+    pd_gain = hover / STANDARD_GRAVITY * params["MPC_XY_VEL_P_ACC"] * params["MPC_XY_P"] * model.K
+    steady = 0.0 if params["MPC_XY_VEL_I_ACC"] > 0 else (1.0 / pd_gain if pd_gain > 0 else math.inf)
+    at = {s: float(wind[min(int(round(s * rate_hz)), t.size - 1)]) for s in (5.0, 20.0)}
+    return {"MPC_XY_VEL_I_ACC": params["MPC_XY_VEL_I_ACC"], "step_overshoot_pct": m.overshoot_pct,
+            "step_rise_s": m.rise_s, "step_settling_s": m.settling_s, "wind_steady_offset_m": steady,
+            "wind_peak_offset_m": float(np.max(wind)), "wind_offset_5s_m": at[5.0], "wind_offset_20s_m": at[20.0]}
+
+
+def _settling(s: float) -> str:
+    return f"{s:.3f} s" if math.isfinite(s) else f"not within {_XY_HORIZON_S:g} s"
+
+
+def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float | None) -> StackExport:
+    """The export with the loop PX4 runs with the values written (tune's sampled loop on the nominal model):
+    its unit step (what a flown step is compared with) and what a steady wind does, in notes and ``predicted``;
+    without integral, what PX4's default one would do instead (the user's choice, ``--xy-integral``)."""
     assert hover is not None
-    t, y, u = step_response([model], px4_xy_controller(e.params, rate_hz, hover), 20.0)
-    m = step_metrics(t, y[0], u[0])
-    return (f"the loop as written (MPC_XY_VEL_D_ACC through MPC_VELD_LP included), a unit position step on the "
-            f"nominal model: overshoot {m.overshoot_pct:.1f} %, rise (10-90 %) {m.rise_s:.3f} s, 2 % settling "
-            f"{m.settling_s:.3f} s")
+    p = _xy_prediction(e.params, model, rate_hz, hover)
+    iv = p["MPC_XY_VEL_I_ACC"]
+    step = (f"the loop as written (MPC_XY_VEL_D_ACC through MPC_VELD_LP{f', MPC_XY_VEL_I_ACC {iv:g}' if iv else ''} "
+            f"included), a 1 m step on the nominal model: overshoot {p['step_overshoot_pct']:.1f} %, rise "
+            f"(10-90 %) {p['step_rise_s']:.3f} s, 2 % settling {_settling(p['step_settling_s'])}")
+    if iv > 0:
+        pd = _xy_prediction({**e.params, "MPC_XY_VEL_I_ACC": 0.0}, model, rate_hz, hover)
+        wind = (f"MPC_XY_VEL_I_ACC {iv:g} (--xy-integral) corrects a steady force: a step of 1 m/s^2 of wind moves the "
+                f"vehicle at most {100 * p['wind_peak_offset_m']:.1f} cm, {100 * p['wind_offset_5s_m']:.1f} cm off after "
+                f"5 s, {100 * p['wind_offset_20s_m']:.1f} cm after 20 s, 0 in steady state (without it "
+                f"{100 * pd['wind_steady_offset_m']:.1f} cm for good); in the margins and the step above. It does not "
+                "correct a biased velocity estimate (PX4 integrates vel_sp - v)")
+        return replace(e, notes=(*e.notes, step, wind), predicted=p)
+    row = param("px4", "MPC_XY_VEL_I_ACC")
+    alt = {**e.params, "MPC_XY_VEL_I_ACC": row.default}
+    q = _xy_prediction(alt, model, rate_hz, hover)
+    ms = float(loop_margins(px4_xy_controller(alt, rate_hz, hover), [model]).Ms[0])
+    wind = (f"MPC_XY_VEL_I_ACC 0 (a PD): nothing corrects a steady force such as wind: each 1 m/s^2 of it holds the "
+            f"vehicle {100 * p['wind_steady_offset_m']:.1f} cm off for good (g / (h MPC_XY_VEL_P_ACC MPC_XY_P K)); to "
+            f"correct it give tune --xy-integral I_ACC (MPC_XY_VEL_I_ACC, {row.minimum:g}-{row.maximum:g} {row.unit}; "
+            f"designed with it, its margins stated): PX4's default {row.default:g} with the values above gives "
+            f"overshoot {q['step_overshoot_pct']:.1f} %, 2 % settling {_settling(q['step_settling_s'])}, "
+            f"{100 * q['wind_offset_20s_m']:.1f} cm off 20 s after a wind step, Ms {ms:.3g} (nominal)")
+    return replace(e, notes=(*e.notes, step, wind), predicted=p)
+
+
+def check_xy_integral(stack: str | None, loop: str, value: float | None) -> None:
+    """InputError unless ``value`` (``--xy-integral``, PX4's ``MPC_XY_VEL_I_ACC`` [(m/s^2)/m]) is None, or inside
+    its range for an ``--export px4`` of x or y."""
+    if value is None:
+        return
+    if stack != "px4" or loop not in _PX4_XY:
+        raise InputError("--xy-integral is PX4's MPC_XY_VEL_I_ACC: for --export px4 on the x or y loop")
+    row = param("px4", "MPC_XY_VEL_I_ACC")
+    if not (math.isfinite(value) and row.contains(value)):
+        raise InputError(f"--xy-integral {value:g} is outside MPC_XY_VEL_I_ACC's range {row.minimum:g}-{row.maximum:g} "
+                         f"{row.unit} ({row.source}): give a value inside it (PX4's default {row.default:g})")
 
 
 def _names(stack: str, loop: str) -> tuple[str, str, str]:
@@ -581,12 +632,14 @@ def _gain_pair(stack: str, loop: str, hover: float | None) -> tuple[str, str, fl
 
 
 def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover: float | None,
-                   posterior: Sequence[LoopModel], notes: list[str]) -> Controller:
+                   posterior: Sequence[LoopModel], notes: list[str], xy_integral: float = 0.0) -> Controller:
     """The stack's ranges as constraints of the design (PX4 ``MPC_Z_P``/``MPC_Z_VEL_P_ACC``, ``MC_*_P``/
     ``MC_*RATE_P``; ArduPilot ``ATC_ANG_*_P``/``ATC_RAT_*_P``): ``c`` when its values are in range; else the PD
     with the ratio Kp / Kd at its nearest bound and the gain (in its range) of least IAE whose loop, with the
     stack's minimum integrals, keeps Ms at most ``c``'s own worst over the nominal model and the posterior's
-    95 % set (up to 40 draws); the cost in IAE is said in ``notes``. None found: ``c`` (the refusal follows)."""
+    95 % set (up to 40 draws); the cost in IAE is said in ``notes``. None found: ``c`` (the refusal follows).
+    PX4 x/y: the loop searched and held has ``MPC_XY_VEL_I_ACC`` = ``xy_integral`` (as altitude's its minimum
+    integral)."""
     from .closed_loop import criterion, step_response
 
     ratio_name, gain_name, per_kd = _gain_pair(stack, loop, hover)
@@ -596,7 +649,7 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
     lacks = stack == "px4" and loop in _PX4_XY
     if rz.contains(ratio) and rv.contains(c.Kd * per_kd) and not lacks:
         return c
-    base = cascade_params(c, loop, stack, hover)
+    base = cascade_params(c, loop, stack, hover, xy_integral)
     base.update({n: param(stack, n).minimum for n in base if n in _STRUCTURAL})
     models = [model, *posterior[:: max(1, len(posterior) // 40)]]
 
@@ -635,7 +688,8 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
     if lacks:
         d_min = param("px4", "MPC_XY_VEL_D_ACC").minimum
         why += (f"; PX4 adds MPC_XY_VEL_D_ACC x the velocity's derivative through MPC_VELD_LP "
-                f"{base['MPC_VELD_LP']:g} Hz, at least {d_min:g}, which the PD lacks: set at {d_min:g}, the ranges")
+                f"{base['MPC_VELD_LP']:g} Hz, at least {d_min:g}, which the PD lacks: set at {d_min:g}"
+                + (f", and MPC_XY_VEL_I_ACC {xy_integral:g} (--xy-integral)" if xy_integral else "") + ", the ranges")
     if lacks:
         j_pd = iae(c)
         j0_said = (f"{j_pd:.4g} s for the PD as designed ({100 * (j / j_pd - 1):+.0f} %) and {j0:.4g} s for its "
@@ -698,9 +752,9 @@ def _with_prearm(e: StackExport) -> StackExport:
 
 
 def _cascade_export(stack: str, c: Controller, model: LoopModel, loop: str, design: str, clamp: bool,
-                    hover_thrust: float | None, out_notes: list[str]) -> StackExport:
-    """PX4 (attitude, altitude) and ArduPilot attitude: the cascade mapping, its ranges, its margins."""
-    params = cascade_params(c, loop, stack, hover_thrust)
+                    hover_thrust: float | None, out_notes: list[str], xy_integral: float = 0.0) -> StackExport:
+    """PX4 (attitude, altitude, x/y) and ArduPilot attitude: the cascade mapping, its ranges, its margins."""
+    params = cascade_params(c, loop, stack, hover_thrust, xy_integral)
     bad = check_ranges(stack, params)
     gains = [v for v in bad if v.param.name not in _STRUCTURAL]
     clamped_params = {**params, **{v.param.name: v.clamped for v in bad}}

@@ -80,3 +80,26 @@ def test_a_point_solved_twice_is_one_cycle() -> None:
     fresh = CandidateModel(None, screen.tests, Tp).evaluate(theta, 0, 7.0)
     assert first is again and first is not None and fresh is not None
     np.testing.assert_allclose(first.features, fresh.features, rtol=1e-7, atol=1e-10)
+
+
+def test_the_swap_never_pairs_an_effect_with_itself() -> None:
+    """The swap step pairs the second effect (alone) with each other significant effect; once a pair
+    replaces the second, the loop must still skip the anchor itself (it once fitted, and printed,
+    'actuator_rate_limit with actuator_rate_limit')."""
+    from types import SimpleNamespace
+
+    from mrftcli.diagnose.pairs import _Pairs
+    from mrftcli.diagnose.rows import CandidateFit, PairFit
+
+    rows = [CandidateFit(name=n, bic=b, significant=True) for n, b in
+            (("input_bias", 100.0), ("gain_drift", 110.0), ("actuator_rate_limit", 120.0))]
+    first = rows[0]
+    second = PairFit(name="actuator_rate_limit", with_="input_bias", bic=90.0, delta_bic=10.0, significant=True)
+    asked: list[tuple[str, str]] = []
+
+    def pair(anchor: CandidateFit, other: str) -> PairFit:
+        asked.append((anchor.name, other))
+        return PairFit(name=other, with_=anchor.name, bic=80.0 - len(asked), delta_bic=30.0, significant=True)
+
+    _Pairs.swap(SimpleNamespace(pair=pair), first, second, rows, rows)  # type: ignore[arg-type]
+    assert asked and all(anchor != other for anchor, other in asked)

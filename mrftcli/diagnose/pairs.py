@@ -330,7 +330,7 @@ class _Pairs:
         anchor = next(r for r in cand_rows if r.name == second.name)
         if anchor.significant:
             for row in deterministic[1:]:
-                if row.name == second.name:
+                if row.name == anchor.name:  # (not second.name: second changes inside the loop)
                     continue
                 pr = self.pair(anchor, row.name)
                 if pr is not None and pr.significant and _bic(pr) < _bic(second):

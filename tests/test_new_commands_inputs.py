@@ -49,6 +49,7 @@ def test_vehicle_out_onto_its_log_is_refused(tmp_path: Path) -> None:
     ([str(ROLL), str(ROLL_20), "--json", "{tmp}"], ["--json", "is a folder", "file name"]),
     ([str(ROLL), str(ROLL_20), "--json", str(ROLL_20)], ["is an input", "another path"]),
     ([str(ROLL), str(ROLL_20), "--min-cycles", "1"], ["--min-cycles"]),
+    ([str(ROLL), str(SITL / "." / "roll.BIN")], ["BEFORE and AFTER are the same recording", "before the change"]),
 ])
 def test_delay_bad_input_one_line(tmp_path: Path, argv: list[str], words: list[str]) -> None:
     """delay's slips that need no fit: exit 2 before either log is analysed, one line naming the problem."""

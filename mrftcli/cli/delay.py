@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING
 
 import click
 
+from ..errors import InputError
 from ..io.logtypes import gain_unit
 from .model_options import parameter_lines
 from .options import (check_output_file, dump_json, echo_warnings, json_option, log_layout_options, min_cycles_option, num,
@@ -43,6 +45,9 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     from ..errors import SegmentationError
     from ..io import ReadOptions
 
+    if os.path.samefile(before, after):  # a slip: the "delay added" would be a confident 0 ms
+        raise InputError(f"BEFORE and AFTER are the same recording ({after}): give the flight before the change, "
+                         "then the flight after it")
     check_output_file(json_target, inputs=(before, after))
     read = ReadOptions(**read_options)  # checked before either log is opened
     with tqdm_progress("delay", unit="step", enabled=not quiet, after_s=1.0) as progress:

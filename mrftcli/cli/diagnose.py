@@ -26,10 +26,14 @@ def _g(x: float | None, fmt: str = ".4g") -> str:
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
 
 
+def _shown(unit: str | None) -> str:
+    """A unit as the tables print it: "-" for a ratio (no unit, "" or "1")."""
+    return "-" if unit in (None, "", "1", "-") else str(unit)
+
+
 def _unit(name: str, loop: str) -> str:
     """A candidate parameter's unit in the loop's output unit ("-" for a ratio)."""
-    unit = BY_NAME[name].unit
-    return "-" if unit in ("", "1", "-") else str(unit_in_loop(unit, loop))
+    return _shown(unit_in_loop(BY_NAME[name].unit, loop))
 
 
 def _plant(est: ModelEstimate, k_unit: str) -> str:
@@ -249,8 +253,7 @@ def _candidate_lines(result: DiagnosisResult) -> list[str]:
             skipped.setdefault(f"{why}{' beside ' + c.with_ if c.with_ else ''}", []).append(c.name)
             continue
         b, a = c.held_out_errors
-        unit = "-" if c.unit in (None, "", "1") else c.unit
-        rows.append((label, f"{c.parameter} = {_g(c.value)} {unit}", _g(c.delta_bic, ".1f"),
+        rows.append((label, f"{c.parameter} = {_g(c.value)} {_shown(c.unit)}", _g(c.delta_bic, ".1f"),
                      f"{_g(b, '.3f')} -> {_g(a, '.3f')}",
                      ("" if result.soiptd else "+".join(c.views)) + ("  <- found" if result.named(c) else "")))
     head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "" if result.soiptd else "views")

@@ -513,6 +513,15 @@ def test_a_jitter_found_on_top_of_another_effect_is_named_found():
     assert not replace(res, candidates=[*res.candidates, alone]).named(alone)
 
 
+def test_a_row_of_an_unknown_kind_is_refused_not_written_empty():
+    located = _small_result().located[0]
+    assert located.to_dict()["kind"] == "feature"
+    with pytest.raises(ValueError, match="unknown kind 'nonsense'"):
+        replace(located, kind="nonsense").to_dict()
+    with pytest.raises(ValueError, match="unknown layout 'nonsense'"):
+        replace(_small_result().candidates[0], layout="nonsense").to_dict()
+
+
 def test_report_refuses_a_result_without_figures(tmp_path):
     from mrftcli.report.diagnosis import write_diagnosis_report
 

@@ -686,3 +686,22 @@ def test_rotor_coefficients_are_checked_and_the_rotor_speed_lags_in_closed_form(
     q_c = math.sqrt(1.0 + w / F) - 1.0
     assert q == pytest.approx(q_c + (q0 - q_c) * math.exp(-h / Tp), rel=1e-7)  # RK4 at 1 ms: ~1e-9
     assert (y, v) == pytest.approx((v0 * h, v0), rel=1e-12)
+
+
+def test_hold_pid_crossover_is_eq2s_phase_or_refused():
+    # the hold PID's omega_c solves arg G(j w) - w T / 2 + lead = -180 deg + PM (eq. (2)'s phase in closed form
+    # here, independent of df_frequency); a phase margin more than 90 deg from the lead has no such
+    # solution through asin(beta): refused, where it used to return the crossover of another margin
+    from mrftcli.sim.control import design_hold_pid
+
+    m, rate = LoopModel(0.0422, 1.301, 0.0297, 30.0), 200.0
+    s = 1j
+    c1 = 1.0 + 1.0 / (6.0 * s) + 1.5 * s / (0.15 * s + 1.0)  # the PID's shape at omega_c = 1
+    lead = math.degrees(math.atan2(c1.imag, c1.real))
+    for pm in (30.0, 45.0, lead + 89.0):
+        w = design_hold_pid(m, rate, pm).omega_c
+        phase = -90.0 - math.degrees(math.atan(m.Tp * w) + math.atan(m.Td * w) + (m.tau + 0.5 / rate) * w)
+        assert phase + lead == pytest.approx(-180.0 + pm, abs=1e-7)
+    for pm in (lead + 91.0, lead - 91.0):
+        with pytest.raises(InputError, match="no phase crossover found"):
+            design_hold_pid(m, rate, pm)

@@ -57,8 +57,12 @@ class _Row:
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON item."""
+        layout = getattr(self, self._BY, None)
+        keys = self._keys(layout)
+        if keys is None:  # a row built with a kind no layout has: a defect, never an empty item
+            raise ValueError(f"the diagnosis' {self._KEY} row has unknown {self._BY} {layout!r}")
         out = {}
-        for k in self._keys(getattr(self, self._BY, None)) or ():
+        for k in keys:
             v = getattr(self, k)
             if not (v is None and k in self._OPTIONAL):
                 out[self._RENAME.get(k, k)] = v.to_dict() if isinstance(v, HeldOut) else v

@@ -50,6 +50,12 @@ def _phase_crossing(model: PlantModel, target: float, rate_hz: float, lead: floa
     up to 0.99 of the Nyquist frequency (its first point at or below the target).
     """
     if isinstance(model, LoopModel):
+        # df_frequency's condition is arg = -pi + asin(beta): sin(pi + target - lead) gives back the target
+        # only while it lies within 90 deg of -180 deg (the integrator's -90 to the delay's -270)
+        if not abs(math.pi + target - lead) < 0.5 * math.pi:
+            raise InputError("no phase crossover found; check the model parameters (the phase asked for, "
+                             f"{math.degrees(target - lead):.1f} deg with the controller's lead, is outside "
+                             "-270 to -90 deg)")
         omega_c = df_frequency(model, math.sin(math.pi + target - lead), extra_delay=0.5 / rate_hz)
         if not math.isfinite(omega_c):
             raise InputError("no phase crossover found; check the model parameters")

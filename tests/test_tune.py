@@ -498,3 +498,26 @@ def test_largest_holding_stops_after_a_number_of_halvings_or_at_a_ratio():
     assert largest_holding(ok, scan, halvings=0) == 2.0 and largest_holding(ok, [9.0, 5.0], halvings=3) is None
     with pytest.raises(ValueError, match="one of the two"):
         largest_holding(ok, scan)
+
+
+def test_px4_velocity_path_survives_the_controller_json():
+    # tune --json writes PX4 x/y's rate path with accel_s; read back it is that path (the velocity plus
+    # its filtered derivative), not a 5 Hz Butterworth without the D term
+    from mrftcli.mrft.controller import PX4VelocityPath, RateFilter
+    from mrftcli.tune.stacks import px4_xy_controller
+
+    c = px4_xy_controller({"MPC_XY_P": 0.95, "MPC_XY_VEL_P_ACC": 1.8, "MPC_XY_VEL_I_ACC": 0.0, "MPC_XY_VEL_D_ACC": 0.1,
+                           "MPC_VELD_LP": 5.0}, 50.0, 0.49)
+    back = Controller.from_json(json.loads(json.dumps(c.to_json())))
+    assert isinstance(back.rate_filter, PX4VelocityPath) and back == c
+    z = np.exp(1j * np.geomspace(0.1, 150.0, 50) / 50.0)
+    assert np.array_equal(back.rate_filter.response(z, 50.0), c.rate_filter.response(z, 50.0))
+    # B(z) = 1 + (D/P) alpha (z - 1) / (T (z - (1 - alpha))): at Nyquist (z = -1) above 1 by the D term
+    al = (1 / 50) / (1 / 50 + 1 / (2 * np.pi * 5.0))
+    nyq = 1 + (0.1 / 1.8) * al * (-2) / ((1 / 50) * (-1 - (1 - al)))
+    assert back.rate_filter.response(np.array([-1.0 + 0j]), 50.0)[0] == pytest.approx(nyq, rel=1e-12)
+    assert type(RateFilter.from_json({"cutoff_hz": 5.0, "parameter": "IMU_GYRO_CUTOFF"})) is RateFilter
+    with pytest.raises(InputError, match="'accel_s' must be a finite number"):
+        RateFilter.from_json({"cutoff_hz": 5.0, "accel_s": None})
+    with pytest.raises(InputError, match="give --controller-rate HZ"):
+        PX4VelocityPath(5.0, "MPC_VELD_LP", accel_s=0.05).response(np.array([1j]), 8.0)

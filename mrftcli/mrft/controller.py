@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import InputError
 from ..validate import check_positive
 
-__all__ = ["Controller", "RateFilter", "json_number"]
+__all__ = ["Controller", "RateFilter", "PX4VelocityPath", "json_number"]
 
 
 def json_number(data: Mapping[str, Any], key: str, what: str, finite: bool = False) -> float:
@@ -99,16 +99,74 @@ class RateFilter:
 
     @classmethod
     def from_json(cls, data: Any, what: str = "rate filter") -> RateFilter | None:
-        """The filter of :meth:`to_json`, None for null; InputError (one line naming ``what``) otherwise."""
+        """The filter of :meth:`to_json` (a :class:`PX4VelocityPath` when it has ``accel_s``), None for null;
+        InputError (one line naming ``what``) otherwise."""
         if data is None:
             return None
         if not isinstance(data, Mapping):
             raise InputError(f"{what}: 'rate_filter' must be an object or null")
-        return cls(json_number(data, "cutoff_hz", what), str(data.get("parameter", "")))
+        cutoff, parameter = json_number(data, "cutoff_hz", what), str(data.get("parameter", ""))
+        if "accel_s" in data:  # PX4's velocity path (:meth:`PX4VelocityPath.to_json`), not a Butterworth
+            return PX4VelocityPath(cutoff, parameter, accel_s=json_number(data, "accel_s", what, finite=True))
+        return cls(cutoff, parameter)
 
     def to_dict(self) -> dict[str, Any]:
         return {"type": "2nd-order Butterworth (bilinear, prewarped) on the measured rate",
                 "cutoff_hz": self.cutoff_hz, "parameter": self.parameter}
+
+
+@dataclass(frozen=True)
+class PX4VelocityPath(RateFilter):
+    """PX4's horizontal velocity loop on the rate: the velocity plus ``accel_s`` times its filtered derivative.
+
+    ``PositionControl::_velocityControl`` computes acc = P_v (v_sp - v) + I - D_v a with a the
+    ``MPC_VELD_LP`` alpha filter (``AlphaFilter``: a_k = a_(k-1) + alpha (x_k - a_(k-1)), alpha = T / (T +
+    1 / (2 pi f_c))) of (v_k - v_(k-1)) / T (``MulticopterPositionControl.cpp``, ``MPC_VEL_LP`` 0: v unfiltered).
+    On the rate v the derivative path is then P_v B(z) v with B(z) = 1 + (D_v / P_v) alpha (z - 1) /
+    (T (z - (1 - alpha))): a first-order section in the controller's rate-filter place, so that tune's margins,
+    step responses and its event simulation run PX4's loop. ``cutoff_hz`` is ``MPC_VELD_LP`` (0: alpha 1,
+    PX4's "disabled"); ``accel_s`` = D_v / P_v [s].
+
+    Examples
+    --------
+    >>> f = PX4VelocityPath(5.0, "MPC_VELD_LP", accel_s=0.1 / 1.5)
+    >>> round(float(abs(f.response(np.array([1.0 + 0j]), 125.0)[0])), 12)  # the velocity itself at DC
+    1.0
+    """
+
+    accel_s: float = 0.0
+
+    def active(self, rate_hz: float) -> bool:
+        return True
+
+    def _alpha(self, rate_hz: float) -> float:
+        if self.cutoff_hz == 0.0:
+            return 1.0
+        if self.cutoff_hz >= 0.5 * rate_hz:  # AlphaFilter::setCutoffFreq refuses it: PX4 keeps the old alpha
+            raise InputError(f"MPC_VELD_LP {self.cutoff_hz:g} Hz (written at PX4's default) is at or above half the "
+                             f"position controller's rate {rate_hz:g} Hz, where PX4 ignores it: give --controller-rate "
+                             "HZ, the rate PX4's position controller ran at (without it the log's rate is taken)")
+        T = 1.0 / rate_hz
+        return T / (T + 1.0 / (2.0 * math.pi * self.cutoff_hz))
+
+    def coefficients(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+        """(b, a) of B(z) in powers of z^-1 (b2 = a2 = 0: the biquad form of :class:`RateFilter`)."""
+        al, g = self._alpha(rate_hz), self.accel_s * rate_hz
+        return np.array([1.0 + g * al, -(1.0 - al) - g * al, 0.0]), np.array([1.0, -(1.0 - al), 0.0])
+
+    def response(self, z: np.ndarray, rate_hz: float) -> np.ndarray:
+        b, a = self.coefficients(rate_hz)
+        zi = 1.0 / np.asarray(z, complex)
+        out: np.ndarray = (b[0] + b[1] * zi) / (a[0] + a[1] * zi)
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        """:meth:`RateFilter.to_json` with ``accel_s``, by which :meth:`RateFilter.from_json` tells the two apart."""
+        return {**super().to_json(), "accel_s": self.accel_s}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"type": "PX4's velocity plus accel_s x its derivative through MPC_VELD_LP's alpha filter",
+                "cutoff_hz": self.cutoff_hz, "parameter": self.parameter, "accel_s": self.accel_s}
 
 
 @dataclass(frozen=True)

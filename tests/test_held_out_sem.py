@@ -86,3 +86,26 @@ def test_degenerate_inputs() -> None:
     # a monotone drift (r near 1) is held at n_eff = 2: finite, and larger than std / sqrt(n)
     x = np.linspace(0.0, 1.0, 10)
     assert x.std(ddof=1) / math.sqrt(10) < mean_sem(x) < math.inf
+
+
+def test_one_standard_error_of_a_mean_in_every_layer() -> None:
+    """eq. (2)'s TestMeasurement and the analysis record's frequency_sem_hz take the same standard error as the
+    held-out predictions (mrft/sem.mean_sem), not std / sqrt(n) beside it: on correlated cycles (AR(1), rho 0.55)
+    it is larger than std / sqrt(n), and the identified Td, tau and K (from the tests' means) do not move."""
+    from pathlib import Path
+
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.identify import TestMeasurement
+    from mrftcli.mrft.model import soiptd_model
+    from mrftcli.mrft.sem import mean_sem as the_one
+
+    assert the_one is mean_sem
+    x = 1.0 + 0.01 * _ar1(0.55, 12, 1, seed=4242)[0]
+    t = TestMeasurement(-0.4, x, amplitude=0.05 + 0.001 * x, h=1.0)
+    assert t.frequency_sem == pytest.approx(mean_sem(x)) and t.amplitude_sem == pytest.approx(mean_sem(0.001 * x))
+    assert t.frequency_sem > x.std(ddof=1) / math.sqrt(x.size)
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
+    result = analyze_flight(read_flight(log, ReadOptions(), echo_warnings=False), soiptd_model(0.0499))
+    rows = result.to_json()["identification"]["tests"]
+    assert [r["frequency_sem_hz"] for r in rows] == pytest.approx([mean_sem(s.frequency_hz) for s in result.tests])

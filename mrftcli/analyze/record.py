@@ -34,6 +34,7 @@ from ..mrft.identify_lti import LtiIdentification
 from ..mrft.model import K_UNIT, LoopModel
 from ..mrft.refine import Refinement
 from ..mrft.relays import RelayLaw
+from ..mrft.sem import mean_sem
 from ..segment import MrftTest
 from .held_out import HeldOut
 from .mrfttest_json import mrft_test_from_json
@@ -577,7 +578,7 @@ def _identification(r: AnalysisResult, ident: IdentificationResult) -> _JSONDict
     for row, t in zip(d["tests"], r.tests):
         f = t.frequency_hz
         rows.append({**row, "n_cycles": int(f.size),
-                     "frequency_sem_hz": float(f.std(ddof=1) / math.sqrt(f.size)) if f.size > 1 else None})
+                     "frequency_sem_hz": mean_sem(f) if f.size > 1 else None})
     return {"method": r.estimate_method, "residual": d["residual"], "tests": rows, "beta_used": "effective",
             "rate_correction": None, "constraints": dict(r.constraints) or {"used": ["ufm"]}}
 

@@ -17,7 +17,7 @@ each test's amplitude gives K, and K is their mean, its standard error their spr
 and its interval Student's t on their number less one (Td's and the delays' errors are not in it).
 
 Each test's weight is its mean frequency's standard error from its stable cycles, taken as an AR(1)
-sequence (:func:`mrftcli.analyze.held_out.mean_sem`), at least the sampled relay's orbit quantisation
+sequence (:func:`mrftcli.mrft.sem.mean_sem`), at least the sampled relay's orbit quantisation
 (:func:`_frequency_se`: a test locked onto one orbit does not average its offset away).
 When the tests scatter about the joint fit more than those errors say (chi^2 above its degrees of
 freedom), every test's frequency is given a common model error on top of its own, sized so that chi^2
@@ -40,7 +40,6 @@ from typing import Any
 
 import numpy as np
 
-from ..analyze.held_out import mean_sem
 from ..analyze.estimate import beta_used
 from ..analyze.record import analysis_controller_rate
 from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable_message, screen_tests,
@@ -51,6 +50,7 @@ from ..jsonable import check_schema_version, json_float
 from ..mrft.lprs import mrft_limit_cycle
 from ..mrft.model import K_UNIT, LoopModel
 from ..mrft.parameter import ParameterEstimate
+from ..mrft.sem import mean_sem
 from ..progress import Progress
 from ..segment import MrftTest, segment
 from ..validate import check_tp

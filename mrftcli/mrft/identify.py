@@ -42,6 +42,7 @@ from ..validate import check_beta, check_time
 from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel, PlantModel
+from .sem import mean_sem
 from .parameter import Z95, ParameterEstimate
 from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
 from .ufm import ManifoldSet, load_manifolds
@@ -140,10 +141,11 @@ class TestMeasurement:
 
     @staticmethod
     def _stats(x: FloatArray) -> tuple[float, float]:
-        """Mean and standard error of the mean (0 for a single value)."""
+        """Mean and standard error of the mean, cycles taken as an AR(1) sequence (:func:`~mrftcli.mrft.sem.mean_sem`;
+        0 for a single value)."""
         if x.size < 2:
             return float(x[0]), 0.0
-        return float(x.mean()), float(x.std(ddof=1) / math.sqrt(x.size))
+        return float(x.mean()), mean_sem(x)
 
     @property
     def n_cycles(self) -> int:

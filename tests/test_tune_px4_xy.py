@@ -215,6 +215,10 @@ def test_xy_integral_is_designed_with_written_and_its_wind_offset_and_step_state
     ms_without = loop_margins(px4_xy_controller({**pi.params, "MPC_XY_VEL_I_ACC": 0.0}, RATE, hover), [model]).Ms[0]
     assert pi.margins.Ms == pytest.approx(ms, rel=1e-9) and abs(ms - ms_without) > 1e-3
     assert any("MPC_XY_VEL_I_ACC 0.4 (--xy-integral), the ranges: designed inside them" in n for n in pi.notes)
+    # the range search's IAE (the cost stated) is that of PX4's law, the oracle's 20 s step of the values written
+    oracle = _px4_step(model, pi.params, hover, 20.0)
+    j = float(np.trapezoid(np.abs(1.0 - oracle), dx=1.0 / RATE))
+    assert any(f"its cost: IAE {j:.4g} s against" in n for n in pi.notes)
 
     w = 1.0  # m/s^2 of wind
     for e in (pd, pi):

@@ -660,6 +660,13 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
         t, y, _ = step_response([model], ctrl, 20.0)
         return float(criterion(t, y)[0])
 
+    def iae_at(r: float, v: float) -> float:
+        if lacks and xy_integral > 0:  # PX4's integral has no P_xy r kick: its own law (the PID form is exact at 0)
+            assert hover is not None
+            t, y = _px4_xy_ticks({**base, ratio_name: r, gain_name: v}, model, c.rate_hz, hover, 20.0)
+            return float(criterion(t, y[:1])[0])
+        return iae(loop_of(r, v))
+
     limit = max(float(np.max(loop_margins(c, models).Ms)),
                 float(np.max(loop_margins(loop_of(ratio, c.Kd * per_kd), models).Ms)))
     if not math.isfinite(limit):
@@ -673,17 +680,17 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
         if least is None or worst < least[1]:
             least = (float(v), worst)
         if worst <= limit:
-            j = iae(loop_of(r_in, float(v)))
+            j = iae_at(r_in, float(v))
             if best is None or j < best[1]:
                 best = (float(v), j)
     held = f"the least IAE with Ms <= {limit:.3g}"
     if best is None:
         if least is None or not math.isfinite(least[1]):
             return c
-        best = (least[0], iae(loop_of(r_in, least[0])))
+        best = (least[0], iae_at(r_in, least[0]))
         held = f"none holds Ms <= {limit:.3g}: the least worst Ms, {least[1]:.3g}"
     v, j = best
-    j0 = iae(loop_of(ratio, c.Kd * per_kd))
+    j0 = iae_at(ratio, c.Kd * per_kd)
     why = "outside the stack's ranges" if not (rz.contains(ratio) and rv.contains(c.Kd * per_kd)) else "in range"
     if lacks:
         d_min = param("px4", "MPC_XY_VEL_D_ACC").minimum

@@ -275,3 +275,7 @@ def test_cli_xy_integral_before_the_work(capsys):
         with pytest.raises(SystemExit) as ex:
             main([*base, *extra])
         assert ex.value.code == 2 and why in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # the help names the parameter and its range, from the vendored table
+        main(["tune", "--help"])
+    said = " ".join(capsys.readouterr().out.split())
+    assert "--xy-integral I_ACC PX4 MPC_XY_VEL_I_ACC [(m/s^2)/m, 0-60; PX4's default 0.4]" in said

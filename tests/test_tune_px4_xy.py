@@ -244,6 +244,11 @@ def test_xy_integral_is_designed_with_written_and_its_wind_offset_and_step_state
             assert any(f"{100 * at[20.0]:.1f} cm after 20 s, 0 in steady state (without it {100 * closed:.1f} cm"
                        in n for n in e.notes)
     assert pi.predicted["step_overshoot_pct"] > pd.predicted["step_overshoot_pct"] + 1  # the integral's price
+    # without integral tune's PID form (px4_xy_controller) is PX4's loop: the same step figures
+    t, y, _ = step_response([model], px4_xy_controller(pd.params, RATE, hover), 40.0)
+    f = step_metrics(t, y[0])
+    assert (pd.predicted["step_overshoot_pct"], pd.predicted["step_settling_s"]) == pytest.approx(
+        (f.overshoot_pct, f.settling_s), abs=1e-6)
     # PX4 integrates P_xy e - v (no P_xy r kick): tune's PID Controller of the same loop overshoots much more
     t, y, _ = step_response([model], px4_xy_controller(pi.params, RATE, hover), 40.0)
     assert step_metrics(t, y[0]).overshoot_pct > pi.predicted["step_overshoot_pct"] + 3

@@ -211,3 +211,11 @@ def test_tune_x_and_y_results_together_say_px4_shares_the_parameters(tmp_path: P
     y.write_text(json.dumps(data))
     line = _one_error_line(run_main("tune", str(x), str(y), "--tp", "0.05", "--export", "px4", "-q"), 2)
     assert "x loop" in line and "one MPC_XY_* set" in line and "tune one of them alone" in line
+
+
+def test_min_cycles_above_every_test_names_the_option() -> None:
+    """--min-cycles raised above what the tests hold: the one line names --min-cycles beside 'record longer
+    tests' (the user set the bar; before, only the flight was blamed)."""
+    done = run_main("delay", str(ROLL), str(ROLL_20), "--tp", "0.00915", "--loop", "roll", "--min-cycles", "100", "-q")
+    line = _one_error_line(done, 4)
+    assert "none with 100 or more stable cycles" in line and "lower --min-cycles 100" in line

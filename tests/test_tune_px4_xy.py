@@ -194,7 +194,7 @@ def test_an_xy_integral_removes_a_forces_offset_which_the_pd_holds_at_its_closed
     closed = 9.80665 / (side["hover_thrust"] * p["MPC_XY_VEL_P_ACC"] * p["MPC_XY_P"] * side["model"]["K"])
     assert pd["wind_20s_m"] == pytest.approx(closed, rel=1e-3)
     assert abs(pid["wind_20s_m"]) < 0.05 * closed < abs(pid["wind_5s_m"])
-    assert pid["overshoot_pct"] > pd["overshoot_pct"] + 5
+    assert pid["overshoot_pct"] > pd["overshoot_pct"] + 2  # PX4's law: 3.9 % (the PID form's 11.2 % overstates it)
 
 
 def test_xy_integral_is_designed_with_written_and_its_wind_offset_and_step_stated():

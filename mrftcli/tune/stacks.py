@@ -67,6 +67,7 @@ from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
+           "px4_xy_prediction",
            "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -267,7 +268,7 @@ class StackExport:
         The stack's pre-arm rules on the values written (:func:`mrftcli.tune.ardupilot_versions.prearm_checks`):
         ``rule``, ``value``, ``passed``, ``source``.
     predicted : dict
-        PX4 x/y: the loop as written on the nominal model (:func:`_xy_prediction`): ``MPC_XY_VEL_I_ACC``, the unit
+        PX4 x/y: the loop as written on the nominal model (:func:`px4_xy_prediction`): ``MPC_XY_VEL_I_ACC``, the unit
         position step's ``step_overshoot_pct``, ``step_rise_s``, ``step_settling_s`` and, per 1 m/s^2 of steady
         wind, ``wind_steady_offset_m``, ``wind_peak_offset_m``, ``wind_offset_5s_m``, ``wind_offset_20s_m``
         (empty for the other exports).
@@ -545,11 +546,17 @@ def _px4_xy_ticks(params: dict[str, float], model: LoopModel, rate_hz: float, ho
     return np.arange(n) * T, y
 
 
-def _xy_prediction(params: dict[str, float], model: LoopModel, rate_hz: float, hover: float) -> dict[str, float]:
+def px4_xy_prediction(params: dict[str, float], model: LoopModel, rate_hz: float, hover: float) -> dict[str, float]:
     """The loop PX4 runs with the x/y values ``params`` on the nominal ``model`` (:func:`_px4_xy_ticks`): its unit
     position step, and a step of 1 m/s^2 of wind, its offset [m]. The steady offset in closed form: 0 with
     ``MPC_XY_VEL_I_ACC`` > 0 (it integrates the velocity error P_xy e - v, so it holds until e = 0), g / (h P_v
-    P_xy K) without (the PD holds (h/g) P_v P_xy e = w / K)."""
+    P_xy K) without (the PD holds (h/g) P_v P_xy e = w / K). ``rate_hz`` [Hz], ``hover`` normalised 0-1.
+
+    Returns
+    -------
+    dict
+        The keys of :attr:`StackExport.predicted` (offsets in metres per 1 m/s^2 of wind, times in s).
+    """
     from .closed_loop import step_metrics
 
     t, y = _px4_xy_ticks(params, model, rate_hz, hover, _XY_HORIZON_S)
@@ -571,13 +578,13 @@ def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float
     its unit step (what a flown step is compared with) and what a steady wind does, in notes and ``predicted``;
     without integral, what PX4's default one would do instead (the user's choice, ``--xy-integral``)."""
     assert hover is not None
-    p = _xy_prediction(e.params, model, rate_hz, hover)
+    p = px4_xy_prediction(e.params, model, rate_hz, hover)
     iv = p["MPC_XY_VEL_I_ACC"]
     step = (f"the loop as written (MPC_XY_VEL_D_ACC through MPC_VELD_LP{f', MPC_XY_VEL_I_ACC {iv:g}' if iv else ''} "
             f"included), a 1 m step on the nominal model: overshoot {p['step_overshoot_pct']:.1f} %, rise "
             f"(10-90 %) {p['step_rise_s']:.3f} s, 2 % settling {_settling(p['step_settling_s'])}")
     if iv > 0:
-        pd = _xy_prediction({**e.params, "MPC_XY_VEL_I_ACC": 0.0}, model, rate_hz, hover)
+        pd = px4_xy_prediction({**e.params, "MPC_XY_VEL_I_ACC": 0.0}, model, rate_hz, hover)
         wind = (f"MPC_XY_VEL_I_ACC {iv:g} (--xy-integral) corrects a steady force: a step of 1 m/s^2 of wind moves the "
                 f"vehicle at most {100 * p['wind_peak_offset_m']:.1f} cm, {100 * p['wind_offset_5s_m']:.1f} cm off after "
                 f"5 s, {100 * p['wind_offset_20s_m']:.1f} cm after 20 s, 0 in steady state (without it "
@@ -586,7 +593,7 @@ def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float
         return replace(e, notes=(*e.notes, step, wind), predicted=p)
     row = param("px4", "MPC_XY_VEL_I_ACC")
     alt = {**e.params, "MPC_XY_VEL_I_ACC": row.default}
-    q = _xy_prediction(alt, model, rate_hz, hover)
+    q = px4_xy_prediction(alt, model, rate_hz, hover)
     ms = float(loop_margins(px4_xy_controller(alt, rate_hz, hover), [model]).Ms[0])
     wind = (f"MPC_XY_VEL_I_ACC 0 (a PD): nothing corrects a steady force such as wind: each 1 m/s^2 of it holds the "
             f"vehicle {100 * p['wind_steady_offset_m']:.1f} cm off for good (g / (h MPC_XY_VEL_P_ACC MPC_XY_P K)); to "

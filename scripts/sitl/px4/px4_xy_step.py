@@ -173,13 +173,13 @@ def _print_against_setpoint(name: str, loop: str, a: dict[str, Any], pred: dict[
 def integral_effect(record: dict[str, Any], params_file: Path, integrals: tuple[float, ...] = (0.0, 0.1, 0.2, 0.4),
                     wind: float = 1.0) -> list[dict[str, float]]:
     """What ``MPC_XY_VEL_I_ACC`` > 0 would change in the loop written (the other values kept), on tune's model of
-    PX4's x/y loop: Ms (nominal; worst over up to 40 posterior draws), the position step, and a ``wind`` [m/s^2]
-    step of force (a load at the plant's input) held off after 5 and 20 s. PX4 integrates the velocity error,
+    PX4's x/y loop: Ms (nominal; worst over up to 40 posterior draws), and by PX4's own law
+    (``tune.stacks.px4_xy_prediction``, what ``tune --xy-integral`` states) the position step and a ``wind``
+    [m/s^2] step of force (a load at the plant's input) held off after 5 and 20 s. PX4 integrates the velocity error,
     so the integral removes a force's offset, not that of a biased velocity estimate (vel_sp = v either way)."""
     from mrftcli.mrft.model import LoopModel
-    from mrftcli.tune.closed_loop import responses, step_metrics
     from mrftcli.tune.margins import loop_margins
-    from mrftcli.tune.stacks import px4_xy_controller
+    from mrftcli.tune.stacks import px4_xy_controller, px4_xy_prediction
 
     m = record["model"]
     if "parameters" in m:
@@ -194,15 +194,16 @@ def integral_effect(record: dict[str, Any], params_file: Path, integrals: tuple[
         ctrl = px4_xy_controller({**values, "MPC_XY_VEL_I_ACC": iv}, record["export"]["generic"]["rate_hz"],
                                  record["hover"])
         ms = np.asarray(loop_margins(ctrl, models).Ms, float)
-        t, y, u, y_wind, _ = responses(models[:1], ctrl, 40.0, load=wind / m["K"])
-        f = step_metrics(t, y[0], u[0])
-        assert y_wind is not None
-        at = {s: float(y_wind[0][np.searchsorted(t, s)]) for s in (5.0, 20.0)}
-        rows.append({"I": iv, "Ms": float(ms[0]), "Ms_worst": float(ms.max()), "overshoot_pct": f.overshoot_pct,
-                     "settling_s": f.settling_s, "wind_peak_m": float(np.max(np.abs(y_wind[0]))),
+        # the step and the wind by PX4's own law (its integral on P_xy e - v: no setpoint kick, which the PID form
+        # ctrl has; E12, f9a5f96), scaled to ``wind``
+        p = px4_xy_prediction({**values, "MPC_XY_VEL_I_ACC": iv}, models[0], record["export"]["generic"]["rate_hz"],
+                              record["hover"])
+        at = {5.0: wind * p["wind_offset_5s_m"], 20.0: wind * p["wind_offset_20s_m"]}
+        rows.append({"I": iv, "Ms": float(ms[0]), "Ms_worst": float(ms.max()), "overshoot_pct": p["step_overshoot_pct"],
+                     "settling_s": p["step_settling_s"], "wind_peak_m": wind * p["wind_peak_offset_m"],
                      "wind_5s_m": at[5.0], "wind_20s_m": at[20.0]})
         print(f"    MPC_XY_VEL_I_ACC {iv:g} (the rest as written): Ms {ms[0]:.3f} (worst over {len(models) - 1} draws "
-              f"{ms.max():.3f}); unit step overshoot {f.overshoot_pct:.1f} %, 2 % settling {f.settling_s:.2f} s; a "
+              f"{ms.max():.3f}); unit step overshoot {p['step_overshoot_pct']:.1f} %, 2 % settling {p['step_settling_s']:.2f} s; a "
               f"{wind:g} m/s^2 wind step: peak {rows[-1]['wind_peak_m'] * 100:.1f} cm, after 5 s {at[5.0] * 100:.1f} cm, "
               f"after 20 s {at[20.0] * 100:.1f} cm")
     return rows

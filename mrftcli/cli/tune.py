@@ -35,7 +35,7 @@ _UAV_STACKS = ("hear", "px4", "ardupilot")
 
 
 @dataclass(frozen=True)
-class _ExportOptions:
+class ExportOptions:
     """What ``--export`` asked for: the stack (None: the design table), the file, the stack's settings."""
 
     stack: str | None
@@ -104,7 +104,7 @@ def _from_spread(known: LoopModel, td: float | None, tau: float | None, K: float
     return _TuneSource(model, posterior, None)
 
 
-def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
+def _check_stack(ex: ExportOptions, loop: str, kind: str) -> None:
     """A stack that cannot take this loop or kind is refused before the work (the values are checked again)."""
     from ..tune.stacks import check_exportable
 
@@ -122,7 +122,7 @@ def _check_stack(ex: _ExportOptions, loop: str, kind: str) -> None:
         check_xy_integral(ex.stack, loop, ex.xy_integral)
 
 
-def _stack_setting(ex: _ExportOptions, loop: str, rate_given: float | None,
+def _stack_setting(ex: ExportOptions, loop: str, rate_given: float | None,
                    rate_source: float | None) -> StackSetting | None:
     """The rate and rate filter the chosen stack runs (None: no stack; the generic export designs as the table)."""
     from ..tune.stacks import stack_setting
@@ -238,7 +238,7 @@ def _refuse_unused(options: dict[str, Any], why: str, error: type[Exception] = c
         raise error(f"{', '.join(used)}{why}")
 
 
-def _refuse_for_family(unsupported: dict[str, Any], ex: _ExportOptions, design: str | None) -> None:
+def _refuse_for_family(unsupported: dict[str, Any], ex: ExportOptions, design: str | None) -> None:
     """The options a process family's design does not take: a one-line error, never ignored."""
     _refuse_unused(unsupported, ": not for a process plant (tune designs PI/PID/PD on it with --controller-rate, "
                    "--ms-max, --design, --kind, --json, --export generic)")
@@ -251,7 +251,7 @@ def _refuse_for_family(unsupported: dict[str, Any], ex: _ExportOptions, design: 
 
 
 def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, design: str | None,
-                   kind: str, json_target: str | None, ex: _ExportOptions, quiet: bool = True) -> StackExport | None:
+                   kind: str, json_target: str | None, ex: ExportOptions, quiet: bool = True) -> StackExport | None:
     """The table, or the chosen export (on stdout or --out), and every design as JSON with --json; returns the
     stack export (None: the table or the generic export). A stack's export designed inside its ranges takes
     seconds: a bar says so unless ``quiet``."""
@@ -466,7 +466,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         raise InputError(f"{len(sources)} sources: give one SOURCE, or a roll and a pitch RESULT.json with "
                          "--export px4|ardupilot")
     cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
-    ex = _ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version, xy_integral)
+    ex = ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version, xy_integral)
     if stack_version is not None and ex.stack != "ardupilot":
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()
@@ -530,7 +530,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
                    err=ex.stack is not None or json_target == "-")
 
 
-def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions, kind: str, design: str | None,
+def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: ExportOptions, kind: str, design: str | None,
                   cutoff_auto: bool, objective: str, ms_max: float,
                   effort_max: float | None, given: tuple[float | None, ...], json_target: str | None,
                   report_dir: str | None, quiet: bool, read_options: dict[str, Any]) -> bool:
@@ -558,7 +558,7 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: _ExportOptions
     return False
 
 
-def _eq2_source(source: str | None, known: LoopModel, given: tuple[Any, ...], ex: _ExportOptions, kind: str,
+def _eq2_source(source: str | None, known: LoopModel, given: tuple[Any, ...], ex: ExportOptions, kind: str,
                 min_cycles: int, read_options: dict[str, Any], quiet: bool) -> tuple[_TuneSource, str]:
     """Eq. (2)'s model and posterior from a LOG, a RESULT.json or --td/--tau/--k (with their stds), and the loop."""
     td, tau, K, *stds = given

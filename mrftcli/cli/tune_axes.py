@@ -20,7 +20,7 @@ from .options import check_export_paths, dump_json, tqdm_progress
 
 if TYPE_CHECKING:
     from ..mrft.model import LoopModel
-    from .tune import _ExportOptions
+    from .tune import ExportOptions
 
 __all__ = ["AxesRequest", "tune_axes"]
 
@@ -35,7 +35,7 @@ class AxesRequest:
         The two analyze RESULT.json files.
     model : LoopModel or None
         Eq. (2) with the bench test's Tp known (``soiptd_model(--tp)``), the same for both axes (None: no --tp).
-    ex : _ExportOptions
+    ex : ExportOptions
         ``--export``, ``--out``, ``--gyro-cutoff HZ`` (``gyro_cutoff_hz``), ``--clamp``.
     auto : bool
         Choose the cutoff from both axes (else ``ex.gyro_cutoff_hz``).
@@ -52,7 +52,7 @@ class AxesRequest:
 
     sources: tuple[str, ...]
     model: LoopModel | None
-    ex: _ExportOptions
+    ex: ExportOptions
     auto: bool
     rate_hz: float | None
     objective: str

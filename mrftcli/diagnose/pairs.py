@@ -28,7 +28,7 @@ from .screen import Screen
 from .testout import left_out_chi2
 
 __all__ = ["PAIR_PROBE_MIN", "RIVAL_ANCHORS", "TIE_BIC", "EffectSelection", "select_effects", "effect_finding",
-           "harmonics_before_after", "pair_starts", "pair_candidate", "pair_probe"]
+           "harmonics_before_after", "pair_starts", "pair_probe"]
 
 #: a second effect is fitted beside a first that already explains the held-out cycles only when its
 #: probe (one Gauss-Newton step from its starts) lowers the fitting cycles' chi^2 by this much
@@ -143,9 +143,9 @@ def pair_starts(model: CandidateModel, lo: np.ndarray, c1: Effect, c2: Effect, f
     return starts
 
 
-def pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
-                   recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int, starts_of: Starts
-                   ) -> tuple[PairFit | None, CandidateModel | None, Fit | None]:
+def _pair_candidate(first: CandidateFit, other: str, fits: dict, base: Fit, tests: list[DiagnosedTest], Tp: float,
+                    recs_fit: list, recs_hold: list, chi2_scatter: float, n_all: int, starts_of: Starts
+                    ) -> tuple[PairFit | None, CandidateModel | None, Fit | None]:
     """Fit the first effect (its row ``first``, fitted alone already) and ``other`` together; evidence
     and held-out scores against the first alone: the pair's row, model and fit (None, None, None when
     the two cannot be paired or no fit succeeded).
@@ -256,7 +256,7 @@ class _Pairs:
     def pair(self, anchor: CandidateFit, other: str) -> PairFit | None:
         """Fit ``anchor``'s effect and ``other`` together; the row (also kept), or None."""
         sc, lin = self.screen, self.linear
-        pr, model, fit = pair_candidate(anchor, other, self.fits, lin.fit, sc.tests, self.Tp, sc.recs_fit,
+        pr, model, fit = _pair_candidate(anchor, other, self.fits, lin.fit, sc.tests, self.Tp, sc.recs_fit,
                                         sc.recs_hold, lin.chi2_scatter, lin.n_all, self.starts)
         if pr is not None and model is not None and fit is not None:
             pr = replace(pr, significant=significant(pr))

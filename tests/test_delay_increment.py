@@ -93,6 +93,8 @@ def test_the_record_round_trips_and_a_newer_schema_is_refused(logs) -> None:
         DelayIncrement.from_json({**data, "schema_version": 99})
     with pytest.raises(InputError):
         DelayIncrement.from_json({k: v for k, v in data.items() if k != "tests"})
+    with pytest.raises(InputError, match="kind 'analysis' is not a delay increment"):
+        DelayIncrement.from_json({**data, "kind": "analysis"})
 
 
 def test_one_beta_in_each_recording_is_refused_naming_the_fix(logs) -> None:

@@ -210,6 +210,9 @@ class DelayIncrement:
             Not this record, a newer schema, or a missing or malformed field (one line).
         """
         d = check_schema_version(data, "delay", (1, DELAY_SCHEMA_VERSION))
+        if d.get("kind") != "delay-increment":  # another record that happens to carry a schema version
+            raise InputError(f"delay JSON: kind {d.get('kind')!r} is not a delay increment (mrft-ident delay --json "
+                             "writes kind 'delay-increment')")
         try:
             rates = d.get("controller_rate_hz") or {}
             assumed = d.get("controller_rate_assumed") or {}

@@ -123,6 +123,17 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
               if ln and not ln.startswith("#")}
     assert set(values) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}
     assert check_ranges("px4", values) == []
+    # vehicle exports the same flight's x loop with the same values: its range-constrained design is held on the
+    # same posterior draws as tune's (it was held on the nominal model alone and wrote MPC_XY_VEL_P_ACC 2.340)
+    veh = tmp_path / "vehicle.params"
+    try:
+        main(["vehicle", str(log), "--tp", "0.05", "--export", "px4", "--hover-thrust", "0.49", "--out", str(veh)])
+    except SystemExit as e:
+        assert not e.code
+    assert "over the nominal model and 43 posterior draws" in capsys.readouterr().out
+    by_vehicle = {ln.split("\t")[2]: float(ln.split("\t")[3]) for ln in veh.read_text().splitlines()
+                  if ln and not ln.startswith("#")}
+    assert by_vehicle == values
 
 
 def test_px4_xy_export_refuses_a_command_that_is_not_pxs_thrust():

@@ -19,12 +19,14 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..mrft.cascade import InnerLoop
 from ..mrft.controller import Controller
 from ..segment import MrftTest
-from ..tune.analysis import recommended_design_name, tune_analysis
+from ..tune.analysis import posterior_from_analysis, recommended_design_name, tune_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
 from ..tune.grid import outer_draws
 from ..tune.stacks import ExportEvidence, StackSetting, check_exportable, export_design, stack_setting
@@ -76,9 +78,13 @@ class TuneOptions:
     stack: StackOptions | None = None
 
 
-def _evidence(tests: Sequence[MrftTest], notes: Sequence[str]) -> ExportEvidence:
-    """The relay heights and amplitudes flown and the analysis's notes, for an export's checks."""
-    return ExportEvidence(tuple(float(t.h) for t in tests), tuple(float(t.amplitude_mean) for t in tests), tuple(notes))
+def _evidence(result: AnalysisResult, notes: Sequence[str]) -> ExportEvidence:
+    """The relay heights and amplitudes flown, the analysis's notes and its posterior's 95 % set, for an export's
+    checks and range-constrained designs: what ``tune LOG --export`` gives them, so both write the same values."""
+    post = posterior_from_analysis(result)
+    tests: Sequence[MrftTest] = result.tests
+    return ExportEvidence(tuple(float(t.h) for t in tests), tuple(float(t.amplitude_mean) for t in tests), tuple(notes),
+                          tuple(post.models(np.flatnonzero(post.in_set()))))
 
 
 def _setting(result: AnalysisResult, options: TuneOptions) -> tuple[StackSetting | None, str | None]:
@@ -130,7 +136,7 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     try:
         export = export_design(st.stack, gains.controller, res.loop_model, result.loop, f"{design} {options.kind}",
                                clamp=st.clamp, hover_thrust=st.hover_thrust,
-                               evidence=_evidence(result.tests, res.notes))
+                               evidence=_evidence(result, res.notes))
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
     return LoopGains(design, options.kind, res, export=export)
@@ -212,7 +218,7 @@ def joint_gyro_gains(loops: Mapping[str, VehicleLoop], options: TuneOptions) -> 
         res = dataclasses.replace(res, notes=(joint.note(), *kept, *res.notes))
         try:
             export = export_design(st.stack, res.get(v.gains.design, "PD").controller, res.loop_model, v.loop,
-                                   f"{v.gains.design} PD", clamp=st.clamp, evidence=_evidence(v.analysis.tests, res.notes))
+                                   f"{v.gains.design} PD", clamp=st.clamp, evidence=_evidence(v.analysis, res.notes))
         except InputError as err:
             out[v.loop] = dataclasses.replace(v, gains=LoopGains(v.gains.design, "PD", res, export_refused=str(err)))
             continue

@@ -521,3 +521,20 @@ def test_px4_velocity_path_survives_the_controller_json():
         RateFilter.from_json({"cutoff_hz": 5.0, "accel_s": None})
     with pytest.raises(InputError, match="give --controller-rate HZ"):
         PX4VelocityPath(5.0, "MPC_VELD_LP", accel_s=0.05).response(np.array([1j]), 8.0)
+
+
+def test_the_posterior_of_an_analysis_keeps_every_bootstrap_draw():
+    """The analysis keeps the bootstrap's draws (rows 1..; row 0, the estimate on the data, is the point
+    estimate), so tune's posterior takes them all: it dropped the first real draw as if it were row 0."""
+    from pathlib import Path
+
+    from mrftcli.analyze import AnalyzeOptions, analyze_path
+    from mrftcli.mrft.model import soiptd_model
+    from mrftcli.tune.analysis import posterior_from_analysis
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_altitude.mcap"
+    result = analyze_path(log, soiptd_model(0.0422), options=AnalyzeOptions(n_bootstrap=100, refine_waveform=False))
+    post = posterior_from_analysis(result)
+    Td = np.asarray(result.bootstrap["Td"], float)
+    assert Td.size >= 100 and post.Td.size == Td.size
+    assert np.array_equal(post.Td, Td) and np.array_equal(post.K, np.asarray(result.bootstrap["K"], float))

@@ -72,8 +72,9 @@ def posterior_from_analysis(result: AnalysisResult, n: int = 400, seed: int = 0)
                          source="waveform refinement: normal draws from its Gauss-Newton covariance of "
                                 "(ln Td, tau, K), correlation kept")
     b = result.bootstrap
-    # row 0 of the bootstrap is the estimate on the data themselves, the draws follow
-    Td, tau, K = (np.asarray(b.get(k, []), float)[1:] for k in ("Td", "tau", "K"))
+    # the draws alone: the analysis keeps the bootstrap's rows 1.. (row 0, the estimate on the data themselves, is
+    # the point estimate; mrftcli.analyze.estimate.Consensus.draws)
+    Td, tau, K = (np.asarray(b.get(k, []), float) for k in ("Td", "tau", "K"))
     return Posterior(result.model, Td, tau, K, source="analyze bootstrap over stable cycles (joint draws)")
 
 

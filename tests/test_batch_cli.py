@@ -8,6 +8,7 @@ import subprocess
 import sys
 import types
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -165,17 +166,24 @@ def test_mixed_fleet_skips_a_loop_whose_topics_are_absent(tmp_path: Path) -> Non
     assert data["counts"]["failed"] == 0 and data["counts"]["skipped-no-topics"] == 2
 
 
-def test_loop_auto_finds_the_loops_from_the_topics(tmp_path: Path) -> None:
-    """--loop auto: each log's loops whose topics it holds; a loop whose output does not follow the relay
-    is skipped (no MRFT test on it), the tested one identified near the simulation's truth."""
+
+def _batch_loop_auto(tmp_path: Path, names: tuple[str, ...]) -> Any:
+    """``batch --loop auto`` (one job, JSON summary on stdout) over copies of these sample logs."""
     import shutil
 
     samples = Path(__file__).resolve().parents[1] / "sample_logs"
     (tmp_path / "fleet").mkdir()
-    for name in ("design1_altitude.mcap", "design1_roll.mcap"):
+    for name in names:
         shutil.copy(samples / name, tmp_path / "fleet" / name)
-    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "auto",
-                                 "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "--json", "-", "-q"])
+    return CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "auto",
+                                    "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "--json", "-", "-q"])
+
+
+def test_loop_auto_finds_the_loops_from_the_topics(tmp_path: Path) -> None:
+    """--loop auto: each log's loops whose topics it holds; a loop whose output does not follow the relay
+    is skipped (no MRFT test on it), the tested one identified near the simulation's truth."""
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    r = _batch_loop_auto(tmp_path, ("design1_altitude.mcap", "design1_roll.mcap"))
     assert r.exit_code == 0, r.output
     rows = json.loads(r.stdout)["rows"]
     status = {(Path(row["path"]).name, row["loop"]): row["status"] for row in rows}
@@ -240,14 +248,7 @@ def test_a_skipped_loop_says_nothing_of_giving_loop(tmp_path: Path) -> None:
     """batch tries every loop itself: a CSV holding z alone has its x and y loops skipped with the columns
     it lacks, and a roll log its untested pitch loop with why, without the one-loop commands' hints to give
     --loop (which analyze still prints)."""
-    import shutil
-
-    samples = Path(__file__).resolve().parents[1] / "sample_logs"
-    (tmp_path / "fleet").mkdir()
-    for name in ("design1_altitude.csv", "design1_roll.mcap"):
-        shutil.copy(samples / name, tmp_path / "fleet" / name)
-    r = CliRunner().invoke(cli, ["batch", str(tmp_path / "fleet"), "--tp", "0.0422", "--loop", "auto",
-                                 "--out", str(tmp_path / "out"), "--jobs", "1", "--no-report", "--json", "-", "-q"])
+    r = _batch_loop_auto(tmp_path, ("design1_altitude.csv", "design1_roll.mcap"))
     assert r.exit_code == 0, r.output
     rows = {row["loop"]: row for row in json.loads(r.stdout)["rows"]}
     assert rows["altitude"]["status"] == "ok" and rows["roll"]["status"] == "ok"

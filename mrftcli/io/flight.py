@@ -285,13 +285,12 @@ def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
     if opts.output_topic is not None:
         return
     if lay.parameters is not None and opts.command_topic is None:
-        changes = log.parameters()[1]
-        enabled = {loop: f"{lay.parameters.format(axis=axis)}ENABLE" for loop, axis in _PX4_AXIS.items()
-                   if any(n == f"{lay.parameters.format(axis=axis)}ENABLE" and v >= 0.5 for _, n, v in changes)}
+        switched_on = {n for _, n, v in log.parameters()[1] if v >= 0.5}
+        names = {loop: f"{lay.parameters.format(axis=axis)}ENABLE" for loop, axis in _PX4_AXIS.items()}
+        enabled = sorted(loop for loop, name in names.items() if name in switched_on)
         if enabled and opts.loop not in enabled:
-            first = sorted(enabled)[0]
-            raise OtherLoopError(f"{log.path}: the log's tests excite the {' and '.join(sorted(enabled))} loop "
-                             f"({', '.join(enabled[k] for k in sorted(enabled))}), not {opts.loop}: give --loop {first}")
+            raise OtherLoopError(f"{log.path}: the log's tests excite the {' and '.join(enabled)} loop "
+                                 f"({', '.join(names[k] for k in enabled)}), not {opts.loop}: give --loop {enabled[0]}")
     if lay.loop_field is None:
         return
     read = _get_optional(log, lay.loop_field)
@@ -304,7 +303,7 @@ def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
                          f"the {lay.name} layout reads one loop per log: fly each axis into its own log")
     if logged and opts.loop not in logged:
         raise OtherLoopError(f"{log.path}: the log's tests excite the {logged[0]} loop ({lay.loop_field}), "
-                         f"not {opts.loop}: give --loop {logged[0]}")
+                             f"not {opts.loop}: give --loop {logged[0]}")
 
 
 def _get_optional(log: LogSource, spec: str) -> _Read | None:

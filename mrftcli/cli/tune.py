@@ -329,15 +329,10 @@ def write_export(text: str, summary: list[str], out: str | None, json_target: st
 
 def _in_set(src: _TuneSource) -> list[Any]:
     """The posterior's 95 % set's models (empty without eq. (2)'s posterior)."""
-    import numpy as np
-
     from ..tune.design import Posterior
 
     post = src.posterior
-    if not isinstance(post, Posterior):
-        return []
-
-    return list(post.models(np.flatnonzero(post.in_set())))
+    return post.in_set_models() if isinstance(post, Posterior) else []
 
 
 def _parse_cutoff(value: str | None) -> tuple[bool, float | None]:

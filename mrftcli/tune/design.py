@@ -150,6 +150,10 @@ class Posterior:
 
         return m2 <= chdtri(X.shape[1], 1.0 - 0.95)
 
+    def in_set_models(self) -> list[LoopModel]:
+        """The draws of the 95 % set (:meth:`in_set`) as models: what range-constrained exports are held on."""
+        return self.models(np.flatnonzero(self.in_set()))
+
     @classmethod
     def from_spread(cls, model: LoopModel, Td_std: float = 0.0, tau_std: float = 0.0, K_std: float = 0.0,
                     n: int = 200, seed: int = 0, source: str = "") -> "Posterior":

@@ -19,7 +19,6 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-import numpy as np
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
@@ -84,7 +83,7 @@ def _evidence(result: AnalysisResult, notes: Sequence[str]) -> ExportEvidence:
     post = posterior_from_analysis(result)
     tests: Sequence[MrftTest] = result.tests
     return ExportEvidence(tuple(float(t.h) for t in tests), tuple(float(t.amplitude_mean) for t in tests), tuple(notes),
-                          tuple(post.models(np.flatnonzero(post.in_set()))))
+                          tuple(post.in_set_models()))
 
 
 def _setting(result: AnalysisResult, options: TuneOptions) -> tuple[StackSetting | None, str | None]:

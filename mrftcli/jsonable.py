@@ -196,9 +196,9 @@ def json_float(x: object, what: str = "a number") -> float:
     return float(x)
 
 
-def json_opt_float(x: object) -> float | None:
-    """A JSON number or null as a float or None (TypeError on anything else)."""
-    return None if x is None else json_float(x, "a number or null")
+def json_opt_float(x: object, what: str = "a number or null") -> float | None:
+    """A JSON number or null as a float or None (TypeError, naming ``what``, on anything else)."""
+    return None if x is None else json_float(x, what)
 
 
 def finite_or_none(x: float | None) -> float | None:

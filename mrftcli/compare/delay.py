@@ -46,7 +46,7 @@ from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable
                                span)
 from ..errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
 from ..io import ReadOptions, read_flight
-from ..jsonable import check_schema_version, json_float
+from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.lprs import mrft_limit_cycle
 from ..mrft.model import K_UNIT, LoopModel
 from ..mrft.parameter import ParameterEstimate
@@ -224,14 +224,11 @@ class DelayIncrement:
                        tuple(PairTest.from_json(t) for t in d["tests"]), json_float(d["chi2"], "delay JSON chi2"),
                        int(d["dof"]), json_float(d["model_scatter"], "delay JSON model_scatter"), tuple(str(n) for n in d["notes"]),
                        tuple(str(w) for w in d.get("warnings", ())),
-                       (_opt_rate(rates.get("before")), _opt_rate(rates.get("after"))),
+                       (json_opt_float(rates.get("before"), "delay JSON controller_rate_hz"),
+                        json_opt_float(rates.get("after"), "delay JSON controller_rate_hz")),
                        (bool(assumed.get("before", False)), bool(assumed.get("after", False))))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"delay JSON: missing or malformed field ({err})") from None
-
-
-def _opt_rate(value: Any) -> float | None:
-    return None if value is None else json_float(value, "delay JSON controller_rate_hz")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -67,7 +67,7 @@ from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
-           "px4_xy_prediction",
+           "px4_xy_prediction", "HOVER_LOOPS",
            "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -93,6 +93,9 @@ _STRUCTURAL = {"MC_ROLLRATE_I", "MC_PITCHRATE_I", "MPC_Z_VEL_I_ACC", "ATC_RAT_RL
                "MPC_XY_VEL_D_ACC"}
 #: PX4's horizontal loops (mc_pos_control: the velocity PID with the velocity's filtered derivative)
 _PX4_XY = ("x", "y")
+#: The loops whose export needs the hover thrust (``--hover-thrust``; PX4's is read from the log's estimate when
+#: not given: :func:`mrftcli.io.hover.logged_hover_thrust`), by stack.
+HOVER_LOOPS = {"px4": ("altitude", *_PX4_XY), "ardupilot": ("altitude",)}
 _AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
 
 

@@ -185,7 +185,7 @@ def _tests(flown) -> list[TestMeasurement]:
 
 def test_identification_recovers_the_outer_loop(flown) -> None:
     res = identify(_tests(flown), CascadeModel(InnerLoop(INNER, GAINS, "roll"), 1.0, 0.0, K=1.0), rate_hz=RATE)
-    td, tau = res.estimates["Td"], res.estimates["tau"]
+    td, tau = res.parameters["Td"], res.parameters["tau"]
     assert td.value == pytest.approx(0.8, rel=0.03) and td.ci95_low <= 0.8 <= td.ci95_high
     # the loop locks onto one orbit of the sampled band: tau is known to about half a tick (5 ms at 100 Hz)
     assert tau.value == pytest.approx(0.0335, abs=5e-3) and tau.ci95_low <= 0.0335 <= tau.ci95_high
@@ -196,12 +196,12 @@ def test_identification_recovers_the_outer_loop(flown) -> None:
 def test_identification_of_K_and_the_inner_draws(flown) -> None:
     inner = InnerLoop(INNER, GAINS, "roll")
     free = identify(_tests(flown), CascadeModel(inner, 1.0, 0.0, known=frozenset()), rate_hz=RATE)  # K unknown
-    assert free.estimates["K"].value == pytest.approx(1.0, rel=0.05) and not free.estimates["K"].known
+    assert free.parameters["K"].value == pytest.approx(1.0, rel=0.05) and not free.parameters["K"].known
     draws = [InnerLoop(INNER.with_parameters(Td=INNER.Td * s, tau=INNER.tau + 0.002 * (s - 1) * 5), GAINS)
              for s in (0.9, 1.1, 0.95, 1.05)]
     wide = identify(_tests(flown), CascadeModel(inner, 1.0, 0.0), rate_hz=RATE, inner_draws=draws)
     exact = identify(_tests(flown), CascadeModel(inner, 1.0, 0.0), rate_hz=RATE)
-    assert wide.inner_draws == 4 and wide.estimates["Td"].std > exact.estimates["Td"].std
+    assert wide.inner_draws == 4 and wide.parameters["Td"].std > exact.parameters["Td"].std
     with pytest.raises(IdentificationError, match="two different beta"):
         identify(_tests(flown)[:1], CascadeModel(inner, 1.0, 0.0, known=frozenset()), rate_hz=RATE)
 
@@ -395,8 +395,8 @@ def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
     assert flight.timing.stamps == "receive"
     loop = InnerLoop(inner, gains, "roll")
     analysis = analyze_flight(flight, cascade_model(loop, "attitude"))
-    est = analysis.identification.estimates["tau"]
-    before = identify([_measurement(t) for t in analysis.tests], CascadeModel(loop, 1.0, 0.0, K=G), rate_hz=RATE).estimates["tau"]
+    est = analysis.identification.parameters["tau"]
+    before = identify([_measurement(t) for t in analysis.tests], CascadeModel(loop, 1.0, 0.0, K=G), rate_hz=RATE).parameters["tau"]
     assert abs(est.value - tau) < 3e-3 and est.ci95_low <= tau <= est.ci95_high
     assert abs(est.value - tau) < abs(before.value - tau) - 2e-3
     assert any("receive-time stamps" in a for a in analysis.assumptions)

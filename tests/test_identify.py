@@ -139,7 +139,7 @@ def test_to_dict_is_json_ready():
     rng = np.random.default_rng(2)
     tests = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.002 * rng.standard_normal(10)), t.amplitude_mean, 1.0)
              for t in _tests(PAPER, (-0.4, -0.7))]
-    d = identify(tests, soiptd_model(PAPER.Tp), n_draws=300).to_dict()
+    d = identify(tests, soiptd_model(PAPER.Tp), n_draws=300).to_json()
     text = json.dumps(__import__("mrftcli.jsonable", fromlist=["to_jsonable"]).to_jsonable(d))
     back = json.loads(text)
     for name in ("Td", "tau", "K"):
@@ -243,20 +243,20 @@ def test_identification_json_round_trip():
              TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189])]
     for res in (identify(noisy, soiptd_model(0.1), n_draws=50), identify(_tests(PAPER, (-0.2, -0.4, -0.7), amplitude=False), soiptd_model(0.1))):
         d = json.loads(json.dumps(res.to_json()))
-        assert d["schema_version"] == 2 and d["model"]["family"] == "soiptd"
+        assert d["schema_version"] == 3 and d["model"]["family"] == "soiptd" and d["strategy"] == "unit-manifolds"
         back = IdentificationResult.from_json(d)
-        assert back.to_dict() == res.to_dict()
+        assert back.to_json() == res.to_json()
         assert back.model == res.model and back.n_draws == res.n_draws and back.draws == {}
 
 
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(this version reads 1, 2\)"),
-        (lambda d: d.pop("parameters"), "needs a 'parameters' object"),
+        (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(this version reads 1, 2, 3\)"),
+        (lambda d: d.pop("parameters"), "needs 'model' and 'parameters' objects"),
         (lambda d: d["parameters"]["Td"].update(value="x"), "'Td' needs a numeric value"),
         (lambda d: d.update(warnings="none"), "needs 'tests' \\(objects\\) and 'warnings' \\(strings\\)"),
-        (lambda d: d.update(residual="small"), "residual must be a number or null"),
+        (lambda d: d.update(residual="small"), "residual, got 'small'"),
         (lambda d: d["model"].update(schema_version=9), "model JSON: schema_version 9 is not supported"),
     ],
 )
@@ -268,10 +268,13 @@ def test_identification_json_errors(change, message):
     assert "\n" not in str(err.value)
 
 
-def test_identification_json_version_1_still_reads():
-    """A version-1 record (``mean`` per parameter; written by the code before issue 36's one parameter record,
-    tests/data/old_records/identification_v1.json) reads with the same figures and writes back as version 2."""
-    old = json.loads((Path(__file__).parent / "data" / "old_records" / "identification_v1.json").read_text())
+@pytest.mark.parametrize("version", [1, 2])
+def test_identification_json_old_versions_still_read(version):
+    """A version-1 record (``mean`` per parameter; before issue 36's one parameter record) and a version-2 one
+    (eq. (2)'s own layout before the one identification record; tests/data/old_records/identification_v1.json,
+    _v2.json, each written by the code of its time) read with the same figures and write back as version 3."""
+    old = json.loads((Path(__file__).parent / "data" / "old_records" / f"identification_v{version}.json").read_text())
+    assert old["schema_version"] == version and "strategy" not in old
     back = IdentificationResult.from_json(old)
     noisy = [TestMeasurement(-0.4, [0.7049, 0.7063, 0.7058], amplitude=[0.078, 0.0785], h=1.0),
              TestMeasurement(-0.7, [1.0180, 1.0195, 1.0189])]
@@ -279,11 +282,13 @@ def test_identification_json_version_1_still_reads():
     for name in ("Td", "tau", "K"):
         was = old["parameters"][name]
         est = getattr(back, name)
-        assert (est.value, est.std, est.ci95_low, est.ci95_high) == (was["mean"], was["std"], was["ci95_low"],
-                                                                     was["ci95_high"])
+        assert (est.value, est.std, est.ci95_low, est.ci95_high) == (was.get("mean", was.get("value")), was["std"],
+                                                                     was["ci95_low"], was["ci95_high"])
         assert est == getattr(now, name), name
     d = json.loads(json.dumps(back.to_json()))
-    assert d["schema_version"] == 2 and back.Tp == old["parameters"]["Tp"]["mean"]
+    assert d["schema_version"] == 3 and d["strategy"] == "unit-manifolds" and back.Tp == 0.1
+    assert {k: d[k] for k in ("tests", "warnings", "method", "residual")} == {k: old[k] for k in
+                                                                            ("tests", "warnings", "method", "residual")}
     assert d["parameters"]["Tp"] == {"value": 0.1, "std": 0.0, "ci95_low": 0.1, "ci95_high": 0.1, "unit": "s",
                                      "determined": True, "known": True, "method": "given"}
     assert list(d["parameters"]["Td"]) == ["value", "std", "ci95_low", "ci95_high", "unit", "determined", "known",

@@ -12,6 +12,9 @@ Every file under ``tests/data/old_records/`` was written by mrft-ident before th
 - ``vehicle_v1.json``: ``vehicle sample_logs/hear_cascade_y.bag --tp 0.0422 --inner-gains ... --json``
 - ``watch_v1.jsonl``: ``watch fopdt.csv --model fopdt --jsonl`` (``simulate --model fopdt --param K=2 --param T=1.0
   --param tau=0.3 --test -0.3 --test -0.6``)
+- ``identification_sopdt_v2.json``, ``identification_cascade_v2.json``: the families' and the cascade's own
+  identification layouts (version 2) before the one identification record, written by the code of commit 4382fba
+  from ``general_v2.json`` and ``cascade_v1.json`` (eq. (2)'s ``identification_v{1,2}.json``: tests/test_identify.py)
 
 The oracle is the old file itself: every figure it holds comes back unchanged under the new keys.
 """
@@ -104,7 +107,7 @@ def test_a_version_2_process_analysis_reads_with_its_figures_and_verdicts_and_wr
     back = AnalysisResult.from_json(old)
     assert back.identification is not None
     new = _written(back)
-    assert new["schema_version"] == 3 and new["identification"]["schema_version"] == 2 and _one_shape(new) == []
+    assert new["schema_version"] == 3 and new["identification"]["schema_version"] == 3 and _one_shape(new) == []
     for name, was in old["parameters"].items():
         p = new["parameters"][name]
         _same_figures(p, was, name)
@@ -121,9 +124,9 @@ def test_a_version_1_cascade_analysis_reads_and_writes_back_as_2() -> None:
     assert old["schema_version"] == 1 and "one_sided" in old["parameters"]["tau"]
     back = AnalysisResult.from_json(old)
     new = _written(back)
-    assert new["schema_version"] == 2 and new["identification"]["schema_version"] == 2 and _one_shape(new) == []
+    assert new["schema_version"] == 2 and new["identification"]["schema_version"] == 3 and _one_shape(new) == []
     for name, was in old["parameters"].items():
-        est = back.identification.estimates[name]
+        est = back.identification.parameters[name]
         assert est.one_sided == was["one_sided"] and est.known == was["known"], name
         _same_figures(new["parameters"][name], was, name)
         assert new["parameters"][name]["method"] == ("given" if was["known"] else "cascade-cycles")
@@ -318,8 +321,14 @@ def test_a_process_diagnosis_of_version_2_reads_with_its_figures_and_writes_as_2
     assert new["candidates"] + new["second_effect_candidates"] == old["candidates"]
     assert all(not c["with"] for c in new["candidates"]) and all(c["with"] for c in new["second_effect_candidates"])
     assert [e["name"] for e in new["effects"]] == ["input_bias"] and new["effects"][0] == old["candidates"][5]
-    for key in ("checks", "located", "notes", "consistent", "z_limit", "analysis"):
+    for key in ("checks", "located", "notes", "consistent", "z_limit"):
         assert new[key] == old[key], key
+    # the analysis unchanged but for its identification, now the one record (version 3, its strategy named)
+    new_id, old_id = new["analysis"]["identification"], old["analysis"]["identification"]
+    assert {**new["analysis"], "identification": None} == {**old["analysis"], "identification": None}
+    assert (new_id["schema_version"], old_id["schema_version"]) == (3, 2)
+    assert {k: v for k, v in new_id.items() if k not in ("schema_version", "strategy")} == \
+        {k: v for k, v in old_id.items() if k != "schema_version"}
     assert DiagnosisResult.from_json(new).to_json() == result.to_json()
 
 
@@ -337,3 +346,28 @@ def test_a_process_diagnosis_of_version_1_reads() -> None:
         DiagnosisResult.from_json({"schema_version": 1, "kind": "process_diagnosis", "verdict": "x"})
     with pytest.raises(InputError, match="schema_version 3"):
         DiagnosisResult.from_json({**old, "schema_version": 3})
+
+
+@pytest.mark.parametrize(("name", "cls", "fit_keys"), [
+    ("identification_sopdt_v2.json", "LtiIdentification",
+     ("points", "chi2_dof", "undetermined", "advice", "determined_combination")),
+    ("identification_cascade_v2.json", "CascadeIdentification", ("tests", "rate_hz", "inner_draws", "inner_std"))])
+def test_a_version_2_identification_of_each_fit_reads_into_the_one_record_and_writes_as_3(
+        name: str, cls: str, fit_keys: tuple[str, ...]) -> None:
+    """The families' and the cascade's own identification layouts (version 2) read, through the one
+    ``Identification.from_json``, into their strategy's record with every figure, and write back as version 3."""
+    from mrftcli.mrft import cascade_identify, identify_lti
+    from mrftcli.mrft.identification import Identification
+
+    old = _old(name)
+    assert old["schema_version"] == 2 and "strategy" not in old
+    back = Identification.from_json(old)
+    assert type(back).__name__ == cls and type(back) in (identify_lti.LtiIdentification,
+                                                        cascade_identify.CascadeIdentification)
+    new = _written(back)
+    assert new["schema_version"] == 3 and new["strategy"] == back.model.identification
+    assert new["family"] == old["model"]["family"] and new["model"] == old["model"]
+    assert new["parameters"] == old["parameters"]
+    assert {k: new[k] for k in fit_keys} == {k: old[k] for k in fit_keys}
+    assert _written(Identification.from_json(new)) == new
+    assert type(back).from_json(new) == back

@@ -237,7 +237,7 @@ def analyze_cascade(flight: FlightLog, model: CascadeModel, options: AnalyzeOpti
     warnings = [f"test {t.index + 1} left out: {reasons[t.index]}" for t in rejected]
     warnings += _fit_warnings(ident)
     warnings += list(flight.warnings)
-    return AnalysisResult(flight.path, flight.loop, ident.model, usable, ident, dict(ident.estimates),
+    return AnalysisResult(flight.path, flight.loop, ident.model, usable, ident, ident.parameters,
                           rejected=rejected, rejection_reasons=reasons, warnings=tuple(warnings),
                           t0=t0, flight=flight, controller_rate_hz=rate, assumptions=tuple(stated))
 
@@ -285,7 +285,7 @@ def _fit_warnings(ident: CascadeIdentification) -> list[str]:
         if math.isfinite(lo) and not (0.97 * lo <= t.frequency_hz <= 1.03 * hi):
             out.append(f"test {i + 1}: measured {t.frequency_hz:.4g} Hz, outside the identified cascade's band of "
                        f"sampled orbits {lo:.4g}-{hi:.4g} Hz: the inner model or gains may not be those flown")
-    for name, e in ident.estimates.items():
+    for name, e in ident.parameters.items():
         if not e.known and not e.determined:
             out.append(f"{name} is not determined by these tests (95 % interval {e.ci95_low:.4g}-{e.ci95_high:.4g} "
                        f"{e.unit}): add a test at another beta")

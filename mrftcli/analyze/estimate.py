@@ -507,8 +507,8 @@ def unbounded_td_or_raise(exc: IdentificationError, model: LoopModel, Td_ref: fl
     tau = bootstrap_estimate(float(limit.tau[0]), limit.tau[1:], float(limit.tau[0]), "s")
     K = bootstrap_estimate(float(limit.K[0]), limit.K[1:], float(limit.K[0]), "")
     Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s", determined=False, method="mrft")
-    ident = IdentificationResult(
-        Td=Td, tau=tau, K=K, model=LoopModel(Tp, limit.Td_limit, max(tau.value, 0.0), K.value),
+    ident = IdentificationResult.of(
+        Td, tau, K, LoopModel(Tp, limit.Td_limit, max(tau.value, 0.0), K.value),
         residual=None, tests=(), method="unbounded-Td", uncertainty="bootstrap", n_draws=B,
         warnings=(f"the UFM slices do not intersect: identified in the limit Td -> infinity, which the tests "
                   f"fit (chi2 {limit.chi2:.1f} for {limit.dof} degrees of freedom)",))

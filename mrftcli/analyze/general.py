@@ -389,7 +389,7 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
     with_held = tuple(dataclasses.replace(t, held_out=held_out(model, t, [p for p in points if p.test != t.index],
                                                                n_hs.get(t.index)))
                       for t in tests)
-    return AnalysisResult(flight.path, flight.loop, ident.model, with_held, ident, {e.name: e for e in ident.estimates},
+    return AnalysisResult(flight.path, flight.loop, ident.model, with_held, ident, ident.parameters,
                           warnings=tuple(flight.warnings), notes=tuple(notes), t0=t0, flight=flight,
                           segments=tuple(m.test for m in measured if m.summary is not None and m.test is not None),
                           windows=tuple(windows), static_gain=sg, rejected_spans=tuple(rejected))

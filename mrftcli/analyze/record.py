@@ -572,14 +572,13 @@ def _estimates(r: AnalysisResult) -> _JSONDict:
 
 
 def _identification(r: AnalysisResult, ident: IdentificationResult) -> _JSONDict:
-    d = ident.to_dict()
     rows = []
     # identify() saw each test's means only; give the cycle counts and standard errors behind them
-    for row, t in zip(d["tests"], r.tests):
+    for row, t in zip(ident.tests, r.tests):
         f = t.frequency_hz
         rows.append({**row, "n_cycles": int(f.size),
                      "frequency_sem_hz": mean_sem(f) if f.size > 1 else None})
-    return {"method": r.estimate_method, "residual": d["residual"], "tests": rows, "beta_used": "effective",
+    return {"method": r.estimate_method, "residual": ident.residual, "tests": rows, "beta_used": "effective",
             "rate_correction": None, "constraints": dict(r.constraints) or {"used": ["ufm"]}}
 
 
@@ -644,7 +643,7 @@ def _family_from_json(data: Mapping[str, Any]) -> AnalysisResult:
         ident = LtiIdentification.from_json(data["identification"])
         return AnalysisResult(
             str(data["path"]), str(data["loop"]), ident.model, tuple(TestSummary.from_json(t) for t in data["tests"]),
-            ident, {e.name: e for e in ident.estimates}, t0=float(data["t0"]),
+            ident, ident.parameters, t0=float(data["t0"]),
             windows=tuple((float(a), float(b)) for a, b in data.get("windows", [])),
             rejected_spans=tuple((int(r["index"]), float(r["t_start"]), float(r["t_end"]), str(r["reason"]))
                                  for r in data.get("rejected_tests", [])),
@@ -666,8 +665,7 @@ def _cascade_json(r: AnalysisResult) -> _JSONDict:
     return {"schema_version": CASCADE_SCHEMA_VERSION, "kind": "cascade",
             "input": {"path": r.path, "loop": r.loop, "t0": r.t0, "controller_rate_hz": r.controller_rate_hz or 0.0},
             "assumptions": list(r.assumptions), "model": ident.model.to_json(),
-            "parameters": {k: e.to_json() for k, e in ident.estimates.items()},
-            "identification": ident.to_json(),
+            "parameters": {e.name: e.to_json() for e in ident.estimates}, "identification": ident.to_json(),
             "tests": [t.to_dict(cycles=True) for t in r.tests],
             "rejected_tests": [{**t.to_dict(cycles=False), "reason": r.rejection_reasons.get(t.index, "")}
                                for t in r.rejected],
@@ -682,9 +680,9 @@ def _cascade_from_json(data: Any) -> AnalysisResult:
         ident = CascadeIdentification.from_json(d["identification"])
         recorded = dict(d) if d.get("schema_version") == CASCADE_SCHEMA_VERSION else \
             {**d, "schema_version": CASCADE_SCHEMA_VERSION,  # version 1's parameters as the one record
-             "parameters": {k: e.to_json() for k, e in ident.estimates.items()}, "identification": ident.to_json()}
+             "parameters": {e.name: e.to_json() for e in ident.estimates}, "identification": ident.to_json()}
         return AnalysisResult(
-            model=ident.model, identification=ident, parameters=dict(ident.estimates), **_logged(d),
+            model=ident.model, identification=ident, parameters=ident.parameters, **_logged(d),
             controller_rate_hz=float((d.get("input") or {}).get("controller_rate_hz") or 0.0),
             assumptions=tuple(str(a) for a in d.get("assumptions") or ()), recorded=recorded)
     except (KeyError, TypeError, ValueError) as err:

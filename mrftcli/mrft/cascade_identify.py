@@ -11,29 +11,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 
 from ..errors import IdentificationError, InputError
-from ..jsonable import check_schema_version
 from ..validate import check_positive
 from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop
 from .controller import json_number
 from .identify import TestMeasurement
-from .parameter import ParameterEstimate, fitted_estimate, fitted_from_json
+from .identification import Identification
+from .parameter import ParameterEstimate, fitted_estimate
 from .lprs import LimitCycle
 
-__all__ = ["CascadeIdentification", "CascadeTestFit", "fit_cascade_cycles", "CASCADE_ID_SCHEMA_VERSION", "TD_BOUNDS",
+__all__ = ["CascadeIdentification", "CascadeTestFit", "fit_cascade_cycles", "TD_BOUNDS",
            "TAU_BOUNDS"]
 
 FloatArray = NDArray[np.float64]
 _INF = math.inf
-#: version of :meth:`CascadeIdentification.to_json`; 2: each parameter the one record
-#: (:class:`~mrftcli.mrft.parameter.ParameterEstimate`, with ``method``; version 1's ``one_sided`` records still read)
-CASCADE_ID_SCHEMA_VERSION = 2
 #: the method of the parameters this fit identifies (ParameterEstimate.method)
 _METHOD = "cascade-cycles"
 #: floor of the standard errors of ln(frequency) and ln(amplitude) of a test (as identify_lti's)
@@ -88,14 +85,15 @@ class CascadeTestFit:
 
 
 @dataclass(frozen=True)
-class CascadeIdentification:
-    """The outer loop identified through its inner loop (:func:`fit_cascade_cycles`).
+class CascadeIdentification(Identification):
+    """The outer loop identified through its inner loop (:func:`fit_cascade_cycles`): the one
+    :class:`~mrftcli.mrft.identification.Identification` record with the cascade's figures.
 
     Attributes
     ----------
     model : CascadeModel
         The point estimate (with the nominal inner loop).
-    estimates : mapping of str to ParameterEstimate
+    estimates : tuple of ParameterEstimate
         Td [s], tau [s], K with std and 95 % interval: the tests' scatter and the inner model's
         draws together (``std`` is their root sum of squares).
     tests : tuple of CascadeTestFit
@@ -108,32 +106,25 @@ class CascadeIdentification:
         The part of each std due to the inner model alone [unit].
     """
 
-    model: CascadeModel
-    estimates: Mapping[str, ParameterEstimate]
     tests: tuple[CascadeTestFit, ...]
     rate_hz: float
     inner_draws: int = 0
     inner_std: Mapping[str, float] = field(default_factory=dict)
 
-    def to_json(self) -> dict[str, Any]:
-        """``{"schema_version", "model", "parameters", "tests", "rate_hz", "inner_draws", "inner_std"}``."""
-        return {"schema_version": CASCADE_ID_SCHEMA_VERSION, "model": self.model.to_json(),
-                "parameters": {k: e.to_json() for k, e in self.estimates.items()},
-                "tests": [t.to_json() for t in self.tests], "rate_hz": self.rate_hz,
+    _method: ClassVar[str] = _METHOD
+
+    def fit_json(self) -> dict[str, Any]:
+        """``tests``, ``rate_hz``, ``inner_draws``, ``inner_std``."""
+        return {"tests": [t.to_json() for t in self.tests], "rate_hz": self.rate_hz,
                 "inner_draws": self.inner_draws, "inner_std": dict(self.inner_std)}
 
     @classmethod
-    def from_json(cls, data: Any) -> CascadeIdentification:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input."""
-        d = check_schema_version(data, "cascade identification JSON", range(1, CASCADE_ID_SCHEMA_VERSION + 1))
-        params = d.get("parameters")
-        if not isinstance(params, Mapping) or "model" not in d:
-            raise InputError("cascade identification JSON needs 'model' and 'parameters'")
-        model = CascadeModel.from_json(d["model"])
-        return cls(model, fitted_from_json(params, {n: v[2] for n, v in CASCADE_PARAMETERS.items()}, _METHOD),
-                   tuple(CascadeTestFit.from_json(t) for t in d.get("tests") or ()),
-                   json_number(d, "rate_hz", "cascade identification JSON", finite=True), int(d.get("inner_draws") or 0),
-                   {str(k): float(v) for k, v in (d.get("inner_std") or {}).items()})
+    def fit_from_json(cls, data: Mapping[str, Any], model: Any,
+                      estimates: tuple[ParameterEstimate, ...]) -> CascadeIdentification:
+        """The record from :meth:`fit_json`'s keys of ``data``."""
+        return cls(model, estimates, tuple(CascadeTestFit.from_json(t) for t in data.get("tests") or ()),
+                   json_number(data, "rate_hz", "cascade identification JSON", finite=True),
+                   int(data.get("inner_draws") or 0), {str(k): float(v) for k, v in (data.get("inner_std") or {}).items()})
 
 
 @dataclass(frozen=True)
@@ -409,5 +400,5 @@ def _result(problem: _Problem, base: CascadeModel, theta: FloatArray, jac: Float
                                 lc.frequency_hz, lc.amplitude,
                                 (min(lc.orbits_hz, default=math.nan), max(lc.orbits_hz, default=math.nan)))
                  for t, lc in zip(problem.tests, problem.cycles(model)))
-    return CascadeIdentification(model, estimates, fits, problem.rate_hz, len(draws), inner_std)
+    return CascadeIdentification(model, tuple(estimates.values()), fits, problem.rate_hz, len(draws), inner_std)
 

@@ -25,20 +25,22 @@ error of its mean; it is propagated by a vectorised Monte Carlo (two tests) or t
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import importlib
 import inspect
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence, overload
+from typing import TYPE_CHECKING, Any, ClassVar, Iterable, Mapping, Sequence, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
-from ..jsonable import check_schema_version
+from ..jsonable import json_opt_float
 from ..errors import IdentificationError, InputError
 from ..validate import check_beta, check_time
+from .identification import Identification
 from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel, PlantModel
@@ -70,10 +72,6 @@ __all__ = [
 
 _TWO_PI = 2.0 * math.pi
 FloatArray = NDArray[np.float64]
-#: version of :meth:`IdentificationResult.to_json`; 2 writes each parameter as the one record
-#: (:class:`~mrftcli.mrft.parameter.ParameterEstimate`: ``value``, ..., ``determined``, ``known``, ``method``);
-#: version 1's ``mean`` records are still read
-IDENTIFICATION_SCHEMA_VERSION = 2
 #: |d ln Omega / d ln Td| below which Td is reported as poorly identifiable
 _SENSITIVITY_WARN = 0.05
 
@@ -179,18 +177,17 @@ class TestMeasurement:
 
 
 @dataclass(frozen=True, eq=False)
-class IdentificationResult:
-    """Outcome of :func:`identify`.
+class IdentificationResult(Identification):
+    """Outcome of :func:`identify` for eq. (2): the one :class:`~mrftcli.mrft.identification.Identification`
+    record with the unit manifolds' figures.
 
     Attributes
     ----------
-    Td, tau : ParameterEstimate
-        Drag time constant [s] and delay [s] (the plant's delay: the sampling lag is removed when a
-        rate was given).
-    K : ParameterEstimate or None
-        Gain (None without amplitudes).
     model : LoopModel
         The point estimate (K = 1 when unknown), with the known Tp [s] (:attr:`Tp`).
+    estimates : tuple of ParameterEstimate
+        Td [s] and tau [s] (the plant's delay: the sampling lag is removed when a rate was given), K (left
+        out without amplitudes) and the given Tp [s]: :attr:`Td`, :attr:`tau`, :attr:`K`.
     residual : float or None
         Three or more tests: weighted RMS of the log-frequency residuals (relative frequency error).
     tests : tuple of dict
@@ -203,10 +200,6 @@ class IdentificationResult:
         How std/intervals were obtained ("monte-carlo", "delta", "none").
     """
 
-    Td: ParameterEstimate
-    tau: ParameterEstimate
-    K: ParameterEstimate | None
-    model: LoopModel
     residual: float | None
     tests: tuple[dict[str, Any], ...]
     warnings: tuple[str, ...]
@@ -216,66 +209,56 @@ class IdentificationResult:
     n_draws: int = 0
     draws: dict[str, FloatArray] = field(default_factory=dict, repr=False)
 
+    _open_value: ClassVar[float] = math.nan
+    _sided: ClassVar[bool] = False
+
+    @classmethod
+    def of(cls, Td: ParameterEstimate, tau: ParameterEstimate, K: ParameterEstimate | None, model: LoopModel,
+           **fit: Any) -> IdentificationResult:
+        """The record of eq. (2)'s estimates (named here; Tp given from ``model``) and the fit's fields."""
+        named = [dataclasses.replace(e, name=n) for n, e in (("Td", Td), ("tau", tau), ("K", K)) if e is not None]
+        return cls(model, (*named, ParameterEstimate.given(model.Tp, "s", "Tp")), **fit)
+
+    @property
+    def Td(self) -> ParameterEstimate:
+        """Drag time constant [s]."""
+        return self.estimate("Td")
+
+    @property
+    def tau(self) -> ParameterEstimate:
+        """Delay [s]."""
+        return self.estimate("tau")
+
+    @property
+    def K(self) -> ParameterEstimate | None:
+        """Gain (None without amplitudes)."""
+        return self.parameters.get("K")
+
     @property
     def Tp(self) -> float:
         """The known propulsion time constant [s] (the model's)."""
-        return self.model.Tp
+        return float(self.model.Tp)
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict: ``parameters.{Td,tau,K,Tp}`` (each the one parameter record) etc."""
-        params = {"Td": self.Td.to_json(), "tau": self.tau.to_json(), "K": None if self.K is None else self.K.to_json(),
-                  "Tp": ParameterEstimate.given(self.Tp, "s").to_json()}
-        return {
-            "parameters": params,
-            "model": {"Tp": self.model.Tp, "Td": self.model.Td, "tau": self.model.tau,
-                      "K": None if self.K is None else self.model.K},
-            "method": self.method,
-            "uncertainty": self.uncertainty,
-            "n_draws": self.n_draws,
-            "residual": self.residual,
-            "rate_hz": self.rate_hz,
-            "tests": [dict(t) for t in self.tests],
-            "warnings": list(self.warnings),
-        }
-
-    def to_json(self) -> dict[str, Any]:
-        """:meth:`to_dict` with ``schema_version`` and the whole model (:meth:`LoopModel.to_json`);
-        the Monte Carlo draws are left out."""
-        return {"schema_version": IDENTIFICATION_SCHEMA_VERSION, **self.to_dict(), "model": self.model.to_json()}
+    def fit_json(self) -> dict[str, Any]:
+        """``method``, ``uncertainty``, ``n_draws``, ``residual``, ``rate_hz``, ``tests``, ``warnings`` (the
+        Monte Carlo draws are left out)."""
+        return {"method": self.method, "uncertainty": self.uncertainty, "n_draws": self.n_draws,
+                "residual": self.residual, "rate_hz": self.rate_hz, "tests": [dict(t) for t in self.tests],
+                "warnings": list(self.warnings)}
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> IdentificationResult:
-        """The result of a :meth:`to_json` dict (without draws).
-
-        Raises
-        ------
-        InputError
-            Another schema version, or a field missing or of the wrong type (one-line message).
-        """
-        data = check_schema_version(data, "identification JSON", range(1, IDENTIFICATION_SCHEMA_VERSION + 1))
-        params = data.get("parameters")
-        if not isinstance(params, Mapping):
-            raise InputError("identification JSON needs a 'parameters' object")
-        K = None if params.get("K") is None else ParameterEstimate.from_json("K", params["K"])
+    def fit_from_json(cls, data: Mapping[str, Any], model: Any,
+                      estimates: tuple[ParameterEstimate, ...]) -> IdentificationResult:
+        """The record from :meth:`fit_json`'s keys of ``data`` (without draws)."""
         tests, warnings = data.get("tests"), data.get("warnings")
         if not (isinstance(tests, list) and all(isinstance(t, Mapping) for t in tests)
                 and isinstance(warnings, list) and all(isinstance(w, str) for w in warnings)):
             raise InputError("identification JSON needs 'tests' (objects) and 'warnings' (strings)")
-        return cls(Td=ParameterEstimate.from_json("Td", params.get("Td")),
-                   tau=ParameterEstimate.from_json("tau", params.get("tau")), K=K,
-                   model=LoopModel.from_json(data.get("model", {})),
-                   residual=_optional_float("residual", data.get("residual")),
+        return cls(model, estimates, residual=json_opt_float(data.get("residual"), "identification JSON: residual"),
                    tests=tuple(dict(t) for t in tests), warnings=tuple(warnings),
                    method=str(data.get("method")), uncertainty=str(data.get("uncertainty")),
-                   rate_hz=_optional_float("rate_hz", data.get("rate_hz")), n_draws=int(data.get("n_draws") or 0))
-
-
-def _optional_float(name: str, value: Any) -> float | None:
-    if value is None:
-        return None
-    if not isinstance(value, (int, float)):
-        raise InputError(f"identification JSON: {name} must be a number or null, got {value!r}")
-    return float(value)
+                   rate_hz=json_opt_float(data.get("rate_hz"), "identification JSON: rate_hz"),
+                   n_draws=int(data.get("n_draws") or 0))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -616,20 +599,22 @@ def _delta_method(inputs: _Inputs, m: _Measured, point: _Point, K_est: Parameter
 @dataclass(frozen=True)
 class Strategy:
     """How a family is identified: from what (``data``: ``"tests"``, :class:`TestMeasurement`, or
-    ``"points"``, :class:`ResponsePoint`) and by which function (``module``, ``function``: called as
-    ``function(data, model, **options)``)."""
+    ``"points"``, :class:`ResponsePoint`), by which function (``module``, ``function``: called as
+    ``function(data, model, **options)``) and into which :class:`~mrftcli.mrft.identification.Identification`
+    (``record``, in ``module``)."""
 
     name: str
     data: str
     module: str
     function: str
+    record: str
 
 
 #: the identification strategies by the name a model class declares in its ``identification``
 STRATEGIES: dict[str, Strategy] = {s.name: s for s in (
-    Strategy("unit-manifolds", "tests", __name__, "unit_manifolds"),
-    Strategy("response-points", "points", "mrftcli.mrft.identify_lti", "fit_response_points"),
-    Strategy("cascade-cycles", "tests", "mrftcli.mrft.cascade_identify", "fit_cascade_cycles"))}
+    Strategy("unit-manifolds", "tests", __name__, "unit_manifolds", "IdentificationResult"),
+    Strategy("response-points", "points", "mrftcli.mrft.identify_lti", "fit_response_points", "LtiIdentification"),
+    Strategy("cascade-cycles", "tests", "mrftcli.mrft.cascade_identify", "fit_cascade_cycles", "CascadeIdentification"))}
 
 
 @overload
@@ -809,7 +794,7 @@ def unit_manifolds(tests: Iterable[TestMeasurement], model: LoopModel, rate_hz: 
         warns.append(f"Td is poorly determined by these tests: std {est.Td.std:.3g} s is "
                      f"{100 * est.Td.std / point.Td:.0f} % of the estimate")
     model = LoopModel(inputs.Tp, point.Td, point.tau, est.K.value if est.K is not None else 1.0)
-    return IdentificationResult(Td=est.Td, tau=est.tau, K=est.K, model=model,
+    return IdentificationResult.of(est.Td, est.tau, est.K, model,
                                 residual=point.residual, tests=per_test, warnings=tuple(warns), method=point.method,
                                 uncertainty=est.method, rate_hz=inputs.rate_hz, n_draws=est.n_draws, draws=est.draws)
 
@@ -863,7 +848,7 @@ def _identify_amplitude(inputs: _Inputs) -> IdentificationResult:
     model = LoopModel(Tp, Td_hat, max(tau_eff - lag, 0.0), K)
     per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": a_mean, "h": test.h,
             "tp_norm": Tp * w0, "td_norm": Td_hat * w0, "theta": tau_eff * w0},)
-    return IdentificationResult(Td=Td_est, tau=tau_est, K=ParameterEstimate.given(K, ""), model=model,
+    return IdentificationResult.of(Td_est, tau_est, ParameterEstimate.given(K, ""), model,
                                 residual=None, tests=per, warnings=tuple(warns), method="amplitude",
                                 uncertainty=unc, rate_hz=inputs.rate_hz, n_draws=inputs.n_draws if draws else 0,
                                 draws=draws)

@@ -41,25 +41,22 @@ import itertools
 import math
 import statistics
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy import optimize
 from scipy.linalg import lapack
 
-from ..jsonable import check_schema_version
 from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel, wrap as _wrap
-from .model import PlantModel, model_from_json
-from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate, fitted_from_json
+from .identification import Identification
+from .model import PlantModel
+from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate
 
-__all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "LTI_SCHEMA_VERSION",
-           "STATIC_HARMONIC", "static_gain_point"]
+__all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "STATIC_HARMONIC", "static_gain_point"]
 
-#: version of :meth:`LtiIdentification.to_json`
-LTI_SCHEMA_VERSION = 2
 #: the method every identified (not given) parameter of this fit records (ParameterEstimate.method)
 _METHOD = "response-points"
 #: floors of the standard errors (relative gain, phase [rad]): a point measured from few cycles
@@ -135,8 +132,9 @@ class ResponsePoint:
 
 
 @dataclass(frozen=True)
-class LtiIdentification:
-    """Outcome of :func:`fit_response_points` (:func:`mrftcli.mrft.identify.identify` of a process family).
+class LtiIdentification(Identification):
+    """Outcome of :func:`fit_response_points` (:func:`mrftcli.mrft.identify.identify` of a process family):
+    the one :class:`~mrftcli.mrft.identification.Identification` record with the fit's figures.
 
     Attributes
     ----------
@@ -158,55 +156,31 @@ class LtiIdentification:
         if any (:func:`~mrftcli.mrft.determined.determined_combination`).
     """
 
-    model: PlantModel
-    estimates: tuple[ParameterEstimate, ...]
     points: tuple[ResponsePoint, ...]
     chi2_dof: float | None
     undetermined: tuple[str, ...] = ()
     advice: str = ""
     combination: DeterminedCombination | None = None
 
-    def estimate(self, name: str) -> ParameterEstimate:
-        """The estimate of one parameter by name."""
-        for e in self.estimates:
-            if e.name == name:
-                return e
-        raise KeyError(name)
+    _method: ClassVar[str] = _METHOD
 
-    def to_json(self) -> dict[str, Any]:
-        """``schema_version``, ``model`` (its JSON), ``parameters`` by name, fit figures."""
-        return {"schema_version": LTI_SCHEMA_VERSION, "family": self.model.family, "model": self.model.to_json(),
-                "parameters": {e.name: e.to_json() for e in self.estimates},
-                "points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
+    def fit_json(self) -> dict[str, Any]:
+        """``points``, ``chi2_dof``, ``undetermined``, ``advice``, ``determined_combination``."""
+        return {"points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
                 "undetermined": list(self.undetermined), "advice": self.advice,
                 "determined_combination": None if self.combination is None else self.combination.to_json()}
 
     @classmethod
-    def from_json(cls, data: Mapping[str, Any]) -> LtiIdentification:
-        """The record of a :meth:`to_json` dict; :class:`~mrftcli.errors.InputError` on bad input.
-
-        Version 1 (the parameters with ``one_sided``, without ``method``) still reads; an interval end cut
-        at the range's bound is found again from the model's ranges (``one_sided``).
-        """
-        data = check_schema_version(data, "identification JSON", range(1, LTI_SCHEMA_VERSION + 1))
-        model = model_from_json(data.get("model", {}))
-        params = data.get("parameters")
-        if not isinstance(params, Mapping):
-            raise InputError("identification JSON needs a 'parameters' object")
-        points = []
-        for p in data.get("points", []):
-            try:
-                points.append(ResponsePoint(2 * math.pi * float(p["frequency_hz"]), float(p["gain"]),
-                                            float(p["phase_rad"]), float(p["se_log_gain"]), float(p["se_phase_rad"]),
-                                            int(p["test"]), int(p["harmonic"])))
-            except (KeyError, TypeError, ValueError) as err:
-                raise InputError(f"identification JSON: bad point {p!r}") from err
-        chi = data.get("chi2_dof")
-        combo = data.get("determined_combination")
-        bounds = {n: p.bounds for n, p in model.parameters.items()}
-        return cls(model, tuple(fitted_from_json(params, bounds, _METHOD).values()), tuple(points),
-                   None if chi is None else float(chi), tuple(str(n) for n in data.get("undetermined", [])),
-                   str(data.get("advice", "")), None if combo is None else DeterminedCombination.from_json(combo))
+    def fit_from_json(cls, data: Mapping[str, Any], model: Any,
+                      estimates: tuple[ParameterEstimate, ...]) -> LtiIdentification:
+        """The record from :meth:`fit_json`'s keys of ``data``."""
+        points = tuple(ResponsePoint(2 * math.pi * float(p["frequency_hz"]), float(p["gain"]), float(p["phase_rad"]),
+                                     float(p["se_log_gain"]), float(p["se_phase_rad"]), int(p["test"]),
+                                     int(p["harmonic"])) for p in data.get("points", []))
+        chi, combo = data.get("chi2_dof"), data.get("determined_combination")
+        return cls(model, estimates, points, None if chi is None else float(chi),
+                   tuple(str(n) for n in data.get("undetermined", [])), str(data.get("advice", "")),
+                   None if combo is None else DeterminedCombination.from_json(combo))
 
 
 # ----------------------------------------------------------------------------------------------

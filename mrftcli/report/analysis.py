@@ -439,7 +439,7 @@ def _drawn_models(result: AnalysisResult, draws: np.ndarray) -> tuple[list[Any],
 
     try:
         if result.kind == "cascade":
-            return outer_draws(result.model, result.parameters, _N_DRAWS), "the estimates' std and the inner model's"
+            return outer_draws(result.model, list(result.parameters.values()), _N_DRAWS), "the estimates' std and the inner model's"
         return model_draws(result.model, list(result.parameters.values()), _N_DRAWS)[0], "the estimates' intervals"
     except InputError:  # an undetermined parameter with an open interval: no band
         return [], ""

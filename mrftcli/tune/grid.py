@@ -138,17 +138,19 @@ def model_draws(model: PlantModel, estimates: Sequence[Any], n: int, seed: int =
     return out, tuple(notes)
 
 
-def outer_draws(model: CascadeModel, estimates: Mapping[str, Any], n: int, seed: int = 0) -> list[CascadeModel]:
+def outer_draws(model: CascadeModel, estimates: Sequence[Any], n: int, seed: int = 0) -> list[CascadeModel]:
     """``n`` cascades over the identification's std (Td, K log-normal, tau normal >= 0) and the inner loop's.
 
-    The inner loop is drawn over its own std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`: the inner
-    analysis' uncertainty) when it carries one.
+    ``estimates`` are :class:`~mrftcli.mrft.parameter.ParameterEstimate` records (as :func:`model_draws`'). The
+    inner loop is drawn over its own std (:meth:`~mrftcli.mrft.cascade.InnerLoop.draw`: the inner analysis'
+    uncertainty) when it carries one.
     """
     rng = np.random.default_rng(seed)
     out = []
+    by_name = {e.name: e for e in estimates}
 
     def std(name: str) -> float:
-        e = estimates.get(name)
+        e = by_name.get(name)
         s = float(getattr(e, "std", 0.0)) if e is not None and not getattr(e, "known", False) else 0.0
         return s if math.isfinite(s) else 0.0
 

@@ -6,6 +6,9 @@ against its tau (at Td Omega of 10-60 Td barely moves a relay's frequency), so t
 separate analyses carries both flights' Td-tau trade. Here both flights are one plant: eq. (2) with the
 known Tp, **one** Td and **one** K, and **a delay per flight**, fitted to every test's measured
 frequency (weighted least squares on log frequency). The delay added is ``tau_after - tau_before``.
+A delay may be negative (down to -Tp / 2): a loop that leads eq. (2) without delay, as an estimator's lead
+makes it (EKF2's attitude in PX4 SIH leads by 2-3 ms), which ``analyze`` refuses alone; a lead both
+recordings share cancels in the difference, where a bound at 0 would bend the shared Td instead.
 
 The frequency of a test is eq. (2)'s continuous limit cycle under the beta ``analyze`` identifies it
 with (the effective beta, measured at the relay's switches, which holds where a sampled relay actually
@@ -47,7 +50,7 @@ from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable
 from ..errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
 from ..io import ReadOptions, read_flight
 from ..jsonable import check_schema_version, json_float, json_opt_float
-from ..mrft.lprs import mrft_limit_cycle
+from ..mrft.lprs import mrft_limit_cycle, unit_cycle_scalar
 from ..mrft.model import K_UNIT, LoopModel
 from ..mrft.parameter import ParameterEstimate
 from ..mrft.sem import mean_sem
@@ -62,6 +65,9 @@ DELAY_SCHEMA_VERSION = 2  # 2: warnings, controller_rate_hz, controller_rate_ass
 
 _FLIGHTS = ("before", "after")
 _TAU_MAX = 0.5  # [s]: the delays' upper bound in the fit (eq. (2)'s multirotor range and more)
+#: the largest lead (negative delay) the fit allows, in units of Tp: an estimator's few ms (EKF2's attitude leads
+#: PX4 SIH's by ~2-3 ms at Tp 50 ms), well inside what a cycle can hold at low |beta|, beyond it at -0.9
+_LEAD_MAX = 0.5
 
 
 @dataclass(frozen=True)
@@ -279,9 +285,47 @@ def _rows(before: Sequence[MrftTest], after: Sequence[MrftTest]) -> _Rows:
 
 
 def _cycle(Tp: float, Td: float, tau: float, rows: _Rows, i: int) -> tuple[float, float]:
-    """Eq. (2)'s cycle (K = 1) for row ``i``: frequency [Hz], amplitude [output units per unit K]."""
-    lc = mrft_limit_cycle(LoopModel(Tp, Td, tau + float(rows.hold[i]), 1.0), float(rows.beta[i]), float(rows.h[i]))
+    """Eq. (2)'s cycle (K = 1) for row ``i``: frequency [Hz], amplitude [output units per unit K]; a negative
+    delay (a lead) through :func:`_lead_cycle`."""
+    delay, beta, h = tau + float(rows.hold[i]), float(rows.beta[i]), float(rows.h[i])
+    if delay < 0.0:
+        omega, a_unit = _lead_cycle(Tp, Td, delay, beta)
+        return omega / (2.0 * math.pi), h * Td * a_unit / omega  # Lemmas 2 and 4 at K = 1
+    lc = mrft_limit_cycle(LoopModel(Tp, Td, delay, 1.0), beta, h)
     return float(lc.frequency_hz), float(lc.amplitude)
+
+
+def _lead_cycle(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, float]:
+    """Eq. (2)'s MRFT frequency [rad/s] and unit amplitude (:func:`~mrftcli.mrft.lprs.unit_cycle`) with a
+    negative ``tau`` [s]: a loop that leads eq. (2) without delay, as an estimator's lead makes it.
+
+    Along the frequency, the delay a cycle needs is ``theta(Tp w, Td w) / w`` (the UFM over w): 0 at the
+    no-delay cycle's w0, falling with w to a least value (about -0.16 Tp at beta -0.7, -0.05 Tp at -0.9) and
+    rising after it. A lead within reach has its one root on the falling branch; a larger one, which no cycle
+    of this beta holds, is given the branch's end (the residual stays continuous and the fit moves back).
+    """
+    from scipy.optimize import brentq, minimize_scalar
+
+    def needed(logw: float) -> float:
+        w = math.exp(logw)
+        return unit_cycle_scalar(Tp * w, Td * w, beta)[0] / w
+
+    lo, prev, step = math.log(mrft_limit_cycle(LoopModel(Tp, Td, 0.0, 1.0), beta).omega), 0.0, 0.02
+    for _ in range(2000):
+        hi = lo + step
+        now = needed(hi)
+        if now <= tau:
+            logw = brentq(lambda x: needed(x) - tau, lo, hi, xtol=1e-13)
+            break
+        if now >= prev:  # past the least delay: the lead is out of this beta's reach
+            logw = float(minimize_scalar(needed, bounds=(lo - step, hi), method="bounded",
+                                         options={"xatol": 1e-10}).x)
+            break
+        lo, prev = hi, now
+    else:  # pragma: no cover - the least delay is reached within a few decades of w0
+        raise IdentificationError(f"no MRFT cycle of eq. (2) with a lead of {-tau * 1e3:.3g} ms at beta {beta:g}")
+    omega = math.exp(logw)
+    return omega, unit_cycle_scalar(Tp * omega, Td * omega, beta)[1]
 
 
 def _fit(Tp: float, rows: _Rows, var: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -298,7 +342,8 @@ def _fit(Tp: float, rows: _Rows, var: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
     try:
         fit = least_squares(lambda p: log_misses(p) / sd, [math.log(0.5), 0.005, 0.005],
-                            bounds=([math.log(0.01), 0.0, 0.0], [math.log(100.0), _TAU_MAX, _TAU_MAX]),
+                            bounds=([math.log(0.01), -_LEAD_MAX * Tp, -_LEAD_MAX * Tp],
+                                    [math.log(100.0), _TAU_MAX, _TAU_MAX]),
                             x_scale=[0.1, 0.001, 0.001])
     except (InputError, ValueError) as err:
         raise IdentificationError(f"the joint fit of the two recordings failed: {err}") from None
@@ -409,7 +454,8 @@ def identify_pair(before: Sequence[MrftTest], after: Sequence[MrftTest], Tp: flo
         names[0], names[1], loop, Tp, _estimate(Td, float(std[0]), q, "s", log=True),
         _estimate(float(np.mean(K_each)), K_std, q_K, K_UNIT), _estimate(tau_b, float(std[1]), q, "s"),
         _estimate(tau_a, float(std[2]), q, "s"), _estimate(tau_a - tau_b, inc_std, q, "s"),
-        pairs, chi2, dof, math.sqrt(s2), _notes(tau_b, tau_a, dof, chi2, math.sqrt(s2)))
+        pairs, chi2, dof, math.sqrt(s2),
+        _notes(Tp, ((tau_b, float(std[1])), (tau_a, float(std[2]))), dof, chi2, math.sqrt(s2)))
 
 
 def _quantile(dof: int) -> float:
@@ -419,12 +465,18 @@ def _quantile(dof: int) -> float:
     return float(t.ppf(0.975, dof)) if dof > 0 else float(norm.ppf(0.975))
 
 
-def _notes(tau_b: float, tau_a: float, dof: int, chi2: float, scatter: float) -> tuple[str, ...]:
+def _notes(Tp: float, taus: tuple[tuple[float, float], tuple[float, float]], dof: int, chi2: float,
+           scatter: float) -> tuple[str, ...]:
+    """What qualifies the figures; ``taus``: (value, std) [s] of the before and after recordings' delays."""
     notes = []
-    for name, tau in (("before", tau_b), ("after", tau_a)):
-        if tau < 1e-5:
-            notes.append(f"the {name} recording's delay is at its bound 0: its loop has less lag than eq. (2) with "
-                         "no delay (an estimator's lead?); the delay added is measured from 0")
+    for name, tau, std in (("before", *taus[0]), ("after", *taus[1])):
+        if tau <= -_LEAD_MAX * Tp + 1e-6:
+            notes.append(f"the {name} recording's delay is at its bound, a lead of {_LEAD_MAX:g} Tp "
+                         f"({tau * 1e3:.3g} ms): its loop leads eq. (2) more than the fit allows; check Tp")
+        elif tau < -1e-5:
+            notes.append(f"the {name} recording's delay is negative ({tau * 1e3:.3g} ± {std * 1e3:.2g} ms): its loop "
+                         "has less lag than eq. (2) with no delay (an estimator's lead?), which analyze refuses "
+                         "alone; a lead both recordings share cancels in the delay added")
     if dof == 0:
         notes.append("three tests for three parameters: the fit is exact, and the interval is the tests' own "
                      "scatter only (a fourth test would check the joint model)")

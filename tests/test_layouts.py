@@ -224,3 +224,21 @@ def test_stack_log_spec_is_checked_and_a_mat_log_reads_back_its_arrays(tmp_path)
     path = write_stack_log(tmp_path / "f.mat", spec, t, command, output, 1.0)
     flight = read_flight(path, ReadOptions(loop="altitude"), echo_warnings=False)
     assert np.allclose(flight.command.values, command) and np.allclose(flight.output.values, output)
+
+
+def test_the_exports_benchmark_quotes_hear_xs_px4_refusal_as_tune_gives_it(analyses):
+    """docs/benchmarks/exports.md's hear_x px4 row is the refusal tune gives on this analysis at the sidecar's Tp
+    (the row had been edited by hand to K 0.9768); the K it names is the simulation's, 1.0 (truth sidecar)."""
+    from mrftcli.errors import InputError
+    from mrftcli.tune.stacks import export_design
+
+    result = analyses["hear_x.bag"][1]
+    doc = (SAMPLES.parent / "docs" / "benchmarks" / "exports.md").read_text()
+    row = next(ln for ln in doc.splitlines() if ln.startswith("hear_x.bag") and ln.split()[1] == "px4")
+    from mrftcli.mrft.controller import Controller
+
+    c = Controller(0.2, 0.0, 0.1, 0.0, 200.0)  # K is checked before the gains are looked at
+    with pytest.raises(InputError) as err:
+        export_design("px4", c, result.model, "x", "robust PD", hover_thrust=0.5)  # the benchmark's HOVER
+    said = row.split("refused: ", 1)[1]
+    assert str(err.value).startswith(said) and f"K {truth('hear_x.bag')['K']:.4g} m/s^2" in said

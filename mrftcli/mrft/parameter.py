@@ -23,7 +23,7 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined", "fitted_estimate", "fitted_from_json"]
+__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined", "fitted_estimate"]
 
 #: the 95 % point of the normal distribution (a normal interval is value +- Z95 std)
 Z95 = 1.959964
@@ -58,14 +58,6 @@ def fitted_estimate(name: str, value: float, z: float, s: float, bounds: tuple[f
     ends = sorted([sign * math.exp(a), sign * math.exp(b)]) if log_scale else [a, b]
     return ParameterEstimate(value, float(abs(value) * s if log_scale else s), float(ends[0]), float(ends[1]), unit,
                              is_determined(a, b, log_scale, omega), False, method, name, side)
-
-
-def fitted_from_json(parameters: Mapping[str, Any], bounds: Mapping[str, tuple[float, float]],
-                     method: str) -> dict[str, ParameterEstimate]:
-    """The records of a fit's JSON ``parameters`` (the families', the cascade's) by name: a null interval end
-    is open (infinite); ``one_sided``, where the JSON does not hold it, found again from the range in ``bounds``."""
-    return {str(n): ParameterEstimate.from_json(str(n), v, bounds=bounds.get(str(n)), open_value=math.inf,
-                                                method=method) for n, v in parameters.items()}
 
 
 #: The keys of a parameter's JSON object, in their order.

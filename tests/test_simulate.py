@@ -25,10 +25,10 @@ from mrftcli.sim.flight import (
     EFFECT_NAMES,
     Effects,
     FlightSpec,
-    relay_sequence,
     sidecar_path,
     simulate_flight,
 )
+from mrftcli.sim.control import relay_sequence
 from cli_helpers import run_main
 from relay_rule import relay_step
 

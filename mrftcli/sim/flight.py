@@ -50,46 +50,32 @@ from ..io.logtypes import TopicData
 from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .control import (
-    SWITCHING_RULES,
-    HearMrftRelay,
     HoldPID,
-    MrftRelay,
     RelayTests,
     design_hold_pid,
     df_prediction,
     make_relay,
     noise_margin,
-    relay_sequence,
 )
 from ..mrft.propagate import (LinearPropagator, RotorCoefficients, actuator_pieces, fifo_delays, gauss_markov,
                               rk4_quadratic, rk4_rotor)
 from .plant import command_shaper
 from .sidecar import flight_topics, sidecar_path, truth_record, write_flight
-from .spec import (EFFECT_NAMES, Effects, FlightSettings, FlightSpec, TestSpec, default_bias, default_noise_std,
-                   default_setpoint, flight_settings)
+from .spec import EFFECT_NAMES, Effects, FlightSettings, FlightSpec, TestSpec, default_noise_std, flight_settings
 
 __all__ = [
     "Effects",
     "TestSpec",
     "FlightSpec",
     "SimulatedFlight",
-    "HoldPID",
-    "MrftRelay",
-    "HearMrftRelay",
-    "make_relay",
-    "relay_sequence",
     "simulate_flight",
-    "design_hold_pid",
     "df_prediction",
     "plan_test",
     "noise_margin",
     "default_noise_std",
-    "default_bias",
-    "default_setpoint",
     "sidecar_path",
     "write_flight",
     "EFFECT_NAMES",
-    "SWITCHING_RULES",
 ]
 
 

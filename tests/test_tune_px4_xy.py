@@ -107,14 +107,13 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
     log = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl" / "px4_x.ulg"
     out = tmp_path / "x.params"
     args = ["tune", str(log), "--tp", "0.05", "--loop", "x", "--export", "px4", "--out", str(out)]
-    with pytest.raises(SystemExit) as ex:
+    try:  # no --hover-thrust: PX4's estimate in the log (tests/test_hover_thrust_log.py), stated first
         main(args)
-    assert ex.value.code == 2 and "--hover-thrust" in capsys.readouterr().err
-    try:
-        main([*args, "--hover-thrust", "0.49"])
     except SystemExit as e:
         assert not e.code
     said = capsys.readouterr().out
+    assert said.startswith("assumption: hover thrust 0.4911 (MPC_THR_HOVER, normalised) read from the log: the "
+                           "median of the 710 valid hover_thrust_estimate.hover_thrust samples")
     assert "MPC_XY_VEL_D_ACC" in said and "125 Hz" in said
     assert "one MPC_XY_* set for x and y" in said  # PX4's x and y share the parameters: said, not left to find out
     # MPC_XY_VEL_I_ACC 0 by default: that wind is not corrected is said, with the offset and how to add it
@@ -127,10 +126,12 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
     # same posterior draws as tune's (it was held on the nominal model alone and wrote MPC_XY_VEL_P_ACC 2.340)
     veh = tmp_path / "vehicle.params"
     try:
-        main(["vehicle", str(log), "--tp", "0.05", "--export", "px4", "--hover-thrust", "0.49", "--out", str(veh)])
+        main(["vehicle", str(log), "--tp", "0.05", "--export", "px4", "--out", str(veh)])
     except SystemExit as e:
         assert not e.code
-    assert "over the nominal model and 43 posterior draws" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "over the nominal model and 43 posterior draws" in said
+    assert said.startswith("assumption: hover thrust 0.4911 (MPC_THR_HOVER, normalised) read from the log")
     by_vehicle = {ln.split("\t")[2]: float(ln.split("\t")[3]) for ln in veh.read_text().splitlines()
                   if ln and not ln.startswith("#")}
     assert by_vehicle == values

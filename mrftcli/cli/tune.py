@@ -45,6 +45,8 @@ class ExportOptions:
     clamp: bool
     stack_version: str | None = None
     xy_integral: float | None = None
+    #: where ``hover_thrust`` came from when not given (read from the log), stated first in the export; empty: given
+    hover_source: str = ""
 
 
 def _resolve_export(fmt: str | None, export: str | None) -> str | None:
@@ -120,6 +122,20 @@ def _check_stack(ex: ExportOptions, loop: str, kind: str) -> None:
         from ..tune.stacks import check_xy_integral
 
         check_xy_integral(ex.stack, loop, ex.xy_integral)
+
+
+def _hover_from_log(ex: ExportOptions, source: str | None, read_options: dict[str, Any]) -> ExportOptions:
+    """PX4's hover thrust read from a LOG (:func:`mrftcli.io.hover.hover_thrust_of_log`) when ``--hover-thrust`` is
+    not given and the loop's export needs it; ``ex`` unchanged otherwise (_check_stack then asks for the option)."""
+    from ..tune.stacks import HOVER_LOOPS
+
+    if (ex.stack != "px4" or ex.hover_thrust is not None or read_options["loop"] not in HOVER_LOOPS["px4"]
+            or source is None or str(source).lower().endswith(".json")):
+        return ex
+    from ..io.hover import hover_thrust_of_log
+
+    logged = hover_thrust_of_log(source, read_options.get("log_fmt"), read_options.get("time_unit"))
+    return ex if logged is None else dataclasses.replace(ex, hover_thrust=logged.value, hover_source=logged.statement())
 
 
 def _stack_setting(ex: ExportOptions, loop: str, rate_given: float | None,
@@ -288,6 +304,8 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
                 stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
                                              hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence,
                                              xy_integral=ex.xy_integral)
+            if ex.hover_source:  # the value read from the log, said first
+                stack_export = dataclasses.replace(stack_export, assumptions=(ex.hover_source, *stack_export.assumptions))
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err
@@ -418,7 +436,7 @@ class _XYIntegralOption(click.Option):
                    "axes, docs/tune.md).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), required for "
-                   "the altitude exports and PX4's x and y.")
+                   "the altitude exports and PX4's x and y (PX4: default a LOG's hover_thrust_estimate, stated).")
 @click.option("--xy-integral", "xy_integral", cls=_XYIntegralOption, type=float, metavar="I_ACC", default=None)
 @click.option("--stack-version", "stack_version", type=click.Choice(["4.6", "4.7"]), default=None,
               help="ArduPilot release whose parameter names and scalings the file uses (4.7 renamed PSC_POSZ_/VELZ_/"
@@ -500,6 +518,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:
+        ex = _hover_from_log(ex, source, read_options)
         src, loop = _eq2_source(source, soiptd_model(Tp), (td, tau, K, td_std, tau_std, k_std), ex, kind, min_cycles,
                                 read_options, quiet)
         setting = _stack_setting(ex, loop, rate_given, src.rate_hz)

@@ -126,7 +126,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
               help="PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz] (default: the stack's, stated).")
 @click.option("--hover-thrust", "hover_thrust", type=float, metavar="X",
               help="Hover thrust, normalised 0-1 (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER), for the "
-                   "altitude exports and PX4's x and y.")
+                   "altitude exports and PX4's x and y (PX4: default the log's hover_thrust_estimate, stated).")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound instead of "
               "refusing (the margins are stated).")
 @json_option(what="vehicle record: loops.<name> (the analysis, gains.generic) and the missing loops")

@@ -17,9 +17,11 @@ from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
 from ..analyze.options import AnalyzeOptions, CascadeOptions
 from ..errors import InputError, LogReadError, MrftError, OtherLoopError, SegmentationError
 from ..io import FlightLog, LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
+from ..io.hover import HOVER_TOPIC, logged_hover_thrust
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
+from ..tune.stacks import HOVER_LOOPS
 from ..validate import check_tp
 from ..analyze.cascade import OUTER_COMMANDS, cascade_model, inner_draws, inner_gains_of, inner_loop_of
 from ..mrft.controller import Controller
@@ -30,7 +32,7 @@ from .next_tests import missing_from_error, missing_topics
 from .record import LoopGains, MissingLoop, VehicleLoop, VehicleResult
 
 __all__ = ["VehicleOptions", "identify_vehicle", "models_per_loop", "find_loops", "identify_inner", "identify_outer",
-           "cascade_outer", "EQ2_OUTER_ASSUMPTION"]
+           "cascade_outer", "EQ2_OUTER_ASSUMPTION", "hover_thrust_from_log"]
 
 #: The assumption stated when an outer loop is identified with eq. (2) (``{loops}``, ``{tp}``, ``{inner}`` and
 #: ``{why}`` the cascade could not be used filled in).
@@ -192,8 +194,9 @@ def identify_vehicle(path: str | Path, model: LoopModel | Mapping[str, LoopModel
     log = str(path)
     with open_log(log, opts.fmt, echo_warnings=False, time_unit=opts.time_unit) as source:
         found = find_loops(source, opts, tps)
+        opts, hover_said = hover_thrust_from_log(source, found.loops, opts, cascade=inner_gains is not None)
         opts = dataclasses.replace(opts, layout=found.layout)
-        acc = _Accumulated(missing=dict(found.missing))
+        acc = _Accumulated(missing=dict(found.missing), first=[hover_said] if hover_said else [])
         total = len(found.loops) + 1
         for i, loop in enumerate(found.loops):
             report(progress, i, total, f"{loop}: identifying and tuning")
@@ -207,6 +210,37 @@ def identify_vehicle(path: str | Path, model: LoopModel | Mapping[str, LoopModel
     report(progress, total, total, "done")
     ordered = {loop: acc.missing[loop] for loop in VEHICLE_ORDER if loop in acc.missing}
     return VehicleResult(log, found.layout, acc.loops, ordered, (*acc.first, *acc.assumptions), tuple(acc.warnings))
+
+
+def hover_thrust_from_log(source: LogSource, loops: tuple[str, ...], options: VehicleOptions, *,
+                          cascade: bool = False) -> tuple[VehicleOptions, str]:
+    """The hover thrust the export of ``loops`` needs (:data:`~mrftcli.tune.stacks.HOVER_LOOPS`) when
+    ``--hover-thrust`` is not given: PX4's estimate read from the open log (:func:`mrftcli.io.hover.logged_hover_thrust`),
+    with the sentence that states it; ``(options, "")`` when given or not needed. ``cascade``: x and y are
+    identified through the closed inner loop (their export is refused there, so they do not need it).
+
+    Raises
+    ------
+    InputError
+        Before any analysis: a loop's export needs the hover thrust, and it is neither given nor in the log.
+    """
+    st = options.tune.stack
+    if st is None or st.hover_thrust is not None:
+        return options, ""
+    needs = [loop for loop in loops if loop in HOVER_LOOPS.get(st.stack, ())]
+    logged = logged_hover_thrust(source) if needs and st.stack == "px4" else None
+    if logged is None:
+        required = [loop for loop in needs if not (cascade and loop in OUTER_LOOPS)]
+        if required:
+            param, why = (("MPC_THR_HOVER", f"the log holds no valid {HOVER_TOPIC} to read it from") if st.stack == "px4"
+                          else ("MOT_THST_HOVER", "it is not read from ArduPilot's log (CTUN.ThH holds the saved value until "
+                                  "ArduPilot has learned it)"))
+            raise InputError(f"give --hover-thrust X ({param}, normalised 0-1): the {st.stack} export of the "
+                             f"{', '.join(required)} loop{'s' if len(required) > 1 else ''} this log records needs it "
+                             f"and {why}")
+        return options, ""
+    stack = dataclasses.replace(st, hover_thrust=logged.value, hover_source=logged.statement())
+    return dataclasses.replace(options, tune=dataclasses.replace(options.tune, stack=stack)), logged.statement()
 
 
 @dataclass
@@ -323,6 +357,7 @@ def _tuned(result: AnalysisResult,
     except MrftError as err:
         return None, (), (f"not tuned: {' '.join(str(err).split())}",)
     # what the gains rest on that the log cannot show: an assumed rate, an export's (ArduPilot altitude's split of tau)
+    hover = options.tune.stack.hover_source if options.tune.stack is not None else ""  # already stated first
     stated = (*(n for n in gains.tune.notes if n == RATE_ASSUMED_NOTE),
-              *(gains.export.assumptions if gains.export is not None else ()))
+              *(a for a in (gains.export.assumptions if gains.export is not None else ()) if a != hover))
     return gains, stated, ()

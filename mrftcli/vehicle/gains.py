@@ -28,7 +28,8 @@ from ..segment import MrftTest
 from ..tune.analysis import posterior_from_analysis, recommended_design_name, tune_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
 from ..tune.grid import outer_draws
-from ..tune.stacks import ExportEvidence, StackSetting, check_exportable, export_design, stack_setting
+from ..tune.stacks import (HOVER_LOOPS, ExportEvidence, StackSetting, check_exportable, export_design,
+                           stack_setting)
 from .record import LoopGains, VehicleLoop
 
 __all__ = ["StackOptions", "TuneOptions", "tune_loop", "tune_outer", "joint_gyro_gains", "STACKS", "OUTER_DRAWS"]
@@ -51,15 +52,20 @@ class StackOptions:
     gyro_cutoff_hz : float or None
         PX4 IMU_GYRO_CUTOFF / ArduPilot INS_GYRO_FILTER [Hz]; None: the stack's default (stated).
     hover_thrust : float or None
-        PX4 MPC_THR_HOVER (normalised), for PX4's altitude loop.
+        PX4 MPC_THR_HOVER / ArduPilot MOT_THST_HOVER (normalised), for the loops of
+        :data:`~mrftcli.tune.stacks.HOVER_LOOPS`.
     clamp : bool
         Export values outside the stack's ranges at the bound instead of refusing.
+    hover_source : str
+        Where ``hover_thrust`` came from when not given (read from the log): stated first among the
+        assumptions of every export that uses it; empty: given.
     """
 
     stack: str
     gyro_cutoff_hz: float | None = None
     hover_thrust: float | None = None
     clamp: bool = False
+    hover_source: str = ""
 
     def __post_init__(self) -> None:
         if self.stack not in STACKS:
@@ -138,6 +144,8 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
                                evidence=_evidence(result, res.notes))
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
+    if st.hover_source and result.loop in HOVER_LOOPS.get(st.stack, ()):  # the value read from the log, said first
+        export = dataclasses.replace(export, assumptions=(st.hover_source, *export.assumptions))
     return LoopGains(design, options.kind, res, export=export)
 
 

@@ -55,11 +55,17 @@ def test_controller_rate_prefers_the_declared_one():
 
 # -- the Timing record --------------------------------------------------------------------------------
 @pytest.mark.parametrize("timing", [Timing(), Timing(50.0), Timing(None, "receive", 0.0016),
-                                    Timing(200.0, "receive", None)], ids=["header", "rate", "receive", "no-jitter"])
+                                    Timing(200.0, "receive", None), Timing(50.0, controller_rate_assumed=True)],
+                         ids=["header", "rate", "receive", "no-jitter", "assumed"])
 def test_timing_round_trips_through_json(timing):
     data = json.loads(json.dumps(timing.to_json()))
-    assert data["schema_version"] == TIMING_SCHEMA_VERSION
+    assert data["schema_version"] == TIMING_SCHEMA_VERSION == 2
     assert Timing.from_json(data) == timing
+
+
+def test_a_version_1_timing_record_reads_as_a_rate_not_assumed():
+    assert Timing.from_json({"schema_version": 1, "controller_rate_hz": 50.0, "stamps": "header",
+                             "timing_jitter_s": None}) == Timing(50.0)
 
 
 def test_timing_nan_jitter_is_written_as_null():
@@ -104,9 +110,16 @@ def test_source_json_puts_the_timing_back_where_it_was():
 def test_px4_log_declares_its_controller_rate():
     from pathlib import Path
 
-    flight = read_flight(Path(__file__).parents[1] / "sample_logs" / "px4_altitude_10hz.ulg", echo_warnings=False)
-    assert flight.timing == Timing(50.0)
+    logs = Path(__file__).parents[1] / "sample_logs"
+    flight = read_flight(logs / "px4_altitude_10hz.ulg", echo_warnings=False)
+    # the 10 Hz command shows no tick: the layout's 50 Hz, flagged as assumed (and warned of); 50 Hz is measured
+    assert flight.timing == Timing(50.0, controller_rate_assumed=True)
+    assert any("controller rate 50 Hz assumed" in w for w in flight.warnings)
     assert "controller_rate_hz" not in flight.source
+    measured = read_flight(logs / "px4_altitude_50hz.ulg", echo_warnings=False).timing
+    assert measured.controller_rate_hz == pytest.approx(50.0) and not measured.controller_rate_assumed
+    given = read_flight(logs / "px4_altitude_10hz.ulg", ReadOptions(controller_rate_hz=50.0), echo_warnings=False)
+    assert not given.timing.controller_rate_assumed
 
 
 # -- ReadOptions ----------------------------------------------------------------------------------------

@@ -182,11 +182,12 @@ def test_the_relay_rate_is_read_from_the_log(tmp_path: Path) -> None:
     write_ulog([TopicData("vehicle_local_position_setpoint", "px4", t, _thrust(-np.interp(t, c.t, c.values))),
                 TopicData("vehicle_local_position", "px4", t, {"z": -np.interp(t, y.t, y.values)})], even)
     assumed = read_flight(even, ReadOptions(loop="altitude"), echo_warnings=False)
-    assert assumed.timing.controller_rate_hz == 50.0
+    assert assumed.timing.controller_rate_hz == 50.0 and assumed.timing.controller_rate_assumed
     assert assumed.source["controller_rate"].startswith("50 Hz assumed")
     assert sum("controller rate 50 Hz assumed" in w and "--controller-rate" in w for w in assumed.warnings) == 1
     given = read_flight(even, ReadOptions(loop="altitude", controller_rate_hz=125.0), echo_warnings=False)
     assert given.timing.controller_rate_hz == 125.0 and "controller_rate" not in given.source
+    assert not given.timing.controller_rate_assumed
 
 
 def test_roll_relay_in_the_rate_controller_is_found_and_refused_at_sihs_tp() -> None:

@@ -239,8 +239,8 @@ def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> 
     optional["beta"] = _finite_beta(log, optional["beta"], source.get("beta", ""))
     timing = _timing(log, match.layout, opts, command, output)  # the stamps as logged, before _finite
     if opts.controller_rate_hz is None and match.layout.rate_from_log:
-        rate, source["controller_rate"] = _rate_from_log(log, match.layout, command)
-        timing = dataclasses.replace(timing, controller_rate_hz=rate)
+        rate, source["controller_rate"], assumed = _rate_from_log(log, match.layout, command)
+        timing = dataclasses.replace(timing, controller_rate_hz=rate, controller_rate_assumed=assumed)
     command = _finite(log, _bounded(log, command, "command", source["command"]), "command", source["command"])
     output = _finite(log, _bounded(log, output, "output", source["output"]), "output", source["output"])
     output = _fresh(log, output, source["output"])
@@ -472,9 +472,9 @@ def _timing(log: LogSource, lay: Layout, opts: ReadOptions, command: Signal, out
     return Timing(controller_rate_hz=rate)
 
 
-def _rate_from_log(log: LogSource, lay: Layout, command: Signal) -> tuple[float, str]:
-    """The relay's rate [Hz] as the log shows it (``Layout.rate_from_log``), and how it was found
-    (``"125 Hz from the log: ..."``, ``input.source.controller_rate``).
+def _rate_from_log(log: LogSource, lay: Layout, command: Signal) -> tuple[float, str, bool]:
+    """The relay's rate [Hz] as the log shows it (``Layout.rate_from_log``), how it was found
+    (``"125 Hz from the log: ..."``, ``input.source.controller_rate``) and whether it is the layout's assumption.
 
     The command's own rate when it is logged at every publication (the relay publishes it once a
     decision), else the tick its sub-sampled stamps are multiples of; when neither shows, the layout's
@@ -483,18 +483,18 @@ def _rate_from_log(log: LogSource, lay: Layout, command: Signal) -> tuple[float,
     rate = median_rate_hz(command.t)
     if rate is not None and rate >= _LOW_RATE_HZ:
         rate = float(f"{rate:.6g}")  # 125 Hz, not 125.00000000007 (the float stamps' rounding)
-        return rate, f"{rate:.6g} Hz from the log: the command's rate (one message per controller cycle)"
+        return rate, f"{rate:.6g} Hz from the log: the command's rate (one message per controller cycle)", False
     tick = logged_tick_s(command.t)
     if tick is not None:
         return 1.0 / tick, (f"{1.0 / tick:.6g} Hz from the log: the sub-sampled command's intervals are "
-                            f"multiples of {tick * 1e3:.4g} ms")
+                            f"multiples of {tick * 1e3:.4g} ms"), False
     if lay.controller_rate_hz is None:  # before the warning: no "0 Hz assumed" line above the error
         raise InputError("the controller's rate is not in the log: give --controller-rate (Hz)")
     assumed = f"{lay.controller_rate_hz:g} Hz assumed"
     log.warn(f"controller rate {assumed}: the command is logged at {rate or 0:.3g} Hz and its intervals do not "
              f"show the controller's tick; {lay.rate_assumption}. Give --controller-rate (Hz) if yours differs "
              "(a command logged at every publication shows it)")
-    return lay.controller_rate_hz, f"{assumed}: {lay.rate_assumption}"
+    return lay.controller_rate_hz, f"{assumed}: {lay.rate_assumption}", True
 
 
 def _finite_beta(log: LogSource, beta: Signal | None, where: str) -> Signal | None:

@@ -24,7 +24,7 @@ __all__ = ["Timing", "TIMING_SCHEMA_VERSION", "median_rate_hz", "mean_rate_hz", 
            "controller_rate_hz", "logged_tick_s"]
 
 #: version of :meth:`Timing.to_json`
-TIMING_SCHEMA_VERSION = 1
+TIMING_SCHEMA_VERSION = 2  # 2: controller_rate_assumed (1 is still read)
 
 #: where a log's stamps come from: ``header`` (set where the sample was made) or ``receive``
 #: (set by the recorder on arrival, so they carry the transport's jitter)
@@ -175,6 +175,8 @@ class Timing:
     timing_jitter_s : float or None
         Jitter [s] of receive-time stamps (:func:`receive_jitter_s`; the larger of command and
         output); None with header stamps. Widens tau's uncertainty.
+    controller_rate_assumed : bool
+        The rate is the layout's assumption: the log did not show it (the reader warns) and the user gave none.
 
     Examples
     --------
@@ -187,6 +189,7 @@ class Timing:
     controller_rate_hz: float | None = None
     stamps: Stamps = "header"
     timing_jitter_s: float | None = None
+    controller_rate_assumed: bool = False
 
     def source_items(self) -> dict[str, Any]:
         """The keys ``FlightLog.source`` carried before :class:`Timing` existed (the ``--json``
@@ -205,7 +208,8 @@ class Timing:
         jitter = self.timing_jitter_s
         return {"schema_version": TIMING_SCHEMA_VERSION, "controller_rate_hz": self.controller_rate_hz,
                 "stamps": self.stamps,
-                "timing_jitter_s": None if jitter is None or not math.isfinite(jitter) else jitter}
+                "timing_jitter_s": None if jitter is None or not math.isfinite(jitter) else jitter,
+                "controller_rate_assumed": self.controller_rate_assumed}
 
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> Timing:
@@ -216,12 +220,13 @@ class Timing:
         InputError
             Not a dict, another schema version, or a field of the wrong kind.
         """
-        check_schema_version(data, "timing", TIMING_SCHEMA_VERSION)
+        check_schema_version(data, "timing", (1, TIMING_SCHEMA_VERSION))
         stamps = data.get("stamps")
         if stamps not in ("header", "receive"):
             raise InputError(f"timing: stamps must be 'header' or 'receive', got {stamps!r}")
         return cls(controller_rate_hz=_optional_float(data, "controller_rate_hz"), stamps=stamps,
-                   timing_jitter_s=_optional_float(data, "timing_jitter_s"))
+                   timing_jitter_s=_optional_float(data, "timing_jitter_s"),
+                   controller_rate_assumed=data.get("controller_rate_assumed") is True)
 
 
 def _optional_float(data: dict[str, Any], key: str) -> float | None:

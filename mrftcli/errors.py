@@ -36,20 +36,20 @@ __all__ = [
 
 
 class MrftError(Exception):
-    """Base class of every error mrft-ident reports to the user."""
+    """Base class of every error mrft-ident reports to the user.
+
+    ``warnings`` holds what the tool had warned of before the error (a reader's assumed controller rate, the
+    tests left out), for the CLI to show above the one-line error; empty unless the raiser sets it.
+    """
 
     exit_code: int = 1
+    warnings: tuple[str, ...] = ()
 
 
 class InputError(MrftError, ValueError):
     """An argument is malformed or out of its valid range (e.g. beta outside (-1, 1))."""
 
     exit_code = 2
-
-
-class OtherLoopError(InputError):
-    """The log says its MRFT tests excite another loop than ``--loop`` (ArduPilot's ``MRFB:Ax``, PX4's
-    ``MRFT_<AXIS>_ENABLE``): for batch and vehicle, which try every loop, that loop has no tests."""
 
 
 class LogReadError(MrftError):
@@ -67,6 +67,12 @@ class SegmentationError(MrftError):
 
     exit_code = 4
     rejected_tests: list[dict] | None = None
+
+
+class OtherLoopError(SegmentationError):
+    """The log says its MRFT tests excite another loop than ``--loop`` (ArduPilot's ``MRFB:Ax``, PX4's
+    ``MRFT_<AXIS>_ENABLE``): the asked loop has no tests (exit 4, as a log without a usable test on it; the
+    message names the loop to give). For batch and vehicle, which try every loop, that loop has no tests."""
 
 
 class IdentificationError(MrftError, ValueError):

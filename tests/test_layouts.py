@@ -107,11 +107,11 @@ def test_named_layout_and_explicit_topics_override(tmp_path):
     assert flight.source["layout"] == "hear-ros (--layout)"
     own = read_flight(SAMPLES / name, ReadOptions(loop="x", command_topic="/fh_des:x", output_topic="/opti/pos:x", layout="reference"), echo_warnings=False)
     np.testing.assert_array_equal(own.output.values, flight.output.values)
-    from mrftcli.errors import InputError, LogReadError
+    from mrftcli.errors import LogReadError, OtherLoopError
 
     # an altitude log read as roll: its MRFT_Z_ENABLE changes say which loop was tested (before: "no topic
     # vehicle_torque_setpoint", which named no --loop); with the user's own command topic, the topic's error
-    with pytest.raises(InputError, match=r"excite the altitude loop \(MRFT_Z_ENABLE\), not roll: give --loop altitude"):
+    with pytest.raises(OtherLoopError, match=r"excite the altitude loop \(MRFT_Z_ENABLE\), not roll: give --loop altitude"):
         read_flight(SAMPLES / "px4_altitude_50hz.ulg", ReadOptions(loop="roll"), echo_warnings=False)
     with pytest.raises(LogReadError, match="no_such_topic"):
         read_flight(SAMPLES / "px4_altitude_50hz.ulg", ReadOptions(loop="roll", command_topic="no_such_topic:x"),

@@ -274,7 +274,8 @@ def _get_layout_role(log: LogSource, spec: str, hint: bool, fix: str) -> _Read:
 
 
 def _check_logged_loop(log: LogSource, lay: Layout, opts: ReadOptions) -> None:
-    """InputError when the log says its tests excite another loop than ``opts.loop``.
+    """OtherLoopError (exit 4: no test on the loop asked) when the log says its tests excite another loop than
+    ``opts.loop``; InputError when it says they excite two (a one-axis layout cannot tell them apart).
 
     A one-axis layout (:attr:`Layout.loop_field`) maps every loop to the same topics, so without this a
     roll log read as the default altitude loop would be identified with altitude's units. Skipped when

@@ -66,6 +66,9 @@ def test_timing_round_trips_through_json(timing):
 def test_a_version_1_timing_record_reads_as_a_rate_not_assumed():
     assert Timing.from_json({"schema_version": 1, "controller_rate_hz": 50.0, "stamps": "header",
                              "timing_jitter_s": None}) == Timing(50.0)
+    # a JSON integer is a number (jsonable.json_opt_float, the one reader): read as a float
+    rate = Timing.from_json({"schema_version": 1, "controller_rate_hz": 50, "stamps": "header"}).controller_rate_hz
+    assert rate == 50.0 and type(rate) is float
 
 
 def test_timing_nan_jitter_is_written_as_null():
@@ -78,8 +81,10 @@ def test_timing_nan_jitter_is_written_as_null():
     ([], "expected a JSON object"),
     ({"schema_version": 99, "stamps": "header"}, "schema_version 99"),
     ({"schema_version": TIMING_SCHEMA_VERSION, "stamps": "arrival"}, "stamps must be"),
-    ({"schema_version": TIMING_SCHEMA_VERSION, "stamps": "header", "controller_rate_hz": "50"}, "must be a number"),
-    ({"schema_version": TIMING_SCHEMA_VERSION, "stamps": "header", "timing_jitter_s": True}, "must be a number"),
+    ({"schema_version": TIMING_SCHEMA_VERSION, "stamps": "header", "controller_rate_hz": "50"},
+     r"^timing: expected controller_rate_hz to be a number or null, got '50'$"),
+    ({"schema_version": TIMING_SCHEMA_VERSION, "stamps": "header", "timing_jitter_s": True},
+     r"^timing: expected timing_jitter_s to be a number or null, got True$"),
 ], ids=["not-a-dict", "version", "stamps", "rate-string", "jitter-bool"])
 def test_timing_from_json_refuses_bad_input(data, match):
     with pytest.raises(InputError, match=match):

@@ -17,7 +17,7 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from ..jsonable import check_schema_version
+from ..jsonable import check_schema_version, json_opt_float
 from ..errors import InputError
 
 __all__ = ["Timing", "TIMING_SCHEMA_VERSION", "median_rate_hz", "mean_rate_hz", "receive_jitter_s",
@@ -224,18 +224,13 @@ class Timing:
         stamps = data.get("stamps")
         if stamps not in ("header", "receive"):
             raise InputError(f"timing: stamps must be 'header' or 'receive', got {stamps!r}")
-        return cls(controller_rate_hz=_optional_float(data, "controller_rate_hz"), stamps=stamps,
-                   timing_jitter_s=_optional_float(data, "timing_jitter_s"),
+        try:
+            rate, jitter = (json_opt_float(data.get(key), f"{key} to be a number or null")
+                            for key in ("controller_rate_hz", "timing_jitter_s"))
+        except TypeError as err:  # the one JSON number reader's message, as a timing record's one line
+            raise InputError(f"timing: {err}") from None
+        return cls(controller_rate_hz=rate, stamps=stamps, timing_jitter_s=jitter,
                    controller_rate_assumed=data.get("controller_rate_assumed") is True)
-
-
-def _optional_float(data: dict[str, Any], key: str) -> float | None:
-    value = data.get(key)
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(f"timing: {key} must be a number or null, got {value!r}")
-    return float(value)
 
 
 def controller_rate_hz(timing: Timing, t_command: npt.ArrayLike) -> float | None:

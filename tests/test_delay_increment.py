@@ -225,3 +225,20 @@ def test_a_loop_that_leads_eq2_gives_a_negative_delay_and_the_delay_added_still(
     assert result.tau_before.value < -0.001 and result.Td.value == pytest.approx(TD, rel=0.2)
     assert any("before recording's delay is negative" in n for n in result.notes)
     assert not any("after recording's delay" in n for n in result.notes)
+
+
+def test_the_warnings_given_before_an_error_come_with_it() -> None:
+    """A refusal after a recording was read carries that recording's warnings (typed ``MrftError.warnings``), and
+    the CLI shows them once, above the one-line error: here the 10 Hz PX4 log's assumed controller rate, then
+    the second recording, a roll log, refused for --loop altitude."""
+    from mrftcli.errors import MrftError
+
+    logs = Path(__file__).resolve().parents[1] / "sample_logs"
+    with pytest.raises(MrftError) as info:
+        delay_increment(logs / "px4_altitude_10hz.ulg", logs / "sitl" / "roll.BIN", 0.0422)
+    assert any("px4_altitude_10hz.ulg: controller rate 50 Hz assumed" in w for w in info.value.warnings)
+    proc = _run(logs / "px4_altitude_10hz.ulg", logs / "px4_altitude_50hz.ulg", "--tp", 0.0422, "--min-cycles", 40)
+    assert proc.returncode == 4 and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert lines[-1].startswith("error: ") and "stable cycles" in lines[-1]
+    assert sum("controller rate 50 Hz assumed" in line for line in lines) == 1 and lines[0].startswith("warning: ")

@@ -42,7 +42,7 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     6 neither recording has two betas.
     """
     from ..compare.delay import delay_increment
-    from ..errors import SegmentationError
+    from ..errors import MrftError
     from ..io import ReadOptions
 
     if os.path.samefile(before, after):  # a slip: the "delay added" would be a confident 0 ms
@@ -53,8 +53,8 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     with tqdm_progress("delay", unit="step", enabled=not quiet, after_s=1.0) as progress:
         try:
             result = delay_increment(before, after, Tp, read=read, min_stable_cycles=min_cycles, progress=progress)
-        except SegmentationError as err:  # the refused recording's reader warnings (an assumed rate), then the error
-            echo_warnings(getattr(err, "warnings", ()))
+        except MrftError as err:  # the warnings given before it (an assumed rate, tests left out), then the error
+            echo_warnings(err.warnings)
             raise
     if json_target:
         dump_json(result.to_json(), json_target)

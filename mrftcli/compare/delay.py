@@ -47,7 +47,7 @@ from ..analyze.estimate import beta_used
 from ..analyze.record import analysis_controller_rate
 from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable_message, screen_tests,
                                span)
-from ..errors import IdentificationError, InputError, InsufficientDataError, SegmentationError
+from ..errors import IdentificationError, InputError, InsufficientDataError, MrftError, SegmentationError
 from ..io import ReadOptions, read_flight
 from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.lprs import mrft_limit_cycle, unit_cycle_scalar
@@ -508,14 +508,13 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
     t0 = log_start(flight)
     if not usable:
         err = SegmentationError(no_usable_message(flight, found, reasons, min_stable_cycles, t0))
-        setattr(err, "warnings", tuple(flight.warnings))  # noqa: B010 - shown by cli/delay.py before the error
+        err.warnings = tuple(flight.warnings)  # the reader's (an assumed rate): shown above the error
         raise err
     left_out = [f"test at {span(t, t0)} left out: {reasons[t.index]}" for t in found if t.index in reasons]
     notes = [f"test at {t.t_start - t0:.1f} s: {n}" for t in usable for n in t.notes]
     rate = read.controller_rate_hz or analysis_controller_rate(flight.timing.controller_rate_hz,
                                                                [t.rate_hz for t in usable])
-    source = flight.source.get("controller_rate", "") if isinstance(flight.source, dict) else ""
-    assumed = read.controller_rate_hz is None and " Hz assumed" in str(source)
+    assumed = read.controller_rate_hz is None and flight.timing.controller_rate_assumed
     warnings = tuple(dict.fromkeys([*flight.warnings, *(f"{flight.path}: {w}" for w in [*left_out, *notes])]))
     return _Recording(usable, warnings, rate, assumed)
 
@@ -540,17 +539,21 @@ def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: R
     Raises
     ------
     LogReadError, SegmentationError, InsufficientDataError, IdentificationError
-        One line each, naming the recording.
+        One line each, naming the recording; its ``warnings`` those of the recordings read before it.
     """
     read = read or ReadOptions()
-    tests = []
-    for k, path in enumerate((before, after)):
+    tests: list[_Recording] = []
+    try:
+        for k, path in enumerate((before, after)):
+            if progress:
+                progress(k, 3, f"reading {Path(path).name}")
+            tests.append(_usable(path, read, min_stable_cycles))
         if progress:
-            progress(k, 3, f"reading {Path(path).name}")
-        tests.append(_usable(path, read, min_stable_cycles))
-    if progress:
-        progress(2, 3, "fitting")
-    result = identify_pair(tests[0].tests, tests[1].tests, Tp, names=(str(before), str(after)), loop=read.loop)
+            progress(2, 3, "fitting")
+        result = identify_pair(tests[0].tests, tests[1].tests, Tp, names=(str(before), str(after)), loop=read.loop)
+    except MrftError as err:  # what was warned of before it (each recording read), for the CLI to show first
+        err.warnings = (*(w for r in tests for w in r.warnings), *err.warnings)
+        raise
     if progress:
         progress(3, 3, "done")
     return dataclasses.replace(

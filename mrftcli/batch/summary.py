@@ -139,15 +139,9 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
             "result_json": json_path.relative_to(json_path.parent.parent).as_posix() if json_path is not None else None,
             "settings_hash": record.get("settings_hash"),
             **({k: (entry.get("tune") or {}).get(k) for k in TUNE_COLUMNS} if "tune" in entry else {}),
-            **(process_columns(analysis) if _is_process(entry) else {}),
+            **process_columns(analysis),  # {} but for a process analysis (batch --model)
         })
     return rows
-
-
-def _is_process(entry: Mapping[str, Any]) -> bool:
-    """A loop analysed with ``batch --model`` (its result is a process analysis: ``model`` names a family)."""
-    result = entry.get("result")
-    return isinstance(result, Mapping) and isinstance(result.get("model"), str) and result.get("model") != "soiptd"
 
 
 #: The columns a process row adds after SUMMARY_COLUMNS (then ``p_NAME``, ``p_NAME_std``, ``p_NAME_unit``

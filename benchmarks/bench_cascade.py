@@ -158,7 +158,7 @@ def cascade_route(spec, bag: Path, out: Outcome, layout: str = "hear-ros") -> No
     flight = read_flight(bag, ReadOptions(loop=spec.axis), echo_warnings=False)
     analysis = analyze_flight(flight, cascade_model(inner, spec.commanded), options=AnalyzeOptions(
         cascade=CascadeOptions(draws=tuple(inner_draws(inner_result, inner, 30)))))
-    est = analysis.identification.estimates
+    est = analysis.identification.parameters
     out.cascade_Td, out.cascade_tau = est["Td"].value, est["tau"].value
     out.cascade_td_covers = est["Td"].ci95_low <= spec.Td <= est["Td"].ci95_high
     out.cascade_tau_covers = est["tau"].ci95_low <= spec.tau <= est["tau"].ci95_high

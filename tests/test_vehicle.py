@@ -236,7 +236,7 @@ def test_outer_loop_through_the_closed_inner_loop(cascaded):
                            options=VehicleOptions(n_bootstrap=100, inner_draws=5))
     y = res.loops["y"]
     assert (y.role, y.route) == ("outer", "cascade")
-    est = y.analysis.identification.estimates
+    est = y.analysis.identification.parameters
     assert est["Td"].value == pytest.approx(2.0, rel=0.10)
     assert est["tau"].ci95_low <= 0.03 <= est["tau"].ci95_high
     assert any(a.startswith("y: the outer relay commands an acceleration") for a in res.assumptions[:6])

@@ -279,8 +279,9 @@ class AnalysisResult:
         The identified model (the point estimate).
     tests : tuple of MrftTest (eq. (2), cascade) or TestSummary (process family)
         The tests used for identification (eq. (2) and the cascade: with their per-cycle data).
-    identification : IdentificationResult or None, LtiIdentification or CascadeIdentification
-        The identification record: eq. (2)'s point identification from
+    identification : Identification or None
+        The one identification record of the strategy (:mod:`mrftcli.mrft.identification`): eq. (2)'s point
+        identification from
         :func:`mrftcli.mrft.identify.identify` (None in a record read from JSON: the JSON keeps its
         summary only), the family's fit, or the cascade's.
     parameters : mapping of str to ParameterEstimate
@@ -343,7 +344,7 @@ class AnalysisResult:
     loop: str
     model: Any
     tests: tuple[Any, ...]
-    identification: Any
+    identification: Any  # an Identification (or None); typed Any so each kind's readers reach their strategy's fields
     parameters: Mapping[str, ParameterEstimate]
     rejected: tuple[MrftTest, ...] = ()
     rejection_reasons: Mapping[int, str] = field(default_factory=dict)

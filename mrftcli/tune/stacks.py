@@ -218,17 +218,14 @@ def stack_setting(stack: str, loop: str, rate_given: float | None, rate_source: 
         rate, ap_notes = _ardupilot_rate(rate_given, rate_source)
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
             *ap_notes, "AC_PosControl runs the z cascade every main-loop tick"))
-    if stack == "px4" and loop == "altitude":
+    if stack == "px4" and (loop == "altitude" or loop in _PX4_XY):
         rate = rate_given or rate_source
         if rate is None:
             raise InputError("give --controller-rate HZ, the rate of PX4's position controller (the local position's rate)")
-        return StackSetting(stack, rate, RateFilter(0.0, "none"), (
-            f"PX4 altitude: designed at {rate:g} Hz with the vertical velocity unfiltered (PX4 uses the EKF's "
-            "estimate; its lag is not modelled)",))
-    if stack == "px4" and loop in _PX4_XY:
-        rate = rate_given or rate_source
-        if rate is None:
-            raise InputError("give --controller-rate HZ, the rate of PX4's position controller (the local position's rate)")
+        if loop == "altitude":
+            return StackSetting(stack, rate, RateFilter(0.0, "none"), (
+                f"PX4 altitude: designed at {rate:g} Hz with the vertical velocity unfiltered (PX4 uses the EKF's "
+                "estimate; its lag is not modelled)",))
         return StackSetting(stack, rate, RateFilter(0.0, "none"), (
             f"PX4 {loop}: designed at {rate:g} Hz with the horizontal velocity unfiltered (MPC_VEL_LP 0 and "
             "MPC_VEL_NF_FRQ 0, PX4's defaults, not written; PX4 uses the EKF's estimate, its lag is not modelled)",

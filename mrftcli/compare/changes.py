@@ -22,6 +22,7 @@ anywhere (no ``--fail-on``, no ``tol`` in a reference file), every significant c
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from statistics import NormalDist
@@ -32,7 +33,7 @@ from ..jsonable import finite_or_none
 from ..mrft.parameter import ParameterEstimate
 from .records import PARAMETERS, Comparison, LoopEstimates, MissingResult, ParameterChange, Tolerance
 
-__all__ = ["CompareOptions", "ChangeTest", "compare_sides", "compare_estimates", "critical_z", "side_sigmas",
+__all__ = ["CompareOptions", "compare_sides", "compare_estimates", "critical_z", "side_sigmas",
            "comparable", "CORRECTIONS"]
 
 #: Multiple-comparison corrections: none (per parameter) or Bonferroni over a loop's parameters.
@@ -108,29 +109,15 @@ def _undetermined_note(base: ParameterEstimate, new: ParameterEstimate) -> str:
     return "; ".join(w for w in (why(base, "baseline"), why(new, "new")) if w)
 
 
-@dataclass(frozen=True)
-class ChangeTest:
-    """One parameter's test: d = new - base, its interval [SI units], the z score (None when
-    undetermined), whether the interval excludes zero, whether d is beyond the tolerance, the verdict
-    (``changed``, ``significant``, ``unchanged`` or ``undetermined``)."""
-
-    change: float | None
-    low: float | None
-    high: float | None
-    z: float | None
-    significant: bool
-    beyond: bool
-    verdict: str
-
-
-_UNDETERMINED = ChangeTest(None, None, None, None, False, False, "undetermined")
-
-
 def compare_estimates(base: ParameterEstimate, new: ParameterEstimate, *, z_crit: float,
-                      tolerance: Tolerance | None, fail_without_tolerance: bool) -> ChangeTest:
-    """Test one parameter's change (module docstring) with the critical value ``z_crit``."""
+                      tolerance: Tolerance | None, fail_without_tolerance: bool,
+                      where: tuple[str | None, str, str] = (None, "", "")) -> ParameterChange:
+    """Test one parameter's change (module docstring) with the critical value ``z_crit``; ``where``: the
+    change's log or vehicle name, loop and parameter."""
+    row = ParameterChange(*where, finite_or_none(base.value), finite_or_none(new.value), None, None, None, None,
+                          False, tolerance.text if tolerance is not None else None, False, "undetermined")
     if not (comparable(base) and comparable(new)):
-        return _UNDETERMINED
+        return dataclasses.replace(row, note=_undetermined_note(base, new))
     b_below, b_above = side_sigmas(base)
     n_below, n_above = side_sigmas(new)
     d = new.value - base.value
@@ -146,7 +133,8 @@ def compare_estimates(base: ParameterEstimate, new: ParameterEstimate, *, z_crit
         verdict = "changed"
     else:
         verdict = "significant"
-    return ChangeTest(d, low, high, z, significant, beyond, verdict)
+    return dataclasses.replace(row, change=d, low=low, high=high, z=z, significant=significant,
+                               beyond_tolerance=beyond, verdict=verdict)
 
 
 def _tolerance_for(loop: str, param: str, fail_on: tuple[Tolerance, ...],
@@ -180,13 +168,8 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
     out = []
     for p, (be, ne) in pairs.items():
         tol = _tolerance_for(n.loop, p, options.fail_on, (b, n))
-        t = compare_estimates(be, ne, z_crit=z_crit, tolerance=tol, fail_without_tolerance=fail_without_tolerance)
-        note = _undetermined_note(be, ne) if t.verdict == "undetermined" else ""
-        out.append(ParameterChange(name=name, loop=n.loop, parameter=p, baseline=finite_or_none(be.value),
-                                   new=finite_or_none(ne.value), change=t.change,
-                                   low=t.low, high=t.high, z=t.z, significant=t.significant,
-                                   tolerance=tol.text if tol is not None else None, beyond_tolerance=t.beyond,
-                                   verdict=t.verdict, note=note))
+        out.append(compare_estimates(be, ne, z_crit=z_crit, tolerance=tol, fail_without_tolerance=fail_without_tolerance,
+                                     where=(name, n.loop, p)))
     return out
 
 

@@ -116,13 +116,16 @@ def test_added_delay_shows_in_tau() -> None:
 
 @pytest.mark.parametrize("before, loop, output, realised", [
     ("px4_altitude_h25", "altitude", None, 0.024),
-    ("px4_pitch_h", "pitch", "vehicle_attitude_groundtruth:q", 0.020)])
+    ("px4_pitch_h", "pitch", "vehicle_attitude_groundtruth:q", 0.020),
+    ("px4_pitch_h", "pitch", None, 0.020)], ids=["altitude", "pitch-sih", "pitch-ekf2"])
 def test_mrft_ident_delay_gives_back_the_delay_px4_realised(before: str, loop: str, output: str | None,
                                                              realised: float) -> None:
     """``mrft-ident delay`` (compare/delay.py: one Td and K for both flights, a delay each) on the committed
     PX4 pairs: the increment is the delay the log shows PX4 realised (altitude: 3 ticks of 8 ms, 24.0 ms;
-    pitch: 5 ticks of 4 ms, 20.0 ms, measured on SIH's attitude at the bench Tp) within 2 ms, inside the stated
-    95 % interval, with SIH's Td and K (m / SIH_KDV; pitch: SIH's torque constants) within 10 % / 5 %."""
+    pitch: 5 ticks of 4 ms, 20.0 ms, measured on SIH's attitude at the bench Tp, and on EKF2's at SIH_T_TAU,
+    whose plain flight leads eq. (2) by ~3 ms: a negative tau, which delay takes) within 2 ms, inside the stated
+    95 % interval, with SIH's Td and K (m / SIH_KDV; pitch: SIH's torque constants) within 10 % / 5 % (on EKF2's
+    with tau held at 0 the fit bent Td to 0.74 s)."""
     from mrftcli.compare.delay import delay_increment
 
     tp = bench_tp() if output else json.loads((LOGS / f"{before}.ulg.json").read_text())["tp_s"]

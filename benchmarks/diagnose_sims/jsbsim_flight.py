@@ -7,7 +7,8 @@ thrust falls as the vehicle climbs, the climb's linear damping), its drag table 
 the dynamic pressure: quadratic in the speed) and its ESC actuators (``Effectors.xml``: clip 0..1).
 The command is the collective thrust over the weight (hover 1.0), turned into the throttle
 ``fcs/throttle-cmd-norm`` through the motors' static thrust curve (a flight stack's thrust
-linearisation, e.g. ArduPilot's MOT_THST_EXPO, measured on JSBSim's motors on the ground); the
+linearisation, e.g. ArduPilot's MOT_THST_EXPO, measured on JSBSim's motors on a thrust stand:
+the vehicle on its gear under ballast, J = 0); the
 attitude rate loops of its flight control hold the vehicle level.
 
 Effects produced in the simulator (the aircraft's XML edited in a copy, or its properties set):
@@ -41,7 +42,7 @@ PLATFORMS = ("F450",)
 FT = 0.3048
 G = 9.81
 DT = 1.0 / 2000.0  # JSBSim's integration step [s]
-RHO = 1.19  # air density at the initial altitude (285 m + 10 m) [kg/m^3]
+RHO = 1.2238  # air density where the flights fly (10 m above the sea-level terrain; JSBSim's standard atmosphere) [kg/m^3]
 AREA = 0.173611 * FT * FT  # the F450's reference area (Metrics.xml) [m^2]
 TANK = 0.3  # the tank's initial weight over the empty weight (gain drift)
 
@@ -151,24 +152,39 @@ class JSBSimVehicle:
         self.t += dt
 
 
+#: ballast on the thrust stand [kg]: the F450's weight with it exceeds its thrust at full throttle (4.4 x 1.4 kg)
+STAND_BALLAST = 10.0
+
+
+@lru_cache(maxsize=None)
+def _stand_root() -> str:
+    """The F450 with a point mass for the stand's ballast (a copy of the package's aircraft)."""
+    return _aircraft_root(None, None, None, True)
+
+
 def _grounded_f450():
-    """JSBSim's stock F450 on the ground with its motors running (the bench tests below start from it)."""
+    """JSBSim's stock F450 on a thrust stand with its motors running (the bench tests below start from it):
+    standing on its gear on the flights' terrain (sea level, the air of :data:`RHO`), held down by
+    :data:`STAND_BALLAST`, so its propellers run at advance ratio J = 0 at every throttle, as a stand
+    measures them. (It was the package's ``initGrnd``, 285 m above that terrain: above hover the vehicle
+    climbed, and the thrust read 1.5 s after a step was the climbing propeller's, J 0.16-0.47, up to
+    40 % short; a concave table whose error the flights carried as a thrust surplus ~0.5 h^2.)"""
     import jsbsim
 
     with _quiet():
-        fdm = jsbsim.FGFDMExec(None)
+        fdm = jsbsim.FGFDMExec(_stand_root())
         fdm.set_debug_level(0)
         fdm.load_model("F450")
         fdm.set_dt(DT)
-        fdm.load_ic("initGrnd", True)
+        fdm["ic/h-agl-ft"] = 0.52  # on its gear (the contacts are 0.1524 m below the reference point)
         fdm.run_ic()
     fdm["propulsion/set-running"] = -1
+    fdm["inertia/pointmass-weight-lbs"] = STAND_BALLAST / 0.45359237
     return fdm
 
 
 def _static(u: float) -> tuple[float, float]:
-    """Total thrust [N] at throttle ``u`` on the ground after the spin-up, and its 63 % rise time [s]
-    from the hover throttle (the step a bench test of the motors would make)."""
+    """Total thrust [N] at throttle ``u`` on the stand after the spin-up (and 0.0, unused)."""
 
     fdm = _grounded_f450()
     thrust = []
@@ -181,7 +197,8 @@ def _static(u: float) -> tuple[float, float]:
 
 @lru_cache(maxsize=None)
 def _thrust_curve() -> tuple:
-    """The static thrust over the 1.4 kg weight at throttles 0.1..1 (the stack's linearisation table)."""
+    """The static thrust (J = 0, on the stand) over the 1.4 kg weight at throttles 0.1..1 (the stack's
+    linearisation table)."""
     import numpy as np
 
     thr = np.linspace(0.1, 1.0, 19)
@@ -211,7 +228,7 @@ def hover_command(platform: str) -> float:
 @lru_cache(maxsize=None)
 def _motor(platform: str) -> tuple[float, float]:
     """(K [m/s^2 per unit of thrust / weight], Tp [s]): g, and the thrust's 63 % rise time after a 0.04
-    throttle step about hover (the motor test a pilot runs before flying)."""
+    throttle step about hover, on the stand (the motor test a pilot runs before flying)."""
     import numpy as np
 
     u0 = throttle_of(1.0)

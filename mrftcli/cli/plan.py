@@ -108,20 +108,19 @@ def format_plan(result: PlanResult, unit: str = "output unit") -> str:
     def row(name: str, s: dict[str, float]) -> str:
         return f"{name:<28} {s['Td']:>10.4g} {s['tau'] * 1e3:>10.4g} {s['K']:>10.4g}"
 
+    def spread(name: str, r: dict[str, tuple[float, float]], why: str) -> str:
+        return f"{name:<28} {r['Td'][0]:.3g}-{r['Td'][1]:.3g} s, {r['tau'][0] * 1e3:.3g}-{r['tau'][1] * 1e3:.3g} ms ({why})"
+
     lines.append(row("prior", result.prior_std))
     lines.append(row("after the recommended tests", result.predicted_std))
     lines.append(row("  the tests alone (analyze)", result.predicted_std_data))
-    rng = result.predicted_std_data_range
-    if rng:
-        lines.append(f"{'  10-90 % over the plants':<28} {rng['Td'][0]:.3g}-{rng['Td'][1]:.3g} s, "
-                     f"{rng['tau'][0] * 1e3:.3g}-{rng['tau'][1] * 1e3:.3g} ms (where the plant lies in what is "
-                     "still unknown)")
+    if result.predicted_std_data_range:
+        lines.append(spread("  10-90 % over the plants", result.predicted_std_data_range,
+                            "where the plant lies in what is still unknown"))
     if result.simulated_std:
         lines.append(row(f"  simulated ({result.n_simulated} plants)", result.simulated_std))
-        sr = result.simulated_std_range
-        lines.append(f"{'  10-90 % simulated':<28} {sr['Td'][0]:.3g}-{sr['Td'][1]:.3g} s, "
-                     f"{sr['tau'][0] * 1e3:.3g}-{sr['tau'][1] * 1e3:.3g} ms (flights of the same plant scatter "
-                     "too: read the range)")
+        lines.append(spread("  10-90 % simulated", result.simulated_std_range,
+                            "flights of the same plant scatter too: read the range"))
     if result.conventional:
         betas = "/".join(f"{b:g}" for b in result.conventional.betas)
         lines.append(row(f"after beta {betas} instead", result.conventional.predicted_std))

@@ -133,9 +133,8 @@ def write_cascade(flight: CascadeFlight, path: str | Path, layout: str = "hear-r
     from ..io import writable_format
 
     path = Path(path)
-    if layout not in CASCADE_LAYOUTS:
-        raise InputError(f"a cascaded flight is written in the {' or '.join(CASCADE_LAYOUTS)} layout, not {layout!r}")
+    topics = cascade_topics(flight, layout, seed=flight.spec.seed + 1)  # an unknown layout refused first
     fmt = writable_format(path, fmt or CASCADE_LAYOUTS[layout])
-    write_log_atomic(cascade_topics(flight, layout, seed=flight.spec.seed + 1), path, fmt)
+    write_log_atomic(topics, path, fmt)
     truth = dataclasses.replace(flight.truth, layout=layout, log_format=fmt, log_file=path.name)
     return write_sidecar(path, truth.to_json())

@@ -17,6 +17,7 @@ from ..diagnose.records import DiagnosisResult, ModelEstimate
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
+    from ..errors import MrftError
     from ..analyze.residual import ResidualVerdict
     from ..io.logtypes import FlightLog
     from ..mrft.model import LoopModel
@@ -94,6 +95,7 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
     waveform residual's verdict analyze gives (``residual``: one verdict for both commands)."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
+    lines += _refusal_line(result.warnings)
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
     lines.append(f"{'':>4} {'[s]':>11} {'nominal':>8} {'effective':>9} {'[command]':>9} {'used':>6}")
     for t in result.tests:
@@ -124,6 +126,19 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
         for loc in feats:
             lines.append(f"  test {loc.test + 1} ({loc.t_start_rel:.1f}-{loc.t_end_rel:.1f} s): {loc.what}, z = {loc.z:+.1f}")
     return "\n".join(line.rstrip() for line in lines)
+
+
+def _refusal_line(warnings: list[str]) -> list[str]:
+    """When analyze refused the log, a line at the top says so in its first words (issue 39: a log analyze
+    refuses is diagnosed from the recorded cycles alone; the full reason is the warning at the end)."""
+    from ..diagnose.screen import REFUSED
+
+    for w in warnings:
+        if w.startswith(REFUSED):
+            reason = w[len(REFUSED):].split(" (", 1)[0].split(";", 1)[0].rstrip(")")
+            return [f"analyze refuses this log: {reason}; the diagnosis below fits the recorded cycles itself "
+                    "(no model of analyze's to compare with; the full reason is the warning at the end)"]
+    return []
 
 
 @click.command("diagnose")
@@ -175,8 +190,8 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
     if model_name == "soiptd":
         with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
             flight = read_flight(log, ReadOptions(**read_options), progress=progress)
-        analysis = _analysis(flight, model, min_cycles)
-        options: dict[str, Any] = {"analysis": analysis}
+        analysis, refusal = _analysis(flight, model, min_cycles)
+        options: dict[str, Any] = {"analysis": analysis, "refusal": refusal}
     else:  # a process family's model object, through the same driver
         flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
         options = {"relay": RelayOptions(relay_kind, None, eps), "windows": parse_windows(windows, log_start(flight)),
@@ -199,19 +214,21 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         click.echo(f"report: {write_diagnosis_report(result, report_dir)}", err=to_stdout)
 
 
-def _analysis(flight: FlightLog, model: LoopModel, min_cycles: int) -> AnalysisResult | None:
+def _analysis(flight: FlightLog, model: LoopModel, min_cycles: int) -> tuple[AnalysisResult | None, MrftError | None]:
     """analyze's record of the log, made once: the diagnosis reuses its segmentation (issue 39) and reports
     its model beside its own fits. With ``--min-cycles`` analyze's refusal is the command's (the user's
-    cycle count); with the default None when analyze refuses (the diagnosis then fits the cycles itself)."""
+    cycle count); with the default, analyze's refusal is handed to the diagnosis (None, the refusal), which
+    goes on where the refusal is the evidence of missing physics and raises it otherwise, without running
+    analyze a second time."""
     from ..analyze import AnalyzeOptions, analyze_flight
     from ..errors import MrftError
 
     if min_cycles != 3:
-        return analyze_flight(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles))
+        return analyze_flight(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles)), None
     try:
-        return analyze_flight(flight, model)
-    except MrftError:
-        return None  # analyze refuses the log: the diagnosis' own fits are all there is (a warning says so)
+        return analyze_flight(flight, model), None
+    except MrftError as exc:
+        return None, exc  # the diagnosis decides (a warning says so when it goes on)
 
 
 def _with_analysis(result: DiagnosisResult, analysis: AnalysisResult | None) -> DiagnosisResult:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..analyze import log_start
-from ..errors import DiagnoseError, IdentificationError, InsufficientDataError
+from ..errors import DiagnoseError, IdentificationError, InsufficientDataError, MrftError
 from ..io.logtypes import FlightLog
 from ..segment.records import MrftTest
 from ..mrft.model import LoopModel
@@ -24,7 +24,10 @@ from .fit import MIN_CYCLES, DiagnosedTest, feature_sigma, prepare_tests, segmen
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["Screen", "screen_log", "lost_height_pair"]
+__all__ = ["Screen", "screen_log", "lost_height_pair", "REFUSED"]
+
+#: how the warning begins when analyze refused the log and the diagnosis goes on (the CLI's first lines say so)
+REFUSED = "analyze refuses this log ("
 
 #: two tests at one beta are at two relay heights when the larger is this much above the smaller
 HEIGHT_RATIO = 1.1
@@ -63,32 +66,42 @@ class Screen:
     warnings: list[str]
 
 
-def _analysis_of(flight: FlightLog, model: LoopModel) -> tuple[AnalysisResult | None, str | None]:
+def _analysis_of(flight: FlightLog, model: LoopModel,
+                 refusal: MrftError | None = None) -> tuple[AnalysisResult | None, str | None]:
     """The tests analyze would use, refused for the same reasons (an output that does not follow
     the relay: the --loop / --output-topic hint), so the two commands agree on what a
-    log supports; the identification's bootstrap and refinement are not needed here. Returns the
-    analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests' frequencies, or
-    when a single beta is left (a test that saturates at the larger relay height is not an MRFT
-    limit cycle of eq. (2), yet its flattening is the evidence of the saturation)."""
+    log supports; the identification's bootstrap and refinement are not needed here. ``refusal``:
+    analyze's own refusal of this log when the caller ran it (analyze is not run again; issue 39).
+    Returns the analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests'
+    frequencies, or when a single beta is left (a test that saturates at the larger relay height is
+    not an MRFT limit cycle of eq. (2), yet its flattening is the evidence of the saturation)."""
     from ..analyze import AnalyzeOptions, analyze_flight
 
-    with pywarnings.catch_warnings():
-        # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
-        pywarnings.simplefilter("ignore", RuntimeWarning)
-        try:
-            options = AnalyzeOptions(n_bootstrap=1, max_combinations=10, refine_waveform=False)
-            return analyze_flight(flight, model, options=options), None
-        except IdentificationError as exc:
-            # analyze must refuse, but that is the strongest sign of missing physics there is, so the
-            # diagnosis fits the cycles itself
-            return None, str(exc)
-        except InsufficientDataError as exc:
-            # one usable beta: refused as analyze refuses it, unless the log flew tests to compare
-            # (another beta analyze left out, or another relay height: a test that flattens at the
-            # larger one is the evidence of a saturation)
-            if not _comparable(segments_of(flight, None)):
-                raise
-            return None, str(exc)
+    if refusal is None:
+        with pywarnings.catch_warnings():
+            # numpy's all-NaN medians inside analyze's refusal message must not reach the terminal
+            pywarnings.simplefilter("ignore", RuntimeWarning)
+            try:
+                options = AnalyzeOptions(n_bootstrap=1, max_combinations=10, refine_waveform=False)
+                return analyze_flight(flight, model, options=options), None
+            except (IdentificationError, InsufficientDataError) as exc:
+                refusal = exc
+    return None, _diagnosed_anyway(flight, refusal)
+
+
+def _diagnosed_anyway(flight: FlightLog, refusal: MrftError) -> str:
+    """analyze's refusal as the diagnosis' warning when the diagnosis goes on without it, else the
+    refusal raised (the command's: the same message and exit code as analyze)."""
+    if isinstance(refusal, IdentificationError):
+        # analyze must refuse, but that is the strongest sign of missing physics there is, so the
+        # diagnosis fits the cycles itself
+        return str(refusal)
+    # one usable beta: refused as analyze refuses it, unless the log flew tests to compare (another
+    # beta analyze left out, or another relay height: a test that flattens at the larger one is the
+    # evidence of a saturation)
+    if isinstance(refusal, InsufficientDataError) and _comparable(segments_of(flight, None)):
+        return str(refusal)
+    raise refusal
 
 
 def _comparable(tests: list[MrftTest]) -> bool:
@@ -139,9 +152,10 @@ def lost_height_pair(flown: list[MrftTest], kept: set[int]) -> str | None:
 
 
 def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | None,
-               say: Callable[[str], None]) -> Screen:
+               say: Callable[[str], None], refusal: MrftError | None = None) -> Screen:
     """Stage 1: the tests, their cycles and features (``analysis`` reused when given; ``model``: eq. (2)
-    with Tp known, as analyze takes it).
+    with Tp known, as analyze takes it; ``refusal``: analyze's refusal of the log when the caller ran
+    analyze and it refused, so that it is not run again).
 
     Raises
     ------
@@ -151,12 +165,12 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     say("segmenting")
     refused_by_linear = None  # analyze's IdentificationError, when the diagnosis goes on without it
     if analysis is None:
-        analysis, refused_by_linear = _analysis_of(flight, model)
+        analysis, refused_by_linear = _analysis_of(flight, model, refusal)
     segs = segments_of(flight, analysis)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
     if refused_by_linear is not None:
-        warnings.append(f"analyze refuses this log ({refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
+        warnings.append(f"{REFUSED}{refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
                         "recorded cycles with the linear model and each candidate directly")
     flown = segs if analysis is None else sorted([*analysis.tests, *analysis.rejected], key=lambda s: s.index)
     lost = lost_height_pair(flown, {t.index for t in tests})

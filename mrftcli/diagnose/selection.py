@@ -135,6 +135,7 @@ def diagnose(
     windows: Sequence[tuple[float, float]] = (),
     min_stable_cycles: int = 3,
     baseline: tuple[float | Signal, float] | None = None,
+    refusal: MrftError | None = None,
 ) -> DiagnosisResult:
     """Locate model mismatch in a relay-test log, name the missing physics, fit it, compare.
 
@@ -165,6 +166,11 @@ def diagnose(
         The other families: what is stated about the relay, the parts of the log to use [s, log
         clock], the fewest stable cycles of a test, the operating point (``AnalyzeOptions.baseline``:
         the same analysis as ``analyze --model`` with those options).
+    refusal : MrftError, optional
+        Eq. (2): analyze's refusal of this log when the caller ran analyze and it refused (``analysis``
+        None): analyze is not run again; the diagnosis goes on where analyze's refusal is the evidence
+        of missing physics (no plant of eq. (2) fits, or one beta left of tests flown at two betas or two
+        relay heights), else ``refusal`` is raised (analyze's message and exit code).
 
     Raises
     ------
@@ -190,7 +196,7 @@ def diagnose(
     """
     if not isinstance(model, LoopModel):
         return _diagnose_family(flight, model, relay, windows, min_stable_cycles, progress, baseline, analysis)
-    return _diagnose_soiptd(flight, model, analysis, progress, candidates)
+    return _diagnose_soiptd(flight, model, analysis, progress, candidates, refusal)
 
 
 def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
@@ -238,7 +244,7 @@ def _diagnose_family(flight: FlightLog, model: PlantModel, relay: RelayOptions,
 
 
 def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | None, progress: Progress | None,
-                     candidates: tuple[str, ...] | None) -> DiagnosisResult:
+                     candidates: tuple[str, ...] | None, refusal: MrftError | None = None) -> DiagnosisResult:
     """Eq. (2)'s strategy (module docstring), Tp [s] read from the model object."""
     Tp = model.Tp
     names = [c.name for c in CANDIDATES] if candidates is None else list(candidates)
@@ -248,7 +254,7 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
             raise InputError(f"unknown candidate effect {n!r}; choose from {', '.join(library)}")
     # done, total: segmenting, linear fit, noise scatter, candidates, locating
     say = _Stages(progress, 4 + len(names))
-    screen = screen_log(flight, model, analysis, say)
+    screen = screen_log(flight, model, analysis, say, refusal)
     linear = fit_linear(screen, model, str(flight.path), say)
     search = search_candidates(screen, linear, names, model, say)
     chosen = select_effects(screen, linear, search, model, say)

@@ -1,0 +1,108 @@
+"""diagnose on a log analyze refuses: analyze runs once, its refusal is handed to the diagnosis (issue 39).
+
+The CLI runs analyze first (the diagnosis reuses its record); when analyze refuses, its refusal decides
+whether the diagnosis goes on (no plant of eq. (2) fits, or one beta left of tests flown at two relay
+heights: the evidence of missing physics) or the command refuses with analyze's message and exit code.
+Before, the diagnosis ran analyze a second time to learn the same refusal.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+from cli_helpers import run_main
+
+import mrftcli.analyze
+from mrftcli.diagnose.screen import screen_log
+from mrftcli.errors import IdentificationError, InsufficientDataError, SegmentationError
+from mrftcli.io import ReadOptions, read_flight, write_log
+from mrftcli.mrft.model import soiptd_model
+from mrftcli.sim.flight import FlightSpec, plan_test, simulate_flight
+from mrftcli.sim.flight import TestSpec as FlownTest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+import make_concealed_logs as gen  # noqa: E402 - the benchmark's case generator
+
+M = gen.PLANTS["design1"]
+
+
+def _one_beta(tmp: Path, heights: tuple[float, ...], name: str) -> Path:
+    """A clean flight of tests at beta -0.4 only, at the given multiples of the planned relay height."""
+    t1 = plan_test(M, -0.4, gen.AMPLITUDE, cycles=8)
+    tests = tuple(FlownTest(-0.4, k * t1.h, t1.duration) for k in heights)
+    fl = simulate_flight(FlightSpec(model=M, tests=tests, loop="altitude", rate_hz=200.0, seed=7, hover_s=2.0,
+                                    hold_s=2.0))
+    path = tmp / f"{name}.mcap"
+    write_log([t for t in fl.topics if t.name != "/battery"], path, "mcap")
+    return path
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("refusal")
+    return {"one_height": _one_beta(tmp, (1.0, 1.0), "one_height"), "two_heights": _one_beta(tmp, (1.0, 2.0), "two")}
+
+
+def _counting(monkeypatch) -> list[int]:
+    """analyze_flight's calls from here on (the CLI and the diagnosis import it from mrftcli.analyze)."""
+    calls: list[int] = []
+    real = mrftcli.analyze.analyze_flight
+    monkeypatch.setattr(mrftcli.analyze, "analyze_flight", lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls
+
+
+def test_the_cli_runs_analyze_once_on_a_log_it_refuses(logs, monkeypatch):
+    calls = _counting(monkeypatch)
+    r = run_main("diagnose", str(logs["one_height"]), "--tp", str(M.Tp), "-q")
+    assert r.returncode == 6 and "only one beta" in r.stderr, r.stderr
+    assert len(calls) == 1  # was 2: the diagnosis ran analyze again to learn the same refusal
+
+
+def _refusal(path: Path) -> InsufficientDataError:
+    with pytest.raises(InsufficientDataError, match="only one beta") as exc:
+        mrftcli.analyze.analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(M.Tp))
+    return exc.value
+
+
+def test_a_refusal_handed_over_gives_the_screen_analyze_again_gives(logs, monkeypatch):
+    # two relay heights at one beta: the diagnosis goes on, with the same tests and warnings either way
+    refusal = _refusal(logs["two_heights"])
+    fl = read_flight(logs["two_heights"], ReadOptions(loop="altitude"))
+    again = screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None)
+    calls = _counting(monkeypatch)
+    handed = screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None, refusal)
+    assert calls == []
+    assert handed.analysis is None and [t.index for t in handed.tests] == [t.index for t in again.tests]
+    assert len(handed.tests) == 2 and handed.warnings == again.warnings
+    assert any(w.startswith("analyze refuses this log (only one beta") for w in handed.warnings)
+
+
+def test_a_refusal_that_is_not_evidence_is_the_commands(logs, monkeypatch):
+    fl = read_flight(logs["one_height"], ReadOptions(loop="altitude"))
+    calls = _counting(monkeypatch)
+    one_beta = _refusal(logs["one_height"])  # one beta at one relay height: nothing to compare
+    with pytest.raises(InsufficientDataError) as exc:
+        screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None, one_beta)
+    assert exc.value is one_beta and len(calls) == 1  # the call in _refusal only
+    no_test = SegmentationError("no usable MRFT limit cycle")
+    with pytest.raises(SegmentationError) as seg:
+        screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None, no_test)
+    assert seg.value is no_test
+    # no plant of eq. (2) fits: the strongest sign of missing physics, diagnosed (its reason in a warning)
+    screen = screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None,
+                        IdentificationError(f"{fl.path}: no plant of eq. (2) produces these tests' frequencies"))
+    assert any("analyze refuses this log (no plant of eq. (2)" in w for w in screen.warnings)
+    assert len(calls) == 1
+
+
+def test_a_log_analyze_refuses_is_diagnosed_and_says_so_first(logs, monkeypatch):
+    calls = _counting(monkeypatch)
+    r = run_main("diagnose", str(logs["two_heights"]), "--tp", str(M.Tp), "-q")
+    assert r.returncode == 0, r.stderr
+    assert len(calls) == 1
+    second = r.stdout.splitlines()[1]
+    assert second.startswith("analyze refuses this log: only one beta was tested; the diagnosis below fits"), second
+    assert "warning: analyze refuses this log (only one beta was tested" in r.stdout + r.stderr

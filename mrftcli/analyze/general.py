@@ -34,6 +34,7 @@ from ..mrft.relays import RelayLaw
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
+from ..segment.segmenter import inside_windows
 from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .held_out import HeldOut
@@ -93,16 +94,11 @@ def mask_windows(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> F
 
 def _keep(flight: FlightLog, windows: Sequence[tuple[float, float]]) -> FlightLog:
     """Every signal of the flight cut to the samples inside the windows."""
-    def keep(s: Signal) -> Signal:
-        inside = np.zeros(s.t.size, dtype=bool)
-        for a, b in windows:
-            inside |= (s.t >= a) & (s.t <= b)
-        return Signal(s.t[inside], s.values[inside])
-
     def keep_opt(s: Signal | None) -> Signal | None:
-        return None if s is None else keep(s)
+        return None if s is None else inside_windows(s, windows)
 
-    return dataclasses.replace(flight, command=keep(flight.command), output=keep(flight.output),
+    return dataclasses.replace(flight, command=inside_windows(flight.command, windows),
+                               output=inside_windows(flight.output, windows),
                                beta=keep_opt(flight.beta), setpoint=keep_opt(flight.setpoint),
                                battery_voltage=keep_opt(flight.battery_voltage))
 

@@ -7,6 +7,7 @@ and the validity check (:mod:`.validity`), into :class:`~mrftcli.segment.records
 from __future__ import annotations
 
 import weakref
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -23,7 +24,7 @@ from .stability import StabilityCriterion, stable_cycles
 from .validity import ValidityCriterion, check_limit_cycle
 from .vernier import TickSwitches, measure_folded, refine_by_waveform, switch_ticks
 
-__all__ = ["segment", "segment_arrays", "SegmentOptions", "MAX_CYCLES"]
+__all__ = ["segment", "segment_arrays", "SegmentOptions", "MAX_CYCLES", "inside_windows"]
 
 #: relay cycles measured per test at most: a relay test's limit cycle repeats itself, and measuring a
 #: cycle costs about a millisecond of CPU (a 14-hour single test holds 50 000 cycles: a minute, per pass)
@@ -603,9 +604,10 @@ def segment(
             # between a stack's logged tests (PX4: MRFT_<AXIS>_ENABLE) the command is the loop's own controller,
             # whose output (a rate controller's torque on gyro noise) can change as much per sample as the
             # relay's switches: a threshold set on the whole log hides them, so look inside the windows
-            tests = segment_arrays(_inside(flight.command, windows), _inside(flight.output, windows),
-                                   beta=None if beta is None else _inside(beta, windows),
-                                   setpoint=None if setpoint is None else _inside(setpoint, windows), options=options)
+            tests = segment_arrays(inside_windows(flight.command, windows), inside_windows(flight.output, windows),
+                                   beta=None if beta is None else inside_windows(beta, windows),
+                                   setpoint=None if setpoint is None else inside_windows(setpoint, windows),
+                                   options=options)
         _LAST.keep(flight, options, tests)
     if not tests:
         span = f"{t_c[-1] - t_c[0]:.1f} s long"
@@ -627,8 +629,8 @@ def _logged_windows(flight: FlightLog) -> list[tuple[float, float]]:
     return out
 
 
-def _inside(sig: Signal, windows: list[tuple[float, float]]) -> Signal:
-    """The samples of ``sig`` inside any of ``windows`` [s]."""
+def inside_windows(sig: Signal, windows: Sequence[tuple[float, float]]) -> Signal:
+    """The samples of ``sig`` inside any of ``windows`` [s] (ends included)."""
     keep = np.zeros(sig.t.size, dtype=bool)
     for a, b in windows:
         keep |= (sig.t >= a) & (sig.t <= b)

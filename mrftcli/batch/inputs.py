@@ -217,11 +217,7 @@ def _glob_matches(pattern: str, log: Path, base: Path) -> bool:
     if "/" not in pattern:
         candidates = [log.name]
     else:
-        candidates = [log.as_posix()]
-        try:
-            candidates.append(log.relative_to(base).as_posix())
-        except ValueError:
-            pass
+        candidates = [log.as_posix()] + ([log.relative_to(base).as_posix()] if log.is_relative_to(base) else [])
     patterns = [pattern]
     if pattern.startswith("**/"):
         patterns.append(pattern[3:])
@@ -307,7 +303,7 @@ def _walk(folder: Path, exclude: Sequence[Path]) -> Iterator[Path]:
         keep = []
         for d in sorted(dirs):
             sub = root_p / d
-            if d.startswith(".") or any(_same_or_inside(sub, ex) for ex in exclude):
+            if d.startswith(".") or any(sub.resolve().is_relative_to(ex) for ex in exclude):
                 continue
             if _is_ros2_bag(sub):
                 yield sub
@@ -318,14 +314,6 @@ def _walk(folder: Path, exclude: Sequence[Path]) -> Iterator[Path]:
             fp = root_p / f
             if not f.startswith(".") and _is_supported_file(fp):
                 yield fp
-
-
-def _same_or_inside(path: Path, folder: Path) -> bool:
-    try:
-        path.resolve().relative_to(folder)
-        return True
-    except ValueError:
-        return False
 
 
 def discover_logs(paths: Iterable[str | os.PathLike[str]], exclude: Sequence[str | os.PathLike[str]] = ()) -> list[Path]:
@@ -351,7 +339,7 @@ def discover_logs(paths: Iterable[str | os.PathLike[str]], exclude: Sequence[str
         raise InputError("no log paths given: pass files, folders or globs")
 
     def add_path(p: Path, from_glob: bool) -> None:
-        if from_glob and any(_same_or_inside(p, ex) for ex in excl):
+        if from_glob and any(p.resolve().is_relative_to(ex) for ex in excl):
             return
         if _is_ros2_bag(p):
             found[p.resolve()] = None

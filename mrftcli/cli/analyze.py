@@ -17,8 +17,6 @@ from .options import (check_output_dir, check_output_file, dump_json, echo_warni
                       tp_option, tqdm_progress)
 
 
-
-
 def accept_tp_option(f):
     """``--accept-tp``: keep a Tp the recording rejects (analyze, batch, vehicle)."""
     return click.option("--accept-tp", "accept_tp", is_flag=True, default=False,

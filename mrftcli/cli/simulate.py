@@ -415,7 +415,6 @@ def _process_model(family: str, items: tuple[str, ...]):
     """The family's model of ``--param`` values; one-line errors naming a missing or unknown parameter."""
     from ..mrft.families import PROCESS_FAMILIES
 
-
     cls = PROCESS_FAMILIES[family]
     names = list(cls._spec)
     values = parse_params(items)

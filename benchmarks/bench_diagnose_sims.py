@@ -95,7 +95,28 @@ def report(sim: str, results: list[dict], wall: float) -> None:
             print(f"    on the {int(done.sum())} logs analyze identified: per log median {np.median(ratio[done]):.2f}x, "
                   f"worst {ratio[done].max():.2f}x; on the {int((~done).sum())} it refused: diagnose's CPU median "
                   f"{np.median(cpu[~done]) if (~done).any() else float('nan'):.2f} s")
+            refusing_instead(results, ratio, done)
     inherent_reading(sim, results)
+
+
+def _answered_right(r: dict) -> bool:
+    """Whether a flight's answer counts for its kind: its effect named, a clean flight kept clean, a mount unexplained."""
+    if r["effect"] in EFFECTS:
+        return r["effect"] in (r.get("found") or [])
+    if r["effect"] is None:
+        return r.get("found") == [] and not r.get("unexplained")
+    return bool(r.get("unexplained"))
+
+
+def refusing_instead(results: list[dict], ratio: np.ndarray, done: np.ndarray) -> None:
+    """The other answer to a log analyze refuses, measured on this run: diagnose refusing it at once with analyze's
+    reason (its CPU beyond analyze's then about 0) against diagnosing the recorded cycles (what it does): the CPU
+    ratio each gives and the right answers refusing would lose (a refusal is a miss)."""
+    timed = [r for r in results if np.isfinite(r["cpu"])]
+    lost = [r for r, d in zip(timed, done) if not d and _answered_right(r)]
+    print(f"    if diagnose refused the {int((~done).sum())} logs analyze refuses (CPU beyond analyze's ~0): per log "
+          f"median {np.median(np.where(done, ratio, 0.0)):.2f}x; right answers lost: {len(lost)} "
+          f"{[(r['effect'], r.get('found')) for r in lost]}")
 
 
 def main() -> None:

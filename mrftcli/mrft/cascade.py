@@ -55,7 +55,7 @@ from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parame
     model_json_parameters
 
 __all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
-           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit", "delayed_discrete",
+           "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit", "delayed_discrete", "fraction_discrete",
            "orbits", "split_interval", "whole_and_fraction"]
 
 if TYPE_CHECKING:
@@ -515,6 +515,14 @@ def delayed_discrete(ss: StateSpace, delay: float, rate_hz: float) -> DiscreteSt
     return DiscreteStateSpace(Ad, Bd, C, rate_hz)
 
 
+def fraction_discrete(ss: StateSpace, delay: float, rate_hz: float) -> tuple[DiscreteStateSpace, int]:
+    """:func:`delayed_discrete` with only the delay's fraction of a tick, and the whole ticks d left out: a periodic
+    orbit of the delayed plant is the undelayed one's shifted by d ticks (:func:`orbits`'s ``shift``), so its
+    state need not carry a d-long command buffer (604 states for 60 ms at 10 kHz)."""
+    d, eps = whole_and_fraction(delay, 1.0 / rate_hz)
+    return delayed_discrete(ss, eps, rate_hz), d
+
+
 # ----------------------------------------------------------------------------------------------
 # the exact sampled limit cycle of a discrete system
 # ----------------------------------------------------------------------------------------------
@@ -574,10 +582,13 @@ def _powers(ss: DiscreteStateSpace, count: int) -> tuple[FloatArray, FloatArray]
     return CP, S
 
 
-def orbits(ss: DiscreteStateSpace, beta: float, h: float, n_lo: int, n_hi: int, eps: float = 0.0) -> _Orbits:
+def orbits(ss: DiscreteStateSpace, beta: float, h: float, n_lo: int, n_hi: int, eps: float = 0.0,
+           shift: int = 0) -> _Orbits:
     """Orbits x_N = -x_0 of the relay +h over ticks 0..N-1 for N in [n_lo, n_hi], in closed form; each
     ``valid`` where the sampled MRFT rule (``checks.md`` section 2, level ``beta e_max + eps``, ``eps``
-    a hysteresis [output units]) first switches at its sample N."""
+    a hysteresis [output units]) first switches at its sample N. ``shift``: whole ticks of input delay
+    outside ``ss`` (:func:`fraction_discrete`): the relay sees y_k = y0_(k - shift), y0 the orbit of ``ss``
+    (anti-periodic: y0_(k + N) = -y0_k)."""
     CP, S = _powers(ss, n_hi + 1)
     CS = S @ ss.C
     Ns = np.arange(n_lo, n_hi + 1)
@@ -587,6 +598,10 @@ def orbits(ss: DiscreteStateSpace, beta: float, h: float, n_lo: int, n_hi: int, 
     k = np.arange(n_hi + 1)
     # einsum, not @: a BLAS call per product thrashes its threads on a busy machine for these sizes
     Y = np.einsum("ij,kj->ik", x0, CP) + h * CS[None, :]  # (len N, k): the orbit's samples y_k, meaningful for k <= N
+    if shift:
+        m = (k[None, :] - shift) % (2 * Ns[:, None])  # where in the period of y0 each sample falls
+        upper = m >= Ns[:, None]  # the half with the relay at -h: -y0 of the half at +h
+        Y = np.where(upper, -1.0, 1.0) * np.take_along_axis(Y, np.where(upper, m - Ns[:, None], m), axis=1)
     inside = k[None, :] <= Ns[:, None]
     e = np.where(inside, -Y, -_INF)
     e_max = np.maximum.accumulate(e, axis=1)

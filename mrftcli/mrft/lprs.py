@@ -42,7 +42,7 @@ from ..jsonable import json_float, json_opt_float
 from ..validate import check_beta, check_positive
 from .describing import df_crossing, df_frequency
 from .propagate import phi_gamma
-from .cascade import delayed_discrete, orbits
+from .cascade import fraction_discrete, orbits
 from .model import LoopModel, PlantModel, SampledPlantModel, StateSpace
 
 __all__ = [
@@ -702,8 +702,8 @@ def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, be
 
     * ``orbits_hz`` / ``orbits_amplitude``: every admissible orbit, found exactly -- for each
       candidate N the symmetric periodic orbit of the exactly discretised loop (zero-order hold, the
-      fractional part of the delay handled by splitting the sample interval:
-      :func:`~mrftcli.mrft.cascade.delayed_discrete`) is solved in closed form and the MRFT rule of
+      fractional part of the delay handled by splitting the sample interval, its whole ticks by shifting the
+      orbit: :func:`~mrftcli.mrft.cascade.fraction_discrete`) is solved in closed form and the MRFT rule of
       checks.md section 2 is checked sample by sample (:func:`~mrftcli.mrft.cascade.orbits`, as for a
       cascade);
     * ``frequency_hz`` / ``amplitude``: the centre of that band, the exact continuous cycle with the
@@ -724,12 +724,12 @@ def sampled_limit_cycle(A: ArrayLike, B: ArrayLike, C: ArrayLike, tau: float, be
     if P / Ts < 4:
         raise InputError(f"rate {rate_hz} Hz is too slow for a limit cycle near {cont.frequency_hz:.3g} Hz "
                          "(fewer than 8 samples per period)")
-    ss = delayed_discrete(StateSpace(A, B, C), tau, rate_hz)
+    ss, shift = fraction_discrete(StateSpace(A, B, C), tau, rate_hz)  # the delay's whole ticks as a shift
     n_mid = P / Ts
     first, last = max(2, int(math.floor(n_mid)) - 6), int(math.ceil(n_mid)) + 6
     lo_n, hi_n = first, last
     while True:  # widen the window while the band runs on past its edges (wide bands at high rates)
-        orb = orbits(ss, beta, h, lo_n, hi_n, eps)
+        orb = orbits(ss, beta, h, lo_n, hi_n, eps, shift)
         band = _band(orb.valid, first - lo_n, last - lo_n)
         if band[0] and lo_n > 2:
             lo_n = max(2, lo_n - 8)

@@ -593,8 +593,9 @@ def delay_increments(logs: Path, results: dict[str, dict[str, Any]] | None = Non
     realised, beside the two flights fitted separately (``results``, when given: their taus' difference).
 
     Two references: the delay the firmware realised (its delay line: :data:`REALISED_S`), and the change of the
-    loop the relay switches on, which adds how much later EKF2's attitude follows SIH's in the after-flight
-    (:func:`_estimator_shift`, from SIH's truth, where the flights log it: the rate pairs on EKF2's attitude)."""
+    loop the relay switches on: on EKF2's output, that plus the change of EKF2's publication latency
+    (:func:`_publish_latency`: PX4 published the estimate one SIH step after its sample in some flights), checked on
+    the rate pairs against SIH's truth (:func:`_estimator_shift`)."""
     from mrftcli.compare.delay import DelayIncrement
 
     errors, loop_errors, covered, loop_covered, n = [], [], 0, 0, 0
@@ -610,15 +611,22 @@ def delay_increments(logs: Path, results: dict[str, dict[str, Any]] | None = Non
             continue
         r = DelayIncrement.from_json(json.loads(proc.stdout))
         inc = r.increment
-        shift = _estimator_shift(logs, before, after, loop) if key == "ekf" else None
-        changed = realised + (shift or 0.0)
+        # the output the relay switches on: EKF2's (its publication latency is in the loop) or SIH's truth (where
+        # the latency moves the switches against the output: the effective beta, not tau)
+        latency = [_publish_latency(logs / f"{name}.ulg", _SWITCHED_ON[loop]) for name in (before, after)] if key == "ekf" \
+            else None
+        shift = latency[1] - latency[0] if latency else 0.0
+        changed = realised + shift
         errors.append(inc.value - realised)
         loop_errors.append(inc.value - changed)
         covered += int(inc.ci95_low <= realised <= inc.ci95_high)
         loop_covered += int(inc.ci95_low <= changed <= inc.ci95_high)
-        loop_line = ("" if shift is None else
-                     f"\n      the loop's change: {realised * 1e3:.1f} ms in the firmware {shift * 1e3:+.2f} ms of EKF2's "
-                     f"attitude against SIH's (rate_path.py) = {changed * 1e3:.2f} ms: {(inc.value - changed) * 1e3:+.2f} ms")
+        check = _estimator_shift(logs, before, after, loop) if latency else None
+        loop_line = ("" if not latency else
+                     f"\n      the loop's change: {realised * 1e3:.1f} ms in the firmware {shift * 1e3:+.1f} ms of EKF2's "
+                     f"publication latency ({_SWITCHED_ON[loop]} timestamp - timestamp_sample: {latency[0] * 1e3:.1f} -> "
+                     f"{latency[1] * 1e3:.1f} ms) = {changed * 1e3:.1f} ms: {(inc.value - changed) * 1e3:+.2f} ms"
+                     + ("" if check is None else f" (EKF2's attitude against SIH's, rate_path.py: {check * 1e3:+.2f} ms)"))
         print(f"  {label} (Tp {tp * 1e3:.2f} ms): +20 ms by mrft-ident delay {inc.value * 1e3:.2f} ± "
               f"{inc.std * 1e3:.2f} ms (95 %: {inc.ci95_low * 1e3:.2f} to {inc.ci95_high * 1e3:.2f}; "
               f"{(inc.value - realised) * 1e3:+.2f} ms from the {realised * 1e3:.1f} ms realised); one Td "
@@ -629,9 +637,23 @@ def delay_increments(logs: Path, results: dict[str, dict[str, Any]] | None = Non
         print(f"+20 ms by mrft-ident delay, every PX4 pair: {sum(abs(e) <= 0.002 for e in errors)}/{n} within 2 ms of "
               f"the delay realised (max error {max(map(abs, errors), default=math.nan) * 1e3:.2f} ms; a refusal is a "
               f"miss), the realised delay inside the stated 95 % interval in {covered}/{n}; against the loop's change "
-              f"(EKF2's shift added where SIH's truth measures it): {sum(abs(e) <= 0.002 for e in loop_errors)}/{n} "
+              f"(EKF2's publication latency's change added on EKF2's output): {sum(abs(e) <= 0.002 for e in loop_errors)}/{n} "
               f"within 2 ms (max {max(map(abs, loop_errors), default=math.nan) * 1e3:.2f} ms), inside the interval "
               f"in {loop_covered}/{n}")
+
+
+#: the estimate each loop's relay switches on (its latency is in the loop when the output read is EKF2's)
+_SWITCHED_ON = {"altitude": "vehicle_local_position", "x": "vehicle_local_position", "y": "vehicle_local_position",
+                "roll": "vehicle_attitude", "pitch": "vehicle_attitude"}
+
+
+def _publish_latency(log: Path, topic: str = "vehicle_attitude") -> float:
+    """The median of ``timestamp - timestamp_sample`` of ``topic`` [s]: how long after its IMU sample PX4 published
+    the estimate (0 when EKF2 runs in the step of its sample; one SIH step when it runs in the next)."""
+    from pyulog import ULog
+
+    data = ULog(str(log), [topic]).data_list[0].data
+    return float(np.median(data["timestamp"] - data["timestamp_sample"])) * 1e-6
 
 
 def _estimator_shift(logs: Path, before: str, after: str, loop: str) -> float | None:

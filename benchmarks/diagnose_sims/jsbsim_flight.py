@@ -36,7 +36,7 @@ import numpy as np
 
 from .loop import PlanningModel
 
-__all__ = ["PLATFORMS", "JSBSimVehicle", "hover_command", "make_vehicle", "platform_model", "tool_tp"]
+__all__ = ["PLATFORMS", "JSBSimVehicle", "hover_command", "make_vehicle", "platform_model", "stand_rectification", "tool_tp"]
 
 PLATFORMS = ("F450",)
 FT = 0.3048
@@ -257,3 +257,34 @@ def tool_tp(platform: str) -> float:
 def make_vehicle(platform: str, *, drag_c: float | None = None, u_max: float | None = None, drift: float = 0.0,
                  slew_u: float | None = None) -> JSBSimVehicle:
     return JSBSimVehicle(drag_c=drag_c, u_max=u_max, slew_u=slew_u, drift=drift)
+
+
+def _square_mean(step, h: float, f: float, T: float = 5.0) -> float:
+    """The mean of ``step(u) -> thrust / weight`` under the command 1 +- h at f [Hz] (a square wave from
+    1 s on), over the whole periods after 2 s."""
+    out = np.array([step(1.0 + (h if (k * DT * f) % 1.0 < 0.5 else -h) if k * DT > 1.0 else 1.0)
+                    for k in range(int(T / DT))])
+    per, k0 = int(round(1.0 / f / DT)), int(2.0 / DT)
+    return float(out[k0:k0 + (out.size - k0) // per * per].mean())
+
+
+def stand_rectification(h: float = 0.3, f: float = 2.0) -> float:
+    """The hover thrust F [command units] of the library's thrust rectification (a first-order lag Tp on
+    the rotor speed, thrust F ((1 + q)^2 - 1): ``diagnose_sims/inherent.py``) whose mean thrust deficit
+    under a square wave 1 +- h at f [Hz] equals the one JSBSim's E305 motors and 9450 propellers make on
+    the stand: its own rotor-speed dynamics, not the library's code (the deficit goes as 1 / F)."""
+    fdm = _grounded_f450()
+
+    def jsb(u: float) -> float:
+        fdm["fcs/throttle-cmd-norm"] = float(throttle_of(u))
+        fdm.run()
+        return sum(fdm[f"propulsion/engine{'' if i == 0 else f'[{i}]'}/thrust-lbs"] for i in range(4)) * 4.4482216 / (1.4 * G)
+
+    jsb_shift = _square_mean(jsb, h, f) - _square_mean(jsb, 0.0, f)
+    tp, state = tool_tp("F450"), [1.0]
+
+    def lib(u: float) -> float:  # F = 1: the rotor speed relative to hover lags sqrt(u)
+        state[0] += DT * (math.sqrt(u) - state[0]) / tp
+        return state[0] ** 2
+
+    return (_square_mean(lib, h, f) - 1.0) / jsb_shift

@@ -9,6 +9,13 @@ without that stage (the difference), "after" the analysis as it runs. CPU time (
 so the figures do not depend on what else runs on the machine.
 
 Run: ``python benchmarks/bench_held_out.py`` (about 2 minutes of CPU).
+
+``--masked`` (only this part; about 10 s of CPU): the leave-one-test-out held-out analysis the SITL benchmark runs
+(scripts/sitl/sitl_analysis.held_out: the log masked to the other tests' windows, waveform refinement on) on
+``sample_logs/sitl/altitude_mf_20ms.BIN``: CPU per masked analysis, whether the refinement ran, and the grid ticks
+each kept test's refinement window holds after its last output (across the masked gap). Those ticks were left
+free before 8dd7acd, each a zero column of every least squares: over 400 s per analysis then (E9's cProfile);
+that path is gone, so the figure is absolute.
 """
 
 from __future__ import annotations
@@ -80,5 +87,46 @@ def main() -> None:
     print(f"20-test log: analyze CPU {b20:.2f} s before, {a20:.2f} s after: +{100 * (a20 - b20) / b20:.1f} %")
 
 
+def masked(log: Path = ROOT / "sample_logs" / "sitl" / "altitude_mf_20ms.BIN") -> None:
+    """The ``--masked`` figures (module docstring)."""
+    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.analyze.general import mask_windows
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.model import soiptd_model
+    from mrftcli.mrft.waveform import CommandWindow
+    import numpy as np
+
+    side = json.loads(log.with_name(log.name + ".json").read_text())
+    flight = read_flight(log, ReadOptions(loop=side["loop"]), echo_warnings=False)
+    model = soiptd_model(float(side["tp_s"]))
+    opts = AnalyzeOptions(n_bootstrap=50, seed=0)  # sitl_analysis's held-out options (refinement on)
+    tests = analyze_flight(flight, model, options=opts).tests
+
+    def opened(t_start: float) -> float:  # sitl_analysis._marked_start: the window opens at the beta marker
+        b = flight.beta
+        before = b.t[b.t <= t_start] if b is not None else np.zeros(0)
+        return float(before[-1]) if before.size else t_start
+
+    print(f"\n{log.relative_to(ROOT)}: each test held out, the log masked to the others' windows")
+    print(f"{'held out':>8s}  {'CPU s':>6s}  {'refinement':>10s}  {'Td s':>7s}  {'tau ms':>6s}  {'K':>7s}  "
+          "grid ticks after each window's last output (the masked gap's; left free before 8dd7acd)")
+    for i in range(len(tests)):
+        masked_flight = mask_windows(flight, [(opened(t.t_start), t.t_end) for j, t in enumerate(tests) if j != i])
+        res, cpu = _cpu(lambda f=masked_flight: analyze_flight(f, model, options=opts))
+        c, o = masked_flight.command, masked_flight.output
+        after = []
+        for t in res.tests:
+            w = CommandWindow.between(t.t_start, t.t_end, c.t, c.values, o.t, o.values, history=0.1)
+            after.append(0 if w is None else int(w.u.size - 1 - w.k[-1]))
+        print(f"{i:>8d}  {cpu:6.2f}  {'ran' if res.refinement is not None else 'not run':>10s}  {res.Td.value:7.4f}  "
+              f"{res.tau.value * 1e3:6.1f}  {res.K.value:7.3f}  {after}")
+
+
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--masked" in sys.argv[1:]:
+        masked()
+    else:
+        main()
+        masked()

@@ -84,12 +84,15 @@ def test_the_record_round_trips_and_a_newer_schema_is_refused(logs) -> None:
     flights = [segment(read_flight(logs[k], ReadOptions())) for k in ("before", "after")]
     result = identify_pair(*flights, TP, names=("a", "b"), loop="altitude")
     data = json.loads(json.dumps(result.to_json()))
-    assert data["schema_version"] == DELAY_SCHEMA_VERSION == 2 and data["parameters"]["delay_added"]["unit"] == "s"
+    assert data["schema_version"] == DELAY_SCHEMA_VERSION == 3 and data["parameters"]["delay_added"]["unit"] == "s"
     assert DelayIncrement.from_json(data) == result
-    # a version 1 record (no warnings, no controller rate) is still read
-    v1 = {k: v for k, v in data.items() if k not in ("warnings", "controller_rate_hz", "controller_rate_assumed")}
+    # a version 1 record (no warnings, no controller rate) and a version 2 (no output latency) are still read
+    v1 = {k: v for k, v in data.items()
+          if k not in ("warnings", "controller_rate_hz", "controller_rate_assumed", "output_latency_s")}
     old = DelayIncrement.from_json({**v1, "schema_version": 1})
     assert old.increment == result.increment and old.warnings == () and old.controller_rate_hz == (None, None)
+    v2 = {k: v for k, v in data.items() if k != "output_latency_s"}
+    assert DelayIncrement.from_json({**v2, "schema_version": 2}).output_latency_s == (None, None)
     with pytest.raises(InputError, match="schema"):
         DelayIncrement.from_json({**data, "schema_version": 99})
     with pytest.raises(InputError):
@@ -242,3 +245,30 @@ def test_the_warnings_given_before_an_error_come_with_it() -> None:
     lines = proc.stderr.strip().splitlines()
     assert lines[-1].startswith("error: ") and "stable cycles" in lines[-1]
     assert sum("controller rate 50 Hz assumed" in line for line in lines) == 1 and lines[0].startswith("warning: ")
+
+
+def test_a_change_of_the_outputs_publication_latency_is_said_and_recorded() -> None:
+    """PX4 stamps each estimate with its sample and its publication; the committed SITL pair at h 0.05 (docs/benchmarks/
+    sitl.md) has EKF2 publishing vehicle_local_position 4.0 ms after its sample in the +20 ms flight, 0.0 in the
+    plain one (read here independently with pyulog): the record holds both, a note says the 4 ms are in the delay
+    added. A log without the two stamps (our simulator's MCAP) records None and no note."""
+    import numpy as np
+    from pyulog import ULog
+
+    logs = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl"
+    pair = [logs / "px4_altitude.ulg", logs / "px4_altitude_20ms.ulg"]
+    truth = []
+    for path in pair:
+        d = ULog(str(path), ["vehicle_local_position"]).data_list[0].data
+        truth.append(float(np.median(d["timestamp"] - d["timestamp_sample"])) * 1e-6)
+    assert truth == pytest.approx([0.0, 0.004], abs=1e-9)
+    result = delay_increment(*pair, 0.05)
+    assert result.output_latency_s == pytest.approx(tuple(truth), abs=1e-9)
+    note = [n for n in result.notes if "published" in n]
+    assert len(note) == 1 and "+4 ms of the delay added" in note[0]
+    assert DelayIncrement.from_json(json.loads(json.dumps(result.to_json()))).output_latency_s == result.output_latency_s
+
+
+def test_no_publication_latency_without_the_two_stamps(logs) -> None:
+    result = delay_increment(logs["before"], logs["after"], TP)
+    assert result.output_latency_s == (None, None) and not any("published" in n for n in result.notes)

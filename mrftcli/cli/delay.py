@@ -76,9 +76,11 @@ def format_delay(result: DelayIncrement) -> str:
     K_unit = gain_unit(result.loop)
     lines = [f"delay added between two recordings of loop {result.loop}, Tp {result.Tp:g} s (known)",
              f"method: {result.METHOD}",
-             *(f"  {flight + ':':7} {path} ({sum(t.flight == flight for t in result.tests)} tests{_rate(rate, assumed)})"
-               for flight, path, rate, assumed in zip(("before", "after"), (result.before, result.after),
-                                                      result.controller_rate_hz, result.controller_rate_assumed))]
+             *(f"  {flight + ':':7} {path} ({sum(t.flight == flight for t in result.tests)} tests{_rate(rate, assumed)}"
+               + ("" if latency is None else f"; output published {latency * 1e3:.3g} ms after its sample") + ")"
+               for flight, path, rate, assumed, latency in zip(
+                   ("before", "after"), (result.before, result.after), result.controller_rate_hz,
+                   result.controller_rate_assumed, result.output_latency_s))]
     rows = [["flight", "beta", "h", "rate", "cycles", "f measured", "± se", "f fitted", "error", "K"],
             ["", "", "[command]", "[Hz]", "", "[Hz]", "[Hz]", "[Hz]", "[%]", f"[{K_unit}]"]]
     rows += [[t.flight, f"{t.beta:+.3f}", num(t.h), num(t.rate_hz), str(t.n_cycles), f"{t.frequency_hz:.4f}",

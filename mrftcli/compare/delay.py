@@ -48,7 +48,7 @@ from ..analyze.record import analysis_controller_rate
 from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable_message, screen_tests,
                                span)
 from ..errors import IdentificationError, InputError, InsufficientDataError, MrftError, SegmentationError
-from ..io import ReadOptions, read_flight
+from ..io import ReadOptions, open_log, read_flight
 from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.lprs import mrft_limit_cycle, unit_cycle_scalar
 from ..mrft.model import K_UNIT, LoopModel
@@ -61,7 +61,7 @@ from ..validate import check_tp
 __all__ = ["DELAY_SCHEMA_VERSION", "PairTest", "DelayIncrement", "identify_pair", "delay_increment"]
 
 #: Version of the ``delay --json`` record; bump when its layout changes.
-DELAY_SCHEMA_VERSION = 2  # 2: warnings, controller_rate_hz, controller_rate_assumed (1 is still read)
+DELAY_SCHEMA_VERSION = 3  # 2: warnings, controller_rate_hz, controller_rate_assumed; 3: output_latency_s (1, 2 read)
 
 _FLIGHTS = ("before", "after")
 _TAU_MAX = 0.5  # [s]: the delays' upper bound in the fit (eq. (2)'s multirotor range and more)
@@ -168,6 +168,10 @@ class DelayIncrement:
         to the delay of a command logged below it (None: unknown, or a schema 1 record).
     controller_rate_assumed : tuple of bool
         Whether the layout assumed that rate (the log did not show it and ``--controller-rate`` was not given).
+    output_latency_s : tuple of (float or None)
+        How long after its sample each recording's output was published [s] (the median of its topic's
+        ``timestamp - timestamp_sample``, PX4's estimates' two stamps; None without them, or a schema 1-2 record):
+        a change between the recordings is in the delay added (the reader and the relay go by publication).
     """
 
     before: str
@@ -187,6 +191,7 @@ class DelayIncrement:
     warnings: tuple[str, ...] = ()
     controller_rate_hz: tuple[float | None, float | None] = (None, None)
     controller_rate_assumed: tuple[bool, bool] = (False, False)
+    output_latency_s: tuple[float | None, float | None] = (None, None)
 
     #: What the figures rest on (first line of the text output and the JSON's ``method``).
     METHOD = ("eq. (2) at the known Tp, one Td and K for both recordings and a delay each, fitted to every test's "
@@ -204,7 +209,8 @@ class DelayIncrement:
                 "tests": [t.to_json() for t in self.tests], "chi2": self.chi2, "dof": self.dof,
                 "model_scatter": self.model_scatter, "notes": list(self.notes), "warnings": list(self.warnings),
                 "controller_rate_hz": dict(zip(_FLIGHTS, self.controller_rate_hz)),
-                "controller_rate_assumed": dict(zip(_FLIGHTS, self.controller_rate_assumed))}
+                "controller_rate_assumed": dict(zip(_FLIGHTS, self.controller_rate_assumed)),
+                "output_latency_s": dict(zip(_FLIGHTS, self.output_latency_s))}
 
     @classmethod
     def from_json(cls, data: Any) -> DelayIncrement:
@@ -215,13 +221,14 @@ class DelayIncrement:
         InputError
             Not this record, a newer schema, or a missing or malformed field (one line).
         """
-        d = check_schema_version(data, "delay", (1, DELAY_SCHEMA_VERSION))
+        d = check_schema_version(data, "delay", (1, 2, DELAY_SCHEMA_VERSION))
         if d.get("kind") != "delay-increment":  # another record that happens to carry a schema version
             raise InputError(f"delay JSON: kind {d.get('kind')!r} is not a delay increment (mrft-ident delay --json "
                              "writes kind 'delay-increment')")
         try:
             rates = d.get("controller_rate_hz") or {}
             assumed = d.get("controller_rate_assumed") or {}
+            latency = d.get("output_latency_s") or {}
             p = d["parameters"]
             est = {k: ParameterEstimate.from_json(k, p[k]) for k in ("Td", "K", "tau_before", "tau_after",
                                                                      "delay_added")}
@@ -232,7 +239,9 @@ class DelayIncrement:
                        tuple(str(w) for w in d.get("warnings", ())),
                        (json_opt_float(rates.get("before"), "delay JSON controller_rate_hz"),
                         json_opt_float(rates.get("after"), "delay JSON controller_rate_hz")),
-                       (bool(assumed.get("before", False)), bool(assumed.get("after", False))))
+                       (bool(assumed.get("before", False)), bool(assumed.get("after", False))),
+                       (json_opt_float(latency.get("before"), "delay JSON output_latency_s"),
+                        json_opt_float(latency.get("after"), "delay JSON output_latency_s")))
         except (KeyError, TypeError, ValueError) as err:
             raise InputError(f"delay JSON: missing or malformed field ({err})") from None
 
@@ -489,12 +498,13 @@ def _notes(Tp: float, taus: tuple[tuple[float, float], tuple[float, float]], dof
 
 @dataclass(frozen=True)
 class _Recording:
-    """One recording's usable tests, its warnings and its controller's rate."""
+    """One recording's usable tests, its warnings, its controller's rate and its output's publication latency."""
 
     tests: list[MrftTest]
     warnings: tuple[str, ...]
     controller_rate_hz: float | None
     rate_assumed: bool
+    output_latency_s: float | None = None
 
 
 def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Recording:
@@ -516,7 +526,23 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
                                                                [t.rate_hz for t in usable])
     assumed = read.controller_rate_hz is None and flight.timing.controller_rate_assumed
     warnings = tuple(dict.fromkeys([*flight.warnings, *(f"{flight.path}: {w}" for w in [*left_out, *notes])]))
-    return _Recording(usable, warnings, rate, assumed)
+    return _Recording(usable, warnings, rate, assumed, _output_latency(path, flight.source))
+
+
+def _output_latency(path: str | Path, source: Mapping[str, Any]) -> float | None:
+    """The median of the output topic's ``timestamp - timestamp_sample`` [s] (PX4's estimates carry both, in us:
+    how long after the IMU sample the estimate was published); None when the topic has no such fields."""
+    topic = str(source.get("output", "")).split(":", 1)[0]
+    if not topic:
+        return None
+    try:
+        with open_log(path, echo_warnings=False) as src:
+            _, data = src.read(topic, ["timestamp", "timestamp_sample"])
+    except (MrftError, KeyError, ValueError):
+        return None
+    lag = (np.asarray(data["timestamp"], float) - np.asarray(data["timestamp_sample"], float)) * 1e-6
+    lag = lag[np.isfinite(lag)]
+    return float(np.median(lag)) if lag.size and 0.0 <= float(np.median(lag)) < 1.0 else None
 
 
 def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: ReadOptions | None = None,
@@ -556,7 +582,21 @@ def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: R
         raise
     if progress:
         progress(3, 3, "done")
+    latency = (tests[0].output_latency_s, tests[1].output_latency_s)
     return dataclasses.replace(
         result, warnings=(*tests[0].warnings, *tests[1].warnings),
         controller_rate_hz=(tests[0].controller_rate_hz, tests[1].controller_rate_hz),
-        controller_rate_assumed=(tests[0].rate_assumed, tests[1].rate_assumed))
+        controller_rate_assumed=(tests[0].rate_assumed, tests[1].rate_assumed), output_latency_s=latency,
+        notes=(*result.notes, *_latency_note(latency, result.increment.value)))
+
+
+def _latency_note(latency: tuple[float | None, float | None], added: float) -> tuple[str, ...]:
+    """A note when the output's publication latency differs between the recordings (by 0.1 ms or more)."""
+    before, after = latency
+    if before is None or after is None or abs(after - before) < 1e-4:
+        return ()
+    moved = after - before
+    return (f"the output was published {before * 1e3:.3g} ms after its sample in the before recording and "
+            f"{after * 1e3:.3g} ms in the after one (its topic's timestamp - timestamp_sample): {moved * 1e3:+.3g} ms of "
+            f"the delay added is that publication (e.g. the estimator's scheduling); {(added - moved) * 1e3:.3g} ms "
+            "without it",)

@@ -272,3 +272,31 @@ def test_a_change_of_the_outputs_publication_latency_is_said_and_recorded() -> N
 def test_no_publication_latency_without_the_two_stamps(logs) -> None:
     result = delay_increment(logs["before"], logs["after"], TP)
     assert result.output_latency_s == (None, None) and not any("published" in n for n in result.notes)
+
+
+@pytest.mark.parametrize("beta", [-0.2, -0.5, -0.7])
+def test_the_cycle_with_a_lead_continues_eq2s_cycle(beta) -> None:
+    """compare/delay._lead_cycle (a negative delay) against two oracles: at tau -> 0- it is the exact cycle at
+    tau 0 (mrft_limit_cycle), and for leads of 1-5 ms its frequency keeps the ratio to the describing function's
+    (the first harmonic's phase condition, arg G(jw) = -pi + asin(beta), solved here in closed form) that the exact
+    cycle has at tau = +3 ms, within 0.5 % (the describing function's error moves smoothly with the delay)."""
+    import math
+
+    from scipy.optimize import brentq
+
+    from mrftcli.compare.delay import _lead_cycle
+    from mrftcli.mrft.lprs import mrft_limit_cycle
+
+    Tp, Td = 0.05, 1.0
+    at0 = mrft_limit_cycle(LoopModel(Tp, Td, 0.0, 1.0), beta)
+    w, a_unit = _lead_cycle(Tp, Td, -1e-12, beta)
+    assert w == pytest.approx(at0.omega, rel=1e-7) and Td * a_unit / w == pytest.approx(at0.amplitude, rel=1e-6)
+
+    def df(tau: float) -> float:
+        phase = lambda x: -math.pi / 2 - math.atan(Tp * x) - math.atan(Td * x) - tau * x  # noqa: E731
+        return brentq(lambda x: phase(x) + math.pi - math.asin(beta), 0.1, 60.0)  # below the lead's second root
+
+    ratio = mrft_limit_cycle(LoopModel(Tp, Td, 0.003, 1.0), beta).omega / df(0.003)
+    for lead in (0.001, 0.003, 0.005):
+        assert _lead_cycle(Tp, Td, -lead, beta)[0] / df(-lead) == pytest.approx(ratio, rel=0.005)
+    assert _lead_cycle(Tp, Td, -0.001, beta)[0] > at0.omega  # a lead raises the frequency

@@ -29,10 +29,14 @@ import make_concealed_logs as gen  # noqa: E402 - the benchmark's case generator
 M = gen.PLANTS["design1"]
 
 
-def _one_beta(tmp: Path, heights: tuple[float, ...], name: str) -> Path:
-    """A clean flight of tests at beta -0.4 only, at the given multiples of the planned relay height."""
+def _one_beta(tmp: Path, heights: tuple[float, ...], name: str, lost: float | None = None) -> Path:
+    """A clean flight of tests at beta -0.4 only, at the given multiples of the planned relay height (and,
+    with ``lost``, a test at that beta cut short after three switches: none of its cycles stable)."""
     t1 = plan_test(M, -0.4, gen.AMPLITUDE, cycles=8)
     tests = tuple(FlownTest(-0.4, k * t1.h, t1.duration) for k in heights)
+    if lost is not None:
+        t2 = plan_test(M, lost, gen.AMPLITUDE, cycles=8)
+        tests += (FlownTest(lost, t2.h, 0.3 * t2.duration),)
     fl = simulate_flight(FlightSpec(model=M, tests=tests, loop="altitude", rate_hz=200.0, seed=7, hover_s=2.0,
                                     hold_s=2.0))
     path = tmp / f"{name}.mcap"
@@ -43,7 +47,8 @@ def _one_beta(tmp: Path, heights: tuple[float, ...], name: str) -> Path:
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("refusal")
-    return {"one_height": _one_beta(tmp, (1.0, 1.0), "one_height"), "two_heights": _one_beta(tmp, (1.0, 2.0), "two")}
+    return {"one_height": _one_beta(tmp, (1.0, 1.0), "one_height"), "two_heights": _one_beta(tmp, (1.0, 2.0), "two"),
+            "one_left": _one_beta(tmp, (1.0,), "one_left", lost=-0.7)}
 
 
 def _counting(monkeypatch) -> list[int]:
@@ -106,3 +111,19 @@ def test_a_log_analyze_refuses_is_diagnosed_and_says_so_first(logs, monkeypatch)
     second = r.stdout.splitlines()[1]
     assert second.startswith("analyze refuses this log: only one beta was tested; the diagnosis below fits"), second
     assert "warning: analyze refuses this log (only one beta was tested" in r.stdout + r.stderr
+
+
+def test_one_test_left_of_a_flight_at_two_betas_is_refused_as_analyze_does(logs, monkeypatch):
+    # the -0.7 test was flown but lost (two cycles): the flight is comparable, yet one test is left to
+    # diagnose and nothing to compare it with; the benchmark's flights like it were named wrong 4 of 4
+    refusal = _refusal(logs["one_left"])
+    fl = read_flight(logs["one_left"], ReadOptions(loop="altitude"))
+    with pytest.raises(InsufficientDataError) as exc:
+        screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None, refusal)
+    msg = str(exc.value)
+    assert msg.startswith(str(refusal)) and "no second test is left to compare it with" in msg and "\n" not in msg
+    assert exc.value.partial == refusal.partial
+    calls = _counting(monkeypatch)
+    r = run_main("diagnose", str(logs["one_left"]), "--tp", str(M.Tp), "-q")
+    assert r.returncode == 6 and "no second test is left" in r.stderr and "Traceback" not in r.stderr
+    assert len(calls) == 1

@@ -67,7 +67,7 @@ class Screen:
 
 
 def _analysis_of(flight: FlightLog, model: LoopModel,
-                 refusal: MrftError | None = None) -> tuple[AnalysisResult | None, str | None]:
+                 refusal: MrftError | None = None) -> tuple[AnalysisResult | None, MrftError | None]:
     """The tests analyze would use, refused for the same reasons (an output that does not follow
     the relay: the --loop / --output-topic hint), so the two commands agree on what a
     log supports; the identification's bootstrap and refinement are not needed here. ``refusal``:
@@ -89,19 +89,30 @@ def _analysis_of(flight: FlightLog, model: LoopModel,
     return None, _diagnosed_anyway(flight, refusal)
 
 
-def _diagnosed_anyway(flight: FlightLog, refusal: MrftError) -> str:
-    """analyze's refusal as the diagnosis' warning when the diagnosis goes on without it, else the
-    refusal raised (the command's: the same message and exit code as analyze)."""
+def _diagnosed_anyway(flight: FlightLog, refusal: MrftError) -> MrftError:
+    """analyze's refusal when the diagnosis goes on without it (its warning says why), else the refusal
+    raised (the command's: the same message and exit code as analyze)."""
     if isinstance(refusal, IdentificationError):
         # analyze must refuse, but that is the strongest sign of missing physics there is, so the
         # diagnosis fits the cycles itself
-        return str(refusal)
+        return refusal
     # one usable beta: refused as analyze refuses it, unless the log flew tests to compare (another
     # beta analyze left out, or another relay height: a test that flattens at the larger one is the
     # evidence of a saturation)
     if isinstance(refusal, InsufficientDataError) and _comparable(segments_of(flight, None)):
-        return str(refusal)
+        return refusal
     raise refusal
+
+
+def _one_test_left(refusal: InsufficientDataError, test: DiagnosedTest, t0: float) -> InsufficientDataError:
+    """analyze's one-beta refusal, the command's when a single test of the flight has the cycles to diagnose:
+    the other beta or relay height was flown but lost (a relay that locked up, too few stable cycles), so
+    nothing is left to compare the test with, and the effects named from one test's waveform and trends
+    were wrong on every such benchmark flight (issue 39: 0 of 4 on RotorPy and JSBSim dev flights)."""
+    span = f"{test.t_start - t0:.1f}-{test.t_end - t0:.1f} s"
+    return InsufficientDataError(f"{refusal}; diagnose: only the test at {span} has {MIN_CYCLES} stable cycles or "
+                                 "more, so no second test is left to compare it with (fly the lost test again)",
+                                 partial=refusal.partial)
 
 
 def _comparable(tests: list[MrftTest]) -> bool:
@@ -163,14 +174,16 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
         No test has :data:`~mrftcli.diagnose.fit.MIN_CYCLES` stable cycles.
     """
     say("segmenting")
-    refused_by_linear = None  # analyze's IdentificationError, when the diagnosis goes on without it
+    refused_by_linear = None  # analyze's refusal, when the diagnosis goes on without it
     if analysis is None:
         analysis, refused_by_linear = _analysis_of(flight, model, refusal)
     segs = segments_of(flight, analysis)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
+    if isinstance(refused_by_linear, InsufficientDataError) and len(tests) == 1:
+        raise _one_test_left(refused_by_linear, tests[0], t0_log)
     if refused_by_linear is not None:
-        warnings.append(f"{REFUSED}{refused_by_linear.split(': ', 1)[-1]}); the diagnosis fits the "
+        warnings.append(f"{REFUSED}{str(refused_by_linear).split(': ', 1)[-1]}); the diagnosis fits the "
                         "recorded cycles with the linear model and each candidate directly")
     flown = segs if analysis is None else sorted([*analysis.tests, *analysis.rejected], key=lambda s: s.index)
     lost = lost_height_pair(flown, {t.index for t in tests})

@@ -531,9 +531,10 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
 
 def _output_latency(path: str | Path, source: Mapping[str, Any]) -> float | None:
     """The median of the output topic's ``timestamp - timestamp_sample`` [s] (PX4's estimates carry both, in us:
-    how long after the IMU sample the estimate was published); None when the topic has no such fields."""
+    how long after the IMU sample the estimate was published); None for a log that is not a ULog (read only
+    there: another format would be read twice) or a topic without the two fields."""
     topic = str(source.get("output", "")).split(":", 1)[0]
-    if not topic:
+    if not topic or source.get("format") != "ulog":
         return None
     try:
         with open_log(path, echo_warnings=False) as src:

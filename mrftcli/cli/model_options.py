@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from ..mrft.parameter import ParameterEstimate
 
 __all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
-           "parse_params", "parse_windows", "build_model", "format_estimates", "parameter_lines",
+           "parse_params", "parse_number", "parse_windows", "build_model", "format_estimates", "parameter_lines",
            "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
@@ -143,14 +143,15 @@ def parse_baseline(text: str | None) -> tuple[float, float] | None:
     if text is None:
         return None
     head, _, tail = text.partition(":")
-    y0 = _number(head, "--baseline")
-    std = _number(tail, "--baseline STD") if tail else 0.0
+    y0 = parse_number(head, "--baseline")
+    std = parse_number(tail, "--baseline STD") if tail else 0.0
     if std < 0:
         raise InputError(f"--baseline: the standard deviation must be >= 0, got {std:g}")
     return y0, std
 
 
-def _number(text: str, what: str) -> float:
+def parse_number(text: str, what: str) -> float:
+    """An option's number as text -> float; a one-line InputError naming ``what`` if it is not a finite number."""
     try:
         value = float(text)
     except ValueError:
@@ -167,7 +168,7 @@ def parse_params(items: Sequence[str]) -> dict[str, float]:
         name, sep, value = item.partition("=")
         if not sep or not name.strip():
             raise InputError(f"--param {item!r}: expected NAME=VALUE, e.g. --param tau=0.05")
-        out[name.strip()] = check_parameter_value(f"--param {name.strip()}", _number(value, f"--param {name.strip()}"))
+        out[name.strip()] = check_parameter_value(f"--param {name.strip()}", parse_number(value, f"--param {name.strip()}"))
     return out
 
 
@@ -179,8 +180,8 @@ def parse_ranges(items: Sequence[str]) -> dict[str, tuple[float, float]]:
         lo, sep2, hi = span.partition(":")
         if not (sep and sep2 and name.strip()):
             raise InputError(f"--range {item!r}: expected NAME=LO:HI, e.g. --range T=0.01:10")
-        out[name.strip()] = (check_parameter_value(f"--range {name}", _number(lo, f"--range {name}")),
-                             check_parameter_value(f"--range {name}", _number(hi, f"--range {name}")))
+        out[name.strip()] = (check_parameter_value(f"--range {name}", parse_number(lo, f"--range {name}")),
+                             check_parameter_value(f"--range {name}", parse_number(hi, f"--range {name}")))
     return out
 
 
@@ -191,7 +192,7 @@ def parse_windows(items: Sequence[str], t0: float) -> list[tuple[float, float]]:
         a, sep, b = item.partition(":")
         if not sep:
             raise InputError(f"--window {item!r}: expected T0:T1 in seconds from the log start, e.g. --window 2:3")
-        lo, hi = _number(a, "--window"), _number(b, "--window")
+        lo, hi = parse_number(a, "--window"), parse_number(b, "--window")
         if not hi > lo:
             raise InputError(f"--window {item!r}: the end must be after the start")
         out.append((t0 + lo, t0 + hi))

@@ -16,7 +16,7 @@ from ..io import writable_format
 from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
-from .model_options import MODEL_NAMES, parse_params
+from .model_options import MODEL_NAMES, parse_number, parse_params
 from .options import (controller_rate_option, dump_json, json_option, quiet_option, read_json_file, tp_option,
                       tqdm_progress)
 
@@ -31,15 +31,8 @@ def parse_test(text: str, option: str = "--test") -> tuple[float, float | None, 
     parts = text.split(":")
     if not 1 <= len(parts) <= 3 or any(p.strip() == "" for p in parts[:1]):
         raise InputError(f"{option} {text!r}: expected BETA[:H[:DURATION]], e.g. -0.4 or -0.4:0.05:15")
-    values: list[float | None] = []
-    for name, part in zip(("BETA", "H", "DURATION"), parts):
-        if part.strip() == "":
-            values.append(None)
-            continue
-        try:
-            values.append(float(part))
-        except ValueError:
-            raise InputError(f"{option} {text!r}: {name} {part!r} is not a number") from None
+    values: list[float | None] = [None if part.strip() == "" else parse_number(part, f"{option} {text!r}: {name}")
+                                  for name, part in zip(("BETA", "H", "DURATION"), parts)]
     values += [None] * (3 - len(values))
     first, h, duration = values
     assert first is not None  # BETA was checked non-empty above
@@ -63,13 +56,7 @@ def parse_effect(text: str) -> tuple[str, float]:
         raise InputError(f"--effect {text!r}: expected NAME=VALUE, e.g. input_bias=0.02; names: {', '.join(valid)}")
     if name not in valid:
         raise InputError(f"--effect: unknown effect {name!r}; valid names: {', '.join(valid)}")
-    try:
-        number = float(value)
-    except ValueError:
-        raise InputError(f"--effect {text!r}: {value!r} is not a number") from None
-    if not math.isfinite(number):
-        raise InputError(f"--effect {text!r}: the value must be finite")
-    return name, number
+    return name, parse_number(value, f"--effect {text!r}")
 
 
 def _check_log_target(out: Path, fmt: str) -> None:

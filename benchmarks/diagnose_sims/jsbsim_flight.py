@@ -113,9 +113,12 @@ class JSBSimVehicle:
         with _quiet():
             fdm = jsbsim.FGFDMExec(self.root)
             fdm.set_debug_level(0)
+            # the step before the model: its FCS components (the ESC actuators' rate limit, the attitude
+            # loops' integrators) take their dt when they are built (after, they ran at JSBSim's 1/120 s
+            # and a rate limit was 16.7x the one written)
+            fdm.set_dt(DT)
             fdm.load_model("F450")
         self.fdm, self.drift, self.t = fdm, drift, 0.0
-        fdm.set_dt(DT)
         fdm["ic/h-agl-ft"] = 10.0 / FT
         with _quiet():
             fdm.run_ic()
@@ -174,8 +177,8 @@ def _grounded_f450():
     with _quiet():
         fdm = jsbsim.FGFDMExec(_stand_root())
         fdm.set_debug_level(0)
+        fdm.set_dt(DT)  # before the model (its FCS components take their dt when built)
         fdm.load_model("F450")
-        fdm.set_dt(DT)
         fdm["ic/h-agl-ft"] = 0.52  # on its gear (the contacts are 0.1524 m below the reference point)
         fdm.run_ic()
     fdm["propulsion/set-running"] = -1

@@ -118,6 +118,7 @@ def test_cli_exports_x_from_the_committed_px4_ulog(tmp_path, capsys):
     assert "one MPC_XY_* set for x and y" in said  # PX4's x and y share the parameters: said, not left to find out
     # MPC_XY_VEL_I_ACC 0 by default: that wind is not corrected is said, with the offset and how to add it
     assert "MPC_XY_VEL_I_ACC 0 (a PD): nothing corrects a steady force" in said and "--xy-integral I_ACC" in said
+    assert "# assumption: hover thrust 0.4911 (MPC_THR_HOVER, normalised) read from the log" in out.read_text()
     values = {ln.split("\t")[2]: float(ln.split("\t")[3]) for ln in out.read_text().splitlines()
               if ln and not ln.startswith("#")}
     assert set(values) == {"MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC", "MPC_VELD_LP"}

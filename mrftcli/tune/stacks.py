@@ -339,7 +339,7 @@ def _qgc_params(e: StackExport) -> str:
     """QGroundControl's parameter file: tab-separated vehicle id, component id, name, value, MAVLink type
     (9 = REAL32, 6 = INT32); comment lines start with '#'."""
     lines = ["# Onboard parameters for Vehicle 1", "#", "# Stack: PX4 Pro", "# Vehicle: Multi-Rotor",
-             f"# mrft-ident tune: {e.design} for {e.loop}", "#",
+             f"# mrft-ident tune: {e.design} for {e.loop}", *(f"# assumption: {a}" for a in e.assumptions), "#",
              "# Vehicle-Id Component-Id Name Value Type"]
     ints = {"IMU_GYRO_RATEMAX"}
     for n, v in e.params.items():

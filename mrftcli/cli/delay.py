@@ -36,7 +36,10 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     Fly the same loop before and after the change (a filter, a firmware, a delay inserted on purpose), at
     two or more betas in one of the flights. Both recordings are read with the same options. Identified
     apart, each flight's Td trades against its tau and their difference carries both trades; together,
-    Td is shared (docs/usage.md#how-much-delay-did-a-change-add-delay, docs/method.md).
+    Td is shared (docs/usage.md#how-much-delay-did-a-change-add-delay, docs/method.md). A recording whose
+    loop leads eq. (2) (an estimator's lead) gets a negative delay, said in a note; a PX4 ULog's output
+    published later after its sample in one flight than in the other (timestamp - timestamp_sample) is said
+    too: that change is in the delay added.
 
     Exit code 0; 2 bad input; 3 a recording cannot be read; 4 no usable test in a recording; 5 the fit fails;
     6 neither recording has two betas.

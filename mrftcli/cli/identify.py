@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError, InsufficientDataError
-from .model_options import build_model, format_estimates, structure_options
+from .model_options import build_model, format_estimates, parse_number, structure_options
 from .options import controller_rate_option, dump_json, echo_warnings, json_option, tp_option
 
 if TYPE_CHECKING:
@@ -20,10 +20,7 @@ def _fields(option: str, text: str, counts: tuple[int, int], expected: str) -> l
     parts = text.split(":")
     if len(parts) not in counts:
         raise InputError(f"{option} {text!r}: expected {expected}")
-    try:
-        return [float(p) for p in parts]
-    except ValueError:
-        raise InputError(f"{option} {text!r}: every field must be a number") from None
+    return [parse_number(p, f"{option} {text!r}") for p in parts]
 
 
 def _parse_test(text: str) -> TestMeasurement:

@@ -77,4 +77,7 @@ def test_tune_refuses_at_once_without_the_estimate(capsys):
         main(["tune", str(SAMPLES / "design1_altitude.ulg"), "--tp", "0.0422", "--loop", "altitude", "--export", "px4",
               "-q"])
     err = capsys.readouterr().err
-    assert ex.value.code == 2 and len(err.strip().splitlines()) == 1 and "--hover-thrust" in err
+    assert ex.value.code == 2 and len(err.strip().splitlines()) == 1
+    # the same line vehicle gives: the option, and why it was not read from the log
+    assert "--hover-thrust X (MPC_THR_HOVER" in err and "altitude loop needs it and the log holds no valid " \
+        "hover_thrust_estimate" in err

@@ -135,7 +135,11 @@ def _hover_from_log(ex: ExportOptions, source: str | None, read_options: dict[st
     from ..io.hover import hover_thrust_of_log
 
     logged = hover_thrust_of_log(source, read_options.get("log_fmt"), read_options.get("time_unit"))
-    return ex if logged is None else dataclasses.replace(ex, hover_thrust=logged.value, hover_source=logged.statement())
+    if logged is None:  # as vehicle says it (vehicle.driver.hover_thrust_from_log), before the analysis
+        raise InputError(f"give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): the px4 export of the "
+                         f"{read_options['loop']} loop needs it and the log holds no valid hover_thrust_estimate to "
+                         "read it from")
+    return dataclasses.replace(ex, hover_thrust=logged.value, hover_source=logged.statement())
 
 
 def _stack_setting(ex: ExportOptions, loop: str, rate_given: float | None,

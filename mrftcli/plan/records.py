@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..jsonable import check_schema_version, finite_or_none
+from ..jsonable import check_schema_version, finite_or_none, json_opt_float
 from ..mrft.identify_lti import LtiIdentification
 from ..mrft.model import LoopModel, PlantModel, soiptd_model
 from ..mrft.relays import RelayLaw
@@ -161,7 +161,7 @@ class PlanLimits:
     def from_json(cls, data: Mapping[str, Any]) -> PlanLimits:
         """The ``limits`` object of :meth:`to_json`."""
         if "time_s" not in data:
-            return cls(_opt_float(data.get("max_amplitude")), _opt_float(data.get("max_h")))
+            return cls(json_opt_float(data.get("max_amplitude")), json_opt_float(data.get("max_h")))
         return cls(**{k: float(data[k]) for k in ("max_amplitude", "max_h", "time_s", "rate_hz", "noise_std")})
 
 
@@ -336,14 +336,14 @@ class CandidateTest:
         rng = {k: (float(data[k][0]), float(data[k][1])) for k in ("frequency_hz", "amplitude") if k in data}
         std = data.get("predicted_std")
         relay = data.get("relay")
-        return cls(beta=_opt_float(data.get("beta")), admissible=bool(data["admissible"]), reason=str(data["reason"]),
-                   h=_opt_float(data.get("h")), frequency_hz=rng.get("frequency_hz"), amplitude=rng.get("amplitude"),
+        return cls(beta=json_opt_float(data.get("beta")), admissible=bool(data["admissible"]), reason=str(data["reason"]),
+                   h=json_opt_float(data.get("h")), frequency_hz=rng.get("frequency_hz"), amplitude=rng.get("amplitude"),
                    n_cycles=None if data.get("n_cycles") is None else int(data["n_cycles"]),
-                   samples_per_period=_opt_float(data.get("samples_per_period")),
-                   switch_gap=_opt_float(data.get("switch_gap")), early_switch=bool(data.get("early_switch", False)),
-                   predicted_std=None if std is None else _stds(std), score=_opt_float(data.get("score")),
-                   relay=None if relay is None else RelayLaw.from_json(relay), gain=_opt_float(data.get("gain")),
-                   phase_deg=_opt_float(data.get("phase_deg")),
+                   samples_per_period=json_opt_float(data.get("samples_per_period")),
+                   switch_gap=json_opt_float(data.get("switch_gap")), early_switch=bool(data.get("early_switch", False)),
+                   predicted_std=None if std is None else _stds(std), score=json_opt_float(data.get("score")),
+                   relay=None if relay is None else RelayLaw.from_json(relay), gain=json_opt_float(data.get("gain")),
+                   phase_deg=json_opt_float(data.get("phase_deg")),
                    undetermined=tuple(str(n) for n in data.get("undetermined", ())))
 
     @classmethod
@@ -584,10 +584,6 @@ def _process_v1(data: Mapping[str, Any]) -> PlanResult:
                       assumptions=tuple(str(a) for a in data.get("assumptions", [])),
                       rate_hz=float(data["rate_hz"]), identification=ident,
                       undetermined=tuple(str(n) for n in data.get("undetermined", [])), why=str(data["why"]))
-
-
-def _opt_float(value: Any) -> float | None:
-    return None if value is None else float(value)
 
 
 def _stds(data: Mapping[str, Any]) -> Stds:

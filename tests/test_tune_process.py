@@ -108,6 +108,19 @@ def test_robust_design_holds_on_every_draw_and_round_trips():
             tune(model, 20.0, options=DesignOptions(**bad))
 
 
+def test_a_robust_design_no_gains_hold_is_said_not_dropped():
+    # draws 1e5 x and 1e-3 x the nominal gain: no PI keeps Ms <= 1.6 on all three (the largest gain needs a Kp
+    # below the grid's); the table lost its robust row without a word and the export fell back silently
+    model = FOPDT(K=2.0, T=1.0, tau=0.3)
+    draws = [model.with_parameters(K=2e5), model.with_parameters(K=2e-3)]
+    res = tune(model, 20.0, posterior=draws, options=DesignOptions(kinds=("PI",)))
+    assert [(d.name, d.kind) for d in res.designs] == [("model-based", "PI")]
+    assert any(n.startswith("no robust PI: ") and "model-based design is the one exported" in n for n in res.notes)
+    held = tune(model, 20.0, posterior=[model.with_parameters(T=1.3), model.with_parameters(K=2.4)],
+                options=DesignOptions(kinds=("PI",)))
+    assert held.get("robust", "PI") is not None and not any(n.startswith("no robust") for n in held.notes)
+
+
 def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[ParameterEstimate]:
     return [ParameterEstimate(2.0, 0.1, 1.8, 2.2, "output / command", name="K"),
             ParameterEstimate(1.0, std_T, 0.8, hi, "s", determined, name="T"),

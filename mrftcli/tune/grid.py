@@ -516,6 +516,12 @@ def tune_grid(model: PlantModel, rate_hz: float, draws: Sequence[PlantModel], op
     if len(draws) >= 2:
         notes.append(f"robust: the constraints held on the nominal model and {len(draws)} draws over the "
                      "identification's intervals")
+        lost = [k for k in kinds if not any(d.name == "robust" and d.kind == k for d in designs)]
+        if lost and "robust" in (options.designs or GRID_DESIGNS):
+            # said, not left for the user to notice: the export then falls back to the model-based design
+            notes.append(f"no robust {'/'.join(lost)}: no gains keep these constraints on the nominal model and every "
+                         "draw (the intervals are too wide to hold together: more tests, or --param for a known "
+                         "value, narrow them); the model-based design is the one exported")
     else:
         notes.append("no robust design: the source gives the parameters without a spread to draw from")
     if sign < 0:

@@ -185,11 +185,7 @@ class TestUpdate:
 
     def to_json(self) -> dict[str, Any]:
         """One ``--jsonl`` line: ``kind``, ``schema_version``, the figures, ``relay`` (its JSON or null)."""
-        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, "number": self.number,
-                "t_start": self.t_start, "t_cycle_end": self.t_cycle_end, "t_log_start": self.t_log_start,
-                "beta_nominal": self.beta_nominal, "beta_effective": self.beta_effective,
-                "frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "h": self.h,
-                "stable_cycles": self.stable_cycles, "cycles": self.cycles, "wall_time": self.wall_time,
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, **asdict(self),
                 "relay": None if self.relay is None else self.relay.to_json(), "notes": list(self.notes)}
 
     @classmethod

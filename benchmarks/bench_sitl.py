@@ -706,6 +706,9 @@ def main() -> int:
     ap.add_argument("--logs-only", action="store_true",
                     help="only what the logs show without identification: tests located, ticks, the delay "
                          "realised, the EKF against SITL's truth")
+    ap.add_argument("--held-out-only", nargs="*", metavar="ROUTE", default=None,
+                    help="only each test's held-out frequency by every route (or these: "
+                         "scripts/sitl/held_out_routes.py), counted over every test flown; no SITL")
     ap.add_argument("--stack", choices=("ardupilot", "px4"), default="ardupilot",
                     help="px4: the PX4 SIH campaign with the fork's MRFT (scripts/sitl/px4/px4_campaign.py)")
     ap.add_argument("--px4", type=Path, default=Path("/work/sitl/px4"), help="PX4 tree (built or to build)")
@@ -727,6 +730,13 @@ def main() -> int:
         return 0
     if args.delay_only:
         delay_increments(args.logs)
+        return 0
+    if args.held_out_only is not None:
+        from held_out_routes import held_out_routes
+
+        logs = [args.logs / f"{name}.BIN" for name, *_ in FLIGHTS if (args.logs / f"{name}.BIN").exists()]
+        print(f"held out by route, {len(logs)} logs in {args.logs}")
+        held_out_routes(logs, *([tuple(args.held_out_only)] if args.held_out_only else []))
         return 0
     if args.logs_only:
         for name, loop, _, _, _, _ in FLIGHTS:

@@ -8,6 +8,7 @@ Before, the diagnosis ran analyze a second time to learn the same refusal.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -59,11 +60,16 @@ def _counting(monkeypatch) -> list[int]:
     return calls
 
 
-def test_the_cli_runs_analyze_once_on_a_log_it_refuses(logs, monkeypatch):
+def test_the_cli_runs_analyze_once_on_a_log_it_refuses(logs, monkeypatch, tmp_path):
     calls = _counting(monkeypatch)
-    r = run_main("diagnose", str(logs["one_height"]), "--tp", str(M.Tp), "-q")
+    r = run_main("diagnose", str(logs["one_height"]), "--tp", str(M.Tp), "-q", "--json", str(tmp_path / "d.json"))
     assert r.returncode == 6 and "only one beta" in r.stderr, r.stderr
     assert len(calls) == 1  # was 2: the diagnosis ran analyze again to learn the same refusal
+    # the refusal says what analyze's says: the partial result on the terminal and in --json (was: no JSON)
+    a = run_main("analyze", str(logs["one_height"]), "--tp", str(M.Tp), "-q", "--json", str(tmp_path / "a.json"))
+    assert a.returncode == 6
+    assert json.loads((tmp_path / "d.json").read_text()) == json.loads((tmp_path / "a.json").read_text())
+    assert "partial result: tau for an assumed Td range" in r.stdout
 
 
 def _refusal(path: Path) -> InsufficientDataError:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -187,17 +189,18 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
     check_output_dir(report_dir, "--report")
     analysis = None
     model = soiptd_or_process(Tp, model_name, params, ranges, relay_kind, eps, {"--window": bool(windows)})
-    if model_name == "soiptd":
-        with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
-            flight = read_flight(log, ReadOptions(**read_options), progress=progress)
-        analysis, refusal = _analysis(flight, model, min_cycles)
-        options: dict[str, Any] = {"analysis": analysis, "refusal": refusal}
-    else:  # a process family's model object, through the same driver
-        flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
-        options = {"relay": RelayOptions(relay_kind, None, eps), "windows": parse_windows(windows, log_start(flight)),
-                   "min_stable_cycles": min_cycles}
-    with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
-        result = _with_analysis(run(flight, model, progress=progress, **options), analysis)
+    with _partial_on_refusal(json_target):
+        if model_name == "soiptd":
+            with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
+                flight = read_flight(log, ReadOptions(**read_options), progress=progress)
+            analysis, refusal = _analysis(flight, model, min_cycles)
+            options: dict[str, Any] = {"analysis": analysis, "refusal": refusal}
+        else:  # a process family's model object, through the same driver
+            flight = read_flight(log, ReadOptions(**read_options, any_time_scale=True), echo_warnings=False)
+            options = {"relay": RelayOptions(relay_kind, None, eps),
+                       "windows": parse_windows(windows, log_start(flight)), "min_stable_cycles": min_cycles}
+        with tqdm_progress("diagnose", unit="stage", enabled=not quiet) as progress:
+            result = _with_analysis(run(flight, model, progress=progress, **options), analysis)
     to_stdout = json_target == "-"
     if json_target:
         dump_json(result.to_json(), json_target)
@@ -212,6 +215,24 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
         from ..report.diagnosis import write_diagnosis_report
 
         click.echo(f"report: {write_diagnosis_report(result, report_dir)}", err=to_stdout)
+
+
+@contextmanager
+def _partial_on_refusal(json_target: str | None) -> Iterator[None]:
+    """A one-beta refusal (exit 6) says what analyze's says: ``--json`` gets ``{"error", "exit_code", "partial"}``
+    and the terminal the partial result (tau over an assumed Td range) before the one-line error."""
+    from ..errors import InsufficientDataError
+
+    try:
+        yield
+    except InsufficientDataError as err:
+        from .analyze import format_partial
+
+        if json_target:
+            dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
+        if json_target != "-" and err.partial:
+            click.echo(format_partial(err))
+        raise
 
 
 def _analysis(flight: FlightLog, model: LoopModel, min_cycles: int) -> tuple[AnalysisResult | None, MrftError | None]:

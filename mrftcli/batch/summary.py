@@ -19,6 +19,7 @@ import pandas as pd
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..report.wording import sig
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
            "SUMMARY_COLUMNS",
@@ -149,10 +150,6 @@ def summary_rows(record: Mapping[str, Any], json_path: Path | None, *, skipped: 
 PROCESS_COLUMNS = ["model", "parameters"]
 
 
-def _g(x: float, digits: int = 4) -> str:
-    return f"{x:.{digits}g}" if math.isfinite(x) else "-"
-
-
 def process_columns(analysis: AnalysisResult | None) -> dict[str, Any]:
     """The summary columns of a process analysis (``batch --model``; None: a loop without a result).
 
@@ -171,8 +168,8 @@ def process_columns(analysis: AnalysisResult | None) -> dict[str, Any]:
         return out
     text = []
     for e in ident.estimates:
-        spread = "known" if e.known else (f"± {_g(e.std, 2)}" if e.determined else "not determined")
-        text.append(f"{e.name} {_g(e.value)} {spread} {e.unit}")
+        spread = "known" if e.known else (f"± {sig(e.std, 2)}" if e.determined else "not determined")
+        text.append(f"{e.name} {sig(e.value)} {spread} {e.unit}")
         out[f"p_{e.name}"] = e.value
         out[f"p_{e.name}_std"] = e.std if e.determined and not e.known else math.nan
         out[f"p_{e.name}_unit"] = e.unit

@@ -8,7 +8,6 @@ report (:func:`mrftcli.report.analysis.write_analysis_report`) in ``DIR/<loop>/`
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from ..progress import Progress, report
@@ -17,13 +16,9 @@ from ..vehicle import VehicleLoop, VehicleResult
 from ._common import ensure_dir, esc, html_page, html_table, write_page
 from .analysis import write_analysis_report
 from .tune import write_tune_report
-from .wording import gain_unit, output_unit
+from .wording import gain_unit, output_unit, sig
 
 __all__ = ["write_vehicle_report"]
-
-
-def _num(x: float, digits: int = 4) -> str:
-    return "-" if not math.isfinite(x) else f"{x:.{digits}g}"
 
 
 def _loop_rows(result: VehicleResult) -> list[list[str]]:
@@ -32,12 +27,12 @@ def _loop_rows(result: VehicleResult) -> list[list[str]]:
         g, est = entry.gains, entry.estimates
         y = output_unit(name)
         gains = ("not tuned" if g is None else
-                 f"{g.design} {g.kind}: Kp {_num(g.controller.Kp)} cmd/{y}, Ki {_num(g.controller.Ki)} cmd/({y} s), "
-                 f"Kd {_num(g.controller.Kd)} cmd s/{y}, Tf {_num(g.controller.Tf * 1e3)} ms at {g.controller.rate_hz:g} Hz")
+                 f"{g.design} {g.kind}: Kp {sig(g.controller.Kp)} cmd/{y}, Ki {sig(g.controller.Ki)} cmd/({y} s), "
+                 f"Kd {sig(g.controller.Kd)} cmd s/{y}, Tf {sig(g.controller.Tf * 1e3)} ms at {g.controller.rate_hz:g} Hz")
         pm = "-" if g is None else f"{g.phase_margin_deg:.1f}"
         k_unit = gain_unit(name) if entry.analysis.kind == "soiptd" else entry.analysis.parameters["K"].unit
-        rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), _num(est["Td"][0]),
-                     _num(est["tau"][0] * 1e3), f"{_num(est['K'][0])} {k_unit}", gains, pm])
+        rows.append([name, entry.role, entry.route, str(len(entry.analysis.tests)), sig(est["Td"][0]),
+                     sig(est["tau"][0] * 1e3), f"{sig(est['K'][0])} {k_unit}", gains, pm])
     return rows
 
 

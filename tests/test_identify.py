@@ -104,6 +104,27 @@ def test_rate_correction_removes_half_sample_lag():
     assert corrected.Td.value == pytest.approx(PAPER.Td, rel=1e-6)
 
 
+def test_k_carries_its_unit_in_every_route_and_on_the_cli():
+    # eq. (2)'s K is an acceleration per command unit: identify --json wrote its unit "" (records.md: the model's
+    # K_UNIT, as analyze's JSON spells it) and the text printed a bare number
+    from cli_helpers import run_main
+    from mrftcli.mrft.model import K_UNIT
+    rng = np.random.default_rng(5)
+    three = _tests(PAPER, (-0.4, -0.55, -0.7))
+    noisy = [TestMeasurement(t.beta, t.frequency_mean * (1 + 0.01 * rng.standard_normal(20)),
+                             t.amplitude_mean * (1 + 0.01 * rng.standard_normal(20)), 1.0) for t in three[::2]]
+    for res in (identify(three[::2], soiptd_model(PAPER.Tp)), identify(three, soiptd_model(PAPER.Tp)),
+                identify(noisy, soiptd_model(PAPER.Tp), n_draws=200, seed=1)):
+        d = json.loads(json.dumps(res.to_json()))
+        assert d["parameters"]["K"]["unit"] == K_UNIT and d["parameters"]["Td"]["unit"] == "s"
+        assert IdentificationResult.from_json(d).to_json() == res.to_json()
+    out = run_main("identify", "--tp", "0.1", "--test", "-0.4:0.7056:0.0785:1", "--test", "-0.7:1.0188:0.0356:1")
+    assert out.returncode == 0 and f"K    1.4195 {K_UNIT}" in out.stdout.splitlines()
+    js = run_main("identify", "--tp", "0.1", "--test", "-0.4:0.7056:0.0785:1", "--test", "-0.7:1.0188:0.0356:1",
+                  "--json", "-")
+    assert json.loads(js.stdout)["parameters"]["K"]["unit"] == K_UNIT
+
+
 def test_uncertainty_from_per_cycle_scatter():
     rng = np.random.default_rng(5)
     base = _tests(PAPER, (-0.4, -0.7))

@@ -124,7 +124,7 @@ def _echo(result: Any, n_data: int) -> None:
     click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {result.Tp:g} s (known)  [{result.method}]")
     click.echo(f"{'Td':<4} {_fmt(result.Td, 1.0, ' s')}")
     click.echo(f"{'tau':<4} {_fmt(result.tau, 1e3, ' ms')}")
-    click.echo(f"{'K':<4} {_fmt(result.K)}")
+    click.echo(f"{'K':<4} {_fmt(result.K, 1.0, ' ' + result.model.parameters['K'].unit)}")  # eq. (2)'s K_UNIT
     if result.residual is not None:
         click.echo(f"residual (weighted RMS of relative frequency errors): {result.residual:.3g}")
     click.echo("tests:")

@@ -76,7 +76,14 @@ class Identification:
 
         return {"schema_version": IDENTIFICATION_SCHEMA_VERSION, "strategy": strategy_of(self.model).name,
                 "family": self.model.family, "model": self.model.to_json(),
-                "parameters": {e.name: e.to_json() for e in self.estimates}, **self.fit_json()}
+                "parameters": {e.name: e.to_json(unit=e.unit or self._unit(e.name)) for e in self.estimates},
+                **self.fit_json()}
+
+    def _unit(self, name: str) -> str:
+        """The model's unit of a parameter, for an estimate that leaves its own empty (eq. (2)'s K, as
+        :mod:`mrftcli.analyze.record` spells it in its JSON)."""
+        p = self.model.parameters.get(name)
+        return str(p.unit) if p is not None else ""
 
     def fit_json(self) -> dict[str, Any]:
         """The strategy's own figures (none here)."""

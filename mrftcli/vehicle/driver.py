@@ -16,7 +16,7 @@ from pathlib import Path
 from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
 from ..analyze.options import AnalyzeOptions, CascadeOptions
 from ..errors import InputError, LogReadError, MrftError, OtherLoopError, SegmentationError
-from ..io import FlightLog, LogSource, ReadOptions, log_layout, open_log, parse_spec, read_loop
+from ..io import FlightLog, LogSource, ReadOptions, get_layout, log_layout, open_log, parse_spec, read_loop
 from ..io.hover import HOVER_TOPIC, logged_hover_thrust
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
@@ -194,7 +194,8 @@ def identify_vehicle(path: str | Path, model: LoopModel | Mapping[str, LoopModel
     log = str(path)
     with open_log(log, opts.fmt, echo_warnings=False, time_unit=opts.time_unit) as source:
         found = find_loops(source, opts, tps)
-        opts, hover_said = hover_thrust_from_log(source, found.loops, opts, cascade=inner_gains is not None)
+        opts, hover_said = hover_thrust_from_log(source, _fields_held(source, found), opts,
+                                                 cascade=inner_gains is not None)
         opts = dataclasses.replace(opts, layout=found.layout)
         acc = _Accumulated(missing=dict(found.missing), first=[hover_said] if hover_said else [])
         total = len(found.loops) + 1
@@ -210,6 +211,25 @@ def identify_vehicle(path: str | Path, model: LoopModel | Mapping[str, LoopModel
     report(progress, total, total, "done")
     ordered = {loop: acc.missing[loop] for loop in VEHICLE_ORDER if loop in acc.missing}
     return VehicleResult(log, found.layout, acc.loops, ordered, (*acc.first, *acc.assumptions), tuple(acc.warnings))
+
+
+def _fields_held(source: LogSource, found: _Found) -> tuple[str, ...]:
+    """The found loops whose command and output fields the log holds (a topic may hold z alone: such a loop is
+    found, then read as not recorded), without reading their data."""
+    try:
+        layout = get_layout(found.layout or "")
+    except InputError:  # no layout by that name: every found loop counts
+        return found.loops
+    held = []
+    for loop in found.loops:
+        try:
+            for spec in (layout.loops[loop].command, layout.loops[loop].output):
+                ts = parse_spec(spec)
+                source.leaves(source.resolve_topic(ts.topic) or ts.topic, ts.field)
+        except (LogReadError, InputError):
+            continue
+        held.append(loop)
+    return tuple(held)
 
 
 def hover_thrust_from_log(source: LogSource, loops: tuple[str, ...], options: VehicleOptions, *,

@@ -323,6 +323,9 @@ def test_cli_states_its_assumptions_first_and_in_the_json():
     assert again.assumptions == tuple(data["assumptions"])
     text = _plan_cli(*LIMITS, "--noise", "0.0002", "--k-range", "2", "8", "--simulate", "0").stdout
     assert text.splitlines()[0].startswith("assumption: prior Td 0.2-3 s")
+    # K's prior in K's unit (an acceleration per command unit, as the table's "m/s² per command unit")
+    k_line = _plan_cli(*LIMITS, "--noise", "0.0002", "--simulate", "0").stdout.splitlines()[2]
+    assert k_line == "assumption: prior K 0.5-20 output / (command s^2) (the default; give --k-range)"
 
 
 def test_cli_without_a_rate_names_the_option():

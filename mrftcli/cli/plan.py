@@ -270,7 +270,7 @@ def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, PlanLimits, Se
     assumed: list[str] = []
     prior_ranges = {}
     for name, default, unit, option in (("Td", (0.2, 3.0), "s", "--td-range"), ("tau", (0.01, 0.1), "s", "--tau-range"),
-                                        ("K", (0.5, 20.0), "output unit per command unit", "--k-range")):
+                                        ("K", (0.5, 20.0), "output / (command s^2)", "--k-range")):
         given_range = given.ranges_prior[name]
         # the analysis' intervals come from the flown tests' cycles, which the plan counts already (their
         # information, and draws conditioned on them): narrowing the prior with them counts the tests twice
@@ -308,7 +308,7 @@ def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, PlanLimits, Se
 @click.option("--tau-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
               help="Prior range of tau [s] (default 0.01 0.1, stated as an assumption).")
 @click.option("--k-range", nargs=2, type=float, default=None, metavar="LOW HIGH",
-              help="Prior range of K [output unit per command unit] (default 0.5 20, stated as an assumption).")
+              help="Prior range of K [output / (command s^2)] (default 0.5 20, stated as an assumption).")
 @click.option("--max-amplitude", type=float, default=None,
               help="Largest output amplitude allowed [output units, e.g. 0.05 m or 0.087 rad]. Required for "
                    "eq. (2); with --model NAME optional (a candidate over it is never recommended).")

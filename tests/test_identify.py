@@ -276,6 +276,8 @@ def test_identification_json_round_trip():
         (lambda d: d.update(schema_version=0), r"schema_version 0 is not supported \(this version reads 1, 2, 3\)"),
         (lambda d: d.pop("parameters"), "needs 'model' and 'parameters' objects"),
         (lambda d: d["parameters"]["Td"].update(value="x"), "'Td' needs a numeric value"),
+        (lambda d: d["parameters"].update(Td=None), "'Td' needs a numeric value"),  # only K may be null
+        (lambda d: d["parameters"].pop("tau"), "'parameters' needs 'tau'"),
         (lambda d: d.update(warnings="none"), "needs 'tests' \\(objects\\) and 'warnings' \\(strings\\)"),
         (lambda d: d.update(residual="small"), "residual, got 'small'"),
         (lambda d: d["model"].update(schema_version=9), "model JSON: schema_version 9 is not supported"),

@@ -56,6 +56,8 @@ class Identification:
     _open_value: ClassVar[float] = math.inf
     #: the fit cuts intervals at the model's ranges (``one_sided`` is found again from them when read)
     _sided: ClassVar[bool] = True
+    #: parameters the strategy may leave out (written null by older versions): eq. (2)'s K without amplitudes
+    _optional: ClassVar[frozenset[str]] = frozenset()
 
     def estimate(self, name: str) -> ParameterEstimate:
         """The estimate of one parameter by name (KeyError when the model has none of that name)."""
@@ -113,7 +115,8 @@ class Identification:
                              f"not a {cls.__name__}")
         bounds = {n: p.bounds for n, p in model.parameters.items()} if sub._sided else {}
         estimates = tuple(ParameterEstimate.from_json(str(n), v, bounds=bounds.get(str(n)), open_value=sub._open_value,
-                                                      method=sub._method) for n, v in params.items() if v is not None)
+                                                      method=sub._method)
+                          for n, v in params.items() if v is not None or n not in sub._optional)
         try:
             record: Self = sub.fit_from_json(d, model, estimates)
             return record

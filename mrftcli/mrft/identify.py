@@ -211,6 +211,7 @@ class IdentificationResult(Identification):
 
     _open_value: ClassVar[float] = math.nan
     _sided: ClassVar[bool] = False
+    _optional: ClassVar[frozenset[str]] = frozenset({"K"})
 
     @classmethod
     def of(cls, Td: ParameterEstimate, tau: ParameterEstimate, K: ParameterEstimate | None, model: LoopModel,
@@ -250,6 +251,10 @@ class IdentificationResult(Identification):
     def fit_from_json(cls, data: Mapping[str, Any], model: Any,
                       estimates: tuple[ParameterEstimate, ...]) -> IdentificationResult:
         """The record from :meth:`fit_json`'s keys of ``data`` (without draws)."""
+        missing = [n for n in ("Td", "tau") if n not in {e.name for e in estimates}]
+        if missing:
+            raise InputError(f"identification JSON: 'parameters' needs {' and '.join(map(repr, missing))} "
+                             "(eq. (2) identifies both)")
         tests, warnings = data.get("tests"), data.get("warnings")
         if not (isinstance(tests, list) and all(isinstance(t, Mapping) for t in tests)
                 and isinstance(warnings, list) and all(isinstance(w, str) for w in warnings)):

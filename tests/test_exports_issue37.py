@@ -87,6 +87,22 @@ def test_reboot_required_from_the_stacks_metadata():
     assert any(n.startswith("IMU_GYRO_RATEMAX take effect only after a reboot") for n in _with_reboot_note(e).notes)
 
 
+def test_only_ardupilot_altitude_margins_are_labelled_the_worst_over_the_splits_of_tau():
+    """The export's margins line said "(the worst over the splits of tau)" for any stated assumption: PX4's x export
+    with the hover thrust read from the log, HEAR's command scale. Only ArduPilot's altitude cascade is held over
+    the splits (tune.ardupilot_z)."""
+    from mrftcli.report.tune import export_section
+    from mrftcli.tune.margins import Margins
+
+    m = Margins(2.0, 45.0, 0.01, 1.5, 1.0, 2.0, True)
+    hover = StackExport("px4", "x", "robust PD", {"MPC_XY_P": 2.0}, (), m, (),
+                        ("hover thrust 0.4911 (MPC_THR_HOVER, normalised) read from the log",))
+    z = StackExport("ardupilot", "altitude", "robust PD", {"PSC_POSZ_P": 1.0}, (), m, (),
+                    ("the split of tau 46 ms between the motors and the sensors is not identifiable",))
+    assert "splits of tau" not in export_section(hover) and "Assumption:</b> hover thrust 0.4911" in export_section(hover)
+    assert "Margins with the stack's filter and rate (the worst over the splits of tau)" in export_section(z)
+
+
 def test_generic_export_carries_its_units_in_the_file(tmp_path):
     """tune --export generic: the file says the unit of every number (the output's from the loop)."""
     import json

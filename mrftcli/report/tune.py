@@ -145,7 +145,9 @@ def export_section(e: "StackExport") -> str:
     rows = [[n, f"{v:.6g}", (f"{ranges[n].minimum:g} .. {ranges[n].maximum:g}" if n in ranges else "-"),
              ranges[n].unit if n in ranges else "-"] for n, v in e.params.items()]
     m = e.margins
-    worst = " (the worst over the splits of tau)" if e.assumptions else ""
+    # only ArduPilot's altitude export holds its margins over the splits of tau (tune.ardupilot_z); other
+    # assumptions (a hover thrust read from the log, HEAR's command scale) are not splits
+    worst = " (the worst over the splits of tau)" if (e.stack, e.loop) == ("ardupilot", "altitude") else ""
     parts = [f"<h2>Export: {esc(e.stack)} ({esc(e.design)}, {esc(e.loop)})</h2>"]
     parts += [f"<p><b>Assumption:</b> {esc(a)}</p>" for a in e.assumptions]
     parts.append(html_table(["parameter", "value", "documented range", "unit"], rows))

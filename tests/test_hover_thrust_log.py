@@ -63,8 +63,8 @@ def test_vehicle_refuses_before_any_analysis_without_the_estimate(monkeypatch):
     monkeypatch.setattr(driver, "analyze_flight", no_analysis)
     opts = VehicleOptions(tune=TuneOptions(stack=StackOptions("px4")))
     # design1_altitude.ulg's /mocap/pose holds z alone: x and y are found but not recorded, and not named
-    with pytest.raises(InputError, match=r"--hover-thrust X \(MPC_THR_HOVER.*export of the altitude loop this log "
-                                         r"records needs it.*hover_thrust_estimate"):
+    with pytest.raises(InputError, match=r"--hover-thrust X \(MPC_THR_HOVER.*export of the altitude loop needs it "
+                                         r"and the log holds no valid hover_thrust_estimate"):
         identify_vehicle(SAMPLES / "design1_altitude.ulg", soiptd_model(0.0422), options=opts)
     # ArduPilot's altitude too: the same option, before the work
     opts = VehicleOptions(tune=TuneOptions(stack=StackOptions("ardupilot")))
@@ -83,3 +83,27 @@ def test_tune_refuses_at_once_without_the_estimate(capsys):
     # the same line vehicle gives: the option, and why it was not read from the log
     assert "--hover-thrust X (MPC_THR_HOVER" in err and "altitude loop needs it and the log holds no valid " \
         "hover_thrust_estimate" in err
+
+
+def test_one_rule_for_given_read_or_refused():
+    """tune and vehicle share :func:`read_hover_thrust`: the log is read only when the option is not given and a
+    loop's export needs it (HOVER_LOOPS); a loop that may go without it (vehicle's cascade x, y) is not refused."""
+    from mrftcli.io.hover import LoggedHoverThrust
+    from mrftcli.tune.stacks import read_hover_thrust
+
+    def never():
+        raise AssertionError("read although not needed")
+
+    est = LoggedHoverThrust(0.45, 9, 0.44, 0.46, "hover_thrust_estimate")
+    assert read_hover_thrust("px4", ("altitude",), 0.5, never) is None  # given
+    assert read_hover_thrust("px4", ("roll", "pitch"), None, never) is None  # not needed
+    assert read_hover_thrust("hear", ("altitude",), None, never) is None
+    assert read_hover_thrust("ardupilot", ("x",), None, never) is None
+    assert read_hover_thrust("px4", ("roll", "x"), None, lambda: est) is est
+    assert read_hover_thrust("px4", ("x", "y"), None, lambda: None, optional=("x", "y")) is None
+    with pytest.raises(InputError, match=r"MPC_THR_HOVER, normalised 0-1\): the px4 export of the altitude, x loops "
+                                         "needs it and the log holds no valid hover_thrust_estimate"):
+        read_hover_thrust("px4", ("altitude", "roll", "x"), None, lambda: None)
+    with pytest.raises(InputError, match=r"MOT_THST_HOVER, throttle 0-1\): the ardupilot export of the altitude loop "
+                                         "needs it and it is not read from ArduPilot's log"):
+        read_hover_thrust("ardupilot", ("altitude",), None, never)

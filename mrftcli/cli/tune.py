@@ -108,15 +108,14 @@ def _from_spread(known: LoopModel, td: float | None, tau: float | None, K: float
 
 def _check_stack(ex: ExportOptions, loop: str, kind: str) -> None:
     """A stack that cannot take this loop or kind is refused before the work (the values are checked again)."""
-    from ..tune.stacks import check_exportable
+    from ..tune.stacks import HOVER_LOOPS, check_exportable
 
     if ex.stack is not None and ex.stack not in ("generic", "hear"):
         check_exportable(ex.stack, loop, kind, ex.hover_thrust)
     # an option the chosen export does not use is an error, not silently ignored
     if ex.gyro_cutoff_hz is not None and not (ex.stack in ("px4", "ardupilot") and loop in ("roll", "pitch")):
         raise InputError("--gyro-cutoff is for --export px4|ardupilot on roll or pitch (the stack's gyro filter)")
-    if ex.hover_thrust is not None and not (ex.stack in ("px4", "ardupilot") and loop == "altitude"
-                                            or ex.stack == "px4" and loop in ("x", "y")):
+    if ex.hover_thrust is not None and loop not in HOVER_LOOPS.get(ex.stack or "", ()):
         raise InputError("--hover-thrust is for --export px4|ardupilot on the altitude loop (and px4 on x, y)")
     if ex.xy_integral is not None:
         from ..tune.stacks import check_xy_integral
@@ -125,21 +124,19 @@ def _check_stack(ex: ExportOptions, loop: str, kind: str) -> None:
 
 
 def _hover_from_log(ex: ExportOptions, source: str | None, read_options: dict[str, Any]) -> ExportOptions:
-    """PX4's hover thrust read from a LOG (:func:`mrftcli.io.hover.hover_thrust_of_log`) when ``--hover-thrust`` is
-    not given and the loop's export needs it; ``ex`` unchanged otherwise (_check_stack then asks for the option)."""
-    from ..tune.stacks import HOVER_LOOPS
-
-    if (ex.stack != "px4" or ex.hover_thrust is not None or read_options["loop"] not in HOVER_LOOPS["px4"]
-            or source is None or str(source).lower().endswith(".json")):
-        return ex
+    """PX4's hover thrust read from a LOG when ``--hover-thrust`` is not given and the loop's export needs it
+    (:func:`mrftcli.tune.stacks.read_hover_thrust`, as vehicle does), before the analysis; ``ex`` unchanged
+    otherwise, and for a JSON source (its export is checked when its loop is known)."""
     from ..io.hover import hover_thrust_of_log
+    from ..tune.stacks import read_hover_thrust
 
-    logged = hover_thrust_of_log(source, read_options.get("log_fmt"), read_options.get("time_unit"))
-    if logged is None:  # as vehicle says it (vehicle.driver.hover_thrust_from_log), before the analysis
-        raise InputError(f"give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): the px4 export of the "
-                         f"{read_options['loop']} loop needs it and the log holds no valid hover_thrust_estimate to "
-                         "read it from")
-    return dataclasses.replace(ex, hover_thrust=logged.value, hover_source=logged.statement())
+    loop = read_options["loop"]
+    if source is None or str(source).lower().endswith(".json") or loop is None:
+        return ex
+    logged = read_hover_thrust(ex.stack, (loop,), ex.hover_thrust, lambda: hover_thrust_of_log(
+        source, read_options.get("log_fmt"), read_options.get("time_unit")))
+    return ex if logged is None else dataclasses.replace(ex, hover_thrust=logged.value,
+                                                         hover_source=logged.statement())
 
 
 def _stack_setting(ex: ExportOptions, loop: str, rate_given: float | None,
@@ -307,9 +304,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
                 progress(0, 1, f"the {ex.stack} export")
                 stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
                                              hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence,
-                                             xy_integral=ex.xy_integral)
-            if ex.hover_source:  # the value read from the log, said first
-                stack_export = dataclasses.replace(stack_export, assumptions=(ex.hover_source, *stack_export.assumptions))
+                                             xy_integral=ex.xy_integral, hover_source=ex.hover_source)
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err

@@ -50,7 +50,7 @@ log's; vehicle-wide rates are not written.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -58,6 +58,7 @@ import numpy as np
 
 from ..jsonable import check_schema_version
 from ..errors import InputError
+from ..io.hover import HOVER_TOPIC, LoggedHoverThrust
 from ..mrft.model import LoopModel
 from ..mrft.controller import PX4VelocityPath
 from .closed_loop import Controller, RateFilter
@@ -67,7 +68,7 @@ from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
-           "px4_xy_prediction", "HOVER_LOOPS",
+           "px4_xy_prediction", "HOVER_LOOPS", "hover_thrust_refusal", "read_hover_thrust",
            "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
@@ -97,6 +98,49 @@ _PX4_XY = ("x", "y")
 #: not given: :func:`mrftcli.io.hover.logged_hover_thrust`), by stack.
 HOVER_LOOPS = {"px4": ("altitude", *_PX4_XY), "ardupilot": ("altitude",)}
 _AXIS_AP = {"roll": "RLL", "pitch": "PIT"}
+#: The stack's hover parameter (``--hover-thrust``) and its scale, and why its log does not give it
+_HOVER_PARAM = {"px4": "MPC_THR_HOVER, normalised 0-1", "ardupilot": "MOT_THST_HOVER, throttle 0-1"}
+_HOVER_NOT_LOGGED = {"px4": f"the log holds no valid {HOVER_TOPIC} to read it from",
+                     "ardupilot": "it is not read from ArduPilot's log (CTUN.ThH holds the saved value until "
+                                  "ArduPilot has learned it)"}
+
+
+def hover_thrust_refusal(stack: str, loops: Sequence[str], *, from_log: bool = False) -> InputError:
+    """The one-line error when the ``stack`` export of ``loops`` (of :data:`HOVER_LOOPS`) needs ``--hover-thrust``
+    and it is not given: why the stack needs it, or (``from_log``: a log was there to read) why the log did not
+    give it."""
+    head = f"give --hover-thrust X ({_HOVER_PARAM[stack]}): "
+    if from_log:
+        return InputError(f"{head}the {stack} export of the {', '.join(loops)} loop{'s' if len(loops) > 1 else ''} "
+                          f"needs it and {_HOVER_NOT_LOGGED[stack]}")
+    if stack == "ardupilot":
+        return InputError(f"{head}ArduPilot adds it to the acceleration loop's output, and the identified K must be "
+                          "its throttle's (about g / X)")
+    return InputError(f"{head}PX4's {'vertical' if 'altitude' in loops else 'horizontal'} velocity loop outputs "
+                      "acceleration, converted to thrust by hover thrust / g")
+
+
+def read_hover_thrust(stack: str | None, loops: Sequence[str], given: float | None,
+                          read: Callable[[], LoggedHoverThrust | None], *,
+                          optional: Sequence[str] = ()) -> LoggedHoverThrust | None:
+    """The hover thrust the ``stack`` export of ``loops`` needs (:data:`HOVER_LOOPS`) when ``--hover-thrust`` is not
+    ``given``: PX4's estimate, ``read()`` from the log (:func:`mrftcli.io.hover.logged_hover_thrust`; called only
+    then); None when given or not needed, or when the log holds none and only ``optional`` loops need it.
+
+    Raises
+    ------
+    InputError
+        A loop outside ``optional`` needs it, it is not given and the log does not hold it
+        (:func:`hover_thrust_refusal`).
+    """
+    if stack is None or given is not None:
+        return None
+    needs = [loop for loop in loops if loop in HOVER_LOOPS.get(stack, ())]
+    logged = read() if needs and stack == "px4" else None
+    required = [loop for loop in needs if loop not in optional]
+    if logged is None and required:
+        raise hover_thrust_refusal(stack, required, from_log=True)
+    return logged
 
 
 def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | None = None) -> None:
@@ -112,13 +156,8 @@ def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | Non
     if stack == "px4" and loop not in ("roll", "pitch", "altitude", *_PX4_XY):
         raise InputError(f"cannot export the {loop} loop to PX4: only roll, pitch, altitude, x and y map onto its "
                          "cascades")
-    if stack == "px4" and loop in ("altitude", *_PX4_XY) and hover_thrust is None:
-        raise InputError("give --hover-thrust X (MPC_THR_HOVER, normalised 0-1): PX4's "
-                         f"{'vertical' if loop == 'altitude' else 'horizontal'} velocity loop "
-                         "outputs acceleration, converted to thrust by hover thrust / g")
-    if stack == "ardupilot" and loop == "altitude" and hover_thrust is None:
-        raise InputError("give --hover-thrust X (MOT_THST_HOVER, throttle 0-1): ArduPilot adds it to the "
-                         "acceleration loop's output, and the identified K must be its throttle's (about g / X)")
+    if loop in HOVER_LOOPS.get(stack, ()) and hover_thrust is None:
+        raise hover_thrust_refusal(stack, (loop,))
     if hover_thrust is not None and not (0.0 < hover_thrust < 1.0):
         raise InputError(f"--hover-thrust must be a normalised thrust in (0, 1), got {hover_thrust}")
     if stack == "ardupilot" and loop == "altitude" and hover_thrust is not None and not param(
@@ -440,13 +479,16 @@ class ExportEvidence:
 
 def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design: str, *, clamp: bool = False,
                   hover_thrust: float | None = None, version: str | None = None,
-                  evidence: ExportEvidence = ExportEvidence(), xy_integral: float | None = None) -> StackExport:
+                  evidence: ExportEvidence = ExportEvidence(), xy_integral: float | None = None,
+                  hover_source: str = "") -> StackExport:
     """``c`` (designed with the stack's rate and filter, :func:`stack_setting`) as ``stack`` loads it.
 
     ``version``: ArduPilot's (``--stack-version``; default the current stable release, named in the file);
     ``evidence``: the relay heights and amplitudes flown, the analysis's notes and the posterior's 95 % set
     (:class:`ExportEvidence`); ``xy_integral``: PX4 x/y's ``MPC_XY_VEL_I_ACC`` [(m/s^2)/m] (None: 0, a PD, whose
-    steady wind offset is stated), designed with and written.
+    steady wind offset is stated), designed with and written; ``hover_source``: where ``hover_thrust`` came from
+    when not given (:meth:`mrftcli.io.hover.LoggedHoverThrust.statement`), the export's first assumption where its
+    loop needs the hover thrust (:data:`HOVER_LOOPS`).
 
     Raises
     ------
@@ -455,6 +497,16 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         range and ``clamp`` is off (each value, its bound and the source, and the margins clamping
         would give), or a value written fails one of the stack's pre-arm rules (never written).
     """
+    e = _export(stack, c, model, loop, design, clamp, hover_thrust, version, evidence, xy_integral)
+    if hover_source and loop in HOVER_LOOPS.get(stack, ()):  # the value read from the log, said first
+        e = replace(e, assumptions=(hover_source, *e.assumptions))
+    return e
+
+
+def _export(stack: str, c: Controller, model: LoopModel, loop: str, design: str, clamp: bool,
+            hover_thrust: float | None, version: str | None, evidence: ExportEvidence,
+            xy_integral: float | None) -> StackExport:
+    """:func:`export_design` but the hover thrust's statement."""
     from .ardupilot_versions import check_version
 
     check_exportable(stack, loop, c.kind, hover_thrust)

@@ -15,13 +15,13 @@ from pathlib import Path
 
 from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
 from ..analyze.options import AnalyzeOptions, CascadeOptions
-from ..errors import InputError, LogReadError, MrftError, OtherLoopError, SegmentationError
+from ..errors import InputError, LogReadError, MrftError, OtherLoopError
 from ..io import FlightLog, LogSource, ReadOptions, get_layout, log_layout, open_log, parse_spec, read_loop
-from ..io.hover import HOVER_TOPIC, logged_hover_thrust
+from ..io.hover import logged_hover_thrust
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
 from ..tune.design import KINDS, OBJECTIVES
-from ..tune.stacks import HOVER_LOOPS
+from ..tune.stacks import read_hover_thrust
 from ..validate import check_tp
 from ..analyze.cascade import OUTER_COMMANDS, cascade_model, inner_draws, inner_gains_of, inner_loop_of
 from ..mrft.controller import Controller
@@ -152,7 +152,7 @@ def _read(source: LogSource, loop: str, Tp: float, options: VehicleOptions, acc:
     try:
         return read_loop(source, options.read(loop))
     except OtherLoopError as err:  # the log's tests are another loop's: this one has none (not "record it")
-        acc.missing[loop] = missing_from_error(loop, SegmentationError(str(err)), Tp, str(source.path))
+        acc.missing[loop] = missing_from_error(loop, err, Tp, str(source.path))
         return None
     except (InputError, LogReadError) as err:
         acc.missing[loop] = missing_topics(loop, (" ".join(str(err).split()),), Tp)
@@ -245,19 +245,11 @@ def hover_thrust_from_log(source: LogSource, loops: tuple[str, ...], options: Ve
         Before any analysis: a loop's export needs the hover thrust, and it is neither given nor in the log.
     """
     st = options.tune.stack
-    if st is None or st.hover_thrust is not None:
+    if st is None:
         return options, ""
-    needs = [loop for loop in loops if loop in HOVER_LOOPS.get(st.stack, ())]
-    logged = logged_hover_thrust(source) if needs and st.stack == "px4" else None
+    logged = read_hover_thrust(st.stack, loops, st.hover_thrust, lambda: logged_hover_thrust(source),
+                                      optional=OUTER_LOOPS if cascade else ())
     if logged is None:
-        required = [loop for loop in needs if not (cascade and loop in OUTER_LOOPS)]
-        if required:
-            param, why = (("MPC_THR_HOVER", f"the log holds no valid {HOVER_TOPIC} to read it from") if st.stack == "px4"
-                          else ("MOT_THST_HOVER", "it is not read from ArduPilot's log (CTUN.ThH holds the saved value until "
-                                  "ArduPilot has learned it)"))
-            raise InputError(f"give --hover-thrust X ({param}, normalised 0-1): the {st.stack} export of the "
-                             f"{', '.join(required)} loop{'s' if len(required) > 1 else ''} this log records needs it "
-                             f"and {why}")
         return options, ""
     stack = dataclasses.replace(st, hover_thrust=logged.value, hover_source=logged.statement())
     return dataclasses.replace(options, tune=dataclasses.replace(options.tune, stack=stack)), logged.statement()

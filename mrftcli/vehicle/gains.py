@@ -28,7 +28,7 @@ from ..segment import MrftTest
 from ..tune.analysis import posterior_from_analysis, recommended_design_name, tune_analysis
 from ..tune.design import DesignOptions, TuneResult, tune
 from ..tune.grid import outer_draws
-from ..tune.stacks import (HOVER_LOOPS, ExportEvidence, StackSetting, check_exportable, export_design,
+from ..tune.stacks import (ExportEvidence, StackSetting, check_exportable, export_design,
                            stack_setting)
 from .record import LoopGains, VehicleLoop
 
@@ -141,11 +141,9 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     try:
         export = export_design(st.stack, gains.controller, res.loop_model, result.loop, f"{design} {options.kind}",
                                clamp=st.clamp, hover_thrust=st.hover_thrust,
-                               evidence=_evidence(result, res.notes))
+                               evidence=_evidence(result, res.notes), hover_source=st.hover_source)
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
-    if st.hover_source and result.loop in HOVER_LOOPS.get(st.stack, ()):  # the value read from the log, said first
-        export = dataclasses.replace(export, assumptions=(st.hover_source, *export.assumptions))
     return LoopGains(design, options.kind, res, export=export)
 
 

@@ -182,6 +182,25 @@ def test_cli_vehicle(flight, tmp_path):
     assert exported["roll"]["Kp"] == pytest.approx(record.loops["roll"].gains.controller.Kp)
 
 
+def test_cli_vehicle_refuses_a_bad_ms_max_before_the_work(tmp_path, monkeypatch):
+    """--ms-max 0.9 was taken: every loop analysed, then each 'not tuned' in a warning, exit 0, and --export generic
+    --out wrote '{}'. Now the one-line refusal tune gives, exit 2, before any analysis, nothing written."""
+    from pathlib import Path
+
+    import mrftcli.vehicle
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("vehicle analysed the log before checking --ms-max")
+
+    monkeypatch.setattr(mrftcli.vehicle, "identify_vehicle", no_work)
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_roll.mcap"
+    out = tmp_path / "g.json"
+    proc = run_main("vehicle", str(log), "--tp", str(TP), "-q", "--ms-max", "0.9", "--export", "generic",
+                    "--out", str(out))
+    assert proc.returncode == 2 and proc.stderr == "error: --ms-max must be a number above 1, got 0.9\n"
+    assert not out.exists()
+
+
 def test_batch_vehicle_writes_a_vehicle_record_per_log(tmp_path):
     """batch --vehicle: each log's record holds its vehicle record; the summary has a row per loop with the
     gains' tune_* figures, and the loops without tests skipped with the tests to fly."""

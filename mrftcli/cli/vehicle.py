@@ -154,6 +154,9 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
     if out and export is None:
         raise InputError("--out needs --export generic|px4|ardupilot|hear")
     _check_stack_options(export, kind, gyro_cutoff, hover_thrust)
+    from ..tune.design import DesignOptions
+
+    DesignOptions(objective=objective, ms_max=ms_max)  # refused before the work, as tune does (not per loop after it)
     stack = None if export is None else StackOptions(export, gyro_cutoff, hover_thrust, clamp)
     gains = _inner_gains(inner_gains)
     options = VehicleOptions(layout=read_options["layout"], fmt=read_options["fmt"],

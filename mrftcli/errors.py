@@ -104,6 +104,11 @@ class InsufficientDataError(MrftError):
         super().__init__(message)
         self.partial = partial or {}
 
+    def to_json(self) -> dict:
+        """The object ``--json`` holds for this refusal (``analyze``, ``diagnose``; ``plan --from`` reads it):
+        ``{"error", "exit_code", "partial"}``."""
+        return {"error": str(self), "exit_code": self.exit_code, "partial": self.partial}
+
 
 class DiagnoseError(MrftError):
     """The model-mismatch diagnosis could not be carried out."""

@@ -213,6 +213,15 @@ def format_partial(err) -> str:
     return "\n".join(lines)
 
 
+def report_partial(err, json_target: str | None) -> None:
+    """Exit 6 as analyze says it (``diagnose`` too): ``--json`` gets ``err.to_json()`` and the terminal, unless
+    the JSON goes to stdout, the partial result before the one-line error."""
+    if json_target:
+        dump_json(err.to_json(), json_target)
+    if json_target != "-" and err.partial:
+        click.echo(format_partial(err))
+
+
 def _stages(progress, weights: dict[str, float]):
     """Split one bar among the stages of a run, in proportion to their usual duration (weights [s])."""
     total = sum(weights.values())
@@ -313,7 +322,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1 and not quiet) as progress:
         stage = _stages(progress, weights)
         stage("identify")(0, 1, "segmenting and identifying")
-        result = _identify(flight, model, options, accept_tp, json_target, to_stdout)
+        result = _identify(flight, model, options, accept_tp, json_target)
         diagnosis = None
         if run_diagnose:
             from ..diagnose.selection import diagnose as run_diagnosis
@@ -390,7 +399,7 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
     return model, options
 
 
-def _identify(flight, model, options, accept_tp: bool, json_target, to_stdout: bool):
+def _identify(flight, model, options, accept_tp: bool, json_target):
     """:func:`~mrftcli.analyze.analyze_flight` (a Tp the recording rejects refused unless ``accept_tp``); on a
     refusal the JSON says what was found and the reader's warnings are shown, then the error propagates."""
     from ..analyze import analyze_flight, refuse_rejected_tp
@@ -401,10 +410,7 @@ def _identify(flight, model, options, accept_tp: bool, json_target, to_stdout: b
         if isinstance(err, TpRejectedError) and json_target and err.result is not None:
             dump_json(cast(Any, err.result).to_json(), json_target)  # the JSON says which: tp_check.verdict "rejected"
         elif isinstance(err, InsufficientDataError):
-            if json_target:
-                dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
-            if not to_stdout and err.partial:
-                click.echo(format_partial(err))
+            report_partial(err, json_target)
         elif isinstance(err, SegmentationError) and json_target and err.rejected_tests is not None:
             # tests found but none usable: the JSON still says what was found and why each was rejected
             dump_json({"error": str(err), "exit_code": err.exit_code, "tests": [],

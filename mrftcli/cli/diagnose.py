@@ -226,12 +226,9 @@ def _partial_on_refusal(json_target: str | None) -> Iterator[None]:
     try:
         yield
     except InsufficientDataError as err:
-        from .analyze import format_partial
+        from .analyze import report_partial
 
-        if json_target:
-            dump_json({"error": str(err), "exit_code": err.exit_code, "partial": err.partial}, json_target)
-        if json_target != "-" and err.partial:
-            click.echo(format_partial(err))
+        report_partial(err, json_target)
         raise
 
 

@@ -69,7 +69,7 @@ def _from_log(path: Path, model: LoopModel, min_cycles: int, read_options: Mappi
     try:
         data = analyze_flight(flight, model, options=AnalyzeOptions(min_stable_cycles=min_cycles)).to_json()
     except InsufficientDataError as err:  # one beta: the object analyze --json writes for exit 6
-        data = {"error": str(err), "exit_code": err.exit_code, "partial": err.partial}
+        data = err.to_json()
     except (IdentificationError, SegmentationError):
         pass  # planned from what the segmenter measured, below
     if data is not None:

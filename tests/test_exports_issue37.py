@@ -101,6 +101,11 @@ def test_only_ardupilot_altitude_margins_are_labelled_the_worst_over_the_splits_
                     ("the split of tau 46 ms between the motors and the sensors is not identifiable",))
     assert "splits of tau" not in export_section(hover) and "Assumption:</b> hover thrust 0.4911" in export_section(hover)
     assert "Margins with the stack's filter and rate (the worst over the splits of tau)" in export_section(z)
+    from mrftcli.cli.tune import stack_summary  # the terminal's lines alike
+
+    assert not any("splits of tau" in line for line in stack_summary(hover, console=False))
+    assert any(line.startswith("margins with the stack's filter and rate (the worst over the splits of tau)")
+               for line in stack_summary(z, console=False))
 
 
 def test_generic_export_carries_its_units_in_the_file(tmp_path):

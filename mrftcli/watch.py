@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Generator, Iterator, Mapping
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from numbers import Integral
 from pathlib import Path
 from typing import Any, ClassVar, Protocol
@@ -185,7 +185,8 @@ class TestUpdate:
 
     def to_json(self) -> dict[str, Any]:
         """One ``--jsonl`` line: ``kind``, ``schema_version``, the figures, ``relay`` (its JSON or null)."""
-        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, **asdict(self),
+        figures = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("relay", "notes")}
+        return {"kind": self.kind, "schema_version": WATCH_SCHEMA_VERSION, **figures,
                 "relay": None if self.relay is None else self.relay.to_json(), "notes": list(self.notes)}
 
     @classmethod

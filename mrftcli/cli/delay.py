@@ -45,7 +45,6 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     6 neither recording has two betas.
     """
     from ..compare.delay import delay_increment
-    from ..errors import MrftError
     from ..io import ReadOptions
 
     if os.path.samefile(before, after):  # a slip: the "delay added" would be a confident 0 ms
@@ -54,11 +53,8 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     check_output_file(json_target, inputs=(before, after))
     read = ReadOptions(**read_options)  # checked before either log is opened
     with tqdm_progress("delay", unit="step", enabled=not quiet, after_s=1.0) as progress:
-        try:
-            result = delay_increment(before, after, Tp, read=read, min_stable_cycles=min_cycles, progress=progress)
-        except MrftError as err:  # the warnings given before it (an assumed rate, tests left out), then the error
-            echo_warnings(err.warnings)
-            raise
+        # an error's warnings (an assumed rate, tests left out) are shown above it by main (MrftError.warnings)
+        result = delay_increment(before, after, Tp, read=read, min_stable_cycles=min_cycles, progress=progress)
     if json_target:
         dump_json(result.to_json(), json_target)
     if json_target != "-":

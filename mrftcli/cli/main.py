@@ -18,6 +18,7 @@ import click
 
 from .._version import __version__
 from ..errors import MrftError
+from .options import echo_warnings
 
 __all__ = ["main", "cli"]
 
@@ -130,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
     except MrftError as err:
         if debug:
             raise
+        echo_warnings(err.warnings)  # what was warned of before the error (delay's assumed rate), then the error
         click.echo(f"error: {err}", err=True)
         sys.exit(err.exit_code)
     except OSError as err:

@@ -266,6 +266,9 @@ def test_a_change_of_the_outputs_publication_latency_is_said_and_recorded() -> N
     assert result.output_latency_s == pytest.approx(tuple(truth), abs=1e-9)
     note = [n for n in result.notes if "published" in n]
     assert len(note) == 1 and "+4 ms of the delay added" in note[0]
+    # the rest, the delay inserted elsewhere, with the delay added's std (the latency is read, not fitted)
+    inc = result.increment
+    assert f"is {(inc.value - 0.004) * 1e3:.3g} ms ± {inc.std * 1e3:.3g} ms" in note[0] and "EKF2" in note[0]
     assert DelayIncrement.from_json(json.loads(json.dumps(result.to_json()))).output_latency_s == result.output_latency_s
 
 
@@ -276,7 +279,7 @@ def test_no_publication_latency_without_the_two_stamps(logs) -> None:
 
 @pytest.mark.parametrize("beta", [-0.2, -0.5, -0.7])
 def test_the_cycle_with_a_lead_continues_eq2s_cycle(beta) -> None:
-    """compare/delay._lead_cycle (a negative delay) against two oracles: at tau -> 0- it is the exact cycle at
+    """mrft.lprs.lead_cycle (a negative delay, compare.delay's) against two oracles: at tau -> 0- it is the exact cycle at
     tau 0 (mrft_limit_cycle), and for leads of 1-5 ms its frequency keeps the ratio to the describing function's
     (the first harmonic's phase condition, arg G(jw) = -pi + asin(beta), solved here in closed form) that the exact
     cycle has at tau = +3 ms, within 0.5 % (the describing function's error moves smoothly with the delay)."""
@@ -284,12 +287,12 @@ def test_the_cycle_with_a_lead_continues_eq2s_cycle(beta) -> None:
 
     from scipy.optimize import brentq
 
-    from mrftcli.compare.delay import _lead_cycle
+    from mrftcli.mrft.lprs import lead_cycle
     from mrftcli.mrft.lprs import mrft_limit_cycle
 
     Tp, Td = 0.05, 1.0
     at0 = mrft_limit_cycle(LoopModel(Tp, Td, 0.0, 1.0), beta)
-    w, a_unit = _lead_cycle(Tp, Td, -1e-12, beta)
+    w, a_unit = lead_cycle(Tp, Td, -1e-12, beta)
     assert w == pytest.approx(at0.omega, rel=1e-7) and Td * a_unit / w == pytest.approx(at0.amplitude, rel=1e-6)
 
     def df(tau: float) -> float:
@@ -298,5 +301,5 @@ def test_the_cycle_with_a_lead_continues_eq2s_cycle(beta) -> None:
 
     ratio = mrft_limit_cycle(LoopModel(Tp, Td, 0.003, 1.0), beta).omega / df(0.003)
     for lead in (0.001, 0.003, 0.005):
-        assert _lead_cycle(Tp, Td, -lead, beta)[0] / df(-lead) == pytest.approx(ratio, rel=0.005)
-    assert _lead_cycle(Tp, Td, -0.001, beta)[0] > at0.omega  # a lead raises the frequency
+        assert lead_cycle(Tp, Td, -lead, beta)[0] / df(-lead) == pytest.approx(ratio, rel=0.005)
+    assert lead_cycle(Tp, Td, -0.001, beta)[0] > at0.omega  # a lead raises the frequency

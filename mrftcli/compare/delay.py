@@ -47,10 +47,11 @@ from ..analyze.estimate import beta_used
 from ..analyze.record import analysis_controller_rate
 from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable_message, screen_tests,
                                span)
-from ..errors import IdentificationError, InputError, InsufficientDataError, MrftError, SegmentationError
-from ..io import ReadOptions, open_log, read_flight
+from ..errors import (IdentificationError, InputError, InsufficientDataError, LogReadError, MrftError,
+                      SegmentationError)
+from ..io import LogSource, ReadOptions, open_log, read_loop
 from ..jsonable import check_schema_version, json_float, json_opt_float
-from ..mrft.lprs import mrft_limit_cycle, unit_cycle_scalar
+from ..mrft.lprs import lead_cycle, mrft_limit_cycle
 from ..mrft.model import K_UNIT, LoopModel
 from ..mrft.parameter import ParameterEstimate
 from ..mrft.sem import mean_sem
@@ -295,46 +296,13 @@ def _rows(before: Sequence[MrftTest], after: Sequence[MrftTest]) -> _Rows:
 
 def _cycle(Tp: float, Td: float, tau: float, rows: _Rows, i: int) -> tuple[float, float]:
     """Eq. (2)'s cycle (K = 1) for row ``i``: frequency [Hz], amplitude [output units per unit K]; a negative
-    delay (a lead) through :func:`_lead_cycle`."""
+    delay (a lead) through :func:`~mrftcli.mrft.lprs.lead_cycle`."""
     delay, beta, h = tau + float(rows.hold[i]), float(rows.beta[i]), float(rows.h[i])
     if delay < 0.0:
-        omega, a_unit = _lead_cycle(Tp, Td, delay, beta)
+        omega, a_unit = lead_cycle(Tp, Td, delay, beta)
         return omega / (2.0 * math.pi), h * Td * a_unit / omega  # Lemmas 2 and 4 at K = 1
     lc = mrft_limit_cycle(LoopModel(Tp, Td, delay, 1.0), beta, h)
     return float(lc.frequency_hz), float(lc.amplitude)
-
-
-def _lead_cycle(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, float]:
-    """Eq. (2)'s MRFT frequency [rad/s] and unit amplitude (:func:`~mrftcli.mrft.lprs.unit_cycle`) with a
-    negative ``tau`` [s]: a loop that leads eq. (2) without delay, as an estimator's lead makes it.
-
-    Along the frequency, the delay a cycle needs is ``theta(Tp w, Td w) / w`` (the UFM over w): 0 at the
-    no-delay cycle's w0, falling with w to a least value (about -0.16 Tp at beta -0.7, -0.05 Tp at -0.9) and
-    rising after it. A lead within reach has its one root on the falling branch; a larger one, which no cycle
-    of this beta holds, is given the branch's end (the residual stays continuous and the fit moves back).
-    """
-    from scipy.optimize import brentq, minimize_scalar
-
-    def needed(logw: float) -> float:
-        w = math.exp(logw)
-        return unit_cycle_scalar(Tp * w, Td * w, beta)[0] / w
-
-    lo, prev, step = math.log(mrft_limit_cycle(LoopModel(Tp, Td, 0.0, 1.0), beta).omega), 0.0, 0.02
-    for _ in range(2000):
-        hi = lo + step
-        now = needed(hi)
-        if now <= tau:
-            logw = brentq(lambda x: needed(x) - tau, lo, hi, xtol=1e-13)
-            break
-        if now >= prev:  # past the least delay: the lead is out of this beta's reach
-            logw = float(minimize_scalar(needed, bounds=(lo - step, hi), method="bounded",
-                                         options={"xatol": 1e-10}).x)
-            break
-        lo, prev = hi, now
-    else:  # pragma: no cover - the least delay is reached within a few decades of w0
-        raise IdentificationError(f"no MRFT cycle of eq. (2) with a lead of {-tau * 1e3:.3g} ms at beta {beta:g}")
-    omega = math.exp(logw)
-    return omega, unit_cycle_scalar(Tp * omega, Td * omega, beta)[1]
 
 
 def _fit(Tp: float, rows: _Rows, var: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -511,7 +479,9 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
     """The tests of one recording that ``analyze`` would use (its screening, :func:`screen_tests`), with the
     warnings ``analyze`` gives it (the reader's, the tests left out and why, the tests' own notes) and the
     controller's rate (and whether the layout assumed it: then it sets the half tick added to the delay)."""
-    flight = read_flight(path, read, echo_warnings=False)
+    with open_log(path, read.fmt, echo_warnings=False, time_unit=read.time_unit) as src:
+        flight = dataclasses.replace(read_loop(src, read, loop_hint=True), path=str(path))  # as read_flight
+        latency = _output_latency(src, flight.source)  # from the same open log
     found = segment(flight, controller_rate_hz=read.controller_rate_hz)
     reasons = screen_tests(found, min_stable_cycles)
     usable = [t for t in found if t.index not in reasons]
@@ -524,22 +494,21 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
     notes = [f"test at {t.t_start - t0:.1f} s: {n}" for t in usable for n in t.notes]
     rate = read.controller_rate_hz or analysis_controller_rate(flight.timing.controller_rate_hz,
                                                                [t.rate_hz for t in usable])
-    assumed = read.controller_rate_hz is None and flight.timing.controller_rate_assumed
+    assumed = flight.timing.controller_rate_assumed  # never with --controller-rate (io.flight.read_loop)
     warnings = tuple(dict.fromkeys([*flight.warnings, *(f"{flight.path}: {w}" for w in [*left_out, *notes])]))
-    return _Recording(usable, warnings, rate, assumed, _output_latency(path, flight.source))
+    return _Recording(usable, warnings, rate, assumed, latency)
 
 
-def _output_latency(path: str | Path, source: Mapping[str, Any]) -> float | None:
-    """The median of the output topic's ``timestamp - timestamp_sample`` [s] (PX4's estimates carry both, in us:
-    how long after the IMU sample the estimate was published); None for a log that is not a ULog (read only
-    there: another format would be read twice) or a topic without the two fields."""
+def _output_latency(src: LogSource, source: Mapping[str, Any]) -> float | None:
+    """The median of the output topic's ``timestamp - timestamp_sample`` [s] in the open log ``src`` (PX4's
+    estimates carry both, in us: how long after the IMU sample the estimate was published); None for a log that
+    is not a ULog (the two stamps are PX4's there) or a topic without the two fields."""
     topic = str(source.get("output", "")).split(":", 1)[0]
     if not topic or source.get("format") != "ulog":
         return None
     try:
-        with open_log(path, echo_warnings=False) as src:
-            _, data = src.read(topic, ["timestamp", "timestamp_sample"])
-    except (MrftError, KeyError, ValueError):
+        _, data = src.read(topic, ["timestamp", "timestamp_sample"])
+    except (LogReadError, KeyError):  # the topic has no timestamp_sample
         return None
     lag = (np.asarray(data["timestamp"], float) - np.asarray(data["timestamp_sample"], float)) * 1e-6
     lag = lag[np.isfinite(lag)]
@@ -588,16 +557,19 @@ def delay_increment(before: str | Path, after: str | Path, Tp: float, *, read: R
         result, warnings=(*tests[0].warnings, *tests[1].warnings),
         controller_rate_hz=(tests[0].controller_rate_hz, tests[1].controller_rate_hz),
         controller_rate_assumed=(tests[0].rate_assumed, tests[1].rate_assumed), output_latency_s=latency,
-        notes=(*result.notes, *_latency_note(latency, result.increment.value)))
+        notes=(*result.notes, *_latency_note(latency, result.increment)))
 
 
-def _latency_note(latency: tuple[float | None, float | None], added: float) -> tuple[str, ...]:
-    """A note when the output's publication latency differs between the recordings (by 0.1 ms or more)."""
+def _latency_note(latency: tuple[float | None, float | None], added: ParameterEstimate) -> tuple[str, ...]:
+    """A note when the output's publication latency differs between the recordings (by 0.1 ms or more): that
+    part of the delay added (read from the stamps, not fitted) and the rest, with the delay added's std."""
     before, after = latency
     if before is None or after is None or abs(after - before) < 1e-4:
         return ()
     moved = after - before
     return (f"the output was published {before * 1e3:.3g} ms after its sample in the before recording and "
             f"{after * 1e3:.3g} ms in the after one (its topic's timestamp - timestamp_sample): {moved * 1e3:+.3g} ms of "
-            f"the delay added is that publication (e.g. the estimator's scheduling); {(added - moved) * 1e3:.3g} ms "
-            "without it",)
+            "the delay added is that publication latency (the estimator's scheduling, e.g. PX4's EKF2), part of the "
+            "loop's change (tune for the whole delay added); the rest, a delay inserted elsewhere (e.g. in the "
+            f"firmware's command path), is {(added.value - moved) * 1e3:.3g} ms ± {added.std * 1e3:.3g} ms (the "
+            "delay added's std; the latency is read, not fitted)",)

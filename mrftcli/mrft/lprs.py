@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import optimize
 
-from ..errors import InputError
+from ..errors import IdentificationError, InputError
 from ..jsonable import json_float, json_opt_float
 from ..validate import check_beta, check_positive
 from .describing import df_crossing, df_frequency
@@ -48,6 +48,7 @@ from .model import LoopModel, PlantModel, SampledPlantModel, StateSpace
 __all__ = [
     "LimitCycle",
     "mrft_limit_cycle",
+    "lead_cycle",
     "lti_limit_cycle",
     "sampled_limit_cycle",
     "SquareWaveResponse",
@@ -404,6 +405,39 @@ def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
     w = math.exp(logw)
     _, a = unit_cycle_scalar(Tp * w, Td * w, beta)
     return w, float(a)
+
+
+def lead_cycle(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, float]:
+    """Eq. (2)'s MRFT frequency [rad/s] and unit amplitude (:func:`unit_cycle`) with a negative ``tau`` [s]: a
+    loop that leads eq. (2) without delay, as an estimator's lead makes it (``compare.delay``'s pair fit).
+    :func:`_exact_omega`'s bracket about the describing function's frequency (one sign change for ``tau >= 0``)
+    does not hold for a lead: the delay a cycle needs falls, then rises, with w (below).
+
+    Along the frequency, the delay a cycle needs is ``theta(Tp w, Td w) / w`` (the UFM over w): 0 at the
+    no-delay cycle's w0, falling with w to a least value (about -0.16 Tp at beta -0.7, -0.05 Tp at -0.9) and
+    rising after it. A lead within reach has its one root on the falling branch; a larger one, which no cycle
+    of this beta holds, is given the branch's end (the residual stays continuous and the fit moves back).
+    """
+    def needed(logw: float) -> float:
+        w = math.exp(logw)
+        return unit_cycle_scalar(Tp * w, Td * w, beta)[0] / w
+
+    lo, prev, step = math.log(_exact_omega(LoopModel(Tp, Td, 0.0, 1.0), beta)[0]), 0.0, 0.02  # the no-delay cycle
+    for _ in range(2000):
+        hi = lo + step
+        now = needed(hi)
+        if now <= tau:
+            logw = optimize.brentq(lambda x: needed(x) - tau, lo, hi, xtol=1e-13)
+            break
+        if now >= prev:  # past the least delay: the lead is out of this beta's reach
+            logw = float(optimize.minimize_scalar(needed, bounds=(lo - step, hi), method="bounded",
+                                                  options={"xatol": 1e-10}).x)
+            break
+        lo, prev = hi, now
+    else:  # pragma: no cover - the least delay is reached within a few decades of w0
+        raise IdentificationError(f"no MRFT cycle of eq. (2) with a lead of {-tau * 1e3:.3g} ms at beta {beta:g}")
+    omega = math.exp(logw)
+    return omega, unit_cycle_scalar(Tp * omega, Td * omega, beta)[1]
 
 
 def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: float | None = None,

@@ -111,7 +111,7 @@ def _undetermined_note(base: ParameterEstimate, new: ParameterEstimate) -> str:
 
 def compare_estimates(base: ParameterEstimate, new: ParameterEstimate, *, z_crit: float,
                       tolerance: Tolerance | None, fail_without_tolerance: bool,
-                      where: tuple[str | None, str, str] = (None, "", "")) -> ParameterChange:
+                      where: tuple[str | None, str, str]) -> ParameterChange:
     """Test one parameter's change (module docstring) with the critical value ``z_crit``; ``where``: the
     change's log or vehicle name, loop and parameter."""
     row = ParameterChange(*where, finite_or_none(base.value), finite_or_none(new.value), None, None, None, None,

@@ -319,12 +319,12 @@ def test_identification_json_old_versions_still_read(version):
 
 
 def test_one_identification_record_reads_by_the_model_and_refuses_another_strategys():
-    """Identification.from_json gives eq. (2)'s record for a soiptd model; the families' reader refuses it in one line."""
-    from mrftcli.mrft.identification import Identification
+    """IdentificationRecord.from_json gives eq. (2)'s record for a soiptd model; the families' reader refuses it in one line."""
+    from mrftcli.mrft.identification import IdentificationRecord
     from mrftcli.mrft.identify_lti import LtiIdentification
 
     d = json.loads(json.dumps(identify(_tests(PAPER, (-0.4, -0.7)), soiptd_model(PAPER.Tp)).to_json()))
-    back = Identification.from_json(d)
+    back = IdentificationRecord.from_json(d)
     assert isinstance(back, IdentificationResult) and back.to_json() == d
     assert [e.name for e in back.estimates] == ["Td", "tau", "K", "Tp"] and back.estimate("Tp").known
     with pytest.raises(InputError, match="a soiptd model's record \\(unit-manifolds\\), not a LtiIdentification") as err:

@@ -355,13 +355,13 @@ def test_a_process_diagnosis_of_version_1_reads() -> None:
 def test_a_version_2_identification_of_each_fit_reads_into_the_one_record_and_writes_as_3(
         name: str, cls: str, fit_keys: tuple[str, ...]) -> None:
     """The families' and the cascade's own identification layouts (version 2) read, through the one
-    ``Identification.from_json``, into their strategy's record with every figure, and write back as version 3."""
+    ``IdentificationRecord.from_json``, into their strategy's record with every figure, and write back as version 3."""
     from mrftcli.mrft import cascade_identify, identify_lti
-    from mrftcli.mrft.identification import Identification
+    from mrftcli.mrft.identification import IdentificationRecord
 
     old = _old(name)
     assert old["schema_version"] == 2 and "strategy" not in old
-    back = Identification.from_json(old)
+    back = IdentificationRecord.from_json(old)
     assert type(back).__name__ == cls and type(back) in (identify_lti.LtiIdentification,
                                                         cascade_identify.CascadeIdentification)
     new = _written(back)
@@ -369,5 +369,5 @@ def test_a_version_2_identification_of_each_fit_reads_into_the_one_record_and_wr
     assert new["family"] == old["model"]["family"] and new["model"] == old["model"]
     assert new["parameters"] == old["parameters"]
     assert {k: new[k] for k in fit_keys} == {k: old[k] for k in fit_keys}
-    assert _written(Identification.from_json(new)) == new
+    assert _written(IdentificationRecord.from_json(new)) == new
     assert type(back).from_json(new) == back

@@ -279,7 +279,7 @@ class AnalysisResult:
         The identified model (the point estimate).
     tests : tuple of MrftTest (eq. (2), cascade) or TestSummary (process family)
         The tests used for identification (eq. (2) and the cascade: with their per-cycle data).
-    identification : Identification or None
+    identification : IdentificationRecord or None
         The one identification record of the strategy (:mod:`mrftcli.mrft.identification`): eq. (2)'s point
         identification from
         :func:`mrftcli.mrft.identify.identify` (None in a record read from JSON: the JSON keeps its

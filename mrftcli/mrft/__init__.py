@@ -12,12 +12,12 @@ bootstrap over a log's cycles); the families' response-point fit
 """
 
 from .describing import describing_function_limit_cycle
-from .identification import Identification
+from .identification import IdentificationRecord
 from .identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify
 from .lprs import LimitCycle, mrft_limit_cycle, sampled_limit_cycle
 from .model import MODEL_FAMILIES, LoopModel, Parameter, PlantModel
 from .ufm import ManifoldSet, load_manifolds
 
 __all__ = ["LoopModel", "PlantModel", "Parameter", "MODEL_FAMILIES", "LimitCycle", "mrft_limit_cycle",
-           "sampled_limit_cycle", "describing_function_limit_cycle", "ManifoldSet", "load_manifolds", "TestMeasurement", "ParameterEstimate", "Identification", "IdentificationResult",
+           "sampled_limit_cycle", "describing_function_limit_cycle", "ManifoldSet", "load_manifolds", "TestMeasurement", "ParameterEstimate", "IdentificationRecord", "IdentificationResult",
            "identify"]

@@ -22,7 +22,7 @@ from ..validate import check_positive
 from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop
 from .controller import json_number
 from .identify import TestMeasurement
-from .identification import Identification
+from .identification import IdentificationRecord
 from .parameter import ParameterEstimate, fitted_estimate
 from .lprs import LimitCycle
 
@@ -85,9 +85,9 @@ class CascadeTestFit:
 
 
 @dataclass(frozen=True)
-class CascadeIdentification(Identification):
+class CascadeIdentification(IdentificationRecord):
     """The outer loop identified through its inner loop (:func:`fit_cascade_cycles`): the one
-    :class:`~mrftcli.mrft.identification.Identification` record with the cascade's figures.
+    :class:`~mrftcli.mrft.identification.IdentificationRecord` with the cascade's figures.
 
     Attributes
     ----------

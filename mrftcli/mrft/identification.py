@@ -1,4 +1,4 @@
-"""The one identification record: :class:`Identification`, what :func:`~mrftcli.mrft.identify.identify` returns.
+"""The one identification record: :class:`IdentificationRecord`, what :func:`~mrftcli.mrft.identify.identify` returns.
 
 Every strategy (eq. (2)'s unit manifolds, the families' response points, the cascade's cycles) writes one
 layout (docs/records.md)::
@@ -7,9 +7,10 @@ layout (docs/records.md)::
      "parameters": {"K": {...}, "T": {...}, "L": {...}}, ...the strategy's fit figures}
 
 ``parameters`` holds every parameter of the model, identified or given, as the one parameter record
-(:class:`~mrftcli.mrft.parameter.ParameterEstimate`), in the family's order; what only one strategy finds
+(:class:`~mrftcli.mrft.parameter.ParameterEstimate`), in its strategy's order (eq. (2): Td, tau, K, Tp, with no K
+without amplitudes; a family: its model's; the cascade: its free ones, then a given K); what only one strategy finds
 (eq. (2)'s tests and Monte Carlo, the families' response points, the cascade's inner draws) follows as that
-strategy's keys (:meth:`Identification.fit_json`). :meth:`Identification.from_json` reads any strategy by its
+strategy's keys (:meth:`IdentificationRecord.fit_json`). :meth:`IdentificationRecord.from_json` reads any strategy by its
 model's family, and, for one release, each strategy's version 1 and 2 (their own ``schema_version`` before the
 merge; the parameters in their former shapes, :meth:`ParameterEstimate.from_json`).
 """
@@ -27,16 +28,16 @@ from ..jsonable import check_schema_version
 from .model import model_from_json
 from .parameter import ParameterEstimate
 
-__all__ = ["Identification", "IDENTIFICATION_SCHEMA_VERSION"]
+__all__ = ["IdentificationRecord", "IDENTIFICATION_SCHEMA_VERSION"]
 
-#: version of :meth:`Identification.to_json`; 3: one layout for every strategy (``strategy``, ``family``,
+#: version of :meth:`IdentificationRecord.to_json`; 3: one layout for every strategy (``strategy``, ``family``,
 #: ``model``, ``parameters`` with every parameter, known ones included); versions 1 and 2 of each strategy
 #: (eq. (2)'s, the families', the cascade's: each its own layout) still read
 IDENTIFICATION_SCHEMA_VERSION = 3
 
 
 @dataclass(frozen=True, eq=False)
-class Identification:
+class IdentificationRecord:
     """An identified model and its parameters, whichever strategy found them.
 
     Attributes
@@ -44,7 +45,8 @@ class Identification:
     model : PlantModel
         The point estimate (known parameters and ranges kept).
     estimates : tuple of ParameterEstimate
-        Every parameter of the model (``name`` set), identified or given, in the family's order.
+        Every parameter of the model (``name`` set), identified or given, in the strategy's order (module
+        docstring: eq. (2)'s Td, tau, K, Tp is not :class:`~mrftcli.mrft.model.LoopModel`'s Tp, Td, tau, K).
     """
 
     model: Any
@@ -68,7 +70,7 @@ class Identification:
 
     @property
     def parameters(self) -> dict[str, ParameterEstimate]:
-        """The estimates by name, in the family's order."""
+        """The estimates by name, in :attr:`estimates`' order."""
         return {e.name: e for e in self.estimates}
 
     def to_json(self) -> dict[str, Any]:

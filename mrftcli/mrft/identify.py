@@ -40,7 +40,7 @@ from scipy import optimize
 from ..jsonable import json_opt_float
 from ..errors import IdentificationError, InputError
 from ..validate import check_beta, check_time
-from .identification import Identification
+from .identification import IdentificationRecord
 from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
 from .model import LoopModel, PlantModel
@@ -177,8 +177,8 @@ class TestMeasurement:
 
 
 @dataclass(frozen=True, eq=False)
-class IdentificationResult(Identification):
-    """Outcome of :func:`identify` for eq. (2): the one :class:`~mrftcli.mrft.identification.Identification`
+class IdentificationResult(IdentificationRecord):
+    """Outcome of :func:`identify` for eq. (2): the one :class:`~mrftcli.mrft.identification.IdentificationRecord`
     record with the unit manifolds' figures.
 
     Attributes
@@ -605,7 +605,7 @@ def _delta_method(inputs: _Inputs, m: _Measured, point: _Point, K_est: Parameter
 class Strategy:
     """How a family is identified: from what (``data``: ``"tests"``, :class:`TestMeasurement`, or
     ``"points"``, :class:`ResponsePoint`), by which function (``module``, ``function``: called as
-    ``function(data, model, **options)``) and into which :class:`~mrftcli.mrft.identification.Identification`
+    ``function(data, model, **options)``) and into which :class:`~mrftcli.mrft.identification.IdentificationRecord`
     (``record``, in ``module``)."""
 
     name: str

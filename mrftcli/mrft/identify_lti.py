@@ -51,7 +51,7 @@ from scipy.linalg import lapack
 from ..errors import IdentificationError, InputError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel, wrap as _wrap
-from .identification import Identification
+from .identification import IdentificationRecord
 from .model import PlantModel
 from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate
 
@@ -132,9 +132,9 @@ class ResponsePoint:
 
 
 @dataclass(frozen=True)
-class LtiIdentification(Identification):
+class LtiIdentification(IdentificationRecord):
     """Outcome of :func:`fit_response_points` (:func:`mrftcli.mrft.identify.identify` of a process family):
-    the one :class:`~mrftcli.mrft.identification.Identification` record with the fit's figures.
+    the one :class:`~mrftcli.mrft.identification.IdentificationRecord` with the fit's figures.
 
     Attributes
     ----------

@@ -199,6 +199,9 @@ def test_cli_vehicle_refuses_a_bad_ms_max_before_the_work(tmp_path, monkeypatch)
                     "--out", str(out))
     assert proc.returncode == 2 and proc.stderr == "error: --ms-max must be a number above 1, got 0.9\n"
     assert not out.exists()
+    # --hover-thrust outside (0, 1): was ~10 s of analysis, the table on stderr and 'x: not exported: ...', exit 2
+    proc = run_main("vehicle", str(log), "--tp", str(TP), "-q", "--export", "px4", "--hover-thrust", "1.5")
+    assert proc.returncode == 2 and proc.stderr == "error: --hover-thrust must be a normalised thrust in (0, 1), got 1.5\n"
 
 
 def test_batch_vehicle_writes_a_vehicle_record_per_log(tmp_path):

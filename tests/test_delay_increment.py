@@ -78,6 +78,8 @@ def test_a_single_test_after_the_change_is_enough_when_before_has_two_betas(logs
     """Td is shared: one beta in the second recording gives its delay against the first's Td."""
     result = delay_increment(logs["before"], logs["one_beta_20"], TP)
     assert result.dof == 1 and abs(result.increment.value - 0.020) < 0.003
+    proc = _run(logs["before"], logs["one_beta_20"], "--tp", TP, "--loop", "altitude", "-q")
+    assert proc.returncode == 0 and "(1 test;" in proc.stdout and "(3 tests;" in proc.stdout  # was '(1 tests;'
 
 
 def test_the_record_round_trips_and_a_newer_schema_is_refused(logs) -> None:

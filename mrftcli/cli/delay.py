@@ -70,12 +70,16 @@ def _rate(rate_hz: float | None, assumed: bool) -> str:
     return f"; controller rate {rate_hz:g} Hz" + (" assumed (see the warning; --controller-rate sets it)" if assumed else "")
 
 
+def _count(n: int) -> str:
+    return f"{n} test" + ("" if n == 1 else "s")
+
+
 def format_delay(result: DelayIncrement) -> str:
     """The terminal summary: what the figures rest on, each test measured and fitted, the figures, the notes."""
     K_unit = gain_unit(result.loop)
     lines = [f"delay added between two recordings of loop {result.loop}, Tp {result.Tp:g} s (known)",
              f"method: {result.METHOD}",
-             *(f"  {flight + ':':7} {path} ({sum(t.flight == flight for t in result.tests)} tests{_rate(rate, assumed)}"
+             *(f"  {flight + ':':7} {path} ({_count(sum(t.flight == flight for t in result.tests))}{_rate(rate, assumed)}"
                + ("" if latency is None else f"; output published {latency * 1e3:.3g} ms after its sample") + ")"
                for flight, path, rate, assumed, latency in zip(
                    ("before", "after"), (result.before, result.after), result.controller_rate_hz,

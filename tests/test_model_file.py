@@ -104,6 +104,21 @@ def test_identify_declared_from_exact_points_and_too_many_unknowns():
         identify(pts[:1], model)
 
 
+@pytest.mark.parametrize("a", [0.0, 0.05])
+def test_a_declared_range_from_zero_identifies(a):
+    # a positive parameter whose range starts at 0: the start's linear grid may pick 0 itself, whose log
+    # the solver cannot take (an internal error before); a = 0 is the range's end, a = 0.05 inside it
+    w = np.array([1.0, 2.0, 5.0, 9.0])
+    G = 2.0 * (a * 1j * w + 1) * np.exp(-0.1j * w) / (0.5j * w + 1) ** 2  # by hand
+    pts = [ResponsePoint(x, abs(g), float(np.angle(g)), 0.01, 0.01, i) for i, (x, g) in enumerate(zip(w, G))]
+    model = declared_model("K*(a*s + 1)*exp(-tau*s)/(T*s + 1)**2", {},
+                           {"K": (0.1, 10), "T": (0.01, 10), "tau": (0.0, 1.0), "a": (0.0, 0.1)})
+    fit = identify(pts, model)
+    for name, value in {"K": 2.0, "T": 0.5, "tau": 0.1}.items():
+        assert fit.estimate(name).value == pytest.approx(value, rel=1e-3)
+    assert fit.estimate("a").value == pytest.approx(a, abs=1e-4)
+
+
 def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):
     # the simulator's SOPDT with T1 = T2 is the declared double lag; two hysteresis settings
     params = {"K": 1.5, "T1": 0.4, "T2": 0.4, "tau": 0.1}

@@ -258,7 +258,11 @@ class _Problem:
         return out
 
     def z_of(self, values: Mapping[str, float]) -> FloatArray:
-        return np.array([math.log(abs(values[n])) if n in self.log_scaled else values[n] for n in self.unknown])
+        """The solver's variables of ``values``; a log-scaled value of 0 (a declared range's lower end,
+        which the start's linear grid may pick) maps to its variable's lower bound."""
+        lo = self.z_bounds()[0]
+        return np.array([(math.log(abs(values[n])) if values[n] != 0 else lo[i]) if n in self.log_scaled
+                         else values[n] for i, n in enumerate(self.unknown)])
 
     def z_bounds(self) -> tuple[FloatArray, FloatArray]:
         """Bounds of the solver's variables: the set I, and for time constants at most 1e6 times from 1/omega."""

@@ -109,6 +109,17 @@ def test_simulate_replaces_its_own_bag_and_not_a_recorded_flight(tmp_path: Path,
     assert _snapshot(tmp_path) == before
 
 
+def test_simulate_creates_a_missing_folder_as_every_output_does(tmp_path: Path, capsys, monkeypatch) -> None:
+    # simulate --out new/alt.mcap was refused ('the directory new does not exist') where --json, --report and
+    # tune --out create it
+    monkeypatch.chdir(tmp_path)
+    assert run_cli(capsys, *_sim("--out", "new/deeper/alt.mcap"))[0] == 0
+    assert sorted(p.name for p in (tmp_path / "new" / "deeper").iterdir()) == ["alt.mcap", "alt.mcap.truth.json"]
+    (tmp_path / "plain").write_text("a file, not a folder")
+    code, _out, err = run_cli(capsys, *_sim("--out", "plain/alt.mcap"))
+    _one_line_error(code, err, "--out plain", "is a file")  # before the work (was: after it, '...tmp: Not a directory')
+
+
 @pytest.mark.parametrize("option", ["--out", "--json", "--mcap-out", "--report"])
 def test_no_output_follows_a_symbolic_link(tmp_path: Path, capsys, monkeypatch, option: str) -> None:
     monkeypatch.chdir(tmp_path)

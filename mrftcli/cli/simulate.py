@@ -17,8 +17,8 @@ from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
 from .model_options import MODEL_NAMES, parse_number, parse_params
-from .options import (controller_rate_option, dump_json, json_option, quiet_option, read_json_file, tp_option,
-                      tqdm_progress)
+from .options import (check_output_dir, controller_rate_option, dump_json, json_option, quiet_option, read_json_file,
+                      tp_option, tqdm_progress)
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
 
@@ -60,13 +60,13 @@ def parse_effect(text: str) -> tuple[str, float]:
 
 
 def _check_log_target(out: Path, fmt: str) -> None:
-    """``--out``'s folder exists and the log is this tool's to replace (:func:`mrftcli.sim.sidecar.check_log_target`),
-    before the work."""
+    """The log is this tool's to replace (:func:`mrftcli.sim.sidecar.check_log_target`) and ``--out``'s folder is
+    created if missing (refused if it cannot be), before the work."""
     from ..sim.sidecar import check_log_target
 
-    if out.parent and not out.parent.exists():
-        raise InputError(f"--out {out}: the directory {out.parent} does not exist")
     check_log_target(out, fmt)
+    if not out.parent.is_dir():  # created, as every other output's folder (--json, --report, tune --out)
+        check_output_dir(str(out.parent), "--out")
 
 
 def _given(ctx: click.Context, names: tuple[str, ...], why: str) -> None:

@@ -14,9 +14,10 @@ Routes through the CLI, as a user runs them (``mrft-ident analyze LOG ... --json
 
 Routes in this process (eq. (2) fitted by least squares to the other tests' mean frequencies, each weighted by
 its AR(1) standard error, ``mrft.sem.mean_sem``; tau >= 0): at the nominal beta or at the measured effective one,
-with the relay continuous or sampled at the test's rate (``mrft_limit_cycle(..., rate_hz)``), and with the other
+with the relay continuous or sampled at the test's rate (``mrft_limit_cycle(..., rate_hz)``), with the other
 tests' mean amplitudes as well (``nominal_sampled_amp``: the question whether amplitudes pin what the
-frequencies leave free).
+frequencies leave free), and with a lead allowed (``effective_continuous_lead``: tau down to -Tp/2 through
+``mrft.lprs.lead_cycle``, as ``mrft-ident delay`` takes EKF3's lead).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from mrftcli.io import ReadOptions, read_flight
-from mrftcli.mrft.lprs import mrft_limit_cycle
+from mrftcli.mrft.lprs import lead_cycle, mrft_limit_cycle
 from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.sem import mean_sem
 from mrftcli.segment import segment
@@ -99,13 +100,17 @@ def cli_route(log: Path, route: str, workdir: Path) -> RouteResult:
 
 
 def _cycle(tp: float, p: np.ndarray, test, beta: str, sampled: bool) -> tuple[float, float]:
-    model = LoopModel(tp, math.exp(p[0]), max(float(p[1]), 0.0), math.exp(p[2]))
+    Td, tau, K = math.exp(p[0]), float(p[1]), math.exp(p[2])
     b = test.beta_nominal if beta == "nominal" else test.beta_effective
-    lc = mrft_limit_cycle(model, b, test.h, test.rate_hz if sampled else None)
+    if tau < 0:  # a lead (the ``_lead`` routes): eq. (2)'s cycle as ``mrft-ident delay`` takes it, continuous relay
+        omega, a_unit = lead_cycle(tp, Td, tau, b)
+        return omega / (2 * math.pi), test.h * K * Td * a_unit / omega
+    lc = mrft_limit_cycle(LoopModel(tp, Td, tau, K), b, test.h, test.rate_hz if sampled else None)
     return lc.frequency_hz, lc.amplitude
 
 
-def _fit(tp: float, others: list, cycle: Callable, amplitudes: bool, td0: float) -> np.ndarray | None:
+def _fit(tp: float, others: list, cycle: Callable, amplitudes: bool, td0: float,
+         tau_min: float = 0.0) -> np.ndarray | None:
     """Td, tau, K (as ln Td, tau, ln K) by weighted least squares on the other tests' log frequencies (and log
     amplitudes), each over its AR(1) standard error; the best of six starts."""
     def residuals(p: np.ndarray) -> list[float]:
@@ -123,7 +128,7 @@ def _fit(tp: float, others: list, cycle: Callable, amplitudes: bool, td0: float)
             k0 = others[0].amplitude_mean / cycle(np.array([math.log(td), tau, 0.0]), others[0])[1]
             try:
                 s = least_squares(residuals, [math.log(td), tau, math.log(k0)], x_scale=[0.3, 0.003, 0.3],
-                                  bounds=([math.log(0.02), 0.0, -30.0], [math.log(100.0), 0.3, 30.0]))
+                                  bounds=([math.log(0.02), tau_min, -30.0], [math.log(100.0), 0.3, 30.0]))
             except (ValueError, ArithmeticError):
                 continue
             if best is None or s.cost < best.cost:
@@ -132,10 +137,12 @@ def _fit(tp: float, others: list, cycle: Callable, amplitudes: bool, td0: float)
 
 
 def fit_route(log: Path, route: str) -> RouteResult:
-    """An in-process route (module docstring): ``{nominal|effective}_{continuous|sampled}[_amp]``."""
+    """An in-process route (module docstring): ``{nominal|effective}_{continuous|sampled}[_amp|_lead]``
+    (``_lead``: tau down to -Tp/2, a lead, as ``mrft-ident delay`` allows; continuous relay)."""
     side = _side(log)
     parts = route.split("_")
     beta, sampled, amplitudes = parts[0], parts[1] == "sampled", parts[-1] == "amp"
+    tau_min = -0.5 * side["tp_s"] if parts[-1] == "lead" else 0.0
     tests = segment(read_flight(log, ReadOptions(loop=side["loop"])))
     def cycle(p: np.ndarray, t) -> tuple[float, float]:
         return _cycle(side["tp_s"], p, t, beta, sampled)
@@ -144,14 +151,15 @@ def fit_route(log: Path, route: str) -> RouteResult:
     errors: list[float | None] = []
     for i, test in enumerate(tests):
         others = [t for j, t in enumerate(tests) if j != i]
-        p = _fit(side["tp_s"], others, cycle, amplitudes, td0) if len(others) >= 2 else None
+        p = _fit(side["tp_s"], others, cycle, amplitudes, td0, tau_min) if len(others) >= 2 else None
         errors.append(None if p is None else cycle(p, test)[0] / test.frequency_hz_mean - 1.0)
     flown = len(side["tests"])
     return RouteResult(flown, tuple(errors + [None] * (flown - len(errors))))
 
 
 CLI_ROUTES = ("eq2", *MODEL_FILES)
-FIT_ROUTES = ("effective_continuous", "nominal_continuous", "nominal_sampled", "nominal_sampled_amp")
+FIT_ROUTES = ("effective_continuous", "nominal_continuous", "nominal_sampled", "nominal_sampled_amp",
+              "effective_continuous_lead")
 
 
 def held_out_routes(logs: list[Path], routes: tuple[str, ...] = CLI_ROUTES + FIT_ROUTES) -> dict[str, dict[str, RouteResult]]:

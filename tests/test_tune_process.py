@@ -121,6 +121,27 @@ def test_a_robust_design_no_gains_hold_is_said_not_dropped():
     assert held.get("robust", "PI") is not None and not any(n.startswith("no robust") for n in held.notes)
 
 
+def test_cli_exports_the_model_based_design_of_a_kind_that_lost_its_robust_one(tmp_path):
+    # an integrator whose delay is known to a factor e^2 either way: no PI holds on every draw, PID and PD do.
+    # The note says the model-based PI is exported; the CLI picked "robust" because another kind kept one and
+    # then refused: "no robust PI design for this plant"
+    model = IPDT(K=2.0, tau=0.3)
+    est = (ParameterEstimate(2.0, 0.1, 1.8, 2.2, "output / (command s)", name="K"),
+           ParameterEstimate(0.3, 0.3, 0.3 * math.exp(-2.0), 0.3 * math.exp(2.0), "s", name="tau"))
+    test = TestSummary(0, 2.0, 20.0, RelayLaw("ideal", 1.0, -1.0), 0.83, 0.55, 14, 15, 20.0, 0.0)
+    src = tmp_path / "r.json"
+    src.write_text(json.dumps(AnalysisResult("p.csv", "level", model, (test,), LtiIdentification(model, est, (), None),
+                                             {e.name: e for e in est}).to_json()))
+    out = run_main("tune", str(src), "--kind", "PI", "--json", "-")
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    res = TuneResult.from_json(data)
+    assert {d.kind for d in res.designs if d.name == "robust"} == {"PID", "PD"}
+    assert any(n.startswith("no robust PI: ") and "model-based design is the one exported" in n for n in res.notes)
+    assert (data["export"]["design"], data["export"]["kind"]) == ("model-based", "PI")
+    assert data["export"]["generic"] == res.get("model-based", "PI").controller.to_dict()
+
+
 def _estimates(std_T: float, determined: bool = True, hi: float = 1.2) -> list[ParameterEstimate]:
     return [ParameterEstimate(2.0, 0.1, 1.8, 2.2, "output / command", name="K"),
             ParameterEstimate(1.0, std_T, 0.8, hi, "s", determined, name="T"),

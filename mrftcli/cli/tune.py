@@ -278,7 +278,7 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
 
     from ..mrft.model import LoopModel
 
-    name = design or recommended_design_name(res)
+    name = design or recommended_design_name(res, kind)
     eq2 = isinstance(res.model, LoopModel)
     try:
         chosen = res.get(name, kind)

@@ -145,6 +145,24 @@ def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):
         assert got[name]["ci95_low"] <= value <= got[name]["ci95_high"]
 
 
+def test_cli_predict_and_identify_print_the_declared_expression(tmp_path, capsys):
+    # analyze printed the file's G(s); predict and identify printed 'G(s) = declared in a model file'
+    from mrftcli.cli.main import main
+
+    spec = tmp_path / "double.toml"
+    spec.write_text(f'transfer_function = "{DOUBLE_LAG}"\n[parameters]\nK = {{ range = [0.1, 10] }}\n'
+                    'T = { range = [0.01, 10], unit = "s" }\ntau = { value = 0.1, unit = "s" }\n')
+    points = [f"--point={f}:{abs(g):.9g}:{np.degrees(np.angle(g)):.9g}" for f, g in
+              ((f, 2.0 * np.exp(-0.2j * np.pi * f) / (1j * np.pi * f + 1) ** 2) for f in (0.1, 0.3, 0.6))]
+    for argv in (["predict", "--model-file", str(spec), "--param", "K=2", "--param", "T=0.5", "--beta", "-0.2"],
+                 ["identify", "--model-file", str(spec), *points]):
+        with pytest.raises(SystemExit) as exit_:
+            main(argv)
+        assert exit_.value.code in (0, None)
+        first = capsys.readouterr().out.splitlines()[0]
+        assert f"declared: G(s) = {DOUBLE_LAG}" in first and "declared in a model file" not in first
+
+
 @pytest.mark.parametrize("argv, message", [
     (["analyze", "x.csv", "--model", "fopdt", "--model-file", "m.toml"], "not both"),
     (["tune", "x.json", "--model", "fopdt"], "give a RESULT.json or --model with --param, not both"),

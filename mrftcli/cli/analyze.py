@@ -10,7 +10,7 @@ from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination,
                             parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
-                            soiptd_or_process, structure_options, window_option)
+                            soiptd_or_process, structure_options, structure_text, window_option)
 from ..report.wording import gain_unit, uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
@@ -71,7 +71,7 @@ def _head(result) -> list[str]:
                 f"{result.identification.model.structure}); {since}",
                 *(f"assumption: {a}" for a in result.assumptions)]
     model = result.model
-    return [f"model {model.family}: G(s) = {getattr(model, 'transfer_function', model.structure)}; {since}",
+    return [f"model {model.family}: G(s) = {structure_text(model)}; {since}",
             *(f"note: {n}" for n in result.notes if n.startswith("assumed"))]
 
 

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError, InsufficientDataError
-from .model_options import build_model, format_estimates, parse_number, structure_options
+from .model_options import build_model, format_estimates, parse_number, structure_options, structure_text
 from .options import controller_rate_option, dump_json, echo_warnings, json_option, tp_option
 
 if TYPE_CHECKING:
@@ -116,7 +116,7 @@ def _echo(result: Any, n_data: int) -> None:
     from ..mrft.identify import IdentificationResult
 
     if not isinstance(result, IdentificationResult):
-        click.echo(f"model {result.model.family}: G(s) = {result.model.structure}  [direct fit to {n_data} point(s)]")
+        click.echo(f"model {result.model.family}: G(s) = {structure_text(result.model)}  [direct fit to {n_data} point(s)]")
         click.echo("\n".join(format_estimates(result)))
         if result.advice:
             click.echo(f"not determined: {result.advice}")

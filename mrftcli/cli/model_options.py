@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from ..mrft.identify_lti import LtiIdentification
     from ..mrft.parameter import ParameterEstimate
 
-__all__ = ["MODEL_NAMES", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
+__all__ = ["MODEL_NAMES", "structure_text", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_number", "parse_windows", "build_model", "format_estimates", "parameter_lines",
            "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup"]
 
@@ -263,6 +263,11 @@ def _declared(params: Sequence[str], ranges: Sequence[str]) -> Any:
     rng = {n: (lo, hi) for n, lo, hi in model.ranges if n not in extra_known}
     return declared_model(model.transfer_function, {**known, **extra_known}, {**rng, **extra_ranges},
                           dict(model.units))
+
+
+def structure_text(model: Any) -> str:
+    """A model's G(s) as people read it: a declared structure's own expression (a family's formula otherwise)."""
+    return str(getattr(model, "transfer_function", model.structure))
 
 
 def format_estimates(ident: LtiIdentification) -> list[str]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .model_options import build_model, structure_options
+from .model_options import build_model, structure_options, structure_text
 from .options import BETA, controller_rate_option, dump_json, json_option, tp_option
 
 
@@ -43,7 +43,7 @@ def predict(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: 
     h = check_positive("--h", h)
     relay = RelayLaw(kind, h, -h, beta=beta, eps=eps, source="stated")
     lc = relay.limit_cycle(model, rate_hz)
-    rows = [("model", f"{model.family}: G(s) = {model.structure};  "
+    rows = [("model", f"{model.family}: G(s) = {structure_text(model)};  "
                       + "  ".join(f"{p.name}={p.value:g} {p.unit}" for p in model.parameters.values())),
             ("relay", relay.describe()[len("relay: "):] + " [command units]"
                       + (f", rate {rate_hz:g} Hz" if rate_hz else " (continuous relay)")),

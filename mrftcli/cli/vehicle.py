@@ -99,7 +99,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
         raise InputError("--gyro-cutoff is for --export px4|ardupilot (the stack's gyro filter on roll and pitch)")
     if hover_thrust is not None and export not in ("px4", "ardupilot"):
         raise InputError("--hover-thrust is for --export px4|ardupilot (the altitude loop; PX4's x and y)")
-    if hover_thrust is not None:  # its range (and ArduPilot's MOT_THST_HOVER's) in tune's words, not per loop after
+    if hover_thrust is not None and export is not None:  # its range (and MOT_THST_HOVER's) in tune's words, before
         check_exportable(export, "altitude", "PD", hover_thrust)
 
 

@@ -5,6 +5,7 @@ Times are float seconds (converted once from the logs' nanoseconds/microseconds 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,7 +14,7 @@ import numpy as np
 from ..errors import InputError
 from .timing import Timing
 
-__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS", "output_unit", "gain_unit"]
+__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS", "output_unit", "gain_unit", "sig"]
 
 #: The loops mrft-ident identifies.
 LOOPS = ("altitude", "roll", "pitch", "x", "y")
@@ -186,3 +187,16 @@ def gain_unit(loop: str) -> str:
     """
     return f"{output_unit(loop)}/s² per command unit"
 
+
+def sig(x: float | None, spec: int | str = 4) -> str:
+    """``x`` as the tables and summaries print a number: to ``spec`` significant digits (an int: ``.4g``) or by a
+    format spec (a str, e.g. ``".2f"``); ``-`` when it is None or not finite.
+
+    Examples
+    --------
+    >>> sig(0.0421999), sig(3.14159, 2), sig(12.345, ".1f"), sig(None), sig(float("nan"))
+    ('0.0422', '3.1', '12.3', '-', '-')
+    """
+    if x is None or not math.isfinite(x):
+        return "-"
+    return format(x, f".{spec}g" if isinstance(spec, int) else spec)

@@ -3,16 +3,9 @@ CLI's text output imports it without loading a plotting library)."""
 
 from __future__ import annotations
 
-import math
-
-from ..io.logtypes import gain_unit, output_unit
+from ..io.logtypes import gain_unit, output_unit, sig
 
 __all__ = ["output_unit", "gain_unit", "uncertainty_sentence", "sig"]
-
-
-def sig(x: float, digits: int = 4) -> str:
-    """``x`` to ``digits`` significant digits (``.4g``), ``-`` when not finite (report tables, summary text)."""
-    return f"{x:.{digits}g}" if math.isfinite(x) else "-"
 
 
 def uncertainty_sentence(refined: bool, mrft_interval: bool) -> str:

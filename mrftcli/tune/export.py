@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InputError
-from ..io.logtypes import gain_unit, output_unit
+from ..io.logtypes import gain_unit, output_unit, sig
 from .closed_loop import Controller
 
 if TYPE_CHECKING:
@@ -158,22 +158,17 @@ def format_table(result: "TuneResult") -> str:
         w = d.posterior.get("worst", {}) if d.posterior else {}
 
         lines.append(f"{d.name:<12}{d.kind:<5}{c.Kp:>10.4g}{c.Ki:>10.4g}{c.Kd:>10.4g}{c.Tf * 1e3:>8.2f}"
-                     f"{_fmt(g.gain_margin, '.2f'):>7}{_fmt(g.phase_margin_deg, '.1f'):>8}{_fmt(g.delay_margin_s * 1e3, '.1f'):>8}"
-                     f"{_fmt(g.Ms, '.2f'):>6}{_fmt(s.overshoot_pct, '.1f'):>7}{_fmt(s.rise_s, '.3f'):>8}{_fmt(s.settling_s, '.2f'):>7}"
-                     f"{_fmt(d.criterion, '.4g'):>8}  {_fmt(w.get('phase_margin_deg'), '.1f'):>17}{_fmt(w.get('Ms'), '.2f'):>6}"
-                     f"{_fmt(w.get('overshoot_pct'), '.1f'):>7}")
+                     f"{sig(g.gain_margin, '.2f'):>7}{sig(g.phase_margin_deg, '.1f'):>8}{sig(g.delay_margin_s * 1e3, '.1f'):>8}"
+                     f"{sig(g.Ms, '.2f'):>6}{sig(s.overshoot_pct, '.1f'):>7}{sig(s.rise_s, '.3f'):>8}{sig(s.settling_s, '.2f'):>7}"
+                     f"{sig(d.criterion, '.4g'):>8}  {sig(w.get('phase_margin_deg'), '.1f'):>17}{sig(w.get('Ms'), '.2f'):>6}"
+                     f"{sig(w.get('overshoot_pct'), '.1f'):>7}")
     if any(d.load for d in result.designs):
-        rec = ", ".join(f"{d.name} {_fmt(d.load.get('recovery_s'), '.2f')} s" for d in result.designs if d.load)
+        rec = ", ".join(f"{d.name} {sig(d.load.get('recovery_s'), '.2f')} s" for d in result.designs if d.load)
         lines.append(f"J: {result.objective.upper()} of a unit setpoint step; a PID's adds the {result.objective.upper()} "
                      f"of a load step at the plant input (size: its PD's Kp). PID load recovery (2 %): {rec}")
     for n in result.notes:
         lines.append(f"note: {n}")
     return "\n".join(lines)
-
-
-def _fmt(x: float | None, fmt: str = ".4g") -> str:
-    """``x`` formatted by ``fmt``; "-" when it is None or not finite."""
-    return format(x, fmt) if x is not None and math.isfinite(x) else "-"
 
 
 def _grid_table(res: "TuneResult") -> str:
@@ -201,10 +196,10 @@ def _grid_table(res: "TuneResult") -> str:
     rows = [head]
     for d in res.designs:
         c, n, w = d.controller, d.margins, d.posterior.get("worst")
-        rows.append((d.name, d.kind, _fmt(c.Kp), _fmt(c.Ki), _fmt(c.Kd), _fmt(c.Tf * 1e3), _fmt(n.phase_margin_deg, '.3g'),
-                     _fmt(n.gain_margin, '.3g'), _fmt(n.Ms, '.3g'), _fmt(n.w_gc / (2 * math.pi), '.3g'),
-                     "-" if w is None else _fmt(w["phase_margin_deg"], '.3g'), "-" if w is None else _fmt(w["Ms"], '.3g'),
-                     _fmt(d.criterion, '.3g'), d.criterion_definition))
+        rows.append((d.name, d.kind, sig(c.Kp), sig(c.Ki), sig(c.Kd), sig(c.Tf * 1e3), sig(n.phase_margin_deg, '.3g'),
+                     sig(n.gain_margin, '.3g'), sig(n.Ms, '.3g'), sig(n.w_gc / (2 * math.pi), '.3g'),
+                     "-" if w is None else sig(w["phase_margin_deg"], '.3g'), "-" if w is None else sig(w["Ms"], '.3g'),
+                     sig(d.criterion, '.3g'), d.criterion_definition))
     widths = [max(len(r[k]) for r in rows) for k in range(len(head))]
     lines += ["  ".join(c.ljust(wd) for c, wd in zip(r, widths)).rstrip() for r in rows]
     return "\n".join(lines)

@@ -79,6 +79,21 @@ def test_a_result_written_before_schema_version_reads_as_version_1(design1: Anal
     assert AnalysisResult.from_json(old).Td == design1.Td
 
 
+@pytest.mark.parametrize("data, what", [
+    ({"schema_version": 3, "strategy": "unit-manifolds", "family": "soiptd", "model": {}, "parameters": {}},
+     "an identification record ('mrft-ident identify --json')"),
+    ({"schema_version": 3, "kind": "delay-increment", "parameters": {}}, "a delay record ('mrft-ident delay --json')"),
+    ({"schema_version": 3, "designs": [], "ms_max": 1.6, "model": {}}, "a tune record ('mrft-ident tune --json')"),
+    ({"export": {}, "tune_results": []}, "a tune record"),
+    ({"logs": 2, "counts": {}, "rows": []}, "a batch summary"),
+])
+def test_another_commands_record_is_named(data: object, what: str) -> None:
+    # was 'not an analyze RESULT.json (KeyError: 'Tp'); needs parameters.Td/tau/K, ...' for an identify --json file
+    with pytest.raises(InputError, match="^not an analyze RESULT.json but ") as info:
+        AnalysisResult.from_json(data)
+    assert what in str(info.value) and "KeyError" not in str(info.value) and "\n" not in str(info.value)
+
+
 @pytest.mark.parametrize("data, match", [
     ([1, 2], "expected a JSON object"),
     ({"schema_version": 99, "parameters": {}}, "schema_version 99 is not supported"),

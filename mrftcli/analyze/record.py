@@ -501,6 +501,10 @@ class AnalysisResult:
             return _cascade_from_json(data)
         if isinstance(data, Mapping) and (isinstance(data.get("model"), str) or ("path" in data and "input" not in data)):
             return _family_from_json(data)
+        other = _other_record(data)
+        if other:
+            raise InputError(f"not an analyze RESULT.json but {other}; give what 'mrft-ident analyze LOG --json FILE' "
+                             "writes")
         data = check_schema_version(data, "analyze RESULT.json", range(1, SCHEMA_VERSION + 1), missing=1,
                                     fix="update mrft-ident")
         try:
@@ -591,6 +595,23 @@ def _input(r: AnalysisResult) -> _JSONDict:
     if info is not None:
         inp.update(info.to_dict())
     return inp
+
+
+def _other_record(data: Any) -> str:
+    """What another command's JSON record is, when a user gives it where an analysis is read (else "")."""
+    if not isinstance(data, Mapping):
+        return ""
+    if "strategy" in data and "parameters" in data:
+        return "an identification record ('mrft-ident identify --json')"
+    kinds = {"delay-increment": "a delay record ('mrft-ident delay --json')",
+             "diagnosis": "a diagnosis record ('mrft-ident diagnose --json')"}
+    if data.get("kind") in kinds:
+        return kinds[str(data["kind"])]
+    if ("designs" in data and "ms_max" in data) or "tune_results" in data:
+        return "a tune record ('mrft-ident tune --json')"
+    if "rows" in data and "counts" in data:
+        return "a batch summary ('mrft-ident batch --json'; its logs/*.json are analyses)"
+    return ""
 
 
 def _eq2_from_json(data: Mapping[str, Any]) -> AnalysisResult:

@@ -139,13 +139,21 @@ def test_discovery_globs_explicit_files_dedupe_and_exclude(tmp_path: Path) -> No
     assert rel == ["odd.log", "v1/a.mcap", "v2/b.mcap"]
 
 
-@pytest.mark.parametrize("arg, message", [("missing_dir", "no such file or folder"),
-                                          ("nothing*.mcap", "matches no files"),
+@pytest.mark.parametrize("arg, message", [("nothing*.mcap", "matches no files"),
                                           ("empty", "no logs found")])
 def test_discovery_errors(tmp_path: Path, arg: str, message: str) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match=message):
         I.discover_logs([str(tmp_path / arg)])
+
+
+def test_discovery_of_a_missing_path_is_the_one_missing_input_error(tmp_path: Path) -> None:
+    """A path that is no glob and does not exist: every command's missing-input error (exit 3, one wording)."""
+    from mrftcli.errors import LogReadError
+
+    with pytest.raises(LogReadError, match=r"missing_dir: no such file or directory$") as err:
+        I.discover_logs([str(tmp_path / "missing_dir")])
+    assert err.value.exit_code == 3
 
 
 # --------------------------------------------------------------------------------------------------

@@ -43,7 +43,6 @@ def test_vehicle_out_onto_its_log_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["missing.BIN", str(ROLL_20)], ["'BEFORE'", "missing.BIN", "does not exist"]),
     ([str(ROLL)], ["Missing argument 'AFTER'"]),
     ([str(ROLL), str(ROLL_20), "--json", "/proc/delay.json"], ["--json /proc/delay.json", "writable"]),
     ([str(ROLL), str(ROLL_20), "--json", "{tmp}"], ["--json", "is a folder", "file name"]),
@@ -58,6 +57,32 @@ def test_delay_bad_input_one_line(tmp_path: Path, argv: list[str], words: list[s
     line = _one_error_line(done, 2)
     for w in words:
         assert w in line, line
+
+
+@pytest.mark.parametrize("argv", [
+    ["analyze", "{missing}", "--tp", "0.04"],
+    ["diagnose", "{missing}", "--tp", "0.04"],
+    ["topics", "{missing}"],
+    ["vehicle", "{missing}", "--tp", "0.04"],
+    ["tune", "{missing}", "--tp", "0.04", "--loop", "roll"],
+    ["plan", "{missing}", "--tp", "0.04"],
+    ["plan", "--from", "{missing}", "--tp", "0.04"],
+    ["delay", "{missing}", str(ROLL_20), "--tp", "0.00915", "--loop", "roll"],
+    ["delay", str(ROLL), "{missing}", "--tp", "0.00915", "--loop", "roll"],
+    ["batch", "{missing}", "--tp", "0.04", "--out", "{tmp}/out"],
+    ["batch", str(ROLL), "--tp", "0.04", "--out", "{tmp}/out", "--against", "{missing}"],
+    ["compare", "{missing}", str(ROLL)],
+], ids=lambda argv: " ".join(a for a in argv if not a.startswith(("{", "/", "0", "-")))[:40])
+def test_missing_input_is_one_rule(tmp_path: Path, argv: list[str]) -> None:
+    """A missing input (a log, a folder of logs, an analysis): exit 3 (docs/usage.md: the log cannot be read)
+    and one wording, '<path>: no such file or directory', from every command (plan, delay and batch said
+    click's 'Path ... does not exist' or 'no such file or folder', exit 2)."""
+    missing = tmp_path / "missing.BIN"
+    argv = [a.replace("{missing}", str(missing)).replace("{tmp}", str(tmp_path)) for a in argv]
+    quiet = ["-q"] if argv[0] not in ("topics", "compare") else []  # no progress bar where there is one
+    line = _one_error_line(run_main(*argv, *quiet), 3)
+    assert line == f"error: {missing}: no such file or directory"
+    assert not (tmp_path / "out").exists()
 
 
 def _slug(heading: str) -> str:

@@ -19,6 +19,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..jsonable import load_toml_text, load_yaml_text
+from ..io import require_input
 from ..io.layouts import LAYOUT_NAMES
 from ..io.logtypes import LOOPS
 from ..validate import check_tp
@@ -330,7 +331,9 @@ def discover_logs(paths: Iterable[str | os.PathLike[str]], exclude: Sequence[str
     Raises
     ------
     InputError
-        A path does not exist, a glob matches nothing, or nothing loggable was found at all.
+        A glob matches nothing, or nothing loggable was found at all.
+    LogReadError
+        A path that is no glob does not exist (:func:`mrftcli.io.require_input`).
     """
     excl = [Path(e).resolve() for e in exclude]
     found: dict[Path, None] = {}
@@ -361,7 +364,7 @@ def discover_logs(paths: Iterable[str | os.PathLike[str]], exclude: Sequence[str
             for m in matches:
                 add_path(Path(m), from_glob=True)
         else:
-            raise InputError(f"no such file or folder: {arg}")
+            require_input(p)  # raises: the one missing-input error (exit 3)
     if not found:
         raise InputError(
             f"no logs found in {', '.join(given)} (looked for {', '.join(SUPPORTED_SUFFIXES)} files and "

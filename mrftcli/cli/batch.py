@@ -12,7 +12,7 @@ from click.core import ParameterSource
 from ..errors import InputError
 from .model_options import process_model, structure_options
 from .analyze import accept_tp_option
-from .options import json_option, log_layout_options, min_cycles_option, quiet_option, tp_option
+from .options import InputPath, json_option, log_layout_options, min_cycles_option, quiet_option, tp_option
 
 __all__ = ["batch"]
 
@@ -146,11 +146,11 @@ def _print_rows(df, limit: int) -> None:
 @click.option("--force", is_flag=True, help="Recompute logs whose results are up to date.")
 @click.option("--no-report", is_flag=True, help="Skip the fleet report (HTML + PNG).")
 @json_option(what="fleet summary (counts, notes, outputs, one row per log and loop)")
-@click.option("--against", "baseline", metavar="PATH", type=click.Path(exists=True), default=None,
+@click.option("--against", "baseline", metavar="PATH", type=InputPath(), default=None,
               help="At the end, compare the results against this baseline (a batch folder or reference .toml; matched "
                    "by log name) as `mrft-ident compare`: compare.json/.xml/.md in --out; exit 9 when a loop changed.")
 # the old name, kept for a release: --baseline elsewhere is a process's operating point Y0 (analyze --model)
-@click.option("--baseline", "baseline_alias", type=click.Path(exists=True), default=None, hidden=True,
+@click.option("--baseline", "baseline_alias", type=InputPath(), default=None, hidden=True,
               help="Deprecated alias of --against.")
 @click.option("--fail-on", "fail_on", metavar="SPEC", default=None,
               help="Tolerances for --against, as compare --fail-on (e.g. tau:+5ms,K:10%).")

@@ -9,7 +9,7 @@ import click
 
 from ..io.atomic import write_text_atomic
 from ..io.logtypes import LOOPS
-from .options import check_output_file, dump_json, json_option
+from .options import InputPath, check_output_file, dump_json, json_option
 
 if TYPE_CHECKING:
     from ..compare import Comparison
@@ -25,8 +25,8 @@ def _write(target: str, text: str) -> None:
 
 
 @click.command("compare")
-@click.argument("baseline", type=click.Path(exists=True))
-@click.argument("new", type=click.Path(exists=True))
+@click.argument("baseline", type=InputPath())
+@click.argument("new", type=InputPath())
 @click.option("--fail-on", "fail_on", metavar="SPEC",
               help="Tolerances, e.g. 'tau:+5ms,K:10%,Td:25%' ([LOOP.]PARAM:[+|-]AMOUNT[s|ms|us|%]; + / - one-sided). "
                    "Fail on a change that is significant and beyond its tolerance; without any tolerance, on any "

@@ -10,7 +10,7 @@ import click
 from ..errors import InputError
 from ..io.logtypes import gain_unit
 from .model_options import parameter_lines
-from .options import (check_output_file, dump_json, echo_warnings, json_option, log_layout_options, min_cycles_option, num,
+from .options import (InputPath, check_output_file, dump_json, echo_warnings, json_option, log_layout_options, min_cycles_option, num,
                       quiet_option, text_table, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
@@ -20,8 +20,8 @@ __all__ = ["delay", "format_delay"]
 
 
 @click.command("delay")
-@click.argument("before", type=click.Path(exists=True))
-@click.argument("after", type=click.Path(exists=True))
+@click.argument("before", type=InputPath())
+@click.argument("after", type=InputPath())
 @tp_option()
 @min_cycles_option()
 @log_layout_options()

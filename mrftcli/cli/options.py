@@ -22,7 +22,7 @@ from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "check_export_paths", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings"]
+           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings", "InputPath"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -92,6 +92,17 @@ def dump_json(obj: Any, target: str | None) -> None:
         write_text_atomic(target, text + "\n")
     except OSError as err:
         raise InputError(f"--json {target}: cannot write ({err.strerror or err}); choose a writable path") from None
+
+
+class InputPath(click.Path):
+    """``click.Path`` of an input that must exist: a missing one is :func:`mrftcli.io.require_input`'s error
+    (exit 3, ``<path>: no such file or directory``), as analyze words it, not click's exit 2."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        from ..io import require_input
+
+        require_input(value)
+        return super().convert(value, param, ctx)
 
 
 def read_json_file(path: str | Path, option: str) -> Any:

@@ -14,7 +14,7 @@ from ..errors import InputError
 from ..report.wording import output_unit
 from .model_options import (build_model, check_soiptd_options, format_estimates, parse_windows, relay_options,
                             structure_options, window_option)
-from .options import (check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
+from .options import (InputPath, check_output_file, dump_json, json_option, log_layout_options, min_cycles_option, quiet_option,
                       read_json_file, text_table, tp_option, tqdm_progress)
 
 if TYPE_CHECKING:
@@ -295,12 +295,12 @@ def _mrft_inputs(model: LoopModel, given: _Given) -> tuple[Prior, PlanLimits, Se
 
 
 @click.command("plan")
-@click.argument("log", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.argument("log", required=False, type=InputPath(dir_okay=False))
 @structure_options
 @relay_options
 @window_option
 @tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required by --model soiptd.")
-@click.option("--from", "source", metavar="LOG|JSON", type=click.Path(exists=True),
+@click.option("--from", "source", metavar="LOG|JSON", type=InputPath(),
               help="A first test: a log with MRFT test(s), or the JSON of 'mrft-ident analyze --json'. "
                    "With --model NAME: the log of the recorded relay tests (or give it as LOG).")
 @click.option("--td-range", nargs=2, type=float, default=None, metavar="LOW HIGH",

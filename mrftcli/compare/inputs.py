@@ -34,6 +34,7 @@ from typing import Any
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..io import require_input
 from ..jsonable import load_json_text, load_toml_text
 from ..mrft.parameter import ParameterEstimate
 from .records import PARAMETERS, LoopEstimates, Tolerance
@@ -253,16 +254,16 @@ def read_side(path: str | Path, by: str = "log") -> Side:
     Raises
     ------
     InputError
-        A path that does not exist or is none of the above.
+        A path that is none of the above.
+    LogReadError
+        A path that does not exist (:func:`mrftcli.io.require_input`).
     """
     p = Path(path)
     if by not in MATCH_BY:
         raise InputError(f"match by {by!r}: use one of {', '.join(MATCH_BY)}")
     if p.is_dir():
         return _read_batch_folder(p, by)
-    if not p.exists():
-        raise InputError(f"{p}: no such file or folder; pass an analysis JSON, a batch output folder or a "
-                         "reference .toml")
+    require_input(p)  # the one missing-input error (exit 3), as every command words it
     if p.suffix.lower() == ".toml":
         return read_reference(p)
     data = _read_json(p)

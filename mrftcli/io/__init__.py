@@ -33,6 +33,7 @@ from .timing import Timing, controller_rate_hz, median_rate_hz
 __all__ = [
     "open_log", "read_flight", "write_log", "LogSource", "TopicSpec", "parse_spec",
     "FORMATS", "READ_FORMATS", "FORMAT_SUFFIX", "log_filename", "detect_format", "format_from_name",
+    "require_input",
     "writable_format",
     "DEFAULT_TOPICS", "roll_pitch", "list_topics", "FlightLog", "Signal", "Timing", "ReadOptions", "read_loop",
     "median_rate_hz", "controller_rate_hz", "TIME_UNITS",
@@ -100,11 +101,24 @@ def writable_format(path: str | Path, fmt: str | None, option: str = "fmt=") -> 
     return fmt
 
 
-def detect_format(path: str | Path) -> str:
-    """Format of an existing log from its magic bytes (then its extension). Raises LogReadError."""
+def require_input(path: str | Path) -> Path:
+    """``path`` as a Path if it exists; else the one error of every command's missing input.
+
+    Raises
+    ------
+    LogReadError
+        ``"<path>: no such file or directory"`` (exit 3, docs/usage.md's exit codes): a log, a folder of
+        logs, an analysis JSON or a reference, whichever command was given it.
+    """
     path = Path(path)
     if not path.exists():
         raise LogReadError(f"{path}: no such file or directory")
+    return path
+
+
+def detect_format(path: str | Path) -> str:
+    """Format of an existing log from its magic bytes (then its extension). Raises LogReadError."""
+    path = require_input(path)
     if path.is_dir():
         meta = path / "metadata.yaml"
         if not meta.is_file():
@@ -179,8 +193,8 @@ def open_log(path: str | Path, fmt: str | None = None, *, echo_warnings: bool = 
         fmt = detect_format(path)
     elif fmt not in READ_FORMATS:
         raise InputError(f"unknown log format {fmt!r}; choose one of {', '.join(READ_FORMATS)}")
-    elif not path.exists():
-        raise LogReadError(f"{path}: no such file or directory")
+    else:
+        require_input(path)
     if time_unit is not None and fmt not in ("csv", "mat"):
         raise InputError(f"--time-unit applies to CSV and .mat logs, whose times carry no unit; a {fmt} log's "
                          "clock has its own")

@@ -160,6 +160,34 @@ def test_diagnose_flag_is_wired(logs, tmp_path, monkeypatch):
 
 
 
+def test_diagnose_flag_drops_the_try_diagnose_hint(tmp_path, monkeypatch):
+    """A warning that ends '(try --diagnose)' without --diagnose (concealed flight 05: the constraints disagree,
+    the waveform refinement is refused) ends without it when --diagnose is given: terminal and JSON alike."""
+    import mrftcli.diagnose.selection as diag
+
+    class _Fake:
+        summary = "fake diagnosis"
+
+        def to_dict(self):
+            return {"summary": self.summary}
+
+    monkeypatch.setattr(diag, "diagnose", lambda *a, **k: _Fake())  # the hint is analyze's: no fit needed
+    log = str(SAMPLES / "concealed" / "flight_05.mcap")
+    runs = {}
+    for flag in ((), ("--diagnose",)):
+        out = tmp_path / f"r{len(flag)}.json"
+        code, _, stderr = _invoke("analyze", log, "--tp", str(TP), "--loop", "altitude", "-q", *flag,
+                                  "--json", str(out))
+        assert code == 0, stderr
+        runs[flag] = ([ln for ln in stderr.splitlines() if ln.startswith("warning: ")],
+                      json.loads(out.read_text())["warnings"])
+    (text, data), (text_d, data_d) = runs[()], runs[("--diagnose",)]
+    hinted = [w for w in data if w.endswith(" (try --diagnose)")]
+    assert len(hinted) == 2 and sum(ln.endswith("(try --diagnose)") for ln in text) == 2
+    assert not any("try --diagnose" in w for w in data_d + text_d)
+    assert data_d == [w.removesuffix(" (try --diagnose)") for w in data]  # the warnings themselves kept
+
+
 # ---- issue 12: what a new user trips over -------------------------------------------------------
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"

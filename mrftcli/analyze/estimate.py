@@ -31,11 +31,13 @@ from .screen import Screening
 
 __all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "SendTimeWindows", "point_estimate",
            "consensus", "identifiability", "send_time_windows", "waveform_refinement", "widen_for_jitter",
-           "TD_OMEGA_LIMIT"]
+           "TD_OMEGA_LIMIT", "TRY_DIAGNOSE"]
 
 _TWO_PI = 2.0 * math.pi
 #: Td * Omega above which Td is called poorly identifiable (the issue's accuracy boundary).
 TD_OMEGA_LIMIT = 5.0
+#: The hint that ends a warning diagnose may explain (``analyze --diagnose`` drops it: it is already given).
+TRY_DIAGNOSE = " (try --diagnose)"
 
 
 @dataclass(frozen=True, eq=False)
@@ -261,7 +263,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
             warnings.append(
                 f"the tests' constraints disagree (chi2 {constraint_info['chi2']:.1f} for {constraint_info['dof']} "
                 f"degrees of freedom): the plant may not follow eq. (2); the UFM-only estimate is Td "
-                f"{ident.model.Td:.4g} s, tau {ident.model.tau * 1e3:.4g} ms (try --diagnose)")
+                f"{ident.model.Td:.4g} s, tau {ident.model.tau * 1e3:.4g} ms{TRY_DIAGNOSE}")
     elif constraints:
         warnings.append("the weighted estimate found no minimum in the search range; the UFM-only estimate is used")
     if ts_ctrl:
@@ -451,7 +453,7 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
     if not refinement.accepted:
         return WaveformStage(refinement, "mrft", model, Td_est, tau_est, K_est,
                              ("the waveform refinement was not used (" + "; ".join(refinement.reasons)
-                              + "): the MRFT estimate is reported (try --diagnose)",), send_notes)
+                              + "): the MRFT estimate is reported" + TRY_DIAGNOSE,), send_notes)
     Td_est, tau_est, K_est = refinement.Td, refinement.tau, refinement.K
     if bounds.td_open:
         # the waveform does not close it either: keep the one-sided statement, with the

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import click
 
@@ -15,6 +15,9 @@ from ..report.wording import gain_unit, uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
                       tp_option, tqdm_progress)
+
+if TYPE_CHECKING:
+    from ..analyze import AnalysisResult
 
 
 def accept_tp_option(f):
@@ -325,6 +328,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         result = _identify(flight, model, options, accept_tp, json_target)
         diagnosis = None
         if run_diagnose:
+            result = _without_diagnose_hint(result)
             from ..diagnose.selection import diagnose as run_diagnosis
 
             if result.kind == "soiptd":
@@ -397,6 +401,15 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
         raise click.UsageError("--paper-only: " + _NO_PAPER_ONLY["cascade" if cascade is not None else "family"]
                                .format(family=model.family))
     return model, options
+
+
+def _without_diagnose_hint(result: AnalysisResult) -> AnalysisResult:
+    """``result`` whose warnings no longer end '(try --diagnose)': the diagnosis is given with them."""
+    from dataclasses import replace
+
+    from ..analyze.estimate import TRY_DIAGNOSE
+
+    return replace(result, warnings=tuple(w.removesuffix(TRY_DIAGNOSE) for w in result.warnings))
 
 
 def _identify(flight, model, options, accept_tp: bool, json_target):

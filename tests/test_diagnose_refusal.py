@@ -9,6 +9,7 @@ Before, the diagnosis ran analyze a second time to learn the same refusal.
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -30,14 +31,15 @@ import make_concealed_logs as gen  # noqa: E402 - the benchmark's case generator
 M = gen.PLANTS["design1"]
 
 
-def _one_beta(tmp: Path, heights: tuple[float, ...], name: str, lost: float | None = None) -> Path:
+def _one_beta(tmp: Path, heights: tuple[float, ...], name: str, lost: float | None = None, cut: float = 0.3) -> Path:
     """A clean flight of tests at beta -0.4 only, at the given multiples of the planned relay height (and,
-    with ``lost``, a test at that beta cut short after three switches: none of its cycles stable)."""
+    with ``lost``, a test at that beta cut to ``cut`` of its planned length: at 0.3 three switches, none of
+    its cycles stable; at 0.5 three stable cycles, enough for analyze, one short of diagnose's four)."""
     t1 = plan_test(M, -0.4, gen.AMPLITUDE, cycles=8)
     tests = tuple(FlownTest(-0.4, k * t1.h, t1.duration) for k in heights)
     if lost is not None:
         t2 = plan_test(M, lost, gen.AMPLITUDE, cycles=8)
-        tests += (FlownTest(lost, t2.h, 0.3 * t2.duration),)
+        tests += (FlownTest(lost, t2.h, cut * t2.duration),)
     fl = simulate_flight(FlightSpec(model=M, tests=tests, loop="altitude", rate_hz=200.0, seed=7, hover_s=2.0,
                                     hold_s=2.0))
     path = tmp / f"{name}.mcap"
@@ -49,7 +51,8 @@ def _one_beta(tmp: Path, heights: tuple[float, ...], name: str, lost: float | No
 def logs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("refusal")
     return {"one_height": _one_beta(tmp, (1.0, 1.0), "one_height"), "two_heights": _one_beta(tmp, (1.0, 2.0), "two"),
-            "one_left": _one_beta(tmp, (1.0,), "one_left", lost=-0.7)}
+            "one_left": _one_beta(tmp, (1.0,), "one_left", lost=-0.7),
+            "three_left": _one_beta(tmp, (1.0,), "three_left", lost=-0.7, cut=0.5)}
 
 
 def _counting(monkeypatch) -> list[int]:
@@ -129,7 +132,30 @@ def test_one_test_left_of_a_flight_at_two_betas_is_refused_as_analyze_does(logs,
     msg = str(exc.value)
     assert msg.startswith(str(refusal)) and "no second test is left to compare it with" in msg and "\n" not in msg
     assert exc.value.partial == refusal.partial
+    # the test is named by its flown span, as analyze's message names it (was: its stable cycles' span beside it)
+    flown = re.search(r"beta -0.4 at (\S+ s)", str(refusal))
+    assert flown is not None and f"diagnose: only the test at {flown[1]} has 4 stable cycles" in msg, msg
     calls = _counting(monkeypatch)
     r = run_main("diagnose", str(logs["one_left"]), "--tp", str(M.Tp), "-q")
     assert r.returncode == 6 and "no second test is left" in r.stderr and "Traceback" not in r.stderr
+    assert len(calls) == 1
+
+
+def test_one_test_left_is_refused_whatever_analyze_made_of_the_log(logs, monkeypatch):
+    # the -0.7 test kept three stable cycles: analyze identifies the log from both tests, while the diagnosis
+    # (four stable cycles a test) is left with the -0.4 one. It refuses as it does when the -0.7 test kept
+    # fewer (analyze refused then): more data must not turn the refusal into names from one test (before:
+    # exit 0, "all tests share one beta", the case whose names were wrong on 4 of 4 benchmark flights)
+    path = logs["three_left"]
+    fl = read_flight(path, ReadOptions(loop="altitude"))
+    analysis = mrftcli.analyze.analyze_flight(fl, soiptd_model(M.Tp))
+    assert sorted(round(float(t.beta_effective), 1) for t in analysis.tests) == [-0.7, -0.4]
+    with pytest.raises(InsufficientDataError) as exc:
+        screen_log(fl, soiptd_model(M.Tp), analysis, lambda *a, **k: None)
+    msg = str(exc.value)
+    assert msg.startswith(f"{path}: only one test has the 4 stable cycles diagnose needs (beta -0.4 at "), msg
+    assert "the others flown: beta -0.7 at" in msg and "(3 stable of" in msg and "no second test is left" in msg
+    calls = _counting(monkeypatch)
+    r = run_main("diagnose", str(path), "--tp", str(M.Tp), "-q")
+    assert r.returncode == 6 and "no second test is left" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(calls) == 1

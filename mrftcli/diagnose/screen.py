@@ -72,9 +72,7 @@ def _analysis_of(flight: FlightLog, model: LoopModel,
     the relay: the --loop / --output-topic hint), so the two commands agree on what a
     log supports; the identification's bootstrap and refinement are not needed here. ``refusal``:
     analyze's own refusal of this log when the caller ran it (analyze is not run again; issue 39).
-    Returns the analysis, or None and analyze's refusal when no plant of eq. (2) produces these tests'
-    frequencies, or when a single beta is left (a test that saturates at the larger relay height is
-    not an MRFT limit cycle of eq. (2), yet its flattening is the evidence of the saturation)."""
+    Returns the analysis, or None and analyze's refusal (:func:`_goes_on` decides what follows)."""
     from ..analyze import AnalyzeOptions, analyze_flight
 
     if refusal is None:
@@ -86,33 +84,43 @@ def _analysis_of(flight: FlightLog, model: LoopModel,
                 return analyze_flight(flight, model, options=options), None
             except (IdentificationError, InsufficientDataError) as exc:
                 refusal = exc
-    return None, _diagnosed_anyway(flight, refusal)
+    return None, refusal
 
 
-def _diagnosed_anyway(flight: FlightLog, refusal: MrftError) -> MrftError:
-    """analyze's refusal when the diagnosis goes on without it (its warning says why), else the refusal
-    raised (the command's: the same message and exit code as analyze)."""
+def _goes_on(refusal: MrftError, flight: FlightLog) -> bool:
+    """Whether the diagnosis goes on without analyze, which refused the log (its warning says why); else
+    the refusal is the command's (the same message and exit code as analyze)."""
     if isinstance(refusal, IdentificationError):
-        # analyze must refuse, but that is the strongest sign of missing physics there is, so the
-        # diagnosis fits the cycles itself
-        return refusal
+        # analyze must refuse, but no plant of eq. (2) fitting is the strongest sign of missing physics
+        # there is, so the diagnosis fits the cycles itself
+        return True
     # one usable beta: refused as analyze refuses it, unless the log flew tests to compare (another
-    # beta analyze left out, or another relay height: a test that flattens at the larger one is the
-    # evidence of a saturation)
-    if isinstance(refusal, InsufficientDataError) and _comparable(segments_of(flight, None)):
-        return refusal
-    raise refusal
+    # beta analyze left out, or another relay height: a test that saturates at the larger one is not an
+    # MRFT limit cycle of eq. (2), yet its flattening is the evidence of the saturation)
+    return isinstance(refusal, InsufficientDataError) and _comparable(segments_of(flight, None))
 
 
-def _one_test_left(refusal: InsufficientDataError, test: DiagnosedTest, t0: float) -> InsufficientDataError:
-    """analyze's one-beta refusal, the command's when a single test of the flight has the cycles to diagnose:
-    the other beta or relay height was flown but lost (a relay that locked up, too few stable cycles), so
-    nothing is left to compare the test with, and the effects named from one test's waveform and trends
-    were wrong on every such benchmark flight (issue 39: 0 of 4 on RotorPy and JSBSim dev flights)."""
-    span = f"{test.t_start - t0:.1f}-{test.t_end - t0:.1f} s"
-    return InsufficientDataError(f"{refusal}; diagnose: only the test at {span} has {MIN_CYCLES} stable cycles or "
-                                 "more, so no second test is left to compare it with (fly the lost test again)",
-                                 partial=refusal.partial)
+def _one_test_left(flight: FlightLog, refusal: MrftError | None, kept: DiagnosedTest, flown: list[MrftTest],
+                   t0: float) -> InsufficientDataError:
+    """The command's refusal (exit 6, as analyze's of one beta) when a single test of a flight that flew tests
+    to compare has the cycles to diagnose, whatever analyze made of the log: the other beta or relay height was
+    flown but lost (a relay that locked up, too few stable cycles), so nothing is left to compare the test
+    with, and the effects named from one test's waveform and trends were wrong on every such benchmark
+    flight (issue 39: 0 of 4 on RotorPy and JSBSim dev flights). The test is named by its flown span, as
+    analyze names it; analyze's own one-beta message comes first when analyze refused the log so."""
+    from ..analyze.screen import describe_tests, span
+
+    test = next(t for t in flown if t.index == kept.index)
+    others = [t for t in flown if t.index != kept.index]
+    if isinstance(refusal, InsufficientDataError):
+        return InsufficientDataError(f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable "
+                                     "cycles or more, so no second test is left to compare it with (fly the lost test "
+                                     "again)", partial=refusal.partial)
+    why = "" if refusal is None else f"; analyze refuses this log: {str(refusal).removeprefix(f'{flight.path}: ')}"
+    return InsufficientDataError(
+        f"{flight.path}: only one test has the {MIN_CYCLES} stable cycles diagnose needs ({describe_tests([test], t0)}; "
+        f"the others flown: {describe_tests(others, t0)}; times from the log start), so no second test is left to "
+        f"compare it with (fly the lost test again){why}")
 
 
 def _comparable(tests: list[MrftTest]) -> bool:
@@ -172,20 +180,25 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     ------
     DiagnoseError
         No test has :data:`~mrftcli.diagnose.fit.MIN_CYCLES` stable cycles.
+    InsufficientDataError
+        One test has them, of tests flown at two betas or relay heights (exit 6, as analyze's one beta); or
+        analyze refused the log with one beta at one relay height (its refusal).
     """
     say("segmenting")
     refused_by_linear = None  # analyze's refusal, when the diagnosis goes on without it
     if analysis is None:
         analysis, refused_by_linear = _analysis_of(flight, model, refusal)
+    if refused_by_linear is not None and not _goes_on(refused_by_linear, flight):
+        raise refused_by_linear
     segs = segments_of(flight, analysis)
+    flown = segs if analysis is None else sorted([*analysis.tests, *analysis.rejected], key=lambda s: s.index)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
-    if isinstance(refused_by_linear, InsufficientDataError) and len(tests) == 1:
-        raise _one_test_left(refused_by_linear, tests[0], t0_log)
+    if len(tests) == 1 and _comparable(flown):  # tests to compare were flown, one is left: nothing to compare
+        raise _one_test_left(flight, refused_by_linear, tests[0], flown, t0_log)
     if refused_by_linear is not None:
         warnings.append(f"{REFUSED}{str(refused_by_linear).split(': ', 1)[-1]}); the diagnosis fits the "
                         "recorded cycles with the linear model and each candidate directly")
-    flown = segs if analysis is None else sorted([*analysis.tests, *analysis.rejected], key=lambda s: s.index)
     lost = lost_height_pair(flown, {t.index for t in tests})
     warnings += [lost] if lost is not None else []
     if not tests:

@@ -214,7 +214,8 @@ def test_mat_logs_found_and_identified_rows_first(tmp_path: Path) -> None:
     lines = r.stdout.splitlines()
     assert [line.split()[:3] for line in lines[2:4]] == [["design1_altitude.mcap", "altitude", "ok"],
                                                          ["dnn_altitude.mat", "altitude", "ok"]]
-    assert lines[4:] == ["skipped design1_altitude.mcap: x, y (no MRFT test on them)"]
+    # eq. (2)'s K in its records' unit (the column has no room for it), then the loops without tests
+    assert lines[4:] == ["K in output / (command s^2) (eq. (2))", "skipped design1_altitude.mcap: x, y (no MRFT test on them)"]
     truth = json.loads((samples / "dnn_altitude.mat.truth.json").read_text())
     assert abs(float(lines[3].split()[5]) - truth["Td"]) < 0.1 * truth["Td"]
 

@@ -81,6 +81,8 @@ def test_20ms_pair_flags_tau_and_nothing_else(results, capsys):
     assert "+20.01 [+19.96, +20.06]" in out and "tau ms" in out and "change [95 % interval]" in out
     assert max(len(line) for line in out.splitlines()[2:]) <= 100  # the table fits a terminal
     assert by["Td"].verdict == by["K"].verdict == "unchanged"
+    # K's unit is the records' (eq. (2): output / (command s^2)), under the table: its cell would not fit
+    assert by["K"].unit == "output / (command s^2)" and "K in output / (command s^2)" in out.splitlines()
 
 
 def test_reflight_of_same_plant_flags_nothing(results, capsys):
@@ -361,6 +363,10 @@ def test_json_record_round_trip(results, tmp_path, capsys):
     assert cmp == compare(results["design1_altitude"], results["design1_altitude_20ms"],
                           CompareOptions(fail_on=parse_fail_on("tau:+5ms,K:10%")))
     assert Comparison.from_json(cmp.to_json()) == cmp
+    assert {c["parameter"]: c["unit"] for c in data["changes"]} == {"Td": "s", "tau": "s", "K": "output / (command s^2)"}
+    for change in data["changes"]:  # a record written before the unit was: read, the unit empty
+        change.pop("unit")
+    assert {c.unit for c in Comparison.from_json(data).changes} == {""}
     code, stdout, _ = _run([results["design1_altitude"], results["reflight"], "--json", "-"], capsys)
     assert code == 0 and json.loads(stdout)["exit_code"] == 0  # only JSON on stdout
 

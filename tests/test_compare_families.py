@@ -58,6 +58,15 @@ def test_a_grown_delay_is_flagged_and_nothing_else(analyses):
     assert run.returncode == 9 and "tau" in run.stderr and "T s" in run.stdout
 
 
+def test_a_familys_k_is_shown_in_its_records_unit(analyses):
+    """A family's K is output / command (eq. (2)'s is output / (command s^2)): the table says so below its rows,
+    from the analyses' parameter record, not a table of its own."""
+    result = compare(analyses["before"], analyses["after"], CompareOptions())
+    assert {c.parameter: c.unit for c in result.changes} == {"tau": "s", "K": "output / command", "T": "s"}
+    out = run_main("compare", analyses["before"], analyses["after"]).stdout.splitlines()
+    assert "K in output / command" in out and max(map(len, out)) <= 100
+
+
 def test_two_families_are_not_compared(analyses):
     result = compare(analyses["before"], analyses["before_sopdt"], CompareOptions())
     assert not result.changes

@@ -117,6 +117,11 @@ def _print_rows(df, limit: int) -> None:
             cells = (f"{_fmt_ms(r['tau_mean']):>8} {_fmt_ms(r['tau_std']):>6} {_fmt(r['Td_mean']):>8} "
                      f"{_fmt(r['Td_std']):>7} {_fmt(r['K_mean']):>8}  {note}")
         click.echo(f"{_short_name(r['path']):<36} {r['loop']:<9} {r['status']:<16} {cells}".rstrip())
+    if not process and (shown["result_status"] == "ok").any():
+        from ..mrft.model import K_UNIT
+
+        # eq. (2)'s K, in its records' unit (the model's one spelling): too long for the column's 8 characters
+        click.echo(f"K in {K_UNIT} (eq. (2))")
 
 
 @click.command("batch")

@@ -115,7 +115,8 @@ def compare_estimates(base: ParameterEstimate, new: ParameterEstimate, *, z_crit
     """Test one parameter's change (module docstring) with the critical value ``z_crit``; ``where``: the
     change's log or vehicle name, loop and parameter."""
     row = ParameterChange(*where, finite_or_none(base.value), finite_or_none(new.value), None, None, None, None,
-                          False, tolerance.text if tolerance is not None else None, False, "undetermined")
+                          False, tolerance.text if tolerance is not None else None, False, "undetermined",
+                          unit=base.unit or new.unit)
     if not (comparable(base) and comparable(new)):
         return dataclasses.replace(row, note=_undetermined_note(base, new))
     b_below, b_above = side_sigmas(base)

@@ -17,22 +17,25 @@ from .records import Comparison, MissingResult, ParameterChange
 __all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "format_change", "DISPLAY_UNITS",
            "TABLE_WIDTH"]
 
-#: Parameter -> (display unit, factor from SI) for reports; the records stay in SI.
-DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3), "K": ("", 1.0),
+#: Time parameter -> (display unit, factor from SI) for reports; the records stay in SI. Any other
+#: parameter (K) is shown in its records' own unit (:attr:`ParameterChange.unit`): K's depends on the model.
+DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3),
                                                 "T": ("s", 1.0), "T1": ("s", 1.0), "T2": ("s", 1.0)}
 
 
-def _scale(param: str) -> tuple[str, float]:
-    return DISPLAY_UNITS.get(param, ("", 1.0))
+def _scale(param: str, unit: str = "") -> tuple[str, float]:
+    """(display unit, factor from SI): a time parameter's from :data:`DISPLAY_UNITS`, else the records' ``unit``."""
+    return DISPLAY_UNITS.get(param, (unit, 1.0))
 
 
-def format_value(param: str, value: float | None) -> str:
-    """A parameter value in its display unit, or ``-``.
+def format_value(param: str, value: float | None, unit: str = "") -> str:
+    """A parameter value in its display unit, or ``-``; ``unit``: the records' unit of a parameter that is not
+    a time (K's).
 
-    >>> format_value("tau", 0.0464)
-    '46.4 ms'
+    >>> format_value("tau", 0.0464), format_value("K", 19.62, "output / (command s^2)")
+    ('46.4 ms', '19.62 output / (command s^2)')
     """
-    unit, f = _scale(param)
+    unit, f = _scale(param, unit)
     text = _number(value, f)
     return text if text == "-" else f"{text} {unit}".rstrip()
 
@@ -48,7 +51,7 @@ def format_change(c: ParameterChange, confidence: float) -> str:
     """
     if c.change is None or c.low is None or c.high is None:
         return f"undetermined ({c.note})" if c.note else "undetermined"
-    unit, f = _scale(c.parameter)
+    unit, f = _scale(c.parameter, c.unit)
     pct = f"{100 * confidence:.3g}"
     return f"{c.change * f:+.4g} {unit} [{c.low * f:+.4g}, {c.high * f:+.4g}] ({pct} %)".replace("  ", " ")
 
@@ -71,8 +74,8 @@ def _z(z: float | None) -> str:
 def _rows(cmp: Comparison) -> list[list[str]]:
     rows = []
     for c in cmp.changes:
-        rows.append([_who(c.name, c.loop), c.parameter, format_value(c.parameter, c.baseline),
-                     format_value(c.parameter, c.new), format_change(c, cmp.confidence), _relative(c), _z(c.z),
+        rows.append([_who(c.name, c.loop), c.parameter, format_value(c.parameter, c.baseline, c.unit),
+                     format_value(c.parameter, c.new, c.unit), format_change(c, cmp.confidence), _relative(c), _z(c.z),
                      c.tolerance or "-", c.verdict])
     for m in cmp.missing:
         rows.append([_who(m.name, m.loop), "-", "-", "-", f"missing on {m.side}", "-", "-", "-", "missing"])
@@ -101,7 +104,7 @@ def _short_change(c: ParameterChange) -> str:
     """The change and its interval in the parameter's display unit, without the unit (the header has it)."""
     if c.change is None or c.low is None or c.high is None:
         return "undetermined"
-    _, f = _scale(c.parameter)
+    _, f = _scale(c.parameter, c.unit)
     return f"{c.change * f:+.4g} [{c.low * f:+.4g}, {c.high * f:+.4g}]"
 
 
@@ -110,16 +113,32 @@ def _number(x: float | None, factor: float) -> str:
 
 
 def _terminal_rows(cmp: Comparison) -> list[tuple[str | None, list[str]]]:
-    """(name, cells) per change and missing loop, for the terminal table (units in the param cell)."""
+    """(name, cells) per change and missing loop, for the terminal table (a time's unit in the param cell; K's,
+    which is long and depends on the model, below the table: :func:`_unit_lines`)."""
     out: list[tuple[str | None, list[str]]] = []
     for c in cmp.changes:
-        unit, f = _scale(c.parameter)
+        unit, f = DISPLAY_UNITS.get(c.parameter, ("", 1.0))
         tol = (c.tolerance or "-").split(":")[-1]
         out.append((c.name, [c.loop, f"{c.parameter} {unit}".rstrip(), _number(c.baseline, f), _number(c.new, f),
                              _short_change(c), _relative(c), _z(c.z), tol, c.verdict]))
     for m in cmp.missing:
         out.append((m.name, [m.loop, "-", "-", "-", f"missing on {m.side}", "-", "-", "-", "missing"]))
     return out
+
+
+def _unit_lines(cmp: Comparison) -> list[str]:
+    """``K in output / (command s^2)``: the records' unit of each parameter that is not a time (the loops named
+    when the table holds several units for it: eq. (2)'s K and a process family's)."""
+    units: dict[str, dict[str, list[str]]] = {}
+    for c in cmp.changes:
+        if c.parameter not in DISPLAY_UNITS and c.unit:
+            units.setdefault(c.parameter, {}).setdefault(c.unit, []).append(_who(c.name, c.loop))
+    lines = []
+    for param, by_unit in units.items():
+        text = (next(iter(by_unit)) if len(by_unit) == 1 else
+                "; ".join(f"{u} ({', '.join(dict.fromkeys(who))})" for u, who in by_unit.items()))
+        lines += _wrapped(f"{param} in ", text)
+    return lines
 
 
 def _wrapped(prefix: str, text: str) -> list[str]:
@@ -149,6 +168,7 @@ def format_table(cmp: Comparison) -> str:
             lines.append(name if len(name) <= TABLE_WIDTH else "..." + name[-(TABLE_WIDTH - 3):])
             shown = name
         lines.append(line(cells))
+    lines += _unit_lines(cmp)
     for c in cmp.changes:
         if c.verdict == "undetermined" and c.note:
             lines += _wrapped("undetermined: ", f"{_who(c.name, c.loop)} {c.parameter}: {c.note}")
@@ -177,7 +197,7 @@ def to_markdown(cmp: Comparison) -> str:
 
 
 def _case_text(c: ParameterChange, confidence: float) -> str:
-    return (f"baseline {format_value(c.parameter, c.baseline)}, new {format_value(c.parameter, c.new)}, "
+    return (f"baseline {format_value(c.parameter, c.baseline, c.unit)}, new {format_value(c.parameter, c.new, c.unit)}, "
             f"change {format_change(c, confidence)}, z {_z(c.z)}, "
             f"tolerance {c.tolerance or '-'}, verdict {c.verdict}")
 

@@ -26,6 +26,7 @@ The analysis JSON is read by :meth:`mrftcli.analyze.AnalysisResult.from_json` (i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -99,10 +100,18 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
         estimates = {n: p for n, p in analysis.parameters.items() if not p.known}
         return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates,
                              model=analysis.model.family)
-    estimates = {"Td": analysis.Td, "tau": analysis.tau, "K": analysis.K}
+    estimates = _with_model_units({"Td": analysis.Td, "tau": analysis.tau, "K": analysis.K}, analysis.model)
     # a cascade's outer Td, tau, K are compared with eq. (2)'s of the same loop as before (model not checked)
     return LoopEstimates(loop=analysis.loop, name=name, source=source, parameters=estimates, tp=analysis.Tp,
                          model=None if analysis.kind == "cascade" else "soiptd")
+
+
+def _with_model_units(estimates: Mapping[str, ParameterEstimate], model: Any) -> dict[str, ParameterEstimate]:
+    """Each estimate with its unit: an empty one (eq. (2)'s K, kept as identify gives it) spelt from the
+    model's parameter, as the analysis JSON spells it (``output / (command s^2)``)."""
+    params = getattr(model, "parameters", {})
+    return {n: e if e.unit or n not in params else dataclasses.replace(e, unit=str(params[n].unit))
+            for n, e in estimates.items()}
 
 
 def _batch_name(record: Mapping[str, Any], by: str) -> str:

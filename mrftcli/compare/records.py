@@ -175,6 +175,9 @@ class ParameterChange:
         never a change).
     note : str
         Why undetermined, or other context.
+    unit : str
+        The unit of the values above, the analyses' own (their parameter record's ``unit``: eq. (2)'s K
+        ``output / (command s^2)``, a family's ``output / command``); empty when neither side states one.
     """
 
     name: str | None
@@ -191,6 +194,7 @@ class ParameterChange:
     beyond_tolerance: bool
     verdict: str
     note: str = ""
+    unit: str = ""
 
     @property
     def failed(self) -> bool:
@@ -317,7 +321,7 @@ def _change_to_json(c: ParameterChange) -> dict[str, Any]:
         **{k: finite_or_none(getattr(c, k)) for k in _CHANGE_FLOATS},
         "relative": finite_or_none(c.relative),
         "significant": c.significant, "tolerance": c.tolerance, "beyond_tolerance": c.beyond_tolerance,
-        "verdict": c.verdict, "note": c.note,
+        "verdict": c.verdict, "note": c.note, "unit": c.unit,
     }
 
 
@@ -330,4 +334,5 @@ def _change_from_json(d: Mapping[str, Any]) -> ParameterChange:
                            baseline=floats["baseline"], new=floats["new"], change=floats["change"],
                            low=floats["low"], high=floats["high"], z=floats["z"],
                            significant=bool(d["significant"]), tolerance=_opt_str(d["tolerance"]),
-                           beyond_tolerance=bool(d["beyond_tolerance"]), verdict=verdict, note=str(d["note"]))
+                           beyond_tolerance=bool(d["beyond_tolerance"]), verdict=verdict, note=str(d["note"]),
+                           unit=str(d.get("unit", "")))  # absent before the unit was recorded

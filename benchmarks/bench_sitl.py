@@ -259,6 +259,7 @@ def report_analysis(results: dict[str, dict], logs: Path) -> None:
     if errs or refused:
         within = sum(e <= 0.05 for e in errs)
         print(f"held-out frequency within 5 %: {within}/{len(errs) + refused} (refusals are misses: {refused}); "
+              f"{within}/{flown} over every test flown (a refused log's tests and a test not found are misses); "
               f"max error {max(errs, default=float('nan')) * 100:.2f} %, median {np.median(errs) * 100:.2f} %")
     for loop in ("altitude", "altitude_h15", "altitude_mf", "roll", "pitch"):
         if loop in results and f"{loop}_20ms" in results:

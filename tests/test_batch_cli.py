@@ -34,6 +34,17 @@ def test_bad_log_exits_8_with_one_line_and_rows_written(tmp_path: Path) -> None:
     doc = json.loads(p.stdout)
     assert doc["counts"]["failed"] == 1 and doc["rows"][0]["status"] == "failed" and doc["rows"][0]["error"]
     assert pd.read_csv(tmp_path / "out" / "summary.csv")["status"].tolist() == ["failed"]
+    # the summary is a versioned record (schema 1); one written before it was (no schema_version) still reads
+    from mrftcli.batch import SUMMARY_SCHEMA_VERSION, BatchSummary
+    from mrftcli.errors import InputError
+
+    assert list(doc)[0] == "schema_version" and doc["schema_version"] == SUMMARY_SCHEMA_VERSION == 1
+    summary = BatchSummary.from_json(doc)
+    assert summary.to_json() == doc and summary.rows[0]["status"] == "failed" and summary.logs == 1
+    unversioned = {k: v for k, v in doc.items() if k != "schema_version"}
+    assert BatchSummary.from_json(unversioned) == summary
+    with pytest.raises(InputError, match="batch summary: schema_version 2 is not supported"):
+        BatchSummary.from_json({**doc, "schema_version": 2})
 
 
 @pytest.mark.parametrize("args, code, message", [

@@ -6,7 +6,7 @@ them (one record per log) and :mod:`~mrftcli.batch.summary` makes the fleet tabl
 
 from .inputs import BatchConfig, LogSettings, discover_logs, load_config
 from .run import BatchFailedError, BatchOptions, BatchResult, run_batch
-from .summary import SUMMARY_COLUMNS, flag_outliers
+from .summary import SUMMARY_COLUMNS, SUMMARY_SCHEMA_VERSION, BatchSummary, flag_outliers
 
 __all__ = ["run_batch", "BatchOptions", "BatchResult", "BatchFailedError", "discover_logs", "load_config", "BatchConfig",
-           "LogSettings", "SUMMARY_COLUMNS", "flag_outliers"]
+           "LogSettings", "SUMMARY_COLUMNS", "flag_outliers", "BatchSummary", "SUMMARY_SCHEMA_VERSION"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,11 +20,12 @@ import pandas as pd
 
 from ..analyze import AnalysisResult
 from ..errors import InputError
+from ..jsonable import check_schema_version
 from ..report.wording import sig
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
            "SUMMARY_COLUMNS",
-           "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers"]
+           "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers", "BatchSummary", "SUMMARY_SCHEMA_VERSION"]
 
 #: Statuses of a row in the summary.
 STATUS_OK, STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_SKIPPED = ("ok", "failed", "insufficient", "skipped-uptodate")
@@ -320,3 +322,74 @@ def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
             tuned[col] = tuned[col].astype("string" if col in ("tune_design", "tune_kind", "tune_error") else float)
         return pd.concat([df[SUMMARY_COLUMNS], tuned], axis=1)
     return df[SUMMARY_COLUMNS]
+
+
+#: Version of the ``batch --json`` summary (:class:`BatchSummary`). A summary written before it carried one
+#: has the same layout and reads as version 1 (for one release).
+SUMMARY_SCHEMA_VERSION = 1
+#: the summary's columns of times, written as ISO 8601 text (UTC)
+_TIME_COLUMNS = ("log_time", "log_mtime", "analysed_at")
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """The ``batch --json`` record: what one batch run did, and its summary table's rows.
+
+    Attributes
+    ----------
+    logs : int
+        Logs discovered.
+    counts : Mapping[str, int]
+        Rows per status (``ok``, ``failed``, ...).
+    out_dir : str
+        The output folder.
+    notes : tuple of str
+        Problems that did not stop the batch.
+    outputs : Mapping[str, str]
+        ``csv``, ``parquet`` and (when made) ``report``: their paths.
+    rows : tuple of Mapping
+        One per log and loop: the columns of ``summary.csv`` (docs/batch.md; Td, tau [s]; times ISO 8601
+        UTC text; null where a cell is empty).
+    """
+
+    logs: int
+    counts: Mapping[str, int]
+    out_dir: str
+    notes: tuple[str, ...]
+    outputs: Mapping[str, str]
+    rows: tuple[Mapping[str, Any], ...]
+
+    @classmethod
+    def of(cls, result: Any) -> BatchSummary:
+        """The record of a :class:`~mrftcli.batch.run.BatchResult` (its summary table as JSON-ready rows)."""
+        df = result.summary
+        rows = df.astype(object).where(df.notna(), None)
+        for col in _TIME_COLUMNS:
+            rows[col] = [t.isoformat() if t is not None else None for t in rows[col]]
+        return cls(int(result.n_logs), dict(result.counts), str(result.out_dir), tuple(result.notes),
+                   {k: str(v) for k, v in result.outputs.items()}, tuple(rows.to_dict(orient="records")))
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"schema_version", "logs", "counts", "out_dir", "notes", "outputs", "rows"}``."""
+        return {"schema_version": SUMMARY_SCHEMA_VERSION, "logs": self.logs, "counts": dict(self.counts),
+                "out_dir": self.out_dir, "notes": list(self.notes), "outputs": dict(self.outputs),
+                "rows": [dict(r) for r in self.rows]}
+
+    @classmethod
+    def from_json(cls, data: Any) -> BatchSummary:
+        """The record of a :meth:`to_json` dict (one without ``schema_version``, written before it, too).
+
+        Raises
+        ------
+        InputError
+            Not a batch summary, or a version this one does not read (one line).
+        """
+        d = check_schema_version(data, "batch summary", SUMMARY_SCHEMA_VERSION, missing=SUMMARY_SCHEMA_VERSION,
+                                 fix="pass the output of 'mrft-ident batch --json'")
+        try:
+            return cls(int(d["logs"]), {str(k): int(v) for k, v in d["counts"].items()}, str(d["out_dir"]),
+                       tuple(str(n) for n in d["notes"]), {str(k): str(v) for k, v in d["outputs"].items()},
+                       tuple(dict(r) for r in d["rows"]))
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            raise InputError(f"malformed batch summary: {type(err).__name__} {err}; "
+                             "pass the output of 'mrft-ident batch --json'") from None

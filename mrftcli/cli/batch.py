@@ -213,12 +213,9 @@ def batch(ctx: click.Context, paths: tuple[str, ...], jobs: int | None, schedule
                            progress=progress)
     df = result.summary
     if json_target:
-        rows = df.astype(object).where(df.notna(), None)
-        for col in ("log_time", "log_mtime", "analysed_at"):
-            rows[col] = [t.isoformat() if t is not None else None for t in rows[col]]
-        dump_json({"logs": result.n_logs, "counts": result.counts, "out_dir": str(result.out_dir), "notes": result.notes,
-                   "outputs": {k: str(v) for k, v in result.outputs.items()},
-                   "rows": rows.to_dict(orient="records")}, json_target)
+        from ..batch import BatchSummary
+
+        dump_json(BatchSummary.of(result).to_json(), json_target)
     if json_target != "-":
         _print_table(df)
     echo_warnings(result.notes)

@@ -17,6 +17,7 @@ import pytest
 from cli_helpers import run_main
 
 import mrftcli.analyze
+from mrftcli.diagnose.records import DiagnosisResult
 from mrftcli.diagnose.screen import screen_log
 from mrftcli.errors import IdentificationError, InsufficientDataError, SegmentationError
 from mrftcli.io import ReadOptions, read_flight, write_log
@@ -91,7 +92,8 @@ def test_a_refusal_handed_over_gives_the_screen_analyze_again_gives(logs, monkey
     assert calls == []
     assert handed.analysis is None and [t.index for t in handed.tests] == [t.index for t in again.tests]
     assert len(handed.tests) == 2 and handed.warnings == again.warnings
-    assert any(w.startswith("analyze refuses this log (only one beta") for w in handed.warnings)
+    assert handed.analyze_refusal == again.analyze_refusal == str(refusal).removeprefix(f"{fl.path}: ")
+    assert handed.analyze_refusal.startswith("only one beta was tested (")
 
 
 def test_a_refusal_that_is_not_evidence_is_the_commands(logs, monkeypatch):
@@ -108,18 +110,39 @@ def test_a_refusal_that_is_not_evidence_is_the_commands(logs, monkeypatch):
     # no plant of eq. (2) fits: the strongest sign of missing physics, diagnosed (its reason in a warning)
     screen = screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None,
                         IdentificationError(f"{fl.path}: no plant of eq. (2) produces these tests' frequencies"))
-    assert any("analyze refuses this log (no plant of eq. (2)" in w for w in screen.warnings)
+    assert screen.analyze_refusal == "no plant of eq. (2) produces these tests' frequencies"
     assert len(calls) == 1
 
 
-def test_a_log_analyze_refuses_is_diagnosed_and_says_so_first(logs, monkeypatch):
+def test_a_log_analyze_refuses_is_diagnosed_and_says_so_first(logs, monkeypatch, tmp_path):
     calls = _counting(monkeypatch)
-    r = run_main("diagnose", str(logs["two_heights"]), "--tp", str(M.Tp), "-q")
+    out = tmp_path / "d.json"
+    r = run_main("diagnose", str(logs["two_heights"]), "--tp", str(M.Tp), "-q", "--json", str(out))
     assert r.returncode == 0, r.stderr
     assert len(calls) == 1
+    # analyze's reason as data (the JSON's analyze_refusal, schema 3), the terminal's second line printed from it
+    reason = str(_refusal(logs["two_heights"])).removeprefix(f"{logs['two_heights']}: ")
+    data = json.loads(out.read_text())
+    assert data["schema_version"] == 3 and data["analyze_refusal"] == reason
+    assert DiagnosisResult.from_json(data).analyze_refusal == reason
     second = r.stdout.splitlines()[1]
-    assert second.startswith("analyze refuses this log: only one beta was tested; the diagnosis below fits"), second
-    assert "warning: analyze refuses this log (only one beta was tested" in r.stdout + r.stderr
+    assert second == (f"analyze refuses this log: {reason}; the diagnosis below fits the recorded cycles itself "
+                      "(no model of analyze's to compare with)"), second
+    assert (r.stdout + r.stderr).count("only one beta was tested") == 1  # said once, not again in a warning
+
+
+def test_the_first_line_gives_a_refusal_with_brackets_whole(logs, monkeypatch):
+    # the line was read back out of a warning's text (split at " (" and ";"): "no plant of eq.; ..." came out
+    reason = "no plant of eq. (2) produces these tests' frequencies (1.2 and 3.4 rad/s); check --tp (try 0.05 s)"
+
+    def refuse(flight, *args, **kwargs):
+        raise IdentificationError(f"{flight.path}: {reason}")
+
+    monkeypatch.setattr(mrftcli.analyze, "analyze_flight", refuse)
+    r = run_main("diagnose", str(logs["two_heights"]), "--tp", str(M.Tp), "-q")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[1] == (f"analyze refuses this log: {reason}; the diagnosis below fits the recorded "
+                                        "cycles itself (no model of analyze's to compare with)")
 
 
 def test_one_test_left_of_a_flight_at_two_betas_is_refused_as_analyze_does(logs, monkeypatch):

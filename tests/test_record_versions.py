@@ -299,12 +299,28 @@ def test_an_eq2_diagnosis_of_version_1_reads_with_its_figures_and_writes_as_2(ve
     assert "schema_version" not in old
     result = DiagnosisResult.from_json({"schema_version": 1, **old} if versioned else old)
     new = _diagnosis_written(result)
-    assert new["schema_version"] == 2 and new["kind"] == "diagnosis" and new["family"] == "soiptd"
+    assert new["schema_version"] == 3 and new["kind"] == "diagnosis" and new["family"] == "soiptd"
     assert result.found == ("sensor_lag",) and new["found"] == ["sensor_lag"]
     # every key of version 1 comes back with the same content; the new keys are the families' (empty here)
     assert {k: new[k] for k in old} == old
     assert (new["checks"], new["notes"], new["analysis"], new["consistent"]) == ([], [], None, None)
+    assert new["analyze_refusal"] is None
     assert DiagnosisResult.from_json(new) == result
+
+
+def test_an_eq2_diagnosis_of_version_2_reads_and_writes_as_3() -> None:
+    """``diagnosis_v2.json``: ``diagnose sample_logs/concealed/flight_02.mcap --loop altitude --tp 0.0422 --json -``
+    at commit 980ecd6 (version 2: no ``analyze_refusal``; version 3 adds it, None where analyze identified the log)."""
+    from mrftcli.diagnose.records import DiagnosisResult
+
+    old = _old("diagnosis_v2.json")
+    assert old["schema_version"] == 2 and "analyze_refusal" not in old
+    result = DiagnosisResult.from_json(old)
+    new = _diagnosis_written(result)
+    assert new["schema_version"] == 3 and result.found == ("sensor_lag",) and result.analyze_refusal is None
+    assert {k: v for k, v in new.items() if k not in ("schema_version", "analyze_refusal")} == \
+        {k: v for k, v in old.items() if k != "schema_version"}
+    assert new["analyze_refusal"] is None and DiagnosisResult.from_json(new) == result
 
 
 def test_a_process_diagnosis_of_version_2_reads_with_its_figures_and_writes_as_2() -> None:
@@ -315,7 +331,7 @@ def test_a_process_diagnosis_of_version_2_reads_with_its_figures_and_writes_as_2
     assert old["schema_version"] == 2 and old["kind"] == "process_diagnosis"
     result = DiagnosisResult.from_json(old)
     new = _diagnosis_written(result)
-    assert new["schema_version"] == 2 and new["family"] == "fopdt" and new["summary"] == old["verdict"]
+    assert new["schema_version"] == 3 and new["family"] == "fopdt" and new["summary"] == old["verdict"]
     assert new["found"] == old["found"] == ["input_bias"]
     # the rows: the alone ones in candidates, those on top of the first in second_effect_candidates, unchanged
     assert new["candidates"] + new["second_effect_candidates"] == old["candidates"]

@@ -97,7 +97,7 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
     waveform residual's verdict analyze gives (``residual``: one verdict for both commands)."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
-    lines += _refusal_line(result.warnings)
+    lines += _refusal_line(result)
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
     lines.append(f"{'':>4} {'[s]':>11} {'nominal':>8} {'effective':>9} {'[command]':>9} {'used':>6}")
     for t in result.tests:
@@ -130,17 +130,13 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
     return "\n".join(line.rstrip() for line in lines)
 
 
-def _refusal_line(warnings: list[str]) -> list[str]:
-    """When analyze refused the log, a line at the top says so in its first words (issue 39: a log analyze
-    refuses is diagnosed from the recorded cycles alone; the full reason is the warning at the end)."""
-    from ..diagnose.screen import REFUSED
-
-    for w in warnings:
-        if w.startswith(REFUSED):
-            reason = w[len(REFUSED):].split(" (", 1)[0].split(";", 1)[0].rstrip(")")
-            return [f"analyze refuses this log: {reason}; the diagnosis below fits the recorded cycles itself "
-                    "(no model of analyze's to compare with; the full reason is the warning at the end)"]
-    return []
+def _refusal_line(result: DiagnosisResult) -> list[str]:
+    """When analyze refused the log, a line at the top says so with analyze's reason (issue 39: a log analyze
+    refuses is diagnosed from the recorded cycles alone), from the record's ``analyze_refusal``."""
+    if result.analyze_refusal is None:
+        return []
+    return [f"analyze refuses this log: {result.analyze_refusal}; the diagnosis below fits the recorded cycles itself "
+            "(no model of analyze's to compare with)"]
 
 
 @click.command("diagnose")
@@ -247,7 +243,7 @@ def _analysis(flight: FlightLog, model: LoopModel, min_cycles: int) -> tuple[Ana
     try:
         return analyze_flight(flight, model), None
     except MrftError as exc:
-        return None, exc  # the diagnosis decides (a warning says so when it goes on)
+        return None, exc  # the diagnosis decides (its analyze_refusal says so when it goes on)
 
 
 def _with_analysis(result: DiagnosisResult, analysis: AnalysisResult | None) -> DiagnosisResult:

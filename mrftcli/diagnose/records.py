@@ -43,8 +43,9 @@ __all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HELD_OUT_DEFINITION_TESTS", "H
            "DiagnosisResult"]
 
 #: the layout of :meth:`DiagnosisResult.to_json` (raise it when a key changes meaning or goes away). 2: one
-#: record for every family (issue 36): eq. (2)'s diagnosis (1) and the families' ``process_diagnosis`` (1, 2)
-SCHEMA_VERSION = 2
+#: record for every family (issue 36): eq. (2)'s diagnosis (1) and the families' ``process_diagnosis`` (1, 2).
+#: 3: ``analyze_refusal``, analyze's refusal of a log the diagnosis went on without (issue 39; 2 still read)
+SCHEMA_VERSION = 3
 
 #: how the held-out NRMSE figures are defined (the JSON's ``nrmse_definition``)
 NRMSE_DEFINITION = (
@@ -540,6 +541,10 @@ class DiagnosisResult:
         Eq. (2): sensor noise estimated from the residual of the cycle projections [output units].
     warnings, notes : list of str
         What the reader needs to weigh the result (the families' notes: what is not checked).
+    analyze_refusal : str or None
+        Eq. (2): analyze's refusal of the log (its message without the log's path) when the diagnosis went
+        on without analyze's model (no plant of eq. (2) fits; one beta left of tests that differ in beta or
+        relay height); None when analyze identified the log (and for the families). Schema 3.
     unexplained : Unexplained or None
         Eq. (2): the mismatch that no candidate (or pair) explains, when the linear model is rejected on
         the fitting and the held-out cycles and the model finally chosen still is on the held-out ones
@@ -578,6 +583,7 @@ class DiagnosisResult:
     checks: list[TestCheck] = field(default_factory=list)
     analysis: AnalysisResult | None = field(default=None, compare=False)
     figures: DiagnosisFigures | None = field(default=None, repr=False, compare=False)
+    analyze_refusal: str | None = None
     schema_version: int = SCHEMA_VERSION
 
     @property
@@ -626,6 +632,7 @@ class DiagnosisResult:
             "noise_std": self.noise_std,
             "nrmse_definition": NRMSE_DEFINITION if feature else HELD_OUT_DEFINITION_TESTS,
             "warnings": self.warnings,
+            "analyze_refusal": self.analyze_refusal,
             "notes": self.notes,
             "consistent": self.consistent,
             "z_limit": None if feature else Z_LIMIT,
@@ -642,8 +649,9 @@ class DiagnosisResult:
         """The result of a :meth:`to_json` dict (without its figures), of this version or an earlier one.
 
         Read for one release: version 1 of eq. (2)'s diagnosis (``diagnose --json`` before issue 36
-        wrote it without ``schema_version``, as the batch records still hold it), and the families'
-        ``process_diagnosis`` of versions 1 (no effects) and 2.
+        wrote it without ``schema_version``, as the batch records still hold it), version 2 (no
+        ``analyze_refusal``: read as None), and the families' ``process_diagnosis`` of versions 1 (no
+        effects) and 2.
 
         Raises
         ------
@@ -652,7 +660,7 @@ class DiagnosisResult:
         """
         if isinstance(data, dict) and data.get("kind") == "process_diagnosis":
             return _from_process_json(data)
-        data = check_schema_version(data, "diagnosis", (1, SCHEMA_VERSION), missing=1,
+        data = check_schema_version(data, "diagnosis", (1, 2, SCHEMA_VERSION), missing=1,
                                     fix="rerun mrft-ident diagnose")
         with _reading("the diagnosis", "; rerun mrft-ident diagnose"):
             if data.get("family", "soiptd") != "soiptd":  # a family's diagnosis of this version
@@ -672,6 +680,8 @@ class DiagnosisResult:
                                                                                "second_effect_candidates")],
                 unexplained=None if unexplained is None else Unexplained.from_dict(unexplained),
                 t0=float(data["t0"]), notes=[str(n) for n in expect_list(data.get("notes", []), "notes")],
+                # schema 3; versions 1 and 2 did not say (None)
+                analyze_refusal=None if data.get("analyze_refusal") is None else str(data["analyze_refusal"]),
             )
 
 

@@ -24,10 +24,7 @@ from .fit import MIN_CYCLES, DiagnosedTest, feature_sigma, prepare_tests, segmen
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["Screen", "screen_log", "lost_height_pair", "REFUSED"]
-
-#: how the warning begins when analyze refused the log and the diagnosis goes on (the CLI's first lines say so)
-REFUSED = "analyze refuses this log ("
+__all__ = ["Screen", "screen_log", "lost_height_pair"]
 
 #: two tests at one beta are at two relay heights when the larger is this much above the smaller
 HEIGHT_RATIO = 1.1
@@ -53,6 +50,10 @@ class Screen:
         Per test, the features of its fitting, held-out and all stable cycles and their standard errors.
     warnings : list of str
         What the user should know about the tests.
+    analyze_refusal : str or None
+        analyze's refusal of the log, without the log's path, when the diagnosis goes on without it (no plant
+        of eq. (2) fits; one beta left of tests that differ in beta or relay height); else None. Data, not a
+        warning: the CLI's second line and the JSON's ``analyze_refusal`` give it.
     """
 
     analysis: AnalysisResult | None
@@ -64,6 +65,7 @@ class Screen:
     recs_hold: list
     recs_all: list
     warnings: list[str]
+    analyze_refusal: str | None = None
 
 
 def _analysis_of(flight: FlightLog, model: LoopModel,
@@ -88,7 +90,7 @@ def _analysis_of(flight: FlightLog, model: LoopModel,
 
 
 def _goes_on(refusal: MrftError, flight: FlightLog) -> bool:
-    """Whether the diagnosis goes on without analyze, which refused the log (its warning says why); else
+    """Whether the diagnosis goes on without analyze, which refused the log (``analyze_refusal`` says why); else
     the refusal is the command's (the same message and exit code as analyze)."""
     if isinstance(refusal, IdentificationError):
         # analyze must refuse, but no plant of eq. (2) fitting is the strongest sign of missing physics
@@ -116,11 +118,16 @@ def _one_test_left(flight: FlightLog, refusal: MrftError | None, kept: Diagnosed
         return InsufficientDataError(f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable "
                                      "cycles or more, so no second test is left to compare it with (fly the lost test "
                                      "again)", partial=refusal.partial)
-    why = "" if refusal is None else f"; analyze refuses this log: {str(refusal).removeprefix(f'{flight.path}: ')}"
+    why = "" if refusal is None else f"; analyze refuses this log: {_reason(flight, refusal)}"
     return InsufficientDataError(
         f"{flight.path}: only one test has the {MIN_CYCLES} stable cycles diagnose needs ({describe_tests([test], t0)}; "
         f"the others flown: {describe_tests(others, t0)}; times from the log start), so no second test is left to "
         f"compare it with (fly the lost test again){why}")
+
+
+def _reason(flight: FlightLog, refusal: MrftError) -> str:
+    """analyze's refusal without the log's path (the lines that carry it name the log already)."""
+    return str(refusal).removeprefix(f"{flight.path}: ")
 
 
 def _comparable(tests: list[MrftTest]) -> bool:
@@ -196,9 +203,6 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     tests, noise, warnings = prepare_tests(flight, segs)
     if len(tests) == 1 and _comparable(flown):  # tests to compare were flown, one is left: nothing to compare
         raise _one_test_left(flight, refused_by_linear, tests[0], flown, t0_log)
-    if refused_by_linear is not None:
-        warnings.append(f"{REFUSED}{str(refused_by_linear).split(': ', 1)[-1]}); the diagnosis fits the "
-                        "recorded cycles with the linear model and each candidate directly")
     lost = lost_height_pair(flown, {t.index for t in tests})
     warnings += [lost] if lost is not None else []
     if not tests:
@@ -214,4 +218,5 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
             feats = summarize_features(t.tab.subset(mask))
             store.append((feats, feature_sigma(feats.sigma, feats.values)))
     return Screen(analysis=analysis, segments=segs, tests=tests, noise=noise, t0=t0_log, recs_fit=recs[0],
-                  recs_hold=recs[1], recs_all=recs[2], warnings=warnings)
+                  recs_hold=recs[1], recs_all=recs[2], warnings=warnings,
+                  analyze_refusal=None if refused_by_linear is None else _reason(flight, refused_by_linear))

@@ -280,7 +280,7 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
         candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in cand_rows],
         located=items, identification=_identification(flight, Tp, screen, linear, effects, analysis, warnings),
         tests=_test_rows(screen, linear), noise_std=screen.noise, summary=_summary_text(effects, unexplained),
-        warnings=warnings,
+        warnings=warnings, analyze_refusal=screen.analyze_refusal,
         second_effect_candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in chosen.pair_rows],
         unexplained=unexplained, t0=screen.t0, figures=figures,
     )

@@ -139,4 +139,13 @@ def test_cli_text_prints_each_test_at_its_own_start_from_the_log_start(repo_root
     assert lines[0].startswith("model soiptd: G(s) = K Td e^{-tau s}") and lines[0].endswith("amplitudes in m")
     final = next(line for line in lines if line.startswith("final"))
     assert "Tp 0.0422 s (known)" in final and "m/s² per command unit" in final and final.count("±") == 3
+    # tau in ms, as analyze prints it (the --jsonl numbers stay in s): every estimate line, the final's equal to
+    # analyze's table of the same log
+    import re
+
+    estimates = [line for line in lines if line.startswith(("estimate", "final"))]
+    assert estimates and all(re.search(r" tau [-\d.e+]+( ± [\d.e+-]+)? ms ", line) for line in estimates)
+    code, table, _ = _cli(capsys, "analyze", str(log), "--tp", "0.0422")
+    row = next(line.split() for line in table.splitlines() if line.split()[:2] == ["tau", "ms"])
+    assert re.search(r" tau (\S+) ± (\S+) ms ", final).groups() == (row[2], row[3])
     assert sum(line.startswith("held-out test") for line in lines) == 2

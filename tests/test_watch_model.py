@@ -65,6 +65,7 @@ def test_live_estimates_arrive_before_the_end_and_the_final_is_analyze_model(rec
 def test_one_test_names_what_it_cannot_determine_instead_of_a_number(recording, tmp_path):
     # the first window alone, fitted with two lags: three points (harmonics 1, 3, 5 of one relay
     # phase) do not pin the second lag down; the update says so, and the CLI line gives it no number
+    from mrftcli.cli.model_options import parameter_display
     from mrftcli.cli.watch import _line
 
     data = recording.read_bytes()
@@ -74,7 +75,7 @@ def test_one_test_names_what_it_cannot_determine_instead_of_a_number(recording, 
                            sleep=lambda dt: None, clock=iter(range(100)).__next__))
     live = [u for u in got if isinstance(u, EstimateUpdate) and not u.final]
     assert live and live[-1].undetermined and "another phase" in live[-1].advice
-    shown, _, refusal = _line(live[-1], "m", {}).partition("(tests")
+    shown, _, refusal = _line(live[-1], "m", parameter_display("family", "altitude")).partition("(tests")
     assert "so far" in refusal and "nan" not in shown.lower()
     assert all(f"{name} " not in shown for name in live[-1].undetermined)
     assert "K " in shown  # what one test does determine is given

@@ -8,10 +8,10 @@ import click
 
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
-from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination,
+from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination, parameter_display,
                             parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
                             soiptd_or_process, structure_options, structure_text, window_option)
-from ..report.wording import gain_unit, uncertainty_sentence
+from ..report.wording import uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
                       tp_option, tqdm_progress)
@@ -51,7 +51,7 @@ def format_analysis(result) -> str:
     lines += _left_out(result)
     lines += held_out_notes(held, _numbers(result))
     lines.append(_parameters_line(result))
-    lines += parameter_lines(list(result.parameters.items()), _display(result))
+    lines += parameter_lines(list(result.parameters.items()), parameter_display(result.kind, result.loop))
     lines += _tail(result)
     return "\n".join(line.rstrip() for line in lines)
 
@@ -131,18 +131,6 @@ def _parameters_line(result) -> str:
     else:
         used = f"the waveform refinement, residual {ref.residual_ratio:.2f}x the sensor noise"
     return f"parameters, from {used}:"
-
-
-def _display(result):
-    """How a parameter is shown: tau in ms for a vehicle loop (eq. (2), the cascade), as its tests are read;
-    eq. (2)'s K per command unit."""
-    def display(name: str, e) -> tuple[float, str]:
-        if name == "tau" and e.unit == "s" and result.kind != "family":
-            return 1e3, "ms"
-        if name == "K" and result.kind == "soiptd":
-            return 1.0, gain_unit(result.loop)
-        return 1.0, e.unit
-    return display
 
 
 def _tail(result) -> list[str]:

@@ -26,7 +26,8 @@ if TYPE_CHECKING:
 
 __all__ = ["MODEL_NAMES", "structure_text", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_number", "parse_windows", "build_model", "format_estimates", "parameter_lines",
-           "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup"]
+           "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup",
+           "parameter_display"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -273,6 +274,28 @@ def structure_text(model: Any) -> str:
 def format_estimates(ident: LtiIdentification) -> list[str]:
     """The parameter table of a family's fit (:func:`parameter_lines`)."""
     return parameter_lines([(e.name, e) for e in ident.estimates])
+
+
+def parameter_display(kind: str, loop: str) -> Callable[[str, ParameterEstimate], tuple[float, str]]:
+    """How a record's parameter is shown on the terminal, one rule for ``analyze`` and ``watch``: tau in ms on a
+    vehicle's loop (``kind`` ``soiptd``, eq. (2), or ``cascade``), as its tests are read; eq. (2)'s K per command
+    unit of ``loop`` (``m/s² per command unit``); a process plant's (``family``) in its record's units (tau in s).
+    The records (JSON, ``watch --jsonl``) stay in SI.
+
+    Returns
+    -------
+    callable
+        ``display(name, estimate) -> (scale from the record's unit, unit shown)``.
+    """
+    from ..io.logtypes import gain_unit
+
+    def display(name: str, e: ParameterEstimate) -> tuple[float, str]:
+        if name == "tau" and e.unit == "s" and kind != "family":
+            return 1e3, "ms"
+        if name == "K" and kind == "soiptd":
+            return 1.0, gain_unit(loop)
+        return 1.0, e.unit
+    return display
 
 
 def parameter_lines(estimates: Sequence[tuple[str, ParameterEstimate]],

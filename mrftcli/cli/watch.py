@@ -10,15 +10,20 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..jsonable import to_jsonable
-from ..report.wording import gain_unit, output_unit
-from .model_options import relay_options, soiptd_or_process, structure_options
+from ..report.wording import output_unit
+from .model_options import parameter_display, relay_options, soiptd_or_process, structure_options
 from .options import log_layout_options, min_cycles_option, tp_option
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from ..analyze import AnalysisResult
     from ..mrft.model import PlantModel
     from ..mrft.parameter import ParameterEstimate
     from ..watch import EstimateUpdate, TestUpdate, Update, WatchEnd
+
+    #: how a parameter is shown: ``display(name, estimate) -> (scale from the record's unit, unit shown)``
+    _Display = Callable[[str, ParameterEstimate], tuple[float, str]]
 
 __all__ = ["watch"]
 
@@ -26,14 +31,15 @@ __all__ = ["watch"]
 _PROCESS_UNIT = "output units"
 
 
-def _units(model: PlantModel, loop: str) -> tuple[str, dict[str, str]]:
-    """The output's unit and the parameter units shown instead of the record's: eq. (2)'s loop is a vehicle's
-    (m or rad; K per command unit), a process plant's output is in the user's units."""
+def _units(model: PlantModel, loop: str) -> tuple[str, _Display]:
+    """The output's unit and how each parameter is shown, as analyze shows it (:func:`parameter_display`): eq. (2)'s
+    loop is a vehicle's (m or rad; tau in ms, K per command unit), a process plant's output is in the user's units
+    (its parameters in the record's, tau in s)."""
     from ..mrft.model import LoopModel
 
     if isinstance(model, LoopModel):
-        return output_unit(loop), {"K": gain_unit(loop)}
-    return _PROCESS_UNIT, {}
+        return output_unit(loop), parameter_display("soiptd", loop)
+    return _PROCESS_UNIT, parameter_display("family", loop)
 
 
 def _test_line(update: TestUpdate, unit: str) -> str:
@@ -51,17 +57,17 @@ def _test_line(update: TestUpdate, unit: str) -> str:
     return text + "".join(f"; {n}" for n in update.notes)
 
 
-def _parameter(e: ParameterEstimate, final: bool, units: dict[str, str]) -> str:
-    """One parameter with its unit (and its std on the final update)."""
-    unit = units.get(e.name, e.unit)
+def _parameter(e: ParameterEstimate, final: bool, display: _Display) -> str:
+    """One parameter with its unit, as analyze shows it (and its std on the final update)."""
+    scale, unit = display(e.name, e)
     unit = f" {unit}" if unit else ""  # a declared model's parameter may have no unit
     if e.known:
-        return f"{e.name} {e.value:.4g}{unit} (known)"
-    spread = f" ± {e.std:.2g}" if final and math.isfinite(e.std) else ""
-    return f"{e.name} {e.value:.4g}{spread}{unit}"
+        return f"{e.name} {e.value * scale:.4g}{unit} (known)"
+    spread = f" ± {e.std * scale:.2g}" if final and math.isfinite(e.std) else ""
+    return f"{e.name} {e.value * scale:.4g}{spread}{unit}"
 
 
-def _estimate_line(update: EstimateUpdate, unit: str, units: dict[str, str]) -> str:
+def _estimate_line(update: EstimateUpdate, unit: str, units: _Display) -> str:
     """The parameters the tests determine, with units; the others named with analyze's advice, not a number;
     the final one with each test's held-out prediction, the analysis's notes and warnings."""
     head = "final    " if update.final else "estimate "
@@ -90,7 +96,7 @@ def _end_line(update: WatchEnd) -> str:
             f"{update.tests} test(s)")
 
 
-def _line(update: Update, unit: str, units: dict[str, str]) -> str:
+def _line(update: Update, unit: str, units: _Display) -> str:
     """One terminal line per update (a final estimate adds its held-out lines and notes)."""
     from ..watch import EstimateUpdate, Restart, TestUpdate
 
@@ -174,7 +180,7 @@ def watch(log: str, Tp: float | None, model_name: str, params: tuple[str, ...], 
     _print(follow(log, model, read=read, options=options), log, unit, units, jsonl)
 
 
-def _print(updates: Any, log: str, unit: str, units: dict[str, str], jsonl: bool) -> None:
+def _print(updates: Any, log: str, unit: str, units: _Display, jsonl: bool) -> None:
     """Each update as a line (or a JSON object); the final analysis's error as the command's error."""
     from ..errors import MrftError
     from ..watch import Restart, TestUpdate, WatchEnd

@@ -85,7 +85,7 @@ def test_second_order_plant_analysed_as_fopdt_is_located_and_its_second_lag_name
 def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
     result = fopdt_diagnosis
     data = json.loads(json.dumps(result.to_json()))
-    assert data["schema_version"] == 2 and data["consistent"] is True  # the one diagnosis record (issue 36)
+    assert data["schema_version"] == 3 and data["consistent"] is True  # the one diagnosis record (issue 36)
     assert data["checks"][0]["held_out"]["frequency_hz"] == pytest.approx(result.checks[0].held_out_frequency_hz)
     assert {c["name"] for c in data["candidates"]} >= {"sensor_lag", "dead_zone", "delay_jitter"}
     assert data["kind"] == "diagnosis" and data["family"] == "fopdt" and data["summary"] == result.summary

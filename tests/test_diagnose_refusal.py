@@ -176,9 +176,21 @@ def test_one_test_left_is_refused_whatever_analyze_made_of_the_log(logs, monkeyp
     with pytest.raises(InsufficientDataError) as exc:
         screen_log(fl, soiptd_model(M.Tp), analysis, lambda *a, **k: None)
     msg = str(exc.value)
-    assert msg.startswith(f"{path}: only one test has the 4 stable cycles diagnose needs (beta -0.4 at "), msg
-    assert "the others flown: beta -0.7 at" in msg and "(3 stable of" in msg and "no second test is left" in msg
+    assert msg.startswith(f"{path}: only one test has the 4 stable cycles diagnose needs and can measure (beta -0.4 at "), msg
+    assert "no second test is left to compare it with (test 2 (beta -0.6" in msg or "(test 2 (beta -0.7" in msg, msg
+    assert "has 3 stable cycles; the diagnosis needs 4, so it is left out" in msg
     calls = _counting(monkeypatch)
     r = run_main("diagnose", str(path), "--tp", str(M.Tp), "-q")
     assert r.returncode == 6 and "no second test is left" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(calls) == 1
+
+
+def test_a_test_whose_cycles_are_too_sparsely_logged_to_measure_is_named_as_such():
+    # PX4 at 10 Hz: the -0.6 test's 7 stable cycles have fewer output samples than the waveform fit's unknowns
+    # (was: left out without a word, and the -0.2 test diagnosed alone, exit 0)
+    log = ROOT / "sample_logs" / "px4_altitude_10hz.ulg"
+    r = run_main("diagnose", str(log), "--tp", "0.0422", "--loop", "altitude", "-q")
+    assert r.returncode == 6, r.stderr
+    err = r.stderr.strip().splitlines()[-1]
+    assert "only one test has the 4 stable cycles diagnose needs and can measure (beta -0.2 at 23.8-60.3 s" in err, err
+    assert "test 1 (beta -0.54): 0 of its 7 stable cycles can be measured" in err and "log the output faster" in err

@@ -146,8 +146,13 @@ def prepare_tests(flight: FlightLog, segs: list[MrftTest]) -> tuple[list[Diagnos
         yy = s.loop_sign * (y - r) if s.setpoint is not None else s.loop_sign * (y - r)
         tab = cycle_table(t_y, yy, s.h, [c.t_start for c in st], [c.t_switch for c in st], [c.t_end for c in st])
         good = np.isfinite(tab.amplitude) & (tab.amplitude > 0)
-        tab = tab.subset(good)
-        if len(tab) < MIN_CYCLES:
+        tab, sparse = tab.subset(good), int(np.sum(tab.n_samples < 2 * N_HARM + 4))
+        if len(tab) < MIN_CYCLES:  # a cycle with fewer output samples than the harmonic fit's unknowns is not measured
+            warnings.append(
+                f"test {s.index + 1} (beta {s.beta:.2f}): {len(tab)} of its {len(st)} stable cycles can be measured "
+                f"({sparse} have fewer than the {2 * N_HARM + 4} output samples a cycle the waveform fit needs"
+                + ("; log the output faster" if sparse else "") + f"); the diagnosis needs {MIN_CYCLES}, so it is left out"
+            )
             continue
         idx = np.arange(len(tab))
         b_up = float(np.nanmedian(tab.beta_up))

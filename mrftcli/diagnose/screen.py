@@ -103,26 +103,25 @@ def _goes_on(refusal: MrftError, flight: FlightLog) -> bool:
 
 
 def _one_test_left(flight: FlightLog, refusal: MrftError | None, kept: DiagnosedTest, flown: list[MrftTest],
-                   t0: float) -> InsufficientDataError:
+                   t0: float, why: list[str]) -> InsufficientDataError:
     """The command's refusal (exit 6, as analyze's of one beta) when a single test of a flight that flew tests
     to compare has the cycles to diagnose, whatever analyze made of the log: the other beta or relay height was
-    flown but lost (a relay that locked up, too few stable cycles), so nothing is left to compare the test
-    with, and the effects named from one test's waveform and trends were wrong on every such benchmark
-    flight (issue 39: 0 of 4 on RotorPy and JSBSim dev flights). The test is named by its flown span, as
-    analyze names it; analyze's own one-beta message comes first when analyze refused the log so."""
+    flown but lost (a relay that locked up, too few stable cycles, cycles too sparsely logged to measure; ``why``
+    says which, per test left out), so nothing is left to compare the test with, and the effects named from
+    one test's waveform and trends were wrong on every such benchmark flight (issue 39: 0 of 4 on RotorPy and
+    JSBSim dev flights). The test is named by its flown span, as analyze names it; analyze's own one-beta
+    message comes first when analyze refused the log so."""
     from ..analyze.screen import describe_tests, span
 
     test = next(t for t in flown if t.index == kept.index)
-    others = [t for t in flown if t.index != kept.index]
+    tail = f"so no second test is left to compare it with ({'; '.join(why)}; fly the lost test again)"
     if isinstance(refusal, InsufficientDataError):
         return InsufficientDataError(f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable "
-                                     "cycles or more, so no second test is left to compare it with (fly the lost test "
-                                     "again)", partial=refusal.partial)
-    why = "" if refusal is None else f"; analyze refuses this log: {_reason(flight, refusal)}"
+                                     f"cycles it can measure, {tail}", partial=refusal.partial)
     return InsufficientDataError(
-        f"{flight.path}: only one test has the {MIN_CYCLES} stable cycles diagnose needs ({describe_tests([test], t0)}; "
-        f"the others flown: {describe_tests(others, t0)}; times from the log start), so no second test is left to "
-        f"compare it with (fly the lost test again){why}")
+        f"{flight.path}: only one test has the {MIN_CYCLES} stable cycles diagnose needs and can measure "
+        f"({describe_tests([test], t0)}; times from the log start), {tail}"
+        + ("" if refusal is None else f"; analyze refuses this log: {_reason(flight, refusal)}"))
 
 
 def _reason(flight: FlightLog, refusal: MrftError) -> str:
@@ -202,7 +201,9 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
     if len(tests) == 1 and _comparable(flown):  # tests to compare were flown, one is left: nothing to compare
-        raise _one_test_left(flight, refused_by_linear, tests[0], flown, t0_log)
+        by_analyze = [] if analysis is None else [f"test {t.index + 1} (beta {t.beta:.2f}) left out by analyze: "
+                                                  f"{analysis.rejection_reasons.get(t.index, '')}" for t in analysis.rejected]
+        raise _one_test_left(flight, refused_by_linear, tests[0], flown, t0_log, by_analyze + warnings)
     lost = lost_height_pair(flown, {t.index for t in tests})
     warnings += [lost] if lost is not None else []
     if not tests:

@@ -114,7 +114,7 @@ def _one_test_left(flight: FlightLog, refusal: MrftError | None, kept: Diagnosed
     from ..analyze.screen import describe_tests, span
 
     test = next(t for t in flown if t.index == kept.index)
-    tail = f"so no second test is left to compare it with ({'; '.join(why)}; fly the lost test again)"
+    tail = f"so no second test is left to compare it with ({'; '.join([*why, 'fly the lost test again'])})"
     if isinstance(refusal, InsufficientDataError):
         return InsufficientDataError(f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable "
                                      f"cycles it can measure, {tail}", partial=refusal.partial)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
@@ -10,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..diagnose.physics import BY_NAME, unit_in_loop
-from ..report.wording import gain_unit
+from ..report.wording import gain_unit, sig
 from .model_options import (parse_windows, relay_options, soiptd_or_process, structure_options, window_option)
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option, log_layout_options,
                       min_cycles_option, quiet_option, read_progress, text_table, tp_option, tqdm_progress)
@@ -25,10 +24,6 @@ if TYPE_CHECKING:
     from ..mrft.model import LoopModel
 
 
-def _g(x: float | None, fmt: str = ".4g") -> str:
-    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
-
-
 def _shown(unit: str | None) -> str:
     """A unit as the tables print it: "-" for a ratio (no unit, "" or "1")."""
     return "-" if unit in (None, "", "1", "-") else str(unit)
@@ -41,7 +36,7 @@ def _unit(name: str, loop: str) -> str:
 
 def _plant(est: ModelEstimate, k_unit: str) -> str:
     """An estimate's Td [s], tau [ms] and K with its unit, for the terminal."""
-    return f"Td {_g(est.Td)} s  tau {_g(None if est.tau is None else 1e3 * est.tau)} ms  K {_g(est.K)} {k_unit}"
+    return f"Td {sig(est.Td)} s  tau {sig(None if est.tau is None else 1e3 * est.tau)} ms  K {sig(est.K)} {k_unit}"
 
 
 def _model_lines(result: DiagnosisResult) -> list[str]:
@@ -84,7 +79,7 @@ def _effect_lines(result: DiagnosisResult) -> list[str]:
                      + ("  <- the estimate to use" if chosen == f"with_{model}" else ""))
         wf = ident.waveform.get(e.name)
         if wf is not None:
-            lines.append(f"  refit to the recorded waveform: {cand.parameter} = {_g(wf.value)} {_unit(e.name, result.loop)}  "
+            lines.append(f"  refit to the recorded waveform: {cand.parameter} = {sig(wf.value)} {_unit(e.name, result.loop)}  "
                          f"{_plant(wf, k_unit)}"
                          + ("  <- the estimate to use (every sample, as analyze's refinement; the cycle refit is what "
                             "the selection compared)" if chosen == f"waveform_with_{e.name}" else ""))
@@ -285,8 +280,8 @@ def _candidate_lines(result: DiagnosisResult) -> list[str]:
             skipped.setdefault(f"{why}{' beside ' + c.with_ if c.with_ else ''}", []).append(c.name)
             continue
         b, a = c.held_out_errors
-        rows.append((label, f"{c.parameter} = {_g(c.value)} {_shown(c.unit)}", _g(c.delta_bic, ".1f"),
-                     f"{_g(b, '.3f')} -> {_g(a, '.3f')}",
+        rows.append((label, f"{c.parameter} = {sig(c.value)} {_shown(c.unit)}", sig(c.delta_bic, ".1f"),
+                     f"{sig(b, '.3f')} -> {sig(a, '.3f')}",
                      ("" if result.soiptd else "+".join(c.views)) + ("  <- found" if result.named(c) else "")))
     head = ("effect", "parameter [unit]", "delta BIC", "held-out error", "" if result.soiptd else "views")
     lines = [_FOUND_RULE[result.soiptd], *text_table([head, *rows], align="<>>><", indent="  ")]
@@ -296,7 +291,7 @@ def _candidate_lines(result: DiagnosisResult) -> list[str]:
             ident = result.analysis.identification if result.analysis is not None else None
             unit = {est.name: est.unit for est in ident.estimates} if ident is not None else {}
             lines.append(f"refit with {e.name}{' and ' + e.with_ if e.with_ else ''} (all tests): " + "  ".join(
-                f"{k} {_g(v)} {unit.get(k, '')}".rstrip() for k, v in e.refit.items()))
+                f"{k} {sig(v)} {unit.get(k, '')}".rstrip() for k, v in e.refit.items()))
     return lines
 
 
@@ -314,9 +309,9 @@ def format_process(result: DiagnosisResult) -> str:
     for c in result.checks:
         bands = {b.band: f"{b.ratio:.1f}" for b in c.all_bands}
         rows.append((str(c.index + 1), f"{c.t_start - t0:.2f}-{c.t_end - t0:.2f}",
-                     f"{c.frequency_hz:.4g} ± {c.frequency_se_hz:.2g}", _g(c.held_out_frequency_hz),
+                     f"{c.frequency_hz:.4g} ± {c.frequency_se_hz:.2g}", sig(c.held_out_frequency_hz),
                      _pct_z(c.frequency_error, c.frequency_z), f"{c.amplitude:.3g} ± {c.amplitude_se:.2g}",
-                     _g(c.held_out_amplitude, ".3g"), _pct_z(c.amplitude_error, c.amplitude_z),
+                     sig(c.held_out_amplitude, ".3g"), _pct_z(c.amplitude_error, c.amplitude_z),
                      bands.get("fundamental", "-"), bands.get("2-3", "-"), bands.get("higher", "-")))
     lines += text_table(rows, align=">" * len(head))
     lines.append("(amplitudes in output units; held out: the model of the other tests; z = difference / its sd "

@@ -299,12 +299,13 @@ def _write_outputs(res: TuneResult, src: _TuneSource, rate: float, loop: str, de
                 data["export"]["px4"] = {"refused": str(err)}
     else:
         try:
-            evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes), tuple(_in_set(src)))
+            evidence = ExportEvidence(tuple(src.heights), tuple(src.amplitudes), tuple(res.notes), tuple(_in_set(src)),
+                                      ex.hover_source)
             with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
                 progress(0, 1, f"the {ex.stack} export")
                 stack_export = export_design(ex.stack, c, res.loop_model, loop, f"{name} {kind}", clamp=ex.clamp,
                                              hover_thrust=ex.hover_thrust, version=ex.stack_version, evidence=evidence,
-                                             xy_integral=ex.xy_integral, hover_source=ex.hover_source)
+                                             xy_integral=ex.xy_integral)
             data["export"]["stack"] = stack_export.to_json()
         except InputError as err:
             refused = err

@@ -469,26 +469,29 @@ class ExportEvidence:
     posterior_models : tuple of LoopModel
         The posterior's 95 % set, which the range-constrained designs and ArduPilot's altitude cascade are
         held on.
+    hover_source : str
+        Where the hover thrust came from when it was read from the log, not given
+        (:meth:`mrftcli.io.hover.LoggedHoverThrust.statement`): the export's first assumption where its loop
+        needs the hover thrust (:data:`HOVER_LOOPS`); empty when given.
     """
 
     heights: tuple[float, ...] = ()
     amplitudes: tuple[float, ...] = ()
     notes: tuple[str, ...] = ()
     posterior_models: tuple[LoopModel, ...] = ()
+    hover_source: str = ""
 
 
 def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design: str, *, clamp: bool = False,
                   hover_thrust: float | None = None, version: str | None = None,
-                  evidence: ExportEvidence = ExportEvidence(), xy_integral: float | None = None,
-                  hover_source: str = "") -> StackExport:
+                  evidence: ExportEvidence = ExportEvidence(), xy_integral: float | None = None) -> StackExport:
     """``c`` (designed with the stack's rate and filter, :func:`stack_setting`) as ``stack`` loads it.
 
     ``version``: ArduPilot's (``--stack-version``; default the current stable release, named in the file);
-    ``evidence``: the relay heights and amplitudes flown, the analysis's notes and the posterior's 95 % set
-    (:class:`ExportEvidence`); ``xy_integral``: PX4 x/y's ``MPC_XY_VEL_I_ACC`` [(m/s^2)/m] (None: 0, a PD, whose
-    steady wind offset is stated), designed with and written; ``hover_source``: where ``hover_thrust`` came from
-    when not given (:meth:`mrftcli.io.hover.LoggedHoverThrust.statement`), the export's first assumption where its
-    loop needs the hover thrust (:data:`HOVER_LOOPS`).
+    ``evidence``: the relay heights and amplitudes flown, the analysis's notes, the posterior's 95 % set and where
+    ``hover_thrust`` came from when not given, said first (:class:`ExportEvidence`); ``xy_integral``: PX4 x/y's
+    ``MPC_XY_VEL_I_ACC`` [(m/s^2)/m] (None: 0, a PD, whose steady wind offset is stated), designed with and
+    written.
 
     Raises
     ------
@@ -498,8 +501,8 @@ def export_design(stack: str, c: Controller, model: LoopModel, loop: str, design
         would give), or a value written fails one of the stack's pre-arm rules (never written).
     """
     e = _export(stack, c, model, loop, design, clamp, hover_thrust, version, evidence, xy_integral)
-    if hover_source and loop in HOVER_LOOPS.get(stack, ()):  # the value read from the log, said first
-        e = replace(e, assumptions=(hover_source, *e.assumptions))
+    if evidence.hover_source and loop in HOVER_LOOPS.get(stack, ()):  # the value read from the log, said first
+        e = replace(e, assumptions=(evidence.hover_source, *e.assumptions))
     return e
 
 

@@ -83,13 +83,14 @@ class TuneOptions:
     stack: StackOptions | None = None
 
 
-def _evidence(result: AnalysisResult, notes: Sequence[str]) -> ExportEvidence:
-    """The relay heights and amplitudes flown, the analysis's notes and its posterior's 95 % set, for an export's
-    checks and range-constrained designs: what ``tune LOG --export`` gives them, so both write the same values."""
+def _evidence(result: AnalysisResult, notes: Sequence[str], hover_source: str = "") -> ExportEvidence:
+    """The relay heights and amplitudes flown, the analysis's notes, its posterior's 95 % set and where the hover
+    thrust came from, for an export's checks, range-constrained designs and first assumption: what
+    ``tune LOG --export`` gives them, so both write the same values."""
     post = posterior_from_analysis(result)
     tests: Sequence[MrftTest] = result.tests
     return ExportEvidence(tuple(float(t.h) for t in tests), tuple(float(t.amplitude_mean) for t in tests), tuple(notes),
-                          tuple(post.in_set_models()))
+                          tuple(post.in_set_models()), hover_source)
 
 
 def _setting(result: AnalysisResult, options: TuneOptions) -> tuple[StackSetting | None, str | None]:
@@ -141,7 +142,7 @@ def tune_loop(result: AnalysisResult, options: TuneOptions) -> LoopGains:
     try:
         export = export_design(st.stack, gains.controller, res.loop_model, result.loop, f"{design} {options.kind}",
                                clamp=st.clamp, hover_thrust=st.hover_thrust,
-                               evidence=_evidence(result, res.notes), hover_source=st.hover_source)
+                               evidence=_evidence(result, res.notes, st.hover_source))
     except InputError as err:
         return LoopGains(design, options.kind, res, export_refused=str(err))
     return LoopGains(design, options.kind, res, export=export)

@@ -39,6 +39,7 @@ def test_batch_fopdt_rows_hold_the_parameters_with_units(tmp_path):
     res = run_batch([logs], tmp_path / "out", options=options, explicit=_READ)
     df = res.summary
     assert list(df["status"]) == ["ok", "ok"] and list(df["model"]) == ["fopdt", "fopdt"]
+    assert list(df["loop"]) == ["process", "process"]  # a process plant's loop (was the vehicle default altitude)
     for _, row in df.iterrows():
         truth = _TRUTH[os.path.basename(str(row["path"]))]
         for name, value in truth.items():

@@ -72,3 +72,19 @@ def test_two_families_are_not_compared(analyses):
     assert not result.changes
     (gap,) = result.missing
     assert gap.side == "both" and "different models (fopdt, sopdt)" in gap.reason
+
+
+def test_a_process_plants_loop_is_the_one_named_or_process(analyses, tmp_path):
+    """A process plant's analysis said loop 'altitude' (the vehicle default of --loop), so compare printed KSTAR's
+    rows as altitude: without --loop its record says 'process', with --loop the loop named; eq. (2) keeps altitude."""
+    csv = analyses["before"].replace(".json", ".csv")
+    topics = ("--model", "fopdt", "--command-topic", "u_relay", "--output-topic", "y_output")
+    loops = {}
+    for extra in ((), ("--loop", "roll")):
+        out = tmp_path / f"r{len(extra)}.json"
+        done = run_main("analyze", csv, *topics, *extra, "--json", str(out))
+        assert done.returncode == 0, done.stderr
+        loops[extra] = json.loads(out.read_text())["loop"]
+    assert loops == {(): "process", ("--loop", "roll"): "roll"}
+    rows = run_main("compare", str(tmp_path / "r0.json"), str(tmp_path / "r0.json")).stdout.splitlines()
+    assert any(r.split()[:2] == ["process", "K"] for r in rows) and not any("altitude" in r for r in rows)

@@ -55,7 +55,7 @@ from .summary import (
     summary_rows,
 )
 from ..errors import InputError, InsufficientDataError, MrftError, TpRejectedError
-from ..io.logtypes import LOOPS
+from ..io.logtypes import LOOPS, PROCESS_LOOP
 from ..jsonable import load_json_text, to_jsonable
 from ..progress import Progress
 from ..progress import report as report_progress
@@ -150,7 +150,10 @@ def failed_entry(loop: str, err: BaseException) -> dict[str, Any]:
 
 def _auto_loops(task: LogTask) -> tuple[str, ...]:
     """``--loop auto``: the loops the log records; altitude (the old default) when it cannot be opened,
-    so that the analysis reports why."""
+    so that the analysis reports why; a process plant's (``--model``) one loop, ``process`` (as analyze
+    records it without ``--loop``)."""
+    if task.model is not None:
+        return (PROCESS_LOOP,)
     try:
         return loops_in_log(task.path, task.settings.layout) or ("altitude",)
     except Exception:  # noqa: BLE001 - the analysis says why the log cannot be read

@@ -385,11 +385,31 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
     def decorate(func):
         if format_flag != "--format" and not config_defaults:
             func = _log_errors_naming(format_flag, func)
+        if not config_defaults and (only is None or "loop" in only):
+            func = _process_loop(func)
         for option in reversed(chosen):
             func = option(func)
         return func
 
     return decorate
+
+
+def _process_loop(func):
+    """``func`` that reads a process plant's log (``--model NAME`` or ``--model-file``) as the loop ``process``
+    when ``--loop`` is not given (:data:`~mrftcli.io.logtypes.PROCESS_LOOP`): its records say the loop the user
+    named, or ``process``, never the vehicle default ``altitude`` (compare printed KSTAR's rows as altitude)."""
+    import functools
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        from ..io.logtypes import PROCESS_LOOP
+
+        ctx = click.get_current_context()
+        if (kwargs.get("model_name", "soiptd") != "soiptd" and kwargs.get("loop") == "altitude"
+                and ctx.get_parameter_source("loop") is click.core.ParameterSource.DEFAULT):
+            kwargs["loop"] = PROCESS_LOOP
+        return func(*args, **kwargs)
+    return wrapper
 
 
 def _log_errors_naming(format_flag: str, func):

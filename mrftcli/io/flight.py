@@ -24,11 +24,12 @@ from ..validate import check_positive
 from .attitude import roll_pitch
 from .clock import check_rate, check_time_unit
 from .layouts import LAYOUTS, Layout, LayoutMatch, LoopTopics, detect_layout, get_layout
-from .logtypes import LOOPS, FlightLog, Signal
+from .logtypes import LOOPS, PROCESS_LOOP, FlightLog, Signal
 from .source import LogSource, TopicSpec, parse_spec
 from .timing import Timing, logged_tick_s, median_rate_hz, receive_jitter_s
 
-__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "ABSURD_MAGNITUDE", "read_loop", "log_layout", "role_specs"]
+__all__ = ["ReadOptions", "RoleSpecs", "DEFAULT_TOPICS", "ABSURD_MAGNITUDE", "read_loop", "log_layout", "role_specs",
+           "layout_loop"]
 
 #: the reference layout (ROS 2 names, :data:`LAYOUTS` ``["reference"]``) by role, see docs/log-layout.md
 DEFAULT_TOPICS = {
@@ -54,7 +55,8 @@ class ReadOptions:
     Attributes
     ----------
     loop : str
-        One of :data:`~mrftcli.io.logtypes.LOOPS`.
+        One of :data:`~mrftcli.io.logtypes.LOOPS`, or a process plant's
+        :data:`~mrftcli.io.logtypes.PROCESS_LOOP` (read as the layouts' altitude loop: :func:`layout_loop`).
     command_topic, output_topic, beta_topic, setpoint_topic, battery_topic : str or None
         ``TOPIC[:FIELD]`` overriding the layout.
     output_scale, command_scale : float or None
@@ -106,7 +108,7 @@ class ReadOptions:
     any_time_scale: bool = False
 
     def __post_init__(self) -> None:
-        if self.loop not in LOOPS:
+        if self.loop not in LOOPS and self.loop != PROCESS_LOOP:
             raise InputError(f"unknown loop {self.loop!r}; choose one of {', '.join(LOOPS)}")
         if self.controller_rate_hz is not None:
             object.__setattr__(self, "controller_rate_hz",
@@ -164,6 +166,12 @@ def log_layout(log: LogSource, layout: str | None = None) -> LayoutMatch:
     return LayoutMatch(LAYOUTS["reference"], False, "default: no known layout's topics in the log")
 
 
+def layout_loop(loop: str) -> str:
+    """The layouts' loop a loop is read as: a process plant's (:data:`~mrftcli.io.logtypes.PROCESS_LOOP`) as
+    altitude (the reference layout's one output when its topics are not named), a vehicle's as itself."""
+    return "altitude" if loop == PROCESS_LOOP else loop
+
+
 def role_specs(lay: Layout, opts: ReadOptions) -> RoleSpecs:
     """The specs and factors of each role: the options where given, else the layout's.
 
@@ -172,7 +180,7 @@ def role_specs(lay: Layout, opts: ReadOptions) -> RoleSpecs:
     InputError
         The layout has no such loop and the options do not name both the command and the output.
     """
-    lt: LoopTopics | None = lay.loops.get(opts.loop)
+    lt: LoopTopics | None = lay.loops.get(layout_loop(opts.loop))
     command, output = opts.command_topic, opts.output_topic
     if lt is None:
         if command is None or output is None:
@@ -206,6 +214,8 @@ def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> 
     ``FlightLog.path`` is ``log.path``. ``loop_hint``: the layout's output missing (no ``--output-topic``)
     says to give ``--loop`` or ``--output-topic`` (a one-loop command; ``vehicle`` reads every loop).
     """
+    label = opts.loop  # the record's loop; a process plant's is read as the layouts' altitude loop
+    opts = dataclasses.replace(opts, loop=layout_loop(opts.loop))
     match = log_layout(log, opts.layout)
     _check_logged_loop(log, match.layout, opts)
     roles, decision = _decision_command(log, match.layout, opts, role_specs(match.layout, opts))
@@ -246,7 +256,7 @@ def read_loop(log: LogSource, opts: ReadOptions, *, loop_hint: bool = False) -> 
     output = _fresh(log, output, source["output"])
     if match.layout.name != "reference" and not opts.any_time_scale:
         _warn_low_rate(log, command, match.layout)
-    return FlightLog(path=str(log.path), loop=opts.loop, command=command, output=output,
+    return FlightLog(path=str(log.path), loop=label, command=command, output=output,
                      beta=optional["beta"], setpoint=optional["setpoint"],
                      battery_voltage=optional["battery_voltage"], source=source,
                      warnings=tuple(log.warnings), timing=timing)

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import InputError, LogReadError
 from . import cdr
-from .flight import DEFAULT_TOPICS, ReadOptions, read_loop, role_specs
+from .flight import DEFAULT_TOPICS, ReadOptions, layout_loop, read_loop, role_specs
 from .format_mcap import (MCAP_MAGIC, McapChannel, McapRecords, channel_leaves, channel_typestore, channel_values,
                           json_leaves)
 from .layouts import get_layout
@@ -361,7 +361,7 @@ class _RereadLog:
         # the reference layout's topics in place of those not named (not the layout's detection); a
         # log whose command and output are named (a process recording: time, u_relay, y_output) is not
         # in the reference layout, so its optional beta and setpoint are not looked for there either
-        loop = opts.loop
+        loop = layout_loop(opts.loop)
         named = opts.command_topic is not None and opts.output_topic is not None
         self.opts = replace(
             opts, command_topic=opts.command_topic or DEFAULT_TOPICS["command"],

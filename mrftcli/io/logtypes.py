@@ -14,10 +14,13 @@ import numpy as np
 from ..errors import InputError
 from .timing import Timing
 
-__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS", "output_unit", "gain_unit", "sig"]
+__all__ = ["Signal", "TopicData", "TopicInfo", "FlightLog", "LOOPS", "PROCESS_LOOP", "output_unit", "gain_unit", "sig"]
 
 #: The loops mrft-ident identifies.
 LOOPS = ("altitude", "roll", "pitch", "x", "y")
+#: The loop of a process plant's recording when the user names none (``--model``/``--model-file`` without
+#: ``--loop``): not a vehicle's, so its records do not say ``altitude``. Read as the layouts' altitude loop.
+PROCESS_LOOP = "process"
 
 
 @dataclass(frozen=True)

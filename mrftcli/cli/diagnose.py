@@ -167,8 +167,8 @@ def diagnose(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_
     other tests. The first line is the verdict (docs/process-plants.md).
 
     Exit codes: 0 ok (with or without a finding), 2 bad option, 3 unreadable log, 4 no relay test,
-    6 only one beta tested (as analyze), or a single test left with the cycles to diagnose of tests flown
-    at two betas or relay heights, 7 the diagnosis could not be carried out.
+    6 only one beta tested (as analyze; with the other beta or height flown, when a single test has the
+    cycles to diagnose), 7 the diagnosis could not be carried out.
 
     Example: mrft-ident diagnose flight.mcap --tp 0.0422 --json - --report out/
     """

@@ -102,26 +102,25 @@ def _goes_on(refusal: MrftError, flight: FlightLog) -> bool:
     return isinstance(refusal, InsufficientDataError) and _comparable(segments_of(flight, None))
 
 
-def _one_test_left(flight: FlightLog, refusal: MrftError | None, kept: DiagnosedTest, flown: list[MrftTest],
-                   t0: float, why: list[str]) -> InsufficientDataError:
-    """The command's refusal (exit 6, as analyze's of one beta) when a single test of a flight that flew tests
-    to compare has the cycles to diagnose, whatever analyze made of the log: the other beta or relay height was
-    flown but lost (a relay that locked up, too few stable cycles, cycles too sparsely logged to measure; ``why``
-    says which, per test left out), so nothing is left to compare the test with, and the effects named from
-    one test's waveform and trends were wrong on every such benchmark flight (issue 39: 0 of 4 on RotorPy and
-    JSBSim dev flights). The test is named by its flown span, as analyze names it; analyze's own one-beta
-    message comes first when analyze refused the log so."""
+def _one_test_left(flight: FlightLog, refusal: InsufficientDataError | None, kept: DiagnosedTest,
+                   flown: list[MrftTest], t0: float, why: list[str]) -> str:
+    """What is said when a single test of a flight that flew tests to compare has the cycles to diagnose: the
+    other beta or relay height was flown but lost (a relay that locked up, too few stable cycles, cycles too
+    sparsely logged to measure; ``why`` says which, per test left out). The test is named by its flown span,
+    as analyze names it. When analyze refused the log (one beta), this is the command's refusal (exit 6,
+    analyze's message first): the effects named from one test's waveform and trends there were wrong on every
+    such benchmark flight (issue 39: 0 of 4 on RotorPy and JSBSim dev flights). When analyze identified the
+    log, the diagnosis goes on from the one test with this as its warning, and names the explanations that
+    test cannot tell apart (``test_models_the_tests_cannot_rank_are_named``)."""
     from ..analyze.screen import describe_tests, span
 
     test = next(t for t in flown if t.index == kept.index)
     tail = f"so no second test is left to compare it with ({'; '.join([*why, 'fly the lost test again'])})"
-    if isinstance(refusal, InsufficientDataError):
-        return InsufficientDataError(f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable "
-                                     f"cycles it can measure, {tail}", partial=refusal.partial)
-    return InsufficientDataError(
-        f"{flight.path}: only one test has the {MIN_CYCLES} stable cycles diagnose needs and can measure "
-        f"({describe_tests([test], t0)}; times from the log start), {tail}"
-        + ("" if refusal is None else f"; analyze refuses this log: {_reason(flight, refusal)}"))
+    if refusal is not None:
+        return f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable cycles it can measure, {tail}"
+    return (f"only one test has the {MIN_CYCLES} stable cycles diagnose needs and can measure "
+            f"({describe_tests([test], t0)}; times from the log start), {tail}: the effects below are named from its "
+            "waveform alone")
 
 
 def _reason(flight: FlightLog, refusal: MrftError) -> str:
@@ -203,7 +202,11 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     if len(tests) == 1 and _comparable(flown):  # tests to compare were flown, one is left: nothing to compare
         by_analyze = [] if analysis is None else [f"test {t.index + 1} (beta {t.beta:.2f}) left out by analyze: "
                                                   f"{analysis.rejection_reasons.get(t.index, '')}" for t in analysis.rejected]
-        raise _one_test_left(flight, refused_by_linear, tests[0], flown, t0_log, by_analyze + warnings)
+        one_beta = refused_by_linear if isinstance(refused_by_linear, InsufficientDataError) else None
+        said = _one_test_left(flight, one_beta, tests[0], flown, t0_log, by_analyze + warnings)
+        if one_beta is not None:
+            raise InsufficientDataError(said, partial=one_beta.partial)
+        warnings.append(said)
     lost = lost_height_pair(flown, {t.index for t in tests})
     warnings += [lost] if lost is not None else []
     if not tests:

@@ -117,6 +117,8 @@ def test_a_declared_range_from_zero_identifies(a):
     for name, value in {"K": 2.0, "T": 0.5, "tau": 0.1}.items():
         assert fit.estimate(name).value == pytest.approx(value, rel=1e-3)
     assert fit.estimate("a").value == pytest.approx(a, abs=1e-4)
+    if a == 0.0:  # open below down to the declared 0, not to the solver's floor on the log scale
+        assert fit.estimate("a").one_sided == "low" and fit.estimate("a").ci95_low == 0.0
 
 
 def test_cli_analyze_model_file_on_a_simulated_double_lag(tmp_path, capsys):

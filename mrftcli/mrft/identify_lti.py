@@ -691,6 +691,9 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         s = max(s, _PARAM_FLOOR / w_ref if name == "tau" else (_PARAM_FLOOR if name in problem.log_scaled else 0.0))
         est = fitted_estimate(name, p.value, float(z[i]), s, (float(lo[i]), float(hi[i])), p.unit,
                               name in problem.log_scaled, w_ref, _METHOD, profiled.get(i) if profiled else None)
+        if est.one_sided == "low" and name in problem.log_scaled and name != "K" and p.bounds[0] <= 0:
+            # cut at the solver's floor (1e-6 / omega on the log scale), which stands for the declared range's 0
+            est = dataclasses.replace(est, ci95_low=p.bounds[0])
         if flat and name in flat:  # no interval along a flat direction: the data say nothing there
             est = dataclasses.replace(est, ci95_low=p.bounds[0], ci95_high=p.bounds[1], determined=False,
                                       one_sided="low" if p.bounds[0] > -math.inf else "")

@@ -139,7 +139,8 @@ class PX4VelocityPath(RateFilter):
     def active(self, rate_hz: float) -> bool:
         return True
 
-    def _alpha(self, rate_hz: float) -> float:
+    def alpha(self, rate_hz: float) -> float:
+        """The filter's coefficient at ``rate_hz`` [Hz], as PX4's AlphaFilter sets it (1: no cutoff)."""
         if self.cutoff_hz == 0.0:
             return 1.0
         if self.cutoff_hz >= 0.5 * rate_hz:  # AlphaFilter::setCutoffFreq refuses it: PX4 keeps the old alpha
@@ -151,7 +152,7 @@ class PX4VelocityPath(RateFilter):
 
     def coefficients(self, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
         """(b, a) of B(z) in powers of z^-1 (b2 = a2 = 0: the biquad form of :class:`RateFilter`)."""
-        al, g = self._alpha(rate_hz), self.accel_s * rate_hz
+        al, g = self.alpha(rate_hz), self.accel_s * rate_hz
         return np.array([1.0 + g * al, -(1.0 - al) - g * al, 0.0]), np.array([1.0, -(1.0 - al), 0.0])
 
     def response(self, z: np.ndarray, rate_hz: float) -> np.ndarray:

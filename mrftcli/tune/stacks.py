@@ -583,7 +583,7 @@ def _px4_xy_ticks(params: dict[str, float], model: LoopModel, rate_hz: float, ho
 
     Phi, G, C, d = discrete_plants([model], rate_hz)[0]
     n, T = int(round(seconds * rate_hz)) + 1, 1.0 / rate_hz
-    alpha = PX4VelocityPath(params["MPC_VELD_LP"], "MPC_VELD_LP")._alpha(rate_hz)
+    alpha = PX4VelocityPath(params["MPC_VELD_LP"], "MPC_VELD_LP").alpha(rate_hz)
     pz, pv, iv, dv = (params[k] for k in ("MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC"))
     r, load = np.array([1.0, 0.0]), np.array([0.0, 1.0 / model.K])
     u = np.zeros((n + d + 1, 2))  # u[j + d + 1]: the command of tick j (0 before the first)

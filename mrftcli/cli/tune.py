@@ -371,6 +371,7 @@ def _parse_cutoff(value: str | None) -> tuple[bool, float | None]:
 def stack_summary(e: Any, console: bool = True) -> list[str]:
     """The lines that say what was exported: values with their ranges, the margins with the stack's filter,
     the notes, and PX4's ``param set`` lines."""
+    from ..tune.ardupilot_z import margins_qualifier
     from ..tune.stack_params import STACK_PARAMS
 
     rows = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
@@ -381,8 +382,7 @@ def stack_summary(e: Any, console: bool = True) -> list[str]:
         rng = f"  [{p.minimum:g} .. {p.maximum:g} {p.unit}]" if p else ""
         out.append(f"  {n} = {v:.6g}{rng}")
     m = e.margins
-    worst = " (the worst over the splits of tau)" if (e.stack, e.loop) == ("ardupilot", "altitude") else ""  # ardupilot_z's
-    out.append(f"margins with the stack's filter and rate{worst}: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
+    out.append(f"margins with the stack's filter and rate{margins_qualifier(e.stack, e.loop)}: GM {m.gain_margin:.3g}  PM {m.phase_margin_deg:.1f} deg  "
                f"delay margin {m.delay_margin_s * 1e3:.1f} ms  Ms {m.Ms:.3g}")
     out += [f"pre-arm: {r['rule']} with {r['value']:.6g}: {'pass' if r['passed'] else 'FAIL'} ({r['source']})"
             for r in e.prearm]

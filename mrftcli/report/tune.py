@@ -139,15 +139,14 @@ def _recommended_section(result: TuneResult, name: str, kind: str) -> str:
 def export_section(e: "StackExport") -> str:
     """The stack export as written (``tune --export``): its assumptions first, each value with its documented
     range, the margins of the loop the values give with the stack's filter, the notes and the file."""
+    from ..tune.ardupilot_z import margins_qualifier
     from ..tune.stack_params import STACK_PARAMS
 
     ranges = {p.name: p for p in STACK_PARAMS if p.stack == e.stack}
     rows = [[n, f"{v:.6g}", (f"{ranges[n].minimum:g} .. {ranges[n].maximum:g}" if n in ranges else "-"),
              ranges[n].unit if n in ranges else "-"] for n, v in e.params.items()]
     m = e.margins
-    # only ArduPilot's altitude export holds its margins over the splits of tau (tune.ardupilot_z); other
-    # assumptions (a hover thrust read from the log, HEAR's command scale) are not splits
-    worst = " (the worst over the splits of tau)" if (e.stack, e.loop) == ("ardupilot", "altitude") else ""
+    worst = margins_qualifier(e.stack, e.loop)
     parts = [f"<h2>Export: {esc(e.stack)} ({esc(e.design)}, {esc(e.loop)})</h2>"]
     parts += [f"<p><b>Assumption:</b> {esc(a)}</p>" for a in e.assumptions]
     parts.append(html_table(["parameter", "value", "documented range", "unit"], rows))

@@ -63,7 +63,7 @@ from .ardupilot_versions import z_bounds
 
 __all__ = ["DelaySplit", "ZCascadeGains", "ZCascadeFigures", "ZCascadeDesign", "split_grid", "cascade_loop",
            "cascade_figures", "design_z_cascade", "split_assumption", "THROTTLE_CUTOFF_HZ", "ACCZ_P_CANDIDATES",
-           "ACCZ_I_RATIOS", "robust_models"]
+           "ACCZ_I_RATIOS", "robust_models", "margins_qualifier"]
 
 #: ``POSCONTROL_THROTTLE_CUTOFF_FREQ_HZ`` [Hz] (AC_PosControl.h): the motors' first-order throttle filter in the z loop.
 THROTTLE_CUTOFF_HZ = 2.0
@@ -518,3 +518,10 @@ def _closest(pz: float, model: LoopModel, kd: float, rate: float, clamp: bool,
                          f"{v:g}, has Ms {w.Ms:.3g}, GM {w.gain_margin:.3g}, PM {w.phase_margin_deg:.1f} deg on its "
                          "worst split (--clamp to export that)")
     return pa, ai, v_designed, v
+
+
+def margins_qualifier(stack: str, loop: str) -> str:
+    """What an export's stated margins are, after "margins with the stack's filter and rate": only ArduPilot's
+    altitude export holds them over the splits of tau (:func:`design_z_cascade`); another export's assumptions (a
+    hover thrust read from the log, HEAR's command scale) are no splits."""
+    return " (the worst over the splits of tau)" if (stack, loop) == ("ardupilot", "altitude") else ""

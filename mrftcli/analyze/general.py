@@ -116,7 +116,7 @@ def chattering_cycles(test: MrftTest, min_stable_cycles: int) -> MrftTest | None
     if test.n_stable >= min_stable_cycles or not any("glitch" in c.flags for c in test.cycles):
         return None
     regular = np.array([not ({"gap", "irregular"} & set(c.flags)) for c in test.cycles])
-    rate = test.controller_rate_hz or test.rate_hz
+    rate = test.decision_rate_hz
     stable, _, _ = stable_cycles(np.array([c.period for c in test.cycles]),
                                  np.array([c.amplitude for c in test.cycles]), regular, 1.0 / rate)
     if int(stable.sum()) < min_stable_cycles:
@@ -307,7 +307,7 @@ def measure_test(flight: FlightLog, test: MrftTest, relay: RelayOptions, min_sta
     level = switching_level(fits)
     summary = TestSummary(test.index, test.t_start, test.t_end, law, float(test.frequency_hz_mean),
                           float(test.amplitude_mean), test.n_stable, len(test.cycles),
-                          float(test.controller_rate_hz or test.rate_hz), float(test.beta_effective), notes,
+                          test.decision_rate_hz, float(test.beta_effective), notes,
                           switching=level, effective_relay=effective_relay(law, level, test))
     return MeasuredTest(summary, pts, test=test, fits=tuple(fits))
 

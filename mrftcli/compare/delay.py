@@ -252,20 +252,14 @@ def _frequency_se(test: MrftTest) -> float:
     """The test's mean frequency's standard error [Hz]: its cycles as an AR(1) sequence (:func:`mean_sem`), and
     at least the sampled relay's orbit quantisation.
 
-    A relay deciding at its controller's rate (:func:`_relay_rate`, not the logger's) switches on ticks, so its
+    A relay deciding at its controller's rate (:attr:`MrftTest.decision_rate_hz`, not the logger's) switches on ticks, so its
     half period is a whole number N = rate / (2 f) of them: a test that locks onto one of those orbits repeats its frequency cycle after cycle (a tiny
     scatter) while sitting anywhere within half a tick per half period of the continuous cycle, an offset
     its cycles cannot average away: uniform, relative std 1 / (N sqrt(12)), f^2 / (rate sqrt(3)) [Hz]. A
     test hopping among orbits shows that spread in its cycles instead.
     """
     f = test.frequency_hz_mean
-    return max(mean_sem(test.frequency_hz), f * f / (_relay_rate(test) * math.sqrt(3.0)))
-
-
-def _relay_rate(test: MrftTest) -> float:
-    """The rate the relay decides at [Hz]: the controller's when known (a command logged below it ticks at the
-    controller's rate, as analyze/general.py and segment/relay_type.py take it), else the logged rate."""
-    return float(test.controller_rate_hz or test.rate_hz)
+    return max(mean_sem(test.frequency_hz), f * f / (test.decision_rate_hz * math.sqrt(3.0)))
 
 
 @dataclass(frozen=True)
@@ -290,7 +284,7 @@ def _rows(before: Sequence[MrftTest], after: Sequence[MrftTest]) -> _Rows:
     return _Rows(np.array([0] * len(before) + [1] * len(after)),
                  np.array([beta_used(t, s) for t, s in zip(tests, ts_each)]), 0.5 * np.array(ts_each),
                  np.array([t.h for t in tests]),
-                 np.array([_relay_rate(t) for t in tests]), np.array([t.frequency_hz_mean for t in tests]),
+                 np.array([t.decision_rate_hz for t in tests]), np.array([t.frequency_hz_mean for t in tests]),
                  np.array([_frequency_se(t) for t in tests]), np.array([t.amplitude_mean for t in tests]))
 
 

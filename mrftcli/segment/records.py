@@ -185,6 +185,11 @@ class MrftTest:
     switch_timing: str | None = None
 
     @property
+    def decision_rate_hz(self) -> float:
+        """The rate the relay decides at [Hz]: ``controller_rate_hz`` when known, else the logged ``rate_hz``."""
+        return float(self.controller_rate_hz or self.rate_hz)
+
+    @property
     def samples_per_cycle(self) -> float:
         """Logged command samples per stable cycle: ``rate_hz`` / the limit cycle's frequency [-] (NaN
         without a stable cycle)."""

@@ -102,7 +102,7 @@ def sampling_level(test: MrftTest, amplitude: float) -> float:
     ``amplitude`` is the cycle's [output units]; the rate is the test's controller rate (else its
     logged rate) and the frequency its stable cycles' mean. 0 without stable cycles.
     """
-    rate = test.controller_rate_hz or test.rate_hz
+    rate = test.decision_rate_hz
     if not (rate and math.isfinite(amplitude) and test.n_stable):
         return 0.0
     omega = 2 * math.pi * test.frequency_hz_mean

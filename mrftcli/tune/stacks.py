@@ -64,7 +64,8 @@ from ..mrft.controller import PX4VelocityPath
 from .closed_loop import Controller, RateFilter
 from .export import unit_reasons
 from .margins import Margins, loop_margins
-from .stack_params import check_ranges, param
+from .px4_xy import px4_xy_controller, px4_xy_prediction, px4_xy_ticks, written_loop
+from .stack_params import STANDARD_GRAVITY, check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
@@ -73,8 +74,6 @@ __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting"
 
 #: ``tune --export`` choices.
 EXPORTS = ("generic", "px4", "ardupilot", "hear")
-#: g [m/s^2] of PX4's thrust = acceleration x hover thrust / g.
-STANDARD_GRAVITY = 9.80665
 #: K hover / g may differ from 1 by this factor before the command is refused as not the stack's thrust (throttle).
 UNIT_TOLERANCE = 2.0
 #: HEAR_FC's rate filter: 2nd-order Butterworth at 50 Hz, run at 200 Hz (tracker issue 25, InnerSysNodelet.cpp).
@@ -307,7 +306,7 @@ class StackExport:
         The stack's pre-arm rules on the values written (:func:`mrftcli.tune.ardupilot_versions.prearm_checks`):
         ``rule``, ``value``, ``passed``, ``source``.
     predicted : dict
-        PX4 x/y: the loop as written on the nominal model (:func:`px4_xy_prediction`): ``MPC_XY_VEL_I_ACC``, the unit
+        PX4 x/y: the loop as written on the nominal model (:func:`mrftcli.tune.px4_xy.px4_xy_prediction`): ``MPC_XY_VEL_I_ACC``, the unit
         position step's ``step_overshoot_pct``, ``step_rise_s``, ``step_settling_s`` and, per 1 m/s^2 of steady
         wind, ``wind_steady_offset_m``, ``wind_peak_offset_m``, ``wind_offset_5s_m``, ``wind_offset_20s_m``
         (empty for the other exports).
@@ -444,16 +443,6 @@ def _loop_controller(p: dict[str, float], c: Controller, loop: str, stack: str,
     return Controller(pr * pa + ir, ir * pa, pr, c.Tf, c.rate_hz, c.rate_filter)
 
 
-def px4_xy_controller(p: dict[str, float], rate_hz: float, hover_thrust: float) -> Controller:
-    """The controller from -x (or -y) to the normalised thrust that PX4's ``MPC_XY_*`` values ``p`` (and
-    ``MPC_VELD_LP``) give at ``rate_hz`` [Hz] and ``hover_thrust``: as altitude's (Kp = (h/g) P_v P_xy + the
-    integral's I_v, Ki = (h/g) I_v P_xy, Kd = (h/g) P_v) with :class:`PX4VelocityPath` on the rate."""
-    s = hover_thrust / STANDARD_GRAVITY
-    pz, pv, iv = p["MPC_XY_P"], p["MPC_XY_VEL_P_ACC"], p["MPC_XY_VEL_I_ACC"]
-    path = PX4VelocityPath(p["MPC_VELD_LP"], "MPC_XY_VEL_D_ACC, MPC_VELD_LP", accel_s=p["MPC_XY_VEL_D_ACC"] / pv)
-    return Controller(s * (pv * pz + iv), s * iv * pz, s * pv, 0.0, rate_hz, path)
-
-
 @dataclass(frozen=True)
 class ExportEvidence:
     """What the analysis a design came from says, for its export (in-process, not written as JSON).
@@ -541,7 +530,9 @@ def _export(stack: str, c: Controller, model: LoopModel, loop: str, design: str,
         c = _inside_ranges(c, model, stack, loop, hover_thrust, evidence.posterior_models, out_notes, iv)
     e = _cascade_export(stack, c, model, loop, design, clamp, hover_thrust, out_notes, iv)
     if stack == "px4" and loop in _PX4_XY:
-        e = _written_step(e, model, c.rate_hz, hover_thrust)
+        assert hover_thrust is not None  # check_exportable asked for it
+        said, predicted = written_loop(e.params, model, c.rate_hz, hover_thrust)
+        e = replace(e, notes=(*e.notes, *said), predicted=predicted)
     if stack == "ardupilot":
         e = replace(e, version=check_version(version))
         return _with_prearm(e)
@@ -563,100 +554,6 @@ def check_units(model: LoopModel, hover: float, stack: str, loop: str, hover_par
     raise InputError(f"cannot export the {loop} loop to {stack}: K {model.K:.4g} m/s^2 per command unit is not near "
                      f"g / {hover_param} = {expected:.4g} (--hover-thrust {hover:g}): the log's command is not "
                      f"{command} or its {output} not in metres")
-
-
-#: Horizon [s] of the x/y export's predicted step and wind (an integral's slow tail inside it).
-_XY_HORIZON_S = 40.0
-
-
-def _px4_xy_ticks(params: dict[str, float], model: LoopModel, rate_hz: float, hover: float,
-                  seconds: float) -> tuple[np.ndarray, np.ndarray]:
-    """PX4's x/y loop with the values ``params`` run tick by tick on the nominal ``model`` held as tune holds it
-    (:func:`mrftcli.tune.closed_loop.discrete_plants`): times [s] and the positions [m] (2, N) after a unit
-    position step and after a step of 1 m/s^2 of wind (a load of 1 / K at the plant's input).
-
-    ``PositionControl::_velocityControl`` integrates the velocity error P_xy e - v after the output, so its
-    integral carries no P_xy r kick: tune's :class:`Controller` (the integral on the error, :func:`px4_xy_controller`)
-    has the same loop from -y up to that one tick (its margins), but not PX4's setpoint step once
-    ``MPC_XY_VEL_I_ACC`` > 0; this runs PX4's law (linear: no tilt or velocity limit)."""
-    from .closed_loop import discrete_plants
-
-    Phi, G, C, d = discrete_plants([model], rate_hz)[0]
-    n, T = int(round(seconds * rate_hz)) + 1, 1.0 / rate_hz
-    alpha = PX4VelocityPath(params["MPC_VELD_LP"], "MPC_VELD_LP").alpha(rate_hz)
-    pz, pv, iv, dv = (params[k] for k in ("MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC"))
-    r, load = np.array([1.0, 0.0]), np.array([0.0, 1.0 / model.K])
-    u = np.zeros((n + d + 1, 2))  # u[j + d + 1]: the command of tick j (0 before the first)
-    x, y_prev, v_prev, acc_f, integral = np.zeros((2, 3)), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2)
-    y = np.empty((2, n))
-    for k in range(n):
-        y[:, k] = x @ C
-        v = (y[:, k] - y_prev) / T
-        acc_f += alpha * ((v - v_prev) / T - acc_f)  # MPC_VELD_LP's AlphaFilter on the velocity's difference
-        err = pz * (r - y[:, k]) - v
-        u[k + d + 1] = (pv * err + integral - dv * acc_f) * hover / STANDARD_GRAVITY
-        integral += iv * err * T  # after the output, as PX4
-        x = x @ Phi.T + np.outer(u[k], G[0]) + np.outer(u[k + 1], G[1]) + np.outer(load, G[0] + G[1])
-        y_prev, v_prev = y[:, k], v
-    return np.arange(n) * T, y
-
-
-def px4_xy_prediction(params: dict[str, float], model: LoopModel, rate_hz: float, hover: float) -> dict[str, float]:
-    """The loop PX4 runs with the x/y values ``params`` on the nominal ``model`` (:func:`_px4_xy_ticks`): its unit
-    position step, and a step of 1 m/s^2 of wind, its offset [m]. The steady offset in closed form: 0 with
-    ``MPC_XY_VEL_I_ACC`` > 0 (it integrates the velocity error P_xy e - v, so it holds until e = 0), g / (h P_v
-    P_xy K) without (the PD holds (h/g) P_v P_xy e = w / K). ``rate_hz`` [Hz], ``hover`` normalised 0-1.
-
-    Returns
-    -------
-    dict
-        The keys of :attr:`StackExport.predicted` (offsets in metres per 1 m/s^2 of wind, times in s).
-    """
-    from .closed_loop import step_metrics
-
-    t, y = _px4_xy_ticks(params, model, rate_hz, hover, _XY_HORIZON_S)
-    m, wind = step_metrics(t, y[0]), np.abs(y[1])
-    pd_gain = hover / STANDARD_GRAVITY * params["MPC_XY_VEL_P_ACC"] * params["MPC_XY_P"] * model.K
-    steady = 0.0 if params["MPC_XY_VEL_I_ACC"] > 0 else (1.0 / pd_gain if pd_gain > 0 else math.inf)
-    at = {s: float(wind[min(int(round(s * rate_hz)), t.size - 1)]) for s in (5.0, 20.0)}
-    return {"MPC_XY_VEL_I_ACC": params["MPC_XY_VEL_I_ACC"], "step_overshoot_pct": m.overshoot_pct,
-            "step_rise_s": m.rise_s, "step_settling_s": m.settling_s, "wind_steady_offset_m": steady,
-            "wind_peak_offset_m": float(np.max(wind)), "wind_offset_5s_m": at[5.0], "wind_offset_20s_m": at[20.0]}
-
-
-def _settling(s: float) -> str:
-    return f"{s:.3f} s" if math.isfinite(s) else f"not within {_XY_HORIZON_S:g} s"
-
-
-def _written_step(e: StackExport, model: LoopModel, rate_hz: float, hover: float | None) -> StackExport:
-    """The export with the loop PX4 runs with the values written (tune's sampled loop on the nominal model):
-    its unit step (what a flown step is compared with) and what a steady wind does, in notes and ``predicted``;
-    without integral, what PX4's default one would do instead (the user's choice, ``--xy-integral``)."""
-    assert hover is not None
-    p = px4_xy_prediction(e.params, model, rate_hz, hover)
-    iv = p["MPC_XY_VEL_I_ACC"]
-    step = (f"the loop as written (MPC_XY_VEL_D_ACC through MPC_VELD_LP{f', MPC_XY_VEL_I_ACC {iv:g}' if iv else ''} "
-            f"included), a 1 m step on the nominal model: overshoot {p['step_overshoot_pct']:.1f} %, rise "
-            f"(10-90 %) {p['step_rise_s']:.3f} s, 2 % settling {_settling(p['step_settling_s'])}")
-    if iv > 0:
-        pd = px4_xy_prediction({**e.params, "MPC_XY_VEL_I_ACC": 0.0}, model, rate_hz, hover)
-        wind = (f"MPC_XY_VEL_I_ACC {iv:g} (--xy-integral) corrects a steady force: a step of 1 m/s^2 of wind moves the "
-                f"vehicle at most {100 * p['wind_peak_offset_m']:.1f} cm, {100 * p['wind_offset_5s_m']:.1f} cm off after "
-                f"5 s, {100 * p['wind_offset_20s_m']:.1f} cm after 20 s, 0 in steady state (without it "
-                f"{100 * pd['wind_steady_offset_m']:.1f} cm for good); in the margins and the step above. It does not "
-                "correct a biased velocity estimate (PX4 integrates vel_sp - v)")
-        return replace(e, notes=(*e.notes, step, wind), predicted=p)
-    row = param("px4", "MPC_XY_VEL_I_ACC")
-    alt = {**e.params, "MPC_XY_VEL_I_ACC": row.default}
-    q = px4_xy_prediction(alt, model, rate_hz, hover)
-    ms = float(loop_margins(px4_xy_controller(alt, rate_hz, hover), [model]).Ms[0])
-    wind = (f"MPC_XY_VEL_I_ACC 0 (a PD): nothing corrects a steady force such as wind: each 1 m/s^2 of it holds the "
-            f"vehicle {100 * p['wind_steady_offset_m']:.1f} cm off for good (g / (h MPC_XY_VEL_P_ACC MPC_XY_P K)); to "
-            f"correct it give tune --xy-integral I_ACC (MPC_XY_VEL_I_ACC, {row.minimum:g}-{row.maximum:g} {row.unit}; "
-            f"designed with it, its margins stated): PX4's default {row.default:g} with the values above gives "
-            f"overshoot {q['step_overshoot_pct']:.1f} %, 2 % settling {_settling(q['step_settling_s'])}, "
-            f"{100 * q['wind_offset_20s_m']:.1f} cm off 20 s after a wind step, Ms {ms:.3g} (nominal)")
-    return replace(e, notes=(*e.notes, step, wind), predicted=p)
 
 
 def check_xy_integral(stack: str | None, loop: str, value: float | None) -> None:
@@ -725,7 +622,7 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
     def iae_at(r: float, v: float) -> float:
         if lacks and xy_integral > 0:  # PX4's integral has no P_xy r kick: its own law (the PID form is exact at 0)
             assert hover is not None
-            t, y = _px4_xy_ticks({**base, ratio_name: r, gain_name: v}, model, c.rate_hz, hover, 20.0)
+            t, y = px4_xy_ticks({**base, ratio_name: r, gain_name: v}, model, c.rate_hz, hover, 20.0)
             return float(criterion(t, y[:1])[0])
         return iae(loop_of(r, v))
 

@@ -37,3 +37,32 @@ def test_xy_export_runs_pxs_law_once_and_states_the_pds_offset_in_closed_form(mo
 def test_no_gain_holds_no_offset_bound():
     model = LoopModel(0.05, 0.6, 0.136, 27.4)
     assert px4_xy.pd_wind_offset({"MPC_XY_VEL_P_ACC": 0.0, "MPC_XY_P": 1.0}, model, 0.5) == float("inf")
+
+
+def test_one_hover_thrust_check_for_tune_and_vehicle(monkeypatch):
+    """vehicle checked --hover-thrust by asking check_exportable about an "altitude" loop it might not export;
+    check_hover_thrust is the one rule both use: (0, 1), and MOT_THST_HOVER's range for ArduPilot's altitude."""
+    from pathlib import Path
+
+    import mrftcli.vehicle
+    from mrftcli.cli.main import main
+    from mrftcli.errors import InputError
+    from mrftcli.tune.stacks import check_exportable, check_hover_thrust
+
+    check_hover_thrust("px4", 0.9)
+    check_hover_thrust("ardupilot", 0.9, "roll")  # its roll export does not take it (refused elsewhere)
+    for stack, h, said in (("px4", 1.5, "normalised thrust in (0, 1)"), ("ardupilot", 0.9, "MOT_THST_HOVER's range")):
+        with pytest.raises(InputError, match=said.replace("(", r"\(").replace(")", r"\)")) as direct:
+            check_hover_thrust(stack, h)
+        with pytest.raises(InputError) as via_tune:
+            check_exportable(stack, "altitude", "PD", h)
+        assert str(via_tune.value) == str(direct.value)
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("vehicle analysed the log before checking --hover-thrust")
+
+    monkeypatch.setattr(mrftcli.vehicle, "identify_vehicle", no_work)
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "design1_roll.mcap"
+    with pytest.raises(SystemExit) as code:
+        main(["vehicle", str(log), "--tp", "0.05", "-q", "--export", "ardupilot", "--hover-thrust", "0.9"])
+    assert code.value.code == 2

@@ -91,7 +91,7 @@ def _export_text(result: VehicleResult, stack: str) -> str:
 def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | None,
                          hover_thrust: float | None) -> None:
     """What the export cannot do is refused before the work, as ``tune`` does (an unused option is an error)."""
-    from ..tune.stacks import check_exportable
+    from ..tune.stacks import check_exportable, check_hover_thrust
 
     if export in ("px4", "ardupilot") and kind != "PD":
         check_exportable(export, "roll", kind)  # its one-line reason: the stack's rate loop takes a PD
@@ -100,7 +100,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
     if hover_thrust is not None and export not in ("px4", "ardupilot"):
         raise InputError("--hover-thrust is for --export px4|ardupilot (the altitude loop; PX4's x and y)")
     if hover_thrust is not None and export is not None:  # its range (and MOT_THST_HOVER's) in tune's words, before
-        check_exportable(export, "altitude", "PD", hover_thrust)
+        check_hover_thrust(export, hover_thrust)
 
 
 @click.command("vehicle")

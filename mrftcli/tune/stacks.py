@@ -68,7 +68,7 @@ from .px4_xy import px4_xy_controller, px4_xy_prediction, px4_xy_ticks, written_
 from .stack_params import STANDARD_GRAVITY, check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
-           "check_exportable", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
+           "check_exportable", "check_hover_thrust", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
            "px4_xy_prediction", "HOVER_LOOPS", "hover_thrust_refusal", "read_hover_thrust",
            "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
@@ -157,11 +157,17 @@ def check_exportable(stack: str, loop: str, kind: str, hover_thrust: float | Non
                          "cascades")
     if loop in HOVER_LOOPS.get(stack, ()) and hover_thrust is None:
         raise hover_thrust_refusal(stack, (loop,))
-    if hover_thrust is not None and not (0.0 < hover_thrust < 1.0):
+    if hover_thrust is not None:
+        check_hover_thrust(stack, hover_thrust, loop)
+
+
+def check_hover_thrust(stack: str, hover_thrust: float, loop: str = "altitude") -> None:
+    """InputError unless ``hover_thrust`` (``--hover-thrust``) is a normalised thrust in (0, 1) and, for
+    ArduPilot's altitude loop (the one that takes it), inside ``MOT_THST_HOVER``'s range."""
+    if not (0.0 < hover_thrust < 1.0):
         raise InputError(f"--hover-thrust must be a normalised thrust in (0, 1), got {hover_thrust}")
-    if stack == "ardupilot" and loop == "altitude" and hover_thrust is not None and not param(
-            "ardupilot", "MOT_THST_HOVER").contains(hover_thrust):
-        row = param("ardupilot", "MOT_THST_HOVER")
+    row = param("ardupilot", "MOT_THST_HOVER")
+    if stack == "ardupilot" and loop == "altitude" and not row.contains(hover_thrust):
         raise InputError(f"--hover-thrust {hover_thrust:g} is outside MOT_THST_HOVER's range {row.minimum:g}-"
                          f"{row.maximum:g} (AP_MotorsMulticopter.cpp): give the vehicle's learned hover throttle")
 

@@ -88,3 +88,23 @@ def test_a_process_plants_loop_is_the_one_named_or_process(analyses, tmp_path):
     assert loops == {(): "process", ("--loop", "roll"): "roll"}
     rows = run_main("compare", str(tmp_path / "r0.json"), str(tmp_path / "r0.json")).stdout.splitlines()
     assert any(r.split()[:2] == ["process", "K"] for r in rows) and not any("altitude" in r for r in rows)
+
+
+def test_a_familys_tau_is_shown_in_seconds_as_analyze_shows_it(analyses):
+    """compare showed a process family's tau in ms (300 ms) where analyze shows s (0.3 s): one rule now
+    (mrft.parameter.display_scale), recorded per change as the model compared; eq. (2)'s tau stays in ms."""
+    from mrftcli.compare import Comparison
+    from mrftcli.compare.export import format_change, format_value, to_markdown
+
+    result = compare(analyses["before"], analyses["after"], CompareOptions())
+    tau = next(c for c in result.changes if c.parameter == "tau")
+    assert tau.model == "fopdt" and tau.process
+    assert format_value("tau", tau.baseline, tau.unit, tau.process) == f"{tau.baseline:.4g} s"
+    assert format_change(tau, 0.95).startswith(f"{tau.change:+.4g} s [")
+    assert f"| tau | {tau.baseline:.4g} s |" in to_markdown(result)
+    rows = run_main("compare", analyses["before"], analyses["after"]).stdout.splitlines()
+    (row,) = [r for r in rows if r.split()[1:3] == ["tau", "s"]]
+    assert f"{tau.baseline:.4g}" in row.split() and "ms" not in row
+    assert Comparison.from_json(json.loads(json.dumps(result.to_json()))).changes == result.changes
+    # eq. (2)'s (a vehicle loop's) in ms, as analyze shows it
+    assert format_value("tau", 0.0464) == "46.4 ms" and format_value("tau", 0.0464, "s", False) == "46.4 ms"

@@ -279,7 +279,8 @@ def format_estimates(ident: LtiIdentification) -> list[str]:
 def parameter_display(kind: str, loop: str) -> Callable[[str, ParameterEstimate], tuple[float, str]]:
     """How a record's parameter is shown on the terminal, one rule for ``analyze`` and ``watch``: tau in ms on a
     vehicle's loop (``kind`` ``soiptd``, eq. (2), or ``cascade``), as its tests are read; eq. (2)'s K per command
-    unit of ``loop`` (``m/s² per command unit``); a process plant's (``family``) in its record's units (tau in s).
+    unit of ``loop`` (``m/s² per command unit``); a process plant's (``family``) in its record's units (tau in s):
+    :func:`mrftcli.mrft.parameter.display_scale`, which ``compare`` follows too.
     The records (JSON, ``watch --jsonl``) stay in SI.
 
     Returns
@@ -288,13 +289,12 @@ def parameter_display(kind: str, loop: str) -> Callable[[str, ParameterEstimate]
         ``display(name, estimate) -> (scale from the record's unit, unit shown)``.
     """
     from ..io.logtypes import gain_unit
+    from ..mrft.parameter import display_scale
 
     def display(name: str, e: ParameterEstimate) -> tuple[float, str]:
-        if name == "tau" and e.unit == "s" and kind != "family":
-            return 1e3, "ms"
         if name == "K" and kind == "soiptd":
             return 1.0, gain_unit(loop)
-        return 1.0, e.unit
+        return display_scale(name, e.unit, kind == "family")
     return display
 
 

@@ -111,12 +111,12 @@ def _undetermined_note(base: ParameterEstimate, new: ParameterEstimate) -> str:
 
 def compare_estimates(base: ParameterEstimate, new: ParameterEstimate, *, z_crit: float,
                       tolerance: Tolerance | None, fail_without_tolerance: bool,
-                      where: tuple[str | None, str, str]) -> ParameterChange:
+                      where: tuple[str | None, str, str], model: str | None = None) -> ParameterChange:
     """Test one parameter's change (module docstring) with the critical value ``z_crit``; ``where``: the
-    change's log or vehicle name, loop and parameter."""
+    change's log or vehicle name, loop and parameter; ``model``: the model the sides identified (None: unstated)."""
     row = ParameterChange(*where, finite_or_none(base.value), finite_or_none(new.value), None, None, None, None,
                           False, tolerance.text if tolerance is not None else None, False, "undetermined",
-                          unit=base.unit or new.unit)
+                          unit=base.unit or new.unit, model=model)
     if not (comparable(base) and comparable(new)):
         return dataclasses.replace(row, note=_undetermined_note(base, new))
     b_below, b_above = side_sigmas(base)
@@ -170,7 +170,7 @@ def _compare_loop(b: LoopEstimates, n: LoopEstimates, name: str | None, options:
     for p, (be, ne) in pairs.items():
         tol = _tolerance_for(n.loop, p, options.fail_on, (b, n))
         out.append(compare_estimates(be, ne, z_crit=z_crit, tolerance=tol, fail_without_tolerance=fail_without_tolerance,
-                                     where=(name, n.loop, p)))
+                                     where=(name, n.loop, p), model=b.model or n.model))
     return out
 
 

@@ -12,30 +12,35 @@ import math
 import textwrap
 import xml.etree.ElementTree as ET
 
+from ..mrft.parameter import display_scale
 from .records import Comparison, MissingResult, ParameterChange
 
-__all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "format_change", "DISPLAY_UNITS",
+__all__ = ["format_table", "to_markdown", "to_junit_xml", "format_value", "format_change", "TIME_PARAMETERS",
            "TABLE_WIDTH"]
 
-#: Time parameter -> (display unit, factor from SI) for reports; the records stay in SI. Any other
-#: parameter (K) is shown in its records' own unit (:attr:`ParameterChange.unit`): K's depends on the model.
-DISPLAY_UNITS: dict[str, tuple[str, float]] = {"Td": ("s", 1.0), "tau": ("ms", 1e3),
-                                                "T": ("s", 1.0), "T1": ("s", 1.0), "T2": ("s", 1.0)}
+#: The time parameters [s in the records]: shown as analyze shows them (:func:`mrftcli.mrft.parameter.display_scale`:
+#: a vehicle loop's tau in ms, a process plant's in s), their unit in the table's param cell. Any other parameter
+#: (K) is shown in its records' own unit (:attr:`ParameterChange.unit`): K's depends on the model.
+TIME_PARAMETERS = ("Td", "tau", "T", "T1", "T2")
 
 
-def _scale(param: str, unit: str = "") -> tuple[str, float]:
-    """(display unit, factor from SI): a time parameter's from :data:`DISPLAY_UNITS`, else the records' ``unit``."""
-    return DISPLAY_UNITS.get(param, (unit, 1.0))
+def _scale(param: str, unit: str = "", process: bool = False) -> tuple[str, float]:
+    """(display unit, factor from SI): a time parameter's (``process``: a process plant's), else the records'
+    ``unit``."""
+    if param not in TIME_PARAMETERS:
+        return unit, 1.0
+    f, shown = display_scale(param, "s", process)
+    return shown, f
 
 
-def format_value(param: str, value: float | None, unit: str = "") -> str:
+def format_value(param: str, value: float | None, unit: str = "", process: bool = False) -> str:
     """A parameter value in its display unit, or ``-``; ``unit``: the records' unit of a parameter that is not
-    a time (K's).
+    a time (K's); ``process``: a process plant's (tau in s).
 
     >>> format_value("tau", 0.0464), format_value("K", 19.62, "output / (command s^2)")
     ('46.4 ms', '19.62 output / (command s^2)')
     """
-    unit, f = _scale(param, unit)
+    unit, f = _scale(param, unit, process)
     text = _number(value, f)
     return text if text == "-" else f"{text} {unit}".rstrip()
 
@@ -51,7 +56,7 @@ def format_change(c: ParameterChange, confidence: float) -> str:
     """
     if c.change is None or c.low is None or c.high is None:
         return f"undetermined ({c.note})" if c.note else "undetermined"
-    unit, f = _scale(c.parameter, c.unit)
+    unit, f = _scale(c.parameter, c.unit, c.process)
     pct = f"{100 * confidence:.3g}"
     return f"{c.change * f:+.4g} {unit} [{c.low * f:+.4g}, {c.high * f:+.4g}] ({pct} %)".replace("  ", " ")
 
@@ -74,8 +79,8 @@ def _z(z: float | None) -> str:
 def _rows(cmp: Comparison) -> list[list[str]]:
     rows = []
     for c in cmp.changes:
-        rows.append([_who(c.name, c.loop), c.parameter, format_value(c.parameter, c.baseline, c.unit),
-                     format_value(c.parameter, c.new, c.unit), format_change(c, cmp.confidence), _relative(c), _z(c.z),
+        rows.append([_who(c.name, c.loop), c.parameter, format_value(c.parameter, c.baseline, c.unit, c.process),
+                     format_value(c.parameter, c.new, c.unit, c.process), format_change(c, cmp.confidence), _relative(c), _z(c.z),
                      c.tolerance or "-", c.verdict])
     for m in cmp.missing:
         rows.append([_who(m.name, m.loop), "-", "-", "-", f"missing on {m.side}", "-", "-", "-", "missing"])
@@ -104,7 +109,7 @@ def _short_change(c: ParameterChange) -> str:
     """The change and its interval in the parameter's display unit, without the unit (the header has it)."""
     if c.change is None or c.low is None or c.high is None:
         return "undetermined"
-    _, f = _scale(c.parameter, c.unit)
+    _, f = _scale(c.parameter, c.unit, c.process)
     return f"{c.change * f:+.4g} [{c.low * f:+.4g}, {c.high * f:+.4g}]"
 
 
@@ -117,7 +122,7 @@ def _terminal_rows(cmp: Comparison) -> list[tuple[str | None, list[str]]]:
     which is long and depends on the model, below the table: :func:`_unit_lines`)."""
     out: list[tuple[str | None, list[str]]] = []
     for c in cmp.changes:
-        unit, f = DISPLAY_UNITS.get(c.parameter, ("", 1.0))
+        unit, f = _scale(c.parameter, "", c.process)
         tol = (c.tolerance or "-").split(":")[-1]
         out.append((c.name, [c.loop, f"{c.parameter} {unit}".rstrip(), _number(c.baseline, f), _number(c.new, f),
                              _short_change(c), _relative(c), _z(c.z), tol, c.verdict]))
@@ -131,7 +136,7 @@ def _unit_lines(cmp: Comparison) -> list[str]:
     when the table holds several units for it: eq. (2)'s K and a process family's)."""
     units: dict[str, dict[str, list[str]]] = {}
     for c in cmp.changes:
-        if c.parameter not in DISPLAY_UNITS and c.unit:
+        if c.parameter not in TIME_PARAMETERS and c.unit:
             units.setdefault(c.parameter, {}).setdefault(c.unit, []).append(_who(c.name, c.loop))
     lines = []
     for param, by_unit in units.items():
@@ -197,7 +202,8 @@ def to_markdown(cmp: Comparison) -> str:
 
 
 def _case_text(c: ParameterChange, confidence: float) -> str:
-    return (f"baseline {format_value(c.parameter, c.baseline, c.unit)}, new {format_value(c.parameter, c.new, c.unit)}, "
+    return (f"baseline {format_value(c.parameter, c.baseline, c.unit, c.process)}, "
+            f"new {format_value(c.parameter, c.new, c.unit, c.process)}, "
             f"change {format_change(c, confidence)}, z {_z(c.z)}, "
             f"tolerance {c.tolerance or '-'}, verdict {c.verdict}")
 

@@ -178,6 +178,10 @@ class ParameterChange:
     unit : str
         The unit of the values above, the analyses' own (their parameter record's ``unit``: eq. (2)'s K
         ``output / (command s^2)``, a family's ``output / command``); empty when neither side states one.
+    model : str or None
+        The model the analyses identified (``soiptd``: eq. (2); a process family's name: ``fopdt``...); None when
+        no side states one (a cascade's, a reference's). A process plant's tau is shown in s, a vehicle loop's in
+        ms (:func:`mrftcli.mrft.parameter.display_scale`).
     """
 
     name: str | None
@@ -195,6 +199,12 @@ class ParameterChange:
     verdict: str
     note: str = ""
     unit: str = ""
+    model: str | None = None
+
+    @property
+    def process(self) -> bool:
+        """The parameter is a process plant's (a family's), not a vehicle loop's."""
+        return self.model not in (None, "soiptd")
 
     @property
     def failed(self) -> bool:
@@ -321,7 +331,7 @@ def _change_to_json(c: ParameterChange) -> dict[str, Any]:
         **{k: finite_or_none(getattr(c, k)) for k in _CHANGE_FLOATS},
         "relative": finite_or_none(c.relative),
         "significant": c.significant, "tolerance": c.tolerance, "beyond_tolerance": c.beyond_tolerance,
-        "verdict": c.verdict, "note": c.note, "unit": c.unit,
+        "verdict": c.verdict, "note": c.note, "unit": c.unit, "model": c.model,
     }
 
 
@@ -335,4 +345,5 @@ def _change_from_json(d: Mapping[str, Any]) -> ParameterChange:
                            low=floats["low"], high=floats["high"], z=floats["z"],
                            significant=bool(d["significant"]), tolerance=_opt_str(d["tolerance"]),
                            beyond_tolerance=bool(d["beyond_tolerance"]), verdict=verdict, note=str(d["note"]),
-                           unit=str(d.get("unit", "")))  # absent before the unit was recorded
+                           unit=str(d.get("unit", "")),  # absent before the unit was recorded
+                           model=_opt_str(d.get("model")))  # absent before the model was recorded

@@ -23,7 +23,8 @@ from typing import Any
 
 from ..errors import InputError
 
-__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined", "fitted_estimate"]
+__all__ = ["ParameterEstimate", "METHODS", "JSON_KEYS", "Z95", "DETERMINED_LOG_WIDTH", "is_determined", "fitted_estimate",
+           "display_scale"]
 
 #: the 95 % point of the normal distribution (a normal interval is value +- Z95 std)
 Z95 = 1.959964
@@ -32,6 +33,24 @@ Z95 = 1.959964
 #: 1.25 either way. Issue 38: a factor e^2 called K 10.2 [7.2, 14.5] determined where one relay
 #: setting saw only K/T1 (the truth 32); a user acts on a parameter pinned to +-25 %, not to 2x.
 DETERMINED_LOG_WIDTH = 2 * math.log(1.25)
+
+
+def display_scale(name: str, unit: str, process: bool) -> tuple[float, str]:
+    """How a parameter is shown to people, one rule for every command (the records stay in SI): tau in ms on a
+    vehicle's loop (eq. (2), a cascade: as its tests are read), a process plant's (``process``: a family's or a
+    declared model's) in its record's ``unit``, as every other parameter.
+
+    Returns
+    -------
+    tuple
+        (scale from the record's unit, the unit shown).
+
+    >>> display_scale("tau", "s", False), display_scale("tau", "s", True)
+    ((1000.0, 'ms'), (1.0, 's'))
+    """
+    if name == "tau" and unit == "s" and not process:
+        return 1e3, "ms"
+    return 1.0, unit
 
 
 def is_determined(low: float, high: float, log_scale: bool, omega: float) -> bool:

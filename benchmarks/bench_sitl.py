@@ -71,9 +71,12 @@ FLIGHTS = [
 ]
 
 
-def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str]) -> None:
+def fly_campaign(ap: Path, logs: Path, speedup: float, only: list[str], test_seconds: float | None = None) -> None:
+    """Fly the campaign's FLIGHTS not already in ``logs`` (``only``: these); ``test_seconds``: every test this
+    long instead of its flight's own length (e.g. 12 s roll and pitch tests: more cycles per mean)."""
     logs.mkdir(parents=True, exist_ok=True)
     for name, loop, delay, tests, duration, eth in FLIGHTS:
+        duration = duration if test_seconds is None else test_seconds
         if only and name not in only:
             continue
         out = logs / f"{name}.BIN"
@@ -696,6 +699,9 @@ def main() -> int:
     ap.add_argument("--speedup", type=float, default=1.0)
     ap.add_argument("--only", nargs="*", default=[], help="fly only these flights (names in FLIGHTS)")
     ap.add_argument("--no-refly", action="store_true", help="stop after the analysis")
+    ap.add_argument("--fly-only", action="store_true", help="stop after the flights (no analysis, no re-flight)")
+    ap.add_argument("--test-seconds", type=float, default=None,
+                    help="every test this long [s] instead of its flight's own (altitude 12 s, roll and pitch 6 s)")
     ap.add_argument("--truth", action="store_true",
                     help="also analyse the altitude pair with SITL's own altitude (MRFT:Tru) as the output")
     ap.add_argument("--refly-only", action="store_true",
@@ -751,7 +757,9 @@ def main() -> int:
         if not (args.ap / "build/sitl/bin/arducopter").exists():
             subprocess.run([str(ROOT / "scripts/sitl/build_ardupilot.sh"), str(args.ap)], check=True)
         print("1. MRFT flights in SITL")
-        fly_campaign(args.ap, args.logs, args.speedup, args.only)
+        fly_campaign(args.ap, args.logs, args.speedup, args.only, args.test_seconds)
+        if args.fly_only:
+            return 0
     print("2. analysis of the DataFlash logs")
     results = analyse(args.logs)
     report_analysis(results, args.logs)

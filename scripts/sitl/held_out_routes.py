@@ -18,6 +18,14 @@ with the relay continuous or sampled at the test's rate (``mrft_limit_cycle(...,
 tests' mean amplitudes as well (``nominal_sampled_amp``: the question whether amplitudes pin what the
 frequencies leave free), and with a lead allowed (``effective_continuous_lead``: tau down to -Tp/2 through
 ``mrft.lprs.lead_cycle``, as ``mrft-ident delay`` takes EKF3's lead).
+
+Routes on the response points in this process (``points_h1``, ``points_h13``, ``points_h135``, ``points_raw``):
+eq. (2) declared (``eq2_declared``'s structure) fitted to the other tests' response points as ``analyze
+--model-file`` fits them (``analyze.general.identify_points``, the test predicted under its effective relay),
+with the harmonics named: the fundamentals alone, with the 3rd, with the 3rd and 5th (harmonics' standard
+errors floored at 3 %, as analyze does), and the 3rd and 5th each weighted by its measured scatter alone
+(no floor): the question whether eq. (2)'s own held-out should fit harmonics, and which
+(benchmarks/bench_held_out_harmonics.py).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ import math
 import subprocess
 import sys
 import tempfile
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +49,7 @@ from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.sem import mean_sem
 from mrftcli.segment import segment
 
-__all__ = ["MODEL_FILES", "RouteResult", "cli_route", "fit_route", "held_out_routes"]
+__all__ = ["MODEL_FILES", "POINT_ROUTES", "RouteResult", "cli_route", "fit_route", "held_out_routes", "points_route"]
 
 _EQ2 = "K*exp(-tau*s)/(s*(Td*s + 1)*(Tp*s + 1))"
 _K = 'K   = { range = [0.1, 10000] }\n'
@@ -157,6 +166,40 @@ def fit_route(log: Path, route: str) -> RouteResult:
     return RouteResult(flown, tuple(errors + [None] * (flown - len(errors))))
 
 
+#: the response-point routes: (harmonics fitted besides the fundamental, harmonics' standard errors floored at 3 %)
+POINT_ROUTES = {"points_h1": ((), True), "points_h13": ((3,), True), "points_h135": ((3, 5), True),
+                "points_raw": ((3, 5), False)}
+
+
+def points_route(log: Path, route: str) -> RouteResult:
+    """A response-point route (module docstring, :data:`POINT_ROUTES`): eq. (2) declared, fitted to the other
+    tests' fundamentals and the named harmonics, each test predicted under its effective relay."""
+    from mrftcli.analyze import general
+    from mrftcli.analyze.options import RelayOptions
+    from mrftcli.mrft.identify import identify
+    from mrftcli.mrft.model_file import parse_model_spec
+
+    side = _side(log)
+    harmonics, floored = POINT_ROUTES[route]
+    model = parse_model_spec(tomllib.loads(MODEL_FILES["eq2_declared"].replace("@TP@", repr(side["tp_s"]))))
+    measured = general.measure_tests(read_flight(log, ReadOptions(loop=side["loop"]), echo_warnings=False),
+                                     RelayOptions(), (), 3)
+    points = [p for m in measured for p in m.points if p.harmonic == 1 or p.harmonic in harmonics]
+    n_h = {m.summary.index: min(f.harmonics.size for f in m.fits) for m in measured if m.summary and m.fits}
+    errors: list[float | None] = []
+    for t in (m.summary for m in measured if m.summary is not None):
+        kept = general.identify_points
+        if not floored:  # the harmonics over their measured scatter alone: analyze's fit without its floor
+            general.identify_points = lambda model, pts: identify(pts, model)
+        try:
+            ho = general.held_out(model, t, [p for p in points if p.test != t.index], n_h.get(t.index))
+        finally:
+            general.identify_points = kept
+        errors.append(None if ho.frequency_hz is None else ho.frequency_hz / t.frequency_hz - 1.0)
+    flown = len(side["tests"])
+    return RouteResult(flown, tuple(errors + [None] * (flown - len(errors))))
+
+
 CLI_ROUTES = ("eq2", *MODEL_FILES)
 FIT_ROUTES = ("effective_continuous", "nominal_continuous", "nominal_sampled", "nominal_sampled_amp",
               "effective_continuous_lead")
@@ -169,7 +212,8 @@ def held_out_routes(logs: list[Path], routes: tuple[str, ...] = CLI_ROUTES + FIT
         for route in routes:
             out[route] = {}
             for log in logs:
-                res = (cli_route(log, route, Path(tmp)) if route in CLI_ROUTES else fit_route(log, route))
+                res = (cli_route(log, route, Path(tmp)) if route in CLI_ROUTES
+                       else points_route(log, route) if route in POINT_ROUTES else fit_route(log, route))
                 out[route][log.stem] = res
                 cells = ", ".join("refused" if e is None else f"{e * 100:+.1f}" for e in res.errors)
                 print(f"    {route:22s} {log.stem:18s} {cells}", flush=True)

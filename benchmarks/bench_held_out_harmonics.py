@@ -122,7 +122,9 @@ def _kind(log: Path) -> str:
         return name.split("0")[0].rstrip("0123456789")
     if name.startswith("altitude"):
         return "SITL altitude +20 ms" if "20ms" in name else "SITL altitude"
-    return "SITL roll, pitch"
+    tests = json.loads(Path(f"{log}.json").read_text())["tests"]
+    longest = max(t.get("duration_s", 0.0) for t in tests)
+    return "SITL roll, pitch" + (f" ({longest:g} s tests)" if longest > 6.0 else "")
 
 
 def _summary(name: str, results: list[RouteResult], zs: list[float | None] | None) -> str:
@@ -165,9 +167,9 @@ def main() -> int:
         print(f"{kind}:")
         for route in ROUTES:
             print("  " + _summary(route, routes[route], zs_kind[kind] if route == "eq2" else None))
-    sitl = [k for k in by_kind if k.startswith("SITL")]
+    sitl = [k for k in by_kind if k.startswith("SITL") and "s tests)" not in k]
     if sitl:
-        print("SITL, all:")
+        print("SITL, all (the 6 s roll and pitch tests, altitude 12 s):")
         for route in ROUTES:
             print("  " + _summary(route, [r for k in sitl for r in by_kind[k][route]],
                                   [z for k in sitl for z in zs_kind[k]] if route == "eq2" else None))

@@ -30,6 +30,7 @@ errors floored at 3 %, as analyze does), and the 3rd and 5th each weighted by it
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import subprocess
@@ -171,19 +172,28 @@ POINT_ROUTES = {"points_h1": ((), True), "points_h13": ((3,), True), "points_h13
                 "points_raw": ((3, 5), False)}
 
 
+@functools.lru_cache(maxsize=4)
+def _measured(log: Path) -> tuple:
+    """Every test of ``log`` screened and measured as ``analyze --model-file`` does (once per log)."""
+    from mrftcli.analyze import general
+    from mrftcli.analyze.options import RelayOptions
+
+    side = _side(log)
+    return tuple(general.measure_tests(read_flight(log, ReadOptions(loop=side["loop"]), echo_warnings=False),
+                                       RelayOptions(), (), 3))
+
+
 def points_route(log: Path, route: str) -> RouteResult:
     """A response-point route (module docstring, :data:`POINT_ROUTES`): eq. (2) declared, fitted to the other
     tests' fundamentals and the named harmonics, each test predicted under its effective relay."""
     from mrftcli.analyze import general
-    from mrftcli.analyze.options import RelayOptions
     from mrftcli.mrft.identify import identify
     from mrftcli.mrft.model_file import parse_model_spec
 
     side = _side(log)
     harmonics, floored = POINT_ROUTES[route]
     model = parse_model_spec(tomllib.loads(MODEL_FILES["eq2_declared"].replace("@TP@", repr(side["tp_s"]))))
-    measured = general.measure_tests(read_flight(log, ReadOptions(loop=side["loop"]), echo_warnings=False),
-                                     RelayOptions(), (), 3)
+    measured = _measured(log)
     points = [p for m in measured for p in m.points if p.harmonic == 1 or p.harmonic in harmonics]
     n_h = {m.summary.index: min(f.harmonics.size for f in m.fits) for m in measured if m.summary and m.fits}
     errors: list[float | None] = []

@@ -211,3 +211,29 @@ def test_simulate_flies_a_declared_structure_and_analyze_finds_it_back(tmp_path,
     for name, value in truth.items():
         assert params[name]["value"] == pytest.approx(value, rel=0.05), name
         assert params[name]["ci95_low"] <= value <= params[name]["ci95_high"], name
+
+
+def test_a_parameter_at_its_declared_zero_is_bounded_above_by_its_profile():
+    """a = 0 (the range's end) stated '0 to 2.885e-07' (the solver's floor 1e-6/omega plus the log-scale std there,
+    where the residuals do not move) as DETERMINED: overconfident. Its 95 % upper end is now the value where the
+    fit's cost, the others refitted, has risen by chi2(1) 95 % = 3.84: checked by an independent refit of the
+    hand-written response (scipy, not the package's fit)."""
+    from scipy.optimize import least_squares
+
+    w = np.array([1.0, 2.0, 5.0, 9.0])
+    G0 = 2.0 * np.exp(-0.1j * w) / (0.5j * w + 1) ** 2  # a = 0, by hand
+    pts = [ResponsePoint(x, abs(g), float(np.angle(g)), 0.01, 0.01, i) for i, (x, g) in enumerate(zip(w, G0))]
+    model = declared_model("K*(a*s + 1)*exp(-tau*s)/(T*s + 1)**2", {},
+                           {"K": (0.1, 10), "T": (0.01, 10), "tau": (0.0, 1.0), "a": (0.0, 0.1)})
+    a = identify(pts, model).estimate("a")
+    assert a.ci95_low == 0.0 and a.one_sided == "low" and not a.determined
+
+    def rise(held: float) -> float:  # weights 1 / se = 100 on ln gain and phase, as the points state
+        def r(x: np.ndarray) -> np.ndarray:
+            K, T, tau = x
+            G = K * (held * 1j * w + 1) * np.exp(-tau * 1j * w) / (T * 1j * w + 1) ** 2
+            return 100.0 * np.concatenate([np.log(abs(G) / abs(G0)), np.angle(G / G0)])
+        return float(np.sum(least_squares(r, [2.0, 0.5, 0.1]).fun ** 2))
+
+    assert 0.005 < a.ci95_high < 0.1  # bounded by the data, far above the floor
+    assert rise(a.ci95_high) == pytest.approx(3.841, rel=0.05) and rise(0.7 * a.ci95_high) < 3.0

@@ -440,9 +440,11 @@ def fit_response_points(points: Sequence[ResponsePoint], model: PlantModel) -> L
     inflate = max(1.0, chi2_dof or 1.0)
     cov = _pinv_psd(J.T @ J) * inflate
     flat = _null_parameters(problem, J)
-    profiled, region = None, [z]
+    profiled: dict[int, tuple[float, float]] | None = None
+    region = [z]
     if problem.kernel is not None:
         profiled = _profile_ends(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, cov, flat, region)
+    profiled = _above_zero(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, flat, profiled)
     out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, flat, profiled)
     if len(out.undetermined) >= 2:
         log_names = [n for n in problem.unknown if n in problem.log_scaled]
@@ -670,6 +672,61 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
             ends.append(z[i] + sign * 16 * half if end is None else end)
         out[i] = (ends[0], ends[1])
     return out
+
+
+def _held_cost(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, i: int, zi: float) -> float:
+    """The fit's cost with unknown ``i`` held at ``zi`` [its z] and the others refitted (inside their bounds)."""
+    free = [k for k in range(z.size) if k != i]
+    held = z.copy()
+    held[i] = zi
+    if not free:
+        r = problem.residuals(held)
+        return float(r @ r)
+
+    def residuals(x: FloatArray) -> FloatArray:
+        held[free] = x
+        return problem.residuals(held)
+
+    sol = optimize.least_squares(residuals, _interior(z[free], lo[free], hi[free]), bounds=(lo[free], hi[free]),
+                                 x_scale="jac", method="trf")
+    return float(sol.fun @ sol.fun)
+
+
+def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, cost0: float, delta: float,
+                flat: set[str], profiled: dict[int, tuple[float, float]] | None) -> dict[int, tuple[float, float]] | None:
+    """``profiled`` with the 95 % upper end [in z] of each positive parameter the fit left at the solver's floor
+    (1e-6 / omega on the log scale), which stands for its declared range's 0: profiled on the value itself.
+
+    On the log scale the residuals do not move near 0 (their slope there is the value times their slope in
+    it), so the log-scale interval at the floor is a few ulps wide ("< 9.7e-09 s", overconfident). The value is
+    held at steps of the linear half-width sqrt(``delta``) / |dr/dx|, doubling, the others refitted
+    (:func:`_held_cost`), until the cost rises by ``delta`` (interpolated on sqrt(rise)); a cost still within
+    ``delta`` at the range's top: the data do not bound it there (the range's top is the end)."""
+    out = dict(profiled or {})
+    for i, name in enumerate(problem.unknown):
+        p = problem.model.parameters[name]
+        if (name == "K" or name not in problem.log_scaled or name in flat or p.bounds[0] > 0
+                or z[i] > lo[i] + 1e-6):
+            continue
+        x0, top = math.exp(lo[i]), math.exp(hi[i])
+        h = 1e-6 * top
+        probe = z.copy()
+        probe[i] = math.log(x0 + h)
+        slope = float(np.linalg.norm(problem.residuals(probe) - problem.residuals(z))) / h
+        step = math.sqrt(delta) / slope if slope > 0 else top
+        prev_x, prev_rise, end = x0, 0.0, top
+        for k in range(40):
+            x = min(x0 + step * 2.0 ** k, top)
+            rise = _held_cost(problem, z, lo, hi, i, math.log(x)) - cost0
+            if rise >= delta:
+                frac = (math.sqrt(delta) - math.sqrt(max(prev_rise, 0.0))) / (math.sqrt(rise) - math.sqrt(max(prev_rise, 0.0)))
+                end = prev_x + frac * (x - prev_x)
+                break
+            if x >= top:
+                break
+            prev_x, prev_rise = x, rise
+        out[i] = (float(lo[i]), math.log(end))
+    return out or profiled
 
 
 def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_dof: float | None,

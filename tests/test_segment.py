@@ -393,3 +393,39 @@ def test_a_test_longer_than_max_cycles_is_measured_on_its_first_cycles_and_says_
                                                                  rel=1e-9)
         assert any("after the first 6: only those are measured" in n for n in b.notes)
         assert not any("only those are measured" in n for n in a.notes)
+
+
+def _locked_up(sim, k_down: int):
+    """The simulated flight with its first test's relay locked at -h from its ``k_down``-th down-switch to
+    the test's end (a noise-triggered switch, then no extremum to switch on), the output falling away under
+    -h as the double integrator K h t^2 / 2 does (the drift a safety abort stops), and that switch's time."""
+    t0, t1, _, h = sim.test_windows[0]
+    m = (sim.t >= t0) & (sim.t <= t1)
+    ts, sgn = _switches(sim.t[m], sim.command[m], 0.5)
+    t_k = ts[sgn < 0][k_down]
+    lock = (sim.t >= t_k) & (sim.t <= t1)
+    command, y = sim.command.copy(), sim.y_meas.copy()
+    command[lock] = 0.5 - h
+    k0 = int(np.flatnonzero(lock)[0])
+    y[lock] = y[k0] - 0.5 * K * h * (sim.t[lock] - t_k) ** 2 + (sim.y_meas[lock] - sim.y_true[lock])
+    return replace(sim, command=command, y_meas=y), t_k
+
+
+@pytest.mark.parametrize("k_down", [2, 6])
+def test_a_relay_that_locks_up_ends_its_test_at_the_lock_and_keeps_the_cycles_before(sim, k_down):
+    """A test whose relay stops switching (held at -h to the test's end while the vehicle falls away) ends
+    at the switch into that level: the loop sign and the cycles before it are those of the same flight
+    unlocked, and a note says when the relay locked up. Before, the test ran on to the abort, and where
+    few cycles preceded the lock (k_down 2) the fall (metres against a 4 cm limit cycle) in the output
+    window turned the loop sign, so every amplitude was measured on the inverted output."""
+    locked, t_k = _locked_up(sim, k_down)
+    whole = segment(to_flight(sim))[0]
+    test = segment(to_flight(locked))[0]
+    assert test.t_end == pytest.approx(t_k, abs=1e-9) and test.loop_sign == whole.loop_sign == 1
+    before = [c for c in whole.cycles if c.t_end < t_k]
+    assert len(before) >= k_down - 1 and len(test.cycles) == len(before)
+    for a, b in zip(before[:-1], test.cycles[:-1], strict=True):  # the last one's fit window meets the lock
+        assert (b.period, b.amplitude) == pytest.approx((a.period, a.amplitude), rel=1e-6)
+    assert test.n_stable >= (3 if k_down == 6 else 0)
+    assert any("stopped switching" in n and "locked up" in n for n in test.notes)
+    assert not any("locked up" in n for n in whole.notes)

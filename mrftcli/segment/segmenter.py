@@ -36,6 +36,10 @@ _MAX_INTERP_SAMPLES = 2
 #: least (two runs of 3), so such a gap can hide a whole cycle of the fastest test; shorter losses are
 #: a switch's missing samples (``interp`` or ``gap`` at that switch, the test goes on)
 _GAP_INTERVALS = 10.0
+#: a test's last relay run this many times its median half-period or longer is a relay that stopped
+#: switching (locked up: a noise-triggered switch left it waiting for an extremum that never comes, until
+#: the safety abort or the test's end): the test ends at the switch into it (:func:`_locked_tail`)
+_LOCKED_RUNS = 4.0
 #: a command logged below this rate [Hz] is a logger's sub-sampling of a faster controller (PX4's
 #: default 10 Hz logger over its 50 Hz position controller): its switch instants are only bracketed
 LOW_RATE_HZ = 25.0
@@ -212,6 +216,25 @@ def _first_cycles(chain: list[RelayRun], t_cmd: FloatArray) -> tuple[list[RelayR
                           "measured costs about a millisecond)",)
 
 
+def _locked_tail(chain: list[RelayRun], t_cmd: FloatArray) -> tuple[list[RelayRun], tuple[str, ...]]:
+    """Step 1c: a relay that locked up at the end of a test. Its last run lasts :data:`_LOCKED_RUNS` median
+    half-periods or more: the output drifts away under one level (often metres, until a safety abort) and
+    no cycle closes there. That run is cut to the switch into it (kept as a one-sample run, so its switch
+    still closes the last cycle), so the drift stays out of the loop sign and of the output window; the
+    note says when and how long."""
+    if len(chain) < 5:
+        return chain, ()
+    lengths = np.array([t_cmd[r.stop - 1] - t_cmd[r.start] for r in chain[1:-1]])
+    half = float(np.median(lengths))
+    last = chain[-1]
+    span = float(t_cmd[last.stop - 1] - t_cmd[last.start])
+    if not half > 0 or span < _LOCKED_RUNS * half:
+        return chain, ()
+    return chain[:-1] + [replace(last, stop=last.start + 1)], (
+        f"the relay stopped switching at {t_cmd[last.start]:.2f} s (one level held {span:.1f} s, "
+        f"{span / half:.0f} half-periods: locked up); the test ends there",)
+
+
 def _test_clock(chain: list[RelayRun], t_cmd: FloatArray, rate_all: float | None,
                 controller_rate_hz: float | None) -> _Clock:
     """Step 2: the controller's clock over one test (its command times regularised locally)."""
@@ -301,10 +324,10 @@ def _switch_instant(prev: RelayRun, run: RelayRun, clock: _Clock) -> tuple[float
 
 
 def _output_window(t_y: FloatArray, y: FloatArray, t_sp: ArrayLike | None, setpoint: ArrayLike | None,
-                   t_a: float, t_b: float, dt: float) -> _Window:
-    """The output from 1 s before the first switch ``t_a`` to 1 s after the last ``t_b`` [s] (``dt``: the
-    sample period [s], for a sample on those bounds: :func:`~mrftcli.segment.cycles.samples_between`)."""
-    m0, m1 = samples_between(t_y, t_a - 1.0, t_b + 1.0, dt)
+                   t_a: float, t_b: float, dt: float, after: float = 1.0) -> _Window:
+    """The output from 1 s before the first switch ``t_a`` to ``after`` [s] after the last ``t_b`` [s] (``dt``:
+    the sample period [s], for a sample on those bounds: :func:`~mrftcli.segment.cycles.samples_between`)."""
+    m0, m1 = samples_between(t_y, t_a - 1.0, t_b + after, dt)
     ty, yy = t_y[m0:m1], y[m0:m1]
     if ty.size > 8:
         ty, _ = regularise_times(ty)
@@ -516,10 +539,14 @@ def segment_arrays(
     tests: list[MrftTest] = []
     for found in chains:
         chain, cut = _first_cycles(found, t_cmd)
+        chain, locked = _locked_tail(chain, t_cmd)
+        cut += locked
         clock = _test_clock(chain, t_cmd, rate_all, controller_rate_hz)
         sw = _switches(chain, clock)
         t_b = float(sw.t[-1])
-        win = _output_window(t_y, y, t_sp, sp, float(sw.t[0]), t_b, clock.dt)
+        # after a locked-up relay the output drifts away: the window stops a median half-period after its switch
+        after = min(1.0, float(np.median(np.diff(sw.t)))) if locked else 1.0
+        win = _output_window(t_y, y, t_sp, sp, float(sw.t[0]), t_b, clock.dt, after)
         sign = _loop_sign(win.t, win.y, clock.t, cmd, sw.bias, sw.t, sw.up, clock.dt)
         beta_nom = _nominal_beta(beta_t, beta_v, t_b)
         final, info = _measured_cycles(sw, win, sign, clock, criterion, beta_nom)

@@ -154,6 +154,21 @@ def test_json_never_replaces_a_file_that_is_not_json(tmp_path: Path, capsys, mon
     assert "frequency_hz" in json.loads((tmp_path / "old.json").read_text())
 
 
+def test_export_never_replaces_a_log_this_tool_simulated(tmp_path: Path, capsys, monkeypatch) -> None:
+    # tune --out over a simulated MCAP replaced the log: its header names mrft-ident (simulate's library
+    # field), which the export check took for the comment line of one of its parameter files
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "flight.mcap").write_bytes((SAMPLES / "design1_roll.mcap").read_bytes())
+    before = _snapshot(tmp_path)
+    tune = ("tune", "--td", "1.3", "--tau", "0.03", "--k", "30", "--tp", "0.0422", "--loop", "roll",
+            "--export", "px4", "-q", "--out")
+    code, _out, err = run_cli(capsys, *tune, "flight.mcap")
+    _one_line_error(code, err, "--out flight.mcap", "not an export")
+    assert _snapshot(tmp_path) == before
+    assert run_cli(capsys, *tune, "roll.params")[0] == 0
+    assert run_cli(capsys, *tune, "roll.params")[0] == 0  # its own export: replaced
+
+
 def test_compare_never_writes_over_a_compared_result(tmp_path: Path, capsys, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "a.json").write_text("{}\n")

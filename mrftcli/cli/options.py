@@ -243,7 +243,10 @@ def check_export_paths(json_target: str | None, out: str | None, exporting: bool
 
     def ours(path: Path) -> bool:  # every export is JSON or names mrft-ident in its first comment lines
         with open(path, "rb") as fh:
-            return looks_like_json(path) or b"mrft-ident" in fh.read(1024)
+            head = fh.read(1024)
+        # a text file: a log simulate wrote names mrft-ident in its binary header too (MCAP, ULog)
+        return looks_like_json(path) or (b"\0" not in head and any(
+            line.lstrip().startswith(b"#") and b"mrft-ident" in line for line in head.splitlines()))
 
     check_output_file(json_target, "--json", inputs=inputs)
     check_output_file(out, "--out", inputs=inputs)

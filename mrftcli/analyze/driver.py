@@ -28,6 +28,7 @@ from ..io.flight import ReadOptions
 from ..io.logtypes import FlightLog
 from ..mrft.cascade import CascadeModel
 from ..mrft.consensus import combinations
+from ..mrft.identify import LEAD_WORDS, lead_note
 from ..mrft.model import LoopModel, PlantModel
 from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
@@ -151,8 +152,11 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.value)
     tp_warning, tp_check = _tp_check(flight, screening, wave, model, opts.refine_waveform)
-    warnings = [*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings]
+    warnings = [w for w in (*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings)
+                if not w.startswith(LEAD_WORDS)]  # the lead is stated once, first, for the tau reported
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
+    if tau_est.value < 0:
+        notes.insert(0, f"assumed: {lead_note(tau_est.value)}")
     usable, rejected = screening.usable, screening.rejected
     return _residual_worded(AnalysisResult(
         path=str(flight.path), loop=flight.loop, model=wave.model, tests=usable, rejected=rejected,

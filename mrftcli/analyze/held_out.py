@@ -31,7 +31,7 @@ from ..errors import IdentificationError, InputError
 from ..mrft.consensus import consensus_solve
 from ..mrft.identify import TestMeasurement, identify
 from ..mrft.lprs import mrft_limit_cycle, unit_cycle
-from ..mrft.model import LoopModel
+from ..mrft.model import LEAD_MAX, LoopModel
 from ..mrft.sem import mean_sem
 from ..segment.records import MrftTest
 from .screen import group_betas
@@ -197,7 +197,7 @@ def _prediction(model: LoopModel, Td: float, tau: float, K: float, beta: float, 
     if not (math.isfinite(Td) and math.isfinite(tau) and math.isfinite(K) and K > 0):
         return None
     try:
-        lc = mrft_limit_cycle(model.with_parameters(Td=Td, tau=max(tau, 0.0), K=K), beta, h)
+        lc = mrft_limit_cycle(model.with_parameters(Td=Td, tau=max(tau, -LEAD_MAX * model.Tp), K=K), beta, h)
     except (InputError, IdentificationError, ValueError):
         return None
     return float(lc.frequency_hz), float(lc.amplitude)

@@ -68,7 +68,8 @@ def _head(result) -> list[str]:
     since = "times in seconds from the log start" + (f" ({describe_t0(result.t0)})" if result.t0 else "")
     if result.kind == "soiptd":
         read_as = _read_as(result)
-        return [f"loop {result.loop}, Tp {result.Tp:g} s (known); {since}", *([read_as] if read_as else [])]
+        return [f"loop {result.loop}, Tp {result.Tp:g} s (known); {since}", *([read_as] if read_as else []),
+                *(f"note: {n}" for n in result.notes if n.startswith("assumed"))]
     if result.kind == "cascade":
         return [f"loop {result.loop} through the closed inner loop (cascade model "
                 f"{result.identification.model.structure}); {since}",
@@ -159,7 +160,7 @@ def _tail(result) -> list[str]:
     if (c["n"] and c["Td"]["mean"] is not None) or mrft_interval:
         ref = result.refinement
         lines.append(uncertainty_sentence(ref is not None and ref.accepted, mrft_interval))
-    return lines + [f"note: {note}" for note in result.notes]
+    return lines + [f"note: {note}" for note in result.notes if not note.startswith("assumed")]
 
 
 def _read_as(result) -> str:

@@ -7,7 +7,7 @@ separate analyses carries both flights' Td-tau trade. Here both flights are one 
 known Tp, **one** Td and **one** K, and **a delay per flight**, fitted to every test's measured
 frequency (weighted least squares on log frequency). The delay added is ``tau_after - tau_before``.
 A delay may be negative (down to -Tp / 2): a loop that leads eq. (2) without delay, as an estimator's lead
-makes it (EKF2's attitude in PX4 SIH leads by 2-3 ms), which ``analyze`` refuses alone; a lead both
+makes it (EKF2's attitude in PX4 SIH leads by 2-3 ms), as ``analyze`` admits alone; a lead both
 recordings share cancels in the difference, where a bound at 0 would bend the shared Td instead.
 
 The frequency of a test is eq. (2)'s continuous limit cycle under the beta ``analyze`` identifies it
@@ -52,7 +52,7 @@ from ..errors import (IdentificationError, InputError, InsufficientDataError, Lo
 from ..io import LogSource, ReadOptions, open_log, read_loop
 from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.lprs import lead_cycle, mrft_limit_cycle
-from ..mrft.model import K_UNIT, LoopModel
+from ..mrft.model import K_UNIT, LEAD_MAX, LoopModel
 from ..mrft.parameter import ParameterEstimate
 from ..mrft.sem import mean_sem
 from ..progress import Progress
@@ -66,9 +66,8 @@ DELAY_SCHEMA_VERSION = 3  # 2: warnings, controller_rate_hz, controller_rate_ass
 
 _FLIGHTS = ("before", "after")
 _TAU_MAX = 0.5  # [s]: the delays' upper bound in the fit (eq. (2)'s multirotor range and more)
-#: the largest lead (negative delay) the fit allows, in units of Tp: an estimator's few ms (EKF2's attitude leads
-#: PX4 SIH's by ~2-3 ms at Tp 50 ms), well inside what a cycle can hold at low |beta|, beyond it at -0.9
-_LEAD_MAX = 0.5
+#: the largest lead (negative delay) the fit allows, in units of Tp: eq. (2)'s (analyze's), mrft.model.LEAD_MAX
+_LEAD_MAX = LEAD_MAX
 
 
 @dataclass(frozen=True)
@@ -446,7 +445,7 @@ def _notes(Tp: float, taus: tuple[tuple[float, float], tuple[float, float]], dof
                          f"({tau * 1e3:.3g} ms): its loop leads eq. (2) more than the fit allows; check Tp")
         elif tau < -1e-5:
             notes.append(f"the {name} recording's delay is negative ({tau * 1e3:.3g} ± {std * 1e3:.2g} ms): its loop "
-                         "has less lag than eq. (2) with no delay (an estimator's lead?), which analyze refuses "
+                         "has less lag than eq. (2) with no delay (an estimator's lead?), as analyze states "
                          "alone; a lead both recordings share cancels in the delay added")
     if dof == 0:
         notes.append("three tests for three parameters: the fit is exact, and the interval is the tests' own "

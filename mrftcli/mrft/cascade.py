@@ -108,6 +108,10 @@ class InnerLoop:
         c = self.controller
         if c.Kp == 0 and c.Ki == 0 and c.Kd == 0:
             raise InputError("inner controller gains are all zero: the inner loop is not closed")
+        if self.plant.delay < 0:  # eq. (2) admits a lead; the inner loop's sampled realisation holds delays only
+            raise InputError(f"the inner loop's model leads (tau = {self.plant.delay * 1e3:.3g} ms < 0): the cascade "
+                             "samples the inner loop with a delay line, which cannot hold a lead; give an inner model "
+                             "with tau >= 0")
 
     def draw(self, rng: np.random.Generator) -> InnerLoop:
         """One draw of the inner loop over :attr:`std`: times and gains log-normal, the delay normal (kept >= 0)."""

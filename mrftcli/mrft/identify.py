@@ -43,7 +43,7 @@ from ..validate import check_beta, check_time
 from .identification import IdentificationRecord
 from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
-from .model import LoopModel, PlantModel
+from .model import LEAD_MAX, LoopModel, PlantModel
 from .sem import mean_sem
 from .parameter import Z95, ParameterEstimate
 from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
@@ -64,6 +64,8 @@ __all__ = [
     "strategy_of",
     "unit_manifolds",
     "gain_disagreement",
+    "lead_note",
+    "LEAD_WORDS",
     "GAIN_FLOOR",
     "ufm_slice",
     "tau_curve",
@@ -428,15 +430,31 @@ def _point_estimate(inputs: _Inputs, m: _Measured, ms: ManifoldSet) -> _Point:
         method = "least-squares"
     lag = inputs.sampling_lag
     tau_hat = tau_eff - lag
-    if tau_eff < -1e-9 * max(1.0, 1.0 / omegas.min()):
+    if tau_eff < -LEAD_MAX * Tp:
         raise IdentificationError(
-            f"the measured frequencies imply a negative delay (tau = {tau_eff * 1e3:.3g} ms): no plant of eq. (2) "
-            f"with Tp = {Tp:g} s fits; check Tp and the betas"
+            f"the measured frequencies imply a negative delay (tau = {tau_eff * 1e3:.3g} ms), a lead beyond "
+            f"{LEAD_MAX:g} Tp ({-LEAD_MAX * Tp * 1e3:.3g} ms): no plant of eq. (2) with Tp = {Tp:g} s fits; check Tp "
+            "and the betas"
         )
+    if tau_hat < -LEAD_MAX * Tp:
+        warns.append(f"removing the sampling lag ({lag * 1e3:.3g} ms) leaves a lead beyond {LEAD_MAX:g} Tp; "
+                     f"tau set to {-LEAD_MAX * Tp * 1e3:.3g} ms")
+        tau_hat = -LEAD_MAX * Tp
     if tau_hat < 0:
-        warns.append(f"removing the sampling lag ({lag * 1e3:.3g} ms) leaves a negative delay; tau set to 0")
-        tau_hat = 0.0
-    return _Point(Td_hat, max(tau_eff, 0.0), tau_hat, residual, method, weights, tuple(warns))
+        warns.append(lead_note(tau_hat))
+    return _Point(Td_hat, tau_eff, tau_hat, residual, method, weights, tuple(warns))
+
+
+#: how :func:`lead_note` begins (a record's lead statement is found by it)
+LEAD_WORDS = "the loop leads eq. (2)"
+
+
+def lead_note(tau: float) -> str:
+    """The statement a lead (``tau`` < 0 [s]) carries wherever eq. (2) is identified with one."""
+    return (f"{LEAD_WORDS}: tau = {tau * 1e3:.3g} ms < 0, less lag than eq. (2) without delay (an "
+            "estimator's lead, e.g. EKF2's attitude or EKF3's altitude, or a Tp given too large); identified "
+            f"with the lead (down to -{LEAD_MAX:g} Tp admitted); a design or simulation that needs a causal delay "
+            "says what it does with it")
 
 
 def _test_gains(inputs: _Inputs, m: _Measured, Td: float) -> list[float | None]:

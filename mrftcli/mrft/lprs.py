@@ -381,6 +381,8 @@ def unit_cycle_scalar(tp_n: float, td_n: float, beta: float, warm: list[float] |
 def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
     """Exact MRFT frequency [rad/s] of eq. (2) and the normalised unit amplitude at that frequency."""
     Tp, Td, tau = model.Tp, model.Td, model.tau
+    if tau < 0.0:  # a lead: the bracket below holds for tau >= 0 only
+        return lead_cycle(Tp, Td, tau, beta, strict=True)
 
     warm: list[float] = []
 
@@ -407,7 +409,7 @@ def _exact_omega(model: LoopModel, beta: float) -> tuple[float, float]:
     return w, float(a)
 
 
-def lead_cycle(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, float]:
+def lead_cycle(Tp: float, Td: float, tau: float, beta: float, strict: bool = False) -> tuple[float, float]:
     """Eq. (2)'s MRFT frequency [rad/s] and unit amplitude (:func:`unit_cycle`) with a negative ``tau`` [s]: a
     loop that leads eq. (2) without delay, as an estimator's lead makes it (``compare.delay``'s pair fit).
     :func:`_exact_omega`'s bracket about the describing function's frequency (one sign change for ``tau >= 0``)
@@ -416,7 +418,8 @@ def lead_cycle(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, fl
     Along the frequency, the delay a cycle needs is ``theta(Tp w, Td w) / w`` (the UFM over w): 0 at the
     no-delay cycle's w0, falling with w to a least value (about -0.16 Tp at beta -0.7, -0.05 Tp at -0.9) and
     rising after it. A lead within reach has its one root on the falling branch; a larger one, which no cycle
-    of this beta holds, is given the branch's end (the residual stays continuous and the fit moves back).
+    of this beta holds, is given the branch's end (the residual stays continuous and the fit moves back), or,
+    ``strict``, an :class:`~mrftcli.errors.IdentificationError` naming it (a model's cycle: no such cycle exists).
     """
     def needed(logw: float) -> float:
         w = math.exp(logw)
@@ -430,6 +433,10 @@ def lead_cycle(Tp: float, Td: float, tau: float, beta: float) -> tuple[float, fl
             logw = optimize.brentq(lambda x: needed(x) - tau, lo, hi, xtol=1e-13)
             break
         if now >= prev:  # past the least delay: the lead is out of this beta's reach
+            if strict:
+                raise IdentificationError(f"no MRFT cycle of eq. (2) with a lead of {-tau * 1e3:.3g} ms (tau < 0) at "
+                                          f"beta {beta:g}: the least delay a cycle of this beta holds is "
+                                          f"{prev * 1e3:.3g} ms at Tp = {Tp:g} s")
             logw = float(optimize.minimize_scalar(needed, bounds=(lo - step, hi), method="bounded",
                                                   options={"xatol": 1e-10}).x)
             break
@@ -496,6 +503,9 @@ def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: fl
         if rate_hz is None or eps != 0.0:
             raise InputError(f"the {model.family} model's cycle needs the relay's rate (rate_hz) and the MRFT (eps 0)")
         return model.sampled_limit_cycle(beta, h, rate_hz)
+    if rate_hz is not None and model.delay < 0.0:
+        raise InputError(f"the sampled relay's cycle of a loop with a lead (tau = {model.delay * 1e3:.3g} ms < 0) is not "
+                         "computed (no delay line holds a lead): take the continuous relay's cycle (no rate)")
     if rate_hz is not None:
         # the centre of the sampled relay's band: the continuous cycle with half a sample more delay
         centre = mrft_limit_cycle(model.with_parameters(tau=model.delay + 0.5 / rate_hz), beta, h, None, n_points,

@@ -244,6 +244,9 @@ def _check_flight(spec: FlightSpec) -> None:
         raise InputError(f"unknown loop {spec.loop!r}; use one of {', '.join(LOOPS)}")
     if not (math.isfinite(spec.rate_hz) and spec.rate_hz > 0):
         raise InputError(f"the controller rate must be a positive frequency in Hz, got {spec.rate_hz!r}")
+    if spec.model.delay < 0:  # eq. (2) admits a lead (an identified estimator's), which no delay line holds
+        raise InputError(f"tau = {spec.model.delay * 1e3:.3g} ms < 0 (a lead) cannot be simulated: the simulator "
+                         "delays the command, it cannot advance it; give tau >= 0")
     if spec.noise_std is not None and not (math.isfinite(spec.noise_std) and spec.noise_std >= 0):
         raise InputError(f"the noise std must be >= 0, got {spec.noise_std!r}")
     check_hover_hold(spec)

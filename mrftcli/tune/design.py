@@ -39,7 +39,7 @@ from scipy.optimize import minimize
 from ..jsonable import check_schema_version, to_jsonable
 from ..errors import InputError
 from ..mrft.controller import json_number
-from ..mrft.model import LoopModel, PlantModel, model_from_json
+from ..mrft.model import LEAD_MAX, LoopModel, PlantModel, model_from_json
 from ..progress import Progress, report
 from ..validate import check_positive
 from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, RateFilter, StepMetrics, as_discrete,
@@ -119,7 +119,9 @@ class Posterior:
 
     def __post_init__(self) -> None:
         Td, tau, K = (np.asarray(v, float).ravel() for v in (self.Td, self.tau, self.K))
-        ok = np.isfinite(Td) & np.isfinite(tau) & np.isfinite(K) & (Td > 0) & (tau >= 0) & (K != 0)
+        # a lead's draws are kept (tune designs on their causal part); a causal model's negative draws are not
+        lead = -LEAD_MAX * float(self.model.Tp) if self.model.tau < 0 else 0.0
+        ok = np.isfinite(Td) & np.isfinite(tau) & np.isfinite(K) & (Td > 0) & (tau >= lead) & (K != 0)
         object.__setattr__(self, "Td", Td[ok])
         object.__setattr__(self, "tau", tau[ok])
         object.__setattr__(self, "K", K[ok])
@@ -677,6 +679,12 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
     if "PI" in kinds:
         raise InputError("--kind PI is for process plants (analyze --model NAME's result); eq. (2) loops take PD or PID")
     notes = []
+    if model.tau < 0:  # a lead: no discrete delay line holds it; design on the loop with tau 0 and say so
+        notes.append(lead_design_note(model.tau))
+        model = model.with_parameters(tau=0.0)
+        if posterior is not None:
+            posterior = Posterior(model, posterior.Td, np.maximum(posterior.tau, 0.0), posterior.K,
+                                  source=posterior.source + "; a lead's tau taken as 0")
     if posterior is None or posterior.n < 2:
         designs = tuple(d for d in designs if d != "robust")
         notes.append("no posterior (no draws or spreads given): the robust design is left out")
@@ -696,6 +704,13 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
     report(progress, len(jobs), len(jobs), "done")
     return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, st.effort_max, st.horizons["PD"],
                       st.cycle, tuple(out), tuple(notes), rate_filter)
+
+
+def lead_design_note(tau: float) -> str:
+    """What a design does with an identified lead (``tau`` < 0 [s]): it takes tau = 0, the causal loop nearest."""
+    return (f"assumed: the identified loop leads eq. (2) (tau = {tau * 1e3:.3g} ms < 0); the designs take tau = 0 "
+            "(no discrete delay line holds a lead), a loop with more lag than identified: the identified loop's delay "
+            f"margin is {-tau * 1e3:.3g} ms more than stated and its phase margin larger")
 
 
 @dataclass(frozen=True, eq=False)

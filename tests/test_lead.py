@@ -1,0 +1,104 @@
+"""Eq. (2) with a lead (tau < 0, down to -Tp / 2): the cycle against the Fourier series of the output, identify's
+round trip and refusal, analyze's statement and tune's causal design (issue 42: PX4 SIH's EKF2 attitude leads)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrftcli.errors import IdentificationError, InputError
+from mrftcli.mrft.identify import TestMeasurement, identify
+from mrftcli.mrft.lprs import mrft_limit_cycle
+from mrftcli.mrft.model import LEAD_MAX, LoopModel, soiptd_model
+
+ROOT = Path(__file__).resolve().parents[1]
+LEAD = LoopModel(0.05, 1.0, -0.003, 113.0)  # PX4 SIH's roll constants with EKF2's ~3 ms lead
+
+
+def _series_output(model: LoopModel, omega: float, beta_check: float, n_terms: int = 4001) -> tuple[float, float]:
+    """The output at the -h -> +h switch and its peak [output units, h = 1], from the Fourier series of the
+    relay's square wave through G(j k omega) (odd k), not from the library's periodic solution."""
+    k = np.arange(1, n_terms + 1, 2, dtype=float)
+    s = 1j * k * omega
+    G = model.K * model.Td * np.exp(-model.tau * s) / (s * (model.Tp * s + 1) * (model.Td * s + 1))
+    t = np.linspace(0.0, 2 * math.pi / omega, 4096, endpoint=False)
+    y = (4 / math.pi) * (np.abs(G) / k) @ np.sin(np.outer(k * omega, t) + np.angle(G)[:, None])
+    return float((4 / math.pi) * np.sum(G.imag / k)), float(y.max())
+
+
+@pytest.mark.parametrize("beta", [-0.3, -0.5, -0.7])
+def test_the_lead_cycle_meets_the_mrft_condition_on_the_output_series(beta: float) -> None:
+    """The MRFT switches -h -> +h where the output is -beta times its peak: with the frequency mrft_limit_cycle
+    gives a lead, the output summed from its harmonics does so (the oracle), and its peak is the amplitude."""
+    lc = mrft_limit_cycle(LEAD, beta)
+    y0, peak = _series_output(LEAD, lc.omega, beta)
+    assert y0 == pytest.approx(-beta * peak, rel=1e-4)
+    assert peak == pytest.approx(lc.amplitude, rel=1e-4)
+    assert lc.omega > mrft_limit_cycle(LEAD.with_parameters(tau=0.0), beta).omega  # a lead: faster than tau 0
+
+
+def test_identify_recovers_a_lead_and_states_it() -> None:
+    betas = (-0.3, -0.5, -0.7)
+    cycles = [mrft_limit_cycle(LEAD, b) for b in betas]
+    tests = [TestMeasurement(b, c.frequency_hz, amplitude=c.amplitude, h=1.0) for b, c in zip(betas, cycles)]
+    r = identify(tests, soiptd_model(LEAD.Tp))
+    assert r.tau.value == pytest.approx(-0.003, abs=1e-7) and r.model.tau == pytest.approx(r.tau.value)
+    assert r.Td.value == pytest.approx(1.0, rel=1e-5) and r.K.value == pytest.approx(113.0, rel=1e-5)
+    assert any(w.startswith("the loop leads eq. (2): tau = -3 ms") for w in r.warnings)
+    two = identify(tests[::2], soiptd_model(LEAD.Tp))  # the two-test intersection too
+    assert two.tau.value == pytest.approx(-0.003, abs=1e-7)
+
+
+def test_what_no_lead_explains_is_still_refused() -> None:
+    """A lead is admitted down to -Tp / 2 (a cycle of eq. (2) holds at most ~0.3 Tp of lead at these betas, so
+    that bound is the model's, not the fit's): two frequencies whose slices do not meet stay refused, and a
+    model beyond the bound is refused by name."""
+    tests = [TestMeasurement(-0.2, 2.0), TestMeasurement(-0.6, 2.4)]
+    with pytest.raises(IdentificationError, match="do not intersect"):
+        identify(tests, soiptd_model(0.05))
+    with pytest.raises(InputError, match="tau must be a non-negative time in seconds \\(or a lead down to -0.025"):
+        LoopModel(0.05, 1.0, -0.03)
+    assert LoopModel(0.05, 1.0, -LEAD_MAX * 0.05).tau == -0.025
+
+
+def test_the_sampled_relay_refuses_a_lead_in_one_line() -> None:
+    with pytest.raises(InputError, match="lead"):
+        mrft_limit_cycle(LEAD, -0.5, rate_hz=250.0)
+
+
+def test_tune_designs_a_lead_on_tau_zero_and_says_so() -> None:
+    """No discrete delay line holds a lead: the designs take tau 0 (more lag than identified), the robust design
+    keeps the posterior (the lead's draws are not dropped), and the first note says so."""
+    from mrftcli.tune.design import Posterior, tune
+
+    rng = np.random.default_rng(0)
+    post = Posterior(LEAD, rng.normal(1.0, 0.02, 50), rng.normal(-0.003, 0.0003, 50), rng.normal(113.0, 1.0, 50))
+    assert post.n == 50
+    res = tune(LEAD, 250.0, posterior=post)
+    assert res.notes[0].startswith("assumed: the identified loop leads eq. (2) (tau = -3 ms < 0); the designs take tau = 0")
+    assert res.model.tau == 0.0 and any(d.name == "robust" for d in res.designs)
+    same = tune(LEAD.with_parameters(tau=0.0), 250.0, posterior=Posterior(LEAD.with_parameters(tau=0.0), post.Td,
+                                                                           np.maximum(post.tau, 0.0), post.K))
+    assert [d.controller for d in res.designs] == [d.controller for d in same.designs]
+
+
+def test_analyze_states_the_lead_first_and_in_the_json(tmp_path: Path) -> None:
+    """PX4 SIH's pitch on EKF2's attitude (sample_logs/sitl): identified with its lead (refused before), the
+    assumption on the lines after the signals read, tau negative in the parameters, the model and the notes."""
+    out = tmp_path / "r.json"
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", "sample_logs/sitl/px4_pitch_h.ulg", "--loop",
+                           "pitch", "--tp", "0.05", "--json", str(out)], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    head = proc.stdout.splitlines()[:6]
+    assert any(line.startswith("note: assumed: the loop leads eq. (2): tau = -2.9") for line in head)
+    assert proc.stdout.count("the loop leads eq. (2)") == 1
+    data = json.loads(out.read_text())
+    assert -0.005 < data["parameters"]["tau"]["value"] < -0.001
+    assert data["model"]["tau"] == pytest.approx(data["parameters"]["tau"]["value"])
+    assert data["notes"][0].startswith("assumed: the loop leads eq. (2)")

@@ -67,9 +67,17 @@ def test_what_no_lead_explains_is_still_refused() -> None:
     assert LoopModel(0.05, 1.0, -LEAD_MAX * 0.05).tau == -0.025
 
 
-def test_the_sampled_relay_refuses_a_lead_in_one_line() -> None:
-    with pytest.raises(InputError, match="lead"):
-        mrft_limit_cycle(LEAD, -0.5, rate_hz=250.0)
+def test_the_sampled_relays_orbits_of_a_lead_bracket_its_centre_and_tend_to_the_continuous_cycle() -> None:
+    """The sampled relay's band of a lead: its orbits bracket the band's centre (the continuous cycle with half a
+    tick more delay) and shrink onto the continuous lead cycle as the rate rises."""
+    for beta in (-0.3, -0.7):
+        cont = mrft_limit_cycle(LEAD, beta).frequency_hz
+        gaps = []
+        for rate in (250.0, 10_000.0):
+            lc = mrft_limit_cycle(LEAD, beta, rate_hz=rate)
+            assert min(lc.orbits_hz) <= lc.frequency_hz <= max(lc.orbits_hz)
+            gaps.append(abs(lc.frequency_hz / cont - 1.0))
+        assert gaps[1] < 0.003 and gaps[1] < gaps[0] / 10
 
 
 def test_tune_designs_a_lead_on_tau_zero_and_says_so() -> None:

@@ -503,11 +503,9 @@ def mrft_limit_cycle(model: PlantModel, beta: float, h: float = 1.0, rate_hz: fl
         if rate_hz is None or eps != 0.0:
             raise InputError(f"the {model.family} model's cycle needs the relay's rate (rate_hz) and the MRFT (eps 0)")
         return model.sampled_limit_cycle(beta, h, rate_hz)
-    if rate_hz is not None and model.delay < 0.0:
-        raise InputError(f"the sampled relay's cycle of a loop with a lead (tau = {model.delay * 1e3:.3g} ms < 0) is not "
-                         "computed (no delay line holds a lead): take the continuous relay's cycle (no rate)")
     if rate_hz is not None:
-        # the centre of the sampled relay's band: the continuous cycle with half a sample more delay
+        # the centre of the sampled relay's band (a lead too: a periodic orbit is a shift of the command, whose
+        # sign the anti-periodic orbit's algebra does not need; as the rate rises it tends to the lead's cycle): the continuous cycle with half a sample more delay
         centre = mrft_limit_cycle(model.with_parameters(tau=model.delay + 0.5 / rate_hz), beta, h, None, n_points,
                                   eps=eps)
         ss = model.realisation()

@@ -21,7 +21,7 @@ from ..mrft.identify import ufm_slice
 from ..mrft.model import LoopModel
 from ..segment import MrftTest
 
-__all__ = ["Screening", "screen", "screen_tests", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
+__all__ = ["Screening", "screen", "screen_usable", "screen_tests", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
            "no_usable_message", "WHICH_LOOP_HINT", "partial_single_beta", "low_rate_period", "ASSUMED_TD_RANGE"]
 
 #: Td range [s] assumed for the partial result of a single-beta log (multirotor drag time constants).
@@ -86,16 +86,7 @@ def screen(flight: FlightLog, found: Sequence[MrftTest], model: LoopModel, min_s
     InsufficientDataError
         The usable tests share one beta (``partial``: tau over :data:`ASSUMED_TD_RANGE`).
     """
-    t0 = log_start(flight)
-    reasons = screen_tests(found, min_stable_cycles)
-    usable = [t for t in found if t.index not in reasons]
-    rejected = [t for t in found if t.index in reasons]
-    warnings = [f"test at {span(t, t0)} left out: {reasons[t.index]}" for t in rejected]
-    if not usable:
-        err = SegmentationError(no_usable_message(flight, found, reasons, min_stable_cycles, t0))
-        # for ``--json``: what was found and why each test was rejected (read by cli/analyze.py)
-        err.rejected_tests = _rejected_rows(found, reasons, t0)
-        raise err
+    usable, rejected, reasons, t0, warnings = screen_usable(flight, found, min_stable_cycles)
     if len(group_betas(usable)) < 2:
         raise InsufficientDataError(
             f"{flight.path}: only one beta was tested ({describe_tests(usable, t0)}; times from the log start); "
@@ -117,6 +108,29 @@ def screen(flight: FlightLog, found: Sequence[MrftTest], model: LoopModel, min_s
             )
     warnings.extend(flight.warnings)
     return Screening(tuple(usable), tuple(rejected), reasons, t0, ts_ctrl, tuple(warnings))
+
+
+def screen_usable(flight: FlightLog, found: Sequence[MrftTest], min_stable_cycles: int
+                  ) -> tuple[list[MrftTest], list[MrftTest], dict[int, str], float, list[str]]:
+    """The tests ``analyze`` uses (:func:`screen_tests`) and those it leaves out, the reasons by test index, the
+    log's start [s] and one line per test left out ("test at ... left out: reason"); :func:`screen`'s first half,
+    which ``delay`` shares.
+
+    Raises
+    ------
+    SegmentationError
+        No test survives (``rejected_tests`` holds every test found, with its reason, for ``--json``).
+    """
+    t0 = log_start(flight)
+    reasons = screen_tests(found, min_stable_cycles)
+    usable = [t for t in found if t.index not in reasons]
+    rejected = [t for t in found if t.index in reasons]
+    if not usable:
+        err = SegmentationError(no_usable_message(flight, found, reasons, min_stable_cycles, t0))
+        # for ``--json``: what was found and why each test was rejected (read by cli/analyze.py)
+        err.rejected_tests = _rejected_rows(found, reasons, t0)
+        raise err
+    return usable, rejected, reasons, t0, [f"test at {span(t, t0)} left out: {reasons[t.index]}" for t in rejected]
 
 
 def low_rate_period(tests: Sequence[MrftTest]) -> float:

@@ -45,8 +45,7 @@ import numpy as np
 
 from ..analyze.estimate import beta_used
 from ..analyze.record import analysis_controller_rate
-from ..analyze.screen import (group_betas, log_start, low_rate_period, no_usable_message, screen_tests,
-                               span)
+from ..analyze.screen import group_betas, low_rate_period, screen_usable
 from ..errors import (IdentificationError, InputError, InsufficientDataError, LogReadError, MrftError,
                       SegmentationError)
 from ..io import LogSource, ReadOptions, open_log, read_loop
@@ -476,14 +475,11 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
         flight = dataclasses.replace(read_loop(src, read, loop_hint=True), path=str(path))  # as read_flight
         latency = _output_latency(src, flight.source)  # from the same open log
     found = segment(flight, controller_rate_hz=read.controller_rate_hz)
-    reasons = screen_tests(found, min_stable_cycles)
-    usable = [t for t in found if t.index not in reasons]
-    t0 = log_start(flight)
-    if not usable:
-        err = SegmentationError(no_usable_message(flight, found, reasons, min_stable_cycles, t0))
+    try:
+        usable, _, _, t0, left_out = screen_usable(flight, found, min_stable_cycles)
+    except SegmentationError as err:
         err.warnings = tuple(flight.warnings)  # the reader's (an assumed rate): shown above the error
-        raise err
-    left_out = [f"test at {span(t, t0)} left out: {reasons[t.index]}" for t in found if t.index in reasons]
+        raise
     notes = [f"test at {t.t_start - t0:.1f} s: {n}" for t in usable for n in t.notes]
     rate = read.controller_rate_hz or analysis_controller_rate(flight.timing.controller_rate_hz,
                                                                [t.rate_hz for t in usable])

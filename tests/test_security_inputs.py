@@ -169,6 +169,21 @@ def test_export_never_replaces_a_log_this_tool_simulated(tmp_path: Path, capsys,
     assert run_cli(capsys, *tune, "roll.params")[0] == 0  # its own export: replaced
 
 
+def test_mcap_out_never_replaces_a_recorded_flight(tmp_path: Path, capsys, monkeypatch) -> None:
+    # analyze LOG --mcap-out LOG replaced the log with the fit overlay (exit 0), and any other MCAP as well:
+    # only the magic bytes were checked
+    monkeypatch.chdir(tmp_path)
+    for name in ("flight.mcap", "other.mcap"):
+        (tmp_path / name).write_bytes((SAMPLES / "design1_altitude.mcap").read_bytes())
+    before = _snapshot(tmp_path)
+    for target in ("flight.mcap", "other.mcap"):
+        code, _out, err = run_cli(capsys, "analyze", "flight.mcap", "--tp", "0.0422", "-q", "--mcap-out", target)
+        _one_line_error(code, err, f"--mcap-out {target}", "not")
+        assert _snapshot(tmp_path) == before
+    assert run_cli(capsys, "analyze", "flight.mcap", "--tp", "0.0422", "-q", "--mcap-out", "fit.mcap")[0] == 0
+    assert run_cli(capsys, "analyze", "flight.mcap", "--tp", "0.0422", "-q", "--mcap-out", "fit.mcap")[0] == 0
+
+
 def test_compare_never_writes_over_a_compared_result(tmp_path: Path, capsys, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "a.json").write_text("{}\n")

@@ -39,6 +39,7 @@ when the caller passes it.
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
@@ -97,13 +98,26 @@ def check_overlay_path(path: str | Path) -> Path:
     """The output path if it replaces nothing but an MCAP file (:func:`mrftcli.io.atomic.check_output_path`),
     else a one-line InputError; its folder and whether it can be written are the CLI's one output check
     (:func:`mrftcli.cli.options.check_output_file`, before this)."""
-    return check_output_path(path, "--mcap-out", ours=_is_mcap, what="an MCAP file")
+    return check_output_path(path, "--mcap-out", ours=_is_overlay, what="a results MCAP")
 
 
-def _is_mcap(path: Path) -> bool:
-    """An MCAP file (its magic bytes): what ``--mcap-out`` replaces."""
+def _is_overlay(path: Path) -> bool:
+    """A results MCAP this module wrote (its ``mrft_ident`` metadata record): what ``--mcap-out`` replaces.
+
+    The magic bytes alone would take a recorded flight (the command's own LOG among them) for one.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
     with open(path, "rb") as fh:
-        return fh.read(5) == b"\x89MCAP"
+        if fh.read(5) != b"\x89MCAP":
+            return False
+        fh.seek(0)
+        try:
+            summary = make_reader(fh).get_summary()
+        except (McapError, ValueError, OSError, struct.error):  # a cut file: not one to replace
+            return False
+    return summary is not None and any(m.name == "mrft_ident" for m in summary.metadata_indexes)
 
 
 def _schema(properties: dict[str, str]) -> bytes:

@@ -139,7 +139,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     # one generator through the stages in this order: a seed gives the same draws
     rng = np.random.default_rng(opts.seed)
     point = point_estimate(model, screening, constraints, opts.n_bootstrap, rng)
-    cons = consensus(model, point, constraints, screening.ts_ctrl, rng)
+    cons = consensus(model, point, constraints, screening.ts_ctrl, rng, opts.diagnose_hint)
     n = len(screening.usable)
     n_combinations = int(min(opts.max_combinations, max(50, 4000 // n)))
     combos = combinations(Tp, list(point.cycles), cons.Td_point, n_combinations, rng)
@@ -148,7 +148,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
                         cons.Td_point)
     bounds = identifiability(model, screening, point, cons, constraints, rng, flight)
     mrft_params = {"Td": bounds.Td, "tau": bounds.tau, "K": bounds.K}
-    wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform)
+    wave = waveform_refinement(flight, screening, cons, bounds, mrft_params, opts.refine_waveform, opts.diagnose_hint)
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.value)
     tp_warning, tp_check = _tp_check(flight, screening, wave, model, opts.refine_waveform)

@@ -31,13 +31,11 @@ from .screen import Screening
 
 __all__ = ["PointEstimate", "Consensus", "Identifiability", "WaveformStage", "SendTimeWindows", "point_estimate",
            "consensus", "identifiability", "send_time_windows", "waveform_refinement", "widen_for_jitter",
-           "TD_OMEGA_LIMIT", "TRY_DIAGNOSE"]
+           "TD_OMEGA_LIMIT"]
 
 _TWO_PI = 2.0 * math.pi
 #: Td * Omega above which Td is called poorly identifiable (the issue's accuracy boundary).
 TD_OMEGA_LIMIT = 5.0
-#: The hint that ends a warning diagnose may explain (``analyze --diagnose`` drops it: it is already given).
-TRY_DIAGNOSE = " (try --diagnose)"
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,13 +230,14 @@ def point_estimate(model: LoopModel, screening: Screening, constraints: Sequence
 
 
 def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str], ts_ctrl: float,
-              rng: np.random.Generator) -> Consensus:
+              rng: np.random.Generator, hint: str = "") -> Consensus:
     """The weighted estimate of the tests together (UFM slices + ``constraints``) at ``model``'s known Tp,
     and its bootstrap over cycles.
 
     The weighted estimate on the data themselves (bootstrap row 0) is the point estimate; the
     paper's UFM-only estimate stays in ``identification`` for comparison. A low-rate log
-    (``ts_ctrl`` > 0) has the sampled relay's lag Ts / 2 removed from every tau.
+    (``ts_ctrl`` > 0) has the sampled relay's lag Ts / 2 removed from every tau. ``hint`` ends the warning
+    that the tests' constraints disagree (:attr:`~mrftcli.analyze.options.AnalyzeOptions.diagnose_hint`).
     """
     known, Tp = model, model.Tp  # the known set E; below, ``model`` is the fit
     ident, limit, B = point.identification, point.limit, point.n_draws
@@ -263,7 +262,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
             warnings.append(
                 f"the tests' constraints disagree (chi2 {constraint_info['chi2']:.1f} for {constraint_info['dof']} "
                 f"degrees of freedom): the plant may not follow eq. (2); the UFM-only estimate is Td "
-                f"{ident.model.Td:.4g} s, tau {ident.model.tau * 1e3:.4g} ms{TRY_DIAGNOSE}")
+                f"{ident.model.Td:.4g} s, tau {ident.model.tau * 1e3:.4g} ms{hint}")
     elif constraints:
         warnings.append("the weighted estimate found no minimum in the search range; the UFM-only estimate is used")
     if ts_ctrl:
@@ -426,11 +425,13 @@ def _refinement_windows(flight: FlightLog, usable: Sequence[MrftTest]
 
 
 def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus, bounds: Identifiability,
-                        mrft_params: Mapping[str, ParameterEstimate], refine_waveform: bool) -> WaveformStage:
+                        mrft_params: Mapping[str, ParameterEstimate], refine_waveform: bool,
+                        hint: str = "") -> WaveformStage:
     """Refine the MRFT estimate by output error on the tests' windows; report it when the data accept it.
 
     The waveform needs the command as the plant received it: logged below the controller's rate,
-    its switch instants are off by up to a logging period, and the refinement is not run.
+    its switch instants are off by up to a logging period, and the refinement is not run. ``hint`` ends the
+    warning that the refinement was not used (:attr:`~mrftcli.analyze.options.AnalyzeOptions.diagnose_hint`).
     """
     model, (Td_est, tau_est, K_est) = cons.model, (bounds.Td, bounds.tau, bounds.K)
     usable = screening.usable
@@ -453,7 +454,7 @@ def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus
     if not refinement.accepted:
         return WaveformStage(refinement, "mrft", model, Td_est, tau_est, K_est,
                              ("the waveform refinement was not used (" + "; ".join(refinement.reasons)
-                              + "): the MRFT estimate is reported" + TRY_DIAGNOSE,), send_notes)
+                              + "): the MRFT estimate is reported" + hint,), send_notes)
     Td_est, tau_est, K_est = refinement.Td, refinement.tau, refinement.K
     if bounds.td_open:
         # the waveform does not close it either: keep the one-sided statement, with the

@@ -188,6 +188,7 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                              "exit_code": 0, "result": None, "diagnosis": None}
     try:
         from ..analyze import AnalyzeOptions, analyze_path, refuse_rejected_tp
+        from ..analyze.options import TRY_DIAGNOSE
         from ..io import ReadOptions
         from ..mrft.model import soiptd_model
 
@@ -206,7 +207,10 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
         read = ReadOptions(loop=loop, command_topic=s.command_topic, output_topic=s.output_topic,
                            beta_topic=s.beta_topic, setpoint_topic=s.setpoint_topic, output_scale=s.output_scale,
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
-        options = AnalyzeOptions() if s.min_cycles is None else AnalyzeOptions(min_stable_cycles=s.min_cycles)
+        # the hint batch's --diagnose answers, unless it is given
+        hint = "" if task.diagnose else TRY_DIAGNOSE
+        options = AnalyzeOptions(diagnose_hint=hint) if s.min_cycles is None else AnalyzeOptions(
+            min_stable_cycles=s.min_cycles, diagnose_hint=hint)
         # batch tries every loop itself: a missing topic's error does not tell the user to give --loop
         result = analyze_path(task.path, model, read=read, options=options, loop_hint=False)  # the one route
         if task.model is None:  # eq. (2): a Tp the recording rejects fails the loop unless --accept-tp

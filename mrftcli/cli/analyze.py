@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import click
 
@@ -15,9 +15,6 @@ from ..report.wording import uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
                       tp_option, tqdm_progress)
-
-if TYPE_CHECKING:
-    from ..analyze import AnalysisResult
 
 
 def accept_tp_option(f):
@@ -280,7 +277,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     Example: mrft-ident analyze flight.mcap --tp 0.0422 --loop altitude --report out/
     """
     from ..analyze import AnalyzeOptions, log_start
-    from ..analyze.options import RelayOptions
+    from ..analyze.options import TRY_DIAGNOSE, RelayOptions
     from ..io import ReadOptions, read_flight
 
     # a process model's operating point: a number, or a topic of the log
@@ -308,7 +305,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         baseline = (_baseline_signal(log, baseline_topic, read_options), 0.0)
     options = AnalyzeOptions(min_stable_cycles=min_cycles, **({"constraints": ()} if paper_only else {}),
                              relay=RelayOptions(relay_kind, None, eps), windows=parse_windows(windows, log_start(flight)),
-                             baseline=baseline, **({"cascade": cascade_opts} if cascade_opts is not None else {}))
+                             baseline=baseline, **({"cascade": cascade_opts} if cascade_opts is not None else {}),
+                             diagnose_hint="" if run_diagnose else TRY_DIAGNOSE)  # with --diagnose: given below
     weights = {"identify": 6.0, **({"diagnose": 25.0} if run_diagnose else {}), **({"report": 4.0} if report_dir else {})}
     # a bar (stderr, terminal only) when the run is long enough to wait for: a diagnosis or a report
     with tqdm_progress("analyze", unit="s", enabled=len(weights) > 1 and not quiet) as progress:
@@ -317,7 +315,6 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         result = _identify(flight, model, options, accept_tp, json_target)
         diagnosis = None
         if run_diagnose:
-            result = _without_diagnose_hint(result)
             from ..diagnose.selection import diagnose as run_diagnosis
 
             if result.kind == "soiptd":
@@ -390,15 +387,6 @@ def _model(Tp, model_name, params, ranges, relay_kind, eps, paper_only, run_diag
         raise click.UsageError("--paper-only: " + _NO_PAPER_ONLY["cascade" if cascade is not None else "family"]
                                .format(family=model.family))
     return model, options
-
-
-def _without_diagnose_hint(result: AnalysisResult) -> AnalysisResult:
-    """``result`` whose warnings no longer end '(try --diagnose)': the diagnosis is given with them."""
-    from dataclasses import replace
-
-    from ..analyze.estimate import TRY_DIAGNOSE
-
-    return replace(result, warnings=tuple(w.removesuffix(TRY_DIAGNOSE) for w in result.warnings))
 
 
 def _identify(flight, model, options, accept_tp: bool, json_target):

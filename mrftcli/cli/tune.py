@@ -179,13 +179,15 @@ def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict
               quiet: bool = False) -> _TuneSource:
     """A flight log, analysed as ``analyze`` would (its warnings printed)."""
     from ..analyze import AnalyzeOptions, analyze_path
+    from ..analyze.options import TRY_DIAGNOSE_COMMAND
     from ..io import ReadOptions
     from ..tune.analysis import posterior_from_analysis
 
     with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
         progress(0, 1, "analysing the log")
         read = ReadOptions(**{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
-        result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles))
+        result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles,
+                                                                               diagnose_hint=TRY_DIAGNOSE_COMMAND))
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     return _TuneSource(result.model, posterior_from_analysis(result), result.loop, result.controller_rate_hz,

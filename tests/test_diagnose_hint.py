@@ -1,0 +1,52 @@
+"""The warnings a diagnosis would explain end with the hint of the command that made them (AnalyzeOptions.diagnose_hint):
+'(try --diagnose)' for analyze and batch without --diagnose, '(try mrft-ident diagnose)' for tune and vehicle, which
+have no --diagnose (they said '(try --diagnose)'), nothing for a library caller or with the diagnosis run (analyze
+appended the hint and then cut it off again)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mrftcli.analyze import AnalyzeOptions, analyze_path
+from mrftcli.analyze.options import TRY_DIAGNOSE_COMMAND
+from mrftcli.io import ReadOptions
+from mrftcli.mrft.model import soiptd_model
+
+LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "concealed" / "flight_05.mcap"  # constraints disagree
+
+
+@pytest.fixture(scope="module")
+def by_hint():
+    return {h: analyze_path(LOG, soiptd_model(0.0422), read=ReadOptions(loop="altitude"),
+                            options=AnalyzeOptions(n_bootstrap=50, diagnose_hint=h)).warnings
+            for h in ("", TRY_DIAGNOSE_COMMAND)}
+
+
+def test_each_caller_gets_its_own_hint_or_none(by_hint):
+    plain = by_hint[""]
+    assert not any("(try " in w for w in plain)  # a library caller: no command to point to
+    for hint in (TRY_DIAGNOSE_COMMAND,):  # analyze's TRY_DIAGNOSE: test_analyze_cli
+        hinted = [w for w in by_hint[hint] if w.endswith(hint)]
+        assert len(hinted) == 2  # the constraints disagree; the waveform refinement was not used
+        assert [w.removesuffix(hint) for w in by_hint[hint]] == list(plain)  # the warnings themselves unchanged
+
+
+def test_tune_and_vehicle_point_to_the_diagnose_command(monkeypatch):
+    """tune and vehicle have no --diagnose: they build their analysis with TRY_DIAGNOSE_COMMAND."""
+    import mrftcli.analyze
+    from mrftcli.cli.main import main
+    from mrftcli.vehicle.driver import VehicleOptions
+
+    assert VehicleOptions().analyze().diagnose_hint == TRY_DIAGNOSE_COMMAND
+    asked = []
+
+    def stop(path, model, *, read=None, options=None, **kwargs):
+        asked.append(options)
+        raise SystemExit(0)  # the options are what is checked: no analysis needed
+
+    monkeypatch.setattr(mrftcli.analyze, "analyze_path", stop)
+    with pytest.raises(SystemExit):
+        main(["tune", str(LOG), "--tp", "0.0422", "--loop", "altitude", "-q"])
+    assert [o.diagnose_hint for o in asked] == [TRY_DIAGNOSE_COMMAND]

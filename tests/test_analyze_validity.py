@@ -124,6 +124,16 @@ def test_pure_noise_output_is_rejected(roll):
         assert "does not follow" in r["reason"]
 
 
+def test_the_output_amplitude_of_a_refusal_is_in_the_loops_unit():
+    # 'analyze ALTITUDE_LOG --loop x' said the x output's amplitude in mrad: every loop but altitude was
+    # taken for an angle
+    from mrftcli.analyze.screen import _amp_text
+
+    said = {loop: _amp_text(0.0123, loop) for loop in ("altitude", "x", "y", "roll", "pitch", "process")}
+    assert said == {"altitude": "12 mm", "x": "12 mm", "y": "12 mm", "roll": "12 mrad", "pitch": "12 mrad",
+                    "process": "0.0123 output units"}
+
+
 def test_unrelated_sinusoid_at_another_frequency_is_rejected(roll):
     tests = segment(roll)
     f_relay = [t.frequency_hz_mean for t in tests]

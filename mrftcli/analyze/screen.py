@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InsufficientDataError, SegmentationError
-from ..io.logtypes import FlightLog
+from ..io.logtypes import FlightLog, output_unit
 from ..mrft.consensus import SAME_BETA
 from ..mrft.identify import ufm_slice
 from ..mrft.model import LoopModel
@@ -241,10 +241,13 @@ def _topic(flight: FlightLog, key: str, default: str) -> str:
 
 
 def _amp_text(x: float, loop: str) -> str:
-    """An output amplitude for people: mm for altitude [m], mrad for the attitude loops [rad]."""
+    """An output amplitude for people: mm for a position [m], mrad for an angle [rad], else the output's unit."""
     if not np.isfinite(x):
         return "-"
-    return f"{x * 1e3:.2g} {'mm' if loop == 'altitude' else 'mrad'}"
+    unit = output_unit(loop)
+    if unit in ("m", "rad"):
+        return f"{x * 1e3:.2g} m{unit}"
+    return f"{x:.3g} output units"
 
 
 def _median(values: Sequence[float]) -> float | None:

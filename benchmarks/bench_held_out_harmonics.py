@@ -21,6 +21,9 @@ from ``--seed``); RotorPy (benchmarks/diagnose_sims, clean flights as bench_diag
     python benchmarks/bench_held_out_harmonics.py --sitl /tmp/mrft41/fresh2 /tmp/mrft41/final /tmp/mrft41/c1 \\
         /tmp/mrft41/c2 --sims 8 --rotorpy 8 --seed 41043 --work /tmp/held_out_harmonics
 
+``--residuals LOG...``: only each test's harmonics against eq. (2) fitted to the fundamentals (gain and phase
+beyond it, beside their scatter): why a harmonic helps (roll, pitch) or hurts (EKF3's altitude).
+
 Recorded in docs/benchmarks/sitl.md.
 """
 
@@ -37,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts" / "sitl"))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from held_out_routes import POINT_ROUTES, RouteResult, points_route  # noqa: E402
+from held_out_routes import POINT_ROUTES, RouteResult, harmonic_residuals, points_route  # noqa: E402
 
 ROUTES = ("eq2", *POINT_ROUTES)
 
@@ -147,7 +150,15 @@ def main() -> int:
     ap.add_argument("--rotorpy", type=int, default=8, help="clean RotorPy flights")
     ap.add_argument("--seed", type=int, default=41043, help="seed of the simulated flights' draws")
     ap.add_argument("--work", type=Path, default=Path("/tmp/held_out_harmonics"), help="folder of the simulated flights")
+    ap.add_argument("--residuals", type=Path, nargs="*", default=[],
+                    help="only: these logs' harmonics against eq. (2) fitted to the fundamentals (why a harmonic "
+                         "helps or hurts)")
     args = ap.parse_args()
+    if args.residuals:
+        for log in args.residuals:
+            print(f"{log}: eq. (2) fitted to every test's fundamental; what each point adds beyond it")
+            print("\n".join(f"  {line}" for line in harmonic_residuals(log)))
+        return 0
     args.work.mkdir(parents=True, exist_ok=True)
     logs = [log for d in args.sitl for log in sorted(d.glob("*.BIN")) if Path(f"{log}.json").exists()]
     logs += simulate_ours(args.work, args.sims, args.seed) + simulate_rotorpy(args.work, args.rotorpy, args.seed + 1)

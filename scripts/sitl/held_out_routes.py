@@ -50,7 +50,8 @@ from mrftcli.mrft.model import LoopModel
 from mrftcli.mrft.sem import mean_sem
 from mrftcli.segment import segment
 
-__all__ = ["MODEL_FILES", "POINT_ROUTES", "RouteResult", "cli_route", "fit_route", "held_out_routes", "points_route"]
+__all__ = ["MODEL_FILES", "POINT_ROUTES", "RouteResult", "cli_route", "fit_route", "harmonic_residuals", "held_out_routes",
+           "points_route"]
 
 _EQ2 = "K*exp(-tau*s)/(s*(Td*s + 1)*(Tp*s + 1))"
 _K = 'K   = { range = [0.1, 10000] }\n'
@@ -208,6 +209,27 @@ def points_route(log: Path, route: str) -> RouteResult:
         errors.append(None if ho.frequency_hz is None else ho.frequency_hz / t.frequency_hz - 1.0)
     flown = len(side["tests"])
     return RouteResult(flown, tuple(errors + [None] * (flown - len(errors))))
+
+
+def harmonic_residuals(log: Path) -> list[str]:
+    """Each test's fundamental, 3rd and 5th harmonic against eq. (2) declared fitted to every test's fundamentals:
+    the gain [%] and phase [deg] the harmonics add beyond it, beside their measured standard errors (why fitting
+    a harmonic helps or hurts a held-out prediction: a harmonic off by more than its scatter is a bias)."""
+    from mrftcli.analyze import general
+    from mrftcli.mrft.model_file import parse_model_spec
+
+    side = _side(log)
+    model = parse_model_spec(tomllib.loads(MODEL_FILES["eq2_declared"].replace("@TP@", repr(side["tp_s"]))))
+    points = [p for m in _measured(log) for p in m.points]
+    fit = general.identify_points(model, [p for p in points if p.harmonic == 1])
+    response = fit.model.frequency_response(np.array([p.omega for p in points]))
+    lines = []
+    for p, g in zip(points, response):
+        phase = math.degrees((p.phase - np.angle(g) + math.pi) % (2 * math.pi) - math.pi)
+        lines.append(f"test {p.test + 1} k {p.harmonic} at {p.omega / (2 * math.pi):6.2f} Hz: gain "
+                     f"{math.log(p.gain / abs(g)) * 100:+6.1f} % (se {p.se_log_gain * 100:4.1f}), phase {phase:+6.1f} deg "
+                     f"(se {math.degrees(p.se_phase):4.1f})")
+    return lines
 
 
 CLI_ROUTES = ("eq2", *MODEL_FILES)

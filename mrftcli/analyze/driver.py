@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import InputError, LogReadError, TpRejectedError
 from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
-from ..io.logtypes import FlightLog
+from ..io.logtypes import PROCESS_LOOP, FlightLog
 from ..mrft.cascade import CascadeModel
 from ..mrft.consensus import combinations
 from ..mrft.identify import LEAD_WORDS, lead_note
@@ -249,8 +249,9 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
         As in :func:`analyze_flight` (eq. (2): ``soiptd_model(Tp)``).
     read : ReadOptions, optional
         How to read the loop (loop, topics, scales, layout, controller rate, format, time unit; see
-        :func:`mrftcli.io.read_flight`); None: ``ReadOptions()``, the altitude loop. A process model
-        is read on any time scale (``any_time_scale``: its clock is not checked against a vehicle's).
+        :func:`mrftcli.io.read_flight`); None: ``ReadOptions()``, the altitude loop, or for a process model
+        ``ReadOptions(loop="process")`` (its record's loop, as ``analyze --model`` without ``--loop`` says). A
+        process model is read on any time scale (``any_time_scale``: its clock is not checked against a vehicle's).
     options : AnalyzeOptions, optional
         As in :func:`analyze_flight`.
     loop_hint : bool
@@ -273,6 +274,6 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
     from ..io import read_flight
 
     if not isinstance(model, (LoopModel, CascadeModel)):  # a process plant: not a vehicle loop's clock
-        read = dataclasses.replace(read or ReadOptions(), any_time_scale=True)
+        read = dataclasses.replace(read or ReadOptions(loop=PROCESS_LOOP), any_time_scale=True)
     flight = read_flight(path, read, echo_warnings=False, loop_hint=loop_hint)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, model, options=options)

@@ -66,6 +66,12 @@ def report(sim: str, results: list[dict], wall: float) -> None:
           + str([(f"{r['mount_hz']:.1f} Hz", f"zeta {r['mount_zeta']:.3f}", f"{r['rate']:.0f} Hz",
                   f"SNR {r.get('snr') or 0:.0f}", r.get("found"), r.get("unexplained"), r.get("error"))
                  for r in mounts]))
+    trims = np.abs([x for r in results for x in r.get("trim_off") or []])
+    if trims.size:
+        print(f"relay centred off the vehicle's trim by the hold (oracle; % of h, tests that did not lock up): "
+              f"median {100 * np.median(trims):.1f}, RMS {100 * np.sqrt(np.mean(trims**2)):.1f}, max "
+              f"{100 * trims.max():.1f} over {trims.size} tests (diagnose: a per-test nuisance, the spread of "
+              "the tests' relay centres)")
     aborted = [r for r in results if r.get("aborted")]
     print(f"tests whose relay locked up in the air (kept): {sum(r['aborted'] for r in results)} over {len(aborted)} logs")
     refused = [r for r in results if r.get("refused")]

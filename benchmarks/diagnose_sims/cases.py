@@ -19,7 +19,7 @@ import numpy as np
 
 from .loop import LoopSpec, fly, flight_topics, relay_height
 
-__all__ = ["EFFECTS", "MOUNT", "RATES", "draw_case", "run_case"]
+__all__ = ["EFFECTS", "MOUNT", "RATES", "draw_case", "run_case", "trim_offsets"]
 
 #: the library's names of the effects each simulator produces physically
 EFFECTS = ("quadratic_drag", "actuator_saturation", "sensor_lag", "gain_drift", "actuator_rate_limit", "delay_jitter")
@@ -109,6 +109,23 @@ def mount_snr(rec, spec: LoopSpec) -> float:
     return float(np.sum(ring**2) / spec.noise**2)
 
 
+def trim_offsets(rec, spec: LoopSpec, hover: float, drift: float) -> list[float]:
+    """The oracle of each test's relay centre: how far the hold centred it off the vehicle's trim, as a
+    fraction of the test's relay height (tests whose relay locked up left out). The trim is the
+    simulator's settled hover command, moved by a gain drift g as hover / (1 + g t); the relay's centre
+    is the mid-point of the command's two levels during the test. The hold's integrator, unsettled
+    2.5 s after the previous test, leaves it there: real, different per test (``with_trim_nuisance``)."""
+    out = []
+    for (_, h, _), t0, t1, aborted in zip(spec.tests, rec.test_starts, rec.test_ends, rec.aborted):
+        inside = (rec.t >= t0) & (rec.t <= t1)
+        if aborted or not inside.any():
+            continue
+        centre = 0.5 * (rec.command[inside].max() + rec.command[inside].min())
+        trim = hover / (1.0 + drift * 0.5 * (t0 + t1))
+        out.append(float((centre - trim) / h))
+    return out
+
+
 def run_case(case: dict) -> dict:
     """Fly, write MCAP, analyze and diagnose reusing the analysis as the CLI does (CPU of each timed in this
     process), and what was found."""
@@ -124,7 +141,8 @@ def run_case(case: dict) -> dict:
     cpu_sim = time.process_time() - t0
     out = {**case, "cpu_sim": cpu_sim, "Tp": Tp, "aborted": sum(rec.aborted), "min_margin": float("nan"),
            "true_values": {case["effect"]: truth} if truth is not None else {},
-           "snr": mount_snr(rec, spec) if case["effect"] == MOUNT else None}
+           "snr": mount_snr(rec, spec) if case["effect"] == MOUNT else None,
+           "trim_off": trim_offsets(rec, spec, vehicle.hover, truth if case["effect"] == "gain_drift" else 0.0)}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "flight.mcap"
         write_log(flight_topics(rec, [b for b, _, _ in spec.tests]), path, "mcap")

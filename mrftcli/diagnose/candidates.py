@@ -25,7 +25,7 @@ from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significa
 from .scatter import scatter_reference, scatter_z
 from .physics import CANDIDATES, Effect
 from .records import CandidateFit, HeldOut
-from .screen import Screen
+from .screen import Screen, with_trim_nuisance
 
 __all__ = ["PROFILE_NFEV", "REJECT_Z", "REJECT_P", "LinearFit", "fit_linear", "Starts", "CandidateSearch",
            "search_candidates", "jacobian", "probe_gain"]
@@ -62,6 +62,9 @@ class LinearFit:
     rejected : bool
         Some feature of the fitting or the held-out cycles is :data:`REJECT_Z` standard errors off, or
         ``p_value`` < :data:`REJECT_P`: the candidates are fitted.
+    screen : Screen
+        The screen the diagnosis goes on with: each test's relay centre a per-test nuisance
+        (:func:`~mrftcli.diagnose.screen.with_trim_nuisance`).
     """
 
     model: CandidateModel
@@ -73,6 +76,7 @@ class LinearFit:
     held_out: HeldOut
     p_value: float
     rejected: bool
+    screen: Screen
 
 
 def fit_linear(screen: Screen, loop_model: LoopModel, path: str, say: Callable[[str], None]) -> LinearFit:
@@ -91,6 +95,13 @@ def fit_linear(screen: Screen, loop_model: LoopModel, path: str, say: Callable[[
     base = fit_base(model, tests, Tp, lo, hi, screen.recs_fit)
     if not base.ok:
         raise DiagnoseError(f"{path}: the linear model reproduces no limit cycle close to the recorded ones")
+    # each test's relay centre (the hold's trim when it began) is a per-test nuisance: the features it
+    # moves are widened by it, and the linear model refitted from its fit on the narrower ones
+    widened = with_trim_nuisance(screen, model, base)
+    if widened is not screen:
+        screen = widened
+        refit = fit_model(model, base.theta, lo, hi, screen.recs_fit)
+        base = refit if refit.ok else _rescored(model, base, screen.recs_fit)
     say("simulating the noise-driven scatter")
     scatter = scatter_reference(tests, model, base, screen.noise)
     z_sc = scatter_z(tests, scatter, "fit", [sc["v0"] for sc in scatter])
@@ -105,7 +116,16 @@ def fit_linear(screen: Screen, loop_model: LoopModel, path: str, say: Callable[[
                 or (before.feature_max_abs_z or 0.0) >= REJECT_Z)
     return LinearFit(model=model, fit=base, scatter=scatter, chi2_scatter=chi2_scatter, n_all=n_all,
                      bic=base.chi2 + chi2_scatter + base.k * math.log(n_all), held_out=before, p_value=p_base,
-                     rejected=rejected)
+                     rejected=rejected, screen=screen)
+
+
+def _rescored(model: CandidateModel, fit: Fit, recs: list) -> Fit:
+    """A fit at its own theta scored against other standard errors (itself when its cycles fail there)."""
+    got = residuals(model, fit.theta, recs, with_K=True)
+    if got is None:
+        return fit
+    r, K, evals = got
+    return replace(fit, resid=r, K=K, evals=evals, chi2=float(r @ r), n=int(r.size))
 
 
 class Starts:

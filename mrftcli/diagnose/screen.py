@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warnings as pywarnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,12 +19,13 @@ from ..io.logtypes import FlightLog
 from ..segment.records import MrftTest
 from ..mrft.model import LoopModel
 from .features import summarize_features
-from .fit import MIN_CYCLES, DiagnosedTest, feature_sigma, prepare_tests, segments_of
+from .fit import MIN_CYCLES, CandidateModel, DiagnosedTest, Fit, feature_sigma, prepare_tests, segments_of
+from .physics import BY_NAME
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
-__all__ = ["Screen", "screen_log", "lost_height_pair"]
+__all__ = ["Screen", "screen_log", "lost_height_pair", "trim_spread", "with_trim_nuisance"]
 
 #: two tests at one beta are at two relay heights when the larger is this much above the smaller
 HEIGHT_RATIO = 1.1
@@ -224,3 +225,53 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     return Screen(analysis=analysis, segments=segs, tests=tests, noise=noise, t0=t0_log, recs_fit=recs[0],
                   recs_hold=recs[1], recs_all=recs[2], warnings=warnings,
                   analyze_refusal=None if refused_by_linear is None else _reason(flight, refused_by_linear))
+
+
+def trim_spread(tests: list[DiagnosedTest]) -> float:
+    """How far the tests' relay centres scatter [command units]: their sample standard deviation (0 with one test).
+
+    Each test is centred on the hold's trim when it began. A hold whose trim moved between the tests (an
+    integrator not settled since the previous test) leaves each test's centre off the vehicle's trim by
+    about as much as the centres differ (issue 39: 0-3.7 % of h on RotorPy's and JSBSim's flights); a
+    relay centred on one trim throughout gives 0 (centres that agree to a millionth of the mean relay height:
+    the levels' rounding).
+    """
+    if len(tests) < 2:
+        return 0.0
+    spread = float(np.std([t.bias for t in tests], ddof=1))
+    return spread if spread > 1e-6 * float(np.mean([abs(t.h) for t in tests])) else 0.0
+
+
+def with_trim_nuisance(screen: Screen, model: CandidateModel, fit: Fit) -> Screen:
+    """The screen with each test's relay centre treated as a per-test nuisance (issue 39).
+
+    A relay test is centred on the hold's trim when it began, not on the vehicle's trim: an offset d
+    [command units] of the relay's two levels shifts the half-period balance (-d / (2 h) on eq. (2)),
+    the oscillation's centre and the second harmonic, differently in each test. Each feature's standard
+    error gains, in quadrature, what an offset of :func:`trim_spread` (how far the tests' centres
+    scatter) moves it on ``model``'s limit cycle at ``fit`` (the linear model fitted; the cycles at +-d,
+    a central difference), so that the tests' own offsets are not evidence of an effect that acts on
+    the whole flight. One offset shared by every test still is (an input bias), once beyond that
+    spread: the evidence rules judge the sum over the tests. The screen itself when the centres agree.
+    """
+    if model.cands:  # (the linear model's cycle is the reference)
+        raise ValueError("with_trim_nuisance needs the linear model")
+    spread_d = trim_spread(screen.tests)
+    if spread_d <= 0.0:
+        return screen
+    shifted = CandidateModel(BY_NAME["input_bias"], screen.tests, model.Tp)
+    dx = spread_d / shifted.hs  # input_bias' theta entry: d / (mean h)
+    spread = []
+    for i, (feats, _) in enumerate(screen.recs_fit):
+        ends = [shifted.evaluate(np.append(fit.theta, s * dx), i, feats.t_mean, key=5000 + 2 * i + (s > 0))
+                for s in (-1.0, 1.0)]
+        if ends[0] is None or ends[1] is None:
+            spread.append(np.zeros(len(feats.values)))
+            continue
+        spread.append(np.abs(ends[1].features - ends[0].features) / 2.0)
+
+    def widened(recs: list) -> list:
+        return [(f, np.sqrt(s**2 + d**2)) for (f, s), d in zip(recs, spread)]
+
+    return replace(screen, recs_fit=widened(screen.recs_fit), recs_hold=widened(screen.recs_hold),
+                   recs_all=widened(screen.recs_all))

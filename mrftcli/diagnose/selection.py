@@ -61,13 +61,23 @@ from .physics import BIC_THRESHOLD, BY_NAME, CANDIDATES, as_test_data, select as
 from .resonance import resonance_mismatch
 from .records import (CandidateFit, DiagnosisFigures, DiagnosisResult, Disagreement, EffectFinding, EffectIdentification,
                       FinalModel, Identification, ModelEstimate, TestRow, Unexplained, analyze_model)
-from .screen import Screen, screen_log
+from .screen import Screen, screen_log, trim_spread
 
 if TYPE_CHECKING:
     from ..analyze import AnalysisResult
 
 __all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "EffectFinding",
            "BIC_THRESHOLD"]
+
+
+def _trim_note(screen: Screen) -> list[str]:
+    """The assumption the features' standard errors carry when the tests' relay centres differ (issue 39)."""
+    spread = trim_spread(screen.tests)
+    if spread <= 0.0:
+        return []
+    return [f"the tests' relay centres differ (std {spread:.3g} command units: the hold's trim moved between "
+            "tests), so each test's centre is taken as off the vehicle's trim by about that much: offsets that "
+            "differ between tests are not named as an effect, one shared by every test is (input_bias)"]
 
 
 class _Stages:
@@ -256,6 +266,7 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
     say = _Stages(progress, 4 + len(names))
     screen = screen_log(flight, model, analysis, say, refusal)
     linear = fit_linear(screen, model, str(flight.path), say)
+    screen = linear.screen  # each test's relay centre a per-test nuisance
     search = search_candidates(screen, linear, names, model, say)
     chosen = select_effects(screen, linear, search, model, say)
     cand_rows, effects = list(search.rows), list(chosen.effects)
@@ -282,7 +293,7 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
         tests=_test_rows(screen, linear), noise_std=screen.noise, summary=_summary_text(effects, unexplained),
         warnings=warnings, analyze_refusal=screen.analyze_refusal,
         second_effect_candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in chosen.pair_rows],
-        unexplained=unexplained, t0=screen.t0, figures=figures,
+        unexplained=unexplained, t0=screen.t0, figures=figures, notes=_trim_note(screen),
     )
 
 

@@ -17,7 +17,7 @@ Units: times in seconds, the output in its own units (m or rad), the command in 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -235,6 +235,9 @@ class CandidateModel:
         self.name = "+".join(c.name for c in cands) if cands else "base"
         self.hs = float(np.mean([t.h for t in tests]))
         self.bias_mean = float(np.mean([t.bias for t in tests]))
+        # the hover command at the log's start under a gain drift: the first test's relay centre (a relay
+        # centred on the trim of its own start, as a hold hands over, or on one fixed trim: then every test's)
+        self.bias_first = float(min(tests, key=lambda t: t.t_start).bias) if tests else 0.0
 
     def extra_index(self, name: str) -> int | None:
         """Index in theta of the effect's own parameter (None for quadratic drag, which uses theta[0])."""
@@ -319,6 +322,10 @@ class CandidateModel:
             plant = AugmentedPlant(self.Tp, p["Td"], p["tau"], 1.0, **kw)
         if "gain_drift" in ex:
             g = max(1.0 + ex["gain_drift"] * (t_ref - test.t0_log), 0.05)
+            # g (b + u) - b0 + d: the hover command b0 is the flight's, so a test whose relay a hold re-centred
+            # on the drifted trim (b = b0 / g(start)) starts trimmed and drifts off within it (issue 39: the
+            # test's own b taken as b0 put every later test off trim by (g - 1) b / g)
+            plant = replace(plant, input_bias=plant.input_bias + test.bias - self.bias_first)
             return quasi_static_plant(plant, g, test.bias), g
         return plant, 1.0
 

@@ -502,7 +502,7 @@ def _report_misses(results: dict[str, dict[str, Any]]) -> None:
     unpredicted = sum(max(0, r["found"] - len(r["held"]) - len(r.get("held_rate", []))) for r in kept)
     over = [(k, h) for k, r in results.items() for h in r["held"] if abs(h.error) > 0.05]
     over_rate = sum(abs(e) > 0.05 for r in results.values() for e in r.get("held_rate", []))
-    print(f"  the misses: {refused} refused (eq. (2) at the known Tp: a negative delay), {unfound} not found, "
+    print(f"  the misses: {refused} refused (eq. (2) at the known Tp), {unfound} not found, "
           f"{unpredicted} found but not predicted (the other tests refused or too few), "
           f"{len(over) + over_rate} predicted more than 5 % off")
     rows = []

@@ -463,3 +463,17 @@ def test_batch_against_and_its_old_name_together_are_refused(tmp_path, repo_root
     assert exc.value.code == 2
     assert "give --against only (batch's --baseline is its deprecated alias)" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_loop_asked_for_that_neither_side_holds_is_missing(results, capsys):
+    """'compare A B --loop roll' where neither analysis holds roll said 'no change beyond tolerance in 0 parameters;
+    exit code 0' (E8's user check): a loop asked for and compared nowhere is missing on both sides, exit 10."""
+    cmp = compare(results["design1_altitude"], results["reflight"], CompareOptions(loops=("roll",)))
+    assert cmp.changes == () and cmp.exit_code == EXIT_INCOMPLETE
+    (gap,) = cmp.missing
+    assert (gap.loop, gap.side) == ("roll", "both") and "no roll result on either side" in gap.reason
+    assert "holds altitude" in gap.reason
+    code, out, err = _run([results["design1_altitude"], results["reflight"], "--loop", "roll"], capsys)
+    assert code == EXIT_INCOMPLETE and "roll" in err and "Traceback" not in err
+    # a loop held: compared as before, nothing missing
+    assert not compare(results["design1_altitude"], results["reflight"], CompareOptions(loops=("altitude",))).missing

@@ -270,6 +270,24 @@ def _neither(name: str | None, loop: str, b: LoopEstimates | None, n: LoopEstima
     return ""
 
 
+def _asked_on_neither(asked: tuple[str, ...], rows: list[_Row], sides: tuple[Side, Side]) -> list[MissingResult]:
+    """The loops asked for (``--loop``) when neither side records any of them: each missing on both (exit 10),
+    never "no change beyond tolerance in 0 parameters" (exit 0). When some asked loop is recorded, one that is
+    not stays unsaid, as a loop absent or failed on both sides (issue 40: a fleet CI job asks for altitude, roll
+    and pitch of every folder, an altitude-only one included)."""
+    held = {loop for _, loop, _b, _n in rows}
+    if not asked or held & set(asked):
+        return []
+
+    def holds(s: Side) -> str:
+        loops = sorted({e.loop for e in s.loops if e.usable})
+        return f"{s.path} holds {', '.join(loops)}" if loops else f"{s.path} holds no usable loop"
+
+    return [MissingResult(name=None, loop=loop, side="both",
+                          reason=f"no {loop} result on either side ({holds(sides[0])}; {holds(sides[1])})")
+            for loop in dict.fromkeys(asked) if loop not in held]
+
+
 def compare_sides(base: Side, new: Side, options: CompareOptions | None = None) -> Comparison:
     """Compare every matched loop and parameter of two sides.
 
@@ -294,6 +312,7 @@ def compare_sides(base: Side, new: Side, options: CompareOptions | None = None) 
     notes = [*base.notes, *new.notes]
     rows, unmatched = _match(base, new)
     notes += unmatched
+    missing += _asked_on_neither(options.loops, rows, (base, new))
     for name, loop, b, n in rows:
         if options.loops and loop not in options.loops:
             continue

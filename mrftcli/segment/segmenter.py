@@ -39,7 +39,7 @@ _GAP_INTERVALS = 10.0
 #: a test's last relay run this many times its median half-period or longer is a relay that stopped
 #: switching (locked up: a noise-triggered switch left it waiting for an extremum that never comes, until
 #: the safety abort or the test's end): the test ends at the switch into it (:func:`_locked_tail`)
-_LOCKED_RUNS = 4.0
+_LOCKED_RUNS = 3.0
 #: a command logged below this rate [Hz] is a logger's sub-sampling of a faster controller (PX4's
 #: default 10 Hz logger over its 50 Hz position controller): its switch instants are only bracketed
 LOW_RATE_HZ = 25.0

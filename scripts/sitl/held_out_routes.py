@@ -237,7 +237,8 @@ FIT_ROUTES = ("effective_continuous", "nominal_continuous", "nominal_sampled", "
               "effective_continuous_lead")
 
 
-def held_out_routes(logs: list[Path], routes: tuple[str, ...] = CLI_ROUTES + FIT_ROUTES) -> dict[str, dict[str, RouteResult]]:
+def held_out_routes(logs: list[Path], routes: tuple[str, ...] = CLI_ROUTES + FIT_ROUTES + tuple(POINT_ROUTES)
+                    ) -> dict[str, dict[str, RouteResult]]:
     """Every route over every log, printed as it goes: {route: {log name: result}}."""
     out: dict[str, dict[str, RouteResult]] = {}
     with tempfile.TemporaryDirectory(prefix="mrft_held_out_") as tmp:

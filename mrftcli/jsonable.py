@@ -238,7 +238,11 @@ def check_schema_version(data: Any, what: str, supported: int | Collection[int],
     >>> check_schema_version({"schema_version": 3}, "demo", (1, 2))
     Traceback (most recent call last):
     ...
-    mrftcli.errors.InputError: demo: schema_version 3 is not supported (this version reads 1, 2); write it again with this version of mrft-ident
+    mrftcli.errors.InputError: demo: schema_version 3 is not supported (this version reads 1, 2); update mrft-ident (a newer version wrote it)
+    >>> check_schema_version({"schema_version": 0}, "demo", (1, 2))
+    Traceback (most recent call last):
+    ...
+    mrftcli.errors.InputError: demo: schema_version 0 is not supported (this version reads 1, 2); write it again with this version of mrft-ident
     """
     if not isinstance(data, Mapping):
         raise InputError(f"{what}: expected a JSON object, got {type(data).__name__}")
@@ -248,6 +252,8 @@ def check_schema_version(data: Any, what: str, supported: int | Collection[int],
         raise InputError(f"{what}: no schema_version (is this a {what}?); {fix}")
     if isinstance(version, bool) or version not in versions:
         readable = ", ".join(str(v) for v in versions)
+        if isinstance(version, int) and versions and version > max(versions):  # rewriting it cannot help
+            fix = "update mrft-ident (a newer version wrote it)"
         raise InputError(f"{what}: schema_version {version!r} is not supported (this version reads {readable}); "
                          f"{fix}")
     return data

@@ -68,7 +68,8 @@ def _check_version(data: Any, what: str) -> dict[str, Any]:
 
 
 __all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
-           "FILTER_N", "TI_RATIO", "controller", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION"]
+           "FILTER_N", "TI_RATIO", "controller", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION",
+           "lead_design_note", "LEAD_DESIGN_WORDS"]
 
 #: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it); 3: ``tune --json`` writes
 #: this record itself (until then a report holding it as ``tune_result``), each design names its
@@ -706,9 +707,13 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
                       st.cycle, tuple(out), tuple(notes), rate_filter)
 
 
+#: how :func:`lead_design_note` begins (what a design rests on, shown first by tune's callers)
+LEAD_DESIGN_WORDS = "assumed: the identified loop leads eq. (2)"
+
+
 def lead_design_note(tau: float) -> str:
     """What a design does with an identified lead (``tau`` < 0 [s]): it takes tau = 0, the causal loop nearest."""
-    return (f"assumed: the identified loop leads eq. (2) (tau = {tau * 1e3:.3g} ms < 0); the designs take tau = 0 "
+    return (f"{LEAD_DESIGN_WORDS} (tau = {tau * 1e3:.3g} ms < 0); the designs take tau = 0 "
             "(no discrete delay line holds a lead), a loop with more lag than identified: the identified loop's delay "
             f"margin is {-tau * 1e3:.3g} ms more than stated and its phase margin larger")
 

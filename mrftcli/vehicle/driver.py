@@ -20,6 +20,7 @@ from ..io import FlightLog, LogSource, ReadOptions, get_layout, log_layout, open
 from ..io.hover import logged_hover_thrust
 from ..progress import Progress, report
 from ..tune.analysis import RATE_ASSUMED_NOTE
+from ..tune.design import LEAD_DESIGN_WORDS
 from ..tune.design import KINDS, OBJECTIVES
 from ..tune.stacks import read_hover_thrust
 from ..validate import check_tp
@@ -371,6 +372,6 @@ def _tuned(result: AnalysisResult,
         return None, (), (f"not tuned: {' '.join(str(err).split())}",)
     # what the gains rest on that the log cannot show: an assumed rate, an export's (ArduPilot altitude's split of tau)
     hover = options.tune.stack.hover_source if options.tune.stack is not None else ""  # already stated first
-    stated = (*(n for n in gains.tune.notes if n == RATE_ASSUMED_NOTE),
+    stated = (*(n for n in gains.tune.notes if n == RATE_ASSUMED_NOTE or n.startswith(LEAD_DESIGN_WORDS)),
               *(a for a in (gains.export.assumptions if gains.export is not None else ()) if a != hover))
     return gains, stated, ()

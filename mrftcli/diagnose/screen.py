@@ -227,7 +227,7 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
                   analyze_refusal=None if refused_by_linear is None else _reason(flight, refused_by_linear))
 
 
-def trim_spread(tests: list[DiagnosedTest]) -> float:
+def trim_spread(tests: list[DiagnosedTest] | list[MrftTest]) -> float:
     """How far the tests' relay centres scatter [command units]: their sample standard deviation (0 with one test).
 
     Each test is centred on the hold's trim when it began. A hold whose trim moved between the tests (an
@@ -248,15 +248,15 @@ def with_trim_nuisance(screen: Screen, model: CandidateModel, fit: Fit) -> Scree
     A relay test is centred on the hold's trim when it began, not on the vehicle's trim: an offset d
     [command units] of the relay's two levels shifts the half-period balance (-d / (2 h) on eq. (2)),
     the oscillation's centre and the second harmonic, differently in each test. Each feature's standard
-    error gains, in quadrature, what an offset of :func:`trim_spread` (how far the tests' centres
-    scatter) moves it on ``model``'s limit cycle at ``fit`` (the linear model fitted; the cycles at +-d,
+    error gains, in quadrature, what an offset of :func:`trim_spread` (how far the centres of the tests
+    flown scatter, those left out included) moves it on ``model``'s limit cycle at ``fit`` (the linear model fitted; the cycles at +-d,
     a central difference), so that the tests' own offsets are not evidence of an effect that acts on
     the whole flight. One offset shared by every test still is (an input bias), once beyond that
     spread: the evidence rules judge the sum over the tests. The screen itself when the centres agree.
     """
     if model.cands:  # (the linear model's cycle is the reference)
         raise ValueError("with_trim_nuisance needs the linear model")
-    spread_d = trim_spread(screen.tests)
+    spread_d = trim_spread(screen.segments)  # every test flown: a lost one's relay was centred by the same hold
     if spread_d <= 0.0:
         return screen
     shifted = CandidateModel(BY_NAME["input_bias"], screen.tests, model.Tp)

@@ -2,12 +2,11 @@
 loop is refused, naming the loop the log holds, instead of identifying roll with altitude's units."""
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 from mrftcli.errors import InputError, OtherLoopError
 from mrftcli.io import ReadOptions, read_flight
@@ -28,8 +27,7 @@ def test_a_pitch_log_read_as_altitude_is_refused_naming_pitch() -> None:
 
 @pytest.mark.skipif(not (LOGS / "roll.BIN").exists(), reason="ArduPilot SITL sample log not shipped")
 def test_cli_roll_log_without_loop_is_one_line_error() -> None:
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(LOGS / "roll.BIN"), "--tp", "0.00915"],
-                          capture_output=True, text=True, timeout=600)
+    proc = run_main("analyze", str(LOGS / "roll.BIN"), "--tp", "0.00915")  # main() in this process, as the console
     assert proc.returncode == 4  # no usable test on the loop asked, as a log without any (docs/usage.md)
     assert proc.stderr.strip().splitlines() == [
         f"error: {LOGS / 'roll.BIN'}: the log's tests excite the roll loop (MRFB:Ax), not altitude: give --loop roll"]
@@ -41,8 +39,7 @@ def test_vehicle_identifies_only_the_logged_axis() -> None:
     """``vehicle`` tries every loop: a pitch log used to be identified three times, as altitude (in m),
     roll and pitch; now only pitch, and the other loops are reported as without tests (the log's MRFB:Ax
     names pitch: fly the others' tests, not 'record their topics')."""
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", "vehicle", str(LOGS / "pitch.BIN"), "--tp", "0.00915"],
-                          capture_output=True, text=True, timeout=900)
+    proc = run_main("vehicle", str(LOGS / "pitch.BIN"), "--tp", "0.00915")
     assert proc.returncode == 0, proc.stderr
     rows = [line.split()[0] for line in proc.stdout.splitlines()[2:] if " inner " in line or " outer " in line]
     assert rows == ["pitch"]

@@ -15,7 +15,7 @@ from .options import BETA, controller_rate_option, dump_json, json_option, tp_op
               help="Relay hysteresis [output units] (0: MRFT; with --beta 0 a relay with hysteresis).")
 @click.option("--td", "Td", type=float, default=None, help="Drag time constant Td [s] (--model soiptd).")
 @click.option("--tau", type=float, default=None, help="Loop delay tau [s] (--model soiptd).")
-@click.option("--k", "K", type=float, default=1.0, show_default=True, help="Gain K (K*Td = rate gain).")
+@click.option("--k", "K", type=float, default=1.0, show_default=True, help="Gain K [output unit / s^2 per command unit, e.g. m/s^2 for altitude] (K*Td = rate gain).")
 @click.option("--beta", type=BETA, required=True, help="MRFT parameter beta in (-1, 1).")
 @click.option("--h", type=float, default=1.0, show_default=True, help="Relay amplitude h [command units].")
 @controller_rate_option("rate_hz", detail="at which the relay decides (a sampled relay; default: continuous).")

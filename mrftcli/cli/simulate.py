@@ -240,7 +240,7 @@ def _echo_cascade(flight, out: Path, sidecar: Path, layout: str, fmt: str, assum
               "outer Td of y'' = g roll - y'/Td).")
 @click.option("--tau", type=float, default=None, help="Transport delay tau [s] (eq. (2); with --cascade: the "
               "position measurement delay).")
-@click.option("--k", "k", type=float, default=1.0, show_default=True, help="Gain K (K*Td: command -> output rate).")
+@click.option("--k", "k", type=float, default=1.0, show_default=True, help="Gain K [output unit / s^2 per command unit, e.g. m/s^2 for altitude] (K*Td: command -> output rate).")
 @click.option("--loop", type=click.Choice(LOOPS), default="altitude", show_default=True, help="Loop to simulate.")
 @click.option(
     "--test",

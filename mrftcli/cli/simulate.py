@@ -334,7 +334,7 @@ def simulate(
     process plant, the same flight about its operating point (output 0).
 
     Example: mrft-ident simulate --tp 0.0422 --td 2.669 --tau 0.0464 --k 19.6 --test -0.4 --test -0.7
-    --out alt.mcap
+    --switching hear --out alt.mcap
 
     Example: mrft-ident simulate --cascade y --inner-tp 0.0422 --inner-td 1.301 --inner-tau 0.0297
     --inner-k 30 --inner-test -0.4 --inner-test -0.7 --td 2 --tau 0.03 --test -0.4 --test -0.7

@@ -110,3 +110,25 @@ def test_analyze_states_the_lead_first_and_in_the_json(tmp_path: Path) -> None:
     assert -0.005 < data["parameters"]["tau"]["value"] < -0.001
     assert data["model"]["tau"] == pytest.approx(data["parameters"]["tau"]["value"])
     assert data["notes"][0].startswith("assumed: the loop leads eq. (2)")
+
+
+def test_the_cascade_takes_an_inner_lead_as_tau_zero_and_keeps_it_to_say_so() -> None:
+    """The cascade samples its inner loop through a delay line: an inner analysis with a lead (PX4 SIH's pitch on its
+    own attitude: -0.02 ms) is flown at tau 0, the lead kept for the assumptions (and through the draws); an
+    InnerLoop given a lead directly is refused in one line."""
+    from types import SimpleNamespace
+
+    from mrftcli.analyze.cascade import inner_loop_of
+    from mrftcli.mrft.cascade import InnerLoop
+    from mrftcli.mrft.controller import Controller
+    from mrftcli.mrft.parameter import ParameterEstimate
+
+    est = {n: ParameterEstimate(v, s, v - 2 * s, v + 2 * s, u) for n, v, s, u in
+           (("Td", 1.0, 0.02, "s"), ("tau", -0.003, 0.0003, "s"), ("K", 113.0, 1.0, ""))}
+    result = SimpleNamespace(loop="pitch", model=LEAD, **est)
+    c = Controller(Kp=0.17, Ki=0.0, Kd=0.045, Tf=0.026, rate_hz=250.0)
+    inner = inner_loop_of(result, c, "pitch")  # type: ignore[arg-type]
+    assert inner.plant.delay == 0.0 and inner.lead_s == pytest.approx(-0.003)
+    assert inner.draw(np.random.default_rng(0)).lead_s == pytest.approx(-0.003)
+    with pytest.raises(InputError, match="leads"):
+        InnerLoop(LEAD, c, "pitch")

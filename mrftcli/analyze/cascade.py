@@ -110,7 +110,8 @@ def inner_loop_of(result: AnalysisResult, controller: Controller, inner_name: st
                          f"{inner_name} (analyze the {inner_name} tests and pass that result)")
     std = tuple((name, float(est.std)) for name, est in (("Td", result.Td), ("tau", result.tau), ("K", result.K))
                 if math.isfinite(est.std) and est.std > 0)
-    return InnerLoop(result.model, controller, inner_name, std)
+    lead = min(float(result.model.tau), 0.0)  # eq. (2)'s lead: the sampled inner loop takes it as 0 (stated)
+    return InnerLoop(result.model.with_parameters(tau=max(result.model.tau, 0.0)), controller, inner_name, std, lead)
 
 
 def inner_draws(result: AnalysisResult, inner: InnerLoop, n: int, seed: int = 0) -> list[InnerLoop]:
@@ -271,6 +272,9 @@ def _assumptions(model: CascadeModel, options: CascadeOptions, rate: float,
            f"inner loop {inner.loop}: {inner.plant.family} {plant} ({options.inner_source}), flown by Kp {c.Kp:.4g}, "
            f"Ki {c.Ki:.4g}, Kd {c.Kd:.4g}, Tf {c.Tf * 1e3:.3g} ms at {c.rate_hz:g} Hz ({options.gains_source})",
            f"outer relay at {rate:g} Hz"]
+    if inner.lead_s < 0:
+        out.append(f"the inner analysis identified a lead (tau = {inner.lead_s * 1e3:.3g} ms < 0), taken as tau = 0: the "
+                   "cascade samples the inner loop through a delay line, which holds no lead (a little more lag)")
     if ident.inner_draws:
         out.append(f"the inner model's uncertainty: {ident.inner_draws} draws solved and added to the intervals")
     else:

@@ -97,12 +97,16 @@ class InnerLoop:
     std : tuple of (str, float)
         The standard deviations of the plant's identified parameters, ``(name, std [unit])`` (the
         inner analysis' uncertainty, for draws of the inner loop); empty: taken as exact.
+    lead_s : float
+        A lead [s] (< 0) the inner analysis identified and the plant takes as tau = 0 (the sampled inner loop
+        holds delays only; :func:`mrftcli.analyze.cascade.inner_loop_of` sets it and the assumptions say so); 0.
     """
 
     plant: PlantModel
     controller: Controller
     loop: str = ""
     std: tuple[tuple[str, float], ...] = field(default=(), compare=False)
+    lead_s: float = field(default=0.0, compare=False)
 
     def __post_init__(self) -> None:
         c = self.controller
@@ -111,7 +115,7 @@ class InnerLoop:
         if self.plant.delay < 0:  # eq. (2) admits a lead; the inner loop's sampled realisation holds delays only
             raise InputError(f"the inner loop's model leads (tau = {self.plant.delay * 1e3:.3g} ms < 0): the cascade "
                              "samples the inner loop with a delay line, which cannot hold a lead; give an inner model "
-                             "with tau >= 0")
+                             "with tau >= 0 (analyze.cascade.inner_loop_of takes a lead as 0 and says so)")
 
     def draw(self, rng: np.random.Generator) -> InnerLoop:
         """One draw of the inner loop over :attr:`std`: times and gains log-normal, the delay normal (kept >= 0)."""
@@ -124,7 +128,7 @@ class InnerLoop:
                 values[name] = max(0.0, value + rng.normal(0.0, sd))
             elif value != 0:
                 values[name] = value * math.exp(rng.normal(0.0, sd / abs(value)))
-        return InnerLoop(self.plant.with_parameters(**values), self.controller, self.loop, self.std)
+        return InnerLoop(self.plant.with_parameters(**values), self.controller, self.loop, self.std, self.lead_s)
 
     def closed_response(self, omega: ArrayLike) -> NDArray[np.complex128]:
         """T_inner(j omega): the continuous inner output over a held reference, fundamental only; rad/s.

@@ -32,7 +32,7 @@ def flown():
 
 def test_one_trim_throughout_leaves_the_screen_alone(flown) -> None:
     model, screen = flown
-    assert len(screen.tests) >= 2 and trim_spread(screen.segments) == 0.0
+    assert len(screen.tests) >= 2 and trim_spread(list(screen.flown)) == 0.0
     linear = fit_linear(screen, model, str(LOG), QUIET)
     assert linear.screen is screen
 
@@ -43,9 +43,9 @@ def test_the_balance_widens_by_the_closed_form_of_an_offset(flown) -> None:
     model, screen = flown
     offsets = np.array([0.004, -0.002, 0.001])[: len(screen.tests)]
     tests = [replace(t, bias=t.bias + d) for t, d in zip(screen.tests, offsets)]
-    assert [s.index for s in screen.segments] == [t.index for t in screen.tests]
-    moved = replace(screen, tests=tests, segments=[replace(s, bias=s.bias + d) for s, d in zip(screen.segments, offsets)])
-    spread = trim_spread(moved.segments)
+    assert [s.index for s in screen.flown] == [t.index for t in screen.tests]
+    moved = replace(screen, tests=tests, flown=tuple(replace(s, bias=s.bias + d) for s, d in zip(screen.flown, offsets)))
+    spread = trim_spread(list(moved.flown))
     assert spread == pytest.approx(float(np.std(offsets, ddof=1)), rel=1e-9)
     lin = CandidateModel(None, tests, model.Tp)
     lo, hi = theta_bounds(None, tests)

@@ -55,6 +55,9 @@ class Screen:
         analyze's refusal of the log, without the log's path, when the diagnosis goes on without it (no plant
         of eq. (2) fits; one beta left of tests that differ in beta or relay height); else None. Data, not a
         warning: the CLI's second line and the JSON's ``analyze_refusal`` give it.
+    flown : tuple of MrftTest
+        Every test found in the log, those analyze or the diagnosis left out included (their relay centres
+        measure how far the hold's trim moved: :func:`trim_spread`).
     """
 
     analysis: AnalysisResult | None
@@ -67,6 +70,7 @@ class Screen:
     recs_all: list
     warnings: list[str]
     analyze_refusal: str | None = None
+    flown: tuple[MrftTest, ...] = ()
 
 
 def _analysis_of(flight: FlightLog, model: LoopModel,
@@ -224,7 +228,8 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
             store.append((feats, feature_sigma(feats.sigma, feats.values)))
     return Screen(analysis=analysis, segments=segs, tests=tests, noise=noise, t0=t0_log, recs_fit=recs[0],
                   recs_hold=recs[1], recs_all=recs[2], warnings=warnings,
-                  analyze_refusal=None if refused_by_linear is None else _reason(flight, refused_by_linear))
+                  analyze_refusal=None if refused_by_linear is None else _reason(flight, refused_by_linear),
+                  flown=tuple(flown))
 
 
 def trim_spread(tests: list[DiagnosedTest] | list[MrftTest]) -> float:
@@ -249,14 +254,14 @@ def with_trim_nuisance(screen: Screen, model: CandidateModel, fit: Fit) -> Scree
     [command units] of the relay's two levels shifts the half-period balance (-d / (2 h) on eq. (2)),
     the oscillation's centre and the second harmonic, differently in each test. Each feature's standard
     error gains, in quadrature, what an offset of :func:`trim_spread` (how far the centres of the tests
-    flown scatter, those left out included) moves it on ``model``'s limit cycle at ``fit`` (the linear model fitted; the cycles at +-d,
+    flown scatter, those analyze or the diagnosis left out included) moves it on ``model``'s limit cycle at ``fit`` (the linear model fitted; the cycles at +-d,
     a central difference), so that the tests' own offsets are not evidence of an effect that acts on
     the whole flight. One offset shared by every test still is (an input bias), once beyond that
     spread: the evidence rules judge the sum over the tests. The screen itself when the centres agree.
     """
     if model.cands:  # (the linear model's cycle is the reference)
         raise ValueError("with_trim_nuisance needs the linear model")
-    spread_d = trim_spread(screen.segments)  # every test flown: a lost one's relay was centred by the same hold
+    spread_d = trim_spread(list(screen.flown))  # a lost test's relay was centred by the same hold
     if spread_d <= 0.0:
         return screen
     shifted = CandidateModel(BY_NAME["input_bias"], screen.tests, model.Tp)

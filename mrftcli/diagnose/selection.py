@@ -72,7 +72,7 @@ __all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "Effe
 
 def _trim_note(screen: Screen) -> list[str]:
     """The assumption the features' standard errors carry when the tests' relay centres differ (issue 39)."""
-    spread = trim_spread(screen.segments)
+    spread = trim_spread(list(screen.flown))
     if spread <= 0.0:
         return []
     return [f"the tests' relay centres differ (std {spread:.3g} command units: the hold's trim moved between "

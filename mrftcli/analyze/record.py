@@ -29,6 +29,7 @@ from ..io.logtypes import FlightLog, output_unit
 from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.cascade import CascadeModel
 from ..mrft.cascade_identify import CascadeIdentification
+from ..mrft.identification import spelt_unit
 from ..mrft.identify import IdentificationResult, ParameterEstimate
 from ..mrft.identify_lti import LtiIdentification
 from ..mrft.model import K_UNIT, LoopModel
@@ -529,7 +530,7 @@ def _eq2_json(r: AnalysisResult, cycles: bool) -> _JSONDict:
     if not isinstance(r.identification, IdentificationResult):
         raise InputError("an analysis without its identification record cannot be written as JSON")
     m = r.model
-    params = _group({k: r.parameters[k] for k in ("Td", "tau", "K")}, r.method)
+    params = _group({k: r.parameters[k] for k in ("Td", "tau", "K")}, r.method, m)
     params["Tp"] = ParameterEstimate.given(r.Tp, "s").to_json()
     return {
         "parameters": params,
@@ -567,10 +568,10 @@ def _estimates(r: AnalysisResult) -> _JSONDict:
     """``parameters_mrft``, and with a refinement ``parameters_waveform`` and ``refinement``."""
     extra: _JSONDict = {}
     if r.parameters_mrft:
-        extra["parameters_mrft"] = _group(r.parameters_mrft, "mrft")
+        extra["parameters_mrft"] = _group(r.parameters_mrft, "mrft", r.model)
     if r.refinement is not None:
         ref = r.refinement
-        extra["parameters_waveform"] = _group({"Td": ref.Td, "tau": ref.tau, "K": ref.K}, "waveform")
+        extra["parameters_waveform"] = _group({"Td": ref.Td, "tau": ref.tau, "K": ref.K}, "waveform", r.model)
         extra["refinement"] = {"method": "output error on the tests' windows (exact ZOH, fractional delay)",
                                **ref.to_dict()}
     return extra
@@ -772,7 +773,7 @@ def _recorded_dict(recorded: Mapping[str, Any], cycles: bool, result: AnalysisRe
                         ("parameters_waveform", "waveform")):
         if isinstance(out.get(key), Mapping):
             group = {k: _estimate(k, v) for k, v in out[key].items()}
-            out[key] = _group({k: v for k, v in group.items() if k != "Tp"}, method)
+            out[key] = _group({k: v for k, v in group.items() if k != "Tp"}, method, result.model)
             if "Tp" in group:
                 out[key]["Tp"] = ParameterEstimate.given(group["Tp"].value, "s").to_json()
     if "tests" in out:
@@ -789,9 +790,10 @@ def _estimate(name: str, d: Mapping[str, Any]) -> ParameterEstimate:
     return dataclasses.replace(est, unit="") if est.unit in (K_UNIT, _OLD_K_UNIT) else est
 
 
-def _group(estimates: Mapping[str, ParameterEstimate], method: str) -> _JSONDict:
-    """Parameters by name as JSON (K's unit spelt out), each with its method (``method`` where it has none)."""
-    return {k: v.to_json(unit=K_UNIT if k == "K" else None, method=v.method or method) for k, v in estimates.items()}
+def _group(estimates: Mapping[str, ParameterEstimate], method: str, model: Any) -> _JSONDict:
+    """Parameters by name as JSON (K's unit spelt out from ``model``'s, :func:`~mrftcli.mrft.identification.spelt_unit`),
+    each with its method (``method`` where it has none)."""
+    return {k: v.to_json(unit=spelt_unit(k, v.unit, model), method=v.method or method) for k, v in estimates.items()}
 
 
 def command_rate_of_result(data: Mapping[str, Any]) -> float | None:

@@ -37,6 +37,7 @@ from ..analyze import AnalysisResult
 from ..errors import InputError
 from ..io import require_input
 from ..jsonable import load_json_text, load_toml_text
+from ..mrft.identification import spelt_unit
 from ..mrft.parameter import ParameterEstimate
 from .records import PARAMETERS, LoopEstimates, Tolerance
 from .tolerance import parse_amount
@@ -107,11 +108,9 @@ def estimates_from_analysis(result: Mapping[str, Any], *, source: str, name: str
 
 
 def _with_model_units(estimates: Mapping[str, ParameterEstimate], model: Any) -> dict[str, ParameterEstimate]:
-    """Each estimate with its unit: an empty one (eq. (2)'s K, kept as identify gives it) spelt from the
-    model's parameter, as the analysis JSON spells it (``output / (command s^2)``)."""
-    params = getattr(model, "parameters", {})
-    return {n: e if e.unit or n not in params else dataclasses.replace(e, unit=str(params[n].unit))
-            for n, e in estimates.items()}
+    """Each estimate with its unit as the analysis JSON spells it (:func:`mrftcli.mrft.identification.spelt_unit`:
+    eq. (2)'s K, empty in memory, ``output / (command s^2)``)."""
+    return {n: dataclasses.replace(e, unit=spelt_unit(n, e.unit, model)) for n, e in estimates.items()}
 
 
 def _batch_name(record: Mapping[str, Any], by: str) -> str:

@@ -28,12 +28,23 @@ from ..jsonable import check_schema_version
 from .model import model_from_json
 from .parameter import ParameterEstimate
 
-__all__ = ["IdentificationRecord", "IDENTIFICATION_SCHEMA_VERSION"]
+__all__ = ["IdentificationRecord", "IDENTIFICATION_SCHEMA_VERSION", "spelt_unit"]
 
 #: version of :meth:`IdentificationRecord.to_json`; 3: one layout for every strategy (``strategy``, ``family``,
 #: ``model``, ``parameters`` with every parameter, known ones included); versions 1 and 2 of each strategy
 #: (eq. (2)'s, the families', the cascade's: each its own layout) still read
 IDENTIFICATION_SCHEMA_VERSION = 3
+
+
+def spelt_unit(name: str, unit: str, model: Any) -> str:
+    """The unit a record writes for the estimate ``name`` whose own is ``unit``: that one, or where it is empty
+    (eq. (2)'s K, kept "" in memory as identify gives it) ``model``'s parameter's (``output / (command s^2)``,
+    :data:`~mrftcli.mrft.model.K_UNIT`). The one rule of every record that writes eq. (2)'s K: this one's, the
+    analysis's (:mod:`mrftcli.analyze.record`) and compare's (:mod:`mrftcli.compare.inputs`)."""
+    if unit:
+        return unit
+    p = getattr(model, "parameters", {}).get(name)
+    return str(p.unit) if p is not None else ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,14 +91,8 @@ class IdentificationRecord:
 
         return {"schema_version": IDENTIFICATION_SCHEMA_VERSION, "strategy": strategy_of(self.model).name,
                 "family": self.model.family, "model": self.model.to_json(),
-                "parameters": {e.name: e.to_json(unit=e.unit or self._unit(e.name)) for e in self.estimates},
+                "parameters": {e.name: e.to_json(unit=spelt_unit(e.name, e.unit, self.model)) for e in self.estimates},
                 **self.fit_json()}
-
-    def _unit(self, name: str) -> str:
-        """The model's unit of a parameter, for an estimate that leaves its own empty (eq. (2)'s K, as
-        :mod:`mrftcli.analyze.record` spells it in its JSON)."""
-        p = self.model.parameters.get(name)
-        return str(p.unit) if p is not None else ""
 
     def fit_json(self) -> dict[str, Any]:
         """The strategy's own figures (none here)."""

@@ -296,7 +296,7 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         from ..io.overlay import check_overlay_path
 
         check_output_file(mcap_out, "--mcap-out")  # as --json: its folder created, writable
-        check_overlay_path(mcap_out)  # and only an MCAP replaced
+        check_overlay_path(mcap_out)  # and only an MCAP replaced (never '-': binary)
     with read_progress(not quiet) as progress:  # a bar only for a read that takes seconds (a large CSV)
         # a process plant runs on any time scale: the clock is not checked against vehicle loops' rates
         flight = read_flight(log, ReadOptions(**read_options, any_time_scale=model.family not in ("soiptd", "cascade")),

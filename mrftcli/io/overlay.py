@@ -46,6 +46,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..errors import InputError
 from ..jsonable import finite_or_none
 from .atomic import atomic_path, check_output_path
 
@@ -97,7 +98,10 @@ class OverlayFit:
 def check_overlay_path(path: str | Path) -> Path:
     """The output path if it replaces nothing but an MCAP file (:func:`mrftcli.io.atomic.check_output_path`),
     else a one-line InputError; its folder and whether it can be written are the CLI's one output check
-    (:func:`mrftcli.cli.options.check_output_file`, before this)."""
+    (:func:`mrftcli.cli.options.check_output_file`, before this). ``-`` is refused: an MCAP is binary, not for stdout."""
+    if str(path) == "-":
+        raise InputError("--mcap-out writes a binary MCAP file: give a file name (e.g. --mcap-out results.mcap), "
+                         "not '-' (stdout takes the text outputs: --json -)")
     return check_output_path(path, "--mcap-out", ours=_is_overlay, what="a results MCAP")
 
 

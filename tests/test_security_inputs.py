@@ -184,6 +184,23 @@ def test_mcap_out_never_replaces_a_recorded_flight(tmp_path: Path, capsys, monke
     assert run_cli(capsys, "analyze", "flight.mcap", "--tp", "0.0422", "-q", "--mcap-out", "fit.mcap")[0] == 0
 
 
+def test_json_never_replaces_a_json_input_given_by_an_option(tmp_path: Path, capsys, monkeypatch) -> None:
+    # plan --from first.json --json first.json replaced the analysis it planned from, and --json over a JSON
+    # --model-file replaced the model: only delay, compare, tune and vehicle named their inputs to the check
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "lag.json").write_text(json.dumps({"transfer_function": "K*exp(-tau*s)/(T*s+1)**2",
+                                                   "parameters": {"K": {"value": 2}, "T": {"value": 0.5},
+                                                                  "tau": {"value": 0.1}}}))
+    (tmp_path / "first.json").write_text((ROOT / "tests" / "data" / "old_records" / "analysis_v3.json").read_text())
+    before = _snapshot(tmp_path)
+    for argv, target in [(("predict", "--model-file", "lag.json", "--beta", "-0.2"), "lag.json"),
+                         (("plan", "--tp", "0.0422", "--from", "first.json", "--max-amplitude", "0.05",
+                           "--max-h", "0.2", "--time", "15", "-q"), "first.json")]:
+        code, _out, err = run_cli(capsys, *argv, "--json", target)
+        _one_line_error(code, err, f"--json {target}", "is an input of this command")
+        assert _snapshot(tmp_path) == before
+
+
 def test_compare_never_writes_over_a_compared_result(tmp_path: Path, capsys, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     (tmp_path / "a.json").write_text("{}\n")

@@ -213,6 +213,19 @@ def _writable_dir(folder: Path, option: str, what: Path, *, create: bool = True)
                          "choose a writable path") from None
 
 
+def _given_paths(option: str) -> tuple[str, ...]:
+    """Every existing path the running command was given, but through ``option`` itself: its inputs (a
+    JSON ``--from``, ``--model-file``, ``--inner-model`` as much as a LOG), which no output replaces.
+    ``ctx.meta`` holds what an option keeps out of the command's arguments (``--model-file``'s path)."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:
+        return ()
+    own = {p.name for p in ctx.command.params if option in getattr(p, "opts", ())}
+    given = [value for name, value in ctx.params.items() if name not in own] + list(ctx.meta.values())
+    values = [v for value in given for v in (value if isinstance(value, (tuple, list)) else (value,))]
+    return tuple(v for v in values if isinstance(v, str) and v != "-" and os.path.exists(v))
+
+
 def check_output_file(target: str | None, option: str = "--json", *, inputs: tuple[str, ...] = ()) -> None:
     """Check an output file before the work starts: its folder is created if missing and must be writable.
 
@@ -227,6 +240,7 @@ def check_output_file(target: str | None, option: str = "--json", *, inputs: tup
         return
     path = Path(target)
     json_out = option == "--json"
+    inputs = (*inputs, *_given_paths(option))
     check_output_path(path, option, inputs=inputs, ours=looks_like_json if json_out else None,
                       what="a JSON document" if json_out else "")
     if path.exists() and not os.access(path, os.W_OK):

@@ -305,3 +305,17 @@ def test_the_cycle_with_a_lead_continues_eq2s_cycle(beta) -> None:
     for lead in (0.001, 0.003, 0.005):
         assert lead_cycle(Tp, Td, -lead, beta)[0] / df(-lead) == pytest.approx(ratio, rel=0.005)
     assert lead_cycle(Tp, Td, -0.001, beta)[0] > at0.omega  # a lead raises the frequency
+
+
+def test_a_fit_that_determines_no_delay_is_refused_in_one_line_without_a_library_warning() -> None:
+    """Tp 0.5 s for ArduPilot SITL's roll pair (its Tp is ~9 ms): the joint fit's covariance is singular (Td 0.04 s,
+    neither delay bounded, tests 27 % off): refused naming Tp, never a headline '± nan ms' (E8's user check)."""
+    import warnings
+
+    from mrftcli.errors import IdentificationError
+
+    logs = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # numpy's (the reader's files are not this test's)
+        with pytest.raises(IdentificationError, match="does not determine the delay added .*check Tp"):
+            delay_increment(logs / "roll.BIN", logs / "roll_20ms.BIN", 0.5, read=ReadOptions(loop="roll"))

@@ -409,8 +409,16 @@ def identify_pair(before: Sequence[MrftTest], after: Sequence[MrftTest], Tp: flo
     q = _quantile(dof if s2 > 0.0 else 0)
     Td, tau_b, tau_a = math.exp(x[0]), float(x[1]), float(x[2])
     std = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
-    inc_std = math.sqrt(max(float(cov[1, 1] + cov[2, 2] - 2 * cov[1, 2]), 0.0))
+    with np.errstate(invalid="ignore"):  # a singular fit's infinite covariance: refused below, no numpy warning
+        inc_var = float(cov[1, 1] + cov[2, 2] - 2 * cov[1, 2])
     cycles = [_cycle(Tp, Td, (tau_b, tau_a)[rows.flight[i]], rows, i) for i in range(rows.f.size)]
+    if not math.isfinite(inc_var):
+        worst = max(abs(c[0] / f - 1.0) for c, f in zip(cycles, rows.f))
+        raise IdentificationError(
+            f"the joint fit does not determine the delay added (Td {Td:.3g} s, tau before {tau_b * 1e3:.3g} ms, after "
+            f"{tau_a * 1e3:.3g} ms, none bounded; its tests off the fit by up to {worst * 100:.0f} %): check Tp "
+            f"({Tp:g} s given) and that both recordings are of one loop")
+    inc_std = math.sqrt(max(inc_var, 0.0))
     K_each = rows.amp / np.array([a for _, a in cycles])
     # K's error is its tests' spread alone (no frequency moves it): its interval is Student's t on their number less 1
     K_std = float(np.std(K_each, ddof=1) / math.sqrt(K_each.size)) if K_each.size > 1 else math.nan

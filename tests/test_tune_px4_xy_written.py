@@ -7,16 +7,14 @@ import pytest
 
 from mrftcli.mrft.model import LoopModel
 from mrftcli.tune import px4_xy
-from mrftcli.tune.closed_loop import Controller
-from mrftcli.tune.stacks import export_design
 
 G = 9.80665
 RATE = 125.0
 
 
-def test_xy_export_runs_pxs_law_once_and_states_the_pds_offset_in_closed_form(monkeypatch):
+def test_the_written_loop_runs_pxs_law_once_and_states_the_pds_offset_in_closed_form(monkeypatch):
     model, hover = LoopModel(0.05, 0.6, 0.136, 27.4), 0.49
-    c = Controller(0.1542 * 1.3, 0.0, 0.0614, 0.0, RATE, None)
+    p = {"MPC_XY_P": 1.2, "MPC_XY_VEL_P_ACC": 2.3, "MPC_XY_VEL_I_ACC": 0.4, "MPC_XY_VEL_D_ACC": 0.1, "MPC_VELD_LP": 5.0}
     runs: list[float] = []
     real = px4_xy.px4_xy_ticks
 
@@ -26,12 +24,17 @@ def test_xy_export_runs_pxs_law_once_and_states_the_pds_offset_in_closed_form(mo
         return real(params, m, rate_hz, h, seconds)
 
     monkeypatch.setattr(px4_xy, "px4_xy_ticks", counted)
-    pi = export_design("px4", c, model, "x", "robust PD", hover_thrust=hover, xy_integral=0.4)
+    notes, predicted = px4_xy.written_loop(p, model, RATE, hover)
     assert runs == [0.4]  # the loop as written, once: the PD's offset needs no run of its own
-    p = pi.params
     closed = G / (hover * p["MPC_XY_VEL_P_ACC"] * p["MPC_XY_P"] * model.K)  # (h/g) P_v P_xy e = w / K
     assert px4_xy.pd_wind_offset(p, model, hover) == pytest.approx(closed, rel=1e-12)
-    assert any(f"0 in steady state (without it {100 * closed:.1f} cm for good)" in n for n in pi.notes)
+    assert f"0 in steady state (without it {100 * closed:.1f} cm for good)" in notes[1]
+    assert predicted["wind_steady_offset_m"] == 0.0
+    runs.clear()
+    notes, predicted = px4_xy.written_loop({**p, "MPC_XY_VEL_I_ACC": 0.0}, model, RATE, hover)
+    assert runs == [0.0, 0.4]  # the PD as written and PX4's default integral offered instead (its figures said)
+    assert predicted["wind_steady_offset_m"] == pytest.approx(closed, rel=1e-12)
+    # the export carries them: test_tune_px4_xy checks its figures against PX4's law transcribed tick by tick
 
 
 def test_no_gain_holds_no_offset_bound():

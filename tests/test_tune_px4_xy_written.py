@@ -3,6 +3,8 @@ not from a second 40 s run of PX4's law (last stop's note: ``_written_step`` re-
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from mrftcli.mrft.model import LoopModel
@@ -69,3 +71,29 @@ def test_one_hover_thrust_check_for_tune_and_vehicle(monkeypatch):
     with pytest.raises(SystemExit) as code:
         main(["vehicle", str(log), "--tp", "0.05", "-q", "--export", "ardupilot", "--hover-thrust", "0.9"])
     assert code.value.code == 2
+
+
+def test_tune_opens_a_px4_log_once(monkeypatch):
+    """tune opened a PX4 log for its hover thrust, then again for the analysis: now once, the analysis reading the
+    log the hover thrust was read from (as vehicle does)."""
+    import mrftcli.analyze
+    import mrftcli.io
+    from mrftcli.cli.main import main
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl" / "px4_x.ulg"
+    opened, given = [], []
+    real_open = mrftcli.io.open_log
+
+    def counting_open(*args, **kwargs):
+        opened.append(args[0])
+        return real_open(*args, **kwargs)
+
+    def stop(path, model, *, read=None, options=None, log=None, **kwargs):
+        given.append(log)
+        raise SystemExit(0)  # what the analysis is given is checked: no analysis needed
+
+    monkeypatch.setattr(mrftcli.io, "open_log", counting_open)
+    monkeypatch.setattr(mrftcli.analyze, "analyze_path", stop)
+    with pytest.raises(SystemExit):
+        main(["tune", str(log), "--tp", "0.05", "--loop", "x", "--export", "px4", "-q"])
+    assert len(opened) == 1 and len(given) == 1 and given[0] is not None  # the hover thrust's open log

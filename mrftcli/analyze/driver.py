@@ -26,6 +26,7 @@ from ..errors import InputError, LogReadError, TpRejectedError
 from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
 from ..io.logtypes import PROCESS_LOOP, FlightLog
+from ..io.source import LogSource
 from ..mrft.cascade import CascadeModel
 from ..mrft.consensus import combinations
 from ..mrft.identify import LEAD_WORDS, lead_note
@@ -238,7 +239,8 @@ def refuse_rejected_tp(result: AnalysisResult, accept: bool = False) -> Analysis
 
 
 def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | None = None,
-                 options: AnalyzeOptions | None = None, loop_hint: bool = True) -> AnalysisResult:
+                 options: AnalyzeOptions | None = None, loop_hint: bool = True,
+                 log: LogSource | None = None) -> AnalysisResult:
     """Read one log with :func:`mrftcli.io.read_flight` and run :func:`analyze_flight`.
 
     Parameters
@@ -256,6 +258,9 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
         As in :func:`analyze_flight`.
     loop_hint : bool
         As in :func:`mrftcli.io.read_flight` (False: the caller tries every loop, ``batch``).
+    log : LogSource, optional
+        As in :func:`mrftcli.io.read_flight`: the log at ``path``, open already (``tune``, which read its hover
+        thrust from it); None: opened and closed here.
 
     Returns
     -------
@@ -275,5 +280,5 @@ def analyze_path(path: str | Path, model: PlantModel, *, read: ReadOptions | Non
 
     if not isinstance(model, (LoopModel, CascadeModel)):  # a process plant: not a vehicle loop's clock
         read = dataclasses.replace(read or ReadOptions(loop=PROCESS_LOOP), any_time_scale=True)
-    flight = read_flight(path, read, echo_warnings=False, loop_hint=loop_hint)  # the reader's warnings come once, in the result's
+    flight = read_flight(path, read, echo_warnings=False, loop_hint=loop_hint, log=log)  # the reader's warnings come once, in the result's
     return analyze_flight(flight, model, options=options)

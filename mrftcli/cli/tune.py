@@ -8,8 +8,10 @@ the export are written from the one :class:`~mrftcli.tune.design.TuneResult`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,6 +23,7 @@ from ..jsonable import load_json_text
 from ..validate import TP_MISSING, check_spread, check_time
 
 if TYPE_CHECKING:
+    from ..io.source import LogSource
     from ..mrft.model import LoopModel, PlantModel
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
@@ -123,18 +126,36 @@ def _check_stack(ex: ExportOptions, loop: str, kind: str) -> None:
         check_xy_integral(ex.stack, loop, ex.xy_integral)
 
 
-def _hover_from_log(ex: ExportOptions, source: str | None, read_options: dict[str, Any]) -> ExportOptions:
-    """PX4's hover thrust read from a LOG when ``--hover-thrust`` is not given and the loop's export needs it
-    (:func:`mrftcli.tune.stacks.read_hover_thrust`, as vehicle does), before the analysis; ``ex`` unchanged
-    otherwise, and for a JSON source (its export is checked when its loop is known)."""
-    from ..io.hover import hover_thrust_of_log
+@contextlib.contextmanager
+def _log_once(source: str | None, read_options: dict[str, Any]) -> Iterator[Callable[[], LogSource]]:
+    """A getter of the LOG ``source``, opened at its first use (the hover thrust, then the analysis) and closed on
+    leaving: a PX4 log is opened once (it was opened for each, as vehicle's is once)."""
+    from ..io import open_log
+
+    with contextlib.ExitStack() as stack:
+        opened: list[LogSource] = []
+
+        def get() -> LogSource:
+            if not opened:
+                assert source is not None
+                opened.append(stack.enter_context(open_log(source, read_options.get("log_fmt"), echo_warnings=False,
+                                                           time_unit=read_options.get("time_unit"))))
+            return opened[0]
+        yield get
+
+
+def _hover_from_log(ex: ExportOptions, source: str | None, read_options: dict[str, Any],
+                    log: Callable[[], LogSource]) -> ExportOptions:
+    """PX4's hover thrust read from a LOG (``log()``, :func:`_log_once`) when ``--hover-thrust`` is not given and
+    the loop's export needs it (:func:`mrftcli.tune.stacks.read_hover_thrust`, as vehicle does), before the
+    analysis; ``ex`` unchanged otherwise, and for a JSON source (its export is checked when its loop is known)."""
+    from ..io.hover import logged_hover_thrust
     from ..tune.stacks import read_hover_thrust
 
     loop = read_options["loop"]
     if source is None or str(source).lower().endswith(".json") or loop is None:
         return ex
-    logged = read_hover_thrust(ex.stack, (loop,), ex.hover_thrust, lambda: hover_thrust_of_log(
-        source, read_options.get("log_fmt"), read_options.get("time_unit")))
+    logged = read_hover_thrust(ex.stack, (loop,), ex.hover_thrust, lambda: logged_hover_thrust(log()))
     return ex if logged is None else dataclasses.replace(ex, hover_thrust=logged.value,
                                                          hover_source=logged.statement())
 
@@ -176,7 +197,7 @@ def from_result_json(path: Path, known: LoopModel, loop: str | None) -> _TuneSou
 
 
 def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict[str, Any],
-              quiet: bool = False) -> _TuneSource:
+              quiet: bool = False, log: Callable[[], LogSource] | None = None) -> _TuneSource:
     """A flight log, analysed as ``analyze`` would (its warnings printed)."""
     from ..analyze import AnalyzeOptions, analyze_path
     from ..analyze.options import TRY_DIAGNOSE_COMMAND
@@ -187,7 +208,8 @@ def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict
         progress(0, 1, "analysing the log")
         read = ReadOptions(**{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
         result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles,
-                                                                               diagnose_hint=TRY_DIAGNOSE_COMMAND))
+                                                                               diagnose_hint=TRY_DIAGNOSE_COMMAND),
+                              log=None if log is None else log())  # opened once: _log_once
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)
     return _TuneSource(result.model, posterior_from_analysis(result), result.loop, result.controller_rate_hz,
@@ -520,9 +542,10 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         loop = src.loop or ""
         options = DesignOptions(ms_max=ms_max)
     else:
-        ex = _hover_from_log(ex, source, read_options)
-        src, loop = _eq2_source(source, soiptd_model(Tp), (td, tau, K, td_std, tau_std, k_std), ex, kind, min_cycles,
-                                read_options, quiet)
+        with _log_once(source, read_options) as log:
+            ex = _hover_from_log(ex, source, read_options, log)
+            src, loop = _eq2_source(source, soiptd_model(Tp), (td, tau, K, td_std, tau_std, k_std), ex, kind,
+                                    min_cycles, read_options, quiet, log)
         setting = _stack_setting(ex, loop, rate_given, src.rate_hz)
         options = DesignOptions(objective=objective, ms_max=ms_max, effort_max=effort_max,
                                 rate_filter=setting.rate_filter if setting is not None else None)
@@ -575,7 +598,8 @@ def _other_routes(sources: tuple[str, ...], Tp: float | None, ex: ExportOptions,
 
 
 def _eq2_source(source: str | None, known: LoopModel, given: tuple[Any, ...], ex: ExportOptions, kind: str,
-                min_cycles: int, read_options: dict[str, Any], quiet: bool) -> tuple[_TuneSource, str]:
+                min_cycles: int, read_options: dict[str, Any], quiet: bool,
+                log: Callable[[], LogSource] | None = None) -> tuple[_TuneSource, str]:
     """Eq. (2)'s model and posterior from a LOG, a RESULT.json or --td/--tau/--k (with their stds), and the loop."""
     td, tau, K, *stds = given
     if source is not None and any(v is not None for v in (td, tau, K)):
@@ -592,7 +616,7 @@ def _eq2_source(source: str | None, known: LoopModel, given: tuple[Any, ...], ex
     elif is_result:
         src = from_result_json(Path(source), known, loop)
     else:
-        src = _from_log(source, known, min_cycles, read_options, quiet)
+        src = _from_log(source, known, min_cycles, read_options, quiet, log)
     loop = loop or src.loop
     assert loop is not None  # from_result_json refuses a file without its loop
     _check_stack(ex, loop, kind)

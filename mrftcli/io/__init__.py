@@ -301,7 +301,8 @@ def write_log(topics: list[TopicData], path: str | Path, fmt: str | None = None,
 
 # -- read_flight ---------------------------------------------------------------------------------
 def read_flight(path: str | Path, options: ReadOptions | None = None, *,
-                echo_warnings: bool = True, progress: Progress | None = None, loop_hint: bool = True) -> FlightLog:
+                echo_warnings: bool = True, progress: Progress | None = None, loop_hint: bool = True,
+                log: LogSource | None = None) -> FlightLog:
     """Read the signals of one loop from a flight log.
 
     Parameters
@@ -338,6 +339,10 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
         one-loop command's; False for a caller that tries every loop itself (``batch``).
     progress : Progress, optional
         Told how far a long read is (:func:`open_log`); the CLI draws it as a bar.
+    log : LogSource, optional
+        The log at ``path``, open already (:func:`open_log`), for a caller that reads another topic of it too
+        (``tune``'s hover thrust): read, not closed; ``echo_warnings`` and ``progress`` were its opener's.
+        None: opened and closed here.
 
     Returns
     -------
@@ -364,8 +369,10 @@ def read_flight(path: str | Path, options: ReadOptions | None = None, *,
     ('altitude', 'reference')
     """
     opts = ReadOptions() if options is None else options  # checked on creation, before the log is opened
-    with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit, progress=progress) as log:
-        flight = read_loop(log, opts, loop_hint=loop_hint)
+    if log is not None:
+        return replace(read_loop(log, opts, loop_hint=loop_hint), path=str(path))
+    with open_log(path, opts.fmt, echo_warnings=echo_warnings, time_unit=opts.time_unit, progress=progress) as opened:
+        flight = read_loop(opened, opts, loop_hint=loop_hint)
     # a ROS 2 bag folder is read through the MCAP file inside it: the flight is the folder's
     return replace(flight, path=str(path))
 

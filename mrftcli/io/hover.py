@@ -10,14 +10,13 @@ about 1 Hz it holds the saved ``MOT_THST_HOVER`` for most of a short flight befo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import LogReadError
 from .source import LogSource
 
-__all__ = ["HOVER_TOPIC", "LoggedHoverThrust", "logged_hover_thrust", "hover_thrust_of_log"]
+__all__ = ["HOVER_TOPIC", "LoggedHoverThrust", "logged_hover_thrust"]
 
 #: PX4's uORB topic of the hover thrust estimator (``mc_hover_thrust_estimator``); a ROS 2 bridge's
 #: ``/fmu/out/hover_thrust_estimate`` is the same message
@@ -84,12 +83,3 @@ def logged_hover_thrust(source: LogSource) -> LoggedHoverThrust | None:
         return None
     return LoggedHoverThrust(float(np.median(v)), int(v.size), float(v.min()), float(v.max()), topic)
 
-
-def hover_thrust_of_log(path: str | Path, fmt: str | None = None,
-                        time_unit: str | None = None) -> LoggedHoverThrust | None:
-    """:func:`logged_hover_thrust` of the log at ``path`` (opened and closed here; the reader's warnings kept
-    for the analysis, which reads the log again, to show)."""
-    from . import open_log
-
-    with open_log(path, fmt, echo_warnings=False, time_unit=time_unit) as source:
-        return logged_hover_thrust(source)

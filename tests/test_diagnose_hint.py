@@ -1,6 +1,6 @@
 """The warnings a diagnosis would explain end with the hint of the command that made them (AnalyzeOptions.diagnose_hint):
-'(try --diagnose)' for analyze and batch without --diagnose, '(try mrft-ident diagnose)' for tune and vehicle, which
-have no --diagnose (they said '(try --diagnose)'), nothing for a library caller or with the diagnosis run (analyze
+'(try --diagnose)' for analyze and batch without --diagnose, '(try mrft-ident diagnose)' for tune, vehicle, plan and
+a library caller, which have no --diagnose (they said '(try --diagnose)'), nothing with the diagnosis run (analyze
 appended the hint and then cut it off again)."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "concealed" / "fligh
 
 
 def test_each_caller_gets_its_own_hint_or_none():
-    assert AnalyzeOptions().diagnose_hint == ""  # a library caller: no command to point to
+    assert AnalyzeOptions().diagnose_hint == TRY_DIAGNOSE_COMMAND  # a library caller: the command to run
     warnings = analyze_path(LOG, soiptd_model(0.0422), read=ReadOptions(loop="altitude"),
                             options=AnalyzeOptions(n_bootstrap=20, max_combinations=10,
                                                    diagnose_hint=TRY_DIAGNOSE_COMMAND)).warnings

@@ -23,8 +23,8 @@ __all__ = ["AnalyzeOptions", "RelayOptions", "CascadeOptions", "TRY_DIAGNOSE", "
 
 #: :attr:`AnalyzeOptions.diagnose_hint` of a command that has ``--diagnose`` (``analyze``, ``batch``) without it
 TRY_DIAGNOSE = " (try --diagnose)"
-#: :attr:`AnalyzeOptions.diagnose_hint` of a command without ``--diagnose`` that tunes from the analysis (``tune``,
-#: ``vehicle``)
+#: :attr:`AnalyzeOptions.diagnose_hint` of a caller without ``--diagnose`` (``tune``, ``vehicle``, ``plan``, a library
+#: caller): the default
 TRY_DIAGNOSE_COMMAND = " (try mrft-ident diagnose)"
 
 #: the relays a process-plant analysis is told about (:func:`mrftcli.segment.relay_type.infer_relay`)
@@ -129,8 +129,8 @@ class AnalyzeOptions:
     diagnose_hint : str
         How the warnings a model-mismatch diagnosis would explain end (eq. (2): the tests' constraints disagree,
         the waveform refinement not used): :data:`TRY_DIAGNOSE` for a command that offers ``--diagnose`` and was
-        not given it, :data:`TRY_DIAGNOSE_COMMAND` for one that does not; empty (the default) when the
-        diagnosis is run, or for a caller with nothing to point to.
+        not given it, :data:`TRY_DIAGNOSE_COMMAND` (the default) for a caller that does not; empty when the
+        diagnosis is run with it.
 
     The eq. (2) strategy reads every field but ``relay`` and ``baseline``; a process family's reads
     ``min_stable_cycles``, ``relay``, ``windows`` and ``baseline``; a cascade's ``min_stable_cycles`` and
@@ -165,7 +165,7 @@ class AnalyzeOptions:
     windows: tuple[tuple[float, float], ...] = ()
     baseline: tuple[float | Signal, float] | None = None
     cascade: CascadeOptions = CascadeOptions()
-    diagnose_hint: str = ""
+    diagnose_hint: str = TRY_DIAGNOSE_COMMAND
 
     def __post_init__(self) -> None:
         for name in ("min_stable_cycles", "n_bootstrap", "max_combinations"):

@@ -103,3 +103,53 @@ def test_the_swap_never_pairs_an_effect_with_itself() -> None:
 
     _Pairs.swap(SimpleNamespace(pair=pair), first, second, rows, rows)  # type: ignore[arg-type]
     assert asked and all(anchor != other for anchor, other in asked)
+
+
+def _phase_test(W: float, beta: float, rate_hz: float = 200.0):
+    """A stand-in for a diagnosed test: its cycles' period at W [rad/s], its beta and rate (what the
+    phase condition reads)."""
+    from types import SimpleNamespace
+
+    period = np.full(6, 2.0 * np.pi / W)
+    return SimpleNamespace(tab=SimpleNamespace(period=period), fit=np.ones(6, bool), beta=(beta, beta), rate_hz=rate_hz)
+
+
+def _frequency(Tp: float, Td: float, tau: float, beta: float, rate_hz: float) -> float:
+    """The describing-function frequency [rad/s] of eq. (2) under an MRFT of ``beta`` (bisection on the
+    phase: -pi/2 - atan(W Tp) - atan(W Td) - W (tau + 1 / (2 f_s)) = -pi + asin(beta))."""
+    lo, hi = 1e-3, 1e3
+    for _ in range(200):
+        w = 0.5 * (lo + hi)
+        ph = -np.pi / 2 - np.arctan(w * Tp) - np.arctan(w * Td) - w * (tau + 0.5 / rate_hz)
+        lo, hi = (w, hi) if ph > -np.pi + np.arcsin(beta) else (lo, w)
+    return 0.5 * (lo + hi)
+
+
+def test_the_phase_condition_start_recovers_the_plant_of_two_betas() -> None:
+    """Issue 39: the phase-condition start (tau in closed form at each Td, Td on a refined grid) is the
+    plant whose describing-function frequencies the tests have."""
+    Tp = 0.04
+    for Td, tau in ((0.5, 0.03), (3.0, 0.05), (12.0, 0.02)):
+        tests = [_phase_test(_frequency(Tp, Td, tau, b, 200.0), b) for b in (-0.2, -0.7)]
+        theta = initial_base(tests, Tp)  # type: ignore[arg-type]
+        assert abs(np.exp(theta[0]) / Td - 1.0) < 1e-4 and abs(theta[1] / 10.0 - tau) < 1e-6
+
+
+def test_one_frequency_leaves_the_valley_flat_and_the_start_meets_it() -> None:
+    """Issue 39: tests at one frequency cannot separate Td from tau: the start meets the phase
+    condition exactly at the valley's point nearest Td = 1 s (it once wandered the valley to a bound
+    for 40-120 ms a start)."""
+    Tp, W, beta = 0.04, 5.0, -0.4
+    theta = initial_base([_phase_test(W, beta)], Tp)  # type: ignore[arg-type]
+    Td, tau = float(np.exp(theta[0])), theta[1] / 10.0
+    assert 0.8 < Td < 1.25
+    ph = -np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * (tau + 0.5 / 200.0)
+    assert abs(ph - (-np.pi + np.arcsin(beta))) < 1e-9
+
+
+def test_a_td_on_the_fits_bound_is_named_not_determined() -> None:
+    from mrftcli.diagnose.fit import TD_RANGE_S, bound_reason
+
+    assert bound_reason(TD_RANGE_S[1] * (1 - 1e-7)) is not None and "upper bound (100 s)" in str(bound_reason(99.99))
+    assert bound_reason(TD_RANGE_S[0]) is not None
+    assert bound_reason(5.0) is None and bound_reason(None) is None

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from ..diagnose.fit import bound_reason
 from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit, sig
 from .model_options import (parse_windows, relay_options, soiptd_or_process, structure_options, window_option)
@@ -35,8 +36,11 @@ def _unit(name: str, loop: str) -> str:
 
 
 def _plant(est: ModelEstimate, k_unit: str) -> str:
-    """An estimate's Td [s], tau [ms] and K with its unit, for the terminal."""
-    return f"Td {sig(est.Td)} s  tau {sig(None if est.tau is None else 1e3 * est.tau)} ms  K {sig(est.K)} {k_unit}"
+    """An estimate's Td [s], tau [ms] and K with its unit, for the terminal (a Td on the fit's bound marked:
+    the tests did not determine it)."""
+    on_bound = "" if bound_reason(est.Td) is None else " (Td on the fit's bound: not determined by these tests)"
+    return (f"Td {sig(est.Td)} s  tau {sig(None if est.tau is None else 1e3 * est.tau)} ms  K {sig(est.K)} {k_unit}"
+            + on_bound)
 
 
 def _model_lines(result: DiagnosisResult) -> list[str]:
@@ -122,6 +126,7 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")
         for loc in feats:
             lines.append(f"  test {loc.test + 1} ({loc.t_start_rel:.1f}-{loc.t_end_rel:.1f} s): {loc.what}, z = {loc.z:+.1f}")
+    lines += [f"note: {n}" for n in result.notes]
     return "\n".join(line.rstrip() for line in lines)
 
 

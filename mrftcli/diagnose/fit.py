@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, minimize_scalar
 
 from .features import FEATURE_NAMES, N_HARM, CycleTable, cycle_features, cycle_table, relay_harmonics
 from .physics import Effect, df_quadratic_drag
@@ -36,7 +36,7 @@ if TYPE_CHECKING:
 
 __all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "PERIOD_RTOL", "DiagnosedTest", "segments_of", "prepare_tests", "PredictedCycle",
            "CandidateModel", "cycle_plant", "model_cycle", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
-           "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
+           "bound_reason", "TD_RANGE_S", "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
 
 #: the fits' relative finite-difference step (least_squares' diff_step)
 _STEP = 1e-3
@@ -643,40 +643,86 @@ def fit_model(model: CandidateModel, theta0: np.ndarray, lo: np.ndarray, hi: np.
     return Fit(theta, K, float(r @ r), int(r.size), len(theta) + 1, r, evals, cov, bool(np.all(np.abs(r) < big)))
 
 
-def initial_base(tests: list[DiagnosedTest], Tp: float, extra_phase: Callable | None = None) -> np.ndarray:
-    """Td, tau from the describing-function phase condition at each test's frequency.
+#: Td's range in the fits [s] (:func:`theta_bounds`) and in the phase-condition start (:func:`initial_base`)
+TD_RANGE_S = (0.02, 100.0)
+#: tau's upper end in the phase-condition start [s]
+_TAU_START_MAX_S = 0.5
+#: log-Td grid of the phase-condition start (refined around its best point)
+_LOG_TD_GRID = np.linspace(math.log(TD_RANGE_S[0]), math.log(TD_RANGE_S[1]), 49)
+#: phase residuals [rad^2] this close to the best are rounding: the valley is flat there
+_FLAT_COST = 1e-12
 
-    arg G(jW) - W/(2 f_s) + extra = -pi + asin(beta), with arg G = -pi/2 - atan(W Tp) - atan(W Td) - W tau;
-    ``extra_phase(W, test)`` adds a candidate's own phase [rad] (e.g. -atan(W T_lag)).
-    """
+
+def _phase_terms(tests: list[DiagnosedTest], Tp: float, extra_phase: Callable | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Each test's frequency W [rad/s] and the part of its describing-function phase condition that
+    depends on neither Td nor tau [rad]: the condition is ``c - atan(W Td) - W tau = 0``."""
     W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
     # an effective beta measured beyond +-1 (a relay that switched late on a noisy or lagging output)
     # has no describing-function phase: the edge's (was a NaN and a RuntimeWarning on the terminal)
     B = np.clip([np.mean(t.beta) for t in tests], -1.0, 1.0)
     fs = np.array([t.rate_hz for t in tests])
     extra = np.zeros(len(tests)) if extra_phase is None else np.array([extra_phase(w, t) for w, t in zip(W, tests)])
+    return W, np.pi / 2 - np.arctan(W * Tp) - W * 0.5 / fs + extra - np.arcsin(B)
 
-    def res(x):
-        Td, tau = math.exp(x[0]), x[1]
-        ph = -np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * (tau + 0.5 / fs) + extra
-        return ph - (-np.pi + np.arcsin(B))
 
-    best = None
-    for td0 in (0.3, 1.0, 3.0):
-        try:
-            s = least_squares(res, [math.log(td0), 0.03], bounds=([math.log(0.02), 0.0], [math.log(100.0), 0.5]))
-        except ValueError:
-            continue
-        if best is None or s.cost < best.cost:
-            best = s
-    x = best.x if best is not None else np.array([0.0, 0.03])
-    return np.array([x[0], 10 * x[1]])
+def initial_base(tests: list[DiagnosedTest], Tp: float, extra_phase: Callable | None = None) -> np.ndarray:
+    """Td, tau from the describing-function phase condition at each test's frequency (theta's layout).
+
+    arg G(jW) - W/(2 f_s) + extra = -pi + asin(beta), with arg G = -pi/2 - atan(W Tp) - atan(W Td) - W tau;
+    ``extra_phase(W, test)`` adds a candidate's own phase [rad] (e.g. -atan(W T_lag)). The condition
+    is linear in tau, so tau is solved in closed form at each Td (in [0, 0.5] s) and the least-squares
+    Td is found on a log grid over :data:`TD_RANGE_S` refined by a bounded scalar search. (A 2-D
+    least-squares fit wandered the Td-tau valley for 40-120 ms a start when the tests share one
+    frequency, where the condition cannot separate Td from tau: issue 39.) Tests at one frequency
+    leave the valley (nearly) flat: its least-squares point is then as arbitrary as the noise, often a
+    bound of the range, and the fits from it say so (:func:`bound_reason`); one test leaves it exactly
+    flat, and the start is the valley's point nearest Td = 1 s.
+    """
+    W, c = _phase_terms(tests, Tp, extra_phase)
+    ww = float(W @ W)
+
+    def profile(u: float) -> tuple[float, float]:
+        a = c - np.arctan(W * math.exp(u))
+        tau = min(max(float(W @ a) / ww, 0.0), _TAU_START_MAX_S)
+        r = a - W * tau
+        return float(r @ r), tau
+
+    costs = np.array([profile(u)[0] for u in _LOG_TD_GRID])
+    flat = np.flatnonzero(costs <= costs.min() + _FLAT_COST)
+    if flat.size > 1:  # one frequency: every Td of the valley meets the condition; the one nearest 1 s
+        u = float(_LOG_TD_GRID[flat[np.argmin(np.abs(_LOG_TD_GRID[flat]))]])
+        return np.array([u, 10 * profile(u)[1]])
+    i = int(np.argmin(costs))
+    lo, hi = _LOG_TD_GRID[max(i - 1, 0)], _LOG_TD_GRID[min(i + 1, _LOG_TD_GRID.size - 1)]
+    ref = minimize_scalar(lambda u: profile(u)[0], bounds=(lo, hi), method="bounded", options={"xatol": 1e-9})
+    u = float(ref.x) if ref.fun <= costs[i] else float(_LOG_TD_GRID[i])
+    return np.array([u, 10 * profile(u)[1]])
+
+
+def bound_reason(Td: float | None) -> str | None:
+    """Why a fitted Td [s] is no estimate of the plant, or None: it ended on an end of :data:`TD_RANGE_S`.
+
+    There the tests did not bound Td (nor so tau and K, which trade off against it along the valley of
+    the phase condition): their frequencies fix the phase, not how Td and tau share it.
+    """
+    if Td is None or not math.isfinite(Td):
+        return None
+    lo, hi = TD_RANGE_S
+    if Td >= hi * (1.0 - 1e-3):
+        end = f"upper bound ({hi:g} s)"
+    elif Td <= lo * (1.0 + 1e-3):
+        end = f"lower bound ({lo:g} s)"
+    else:
+        return None
+    return (f"its Td ended on the fit's {end}: these tests do not determine Td, nor so tau and K (their "
+            "frequencies fix the phase, not how Td and tau share it; a test at another beta would)")
 
 
 def tau_on_valley(tests: list[DiagnosedTest], Tp: float, Td: float) -> float:
     """tau [s] that satisfies the describing-function phase condition best for a given Td (closed form)."""
     W = np.array([2 * np.pi / np.mean(t.tab.period[t.fit]) for t in tests])
-    B = np.clip([np.mean(t.beta) for t in tests], -1.0, 1.0)  # as initial_base
+    B = np.clip([np.mean(t.beta) for t in tests], -1.0, 1.0)  # as _phase_terms
     fs = np.array([t.rate_hz for t in tests])
     # -pi/2 - atan(W Tp) - atan(W Td) - W (tau + 1/(2 fs)) = -pi + asin(B), linear in tau
     rhs = np.pi / 2 - np.arctan(W * Tp) - np.arctan(W * Td) - W * 0.5 / fs - np.arcsin(B)
@@ -714,8 +760,8 @@ def fit_base(model: CandidateModel, tests: list[DiagnosedTest], Tp: float, lo: n
 def theta_bounds(cand: Effect | tuple | None, tests: list[DiagnosedTest]) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of theta (layout of :class:`CandidateModel`) for the base model, one candidate or a combination."""
     cands = () if cand is None else (tuple(cand) if isinstance(cand, (tuple, list)) else (cand,))
-    lo = [math.log(0.02), 0.0]
-    hi = [math.log(100.0), 5.0]
+    lo = [math.log(TD_RANGE_S[0]), 0.0]
+    hi = [math.log(TD_RANGE_S[1]), 5.0]
     hmin = min(t.h for t in tests)
     hmax = max(t.h for t in tests)
     hs = float(np.mean([t.h for t in tests]))

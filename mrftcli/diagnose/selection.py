@@ -51,7 +51,7 @@ from ..io.logtypes import FlightLog, Signal
 from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .candidates import LinearFit, fit_linear, search_candidates
-from .fit import plant_params
+from .fit import bound_reason, plant_params
 from .heldout import significant
 from .scatter import jitter_candidate, scatter_reference, scatter_z
 from .locate import (Z_LIMIT, check_test, locate, measured_waveform, misfit, test_disagreements,
@@ -331,7 +331,13 @@ def _identification(flight: FlightLog, Tp: float, screen: Screen, linear: Linear
     ident = Identification(loop=flight.loop, linear=ModelEstimate(**{**lin, "Tp": Tp}), refits=refits,
                            waveform=_waveform_refits(flight, screen.analysis, effects, warnings),
                            analyze=None if analysis is None else analyze_model(analysis))
-    return ident.recommend(deterministic(effects))
+    ident = ident.recommend(deterministic(effects))
+    rec = ident.recommended
+    why = None if rec is None else bound_reason(rec.Td)
+    if rec is not None and rec.source != "analyze" and why is not None:  # a fit ended on Td's bound: no estimate
+        warnings.append(f"no estimate of the plant to use: the one it would be ({rec.source}) is not determined: {why}")
+        ident = replace(ident, recommended=None)
+    return ident
 
 
 def deterministic(effects: list[EffectFinding]) -> list[str]:

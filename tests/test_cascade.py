@@ -9,13 +9,12 @@ plain eq. (2) plant.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from typing import Any
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 from scipy.linalg import expm
 
 from mrftcli.errors import IdentificationError, InputError
@@ -260,8 +259,7 @@ def test_cli_option_errors(tmp_path) -> None:
     gains.write_text(json.dumps({"pitch": GAINS.to_json()}))
     log = tmp_path / "missing.csv"
 
-    r = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(log), "--loop", "y", "--inner-model", str(inner)],
-                       capture_output=True, text=True, timeout=60)
+    r = run_main("analyze", str(log), "--loop", "y", "--inner-model", str(inner))  # main() in this process
     assert r.returncode == 2 and "--inner-gains" in r.stderr and "Traceback" not in r.stderr
     from click.testing import CliRunner
 
@@ -276,8 +274,7 @@ def test_cli_option_errors(tmp_path) -> None:
     assert isinstance(res.exception, InputError) and "no gains for the roll loop" in str(res.exception)
     filtered = tmp_path / "filtered.json"
     filtered.write_text(json.dumps({"roll": {**GAINS.to_json(), "rate_filter": {"cutoff_hz": 20.0}}}))
-    r = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(log), "--loop", "y", "--inner-model", str(inner),
-                        "--inner-gains", str(filtered)], capture_output=True, text=True, timeout=60)
+    r = run_main("analyze", str(log), "--loop", "y", "--inner-model", str(inner), "--inner-gains", str(filtered))
     assert r.returncode != 0 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert "--inner-gains (roll)" in r.stderr and "rate filter" in r.stderr, r.stderr
 

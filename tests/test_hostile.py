@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_helpers import run_main
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -104,8 +105,7 @@ def test_suggested_unit_is_the_one_that_gives_a_controller_rate():
 
 def test_analyze_cli_with_time_unit_gives_the_seconds_file_numbers(corpus):
     out, _ = corpus
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", str(out / "csv_time_ms.csv"), "--tp", "0.0422",
-                           "--time-unit", "ms", "--json", "-"], capture_output=True, text=True, timeout=100)
+    proc = run_main("analyze", str(out / "csv_time_ms.csv"), "--tp", "0.0422", "--time-unit", "ms", "--json", "-")
     assert proc.returncode == 0, proc.stderr
     truth = json.loads((ROOT / "sample_logs" / "design1_altitude.csv.truth.json").read_text())
     got = json.loads(proc.stdout)["parameters"]

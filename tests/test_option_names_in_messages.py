@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import click
 import pytest
+from cli_helpers import run_main
 
 from mrftcli.cli.main import cli
 
@@ -45,8 +46,9 @@ def test_every_option_named_in_the_package_exists():
 
 
 def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mrftcli", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=120)
+    """``mrft-ident ARGS`` in ``cwd`` through main() in this process (cli_helpers.run_main)."""
+    with contextlib.chdir(cwd):
+        return run_main(*args)
 
 
 @pytest.mark.parametrize(("command", "option"), [(("analyze",), "--format"), (("tune", "--loop", "altitude"),

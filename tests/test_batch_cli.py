@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import socket
 import subprocess
@@ -13,7 +14,7 @@ from typing import Any
 import pandas as pd
 import pytest
 from click.testing import CliRunner
-from cli_helpers import run_cli
+from cli_helpers import run_cli, run_main
 
 from mrftcli.cli.main import cli
 from test_batch import toy_analysis
@@ -26,7 +27,8 @@ def mrft(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 def test_bad_log_exits_8_with_one_line_and_rows_written(tmp_path: Path) -> None:
     (tmp_path / "logs").mkdir()
     (tmp_path / "logs" / "broken.mcap").write_bytes(b"\x00not an mcap file at all")
-    p = mrft("batch", "logs", "--tp", "0.04", "--out", "out", "--jobs", "1", "--json", cwd=tmp_path)
+    with contextlib.chdir(tmp_path):  # main() in this process (one log, --jobs 1: batch runs it here too)
+        p = run_main("batch", "logs", "--tp", "0.04", "--out", "out", "--jobs", "1", "--json")
     assert p.returncode == 8, p.stderr
     assert "Traceback" not in p.stderr
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]

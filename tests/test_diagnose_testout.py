@@ -62,3 +62,26 @@ def test_a_pair_that_predicts_the_left_out_tests_no_better_gives_the_best_single
 def test_a_pair_that_predicts_them_better_than_each_alone_stands(monkeypatch) -> None:
     kept, second, said = _case(monkeypatch, {"pair": 60.0, "drag": 100.0, "drift": 400.0})
     assert kept.name == "quadratic_drag" and second is not None and said == []
+
+
+def test_the_refits_keep_the_flights_hover_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A gain drift's trim is the flight's hover command (the first test's relay centre): the refit that
+    leaves the first test out must keep it, not take the second test's centre (review R2 of issue 39)."""
+    from mrftcli.diagnose import testout
+    from mrftcli.diagnose.fit import CandidateModel
+    from mrftcli.diagnose.physics import BY_NAME
+
+    made: list = []
+
+    class Recorded(CandidateModel):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(testout, "CandidateModel", Recorded)
+    monkeypatch.setattr(testout, "fit_model", lambda *a, **k: SimpleNamespace(ok=False, chi2=float("nan")))
+    tests = [SimpleNamespace(h=0.2, bias=b, t_start=t0) for b, t0 in ((1.00, 5.0), (1.01, 20.0), (1.03, 35.0))]
+    model = CandidateModel((BY_NAME["gain_drift"],), tests, 0.05)
+    assert model.bias_first == 1.00
+    assert testout.left_out_chi2(model, SimpleNamespace(theta=None), tests, [None] * 3, [None] * 3) is None
+    assert made and made[0].bias_first == 1.00 and made[0].bias_mean == model.bias_mean

@@ -55,7 +55,9 @@ def left_out_chi2(model: CandidateModel, fit: Fit, tests: list[DiagnosedTest], r
     for j in range(n):
         keep = [i for i in range(n) if i != j]
         sub = CandidateModel(model.cands, [tests[i] for i in keep], model.Tp)
-        sub.hs, sub.bias_mean = model.hs, model.bias_mean  # the same theta, the same physics
+        # the same theta, the same physics: the flight's hover command too (a gain drift's trim), which a
+        # refit without the first test would otherwise take from the second
+        sub.hs, sub.bias_mean, sub.bias_first = model.hs, model.bias_mean, model.bias_first
         kept = [recs_fit[i] for i in keep]
         f = fit_model(sub, fit.theta, lo, hi, kept)
         if not f.ok or not np.isfinite(f.chi2):

@@ -705,15 +705,18 @@ def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray
     out = dict(profiled or {})
     for i, name in enumerate(problem.unknown):
         p = problem.model.parameters[name]
-        if (name == "K" or name not in problem.log_scaled or name in flat or p.bounds[0] > 0
-                or z[i] > lo[i] + 1e-6):
+        if name == "K" or name not in problem.log_scaled or name in flat or p.bounds[0] > 0:
             continue
-        x0, top = math.exp(lo[i]), math.exp(hi[i])
+        x0, top, value = math.exp(lo[i]), math.exp(hi[i]), math.exp(z[i])
         h = 1e-6 * top
         probe = z.copy()
-        probe[i] = math.log(x0 + h)
+        probe[i] = math.log(value + h)
         slope = float(np.linalg.norm(problem.residuals(probe) - problem.residuals(z))) / h
         step = math.sqrt(delta) / slope if slope > 0 else top
+        if value - x0 >= step:
+            # off the floor by more than its linear half-width: the log-scale interval stands. Nearer, the solver
+            # may have stalled a few floors up (where the residuals do not move either): profiled like the floor
+            continue
         prev_x, prev_rise, end = x0, 0.0, top
         for k in range(40):
             x = min(x0 + step * 2.0 ** k, top)

@@ -477,3 +477,18 @@ def test_a_loop_asked_for_that_neither_side_holds_is_missing(results, capsys):
     assert code == EXIT_INCOMPLETE and "roll" in err and "Traceback" not in err
     # a loop held: compared as before, nothing missing
     assert not compare(results["design1_altitude"], results["reflight"], CompareOptions(loops=("altitude",))).missing
+
+
+def test_a_loop_asked_for_that_failed_on_both_sides_is_missing(results, tmp_path, capsys):
+    """Two batch folders where x failed on both sides: 'compare b1 b2 --loop x' said 'no change beyond tolerance in
+    0 parameters; exit code 0' (a failed loop counted as held; review R3 #3): it is missing on both sides, exit 10."""
+    a = json.loads(Path(results["design1_altitude"]).read_text())
+    for side in ("b", "n"):
+        loops = _auto_loops(a)
+        loops[1] = {"loop": "x", "status": "failed", "error": "no MRFT relay test in the command", "result": None}
+        _record(tmp_path / side, "f1.mcap", "v7", loops)
+    code, out, err = _run([str(tmp_path / "b"), str(tmp_path / "n"), "--loop", "x"], capsys)
+    assert code == EXIT_INCOMPLETE and "no x result on either side" in out + err, out + err
+    # x asked beside a loop both sides hold: compared as before, x unsaid (issue 40's fleet job)
+    code, _, err = _run([str(tmp_path / "b"), str(tmp_path / "n"), "--loop", "x", "--loop", "altitude"], capsys)
+    assert code == 0, err

@@ -274,8 +274,8 @@ def _asked_on_neither(asked: tuple[str, ...], rows: list[_Row], sides: tuple[Sid
     """The loops asked for (``--loop``) when neither side records any of them: each missing on both (exit 10),
     never "no change beyond tolerance in 0 parameters" (exit 0). When some asked loop is recorded, one that is
     not stays unsaid, as a loop absent or failed on both sides (issue 40: a fleet CI job asks for altitude, roll
-    and pitch of every folder, an altitude-only one included)."""
-    held = {loop for _, loop, _b, _n in rows}
+    and pitch of every folder, an altitude-only one included). A loop that failed on both sides is not held."""
+    held = {loop for _, loop, b, n in rows if (b is not None and b.usable) or (n is not None and n.usable)}
     if not asked or held & set(asked):
         return []
 

@@ -393,3 +393,23 @@ def test_one_jump_of_a_fresh_output_is_not_a_stale_sensor() -> None:
     delay, se = interleaved_delay(t, stale)
     # (the slope's own noise attenuates the least-squares estimate a little: 6.9 ms here)
     assert 2 * dt < delay < 4.5 * dt and delay > 5 * se, (delay, se)
+
+
+def test_simulate_json_never_replaces_its_inner_gains_and_is_checked_before_the_flight(tmp_path: Path, capsys,
+                                                                                         monkeypatch) -> None:
+    # simulate --cascade y ... --inner-gains g.json --json g.json replaced g.json, exit 0 (a Path-typed option was
+    # not among the inputs, and simulate never checked --json before the flight; review R3 #4)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "g.json").write_text((SAMPLES / "hear_cascade_y.gains.json").read_text())
+    (tmp_path / "notes.txt").write_text("not a JSON document\n")
+    before = _snapshot(tmp_path)
+    cascade = ("simulate", "--cascade", "y", "--inner-tp", "0.0422", "--inner-td", "1.301", "--inner-tau", "0.0297",
+               "--inner-k", "30", "--inner-test", "-0.4", "--td", "2", "--tau", "0.03", "--test", "-0.4",
+               "--out", "c.bag", "-q")
+    code, _out, err = run_cli(capsys, *cascade, "--inner-gains", "g.json", "--json", "g.json")
+    _one_line_error(code, err, "--json g.json", "is an input of this command")
+    assert _snapshot(tmp_path) == before
+    code, _out, err = run_cli(capsys, "simulate", "--tp", "0.0422", "--td", "2.669", "--tau", "0.0464", "--test",
+                              "-0.4", "--out", "a.mcap", "-q", "--json", "notes.txt")
+    _one_line_error(code, err, "--json notes.txt")
+    assert _snapshot(tmp_path) == before  # refused before the flight: no log written

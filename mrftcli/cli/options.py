@@ -223,7 +223,9 @@ def _given_paths(option: str) -> tuple[str, ...]:
     own = {p.name for p in ctx.command.params if option in getattr(p, "opts", ())}
     given = [value for name, value in ctx.params.items() if name not in own] + list(ctx.meta.values())
     values = [v for value in given for v in (value if isinstance(value, (tuple, list)) else (value,))]
-    return tuple(v for v in values if isinstance(v, str) and v != "-" and os.path.exists(v))
+    # a Path-typed option (simulate --inner-gains) as much as a str one
+    paths = [os.fspath(v) for v in values if isinstance(v, (str, os.PathLike))]
+    return tuple(v for v in paths if isinstance(v, str) and v != "-" and os.path.exists(v))
 
 
 def check_output_file(target: str | None, option: str = "--json", *, inputs: tuple[str, ...] = ()) -> None:

@@ -17,8 +17,8 @@ from ..io.logtypes import LOOPS
 from ..validate import check_beta, check_positive, check_time
 from ..report.wording import output_unit
 from .model_options import MODEL_NAMES, parse_number, parse_params
-from .options import (check_output_dir, controller_rate_option, dump_json, json_option, quiet_option, read_json_file,
-                      tp_option, tqdm_progress)
+from .options import (check_output_dir, check_output_file, controller_rate_option, dump_json, json_option, quiet_option,
+                      read_json_file, tp_option, tqdm_progress)
 
 __all__ = ["simulate", "parse_test", "parse_effect"]
 
@@ -343,6 +343,7 @@ def simulate(
     # the option's own name: "rate" would also be the hidden --rate alias' name, and click then hands
     # --controller-rate's value to the alias too (simulate --controller-rate was refused as given twice)
     rate = controller_rate_hz
+    check_output_file(json_target)  # before the flight, never onto an input (--inner-gains, --model-file)
     if model_file is not None:
         _given(ctx, ("model_name",), "is not used with --model-file (the file declares the structure)")
     if model_name != "soiptd" or model_file is not None:

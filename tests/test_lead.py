@@ -15,7 +15,7 @@ import pytest
 from mrftcli.errors import IdentificationError, InputError
 from mrftcli.mrft.identify import TestMeasurement, identify
 from mrftcli.mrft.lprs import mrft_limit_cycle
-from mrftcli.mrft.model import LEAD_MAX, LoopModel, soiptd_model
+from mrftcli.mrft.model import LEAD_CAP_S, LEAD_MAX, LoopModel, lead_floor, soiptd_model
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAD = LoopModel(0.05, 1.0, -0.003, 113.0)  # PX4 SIH's roll constants with EKF2's ~3 ms lead
@@ -56,15 +56,53 @@ def test_identify_recovers_a_lead_and_states_it() -> None:
 
 
 def test_what_no_lead_explains_is_still_refused() -> None:
-    """A lead is admitted down to -Tp / 2 (a cycle of eq. (2) holds at most ~0.3 Tp of lead at these betas, so
-    that bound is the model's, not the fit's): two frequencies whose slices do not meet stay refused, and a
-    model beyond the bound is refused by name."""
+    """A lead is admitted down to -min(Tp / 2, 6 ms) (an estimator's few ms; a cycle of eq. (2) holds at most
+    ~0.3 Tp of lead at these betas): two frequencies whose slices do not meet stay refused, and a model beyond
+    the bound is refused by name."""
     tests = [TestMeasurement(-0.2, 2.0), TestMeasurement(-0.6, 2.4)]
     with pytest.raises(IdentificationError, match="do not intersect"):
         identify(tests, soiptd_model(0.05))
-    with pytest.raises(InputError, match="tau must be a non-negative time in seconds \\(or a lead down to -0.025"):
-        LoopModel(0.05, 1.0, -0.03)
-    assert LoopModel(0.05, 1.0, -LEAD_MAX * 0.05).tau == -0.025
+    with pytest.raises(InputError, match="tau must be a non-negative time in seconds \\(or a lead down to -0.006"):
+        LoopModel(0.05, 1.0, -0.007)
+    assert LoopModel(0.05, 1.0, -LEAD_CAP_S).tau == -0.006
+    assert LoopModel(0.01, 1.0, -LEAD_MAX * 0.01).tau == -0.005  # a small Tp: its half
+    assert lead_floor(0.05) == -0.006 and lead_floor(0.004) == -0.002
+
+
+@pytest.mark.parametrize("factor", [3.0, 10.0])
+def test_a_tp_given_too_large_is_refused_not_read_as_a_lead(factor: float) -> None:
+    """Cycles of eq. (2) without delay (Tp 50 ms, the oracle: the closed form) identified at a Tp 3x / 10x too
+    large read as a lead of tens of ms, not an estimator's few: refused in one line naming --tp."""
+    truth = LoopModel(0.05, 1.0, 0.0, 113.0)
+    tests = [TestMeasurement(b, mrft_limit_cycle(truth, b).frequency_hz) for b in (-0.3, -0.5, -0.7)]
+    with pytest.raises(IdentificationError, match="beyond the 6 ms eq. \\(2\\) admits.*check --tp"):
+        identify(tests, soiptd_model(0.05 * factor))
+
+
+@pytest.mark.parametrize("tp", ["0.15", "0.5"])
+def test_analyze_refuses_a_wrong_tp_on_a_lead_log(tp: str) -> None:
+    """PX4 SIH's pitch on EKF2's attitude (true lead -2.9 ms at Tp 0.05 s): --tp 0.15 / 0.5 read as leads of
+    10-16 ms and were accepted (exit 0, held out missing by 10-17 std); refused again, exit 5, one line naming --tp."""
+    from cli_helpers import run_main
+
+    proc = run_main("analyze", "sample_logs/sitl/px4_pitch_h.ulg", "--loop", "pitch", "--tp", tp)
+    assert proc.returncode == 5, proc.stdout + proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "--tp" in lines[0] and "lead" in lines[0] and "Traceback" not in proc.stderr
+
+
+def test_a_lead_whose_tests_disagree_is_refused() -> None:
+    """Within the cap, a Tp too large still makes the tests disagree: a lead with a test held out > 5 std off, or
+    one the others' model gives no cycle, is refused naming --tp; an estimator's lead (within 2 std) is not."""
+    from mrftcli.analyze.held_out import MISS_WORDS, HeldOut, lead_held_out_refusal
+
+    good = (HeldOut(1.0, 0.2, "", 0.01, 0.01, 1.2, -1.9), HeldOut(2.0, 0.1, "", 0.01, 0.01, -1.0, 1.0))
+    assert lead_held_out_refusal(good, -0.003) is None
+    far = (*good[:1], HeldOut(2.0, 0.1, "", 0.01, 0.01, 12.6, 1.0))
+    assert "12.6 std" in (lead_held_out_refusal(far, -0.0038) or "") and "--tp" in (lead_held_out_refusal(far, -0.0038) or "")
+    assert lead_held_out_refusal(far, 0.002) is None  # a delay, not a lead: not this rule's
+    none = (*good[:1], HeldOut(None, None, f"no cycle at beta -0.7: {MISS_WORDS}"))
+    assert "no cycle" in (lead_held_out_refusal(none, -0.003) or "")
 
 
 def test_the_sampled_relays_orbits_of_a_lead_bracket_its_centre_and_tend_to_the_continuous_cycle() -> None:
@@ -132,3 +170,25 @@ def test_the_cascade_takes_an_inner_lead_as_tau_zero_and_keeps_it_to_say_so() ->
     assert inner.draw(np.random.default_rng(0)).lead_s == pytest.approx(-0.003)
     with pytest.raises(InputError, match="leads"):
         InnerLoop(LEAD, c, "pitch")
+
+
+def test_the_amplitude_route_keeps_a_lead_and_states_it() -> None:
+    """One test and K known (the paper's amplitude route): its model took max(tau, 0) silently while its tau stayed
+    negative; now model and estimate agree on the lead (the oracle: the closed-form cycle of LEAD) and it is stated."""
+    lc = mrft_limit_cycle(LEAD, -0.5)
+    r = identify([TestMeasurement(-0.5, lc.frequency_hz, amplitude=lc.amplitude, h=1.0)],
+                 soiptd_model(LEAD.Tp, K=LEAD.K))
+    assert r.tau.value == pytest.approx(-0.003, abs=1e-6) and r.model.tau == pytest.approx(r.tau.value)
+    assert any(w.startswith("the loop leads eq. (2)") for w in r.warnings)
+
+
+def test_a_held_out_test_the_others_model_has_no_cycle_for_is_a_miss_with_its_reason() -> None:
+    """The others' model with a lead out of a beta's reach (at beta -0.9 a cycle holds at most ~0.05 Tp of lead)
+    predicts no cycle where one was flown: a held-out miss saying so (was 'their UFM slices do not meet')."""
+    from mrftcli.analyze.held_out import MISS_WORDS, _prediction
+
+    no_cycle = _prediction(LEAD, 1.0, -0.005, 113.0, -0.9, 1.0)
+    assert isinstance(no_cycle, str) and "no cycle at beta -0.9" in no_cycle and MISS_WORDS in no_cycle
+    beyond = _prediction(LEAD, 1.0, -0.02, 113.0, -0.3, 1.0)
+    assert isinstance(beyond, str) and "beyond the 6 ms" in beyond and MISS_WORDS in beyond
+    assert isinstance(_prediction(LEAD, 1.0, -0.003, 113.0, -0.3, 1.0), tuple)

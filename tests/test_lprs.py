@@ -223,7 +223,9 @@ def test_bad_inputs(kwargs, match):
 def test_bad_model_and_state_space():
     with pytest.raises(InputError, match="tau"):  # a lead beyond Tp / 2
         LoopModel(0.1, 0.5, -0.06)
-    assert LoopModel(0.1, 0.5, -0.01).lead  # a small lead is eq. (2)'s (mrft.model.LEAD_MAX)
+    with pytest.raises(InputError, match="tau"):  # within Tp / 2 but beyond an estimator's 6 ms (LEAD_CAP_S)
+        LoopModel(0.1, 0.5, -0.007)
+    assert LoopModel(0.1, 0.5, -0.005).lead  # a small lead is eq. (2)'s (mrft.model.lead_floor)
     with pytest.raises(InputError, match="Tp"):
         LoopModel(-0.1, 0.5, 0.01)
     with pytest.raises(InputError, match="shapes"):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, LogReadError, TpRejectedError
+from ..errors import IdentificationError, InputError, LogReadError, TpRejectedError
 from ..io.clock import implausible_timing
 from ..io.flight import ReadOptions
 from ..io.logtypes import PROCESS_LOOP, FlightLog
@@ -39,7 +39,7 @@ from .cascade import analyze_cascade
 from .estimate import (WaveformStage, beta_used, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
 from .general import analyze_family, mask_windows
-from .held_out import held_out_eq2
+from .held_out import held_out_eq2, lead_held_out_refusal
 from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
 from .residual import MISMATCH_WORDS, residual_verdict
@@ -156,6 +156,9 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     warnings = [w for w in (*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings)
                 if not w.startswith(LEAD_WORDS)]  # the lead is stated once, first, for the tau reported
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
+    lead_refused = lead_held_out_refusal(held, tau_est.value)
+    if lead_refused:  # a Tp given too large reads as a lead the tests disagree on (docs/method.md section 4)
+        raise IdentificationError(lead_refused)
     if tau_est.value < 0:
         notes.insert(0, f"assumed: {lead_note(tau_est.value)}")
     usable, rejected = screening.usable, screening.rejected

@@ -20,8 +20,8 @@ from ..errors import IdentificationError
 from ..io.logtypes import FlightLog
 from ..mrft.consensus import (Bootstrap, StableCycles, UnboundedTd, bootstrap, bootstrap_estimate, constraint_report,
                               unbounded_td, upper_bound_open)
-from ..mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify
-from ..mrft.model import LEAD_MAX, LoopModel
+from ..mrft.identify import IdentificationResult, ParameterEstimate, TestMeasurement, identify, lead_refusal
+from ..mrft.model import LoopModel, lead_floor
 from ..mrft.refine import COMMAND_HISTORY, Refinement, refine, refinement_windows
 from ..mrft.waveform import CommandWindow
 from ..segment import MrftTest
@@ -229,6 +229,14 @@ def point_estimate(model: LoopModel, screening: Screening, constraints: Sequence
     return PointEstimate(tuple(cycles), B, ident, limit)
 
 
+def _within_lead(tau: float, Tp: float) -> float:
+    """``tau`` [s], or the one-line refusal (:func:`mrftcli.mrft.identify.lead_refusal`) of a lead beyond
+    :func:`mrftcli.mrft.model.lead_floor`: never clamped to it (the reported tau would then differ from the model's)."""
+    if tau < lead_floor(Tp):
+        raise IdentificationError(lead_refusal(tau, Tp))
+    return tau
+
+
 def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str], ts_ctrl: float,
               rng: np.random.Generator, hint: str = "") -> Consensus:
     """The weighted estimate of the tests together (UFM slices + ``constraints``) at ``model``'s known Tp,
@@ -255,7 +263,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
     constraint_info: dict[str, Any] = {}
     if constraints and np.isfinite(Td_d[0]):
         Td_hat, tau_hat, K_hat = float(Td_d[0]), float(tau_d[0]), float(K_d[0])
-        model = LoopModel(Tp, Td_hat, max(tau_hat, -LEAD_MAX * Tp), K_hat if np.isfinite(K_hat) else model.K)
+        model = LoopModel(Tp, Td_hat, _within_lead(tau_hat, Tp), K_hat if np.isfinite(K_hat) else model.K)
         constraint_info = _constraint_info(known, cycles, boot, ident, Td_hat, tau_hat, constraints)
         pv = constraint_info["p_value"]
         if pv is not None and pv < 1e-3:
@@ -270,7 +278,7 @@ def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str]
         # after the crossing of its level); remove that lag from every tau
         lag = 0.5 * ts_ctrl
         tau_hat, tau_d = tau_hat - lag, tau_d - lag
-        model = LoopModel(Tp, model.Td, max(model.tau - lag, -LEAD_MAX * Tp), model.K)
+        model = LoopModel(Tp, model.Td, _within_lead(model.tau - lag, Tp), model.K)
     Td_est = bootstrap_estimate(Td_hat, Td_d[1:], Td_d[0], "s")
     tau_est = bootstrap_estimate(tau_hat, tau_d[1:], tau_d[0], "s")
     K_est = bootstrap_estimate(K_hat, K_d[1:], K_d[0], "")
@@ -511,7 +519,7 @@ def unbounded_td_or_raise(exc: IdentificationError, model: LoopModel, Td_ref: fl
     K = bootstrap_estimate(float(limit.K[0]), limit.K[1:], float(limit.K[0]), "")
     Td = ParameterEstimate(limit.Td_limit, float("nan"), limit.Td_low, float("nan"), "s", determined=False, method="mrft")
     ident = IdentificationResult.of(
-        Td, tau, K, LoopModel(Tp, limit.Td_limit, max(tau.value, -LEAD_MAX * Tp), K.value),
+        Td, tau, K, LoopModel(Tp, limit.Td_limit, tau.value, K.value),
         residual=None, tests=(), method="unbounded-Td", uncertainty="bootstrap", n_draws=B,
         warnings=(f"the UFM slices do not intersect: identified in the limit Td -> infinity, which the tests "
                   f"fit (chi2 {limit.chi2:.1f} for {limit.dof} degrees of freedom)",))

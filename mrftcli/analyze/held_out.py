@@ -31,12 +31,13 @@ from ..errors import IdentificationError, InputError
 from ..mrft.consensus import consensus_solve
 from ..mrft.identify import TestMeasurement, identify
 from ..mrft.lprs import mrft_limit_cycle, unit_cycle
-from ..mrft.model import LEAD_MAX, LoopModel
+from ..mrft.model import LoopModel, lead_floor
 from ..mrft.sem import mean_sem
 from ..segment.records import MrftTest
 from .screen import group_betas
 
-__all__ = ["HeldOut", "held_out_eq2", "held_out_cells", "held_out_notes", "mean_sem", "NOTHING_HELD_OUT"]
+__all__ = ["HeldOut", "held_out_eq2", "held_out_cells", "held_out_notes", "mean_sem", "NOTHING_HELD_OUT",
+           "lead_held_out_refusal", "LEAD_MISS_Z", "MISS_WORDS"]
 
 _ONE_OTHER = ("the other test alone does not determine Td and tau (eq. (2) needs two betas): a third test would "
               "check each test against the others")
@@ -192,15 +193,51 @@ def _gains(Tp: float, Td: np.ndarray, sets: _Sets, amps: np.ndarray, hs: np.ndar
     return np.asarray(amps[None, :] * sets.omegas / (hs[None, :] * Td[:, None] * a_unit))
 
 
-def _prediction(model: LoopModel, Td: float, tau: float, K: float, beta: float, h: float) -> tuple[float, float] | None:
-    """The cycle [Hz], [output units] of ``model`` (eq. (2), its known Tp) at Td, tau, K; None where there is none."""
+def _prediction(model: LoopModel, Td: float, tau: float, K: float, beta: float, h: float) -> tuple[float, float] | str | None:
+    """The cycle [Hz], [output units] of ``model`` (eq. (2), its known Tp) at Td, tau, K; None where the others give
+    no model; a note (containing :data:`MISS_WORDS`) where their model has no cycle at ``beta``, where one was flown."""
     if not (math.isfinite(Td) and math.isfinite(tau) and math.isfinite(K) and K > 0):
         return None
+    if tau < lead_floor(model.Tp):
+        return (f"the other tests give a lead of {-tau * 1e3:.3g} ms, beyond the {-lead_floor(model.Tp) * 1e3:.3g} ms "
+                f"eq. (2) admits: {MISS_WORDS}")
     try:
-        lc = mrft_limit_cycle(model.with_parameters(Td=Td, tau=max(tau, -LEAD_MAX * model.Tp), K=K), beta, h)
-    except (InputError, IdentificationError, ValueError):
+        lc = mrft_limit_cycle(model.with_parameters(Td=Td, tau=tau, K=K), beta, h)
+    except IdentificationError:
+        if tau >= 0:
+            return None
+        return (f"eq. (2) from the other tests (tau {tau * 1e3:.3g} ms, a lead) has no cycle at beta {beta:.3g}, "
+                f"where one was flown: {MISS_WORDS}")
+    except (InputError, ValueError):
         return None
     return float(lc.frequency_hz), float(lc.amplitude)
+
+
+#: how a held-out note that counts as a miss ends (the others' model predicts no cycle where one was flown)
+MISS_WORDS = "a held-out miss"
+#: a lead whose held-out tests miss by more than this many stated std is refused (:func:`lead_held_out_refusal`)
+LEAD_MISS_Z = 5.0
+
+
+def lead_held_out_refusal(held: Sequence[HeldOut], tau: float) -> str | None:
+    """The one-line refusal of a lead (``tau`` [s] < 0) whose held-out tests miss, or None.
+
+    A Tp given too large reads as a lead within :func:`~mrftcli.mrft.model.lead_floor` on some logs; the tests
+    then disagree with each other: a test predicted from the others misses by more than :data:`LEAD_MISS_Z` of its
+    stated std (on PX4 SIH's pitch at Tp 10x too large, 10 std), or the others' model has no cycle where one was
+    flown. An estimator's lead at the right Tp held out within 2 std on every lead log measured (docs/method.md 4).
+    """
+    if not tau < 0:
+        return None
+    zs = [abs(z) for h in held for z in (h.frequency_z, h.amplitude_z) if z is not None and math.isfinite(z)]
+    misses = sum(MISS_WORDS in h.note for h in held)
+    worst = max(zs, default=0.0)
+    if worst <= LEAD_MISS_Z and not misses:
+        return None
+    why = (f"a test held out misses by {worst:.3g} std" if worst > LEAD_MISS_Z else
+           f"{misses} test(s) held out have no cycle in the others' model")
+    return (f"the lead tau = {tau * 1e3:.3g} ms comes with tests that disagree ({why}; an estimator's lead holds "
+            f"them within {LEAD_MISS_Z:g}): a Tp given too large reads as a lead; check --tp")
 
 
 def held_out_eq2(model: LoopModel, tests: Sequence[MrftTest], betas: Sequence[float],
@@ -260,25 +297,30 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
         base = rows[0]  # the first row of a test moves nothing
         K = float(np.mean(K_each[base][others]))
         centre = _prediction(model, float(Td[base]), float(tau[base]), K, float(betas[i]), tests[i].h)
-        if centre is None:
-            results.append(HeldOut(None, None, "the other tests give no eq. (2) model: their UFM slices do not "
-                                               f"meet within 0.1-10 x Td {Td_ref:.3g} s"))
+        if not isinstance(centre, tuple):
+            results.append(HeldOut(None, None, centre or "the other tests give no eq. (2) model: their UFM slices "
+                                                         f"do not meet within 0.1-10 x Td {Td_ref:.3g} s"))
             continue
         var_f = var_a = 0.0
+        lost = 0
         for r in rows[1:]:
             se = _freq_se(tests, sets.moved[r])
             scale = float(np.sum(se ** 2) / np.sum(se) ** 2)
             moved = _prediction(model, float(Td[r]), float(tau[r]), float(np.mean(K_each[r][others])),
                                 float(betas[i]), tests[i].h)
-            if moved is not None:  # else the point solve fails one std away: that group's share is left out
+            if isinstance(moved, tuple):
                 var_f += (moved[0] - centre[0]) ** 2 * scale
                 var_a += (moved[1] - centre[1]) ** 2 * scale
+            else:  # the solve one std away gives no cycle: its share is not in the std, which the note says
+                lost += 1
         # the amplitudes move K only (K is the mean of the others' UGM gains): linear, no solve
         dK = K_each[base][others] * a_se[others] / amps[others] / others.sum()
         var_a += float(np.sum(dK ** 2)) * (centre[1] / K) ** 2
         t = tests[i]
         measured = (t.frequency_hz_mean, mean_sem(t.frequency_hz), t.amplitude_mean, mean_sem(t.amplitude))
-        results.append(HeldOut.against(*centre, measured, (math.sqrt(var_f), math.sqrt(var_a))))
+        note = (f"{lost} of {len(rows) - 1} solves one std away give no cycle: the std leaves them out, "
+                "so it is understated" if lost else "")
+        results.append(HeldOut.against(*centre, measured, (math.sqrt(var_f), math.sqrt(var_a)), note))
     return results
 
 

@@ -6,7 +6,7 @@ against its tau (at Td Omega of 10-60 Td barely moves a relay's frequency), so t
 separate analyses carries both flights' Td-tau trade. Here both flights are one plant: eq. (2) with the
 known Tp, **one** Td and **one** K, and **a delay per flight**, fitted to every test's measured
 frequency (weighted least squares on log frequency). The delay added is ``tau_after - tau_before``.
-A delay may be negative (down to -Tp / 2): a loop that leads eq. (2) without delay, as an estimator's lead
+A delay may be negative (down to -Tp / 2 or -6 ms, whichever is less: analyze's one rule, mrft.model.lead_floor): a loop that leads eq. (2) without delay, as an estimator's lead
 makes it (EKF2's attitude in PX4 SIH leads by 2-3 ms), as ``analyze`` admits alone; a lead both
 recordings share cancels in the difference, where a bound at 0 would bend the shared Td instead.
 
@@ -51,7 +51,7 @@ from ..errors import (IdentificationError, InputError, InsufficientDataError, Lo
 from ..io import LogSource, ReadOptions, open_log, read_loop
 from ..jsonable import check_schema_version, json_float, json_opt_float
 from ..mrft.lprs import lead_cycle, mrft_limit_cycle
-from ..mrft.model import K_UNIT, LEAD_MAX, LoopModel
+from ..mrft.model import K_UNIT, LEAD_CAP_S, LoopModel, lead_floor
 from ..mrft.parameter import ParameterEstimate
 from ..mrft.sem import mean_sem
 from ..progress import Progress
@@ -65,8 +65,6 @@ DELAY_SCHEMA_VERSION = 3  # 2: warnings, controller_rate_hz, controller_rate_ass
 
 _FLIGHTS = ("before", "after")
 _TAU_MAX = 0.5  # [s]: the delays' upper bound in the fit (eq. (2)'s multirotor range and more)
-#: the largest lead (negative delay) the fit allows, in units of Tp: eq. (2)'s (analyze's), mrft.model.LEAD_MAX
-_LEAD_MAX = LEAD_MAX
 
 
 @dataclass(frozen=True)
@@ -311,7 +309,7 @@ def _fit(Tp: float, rows: _Rows, var: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
     try:
         fit = least_squares(lambda p: log_misses(p) / sd, [math.log(0.5), 0.005, 0.005],
-                            bounds=([math.log(0.01), -_LEAD_MAX * Tp, -_LEAD_MAX * Tp],
+                            bounds=([math.log(0.01), lead_floor(Tp), lead_floor(Tp)],  # analyze's one rule
                                     [math.log(100.0), _TAU_MAX, _TAU_MAX]),
                             x_scale=[0.1, 0.001, 0.001])
     except (InputError, ValueError) as err:
@@ -447,9 +445,10 @@ def _notes(Tp: float, taus: tuple[tuple[float, float], tuple[float, float]], dof
     """What qualifies the figures; ``taus``: (value, std) [s] of the before and after recordings' delays."""
     notes = []
     for name, tau, std in (("before", *taus[0]), ("after", *taus[1])):
-        if tau <= -_LEAD_MAX * Tp + 1e-6:
-            notes.append(f"the {name} recording's delay is at its bound, a lead of {_LEAD_MAX:g} Tp "
-                         f"({tau * 1e3:.3g} ms): its loop leads eq. (2) more than the fit allows; check Tp")
+        if tau <= lead_floor(Tp) + 1e-6:
+            notes.append(f"the {name} recording's delay is at its bound, a lead of {tau * 1e3:.3g} ms (at most "
+                         f"Tp/2 or {LEAD_CAP_S * 1e3:g} ms, as analyze): its loop leads eq. (2) more than an "
+                         "estimator's lead; check --tp")
         elif tau < -1e-5:
             notes.append(f"the {name} recording's delay is negative ({tau * 1e3:.3g} ± {std * 1e3:.2g} ms): its loop "
                          "has less lag than eq. (2) with no delay (an estimator's lead?), as analyze states "

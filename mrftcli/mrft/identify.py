@@ -43,7 +43,7 @@ from ..validate import check_beta, check_time
 from .identification import IdentificationRecord
 from .identify_lti import LtiIdentification, ResponsePoint
 from .lprs import unit_cycle, unit_cycle_scalar
-from .model import LEAD_MAX, LoopModel, PlantModel
+from .model import LEAD_CAP_S, LoopModel, PlantModel, lead_floor
 from .sem import mean_sem
 from .parameter import Z95, ParameterEstimate
 from .slices import frequency_sensitivity, intersection, intersection_draws, least_squares, tau_curve
@@ -65,6 +65,7 @@ __all__ = [
     "unit_manifolds",
     "gain_disagreement",
     "lead_note",
+    "lead_refusal",
     "LEAD_WORDS",
     "GAIN_FLOOR",
     "ufm_slice",
@@ -430,16 +431,13 @@ def _point_estimate(inputs: _Inputs, m: _Measured, ms: ManifoldSet) -> _Point:
         method = "least-squares"
     lag = inputs.sampling_lag
     tau_hat = tau_eff - lag
-    if tau_eff < -LEAD_MAX * Tp:
-        raise IdentificationError(
-            f"the measured frequencies imply a negative delay (tau = {tau_eff * 1e3:.3g} ms), a lead beyond "
-            f"{LEAD_MAX:g} Tp ({-LEAD_MAX * Tp * 1e3:.3g} ms): no plant of eq. (2) with Tp = {Tp:g} s fits; check Tp "
-            "and the betas"
-        )
-    if tau_hat < -LEAD_MAX * Tp:
-        warns.append(f"removing the sampling lag ({lag * 1e3:.3g} ms) leaves a lead beyond {LEAD_MAX:g} Tp; "
-                     f"tau set to {-LEAD_MAX * Tp * 1e3:.3g} ms")
-        tau_hat = -LEAD_MAX * Tp
+    floor = lead_floor(Tp)
+    if tau_eff < floor:
+        raise IdentificationError(lead_refusal(tau_eff, Tp))
+    if tau_hat < floor:
+        warns.append(f"removing the sampling lag ({lag * 1e3:.3g} ms) leaves a lead beyond the "
+                     f"{-floor * 1e3:.3g} ms eq. (2) admits; tau set to {floor * 1e3:.3g} ms")
+        tau_hat = floor
     if tau_hat < 0:
         warns.append(lead_note(tau_hat))
     return _Point(Td_hat, tau_eff, tau_hat, residual, method, weights, tuple(warns))
@@ -449,11 +447,19 @@ def _point_estimate(inputs: _Inputs, m: _Measured, ms: ManifoldSet) -> _Point:
 LEAD_WORDS = "the loop leads eq. (2)"
 
 
+def lead_refusal(tau: float, Tp: float) -> str:
+    """The one-line refusal of a lead ``tau`` [s] beyond :func:`~mrftcli.mrft.model.lead_floor` at ``Tp`` [s]."""
+    return (f"the measured frequencies imply a lead of {-tau * 1e3:.3g} ms (tau < 0), beyond the "
+            f"{-lead_floor(Tp) * 1e3:.3g} ms eq. (2) admits (an estimator's lead is a few ms: at most "
+            f"{LEAD_CAP_S * 1e3:g} ms or Tp/2): no plant of eq. (2) with Tp = {Tp:g} s fits; a Tp given too large "
+            "reads as a lead: check --tp (and the betas)")
+
+
 def lead_note(tau: float) -> str:
     """The statement a lead (``tau`` < 0 [s]) carries wherever eq. (2) is identified with one."""
     return (f"{LEAD_WORDS}: tau = {tau * 1e3:.3g} ms < 0, less lag than eq. (2) without delay (an "
             "estimator's lead, e.g. EKF2's attitude or EKF3's altitude, or a Tp given too large); identified "
-            f"with the lead (down to -{LEAD_MAX:g} Tp admitted); a design or simulation that needs a causal delay "
+            f"with the lead (down to -min(Tp/2, {LEAD_CAP_S * 1e3:g} ms) admitted); a design or simulation that needs a causal delay "
             "says what it does with it")
 
 
@@ -868,7 +874,12 @@ def _identify_amplitude(inputs: _Inputs) -> IdentificationResult:
         tau_est = _estimate(np.array([]), tau_eff - lag, "s")
         unc = "none"
     warns = ["amplitude route: sensitive to amplitude noise and to K (the paper prefers two frequencies)"]
-    model = LoopModel(Tp, Td_hat, max(tau_eff - lag, 0.0), K)
+    tau_hat = tau_eff - lag
+    if tau_hat < lead_floor(Tp):  # a lead the route's model cannot hold: refused as the frequencies' route does
+        raise IdentificationError(lead_refusal(tau_hat, Tp))
+    if tau_hat < 0:
+        warns.append(lead_note(tau_hat))
+    model = LoopModel(Tp, Td_hat, tau_hat, K)
     per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": a_mean, "h": test.h,
             "tp_norm": Tp * w0, "td_norm": Td_hat * w0, "theta": tau_eff * w0},)
     return IdentificationResult.of(Td_est, tau_est, ParameterEstimate.given(K, ""), model,

@@ -22,6 +22,14 @@ the loop's transport delay [s] and K the gain [output units / (command unit * s^
 is the static gain from command to output rate. :data:`MODEL_FAMILIES` names the structures by
 family; new structures (first order plus delay, integrator plus delay, ...) register there and
 callers that take a :class:`PlantModel` need no change.
+
+Eq. (2) admits a small lead, tau down to :func:`lead_floor` = -min(Tp / 2, 6 ms): a loop with a little less
+lag than eq. (2) without delay, as an estimator's lead makes it (PX4 SIH's rate loops on EKF2's attitude
+-2.9 to -4.4 ms, ArduPilot SITL's altitude on EKF3 -3.1 ms). The 6 ms cap (:data:`LEAD_CAP_S`) is there
+because a Tp given too large also reads as a lead, of tens of ms on the same logs, and those logs cannot
+check Tp on the waveform: beyond the cap ``analyze`` (and the model itself) refuses, naming --tp; within it,
+``analyze`` refuses a lead whose tests held out disagree (docs/method.md section 4). ``delay`` fits its
+delays down to the same floor.
 """
 
 from __future__ import annotations
@@ -41,7 +49,7 @@ from ..validate import MAX_TIME_S
 if TYPE_CHECKING:
     from .lprs import LimitCycle
 
-__all__ = ["LEAD_MAX", "Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
+__all__ = ["LEAD_MAX", "LEAD_CAP_S", "lead_floor", "Parameter", "StateSpace", "UnitNormalisation", "PlantModel", "LoopModel", "MODEL_FAMILIES",
            "model_family", "model_from_json", "SampledPlantModel", "MODEL_SCHEMA_VERSION", "model_json", "model_json_parameters",
            "json_bounds", "soiptd_model", "ParameterSpec", "SpecModel", "check_parameter_names", "spec_parameters",
            "K_UNIT"]
@@ -295,9 +303,25 @@ class SpecModel:
 #: the largest lead (negative tau) eq. (2) admits, in units of Tp: a loop with a little less lag than eq. (2)
 #: without delay (an estimator's lead: EKF2's attitude leads PX4 SIH's by 2-4 ms at Tp 50 ms, EKF3's altitude
 #: ArduPilot SITL's by ~3 ms), well inside what a cycle holds at low |beta|; ``analyze`` and ``delay`` fit down to it
+#: or to :data:`LEAD_CAP_S`, whichever is less (:func:`lead_floor`)
 LEAD_MAX = 0.5
+#: the largest lead eq. (2) admits in seconds, whatever Tp: an estimator's lead is a few ms (about one of its
+#: update steps). Measured: PX4 SIH's rate loops on EKF2's attitude -2.9 to -4.4 ms (std 0.2-0.6 ms), ArduPilot
+#: SITL's altitude on EKF3 -3.1 ms; 6 ms admits these with ~3 std to spare. A Tp given 1.5-10x too large reads
+#: as a larger lead (-6 to -42 ms on the same logs), which -Tp/2 alone (25-250 ms there) let through
+LEAD_CAP_S = 0.006
 #: eq. (2)'s K unit, the one spelling of every record (the model's, analyze's parameters, watch's lines)
 K_UNIT = "output / (command s^2)"
+
+
+def lead_floor(Tp: float) -> float:
+    """The least tau [s] eq. (2) admits at Tp [s]: ``-min(LEAD_MAX Tp, LEAD_CAP_S)``, 0 for a Tp not positive.
+
+    The one rule of a lead (``analyze``, ``delay``, a model given with tau < 0): an estimator's lead is a few
+    ms whatever the plant, so beyond :data:`LEAD_CAP_S` (6 ms) a lead is not an estimator's but a Tp given too
+    large (or another lag structure): refused, naming --tp; below it, -Tp/2 is what a cycle at low |beta| holds.
+    """
+    return -min(LEAD_MAX * Tp, LEAD_CAP_S) if math.isfinite(Tp) and Tp > 0 else 0.0
 #: eq. (2)'s parameters: unit, description, physical bounds
 _LOOP_PARAMETERS: dict[str, tuple[str, str, tuple[float, float]]] = {
     "Tp": ("s", "propulsion time constant", (0.0, _INF)),
@@ -366,9 +390,8 @@ class LoopModel(SpecModel):
     ranges: tuple[tuple[str, float, float], ...] = field(default=(), repr=False, compare=False)
 
     def _tau_floor(self) -> float:
-        """A lead down to :data:`LEAD_MAX` Tp (-Tp / 2): a loop with less lag than eq. (2) without delay."""
-        Tp = float(self.Tp)
-        return -LEAD_MAX * Tp if math.isfinite(Tp) and Tp > 0 else 0.0
+        """A lead down to :func:`lead_floor` (-Tp / 2 or -6 ms): less lag than eq. (2) without delay."""
+        return lead_floor(float(self.Tp))
 
     @property
     def lead(self) -> bool:

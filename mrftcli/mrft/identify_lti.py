@@ -41,7 +41,7 @@ import itertools
 import math
 import statistics
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -649,36 +649,58 @@ def _profile_ends(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArr
                 if 0.5 * delta <= rise <= 2.0 * delta:  # linear enough: the linear end stands
                     ends.append(z[i] + sign * half)
                     continue
-            prev_x, prev_rise, end = z[i], 0.0, None
             start = z.copy()
-            for mult in (1.0, 2.0, 4.0, 8.0):
-                x = z[i] + sign * mult * half
-                at_bound = (x - bound) * sign >= 0
-                x = bound if at_bound else x
+
+            def rise_at(x: float, i: int = i) -> float:  # the others refitted from the previous step's
+                nonlocal start
                 start[i] = x
                 zf, r, _ = _levenberg_marquardt(problem, start, lo, hi, fixed=i)
                 rise = float(r @ r) - cost0
                 if region is not None and rise < delta:
                     region.append(zf.copy())
-                if rise >= delta:
-                    frac = (math.sqrt(delta) - math.sqrt(max(prev_rise, 0.0))) / \
-                        (math.sqrt(rise) - math.sqrt(max(prev_rise, 0.0)))
-                    end = prev_x + frac * (x - prev_x)
-                    break
-                if at_bound:
-                    end = bound
-                    break
-                prev_x, prev_rise, start = x, rise, zf.copy()
-            ends.append(z[i] + sign * 16 * half if end is None else end)
+                start = zf.copy()
+                return rise
+
+            steps = _up_to(bound, sign, [z[i] + sign * mult * half for mult in (1.0, 2.0, 4.0, 8.0)])
+            end = _walk(float(z[i]), steps, rise_at, delta)
+            ends.append((bound if steps[-1] == bound else z[i] + sign * 16 * half) if end is None else end)
         out[i] = (ends[0], ends[1])
     return out
 
 
+def _up_to(bound: float, sign: float, xs: list[float]) -> list[float]:
+    """``xs`` (walking away from the fit in the direction ``sign``) up to and including ``bound``, cut there."""
+    out: list[float] = []
+    for x in xs:
+        if (x - bound) * sign >= 0:
+            return [*out, bound]
+        out.append(x)
+    return out
+
+
+def _walk(x0: float, xs: Sequence[float], rise_at: Callable[[float], float], delta: float) -> float | None:
+    """Where the cost's rise over the fit's first reaches ``delta`` along ``xs`` (walking away from ``x0``, the
+    fit's value, whose rise is 0): interpolated on sqrt(rise) between the steps either side; None when no step
+    of ``xs`` reaches it. ``rise_at(x)``: the rise with the parameter held at ``x``, the others refitted."""
+    prev_x, prev_rise = x0, 0.0
+    for x in xs:
+        rise = rise_at(x)
+        if rise >= delta:
+            root_prev = math.sqrt(max(prev_rise, 0.0))
+            return prev_x + (math.sqrt(delta) - root_prev) / (math.sqrt(rise) - root_prev) * (x - prev_x)
+        prev_x, prev_rise = x, rise
+    return None
+
+
 def _held_cost(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, i: int, zi: float) -> float:
-    """The fit's cost with unknown ``i`` held at ``zi`` [its z] and the others refitted (inside their bounds)."""
+    """The fit's cost with unknown ``i`` held at ``zi`` [its z] and the others refitted (inside their bounds):
+    the built-in families' by :func:`_levenberg_marquardt` (``fixed=i``), any other structure's by least_squares."""
     free = [k for k in range(z.size) if k != i]
     held = z.copy()
     held[i] = zi
+    if problem.kernel is not None:
+        r = _levenberg_marquardt(problem, held, lo, hi, fixed=i)[1]
+        return float(r @ r)
     if not free:
         r = problem.residuals(held)
         return float(r @ r)
@@ -690,6 +712,11 @@ def _held_cost(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray,
     sol = optimize.least_squares(residuals, _interior(z[free], lo[free], hi[free]), bounds=(lo[free], hi[free]),
                                  x_scale="jac", method="trf")
     return float(sol.fun @ sol.fun)
+
+
+def _held_rise(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, i: int, cost0: float, x: float) -> float:
+    """The cost's rise over ``cost0`` with positive unknown ``i`` held at the value ``x`` (its z is ln x)."""
+    return _held_cost(problem, z, lo, hi, i, math.log(x)) - cost0
 
 
 def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, cost0: float, delta: float,
@@ -717,18 +744,9 @@ def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray
             # off the floor by more than its linear half-width: the log-scale interval stands. Nearer, the solver
             # may have stalled a few floors up (where the residuals do not move either): profiled like the floor
             continue
-        prev_x, prev_rise, end = x0, 0.0, top
-        for k in range(40):
-            x = min(x0 + step * 2.0 ** k, top)
-            rise = _held_cost(problem, z, lo, hi, i, math.log(x)) - cost0
-            if rise >= delta:
-                frac = (math.sqrt(delta) - math.sqrt(max(prev_rise, 0.0))) / (math.sqrt(rise) - math.sqrt(max(prev_rise, 0.0)))
-                end = prev_x + frac * (x - prev_x)
-                break
-            if x >= top:
-                break
-            prev_x, prev_rise = x, rise
-        out[i] = (float(lo[i]), math.log(end))
+        steps = _up_to(top, 1.0, [x0 + step * 2.0 ** k for k in range(40)])
+        end = _walk(x0, steps, functools.partial(_held_rise, problem, z, lo, hi, i, cost0), delta)
+        out[i] = (float(lo[i]), math.log(top if end is None else end))
     return out or profiled
 
 

@@ -56,7 +56,7 @@ def compare(baseline: str, new: str, fail_on: str | None, confidence: float, bon
     from ..compare import CompareOptions, compare as run_compare, parse_fail_on
 
     for target, option in ((json_target, "--json"), (junit_target, "--junit"), (markdown_target, "--markdown")):
-        check_output_file(target, option, inputs=(baseline, new))  # a report never over a compared result
+        check_output_file(target, option)  # never over a compared result (an argument: an input)
     options = CompareOptions(confidence=confidence, correction="bonferroni" if bonferroni else "none",
                              fail_on=parse_fail_on(fail_on) if fail_on else (), loops=loops)
     result = run_compare(baseline, new, options, by=by)

@@ -50,7 +50,7 @@ def delay(before: str, after: str, Tp: float, min_cycles: int, json_target: str 
     if os.path.samefile(before, after):  # a slip: the "delay added" would be a confident 0 ms
         raise InputError(f"BEFORE and AFTER are the same recording ({after}): give the flight before the change, "
                          "then the flight after it")
-    check_output_file(json_target, inputs=(before, after))
+    check_output_file(json_target)
     read = ReadOptions(**read_options)  # checked before either log is opened
     with tqdm_progress("delay", unit="step", enabled=not quiet, after_s=1.0) as progress:
         # an error's warnings (an assumed rate, tests left out) are shown above it by main (MrftError.warnings)

@@ -531,7 +531,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
     elif _other_routes(sources, Tp, ex, kind, design, cutoff_auto, objective, ms_max, effort_max,
                        (td, tau, K), json_target, report_dir, quiet, read_options):
         return
-    check_export_paths(json_target, out, ex.stack is not None, inputs=tuple(sources))  # before the work starts
+    check_export_paths(json_target, out, ex.stack is not None)  # before the work starts; never over a source
     check_output_dir(report_dir, "--report")
     if out and ex.stack is None:
         raise InputError("--out needs --export generic" + ("" if family else "|px4|ardupilot|hear"))
@@ -556,7 +556,9 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         res = run_tune(src.model, rate, posterior=src.posterior, options=options, loop=loop, progress=progress)
     notes = rate_notes + src.notes + (setting.notes if setting is not None else ())
     if notes:
-        res = dataclasses.replace(res, notes=notes + res.notes)
+        from ..tune.design import assumptions_first
+
+        res = dataclasses.replace(res, notes=assumptions_first(notes + res.notes))  # a lead's design first
         # the table shows its notes itself, a stack's export in its summary
         if not family and (ex.stack == "generic" or (json_target == "-" and ex.stack is None)):
             for n in notes:

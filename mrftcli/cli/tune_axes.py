@@ -77,7 +77,7 @@ def _check_request(req: AxesRequest) -> str:
         if not (s.lower().endswith(".json") and Path(s).is_file()):
             raise InputError(f"{s}: with two sources give analyze RESULT.json files (analyze each log with "
                              "--json FILE first)")
-    check_export_paths(req.json_target, req.ex.out, True, inputs=req.sources)
+    check_export_paths(req.json_target, req.ex.out, True)
     return req.ex.stack
 
 

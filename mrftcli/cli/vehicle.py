@@ -151,7 +151,7 @@ def vehicle(log: str, Tp: float, inner_gains: str | None, outer_command: str, in
     from ..mrft.model import soiptd_model
     from ..vehicle import StackOptions, TuneOptions, VehicleOptions, identify_vehicle
 
-    check_export_paths(json_target, out, export is not None, inputs=(log,) + ((inner_gains,) if inner_gains else ()))
+    check_export_paths(json_target, out, export is not None)
     check_output_dir(report_dir, "--report")
     if out and export is None:
         raise InputError("--out needs --export generic|px4|ardupilot|hear")

@@ -26,7 +26,7 @@ import numpy as np
 from scipy import optimize
 
 from .model import LoopModel
-from .refine import RESIDUAL_FACTOR, loop_model_plant, fit_output_error, sensor_noise
+from .refine import RESIDUAL_FACTOR, loop_model_bounds, loop_model_plant, fit_output_error, sensor_noise
 from .waveform import CommandWindow
 
 __all__ = ["TpProfile", "profile_tp", "tp_not_checkable", "BELOW_CONTROLLER_RATE", "GRID_FACTORS", "CHI2_95"]
@@ -147,8 +147,9 @@ def profile_tp(windows: Sequence[CommandWindow], start: LoopModel, *, loop_sign:
         # the start keeps the slow pole, K Td (the low-frequency gain) and fast pole + tau (the lag they add)
         fast, slow = min(near, Td0), max(near, Td0)
         q = np.array([math.log(slow), max(p0[1] + fast - Tp, 1e-4), p0[2] * Td0 / slow])
-        fit = fit_output_error(windows, loop_model_plant(Tp), q, lower=[math.log(Tp * 1e-2), 0.0, -np.inf],
-                               upper=[math.log(1e6), 1.0, np.inf], max_evaluations=max_evaluations)
+        lower, upper = loop_model_bounds(Tp)
+        fit = fit_output_error(windows, loop_model_plant(Tp), q, lower=lower, upper=upper,
+                               max_evaluations=max_evaluations)
         value = fit.residual_rms ** 2 * fit.n_samples
         fits[Tp] = (value, fit.p)
         return value

@@ -92,18 +92,19 @@ from .model import LoopModel
 from .waveform import CommandWindow, TestSpan, response_basis
 
 __all__ = ["RESIDUAL_FACTOR", "INTERVAL_FACTOR", "TAU_MAX", "COMMAND_HISTORY", "sensor_noise", "OutputErrorFit",
-           "fit_output_error", "Refinement", "refine", "loop_model_plant", "refinement_windows", "with_sensor_lag",
-           "EFFECTS", "EffectRefit", "refit_with_effect"]
+           "fit_output_error", "Refinement", "refine", "loop_model_plant", "loop_model_bounds", "refinement_windows",
+           "with_sensor_lag", "EFFECTS", "EffectRefit", "refit_with_effect"]
 
 #: Largest accepted ratio of the residual RMS to the estimated sensor noise.
 RESIDUAL_FACTOR = 1.15
 #: The MRFT 95 % interval is widened by this factor (about its point) for the acceptance check.
 INTERVAL_FACTOR = 2.0
 _Z95 = 1.959963984540054
-#: the largest ln Td [ln s] a fit's plant is built with: a week, the longest time a model takes (the
-#: cost is flat in ln Td where the damping is not seen, and a line search that ran past it was refused
-#: as if a user had typed the time in the wrong unit, which refused the whole analysis)
+#: the fits' upper bound on ln Td [ln s]: a week, the longest time a model takes (the cost is flat in
+#: ln Td where the damping is not seen; past it eq. (2) refuses Td as a unit mistake)
 _LN_TD_MAX = math.log(MAX_TIME_S * (1.0 - 1e-9))
+#: a fit's ln Td this close to _LN_TD_MAX [ln s] ended on the bound (the data do not bound Td)
+_AT_BOUND = 1e-6
 #: Largest transport delay the refinement considers [s] (its upper bound on tau).
 TAU_MAX = 1.0
 #: Command recorded before each test that the windows carry [s]: covers any tau up to TAU_MAX.
@@ -247,11 +248,17 @@ def fit_output_error(windows: Sequence[CommandWindow], plant: Plant, p0: ArrayLi
                           offset_std=tuple(math.sqrt(max(s2 * v, 0.0)) for _, v in offsets))
 
 
+def loop_model_bounds(Tp: float) -> tuple[list[float], list[float]]:
+    """The output-error fits' bounds on eq. (2)'s p = (ln Td, tau [s], K) at a known Tp [s]:
+    Td from Tp/100 to a week, tau from 0 to ``TAU_MAX``, K free."""
+    return [math.log(Tp * 1e-2), 0.0, -np.inf], [_LN_TD_MAX, TAU_MAX, np.inf]
+
+
 def loop_model_plant(Tp: float) -> Plant:
     """eq. (2) at a known Tp [s] in the parametrisation p = (ln Td, tau [s], K)."""
 
     def plant(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        ss = LoopModel(Tp, math.exp(min(p[0], _LN_TD_MAX)), max(p[1], 0.0), p[2]).realisation()
+        ss = LoopModel(Tp, math.exp(p[0]), max(p[1], 0.0), p[2]).realisation()
         return ss.A, ss.B, ss.C, max(float(p[1]), 0.0)
 
     return plant
@@ -371,8 +378,7 @@ def refit_with_effect(windows: Sequence[CommandWindow], start: LoopModel, effect
         raise InputError(f"unknown effect {effect!r}: choose one of {', '.join(EFFECTS)}")
     sign = -1.0 if loop_sign < 0 else 1.0
     p0 = [math.log(start.Td), start.tau, sign * start.K]
-    lower = [math.log(start.Tp * 1e-2), 0.0, -np.inf]
-    upper = [math.log(1e6), TAU_MAX, np.inf]
+    lower, upper = loop_model_bounds(start.Tp)
     plant = loop_model_plant(start.Tp)
     if effect == "sensor_lag":
         lag0 = 0.01 if value0 is None else float(value0)
@@ -381,8 +387,7 @@ def refit_with_effect(windows: Sequence[CommandWindow], start: LoopModel, effect
         plant = with_sensor_lag(plant)
         p0, lower, upper = p0 + [math.log(lag0)], lower + [math.log(1e-4)], upper + [math.log(10.0)]
     fit = fit_output_error(windows, plant, p0, lower=lower, upper=upper, max_evaluations=max_evaluations)
-    model = LoopModel(start.Tp, math.exp(min(float(fit.p[0]), _LN_TD_MAX)), max(float(fit.p[1]), 0.0),
-                      sign * float(fit.p[2]))
+    model = LoopModel(start.Tp, math.exp(float(fit.p[0])), max(float(fit.p[1]), 0.0), sign * float(fit.p[2]))
     if effect == "sensor_lag":
         value = math.exp(float(fit.p[3]))
         std = value * float(fit.std[3])
@@ -487,8 +492,8 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
         noise_std = sensor_noise([w.output for w in windows if w.output is not None])
     plant = loop_model_plant(start.Tp)
     sign = -1.0 if loop_sign < 0 else 1.0
-    fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, sign * start.K],
-                           lower=[math.log(start.Tp * 1e-2), 0.0, -np.inf], upper=[math.log(1e6), TAU_MAX, np.inf],
+    lower, upper = loop_model_bounds(start.Tp)
+    fit = fit_output_error(windows, plant, [math.log(start.Td), start.tau, sign * start.K], lower=lower, upper=upper,
                            max_evaluations=max_evaluations)
     lnTd, tau, K = float(fit.p[0]), float(fit.p[1]), sign * float(fit.p[2])
     s = fit.std
@@ -505,14 +510,14 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     if not ratio <= residual_factor:
         reasons.append(f"the waveform residual is {ratio:.2f}x the sensor noise (accepted up to "
                        f"{residual_factor:g}x): the recording holds dynamics eq. (2) leaves out")
-    if lnTd > _LN_TD_MAX:
+    if lnTd >= _LN_TD_MAX - _AT_BOUND:
         reasons.append("the waveform does not bound Td (its fit ran past a week: the damping is not seen in "
                        "these windows)")
     for name, scale, unit in (("Td", 1.0, " s"), ("tau", 1e3, " ms"), ("K", 1.0, "")):
         why = _outside(name, est[name].value, mrft[name], interval_factor, scale, unit)
         if why:
             reasons.append(why)
-    model = LoopModel(start.Tp, math.exp(min(lnTd, _LN_TD_MAX)), max(tau, 0.0), K if K != 0 else start.K)
+    model = LoopModel(start.Tp, Td, max(tau, 0.0), K if K != 0 else start.K)
     return Refinement(Td=est["Td"], tau=est["tau"], K=est["K"], model=model, accepted=not reasons,
                       reasons=tuple(reasons), noise_std=float(noise_std), residual_rms=fit.residual_rms,
                       residual_ratio=float(ratio), fit=fit)

@@ -238,7 +238,7 @@ def _within_lead(tau: float, Tp: float) -> float:
 
 
 def consensus(model: LoopModel, point: PointEstimate, constraints: Sequence[str], ts_ctrl: float,
-              rng: np.random.Generator, hint: str = "") -> Consensus:
+              rng: np.random.Generator, hint: str) -> Consensus:
     """The weighted estimate of the tests together (UFM slices + ``constraints``) at ``model``'s known Tp,
     and its bootstrap over cycles.
 
@@ -434,7 +434,7 @@ def _refinement_windows(flight: FlightLog, usable: Sequence[MrftTest]
 
 def waveform_refinement(flight: FlightLog, screening: Screening, cons: Consensus, bounds: Identifiability,
                         mrft_params: Mapping[str, ParameterEstimate], refine_waveform: bool,
-                        hint: str = "") -> WaveformStage:
+                        hint: str) -> WaveformStage:
     """Refine the MRFT estimate by output error on the tests' windows; report it when the data accept it.
 
     The waveform needs the command as the plant received it: logged below the controller's rate,

@@ -22,6 +22,7 @@ back to the client, which alone writes the output folder.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import hashlib
 import json
@@ -209,8 +210,9 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
                            command_scale=s.command_scale, layout=s.layout, controller_rate_hz=s.controller_rate_hz)
         # the hint batch's --diagnose answers, unless it is given
         hint = "" if task.diagnose else TRY_DIAGNOSE
-        options = AnalyzeOptions(diagnose_hint=hint) if s.min_cycles is None else AnalyzeOptions(
-            min_stable_cycles=s.min_cycles, diagnose_hint=hint)
+        options = AnalyzeOptions(diagnose_hint=hint)
+        if s.min_cycles is not None:
+            options = dataclasses.replace(options, min_stable_cycles=s.min_cycles)
         # batch tries every loop itself: a missing topic's error does not tell the user to give --loop
         result = analyze_path(task.path, model, read=read, options=options, loop_hint=False)  # the one route
         if task.model is None:  # eq. (2): a Tp the recording rejects fails the loop unless --accept-tp

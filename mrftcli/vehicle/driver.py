@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..analyze import AnalysisResult, analyze_flight, refuse_rejected_tp
-from ..analyze.options import TRY_DIAGNOSE_COMMAND, AnalyzeOptions, CascadeOptions
+from ..analyze.options import AnalyzeOptions, CascadeOptions
 from ..errors import InputError, LogReadError, MrftError, OtherLoopError
 from ..io import FlightLog, LogSource, ReadOptions, get_layout, log_layout, open_log, parse_spec, read_loop
 from ..io.hover import logged_hover_thrust
@@ -98,8 +98,8 @@ class VehicleOptions:
 
     def analyze(self) -> AnalyzeOptions:
         """How each loop's tests are screened and identified."""
-        return AnalyzeOptions(min_stable_cycles=self.min_stable_cycles, n_bootstrap=self.n_bootstrap,
-                              diagnose_hint=TRY_DIAGNOSE_COMMAND)  # vehicle has no --diagnose
+        # vehicle has no --diagnose: the default hint points to the command
+        return AnalyzeOptions(min_stable_cycles=self.min_stable_cycles, n_bootstrap=self.n_bootstrap)
 
 
 def models_per_loop(model: LoopModel | Mapping[str, LoopModel]) -> dict[str, LoopModel]:

@@ -414,18 +414,53 @@ def _locked_up(sim, k_down: int):
 @pytest.mark.parametrize("k_down", [2, 6])
 def test_a_relay_that_locks_up_ends_its_test_at_the_lock_and_keeps_the_cycles_before(sim, k_down):
     """A test whose relay stops switching (held at -h to the test's end while the vehicle falls away) ends
-    at the switch into that level: the loop sign and the cycles before it are those of the same flight
-    unlocked, and a note says when the relay locked up. Before, the test ran on to the abort, and where
-    few cycles preceded the lock (k_down 2) the fall (metres against a 4 cm limit cycle) in the output
-    window turned the loop sign, so every amplitude was measured on the inverted output."""
+    at the switch before the one into that level: the loop sign and the cycles before it are those of the
+    same flight unlocked, and a note says when the relay locked up, in the test's own time (the warnings'
+    "test at X s" prefix counts from the log's start; the log's own clock would be a second clock on the
+    line). Before, the test ran on to the abort, and where few cycles preceded the lock (k_down 2) the fall
+    (metres against a 4 cm limit cycle) in the output window turned the loop sign, so every amplitude was
+    measured on the inverted output."""
     locked, t_k = _locked_up(sim, k_down)
     whole = segment(to_flight(sim))[0]
     test = segment(to_flight(locked))[0]
-    assert test.t_end == pytest.approx(t_k, abs=1e-9) and test.loop_sign == whole.loop_sign == 1
+    t0, t1, _, _ = sim.test_windows[0]
+    m = (sim.t >= t0) & (sim.t <= t1)
+    ts, _ = _switches(sim.t[m], sim.command[m], 0.5)
+    t_before = ts[ts < t_k][-1]  # the switch before the one into the held level
+    assert test.t_end == pytest.approx(t_before, abs=1e-9) and test.loop_sign == whole.loop_sign == 1
     before = [c for c in whole.cycles if c.t_end < t_k]
     assert len(before) >= k_down - 1 and len(test.cycles) == len(before)
-    for a, b in zip(before[:-1], test.cycles[:-1], strict=True):  # the last one's fit window meets the lock
+    for a, b in zip(before[:-1], test.cycles[:-1], strict=True):  # the last one's fit window meets the end
         assert (b.period, b.amplitude) == pytest.approx((a.period, a.amplitude), rel=1e-6)
     assert test.n_stable >= (3 if k_down == 6 else 0)
-    assert any("stopped switching" in n and "locked up" in n for n in test.notes)
+    note = next(n for n in test.notes if "stopped switching" in n and "locked up" in n)
+    assert f"stopped switching {t_k - test.t_start:.1f} s into the test" in note
+    assert f"ends at the switch before, {t_before - test.t_start:.1f} s into it" in note
     assert not any("locked up" in n for n in whole.notes)
+
+
+@pytest.mark.parametrize("frac", [0.6, 0.8])
+def test_a_relay_locked_by_an_early_switch_keeps_no_short_cycle(sim, frac):
+    """The switch into a held level is the one that went wrong: noise triggers it early, and the relay then
+    waits for an extremum that never comes. Held at +h, that up-switch closes a cycle whose -h half is cut
+    short (here to ``frac`` of it: 8-15 % short of the period), which the stability rule kept as stable
+    (the spread it adds widens the tolerance) before: the test now ends at the switch before it, and every
+    cycle it keeps is one of the unlocked flight's."""
+    t0, t1, _, h = sim.test_windows[0]
+    m = (sim.t >= t0) & (sim.t <= t1)
+    ts, sgn = _switches(sim.t[m], sim.command[m], 0.5)
+    t_u = ts[sgn > 0][6]
+    t_d = ts[(sgn < 0) & (ts < t_u)][-1]
+    t_p = t_d + frac * (t_u - t_d)  # the early switch to +h, held to the test's end as the vehicle climbs away
+    lock = (sim.t >= t_p) & (sim.t <= t1)
+    command, y = sim.command.copy(), sim.y_meas.copy()
+    command[lock] = 0.5 + h
+    k0 = int(np.flatnonzero(lock)[0])
+    y[lock] = y[k0] + 0.5 * K * h * (sim.t[lock] - sim.t[k0]) ** 2 + (sim.y_meas[lock] - sim.y_true[lock])
+    whole = segment(to_flight(sim))[0]
+    test = segment(to_flight(replace(sim, command=command, y_meas=y)))[0]
+    assert test.t_end == pytest.approx(t_d, abs=1e-9)  # before: t_p
+    assert test.cycles and all(c.t_end < t_d for c in test.cycles)
+    for c in test.cycles:
+        same = min(whole.cycles, key=lambda w: abs(w.t_end - c.t_end))  # the unlocked flight's cycle there
+        assert abs(same.t_end - c.t_end) < 0.05 and c.period == pytest.approx(same.period, abs=0.02), c.t_end

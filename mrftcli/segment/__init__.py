@@ -15,7 +15,8 @@ chained by :func:`segment` / :func:`segment_arrays` (:mod:`.segmenter`; its sett
    a recorder stopped) ends the chain; no run spans absent data, whatever the levels either side. A
    test's nominal beta is the beta marker in force over its cycles (the last published up to its end:
    its own, or an earlier test's when none came since). A last run of 3 median half-periods or more is
-   a relay that locked up (the output drifting away under one level): the test ends at the switch into it.
+   a relay that locked up (the output drifting away under one level): the test ends at the switch before
+   the one into it (that one came early, so the cycle it closes is short).
 2. **Switch instants.** The first sample at the new level. Timestamps inside a test are first put
    back on the controller's sample grid when they fit one (receive-time jitter removed, dropped
    messages kept as gaps; :func:`regularise_times`, :mod:`.runs`). A switch after one or two missing command

@@ -219,9 +219,11 @@ def _first_cycles(chain: list[RelayRun], t_cmd: FloatArray) -> tuple[list[RelayR
 def _locked_tail(chain: list[RelayRun], t_cmd: FloatArray) -> tuple[list[RelayRun], tuple[str, ...]]:
     """Step 1c: a relay that locked up at the end of a test. Its last run lasts :data:`_LOCKED_RUNS` median
     half-periods or more: the output drifts away under one level (often metres, until a safety abort) and
-    no cycle closes there. That run is cut to the switch into it (kept as a one-sample run, so its switch
-    still closes the last cycle), so the drift stays out of the loop sign and of the output window; the
-    note says when and how long."""
+    no cycle closes there. The switch into that level is the one that went wrong (a noise-triggered switch,
+    early: the run before it is cut short, so the cycle that switch closes is short and may still pass as
+    stable), so the test ends at the switch before it: the run there is kept as a one-sample run, so its
+    switch still closes the last whole cycle, and the drift stays out of the loop sign and of the output
+    window; the note says when, in the test's own time."""
     if len(chain) < 5:
         return chain, ()
     lengths = np.array([t_cmd[r.stop - 1] - t_cmd[r.start] for r in chain[1:-1]])
@@ -230,9 +232,12 @@ def _locked_tail(chain: list[RelayRun], t_cmd: FloatArray) -> tuple[list[RelayRu
     span = float(t_cmd[last.stop - 1] - t_cmd[last.start])
     if not half > 0 or span < _LOCKED_RUNS * half:
         return chain, ()
-    return chain[:-1] + [replace(last, stop=last.start + 1)], (
-        f"the relay stopped switching at {t_cmd[last.start]:.2f} s (one level held {span:.1f} s, "
-        f"{span / half:.0f} half-periods: locked up); the test ends there",)
+    t0 = t_cmd[chain[0].start]
+    end = chain[-2]
+    return chain[:-2] + [replace(end, stop=end.start + 1)], (
+        f"the relay stopped switching {t_cmd[last.start] - t0:.1f} s into the test (one level held {span:.1f} s, "
+        f"{span / half:.0f} half-periods: locked up); the test ends at the switch before, "
+        f"{t_cmd[end.start] - t0:.1f} s into it",)
 
 
 def _test_clock(chain: list[RelayRun], t_cmd: FloatArray, rate_all: float | None,

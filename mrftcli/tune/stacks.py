@@ -64,12 +64,12 @@ from ..mrft.controller import PX4VelocityPath
 from .closed_loop import Controller, RateFilter
 from .export import unit_reasons
 from .margins import Margins, loop_margins
-from .px4_xy import px4_xy_controller, px4_xy_prediction, px4_xy_ticks, written_loop
+from .px4_xy import px4_xy_controller, px4_xy_ticks, written_loop
 from .stack_params import STANDARD_GRAVITY, check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "check_hover_thrust", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
-           "px4_xy_prediction", "HOVER_LOOPS", "hover_thrust_refusal", "read_hover_thrust",
+           "HOVER_LOOPS", "hover_thrust_refusal", "read_hover_thrust",
            "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.

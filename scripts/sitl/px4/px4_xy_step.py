@@ -174,12 +174,12 @@ def integral_effect(record: dict[str, Any], params_file: Path, integrals: tuple[
                     wind: float = 1.0) -> list[dict[str, float]]:
     """What ``MPC_XY_VEL_I_ACC`` > 0 would change in the loop written (the other values kept), on tune's model of
     PX4's x/y loop: Ms (nominal; worst over up to 40 posterior draws), and by PX4's own law
-    (``tune.stacks.px4_xy_prediction``, what ``tune --xy-integral`` states) the position step and a ``wind``
+    (``tune.px4_xy.px4_xy_prediction``, what ``tune --xy-integral`` states) the position step and a ``wind``
     [m/s^2] step of force (a load at the plant's input) held off after 5 and 20 s. PX4 integrates the velocity error,
     so the integral removes a force's offset, not that of a biased velocity estimate (vel_sp = v either way)."""
     from mrftcli.mrft.model import LoopModel
     from mrftcli.tune.margins import loop_margins
-    from mrftcli.tune.stacks import px4_xy_controller, px4_xy_prediction
+    from mrftcli.tune.px4_xy import px4_xy_controller, px4_xy_prediction
 
     m = record["model"]
     if "parameters" in m:

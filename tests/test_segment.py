@@ -464,3 +464,22 @@ def test_a_relay_locked_by_an_early_switch_keeps_no_short_cycle(sim, frac):
     for c in test.cycles:
         same = min(whole.cycles, key=lambda w: abs(w.t_end - c.t_end))  # the unlocked flight's cycle there
         assert abs(same.t_end - c.t_end) < 0.05 and c.period == pytest.approx(same.period, abs=0.02), c.t_end
+
+
+def test_analyze_says_a_tests_notes_after_the_time_it_starts_from_the_log_start(sim):
+    """analyze's screening (and delay's, through the same analyze.screen.prefixed_notes) gives each test's
+    own notes after 'test at X s' (X from the log's start), the lock-up note then in the test's own time."""
+    from mrftcli.analyze.screen import log_start, prefixed_notes, screen
+    from mrftcli.mrft.model import soiptd_model
+
+    locked, t_k = _locked_up(sim, 6)
+    flight = to_flight(locked)
+    found = segment(flight)
+    t0 = log_start(flight)
+    warnings = screen(flight, found, soiptd_model(TP), 3).warnings
+    test = found[0]
+    line = next(w for w in warnings if "stopped switching" in w)
+    assert line.startswith(f"test at {test.t_start - t0:.1f} s: the relay stopped switching "
+                           f"{t_k - test.t_start:.1f} s into the test")
+    assert prefixed_notes(found, t0) == [f"test at {t.t_start - t0:.1f} s: {n}" for t in found for n in t.notes]
+    assert all(w in warnings for w in prefixed_notes(found, t0))

@@ -22,7 +22,7 @@ from ..mrft.model import LoopModel
 from ..segment import MrftTest
 
 __all__ = ["Screening", "screen", "screen_usable", "screen_tests", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
-           "no_usable_message", "WHICH_LOOP_HINT", "partial_single_beta", "low_rate_period", "ASSUMED_TD_RANGE"]
+           "prefixed_notes", "no_usable_message", "WHICH_LOOP_HINT", "partial_single_beta", "low_rate_period", "ASSUMED_TD_RANGE"]
 
 #: Td range [s] assumed for the partial result of a single-beta log (multirotor drag time constants).
 ASSUMED_TD_RANGE = (0.1, 10.0)
@@ -99,7 +99,7 @@ def screen(flight: FlightLog, found: Sequence[MrftTest], model: LoopModel, min_s
         )
     ts_ctrl = low_rate_period(usable)
     for t in usable:
-        warnings.extend(f"test at {t.t_start - t0:.1f} s: {n}" for n in t.notes)
+        warnings.extend(prefixed_notes([t], t0))
         # a low-rate log is identified at the nominal beta: its coarse effective beta is expected to differ
         if t.beta_nominal is not None and abs(t.beta_effective - t.beta_nominal) > 0.02 and not ts_ctrl:
             warnings.append(
@@ -188,6 +188,12 @@ def describe_t0(t0: float) -> str:
 def span(t: MrftTest, t0: float) -> str:
     """A test's time span for people: seconds from the log start."""
     return f"{t.t_start - t0:.1f}-{t.t_end - t0:.1f} s"
+
+
+def prefixed_notes(tests: Sequence[MrftTest], t0: float) -> list[str]:
+    """The tests' own notes as warnings, each after the time its test starts [s from ``t0``, the log start]:
+    ``"test at 12.3 s: <note>"`` (named so that pytest does not collect it where a test module imports it)."""
+    return [f"test at {t.t_start - t0:.1f} s: {n}" for t in tests for n in t.notes]
 
 
 def describe_tests(tests: Sequence[MrftTest], t0: float = 0.0) -> str:

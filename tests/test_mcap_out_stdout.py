@@ -28,3 +28,13 @@ def test_mcap_out_dash_is_refused_before_the_work(tmp_path, monkeypatch, capsys)
     out, err = capsys.readouterr()
     assert code.value.code == 2 and err.count("\n") == 1 and "--mcap-out" in err and out == ""
     assert not (tmp_path / "-").exists()
+
+
+def test_mcap_out_help_says_it_is_a_file_not_stdout(capsys):
+    # every other output takes '-' as stdout; --help said nothing of --mcap-out's refusal of it (review R3 #8)
+    from mrftcli.cli.main import main
+
+    with pytest.raises(SystemExit):
+        main(["analyze", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "(a binary file; not '-')" in help_text

@@ -244,7 +244,8 @@ def _stages(progress, weights: dict[str, float]):
               help="Write an HTML report with plots to DIR (created if missing).")
 @click.option("--mcap-out", "mcap_out", metavar="FILE", type=click.Path(dir_okay=False),
               help="Write an MCAP with the tests, the model's predicted output and residual and the parameters, "
-                   "on the log's clock, to open beside the log in Foxglove Studio or PlotJuggler.")
+                   "on the log's clock, to open beside the log in Foxglove Studio or PlotJuggler (a binary file; "
+                   "not '-').")
 @click.option("--paper-only", is_flag=True,
               help="Identify from the UFM slices alone (the paper's method), without the weighted phase and "
                    "amplitude constraints.")

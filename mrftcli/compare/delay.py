@@ -45,7 +45,7 @@ import numpy as np
 
 from ..analyze.estimate import beta_used
 from ..analyze.record import analysis_controller_rate
-from ..analyze.screen import group_betas, low_rate_period, screen_usable
+from ..analyze.screen import group_betas, low_rate_period, prefixed_notes, screen_usable
 from ..errors import (IdentificationError, InputError, InsufficientDataError, LogReadError, MrftError,
                       SegmentationError)
 from ..io import LogSource, ReadOptions, open_log, read_loop
@@ -487,7 +487,7 @@ def _usable(path: str | Path, read: ReadOptions, min_stable_cycles: int) -> _Rec
     except SegmentationError as err:
         err.warnings = tuple(flight.warnings)  # the reader's (an assumed rate): shown above the error
         raise
-    notes = [f"test at {t.t_start - t0:.1f} s: {n}" for t in usable for n in t.notes]
+    notes = prefixed_notes(usable, t0)
     rate = read.controller_rate_hz or analysis_controller_rate(flight.timing.controller_rate_hz,
                                                                [t.rate_hz for t in usable])
     assumed = flight.timing.controller_rate_assumed  # never with --controller-rate (io.flight.read_loop)

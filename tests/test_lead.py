@@ -132,6 +132,19 @@ def test_tune_designs_a_lead_on_tau_zero_and_says_so() -> None:
     same = tune(LEAD.with_parameters(tau=0.0), 250.0, posterior=Posterior(LEAD.with_parameters(tau=0.0), post.Td,
                                                                            np.maximum(post.tau, 0.0), post.K))
     assert [d.controller for d in res.designs] == [d.controller for d in same.designs]
+    # the identified tau travels beside the designed one: the table's first line states the design's assumption,
+    # the model line both taus; the JSON names it (and reads it back); the causal design has none
+    from mrftcli.tune.design import TuneResult
+    from mrftcli.tune.export import format_table
+
+    table = format_table(res).splitlines()
+    assert table[0].startswith("note: assumed: the identified loop leads eq. (2)")
+    assert "tau 0 ms (designed at; identified -3 ms, a lead)" in table[1]
+    assert sum(line.startswith("note: assumed:") for line in table) == 1
+    data = res.to_json()
+    assert data["tau_identified"] == {"value": pytest.approx(-0.003), "unit": "s", "designed_at": 0.0}
+    assert TuneResult.from_json(data).tau_identified == pytest.approx(-0.003)
+    assert same.tau_identified is None and "tau_identified" not in same.to_json()
 
 
 def test_analyze_states_the_lead_first_and_in_the_json(tmp_path: Path) -> None:
@@ -192,3 +205,35 @@ def test_a_held_out_test_the_others_model_has_no_cycle_for_is_a_miss_with_its_re
     beyond = _prediction(LEAD, 1.0, -0.02, 113.0, -0.3, 1.0)
     assert isinstance(beyond, str) and "beyond the 6 ms" in beyond and MISS_WORDS in beyond
     assert isinstance(_prediction(LEAD, 1.0, -0.003, 113.0, -0.3, 1.0), tuple)
+
+
+def test_the_designs_hold_a_posteriors_lead_draws_at_zero_and_say_so() -> None:
+    """A causal point with draws on both sides of 0 (tau 0.5 ± 1 ms): the draws below 0 were dropped (the posterior
+    cut at 0, its tau shifted up); now held at 0, all kept, counted in a note; beyond the lead floor: no model."""
+    from mrftcli.tune.design import Posterior
+
+    rng = np.random.default_rng(3)
+    n = 400
+    tau = 0.0005 + 0.001 * rng.standard_normal(n)
+    tau[0] = -0.02  # beyond -6 ms: not eq. (2)'s
+    post = Posterior(LoopModel(0.05, 1.0, 0.0005, 113.0), np.full(n, 1.0), tau, np.full(n, 113.0))
+    below = int(np.count_nonzero((tau < 0) & (tau >= -0.006)))
+    assert post.n == n - 1 and post.n_lead == below and float(post.tau.min()) == 0.0
+    assert post.in_set().mean() > 0.9  # the held draws are in the set (ln tau put them at ln 1e-9)
+
+
+def test_a_lead_out_of_a_betas_reach_names_the_fix() -> None:
+    with pytest.raises(IdentificationError, match="nearer 0.*--tp"):
+        mrft_limit_cycle(LoopModel(0.05, 1.0, -0.0029, 113.0), -0.9)
+
+
+def test_the_cascades_inner_draws_of_a_lead_centre_on_the_lead() -> None:
+    """An inner lead of -3 ms (held at 0) with tau std 0.3 ms: draws about -3 ms, held at 0 (were about 0: half of
+    them above it, a delay the loop does not have)."""
+    from mrftcli.mrft.cascade import InnerLoop
+    from mrftcli.mrft.controller import Controller
+
+    c = Controller(Kp=0.17, Ki=0.0, Kd=0.045, Tf=0.026, rate_hz=250.0)
+    inner = InnerLoop(LEAD.with_parameters(tau=0.0), c, "pitch", std=(("tau", 0.0003),), lead_s=-0.003)
+    rng = np.random.default_rng(0)
+    assert max(inner.draw(rng).plant.delay for _ in range(50)) == 0.0

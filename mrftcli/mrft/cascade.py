@@ -118,14 +118,15 @@ class InnerLoop:
                              "with tau >= 0 (analyze.cascade.inner_loop_of takes a lead as 0 and says so)")
 
     def draw(self, rng: np.random.Generator) -> InnerLoop:
-        """One draw of the inner loop over :attr:`std`: times and gains log-normal, the delay normal (kept >= 0)."""
+        """One draw of the inner loop over :attr:`std`: times and gains log-normal, the delay normal about the
+        identified one (with :attr:`lead_s`: about the lead, not about the 0 the plant holds it at), then held >= 0."""
         values = {}
         for name, sd in self.std:
             value = self.plant.parameters[name].value
             if not (math.isfinite(sd) and sd > 0):
                 continue
             if name == "tau":
-                values[name] = max(0.0, value + rng.normal(0.0, sd))
+                values[name] = max(0.0, value + self.lead_s + rng.normal(0.0, sd))
             elif value != 0:
                 values[name] = value * math.exp(rng.normal(0.0, sd / abs(value)))
         return InnerLoop(self.plant.with_parameters(**values), self.controller, self.loop, self.std, self.lead_s)

@@ -436,7 +436,8 @@ def lead_cycle(Tp: float, Td: float, tau: float, beta: float, strict: bool = Fal
             if strict:
                 raise IdentificationError(f"no MRFT cycle of eq. (2) with a lead of {-tau * 1e3:.3g} ms (tau < 0) at "
                                           f"beta {beta:g}: the least delay a cycle of this beta holds is "
-                                          f"{prev * 1e3:.3g} ms at Tp = {Tp:g} s")
+                                          f"{prev * 1e3:.3g} ms at Tp = {Tp:g} s; a beta nearer 0 holds more lead: "
+                                          "use one nearer 0, or check --tau and --tp")
             logw = float(optimize.minimize_scalar(needed, bounds=(lo - step, hi), method="bounded",
                                                   options={"xatol": 1e-10}).x)
             break

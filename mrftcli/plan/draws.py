@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..mrft.lprs import unit_cycle
-from ..mrft.model import LEAD_MAX, LoopModel
+from ..mrft.model import LoopModel, lead_floor
 from .noise import FLOOR_PHASE, cycle_noise
 from .records import FlownTest, Prior
 
@@ -62,11 +62,12 @@ def _on_the_slice(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n:
     inside = ok & (tau >= prior.tau[0]) & (tau <= prior.tau[1])
     keep = inside if inside.sum() >= max(2, n // 3) else ok
     if not keep.any():
-        lead = np.isfinite(tau) & (tau < 0) & (tau >= -LEAD_MAX * model.Tp) & (K > 0)
-        if lead.any():  # eq. (2) with a lead (analyze admits it); the forecasts' sampled relay holds delays only
+        lead = np.isfinite(tau) & (tau < 0) & (tau >= lead_floor(model.Tp)) & (K > 0)
+        if lead.any():  # eq. (2) with a lead (analyze admits it); the forecasts' simulator delays the command only
             raise InputError(f"the flown tests give a loop that leads eq. (2) (tau {np.median(tau[lead]) * 1e3:.3g} ms "
-                             "< 0, an estimator's lead): plan forecasts the sampled relay's cycles, which hold no "
-                             "lead; plan the next test from a loop with tau >= 0 (or check --tp)")
+                             "< 0, an estimator's lead): plan forecasts each test by simulating the flight "
+                             "(mrftcli.sim), whose delay line cannot advance the command; plan the next test from a "
+                             "loop with tau >= 0 (or check --tp)")
         raise InputError("the flown test admits no plant with Td in the prior range and a non-negative delay; "
                          "check --tp and the Td range")
     out: np.ndarray = np.stack([Td, tau, K], axis=1)[keep]

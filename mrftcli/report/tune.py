@@ -61,7 +61,8 @@ def plot_bode(result: "TuneResult", path: str | Path, kind: str = "PD") -> Path:
     a1.set_ylabel("|L| [dB]")
     a2.set_ylabel("arg L [deg]")
     a2.set_xlabel("frequency [rad/s] (up to Nyquist)")
-    a1.set_title(f"{kind} loops on the identified model, {result.rate_hz:g} Hz, exact delay {result.loop_model.tau * 1e3:.1f} ms")
+    a1.set_title(f"{kind} loops on the identified model, {result.rate_hz:g} Hz, exact delay {result.loop_model.tau * 1e3:.1f} ms"
+                  + ("" if result.tau_identified is None else f" (identified {result.tau_identified * 1e3:.3g} ms, a lead)"))
     a1.legend(loc="lower left")
     a2.set_ylim(-360, 0)
     return save_figure(fig, path)
@@ -164,7 +165,11 @@ def write_tune_report(result: "TuneResult", out_dir: str | Path, export: "StackE
     ``export``: the stack export written with ``--export`` (shown after the recommended design)."""
     out = ensure_dir(out_dir)
     m = result.loop_model
-    body = [f"<p>Model Tp {m.Tp:g} s, Td {m.Td:.4g} s, tau {m.tau * 1e3:.4g} ms, "
+    from ..tune.design import assumptions_first, tau_line
+
+    # what the designs rest on (a lead taken as tau 0) first, then the model as designed
+    body = [f"<p><b>note: {esc(n)}</b></p>" for n in assumptions_first(result.notes) if n.startswith("assumed:")]
+    body += [f"<p>Model Tp {m.Tp:g} s, Td {m.Td:.4g} s, {esc(tau_line(result))}, "
             f"K {m.K:.4g} {gain_unit(result.loop)}; controller {result.rate_hz:g} Hz; {result.objective.upper()} with Ms &le; "
             f"{result.ms_max:g}.</p>"]
     if result.rate_filter is not None:  # an export's design: Tf is replaced by the stack's filter

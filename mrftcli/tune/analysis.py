@@ -68,7 +68,7 @@ def posterior_from_analysis(result: AnalysisResult, n: int = 400, seed: int = 0)
         cov = np.asarray(ref.fit.covariance, float)
         p = rng.multivariate_normal(np.asarray(ref.fit.p, float), cov, size=n, method="eigh")
         sign = -1.0 if result.K.value * ref.fit.p[2] < 0 else 1.0  # the fit's K carries the loop sign
-        return Posterior(result.model, np.exp(p[:, 0]), np.maximum(p[:, 1], 0.0), sign * p[:, 2],
+        return Posterior(result.model, np.exp(p[:, 0]), p[:, 1], sign * p[:, 2],  # a lead held at 0 there
                          source="waveform refinement: normal draws from its Gauss-Newton covariance of "
                                 "(ln Td, tau, K), correlation kept")
     b = result.bootstrap

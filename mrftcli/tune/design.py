@@ -39,7 +39,7 @@ from scipy.optimize import minimize
 from ..jsonable import check_schema_version, to_jsonable
 from ..errors import InputError
 from ..mrft.controller import json_number
-from ..mrft.model import LEAD_MAX, LoopModel, PlantModel, model_from_json
+from ..mrft.model import LoopModel, PlantModel, lead_floor, model_from_json
 from ..progress import Progress, report
 from ..validate import check_positive
 from .closed_loop import (SETTLING_BAND, Controller, DiscretePlant, PlantSpectrum, RateFilter, StepMetrics, as_discrete,
@@ -69,7 +69,7 @@ def _check_version(data: Any, what: str) -> dict[str, Any]:
 
 __all__ = ["Posterior", "Design", "TuneResult", "DesignOptions", "mrft_rule", "tune", "OBJECTIVES", "DESIGNS", "KINDS", "ALL_KINDS",
            "FILTER_N", "TI_RATIO", "controller", "RULE_BETA", "RULE_C1", "RULE_C3", "TUNE_SCHEMA_VERSION",
-           "lead_design_note", "LEAD_DESIGN_WORDS"]
+           "lead_design_note", "LEAD_DESIGN_WORDS", "assumptions_first", "tau_line"]
 
 #: Version of :meth:`TuneResult.to_json`'s object (and of each design's in it); 3: ``tune --json`` writes
 #: this record itself (until then a report holding it as ``tune_result``), each design names its
@@ -117,14 +117,18 @@ class Posterior:
     tau: np.ndarray
     K: np.ndarray
     source: str = ""
+    #: how many draws had tau < 0 (a lead within :func:`~mrftcli.mrft.model.lead_floor`) and hold tau = 0
+    n_lead: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         Td, tau, K = (np.asarray(v, float).ravel() for v in (self.Td, self.tau, self.K))
-        # a lead's draws are kept (tune designs on their causal part); a causal model's negative draws are not
-        lead = -LEAD_MAX * float(self.model.Tp) if self.model.tau < 0 else 0.0
-        ok = np.isfinite(Td) & np.isfinite(tau) & np.isfinite(K) & (Td > 0) & (tau >= lead) & (K != 0)
+        # draws beyond the lead eq. (2) admits are no model; a lead within it is held at tau = 0 (the designs'
+        # discrete delay line holds delays only), never dropped: dropping truncated the posterior towards larger tau
+        ok = (np.isfinite(Td) & np.isfinite(tau) & np.isfinite(K) & (Td > 0) & (K != 0)
+              & (tau >= lead_floor(float(self.model.Tp))))
+        object.__setattr__(self, "n_lead", int(np.count_nonzero(tau[ok] < 0)))
         object.__setattr__(self, "Td", Td[ok])
-        object.__setattr__(self, "tau", tau[ok])
+        object.__setattr__(self, "tau", np.maximum(tau[ok], 0.0))
         object.__setattr__(self, "K", K[ok])
 
     @property
@@ -137,11 +141,12 @@ class Posterior:
         return [LoopModel(Tp, float(self.Td[i]), float(self.tau[i]), float(self.K[i])) for i in idx]
 
     def in_set(self) -> np.ndarray:
-        """Mask of the draws in the 95 % set: Mahalanobis distance in (ln Td, ln tau, ln |K|) within chi2(3, 0.95).
+        """Mask of the draws in the 95 % set: Mahalanobis distance in (ln Td, tau, ln |K|) within chi2(3, 0.95).
 
-        Parameters with no spread are left out of the distance.
+        Parameters with no spread are left out of the distance. tau enters linearly: it may be 0 (a lead held
+        at 0), where ln tau put a held draw at ln 1e-9, far outside the set.
         """
-        X = np.column_stack([np.log(self.Td), np.log(np.maximum(self.tau, 1e-9)), np.log(np.abs(self.K))])
+        X = np.column_stack([np.log(self.Td), self.tau, np.log(np.abs(self.K))])
         keep = X.std(axis=0) > 1e-12
         if self.n < 5 or not keep.any():
             return np.ones(self.n, bool)
@@ -286,6 +291,8 @@ class TuneResult:
     notes: tuple[str, ...] = ()
     rate_filter: RateFilter | None = None
     reverse_acting: bool = False
+    #: the identified tau [s] when it was a lead the designs took as 0 (``model.tau`` is then 0); None otherwise
+    tau_identified: float | None = None
 
     @property
     def loop_model(self) -> LoopModel:
@@ -327,7 +334,10 @@ class TuneResult:
                 "effort_max": _encode(self.effort_max), "horizon_s": _encode(self.horizon_s),
                 "rule_cycle": _encode(self.rule_cycle), "designs": [d.to_json() for d in self.designs],
                 "notes": list(self.notes),
-                "rate_filter": None if self.rate_filter is None else self.rate_filter.to_json()}
+                "rate_filter": None if self.rate_filter is None else self.rate_filter.to_json(),
+                **({} if self.tau_identified is None else
+                   {"tau_identified": {"value": self.tau_identified, "unit": "s",
+                                       "designed_at": float(getattr(m, "tau", 0.0))}})}
 
     @classmethod
     def from_json(cls, data: Any) -> "TuneResult":
@@ -372,7 +382,16 @@ class TuneResult:
                    str(data.get("objective", "")), json_number(data, "ms_max", what), json_number(data, "effort_max", what),
                    json_number(data, "horizon_s", what), _decode(cycle), tuple(Design.from_json(d) for d in designs),
                    tuple(str(n) for n in notes), RateFilter.from_json(data.get("rate_filter"), what),
-                   data.get("reverse_acting") is True)
+                   data.get("reverse_acting") is True, _tau_identified(data.get("tau_identified"), what))
+
+
+def _tau_identified(data: Any, what: str) -> float | None:
+    """``tau_identified``'s value [s] (absent in records without a lead, and in older ones)."""
+    if data is None:
+        return None
+    if not isinstance(data, dict):
+        raise InputError(f"{what}: 'tau_identified' must be an object")
+    return json_number(data, "value", what)
 
 
 def controller(kind: str, Kp: float, Td_c: float, rate_hz: float, Ti: float | None = None,
@@ -680,12 +699,17 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
     if "PI" in kinds:
         raise InputError("--kind PI is for process plants (analyze --model NAME's result); eq. (2) loops take PD or PID")
     notes = []
+    tau_identified = None
     if model.tau < 0:  # a lead: no discrete delay line holds it; design on the loop with tau 0 and say so
         notes.append(lead_design_note(model.tau))
+        tau_identified = float(model.tau)
         model = model.with_parameters(tau=0.0)
         if posterior is not None:
-            posterior = Posterior(model, posterior.Td, np.maximum(posterior.tau, 0.0), posterior.K,
+            posterior = Posterior(model, posterior.Td, posterior.tau, posterior.K,
                                   source=posterior.source + "; a lead's tau taken as 0")
+    elif posterior is not None and posterior.n_lead:
+        notes.append(f"{posterior.n_lead} of {posterior.n} posterior draws have tau < 0 (a lead): the designs take "
+                     "them at tau = 0 (no discrete delay line holds a lead)")
     if posterior is None or posterior.n < 2:
         designs = tuple(d for d in designs if d != "robust")
         notes.append("no posterior (no draws or spreads given): the robust design is left out")
@@ -704,11 +728,24 @@ def tune(model: PlantModel, rate_hz: float, *, posterior: Posterior | Sequence[P
         out.append(_figures(name, c, load, st.horizons[kind], st))
     report(progress, len(jobs), len(jobs), "done")
     return TuneResult(model, posterior, rate_hz, loop, objective, ms_max, st.effort_max, st.horizons["PD"],
-                      st.cycle, tuple(out), tuple(notes), rate_filter)
+                      st.cycle, tuple(out), tuple(notes), rate_filter, tau_identified=tau_identified)
 
 
 #: how :func:`lead_design_note` begins (what a design rests on, shown first by tune's callers)
 LEAD_DESIGN_WORDS = "assumed: the identified loop leads eq. (2)"
+
+
+def assumptions_first(notes: tuple[str, ...]) -> tuple[str, ...]:
+    """``notes`` with the ``assumed: ...`` ones first (what a design rests on is read before anything else)."""
+    return tuple(sorted(notes, key=lambda n: not n.startswith("assumed:")))
+
+
+def tau_line(result: "TuneResult") -> str:
+    """``tau 0 ms (designed at; identified -2.92 ms, a lead)`` or ``tau 29.7 ms``: the model's tau as designed."""
+    tau = float(getattr(result.model, "tau", 0.0))
+    if result.tau_identified is None:
+        return f"tau {tau * 1e3:.4g} ms"
+    return f"tau {tau * 1e3:.4g} ms (designed at; identified {result.tau_identified * 1e3:.3g} ms, a lead)"
 
 
 def lead_design_note(tau: float) -> str:

@@ -144,14 +144,18 @@ def format_table(result: "TuneResult") -> str:
     m = result.model
     if not isinstance(m, LoopModel):
         return _grid_table(result)
-    lines = [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  tau {m.tau * 1e3:.4g} ms  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
+    from .design import assumptions_first, tau_line
+
+    first = [n for n in assumptions_first(result.notes) if n.startswith("assumed:")]
+    lines = [f"note: {n}" for n in first]  # what the designs rest on (a lead taken as tau 0), before the model
+    lines += [f"model: Tp {m.Tp:g} s  Td {m.Td:.4g} s  {tau_line(result)}  K {m.K:.4g}   rate {result.rate_hz:g} Hz  "
              f"objective {result.objective.upper()}  Ms <= {result.ms_max:g}  noise gain <= {result.effort_max:.4g}"]
     lines.append(f"{'design':<12}{'kind':<5}{'Kp':>10}{'Ki':>10}{'Kd':>10}{'Tf [ms]':>8}{'GM':>7}{'PM[deg]':>8}"
                  f"{'DM[ms]':>8}{'Ms':>6}{'OS[%]':>7}{'rise[s]':>8}{'set[s]':>7}{'J':>8}"
                  f"  {'worst of 95 %: PM':>17}{'Ms':>6}{'OS[%]':>7}")
 
     y = output_unit(result.loop)
-    lines.insert(1, f"gains: Kp [command per {y}], Ki [command per {y} s], Kd [command s per {y}]; "
+    lines.insert(len(first) + 1, f"gains: Kp [command per {y}], Ki [command per {y} s], Kd [command s per {y}]; "
                     f"K [{gain_unit(result.loop)}]")
     for d in result.designs:
         c, g, s = d.controller, d.margins, d.step
@@ -167,7 +171,8 @@ def format_table(result: "TuneResult") -> str:
         lines.append(f"J: {result.objective.upper()} of a unit setpoint step; a PID's adds the {result.objective.upper()} "
                      f"of a load step at the plant input (size: its PD's Kp). PID load recovery (2 %): {rec}")
     for n in result.notes:
-        lines.append(f"note: {n}")
+        if n not in first:
+            lines.append(f"note: {n}")
     return "\n".join(lines)
 
 

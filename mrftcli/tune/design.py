@@ -141,12 +141,13 @@ class Posterior:
         return [LoopModel(Tp, float(self.Td[i]), float(self.tau[i]), float(self.K[i])) for i in idx]
 
     def in_set(self) -> np.ndarray:
-        """Mask of the draws in the 95 % set: Mahalanobis distance in (ln Td, tau, ln |K|) within chi2(3, 0.95).
+        """Mask of the draws in the 95 % set: Mahalanobis distance in (ln Td, ln tau, ln |K|) within chi2(3, 0.95).
 
-        Parameters with no spread are left out of the distance. tau enters linearly: it may be 0 (a lead held
-        at 0), where ln tau put a held draw at ln 1e-9, far outside the set.
+        Parameters with no spread are left out of the distance. tau enters linearly when a draw holds 0 (a lead
+        held at 0), where ln tau put it at ln 1e-9, far outside the set.
         """
-        X = np.column_stack([np.log(self.Td), self.tau, np.log(np.abs(self.K))])
+        tau = np.log(self.tau) if np.all(self.tau > 0) else self.tau
+        X = np.column_stack([np.log(self.Td), tau, np.log(np.abs(self.K))])
         keep = X.std(axis=0) > 1e-12
         if self.n < 5 or not keep.any():
             return np.ones(self.n, bool)

@@ -237,3 +237,14 @@ def test_the_cascades_inner_draws_of_a_lead_centre_on_the_lead() -> None:
     inner = InnerLoop(LEAD.with_parameters(tau=0.0), c, "pitch", std=(("tau", 0.0003),), lead_s=-0.003)
     rng = np.random.default_rng(0)
     assert max(inner.draw(rng).plant.delay for _ in range(50)) == 0.0
+
+
+def test_delay_refuses_a_lead_beyond_the_floor_as_analyze_does() -> None:
+    """delay's fit is bounded at analyze's lead floor (one rule): PX4 SIH's pitch pair at --tp 0.15 (3x) wants
+    more lead than 6 ms, its delay on the bound: refused naming --tp (was exit 0, 32 ± 22 ms and a note)."""
+    from mrftcli.compare.delay import delay_increment
+    from mrftcli.io.flight import ReadOptions
+
+    logs = ROOT / "sample_logs" / "sitl"
+    with pytest.raises(IdentificationError, match="leads eq. \\(2\\) by more than the 6 ms.*check --tp"):
+        delay_increment(logs / "px4_pitch_h.ulg", logs / "px4_pitch_h_20ms.ulg", 0.15, read=ReadOptions(loop="pitch"))

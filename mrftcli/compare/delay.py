@@ -6,7 +6,8 @@ against its tau (at Td Omega of 10-60 Td barely moves a relay's frequency), so t
 separate analyses carries both flights' Td-tau trade. Here both flights are one plant: eq. (2) with the
 known Tp, **one** Td and **one** K, and **a delay per flight**, fitted to every test's measured
 frequency (weighted least squares on log frequency). The delay added is ``tau_after - tau_before``.
-A delay may be negative (down to -Tp / 2 or -6 ms, whichever is less: analyze's one rule, mrft.model.lead_floor): a loop that leads eq. (2) without delay, as an estimator's lead
+A delay may be negative (down to -Tp / 2 or -6 ms, whichever is less: analyze's one rule, mrft.model.lead_floor;
+on that bound it is refused naming --tp): a loop that leads eq. (2) without delay, as an estimator's lead
 makes it (EKF2's attitude in PX4 SIH leads by 2-3 ms), as ``analyze`` admits alone; a lead both
 recordings share cancels in the difference, where a bound at 0 would bend the shared Td instead.
 
@@ -416,6 +417,14 @@ def identify_pair(before: Sequence[MrftTest], after: Sequence[MrftTest], Tp: flo
             f"the joint fit does not determine the delay added (Td {Td:.3g} s, tau before {tau_b * 1e3:.3g} ms, after "
             f"{tau_a * 1e3:.3g} ms, none bounded; its tests off the fit by up to {worst * 100:.0f} %): check Tp "
             f"({Tp:g} s given) and that both recordings are of one loop")
+    for name, tau in (("before", tau_b), ("after", tau_a)):
+        if tau <= lead_floor(Tp) + 1e-6:  # the fit wants more lead than eq. (2) admits: analyze's one rule refuses
+            worst = max(abs(c[0] / f - 1.0) for c, f in zip(cycles, rows.f))
+            raise IdentificationError(
+                f"the {name} recording's loop leads eq. (2) by more than the {-lead_floor(Tp) * 1e3:.3g} ms it admits "
+                f"(an estimator's lead is a few ms: at most {LEAD_CAP_S * 1e3:g} ms or Tp/2; its delay sits on that "
+                f"bound, tests off the fit by up to {worst * 100:.0f} %): a Tp given too large reads as a lead; check "
+                f"--tp ({Tp:g} s given)")
     inc_std = math.sqrt(max(inc_var, 0.0))
     K_each = rows.amp / np.array([a for _, a in cycles])
     # K's error is its tests' spread alone (no frequency moves it): its interval is Student's t on their number less 1
@@ -445,11 +454,7 @@ def _notes(Tp: float, taus: tuple[tuple[float, float], tuple[float, float]], dof
     """What qualifies the figures; ``taus``: (value, std) [s] of the before and after recordings' delays."""
     notes = []
     for name, tau, std in (("before", *taus[0]), ("after", *taus[1])):
-        if tau <= lead_floor(Tp) + 1e-6:
-            notes.append(f"the {name} recording's delay is at its bound, a lead of {tau * 1e3:.3g} ms (at most "
-                         f"Tp/2 or {LEAD_CAP_S * 1e3:g} ms, as analyze): its loop leads eq. (2) more than an "
-                         "estimator's lead; check --tp")
-        elif tau < -1e-5:
+        if tau < -1e-5:  # a lead within lead_floor (one on its bound is refused)
             notes.append(f"the {name} recording's delay is negative ({tau * 1e3:.3g} ± {std * 1e3:.2g} ms): its loop "
                          "has less lag than eq. (2) with no delay (an estimator's lead?), as analyze states "
                          "alone; a lead both recordings share cancels in the delay added")

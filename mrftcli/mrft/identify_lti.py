@@ -444,7 +444,7 @@ def fit_response_points(points: Sequence[ResponsePoint], model: PlantModel) -> L
     region = [z]
     if problem.kernel is not None:
         profiled = _profile_ends(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, cov, flat, region)
-    profiled = _above_zero(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, flat, profiled)
+    profiled = _above_zero(problem, z, lo, hi, float(r @ r), _CHI2_95 * inflate, flat, profiled, cov)
     out = _result(problem, problem.values(z), cov, chi2_dof, points, z, lo, hi, flat, profiled)
     if len(out.undetermined) >= 2:
         log_names = [n for n in problem.unknown if n in problem.log_scaled]
@@ -720,7 +720,8 @@ def _held_rise(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray,
 
 
 def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray, cost0: float, delta: float,
-                flat: set[str], profiled: dict[int, tuple[float, float]] | None) -> dict[int, tuple[float, float]] | None:
+                flat: set[str], profiled: dict[int, tuple[float, float]] | None,
+                cov: FloatArray) -> dict[int, tuple[float, float]] | None:
     """``profiled`` with the 95 % upper end [in z] of each positive parameter the fit left at the solver's floor
     (1e-6 / omega on the log scale), which stands for its declared range's 0: profiled on the value itself.
 
@@ -728,7 +729,13 @@ def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray
     it), so the log-scale interval at the floor is a few ulps wide ("< 9.7e-09 s", overconfident). The value is
     held at steps of the linear half-width sqrt(``delta``) / |dr/dx|, doubling, the others refitted
     (:func:`_held_cost`), until the cost rises by ``delta`` (interpolated on sqrt(rise)); a cost still within
-    ``delta`` at the range's top: the data do not bound it there (the range's top is the end)."""
+    ``delta`` at the range's top: the data do not bound it there (the range's top is the end).
+
+    So is a value further up whose log-scale interval (``cov``) reaches below half the value, when the cost with
+    the value held at the floor (the others refitted) is within ``delta`` of the fit's and no profile of
+    :func:`_profile_ends` already reaches the floor: the log-scale
+    interval excluded the 0 the data admit ('0.00199 - 0.0119' where a = 0 raises the cost by 1.5 of 4.3;
+    '> 2.2e-07' for a true 0)."""
     out = dict(profiled or {})
     for i, name in enumerate(problem.unknown):
         p = problem.model.parameters[name]
@@ -740,12 +747,17 @@ def _above_zero(problem: _Problem, z: FloatArray, lo: FloatArray, hi: FloatArray
         probe[i] = math.log(value + h)
         slope = float(np.linalg.norm(problem.residuals(probe) - problem.residuals(z))) / h
         step = math.sqrt(delta) / slope if slope > 0 else top
+        rise_at = functools.partial(_held_rise, problem, z, lo, hi, i, cost0)
         if value - x0 >= step:
-            # off the floor by more than its linear half-width: the log-scale interval stands. Nearer, the solver
-            # may have stalled a few floors up (where the residuals do not move either): profiled like the floor
-            continue
+            # off the floor by more than its linear half-width: the log-scale interval stands unless it is loose
+            # and 0 fits (the cost held there within delta; a tight one that 0 fits is a swap of two exchangeable
+            # lags, SOPDT's T1 held at 0 refitted as T2). Nearer, the solver may have stalled a few floors up (where
+            # the residuals do not move either): profiled like the floor
+            loose = Z95 * math.sqrt(max(cov[i, i], 0.0)) >= math.log(2.0)  # its log interval reaches below half of it
+            if not loose or (profiled and i in profiled and profiled[i][0] <= lo[i]) or rise_at(x0) >= delta:
+                continue
         steps = _up_to(top, 1.0, [x0 + step * 2.0 ** k for k in range(40)])
-        end = _walk(x0, steps, functools.partial(_held_rise, problem, z, lo, hi, i, cost0), delta)
+        end = _walk(x0, steps, rise_at, delta)
         out[i] = (float(lo[i]), math.log(top if end is None else end))
     return out or profiled
 

@@ -200,15 +200,14 @@ def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict
               quiet: bool = False, log: Callable[[], LogSource] | None = None) -> _TuneSource:
     """A flight log, analysed as ``analyze`` would (its warnings printed)."""
     from ..analyze import AnalyzeOptions, analyze_path
-    from ..analyze.options import TRY_DIAGNOSE_COMMAND
     from ..io import ReadOptions
     from ..tune.analysis import posterior_from_analysis
 
     with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
         progress(0, 1, "analysing the log")
         read = ReadOptions(**{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
-        result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles,
-                                                                               diagnose_hint=TRY_DIAGNOSE_COMMAND),
+        # tune has no --diagnose: AnalyzeOptions' default hint points to the command
+        result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles),
                               log=None if log is None else log())  # opened once: _log_once
     for w in result.warnings:
         click.echo(f"warning: {w}", err=True)

@@ -223,10 +223,11 @@ def _probe_order(cands: list[Effect], screen: Screen, linear: LinearFit, Tp: flo
             for cand in cands}
 
 
-def search_candidates(screen: Screen, linear: LinearFit, names: list[str], loop_model: LoopModel,
+def search_candidates(linear: LinearFit, names: list[str], loop_model: LoopModel,
                       say: Callable[[str], None]) -> CandidateSearch:
-    """Stage 3: each deterministic candidate of ``names`` fitted alone (when the linear model is rejected)."""
-    Tp = loop_model.Tp
+    """Stage 3: each deterministic candidate of ``names`` fitted alone (when the linear model is rejected), on
+    the screen the linear model was fitted on (``linear.screen``: each test's relay centre a nuisance)."""
+    screen, Tp = linear.screen, loop_model.Tp
     rows: list[CandidateFit] = []
     fits: dict[str, tuple[CandidateModel, Fit]] = {}
     order = [c for c in CANDIDATES if c.name in names and not c.stochastic]

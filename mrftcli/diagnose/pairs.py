@@ -486,7 +486,7 @@ def _nrmse(held: HeldOut | None) -> str:
     return "n/a" if held is None or held.nrmse is None else f"{held.nrmse:.3g}"
 
 
-def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, loop_model: LoopModel,
+def select_effects(linear: LinearFit, search: CandidateSearch, loop_model: LoopModel,
                    say: Callable[..., None]) -> EffectSelection:
     """Stage 4: the first effect (the significant candidate with the largest delta BIC) and a second one
     on top of it by forward selection, kept on the same evidence and held-out rules.
@@ -494,9 +494,10 @@ def select_effects(screen: Screen, linear: LinearFit, search: CandidateSearch, l
     Every other candidate fitted is paired with the first, also one that fitted worse than the linear
     model alone (quadratic drag beside a rate limit: alone it cannot take the linear drag the slew
     imitates, with the slew modelled it is found); once the first explains the held-out cycles to the
-    noise level, only those whose probe clears :data:`PAIR_PROBE_MIN`.
+    noise level, only those whose probe clears :data:`PAIR_PROBE_MIN`. On the screen the linear model was
+    fitted on (``linear.screen``: each test's relay centre a nuisance).
     """
-    cand_rows, fits = search.rows, search.fits
+    screen, cand_rows, fits = linear.screen, search.rows, search.fits
     deterministic = sorted((r for r in cand_rows if r.significant and r.name in fits), key=lambda r: -_bic_gain(r))
     if not deterministic:
         return EffectSelection(effects=[], pair_rows=[], final=None, warnings=_unconfirmed(cand_rows, set()))

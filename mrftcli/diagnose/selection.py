@@ -267,8 +267,8 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
     screen = screen_log(flight, model, analysis, say, refusal)
     linear = fit_linear(screen, model, str(flight.path), say)
     screen = linear.screen  # each test's relay centre a per-test nuisance
-    search = search_candidates(screen, linear, names, model, say)
-    chosen = select_effects(screen, linear, search, model, say)
+    search = search_candidates(linear, names, model, say)
+    chosen = select_effects(linear, search, model, say)
     cand_rows, effects = list(search.rows), list(chosen.effects)
     if "delay_jitter" in names:
         jitter = judge_jitter(screen, linear, chosen.final, say)

@@ -154,6 +154,9 @@ def test_one_test_left_of_a_flight_at_two_betas_is_refused_as_analyze_does(logs,
         screen_log(fl, soiptd_model(M.Tp), None, lambda *a, **k: None, refusal)
     msg = str(exc.value)
     assert msg.startswith(str(refusal)) and "no second test is left to compare it with" in msg and "\n" not in msg
+    # analyze's refusal, first, says why the -0.7 test was rejected; diagnose does not say it again (E6's note)
+    assert "0 stable cycles (need 3)" in str(refusal) and msg.count("0 stable cycles") == 1, msg
+    assert msg.endswith("so no second test is left to compare it with (fly the lost test again)"), msg
     assert exc.value.partial == refusal.partial
     # the test is named by its flown span, as analyze's message names it (was: its stable cycles' span beside it)
     flown = re.search(r"beta -0.4 at (\S+ s)", str(refusal))

@@ -120,6 +120,9 @@ def _one_test_left(flight: FlightLog, refusal: InsufficientDataError | None, kep
     from ..analyze.screen import describe_tests, span
 
     test = next(t for t in flown if t.index == kept.index)
+    if refusal is not None:  # analyze's refusal, said first, names the tests it rejected and why: said once
+        named = tuple(f"test {row['index'] + 1} (" for row in refusal.partial.get("rejected_tests", []))
+        why = [w for w in why if not w.startswith(named)]
     tail = f"so no second test is left to compare it with ({'; '.join([*why, 'fly the lost test again'])})"
     if refusal is not None:
         return f"{refusal}; diagnose: only the test at {span(test, t0)} has {MIN_CYCLES} stable cycles it can measure, {tail}"

@@ -102,6 +102,9 @@ class DiagnosedTest:
     scatter_periods: np.ndarray = field(default_factory=lambda: np.zeros(0))
     #: regular cycles the segmenter found in the test (the window the scatter model reproduces)
     n_window: int = 0
+    #: the relay centre of the flight's earliest test flown, diagnosed or not [command units] (the hover
+    #: command a gain drift's trim error is taken against; None: the earliest of the tests given)
+    first_centre: float | None = None
 
     def scatter_var(self, sel: str) -> tuple[float, int]:
         """Sample variance [s^2] of the scatter periods ('fit': even, 'hold': odd, else all) and their count."""
@@ -236,8 +239,11 @@ class CandidateModel:
         self.hs = float(np.mean([t.h for t in tests]))
         self.bias_mean = float(np.mean([t.bias for t in tests]))
         # the hover command at the log's start under a gain drift: the first test's relay centre (a relay
-        # centred on the trim of its own start, as a hold hands over, or on one fixed trim: then every test's)
-        self.bias_first = float(min(tests, key=lambda t: t.t_start).bias) if tests else 0.0
+        # centred on the trim of its own start, as a hold hands over, or on one fixed trim: then every test's),
+        # of the tests flown (screen.flown, as trim_spread takes them) when the screen says
+        given = [c for c in (getattr(t, "first_centre", None) for t in tests) if c is not None]
+        self.bias_first = (float(given[0]) if given else
+                           float(min(tests, key=lambda t: t.t_start).bias) if tests else 0.0)
 
     def extra_index(self, name: str) -> int | None:
         """Index in theta of the effect's own parameter (None for quadratic drag, which uses theta[0])."""

@@ -207,6 +207,9 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     flown = segs if analysis is None else sorted([*analysis.tests, *analysis.rejected], key=lambda s: s.index)
     t0_log = log_start(flight)
     tests, noise, warnings = prepare_tests(flight, segs)
+    if flown:  # a gain drift's hover command: the earliest test flown, as trim_spread takes every test flown
+        first = float(min(flown, key=lambda s: s.t_start).bias)
+        tests = [replace(t, first_centre=first) for t in tests]
     if len(tests) == 1 and _comparable(flown):  # tests to compare were flown, one is left: nothing to compare
         by_analyze = [] if analysis is None else [f"test {t.index + 1} (beta {t.beta:.2f}) left out by analyze: "
                                                   f"{analysis.rejection_reasons.get(t.index, '')}" for t in analysis.rejected]

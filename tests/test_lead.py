@@ -248,3 +248,20 @@ def test_delay_refuses_a_lead_beyond_the_floor_as_analyze_does() -> None:
     logs = ROOT / "sample_logs" / "sitl"
     with pytest.raises(IdentificationError, match="leads eq. \\(2\\) by more than the 6 ms.*check --tp"):
         delay_increment(logs / "px4_pitch_h.ulg", logs / "px4_pitch_h_20ms.ulg", 0.15, read=ReadOptions(loop="pitch"))
+
+
+def test_diagnose_states_that_its_models_take_no_lead() -> None:
+    """diagnose's linear fit and effects hold tau >= 0 (review finding 2): on a lead analysis it says so, first,
+    with analyze's lead (checked by hand on px4_pitch_h: the line after the header, and notes[0] of --json);
+    a causal analysis gets no such note."""
+    from types import SimpleNamespace
+
+    from mrftcli.diagnose.selection import DIAGNOSE_LEAD_WORDS, lead_assumption
+    from mrftcli.mrft.parameter import ParameterEstimate
+
+    def analysis(tau: float) -> SimpleNamespace:
+        return SimpleNamespace(parameters={"tau": ParameterEstimate(tau, 0.0002, tau - 0.0004, tau + 0.0004, "s")})
+
+    (note,) = lead_assumption(analysis(-0.00292))  # type: ignore[arg-type]
+    assert note.startswith(DIAGNOSE_LEAD_WORDS) and "a lead of 2.92 ms" in note
+    assert lead_assumption(analysis(0.03)) == [] and lead_assumption(None) == []  # type: ignore[arg-type]

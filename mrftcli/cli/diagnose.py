@@ -96,6 +96,8 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
     waveform residual's verdict analyze gives (``residual``: one verdict for both commands)."""
     unit = "rad" if result.loop in ("roll", "pitch") else "m"
     lines = [f"{result.path}  loop {result.loop}  Tp {result.Tp:g} s  sensor noise {result.noise_std:.3g} {unit} (std)"]
+    first = [n for n in result.notes if n.startswith("assumed:")]  # what the figures rest on, before them
+    lines += [f"note: {n}" for n in first]
     lines += _refusal_line(result)
     lines.append(f"{'test':>4} {'from-to':>11} {'beta':>8} {'beta':>9} {'relay h':>9} {'cycles':>6}")
     lines.append(f"{'':>4} {'[s]':>11} {'nominal':>8} {'effective':>9} {'[command]':>9} {'used':>6}")
@@ -126,7 +128,7 @@ def format_summary(result: DiagnosisResult, residual: ResidualVerdict | None = N
         lines.append("largest disagreements of the linear model (z = difference / noise-explained spread):")
         for loc in feats:
             lines.append(f"  test {loc.test + 1} ({loc.t_start_rel:.1f}-{loc.t_end_rel:.1f} s): {loc.what}, z = {loc.z:+.1f}")
-    lines += [f"note: {n}" for n in result.notes]
+    lines += [f"note: {n}" for n in result.notes if n not in first]
     return "\n".join(line.rstrip() for line in lines)
 
 

@@ -70,6 +70,22 @@ __all__ = ["diagnose", "judge_jitter", "deterministic", "DiagnosisResult", "Effe
            "BIC_THRESHOLD"]
 
 
+#: how :func:`lead_assumption` begins (shown in diagnose's first lines)
+DIAGNOSE_LEAD_WORDS = "assumed: diagnose's models take tau >= 0"
+
+
+def lead_assumption(analysis: AnalysisResult | None) -> list[str]:
+    """The assumption a lead analysis (tau < 0, an estimator's lead analyze admits) puts on diagnose's figures:
+    its linear fit and the effects' cycles hold delays only, so its tau sits at 0 and its Td moves to the nearest
+    causal loop (review finding 2: said, not fitted)."""
+    tau = analysis.parameters.get("tau") if analysis is not None else None
+    if tau is None or not tau.value < 0:
+        return []
+    return [f"{DIAGNOSE_LEAD_WORDS}; analyze found a lead of {-tau.value * 1e3:.3g} ms (tau {tau.value * 1e3:.3g} ms), "
+            "so diagnose's linear model is the nearest causal loop (its tau near 0, its Td off analyze's), and an "
+            "effect named may stand for the lead: read analyze's model for the loop"]
+
+
 def _trim_note(screen: Screen) -> list[str]:
     """The assumption the features' standard errors carry when the tests' relay centres differ (issue 39)."""
     spread = trim_spread(list(screen.flown))
@@ -293,7 +309,7 @@ def _diagnose_soiptd(flight: FlightLog, model: LoopModel, analysis: AnalysisResu
         tests=_test_rows(screen, linear), noise_std=screen.noise, summary=_summary_text(effects, unexplained),
         warnings=warnings, analyze_refusal=screen.analyze_refusal,
         second_effect_candidates=[replace(c, unit=unit_in_loop(c.unit, flight.loop)) for c in chosen.pair_rows],
-        unexplained=unexplained, t0=screen.t0, figures=figures, notes=_trim_note(screen),
+        unexplained=unexplained, t0=screen.t0, figures=figures, notes=[*lead_assumption(analysis), *_trim_note(screen)],
     )
 
 

@@ -265,3 +265,23 @@ def test_diagnose_states_that_its_models_take_no_lead() -> None:
     (note,) = lead_assumption(analysis(-0.00292))  # type: ignore[arg-type]
     assert note.startswith(DIAGNOSE_LEAD_WORDS) and "a lead of 2.92 ms" in note
     assert lead_assumption(analysis(0.03)) == [] and lead_assumption(None) == []  # type: ignore[arg-type]
+
+
+def test_watchs_running_line_says_a_lead() -> None:
+    """watch's running estimate line printed a negative tau with no word (its warnings show on the final only)."""
+    import time
+
+    from mrftcli.cli.watch import _estimate_line
+    from mrftcli.cli.model_options import parameter_display
+    from mrftcli.mrft.identify import lead_note
+    from mrftcli.mrft.parameter import ParameterEstimate
+    from mrftcli.watch import EstimateUpdate
+
+    nan = math.nan
+    params = (ParameterEstimate.given(0.05, "s", "Tp"), ParameterEstimate(1.0, nan, nan, nan, "s", name="Td"),
+              ParameterEstimate(-0.003, nan, nan, nan, "s", name="tau"), ParameterEstimate(113.0, nan, nan, nan, "", name="K"))
+    show = parameter_display("soiptd", "pitch")
+    lead = EstimateUpdate("soiptd", params, (1, 2), 10.0, False, time.time(), warnings=(lead_note(-0.003),))
+    assert "tau < 0: the loop leads eq. (2)" in _estimate_line(lead, "rad", show)
+    causal = EstimateUpdate("soiptd", params, (1, 2), 10.0, False, time.time(), warnings=())
+    assert "leads" not in _estimate_line(causal, "rad", show)

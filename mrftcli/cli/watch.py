@@ -75,6 +75,11 @@ def _estimate_line(update: EstimateUpdate, unit: str, units: _Display) -> str:
     text = f"{head} {'  '.join(shown) or 'no parameter determined yet'}  (tests {', '.join(map(str, update.tests))})"
     if update.undetermined:
         text += f"; {update.advice}" if update.final else f"; so far {update.advice}"
+    from ..mrft.identify import LEAD_WORDS
+
+    if not update.final and any(w.startswith(LEAD_WORDS) for w in update.warnings):
+        # a running tau < 0 is a lead (or a Tp given too large), said on its line: the final states it in full
+        text += "; tau < 0: the loop leads eq. (2) (an estimator's lead, or check --tp)"
     if update.analysis is not None:  # as analyze prints them
         text += _held_out_lines(update.analysis, unit)
         text += "".join(f"\nnote: {n}" for n in update.analysis.notes)

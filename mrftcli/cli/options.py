@@ -36,6 +36,7 @@ SHARED_HELP: dict[str, str] = {
     "--time-unit": "Unit of a CSV's time column",
     "--report": "to DIR",
     "--tp": "time constant Tp [s]",
+    "--ms-max": "Limit on the sensitivity peak Ms [-]",
 }
 
 #: A rate in Hz: positive, at most the 100 kHz the readers accept (every ``--controller-rate``; 1e300 hung predict).

@@ -119,7 +119,7 @@ def _check_stack_options(export: str | None, kind: str, gyro_cutoff: float | Non
               help="Controller tuned for every loop.")
 @click.option("--objective", type=click.Choice(["iae", "itae"]), default="iae", show_default=True,
               help="Criterion of a unit setpoint step.")
-@click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms.")
+@click.option("--ms-max", type=float, default=1.6, show_default=True, help="Limit on the sensitivity peak Ms [-].")
 @click.option("--export", "export", type=click.Choice(["generic", "px4", "ardupilot", "hear"]), default=None,
               help="Write every loop's gains as the stack loads them (px4, ardupilot, hear: designed for the "
                    "stack's rate and rate filter) or generic JSON (the GAINS.json --inner-gains reads).")

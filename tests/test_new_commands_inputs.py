@@ -243,4 +243,4 @@ def test_min_cycles_above_every_test_names_the_option() -> None:
     tests' (the user set the bar; before, only the flight was blamed)."""
     done = run_main("delay", str(ROLL), str(ROLL_20), "--tp", "0.00915", "--loop", "roll", "--min-cycles", "100", "-q")
     line = _one_error_line(done, 4)
-    assert "none with 100 or more stable cycles" in line and "lower --min-cycles 100" in line
+    assert "none with 100 or more stable cycles" in line and "(or lower --min-cycles from 100)" in line

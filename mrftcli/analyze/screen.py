@@ -296,7 +296,7 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
                 "signal the relay controls in all of them; is --output-topic right?")
     return (f"{flight.path}: found {n} relay test(s) but none with {min_stable_cycles} or more stable "
             f"cycles ({describe_tests(found, t0)}; times from the log start); record longer tests or check for "
-            "noise/dropouts" + (f" (or lower --min-cycles {min_stable_cycles})" if min_stable_cycles > 3 else ""))
+            "noise/dropouts" + (f" (or lower --min-cycles from {min_stable_cycles})" if min_stable_cycles > 3 else ""))
 
 
 def partial_single_beta(model: LoopModel, tests: Sequence[MrftTest], t0: float = 0.0) -> dict[str, Any]:

@@ -285,3 +285,26 @@ def test_watchs_running_line_says_a_lead() -> None:
     assert "tau < 0: the loop leads eq. (2)" in _estimate_line(lead, "rad", show)
     causal = EstimateUpdate("soiptd", params, (1, 2), 10.0, False, time.time(), warnings=())
     assert "leads" not in _estimate_line(causal, "rad", show)
+
+
+def test_plan_counts_the_lead_draws_it_leaves_out():
+    """Plan's slice candidates with a lead are left out (its simulator cannot advance the command): counted, said."""
+    from mrftcli.plan import FlownTest, PlanLimits, PlanOptions, Prior, plan_tests
+    from mrftcli.plan.draws import conditioned_draws
+
+    model = LoopModel(0.04, 0.8, 0.001, 2.0)  # 1 ms: a larger Td on this test's slice is a lead
+    lc = mrft_limit_cycle(model, -0.4, 1.0, 200.0)
+    flown = FlownTest(beta=-0.4, h=1.0, frequency_hz=lc.frequency_hz, amplitude=lc.amplitude, n_cycles=10)
+    prior = Prior(Td=(0.3, 2.0), tau=(0.001, 0.06), K=(1.0, 4.0))
+    notes: list[str] = []
+    d = conditioned_draws(soiptd_model(0.04), prior, [flown], 200, np.random.default_rng(0), 200.0, 0.0005, notes)
+    assert d[:, 1].min() >= 0 and len(notes) == 1
+    n_lead = int(notes[0].split()[0])  # no phase: the draws kept are causal candidates, the rest dropped
+    assert 0 < n_lead <= 200 - d.shape[0]
+    assert notes == [f"{n_lead} of 200 posterior draws have tau < 0 (a lead): plan leaves them out (its simulator's "
+                     "delay line cannot advance the command); the forecasts rest on the causal draws"]
+    limits = PlanLimits(max_amplitude=0.05, max_h=10.0, time_s=15.0, rate_hz=200.0, noise_std=0.0005)
+    p = plan_tests(soiptd_model(0.04), limits, prior=prior, flown=[flown],
+                   options=PlanOptions(n_draws=8, betas=(-0.4, -0.6, -0.8)))
+    assert "posterior draws have tau < 0 (a lead): plan leaves them out" in p.notes[0]
+    assert p.to_json()["notes"][0] == p.notes[0]

@@ -18,7 +18,8 @@ __all__ = ["conditioned_draws"]
 
 
 def conditioned_draws(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n: int,
-                      rng: np.random.Generator, rate_hz: float, noise_std: float) -> np.ndarray:
+                      rng: np.random.Generator, rate_hz: float, noise_std: float,
+                      notes: list[str] | None = None) -> np.ndarray:
     """``n`` plants (rows Td [s], tau [s], K) of eq. (2) at ``model``'s known Tp, consistent with the flown tests.
 
     Td from the prior, tau from the first test's UFM slice (Lemma 3), K from its amplitude (UGM);
@@ -26,7 +27,9 @@ def conditioned_draws(model: LoopModel, prior: Prior, flown: Sequence[FlownTest]
     phase, many candidates on the slice are weighted by the likelihood of the measured phases
     (Gaussian, the noise model's standard error) and ``n`` drawn from them by systematic
     resampling: the posterior of the flown tests, not the whole slice. Without flown tests: the
-    prior's stratified draws.
+    prior's stratified draws. Candidates on the slice with a lead (tau < 0, within
+    :func:`~mrftcli.mrft.model.lead_floor`) are left out when causal ones exist; ``notes``, when
+    given, gets one line counting them.
 
     Raises
     ------
@@ -36,14 +39,14 @@ def conditioned_draws(model: LoopModel, prior: Prior, flown: Sequence[FlownTest]
     if not flown:
         return prior.draws(n, rng)
     phased = [t for t in flown if t.phase is not None]
-    out = _on_the_slice(model, prior, flown, n, rng, 64 * n if phased else n)
+    out = _on_the_slice(model, prior, flown, n, rng, 64 * n if phased else n, notes)
     if not phased or out.shape[0] <= n:
         return out
     return _resample(model, out, phased, n, rng, rate_hz, noise_std)
 
 
 def _on_the_slice(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n: int, rng: np.random.Generator,
-                  m: int) -> np.ndarray:
+                  m: int, notes: list[str] | None = None) -> np.ndarray:
     """``m`` prior draws moved onto the first flown test's UFM slice and UGM (rows Td, tau, K)."""
     draws = prior.draws(m, rng)
     f = flown[0]
@@ -61,8 +64,11 @@ def _on_the_slice(model: LoopModel, prior: Prior, flown: Sequence[FlownTest], n:
     ok = np.isfinite(tau) & (tau >= 0) & (K > 0)
     inside = ok & (tau >= prior.tau[0]) & (tau <= prior.tau[1])
     keep = inside if inside.sum() >= max(2, n // 3) else ok
+    lead = np.isfinite(tau) & (tau < 0) & (tau >= lead_floor(model.Tp)) & (K > 0)
+    if keep.any() and lead.any() and notes is not None:  # tune holds such draws at 0; plan cannot simulate them
+        notes.append(f"{int(lead.sum())} of {len(tau)} posterior draws have tau < 0 (a lead): plan leaves them out "
+                     "(its simulator's delay line cannot advance the command); the forecasts rest on the causal draws")
     if not keep.any():
-        lead = np.isfinite(tau) & (tau < 0) & (tau >= lead_floor(model.Tp)) & (K > 0)
         if lead.any():  # eq. (2) with a lead (analyze admits it); the forecasts' simulator delays the command only
             raise InputError(f"the flown tests give a loop that leads eq. (2) (tau {np.median(tau[lead]) * 1e3:.3g} ms "
                              "< 0, an estimator's lead): plan forecasts each test by simulating the flight "

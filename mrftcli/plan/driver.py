@@ -156,7 +156,9 @@ def _plan_mrft(model: LoopModel, prior: Prior, limits: PlanLimits, flown: Sequen
         raise InputError("eq. (2) is planned with Tp known and Td, tau, K free: give soiptd_model(Tp)")
     betas, n_tests = _resolve(options, flown)
     rng = np.random.default_rng(options.seed)
-    plants = conditioned_draws(model, prior, flown, max(int(options.n_draws), 1), rng, limits.rate_hz, limits.noise_std)
+    lead_notes: list[str] = []
+    plants = conditioned_draws(model, prior, flown, max(int(options.n_draws), 1), rng, limits.rate_hz, limits.noise_std,
+                               lead_notes)
     total = len(betas) * (n_tests + 1)
     space = design_space(model, plants, limits, limits.time_s / n_tests, betas,
                          lambda i: report(progress, i, total, "planning"))
@@ -179,6 +181,7 @@ def _plan_mrft(model: LoopModel, prior: Prior, limits: PlanLimits, flown: Sequen
     centre = dict(zip(("Td", "tau", "K"), map(float, np.exp(np.mean(np.log(plants), axis=0)))))
     notes = plan_notes(tests, _lowest_frequency(candidates[b] for b in admissible), post, prior_std, limits,
                        centre=centre, post_data=std_median(choice.information.data, plants))
+    notes[:0] = lead_notes  # what the forecasts leave out, read first
     if early_only:
         notes.append(f"at every admissible beta the relay switches fewer than {MIN_SWITCH_GAP:g} noise stds below "
                      "the extremum for the typical plant: noise may trigger switches early; allow a larger amplitude "

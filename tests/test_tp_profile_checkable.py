@@ -70,3 +70,21 @@ def test_what_the_profile_says(profile: TpProfile, starts: str | None) -> None:
     else:
         assert len(said) == 1 and said[0].startswith(starts)
         assert "given" in said[0] and "0.01 s" in said[0]
+
+
+def test_a_td_below_the_given_tp_is_named_as_the_fast_pole(tmp_path: Path) -> None:
+    """--tp 45x the truth (1.9 s against 0.0422 s): the fit puts the recording's fast pole in Td (eq. (2) is
+    symmetric in Tp and Td), so Td lands near the sidecar's Tp, below the given one; one warning says so, in the
+    text and the JSON, and the run still exits 0 (the swapped model is the same transfer function)."""
+    truth = _truth("design1_altitude.mcap")
+    out = tmp_path / "a.json"
+    proc = run_main("analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", "1.9", "-q", "--json", str(out))
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(out.read_text())
+    Td = data["parameters"]["Td"]["value"]
+    assert 0.5 * truth["Tp"] < Td < 2 * truth["Tp"]  # the fast pole, from the sidecar
+    said = [w for w in data["warnings"] if "came out shorter than the given Tp (1.9 s)" in w]
+    assert len(said) == 1 and said[0].startswith(f"Td ({Td:.3g} s)") and "check --tp" in said[0]
+    assert sum(line.startswith("warning: Td (") for line in (proc.stdout + proc.stderr).splitlines()) == 1
+    right = run_main("analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", str(truth["Tp"]), "-q", "--json", "-")
+    assert right.returncode == 0 and "came out shorter" not in right.stdout  # the true Tp: Td 2.7 s, no warning

@@ -31,7 +31,7 @@ from ..mrft.cascade import CascadeModel
 from ..mrft.consensus import combinations
 from ..mrft.identify import LEAD_WORDS, lead_note
 from ..mrft.model import LoopModel, PlantModel
-from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, tp_not_checkable
+from ..mrft.profile import BELOW_CONTROLLER_RATE, profile_tp, td_below_tp, tp_not_checkable
 from ..mrft.refine import RESIDUAL_FACTOR, refinement_windows
 from ..segment import StabilityCriterion, ValidityCriterion, segment
 from ..validate import check_tp
@@ -153,6 +153,8 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     tau_est, jitter_note = widen_for_jitter(wave.tau, flight, wave.send_times)
     _check_clock(flight, None, tau_est.value)
     tp_warning, tp_check = _tp_check(flight, screening, wave, model, opts.refine_waveform)
+    swapped = td_below_tp(wave.Td.value, Tp)  # the fast pole came out as Td: a Tp given too large
+    tp_warning = (*tp_warning, *([swapped] if swapped else []))
     warnings = [w for w in (*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings)
                 if not w.startswith(LEAD_WORDS)]  # the lead is stated once, first, for the tau reported
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]

@@ -29,7 +29,7 @@ from .model import LoopModel
 from .refine import RESIDUAL_FACTOR, loop_model_bounds, loop_model_plant, fit_output_error, sensor_noise
 from .waveform import CommandWindow
 
-__all__ = ["TpProfile", "profile_tp", "tp_not_checkable", "BELOW_CONTROLLER_RATE", "GRID_FACTORS", "CHI2_95"]
+__all__ = ["TpProfile", "profile_tp", "tp_not_checkable", "td_below_tp", "BELOW_CONTROLLER_RATE", "GRID_FACTORS", "CHI2_95"]
 
 #: Factors of the given Tp on the coarse grid (log-spaced, 1/10 to 10).
 GRID_FACTORS = tuple(float(f) for f in np.logspace(-1.0, 1.0, 9))
@@ -110,6 +110,25 @@ def tp_not_checkable(given: float, reason: str) -> str:
     """
     return (f"Tp is not checkable from this log ({reason}): Td, tau and K rest on the given Tp = {given:.3g} s, "
             "and a wrong Tp would move them within a tight interval; check --tp against the bench test")
+
+
+def td_below_tp(Td: float, Tp: float) -> str | None:
+    """The warning for an identified Td [s] below the given Tp [s], else None.
+
+    Eq. (2) is symmetric in Tp and Td (up to K's scale), so a Td below Tp means the recording's fast pole came
+    out as Td: a warning, not a refusal (the model is the same transfer function as the swapped one).
+
+    Examples
+    --------
+    >>> td_below_tp(0.0536, 1.9)[:57]
+    'Td (0.0536 s) came out shorter than the given Tp (1.9 s):'
+    >>> td_below_tp(0.7, 0.1) is None
+    True
+    """
+    if not Td < Tp:
+        return None
+    return (f"Td ({Td:.3g} s) came out shorter than the given Tp ({Tp:.3g} s): eq. (2) is symmetric in Tp and Td, "
+            "so the recording's fast pole is Td's here; check --tp (a bench test's Tp is the fast one)")
 
 
 def profile_tp(windows: Sequence[CommandWindow], start: LoopModel, *, loop_sign: int = 1,

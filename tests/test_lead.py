@@ -308,3 +308,16 @@ def test_plan_counts_the_lead_draws_it_leaves_out():
                    options=PlanOptions(n_draws=8, betas=(-0.4, -0.6, -0.8)))
     assert "posterior draws have tau < 0 (a lead): plan leaves them out" in p.notes[0]
     assert p.to_json()["notes"][0] == p.notes[0]
+
+
+def test_tunes_first_line_is_the_lead_design_note_before_the_analysis_warnings():
+    """tune on a lead log: the 'assumed:' design note is the first line a user reads (stdout and stderr as one
+    terminal), the analysis' warnings after the output, as analyze prints them."""
+    proc = subprocess.run([sys.executable, "-m", "mrftcli", "tune", "sample_logs/sitl/px4_pitch_h.ulg", "--loop",
+                           "pitch", "--tp", "0.05", "--controller-rate", "250", "--quiet"], cwd=ROOT,
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout
+    lines = [ln for ln in proc.stdout.splitlines() if ln.strip()]
+    assert lines[0].startswith("note: assumed: the identified loop leads eq. (2) (tau = -")
+    warned = [i for i, ln in enumerate(lines) if ln.startswith("warning: ")]
+    assert warned and min(warned) > next(i for i, ln in enumerate(lines) if ln.startswith("export (robust PD)"))

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
 from .model_options import process_model, structure_options
-from .options import (check_export_paths, check_output_dir, dump_json, json_option, log_layout_options, min_cycles_option,
+from .options import (check_export_paths, check_output_dir, dump_json, echo_warnings, json_option, log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
 #: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
@@ -198,7 +198,7 @@ def from_result_json(path: Path, known: LoopModel, loop: str | None) -> _TuneSou
 
 def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict[str, Any],
               quiet: bool = False, log: Callable[[], LogSource] | None = None) -> _TuneSource:
-    """A flight log, analysed as ``analyze`` would (its warnings printed)."""
+    """A flight log, analysed as ``analyze`` would (its warnings printed when the command ends, after its output)."""
     from ..analyze import AnalyzeOptions, analyze_path
     from ..io import ReadOptions
     from ..tune.analysis import posterior_from_analysis
@@ -209,8 +209,8 @@ def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict
         # tune has no --diagnose: AnalyzeOptions' default hint points to the command
         result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles),
                               log=None if log is None else log())  # opened once: _log_once
-    for w in result.warnings:
-        click.echo(f"warning: {w}", err=True)
+    # after tune's own lines (as analyze prints them): a lead's 'assumed:' design note is then read first
+    click.get_current_context().call_on_close(lambda: echo_warnings(result.warnings))
     return _TuneSource(result.model, posterior_from_analysis(result), result.loop, result.controller_rate_hz,
                        tuple(float(t.h) for t in result.tests), tuple(float(t.amplitude_mean) for t in result.tests))
 

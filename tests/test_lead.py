@@ -321,3 +321,21 @@ def test_tunes_first_line_is_the_lead_design_note_before_the_analysis_warnings()
     assert lines[0].startswith("note: assumed: the identified loop leads eq. (2) (tau = -")
     warned = [i for i, ln in enumerate(lines) if ln.startswith("warning: ")]
     assert warned and min(warned) > next(i for i, ln in enumerate(lines) if ln.startswith("export (robust PD)"))
+
+
+def test_batch_flags_a_lead_row_and_says_so_in_its_notes(tmp_path: Path) -> None:
+    """batch on PX4 SIH's pitch (analyze's lead, -2.9 ms): the printed row is flagged and the summary's notes
+    (printed and in --json) name the loop, instead of a bare negative tau_mean."""
+    from cli_helpers import run_main
+
+    out = tmp_path / "out"
+    summary = tmp_path / "s.json"
+    proc = run_main("batch", str(ROOT / "sample_logs/sitl/px4_pitch_h.ulg"), "--loop", "pitch", "--tp", "0.05",
+                    "--out", str(out), "--jobs", "1", "--no-report", "--quiet", "--json", str(summary))
+    assert proc.returncode == 0, proc.stderr
+    row = next(ln for ln in proc.stdout.splitlines() if ln.startswith("px4_pitch_h.ulg"))
+    assert "-2.9" in row and "LEAD tau < 0" in row
+    data = json.loads(summary.read_text())
+    assert data["rows"][0]["tau_mean"] < 0
+    assert data["notes"][0].startswith("1 loop(s) identified with tau < 0 (a lead")
+    assert "px4_pitch_h.ulg pitch (-2.9" in data["notes"][0] and data["notes"][0] in proc.stderr

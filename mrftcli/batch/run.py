@@ -52,6 +52,7 @@ from .summary import (
     STATUS_NO_TOPICS,
     STATUS_OK,
     STATUS_SKIPPED,
+    lead_note,
     summary_frame,
     summary_rows,
 )
@@ -760,7 +761,8 @@ def _write_summary(rows: list[dict[str, Any]], out: Path, report: bool,
                 write(tmp)
         except OSError as err:
             unwritten.append(_unwritten(outputs.pop(key), err))
-    notes: list[str] = []
+    lead = lead_note(df)  # a negative tau_mean is eq. (2) with a lead: said, not left for a reader to spot
+    notes: list[str] = [] if lead is None else [lead]
     if report and len(df):
         try:
             from ..report.fleet import write_fleet_report

@@ -25,7 +25,8 @@ from ..report.wording import sig
 
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
            "SUMMARY_COLUMNS",
-           "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers", "BatchSummary", "SUMMARY_SCHEMA_VERSION"]
+           "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers", "BatchSummary", "SUMMARY_SCHEMA_VERSION",
+           "lead_note"]
 
 #: Statuses of a row in the summary.
 STATUS_OK, STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_SKIPPED = ("ok", "failed", "insufficient", "skipped-uptodate")
@@ -299,6 +300,17 @@ def _flag_vehicle_changes(df: pd.DataFrame, k: float = 3.0, min_history: int = 2
                 idx = grp.index[i]
                 df.loc[idx, f"{name}_change"] = change
                 df.loc[idx, f"{name}_changed"] = bool(abs(change) > k * math.hypot(sd[i], spread))
+
+
+def lead_note(df: pd.DataFrame) -> str | None:
+    """The summary's note on its rows identified with a lead (``tau_mean`` < 0 [s]): how many, which (None: none)."""
+    lead = df[df["tau_mean"].notna() & (df["tau_mean"] < 0)] if "tau_mean" in df else df.iloc[:0]
+    if lead.empty:
+        return None
+    which = ", ".join(f"{Path(str(r['path'])).name} {r['loop']} ({r['tau_mean'] * 1e3:.3g} ms)"
+                      for _, r in lead.iterrows())
+    return (f"{len(lead)} loop(s) identified with tau < 0 (a lead: eq. (2) admits an estimator's few ms; tune "
+            f"designs them at tau = 0): {which}")
 
 
 def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:

@@ -109,6 +109,8 @@ def _print_rows(df, limit: int) -> None:
         note = r["error"] if failed else (r["parameters"] if process and isinstance(r["parameters"], str) else "")
         if r["outlier"]:
             note = f"OUTLIER {r['outlier_reason']} {note}".strip()
+        if not process and math.isfinite(r["tau_mean"]) and r["tau_mean"] < 0:
+            note = f"LEAD tau < 0 (tune designs at tau 0) {note}".strip()
         if isinstance(r["findings"], str) and r["findings"]:
             note = f"{note} findings: {r['findings']}".strip()
         if process:

@@ -339,3 +339,22 @@ def test_batch_flags_a_lead_row_and_says_so_in_its_notes(tmp_path: Path) -> None
     assert data["rows"][0]["tau_mean"] < 0
     assert data["notes"][0].startswith("1 loop(s) identified with tau < 0 (a lead")
     assert "px4_pitch_h.ulg pitch (-2.9" in data["notes"][0] and data["notes"][0] in proc.stderr
+
+
+def test_one_lead_rule_serves_both_routes() -> None:
+    """identify's frequencies and amplitude routes check a lead with one ``_checked_lead`` (they wrote the rule
+    twice): beyond ``lead_floor`` = -min(Tp/2, 6 ms) (closed form) refused; pushed beyond it only by the sampling
+    lag, set to the floor and said; below 0 noted; at or above 0 untouched."""
+    from mrftcli.mrft.identify import _checked_lead, lead_note
+
+    Tp = 0.05
+    floor = -min(Tp / 2, 0.006)
+    with pytest.raises(IdentificationError, match="beyond the 6 ms"):
+        _checked_lead(floor - 1e-4, Tp, [])
+    warns: list[str] = []
+    assert _checked_lead(floor - 1e-4, Tp, warns, lag=2e-4) == floor
+    assert "tau set to -6 ms" in warns[0] and warns[1] == lead_note(floor)
+    warns = []
+    assert _checked_lead(-0.003, Tp, warns) == -0.003 and warns == [lead_note(-0.003)]
+    warns = []
+    assert _checked_lead(0.0, Tp, warns) == 0.0 and warns == []

@@ -429,18 +429,29 @@ def _point_estimate(inputs: _Inputs, m: _Measured, ms: ManifoldSet) -> _Point:
         weights = np.where(rel > 0, 1.0 / np.maximum(rel, 1e-12) ** 2, 1.0) if np.all(rel > 0) else np.ones(len(rel))
         Td_hat, tau_eff, residual, warns = least_squares(Tp, m.betas, list(omegas), weights, ms)
         method = "least-squares"
-    lag = inputs.sampling_lag
-    tau_hat = tau_eff - lag
+    warns = list(warns)
+    tau_hat = _checked_lead(tau_eff - inputs.sampling_lag, Tp, warns, lag=inputs.sampling_lag)
+    return _Point(Td_hat, tau_eff, tau_hat, residual, method, weights, tuple(warns))
+
+
+def _checked_lead(tau: float, Tp: float, warns: list[str], *, lag: float = 0.0) -> float:
+    """``tau`` [s] under eq. (2)'s lead rule, every route's one copy of it.
+
+    ``tau + lag`` (the route's delay before the sampling ``lag`` [s] is removed) beyond
+    :func:`~mrftcli.mrft.model.lead_floor` of ``Tp`` [s] is refused (:func:`lead_refusal`); a ``tau`` pushed
+    beyond it only by removing the lag is set to the floor, said in ``warns``; a ``tau`` < 0 appends
+    :func:`lead_note` to ``warns``. Returns the tau the model takes [s].
+    """
     floor = lead_floor(Tp)
-    if tau_eff < floor:
-        raise IdentificationError(lead_refusal(tau_eff, Tp))
-    if tau_hat < floor:
+    if tau + lag < floor:
+        raise IdentificationError(lead_refusal(tau + lag, Tp))
+    if tau < floor:
         warns.append(f"removing the sampling lag ({lag * 1e3:.3g} ms) leaves a lead beyond the "
                      f"{-floor * 1e3:.3g} ms eq. (2) admits; tau set to {floor * 1e3:.3g} ms")
-        tau_hat = floor
-    if tau_hat < 0:
-        warns.append(lead_note(tau_hat))
-    return _Point(Td_hat, tau_eff, tau_hat, residual, method, weights, tuple(warns))
+        tau = floor
+    if tau < 0:
+        warns.append(lead_note(tau))
+    return tau
 
 
 #: how :func:`lead_note` begins (a record's lead statement is found by it)
@@ -874,11 +885,8 @@ def _identify_amplitude(inputs: _Inputs) -> IdentificationResult:
         tau_est = _estimate(np.array([]), tau_eff - lag, "s")
         unc = "none"
     warns = ["amplitude route: sensitive to amplitude noise and to K (the paper prefers two frequencies)"]
-    tau_hat = tau_eff - lag
-    if tau_hat < lead_floor(Tp):  # a lead the route's model cannot hold: refused as the frequencies' route does
-        raise IdentificationError(lead_refusal(tau_hat, Tp))
-    if tau_hat < 0:
-        warns.append(lead_note(tau_hat))
+    # the lag is the route's own here: a lead beyond the floor after removing it is refused, not floored
+    tau_hat = _checked_lead(tau_eff - lag, Tp, warns)
     model = LoopModel(Tp, Td_hat, tau_hat, K)
     per = ({"beta": test.beta, "frequency_hz": test.frequency_mean, "amplitude": a_mean, "h": test.h,
             "tp_norm": Tp * w0, "td_norm": Td_hat * w0, "theta": tau_eff * w0},)

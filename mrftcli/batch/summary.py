@@ -26,7 +26,7 @@ from ..report.wording import sig
 __all__ = ["STATUS_OK", "STATUS_FAILED", "STATUS_INSUFFICIENT", "STATUS_SKIPPED", "STATUS_NO_TOPICS", "STATUS_NO_TESTS",
            "SUMMARY_COLUMNS",
            "TUNE_COLUMNS", "summary_rows", "summary_frame", "flag_outliers", "BatchSummary", "SUMMARY_SCHEMA_VERSION",
-           "lead_note"]
+           "lead_note", "lead_rows"]
 
 #: Statuses of a row in the summary.
 STATUS_OK, STATUS_FAILED, STATUS_INSUFFICIENT, STATUS_SKIPPED = ("ok", "failed", "insufficient", "skipped-uptodate")
@@ -302,9 +302,21 @@ def _flag_vehicle_changes(df: pd.DataFrame, k: float = 3.0, min_history: int = 2
                 df.loc[idx, f"{name}_changed"] = bool(abs(change) > k * math.hypot(sd[i], spread))
 
 
+def lead_rows(df: pd.DataFrame) -> pd.Series:
+    """Which rows eq. (2) identified with a lead (``tau_mean`` < 0 [s]), the one test the printed table, the notes
+    and the summary's column share; a process row (``batch --model``: its families take tau >= 0) never is."""
+    if "tau_mean" not in df:
+        return pd.Series(False, index=df.index, dtype=bool)
+    tau = pd.to_numeric(df["tau_mean"], errors="coerce")
+    lead = tau.notna() & (tau < 0)
+    if "model" in df:
+        lead &= df["model"].isna()
+    return lead.astype(bool)
+
+
 def lead_note(df: pd.DataFrame) -> str | None:
-    """The summary's note on its rows identified with a lead (``tau_mean`` < 0 [s]): how many, which (None: none)."""
-    lead = df[df["tau_mean"].notna() & (df["tau_mean"] < 0)] if "tau_mean" in df else df.iloc[:0]
+    """The summary's note on its rows identified with a lead (:func:`lead_rows`): how many, which (None: none)."""
+    lead = df[lead_rows(df)]
     if lead.empty:
         return None
     which = ", ".join(f"{Path(str(r['path'])).name} {r['loop']} ({r['tau_mean'] * 1e3:.3g} ms)"

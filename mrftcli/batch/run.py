@@ -767,7 +767,7 @@ def _write_summary(rows: list[dict[str, Any]], out: Path, report: bool,
         try:
             from ..report.fleet import write_fleet_report
 
-            outputs["report"] = write_fleet_report(df, out / "report")
+            outputs["report"] = write_fleet_report(df, out / "report", notes)
         except Exception as err:  # noqa: BLE001 - the results are written; a plotting problem must not lose them
             notes.append(f"the fleet report could not be drawn ({type(err).__name__}: {_one_line(err)})")
     return df, outputs, notes

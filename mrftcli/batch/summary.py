@@ -39,7 +39,7 @@ STATUS_NO_TESTS = "skipped-no-tests"
 
 SUMMARY_COLUMNS = [
     "path", "loop", "vehicle", "status", "result_status", "error", "error_type",
-    "Td_mean", "Td_std", "tau_mean", "tau_std", "K_mean", "K_std",
+    "Td_mean", "Td_std", "tau_mean", "tau_std", "lead", "K_mean", "K_std",
     "n_tests", "n_cycles", "betas", "findings", "Td_with_findings", "tau_with_findings", "K_with_findings",
     "diagnose_error",
     "tp", "log_time", "log_time_source", "log_mtime", "analysed_at", "elapsed_s", "result_json", "settings_hash",
@@ -53,7 +53,8 @@ TUNE_COLUMNS = ["tune_design", "tune_kind", "tune_Kp", "tune_Ki", "tune_Kd", "tu
                 "tune_pm_worst_deg", "tune_dm_ms", "tune_ms", "tune_ms_worst", "tune_overshoot_pct", "tune_settling_s",
                 "tune_error"]
 
-_OUTLIER_COLUMNS = ("tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", "Td_change", "tau_changed",
+#: the columns summary_frame computes from the others (not in a row of summary_rows)
+_OUTLIER_COLUMNS = ("lead", "tau_z", "Td_z", "tau_outlier", "Td_outlier", "tau_change", "Td_change", "tau_changed",
                     "Td_changed", "outlier", "outlier_reason")
 
 
@@ -338,7 +339,9 @@ def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     for col in ("log_time", "log_mtime", "analysed_at"):
         df[col] = pd.to_datetime(df[col], utc=True)
     df = flag_outliers(df)
-    if any("model" in r for r in rows):  # batch --model: the process model and its parameters with units
+    process = any("model" in r for r in rows)
+    df["lead"] = pd.Series(False, index=df.index) if process else lead_rows(df)  # process families: tau >= 0
+    if process:  # batch --model: the process model and its parameters with units
         return pd.concat([df[SUMMARY_COLUMNS], _process_frame(rows, df.index)], axis=1)
     if any("tune_Kp" in r for r in rows):
         tuned = pd.DataFrame([{k: r.get(k) for k in TUNE_COLUMNS} for r in rows], index=df.index, columns=TUNE_COLUMNS)

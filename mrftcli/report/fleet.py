@@ -14,6 +14,7 @@ red on the panel of the parameter that is off, and labelled with the log's folde
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -131,7 +132,10 @@ def _time_label(d: pd.DataFrame) -> str:
 
 
 def _cell(column: str, v: object) -> str:
-    """A summary value as table text: tau in ms, numbers to 4 digits, times to the minute, NA blank."""
+    """A summary value as table text: tau in ms, numbers to 4 digits, times to the minute, NA blank, a lead
+    ``tau < 0`` (else blank)."""
+    if column == "lead":
+        return "tau < 0" if isinstance(v, (bool, np.bool_)) and v else ""
     if isinstance(v, float):
         return "" if not np.isfinite(v) else (f"{v * 1e3:.2f} ms" if column.startswith("tau") else f"{v:.4g}")
     if v is None or v is pd.NA or (isinstance(v, pd.Timestamp) and pd.isna(v)):
@@ -144,7 +148,7 @@ def _cell(column: str, v: object) -> str:
 #: column headers with their units (tau cells carry "ms" themselves)
 _HEADERS = {"Td_mean": "Td [s]", "Td_std": "Td std [s]", "tau_mean": "tau", "tau_std": "tau std",
             "K_mean": "K [m or rad /s² per command unit]", "K_std": "K std", "log_time": "log time (UTC)",
-            "n_tests": "tests", "n_cycles": "cycles"}
+            "n_tests": "tests", "n_cycles": "cycles", "lead": "lead (tune designs at tau 0)"}
 
 
 def _table(df: pd.DataFrame, columns: list[str]) -> str:
@@ -152,14 +156,19 @@ def _table(df: pd.DataFrame, columns: list[str]) -> str:
                       ([_cell(c, row[c]) for c in columns] for _, row in df.iterrows()))
 
 
-def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:
-    """Write ``index.html`` and one ``fleet_<loop>.png`` per loop into ``out_dir``; return the HTML path."""
+def write_fleet_report(df: pd.DataFrame, out_dir: Path, notes: Sequence[str] = ()) -> Path:
+    """Write ``index.html`` and one ``fleet_<loop>.png`` per loop into ``out_dir``; return the HTML path.
+
+    ``notes``: the batch's notes (e.g. the loops identified with a lead), listed first.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     parts: list[str] = []
     counts = df["status"].value_counts()
     parts.append("<p>" + esc(f"{df['path'].nunique()} logs, {len(df)} rows: "
                                       + ", ".join(f"{n} {s}" for s, n in counts.items())) + "</p>")
+    if notes:
+        parts.append("<ul>" + "".join(f"<li>{esc(n)}</li>" for n in notes) + "</ul>")
     parts.append("<p>Time axis: the log's first time stamp when it is an absolute (UNIX) time, else the file's "
                  "modification time (column log_time_source); UTC. Error bars: +/- one standard deviation. "
                  "Fleet outliers (red rings): modified z-score 0.6745 (x - median) / MAD of tau or Td within the loop beyond "
@@ -178,8 +187,8 @@ def write_fleet_report(df: pd.DataFrame, out_dir: Path) -> Path:
             png = plot_loop(df, loop, out_dir / f"fleet_{loop}.png")
             parts.append(f"<h2>{esc(loop)}</h2><img src='{png.name}' alt='{esc(loop)} parameters'>")
     parts.append("<h2>All rows</h2>")
-    parts.append(_table(df, ["path", "loop", "vehicle", "status", "tau_mean", "tau_std", "Td_mean", "Td_std",
-                             "K_mean", "K_std", "n_tests", "n_cycles", "findings", "log_time", "error"]))
+    parts.append(_table(df, ["path", "loop", "vehicle", "status", "tau_mean", "tau_std", *(["lead"] if "lead" in df else []),
+                             "Td_mean", "Td_std", "K_mean", "K_std", "n_tests", "n_cycles", "findings", "log_time", "error"]))
     index = out_dir / "index.html"
     write_page(index, html_page("mrft-ident fleet report", "\n".join(parts)))
     return index

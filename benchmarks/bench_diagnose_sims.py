@@ -3,8 +3,9 @@
 
 RotorPy (its multirotors' rotor drag, parasitic drag, motor dynamics) and JSBSim (its F450: DJI
 E305 motors, DJI 9450 propeller tables, drag table, ESC actuators) fly altitude MRFT tests as pilots
-fly them; the relay, the hold, the sensor chain and the latency line are the benchmark's own code
-(``benchmarks/diagnose_sims/loop.py``), the effects are produced physically in the simulator or the
+fly them; the relay is the PX4 fork's and HEAR's (``mrft_anti_false_switching``: 5 peak-confirmation
+samples, 20 ms without a switch after each switch, ported in ``benchmarks/diagnose_sims/loop.py``), the
+hold, the sensor chain and the latency line are the benchmark's own code, the effects are produced physically in the simulator or the
 loop (``benchmarks/diagnose_sims/cases.py``). Each flight is written as MCAP, read back, analyzed and
 diagnosed in this process (CPU of both timed). Our own simulator's figures are ``bench_diagnose.py``.
 

@@ -89,7 +89,7 @@ def build(case: dict):
     vehicle = mod.make_vehicle(case["platform"], **kw)
     tests = tuple((b, h, d) for b, h, d in zip(BETAS, heights, case["durations"]))
     spec = LoopSpec(rate=case["rate"], tests=tests, latency=case["latency"], noise=case["noise"], seed=case["seed"],
-                    planning=model, abort=1.0, start=0.5 * amp, **loop)
+                    planning=model, abort=1.0, **loop)
     return vehicle, spec, mod.tool_tp(case["platform"]), truth
 
 

@@ -1,7 +1,8 @@
 """The flight loop around a simulator written elsewhere: hold, MRFT relay, sensor, latency (issue 39).
 
-Nothing here comes from ``mrftcli``'s simulator or relay: the relay rule, the hold controller, the
-sensor chain (flexible mount, first-order filter, noise) and the latency line are written out below,
+Nothing here comes from ``mrftcli``'s simulator or relay: the relay (the PX4 fork's and HEAR's
+``mrft_anti_false_switching``, ported line by line), the hold controller, the sensor chain (flexible
+mount, first-order filter, noise) and the latency line are written out below,
 and the vehicle (RotorPy's or JSBSim's) integrates its own physics. Only the log is written with
 ``mrftcli.io.write_log``, as any flight stack's recorder would.
 
@@ -62,43 +63,76 @@ def relay_height(model: PlanningModel, beta: float, amplitude: float) -> float:
 
 
 class Relay:
-    """MRFT (Boiko 2013): leave +h once the error has fallen from its peak e_max > 0 to -beta e_max
-    (beta < 0: before the zero crossing), leave -h likewise from the trough; the first switch waits for
-    the error to cross ``start`` beyond zero so noise at rest does not start it. As flight stacks do
-    against noise-triggered switches (which lock the relay up), a peak counts once ``confirm`` samples
-    have passed without a new one."""
+    """The MRFT relay as the stacks fly it: the PX4 fork's ``MRFT_Block::mrft_anti_false_switching``
+    (abdullaayyad96/PX4-Autopilot @a08b08d, ``src/lib/MRFT/src/MRFT.cpp``; HEAR's
+    ``MRFTController::mrft_anti_false_switching``, oussamaabdulhay/HEAR_Architecture ``src/MRFTController.cpp``
+    with ``no_switch_delay_in_ms = 20``, ``num_of_peak_conf_samples = 5`` in its header, is the same code), ``mode_of_operation`` 1, with the fork's defaults ``no_switch_delay_in_ms`` 20 and
+    ``num_of_peak_conf_samples`` 5 (``include/DataTypes.hpp``; PX4 parameters ``MRFT_Z_NO_SWITCH`` 20,
+    ``MRFT_Z_N_CONF`` 5 in ``mc_pos_control``). Per call, with the error e:
 
-    def __init__(self, beta: float, start: float, confirm: int) -> None:
-        self.beta, self.start, self.confirm = beta, start, confirm
-        self.sign, self.peak, self.armed, self.age = 0.0, 0.0, False, 0
+    * first call: the output is +h if e > 0 else -h, that side's peak counted as reached, both peaks 0;
+    * for ``no_switch_ms`` after each switch (the timer's whole milliseconds <= the delay) nothing moves;
+    * on +h: a new maximum resets the confirmation counter, any other sample counts one and sets the
+      running minimum to e; ``n_conf`` counts latch "maximum reached" (a later new maximum moves the
+      threshold, not the latch); once latched, e < -beta e_max switches to -h. On -h the mirror image.
 
-    def _switch(self, sign: float, e: float) -> None:
-        self.sign, self.peak, self.age = sign, e, 0
+    The switch threshold -beta e_peak is the fork's ``sw_max`` / ``sw_min`` of mode 1
+    (e_max - (e_max - e_min*) / 2 - beta (e_max - e_min*) / 2 with e_min* = -e_max). The confirmation
+    counter is not reset by a switch, as in the fork. ``period`` [s] is the loop's tick (the timer
+    reads the tick's time)."""
+
+    def __init__(self, beta: float, period: float, n_conf: int = 5, no_switch_ms: int = 20) -> None:
+        self.beta, self.period, self.n_conf, self.no_switch_ms = beta, period, n_conf, no_switch_ms
+        self.first, self.out, self.e_max, self.e_min = True, 0.0, 0.0, 0.0
+        self.reached_max = self.reached_min = False
+        self.count, self.ticks = 0, 0  # confirmation counter; ticks since the last switch (the fork's timer)
+
+    @property
+    def sign(self) -> float:
+        """The relay's side (+1, -1; 0 before the first call)."""
+        return 1.0 if self.out > 0 else -1.0 if self.out < 0 else 0.0
+
+    @property
+    def peak(self) -> float:
+        """The running peak of the side the relay is on [error units]."""
+        return self.e_max if self.out > 0 else self.e_min
 
     def __call__(self, e: float) -> float:
-        if self.sign == 0.0:
-            self._switch(1.0 if e >= 0 else -1.0, e)
-            return self.sign
-        if not self.armed:
-            if self.sign * e < -self.start:
-                self._switch(-self.sign, e)
-                self.armed = True
-            return self.sign
-        self.age += 1
-        if self.sign * e > self.sign * self.peak:  # a new extremum of this half
-            self.peak, self.age = e, 0
-        confirmed = self.age >= self.confirm
-        if self.sign > 0 and confirmed and self.peak > 0 and e <= -self.beta * self.peak:
-            self._switch(-1.0, e)
-        elif self.sign < 0 and confirmed and self.peak < 0 and e >= -self.beta * self.peak:
-            self._switch(1.0, e)
-        return self.sign
+        if self.first:
+            self.first, self.ticks, self.count, self.e_max, self.e_min = False, 0, 0, 0.0, 0.0
+            self.reached_max, self.reached_min = e > 0, not e > 0
+            self.out = 1.0 if e > 0 else -1.0
+            return self.out
+        self.ticks += 1
+        if math.floor(self.ticks * self.period * 1e3 + 1e-6) <= self.no_switch_ms:  # tockMilliSeconds() is an int
+            return self.out
+        if self.out < 0:
+            if e < self.e_min:
+                self.e_min, self.count = e, 0
+            else:
+                self.count += 1
+                if self.count >= self.n_conf:
+                    self.reached_min, self.count = True, 0
+                self.e_max = e
+            if self.reached_min and e > -self.beta * self.e_min:
+                self.out, self.ticks, self.reached_min = 1.0, 0, False
+        else:
+            if e > self.e_max:
+                self.e_max, self.count = e, 0
+            else:
+                self.count += 1
+                if self.count >= self.n_conf:
+                    self.reached_max, self.count = True, 0
+                self.e_min = e
+            if self.reached_max and e < -self.beta * self.e_max:
+                self.out, self.ticks, self.reached_max = -1.0, 0, False
+        return self.out
 
 
 @dataclass(frozen=True)
 class LoopSpec:
     """One flight: rate [Hz], tests ((beta, h [command units], duration [s]), ...), latency [s],
-    sensor noise [m]; the loop-side effects: a first-order filter on the logged altitude (``lag`` [s]),
+    sensor noise [m]; the relay's ``n_conf`` and ``no_switch_ms`` (the fork's defaults); the loop-side effects: a first-order filter on the logged altitude (``lag`` [s]),
     a flexible sensor mount (``mount_hz``, ``mount_zeta``), a loop that runs late by a random
     ``jitter`` [s std] each tick."""
 
@@ -114,7 +148,8 @@ class LoopSpec:
     hover_s: float = 2.0
     hold_s: float = 2.5
     abort: float = 0.5  # [m] the safety abort's error
-    start: float = 0.0  # [m] the error beyond which the relay makes its first switch (at least 10 noise std)
+    n_conf: int = 5  # the relay's peak confirmation samples (the fork's MRFT_Z_N_CONF)
+    no_switch_ms: int = 20  # [ms] the relay's no-switch window after a switch (the fork's MRFT_Z_NO_SWITCH)
     planning: PlanningModel | None = None
 
 
@@ -186,8 +221,7 @@ def fly(vehicle: Vehicle, spec: LoopSpec) -> FlightRecord:
     mount = Mount(spec.mount_hz, spec.mount_zeta, r) if spec.mount_hz > 0 else None
     a_lag = math.exp(-T / spec.lag) if spec.lag > 0 else 0.0
     filt, integ, yprev, dterm = r, 0.0, r, 0.0
-    confirm = max(1, int(round(0.01 * spec.rate)))  # 10 ms of samples
-    relays = [Relay(beta, max(10 * spec.noise, spec.start), confirm) for beta, _, _ in spec.tests]
+    relays = [Relay(beta, T, spec.n_conf, spec.no_switch_ms) for beta, _, _ in spec.tests]
     bias, aborted = vehicle.hover, [False] * len(spec.tests)
     pending: list[tuple[float, float]] = []  # (time the command reaches the motors, command)
     u_plant, last_apply = vehicle.hover, 0.0

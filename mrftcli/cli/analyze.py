@@ -9,8 +9,9 @@ import click
 from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination, parameter_display,
-                            parameter_lines, parse_baseline, parse_windows, pop_cascade_options, relay_options,
-                            soiptd_or_process, structure_options, structure_text, window_option)
+                            parameter_lines, parse_baseline, parse_windows, pop_cascade_options,
+                            refuse_nothing_determined, relay_options, soiptd_or_process, structure_options,
+                            structure_text, window_option)
 from ..report.wording import uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,
@@ -357,6 +358,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     echo_warnings(result.warnings)
     if index is not None:
         click.echo(f"report: {index}", err=to_stdout)
+    if result.kind == "family" and result.identification is not None:
+        refuse_nothing_determined(result.identification)  # exit 6 after the output, as identify's
 
 
 #: why --paper-only has no meaning beyond eq. (2) (the paper's method is eq. (2)'s UFM slices)

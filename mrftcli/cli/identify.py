@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError, InsufficientDataError
-from .model_options import build_model, format_estimates, parse_number, structure_options, structure_text
+from .model_options import (build_model, format_estimates, parse_number, refuse_nothing_determined,
+                            structure_options, structure_text)
 from .options import controller_rate_option, dump_json, echo_warnings, json_option, tp_option
 
 if TYPE_CHECKING:
@@ -72,8 +73,8 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
 
     Example: mrft-ident identify --tp 0.1 --test -0.4:0.70564 --test -0.7:1.01884
     """
+    from ..mrft.identify import IdentificationResult, strategy_of
     from ..mrft.identify import identify as run
-    from ..mrft.identify import strategy_of
 
     model = _model(Tp, model_name, params, ranges, tests, points)
     # the family's strategy names what it identifies from: eq. (2) MRFT tests, the process families response points
@@ -93,6 +94,8 @@ def identify(Tp: float | None, model_name: str, params: tuple[str, ...], ranges:
         dump_json(result.to_json(), json_target)
     if json_target != "-":
         _echo(result, len(data))
+    if not isinstance(result, IdentificationResult):
+        refuse_nothing_determined(result)  # exit 6 after the output, as analyze's partial result
 
 
 def _model(Tp: float | None, model_name: str, params: tuple[str, ...], ranges: tuple[str, ...],

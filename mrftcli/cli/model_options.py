@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import click
 
-from ..errors import InputError
+from ..errors import InputError, InsufficientDataError
 from ..validate import check_parameter_value
 from .options import num, read_json_file, text_table
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 __all__ = ["MODEL_NAMES", "structure_text", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_number", "parse_windows", "build_model", "format_estimates", "parameter_lines",
            "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup",
-           "parameter_display"]
+           "parameter_display", "refuse_nothing_determined"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -341,6 +341,24 @@ def format_combination(ident: LtiIdentification) -> list[str]:
         return []
     return [f"determined: {c.name} = {num(c.value)} {c.unit} (95 % {num(c.ci95_low)} - {num(c.ci95_high)}); "
             f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
+
+
+def refuse_nothing_determined(ident: LtiIdentification) -> None:
+    """Exit 6 (a partial result, as eq. (2)'s single beta) when the data determine none of the model's unknown
+    parameters: called after the estimates and their intervals are printed and written, so they stay readable.
+
+    Raises
+    ------
+    InsufficientDataError
+        Every parameter not given is NOT DETERMINED (one line naming the options that would determine them).
+    """
+    unknown = [e.name for e in ident.estimates if not e.known]
+    if not unknown or set(unknown) - set(ident.undetermined):
+        return
+    raise InsufficientDataError(
+        f"none of {', '.join(unknown)} is determined by these data (each estimate is one point of the range they "
+        "leave open, not a value to use): give known values with --param NAME=VALUE, or measure at another phase "
+        "(a relay test with another beta, hysteresis or none)")
 
 
 @dataclass(frozen=True)

@@ -61,9 +61,9 @@ from ..errors import InputError
 from ..io.hover import HOVER_TOPIC, LoggedHoverThrust
 from ..mrft.model import LoopModel
 from ..mrft.controller import PX4VelocityPath
-from .closed_loop import Controller, RateFilter
+from .closed_loop import Controller, PlantStack, RateFilter, as_discrete
 from .export import unit_reasons
-from .margins import Margins, loop_margins
+from .margins import Margins, loop_margins, margin_response, stack_sensitivity
 from .px4_xy import px4_xy_controller, px4_xy_ticks, written_loop
 from .stack_params import STANDARD_GRAVITY, check_ranges, param
 
@@ -632,16 +632,22 @@ def _inside_ranges(c: Controller, model: LoopModel, stack: str, loop: str, hover
             return float(criterion(t, y[:1])[0])
         return iae(loop_of(r, v))
 
-    limit = max(float(np.max(loop_margins(c, models).Ms)),
-                float(np.max(loop_margins(loop_of(ratio, c.Kd * per_kd), models).Ms)))
+    # the scan reads Ms alone: the plants' response once, Ms without the other margins (the same figures)
+    plants = PlantStack.of(as_discrete(models, c.rate_hz))
+    response = margin_response(plants, c.rate_hz)
+
+    def worst_ms(ctrl: Controller) -> float:
+        ms, stable = stack_sensitivity(ctrl, plants, response)
+        return float(np.max(ms)) if bool(np.all(stable)) else math.inf
+
+    limit = max(worst_ms(c), worst_ms(loop_of(ratio, c.Kd * per_kd)))
     if not math.isfinite(limit):
         return c  # c itself is unstable on some model: no Ms to hold (the refusal follows)
     r_in = rz.clamp(ratio)
     best: tuple[float, float] | None = None
     least: tuple[float, float] | None = None  # (gain, worst Ms): when none holds the limit
     for v in np.geomspace(rv.minimum, rv.maximum, 48):
-        lm = loop_margins(loop_of(r_in, float(v)), models)
-        worst = float(np.max(lm.Ms)) if bool(np.all(lm.stable)) else math.inf
+        worst = worst_ms(loop_of(r_in, float(v)))
         if least is None or worst < least[1]:
             least = (float(v), worst)
         if worst <= limit:

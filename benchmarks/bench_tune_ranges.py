@@ -1,0 +1,113 @@
+"""Benchmark: ``tune --export``'s design inside the stack's ranges (issue 37's scan), against the path it replaces.
+
+:func:`mrftcli.tune.stacks._inside_ranges` scans 48 gains of the stack's range, each loop on the nominal model and
+up to 40 posterior draws, and reads only the worst Ms and the stability. It used to call
+:func:`~mrftcli.tune.margins.loop_margins` per gain (the plants discretised again, every margin refined, the delay
+margin's rediscretised plants); it now discretises once and calls
+:func:`~mrftcli.tune.margins.stack_sensitivity` (Ms and stability only, the same computation).
+
+Cases: the paper's four platforms (checks.md Table III, Td and tau with the reported standard deviations as the
+posterior, ``--draws`` draws on a fresh ``--seed``), robust PD designed at each stack's rate and filter
+(:func:`~mrftcli.tune.stacks.stack_setting`), exported to PX4 (altitude, x, roll) and ArduPilot (roll, pitch) with
+the hover thrust 0.5 (K = g / 0.5 for the thrust loops). Per case, both paths run in this process: the exported
+values, margins and notes must be equal (printed: ``same``), and the CPU of ``export_design`` for each.
+
+Run: ``python benchmarks/bench_tune_ranges.py [--seed 7] [--draws 80]`` (about a minute on a busy core).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import numpy as np
+
+from mrftcli.mrft.model import LoopModel
+from mrftcli.tune import stacks
+from mrftcli.tune.design import DesignOptions, Posterior, tune
+from mrftcli.tune.margins import loop_margins
+from mrftcli.tune.stack_params import STANDARD_GRAVITY
+
+HOVER = 0.5
+TABLE_III = [  # platform, loop, Tp, Td mean, Td std, tau mean, tau std (checks.md section 4)
+    ("Design I", "roll", 0.0422, 1.301, 0.8395, 0.0297, 0.0042),
+    ("Design I", "altitude", 0.0422, 2.669, 0.6612, 0.0464, 0.0012),
+    ("Design II", "roll", 0.0499, 0.887, 0.4574, 0.0228, 0.0053),
+    ("Design II", "altitude", 0.0499, 1.8345, 0.1754, 0.0498, 0.0017),
+]
+#: (stack, loop) exported from a roll row and from an altitude row (x: the altitude plant as a position loop)
+EXPORTS = {"roll": (("px4", "roll"), ("ardupilot", "roll"), ("ardupilot", "pitch")),
+           "altitude": (("px4", "altitude"), ("px4", "x"))}
+
+
+@contextmanager
+def old_scan(models_of: list) -> Iterator[None]:
+    """The path before: every gain's loop through :func:`loop_margins` on the models (discretised each call)."""
+    new = stacks.stack_sensitivity
+
+    def full(ctrl, plants, response):  # noqa: ARG001  (the old path recomputes both)
+        lm = loop_margins(ctrl, models_of[0])
+        return lm.Ms, lm.stable
+
+    stacks.stack_sensitivity = full
+    try:
+        yield
+    finally:
+        stacks.stack_sensitivity = new
+
+
+def _case(row: tuple, stack: str, loop: str, seed: int, draws: int):
+    _, kind, Tp, Td, Td_std, tau, tau_std = row
+    K = STANDARD_GRAVITY / HOVER if kind == "altitude" else 1.0
+    model = LoopModel(Tp, Td, tau, K)
+    post = Posterior.from_spread(model, Td_std, tau_std, 0.0, n=draws, seed=seed, source="bench")
+    st = stacks.stack_setting(stack, loop, None, 250.0, None)
+    res = tune(model, st.rate_hz, posterior=post, loop=loop,
+               options=DesignOptions(kinds=("PD",), rate_filter=st.rate_filter))
+    c = res.get("robust", "PD").controller
+    kept = post.models(np.flatnonzero(post.in_set()))
+    return model, c, tuple(kept)
+
+
+def _export(stack: str, loop: str, model: LoopModel, c, kept) -> tuple[object, float]:
+    t = time.process_time()
+    e = stacks.export_design(stack, c, model, loop, "robust PD", hover_thrust=HOVER,
+                             evidence=stacks.ExportEvidence(posterior_models=kept))
+    return e, time.process_time() - t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--draws", type=int, default=80)
+    a = ap.parse_args()
+    ratios, new_total, old_total, same_all = [], 0.0, 0.0, True
+    print(f"{'case':34s} {'scanned':>7s} {'new s':>7s} {'old s':>7s} {'ratio':>6s}  outputs")
+    for row in TABLE_III:
+        for stack, loop in EXPORTS[row[1]]:
+            model, c, kept = _case(row, stack, loop, a.seed, a.draws)
+            e_new, t_new = _export(stack, loop, model, c, kept)
+            models = [model, *kept[:: max(1, len(kept) // 40)]]
+            with old_scan([models]):
+                e_old, t_old = _export(stack, loop, model, c, kept)
+            same = (e_new.params == e_old.params and e_new.margins == e_old.margins and e_new.notes == e_old.notes)
+            same_all &= same
+            scanned = any("designed inside them" in n or "designed with it" in n for n in e_new.notes)
+            new_total, old_total = new_total + t_new, old_total + t_old
+            if scanned:
+                ratios.append(t_old / t_new)
+            name = f"{row[0]} {row[1]} -> {stack} {loop}"
+            print(f"{name:34s} {str(scanned):>7s} {t_new:7.2f} {t_old:7.2f} {t_old / t_new:6.2f}  "
+                  f"{'same' if same else 'DIFFER'}")
+    med = statistics.median(ratios) if ratios else math.nan
+    print(f"CPU of export_design, all cases: new {new_total:.2f} s, old {old_total:.2f} s "
+          f"(ratio {old_total / new_total:.2f}x; median {med:.2f}x over the {len(ratios)} scanned cases); "
+          f"outputs {'identical' if same_all else 'DIFFER'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -393,7 +393,7 @@ def outer_options(needs: str, commands: str) -> Callable[[Callable[..., Any]], C
                             type=click.Choice(["acceleration", "attitude", "identify"]), default="acceleration",
                             show_default=True,
                             help=f"With {needs}: what the outer {commands}, an acceleration [m/s^2] (K = 1) or an "
-                                 "attitude [rad] (K = g = 9.81), or identify K (two betas needed). Stated in the "
+                                 "attitude [rad] (K = g = 9.80665 m/s^2), or identify K (two betas needed). Stated in the "
                                  "output.")(f)
     return decorate
 

@@ -6,7 +6,7 @@ followed by the translational dynamics (issue 23; the paper's Section V leaves i
     G_outer(s) = K T_inner(s) Td e^{-tau s} / (s (Td s + 1))
 
 with T_inner the inner loop closed by its *sampled* controller, K known (1 for a commanded
-acceleration, g = 9.81 for a commanded attitude in rad) or identified, and Td [s], tau [s] the
+acceleration, g = 9.80665 m/s^2 for a commanded attitude in rad) or identified, and Td [s], tau [s] the
 outer loop's drag time constant and delay. The inner loop is sampled, so the exact object is
 discrete-time: :meth:`CascadeModel.discrete_realisation` is its exact zero-order-hold realisation
 at the controller rate, from the outer relay's command (held over a tick) to the outer output
@@ -54,7 +54,7 @@ from .propagate import phi_gamma
 from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parameter_values, model_from_json, model_json, \
     model_json_parameters
 
-__all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G",
+__all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G", "STANDARD_GRAVITY",
            "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit", "delayed_discrete", "fraction_discrete",
            "orbits", "split_interval", "whole_and_fraction"]
 
@@ -63,8 +63,11 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 _INF = math.inf
-#: standard gravity [m/s^2]: K of a commanded attitude [rad] (the lateral acceleration per radian of tilt)
-G = 9.81
+#: standard gravity g [m/s^2] (CGPM's, PX4's CONSTANTS_ONE_G): the package's one g (the stacks' thrust scaling in
+#: tune, the simulator's y'' = g phi, the cascade's K)
+STANDARD_GRAVITY = 9.80665
+#: K of a commanded attitude [rad] (the lateral acceleration per radian of tilt) [m/s^2]: g
+G = STANDARD_GRAVITY
 #: version of :meth:`InnerLoop.to_json`
 INNER_LOOP_SCHEMA_VERSION = 1
 #: the inner (attitude) loop each outer loop goes through: a y displacement needs a roll, x a pitch
@@ -329,7 +332,7 @@ class CascadeModel(SpecModel):
         Outer transport delay [s] (on the measured output), >= 0.
     K : float
         Gain from the inner output to the acceleration [output / (inner output s^2)]: 1 for a
-        commanded acceleration, :data:`G` = 9.81 for a commanded attitude in rad.
+        commanded acceleration, :data:`G` = g = 9.80665 for a commanded attitude in rad.
     known : frozenset of str
         The set E (default: K).
     ranges : tuple of (str, float, float)

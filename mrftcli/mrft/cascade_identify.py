@@ -330,7 +330,7 @@ def fit_cascade_cycles(tests: Sequence[TestMeasurement], model: CascadeModel, ra
         raise IdentificationError("the cascade identification needs every test's amplitude and relay height h")
     if K is None and len({round(t.beta, 3) for t in tests}) < 2:
         raise IdentificationError("identifying K needs tests at two different beta; or state K (1 for a commanded "
-                                  "acceleration, 9.81 for a commanded attitude in rad)")
+                                  f"acceleration, {G:g} for a commanded attitude in rad)")
     lo_td, hi_td = Td_bounds
     if not (0 < lo_td < hi_td) or not (0 <= tau_bounds[0] < tau_bounds[1]):
         raise InputError(f"bad bounds: Td {Td_bounds}, tau {tau_bounds} (need 0 < low < high)")

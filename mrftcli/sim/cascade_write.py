@@ -3,7 +3,7 @@
 Two layouts (docs/log-layout.md, docs/simulator.md):
 
 * ``hear-ros`` (a ROS 1 bag, as HEAR records a cascade): ``/fh_des`` (the outer command, x or y;
-  z the hover thrust 9.81), ``/angle_u`` (the inner commands: x roll, y pitch), ``/opti/pos`` and
+  z the hover thrust g = 9.80665 m/s^2), ``/angle_u`` (the inner commands: x roll, y pitch), ``/opti/pos`` and
   ``/opti/ori`` (position and attitude as measured), ``/waypoint_reference/pos`` and ``/angle_ref``
   (the attitude setpoint) at a tenth of the rate; ``geometry_msgs/Point`` has no header, so every message is stamped at
   its receive time (1 ms plus a half-normal 2 ms late, increasing per topic). Both loops' tests are
@@ -30,6 +30,7 @@ from ..errors import InputError
 from ..io.logtypes import TopicData
 from ..io.stacks import hear_receive_times
 from .cascade import CascadeFlight
+from .cascade_spec import STANDARD_GRAVITY
 from .sidecar import imu_topic, write_log_atomic, write_sidecar
 
 __all__ = ["CASCADE_LAYOUTS", "cascade_topics", "write_cascade"]
@@ -99,7 +100,7 @@ def _hear_topics(flight: CascadeFlight, rng: np.random.Generator) -> list[TopicD
     pos = xyz(z=np.ones(n), **{axis: flight.position_measured})
     ref = np.arange(0, n, 10)
     return [
-        TopicData("/fh_des", point, hear_receive_times(t, rng), xyz(z=np.full(n, 9.81), **{axis: flight.outer_command})),
+        TopicData("/fh_des", point, hear_receive_times(t, rng), xyz(z=np.full(n, STANDARD_GRAVITY), **{axis: flight.outer_command})),
         TopicData("/angle_u", point, hear_receive_times(t, rng), xyz(**{angle_axis: inner})),
         TopicData("/opti/pos", point, hear_receive_times(t, rng), pos),
         TopicData("/opti/ori", point, hear_receive_times(t, rng), xyz(x=roll, y=pitch)),

@@ -53,3 +53,24 @@ def test_a_refinement_that_does_not_bound_td_stops_at_the_week():
     assert r.Td.value <= MAX_TIME_S and r.model.Td <= MAX_TIME_S
     assert r.Td.value > 1e4  # it did walk towards no damping
     assert not r.accepted
+
+
+def test_a_refinement_whose_interval_runs_past_the_week_is_refused():
+    """The same undamped loop from another start: the fit stopped on the flat cost at Td = 5.6e5 s, short of the
+    week, with a 95 % interval 1.5e5-2.1e6 s, and was accepted (the MRFT interval, open above, let it pass):
+    a Td the waveform does not bound is now refused as the fit at the bound is; tau and K are not the reason."""
+    Tp, tau, K = 0.05, 0.03, 4.0
+    log = simulate_relay_flight(Tp, 1e12, tau, K, [(-0.4, 0.1, 6.0), (-0.7, 0.1, 6.0)], rate_hz=100.0,
+                                noise_std=0.0005)
+    windows = [CommandWindow.between(t0, t1, log.t, log.command, log.t, log.y_meas, 0.5, COMMAND_HISTORY)
+               for t0, t1, _, _ in log.test_windows]
+    start = LoopModel(Tp, 1e5, tau, K)
+    mrft = {"Td": ParameterEstimate(1e5, math.nan, 5e4, math.nan, "s"),  # open above, as a td_open MRFT's
+            "tau": ParameterEstimate(tau, 1e-3, tau - 0.005, tau + 0.005, "s"),
+            "K": ParameterEstimate(K, 0.1, 0.8 * K, 1.2 * K, "")}
+    r = refine(windows, start, mrft)
+    assert r.fit.p[0] < loop_model_bounds(Tp)[1][0] - 1e-3  # stopped short of the week ...
+    assert r.Td.ci95_high > MAX_TIME_S  # ... with an interval past it
+    assert r.tau.value == pytest.approx(tau, abs=1e-3) and r.K.value == pytest.approx(K, rel=0.01)
+    assert not r.accepted and len(r.reasons) == 1
+    assert r.reasons[0].startswith("the waveform does not bound Td (its fit's 95 % interval reaches")

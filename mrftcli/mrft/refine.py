@@ -513,6 +513,11 @@ def refine(windows: Sequence[CommandWindow], start: LoopModel, mrft: Mapping[str
     if lnTd >= _LN_TD_MAX - _AT_BOUND:
         reasons.append("the waveform does not bound Td (its fit ran past a week: the damping is not seen in "
                        "these windows)")
+    elif not Td_est.ci95_high <= MAX_TIME_S:
+        # the fit stopped short of the week on a cost flat in ln Td: where it stopped is not a value (the same
+        # windows gave 151 s to 5.6e5 s from different starts), so its Td is refused as at the bound
+        reasons.append(f"the waveform does not bound Td (its fit's 95 % interval reaches {Td_est.ci95_high:.3g} s, "
+                       "past a week: the damping is not seen in these windows)")
     for name, scale, unit in (("Td", 1.0, " s"), ("tau", 1e3, " ms"), ("K", 1.0, "")):
         why = _outside(name, est[name].value, mrft[name], interval_factor, scale, unit)
         if why:

@@ -382,6 +382,33 @@ def test_every_flown_test_counts_in_the_held_out_figure() -> None:
         [0.036, 0.015, np.inf])
 
 
+def test_the_misses_are_classed_by_how_the_flight_was_flown_and_every_flown_test_counted() -> None:
+    """The benchmark's classes of the held-out misses (issue 42): set by the loop and relay height flown, every
+    flown test counted once (refused, not found, over 5 %, within), the over-5 % tests' |z| and own standard
+    errors collected per class: counts checked by hand."""
+    from miss_classes import classify, miss_class
+    from sitl_analysis import HeldOut
+
+    assert [miss_class("altitude", 0.05), miss_class("altitude", 0.25), miss_class("y", 0.16),
+            miss_class("pitch", 0.3)] == ["altitude, h <= 0.15", "altitude, h 0.25", "x / y", "roll / pitch"]
+
+    def row(z: float, sem: float, error: float | None = None) -> dict[str, float | None]:
+        return {"z": z, "sem": sem, "error": error}
+
+    ho = [HeldOut(i, -0.4, 0.05, 1.0, 1.0 + e, (1.0, 0.01, 20.0)) for i, e in enumerate((0.01, -0.30, 0.06))]
+    results = {"a": {"loop": "altitude", "flown": 4, "found": 3, "held": ho,
+                     "jitter": [row(0.2, 0.01), row(1.9, 0.09), row(-2.6, 0.04)]},
+               "r": {"loop": "roll", "flown": 3, "found": 3, "held": [], "held_rate": [0.056, 0.02],
+                     "jitter": [row(-1.2, 0.02, 0.056), row(0.8, 0.01, None), row(0.1, 0.01, 0.02)]},
+               "x": {"loop": "x", "flown": 4, "found": 0, "held": [], "refused": "no"}}
+    c = classify(results, {"a": 0.06, "r": 0.05, "x": 0.08})
+    assert c["altitude, h <= 0.15"]["counts"] == {"not found": 1, "within": 1, "over": 2}
+    assert c["altitude, h <= 0.15"]["z"] == pytest.approx([1.9, 2.6])
+    assert c["altitude, h <= 0.15"]["sem_miss"] == pytest.approx([0.09, 0.04])
+    assert c["roll / pitch"]["counts"] == {"over": 1, "not predicted": 1, "within": 1}
+    assert c["x / y"]["counts"] == {"refused": 4}
+
+
 def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_uncertainty() -> None:
     """Why the first pair's held-out frequencies miss by 6-30 %: the relay switches on EKF2's altitude, whose
     error (several cm, slow) moves the switches of 1-4 cm cycles, so one test's cycles spread 10-22 % in

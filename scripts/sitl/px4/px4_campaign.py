@@ -35,6 +35,7 @@ from px4_sitl import SIH_MODEL, Px4Sitl, fly_mrft, load_params, read_qgc_params 
 from sitl import SitlError  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
+from miss_classes import report_classes  # noqa: E402
 from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
@@ -414,7 +415,7 @@ def analyse_rate(name: str, log: Path, side: dict[str, Any], delay: float) -> di
                            "held_misses": []}
     try:
         res, errs = _rate_fit(log, loop, side["tp_s"], None, command)
-        out.update(found=len(res.tests), tau=res.tau.value, held_rate=errs)
+        out.update(found=len(res.tests), tau=res.tau.value, held_rate=errs, jitter=held_out_jitter(res))
         print(f"  {name:18s} tests {len(res.tests)}/{len(side['tests'])}  Td {res.Td.value:.3f} s  tau "
               f"{res.tau.value * 1e3:.2f} ms  K {res.K.value:.1f} on EKF2's attitude at Tp {side['tp_s'] * 1e3:g} ms; "
               "held out " + ", ".join(f"{e * 100:+.2f} %" for e in errs))
@@ -471,6 +472,7 @@ def report(results: dict[str, dict[str, Any]]) -> None:
               f"{max(errs) * 100:.2f} %, median {np.median(errs) * 100:.2f} %, "
               f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
         _report_misses(results)
+        report_classes(results, {name: max(h for _, h in tests) for name, _, _, tests, _ in FLIGHTS})
         lateral = [k for k, _ in CASCADES if "cascade" in results.get(k, {})]
         if lateral:
             alt = [e for k, r in results.items() if k not in lateral for e in counted_errors(r)]

@@ -32,7 +32,6 @@ NO_JSON = {
 FORMAT_EXCEPTIONS = {
     "simulate": "it writes a log: the formats it can write",
     "topics": "free text, so that the reader names an unknown format itself (the help lists every format)",
-    "tune": "a hidden, deprecated alias of --export; the log's format is --log-format",
 }
 #: What --out names per command (docs/usage.md, "One grammar").
 OUT_KIND = {"batch": "folder", "build-ufm": "folder", "simulate": "file", "tune": "file", "vehicle": "file"}
@@ -132,6 +131,26 @@ def test_format_is_the_log_format():
             continue
         assert isinstance(param.type, click.Choice) and tuple(param.type.choices) == READ_FORMATS, name
     assert "mat" in (_where("--format")["topics"].help or "")
+
+
+def test_tunes_log_format_is_format_with_its_old_names_hidden(tmp_path):
+    """tune read the log format with --log-format (its --format was the deprecated --export): --format is now the
+    log format as in every command; --log-format is a hidden alias (a note), --format table|json|hear|px4 the
+    deprecated export (a note), both names at once refused."""
+    from cli_helpers import run_main
+
+    tune = COMMAND_OBJECTS["tune"]
+    assert "--log-format" not in _options(tune)
+    assert [p.hidden for p in tune.params if isinstance(p, click.Option) and "--log-format" in p.opts] == [True]
+    log = tmp_path / "flight.log"
+    log.write_bytes(b"\x00\x01 not a log")
+    base = ("tune", str(log), "--tp", "0.04", "--loop", "altitude")
+    new, old = run_main(*base, "--format", "csv"), run_main(*base, "--log-format", "csv")
+    assert new.returncode == old.returncode == 3 and "not a CSV" in new.stderr
+    assert "--log-format is deprecated; use --format FMT" in old.stderr and "deprecated" not in new.stderr
+    both = run_main(*base, "--log-format", "csv", "--format", "csv")
+    assert both.returncode == 2 and "give --format only" in both.stderr
+    # --format json (the deprecated export) still designs: test_exports::test_cli_export_options_checked_first
 
 
 def test_quiet_on_every_command_with_a_progress_bar():

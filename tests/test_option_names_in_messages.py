@@ -52,10 +52,10 @@ def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.parametrize(("command", "option"), [(("analyze",), "--format"), (("tune", "--loop", "altitude"),
-                                                                               "--log-format")])
+                                                                               "--format")])
 def test_an_unknown_log_format_names_the_commands_own_option(tmp_path: Path, command, option):
-    """tune calls the log format --log-format (its --format is the deprecated --export): the
-    readers' advice names it there."""
+    """The readers' advice names --format, the log format's option in every command (tune's was --log-format,
+    now its hidden alias)."""
     (tmp_path / "flight.log").write_bytes(b"\x00\x01 not a log")
     p = _run(command[0], "flight.log", "--tp", "0.04", *command[1:], cwd=tmp_path)
     assert p.returncode == 3, p.stderr

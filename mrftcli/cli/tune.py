@@ -53,15 +53,54 @@ class ExportOptions:
 
 
 def _resolve_export(fmt: str | None, export: str | None) -> str | None:
-    """``--export``, or the deprecated ``--format`` it replaces (a note on stderr)."""
+    """``--export``, or the deprecated ``--format table|json|hear|px4`` it replaces (a note on stderr)."""
     if fmt is None:
         return export
     if export is not None:
-        raise InputError("give --export only (--format is its deprecated alias)")
+        raise InputError(f"give --export only (--format {fmt} is its deprecated alias)")
     new = _FORMAT_ALIAS[fmt]
-    click.echo(f"note: --format is deprecated and will be removed in the next release; use "
+    click.echo(f"note: --format {fmt} (an export) is deprecated and will be removed in the next release (--format "
+               f"names the log format, as in every command); use "
                f"{'--export ' + new if new else 'no option (the table is the default)'}", err=True)
     return new
+
+
+#: where the format callbacks leave the deprecated names' values (click's context meta)
+_EXPORT_ALIAS_KEY, _LOG_FORMAT_KEY = "mrftcli.tune.export_alias", "mrftcli.tune.log_format_alias"
+
+
+def _log_format_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``--format FMT``, the log format read as in every command (received as ``log_fmt``), with the hidden
+    ``--log-format`` (its name before, same meaning) and the deprecated ``--format table|json|hear|px4`` (the
+    export, before; values disjoint from the log formats) still taken, each with a note."""
+    from ..io import READ_FORMATS
+
+    class LogFormat(click.Choice):
+        """The log formats (help, completion, errors); an old export value is handed on to ``merge``."""
+
+        def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+            return value if value in _FORMAT_ALIAS else super().convert(value, param, ctx)
+
+    def old_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+        if value is not None:
+            click.echo("note: --log-format is deprecated; use --format FMT (same meaning)", err=True)
+            ctx.meta[_LOG_FORMAT_KEY] = value
+        return value
+
+    def merge(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+        if value in _FORMAT_ALIAS:
+            ctx.meta[_EXPORT_ALIAS_KEY], value = value, None
+        old = ctx.meta.get(_LOG_FORMAT_KEY)
+        if old is not None and value is not None:
+            raise click.BadParameter("give --format only (--log-format is its deprecated name)")
+        return value if value is not None else old
+
+    # eager: the old name is read before --format whatever the order on the command line
+    alias = click.option("--log-format", type=click.Choice(READ_FORMATS), default=None, hidden=True,
+                         expose_value=False, is_eager=True, callback=old_name)
+    main = click.option("--format", "log_fmt", type=LogFormat(READ_FORMATS), default=None, callback=merge,
+                        help="Log format (default: detected from the file; --log-format, its old name, still works).")
+    return main(alias(func))
 
 
 @dataclass(frozen=True)
@@ -434,7 +473,9 @@ class _XYIntegralOption(click.Option):
 @structure_options
 @click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
 @tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required, except for a cascade RESULT.json (analyze --inner-model), which carries its inner loop's.")  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
-@log_layout_options(format_flag="--log-format")
+@_log_format_options
+@log_layout_options(only=("loop", "layout", "command_topic", "output_topic", "beta_topic", "setpoint_topic",
+                          "output_scale", "command_scale", "controller_rate_hz", "time_unit"))
 @min_cycles_option(detail=" (as analyze)")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
 @click.option("--tau", type=float, help="tau [s], with --td.")
@@ -466,8 +507,6 @@ class _XYIntegralOption(click.Option):
                    "ACCZ_ to PSC_D_POS_/D_VEL_/D_ACC_); default: the current stable release, 4.7, named in the file.")
 @click.option("--clamp", is_flag=True, help="Export values outside the stack's ranges at the bound (the "
               "resulting margins are stated) instead of refusing.")
-@click.option("--format", "fmt", type=click.Choice(["table", "json", "hear", "px4"]), default=None, hidden=True,
-              help="Deprecated alias of --export (json = generic).")
 @click.option("--design", type=click.Choice(["robust", "model-based", "mrft-rule"]), default=None,
               help="Design exported (default: robust, else model-based).")
 @click.option("--kind", type=click.Choice(["PD", "PI", "PID"]), default="PD", show_default=True,
@@ -477,7 +516,7 @@ class _XYIntegralOption(click.Option):
               help="Write plots (Bode with margins, step responses with the posterior band) and index.html to DIR.")
 @quiet_option()
 def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std, tau_std, k_std, objective, ms_max, effort_max,
-         export, out, gyro_cutoff, hover_thrust, xy_integral, stack_version, clamp, fmt, design, kind, json_target, report_dir, quiet,
+         export, out, gyro_cutoff, hover_thrust, xy_integral, stack_version, clamp, design, kind, json_target, report_dir, quiet,
          **read_options):
     """PD and PID gains for the identified loop: MRFT rule, model-based and robust designs.
 
@@ -502,6 +541,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         raise InputError(f"{len(sources)} sources: give one SOURCE, or a roll and a pitch RESULT.json with "
                          "--export px4|ardupilot")
     cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
+    fmt = click.get_current_context().meta.get(_EXPORT_ALIAS_KEY)  # the deprecated --format table|json|hear|px4
     ex = ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version, xy_integral)
     if stack_version is not None and ex.stack != "ardupilot":
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")

@@ -342,8 +342,7 @@ READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint
                 "command_scale", "layout", "controller_rate_hz", "fmt", "time_unit")
 
 
-def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--format",
-                       only: tuple[str, ...] | None = None):
+def log_layout_options(*, config_defaults: bool = False, only: tuple[str, ...] | None = None):
     """The options that say how to read a loop from a log, shared by every command that reads one.
 
     ``--format``, ``--layout``, ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``,
@@ -351,10 +350,9 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
     (not for batch); the command receives them under
     the names of :data:`READ_OPTIONS` (those of :func:`mrftcli.io.read_flight`). With
     ``config_defaults`` (batch) ``--loop`` defaults to None so that a per-log config file can fill it,
-    and may be repeated; batch finds its logs by name and has no ``--format``. ``format_flag`` renames
-    ``--format`` for a command whose ``--format`` already means something else (tune: ``--log-format``,
-    received as ``log_fmt``). ``only``: those of these options (by the names they are received under) that
-    apply to a whole flight (vehicle: ``fmt``, ``layout``, ``controller_rate_hz``, ``time_unit``).
+    and may be repeated; batch finds its logs by name and has no ``--format``. ``only``: those of these options
+    (by the names they are received under) a command takes (vehicle: those that apply to a whole flight, ``fmt``,
+    ``layout``, ``controller_rate_hz``, ``time_unit``; tune: all but ``fmt``, its ``--format`` being its own).
     """
     from ..io import LAYOUT_NAMES, READ_FORMATS, TIME_UNITS
     from ..io.logtypes import LOOPS
@@ -398,13 +396,11 @@ def log_layout_options(*, config_defaults: bool = False, format_flag: str = "--f
                  "says, else s); a log whose command rate is below 1 Hz or above 100 kHz is refused "
                  "with the unit that fits.")))
         options.insert(0, ("fmt", click.option(
-            format_flag, "fmt" if format_flag == "--format" else "log_fmt", type=click.Choice(READ_FORMATS), default=None,
+            "--format", "fmt", type=click.Choice(READ_FORMATS), default=None,
             help="Log format (default: detected from the file).")))
     chosen = [option for name, option in options if only is None or name in only]
 
     def decorate(func):
-        if format_flag != "--format" and not config_defaults:
-            func = _log_errors_naming(format_flag, func)
         if not config_defaults and (only is None or "loop" in only):
             func = _process_loop(func)
         for option in reversed(chosen):
@@ -429,31 +425,6 @@ def _process_loop(func):
                 and ctx.get_parameter_source("loop") is click.core.ParameterSource.DEFAULT):
             kwargs["loop"] = PROCESS_LOOP
         return func(*args, **kwargs)
-    return wrapper
-
-
-def _log_errors_naming(format_flag: str, func):
-    """``func`` whose log-reading errors name ``format_flag`` where the readers say ``--format``.
-
-    The readers (io/) word their refusals for the commands that call the option ``--format``; in a
-    command that calls it otherwise (tune: ``--log-format``, its ``--format`` being the deprecated
-    ``--export``) the same advice must name the option that exists. Only a
-    :class:`~mrftcli.errors.LogReadError` is reworded: the command's own messages name its options.
-    """
-    import functools
-    import re
-
-    from ..errors import LogReadError
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        try:
-            return func(*args, **kwargs)
-        except LogReadError as err:
-            err.args = tuple(re.sub(r"(?<![\w-])--format(?![\w-])", format_flag, a) if isinstance(a, str) else a
-                             for a in err.args)
-            raise
-
     return wrapper
 
 

@@ -312,11 +312,24 @@ def _jitter_delays(rng: np.random.Generator, relay: SampledRelay, tau: float, T:
     return np.maximum(fifo_delays(gauss_markov(innov, phi), tau, T) - tau, -tau)
 
 
+#: the arrival-time tolerance [s] of the actuator's pieces within a tick (:func:`_tick`)
+_ARRIVAL_TOL = 1e-15
+
+
 def _tick(loop: _Loop, stepper: _PlantStepper, k: int, T: float) -> float:
     """Propagate the loop over tick ``k`` (the actuator's pieces within it); the measured output at its end."""
     t_end = (k + 1) * T
+    pend = loop.pending
+    if ((not pend or pend[0][0] > t_end + _ARRIVAL_TOL) and (loop.act == loop.target or stepper.plant.rate_limit == 0)
+            and loop.t < t_end - _ARRIVAL_TOL):
+        # nothing arrives and the actuator rests: the one piece actuator_pieces would return, without
+        # building it (most ticks of the sampled relay's runs; issue 39: the same arithmetic, so every bit)
+        hs = t_end - loop.t
+        x = stepper.advance(loop.x, T if abs(hs - T) < 1e-12 else hs, loop.act, 0.0)
+        loop.x, loop.t = x, t_end
+        return stepper.meas(x)
     pieces, loop.act, loop.target = actuator_pieces(loop.t, t_end, loop.pending, loop.act, loop.target,
-                                                    stepper.plant.rate_limit, tol=1e-15)
+                                                    stepper.plant.rate_limit, tol=_ARRIVAL_TOL)
     x = loop.x
     for _, hs, a, slope in pieces:
         if abs(hs - T) < 1e-12:
@@ -326,16 +339,13 @@ def _tick(loop: _Loop, stepper: _PlantStepper, k: int, T: float) -> float:
     return stepper.meas(x)
 
 
-def _sampled_switch(loop: _Loop, rule: MrftRelay, e: float, delay: float, h: float) -> bool:
-    """The log's relay decides on the noisy error ``e`` at this tick; True when it switched."""
-    new = rule.step(e)
-    switched = new != loop.relay
+def _sampled_switch(loop: _Loop, new: float, delay: float, h: float) -> None:
+    """The log's relay switched to ``new`` (its sign) at this tick: the command sent, reaching the
+    actuator ``delay`` [s] later."""
     loop.relay = new
-    if switched:
-        loop.t_last_switch = loop.t
-        loop.send(loop.t + max(delay, 0.0), loop.relay * h)
-        (loop.up if loop.relay > 0 else loop.down).append(loop.t)
-    return switched
+    loop.t_last_switch = loop.t
+    loop.send(loop.t + max(delay, 0.0), new * h)
+    (loop.up if new > 0 else loop.down).append(loop.t)
 
 
 def _continuous_switch(loop: _Loop, e: float, de: float, T: float, beta_up: float, beta_dn: float,
@@ -445,9 +455,18 @@ def run_relay(
                     state_at_up=loop.states)
 
 
+#: sensor-noise draws taken from the generator at once by the sampled relay (:func:`_run_sampled`)
+_NOISE_BLOCK = 1024
+
+
 def _run_sampled(loop: _Loop, stepper: _PlantStepper, relay: SampledRelay, beta_up: float, beta_dn: float, h: float,
                  n_cycles: int, max_steps: int, ys: list[float]) -> None:
-    """The tick loop of the sampled relay (the log's relay: one nominal beta, noisy samples, jitter)."""
+    """The tick loop of the sampled relay (the log's relay: one nominal beta, noisy samples, jitter).
+
+    A tick in which no command arrives and the actuator rests is the linear plant's whole-tick step,
+    written out here (the arithmetic of ``_Propagator.step``, so every bit of :func:`_tick`'s), and the
+    sensor noise is drawn in blocks after the jitter's draws (a Generator's stream does not depend on
+    how its draws are grouped): these runs were half a diagnosis' CPU on some logs (issue 39)."""
     if beta_up != beta_dn:
         raise ValueError("the sampled relay takes one beta")
     T, tau = stepper.prop.T, stepper.plant.tau
@@ -455,18 +474,55 @@ def _run_sampled(loop: _Loop, stepper: _PlantStepper, relay: SampledRelay, beta_
     # the log's relay decides with one (nominal) level: the MRFT rule, in the loop's state
     rule = MrftRelay(beta_up)
     rule.relay, rule.e_ext, rule.first_half = loop.relay, loop.e_ext, False
-    jit_eff = _jitter_delays(rng, relay, tau, T, max_steps) if relay.jitter_std > 0 else np.zeros(1)
+    jitter = relay.jitter_std > 0
+    jit_eff = _jitter_delays(rng, relay, tau, T, max_steps).tolist() if jitter else [0.0]
+    n_jit = len(jit_eff)
+    noisy, std, i_noise = relay.noise_std > 0, relay.noise_std, 0
+    noise: list[float] = []
+    # the whole tick's propagator, inline: linear plants only (quadratic drag and the rotor integrate)
+    inline = not (stepper.quad or stepper.rotor_plant is not None)
+    P, G0, G1 = stepper.prop.tick
+    n3, lag, bias = stepper.n == 3, stepper.lag, stepper.plant.input_bias
+    resting = stepper.plant.rate_limit == 0
+    max_gap = relay.max_gap
     for k in range(max_steps):
-        y_m = _tick(loop, stepper, k, T)
+        t_end = (k + 1) * T
+        pend = loop.pending
+        if (inline and (not pend or pend[0][0] > t_end + _ARRIVAL_TOL) and (resting or loop.act == loop.target)
+                and loop.t < t_end - _ARRIVAL_TOL and abs((t_end - loop.t) - T) < 1e-12):
+            c0, c1 = loop.act + bias, 0.0
+            x: tuple
+            if n3:
+                x0, x1, x2 = loop.x
+                x = (P[0] * x0 + P[1] * x1 + P[2] * x2 + G0[0] * c0 + G1[0] * c1,
+                     P[3] * x0 + P[4] * x1 + P[5] * x2 + G0[1] * c0 + G1[1] * c1,
+                     P[6] * x0 + P[7] * x1 + P[8] * x2 + G0[2] * c0 + G1[2] * c1)
+            else:
+                x0, x1, x2, x3 = loop.x
+                x = (P[0] * x0 + P[1] * x1 + P[2] * x2 + P[3] * x3 + G0[0] * c0 + G1[0] * c1,
+                     P[4] * x0 + P[5] * x1 + P[6] * x2 + P[7] * x3 + G0[1] * c0 + G1[1] * c1,
+                     P[8] * x0 + P[9] * x1 + P[10] * x2 + P[11] * x3 + G0[2] * c0 + G1[2] * c1,
+                     P[12] * x0 + P[13] * x1 + P[14] * x2 + P[15] * x3 + G0[3] * c0 + G1[3] * c1)
+            loop.x, loop.t = x, t_end
+            y_m = x[-1] if lag else x[0]  # (the lag state is the last of four)
+        else:
+            y_m = _tick(loop, stepper, k, T)
         ys.append(y_m)
         if not math.isfinite(y_m) or abs(y_m) > 1e9:
             break
-        e = -(y_m + rng.normal(0.0, relay.noise_std)) if relay.noise_std > 0 else -y_m
-        delay = tau + (float(jit_eff[min(k + 1, jit_eff.size - 1)]) if relay.jitter_std > 0 else 0.0)
-        if _sampled_switch(loop, rule, e, delay, h):
-            if loop.relay > 0 and len(loop.up) >= n_cycles:
+        if noisy:
+            if i_noise == len(noise):
+                noise, i_noise = rng.normal(0.0, std, _NOISE_BLOCK).tolist(), 0
+            e = -(y_m + noise[i_noise])
+            i_noise += 1
+        else:
+            e = -y_m
+        new = rule.step(e)
+        if new != loop.relay:
+            _sampled_switch(loop, new, tau + (jit_eff[min(k + 1, n_jit - 1)] if jitter else 0.0), h)
+            if new > 0 and len(loop.up) >= n_cycles:
                 break
-        elif relay.max_gap is not None and loop.t - loop.t_last_switch > relay.max_gap:
+        elif max_gap is not None and loop.t - loop.t_last_switch > max_gap:
             break
 
 

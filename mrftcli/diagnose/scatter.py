@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -99,6 +99,9 @@ class ScatterSetting:
     n_window: int
     period: float
     warm: dict | None = None
+    #: each window's term of :func:`expected_period_variance` by (jitter std, seed, window): the
+    #: calibration reruns the reference's windows on the same random numbers (issue 39's CPU)
+    windows: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def scatter_sample(period: np.ndarray, amplitude: np.ndarray, regular: np.ndarray, dt: float) -> np.ndarray:
@@ -136,36 +139,47 @@ def expected_period_variance(setting: ScatterSetting, jitter_std: float, *, n_wi
     s = setting
     n_w = max(int(s.n_window), 4)
     skip = 1 if s.warm is not None else 6  # past the start-up (a warm run starts on the limit cycle)
-    dt = 1.0 / s.rate_hz
     num = 0.0
     dof = 0
-    # the plain MRFT rule can lock up on a noise-triggered false switch (docs/simulator.md); the log's
-    # relay evidently did not, so a run that locks up is restarted from the limit cycle with fresh
-    # random numbers (a fixed sequence of seeds: still common random numbers)
     for w in range(n_windows):
-        shift = ((w % DITHER) + 0.5) / DITHER - 0.5
-        plant = replace(s.plant, tau=max(s.plant.tau + shift * dt, 0.0))
-        for attempt in range(4):
-            relay = SampledRelay(noise_std=s.noise_std, jitter_std=jitter_std,
-                                 seed=seed + 7919 * attempt + 104729 * w, max_gap=5.0 * s.period)
-            run = run_relay(plant, s.beta, s.h, s.rate_hz, n_w + skip + 1, warm=s.warm, sampled=relay,
-                            max_time=(n_w + skip + 5) * 3.0 * s.period)
-            up = run.up[skip:]
-            if up.size < n_w + 1:
-                continue
-            P = np.diff(up)[:n_w]
-            k = np.searchsorted(run.t, up)
-            A = np.array([0.5 * (run.y[a:b].max() - run.y[a:b].min()) if b > a else np.nan
-                          for a, b in zip(k[:-1], k[1:])])[:n_w]
-            keep = scatter_sample(P, A, np.isfinite(A), dt)
-            n = int(keep.sum())
-            if n >= 3:
-                num += (n - 1) * float(np.var(P[keep], ddof=1))
-                dof += n - 1
-            break
+        key = (float(jitter_std), seed, w)
+        if key not in s.windows:
+            s.windows[key] = _window_term(s, jitter_std, seed, w, n_w, skip)
+        term = s.windows[key]
+        if term is not None:
+            num += term[0]
+            dof += term[1]
     if dof == 0:
         return float("nan"), 0
     return num / dof, dof
+
+
+def _window_term(s: ScatterSetting, jitter_std: float, seed: int, w: int, n_w: int, skip: int
+                 ) -> tuple[float, int] | None:
+    """Window ``w`` of :func:`expected_period_variance`: (n - 1) times the sample variance [s^2] of its
+    filtered periods and n - 1, or None (fewer than 3 cycles kept, or the relay never ran the window)."""
+    dt = 1.0 / s.rate_hz
+    shift = ((w % DITHER) + 0.5) / DITHER - 0.5
+    plant = replace(s.plant, tau=max(s.plant.tau + shift * dt, 0.0))
+    # the plain MRFT rule can lock up on a noise-triggered false switch (docs/simulator.md); the log's
+    # relay evidently did not, so a run that locks up is restarted from the limit cycle with fresh
+    # random numbers (a fixed sequence of seeds: still common random numbers)
+    for attempt in range(4):
+        relay = SampledRelay(noise_std=s.noise_std, jitter_std=jitter_std,
+                             seed=seed + 7919 * attempt + 104729 * w, max_gap=5.0 * s.period)
+        run = run_relay(plant, s.beta, s.h, s.rate_hz, n_w + skip + 1, warm=s.warm, sampled=relay,
+                        max_time=(n_w + skip + 5) * 3.0 * s.period)
+        up = run.up[skip:]
+        if up.size < n_w + 1:
+            continue
+        P = np.diff(up)[:n_w]
+        k = np.searchsorted(run.t, up)
+        A = np.array([0.5 * (run.y[a:b].max() - run.y[a:b].min()) if b > a else np.nan
+                      for a, b in zip(k[:-1], k[1:])])[:n_w]
+        keep = scatter_sample(P, A, np.isfinite(A), dt)
+        n = int(keep.sum())
+        return ((n - 1) * float(np.var(P[keep], ddof=1)), n - 1) if n >= 3 else None
+    return None
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from ..mrft.identify import ufm_slice
 from ..mrft.model import LoopModel
 from ..segment import MrftTest
 
-__all__ = ["Screening", "screen", "screen_usable", "screen_tests", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
+__all__ = ["Screening", "screen", "screen_usable", "screen_tests", "irregular_hint", "group_betas", "log_start", "describe_t0", "span", "describe_tests",
            "prefixed_notes", "no_usable_message", "WHICH_LOOP_HINT", "partial_single_beta", "low_rate_period", "ASSUMED_TD_RANGE"]
 
 #: Td range [s] assumed for the partial result of a single-beta log (multirotor drag time constants).
@@ -204,6 +204,33 @@ def describe_tests(tests: Sequence[MrftTest], t0: float = 0.0) -> str:
     return "; ".join(parts)
 
 
+def irregular_hint(test: MrftTest, min_stable_cycles: int) -> str:
+    """What to do about a test with cycles enough but too few of them stable because their periods scatter.
+
+    A test of at least ``2 * min_stable_cycles`` cycles whose periods spread (std over mean) more than the
+    stability criterion tolerates (``period_cap_rel``) did not lack time: the relay switched irregularly, on
+    noise or on an estimate's error that is a large part of the cycle (PX4 SITL's altitude at h 0.05: EKF2's
+    error 16-38 % of the cycle in its band, periods 0.35-1.6 s in one test; docs/benchmarks/sitl.md), and a
+    larger relay height lifts the cycle above it. ``""`` otherwise (a short test: "record longer tests" stands).
+
+    Examples
+    --------
+    A test whose ten periods run 0.46-1.06 s gets
+    ``"; its 10 cycles' periods spread 25 % (over the 15 % the stability criterion allows): ..."``.
+    """
+    periods = np.array([c.period for c in test.cycles], float)
+    periods = periods[np.isfinite(periods) & (periods > 0)]
+    cap = test.criterion.period_cap_rel
+    if periods.size < 2 * min_stable_cycles:
+        return ""
+    spread = float(np.std(periods, ddof=1) / np.mean(periods))
+    if spread <= cap:
+        return ""
+    return (f"; its {periods.size} cycles' periods spread {spread * 100:.0f} % (over the {cap * 100:.0f} % the "
+            "stability criterion allows): the relay switched irregularly, on noise or an estimate's error that "
+            "is a large part of the cycle; a larger relay height h lifts the cycle above it")
+
+
 def screen_tests(found: Sequence[MrftTest], min_stable_cycles: int, *, eq2: bool = True) -> dict[int, str]:
     """Which tests cannot be used, and why: {MrftTest.index: reason}.
 
@@ -221,7 +248,8 @@ def screen_tests(found: Sequence[MrftTest], min_stable_cycles: int, *, eq2: bool
         if v is not None and not v.follows_relay:
             reasons[t.index] = "the output does not follow this relay: " + "; ".join(v.reasons)
         elif t.n_stable < min_stable_cycles or (eq2 and not np.isfinite(t.beta_effective)):
-            reasons[t.index] = f"{t.n_stable} stable cycles (need {min_stable_cycles})"
+            reasons[t.index] = f"{t.n_stable} stable cycles (need {min_stable_cycles})" + irregular_hint(
+                t, min_stable_cycles)
         elif eq2 and v is not None and not v.ok:
             reasons[t.index] = "not an MRFT limit cycle of this output: " + "; ".join(v.reasons)
     if not eq2:
@@ -294,9 +322,14 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
         return (head + f"the loop gain of {out} has opposite signs in them "
                 f"({', '.join(f'{span(t, t0)}: {t.loop_sign:+d}' for t in found)}): the output is not the "
                 "signal the relay controls in all of them; is --output-topic right?")
+    irregular = [t for t in found if irregular_hint(t, min_stable_cycles)]
+    advice = ("record longer tests or check for noise/dropouts" if not irregular else
+              f"{len(irregular)} of them had cycles enough whose periods scatter beyond the stability criterion's "
+              f"{irregular[0].criterion.period_cap_rel * 100:.0f} % (the relay switched irregularly, on noise or an "
+              "estimate's error that is a large part of the cycle): fly a larger relay height h")
     return (f"{flight.path}: found {n} relay test(s) but none with {min_stable_cycles} or more stable "
-            f"cycles ({describe_tests(found, t0)}; times from the log start); record longer tests or check for "
-            "noise/dropouts" + (f" (or lower --min-cycles from {min_stable_cycles})" if min_stable_cycles > 3 else ""))
+            f"cycles ({describe_tests(found, t0)}; times from the log start); {advice}"
+            + (f" (or lower --min-cycles from {min_stable_cycles})" if min_stable_cycles > 3 else ""))
 
 
 def partial_single_beta(model: LoopModel, tests: Sequence[MrftTest], t0: float = 0.0) -> dict[str, Any]:

@@ -148,17 +148,18 @@ def run_case(case: dict) -> dict:
         write_log(flight_topics(rec, [b for b, _, _ in spec.tests]), path, "mcap")
         t0 = time.process_time()
         analysis, refusal = None, None
+        flight = read_flight(path, ReadOptions(loop="altitude"))  # read once, as `mrft-ident diagnose` does
         try:
-            analysis = analyze_flight(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp))
+            analysis = analyze_flight(flight, soiptd_model(Tp))
         except MrftError as exc:
             refusal = exc  # handed to diagnose, as the CLI does (analyze is not run twice)
-        out["cpu_analyze"] = time.process_time() - t0
+        out["cpu_analyze"] = time.process_time() - t0  # the read and analyze: `mrft-ident analyze`'s work
         out["analysed"] = analysis is not None  # analyze refused (one beta usable): its CPU is a refusal's
         t0 = time.process_time()
         try:
-            # as `mrft-ident diagnose` runs it: analyze's record reused (its segmentation; issue 39), or its refusal
-            res = diagnose(read_flight(path, ReadOptions(loop="altitude")), soiptd_model(Tp), analysis=analysis,
-                           refusal=refusal)
+            # as `mrft-ident diagnose` runs it: the same flight, analyze's record reused (its segmentation;
+            # issue 39) or its refusal; the CPU beyond analyze's
+            res = diagnose(flight, soiptd_model(Tp), analysis=analysis, refusal=refusal)
             out["error"], out["refused"] = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, out["error"] = None, f"{type(exc).__name__}: {exc}"

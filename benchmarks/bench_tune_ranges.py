@@ -4,7 +4,9 @@
 up to 40 posterior draws, and reads only the worst Ms and the stability. It used to call
 :func:`~mrftcli.tune.margins.loop_margins` per gain (the plants discretised again, every margin refined, the delay
 margin's rediscretised plants); it now discretises once and calls
-:func:`~mrftcli.tune.margins.stack_sensitivity` (Ms and stability only, the same computation).
+:func:`~mrftcli.tune.margins.stack_sensitivity` (Ms and stability only, the same computation). Ms's golden section
+(:func:`~mrftcli.tune.margins.sensitivity_peaks`, every margin computation's) now evaluates its two probes in one
+call of the loop's response; the old path below runs the previous golden section (a copy: two calls per step).
 
 Cases: the paper's four platforms (checks.md Table III, Td and tau with the reported standard deviations as the
 posterior, ``--draws`` draws on a fresh ``--seed``), robust PD designed at each stack's rate and filter
@@ -18,6 +20,7 @@ Run: ``python benchmarks/bench_tune_ranges.py [--seed 7] [--draws 80]`` (about a
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import statistics
 import time
@@ -31,6 +34,8 @@ from mrftcli.tune import stacks
 from mrftcli.tune.design import DesignOptions, Posterior, tune
 from mrftcli.tune.margins import loop_margins
 from mrftcli.tune.stack_params import STANDARD_GRAVITY
+
+_MARGINS = importlib.import_module("mrftcli.tune.margins")  # (the package re-exports a function of that name)
 
 HOVER = 0.5
 TABLE_III = [  # platform, loop, Tp, Td mean, Td std, tau mean, tau std (checks.md section 4)
@@ -53,11 +58,27 @@ def old_scan(models_of: list) -> Iterator[None]:
         lm = loop_margins(ctrl, models_of[0])
         return lm.Ms, lm.stable
 
-    stacks.stack_sensitivity = full
+    peaks = _MARGINS.sensitivity_peaks
+    stacks.stack_sensitivity, _MARGINS.sensitivity_peaks = full, old_peaks
     try:
         yield
     finally:
-        stacks.stack_sensitivity = new
+        stacks.stack_sensitivity, _MARGINS.sensitivity_peaks = new, peaks
+
+
+def old_peaks(at, L, lw, n=40):
+    """The previous :func:`~mrftcli.tune.margins.sensitivity_peaks` (its golden section: two calls per step)."""
+    dist = np.abs(1.0 + L)
+    k = np.argmin(dist, axis=-1)
+    rows = np.arange(L.shape[0])
+    a, b = lw[np.maximum(k - 1, 0)], lw[np.minimum(k + 1, lw.size - 1)]
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    for _ in range(n):
+        c, d = b - g * (b - a), a + g * (b - a)
+        left = np.abs(1.0 + at(rows, c)) < np.abs(1.0 + at(rows, d))
+        a, b = np.where(left, a, c), np.where(left, d, b)
+    x = 0.5 * (a + b)
+    return np.asarray(1.0 / np.minimum(dist[rows, k], np.abs(1.0 + at(rows, x))), float)
 
 
 def _case(row: tuple, stack: str, loop: str, seed: int, draws: int):

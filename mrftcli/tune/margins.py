@@ -233,12 +233,19 @@ def largest_holding(ok: Callable[[float], bool], scan: Sequence[float] | np.ndar
 
 
 def _golden_min(f: Callable[[np.ndarray], np.ndarray], lo: np.ndarray, hi: np.ndarray, n: int = 40) -> np.ndarray:
-    """The minimiser of each unimodal f on [lo, hi] by golden section (vectorised over the brackets)."""
+    """The minimiser of each unimodal f on [lo, hi] by golden section (vectorised over the brackets).
+
+    ``f`` takes both probes of every bracket stacked (2K points: the K first probes, then the K second) and
+    is evaluated elementwise. Why: one call of twice the size instead of two halves the loop evaluations'
+    per-call overhead, which dominates at tens of brackets (the same values: each point is computed alone;
+    ``benchmarks/bench_tune_ranges.py`` prints the ratio)."""
     g = (math.sqrt(5.0) - 1.0) / 2.0
     a, b = lo.copy(), hi.copy()
+    k = a.size
     for _ in range(n):
         c, d = b - g * (b - a), a + g * (b - a)
-        left = f(c) < f(d)
+        fcd = f(np.concatenate([c, d]))
+        left = fcd[:k] < fcd[k:]
         a, b = np.where(left, a, c), np.where(left, d, b)
     return 0.5 * (a + b)
 
@@ -259,11 +266,16 @@ class _Loop:
 
     def __init__(self, controller: Controller, stack: PlantStack) -> None:
         self.c, self.stack, self.T = controller, stack, controller.Ts
+        self._rows: np.ndarray | None = None  # the last rows taken, and their plants (a refinement's steps reuse them)
+        self._taken = stack
 
     def at(self, rows: np.ndarray, log_w: np.ndarray, stack: PlantStack | None = None) -> np.ndarray:
         w = np.exp(log_w)
-        st = stack if stack is not None else self.stack.take(rows)
-        return self.c.feedback_response(w) * st.transfer(np.exp(1j * w * self.T)[:, None])[:, 0]
+        if stack is None:
+            if rows is not self._rows:
+                self._rows, self._taken = rows, self.stack.take(rows)
+            stack = self._taken
+        return self.c.feedback_response(w) * stack.transfer(np.exp(1j * w * self.T)[:, None])[:, 0]
 
 
 def _crossings(sign_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +343,7 @@ def stack_margins(controller: Controller, stack: PlantStack, models: Sequence[Lo
         inf = np.full(M, np.inf)
         return LoopMargins(inf, pm, inf, np.where(stable, np.max(1.0 / np.abs(1.0 + L), axis=-1), np.inf), wgc, inf, stable)
     gm, wpc = gain_margins(loop.at, L, lw, M)
-    Ms = sensitivity_peaks(lambda rows, x: loop.at(rows, x, stack), L, lw)
+    Ms = sensitivity_peaks(loop.at, L, lw)
     dm = _delay_margins(loop, models, cand, stable, M) if models else np.full(M, np.nan)
     Ms = np.where(stable, Ms, np.inf)
     return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
@@ -353,7 +365,7 @@ def stack_sensitivity(controller: Controller, stack: PlantStack, response: np.nd
     the figures it drops (``benchmarks/bench_tune_ranges.py`` prints the ratio)."""
     lw, L, loop = _on_grid(controller, stack, response)
     stable = nyquist_stable(integrators + (controller.Ki > 0), L, unstable)
-    Ms = sensitivity_peaks(lambda rows, x: loop.at(rows, x, stack), L, lw)
+    Ms = sensitivity_peaks(loop.at, L, lw)
     return np.where(stable, Ms, np.inf), stable
 
 
@@ -412,7 +424,8 @@ def sensitivity_peaks(at: Callable[[np.ndarray, np.ndarray], np.ndarray], L: np.
     k = np.argmin(dist, axis=-1)
     rows = np.arange(L.shape[0])
     lo, hi = lw[np.maximum(k - 1, 0)], lw[np.minimum(k + 1, lw.size - 1)]
-    x = _golden_min(lambda x: np.abs(1.0 + at(rows, x)), lo, hi, n)
+    both = np.concatenate([rows, rows])  # the two golden-section probes of each row in one evaluation
+    x = _golden_min(lambda x: np.abs(1.0 + at(both, x)), lo, hi, n)
     return np.asarray(1.0 / np.minimum(dist[rows, k], np.abs(1.0 + at(rows, x))), float)
 
 

@@ -279,7 +279,9 @@ class _Series:
             frac, r_hat, lin = -b / (a - b), np.zeros(N_SERIES, complex), None
         else:
             frac, r_hat, lin = start
-        pad = np.zeros(_M // 2 - N_SERIES)
+        # the velocity's half spectrum, scaled for the inverse FFT: one buffer whose harmonics each step
+        # overwrites (the same numbers as concatenating zeros around them; issue 39's CPU)
+        spec = np.zeros(_M // 2 + 1, complex)
         converged, last_step = False, math.inf
         force = _Force(pl, P, s, a, b)  # what does not depend on the fraction, once
         for _ in range(40):
@@ -297,10 +299,11 @@ class _Series:
                     V0 = np.abs(2.0 * pl.K * Pk[0] / s[0])
                     lin = 8.0 * c_q * V0 / (3.0 * math.pi)
                 Vk = (pl.K * Pk - r_hat) / (s + lin)
-                v = np.fft.irfft(np.concatenate([[0.0], Vk, pad]) * _M, _M)
+                spec[1:N_SERIES + 1] = Vk * _M
+                v = np.fft.irfft(spec, _M)
                 R = np.fft.rfft(c_q * v * np.abs(v) - lin * v) / _M
                 r_new = R[1:N_SERIES + 1]
-                settled = np.max(np.abs(r_new - r_hat)) <= 1e-12 * (np.max(np.abs(Vk)) * (lin + 1e-300) + 1e-300)
+                settled = np.abs(r_new - r_hat).max() <= 1e-12 * (np.abs(Vk).max() * (lin + 1e-300) + 1e-300)
                 r_hat = r_new
                 target = R[0].real / pl.K  # the mean drag is balanced by a mean force
             step = (F0 - target) / dF0

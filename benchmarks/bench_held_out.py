@@ -1,11 +1,13 @@
-"""Benchmark: the CPU the eq. (2) held-out predictions add to ``analyze`` (issue 36).
+"""Benchmark: the CPU the eq. (2) held-out predictions add to ``analyze`` (issues 36 and 41).
 
 For every shipped sample log (its Tp and loop from its ``.truth.json``) and for a simulated
 10-minute, 200 Hz log of 20 tests (bench_analyze's: the held-out cost grows with the number of
 tests), in this process: ``analyze_flight`` as the CLI runs it (400 bootstrap draws, waveform
-refinement), which includes the held-out stage, and the held-out stage alone
-(:func:`mrftcli.analyze.held_out.held_out_eq2` on the same tests). "Before" is the analysis
-without that stage (the difference), "after" the analysis as it runs. CPU time (``process_time``),
+refinement), which includes the held-out stages, and each stage alone on the same tests: the fundamentals'
+UFM point solve (:func:`mrftcli.analyze.held_out.held_out_eq2`, issue 36; kept for the lead's check and as the
+fallback) and the response-point route of issue 41 (:func:`mrftcli.analyze.held_out_harmonic.held_out_harmonic`,
+the tests' fundamentals and 3rd harmonics measured and fitted once per test). "Before" is the analysis
+without the response-point stage (the difference), "after" the analysis as it runs. CPU time (``process_time``),
 so the figures do not depend on what else runs on the machine.
 
 Run: ``python benchmarks/bench_held_out.py`` (about 2 minutes of CPU).
@@ -35,10 +37,12 @@ def _cpu(fn):
 
 
 def _measure(name: str, flight, Tp: float) -> tuple[float, float]:
+    """(analyze's CPU without the held-out route of issue 41, with it) [s] on one log."""
     from mrftcli.analyze import analyze_flight
     from mrftcli.mrft.model import soiptd_model
     from mrftcli.analyze.estimate import beta_used
     from mrftcli.analyze.held_out import held_out_eq2
+    from mrftcli.analyze.held_out_harmonic import held_out_harmonic
     from mrftcli.analyze.screen import low_rate_period
 
     result, total = _cpu(lambda: analyze_flight(flight, soiptd_model(Tp)))
@@ -46,10 +50,11 @@ def _measure(name: str, flight, Tp: float) -> tuple[float, float]:
     # the driver centres the solves on the MRFT consensus's Td: the record's MRFT estimate stands for it
     Td_ref = result.parameters_mrft["Td"].value if "Td" in result.parameters_mrft else result.Td.value
     held, stage = _cpu(lambda: held_out_eq2(soiptd_model(Tp), result.tests, [beta_used(t, ts) for t in result.tests], Td_ref))
-    n_pred = sum(h.frequency_hz is not None for h in held)
-    print(f"{name:40s} {len(result.tests):3d} {n_pred:5d}  {total - stage:8.2f}  {total:8.2f}  {stage:8.3f}  "
-          f"{100 * stage / (total - stage):6.2f} %")
-    return total - stage, total
+    _, points = _cpu(lambda: held_out_harmonic(flight, soiptd_model(Tp), result.tests, held))
+    n_pred = sum(h.frequency_hz is not None for h in result.held_out)
+    print(f"{name:40s} {len(result.tests):3d} {n_pred:5d}  {total - points:8.2f}  {total:8.2f}  {stage:8.3f}  "
+          f"{points:8.3f}  {100 * points / (total - points):6.2f} %")
+    return total - points, total
 
 
 def _twenty_tests(d: str):
@@ -64,10 +69,13 @@ def _twenty_tests(d: str):
 
 
 def main() -> None:
+    import numpy as np
+
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight
 
-    print(f"{'log':40s} {'tests':>3s} {'pred.':>5s}  {'before s':>8s}  {'after s':>8s}  {'held-out':>8s}  {'added':>8s}")
+    print(f"{'log':40s} {'tests':>3s} {'pred.':>5s}  {'before s':>8s}  {'after s':>8s}  {'UFM s':>8s}  {'points s':>8s}  "
+          f"{'added':>8s}")
     rows = []
     for truth in sorted((ROOT / "sample_logs").rglob("*.truth.json")):
         log = truth.parent / truth.name[: -len(".truth.json")]
@@ -81,7 +89,8 @@ def main() -> None:
             print(f"{log.name:40s} refused: {err}")
     before, after = sum(r[0] for r in rows), sum(r[1] for r in rows)
     print(f"sample logs ({len(rows)}): analyze CPU {before:.1f} s before, {after:.1f} s after: "
-          f"+{100 * (after - before) / before:.2f} %")
+          f"+{100 * (after - before) / before:.2f} %; median per log {np.median([r[0] for r in rows]):.3f} s before, "
+          f"{np.median([r[1] for r in rows]):.3f} s after")
     with tempfile.TemporaryDirectory() as d:
         b20, a20 = _measure("simulated 10 min, 20 tests", _twenty_tests(d), 0.0422)
     print(f"20-test log: analyze CPU {b20:.2f} s before, {a20:.2f} s after: +{100 * (a20 - b20) / b20:.1f} %")

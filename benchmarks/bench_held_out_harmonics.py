@@ -42,33 +42,42 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from held_out_routes import POINT_ROUTES, RouteResult, harmonic_residuals, points_route  # noqa: E402
 
-ROUTES = ("eq2", *POINT_ROUTES)
 
 
-def eq2_route(log: Path) -> tuple[RouteResult, list[float | None]]:
-    """``analyze --tp``'s held-out errors and their z (module docstring)."""
+def eq2_routes(log: Path) -> tuple[RouteResult, list[float | None], RouteResult, list[float | None]]:
+    """``analyze --tp``'s held-out errors and their z (the response-point route, ``analyze.held_out_harmonic``),
+    then the fundamentals' UFM point solve's (``analyze.held_out.held_out_eq2``, analyze's route before issue
+    41's) on the same analysis' tests."""
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
+    from mrftcli.analyze.estimate import beta_used
+    from mrftcli.analyze.held_out import held_out_eq2
+    from mrftcli.analyze.screen import low_rate_period
     from mrftcli.errors import MrftError
     from mrftcli.io import ReadOptions, read_flight
     from mrftcli.mrft.model import soiptd_model
 
     side = json.loads(Path(f"{log}.json").read_text())
     flown = len(side["tests"])
-    errors: list[float | None] = []
-    zs: list[float | None] = []
     try:
         res = analyze_flight(read_flight(log, ReadOptions(loop=side["loop"]), echo_warnings=False),
                              soiptd_model(side["tp_s"]), options=AnalyzeOptions(n_bootstrap=20, seed=0,
                                                                                  refine_waveform=False))
     except MrftError:
         res = None
-    for k, t in enumerate([] if res is None else res.tests):
-        ho = res.held_out_of(k)
-        ok = ho is not None and ho.frequency_hz is not None
-        errors.append(ho.frequency_hz / t.frequency_hz_mean - 1.0 if ok else None)
-        zs.append(ho.frequency_z if ok else None)
-    pad = [None] * (flown - len(errors))
-    return RouteResult(flown, tuple(errors + pad)), zs + pad
+    tests = [] if res is None else list(res.tests)
+    ufm = [] if res is None else held_out_eq2(soiptd_model(side["tp_s"]), tests, [
+        beta_used(t, low_rate_period(tests)) for t in tests], res.parameters_mrft["Td"].value)
+    out: list = []
+    for held in ([] if res is None else [res.held_out_of(k) for k in range(len(tests))], ufm):
+        errors: list[float | None] = []
+        zs: list[float | None] = []
+        for ho, t in zip(held, tests):
+            ok = ho is not None and ho.frequency_hz is not None
+            errors.append(ho.frequency_hz / t.frequency_hz_mean - 1.0 if ok else None)
+            zs.append(ho.frequency_z if ok else None)
+        pad = [None] * (flown - len(errors))
+        out += [RouteResult(flown, tuple(errors + pad)), zs + pad]
+    return out[0], out[1], out[2], out[3]
 
 
 def simulate_ours(work: Path, n: int, seed: int) -> list[Path]:
@@ -121,6 +130,9 @@ def simulate_rotorpy(work: Path, n: int, seed: int) -> list[Path]:
 
 def _kind(log: Path) -> str:
     name = log.stem
+    if log.suffix == ".ulg":
+        loop = json.loads(Path(f"{log}.json").read_text())["loop"]
+        return f"PX4 {loop}" + (" +20 ms" if "20ms" in name else "")
     if name.startswith(("ours", "rotorpy")):
         return name.split("0")[0].rstrip("0123456789")
     if name.startswith("altitude"):
@@ -137,15 +149,24 @@ def _summary(name: str, results: list[RouteResult], zs: list[float | None] | Non
     med = f"median |error| {np.median(got) * 100:.1f} %, max {max(got) * 100:.1f} %" if got else "no prediction"
     text = f"{name:12s} {hits:3d}/{n:<3d} within 5 %; {med}"
     if zs is not None:
+        stated = [abs(z) for z in zs if z is not None]
         misses = [z for e, z in zip(errs, zs) if not (e is not None and abs(e) <= 0.05)]
         inside = sum(z is not None and abs(z) <= 2.5 for z in misses)
-        text += f"; misses inside 2.5 stated std {inside}/{len(misses)}"
+        text += (f"; misses inside 2.5 stated std {inside}/{len(misses)}; calibration: |z| <= 2 in "
+                 f"{sum(z <= 2 for z in stated)}/{len(stated)} predictions, <= 1 in {sum(z <= 1 for z in stated)}")
     return text
+
+
+def _zs(route: str, kinds: list[str], zs_kind: dict[str, list[float | None]]) -> list[float | None] | None:
+    if route not in ("eq2", "eq2_ufm"):
+        return None
+    return [z for k in kinds for z in zs_kind[k + (" ufm" if route == "eq2_ufm" else "")]]
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sitl", type=Path, nargs="*", default=[], help="folders of ArduPilot SITL logs (*.BIN + sidecar)")
+    ap.add_argument("--sitl", type=Path, nargs="*", default=[],
+                    help="folders of SITL logs with their sidecars (ArduPilot *.BIN, PX4 *.ulg)")
     ap.add_argument("--sims", type=int, default=8, help="flights of our simulator")
     ap.add_argument("--rotorpy", type=int, default=8, help="clean RotorPy flights")
     ap.add_argument("--seed", type=int, default=41043, help="seed of the simulated flights' draws")
@@ -153,37 +174,42 @@ def main() -> int:
     ap.add_argument("--residuals", type=Path, nargs="*", default=[],
                     help="only: these logs' harmonics against eq. (2) fitted to the fundamentals (why a harmonic "
                          "helps or hurts)")
+    ap.add_argument("--points", nargs="*", choices=tuple(POINT_ROUTES), default=list(POINT_ROUTES),
+                    help="the declared-model response-point routes to run beside analyze's (default all; none: "
+                         "analyze's route and the fundamentals' alone)")
     args = ap.parse_args()
+    routes = tuple(args.points)
     if args.residuals:
         for log in args.residuals:
             print(f"{log}: eq. (2) fitted to every test's fundamental; what each point adds beyond it")
             print("\n".join(f"  {line}" for line in harmonic_residuals(log)))
         return 0
     args.work.mkdir(parents=True, exist_ok=True)
-    logs = [log for d in args.sitl for log in sorted(d.glob("*.BIN")) if Path(f"{log}.json").exists()]
+    logs = [log for d in args.sitl for log in sorted([*d.glob("*.BIN"), *d.glob("*.ulg")])
+            if Path(f"{log}.json").exists()]
     logs += simulate_ours(args.work, args.sims, args.seed) + simulate_rotorpy(args.work, args.rotorpy, args.seed + 1)
     by_kind: dict[str, dict[str, list[RouteResult]]] = {}
     zs_kind: dict[str, list[float | None]] = {}
     for log in logs:
         kind = _kind(log)
-        res, zs = eq2_route(log)
-        rows = {"eq2": res, **{r: points_route(log, r) for r in POINT_ROUTES}}
+        res, zs, ufm, zs_ufm = eq2_routes(log)
+        rows = {"eq2": res, "eq2_ufm": ufm, **{r: points_route(log, r) for r in routes}}
         zs_kind.setdefault(kind, []).extend(zs)
+        zs_kind.setdefault(kind + " ufm", []).extend(zs_ufm)
         for route, r in rows.items():
             by_kind.setdefault(kind, {}).setdefault(route, []).append(r)
             cells = " ".join("  none" if e is None else f"{e * 100:+6.1f}" for e in r.errors)
             print(f"  {log.parent.name:>8s}/{log.stem:20s} {route:12s} {cells}", flush=True)
     print("\nheld out within 5 % of the measured frequency, every test flown (no prediction is a miss)")
-    for kind, routes in by_kind.items():
+    for kind, by_route in by_kind.items():
         print(f"{kind}:")
-        for route in ROUTES:
-            print("  " + _summary(route, routes[route], zs_kind[kind] if route == "eq2" else None))
+        for route in ("eq2", "eq2_ufm", *routes):
+            print("  " + _summary(route, by_route[route], _zs(route, [kind], zs_kind)))
     sitl = [k for k in by_kind if k.startswith("SITL") and "s tests)" not in k]
     if sitl:
         print("SITL, all (the 6 s roll and pitch tests, altitude 12 s):")
-        for route in ROUTES:
-            print("  " + _summary(route, [r for k in sitl for r in by_kind[k][route]],
-                                  [z for k in sitl for z in zs_kind[k]] if route == "eq2" else None))
+        for route in ("eq2", "eq2_ufm", *routes):
+            print("  " + _summary(route, [r for k in sitl for r in by_kind[k][route]], _zs(route, sitl, zs_kind)))
     return 0
 
 

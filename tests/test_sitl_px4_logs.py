@@ -412,8 +412,11 @@ def test_the_misses_are_classed_by_how_the_flight_was_flown_and_every_flown_test
 def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_uncertainty() -> None:
     """Why the first pair's held-out frequencies miss by 6-30 %: the relay switches on EKF2's altitude, whose
     error (several cm, slow) moves the switches of 1-4 cm cycles, so one test's cycles spread 10-22 % in
-    frequency (its mean uncertain by 4-9 %), against 2-9 % at h 0.25, where every test is within 5 %. analyze
-    says so: each miss lies within 2.5 of the std it states for its held-out prediction."""
+    frequency (its mean uncertain by 4-9 %), against 2-9 % at h 0.25. analyze says so: each miss lies within 2.5
+    of the std it states for its held-out prediction. (Issue 41: analyze's held-out fits the other tests'
+    fundamentals and 3rd harmonics; on the h 0.25 flight that moves its end tests to -7.2 and +6.1 %, within 1.3
+    of their stated std (the fundamentals alone: every test within 5 %), and on the h 0.05 flight the -0.7 test,
+    17 cycles spread 18 %, to +20 % at 1 std.)"""
     from px4_campaign import held_out_jitter
 
     _, low = _flight("px4_altitude")
@@ -421,12 +424,12 @@ def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_u
     rows_low, rows_fresh = held_out_jitter(low), held_out_jitter(fresh)
     assert [r["error"] is not None for r in rows_low] == [True] * 4
     missed = [r for r in rows_low if abs(r["error"]) > 0.05]
-    assert len(missed) == 2  # beta -0.2 and -0.4 (analyze's own held-out: -31.6 %, +18.3 %)
+    assert [r["beta"] for r in missed] == pytest.approx([-0.2, -0.4, -0.7])  # -31.6, +15.6, +20.4 %
     for r in missed:
         assert r["spread"] > 0.10 and r["sem"] > 0.04
         assert abs(r["z"]) <= 2.5
     assert max(r["spread"] for r in rows_fresh) < 0.10
-    assert all(abs(r["error"]) <= 0.05 and abs(r["z"]) <= 1.0 for r in rows_fresh)
+    assert all(abs(r["error"]) <= 0.08 and abs(r["z"]) <= 1.5 for r in rows_fresh)
 
 
 def test_px4s_attitude_gains_in_the_generic_form_from_the_ulogs_parameters() -> None:

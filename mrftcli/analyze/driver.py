@@ -40,6 +40,7 @@ from .estimate import (WaveformStage, beta_used, consensus, identifiability, poi
                        widen_for_jitter)
 from .general import analyze_family, mask_windows
 from .held_out import held_out_eq2, lead_held_out_refusal
+from .held_out_harmonic import FALLBACK_WORDS, ROUTE_NOTE, held_out_harmonic
 from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
 from .residual import MISMATCH_WORDS, residual_verdict
@@ -158,11 +159,14 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     warnings = [w for w in (*tp_warning, *screening.warnings, *cons.warnings, *bounds.warnings, *wave.warnings)
                 if not w.startswith(LEAD_WORDS)]  # the lead is stated once, first, for the tau reported
     notes = [*bounds.notes, *wave.notes, *([jitter_note] if jitter_note else [])]
-    lead_refused = lead_held_out_refusal(held, tau_est.value)
+    lead_refused = lead_held_out_refusal(held, tau_est.value)  # on the UFM's own route, as measured (method.md 4)
     if lead_refused:  # a Tp given too large reads as a lead the tests disagree on (docs/method.md section 4)
         raise IdentificationError(lead_refused)
     if tau_est.value < 0:
         notes.insert(0, f"assumed: {lead_note(tau_est.value)}")
+    held = held_out_harmonic(flight, model, screening.usable, held, opts.min_stable_cycles)
+    if any(h.frequency_hz is not None and not h.note.startswith(FALLBACK_WORDS) for h in held):
+        notes.append(ROUTE_NOTE)
     usable, rejected = screening.usable, screening.rejected
     return _residual_worded(AnalysisResult(
         path=str(flight.path), loop=flight.loop, model=wave.model, tests=usable, rejected=rejected,

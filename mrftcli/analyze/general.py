@@ -27,9 +27,9 @@ import numpy as np
 from ..errors import IdentificationError, InputError, SegmentationError
 from ..io.logtypes import FlightLog, Signal
 from ..mrft.identify import identify
-from ..mrft.identify_lti import (STATIC_HARMONIC, LtiIdentification, ResponsePoint,
+from ..mrft.identify_lti import (STATIC_HARMONIC, LtiIdentification, ResponsePoint, fit_response_points,
                                  static_gain_point)
-from ..mrft.model import PlantModel
+from ..mrft.model import LoopModel, PlantModel
 from ..mrft.relays import RelayLaw
 from ..segment import segment
 from ..segment.records import MrftTest
@@ -218,6 +218,8 @@ def identify_points(model: PlantModel, points: Sequence[ResponsePoint]) -> LtiId
     floored = [p if p.harmonic == 1 else dataclasses.replace(p, se_log_gain=max(p.se_log_gain, _HARMONIC_SE),
                                                              se_phase=max(p.se_phase, _HARMONIC_SE))
                for p in points]
+    if isinstance(model, LoopModel):  # eq. (2) names the UFM's strategy; on response points it is fitted as any structure
+        return fit_response_points(floored, model)
     return identify(floored, model)
 
 

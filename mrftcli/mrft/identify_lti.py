@@ -55,7 +55,8 @@ from .identification import IdentificationRecord
 from .model import PlantModel
 from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate
 
-__all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "STATIC_HARMONIC", "static_gain_point"]
+__all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "fit_covariance", "STATIC_HARMONIC",
+           "static_gain_point"]
 
 #: the method every identified (not given) parameter of this fit records (ParameterEstimate.method)
 _METHOD = "response-points"
@@ -455,6 +456,33 @@ def fit_response_points(points: Sequence[ResponsePoint], model: PlantModel) -> L
                                        DETERMINED_LOG_WIDTH, [_same_order(problem, z, zr)[keep] for zr in region])
         out = dataclasses.replace(out, combination=combo)
     return out
+
+
+def fit_covariance(fit: LtiIdentification) -> tuple[tuple[str, ...], FloatArray, FloatArray]:
+    """The Gauss-Newton covariance of a fit, as :func:`fit_response_points` forms its intervals from it.
+
+    Returns the unknown parameters' names, their solver variables at the fit (``z``: ln|K|, ln T of a positive
+    parameter, tau [s] linear) and the covariance of ``z`` (``(J^T J)^+``, inflated by the reduced chi-square
+    when it exceeds 1), so a prediction made from the fitted model can carry the fit's own uncertainty. The
+    Jacobian is the kernel's closed form for the built-in families, central differences otherwise.
+    """
+    problem = _Problem(fit.model, _Data.of(fit.points))
+    if not problem.unknown:
+        return (), np.zeros(0), np.zeros((0, 0))
+    z = problem.z_of({n: fit.model.parameters[n].value for n in problem.unknown})
+    if problem.kernel is not None:
+        r, J = problem.kernel.evaluate(z)
+    else:
+        r = problem.residuals(z)
+        J = np.empty((r.size, z.size))
+        for i in range(z.size):
+            dz = 1e-6 * max(1.0, abs(float(z[i])))
+            step = np.eye(z.size)[i] * dz
+            J[:, i] = (problem.residuals(z + step) - problem.residuals(z - step)) / (2 * dz)
+    n_static = sum(p.harmonic == STATIC_HARMONIC for p in fit.points)
+    dof = 2 * len(fit.points) - n_static - z.size
+    inflate = max(1.0, float(r @ r) / dof) if dof > 0 else 1.0
+    return tuple(problem.unknown), z, _pinv_psd(J.T @ J) * inflate
 
 
 def _off_ridge(problem: _Problem, z: FloatArray, r: FloatArray, J: FloatArray, lo: FloatArray,

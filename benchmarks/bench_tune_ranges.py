@@ -27,6 +27,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import mrftcli.cli  # noqa: F401  (first: BLAS single-threaded, as the command line runs it)
 import numpy as np
 
 from mrftcli.mrft.model import LoopModel
@@ -81,6 +82,46 @@ def old_peaks(at, L, lw, n=40):
     return np.asarray(1.0 / np.minimum(dist[rows, k], np.abs(1.0 + at(rows, x))), float)
 
 
+def old_transfer(st, z: np.ndarray) -> np.ndarray:
+    """The previous :meth:`~mrftcli.tune.closed_loop.PlantStack.transfer` of eq. (2)'s plants: the two inputs'
+    resolvents in two passes."""
+    z = np.atleast_2d(np.asarray(z, complex))
+    Phi, C = st.Phi, st.C
+
+    def resolvent(b):
+        x2 = b[:, 2, None] / (z - Phi[:, 2, 2, None])
+        x1 = (b[:, 1, None] + Phi[:, 1, 2, None] * x2) / (z - Phi[:, 1, 1, None])
+        x0 = (b[:, 0, None] + Phi[:, 0, 1, None] * x1 + Phi[:, 0, 2, None] * x2) / (z - Phi[:, 0, 0, None])
+        return C[:, 0, None] * x0 + C[:, 1, None] * x1 + C[:, 2, None] * x2
+
+    xa, xb = resolvent(st.Gamma[:, 0]), resolvent(st.Gamma[:, 1])
+    return (xb + xa / z) * np.exp(-st.d[:, None] * np.log(z))
+
+
+def transfer_ratio(seed: int) -> None:
+    """PlantStack.transfer at one point per plant (the refinements' call), new against old, 1 to 200 plants."""
+    from mrftcli.tune.closed_loop import PlantStack, discrete_plants
+
+    rng = np.random.default_rng(seed)
+    for m in (1, 41, 200):
+        models = [LoopModel(0.0422, float(np.exp(rng.uniform(-1, 1.5))), float(rng.uniform(0, 0.06)), 1.0)
+                  for _ in range(m)]
+        st = PlantStack.of(discrete_plants(models, 250.0))
+        z = np.exp(1j * rng.uniform(0.01, 3.0, (m, 1)))
+        same = np.array_equal(st.transfer(z), old_transfer(st, z))
+        reps = 3000
+        t = time.process_time()
+        for _ in range(reps):
+            st.transfer(z)
+        t_new = time.process_time() - t
+        t = time.process_time()
+        for _ in range(reps):
+            old_transfer(st, z)
+        t_old = time.process_time() - t
+        print(f"PlantStack.transfer, {m:3d} plants x 1 point: new {t_new / reps * 1e6:5.1f} us, old "
+              f"{t_old / reps * 1e6:5.1f} us (ratio {t_old / t_new:.2f}x); values {'same' if same else 'DIFFER'}")
+
+
 def _case(row: tuple, stack: str, loop: str, seed: int, draws: int):
     _, kind, Tp, Td, Td_std, tau, tau_std = row
     K = STANDARD_GRAVITY / HOVER if kind == "altitude" else 1.0
@@ -128,6 +169,7 @@ def main() -> None:
     print(f"CPU of export_design, all cases: new {new_total:.2f} s, old {old_total:.2f} s "
           f"(ratio {old_total / new_total:.2f}x; median {med:.2f}x over the {len(ratios)} scanned cases); "
           f"outputs {'identical' if same_all else 'DIFFER'}")
+    transfer_ratio(a.seed)
 
 
 if __name__ == "__main__":

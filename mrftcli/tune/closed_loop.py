@@ -266,30 +266,55 @@ class PlantStack:
         depend on d. Eq. (2)'s Phi is upper triangular, so (z I - Phi)^{-1} is a back substitution (another
         plant's: a solve). ``z``: points of the z-plane (e^{j omega T} for a frequency response, omega in rad/s).
         """
-        return self.transfers(z)[0 if delayed else 1]
+        if not delayed:
+            return self.transfers(z)[1]
+        z, xa, xb = self._solved(z)
+        return self._delayed(z, xa, xb)
 
     def transfers(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Gd, Gl) at ``z``: the delayed transfer from the command and the undelayed one of a constant
         input over each period (:meth:`transfer`), sharing the solves; each (M, W)."""
-        z = np.atleast_2d(np.asarray(z, complex))  # (1, W) or (M, W)
-        xa, xb = self._resolvent(z, self.Gamma[:, 0]), self._resolvent(z, self.Gamma[:, 1])
+        z, xa, xb = self._solved(z)
+        return self._delayed(z, xa, xb), xa + xb
+
+    def _delayed(self, z: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
         # z^-d as exp(-d log z): one logarithm per point, not one per point and plant
-        delay = np.exp(-self.d[:, None] * np.log(z))
-        return (xb + xa / z) * delay, xa + xb
+        return (xb + xa / z) * np.exp(-self.d[:, None] * np.log(z))
+
+    def _solved(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(z as (1 or M, W), C (z I - Phi)^{-1} Gamma_a, the same of Gamma_b), each resolvent (M, W).
+
+        At a few points per plant (the margins' refinements, thousands of calls, where numpy's per-call cost
+        dominates) eq. (2)'s triangular form solves both inputs in one pass, arrays (M, 2, W): each element as
+        the two passes compute it. Why: 1.3x per call there; on a long grid the doubled arrays cost more than
+        they save, so it keeps two passes (``benchmarks/bench_tune_ranges.py`` prints the ratio)."""
+        z = np.atleast_2d(np.asarray(z, complex))  # (1, W) or (M, W)
+        b = self.Gamma
+        if not self.triangular or z.shape[-1] > _ONE_PASS_POINTS:
+            return z, self._resolvent(z[:, None, :], b[:, :1])[:, 0], self._resolvent(z[:, None, :], b[:, 1:])[:, 0]
+        x = self._resolvent(z[:, None, :], b)
+        return z, x[:, 0], x[:, 1]
 
     def _resolvent(self, z: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """C (z I - Phi)^{-1} b for each plant (b: (M, n)) at the points z (1 or M, W)."""
+        """C (z I - Phi)^{-1} b_k for each plant and input k (b: (M, K, n)) at the points z (1 or M, 1, W):
+        (M, K, W)."""
         Phi, C = self.Phi, self.C
         if not self.triangular:  # not the triangular form of eq. (2): a general solve
             n = Phi.shape[-1]
-            zz = np.broadcast_to(z, (Phi.shape[0], z.shape[-1]))
-            rhs = np.broadcast_to(b[:, None, :, None], zz.shape + (n, 1))
-            x = np.linalg.solve(zz[..., None, None] * np.eye(n) - Phi[:, None], rhs)[..., 0]
-            return np.einsum("mwi,mi->mw", x, C)
-        x2 = b[:, 2, None] / (z - Phi[:, 2, 2, None])
-        x1 = (b[:, 1, None] + Phi[:, 1, 2, None] * x2) / (z - Phi[:, 1, 1, None])
-        x0 = (b[:, 0, None] + Phi[:, 0, 1, None] * x1 + Phi[:, 0, 2, None] * x2) / (z - Phi[:, 0, 0, None])
-        return C[:, 0, None] * x0 + C[:, 1, None] * x1 + C[:, 2, None] * x2
+            zz = np.broadcast_to(z, (Phi.shape[0], b.shape[1], z.shape[-1]))
+            rhs = np.broadcast_to(b[:, :, None, :, None], zz.shape + (n, 1))
+            x = np.linalg.solve(zz[..., None, None] * np.eye(n) - Phi[:, None, None], rhs)[..., 0]
+            return np.einsum("mkwi,mi->mkw", x, C)
+        P = Phi[:, None, :, :, None]  # (M, 1, n, n, 1): P[:, :, i, j] broadcasts against (M, K, W)
+        x2 = b[:, :, 2, None] / (z - P[:, :, 2, 2])
+        x1 = (b[:, :, 1, None] + P[:, :, 1, 2] * x2) / (z - P[:, :, 1, 1])
+        x0 = (b[:, :, 0, None] + P[:, :, 0, 1] * x1 + P[:, :, 0, 2] * x2) / (z - P[:, :, 0, 0])
+        Cx = C[:, None, :, None]
+        return Cx[:, :, 0] * x0 + Cx[:, :, 1] * x1 + Cx[:, :, 2] * x2
+
+
+#: :meth:`PlantStack._solved` solves both inputs in one pass up to this many points per plant
+_ONE_PASS_POINTS = 8
 
 
 #: z-transform inversion: the responses are sampled on the circle |z| = rho with rho^N = this (a loop

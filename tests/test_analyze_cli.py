@@ -252,8 +252,7 @@ def test_format_option_is_honoured_by_every_log_reading_command(logs):
     # item 10: the "pass --format" advice works in analyze and diagnose
     for command in ("analyze", "diagnose", "plan", "watch", "tune"):
         code, stdout, _ = _invoke(command, "--help")
-        flag = "--log-format" if command == "tune" else "--format"
-        assert code == 0 and flag in stdout and "--layout" in stdout, command
+        assert code == 0 and "--format" in stdout and "--layout" in stdout, command
     code, _, stderr = _invoke("analyze", str(logs / "two.mcap"), "--tp", str(TP), "--format", "csv")
     assert code == 3 and stderr.startswith("error:")  # the MCAP was read as CSV: it was used
 

@@ -84,6 +84,10 @@ def test_documented_ci_workflow(page, tmp_path, repo_root):
     text = expected.read_text()
     assert text.count('tol = "+5ms"') == 2
     expected.write_text(text.replace('tau = { value = 0.0464, tol = "+5ms" }', 'tau = { value = 0.0464, tol = "+25ms" }'))
-    assert _ci(tmp_path, steps) == 0
+    # only the compare step again: the flights are those the batch step just analysed into results/ (the same
+    # inputs give the same rows), so re-running batch would redo ~1/3 of the test's work for no new claim
+    compare = [s for s in steps if s.lstrip().startswith("mrft-ident compare")]
+    assert len(compare) == 1
+    assert _ci(tmp_path, compare) == 0
     root = ET.parse(tmp_path / "compare.xml").getroot()
     assert root.get("failures") == "0"

@@ -4,8 +4,10 @@ test the campaign flew (a test a route gives no prediction for, or a log it refu
 Routes through the CLI, as a user runs them (``mrft-ident analyze LOG ... --json``; the held-out prediction is
 ``tests[i].held_out`` of the record):
 
-* ``eq2``: ``--tp TP`` (eq. (2), the default): the paper's UFM point solve of the other tests' frequencies
-  (analyze/held_out.py);
+* ``eq2``: ``--tp TP`` (eq. (2), the default): since b57d0d0 eq. (2) fitted to the other tests' fundamental and
+  3rd-harmonic response points where they are one eq. (2) plant, else the paper's UFM point solve of their
+  frequencies (analyze/held_out_harmonic.py, analyze/held_out.py; ``points_h13`` below is the same fit ungated,
+  on a declared eq. (2));
 * ``--model-file`` with a declared structure (fitted to the other tests' fundamental and harmonic response
   points, gain and phase, each weighted by its scatter): eq. (2) itself (``eq2_declared``), eq. (2) with a lead
   zero in the measurement path (``lead``), with a zero and a pole (``lead_lag``: an estimator's frequency-

@@ -141,7 +141,7 @@ def test_tune_designs_for_the_same_rate_from_the_log_and_from_its_result_json(tm
     log = str(SAMPLES / "px4_altitude_10hz.ulg")
     result_json = tmp_path / "result.json"
     _cli(capsys, "analyze", log, "--tp", "0.0422", "--json", str(result_json))
-    common = ["--tp", "0.0422", "--loop", "altitude", "--design", "model-based", "--format", "json"]
+    common = ["--tp", "0.0422", "--loop", "altitude", "--design", "model-based", "--export", "generic"]
     from_log = json.loads(_cli(capsys, "tune", log, *common))
     from_json = json.loads(_cli(capsys, "tune", str(result_json), *common))
     assert from_log["rate_hz"] == from_json["rate_hz"] == 50.0

@@ -60,7 +60,7 @@ def test_tune_gains_scale_as_one_over_k():
     """The MRFT rule's Kp for K = 30 is the K = 1 one over 30 (G is linear in K): the K given is the K used."""
     def kp(k: str) -> float:
         proc = run("tune", *MODEL, "--k", k, "--loop", "roll", "--controller-rate", "200", "--design", "mrft-rule",
-                   "--format", "json")
+                   "--export", "generic")
         assert proc.returncode == 0, proc.stderr
         return float(json.loads(proc.stdout)["Kp"])
 
@@ -72,9 +72,9 @@ def test_tune_result_json_takes_its_loop_from_the_file(tmp_path):
     result = tmp_path / "r.json"
     log = str(SAMPLES / "design1_roll.mcap")
     assert run("analyze", log, "--tp", "0.0422", "--loop", "roll", "--json", str(result)).returncode == 0
-    proc = run("tune", str(result), "--tp", "0.0422", "--format", "hear")
+    proc = run("tune", str(result), "--tp", "0.0422", "--export", "hear")
     assert proc.returncode == 0, proc.stderr
-    explicit = run("tune", str(result), "--tp", "0.0422", "--format", "hear", "--loop", "roll")
+    explicit = run("tune", str(result), "--tp", "0.0422", "--export", "hear", "--loop", "roll")
     assert proc.stdout == explicit.stdout  # the file's loop, roll, was used
     err = one_line_error(run("tune", log, "--tp", "0.0422"))  # a LOG needs its loop
     assert "--loop" in err

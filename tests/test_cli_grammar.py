@@ -135,8 +135,7 @@ def test_format_is_the_log_format():
 
 def test_tunes_log_format_is_format_with_its_old_names_hidden(tmp_path):
     """tune read the log format with --log-format (its --format was the deprecated --export): --format is now the
-    log format as in every command; --log-format is a hidden alias (a note), --format table|json|hear|px4 the
-    deprecated export (a note), both names at once refused."""
+    log format as in every command; --log-format is a hidden alias (a note), both names at once refused."""
     from cli_helpers import run_main
 
     tune = COMMAND_OBJECTS["tune"]
@@ -150,7 +149,22 @@ def test_tunes_log_format_is_format_with_its_old_names_hidden(tmp_path):
     assert "--log-format is deprecated; use --format FMT" in old.stderr and "deprecated" not in new.stderr
     both = run_main(*base, "--log-format", "csv", "--format", "csv")
     assert both.returncode == 2 and "give --format only" in both.stderr
-    # --format json (the deprecated export) still designs: test_exports::test_cli_export_options_checked_first
+
+
+@pytest.mark.parametrize(("value", "fix"), [("px4", "--export px4"), ("hear", "--export hear"),
+                                            ("json", "--export generic"), ("table", "default output")])
+def test_tunes_old_export_values_of_format_are_refused_with_the_fix(value, fix):
+    """--format px4 on a .ulg reads as the log's format to a user, but was tune's deprecated export: refused (a
+    usage error, one line) naming the log formats and the option the value is now, before any work."""
+    from cli_helpers import run_main
+
+    from mrftcli.io import READ_FORMATS
+
+    proc = run_main("tune", "--tp", "0.04", "--td", "0.01", "--tau", "0.2", "--k", "30", "--loop", "roll",
+                    "--controller-rate", "200", "--format", value)
+    assert proc.returncode == 2 and proc.stdout == "" and len(proc.stderr.splitlines()) == 1, proc.stderr
+    assert f"--format {value} is not a log format" in proc.stderr and fix in proc.stderr
+    assert ", ".join(READ_FORMATS) in proc.stderr
 
 
 def test_quiet_on_every_command_with_a_progress_bar():

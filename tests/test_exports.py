@@ -385,7 +385,7 @@ def _run(args: list[str], capsys) -> tuple[int, str, str]:
     return code, out.out, out.err
 
 
-def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
+def test_cli_export_out_file_and_generic(tmp_path, capsys):
     out = tmp_path / "roll.params"
     code, stdout, err = _run(["--controller-rate", "250", "--export", "px4", "--out", str(out), "--design", "model-based"], capsys)
     assert code == 0, err
@@ -405,8 +405,8 @@ def test_cli_export_out_file_and_deprecated_format(tmp_path, capsys):
     assert code == 2 and "--out" in err and "symbolic link" in err and len(err.splitlines()) == 1
     code, _, err = _run(["--controller-rate", "200", "--export", "hear", "--gyro-cutoff", "30"], capsys)
     assert code == 2 and "--gyro-cutoff" in err
-    code, stdout, err = _run(["--controller-rate", "200", "--format", "json", "--design", "mrft-rule"], capsys)
-    assert code == 0 and "deprecated" in err and json.loads(stdout)["Kp"] > 0
+    code, stdout, err = _run(["--controller-rate", "200", "--export", "generic", "--design", "mrft-rule"], capsys)
+    assert code == 0 and json.loads(stdout)["Kp"] > 0
 
 
 def test_cli_json_holds_the_versioned_record(tmp_path, capsys):

@@ -9,7 +9,7 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +22,7 @@ from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "check_export_paths", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings", "InputPath"]
+           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings", "InputPath", "LogFormat"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -146,6 +146,21 @@ def min_cycles_option(default: int | None = 3, detail: str = ""):
     return click.option("--min-cycles", type=click.IntRange(2, None), default=default,
                         show_default=default is not None,
                         help=f"Fewest {SHARED_HELP['--min-cycles']} for a test to be used{detail}.")
+
+
+class LogFormat(click.Choice):
+    """The log formats ``--format`` takes; a value in ``misnamed`` (a word a user may take for a log format, e.g. a
+    stack's name) is refused with one line naming the fix it maps to, a usage error (exit 2) as click's own."""
+
+    def __init__(self, choices: Sequence[str], misnamed: Mapping[str, str] | None = None) -> None:
+        super().__init__(choices)
+        self.misnamed = dict(misnamed or {})
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if value in self.misnamed:
+            raise click.UsageError(f"--format {value} is not a log format (formats: {', '.join(self.choices)}); "
+                                   f"{self.misnamed[value]}", ctx)
+        return super().convert(value, param, ctx)
 
 
 def _deprecated_rate(dest: str, default: float | None):

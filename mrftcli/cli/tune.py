@@ -28,11 +28,14 @@ if TYPE_CHECKING:
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
 from .model_options import process_model, structure_options
-from .options import (check_export_paths, check_output_dir, dump_json, echo_warnings, json_option, log_layout_options, min_cycles_option,
+from .options import (LogFormat, check_export_paths, check_output_dir, dump_json, echo_warnings, json_option,
+                      log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
-#: The deprecated ``--format`` values and the ``--export`` each now means (None: the table).
-_FORMAT_ALIAS = {"table": None, "json": "generic", "hear": "hear", "px4": "px4"}
+#: ``--format``'s values before it named the log format (an export then), refused with what each is now
+_EXPORT_NOT_FORMAT = {"table": "the design table is the default output (no option)",
+                      "json": "the generic JSON export is --export generic (the whole tune record: --json -)",
+                      "hear": "the export is --export hear", "px4": "the export is --export px4"}
 #: the flight stacks ``--export`` knows besides generic: UAV autopilots, not process controllers
 _UAV_STACKS = ("hear", "px4", "ardupilot")
 
@@ -52,34 +55,15 @@ class ExportOptions:
     hover_source: str = ""
 
 
-def _resolve_export(fmt: str | None, export: str | None) -> str | None:
-    """``--export``, or the deprecated ``--format table|json|hear|px4`` it replaces (a note on stderr)."""
-    if fmt is None:
-        return export
-    if export is not None:
-        raise InputError(f"give --export only (--format {fmt} is its deprecated alias)")
-    new = _FORMAT_ALIAS[fmt]
-    click.echo(f"note: --format {fmt} (an export) is deprecated and will be removed in the next release (--format "
-               f"names the log format, as in every command); use "
-               f"{'--export ' + new if new else 'no option (the table is the default)'}", err=True)
-    return new
-
-
-#: where the format callbacks leave the deprecated names' values (click's context meta)
-_EXPORT_ALIAS_KEY, _LOG_FORMAT_KEY = "mrftcli.tune.export_alias", "mrftcli.tune.log_format_alias"
+#: where the --log-format callback leaves the deprecated name's value (click's context meta)
+_LOG_FORMAT_KEY = "mrftcli.tune.log_format_alias"
 
 
 def _log_format_options(func: Callable[..., Any]) -> Callable[..., Any]:
     """``--format FMT``, the log format read as in every command (received as ``log_fmt``), with the hidden
-    ``--log-format`` (its name before, same meaning) and the deprecated ``--format table|json|hear|px4`` (the
-    export, before; values disjoint from the log formats) still taken, each with a note."""
+    ``--log-format`` (its name before, same meaning, a note); its values before (an export: table|json|hear|px4)
+    are refused with the option they are now."""
     from ..io import READ_FORMATS
-
-    class LogFormat(click.Choice):
-        """The log formats (help, completion, errors); an old export value is handed on to ``merge``."""
-
-        def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-            return value if value in _FORMAT_ALIAS else super().convert(value, param, ctx)
 
     def old_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
         if value is not None:
@@ -88,8 +72,6 @@ def _log_format_options(func: Callable[..., Any]) -> Callable[..., Any]:
         return value
 
     def merge(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
-        if value in _FORMAT_ALIAS:
-            ctx.meta[_EXPORT_ALIAS_KEY], value = value, None
         old = ctx.meta.get(_LOG_FORMAT_KEY)
         if old is not None and value is not None:
             raise click.BadParameter("give --format only (--log-format is its deprecated name)")
@@ -98,7 +80,7 @@ def _log_format_options(func: Callable[..., Any]) -> Callable[..., Any]:
     # eager: the old name is read before --format whatever the order on the command line
     alias = click.option("--log-format", type=click.Choice(READ_FORMATS), default=None, hidden=True,
                          expose_value=False, is_eager=True, callback=old_name)
-    main = click.option("--format", "log_fmt", type=LogFormat(READ_FORMATS), default=None, callback=merge,
+    main = click.option("--format", "log_fmt", type=LogFormat(READ_FORMATS, _EXPORT_NOT_FORMAT), default=None, callback=merge,
                         help="Log format (default: detected from the file; --log-format, its old name, still works).")
     return main(alias(func))
 
@@ -541,8 +523,7 @@ def tune(sources, model_name, params, ranges, Tp, min_cycles, td, tau, K, td_std
         raise InputError(f"{len(sources)} sources: give one SOURCE, or a roll and a pitch RESULT.json with "
                          "--export px4|ardupilot")
     cutoff_auto, cutoff_hz = _parse_cutoff(gyro_cutoff)
-    fmt = click.get_current_context().meta.get(_EXPORT_ALIAS_KEY)  # the deprecated --format table|json|hear|px4
-    ex = ExportOptions(_resolve_export(fmt, export), out, cutoff_hz, hover_thrust, clamp, stack_version, xy_integral)
+    ex = ExportOptions(export, out, cutoff_hz, hover_thrust, clamp, stack_version, xy_integral)
     if stack_version is not None and ex.stack != "ardupilot":
         raise InputError("--stack-version is for --export ardupilot (PX4's and HEAR's names do not differ by version)")
     ctx = click.get_current_context()

@@ -386,11 +386,11 @@ def test_the_misses_are_classed_by_how_the_flight_was_flown_and_every_flown_test
     """The benchmark's classes of the held-out misses (issue 42): set by the loop and relay height flown, every
     flown test counted once (refused, not found, over 5 %, within), the over-5 % tests' |z| and own standard
     errors collected per class: counts checked by hand."""
-    from miss_classes import classify, miss_class
+    from miss_classes import classify, miss_class, totals
     from sitl_analysis import HeldOut
 
     assert [miss_class("altitude", 0.05), miss_class("altitude", 0.25), miss_class("y", 0.16),
-            miss_class("pitch", 0.3)] == ["altitude, h <= 0.15", "altitude, h 0.25", "x / y", "roll / pitch"]
+            miss_class("pitch", 0.3)] == ["altitude, h <= 0.15", "altitude, h > 0.15", "x / y", "roll / pitch"]
 
     def row(z: float, sem: float, error: float | None = None) -> dict[str, float | None]:
         return {"z": z, "sem": sem, "error": error}
@@ -406,7 +406,15 @@ def test_the_misses_are_classed_by_how_the_flight_was_flown_and_every_flown_test
     assert c["altitude, h <= 0.15"]["z"] == pytest.approx([1.9, 2.6])
     assert c["altitude, h <= 0.15"]["sem_miss"] == pytest.approx([0.09, 0.04])
     assert c["roll / pitch"]["counts"] == {"over": 1, "not predicted": 1, "within": 1}
+    # the hits' standard errors are those of the tests held out within 5 % only: not the one not predicted
+    assert c["altitude, h <= 0.15"]["sem_hit"] == pytest.approx([0.01])
+    assert c["roll / pitch"]["sem_hit"] == pytest.approx([0.01]) and c["roll / pitch"]["sem_miss"] == [0.02]
     assert c["x / y"]["counts"] == {"refused": 4}
+    assert totals(c) == {"not found": 1, "within": 2, "over": 3, "not predicted": 1, "refused": 4}  # 11 flown
+    with pytest.raises(KeyError, match="'x'"):  # a flight without its relay height is not put in a class
+        classify(results, {"a": 0.06, "r": 0.05})
+    with pytest.raises(ValueError):
+        miss_class("altitude", float("nan"))
 
 
 def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_uncertainty() -> None:

@@ -4,7 +4,7 @@ over 5 %, and whether each lies inside the std analyze states for its own held-o
 A class is set by how the flight was flown (its loop and relay height), never by its outcome:
 
 * altitude at h <= 0.15 (cycles of 1-15 cm, where EKF2's altitude error is a large part of the cycle);
-* altitude at h 0.25;
+* altitude at h > 0.15 (the campaign flies 0.25);
 * x / y (eq. (2) holds the attitude loop in its delay);
 * roll / pitch (on EKF2's attitude).
 
@@ -20,13 +20,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["miss_class", "classify", "report_classes"]
+__all__ = ["miss_class", "classify", "totals", "report_classes"]
 
 
 def miss_class(loop: str, h_max: float) -> str:
     """The class of a flight's tests from its loop and its largest relay height [command units]."""
     if loop == "altitude":
-        return "altitude, h <= 0.15" if h_max <= 0.15 + 1e-9 else "altitude, h 0.25"
+        if not math.isfinite(h_max):
+            raise ValueError(f"an altitude flight's relay height is {h_max}: its class needs a finite h")
+        return "altitude, h <= 0.15" if h_max <= 0.15 + 1e-9 else "altitude, h > 0.15"
     return "x / y" if loop in ("x", "y") else "roll / pitch"
 
 
@@ -50,17 +52,22 @@ def _outcomes(r: dict[str, Any]) -> list[tuple[str, dict[str, Any] | None]]:
 
 def classify(results: dict[str, dict[str, Any]], h_max: dict[str, float]) -> dict[str, dict[str, Any]]:
     """Per class: the count of each outcome, the over-5 % tests' |z| (analyze's stated std) and the
-    standard errors of their own mean frequencies [-], beside the hits'. ``h_max``: each flight's largest h."""
+    standard errors of their own mean frequencies [-], beside the hits' (the tests held out within 5 %; a test
+    found but not predicted is neither). ``h_max``: each flight's largest h; a flight missing from it is an error
+    (its class would be a guess)."""
     classes: dict[str, dict[str, Any]] = {}
     for name, r in results.items():
-        c = classes.setdefault(miss_class(r["loop"], h_max.get(name, math.nan)),
+        if name not in h_max:
+            raise KeyError(f"no relay height for flight {name!r}: its class is set by the h it flew")
+        c = classes.setdefault(miss_class(r["loop"], h_max[name]),
                                {"flights": [], "counts": {}, "z": [], "sem_miss": [], "sem_hit": [], "band": []})
         c["flights"].append(name)
         for outcome, row in _outcomes(r):
             c["counts"][outcome] = c["counts"].get(outcome, 0) + 1
             if row is None:
                 continue
-            (c["sem_miss"] if outcome == "over" else c["sem_hit"]).append(row["sem"])
+            if outcome in ("over", "within"):
+                (c["sem_miss"] if outcome == "over" else c["sem_hit"]).append(row["sem"])
             if outcome == "over" and row.get("z") is not None:
                 c["z"].append(abs(row["z"]))
             if outcome == "over" and "ekf" in row:
@@ -68,15 +75,24 @@ def classify(results: dict[str, dict[str, Any]], h_max: dict[str, float]) -> dic
     return classes
 
 
+def totals(classes: dict[str, dict[str, Any]]) -> dict[str, int]:
+    """Every class's outcome counts summed: the campaign's refused, not found, not predicted, over and within."""
+    out: dict[str, int] = {}
+    for c in classes.values():
+        for outcome, n in c["counts"].items():
+            out[outcome] = out.get(outcome, 0) + n
+    return out
+
+
 def _pct(values: list[float]) -> str:
     vals = [v for v in values if np.isfinite(v)]
     return f"{np.median(vals) * 100:.1f} %" if vals else "-"
 
 
-def report_classes(results: dict[str, dict[str, Any]], h_max: dict[str, float]) -> None:
-    """Print one line per class (the benchmark's classification of the misses)."""
+def report_classes(classes: dict[str, dict[str, Any]]) -> None:
+    """Print one line per class of :func:`classify` (the benchmark's classification of the misses)."""
     print("  the misses by class (set by the loop and relay height flown):")
-    for name, c in classify(results, h_max).items():
+    for name, c in classes.items():
         n = sum(c["counts"].values())
         misses = n - c["counts"].get("within", 0)
         parts = ", ".join(f"{v} {k}" for k, v in c["counts"].items() if k != "within")

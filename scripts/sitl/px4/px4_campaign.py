@@ -35,7 +35,7 @@ from px4_sitl import SIH_MODEL, Px4Sitl, fly_mrft, load_params, read_qgc_params 
 from sitl import SitlError  # noqa: E402
 
 from mrftcli.errors import MrftError  # noqa: E402
-from miss_classes import report_classes  # noqa: E402
+from miss_classes import classify, report_classes, totals  # noqa: E402
 from sitl_analysis import analyze_log, held_out, test_lines  # noqa: E402
 
 __all__ = ["FLIGHTS", "sih_implied", "fly_campaign", "analyse", "report", "export", "refly", "predicted_step",
@@ -471,8 +471,9 @@ def report(results: dict[str, dict[str, Any]]) -> None:
         print(f"held-out frequency error (every flown test; refused, not found or not predicted: inf): max "
               f"{max(errs) * 100:.2f} %, median {np.median(errs) * 100:.2f} %, "
               f"within 5 %: {sum(e <= 0.05 for e in errs)}/{len(errs)}")
-        _report_misses(results)
-        report_classes(results, {name: max(h for _, h in tests) for name, _, _, tests, _ in FLIGHTS})
+        classes = classify(results, {name: max(h for _, h in tests) for name, _, _, tests, _ in FLIGHTS})
+        _report_misses(results, totals(classes))
+        report_classes(classes)
         lateral = [k for k, _ in CASCADES if "cascade" in results.get(k, {})]
         if lateral:
             alt = [e for k, r in results.items() if k not in lateral for e in counted_errors(r)]
@@ -495,18 +496,14 @@ def report(results: dict[str, dict[str, Any]]) -> None:
                   f"{_nearest(r['orbits'], r['fork']):.4f})" for r in rows))
 
 
-def _report_misses(results: dict[str, dict[str, Any]]) -> None:
-    """Why the held-out misses miss: refused, not found, or over 5 % (each with the spread of its own cycles'
-    frequencies and analyze's z, the error over the std it states)."""
-    refused = sum(r["flown"] for r in results.values() if "refused" in r)
-    kept = [r for r in results.values() if "refused" not in r]
-    unfound = sum(max(0, r["flown"] - r["found"]) for r in kept)
-    unpredicted = sum(max(0, r["found"] - len(r["held"]) - len(r.get("held_rate", []))) for r in kept)
+def _report_misses(results: dict[str, dict[str, Any]], counts: dict[str, int]) -> None:
+    """Why the held-out misses miss: refused, not found, or over 5 % (``counts``: every flown test's outcome,
+    ``miss_classes.totals``; each over-5 % eq. (2) test with the spread of its own cycles' frequencies and
+    analyze's z, the error over the std it states)."""
     over = [(k, h) for k, r in results.items() for h in r["held"] if abs(h.error) > 0.05]
-    over_rate = sum(abs(e) > 0.05 for r in results.values() for e in r.get("held_rate", []))
-    print(f"  the misses: {refused} refused (eq. (2) at the known Tp), {unfound} not found, "
-          f"{unpredicted} found but not predicted (the other tests refused or too few), "
-          f"{len(over) + over_rate} predicted more than 5 % off")
+    print(f"  the misses: {counts.get('refused', 0)} refused (eq. (2) at the known Tp), "
+          f"{counts.get('not found', 0)} not found, {counts.get('not predicted', 0)} found but not predicted (the "
+          f"other tests refused or too few), {counts.get('over', 0)} predicted more than 5 % off")
     rows = []
     for k, h in over:
         j = results[k]["jitter"][h.index]

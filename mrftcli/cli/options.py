@@ -22,7 +22,8 @@ from ..validate import MAX_RATE_HZ, TP_MISSING, check_beta, check_tp
 
 __all__ = ["dump_json", "BETA", "tp_option", "log_layout_options", "READ_OPTIONS", "tqdm_progress", "read_progress",
            "check_output_file", "check_output_dir", "check_export_paths", "json_option", "quiet_option", "controller_rate_option",
-           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings", "InputPath", "LogFormat"]
+           "HZ", "SHARED_HELP", "min_cycles_option", "num", "text_table", "echo_warnings", "InputPath", "LogFormat",
+           "deprecated_alias"]
 
 #: Words each shared option's help contains: one wording wherever the option appears
 #: (``tests/test_cli_grammar.py`` checks every command against this table; docs/usage.md lists the grammar).
@@ -163,32 +164,37 @@ class LogFormat(click.Choice):
         return super().convert(value, param, ctx)
 
 
-def _deprecated_rate(dest: str, default: float | None):
-    """The hidden ``--rate`` alias: says it is deprecated (one line on stderr) and hands its value on."""
+def deprecated_alias(old: str, new: str, dest: str, type: click.ParamType, *, metavar: str, default: Any = None):
+    """A hidden, deprecated option ``old`` meaning what ``new`` (received as ``dest``) means.
 
-    def take(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
+    Returns ``(alias, merge)``: the decorator adding ``old`` and the callback to give ``new``. The alias says it
+    is deprecated (one line on stderr) and hands its value on; ``merge`` refuses both names at once and applies
+    ``default`` (not click, so that a given alias is told from the default).
+    """
+    # the alias's value in click's context meta, under this key (simulate and batch read --rate's there)
+    key = f"mrftcli.{old.lstrip('-').replace('-', '_')}_alias.{dest}"
+
+    def take(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
         if value is not None:
-            click.echo("note: --rate is deprecated; use --controller-rate HZ (same meaning)", err=True)
-            ctx.meta[f"mrftcli.rate_alias.{dest}"] = value
+            click.echo(f"note: {old} is deprecated; use {new} {metavar} (same meaning)", err=True)
+            ctx.meta[key] = value
         return value
 
-    def merge(ctx: click.Context, param: click.Parameter, value: float | None) -> float | None:
-        alias = ctx.meta.get(f"mrftcli.rate_alias.{dest}")
+    def merge(ctx: click.Context, param: click.Parameter, value: Any) -> Any:
+        alias = ctx.meta.get(key)
         if alias is not None and value is not None:
-            raise click.BadParameter("give --controller-rate only (--rate is its deprecated name)")
-        # the default is applied here, not by click, so that a given --rate is told from the default
+            raise click.BadParameter(f"give {new} only ({old} is its deprecated name)")
         return value if value is not None else alias if alias is not None else default
 
-    # eager: the alias is processed before --controller-rate whatever the order on the command line
-    alias = click.option("--rate", type=HZ, default=None, hidden=True, expose_value=False, is_eager=True,
-                         callback=take)
+    # eager: the alias is processed before the new name whatever the order on the command line
+    alias = click.option(old, type=type, default=None, hidden=True, expose_value=False, is_eager=True, callback=take)
     return alias, merge
 
 
 def controller_rate_option(dest: str = "controller_rate_hz", *, default: float | None = None,
                            detail: str = "(default: the rate the log records)."):
     """``--controller-rate HZ`` (and the hidden, deprecated ``--rate``): the rate the controller runs at."""
-    alias, merge = _deprecated_rate(dest, default)
+    alias, merge = deprecated_alias("--rate", "--controller-rate", dest, HZ, metavar="HZ", default=default)
     main = click.option("--controller-rate", dest, type=HZ, default=None,
                         show_default=f"{default:g}" if default is not None else False,
                         metavar="HZ", callback=merge, help=f"{SHARED_HELP['--controller-rate']} {detail}")
@@ -357,7 +363,8 @@ READ_OPTIONS = ("loop", "command_topic", "output_topic", "beta_topic", "setpoint
                 "command_scale", "layout", "controller_rate_hz", "fmt", "time_unit")
 
 
-def log_layout_options(*, config_defaults: bool = False, only: tuple[str, ...] | None = None):
+def log_layout_options(*, config_defaults: bool = False, only: tuple[str, ...] | None = None,
+                       format_alias: str | None = None, format_misnamed: Mapping[str, str] | None = None):
     """The options that say how to read a loop from a log, shared by every command that reads one.
 
     ``--format``, ``--layout``, ``--loop``, ``--command-topic``, ``--output-topic``, ``--beta-topic``,
@@ -367,7 +374,8 @@ def log_layout_options(*, config_defaults: bool = False, only: tuple[str, ...] |
     ``config_defaults`` (batch) ``--loop`` defaults to None so that a per-log config file can fill it,
     and may be repeated; batch finds its logs by name and has no ``--format``. ``only``: those of these options
     (by the names they are received under) a command takes (vehicle: those that apply to a whole flight, ``fmt``,
-    ``layout``, ``controller_rate_hz``, ``time_unit``; tune: all but ``fmt``, its ``--format`` being its own).
+    ``layout``, ``controller_rate_hz``, ``time_unit``). ``format_alias``: a hidden, deprecated old name of
+    ``--format`` (:func:`deprecated_alias`); ``format_misnamed``: values refused with their fix (:class:`LogFormat`).
     """
     from ..io import LAYOUT_NAMES, READ_FORMATS, TIME_UNITS
     from ..io.logtypes import LOOPS
@@ -410,9 +418,7 @@ def log_layout_options(*, config_defaults: bool = False, only: tuple[str, ...] |
             help="Unit of a CSV's time column or a .mat file's time vectors (default: the column's name "
                  "says, else s); a log whose command rate is below 1 Hz or above 100 kHz is refused "
                  "with the unit that fits.")))
-        options.insert(0, ("fmt", click.option(
-            "--format", "fmt", type=click.Choice(READ_FORMATS), default=None,
-            help="Log format (default: detected from the file).")))
+        options.insert(0, ("fmt", _format_option(READ_FORMATS, format_alias, format_misnamed)))
     chosen = [option for name, option in options if only is None or name in only]
 
     def decorate(func):
@@ -423,6 +429,17 @@ def log_layout_options(*, config_defaults: bool = False, only: tuple[str, ...] |
         return func
 
     return decorate
+
+
+def _format_option(formats: Sequence[str], alias_name: str | None, misnamed: Mapping[str, str] | None):
+    """``--format FMT`` (received as ``fmt``), with its hidden old name ``alias_name`` when one is given."""
+    if alias_name is None:
+        return click.option("--format", "fmt", type=LogFormat(formats, misnamed), default=None,
+                            help="Log format (default: detected from the file).")
+    alias, merge = deprecated_alias(alias_name, "--format", "fmt", click.Choice(formats), metavar="FMT")
+    main = click.option("--format", "fmt", type=LogFormat(formats, misnamed), default=None, callback=merge,
+                        help=f"Log format (default: detected from the file; {alias_name}, its old name, still works).")
+    return lambda func: main(alias(func))
 
 
 def _process_loop(func):

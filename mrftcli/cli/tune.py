@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from ..tune.design import Posterior, TuneResult
     from ..tune.stacks import StackExport, StackSetting
 from .model_options import process_model, structure_options
-from .options import (LogFormat, check_export_paths, check_output_dir, dump_json, echo_warnings, json_option,
+from .options import (check_export_paths, check_output_dir, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option,
                       quiet_option, tp_option, tqdm_progress)
 
@@ -53,36 +53,6 @@ class ExportOptions:
     xy_integral: float | None = None
     #: where ``hover_thrust`` came from when not given (read from the log), stated first in the export; empty: given
     hover_source: str = ""
-
-
-#: where the --log-format callback leaves the deprecated name's value (click's context meta)
-_LOG_FORMAT_KEY = "mrftcli.tune.log_format_alias"
-
-
-def _log_format_options(func: Callable[..., Any]) -> Callable[..., Any]:
-    """``--format FMT``, the log format read as in every command (received as ``log_fmt``), with the hidden
-    ``--log-format`` (its name before, same meaning, a note); its values before (an export: table|json|hear|px4)
-    are refused with the option they are now."""
-    from ..io import READ_FORMATS
-
-    def old_name(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
-        if value is not None:
-            click.echo("note: --log-format is deprecated; use --format FMT (same meaning)", err=True)
-            ctx.meta[_LOG_FORMAT_KEY] = value
-        return value
-
-    def merge(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
-        old = ctx.meta.get(_LOG_FORMAT_KEY)
-        if old is not None and value is not None:
-            raise click.BadParameter("give --format only (--log-format is its deprecated name)")
-        return value if value is not None else old
-
-    # eager: the old name is read before --format whatever the order on the command line
-    alias = click.option("--log-format", type=click.Choice(READ_FORMATS), default=None, hidden=True,
-                         expose_value=False, is_eager=True, callback=old_name)
-    main = click.option("--format", "log_fmt", type=LogFormat(READ_FORMATS, _EXPORT_NOT_FORMAT), default=None, callback=merge,
-                        help="Log format (default: detected from the file; --log-format, its old name, still works).")
-    return main(alias(func))
 
 
 @dataclass(frozen=True)
@@ -159,7 +129,7 @@ def _log_once(source: str | None, read_options: dict[str, Any]) -> Iterator[Call
         def get() -> LogSource:
             if not opened:
                 assert source is not None
-                opened.append(stack.enter_context(open_log(source, read_options.get("log_fmt"), echo_warnings=False,
+                opened.append(stack.enter_context(open_log(source, read_options.get("fmt"), echo_warnings=False,
                                                            time_unit=read_options.get("time_unit"))))
             return opened[0]
         yield get
@@ -226,7 +196,7 @@ def _from_log(source: str, known: LoopModel, min_cycles: int, read_options: dict
 
     with tqdm_progress("tune", unit="step", enabled=not quiet) as progress:
         progress(0, 1, "analysing the log")
-        read = ReadOptions(**{("fmt" if k == "log_fmt" else k): v for k, v in read_options.items()})
+        read = ReadOptions(**read_options)
         # tune has no --diagnose: AnalyzeOptions' default hint points to the command
         result = analyze_path(source, known, read=read, options=AnalyzeOptions(min_stable_cycles=min_cycles),
                               log=None if log is None else log())  # opened once: _log_once
@@ -455,9 +425,7 @@ class _XYIntegralOption(click.Option):
 @structure_options
 @click.argument("sources", nargs=-1, type=click.Path(dir_okay=True))
 @tp_option(required=False, help="Known propulsion time constant Tp [s] (bench test); required, except for a cascade RESULT.json (analyze --inner-model), which carries its inner loop's.")  # required but for a cascade RESULT.json (its Tp is the inner analysis'): checked below
-@_log_format_options
-@log_layout_options(only=("loop", "layout", "command_topic", "output_topic", "beta_topic", "setpoint_topic",
-                          "output_scale", "command_scale", "controller_rate_hz", "time_unit"))
+@log_layout_options(format_alias="--log-format", format_misnamed=_EXPORT_NOT_FORMAT)
 @min_cycles_option(detail=" (as analyze)")
 @click.option("--td", type=float, help="Td [s], instead of a LOG or RESULT.json.")
 @click.option("--tau", type=float, help="tau [s], with --td.")

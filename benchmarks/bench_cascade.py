@@ -85,7 +85,8 @@ def draw_spec(rng: np.random.Generator, seed: int):
     from mrftcli.mrft.model import LoopModel
     from mrftcli.sim.cascade import command_gain, inner_pd, plan_outer_test
     from mrftcli.sim.cascade_plant import cascade_plant
-    from mrftcli.sim.cascade_spec import STANDARD_GRAVITY, CascadeSpec
+    from mrftcli.mrft.cascade import STANDARD_GRAVITY
+    from mrftcli.sim.cascade_spec import CascadeSpec
     from mrftcli.sim.flight import plan_test
 
     lu = lambda lo, hi: float(np.exp(rng.uniform(np.log(lo), np.log(hi))))  # noqa: E731

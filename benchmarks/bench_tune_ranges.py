@@ -30,11 +30,11 @@ from contextlib import contextmanager
 import mrftcli.cli  # noqa: F401  (first: BLAS single-threaded, as the command line runs it)
 import numpy as np
 
+from mrftcli.mrft.cascade import STANDARD_GRAVITY
 from mrftcli.mrft.model import LoopModel
 from mrftcli.tune import stacks
 from mrftcli.tune.design import DesignOptions, Posterior, tune
 from mrftcli.tune.margins import loop_margins
-from mrftcli.tune.stack_params import STANDARD_GRAVITY
 
 _MARGINS = importlib.import_module("mrftcli.tune.margins")  # (the package re-exports a function of that name)
 

@@ -18,7 +18,7 @@ from cli_helpers import run_main
 from scipy.linalg import expm
 
 from mrftcli.errors import IdentificationError, InputError
-from mrftcli.mrft.cascade import G, CascadeModel, DiscreteStateSpace, InnerLoop, discrete_limit_cycle
+from mrftcli.mrft.cascade import STANDARD_GRAVITY, CascadeModel, DiscreteStateSpace, InnerLoop, discrete_limit_cycle
 from mrftcli.mrft.controller import Controller
 from mrftcli.mrft.cascade_identify import CascadeIdentification
 from mrftcli.mrft.identify import TestMeasurement, identify
@@ -152,7 +152,7 @@ def test_discrete_cycle_of_eq2_agrees_with_lprs() -> None:
 
 
 def test_model_protocol_and_json_round_trip() -> None:
-    m = _cascade(K=G)
+    m = _cascade(K=STANDARD_GRAVITY)
     assert MODEL_FAMILIES["cascade"] is CascadeModel
     assert model_from_json(json.loads(json.dumps(m.to_json()))) == m
     assert m.parameters["K"].known and not m.parameters["Td"].known
@@ -171,10 +171,10 @@ def test_model_protocol_and_json_round_trip() -> None:
 
 def test_frequency_response_low_frequency_limit() -> None:
     """At low frequency T_inner -> 1 (a PD closing a type-1 inner loop): G_outer -> K Td e^{-tau s} / (s (Td s + 1))."""
-    m = _cascade(Td=0.8, tau=0.03, K=G)
+    m = _cascade(Td=0.8, tau=0.03, K=STANDARD_GRAVITY)
     assert complex(m.inner.closed_response(np.array([1e-5]))[0]) == pytest.approx(1.0, abs=1e-4)
     w = np.array([1e-4])
-    ref = G * 0.8 * np.exp(-0.03j * w) / (1j * w * (0.8j * w + 1))
+    ref = STANDARD_GRAVITY * 0.8 * np.exp(-0.03j * w) / (1j * w * (0.8j * w + 1))
     assert abs(complex(m.frequency_response(w)[0] / ref[0]) - 1.0) < 1e-3
 
 
@@ -393,7 +393,7 @@ def test_outer_tau_on_a_receive_stamped_flight(tmp_path) -> None:
     loop = InnerLoop(inner, gains, "roll")
     analysis = analyze_flight(flight, cascade_model(loop, "attitude"))
     est = analysis.identification.parameters["tau"]
-    before = identify([_measurement(t) for t in analysis.tests], CascadeModel(loop, 1.0, 0.0, K=G), rate_hz=RATE).parameters["tau"]
+    before = identify([_measurement(t) for t in analysis.tests], CascadeModel(loop, 1.0, 0.0, K=STANDARD_GRAVITY), rate_hz=RATE).parameters["tau"]
     assert abs(est.value - tau) < 3e-3 and est.ci95_low <= tau <= est.ci95_high
     assert abs(est.value - tau) < abs(before.value - tau) - 2e-3
     assert any("receive-time stamps" in a for a in analysis.assumptions)

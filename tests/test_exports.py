@@ -13,13 +13,13 @@ import pytest
 from scipy import signal
 
 from mrftcli.errors import InputError
+from mrftcli.mrft.cascade import STANDARD_GRAVITY
 from mrftcli.mrft.model import LoopModel
 from mrftcli.tune.closed_loop import Controller, RateFilter, responses, simulate_step
 from mrftcli.tune.design import Design, DesignOptions, TuneResult, Posterior, tune
 from mrftcli.tune.margins import plant_system
 from mrftcli.tune.stack_params import STACK_PARAMS, check_ranges, param
-from mrftcli.tune.stacks import (STANDARD_GRAVITY, StackExport, check_exportable, export_design,
-                                 stack_setting)
+from mrftcli.tune.stacks import StackExport, check_exportable, export_design, stack_setting
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 HOVER = 0.5

@@ -11,12 +11,15 @@ G_N = 9.80665
 
 def test_one_g_for_the_cascade_the_simulator_and_the_stacks() -> None:
     from mrftcli.analyze.cascade import OUTER_COMMANDS
-    from mrftcli.mrft.cascade import G, STANDARD_GRAVITY
+    from mrftcli.mrft import cascade
+    from mrftcli.mrft.cascade import STANDARD_GRAVITY
     from mrftcli.sim import cascade_spec
-    from mrftcli.tune import stack_params
+    from mrftcli.tune import stack_params, stacks
 
-    assert STANDARD_GRAVITY == G == G_N
-    assert cascade_spec.STANDARD_GRAVITY == stack_params.STANDARD_GRAVITY == G_N
+    assert STANDARD_GRAVITY == G_N
+    # one public name: the modules that use g import it, none re-exports it (it had five names)
+    assert not hasattr(cascade, "G")
+    assert all("STANDARD_GRAVITY" not in m.__all__ for m in (cascade_spec, stack_params, stacks))
     assert OUTER_COMMANDS["attitude"] == G_N  # analyze's K of a commanded attitude
     fields = {f.name: f for f in cascade_spec.CascadeSpec.__dataclass_fields__.values()}
     assert fields["g"].default == G_N  # simulate --cascade's y'' = g phi

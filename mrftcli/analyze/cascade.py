@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import InputError, SegmentationError
 from ..io.logtypes import FlightLog
-from ..mrft.cascade import G, CascadeModel, InnerLoop
+from ..mrft.cascade import STANDARD_GRAVITY, CascadeModel, InnerLoop
 from ..mrft.controller import Controller
 from ..mrft.cascade_identify import CascadeIdentification
 from ..mrft.identify import TestMeasurement, identify
@@ -42,7 +42,7 @@ __all__ = ["analyze_cascade", "cascade_model", "inner_loop_of", "inner_draws", "
            "OUTER_COMMANDS"]
 
 #: what the outer relay commands -> K of the cascade (None: identified)
-OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": G, "identify": None}
+OUTER_COMMANDS: dict[str, float | None] = {"acceleration": 1.0, "attitude": STANDARD_GRAVITY, "identify": None}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -260,8 +260,8 @@ def _assumptions(model: CascadeModel, options: CascadeOptions, rate: float,
                  ident: CascadeIdentification) -> list[str]:
     if "K" not in model.known:
         what = "K identified from the tests (--outer-command identify)"
-    elif model.K == G:
-        what = f"the outer relay commands an attitude [rad]: K = g = {G} m/s^2 per rad (--outer-command)"
+    elif model.K == STANDARD_GRAVITY:
+        what = f"the outer relay commands an attitude [rad]: K = g = {STANDARD_GRAVITY} m/s^2 per rad (--outer-command)"
     else:
         what = f"the outer relay commands an acceleration [m/s^2]: K = {model.K:g} (--outer-command)"
     inner = model.inner

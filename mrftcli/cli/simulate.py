@@ -139,7 +139,8 @@ def _simulate_cascade(opts: CascadeOptions, out: Path, json_target: str | None) 
     from ..sim.cascade import command_gain, inner_pd, plan_outer_test, simulate_cascade
     from ..sim.cascade_plant import cascade_plant
     from ..analyze.cascade import inner_gains_of
-    from ..sim.cascade_spec import CASCADE_AXES, STANDARD_GRAVITY, CascadeSpec
+    from ..mrft.cascade import STANDARD_GRAVITY
+    from ..sim.cascade_spec import CASCADE_AXES, CascadeSpec
     from ..sim.flight import plan_test
     from ..sim.cascade_write import write_cascade
 

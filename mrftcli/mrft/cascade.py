@@ -54,7 +54,7 @@ from .propagate import phi_gamma
 from .model import ParameterSpec, PlantModel, SpecModel, StateSpace, json_parameter_values, model_from_json, model_json, \
     model_json_parameters
 
-__all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "G", "STANDARD_GRAVITY",
+__all__ = ["InnerLoop", "CascadeModel", "DiscreteStateSpace", "discrete_limit_cycle", "STANDARD_GRAVITY",
            "INNER_LOOP_SCHEMA_VERSION", "INNER_LOOP_OF", "CASCADE_PARAMETERS", "SwitchedOrbit", "delayed_discrete", "fraction_discrete",
            "orbits", "split_interval", "whole_and_fraction"]
 
@@ -64,10 +64,9 @@ if TYPE_CHECKING:
 FloatArray = NDArray[np.float64]
 _INF = math.inf
 #: standard gravity g [m/s^2] (CGPM's, PX4's CONSTANTS_ONE_G): the package's one g (the stacks' thrust scaling in
-#: tune, the simulator's y'' = g phi, the cascade's K)
+#: tune, the simulator's y'' = g phi, the cascade's K of a commanded attitude [rad]: the lateral acceleration per
+#: radian of tilt)
 STANDARD_GRAVITY = 9.80665
-#: K of a commanded attitude [rad] (the lateral acceleration per radian of tilt) [m/s^2]: g
-G = STANDARD_GRAVITY
 #: version of :meth:`InnerLoop.to_json`
 INNER_LOOP_SCHEMA_VERSION = 1
 #: the inner (attitude) loop each outer loop goes through: a y displacement needs a roll, x a pitch
@@ -332,7 +331,7 @@ class CascadeModel(SpecModel):
         Outer transport delay [s] (on the measured output), >= 0.
     K : float
         Gain from the inner output to the acceleration [output / (inner output s^2)]: 1 for a
-        commanded acceleration, :data:`G` = g = 9.80665 for a commanded attitude in rad.
+        commanded acceleration, :data:`STANDARD_GRAVITY` = g = 9.80665 for a commanded attitude in rad.
     known : frozenset of str
         The set E (default: K).
     ranges : tuple of (str, float, float)
@@ -342,7 +341,7 @@ class CascadeModel(SpecModel):
     --------
     >>> from mrftcli.mrft.model import LoopModel
     >>> inner = InnerLoop(LoopModel(Tp=0.03, Td=0.3, tau=0.01, K=50.0), Controller(0.4, 0.0, 0.05, 0.005, 200.0))
-    >>> m = CascadeModel(inner, Td=1.5, tau=0.05, K=G)
+    >>> m = CascadeModel(inner, Td=1.5, tau=0.05, K=STANDARD_GRAVITY)
     >>> m.family, [p.name for p in m.parameters.values()], m.parameters["K"].known
     ('cascade', ['Td', 'tau', 'K'], True)
     >>> m.discrete_realisation(200.0).order > 5

@@ -19,7 +19,7 @@ from scipy import optimize
 
 from ..errors import IdentificationError, InputError
 from ..validate import check_positive
-from .cascade import CASCADE_PARAMETERS, G, CascadeModel, InnerLoop
+from .cascade import CASCADE_PARAMETERS, STANDARD_GRAVITY, CascadeModel, InnerLoop
 from .controller import json_number
 from .identify import TestMeasurement
 from .identification import IdentificationRecord
@@ -289,7 +289,7 @@ def fit_cascade_cycles(tests: Sequence[TestMeasurement], model: CascadeModel, ra
         The outer tests: nominal beta, per-cycle frequencies [Hz], amplitudes [output units], h.
     model : CascadeModel
         The cascade: its inner loop (the identified plant, nominal, and its controller during the
-        outer tests); K known (the set E: 1 for a commanded acceleration, :data:`G` for a commanded
+        outer tests); K known (the set E: 1 for a commanded acceleration, :data:`STANDARD_GRAVITY` for a commanded
         attitude [rad]) or not (two tests at different beta, with amplitudes, are then needed); the
         ranges of Td [s] and tau [s] (the set I; default :data:`TD_BOUNDS`, :data:`TAU_BOUNDS`).
         The values of Td, tau (and of an unknown K) are ignored.
@@ -330,14 +330,14 @@ def fit_cascade_cycles(tests: Sequence[TestMeasurement], model: CascadeModel, ra
         raise IdentificationError("the cascade identification needs every test's amplitude and relay height h")
     if K is None and len({round(t.beta, 3) for t in tests}) < 2:
         raise IdentificationError("identifying K needs tests at two different beta; or state K (1 for a commanded "
-                                  f"acceleration, {G:g} for a commanded attitude in rad)")
+                                  f"acceleration, {STANDARD_GRAVITY:g} for a commanded attitude in rad)")
     lo_td, hi_td = Td_bounds
     if not (0 < lo_td < hi_td) or not (0 <= tau_bounds[0] < tau_bounds[1]):
         raise InputError(f"bad bounds: Td {Td_bounds}, tau {tau_bounds} (need 0 < low < high)")
     free = ("Td", "tau") if K is not None else ("Td", "tau", "K")
     lower = [math.log(lo_td), tau_bounds[0]] + ([math.log(1e-3)] if K is None else [])
     upper = [math.log(hi_td), tau_bounds[1]] + ([math.log(1e3)] if K is None else [])
-    k0 = G if K is None else K
+    k0 = STANDARD_GRAVITY if K is None else K
     base = CascadeModel(inner, Td=math.sqrt(lo_td * hi_td), tau=0.5 * sum(tau_bounds), K=k0,
                         known=frozenset() if K is None else frozenset({"K"}),
                         ranges=(("Td", lo_td, hi_td), ("tau", *tau_bounds)))

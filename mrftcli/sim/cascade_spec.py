@@ -26,20 +26,17 @@ from typing import Any
 from ..errors import InputError
 from ..jsonable import check_schema_version
 from ..mrft.controller import Controller, json_number
-from ..mrft.cascade import STANDARD_GRAVITY as _G
+from ..mrft.cascade import STANDARD_GRAVITY
 from ..mrft.model import LoopModel
 from .spec import TestSpec, check_flight_size, check_hover_hold, check_switching
 
 __all__ = ["InnerGains", "CascadeSpec", "CascadeTestTruth", "CascadeTruth", "CASCADE_AXES", "COMMANDED",
-           "STANDARD_GRAVITY", "CASCADE_TRUTH_SCHEMA"]
+           "CASCADE_TRUTH_SCHEMA"]
 
 #: outer loop -> the inner attitude loop it runs through
 CASCADE_AXES: Mapping[str, str] = {"y": "roll", "x": "pitch"}
 #: what the outer MRFT drives: the attitude setpoint [rad] (K = g) or the acceleration [m/s^2] (K = 1)
 COMMANDED = ("attitude", "acceleration")
-#: g [m/s^2] of y'' = g phi: the package's one g (:data:`mrftcli.mrft.cascade.STANDARD_GRAVITY`, the cascade
-#: model's K of a commanded attitude); a sidecar states the g its flight was simulated with
-STANDARD_GRAVITY = _G
 #: schema version of :class:`CascadeTruth`
 CASCADE_TRUTH_SCHEMA = 1
 

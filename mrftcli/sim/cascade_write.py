@@ -29,8 +29,8 @@ from numpy.typing import NDArray
 from ..errors import InputError
 from ..io.logtypes import TopicData
 from ..io.stacks import hear_receive_times
+from ..mrft.cascade import STANDARD_GRAVITY
 from .cascade import CascadeFlight
-from .cascade_spec import STANDARD_GRAVITY
 from .sidecar import imu_topic, write_log_atomic, write_sidecar
 
 __all__ = ["CASCADE_LAYOUTS", "cascade_topics", "write_cascade"]

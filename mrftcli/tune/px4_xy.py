@@ -13,11 +13,12 @@ import math
 
 import numpy as np
 
+from ..mrft.cascade import STANDARD_GRAVITY
 from ..mrft.controller import PX4VelocityPath
 from ..mrft.model import LoopModel
 from .closed_loop import Controller
 from .margins import loop_margins
-from .stack_params import STANDARD_GRAVITY, param
+from .stack_params import param
 
 __all__ = ["XY_HORIZON_S", "px4_xy_controller", "px4_xy_ticks", "px4_xy_prediction", "pd_wind_offset",
            "written_loop"]

@@ -32,11 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-# g [m/s^2] of the stacks' thrust = acceleration x hover thrust / g (PX4's CONSTANTS_ONE_G): the package's one g,
-# re-exported beside the stacks' parameters
-from ..mrft.cascade import STANDARD_GRAVITY
-
-__all__ = ["StackParam", "STACK_PARAMS", "param", "check_ranges", "RangeViolation", "STACKS", "STANDARD_GRAVITY"]
+__all__ = ["StackParam", "STACK_PARAMS", "param", "check_ranges", "RangeViolation", "STACKS"]
 
 STACKS = ("px4", "ardupilot", "hear")
 

@@ -59,18 +59,19 @@ import numpy as np
 from ..jsonable import check_schema_version
 from ..errors import InputError
 from ..io.hover import HOVER_TOPIC, LoggedHoverThrust
+from ..mrft.cascade import STANDARD_GRAVITY
 from ..mrft.model import LoopModel
 from ..mrft.controller import PX4VelocityPath
 from .closed_loop import Controller, PlantStack, RateFilter, as_discrete
 from .export import unit_reasons
 from .margins import Margins, loop_margins, margin_response, stack_sensitivity
 from .px4_xy import px4_xy_controller, px4_xy_ticks, written_loop
-from .stack_params import STANDARD_GRAVITY, check_ranges, param
+from .stack_params import check_ranges, param
 
 __all__ = ["PX4_ATTITUDE_RATES_HZ", "EXPORTS", "PX4VelocityPath", "StackSetting", "StackExport", "ExportEvidence", "stack_setting",
            "check_exportable", "check_hover_thrust", "check_xy_integral", "export_design", "cascade_params", "px4_xy_controller",
            "HOVER_LOOPS", "hover_thrust_refusal", "read_hover_thrust",
-           "STANDARD_GRAVITY", "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
+           "UNIT_TOLERANCE", "check_units", "HEAR_FILTER_HZ", "HEAR_RATE_HZ", "EXPORT_SCHEMA_VERSION"]
 
 #: ``tune --export`` choices.
 EXPORTS = ("generic", "px4", "ardupilot", "hear")

@@ -38,20 +38,24 @@ def _sidecar(log: Path) -> dict | None:
 
 
 def _ci_selection(logs: list[Path]) -> list[Path]:
-    """A varied few: the first log of each (folder, flight stack, format) and each kind of broken file.
+    """A varied few: the first log of each (folder, flight stack, file or folder) and each kind of broken file.
 
-    Every clean log is also analysed one by one in test_analyze_sample_logs.py (the SITL logs in
-    test_sitl_logs.py and test_sitl_px4_logs.py); batch's own job here is the machinery (config matching,
-    processes, rows, report) and "no internal error" on every kind. In the top folder a name's prefix is
-    its writer; in a subfolder (concealed/, sitl/) the prefix is a flight or a loop, so there the format
-    alone tells the writers apart (one DataFlash and one ULog from SITL).
+    Every clean log is also analysed one by one in test_analyze_sample_logs.py (every format of design1's
+    altitude flight, each against its sidecar; the SITL logs in test_sitl_logs.py and test_sitl_px4_logs.py);
+    batch's own job here is the machinery (config matching, processes, rows, report) and "no internal
+    error" on every kind. In the top folder a name's prefix is its writer, and one file of each writer (with
+    a log that is a folder, a ROS 2 bag, beside it) is enough for that: the same flight in four more
+    containers would redo the same analysis through readers tested on their own. In a subfolder
+    (concealed/, sitl/) the prefix is a flight or a loop, so there the format alone tells the writers apart
+    (one DataFlash and one ULog from SITL).
     """
     seen, chosen = set(), []
     for log in sorted(logs):
         # design1, design2, px4, hear, dnn: the writers differ
-        stack = log.name.split("_")[0].split(".")[0] if log.parent == SAMPLE else ""
-        kind = (log.parent, stack if stack != "design2" else "design1", "".join(log.suffixes[-2:]) if log.is_file()
-                else "folder", _sidecar(log) is None)
+        top = log.parent == SAMPLE
+        stack = log.name.split("_")[0].split(".")[0] if top else ""
+        form = "folder" if not log.is_file() else "file" if top else "".join(log.suffixes[-2:])
+        kind = (log.parent, stack if stack != "design2" else "design1", form, _sidecar(log) is None)
         if kind not in seen:
             seen.add(kind)
             chosen.append(log)

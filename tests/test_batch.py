@@ -565,12 +565,13 @@ def test_vehicle_whose_tau_grew_is_flagged_against_its_own_history() -> None:
 def test_fleet_report_writes_html_and_png(tmp_path: Path, mplcleanup) -> None:
     from mrftcli.report.fleet import write_fleet_report
 
-    df = S.flag_outliers(_toy_summary([46, 47, 48, 49, 50, 70]))
+    df = S.flag_outliers(_toy_summary([46, 47, 48, 49, 50, 70])).assign(lead=False)  # summary_frame's column
     index = write_fleet_report(df, tmp_path / "report")
     text = index.read_text()
     assert "fleet_altitude.png" in text and "log5.mcap" in text and "tau high" in text
-    # table cells: tau in ms, other numbers to 4 digits, times to the minute, a missing error blank
-    assert "<td>/f/v1/log5.mcap</td><td>altitude</td><td>v1</td><td>ok</td><td>70.00 ms</td><td>1.00 ms</td><td>1</td>" in text
+    # table cells: tau in ms, no lead blank, other numbers to 4 digits, times to the minute, a missing error blank
+    assert ("<td>/f/v1/log5.mcap</td><td>altitude</td><td>v1</td><td>ok</td><td>70.00 ms</td><td>1.00 ms</td><td></td>"
+            "<td>1</td>") in text
     assert "<td>2026-01-06 00:00</td><td></td></tr>" in text
     png = tmp_path / "report" / "fleet_altitude.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000

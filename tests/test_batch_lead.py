@@ -16,10 +16,11 @@ def test_one_lead_test_serves_the_table_and_the_notes() -> None:
     eq2 = pd.DataFrame({"path": ["a.ulg", "b.ulg", "c.ulg", "d.ulg"], "loop": ["pitch"] * 4,
                         "tau_mean": [-0.003, 0.0, 0.002, math.nan]})
     assert lead_rows(eq2).tolist() == [True, False, False, False]
-    note = lead_note(eq2)
+    note = lead_note(eq2.assign(lead=lead_rows(eq2)))  # the note reads summary_frame's column
     assert note is not None and note.startswith("1 loop(s)") and "a.ulg pitch (-3 ms)" in note
     process = eq2.assign(model=pd.Series(["fopdt", None, None, None], dtype="string"))
-    assert lead_rows(process).tolist() == [False, False, False, False] and lead_note(process) is None
+    assert lead_rows(process).tolist() == [False, False, False, False]
+    assert lead_note(process.assign(lead=lead_rows(process))) is None
     assert lead_rows(pd.DataFrame({"path": ["x"]})).tolist() == [False]
 
 
@@ -44,3 +45,17 @@ def test_the_summary_and_the_fleet_report_carry_the_lead(tmp_path, monkeypatch) 
     lag_row = next(r for r in html.split("<tr>") if "/f/lag.ulg" in r)
     assert "<td>tau &lt; 0</td>" in lead_row and "tau &lt; 0" not in lag_row
     assert "1 loop(s) identified with tau &lt; 0" in html and "lead.ulg pitch (-2.9 ms)" in html
+
+
+def test_a_process_summarys_rows_never_lead() -> None:
+    """summary_frame computes the column once, with a process row's model beside it: a process family's tau < 0
+    (impossible for its families, here forced) is not eq. (2)'s lead; an eq. (2) row in the same frame still is."""
+    from mrftcli.batch.summary import summary_frame
+
+    base = {"loop": "pitch", "vehicle": "v", "status": "ok", "result_status": "ok", "tau_std": 1e-4, "n_tests": 2}
+    rows = [{**base, "path": "/f/p.csv", "tau_mean": -0.002, "model": "fopdt", "parameters": "K 1"},
+            {**base, "path": "/f/q.ulg", "tau_mean": -0.003}]
+    df = summary_frame(rows)
+    assert df["lead"].tolist() == [False, True]
+    assert lead_note(df) == ("1 loop(s) identified with tau < 0 (a lead: eq. (2) admits an estimator's few ms; tune "
+                             "designs them at tau = 0): q.ulg pitch (-3 ms)")

@@ -20,7 +20,7 @@ def _summary(n: int) -> pd.DataFrame:
         "vehicle": [f"v{i % 2}" for i in range(n)], "status": ["ok"] * n, "result_status": ["ok"] * n,
         "tau_mean": taus, "tau_std": [0.001] * n, "Td_mean": [1.0] * n, "Td_std": [0.2] * n,
         "K_mean": [20.0] * n, "K_std": [0.01] * n, "n_tests": [2] * n, "n_cycles": [20] * n, "findings": [""] * n,
-        "error": [None] * n, "error_type": [None] * n, "outlier": [False] * n, "outlier_reason": [""] * n,
+        "error": [None] * n, "error_type": [None] * n, "outlier": [False] * n, "outlier_reason": [""] * n, "lead": [False] * n,
         "log_time": pd.date_range("2026-01-01", periods=n, freq="D", tz="UTC"), "log_time_source": ["log"] * n,
     })
 

@@ -304,8 +304,9 @@ def _flag_vehicle_changes(df: pd.DataFrame, k: float = 3.0, min_history: int = 2
 
 
 def lead_rows(df: pd.DataFrame) -> pd.Series:
-    """Which rows eq. (2) identified with a lead (``tau_mean`` < 0 [s]), the one test the printed table, the notes
-    and the summary's column share; a process row (``batch --model``: its families take tau >= 0) never is."""
+    """Which rows eq. (2) identified with a lead (``tau_mean`` < 0 [s]): the one test, computed once into the
+    summary's ``lead`` column (:func:`summary_frame`), which the notes, the printed table and the fleet report read;
+    a process row (``batch --model``, ``model`` set: its families take tau >= 0) never is."""
     if "tau_mean" not in df:
         return pd.Series(False, index=df.index, dtype=bool)
     tau = pd.to_numeric(df["tau_mean"], errors="coerce")
@@ -316,8 +317,9 @@ def lead_rows(df: pd.DataFrame) -> pd.Series:
 
 
 def lead_note(df: pd.DataFrame) -> str | None:
-    """The summary's note on its rows identified with a lead (:func:`lead_rows`): how many, which (None: none)."""
-    lead = df[lead_rows(df)]
+    """The note on the rows of a :func:`summary_frame` identified with a lead (its ``lead`` column): how many,
+    which (None: none)."""
+    lead = df[df["lead"].astype(bool)]
     if lead.empty:
         return None
     which = ", ".join(f"{Path(str(r['path'])).name} {r['loop']} ({r['tau_mean'] * 1e3:.3g} ms)"
@@ -339,10 +341,11 @@ def summary_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
     for col in ("log_time", "log_mtime", "analysed_at"):
         df[col] = pd.to_datetime(df[col], utc=True)
     df = flag_outliers(df)
-    process = any("model" in r for r in rows)
-    df["lead"] = pd.Series(False, index=df.index) if process else lead_rows(df)  # process families: tau >= 0
-    if process:  # batch --model: the process model and its parameters with units
-        return pd.concat([df[SUMMARY_COLUMNS], _process_frame(rows, df.index)], axis=1)
+    # batch --model: the process model and its parameters with units
+    process = _process_frame(rows, df.index) if any("model" in r for r in rows) else None
+    df["lead"] = lead_rows(df if process is None else df.join(process["model"]))
+    if process is not None:
+        return pd.concat([df[SUMMARY_COLUMNS], process], axis=1)
     if any("tune_Kp" in r for r in rows):
         tuned = pd.DataFrame([{k: r.get(k) for k in TUNE_COLUMNS} for r in rows], index=df.index, columns=TUNE_COLUMNS)
         for col in TUNE_COLUMNS:

@@ -96,12 +96,10 @@ def _print_table(df, limit: int = 50) -> None:
 
 def _print_rows(df, limit: int) -> None:
     """log, loop, status, then eq. (2)'s tau, Td, K (with their std) or a process row's model and parameters
-    with units (value ± std unit); the note: a failed row's error, an outlier's reason, the diagnosis' findings."""
-    from ..batch.summary import lead_rows
-
+    with units (value ± std unit); the note: a failed row's error, an outlier's reason, a lead (the summary's
+    ``lead`` column), the diagnosis' findings."""
     process = "parameters" in df
     shown = _shown_rows(df, limit)
-    lead = lead_rows(shown)
     figures = (f"{'model':<8} parameters (value ± std unit) / note" if process else
                f"{'tau ms':>8} {'+/-':>6} {'Td s':>8} {'+/-':>7} {'K':>8}  note")
     header = f"{'log':<36} {'loop':<9} {'status':<16} {figures}"
@@ -112,7 +110,7 @@ def _print_rows(df, limit: int) -> None:
         note = r["error"] if failed else (r["parameters"] if process and isinstance(r["parameters"], str) else "")
         if r["outlier"]:
             note = f"OUTLIER {r['outlier_reason']} {note}".strip()
-        if lead[i]:
+        if r["lead"]:
             note = f"LEAD tau < 0 (tune designs at tau 0) {note}".strip()
         if isinstance(r["findings"], str) and r["findings"]:
             note = f"{note} findings: {r['findings']}".strip()

@@ -187,7 +187,7 @@ def write_fleet_report(df: pd.DataFrame, out_dir: Path, notes: Sequence[str] = (
             png = plot_loop(df, loop, out_dir / f"fleet_{loop}.png")
             parts.append(f"<h2>{esc(loop)}</h2><img src='{png.name}' alt='{esc(loop)} parameters'>")
     parts.append("<h2>All rows</h2>")
-    parts.append(_table(df, ["path", "loop", "vehicle", "status", "tau_mean", "tau_std", *(["lead"] if "lead" in df else []),
+    parts.append(_table(df, ["path", "loop", "vehicle", "status", "tau_mean", "tau_std", "lead",
                              "Td_mean", "Td_std", "K_mean", "K_std", "n_tests", "n_cycles", "findings", "log_time", "error"]))
     index = out_dir / "index.html"
     write_page(index, html_page("mrft-ident fleet report", "\n".join(parts)))

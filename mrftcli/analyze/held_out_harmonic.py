@@ -13,7 +13,8 @@ an estimator's lag bends it (EKF3's altitude) and it is the most precise point t
 
 The prediction's standard deviation is the fit's own: the Gauss-Newton covariance of its parameters
 (:func:`~mrftcli.mrft.identify_lti.fit_covariance`, inflated by the reduced chi-square where the points disagree)
-propagated linearly through the predicted cycle (central differences); ``*_sigma`` is that and the test's own
+propagated linearly through the predicted cycle (forward differences of the continuous relay's cycle, in
+log terms); ``*_sigma`` is that and the test's own
 standard error of its mean in quadrature, as for the fundamentals' route (:class:`~mrftcli.analyze.held_out.
 HeldOut`). The harmonics are used only where the other tests' points are one eq. (2) plant: where their fit's
 chi-square exceeds its 99th percentile, a harmonic carries what eq. (2) leaves out (an estimator's lag: EKF2's
@@ -130,21 +131,22 @@ def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint
         # a flat direction has no variance in the covariance: the std would be understated
         return f"their response points do not determine {', '.join(fit.undetermined) or 'the model'}"
 
-    def cycle(zk: np.ndarray) -> _Prediction:
+    def cycle(zk: np.ndarray, rate_hz: float | None) -> _Prediction:
         values = {n: (math.exp(v) if n != "tau" else float(v)) for n, v in zip(names, zk)}
         if "K" in values and fit.model.parameters["K"].value < 0:
             values["K"] = -values["K"]
-        lc = predicted_cycle(test.predicting_relay, _with(fit.model, values), test.rate_hz, n_h)
+        lc = predicted_cycle(test.predicting_relay, _with(fit.model, values), rate_hz, n_h)
         return float(lc.frequency_hz), float(lc.amplitude)
 
     try:
-        centre = cycle(z)
+        centre = cycle(z, test.rate_hz)
+        # the sensitivities in log terms from the continuous relay's cycle (smooth in the parameters, where the
+        # sampled relay's orbits step; a quarter of the sampled cycles' CPU), scaled to the sampled prediction
+        base = np.log(cycle(z, None))
         grad = np.empty((2, z.size))
         for i in range(z.size):
             dz = 1e-4 * max(1.0, abs(float(z[i]))) if names[i] != "tau" else 1e-6
-            step = np.eye(z.size)[i] * dz
-            hi, lo = cycle(z + step), cycle(z - step)
-            grad[:, i] = (np.subtract(hi, lo)) / (2 * dz)
+            grad[:, i] = np.asarray(centre) * (np.log(cycle(z + np.eye(z.size)[i] * dz, None)) - base) / dz
     except (IdentificationError, InputError, ValueError, ArithmeticError):
         return "the fitted model has no limit cycle under this test's relay"
     var = np.einsum("ki,ij,kj->k", grad, cov, grad)

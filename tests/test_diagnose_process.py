@@ -64,8 +64,21 @@ def test_clean_fopdt_under_two_relays_is_consistent(fopdt_diagnosis):
         assert all(b.ratio < 3 for b in check.all_bands + check.held_out_bands)
 
 
-def test_second_order_plant_analysed_as_fopdt_is_located_and_its_second_lag_named(sopdt_csv):
-    result = diagnose(read_flight(sopdt_csv, READ, echo_warnings=False), family_model("fopdt"))
+@pytest.fixture(scope="module")
+def sopdt_as_fopdt_cli(sopdt_csv: Path, tmp_path_factory: pytest.TempPathFactory):
+    """``diagnose --model fopdt --json --report`` on the second-order recording, once for the module (main() in
+    this process): the CLI test reads its output, the located-and-named test its record (the same diagnosis;
+    the record's round trip is test_process_diagnosis_json_round_trip_and_refusals')."""
+    tmp = tmp_path_factory.mktemp("sopdt_cli")
+    run = run_main("diagnose", str(sopdt_csv), "--command-topic", "u_relay", "--output-topic", "y_output",
+                   "--model", "fopdt", "--json", str(tmp / "d.json"), "--report", str(tmp / "rep"))
+    return run, tmp
+
+
+def test_second_order_plant_analysed_as_fopdt_is_located_and_its_second_lag_named(sopdt_as_fopdt_cli):
+    run, tmp = sopdt_as_fopdt_cli
+    assert run.returncode == 0, run.stderr
+    result = DiagnosisResult.from_json(json.loads((tmp / "d.json").read_text()))
     assert not result.consistent
     # the library names the lag FOPDT leaves out: the simulator's lags are 0.7 s and 0.3 s, FOPDT's T
     # takes one, the effect the other; each test predicted from the other at least halves its error
@@ -98,10 +111,9 @@ def test_process_diagnosis_json_round_trip_and_refusals(fopdt_diagnosis):
                                    "second_effect_candidates": [], "analysis": data["analysis"]})
 
 
-def test_cli_diagnose_model_verdict_first_and_json(sopdt_csv, tmp_path):
+def test_cli_diagnose_model_verdict_first_and_json(sopdt_as_fopdt_cli):
+    run, tmp_path = sopdt_as_fopdt_cli
     out = tmp_path / "d.json"
-    run = run_main("diagnose", str(sopdt_csv), "--command-topic", "u_relay", "--output-topic", "y_output",
-                   "--model", "fopdt", "--json", str(out), "--report", str(tmp_path / "rep"))  # main() in this process
     assert run.returncode == 0, run.stderr
     lines = run.stdout.splitlines()
     assert lines[0].startswith("found: sensor_lag (T_lag ")

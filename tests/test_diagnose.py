@@ -113,7 +113,8 @@ def test_model_features_do_not_depend_on_evaluation_history():
     # the warm-started limit cycle's tick grid used to shift with history and move the harmonics by 1e-4
     import math
 
-    from mrftcli.diagnose.fit import CandidateModel, prepare_tests, segments_of
+    from mrftcli.diagnose.prepared import prepare_tests, segments_of
+    from mrftcli.diagnose.candidate_model import CandidateModel
     from mrftcli.io import ReadOptions, read_flight
 
     flight = read_flight(CONCEALED[0], ReadOptions(loop="altitude"))

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from mrftcli.diagnose.fit import CandidateModel
+from mrftcli.diagnose.candidate_model import CandidateModel
 from mrftcli.diagnose.screen import screen_log
 from mrftcli.mrft.model import soiptd_model
 from test_segment_support import simulate_relay_flight, to_flight

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mrftcli.diagnose.fit import CandidateModel, DiagnosedTest
+from mrftcli.diagnose.prepared import DiagnosedTest
+from mrftcli.diagnose.candidate_model import CandidateModel
 from mrftcli.diagnose.physics import BY_NAME
 
 G = -0.002  # 1/s

@@ -20,7 +20,7 @@ from cli_helpers import run_main
 
 import mrftcli
 
-from mrftcli.diagnose.fit import cycle_plant
+from mrftcli.diagnose.candidate_model import cycle_plant
 from mrftcli.diagnose.limit_cycles import AugmentedPlant, periodic_cycle
 from mrftcli.diagnose.periodic import CyclePlant, periodic_solution
 from mrftcli.diagnose.selection import diagnose

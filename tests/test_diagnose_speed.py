@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from mrftcli.diagnose.features import cycle_features, summarize_features
-from mrftcli.diagnose.fit import CandidateModel, _extent, initial_base, model_cycle
+from mrftcli.diagnose.candidate_model import CandidateModel, _extent, model_cycle
+from mrftcli.diagnose.starts import initial_base
 from mrftcli.diagnose.periodic import CyclePlant, periodic_solution
 from mrftcli.diagnose.screen import screen_log
 from mrftcli.io import ReadOptions, read_flight
@@ -148,7 +149,7 @@ def test_one_frequency_leaves_the_valley_flat_and_the_start_meets_it() -> None:
 
 
 def test_a_td_on_the_fits_bound_is_named_not_determined() -> None:
-    from mrftcli.diagnose.fit import TD_RANGE_S, bound_reason
+    from mrftcli.diagnose.starts import TD_RANGE_S, bound_reason
 
     assert bound_reason(TD_RANGE_S[1] * (1 - 1e-7)) is not None and "upper bound (100 s)" in str(bound_reason(99.99))
     assert bound_reason(TD_RANGE_S[0]) is not None

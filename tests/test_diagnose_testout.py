@@ -69,7 +69,7 @@ def test_the_refits_keep_the_flights_hover_command(monkeypatch: pytest.MonkeyPat
     """A gain drift's trim is the flight's hover command (the first test's relay centre): the refit that
     leaves the first test out must keep it, not take the second test's centre (review R2 of issue 39)."""
     from mrftcli.diagnose import testout
-    from mrftcli.diagnose.fit import CandidateModel
+    from mrftcli.diagnose.candidate_model import CandidateModel
     from mrftcli.diagnose.physics import BY_NAME
 
     made: list = []

@@ -12,7 +12,9 @@ import pytest
 
 from mrftcli.diagnose.candidates import fit_linear
 from mrftcli.diagnose.features import FEATURE_NAMES
-from mrftcli.diagnose.fit import CandidateModel, fit_base, theta_bounds
+from mrftcli.diagnose.fit import fit_base
+from mrftcli.diagnose.candidate_model import CandidateModel
+from mrftcli.diagnose.starts import theta_bounds
 from mrftcli.diagnose.screen import screen_log, trim_spread, with_trim_nuisance
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.mrft.model import soiptd_model

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from ..diagnose.fit import bound_reason
+from ..diagnose.starts import bound_reason
 from ..diagnose.physics import BY_NAME, unit_in_loop
 from ..report.wording import gain_unit, sig
 from .model_options import (parse_windows, relay_options, soiptd_or_process, structure_options, window_option)

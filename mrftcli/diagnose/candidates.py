@@ -19,8 +19,9 @@ from scipy.stats import chi2 as chi2_dist
 
 from ..errors import DiagnoseError
 from ..mrft.model import LoopModel
-from .fit import (CandidateModel, Fit, candidate_starts, effect_value, fit_base, fit_model, plant_params, residuals,
-                  theta_bounds)
+from .fit import Fit, effect_value, fit_base, fit_model, plant_params, residuals
+from .candidate_model import CandidateModel
+from .starts import candidate_starts, theta_bounds
 from .heldout import BIC_THRESHOLD, explains_held_out, held_out_score, significant
 from .scatter import scatter_reference, scatter_z
 from .physics import CANDIDATES, Effect
@@ -129,7 +130,7 @@ def _rescored(model: CandidateModel, fit: Fit, recs: list) -> Fit:
 
 
 class Starts:
-    """Each candidate's starting points on the linear fit (:func:`~mrftcli.diagnose.fit.candidate_starts`),
+    """Each candidate's starting points on the linear fit (:func:`~mrftcli.diagnose.starts.candidate_starts`),
     computed once per diagnosis: the probes, the single fits and every pair ask for them again with the
     same linear fit (the profiled candidates' describing-function solves were 10-40 % of diagnose's
     CPU on the RotorPy and JSBSim flights; issue 39)."""

@@ -6,7 +6,7 @@
   (:mod:`mrftcli.diagnose.starts`); :func:`plant_params`, :func:`effect_value` read a :class:`Fit`.
 * The tests (:mod:`mrftcli.diagnose.prepared`), the candidate models' limit cycles
   (:mod:`mrftcli.diagnose.candidate_model`) and the fits' starts and bounds
-  (:mod:`mrftcli.diagnose.starts`) live beside it; their names are re-exported here.
+  (:mod:`mrftcli.diagnose.starts`) live beside it; import their names from those modules.
 
 Units: times in seconds, the output in its own units (m or rad), the command in command units.
 """
@@ -21,14 +21,12 @@ from scipy.optimize import least_squares
 
 from .features import FEATURE_NAMES
 from .physics import Effect
-from .prepared import MIN_CYCLES, DiagnosedTest, prepare_tests, segments_of
-from .candidate_model import PERIOD_RTOL, CandidateModel, PredictedCycle, cycle_plant, model_cycle
-from .candidate_model import _extent  # noqa: F401 - re-exported for the callers of this module's old layout
-from .starts import TD_RANGE_S, bound_reason, candidate_starts, initial_base, tau_on_valley, theta_bounds
+from .prepared import DiagnosedTest
+from .candidate_model import CandidateModel
+from .starts import initial_base, tau_on_valley
 
-__all__ = ["MIN_CYCLES", "FEATURE_FLOOR", "PERIOD_RTOL", "DiagnosedTest", "segments_of", "prepare_tests", "PredictedCycle",
-           "CandidateModel", "cycle_plant", "model_cycle", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "initial_base", "tau_on_valley",
-           "bound_reason", "TD_RANGE_S", "fit_base", "theta_bounds", "candidate_starts", "plant_params", "param_std", "effect_value"]
+__all__ = ["FEATURE_FLOOR", "feature_mask", "feature_sigma", "Fit", "residuals", "fit_model", "fit_base", "plant_params",
+           "param_std", "effect_value"]
 
 #: the fits' relative finite-difference step (least_squares' diff_step)
 _STEP = 1e-3

@@ -18,7 +18,9 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from .features import FEATURE_NAMES, cycle_scatter
-from .fit import CandidateModel, DiagnosedTest, Fit, PredictedCycle, feature_mask
+from .fit import Fit, feature_mask
+from .prepared import DiagnosedTest
+from .candidate_model import CandidateModel, PredictedCycle
 from .physics import BIC_THRESHOLD
 from .records import CandidateFit, HeldOut, PairFit
 

@@ -61,7 +61,7 @@ class AugmentedPlant:
         The command nonlinearities of :mod:`mrftcli.diagnose.physics` (gain (1 +- a) above/below the
         trim; clipping at ``headroom`` above the trim [command units], 0 = none; a dead band
         [command units]; thrust rectification's hover thrust F [command units], 0 = none). Only the
-        periodic solver (:func:`mrftcli.diagnose.fit.cycle_plant`) models them.
+        periodic solver (:func:`mrftcli.diagnose.candidate_model.cycle_plant`) models them.
     """
 
     Tp: float

@@ -42,7 +42,9 @@ from ..mrft.identify_lti import LtiIdentification, ResponsePoint
 from ..mrft.lprs import LimitCycle
 from ..mrft.model import PlantModel
 from .features import FEATURE_NAMES
-from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask
+from .fit import Fit, feature_mask
+from .prepared import DiagnosedTest
+from .candidate_model import CandidateModel
 from .heldout import harmonic_errors, held_out_p, waveform_errors
 from ..jsonable import finite_or_none, json_opt_float
 from .physics import Z_LIMIT

@@ -19,8 +19,10 @@ import numpy as np
 
 from ..mrft.model import LoopModel
 from .candidates import PROFILE_NFEV, CandidateSearch, LinearFit, Starts, jacobian, probe_gain
-from .fit import (CandidateModel, DiagnosedTest, Fit, effect_value, fit_model, plant_params, residuals,
-                  theta_bounds)
+from .fit import Fit, effect_value, fit_model, plant_params, residuals
+from .prepared import DiagnosedTest
+from .candidate_model import CandidateModel
+from .starts import theta_bounds
 from .heldout import BIC_THRESHOLD, HOLDOUT_THRESHOLD, explains_held_out, harmonic_errors, held_out_score, significant
 from .physics import BY_NAME, Effect
 from .records import CandidateFit, EffectFinding, EffectIdentification, Evidence, FinalModel, HeldOut, PairFit

@@ -34,7 +34,9 @@ from .rows import (CandidateFit, Disagreement, Evidence, HeldOut, PairFit, TestR
 if TYPE_CHECKING:
     from ..analyze.record import AnalysisResult
     from ..io.logtypes import FlightLog
-    from .fit import CandidateModel, DiagnosedTest, Fit
+    from .fit import Fit
+    from .prepared import DiagnosedTest
+    from .candidate_model import CandidateModel
     from .locate import TestCheck
 
 __all__ = ["SCHEMA_VERSION", "NRMSE_DEFINITION", "HELD_OUT_DEFINITION_TESTS", "HeldOut", "CandidateFit", "PairFit", "Evidence", "Disagreement",

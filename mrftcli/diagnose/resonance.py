@@ -43,7 +43,7 @@ from scipy.stats import chi2 as chi2_dist
 from ..io.logtypes import FlightLog
 from ..mrft.model import LoopModel
 from .features import N_HARM
-from .fit import DiagnosedTest
+from .prepared import DiagnosedTest
 from .records import Unexplained
 
 __all__ = ["RESONANCE_P", "BAND_HZ", "RINGING_P", "DAMPINGS", "MIN_TEMPLATE_CHI2", "PeriodicResidual", "BandExcess",

@@ -47,7 +47,9 @@ from .records import CandidateFit, HeldOut
 from ..segment import StabilityCriterion, stable_cycles
 
 if TYPE_CHECKING:
-    from .fit import CandidateModel, DiagnosedTest, Fit
+    from .fit import Fit
+    from .prepared import DiagnosedTest
+    from .candidate_model import CandidateModel
 
 __all__ = ["SCATTER_CRITERION", "ScatterSetting", "scatter_sample", "expected_period_variance",
            "fit_jitter", "JitterFit", "pooled_scatter_error", "REFERENCE_WINDOWS", "scatter_reference",

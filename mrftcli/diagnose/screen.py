@@ -19,7 +19,9 @@ from ..io.logtypes import FlightLog
 from ..segment.records import MrftTest
 from ..mrft.model import LoopModel
 from .features import summarize_features
-from .fit import MIN_CYCLES, CandidateModel, DiagnosedTest, Fit, feature_sigma, prepare_tests, segments_of
+from .fit import Fit, feature_sigma
+from .prepared import MIN_CYCLES, DiagnosedTest, prepare_tests, segments_of
+from .candidate_model import CandidateModel
 from .physics import BY_NAME
 
 if TYPE_CHECKING:
@@ -192,7 +194,7 @@ def screen_log(flight: FlightLog, model: LoopModel, analysis: AnalysisResult | N
     Raises
     ------
     DiagnoseError
-        No test has :data:`~mrftcli.diagnose.fit.MIN_CYCLES` stable cycles.
+        No test has :data:`~mrftcli.diagnose.prepared.MIN_CYCLES` stable cycles.
     InsufficientDataError
         One test has them, of tests flown at two betas or relay heights (exit 6, as analyze's one beta); or
         analyze refused the log with one beta at one relay height (its refusal).

@@ -51,7 +51,8 @@ from ..io.logtypes import FlightLog, Signal
 from ..mrft.model import LoopModel, PlantModel
 from ..progress import Progress, report
 from .candidates import LinearFit, fit_linear, search_candidates
-from .fit import bound_reason, plant_params
+from .fit import plant_params
+from .starts import bound_reason
 from .heldout import significant
 from .scatter import jitter_candidate, scatter_reference, scatter_z
 from .locate import (Z_LIMIT, check_test, locate, measured_waveform, misfit, test_disagreements,

@@ -17,7 +17,10 @@ import math
 import numpy as np
 
 from .features import FEATURE_NAMES
-from .fit import CandidateModel, DiagnosedTest, Fit, feature_mask, fit_model, residuals, theta_bounds
+from .fit import Fit, feature_mask, fit_model, residuals
+from .prepared import DiagnosedTest
+from .candidate_model import CandidateModel
+from .starts import theta_bounds
 
 __all__ = ["MIN_REFIT_GAIN", "MIN_TESTS", "left_out_chi2"]
 

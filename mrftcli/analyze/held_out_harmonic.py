@@ -120,14 +120,14 @@ def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint
         return "no other test's response points"
     try:
         fit = identify_points(model, points)
-    except (IdentificationError, InputError) as err:
-        return str(err)
+    except (IdentificationError, InputError, ValueError, ArithmeticError) as err:  # no fit: the fallback says why
+        return str(err) or type(err).__name__
     dof = 2 * len(fit.points) - len([e for e in fit.estimates if not e.known])
     if fit.chi2_dof is not None and dof > 0 and chi2.sf(fit.chi2_dof * dof, dof) < _CONSISTENT_P:
         return (f"their points disagree with one eq. (2) plant (chi² {fit.chi2_dof * dof:.3g} for {dof} degrees of "
                 "freedom: a harmonic carries what eq. (2) leaves out, e.g. an estimator's lag)")
     names, z, cov = fit_covariance(fit)
-    if len(fit.points) * 2 < len(names) or np.linalg.matrix_rank(cov) < len(names):
+    if len(fit.points) * 2 < len(names) or not np.all(np.isfinite(cov)) or np.linalg.matrix_rank(cov) < len(names):
         # a flat direction has no variance in the covariance: the std would be understated
         return f"their response points do not determine {', '.join(fit.undetermined) or 'the model'}"
 

@@ -50,15 +50,28 @@ def test_figures(result):
     assert len(fig.axes) == 2 * len(result.tests)
 
 
-def test_write_report(result, tmp_path):
-    import matplotlib.pyplot as plt
-
+@pytest.fixture(scope="module")
+def epoch_report(tmp_path_factory):
+    """An epoch-stamped log's analysis and its report, written once (a report is ~10x its analysis' CPU): the
+    written files are checked by test_write_report, the times on its page by test_time_axes_..."""
     from mrftcli.report.analysis import write_analysis_report
 
-    index = write_analysis_report(result, tmp_path / "out")
+    sf = simulate_paper_flight(0.0499, 1.8345, 0.0498, 2.0, (-0.4, -0.7), seed=9)
+    fl = flight_from_simulated(sf)
+    fl = replace(fl, **{name: Signal(getattr(fl, name).t + 1_700_000_000.0, getattr(fl, name).values)
+                        for name in ("command", "output", "setpoint", "beta")})
+    res = analyze_flight(fl, soiptd_model(0.0499), options=AnalyzeOptions(n_bootstrap=100))
+    out = tmp_path_factory.mktemp("report") / "out"
+    return fl, res, write_analysis_report(res, out)
+
+
+def test_write_report(epoch_report):
+    import matplotlib.pyplot as plt
+
+    _, result, index = epoch_report
     html = index.read_text()
     for png in re.findall(r"src='([^']+\.png)'", html):
-        data = (tmp_path / "out" / png).read_bytes()
+        data = (index.parent / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
     assert len(re.findall(r"src='([^']+\.png)'", html)) == 6
     assert f"{result.tau.value * 1e3:.4g}" in html and f"{result.Td.value:.4g}" in html
@@ -69,15 +82,12 @@ def test_write_report(result, tmp_path):
     assert matplotlib.get_backend().lower() == "agg"
 
 
-def test_time_axes_are_seconds_from_the_log_start(tmp_path):
+def test_time_axes_are_seconds_from_the_log_start(epoch_report):
     """Epoch-stamped log: no '+1.7e9' offset, no absolute times on the axes or in the page."""
-    from mrftcli.report.analysis import plot_timeseries, write_analysis_report
+    from mrftcli.report.analysis import plot_timeseries
 
-    sf = simulate_paper_flight(0.0499, 1.8345, 0.0498, 2.0, (-0.4, -0.7), seed=9)
-    fl = flight_from_simulated(sf)
-    fl = replace(fl, **{name: Signal(getattr(fl, name).t + 1_700_000_000.0, getattr(fl, name).values)
-                        for name in ("command", "output", "setpoint", "beta")})
-    res = analyze_flight(fl, soiptd_model(0.0499), options=AnalyzeOptions(n_bootstrap=100))
+    fl, res, index = epoch_report
+    assert fl.command.t[0] > 1e9  # the log's own clock is epoch seconds
     duration = float(fl.command.t[-1] - fl.command.t[0])
     fig = plot_timeseries(res)
     fig.canvas.draw()
@@ -87,7 +97,7 @@ def test_time_axes_are_seconds_from_the_log_start(tmp_path):
         assert ax.xaxis.get_offset_text().get_text() == ""
         assert "1700000" not in ax.get_xlabel()
     t1 = res.tests[0]
-    html = write_analysis_report(res, tmp_path / "out").read_text()
+    html = index.read_text()
     assert "1700000" not in html
     assert f"{t1.t_start - res.t0:.1f} - {t1.t_end - res.t0:.1f}" in html
 

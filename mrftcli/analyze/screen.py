@@ -204,31 +204,63 @@ def describe_tests(tests: Sequence[MrftTest], t0: float = 0.0) -> str:
     return "; ".join(parts)
 
 
-def irregular_hint(test: MrftTest, min_stable_cycles: int) -> str:
-    """What to do about a test with cycles enough but too few of them stable because their periods scatter.
+#: how :func:`irregular_hint` ends: marks a reason that carries it
+_IRREGULAR_TAIL = "a larger relay height h lifts the cycle above it"
 
-    A test of at least ``2 * min_stable_cycles`` cycles whose periods spread (std over mean) more than the
-    stability criterion tolerates (``period_cap_rel``) did not lack time: the relay switched irregularly, on
-    noise or on an estimate's error that is a large part of the cycle (PX4 SITL's altitude at h 0.05: EKF2's
-    error 16-38 % of the cycle in its band, periods 0.35-1.6 s in one test; docs/benchmarks/sitl.md), and a
-    larger relay height lifts the cycle above it. ``""`` otherwise (a short test: "record longer tests" stands).
+
+def _off_tolerance(test: MrftTest) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Which regular cycles' periods and which amplitudes lie off the test's medians by more than the
+    tolerances the stability criterion applied to it (``period_tolerance``, ``amplitude_tolerance``: the
+    capped MAD tolerances, or the stationary caps of a noisy stationary test), and which cycles it could
+    count (regular, measured): the criterion's own test (:func:`~mrftcli.segment.stability.stable_cycles`).
+    None without medians."""
+    med = (test.period_median, test.period_tolerance, test.amplitude_median, test.amplitude_tolerance)
+    if not (all(np.isfinite(med)) and test.period_median > 0 and test.amplitude_median > 0):
+        return None
+    P = np.array([c.period for c in test.cycles], float)
+    A = np.array([c.amplitude for c in test.cycles], float)
+    reg = np.array([c.regular for c in test.cycles], bool) & np.isfinite(P) & np.isfinite(A)
+    return (reg & (np.abs(P - test.period_median) > test.period_tolerance),
+            reg & (np.abs(A - test.amplitude_median) > test.amplitude_tolerance), reg)
+
+
+def irregular_hint(test: MrftTest, min_stable_cycles: int) -> str:
+    """What to do about a test with cycles enough but too few of them stable because they scatter.
+
+    Fires on a test of at least ``2 * min_stable_cycles`` cycles, fewer than ``min_stable_cycles`` of them
+    stable, where past the start-up transient (the leading cycles off the medians) cycles still fall outside
+    the tolerances the stability criterion applied to this test (``period_tolerance`` / ``period_median``,
+    ``amplitude_tolerance`` / ``amplitude_median``). Such a test did not lack time: the relay switched
+    irregularly, on noise or on an estimate's error that is a large part of the cycle (PX4 SITL's altitude at
+    h 0.05: EKF2's error 16-38 % of the cycle in its band, periods 0.35-1.6 s and amplitudes 5-44 mm in one
+    test; docs/sitl.md), and a larger relay height lifts the cycle above it. ``""`` otherwise (a short test,
+    or one that only converged slowly: "record longer tests" stands).
 
     Examples
     --------
-    A test whose ten periods run 0.46-1.06 s gets
-    ``"; its 10 cycles' periods spread 25 % (over the 15 % the stability criterion allows): ..."``.
+    A test of ten cycles, four of them off the median period 1.0 s by more than its 6 % tolerance, gets
+    ``"; of its 10 cycles 4 periods are off their median (1 s) by over the 6 % the stability criterion
+    allowed this test: ..."``.
     """
-    periods = np.array([c.period for c in test.cycles], float)
-    periods = periods[np.isfinite(periods) & (periods > 0)]
-    cap = test.criterion.period_cap_rel
-    if periods.size < 2 * min_stable_cycles:
+    found = _off_tolerance(test)
+    if found is None or len(test.cycles) < 2 * min_stable_cycles or test.n_stable >= min_stable_cycles:
         return ""
-    spread = float(np.std(periods, ddof=1) / np.mean(periods))
-    if spread <= cap:
+    off_p, off_a, reg = found
+    off = off_p | off_a
+    first_in = np.flatnonzero(reg & ~off)
+    if first_in.size == 0 or not off[first_in[0]:].any():  # none past the transient: a slow start
         return ""
-    return (f"; its {periods.size} cycles' periods spread {spread * 100:.0f} % (over the {cap * 100:.0f} % the "
-            "stability criterion allows): the relay switched irregularly, on noise or an estimate's error that "
-            "is a large part of the cycle; a larger relay height h lifts the cycle above it")
+    parts = []
+    n_p, n_a = int(off_p.sum()), int(off_a.sum())
+    if n_p:
+        parts.append(f"{n_p} period{' is' if n_p == 1 else 's are'} off their median ({test.period_median:.3g} s) "
+                     f"by over the {test.period_tolerance / test.period_median * 100:.0f} %")
+    if n_a:
+        parts.append(f"{n_a} amplitude{'' if n_a == 1 else 's'} off their median by over the "
+                     f"{test.amplitude_tolerance / test.amplitude_median * 100:.0f} %")
+    return (f"; of its {len(test.cycles)} cycles {' and '.join(parts)} the stability criterion allowed this test: "
+            "the relay switched irregularly, on noise or an estimate's error that is a large part of the cycle; "
+            + _IRREGULAR_TAIL)
 
 
 def screen_tests(found: Sequence[MrftTest], min_stable_cycles: int, *, eq2: bool = True) -> dict[int, str]:
@@ -322,10 +354,10 @@ def no_usable_message(flight: FlightLog, found: Sequence[MrftTest], reasons: Map
         return (head + f"the loop gain of {out} has opposite signs in them "
                 f"({', '.join(f'{span(t, t0)}: {t.loop_sign:+d}' for t in found)}): the output is not the "
                 "signal the relay controls in all of them; is --output-topic right?")
-    irregular = [t for t in found if irregular_hint(t, min_stable_cycles)]
+    irregular = [t for t in found if _IRREGULAR_TAIL in reasons.get(t.index, "")]
     advice = ("record longer tests or check for noise/dropouts" if not irregular else
-              f"{len(irregular)} of them had cycles enough whose periods scatter beyond the stability criterion's "
-              f"{irregular[0].criterion.period_cap_rel * 100:.0f} % (the relay switched irregularly, on noise or an "
+              f"{len(irregular)} of them had cycles enough whose periods or amplitudes scatter beyond the "
+              "tolerances the stability criterion allowed (the relay switched irregularly, on noise or an "
               "estimate's error that is a large part of the cycle): fly a larger relay height h")
     return (f"{flight.path}: found {n} relay test(s) but none with {min_stable_cycles} or more stable "
             f"cycles ({describe_tests(found, t0)}; times from the log start); {advice}"

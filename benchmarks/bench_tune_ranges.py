@@ -122,6 +122,52 @@ def transfer_ratio(seed: int) -> None:
               f"{t_old / reps * 1e6:5.1f} us (ratio {t_old / t_new:.2f}x); values {'same' if same else 'DIFFER'}")
 
 
+def old_xy_ticks(params: dict, model: LoopModel, rate_hz: float, hover: float, seconds: float):
+    """The previous :func:`~mrftcli.tune.px4_xy.px4_xy_ticks`' loop, verbatim (np.outer per tick)."""
+    from mrftcli.mrft.controller import PX4VelocityPath
+    from mrftcli.tune.closed_loop import discrete_plants
+
+    Phi, G, C, d = discrete_plants([model], rate_hz)[0]
+    n, T = int(round(seconds * rate_hz)) + 1, 1.0 / rate_hz
+    alpha = PX4VelocityPath(params["MPC_VELD_LP"], "MPC_VELD_LP").alpha(rate_hz)
+    pz, pv, iv, dv = (params[k] for k in ("MPC_XY_P", "MPC_XY_VEL_P_ACC", "MPC_XY_VEL_I_ACC", "MPC_XY_VEL_D_ACC"))
+    r, load = np.array([1.0, 0.0]), np.array([0.0, 1.0 / model.K])
+    u = np.zeros((n + d + 1, 2))
+    x, y_prev, v_prev, acc_f, integral = np.zeros((2, 3)), np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(2)
+    y = np.empty((2, n))
+    for k in range(n):
+        y[:, k] = x @ C
+        v = (y[:, k] - y_prev) / T
+        acc_f += alpha * ((v - v_prev) / T - acc_f)
+        err = pz * (r - y[:, k]) - v
+        u[k + d + 1] = (pv * err + integral - dv * acc_f) * hover / STANDARD_GRAVITY
+        integral += iv * err * T
+        x = x @ Phi.T + np.outer(u[k], G[0]) + np.outer(u[k + 1], G[1]) + np.outer(load, G[0] + G[1])
+        y_prev, v_prev = y[:, k], v
+    return np.arange(n) * T, y
+
+
+def xy_ticks_ratio() -> None:
+    """px4_xy_ticks (PX4's x/y law, 40 s at 125 Hz with and without the integral), new against old."""
+    from mrftcli.tune.px4_xy import XY_HORIZON_S, px4_xy_ticks
+
+    model = LoopModel(0.0422, 2.669, 0.0464, STANDARD_GRAVITY / HOVER)
+    t_new = t_old = 0.0
+    same = True
+    for iv in (0.0, 0.4):
+        p = {"MPC_XY_P": 0.95, "MPC_XY_VEL_P_ACC": 1.8, "MPC_XY_VEL_I_ACC": iv, "MPC_XY_VEL_D_ACC": 0.2,
+             "MPC_VELD_LP": 5.0}
+        t = time.process_time()
+        a = px4_xy_ticks(p, model, 125.0, HOVER, XY_HORIZON_S)
+        t_new += time.process_time() - t
+        t = time.process_time()
+        b = old_xy_ticks(p, model, 125.0, HOVER, XY_HORIZON_S)
+        t_old += time.process_time() - t
+        same &= np.array_equal(a[1], b[1]) and np.array_equal(a[0], b[0])
+    print(f"px4_xy_ticks, 2 x {XY_HORIZON_S:g} s at 125 Hz: new {t_new:.3f} s, old {t_old:.3f} s "
+          f"(ratio {t_old / t_new:.2f}x); values {'same' if same else 'DIFFER'}")
+
+
 def _case(row: tuple, stack: str, loop: str, seed: int, draws: int):
     _, kind, Tp, Td, Td_std, tau, tau_std = row
     K = STANDARD_GRAVITY / HOVER if kind == "altitude" else 1.0
@@ -170,6 +216,7 @@ def main() -> None:
           f"(ratio {old_total / new_total:.2f}x; median {med:.2f}x over the {len(ratios)} scanned cases); "
           f"outputs {'identical' if same_all else 'DIFFER'}")
     transfer_ratio(a.seed)
+    xy_ticks_ratio()
 
 
 if __name__ == "__main__":

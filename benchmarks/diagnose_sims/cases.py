@@ -130,6 +130,7 @@ def run_case(case: dict) -> dict:
     """Fly, write MCAP, analyze and diagnose reusing the analysis as the CLI does (CPU of each timed in this
     process), and what was found."""
     from mrftcli.analyze import analyze_flight
+    from mrftcli.cli.diagnose import _with_analysis
     from mrftcli.mrft.model import soiptd_model
     from mrftcli.diagnose.selection import diagnose
     from mrftcli.errors import MrftError
@@ -160,6 +161,7 @@ def run_case(case: dict) -> dict:
             # as `mrft-ident diagnose` runs it: the same flight, analyze's record reused (its segmentation;
             # issue 39) or its refusal; the CPU beyond analyze's
             res = diagnose(flight, soiptd_model(Tp), analysis=analysis, refusal=refusal)
+            res = _with_analysis(res, analysis)  # the CLI's last step: analyze's model beside, recommend again
             out["error"], out["refused"] = None, False
         except Exception as exc:  # noqa: BLE001 - a benchmark records failures
             res, out["error"] = None, f"{type(exc).__name__}: {exc}"

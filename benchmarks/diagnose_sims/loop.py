@@ -63,23 +63,46 @@ def relay_height(model: PlanningModel, beta: float, amplitude: float) -> float:
 
 
 class Relay:
-    """The MRFT relay as the stacks fly it: the PX4 fork's ``MRFT_Block::mrft_anti_false_switching``
-    (abdullaayyad96/PX4-Autopilot @a08b08d, ``src/lib/MRFT/src/MRFT.cpp``; HEAR's
-    ``MRFTController::mrft_anti_false_switching``, oussamaabdulhay/HEAR_Architecture ``src/MRFTController.cpp``
-    with ``no_switch_delay_in_ms = 20``, ``num_of_peak_conf_samples = 5`` in its header, is the same code), ``mode_of_operation`` 1, with the fork's defaults ``no_switch_delay_in_ms`` 20 and
-    ``num_of_peak_conf_samples`` 5 (``include/DataTypes.hpp``; PX4 parameters ``MRFT_Z_NO_SWITCH`` 20,
-    ``MRFT_Z_N_CONF`` 5 in ``mc_pos_control``). Per call, with the error e:
+    """The MRFT relay as the stacks fly it: the PX4 fork's ``MRFT_Block::mrft_anti_false_switching``,
+    ``mode_of_operation`` 1, ported line by line; HEAR's ``MRFTController::mrft_anti_false_switching``
+    (oussamaabdulhay/HEAR_Architecture @04c69c3, ``src/MRFTController.cpp``) is the same code.
+
+    Sources, abdullaayyad96/PX4-Autopilot @a08b08d:
+
+    * ``src/lib/MRFT/src/MRFT.cpp:76-186``, the function. First call 95-112; the no-switch window
+      116-120; the -h branch 122-151; the +h branch 152-181.
+    * ``src/lib/MRFT/include/DataTypes.hpp:101``: the defaults ``no_switch_delay_in_ms`` 20 and
+      ``num_of_peak_conf_samples`` 5. HEAR's ``include/HEAR_control/MRFT_values.hpp`` has the same.
+    * ``src/lib/MRFT/include/Timer.hpp:21``: ``tockMilliSeconds()`` returns whole milliseconds (an int).
+    * ``src/modules/mc_pos_control/mc_pos_control_params.c:917,927``: the PX4 parameters
+      ``MRFT_Z_NO_SWITCH`` 20 and ``MRFT_Z_N_CONF`` 5.
+
+    Per call, with the error e:
 
     * first call: the output is +h if e > 0 else -h, that side's peak counted as reached, both peaks 0;
     * for ``no_switch_ms`` after each switch (the timer's whole milliseconds <= the delay) nothing moves;
-    * on +h: a new maximum resets the confirmation counter, any other sample counts one and sets the
-      running minimum to e; ``n_conf`` counts latch "maximum reached" (a later new maximum moves the
-      threshold, not the latch); once latched, e < -beta e_max switches to -h. On -h the mirror image.
+    * on +h: a new maximum sets e_max and resets the confirmation counter. Any other sample counts one
+      and sets e_min to itself, so e_min ends as the last sample that was not a new maximum. Mode 1's
+      threshold on +h does not read e_min; it is only the -h side's starting minimum after the switch.
+      ``n_conf`` counts latch "maximum reached" (a later new maximum moves the threshold, not the
+      latch); once latched, e < -beta e_max switches to -h. On -h the mirror image.
 
     The switch threshold -beta e_peak is the fork's ``sw_max`` / ``sw_min`` of mode 1
     (e_max - (e_max - e_min*) / 2 - beta (e_max - e_min*) / 2 with e_min* = -e_max). The confirmation
-    counter is not reset by a switch, as in the fork. ``period`` [s] is the loop's tick (the timer
-    reads the tick's time)."""
+    counter is not reset by a switch, as in the fork.
+
+    One simplification: ``period`` [s] is the loop's nominal tick, and the no-switch window counts
+    ticks. The fork's timer reads real time (``CLOCK_REALTIME``). Only the delay-jitter flights
+    (``LoopSpec.jitter``) are touched. There the real time between a switch and a later call would differ
+    from the counted ticks by the two calls' difference in lateness. At the draws' 12 ms std of lateness
+    that difference has about 17 ms std: about one tick at 50 Hz, several at 500 Hz. The port's 20 ms
+    window ignores it.
+
+    The relay's output is +-1 here; :func:`fly` sends ``bias + h * relay``. That trim is HEAR's: its
+    ``MRFTController::runTask`` sends ``mrft_anti_false_switching(...) + parameters.bias``
+    (``src/MRFTController.cpp:51``). The fork's z has no trim: ``PositionMRFT.cpp:117-121`` sets
+    ``_thr_sp(2)`` to the relay's +-h, and ``mc_pos_control_main.cpp:726-727`` puts it in place of the
+    thrust setpoint with weight 1."""
 
     def __init__(self, beta: float, period: float, n_conf: int = 5, no_switch_ms: int = 20) -> None:
         self.beta, self.period, self.n_conf, self.no_switch_ms = beta, period, n_conf, no_switch_ms
@@ -245,7 +268,7 @@ def fly(vehicle: Vehicle, spec: LoopSpec) -> FlightRecord:
             u = vehicle.hover + integ + kp * e + dterm
             bias = vehicle.hover + integ
         else:
-            u = bias + spec.tests[j][1] * relays[j](e)
+            u = bias + spec.tests[j][1] * relays[j](e)  # HEAR's runTask: relay + bias (the fork's z has none)
         yprev = y_meas[k]
         cmd[k] = u
         # a loop that runs late: half-normal lateness of scale ``jitter`` (std 0.60 jitter), independent per tick

@@ -53,7 +53,27 @@ def test_batch_fopdt_rows_hold_the_parameters_with_units(tmp_path):
     assert set(again.summary["status"]) == {"skipped-uptodate"}
     known = BatchOptions(jobs=1, report=False, model=family_model("fopdt", known={"tau": 0.3}))
     other = run_batch([logs], tmp_path / "out", options=known, explicit=_READ)
-    assert set(other.summary["status"]) == {"ok"}  # another model is another result: recomputed
+    # another model is another result: recomputed (a row whose K and T the data leave open is insufficient)
+    assert "skipped-uptodate" not in set(other.summary["status"])
+
+
+def test_a_process_row_with_nothing_determined_is_insufficient(tmp_path):
+    """One relay test logged at 8 Hz: one response point (too few samples a cycle for a harmonic), so none of
+    K, T, tau is determined. The row is insufficient with the identification's advice, as analyze's exit 6
+    (was 'ok', its estimates points of the range the data leave open); the analysis is kept as the partial."""
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    t, u, y = simulate("fopdt", _TRUTH["a.csv"], [Window("hysteresis", 1.0, -1.0, eps=0.05, duration=20.0)], 8.0,
+                       0.001, seed=0)
+    write_csv(str(logs / "a.csv"), t, u, y)
+    res = run_batch([logs], tmp_path / "out", options=BatchOptions(jobs=1, report=False, model=family_model("fopdt")),
+                    explicit=_READ)
+    row = res.summary.iloc[0]
+    assert row["status"] == "insufficient" and row["error_type"] == "InsufficientDataError"
+    assert row["error"].startswith("K, T, tau not determined by 1 response point(s)") and "--param" in row["error"]
+    loop = json.loads((tmp_path / "out" / str(row["result_json"])).read_text())["loops"][0]
+    assert loop["exit_code"] == 6 and loop["result"]["partial"]["model"] == "fopdt"
+    assert loop["result"]["partial"]["identification"]["advice"] == row["error"]
 
 
 def test_batch_model_refuses_eq2_extras():

@@ -238,10 +238,12 @@ def test_cli_identify_and_predict_process_model(capsys):
     params = json.loads(out)["parameters"]
     assert [params[n]["value"] for n in ("K", "T", "tau")] == pytest.approx([2.0, 0.5, 0.1], rel=1e-3)
     # a point short, nothing determined: the table still printed, then exit 6 (a partial result, as analyze's
-    # single beta; was 0) naming what would determine them; one parameter given: the rest determined, exit 0
+    # single beta; was 0) with the identification's own advice, said once (it was also the table's last line,
+    # in other words), naming --param (was 'set E'); one parameter given: the rest determined, exit 0
     code, out, err = _cli(capsys, "identify", "--model", "fopdt", pts[0])
     assert code == 6 and out.count("NOT DETERMINED") == 3 and "nan" not in out.lower()
-    assert err.startswith("error: none of K, T, tau is determined") and "--param NAME=VALUE" in err
+    assert err.startswith("error: K, T, tau not determined by 1 response point(s)") and err.count("\n") == 1
+    assert "give known values with --param NAME=VALUE" in err and "not determined:" not in out
     code, out, err = _cli(capsys, "identify", "--model", "fopdt", pts[0], "--param", "K=2")
     assert code == 0 and "NOT DETERMINED" not in out, err
     code, _, err = _cli(capsys, "predict", "--model", "fopdt", "--param", "K=2", "--beta", "0")

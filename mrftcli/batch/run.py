@@ -218,6 +218,9 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
         result = analyze_path(task.path, model, read=read, options=options, loop_hint=False)  # the one route
         if task.model is None:  # eq. (2): a Tp the recording rejects fails the loop unless --accept-tp
             result = refuse_rejected_tp(result, s.accept_tp)
+        ident = result.identification if result.kind == "family" else None
+        if ident is not None and ident.nothing_determined:  # insufficient, as analyze's exit 6 (was 'ok')
+            raise InsufficientDataError(ident.advice, partial=result.to_json())
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,

@@ -30,12 +30,13 @@ def _table(header: list[tuple[str, str]], rows: list[list[str]], align: str) -> 
     return text_table([[h[0] for h in header], [h[1] for h in header], *rows], align)
 
 
-def format_analysis(result) -> str:
+def format_analysis(result, *, advice: bool = True) -> str:
     """The terminal summary of any :class:`~mrftcli.analyze.AnalysisResult` (eq. (2), a family, the cascade).
 
     One layout for every kind: the log, the model and what the numbers rest on (first lines), the tests
     (the kind's own columns, then each test's held-out prediction where there is one), the tests left
-    out, the parameters with their units, std and 95 % interval, and the kind's closing lines.
+    out, the parameters with their units, std and 95 % interval, and the kind's closing lines. ``advice``
+    False leaves out a family's 'not determined' line (the exit-6 line that follows says it).
     """
     lines = [result.path, *_head(result)]
     header, align, rows = _test_columns(result)
@@ -50,7 +51,7 @@ def format_analysis(result) -> str:
     lines += held_out_notes(held, _numbers(result))
     lines.append(_parameters_line(result))
     lines += parameter_lines(list(result.parameters.items()), parameter_display(result.kind, result.loop))
-    lines += _tail(result)
+    lines += _tail(result, advice)
     return "\n".join(line.rstrip() for line in lines)
 
 
@@ -132,14 +133,14 @@ def _parameters_line(result) -> str:
     return f"parameters, from {used}:"
 
 
-def _tail(result) -> list[str]:
+def _tail(result, advice: bool = True) -> list[str]:
     """The kind's closing lines: eq. (2)'s spread over combinations and which uncertainty to use, a family's
     undetermined parameters and the next test; then the notes."""
     if result.kind == "cascade":
         return [f"note: {n}" for n in result.notes]
     if result.kind == "family":
         ident, lines = result.identification, []
-        if ident.advice:
+        if ident.advice and advice:
             lines.append(f"not determined: {ident.advice}")
         lines += format_combination(ident)
         if ident.undetermined:
@@ -346,8 +347,9 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
         if diagnosis is not None:
             data["diagnosis"] = diagnosis.to_dict()
         dump_json(data, json_target)
-    if not to_stdout:
-        click.echo(format_analysis(result))
+    ident = result.identification if result.kind == "family" else None
+    if not to_stdout:  # nothing determined: the exit-6 line below gives the advice, once
+        click.echo(format_analysis(result, advice=ident is None or not ident.nothing_determined))
         if diagnosis is not None:
             click.echo(f"diagnosis: {diagnosis.summary}")
     if mcap_out:
@@ -358,8 +360,8 @@ def analyze(log, Tp, model_name, params, ranges, windows, relay_kind, eps, min_c
     echo_warnings(result.warnings)
     if index is not None:
         click.echo(f"report: {index}", err=to_stdout)
-    if result.kind == "family" and result.identification is not None:
-        refuse_nothing_determined(result.identification)  # exit 6 after the output, as identify's
+    if ident is not None:
+        refuse_nothing_determined(ident)  # exit 6 after the output, as identify's
 
 
 #: why --paper-only has no meaning beyond eq. (2) (the paper's method is eq. (2)'s UFM slices)

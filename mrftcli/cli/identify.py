@@ -121,7 +121,7 @@ def _echo(result: Any, n_data: int) -> None:
     if not isinstance(result, IdentificationResult):
         click.echo(f"model {result.model.family}: G(s) = {structure_text(result.model)}  [direct fit to {n_data} point(s)]")
         click.echo("\n".join(format_estimates(result)))
-        if result.advice:
+        if result.advice and not result.nothing_determined:  # else the exit-6 line after it gives the advice
             click.echo(f"not determined: {result.advice}")
         return
     click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {result.Tp:g} s (known)  [{result.method}]")

@@ -345,20 +345,16 @@ def format_combination(ident: LtiIdentification) -> list[str]:
 
 def refuse_nothing_determined(ident: LtiIdentification) -> None:
     """Exit 6 (a partial result, as eq. (2)'s single beta) when the data determine none of the model's unknown
-    parameters: called after the estimates and their intervals are printed and written, so they stay readable.
+    parameters (:attr:`LtiIdentification.nothing_determined`): called after the estimates and their intervals
+    are printed and written, so they stay readable; the text leaves its 'not determined' line to this one.
 
     Raises
     ------
     InsufficientDataError
-        Every parameter not given is NOT DETERMINED (one line naming the options that would determine them).
+        With the identification's own advice (what would determine them: --param, another relay test).
     """
-    unknown = [e.name for e in ident.estimates if not e.known]
-    if not unknown or set(unknown) - set(ident.undetermined):
-        return
-    raise InsufficientDataError(
-        f"none of {', '.join(unknown)} is determined by these data (each estimate is one point of the range they "
-        "leave open, not a value to use): give known values with --param NAME=VALUE, or measure at another phase "
-        "(a relay test with another beta, hysteresis or none)")
+    if ident.nothing_determined:
+        raise InsufficientDataError(ident.advice)
 
 
 @dataclass(frozen=True)

@@ -165,6 +165,14 @@ class LtiIdentification(IdentificationRecord):
 
     _method: ClassVar[str] = _METHOD
 
+    @property
+    def nothing_determined(self) -> bool:
+        """True when the data determine none of the unknown parameters: each estimate is then one point of the
+        range they leave open, not a value to use (``identify`` and ``analyze`` exit 6 after their output with
+        :attr:`advice`, ``batch``'s row is insufficient). False when every parameter is known."""
+        unknown = {e.name for e in self.estimates if not e.known}
+        return bool(unknown) and unknown <= set(self.undetermined)
+
     def fit_json(self) -> dict[str, Any]:
         """``points``, ``chi2_dof``, ``undetermined``, ``advice``, ``determined_combination``."""
         return {"points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
@@ -823,6 +831,6 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
     if undetermined:
         n_freq = len({round(math.log(p.omega), 1) for p in points})
         advice = (f"{', '.join(undetermined)} not determined by {len(points)} response point(s) at {n_freq} "
-                  "distinct frequencies: state known values (set E), or add a relay test at another phase "
-                  "(an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")
+                  "distinct frequencies: give known values with --param NAME=VALUE, or add a relay test at another "
+                  "phase (an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")
     return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice)

@@ -15,7 +15,9 @@ an observable mount (oracle SNR >= 25, below the Nyquist frequency by constructi
 ``unexplained`` (>= 80 %), and the commands' CPU per log: ``mrft-ident diagnose`` (read + analyze +
 the diagnosis) over ``mrft-ident analyze`` (read + analyze), median against the issue's <= 1.5x
 (met / not met printed) and worst. The diagnosis stage's own ratio (beyond analyze's record, over
-analyze) is printed beside it, unlabelled.
+analyze) is printed beside it, unlabelled. Each flight's row also gives, per test, the relay's switches
+per cycle and median switching phase after the peak (an oracle, ``diagnose_sims.cases.switching``): the
+fork's 5-sample peak latch switches late at 50 Hz and can switch twice on noise at 500 Hz, as the stack would.
 
 Usage::
 
@@ -116,6 +118,15 @@ def report(sim: str, results: list[dict], wall: float) -> None:
     inherent_reading(sim, results)
 
 
+def _switching(r: dict) -> str:
+    """A flight's relay per test (oracle, second half of each test): switches per cycle and the median
+    switching phase after the peak (diagnose_sims.cases.switching; designed 66.4 deg at beta -0.4, 45.6 at -0.7)."""
+    per = r.get("switching") or []
+    cells = ["-" if s is None else f"{s[0]:.1f}" for s in per]
+    phases = ["-" if s is None else f"{s[1]:.0f}" for s in per]
+    return f"switches/cycle {'/'.join(cells) or '-'}, phase {'/'.join(phases) or '-'} deg"
+
+
 def _answered_right(r: dict) -> bool:
     """Whether a flight's answer counts for its kind: its effect named, a clean flight kept clean, a mount unexplained."""
     if r["effect"] in EFFECTS:
@@ -165,7 +176,7 @@ def main() -> None:
             results.append(r)
             print(f"  [{len(results)}/{len(cases)}] {r['effect']} {r['platform']} {r['rate']:.0f} Hz: found "
                   f"{r.get('found')} unexplained {r.get('unexplained')} {r.get('error') or ''} "
-                  f"(CPU diagnose {r['cpu']:.1f} s, analyze {r['cpu_analyze']:.1f} s)", flush=True)
+                  f"(CPU diagnose {r['cpu']:.1f} s, analyze {r['cpu_analyze']:.1f} s; {_switching(r)})", flush=True)
     report(args.sim, results, time.perf_counter() - t0)
 
 

@@ -160,3 +160,21 @@ def test_noise_only_scatter_does_not_rest_on_where_the_cycle_falls_between_ticks
     for o in (0.1, 0.2, 1.0):
         v, _ = expected_period_variance(setting(o), 0.0, n_windows=8)
         assert math.sqrt(v / single.mean()) == pytest.approx(1.0, abs=0.45)
+
+
+def test_window_memo_belongs_to_the_caller_not_the_setting():
+    # R3 finding 3: the windows' memo once lived on the frozen ScatterSetting, so
+    # dataclasses.replace(setting, noise_std=...) silently read the old setting's results
+    from dataclasses import fields, replace
+
+    assert "windows" not in {f.name for f in fields(ScatterSetting)}
+    plant = AugmentedPlant(0.05, 0.562, 0.0287, 9.763)
+    warm = periodic_cycle(plant, -0.4, 0.3, 100.0, tol=1e-5).state_at_up[-1]
+    quiet = ScatterSetting(plant, -0.4, 0.3, 100.0, 1e-5, 6, 0.837, warm)
+    memo: dict = {}
+    v_quiet = expected_period_variance(quiet, 0.0, n_windows=1, memo=memo)
+    assert list(memo) == [(0.0, 1, 0)]  # keyed by (jitter std, seed, window)
+    assert expected_period_variance(quiet, 0.0, n_windows=1, memo={(0.0, 1, 0): (2.0, 4)}) == (0.5, 4)  # read back
+    noisy = replace(quiet, noise_std=0.00055)
+    v_noisy = expected_period_variance(noisy, 0.0, n_windows=1)
+    assert v_noisy[0] > 10 * v_quiet[0]  # its own windows, not the quiet setting's

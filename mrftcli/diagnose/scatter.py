@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -101,9 +101,6 @@ class ScatterSetting:
     n_window: int
     period: float
     warm: dict | None = None
-    #: each window's term of :func:`expected_period_variance` by (jitter std, seed, window): the
-    #: calibration reruns the reference's windows on the same random numbers (issue 39's CPU)
-    windows: dict = field(default_factory=dict, compare=False, repr=False)
 
 
 def scatter_sample(period: np.ndarray, amplitude: np.ndarray, regular: np.ndarray, dt: float) -> np.ndarray:
@@ -123,7 +120,7 @@ def scatter_sample(period: np.ndarray, amplitude: np.ndarray, regular: np.ndarra
 
 
 def expected_period_variance(setting: ScatterSetting, jitter_std: float, *, n_windows: int = N_WINDOWS,
-                             seed: int = 1) -> tuple[float, int]:
+                             seed: int = 1, memo: dict | None = None) -> tuple[float, int]:
     """Expected sample variance of a recorded test's filtered periods [s^2], and its degrees of freedom.
 
     The sampled relay runs ``n_windows`` windows of ``setting.n_window`` cycles with sensor noise and
@@ -137,17 +134,23 @@ def expected_period_variance(setting: ScatterSetting, jitter_std: float, *, n_wi
     ticks, i.e. on the delay to a fraction of a tick, which no fit determines (issue 39: a RotorPy
     flight's 2h test was called unexplained at z = 7 against a locked orbit's zero scatter, while
     the same model a quarter tick later hops as the recording does).
+
+    ``memo``, when given, keeps each window's term by ``(jitter_std, seed, window)`` for this
+    ``setting`` only (the caller keeps one per setting: :func:`scatter_reference` puts it beside the
+    setting as ``"windows"``): the jitter's calibration reruns the reference's windows on the same
+    random numbers (issue 39's CPU).
     """
     s = setting
+    memo = {} if memo is None else memo
     n_w = max(int(s.n_window), 4)
     skip = 1 if s.warm is not None else 6  # past the start-up (a warm run starts on the limit cycle)
     num = 0.0
     dof = 0
     for w in range(n_windows):
         key = (float(jitter_std), seed, w)
-        if key not in s.windows:
-            s.windows[key] = _window_term(s, jitter_std, seed, w, n_w, skip)
-        term = s.windows[key]
+        if key not in memo:
+            memo[key] = _window_term(s, jitter_std, seed, w, n_w, skip)
+        term = memo[key]
         if term is not None:
             num += term[0]
             dof += term[1]
@@ -302,7 +305,8 @@ REFERENCE_WINDOWS = 4
 
 def scatter_reference(tests: list[DiagnosedTest], model: CandidateModel, fit: Fit, noise: float) -> list[dict]:
     """Per test: the sampled-relay setting of a fitted model (the linear one, or with a found effect)
-    and the period variance that noise alone explains."""
+    and the period variance that noise alone explains (``"setting"``, ``"v0"`` [s^2], ``"s0"`` [s],
+    ``"dof"``; ``"windows"``: the setting's memo of window terms for :func:`expected_period_variance`)."""
     p = model.unpack(fit.theta)
     out = []
     for i, t in enumerate(tests):
@@ -315,10 +319,11 @@ def scatter_reference(tests: list[DiagnosedTest], model: CandidateModel, fit: Fi
                                  period=float(np.mean(t.tab.period)), warm=_limit_cycle_state(plant, t))
         # the noise-only reference: 4 windows (its standard error then adds ~5 % to the comparison's;
         # the jitter's calibration reruns it with the full N_WINDOWS on the same random numbers)
-        v0, dof = expected_period_variance(setting, 0.0, n_windows=REFERENCE_WINDOWS)
+        windows: dict = {}  # the windows' terms of this setting, reused by the jitter's calibration
+        v0, dof = expected_period_variance(setting, 0.0, n_windows=REFERENCE_WINDOWS, memo=windows)
         if not (np.isfinite(v0) and math.sqrt(v0) < 0.2 * float(np.mean(t.tab.period))):
             v0, dof = float("nan"), 0  # the sampled relay broke down (false switches): no scatter reference
-        out.append({"setting": setting, "v0": v0, "s0": math.sqrt(v0) if np.isfinite(v0) else float("nan"), "dof": dof})
+        out.append({"setting": setting, "windows": windows, "v0": v0, "s0": math.sqrt(v0) if np.isfinite(v0) else float("nan"), "dof": dof})
     return out
 
 
@@ -382,12 +387,12 @@ def jitter_candidate(cand: Effect, tests: list[DiagnosedTest], scatter: list[dic
 
     # the calibration runs below use N_WINDOWS windows: the noise-only variance is recomputed on the
     # same random numbers, so that the calibrated slope is not biased by the reference's sampling
-    scatter = [dict(sc, v0=expected_period_variance(sc["setting"], 0.0)[0]) if np.isfinite(sc["v0"]) else sc
+    scatter = [dict(sc, v0=expected_period_variance(sc["setting"], 0.0, memo=sc["windows"])[0]) if np.isfinite(sc["v0"]) else sc
                for sc in scatter]
     v0 = np.array([sc["v0"] for sc in scatter])
 
     def calibrate(sigma: float) -> np.ndarray:
-        return np.array([expected_period_variance(sc["setting"], sigma)[0] if np.isfinite(sc["v0"]) else np.nan
+        return np.array([expected_period_variance(sc["setting"], sigma, memo=sc["windows"])[0] if np.isfinite(sc["v0"]) else np.nan
                          for sc in scatter])
 
     v_all, n_all_c = (np.array(x) for x in zip(*(t.scatter_var("all") for t in tests)))

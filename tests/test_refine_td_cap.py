@@ -53,24 +53,53 @@ def test_a_refinement_that_does_not_bound_td_stops_at_the_week():
     assert r.Td.value <= MAX_TIME_S and r.model.Td <= MAX_TIME_S
     assert r.Td.value > 1e4  # it did walk towards no damping
     assert not r.accepted
+    assert any(w.startswith("the waveform does not bound Td (") for w in r.reasons)
 
 
-def test_a_refinement_whose_interval_runs_past_the_week_is_refused():
-    """The same undamped loop from another start: the fit stopped on the flat cost at Td = 5.6e5 s, short of the
-    week, with a 95 % interval 1.5e5-2.1e6 s, and was accepted (the MRFT interval, open above, let it pass):
-    a Td the waveform does not bound is now refused as the fit at the bound is; tau and K are not the reason."""
+def _undamped_windows():
+    log = simulate_relay_flight(0.05, 1e12, 0.03, 4.0, [(-0.4, 0.1, 6.0), (-0.7, 0.1, 6.0)], rate_hz=100.0,
+                                noise_std=0.0005)
+    return [CommandWindow.between(t0, t1, log.t, log.command, log.t, log.y_meas, 0.5, COMMAND_HISTORY)
+            for t0, t1, _, _ in log.test_windows]
+
+
+def _open_above(Td0, tau, K):
+    """An MRFT estimate whose Td interval is open above, as a td_open consensus gives it."""
+    return {"Td": ParameterEstimate(Td0, math.nan, Td0 / 2, math.nan, "s"),
+            "tau": ParameterEstimate(tau, 1e-3, tau - 0.005, tau + 0.005, "s"),
+            "K": ParameterEstimate(K, 0.1, 0.8 * K, 1.2 * K, "")}
+
+
+@pytest.mark.parametrize("Td0", [1e5, 30.0])
+def test_a_refinement_whose_interval_runs_past_the_record_is_refused(Td0):
+    """The undamped loop (true Td 1e12 s) from a start of 1e5 s: the fit stopped on the flat cost at 5.6e5 s
+    [1.5e5, 2.1e6] s, short of the week; from 30 s (as from 3 s to 1e4 s): at 151 s [2.95, 7.7e3] s, an interval
+    that leaves the truth out. Both were accepted (the MRFT interval, open above, let them pass). Over the 12 s
+    the windows record a Td that long leaves eq. (2) an integrator of gain K, so neither is a value: refused,
+    tau and K not the reason."""
     Tp, tau, K = 0.05, 0.03, 4.0
-    log = simulate_relay_flight(Tp, 1e12, tau, K, [(-0.4, 0.1, 6.0), (-0.7, 0.1, 6.0)], rate_hz=100.0,
+    windows = _undamped_windows()
+    record = sum(w.t_output[-1] - w.t_output[0] for w in windows)
+    r = refine(windows, LoopModel(Tp, Td0, tau, K), _open_above(Td0, tau, K))
+    assert r.fit.p[0] < loop_model_bounds(Tp)[1][0] - 1e-3  # stopped short of the week ...
+    assert r.Td.ci95_high > record  # ... with an interval past the record
+    assert r.tau.value == pytest.approx(tau, abs=1e-3) and r.K.value == pytest.approx(K, rel=0.01)
+    assert not r.accepted and len(r.reasons) == 1
+    assert r.reasons[0].startswith("the waveform does not bound Td (its 95 % interval reaches")
+    assert f"more than the {record:.3g} s these windows record" in r.reasons[0]
+
+
+def test_a_bounded_td_is_accepted():
+    """The criterion refuses only what the record cannot show: the same flight with drag (Td 2 s) is accepted."""
+    Tp, Td, tau, K = 0.05, 2.0, 0.03, 4.0
+    log = simulate_relay_flight(Tp, Td, tau, K, [(-0.4, 0.1, 6.0), (-0.7, 0.1, 6.0)], rate_hz=100.0,
                                 noise_std=0.0005)
     windows = [CommandWindow.between(t0, t1, log.t, log.command, log.t, log.y_meas, 0.5, COMMAND_HISTORY)
                for t0, t1, _, _ in log.test_windows]
-    start = LoopModel(Tp, 1e5, tau, K)
-    mrft = {"Td": ParameterEstimate(1e5, math.nan, 5e4, math.nan, "s"),  # open above, as a td_open MRFT's
-            "tau": ParameterEstimate(tau, 1e-3, tau - 0.005, tau + 0.005, "s"),
-            "K": ParameterEstimate(K, 0.1, 0.8 * K, 1.2 * K, "")}
-    r = refine(windows, start, mrft)
-    assert r.fit.p[0] < loop_model_bounds(Tp)[1][0] - 1e-3  # stopped short of the week ...
-    assert r.Td.ci95_high > MAX_TIME_S  # ... with an interval past it
-    assert r.tau.value == pytest.approx(tau, abs=1e-3) and r.K.value == pytest.approx(K, rel=0.01)
-    assert not r.accepted and len(r.reasons) == 1
-    assert r.reasons[0].startswith("the waveform does not bound Td (its fit's 95 % interval reaches")
+
+    def est(v, unit):
+        return ParameterEstimate(v, 0.1 * v, 0.8 * v, 1.2 * v, unit)
+
+    r = refine(windows, LoopModel(Tp, 1.8, tau, K), {"Td": est(1.8, "s"), "tau": est(tau, "s"), "K": est(K, "")})
+    assert r.accepted, r.reasons
+    assert r.Td.ci95_low <= Td <= r.Td.ci95_high

@@ -23,7 +23,7 @@ from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.estimate import beta_used
 from mrftcli.analyze.held_out import NOTHING_HELD_OUT, HeldOut, held_out_eq2
-from mrftcli.analyze.held_out_harmonic import ROUTE_NOTE
+from mrftcli.analyze.held_out_harmonic import FALLBACK_WORDS, ROUTE_NOTE
 from mrftcli.cli.analyze import format_analysis
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.jsonable import to_jsonable
@@ -90,6 +90,7 @@ def test_each_held_out_cycle_is_the_plants_exact_cycle_within_the_stated_sigma(t
     for test, ho in zip(three.tests, three.held_out):
         assert ho is not None and ho.frequency_hz is not None and ho.amplitude is not None, ho
         assert ho.frequency_sigma_hz is not None and ho.amplitude_sigma is not None
+        assert not ho.note.startswith(FALLBACK_WORDS), ho  # the response points' route, not its fallback
         f, a = exact_cycle(beta_used(test, 0.0), PLANT)  # the plant's cycle at the level the relay switched
         assert abs(ho.frequency_hz - f) < 3 * ho.frequency_sigma_hz, (ho, f)
         assert abs(ho.amplitude - a) < 3 * ho.amplitude_sigma, (ho, a)

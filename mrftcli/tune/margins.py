@@ -272,7 +272,7 @@ class _Loop:
     def at(self, rows: np.ndarray, log_w: np.ndarray, stack: PlantStack | None = None) -> np.ndarray:
         w = np.exp(log_w)
         if stack is None:
-            if rows is not self._rows:
+            if rows is not self._rows:  # by identity: callers never mutate rows in place
                 self._rows, self._taken = rows, self.stack.take(rows)
             stack = self._taken
         return self.c.feedback_response(w) * stack.transfer(np.exp(1j * w * self.T)[:, None])[:, 0]
@@ -337,15 +337,13 @@ def stack_margins(controller: Controller, stack: PlantStack, models: Sequence[Lo
     """
     M = int(stack.d.size)
     lw, L, loop = _on_grid(controller, stack, response)
-    stable = nyquist_stable(integrators + (controller.Ki > 0), L, unstable)  # the plant's integrators and the controller's
+    Ms, stable = _stable_ms(controller, L, lw, loop, integrators, unstable, refine=not search)
     pm, wgc, cand = phase_margins(loop.at, L, lw, M)
     if search:
         inf = np.full(M, np.inf)
-        return LoopMargins(inf, pm, inf, np.where(stable, np.max(1.0 / np.abs(1.0 + L), axis=-1), np.inf), wgc, inf, stable)
+        return LoopMargins(inf, pm, inf, Ms, wgc, inf, stable)
     gm, wpc = gain_margins(loop.at, L, lw, M)
-    Ms = sensitivity_peaks(loop.at, L, lw)
     dm = _delay_margins(loop, models, cand, stable, M) if models else np.full(M, np.nan)
-    Ms = np.where(stable, Ms, np.inf)
     return LoopMargins(gm, pm, dm, Ms, wgc, wpc, stable)
 
 
@@ -364,8 +362,15 @@ def stack_sensitivity(controller: Controller, stack: PlantStack, response: np.nd
     Why: a scan that reads only Ms (:func:`mrftcli.tune.stacks._inside_ranges`) spent four fifths of its time on
     the figures it drops (``benchmarks/bench_tune_ranges.py`` prints the ratio)."""
     lw, L, loop = _on_grid(controller, stack, response)
-    stable = nyquist_stable(integrators + (controller.Ki > 0), L, unstable)
-    Ms = sensitivity_peaks(loop.at, L, lw)
+    return _stable_ms(controller, L, lw, loop, integrators, unstable)
+
+
+def _stable_ms(controller: Controller, L: np.ndarray, lw: np.ndarray, loop: "_Loop", integrators: Any, unstable: Any,
+               refine: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(Ms [-], inf when unstable; stable) of the loops ``L`` on the log frequencies ``lw``: Ms refined on the
+    exact response (:func:`sensitivity_peaks`), or with ``refine`` False the grid's peak (a search's constraint)."""
+    stable = nyquist_stable(integrators + (controller.Ki > 0), L, unstable)  # the plant's integrators and the controller's
+    Ms = sensitivity_peaks(loop.at, L, lw) if refine else np.max(1.0 / np.abs(1.0 + L), axis=-1)
     return np.where(stable, Ms, np.inf), stable
 
 

@@ -355,6 +355,20 @@ def test_td_omega_is_information_not_a_warning(table):
     assert any("Td*Omega" in n for n in data["notes"]) and not any("Td*Omega" in w for w in data["warnings"])
 
 
+def test_the_held_out_route_is_named_in_the_json_and_its_note_by_the_parameters_source(table):
+    # R2 finding 4 (issue 41): each prediction names its route (JSON ``route``); the note says where the reported
+    # parameters come from (here the waveform refinement), not always the fundamentals
+    from mrftcli.analyze.held_out import ROUTE_POINTS
+    from mrftcli.analyze.held_out_harmonic import ROUTE_NOTE, route_note
+
+    code, stdout, _, out = table
+    data = json.loads(out.read_text())
+    assert code == 0 and [t["held_out"]["route"] for t in data["tests"]] == [ROUTE_POINTS] * 2
+    assert "parameters, from the waveform refinement" in stdout
+    assert route_note(True) in data["notes"] and f"note: {route_note(True)}" in stdout and ROUTE_NOTE not in stdout
+    assert "identified from the waveform refinement" in route_note(True)
+
+
 def test_wrong_loop_and_bad_effect_messages():
     # item 17: no misleading suggestion; every simulate option checked before planning
     code, _, stderr = _invoke("analyze", str(SAMPLES / "design1_altitude.mcap"), "--tp", "0.0422", "--loop", "roll")

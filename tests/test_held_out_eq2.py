@@ -22,7 +22,7 @@ from scipy import optimize
 from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.estimate import beta_used
-from mrftcli.analyze.held_out import NOTHING_HELD_OUT, HeldOut, held_out_eq2
+from mrftcli.analyze.held_out import NOTHING_HELD_OUT, ROUTE_FUNDAMENTALS, ROUTE_POINTS, HeldOut, held_out_eq2
 from mrftcli.analyze.held_out_harmonic import FALLBACK_WORDS, ROUTE_NOTE
 from mrftcli.cli.analyze import format_analysis
 from mrftcli.io import ReadOptions, read_flight
@@ -90,7 +90,7 @@ def test_each_held_out_cycle_is_the_plants_exact_cycle_within_the_stated_sigma(t
     for test, ho in zip(three.tests, three.held_out):
         assert ho is not None and ho.frequency_hz is not None and ho.amplitude is not None, ho
         assert ho.frequency_sigma_hz is not None and ho.amplitude_sigma is not None
-        assert not ho.note.startswith(FALLBACK_WORDS), ho  # the response points' route, not its fallback
+        assert not ho.note.startswith(FALLBACK_WORDS) and ho.route == ROUTE_POINTS, ho  # not its fallback
         f, a = exact_cycle(beta_used(test, 0.0), PLANT)  # the plant's cycle at the level the relay switched
         assert abs(ho.frequency_hz - f) < 3 * ho.frequency_sigma_hz, (ho, f)
         assert abs(ho.amplitude - a) < 3 * ho.amplitude_sigma, (ho, a)
@@ -114,7 +114,8 @@ def test_json_and_table_hold_the_families_record(three: AnalysisResult) -> None:
     assert d["schema_version"] == 4
     for row, ho in zip(d["tests"], three.held_out):
         assert ho is not None and row["held_out"] == to_jsonable(ho.to_json())
-        assert set(row["held_out"]) == set(HeldOut(None, None).to_json())  # the families' keys
+        assert set(row["held_out"]) == {*HeldOut(None, None).to_json(), "route"}  # the families' keys and the route
+        assert row["held_out"]["route"] == ROUTE_POINTS
     back = AnalysisResult.from_json(d)
     assert back.held_out == three.held_out and to_jsonable(back.to_json()) == d
     text = format_analysis(three)
@@ -200,3 +201,18 @@ def test_held_out_notes_name_the_tests_by_the_tables_numbers():
     held = [HeldOut(None, None, why), HeldOut(None, None, why)]
     assert held_out_notes(held, [2, 3]) == [f"held-out tests 2, 3: {why}"]
     assert held_out_notes(held) == [f"held-out tests 1, 2: {why}"]
+
+
+def test_a_held_out_record_without_a_route_reads_and_writes_as_it_was() -> None:
+    """The ``route`` key is additive: a record written before it (or a family's, one route) reads with route ""
+    and writes back without the key; a route read back is kept; the fallback keeps the fundamentals' route."""
+    from mrftcli.analyze.held_out_harmonic import _fallback
+
+    old = {"frequency_hz": 0.5, "amplitude": 2.0, "note": "", "frequency_sigma_hz": 0.01, "amplitude_sigma": 0.1,
+           "frequency_z": 1.0, "amplitude_z": -1.0}
+    ho = HeldOut.from_json(old)
+    assert ho.route == "" and ho.to_json() == old
+    new = HeldOut.from_json({**old, "route": ROUTE_POINTS})
+    assert new.route == ROUTE_POINTS and HeldOut.from_json(new.to_json()) == new
+    back = _fallback(HeldOut.against(0.5, 2.0, (0.51, 0.01, 2.1, 0.1), (0.01, 0.1), route=ROUTE_FUNDAMENTALS), "why")
+    assert back.route == ROUTE_FUNDAMENTALS and back.note.startswith(FALLBACK_WORDS)

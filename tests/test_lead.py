@@ -167,7 +167,7 @@ def test_analyze_states_the_lead_first_and_in_the_json(tmp_path: Path) -> None:
 
     for row in data["tests"]:
         ho = row["held_out"]
-        assert not ho["note"].startswith(FALLBACK_WORDS), ho
+        assert not ho["note"].startswith(FALLBACK_WORDS) and ho["route"] == "response_points", ho
         assert abs(ho["frequency_z"]) < 2 and abs(ho["frequency_hz"] / row["frequency_hz"] - 1) < 0.04, ho
 
 

@@ -39,8 +39,8 @@ from .cascade import analyze_cascade
 from .estimate import (WaveformStage, beta_used, consensus, identifiability, point_estimate, waveform_refinement,
                        widen_for_jitter)
 from .general import analyze_family, mask_windows
-from .held_out import held_out_eq2, lead_held_out_refusal
-from .held_out_harmonic import FALLBACK_WORDS, ROUTE_NOTE, held_out_harmonic
+from .held_out import ROUTE_POINTS, held_out_eq2, lead_held_out_refusal
+from .held_out_harmonic import held_out_harmonic, route_note
 from .options import AnalyzeOptions
 from .record import AnalysisResult, LogInfo, TpCheck, analysis_controller_rate
 from .residual import MISMATCH_WORDS, residual_verdict
@@ -165,8 +165,8 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
     if tau_est.value < 0:
         notes.insert(0, f"assumed: {lead_note(tau_est.value)}")
     held = held_out_harmonic(flight, model, screening.usable, held, opts.min_stable_cycles)
-    if any(h.frequency_hz is not None and not h.note.startswith(FALLBACK_WORDS) for h in held):
-        notes.append(ROUTE_NOTE)
+    if any(h.route == ROUTE_POINTS for h in held):
+        notes.append(route_note(wave.refinement is not None and wave.refinement.accepted))
     usable, rejected = screening.usable, screening.rejected
     return _residual_worded(AnalysisResult(
         path=str(flight.path), loop=flight.loop, model=wave.model, tests=usable, rejected=rejected,

@@ -37,7 +37,12 @@ from ..segment.records import MrftTest
 from .screen import group_betas
 
 __all__ = ["HeldOut", "held_out_eq2", "held_out_cells", "held_out_notes", "mean_sem", "NOTHING_HELD_OUT",
-           "lead_held_out_refusal", "LEAD_MISS_Z", "MISS_WORDS"]
+           "lead_held_out_refusal", "LEAD_MISS_Z", "MISS_WORDS", "ROUTE_POINTS", "ROUTE_FUNDAMENTALS"]
+
+#: :attr:`HeldOut.route` of eq. (2)'s prediction from the other tests' fundamental and 3rd-harmonic response points
+ROUTE_POINTS = "response_points"
+#: :attr:`HeldOut.route` of eq. (2)'s prediction from the other tests' fundamentals (the UFM/UGM point solve)
+ROUTE_FUNDAMENTALS = "fundamentals"
 
 _ONE_OTHER = ("the other test alone does not determine Td and tau (eq. (2) needs two betas): a third test would "
               "check each test against the others")
@@ -67,6 +72,11 @@ class HeldOut:
         where the route does not state one (the families' ``analyze --model`` today).
     frequency_z, amplitude_z : float or None
         ``(measured - predicted) / sigma`` [-]; None without a sigma.
+    route : str
+        Which route made eq. (2)'s prediction: :data:`ROUTE_POINTS` (the other tests' fundamental and 3rd-harmonic
+        response points, :mod:`~mrftcli.analyze.held_out_harmonic`) or :data:`ROUTE_FUNDAMENTALS` (their
+        fundamentals' UFM/UGM point solve, :func:`held_out_eq2`); ``""`` without a prediction, for the families
+        (one route) and in records written before the key (JSON ``route``, written only when set).
     """
 
     frequency_hz: float | None
@@ -76,22 +86,26 @@ class HeldOut:
     amplitude_sigma: float | None = None
     frequency_z: float | None = None
     amplitude_z: float | None = None
+    route: str = ""
 
     def to_json(self) -> dict[str, Any]:
-        return {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "note": self.note,
-                "frequency_sigma_hz": self.frequency_sigma_hz, "amplitude_sigma": self.amplitude_sigma,
-                "frequency_z": self.frequency_z, "amplitude_z": self.amplitude_z}
+        out = {"frequency_hz": self.frequency_hz, "amplitude": self.amplitude, "note": self.note,
+               "frequency_sigma_hz": self.frequency_sigma_hz, "amplitude_sigma": self.amplitude_sigma,
+               "frequency_z": self.frequency_z, "amplitude_z": self.amplitude_z}
+        # additive: a record without a route (older, or the families') keeps its keys as they were written
+        return {**out, "route": self.route} if self.route else out
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> HeldOut:
-        """The record of a ``held_out`` object (the sigma and z keys may be absent: older records)."""
+        """The record of a ``held_out`` object (the sigma, z and route keys may be absent: older records)."""
+        sf, sa, zf, za = (_opt(data.get(k)) for k in ("frequency_sigma_hz", "amplitude_sigma", "frequency_z",
+                                                      "amplitude_z"))
         return cls(_opt(data.get("frequency_hz")), _opt(data.get("amplitude")), str(data.get("note", "")),
-                   *(_opt(data.get(k)) for k in ("frequency_sigma_hz", "amplitude_sigma", "frequency_z",
-                                                 "amplitude_z")))
+                   sf, sa, zf, za, str(data.get("route") or ""))
 
     @classmethod
     def against(cls, frequency_hz: float, amplitude: float, measured: tuple[float, float, float, float],
-                spread: tuple[float, float], note: str = "") -> HeldOut:
+                spread: tuple[float, float], note: str = "", route: str = "") -> HeldOut:
         """A prediction with its sigma and z against the measured means.
 
         ``measured``: frequency [Hz], its standard error [Hz], amplitude, its standard error [output
@@ -100,7 +114,7 @@ class HeldOut:
         f_m, f_se, a_m, a_se = measured
         sf, sa = math.hypot(f_se, spread[0]), math.hypot(a_se, spread[1])
         return cls(frequency_hz, amplitude, note, sf, sa, (f_m - frequency_hz) / sf if sf > 0 else None,
-                   (a_m - amplitude) / sa if sa > 0 else None)
+                   (a_m - amplitude) / sa if sa > 0 else None, route)
 
     def describe(self, frequency_hz: float, amplitude: float, unit: str) -> str:
         """One line beside the measured values, e.g. ``f 0.7732 ± 0.0022 Hz (measured 0.8417, +30.6 std),
@@ -320,7 +334,8 @@ def _solve(model: LoopModel, tests: list[MrftTest], betas: np.ndarray, groups: l
         measured = (t.frequency_hz_mean, mean_sem(t.frequency_hz), t.amplitude_mean, mean_sem(t.amplitude))
         note = (f"{lost} of {len(rows) - 1} solves one std away give no cycle: the std leaves them out, "
                 "so it is understated" if lost else "")
-        results.append(HeldOut.against(*centre, measured, (math.sqrt(var_f), math.sqrt(var_a)), note))
+        results.append(HeldOut.against(*centre, measured, (math.sqrt(var_f), math.sqrt(var_a)), note,
+                                       ROUTE_FUNDAMENTALS))
     return results
 
 

@@ -43,12 +43,12 @@ from ..mrft.model import LoopModel, PlantModel, lead_floor
 from ..mrft.sem import mean_sem
 from ..segment.records import MrftTest
 from .general import identify_points, measure_test
-from .held_out import HeldOut
+from .held_out import ROUTE_POINTS, HeldOut
 from .options import RelayOptions
 from .record import TestSummary
 from .smooth_cycle import predicted_cycle
 
-__all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "FALLBACK_WORDS"]
+__all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "route_note", "FALLBACK_WORDS"]
 
 #: the harmonics each other test contributes to the held-out fit
 HELD_OUT_HARMONICS = (1, 3)
@@ -57,6 +57,17 @@ ROUTE_NOTE = ("held out: each test predicted by eq. (2) fitted to the other test
               "response points (its std from that fit's covariance); the reported model is identified from "
               "the tests' fundamentals (UFM/UGM), so the held-out checks the structure and the tests, not that "
               "exact procedure")
+
+
+def route_note(refined: bool) -> str:
+    """The analysis note naming the held-out route, worded from where the reported parameters come from:
+    ``refined`` True when they are the waveform refinement's (:data:`ROUTE_NOTE` otherwise)."""
+    if not refined:
+        return ROUTE_NOTE
+    return ROUTE_NOTE.replace("the tests' fundamentals (UFM/UGM)", "the waveform refinement (output error on the "
+                              "tests' windows)")
+
+
 #: how the note of a test predicted by the fundamentals' point solve begins
 FALLBACK_WORDS = "from the other tests' fundamentals only"
 
@@ -101,7 +112,7 @@ def held_out_harmonic(flight: FlightLog, model: LoopModel, tests: Sequence[MrftT
         if isinstance(got, tuple):
             centre, spread = got
             measured_t = (t.frequency_hz_mean, mean_sem(t.frequency_hz), t.amplitude_mean, mean_sem(t.amplitude))
-            out.append(HeldOut.against(*centre, measured_t, spread))
+            out.append(HeldOut.against(*centre, measured_t, spread, route=ROUTE_POINTS))
         else:
             why = got or "this test's relay was not measured on its cycles"
             out.append(_fallback(fallback, why))
@@ -113,8 +124,7 @@ def _fallback(ho: HeldOut, why: str) -> HeldOut:
     if ho.frequency_hz is None:
         return ho
     note = f"{FALLBACK_WORDS} ({why})"
-    return HeldOut(ho.frequency_hz, ho.amplitude, "; ".join(filter(None, [note, ho.note])), ho.frequency_sigma_hz,
-                   ho.amplitude_sigma, ho.frequency_z, ho.amplitude_z)
+    return dataclasses.replace(ho, note="; ".join(filter(None, [note, ho.note])))
 
 
 def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint],

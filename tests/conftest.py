@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import json
 import os
+import tempfile
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 # One BLAS thread per test process, as the CLI runs (mrftcli/cli/__init__.py): with -n 2 on 2 cores, two
 # workers each spinning a BLAS pool over small matrices only contend. Set before numpy loads (matplotlib).
@@ -66,6 +73,116 @@ def mplcleanup():
 
     yield
     plt.close("all")
+
+
+_T = TypeVar("_T")
+_CODE_DIGEST: list[str] = []
+
+
+def _code_digest() -> str:
+    """A hash of the package's and the scripts' sources: a code change (committed or not) invalidates the cache."""
+    if not _CODE_DIGEST:
+        h = hashlib.sha256()
+        for sub in ("mrftcli", "scripts"):
+            for p in sorted((REPO / sub).rglob("*.py")):
+                h.update(str(p.relative_to(REPO)).encode() + b"\0" + p.read_bytes())
+        _CODE_DIGEST.append(h.hexdigest()[:16])
+    return _CODE_DIGEST[0]
+
+
+@contextlib.contextmanager
+def _exclusive(lock: Path):
+    """One xdist worker at a time: ``filelock`` when installed, else a lock file created exclusively (another
+    worker waits for the result instead of computing it again; a lock older than 10 min is a dead worker's)."""
+    try:
+        from filelock import FileLock
+    except ImportError:
+        pass
+    else:
+        with FileLock(str(lock)):
+            yield
+        return
+    while True:
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            break
+        except FileExistsError:
+            try:
+                if time.time() - lock.stat().st_mtime > 600:
+                    lock.unlink(missing_ok=True)
+            except FileNotFoundError:
+                pass
+            time.sleep(0.1)
+    try:
+        yield
+    finally:
+        os.close(fd)
+        lock.unlink(missing_ok=True)
+
+
+class SharedResults:
+    """Expensive results computed once per test session and shared by every test file and xdist worker.
+
+    A result is stored as its record's JSON (``to_json``) in one file per key, written by an atomic rename
+    under a lock (:func:`_exclusive`: two workers do not compute it twice); every caller, the one that
+    computed it included, gets a fresh ``from_json`` object, so no test can mutate another's. Use it only where a
+    test asserts on the result's content; a test of the CLI path keeps its own CLI call.
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        root.mkdir(parents=True, exist_ok=True)
+
+    @staticmethod
+    def log_key(path: str | Path) -> tuple[str, int, int]:
+        """A committed log's identity in a cache key: its resolved path, size [bytes] and mtime [ns]."""
+        p = Path(path).resolve()
+        st = p.stat()
+        return str(p), st.st_size, st.st_mtime_ns
+
+    def get(self, kind: str, key: tuple[Any, ...], compute: Callable[[], Any], to_json: Callable[[Any], Any],
+            from_json: Callable[[Any], _T]) -> _T:
+        """``from_json`` of ``to_json(compute())``, computed once per (kind, key, source code) in the session.
+
+        ``key`` holds everything the result depends on besides the code: the logs' :meth:`log_key` and the
+        exact options (their ``repr``).
+        """
+        from mrftcli.jsonable import to_jsonable
+
+        digest = hashlib.sha256(repr((kind, key, _code_digest())).encode()).hexdigest()[:24]
+        path = self.root / f"{kind}-{digest}.json"
+        if path.exists():  # the common case: no lock needed (the file appears whole, by a rename)
+            return from_json(json.loads(path.read_text()))
+        with _exclusive(Path(str(path) + ".lock")):
+            return from_json(self._load_or_compute(path, compute, to_json, to_jsonable))
+
+    def analysis(self, log: str | Path, model: Any, read: Any = None, options: Any = None) -> Any:
+        """``analyze_path(log, model, read=read, options=options)`` (an AnalysisResult) through :meth:`get`: one
+        analysis of a committed log per (log, model, read options, analyze options) in the session."""
+        from mrftcli.analyze import AnalysisResult, analyze_path
+
+        key = (self.log_key(log), repr(model), repr(read), repr(options))
+        return self.get("analyze_path", key, lambda: analyze_path(log, model, read=read, options=options),
+                        AnalysisResult.to_json, AnalysisResult.from_json)
+
+    @staticmethod
+    def _load_or_compute(path: Path, compute, to_json, to_jsonable) -> Any:
+        if path.exists():
+            return json.loads(path.read_text())
+        data = json.loads(json.dumps(to_jsonable(to_json(compute()))))
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f)
+        os.replace(tmp, path)
+        return data
+
+
+@pytest.fixture(scope="session")
+def shared_results(tmp_path_factory) -> SharedResults:
+    """The session's :class:`SharedResults`: under xdist in the folder all workers share (the base temp's parent),
+    else in this session's own base temp."""
+    base = tmp_path_factory.getbasetemp()
+    return SharedResults((base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "shared_results")
 
 
 def pytest_report_header(config):

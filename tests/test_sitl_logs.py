@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import json
 import sys
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -74,13 +73,20 @@ def _runs(t: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b) - 1) for a, b in zip(cuts[:-1], cuts[1:]) if b - a > 100]
 
 
-@lru_cache(maxsize=None)
-def _analysis(name: str):
-    from mrftcli.analyze import AnalyzeOptions, analyze_flight
+@pytest.fixture
+def analysis(shared_results):
+    """``analysis(name)``: the flight's analysis at its sidecar's Tp, computed once per session and shared by the
+    tests of every xdist worker (conftest.SharedResults: a fresh record each call)."""
+    from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
     from mrftcli.mrft.model import soiptd_model
 
-    return analyze_flight(_read(name), soiptd_model(_side(name)["tp_s"]),
-                          options=AnalyzeOptions(n_bootstrap=20, seed=1))
+    def get(name: str):
+        model, options = soiptd_model(_side(name)["tp_s"]), AnalyzeOptions(n_bootstrap=20, seed=1)
+        key = (shared_results.log_key(LOGS / f"{name}.BIN"), _side(name)["loop"], repr(model), repr(options))
+        return shared_results.get("ardupilot_sitl_analysis", key, lambda: analyze_flight(_read(name), model, options=options),
+                                  AnalysisResult.to_json, AnalysisResult.from_json)
+
+    return get
 
 
 def _hover(name: str) -> float:
@@ -187,7 +193,7 @@ def test_the_firmware_path_is_eq2_plus_half_a_tick(name: str) -> None:
         assert abs(np.degrees(np.angle(r))) < 2.0
 
 
-def test_the_altitude_increment_at_matched_frequencies_is_the_20ms_added() -> None:
+def test_the_altitude_increment_at_matched_frequencies_is_the_20ms_added(analysis) -> None:
     """Through the EKF, at one frequency per pair of tests (``altitude_mf`` and ``altitude_mf_20ms``, whose
     betas were solved for it): the delay the plain flight's model needs rises by 20 ms within 2 ms, with
     SITL's own model or the identified one as the reference."""
@@ -201,7 +207,7 @@ def test_the_altitude_increment_at_matched_frequencies_is_the_20ms_added() -> No
     plain, delayed = (segment(_read(n)) for n in ("altitude_mf", "altitude_mf_20ms"))
     assert len(plain) == len(delayed) == 3
     tp = _side("altitude_mf")["tp_s"]
-    ref = _analysis("altitude")
+    ref = analysis("altitude")
     for Td, K in ((ref.Td.value, ref.K.value), (_implied("altitude")["Td"], _implied("altitude")["K"])):
         for a, b in zip(plain, delayed):
             assert b.frequency_hz_mean == pytest.approx(a.frequency_hz_mean, rel=0.06)
@@ -210,33 +216,33 @@ def test_the_altitude_increment_at_matched_frequencies_is_the_20ms_added() -> No
 
 
 @pytest.mark.parametrize("name", ["roll", "roll_20ms", "pitch"])
-def test_roll_and_pitch_gain_is_the_plus_frames(name: str) -> None:
+def test_roll_and_pitch_gain_is_the_plus_frames(name: str, analysis) -> None:
     if not (LOGS / f"{name}.BIN").exists():
         pytest.skip(f"no {name} log")
-    res = _analysis(name)
+    res = analysis(name)
     assert len(res.tests) == 3
     assert res.K.value == pytest.approx(_implied(name)["K"], rel=0.05)
     # read as an X frame (four motors at 0.247 m) K would be sqrt(2) larger: that is excluded
     assert res.K.value < _implied(name)["K"] * 1.2
 
 
-def test_roll_tau_increment_is_the_20ms_added() -> None:
+def test_roll_tau_increment_is_the_20ms_added(analysis) -> None:
     if not (LOGS / "roll_20ms.BIN").exists():
         pytest.skip("no SITL roll logs")
-    increment = _analysis("roll_20ms").tau.value - _analysis("roll").tau.value
+    increment = analysis("roll_20ms").tau.value - analysis("roll").tau.value
     assert increment == pytest.approx(0.020, abs=0.003)
 
 
-def test_the_20ms_altitude_flight_identifies_with_sitls_gain() -> None:
+def test_the_20ms_altitude_flight_identifies_with_sitls_gain(analysis) -> None:
     if not (LOGS / "altitude_20ms.BIN").exists():
         pytest.skip("no SITL altitude log")
-    res = _analysis("altitude_20ms")
+    res = analysis("altitude_20ms")
     assert len(res.tests) == 3
     assert res.K.value == pytest.approx(_implied("altitude_20ms")["K"], rel=0.05)
     assert res.tau.value > 0.010  # the 20 ms added is in the loop (SITL's own lag is a few ms)
 
 
-def test_with_sitls_own_altitude_the_20ms_flight_finds_the_frames_damping() -> None:
+def test_with_sitls_own_altitude_the_20ms_flight_finds_the_frames_damping(analysis) -> None:
     """The EKF's altitude is what bends the altitude figures: with SITL's truth (``MRFT:Tru``) as the output
     the +20 ms flight's Td is the frame's momentum-drag value (4.14 s) and tau holds the 20 ms added."""
     from mrftcli.analyze import AnalyzeOptions, analyze_flight
@@ -250,7 +256,7 @@ def test_with_sitls_own_altitude_the_20ms_flight_finds_the_frames_damping() -> N
     res = analyze_flight(flight, soiptd_model(_side(name)["tp_s"]), options=AnalyzeOptions(n_bootstrap=20, seed=1))
     assert res.Td.value == pytest.approx(_implied(name)["Td"], rel=0.2)
     assert 0.015 < res.tau.value < 0.022
-    assert abs(res.Td.value / _analysis(name).Td.value - 1) > 0.1  # the EKF's altitude gives another Td
+    assert abs(res.Td.value / analysis(name).Td.value - 1) > 0.1  # the EKF's altitude gives another Td
 
 
 def _sitl_analysis():

@@ -36,7 +36,6 @@ from mrftcli.segment.segmenter import segment  # noqa: E402
 
 SIDECARS = sorted(LOGS.glob("px4_*.ulg.json"))
 pytestmark = pytest.mark.skipif(not SIDECARS, reason="no PX4 SITL sample logs")
-_CACHE: dict[str, object] = {}
 
 
 def _names() -> list[str]:
@@ -44,11 +43,21 @@ def _names() -> list[str]:
     return [p.name[: -len(".ulg.json")] for p in SIDECARS if "tests" in json.loads(p.read_text())]
 
 
-def _flight(name: str):
-    if name not in _CACHE:
+@pytest.fixture
+def px4_flight(shared_results):
+    """``px4_flight(name)``: a flight's sidecar and its analysis (``analyze_log``), computed once per session and
+    shared by the tests of every xdist worker (conftest.SharedResults: a fresh record each call)."""
+    from mrftcli.analyze import AnalysisResult
+
+    def get(name: str):
         side = json.loads((LOGS / f"{name}.ulg.json").read_text())
-        _CACHE[name] = (side, analyze_log(LOGS / f"{name}.ulg", side["tp_s"], side["loop"]))
-    return _CACHE[name]
+        log = LOGS / f"{name}.ulg"
+        res = shared_results.get("px4_sitl_analyze_log", (shared_results.log_key(log), side["tp_s"], side["loop"]),
+                                 lambda: analyze_log(log, side["tp_s"], side["loop"]), AnalysisResult.to_json,
+                                 AnalysisResult.from_json)
+        return side, res
+
+    return get
 
 
 @pytest.mark.parametrize("name", _names())
@@ -64,8 +73,8 @@ def test_layout_and_test_windows_from_the_parameter_changes(name: str) -> None:
 
 
 @pytest.mark.parametrize("name", ["px4_altitude", "px4_altitude_h25", "px4_altitude_h25_20ms", "px4_x", "px4_y"])
-def test_every_flown_test_is_found_with_its_beta_and_h(name: str) -> None:
-    side, res = _flight(name)
+def test_every_flown_test_is_found_with_its_beta_and_h(name: str, px4_flight) -> None:
+    side, res = px4_flight(name)
     flown = [(t["beta"], t["h"]) for t in side["tests"]]
     found = [(t.beta_nominal, t.h) for t in res.tests]
     assert len(found) == len(flown)
@@ -77,11 +86,11 @@ def test_every_flown_test_is_found_with_its_beta_and_h(name: str) -> None:
         assert res.K.value == pytest.approx(20.0, rel=0.2)  # SIH: 4 x SIH_T_MAX / SIH_MASS
 
 
-def test_the_fresh_pair_predicts_each_held_out_frequency_within_5_percent() -> None:
+def test_the_fresh_pair_predicts_each_held_out_frequency_within_5_percent(px4_flight) -> None:
     """h 0.25 (limit cycles of 3-33 cm over EKF2's 2 cm noise): each test's frequency from the model of the
     other three, within 5 % in both flights (measured: within 1.7 %); the h 0.05 pair misses (benchmark)."""
     for name in ("px4_altitude_h25", "px4_altitude_h25_20ms"):
-        side, res = _flight(name)
+        side, res = px4_flight(name)
         misses: list[tuple[int, str]] = []
         held = held_out(LOGS / f"{name}.ulg", side["tp_s"], side["loop"], res, refine=False, misses=misses)
         assert not misses and len(held) == 4
@@ -89,20 +98,20 @@ def test_the_fresh_pair_predicts_each_held_out_frequency_within_5_percent() -> N
             assert abs(ho.error) <= 0.05, (name, ho)
 
 
-def test_the_delay_realised_in_the_log_comes_back_in_tau() -> None:
+def test_the_delay_realised_in_the_log_comes_back_in_tau(px4_flight) -> None:
     """MRFT_DELAY 20 ms holds the decision until the first output at least 20 ms old: 3 ticks of
     mc_pos_control's 8 ms, 24 ms, which the log shows (decision -> vehicle_attitude_setpoint); tau of
     the fresh pair rises by that within 2 ms (22.2 ms measured; the development pair at h 0.15: 33.8)."""
     assert realised_delay(LOGS / "px4_altitude_h25.ulg", 0.1).startswith("0.0 ms median")
     assert realised_delay(LOGS / "px4_altitude_h25_20ms.ulg", 0.1).startswith("24.0 ms median")
-    _, res0 = _flight("px4_altitude_h25")
-    _, res1 = _flight("px4_altitude_h25_20ms")
+    _, res0 = px4_flight("px4_altitude_h25")
+    _, res1 = px4_flight("px4_altitude_h25_20ms")
     assert res1.tau.value - res0.tau.value == pytest.approx(0.024, abs=0.002)
 
 
-def test_added_delay_shows_in_tau() -> None:
-    side0, res0 = _flight("px4_altitude")
-    side1, res1 = _flight("px4_altitude_20ms")
+def test_added_delay_shows_in_tau(px4_flight) -> None:
+    side0, res0 = px4_flight("px4_altitude")
+    side1, res1 = px4_flight("px4_altitude_20ms")
     added = (side1["added_delay_ms"] - side0["added_delay_ms"]) / 1e3
     assert added == pytest.approx(0.020)
     # beta -0.2 under MRFT_DELAY 20 ms keeps too few stable cycles; the other three are found
@@ -234,12 +243,12 @@ def test_a_relay_hidden_by_the_controllers_own_output_is_looked_for_in_the_logge
     assert [t.beta_nominal for t in found] == pytest.approx([t.beta_nominal for t in segment(flight)])
 
 
-def test_held_out_masks_keep_each_tests_parameter_marker() -> None:
+def test_held_out_masks_keep_each_tests_parameter_marker(px4_flight) -> None:
     """A PX4 test's beta is the MRFT_Z_BETA in force when MRFT_Z_ENABLE went to 1, logged before its first
     switch: each other test's window opens at that marker, so the masked log keeps the tests apart (a window
     cut at the first switch merged neighbours of different beta: 3 of 7 refused on these logs)."""
     for name, n in (("px4_altitude", 4), ("px4_altitude_20ms", 3)):
-        side, res = _flight(name)
+        side, res = px4_flight(name)
         misses: list[tuple[int, str]] = []
         held = held_out(LOGS / f"{name}.ulg", side["tp_s"], side["loop"], res, refine=False, misses=misses)
         assert not misses and len(held) == n
@@ -417,7 +426,7 @@ def test_the_misses_are_classed_by_how_the_flight_was_flown_and_every_flown_test
         miss_class("altitude", float("nan"))
 
 
-def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_uncertainty() -> None:
+def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_uncertainty(px4_flight) -> None:
     """Why the first pair's held-out frequencies miss by 6-30 %: the relay switches on EKF2's altitude, whose
     error (several cm, slow) moves the switches of 1-4 cm cycles, so one test's cycles spread 10-22 % in
     frequency (its mean uncertain by 4-9 %), against 2-9 % at h 0.25. analyze says so: each miss lies within 2.5
@@ -427,8 +436,8 @@ def test_the_h005_misses_are_the_measurements_own_spread_and_inside_the_stated_u
     17 cycles spread 18 %, to +20 % at 1 std.)"""
     from px4_campaign import held_out_jitter
 
-    _, low = _flight("px4_altitude")
-    _, fresh = _flight("px4_altitude_h25")
+    _, low = px4_flight("px4_altitude")
+    _, fresh = px4_flight("px4_altitude_h25")
     rows_low, rows_fresh = held_out_jitter(low), held_out_jitter(fresh)
     assert [r["error"] is not None for r in rows_low] == [True] * 4
     missed = [r for r in rows_low if abs(r["error"]) > 0.05]
@@ -452,14 +461,14 @@ def test_px4s_attitude_gains_in_the_generic_form_from_the_ulogs_parameters() -> 
     assert "MC_PITCHRATE_D 0.003" in left
 
 
-def test_the_forks_relay_lands_on_an_orbit_the_sampled_predictor_admits() -> None:
+def test_the_forks_relay_lands_on_an_orbit_the_sampled_predictor_admits(px4_flight) -> None:
     """The fork's MRFT_Block (peak confirmation 5 samples, 20 ms guard) run tick by tick at 125 Hz on the fresh
     flight's eq. (2) (exact zero-order-hold steps, no noise) settles on the same orbit as the plain sampled MRFT,
     one of the admissible orbits ``mrft_limit_cycle`` lists (an independent simulation against the predictor), within
     3 % of their centre: the relay law is not what the held-out misses miss by."""
     from px4_campaign import relay_law_orbits
 
-    side, res = _flight("px4_altitude_h25")
+    side, res = px4_flight("px4_altitude_h25")
     rows = relay_law_orbits({"tp": side["tp_s"], "Td": res.Td.value, "tau": res.tau.value, "K": res.K.value,
                              "rate_hz": 125.0, "tests": res.tests})
     assert len(rows) == 4

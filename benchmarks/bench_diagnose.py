@@ -191,38 +191,19 @@ def mount_snr(flight) -> float:
 
 
 def run_case(case: dict) -> dict:
-    from mrftcli.analyze import analyze_flight
-    from mrftcli.cli.diagnose import _with_analysis
-    from mrftcli.mrft.model import soiptd_model
-    from mrftcli.diagnose.selection import diagnose
-    from mrftcli.errors import MrftError
-    from mrftcli.io import ReadOptions, read_flight, write_log
+    from diagnose_sims.cases import analyze_then_diagnose
+    from mrftcli.io import write_log
 
     flight = fly(case)
     truth = flight.truth
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "flight.mcap"
         write_log(flight.topics, path, "mcap")
-        t0 = time.process_time()
-        analysis, refusal = None, None
-        log = read_flight(path, ReadOptions(loop="altitude"))  # read once, as `mrft-ident diagnose` does
-        try:
-            analysis = analyze_flight(log, soiptd_model(truth["Tp"]))
-        except MrftError as exc:
-            refusal = exc  # handed to diagnose, as the CLI does (analyze is not run twice)
-        cpu_analyze = time.process_time() - t0  # the read and analyze: `mrft-ident analyze`'s work
-        t0 = time.process_time()
-        try:
-            # as `mrft-ident diagnose` runs it: the same flight, analyze's record reused (its segmentation; issue 39)
-            res = diagnose(log, soiptd_model(truth["Tp"]), analysis=analysis, refusal=refusal)
-            res = _with_analysis(res, analysis)  # the CLI's last step: analyze's model beside, recommend again
-            err, refused = None, False
-        except Exception as exc:  # noqa: BLE001 - a benchmark records failures
-            res, err = None, f"{type(exc).__name__}: {exc}"
-            refused = isinstance(exc, MrftError)  # the tool declined the log (one line, exit code)
-        cpu = time.process_time() - t0
+        # read once, analyze, its record or refusal to diagnose: as `mrft-ident diagnose` runs it
+        run = analyze_then_diagnose(path, truth["Tp"])
+    res = run.res
     effect = case["effect"]
-    out = {**case, "cpu": cpu, "cpu_analyze": cpu_analyze, "error": err, "refused": refused,
+    out = {**case, "cpu": run.cpu, "cpu_analyze": run.cpu_analyze, "error": run.error, "refused": run.refused,
            "aborted": sum(bool(t["aborted"]) for t in truth["tests"]),
            "min_margin": min(t["noise_margin"] for t in truth["tests"]),
            "true_values": {n: truth["effects"][n] for n in (effect or "").split("+") if n},

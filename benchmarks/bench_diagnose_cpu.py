@@ -8,7 +8,8 @@ Two steps:
 per effect and ``--clean`` clean ones) once and writes each as MCAP with a JSON sidecar (its draw and Tp).
 
 ``--logs DIR`` runs, per log, analyze and then diagnose reusing its record (or its refusal) on one read
-of the log, as ``mrft-ident diagnose`` does (BLAS single-threaded: ``mrftcli.cli`` is imported first), and
+of the log, as ``mrft-ident diagnose`` does (``diagnose_sims.cases.analyze_then_diagnose``, the CLI's last
+step included; BLAS single-threaded: ``mrftcli.cli`` is imported first), and
 prints each log's CPU (``time.process_time``), the ratio, the names found and a hash of the diagnosis'
 JSON; then the median and the worst ratio (all logs, and the logs analyze identified). ``--json OUT``
 keeps the rows. Run it under two trees (``PYTHONPATH=TREE``) and compare the hashes and ratios.
@@ -25,7 +26,6 @@ import argparse
 import hashlib
 import json
 import sys
-import time
 from pathlib import Path
 
 import mrftcli.cli  # noqa: F401 - BLAS single-threaded before numpy is loaded, as mrft-ident runs
@@ -58,30 +58,12 @@ def fly(out: Path, sim: str, seed: int, per_effect: int, clean: int) -> None:
 
 def measure(log: Path) -> dict:
     """analyze, then diagnose reusing its record, on one read of ``log``: CPU [s], names, JSON hash."""
-    from mrftcli.analyze import analyze_flight
-    from mrftcli.diagnose.selection import diagnose
-    from mrftcli.errors import MrftError
-    from mrftcli.io import ReadOptions, read_flight
-    from mrftcli.mrft.model import soiptd_model
+    from diagnose_sims.cases import analyze_then_diagnose
 
-    Tp = json.loads(log.with_suffix(".json").read_text())["Tp"]
-    t0 = time.process_time()
-    flight = read_flight(log, ReadOptions(loop="altitude"))
-    analysis, refusal = None, None
-    try:
-        analysis = analyze_flight(flight, soiptd_model(Tp))
-    except MrftError as exc:
-        refusal = exc
-    cpu_a = time.process_time() - t0
-    t0 = time.process_time()
-    try:
-        res = diagnose(flight, soiptd_model(Tp), analysis=analysis, refusal=refusal)
-        err = None
-    except MrftError as exc:
-        res, err = None, f"{type(exc).__name__}"
-    cpu_d = time.process_time() - t0
-    row = {"log": log.stem, "analysed": analysis is not None, "cpu_analyze": cpu_a, "cpu_diagnose": cpu_d,
-           "ratio": cpu_d / max(cpu_a, 1e-3), "error": err, "found": None, "json_sha": None}
+    run = analyze_then_diagnose(log, json.loads(log.with_suffix(".json").read_text())["Tp"])
+    res, cpu_a, cpu_d = run.res, run.cpu_analyze, run.cpu
+    row = {"log": log.stem, "analysed": run.analysis is not None, "cpu_analyze": cpu_a, "cpu_diagnose": cpu_d,
+           "ratio": cpu_d / max(cpu_a, 1e-3), "error": run.error and run.error.split(":", 1)[0], "found": None, "json_sha": None}
     if res is not None:
         text = json.dumps(res.to_json(), sort_keys=True, default=str)
         row.update(found=[e.name for e in res.effects], json_sha=hashlib.sha1(text.encode()).hexdigest()[:12])

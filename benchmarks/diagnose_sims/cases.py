@@ -14,10 +14,15 @@ import math
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from .loop import LoopSpec, fly, flight_topics, relay_height
+
+if TYPE_CHECKING:
+    from mrftcli.analyze import AnalysisResult
+    from mrftcli.diagnose.records import DiagnosisResult
 
 __all__ = ["EFFECTS", "MOUNT", "RATES", "draw_case", "run_case", "trim_offsets"]
 
@@ -155,15 +160,51 @@ def trim_offsets(rec, spec: LoopSpec, hover: float, drift: float) -> list[float]
     return out
 
 
+class DiagnoseRun(NamedTuple):
+    """One log analyzed, then diagnosed reusing the analysis (:func:`analyze_then_diagnose`)."""
+
+    analysis: AnalysisResult | None  #: analyze's record, or None when analyze refused the log
+    res: DiagnosisResult | None  #: the diagnosis (after the CLI's last step), or None
+    error: str | None  #: ``"ErrorType: message"`` when diagnose raised
+    refused: bool  #: the tool declined the log (an MrftError: one line and an exit code on the CLI)
+    cpu_analyze: float  #: CPU [s] of the read and analyze: ``mrft-ident analyze``'s work
+    cpu: float  #: CPU [s] of diagnose beyond analyze's
+
+
+def analyze_then_diagnose(path: Path, Tp: float) -> DiagnoseRun:
+    """Read ``path`` once (the altitude loop), analyze it and hand its record or its refusal to diagnose,
+    as ``mrft-ident diagnose`` runs it (analyze is not run twice; issue 39), timing each part in this
+    process (``time.process_time``). The one copy of this block for bench_diagnose, bench_diagnose_cpu
+    and :func:`run_case`."""
+    from mrftcli.analyze import analyze_flight
+    from mrftcli.cli.diagnose import _with_analysis
+    from mrftcli.diagnose.selection import diagnose
+    from mrftcli.errors import MrftError
+    from mrftcli.io import ReadOptions, read_flight
+    from mrftcli.mrft.model import soiptd_model
+
+    t0 = time.process_time()
+    analysis, refusal = None, None
+    flight = read_flight(path, ReadOptions(loop="altitude"))
+    try:
+        analysis = analyze_flight(flight, soiptd_model(Tp))
+    except MrftError as exc:
+        refusal = exc  # handed to diagnose, as the CLI does
+    cpu_analyze = time.process_time() - t0
+    t0 = time.process_time()
+    try:
+        res = diagnose(flight, soiptd_model(Tp), analysis=analysis, refusal=refusal)
+        res = _with_analysis(res, analysis)  # the CLI's last step: analyze's model beside, recommend again
+        err, refused = None, False
+    except Exception as exc:  # noqa: BLE001 - a benchmark records failures
+        res, err, refused = None, f"{type(exc).__name__}: {exc}", isinstance(exc, MrftError)
+    return DiagnoseRun(analysis, res, err, refused, cpu_analyze, time.process_time() - t0)
+
+
 def run_case(case: dict) -> dict:
     """Fly, write MCAP, analyze and diagnose reusing the analysis as the CLI does (CPU of each timed in this
     process), and what was found."""
-    from mrftcli.analyze import analyze_flight
-    from mrftcli.cli.diagnose import _with_analysis
-    from mrftcli.mrft.model import soiptd_model
-    from mrftcli.diagnose.selection import diagnose
-    from mrftcli.errors import MrftError
-    from mrftcli.io import ReadOptions, read_flight, write_log
+    from mrftcli.io import write_log
 
     t0 = time.process_time()
     vehicle, spec, Tp, truth = build(case)
@@ -177,26 +218,11 @@ def run_case(case: dict) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "flight.mcap"
         write_log(flight_topics(rec, [b for b, _, _ in spec.tests]), path, "mcap")
-        t0 = time.process_time()
-        analysis, refusal = None, None
-        flight = read_flight(path, ReadOptions(loop="altitude"))  # read once, as `mrft-ident diagnose` does
-        try:
-            analysis = analyze_flight(flight, soiptd_model(Tp))
-        except MrftError as exc:
-            refusal = exc  # handed to diagnose, as the CLI does (analyze is not run twice)
-        out["cpu_analyze"] = time.process_time() - t0  # the read and analyze: `mrft-ident analyze`'s work
-        out["analysed"] = analysis is not None  # analyze refused (one beta usable): its CPU is a refusal's
-        t0 = time.process_time()
-        try:
-            # as `mrft-ident diagnose` runs it: the same flight, analyze's record reused (its segmentation;
-            # issue 39) or its refusal; the CPU beyond analyze's
-            res = diagnose(flight, soiptd_model(Tp), analysis=analysis, refusal=refusal)
-            res = _with_analysis(res, analysis)  # the CLI's last step: analyze's model beside, recommend again
-            out["error"], out["refused"] = None, False
-        except Exception as exc:  # noqa: BLE001 - a benchmark records failures
-            res, out["error"] = None, f"{type(exc).__name__}: {exc}"
-            out["refused"] = isinstance(exc, MrftError)
-        out["cpu"] = time.process_time() - t0
+        run = analyze_then_diagnose(path, Tp)
+    res = run.res
+    # analysed False: analyze refused (one beta usable), its CPU is a refusal's
+    out.update(cpu_analyze=run.cpu_analyze, analysed=run.analysis is not None, error=run.error, refused=run.refused,
+               cpu=run.cpu)
     if res is not None:
         from bench_diagnose import diagnosis_row  # noqa: PLC0415 - the scoring, one home
 

@@ -14,7 +14,7 @@ import pytest
 
 from mrftcli.mrft.model import soiptd_model
 from mrftcli.io import ReadOptions
-from mrftcli.analyze import AnalyzeOptions, analyze_path
+from mrftcli.analyze import AnalyzeOptions
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 SIDECARS = sorted(SAMPLES.glob("*.truth.json")) if SAMPLES.is_dir() else []
@@ -26,9 +26,11 @@ def _log_of(sidecar: Path) -> Path:
 
 @pytest.mark.skipif(not SIDECARS, reason="no sample_logs/ with sidecars")
 @pytest.mark.parametrize("sidecar", SIDECARS, ids=lambda p: p.name[: -len(".truth.json")])
-def test_sample_log_against_sidecar(sidecar):
+def test_sample_log_against_sidecar(sidecar, shared_results):
     truth = json.loads(sidecar.read_text())
-    r = analyze_path(_log_of(sidecar), soiptd_model(truth["Tp"]), read=ReadOptions(loop=truth["loop"]), options=AnalyzeOptions(n_bootstrap=200))
+    # shared (conftest.SharedResults) with test_layouts' and test_receive_stamped's analyses of the same logs
+    r = shared_results.analysis(_log_of(sidecar), soiptd_model(truth["Tp"]), ReadOptions(loop=truth["loop"]),
+                                AnalyzeOptions(n_bootstrap=200))
     assert len(r.tests) == len(truth["tests"])
     well_sampled = truth.get("log_rate_hz", truth["rate_hz"]) >= 100
     for t, tt in zip(r.tests, truth["tests"]):
@@ -55,10 +57,13 @@ def test_sample_log_against_sidecar(sidecar):
 
 
 @pytest.mark.parametrize("design", ["design1", "design2"])
-def test_delay_increment_on_sample_logs(design):
+def test_delay_increment_on_sample_logs(design, shared_results):
     base, added = SAMPLES / f"{design}_altitude.mcap", SAMPLES / f"{design}_altitude_20ms.mcap"
     if not (base.exists() and added.exists()):
         pytest.skip("sample logs missing")
     tp = json.loads(Path(str(base) + ".truth.json").read_text())["Tp"]
-    d_tau = analyze_path(added, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.value - analyze_path(base, soiptd_model(tp), read=ReadOptions(loop="altitude"), options=AnalyzeOptions(n_bootstrap=50)).tau.value
+    # the sidecar test's analyses (shared): tau's point estimate does not depend on the bootstrap's draws
+    tau = [shared_results.analysis(log, soiptd_model(tp), ReadOptions(loop="altitude"),
+                                   AnalyzeOptions(n_bootstrap=200)).tau.value for log in (added, base)]
+    d_tau = tau[0] - tau[1]
     assert d_tau * 1e3 == pytest.approx(20.0, abs=1.5)

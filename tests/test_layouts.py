@@ -28,13 +28,15 @@ def truth(name: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def analyses() -> dict:
-    """Each stack log analysed once (the layout auto-detected, nothing named)."""
+def analyses(shared_results) -> dict:
+    """Each stack log read (the layout auto-detected, nothing named) and analysed: the analysis is
+    test_analyze_sample_logs' (the same options; conftest.SharedResults)."""
     out = {}
     for name in STACK_LOGS:
         tr = truth(name)
         flight = read_flight(SAMPLES / name, ReadOptions(loop=tr["loop"]), echo_warnings=False)
-        out[name] = (flight, analyze_flight(flight, soiptd_model(tr["Tp"]), options=AnalyzeOptions(n_bootstrap=200, seed=1)), tr)
+        out[name] = (flight, shared_results.analysis(SAMPLES / name, soiptd_model(tr["Tp"]), ReadOptions(loop=tr["loop"]),
+                                                     AnalyzeOptions(n_bootstrap=200)), tr)
     return out
 
 

@@ -114,17 +114,16 @@ def test_dropped_commands_are_rebuilt_through_the_gaps_and_refined(flight):
     assert abs(r.tau.value - m.tau) < 3 * r.tau.std < 1e-3
 
 
-def test_an_output_on_another_clock_is_not_rebuilt_and_the_interval_stays_widened():
+def test_an_output_on_another_clock_is_not_rebuilt_and_the_interval_stays_widened(shared_results):
     """HEAR's 90 Hz camera topic forwards the latest 200 Hz sample: its own grid would put the
     samples 0-5 ms late. The shipped log's truth sidecar is the oracle."""
     import json
     from pathlib import Path
 
-    from mrftcli.io import read_flight
-
     log = Path(__file__).parents[1] / "sample_logs" / "hear_x.bag"
     truth = json.loads(log.with_name(log.name + ".truth.json").read_text())
-    r = analyze_flight(read_flight(log, ReadOptions(loop="x"), echo_warnings=False), soiptd_model(truth["Tp"]), options=AnalyzeOptions(n_bootstrap=100))
+    # test_analyze_sample_logs' analysis of this log (conftest.SharedResults: the same options, 200 draws)
+    r = shared_results.analysis(log, soiptd_model(truth["Tp"]), ReadOptions(loop="x"), AnalyzeOptions(n_bootstrap=200))
     assert any("receive-stamped command rebuilt" in n for n in r.notes)
     assert any("90 Hz publisher is not on the controller's 200 Hz ticks" in n for n in r.notes)
     assert any("folded into tau's interval" in n for n in r.notes)

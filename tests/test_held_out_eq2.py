@@ -23,7 +23,7 @@ from mrftcli.mrft.model import soiptd_model
 from mrftcli.analyze import AnalysisResult, AnalyzeOptions, analyze_flight
 from mrftcli.analyze.estimate import beta_used
 from mrftcli.analyze.held_out import NOTHING_HELD_OUT, ROUTE_FUNDAMENTALS, ROUTE_POINTS, HeldOut, held_out_eq2
-from mrftcli.analyze.held_out_harmonic import FALLBACK_WORDS, ROUTE_NOTE
+from mrftcli.analyze.held_out_harmonic import FALLBACK_WORDS, FEW_DOF_WORDS, ROUTE_NOTE
 from mrftcli.cli.analyze import format_analysis
 from mrftcli.io import ReadOptions, read_flight
 from mrftcli.jsonable import to_jsonable
@@ -144,6 +144,9 @@ def test_two_tests_each_predicted_from_the_others_fundamental_and_3rd_harmonic(t
         assert ho.amplitude is not None and ho.amplitude_sigma is not None
         assert abs(ho.amplitude - a) < 3 * ho.amplitude_sigma and ho.amplitude_sigma < 0.04 * a, (ho, a)
     assert ROUTE_NOTE in result.notes and f"note: {ROUTE_NOTE}" in format_analysis(result)
+    # one other test: 4 figures for Td, tau and K, one degree of freedom, so the std is not scaled by the scatter
+    assert all(ho.note == f"{FEW_DOF_WORDS} (1 degree of freedom)" for ho in result.held_out), result.held_out
+    assert f"held-out tests 1, 2: {FEW_DOF_WORDS} (1 degree of freedom)" in format_analysis(result)
     # the fundamentals alone (the UFM's route) cannot: one beta's slice does not give Td and tau
     ufm = held_out_eq2(soiptd_model(PLANT["Tp"]), result.tests, [beta_used(t, 0.0) for t in result.tests])
     assert all(ho.frequency_hz is None and "does not determine Td and tau" in ho.note for ho in ufm)

@@ -197,7 +197,8 @@ def test_the_held_out_fit_admits_the_lead_the_reported_model_does() -> None:
     test = SimpleNamespace(predicting_relay=RelayLaw("mrft", 1.0, -1.0, beta=-0.7), rate_hz=None)
     got = _predict(soiptd_model(LEAD.Tp), test, _lead_points((-0.3, -0.5)), None)  # type: ignore[arg-type]
     assert isinstance(got, tuple), got
-    (f, a), (sf, sa) = got
+    (f, a), (sf, sa), note = got
+    assert note == ""  # two tests: 8 figures for 3 parameters
     y0, peak = _series_output(LEAD, 2 * math.pi * f, -0.7)
     assert y0 == pytest.approx(0.7 * peak, rel=1e-3) and a == pytest.approx(peak, rel=1e-3)
     assert 0 < sf < 0.05 * f and 0 < sa < 0.1 * a

@@ -48,7 +48,7 @@ from .options import RelayOptions
 from .record import TestSummary
 from .smooth_cycle import predicted_cycle
 
-__all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "route_note", "FALLBACK_WORDS"]
+__all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "route_note", "FALLBACK_WORDS", "FEW_DOF_WORDS"]
 
 #: the harmonics each other test contributes to the held-out fit
 HELD_OUT_HARMONICS = (1, 3)
@@ -70,6 +70,9 @@ def route_note(refined: bool) -> str:
 
 #: how the note of a test predicted by the fundamentals' point solve begins
 FALLBACK_WORDS = "from the other tests' fundamentals only"
+#: the note of a prediction whose fit has too few degrees of freedom to check its std against the points' scatter
+FEW_DOF_WORDS = ("its std rests on the other tests' stated errors alone: their fit has too few figures beyond its "
+                 "parameters to scale it by their scatter")
 
 _Prediction = tuple[float, float]
 #: the points' fit is used only where they are one eq. (2) plant at this significance (chi-square test)
@@ -110,9 +113,9 @@ def held_out_harmonic(flight: FlightLog, model: LoopModel, tests: Sequence[MrftT
             got = _predict(model, m.summary, [p for p in points if p.test != t.index],
                            min(f.harmonics.size for f in m.fits))
         if isinstance(got, tuple):
-            centre, spread = got
+            centre, spread, note = got
             measured_t = (t.frequency_hz_mean, mean_sem(t.frequency_hz), t.amplitude_mean, mean_sem(t.amplitude))
-            out.append(HeldOut.against(*centre, measured_t, spread, route=ROUTE_POINTS))
+            out.append(HeldOut.against(*centre, measured_t, spread, note, ROUTE_POINTS))
         else:
             why = got or "this test's relay was not measured on its cycles"
             out.append(_fallback(fallback, why))
@@ -128,8 +131,9 @@ def _fallback(ho: HeldOut, why: str) -> HeldOut:
 
 
 def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint],
-             n_h: int) -> tuple[_Prediction, _Prediction] | str:
-    """The test's (frequency [Hz], amplitude) and their std from the fit to ``points``, or why there is none."""
+             n_h: int) -> tuple[_Prediction, _Prediction, str] | str:
+    """The test's (frequency [Hz], amplitude), their std from the fit to ``points`` and a note qualifying the std
+    (``""`` or :data:`FEW_DOF_WORDS`), or why there is none."""
     if not points:
         return "no other test's response points"
     try:
@@ -169,7 +173,10 @@ def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint
     except (IdentificationError, InputError, ValueError, ArithmeticError):
         return "the fitted model has no limit cycle under this test's relay"
     var = np.einsum("ki,ij,kj->k", grad, cov, grad)
-    return centre, (math.sqrt(max(float(var[0]), 0.0)), math.sqrt(max(float(var[1]), 0.0)))
+    # a chi-square on 1-2 degrees of freedom (a two-test flight: 4 figures for Td, tau, K) is one or two samples
+    # of the points' scatter: the std is not scaled by it, so it rests on their stated errors alone
+    note = f"{FEW_DOF_WORDS} ({dof} degree{'s' if dof > 1 else ''} of freedom)" if dof <= 2 else ""
+    return centre, (math.sqrt(max(float(var[0]), 0.0)), math.sqrt(max(float(var[1]), 0.0))), note
 
 
 def _with(model: PlantModel, values: dict[str, float]) -> PlantModel:

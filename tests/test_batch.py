@@ -321,6 +321,8 @@ def test_missing_tp_everywhere_is_an_input_error(tmp_path: Path, fleet: Path) ->
 
 
 class _FakeResult:
+    kind = "soiptd"  # an eq. (2) analysis, as AnalysisResult.kind says
+
     def __init__(self, d, path=""):
         self._d = d
         self.flight = types.SimpleNamespace(path=path)  # what diagnose is given

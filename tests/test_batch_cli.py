@@ -84,6 +84,8 @@ def test_unreachable_scheduler_exit_2(tmp_path: Path) -> None:
 
 
 class _R:
+    kind = "soiptd"  # an eq. (2) analysis, as AnalysisResult.kind says
+
     def __init__(self, d):
         self._d = d
 

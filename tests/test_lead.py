@@ -3,6 +3,7 @@ round trip and refusal, analyze's statement and tune's causal design (issue 42: 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import subprocess
@@ -151,8 +152,11 @@ def test_analyze_states_the_lead_first_and_in_the_json(tmp_path: Path) -> None:
     """PX4 SIH's pitch on EKF2's attitude (sample_logs/sitl): identified with its lead (refused before), the
     assumption on the lines after the signals read, tau negative in the parameters, the model and the notes."""
     out = tmp_path / "r.json"
-    proc = subprocess.run([sys.executable, "-m", "mrftcli", "analyze", "sample_logs/sitl/px4_pitch_h.ulg", "--loop",
-                           "pitch", "--tp", "0.05", "--json", str(out)], cwd=ROOT, capture_output=True, text=True)
+    from cli_helpers import run_main
+
+    with contextlib.chdir(ROOT):
+        proc = run_main("analyze", "sample_logs/sitl/px4_pitch_h.ulg", "--loop", "pitch", "--tp", "0.05", "--json",
+                        str(out))
     assert proc.returncode == 0, proc.stderr
     head = proc.stdout.splitlines()[:6]
     assert any(line.startswith("note: assumed: the loop leads eq. (2): tau = -2.9") for line in head)
@@ -364,6 +368,8 @@ def test_plan_counts_the_lead_draws_it_leaves_out():
 def test_tunes_first_line_is_the_lead_design_note_before_the_analysis_warnings():
     """tune on a lead log: the 'assumed:' design note is the first line a user reads (stdout and stderr as one
     terminal), the analysis' warnings after the output, as analyze prints them."""
+    # a real process: the claim is the order of stdout and stderr merged into one stream (stderr=STDOUT), which
+    # run_main's two separate buffers cannot show
     proc = subprocess.run([sys.executable, "-m", "mrftcli", "tune", "sample_logs/sitl/px4_pitch_h.ulg", "--loop",
                            "pitch", "--tp", "0.05", "--controller-rate", "250", "--quiet"], cwd=ROOT,
                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=300)

@@ -53,8 +53,21 @@ def test_batch_fopdt_rows_hold_the_parameters_with_units(tmp_path):
     assert set(again.summary["status"]) == {"skipped-uptodate"}
     known = BatchOptions(jobs=1, report=False, model=family_model("fopdt", known={"tau": 0.3}))
     other = run_batch([logs], tmp_path / "out", options=known, explicit=_READ)
-    # another model is another result: recomputed (a row whose K and T the data leave open is insufficient)
+    # another model is another result: recomputed
     assert "skipped-uptodate" not in set(other.summary["status"])
+    # no controller rate given: the 20 Hz log's switches are placed midway between samples, half a sample
+    # (25 ms) before process_sim's relay (deciding at the log's rate) switched; said in the record's first notes
+    notes = json.loads((tmp_path / "out" / str(other.summary["result_json"].iloc[0])).read_text())
+    notes = json.dumps(notes["loops"][0]["result"])
+    assert "assumed: the relay decided much faster than the 20 Hz log" in notes and "--controller-rate 20" in notes
+    # the relay's true rate given: the known tau is the plant's delay and K, T hold (were K 4.19, T 2.12:
+    # 'insufficient', the 25 ms lag pushed into them)
+    at_rate = run_batch([logs], tmp_path / "out", options=known, explicit={**_READ, "controller_rate_hz": 20.0})
+    # (b.csv's delay is 0.25 s: tau 0.3 is not its truth, only a.csv's row is checked)
+    row = at_rate.summary.iloc[0]
+    assert os.path.basename(str(row["path"])) == "a.csv" and row["status"] == "ok"
+    assert row["p_K"] == pytest.approx(2.0, rel=0.1) and row["p_T"] == pytest.approx(1.0, rel=0.1)
+    assert row["p_tau"] == 0.3
 
 
 def test_a_process_row_with_nothing_determined_is_insufficient(tmp_path):

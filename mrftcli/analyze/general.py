@@ -34,7 +34,7 @@ from ..mrft.relays import RelayLaw
 from ..segment import segment
 from ..segment.records import MrftTest
 from ..segment.relay_type import infer_relay
-from ..segment.segmenter import inside_windows
+from ..segment.segmenter import LOW_RATE_HZ, inside_windows
 from ..segment.stability import stable_cycles
 from ..segment.validity import check_limit_cycle
 from .held_out import HeldOut
@@ -350,6 +350,28 @@ def measure_tests(flight: FlightLog, relay: RelayOptions = RelayOptions(),
             for i, test in enumerate(find_tests(flight, windows))]
 
 
+def _midway_switches(flight: FlightLog, measured: Sequence[MeasuredTest]) -> str:
+    """The assumption behind the switch instants of a command logged below ``LOW_RATE_HZ`` with no controller
+    rate given ("" when none is made).
+
+    The segmenter then places each switch midway between the last sample at the old level and the first at
+    the new one (a relay deciding much faster than the log). A relay that decided at the log's rate
+    switched at that first sample, half a sample later: every response point's phase then carries that
+    lag, which a free delay absorbs (tau half a sample long) and a known one cannot (K and T pushed apart).
+    """
+    if flight.timing.controller_rate_hz is not None:
+        return ""
+    rates = [m.test.rate_hz for m in measured if m.summary is not None and m.test is not None
+             and m.test.rate_hz < LOW_RATE_HZ]
+    if not rates:
+        return ""
+    rate = float(np.median(rates))
+    return (f"assumed: the relay decided much faster than the {rate:.3g} Hz log, so each switch is placed midway "
+            "between the samples around it; if it decided at the log's rate (it switched at the first sample at "
+            f"the new level, {500 / rate:.3g} ms later), give --controller-rate {rate:.3g}: otherwise tau reads "
+            "that much longer, or, with tau known, the other parameters absorb it")
+
+
 def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[MeasuredTest],
                      windows: Sequence[tuple[float, float]] = (),
                      baseline: tuple[float | Signal, float] | None = None) -> AnalysisResult:
@@ -367,6 +389,9 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
     notes = [f"test {k}: {n}" for k, t in enumerate(tests, 1) for n in t.notes]
     if not tests:
         raise _no_usable_test(rejected)
+    midway = _midway_switches(flight, measured)
+    if midway:
+        notes.insert(0, midway)
     if any(abs(t.relay.bias) > 1e-9 * t.relay.h for t in tests):
         notes.insert(0, "assumed: each relay's bias is balanced by the loop's operating point (the cycle is "
                         "taken about its centre); the response points do not depend on it")

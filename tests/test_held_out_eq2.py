@@ -206,6 +206,19 @@ def test_held_out_notes_name_the_tests_by_the_tables_numbers():
     assert held_out_notes(held) == [f"held-out tests 1, 2: {why}"]
 
 
+def test_the_few_dof_note_reads_right_for_one_test_and_several() -> None:
+    # the line joins one note over several tests: no singular pronoun for "the prediction" ("its std" read
+    # wrong on a two-test log's "held-out tests 1, 2: ...")
+    from mrftcli.analyze.held_out import held_out_notes
+
+    note = f"{FEW_DOF_WORDS} (1 degree of freedom)"
+    two = held_out_notes([HeldOut(0.78, 0.058, note), HeldOut(1.38, 0.055, note)])
+    one = held_out_notes([HeldOut(0.78, 0.058, note), None])
+    assert two == [f"held-out tests 1, 2: {note}"] and one == [f"held-out test 1: {note}"]
+    assert not any(line.split(": ", 1)[1].startswith(("its ", "their ")) for line in two + one), (two, one)
+    assert "std from the other tests' stated errors alone" in two[0]
+
+
 def test_a_held_out_record_without_a_route_reads_and_writes_as_it_was() -> None:
     """The ``route`` key is additive: a record written before it (or a family's, one route) reads with route ""
     and writes back without the key; a route read back is kept; the fallback keeps the fundamentals' route."""

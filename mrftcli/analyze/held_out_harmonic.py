@@ -71,8 +71,9 @@ def route_note(refined: bool) -> str:
 #: how the note of a test predicted by the fundamentals' point solve begins
 FALLBACK_WORDS = "from the other tests' fundamentals only"
 #: the note of a prediction whose fit has too few degrees of freedom to check its std against the points' scatter
-FEW_DOF_WORDS = ("its std rests on the other tests' stated errors alone: their fit has too few figures beyond its "
-                 "parameters to scale it by their scatter")
+#: (worded without a pronoun for the prediction: held_out_notes joins one test's note and several tests')
+FEW_DOF_WORDS = ("std from the other tests' stated errors alone: their fit has too few figures beyond its "
+                 "parameters to scale the std by their scatter")
 
 _Prediction = tuple[float, float]
 #: the points' fit is used only where they are one eq. (2) plant at this significance (chi-square test)

@@ -138,3 +138,20 @@ def test_cli_batch_model(tmp_path):
     assert "parameters (value ± std unit)" in out.stdout
     line = next(ln for ln in out.stdout.splitlines() if ln.startswith("a.csv"))
     assert "fopdt" in line and "tau 0.3" in line and " s" in line and "output / command" in line
+
+
+def test_a_known_value_the_points_contradict_is_named_not_a_missing_test(tmp_path):
+    """A given tau the response points contradict (a.csv's 20 Hz log read with no --controller-rate: each switch
+    half a sample early, so the true 0.3 s misfits, chi2/dof ~100; b.csv's true delay is 0.25 s) inflates the
+    covariance until K, T look undetermined: the advice names the given value and its chi2/dof, not another
+    test or more --param values (the advice before)."""
+    logs = _fleet(tmp_path / "logs", names=("a.csv",))
+    out = run_main("analyze", str(logs / "a.csv"), "--model", "fopdt", "--param", "tau=0.3", "--command-topic",
+                   "u_relay", "--output-topic", "y_output")
+    assert out.returncode != 0
+    err = out.stderr.strip()
+    assert err.startswith("error: K, T not determined: the given value tau = 0.3 s disagrees with the 6 response")
+    chi = float(err.split("chi2/dof ")[1].split()[0])
+    assert chi > 10 and f"chi2/dof {chi:.3g}" in out.stdout  # the figure the parameter table states
+    assert "either the given value is wrong or the log's timing is" in err and "--controller-rate" in err
+    assert "add a relay test" not in err and "--param NAME=VALUE" not in err

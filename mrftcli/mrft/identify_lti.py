@@ -827,10 +827,30 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         determined = est.determined
         if not determined:
             undetermined.append(name)
-    advice = ""
-    if undetermined:
-        n_freq = len({round(math.log(p.omega), 1) for p in points})
-        advice = (f"{', '.join(undetermined)} not determined by {len(points)} response point(s) at {n_freq} "
-                  "distinct frequencies: give known values with --param NAME=VALUE, or add a relay test at another "
-                  "phase (an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")
+    advice = _advice(model, undetermined, points, chi2_dof) if undetermined else ""
     return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice)
+
+
+#: a fit with given values whose reduced chi-square is above this misses the points by several times their stated
+#: errors (a free fit of a matching structure sits near 1-3): the given values, not a missing test, are at fault
+_DISAGREE_CHI2_DOF = 10.0
+
+
+def _advice(model: PlantModel, undetermined: Sequence[str], points: Sequence[ResponsePoint],
+            chi2_dof: float | None) -> str:
+    """Why ``undetermined`` are not determined and what to do: given values the points contradict (their fit's
+    ``chi2_dof`` far above 1) are named; otherwise another test or known values would determine them."""
+    n = len(points)
+    given = [f"{name} = {p.value:.4g} {p.unit}" for name, p in model.parameters.items() if p.known]
+    if given and chi2_dof is not None and chi2_dof > _DISAGREE_CHI2_DOF:
+        # the covariance is inflated by the misfit, so the free parameters look undetermined; more tests or
+        # more known values would not help: the given value (or the points' timing) is wrong
+        values = f"value{'s' if len(given) > 1 else ''} {', '.join(given)} disagree{'' if len(given) > 1 else 's'}"
+        return (f"{', '.join(undetermined)} not determined: the given {values} with the {n} response point(s) "
+                f"(chi2/dof {chi2_dof:.3g} of their fit with {'them' if len(given) > 1 else 'it'}): either the "
+                "given value is wrong or the log's timing is (e.g. the switch instants of a log below 25 Hz read with "
+                "no --controller-rate, which places each switch midway between samples)")
+    n_freq = len({round(math.log(p.omega), 1) for p in points})
+    return (f"{', '.join(undetermined)} not determined by {n} response point(s) at {n_freq} "
+            "distinct frequencies: give known values with --param NAME=VALUE, or add a relay test at another "
+            "phase (an MRFT with a different beta, or a relay with hysteresis or none if all tests had it)")

@@ -155,3 +155,21 @@ def test_a_known_value_the_points_contradict_is_named_not_a_missing_test(tmp_pat
     assert chi > 10 and f"chi2/dof {chi:.3g}" in out.stdout  # the figure the parameter table states
     assert "either the given value is wrong or the log's timing is" in err and "--controller-rate" in err
     assert "add a relay test" not in err and "--param NAME=VALUE" not in err
+
+
+def test_a_known_value_the_points_contradict_is_warned_even_when_the_rest_look_determined(tmp_path):
+    """b.csv (truth K 1.5, T 0.8, tau 0.25) with a given tau 0.3: the fit misses the points (chi2/dof ~80) yet K
+    and T look determined (K ~1.0, a third low); before, nothing said so (exit 0, no warning). Now a warning names
+    the given value, the chi2/dof and the two likely causes, on the terminal and in the JSON; the numbers stay."""
+    logs = _fleet(tmp_path / "logs")
+    out = run_main("analyze", str(logs / "b.csv"), "--model", "fopdt", "--param", "tau=0.3", "--command-topic",
+                   "u_relay", "--output-topic", "y_output", "--json", str(tmp_path / "b.json"))
+    assert out.returncode == 0  # reported, flagged
+    chi = float(out.stdout.split("chi2/dof ")[1].split(")")[0])
+    assert chi > 10
+    warning = next(ln for ln in (out.stdout + out.stderr).splitlines() if ln.startswith("warning: the estimates of K, T"))
+    assert "the given value tau = 0.3 s disagrees" in warning and f"chi2/dof {chi:.3g}" in warning
+    assert "either the given value is wrong or the log's timing is" in warning and "--controller-rate" in warning
+    record = json.loads((tmp_path / "b.json").read_text())
+    assert warning.removeprefix("warning: ") in record["warnings"]
+    assert warning.removeprefix("warning: ") in record["identification"]["warnings"]

@@ -413,7 +413,8 @@ def general_analysis(flight: FlightLog, model: PlantModel, measured: Sequence[Me
                                                                n_hs.get(t.index)))
                       for t in tests)
     return AnalysisResult(flight.path, flight.loop, ident.model, with_held, ident, ident.parameters,
-                          warnings=tuple(flight.warnings), notes=tuple(notes), t0=t0, flight=flight,
+                          warnings=(*ident.warnings, *flight.warnings), notes=tuple(notes), t0=t0,
+                          flight=flight,
                           segments=tuple(m.test for m in measured if m.summary is not None and m.test is not None),
                           windows=tuple(windows), static_gain=sg, rejected_spans=tuple(rejected))
 

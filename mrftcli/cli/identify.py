@@ -123,6 +123,7 @@ def _echo(result: Any, n_data: int) -> None:
         click.echo("\n".join(format_estimates(result)))
         if result.advice and not result.nothing_determined:  # else the exit-6 line after it gives the advice
             click.echo(f"not determined: {result.advice}")
+        echo_warnings(result.warnings)
         return
     click.echo(f"model  G(s) = K Td e^(-tau s) / (s (Tp s+1)(Td s+1)),  Tp = {result.Tp:g} s (known)  [{result.method}]")
     click.echo(f"{'Td':<4} {_fmt(result.Td, 1.0, ' s')}")

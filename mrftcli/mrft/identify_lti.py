@@ -152,6 +152,9 @@ class LtiIdentification(IdentificationRecord):
         Names of the parameters the tests do not pin down.
     advice : str
         What would determine them (empty when all are determined).
+    warnings : tuple of str
+        Figures to distrust: given values the points contradict (the fit's ``chi2_dof`` above
+        10), even when every free parameter looks determined.
     combination : DeterminedCombination or None
         The product of the undetermined parameters' powers that the tests do determine (e.g. K/T1),
         if any (:func:`~mrftcli.mrft.determined.determined_combination`).
@@ -162,6 +165,7 @@ class LtiIdentification(IdentificationRecord):
     undetermined: tuple[str, ...] = ()
     advice: str = ""
     combination: DeterminedCombination | None = None
+    warnings: tuple[str, ...] = ()
 
     _method: ClassVar[str] = _METHOD
 
@@ -174,10 +178,11 @@ class LtiIdentification(IdentificationRecord):
         return bool(unknown) and unknown <= set(self.undetermined)
 
     def fit_json(self) -> dict[str, Any]:
-        """``points``, ``chi2_dof``, ``undetermined``, ``advice``, ``determined_combination``."""
+        """``points``, ``chi2_dof``, ``undetermined``, ``advice``, ``determined_combination``, ``warnings``."""
         return {"points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
                 "undetermined": list(self.undetermined), "advice": self.advice,
-                "determined_combination": None if self.combination is None else self.combination.to_json()}
+                "determined_combination": None if self.combination is None else self.combination.to_json(),
+                "warnings": list(self.warnings)}
 
     @classmethod
     def fit_from_json(cls, data: Mapping[str, Any], model: Any,
@@ -189,7 +194,8 @@ class LtiIdentification(IdentificationRecord):
         chi, combo = data.get("chi2_dof"), data.get("determined_combination")
         return cls(model, estimates, points, None if chi is None else float(chi),
                    tuple(str(n) for n in data.get("undetermined", [])), str(data.get("advice", "")),
-                   None if combo is None else DeterminedCombination.from_json(combo))
+                   None if combo is None else DeterminedCombination.from_json(combo),
+                   tuple(str(w) for w in data.get("warnings") or ()))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -828,7 +834,13 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         if not determined:
             undetermined.append(name)
     advice = _advice(model, undetermined, points, chi2_dof) if undetermined else ""
-    return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice)
+    # the determined estimates look confident: flag them (the undetermined ones the advice already explains)
+    contradiction = _contradiction(model, points, chi2_dof)
+    shown = [n for n in problem.unknown if n not in undetermined]
+    warnings = (f"the estimates of {', '.join(shown)} are not to be trusted: {contradiction}",) \
+        if contradiction and shown else ()
+    return LtiIdentification(model, tuple(estimates), tuple(points), chi2_dof, tuple(undetermined), advice,
+                             warnings=warnings)
 
 
 #: a fit with given values whose reduced chi-square is above this misses the points by several times their stated
@@ -836,20 +848,29 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
 _DISAGREE_CHI2_DOF = 10.0
 
 
+def _contradiction(model: PlantModel, points: Sequence[ResponsePoint], chi2_dof: float | None) -> str:
+    """The given values ``points`` contradict (their fit's ``chi2_dof`` above 10) and the
+    two likely causes, or "" (no given value, or a fit that agrees)."""
+    given = [f"{name} = {p.value:.4g} {p.unit}" for name, p in model.parameters.items() if p.known]
+    if not given or chi2_dof is None or chi2_dof <= _DISAGREE_CHI2_DOF:
+        return ""
+    values = f"value{'s' if len(given) > 1 else ''} {', '.join(given)} disagree{'' if len(given) > 1 else 's'}"
+    return (f"the given {values} with the {len(points)} response point(s) "
+            f"(chi2/dof {chi2_dof:.3g} of their fit with {'them' if len(given) > 1 else 'it'}): either the "
+            "given value is wrong or the log's timing is (e.g. the switch instants of a log below 25 Hz read with "
+            "no --controller-rate, which places each switch midway between samples)")
+
+
 def _advice(model: PlantModel, undetermined: Sequence[str], points: Sequence[ResponsePoint],
             chi2_dof: float | None) -> str:
     """Why ``undetermined`` are not determined and what to do: given values the points contradict (their fit's
     ``chi2_dof`` far above 1) are named; otherwise another test or known values would determine them."""
     n = len(points)
-    given = [f"{name} = {p.value:.4g} {p.unit}" for name, p in model.parameters.items() if p.known]
-    if given and chi2_dof is not None and chi2_dof > _DISAGREE_CHI2_DOF:
+    contradiction = _contradiction(model, points, chi2_dof)
+    if contradiction:
         # the covariance is inflated by the misfit, so the free parameters look undetermined; more tests or
         # more known values would not help: the given value (or the points' timing) is wrong
-        values = f"value{'s' if len(given) > 1 else ''} {', '.join(given)} disagree{'' if len(given) > 1 else 's'}"
-        return (f"{', '.join(undetermined)} not determined: the given {values} with the {n} response point(s) "
-                f"(chi2/dof {chi2_dof:.3g} of their fit with {'them' if len(given) > 1 else 'it'}): either the "
-                "given value is wrong or the log's timing is (e.g. the switch instants of a log below 25 Hz read with "
-                "no --controller-rate, which places each switch midway between samples)")
+        return f"{', '.join(undetermined)} not determined: {contradiction}"
     n_freq = len({round(math.log(p.omega), 1) for p in points})
     return (f"{', '.join(undetermined)} not determined by {n} response point(s) at {n_freq} "
             "distinct frequencies: give known values with --param NAME=VALUE, or add a relay test at another "

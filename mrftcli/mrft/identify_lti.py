@@ -178,11 +178,12 @@ class LtiIdentification(IdentificationRecord):
         return bool(unknown) and unknown <= set(self.undetermined)
 
     def fit_json(self) -> dict[str, Any]:
-        """``points``, ``chi2_dof``, ``undetermined``, ``advice``, ``determined_combination``, ``warnings``."""
-        return {"points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
-                "undetermined": list(self.undetermined), "advice": self.advice,
-                "determined_combination": None if self.combination is None else self.combination.to_json(),
-                "warnings": list(self.warnings)}
+        """``points``, ``chi2_dof``, ``undetermined``, ``advice``, ``determined_combination``, ``warnings`` (only when set)."""
+        out = {"points": [p.to_json() for p in self.points], "chi2_dof": self.chi2_dof,
+               "undetermined": list(self.undetermined), "advice": self.advice,
+               "determined_combination": None if self.combination is None else self.combination.to_json()}
+        # additive key, written only when set: an older record reads and writes back unchanged
+        return out | ({"warnings": list(self.warnings)} if self.warnings else {})
 
     @classmethod
     def fit_from_json(cls, data: Mapping[str, Any], model: Any,

@@ -213,13 +213,24 @@ def test_simulate_flies_a_declared_structure_and_analyze_finds_it_back(tmp_path,
         assert params[name]["ci95_low"] <= value <= params[name]["ci95_high"], name
 
 
+def _refit_cost(w, G_ref, held, x0):
+    """The independent oracle of the declared-zero tests: scipy's refit of K (a s + 1) e^{-tau s} / (T s + 1)^2,
+    written by hand, to the reference response G_ref at a held [s]; the least-squares cost with the points'
+    weights 1 / se = 100 on ln gain and phase."""
+    from scipy.optimize import least_squares
+
+    def r(x: np.ndarray) -> np.ndarray:
+        K, T, tau = x
+        G = K * (held * 1j * w + 1) * np.exp(-tau * 1j * w) / (T * 1j * w + 1) ** 2
+        return 100.0 * np.concatenate([np.log(abs(G) / abs(G_ref)), np.angle(G / G_ref)])
+    return float(np.sum(least_squares(r, x0).fun ** 2))
+
+
 def test_a_parameter_at_its_declared_zero_is_bounded_above_by_its_profile():
     """a = 0 (the range's end) stated '0 to 2.885e-07' (the solver's floor 1e-6/omega plus the log-scale std there,
     where the residuals do not move) as DETERMINED: overconfident. Its 95 % upper end is now the value where the
     fit's cost, the others refitted, has risen by chi2(1) 95 % = 3.84: checked by an independent refit of the
     hand-written response (scipy, not the package's fit)."""
-    from scipy.optimize import least_squares
-
     w = np.array([1.0, 2.0, 5.0, 9.0])
     G0 = 2.0 * np.exp(-0.1j * w) / (0.5j * w + 1) ** 2  # a = 0, by hand
     pts = [ResponsePoint(x, abs(g), float(np.angle(g)), 0.01, 0.01, i) for i, (x, g) in enumerate(zip(w, G0))]
@@ -228,12 +239,8 @@ def test_a_parameter_at_its_declared_zero_is_bounded_above_by_its_profile():
     a = identify(pts, model).estimate("a")
     assert a.ci95_low == 0.0 and a.one_sided == "low" and not a.determined
 
-    def rise(held: float) -> float:  # weights 1 / se = 100 on ln gain and phase, as the points state
-        def r(x: np.ndarray) -> np.ndarray:
-            K, T, tau = x
-            G = K * (held * 1j * w + 1) * np.exp(-tau * 1j * w) / (T * 1j * w + 1) ** 2
-            return 100.0 * np.concatenate([np.log(abs(G) / abs(G0)), np.angle(G / G0)])
-        return float(np.sum(least_squares(r, [2.0, 0.5, 0.1]).fun ** 2))
+    def rise(held: float) -> float:
+        return _refit_cost(w, G0, held, [2.0, 0.5, 0.1])
 
     assert 0.005 < a.ci95_high < 0.1  # bounded by the data, far above the floor
     assert rise(a.ci95_high) == pytest.approx(3.841, rel=0.05) and rise(0.7 * a.ci95_high) < 3.0
@@ -246,8 +253,6 @@ def test_a_parameter_stalled_a_few_floors_above_its_declared_zero_is_profiled_to
     stand, '7.8e-07 - 7.9e-07, determined' (review R3 #1, reproduced by analyze on a simulated flight). Any value
     nearer its floor than its linear half-width is now profiled on the value: the interval reaches 0 and ends where
     an independent refit (scipy on the hand-written response) rises by chi2(1) 95 % = 3.84 over its minimum."""
-    from scipy.optimize import least_squares
-
     rng = np.random.default_rng(seed)
     w = np.array([5.8, 8.9, 17.4, 26.7])
     G0 = 2.0 * np.exp(-0.05j * w) / (0.2j * w + 1) ** 2  # a = 0, by hand
@@ -257,12 +262,8 @@ def test_a_parameter_stalled_a_few_floors_above_its_declared_zero_is_profiled_to
                            {"K": (0.1, 10), "T": (0.01, 10), "tau": (0.0, 1.0), "a": (0.0, 0.1)})
     a = identify(pts, model).estimate("a")
 
-    def cost(held: float) -> float:  # weights 1 / se = 100 on ln gain and phase, as the points state
-        def r(x: np.ndarray) -> np.ndarray:
-            K, T, tau = x
-            G = K * (held * 1j * w + 1) * np.exp(-tau * 1j * w) / (T * 1j * w + 1) ** 2
-            return 100.0 * np.concatenate([np.log(abs(G) / abs(g)), np.angle(G / g)])
-        return float(np.sum(least_squares(r, [2.0, 0.2, 0.05]).fun ** 2))
+    def cost(held: float) -> float:
+        return _refit_cost(w, g, held, [2.0, 0.2, 0.05])
 
     best = min(cost(x) for x in (0.0, a.value))
     assert a.ci95_low == 0.0 and not a.determined and cost(0.0) - best < 3.841  # the truth, 0, inside

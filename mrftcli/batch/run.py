@@ -59,6 +59,7 @@ from .summary import (
 from ..errors import InputError, InsufficientDataError, MrftError, TpRejectedError
 from ..io.logtypes import LOOPS, PROCESS_LOOP
 from ..jsonable import load_json_text, to_jsonable
+from ..mrft.identify_lti import refuse_nothing_determined
 from ..progress import Progress
 from ..progress import report as report_progress
 from ..validate import check_positive
@@ -218,9 +219,8 @@ def _analyze_loop(task: LogTask, loop: str) -> dict[str, Any]:
         result = analyze_path(task.path, model, read=read, options=options, loop_hint=False)  # the one route
         if task.model is None:  # eq. (2): a Tp the recording rejects fails the loop unless --accept-tp
             result = refuse_rejected_tp(result, s.accept_tp)
-        ident = result.identification if result.kind == "family" else None
-        if ident is not None and ident.nothing_determined:  # insufficient, as analyze's exit 6 (was 'ok')
-            raise InsufficientDataError(ident.advice, partial=result.to_json())
+        if result.kind == "family":  # nothing determined: insufficient, as analyze's exit 6
+            refuse_nothing_determined(result.identification, partial=result.to_json())
         entry["result"] = result.to_json()
     except InsufficientDataError as err:
         entry.update(status=STATUS_INSUFFICIENT, error=_one_line(err), error_type=type(err).__name__,

@@ -10,8 +10,9 @@ from ..analyze.held_out import HeldOut, held_out_cells, held_out_notes
 from ..errors import InsufficientDataError, MrftError, SegmentationError, TpRejectedError
 from .model_options import (baseline_option, cascade_options, cascade_setup, format_combination, parameter_display,
                             parameter_lines, parse_baseline, parse_windows, pop_cascade_options,
-                            refuse_nothing_determined, relay_options, soiptd_or_process, structure_options,
+                            relay_options, soiptd_or_process, structure_options,
                             structure_text, window_option)
+from ..mrft.identify_lti import refuse_nothing_determined
 from ..report.wording import uncertainty_sentence
 from .options import (check_output_dir, check_output_file, dump_json, echo_warnings, json_option,
                       log_layout_options, min_cycles_option, num, quiet_option, read_progress, text_table,

@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..errors import InputError, InsufficientDataError
-from .model_options import (build_model, format_estimates, parse_number, refuse_nothing_determined,
-                            structure_options, structure_text)
+from ..mrft.identify_lti import refuse_nothing_determined
+from .model_options import build_model, format_estimates, parse_number, structure_options, structure_text
 from .options import controller_rate_option, dump_json, echo_warnings, json_option, tp_option
 
 if TYPE_CHECKING:

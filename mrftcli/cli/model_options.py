@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Sequence
 
 import click
 
-from ..errors import InputError, InsufficientDataError
+from ..errors import InputError
 from ..validate import check_parameter_value
 from .options import num, read_json_file, text_table
 
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 __all__ = ["MODEL_NAMES", "structure_text", "check_soiptd_options", "soiptd_or_process", "process_model", "structure_options", "window_option", "relay_options",
            "parse_params", "parse_number", "parse_windows", "build_model", "format_estimates", "parameter_lines",
            "format_combination", "cascade_options", "outer_options", "CascadeRequest", "pop_cascade_options", "cascade_setup",
-           "parameter_display", "refuse_nothing_determined"]
+           "parameter_display"]
 
 #: the families ``--model`` takes (eq. (2) first: the default)
 MODEL_NAMES = ("soiptd", "fopdt", "sopdt", "ipdt", "foipdt")
@@ -341,20 +341,6 @@ def format_combination(ident: LtiIdentification) -> list[str]:
         return []
     return [f"determined: {c.name} = {num(c.value)} {c.unit} (95 % {num(c.ci95_low)} - {num(c.ci95_high)}); "
             f"{', '.join(n for n, _ in c.exponents)} trade off along it"]
-
-
-def refuse_nothing_determined(ident: LtiIdentification) -> None:
-    """Exit 6 (a partial result, as eq. (2)'s single beta) when the data determine none of the model's unknown
-    parameters (:attr:`LtiIdentification.nothing_determined`): called after the estimates and their intervals
-    are printed and written, so they stay readable; the text leaves its 'not determined' line to this one.
-
-    Raises
-    ------
-    InsufficientDataError
-        With the identification's own advice (what would determine them: --param, another relay test).
-    """
-    if ident.nothing_determined:
-        raise InsufficientDataError(ident.advice)
 
 
 @dataclass(frozen=True)

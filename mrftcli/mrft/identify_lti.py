@@ -48,14 +48,14 @@ from numpy.typing import NDArray
 from scipy import optimize
 from scipy.linalg import lapack
 
-from ..errors import IdentificationError, InputError
+from ..errors import IdentificationError, InputError, InsufficientDataError
 from .determined import DeterminedCombination, determined_combination
 from .lti_kernel import LagChainKernel, wrap as _wrap
 from .identification import IdentificationRecord
 from .model import PlantModel
 from .parameter import DETERMINED_LOG_WIDTH, Z95, ParameterEstimate, fitted_estimate
 
-__all__ = ["ResponsePoint", "LtiIdentification", "fit_response_points", "fit_covariance", "STATIC_HARMONIC",
+__all__ = ["ResponsePoint", "LtiIdentification", "refuse_nothing_determined", "fit_response_points", "fit_covariance", "STATIC_HARMONIC",
            "static_gain_point"]
 
 #: the method every identified (not given) parameter of this fit records (ParameterEstimate.method)
@@ -226,6 +226,21 @@ class _Data:
         return cls(omega, np.log(table[:, 1]), table[:, 2], 1.0 / np.maximum(table[:, 3], _SE_FLOOR[0]),
                    1.0 / np.maximum(table[:, 4], _SE_FLOOR[1]), fundamental, _median(tests), _median(cycles),
                    fundamental if fundamental.any() else omega <= tests.min())
+
+
+def refuse_nothing_determined(ident: LtiIdentification, partial: dict[str, Any] | None = None) -> None:
+    """Exit 6 (a partial result, as eq. (2)'s single beta) when the data determine none of the model's unknown
+    parameters (:attr:`LtiIdentification.nothing_determined`). identify and analyze call it after the estimates
+    and their intervals are printed and written, so they stay readable; batch marks the row insufficient.
+
+    Raises
+    ------
+    InsufficientDataError
+        With the identification's own advice (what would determine them: --param, another relay test) and
+        ``partial`` (the analysis record batch keeps).
+    """
+    if ident.nothing_determined:
+        raise InsufficientDataError(ident.advice, partial=partial)
 
 
 def _wrap_grid(x: FloatArray, low: float = -math.pi) -> FloatArray:
@@ -834,9 +849,9 @@ def _result(problem: _Problem, values: dict[str, float], cov: FloatArray, chi2_d
         determined = est.determined
         if not determined:
             undetermined.append(name)
-    advice = _advice(model, undetermined, points, chi2_dof) if undetermined else ""
-    # the determined estimates look confident: flag them (the undetermined ones the advice already explains)
     contradiction = _contradiction(model, points, chi2_dof)
+    advice = _advice(undetermined, points, contradiction) if undetermined else ""
+    # the determined estimates look confident: flag them (the undetermined ones the advice already explains)
     shown = [n for n in problem.unknown if n not in undetermined]
     warnings = (f"the estimates of {', '.join(shown)} are not to be trusted: {contradiction}",) \
         if contradiction and shown else ()
@@ -862,12 +877,11 @@ def _contradiction(model: PlantModel, points: Sequence[ResponsePoint], chi2_dof:
             "no --controller-rate, which places each switch midway between samples)")
 
 
-def _advice(model: PlantModel, undetermined: Sequence[str], points: Sequence[ResponsePoint],
-            chi2_dof: float | None) -> str:
-    """Why ``undetermined`` are not determined and what to do: given values the points contradict (their fit's
-    ``chi2_dof`` far above 1) are named; otherwise another test or known values would determine them."""
+def _advice(undetermined: Sequence[str], points: Sequence[ResponsePoint], contradiction: str) -> str:
+    """Why ``undetermined`` are not determined and what to do: given values the points contradict
+    (``contradiction``, :func:`_contradiction`) are named; otherwise another test or known values would
+    determine them."""
     n = len(points)
-    contradiction = _contradiction(model, points, chi2_dof)
     if contradiction:
         # the covariance is inflated by the misfit, so the free parameters look undetermined; more tests or
         # more known values would not help: the given value (or the points' timing) is wrong

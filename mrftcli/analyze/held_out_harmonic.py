@@ -48,7 +48,7 @@ from .options import RelayOptions
 from .record import TestSummary
 from .smooth_cycle import predicted_cycle
 
-__all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "route_note", "FALLBACK_WORDS", "FEW_DOF_WORDS"]
+__all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "route_note", "FALLBACK_WORDS", "FEW_DOF_WORDS", "SCALED_FEW_DOF_WORDS"]
 
 #: the harmonics each other test contributes to the held-out fit
 HELD_OUT_HARMONICS = (1, 3)
@@ -74,6 +74,10 @@ FALLBACK_WORDS = "from the other tests' fundamentals only"
 #: (worded without a pronoun for the prediction: held_out_notes joins one test's note and several tests')
 FEW_DOF_WORDS = ("std from the other tests' stated errors alone: their fit has too few figures beyond its "
                  "parameters to scale the std by their scatter")
+#: the note of such a prediction whose fit misses its points by more than their stated errors: the std is scaled by
+#: a scatter seen on too few figures to estimate it
+SCALED_FEW_DOF_WORDS = ("std scaled by the other tests' scatter seen on too few figures beyond their fit's "
+                        "parameters to estimate it")
 
 _Prediction = tuple[float, float]
 #: the points' fit is used only where they are one eq. (2) plant at this significance (chi-square test)
@@ -134,7 +138,7 @@ def _fallback(ho: HeldOut, why: str) -> HeldOut:
 def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint],
              n_h: int) -> tuple[_Prediction, _Prediction, str] | str:
     """The test's (frequency [Hz], amplitude), their std from the fit to ``points`` and a note qualifying the std
-    (``""`` or :data:`FEW_DOF_WORDS`), or why there is none."""
+    (``""``, :data:`FEW_DOF_WORDS` or :data:`SCALED_FEW_DOF_WORDS`), or why there is none."""
     if not points:
         return "no other test's response points"
     try:
@@ -175,8 +179,13 @@ def _predict(model: LoopModel, test: TestSummary, points: Sequence[ResponsePoint
         return "the fitted model has no limit cycle under this test's relay"
     var = np.einsum("ki,ij,kj->k", grad, cov, grad)
     # a chi-square on 1-2 degrees of freedom (a two-test flight: 4 figures for Td, tau, K) is one or two samples
-    # of the points' scatter: the std is not scaled by it, so it rests on their stated errors alone
-    note = f"{FEW_DOF_WORDS} ({dof} degree{'s' if dof > 1 else ''} of freedom)" if dof <= 2 else ""
+    # of the points' scatter: below 1 the covariance is not scaled by it (fit_covariance), so the std rests on
+    # their stated errors alone; above 1 it is scaled by that one or two samples
+    note = ""
+    if dof <= 2:
+        scaled = fit.chi2_dof is not None and fit.chi2_dof > 1.0
+        note = (f"{SCALED_FEW_DOF_WORDS if scaled else FEW_DOF_WORDS} ({dof} degree{'s' if dof > 1 else ''} "
+                "of freedom)")
     return centre, (math.sqrt(max(float(var[0]), 0.0)), math.sqrt(max(float(var[1]), 0.0))), note
 
 

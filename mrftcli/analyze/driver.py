@@ -166,7 +166,7 @@ def _analyze_eq2(flight: FlightLog, model: LoopModel, opts: AnalyzeOptions) -> A
         notes.insert(0, f"assumed: {lead_note(tau_est.value)}")
     held = held_out_harmonic(flight, model, screening.usable, held, opts.min_stable_cycles)
     if any(h.route == ROUTE_POINTS for h in held):
-        notes.append(route_note(wave.refinement is not None and wave.refinement.accepted))
+        notes.append(route_note(wave.method == "waveform"))
     usable, rejected = screening.usable, screening.rejected
     return _residual_worded(AnalysisResult(
         path=str(flight.path), loop=flight.loop, model=wave.model, tests=usable, rejected=rejected,

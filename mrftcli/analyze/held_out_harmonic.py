@@ -52,11 +52,12 @@ __all__ = ["held_out_harmonic", "HELD_OUT_HARMONICS", "ROUTE_NOTE", "route_note"
 
 #: the harmonics each other test contributes to the held-out fit
 HELD_OUT_HARMONICS = (1, 3)
-#: the analysis note saying which route made the held-out column (the reported model is the UFM's)
-ROUTE_NOTE = ("held out: each test predicted by eq. (2) fitted to the other tests' fundamental and 3rd-harmonic "
-              "response points (its std from that fit's covariance); the reported model is identified from "
-              "the tests' fundamentals (UFM/UGM), so the held-out checks the structure and the tests, not that "
-              "exact procedure")
+#: the analysis note naming the held-out route, ``{source}`` where the reported parameters come from
+_ROUTE_TEMPLATE = ("held out: each test predicted by eq. (2) fitted to the other tests' fundamental and 3rd-harmonic "
+                   "response points (its std from that fit's covariance); the reported model is identified from "
+                   "{source}, so the held-out checks the structure and the tests, not that exact procedure")
+#: the note when the reported model is the UFM's (the tests' fundamentals)
+ROUTE_NOTE = _ROUTE_TEMPLATE.format(source="the tests' fundamentals (UFM/UGM)")
 
 
 def route_note(refined: bool) -> str:
@@ -64,8 +65,7 @@ def route_note(refined: bool) -> str:
     ``refined`` True when they are the waveform refinement's (:data:`ROUTE_NOTE` otherwise)."""
     if not refined:
         return ROUTE_NOTE
-    return ROUTE_NOTE.replace("the tests' fundamentals (UFM/UGM)", "the waveform refinement (output error on the "
-                              "tests' windows)")
+    return _ROUTE_TEMPLATE.format(source="the waveform refinement (output error on the tests' windows)")
 
 
 #: how the note of a test predicted by the fundamentals' point solve begins

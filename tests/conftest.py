@@ -76,32 +76,10 @@ def mplcleanup():
 
 
 _T = TypeVar("_T")
-_CODE_DIGEST: list[str] = []
-
-
-def _code_digest() -> str:
-    """A hash of the package's and the scripts' sources: a code change (committed or not) invalidates the cache."""
-    if not _CODE_DIGEST:
-        h = hashlib.sha256()
-        for sub in ("mrftcli", "scripts"):
-            for p in sorted((REPO / sub).rglob("*.py")):
-                h.update(str(p.relative_to(REPO)).encode() + b"\0" + p.read_bytes())
-        _CODE_DIGEST.append(h.hexdigest()[:16])
-    return _CODE_DIGEST[0]
-
-
 @contextlib.contextmanager
 def _exclusive(lock: Path):
-    """One xdist worker at a time: ``filelock`` when installed, else a lock file created exclusively (another
-    worker waits for the result instead of computing it again; a lock older than 10 min is a dead worker's)."""
-    try:
-        from filelock import FileLock
-    except ImportError:
-        pass
-    else:
-        with FileLock(str(lock)):
-            yield
-        return
+    """One xdist worker at a time: a lock file created exclusively (another worker waits for the result instead
+    of computing it again; a lock older than 10 min is a dead worker's)."""
     while True:
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
@@ -142,14 +120,15 @@ class SharedResults:
 
     def get(self, kind: str, key: tuple[Any, ...], compute: Callable[[], Any], to_json: Callable[[Any], Any],
             from_json: Callable[[Any], _T]) -> _T:
-        """``from_json`` of ``to_json(compute())``, computed once per (kind, key, source code) in the session.
+        """``from_json`` of ``to_json(compute())``, computed once per (kind, key) in the session.
 
-        ``key`` holds everything the result depends on besides the code: the logs' :meth:`log_key` and the
-        exact options (their ``repr``).
+        ``key`` holds everything the result depends on besides the code (which a session does not change: the
+        cache's folder is the session's own, :func:`shared_results`): the logs' :meth:`log_key` and the exact
+        options (their ``repr``).
         """
         from mrftcli.jsonable import to_jsonable
 
-        digest = hashlib.sha256(repr((kind, key, _code_digest())).encode()).hexdigest()[:24]
+        digest = hashlib.sha256(repr((kind, key)).encode()).hexdigest()[:24]
         path = self.root / f"{kind}-{digest}.json"
         if path.exists():  # the common case: no lock needed (the file appears whole, by a rename)
             return from_json(json.loads(path.read_text()))

@@ -110,6 +110,9 @@ class DataflashSource(LogSource):
     def close(self) -> None:
         reader = getattr(self, "_reader", None)
         if reader is not None:
+            # the array over DFReader's memory map is an exported pointer: while it lives, the map (and the
+            # file under it) cannot close, and the file was left to the garbage collector (a ResourceWarning)
+            self._data = np.empty(0, dtype=np.uint8)
             with contextlib.suppress(Exception):
                 reader.close()
             self._reader = None
